@@ -1,0 +1,1 @@
+"""FLAAIR sensor front end: PVDF charge model, inverse sensor model, calibration."""
