@@ -1,0 +1,70 @@
+"""Where FLAAIR's configuration lives, and reading its ROS parameter files.
+
+`config/` in the repository is the single source of truth for every tunable number.
+Installed packages find it through FLAAIR_CONFIG_DIR (set by bin/flaair and
+scripts/in_env.sh), then through the source tree (symlink install), then through
+share/flaair_common/config (a plain `colcon build` on a stock ROS install).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing or malformed; the message names the file and key."""
+
+
+def config_dir() -> Path:
+    """Return the directory holding FLAAIR's YAML configuration."""
+    env = os.environ.get("FLAAIR_CONFIG_DIR")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve()
+    for parent in here.parents:
+        if (parent / "config" / "model.yaml").exists():
+            return parent / "config"
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("flaair_common")) / "config"
+    except Exception as exc:  # noqa: BLE001 - any lookup failure means "not found"
+        raise ConfigError("cannot find FLAAIR's config directory; set FLAAIR_CONFIG_DIR") from exc
+
+
+def load_yaml(path: Path) -> Any:
+    """Load a YAML file, naming the file in any error."""
+    try:
+        with open(path, encoding="utf-8") as handle:
+            return yaml.safe_load(handle)
+    except FileNotFoundError as exc:
+        raise ConfigError(f"{path}: file not found") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    if isinstance(value, dict):
+        for key, sub in value.items():
+            _flatten(f"{prefix}.{key}" if prefix else str(key), sub, out)
+    else:
+        out[prefix] = value
+
+
+def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
+    """Return the flattened `ros__parameters` of `node_name` in config/`file_name`.
+
+    Nested mappings become dotted names, as ROS 2 parameter files do.
+    """
+    path = config_dir() / file_name
+    document = load_yaml(path) or {}
+    for key in (node_name, f"/{node_name}", "/**"):
+        section = document.get(key)
+        if isinstance(section, dict) and "ros__parameters" in section:
+            out: dict[str, Any] = {}
+            _flatten("", section["ros__parameters"], out)
+            return out
+    raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")

@@ -1,0 +1,105 @@
+"""Declare a node's ROS parameters from a schema: descriptor, unit, range, default from config/.
+
+Each node lists its parameters once (name, type, unit, range, description); default values
+come from its file in config/, so no number is written twice. rclpy enforces the ranges
+and types both at start (overrides from --ros-args or --params-file) and at run time.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.node import Node
+
+from flaair_common.config import ConfigError, node_parameters
+
+_TYPES = {
+    float: ParameterType.PARAMETER_DOUBLE,
+    int: ParameterType.PARAMETER_INTEGER,
+    bool: ParameterType.PARAMETER_BOOL,
+    str: ParameterType.PARAMETER_STRING,
+}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter: name (unit in the name), type, description and allowed values."""
+
+    name: str
+    type: type
+    description: str
+    min_value: float | None = None
+    max_value: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        """The rcl_interfaces descriptor rclpy uses to validate and to describe."""
+        constraints = ""
+        if self.choices:
+            constraints = "one of: " + ", ".join(self.choices)
+        descriptor = ParameterDescriptor(
+            name=self.name,
+            type=_TYPES[self.type],
+            description=self.description,
+            additional_constraints=constraints,
+            read_only=self.read_only,
+        )
+        if self.min_value is not None or self.max_value is not None:
+            if self.type is float:
+                descriptor.floating_point_range = [
+                    FloatingPointRange(
+                        from_value=float(self.min_value if self.min_value is not None else -1e300),
+                        to_value=float(self.max_value if self.max_value is not None else 1e300),
+                        step=0.0,
+                    )
+                ]
+            elif self.type is int:
+                descriptor.integer_range = [
+                    IntegerRange(
+                        from_value=int(self.min_value if self.min_value is not None else -(2**62)),
+                        to_value=int(self.max_value if self.max_value is not None else 2**62),
+                        step=1,
+                    )
+                ]
+        return descriptor
+
+
+class ParameterError(ValueError):
+    """A parameter value was refused; the message names the parameter."""
+
+
+def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> dict[str, Any]:
+    """Declare every parameter of `specs` on `node`, defaults from config/`config_file`.
+
+    Returns the parameter values after overrides. Raises ParameterError naming the parameter
+    when a value is of the wrong type, out of range, or not one of the allowed choices.
+    """
+    try:
+        defaults = node_parameters(config_file, node.get_name())
+    except ConfigError as exc:
+        raise ParameterError(str(exc)) from exc
+    values: dict[str, Any] = {}
+    for spec in specs:
+        if spec.name not in defaults:
+            raise ParameterError(f"config/{config_file}: no default for parameter '{spec.name}'")
+        default = defaults[spec.name]
+        if spec.type is float and isinstance(default, int) and not isinstance(default, bool):
+            default = float(default)
+        try:
+            parameter = node.declare_parameter(spec.name, default, spec.descriptor())
+        except Exception as exc:  # rclpy raises several exception types here
+            raise ParameterError(f"parameter '{spec.name}' refused: {exc}") from exc
+        value = parameter.value
+        if spec.choices and value not in spec.choices:
+            raise ParameterError(
+                f"parameter '{spec.name}' = {value!r} is not one of {', '.join(spec.choices)}"
+            )
+        values[spec.name] = value
+    overrides = getattr(node, "_parameter_overrides", {}) or {}
+    unknown = sorted(set(overrides) - {s.name for s in specs} - {"use_sim_time"})
+    if unknown:
+        known = ", ".join(s.name for s in specs)
+        raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; this node takes: {known}")
+    return values

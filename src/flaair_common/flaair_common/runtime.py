@@ -1,0 +1,78 @@
+"""Run a FLAAIR node: parameter errors become one clear line, Ctrl-C and SIGTERM shut down cleanly."""
+from __future__ import annotations
+
+import signal
+import sys
+from typing import Callable
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from flaair_common.config import node_parameters
+from flaair_common.params import ParameterError, ParamSpec
+
+
+def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str) -> str:
+    """The node's --help: its docstring and a table of parameters with defaults and ranges."""
+    try:
+        defaults = node_parameters(config_file, node_name)
+    except ValueError:
+        defaults = {}
+    lines = [doc.strip(), "", f"Parameters (defaults from config/{config_file}; set with --ros-args -p NAME:=VALUE):"]
+    for spec in specs:
+        allowed = ""
+        if spec.choices:
+            allowed = " {" + "|".join(spec.choices) + "}"
+        elif spec.min_value is not None or spec.max_value is not None:
+            allowed = f" [{spec.min_value}, {spec.max_value}]"
+        lines.append(f"  {spec.name} ({spec.type.__name__}, default {defaults.get(spec.name)!r}){allowed}")
+        lines.append(f"      {spec.description}")
+    return "\n".join(lines)
+
+
+def run_node(
+    make_node: Callable[[], Node],
+    specs: list[ParamSpec],
+    config_file: str,
+    node_name: str,
+    args: list[str] | None = None,
+) -> int:
+    """Initialise rclpy, build the node, spin until shutdown; return a process exit code.
+
+    A refused parameter prints `<node>: <reason>` and returns 2. SIGINT and SIGTERM stop
+    spinning, call the node's `close()` if it has one (flush files, zero the drive), then
+    destroy the node and shut rclpy down.
+    """
+    args = sys.argv if args is None else args
+    if any(a in ("-h", "--help") for a in args[1:]) and "--ros-args" not in args:
+        print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file, node_name))
+        return 0
+    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node: Node | None = None
+    executor = SingleThreadedExecutor()
+
+    def _stop(signum: int, _frame: object) -> None:
+        rclpy.try_shutdown()
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    try:
+        node = make_node()
+    except ParameterError as exc:
+        print(f"{sys.argv[0].rsplit('/', 1)[-1]}: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        close = getattr(node, "close", None)
+        if callable(close):
+            close()
+        executor.remove_node(node)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -1,0 +1,65 @@
+"""The `flaair` command line (bin/flaair). Each subcommand lives in its own module with main(argv)."""
+from __future__ import annotations
+
+import importlib
+import sys
+
+# name -> (module, one-line help). `run` is handled by bin/flaair itself (it execs the node).
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "topic": ("flaair_tools.topic", "list, echo and publish topics (stands in for `ros2 topic`)"),
+    "simulate": ("flaair_sim.cli_simulate", "replay a measured run's drive through the model: CSV in, CSV out"),
+    "calibrate": ("flaair_tools.calibrate", "fit sensor gain and lag against ground truth in bags"),
+    "import": ("flaair_tools.import_runs", "turn lab CSV exports into a rosbag2 (MCAP) bag"),
+    "record": ("flaair_tools.recorder_node", "record flaair topics to a rosbag2 (MCAP) bag"),
+    "play": ("flaair_tools.player", "replay a bag onto its topics"),
+    "experiment": ("flaair_tools.experiment", "run a paper experiment on the simulated robot and record it"),
+    "analyze": ("flaair_tools.analyze", "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report"),
+    "discrepancy": ("flaair_tools.discrepancy", "find where model and measurement disagree and fix the model"),
+    "demo": ("flaair_tools.demo", "run every experiment, record bags, write the report"),
+}
+
+USAGE = """usage: bin/flaair <command> [args...]
+
+commands:
+  run <package> <executable> [--ros-args ...]   start a node, like `ros2 run`
+{commands}
+
+`bin/flaair <command> --help` explains each command."""
+
+
+def _usage() -> str:
+    available = []
+    for name, (module, text) in SUBCOMMANDS.items():
+        if importlib.util.find_spec(module.rsplit(".", 1)[0]) is None:
+            continue
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except ModuleNotFoundError:
+            found = False
+        if found:
+            available.append(f"  {name:44s} {text}")
+    return USAGE.format(commands="\n".join(available))
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("-h", "--help", "help"):
+        print(_usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in SUBCOMMANDS:
+        print(f"flaair: unknown command '{name}'\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module_name = SUBCOMMANDS[name][0]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and module_name.startswith(exc.name):
+            print(f"flaair: command '{name}' is not built yet", file=sys.stderr)
+            return 2
+        raise
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,97 @@
+"""`flaair topic`: list, echo and publish topics (ros2cli's `ros2 topic` is not installable here).
+
+Examples:
+  bin/flaair topic list
+  bin/flaair topic echo /flaair/wing_state --count 5
+  bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock '{"drive_v": [1.0, 2.0]}' --count 3
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import rclpy
+from rclpy.node import Node
+
+from flaair_common.msgdict import from_dict, message_class, to_dict
+from flaair_common.qos import BLOCK_STREAM
+
+
+def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for name, types in node.get_topic_names_and_types():
+            if name == topic and types:
+                return types[0]
+        rclpy.spin_once(node, timeout_sec=0.1)
+    raise SystemExit(f"flaair topic: no publisher of '{topic}' seen within {timeout_s:g} s; give its type explicitly")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="flaair topic", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="verb", required=True)
+    sub.add_parser("list", help="topics and their types")
+    echo = sub.add_parser("echo", help="print messages as JSON lines")
+    echo.add_argument("topic")
+    echo.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
+    echo.add_argument("--count", type=int, default=0, help="stop after N messages (0: forever)")
+    echo.add_argument("--timeout", type=float, default=0.0, help="give up after S seconds (0: never)")
+    pub = sub.add_parser("pub", help="publish a message given as JSON")
+    pub.add_argument("topic")
+    pub.add_argument("type")
+    pub.add_argument("values", help="JSON object of field values")
+    pub.add_argument("--count", type=int, default=1)
+    pub.add_argument("--rate", type=float, default=10.0, help="messages per second")
+    pub.add_argument("--wait-subscribers", type=int, default=0, help="wait for N subscribers first")
+    args = parser.parse_args(argv)
+
+    rclpy.init()
+    node = rclpy.create_node("flaair_topic")
+    try:
+        if args.verb == "list":
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            for name, types in sorted(node.get_topic_names_and_types()):
+                print(f"{name} [{', '.join(types)}]")
+            return 0
+        if args.verb == "echo":
+            type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
+            received = 0
+
+            def on_message(message: object) -> None:
+                nonlocal received
+                received += 1
+                print(json.dumps(to_dict(message)), flush=True)
+
+            node.create_subscription(message_class(type_name), args.topic, on_message, BLOCK_STREAM)
+            deadline = time.monotonic() + args.timeout if args.timeout else float("inf")
+            while (args.count == 0 or received < args.count) and time.monotonic() < deadline:
+                rclpy.spin_once(node, timeout_sec=0.05)
+            return 0 if (args.count == 0 or received >= args.count) else 1
+        cls = message_class(args.type)
+        try:
+            message = from_dict(cls, json.loads(args.values))
+        except (ValueError, TypeError, AssertionError) as exc:
+            print(f"flaair topic pub: {exc}", file=sys.stderr)
+            return 2
+        publisher = node.create_publisher(cls, args.topic, BLOCK_STREAM)
+        deadline = time.monotonic() + 10.0
+        while publisher.get_subscription_count() < args.wait_subscribers and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        for _ in range(args.count):
+            publisher.publish(message)
+            time.sleep(1.0 / args.rate)
+        time.sleep(0.5)  # let reliable delivery finish before the participant goes away
+        return 0
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

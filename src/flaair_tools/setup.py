@@ -1,0 +1,20 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "flaair_tools"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="FLAAIR developers",
+    maintainer_email="dev@flaair.dev",
+    description="FLAAIR tools: bag recorder/player/import, paper experiments, analysis report, model-vs-measurement discrepancy workflow, the flaair command line.",
+    license="Apache-2.0",
+    entry_points={"console_scripts": ['recorder_node = flaair_tools.recorder_node:main', 'player = flaair_tools.player:main', 'flaair = flaair_tools.cli:main']},
+)

@@ -1,0 +1,85 @@
+"""Start FLAAIR processes for tests over real DDS: isolated domain, localhost only, always cleaned up."""
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+_domain_counter = itertools.count()
+
+
+def isolated_env() -> dict[str, str]:
+    """Environment for one test: its own ROS_DOMAIN_ID (1..101) and loopback-only discovery."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(1 + (os.getpid() * 7 + next(_domain_counter)) % 101)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+class Processes:
+    """Processes started in their own process groups; stop() signals, waits, then kills."""
+
+    def __init__(self, env: dict[str, str]) -> None:
+        self.env = env
+        self.started: list[subprocess.Popen] = []
+
+    def start(self, *args: str, stdout: int | None = subprocess.PIPE) -> subprocess.Popen:
+        process = subprocess.Popen(
+            list(args), env=self.env, stdout=stdout, stderr=subprocess.PIPE, text=True,
+            start_new_session=True, cwd=REPO_ROOT,
+        )
+        self.started.append(process)
+        return process
+
+    def flaair(self, *args: str, **kwargs) -> subprocess.Popen:
+        return self.start(FLAAIR, *args, **kwargs)
+
+    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int:
+        if process.poll() is None:
+            try:
+                os.killpg(process.pid, sig)
+            except ProcessLookupError:
+                pass
+        try:
+            return process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            return process.wait()
+
+    def stop_all(self) -> None:
+        for process in self.started:
+            self.stop(process)
+
+
+@contextmanager
+def ros_processes() -> Iterator[Processes]:
+    """Yield a Processes group on a fresh isolated domain; every process is stopped on exit."""
+    group = Processes(isolated_env())
+    try:
+        yield group
+    finally:
+        group.stop_all()
+
+
+def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    """Run a command to completion in `env`, capturing output."""
+    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+
+
+def wait_for(predicate, timeout_s: float, interval_s: float = 0.05) -> bool:
+    """Poll `predicate` until true or timeout; return its last value."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval_s)
+    return bool(predicate())
