@@ -1,0 +1,448 @@
+"""Model parameters: nominal plant, sensors, noise and the optional effects.
+
+Frozen dataclasses, SI units, validated on construction (numpy only, no file I/O: see
+`model_io`). The numbers live in `config/model.yaml`; this module holds none of them.
+Effect parameter defaults are those fixed by docs/ARCHITECTURE.md.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass, fields, is_dataclass, replace
+from typing import Any, Mapping, Union
+
+from flaair_sensors.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
+
+__all__ = [
+    "EFFECT_NAMES",
+    "EFFECT_TYPES",
+    "CHANNELS",
+    "ModelError",
+    "PlantParams",
+    "SensorParams",
+    "NoiseParams",
+    "SensorDelay",
+    "ChargeAmpHighpass",
+    "Feedthrough",
+    "TransmissionNonlinearity",
+    "HingeStiffening",
+    "StructuralDamping",
+    "StrainTransferLoss",
+    "Collision",
+    "WingDamage",
+    "Effect",
+    "Model",
+    "effect_from_params",
+    "with_effects",
+    "without_effects",
+]
+
+CHANNELS = ("stroke", "pitch", "both")
+
+
+class ModelError(ValueError):
+    """Invalid model: the message names the offending parameter, key or section."""
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _number(where: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ModelError(f"{where} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ModelError(f"{where} must be finite, got {value}")
+    return value
+
+
+def _check(obj: object, prefix: str, rules: Mapping[str, str]) -> None:
+    """Coerce each float field to float and check it against its rule.
+
+    Rules: "pos" (> 0), "nonneg" (>= 0), "finite", "nonzero", "unit" (in (0, 1]).
+    """
+    for name, rule in rules.items():
+        where = f"{prefix}.{name}"
+        value = _number(where, getattr(obj, name))
+        if rule == "pos" and not value > 0:
+            raise ModelError(f"{where} must be > 0, got {value:g}")
+        if rule == "nonneg" and not value >= 0:
+            raise ModelError(f"{where} must be >= 0, got {value:g}")
+        if rule == "nonzero" and value == 0:
+            raise ModelError(f"{where} must be nonzero, got {value:g}")
+        if rule == "unit" and not 0 < value <= 1:
+            raise ModelError(f"{where} must be in (0, 1], got {value:g}")
+        object.__setattr__(obj, name, value)
+
+
+def _check_channel(obj: object, prefix: str) -> None:
+    channel = getattr(obj, "channel")
+    if channel not in CHANNELS:
+        raise ModelError(f"{prefix}.channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
+
+
+# --------------------------------------------------------------------------- nominal model
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Stroke and passive-pitch dynamics (shared/model-spec.md, section Dynamics)."""
+
+    stroke_inertia_kg_m2: float
+    stroke_natural_frequency_hz: float
+    aero_damping_nm_s2: float
+    actuator_gain_nm_per_v: float
+    pitch_inertia_kg_m2: float
+    pitch_natural_frequency_hz: float
+    hinge_damping_nm_s_per_rad: float
+    inertial_coupling_kg_m2: float
+    aero_coupling_nm_s2: float
+    transmission_ratio_rad_per_m: float
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            "plant",
+            {
+                "stroke_inertia_kg_m2": "pos",
+                "stroke_natural_frequency_hz": "pos",
+                "aero_damping_nm_s2": "nonneg",
+                "actuator_gain_nm_per_v": "nonzero",
+                "pitch_inertia_kg_m2": "pos",
+                "pitch_natural_frequency_hz": "pos",
+                "hinge_damping_nm_s_per_rad": "nonneg",
+                "inertial_coupling_kg_m2": "finite",
+                "aero_coupling_nm_s2": "finite",
+                "transmission_ratio_rad_per_m": "pos",
+            },
+        )
+
+    @property
+    def stroke_stiffness_nm_per_rad(self) -> float:
+        """K = I (2 pi f_stroke)^2."""
+        return self.stroke_inertia_kg_m2 * (2.0 * math.pi * self.stroke_natural_frequency_hz) ** 2
+
+    @property
+    def hinge_stiffness_nm_per_rad(self) -> float:
+        """k_h = I_p (2 pi f_pitch)^2."""
+        return self.pitch_inertia_kg_m2 * (2.0 * math.pi * self.pitch_natural_frequency_hz) ** 2
+
+
+_MATERIAL_RULES = {f.name: "pos" for f in fields(PvdfMaterial)}
+_BEAM_RULES = {f.name: "pos" for f in fields(SensorBeam)}
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Charge-amplifier reference and the two PVDF beams (paper Table 1)."""
+
+    reference_voltage_v: float
+    pvdf: PvdfMaterial
+    stroke: SensorBeam
+    pitch: SensorBeam
+
+    def __post_init__(self) -> None:
+        _check(self, "sensors", {"reference_voltage_v": "finite"})
+        for section, obj, kind, rules in (
+            ("pvdf", self.pvdf, PvdfMaterial, _MATERIAL_RULES),
+            ("stroke", self.stroke, SensorBeam, _BEAM_RULES),
+            ("pitch", self.pitch, SensorBeam, _BEAM_RULES),
+        ):
+            if not isinstance(obj, kind):
+                raise ModelError(f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
+            # PvdfMaterial/SensorBeam are frozen dataclasses owned by pvdf.py: check, don't coerce
+            values = {name: _number(f"sensors.{section}.{name}", getattr(obj, name)) for name in rules}
+            for name, value in values.items():
+                if not value > 0:
+                    raise ModelError(f"sensors.{section}.{name} must be > 0, got {value:g}")
+            object.__setattr__(self, section, replace(obj, **values))
+
+    def stroke_volts_per_rad(self, transmission_ratio_rad_per_m: float) -> float:
+        """Signed actuator-sensor output per radian of stroke (needs T_r from the plant).
+
+        Use `Model.stroke_volts_per_rad` when a whole model is at hand.
+        """
+        return stroke_volts_per_rad(self.pvdf, self.stroke, transmission_ratio_rad_per_m)
+
+    @property
+    def pitch_volts_per_rad(self) -> float:
+        """Signed hinge-sensor output per radian of pitch."""
+        return pitch_volts_per_rad(self.pvdf, self.pitch)
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Noise added only on request (synthetic measured data)."""
+
+    sensor_noise_v_rms: float
+    tracking_noise_deg_rms: float
+
+    def __post_init__(self) -> None:
+        _check(self, "noise", {"sensor_noise_v_rms": "nonneg", "tracking_noise_deg_rms": "nonneg"})
+
+
+# --------------------------------------------------------------------------- effects
+
+
+@dataclass(frozen=True)
+class SensorDelay:
+    """Pure delay of the sensor voltage; fractional samples by linear interpolation."""
+
+    delay_s: float
+    channel: str = "both"
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.sensor_delay", {"delay_s": "nonneg"})
+        _check_channel(self, "effects.sensor_delay")
+
+
+@dataclass(frozen=True)
+class ChargeAmpHighpass:
+    """First-order high-pass (bilinear) of the charge-amplifier output about V_HREF."""
+
+    corner_hz: float
+    channel: str = "both"
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.charge_amp_highpass", {"corner_hz": "pos"})
+        _check_channel(self, "effects.charge_amp_highpass")
+
+
+@dataclass(frozen=True)
+class Feedthrough:
+    """Drive voltage added to the stroke-sensor output: gain * V."""
+
+    gain_v_per_v: float
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.feedthrough", {"gain_v_per_v": "finite"})
+
+
+@dataclass(frozen=True)
+class TransmissionNonlinearity:
+    """Actuator sensor sees delta_a = (phi + c phi^3) / T_r; the dynamics are unchanged."""
+
+    cubic_per_rad2: float
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.transmission_nonlinearity", {"cubic_per_rad2": "finite"})
+
+
+@dataclass(frozen=True)
+class HingeStiffening:
+    """Hinge torque k_h (psi + c psi^3)."""
+
+    cubic_per_rad2: float
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.hinge_stiffening", {"cubic_per_rad2": "finite"})
+
+
+@dataclass(frozen=True)
+class StructuralDamping:
+    """Viscous stroke damping 2 zeta sqrt(K I) (nominal I, so independent of wing_damage)."""
+
+    damping_ratio: float
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.structural_damping", {"damping_ratio": "nonneg"})
+
+
+@dataclass(frozen=True)
+class StrainTransferLoss:
+    """Sensor film sees `efficiency` x beam strain: the voltage deviation is scaled."""
+
+    efficiency: float
+    channel: str = "pitch"
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.strain_transfer_loss", {"efficiency": "unit"})
+        _check_channel(self, "effects.strain_transfer_loss")
+
+
+@dataclass(frozen=True)
+class Collision:
+    """One-sided stiff spring-damper stop when stroke exceeds `stroke_limit_deg`.
+
+    Contact stiffness = ratio x K; contact damping = 2 zeta sqrt(k_c I) (nominal I).
+    The contact only pushes (no sticking).
+    """
+
+    stroke_limit_deg: float
+    contact_stiffness_ratio: float = 50.0
+    contact_damping_ratio: float = 0.2
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            "effects.collision",
+            {"stroke_limit_deg": "finite", "contact_stiffness_ratio": "pos", "contact_damping_ratio": "nonneg"},
+        )
+
+
+@dataclass(frozen=True)
+class WingDamage:
+    """Stroke and pitch inertia scaled by `inertia_factor`; stiffnesses (and J_c) unchanged."""
+
+    inertia_factor: float
+
+    def __post_init__(self) -> None:
+        _check(self, "effects.wing_damage", {"inertia_factor": "unit"})
+
+
+Effect = Union[
+    SensorDelay,
+    ChargeAmpHighpass,
+    Feedthrough,
+    TransmissionNonlinearity,
+    HingeStiffening,
+    StructuralDamping,
+    StrainTransferLoss,
+    Collision,
+    WingDamage,
+]
+
+EFFECT_TYPES: dict[str, type] = {
+    "sensor_delay": SensorDelay,
+    "charge_amp_highpass": ChargeAmpHighpass,
+    "feedthrough": Feedthrough,
+    "transmission_nonlinearity": TransmissionNonlinearity,
+    "hinge_stiffening": HingeStiffening,
+    "structural_damping": StructuralDamping,
+    "strain_transfer_loss": StrainTransferLoss,
+    "collision": Collision,
+    "wing_damage": WingDamage,
+}
+EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
+
+
+def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, None]) -> Effect:
+    """Build (and validate) one effect from its name and a parameter dict or dataclass.
+
+    Raises
+    ------
+    ModelError
+        Unknown effect name, unknown or missing parameter, bad value.
+    """
+    if name not in EFFECT_TYPES:
+        raise ModelError(f"effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+    kind = EFFECT_TYPES[name]
+    if is_dataclass(params) and not isinstance(params, type):
+        if not isinstance(params, kind):
+            raise ModelError(f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
+        return params
+    if params is None:
+        params = {}
+    if not isinstance(params, Mapping):
+        raise ModelError(f"effects.{name} must be a mapping of parameters, got {type(params).__name__}")
+    known = {f.name for f in fields(kind)}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise ModelError(f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} (known: {', '.join(sorted(known))})")
+    try:
+        return kind(**params)
+    except TypeError as exc:
+        required = [f.name for f in fields(kind) if f.name not in params]
+        raise ModelError(f"effects.{name}: missing parameter(s) {', '.join(required)}") from exc
+
+
+# --------------------------------------------------------------------------- model
+
+
+@dataclass(frozen=True)
+class Model:
+    """Whole model: nominal plant, sensors, noise and the effects that are on.
+
+    `effects` is a tuple of (name, effect) pairs, stored in `EFFECT_NAMES` order so that two
+    models with the same effects compare equal. A mapping is accepted and converted.
+    """
+
+    plant: PlantParams
+    sensors: SensorParams
+    noise: NoiseParams
+    effects: tuple[tuple[str, Effect], ...] = ()
+
+    def __post_init__(self) -> None:
+        for section, kind in (("plant", PlantParams), ("sensors", SensorParams), ("noise", NoiseParams)):
+            if not isinstance(getattr(self, section), kind):
+                raise ModelError(f"{section} must be a {kind.__name__}, got {type(getattr(self, section)).__name__}")
+        raw = self.effects
+        if isinstance(raw, Mapping):
+            pairs = list(raw.items())
+        else:
+            pairs = []
+            for item in raw:
+                if not (isinstance(item, tuple) and len(item) == 2):
+                    raise ModelError(f"effects must be (name, effect) pairs, got {item!r}")
+                pairs.append(item)
+        built: dict[str, Effect] = {}
+        for name, params in pairs:
+            if name in built:
+                raise ModelError(f"effects.{name} given twice")
+            built[name] = effect_from_params(name, params)
+        object.__setattr__(self, "effects", tuple((n, built[n]) for n in EFFECT_NAMES if n in built))
+
+    def effect(self, name: str) -> Effect | None:
+        """The effect called `name` if it is on, else None (unknown names raise ModelError)."""
+        if name not in EFFECT_TYPES:
+            raise ModelError(f"effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
+        for n, e in self.effects:
+            if n == name:
+                return e
+        return None
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the effects that are on."""
+        return tuple(n for n, _ in self.effects)
+
+    @property
+    def stroke_volts_per_rad(self) -> float:
+        """Nominal signed stroke-sensor gain dV_s/dphi (effects not included)."""
+        return self.sensors.stroke_volts_per_rad(self.plant.transmission_ratio_rad_per_m)
+
+    @property
+    def pitch_volts_per_rad(self) -> float:
+        """Nominal signed pitch-sensor gain dV_p/dpsi (effects not included)."""
+        return self.sensors.pitch_volts_per_rad
+
+    @property
+    def stroke_gain_deg_per_v(self) -> float:
+        """Nominal stroke gain as a positive magnitude in deg/V (paper convention)."""
+        return math.degrees(1.0 / abs(self.stroke_volts_per_rad))
+
+    @property
+    def pitch_gain_deg_per_v(self) -> float:
+        """Nominal pitch gain as a positive magnitude in deg/V (paper convention)."""
+        return math.degrees(1.0 / abs(self.pitch_volts_per_rad))
+
+    @property
+    def stroke_polarity(self) -> int:
+        """Sign of the stroke gain: angle = polarity * gain * (V - V_HREF)."""
+        return 1 if self.stroke_volts_per_rad > 0 else -1
+
+    @property
+    def pitch_polarity(self) -> int:
+        """Sign of the pitch gain: angle = polarity * gain * (V - V_HREF)."""
+        return 1 if self.pitch_volts_per_rad > 0 else -1
+
+
+def with_effects(model: Model, effects: Mapping[str, Union[Mapping[str, Any], Effect]]) -> Model:
+    """Model with the given effects added (replacing any of the same name).
+
+    Parameters
+    ----------
+    model
+        Base model.
+    effects
+        {name: parameter dict or effect dataclass}.
+    """
+    merged: dict[str, Any] = dict(model.effects)
+    for name, params in effects.items():
+        merged[name] = effect_from_params(name, params)
+    return replace(model, effects=tuple(merged.items()))
+
+
+def without_effects(model: Model) -> Model:
+    """The nominal model: the same plant, sensors and noise with every effect off."""
+    return replace(model, effects=())

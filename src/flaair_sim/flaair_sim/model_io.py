@@ -1,0 +1,157 @@
+"""YAML I/O for `flaair_sim.model.Model` (the layout of config/model.yaml).
+
+`model_to_dict` and `model_from_dict` round-trip exactly; unknown sections or keys are refused
+with a `ModelError` that names them.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import fields
+from pathlib import Path
+from typing import Any, Mapping, Union
+
+import yaml
+
+from flaair_sensors.pvdf import PvdfMaterial, SensorBeam
+
+from .model import (
+    EFFECT_TYPES,
+    Model,
+    ModelError,
+    NoiseParams,
+    PlantParams,
+    SensorParams,
+    effect_from_params,
+)
+
+__all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict", "save_model"]
+
+CONFIG_DIR_ENV = "FLAAIR_CONFIG_DIR"
+_MODEL_FILE = "model.yaml"
+_SECTIONS = ("plant", "sensors", "noise", "effects")
+_SENSOR_KEYS = ("reference_voltage_v", "pvdf", "stroke", "pitch")
+
+
+def default_model_path() -> Path:
+    """`$FLAAIR_CONFIG_DIR/model.yaml`, else the first `config/model.yaml` walking up from here.
+
+    Raises
+    ------
+    FileNotFoundError
+        If neither exists.
+    """
+    env = os.environ.get(CONFIG_DIR_ENV)
+    if env:
+        path = Path(env) / _MODEL_FILE
+        if not path.is_file():
+            raise FileNotFoundError(f"{CONFIG_DIR_ENV}={env} has no {_MODEL_FILE}")
+        return path
+    for parent in Path(__file__).resolve().parents:
+        path = parent / "config" / _MODEL_FILE
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"no config/{_MODEL_FILE} above {Path(__file__).resolve()}; set {CONFIG_DIR_ENV}")
+
+
+def _mapping(where: str, value: Any) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise ModelError(f"{where} must be a mapping, got {type(value).__name__}")
+    return value
+
+
+def _coerce(value: Any) -> Any:
+    # YAML 1.1 reads "1e-11" (no dot) as a string: accept numeric strings as numbers.
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+def _build(kind: type, where: str, raw: Any) -> Any:
+    raw = _mapping(where, raw)
+    names = [f.name for f in fields(kind)]
+    unknown = sorted(set(raw) - set(names))
+    if unknown:
+        raise ModelError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}")
+    missing = [n for n in names if n not in raw]
+    if missing:
+        raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
+    return kind(**{n: _coerce(raw[n]) for n in names})
+
+
+def model_from_dict(d: Mapping[str, Any]) -> Model:
+    """Model from the nested dict layout of config/model.yaml.
+
+    Raises
+    ------
+    ModelError
+        Missing or unknown section/key, or an invalid value (the message names it).
+    """
+    d = _mapping("model", d)
+    unknown = sorted(set(d) - set(_SECTIONS))
+    if unknown:
+        raise ModelError(f"model: unknown section(s) {', '.join(map(str, unknown))}")
+    missing = [s for s in ("plant", "sensors", "noise") if s not in d]
+    if missing:
+        raise ModelError(f"model: missing section(s) {', '.join(missing)}")
+    plant = _build(PlantParams, "plant", d["plant"])
+    sensors_raw = _mapping("sensors", d["sensors"])
+    unknown = sorted(set(sensors_raw) - set(_SENSOR_KEYS))
+    if unknown:
+        raise ModelError(f"sensors: unknown key(s) {', '.join(map(str, unknown))}")
+    missing = [k for k in _SENSOR_KEYS if k not in sensors_raw]
+    if missing:
+        raise ModelError(f"sensors: missing key(s) {', '.join(missing)}")
+    sensors = SensorParams(
+        reference_voltage_v=_coerce(sensors_raw["reference_voltage_v"]),
+        pvdf=_build(PvdfMaterial, "sensors.pvdf", sensors_raw["pvdf"]),
+        stroke=_build(SensorBeam, "sensors.stroke", sensors_raw["stroke"]),
+        pitch=_build(SensorBeam, "sensors.pitch", sensors_raw["pitch"]),
+    )
+    noise = _build(NoiseParams, "noise", d["noise"])
+    effects_raw = d.get("effects") or {}
+    effects_raw = _mapping("effects", effects_raw)
+    effects = []
+    for name, params in effects_raw.items():
+        params = {k: _coerce(v) for k, v in _mapping(f"effects.{name}", params or {}).items()} if name in EFFECT_TYPES else params
+        effects.append((name, effect_from_params(name, params)))
+    return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects))
+
+
+def _as_dict(obj: Any) -> dict[str, Any]:
+    return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+
+def model_to_dict(m: Model) -> dict[str, Any]:
+    """Nested dict in the layout of config/model.yaml; effects as {name: {param: value}}."""
+    return {
+        "plant": _as_dict(m.plant),
+        "sensors": {
+            "reference_voltage_v": m.sensors.reference_voltage_v,
+            "pvdf": _as_dict(m.sensors.pvdf),
+            "stroke": _as_dict(m.sensors.stroke),
+            "pitch": _as_dict(m.sensors.pitch),
+        },
+        "noise": _as_dict(m.noise),
+        "effects": {name: _as_dict(effect) for name, effect in m.effects},
+    }
+
+
+def load_model(path: Union[str, Path, None] = None) -> Model:
+    """Read a model YAML file (None: the default config, see `default_model_path`)."""
+    path = default_model_path() if path is None else Path(path)
+    with open(path, encoding="utf-8") as fh:
+        data = yaml.safe_load(fh)
+    if data is None:
+        raise ModelError(f"{path}: empty model file")
+    return model_from_dict(data)
+
+
+def save_model(m: Model, path: Union[str, Path]) -> None:
+    """Write a model in the config/model.yaml layout (loads back equal)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = yaml.safe_dump(model_to_dict(m), sort_keys=False, default_flow_style=False)
+    path.write_text("# FLAAIR plant and sensor model (flaair_sim.model_io.save_model)\n" + text, encoding="utf-8")
