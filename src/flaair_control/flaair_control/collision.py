@@ -63,8 +63,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 # Wingbeat status codes.
@@ -320,23 +322,132 @@ def _cycle_start(k: int, p: MonitorParams) -> int:
     return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / p.drive_frequency_hz - 1e-9))
 
 
-def _fit(x: np.ndarray, omega_per_sample: float) -> tuple[float, float, float]:
-    """(amplitude, residual rms, mean) of the fit [1, t, cos, sin] over one window."""
-    n = x.size
+@lru_cache(maxsize=256)
+def _projector(n: int, omega_per_sample: float) -> tuple[np.ndarray, np.ndarray]:
+    """Basis [1, t, cos, sin] over n samples and its pseudo-inverse (cached)."""
     idx = np.arange(n, dtype=float)
     tn = (idx - 0.5 * (n - 1)) / max(0.5 * (n - 1), 1.0)
     ph = omega_per_sample * idx
-    basis = np.column_stack([np.ones(n), tn, np.cos(ph), np.sin(ph)])
-    coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
-    resid = x - basis @ coef
-    return float(np.hypot(coef[2], coef[3])), float(np.sqrt(np.mean(resid * resid))), float(coef[0])
+    basis = np.ascontiguousarray(np.column_stack([np.ones(n), tn, np.cos(ph), np.sin(ph)]))
+    return basis, np.ascontiguousarray(np.linalg.pinv(basis))
 
 
-def _distortion(amp: float, resid_rms: float, noise_rms: float) -> float:
-    if amp <= 0.0:
-        return math.inf
-    d2 = (resid_rms * resid_rms - noise_rms * noise_rms) / (0.5 * amp * amp)
-    return math.sqrt(max(d2, 0.0))
+@numba.njit(cache=True)
+def _fit_rows(segments, basis, pinv):  # pragma: no cover - numba
+    """Per row: fundamental amplitude and residual rms (fixed summation order, so the result of
+    a window never depends on which other windows share the batch)."""
+    m, n = segments.shape
+    amp = np.empty(m)
+    rms = np.empty(m)
+    nb = basis.shape[1]
+    coef = np.empty(nb)
+    for r in range(m):
+        for j in range(nb):
+            acc = 0.0
+            for i in range(n):
+                acc += pinv[j, i] * segments[r, i]
+            coef[j] = acc
+        ss = 0.0
+        for i in range(n):
+            fit = 0.0
+            for j in range(nb):
+                fit += basis[i, j] * coef[j]
+            e = segments[r, i] - fit
+            ss += e * e
+        amp[r] = math.sqrt(coef[2] * coef[2] + coef[3] * coef[3])
+        rms[r] = math.sqrt(ss / n)
+    return amp, rms
+
+
+def _fit_many(segments: np.ndarray, omega_per_sample: float) -> tuple[np.ndarray, np.ndarray]:
+    """(fundamental amplitude, residual rms) of each row of ``segments`` (m, n)."""
+    basis, pinv = _projector(segments.shape[1], float(omega_per_sample))
+    return _fit_rows(np.ascontiguousarray(segments), basis, pinv)
+
+
+def _distortion(amp: np.ndarray, resid_rms: np.ndarray, noise_rms: float) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = (resid_rms * resid_rms - noise_rms * noise_rms) / (0.5 * amp * amp)
+    return np.where(amp > 0, np.sqrt(np.maximum(d2, 0.0)), np.inf)
+
+
+def _drive_windows(st: MonitorState, n_avail: int, base: int, p: MonitorParams):
+    """Closed drive-locked windows [(start, end, omega, idle)] (relative to base) and new state."""
+    wins = []
+    k = st.window_index
+    pos = 0
+    synced = st.synced
+    omega = 2 * math.pi * p.drive_frequency_hz / p.sample_rate_hz
+    while True:
+        end = _cycle_start(k + 1, p) - base
+        if end > n_avail:
+            break
+        if synced:
+            wins.append((pos, end, omega, False))
+        synced = True
+        pos = end
+        k += 1
+    return wins, pos, st._replace(window_index=k, synced=synced)
+
+
+@numba.njit(cache=True)
+def _schmitt_scan(xs, i0, high, center, synced, min_len, max_len, h):  # pragma: no cover - numba
+    """Sample-by-sample Schmitt-trigger window finder (see ``_stroke_windows``)."""
+    n = xs.shape[0]
+    cap = n // 4 + 2
+    starts = np.empty(cap, np.int64)
+    ends = np.empty(cap, np.int64)
+    idles = np.empty(cap, np.bool_)
+    m = 0
+    pos = 0
+    for i in range(i0, n):
+        v = xs[i] - center
+        boundary = False
+        if high:
+            if v < -h:
+                high = False
+        elif v > h:
+            high = True
+            boundary = (i - pos) >= min_len
+        if boundary or (i - pos) >= max_len:
+            idle = not boundary
+            if synced or idle:
+                starts[m] = pos
+                ends[m] = i
+                idles[m] = idle
+                m += 1
+            total = 0.0
+            count = 0
+            for j in range(pos, i):
+                if np.isfinite(xs[j]):
+                    total += xs[j]
+                    count += 1
+            if count > 0:
+                center = total / count
+            synced = boundary
+            pos = i
+    return starts[:m], ends[:m], idles[:m], pos, high, center, synced
+
+
+def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
+    """Closed stroke-locked windows [(start, end, omega, idle)] (relative to xs) and new state.
+
+    Sample by sample: the trigger goes low below centre - h and high above centre + h; an upward
+    switch at least min_period after the window start closes the window there (the next one
+    starts at that sample); a window reaching max_period is closed as IDLE (not flapping). The
+    centre is the mean of the previous window. The partial window before the first switch is
+    dropped.
+    """
+    fs = p.sample_rate_hz
+    min_len = max(int(round(p.min_period_s * fs)), 4)
+    max_len = int(round(p.max_period_s * fs))
+    starts, ends, idles, pos, high, center, synced = _schmitt_scan(
+        np.ascontiguousarray(xs, dtype=np.float64), int(st.scan_index), bool(st.schmitt_high),
+        float(st.center_rad), bool(st.synced), min_len, max_len, float(p.crossing_hysteresis_rad))
+    wins = [(int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b, c in zip(starts, ends, idles)]
+    new = st._replace(schmitt_high=bool(high), center_rad=float(center), synced=bool(synced),
+                      scan_index=int(xs.size - pos))
+    return wins, int(pos), new
 
 
 def step(
@@ -354,91 +465,67 @@ def step(
             f"stroke_rad and pitch_rad must have the same length, got {s_in.size} and {p_in.size}"
         )
     if not params.use_pitch:
-        p_in = np.where(np.isfinite(p_in), p_in, 0.0)
+        p_in = np.zeros_like(p_in)
     xs = np.concatenate([state.tail_stroke_rad, s_in])
     xp = np.concatenate([state.tail_pitch_rad, p_in])
     base = state.tail_start_index
-    fs = params.sample_rate_hz
+    if params.window_source == "drive":
+        wins, pos, st = _drive_windows(state, xs.size, base, params)
+    else:
+        wins, pos, st = _stroke_windows(state, xs, params)
+    feats = _features(xs, xp, wins, params)
     rows: list[tuple] = []
     events: list[MonitorEvent] = []
-    st = state
-    pos = 0  # start of the open window within xs
-    if params.window_source == "drive":
-        k = st.window_index
-        while True:
-            end = _cycle_start(k + 1, params) - base
-            if end > xs.size:
-                break
-            if st.synced:
-                st, row, ev = _close(st, xs[pos:end], xp[pos:end], base + pos, base + end,
-                                     2 * math.pi * params.drive_frequency_hz / fs, params)
-                rows.append(row)
-                events.extend(ev)
-            st = st._replace(synced=True)
-            pos = end
-            k += 1
-        st = st._replace(window_index=k)
-        scan = 0
-    else:
-        high = st.schmitt_high
-        scan = st.scan_index
-        min_len = max(int(round(params.min_period_s * fs)), 4)
-        max_len = int(round(params.max_period_s * fs))
-        h = params.crossing_hysteresis_rad
-        i = scan
-        while i < xs.size:
-            v = xs[i] - st.center_rad
-            boundary = False
-            if high:
-                if v < -h:
-                    high = False
-            elif v > h:
-                high = True
-                boundary = (i - pos) >= min_len
-            if boundary or (i - pos) >= max_len:
-                idle = not boundary
-                seg_s, seg_p = xs[pos:i], xp[pos:i]
-                if st.synced or idle:
-                    st, row, ev = _close(st, seg_s, seg_p, base + pos, base + i,
-                                         2 * math.pi / (i - pos), params, force_idle=idle)
-                    rows.append(row)
-                    events.extend(ev)
-                finite = np.isfinite(seg_s)
-                if np.any(finite):
-                    st = st._replace(center_rad=float(np.mean(seg_s[finite])))
-                st = st._replace(synced=boundary)
-                pos = i
-            i += 1
-        st = st._replace(schmitt_high=high)
-        scan = xs.size - pos
-    st = st._replace(
-        tail_stroke_rad=xs[pos:].copy(),
-        tail_pitch_rad=xp[pos:].copy(),
-        tail_start_index=base + pos,
-        scan_index=scan,
-    )
+    for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats):
+        st, row, ev = _decide(st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p, score, params)
+        rows.append(row)
+        events.extend(ev)
+    st = st._replace(tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(), tail_start_index=base + pos)
     return st, _report(rows), events
 
 
-def _close(st: MonitorState, xs: np.ndarray, xp: np.ndarray, start: int, end: int, omega: float,
-           p: MonitorParams, force_idle: bool = False) -> tuple[MonitorState, tuple, list[MonitorEvent]]:
+def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> list[tuple]:
+    """Per window: (A_stroke, A_pitch, d_stroke, d_pitch, score, usable); fits batched by length."""
+    out: list[tuple] = [None] * len(wins)  # type: ignore[list-item]
+    groups: dict[tuple[int, float], list[int]] = {}
+    for w, (start, end, omega, _) in enumerate(wins):
+        n = end - start
+        if n < 8 or not (np.all(np.isfinite(xs[start:end])) and np.all(np.isfinite(xp[start:end]))):
+            out[w] = (math.nan,) * 5 + (False,)
+            continue
+        groups.setdefault((n, omega), []).append(w)
+    for (n, omega), members in groups.items():
+        seg_s = np.stack([xs[wins[w][0]:wins[w][1]] for w in members])
+        seg_p = np.stack([xp[wins[w][0]:wins[w][1]] for w in members])
+        a_s, r_s = _fit_many(seg_s, omega)
+        d_s = _distortion(a_s, r_s, p.stroke_noise_rms_rad)
+        if p.use_pitch:
+            a_p, r_p = _fit_many(seg_p, omega)
+            d_p = _distortion(a_p, r_p, p.pitch_noise_rms_rad)
+            score = np.maximum(d_s / p.stroke_threshold, d_p / p.pitch_threshold)
+        else:
+            a_p = np.zeros(len(members))
+            d_p = np.zeros(len(members))
+            score = d_s / p.stroke_threshold
+        for j, w in enumerate(members):
+            out[w] = (float(a_s[j]), float(a_p[j]), float(d_s[j]), float(d_p[j]), float(score[j]), True)
+    return out
+
+
+def _decide(st: MonitorState, start: int, end: int, omega: float, idle: bool, ok: bool,
+            a_s: float, a_p: float, d_s: float, d_p: float, score: float,
+            p: MonitorParams) -> tuple[MonitorState, tuple, list[MonitorEvent]]:
+    """Hysteresis decision for one closed wingbeat."""
     fs = p.sample_rate_hz
-    n = xs.size
     freq = omega * fs / (2 * math.pi)
     wingbeat = st.wingbeats_seen
     events: list[MonitorEvent] = []
-    if n < 8 or not (np.all(np.isfinite(xs)) and np.all(np.isfinite(xp))):
-        row = (wingbeat, start, end, end / fs, freq, math.nan, math.nan, math.nan, math.nan, math.nan, INVALID)
-        return st._replace(wingbeats_seen=wingbeat + 1), row, events
-    a_s, r_s, _ = _fit(xs, omega)
-    a_p, r_p, _ = _fit(xp, omega)
-    d_s = _distortion(a_s, r_s, p.stroke_noise_rms_rad)
-    d_p = _distortion(a_p, r_p, p.pitch_noise_rms_rad) if p.use_pitch else 0.0
-    score = max(d_s / p.stroke_threshold, d_p / p.pitch_threshold if p.use_pitch else 0.0)
     in_coll, above, below = st.in_collision, st.above_count, st.below_count
-    if wingbeat < p.arm_wingbeats:
+    if not ok:
+        status = INVALID
+    elif wingbeat < p.arm_wingbeats:
         status = ARMING
-    elif force_idle or a_s < p.min_amplitude_rad:
+    elif idle or a_s < p.min_amplitude_rad:
         status = IDLE
         above, below = 0, below + 1
     else:
@@ -448,16 +535,16 @@ def _close(st: MonitorState, xs: np.ndarray, xp: np.ndarray, start: int, end: in
             above, below = 0, below + 1
         else:  # inside the hysteresis band: hold
             above, below = 0, 0
-        status = COLLISION if in_coll else CLEAR
-    if status != ARMING:
+        status = CLEAR
+    if status in (CLEAR, IDLE):
         if not in_coll and above >= p.n_on:
             in_coll = True
             events.append(MonitorEvent(ONSET, wingbeat, end, end / fs, score))
         elif in_coll and below >= p.n_off:
             in_coll = False
             events.append(MonitorEvent(CLEARANCE, wingbeat, end, end / fs, score))
-        if status != IDLE:
-            status = COLLISION if in_coll else CLEAR
+        if status == CLEAR and in_coll:
+            status = COLLISION
     row = (wingbeat, start, end, end / fs, freq, a_s, a_p, d_s, d_p, score, status)
     return st._replace(wingbeats_seen=wingbeat + 1, in_collision=in_coll, above_count=above,
                        below_count=below), row, events

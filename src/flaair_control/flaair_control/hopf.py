@@ -218,20 +218,20 @@ def onset_with_delay(
     wn = plant.natural_frequency_rad_s
     w_hi = omega_max_rad_s if omega_max_rad_s is not None else 6.0 * max(wn, math.sqrt(b))
 
-    def c_of(w: float) -> complex:
-        s = 1j * w
+    def c_of(w):
+        s = 1j * np.asarray(w, dtype=float)
         p = i * s * s + cs * s + k
         q = s * s + a * s + b
         d = np.exp(-s * delay_s) * phase_advance(s, advance_s, wc)
         return -p * q / (s * d)
 
     grid = np.linspace(1e-3 * w_hi, w_hi, 20000)
-    im = np.array([c_of(w).imag for w in grid])
+    im = c_of(grid).imag
     scale = i * b * a  # typical size of c*
     candidates: list[tuple[float, float]] = []
     for j in np.nonzero(np.sign(im[:-1]) * np.sign(im[1:]) < 0)[0]:
-        w = brentq(lambda x: c_of(x).imag, grid[j], grid[j + 1], xtol=1e-12 * w_hi)
-        c = c_of(w).real
+        w = brentq(lambda x: float(c_of(x).imag), grid[j], grid[j + 1], xtol=1e-12 * w_hi)
+        c = float(c_of(w).real)
         if c > 1e-9 * scale:
             candidates.append((c, w))
     if cs == 0.0:
@@ -245,3 +245,57 @@ def onset_with_delay(
         raise HopfParameterError("no Hopf crossing found below omega_max_rad_s")
     c_star, w_star = min(candidates)
     return HopfOnset(mu_nm_s_per_rad=c_star / b, omega_rad_s=w_star)
+
+
+@dataclass(frozen=True)
+class LimitCycle:
+    """Describing-function prediction of the dSA limit cycle with quadratic damping."""
+
+    amplitude_rad: float
+    omega_rad_s: float
+    equivalent_damping_nm_s_per_rad: float
+
+    @property
+    def frequency_hz(self) -> float:
+        return self.omega_rad_s / (2.0 * math.pi)
+
+
+def limit_cycle(
+    plant: LinearStrokePlant,
+    aero_damping_nm_s2: float,
+    r3_rad_s: float,
+    kappa: float,
+    mu_nm_s_per_rad: float,
+    delay_s: float = 0.0,
+    advance_s: float = 0.0,
+    design_omega_rad_s: float | None = None,
+) -> LimitCycle:
+    """Limit cycle of I phi'' + Gamma |phi'| phi' + c_s phi' + K phi = tau with the dSA filter.
+
+    First-harmonic balance: for phi = A sin(w t) the fundamental of Gamma |phi'| phi' is that of
+    a viscous damper c_eq = 8/(3 pi) Gamma w A. The limit cycle is therefore the Hopf onset of
+    the linear loop with damping c_s + c_eq: find c_eq with mu*(c_s + c_eq) = mu (mu* rises
+    monotonically with damping), take w = w*(c_s + c_eq), then A = 3 pi c_eq / (8 Gamma w).
+    Stable (supercritical): more amplitude -> more damping -> decay back. Uses the closed form
+    without delay, ``onset_with_delay`` otherwise. Harmonics are neglected.
+    """
+    if not aero_damping_nm_s2 > 0:
+        raise HopfParameterError(f"aero_damping_nm_s2 must be > 0, got {aero_damping_nm_s2}")
+
+    def onset(extra: float) -> HopfOnset:
+        p = LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad, plant.damping_nm_s_per_rad + extra)
+        if delay_s == 0.0 and advance_s == 0.0:
+            return hopf_onset(p, r3_rad_s, kappa)
+        return onset_with_delay(p, r3_rad_s, kappa, delay_s, advance_s, design_omega_rad_s)
+
+    mu0 = onset(0.0).mu_nm_s_per_rad
+    if mu_nm_s_per_rad <= mu0:
+        return LimitCycle(0.0, onset(0.0).omega_rad_s, 0.0)
+    hi = plant.inertia_kg_m2 * plant.natural_frequency_rad_s * 1e-3
+    while onset(hi).mu_nm_s_per_rad < mu_nm_s_per_rad:
+        hi *= 2.0
+        if hi > 1e6 * plant.inertia_kg_m2 * plant.natural_frequency_rad_s:
+            raise HopfParameterError("no limit cycle found (mu too large)")
+    c_eq = brentq(lambda x: onset(x).mu_nm_s_per_rad - mu_nm_s_per_rad, 0.0, hi, xtol=1e-15, rtol=1e-10)
+    w = onset(c_eq).omega_rad_s
+    return LimitCycle(3.0 * math.pi * c_eq / (8.0 * aero_damping_nm_s2 * w), w, c_eq)
