@@ -1,0 +1,637 @@
+"""Sensor performance characterization (paper, section "Sensor Performance Characterization").
+
+Pure core: numpy and scipy only. Angles are radians inside; every reported figure is in
+degrees (``*_deg``), Hz or seconds.
+
+Bode data
+    Amplitude (zero-to-peak of the fundamental) and phase of the sensor-derived angle and of
+    the ground-truth angle versus frequency.
+
+    * chirp (paper: 20-200 Hz, 1 s): sliding sine fits that track the drive's instantaneous
+      phase. In a Hann-weighted window of ``window_s`` centred where the sweep passes each
+      requested frequency, every signal is least-squares fitted as
+      ``a cos(Phi) + b sin(Phi) + c`` with ``Phi`` the drive phase (from the known frequency
+      track, or from the drive's analytic signal), so phases come out relative to the drive.
+    * stepped sines (paper: 0.2 s dwell each): per dwell, a sine fit at the known frequency over
+      the last ``settle_fraction`` of the dwell (steady state).
+
+    Stroke phase = phase of stroke relative to the drive input. Pitch phase = phase of pitch
+    relative to stroke; the stroke reference is the *ground-truth* stroke for both pitch curves
+    (``pitch_phase_reference="truth"``, isolates the pitch sensor's own lag) or each curve's own
+    stroke (``"sensor"``: sensor pitch vs sensor stroke, truth pitch vs truth stroke).
+
+Figures (``ChannelMetrics``)
+    amplitude RMSE between sensor and truth amplitudes over all frequency points and over a band
+    (stroke-to-pitch resonance band, default 110-190 Hz); phase RMSE (wrapped sensor-minus-truth
+    phase over all points); all-sample time RMSE of sensor angle vs truth; the consistent lag
+    (least-squares sub-sample delay); time RMSE after correcting that lag, over all samples and
+    over the samples whose drive frequency lies in a band (default 100-190 Hz).
+
+Ground truth may hold NaN (video lost the wing): every fit uses the finite samples only.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping, NamedTuple, Sequence
+
+import numpy as np
+from scipy import interpolate, optimize, signal
+
+__all__ = [
+    "CharacterizationError",
+    "ChannelBode",
+    "Bode",
+    "ChannelMetrics",
+    "Characterization",
+    "DelayFit",
+    "frequency_track_from_drive",
+    "stepped_segments",
+    "sine_phasor",
+    "bode_from_chirp",
+    "bode_from_stepped",
+    "amplitude_phase_rmse",
+    "fit_delay",
+    "time_metrics",
+    "characterize",
+    "characterize_run",
+    "wrap_deg",
+]
+
+SIGNALS = ("drive", "stroke_sensor", "stroke_truth", "pitch_sensor", "pitch_truth")
+
+
+class CharacterizationError(ValueError):
+    """Bad characterization input; the message names the argument or column."""
+
+
+# ----------------------------------------------------------------------------- result types
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelBode:
+    """Bode data of one channel: sensor-derived vs ground truth (degrees)."""
+
+    frequency_hz: np.ndarray
+    sensor_amplitude_deg: np.ndarray
+    truth_amplitude_deg: np.ndarray
+    sensor_phase_deg: np.ndarray
+    truth_phase_deg: np.ndarray
+    phase_reference: str
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain lists, ready for JSON."""
+        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True, eq=False)
+class Bode:
+    """Bode data of both channels from one experiment (``method``: "chirp" or "stepped")."""
+
+    method: str
+    stroke: ChannelBode
+    pitch: ChannelBode
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict, ready for JSON."""
+        return {"method": self.method, "stroke": self.stroke.as_dict(), "pitch": self.pitch.as_dict()}
+
+
+@dataclass(frozen=True)
+class ChannelMetrics:
+    """Paper figures of one sensor (all angles in degrees)."""
+
+    amplitude_rmse_deg: float
+    amplitude_rmse_band_deg: float
+    amplitude_band_hz: tuple[float, float]
+    phase_rmse_deg: float
+    time_rmse_deg: float
+    lag_s: float
+    time_rmse_lag_corrected_deg: float
+    time_rmse_lag_corrected_band_deg: float
+    time_band_hz: tuple[float, float]
+    n_frequency_points: int
+    n_truth_samples: int
+
+
+@dataclass(frozen=True, eq=False)
+class Characterization:
+    """Bode data and figures of both sensors."""
+
+    bode: Bode
+    stroke: ChannelMetrics
+    pitch: ChannelMetrics
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict, ready for JSON."""
+        return {"bode": self.bode.as_dict(), "stroke": asdict(self.stroke), "pitch": asdict(self.pitch)}
+
+
+class DelayFit(NamedTuple):
+    """Result of ``fit_delay``: truth ~ gain * sensor(t + lag_s) + trend."""
+
+    lag_s: float
+    gain: float
+    trend: np.ndarray
+    rmse: float
+    n_samples: int
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def wrap_deg(x: np.ndarray | float) -> np.ndarray:
+    """Wrap angles in degrees to [-180, 180)."""
+    return (np.asarray(x, float) + 180.0) % 360.0 - 180.0
+
+
+def _as_1d(x: Any, name: str, n: int | None = None) -> np.ndarray:
+    a = np.asarray(x, dtype=float).reshape(-1)
+    if n is not None and a.size != n:
+        raise CharacterizationError(f"{name} has {a.size} samples, expected {n}")
+    return a
+
+
+def _rms(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x**2))) if x.size else math.nan
+
+
+def frequency_track_from_drive(drive_v: np.ndarray, fs_hz: float, smooth_s: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+    """Instantaneous phase (rad) and frequency (Hz) of the drive from its analytic signal.
+
+    The frequency is smoothed with a moving average of ``smooth_s``; the phase is the unwrapped
+    analytic-signal phase (edges are less accurate over about a cycle).
+    """
+    d = _as_1d(drive_v, "drive_v")
+    if not np.all(np.isfinite(d)):
+        raise CharacterizationError("drive_v contains non-finite samples")
+    phase = np.unwrap(np.angle(signal.hilbert(d - d.mean())))
+    f = np.gradient(phase) * fs_hz / (2 * np.pi)
+    k = max(1, int(round(smooth_s * fs_hz)))
+    if k > 1:
+        f = np.convolve(np.pad(f, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid")
+    return phase, f
+
+
+def _phase_from_track(frequency_hz_per_sample: np.ndarray, fs_hz: float) -> np.ndarray:
+    return 2 * np.pi * np.cumsum(frequency_hz_per_sample) / fs_hz
+
+
+def stepped_segments(frequency_hz_per_sample: np.ndarray) -> list[tuple[int, int, float]]:
+    """Dwell segments ``(start, stop, frequency_hz)`` of a piecewise-constant frequency track."""
+    f = _as_1d(frequency_hz_per_sample, "frequency_hz_per_sample")
+    if f.size == 0:
+        return []
+    edges = np.flatnonzero(np.diff(f) != 0) + 1
+    starts = np.r_[0, edges]
+    stops = np.r_[edges, f.size]
+    return [(int(a), int(b), float(f[a])) for a, b in zip(starts, stops) if f[a] > 0 and np.isfinite(f[a])]
+
+
+def sine_phasor(x: np.ndarray, phase_rad: np.ndarray, weights: np.ndarray | None = None, min_samples: int = 8) -> complex:
+    """Least-squares phasor P of ``x ~ Re(P exp(j phase)) + c`` over the finite samples.
+
+    Returns NaN when fewer than ``min_samples`` finite samples (or a degenerate fit).
+    """
+    ok = np.isfinite(x)
+    if weights is not None:
+        ok &= weights > 0
+    if ok.sum() < min_samples:
+        return complex(math.nan, math.nan)
+    ph = phase_rad[ok]
+    w = np.sqrt(weights[ok]) if weights is not None else np.ones(ph.size)
+    a = np.column_stack([np.cos(ph), np.sin(ph), np.ones(ph.size)]) * w[:, None]
+    coef, _, rank, _ = np.linalg.lstsq(a, x[ok] * w, rcond=None)
+    if rank < 3:
+        return complex(math.nan, math.nan)
+    return complex(coef[0], -coef[1])
+
+
+def _bode_from_phasors(method: str, freqs: np.ndarray, ph: Mapping[str, np.ndarray], pitch_phase_reference: str) -> Bode:
+    if pitch_phase_reference not in ("truth", "sensor"):
+        raise CharacterizationError(f"pitch_phase_reference must be 'truth' or 'sensor', got {pitch_phase_reference!r}")
+    order = np.argsort(freqs)
+    freqs = freqs[order]
+    ph = {k: v[order] for k, v in ph.items()}
+
+    def phase_curve(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.angle(num / den)
+        ok = np.isfinite(r)
+        out = np.full(r.shape, np.nan)
+        if ok.any():
+            u = np.unwrap(r[ok])
+            # Put the first point on the principal branch (-180, 180].
+            u -= 2 * np.pi * np.round(u[0] / (2 * np.pi))
+            out[ok] = u
+        return np.degrees(out)
+
+    def align(sensor_deg: np.ndarray, truth_deg: np.ndarray) -> np.ndarray:
+        d = sensor_deg - truth_deg
+        ok = np.isfinite(d)
+        if ok.any():
+            sensor_deg = sensor_deg - 360.0 * np.round(np.median(d[ok]) / 360.0)
+        return sensor_deg
+
+    def amp(x: np.ndarray) -> np.ndarray:
+        return np.degrees(np.abs(x))
+
+    st_s = phase_curve(ph["stroke_sensor"], ph["drive"])
+    st_t = phase_curve(ph["stroke_truth"], ph["drive"])
+    stroke = ChannelBode(freqs, amp(ph["stroke_sensor"]), amp(ph["stroke_truth"]), align(st_s, st_t), st_t, "drive")
+    ref_s = ph["stroke_truth"] if pitch_phase_reference == "truth" else ph["stroke_sensor"]
+    pi_s = phase_curve(ph["pitch_sensor"], ref_s)
+    pi_t = phase_curve(ph["pitch_truth"], ph["stroke_truth"])
+    ref_name = "stroke_truth" if pitch_phase_reference == "truth" else "stroke (same source)"
+    pitch = ChannelBode(freqs, amp(ph["pitch_sensor"]), amp(ph["pitch_truth"]), align(pi_s, pi_t), pi_t, ref_name)
+    return Bode(method, stroke, pitch)
+
+
+def _signals(
+    drive_v: np.ndarray,
+    stroke_sensor_rad: np.ndarray,
+    pitch_sensor_rad: np.ndarray,
+    stroke_truth_rad: np.ndarray,
+    pitch_truth_rad: np.ndarray,
+) -> dict[str, np.ndarray]:
+    d = _as_1d(drive_v, "drive_v")
+    n = d.size
+    return {
+        "drive": d,
+        "stroke_sensor": _as_1d(stroke_sensor_rad, "stroke_sensor_rad", n),
+        "stroke_truth": _as_1d(stroke_truth_rad, "stroke_truth_rad", n),
+        "pitch_sensor": _as_1d(pitch_sensor_rad, "pitch_sensor_rad", n),
+        "pitch_truth": _as_1d(pitch_truth_rad, "pitch_truth_rad", n),
+    }
+
+
+# ----------------------------------------------------------------------------- Bode
+
+
+def bode_from_chirp(
+    drive_v: np.ndarray,
+    stroke_sensor_rad: np.ndarray,
+    pitch_sensor_rad: np.ndarray,
+    stroke_truth_rad: np.ndarray,
+    pitch_truth_rad: np.ndarray,
+    fs_hz: float,
+    *,
+    frequency_hz_per_sample: np.ndarray | None = None,
+    frequencies_hz: Sequence[float] | None = None,
+    window_s: float = 0.03,
+    pitch_phase_reference: str = "truth",
+) -> Bode:
+    """Bode data from a frequency sweep by sliding, phase-tracking sine fits.
+
+    Parameters
+    ----------
+    drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad
+        Equal-length records (truth may hold NaN).
+    fs_hz
+        Sample rate.
+    frequency_hz_per_sample
+        Known instantaneous drive frequency (else estimated from the drive's analytic signal).
+    frequencies_hz
+        Points to evaluate (default every 5 Hz from 60 Hz to the top of the sweep).
+    window_s
+        Length of the Hann-weighted fit window.
+    pitch_phase_reference
+        "truth" or "sensor" (see module docstring).
+    """
+    sig = _signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad)
+    n = sig["drive"].size
+    if frequency_hz_per_sample is not None:
+        track = _as_1d(frequency_hz_per_sample, "frequency_hz_per_sample", n)
+        phase = _phase_from_track(track, fs_hz)
+    else:
+        phase, track = frequency_track_from_drive(sig["drive"], fs_hz)
+    rising = np.maximum.accumulate(track)
+    if frequencies_hz is None:
+        lo, hi = max(60.0, float(np.nanmin(track))), float(rising[-1])
+        frequencies_hz = np.arange(math.ceil(lo / 5.0) * 5.0, hi + 1e-9, 5.0)
+    freqs = np.asarray(frequencies_hz, float)
+    half = max(4, int(round(window_s * fs_hz / 2)))
+    out_f, out = [], {k: [] for k in SIGNALS}
+    for f in freqs:
+        c = int(np.searchsorted(rising, f))
+        if c >= n:
+            continue
+        a, b = max(0, c - half), min(n, c + half)
+        w = np.hanning(2 * half + 2)[1:-1][a - (c - half): b - (c - half)]
+        out_f.append(f)
+        for k in SIGNALS:
+            out[k].append(sine_phasor(sig[k][a:b], phase[a:b], w))
+    return _bode_from_phasors("chirp", np.asarray(out_f), {k: np.asarray(v, complex) for k, v in out.items()}, pitch_phase_reference)
+
+
+def bode_from_stepped(
+    drive_v: np.ndarray,
+    stroke_sensor_rad: np.ndarray,
+    pitch_sensor_rad: np.ndarray,
+    stroke_truth_rad: np.ndarray,
+    pitch_truth_rad: np.ndarray,
+    fs_hz: float,
+    frequency_hz_per_sample: np.ndarray,
+    *,
+    settle_fraction: float = 0.5,
+    pitch_phase_reference: str = "truth",
+) -> Bode:
+    """Bode data from stepped sines: sine fit at the known frequency over each dwell's steady part.
+
+    Parameters
+    ----------
+    frequency_hz_per_sample
+        Drive frequency of every sample (piecewise constant; 0 = no drive).
+    settle_fraction
+        Fraction of each dwell, at its end, used for the fit.
+    """
+    sig = _signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad)
+    n = sig["drive"].size
+    track = _as_1d(frequency_hz_per_sample, "frequency_hz_per_sample", n)
+    if not 0 < settle_fraction <= 1:
+        raise CharacterizationError(f"settle_fraction must be in (0, 1], got {settle_fraction!r}")
+    segs = stepped_segments(track)
+    if not segs:
+        raise CharacterizationError("frequency_hz_per_sample has no dwell with a positive frequency")
+    t = np.arange(n) / fs_hz
+    out_f, out = [], {k: [] for k in SIGNALS}
+    for a, b, f in segs:
+        a2 = b - max(8, int(round(settle_fraction * (b - a))))
+        a2 = max(a, a2)
+        ph = 2 * np.pi * f * t[a2:b]
+        out_f.append(f)
+        for k in SIGNALS:
+            out[k].append(sine_phasor(sig[k][a2:b], ph))
+    return _bode_from_phasors("stepped", np.asarray(out_f), {k: np.asarray(v, complex) for k, v in out.items()}, pitch_phase_reference)
+
+
+def amplitude_phase_rmse(bode: ChannelBode, band_hz: tuple[float, float] | None = None) -> tuple[float, float]:
+    """RMSE of sensor vs truth amplitude (deg) and of the wrapped phase difference (deg).
+
+    Over all frequency points, or over those within ``band_hz`` (inclusive).
+    """
+    sel = np.ones(bode.frequency_hz.shape, bool)
+    if band_hz is not None:
+        sel = (bode.frequency_hz >= band_hz[0]) & (bode.frequency_hz <= band_hz[1])
+    da = (bode.sensor_amplitude_deg - bode.truth_amplitude_deg)[sel]
+    dp = wrap_deg(bode.sensor_phase_deg - bode.truth_phase_deg)[sel]
+    return _rms(da), _rms(dp)
+
+
+# ----------------------------------------------------------------------------- time domain
+
+
+def fit_delay(
+    truth: np.ndarray,
+    sensor: np.ndarray,
+    fs_hz: float,
+    *,
+    max_lag_s: float = 2e-3,
+    fit_gain: bool = True,
+    trend_order: int = 0,
+    min_samples: int = 16,
+) -> DelayFit:
+    """Least-squares sub-sample delay between a sensor record and a (gappy) truth record.
+
+    Model: ``truth(t) ~ gain * sensor(t + lag_s) + sum_k c_k ((t - t_mid)/T)^k`` on the finite
+    truth samples; ``lag_s > 0`` means the sensor is late. ``fit_gain=False`` fixes gain = 1
+    (and ``trend_order=-1`` drops the trend). Coarse search over integer lags within
+    ``max_lag_s``, then a bounded scalar refinement with cubic-spline interpolation of the
+    sensor. For periodic records keep ``max_lag_s`` below half the shortest period.
+
+    Parameters
+    ----------
+    truth
+        Truth record; NaN where unknown.
+    sensor
+        Sensor record of the same length, all finite.
+    fs_hz
+        Sample rate.
+    """
+    y = _as_1d(truth, "truth")
+    x = _as_1d(sensor, "sensor", y.size)
+    if not np.all(np.isfinite(x)):
+        raise CharacterizationError("sensor record contains non-finite samples")
+    n = y.size
+    ok = np.isfinite(y)
+    if ok.sum() < min_samples:
+        raise CharacterizationError(f"too few finite truth samples ({int(ok.sum())} < {min_samples})")
+    t = np.arange(n, dtype=float)
+    idx = np.flatnonzero(ok)
+    tc = (t - 0.5 * (n - 1)) / max(1.0, 0.5 * (n - 1))
+    trend_cols = [tc**k for k in range(trend_order + 1)] if trend_order >= 0 else []
+    max_lag = max(1, int(math.ceil(max_lag_s * fs_hz)))
+
+    def solve(xs: np.ndarray, sel: np.ndarray) -> tuple[float, np.ndarray, float]:
+        cols = ([xs] if fit_gain else []) + [c[sel] for c in trend_cols]
+        yy = y[sel] - (0.0 if fit_gain else xs)
+        if cols:
+            a = np.column_stack(cols)
+            coef, *_ = np.linalg.lstsq(a, yy, rcond=None)
+            r = yy - a @ coef
+        else:
+            coef, r = np.zeros(0), yy
+        gain = float(coef[0]) if fit_gain else 1.0
+        trend = coef[1:] if fit_gain else coef
+        return gain, trend, float(np.mean(r**2))
+
+    # Coarse: integer lags (keep only truth samples whose shifted sensor sample exists for all lags).
+    sel = idx[(idx >= max_lag) & (idx < n - max_lag)]
+    if sel.size < min_samples:
+        raise CharacterizationError(f"too few finite truth samples away from the record ends ({sel.size})")
+    costs = np.array([solve(x[sel + m], sel)[2] for m in range(-max_lag, max_lag + 1)])
+    m0 = int(np.argmin(costs)) - max_lag
+    spline = interpolate.CubicSpline(t, x)
+
+    def cost(lag: float) -> float:
+        return solve(spline(sel + lag), sel)[2]
+
+    lo, hi = max(-max_lag, m0 - 1), min(max_lag, m0 + 1)
+    res = optimize.minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
+    lag = float(res.x)
+    gain, trend, mse = solve(spline(sel + lag), sel)
+    return DelayFit(lag / fs_hz, gain, trend, math.sqrt(mse), int(sel.size))
+
+
+def _shift(x: np.ndarray, lag_samples: float) -> np.ndarray:
+    """x(t + lag) by cubic-spline interpolation; NaN outside the record."""
+    t = np.arange(x.size, dtype=float)
+    out = interpolate.CubicSpline(t, x)(t + lag_samples)
+    out[(t + lag_samples < 0) | (t + lag_samples > x.size - 1)] = np.nan
+    return out
+
+
+def time_metrics(
+    sensor_rad: np.ndarray,
+    truth_rad: np.ndarray,
+    fs_hz: float,
+    frequency_hz_per_sample: np.ndarray | None = None,
+    *,
+    band_hz: tuple[float, float] = (100.0, 190.0),
+    max_lag_s: float = 2e-3,
+) -> tuple[float, float, float, float, int]:
+    """Time-domain figures of one sensor.
+
+    Returns
+    -------
+    time_rmse_deg, lag_s, time_rmse_lag_corrected_deg, time_rmse_lag_corrected_band_deg, n
+        All-sample RMSE; the consistent lag; RMSE after shifting the sensor by that lag, over
+        all samples and over the samples whose drive frequency is within ``band_hz``; number of
+        finite truth samples.
+    """
+    s = _as_1d(sensor_rad, "sensor_rad")
+    y = _as_1d(truth_rad, "truth_rad", s.size)
+    good = np.isfinite(s)
+    n_truth = int(np.isfinite(y).sum())
+    rmse = _rms(np.degrees(s - y))
+    # The lag fit needs a gap-free sensor record: fill unusable sensor samples, drop them after.
+    s_fill = s.copy()
+    if not good.all():
+        if not good.any():
+            raise CharacterizationError("sensor_rad has no finite samples")
+        i = np.arange(s.size)
+        s_fill = np.interp(i, i[good], s[good])
+    y_fit = np.where(good, y, np.nan)
+    fit = fit_delay(y_fit, s_fill, fs_hz, max_lag_s=max_lag_s, fit_gain=False, trend_order=-1)
+    shifted = _shift(s_fill, fit.lag_s * fs_hz)
+    shifted_ok = _shift(good.astype(float), fit.lag_s * fs_hz)
+    shifted[~(shifted_ok > 0.999)] = np.nan
+    err = np.degrees(shifted - y)
+    rmse_lag = _rms(err)
+    if frequency_hz_per_sample is not None:
+        track = _as_1d(frequency_hz_per_sample, "frequency_hz_per_sample", s.size)
+        in_band = (track >= band_hz[0]) & (track <= band_hz[1])
+        rmse_band = _rms(err[in_band])
+    else:
+        rmse_band = math.nan
+    return rmse, fit.lag_s, rmse_lag, rmse_band, n_truth
+
+
+# ----------------------------------------------------------------------------- top level
+
+
+def characterize(
+    bode: Bode,
+    drive_v: np.ndarray,
+    stroke_sensor_rad: np.ndarray,
+    pitch_sensor_rad: np.ndarray,
+    stroke_truth_rad: np.ndarray,
+    pitch_truth_rad: np.ndarray,
+    fs_hz: float,
+    frequency_hz_per_sample: np.ndarray | None = None,
+    *,
+    amplitude_band_hz: tuple[float, float] = (110.0, 190.0),
+    time_band_hz: tuple[float, float] = (100.0, 190.0),
+    max_lag_s: float = 2e-3,
+) -> Characterization:
+    """All paper figures of both sensors from Bode data and the time records.
+
+    ``frequency_hz_per_sample`` selects the in-band samples for the band time RMSE (estimated
+    from the drive when omitted).
+    """
+    sig = _signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad)
+    if frequency_hz_per_sample is None:
+        _, frequency_hz_per_sample = frequency_track_from_drive(sig["drive"], fs_hz)
+    metrics = {}
+    for ch, cb in (("stroke", bode.stroke), ("pitch", bode.pitch)):
+        amp_all, ph_all = amplitude_phase_rmse(cb)
+        amp_band, _ = amplitude_phase_rmse(cb, amplitude_band_hz)
+        t_rmse, lag, t_lag, t_band, n_truth = time_metrics(
+            sig[f"{ch}_sensor"], sig[f"{ch}_truth"], fs_hz, frequency_hz_per_sample,
+            band_hz=time_band_hz, max_lag_s=max_lag_s,
+        )
+        metrics[ch] = ChannelMetrics(
+            amplitude_rmse_deg=amp_all,
+            amplitude_rmse_band_deg=amp_band,
+            amplitude_band_hz=(float(amplitude_band_hz[0]), float(amplitude_band_hz[1])),
+            phase_rmse_deg=ph_all,
+            time_rmse_deg=t_rmse,
+            lag_s=lag,
+            time_rmse_lag_corrected_deg=t_lag,
+            time_rmse_lag_corrected_band_deg=t_band,
+            time_band_hz=(float(time_band_hz[0]), float(time_band_hz[1])),
+            n_frequency_points=int(cb.frequency_hz.size),
+            n_truth_samples=n_truth,
+        )
+    return Characterization(bode, metrics["stroke"], metrics["pitch"])
+
+
+def characterize_run(
+    run: Mapping[str, Any],
+    params: Any,
+    method: str,
+    frequency_hz_per_sample: np.ndarray | None = None,
+    *,
+    sample_rate_hz: float | None = None,
+    window_s: float = 0.03,
+    settle_fraction: float = 0.5,
+    frequencies_hz: Sequence[float] | None = None,
+    pitch_phase_reference: str = "truth",
+    amplitude_band_hz: tuple[float, float] = (110.0, 190.0),
+    time_band_hz: tuple[float, float] = (100.0, 190.0),
+    max_lag_s: float = 2e-3,
+) -> Characterization:
+    """Characterize a measured-run record through the front end.
+
+    Parameters
+    ----------
+    run
+        Measured-run columns: ``drive_v``, ``stroke_sensor_v``, ``pitch_sensor_v``,
+        ``stroke_deg``, ``pitch_deg`` and ``time_s`` (or give ``sample_rate_hz``).
+    params
+        ``frontend.FrontendParams``; the sensor angles are ``frontend.estimate`` of the voltages.
+    method
+        "chirp" or "stepped" (stepped needs ``frequency_hz_per_sample``).
+    """
+    from .frontend import estimate, initial_state  # local: keeps this module usable alone
+
+    for col in ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg"):
+        if col not in run:
+            raise CharacterizationError(f"run has no column '{col}'")
+    fs = sample_rate_hz if sample_rate_hz is not None else _rate_from_time(run)
+    est = estimate(
+        np.asarray(run["stroke_sensor_v"], float),
+        np.asarray(run["pitch_sensor_v"], float),
+        params,
+        initial_state(params),
+    )
+    stroke_s = np.where(est.stroke_valid, est.stroke_rad, np.nan)
+    pitch_s = np.where(est.pitch_valid, est.pitch_rad, np.nan)
+    stroke_t = np.radians(np.asarray(run["stroke_deg"], float))
+    pitch_t = np.radians(np.asarray(run["pitch_deg"], float))
+    drive = np.asarray(run["drive_v"], float)
+    if method == "chirp":
+        bode = bode_from_chirp(
+            drive, stroke_s, pitch_s, stroke_t, pitch_t, fs,
+            frequency_hz_per_sample=frequency_hz_per_sample, frequencies_hz=frequencies_hz,
+            window_s=window_s, pitch_phase_reference=pitch_phase_reference,
+        )
+    elif method == "stepped":
+        if frequency_hz_per_sample is None:
+            raise CharacterizationError("method 'stepped' needs frequency_hz_per_sample")
+        bode = bode_from_stepped(
+            drive, stroke_s, pitch_s, stroke_t, pitch_t, fs, frequency_hz_per_sample,
+            settle_fraction=settle_fraction, pitch_phase_reference=pitch_phase_reference,
+        )
+    else:
+        raise CharacterizationError(f"method must be 'chirp' or 'stepped', got {method!r}")
+    return characterize(
+        bode, drive, stroke_s, pitch_s, stroke_t, pitch_t, fs, frequency_hz_per_sample,
+        amplitude_band_hz=amplitude_band_hz, time_band_hz=time_band_hz, max_lag_s=max_lag_s,
+    )
+
+
+def _rate_from_time(run: Mapping[str, Any]) -> float:
+    if "time_s" not in run:
+        raise CharacterizationError("run has no column 'time_s' (or pass sample_rate_hz)")
+    t = np.asarray(run["time_s"], float)
+    if t.size < 2 or not np.all(np.isfinite(t)):
+        raise CharacterizationError("time_s must hold at least two finite samples")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        raise CharacterizationError("time_s is not strictly increasing")
+    step_s = float(np.median(dt))
+    if np.max(np.abs(dt - step_s)) > 1e-3 * step_s:
+        raise CharacterizationError("time_s is not uniformly sampled")
+    return 1.0 / step_s
