@@ -57,14 +57,20 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
 def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
     """Return the flattened `ros__parameters` of `node_name` in config/`file_name`.
 
+    The `/**` section (shared by every node) is read first, the node's own section over it.
     Nested mappings become dotted names, as ROS 2 parameter files do.
     """
     path = config_dir() / file_name
     document = load_yaml(path) or {}
-    for key in (node_name, f"/{node_name}", "/**"):
+    if not isinstance(document, dict):
+        raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
+    out: dict[str, Any] = {}
+    found = False
+    for key in ("/**", node_name, f"/{node_name}"):
         section = document.get(key)
         if isinstance(section, dict) and "ros__parameters" in section:
-            out: dict[str, Any] = {}
             _flatten("", section["ros__parameters"], out)
-            return out
-    raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
+            found = found or key != "/**"
+    if not found:
+        raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
+    return out

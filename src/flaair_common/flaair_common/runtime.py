@@ -52,8 +52,12 @@ def run_node(
     node: Node | None = None
     executor = SingleThreadedExecutor()
 
+    stop_requested = False
+
     def _stop(signum: int, _frame: object) -> None:
-        rclpy.try_shutdown()
+        # Only set a flag: shutting the context down here would break a callback mid-publish.
+        nonlocal stop_requested
+        stop_requested = True
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
@@ -65,7 +69,8 @@ def run_node(
         return 2
     executor.add_node(node)
     try:
-        executor.spin()
+        while not stop_requested and rclpy.ok():
+            executor.spin_once(timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

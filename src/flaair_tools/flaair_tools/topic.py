@@ -13,6 +13,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
             time.sleep(1.0 / args.rate)
         time.sleep(0.5)  # let reliable delivery finish before the participant goes away
         return 0
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         return 130
     finally:
         node.destroy_node()

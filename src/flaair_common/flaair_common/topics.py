@@ -1,0 +1,10 @@
+"""Topic names of the FLAAIR graph (remap with --ros-args -r old:=new)."""
+
+DRIVE = "/flaair/drive"                      # DriveCommandBlock: drive voltage to the actuator
+SENSOR_VOLTAGE = "/flaair/sensor_v"          # SensorVoltageBlock: raw charge-amplifier outputs
+WING_STATE = "/flaair/wing_state"            # WingStateBlock: estimated from the sensors
+WING_STATE_TRUTH = "/flaair/wing_state/truth"  # WingStateBlock: simulator ground truth
+COLLISION_STATUS = "/flaair/collision/status"  # CollisionStatus, one per wingbeat
+COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and clearance
+CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
+CLOCK = "/clock"

@@ -1,0 +1,118 @@
+"""drive_node: the synchronous (open-loop) drive generator, the paper's drive.
+
+Publishes drive-command blocks (/flaair/drive): a sine, a linear chirp or a stepped sine,
+with amplitude, bias and frequency parameters, clamped to +-drive_limit_v.
+
+Pacing:
+  realtime  blocks leave at the wall-clock rate of the signal.
+  lockstep  as fast as the plant answers: at most lockstep_window_blocks command blocks
+            ahead of the last sensor block received (deterministic, faster than real time).
+
+Usage: bin/flaair run flaair_sim drive_node --ros-args -p waveform:=chirp -p amplitude_v:=100.0
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from flaair_common import topics
+from flaair_common.blocks import from_array, stamp_from_time_s
+from flaair_common.params import ParameterError, ParamSpec, declare_parameters
+from flaair_common.qos import BLOCK_STREAM
+from flaair_common.runtime import run_node
+from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
+from flaair_sim import drive
+
+NODE_NAME = "drive_node"
+CONFIG_FILE = "flaair.yaml"
+PARAMS = [
+    ParamSpec("sample_rate_hz", float, "Sample rate of the drive [Hz]", 1000.0, 1.0e6, read_only=True),
+    ParamSpec("block_size", int, "Samples per command block", 1, 100000, read_only=True),
+    ParamSpec("drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0, 300.0),
+    ParamSpec("waveform", str, "Drive waveform", choices=("sine", "chirp", "stepped_sine"), read_only=True),
+    ParamSpec("amplitude_v", float, "Waveform amplitude (half of Vpp) [V]", 0.0, 300.0, read_only=True),
+    ParamSpec("bias_v", float, "Offset added to the waveform [V]", -300.0, 300.0, read_only=True),
+    ParamSpec("frequency_hz", float, "Sine frequency [Hz]", 0.0, 5000.0, read_only=True),
+    ParamSpec("start_hz", float, "Chirp start / first stepped-sine frequency [Hz]", 0.0, 5000.0, read_only=True),
+    ParamSpec("stop_hz", float, "Chirp stop / last stepped-sine frequency [Hz]", 0.0, 5000.0, read_only=True),
+    ParamSpec("duration_s", float, "Chirp sweep duration [s]", 1e-3, 3600.0, read_only=True),
+    ParamSpec("step_hz", float, "Stepped-sine frequency step [Hz]", 1e-3, 5000.0, read_only=True),
+    ParamSpec("dwell_s", float, "Stepped-sine time at each frequency [s]", 1e-3, 3600.0, read_only=True),
+    ParamSpec("run_time_s", float, "Stop after this much signal time (0: never) [s]", 0.0, 1e6, read_only=True),
+    ParamSpec("pacing", str, "realtime or lockstep (paced by the plant's sensor blocks)", choices=("realtime", "lockstep"), read_only=True),
+    ParamSpec("lockstep_window_blocks", int, "lockstep: command blocks allowed ahead of the plant", 1, 10000, read_only=True),
+]
+
+
+class DriveNode(Node):
+    """Thin shell over flaair_sim.drive.drive_step."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
+        self.fs_hz = self.p["sample_rate_hz"]
+        self.block_size = self.p["block_size"]
+        try:
+            self.params = drive.DriveParams(
+                kind=self.p["waveform"], amplitude_v=self.p["amplitude_v"], bias_v=self.p["bias_v"],
+                frequency_hz=self.p["frequency_hz"], start_hz=self.p["start_hz"], stop_hz=self.p["stop_hz"],
+                duration_s=self.p["duration_s"], step_hz=self.p["step_hz"], dwell_s=self.p["dwell_s"],
+            )
+        except drive.DriveError as exc:
+            raise ParameterError(str(exc)) from exc
+        self.state = drive.DriveState()
+        self.next_index = 0
+        self.total_samples = int(round(self.p["run_time_s"] * self.fs_hz)) or None
+        self.acknowledged_index = 0
+        self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
+        if self.p["pacing"] == "lockstep":
+            self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+            self.create_timer(0.002, self.publish_window)  # starts the stream once the plant subscribes
+        else:
+            self.wall_start_s: float | None = None
+            self.create_timer(0.005, self.on_realtime_tick)
+        self.get_logger().info(
+            f"drive: {self.params.kind}, amplitude {self.params.amplitude_v:g} V, pacing {self.p['pacing']}"
+        )
+
+    def finished(self) -> bool:
+        return self.total_samples is not None and self.next_index >= self.total_samples
+
+    def publish_block(self) -> None:
+        self.state, drive_v = drive.drive_step(self.state, self.block_size, self.fs_hz, self.params)
+        limit = self.get_parameter("drive_limit_v").value
+        message = DriveCommandBlock(sample_rate_hz=self.fs_hz, first_sample_index=self.next_index)
+        message.header.stamp = stamp_from_time_s(self.next_index / self.fs_hz)
+        message.drive_v = from_array(np.clip(drive_v, -limit, limit))
+        self.publisher.publish(message)
+        self.next_index += self.block_size
+
+    def on_sensor(self, message: SensorVoltageBlock) -> None:
+        self.acknowledged_index = message.first_sample_index + len(message.stroke_sensor_v)
+        self.publish_window()
+
+    def publish_window(self) -> None:
+        if self.publisher.get_subscription_count() == 0:
+            return
+        window = self.p["lockstep_window_blocks"] * self.block_size
+        while not self.finished() and self.next_index < self.acknowledged_index + window:
+            self.publish_block()
+
+    def on_realtime_tick(self) -> None:
+        if self.wall_start_s is None:
+            if self.publisher.get_subscription_count() == 0:
+                return
+            self.wall_start_s = time.monotonic()
+        due = int((time.monotonic() - self.wall_start_s) * self.fs_hz)
+        while not self.finished() and self.next_index + self.block_size <= due:
+            self.publish_block()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(DriveNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

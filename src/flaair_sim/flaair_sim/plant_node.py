@@ -1,0 +1,148 @@
+"""plant_node: the simulated flapping-wing robot (stroke, pitch, PVDF sensors) as a ROS 2 node.
+
+Subscribes to drive-command blocks (/flaair/drive) and publishes raw sensor-voltage blocks
+(/flaair/sensor_v), ground-truth wing-state blocks (/flaair/wing_state/truth) and /clock.
+
+Modes:
+  lockstep  advances exactly one block per command block, in order, so a closed loop is
+            deterministic whatever the wall speed (sim time = samples / sample_rate_hz).
+  realtime  advances with the wall clock; uses the queued command blocks, zero drive if none.
+
+A command block with NaN/inf samples, the wrong length or rate, or out of order is rejected,
+counted and logged; the plant holds zero drive for that block and keeps running. Drive is
+clamped to +-drive_limit_v before it reaches the model.
+
+Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p model_file:=my.yaml]
+"""
+from __future__ import annotations
+
+import collections
+import time
+
+import numpy as np
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+
+from flaair_common import topics
+from flaair_common.blocks import check_block, from_array, stamp_from_time_s, to_array
+from flaair_common.params import ParameterError, ParamSpec, declare_parameters
+from flaair_common.qos import BLOCK_STREAM
+from flaair_common.runtime import run_node
+from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
+from flaair_sim import plant
+from flaair_sim.model import ModelError
+from flaair_sim.model_io import load_model
+
+NODE_NAME = "plant_node"
+CONFIG_FILE = "flaair.yaml"
+PARAMS = [
+    ParamSpec("sample_rate_hz", float, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6, read_only=True),
+    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    ParamSpec("drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0, 300.0),
+    ParamSpec("model_file", str, "Model YAML (empty: config/model.yaml)", read_only=True),
+    ParamSpec("mode", str, "lockstep: one block per command block; realtime: wall clock", choices=("lockstep", "realtime"), read_only=True),
+    ParamSpec("noise", bool, "Add the model's sensor-voltage noise", read_only=True),
+    ParamSpec("noise_seed", int, "Seed of the sensor-noise generator", 0, 2**31 - 1, read_only=True),
+    ParamSpec("publish_clock", bool, "Publish /clock with the simulation time", read_only=True),
+]
+
+
+class PlantNode(Node):
+    """Thin shell over flaair_sim.plant.step: messages to arrays and back."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
+        try:
+            self.model = load_model(self.p["model_file"] or None)
+        except (ModelError, OSError) as exc:
+            raise ParameterError(f"parameter 'model_file': {exc}") from exc
+        self.fs_hz = self.p["sample_rate_hz"]
+        self.block_size = self.p["block_size"]
+        self.state = plant.initial_state(self.model, self.fs_hz)
+        self.rng = np.random.default_rng(self.p["noise_seed"])
+        self.next_index = 0
+        self.expected_command_index: int | None = None
+        self.rejected_blocks = 0
+        self.sensor_pub = self.create_publisher(SensorVoltageBlock, topics.SENSOR_VOLTAGE, BLOCK_STREAM)
+        self.truth_pub = self.create_publisher(WingStateBlock, topics.WING_STATE_TRUTH, BLOCK_STREAM)
+        self.clock_pub = self.create_publisher(Clock, topics.CLOCK, 10) if self.p["publish_clock"] else None
+        self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_command, BLOCK_STREAM)
+        self.pending: collections.deque[np.ndarray] = collections.deque(maxlen=1000)
+        if self.p["mode"] == "realtime":
+            self.wall_start_s = time.monotonic()
+            self.create_timer(0.005, self.on_realtime_tick)
+        self.get_logger().info(
+            f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
+            f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
+        )
+
+    def on_command(self, message: DriveCommandBlock) -> None:
+        drive_v = to_array(message.drive_v)
+        check = check_block(
+            {"drive_v": drive_v}, message.sample_rate_hz, self.fs_hz, message.first_sample_index,
+            self.expected_command_index, self.block_size,
+        )
+        if check.ok:
+            self.expected_command_index = message.first_sample_index + len(drive_v)
+        else:
+            self.rejected_blocks += 1
+            self.get_logger().warning(
+                f"rejected command block {message.first_sample_index} ({check.reason}); holding zero drive "
+                f"[{self.rejected_blocks} rejected so far]",
+                throttle_duration_sec=1.0,
+            )
+            drive_v = np.zeros(self.block_size)
+            if "out of order" in check.reason:
+                return  # a duplicate or stale block must not advance the plant again
+            if "gap" in check.reason:
+                self.expected_command_index = message.first_sample_index + self.block_size
+        if self.p["mode"] == "lockstep":
+            self.advance(drive_v)
+        else:
+            self.pending.append(drive_v)
+
+    def on_realtime_tick(self) -> None:
+        due = int((time.monotonic() - self.wall_start_s) * self.fs_hz) - self.next_index
+        for _ in range(max(0, due // self.block_size)):
+            drive_v = self.pending.popleft() if self.pending else np.zeros(self.block_size)
+            self.advance(drive_v)
+
+    def advance(self, drive_v: np.ndarray) -> None:
+        """Step the model one block and publish its outputs."""
+        limit = self.get_parameter("drive_limit_v").value
+        drive_v = np.clip(drive_v, -limit, limit)
+        self.state, out = plant.step(self.state, drive_v, self.fs_hz, self.model)
+        stroke_v, pitch_v = out.stroke_sensor_v, out.pitch_sensor_v
+        if self.p["noise"]:
+            sigma = self.model.noise.sensor_noise_v_rms
+            stroke_v = stroke_v + self.rng.normal(0.0, sigma, stroke_v.shape)
+            pitch_v = pitch_v + self.rng.normal(0.0, sigma, pitch_v.shape)
+        stamp = stamp_from_time_s(self.next_index / self.fs_hz)
+        sensor = SensorVoltageBlock(sample_rate_hz=self.fs_hz, first_sample_index=self.next_index)
+        sensor.header.stamp = stamp
+        sensor.header.frame_id = "robot"
+        sensor.stroke_sensor_v = from_array(stroke_v)
+        sensor.pitch_sensor_v = from_array(pitch_v)
+        truth = WingStateBlock(sample_rate_hz=self.fs_hz, first_sample_index=self.next_index,
+                               source=WingStateBlock.SOURCE_GROUND_TRUTH)
+        truth.header = sensor.header
+        truth.stroke_deg = from_array(np.degrees(out.stroke_rad))
+        truth.pitch_deg = from_array(np.degrees(out.pitch_rad))
+        truth.stroke_velocity_deg_s = from_array(np.full(len(drive_v), np.nan))
+        valid = [True] * len(drive_v)
+        truth.stroke_valid = valid
+        truth.pitch_valid = valid
+        self.next_index += len(drive_v)
+        self.sensor_pub.publish(sensor)
+        self.truth_pub.publish(truth)
+        if self.clock_pub is not None:
+            self.clock_pub.publish(Clock(clock=stamp_from_time_s(self.next_index / self.fs_hz)))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(PlantNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

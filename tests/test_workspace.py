@@ -1,0 +1,26 @@
+"""The workspace works the ROS way too: `source install/setup.bash` alone gives a working shell."""
+from __future__ import annotations
+
+import os
+import subprocess
+
+from rosproc import REPO_ROOT
+
+
+def test_source_install_setup_bash_gives_rclpy_and_flaair_packages() -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "LD_LIBRARY_PATH", "VIRTUAL_ENV")}
+    env["PATH"] = "/usr/local/bin:/usr/bin:/bin"
+    script = (
+        "source install/setup.bash && python -c '"
+        "import rclpy, flaair_msgs.msg, flaair_sim.plant, flaair_sensors.pvdf, flaair_common.params;"
+        "print(rclpy.__file__)'"
+    )
+    result = subprocess.run(["bash", "-c", script], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert str(REPO_ROOT / ".venv") in result.stdout
+
+
+def test_setup_is_idempotent_and_quick_when_nothing_changed() -> None:
+    result = subprocess.run([str(REPO_ROOT / "scripts" / "setup_env.sh")], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "installing" not in result.stdout and "building" not in result.stdout, result.stdout
