@@ -8,8 +8,8 @@ from rosproc import REPO_ROOT
 
 
 def test_source_install_setup_bash_gives_rclpy_and_flaair_packages() -> None:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "LD_LIBRARY_PATH", "VIRTUAL_ENV")}
-    env["PATH"] = "/usr/local/bin:/usr/bin:/bin"
+    # A fresh login shell: nothing of the current environment but HOME and a plain PATH.
+    env = {"HOME": os.environ.get("HOME", "/root"), "PATH": "/usr/local/bin:/usr/bin:/bin"}
     script = (
         "source install/setup.bash && python -c '"
         "import rclpy, flaair_msgs.msg, flaair_sim.plant, flaair_sensors.pvdf, flaair_common.params;"
