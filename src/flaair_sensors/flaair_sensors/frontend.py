@@ -436,8 +436,10 @@ def initial_state(
 
 
 def _usable(v: np.ndarray, p: FrontendParams) -> np.ndarray:
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(v) & (v > p.rail_low_v + p.rail_margin_v) & (v < p.rail_high_v - p.rail_margin_v)
+    ok = np.isfinite(v)
+    if p.rail_low_v > -math.inf or p.rail_high_v < math.inf:
+        ok &= (v > p.rail_low_v + p.rail_margin_v) & (v < p.rail_high_v - p.rail_margin_v)
+    return ok
 
 
 def _validity(usable: np.ndarray, since_bad: int, holdoff: int) -> tuple[np.ndarray, int]:
@@ -449,6 +451,8 @@ def _validity(usable: np.ndarray, since_bad: int, holdoff: int) -> tuple[np.ndar
     n = usable.size
     if n == 0:
         return usable.copy(), since_bad
+    if since_bad >= holdoff and usable.all():  # fast path: nothing unusable recently
+        return usable, min(since_bad + n, _NEVER_BAD)
     idx = np.arange(n)
     last_bad = np.maximum.accumulate(np.where(usable, -1 - since_bad, idx))
     valid = usable & (idx - last_bad > holdoff)
@@ -457,7 +461,7 @@ def _validity(usable: np.ndarray, since_bad: int, holdoff: int) -> tuple[np.ndar
 
 def _channel(
     v: np.ndarray,
-    usable: np.ndarray,
+    usable: np.ndarray | None,
     drift_zi: np.ndarray,
     lead_zi: np.ndarray,
     lead: tuple[np.ndarray, np.ndarray] | None,
@@ -467,7 +471,7 @@ def _channel(
     flt: _Filters,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Angle (rad) of the usable samples only, and the new filter states."""
-    e = v[usable] - (p.reference_voltage_v + offset)
+    e = (v if usable is None else v[usable]) - (p.reference_voltage_v + offset)
     if p.drift_corner_hz > 0 and e.size:
         lp, drift_zi = signal.lfilter(flt.drift_b, flt.drift_a, e, zi=drift_zi)
         e = e - lp
@@ -512,13 +516,14 @@ def step(
 
     s_ok = _usable(sv, params)
     p_ok = _usable(pv, params)
+    s_all, p_all = bool(s_ok.all()), bool(p_ok.all())
 
     s_theta, s_dzi, s_lzi = _channel(
-        sv, s_ok, state.stroke_drift_zi, state.stroke_lead_zi, flt.stroke_lead,
+        sv, None if s_all else s_ok, state.stroke_drift_zi, state.stroke_lead_zi, flt.stroke_lead,
         params.stroke_volts_per_rad, params.stroke_offset_v, params, flt,
     )
     p_theta, p_dzi, p_lzi = _channel(
-        pv, p_ok, state.pitch_drift_zi, state.pitch_lead_zi, flt.pitch_lead,
+        pv, None if p_all else p_ok, state.pitch_drift_zi, state.pitch_lead_zi, flt.pitch_lead,
         params.pitch_volts_per_rad, params.pitch_offset_v, params, flt,
     )
     if s_theta.size:
@@ -526,12 +531,17 @@ def step(
     else:
         s_vel, v_zi = s_theta, state.velocity_zi
 
-    stroke = np.full(n, np.nan)
-    pitch = np.full(n, np.nan)
-    vel = np.full(n, np.nan)
-    stroke[s_ok] = s_theta
-    pitch[p_ok] = p_theta
-    vel[s_ok] = s_vel
+    if s_all:
+        stroke, vel = s_theta, s_vel
+    else:
+        stroke, vel = np.full(n, np.nan), np.full(n, np.nan)
+        stroke[s_ok] = s_theta
+        vel[s_ok] = s_vel
+    if p_all:
+        pitch = p_theta
+    else:
+        pitch = np.full(n, np.nan)
+        pitch[p_ok] = p_theta
 
     s_valid, s_since = _validity(s_ok, state.stroke_since_bad, holdoff)
     p_valid, p_since = _validity(p_ok, state.pitch_since_bad, holdoff)
