@@ -133,10 +133,11 @@ def _slew(x: np.ndarray, y0: float, max_step: float, limit: float) -> np.ndarray
     for i in range(x.size):
         d = x[i] - prev
         if d > max_step:
-            d = max_step
+            v = prev + max_step
         elif d < -max_step:
-            d = -max_step
-        v = prev + d
+            v = prev - max_step
+        else:
+            v = x[i]  # within the slew limit: passed through bit for bit
         if v > limit:
             v = limit
         elif v < -limit:
@@ -176,7 +177,9 @@ def step(
     state = check_timeout(state, t_end, params)
     if state.status == TRIPPED:
         if params.ramp_down_s > 0:
-            env = np.clip(1.0 - (t - state.trip_time_s) / params.ramp_down_s, 0.0, 1.0)
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                env = np.clip(1.0 - (t - state.trip_time_s) / params.ramp_down_s, 0.0, 1.0)
+            env = np.where(np.isfinite(env), env, 0.0)
         else:
             env = np.where(t < state.trip_time_s, 1.0, 0.0)
         env = np.where(t < state.trip_time_s, 1.0, env)
