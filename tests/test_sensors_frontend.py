@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from flaair_sensors import frontend as fe
 from flaair_sensors.characterization import sine_phasor
@@ -52,7 +54,7 @@ def test_plant_angles_recovered(model, params):
     t = np.arange(n) / FS
     drive = 100.0 * np.sin(2 * np.pi * 140.0 * t)
     out = simulate(drive, FS, model)
-    exact = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, fe.FrontendParams(**{**params.__dict__, "drift_corner_hz": 0.0}))
+    exact = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, fe.with_overrides(params, drift_corner_hz=0.0))
     np.testing.assert_allclose(exact.stroke_rad, out.stroke_rad, atol=1e-12)
     np.testing.assert_allclose(exact.pitch_rad, out.pitch_rad, atol=1e-12)
     est = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, params)
@@ -120,6 +122,31 @@ def test_block_stepping_equals_whole_record(params):
         for i, name in enumerate(fe.WingEstimate._fields):
             np.testing.assert_array_equal(np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
     np.testing.assert_array_equal(fe.estimate(sv, pv, p, state0).stroke_rad, whole.stroke_rad)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    sizes=st.lists(st.integers(0, 40), min_size=1, max_size=60),
+    bad=st.lists(st.integers(0, 599), max_size=20),
+    lag=st.floats(-3e-4, 5e-4),
+)
+def test_block_partition_property(params, sizes, bad, lag):
+    """Any partition of any record (with unusable samples) gives the whole-record result."""
+    p = fe.with_overrides(params, stroke_lag_s=lag, rail_low_v=0.2, rail_high_v=2.3)
+    t, _, sv = _sine_volts(p, 0.55, 150.0, 600)
+    pv = sv[::-1].copy()
+    sv[bad] = np.nan
+    state0 = fe.initial_state(p, 1.25, 1.25)
+    whole = fe.estimate(sv, pv, p, state0)
+    state, parts, start = state0, [], 0
+    for size in sizes + [sv.size]:
+        stop = min(start + size, sv.size)
+        state, out = fe.step(state, sv[start:stop], pv[start:stop], p)
+        parts.append(out)
+        start = stop
+    for i, name in enumerate(fe.WingEstimate._fields):
+        np.testing.assert_array_equal(np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
+    assert not whole.stroke_valid[bad].any()
 
 
 def test_nan_and_inf_never_valid_never_in_state(params):

@@ -77,6 +77,7 @@ __all__ = [
     "velocity_response",
     "velocity_phase_lag_deg",
     "estimate_delay_s",
+    "with_overrides",
 ]
 
 
