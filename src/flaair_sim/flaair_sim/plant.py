@@ -1,0 +1,582 @@
+"""Plant dynamics and sensor chain (shared/model-spec.md), with the effects of docs/ARCHITECTURE.md.
+
+Dynamics (SI units)::
+
+    I phi'' + Gamma |phi'| phi' + K phi = G_a V                      (+ effects)
+    I_p psi'' + c_p psi' + k_h psi = -J_c phi'' - D_p |phi'| phi'
+
+Integration is fixed-step RK4 (numba), with the drive held constant over each sample period
+(zero-order hold) and `n_substeps` RK4 steps per sample chosen from the fastest linear rate of
+the model (natural frequencies, damping rates); a sample period in which the collision stop is
+touched is redone with more substeps, chosen from the contact's stiffness and damping.
+
+Sample convention: output sample k is the state at t_k = k / fs (so sample 0 is the rest
+state); drive sample k is then held over [t_k, t_k+1). Feedthrough adds gain * drive[k] to
+sensor sample k.
+
+Sensor chain per channel, in order: transduction (nominal gain from pvdf.py, with
+transmission_nonlinearity on the stroke sensor and strain_transfer_loss scaling the
+deviation), feedthrough (stroke), charge-amplifier high-pass (first-order, bilinear with
+pre-warped corner, scipy `lfilter` zi convention), sensor delay (integer samples + linear
+interpolation between the two neighbouring samples for the fractional part), + V_HREF, noise.
+
+Effect coefficients that are damping ratios (structural_damping, collision) use the nominal
+inertia, so each effect maps to a fixed physical coefficient whatever else is on; wing_damage
+scales only I and I_p (K, k_h, J_c, damping coefficients unchanged).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import NamedTuple, Optional, Sequence
+
+import numpy as np
+from numba import njit, prange
+from scipy.signal import butter
+
+from .model import Model, ModelError
+
+__all__ = [
+    "SimOutput",
+    "PlantState",
+    "initial_state",
+    "step",
+    "simulate",
+    "simulate_batch",
+    "synthesize_measured_run",
+    "n_substeps",
+]
+
+# Largest (fastest linear rate) x (RK4 substep) allowed: a numerical-method setting, not a
+# model number. 0.1 keeps RK4's per-cycle error ~1e-6 and is far inside its stability region.
+_MAX_OMEGA_H = 0.1
+# Finer in the (rare) sample periods touching the collision stop, where the force has kinks.
+_MAX_OMEGA_H_CONTACT = 0.05
+
+# Layout of the per-model parameter vector handed to the numba kernels.
+(
+    _I, _GAMMA, _K, _GA, _IP, _CP, _KH, _JC, _DP, _CSTRUCT, _HCUBIC,
+    _CONTACT_ON, _PHI_LIM, _KC, _CC,
+    _GS, _GP, _TCUBIC, _FT, _VREF,
+    _HPS_ON, _HPS_B0, _HPS_B1, _HPS_A1,
+    _HPP_ON, _HPP_B0, _HPP_B1, _HPP_A1,
+    _DS_FRAC, _DP_FRAC,
+    _NPARAM,
+) = range(31)
+
+
+class SimOutput(NamedTuple):
+    """Simulated signals, one value per sample (rad, rad, V, V)."""
+
+    stroke_rad: np.ndarray
+    pitch_rad: np.ndarray
+    stroke_sensor_v: np.ndarray
+    pitch_sensor_v: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class PlantState:
+    """Plant state between blocks (arrays are read-only).
+
+    Attributes
+    ----------
+    mechanical : (4,) [phi rad, phi' rad/s, psi rad, psi' rad/s] at the next sample time.
+    highpass_zi : (2,) high-pass filter state [stroke, pitch] (scipy lfilter zi of each channel).
+    delay_stroke_v, delay_pitch_v : past sensor-voltage deviations entering the delay line,
+        oldest first (length = integer delay + 1, + 1 more with a fractional part).
+    fs_hz : sample rate the state belongs to.
+    sample_index : number of samples simulated so far.
+    """
+
+    mechanical: np.ndarray
+    highpass_zi: np.ndarray
+    delay_stroke_v: np.ndarray
+    delay_pitch_v: np.ndarray
+    fs_hz: float
+    sample_index: int = 0
+
+
+class _Prepared(NamedTuple):
+    params: np.ndarray
+    n_substeps: int
+    n_substeps_contact: int
+    delay_stroke_samples: int
+    delay_pitch_samples: int
+
+    @property
+    def delay_lengths(self) -> tuple[int, int]:
+        return (
+            self.delay_stroke_samples + (1 if self.params[_DS_FRAC] > 0 else 0) + 1,
+            self.delay_pitch_samples + (1 if self.params[_DP_FRAC] > 0 else 0) + 1,
+        )
+
+
+def _split_delay(delay_samples: float) -> tuple[int, float]:
+    whole = math.floor(delay_samples + 1e-9)  # tolerate 10/fs * fs = 9.999999999
+    frac = delay_samples - whole
+    return whole, (0.0 if frac < 1e-9 else frac)
+
+
+def _on(channel: str, which: str) -> bool:
+    return channel in (which, "both")
+
+
+@lru_cache(maxsize=512)
+def _prepare(model: Model, fs_hz: float) -> _Prepared:
+    """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
+    pl = model.plant
+    p = np.zeros(_NPARAM)
+    inertia = pl.stroke_inertia_kg_m2
+    stiffness = pl.stroke_stiffness_nm_per_rad
+    pitch_inertia = pl.pitch_inertia_kg_m2
+    hinge_stiffness = pl.hinge_stiffness_nm_per_rad
+    damage = model.effect("wing_damage")
+    factor = damage.inertia_factor if damage is not None else 1.0
+    p[_I] = inertia * factor
+    p[_IP] = pitch_inertia * factor
+    p[_GAMMA] = pl.aero_damping_nm_s2
+    p[_K] = stiffness
+    p[_GA] = pl.actuator_gain_nm_per_v
+    p[_CP] = pl.hinge_damping_nm_s_per_rad
+    p[_KH] = hinge_stiffness
+    p[_JC] = pl.inertial_coupling_kg_m2
+    p[_DP] = pl.aero_coupling_nm_s2
+    structural = model.effect("structural_damping")
+    if structural is not None:
+        p[_CSTRUCT] = 2.0 * structural.damping_ratio * math.sqrt(stiffness * inertia)
+    hinge = model.effect("hinge_stiffening")
+    if hinge is not None:
+        p[_HCUBIC] = hinge.cubic_per_rad2
+    collision = model.effect("collision")
+    if collision is not None:
+        p[_CONTACT_ON] = 1.0
+        p[_PHI_LIM] = math.radians(collision.stroke_limit_deg)
+        p[_KC] = collision.contact_stiffness_ratio * stiffness
+        p[_CC] = 2.0 * collision.contact_damping_ratio * math.sqrt(p[_KC] * inertia)
+
+    gain_s = model.stroke_volts_per_rad
+    gain_p = model.pitch_volts_per_rad
+    loss = model.effect("strain_transfer_loss")
+    if loss is not None:
+        if _on(loss.channel, "stroke"):
+            gain_s *= loss.efficiency
+        if _on(loss.channel, "pitch"):
+            gain_p *= loss.efficiency
+    p[_GS], p[_GP] = gain_s, gain_p
+    nonlinearity = model.effect("transmission_nonlinearity")
+    if nonlinearity is not None:
+        p[_TCUBIC] = nonlinearity.cubic_per_rad2
+    feed = model.effect("feedthrough")
+    if feed is not None:
+        p[_FT] = feed.gain_v_per_v
+    p[_VREF] = model.sensors.reference_voltage_v
+
+    highpass = model.effect("charge_amp_highpass")
+    if highpass is not None:
+        if not highpass.corner_hz < fs_hz / 2:
+            raise ModelError(
+                f"effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = {fs_hz / 2:g}, got {highpass.corner_hz:g}"
+            )
+        b, a = butter(1, highpass.corner_hz, btype="highpass", fs=fs_hz)
+        b, a = b / a[0], a / a[0]
+        for which, base in (("stroke", _HPS_ON), ("pitch", _HPP_ON)):
+            if _on(highpass.channel, which):
+                p[base : base + 4] = (1.0, b[0], b[1], a[1])
+    delay_int = [0, 0]
+    delay = model.effect("sensor_delay")
+    if delay is not None:
+        whole, frac = _split_delay(delay.delay_s * fs_hz)
+        for i, (which, index) in enumerate((("stroke", _DS_FRAC), ("pitch", _DP_FRAC))):
+            if _on(delay.channel, which):
+                delay_int[i] = whole
+                p[index] = frac
+
+    rates = [
+        math.sqrt(stiffness / p[_I]),
+        math.sqrt(hinge_stiffness / p[_IP]),
+        p[_CP] / p[_IP],
+        p[_CSTRUCT] / p[_I],
+    ]
+    substeps = max(1, math.ceil(max(rates) / fs_hz / _MAX_OMEGA_H))
+    substeps_contact = substeps
+    if collision is not None:
+        rates += [math.sqrt((stiffness + p[_KC]) / p[_I]), p[_CC] / p[_I]]
+        substeps_contact = max(1, math.ceil(max(rates) / fs_hz / _MAX_OMEGA_H_CONTACT))
+    p.setflags(write=False)
+    return _Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+
+
+def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
+    """RK4 substeps per sample for `model` at `fs_hz`: (free flight, sample periods touching the stop)."""
+    prep = _prepare(model, _check_fs(fs_hz))
+    return prep.n_substeps, prep.n_substeps_contact
+
+
+# --------------------------------------------------------------------------- numba kernels
+
+
+@njit(cache=True)
+def _accelerations(phi, dphi, psi, dpsi, v, p, contact):
+    """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
+    2: stop acts (just after an impact, where phi may be a rounding error below the limit)."""
+    torque = p[_GA] * v - p[_GAMMA] * abs(dphi) * dphi - p[_K] * phi - p[_CSTRUCT] * dphi
+    if contact == 2 or (contact == 1 and phi > p[_PHI_LIM]):
+        push = p[_KC] * (phi - p[_PHI_LIM]) + p[_CC] * dphi
+        if push > 0.0:  # a contact only pushes
+            torque -= push
+    ddphi = torque / p[_I]
+    hinge = p[_KH] * (psi + p[_HCUBIC] * psi * psi * psi)
+    ddpsi = (-p[_CP] * dpsi - hinge - p[_JC] * ddphi - p[_DP] * abs(dphi) * dphi) / p[_IP]
+    return ddphi, ddpsi
+
+
+@njit(cache=True)
+def _rk4(phi, dphi, psi, dpsi, v, p, hs, contact):
+    """One RK4 step of length hs; also reports whether any stage was past the stop."""
+    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, p, contact)
+    phi2 = phi + 0.5 * hs * dphi
+    dphi2 = dphi + 0.5 * hs * a1
+    dpsi2 = dpsi + 0.5 * hs * b1
+    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, p, contact)
+    phi3 = phi + 0.5 * hs * dphi2
+    dphi3 = dphi + 0.5 * hs * a2
+    dpsi3 = dpsi + 0.5 * hs * b2
+    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, p, contact)
+    phi4 = phi + hs * dphi3
+    dphi4 = dphi + hs * a3
+    dpsi4 = dpsi + hs * b3
+    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, p, contact)
+    limit = p[_PHI_LIM]
+    touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
+    return (
+        phi + hs / 6.0 * (dphi + 2.0 * dphi2 + 2.0 * dphi3 + dphi4),
+        dphi + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+        psi + hs / 6.0 * (dpsi + 2.0 * dpsi2 + 2.0 * dpsi3 + dpsi4),
+        dpsi + hs / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4),
+        touched,
+    )
+
+
+@njit(cache=True)
+def _rk4_sample(phi, dphi, psi, dpsi, v, p, h, nsub, contact):
+    """`nsub` RK4 steps over one sample period; also reports whether the stop was touched."""
+    hs = h / nsub
+    touched = False
+    for _ in range(nsub):
+        phi, dphi, psi, dpsi, hit = _rk4(phi, dphi, psi, dpsi, v, p, hs, contact)
+        touched = touched or hit
+    if phi > p[_PHI_LIM]:
+        touched = True
+    return phi, dphi, psi, dpsi, touched
+
+
+@njit(cache=True)
+def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
+    """Fraction of a step at which the cubic Hermite interpolant of phi reaches `limit`."""
+    lo, hi = 0.0, 1.0
+    for _ in range(40):
+        s = 0.5 * (lo + hi)
+        s2 = s * s
+        s3 = s2 * s
+        value = ((2 * s3 - 3 * s2 + 1) * phi0 + (s3 - 2 * s2 + s) * hs * dphi0
+                 + (-2 * s3 + 3 * s2) * phi1 + (s3 - s2) * hs * dphi1)
+        if value > limit:
+            hi = s
+        else:
+            lo = s
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True)
+def _contact_sample(phi, dphi, psi, dpsi, v, p, h, nsub):
+    """One sample period touching the stop, `nsub` substeps.
+
+    The damper makes the contact force jump at impact, which would cut RK4 to first order;
+    a substep that enters the contact is split at the impact time (Hermite interpolation).
+    """
+    hs = h / nsub
+    limit = p[_PHI_LIM]
+    for _ in range(nsub):
+        if phi <= limit:
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, p, hs, 0)
+            if f_phi <= limit:
+                phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
+                continue
+            theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
+            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, p, theta * hs, 0)
+            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, p, (1.0 - theta) * hs, 2)
+        else:
+            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, p, hs, 1)
+    return phi, dphi, psi, dpsi
+
+
+@njit(cache=True)
+def _delay_read(buf, pos, whole, frac):
+    n = buf.shape[0]
+    newest = buf[(pos - whole) % n]
+    if frac == 0.0:
+        return newest
+    return (1.0 - frac) * newest + frac * buf[(pos - whole - 1) % n]
+
+
+@njit(cache=True)
+def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_p,
+         phi_out, psi_out, vs_out, vp_out):
+    """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place.
+
+    A sample period in which the collision stop is touched is integrated again by
+    `_contact_sample`, so before the first contact the trajectory is bit-identical to the
+    model without the collision effect.
+    """
+    phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
+    zs, zp = zi[0], zi[1]
+    contact = p[_CONTACT_ON] != 0.0
+    buf_s = hist_s.copy()
+    buf_p = hist_p.copy()
+    pos_s = 0
+    pos_p = 0
+    len_s = buf_s.shape[0]
+    len_p = buf_p.shape[0]
+    for k in range(drive.shape[0]):
+        v = drive[k]
+        phi_out[k] = phi
+        psi_out[k] = psi
+        # sensor chain at t_k
+        ds = p[_GS] * (phi + p[_TCUBIC] * phi * phi * phi) + p[_FT] * v
+        dp = p[_GP] * psi
+        if p[_HPS_ON] != 0.0:
+            y = p[_HPS_B0] * ds + zs
+            zs = p[_HPS_B1] * ds - p[_HPS_A1] * y
+            ds = y
+        if p[_HPP_ON] != 0.0:
+            y = p[_HPP_B0] * dp + zp
+            zp = p[_HPP_B1] * dp - p[_HPP_A1] * y
+            dp = y
+        buf_s[pos_s] = ds
+        buf_p[pos_p] = dp
+        vs_out[k] = p[_VREF] + _delay_read(buf_s, pos_s, delay_s, p[_DS_FRAC])
+        vp_out[k] = p[_VREF] + _delay_read(buf_p, pos_p, delay_p, p[_DP_FRAC])
+        pos_s = (pos_s + 1) % len_s
+        pos_p = (pos_p + 1) % len_p
+        # RK4 over [t_k, t_k+1) with the drive held
+        n_phi, n_dphi, n_psi, n_dpsi, touched = _rk4_sample(phi, dphi, psi, dpsi, v, p, h, nsub, 1 if contact else 0)
+        if contact and touched:
+            n_phi, n_dphi, n_psi, n_dpsi = _contact_sample(phi, dphi, psi, dpsi, v, p, h, nsub_contact)
+        phi, dphi, psi, dpsi = n_phi, n_dphi, n_psi, n_dpsi
+    x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
+    zi[0], zi[1] = zs, zp
+    for j in range(len_s):
+        hist_s[j] = buf_s[(pos_s + j) % len_s]
+    for j in range(len_p):
+        hist_p[j] = buf_p[(pos_p + j) % len_p]
+
+
+@njit(cache=True, parallel=True)
+def _run_batch(drive, h, nsubs, params, delays, hist_len, phi_out, psi_out, vs_out, vp_out):
+    """Each model from rest over a shared (1, n) or per-model (m, n) drive."""
+    shared = drive.shape[0] == 1
+    for i in prange(params.shape[0]):
+        row = np.int64(0) if shared else np.int64(i)
+        x = np.zeros(4)
+        zi = np.zeros(2)
+        hist_s = np.zeros(hist_len[i, 0])
+        hist_p = np.zeros(hist_len[i, 1])
+        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0], delays[i, 1],
+             phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def _check_fs(fs_hz: float) -> float:
+    fs = float(fs_hz)
+    if not (math.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs_hz must be a finite number > 0, got {fs_hz!r}")
+    return fs
+
+
+def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarray:
+    drive = np.ascontiguousarray(drive_v, dtype=np.float64)
+    if drive.ndim not in ndim:
+        raise ValueError(f"drive_v must have {' or '.join(map(str, ndim))} dimension(s), got shape {drive.shape}")
+    if not np.all(np.isfinite(drive)):
+        raise ValueError("drive_v must be finite")
+    return drive
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
+    # keep the newest samples; rest (zero deviation) fills a longer line
+    if hist.shape[0] >= length:
+        return hist[hist.shape[0] - length :].copy()
+    return np.concatenate([np.zeros(length - hist.shape[0]), hist])
+
+
+def initial_state(model: Model, fs_hz: float) -> PlantState:
+    """At-rest state (phi = phi' = psi = psi' = 0, sensor chain at V_HREF) for `model` at `fs_hz`."""
+    fs = _check_fs(fs_hz)
+    len_s, len_p = _prepare(model, fs).delay_lengths
+    return PlantState(
+        mechanical=_frozen(np.zeros(4)),
+        highpass_zi=_frozen(np.zeros(2)),
+        delay_stroke_v=_frozen(np.zeros(len_s)),
+        delay_pitch_v=_frozen(np.zeros(len_p)),
+        fs_hz=fs,
+        sample_index=0,
+    )
+
+
+def step(
+    state: PlantState,
+    drive_v_block: np.ndarray,
+    fs_hz: float,
+    model: Model,
+    *,
+    rng: Optional[np.random.Generator] = None,
+) -> tuple[PlantState, SimOutput]:
+    """Advance the plant over one block of drive samples.
+
+    Parameters
+    ----------
+    state
+        State from `initial_state` or a previous `step` (same fs_hz).
+    drive_v_block
+        Drive voltage per sample (V, bias removed), held over each sample period.
+    fs_hz
+        Sample rate.
+    model
+        Model; it may change between blocks (the sensor-chain state is adapted).
+    rng
+        If given, sensor-voltage noise `model.noise.sensor_noise_v_rms` is added, drawn as
+        rng.standard_normal((n, 2)) so that the draw does not depend on the block split.
+
+    Returns
+    -------
+    (PlantState, SimOutput)
+    """
+    fs = _check_fs(fs_hz)
+    if fs != state.fs_hz:
+        raise ValueError(f"fs_hz {fs:g} differs from the state's fs_hz {state.fs_hz:g}")
+    drive = _check_drive(drive_v_block)
+    prep = _prepare(model, fs)
+    len_s, len_p = prep.delay_lengths
+    x = state.mechanical.copy()
+    zi = state.highpass_zi.copy()
+    hist_s = _fit_history(state.delay_stroke_v, len_s)
+    hist_p = _fit_history(state.delay_pitch_v, len_p)
+    n = drive.shape[0]
+    phi, psi, vs, vp = (np.empty(n) for _ in range(4))
+    _run(x, zi, hist_s, hist_p, drive, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact, prep.params,
+         prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
+    if rng is not None:
+        noise = rng.standard_normal((n, 2)) * model.noise.sensor_noise_v_rms
+        vs += noise[:, 0]
+        vp += noise[:, 1]
+    new_state = PlantState(
+        mechanical=_frozen(x),
+        highpass_zi=_frozen(zi),
+        delay_stroke_v=_frozen(hist_s),
+        delay_pitch_v=_frozen(hist_p),
+        fs_hz=fs,
+        sample_index=state.sample_index + n,
+    )
+    return new_state, SimOutput(phi, psi, vs, vp)
+
+
+def simulate(
+    drive_v: np.ndarray,
+    fs_hz: float,
+    model: Model,
+    *,
+    noise: bool = False,
+    rng: Optional[np.random.Generator] = None,
+) -> SimOutput:
+    """Whole record from rest: `step` applied once to the whole drive.
+
+    Parameters
+    ----------
+    drive_v
+        Drive voltage per sample (V).
+    fs_hz
+        Sample rate.
+    model
+        Model.
+    noise
+        Add sensor-voltage noise (model.noise) drawn from `rng` (default: a fresh generator).
+    rng
+        Random generator used when noise is True.
+    """
+    state = initial_state(model, fs_hz)
+    if noise and rng is None:
+        rng = np.random.default_rng()
+    _, out = step(state, drive_v, fs_hz, model, rng=rng if noise else None)
+    return out
+
+
+def simulate_batch(drive_v: np.ndarray, fs_hz: float, models: Sequence[Model]) -> SimOutput:
+    """Many models over one drive, in parallel (no noise); equals `simulate` model by model.
+
+    Parameters
+    ----------
+    drive_v
+        (n_samples,) shared drive, or (n_models, n_samples) one drive per model.
+    fs_hz
+        Sample rate.
+    models
+        The models.
+
+    Returns
+    -------
+    SimOutput
+        Arrays of shape (n_models, n_samples).
+    """
+    fs = _check_fs(fs_hz)
+    drive = _check_drive(drive_v, (1, 2))
+    models = list(models)
+    m = len(models)
+    if drive.ndim == 1:
+        drive = drive[None, :]
+    elif drive.shape[0] != m:
+        raise ValueError(f"drive_v has {drive.shape[0]} rows for {m} models")
+    n = drive.shape[1]
+    preps = [_prepare(model, fs) for model in models]
+    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
+    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
+    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
+                      dtype=np.int64).reshape(m, 2)
+    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
+    if m:
+        _run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
+    return SimOutput(phi, psi, vs, vp)
+
+
+def synthesize_measured_run(
+    drive_v: np.ndarray, fs_hz: float, model: Model, rng: np.random.Generator
+) -> dict[str, np.ndarray]:
+    """Synthetic measured run in the measured-run CSV columns and units.
+
+    Sensor voltages carry sensor noise; angles are the truth plus video-tracking noise
+    (model.noise.tracking_noise_deg_rms).
+
+    Returns
+    -------
+    dict
+        time_s, drive_v, stroke_sensor_v, pitch_sensor_v, stroke_deg, pitch_deg.
+    """
+    drive = _check_drive(drive_v)
+    out = simulate(drive, fs_hz, model, noise=True, rng=rng)
+    tracking = rng.standard_normal((drive.shape[0], 2)) * model.noise.tracking_noise_deg_rms
+    return {
+        "time_s": np.arange(drive.shape[0]) / float(fs_hz),
+        "drive_v": drive.copy(),
+        "stroke_sensor_v": out.stroke_sensor_v,
+        "pitch_sensor_v": out.pitch_sensor_v,
+        "stroke_deg": np.degrees(out.stroke_rad) + tracking[:, 0],
+        "pitch_deg": np.degrees(out.pitch_rad) + tracking[:, 1],
+    }
