@@ -43,10 +43,16 @@ def time_s_from_stamp(stamp: Time) -> float:
 
 @dataclass(frozen=True)
 class BlockCheck:
-    """Outcome of checking one incoming block: ok, or the reason it was refused."""
+    """Outcome of checking one incoming block.
+
+    kind is "ok", "content" (bad values, length or rate: the block's time slot is used but its
+    data refused), "stale" (duplicate or out of order: ignore it entirely) or "gap" (blocks
+    were lost before this one; the block itself is fine).
+    """
 
     ok: bool
     reason: str = ""
+    kind: str = "ok"
 
 
 def check_block(
@@ -75,21 +81,23 @@ def check_block(
     BlockCheck
         `ok` False with a reason naming the field, index or rate that is wrong.
     """
+    if expected_index is not None and first_sample_index < expected_index:
+        return BlockCheck(False, f"duplicate or out of order: first_sample_index {first_sample_index}, "
+                                 f"expected {expected_index}", "stale")
     lengths = {name: len(values) for name, values in arrays.items()}
     if len(set(lengths.values())) > 1:
-        return BlockCheck(False, f"array lengths differ: {lengths}")
+        return BlockCheck(False, f"array lengths differ: {lengths}", "content")
     length = next(iter(lengths.values()), 0)
     if length == 0:
-        return BlockCheck(False, "empty block")
+        return BlockCheck(False, "empty block", "content")
     if expected_length is not None and length != expected_length:
-        return BlockCheck(False, f"block has {length} samples, expected {expected_length}")
+        return BlockCheck(False, f"block has {length} samples, expected {expected_length}", "content")
     if not np.isclose(sample_rate_hz, expected_rate_hz, rtol=1e-9):
-        return BlockCheck(False, f"sample_rate_hz {sample_rate_hz} != {expected_rate_hz}")
+        return BlockCheck(False, f"sample_rate_hz {sample_rate_hz} != {expected_rate_hz}", "content")
     for name, values in arrays.items():
         bad = ~np.isfinite(values)
         if bad.any():
-            return BlockCheck(False, f"{name} has {int(bad.sum())} non-finite sample(s), first at {int(np.argmax(bad))}")
-    if expected_index is not None and first_sample_index != expected_index:
-        kind = "duplicate or out of order" if first_sample_index < expected_index else "gap"
-        return BlockCheck(False, f"{kind}: first_sample_index {first_sample_index}, expected {expected_index}")
+            return BlockCheck(False, f"{name} has {int(bad.sum())} non-finite sample(s), first at {int(np.argmax(bad))}", "content")
+    if expected_index is not None and first_sample_index > expected_index:
+        return BlockCheck(False, f"gap: first_sample_index {first_sample_index}, expected {expected_index}", "gap")
     return BlockCheck(True)

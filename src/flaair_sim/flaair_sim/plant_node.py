@@ -83,20 +83,20 @@ class PlantNode(Node):
             {"drive_v": drive_v}, message.sample_rate_hz, self.fs_hz, message.first_sample_index,
             self.expected_command_index, self.block_size,
         )
-        if check.ok:
-            self.expected_command_index = message.first_sample_index + len(drive_v)
-        else:
+        if not check.ok:
             self.rejected_blocks += 1
+            action = {"stale": "ignored", "gap": "accepted after the gap", "content": "holding zero drive"}[check.kind]
+            # Every rejection is logged until the count is large; then at most once a second.
             self.get_logger().warning(
-                f"rejected command block {message.first_sample_index} ({check.reason}); holding zero drive "
+                f"rejected command block {message.first_sample_index} ({check.reason}); {action} "
                 f"[{self.rejected_blocks} rejected so far]",
-                throttle_duration_sec=1.0,
+                throttle_duration_sec=1.0 if self.rejected_blocks > 10 else 0.0,
             )
-            drive_v = np.zeros(self.block_size)
-            if "out of order" in check.reason:
+            if check.kind == "stale":
                 return  # a duplicate or stale block must not advance the plant again
-            if "gap" in check.reason:
-                self.expected_command_index = message.first_sample_index + self.block_size
+            if check.kind == "content":
+                drive_v = np.zeros(self.block_size)
+        self.expected_command_index = message.first_sample_index + self.block_size
         if self.p["mode"] == "lockstep":
             self.advance(drive_v)
         else:
