@@ -74,3 +74,13 @@ def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
     if not found:
         raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
     return out
+
+
+def shared_parameter_names(file_name: str) -> set[str]:
+    """Names in the `/**` section of config/`file_name` (values every node may receive)."""
+    document = load_yaml(config_dir() / file_name) or {}
+    out: dict[str, Any] = {}
+    section = document.get("/**") if isinstance(document, dict) else None
+    if isinstance(section, dict):
+        _flatten("", section.get("ros__parameters", {}), out)
+    return set(out)

@@ -12,7 +12,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 
-from flaair_common.config import ConfigError, node_parameters
+from flaair_common.config import ConfigError, node_parameters, shared_parameter_names
 
 _TYPES = {
     float: ParameterType.PARAMETER_DOUBLE,
@@ -98,7 +98,8 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
             )
         values[spec.name] = value
     overrides = getattr(node, "_parameter_overrides", {}) or {}
-    unknown = sorted(set(overrides) - {s.name for s in specs} - {"use_sim_time"})
+    # Shared `/**` values reach every node given the whole file as --params-file; not an error.
+    unknown = sorted(set(overrides) - {s.name for s in specs} - shared_parameter_names(config_file) - {"use_sim_time"})
     if unknown:
         known = ", ".join(s.name for s in specs)
         raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; this node takes: {known}")

@@ -1,0 +1,131 @@
+"""frontend_node: PVDF charge-amplifier voltages in, wing stroke and pitch out, live.
+
+Subscribes to raw sensor-voltage blocks (/flaair/sensor_v) and publishes wing-state blocks
+(/flaair/wing_state: stroke_deg, pitch_deg, stroke_velocity_deg_s, validity), through the
+same core (flaair_sensors.frontend.step) that runs offline on bags.
+
+Gains come from the model (paper Table 1 through the composite-beam charge model) or from a
+calibration file written by `bin/flaair calibrate`. V_HREF and slow drift are removed, the
+calibrated lag is compensated by a phase lead, samples near the charge-amplifier rails or
+non-finite are marked invalid (never reported as angles), and the stroke velocity comes from
+a low-pass differentiator (its phase at 140 Hz is logged at start).
+
+Usage: bin/flaair run flaair_sensors frontend_node --ros-args -p gains_from:=calibration \\
+         -p calibration_file:=out/cal/calibration.yaml
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rclpy.node import Node
+
+from flaair_common import topics
+from flaair_common.blocks import check_block, from_array, to_array
+from flaair_common.config import ConfigError, load_yaml
+from flaair_common.params import ParameterError, ParamSpec, declare_parameters
+from flaair_common.qos import BLOCK_STREAM
+from flaair_common.runtime import run_node
+from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
+from flaair_sensors import frontend
+from flaair_sim.model import ModelError
+from flaair_sim.model_io import load_model
+
+NODE_NAME = "frontend_node"
+CONFIG_FILE = "flaair.yaml"
+PARAMS = [
+    ParamSpec("sample_rate_hz", float, "Sample rate of the sensor blocks [Hz]", 1000.0, 1.0e6, read_only=True),
+    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    ParamSpec("gains_from", str, "Where the sensor gains come from", choices=("model", "calibration"), read_only=True),
+    ParamSpec("model_file", str, "Model YAML (empty: config/model.yaml)", read_only=True),
+    ParamSpec("calibration_file", str, "calibration.yaml from `bin/flaair calibrate`", read_only=True),
+    ParamSpec("drift_corner_hz", float, "Drift-tracking corner (0: off) [Hz]", 0.0, 20.0, read_only=True),
+    ParamSpec("compensate_lag", bool, "Phase-lead compensation of the calibrated lag", read_only=True),
+    ParamSpec("lead_rolloff_hz", float, "Lead compensator roll-off [Hz]", 1.0, 9000.0, read_only=True),
+    ParamSpec("rail_low_v", float, "Charge-amplifier low rail [V]", -100.0, 100.0, read_only=True),
+    ParamSpec("rail_high_v", float, "Charge-amplifier high rail [V]", -100.0, 100.0, read_only=True),
+    ParamSpec("rail_margin_v", float, "Distance from a rail that counts as saturated [V]", 0.0, 10.0, read_only=True),
+    ParamSpec("holdoff_s", float, "Time invalid after an unusable sample [s]", 0.0, 1.0, read_only=True),
+    ParamSpec("velocity_cutoff_hz", float, "Stroke-velocity differentiator cutoff [Hz]", 10.0, 9000.0, read_only=True),
+]
+_TUNING = ("drift_corner_hz", "compensate_lag", "lead_rolloff_hz", "rail_low_v", "rail_high_v",
+           "rail_margin_v", "holdoff_s", "velocity_cutoff_hz")
+
+
+def frontend_params(values: dict, fs_hz: float) -> frontend.FrontendParams:
+    """FrontendParams from the node's parameter values (model or calibration gains)."""
+    tuning = {name: values[name] for name in _TUNING}
+    try:
+        if values["gains_from"] == "calibration":
+            if not values["calibration_file"]:
+                raise ParameterError("parameter 'calibration_file' is empty but gains_from is 'calibration'")
+            calibration = load_yaml(values["calibration_file"])
+            return frontend.params_from_calibration(calibration, fs_hz, **tuning)
+        return frontend.params_from_model(load_model(values["model_file"] or None), fs_hz, **tuning)
+    except (ConfigError, ModelError, OSError) as exc:
+        raise ParameterError(f"parameter '{'calibration_file' if values['gains_from'] == 'calibration' else 'model_file'}': {exc}") from exc
+    except frontend.FrontendError as exc:
+        raise ParameterError(str(exc)) from exc
+
+
+class FrontendNode(Node):
+    """Thin shell over flaair_sensors.frontend.step."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, PARAMS, CONFIG_FILE)
+        self.fs_hz = values["sample_rate_hz"]
+        self.params = frontend_params(values, self.fs_hz)
+        self.state = frontend.initial_state(self.params)
+        self.expected_index: int | None = None
+        self.rejected_blocks = 0
+        self.latencies_s: list[float] = []
+        self.publisher = self.create_publisher(WingStateBlock, topics.WING_STATE, BLOCK_STREAM)
+        self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+        delay = frontend.estimate_delay_s(self.params)
+        self.get_logger().info(
+            f"front end ready: gains from {values['gains_from']}, "
+            f"stroke {abs(np.degrees(1 / self.params.stroke_volts_per_rad)):.2f} deg/V, "
+            f"pitch {abs(np.degrees(1 / self.params.pitch_volts_per_rad)):.2f} deg/V, "
+            f"velocity phase lag at 140 Hz {frontend.velocity_phase_lag_deg(self.params):.1f} deg, delays {delay}"
+        )
+
+    def on_sensor(self, message: SensorVoltageBlock) -> None:
+        start = time.perf_counter()
+        stroke_v = to_array(message.stroke_sensor_v)
+        pitch_v = to_array(message.pitch_sensor_v)
+        # Non-finite samples are the core's job (marked invalid); here only order, length and rate.
+        check = check_block({"stroke_sensor_v": np.nan_to_num(stroke_v), "pitch_sensor_v": np.nan_to_num(pitch_v)},
+                            message.sample_rate_hz, self.fs_hz, message.first_sample_index, self.expected_index)
+        if not check.ok:
+            self.rejected_blocks += 1
+            self.get_logger().warning(
+                f"sensor block {message.first_sample_index}: {check.reason} [{self.rejected_blocks} so far]",
+                throttle_duration_sec=1.0 if self.rejected_blocks > 10 else 0.0,
+            )
+            if check.kind != "gap":
+                return
+        self.expected_index = message.first_sample_index + len(stroke_v)
+        self.state, estimate = frontend.step(self.state, stroke_v, pitch_v, self.params)
+        out = WingStateBlock(sample_rate_hz=message.sample_rate_hz, first_sample_index=message.first_sample_index,
+                             source=WingStateBlock.SOURCE_SENSOR_ESTIMATE)
+        out.header = message.header
+        out.stroke_deg = from_array(np.degrees(estimate.stroke_rad))
+        out.pitch_deg = from_array(np.degrees(estimate.pitch_rad))
+        out.stroke_velocity_deg_s = from_array(np.degrees(estimate.stroke_velocity_rad_s))
+        out.stroke_valid = estimate.stroke_valid.tolist()
+        out.pitch_valid = estimate.pitch_valid.tolist()
+        self.publisher.publish(out)
+        self.latencies_s.append(time.perf_counter() - start)
+        if len(self.latencies_s) >= 20000:
+            lat = np.array(self.latencies_s) * 1e3
+            self.get_logger().info(f"block processing p50 {np.percentile(lat, 50):.3f} ms, p99 {np.percentile(lat, 99):.3f} ms")
+            self.latencies_s.clear()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(FrontendNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
