@@ -1,0 +1,817 @@
+"""rosbag2 (MCAP) bag I/O for FLAAIR: typestore, writer, block reader, run markers, reindex.
+
+A bag is a rosbag2 directory as ROS 2 Jazzy writes it: `metadata.yaml` (version 9) next to
+one MCAP file (`<bag>_0.mcap`, profile `ros2`, `cdr` messages, `ros2msg` schemas, zstd-compressed
+chunks, each channel's offered QoS profiles in its metadata as rosbag2 records them).
+Types come from rosbags' Jazzy typestore plus this project's `.msg` files. The MCAP file is
+written with the `mcap` library (chunk size and flush under our control, so a writer killed
+with SIGKILL leaves every flushed chunk readable); `reindex` turns such an unfinished bag back
+into a complete one. Reading goes through rosbags.
+
+Bag-level conventions
+---------------------
+- Block topics (SensorVoltageBlock, DriveCommandBlock, WingStateBlock) are read back whole with
+  `read_blocks`: each array field concatenated, `first_sample_index` continuity checked.
+- Runs (imported lab CSVs) are marked by std_msgs/String messages on `RUN_MARKER_TOPIC` holding
+  JSON `{"run", "first_sample_index", "n_samples", "source_file", ...}`, and listed in the bag's
+  `custom_data` under `RUNS_CUSTOM_KEY`.
+
+Command line (`bin/flaair bag`): `info BAG` prints topics and counts; `reindex BAG` recovers a
+bag whose recorder was killed (no metadata.yaml, no MCAP summary).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import struct
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from importlib.metadata import version as package_version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from mcap.exceptions import McapError
+from mcap.records import Channel as McapChannel
+from mcap.records import Footer as McapFooter
+from mcap.records import Message as McapMessage
+from mcap.records import Metadata as McapMetadata
+from mcap.records import Schema as McapSchema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.interfaces import Nodetype, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import Reader
+from rosbags.rosbag2.errors import ReaderError
+from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
+from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from rosbags.typesys.store import Typestore
+
+from flaair_common.config import ConfigError, config_dir, node_parameters
+
+BAG_VERSION = 9  # rosbag2 metadata version written by ROS 2 Jazzy
+ROS_DISTRO = "jazzy"
+MSG_PACKAGE = "flaair_msgs"
+RUN_MARKER_TOPIC = "/flaair/run_marker"
+RUN_MARKER_TYPE = "std_msgs/msg/String"
+RUNS_CUSTOM_KEY = "flaair.runs"
+STORAGE_SECTION = "recorder_node"  # config section holding the storage settings (compression, chunk size)
+CONFIG_FILE = "flaair.yaml"
+HEADER_TYPE = "std_msgs/msg/Header"
+TIME_TYPE = "builtin_interfaces/msg/Time"
+_NS_PER_S = 1_000_000_000
+_LIBRARY = f"flaair bagio (mcap {package_version('mcap')}, rosbags {package_version('rosbags')})"
+
+
+class BagError(ValueError):
+    """A bag cannot be read or written as asked; the message names the bag (and topic)."""
+
+
+class BagTopicError(BagError):
+    """A needed topic is missing from the bag, or holds an unexpected type."""
+
+
+class BagContinuityError(BagError):
+    """Blocks of a topic skip or repeat samples (first_sample_index discontinuity)."""
+
+
+class BagUnfinishedError(BagError):
+    """The bag has no metadata.yaml: its writer did not close it (repair with `bin/flaair bag reindex`)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Types
+# --------------------------------------------------------------------------------------------
+def msg_dirs() -> list[Path]:
+    """Directories that may hold flaair_msgs' `.msg` files: the source tree, then the install."""
+    dirs: list[Path] = []
+    try:
+        repo = str(config_dir().parent)
+    except ConfigError:
+        repo = ""
+    for base in (os.environ.get("FLAAIR_ROOT"), repo):
+        if base:
+            dirs.append(Path(base) / "src" / MSG_PACKAGE / "msg")
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if prefix:
+            dirs.append(Path(prefix) / "share" / MSG_PACKAGE / "msg")
+    unique: list[Path] = []
+    for directory in dirs:
+        if directory.is_dir() and directory.resolve() not in [d.resolve() for d in unique]:
+            unique.append(directory)
+    return unique
+
+
+def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
+    """`.msg` texts of flaair_msgs by full type name ('flaair_msgs/msg/Name')."""
+    directories = [directory] if directory is not None else msg_dirs()
+    for candidate in directories:
+        texts = {f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8") for p in sorted(candidate.glob("*.msg"))}
+        if texts:
+            return texts
+    raise BagError(f"no {MSG_PACKAGE} .msg files found (looked in: {', '.join(map(str, directories)) or 'nowhere'})")
+
+
+@functools.lru_cache(maxsize=None)
+def typestore() -> Typestore:
+    """rosbags' ROS 2 Jazzy typestore with flaair_msgs registered from its `.msg` files."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types: dict[str, Any] = {}
+    for name, text in project_msg_texts().items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+def message_definition(msgtype: str, store: Typestore | None = None) -> tuple[str, str]:
+    """The `ros2msg` definition (with dependencies) and RIHS01 hash of `msgtype`."""
+    store = store or typestore()
+    if msgtype not in store.fielddefs:
+        raise BagTopicError(f"message type '{msgtype}' is unknown to the typestore (Jazzy + {MSG_PACKAGE})")
+    text, _ = store.generate_msgdef(msgtype, ros_version=2)
+    return text, store.hash_rihs01(msgtype)
+
+
+def new_message(msgtype: str, store: Typestore | None = None, **values: Any) -> Any:
+    """A typestore message of `msgtype` with `values`; every other field zero / empty."""
+    store = store or typestore()
+    cls = store.types[msgtype]
+    _, fields = store.fielddefs[msgtype]
+    kwargs: dict[str, Any] = {}
+    for name, (node, detail) in fields:
+        if name in values:
+            kwargs[name] = values[name]
+        elif node == Nodetype.NAME:
+            kwargs[name] = new_message(detail, store)
+        elif node == Nodetype.BASE:
+            kwargs[name] = "" if detail[0] == "string" else (False if detail[0] == "bool" else 0)
+        elif node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[0][1][0] != "string":
+            kwargs[name] = np.zeros(0, dtype=_numpy_dtype(detail[0][1][0]))
+        else:
+            kwargs[name] = []
+    unknown = set(values) - set(kwargs)
+    if unknown:
+        raise BagError(f"{msgtype} has no field(s) {', '.join(sorted(unknown))}")
+    return cls(**kwargs)
+
+
+def _numpy_dtype(base: str) -> np.dtype:
+    names = {"float64": "f8", "float32": "f4", "bool": "bool", "byte": "u1", "char": "u1",
+             "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4",
+             "uint32": "u4", "int64": "i8", "uint64": "u8"}
+    return np.dtype(names[base])
+
+
+def time_msg(stamp_ns: int, store: Typestore | None = None) -> Any:
+    """builtin_interfaces/Time for a time in nanoseconds."""
+    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    return new_message(TIME_TYPE, store, sec=sec, nanosec=nanosec)
+
+
+def has_leading_stamp(msgtype: str, store: Typestore | None = None) -> bool:
+    """True if the first field of `msgtype` is a std_msgs/Header or a builtin_interfaces/Time."""
+    store = store or typestore()
+    _, fields = store.fielddefs[msgtype]
+    return bool(fields) and fields[0][1][0] == Nodetype.NAME and fields[0][1][1] in (HEADER_TYPE, TIME_TYPE)
+
+
+def leading_stamp_ns(data: bytes | memoryview) -> int:
+    """Time of the leading Header/Time field of a CDR-serialized message, in nanoseconds.
+
+    The stamp is the first member after the 4-byte encapsulation header in both little- and
+    big-endian CDR (int32 sec, uint32 nanosec), so no deserialization is needed.
+    """
+    if len(data) < 12:
+        raise BagError(f"CDR message of {len(data)} bytes is too short to hold a stamp")
+    endian = "<" if data[1] & 1 else ">"
+    sec, nanosec = struct.unpack_from(endian + "iI", data, 4)
+    return sec * _NS_PER_S + nanosec
+
+
+# --------------------------------------------------------------------------------------------
+# QoS
+# --------------------------------------------------------------------------------------------
+def _qos_time(duration: Any) -> QosTime:
+    nanoseconds = int(getattr(duration, "nanoseconds", duration))
+    sec, nsec = divmod(nanoseconds, _NS_PER_S)
+    return QosTime(sec, nsec)
+
+
+def qos_from_rclpy(profile: Any) -> Qos:
+    """rosbags Qos of an rclpy QoSProfile (duck-typed: rclpy is not imported here)."""
+    return Qos(
+        QosHistory(int(profile.history)),
+        int(profile.depth),
+        QosReliability(int(profile.reliability)),
+        QosDurability(int(profile.durability)),
+        _qos_time(profile.deadline),
+        _qos_time(profile.lifespan),
+        QosLiveliness(int(profile.liveliness)),
+        _qos_time(profile.liveliness_lease_duration),
+        bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
+def qos_to_yaml(profiles: Sequence[Qos]) -> str:
+    """Offered QoS profiles as the YAML text rosbag2 (Jazzy, v9) stores in MCAP channel metadata."""
+    if not profiles:
+        return ""
+    return yaml.safe_dump(dump_qos_v9(list(profiles)), default_flow_style=False, sort_keys=False).strip()
+
+
+def qos_from_yaml(text: str) -> list[Qos]:
+    """Offered QoS profiles from the YAML text of a channel's metadata (inverse of `qos_to_yaml`)."""
+    return parse_qos(text)
+
+
+# --------------------------------------------------------------------------------------------
+# Writer
+# --------------------------------------------------------------------------------------------
+def storage_settings() -> tuple[bool, int]:
+    """(compression, chunk_size_bytes) for new bags, from config/flaair.yaml's recorder_node section."""
+    try:
+        values = node_parameters(CONFIG_FILE, STORAGE_SECTION)
+        return bool(values["compression"]), int(values["chunk_size_bytes"])
+    except (ConfigError, KeyError) as exc:
+        raise BagError(f"config/{CONFIG_FILE}: {STORAGE_SECTION}: storage settings missing: {exc}") from exc
+
+
+@dataclass
+class _Topic:
+    channel_id: int
+    msgtype: str
+    type_hash: str
+    offered_qos: list[Qos]
+    count: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+
+class BagWriter:
+    """Write a rosbag2 MCAP bag: topics, serialized messages, custom data; `close()` finalizes.
+
+    Parameters
+    ----------
+    path
+        Bag directory to create (must not exist).
+    compression, chunk_size_bytes
+        zstd chunk compression and chunk size (None: config/flaair.yaml, recorder_node).
+    store
+        Typestore (default: `typestore()`).
+    file_name
+        MCAP file name inside the bag (default `<bag name>_0.mcap`, as rosbag2 names it).
+    """
+
+    def __init__(self, path: str | Path, *, compression: bool | None = None, chunk_size_bytes: int | None = None,
+                 store: Typestore | None = None, file_name: str | None = None) -> None:
+        self.path = Path(path)
+        if compression is None or chunk_size_bytes is None:
+            default_compression, default_chunk = storage_settings()
+            compression = default_compression if compression is None else compression
+            chunk_size_bytes = default_chunk if chunk_size_bytes is None else chunk_size_bytes
+        self.store = store or typestore()
+        self.compression = bool(compression)
+        try:
+            self.path.mkdir(parents=True, exist_ok=False)
+        except FileExistsError:
+            raise BagError(f"{self.path}: exists already; choose a new bag directory") from None
+        except OSError as exc:
+            raise BagError(f"{self.path}: cannot create the bag directory: {exc.strerror}") from None
+        self.file_path = self.path / (file_name or f"{self.path.name}_0.mcap")
+        self._stream = open(self.file_path, "xb")
+        self._mcap = McapWriter(
+            self._stream, chunk_size=int(chunk_size_bytes),
+            compression=CompressionType.ZSTD if self.compression else CompressionType.NONE,
+        )
+        self._mcap.start(profile="ros2", library=_LIBRARY)
+        self._schemas: dict[str, int] = {}
+        self._topics: dict[str, _Topic] = {}
+        self.custom_data: dict[str, str] = {}
+        self.closed = False
+
+    def add_topic(self, topic: str, msgtype: str, offered_qos: Sequence[Qos] = (), *,
+                  msgdef: str | None = None, type_hash: str | None = None) -> None:
+        """Register `topic` of `msgtype`; its schema comes from the typestore unless `msgdef` is given."""
+        known = self._topics.get(topic)
+        if known is not None:
+            if known.msgtype != msgtype:
+                raise BagTopicError(f"{self.path}: topic '{topic}' is already recorded as {known.msgtype}, not {msgtype}")
+            return
+        if msgdef is None or type_hash is None:
+            generated, generated_hash = message_definition(msgtype, self.store)
+            msgdef = generated if msgdef is None else msgdef
+            type_hash = generated_hash if type_hash is None else type_hash
+        if msgtype not in self._schemas:
+            self._schemas[msgtype] = self._mcap.register_schema(msgtype, "ros2msg", msgdef.encode())
+        metadata = {"offered_qos_profiles": qos_to_yaml(offered_qos), "topic_type_hash": type_hash}
+        channel_id = self._mcap.register_channel(topic, "cdr", self._schemas[msgtype], metadata)
+        self._topics[topic] = _Topic(channel_id, msgtype, type_hash, list(offered_qos))
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview, publish_time_ns: int | None = None) -> None:
+        """Append one CDR-serialized message of a registered topic."""
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise BagTopicError(f"{self.path}: topic '{topic}' was not added before writing")
+        timestamp_ns = int(timestamp_ns)
+        self._mcap.add_message(entry.channel_id, timestamp_ns, bytes(data),
+                               timestamp_ns if publish_time_ns is None else int(publish_time_ns), entry.count)
+        entry.count += 1
+        entry.first_ns = timestamp_ns if entry.first_ns is None else min(entry.first_ns, timestamp_ns)
+        entry.last_ns = timestamp_ns if entry.last_ns is None else max(entry.last_ns, timestamp_ns)
+
+    def write_message(self, topic: str, timestamp_ns: int, message: Any, offered_qos: Sequence[Qos] = ()) -> None:
+        """Serialize a typestore message and append it (registering the topic on first use)."""
+        msgtype = message.__msgtype__
+        if topic not in self._topics:
+            self.add_topic(topic, msgtype, offered_qos)
+        self.write(topic, timestamp_ns, self.store.serialize_cdr(message, msgtype))
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Store a string in the bag metadata's custom_data."""
+        if not isinstance(value, str):
+            raise BagError(f"custom_data '{key}' must be a string, not {type(value).__name__}")
+        self.custom_data[key] = value
+
+    def has_topic(self, topic: str) -> bool:
+        """True once `topic` was added."""
+        return topic in self._topics
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written so far, by topic."""
+        return {topic: entry.count for topic, entry in self._topics.items()}
+
+    def flush(self) -> None:
+        """Close the open chunk and hand everything to the OS: it survives a kill of this process."""
+        self._mcap.flush()
+
+    def close(self) -> None:
+        """Finish the MCAP file (summary, indexes, rosbag2 metadata record) and write metadata.yaml."""
+        if self.closed:
+            return
+        self.closed = True
+        info = self.metadata()
+        text = yaml.safe_dump(info["rosbag2_bagfile_information"], default_flow_style=False, sort_keys=False)
+        self._mcap.add_metadata("rosbag2", {"serialized_metadata": text, "ROS_DISTRO": ROS_DISTRO})
+        self._mcap.finish()
+        self._stream.close()
+        temporary = self.path / "metadata.yaml.tmp"
+        temporary.write_text(yaml.safe_dump(info, default_flow_style=False, sort_keys=False), encoding="utf-8")
+        temporary.replace(self.path / "metadata.yaml")
+
+    def metadata(self) -> dict[str, Any]:
+        """The rosbag2 metadata.yaml document of what was written so far."""
+        return bag_metadata(self.file_path.name, self._topics, self.custom_data)
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def bag_metadata(file_name: str, topics: dict[str, _Topic], custom_data: dict[str, str]) -> dict[str, Any]:
+    """rosbag2 (version 9) metadata.yaml document for one MCAP file with `topics`."""
+    firsts = [t.first_ns for t in topics.values() if t.first_ns is not None]
+    lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
+    start = min(firsts) if firsts else 0
+    duration = (max(lasts) - start) if lasts else 0
+    count = sum(t.count for t in topics.values())
+    return {"rosbag2_bagfile_information": {
+        "version": BAG_VERSION,
+        "storage_identifier": "mcap",
+        "duration": {"nanoseconds": duration},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": count,
+        "topics_with_message_count": [
+            {"topic_metadata": {"name": name, "type": t.msgtype, "serialization_format": "cdr",
+                                "offered_qos_profiles": dump_qos_v9(t.offered_qos),
+                                "type_description_hash": t.type_hash},
+             "message_count": t.count}
+            for name, t in topics.items()
+        ],
+        "compression_format": "",
+        "compression_mode": "",
+        "relative_file_paths": [file_name],
+        "files": [{"path": file_name, "starting_time": {"nanoseconds_since_epoch": start},
+                   "duration": {"nanoseconds": duration}, "message_count": count}],
+        "custom_data": dict(custom_data) or None,
+        "ros_distro": ROS_DISTRO,
+    }}
+
+
+# --------------------------------------------------------------------------------------------
+# Reader
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TopicInfo:
+    """One topic of a bag: type, message count and the QoS its publishers offered."""
+
+    msgtype: str
+    count: int
+    offered_qos: tuple[Qos, ...]
+
+
+@dataclass(frozen=True)
+class BagInfo:
+    """What a bag holds."""
+
+    path: Path
+    topics: dict[str, TopicInfo]
+    start_ns: int
+    end_ns: int
+    message_count: int
+    custom_data: dict[str, str]
+
+
+def _open(bag: str | Path) -> Reader:
+    path = Path(bag)
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        if any(path.glob("*.mcap")):
+            raise BagUnfinishedError(
+                f"{path}: no metadata.yaml (the recorder did not close the bag); recover it with: bin/flaair bag reindex {path}")
+        raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml, no .mcap file)")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except (ReaderError, FileNotFoundError) as exc:
+        raise BagError(f"{path}: cannot open bag: {exc}") from None
+    return reader
+
+
+def bag_info(bag: str | Path) -> BagInfo:
+    """Topics (type, count, offered QoS), time span and custom data of a bag."""
+    reader = _open(bag)
+    try:
+        topics = {}
+        for name, info in reader.topics.items():
+            qos = info.connections[0].ext.offered_qos_profiles if info.connections else []
+            topics[name] = TopicInfo(info.msgtype or "", info.msgcount, tuple(qos))
+        custom = dict(reader.storage.metadata.custom or {}) if hasattr(reader.storage, "metadata") else {}
+        return BagInfo(Path(bag), topics, reader.start_time, reader.end_time, reader.message_count, custom)
+    finally:
+        reader.close()
+
+
+def message_counts(bag: str | Path) -> dict[str, int]:
+    """Messages per topic, counted by reading every message of the bag."""
+    counts: dict[str, int] = {}
+    for topic, _, _, _ in iter_raw(bag):
+        counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
+def iter_raw(bag: str | Path, topics: Sequence[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+    """(topic, msgtype, log time ns, CDR bytes) of every message (of `topics`) in log-time order."""
+    reader = _open(bag)
+    try:
+        connections = reader.connections
+        if topics is not None:
+            _require_topics(bag, reader, topics)
+            connections = [c for c in connections if c.topic in topics]
+        for connection, timestamp, data in reader.messages(connections=connections):
+            yield connection.topic, connection.msgtype, timestamp, data
+    finally:
+        reader.close()
+
+
+def iter_messages(bag: str | Path, topics: Sequence[str] | None = None,
+                  store: Typestore | None = None) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time ns, deserialized message) of every message (of `topics`) in log-time order."""
+    store = store or typestore()
+    for topic, msgtype, timestamp, data in iter_raw(bag, topics):
+        yield topic, timestamp, store.deserialize_cdr(data, msgtype)
+
+
+def _require_topics(bag: str | Path, reader: Reader, topics: Sequence[str]) -> None:
+    present = reader.topics
+    missing = [t for t in topics if t not in present]
+    if missing:
+        raise BagTopicError(
+            f"{bag}: no topic {', '.join(repr(t) for t in missing)} in the bag "
+            f"(it has: {', '.join(sorted(present)) or 'no topics'})")
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """Every block of one topic, concatenated: per-sample arrays by field name.
+
+    `sample_index` and `time_ns` give each sample's stream index and time (block stamp +
+    k / sample_rate_hz); `gaps` lists (expected, found) first_sample_index pairs where the
+    stream skipped or repeated samples (empty unless read with allow_gaps=True).
+    """
+
+    topic: str
+    msgtype: str
+    sample_rate_hz: float
+    first_sample_index: int
+    fields: dict[str, np.ndarray]
+    sample_index: np.ndarray
+    time_ns: np.ndarray
+    block_stamps_ns: np.ndarray
+    block_first_index: np.ndarray
+    scalars: dict[str, np.ndarray] = field(default_factory=dict)
+    gaps: tuple[tuple[int, int], ...] = ()
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.fields[name]
+
+    @property
+    def n_samples(self) -> int:
+        """Samples in all blocks."""
+        return int(self.sample_index.size)
+
+    @property
+    def time_s(self) -> np.ndarray:
+        """Sample times [s] (relative to the bag's time origin)."""
+        return self.time_ns * 1e-9
+
+
+def block_array_fields(msgtype: str, store: Typestore | None = None) -> tuple[list[str], list[str]]:
+    """(per-sample array fields, per-block scalar fields) of a block message type."""
+    store = store or typestore()
+    _, fields = store.fielddefs[msgtype]
+    arrays, scalars = [], []
+    for name, (node, detail) in fields:
+        if node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE:
+            arrays.append(name)
+        elif node == Nodetype.BASE and name not in ("sample_rate_hz", "first_sample_index"):
+            scalars.append(name)
+    names = {name for name, _ in fields}
+    if not arrays or not {"header", "sample_rate_hz", "first_sample_index"} <= names:
+        raise BagTopicError(f"{msgtype} is not a block message (needs header, sample_rate_hz, first_sample_index and arrays)")
+    return arrays, scalars
+
+
+def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_gaps: bool = False,
+                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
+    """Concatenate deserialized block messages (pure: no file access); see `read_blocks`."""
+    where = f"{bag}: topic '{topic}'" if bag else f"topic '{topic}'"
+    arrays, scalars = block_array_fields(msgtype, store)
+    if not messages:
+        raise BagTopicError(f"{where}: no messages")
+    rate_hz = float(messages[0].sample_rate_hz)
+    if not np.isfinite(rate_hz) or rate_hz <= 0:
+        raise BagError(f"{where}: block 0: sample_rate_hz {rate_hz} is not positive")
+    chunks: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
+    lengths, firsts, stamps, gaps = [], [], [], []
+    expected: int | None = None
+    for number, message in enumerate(messages):
+        if float(message.sample_rate_hz) != rate_hz:
+            raise BagError(f"{where}: block {number}: sample_rate_hz {message.sample_rate_hz} differs from {rate_hz}")
+        values = {name: np.asarray(getattr(message, name)) for name in arrays}
+        sizes = {name: v.size for name, v in values.items()}
+        if len(set(sizes.values())) != 1:
+            raise BagError(f"{where}: block {number}: array lengths differ: {sizes}")
+        first = int(message.first_sample_index)
+        if expected is not None and first != expected:
+            if not allow_gaps:
+                kind = f"{first - expected} samples missing" if first > expected else f"{expected - first} samples repeated"
+                raise BagContinuityError(
+                    f"{where}: block {number} has first_sample_index {first}, expected {expected} ({kind})")
+            gaps.append((expected, first))
+        length = next(iter(sizes.values()))
+        expected = first + length
+        for name in arrays:
+            chunks[name].append(values[name])
+        lengths.append(length)
+        firsts.append(first)
+        stamps.append(message.header.stamp.sec * _NS_PER_S + message.header.stamp.nanosec)
+    lengths_arr = np.asarray(lengths, dtype=np.int64)
+    firsts_arr = np.asarray(firsts, dtype=np.int64)
+    stamps_arr = np.asarray(stamps, dtype=np.int64)
+    offsets = np.arange(int(lengths_arr.sum()), dtype=np.int64) - np.repeat(np.cumsum(lengths_arr) - lengths_arr, lengths_arr)
+    sample_index = np.repeat(firsts_arr, lengths_arr) + offsets
+    time_ns = np.repeat(stamps_arr, lengths_arr) + np.round(offsets * (_NS_PER_S / rate_hz)).astype(np.int64)
+    return Blocks(
+        topic=topic, msgtype=msgtype, sample_rate_hz=rate_hz, first_sample_index=firsts[0],
+        fields={name: np.concatenate(parts) for name, parts in chunks.items()},
+        sample_index=sample_index, time_ns=time_ns, block_stamps_ns=stamps_arr, block_first_index=firsts_arr,
+        scalars={name: np.asarray([getattr(m, name) for m in messages]) for name in scalars},
+        gaps=tuple(gaps),
+    )
+
+
+def read_blocks(bag: str | Path, topic: str, *, run: str | None = None, allow_gaps: bool = False) -> Blocks:
+    """Read every block message of `topic`, concatenated per field.
+
+    Parameters
+    ----------
+    bag
+        Bag directory.
+    topic
+        A topic of SensorVoltageBlock, DriveCommandBlock or WingStateBlock (any block type).
+    run
+        Keep only the samples of this run (see `read_run_markers`).
+    allow_gaps
+        False: a first_sample_index discontinuity raises BagContinuityError. True: the gap is
+        kept (never filled) and listed in `Blocks.gaps`.
+
+    Raises
+    ------
+    BagTopicError
+        The topic is not in the bag (the message names it and lists the bag's topics).
+    BagContinuityError
+        Samples skipped or repeated between blocks.
+    """
+    store = typestore()
+    reader = _open(bag)
+    try:
+        _require_topics(bag, reader, [topic])
+        connections = [c for c in reader.connections if c.topic == topic]
+        msgtype = connections[0].msgtype
+        if msgtype not in store.fielddefs:
+            raise BagTopicError(f"{bag}: topic '{topic}' has type {msgtype}, unknown to the typestore")
+        messages = [store.deserialize_cdr(data, msgtype) for _, _, data in reader.messages(connections=connections)]
+    finally:
+        reader.close()
+    blocks = assemble_blocks(topic, msgtype, messages, allow_gaps=allow_gaps, bag=bag, store=store)
+    if run is None:
+        return blocks
+    markers = {m.run: m for m in read_run_markers(bag)}
+    if run not in markers:
+        raise BagError(f"{bag}: no run '{run}' (runs: {', '.join(markers) or 'none marked'})")
+    return select_samples(blocks, markers[run].first_sample_index, markers[run].n_samples)
+
+
+def select_samples(blocks: Blocks, first_sample_index: int, n_samples: int) -> Blocks:
+    """The samples of `blocks` with first_sample_index <= index < first_sample_index + n_samples."""
+    keep = (blocks.sample_index >= first_sample_index) & (blocks.sample_index < first_sample_index + n_samples)
+    block_keep = (blocks.block_first_index >= first_sample_index) & (blocks.block_first_index < first_sample_index + n_samples)
+    return dataclasses.replace(
+        blocks,
+        first_sample_index=int(blocks.sample_index[keep][0]) if keep.any() else first_sample_index,
+        fields={name: values[keep] for name, values in blocks.fields.items()},
+        sample_index=blocks.sample_index[keep], time_ns=blocks.time_ns[keep],
+        block_stamps_ns=blocks.block_stamps_ns[block_keep], block_first_index=blocks.block_first_index[block_keep],
+        scalars={name: values[block_keep] for name, values in blocks.scalars.items()},
+        gaps=tuple(g for g in blocks.gaps if first_sample_index <= g[1] < first_sample_index + n_samples),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Run markers
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunMarker:
+    """One run in a bag: its name, sample range in the block streams, source file and start time."""
+
+    run: str
+    first_sample_index: int
+    n_samples: int
+    source_file: str
+    sample_rate_hz: float
+    start_ns: int
+
+    def to_json(self) -> str:
+        """The marker as the JSON text carried by a std_msgs/String."""
+        return json.dumps(dataclasses.asdict(self))
+
+    @classmethod
+    def from_json(cls, text: str) -> RunMarker:
+        """Parse a marker's JSON text; the message names a missing or bad key."""
+        try:
+            values = json.loads(text)
+            return cls(run=str(values["run"]), first_sample_index=int(values["first_sample_index"]),
+                       n_samples=int(values["n_samples"]), source_file=str(values.get("source_file", "")),
+                       sample_rate_hz=float(values.get("sample_rate_hz", "nan")), start_ns=int(values.get("start_ns", 0)))
+        except (ValueError, KeyError, TypeError) as exc:
+            raise BagError(f"bad run marker {text!r}: {exc!r}") from None
+
+
+def read_run_markers(bag: str | Path) -> list[RunMarker]:
+    """Run markers of a bag, in time order (empty if it has none)."""
+    reader = _open(bag)
+    try:
+        if RUN_MARKER_TOPIC not in reader.topics:
+            return []
+    finally:
+        reader.close()
+    return [RunMarker.from_json(message.data) for _, _, message in iter_messages(bag, [RUN_MARKER_TOPIC])]
+
+
+# --------------------------------------------------------------------------------------------
+# Reindex (recover a bag whose writer was killed)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ReindexReport:
+    """Outcome of `reindex`: messages recovered per topic and whether the file was complete."""
+
+    path: Path
+    counts: dict[str, int]
+    was_complete: bool
+    stopped_at: str
+
+
+def scan_mcap(path: Path) -> Iterator[McapSchema | McapChannel | McapMessage | McapMetadata | McapFooter]:
+    """Records of an MCAP file in order, stopping quietly at a truncated or corrupt record.
+
+    Chunks are decompressed and checked (CRC); a chunk cut short by a kill yields nothing.
+    """
+    with open(path, "rb") as stream:
+        try:
+            for record in StreamReader(stream, validate_crcs=True).records:
+                if isinstance(record, (McapSchema, McapChannel, McapMessage, McapMetadata, McapFooter)):
+                    yield record
+        except (McapError, struct.error, ValueError, EOFError, MemoryError):
+            return
+
+
+def reindex(bag: str | Path) -> ReindexReport:
+    """Make an unfinished bag (recorder killed: no summary, no metadata.yaml) readable again.
+
+    Every complete chunk of the MCAP file is kept; the partial chunk at the end (data not yet
+    flushed at the kill) is dropped. The file is rewritten with its summary (through a
+    temporary file, so the original stays until the copy is complete) and metadata.yaml is
+    written. A complete bag is rewritten with the same content.
+    """
+    path = Path(bag)
+    files = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    if len(files) != 1:
+        raise BagError(f"{path}: expected one .mcap file in the bag directory, found {len(files)}")
+    source = files[0]
+    temporary = path / ".reindex"
+    if temporary.exists():
+        for leftover in temporary.iterdir():
+            leftover.unlink()
+        temporary.rmdir()
+    compression, chunk_size = storage_settings()
+    writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size, file_name=source.name)
+    schemas: dict[int, McapSchema] = {}
+    channels: dict[int, McapChannel] = {}
+    complete = False
+    stopped_at = "end of file"
+    for record in scan_mcap(source):
+        if isinstance(record, McapSchema):
+            schemas[record.id] = record
+        elif isinstance(record, McapChannel):
+            channels[record.id] = record
+            schema = schemas.get(record.schema_id)
+            if schema is None:
+                continue
+            writer.add_topic(record.topic, schema.name, qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
+                             msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
+        elif isinstance(record, McapMessage):
+            channel = channels.get(record.channel_id)
+            if channel is not None and writer.has_topic(channel.topic):
+                writer.write(channel.topic, record.log_time, record.data, record.publish_time)
+        elif isinstance(record, McapMetadata) and record.name == "rosbag2":
+            try:
+                previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
+                for key, value in (previous.get("custom_data") or {}).items():
+                    writer.set_custom_data(str(key), str(value))
+            except yaml.YAMLError:
+                pass
+        elif isinstance(record, McapFooter):
+            complete = True
+    if not complete:
+        stopped_at = "truncated record (unflushed data at the kill)"
+    writer.close()
+    os.replace(temporary / source.name, source)
+    os.replace(temporary / "metadata.yaml", path / "metadata.yaml")
+    temporary.rmdir()
+    return ReindexReport(path, writer.counts, complete, stopped_at)
+
+
+# --------------------------------------------------------------------------------------------
+# Command line: bin/flaair bag info|reindex
+# --------------------------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    """`flaair bag info BAG` / `flaair bag reindex BAG`."""
+    parser = argparse.ArgumentParser(prog="flaair bag", description="Inspect or repair rosbag2 (MCAP) bags.")
+    sub = parser.add_subparsers(dest="verb", required=True)
+    sub.add_parser("info", help="topics, types, counts, time span").add_argument("bag")
+    sub.add_parser("reindex", help="recover a bag whose recorder was killed (kill -9)").add_argument("bag")
+    args = parser.parse_args(argv)
+    try:
+        if args.verb == "reindex":
+            start = time.perf_counter()
+            report = reindex(args.bag)
+            state = "was complete; metadata rebuilt" if report.was_complete else f"recovered up to the last flushed chunk ({report.stopped_at})"
+            print(f"{report.path}: {state} in {time.perf_counter() - start:.2f} s")
+            for topic, count in sorted(report.counts.items()):
+                print(f"  {topic}: {count}")
+            return 0
+        info = bag_info(args.bag)
+        span_s = max(0, info.end_ns - info.start_ns) / _NS_PER_S
+        print(f"{info.path}: {info.message_count} messages, {span_s:.6f} s")
+        for topic, topic_info in sorted(info.topics.items()):
+            print(f"  {topic} [{topic_info.msgtype}] {topic_info.count}")
+        for key, value in sorted(info.custom_data.items()):
+            print(f"  custom_data {key}: {value[:200]}")
+        return 0
+    except (BagError, OSError) as exc:
+        print(f"flaair bag: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""`flaair import`: turn measured-run CSV files (lab exports) into one rosbag2 (MCAP) bag.
+
+Each run becomes block messages, block_size samples each (config/flaair.yaml), exactly as
+the simulated robot publishes them:
+  /flaair/drive              DriveCommandBlock   drive_v
+  /flaair/sensor_v           SensorVoltageBlock  stroke_sensor_v, pitch_sensor_v
+  /flaair/wing_state/truth   WingStateBlock      stroke_deg, pitch_deg (source GROUND_TRUTH);
+                                                 stroke_valid / pitch_valid false where the video
+                                                 lost the wing (the NaN is kept, never filled)
+Runs follow one another in time, gap_s apart; first_sample_index counts on across runs.
+Each run is marked by a std_msgs/String on /flaair/run_marker holding JSON
+{"run", "first_sample_index", "n_samples", "source_file", "sample_rate_hz", "start_ns"},
+and listed in the bag's custom_data "flaair.runs". The last block of a run may be shorter.
+
+Every file is checked before anything is written; a bad file is named with its line and column.
+
+Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from flaair_common import topics
+from flaair_common.config import ConfigError, node_parameters
+from flaair_common.qos import BLOCK_STREAM, EVENTS
+from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
+from flaair_tools import bagio
+
+CONFIG_FILE = "flaair.yaml"
+SECTION = "import_runs"
+DRIVE_TYPE = "flaair_msgs/msg/DriveCommandBlock"
+SENSOR_TYPE = "flaair_msgs/msg/SensorVoltageBlock"
+WING_TYPE = "flaair_msgs/msg/WingStateBlock"
+RATE_DIGITS = 9  # CSV times carry about this many significant digits: the rate is rounded to them
+_NS_PER_S = 1_000_000_000
+
+
+class RunSetError(ValueError):
+    """Runs that cannot go into one bag together (the message names the runs)."""
+
+
+def run_rate_hz(run: MeasuredRun) -> float:
+    """The run's sample rate, rounded to the precision CSV times carry (5e-05 s steps -> 20000 Hz)."""
+    return float(f"{run.sample_rate_hz:.{RATE_DIGITS}g}")
+
+
+def run_span_ns(run: MeasuredRun) -> int:
+    """Duration of a run including its last sample period [ns]."""
+    time_s = run["time_s"]
+    return int(round((time_s[-1] - time_s[0] + 1.0 / run_rate_hz(run)) * _NS_PER_S))
+
+
+def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int, block_size: int,
+               frame_id: str, store: Any = None) -> tuple[bagio.RunMarker, list[tuple[str, int, Any]]]:
+    """A run as its marker and (topic, stamp ns, typestore message) tuples in time order (pure).
+
+    Block k starts at sample k * block_size; its header stamp is start_ns plus the CSV time of
+    that sample (relative to the run's first sample).
+    """
+    store = store or bagio.typestore()
+    rate_hz = run_rate_hz(run)
+    time_s = run["time_s"]
+    n_samples = len(time_s)
+    relative_ns = np.round((time_s - time_s[0]) * _NS_PER_S).astype(np.int64)
+    wing = store.types[WING_TYPE]
+    marker = bagio.RunMarker(run=run.name, first_sample_index=first_sample_index, n_samples=n_samples,
+                             source_file=source_file, sample_rate_hz=rate_hz, start_ns=start_ns)
+    out: list[tuple[str, int, Any]] = [
+        (bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json()))]
+    for k0 in range(0, n_samples, block_size):
+        part = slice(k0, min(k0 + block_size, n_samples))
+        stamp_ns = start_ns + int(relative_ns[k0])
+        index = first_sample_index + k0
+
+        def header(frame: str) -> Any:
+            return bagio.new_message("std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store), frame_id=frame)
+
+        stroke_deg = run["stroke_deg"][part].copy()
+        pitch_deg = run["pitch_deg"][part].copy()
+        out.append((topics.DRIVE, stamp_ns, bagio.new_message(
+            DRIVE_TYPE, store, header=header(""), sample_rate_hz=rate_hz, first_sample_index=index,
+            drive_v=run["drive_v"][part].copy())))
+        out.append((topics.SENSOR_VOLTAGE, stamp_ns, bagio.new_message(
+            SENSOR_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
+            stroke_sensor_v=run["stroke_sensor_v"][part].copy(), pitch_sensor_v=run["pitch_sensor_v"][part].copy())))
+        out.append((topics.WING_STATE_TRUTH, stamp_ns, bagio.new_message(
+            WING_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
+            source=wing.SOURCE_GROUND_TRUTH, stroke_deg=stroke_deg, pitch_deg=pitch_deg,
+            stroke_velocity_deg_s=np.full(stroke_deg.size, np.nan),
+            stroke_valid=np.isfinite(stroke_deg), pitch_valid=np.isfinite(pitch_deg))))
+    return marker, out
+
+
+def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
+    """Runs must have distinct names and one sample rate (a block topic has one rate)."""
+    names: dict[str, Path] = {}
+    for path, run in runs:
+        if run.name in names:
+            raise RunSetError(f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file")
+        names[run.name] = path
+    rates = {run_rate_hz(run): path for path, run in runs}
+    if len(rates) > 1:
+        listing = ", ".join(f"{path} {rate:g} Hz" for rate, path in rates.items())
+        raise RunSetError(f"runs have different sample rates ({listing}); import them into separate bags")
+
+
+def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str) -> list[bagio.RunMarker]:
+    """Read and check every CSV, then write the bag; returns the run markers written."""
+    runs = [(path, read_run(path)) for path in paths]
+    check_runs(runs)
+    store = bagio.typestore()
+    offered = {topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+               topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+               topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+               bagio.RUN_MARKER_TOPIC: [bagio.qos_from_rclpy(EVENTS)]}
+    markers: list[bagio.RunMarker] = []
+    start_ns = 0
+    first_index = 0
+    with bagio.BagWriter(out, store=store) as writer:
+        for path, run in runs:
+            marker, messages = encode_run(run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index,
+                                          block_size=block_size, frame_id=frame_id, store=store)
+            for topic, stamp_ns, message in messages:
+                writer.write_message(topic, stamp_ns, message, offered[topic])
+            markers.append(marker)
+            first_index += marker.n_samples
+            start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
+        writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps([json.loads(m.to_json()) for m in markers]))
+    return markers
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`bin/flaair import RUN.csv... --out BAG`; exit 1 with file/line/column on a bad file."""
+    try:
+        defaults = node_parameters(CONFIG_FILE, SECTION)
+    except ConfigError as exc:
+        print(f"flaair import: {exc}", file=sys.stderr)
+        return 1
+    parser = argparse.ArgumentParser(prog="flaair import", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", type=Path, help="measured-run CSV files")
+    parser.add_argument("-o", "--out", type=Path, required=True, help="bag directory to create")
+    parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
+                        help=f"time between runs [s] (default {defaults['gap_s']})")
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.gap_s < 0:
+        parser.error("--gap-s must not be negative")
+    if args.out.exists():
+        print(f"flaair import: {args.out}: exists already; choose a new bag directory", file=sys.stderr)
+        return 1
+    try:
+        markers = import_runs(args.runs, args.out, gap_s=args.gap_s, block_size=int(defaults["block_size"]),
+                              frame_id=str(defaults["frame_id"]))
+    except (RunFileError, RunSetError, bagio.BagError) as exc:
+        print(f"flaair import: {exc}", file=sys.stderr)
+        return 1
+    for marker in markers:
+        print(f"{marker.run}: {marker.n_samples} samples at {marker.sample_rate_hz:g} Hz "
+              f"(first_sample_index {marker.first_sample_index}) from {marker.source_file}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
