@@ -1,0 +1,103 @@
+"""Runs from bags: the measured-run columns of every run in one or more bags.
+
+A run is what a lab exports as one CSV (shared/measured-run-format.md): drive, both sensor
+voltages and ground-truth angles (NaN where the truth is missing or invalid). Bags mark their
+runs on /flaair/run_marker; a bag without markers is one run named after the bag.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from flaair_common import topics
+from flaair_tools import bagio
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run's columns (measured-run names and units), its name and sample rate."""
+
+    name: str
+    bag: str
+    sample_rate_hz: float
+    columns: dict[str, np.ndarray]
+
+    def __getitem__(self, column: str) -> np.ndarray:
+        return self.columns[column]
+
+    def __contains__(self, column: str) -> bool:
+        return column in self.columns
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.columns["stroke_sensor_v"])
+
+
+def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Blocks | None) -> dict[str, np.ndarray]:
+    first = int(sensor.sample_index[0])
+    n = len(sensor.sample_index)
+    fs = float(sensor.sample_rate_hz)
+    columns = {
+        "time_s": (sensor.sample_index - first) / fs,
+        "stroke_sensor_v": sensor["stroke_sensor_v"],
+        "pitch_sensor_v": sensor["pitch_sensor_v"],
+    }
+
+    def aligned(blocks: bagio.Blocks, field: str, valid: str | None = None) -> np.ndarray:
+        out = np.full(n, np.nan)
+        where = blocks.sample_index - first
+        keep = (where >= 0) & (where < n)
+        values = blocks[field].astype(float)
+        if valid is not None:
+            values = np.where(blocks[valid].astype(bool), values, np.nan)
+        out[where[keep]] = values[keep]
+        return out
+
+    if drive is not None:
+        columns["drive_v"] = aligned(drive, "drive_v")
+    if truth is not None:
+        columns["stroke_deg"] = aligned(truth, "stroke_deg", "stroke_valid")
+        columns["pitch_deg"] = aligned(truth, "pitch_deg", "pitch_valid")
+    return columns
+
+
+def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive: bool = True) -> list[Run]:
+    """Every run of every bag, as measured-run columns.
+
+    Parameters
+    ----------
+    bags
+        Bag directories.
+    need_truth, need_drive
+        Refuse bags without /flaair/wing_state/truth or /flaair/drive.
+
+    Raises
+    ------
+    bagio.BagError
+        A bag is unreadable or lacks a needed topic (the message names the bag and topic).
+    """
+    runs: list[Run] = []
+    for bag in bags:
+        present = set(bagio.bag_info(bag).topics)
+        needed = [topics.SENSOR_VOLTAGE] + ([topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
+        missing = [t for t in needed if t not in present]
+        if missing:
+            raise bagio.BagTopicError(f"{bag}: needed topic(s) {', '.join(missing)} not in the bag "
+                                      f"(it has: {', '.join(sorted(present)) or 'nothing'})")
+        sensor = bagio.read_blocks(bag, topics.SENSOR_VOLTAGE)
+        drive = bagio.read_blocks(bag, topics.DRIVE) if topics.DRIVE in present else None
+        truth = bagio.read_blocks(bag, topics.WING_STATE_TRUTH) if topics.WING_STATE_TRUTH in present else None
+        markers = bagio.read_run_markers(bag)
+        if not markers:
+            runs.append(Run(Path(bag).name, str(bag), float(sensor.sample_rate_hz), _columns(sensor, drive, truth)))
+            continue
+        for marker in markers:
+            pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)  # noqa: E731
+            part = pick(sensor)
+            if len(part.sample_index) == 0:
+                raise bagio.BagError(f"{bag}: run '{marker.run}' has no sensor samples")
+            runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth))))
+    return runs
