@@ -129,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         clock_pub = node.create_publisher(Clock, topic_names.CLOCK, CLOCK_QOS_DEPTH) if args.clock else None
         if args.wait_subscribers:
             deadline = time.monotonic() + args.wait_timeout_s
-            while not stop and time.monotonic() < deadline and any(
-                    p.get_subscription_count() == 0 for p in publishers.values()):
+            waiting = list(publishers.values()) + ([clock_pub] if clock_pub is not None else [])
+            while not stop and time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in waiting):
                 time.sleep(0.05)
         deadline = time.monotonic() + args.start_delay
         while not stop and time.monotonic() < deadline:
