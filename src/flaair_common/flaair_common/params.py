@@ -19,6 +19,7 @@ _TYPES = {
     int: ParameterType.PARAMETER_INTEGER,
     bool: ParameterType.PARAMETER_BOOL,
     str: ParameterType.PARAMETER_STRING,
+    list: ParameterType.PARAMETER_DOUBLE_ARRAY,
 }
 
 
@@ -87,11 +88,15 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
         default = defaults[spec.name]
         if spec.type is float and isinstance(default, int) and not isinstance(default, bool):
             default = float(default)
+        if spec.type is list:
+            default = [float(v) for v in default]
         try:
             parameter = node.declare_parameter(spec.name, default, spec.descriptor())
         except Exception as exc:  # rclpy raises several exception types here
             raise ParameterError(f"parameter '{spec.name}' refused: {exc}") from exc
         value = parameter.value
+        if spec.type is list:
+            value = [float(v) for v in value]
         if spec.choices and value not in spec.choices:
             raise ParameterError(
                 f"parameter '{spec.name}' = {value!r} is not one of {', '.join(spec.choices)}"

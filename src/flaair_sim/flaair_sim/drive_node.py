@@ -43,6 +43,8 @@ PARAMS = [
     ParamSpec("run_time_s", float, "Stop after this much signal time (0: never) [s]", 0.0, 1e6, read_only=True),
     ParamSpec("pacing", str, "realtime or lockstep (paced by the plant's sensor blocks)", choices=("realtime", "lockstep"), read_only=True),
     ParamSpec("lockstep_window_blocks", int, "lockstep: command blocks allowed ahead of the plant", 1, 10000, read_only=True),
+    ParamSpec("min_subscribers", int, "Start only once this many subscribers listen (e.g. plant + recorder)", 1, 100, read_only=True),
+    ParamSpec("first_sample_index", int, "Index of the first command sample (continue a plant's count)", 0, 2**62, read_only=True),
 ]
 
 
@@ -63,9 +65,10 @@ class DriveNode(Node):
         except drive.DriveError as exc:
             raise ParameterError(str(exc)) from exc
         self.state = drive.DriveState()
-        self.next_index = 0
-        self.total_samples = int(round(self.p["run_time_s"] * self.fs_hz)) or None
-        self.acknowledged_index = 0
+        self.next_index = self.p["first_sample_index"]
+        run_samples = int(round(self.p["run_time_s"] * self.fs_hz))
+        self.total_samples = self.next_index + run_samples if run_samples else None
+        self.acknowledged_index = self.next_index
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         if self.p["pacing"] == "lockstep":
             self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
@@ -94,7 +97,7 @@ class DriveNode(Node):
         self.publish_window()
 
     def publish_window(self) -> None:
-        if self.publisher.get_subscription_count() == 0:
+        if self.publisher.get_subscription_count() < self.p["min_subscribers"]:
             return
         window = self.p["lockstep_window_blocks"] * self.block_size
         while not self.finished() and self.next_index < self.acknowledged_index + window:
@@ -102,7 +105,7 @@ class DriveNode(Node):
 
     def on_realtime_tick(self) -> None:
         if self.wall_start_s is None:
-            if self.publisher.get_subscription_count() == 0:
+            if self.publisher.get_subscription_count() < self.p["min_subscribers"]:
                 return
             self.wall_start_s = time.monotonic()
         due = int((time.monotonic() - self.wall_start_s) * self.fs_hz)

@@ -12,6 +12,9 @@ A command block with NaN/inf samples, the wrong length or rate, or out of order 
 counted and logged; the plant holds zero drive for that block and keeps running. Drive is
 clamped to +-drive_limit_v before it reaches the model.
 
+An obstacle (the paper's collision experiment) can be scheduled in sim time with
+obstacle_windows_s (pairs of start/end seconds) at obstacle_stroke_limit_deg.
+
 Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p model_file:=my.yaml]
 """
 from __future__ import annotations
@@ -30,7 +33,7 @@ from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim import plant
-from flaair_sim.model import ModelError
+from flaair_sim.model import ModelError, with_effects
 from flaair_sim.model_io import load_model
 
 NODE_NAME = "plant_node"
@@ -44,7 +47,16 @@ PARAMS = [
     ParamSpec("noise", bool, "Add the model's sensor-voltage noise", read_only=True),
     ParamSpec("noise_seed", int, "Seed of the sensor-noise generator", 0, 2**31 - 1, read_only=True),
     ParamSpec("publish_clock", bool, "Publish /clock with the simulation time", read_only=True),
+    ParamSpec("obstacle_windows_s", list, "Obstacle in place over these [start, end) sim-time pairs [s]", read_only=True),
+    ParamSpec("obstacle_stroke_limit_deg", float, "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0, read_only=True),
 ]
+
+
+def obstacle_windows(flat_s: list[float]) -> list[tuple[float, float]]:
+    """[start, end) pairs from a flat list; empty pairs (end <= start) are dropped."""
+    if len(flat_s) % 2:
+        raise ParameterError(f"parameter 'obstacle_windows_s' needs start/end pairs, got {len(flat_s)} values")
+    return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2]) if b > a]
 
 
 class PlantNode(Node):
@@ -57,6 +69,11 @@ class PlantNode(Node):
             self.model = load_model(self.p["model_file"] or None)
         except (ModelError, OSError) as exc:
             raise ParameterError(f"parameter 'model_file': {exc}") from exc
+        self.windows_s = obstacle_windows(self.p["obstacle_windows_s"])
+        try:
+            self.obstacle_model = with_effects(self.model, {"collision": {"stroke_limit_deg": self.p["obstacle_stroke_limit_deg"]}})
+        except ModelError as exc:
+            raise ParameterError(f"parameter 'obstacle_stroke_limit_deg': {exc}") from exc
         self.fs_hz = self.p["sample_rate_hz"]
         self.block_size = self.p["block_size"]
         self.state = plant.initial_state(self.model, self.fs_hz)
@@ -75,6 +92,7 @@ class PlantNode(Node):
         self.get_logger().info(
             f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
             f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
+            + (f", obstacle at {self.p['obstacle_stroke_limit_deg']:g} deg over {self.windows_s} s" if self.windows_s else "")
         )
 
     def on_command(self, message: DriveCommandBlock) -> None:
@@ -112,7 +130,9 @@ class PlantNode(Node):
         """Step the model one block and publish its outputs."""
         limit = self.get_parameter("drive_limit_v").value
         drive_v = np.clip(drive_v, -limit, limit)
-        self.state, out = plant.step(self.state, drive_v, self.fs_hz, self.model)
+        start_s = self.next_index / self.fs_hz
+        obstacle = any(a <= start_s < b for a, b in self.windows_s)
+        self.state, out = plant.step(self.state, drive_v, self.fs_hz, self.obstacle_model if obstacle else self.model)
         stroke_v, pitch_v = out.stroke_sensor_v, out.pitch_sensor_v
         if self.p["noise"]:
             sigma = self.model.noise.sensor_noise_v_rms

@@ -1,0 +1,297 @@
+"""`flaair experiment NAME --out BAG`: run a paper experiment on the simulated robot and record it.
+
+Starts the graph (plant in lockstep with sensor noise, front end, and the experiment's extra
+nodes: collision monitor, dSA controller), a recorder writing BAG (rosbag2, MCAP), then drives
+each run of the experiment (config/experiments.yaml) and marks it in the bag
+(/flaair/run_marker; the experiment itself on /flaair/experiment). The drive only starts once
+the recorder subscribes to every topic, and the bag's block counts are checked at the end:
+nothing the plant published is missing.
+
+Experiments: {names}
+
+Examples:
+  bin/flaair experiment characterization_chirp --out out/bags/chirp
+  bin/flaair experiment --list
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+from rclpy.node import Node
+from std_msgs.msg import String
+from tqdm import tqdm
+
+from flaair_common import topics
+from flaair_common.config import ConfigError, config_dir, load_yaml, node_parameters
+from flaair_common.msgdict import message_class
+from flaair_common.qos import BLOCK_STREAM, EVENTS
+from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
+from flaair_tools import bagio
+
+EXPERIMENT_TOPIC = "/flaair/experiment"
+NODE_EXECUTABLES = {
+    "plant": ("flaair_sim", "plant_node"),
+    "drive": ("flaair_sim", "drive_node"),
+    "frontend": ("flaair_sensors", "frontend_node"),
+    "collision_monitor": ("flaair_control", "collision_monitor_node"),
+    "controller": ("flaair_control", "dsa_controller_node"),
+    "recorder": ("flaair_tools", "recorder_node"),
+}
+
+
+class ExperimentError(RuntimeError):
+    """The experiment could not run or its recording is incomplete; the message says why."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One drive segment of an experiment."""
+
+    name: str
+    run_time_s: float
+    drive: dict[str, Any] = field(default_factory=dict)
+    markers: tuple[tuple[str, float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """An experiment from config/experiments.yaml."""
+
+    name: str
+    description: str
+    kind: str
+    runs: tuple[RunSpec, ...]
+    nodes: tuple[str, ...] = ()
+    plant: dict[str, Any] = field(default_factory=dict)
+    controller: bool = False
+
+
+def load_experiments() -> dict[str, ExperimentSpec]:
+    """Every experiment of config/experiments.yaml, checked."""
+    path = config_dir() / "experiments.yaml"
+    document = load_yaml(path) or {}
+    out: dict[str, ExperimentSpec] = {}
+    for name, entry in document.items():
+        try:
+            runs = tuple(
+                RunSpec(name=str(r["name"]), run_time_s=float(r["run_time_s"]), drive=dict(r.get("drive", {})),
+                        markers=tuple((str(m[0]), float(m[1]), float(m[2])) for m in r.get("markers", [])))
+                for r in entry["runs"]
+            )
+            out[name] = ExperimentSpec(name=name, description=str(entry.get("description", "")), kind=str(entry["kind"]),
+                                       runs=runs, nodes=tuple(entry.get("nodes", [])), plant=dict(entry.get("plant", {})),
+                                       controller=bool(entry.get("controller", False)))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f"{path}: experiment '{name}' is malformed: {exc!r}") from None
+    return out
+
+
+def _ros_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, list):
+        return "[" + ",".join(_ros_value(float(v) if isinstance(v, int) else v) for v in value) + "]"
+    return str(value)
+
+
+def ros_args(parameters: dict[str, Any]) -> list[str]:
+    """`--ros-args -p name:=value ...` for a parameter dict."""
+    args = ["--ros-args"]
+    for name, value in parameters.items():
+        args += ["-p", f"{name}:={_ros_value(value)}"]
+    return args
+
+
+class Graph:
+    """Child processes of one experiment, each in its own process group; stopped in reverse."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.children: list[tuple[str, subprocess.Popen]] = []
+
+    def start(self, role: str, parameters: dict[str, Any]) -> subprocess.Popen:
+        package, executable = NODE_EXECUTABLES[role]
+        try:
+            path = Path(get_package_prefix(package)) / "lib" / package / executable
+        except PackageNotFoundError as exc:
+            raise ExperimentError(f"package {package} is not built (run scripts/setup_env.sh)") from exc
+        log = open(self.log_dir / f"{role}.log", "a", encoding="utf-8")
+        process = subprocess.Popen([sys.executable, str(path), *ros_args(parameters)], stdout=log, stderr=subprocess.STDOUT,
+                                   start_new_session=True)
+        self.children.append((role, process))
+        return process
+
+    def check_alive(self) -> None:
+        for role, process in self.children:
+            if process.poll() is not None and process.returncode not in (0, -signal.SIGINT):
+                log = (self.log_dir / f"{role}.log").read_text(errors="replace")[-2000:]
+                raise ExperimentError(f"{role} exited with code {process.returncode}:\n{log}")
+
+    def stop(self, process: subprocess.Popen, timeout_s: float = 15.0) -> None:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGINT)
+            try:
+                process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                process.wait()
+        self.children = [(r, p) for r, p in self.children if p is not process]
+
+    def stop_all(self) -> None:
+        for _, process in reversed(list(self.children)):
+            self.stop(process)
+
+
+class Runner(Node):
+    """Watches the plant's sample count and publishes run markers."""
+
+    def __init__(self) -> None:
+        super().__init__("flaair_experiment")
+        self.sensor_end_index = 0
+        self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+        self.marker_pub = self.create_publisher(String, bagio.RUN_MARKER_TOPIC, EVENTS)
+        self.experiment_pub = self.create_publisher(String, EXPERIMENT_TOPIC, EVENTS)
+        # Advertise the drive topic before any drive node exists so the recorder subscribes to
+        # it early and the first command block is recorded.
+        self.drive_advert = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
+
+    def on_sensor(self, message: SensorVoltageBlock) -> None:
+        self.sensor_end_index = max(self.sensor_end_index, message.first_sample_index + len(message.stroke_sensor_v))
+
+    def recorder_subscribed(self, topic: str) -> bool:
+        return any(info.node_name == "recorder_node" for info in self.get_subscriptions_info_by_topic(topic))
+
+
+def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise ExperimentError(f"timed out after {timeout_s:g} s waiting for {what}")
+        rclpy.spin_once(node, timeout_sec=0.02)
+        graph.check_alive()
+
+
+def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True) -> dict[str, Any]:
+    """Run `spec` on the simulated graph and record it to the bag `out`; return a summary."""
+    if out.exists():
+        raise ExperimentError(f"{out} exists; choose another --out or remove it")
+    shared = node_parameters("flaair.yaml", "drive_node")
+    fs_hz, block_size = float(shared["sample_rate_hz"]), int(shared["block_size"])
+    log_dir = out.parent / f"{out.name}.logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    graph = Graph(log_dir)
+    rclpy.init(args=[])
+    runner = Runner()
+    summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
+    try:
+        recorder = graph.start("recorder", {"output_path": str(out)})
+        graph.start("plant", {"mode": "lockstep", "noise": noise, **spec.plant})
+        graph.start("frontend", {})
+        for role in spec.nodes:
+            graph.start(role, {})
+        needed = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
+                  bagio.RUN_MARKER_TOPIC, EXPERIMENT_TOPIC]
+        if "collision_monitor" in spec.nodes:
+            needed += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
+        _spin_until(runner, graph, lambda: all(runner.recorder_subscribed(t) for t in needed), 90.0,
+                    "the recorder to subscribe to " + ", ".join(needed))
+        runner.experiment_pub.publish(String(data=json.dumps({
+            "name": spec.name, "kind": spec.kind, "description": spec.description, "sample_rate_hz": fs_hz,
+            "plant": spec.plant, "runs": [{"name": r.name, "run_time_s": r.run_time_s, "drive": r.drive,
+                                           "markers": r.markers} for r in spec.runs]})))
+        for run in spec.runs:
+            first = runner.sensor_end_index
+            n_samples = int(round(run.run_time_s * fs_hz / block_size)) * block_size
+            parts = run.markers or ((run.name, 0.0, run.run_time_s),)
+            for part, start_s, end_s in parts:
+                a, b = first + int(round(start_s * fs_hz)), first + int(round(end_s * fs_hz))
+                marker = bagio.RunMarker(run=part, first_sample_index=a, n_samples=b - a, source_file=spec.name,
+                                         sample_rate_hz=fs_hz, start_ns=int(a / fs_hz * 1e9))
+                runner.marker_pub.publish(String(data=marker.to_json()))
+            if spec.controller:
+                driver = graph.start("controller", {"first_sample_index": first})
+            else:
+                driver = graph.start("drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
+                                               "first_sample_index": first, "min_subscribers": 2, **run.drive})
+            bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample", unit_scale=True,
+                       disable=not progress, leave=False, mininterval=1.0)
+            done = 0
+
+            def finished() -> bool:
+                nonlocal done
+                now = min(runner.sensor_end_index - first, n_samples)
+                bar.update(now - done)
+                done = now
+                return done >= n_samples
+
+            try:
+                _spin_until(runner, graph, finished, 120.0 + 60.0 * run.run_time_s, f"run {run.name} to finish")
+            finally:
+                bar.close()
+            graph.stop(driver)
+            summary["runs"].append({"run": run.name, "first_sample_index": first, "n_samples": n_samples})
+        total_blocks = runner.sensor_end_index // block_size
+        time.sleep(1.0)  # let the recorder take the last blocks off the wire
+        graph.stop(recorder, timeout_s=60.0)
+    finally:
+        graph.stop_all()
+        runner.destroy_node()
+        rclpy.try_shutdown()
+    counts = bagio.message_counts(out)
+    summary["message_counts"] = counts
+    if counts.get(topics.SENSOR_VOLTAGE, 0) != total_blocks:
+        raise ExperimentError(f"{out}: {counts.get(topics.SENSOR_VOLTAGE, 0)} sensor blocks recorded, "
+                              f"{total_blocks} published (logs in {log_dir})")
+    return summary
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        experiments = load_experiments()
+    except ConfigError as exc:
+        print(f"flaair experiment: {exc}", file=sys.stderr)
+        return 2
+    parser = argparse.ArgumentParser(prog="flaair experiment",
+                                     description=__doc__.format(names=", ".join(experiments)),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("name", nargs="?", help="experiment name (see --list)")
+    parser.add_argument("--out", type=Path, help="bag directory to create")
+    parser.add_argument("--list", action="store_true", help="list the experiments and exit")
+    parser.add_argument("--no-noise", action="store_true", help="simulate without sensor noise")
+    args = parser.parse_args(argv)
+    if args.list or not args.name:
+        for name, spec in experiments.items():
+            print(f"{name:24s} {spec.description}")
+        return 0 if args.list else 2
+    if args.name not in experiments:
+        print(f"flaair experiment: unknown experiment '{args.name}' (known: {', '.join(experiments)})", file=sys.stderr)
+        return 2
+    if args.out is None:
+        parser.error("--out BAG is required")
+    try:
+        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise)
+    except (ExperimentError, ConfigError, bagio.BagError) as exc:
+        print(f"flaair experiment: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("flaair experiment: interrupted; the bag was closed", file=sys.stderr)
+        return 130
+    print(f"recorded {args.name} to {args.out}: " + ", ".join(f"{t} {c}" for t, c in sorted(summary["message_counts"].items())))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
