@@ -434,3 +434,21 @@ def test_collision_matches_refined_step(model):
     assert np.degrees(coarse.stroke_rad).max() < 25.0 and np.degrees(coarse.stroke_rad).max() > 20.0
     assert np.degrees(np.max(np.abs(coarse.stroke_rad - fine.stroke_rad[::up]))) < 0.05
     assert np.degrees(np.max(np.abs(coarse.pitch_rad - fine.pitch_rad[::up]))) < 0.05
+
+
+def test_batch_into_preallocated_output(model, drive):
+    models = [model, with_effects(model, {"feedthrough": {"gain_v_per_v": 1e-3}})]
+    out = SimOutput(*(np.full((2, DRIVE_N), np.nan) for _ in range(4)))
+    got = simulate_batch(drive, FS_HZ, models, out=out)
+    assert all(g is o for g, o in zip(got, out))
+    fresh = simulate_batch(drive, FS_HZ, models)
+    assert all(np.array_equal(g, f) for g, f in zip(got, fresh))
+    with pytest.raises(ValueError, match="out.stroke_rad"):
+        simulate_batch(drive, FS_HZ, models, out=SimOutput(*(np.empty((3, DRIVE_N)) for _ in range(4))))
+
+
+def test_batch_of_one_and_of_none(model, drive):
+    one = simulate_batch(drive, FS_HZ, [model])
+    assert np.array_equal(one.pitch_sensor_v[0], simulate(drive, FS_HZ, model).pitch_sensor_v)
+    none = simulate_batch(drive, FS_HZ, [])
+    assert none.stroke_rad.shape == (0, DRIVE_N)
