@@ -121,10 +121,10 @@ def test_linear_response_matches_transfer_function(model, frequency_hz, damage):
     window = int(0.1 * FS_HZ)
     got_stroke = fundamental(out.stroke_rad, frequency_hz, window)
     got_pitch = fundamental(out.pitch_rad, frequency_hz, window)
-    assert abs(got_stroke - stroke) < 2e-4 * abs(stroke)
-    assert abs(got_pitch - pitch) < 2e-4 * abs(pitch)
+    assert abs(got_stroke - stroke) < 1e-5 * abs(stroke)
+    assert abs(got_pitch - pitch) < 1e-5 * abs(pitch)
     got_vs = fundamental(out.stroke_sensor_v, frequency_hz, window)
-    assert abs(got_vs - m.stroke_volts_per_rad * stroke) < 2e-4 * abs(m.stroke_volts_per_rad * stroke)
+    assert abs(got_vs - m.stroke_volts_per_rad * stroke) < 1e-5 * abs(m.stroke_volts_per_rad * stroke)
 
 
 def test_stroke_resonance_peak_at_200_vpp(model):
