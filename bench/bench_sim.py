@@ -121,7 +121,7 @@ def main() -> None:
     figures.append(Figure(f"first simulate() + simulate_batch() here ({how})", first, "s", "reported", True))
 
     t_numba = best_time_s(lambda: plant.simulate(drive, FS_HZ, model), repeats=5)
-    t_python = best_time_s(lambda: python_rk4(drive, FS_HZ, model), repeats=2)
+    t_python = best_time_s(lambda: python_rk4(drive, FS_HZ, model), repeats=5)
     ref_stroke, ref_pitch = python_rk4(drive, FS_HZ, model)
     out = plant.simulate(drive, FS_HZ, model)
     assert plant.n_substeps(model, FS_HZ)[0] == 1, "the Python reference takes one RK4 step per sample"
