@@ -159,13 +159,25 @@ def analyze_bag(bag: Path, out_dir: Path, reference_v: float) -> dict[str, Any]:
     info = experiment_info(bag)
     kind = info.get("kind", "chirp")
     runs = load_runs([bag])
-    estimate_blocks = bagio.read_blocks(bag, topics.WING_STATE) if topics.WING_STATE in bagio.bag_info(bag).topics else None
+    live = topics.WING_STATE in bagio.bag_info(bag).topics
     estimates = {}
-    for run in runs:
-        if estimate_blocks is None:
-            raise AnalysisError(f"{bag}: no {topics.WING_STATE} (the live front-end estimate) to analyse")
-        estimates[run.name] = _aligned_estimate(estimate_blocks, run_sample_index(bag, run, estimate_blocks))
-    result: dict[str, Any] = {"bag": str(bag), "experiment": info.get("name", bag.name), "kind": kind, "runs": {}}
+    if live:
+        estimate_blocks = bagio.read_blocks(bag, topics.WING_STATE)
+        for run in runs:
+            estimates[run.name] = _aligned_estimate(estimate_blocks, run_sample_index(bag, run, estimate_blocks))
+    else:
+        # Lab data carries no live estimate: run the same front-end core offline on the voltages.
+        from flaair_sensors import frontend
+        from flaair_sim.model_io import load_model
+
+        model = load_model()
+        for run in runs:
+            params = frontend.params_from_model(model, run.sample_rate_hz)
+            est = frontend.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], params)
+            estimates[run.name] = (np.where(est.stroke_valid, est.stroke_rad, np.nan), np.where(est.pitch_valid, est.pitch_rad, np.nan))
+    result: dict[str, Any] = {"bag": str(bag), "experiment": info.get("name", bag.name), "kind": kind, "runs": {},
+                              "estimate_source": "live front end (/flaair/wing_state)" if live else
+                              "front-end core run offline on the recorded voltages (model gains)"}
     stem = info.get("name", bag.name)
     if kind == "collision":
         result["collision"] = analyze_collision(runs, estimates, info, bag, out_dir / f"{stem}_fft.png")

@@ -171,8 +171,9 @@ class Runner(Node):
     def on_sensor(self, message: SensorVoltageBlock) -> None:
         self.sensor_end_index = max(self.sensor_end_index, message.first_sample_index + len(message.stroke_sensor_v))
 
-    def recorder_subscribed(self, topic: str) -> bool:
-        return any(info.node_name == "recorder_node" for info in self.get_subscriptions_info_by_topic(topic))
+    def subscribed(self, node_name: str, topic: str) -> bool:
+        """True once `node_name` has a subscription on `topic` (as this node's discovery sees it)."""
+        return any(info.node_name == node_name for info in self.get_subscriptions_info_by_topic(topic))
 
 
 def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str) -> None:
@@ -202,12 +203,21 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         graph.start("frontend", {})
         for role in spec.nodes:
             graph.start(role, {})
-        needed = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
-                  bagio.RUN_MARKER_TOPIC, EXPERIMENT_TOPIC]
+        # Nothing may flow before every consumer listens: a reliable volatile publisher drops
+        # what it sent before a subscription matched (the front end once lost 211 blocks so).
+        recorded = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
+                    bagio.RUN_MARKER_TOPIC, EXPERIMENT_TOPIC]
+        consumers = [("plant_node", topics.DRIVE), ("frontend_node", topics.SENSOR_VOLTAGE)]
         if "collision_monitor" in spec.nodes:
-            needed += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
-        _spin_until(runner, graph, lambda: all(runner.recorder_subscribed(t) for t in needed), 90.0,
-                    "the recorder to subscribe to " + ", ".join(needed))
+            recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
+            consumers += [("collision_monitor_node", topics.WING_STATE)]
+        if spec.controller:
+            consumers += [("dsa_controller_node", topics.WING_STATE)]
+        needed = [("recorder_node", t) for t in recorded] + consumers
+        _spin_until(runner, graph, lambda: all(runner.subscribed(n, t) for n, t in needed if n != "dsa_controller_node"), 90.0,
+                    "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed))
+        settle_until = time.monotonic() + 0.5  # discovery is seen here a moment before the publishers see it
+        _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "discovery to settle")
         runner.experiment_pub.publish(String(data=json.dumps({
             "name": spec.name, "kind": spec.kind, "description": spec.description, "sample_rate_hz": fs_hz,
             "plant": spec.plant, "runs": [{"name": r.name, "run_time_s": r.run_time_s, "drive": r.drive,
@@ -252,9 +262,10 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         rclpy.try_shutdown()
     counts = bagio.message_counts(out)
     summary["message_counts"] = counts
-    if counts.get(topics.SENSOR_VOLTAGE, 0) != total_blocks:
-        raise ExperimentError(f"{out}: {counts.get(topics.SENSOR_VOLTAGE, 0)} sensor blocks recorded, "
-                              f"{total_blocks} published (logs in {log_dir})")
+    for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE):
+        if counts.get(topic, 0) != total_blocks:
+            raise ExperimentError(f"{out}: {counts.get(topic, 0)} blocks on {topic} recorded, the plant stepped "
+                                  f"{total_blocks} (logs in {log_dir})")
     return summary
 
 
