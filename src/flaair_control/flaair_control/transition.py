@@ -1,0 +1,259 @@
+r"""Sync -> async transition analysis (paper, Applications, Fig. asynch): frequency and amplitude.
+
+Pure numpy/scipy; no ROS, no file I/O.
+
+Hilbert analysis (``hilbert_analysis``)
+---------------------------------------
+The paper reports the stroke frequency and amplitude of the transition from the Hilbert
+transform of the sensor-determined stroke angle, "smoothened through a bandpass and
+Savitzky-Golay filter". It does not give the filters, so (parameters in ``HilbertParams``):
+
+1. invalid samples (NaN) are filled by linear interpolation (counted in the result);
+2. band-pass: Butterworth (``band_order``, default 4) over ``band_hz`` (default 40-400 Hz, wide
+   enough for the 80-100 Hz synchronous start and the ~145 Hz self-excited end, removing the
+   offset/drift and the higher harmonics), applied forward and backward (zero phase: the
+   analysis is offline);
+3. analytic signal z = x + j H[x] (scipy.signal.hilbert); amplitude |z|; frequency
+   d(unwrap(arg z))/dt / 2 pi;
+4. Savitzky-Golay smoothing of both (``savgol_window_s`` long, default 20 ms, polynomial order
+   ``savgol_order``, default 2): the instantaneous frequency and amplitude of a non-sinusoidal
+   stroke ripple at twice the wingbeat frequency; a window of about 3 wingbeats removes it;
+5. ``edge_s`` at both ends (filter transients) is set to NaN.
+
+For a pure sine the result is its frequency and amplitude exactly (away from the edges).
+
+Crossing frequency (``CrossingFrequency``)
+------------------------------------------
+A streaming estimate used live by the dSA controller node (ControllerState.stroke_frequency_hz)
+and offline as an independent check of the Hilbert frequency: upward crossings of a Schmitt
+trigger (+-``hysteresis`` about 0; the front end removes the offset), located to a fraction of
+a sample by linear interpolation at the +hysteresis level; the frequency is the number of
+periods over the time spanned by the last ``average`` + 1 crossings. 0 until two crossings are
+seen or when none has occurred for ``max_period_s``. NaN samples are skipped (the trigger
+holds its state; an interpolation never spans a NaN).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Iterable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+from scipy import signal
+
+
+class TransitionError(ValueError):
+    """A parameter or record is invalid; the message names it."""
+
+
+# --------------------------------------------------------------------------- Hilbert analysis
+
+
+@dataclass(frozen=True)
+class HilbertParams:
+    """Band-pass + Hilbert + Savitzky-Golay settings (see module docstring)."""
+
+    band_hz: tuple[float, float] = (40.0, 400.0)
+    band_order: int = 4
+    savgol_window_s: float = 0.02
+    savgol_order: int = 2
+    edge_s: float = 0.02
+
+    def __post_init__(self) -> None:
+        lo, hi = self.band_hz
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+            raise TransitionError(f"band_hz must be 0 < low < high, got {self.band_hz}")
+        if self.band_order < 1:
+            raise TransitionError(f"band_order must be >= 1, got {self.band_order}")
+        if not (math.isfinite(self.savgol_window_s) and self.savgol_window_s > 0):
+            raise TransitionError(f"savgol_window_s must be > 0, got {self.savgol_window_s}")
+        if self.savgol_order < 0:
+            raise TransitionError(f"savgol_order must be >= 0, got {self.savgol_order}")
+        if not (math.isfinite(self.edge_s) and self.edge_s >= 0):
+            raise TransitionError(f"edge_s must be >= 0, got {self.edge_s}")
+
+
+class HilbertResult(NamedTuple):
+    """Smoothed instantaneous frequency and amplitude (same length as the input)."""
+
+    time_s: np.ndarray
+    frequency_hz: np.ndarray       # NaN within edge_s of the ends
+    amplitude: np.ndarray          # in the unit of the input angle; NaN at the edges
+    band_passed: np.ndarray        # the band-passed angle (unit of the input)
+    filled_samples: int            # NaN input samples filled by interpolation
+
+
+def _fill_nan(x: np.ndarray) -> tuple[np.ndarray, int]:
+    bad = ~np.isfinite(x)
+    n_bad = int(bad.sum())
+    if n_bad == 0:
+        return x, 0
+    if n_bad == x.size:
+        raise TransitionError("angle holds no finite sample")
+    idx = np.arange(x.size)
+    out = x.copy()
+    out[bad] = np.interp(idx[bad], idx[~bad], x[~bad])
+    return out, n_bad
+
+
+def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertParams = HilbertParams(),
+                     start_time_s: float = 0.0) -> HilbertResult:
+    """Frequency and amplitude of ``angle`` (one uniformly sampled record; NaN = invalid)."""
+    fs = float(sample_rate_hz)
+    if not (math.isfinite(fs) and fs > 0):
+        raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+    if params.band_hz[1] >= fs / 2:
+        raise TransitionError(f"band_hz upper edge {params.band_hz[1]} must lie below fs/2 = {fs / 2}")
+    x = np.asarray(angle, dtype=float).ravel()
+    window = int(round(params.savgol_window_s * fs)) | 1
+    if window <= params.savgol_order:
+        raise TransitionError("savgol_window_s is shorter than savgol_order + 1 samples")
+    sos = signal.butter(params.band_order, params.band_hz, btype="bandpass", fs=fs, output="sos")
+    padlen = 3 * (2 * sos.shape[0] + 1)
+    if x.size <= max(padlen, window):
+        raise TransitionError(f"angle too short ({x.size} samples) for the filters")
+    x, filled = _fill_nan(x)
+    xb = signal.sosfiltfilt(sos, x)
+    z = signal.hilbert(xb)
+    amplitude = np.abs(z)
+    phase = np.unwrap(np.angle(z))
+    frequency = np.gradient(phase) * fs / (2 * np.pi)
+    frequency = signal.savgol_filter(frequency, window, params.savgol_order)
+    amplitude = signal.savgol_filter(amplitude, window, params.savgol_order)
+    edge = min(int(round(params.edge_s * fs)), x.size // 2)
+    if edge > 0:
+        for arr in (frequency, amplitude):
+            arr[:edge] = np.nan
+            arr[x.size - edge:] = np.nan
+    t = start_time_s + np.arange(x.size) / fs
+    return HilbertResult(t, frequency, amplitude, xb, filled)
+
+
+class WindowStats(NamedTuple):
+    """Mean, standard deviation and peak-to-peak of a quantity over a time window."""
+
+    mean: float
+    std: float
+    ptp: float
+
+
+def window_stats(time_s: np.ndarray, values: np.ndarray, t0_s: float, t1_s: float) -> WindowStats:
+    """Statistics of the finite ``values`` with t0 <= t < t1."""
+    t = np.asarray(time_s, dtype=float)
+    v = np.asarray(values, dtype=float)
+    sel = (t >= t0_s) & (t < t1_s) & np.isfinite(v)
+    if not sel.any():
+        raise TransitionError(f"no finite value in [{t0_s}, {t1_s}) s")
+    w = v[sel]
+    return WindowStats(float(w.mean()), float(w.std()), float(np.ptp(w)))
+
+
+# --------------------------------------------------------------------------- crossing frequency
+
+
+class CrossingFrequency:
+    """Streaming stroke frequency from upward Schmitt-trigger crossings (see module docstring)."""
+
+    def __init__(self, sample_rate_hz: float, hysteresis: float, average: int = 4, max_period_s: float = 0.05) -> None:
+        if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+            raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+        if not (math.isfinite(hysteresis) and hysteresis >= 0):
+            raise TransitionError(f"hysteresis must be finite and >= 0, got {hysteresis}")
+        if average < 1:
+            raise TransitionError(f"average must be >= 1, got {average}")
+        self.fs = float(sample_rate_hz)
+        self.h = float(hysteresis)
+        self.average = int(average)
+        self.max_period_samples = max_period_s * self.fs
+        self.index = 0                   # absolute index of the next sample
+        self.high = False
+        self.prev: float | None = None   # previous finite sample (None after a NaN)
+        self.crossings: list[float] = []  # fractional sample indices, last average + 1
+
+    def update(self, x: Iterable[float]) -> float:
+        """Feed samples (one block); return the current frequency estimate (Hz)."""
+        h = self.h
+        high = self.high
+        prev = self.prev
+        i = self.index
+        crossings = self.crossings
+        for v in (x.tolist() if isinstance(x, np.ndarray) else x):
+            if v != v or v in (math.inf, -math.inf):
+                prev = None
+            else:
+                if high:
+                    if v < -h:
+                        high = False
+                elif v > h:
+                    high = True
+                    if prev is not None and prev <= h:
+                        crossings.append(i - 1 + (h - prev) / (v - prev))
+                        if len(crossings) > self.average + 1:
+                            del crossings[0]
+                prev = v
+            i += 1
+        self.high, self.prev, self.index = high, prev, i
+        return self.frequency_hz
+
+    @property
+    def frequency_hz(self) -> float:
+        c = self.crossings
+        if len(c) < 2 or self.index - c[-1] > self.max_period_samples:
+            return 0.0
+        return (len(c) - 1) * self.fs / (c[-1] - c[0])
+
+
+def crossing_times(angle: np.ndarray, sample_rate_hz: float, hysteresis: float) -> np.ndarray:
+    """All upward-crossing times (s) of a whole record, as ``CrossingFrequency`` finds them."""
+    x = np.asarray(angle, dtype=float).ravel()
+    est = CrossingFrequency(sample_rate_hz, hysteresis, average=x.size + 1)  # keep every crossing
+    est.update(x)
+    return np.asarray(est.crossings) / est.fs
+
+
+# --------------------------------------------------------------------------- records from messages
+
+
+class BlockRecord(NamedTuple):
+    """Samples of a block stream joined by first_sample_index (missing blocks: NaN)."""
+
+    first_sample_index: int
+    time_s: np.ndarray
+    values: dict[str, np.ndarray]
+    missing_blocks: int
+
+
+def join_blocks(blocks: Sequence[Mapping], fields: Sequence[str], sample_rate_hz: float,
+                valid_field: str | None = None) -> BlockRecord:
+    """Join block messages (as dicts, e.g. from ``flaair topic echo``) into continuous arrays.
+
+    Samples whose ``valid_field`` flag is false become NaN; duplicate blocks keep the first.
+    """
+    if not blocks:
+        raise TransitionError("no blocks to join")
+    blocks = sorted(blocks, key=lambda b: b["first_sample_index"])
+    start = int(blocks[0]["first_sample_index"])
+    end = max(int(b["first_sample_index"]) + len(b[fields[0]]) for b in blocks)
+    out = {f: np.full(end - start, np.nan) for f in fields}
+    filled = np.zeros(end - start, dtype=bool)
+    n_blocks = 0
+    for b in blocks:
+        i = int(b["first_sample_index"]) - start
+        n = len(b[fields[0]])
+        if filled[i:i + n].any():
+            continue
+        n_blocks += 1
+        filled[i:i + n] = True
+        ok = np.asarray(b[valid_field], dtype=bool) if valid_field else np.ones(n, dtype=bool)
+        for f in fields:
+            out[f][i:i + n] = np.where(ok, np.asarray(b[f], dtype=float), np.nan)
+    length = max(len(b[fields[0]]) for b in blocks)
+    missing = int(round((~filled).sum() / max(length, 1)))
+    t = (start + np.arange(end - start)) / sample_rate_hz
+    return BlockRecord(start, t, out, missing)
+
+
+def stamp_s(message: Mapping) -> float:
+    """Header stamp (s) of a message dict."""
+    stamp = message["header"]["stamp"]
+    return stamp["sec"] + 1e-9 * stamp["nanosec"]
