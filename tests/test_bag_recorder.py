@@ -50,8 +50,9 @@ for i in range(cfg["blocks"]):
         events.publish(CollisionEvent(kind=1, wingbeat_index=i, spectrum_rmse_deg=0.5 * i))
         other.publish(String(data=str(i)))
     next_t += 1.0 / cfg["rate"]
-    if next_t > time.monotonic():
-        time.sleep(next_t - time.monotonic())
+    delay = next_t - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)
 print("published", flush=True)
 time.sleep(1.0)
 """
