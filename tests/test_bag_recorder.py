@@ -21,7 +21,7 @@ from rosproc import FLAAIR, ros_processes, run, wait_for
 
 # Publishes `blocks` SensorVoltageBlocks (index i*10, values from i) on /flaair/sensor_v, `events`
 # CollisionEvents (transient local) on /flaair/collision/events and as many Strings on
-# /other/chatter (outside /flaair: must not be recorded), once the recorder has subscribed.
+# /other/chatter (outside /flaair: must not be recorded), once the recorder(s) subscribed.
 PUBLISHER = r"""
 import json, sys, time
 import numpy as np
@@ -37,7 +37,8 @@ blocks = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STR
 events = node.create_publisher(CollisionEvent, "/flaair/collision/events", EVENTS)
 other = node.create_publisher(String, "/other/chatter", BLOCK_STREAM)
 deadline = time.monotonic() + 30.0
-while time.monotonic() < deadline and (blocks.get_subscription_count() == 0 or events.get_subscription_count() == 0):
+while time.monotonic() < deadline and (blocks.get_subscription_count() < cfg.get("block_subscribers", 1)
+                                       or events.get_subscription_count() == 0):
     time.sleep(0.02)
 next_t = time.monotonic()
 for i in range(cfg["blocks"]):
@@ -70,14 +71,20 @@ def _check_blocks_exact(blocks: bagio.Blocks, n: int) -> None:
 
 
 def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) -> None:
-    bag = tmp_path / "rec"
+    bag, sim_bag = tmp_path / "rec", tmp_path / "sim"
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(bag))
-        publisher = _publisher(procs, blocks=600, events=40, rate=2000.0)
+        sim_recorder = procs.flaair("record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v", "--use-sim-time")
+        publisher = _publisher(procs, blocks=600, events=40, rate=2000.0, block_subscribers=2)
         assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
+        assert procs.stop(sim_recorder, signal.SIGTERM) == 0
         log = recorder.stderr.read()
     assert "closed" in log, log
+    # SIGTERM closes too; --topics chose one topic; with use_sim_time the log time is the header stamp
+    assert bagio.message_counts(sim_bag) == {"/flaair/sensor_v": 600}
+    stamps = [t for _, _, t, _ in bagio.iter_raw(sim_bag)]
+    assert stamps == [i * 500_000 for i in range(600)]
     assert (bag / "metadata.yaml").exists()
     assert bagio.message_counts(bag) == {"/flaair/sensor_v": 600, "/flaair/collision/events": 40}
     info = bagio.bag_info(bag)
