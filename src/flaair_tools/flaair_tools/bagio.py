@@ -320,7 +320,8 @@ class BagWriter:
             raise BagTopicError(f"{self.path}: topic '{topic}' was not added before writing")
         timestamp_ns = int(timestamp_ns)
         self._mcap.add_message(entry.channel_id, timestamp_ns, bytes(data),
-                               timestamp_ns if publish_time_ns is None else int(publish_time_ns), entry.count)
+                               timestamp_ns if publish_time_ns is None else int(publish_time_ns),
+                               entry.count & 0xFFFFFFFF)  # MCAP sequence is uint32
         entry.count += 1
         entry.first_ns = timestamp_ns if entry.first_ns is None else min(entry.first_ns, timestamp_ns)
         entry.last_ns = timestamp_ns if entry.last_ns is None else max(entry.last_ns, timestamp_ns)
@@ -477,6 +478,8 @@ def iter_raw(bag: str | Path, topics: Sequence[str] | None = None) -> Iterator[t
         if topics is not None:
             _require_topics(bag, reader, topics)
             connections = [c for c in connections if c.topic in topics]
+            if not connections:
+                return  # rosbags reads every topic when given none
         for connection, timestamp, data in reader.messages(connections=connections):
             yield connection.topic, connection.msgtype, timestamp, data
     finally:
