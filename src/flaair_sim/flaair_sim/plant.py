@@ -127,7 +127,7 @@ def _on(channel: str, which: str) -> bool:
     return channel in (which, "both")
 
 
-@lru_cache(maxsize=512)
+@lru_cache(maxsize=4096)  # a 1000-model batch fits
 def _prepare(model: Model, fs_hz: float) -> _Prepared:
     """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
     pl = model.plant
