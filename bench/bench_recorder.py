@@ -20,6 +20,12 @@ and the recorder's share of the loss separated from the graph's (a starved realt
 drive catches up in bursts).
 
 Baseline (same run): BagWriter alone writing the recorded serialized blocks (no DDS, no callbacks).
+Throughput is counted over the window in which all four streams were flowing.
+
+Reading the graph scenario: on a loaded machine the realtime plant and drive fall behind and
+catch up in bursts; the plant then rejects gapped command blocks from /flaair/drive too (its
+log says so), i.e. the loss is not the recorder's alone. /clock is published 10 deep, so a
+burst longer than that is lost for any subscriber that is a moment late.
 """
 from __future__ import annotations
 
@@ -214,8 +220,20 @@ def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, f
                          for _, _, m in bagio.iter_messages(bag, ["/clock"])] if counts.get("/clock") else [],
                         dtype=np.int64)
     out["/clock"] = _stream_stats(np.round(clock_ns * rate_hz / 1e9).astype(np.int64), block_size, 0)
-    times = np.array([t for _, _, t, _ in bagio.iter_raw(bag)], dtype=np.int64)
-    out["_span"] = {"span_s": float(times.max() - times.min()) * 1e-9, "messages": float(times.size)}
+    # Throughput window: while every stream was flowing (first to last receive time common to all).
+    received: dict[str, list[int]] = {}
+    for topic, _, t, _ in bagio.iter_raw(bag):
+        received.setdefault(topic, []).append(t)
+    streams = [np.asarray(received.get(topic, []), dtype=np.int64) for topic in (*BLOCK_TOPICS, "/clock")]
+    if all(r.size > 1 for r in streams):
+        start, stop = max(int(r.min()) for r in streams), min(int(r.max()) for r in streams)
+    else:
+        start = stop = 0
+    in_window = {topic: int(((r >= start) & (r <= stop)).sum()) for topic, r in zip((*BLOCK_TOPICS, "/clock"), streams)}
+    window_s = max(stop - start, 1) * 1e-9
+    out["_span"] = {"span_s": window_s, "messages": float(sum(in_window.values())),
+                    "samples": float(sum(in_window[t] for t in BLOCK_TOPICS) * block_size),
+                    **{f"rate {t}": in_window[t] / window_s for t in in_window}}
     return out
 
 
@@ -246,27 +264,27 @@ def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_h
         for s in stats.values():
             s["published"] = float(run["reported"]["blocks"])
             s["lost"] = s["published"] - s["recorded"] + s["duplicates"]
-    print(f"\n[{name}] {bag}: {int(span['messages'])} messages over {span['span_s']:.2f} s")
-    print(f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} {'publish rate':>13s} "
+    print(f"\n[{name}] {bag}: {int(span['messages'])} messages in the {span['span_s']:.2f} s while all 4 streams flowed")
+    print(f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} {'rate in bag':>13s} "
           f"{'before subscription':>20s}")
     for topic, s in stats.items():
         print(f"{topic:28s} {int(s['published']):10d} {int(s['recorded']):8d} {int(s['lost']):6d} "
-              f"{int(s['duplicates']):5d} {s['published'] / span['span_s']:9.0f} /s "
+              f"{int(s['duplicates']):5d} {span['rate ' + topic]:9.0f} /s "
               f"{int(s['first_index'] // block_size):20d}")
     recorded = sum(s["recorded"] for s in stats.values())
     published = sum(s["published"] for s in stats.values())
     lost_blocks = sum(stats[t]["lost"] + stats[t]["duplicates"] for t in BLOCK_TOPICS)
     published_blocks = sum(stats[t]["published"] for t in BLOCK_TOPICS)
     lost_clock = stats["/clock"]["lost"] + stats["/clock"]["duplicates"]
-    samples = sum(s["samples"] for s in stats.values())
     target_msg_s = (len(BLOCK_TOPICS) + 1) * rate_hz / block_size
     target_samples_s = len(BLOCK_TOPICS) * rate_hz
-    msg_s, samples_s, cores = recorded / span["span_s"], samples / span["span_s"], run["recorder_cores"]
+    msg_s, samples_s, cores = span["messages"] / span["span_s"], span["samples"] / span["span_s"], run["recorder_cores"]
     return [
         Figure(f"[{name}] recorder throughput (3 block topics + /clock)", msg_s, "msg/s", f">= {target_msg_s:g}",
-               msg_s >= 0.95 * target_msg_s, f"published {published / span['span_s']:,.0f}/s; BagWriter alone {baseline_msg_s:,.0f}/s"),
+               msg_s >= 0.95 * target_msg_s,
+               f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone {baseline_msg_s:,.0f}/s"),
         Figure(f"[{name}] recorder throughput, samples (3 x 20 kHz)", samples_s, "samples/s", f">= {target_samples_s:g}",
-               samples_s >= 0.95 * target_samples_s, f"{int(samples)} samples in {span['span_s']:.2f} s"),
+               samples_s >= 0.95 * target_samples_s, f"{int(span['samples'])} samples in {span['span_s']:.2f} s"),
         Figure(f"[{name}] block messages lost or duplicated", lost_blocks, "messages", "0", lost_blocks == 0,
                f"of {int(published_blocks)} published (queues 1000 deep)"),
         Figure(f"[{name}] /clock messages lost or duplicated", lost_clock, "messages", "0", lost_clock == 0,
