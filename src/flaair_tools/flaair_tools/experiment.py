@@ -77,12 +77,29 @@ class ExperimentSpec:
     controller: bool = False
 
 
+def robot_effects() -> dict[str, dict[str, Any]]:
+    """The hidden effects of the simulated bench robot (config/experiments.yaml `robot:`)."""
+    document = load_yaml(config_dir() / "experiments.yaml") or {}
+    return dict((document.get("robot") or {}).get("effects") or {})
+
+
+def write_robot_model(path: Path, effects: dict[str, dict[str, Any]]) -> Path:
+    """The bench robot's model file: config/model.yaml with `effects` added."""
+    from flaair_sim.model import with_effects
+    from flaair_sim.model_io import load_model, save_model
+
+    save_model(with_effects(load_model(), effects), path)
+    return path
+
+
 def load_experiments() -> dict[str, ExperimentSpec]:
     """Every experiment of config/experiments.yaml, checked."""
     path = config_dir() / "experiments.yaml"
     document = load_yaml(path) or {}
     out: dict[str, ExperimentSpec] = {}
     for name, entry in document.items():
+        if name == "robot":
+            continue
         try:
             runs = tuple(
                 RunSpec(name=str(r["name"]), run_time_s=float(r["run_time_s"]), drive=dict(r.get("drive", {})),
@@ -185,8 +202,13 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
         graph.check_alive()
 
 
-def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True) -> dict[str, Any]:
-    """Run `spec` on the simulated graph and record it to the bag `out`; return a summary."""
+def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True,
+                   nominal: bool = False) -> dict[str, Any]:
+    """Run `spec` on the simulated graph and record it to the bag `out`; return a summary.
+
+    The plant is the bench robot (nominal model + config/experiments.yaml `robot:` effects)
+    unless `nominal`.
+    """
     if out.exists():
         raise ExperimentError(f"{out} exists; choose another --out or remove it")
     shared = node_parameters("flaair.yaml", "drive_node")
@@ -199,7 +221,10 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
         recorder = graph.start("recorder", {"output_path": str(out)})
-        graph.start("plant", {"mode": "lockstep", "noise": noise, **spec.plant})
+        plant = {"mode": "lockstep", "noise": noise, **spec.plant}
+        if not nominal and robot_effects():
+            plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml", robot_effects()))
+        graph.start("plant", plant)
         graph.start("frontend", {})
         for role in spec.nodes:
             graph.start(role, {})
@@ -282,6 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="bag directory to create")
     parser.add_argument("--list", action="store_true", help="list the experiments and exit")
     parser.add_argument("--no-noise", action="store_true", help="simulate without sensor noise")
+    parser.add_argument("--nominal", action="store_true",
+                        help="simulate the nominal model, not the bench robot (nominal + config/experiments.yaml robot: effects)")
     args = parser.parse_args(argv)
     if args.list or not args.name:
         for name, spec in experiments.items():
@@ -293,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None:
         parser.error("--out BAG is required")
     try:
-        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise)
+        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise, nominal=args.nominal)
     except (ExperimentError, ConfigError, bagio.BagError) as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 1
