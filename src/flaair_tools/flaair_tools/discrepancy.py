@@ -1,0 +1,209 @@
+"""`flaair discrepancy`: find where the model and the measurement disagree, and fix the model.
+
+Inputs are measured-run CSV files (shared/measured-run-format.md) and/or bags (runs marked on
+/flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). Every
+run is simulated with its recorded drive and compared on stroke_deg, pitch_deg,
+stroke_sensor_v and pitch_sensor_v; the missing effects are named from the model's vocabulary,
+fitted, checked on held-out runs and added to the model.
+
+Writes into --out DIR:
+  model.yaml         the input model with the found effects (bin/flaair simulate --model accepts it)
+  discrepancy.json   status, effects (name, channel, parameters, evidence), gap_before/gap_after
+  report.html        gap per channel, where the model disagrees, search log, decision rules, figures
+
+--validate runs the workflow on the project's hidden-effect datasets (a few minutes) and writes
+validation.json/validation.html with the confusion table (true vs found); with inputs as well,
+the table is embedded in report.html (--validation FILE embeds a saved one).
+
+Exit status: 0 when the analysis ran (whatever the status), 2 on bad input.
+
+Examples:
+  bin/flaair discrepancy lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/discrepancy
+  bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
+  bin/flaair discrepancy --validate --out out/discrepancy-validation
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+import yaml
+
+from flaair_common.runcsv import RunFileError, read_run
+from flaair_sim.model import Model, ModelError
+from flaair_sim.model_io import load_model, save_model
+
+from .discrepancy_core import DiscrepancyInputError, Run, Settings, analyse
+from .discrepancy_report import write_report, write_validation
+
+PROG = "flaair discrepancy"
+
+
+class InputError(ValueError):
+    """Bad command-line input (file missing, wrong kind)."""
+
+
+def _is_bag(path: Path) -> bool:
+    return path.is_dir() or path.suffix == ".mcap"
+
+
+def runs_from_csv(path: Path) -> Run:
+    """One measured-run CSV as a core Run."""
+    mr = read_run(path)
+    c = mr.columns
+    return Run(name=mr.name, fs_hz=mr.sample_rate_hz, drive_v=c["drive_v"], stroke_sensor_v=c["stroke_sensor_v"],
+               pitch_sensor_v=c["pitch_sensor_v"], stroke_deg=c["stroke_deg"], pitch_deg=c["pitch_deg"])
+
+
+def runs_from_bag(path: Path) -> list[Run]:
+    """Every run of a bag as core Runs (ground truth NaN where invalid)."""
+    from . import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
+
+    bag = path.parent if path.suffix == ".mcap" else path
+    out = []
+    for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True):
+        c = r.columns
+        name = r.name if r.name != bag.name else bag.name
+        out.append(Run(name=name, fs_hz=r.sample_rate_hz, drive_v=c["drive_v"], stroke_sensor_v=c["stroke_sensor_v"],
+                       pitch_sensor_v=c["pitch_sensor_v"], stroke_deg=c["stroke_deg"], pitch_deg=c["pitch_deg"]))
+    return out
+
+
+def load_inputs(paths: Sequence[Path]) -> list[Run]:
+    """Runs from CSV files and bags, in the order given.
+
+    Raises
+    ------
+    InputError, RunFileError, bagio.BagError
+        Missing path, unreadable file, bag without the needed topics.
+    """
+    runs: list[Run] = []
+    for p in paths:
+        if not p.exists():
+            raise InputError(f"{p}: no such file or bag directory")
+        if _is_bag(p):
+            runs.extend(runs_from_bag(p))
+        elif p.suffix.lower() == ".csv":
+            runs.append(runs_from_csv(p))
+        else:
+            raise InputError(f"{p}: not a measured-run CSV (.csv) or a bag (directory or .mcap)")
+    return runs
+
+
+def _bad_input_errors() -> tuple[type, ...]:
+    errors: list[type] = [InputError, RunFileError, ModelError, DiscrepancyInputError, OSError, yaml.YAMLError]
+    try:
+        from .bagio import BagError
+
+        errors.append(BagError)
+    except ImportError:  # pragma: no cover - bag support not installed
+        pass
+    return tuple(errors)
+
+
+def _progress_bar(total: int, desc: str):
+    try:
+        from tqdm import tqdm
+
+        return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
+    except ImportError:  # pragma: no cover
+        return None
+
+
+def run_validation(model: Model, names: Optional[Sequence[str]], settings: Settings) -> dict:
+    """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
+    from tqdm import tqdm
+
+    from .discrepancy_datasets import confusion_table, dataset_cases, make_runs, score_case
+
+    cases = [c for c in dataset_cases() if not names or c.name in names]
+    unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})
+    if unknown:
+        raise InputError(f"unknown dataset case(s) {', '.join(unknown)}")
+    outcomes = []
+    start = time.perf_counter()
+    for case in tqdm(cases, desc="validation cases", unit="case", file=sys.stderr):
+        runs = make_runs(case, model)
+        t0 = time.perf_counter()
+        result = analyse(runs, model, settings)
+        outcomes.append(score_case(case, result, time.perf_counter() - t0))
+    table = confusion_table(outcomes)
+    return {"confusion": table, "cases": [o.as_dict() for o in outcomes], "total_s": time.perf_counter() - start}
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("inputs", nargs="*", type=Path, help="measured-run CSV files and/or bag directories")
+    parser.add_argument("--model", type=Path, default=None, help="model YAML (default: config/model.yaml)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--validate", action="store_true", help="also run the hidden-effect dataset cases")
+    parser.add_argument("--cases", nargs="+", default=None, help="with --validate: only these case names")
+    parser.add_argument("--validation", type=Path, default=None, help="embed a saved validation.json in report.html")
+    args = parser.parse_args(argv)
+    if not args.inputs and not args.validate:
+        print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
+        return 2
+    settings = Settings()
+    try:
+        model = load_model(args.model)
+        validation = None
+        if args.validation is not None:
+            try:
+                validation = json.loads(args.validation.read_text(encoding="utf-8"))
+            except json.JSONDecodeError as exc:
+                raise InputError(f"{args.validation}: not a validation JSON file ({exc})") from None
+        runs = load_inputs(args.inputs) if args.inputs else []
+        if args.inputs and not runs:
+            raise InputError("the inputs hold no runs")
+        if args.validate:
+            validation = run_validation(model, args.cases, settings)
+            doc = write_validation(args.out, validation["cases"], validation["confusion"], validation["total_s"])
+            table = doc["confusion"]
+            print(f"{PROG}: validation {table['correct']}/{table['total']} cases right in {doc['total_s']:.0f} s "
+                  f"-> {args.out / 'validation.html'}")
+        if not runs:
+            return 0
+        bar = _progress_bar(6, "discrepancy")
+        t0 = time.perf_counter()
+        started: list[str] = []
+
+        def progress(label: str) -> None:
+            if bar is not None:
+                if started:
+                    bar.update(1)
+                started.append(label)
+                bar.set_postfix_str(label)
+
+        result = analyse(runs, model, settings, progress=progress)
+        if bar is not None:
+            bar.update(bar.total - bar.n)
+            bar.close()
+        elapsed = time.perf_counter() - t0
+    except _bad_input_errors() as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    model_path = args.out / "model.yaml"
+    save_model(result.model_out, model_path)
+    write_report(args.out, runs, result, str(model_path), settings, validation)
+    print(f"{PROG}: {len(runs)} run(s) analysed in {elapsed:.1f} s: status {result.status}")
+    for e in result.effects:
+        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in e.parameters.items())
+        print(f"  + {e.name} on {e.channel}: {params}")
+    for c in result.gap_before:
+        print(f"  {c:16s} NRMSE {result.gap_before[c]:.4f} -> {result.gap_after[c]:.4f} (held-out)")
+    for r in result.remaining:
+        print(f"  gap left on {r['channel']}: band {r['band_hz']} Hz, full/low drive ratio "
+              f"{r['drive_level_ratio']:.3g}")
+    print(f"  -> {model_path}, {args.out / 'discrepancy.json'}, {args.out / 'report.html'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

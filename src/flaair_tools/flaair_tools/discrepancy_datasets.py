@@ -1,0 +1,364 @@
+"""The project's hidden-effect datasets for the discrepancy workflow, built with the plant.
+
+Each case is a "true robot": the nominal model plus hidden effects (or something outside the
+vocabulary), measured with one standard run set at 20 kHz with sensor and tracking noise on
+(`flaair_sim.plant.synthesize_measured_run`):
+
+* ``chirp_full``: chirp 20-200 Hz, 1 s, 100 V amplitude (200 Vpp);
+* ``chirp_half``: the same chirp at 50 V;
+* ``stepped``: stepped sine 60-200 Hz in 10 Hz steps, 0.2 s each, 100 V.
+
+Case groups
+-----------
+``single``
+    each vocabulary effect alone, at two strengths, one of them at 3x noise;
+``pair``
+    two effects at once (different channels, and two on the same sensor);
+``null``
+    the nominal model (expected status ``no_discrepancy``), at 1x and 3x noise;
+``outside``
+    physics the vocabulary lacks (expected status ``unexplained`` with the gap on the named
+    channel): a pitch-sensor gain drifting over the session, and a second stroke resonance;
+``confusable``
+    effects whose signatures resemble each other, at matched sizes: sensor_delay vs
+    charge_amp_highpass (both sensor-only phase changes), hinge_stiffening vs
+    transmission_nonlinearity (both cubic and amplitude dependent; hinge stiffening changes
+    the pitch truth, the transmission nonlinearity only the actuator sensor), and structural vs
+    aerodynamic damping.
+
+How the aerodynamic-damping case must be classified: a larger quadratic aerodynamic damping
+Gamma (x1.6 here) is *outside* the vocabulary. ``structural_damping`` is linear in velocity; the
+viscous damping ratio that would mimic the quadratic term grows with stroke amplitude, so no
+single ``damping_ratio`` explains full and half drive together. The expected, and only correct,
+outcome is ``unexplained`` with the gap on ``stroke_deg``; reporting ``structural_damping``
+counts as a wrong answer in the confusion table.
+
+This module only builds data and scores results (no file I/O).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from scipy import signal
+
+from flaair_sim.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
+from flaair_sim.model import Model, with_effects
+from flaair_sim.plant import synthesize_measured_run
+
+from .discrepancy_core import CHANNELS, DiscrepancyResult, Run
+
+__all__ = [
+    "FS_HZ",
+    "FULL_DRIVE_V",
+    "OUTSIDE_KINDS",
+    "DatasetCase",
+    "CaseOutcome",
+    "run_set_drives",
+    "true_model",
+    "make_runs",
+    "dataset_cases",
+    "score_case",
+    "confusion_table",
+]
+
+FS_HZ = 20_000.0
+FULL_DRIVE_V = 100.0
+OUTSIDE_KINDS = ("aero_damping", "sensor_gain_drift", "second_resonance")
+PARAMETER_TOLERANCE = 0.15  # found parameters within 15 % of the truth
+MIN_GAP_REDUCTION = 0.5  # model-error NRMSE reduced by at least half on every channel with a gap
+
+
+def run_set_drives(fs_hz: float = FS_HZ, amplitude_v: float = FULL_DRIVE_V) -> tuple[tuple[str, np.ndarray], ...]:
+    """The standard run set: (name, drive_v) of chirp_full, chirp_half and stepped."""
+    t = np.arange(int(round(1.0 * fs_hz))) / fs_hz
+    full = chirp(t, amplitude_v, 20.0, 200.0, 1.0)
+    half = chirp(t, 0.5 * amplitude_v, 20.0, 200.0, 1.0)
+    stepped, _ = stepped_sine(fs_hz, amplitude_v, stepped_sine_frequencies_hz(60.0, 200.0, 10.0), 0.2)
+    return (("chirp_full", full), ("chirp_half", half), ("stepped", np.asarray(stepped)))
+
+
+@dataclass(frozen=True)
+class DatasetCase:
+    """One hidden-effect case.
+
+    Attributes
+    ----------
+    name : unique case name.
+    group : 'single', 'pair', 'null', 'outside' or 'confusable'.
+    effects : vocabulary effects of the true robot, ((name, params), ...).
+    outside : '' or one of OUTSIDE_KINDS.
+    outside_strength : its size (aero_damping: Gamma factor; sensor_gain_drift: gain lost over the
+        session; second_resonance: mode gain relative to the stroke's static gain).
+    noise_scale : noise relative to the model's noise section.
+    seed : noise seed.
+    note : what the case tests.
+    """
+
+    name: str
+    group: str
+    effects: tuple = ()
+    outside: str = ""
+    outside_strength: float = 0.0
+    noise_scale: float = 1.0
+    seed: int = 0
+    note: str = ""
+
+    @property
+    def effect_names(self) -> tuple[str, ...]:
+        """Names of the hidden vocabulary effects, sorted."""
+        return tuple(sorted(n for n, _ in self.effects))
+
+    @property
+    def expected_status(self) -> str:
+        """Status the workflow must report."""
+        if self.outside:
+            return "unexplained"
+        return "explained" if self.effects else "no_discrepancy"
+
+    @property
+    def expected_gap_channel(self) -> str:
+        """Channel where an outside case must leave its gap ('' otherwise)."""
+        return {"aero_damping": "stroke_deg", "sensor_gain_drift": "pitch_sensor_v",
+                "second_resonance": "stroke_deg"}.get(self.outside, "")
+
+    @property
+    def true_label(self) -> str:
+        """Row label of the confusion table."""
+        if self.outside:
+            return f"outside:{self.outside}"
+        return "+".join(self.effect_names) if self.effects else "none"
+
+
+def true_model(case: DatasetCase, model: Model) -> Model:
+    """The true robot's model (vocabulary effects and the aerodynamic-damping change)."""
+    m = with_effects(model, dict(case.effects)) if case.effects else model
+    if case.outside == "aero_damping":
+        m = replace(m, plant=replace(m.plant, aero_damping_nm_s2=m.plant.aero_damping_nm_s2 * case.outside_strength))
+    if case.noise_scale != 1.0:
+        m = replace(m, noise=replace(m.noise, sensor_noise_v_rms=m.noise.sensor_noise_v_rms * case.noise_scale,
+                                     tracking_noise_deg_rms=m.noise.tracking_noise_deg_rms * case.noise_scale))
+    return m
+
+
+def _second_mode_deg(drive_v: np.ndarray, fs_hz: float, model: Model, strength: float,
+                     f_hz: float = 175.0, zeta: float = 0.03) -> np.ndarray:
+    """Stroke of an extra mode at f_hz: strength x (G_a / K) static gain, in degrees."""
+    w = 2.0 * math.pi * f_hz
+    static = model.plant.actuator_gain_nm_per_v / model.plant.stroke_stiffness_nm_per_rad
+    b, a = signal.bilinear([strength * static * w * w], [1.0, 2.0 * zeta * w, w * w], fs=fs_hz)
+    return np.degrees(signal.lfilter(b, a, drive_v))
+
+
+def make_runs(case: DatasetCase, model: Model, fs_hz: float = FS_HZ) -> tuple[Run, ...]:
+    """Synthesize the case's measured run set (noise on) from the nominal `model`.
+
+    The session runs in the order chirp_full, chirp_half, stepped; the sensor gain drift
+    follows session time.
+    """
+    truth = true_model(case, model)
+    rng = np.random.default_rng(case.seed)
+    drives = run_set_drives(fs_hz)
+    total = sum(d.size for _, d in drives)
+    t0 = 0
+    runs = []
+    vref = model.sensors.reference_voltage_v
+    for name, drive in drives:
+        cols = synthesize_measured_run(drive, fs_hz, truth, rng)
+        n = drive.size
+        if case.outside == "sensor_gain_drift":
+            gain = 1.0 - case.outside_strength * (t0 + np.arange(n)) / total
+            cols["pitch_sensor_v"] = vref + (cols["pitch_sensor_v"] - vref) * gain
+        elif case.outside == "second_resonance":
+            extra = _second_mode_deg(drive, fs_hz, model, case.outside_strength)
+            cols["stroke_deg"] = cols["stroke_deg"] + extra
+            cols["stroke_sensor_v"] = cols["stroke_sensor_v"] + math.radians(1.0) * model.stroke_volts_per_rad * extra
+        t0 += n
+        runs.append(Run(name=name, fs_hz=fs_hz, drive_v=cols["drive_v"], stroke_sensor_v=cols["stroke_sensor_v"],
+                        pitch_sensor_v=cols["pitch_sensor_v"], stroke_deg=cols["stroke_deg"],
+                        pitch_deg=cols["pitch_deg"]))
+    return tuple(runs)
+
+
+def _e(name: str, **params: object) -> tuple[str, dict]:
+    return (name, dict(params))
+
+
+def dataset_cases() -> tuple[DatasetCase, ...]:
+    """Every case of the project's hidden-effect datasets."""
+    S, P, N, O, C = "single", "pair", "null", "outside", "confusable"
+    return (
+        # each effect alone, two strengths, one at 3x noise
+        DatasetCase("delay_60us_both", S, (_e("sensor_delay", delay_s=60e-6, channel="both"),), seed=1),
+        DatasetCase("delay_200us_pitch_noisy", S, (_e("sensor_delay", delay_s=200e-6, channel="pitch"),),
+                    noise_scale=3.0, seed=2),
+        DatasetCase("highpass_3hz_both", S, (_e("charge_amp_highpass", corner_hz=3.0, channel="both"),), seed=3),
+        DatasetCase("highpass_12hz_stroke_noisy", S, (_e("charge_amp_highpass", corner_hz=12.0, channel="stroke"),),
+                    noise_scale=3.0, seed=4),
+        DatasetCase("feedthrough_2mv", S, (_e("feedthrough", gain_v_per_v=0.002),), seed=5),
+        DatasetCase("feedthrough_neg6mv_noisy", S, (_e("feedthrough", gain_v_per_v=-0.006),), noise_scale=3.0, seed=6),
+        DatasetCase("transmission_0p2", S, (_e("transmission_nonlinearity", cubic_per_rad2=0.2),), seed=7),
+        DatasetCase("transmission_neg0p5_noisy", S, (_e("transmission_nonlinearity", cubic_per_rad2=-0.5),),
+                    noise_scale=3.0, seed=8),
+        DatasetCase("hinge_0p5", S, (_e("hinge_stiffening", cubic_per_rad2=0.5),), seed=9),
+        DatasetCase("hinge_3_noisy", S, (_e("hinge_stiffening", cubic_per_rad2=3.0),), noise_scale=3.0, seed=10),
+        DatasetCase("structural_0p02", S, (_e("structural_damping", damping_ratio=0.02),), seed=11),
+        DatasetCase("structural_0p08_noisy", S, (_e("structural_damping", damping_ratio=0.08),), noise_scale=3.0,
+                    seed=12),
+        DatasetCase("strain_loss_pitch_0p23", S, (_e("strain_transfer_loss", efficiency=0.23, channel="pitch"),),
+                    seed=13, note="the paper's robot: pitch sensor 4.3x below the model"),
+        DatasetCase("strain_loss_stroke_0p7_noisy", S, (_e("strain_transfer_loss", efficiency=0.7, channel="stroke"),),
+                    noise_scale=3.0, seed=14),
+        DatasetCase("collision_40deg_full_only", S, (_e("collision", stroke_limit_deg=40.0),), seed=15,
+                    note="the stop is reached at full drive only"),
+        DatasetCase("collision_25deg_noisy", S, (_e("collision", stroke_limit_deg=25.0),), noise_scale=3.0, seed=16),
+        DatasetCase("wing_damage_0p9", S, (_e("wing_damage", inertia_factor=0.9),), seed=17),
+        DatasetCase("wing_damage_0p75_noisy", S, (_e("wing_damage", inertia_factor=0.75),), noise_scale=3.0, seed=18),
+        # pairs
+        DatasetCase("pair_delay_structural", P, (_e("sensor_delay", delay_s=100e-6, channel="both"),
+                                                 _e("structural_damping", damping_ratio=0.04)), seed=21),
+        DatasetCase("pair_feedthrough_hinge", P, (_e("feedthrough", gain_v_per_v=0.003),
+                                                  _e("hinge_stiffening", cubic_per_rad2=1.0)), seed=22),
+        DatasetCase("pair_transmission_strainloss", P, (_e("transmission_nonlinearity", cubic_per_rad2=0.3),
+                                                        _e("strain_transfer_loss", efficiency=0.4, channel="pitch")),
+                    seed=23),
+        DatasetCase("pair_delay_feedthrough_same_sensor", P, (_e("sensor_delay", delay_s=80e-6, channel="stroke"),
+                                                              _e("feedthrough", gain_v_per_v=0.003)), seed=24,
+                    note="two effects on the same sensor"),
+        DatasetCase("pair_collision_highpass", P, (_e("collision", stroke_limit_deg=35.0),
+                                                   _e("charge_amp_highpass", corner_hz=5.0, channel="both")), seed=25),
+        # null
+        DatasetCase("null", N, seed=31),
+        DatasetCase("null_noisy", N, noise_scale=3.0, seed=32),
+        # outside the vocabulary
+        DatasetCase("outside_gain_drift", O, outside="sensor_gain_drift", outside_strength=0.3, seed=41,
+                    note="pitch sensor gain falls 30 % over the session"),
+        DatasetCase("outside_second_resonance", O, outside="second_resonance", outside_strength=0.15, seed=42,
+                    note="an extra stroke mode at 175 Hz"),
+        # confusable pairs, each member at a matched size
+        DatasetCase("confusable_delay_40us", C, (_e("sensor_delay", delay_s=40e-6, channel="both"),), seed=51,
+                    note="vs charge_amp_highpass: both sensor-only phase changes"),
+        DatasetCase("confusable_highpass_5hz", C, (_e("charge_amp_highpass", corner_hz=5.0, channel="both"),), seed=52,
+                    note="vs sensor_delay"),
+        DatasetCase("confusable_delay_and_highpass", C, (_e("sensor_delay", delay_s=80e-6, channel="both"),
+                                                         _e("charge_amp_highpass", corner_hz=6.0, channel="both")),
+                    seed=53, note="both at once"),
+        DatasetCase("confusable_hinge_1", C, (_e("hinge_stiffening", cubic_per_rad2=1.0),), seed=54,
+                    note="vs transmission_nonlinearity: changes the pitch truth"),
+        DatasetCase("confusable_transmission_0p3", C, (_e("transmission_nonlinearity", cubic_per_rad2=0.3),), seed=55,
+                    note="vs hinge_stiffening: truth untouched, actuator sensor only"),
+        DatasetCase("confusable_structural_0p04", C, (_e("structural_damping", damping_ratio=0.04),), seed=56,
+                    note="vs aerodynamic damping: linear damping, one ratio at every drive level"),
+        DatasetCase("confusable_aero_damping_x1p6", C, outside="aero_damping", outside_strength=1.6, seed=57,
+                    note="quadratic damping Gamma x1.6: outside the vocabulary, must stay unexplained"),
+    )
+
+
+# ------------------------------------------------------------------------------------ scoring
+
+
+@dataclass(frozen=True)
+class CaseOutcome:
+    """How the workflow did on one case.
+
+    Attributes
+    ----------
+    case : case name.
+    true_label, found_label : confusion-table row and column.
+    status, expected_status : reported and expected status.
+    found : names of the found effects, sorted.
+    parameter_errors : {effect.key: relative error} of the hidden effects' parameters.
+    gap_reduction : {channel: 1 - model-error NRMSE after / before} on channels with a gap before.
+    correct : name(s) and status right, parameters within 15 %, gap reduced by >= 50 %
+        (outside cases: status unexplained, no vocabulary effect added, the gap on the expected
+        channel).
+    problems : why it is not correct.
+    elapsed_s : analysis time.
+    """
+
+    case: str
+    true_label: str
+    found_label: str
+    status: str
+    expected_status: str
+    found: tuple
+    parameter_errors: dict
+    gap_reduction: dict
+    correct: bool
+    problems: tuple
+    elapsed_s: float = math.nan
+
+    def as_dict(self) -> dict:
+        """JSON-ready outcome."""
+        return {"case": self.case, "true": self.true_label, "found": self.found_label, "status": self.status,
+                "expected_status": self.expected_status, "found_effects": list(self.found),
+                "parameter_errors": self.parameter_errors, "gap_reduction": self.gap_reduction,
+                "correct": self.correct, "problems": list(self.problems), "elapsed_s": self.elapsed_s}
+
+
+def found_label(result: DiscrepancyResult) -> str:
+    """Confusion-table column: found effect names, 'none', and ' (gap left)' if unexplained."""
+    names = "+".join(sorted(e.name for e in result.effects)) or "none"
+    return names + (" (gap left)" if result.status == "unexplained" else "")
+
+
+def _excess(nrmse: float, floor: float) -> float:
+    return math.sqrt(max(nrmse**2 - floor**2, 0.0))
+
+
+def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan) -> CaseOutcome:
+    """Judge a workflow result against the case's hidden truth."""
+    problems = []
+    found = tuple(sorted(e.name for e in result.effects))
+    if result.status != case.expected_status:
+        problems.append(f"status {result.status}, expected {case.expected_status}")
+    errors: dict = {}
+    reduction: dict = {}
+    if case.outside:
+        gap_channels = {r["channel"] for r in result.remaining}
+        if case.expected_gap_channel not in gap_channels:
+            problems.append(f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})")
+        if found:
+            problems.append(f"found {list(found)}, but the hidden physics is outside the vocabulary")
+    else:
+        if found != case.effect_names:
+            problems.append(f"found {list(found) or 'nothing'}, hidden {list(case.effect_names) or 'nothing'}")
+        by_name = {e.name: e for e in result.effects}
+        for name, params in case.effects:
+            if name not in by_name:
+                continue
+            for key, value in params.items():
+                got = by_name[name].parameters.get(key)
+                if isinstance(value, str):
+                    if key == "channel" and got != value:
+                        problems.append(f"{name}.channel {got}, hidden {value}")
+                    continue
+                rel = abs(float(got) - value) / abs(value) if value else abs(float(got))
+                errors[f"{name}.{key}"] = rel
+                if rel > PARAMETER_TOLERANCE:
+                    problems.append(f"{name}.{key} = {float(got):.4g}, hidden {value:.4g} ({rel:.0%} off)")
+        if case.effects:
+            for c in CHANNELS:
+                if not result.diagnosis_before.channels[c].has_gap:
+                    continue
+                floor = result.diagnosis_before.channels[c].noise_nrmse
+                before = _excess(result.gap_before[c], floor)
+                after = _excess(result.gap_after[c], floor)
+                reduction[c] = 1.0 - after / before if before > 0 else 0.0
+                if reduction[c] < MIN_GAP_REDUCTION:
+                    problems.append(f"{c}: gap reduced by {reduction[c]:.0%} only")
+    return CaseOutcome(case=case.name, true_label=case.true_label, found_label=found_label(result),
+                       status=result.status, expected_status=case.expected_status, found=found,
+                       parameter_errors=errors, gap_reduction=reduction, correct=not problems,
+                       problems=tuple(problems), elapsed_s=elapsed_s)
+
+
+def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
+    """{"rows": true labels, "columns": found labels, "counts": [[...]], "correct": k, "total": n}."""
+    rows = sorted({o.true_label for o in outcomes})
+    cols = sorted({o.found_label for o in outcomes})
+    counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c) for c in cols] for r in rows]
+    return {"rows": rows, "columns": cols, "counts": counts, "correct": sum(o.correct for o in outcomes),
+            "total": len(outcomes)}
