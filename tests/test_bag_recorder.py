@@ -5,6 +5,7 @@ import json
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,10 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(bag))
         sim_recorder = procs.flaair("record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v", "--use-sim-time")
+        # publish only after both recorders are up: topics must be found by periodic discovery
+        # (with use_sim_time and no /clock, a ROS-time discovery timer would never fire)
+        assert wait_for(lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)), 60.0)
+        time.sleep(0.5)
         publisher = _publisher(procs, blocks=600, events=40, rate=2000.0, block_subscribers=2)
         assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0

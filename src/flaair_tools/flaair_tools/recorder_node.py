@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -153,8 +154,10 @@ class RecorderNode(Node):
         self.subscribed: dict[str, Any] = {}
         self.skipped: set[str] = set()
         self.received: dict[str, int] = {}
-        self.create_timer(self.p["discovery_period_s"], self.discover)
-        self.create_timer(self.p["flush_period_s"], self.writer.flush)
+        # Wall-clock (steady) timers: with use_sim_time a ROS-time timer would stop while /clock does.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(self.p["discovery_period_s"], self.discover, clock=steady)
+        self.create_timer(self.p["flush_period_s"], self.writer.flush, clock=steady)
         self.discover()
         what = ", ".join(self.chosen) if self.chosen else f"every {NAMESPACE}* topic"
         self.get_logger().info(f"recording {what} to {self.writer.path}")
