@@ -1,6 +1,7 @@
 """Start FLAAIR processes for tests over real DDS: isolated domain, localhost only, always cleaned up."""
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import signal
@@ -12,13 +13,40 @@ from typing import Iterator
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+DOMAINS_PER_SLOT = 10
+SLOTS = 20  # domains 1..200
 _domain_counter = itertools.count()
+_slot: tuple[int, object] | None = None
+
+
+def _domain_slot() -> int:
+    """A block of domain IDs this test process holds exclusively (flock) while it lives.
+
+    Two test runs on one machine (say a developer's and another's) must never share a domain:
+    their nodes would see each other's blocks.
+    """
+    global _slot
+    if _slot is None:
+        lock_dir = Path("/tmp/flaair-ros-domains")
+        lock_dir.mkdir(exist_ok=True)
+        for slot in range(SLOTS):
+            handle = open(lock_dir / f"slot{slot}", "w")
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                handle.close()
+                continue
+            _slot = (slot, handle)
+            break
+        else:
+            raise RuntimeError(f"all {SLOTS} ROS domain slots are taken by other test runs")
+    return _slot[0]
 
 
 def isolated_env() -> dict[str, str]:
-    """Environment for one test: its own ROS_DOMAIN_ID (1..101) and loopback-only discovery."""
+    """Environment for one test: a ROS_DOMAIN_ID no other test run uses, loopback-only discovery."""
     env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(1 + (os.getpid() * 7 + next(_domain_counter)) % 101)
+    env["ROS_DOMAIN_ID"] = str(1 + _domain_slot() * DOMAINS_PER_SLOT + next(_domain_counter) % DOMAINS_PER_SLOT)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.pop("ROS_LOCALHOST_ONLY", None)
     env["PYTHONUNBUFFERED"] = "1"

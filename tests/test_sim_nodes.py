@@ -44,8 +44,8 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation() -> None:
     assert np.max(np.abs(stroke_deg)) > 0.5  # the wing moved
 
 
-def _command(index: int, values: list[float]) -> str:
-    return json.dumps({"sample_rate_hz": FS_HZ, "first_sample_index": index, "drive_v": values})
+def _command(index: int, values: list[float]) -> dict:
+    return {"sample_rate_hz": FS_HZ, "first_sample_index": index, "drive_v": values}
 
 
 def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running() -> None:
@@ -60,10 +60,9 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running() -> None:
             _command(20, [1e9] * BLOCK),              # finite but huge: clamped to drive_limit_v
             _command(30, good),
         ]
-        for values in sequence:
-            pub = procs.flaair("topic", "pub", "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", values,
-                               "--wait-subscribers", "2", "--count", "1")
-            assert pub.wait(timeout=60) == 0
+        pub = procs.flaair("topic", "pub", "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", json.dumps(sequence),
+                           "--wait-subscribers", "2", "--count", "1", "--rate", "20")
+        assert pub.wait(timeout=60) == 0
         out, err = echo.communicate(timeout=60)
         assert echo.returncode == 0, err
         assert plant.poll() is None  # still running

@@ -81,3 +81,15 @@ def run_node(
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:
+    """Log a warning every time for the first `every_up_to` occurrences, then at most once a second.
+
+    rclpy fixes a call site's throttle on its first call (changing it raises), so the two
+    regimes are two call sites.
+    """
+    if count <= every_up_to:
+        logger.warning(text)
+    else:
+        logger.warning(text, throttle_duration_sec=1.0)

@@ -25,7 +25,7 @@ from flaair_common.blocks import check_block, from_array, to_array
 from flaair_common.config import ConfigError, load_yaml
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import run_node
+from flaair_common.runtime import run_node, warn_counted
 from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
 from flaair_sensors import frontend
 from flaair_sim.model import ModelError
@@ -99,10 +99,8 @@ class FrontendNode(Node):
                             message.sample_rate_hz, self.fs_hz, message.first_sample_index, self.expected_index)
         if not check.ok:
             self.rejected_blocks += 1
-            self.get_logger().warning(
-                f"sensor block {message.first_sample_index}: {check.reason} [{self.rejected_blocks} so far]",
-                throttle_duration_sec=1.0 if self.rejected_blocks > 10 else 0.0,
-            )
+            warn_counted(self.get_logger(), self.rejected_blocks,
+                         f"sensor block {message.first_sample_index}: {check.reason} [{self.rejected_blocks} so far]")
             if check.kind != "gap":
                 return
         self.expected_index = message.first_sample_index + len(stroke_v)

@@ -30,7 +30,7 @@ from flaair_common import topics
 from flaair_common.blocks import check_block, from_array, stamp_from_time_s, to_array
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import run_node
+from flaair_common.runtime import run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim import plant
 from flaair_sim.model import ModelError, with_effects
@@ -104,12 +104,9 @@ class PlantNode(Node):
         if not check.ok:
             self.rejected_blocks += 1
             action = {"stale": "ignored", "gap": "accepted after the gap", "content": "holding zero drive"}[check.kind]
-            # Every rejection is logged until the count is large; then at most once a second.
-            self.get_logger().warning(
-                f"rejected command block {message.first_sample_index} ({check.reason}); {action} "
-                f"[{self.rejected_blocks} rejected so far]",
-                throttle_duration_sec=1.0 if self.rejected_blocks > 10 else 0.0,
-            )
+            warn_counted(self.get_logger(), self.rejected_blocks,
+                         f"rejected command block {message.first_sample_index} ({check.reason}); {action} "
+                         f"[{self.rejected_blocks} rejected so far]")
             if check.kind == "stale":
                 return  # a duplicate or stale block must not advance the plant again
             if check.kind == "content":

@@ -445,7 +445,19 @@ def _open(bag: str | Path) -> Reader:
         reader.open()
     except (ReaderError, FileNotFoundError) as exc:
         raise BagError(f"{path}: cannot open bag: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - metadata or summary bytes that do not parse: a damaged bag
+        raise BagError(f"{path}: damaged bag, cannot open it: {type(exc).__name__}: {exc}") from None
     return reader
+
+
+def _messages(bag: str | Path, reader: Reader, connections: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]]:
+    """reader.messages, with any failure to decode the file reported as a damaged bag."""
+    try:
+        yield from reader.messages(connections=connections)
+    except BagError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - zstd, MCAP framing, struct: the file's content is damaged
+        raise BagError(f"{bag}: damaged bag, cannot read its messages: {type(exc).__name__}: {exc}") from None
 
 
 def bag_info(bag: str | Path) -> BagInfo:
@@ -480,7 +492,7 @@ def iter_raw(bag: str | Path, topics: Sequence[str] | None = None) -> Iterator[t
             connections = [c for c in connections if c.topic in topics]
             if not connections:
                 return  # rosbags reads every topic when given none
-        for connection, timestamp, data in reader.messages(connections=connections):
+        for connection, timestamp, data in _messages(bag, reader, connections):
             yield connection.topic, connection.msgtype, timestamp, data
     finally:
         reader.close()
@@ -491,7 +503,15 @@ def iter_messages(bag: str | Path, topics: Sequence[str] | None = None,
     """(topic, log time ns, deserialized message) of every message (of `topics`) in log-time order."""
     store = store or typestore()
     for topic, msgtype, timestamp, data in iter_raw(bag, topics):
-        yield topic, timestamp, store.deserialize_cdr(data, msgtype)
+        yield topic, timestamp, _deserialize(bag, store, data, msgtype)
+
+
+def _deserialize(bag: str | Path, store: Typestore, data: bytes, msgtype: str) -> Any:
+    """One CDR message, a damaged one reported as a BagError naming the bag."""
+    try:
+        return store.deserialize_cdr(data, msgtype)
+    except Exception as exc:  # noqa: BLE001 - truncated or scrambled CDR bytes
+        raise BagError(f"{bag}: damaged {msgtype} message: {type(exc).__name__}: {exc}") from None
 
 
 def _require_topics(bag: str | Path, reader: Reader, topics: Sequence[str]) -> None:
@@ -633,7 +653,7 @@ def read_blocks(bag: str | Path, topic: str, *, run: str | None = None, allow_ga
         msgtype = connections[0].msgtype
         if msgtype not in store.fielddefs:
             raise BagTopicError(f"{bag}: topic '{topic}' has type {msgtype}, unknown to the typestore")
-        messages = [store.deserialize_cdr(data, msgtype) for _, _, data in reader.messages(connections=connections)]
+        messages = [_deserialize(bag, store, data, msgtype) for _, _, data in _messages(bag, reader, connections)]
     finally:
         reader.close()
     blocks = assemble_blocks(topic, msgtype, messages, allow_gaps=allow_gaps, bag=bag, store=store)

@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     pub = sub.add_parser("pub", help="publish a message given as JSON")
     pub.add_argument("topic")
     pub.add_argument("type")
-    pub.add_argument("values", help="JSON object of field values")
+    pub.add_argument("values", help="JSON object of field values, or a JSON list of them (published in order)")
     pub.add_argument("--count", type=int, default=1)
     pub.add_argument("--rate", type=float, default=10.0, help="messages per second")
     pub.add_argument("--wait-subscribers", type=int, default=0, help="wait for N subscribers first")
@@ -74,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
             return 0 if (args.count == 0 or received >= args.count) else 1
         cls = message_class(args.type)
         try:
-            message = from_dict(cls, json.loads(args.values))
+            values = json.loads(args.values)
+            messages = [from_dict(cls, v) for v in (values if isinstance(values, list) else [values])]
         except (ValueError, TypeError, AssertionError) as exc:
             print(f"flaair topic pub: {exc}", file=sys.stderr)
             return 2
@@ -83,8 +84,9 @@ def main(argv: list[str] | None = None) -> int:
         while publisher.get_subscription_count() < args.wait_subscribers and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.05)
         for _ in range(args.count):
-            publisher.publish(message)
-            time.sleep(1.0 / args.rate)
+            for message in messages:
+                publisher.publish(message)
+                time.sleep(1.0 / args.rate)
         time.sleep(0.5)  # let reliable delivery finish before the participant goes away
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):

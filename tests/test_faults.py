@@ -1,0 +1,144 @@
+"""Fault suite: bad parameters, bad blocks, malformed files and damaged bags, for every node and command.
+
+Each fault must give a clear message naming what is wrong, a non-zero exit where a command
+fails, no traceback, and a node that keeps running.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rosproc import FLAAIR, isolated_env, ros_processes, run
+
+FS_HZ = 20000.0
+
+NODES = [
+    ("flaair_sim", "plant_node", "drive_limit_v"),
+    ("flaair_sim", "drive_node", "amplitude_v"),
+    ("flaair_sensors", "frontend_node", "velocity_cutoff_hz"),
+    ("flaair_tools", "recorder_node", "flush_period_s"),
+]
+
+
+@pytest.mark.parametrize(("package", "executable", "parameter"), NODES)
+@pytest.mark.parametrize(("value", "why"), [("-1.0e9", "out of range"), ("'text'", "expecting type 'DOUBLE'")])
+def test_every_node_refuses_bad_parameters_by_name(package: str, executable: str, parameter: str, value: str, why: str) -> None:
+    result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"], isolated_env())
+    assert result.returncode == 2, result.stderr
+    assert parameter in result.stderr and why in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.fixture(scope="module")
+def lab_bag(tmp_path_factory) -> Path:
+    from flaair_common.runcsv import write_run
+    from flaair_sim.drive import DriveParams, drive_record
+    from flaair_sim.model_io import load_model
+    from flaair_sim.plant import synthesize_measured_run
+
+    tmp = tmp_path_factory.mktemp("faults")
+    drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 8000)
+    write_run(tmp / "run.csv", synthesize_measured_run(drive, FS_HZ, load_model(), np.random.default_rng(0)))
+    assert run([FLAAIR, "import", str(tmp / "run.csv"), "--out", str(tmp / "bag")], isolated_env(), 120).returncode == 0
+    return tmp / "bag"
+
+
+def _damaged(lab_bag: Path, tmp: Path, how: str) -> Path:
+    bag = tmp / f"bag_{how}"
+    shutil.copytree(lab_bag, bag)
+    (mcap,) = bag.glob("*.mcap")
+    data = mcap.read_bytes()
+    if how == "truncated":
+        mcap.write_bytes(data[: len(data) // 2])
+    elif how == "corrupted":
+        middle = len(data) // 2
+        mcap.write_bytes(data[:middle] + bytes(4096) + data[middle + 4096:])
+    elif how == "no_metadata":
+        (bag / "metadata.yaml").unlink()
+    elif how == "empty_dir":
+        shutil.rmtree(bag)
+        bag.mkdir()
+    elif how == "not_a_bag":
+        shutil.rmtree(bag)
+        bag.write_text("hello")
+    return bag
+
+
+COMMANDS = {
+    "calibrate": lambda bag, out: ["calibrate", str(bag), "--out", str(out)],
+    "analyze": lambda bag, out: ["analyze", str(bag), "--out", str(out)],
+    "play": lambda bag, out: ["play", str(bag), "--fast"],
+}
+
+
+@pytest.mark.parametrize("how", ["truncated", "corrupted", "no_metadata", "empty_dir", "not_a_bag"])
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_damaged_bags_give_a_clear_error(lab_bag: Path, tmp_path: Path, how: str, command: str) -> None:
+    bag = _damaged(lab_bag, tmp_path, how)
+    result = run([FLAAIR, *COMMANDS[command](bag, tmp_path / "out")], isolated_env(), 120)
+    assert result.returncode != 0, (how, command, result.stdout[-500:])
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    assert bag.name in result.stderr, result.stderr[-1000:]
+
+
+MALFORMED = {
+    "missing_column": "time_s,drive_v,stroke_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,0,0\n5e-05,0,1.25,0,0\n",
+    "non_numeric": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,1.25,0,0\n5e-05,0,oops,1.25,0,0\n",
+    "time_backwards": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,1.25,0,0\n5e-05,0,1.25,1.25,0,0\n1e-05,0,1.25,1.25,0,0\n",
+    "nan_sensor": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,nan,0,0\n5e-05,0,1.25,1.25,0,0\n",
+    "empty": "",
+    "binary": "\x00\x01\x02garbage\xff",
+}
+
+
+@pytest.mark.parametrize("kind", sorted(MALFORMED))
+@pytest.mark.parametrize("command", ["import", "simulate"])
+def test_malformed_csv_gives_file_line_column(tmp_path: Path, kind: str, command: str) -> None:
+    path = tmp_path / f"{kind}.csv"
+    path.write_bytes(MALFORMED[kind].encode("latin-1"))
+    args = [FLAAIR, command, str(path), "--out", str(tmp_path / ("o.csv" if command == "simulate" else "bag"))]
+    result = run(args, isolated_env(), 60)
+    if command == "simulate" and kind == "missing_column":
+        # simulate needs only time_s and drive_v: this file is fine for it
+        assert result.returncode == 0, result.stderr
+        return
+    assert result.returncode != 0
+    assert f"{kind}.csv" in result.stderr and "Traceback" not in result.stderr, result.stderr
+    where = {"non_numeric": "line 3, column stroke_sensor_v", "time_backwards": "line 4, column time_s",
+             "nan_sensor": "line 2, column pitch_sensor_v", "missing_column": "missing column(s) pitch_sensor_v"}
+    if kind in where:
+        assert where[kind] in result.stderr, result.stderr
+
+
+def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running() -> None:
+    def block(index: int, stroke: list, pitch: list, rate: float = FS_HZ) -> dict:
+        return {"sample_rate_hz": rate, "first_sample_index": index, "stroke_sensor_v": stroke, "pitch_sensor_v": pitch}
+
+    good = [1.25] * 10
+    sequence = [
+        block(0, good, good),
+        block(10, [float("nan")] + good[1:], good),  # NaN sample: marked invalid, not an angle
+        block(10, good, good),                       # duplicate index: ignored
+        block(20, good, good[:5]),                   # stroke/pitch lengths differ: rejected
+        block(30, good, good, rate=1000.0),          # wrong rate: rejected
+        block(40, good, good),
+    ]
+    with ros_processes() as procs:
+        node = procs.flaair("run", "flaair_sensors", "frontend_node")
+        echo = procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", "--count", "3", "--timeout", "60")
+        pub = procs.flaair("topic", "pub", "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", json.dumps(sequence),
+                           "--wait-subscribers", "2", "--count", "1", "--rate", "20")
+        assert pub.wait(timeout=60) == 0
+        out, err = echo.communicate(timeout=60)
+        assert node.poll() is None
+        procs.stop(node)
+        log = node.stderr.read()
+    blocks = [json.loads(line) for line in out.splitlines()]
+    assert [b["first_sample_index"] for b in blocks] == [0, 10, 40]
+    nan_block = blocks[1]
+    assert nan_block["stroke_valid"][0] is False and not any(np.isfinite(nan_block["stroke_deg"][:1]))
+    assert "duplicate or out of order" in log and "array lengths differ" in log and "sample_rate_hz 1000.0" in log
