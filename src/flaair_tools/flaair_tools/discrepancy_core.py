@@ -21,7 +21,8 @@ The four measured channels sit on a directed signal path, and each channel is an
 upstream first, with only the effects that can act on it (`EFFECT_CHANNELS`)::
 
     drive -> stroke dynamics -> stroke_deg  (truth)   candidates: structural_damping, collision, wing_damage
-    stroke -> pitch dynamics -> pitch_deg   (truth)   candidates: hinge_stiffening
+    stroke -> pitch dynamics -> pitch_deg   (truth)   candidates: hinge_stiffening (and the stroke
+                                                       physics, in case only the pitch truth shows it)
     stroke -> actuator sensor -> stroke_sensor_v      candidates: sensor_delay, charge_amp_highpass,
                                                        feedthrough, transmission_nonlinearity,
                                                        strain_transfer_loss (channel stroke)
@@ -32,9 +33,9 @@ The ground-truth channels separate physics from sensor effects: sensor effects c
 ``stroke_deg``/``pitch_deg``, so physics effects are judged on the truth channels alone (where an
 unmodelled sensor effect cannot bias them), sensor effects on the sensor channels with the
 physics already corrected. When a truth channel keeps an unexplained gap, the sensor channel
-below it is judged *truth-referenced*: its residual is (V_meas - V_model) - g (theta_meas -
-theta_model), g the model's sensor gain (V/deg), so a propagated physics error is not blamed on
-the sensor; the pitch truth below an unexplained stroke gap is not analysed (its gap is
+below it is judged *truth-referenced*: the sensor model is driven by the measured angle (model
+angle + interpolated measured-minus-model error) instead of the simulated one, so a propagated
+physics error is not blamed on the sensor; the pitch truth below an unexplained stroke gap is not analysed (its gap is
 reported as possibly propagated). A sensor effect found on both sensor channels with consistent
 parameters becomes one effect with ``channel: both``.
 
@@ -51,7 +52,8 @@ on all runs together; each run is then predicted with the inverse-variance mean 
 runs' estimates (leave-one-run-out; a single run is split into two halves). It is accepted only
 if ALL of:
 
-* R1 held-out: the channel's pooled held-out NRMSE drops by more than ``min_heldout_drop``;
+* R1 held-out: the channel's model error above noise (pooled held-out RSS minus the noise's
+  share, as an NRMSE) drops by more than ``min_heldout_drop``;
 * R2 evidence: held-out Delta-BIC < ``max_delta_bic`` (BIC = sum over runs of
   n ln(RSS/n) + k ln N, Gaussian errors of unknown variance, on the held-out residuals);
 * R3 significance: the all-run parameter is more than ``min_z`` standard errors from its null
@@ -60,7 +62,10 @@ if ALL of:
   each variance widened by (``consistency_rel_tol`` x effect size)^2, has p >= ``consistency_alpha``).
   Runs differ in drive level (full and half chirp) and in time, so an effect whose parameter
   would have to change with the drive level or over time (an effect outside the vocabulary that
-  a vocabulary effect only mimics) is refused here.
+  a vocabulary effect only mimics) is refused here;
+* R5 (a sensor effect already found on the other sensor, extended to both): the two sensors'
+  estimates agree within 3 combined standard errors + the R4 allowance;
+* R6 (stroke physics judged on pitch_deg): stroke_deg keeps no gap with the effect added.
 
 Among the passing candidates the lowest held-out BIC wins; the loop repeats on the channel until
 no gap is left, no candidate passes, or ``max_effects_per_channel`` is reached.
@@ -95,6 +100,10 @@ __all__ = [
     "CHANNELS",
     "TRUTH_CHANNELS",
     "SENSOR_CHANNELS",
+    "SENSOR_EFFECTS",
+    "mechanics_model",
+    "measured_motion",
+    "sensor_voltage",
     "EFFECT_CHANNELS",
     "STATUSES",
     "DiscrepancyInputError",
@@ -251,7 +260,7 @@ class Settings:
     whiteness_alpha : Ljung-Box p-value below which the residual is not white.
     ljung_box_lags : lags of the Ljung-Box test.
     whiteness_decimate : decimation of the residual before the Ljung-Box test.
-    min_heldout_drop : R1, relative drop of held-out NRMSE an effect must bring.
+    min_heldout_drop : R1, relative drop of the held-out model error (above noise) an effect must bring.
     max_delta_bic : R2, held-out Delta-BIC must be below this.
     min_z : R3, distance of the parameter from its null value in standard errors.
     consistency_alpha : R4, p-value of the per-run scatter test below which an effect is refused.
@@ -270,7 +279,7 @@ class Settings:
     whiteness_alpha: float = 1e-4
     ljung_box_lags: int = 20
     whiteness_decimate: int = 10
-    min_heldout_drop: float = 0.10
+    min_heldout_drop: float = 0.20
     max_delta_bic: float = -10.0
     min_z: float = 5.0
     consistency_alpha: float = 1e-3
@@ -354,10 +363,11 @@ def candidate_specs(channel: str) -> tuple[EffectSpec, ...]:
                        (0.5, 0.7, 0.85, 0.95, 1.0), 1e-4),
         )
     if channel == "pitch_deg":
-        return (
-            EffectSpec("hinge_stiffening", "cubic_per_rad2", channel, 0.0, -1.0, 50.0,
-                       (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0), 1e-3),
-        )
+        # stroke physics also drives the pitch; offered here in case only the pitch truth shows it
+        # (rule R6: it must then leave stroke_deg without a gap)
+        return (EffectSpec("hinge_stiffening", "cubic_per_rad2", channel, 0.0, -1.0, 50.0,
+                           (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0), 1e-3),) + tuple(
+            replace(s, judged_on=channel) for s in candidate_specs("stroke_deg"))
     if channel in SENSOR_CHANNELS:
         side = _SENSOR_SIDE[channel]
         specs = [
@@ -425,6 +435,88 @@ def _sensor_gain_v_per_deg(model: Model, channel: str) -> float:
     return math.radians(1.0) * gain
 
 
+SENSOR_EFFECTS: tuple[str, ...] = ("sensor_delay", "charge_amp_highpass", "feedthrough", "transmission_nonlinearity",
+                                   "strain_transfer_loss")
+
+
+def mechanics_model(model: Model) -> Model:
+    """`model` without its sensor effects: the part that sets the stroke and pitch motion."""
+    return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in SENSOR_EFFECTS))
+
+
+def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray, drive_v: np.ndarray,
+                   side: str) -> np.ndarray:
+    """Charge-amplifier output of one sensor ('stroke' or 'pitch') from the motion, in numpy.
+
+    The plant's sensor chain (flaair_sim.plant docstring), in its order: transduction (with
+    transmission_nonlinearity and strain_transfer_loss), feedthrough (stroke), first-order
+    bilinear high-pass (lfilter from rest), delay (whole samples + linear interpolation),
+    + V_HREF. Used to try sensor effects without re-integrating the dynamics; equal to
+    `simulate` to rounding (tested).
+    """
+    if side == "stroke":
+        gain = model.stroke_volts_per_rad
+        x = stroke_rad
+        nl = model.effect("transmission_nonlinearity")
+        if nl is not None:
+            x = x + nl.cubic_per_rad2 * x * x * x
+    else:
+        gain = model.pitch_volts_per_rad
+        x = pitch_rad
+    loss = model.effect("strain_transfer_loss")
+    if loss is not None and loss.channel in (side, "both"):
+        gain *= loss.efficiency
+    dev = gain * x
+    feed = model.effect("feedthrough")
+    if side == "stroke" and feed is not None:
+        dev = dev + feed.gain_v_per_v * drive_v
+    hp = model.effect("charge_amp_highpass")
+    if hp is not None and hp.channel in (side, "both"):
+        k = math.tan(math.pi * hp.corner_hz / fs_hz)  # bilinear with pre-warped corner (= scipy butter)
+        b0 = 1.0 / (1.0 + k)
+        dev = signal.lfilter([b0, -b0], [1.0, (k - 1.0) / (k + 1.0)], dev)
+    delay = model.effect("sensor_delay")
+    if delay is not None and delay.channel in (side, "both"):
+        samples = delay.delay_s * fs_hz
+        whole = math.floor(samples + 1e-9)
+        frac = samples - whole
+        frac = 0.0 if frac < 1e-9 else frac
+        padded = np.concatenate([np.zeros(whole + 1), dev])
+        n = dev.size
+        dev = (1.0 - frac) * padded[1: n + 1] + frac * padded[:n] if frac else padded[1: n + 1]
+    return model.sensors.reference_voltage_v + dev
+
+
+class _MotionCache:
+    """Simulated motion (stroke, pitch in rad) per (mechanics model, run), least recently used first out."""
+
+    def __init__(self, size: int = 24) -> None:
+        self.size = size
+        self.data: dict = {}
+
+    def get(self, models: Sequence[Model], runs: Sequence[Run], run_ids: Sequence[int]) -> dict:
+        """{(mechanics model, run id): (stroke_rad, pitch_rad)} for every model and run."""
+        mechs = list(dict.fromkeys(mechanics_model(m) for m in models))
+        out = {}
+        for j in run_ids:
+            missing = [m for m in mechs if (m, j) not in self.data]
+            if missing:
+                if len(missing) == 1:
+                    sim = simulate(runs[j].drive_v, runs[j].fs_hz, missing[0])
+                    rows = [(sim.stroke_rad, sim.pitch_rad)]
+                else:
+                    sim = simulate_batch(runs[j].drive_v, runs[j].fs_hz, missing)
+                    rows = [(sim.stroke_rad[i], sim.pitch_rad[i]) for i in range(len(missing))]
+                for m, row in zip(missing, rows):
+                    self.data[(m, j)] = row
+            for m in mechs:
+                out[(m, j)] = self.data.pop((m, j))
+                self.data[(m, j)] = out[(m, j)]
+        while len(self.data) > self.size:
+            self.data.pop(next(iter(self.data)))
+        return out
+
+
 # ---------------------------------------------------------------------------- residual stats
 
 
@@ -435,17 +527,32 @@ def _demean(r: np.ndarray) -> np.ndarray:
     return r
 
 
+def measured_motion(run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
+    """Model motion with one angle replaced by the measured one (gaps: model + interpolated error)."""
+    truth = run.stroke_deg if side == "stroke" else run.pitch_deg
+    sim = stroke_rad if side == "stroke" else pitch_rad
+    err = np.radians(truth) - sim
+    ok = np.isfinite(err)
+    if not ok.all():
+        err = np.interp(np.arange(err.size), np.flatnonzero(ok), err[ok])
+    return (sim + err, pitch_rad) if side == "stroke" else (stroke_rad, sim + err)
+
+
 def _residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, model: Optional[Model] = None,
               truth_referenced: bool = False) -> np.ndarray:
     """Measured minus simulated record (mean removed); NaN where the measurement is missing.
 
-    truth_referenced (sensor channels): subtract g (theta_meas - theta_model), g the model's
-    sensor gain, so that an error of the simulated angle is not counted against the sensor.
+    truth_referenced (sensor channels): the sensor is simulated with the *measured* angle as its
+    input (`measured_motion`), so an error of the simulated angle is not counted against the
+    sensor; NaN where the truth is missing.
     """
-    r = run.channel(channel) - sim[channel]
     if truth_referenced and channel in SENSOR_CHANNELS:
-        truth = _UPSTREAM_TRUTH[channel]
-        r = r - _sensor_gain_v_per_deg(model, channel) * (run.channel(truth) - sim[truth])
+        side = _SENSOR_SIDE[channel]
+        stroke, pitch = measured_motion(run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side)
+        r = run.channel(channel) - sensor_voltage(model, run.fs_hz, stroke, pitch, run.drive_v, side)
+        r = np.where(np.isfinite(run.channel(_UPSTREAM_TRUTH[channel])), r, np.nan)
+    else:
+        r = run.channel(channel) - sim[channel]
     return _demean(r)
 
 
@@ -763,9 +870,11 @@ def _interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float
                  else "not linearly correlated with the drive: a nonlinear or time-varying path")
     if harmonics:
         higher = sum(v for k, v in harmonics.items() if k != "1")
-        if higher > 0.2:
-            parts.append(f"{higher:.0%} of it at drive harmonics 2-4 (nonlinearity)")
-    if math.isfinite(level_ratio):
+        if higher > 0.05:
+            parts.append(f"{higher:.0%} of it at drive harmonics 2-4 (a nonlinearity)")
+    if math.isinf(level_ratio):
+        parts.append("only at the highest drive level (an amplitude threshold, e.g. a stop)")
+    elif math.isfinite(level_ratio):
         if level_ratio > 1.5:
             parts.append(f"relative error {level_ratio:.2f}x larger at full drive (grows with amplitude)")
         elif level_ratio < 1 / 1.5:
@@ -815,8 +924,10 @@ class _Problem:
 
     def __init__(self, runs: Sequence[Run], folds: Sequence[_Fold], channel: str, sigma: float,
                  truth_referenced: bool, decimate: int, truth_sigma: float = 0.0,
-                 weight_model: Optional[Model] = None) -> None:
+                 weight_model: Optional[Model] = None, motion: Optional[_MotionCache] = None) -> None:
         self.runs = runs
+        self.motion = motion if motion is not None else _MotionCache()
+        self._measured: dict = {}
         self.folds = list(folds)
         self.channel = channel
         self.truth_referenced = truth_referenced and channel in SENSOR_CHANNELS
@@ -848,18 +959,28 @@ class _Problem:
     def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
         models = list(models)
-        sims = {j: simulate_runs(models, [self.runs[j]]) for j in self.run_ids}
+        motion = self.motion.get(models, self.runs, self.run_ids) if self.channel in SENSOR_CHANNELS else None
+        sims = None if motion is not None else {j: simulate_runs(models, [self.runs[j]]) for j in self.run_ids}
         out = []
+        side = _SENSOR_SIDE.get(self.channel)
         for i, m in enumerate(models):
             row = []
-            g = _sensor_gain_v_per_deg(m, self.channel) if self.truth_referenced else 0.0
+            mech = mechanics_model(m) if motion is not None else None
             for f, idx in zip(self.folds, self.idx):
                 run = self.runs[f.run]
-                sim = sims[f.run][i][0]
-                r = run.channel(self.channel)[idx] - sim[self.channel][idx]
-                if self.truth_referenced:
-                    t = _UPSTREAM_TRUTH[self.channel]
-                    r = r - g * (run.channel(t)[idx] - sim[t][idx])
+                if motion is not None:
+                    stroke, pitch = motion[(mech, f.run)]
+                    if self.truth_referenced:
+                        key = (mech, f.run)
+                        if key not in self._measured:
+                            if len(self._measured) >= 8:
+                                self._measured.pop(next(iter(self._measured)))
+                            self._measured[key] = measured_motion(run, stroke, pitch, side)
+                        stroke, pitch = self._measured[key]
+                    v = sensor_voltage(m, run.fs_hz, stroke, pitch, run.drive_v, side)
+                    r = run.channel(self.channel)[idx] - v[idx]
+                else:
+                    r = run.channel(self.channel)[idx] - sims[f.run][i][0][self.channel][idx]
                 if not np.all(np.isfinite(r)):
                     r = np.where(np.isfinite(r), r, 1e6 * self.weight)
                 row.append((r - r.mean()) / self.weight)
@@ -982,6 +1103,8 @@ class CandidateEvidence:
     consistency_p : p-value of the per-run scatter test per effect (NaN: fewer than 2 runs identify it).
     heldout_nrmse_before, heldout_nrmse_after : channel NRMSE on held-out runs without / with it.
     heldout_drop : 1 - after / before.
+    heldout_gap_drop : the same for the model error above noise (R1): 1 - sqrt(max(RSS_after - n, 0)
+        / max(RSS_before - n, 0)) in noise-weighted units.
     delta_bic_heldout : held-out BIC change (negative favours the effect).
     delta_bic_fit : in-sample BIC change on all runs.
     rules : {rule: passed}.
@@ -998,6 +1121,7 @@ class CandidateEvidence:
     heldout_nrmse_before: float
     heldout_nrmse_after: float
     heldout_drop: float
+    heldout_gap_drop: float
     delta_bic_heldout: float
     delta_bic_fit: float
     rules: dict
@@ -1011,7 +1135,8 @@ class CandidateEvidence:
             "per_run": [[{"run": n, "value": v, "se": s} for n, v, s in pr] for pr in self.per_run],
             "consistency_p": list(self.consistency_p),
             "heldout_nrmse_before": self.heldout_nrmse_before, "heldout_nrmse_after": self.heldout_nrmse_after,
-            "heldout_drop": self.heldout_drop, "delta_bic_heldout": self.delta_bic_heldout,
+            "heldout_drop": self.heldout_drop, "heldout_gap_drop": self.heldout_gap_drop,
+            "delta_bic_heldout": self.delta_bic_heldout,
             "delta_bic_fit": self.delta_bic_fit, "rules": dict(self.rules), "accepted": self.accepted,
         }
 
@@ -1040,6 +1165,13 @@ def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
     n_tot = sum(n_list)
     val = sum(n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list) if n > 0)
     return val + k * math.log(max(n_tot, 2))
+
+
+def _gap_drop(rss_before: float, rss_after: float, n: int) -> float:
+    """Relative drop of the model error above noise (noise-weighted residuals: noise RSS = n)."""
+    before = math.sqrt(max(rss_before - n, 0.0))
+    after = math.sqrt(max(rss_after - n, 0.0))
+    return 1.0 - after / before if before > 0 else 0.0
 
 
 def _consistency(est: Sequence[tuple[float, float]], size: float, settings: Settings) -> float:
@@ -1075,12 +1207,13 @@ class _Context:
         self.settings = settings
         self.folds = _folds(self.runs)
         self.tracks = list(tracks) if tracks is not None else _drive_tracks(self.runs)
+        self.motion = _MotionCache()
 
     def problem(self, channel: str, folds: Sequence[_Fold], truth_referenced: bool, weight_model: Model) -> _Problem:
         """Residual problem of `channel` on `folds`."""
         truth_sigma = self.noise[_UPSTREAM_TRUTH[channel]] if channel in SENSOR_CHANNELS else 0.0
         return _Problem(self.runs, folds, channel, self.noise[channel], truth_referenced,
-                        self.settings.decimate, truth_sigma, weight_model)
+                        self.settings.decimate, truth_sigma, weight_model, self.motion)
 
 
 def _reach_deg(ctx: _Context, model: Model) -> float:
@@ -1150,6 +1283,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     before = math.sqrt(sum(rss_null) / ss) if ss > 0 else math.nan
     after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
     drop = 1.0 - after / before if before > 0 else 0.0
+    gap_drop = _gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
     dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
     dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
     z, cons, per_run, n_ident = [], [], [], []
@@ -1167,7 +1301,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
         cons.append(_consistency(est, s.effect_size(v), st))
         n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
     rules = {
-        "R1_heldout_drop": bool(drop > st.min_heldout_drop),
+        "R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
         "R3_significance": bool(all(zz > st.min_z for zz in z)),
         "R4_consistency": bool(all(k >= 2 for k in n_ident)
@@ -1186,8 +1320,8 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     ev = CandidateEvidence(
         labels=tuple(s.label for s in specs), channel=channel, values=tuple(values), se=tuple(se_phys),
         z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons), heldout_nrmse_before=before,
-        heldout_nrmse_after=after, heldout_drop=drop, delta_bic_heldout=dbic_ho, delta_bic_fit=dbic_fit,
-        rules=rules, accepted=all(rules.values()),
+        heldout_nrmse_after=after, heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic_ho,
+        delta_bic_fit=dbic_fit, rules=rules, accepted=all(rules.values()),
     )
     return ev, model
 
@@ -1317,14 +1451,16 @@ def _evaluate_shared(ctx: _Context, current: Model, specs: Sequence[EffectSpec],
     ss = prob.signal_ss()
     before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
     drop = 1.0 - after / before if before > 0 else 0.0
+    gap_drop = _gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
     dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
-    rules = {"R1_heldout_drop": bool(drop > st.min_heldout_drop), "R2_delta_bic": bool(dbic < st.max_delta_bic)}
+    rules = {"R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop), "R2_delta_bic": bool(dbic < st.max_delta_bic)}
     values = tuple(_param_value(current, s) for s in specs)
     ev = CandidateEvidence(
         labels=tuple(f"{s.name}[both]" for s in specs), channel=channel, values=values,
         se=tuple(math.nan for _ in specs), z=tuple(math.nan for _ in specs), per_run=tuple(() for _ in specs),
         consistency_p=tuple(math.nan for _ in specs), heldout_nrmse_before=before, heldout_nrmse_after=after,
-        heldout_drop=drop, delta_bic_heldout=dbic, delta_bic_fit=dbic, rules=rules, accepted=all(rules.values()))
+        heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic, delta_bic_fit=dbic, rules=rules,
+        accepted=all(rules.values()))
     return ev, model
 
 
@@ -1361,6 +1497,7 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
             ev, m = _evaluate(ctx, base, [s], channel, truth_ref, merge_with=merge)
             if kind == "merge":
                 m = with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
+            ev = _check_upstream_truth(ctx, ev, m, channel, s)
             evals.append((ev, m, (s,), kind))
         if step == 0:
             first = evals
@@ -1375,6 +1512,16 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
             state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
         has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
     return state, has_gap, first
+
+
+def _check_upstream_truth(ctx: _Context, ev: CandidateEvidence, model: Model, channel: str,
+                          spec: EffectSpec) -> CandidateEvidence:
+    """R6: a stroke-physics effect judged on pitch_deg must leave stroke_deg without a gap."""
+    if channel != "pitch_deg" or "stroke_deg" not in EFFECT_CHANNELS[spec.name] or not ev.accepted:
+        return ev
+    ok = not _channel_has_gap(ctx, model, "stroke_deg", False)
+    rules = {**ev.rules, "R6_stroke_truth_intact": ok}
+    return replace(ev, rules=rules, accepted=all(rules.values()))
 
 
 def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, truth_ref: bool,
@@ -1403,6 +1550,8 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
                 specs = [a[2][0], b[2][0]]
                 x_start = np.array([specs[0].to_fit(a[0].values[0]), specs[1].to_fit(b[0].values[0])])
                 ev, m = _evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
+                for s in specs:
+                    ev = _check_upstream_truth(ctx, ev, m, channel, s)
                 steps.append((ev,))
                 if ev.accepted and (best is None or ev.delta_bic_heldout < best[0].delta_bic_heldout):
                     best = (ev, m, specs)

@@ -240,9 +240,9 @@ def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any
 
 
 def _label_match(true: str, found: str) -> bool:
-    if true.startswith("outside:"):
-        return found == "none (gap left)"
-    return found == true
+    from .discrepancy_datasets import expected_column
+
+    return found == expected_column(true)
 
 
 _CSS = """
@@ -265,11 +265,13 @@ stroke_sensor_v (sensor_delay, charge_amp_highpass, feedthrough, transmission_no
 pitch_sensor_v (sensor_delay, charge_amp_highpass, strain_transfer_loss). Physics is judged on the ground-truth
 channels, which sensor effects cannot touch; sensors with the physics corrected (against the measured angle when the
 truth above keeps a gap). A sensor effect of the other sensor is first tried on both sensors with no new parameter.</li>
-<li><b>Accept</b> an effect only if ALL hold: R1 held-out NRMSE of the channel drops by more than
-{s.min_heldout_drop:.0%}; R2 held-out Delta-BIC &lt; {s.max_delta_bic:g}; R3 the parameter is more than {s.min_z:g}
+<li><b>Accept</b> an effect only if ALL hold: R1 the held-out model error of the channel (NRMSE above
+noise) drops by more than {s.min_heldout_drop:.0%}; R2 held-out Delta-BIC &lt; {s.max_delta_bic:g}; R3 the parameter is more than {s.min_z:g}
 standard errors from its null value; R4 the per-run estimates (runs differ in drive level and time) agree: chi-square
 p &ge; {s.consistency_alpha:g} with a {s.consistency_rel_tol:.0%} model-imperfection allowance, and at least two runs
-identify the effect. Held-out: each run is predicted with the pooled estimate of the other runs.</li>
+identify the effect; R5 a sensor effect extended from the other sensor to both agrees with it; R6 stroke physics
+judged on pitch_deg leaves stroke_deg without a gap. Held-out: each run is predicted with the pooled estimate of
+the other runs.</li>
 <li><b>Choose</b> the passing candidate with the lowest held-out BIC; repeat on the channel (at most
 {s.max_effects_per_channel}); if a gap is left, pairs of effects are fitted jointly and replace the greedy choice
 when they pass all rules and predict held-out runs better.</li>
@@ -297,11 +299,11 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
             ev = e.evidence
             rules = ev.get("rules") or {}
             rows.append([e.name, e.channel, ", ".join(f"{k}={_f(v)}" for k, v in e.parameters.items()),
-                         ", ".join(ev.get("candidate", "").split("+")), ev.get("heldout_drop"),
+                         ", ".join(ev.get("candidate", "").split("+")), ev.get("heldout_gap_drop"),
                          ev.get("delta_bic_heldout"), ", ".join(_f(z) for z in ev.get("z_from_null") or []),
                          ", ".join(_f(p) for p in ev.get("consistency_p") or []),
                          ", ".join(k for k, v in rules.items() if v), ", ".join(e.explains)])
-        parts.append(_table(["effect", "found on", "parameters", "candidate", "held-out drop", "held-out dBIC",
+        parts.append(_table(["effect", "found on", "parameters", "candidate", "held-out gap drop", "held-out dBIC",
                              "z from null", "consistency p", "rules passed", "can change"], rows))
     else:
         parts.append("<p>None.</p>")
@@ -332,13 +334,13 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
         rows = []
         for i, step in enumerate(s.steps):
             for ev in step:
-                rows.append([i, "+".join(ev.labels), ", ".join(_f(v) for v in ev.values), ev.heldout_drop,
+                rows.append([i, "+".join(ev.labels), ", ".join(_f(v) for v in ev.values), ev.heldout_gap_drop,
                              ev.delta_bic_heldout, ", ".join(_f(z) for z in ev.z),
                              ", ".join(_f(p) for p in ev.consistency_p),
                              "; ".join(" / ".join(f"{n}: {_f(v)}" for n, v, _ in pr) for pr in ev.per_run),
                              ", ".join(k for k, v in ev.rules.items() if not v) or "-",
                              f"<b>{'accepted' if ev.accepted else 'refused'}</b>"])
-        parts.append(_table(["step", "candidate", "value", "held-out drop", "held-out dBIC", "z", "consistency p",
+        parts.append(_table(["step", "candidate", "value", "held-out gap drop", "held-out dBIC", "z", "consistency p",
                              "per-run estimates", "failed rules", "verdict"], rows))
     parts.append("<h2>Decision rules</h2>" + _rules_html(settings))
     parts.append("<h2>Validation on the project's hidden-effect datasets</h2>")
