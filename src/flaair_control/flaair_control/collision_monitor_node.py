@@ -197,9 +197,11 @@ class CollisionMonitorNode(Node):
                             self.fs_hz, message.first_sample_index, self.expected_index)
         if not check.ok and check.kind != "gap":
             self.rejected += 1
-            self.get_logger().warning(f"wing-state block {message.first_sample_index}: {check.reason} "
-                                      f"[{self.rejected} rejected so far]",
-                                      throttle_duration_sec=1.0 if self.rejected > 10 else 0.0)
+            text = f"wing-state block {message.first_sample_index}: {check.reason} [{self.rejected} rejected so far]"
+            if self.rejected <= 10:  # rclpy fixes a call site's throttle at its first call: two call sites
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().warning(text, throttle_duration_sec=1.0)
             return
         if self.time_offset_s is None:
             self.time_offset_s = time_s_from_stamp(message.header.stamp) - message.first_sample_index / self.fs_hz

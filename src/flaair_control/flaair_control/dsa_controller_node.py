@@ -22,6 +22,7 @@ Starting the loop: the lockstep plant waits for commands, so once the plant subs
 the front end to match the plant's sensor stream), the node publishes blocks_in_flight blocks
 itself (drive from a filter at rest: the synchronous sine). If no wing-state block answers
 within start_retry_s it sends one more block (a lost first block would otherwise deadlock).
+A wing-state block that arrives before that (blocks already flowing) is simply answered.
 
 Transport delay and its compensation: velocity block k (samples [kN, (k+1)N)) is complete only
 at the end of block k, so its drive is applied in block k + blocks_in_flight. The loop delay is
@@ -69,7 +70,7 @@ from flaair_common import topics
 from flaair_common.blocks import check_block, from_array, stamp_from_time_s
 from flaair_common.config import ConfigError, node_parameters
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
-from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
+from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_control import dsa, safety
 from flaair_control.transition import CrossingFrequency
@@ -190,7 +191,9 @@ class DsaControllerNode(Node):
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)
         self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
-        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, EVENTS)
+        # Volatile: matches the monitor's transient-local publisher and a plain one (flaair topic pub),
+        # and a stale onset from before this node started is not acted upon.
+        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.timer_period_s = min(0.005, p["watchdog_timeout_s"] / 4)
         self.create_timer(self.timer_period_s, self.on_timer)
@@ -249,8 +252,13 @@ class DsaControllerNode(Node):
     # ------------------------------------------------------------------ inputs
     def on_wing_state(self, message: WingStateBlock) -> None:
         t_receive = time.monotonic()
-        if self.mode in (WAITING, DONE):
+        if self.mode == DONE:
             return
+        if self.mode == WAITING:
+            # Blocks already flow (a realtime plant, or a publisher faster than our start check):
+            # join the loop by answering them; no extra start blocks.
+            self.mode = LOOP
+            self.get_logger().info(f"wing-state block {message.first_sample_index} before the start: joining the loop")
         self.last_arrival_wall = t_receive
         if self.first_arrival_wall is None:
             self.first_arrival_wall = t_receive
@@ -437,8 +445,12 @@ class DsaControllerNode(Node):
     # ------------------------------------------------------------------ helpers
     def _warn(self, text: str, counter: str) -> None:
         count = self.counts[counter]
-        self.get_logger().warning(f"{text} [{count} {counter} so far]",
-                                  throttle_duration_sec=1.0 if count > 10 else 0.0)
+        # rclpy fixes a call site's throttle at its first call: two call sites, every one of the
+        # first ten warnings, then at most one a second.
+        if count <= 10:
+            self.get_logger().warning(f"{text} [{count} {counter} so far]")
+        else:
+            self.get_logger().warning(f"{text} [{count} {counter} so far]", throttle_duration_sec=1.0)
 
     def summary(self, what: str) -> str:
         wall = (self.last_arrival_wall - self.first_arrival_wall) if self.first_arrival_wall else 0.0

@@ -1,0 +1,232 @@
+"""Control nodes over real DDS: closed loop, collision response, watchdog, bad blocks, collision monitor."""
+from __future__ import annotations
+
+import json
+import math
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from rosproc import REPO_ROOT, ros_processes, wait_for
+
+FS_HZ = 20000.0
+BLOCK = 10
+CONTROLLER = ("run", "flaair_control", "dsa_controller_node", "--ros-args")
+
+
+def _lines(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text().splitlines():
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:  # a line being written
+            break
+    return out
+
+
+def _echo(procs, topic: str, type_name: str, path: Path, count: int = 0, timeout_s: float = 120.0):
+    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", str(timeout_s),
+                        stdout=open(path, "w"))
+
+
+def _pub(procs, topic: str, type_name: str, values: dict, count: int = 1) -> None:
+    pub = procs.flaair("topic", "pub", topic, type_name, json.dumps(values), "--wait-subscribers", "1",
+                       "--count", str(count), "--rate", "20")
+    assert pub.wait(timeout=60) == 0, pub.stderr.read()
+
+
+def _wing_state(index: int, n: int = BLOCK, velocity: float = 0.0, valid: bool = True) -> dict:
+    return {"sample_rate_hz": FS_HZ, "first_sample_index": index, "stroke_deg": [0.0] * n, "pitch_deg": [0.0] * n,
+            "stroke_velocity_deg_s": [velocity] * n, "stroke_valid": [valid] * n, "pitch_valid": [valid] * n}
+
+
+def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_killed(tmp_path) -> None:
+    states, sensors = tmp_path / "state.jsonl", tmp_path / "sensor.jsonl"
+    with ros_processes() as procs:
+        _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states)
+        _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors)
+        procs.flaair("run", "flaair_sim", "plant_node")
+        procs.flaair("run", "flaair_sensors", "frontend_node")
+        controller = procs.flaair(*CONTROLLER, "-p", "collision_response:=reduce_amplitude",
+                                  "-p", "collision_reduction_factor:=0.25", "-p", "watchdog_timeout_s:=30.0")
+        assert wait_for(lambda: len(_lines(states)) >= 100, 90), controller.stderr.read() if controller.poll() else ""
+        _pub(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent",
+             {"kind": 1, "wingbeat_index": 7, "spectrum_rmse_deg": 3.2})
+        assert wait_for(lambda: any(s["amplitude_scale"] == 0.25 for s in _lines(states)), 30)
+        n_reduced = len(_lines(states))
+        _pub(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent",
+             {"kind": 2, "wingbeat_index": 12, "spectrum_rmse_deg": 0.2})
+        assert wait_for(lambda: _lines(states)[-1]["amplitude_scale"] == 1.0, 30)
+        # kill -9: no zero block, no goodbye; the lockstep plant must simply stop
+        procs.stop(controller, signal.SIGKILL)
+        time.sleep(1.0)
+        n_after_kill = len(_lines(sensors))
+        time.sleep(1.5)
+        assert len(_lines(sensors)) == n_after_kill
+    blocks = _lines(sensors)
+    assert [b["first_sample_index"] for b in blocks] == list(range(0, len(blocks) * BLOCK, BLOCK))
+    all_states = _lines(states)
+    assert all(s["watchdog"] == 0 and s["fault"] == "" for s in all_states)
+    scales = [s["amplitude_scale"] for s in all_states]
+    assert scales[0] == 1.0 and 0.25 in scales[n_reduced - 5:] and scales[-1] == 1.0
+    assert all(abs(s["drive_v"]) <= 150.0 for s in all_states)
+    assert any(abs(s["sync_drive_v"]) > 10.0 for s in all_states)   # synchronous 20 V sine at the start
+
+
+def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(tmp_path) -> None:
+    drive, states = tmp_path / "drive.jsonl", tmp_path / "state.jsonl"
+    n_drive = 2 + 40 + 20 + 3   # first + reply, 20 ms ramp, 10 ms zero hold, keepalives
+    with ros_processes() as procs:
+        echo_drive = _echo(procs, "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", drive, n_drive, 60)
+        _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states, 0, 60)
+        controller = procs.flaair(*CONTROLLER, "-p", "watchdog_timeout_s:=0.3", "-p", "ramp_down_s:=0.02",
+                                  "-p", "zero_hold_s:=0.01", "-p", "keepalive_period_s:=0.2", "-p", "start_delay_s:=0.0",
+                                  "-p", "sync_amplitude_v:=40.0", "-p", "sync_frequency_hz:=100.0")
+        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", _wing_state(0), count=3)  # + 2 duplicates
+        echo_drive.wait(timeout=60)
+        # states keep coming with the keepalive blocks (a burst may overrun the status queue)
+        assert wait_for(lambda: any(s["watchdog"] == 1 for s in _lines(states)), 30)
+        assert controller.poll() is None
+        procs.stop(controller)
+        log = controller.stderr.read()
+    blocks = _lines(drive)
+    assert len(blocks) == n_drive
+    assert [b["first_sample_index"] for b in blocks] == list(range(0, n_drive * BLOCK, BLOCK))
+    x = np.concatenate([b["drive_v"] for b in blocks])
+    assert np.isfinite(x).all() and np.abs(x).max() <= 150.0
+    assert np.abs(x[:2 * BLOCK]).max() > 5.0                       # driving before the trip
+    tripped = [s for s in _lines(states) if s["watchdog"] == 1]
+    assert tripped and "no wing-state block for" in tripped[0]["fault"] and "wall-clock" in tripped[0]["fault"]
+    # ramp: the envelope of each 5 ms (100-sample) window after the trip never grows, then exact zeros
+    after = x[2 * BLOCK:]
+    peaks = np.abs(after[: len(after) // 100 * 100]).reshape(-1, 100).max(axis=1)
+    assert np.all(np.diff(peaks) <= 1e-9) and peaks[0] > 1.0
+    assert np.all(after[int(0.02 * FS_HZ):] == 0.0)
+    assert "WATCHDOG TRIPPED" in log and "duplicate or out of order" in log
+
+
+def test_invalid_wing_state_blocks_are_counted_and_the_loop_goes_on(tmp_path) -> None:
+    drive = tmp_path / "drive.jsonl"
+    with ros_processes() as procs:
+        echo = _echo(procs, "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", drive, 7, 90)
+        controller = procs.flaair(*CONTROLLER, "-p", "watchdog_timeout_s:=60.0", "-p", "start_delay_s:=0.0")
+        sequence = [
+            _wing_state(0, velocity=100.0),
+            _wing_state(10, velocity=math.nan),         # NaN velocity: invalid
+            _wing_state(20, velocity=100.0, valid=False),  # front end says invalid
+            _wing_state(30, n=5),                       # wrong length: rejected
+            _wing_state(40, velocity=100.0),
+        ]
+        for values in sequence:
+            _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", values)
+        assert wait_for(lambda: len(_lines(drive)) >= 6, 30)
+        assert controller.poll() is None                # did not crash
+        procs.stop(controller)                          # SIGINT: close() sends a zero block
+        echo.wait(timeout=30)
+        log = controller.stderr.read()
+    blocks = _lines(drive)
+    assert [b["first_sample_index"] for b in blocks] == [0, 10, 20, 30, 40, 50, 60]
+    assert all(np.isfinite(b["drive_v"]).all() for b in blocks)
+    assert blocks[-1]["drive_v"] == [0.0] * BLOCK
+    assert "[2 invalid so far]" in log and "block has 5 samples, expected 10" in log
+    assert "5 wing-state blocks (2 invalid, 1 rejected, 0 stale, 0 gaps)" in log and "watchdog ok" in log
+
+
+def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], list[dict]]:
+    model = yaml.safe_load((REPO_ROOT / "config" / "model.yaml").read_text())
+    model["effects"] = effects
+    model_file = tmp_path / f"{name}.yaml"
+    model_file.write_text(yaml.safe_dump(model))
+    status, events = tmp_path / f"{name}_status.jsonl", tmp_path / f"{name}_events.jsonl"
+    duration = 1.0   # long enough for 24 verdicts even if the front end matches the plant late
+    with ros_processes() as procs:
+        echo = _echo(procs, "/flaair/collision/status", "flaair_msgs/msg/CollisionStatus", status, 24, 120)
+        _echo(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent", events, 0, 120)
+        # Known drive frequency here (drive_node's sine starts at phase 0). The estimate from
+        # /flaair/drive is tested in-process below: over DDS the monitor's /flaair/drive
+        # subscription could start the lockstep drive_node before the plant has subscribed.
+        nodes = [
+            procs.flaair("run", "flaair_control", "collision_monitor_node", "--ros-args", "-p", "drive_frequency_hz:=100.0"),
+            procs.flaair("run", "flaair_sensors", "frontend_node"),
+            procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", f"model_file:={model_file}"),
+            procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=sine",
+                         "-p", "frequency_hz:=100.0", "-p", "amplitude_v:=75.0", "-p", f"run_time_s:={duration}"),
+        ]
+        ok = echo.wait(timeout=150) == 0
+        time.sleep(0.5)
+        if not ok:
+            for node in nodes:
+                procs.stop(node)
+            logs = "\n".join(node.stderr.read()[-3000:] for node in nodes)
+            raise AssertionError(f"{name}: fewer than 24 statuses ({len(_lines(status))}); logs:\n{logs}")
+    return _lines(status), _lines(events)
+
+
+def test_collision_monitor_reports_every_wingbeat_and_flags_an_obstacle(tmp_path) -> None:
+    """Paper scenario: 100 Hz, 75 V about the bias, obstacle at 20 deg against a 28 deg free stroke."""
+    free_status, free_events = _monitor_run(tmp_path, "free", {})
+    hit_status, hit_events = _monitor_run(tmp_path, "hit", {"collision": {"stroke_limit_deg": 20.0}})
+    for status in (free_status, hit_status):
+        assert [s["wingbeat_index"] for s in status] == list(range(len(status)))
+        assert all(s["wingbeat_frequency_hz"] == 100.0 for s in status)
+        assert all(s["threshold_deg"] == 1.0 for s in status)
+    free_rmse = [s["spectrum_rmse_deg"] for s in free_status if math.isfinite(s["spectrum_rmse_deg"])]
+    hit_rmse = [s["spectrum_rmse_deg"] for s in hit_status if math.isfinite(s["spectrum_rmse_deg"])]
+    assert free_rmse and hit_rmse
+    assert max(free_rmse) < 0.5 and not any(s["colliding"] for s in free_status) and free_events == []
+    assert min(hit_rmse) > 1.0 and hit_status[-1]["colliding"]
+    assert [e["kind"] for e in hit_events] == [1]
+    onset = hit_events[0]
+    assert onset["spectrum_rmse_deg"] > 1.0
+    assert hit_status[onset["wingbeat_index"]]["colliding"] and not hit_status[onset["wingbeat_index"] - 1]["colliding"]
+
+
+def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch) -> None:
+    """In-process (no DDS): drive and wing-state messages from the simulated robot with an obstacle."""
+    import rclpy
+
+    from flaair_common.blocks import from_array
+    from flaair_control.collision_monitor_node import CollisionMonitorNode
+    from flaair_msgs.msg import DriveCommandBlock, WingStateBlock
+    from flaair_sensors import frontend
+    from flaair_sim.model import with_effects
+    from flaair_sim.model_io import load_model
+    from flaair_sim.plant import simulate
+
+    model = load_model()
+    fs, n = FS_HZ, int(0.5 * FS_HZ)
+    drive = 75.0 * np.sin(2 * np.pi * 100.0 * np.arange(n) / fs + 1.0)   # unknown phase
+    out = simulate(drive, fs, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}}))
+    est = frontend.estimate(out.stroke_sensor_v, out.pitch_sensor_v, frontend.params_from_model(model, fs))
+    owns_rclpy = not rclpy.ok()
+    if owns_rclpy:
+        rclpy.init()
+    try:
+        node = CollisionMonitorNode()
+        statuses, events = [], []
+        monkeypatch.setattr(node.status_pub, "publish", statuses.append)
+        monkeypatch.setattr(node.event_pub, "publish", events.append)
+        for k in range(0, n, BLOCK):
+            command = DriveCommandBlock(sample_rate_hz=fs, first_sample_index=k)
+            command.drive_v = from_array(drive[k:k + BLOCK])
+            node.on_drive(command)
+            state = WingStateBlock(sample_rate_hz=fs, first_sample_index=k)
+            state.stroke_deg = from_array(np.degrees(est.stroke_rad[k:k + BLOCK]))
+            state.pitch_deg = from_array(np.degrees(est.pitch_rad[k:k + BLOCK]))
+            state.stroke_valid = est.stroke_valid[k:k + BLOCK].tolist()
+            state.pitch_valid = est.pitch_valid[k:k + BLOCK].tolist()
+            node.on_wing_state(state)
+        node.destroy_node()
+    finally:
+        if owns_rclpy:
+            rclpy.shutdown()
+    assert node.locked_hz == 100.0
+    assert len(statuses) >= 35 and all(s.wingbeat_frequency_hz == 100.0 for s in statuses)
+    rmse = [s.spectrum_rmse_deg for s in statuses if math.isfinite(s.spectrum_rmse_deg)]
+    assert rmse and min(rmse) > 1.0 and statuses[-1].colliding
+    assert [e.kind for e in events] == [1] and events[0].spectrum_rmse_deg > 1.0
