@@ -1,0 +1,347 @@
+"""Closed-loop benchmark: plant (lockstep) -> front end -> dSA controller -> plant over DDS.
+
+Run: scripts/in_env.sh python bench/bench_closed_loop.py [--duration 2.0] [--json out/bench_closed_loop.json]
+
+20 kHz data in 10-sample (0.5 ms) blocks; three node processes on a private ROS_DOMAIN_ID
+(outside the 1..101 range tests use), localhost discovery, nothing else subscribed.
+
+Figures:
+* real-time factor = signal time / wall time over the run (first 10 % dropped: start-up),
+  from the controller's own per-block timing (timing_file: monotonic receive and publish
+  time of every block), with 1 block in flight (the loop as specified: one command block per
+  wing-state block, loop delay one block) and with 2 (pipelined: plant, front end and
+  controller can work on different blocks at once; the controller compensates the extra
+  block of delay);
+* per-hop latency p50/p99, in a separate run with a probe process that stamps the arrival of
+  every /flaair/sensor_v and /flaair/wing_state block (CLOCK_MONOTONIC is shared by the
+  processes; blocks are matched by first_sample_index):
+    controller -> plant -> sensor_v   drive publish (controller) .. sensor block at the probe
+    front end                         sensor block at the probe .. wing-state block at the probe
+    wing_state -> controller          wing-state block at the probe .. controller callback start
+    controller                        callback start .. drive publish
+  (the probe adds a subscriber to two streams, so this run is a little slower);
+* CPU time per block of each node process (utime + stime from /proc, whole run / blocks):
+  with one block in flight the three run one after another, so 0.5 ms / (sum of the three)
+  bounds the real-time factor on an idle machine; pipelined, with 2 cores, 1 ms / sum.
+* the rclpy floor: a ping-pong of a 10-sample block between two processes with no work in the
+  callbacks, with the spin loop of flaair_common.runtime.run_node (SingleThreadedExecutor.spin_once)
+  and with rclpy's C++ EventsExecutor;
+* what-if: the same three nodes and run_node with EventsExecutor swapped in (the bench starts
+  them through ``--events-run``, which replaces runtime.SingleThreadedExecutor before main();
+  nothing shipped is changed).
+The machine's load average is reported beside them: other jobs share the 2 cores.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import REPO_ROOT, Figure, print_table, write_json  # noqa: E402
+
+FS = 20000.0
+BLOCK = 10
+FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+
+
+def _env(domain: int) -> dict[str, str]:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env
+
+
+def _cpu_s(pid: int) -> float:
+    """utime + stime of a process (s)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+
+NODES = {"plant": ("flaair_sim", "plant_node"), "frontend": ("flaair_sensors", "frontend_node"),
+         "controller": ("flaair_control", "dsa_controller_node")}
+
+
+def _node_cmd(name: str, executor: str) -> list[str]:
+    package, executable = NODES[name]
+    if executor == "single":   # as shipped: flaair_common.runtime.run_node's SingleThreadedExecutor
+        return [FLAAIR, "run", package, executable]
+    # what-if: the same node and run_node, with rclpy's C++ EventsExecutor swapped in (see events_run)
+    return [sys.executable, __file__, "--events-run", f"{package}.{executable}"]
+
+
+def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | None, tmp: Path,
+             executor: str = "single") -> dict:
+    """One closed-loop run; returns timing arrays and CPU per block per node."""
+    env = _env(domain)
+    timing_file = tmp / f"timing_{domain}.npz"
+    logs = {name: open(tmp / f"{name}_{domain}.log", "w") for name in ("plant", "frontend", "controller", "probe")}
+    procs: dict[str, subprocess.Popen] = {}
+
+    def start(name: str, *args: str) -> None:
+        procs[name] = subprocess.Popen(list(args), env=env, stdout=logs[name], stderr=subprocess.STDOUT,
+                                       start_new_session=True, cwd=REPO_ROOT)
+
+    try:
+        if probe_file is not None:
+            start("probe", sys.executable, __file__, "--probe", str(probe_file))
+        start("plant", *_node_cmd("plant", executor), "--ros-args", "-p", "mode:=lockstep")
+        start("frontend", *_node_cmd("frontend", executor))
+        start("controller", *_node_cmd("controller", executor), "--ros-args",
+              "-p", f"run_time_s:={duration_s}", "-p", f"timing_file:={timing_file}",
+              "-p", f"blocks_in_flight:={in_flight}", "-p", "watchdog_timeout_s:=30.0")
+        log_path = tmp / f"controller_{domain}.log"
+        cpu0: dict[str, float] = {}
+        deadline = time.monotonic() + 600
+        while time.monotonic() < deadline:
+            text = log_path.read_text()
+            if not cpu0 and "loop closed" in text:
+                cpu0 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
+            if "run complete" in text:
+                break
+            if procs["controller"].poll() is not None:
+                raise RuntimeError(f"controller exited:\n{text}")
+            time.sleep(0.02)
+        else:
+            raise RuntimeError("closed loop did not complete within 600 s")
+        cpu1 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
+    finally:
+        _stop(list(procs.values()))
+        for f in logs.values():
+            f.close()
+    timing = np.load(timing_file)["timing"]
+    n_blocks = timing.shape[0]
+    summary = [line for line in (tmp / f"controller_{domain}.log").read_text().splitlines() if "run complete" in line]
+    return {"timing": timing, "cpu_per_block_us": {n: 1e6 * (cpu1[n] - cpu0.get(n, cpu1[n])) / n_blocks for n in cpu1},
+            "summary": summary[0] if summary else ""}
+
+
+def rtf(timing: np.ndarray) -> float:
+    """Signal time / wall time over the run after the first 10 % of blocks."""
+    k = timing.shape[0] // 10
+    idx, rx = timing[k:, 0], timing[k:, 1]
+    return float((idx[-1] - idx[0]) / FS / (rx[-1] - rx[0]))
+
+
+def pct(x: np.ndarray) -> tuple[float, float]:
+    return float(np.percentile(x, 50)), float(np.percentile(x, 99))
+
+
+def hops(timing: np.ndarray, probe: dict, in_flight: int) -> dict[str, np.ndarray]:
+    """Per-hop latencies (s), matched by sample index."""
+    drive_index, ctrl_rx, ctrl_tx = timing[:, 0].astype(np.int64), timing[:, 1], timing[:, 2]
+    tx_of = dict(zip(drive_index.tolist(), ctrl_tx.tolist()))
+    rx_of_ws = dict(zip((drive_index - in_flight * BLOCK).tolist(), ctrl_rx.tolist()))  # wing state i -> drive i + W N
+    sensor = dict(zip(probe["sensor_index"].tolist(), probe["sensor_t"].tolist()))
+    ws = dict(zip(probe["ws_index"].tolist(), probe["ws_t"].tolist()))
+    out: dict[str, list[float]] = {"plant": [], "frontend": [], "to_controller": [], "controller": [], "loop": []}
+    for i, t_tx in tx_of.items():
+        if i in sensor:
+            out["plant"].append(sensor[i] - t_tx)
+        if i in sensor and i in ws:
+            out["frontend"].append(ws[i] - sensor[i])
+        if i in ws and i in rx_of_ws:
+            out["to_controller"].append(rx_of_ws[i] - ws[i])
+        if i in rx_of_ws:
+            out["loop"].append(rx_of_ws[i] - t_tx)
+    out["controller"] = list(ctrl_tx - ctrl_rx)
+    k = 0.1
+    return {name: np.asarray(v[int(k * len(v)):]) for name, v in out.items()}
+
+
+def probe_main(out_file: str) -> int:
+    """Subscriber that stamps the arrival of every sensor and wing-state block (monotonic)."""
+    import rclpy
+
+    from flaair_common.qos import BLOCK_STREAM
+    from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node("bench_probe")
+    sensor: list[tuple[int, float]] = []
+    ws: list[tuple[int, float]] = []
+    node.create_subscription(SensorVoltageBlock, "/flaair/sensor_v",
+                             lambda m: sensor.append((m.first_sample_index, time.monotonic())), BLOCK_STREAM)
+    node.create_subscription(WingStateBlock, "/flaair/wing_state",
+                             lambda m: ws.append((m.first_sample_index, time.monotonic())), BLOCK_STREAM)
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    while not stop:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    s = np.array(sensor or [(0, 0.0)])
+    w = np.array(ws or [(0, 0.0)])
+    np.savez(out_file, sensor_index=s[:, 0].astype(np.int64), sensor_t=s[:, 1], ws_index=w[:, 0].astype(np.int64), ws_t=w[:, 1])
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def events_run(module_name: str, argv: list[str]) -> int:
+    """Start a FLAAIR node through run_node with rclpy.experimental.EventsExecutor (bench what-if)."""
+    import importlib
+
+    import flaair_common.runtime as runtime
+    from rclpy.experimental import EventsExecutor
+
+    runtime.SingleThreadedExecutor = EventsExecutor
+    module = importlib.import_module(module_name)
+    sys.argv = [module_name, *argv]
+    return module.main()
+
+
+def pingpong(role: str, executor: str, n: int) -> int:
+    """rclpy floor: two processes bounce a 10-sample DriveCommandBlock; the spin loop of run_node."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from flaair_common.blocks import from_array
+    from flaair_common.qos import BLOCK_STREAM
+    from flaair_msgs.msg import DriveCommandBlock
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node(f"bench_pingpong_{role}")
+    out_topic, in_topic = ("/bench/ping", "/bench/pong") if role == "a" else ("/bench/pong", "/bench/ping")
+    pub = node.create_publisher(DriveCommandBlock, out_topic, BLOCK_STREAM)
+    msg = DriveCommandBlock(sample_rate_hz=FS)
+    msg.drive_v = from_array(np.zeros(BLOCK))
+    st = {"count": 0, "t0": 0.0, "c0": 0.0}
+
+    def on_message(m: DriveCommandBlock) -> None:
+        st["count"] += 1
+        if st["count"] == 100:
+            st["t0"], st["c0"] = time.monotonic(), time.process_time()
+        msg.first_sample_index = m.first_sample_index + 1
+        pub.publish(msg)
+
+    node.create_subscription(DriveCommandBlock, in_topic, on_message, BLOCK_STREAM)
+    if executor == "events":
+        from rclpy.experimental import EventsExecutor
+        ex = EventsExecutor()
+    else:
+        ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    if role == "a":
+        while pub.get_subscription_count() == 0 or node.count_publishers(in_topic) == 0:
+            ex.spin_once(timeout_sec=0.05)
+        time.sleep(1.0)
+        pub.publish(msg)
+    deadline = time.monotonic() + 120
+    while st["count"] < n and time.monotonic() < deadline:
+        ex.spin_once(timeout_sec=0.05)
+    if role == "a":
+        k = st["count"] - 100
+        print(json.dumps({"wall_us": 1e6 * (time.monotonic() - st["t0"]) / k,
+                          "cpu_us": 1e6 * (time.process_time() - st["c0"]) / k}))
+    return 0
+
+
+def run_pingpong(executor: str, domain: int, n: int = 3000) -> dict:
+    env = _env(domain)
+    b = subprocess.Popen([sys.executable, __file__, "--pingpong", "b", executor, str(n + 100)], env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        a = subprocess.run([sys.executable, __file__, "--pingpong", "a", executor, str(n)], env=env,
+                           capture_output=True, text=True, timeout=180)
+    finally:
+        _stop([b])
+    return json.loads(a.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--duration", type=float, default=2.0, help="signal time per run [s]")
+    parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_closed_loop.json")
+    parser.add_argument("--probe", help=argparse.SUPPRESS)
+    parser.add_argument("--events-run", help=argparse.SUPPRESS)
+    parser.add_argument("--pingpong", nargs=3, help=argparse.SUPPRESS)
+    args, rest = parser.parse_known_args()
+    if args.probe:
+        return probe_main(args.probe)
+    if args.events_run:
+        return events_run(args.events_run, rest)
+    if args.pingpong:
+        return pingpong(args.pingpong[0], args.pingpong[1], int(args.pingpong[2]))
+    if rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    base = 160 + os.getpid() % 60
+    figures: list[Figure] = []
+    with tempfile.TemporaryDirectory() as tmpdir:
+        tmp = Path(tmpdir)
+        load0 = os.getloadavg()[0]
+        ping = {kind: run_pingpong(kind, base + 3 + i) for i, kind in enumerate(("single", "events"))}
+        one = run_loop(args.duration, 1, base, None, tmp)
+        two = run_loop(args.duration, 2, base + 1, None, tmp)
+        ev1 = run_loop(args.duration, 1, base + 5, None, tmp, executor="events")
+        ev2 = run_loop(args.duration, 2, base + 6, None, tmp, executor="events")
+        probe_file = tmp / "probe.npz"
+        probed = run_loop(args.duration, 1, base + 2, probe_file, tmp)
+        load1 = os.getloadavg()[0]
+        probe = dict(np.load(probe_file))
+    load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
+    r1, r2 = rtf(one["timing"]), rtf(two["timing"])
+    cpu = one["cpu_per_block_us"]
+    cpu_sum = sum(cpu.values())
+    figures.append(Figure("closed loop real-time factor, 1 block in flight", r1, "x", ">= 1.0", r1 >= 1.0, load))
+    figures.append(Figure("closed loop real-time factor, 2 blocks in flight", r2, "x", ">= 1.0", r2 >= 1.0,
+                          f"pipelined; {r2 / r1:.2f}x the 1-block loop"))
+    e1, e2 = rtf(ev1["timing"]), rtf(ev2["timing"])
+    figures.append(Figure("what-if EventsExecutor: RTF, 1 block in flight", e1, "x", ">= 1.0", e1 >= 1.0,
+                          f"{e1 / r1:.2f}x SingleThreadedExecutor"))
+    figures.append(Figure("what-if EventsExecutor: RTF, 2 blocks in flight", e2, "x", ">= 1.0", e2 >= 1.0,
+                          f"{e2 / r2:.2f}x SingleThreadedExecutor"))
+    for name in ("plant", "frontend", "controller"):
+        figures.append(Figure(f"CPU per block: {name} process", cpu[name], "us", "", True,
+                              f"EventsExecutor {ev1['cpu_per_block_us'][name]:.0f} us; whole process incl. rclpy/DDS"))
+    for kind, label in (("single", "SingleThreadedExecutor.spin_once"), ("events", "EventsExecutor")):
+        figures.append(Figure(f"rclpy ping-pong, {label}: CPU per message", ping[kind]["cpu_us"], "us", "", True,
+                              f"round trip {ping[kind]['wall_us']:.0f} us wall; no work in the callback"))
+    bound1 = 500.0 / cpu_sum
+    figures.append(Figure("RTF bound from CPU, 1 in flight (0.5 ms / sum)", bound1, "x", ">= 1.0", bound1 >= 1.0,
+                          f"sum {cpu_sum:.0f} us per block"))
+    figures.append(Figure("RTF bound from CPU, pipelined on 2 cores", 2 * bound1, "x", ">= 1.0", 2 * bound1 >= 1.0, ""))
+    t = one["timing"]
+    k = t.shape[0] // 10
+    loop_out = (t[k + 1:, 1] - t[k:-1, 2]) * 1e6     # publish of block j -> wing state answering it
+    ctrl = (t[k:, 2] - t[k:, 1]) * 1e6
+    p50, p99 = pct(loop_out)
+    figures.append(Figure("loop outside the controller p50 (drive pub -> wing state)", p50, "us", "< 500", p50 < 500, f"p99 {p99:.0f} us"))
+    p50, p99 = pct(ctrl)
+    figures.append(Figure("controller callback -> drive publish p50", p50, "us", "", True, f"p99 {p99:.0f} us"))
+    h = hops(probed["timing"], probe, 1)
+    for name, label in (("plant", "hop controller -> plant -> sensor_v"), ("frontend", "hop sensor_v -> front end -> wing_state"),
+                        ("to_controller", "hop wing_state -> controller callback"), ("controller", "hop controller callback -> drive"),
+                        ("loop", "whole loop drive -> wing state at controller")):
+        if h[name].size:
+            p50, p99 = pct(h[name] * 1e6)
+            figures.append(Figure(f"{label} p50 (probe run)", p50, "us", "", True, f"p99 {p99:.0f} us, n={h[name].size}"))
+    figures.append(Figure("real-time factor of the probe run", rtf(probed["timing"]), "x", "", True, "probe subscribed to 2 streams"))
+    print_table(figures)
+    for run, name in ((one, "1 in flight"), (two, "2 in flight"), (ev1, "EventsExecutor, 1 in flight"),
+                      (ev2, "EventsExecutor, 2 in flight"), (probed, "probe")):
+        print(f"{name}: {run['summary'].split(']: ', 1)[-1]}")
+    write_json(figures, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
