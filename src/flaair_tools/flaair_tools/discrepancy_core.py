@@ -57,7 +57,9 @@ if ALL of:
 * R2 evidence: held-out Delta-BIC < ``max_delta_bic`` (BIC = sum over runs of
   n ln(RSS/n) + k ln N, Gaussian errors of unknown variance, on the held-out residuals);
 * R3 significance: the all-run parameter is more than ``min_z`` standard errors from its null
-  value (collision: the limit more than ``min_z`` SE below the largest stroke the model reaches);
+  value (collision: the limit more than ``min_z`` SE below the largest stroke the model reaches)
+  and inside its search range (an estimate stuck at a bound other than the null value is not a
+  fit);
 * R4 consistency: the per-run estimates agree (chi-square of their scatter about the mean, with
   each variance widened by (``consistency_rel_tol`` x effect size)^2, has p >= ``consistency_alpha``).
   Runs differ in drive level (full and half chirp) and in time, so an effect whose parameter
@@ -373,7 +375,7 @@ def candidate_specs(channel: str) -> tuple[EffectSpec, ...]:
         specs = [
             EffectSpec("sensor_delay", "delay_s", channel, 0.0, 0.0, 2e-3,
                        (0.0, 1e-4, 3e-4, 1e-3), 2e-7, channel_param=side),
-            EffectSpec("charge_amp_highpass", "corner_hz", channel, 0.0, 0.05, 500.0,
+            EffectSpec("charge_amp_highpass", "corner_hz", channel, 0.0, 0.05, 100.0,
                        tuple(np.geomspace(0.3, 100.0, 6)), 1e-3, log=True, channel_param=side),
         ]
         if channel == "stroke_sensor_v":
@@ -1286,9 +1288,14 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     gap_drop = _gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
     dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
     dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
-    z, cons, per_run, n_ident = [], [], [], []
+    z, cons, per_run, n_ident, inside = [], [], [], [], []
     reach = None
     for j, s in enumerate(specs):
+        lo, hi = s.to_fit(s.lower), s.to_fit(s.upper)
+        near = 1e-3 * (hi - lo)
+        at_lo = fit_all.x[j] - lo < near and s.lower != s.null
+        at_hi = hi - fit_all.x[j] < near and s.upper != s.null
+        inside.append(not (at_lo or at_hi))
         v, e = values[j], se_phys[j]
         if math.isinf(s.null):
             if reach is None:
@@ -1303,7 +1310,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     rules = {
         "R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
-        "R3_significance": bool(all(zz > st.min_z for zz in z)),
+        "R3_significance": bool(all(zz > st.min_z for zz in z) and all(inside)),
         "R4_consistency": bool(all(k >= 2 for k in n_ident)
                                and all(c >= st.consistency_alpha for c in cons if math.isfinite(c))),
     }
@@ -1532,7 +1539,7 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
     state = _ChannelState(start, [], {})
     if channel in SENSOR_CHANNELS:
         shared = [s for s in candidate_specs(channel) if _offer(model_in, start, s, []) == "merge"]
-        tries = [shared] + ([[s] for s in shared] if len(shared) > 1 else [])
+        tries = ([shared] if shared else []) + ([[s] for s in shared] if len(shared) > 1 else [])
         for group in tries:
             ev, m = _evaluate_shared(ctx, start, group, channel, truth_ref)
             steps.append((ev,))

@@ -267,7 +267,7 @@ channels, which sensor effects cannot touch; sensors with the physics corrected 
 truth above keeps a gap). A sensor effect of the other sensor is first tried on both sensors with no new parameter.</li>
 <li><b>Accept</b> an effect only if ALL hold: R1 the held-out model error of the channel (NRMSE above
 noise) drops by more than {s.min_heldout_drop:.0%}; R2 held-out Delta-BIC &lt; {s.max_delta_bic:g}; R3 the parameter is more than {s.min_z:g}
-standard errors from its null value; R4 the per-run estimates (runs differ in drive level and time) agree: chi-square
+standard errors from its null value and not stuck at a bound of its search range; R4 the per-run estimates (runs differ in drive level and time) agree: chi-square
 p &ge; {s.consistency_alpha:g} with a {s.consistency_rel_tol:.0%} model-imperfection allowance, and at least two runs
 identify the effect; R5 a sensor effect extended from the other sensor to both agrees with it; R6 stroke physics
 judged on pitch_deg leaves stroke_deg without a gap. Held-out: each run is predicted with the pooled estimate of
