@@ -106,7 +106,7 @@ def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(
     after = x[2 * BLOCK:]
     peaks = np.abs(after[: len(after) // 100 * 100]).reshape(-1, 100).max(axis=1)
     assert np.all(np.diff(peaks) <= 1e-9) and peaks[0] > 1.0
-    assert np.all(after[int(0.02 * FS_HZ):] == 0.0)
+    assert np.abs(after[int(0.02 * FS_HZ)]) < 1e-9 and np.all(after[int(0.02 * FS_HZ) + 1:] == 0.0)
     assert "WATCHDOG TRIPPED" in log and "duplicate or out of order" in log
 
 
@@ -230,3 +230,61 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch) -
     rmse = [s.spectrum_rmse_deg for s in statuses if math.isfinite(s.spectrum_rmse_deg)]
     assert rmse and min(rmse) > 1.0 and statuses[-1].colliding
     assert [e.kind for e in events] == [1] and events[0].spectrum_rmse_deg > 1.0
+
+
+def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process(monkeypatch) -> None:
+    """The parameter 'service' (kr_ramp_duration_s / reset_watchdog) and the stop response, without DDS."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from flaair_common.blocks import from_array
+    from flaair_control.dsa_controller_node import LOOP, TRIPPED, DsaControllerNode
+    from flaair_msgs.msg import CollisionEvent, WingStateBlock
+
+    if rclpy.ok():
+        rclpy.shutdown()
+    rclpy.init(args=["test", "--ros-args", "-p", "collision_response:=stop", "-p", "wait_for_peers:=false",
+                     "-p", "start_delay_s:=0.0", "-p", "ramp_down_s:=0.005", "-p", "zero_hold_s:=0.0",
+                     "-p", "mu_nm_s_per_rad:=1.0e-3"])   # huge gain: the clamp must act
+    try:
+        node = DsaControllerNode()
+        drive, states = [], []
+        monkeypatch.setattr(node.drive_pub, "publish", lambda m: drive.append((m.first_sample_index, list(m.drive_v))))
+        monkeypatch.setattr(node.state_pub, "publish", lambda m: states.append(
+            (m.k_r, m.watchdog, m.fault, m.drive_clamped, m.drive_v)))
+
+        def feed(k: int) -> None:
+            message = WingStateBlock(sample_rate_hz=FS_HZ, first_sample_index=k * BLOCK)
+            t = (k * BLOCK + np.arange(BLOCK)) / FS_HZ
+            message.stroke_deg = from_array(10 * np.sin(2 * np.pi * 140 * t))
+            message.stroke_velocity_deg_s = from_array(10 * 2 * np.pi * 140 * np.cos(2 * np.pi * 140 * t))
+            message.stroke_valid = [True] * BLOCK
+            node.on_wing_state(message)
+
+        node.on_timer()                                   # starts: one block in flight
+        assert node.mode == LOOP and [d[0] for d in drive] == [0]
+        for k in range(100):
+            feed(k)
+        assert all(s[0] == 1.0 for s in states)          # synchronous until kr_ramp_start_s (0.5 s)
+        result = node.set_parameters([Parameter("kr_ramp_duration_s", value=0.005)])[0]   # ramp to 0 now
+        assert result.successful
+        for k in range(100, 130):
+            feed(k)
+        kr = [s[0] for s in states[-31:]]     # from the last block before the request
+        assert kr[0] == 1.0 and kr[-1] == 0.0 and np.all(np.diff(kr) <= 0)
+        assert all(abs(s[4]) <= 150.0 for s in states) and any(s[3] for s in states[-10:])   # clamped
+        node.on_collision_event(CollisionEvent(kind=CollisionEvent.ONSET, wingbeat_index=3, spectrum_rmse_deg=2.5))
+        assert node.mode == TRIPPED and "collision onset at wingbeat 3" in node.fault
+        n_before = len(drive)
+        feed(130)                                         # tripped: the timer paces, no reply
+        assert len(drive) == n_before
+        time.sleep(0.05)
+        node.on_timer()
+        ramp = np.concatenate([d[1] for d in drive[n_before:]])
+        # zero from trip + ramp_down_s on (the boundary sample itself is ~1e-13 V: float rounding in the core)
+        assert ramp.size >= 101 and abs(ramp[100]) < 1e-9 and np.all(ramp[101:] == 0.0) and states[-1][1] == 1
+        assert node.set_parameters([Parameter("reset_watchdog", value=True)])[0].successful
+        assert node.mode == LOOP and node.fault == "" and node.safety.status == 0
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
