@@ -82,4 +82,19 @@ if [ "$FORCE" = "--force" ] || [ "$(cat install/.flaair-build-stamp 2>/dev/null)
   )
   echo "$build_hash" > install/.flaair-build-stamp
 fi
+# --- 3. numba cache ---------------------------------------------------------------------
+# Compile the kernels once, so that no node pays 10-20 s of compilation at its first block.
+numba_sources=$(grep -l "njit" src/*/*/*.py | sort)
+# shellcheck disable=SC2086
+numba_hash="$(hash_of $numba_sources scripts/warm_numba.py)"
+if [ "$(cat install/.flaair-numba-stamp 2>/dev/null)" != "$numba_hash" ]; then
+  say "compiling numba kernels (once)"
+  (
+    set +u
+    # shellcheck disable=SC1091
+    . install/setup.bash
+    FLAAIR_CONFIG_DIR="$ROOT/config" python scripts/warm_numba.py
+  )
+  echo "$numba_hash" > install/.flaair-numba-stamp
+fi
 say "environment ready (.venv, install/)"

@@ -46,10 +46,10 @@ def test_message_crosses_processes_intact(type_name: str) -> None:
     values = MESSAGES[type_name]
     topic = "/flaair/test/" + type_name.rsplit("/", 1)[-1].lower()
     with ros_processes() as procs:
-        echo = procs.flaair("topic", "echo", topic, type_name, "--count", "1", "--timeout", "40")
+        echo = procs.flaair("topic", "echo", topic, type_name, "--count", "1", "--timeout", "120")
         pub = procs.flaair("topic", "pub", topic, type_name, json.dumps(values), "--count", "3",
                            "--rate", "5", "--wait-subscribers", "1")
-        out, err = echo.communicate(timeout=60)
+        out, err = echo.communicate(timeout=150)
         assert echo.returncode == 0, err
         assert pub.wait(timeout=30) == 0, pub.stderr.read()
     received = json.loads(out.strip().splitlines()[0])

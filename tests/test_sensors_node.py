@@ -19,12 +19,12 @@ def test_frontend_node_matches_offline_core_and_tracks_truth() -> None:
     n_blocks = 400
     with ros_processes() as procs:
         echo = procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock",
-                            "--count", str(n_blocks), "--timeout", "120")
+                            "--count", str(n_blocks), "--timeout", "300")
         procs.flaair("run", "flaair_sensors", "frontend_node")
         procs.flaair("run", "flaair_sim", "plant_node")
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
                      "-p", "waveform:=sine", "-p", "frequency_hz:=140.0", "-p", f"run_time_s:={n_blocks * 10 / FS_HZ}")
-        out, err = echo.communicate(timeout=150)
+        out, err = echo.communicate(timeout=330)
         assert echo.returncode == 0, err
     blocks = [json.loads(line) for line in out.splitlines()]
     assert [b["first_sample_index"] for b in blocks] == list(range(0, n_blocks * 10, 10))

@@ -12,7 +12,7 @@ BLOCK = 10
 
 
 def _echo_blocks(procs, topic: str, type_name: str, count: int):
-    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "90")
+    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300")
 
 
 def test_lockstep_chirp_over_dds_equals_offline_simulation() -> None:
@@ -27,8 +27,8 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation() -> None:
         procs.flaair("run", "flaair_sim", "plant_node")
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=chirp",
                      "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
-        truth_out, err = echo.communicate(timeout=120)
-        sensor_out, _ = sensor.communicate(timeout=60)
+        truth_out, err = echo.communicate(timeout=330)
+        sensor_out, _ = sensor.communicate(timeout=120)
         assert echo.returncode == 0, err
     truth = [json.loads(line) for line in truth_out.splitlines()]
     sensor_blocks = [json.loads(line) for line in sensor_out.splitlines()]

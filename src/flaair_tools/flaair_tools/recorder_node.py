@@ -173,9 +173,14 @@ class RecorderNode(Node):
                 self.skip(topic, f"published with several types ({', '.join(types)})")
                 continue
             msgtype = types[0]
+            publishers = self.get_publishers_info_by_topic(topic)
+            if not publishers:
+                # Seen through a subscriber only: wait for a publisher, whose QoS decides ours
+                # and is recorded with the topic (the next discovery round picks it up).
+                continue
             try:
                 cls = message_class(msgtype)
-                offered = [bagio.qos_from_rclpy(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
+                offered = [bagio.qos_from_rclpy(info.qos_profile) for info in publishers]
                 self.writer.add_topic(topic, msgtype, offered)
             except (ValueError, bagio.BagError) as exc:
                 self.skip(topic, str(exc))
