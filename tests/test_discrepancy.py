@@ -366,8 +366,12 @@ def paper_robot_csvs(tmp_path_factory, model) -> list[Path]:
 
 
 def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, model) -> None:
+    val = tmp_path / "val"
+    assert discrepancy.main(["--validate", "--cases", "null", "--out", str(val)]) == 0
+    assert json.loads((val / "validation.json").read_text())["confusion"]["correct"] == 1
     out = tmp_path / "out"
-    assert discrepancy.main([str(p) for p in paper_robot_csvs] + ["--out", str(out)]) == 0
+    assert discrepancy.main([str(p) for p in paper_robot_csvs]
+                            + ["--out", str(out), "--validation", str(val / "validation.json")]) == 0
     doc = json.loads((out / "discrepancy.json").read_text())
     assert {"status", "effects", "gap_before", "gap_after", "model_out"} <= set(doc)
     assert doc["status"] == "explained"
@@ -393,6 +397,7 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
     assert result.returncode == 0, result.stderr
     page = (out / "report.html").read_text()
     assert "Status: explained" in page and "Decision rules" in page
+    assert "true \\ found" in page  # the embedded confusion table of the dataset cases
     for fig in ("gap.png", "overlay.png", "bode.png", "bands.png"):
         assert (out / fig).stat().st_size > 10_000 and fig in page
 
