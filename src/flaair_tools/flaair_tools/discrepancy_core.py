@@ -88,7 +88,7 @@ Effects already in the input model are kept as they are and are not offered as c
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
@@ -1630,17 +1630,6 @@ def _effect_params_dict(model: Model, name: str) -> dict:
     return {k: (v if isinstance(v, str) else float(v)) for k, v in e.__dict__.items()}
 
 
-def _truth_referenced_gap(ctx: _Context, model: Model, channel: str, gap: ChannelGap,
-                          sims: Sequence[Mapping[str, np.ndarray]]) -> ChannelGap:
-    """Gap of a sensor channel judged against the measured truth (see module docstring)."""
-    res = [_residual(run, sim, channel, model, truth_referenced=True) for run, sim in zip(ctx.runs, sims)]
-    g = _sensor_gain_v_per_deg(model, channel)
-    sigma = math.sqrt(ctx.noise[channel] ** 2 + (g * ctx.noise[_UPSTREAM_TRUTH[channel]]) ** 2)
-    has_gap, ratio, q, p = _gap_test(res, sigma, ctx.settings)
-    return replace(gap, noise_ratio=ratio, ljung_box_q=q, ljung_box_p=p, has_gap=has_gap,
-                   interpretation=gap.interpretation + " (truth-referenced: judged against the measured angle)")
-
-
 def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[FoundEffect]:
     """One entry per effect name (a sensor effect on both sensors once, channel 'a+b')."""
     by_name: dict[str, FoundEffect] = {}
@@ -1746,7 +1735,10 @@ def analyse(
     gap_after = (_heldout_nrmse(_Context(runs, noise, settings, tracks), effects, model_out) if effects
                  else dict(gap_before))
     in_sample = nrmse_by_channel(runs, sims_after)
-    remaining = _remaining(diag_after, searches)
+    ctx = _Context(runs, noise, settings, tracks)
+    sensor_ok = {c: not _channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
+                 if any(s.channel == c and s.truth_referenced for s in searches)}
+    remaining = _remaining(diag_after, searches, sensor_ok)
     status = "explained" if effects and not remaining else "unexplained"
     return DiscrepancyResult(
         status=status, effects=tuple(effects), model_in=model, model_out=model_out, gap_before=gap_before,
@@ -1756,23 +1748,44 @@ def analyse(
         run_names=tuple(r.name for r in runs))
 
 
-def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch]) -> tuple:
+def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Mapping[str, bool]) -> tuple:
+    """Where gaps remain; sensor_ok: sensor channel explained when driven by the measured angle."""
     skipped = {s.channel: s.skipped for s in searches}
-    refs = {s.channel: s.truth_referenced for s in searches}
     out = []
     for c in diag.gaps:
         g = diag.channels[c]
         note = g.interpretation
         if skipped.get(c, "").startswith("downstream"):
             note = "possibly propagated from the unexplained stroke_deg gap; " + note
-        if refs.get(c):
-            note = "sensor judged against measured truth (upstream physics unexplained); " + note
+        if c in sensor_ok:
+            note = ("the sensor itself is explained when driven by the measured angle: this gap is the "
+                    f"{_UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
+                    "a sensor gap beyond the propagated physics error (judged against the measured angle); ") + note
+        near = _near_misses(searches, c)
+        if near:
+            note = note + "; " + near
         out.append({
             "channel": c, "band_hz": g.worst_band_hz, "drive_level_ratio": g.level_ratio,
             "level_nrmse": g.level_nrmse, "stretch": list(g.worst_stretch), "model_error_nrmse": g.model_error_nrmse,
             "note": note,
         })
     return tuple(out)
+
+
+def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
+    """Candidates on `channel` refused only because their per-run estimates disagree (R4)."""
+    notes = []
+    for search in searches:
+        if search.channel != channel:
+            continue
+        for step in search.steps:
+            for ev in step:
+                failed = [k for k, v in ev.rules.items() if not v]
+                if failed == ["R4_consistency"]:
+                    runs = "; ".join(", ".join(f"{n} {v:.4g}" for n, v, _ in pr) for pr in ev.per_run)
+                    notes.append(f"{'+'.join(ev.labels)} would fit each run alone but its parameter differs "
+                                 f"between runs ({runs})")
+    return "nearest vocabulary effect refused: " + "; ".join(dict.fromkeys(notes)) if notes else ""
 
 
 def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remaining: Sequence[dict]) -> str:
