@@ -189,7 +189,8 @@ class DsaControllerNode(Node):
         self.command_msg = DriveCommandBlock(sample_rate_hz=self.fs_hz, first_sample_index=0)
         self.state_msg = ControllerState()
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
-        self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)
+        # One state per block: a block stream (deep queue), not a keep-the-last-few status topic.
+        self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, BLOCK_STREAM)
         self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
         # Volatile: matches the monitor's transient-local publisher and a plain one (flaair topic pub),
         # and a stale onset from before this node started is not acted upon.

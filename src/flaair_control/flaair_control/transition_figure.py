@@ -124,8 +124,12 @@ def run_closed_loop(start: Callable[..., subprocess.Popen], duration_s: float, c
             start("run", "flaair_sensors", "frontend_node")
             start("run", "flaair_control", "dsa_controller_node", "--ros-args",
                   "-p", f"run_time_s:={duration_s + 4 * block_size / sample_rate_hz}", *controller_args)
-            for echo in (echo_ws, echo_cs):
-                echo.wait(timeout=timeout_s + 30)
+            echo_ws.wait(timeout=timeout_s + 30)
+            try:   # the states come with the blocks; under load a few may still be in flight
+                echo_cs.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(echo_cs.pid, signal.SIGINT)
+                echo_cs.wait(timeout=10)
         wing_state = [json.loads(line) for line in ws_path.read_text().splitlines() if line]
         controller_state = [json.loads(line) for line in cs_path.read_text().splitlines() if line]
     return wing_state, controller_state
@@ -181,16 +185,23 @@ def main(argv: list[str] | None = None) -> int:
         env.pop("ROS_LOCALHOST_ONLY", None)
         started: list[subprocess.Popen] = []
 
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+
         def start(*flaair_args: str, stdout=subprocess.DEVNULL) -> subprocess.Popen:
+            name = flaair_args[2] if flaair_args[0] == "run" else f"echo{len(started)}"
+            log = open(args.output.parent / f"{name}.log", "w")   # node logs beside the figure
             proc = subprocess.Popen([str(root / "bin" / "flaair"), *flaair_args], env=env, stdout=stdout,
-                                    stderr=subprocess.DEVNULL, start_new_session=True, cwd=root)
+                                    stderr=log, start_new_session=True, cwd=root)
             started.append(proc)
             return proc
 
         t0 = time.monotonic()
         try:
+            # watchdog 10 s: a shared, loaded machine can stall the lockstep loop for over a second
+            # of wall-clock time, and a trip would end the experiment with a ramp-down
             ws, cs = run_closed_loop(start, args.duration, ["-p", f"kr_ramp_start_s:={args.ramp_start}",
-                                                            "-p", f"kr_ramp_duration_s:={args.ramp_duration}"], fs, block)
+                                                            "-p", f"kr_ramp_duration_s:={args.ramp_duration}",
+                                                            "-p", "watchdog_timeout_s:=10.0"], fs, block)
         finally:
             for proc in reversed(started):
                 if proc.poll() is None:
