@@ -31,13 +31,14 @@ front end's velocity-filter group delay (0.22 ms for the default 1 kHz different
 0.5 + 0.025 + 0.22 = 0.75 ms at 20 kHz with 10-sample blocks. At 140 Hz the block alone is
 360 f T_block = 25 deg of phase lag, 38 deg in all. Uncompensated, that lag turns part of the
 dSA negative damping into negative stiffness and the loop self-excites *below* the resonance
-(132 Hz with the defaults, at a much larger amplitude) instead of slightly above it. With
-compensate_delay the dsa core's phase advance (tau + sin(w_c T)/w_c tau' predicted one loop
-delay ahead) is configured with T from block_size, blocks_in_flight and the front end's
-velocity delay (velocity_delay_s < 0: computed from the front end's config section), at
-w_c = 2 pi compensation_frequency_hz: the delay is cancelled exactly at w_c and to first
-order near it, and the loop settles where the delay-free theory puts it (flaair_control.hopf:
-144 Hz, 20.5 deg with the defaults).
+(135 Hz and 25 deg with the defaults, simulated and predicted alike) instead of slightly above
+it. With compensate_delay the dsa core's phase advance (tau + sin(w_c T)/w_c tau', tau predicted
+one loop delay ahead) is configured with T from block_size, blocks_in_flight and the front
+end's velocity delay (velocity_delay_s < 0: computed from the front end's config section), at
+w_c = 2 pi compensation_frequency_hz: the delay is cancelled exactly at w_c and to first order
+near it, and the loop settles where the delay-free theory puts it (flaair_control.hopf:
+144.2 Hz, 20.5 deg with the defaults; 144.1 Hz, 20.6 deg measured over DDS). Pipelining
+(blocks_in_flight 2) adds a block of delay, compensated the same way (theory 144.2 Hz).
 
 Safety: every block goes through the safety core (non-finite -> 0, slew limit, clamp to
 +-drive_limit_v). The watchdog trips (latched; reset_watchdog:=true re-arms) when
