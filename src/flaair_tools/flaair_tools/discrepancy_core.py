@@ -1521,7 +1521,9 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
         ev, m, chosen, _ = min(passing, key=lambda e: e[0].delta_bic_heldout)
         state = _ChannelState(m, state.specs + list(chosen), {**state.evidence, **{s.name: ev for s in chosen}}, ev)
         own = [s for s in state.specs if getattr(state.model.effect(s.name), "channel", None) in (None, s.channel_param)]
-        if len(own) >= 2:
+        # Re-fit this channel's own effects whenever anything joined them, a shared (merged)
+        # effect included: an efficiency fitted before a delay was found is biased by cos(w tau).
+        if own and len(state.specs) >= 2:
             state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
         has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
     return state, has_gap, first

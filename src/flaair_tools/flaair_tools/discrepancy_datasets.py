@@ -237,6 +237,9 @@ def dataset_cases() -> tuple[DatasetCase, ...]:
         DatasetCase("collision_46deg_barely", S, (_e("collision", stroke_limit_deg=46.0),), seed=64,
                     note="2 degrees below the largest stroke, full drive only"),
         # pairs and more
+        DatasetCase("pair_paper_robot_strain_delay", P, (_e("strain_transfer_loss", efficiency=0.23, channel="pitch"),
+                                                         _e("sensor_delay", delay_s=250e-6, channel="both")), seed=65,
+                    note="the demo's bench robot: the efficiency must be re-fitted once the shared delay joins it"),
         DatasetCase("pair_delay_structural", P, (_e("sensor_delay", delay_s=100e-6, channel="both"),
                                                  _e("structural_damping", damping_ratio=0.04)), seed=21),
         DatasetCase("pair_feedthrough_hinge", P, (_e("feedthrough", gain_v_per_v=0.003),
