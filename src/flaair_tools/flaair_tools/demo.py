@@ -1,8 +1,10 @@
 """`flaair demo`: run every paper experiment on the simulated robot, record the bags, write the report.
 
 Runs each experiment of config/experiments.yaml in turn (bags in OUT/bags/<name>), analyses
-all bags (OUT/report/report.html and report.json) and prints the headline figures beside the
-paper's. An experiment whose nodes are not built is skipped and said so.
+all bags (OUT/report/report.html and report.json), prints the headline figures beside the
+paper's, then runs the model-vs-measurement workflow on the sweeps (OUT/discrepancy) and shows
+what it found beside what the simulated bench robot hides. An experiment whose nodes are not
+built is skipped and said so.
 
 Example:
   bin/flaair demo --out out/demo
@@ -18,7 +20,8 @@ from pathlib import Path
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_tools.analyze import AnalysisError, analyze, print_headline
-from flaair_tools.experiment import NODE_EXECUTABLES, ExperimentError, ExperimentSpec, load_experiments, run_experiment
+from flaair_tools.experiment import (NODE_EXECUTABLES, ExperimentError, ExperimentSpec, load_experiments, robot_effects,
+                                     run_experiment)
 
 
 def missing_nodes(spec: ExperimentSpec) -> list[str]:
@@ -77,7 +80,21 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print()
     print_headline(report)
-    print(f"\n[demo] done in {time.monotonic() - start:.0f} s. Report: {args.out / 'report' / 'report.html'}")
+    sweeps = [b for b in bags if b.name in ("characterization_chirp", "stepped_sine", "drive_levels")]
+    if sweeps:
+        print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
+        from flaair_tools import discrepancy
+
+        code = discrepancy.main([*map(str, sweeps), "--out", str(args.out / "discrepancy")])
+        if code != 0:
+            print("flaair demo: the discrepancy workflow failed", file=sys.stderr)
+            return 1
+        hidden = ", ".join(f"{name} {params}" for name, params in robot_effects().items()) or "none"
+        print(f"[demo] hidden in the simulated bench robot (config/experiments.yaml): {hidden}")
+    print(f"\n[demo] done in {time.monotonic() - start:.0f} s.")
+    print(f"[demo] report: {args.out / 'report' / 'report.html'}")
+    if sweeps:
+        print(f"[demo] discrepancy report: {args.out / 'discrepancy' / 'report.html'}")
     return 0
 
 
