@@ -203,11 +203,11 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
 
 
 def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True,
-                   nominal: bool = False) -> dict[str, Any]:
+                   nominal: bool = False, calibration_file: Path | None = None) -> dict[str, Any]:
     """Run `spec` on the simulated graph and record it to the bag `out`; return a summary.
 
     The plant is the bench robot (nominal model + config/experiments.yaml `robot:` effects)
-    unless `nominal`.
+    unless `nominal`. The front end uses the model's gains, or `calibration_file`.
     """
     if out.exists():
         raise ExperimentError(f"{out} exists; choose another --out or remove it")
@@ -225,7 +225,8 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         if not nominal and robot_effects():
             plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml", robot_effects()))
         graph.start("plant", plant)
-        graph.start("frontend", {})
+        graph.start("frontend", {"gains_from": "calibration", "calibration_file": str(calibration_file)}
+                    if calibration_file is not None else {})
         for role in spec.nodes:
             graph.start(role, {})
         # Nothing may flow before every consumer listens: a reliable volatile publisher drops
@@ -257,10 +258,15 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                                          sample_rate_hz=fs_hz, start_ns=int(a / fs_hz * 1e9))
                 runner.marker_pub.publish(String(data=marker.to_json()))
             if spec.controller:
-                driver = graph.start("controller", {"first_sample_index": first})
+                if first != 0:
+                    raise ExperimentError(f"{spec.name}: a controller run must be the experiment's first run")
+                driver = graph.start("controller", {"run_time_s": n_samples / fs_hz})
             else:
+                # Every subscriber of the drive (plant, recorder, monitor) must match before the
+                # first block: a lockstep plant that misses the opening window waits forever.
+                listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
                 driver = graph.start("drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
-                                               "first_sample_index": first, "min_subscribers": 2, **run.drive})
+                                               "first_sample_index": first, "min_subscribers": max(listeners, 2), **run.drive})
             bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample", unit_scale=True,
                        disable=not progress, leave=False, mininterval=1.0)
             done = 0
@@ -278,8 +284,10 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 bar.close()
             graph.stop(driver)
             summary["runs"].append({"run": run.name, "first_sample_index": first, "n_samples": n_samples})
+        # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
+        settle_until = time.monotonic() + 1.0
+        _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
         total_blocks = runner.sensor_end_index // block_size
-        time.sleep(1.0)  # let the recorder take the last blocks off the wire
         graph.stop(recorder, timeout_s=60.0)
     finally:
         graph.stop_all()
@@ -307,6 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="bag directory to create")
     parser.add_argument("--list", action="store_true", help="list the experiments and exit")
     parser.add_argument("--no-noise", action="store_true", help="simulate without sensor noise")
+    parser.add_argument("--calibration", type=Path, default=None,
+                        help="front end uses this calibration.yaml (from `flaair calibrate`) instead of the model's gains")
     parser.add_argument("--nominal", action="store_true",
                         help="simulate the nominal model, not the bench robot (nominal + config/experiments.yaml robot: effects)")
     args = parser.parse_args(argv)
@@ -320,7 +330,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None:
         parser.error("--out BAG is required")
     try:
-        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise, nominal=args.nominal)
+        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise, nominal=args.nominal,
+                                 calibration_file=args.calibration)
     except (ExperimentError, ConfigError, bagio.BagError) as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 1
