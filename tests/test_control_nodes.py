@@ -3,18 +3,34 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
+
+from contextlib import contextmanager
 
 from rosproc import REPO_ROOT, ros_processes, wait_for
 
 FS_HZ = 20000.0
 BLOCK = 10
 CONTROLLER = ("run", "flaair_control", "dsa_controller_node", "--ros-args")
+
+
+_DOMAINS = iter(range(1000))
+
+
+@contextmanager
+def _ros():
+    """rosproc.ros_processes on a domain above the 1..101 that every other test file draws from
+    (tests of other packages may run at the same time on this machine)."""
+    with ros_processes() as procs:
+        procs.env["ROS_DOMAIN_ID"] = str(102 + (os.getpid() * 7 + next(_DOMAINS)) % 48)
+        yield procs
 
 
 def _lines(path: Path) -> list[dict]:
@@ -47,7 +63,7 @@ def _wing_state(index: int, n: int = BLOCK, velocity: float = 0.0, valid: bool =
 
 def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_killed(tmp_path) -> None:
     states, sensors = tmp_path / "state.jsonl", tmp_path / "sensor.jsonl"
-    with ros_processes() as procs:
+    with _ros() as procs:
         _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states)
         _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors)
         procs.flaair("run", "flaair_sim", "plant_node")
@@ -80,14 +96,18 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
 
 def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(tmp_path) -> None:
     drive, states = tmp_path / "drive.jsonl", tmp_path / "state.jsonl"
-    n_drive = 2 + 40 + 20 + 3   # first + reply, 20 ms ramp, 10 ms zero hold, keepalives
-    with ros_processes() as procs:
+    # No plant (no /flaair/sensor_v publisher): the controller does not start the loop itself but
+    # answers the first wing-state block, then trips: reply, 20 ms ramp, 10 ms zero hold, keepalives.
+    n_drive = 1 + 40 + 20 + 3
+    with _ros() as procs:
         echo_drive = _echo(procs, "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", drive, n_drive, 60)
         _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states, 0, 60)
         controller = procs.flaair(*CONTROLLER, "-p", "watchdog_timeout_s:=0.3", "-p", "ramp_down_s:=0.02",
                                   "-p", "zero_hold_s:=0.01", "-p", "keepalive_period_s:=0.2", "-p", "start_delay_s:=0.0",
                                   "-p", "sync_amplitude_v:=40.0", "-p", "sync_frequency_hz:=100.0")
-        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", _wing_state(0), count=3)  # + 2 duplicates
+        # repeated for 2 s: the controller joins once it sees the echo's subscription (discovery can
+        # take a while on a loaded machine); later copies are duplicates
+        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", _wing_state(0), count=40)
         echo_drive.wait(timeout=60)
         # states keep coming with the keepalive blocks (a burst may overrun the status queue)
         assert wait_for(lambda: any(s["watchdog"] == 1 for s in _lines(states)), 30)
@@ -99,11 +119,11 @@ def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(
     assert [b["first_sample_index"] for b in blocks] == list(range(0, n_drive * BLOCK, BLOCK))
     x = np.concatenate([b["drive_v"] for b in blocks])
     assert np.isfinite(x).all() and np.abs(x).max() <= 150.0
-    assert np.abs(x[:2 * BLOCK]).max() > 5.0                       # driving before the trip
+    assert np.abs(x[:BLOCK]).max() > 5.0                           # driving before the trip
     tripped = [s for s in _lines(states) if s["watchdog"] == 1]
     assert tripped and "no wing-state block for" in tripped[0]["fault"] and "wall-clock" in tripped[0]["fault"]
     # ramp: the envelope of each 5 ms (100-sample) window after the trip never grows, then exact zeros
-    after = x[2 * BLOCK:]
+    after = x[BLOCK:]
     peaks = np.abs(after[: len(after) // 100 * 100]).reshape(-1, 100).max(axis=1)
     assert np.all(np.diff(peaks) <= 1e-9) and peaks[0] > 1.0
     assert np.abs(after[int(0.02 * FS_HZ)]) < 1e-9 and np.all(after[int(0.02 * FS_HZ) + 1:] == 0.0)
@@ -112,8 +132,8 @@ def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(
 
 def test_invalid_wing_state_blocks_are_counted_and_the_loop_goes_on(tmp_path) -> None:
     drive = tmp_path / "drive.jsonl"
-    with ros_processes() as procs:
-        echo = _echo(procs, "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", drive, 7, 90)
+    with _ros() as procs:
+        echo = _echo(procs, "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", drive, 6, 90)
         controller = procs.flaair(*CONTROLLER, "-p", "watchdog_timeout_s:=60.0", "-p", "start_delay_s:=0.0")
         sequence = [
             _wing_state(0, velocity=100.0),
@@ -122,19 +142,21 @@ def test_invalid_wing_state_blocks_are_counted_and_the_loop_goes_on(tmp_path) ->
             _wing_state(30, n=5),                       # wrong length: rejected
             _wing_state(40, velocity=100.0),
         ]
-        for values in sequence:
+        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", sequence[0], count=40)  # joined, then duplicates
+        assert wait_for(lambda: len(_lines(drive)) >= 1, 30)
+        for values in sequence[1:]:
             _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", values)
-        assert wait_for(lambda: len(_lines(drive)) >= 6, 30)
+        assert wait_for(lambda: len(_lines(drive)) >= 5, 30)   # one answer per block (no plant: no start block)
         assert controller.poll() is None                # did not crash
         procs.stop(controller)                          # SIGINT: close() sends a zero block
         echo.wait(timeout=30)
         log = controller.stderr.read()
     blocks = _lines(drive)
-    assert [b["first_sample_index"] for b in blocks] == [0, 10, 20, 30, 40, 50, 60]
+    assert [b["first_sample_index"] for b in blocks] == [0, 10, 20, 30, 40, 50]
     assert all(np.isfinite(b["drive_v"]).all() for b in blocks)
     assert blocks[-1]["drive_v"] == [0.0] * BLOCK
     assert "[2 invalid so far]" in log and "block has 5 samples, expected 10" in log
-    assert "5 wing-state blocks (2 invalid, 1 rejected, 0 stale, 0 gaps)" in log and "watchdog ok" in log
+    assert "5 wing-state blocks (2 invalid, 1 rejected, " in log and "0 gaps), " in log and "watchdog ok" in log
 
 
 def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], list[dict]]:
@@ -144,9 +166,9 @@ def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], 
     model_file.write_text(yaml.safe_dump(model))
     status, events = tmp_path / f"{name}_status.jsonl", tmp_path / f"{name}_events.jsonl"
     duration = 1.0   # long enough for 24 verdicts even if the front end matches the plant late
-    with ros_processes() as procs:
-        echo = _echo(procs, "/flaair/collision/status", "flaair_msgs/msg/CollisionStatus", status, 24, 120)
-        _echo(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent", events, 0, 120)
+    with _ros() as procs:
+        echo = _echo(procs, "/flaair/collision/status", "flaair_msgs/msg/CollisionStatus", status, 24, 60)
+        _echo(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent", events, 0, 60)
         # Known drive frequency here (drive_node's sine starts at phase 0). The estimate from
         # /flaair/drive is tested in-process below: over DDS the monitor's /flaair/drive
         # subscription could start the lockstep drive_node before the plant has subscribed.
@@ -157,7 +179,7 @@ def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], 
             procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=sine",
                          "-p", "frequency_hz:=100.0", "-p", "amplitude_v:=75.0", "-p", f"run_time_s:={duration}"),
         ]
-        ok = echo.wait(timeout=150) == 0
+        ok = echo.wait(timeout=90) == 0
         time.sleep(0.5)
         if not ok:
             for node in nodes:
@@ -168,26 +190,22 @@ def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], 
 
 
 def test_collision_monitor_reports_every_wingbeat_and_flags_an_obstacle(tmp_path) -> None:
-    """Paper scenario: 100 Hz, 75 V about the bias, obstacle at 20 deg against a 28 deg free stroke."""
-    free_status, free_events = _monitor_run(tmp_path, "free", {})
-    hit_status, hit_events = _monitor_run(tmp_path, "hit", {"collision": {"stroke_limit_deg": 20.0}})
-    for status in (free_status, hit_status):
-        assert [s["wingbeat_index"] for s in status] == list(range(len(status)))
-        assert all(s["wingbeat_frequency_hz"] == 100.0 for s in status)
-        assert all(s["threshold_deg"] == 1.0 for s in status)
-    free_rmse = [s["spectrum_rmse_deg"] for s in free_status if math.isfinite(s["spectrum_rmse_deg"])]
-    hit_rmse = [s["spectrum_rmse_deg"] for s in hit_status if math.isfinite(s["spectrum_rmse_deg"])]
-    assert free_rmse and hit_rmse
-    assert max(free_rmse) < 0.5 and not any(s["colliding"] for s in free_status) and free_events == []
-    assert min(hit_rmse) > 1.0 and hit_status[-1]["colliding"]
-    assert [e["kind"] for e in hit_events] == [1]
-    onset = hit_events[0]
+    """Paper scenario over DDS: 100 Hz, 75 V about the bias, obstacle at 20 deg against a 28 deg free
+    stroke (the free robot and the drive-frequency estimate: in process, below)."""
+    status, events = _monitor_run(tmp_path, "hit", {"collision": {"stroke_limit_deg": 20.0}})
+    assert [s["wingbeat_index"] for s in status] == list(range(len(status)))
+    assert all(s["wingbeat_frequency_hz"] == 100.0 and s["threshold_deg"] == 1.0 for s in status)
+    rmse = [s["spectrum_rmse_deg"] for s in status if math.isfinite(s["spectrum_rmse_deg"])]
+    assert rmse and min(rmse) > 1.0 and status[-1]["colliding"]
+    assert [e["kind"] for e in events] == [1]
+    onset = events[0]
     assert onset["spectrum_rmse_deg"] > 1.0
-    assert hit_status[onset["wingbeat_index"]]["colliding"] and not hit_status[onset["wingbeat_index"] - 1]["colliding"]
+    assert status[onset["wingbeat_index"]]["colliding"] and not status[onset["wingbeat_index"] - 1]["colliding"]
 
 
-def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch) -> None:
-    """In-process (no DDS): drive and wing-state messages from the simulated robot with an obstacle."""
+@pytest.mark.parametrize("obstacle", [False, True])
+def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, obstacle) -> None:
+    """In-process (no DDS): drive and wing-state messages from the simulated robot, free or with an obstacle."""
     import rclpy
 
     from flaair_common.blocks import from_array
@@ -201,7 +219,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch) -
     model = load_model()
     fs, n = FS_HZ, int(0.5 * FS_HZ)
     drive = 75.0 * np.sin(2 * np.pi * 100.0 * np.arange(n) / fs + 1.0)   # unknown phase
-    out = simulate(drive, fs, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}}))
+    out = simulate(drive, fs, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}}) if obstacle else model)
     est = frontend.estimate(out.stroke_sensor_v, out.pitch_sensor_v, frontend.params_from_model(model, fs))
     owns_rclpy = not rclpy.ok()
     if owns_rclpy:
@@ -228,8 +246,11 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch) -
     assert node.locked_hz == 100.0
     assert len(statuses) >= 35 and all(s.wingbeat_frequency_hz == 100.0 for s in statuses)
     rmse = [s.spectrum_rmse_deg for s in statuses if math.isfinite(s.spectrum_rmse_deg)]
-    assert rmse and min(rmse) > 1.0 and statuses[-1].colliding
-    assert [e.kind for e in events] == [1] and events[0].spectrum_rmse_deg > 1.0
+    if obstacle:
+        assert rmse and min(rmse) > 1.0 and statuses[-1].colliding
+        assert [e.kind for e in events] == [1] and events[0].spectrum_rmse_deg > 1.0
+    else:   # paper: 0.53 deg without a collision
+        assert rmse and max(rmse) < 0.5 and not any(s.colliding for s in statuses) and events == []
 
 
 def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process(monkeypatch) -> None:

@@ -12,7 +12,9 @@ Windows (the core's per-wingbeat monitor): one wingbeat long, either
     signal (Schmitt trigger, +-drive_hysteresis_v) gives its upward crossings; f = periods /
     samples over the last frequency_average_wingbeats of them, the phase puts the window start
     on the last crossing. The monitor (re)locks when the estimate moves by more than
-    relock_tolerance (re-arming it); or
+    relock_tolerance, and re-arms (the paper metric's record must hold one frequency): while
+    the frequency moves, e.g. through the sync -> async transition, it re-arms at every step
+    and decides nothing; for asynchronous flapping use window_source stroke; or
   * window_source stroke: between upward crossings of the measured stroke (no drive frequency,
     e.g. asynchronous flapping).
 The drive and wing-state streams share the sample index (first_sample_index), as the plant

@@ -18,11 +18,13 @@ available in this environment, so the parameter callback is the "service"). G_a 
 model file.
 
 Starting the loop: the lockstep plant waits for commands, so once the plant subscribes to
-/flaair/drive and a publisher of /flaair/wing_state exists (and start_delay_s has passed, for
+/flaair/drive (and publishes /flaair/sensor_v) and a publisher of /flaair/wing_state exists
+(and start_delay_s has passed, for
 the front end to match the plant's sensor stream), the node publishes blocks_in_flight blocks
 itself (drive from a filter at rest: the synchronous sine). If no wing-state block answers
 within start_retry_s it sends one more block (a lost first block would otherwise deadlock).
-A wing-state block that arrives before that (blocks already flowing) is simply answered.
+A wing-state block that arrives before that (blocks already flowing) is simply answered, once
+/flaair/drive has a subscriber.
 
 Transport delay and its compensation: velocity block k (samples [kN, (k+1)N)) is complete only
 at the end of block k, so its drive is applied in block k + blocks_in_flight. The loop delay is
@@ -108,7 +110,7 @@ PARAMS = [
     ParamSpec("collision_response", str, "Reaction to a collision onset", choices=("none", "stop", "reduce_amplitude"), read_only=True),
     ParamSpec("collision_reduction_factor", float, "reduce_amplitude: drive scale while colliding [-]", 0.0, 1.0, read_only=True),
     ParamSpec("collision_restore_on_clearance", bool, "reduce_amplitude: back to full drive at the clearance", read_only=True),
-    ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and /flaair/wing_state a publisher", read_only=True),
+    ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and /flaair/sensor_v and /flaair/wing_state publishers", read_only=True),
     ParamSpec("start_delay_s", float, "Wall time between seeing the peers and sending the first blocks [s]", 0.0, 60.0, read_only=True),
     ParamSpec("start_retry_s", float, "No answer to the first blocks for this long: send one more (wall clock) [s]", 0.01, 60.0, read_only=True),
     ParamSpec("run_time_s", float, "Stop after this much signal time: zero block, then idle (0: never) [s]", 0.0, 1e6, read_only=True),
@@ -260,7 +262,9 @@ class DsaControllerNode(Node):
             return
         if self.mode == WAITING:
             # Blocks already flow (a realtime plant, or a publisher faster than our start check):
-            # join the loop by answering them; no extra start blocks.
+            # join the loop by answering them, no extra start blocks - once someone listens.
+            if self.drive_pub.get_subscription_count() == 0:
+                return
             self.mode = LOOP
             self.get_logger().info(f"wing-state block {message.first_sample_index} before the start: joining the loop")
         self.last_arrival_wall = t_receive
@@ -434,7 +438,10 @@ class DsaControllerNode(Node):
                 self.send_block(self.nan_block, None)
 
     def try_start(self, now: float) -> None:
+        # A /flaair/drive subscriber alone may be a monitor or a recorder: also wait for the
+        # sensor stream's source (the plant, or the DAQ) and the wing-state source (front end).
         if self.p["wait_for_peers"] and (self.drive_pub.get_subscription_count() == 0
+                                         or self.count_publishers(topics.SENSOR_VOLTAGE) == 0
                                          or self.count_publishers(topics.WING_STATE) == 0):
             return
         if self.peers_seen_wall is None:
