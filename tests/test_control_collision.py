@@ -2,18 +2,12 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-_SRC = Path(__file__).resolve().parents[1] / "src"
-for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
-    if str(_SRC / _pkg) not in sys.path:
-        sys.path.insert(0, str(_SRC / _pkg))
 
-from flaair_control import collision as col  # noqa: E402
+from flaair_control import collision as col
 
 FS = 20000.0
 BLOCK = 10

@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,11 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-_SRC = Path(__file__).resolve().parents[1] / "src"
-if str(_SRC / "flaair_control") not in sys.path:
-    sys.path.insert(0, str(_SRC / "flaair_control"))
-
-from flaair_control import safety  # noqa: E402
+from flaair_control import safety
 
 FS = 20000.0
 
