@@ -22,7 +22,7 @@ from flaair_common.blocks import from_array, stamp_from_time_s
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
-from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
+from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim import drive
 
 NODE_NAME = "drive_node"
@@ -43,6 +43,7 @@ PARAMS = [
     ParamSpec("run_time_s", float, "Stop after this much signal time (0: never) [s]", 0.0, 1e6, read_only=True),
     ParamSpec("pacing", str, "realtime or lockstep (paced by the plant's sensor blocks)", choices=("realtime", "lockstep"), read_only=True),
     ParamSpec("lockstep_window_blocks", int, "lockstep: command blocks allowed ahead of the plant", 1, 10000, read_only=True),
+    ParamSpec("pace_on_wing_state", bool, "lockstep: pace on the front end's /flaair/wing_state (the whole chain) instead of the plant's sensor blocks", read_only=True),
     ParamSpec("min_subscribers", int, "Start only once this many subscribers listen (e.g. plant + recorder)", 1, 100, read_only=True),
     ParamSpec("first_sample_index", int, "Index of the first command sample (continue a plant's count)", 0, 2**62, read_only=True),
 ]
@@ -71,7 +72,10 @@ class DriveNode(Node):
         self.acknowledged_index = self.next_index
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         if self.p["pacing"] == "lockstep":
-            self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+            if self.p["pace_on_wing_state"]:
+                self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+            else:
+                self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
             self.create_timer(0.002, self.publish_window)  # starts the stream once the plant subscribes
         else:
             self.wall_start_s: float | None = None
@@ -94,6 +98,10 @@ class DriveNode(Node):
 
     def on_sensor(self, message: SensorVoltageBlock) -> None:
         self.acknowledged_index = message.first_sample_index + len(message.stroke_sensor_v)
+        self.publish_window()
+
+    def on_wing_state(self, message: WingStateBlock) -> None:
+        self.acknowledged_index = message.first_sample_index + len(message.stroke_deg)
         self.publish_window()
 
     def publish_window(self) -> None:

@@ -266,7 +266,8 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 # first block: a lockstep plant that misses the opening window waits forever.
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
                 driver = graph.start("drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
-                                               "first_sample_index": first, "min_subscribers": max(listeners, 2), **run.drive})
+                                               "first_sample_index": first, "min_subscribers": max(listeners, 2),
+                                               "pace_on_wing_state": True, **run.drive})
             bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample", unit_scale=True,
                        disable=not progress, leave=False, mininterval=1.0)
             done = 0
