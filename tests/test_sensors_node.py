@@ -18,26 +18,31 @@ def test_frontend_node_matches_offline_core_and_tracks_truth() -> None:
 
     n_blocks = 400
     with ros_processes() as procs:
+        # The front end may match the plant's stream a few blocks late on a loaded machine; the
+        # run is longer than what is compared, and the offline core starts at the same block.
         echo = procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock",
                             "--count", str(n_blocks), "--timeout", "300")
         procs.flaair("run", "flaair_sensors", "frontend_node")
         procs.flaair("run", "flaair_sim", "plant_node")
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
-                     "-p", "waveform:=sine", "-p", "frequency_hz:=140.0", "-p", f"run_time_s:={n_blocks * 10 / FS_HZ}")
+                     "-p", "waveform:=sine", "-p", "frequency_hz:=140.0", "-p", f"run_time_s:={2 * n_blocks * 10 / FS_HZ}")
         out, err = echo.communicate(timeout=330)
         assert echo.returncode == 0, err
     blocks = [json.loads(line) for line in out.splitlines()]
-    assert [b["first_sample_index"] for b in blocks] == list(range(0, n_blocks * 10, 10))
+    first = blocks[0]["first_sample_index"]
+    assert first <= 50 * 10
+    assert [b["first_sample_index"] for b in blocks] == list(range(first, first + n_blocks * 10, 10))
     assert all(b["source"] == 0 for b in blocks)
     stroke_deg = np.concatenate([b["stroke_deg"] for b in blocks])
     velocity = np.concatenate([b["stroke_velocity_deg_s"] for b in blocks])
     model = load_model()
-    drive = drive_record(DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=140.0), FS_HZ, n_blocks * 10)
+    drive = drive_record(DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=140.0), FS_HZ, first + n_blocks * 10)
     sim = simulate(drive, FS_HZ, model)
-    offline = frontend.estimate(sim.stroke_sensor_v, sim.pitch_sensor_v, frontend.params_from_model(model, FS_HZ))
+    seen = slice(first, first + n_blocks * 10)
+    offline = frontend.estimate(sim.stroke_sensor_v[seen], sim.pitch_sensor_v[seen], frontend.params_from_model(model, FS_HZ))
     assert np.allclose(stroke_deg, np.degrees(offline.stroke_rad), rtol=0, atol=1e-9)
     assert np.allclose(velocity, np.degrees(offline.stroke_velocity_rad_s), rtol=0, atol=1e-6)
-    truth = np.degrees(sim.stroke_rad)
+    truth = np.degrees(sim.stroke_rad[seen])
     settled = slice(len(truth) // 2, None)  # after the drift tracker's start-up
     assert np.sqrt(np.mean((stroke_deg[settled] - truth[settled]) ** 2)) < 0.5
     assert np.max(np.abs(truth)) > 20.0

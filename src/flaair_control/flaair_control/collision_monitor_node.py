@@ -47,7 +47,7 @@ from flaair_common import topics
 from flaair_common.blocks import check_block, stamp_from_time_s, time_s_from_stamp
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
-from flaair_common.runtime import run_node
+from flaair_common.runtime import run_node, warn_counted
 from flaair_control import collision as col
 from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
 
@@ -200,10 +200,7 @@ class CollisionMonitorNode(Node):
         if not check.ok and check.kind != "gap":
             self.rejected += 1
             text = f"wing-state block {message.first_sample_index}: {check.reason} [{self.rejected} rejected so far]"
-            if self.rejected <= 10:  # rclpy fixes a call site's throttle at its first call: two call sites
-                self.get_logger().warning(text)
-            else:
-                self.get_logger().warning(text, throttle_duration_sec=1.0)
+            warn_counted(self.get_logger(), self.rejected, text)
             return
         if self.time_offset_s is None:
             self.time_offset_s = time_s_from_stamp(message.header.stamp) - message.first_sample_index / self.fs_hz

@@ -74,7 +74,7 @@ from flaair_common.blocks import check_block, from_array, stamp_from_time_s
 from flaair_common.config import ConfigError, node_parameters
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
-from flaair_common.runtime import run_node
+from flaair_common.runtime import run_node, warn_counted
 from flaair_control import dsa, safety
 from flaair_control.transition import CrossingFrequency
 from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
@@ -456,12 +456,7 @@ class DsaControllerNode(Node):
     # ------------------------------------------------------------------ helpers
     def _warn(self, text: str, counter: str) -> None:
         count = self.counts[counter]
-        # rclpy fixes a call site's throttle at its first call: two call sites, every one of the
-        # first ten warnings, then at most one a second.
-        if count <= 10:
-            self.get_logger().warning(f"{text} [{count} {counter} so far]")
-        else:
-            self.get_logger().warning(f"{text} [{count} {counter} so far]", throttle_duration_sec=1.0)
+        warn_counted(self.get_logger(), count, f"{text} [{count} {counter} so far]")
 
     def summary(self, what: str) -> str:
         wall = (self.last_arrival_wall - self.first_arrival_wall) if self.first_arrival_wall else 0.0
