@@ -73,9 +73,9 @@ class DriveNode(Node):
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         if self.p["pacing"] == "lockstep":
             if self.p["pace_on_wing_state"]:
-                self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+                self.ack = self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
             else:
-                self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+                self.ack = self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
             self.create_timer(0.002, self.publish_window)  # starts the stream once the plant subscribes
         else:
             self.wall_start_s: float | None = None
@@ -105,7 +105,9 @@ class DriveNode(Node):
         self.publish_window()
 
     def publish_window(self) -> None:
-        if self.publisher.get_subscription_count() < self.p["min_subscribers"]:
+        # Lockstep needs both ends matched before the first window: the command subscribers,
+        # and our acknowledgement stream (missed acknowledgements would stall the run forever).
+        if self.publisher.get_subscription_count() < self.p["min_subscribers"] or self.ack.get_publisher_count() == 0:
             return
         window = self.p["lockstep_window_blocks"] * self.block_size
         while not self.finished() and self.next_index < self.acknowledged_index + window:
