@@ -279,11 +279,14 @@ class CollisionMonitorNode(Node):
             event = CollisionEvent(kind=event_kind, wingbeat_index=self.wingbeats, spectrum_rmse_deg=rmse)
             event.header.stamp = stamp
             self.event_pub.publish(event)
-            what = "ONSET" if self.colliding else "CLEARANCE"
-            log = self.get_logger().warning if self.colliding else self.get_logger().info
-            log(f"collision {what} at wingbeat {self.wingbeats} (t = {end / self.fs_hz:.4f} s, {frequency:.1f} Hz): "
-                f"pitch spectrum RMSE {rmse:.3f} deg (threshold {self.p['threshold_deg']:g} deg), "
-                f"distortion score {float(report.score[k]):.2f}")
+            text = (f"at wingbeat {self.wingbeats} (t = {end / self.fs_hz:.4f} s, {frequency:.1f} Hz): "
+                    f"pitch spectrum RMSE {rmse:.3f} deg (threshold {self.p['threshold_deg']:g} deg), "
+                    f"distortion score {float(report.score[k]):.2f}")
+            # rclpy fixes a call site's severity at its first call: one call site per severity.
+            if self.colliding:
+                self.get_logger().warning(f"collision ONSET {text}")
+            else:
+                self.get_logger().info(f"collision CLEARANCE {text}")
         out = CollisionStatus(wingbeat_index=self.wingbeats, wingbeat_frequency_hz=frequency, colliding=self.colliding,
                               spectrum_rmse_deg=rmse,
                               time_rmse_deg=metric.time_rmse_deg if metric is not None else math.nan,
