@@ -283,6 +283,10 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 _spin_until(runner, graph, finished, 120.0 + 60.0 * run.run_time_s, f"run {run.name} to finish")
             finally:
                 bar.close()
+            # A stopped publisher takes with it what a lagging recorder has not fetched yet
+            # (a loaded fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
+            drain_until = time.monotonic() + 2.0
+            _spin_until(runner, graph, lambda: time.monotonic() > drain_until, 10.0, "the recorder to drain")
             graph.stop(driver)
             summary["runs"].append({"run": run.name, "first_sample_index": first, "n_samples": n_samples})
         # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
