@@ -110,6 +110,7 @@ PARAMS = [
     ParamSpec("collision_response", str, "Reaction to a collision onset", choices=("none", "stop", "reduce_amplitude"), read_only=True),
     ParamSpec("collision_reduction_factor", float, "reduce_amplitude: drive scale while colliding [-]", 0.0, 1.0, read_only=True),
     ParamSpec("collision_restore_on_clearance", bool, "reduce_amplitude: back to full drive at the clearance", read_only=True),
+    ParamSpec("min_drive_subscribers", int, "Start once /flaair/drive has this many subscribers (plant, + recorder, + monitor)", 1, 100, read_only=True),
     ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and /flaair/sensor_v and /flaair/wing_state publishers", read_only=True),
     ParamSpec("start_delay_s", float, "Wall time between seeing the peers and sending the first blocks [s]", 0.0, 60.0, read_only=True),
     ParamSpec("start_retry_s", float, "No answer to the first blocks for this long: send one more (wall clock) [s]", 0.01, 60.0, read_only=True),
@@ -440,7 +441,7 @@ class DsaControllerNode(Node):
     def try_start(self, now: float) -> None:
         # A /flaair/drive subscriber alone may be a monitor or a recorder: also wait for the
         # sensor stream's source (the plant, or the DAQ) and the wing-state source (front end).
-        if self.p["wait_for_peers"] and (self.drive_pub.get_subscription_count() == 0
+        if self.p["wait_for_peers"] and (self.drive_pub.get_subscription_count() < self.p["min_drive_subscribers"]
                                          or self.count_publishers(topics.SENSOR_VOLTAGE) == 0
                                          or self.count_publishers(topics.WING_STATE) == 0):
             return

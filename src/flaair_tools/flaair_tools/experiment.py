@@ -260,7 +260,8 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             if spec.controller:
                 if first != 0:
                     raise ExperimentError(f"{spec.name}: a controller run must be the experiment's first run")
-                driver = graph.start("controller", {"run_time_s": n_samples / fs_hz})
+                listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
+                driver = graph.start("controller", {"run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2)})
             else:
                 # Every subscriber of the drive (plant, recorder, monitor) must match before the
                 # first block: a lockstep plant that misses the opening window waits forever.
