@@ -2,29 +2,36 @@
 from __future__ import annotations
 
 import json
+import time
+from pathlib import Path
 
 import numpy as np
 
-from rosproc import ros_processes
+from rosproc import ros_processes, wait_for
 
 FS_HZ = 20000.0
 BLOCK = 10
 
 
-def _echo_blocks(procs, topic: str, type_name: str, count: int):
-    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300")
+def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path | None = None):
+    ready = ("--ready-file", str(ready_file)) if ready_file else ()
+    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300", *ready)
 
 
-def test_lockstep_chirp_over_dds_equals_offline_simulation() -> None:
+def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> None:
     from flaair_sim.drive import DriveParams, drive_record
     from flaair_sim.model_io import load_model
     from flaair_sim.plant import simulate
 
     n_blocks = 200
     with ros_processes() as procs:
-        echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock", n_blocks)
-        sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", n_blocks)
+        ready = [tmp_path / "truth.ready", tmp_path / "sensor.ready"]
+        echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock", n_blocks, ready[0])
+        sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", n_blocks, ready[1])
         procs.flaair("run", "flaair_sim", "plant_node")
+        # The comparison starts at sample 0, so the plant must not step before both listeners are matched.
+        assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
+        time.sleep(0.5)  # the writer side completes its match a moment after the reader's
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=chirp",
                      "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
         truth_out, err = echo.communicate(timeout=330)

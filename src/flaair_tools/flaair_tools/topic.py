@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 import time
 
 import rclpy
@@ -39,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     echo.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
     echo.add_argument("--count", type=int, default=0, help="stop after N messages (0: forever)")
     echo.add_argument("--timeout", type=float, default=0.0, help="give up after S seconds (0: never)")
+    echo.add_argument("--ready-file", type=Path, help="create this file once a publisher is matched (for scripts "
+                      "that must not start the source before the echo listens)")
     pub = sub.add_parser("pub", help="publish a message given as JSON")
     pub.add_argument("topic")
     pub.add_argument("type")
@@ -67,11 +70,19 @@ def main(argv: list[str] | None = None) -> int:
                 received += 1
                 print(json.dumps(to_dict(message)), flush=True)
 
-            node.create_subscription(message_class(type_name), args.topic, on_message, BLOCK_STREAM)
+            subscription = node.create_subscription(message_class(type_name), args.topic, on_message, BLOCK_STREAM)
             deadline = time.monotonic() + args.timeout if args.timeout else float("inf")
+            ready = args.ready_file is None
             while (args.count == 0 or received < args.count) and time.monotonic() < deadline:
                 rclpy.spin_once(node, timeout_sec=0.05)
-            return 0 if (args.count == 0 or received >= args.count) else 1
+                if not ready and subscription.get_publisher_count() > 0:
+                    args.ready_file.touch()
+                    ready = True
+            if args.count and received < args.count:
+                print(f"flaair topic echo: received {received} of {args.count} message(s) on '{args.topic}' "
+                      f"within {args.timeout:g} s", file=sys.stderr)
+                return 1
+            return 0
         cls = message_class(args.type)
         try:
             values = json.loads(args.values)
