@@ -267,10 +267,11 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     """The parameter 'service' (kr_ramp_duration_s / reset_watchdog) and the stop response, without DDS."""
     import rclpy
     from rclpy.parameter import Parameter
+    from rclpy.serialization import deserialize_message, serialize_message
 
     from flaair_common.blocks import from_array
     from flaair_control.dsa_controller_node import LOOP, TRIPPED, DsaControllerNode
-    from flaair_msgs.msg import CollisionEvent, WingStateBlock
+    from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 
     if rclpy.ok():
         rclpy.shutdown()
@@ -280,9 +281,18 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     try:
         node = DsaControllerNode()
         drive, states = [], []
-        monkeypatch.setattr(node.drive_pub, "publish", lambda m: drive.append((m.first_sample_index, list(m.drive_v))))
-        monkeypatch.setattr(node.state_pub, "publish", lambda m: states.append(
-            (m.k_r, m.watchdog, m.fault, m.drive_clamped, m.drive_v)))
+        # The node publishes CDR bytes; rclpy's own deserializer reads them back.
+
+        def on_drive(data: bytes) -> None:
+            m = deserialize_message(data, DriveCommandBlock)
+            drive.append((m.first_sample_index, list(m.drive_v)))
+
+        def on_state(data: bytes) -> None:
+            m = deserialize_message(data, ControllerState)
+            states.append((m.k_r, m.watchdog, m.fault, m.drive_clamped, m.drive_v))
+
+        monkeypatch.setattr(node.drive_pub, "publish", on_drive)
+        monkeypatch.setattr(node.state_pub, "publish", on_state)
 
         def feed(k: int) -> None:
             message = WingStateBlock(sample_rate_hz=FS_HZ, first_sample_index=k * BLOCK)
@@ -290,7 +300,8 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
             message.stroke_deg = from_array(10 * np.sin(2 * np.pi * 140 * t))
             message.stroke_velocity_deg_s = from_array(10 * 2 * np.pi * 140 * np.cos(2 * np.pi * 140 * t))
             message.stroke_valid = [True] * BLOCK
-            node.on_wing_state(message)
+            message.header.frame_id = "robot"
+            node.on_wing_state(serialize_message(message))
 
         node.on_timer()                                   # starts: one block in flight
         assert node.mode == LOOP and [d[0] for d in drive] == [0]

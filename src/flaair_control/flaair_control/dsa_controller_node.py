@@ -69,8 +69,8 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from flaair_common import topics
-from flaair_common.blocks import check_block, from_array, stamp_from_time_s
+from flaair_common import cdr, topics
+from flaair_common.blocks import check_block
 from flaair_common.config import ConfigError, node_parameters
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
@@ -190,12 +190,14 @@ class DsaControllerNode(Node):
         self.nan_block = np.full(self.block_size, np.nan)
         # (drive index, wing-state receive, drive publish) per block, for benchmarks
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None
-        self.command_msg = DriveCommandBlock(sample_rate_hz=self.fs_hz, first_sample_index=0)
-        self.state_msg = ControllerState()
+        # Block streams travel as CDR bytes through flaair_common.cdr: rclpy's message conversion
+        # costs about as much CPU as the transport at 2000 blocks/s.
+        self.wing_state_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, "robot")
+        self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         # One state per block: a block stream (deep queue), not a keep-the-last-few status topic.
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, BLOCK_STREAM)
-        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM, raw=True)
         # Volatile: matches the monitor's transient-local publisher and a plain one (flaair topic pub),
         # and a stale onset from before this node started is not acted upon.
         self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)
@@ -257,31 +259,38 @@ class DsaControllerNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
-    def on_wing_state(self, message: WingStateBlock) -> None:
+    def on_wing_state(self, data: bytes) -> None:
         t_receive = time.monotonic()
         if self.mode == DONE:
             return
+        try:
+            message = self.wing_state_codec.decode(data)
+        except cdr.CdrError as exc:
+            self.counts["rejected"] += 1
+            self._warn(f"wing-state block dropped: {exc}", "rejected")
+            return
+        first = int(message["first_sample_index"])
         if self.mode == WAITING:
             # Blocks already flow (a realtime plant, or a publisher faster than our start check):
             # join the loop by answering them, no extra start blocks - once someone listens.
             if self.drive_pub.get_subscription_count() == 0:
                 return
             self.mode = LOOP
-            self.get_logger().info(f"wing-state block {message.first_sample_index} before the start: joining the loop")
+            self.get_logger().info(f"wing-state block {first} before the start: joining the loop")
         self.last_arrival_wall = t_receive
         if self.first_arrival_wall is None:
             self.first_arrival_wall = t_receive
-            self.first_arrival_index = message.first_sample_index
-            self.safety = safety.initial_state(message.first_sample_index / self.fs_hz)
-            self.get_logger().info(f"loop closed: first wing-state block {message.first_sample_index}")
-        first = message.first_sample_index
+            self.first_arrival_index = first
+            self.safety = safety.initial_state(first / self.fs_hz)
+            self.get_logger().info(f"loop closed: first wing-state block {first}")
         n = self.block_size
-        field = message.stroke_velocity_deg_s
+        field = message["stroke_velocity_deg_s"]
+        rate_hz = float(message["sample_rate_hz"])
         kind = "ok"
         # Fast path (every block in a healthy loop): in order, right length and rate; check_block
         # (allocations, np.isclose) only runs to name what is wrong.
-        if not (first == self.expected_index and len(field) == n and message.sample_rate_hz == self.fs_hz):
-            check = check_block({"stroke_velocity_deg_s": np.zeros(len(field))}, message.sample_rate_hz, self.fs_hz,
+        if not (first == self.expected_index and len(field) == n and rate_hz == self.fs_hz):
+            check = check_block({"stroke_velocity_deg_s": np.zeros(len(field))}, rate_hz, self.fs_hz,
                                 first, self.expected_index, n)
             kind = check.kind
             if kind == "stale":
@@ -300,16 +309,17 @@ class DsaControllerNode(Node):
         if kind == "content":
             velocity_rad_s, valid = self.nan_block, False
         else:
-            velocity_rad_s = np.radians(np.frombuffer(field, dtype=np.float64))
-            flags = message.stroke_valid
-            valid = len(flags) == n and all(flags) and bool(np.isfinite(velocity_rad_s).all())
+            velocity_rad_s = np.radians(field)
+            flags = message["stroke_valid"]
+            valid = len(flags) == n and bool(flags.all()) and bool(np.isfinite(velocity_rad_s).all())
             if not valid:
                 self.counts["invalid"] += 1
                 self._warn(f"wing-state block {first} invalid (stroke_valid false or non-finite velocity); "
                            "its invalid samples drive the filter as 0", "invalid")
                 if len(flags) == n:
-                    velocity_rad_s = np.where(np.asarray(flags, dtype=bool), velocity_rad_s, np.nan)
-            self.frequency.update(message.stroke_deg if len(message.stroke_deg) == n else self.nan_block)
+                    velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
+            stroke_deg = message["stroke_deg"]
+            self.frequency.update(stroke_deg if len(stroke_deg) == n else self.nan_block)
         if valid:
             self.safety = safety.note_sensor_block(self.safety, (first + n) / self.fs_hz, True, self.safety_params)
             self._check_core_trip()
@@ -345,30 +355,20 @@ class DsaControllerNode(Node):
             drive_v = drive_v * self.amplitude_scale
         self.safety, out = safety.step(self.safety, drive_v, t_start, self.fs_hz, self.safety_params)
         self._check_core_trip()
-        # One command and one state message are reused (publish serializes at once): building
-        # a message costs 15-25 us in rclpy, about a tenth of the block's budget.
-        command = self.command_msg
-        command.first_sample_index = self.next_index
-        ns = int(round(t_start * 1e9))
-        command.header.stamp.sec, command.header.stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
-        command.drive_v = from_array(out.drive_v)
-        self.drive_pub.publish(command)
+        stamp_ns = int(round(t_start * 1e9))
+        self.drive_pub.publish(self.drive_codec.encode(stamp_ns, {
+            "sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index, "drive_v": out.drive_v}))
         t_publish = time.monotonic()
         self.last_sent_wall = t_publish
         if t_receive is not None and self.timing is not None:
             self.timing.append((self.next_index, t_receive, t_publish))
-        state = self.state_msg
-        state.header.stamp = command.header.stamp
-        state.k_r = float(sig.kr[-1])
-        state.async_drive_v = float(sig.async_v[-1])
-        state.sync_drive_v = float(sig.sync_v[-1])
-        state.drive_v = float(out.drive_v[-1])
-        state.drive_clamped = bool(np.abs(sig.drive_unclipped_v).max() * self.amplitude_scale > self.p["drive_limit_v"])
-        state.watchdog = ControllerState.WATCHDOG_TRIPPED if out.tripped else ControllerState.WATCHDOG_OK
-        state.fault = self.fault
-        state.amplitude_scale = self.amplitude_scale
-        state.stroke_frequency_hz = self.frequency.frequency_hz
-        self.state_pub.publish(state)
+        self.state_pub.publish(cdr.encode(cdr.CONTROLLER_STATE, stamp_ns, "", {
+            "k_r": sig.kr[-1], "async_drive_v": sig.async_v[-1], "sync_drive_v": sig.sync_v[-1],
+            "drive_v": out.drive_v[-1],
+            "drive_clamped": np.abs(sig.drive_unclipped_v).max() * self.amplitude_scale > self.p["drive_limit_v"],
+            "watchdog": ControllerState.WATCHDOG_TRIPPED if out.tripped else ControllerState.WATCHDOG_OK,
+            "fault": self.fault, "amplitude_scale": self.amplitude_scale,
+            "stroke_frequency_hz": self.frequency.frequency_hz}))
         self.next_index += self.block_size
         if self.end_index is not None and self.next_index >= self.end_index and self.mode != DONE:
             self.finish()
@@ -404,10 +404,8 @@ class DsaControllerNode(Node):
         self.get_logger().info(self.summary("run complete"))
 
     def publish_zero_block(self) -> None:
-        command = DriveCommandBlock(sample_rate_hz=self.fs_hz, first_sample_index=self.next_index)
-        command.header.stamp = stamp_from_time_s(self.next_index / self.fs_hz)
-        command.drive_v = from_array(np.zeros(self.block_size))
-        self.drive_pub.publish(command)
+        self.drive_pub.publish(self.drive_codec.encode(int(round(self.next_index / self.fs_hz * 1e9)), {
+            "sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index, "drive_v": np.zeros(self.block_size)}))
         self.next_index += self.block_size
 
     # ------------------------------------------------------------------ wall-clock timer
