@@ -32,11 +32,18 @@ def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str
     return "\n".join(lines)
 
 
-def make_executor():
-    """The SingleThreadedExecutor; FLAAIR_EXECUTOR=events selects rclpy's experimental C++
-    EventsExecutor (less CPU per message, which bounds a 2000-block/s graph: see
-    bench/bench_closed_loop.py; not yet the default: the node tests are not all green with it)."""
-    if os.environ.get("FLAAIR_EXECUTOR", "single") == "events":
+def make_executor(default: str = "events"):
+    """rclpy's C++ EventsExecutor by default, or the SingleThreadedExecutor.
+
+    The EventsExecutor takes a third of the CPU per message (bench/bench_closed_loop.py:
+    ping-pong ~200 us vs ~600 us on the 2-core machine), which bounds a graph moving 2000
+    blocks/s per stream. FLAAIR_EXECUTOR=single|events overrides `default` for every node
+    (for comparisons, or should the experimental executor misbehave on another install).
+    """
+    kind = os.environ.get("FLAAIR_EXECUTOR", default)
+    if kind not in ("single", "events"):
+        raise ValueError(f"FLAAIR_EXECUTOR must be 'single' or 'events', got {kind!r}")
+    if kind == "events":
         from rclpy.experimental import EventsExecutor
 
         return EventsExecutor()
@@ -49,8 +56,12 @@ def run_node(
     config_file: str,
     node_name: str,
     args: list[str] | None = None,
+    executor_kind: str = "events",
 ) -> int:
     """Initialise rclpy, build the node, spin until shutdown; return a process exit code.
+
+    executor_kind is the default of `make_executor` (the recorder drains its queues inside
+    a callback, which only the SingleThreadedExecutor allows).
 
     A refused parameter prints `<node>: <reason>` and returns 2. SIGINT and SIGTERM stop
     spinning, call the node's `close()` if it has one (flush files, zero the drive), then
@@ -62,7 +73,7 @@ def run_node(
         return 0
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node: Node | None = None
-    executor = make_executor()
+    executor = make_executor(executor_kind)
 
     stop_requested = False
 

@@ -248,10 +248,10 @@ class RecorderNode(Node):
 def main(argv: list[str] | None = None) -> int:
     """Console script (ROS arguments) or `bin/flaair record` (friendly options, argv given)."""
     if argv is None:
-        return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME)
+        return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, executor_kind="single")
     args = cli_to_ros_args(argv)
     sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
-    return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+    return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, args, executor_kind="single")
 
 
 if __name__ == "__main__":
