@@ -97,6 +97,22 @@ def test_drive_step_is_sample_exact(params, whole):
     assert np.array_equal(record, drive_record(params, FS_HZ, n))
 
 
+@pytest.mark.parametrize("kind, extra", [("sine", {"frequency_hz": 140.0}),
+                                         ("chirp", {"start_hz": 20.0, "stop_hz": 200.0, "duration_s": 0.05})])
+def test_lead_in_is_zero_then_the_waveform_from_its_own_start(kind, extra):
+    lead_s, n = 0.0123, 2000
+    lead = round(lead_s * FS_HZ)
+    plain = drive_record(DriveParams(kind, 50.0, **extra), FS_HZ, n - lead)
+    delayed = DriveParams(kind, 50.0, lead_in_s=lead_s, **extra)
+    record = drive_record(delayed, FS_HZ, n)
+    assert np.all(record[:lead] == 0.0) and np.array_equal(record[lead:], plain)
+    blocks, state = [], DriveState()
+    while state.sample_index < n:   # block form: 10-sample blocks across the boundary
+        state, block = drive_step(state, 10, FS_HZ, delayed)
+        blocks.append(block)
+    assert np.array_equal(np.concatenate(blocks), record)
+
+
 def test_drive_step_long_run_stays_exact():
     params = DriveParams("sine", 1.0, frequency_hz=140.0)
     start = 10**8  # ~1.4 h at 20 kHz
@@ -113,6 +129,7 @@ def test_drive_step_long_run_stays_exact():
         ({"kind": "chirp", "amplitude_v": 1.0, "start_hz": 10.0, "stop_hz": 20.0}, "duration_s"),
         ({"kind": "stepped_sine", "amplitude_v": 1.0, "start_hz": 10.0, "stop_hz": 20.0, "step_hz": 5.0}, "dwell_s"),
         ({"kind": "stepped_sine", "amplitude_v": 1.0, "start_hz": 30.0, "stop_hz": 20.0, "step_hz": 5.0, "dwell_s": 1.0}, "stop_hz"),
+        ({"kind": "sine", "amplitude_v": 1.0, "frequency_hz": 1.0, "lead_in_s": -0.1}, "lead_in_s"),
     ],
 )
 def test_drive_params_validation_names_parameter(kwargs, name):

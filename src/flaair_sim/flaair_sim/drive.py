@@ -131,6 +131,8 @@ class DriveParams:
 
     sine: amplitude_v, bias_v, frequency_hz. chirp: amplitude_v, bias_v, start_hz, stop_hz,
     duration_s. stepped_sine: amplitude_v, bias_v, start_hz, stop_hz, step_hz, dwell_s.
+    lead_in_s (any kind): zero drive first, then the waveform from its own t = 0 (a rest that
+    lets the wing settle between back-to-back runs).
     """
 
     kind: str
@@ -142,12 +144,16 @@ class DriveParams:
     duration_s: float = 0.0
     step_hz: float = 0.0
     dwell_s: float = 0.0
+    lead_in_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in DRIVE_KINDS:
             raise DriveError(f"kind must be one of {', '.join(DRIVE_KINDS)}, got {self.kind!r}")
-        for name in ("amplitude_v", "bias_v", "frequency_hz", "start_hz", "stop_hz", "duration_s", "step_hz", "dwell_s"):
+        for name in ("amplitude_v", "bias_v", "frequency_hz", "start_hz", "stop_hz", "duration_s", "step_hz", "dwell_s",
+                     "lead_in_s"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if self.lead_in_s < 0:
+            raise DriveError(f"lead_in_s must be >= 0, got {self.lead_in_s:g}")
         required = {
             "sine": ("frequency_hz",),
             "chirp": ("start_hz", "stop_hz", "duration_s"),
@@ -167,6 +173,16 @@ class DriveState:
 
 
 def _samples(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
+    lead = int(round(params.lead_in_s * fs_hz))
+    if lead:
+        out = np.zeros(k.shape)
+        running = k >= lead
+        out[running] = _waveform(k[running] - lead, fs_hz, params)
+        return out
+    return _waveform(k, fs_hz, params)
+
+
+def _waveform(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
     t = k / fs_hz
     if params.kind == "sine":
         return sine(t, params.amplitude_v, params.frequency_hz, params.bias_v)

@@ -40,7 +40,8 @@ PARAMS = [
     ParamSpec("duration_s", float, "Chirp sweep duration [s]", 1e-3, 3600.0, read_only=True),
     ParamSpec("step_hz", float, "Stepped-sine frequency step [Hz]", 1e-3, 5000.0, read_only=True),
     ParamSpec("dwell_s", float, "Stepped-sine time at each frequency [s]", 1e-3, 3600.0, read_only=True),
-    ParamSpec("run_time_s", float, "Stop after this much signal time (0: never) [s]", 0.0, 1e6, read_only=True),
+    ParamSpec("lead_in_s", float, "Zero drive for this long before the waveform starts (a rest) [s]", 0.0, 3600.0, read_only=True),
+    ParamSpec("run_time_s", float, "Stop after this much signal time, lead-in included (0: never) [s]", 0.0, 1e6, read_only=True),
     ParamSpec("pacing", str, "realtime or lockstep (paced by the plant's sensor blocks)", choices=("realtime", "lockstep"), read_only=True),
     ParamSpec("lockstep_window_blocks", int, "lockstep: command blocks allowed ahead of the plant", 1, 10000, read_only=True),
     ParamSpec("pace_on_wing_state", bool, "lockstep: pace on the front end's /flaair/wing_state (the whole chain) instead of the plant's sensor blocks", read_only=True),
@@ -62,6 +63,7 @@ class DriveNode(Node):
                 kind=self.p["waveform"], amplitude_v=self.p["amplitude_v"], bias_v=self.p["bias_v"],
                 frequency_hz=self.p["frequency_hz"], start_hz=self.p["start_hz"], stop_hz=self.p["stop_hz"],
                 duration_s=self.p["duration_s"], step_hz=self.p["step_hz"], dwell_s=self.p["dwell_s"],
+                lead_in_s=self.p["lead_in_s"],
             )
         except drive.DriveError as exc:
             raise ParameterError(str(exc)) from exc

@@ -73,6 +73,7 @@ class ExperimentSpec:
     kind: str
     runs: tuple[RunSpec, ...]
     nodes: tuple[str, ...] = ()
+    rest_s: float = 0.0   # zero drive before each driven run (recorded, outside the run markers)
     plant: dict[str, Any] = field(default_factory=dict)
     controller: bool = False
 
@@ -108,7 +109,10 @@ def load_experiments() -> dict[str, ExperimentSpec]:
             )
             out[name] = ExperimentSpec(name=name, description=str(entry.get("description", "")), kind=str(entry["kind"]),
                                        runs=runs, nodes=tuple(entry.get("nodes", [])), plant=dict(entry.get("plant", {})),
-                                       controller=bool(entry.get("controller", False)))
+                                       controller=bool(entry.get("controller", False)),
+                                       rest_s=float(entry.get("rest_s", 0.0)))
+            if not (spec := out[name]).rest_s >= 0 or (spec.controller and spec.rest_s):
+                raise ValueError(f"rest_s must be >= 0 (and 0 for a controller experiment), got {spec.rest_s}")
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ConfigError(f"{path}: experiment '{name}' is malformed: {exc!r}") from None
     return out
@@ -249,11 +253,14 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             "plant": spec.plant, "runs": [{"name": r.name, "run_time_s": r.run_time_s, "drive": r.drive,
                                            "markers": r.markers} for r in spec.runs]})))
         for run in spec.runs:
+            # The rest (zero drive, whole blocks) lets the wing settle after the previous run;
+            # the run's markers start after it.
+            rest = int(round(spec.rest_s * fs_hz / block_size)) * block_size
             first = runner.sensor_end_index
-            n_samples = int(round(run.run_time_s * fs_hz / block_size)) * block_size
+            n_samples = rest + int(round(run.run_time_s * fs_hz / block_size)) * block_size
             parts = run.markers or ((run.name, 0.0, run.run_time_s),)
             for part, start_s, end_s in parts:
-                a, b = first + int(round(start_s * fs_hz)), first + int(round(end_s * fs_hz))
+                a, b = first + rest + int(round(start_s * fs_hz)), first + rest + int(round(end_s * fs_hz))
                 marker = bagio.RunMarker(run=part, first_sample_index=a, n_samples=b - a, source_file=spec.name,
                                          sample_rate_hz=fs_hz, start_ns=int(a / fs_hz * 1e9))
                 runner.marker_pub.publish(String(data=marker.to_json()))
@@ -268,7 +275,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
                 driver = graph.start("drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
                                                "first_sample_index": first, "min_subscribers": max(listeners, 2),
-                                               "pace_on_wing_state": True, **run.drive})
+                                               "pace_on_wing_state": True, "lead_in_s": rest / fs_hz, **run.drive})
             bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample", unit_scale=True,
                        disable=not progress, leave=False, mininterval=1.0)
             done = 0
@@ -289,7 +296,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             drain_until = time.monotonic() + 2.0
             _spin_until(runner, graph, lambda: time.monotonic() > drain_until, 10.0, "the recorder to drain")
             graph.stop(driver)
-            summary["runs"].append({"run": run.name, "first_sample_index": first, "n_samples": n_samples})
+            summary["runs"].append({"run": run.name, "first_sample_index": first + rest, "n_samples": n_samples - rest})
         # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
         settle_until = time.monotonic() + 1.0
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
