@@ -8,6 +8,10 @@ Pacing:
   lockstep  as fast as the plant answers: at most lockstep_window_blocks command blocks
             ahead of the last sensor block received (deterministic, faster than real time).
 
+Ending: after run_time_s, and on SIGINT/SIGTERM if the last block was not zero, one block of
+zero drive follows, so the actuator is never left holding a voltage (a lockstep plant's drive
+watchdog trips on a command source that falls silent while driving).
+
 Usage: bin/flaair run flaair_sim drive_node --ros-args -p waveform:=chirp -p amplitude_v:=100.0
 """
 from __future__ import annotations
@@ -26,6 +30,7 @@ from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBloc
 from flaair_sim import drive
 
 NODE_NAME = "drive_node"
+ACK_RETRY_S = 0.5  # lockstep: no acknowledgement for this long: one more block (< the plant's command_timeout_s)
 CONFIG_FILE = "flaair.yaml"
 PARAMS = [
     ParamSpec("sample_rate_hz", float, "Sample rate of the drive [Hz]", 1000.0, 1.0e6, read_only=True),
@@ -71,6 +76,8 @@ class DriveNode(Node):
         self.next_index = self.p["first_sample_index"]
         run_samples = int(round(self.p["run_time_s"] * self.fs_hz))
         self.total_samples = self.next_index + run_samples if run_samples else None
+        self.last_block_zero = True
+        self.last_ack_index, self.last_ack_wall, self.retries = -1, time.monotonic(), 0
         self.acknowledged_index = self.next_index
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         if self.p["pacing"] == "lockstep":
@@ -89,14 +96,27 @@ class DriveNode(Node):
     def finished(self) -> bool:
         return self.total_samples is not None and self.next_index >= self.total_samples
 
-    def publish_block(self) -> None:
-        self.state, drive_v = drive.drive_step(self.state, self.block_size, self.fs_hz, self.params)
+    def publish_block(self, zero: bool = False) -> None:
+        if zero:
+            drive_v = np.zeros(self.block_size)
+        else:
+            self.state, drive_v = drive.drive_step(self.state, self.block_size, self.fs_hz, self.params)
         limit = self.get_parameter("drive_limit_v").value
         message = DriveCommandBlock(sample_rate_hz=self.fs_hz, first_sample_index=self.next_index)
         message.header.stamp = stamp_from_time_s(self.next_index / self.fs_hz)
         message.drive_v = from_array(np.clip(drive_v, -limit, limit))
         self.publisher.publish(message)
         self.next_index += self.block_size
+        self.last_block_zero = not np.any(drive_v)
+        if self.finished() and not self.last_block_zero:
+            self.publish_block(zero=True)   # end of the run: leave the actuator at zero
+            self.get_logger().info(f"run complete at sample {self.next_index - self.block_size}; zero drive sent")
+
+    def close(self) -> None:
+        """Shutdown: a zero block unless the last one already was (or nothing was sent)."""
+        if self.next_index > self.p["first_sample_index"] and not self.last_block_zero:
+            self.publish_block(zero=True)
+            time.sleep(0.1)  # let reliable delivery finish
 
     def on_sensor(self, message: SensorVoltageBlock) -> None:
         self.acknowledged_index = message.first_sample_index + len(message.stroke_sensor_v)
@@ -112,7 +132,18 @@ class DriveNode(Node):
         if self.publisher.get_subscription_count() < self.p["min_subscribers"] or self.ack.get_publisher_count() == 0:
             return
         window = self.p["lockstep_window_blocks"] * self.block_size
+        if self.acknowledged_index != self.last_ack_index:
+            self.last_ack_index, self.last_ack_wall = self.acknowledged_index, time.monotonic()
         while not self.finished() and self.next_index < self.acknowledged_index + window:
+            self.publish_block()
+        # The plant's writer may match our acknowledgement reader a moment after we see it: the
+        # first acknowledgements can be lost and the window never reopens. One more block makes
+        # the plant step and answer again (harmless when the plant is merely slow).
+        if not self.finished() and time.monotonic() - self.last_ack_wall > ACK_RETRY_S:
+            self.retries += 1
+            self.get_logger().warning(f"no acknowledgement for {ACK_RETRY_S:g} s at block {self.next_index}; "
+                                      f"sending one more block ({self.retries})")
+            self.last_ack_wall = time.monotonic()
             self.publish_block()
 
     def on_realtime_tick(self) -> None:

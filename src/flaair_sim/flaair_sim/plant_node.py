@@ -12,6 +12,14 @@ A command block with NaN/inf samples, the wrong length or rate, or out of order 
 counted and logged; the plant holds zero drive for that block and keeps running. Drive is
 clamped to +-drive_limit_v before it reaches the model.
 
+Drive watchdog (lockstep): the plant stands in for the actuator and its driver, which must not
+hold a voltage when the command source dies. If no command block arrives for
+command_timeout_s of wall-clock time while the last applied block was not all zeros (a source
+that stops cleanly sends a zero block first: drive_node and the dSA controller do), the
+watchdog trips: the drive is zeroed, an error is logged, and the plant rings down with zero
+drive at the real-time rate for ring_down_s of signal time (published and recorded like any
+block), then waits. A command that continues the sample count re-arms it.
+
 An obstacle (the paper's collision experiment) can be scheduled in sim time with
 obstacle_windows_s (pairs of start/end seconds) at obstacle_stroke_limit_deg.
 
@@ -49,6 +57,8 @@ PARAMS = [
     ParamSpec("noise_seed", int, "Seed of the sensor-noise generator", 0, 2**31 - 1, read_only=True),
     ParamSpec("publish_clock", bool, "Publish /clock with the simulation time", read_only=True),
     ParamSpec("obstacle_windows_s", list, "Obstacle in place over these [start, end) sim-time pairs [s]", read_only=True),
+    ParamSpec("command_timeout_s", float, "lockstep: no command for this long (wall clock) while driven: zero drive, ring down (0: off) [s]", 0.0, 60.0, read_only=True),
+    ParamSpec("ring_down_s", float, "Signal time stepped with zero drive after a drive-watchdog trip [s]", 0.0, 60.0, read_only=True),
     ParamSpec("obstacle_stroke_limit_deg", float, "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0, read_only=True),
 ]
 
@@ -94,9 +104,15 @@ class PlantNode(Node):
         self.no_velocity = np.full(self.block_size, np.nan)
         self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_command, BLOCK_STREAM, raw=True)
         self.pending: collections.deque[np.ndarray] = collections.deque(maxlen=1000)
+        self.last_command_wall = time.monotonic()
+        self.driven = False          # last applied block not all zeros
+        self.ring_down: tuple[float, int, int] | None = None   # (wall start, first index, end index)
+        self.watchdog_trips = 0
         if self.p["mode"] == "realtime":
             self.wall_start_s = time.monotonic()
             self.create_timer(0.005, self.on_realtime_tick)
+        elif self.p["command_timeout_s"] > 0:
+            self.create_timer(min(0.01, self.p["command_timeout_s"] / 4), self.on_watchdog_tick)
         self.get_logger().info(
             f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
             f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
@@ -130,10 +146,38 @@ class PlantNode(Node):
                 if check.kind == "content":
                     drive_v = np.zeros(self.block_size)
         self.expected_command_index = first + self.block_size
+        self.last_command_wall = time.monotonic()
         if self.p["mode"] == "lockstep":
+            if self.ring_down is not None:
+                self.get_logger().info(f"drive commands resumed at block {first}; drive watchdog re-armed")
+                self.ring_down = None
+            self.driven = bool(np.any(drive_v != 0.0))
             self.advance(drive_v)
         else:
             self.pending.append(drive_v)
+
+    def on_watchdog_tick(self) -> None:
+        """Lockstep drive watchdog: trip on a silent, non-zero command source; pace the ring-down."""
+        now = time.monotonic()
+        if self.ring_down is None:
+            silent_s = now - self.last_command_wall
+            if not (self.driven and silent_s > self.p["command_timeout_s"]):
+                return
+            self.watchdog_trips += 1
+            n_ring = int(round(self.p["ring_down_s"] * self.fs_hz / self.block_size)) * self.block_size
+            self.ring_down = (now, self.next_index, self.next_index + n_ring)
+            self.driven = False
+            self.get_logger().error(
+                f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.0f} ms (> command_timeout_s "
+                f"{self.p['command_timeout_s']:g} s) after block {self.next_index - self.block_size}, last drive not zero: "
+                f"drive zeroed, ringing down for {self.p['ring_down_s']:g} s")
+        wall_start, first, end = self.ring_down
+        due = min(end, first + int((now - wall_start) * self.fs_hz))
+        zero = np.zeros(self.block_size)
+        while self.next_index + self.block_size <= due:
+            self.advance(zero)
+        # the stream continues from here: a command for the next block is in order
+        self.expected_command_index = self.next_index
 
     def on_realtime_tick(self) -> None:
         due = int((time.monotonic() - self.wall_start_s) * self.fs_hz) - self.next_index
