@@ -60,9 +60,10 @@ class Processes:
         self.env = env
         self.started: list[subprocess.Popen] = []
 
-    def start(self, *args: str, stdout: int | None = subprocess.PIPE) -> subprocess.Popen:
+    def start(self, *args: str, stdout=subprocess.PIPE, stderr=subprocess.PIPE) -> subprocess.Popen:
+        """Start a process in its own session; stdout/stderr: PIPE (default) or an open file."""
         process = subprocess.Popen(
-            list(args), env=self.env, stdout=stdout, stderr=subprocess.PIPE, text=True,
+            list(args), env=self.env, stdout=stdout, stderr=stderr, text=True,
             start_new_session=True, cwd=REPO_ROOT,
         )
         self.started.append(process)

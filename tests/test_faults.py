@@ -15,6 +15,7 @@ import pytest
 from rosproc import FLAAIR, isolated_env, ros_processes, run
 
 FS_HZ = 20000.0
+BLOCK = 10
 
 NODES = [
     ("flaair_sim", "plant_node", "drive_limit_v"),
@@ -142,3 +143,48 @@ def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running() -> None:
     nan_block = blocks[1]
     assert nan_block["stroke_valid"][0] is False and not any(np.isfinite(nan_block["stroke_deg"][:1]))
     assert "duplicate or out of order" in log and "array lengths differ" in log and "sample_rate_hz 1000.0" in log
+
+
+def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_bag(tmp_path: Path) -> None:
+    """kill -9 of the dSA controller in a recorded closed loop: the plant's drive watchdog zeroes
+    the drive within command_timeout_s and rings the wing down; the recorder's bag (closed with
+    SIGINT afterwards) holds every block up to the kill and the ring-down, in order."""
+    import signal
+    import time
+
+    from flaair_tools import bagio
+    from rosproc import wait_for
+
+    bag, timeout_s, ring_down_s = tmp_path / "killed_loop", 0.3, 0.1
+    with ros_processes() as procs:
+        recorder = procs.flaair("record", "-o", str(bag))
+        assert wait_for(lambda: (bag / f"{bag.name}_0.mcap").exists(), 60.0)
+        logs = {name: tmp_path / f"{name}.log" for name in ("plant", "controller")}
+        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", f"command_timeout_s:={timeout_s}",
+                             "-p", f"ring_down_s:={ring_down_s}", stderr=open(logs["plant"], "w"))
+        procs.flaair("run", "flaair_sensors", "frontend_node")
+        # the recorder listens on /flaair/drive too: start only once it and the plant match
+        controller = procs.flaair("run", "flaair_control", "dsa_controller_node", "--ros-args",
+                                  "-p", "min_drive_subscribers:=2", "-p", "watchdog_timeout_s:=30.0",
+                                  stderr=open(logs["controller"], "w"))
+        assert wait_for(lambda: "loop closed" in logs["controller"].read_text(), 90.0)
+        time.sleep(2.0)                               # mid-run: the wing is flapping
+        procs.stop(controller, signal.SIGKILL)
+        assert wait_for(lambda: "ringing down" in logs["plant"].read_text(), 30.0)
+        time.sleep(1.0 + ring_down_s)                 # the ring-down reaches the recorder
+        assert procs.stop(recorder, signal.SIGINT) == 0
+        plant_log = logs["plant"].read_text()
+    drive = bagio.read_blocks(bag, "/flaair/drive")          # raises on any gap
+    sensor = bagio.read_blocks(bag, "/flaair/sensor_v")
+    truth = bagio.read_blocks(bag, "/flaair/wing_state/truth")
+    last_command = int(drive.sample_index[-1]) + 1
+    assert np.abs(drive["drive_v"][-BLOCK:]).max() > 0.0     # killed while driving: no goodbye block
+    # every commanded block was stepped and recorded, then exactly the ring-down
+    ring = int(round(ring_down_s * FS_HZ))
+    assert sensor.sample_index[-1] + 1 == last_command + ring == truth.sample_index[-1] + 1
+    silent_ms = float(plant_log.split("DRIVE WATCHDOG: no command block for ")[1].split(" ms")[0])
+    assert timeout_s * 1e3 < silent_ms < timeout_s * 1e3 + 200.0   # timer period 10 ms, loaded machine
+    stroke = truth["stroke_deg"]
+    before = np.abs(stroke[(truth.sample_index >= last_command - ring) & (truth.sample_index < last_command)]).max()
+    tail = np.abs(stroke[truth.sample_index >= last_command + ring - 200]).max()
+    assert before > 1.0 and tail < 0.5 * before            # zero drive: the wing rings down
