@@ -8,10 +8,11 @@ Run: scripts/in_env.sh python bench/bench_closed_loop.py [--duration 2.0] [--jso
 Figures:
 * real-time factor = signal time / wall time over the run (first 10 % dropped: start-up),
   from the controller's own per-block timing (timing_file: monotonic receive and publish
-  time of every block), with 1 block in flight (the loop as specified: one command block per
-  wing-state block, loop delay one block) and with 2 (pipelined: plant, front end and
-  controller can work on different blocks at once; the controller compensates the extra
-  block of delay);
+  time of every block), as shipped (EventsExecutor, block streams as CDR bytes) with 1 block
+  in flight (the loop as specified: one command block per wing-state block, loop delay one
+  block), 2 and 4 (pipelined: plant, front end and controller can work on different blocks at
+  once; the controller compensates the extra delay); baseline: the same loop with
+  FLAAIR_EXECUTOR=single (rclpy's SingleThreadedExecutor), 1 block in flight;
 * per-hop latency p50/p99, in a separate run with a probe process that stamps the arrival of
   every /flaair/sensor_v and /flaair/wing_state block (CLOCK_MONOTONIC is shared by the
   processes; blocks are matched by first_sample_index):
@@ -26,9 +27,6 @@ Figures:
 * the rclpy floor: a ping-pong of a 10-sample block between two processes with no work in the
   callbacks, with the spin loop of flaair_common.runtime.run_node (SingleThreadedExecutor.spin_once)
   and with rclpy's C++ EventsExecutor;
-* what-if: the same three nodes and run_node with EventsExecutor swapped in (the bench starts
-  them through ``--events-run``, which replaces runtime.SingleThreadedExecutor before main();
-  nothing shipped is changed).
 The machine's load average is reported beside them: other jobs share the 2 cores.
 """
 from __future__ import annotations
@@ -81,18 +79,15 @@ NODES = {"plant": ("flaair_sim", "plant_node"), "frontend": ("flaair_sensors", "
          "controller": ("flaair_control", "dsa_controller_node")}
 
 
-def _node_cmd(name: str, executor: str) -> list[str]:
+def _node_cmd(name: str) -> list[str]:
     package, executable = NODES[name]
-    if executor == "single":   # as shipped: flaair_common.runtime.run_node's SingleThreadedExecutor
-        return [FLAAIR, "run", package, executable]
-    # what-if: the same node and run_node, with rclpy's C++ EventsExecutor swapped in (see events_run)
-    return [sys.executable, __file__, "--events-run", f"{package}.{executable}"]
+    return [FLAAIR, "run", package, executable]
 
 
 def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | None, tmp: Path,
-             executor: str = "single") -> dict:
-    """One closed-loop run; returns timing arrays and CPU per block per node."""
-    env = _env(domain)
+             executor: str = "events") -> dict:
+    """One closed-loop run (executor: FLAAIR_EXECUTOR of the nodes); timing arrays and CPU per block per node."""
+    env = dict(_env(domain), FLAAIR_EXECUTOR=executor)
     timing_file = tmp / f"timing_{domain}.npz"
     logs = {name: open(tmp / f"{name}_{domain}.log", "w") for name in ("plant", "frontend", "controller", "probe")}
     procs: dict[str, subprocess.Popen] = {}
@@ -104,9 +99,9 @@ def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | 
     try:
         if probe_file is not None:
             start("probe", sys.executable, __file__, "--probe", str(probe_file))
-        start("plant", *_node_cmd("plant", executor), "--ros-args", "-p", "mode:=lockstep")
-        start("frontend", *_node_cmd("frontend", executor))
-        start("controller", *_node_cmd("controller", executor), "--ros-args",
+        start("plant", *_node_cmd("plant"), "--ros-args", "-p", "mode:=lockstep")
+        start("frontend", *_node_cmd("frontend"))
+        start("controller", *_node_cmd("controller"), "--ros-args",
               "-p", f"run_time_s:={duration_s}", "-p", f"timing_file:={timing_file}",
               "-p", f"blocks_in_flight:={in_flight}", "-p", "watchdog_timeout_s:=30.0")
         log_path = tmp / f"controller_{domain}.log"
@@ -196,19 +191,6 @@ def probe_main(out_file: str) -> int:
     return 0
 
 
-def events_run(module_name: str, argv: list[str]) -> int:
-    """Start a FLAAIR node through run_node with rclpy.experimental.EventsExecutor (bench what-if)."""
-    import importlib
-
-    import flaair_common.runtime as runtime
-    from rclpy.experimental import EventsExecutor
-
-    runtime.SingleThreadedExecutor = EventsExecutor
-    module = importlib.import_module(module_name)
-    sys.argv = [module_name, *argv]
-    return module.main()
-
-
 def pingpong(role: str, executor: str, n: int) -> int:
     """rclpy floor: two processes bounce a 10-sample DriveCommandBlock; the spin loop of run_node."""
     import rclpy
@@ -272,13 +254,10 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=2.0, help="signal time per run [s]")
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_closed_loop.json")
     parser.add_argument("--probe", help=argparse.SUPPRESS)
-    parser.add_argument("--events-run", help=argparse.SUPPRESS)
     parser.add_argument("--pingpong", nargs=3, help=argparse.SUPPRESS)
     args, rest = parser.parse_known_args()
     if args.probe:
         return probe_main(args.probe)
-    if args.events_run:
-        return events_run(args.events_run, rest)
     if args.pingpong:
         return pingpong(args.pingpong[0], args.pingpong[1], int(args.pingpong[2]))
     if rest:
@@ -289,29 +268,25 @@ def main() -> int:
         tmp = Path(tmpdir)
         load0 = os.getloadavg()[0]
         ping = {kind: run_pingpong(kind, base + 3 + i) for i, kind in enumerate(("single", "events"))}
-        one = run_loop(args.duration, 1, base, None, tmp)
-        two = run_loop(args.duration, 2, base + 1, None, tmp)
-        ev1 = run_loop(args.duration, 1, base + 5, None, tmp, executor="events")
-        ev2 = run_loop(args.duration, 2, base + 6, None, tmp, executor="events")
+        single = run_loop(args.duration, 1, base, None, tmp, executor="single")
+        runs = {k: run_loop(args.duration, k, base + 4 + k, None, tmp) for k in (1, 2, 4)}
         probe_file = tmp / "probe.npz"
         probed = run_loop(args.duration, 1, base + 2, probe_file, tmp)
         load1 = os.getloadavg()[0]
         probe = dict(np.load(probe_file))
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
-    r1, r2 = rtf(one["timing"]), rtf(two["timing"])
-    cpu = one["cpu_per_block_us"]
+    r_single = rtf(single["timing"])
+    r = {k: rtf(run["timing"]) for k, run in runs.items()}
+    figures.append(Figure("closed loop real-time factor, 1 block in flight", r[1], "x", ">= 1.0", r[1] >= 1.0,
+                          f"SingleThreadedExecutor {r_single:.3f} x ({r[1] / r_single:.2f}x); {load}"))
+    for k in (2, 4):
+        figures.append(Figure(f"closed loop real-time factor, {k} blocks in flight", r[k], "x", ">= 1.0", r[k] >= 1.0,
+                              f"pipelined; {r[k] / r[1]:.2f}x the 1-block loop"))
+    cpu = runs[1]["cpu_per_block_us"]
     cpu_sum = sum(cpu.values())
-    figures.append(Figure("closed loop real-time factor, 1 block in flight", r1, "x", ">= 1.0", r1 >= 1.0, load))
-    figures.append(Figure("closed loop real-time factor, 2 blocks in flight", r2, "x", ">= 1.0", r2 >= 1.0,
-                          f"pipelined; {r2 / r1:.2f}x the 1-block loop"))
-    e1, e2 = rtf(ev1["timing"]), rtf(ev2["timing"])
-    figures.append(Figure("what-if EventsExecutor: RTF, 1 block in flight", e1, "x", ">= 1.0", e1 >= 1.0,
-                          f"{e1 / r1:.2f}x SingleThreadedExecutor"))
-    figures.append(Figure("what-if EventsExecutor: RTF, 2 blocks in flight", e2, "x", ">= 1.0", e2 >= 1.0,
-                          f"{e2 / r2:.2f}x SingleThreadedExecutor"))
     for name in ("plant", "frontend", "controller"):
         figures.append(Figure(f"CPU per block: {name} process", cpu[name], "us", "", True,
-                              f"EventsExecutor {ev1['cpu_per_block_us'][name]:.0f} us; whole process incl. rclpy/DDS"))
+                              f"SingleThreadedExecutor {single['cpu_per_block_us'][name]:.0f} us; whole process incl. rclpy/DDS"))
     for kind, label in (("single", "SingleThreadedExecutor.spin_once"), ("events", "EventsExecutor")):
         figures.append(Figure(f"rclpy ping-pong, {label}: CPU per message", ping[kind]["cpu_us"], "us", "", True,
                               f"round trip {ping[kind]['wall_us']:.0f} us wall; no work in the callback"))
@@ -319,7 +294,7 @@ def main() -> int:
     figures.append(Figure("RTF bound from CPU, 1 in flight (0.5 ms / sum)", bound1, "x", ">= 1.0", bound1 >= 1.0,
                           f"sum {cpu_sum:.0f} us per block"))
     figures.append(Figure("RTF bound from CPU, pipelined on 2 cores", 2 * bound1, "x", ">= 1.0", 2 * bound1 >= 1.0, ""))
-    t = one["timing"]
+    t = runs[1]["timing"]
     k = t.shape[0] // 10
     loop_out = (t[k + 1:, 1] - t[k:-1, 2]) * 1e6     # publish of block j -> wing state answering it
     ctrl = (t[k:, 2] - t[k:, 1]) * 1e6
@@ -336,8 +311,8 @@ def main() -> int:
             figures.append(Figure(f"{label} p50 (probe run)", p50, "us", "", True, f"p99 {p99:.0f} us, n={h[name].size}"))
     figures.append(Figure("real-time factor of the probe run", rtf(probed["timing"]), "x", "", True, "probe subscribed to 2 streams"))
     print_table(figures)
-    for run, name in ((one, "1 in flight"), (two, "2 in flight"), (ev1, "EventsExecutor, 1 in flight"),
-                      (ev2, "EventsExecutor, 2 in flight"), (probed, "probe")):
+    for run, name in ((runs[1], "1 in flight"), (runs[2], "2 in flight"), (runs[4], "4 in flight"),
+                      (single, "SingleThreadedExecutor, 1 in flight"), (probed, "probe")):
         print(f"{name}: {run['summary'].split(']: ', 1)[-1]}")
     write_json(figures, args.json)
     return 0

@@ -186,6 +186,11 @@ def _monitor_run(tmp_path: Path, name: str, effects: dict) -> tuple[list[dict], 
             procs.flaair("run", "flaair_control", "collision_monitor_node", "--ros-args", "-p", "drive_frequency_hz:=100.0"),
             procs.flaair("run", "flaair_sensors", "frontend_node"),
             procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", f"model_file:={model_file}"),
+        ]
+        # The lockstep run lasts about a second: front end and monitor must listen before it starts.
+        for topic in ("/flaair/sensor_v", "/flaair/wing_state"):
+            assert procs.flaair("topic", "wait", topic, "--publishers", "1", "--subscribers", "1", "--timeout", "120").wait(150) == 0
+        nodes += [
             procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=sine",
                          "-p", "frequency_hz:=100.0", "-p", "amplitude_v:=75.0", "-p", f"run_time_s:={duration}"),
         ]

@@ -22,8 +22,11 @@ def test_experiment_records_every_block(chirp_bag: Path) -> None:
     from flaair_tools import bagio
 
     counts = bagio.message_counts(chirp_bag)
+    # 1 s of 0.5 ms blocks, then the drive's closing zero block (the plant steps it too)
     for topic in ("/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state", "/flaair/wing_state/truth"):
-        assert counts[topic] == 2000, (topic, counts)
+        assert counts[topic] == 2001, (topic, counts)
+    drive = bagio.read_blocks(chirp_bag, "/flaair/drive")
+    assert np.all(drive["drive_v"][-10:] == 0.0) and np.abs(drive["drive_v"][-20:-10]).max() > 1.0
     markers = bagio.read_run_markers(chirp_bag)
     assert [(m.run, m.first_sample_index, m.n_samples) for m in markers] == [("chirp_200vpp", 0, 20000)]
 

@@ -24,6 +24,9 @@ def test_frontend_node_matches_offline_core_and_tracks_truth() -> None:
                             "--count", str(n_blocks), "--timeout", "300")
         procs.flaair("run", "flaair_sensors", "frontend_node")
         procs.flaair("run", "flaair_sim", "plant_node")
+        # The lockstep run lasts under a second: the front end must listen before it starts.
+        for topic in ("/flaair/sensor_v", "/flaair/wing_state"):
+            assert procs.flaair("topic", "wait", topic, "--publishers", "1", "--subscribers", "1", "--timeout", "120").wait(150) == 0
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
                      "-p", "waveform:=sine", "-p", "frequency_hz:=140.0", "-p", f"run_time_s:={2 * n_blocks * 10 / FS_HZ}")
         out, err = echo.communicate(timeout=330)

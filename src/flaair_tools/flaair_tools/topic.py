@@ -3,6 +3,7 @@
 Examples:
   bin/flaair topic list
   bin/flaair topic echo /flaair/wing_state --count 5
+  bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
   bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock '{"drive_v": [1.0, 2.0]}' --count 3
 """
 from __future__ import annotations
@@ -42,6 +43,13 @@ def main(argv: list[str] | None = None) -> int:
     echo.add_argument("--timeout", type=float, default=0.0, help="give up after S seconds (0: never)")
     echo.add_argument("--ready-file", type=Path, help="create this file once a publisher is matched (for scripts "
                       "that must not start the source before the echo listens)")
+    wait = sub.add_parser("wait", help="wait until a topic has enough publishers and subscribers (exit 1 on timeout)")
+    wait.add_argument("topic")
+    wait.add_argument("--publishers", type=int, default=0, help="at least this many publishers")
+    wait.add_argument("--subscribers", type=int, default=0, help="at least this many subscribers")
+    wait.add_argument("--timeout", type=float, default=30.0, help="give up after S seconds")
+    wait.add_argument("--settle", type=float, default=0.5,
+                      help="then wait this long more: the graph is seen a moment before every endpoint has matched [s]")
     pub = sub.add_parser("pub", help="publish a message given as JSON")
     pub.add_argument("topic")
     pub.add_argument("type")
@@ -61,6 +69,17 @@ def main(argv: list[str] | None = None) -> int:
             for name, types in sorted(node.get_topic_names_and_types()):
                 print(f"{name} [{', '.join(types)}]")
             return 0
+        if args.verb == "wait":
+            deadline = time.monotonic() + args.timeout
+            while time.monotonic() < deadline:
+                publishers, subscribers = node.count_publishers(args.topic), node.count_subscribers(args.topic)
+                if publishers >= args.publishers and subscribers >= args.subscribers:
+                    time.sleep(args.settle)
+                    return 0
+                rclpy.spin_once(node, timeout_sec=0.05)
+            print(f"flaair topic wait: '{args.topic}' has {publishers} publisher(s) and {subscribers} subscriber(s) "
+                  f"after {args.timeout:g} s; wanted {args.publishers} and {args.subscribers}", file=sys.stderr)
+            return 1
         if args.verb == "echo":
             type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
             received = 0
