@@ -97,7 +97,7 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
     assert first <= 5 * BLOCK
     assert [b["first_sample_index"] for b in blocks] == list(range(first, first + len(blocks) * BLOCK, BLOCK))
     all_states = _lines(states)
-    assert all(s["watchdog"] == 0 and s["fault"] == "" for s in all_states)
+    assert all(s["watchdog"] == 0 and s["fault"] == "" for s in all_states), {s["fault"] for s in all_states}
     scales = [s["amplitude_scale"] for s in all_states]
     assert scales[0] == 1.0 and 0.25 in scales[n_reduced - 5:] and scales[-1] == 1.0
     assert all(abs(s["drive_v"]) <= 150.0 for s in all_states)

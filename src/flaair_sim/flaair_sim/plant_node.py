@@ -13,8 +13,9 @@ counted and logged; the plant holds zero drive for that block and keeps running.
 clamped to +-drive_limit_v before it reaches the model.
 
 Drive watchdog (lockstep): the plant stands in for the actuator and its driver, which must not
-hold a voltage when the command source dies. If no command block arrives for
-command_timeout_s of wall-clock time while the last applied block was not all zeros (a source
+hold a voltage when the command source dies. Once commands have flowed for
+ARM_S (50 ms) of signal time, if no command block arrives for command_timeout_s of wall-clock
+time while the last applied block was not all zeros (a source
 that stops cleanly sends a zero block first: drive_node and the dSA controller do), the
 watchdog trips: the drive is zeroed, an error is logged, and the plant rings down with zero
 drive at the real-time rate for ring_down_s of signal time (published and recorded like any
@@ -46,6 +47,7 @@ from flaair_sim.model_io import load_model
 
 NODE_NAME = "plant_node"
 FRAME_ID = "robot"
+ARM_S = 0.05  # drive watchdog: armed after this much commanded signal time
 CONFIG_FILE = "flaair.yaml"
 PARAMS = [
     ParamSpec("sample_rate_hz", float, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6, read_only=True),
@@ -108,6 +110,7 @@ class PlantNode(Node):
         self.driven = False          # last applied block not all zeros
         self.ring_down: tuple[float, int, int] | None = None   # (wall start, first index, end index)
         self.watchdog_trips = 0
+        self.commanded_samples = 0
         if self.p["mode"] == "realtime":
             self.wall_start_s = time.monotonic()
             self.create_timer(0.005, self.on_realtime_tick)
@@ -152,6 +155,7 @@ class PlantNode(Node):
                 self.get_logger().info(f"drive commands resumed at block {first}; drive watchdog re-armed")
                 self.ring_down = None
             self.driven = bool(np.any(drive_v != 0.0))
+            self.commanded_samples += len(drive_v)
             self.advance(drive_v)
         else:
             self.pending.append(drive_v)
@@ -161,7 +165,10 @@ class PlantNode(Node):
         now = time.monotonic()
         if self.ring_down is None:
             silent_s = now - self.last_command_wall
-            if not (self.driven and silent_s > self.p["command_timeout_s"]):
+            # Armed once commands have flowed for ARM_S of signal time: a controller's start-up
+            # (first blocks unanswered until its retry) is not a dead source.
+            armed = self.commanded_samples >= ARM_S * self.fs_hz
+            if not (armed and self.driven and silent_s > self.p["command_timeout_s"]):
                 return
             self.watchdog_trips += 1
             n_ring = int(round(self.p["ring_down_s"] * self.fs_hz / self.block_size)) * self.block_size
