@@ -426,3 +426,14 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
     assert result.model_out.effect("strain_transfer_loss") == start.effect("strain_transfer_loss")
     save_model(result.model_out, tmp_path / "m.yaml")
     assert load_model(tmp_path / "m.yaml") == result.model_out
+
+
+@pytest.mark.parametrize("level_ratio, words", [
+    (0.0, "only at the lower drive levels"), (math.inf, "only at the highest drive level"),
+    (3.0, "3.00x larger at full drive"), (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
+])
+def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
+    from flaair_tools.discrepancy_core import Settings, _interpret
+
+    text = _interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
+    assert words in text

@@ -882,6 +882,8 @@ def _interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float
             parts.append(f"{higher:.0%} of it at drive harmonics 2-4 (a nonlinearity)")
     if math.isinf(level_ratio):
         parts.append("only at the highest drive level (an amplitude threshold, e.g. a stop)")
+    elif level_ratio == 0:
+        parts.append("only at the lower drive levels (none at full drive)")
     elif math.isfinite(level_ratio):
         if level_ratio > 1.5:
             parts.append(f"relative error {level_ratio:.2f}x larger at full drive (grows with amplitude)")
