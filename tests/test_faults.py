@@ -22,6 +22,8 @@ NODES = [
     ("flaair_sim", "drive_node", "amplitude_v"),
     ("flaair_sensors", "frontend_node", "velocity_cutoff_hz"),
     ("flaair_tools", "recorder_node", "flush_period_s"),
+    ("flaair_control", "collision_monitor_node", "drive_frequency_hz"),
+    ("flaair_control", "dsa_controller_node", "drive_limit_v"),
 ]
 
 

@@ -509,6 +509,11 @@ def step(
     phi, psi, vs, vp = (np.empty(n) for _ in range(4))
     _run(x, zi, hist_s, hist_p, drive, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact, prep.params,
          prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
+    if not math.isfinite(float(np.add.reduce(x))):
+        # Only a drive far outside any actuator's range (kV and up) gets here: the nodes clamp
+        # to drive_limit_v before the model, so this is a caller's error, never a silent NaN.
+        raise ValueError(f"drive_v up to {np.abs(drive).max():.3g} V drove the plant model out of its range "
+                         f"(the simulation diverged); clamp the drive to the actuator's limit")
     if rng is not None:
         noise = rng.standard_normal((n, 2)) * model.noise.sensor_noise_v_rms
         vs += noise[:, 0]
