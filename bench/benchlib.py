@@ -46,4 +46,6 @@ def print_table(figures: list[Figure]) -> None:
 def write_json(figures: list[Figure], path: Path) -> None:
     """Write figures as JSON (a list of objects)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps([asdict(f) for f in figures], indent=2))
+    # numpy scalars (np.bool_ from a comparison, np.float64) are written as plain numbers
+    path.write_text(json.dumps([asdict(f) for f in figures], indent=2,
+                               default=lambda o: o.item() if hasattr(o, "item") else str(o)))
