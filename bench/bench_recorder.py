@@ -24,8 +24,8 @@ Throughput is counted over the window in which all four streams were flowing.
 
 Reading the graph scenario: on a loaded machine the realtime plant and drive fall behind and
 catch up in bursts; the plant then rejects gapped command blocks from /flaair/drive too (its
-log says so), i.e. the loss is not the recorder's alone. /clock is published 10 deep, so a
-burst longer than that is lost for any subscriber that is a moment late.
+log says so), i.e. the loss is not the recorder's alone. /clock is published CLOCK_DEPTH (1000) deep,
+as plant_node does.
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ from flaair_tools import bagio  # noqa: E402
 
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 BLOCK_TOPICS = ("/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state/truth")
-CLOCK_DEPTH = 10  # plant_node's /clock publisher queue (KEEP_LAST); the steady publisher does the same
+from flaair_sim.plant_node import CLOCK_DEPTH  # noqa: E402  (the plant's /clock queue; the steady publisher does the same)
 
 # Steady publisher: blocks like the graph's at `rate` msg/s per topic for `duration_s`; prints counts.
 STEADY_PUBLISHER = r"""
