@@ -30,6 +30,11 @@ def bools_to_field(values: np.ndarray) -> list[bool]:
     return np.asarray(values, dtype=bool).tolist()
 
 
+def stamp_ns_of_sample(index: int, sample_rate_hz: float) -> int:
+    """Header stamp (ns) of the block starting at sample `index`: its first sample's time."""
+    return int(round(index / sample_rate_hz * 1e9))
+
+
 def stamp_from_time_s(time_s: float) -> Time:
     """builtin_interfaces/Time for a time in seconds (sim or wall time)."""
     nanoseconds = int(round(time_s * 1e9))

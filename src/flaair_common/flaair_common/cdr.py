@@ -178,15 +178,15 @@ class FixedCodec:
                 names.append(name), formats.append(dtype), offsets.append(offset)
                 offset += dtype.itemsize
         self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset})
-        self.size = offset
-        self.template = np.zeros(1, dtype=self.dtype)
-        self.template["encapsulation"] = np.frombuffer(ENCAPSULATION, dtype="u1")
-        self.template["frame_len"] = len(frame)
-        self.template["frame"] = np.frombuffer(frame, dtype=f"S{len(frame)}").view("S1") if len(frame) else b""
+        # A record over zeroed bytes holding the constant parts (encapsulation, frame, counts):
+        # encode() fills the rest in place. (A structured array's copy() would leave the padding
+        # uninitialised, hence a view on a bytearray.)
+        self._record = np.frombuffer(bytearray(offset), dtype=self.dtype)
+        self._record["encapsulation"] = np.frombuffer(ENCAPSULATION, dtype="u1")
+        self._record["frame_len"] = len(frame)
+        self._record["frame"] = np.frombuffer(frame, dtype="S1")
         for count in self.counts:
-            self.template[count] = block_size
-        # A view on zeroed bytes: a structured array's copy() leaves the padding uninitialised.
-        self._record = np.frombuffer(bytearray(self.template.tobytes()), dtype=self.dtype)
+            self._record[count] = block_size
         self.fields = [name for name, _ in layout.fields]
         self._frame_len = len(frame)
 
@@ -202,7 +202,7 @@ class FixedCodec:
     def decode(self, data: bytes | memoryview):
         """As `decode`, indexable by field name and ``sec``/``nanosec``: a read-only record of the
         fixed layout when the message fits it (no copy), else the general decoder's dict."""
-        if len(data) >= self.size:
+        if len(data) >= self.dtype.itemsize:
             record = np.frombuffer(data, dtype=self.dtype, count=1)[0]
             if record["frame_len"] == self._frame_len and data[:4] == ENCAPSULATION and all(
                     record[count] == self.block_size for count in self.counts):

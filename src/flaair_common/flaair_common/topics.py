@@ -8,3 +8,5 @@ COLLISION_STATUS = "/flaair/collision/status"  # CollisionStatus, one per wingbe
 COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and clearance
 CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
 CLOCK = "/clock"
+
+FRAME_ID = "robot"  # header frame_id of the robot's block streams (the fixed-size CDR fast path expects it)

@@ -70,7 +70,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from flaair_common import cdr, topics
-from flaair_common.blocks import check_block
+from flaair_common.blocks import check_block, stamp_ns_of_sample
 from flaair_common.config import ConfigError, node_parameters
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
@@ -192,7 +192,7 @@ class DsaControllerNode(Node):
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None
         # Block streams travel as CDR bytes through flaair_common.cdr: rclpy's message conversion
         # costs about as much CPU as the transport at 2000 blocks/s.
-        self.wing_state_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, "robot")
+        self.wing_state_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID)
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         # One state per block: a block stream (deep queue), not a keep-the-last-few status topic.
@@ -355,7 +355,7 @@ class DsaControllerNode(Node):
             drive_v = drive_v * self.amplitude_scale
         self.safety, out = safety.step(self.safety, drive_v, t_start, self.fs_hz, self.safety_params)
         self._check_core_trip()
-        stamp_ns = int(round(t_start * 1e9))
+        stamp_ns = stamp_ns_of_sample(self.next_index, self.fs_hz)
         self.drive_pub.publish(self.drive_codec.encode(stamp_ns, {
             "sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index, "drive_v": out.drive_v}))
         t_publish = time.monotonic()
@@ -404,7 +404,7 @@ class DsaControllerNode(Node):
         self.get_logger().info(self.summary("run complete"))
 
     def publish_zero_block(self) -> None:
-        self.drive_pub.publish(self.drive_codec.encode(int(round(self.next_index / self.fs_hz * 1e9)), {
+        self.drive_pub.publish(self.drive_codec.encode(stamp_ns_of_sample(self.next_index, self.fs_hz), {
             "sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index, "drive_v": np.zeros(self.block_size)}))
         self.next_index += self.block_size
 

@@ -84,8 +84,8 @@ class FrontendNode(Node):
         self.publisher = self.create_publisher(WingStateBlock, topics.WING_STATE, BLOCK_STREAM)
         # CDR bytes in and out through flaair_common.cdr (rclpy's message conversion costs about
         # as much CPU as the transport at 2000 blocks/s); other block sizes take the general path.
-        self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, "robot")
-        self.output_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, "robot")
+        self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
+        self.output_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID)
         self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM, raw=True)
         delay = frontend.estimate_delay_s(self.params)
         self.get_logger().info(

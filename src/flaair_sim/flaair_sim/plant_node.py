@@ -36,7 +36,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from flaair_common import cdr, topics
-from flaair_common.blocks import check_block, stamp_from_time_s
+from flaair_common.blocks import check_block, stamp_from_time_s, stamp_ns_of_sample
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node, warn_counted
@@ -46,7 +46,6 @@ from flaair_sim.model import ModelError, with_effects
 from flaair_sim.model_io import load_model
 
 NODE_NAME = "plant_node"
-FRAME_ID = "robot"
 CLOCK_DEPTH = 1000  # /clock publisher history (KEEP_LAST, reliable)
 ARM_S = 0.05  # drive watchdog: armed after this much commanded signal time
 CONFIG_FILE = "flaair.yaml"
@@ -103,8 +102,8 @@ class PlantNode(Node):
         # Block streams travel as CDR bytes through flaair_common.cdr: rclpy's message conversion
         # would cost about as much CPU as the transport at 2000 blocks/s.
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
-        self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, FRAME_ID)
-        self.truth_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, FRAME_ID)
+        self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
+        self.truth_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID)
         self.all_valid = np.ones(self.block_size, dtype=bool)
         self.no_velocity = np.full(self.block_size, np.nan)
         self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_command, BLOCK_STREAM, raw=True)
@@ -112,7 +111,6 @@ class PlantNode(Node):
         self.last_command_wall = time.monotonic()
         self.driven = False          # last applied block not all zeros
         self.ring_down: tuple[float, int, int] | None = None   # (wall start, first index, end index)
-        self.watchdog_trips = 0
         self.commanded_samples = 0
         if self.p["mode"] == "realtime":
             self.wall_start_s = time.monotonic()
@@ -173,12 +171,11 @@ class PlantNode(Node):
             armed = self.commanded_samples >= ARM_S * self.fs_hz
             if not (armed and self.driven and silent_s > self.p["command_timeout_s"]):
                 return
-            self.watchdog_trips += 1
             n_ring = int(round(self.p["ring_down_s"] * self.fs_hz / self.block_size)) * self.block_size
             self.ring_down = (now, self.next_index, self.next_index + n_ring)
             self.driven = False
             self.get_logger().error(
-                f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.0f} ms (> command_timeout_s "
+                f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> command_timeout_s "
                 f"{self.p['command_timeout_s']:g} s) after block {self.next_index - self.block_size}, last drive not zero: "
                 f"drive zeroed, ringing down for {self.p['ring_down_s']:g} s")
         wall_start, first, end = self.ring_down
@@ -207,7 +204,7 @@ class PlantNode(Node):
             sigma = self.model.noise.sensor_noise_v_rms
             stroke_v = stroke_v + self.rng.normal(0.0, sigma, stroke_v.shape)
             pitch_v = pitch_v + self.rng.normal(0.0, sigma, pitch_v.shape)
-        stamp_ns = int(round(self.next_index / self.fs_hz * 1e9))
+        stamp_ns = stamp_ns_of_sample(self.next_index, self.fs_hz)
         sensor = {"sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index,
                   "stroke_sensor_v": stroke_v, "pitch_sensor_v": pitch_v}
         truth = {"sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index,

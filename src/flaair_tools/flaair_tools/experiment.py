@@ -111,8 +111,9 @@ def load_experiments() -> dict[str, ExperimentSpec]:
                                        runs=runs, nodes=tuple(entry.get("nodes", [])), plant=dict(entry.get("plant", {})),
                                        controller=bool(entry.get("controller", False)),
                                        rest_s=float(entry.get("rest_s", 0.0)))
-            if not (spec := out[name]).rest_s >= 0 or (spec.controller and spec.rest_s):
-                raise ValueError(f"rest_s must be >= 0 (and 0 for a controller experiment), got {spec.rest_s}")
+            rest_s = out[name].rest_s
+            if not rest_s >= 0 or (out[name].controller and rest_s):
+                raise ValueError(f"rest_s must be >= 0 (and 0 for a controller experiment), got {rest_s}")
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ConfigError(f"{path}: experiment '{name}' is malformed: {exc!r}") from None
     return out
