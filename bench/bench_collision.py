@@ -30,8 +30,8 @@ for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
 
 from flaair_control import collision as col  # noqa: E402
 from flaair_sim import plant  # noqa: E402
-from flaair_sim.model import with_effects  # noqa: E402
-from flaair_sim.model_io import load_model  # noqa: E402
+from flaair_model.model import with_effects  # noqa: E402
+from flaair_model.model_io import load_model  # noqa: E402
 
 FS = 20000.0
 BLOCK = 10

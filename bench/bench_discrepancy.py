@@ -27,7 +27,7 @@ import numpy as np
 from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 
 from flaair_common.runcsv import write_run
-from flaair_sim.model_io import load_model
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy_core import analyse

@@ -24,7 +24,7 @@ from scipy import signal
 from flaair_sensors import calibration, characterization
 from flaair_sensors import frontend as fe
 from flaair_sim.drive import chirp
-from flaair_sim.model_io import load_model
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
 
 FS = 20000.0

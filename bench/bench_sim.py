@@ -26,8 +26,8 @@ from benchlib import Figure, best_time_s, print_table, write_json
 
 from flaair_sim import plant
 from flaair_sim.drive import chirp
-from flaair_sim.model import Model, with_effects
-from flaair_sim.model_io import load_model
+from flaair_model.model import Model, with_effects
+from flaair_model.model_io import load_model
 
 FS_HZ = 20_000.0
 DURATION_S = 1.0
@@ -88,7 +88,7 @@ def cold_compile_s() -> float:
         "import time, numpy as np\n"
         "t = time.perf_counter()\n"
         "from flaair_sim import plant\n"
-        "from flaair_sim.model_io import load_model\n"
+        "from flaair_model.model_io import load_model\n"
         "m = load_model()\n"
         "plant.simulate(np.zeros(10), 20000.0, m)\n"
         "plant.simulate_batch(np.zeros(10), 20000.0, [m, m])\n"

@@ -12,6 +12,11 @@ VENV="$ROOT/.venv"
 FORCE="${1:-}"
 cd "$ROOT"
 
+# One setup at a time per checkout: a second caller waits for the first to finish.
+mkdir -p "$ROOT/log"
+exec 9>"$ROOT/log/.setup.lock"
+flock 9
+
 say() { printf '[setup] %s\n' "$*"; }
 hash_of() { sha256sum "$@" | sha256sum | cut -c1-16; }
 

@@ -13,8 +13,8 @@ import numpy as np
 def main() -> None:
     start = time.perf_counter()
     from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.model import with_effects
-    from flaair_sim.model_io import load_model
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
     from flaair_sim.plant import initial_state, simulate, simulate_batch, step
 
     fs_hz = 20000.0

@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from flaair_common.config import node_parameters
+from flaair_model.config import node_parameters
 from flaair_tools import bagio, import_runs
 from rosproc import FLAAIR, isolated_env, run
 

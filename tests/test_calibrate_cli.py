@@ -25,8 +25,8 @@ def _lab_csv(path: Path, model, seed: int, amplitude_v: float = 100.0) -> None:
 
 @pytest.fixture(scope="module")
 def imported_bag(tmp_path_factory) -> Path:
-    from flaair_sim.model import with_effects
-    from flaair_sim.model_io import load_model
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
 
     tmp = tmp_path_factory.mktemp("cal")
     model = with_effects(load_model(), {"strain_transfer_loss": {"efficiency": 0.5, "channel": "pitch"},
@@ -53,7 +53,7 @@ def test_calibrate_recovers_hidden_gain_and_lag(imported_bag: Path, tmp_path: Pa
 
 
 def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path: Path) -> None:
-    from flaair_common.config import load_yaml
+    from flaair_model.config import load_yaml
     from flaair_sensors.frontend import params_from_calibration
 
     assert run([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path)], isolated_env(), 120).returncode == 0

@@ -144,8 +144,8 @@ def test_monitor_parameters_are_validated_by_name():
 
 # --------------------------------------------------------------------------- on the simulated robot
 
-sim_model_io = pytest.importorskip("flaair_sim.model_io")
-sim_model = pytest.importorskip("flaair_sim.model")
+sim_model_io = pytest.importorskip("flaair_model.model_io")
+sim_model = pytest.importorskip("flaair_model.model")
 plant_mod = pytest.importorskip("flaair_sim.plant")
 
 LIMIT_DEG = 20.0   # obstacle below the 28.3 deg free stroke at 100 Hz, 75 V

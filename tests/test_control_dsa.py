@@ -142,7 +142,7 @@ def test_bad_schedule_is_named():
 
 # --------------------------------------------------------------------------- on the simulated robot
 
-sim_model_io = pytest.importorskip("flaair_sim.model_io")
+sim_model_io = pytest.importorskip("flaair_model.model_io")
 plant_mod = pytest.importorskip("flaair_sim.plant")
 
 

@@ -101,7 +101,7 @@ def test_bad_parameters_are_named():
 
 # --------------------------------------------------------------------------- simulated loop
 
-sim_model_io = pytest.importorskip("flaair_sim.model_io")
+sim_model_io = pytest.importorskip("flaair_model.model_io")
 plant_mod = pytest.importorskip("flaair_sim.plant")
 
 

@@ -227,8 +227,8 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     from flaair_control.collision_monitor_node import CollisionMonitorNode
     from flaair_msgs.msg import DriveCommandBlock, WingStateBlock
     from flaair_sensors import frontend
-    from flaair_sim.model import with_effects
-    from flaair_sim.model_io import load_model
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
     from flaair_sim.plant import simulate
 
     model = load_model()

@@ -93,9 +93,9 @@ def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
     over 0.5 s, self-excited slightly above the 140 Hz stroke resonance, steady amplitude."""
     from rosproc import ros_processes
 
-    from flaair_common.config import node_parameters
+    from flaair_model.config import node_parameters
     from flaair_control.transition_figure import plot_transition, predicted_limit_cycle, run_closed_loop, transition_record
-    from flaair_sim.model_io import load_model
+    from flaair_model.model_io import load_model
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
     with ros_processes() as procs:

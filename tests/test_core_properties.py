@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 
 from flaair_control import collision, dsa
 from flaair_sim import drive, plant
-from flaair_sim.model_io import load_model
+from flaair_model.model_io import load_model
 
 FS_HZ = 20000.0
 LIMIT_V = 150.0

@@ -18,8 +18,8 @@ import pytest
 
 from flaair_common.runcsv import write_run
 from flaair_sim.drive import chirp
-from flaair_sim.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
-from flaair_sim.model_io import load_model, save_model
+from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
+from flaair_model.model_io import load_model, save_model
 from flaair_sim.plant import simulate
 from flaair_tools import discrepancy, discrepancy_core as dc
 from flaair_tools.discrepancy_datasets import (

@@ -48,8 +48,8 @@ def test_analyze_numbers_follow_the_bag_not_the_simulator(tmp_path: Path) -> Non
     """An imported lab bag with a hidden 0.25 hinge strain-transfer efficiency: the report sees it."""
     from flaair_common.runcsv import write_run
     from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.model import with_effects
-    from flaair_sim.model_io import load_model
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
     from flaair_sim.plant import synthesize_measured_run
     from flaair_tools import bagio
 

@@ -9,8 +9,8 @@ import pytest
 from flaair_sensors import frontend as fe
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_sim.drive import chirp
-from flaair_sim.model import with_effects
-from flaair_sim.model_io import load_model
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, synthesize_measured_run
 
 FS = 20000.0

@@ -10,8 +10,8 @@ from scipy.optimize import brentq
 from flaair_sensors import characterization as ch
 from flaair_sensors import frontend as fe
 from flaair_sim.drive import chirp as chirp_drive, stepped_sine
-from flaair_sim.model import with_effects
-from flaair_sim.model_io import load_model
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
 
 FS = 20000.0

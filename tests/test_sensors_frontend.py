@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from flaair_sensors import frontend as fe
 from flaair_sensors.characterization import sine_phasor
-from flaair_sim.model_io import load_model
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
 
 FS = 20000.0

@@ -13,7 +13,7 @@ FS_HZ = 20000.0
 def test_frontend_node_matches_offline_core_and_tracks_truth() -> None:
     from flaair_sensors import frontend
     from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.model_io import load_model
+    from flaair_model.model_io import load_model
     from flaair_sim.plant import simulate
 
     n_blocks = 400

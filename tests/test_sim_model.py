@@ -1,4 +1,4 @@
-"""flaair_sim.model and flaair_sim.model_io: validation, effects, gains, YAML round trip."""
+"""flaair_model.model and flaair_model.model_io: validation, effects, gains, YAML round trip."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from flaair_sim.model import (
+from flaair_model.model import (
     EFFECT_NAMES,
     Collision,
     Model,
@@ -18,7 +18,7 @@ from flaair_sim.model import (
     with_effects,
     without_effects,
 )
-from flaair_sim.model_io import default_model_path, load_model, model_from_dict, model_to_dict, save_model
+from flaair_model.model_io import default_model_path, load_model, model_from_dict, model_to_dict, save_model
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "model.yaml"
@@ -45,7 +45,7 @@ def test_sensor_gains_closed_form(model):
     assert model.stroke_gain_deg_per_v == pytest.approx(25.39, abs=0.005)
     assert model.pitch_gain_deg_per_v == pytest.approx(24.87, abs=0.005)
     assert model.stroke_polarity == -1 and model.pitch_polarity == -1
-    assert model.sensors.pitch_volts_per_rad == model.pitch_volts_per_rad
+    assert model.sensors.pitch_volts_per_rad() == model.pitch_volts_per_rad
     assert model.sensors.stroke_volts_per_rad(model.plant.transmission_ratio_rad_per_m) == model.stroke_volts_per_rad
 
 

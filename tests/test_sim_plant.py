@@ -9,8 +9,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from flaair_sim.drive import chirp, sine, stepped_sine
-from flaair_sim.model import Model, ModelError, with_effects
-from flaair_sim.model_io import load_model
+from flaair_model.model import Model, ModelError, with_effects
+from flaair_model.model_io import load_model
 from flaair_sim.plant import (
     PlantState,
     SimOutput,

@@ -12,7 +12,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 
-from flaair_common.config import ConfigError, node_parameters, shared_parameter_names
+from flaair_model.config import ConfigError, node_parameters, shared_parameter_names
 
 _TYPES = {
     float: ParameterType.PARAMETER_DOUBLE,

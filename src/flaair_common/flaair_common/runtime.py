@@ -10,7 +10,7 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
-from flaair_common.config import node_parameters
+from flaair_model.config import node_parameters
 from flaair_common.params import ParameterError, ParamSpec
 
 

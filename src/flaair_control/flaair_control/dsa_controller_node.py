@@ -71,7 +71,7 @@ from rclpy.node import Node
 
 from flaair_common import cdr, topics
 from flaair_common.blocks import check_block, stamp_ns_of_sample
-from flaair_common.config import ConfigError, node_parameters
+from flaair_model.config import ConfigError, node_parameters
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node, warn_counted
@@ -148,8 +148,8 @@ class DsaControllerNode(Node):
         self.block_size = p["block_size"]
         self.in_flight = p["blocks_in_flight"]
         try:
-            from flaair_sim.model import ModelError
-            from flaair_sim.model_io import load_model
+            from flaair_model.model import ModelError
+            from flaair_model.model_io import load_model
 
             try:
                 model = load_model(p["model_file"] or None)

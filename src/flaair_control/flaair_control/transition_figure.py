@@ -139,7 +139,7 @@ def _repo_root() -> Path:
     env = os.environ.get("FLAAIR_ROOT")
     if env:
         return Path(env)
-    from flaair_common.config import config_dir
+    from flaair_model.config import config_dir
 
     return config_dir().parent
 
@@ -147,7 +147,7 @@ def _repo_root() -> Path:
 def predicted_limit_cycle(controller: dict, sample_rate_hz: float = 20000.0, block_size: int = 10) -> tuple[float, float]:
     """Describing-function limit cycle (Hz, deg) of the configured loop (flaair_control.hopf)."""
     from flaair_control import dsa, hopf
-    from flaair_sim.model_io import load_model
+    from flaair_model.model_io import load_model
 
     from flaair_control.dsa_controller_node import velocity_delay_from_frontend
 
@@ -173,8 +173,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller-state", type=Path, help="echo of /flaair/controller/state (JSON lines)")
     parser.add_argument("-o", "--output", type=Path, default=Path("out/transition/transition.png"))
     args = parser.parse_args(argv)
-    from flaair_common.config import node_parameters
-    from flaair_sim.model_io import load_model
+    from flaair_model.config import node_parameters
+    from flaair_model.model_io import load_model
 
     shared = node_parameters("flaair.yaml", "dsa_controller_node")
     fs, block = float(shared["sample_rate_hz"]), int(shared["block_size"])

@@ -195,7 +195,7 @@ def params_from_model(model: Any, fs_hz: float, **overrides: Any) -> FrontendPar
     Parameters
     ----------
     model
-        A ``flaair_sim`` model: uses its signed ``stroke_volts_per_rad`` and
+        A ``flaair_model`` model: uses its signed ``stroke_volts_per_rad`` and
         ``pitch_volts_per_rad`` (nominal, effects not included) and
         ``sensors.reference_voltage_v``.
     fs_hz

@@ -22,14 +22,14 @@ from rclpy.node import Node
 
 from flaair_common import cdr, topics
 from flaair_common.blocks import check_block
-from flaair_common.config import ConfigError, load_yaml
+from flaair_model.config import ConfigError, load_yaml
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node, warn_counted
 from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
 from flaair_sensors import frontend
-from flaair_sim.model import ModelError
-from flaair_sim.model_io import load_model
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model
 
 NODE_NAME = "frontend_node"
 CONFIG_FILE = "flaair.yaml"

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from flaair_common.runcsv import RunFileError, read_run, write_run
-from flaair_sim.model import ModelError
-from flaair_sim.model_io import load_model
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, synthesize_measured_run
 
 

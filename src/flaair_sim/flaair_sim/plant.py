@@ -38,7 +38,7 @@ import numpy as np
 from numba import njit, prange
 from scipy.signal import butter
 
-from .model import Model, ModelError
+from flaair_model.model import Model, ModelError
 
 __all__ = [
     "SimOutput",

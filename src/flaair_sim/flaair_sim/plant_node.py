@@ -42,8 +42,8 @@ from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim import plant
-from flaair_sim.model import ModelError, with_effects
-from flaair_sim.model_io import load_model
+from flaair_model.model import ModelError, with_effects
+from flaair_model.model_io import load_model
 
 NODE_NAME = "plant_node"
 CLOCK_DEPTH = 1000  # /clock publisher history (KEEP_LAST, reliable)

@@ -186,7 +186,7 @@ def analyze_transition(bag: Path, figure: Path, final_window_s: float = 0.5) -> 
     """
     from flaair_control import transition as tr
     from flaair_control.transition_figure import TransitionRecord, plot_transition
-    from flaair_sim.model_io import load_model
+    from flaair_model.model_io import load_model
 
     wing = bagio.read_blocks(bag, topics.WING_STATE)
     fs = float(wing.sample_rate_hz)
@@ -233,7 +233,7 @@ def analyze_bag(bag: Path, out_dir: Path, reference_v: float) -> dict[str, Any]:
     else:
         # Lab data carries no live estimate: run the same front-end core offline on the voltages.
         from flaair_sensors import frontend
-        from flaair_sim.model_io import load_model
+        from flaair_model.model_io import load_model
 
         model = load_model()
         for run in runs:
@@ -334,7 +334,7 @@ def write_html(report: dict[str, Any], out_dir: Path) -> Path:
 
 def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True) -> dict[str, Any]:
     """Analyse `bags` into out_dir (report.json, report.html, PNGs); return the report."""
-    from flaair_sim.model_io import load_model
+    from flaair_model.model_io import load_model
 
     out_dir.mkdir(parents=True, exist_ok=True)
     reference_v = load_model().sensors.reference_voltage_v

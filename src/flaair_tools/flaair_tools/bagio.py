@@ -53,7 +53,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 from rosbags.typesys.store import Typestore
 
-from flaair_common.config import ConfigError, config_dir, node_parameters
+from flaair_model.config import ConfigError, config_dir, node_parameters
 
 BAG_VERSION = 9  # rosbag2 metadata version written by ROS 2 Jazzy
 ROS_DISTRO = "jazzy"

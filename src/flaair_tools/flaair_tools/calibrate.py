@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from flaair_sensors.calibration import CalibrationError, calibrate
-from flaair_sim.model_io import load_model
+from flaair_model.model_io import load_model
 from flaair_tools import bagio
 from flaair_tools.runs import load_runs
 

@@ -35,8 +35,8 @@ import numpy as np
 import yaml
 
 from flaair_common.runcsv import RunFileError, read_run
-from flaair_sim.model import Model, ModelError
-from flaair_sim.model_io import load_model, save_model
+from flaair_model.model import Model, ModelError
+from flaair_model.model_io import load_model, save_model
 
 from .discrepancy_core import DiscrepancyInputError, Run, Settings, analyse
 from .discrepancy_report import write_report, write_validation

@@ -101,7 +101,7 @@ import numpy as np
 from scipy import optimize, signal, stats
 
 from flaair_sensors.characterization import frequency_track_from_drive
-from flaair_sim.model import Model, ModelError, with_effects
+from flaair_model.model import Model, ModelError, with_effects
 from flaair_sim.plant import SimOutput, simulate, simulate_batch
 
 __all__ = [

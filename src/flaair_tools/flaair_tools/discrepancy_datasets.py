@@ -48,7 +48,7 @@ import numpy as np
 from scipy import signal
 
 from flaair_sim.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
-from flaair_sim.model import Model, with_effects
+from flaair_model.model import Model, with_effects
 from flaair_sim.plant import synthesize_measured_run
 
 from .discrepancy_core import CHANNELS, DiscrepancyResult, Run

@@ -33,7 +33,7 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
-from flaair_common.config import ConfigError, config_dir, load_yaml, node_parameters
+from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
 from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
@@ -86,8 +86,8 @@ def robot_effects() -> dict[str, dict[str, Any]]:
 
 def write_robot_model(path: Path, effects: dict[str, dict[str, Any]]) -> Path:
     """The bench robot's model file: config/model.yaml with `effects` added."""
-    from flaair_sim.model import with_effects
-    from flaair_sim.model_io import load_model, save_model
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model, save_model
 
     save_model(with_effects(load_model(), effects), path)
     return path

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from flaair_common import topics
-from flaair_common.config import ConfigError, node_parameters
+from flaair_model.config import ConfigError, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
 from flaair_tools import bagio

@@ -26,7 +26,7 @@ from builtin_interfaces.msg import Time
 from rosgraph_msgs.msg import Clock
 
 from flaair_common import topics as topic_names
-from flaair_common.config import ConfigError, node_parameters
+from flaair_model.config import ConfigError, node_parameters
 from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM
 from flaair_tools import bagio

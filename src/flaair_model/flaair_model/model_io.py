@@ -1,18 +1,18 @@
-"""YAML I/O for `flaair_sim.model.Model` (the layout of config/model.yaml).
+"""YAML I/O for `flaair_model.model.Model` (the layout of config/model.yaml).
 
 `model_to_dict` and `model_from_dict` round-trip exactly; unknown sections or keys are refused
 with a `ModelError` that names them.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import fields
 from pathlib import Path
 from typing import Any, Mapping, Union
 
 import yaml
 
-from flaair_sensors.pvdf import PvdfMaterial, SensorBeam
+from flaair_model.config import CONFIG_DIR_ENV, ConfigError, config_dir
+from flaair_model.pvdf import PvdfMaterial, SensorBeam
 
 from .model import (
     EFFECT_TYPES,
@@ -26,31 +26,26 @@ from .model import (
 
 __all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict", "save_model"]
 
-CONFIG_DIR_ENV = "FLAAIR_CONFIG_DIR"
 _MODEL_FILE = "model.yaml"
 _SECTIONS = ("plant", "sensors", "noise", "effects")
 _SENSOR_KEYS = ("reference_voltage_v", "pvdf", "stroke", "pitch")
 
 
 def default_model_path() -> Path:
-    """`$FLAAIR_CONFIG_DIR/model.yaml`, else the first `config/model.yaml` walking up from here.
+    """config/model.yaml in the one config directory (`flaair_model.config.config_dir`).
 
     Raises
     ------
     FileNotFoundError
-        If neither exists.
+        If that directory has no model.yaml.
     """
-    env = os.environ.get(CONFIG_DIR_ENV)
-    if env:
-        path = Path(env) / _MODEL_FILE
-        if not path.is_file():
-            raise FileNotFoundError(f"{CONFIG_DIR_ENV}={env} has no {_MODEL_FILE}")
-        return path
-    for parent in Path(__file__).resolve().parents:
-        path = parent / "config" / _MODEL_FILE
-        if path.is_file():
-            return path
-    raise FileNotFoundError(f"no config/{_MODEL_FILE} above {Path(__file__).resolve()}; set {CONFIG_DIR_ENV}")
+    try:
+        path = config_dir() / _MODEL_FILE
+    except ConfigError as exc:
+        raise FileNotFoundError(str(exc)) from exc
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no {_MODEL_FILE} there; set {CONFIG_DIR_ENV}")
+    return path
 
 
 def _mapping(where: str, value: Any) -> Mapping[str, Any]:
@@ -154,4 +149,4 @@ def save_model(m: Model, path: Union[str, Path]) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(model_to_dict(m), sort_keys=False, default_flow_style=False)
-    path.write_text("# FLAAIR plant and sensor model (flaair_sim.model_io.save_model)\n" + text, encoding="utf-8")
+    path.write_text("# FLAAIR plant and sensor model (flaair_model.model_io.save_model)\n" + text, encoding="utf-8")

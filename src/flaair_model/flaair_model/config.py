@@ -3,7 +3,7 @@
 `config/` in the repository is the single source of truth for every tunable number.
 Installed packages find it through FLAAIR_CONFIG_DIR (set by bin/flaair and
 scripts/in_env.sh), then through the source tree (symlink install), then through
-share/flaair_common/config (a plain `colcon build` on a stock ROS install).
+share/flaair_model/config (a plain `colcon build` on a stock ROS install).
 """
 from __future__ import annotations
 
@@ -18,9 +18,12 @@ class ConfigError(ValueError):
     """A configuration file is missing or malformed; the message names the file and key."""
 
 
+CONFIG_DIR_ENV = "FLAAIR_CONFIG_DIR"
+
+
 def config_dir() -> Path:
-    """Return the directory holding FLAAIR's YAML configuration."""
-    env = os.environ.get("FLAAIR_CONFIG_DIR")
+    """Return the directory holding FLAAIR's YAML configuration (the one locator)."""
+    env = os.environ.get(CONFIG_DIR_ENV)
     if env:
         return Path(env)
     here = Path(__file__).resolve()
@@ -30,7 +33,7 @@ def config_dir() -> Path:
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory("flaair_common")) / "config"
+        return Path(get_package_share_directory("flaair_model")) / "config"
     except Exception as exc:  # noqa: BLE001 - any lookup failure means "not found"
         raise ConfigError("cannot find FLAAIR's config directory; set FLAAIR_CONFIG_DIR") from exc
 

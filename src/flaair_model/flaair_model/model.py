@@ -11,7 +11,7 @@ import numbers
 from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import Any, Mapping, Union
 
-from flaair_sensors.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
+from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
 
 __all__ = [
     "EFFECT_NAMES",
@@ -164,9 +164,11 @@ class SensorParams:
         """
         return stroke_volts_per_rad(self.pvdf, self.stroke, transmission_ratio_rad_per_m)
 
-    @property
     def pitch_volts_per_rad(self) -> float:
-        """Signed hinge-sensor output per radian of pitch."""
+        """Signed hinge-sensor output per radian of pitch.
+
+        Use `Model.pitch_volts_per_rad` when a whole model is at hand.
+        """
         return pitch_volts_per_rad(self.pvdf, self.pitch)
 
 
@@ -404,7 +406,7 @@ class Model:
     @property
     def pitch_volts_per_rad(self) -> float:
         """Nominal signed pitch-sensor gain dV_p/dpsi (effects not included)."""
-        return self.sensors.pitch_volts_per_rad
+        return self.sensors.pitch_volts_per_rad()
 
     @property
     def stroke_gain_deg_per_v(self) -> float:

@@ -1,0 +1,10 @@
+"""FLAAIR's bottom package: the nominal plant and sensor model, its effects, and its files.
+
+Pure Python (numpy, PyYAML). Everything else (sim, sensors, control, tools) depends on it;
+it depends on nothing of FLAAIR's.
+
+- `pvdf`: the composite-beam PVDF charge model (paper eqs. charge, strain, chargeamp).
+- `model`: frozen parameter dataclasses and the effect registry (`EFFECT_TYPES`).
+- `model_io`: config/model.yaml <-> `Model`.
+- `config`: the one locator of config/ and the ROS parameter-file reader.
+"""
