@@ -70,7 +70,7 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
         if not present and t0 >= t_in and last_phi < 0.5 * limit:
             present = True
         drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * (t0 + np.arange(BLOCK) / FS))
-        state, out = plant.step(state, drive, FS, hit if present else model, rng=rng)
+        state, out = plant.step(state, plant.PlantInputs(drive, rng), plant.PlantStepParams(hit if present else model, FS))
         last_phi = out.stroke_rad[-1]
         if present and strike is None and np.any(out.stroke_rad >= limit):
             strike = t0 + np.argmax(out.stroke_rad >= limit) / FS

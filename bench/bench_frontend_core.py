@@ -55,13 +55,13 @@ def main() -> None:
 
     # --- step() on 10-sample blocks: latency distribution over 2 s of data (4000 blocks).
     state = fe.initial_state(params, sv[0], pv[0])
-    fe.step(state, blocks_s[0], blocks_p[0], params)  # warm the filter-design cache
+    fe.step(state, fe.FrontendInputs(blocks_s[0], blocks_p[0]), params)  # warm the filter-design cache
     lat = np.empty(4000)
     cpu = np.empty(4000)
     for i in range(lat.size):
         c0 = time.thread_time()
         t0 = time.perf_counter()
-        state, _ = fe.step(state, blocks_s[i], blocks_p[i], params)
+        state, _ = fe.step(state, fe.FrontendInputs(blocks_s[i], blocks_p[i]), params)
         lat[i] = time.perf_counter() - t0
         cpu[i] = time.thread_time() - c0
     p50, p99 = np.percentile(lat, [50, 99])
@@ -70,7 +70,7 @@ def main() -> None:
     def run_blocks() -> None:
         st = fe.initial_state(params, sv[0], pv[0])
         for i in range(2000):
-            st, _ = fe.step(st, blocks_s[i], blocks_p[i], params)
+            st, _ = fe.step(st, fe.FrontendInputs(blocks_s[i], blocks_p[i]), params)
 
     t_blocks = best_time_s(run_blocks)
     step_rate = 2000 * BLOCK / t_blocks

@@ -208,7 +208,7 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
         if present and t0 >= t_out:
             present = False
         drive = amplitude_v * np.sin(2 * np.pi * f * (t0 + np.arange(BLOCK) / FS))
-        state, out = plant_mod.step(state, drive, FS, hit if present else model, rng=rng)
+        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng), plant_mod.PlantStepParams(hit if present else model, FS))
         last_phi = out.stroke_rad[-1]
         if present and first_strike is None and np.any(out.stroke_rad >= limit):
             first_strike = t0 + np.argmax(out.stroke_rad >= limit) / FS

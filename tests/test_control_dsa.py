@@ -165,7 +165,7 @@ def test_sync_to_async_transition_on_the_simulated_robot():
     prev = 0.0
     stroke = []
     for k in range(int(1.6 * FS / BLOCK)):
-        state, out = plant_mod.step(state, drive, FS, model, rng=rng)       # sensor noise on
+        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng), plant_mod.PlantStepParams(model, FS))       # sensor noise on
         phi = (out.stroke_sensor_v - vref) / vpr                              # sensor-derived stroke
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]

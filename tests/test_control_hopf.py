@@ -129,7 +129,7 @@ def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float =
     prev = 0.0
     out = []
     for k in range(n_blocks):
-        state, sim = plant_mod.step(state, drive, FS, model)
+        state, sim = plant_mod.step(state, plant_mod.PlantInputs(drive), plant_mod.PlantStepParams(model, FS))
         phi = sim.stroke_rad
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]

@@ -35,7 +35,7 @@ def blocks(bound: float, max_blocks: int = 6):
 def test_plant_step_in_the_actuator_range_stays_finite(sequence) -> None:
     state = plant.initial_state(MODEL, FS_HZ)
     for drive_v in sequence:
-        state, out = plant.step(state, drive_v, FS_HZ, MODEL)
+        state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))
         for name in ("stroke_rad", "pitch_rad", "stroke_sensor_v", "pitch_sensor_v"):
             assert np.isfinite(getattr(out, name)).all(), name
 
@@ -47,7 +47,7 @@ def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
     state = plant.initial_state(MODEL, FS_HZ)
     for drive_v in sequence:
         try:
-            state, out = plant.step(state, drive_v, FS_HZ, MODEL)
+            state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))
         except ValueError as exc:
             assert "drive" in str(exc)
             return

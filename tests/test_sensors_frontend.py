@@ -109,15 +109,15 @@ def test_block_stepping_equals_whole_record(params):
     sv[rng.integers(0, sv.size, 30)] = np.nan
     pv[rng.integers(0, pv.size, 10)] = np.inf
     state0 = fe.initial_state(p, 1.25, 1.26)
-    whole = fe.step(state0, sv, pv, p)[1]
+    whole = fe.step(state0, fe.FrontendInputs(sv, pv), p)[1]
     for sizes in (np.full(601, 10), rng.integers(0, 25, 2000)):
         state, parts, start = state0, [], 0
         for size in sizes:
             stop = min(start + int(size), sv.size)
-            state, out = fe.step(state, sv[start:stop], pv[start:stop], p)
+            state, out = fe.step(state, fe.FrontendInputs(sv[start:stop], pv[start:stop]), p)
             parts.append(out)
             start = stop
-        state, out = fe.step(state, sv[start:], pv[start:], p)
+        state, out = fe.step(state, fe.FrontendInputs(sv[start:], pv[start:]), p)
         parts.append(out)
         for i, name in enumerate(fe.WingEstimate._fields):
             np.testing.assert_array_equal(np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
@@ -141,7 +141,7 @@ def test_block_partition_property(params, sizes, bad, lag):
     state, parts, start = state0, [], 0
     for size in sizes + [sv.size]:
         stop = min(start + size, sv.size)
-        state, out = fe.step(state, sv[start:stop], pv[start:stop], p)
+        state, out = fe.step(state, fe.FrontendInputs(sv[start:stop], pv[start:stop]), p)
         parts.append(out)
         start = stop
     for i, name in enumerate(fe.WingEstimate._fields):
@@ -159,7 +159,7 @@ def test_nan_and_inf_never_valid_never_in_state(params):
     bad[idx[:10]] = np.inf
     bad[idx[10:15]] = -np.inf
     bad[5000:5100] = np.nan  # a long gap
-    state, est = fe.step(fe.initial_state(params), bad, bad, params)
+    state, est = fe.step(fe.initial_state(params), fe.FrontendInputs(bad, bad), params)
     unusable = ~np.isfinite(bad)
     assert not est.stroke_valid[unusable].any() and not est.pitch_valid[unusable].any()
     assert np.isnan(est.stroke_rad[unusable]).all() and np.isnan(est.stroke_velocity_rad_s[unusable]).all()
@@ -269,4 +269,4 @@ def test_bad_parameters_and_inputs_raise(params):
     with pytest.raises(ValueError, match="rail_low_v"):
         fe.with_overrides(params, rail_low_v=3.0, rail_high_v=1.0)
     with pytest.raises(ValueError, match="same length"):
-        fe.step(fe.initial_state(params), np.zeros(3), np.zeros(4), params)
+        fe.step(fe.initial_state(params), fe.FrontendInputs(np.zeros(3), np.zeros(4)), params)

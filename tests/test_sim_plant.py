@@ -12,7 +12,9 @@ from flaair_sim.drive import chirp, sine, stepped_sine
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.plant import (
+    PlantInputs,
     PlantState,
+    PlantStepParams,
     SimOutput,
     initial_state,
     n_substeps,
@@ -350,7 +352,7 @@ def test_block_stepping_equals_whole_record(model, drive):
     start = 0
     while start < DRIVE_N:
         size = int(rng_blocks.choice([0, 1, 2, 17, 100, 333]))
-        state, out = step(state, drive[start : start + size], FS_HZ, m, rng=noise_rng)
+        state, out = step(state, PlantInputs(drive[start : start + size], noise_rng), PlantStepParams(m, FS_HZ))
         parts.append(out)
         start += size
     assert state.sample_index == DRIVE_N
@@ -361,20 +363,20 @@ def test_block_stepping_equals_whole_record(model, drive):
 def test_state_is_immutable_and_checked(model):
     state = initial_state(model, FS_HZ)
     assert isinstance(state, PlantState)
-    new_state, _ = step(state, np.full(10, 50.0), FS_HZ, model)
+    new_state, _ = step(state, PlantInputs(np.full(10, 50.0)), PlantStepParams(model, FS_HZ))
     assert np.all(state.mechanical == 0) and np.any(new_state.mechanical != 0)
     with pytest.raises(ValueError):
         new_state.mechanical[0] = 1.0
     with pytest.raises(ValueError, match="fs_hz"):
-        step(state, np.zeros(4), 10_000.0, model)
+        step(state, PlantInputs(np.zeros(4)), PlantStepParams(model, 10_000.0))
     with pytest.raises(ValueError, match="drive_v"):
-        step(state, np.array([0.0, np.nan]), FS_HZ, model)
+        step(state, PlantInputs(np.array([0.0, np.nan])), PlantStepParams(model, FS_HZ))
 
 
 def test_model_may_change_between_blocks(model, drive):
     delayed = with_effects(model, {"sensor_delay": {"delay_s": 4 / FS_HZ}})
-    state, first = step(initial_state(model, FS_HZ), drive[:1000], FS_HZ, model)
-    state, second = step(state, drive[1000:2000], FS_HZ, delayed)
+    state, first = step(initial_state(model, FS_HZ), PlantInputs(drive[:1000]), PlantStepParams(model, FS_HZ))
+    state, second = step(state, PlantInputs(drive[1000:2000]), PlantStepParams(delayed, FS_HZ))
     whole = simulate(drive[:2000], FS_HZ, model)
     assert np.array_equal(second.stroke_rad, whole.stroke_rad[1000:])
     # the new delay line starts from the recent history at rest level (zeros)

@@ -482,20 +482,22 @@ def _channel(
     return theta, drift_zi, lead_zi
 
 
-def step(
-    state: FrontendState,
-    stroke_sensor_v: np.ndarray,
-    pitch_sensor_v: np.ndarray,
-    params: FrontendParams,
-) -> tuple[FrontendState, WingEstimate]:
+class FrontendInputs(NamedTuple):
+    """One block of charge-amplifier voltages (1-D, same length; may hold NaN/inf) [V]."""
+
+    stroke_sensor_v: np.ndarray
+    pitch_sensor_v: np.ndarray
+
+
+def step(state: FrontendState, inputs: FrontendInputs, params: FrontendParams) -> tuple[FrontendState, WingEstimate]:
     """Advance the front end by one block of samples.
 
     Parameters
     ----------
     state
         State after the previous block (``initial_state`` for the first).
-    stroke_sensor_v, pitch_sensor_v
-        1-D blocks of charge-amplifier voltages (same length; may hold NaN/inf).
+    inputs
+        The block's stroke and pitch sensor voltages.
     params
         Front-end parameters.
 
@@ -505,8 +507,8 @@ def step(
         New state; angles (rad), stroke velocity (rad/s) and validity flags. Unusable input
         samples give NaN outputs and ``valid=False``.
     """
-    sv = np.asarray(stroke_sensor_v, dtype=float).reshape(-1)
-    pv = np.asarray(pitch_sensor_v, dtype=float).reshape(-1)
+    sv = np.asarray(inputs.stroke_sensor_v, dtype=float).reshape(-1)
+    pv = np.asarray(inputs.pitch_sensor_v, dtype=float).reshape(-1)
     if sv.shape != pv.shape:
         raise FrontendError(
             f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and {pv.size}"
@@ -568,7 +570,7 @@ def estimate(
     """Whole-record front end: ``step`` over the record from ``state`` (default ``initial_state``)."""
     if state is None:
         state = initial_state(params)
-    return step(state, stroke_sensor_v, pitch_sensor_v, params)[1]
+    return step(state, FrontendInputs(stroke_sensor_v, pitch_sensor_v), params)[1]
 
 
 def with_overrides(params: FrontendParams, **overrides: Any) -> FrontendParams:

@@ -117,7 +117,7 @@ class FrontendNode(Node):
                 if check.kind != "gap":
                     return
         self.expected_index = first + len(stroke_v)
-        self.state, estimate = frontend.step(self.state, stroke_v, pitch_v, self.params)
+        self.state, estimate = frontend.step(self.state, frontend.FrontendInputs(stroke_v, pitch_v), self.params)
         out = {"sample_rate_hz": rate_hz, "first_sample_index": first, "source": WingStateBlock.SOURCE_SENSOR_ESTIMATE,
                "stroke_deg": np.degrees(estimate.stroke_rad), "pitch_deg": np.degrees(estimate.pitch_rad),
                "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),

@@ -49,6 +49,8 @@ __all__ = [
     "simulate_batch",
     "synthesize_measured_run",
     "n_substeps",
+    "simulate_batch_from",
+    "sensor_chain",
 ]
 
 # Largest (fastest linear rate) x (RK4 substep) allowed: a numerical-method setting, not a
@@ -467,34 +469,44 @@ def initial_state(model: Model, fs_hz: float) -> PlantState:
     )
 
 
-def step(
-    state: PlantState,
-    drive_v_block: np.ndarray,
-    fs_hz: float,
-    model: Model,
-    *,
-    rng: Optional[np.random.Generator] = None,
-) -> tuple[PlantState, SimOutput]:
+class PlantInputs(NamedTuple):
+    """One block of plant inputs.
+
+    drive_v: drive voltage per sample (V, bias removed), held over each sample period.
+    noise_rng: if given, sensor-voltage noise `model.noise.sensor_noise_v_rms` is added, drawn
+    as noise_rng.standard_normal((n, 2)) so that the draw does not depend on the block split.
+    """
+
+    drive_v: np.ndarray
+    noise_rng: Optional[np.random.Generator] = None
+
+
+class PlantStepParams(NamedTuple):
+    """What `step` runs with: the model (it may change between blocks) and the sample rate."""
+
+    model: Model
+    sample_rate_hz: float
+
+
+def step(state: PlantState, inputs: PlantInputs, params: PlantStepParams) -> tuple[PlantState, SimOutput]:
     """Advance the plant over one block of drive samples.
 
     Parameters
     ----------
     state
-        State from `initial_state` or a previous `step` (same fs_hz).
-    drive_v_block
-        Drive voltage per sample (V, bias removed), held over each sample period.
-    fs_hz
-        Sample rate.
-    model
-        Model; it may change between blocks (the sensor-chain state is adapted).
-    rng
-        If given, sensor-voltage noise `model.noise.sensor_noise_v_rms` is added, drawn as
-        rng.standard_normal((n, 2)) so that the draw does not depend on the block split.
+        State from `initial_state` or a previous `step` (same sample rate).
+    inputs
+        The block's drive and, for noisy sensors, the generator to draw the noise from.
+    params
+        Model and sample rate. The model may change between blocks (the sensor-chain state
+        is adapted).
 
     Returns
     -------
     (PlantState, SimOutput)
     """
+    drive_v_block, rng = inputs
+    model, fs_hz = params
     fs = _check_fs(fs_hz)
     if fs != state.fs_hz:
         raise ValueError(f"fs_hz {fs:g} differs from the state's fs_hz {state.fs_hz:g}")
@@ -555,7 +567,7 @@ def simulate(
     state = initial_state(model, fs_hz)
     if noise and rng is None:
         rng = np.random.default_rng()
-    _, out = step(state, drive_v, fs_hz, model, rng=rng if noise else None)
+    _, out = step(state, PlantInputs(drive_v, rng if noise else None), PlantStepParams(model, fs_hz))
     return out
 
 
@@ -637,3 +649,85 @@ def synthesize_measured_run(
         "stroke_deg": np.degrees(out.stroke_rad) + tracking[:, 0],
         "pitch_deg": np.degrees(out.pitch_rad) + tracking[:, 1],
     }
+
+
+# ------------------------------------------------------------- from a moving state, sensor chain
+
+
+@njit(cache=True, parallel=True)
+def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
+    """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared drive."""
+    for i in prange(params.shape[0]):
+        x = x0[i].copy()
+        zi = np.zeros(2)
+        hist_s = np.zeros(hist_len[i, 0])
+        hist_p = np.zeros(hist_len[i, 1])
+        _run(x, zi, hist_s, hist_p, drive, h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0], delays[i, 1],
+             phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+
+
+def simulate_batch_from(
+    drive_v: np.ndarray, fs_hz: float, models: Sequence[Model], mechanical0: np.ndarray
+) -> SimOutput:
+    """Many models over one drive, each starting from a given mechanical state (no noise).
+
+    Parameters
+    ----------
+    drive_v
+        (n_samples,) shared drive (V).
+    fs_hz
+        Sample rate.
+    models
+        The models.
+    mechanical0
+        (4,) or (n_models, 4) initial [phi rad, phi' rad/s, psi rad, psi' rad/s]; the sensor
+        chain starts at rest. With zeros this equals `simulate_batch`.
+
+    Returns
+    -------
+    SimOutput
+        Arrays of shape (n_models, n_samples).
+    """
+    fs = _check_fs(fs_hz)
+    drive = _check_drive(drive_v)
+    models = list(models)
+    m = len(models)
+    x0 = np.broadcast_to(np.asarray(mechanical0, dtype=np.float64), (m, 4)).copy()
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("mechanical0 must be finite")
+    preps = [_prepare(model, fs) for model in models]
+    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
+    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
+    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
+                      dtype=np.int64).reshape(m, 2)
+    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    n = drive.shape[0]
+    phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
+    if m:
+        _run_batch_from(drive, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
+    return SimOutput(phi, psi, vs, vp)
+
+
+def sensor_chain(
+    model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray, drive_v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both charge-amplifier outputs (V) for a given motion: the plant's sensor chain alone.
+
+    Transduction (transmission_nonlinearity, strain_transfer_loss), feedthrough, high-pass
+    and delay from rest, + V_HREF, exactly as `simulate` applies them to its own motion; lets a
+    caller try sensor effects on a motion (simulated or measured) without integrating again.
+    """
+    fs = _check_fs(fs_hz)
+    prep = _prepare(model, fs)
+    p = prep.params
+    phi = np.asarray(stroke_rad, dtype=np.float64)
+    psi = np.asarray(pitch_rad, dtype=np.float64)
+    drive = np.asarray(drive_v, dtype=np.float64)
+    vs = np.ascontiguousarray(p[_GS] * (phi + p[_TCUBIC] * phi * phi * phi) + p[_FT] * drive)
+    vp = np.ascontiguousarray(p[_GP] * psi)
+    len_s, len_p = prep.delay_lengths
+    _sensor_channel(vs, p[_HPS_ON], p[_HPS_B0], p[_HPS_B1], p[_HPS_A1], 0.0, np.zeros(len_s),
+                    prep.delay_stroke_samples, p[_DS_FRAC], p[_VREF])
+    _sensor_channel(vp, p[_HPP_ON], p[_HPP_B0], p[_HPP_B1], p[_HPP_A1], 0.0, np.zeros(len_p),
+                    prep.delay_pitch_samples, p[_DP_FRAC], p[_VREF])
+    return vs, vp

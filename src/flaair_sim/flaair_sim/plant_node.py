@@ -90,7 +90,7 @@ class PlantNode(Node):
         self.fs_hz = self.p["sample_rate_hz"]
         self.block_size = self.p["block_size"]
         self.state = plant.initial_state(self.model, self.fs_hz)
-        self.rng = np.random.default_rng(self.p["noise_seed"])
+        self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
         self.next_index = 0
         self.expected_command_index: int | None = None
         self.rejected_blocks = 0
@@ -198,12 +198,9 @@ class PlantNode(Node):
         drive_v = np.clip(drive_v, -limit, limit)
         start_s = self.next_index / self.fs_hz
         obstacle = any(a <= start_s < b for a, b in self.windows_s)
-        self.state, out = plant.step(self.state, drive_v, self.fs_hz, self.obstacle_model if obstacle else self.model)
+        self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng),
+                                       plant.PlantStepParams(self.obstacle_model if obstacle else self.model, self.fs_hz))
         stroke_v, pitch_v = out.stroke_sensor_v, out.pitch_sensor_v
-        if self.p["noise"]:
-            sigma = self.model.noise.sensor_noise_v_rms
-            stroke_v = stroke_v + self.rng.normal(0.0, sigma, stroke_v.shape)
-            pitch_v = pitch_v + self.rng.normal(0.0, sigma, pitch_v.shape)
         stamp_ns = stamp_ns_of_sample(self.next_index, self.fs_hz)
         sensor = {"sample_rate_hz": self.fs_hz, "first_sample_index": self.next_index,
                   "stroke_sensor_v": stroke_v, "pitch_sensor_v": pitch_v}
