@@ -16,34 +16,36 @@ Bag-level conventions
   JSON `{"run", "first_sample_index", "n_samples", "source_file", ...}`, and listed in the bag's
   `custom_data` under `RUNS_CUSTOM_KEY`.
 
-Command line (`bin/flaair bag`): `info BAG` prints topics and counts; `reindex BAG` recovers a
-bag whose recorder was killed (no metadata.yaml, no MCAP summary).
+Recovery: `scan_mcap` reads every record an MCAP file still holds, through cut-off and
+corrupt chunks; `reindex` rebuilds a bag from it (verified before it replaces anything) and
+`check_bag` reports damage. The command line is `flaair_tools.bag_cli` (`bin/flaair bag`).
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import json
+import mmap
 import os
+import shutil
 import struct
-import sys
-import time
-from collections.abc import Iterator, Sequence
+import zlib
+from collections.abc import Generator, Iterator, Sequence
 from dataclasses import dataclass, field
 from importlib.metadata import version as package_version
+from io import BytesIO
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
-from mcap.exceptions import McapError
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import Channel as McapChannel
-from mcap.records import Footer as McapFooter
-from mcap.records import Message as McapMessage
+from mcap.records import MessageIndex, Statistics
 from mcap.records import Metadata as McapMetadata
 from mcap.records import Schema as McapSchema
-from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.interfaces import Nodetype, Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
@@ -443,10 +445,14 @@ def _open(bag: str | Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, FileNotFoundError) as exc:
+    except FileNotFoundError as exc:
         raise BagError(f"{path}: cannot open bag: {exc}") from None
+    except ReaderError as exc:
+        raise BagError(f"{path}: cannot open bag: {exc}; if it is damaged, recover what is left with: "
+                       f"bin/flaair bag reindex {path}") from None
     except Exception as exc:  # noqa: BLE001 - metadata or summary bytes that do not parse: a damaged bag
-        raise BagError(f"{path}: damaged bag, cannot open it: {type(exc).__name__}: {exc}") from None
+        raise BagError(f"{path}: damaged bag, cannot open it: {type(exc).__name__}: {exc}; "
+                       f"recover what is left with: bin/flaair bag reindex {path}") from None
     return reader
 
 
@@ -722,119 +728,530 @@ def read_run_markers(bag: str | Path) -> list[RunMarker]:
 
 
 # --------------------------------------------------------------------------------------------
-# Reindex (recover a bag whose writer was killed)
+# Recovery: scan a damaged or unfinished MCAP file record by record, rebuild the bag (reindex)
 # --------------------------------------------------------------------------------------------
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+RECOVERED_CUSTOM_KEY = "flaair.recovered"  # custom_data of a reindexed bag that lost messages
+_RECORD_HEAD = 9          # opcode (1) + record length (8)
+_CHUNK_FIXED = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, CRC, compression-string length
+_COMPRESSIONS = ("", "zstd", "lz4")
+_ZSTD_PIECE = 1 << 16     # compressed bytes fed to the streaming decompressor at a time
+_FOOTER_SIZE = _RECORD_HEAD + 20
+_KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
+
+
+@dataclass
+class ScanLog:
+    """What a scan of an MCAP file found besides its records (filled in by `scan_mcap`).
+
+    damaged_chunks: (file offset, reason) of every chunk that failed to decompress or its CRC.
+    skipped_bytes: (file offset, length) of regions that held no readable record (resynchronised).
+    index_counts: messages per channel that the message indexes of damaged chunks list.
+    partial_tail: the file ends inside a chunk (its message index was never written).
+    statistics: per-channel counts from the summary's Statistics record (None: no usable summary).
+    """
+
+    size: int = 0
+    complete: bool = False
+    damaged_chunks: list[tuple[int, str]] = field(default_factory=list)
+    skipped_bytes: list[tuple[int, int]] = field(default_factory=list)
+    index_counts: dict[int, int] = field(default_factory=dict)
+    partial_tail: bool = False
+    statistics: dict[int, int] | None = None
+    position: int = 0
+
+    @property
+    def damaged(self) -> bool:
+        """True if any chunk or region could not be read in full."""
+        return bool(self.damaged_chunks or self.skipped_bytes or self.partial_tail)
+
+
+@dataclass(frozen=True)
+class ScannedMessage:
+    """A message record found by `scan_mcap`; `verified` is False if its chunk failed its CRC."""
+
+    channel_id: int
+    log_time: int
+    publish_time: int
+    data: bytes
+    verified: bool
+
+
+def _read_record(opcode: int, body: bytes | memoryview) -> Any:
+    """One non-chunk record through the mcap library's own parsers (None: not needed here)."""
+    readers = {Opcode.SCHEMA: McapSchema.read, Opcode.CHANNEL: McapChannel.read, Opcode.METADATA: McapMetadata.read,
+               Opcode.STATISTICS: Statistics.read, Opcode.MESSAGE_INDEX: MessageIndex.read}
+    reader = readers.get(opcode)
+    return None if reader is None else reader(ReadDataStream(BytesIO(bytes(body))))
+
+
+def _parse_message(body: memoryview, verified: bool) -> ScannedMessage:
+    channel_id, _sequence, log_time, publish_time = struct.unpack_from("<HIQQ", body, 0)
+    return ScannedMessage(channel_id, log_time, publish_time, bytes(body[22:]), verified)
+
+
+def _decompress_prefix(compression: str, data: memoryview, size: int) -> tuple[bytes, str]:
+    """Decompress as much of a chunk's data as decodes: (bytes, '' or why it stopped early).
+
+    zstd goes through the streaming decompressor so that a chunk cut off (or corrupted) part
+    way still yields every block before the cut.
+    """
+    if compression == "":
+        return bytes(data[:size]), "" if len(data) >= size else "cut short"
+    if compression == "lz4":
+        try:
+            import lz4.frame as lz4frame
+        except ImportError:
+            return b"", "lz4 compression (python lz4 not installed)"
+        try:
+            return lz4frame.decompress(bytes(data)), ""
+        except Exception as exc:  # noqa: BLE001 - any lz4 failure: the chunk is damaged
+            return b"", f"lz4: {exc}"
+    import zstandard
+
+    decompressor = zstandard.ZstdDecompressor().decompressobj()
+    parts: list[bytes] = []
+    produced = 0
+    for start in range(0, len(data), _ZSTD_PIECE):
+        try:
+            part = decompressor.decompress(bytes(data[start:start + _ZSTD_PIECE]))
+        except zstandard.ZstdError as exc:
+            return b"".join(parts), f"zstd: {exc}"
+        parts.append(part)
+        produced += len(part)
+        if produced > size:
+            return b"".join(parts)[:size], "decompresses to more than its declared size"
+    out = b"".join(parts)
+    return out, "" if len(out) == size else f"stream ends after {len(out)} of {size} bytes"
+
+
+def _chunk_records(raw: bytes, verified: bool, start_ns: int, end_ns: int) -> Iterator[Any]:
+    """Whole records of decompressed chunk data; stops at the first one that does not parse."""
+    view = memoryview(raw)
+    position = 0
+    while position + _RECORD_HEAD <= len(view):
+        opcode = view[position]
+        (length,) = struct.unpack_from("<Q", view, position + 1)
+        end = position + _RECORD_HEAD + length
+        if opcode not in _KNOWN_OPCODES or end > len(view):
+            return
+        body = view[position + _RECORD_HEAD:end]
+        try:
+            if opcode == Opcode.MESSAGE:
+                message = _parse_message(body, verified)
+                if not verified and not start_ns <= message.log_time <= end_ns:
+                    return  # decoded garbage past a corruption: stop trusting this chunk
+                yield message
+            else:
+                record = _read_record(opcode, body)
+                if record is not None:
+                    yield record
+        except Exception:  # noqa: BLE001 - a record that does not parse ends the readable part
+            return
+        position = end
+
+
+def _plausible_chunk(data: Any, position: int, size: int) -> bool:
+    """True if a self-consistent chunk record starts at `position` (used to resynchronise)."""
+    if position + _RECORD_HEAD + _CHUNK_FIXED > size or data[position] != Opcode.CHUNK:
+        return False
+    (length,) = struct.unpack_from("<Q", data, position + 1)
+    comp_len = struct.unpack_from("<I", data, position + _RECORD_HEAD + _CHUNK_FIXED - 4)[0]
+    if comp_len > 8 or position + _RECORD_HEAD + _CHUNK_FIXED + comp_len + 8 > size:
+        return False
+    body = position + _RECORD_HEAD + _CHUNK_FIXED
+    compression = bytes(data[body:body + comp_len])
+    (data_len,) = struct.unpack_from("<Q", data, body + comp_len)
+    return (compression.decode("ascii", "replace") in _COMPRESSIONS
+            and length == _CHUNK_FIXED + comp_len + 8 + data_len)
+
+
+def _resync(data: Any, position: int, size: int) -> int:
+    """The next offset after `position` where a chunk record plausibly starts (else `size`)."""
+    candidate = position
+    while True:
+        candidate = data.find(b"\x06", candidate + 1)
+        if candidate < 0:
+            return size
+        if _plausible_chunk(data, candidate, size):
+            return candidate
+
+
+def _summary_statistics(data: Any, size: int, log: ScanLog) -> Iterator[Any]:
+    """Schemas and channels of an intact summary section; sets log.statistics."""
+    if size < len(MCAP_MAGIC) * 2 + _FOOTER_SIZE or bytes(data[size - 8:size]) != MCAP_MAGIC:
+        return
+    footer = size - 8 - _FOOTER_SIZE
+    if data[footer] != Opcode.FOOTER:
+        return
+    summary_start, _, _ = struct.unpack_from("<QQI", data, footer + _RECORD_HEAD)
+    if not 8 <= summary_start < footer:
+        return
+    position = summary_start
+    found: list[Any] = []
+    while position + _RECORD_HEAD <= footer:
+        opcode = data[position]
+        (length,) = struct.unpack_from("<Q", data, position + 1)
+        end = position + _RECORD_HEAD + length
+        if opcode not in _KNOWN_OPCODES or end > footer:
+            return  # a damaged summary: trust none of it
+        try:
+            record = _read_record(opcode, data[position + _RECORD_HEAD:end])
+        except Exception:  # noqa: BLE001
+            return
+        if record is not None:
+            found.append(record)
+        position = end
+    for record in found:
+        if isinstance(record, Statistics):
+            log.statistics = dict(record.channel_message_counts)
+        elif isinstance(record, (McapSchema, McapChannel)):
+            yield record
+
+
+def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Iterator[Any]:
+    """Every readable record of an MCAP file's bytes, in file order, surviving damage.
+
+    Yields Schema, Channel and Metadata records and `ScannedMessage`s. A chunk is decompressed
+    (zstd as a stream) and checked against its CRC; a chunk that fails yields the whole records
+    before the failure (unverified), a chunk cut off by the end of the file yields what its
+    available bytes decode to, and a region that holds no record is skipped up to the next
+    plausible chunk. `log` (a `ScanLog`) receives what was damaged or lost.
+
+    Raises
+    ------
+    BagError
+        The bytes do not start with the MCAP magic.
+    """
+    log = log if log is not None else ScanLog()
+    size = len(data)
+    log.size = size
+    if size < len(MCAP_MAGIC) or bytes(data[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
+        raise BagError("not an MCAP file (no MCAP magic at its start)")
+    yield from _summary_statistics(data, size, log)
+    position = len(MCAP_MAGIC)
+    damaged_chunk = False
+    while position < size:
+        log.position = position
+        if position + _RECORD_HEAD > size:
+            log.partial_tail = True
+            break
+        opcode = data[position]
+        (length,) = struct.unpack_from("<Q", data, position + 1)
+        end = position + _RECORD_HEAD + length
+        if opcode == Opcode.CHUNK and end > size and _plausible_chunk_head(data, position, size):
+            yield from _chunk(data, position, end, log)
+            log.partial_tail = True
+            break
+        if opcode not in _KNOWN_OPCODES or end > size or (opcode == Opcode.CHUNK and not _plausible_chunk(data, position, size)):
+            following = _resync(data, position, size)
+            log.skipped_bytes.append((position, following - position))
+            position = following
+            damaged_chunk = False
+            continue
+        body = data[position + _RECORD_HEAD:end]
+        if opcode == Opcode.CHUNK:
+            damaged_chunk = yield from _chunk(data, position, end, log)
+        elif opcode == Opcode.MESSAGE_INDEX and damaged_chunk:
+            try:
+                index = _read_record(opcode, body)
+                log.index_counts[index.channel_id] = log.index_counts.get(index.channel_id, 0) + len(index.records)
+            except Exception:  # noqa: BLE001 - a damaged index counts nothing
+                pass
+        elif opcode == Opcode.FOOTER:
+            log.complete = True
+            break
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.MESSAGE):
+            try:
+                yield _parse_message(body, True) if opcode == Opcode.MESSAGE else _read_record(opcode, body)
+            except Exception:  # noqa: BLE001 - a damaged record outside chunks
+                log.skipped_bytes.append((position, end - position))
+        if opcode != Opcode.MESSAGE_INDEX:
+            damaged_chunk = damaged_chunk and opcode == Opcode.CHUNK
+        position = end
+    log.position = position
+
+
+def _chunk_head(data: Any, body: int) -> tuple[int, int, int, int, str, int]:
+    """Chunk fields from the offset of its body: (start ns, end ns, uncompressed size, CRC,
+    compression, offset of the compressed data)."""
+    start_ns, end_ns, usize, crc, comp_len = struct.unpack_from("<QQQII", data, body)
+    compression = bytes(data[body + _CHUNK_FIXED:body + _CHUNK_FIXED + comp_len]).decode("ascii")
+    return start_ns, end_ns, usize, crc, compression, body + _CHUNK_FIXED + comp_len + 8
+
+
+def _plausible_chunk_head(data: Any, position: int, size: int) -> bool:
+    try:
+        head = _chunk_head(data, position + _RECORD_HEAD)
+    except (struct.error, UnicodeDecodeError):
+        return False
+    return head[4] in _COMPRESSIONS and head[5] <= size
+
+
+def _chunk(data: Any, position: int, end: int, log: ScanLog) -> Generator[Any, None, bool]:
+    """The records of the chunk at `position` (ending at `end`, or cut off by the file's end);
+    returns True if it was damaged."""
+    start_ns, end_ns, usize, crc, compression, offset = _chunk_head(data, position + _RECORD_HEAD)
+    available = memoryview(data[offset:min(end, len(data))])
+    raw, why = _decompress_prefix(compression, available, usize)
+    if end > len(data):
+        why = f"cut off by the end of the file ({why or 'incomplete'})"
+    elif not why and crc and zlib.crc32(raw) != crc:
+        why = "CRC mismatch"
+    if why:
+        log.damaged_chunks.append((position, why))
+    yield from _chunk_records(raw, not why, start_ns, end_ns)
+    return bool(why)
+
+
+@dataclass(frozen=True)
+class TopicRecovery:
+    """One topic after `reindex`: messages kept, expected (None: unknown) and lost."""
+
+    kept: int
+    expected: int | None
+
+    @property
+    def lost(self) -> int | None:
+        """Messages the file once held (by its summary, metadata.yaml or message indexes) and lost."""
+        return None if self.expected is None else max(0, self.expected - self.kept)
+
+
 @dataclass(frozen=True)
 class ReindexReport:
-    """Outcome of `reindex`: messages recovered per topic and whether the file was complete."""
+    """Outcome of `reindex`.
+
+    topics: kept/expected per topic. was_complete: the file had its footer. damage: one line
+    per damaged chunk or skipped region. backup: where the damaged original was kept (None if
+    nothing was lost and it was replaced). partial_tail: the file ended inside a chunk (what
+    that chunk held beyond the cut was never on disk and cannot be counted).
+    """
 
     path: Path
-    counts: dict[str, int]
+    topics: dict[str, TopicRecovery]
     was_complete: bool
-    stopped_at: str
+    damage: tuple[str, ...]
+    partial_tail: bool
+    backup: Path | None
+    unverified_dropped: int = 0
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages kept per topic."""
+        return {topic: t.kept for topic, t in self.topics.items()}
+
+    @property
+    def lost(self) -> int:
+        """Messages known to be lost (unknown counts excluded)."""
+        return sum(t.lost or 0 for t in self.topics.values())
+
+    @property
+    def stopped_at(self) -> str:
+        """How the scan ended, in words."""
+        if self.was_complete:
+            return "footer (complete file)"
+        return "a chunk cut off by the end of the file" if self.partial_tail else "end of file without a footer"
 
 
-def scan_mcap(path: Path) -> Iterator[McapSchema | McapChannel | McapMessage | McapMetadata | McapFooter]:
-    """Records of an MCAP file in order, stopping quietly at a truncated or corrupt record.
-
-    Chunks are decompressed and checked (CRC); a chunk cut short by a kill yields nothing.
-    """
-    with open(path, "rb") as stream:
-        try:
-            for record in StreamReader(stream, validate_crcs=True).records:
-                if isinstance(record, (McapSchema, McapChannel, McapMessage, McapMetadata, McapFooter)):
-                    yield record
-        except (McapError, struct.error, ValueError, EOFError, MemoryError):
-            return
-
-
-def reindex(bag: str | Path) -> ReindexReport:
-    """Make an unfinished bag (recorder killed: no summary, no metadata.yaml) readable again.
-
-    Every complete chunk of the MCAP file is kept; the partial chunk at the end (data not yet
-    flushed at the kill) is dropped. The file is rewritten with its summary (through a
-    temporary file, so the original stays until the copy is complete) and metadata.yaml is
-    written. A complete bag is rewritten with the same content.
-    """
-    path = Path(bag)
+def single_mcap_file(path: Path) -> Path:
     files = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
     if len(files) != 1:
         raise BagError(f"{path}: expected one .mcap file in the bag directory, found {len(files)}")
-    source = files[0]
+    return files[0]
+
+
+def _metadata_counts(path: Path) -> tuple[dict[str, int] | None, dict[str, str]]:
+    """(message count per topic, custom_data) of the bag's metadata.yaml, if it reads."""
+    try:
+        document = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))
+        info = document["rosbag2_bagfile_information"]
+        counts = {str(t["topic_metadata"]["name"]): int(t["message_count"]) for t in info["topics_with_message_count"]}
+        custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+        return counts, custom
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
+        return None, {}
+
+
+def _decodable(store: Typestore, msgtype: str, data: bytes) -> bool:
+    if msgtype not in store.fielddefs:
+        return True  # a foreign type: nothing to check it against
+    try:
+        store.deserialize_cdr(data, msgtype)
+    except Exception:  # noqa: BLE001 - garbage decoded past a corruption
+        return False
+    return True
+
+
+def _verify_copy(bag: Path, expected: dict[str, int]) -> None:
+    """Read a rebuilt bag with rosbags and with the mcap library; both must count `expected`."""
+    with Reader(bag) as reader:
+        seen: dict[str, int] = {}
+        for connection, _, _ in reader.messages():
+            seen[connection.topic] = seen.get(connection.topic, 0) + 1
+    mcap_seen: dict[str, int] = {}
+    (mcap_file,) = bag.glob("*.mcap")
+    with open(mcap_file, "rb") as stream:
+        for _, channel, _ in make_reader(stream, validate_crcs=True).iter_messages():
+            mcap_seen[channel.topic] = mcap_seen.get(channel.topic, 0) + 1
+    wanted = {t: n for t, n in expected.items() if n}
+    if seen != wanted or mcap_seen != wanted:
+        raise BagError(f"{bag}: the recovered copy does not read back as written "
+                       f"(wrote {wanted}, rosbags reads {seen}, mcap reads {mcap_seen}); the original is unchanged")
+
+
+def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
+    """Rebuild a bag's MCAP summary and metadata.yaml from whatever its MCAP file still holds.
+
+    Every message that can be decoded is kept: complete chunks, the readable part of a chunk
+    cut off by the end of the file (a recorder killed mid-write, a copy cut short), and the
+    readable part of a corrupt chunk; a region holding no record is skipped up to the next
+    chunk. Messages from a chunk that failed its CRC are kept only if their channel is known,
+    their time lies in the chunk's range and they deserialize.
+
+    The recovered copy is written to `<bag>/.reindex/`, read back with rosbags and with the mcap
+    library, and only then moved over the original. If anything was lost or damaged the
+    original file is kept beside it as `<file>.damaged`. The temporary directory never
+    outlives the call.
+
+    Parameters
+    ----------
+    bag
+        Bag directory holding one .mcap file.
+    progress
+        Called with the file offset reached (bytes), for a progress bar; None: silent.
+    """
+    path = Path(bag)
+    source = single_mcap_file(path)
+    expected_from_metadata, custom = _metadata_counts(path)
     temporary = path / ".reindex"
     if temporary.exists():
-        for leftover in temporary.iterdir():
-            leftover.unlink()
-        temporary.rmdir()
-    compression, chunk_size = storage_settings()
-    writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size, file_name=source.name)
+        shutil.rmtree(temporary)
+    store = typestore()
+    log = ScanLog()
     schemas: dict[int, McapSchema] = {}
     channels: dict[int, McapChannel] = {}
-    complete = False
-    stopped_at = "end of file"
-    for record in scan_mcap(source):
-        if isinstance(record, McapSchema):
-            schemas[record.id] = record
-        elif isinstance(record, McapChannel):
-            channels[record.id] = record
-            schema = schemas.get(record.schema_id)
-            if schema is None:
-                continue
-            writer.add_topic(record.topic, schema.name, qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
-                             msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
-        elif isinstance(record, McapMessage):
-            channel = channels.get(record.channel_id)
-            if channel is not None and writer.has_topic(channel.topic):
-                writer.write(channel.topic, record.log_time, record.data, record.publish_time)
-        elif isinstance(record, McapMetadata) and record.name == "rosbag2":
-            try:
-                previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
-                for key, value in (previous.get("custom_data") or {}).items():
-                    writer.set_custom_data(str(key), str(value))
-            except yaml.YAMLError:
-                pass
-        elif isinstance(record, McapFooter):
-            complete = True
-    if not complete:
-        stopped_at = "truncated record (unflushed data at the kill)"
-    writer.close()
-    os.replace(temporary / source.name, source)
-    os.replace(temporary / "metadata.yaml", path / "metadata.yaml")
-    temporary.rmdir()
-    return ReindexReport(path, writer.counts, complete, stopped_at)
-
-
-# --------------------------------------------------------------------------------------------
-# Command line: bin/flaair bag info|reindex
-# --------------------------------------------------------------------------------------------
-def main(argv: list[str] | None = None) -> int:
-    """`flaair bag info BAG` / `flaair bag reindex BAG`."""
-    parser = argparse.ArgumentParser(prog="flaair bag", description="Inspect or repair rosbag2 (MCAP) bags.")
-    sub = parser.add_subparsers(dest="verb", required=True)
-    sub.add_parser("info", help="topics, types, counts, time span").add_argument("bag")
-    sub.add_parser("reindex", help="recover a bag whose recorder was killed (kill -9)").add_argument("bag")
-    args = parser.parse_args(argv)
+    unverified_dropped = 0
     try:
-        if args.verb == "reindex":
-            start = time.perf_counter()
-            report = reindex(args.bag)
-            state = "was complete; metadata rebuilt" if report.was_complete else f"recovered up to the last flushed chunk ({report.stopped_at})"
-            print(f"{report.path}: {state} in {time.perf_counter() - start:.2f} s")
-            for topic, count in sorted(report.counts.items()):
-                print(f"  {topic}: {count}")
-            return 0
-        info = bag_info(args.bag)
-        span_s = max(0, info.end_ns - info.start_ns) / _NS_PER_S
-        print(f"{info.path}: {info.message_count} messages, {span_s:.6f} s")
-        for topic, topic_info in sorted(info.topics.items()):
-            print(f"  {topic} [{topic_info.msgtype}] {topic_info.count}")
-        for key, value in sorted(info.custom_data.items()):
-            print(f"  custom_data {key}: {value[:200]}")
-        return 0
-    except (BagError, OSError) as exc:
-        print(f"flaair bag: {exc}", file=sys.stderr)
-        return 1
+        compression, chunk_size = storage_settings()
+        writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size, file_name=source.name,
+                           store=store)
+        with open(source, "rb") as stream:
+            try:
+                data: Any = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+            except ValueError:  # an empty file cannot be mapped
+                data = b""
+            try:
+                for record in scan_mcap(data, log):
+                    if progress is not None:
+                        progress(log.position)
+                    if isinstance(record, ScannedMessage):
+                        channel = channels.get(record.channel_id)
+                        if channel is None or not writer.has_topic(channel.topic):
+                            unverified_dropped += 1
+                            continue
+                        if not record.verified and not _decodable(store, schemas[channel.schema_id].name, record.data):
+                            unverified_dropped += 1
+                            continue
+                        writer.write(channel.topic, record.log_time, record.data, record.publish_time)
+                    elif isinstance(record, McapSchema):
+                        schemas[record.id] = record
+                    elif isinstance(record, McapChannel):
+                        channels[record.id] = record
+                        schema = schemas.get(record.schema_id)
+                        if schema is not None and not writer.has_topic(record.topic):
+                            writer.add_topic(record.topic, schema.name,
+                                             qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
+                                             msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
+                    elif isinstance(record, McapMetadata) and record.name == "rosbag2":
+                        try:
+                            previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
+                            custom.update({str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()})
+                        except (yaml.YAMLError, AttributeError):
+                            pass
+            finally:
+                if isinstance(data, mmap.mmap):
+                    data.close()
+        kept = writer.counts
+        topics = _recovery_counts(kept, channels, log, expected_from_metadata)
+        damage = tuple(damage_lines(log))
+        lost_any = log.damaged or any(t.lost for t in topics.values()) or unverified_dropped > 0
+        for key, value in custom.items():
+            if key != RECOVERED_CUSTOM_KEY:
+                writer.set_custom_data(key, value)
+        if lost_any:
+            writer.set_custom_data(RECOVERED_CUSTOM_KEY, json.dumps({
+                "source_file": source.name, "damage": list(damage),
+                "topics": {t: {"kept": r.kept, "expected": r.expected, "lost": r.lost} for t, r in sorted(topics.items())},
+            }, allow_nan=False))
+        writer.close()
+        _verify_copy(temporary, kept)
+        backup = None
+        if lost_any:
+            backup = source.with_name(source.name + ".damaged")
+            number = 1
+            while backup.exists():
+                backup, number = source.with_name(f"{source.name}.damaged{number}"), number + 1
+            os.link(source, backup)
+        os.replace(temporary / source.name, source)
+        os.replace(temporary / "metadata.yaml", path / "metadata.yaml")
+    finally:
+        if temporary.exists():
+            shutil.rmtree(temporary, ignore_errors=True)
+    return ReindexReport(path, topics, log.complete, damage, log.partial_tail, backup, unverified_dropped)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def _recovery_counts(kept: dict[str, int], channels: dict[int, McapChannel], log: ScanLog,
+                     from_metadata: dict[str, int] | None) -> dict[str, TopicRecovery]:
+    """Kept and expected messages per topic: from the summary's statistics, else metadata.yaml,
+    else the message indexes (unknown when a chunk without an index was cut off)."""
+    topic_of = {cid: channel.topic for cid, channel in channels.items()}
+    names = set(kept) | set(topic_of.values())
+    if log.statistics is not None:
+        expected: dict[str, int | None] = {t: 0 for t in names}
+        for cid, count in log.statistics.items():
+            if cid in topic_of:
+                expected[topic_of[cid]] = (expected.get(topic_of[cid]) or 0) + count
+    elif from_metadata is not None:
+        names |= set(from_metadata)
+        expected = {t: from_metadata.get(t) for t in names}
+    else:
+        expected = {}
+        for topic in names:
+            indexed = sum(n for cid, n in log.index_counts.items() if topic_of.get(cid) == topic)
+            expected[topic] = None if log.partial_tail else kept.get(topic, 0) + indexed
+            if log.partial_tail and indexed:
+                expected[topic] = None
+    return {t: TopicRecovery(kept.get(t, 0), expected.get(t)) for t in sorted(names)}
+
+
+def damage_lines(log: ScanLog) -> Iterator[str]:
+    for offset, why in log.damaged_chunks:
+        yield f"chunk at byte {offset}: {why}"
+    for offset, length in log.skipped_bytes:
+        yield f"bytes {offset}-{offset + length}: no readable record, skipped"
+
+
+def check_bag(bag: str | Path) -> tuple[ScanLog, dict[str, int]]:
+    """Scan a bag's MCAP file for damage without changing it: (scan log, readable messages per channel topic)."""
+    source = single_mcap_file(Path(bag))
+    log = ScanLog()
+    counts: dict[str, int] = {}
+    channels: dict[int, str] = {}
+    with open(source, "rb") as stream:
+        try:
+            data: Any = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:
+            data = b""
+        try:
+            for record in scan_mcap(data, log):
+                if isinstance(record, McapChannel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, ScannedMessage) and record.channel_id in channels:
+                    topic = channels[record.channel_id]
+                    counts[topic] = counts.get(topic, 0) + 1
+        finally:
+            if isinstance(data, mmap.mmap):
+                data.close()
+    return log, counts
