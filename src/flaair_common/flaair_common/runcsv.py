@@ -7,6 +7,7 @@ breaks the rules is refused with a message naming file, line and column.
 from __future__ import annotations
 
 import csv
+import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,8 +34,44 @@ class MeasuredRun:
         return self.columns[column]
 
 
+CHUNK_LINES = 1 << 16  # rows parsed at a time: memory stays near the size of the result arrays
+
+
+def _floats(cells: list[str], path: Path, first_line: int, name: str) -> np.ndarray:
+    """Cells as float64; a cell that is not a number is named by line and column."""
+    try:
+        return np.array(cells, dtype=np.float64)
+    except (ValueError, OverflowError):
+        for offset, cell in enumerate(cells):
+            try:
+                np.array([cell], dtype=np.float64)
+            except (ValueError, OverflowError):
+                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: not a number: {cell!r}") from None
+        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(cells) - 1}, column {name}: not numbers") from None
+
+
+def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
+    """Column names of the header line; a missing or duplicated column is refused by name."""
+    header = [name.strip() for name in next(csv.reader([line]), [])]
+    if not any(header):
+        raise RunFileError(f"{path}: line 1: empty header line (expected column names)")
+    seen: dict[str, int] = {}
+    for number, name in enumerate(header, start=1):
+        if name in seen:
+            raise RunFileError(f"{path}: line 1, column {number}: duplicate column {name!r} "
+                               f"(also column {seen[name]}); keep one")
+        seen[name] = number
+    missing = [name for name in required if name not in header]
+    if missing:
+        raise RunFileError(f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
+    return header
+
+
 def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredRun:
-    """Read and check one measured-run CSV.
+    """Read and check one measured-run CSV, a block of rows at a time.
+
+    A UTF-8 byte-order mark (Excel's "CSV UTF-8") is accepted. Memory stays near the size
+    of the returned arrays: rows are parsed `CHUNK_LINES` at a time.
 
     Parameters
     ----------
@@ -51,68 +88,78 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
     Raises
     ------
     RunFileError
-        Missing column, non-numeric or non-finite sensor cell, ragged row, time not
-        increasing or not uniform; the message names file, line and column.
+        Missing or duplicated column, non-numeric or non-finite sensor cell, ragged row, time
+        not increasing or not uniform; the message names file, line and column.
     """
     path = Path(path)
+    parts: dict[str, list[np.ndarray]] = {}
     try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            rows = list(csv.reader(handle))
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            first = handle.readline()
+            if not first:
+                raise RunFileError(f"{path}: empty file (expected a header line)")
+            header = _header(path, first, required)
+            wanted = [(index, name) for index, name in enumerate(header) if name in COLUMNS]
+            parts = {name: [] for _, name in wanted}
+            line_no = 2
+            while True:
+                lines = list(itertools.islice(handle, CHUNK_LINES))
+                if not lines:
+                    break
+                _parse_rows(path, lines, line_no, len(header), wanted, parts)
+                line_no += len(lines)
     except OSError as exc:
         raise RunFileError(f"{path}: cannot read: {exc.strerror}") from exc
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise RunFileError(f"{path}: not a text CSV file: {exc}") from exc
-    if not rows:
-        raise RunFileError(f"{path}: empty file (expected a header line)")
-    header = [name.strip() for name in rows[0]]
-    missing = [name for name in required if name not in header]
-    if missing:
-        raise RunFileError(f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
-    body = rows[1:]
-    if not body:
+    except UnicodeDecodeError as exc:
+        raise RunFileError(f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
+    if not parts or not next(iter(parts.values())):
         raise RunFileError(f"{path}: no data rows after the header")
-    for line_no, row in enumerate(body, start=2):
-        if len(row) != len(header):
-            raise RunFileError(f"{path}: line {line_no}: {len(row)} cells, header has {len(header)}")
-    columns: dict[str, np.ndarray] = {}
-    for name in header:
-        if name not in COLUMNS:
-            continue
-        index = header.index(name)
-        cells = [row[index].strip() for row in body]
+    columns = {name: np.concatenate(chunks) if len(chunks) > 1 else chunks[0] for name, chunks in parts.items()}
+    parts.clear()
+    return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns)
+
+
+def _parse_rows(path: Path, lines: list[str], first_line: int, width: int, wanted: list[tuple[int, str]],
+                parts: dict[str, list[np.ndarray]]) -> None:
+    """Parse one block of lines into float arrays appended to `parts` (checks as `read_run`)."""
+    try:
+        rows = list(csv.reader(lines))
+    except csv.Error as exc:
+        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(lines) - 1}: not a CSV file: {exc}") from None
+    if len(rows) != len(lines):  # a quoted cell spanning lines: the line numbers below would drift
+        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(lines) - 1}: a quoted cell spans lines")
+    for offset, row in enumerate(rows):
+        if len(row) != width:
+            raise RunFileError(f"{path}: line {first_line + offset}: {len(row)} cells, header has {width}")
+    for index, name in wanted:
         is_truth = name in TRUTH_COLUMNS
-        if is_truth:
-            cells = [cell if cell else "nan" for cell in cells]
-        try:
-            values = np.array(cells, dtype=np.float64)
-        except ValueError:
-            for line_no, cell in enumerate(cells, start=2):
-                try:
-                    float(cell)
-                except ValueError:
-                    raise RunFileError(f"{path}: line {line_no}, column {name}: not a number: {cell!r}") from None
-            raise
+        cells = [row[index].strip() or ("nan" if is_truth else "") for row in rows]
+        values = _floats(cells, path, first_line, name)
         if not is_truth:
             bad = ~np.isfinite(values)
             if bad.any():
-                line_no = int(np.argmax(bad)) + 2
-                raise RunFileError(f"{path}: line {line_no}, column {name}: {values[line_no - 2]} (sensor columns must be finite)")
-        columns[name] = values
-    sample_rate_hz = float("nan")
-    if "time_s" in columns:
-        time_s = columns["time_s"]
-        if len(time_s) < 2:
-            raise RunFileError(f"{path}: needs at least two samples")
-        steps = np.diff(time_s)
-        if (steps <= 0).any():
-            line_no = int(np.argmax(steps <= 0)) + 3
-            raise RunFileError(f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
-        period_s = float(np.median(steps))
-        if np.max(np.abs(steps - period_s)) > 1e-3 * period_s + 1e-9:
-            line_no = int(np.argmax(np.abs(steps - period_s))) + 3
-            raise RunFileError(f"{path}: line {line_no}, column time_s: sampling is not uniform")
-        sample_rate_hz = 1.0 / period_s
-    return MeasuredRun(name=path.stem, sample_rate_hz=sample_rate_hz, columns=columns)
+                offset = int(np.argmax(bad))
+                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: {values[offset]} "
+                                   f"(sensor columns must be finite)")
+        parts[name].append(values)
+
+
+def _sample_rate_hz(path: Path, columns: dict[str, np.ndarray]) -> float:
+    """Sample rate from time_s (NaN if there is none); time must increase uniformly."""
+    if "time_s" not in columns:
+        return float("nan")
+    time_s = columns["time_s"]
+    if len(time_s) < 2:
+        raise RunFileError(f"{path}: needs at least two samples")
+    steps = np.diff(time_s)
+    if (steps <= 0).any():
+        line_no = int(np.argmax(steps <= 0)) + 3
+        raise RunFileError(f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
+    period_s = float(np.median(steps))
+    if np.max(np.abs(steps - period_s)) > 1e-3 * period_s + 1e-9:
+        line_no = int(np.argmax(np.abs(steps - period_s))) + 3
+        raise RunFileError(f"{path}: line {line_no}, column time_s: sampling is not uniform")
+    return 1.0 / period_s
 
 
 def write_run(path: str | Path, columns: dict[str, np.ndarray]) -> None:

@@ -368,6 +368,12 @@ class BagWriter:
         temporary.write_text(yaml.safe_dump(info, default_flow_style=False, sort_keys=False), encoding="utf-8")
         temporary.replace(self.path / "metadata.yaml")
 
+    def abandon(self) -> None:
+        """Give up on the bag: close the file and remove the bag directory this writer created."""
+        self.closed = True
+        self._stream.close()
+        shutil.rmtree(self.path, ignore_errors=True)
+
     def metadata(self) -> dict[str, Any]:
         """The rosbag2 metadata.yaml document of what was written so far."""
         return bag_metadata(self.file_path.name, self._topics, self.custom_data)

@@ -12,7 +12,8 @@ Each run is marked by a std_msgs/String on /flaair/run_marker holding JSON
 {"run", "first_sample_index", "n_samples", "source_file", "sample_rate_hz", "start_ns"},
 and listed in the bag's custom_data "flaair.runs". The last block of a run may be shorter.
 
-Every file is checked before anything is written; a bad file is named with its line and column.
+Every file is checked before anything is written; a bad file is named with its line and column
+(exit 2), and a failed or interrupted import leaves no bag behind.
 
 Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S]
 """
@@ -20,11 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import signal
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from flaair_common import topics
 from flaair_model.config import ConfigError, node_parameters
@@ -56,12 +61,20 @@ def run_span_ns(run: MeasuredRun) -> int:
     return int(round((time_s[-1] - time_s[0] + 1.0 / run_rate_hz(run)) * _NS_PER_S))
 
 
+def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int) -> bagio.RunMarker:
+    """The marker of a run starting at `start_ns` and `first_sample_index`."""
+    return bagio.RunMarker(run=run.name, first_sample_index=first_sample_index, n_samples=len(run["time_s"]),
+                           source_file=source_file, sample_rate_hz=run_rate_hz(run), start_ns=start_ns)
+
+
 def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int, block_size: int,
-               frame_id: str, store: Any = None) -> tuple[bagio.RunMarker, list[tuple[str, int, Any]]]:
-    """A run as its marker and (topic, stamp ns, typestore message) tuples in time order (pure).
+               frame_id: str, store: Any = None) -> Iterator[tuple[str, int, Any]]:
+    """A run as (topic, stamp ns, typestore message) tuples in time order, made one block at a
+    time (pure): its marker first, then per block drive, sensor and ground truth.
 
     Block k starts at sample k * block_size; its header stamp is start_ns plus the CSV time of
-    that sample (relative to the run's first sample).
+    that sample (relative to the run's first sample). The stamp is also the message's log
+    time in the bag, so viewers show the signal's own timeline.
     """
     store = store or bagio.typestore()
     rate_hz = run_rate_hz(run)
@@ -69,10 +82,8 @@ def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sampl
     n_samples = len(time_s)
     relative_ns = np.round((time_s - time_s[0]) * _NS_PER_S).astype(np.int64)
     wing = store.types[WING_TYPE]
-    marker = bagio.RunMarker(run=run.name, first_sample_index=first_sample_index, n_samples=n_samples,
-                             source_file=source_file, sample_rate_hz=rate_hz, start_ns=start_ns)
-    out: list[tuple[str, int, Any]] = [
-        (bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json()))]
+    marker = run_marker(run, source_file=source_file, start_ns=start_ns, first_sample_index=first_sample_index)
+    yield bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json())
     for k0 in range(0, n_samples, block_size):
         part = slice(k0, min(k0 + block_size, n_samples))
         stamp_ns = start_ns + int(relative_ns[k0])
@@ -83,18 +94,17 @@ def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sampl
 
         stroke_deg = run["stroke_deg"][part].copy()
         pitch_deg = run["pitch_deg"][part].copy()
-        out.append((topics.DRIVE, stamp_ns, bagio.new_message(
+        yield topics.DRIVE, stamp_ns, bagio.new_message(
             DRIVE_TYPE, store, header=header(""), sample_rate_hz=rate_hz, first_sample_index=index,
-            drive_v=run["drive_v"][part].copy())))
-        out.append((topics.SENSOR_VOLTAGE, stamp_ns, bagio.new_message(
+            drive_v=run["drive_v"][part].copy())
+        yield topics.SENSOR_VOLTAGE, stamp_ns, bagio.new_message(
             SENSOR_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
-            stroke_sensor_v=run["stroke_sensor_v"][part].copy(), pitch_sensor_v=run["pitch_sensor_v"][part].copy())))
-        out.append((topics.WING_STATE_TRUTH, stamp_ns, bagio.new_message(
+            stroke_sensor_v=run["stroke_sensor_v"][part].copy(), pitch_sensor_v=run["pitch_sensor_v"][part].copy())
+        yield topics.WING_STATE_TRUTH, stamp_ns, bagio.new_message(
             WING_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
             source=wing.SOURCE_GROUND_TRUTH, stroke_deg=stroke_deg, pitch_deg=pitch_deg,
             stroke_velocity_deg_s=np.full(stroke_deg.size, np.nan),
-            stroke_valid=np.isfinite(stroke_deg), pitch_valid=np.isfinite(pitch_deg))))
-    return marker, out
+            stroke_valid=np.isfinite(stroke_deg), pitch_valid=np.isfinite(pitch_deg))
 
 
 def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
@@ -110,8 +120,18 @@ def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
         raise RunSetError(f"runs have different sample rates ({listing}); import them into separate bags")
 
 
-def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str) -> list[bagio.RunMarker]:
-    """Read and check every CSV, then write the bag; returns the run markers written."""
+def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str,
+                progress: Callable[[int], None] | None = None) -> list[bagio.RunMarker]:
+    """Read and check every CSV, then write the bag; returns the run markers written.
+
+    Messages are made and written one block at a time. If anything fails (or the user
+    interrupts) after the bag directory was created, it is removed: no partial bag is left
+    that looks valid. `progress` is called with the samples written so far.
+    """
+    if not math.isfinite(gap_s) or gap_s < 0:
+        raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")
+    if block_size < 1:
+        raise RunSetError(f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}")
     runs = [(path, read_run(path)) for path in paths]
     check_runs(runs)
     store = bagio.typestore()
@@ -122,26 +142,38 @@ def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, 
     markers: list[bagio.RunMarker] = []
     start_ns = 0
     first_index = 0
-    with bagio.BagWriter(out, store=store) as writer:
+    writer = bagio.BagWriter(out, store=store)
+    try:
         for path, run in runs:
-            marker, messages = encode_run(run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index,
-                                          block_size=block_size, frame_id=frame_id, store=store)
-            for topic, stamp_ns, message in messages:
+            marker = run_marker(run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index)
+            for topic, stamp_ns, message in encode_run(run, source_file=str(path), start_ns=start_ns,
+                                                       first_sample_index=first_index, block_size=block_size,
+                                                       frame_id=frame_id, store=store):
                 writer.write_message(topic, stamp_ns, message, offered[topic])
+                if progress is not None and topic == topics.WING_STATE_TRUTH:
+                    progress(int(message.first_sample_index) + len(message.stroke_deg))
             markers.append(marker)
             first_index += marker.n_samples
             start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
         writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps([json.loads(m.to_json()) for m in markers]))
+        writer.close()
+    except BaseException:
+        writer.abandon()
+        raise
     return markers
 
 
+def _interrupted(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """`bin/flaair import RUN.csv... --out BAG`; exit 1 with file/line/column on a bad file."""
+    """`bin/flaair import RUN.csv... --out BAG`; exit 2 with file/line/column on a bad file."""
     try:
         defaults = node_parameters(CONFIG_FILE, SECTION)
     except ConfigError as exc:
         print(f"flaair import: {exc}", file=sys.stderr)
-        return 1
+        return 2
     parser = argparse.ArgumentParser(prog="flaair import", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", nargs="+", type=Path, help="measured-run CSV files")
@@ -149,17 +181,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
                         help=f"time between runs [s] (default {defaults['gap_s']})")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if args.gap_s < 0:
-        parser.error("--gap-s must not be negative")
+    if not math.isfinite(args.gap_s) or args.gap_s < 0:
+        parser.error(f"--gap-s must be a finite time >= 0 s, got {args.gap_s}")
     if args.out.exists():
         print(f"flaair import: {args.out}: exists already; choose a new bag directory", file=sys.stderr)
-        return 1
+        return 2
+    signal.signal(signal.SIGTERM, _interrupted)
     try:
-        markers = import_runs(args.runs, args.out, gap_s=args.gap_s, block_size=int(defaults["block_size"]),
-                              frame_id=str(defaults["frame_id"]))
+        with tqdm(total=None, unit=" samples", unit_scale=True, desc="import", file=sys.stderr,
+                  disable=not sys.stderr.isatty()) as bar:
+            markers = import_runs(args.runs, args.out, gap_s=args.gap_s, block_size=int(defaults["block_size"]),
+                                  frame_id=str(defaults["frame_id"]), progress=lambda n: bar.update(n - bar.n))
     except (RunFileError, RunSetError, bagio.BagError) as exc:
         print(f"flaair import: {exc}", file=sys.stderr)
-        return 1
+        return 2
+    except KeyboardInterrupt as exc:
+        signum = int(exc.args[0]) if exc.args else int(signal.SIGINT)
+        print(f"flaair import: interrupted; no bag written at {args.out}", file=sys.stderr)
+        return 128 + signum
     for marker in markers:
         print(f"{marker.run}: {marker.n_samples} samples at {marker.sample_rate_hz:g} Hz "
               f"(first_sample_index {marker.first_sample_index}) from {marker.source_file}")
