@@ -1,0 +1,342 @@
+"""`bin/flaair sweep`: simulation studies on a Dask cluster, and the stroke-controller experiments.
+
+    bin/flaair sweep wing-damage --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
+    bin/flaair sweep dsa-map     --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
+    bin/flaair sweep stroke      --out DIR [--mode dsa|sync]
+
+wing-damage: the stroke frequency, stroke amplitude, pitch amplitude and lift proxy
+(amplitude^2 x frequency^2) of a wing whose inertia is scaled 0.5-1.0 (and, on a second axis,
+whose aerodynamic damping scales with its area), for a synchronous open-loop drive at the
+undamaged resonance, the dSA loop, and the dSA loop with the stroke-amplitude controller; each
+relative to the undamaged wing. dsa-map: the dSA loop over mu, kappa and r3: onset, emergent
+frequency and amplitude, against the Hopf theory (flaair_control.hopf). Both write DIR/sweep.json
+(strict JSON, one row per point), DIR/sweep.csv, DIR/*.png and DIR/reading.md.
+
+The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Tasks
+carry `chunk_size` simulations each through one compiled batch (flaair_tools.sweep_batch);
+a row's result depends on that row alone, so any number of workers gives the same numbers.
+By default a LocalCluster sized to the machine (one single-threaded worker process per core,
+bound to 127.0.0.1, no dashboard) runs them and is shut down with the command (also on
+Ctrl-C / SIGTERM); --scheduler uses an existing cluster (docs/SWEEPS.md: `dask scheduler` /
+`dask worker`, or Slurm through dask-jobqueue). --in-process runs the chunks here (no Dask).
+
+stroke: the stroke controller's three experiments (flaair_tools.stroke_experiments), one bag
+each in DIR/bags, analysed from the bags: DIR/stroke.json, DIR/stroke_*.png, DIR/reading.md.
+
+Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model
+
+SUBCOMMANDS = ("wing-damage", "dsa-map", "stroke")
+
+
+class SweepError(ValueError):
+    """Bad sweep input; the message names the file and key."""
+
+
+def _grid(value: Any, where: str) -> list[float]:
+    if isinstance(value, dict):
+        try:
+            return [float(x) for x in np.linspace(value["start"], value["stop"], int(value["num"]))]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SweepError(f"{where}: needs start, stop, num ({exc})") from None
+    if isinstance(value, list) and value:
+        return [float(x) for x in value]
+    raise SweepError(f"{where}: expected a list or {{start, stop, num}}, got {value!r}")
+
+
+def load_section(path: Path, name: str) -> dict[str, Any]:
+    """A section of the sweeps file, or SweepError naming file and key."""
+    try:
+        document = load_yaml(path)
+    except (ConfigError, OSError) as exc:
+        raise SweepError(f"{path}: {exc}") from None
+    if not isinstance(document, dict) or not isinstance(document.get(name), dict):
+        raise SweepError(f"{path}: no '{name}:' section")
+    return document[name]
+
+
+# --------------------------------------------------------------------------- grids (pure)
+
+
+def _common_row(values: dict[str, Any], section: dict[str, Any]) -> dict[str, Any]:
+    return {"sample_rate_hz": float(values["sample_rate_hz"]), "duration_s": float(section["duration_s"]),
+            "steady_s": float(section["steady_s"]), "start_stroke_deg": float(section["start_stroke_deg"]),
+            "drive_limit_v": float(values["drive_limit_v"]), "hysteresis_deg": float(values["crossing_hysteresis_deg"]),
+            "min_wingbeat_hz": float(values["min_wingbeat_hz"]), "max_wingbeat_hz": float(values["max_wingbeat_hz"]),
+            "r3_rad_s": float(values["r3_rad_s"]), "kappa": float(values["kappa"]), "drive_amplitude_v": 0.0,
+            "frequency_hz": 0.0, "mu_nm_s_per_rad": 0.0, "track": [0.0] * 8}
+
+
+def wing_damage_rows(section: dict[str, Any], values: dict[str, Any], model) -> list[dict[str, Any]]:
+    """One row per (aero damping exponent, inertia factor, drive); drives set for the undamaged wing."""
+    from flaair_control import stroke
+    from flaair_tools.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
+    try:
+        factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
+        exponents = _grid(section["aero_damping_exponent"], "wing_damage.aero_damping_exponent")
+        setpoint = float(section["setpoint_deg"])
+    except KeyError as exc:
+        raise SweepError(f"config/sweeps.yaml: wing_damage: missing key {exc}") from None
+    if 1.0 not in factors:
+        factors.append(1.0)  # the reference
+    design_plant = stroke.StrokePlant.from_model(model)
+    resonance_hz = model.plant.stroke_natural_frequency_hz
+    drive_v, _ = stroke.design(design_plant, "sync", setpoint, sync_frequency_hz=resonance_hz)
+    ctrl = stroke.params_from_values({**values, "mode": "dsa", "setpoint_deg": setpoint}, design_plant,
+                                     float(values["sample_rate_hz"]), 0.5 / float(values["sample_rate_hz"]))
+    base = _common_row(values, section)
+    rows = []
+    for exponent in exponents:
+        for factor in sorted(set(factors)):
+            for mode in (SYNC, DSA, DSA_STROKE):
+                row = {**base, "sweep": "wing-damage", "mode": mode, "drive": MODE_NAMES[mode], "inertia_factor": factor,
+                       "aero_damping_exponent": exponent, "aero_damping_factor": factor ** exponent}
+                if mode == SYNC:
+                    row.update(drive_amplitude_v=drive_v, frequency_hz=resonance_hz)
+                else:
+                    row["mu_nm_s_per_rad"] = ctrl.command_nominal
+                    if mode == DSA_STROKE:
+                        row["track"] = stroke.tracker_constants(ctrl).tolist()
+                rows.append(row)
+    return rows
+
+
+def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[str, Any]]:
+    """One row per (r3, kappa, mu): the free dSA loop on the undamaged wing."""
+    from flaair_tools.sweep_batch import DSA, MODE_NAMES
+    try:
+        mus = _grid(section["mu_nm_s_per_rad"], "dsa_map.mu_nm_s_per_rad")
+        kappas = _grid(section["kappa"], "dsa_map.kappa")
+        r3s = _grid(section["r3_rad_s"], "dsa_map.r3_rad_s")
+    except KeyError as exc:
+        raise SweepError(f"config/sweeps.yaml: dsa_map: missing key {exc}") from None
+    base = _common_row(values, section)
+    return [{**base, "sweep": "dsa-map", "mode": DSA, "drive": MODE_NAMES[DSA], "inertia_factor": 1.0,
+             "aero_damping_factor": 1.0, "r3_rad_s": r3, "kappa": kappa, "mu_nm_s_per_rad": mu}
+            for r3 in r3s for kappa in kappas for mu in mus]
+
+
+def chunks(rows: list[dict[str, Any]], size: int) -> list[list[dict[str, Any]]]:
+    """Fixed-size chunks in row order (independent of the cluster)."""
+    if size < 1:
+        raise SweepError(f"chunk_size must be >= 1, got {size}")
+    return [rows[i:i + size] for i in range(0, len(rows), size)]
+
+
+# --------------------------------------------------------------------------- execution
+
+
+def run_in_process(parts: list[list[dict[str, Any]]], model, progress: Callable[[int], None] = lambda n: None,
+                   parallel: bool = False) -> list[list[dict[str, Any]]]:
+    """Every chunk here, one after the other (``parallel``: numba threads over each chunk)."""
+    from flaair_tools.sweep_batch import run_rows
+    out = []
+    for part in parts:
+        out.append(run_rows(part, model, parallel))
+        progress(1)
+    return out
+
+
+def local_cluster(workers: int | None = None):
+    """A LocalCluster on 127.0.0.1: `workers` (default: the cores) single-threaded worker processes."""
+    import logging
+
+    from dask.distributed import LocalCluster
+    return LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                        host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
+                        worker_dashboard_address=None)
+
+
+def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
+                progress: Callable[[int], None] = lambda n: None) -> list[list[dict[str, Any]]]:
+    """Every chunk as one Dask task; results in chunk order."""
+    from dask.distributed import as_completed
+
+    from flaair_tools.sweep_batch import run_rows
+    model_future = client.scatter(model, broadcast=True)
+    futures = [client.submit(run_rows, part, model_future, key=f"sweep-chunk-{i}", pure=False)
+               for i, part in enumerate(parts)]
+    index = {f.key: i for i, f in enumerate(futures)}
+    out: list[Any] = [None] * len(parts)
+    try:
+        for future in as_completed(futures):
+            out[index[future.key]] = future.result()
+            progress(1)
+    finally:
+        client.cancel(futures)
+    return out
+
+
+def execute(rows: list[dict[str, Any]], chunk_size: int, model, *, scheduler: str | None = None,
+            workers: int | None = None, in_process: bool = False, show_progress: bool = True) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """Run the rows; (rows with their results, timing). The cluster (if started here) is closed on return."""
+    from tqdm import tqdm
+    parts = chunks(rows, chunk_size)
+    timing: dict[str, Any] = {"tasks": len(parts), "simulations": len(rows),
+                              "robot_seconds": float(sum(r["duration_s"] for r in rows))}
+    bar = tqdm(total=len(parts), desc="sweep", unit="task", file=sys.stderr, disable=not show_progress)
+    t0 = time.perf_counter()
+    from flaair_tools.sweep_batch import warm_up
+    try:
+        if in_process:
+            timing["engine"] = "in-process"
+            timing["startup_s"] = warm_up(model, rows[0])
+            t0 = time.perf_counter()
+            results = run_in_process(parts, model, bar.update)
+        else:
+            from dask.distributed import Client
+            cluster = None if scheduler else local_cluster(workers)
+            try:
+                with Client(scheduler or cluster, timeout="30s") as client:
+                    timing["engine"] = f"dask {scheduler or 'LocalCluster'}"
+                    timing["workers"] = len(client.scheduler_info()["workers"])
+                    client.run(warm_up, model, rows[0])  # every worker compiles / loads the kernels
+                    timing["startup_s"] = time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    results = run_on_dask(client, parts, model, bar.update)
+            finally:
+                if cluster is not None:
+                    cluster.close()
+    finally:
+        bar.close()
+    timing["wall_s"] = time.perf_counter() - t0
+    timing["robot_seconds_per_s"] = timing["robot_seconds"] / timing["wall_s"]
+    merged = []
+    for part, result in zip(parts, results):
+        for row, figures in zip(part, result):
+            merged.append({**{k: v for k, v in row.items() if k != "track"}, **figures})
+    return merged, timing
+
+
+# --------------------------------------------------------------------------- analysis (pure)
+
+
+def add_relative(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each wing-damage row's four figures relative to the undamaged wing of the same drive and damping axis."""
+    ref = {(r["drive"], r["aero_damping_exponent"]): r for r in rows if r["inertia_factor"] == 1.0}
+    out = []
+    for r in rows:
+        base = ref[(r["drive"], r["aero_damping_exponent"])]
+        lift = (r["stroke_amplitude_deg"] * r["stroke_frequency_hz"]) ** 2
+        lift0 = (base["stroke_amplitude_deg"] * base["stroke_frequency_hz"]) ** 2
+        out.append({**r, "lift_proxy": lift,
+                    "frequency_rel": r["stroke_frequency_hz"] / base["stroke_frequency_hz"],
+                    "amplitude_rel": r["stroke_amplitude_deg"] / base["stroke_amplitude_deg"],
+                    "pitch_amplitude_rel": r["pitch_amplitude_deg"] / base["pitch_amplitude_deg"],
+                    "lift_rel": lift / lift0})
+    return out
+
+
+def add_theory(rows: list[dict[str, Any]], model, oscillating_deg: float) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """dsa-map rows with the Hopf/describing-function prediction; per (r3, kappa) the onset check."""
+    from flaair_control import hopf
+    pl = model.plant
+    linear = hopf.LinearStrokePlant(pl.stroke_inertia_kg_m2, pl.stroke_stiffness_nm_per_rad)
+    out, onsets = [], []
+    for r in rows:
+        cycle = hopf.limit_cycle(linear, pl.aero_damping_nm_s2, r["r3_rad_s"], r["kappa"], r["mu_nm_s_per_rad"])
+        oscillating = r["stroke_amplitude_deg"] > oscillating_deg
+        theory_amp = math.degrees(cycle.amplitude_rad)
+        out.append({**r, "oscillating": oscillating, "theory_amplitude_deg": theory_amp,
+                    "theory_frequency_hz": cycle.frequency_hz if theory_amp > 0 else None,
+                    "amplitude_error_rel": (r["stroke_amplitude_deg"] / theory_amp - 1) if oscillating and theory_amp > 0 else None,
+                    "frequency_error_rel": (r["stroke_frequency_hz"] / cycle.frequency_hz - 1) if oscillating and theory_amp > 0 else None})
+    for key in sorted({(r["r3_rad_s"], r["kappa"]) for r in out}):
+        group = sorted((r for r in out if (r["r3_rad_s"], r["kappa"]) == key), key=lambda r: r["mu_nm_s_per_rad"])
+        onset = hopf.hopf_onset(linear, key[0], key[1])
+        first = next((r["mu_nm_s_per_rad"] for r in group if r["oscillating"]), None)
+        last_quiet = max((r["mu_nm_s_per_rad"] for r in group if not r["oscillating"] and (first is None or r["mu_nm_s_per_rad"] < first)),
+                         default=None)
+        degenerate = math.sqrt(key[1]) * key[0] <= linear.natural_frequency_rad_s
+        consistent = (first is None or onset.mu_nm_s_per_rad <= first) and (last_quiet is None or onset.mu_nm_s_per_rad >= last_quiet)
+        onsets.append({"r3_rad_s": key[0], "kappa": key[1], "theory_onset_mu_nm_s_per_rad": onset.mu_nm_s_per_rad,
+                       "theory_onset_frequency_hz": onset.frequency_hz, "degenerate": degenerate,
+                       "simulated_onset_between": [last_quiet, first], "onset_consistent": consistent})
+    return out, onsets
+
+
+# --------------------------------------------------------------------------- output
+
+
+def _clean(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return _clean(value.item())
+    return value
+
+
+def write_json(path: Path, document: dict[str, Any]) -> None:
+    """Strict JSON (NaN/inf -> null)."""
+    path.write_text(json.dumps(_clean(document), indent=1, allow_nan=False) + "\n")
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    """One line per row, the union of the keys as columns."""
+    columns: list[str] = []
+    for r in rows:
+        columns += [k for k in r if k not in columns]
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, columns)
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: ("" if v is None else v) for k, v in _clean(r).items()})
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="bin/flaair sweep", description=__doc__.split("\n\n")[1],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n\n".join(__doc__.split("\n\n")[2:]))
+    parser.add_argument("study", choices=SUBCOMMANDS, help="which study")
+    parser.add_argument("--out", required=True, type=Path, help="output directory (created; files inside are replaced)")
+    parser.add_argument("--scheduler", help="address of an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)")
+    parser.add_argument("--workers", type=int, help="local cluster: worker processes (default: one per core)")
+    parser.add_argument("--in-process", action="store_true", help="run the chunks in this process, no Dask")
+    parser.add_argument("--config", type=Path, default=None, help="sweeps file (default: config/sweeps.yaml)")
+    parser.add_argument("--mode", choices=("dsa", "sync"), action="append", help="stroke: controller mode(s) (default: config)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+
+    def _terminate(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        from flaair_tools import sweep_report
+        config = args.config or config_dir() / "sweeps.yaml"
+        if args.workers is not None and args.workers < 1:
+            raise SweepError(f"--workers must be >= 1, got {args.workers}")
+        if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+            raise SweepError(f"--scheduler must look like tcp://HOST:PORT, got {args.scheduler!r}")
+        args.out.mkdir(parents=True, exist_ok=True)
+        return sweep_report.run_study(args, config)
+    except (SweepError, ConfigError, ModelError, ValueError, OSError) as exc:
+        print(f"flaair sweep: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("flaair sweep: interrupted; cluster shut down", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
