@@ -7,7 +7,9 @@ import sys
 # name -> (module, one-line help). `run` is handled by bin/flaair itself (it execs the node).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "topic": ("flaair_tools.topic", "list, echo and publish topics (stands in for `ros2 topic`)"),
-    "param": ("flaair_tools.param", "read a running node's parameters (stands in for `ros2 param`)"),
+    "param": ("flaair_tools.param", "read and set a running node's parameters (stands in for `ros2 param`)"),
+    "node": ("flaair_tools.node_cli", "list the running nodes (stands in for `ros2 node`)"),
+    "foxglove": ("flaair_tools.foxglove_cli", "serve the live graph to Foxglove / Lichtblick over WebSocket"),
     "simulate": ("flaair_sim.cli_simulate", "replay a measured run's drive through the model: CSV in, CSV out"),
     "calibrate": ("flaair_tools.calibrate", "fit sensor gain and lag against ground truth in bags"),
     "import": ("flaair_tools.import_runs", "turn lab CSV exports into a rosbag2 (MCAP) bag"),

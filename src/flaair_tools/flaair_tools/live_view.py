@@ -1,0 +1,219 @@
+"""What the Foxglove live view publishes: per-sample messages, the wingbeat summary, the layout.
+
+The Foxglove Plot panel draws a time series from one number per message, placed at the
+message's log time (`timestampMethod: receiveTime`, the WebSocket message timestamp for a
+live connection) or at a time field inside it (`headerStamp` / `customField`). A 10-sample
+block would show up as the array elements `stroke_deg[0..9]`, so every block is split into
+one message per sample whose log time, and whose ``stamp`` field, is that sample's own
+signal time: header stamp + k / sample_rate_hz.
+
+Per-sample messages are ROS 2 CDR with a ``ros2msg`` schema (what foxglove_bridge serves, so
+Foxglove and Lichtblick decode them natively); a block is encoded in one numpy call. The
+wingbeat summary and the collision status are JSON (a few messages per wingbeat).
+
+Pure module: numpy and the SDK's layout types, no rclpy.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from flaair_tools.wingbeat import Wingbeats
+
+LIVE_PREFIX = "/flaair/live"
+TIME_DEFINITION = "================================================================================\n" \
+                  "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
+
+
+@dataclass(frozen=True)
+class SampleStream:
+    """One per-sample channel: its topic, ros2msg schema and the CDR record of one sample."""
+
+    topic: str
+    schema_name: str
+    fields: tuple[tuple[str, str], ...]  # (name, "float64" | "bool") after the leading stamp
+
+    @property
+    def definition(self) -> str:
+        """The ros2msg text (with the Time dependency) Foxglove decodes the CDR with."""
+        lines = ["builtin_interfaces/Time stamp"] + [f"{kind} {name}" for name, kind in self.fields]
+        return "\n".join(lines) + "\n" + TIME_DEFINITION
+
+    @property
+    def dtype(self) -> np.dtype:
+        """Structured dtype of one encoded sample: encapsulation, stamp, fields (CDR alignment)."""
+        names, formats, offsets = ["encapsulation", "sec", "nanosec"], [("u1", 4), "<i4", "<u4"], [0, 4, 8]
+        offset = 12
+        for name, kind in self.fields:
+            size = 8 if kind == "float64" else 1
+            offset += (-(offset - 4)) % size
+            names.append(name), formats.append("<f8" if kind == "float64" else "?"), offsets.append(offset)
+            offset += size
+        return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset})
+
+
+WING_SAMPLE = ("flaair_live/msg/WingSample", (("stroke_deg", "float64"), ("pitch_deg", "float64"),
+                                              ("stroke_velocity_deg_s", "float64"), ("stroke_valid", "bool"),
+                                              ("pitch_valid", "bool")))
+STREAMS = {
+    "wing_state": SampleStream(f"{LIVE_PREFIX}/wing_state", *WING_SAMPLE),
+    "wing_state_truth": SampleStream(f"{LIVE_PREFIX}/wing_state/truth", *WING_SAMPLE),
+    "sensor_v": SampleStream(f"{LIVE_PREFIX}/sensor_v", "flaair_live/msg/SensorSample",
+                             (("stroke_sensor_v", "float64"), ("pitch_sensor_v", "float64"))),
+    "drive": SampleStream(f"{LIVE_PREFIX}/drive", "flaair_live/msg/DriveSample", (("drive_v", "float64"),)),
+}
+WINGBEAT_TOPIC = f"{LIVE_PREFIX}/wingbeat"
+COLLISION_TOPIC = f"{LIVE_PREFIX}/collision_status"
+WINGBEAT_SCHEMA = {
+    "title": "flaair_live.Wingbeat", "type": "object",
+    "properties": {
+        "stamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+                  "description": "signal time of the wingbeat's end"},
+        "wingbeat_index": {"type": "integer", "description": "wingbeats summarised since the live view started"},
+        "duration_s": {"type": "number"},
+        "frequency_hz": {"type": "number"},
+        "amplitude_deg": {"type": "number", "description": "stroke amplitude, half peak-to-peak"},
+        "pitch_amplitude_deg": {"type": "number", "description": "pitch amplitude, half peak-to-peak"},
+        "collision_score": {"type": ["number", "null"], "description": "spectral RMSE / threshold: >= 1 colliding"},
+        "colliding": {"type": ["boolean", "null"]},
+        "k_r": {"type": ["number", "null"], "description": "dSA blend: 1 synchronous, 0 asynchronous"},
+    },
+}
+
+COLLISION_SCHEMA = {"title": "flaair_live.CollisionStatus", "type": "object", "properties": {
+    "stamp": {"type": "object"}, "wingbeat_index": {"type": "integer"}, "colliding": {"type": "boolean"},
+    "spectrum_rmse_deg": {"type": ["number", "null"]}, "threshold_deg": {"type": ["number", "null"]},
+    "collision_score": {"type": ["number", "null"]}}}
+
+
+def sample_indices(first_sample_index: int, length: int, decimation: int) -> np.ndarray:
+    """Positions within a block of the samples to publish: those whose stream index is a multiple
+    of `decimation` (so the kept samples are evenly spaced across blocks)."""
+    return np.arange((-first_sample_index) % decimation, length, decimation)
+
+
+def sample_times_ns(stamp_ns: int, positions: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+    """Signal time of each chosen sample: the block's header stamp + k / sample_rate_hz."""
+    return stamp_ns + np.round(positions * (1e9 / sample_rate_hz)).astype(np.int64)
+
+
+def encode_samples(stream: SampleStream, times_ns: np.ndarray, values: dict[str, np.ndarray]) -> bytes:
+    """All chosen samples of a block as consecutive CDR messages (each ``stream.dtype.itemsize`` bytes)."""
+    records = np.zeros(times_ns.size, dtype=stream.dtype)
+    records["encapsulation"] = (0, 1, 0, 0)
+    records["sec"], records["nanosec"] = np.divmod(times_ns, 1_000_000_000)
+    for name, _ in stream.fields:
+        records[name] = values[name]
+    return records.tobytes()
+
+
+def block_samples(stream: SampleStream, message, stamp_ns: int, decimation: int) -> tuple[list[int], list[bytes]]:
+    """(log times ns, one CDR message each) of the chosen samples of a decoded block message."""
+    first, rate = int(message["first_sample_index"]), float(message["sample_rate_hz"])
+    positions = sample_indices(first, len(message[stream.fields[0][0]]), decimation)
+    times = sample_times_ns(stamp_ns, positions, rate)
+    payload, size = encode_samples(stream, times, {name: message[name][positions] for name, _ in stream.fields}), stream.dtype.itemsize
+    return times.tolist(), [payload[i * size:(i + 1) * size] for i in range(times.size)]
+
+
+def decode_sample(stream: SampleStream, data: bytes) -> dict[str, float | bool | int]:
+    """One per-sample message back to a dict with ``stamp_ns`` (for tests and tools)."""
+    record = np.frombuffer(data, dtype=stream.dtype, count=1)[0]
+    out: dict[str, float | bool | int] = {"stamp_ns": int(record["sec"]) * 1_000_000_000 + int(record["nanosec"])}
+    out.update({name: record[name].item() for name, _ in stream.fields})
+    return out
+
+
+def _number(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def wingbeat_messages(beats: Wingbeats, first_index: int, stamp0_ns: int, first_sample0: int,
+                      sample_rate_hz: float, colliding: bool | None) -> list[tuple[int, bytes]]:
+    """(log time ns, strict JSON bytes) per completed wingbeat; its time is the wingbeat's end.
+
+    stamp0_ns / first_sample0: a block's header stamp and first sample index (signal time of
+    sample i = stamp0 + (i - first_sample0) / fs).
+    """
+    out = []
+    for k in range(beats.end_sample.size):
+        end_ns = stamp0_ns + int(round((beats.end_sample[k] - first_sample0) * 1e9 / sample_rate_hz))
+        message = {
+            "stamp": {"sec": end_ns // 1_000_000_000, "nsec": end_ns % 1_000_000_000},
+            "wingbeat_index": first_index + k,
+            "duration_s": float((beats.end_sample[k] - beats.start_sample[k]) / sample_rate_hz),
+            "frequency_hz": _number(beats.frequency_hz[k]),
+            "amplitude_deg": _number(beats.amplitude_deg[k]),
+            "pitch_amplitude_deg": _number(beats.pitch_amplitude_deg[k]),
+            "collision_score": _number(beats.collision_score[k]),
+            "colliding": colliding,
+            "k_r": _number(beats.k_r[k]),
+        }
+        out.append((end_ns, json.dumps(message, allow_nan=False).encode()))
+    return out
+
+
+def collision_message(wingbeat_index: int, colliding: bool, spectrum_rmse_deg: float, threshold_deg: float,
+                      stamp_ns: int) -> bytes:
+    """A CollisionStatus as strict JSON for /flaair/live/collision_status."""
+    score = spectrum_rmse_deg / threshold_deg if threshold_deg > 0 else math.nan
+    return json.dumps({"stamp": {"sec": stamp_ns // 1_000_000_000, "nsec": stamp_ns % 1_000_000_000},
+                       "wingbeat_index": int(wingbeat_index), "colliding": bool(colliding),
+                       "spectrum_rmse_deg": _number(spectrum_rmse_deg), "threshold_deg": _number(threshold_deg),
+                       "collision_score": _number(score)}, allow_nan=False).encode()
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """'HOST:PORT' (or '[v6]:PORT') -> (host, port); ValueError naming the bad part."""
+    host, sep, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host:
+        raise ValueError(f"expected HOST:PORT (e.g. 127.0.0.1:8765), got {text!r}")
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"port {port!r} of {text!r} is not a number") from None
+    if not 0 <= number <= 65535:
+        raise ValueError(f"port {number} of {text!r} is outside 0..65535")
+    return host, number
+
+
+def layout_json() -> str:
+    """The Foxglove app layout of config/foxglove_layout.json (import it with Layout > Import)."""
+    import foxglove.layouts as fl
+
+    def plot(title: str, series: list[tuple[str, str]], y_label: str, window_s: float) -> fl.PlotPanel:
+        return fl.PlotPanel(title=title, config=fl.PlotConfig(
+            paths=[fl.PlotSeries(value=value, label=label, timestamp_method="receiveTime",
+                                 line_style="dashed" if "truth" in label else "solid")
+                   for value, label in series],
+            x_axis_val="timestamp", time_window_mode="sliding", following_view_width=window_s,
+            y_axis_label=y_label, show_legend=True, legend_display="top"))
+
+    ws, truth, sensor = STREAMS["wing_state"].topic, STREAMS["wing_state_truth"].topic, STREAMS["sensor_v"].topic
+    wing = plot("Wing angles (front end; dashed: simulator truth)", [
+        (f"{ws}.stroke_deg", "stroke [deg]"), (f"{ws}.pitch_deg", "pitch [deg]"),
+        (f"{truth}.stroke_deg", "stroke truth [deg]"), (f"{truth}.pitch_deg", "pitch truth [deg]")], "angle [deg]", 0.1)
+    volts = plot("PVDF charge-amplifier outputs", [(f"{sensor}.stroke_sensor_v", "stroke sensor [V]"),
+                                                  (f"{sensor}.pitch_sensor_v", "pitch sensor [V]")], "voltage [V]", 0.1)
+    drive = plot("Actuator drive", [(f"{STREAMS['drive'].topic}.drive_v", "drive [V]")], "drive [V]", 0.1)
+    beat = plot("Per wingbeat", [(f"{WINGBEAT_TOPIC}.{name}", label) for name, label in (
+        ("amplitude_deg", "stroke amplitude [deg]"), ("pitch_amplitude_deg", "pitch amplitude [deg]"),
+        ("collision_score", "collision score (>= 1: colliding)"), ("k_r", "K_r (1 sync, 0 dSA)"))], "", 5.0)
+    frequency = plot("Wingbeat frequency", [(f"{WINGBEAT_TOPIC}.frequency_hz", "frequency [Hz]")], "[Hz]", 5.0)
+    states = fl.StateTransitionsPanel(title="Collision monitor", config=fl.StateTransitionsConfig(
+        paths=[fl.StateTransitionsSeries(value=f"{COLLISION_TOPIC}.colliding", label="colliding",
+                                         timestamp_method="receiveTime")],
+        time_window_mode="sliding", x_axis_range=5.0, show_points=True))
+    last = fl.RawMessagesPanel(title="Last wingbeat", config=fl.RawMessagesConfig(topic_path=WINGBEAT_TOPIC,
+                                                                                  expansion="all"))
+
+    def split(direction: str, *items: tuple[float, object]) -> fl.SplitContainer:
+        return fl.SplitContainer(direction=direction, items=[fl.SplitItem(proportion=p, content=c) for p, c in items])
+
+    layout = fl.Layout(content=split("row", (3, split("column", (3, wing), (2, volts), (1, drive))),
+                                     (2, split("column", (3, beat), (2, frequency), (1, states), (2, last)))))
+    return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"

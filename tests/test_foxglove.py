@@ -1,0 +1,131 @@
+"""Live view over real DDS and a real WebSocket: per-sample messages at their signal times, wingbeats."""
+from __future__ import annotations
+
+import json
+import socket
+import sys
+
+import numpy as np
+import pytest
+
+from flaair_tools import live_view, wingbeat
+from flaair_tools.foxglove_client import FoxgloveClient
+from flaair_tools.foxglove_node import foxglove_node_args
+from rosproc import FLAAIR, ros_processes, run, wait_for
+
+FS, BLOCK, BLOCKS, START_S = 20000.0, 10, 400, 3.0
+# Publishes CollisionStatus (colliding, 3 deg vs 1 deg) and ControllerState (K_r 0.25) first, then
+# BLOCKS wing-state blocks (20 deg stroke / 30 deg pitch sine at 140 Hz) and as many sensor blocks,
+# stamped from START_S, once the live view subscribes.
+PUBLISHER = r"""
+import sys, time
+import numpy as np
+import rclpy
+from flaair_common import cdr
+from flaair_common.qos import BLOCK_STREAM, STATUS
+from flaair_msgs.msg import CollisionStatus, ControllerState, SensorVoltageBlock, WingStateBlock
+fs, block, blocks, start_s = 20000.0, 10, int(sys.argv[1]), float(sys.argv[2])
+rclpy.init()
+node = rclpy.create_node("test_publisher")
+wing = node.create_publisher(WingStateBlock, "/flaair/wing_state", BLOCK_STREAM)
+sensor = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STREAM)
+status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
+controller = node.create_publisher(ControllerState, "/flaair/controller/state", BLOCK_STREAM)
+deadline = time.monotonic() + 60.0
+while time.monotonic() < deadline and min(p.get_subscription_count() for p in (wing, sensor, status, controller)) == 0:
+    time.sleep(0.05)
+time.sleep(0.5)
+message = CollisionStatus(wingbeat_index=7, colliding=True, spectrum_rmse_deg=3.0, threshold_deg=1.0)
+message.header.stamp.sec = 3
+status.publish(message)
+controller.publish(ControllerState(k_r=0.25))
+time.sleep(1.0)
+wing_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, "robot")
+sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, block, "robot")
+for i in range(blocks):
+    n = np.arange(i * block, (i + 1) * block)
+    t = n / fs
+    stamp_ns = int(round(start_s * 1e9)) + int(round(i * block / fs * 1e9))
+    stroke = 20.0 * np.sin(2 * np.pi * 140.0 * t)
+    wing.publish(wing_codec.encode(stamp_ns, {"sample_rate_hz": fs, "first_sample_index": int(n[0]), "stroke_deg": stroke,
+        "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * t), "stroke_velocity_deg_s": n.astype(float),
+        "stroke_valid": np.ones(block, bool), "pitch_valid": n // 10 != 100}))
+    sensor.publish(sensor_codec.encode(stamp_ns, {"sample_rate_hz": fs, "first_sample_index": int(n[0]),
+        "stroke_sensor_v": 1.0 + n, "pitch_sensor_v": -1.0 - n}))
+    time.sleep(0.001)
+print("published", flush=True)
+time.sleep(1.0)
+"""
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -> None:
+    port = _free_port()
+    topics = [live_view.STREAMS["wing_state"].topic, live_view.STREAMS["sensor_v"].topic,
+              live_view.WINGBEAT_TOPIC, live_view.COLLISION_TOPIC]
+    with ros_processes() as procs:
+        node = procs.flaair(*foxglove_node_args(f"127.0.0.1:{port}"), "-p", "reliable:=true")
+        client = None
+
+        def connected() -> bool:
+            nonlocal client
+            try:
+                client = FoxgloveClient(f"ws://127.0.0.1:{port}", open_timeout_s=2.0)
+                return True
+            except OSError:
+                assert node.poll() is None, node.stderr.read()
+                return False
+
+        assert wait_for(connected, 60.0, interval_s=0.5)
+        client.wait_for_channels(topics, timeout_s=30.0)
+        assert client.channels[topics[0]]["encoding"] == "cdr"
+        assert client.channels[topics[0]]["schemaEncoding"] == "ros2msg"
+        client.subscribe(topics)
+        publisher = procs.start(sys.executable, "-c", PUBLISHER, str(BLOCKS), str(START_S))
+        expected = BLOCKS * BLOCK
+        received = client.received
+        while len(received.messages[topics[0]]) < expected or len(received.messages[topics[1]]) < expected:
+            if not client.receive(timeout_s=30.0):
+                break
+        while client.receive(timeout_s=1.0):  # the last wingbeats and time broadcasts
+            pass
+        client.close()
+        assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
+    sample_ns = int(START_S * 1e9) + np.round(np.arange(expected) * 1e9 / FS).astype(np.int64)
+    # every sample one message, its log time and stamp its own signal time
+    wing = received.messages[topics[0]]
+    assert len(wing) == expected
+    decoded = [live_view.decode_sample(live_view.STREAMS["wing_state"], payload) for _, payload in wing]
+    np.testing.assert_array_equal([t for t, _ in wing], sample_ns)
+    np.testing.assert_array_equal([d["stamp_ns"] for d in decoded], sample_ns)
+    np.testing.assert_array_equal([d["stroke_velocity_deg_s"] for d in decoded], np.arange(expected))
+    np.testing.assert_array_equal([d["pitch_valid"] for d in decoded], np.arange(expected) // 10 != 100)
+    sensor = [live_view.decode_sample(live_view.STREAMS["sensor_v"], payload) for _, payload in received.messages[topics[1]]]
+    np.testing.assert_array_equal([d["stroke_sensor_v"] for d in sensor], 1.0 + np.arange(expected))
+    np.testing.assert_array_equal([t for t, _ in received.messages[topics[1]]], sample_ns)
+    # wingbeats: those of the same core over the whole record, with the latest K_r and collision score
+    n = np.arange(expected)
+    stroke, pitch = 20.0 * np.sin(2 * np.pi * 140.0 * n / FS), 30.0 * np.cos(2 * np.pi * 140.0 * n / FS)
+    truth = wingbeat.summarize(stroke, pitch, n // 10 != 100, wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0))
+    beats = [json.loads(p) for _, p in received.messages[live_view.WINGBEAT_TOPIC]]
+    # upward crossings every 142.86 samples: 27 in 4000 samples, 26 wingbeats; the invalid block at
+    # samples 1000-1009 hides the crossing at 1000 and spoils the wingbeats on both sides of it
+    assert len(beats) == truth.end_sample.size == 24
+    np.testing.assert_allclose([b["amplitude_deg"] for b in beats], truth.amplitude_deg, rtol=1e-12)
+    np.testing.assert_allclose([b["amplitude_deg"] for b in beats], 20.0, rtol=1e-3)
+    np.testing.assert_allclose([b["pitch_amplitude_deg"] for b in beats], 30.0, rtol=1e-3)
+    np.testing.assert_allclose([b["frequency_hz"] for b in beats], 140.0, rtol=1e-5)
+    assert all(b["k_r"] == 0.25 and b["collision_score"] == 3.0 and b["colliding"] is True for b in beats)
+    end_ns = [t for t, _ in received.messages[live_view.WINGBEAT_TOPIC]]
+    np.testing.assert_allclose(end_ns, START_S * 1e9 + truth.end_sample * 1e9 / FS, atol=1.0)
+    status = [json.loads(p) for _, p in received.messages[live_view.COLLISION_TOPIC]]
+    assert status == [{"stamp": {"sec": 3, "nsec": 0}, "wingbeat_index": 7, "colliding": True, "spectrum_rmse_deg": 3.0,
+                       "threshold_deg": 1.0, "collision_score": 3.0}]
+    assert received.messages[live_view.COLLISION_TOPIC][0][0] == 3_000_000_000
+    # the server told the client the latest signal time
+    assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
