@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from .characterization import Bode, ChannelBode  # noqa: E402
 
-__all__ = ["bode_figure", "save_bode_figure"]
+__all__ = ["bode_figure", "save_bode_figure", "save_figure", "overlaid_bode_figure", "collision_fft_figure"]
 
 SENSOR_COLOR = "tab:blue"
 TRUTH_COLOR = "tab:orange"
@@ -65,11 +65,76 @@ def bode_figure(stroke_bode: Bode, pitch_bode: Bode | None = None, title: str | 
 
 def save_bode_figure(path: str | Path, stroke_bode: Bode, pitch_bode: Bode | None = None, title: str | None = None, dpi: int = 150) -> Path:
     """Build the Bode figure and save it as PNG; returns the path."""
+    return save_figure(bode_figure(stroke_bode, pitch_bode, title), path, dpi)
+
+
+def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
+    """Save a figure as PNG and close it; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig = bode_figure(stroke_bode, pitch_bode, title)
     try:
         fig.savefig(path, dpi=dpi, format="png")
     finally:
         plt.close(fig)
     return path
+
+
+def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> Any:
+    """Bodes of several runs (e.g. the drive levels) overlaid: one colour per run.
+
+    Sensor-derived curves solid, ground truth dashed; columns stroke and pitch, rows amplitude
+    and phase as in ``bode_figure``.
+    """
+    fig, axes = plt.subplots(2, 2, figsize=(10.0, 6.5), sharex="col", constrained_layout=True)
+    colors = plt.cm.viridis([i / max(1, len(bodes) - 1) for i in range(len(bodes))])
+    for color, (label, bode) in zip(colors, bodes.items()):
+        for column, cb in enumerate((bode.stroke, bode.pitch)):
+            axes[0, column].plot(cb.frequency_hz, cb.sensor_amplitude_deg, "-", color=color, lw=1.4, label=label)
+            axes[0, column].plot(cb.frequency_hz, cb.truth_amplitude_deg, "--", color=color, lw=0.9)
+            axes[1, column].plot(cb.frequency_hz, cb.sensor_phase_deg, "-", color=color, lw=1.4)
+            axes[1, column].plot(cb.frequency_hz, cb.truth_phase_deg, "--", color=color, lw=0.9)
+    for column, name in enumerate(("(a) stroke", "(b) pitch")):
+        axes[0, column].set_title(f"{name}: sensor solid, ground truth dashed")
+        axes[0, column].set_ylabel("amplitude (deg)")
+        axes[1, column].set_ylabel("phase vs drive (deg)" if column == 0 else "phase vs stroke (deg)")
+        axes[1, column].set_xlabel("frequency (Hz)")
+        for row in range(2):
+            axes[row, column].grid(True, alpha=0.3)
+    axes[0, 0].legend(fontsize=8, title="run (drive)", title_fontsize=8)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def collision_fft_figure(frequency_hz: Any, spectra_deg: dict[str, Any], reference_deg: Any, drive_frequency_hz: float,
+                         insets: dict[str, tuple[Any, Any]], band_hz: float = 500.0) -> Any:
+    """The paper's collision figure (b): FFT of sensor pitch per run against a pure sine, with time insets.
+
+    Parameters
+    ----------
+    frequency_hz, spectra_deg
+        Common frequency axis and each run's pitch amplitude spectrum (deg), by label.
+    reference_deg
+        Spectrum of the pure sine at the drive frequency (deg).
+    insets
+        label -> (time_s, pitch_deg): a few wingbeats of each run's pitch, drawn as insets.
+    """
+    colors = {"collision": "tab:blue", "no collision": "tab:green"}
+    fig, ax = plt.subplots(figsize=(9.0, 5.0), constrained_layout=True)
+    for label, spectrum in spectra_deg.items():
+        ax.plot(frequency_hz, spectrum, "-", lw=1.5, color=colors.get(label), label=f"sensor pitch, {label}")
+    ax.plot(frequency_hz, reference_deg, "--", lw=1.2, color="tab:red", label=f"pure {drive_frequency_hz:g} Hz sine")
+    ax.set_xlim(0, band_hz)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("pitch amplitude (deg)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="center right", fontsize=8)
+    for k, (label, (time_s, pitch_deg)) in enumerate(insets.items()):
+        inset = ax.inset_axes([0.42 + 0.3 * k, 0.66, 0.26, 0.28])
+        inset.plot(time_s, pitch_deg, color=colors.get(label, "k"), lw=1.0)
+        inset.set_title(f"{label}: pitch vs time", fontsize=7)
+        inset.set_xlabel("time (ms)", fontsize=7, labelpad=1)
+        inset.set_ylabel("deg", fontsize=7, labelpad=1)
+        inset.tick_params(labelsize=6)
+    ax.set_title("Collision: FFT of sensor-derived pitch (paper Fig. collisions b)")
+    return fig

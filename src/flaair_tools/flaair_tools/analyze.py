@@ -1,27 +1,48 @@
-"""`flaair analyze BAG... --out DIR`: the paper's analysis of recorded experiments, from the bags.
+"""`flaair analyze BAG... --out DIR`: the paper's analysis of recorded experiments and lab runs, from the bags.
 
-For every bag (its experiment on /flaair/experiment, its runs on /flaair/run_marker), using the
-live front-end estimate recorded on /flaair/wing_state against the ground truth on
-/flaair/wing_state/truth:
+Every run's drive is recognised from the drive signal itself (chirp, stepped sine, single sine,
+dSA transition, free run; flaair_tools.runkind) unless the bag says what it is (a FLAAIR
+experiment, or `flaair import --kind`), and each gets its analysis, using the front-end
+estimate against the ground truth on /flaair/wing_state/truth:
   chirp         Bode of sensor vs truth (paper Fig. Bode a), gains (deg/V), amplitude and phase
                 RMSE, all-sample and lag-corrected time RMSE (paper, Sensor Performance)
-  stepped_sine  pitch Bode from steady-state stepped sines (paper Fig. Bode b) and the same figures
-  collision     the paper's FFT metric: pitch spectrum vs a pure sine, with and without the
-                obstacle (RMSE over 0-500 Hz and of the time data), plus the monitor's events
+  stepped sine  per-step amplitude and phase at each step's frequency -> Bode points (paper
+                Fig. Bode b), and the same figures (the pitch headline figures come from here)
+  sine          gain and phase at its one frequency, and the paper's collision metric
+  collision     (the collision experiment) the metric with and without the obstacle, the
+                monitor's onset/clearance times and its detection latency in wingbeats
   transition    stroke frequency and amplitude from the Hilbert transform (paper Fig. async)
-Writes DIR/report.json (every number) and DIR/report.html with PNG figures.
+  free          stroke frequency and amplitude of the sensor and the truth
+Writes DIR/report.html (one self-contained file: summary first, figures embedded) and
+DIR/report.json (every number; strict JSON, null where a figure is undefined), and the figures
+as PNG files beside them.
+
+Gains: the sweep figures are "for this gain" (fitted against ground truth, as in the paper).
+The estimate everything else uses comes from --calibration FILE (calibration.yaml written by
+`flaair calibrate`), else from the live front end recorded in the bag, else from the model's
+gains. On model gains, pitch reads ~4x small on a real robot (the model over-predicts the
+hinge sensor ~4.3x): analyze then warns, and the report carries a banner.
+
+Partial bags: a run holding less than its marker announced (a recovered bag, a run cut short)
+or a recorded run missing altogether is reported with what is missing (runs, step
+frequencies, sweep range). The exit code is then 3, unless --allow-partial is given (0).
+
+Run CSV columns and units: docs/LAB_CSV_FORMAT.md.
+
+Exit codes: 0 done; 2 bad input (bag, calibration file); 3 partial data without --allow-partial.
 
 Example:
-  bin/flaair analyze out/demo/bags/* --out out/demo/report
+  bin/flaair analyze out/demo/bags/* --out out/demo/report --calibration out/demo/calibration/calibration.yaml
 """
 from __future__ import annotations
 
 import argparse
-import html
 import json
 import math
+import signal as os_signal
 import sys
 import time
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -29,12 +50,17 @@ import numpy as np
 from tqdm import tqdm
 
 from flaair_common import topics
+from flaair_model.config import ConfigError, load_yaml, node_parameters
 from flaair_sensors import characterization as ch
+from flaair_sensors import frontend
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
+from flaair_tools.runkind import DriveKind, RecognitionParams, RunKindError, recognise
 from flaair_tools.runs import Run, load_runs
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
+EXIT_BAD_INPUT = 2
+EXIT_PARTIAL = 3
 # The paper's published figures, for the side-by-side table (deg, deg/V).
 PAPER = {
     "stroke_gain_deg_per_v": 25.5, "pitch_gain_deg_per_v": 108.0,
@@ -44,10 +70,42 @@ PAPER = {
     "collision_spectrum_rmse_deg": 3.23, "no_collision_spectrum_rmse_deg": 0.53,
     "collision_time_rmse_deg": 15.81, "no_collision_time_rmse_deg": 3.34,
 }
+# Human label and unit of every headline figure.
+LABELS = {
+    "stroke_gain_deg_per_v": ("Stroke sensor gain", "deg/V"),
+    "pitch_gain_deg_per_v": ("Pitch (hinge) sensor gain", "deg/V"),
+    "stroke_amplitude_rmse_deg": ("Stroke amplitude error, RMSE over the Bode", "deg"),
+    "pitch_amplitude_rmse_deg": ("Pitch amplitude error, RMSE over the Bode", "deg"),
+    "pitch_amplitude_rmse_band_deg": ("Pitch amplitude error, RMSE 110-190 Hz", "deg"),
+    "pitch_time_rmse_deg": ("Pitch error in time, RMSE", "deg"),
+    "pitch_time_rmse_lag_corrected_deg": ("Pitch error in time, lag corrected", "deg"),
+    "pitch_time_rmse_lag_corrected_band_deg": ("Pitch error in time, lag corrected, 100-190 Hz", "deg"),
+    "stroke_phase_rmse_deg": ("Stroke phase error, RMSE over the Bode", "deg"),
+    "pitch_phase_rmse_deg": ("Pitch phase error, RMSE over the Bode", "deg"),
+    "collision_spectrum_rmse_deg": ("Collision metric with the obstacle (pitch FFT vs sine)", "deg"),
+    "no_collision_spectrum_rmse_deg": ("Collision metric without the obstacle", "deg"),
+    "collision_time_rmse_deg": ("Pitch vs sine in time, with the obstacle", "deg"),
+    "no_collision_time_rmse_deg": ("Pitch vs sine in time, without the obstacle", "deg"),
+    "transition_final_frequency_hz": ("dSA transition: final flapping frequency", "Hz"),
+    "transition_final_amplitude_deg": ("dSA transition: final stroke amplitude", "deg"),
+}
+MODEL_GAINS_WARNING = (
+    "the front end runs on the model's gains (no --calibration): the model over-predicts the hinge "
+    "sensor ~4.3x on a real robot, so pitch reads ~4x small - the live pitch figures and the collision "
+    "metric come out too small and a collision can be missed. The sweep figures use gains fitted against "
+    "ground truth and are unaffected. Give --calibration FILE (from `flaair calibrate`).")
+# The kind an experiment (config/experiments.yaml) gives each of its runs.
+EXPERIMENT_RUN_KIND = {"chirp": "chirp", "stepped_sine": "stepped_sine", "collision": "sine", "transition": "transition"}
 
 
 class AnalysisError(ValueError):
     """A bag cannot be analysed; the message names the bag, run or topic."""
+
+
+def settings() -> tuple[RecognitionParams, dict[str, Any]]:
+    """Drive recognition thresholds and the other analysis settings (config/flaair.yaml analyze)."""
+    values = node_parameters("flaair.yaml", "analyze")
+    return RecognitionParams.from_mapping(values), values
 
 
 def experiment_info(bag: Path) -> dict[str, Any]:
@@ -59,51 +117,126 @@ def experiment_info(bag: Path) -> dict[str, Any]:
     return {}
 
 
+def _finite(value: Any) -> float | None:
+    return float(value) if value is not None and math.isfinite(value) else None
+
+
+def strict(value: Any) -> Any:
+    """`value` with every non-finite float as None and numpy scalars/arrays as plain Python (strict JSON)."""
+    if isinstance(value, dict):
+        return {str(k): strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return strict(value.tolist())
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return _finite(float(value))
+    return value
+
+
+# ----------------------------------------------------------------------------- estimates and gains
+
+
+def load_calibration(path: Path) -> dict[str, Any]:
+    """A calibration.yaml from `flaair calibrate`, checked; the error names the file and key."""
+    try:
+        calibration = load_yaml(path)
+        frontend.params_from_calibration(calibration, 20000.0)
+    except (ConfigError, OSError, frontend.FrontendError, TypeError, ValueError) as exc:
+        raise AnalysisError(f"--calibration {path}: {exc}") from None
+    return calibration
+
+
+def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> frontend.FrontendParams:
+    """The front end's parameters as the node would run them (config/flaair.yaml frontend_node)."""
+    from flaair_model.model_io import load_model
+
+    names = {f.name for f in fields(frontend.FrontendParams)}
+    tuning = {k: v for k, v in node_parameters("flaair.yaml", "frontend_node").items() if k in names and k != "sample_rate_hz"}
+    if calibration is not None:
+        return frontend.params_from_calibration(calibration, fs_hz, **tuning)
+    return frontend.params_from_model(load_model(), fs_hz, **tuning)
+
+
+def offline_estimate(run: Run, params: frontend.FrontendParams) -> tuple[np.ndarray, np.ndarray]:
+    """Stroke and pitch (rad, NaN where invalid) of the front-end core run on the run's voltages."""
+    est = frontend.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], params)
+    return np.where(est.stroke_valid, est.stroke_rad, np.nan), np.where(est.pitch_valid, est.pitch_rad, np.nan)
+
+
 def _aligned_estimate(blocks: bagio.Blocks, sample_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    position = np.searchsorted(blocks.sample_index, sample_index)
-    position = np.clip(position, 0, len(blocks.sample_index) - 1)
+    position = np.clip(np.searchsorted(blocks.sample_index, sample_index), 0, len(blocks.sample_index) - 1)
     found = blocks.sample_index[position] == sample_index
     stroke = np.where(found & blocks["stroke_valid"][position].astype(bool), np.radians(blocks["stroke_deg"][position]), np.nan)
     pitch = np.where(found & blocks["pitch_valid"][position].astype(bool), np.radians(blocks["pitch_deg"][position]), np.nan)
     return stroke, pitch
 
 
-def _finite(value: float) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
+def run_sample_index(bag: Path, run: Run, blocks: bagio.Blocks) -> np.ndarray:
+    """Absolute sample indices of a run's samples (its marker's first index + time)."""
+    markers = {m.run: m for m in bagio.read_run_markers(bag)}
+    first = markers[run.name].first_sample_index if run.name in markers else int(blocks.sample_index[0])
+    return first + np.round(run["time_s"] * run.sample_rate_hz).astype(np.int64)
+
+
+def live_runs_on_model_gains(live_pitch: np.ndarray, model_pitch: np.ndarray) -> bool:
+    """True if the recorded live pitch is what the model's gains give (within 10 % in RMS)."""
+    both = np.isfinite(live_pitch) & np.isfinite(model_pitch)
+    if both.sum() < 100:
+        return True
+    ratio = np.sqrt(np.mean(live_pitch[both] ** 2) / max(np.mean(model_pitch[both] ** 2), 1e-30))
+    return abs(ratio - 1.0) < 0.1
+
+
+def estimates(bag: Path, runs: list[Run], calibration: dict[str, Any] | None,
+              calibration_file: Path | None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
+    """Front-end estimate of every run, where it came from, and whether it runs on model gains."""
+    if calibration is not None:
+        return ({run.name: offline_estimate(run, frontend_params(calibration, run.sample_rate_hz)) for run in runs},
+                f"front-end core run offline on the recorded voltages with the calibration {calibration_file}", False)
+    model_est = {run.name: offline_estimate(run, frontend_params(None, run.sample_rate_hz)) for run in runs}
+    if topics.WING_STATE not in bagio.bag_info(bag).topics:
+        return model_est, "front-end core run offline on the recorded voltages (model gains)", True
+    blocks = bagio.read_blocks(bag, topics.WING_STATE)
+    live = {run.name: _aligned_estimate(blocks, run_sample_index(bag, run, blocks)) for run in runs}
+    on_model = all(live_runs_on_model_gains(live[r.name][1], model_est[r.name][1]) for r in runs)
+    return live, "live front end (/flaair/wing_state)" + (", model gains" if on_model else ", calibrated gains"), on_model
+
+
+# ----------------------------------------------------------------------------- per-run analyses
 
 
 def _sweep_figures(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, method: str,
-                   frequency_track: np.ndarray | None) -> tuple[ch.Bode, dict[str, Any]]:
-    fs = run.sample_rate_hz
-    drive = run["drive_v"]
+                   track: np.ndarray | None) -> tuple[ch.Bode, dict[str, Any]]:
+    fs, drive = run.sample_rate_hz, run["drive_v"]
     stroke_t, pitch_t = np.radians(run["stroke_deg"]), np.radians(run["pitch_deg"])
     if method == "chirp":
-        bode = ch.bode_from_chirp(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_hz_per_sample=frequency_track)
+        bode = ch.bode_from_chirp(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_hz_per_sample=track)
     else:
-        bode = ch.bode_from_stepped(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_track)
-    result = ch.characterize(bode, drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_track)
-    figures = {name: {k: (_finite(v) if isinstance(v, float) else v) for k, v in metrics.__dict__.items()}
-               for name, metrics in (("stroke", result.stroke), ("pitch", result.pitch))}
+        bode = ch.bode_from_stepped(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
+    result = ch.characterize(bode, drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
+    figures = {name: strict(dict(metrics.__dict__)) for name, metrics in (("stroke", result.stroke), ("pitch", result.pitch))}
     return bode, figures
 
 
 def analyze_sweep(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, method: str,
-                  frequency_track: np.ndarray | None, reference_v: float, figure: Path) -> dict[str, Any]:
-    """Gains, Bode and the paper's RMSE figures of one chirp or stepped-sine run.
+                  track: np.ndarray | None, reference_v: float) -> tuple[dict[str, Any], ch.Bode]:
+    """Gains, Bode and the paper's RMSE figures of one chirp, stepped-sine or sine run.
 
-    As the paper does, the gain of each sensor is fitted against ground truth first and the
-    RMSE figures are "for this gain": the front-end core runs offline on the recorded
-    voltages with the fitted gains (`stroke`, `pitch`). The figures of the live estimate as
-    recorded (the front end's own gains) are kept beside them (`live`).
+    As the paper does, each sensor's gain is fitted against ground truth first and the RMSE
+    figures are "for this gain": the front-end core runs on the recorded voltages with the
+    fitted gains (`stroke`, `pitch`). The figures of the estimate as given (`live`) stay beside.
     """
-    from flaair_sensors import frontend
-    from flaair_sensors.figures import save_bode_figure
-
     fs = run.sample_rate_hz
     out: dict[str, Any] = {"method": method}
-    live_bode, out["live"] = _sweep_figures(run, stroke_est, pitch_est, method, frequency_track)
+    live_bode, out["live"] = _sweep_figures(run, stroke_est, pitch_est, method, track)
     try:
-        gains = calibrate(run.columns, reference_v, sample_rate_hz=fs, frequency_hz_per_sample=frequency_track)
+        gains = calibrate(run.columns, reference_v, sample_rate_hz=fs,
+                          frequency_hz_per_sample=track if method != "chirp" else None)
     except CalibrationError as exc:
         out["gain_error"] = str(exc)
         out.update(stroke=out["live"]["stroke"], pitch=out["live"]["pitch"])
@@ -111,81 +244,129 @@ def analyze_sweep(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, metho
     else:
         # Fitted gain and offset only: the lag stays in the estimate, as the paper reports it.
         params = frontend.params_from_calibration(gains, fs, compensate_lag=False)
-        est = frontend.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], params)
-        bode, calibrated = _sweep_figures(run, np.where(est.stroke_valid, est.stroke_rad, np.nan),
-                                          np.where(est.pitch_valid, est.pitch_rad, np.nan), method, frequency_track)
+        bode, fitted = _sweep_figures(run, *offline_estimate(run, params), method, track)
         for name in ("stroke", "pitch"):
-            calibrated[name]["gain_deg_per_v"] = gains[name]["gain_deg_per_v"]
-            calibrated[name]["sensor_lag_s"] = gains[name]["lag_s"]
-            out[name] = calibrated[name]
-    save_bode_figure(figure, bode, bode, title=f"{run.name}: sensor (fitted gains) vs ground truth")
-    out["figure"] = figure.name
-    out["bode"] = {name: {k: np.asarray(v).tolist() for k, v in getattr(bode, name).__dict__.items()
-                          if isinstance(v, np.ndarray)} for name in ("stroke", "pitch")}
-    return out
+            fitted[name]["gain_deg_per_v"] = _finite(gains[name]["gain_deg_per_v"])
+            fitted[name]["sensor_lag_s"] = _finite(gains[name]["lag_s"])
+            out[name] = fitted[name]
+    out["bode"] = {name: strict({k: v for k, v in getattr(bode, name).__dict__.items() if isinstance(v, np.ndarray)})
+                   for name in ("stroke", "pitch")}
+    return out, bode
 
 
-def stepped_track(info: dict[str, Any], run_name: str, n: int, fs: float, drive_v: np.ndarray) -> np.ndarray:
-    """Drive frequency per sample of a stepped-sine run, from the drive parameters in the bag."""
-    from flaair_sim.drive import stepped_sine, stepped_sine_frequencies_hz
+def metric_params() -> Any:
+    """The collision monitor's paper-metric settings (config/flaair.yaml collision_monitor_node)."""
+    from flaair_control.collision import SpectralMetricParams
 
-    for spec in info.get("runs", []):
-        if spec["name"] == run_name:
-            d = spec["drive"]
-            freqs = stepped_sine_frequencies_hz(d["start_hz"], d["stop_hz"], d["step_hz"])
-            _, track = stepped_sine(fs, d["amplitude_v"], freqs, d["dwell_s"])
-            return np.resize(track, n) if len(track) >= n else np.concatenate([track, np.zeros(n - len(track))])
-    return ch.frequency_track_from_drive(drive_v, fs)[1]
+    p = node_parameters("flaair.yaml", "collision_monitor_node")
+    return SpectralMetricParams(band_hz=float(p["metric_band_hz"]), threshold_deg=float(p["threshold_deg"]),
+                                n_wingbeats=int(p["metric_wingbeats"]))
 
 
-def analyze_collision(runs: list[Run], estimates: dict[str, tuple[np.ndarray, np.ndarray]], info: dict[str, Any],
-                      bag: Path, figure: Path) -> dict[str, Any]:
-    """The paper's collision metric per run, the monitor's events, and the FFT figure."""
-    import matplotlib.pyplot as plt
-
+def collision_metric(pitch_rad: np.ndarray, fs_hz: float, frequency_hz: float) -> Any:
+    """The paper's collision metric of a pitch record (its finite samples)."""
     from flaair_control.collision import spectral_metric
 
-    frequency_hz = float(info["runs"][0]["drive"]["frequency_hz"]) if info.get("runs") else \
-        float(np.median(ch.frequency_track_from_drive(runs[0]["drive_v"], runs[0].sample_rate_hz)[1]))
-    out: dict[str, Any] = {"drive_frequency_hz": frequency_hz, "runs": {}}
-    fig, ax = plt.subplots(figsize=(7, 4))
-    reference_drawn = False
-    for run in runs:
-        pitch = estimates[run.name][1]
-        valid = pitch[np.isfinite(pitch)]
-        metric = spectral_metric(valid, run.sample_rate_hz, frequency_hz)
-        out["runs"][run.name] = {"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
-                                 "collision": bool(metric.collision)}
-        ax.plot(metric.frequency_hz, np.degrees(metric.signal_spectrum_rad), label=f"sensor pitch: {run.name}")
-        if not reference_drawn:
-            ax.plot(metric.frequency_hz, np.degrees(metric.reference_spectrum_rad), "r--", label=f"pure {frequency_hz:g} Hz sine")
-            reference_drawn = True
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("pitch amplitude [deg]")
-    ax.set_xlim(0, 500)
-    ax.legend()
-    ax.set_title("Collision: FFT of sensor-derived pitch (paper Fig. collisions b)")
-    fig.tight_layout()
-    fig.savefig(figure, dpi=120)
-    plt.close(fig)
-    out["figure"] = figure.name
-    events = []
-    if topics.COLLISION_EVENTS in bagio.bag_info(bag).topics:
-        for _, _, message in bagio.iter_messages(bag, [topics.COLLISION_EVENTS]):
-            events.append({"kind": "onset" if message.kind == 1 else "clearance", "wingbeat_index": int(message.wingbeat_index),
-                           "time_s": message.header.stamp.sec + message.header.stamp.nanosec * 1e-9})
-    out["events"] = events
+    valid = pitch_rad[np.isfinite(pitch_rad)]
+    return spectral_metric(valid, fs_hz, frequency_hz, metric_params())
+
+
+def analyze_sine(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, kind: DriveKind, reference_v: float) -> dict[str, Any]:
+    """A single-sine run: gain and phase at its frequency, and the paper's collision metric."""
+    out, bode = analyze_sweep(run, stroke_est, pitch_est, "sine", kind.frequency_track(run.n_samples), reference_v)
+    out["frequency_hz"] = kind.frequency_hz
+    for name in ("stroke", "pitch"):
+        cb = getattr(bode, name)
+        out[f"{name}_at_frequency"] = strict({"sensor_amplitude_deg": cb.sensor_amplitude_deg[0], "truth_amplitude_deg": cb.truth_amplitude_deg[0],
+                                              "phase_error_deg": ch.wrap_deg(cb.sensor_phase_deg[0] - cb.truth_phase_deg[0])})
+    try:
+        metric = collision_metric(pitch_est, run.sample_rate_hz, float(kind.frequency_hz))
+        out["collision_metric"] = strict({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
+                                          "collision": bool(metric.collision), "threshold_deg": metric_params().threshold_deg})
+    except ValueError as exc:
+        out["collision_metric"] = {"error": str(exc)}
     return out
 
 
-def analyze_transition(bag: Path, figure: Path, final_window_s: float = 0.5) -> dict[str, Any]:
+def analyze_free(run: Run, stroke_est: np.ndarray) -> dict[str, Any]:
+    """A free run: dominant stroke frequency and amplitude, sensor and truth."""
+    out: dict[str, Any] = {"method": "free"}
+    for name, stroke in (("sensor", np.degrees(stroke_est)), ("truth", run["stroke_deg"])):
+        x = stroke[np.isfinite(stroke)]
+        if x.size < 16:
+            out[name] = {"frequency_hz": None, "amplitude_deg": None}
+            continue
+        x = x - x.mean()
+        spectrum = np.abs(np.fft.rfft(x * np.hanning(x.size)))
+        peak = int(np.argmax(spectrum[1:])) + 1
+        out[name] = strict({"frequency_hz": peak * run.sample_rate_hz / x.size, "amplitude_deg": np.sqrt(2) * np.std(x)})
+    return out
+
+
+def first_strike_s(truth_stroke_deg: np.ndarray, time_s: np.ndarray, window_s: tuple[float, float], limit_deg: float) -> float | None:
+    """Time of the first sample inside the obstacle window at which the true stroke reaches the obstacle."""
+    hit = (time_s >= window_s[0]) & (time_s < window_s[1]) & (truth_stroke_deg >= limit_deg - 0.5)
+    return float(time_s[np.argmax(hit)]) if hit.any() else None
+
+
+def collision_events(bag: Path) -> list[dict[str, Any]]:
+    """The monitor's onset and clearance events recorded on /flaair/collision/events."""
+    if topics.COLLISION_EVENTS not in bagio.bag_info(bag).topics:
+        return []
+    return [{"kind": "onset" if m.kind == 1 else "clearance", "wingbeat_index": int(m.wingbeat_index),
+             "time_s": m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, "spectrum_rmse_deg": _finite(m.spectrum_rmse_deg)}
+            for _, _, m in bagio.iter_messages(bag, [topics.COLLISION_EVENTS])]
+
+
+def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarray]], info: dict[str, Any],
+                      bag: Path, kinds: dict[str, DriveKind]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The paper's collision metric per run part, the monitor's events and latency; and the figure data."""
+    drive_hz = next((k.frequency_hz for k in kinds.values() if k.frequency_hz), None)
+    if drive_hz is None and info.get("runs"):
+        drive_hz = float(info["runs"][0]["drive"]["frequency_hz"])
+    if drive_hz is None:
+        raise AnalysisError(f"{bag}: the collision runs carry no steady drive frequency")
+    out: dict[str, Any] = {"drive_frequency_hz": drive_hz, "runs": {}, "threshold_deg": metric_params().threshold_deg}
+    figure: dict[str, Any] = {"frequency_hz": drive_hz, "runs": {}}
+    for run in runs:
+        pitch = est[run.name][1]
+        try:
+            metric = collision_metric(pitch, run.sample_rate_hz, drive_hz)
+        except ValueError as exc:
+            out["runs"][run.name] = {"error": str(exc)}
+            continue
+        out["runs"][run.name] = strict({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
+                                        "collision": bool(metric.collision)})
+        figure["runs"][run.name] = (metric, np.degrees(pitch), run.sample_rate_hz)
+    events = collision_events(bag)
+    out["events"] = events
+    plant = info.get("plant", {})
+    window = plant.get("obstacle_windows_s")
+    if window and len(window) >= 2:
+        truth = bagio.read_blocks(bag, topics.WING_STATE_TRUTH)
+        fs = float(truth.sample_rate_hz)
+        strike = first_strike_s(np.where(truth["stroke_valid"].astype(bool), truth["stroke_deg"], np.nan),
+                                truth.sample_index / fs, (float(window[0]), float(window[1])),
+                                float(plant.get("obstacle_stroke_limit_deg", np.inf)))
+        onset = next((e for e in events if e["kind"] == "onset" and e["time_s"] >= float(window[0])), None)
+        clearance = next((e for e in events if e["kind"] == "clearance" and e["time_s"] >= float(window[1])), None)
+        out["obstacle"] = strict({
+            "window_s": [float(window[0]), float(window[1])], "first_strike_s": strike,
+            "onset_s": onset["time_s"] if onset else None, "clearance_s": clearance["time_s"] if clearance else None,
+            "detection_latency_wingbeats": (onset["time_s"] - strike) * drive_hz if onset and strike is not None else None,
+            "clearance_latency_wingbeats": (clearance["time_s"] - float(window[1])) * drive_hz if clearance else None,
+            "false_onsets": sum(1 for e in events if e["kind"] == "onset" and not float(window[0]) <= e["time_s"] < float(window[1]) + 0.1)})
+    return out, figure
+
+
+def analyze_transition(bag: Path, final_window_s: float = 0.5) -> tuple[dict[str, Any], Any]:
     """Sync-to-async transition: stroke frequency and amplitude from the Hilbert transform.
 
     The recorded sensor-derived stroke is band-passed, Hilbert-transformed and smoothed by a
     Savitzky-Golay filter (paper); K_r comes from the recorded controller state.
     """
     from flaair_control import transition as tr
-    from flaair_control.transition_figure import TransitionRecord, plot_transition
+    from flaair_control.transition_figure import TransitionRecord
     from flaair_model.model_io import load_model
 
     wing = bagio.read_blocks(bag, topics.WING_STATE)
@@ -200,178 +381,276 @@ def analyze_transition(bag: Path, figure: Path, final_window_s: float = 0.5) -> 
                               np.array([m.stroke_frequency_hz for m in states]), np.array([m.drive_v for m in states]), 0)
     result = tr.hilbert_analysis(stroke_deg, fs, start_time_s=float(time_s[0]))
     resonance_hz = load_model().plant.stroke_natural_frequency_hz
-    plot_transition(record, result, figure, resonance_hz=resonance_hz,
-                    title="Synchronous to asynchronous transition (recorded bag)")
     end_s = float(time_s[-1])
     final = tr.window_stats(result.time_s, result.frequency_hz, end_s - final_window_s, end_s)
     final_amplitude = tr.window_stats(result.time_s, result.amplitude, end_s - final_window_s, end_s)
-    ramp_start = float(kr_time_s[np.argmax(record.kr < record.kr[0] - 1e-9)]) if (record.kr < record.kr[0] - 1e-9).any() else end_s
+    dropped = record.kr < record.kr[0] - 1e-9
+    ramp_start = float(kr_time_s[np.argmax(dropped)]) if dropped.any() else end_s
     initial = tr.window_stats(result.time_s, result.frequency_hz, float(time_s[0]), ramp_start)
-    return {
-        "figure": figure.name,
-        "resonance_hz": resonance_hz,
-        "initial_frequency_hz": _finite(initial.mean),
-        "final_frequency_hz": _finite(final.mean),
-        "final_frequency_spread_hz": _finite(final.std),
-        "final_amplitude_deg": _finite(final_amplitude.mean),
-        "final_amplitude_spread_deg": _finite(final_amplitude.std),
-        "final_k_r": float(record.kr[-1]),
-    }
+    out = strict({"resonance_hz": resonance_hz, "initial_frequency_hz": initial.mean, "final_frequency_hz": final.mean,
+                  "final_frequency_spread_hz": final.std, "final_amplitude_deg": final_amplitude.mean,
+                  "final_amplitude_spread_deg": final_amplitude.std, "final_k_r": float(record.kr[-1])})
+    return out, (record, result, resonance_hz)
 
 
-def analyze_bag(bag: Path, out_dir: Path, reference_v: float) -> dict[str, Any]:
-    """Every number of one bag (see module docstring)."""
-    info = experiment_info(bag)
-    kind = info.get("kind", "chirp")
-    runs = load_runs([bag])
-    live = topics.WING_STATE in bagio.bag_info(bag).topics
-    estimates = {}
-    if live:
-        estimate_blocks = bagio.read_blocks(bag, topics.WING_STATE)
-        for run in runs:
-            estimates[run.name] = _aligned_estimate(estimate_blocks, run_sample_index(bag, run, estimate_blocks))
-    else:
-        # Lab data carries no live estimate: run the same front-end core offline on the voltages.
-        from flaair_sensors import frontend
-        from flaair_model.model_io import load_model
+# ----------------------------------------------------------------------------- completeness
 
-        model = load_model()
-        for run in runs:
-            params = frontend.params_from_model(model, run.sample_rate_hz)
-            est = frontend.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], params)
-            estimates[run.name] = (np.where(est.stroke_valid, est.stroke_rad, np.nan), np.where(est.pitch_valid, est.pitch_rad, np.nan))
-    result: dict[str, Any] = {"bag": str(bag), "experiment": info.get("name", bag.name), "kind": kind, "runs": {},
-                              "estimate_source": "live front end (/flaair/wing_state)" if live else
-                              "front-end core run offline on the recorded voltages (model gains)"}
-    stem = info.get("name", bag.name)
-    if kind == "collision":
-        result["collision"] = analyze_collision(runs, estimates, info, bag, out_dir / f"{stem}_fft.png")
-        return result
-    if kind == "transition":
-        result["transition"] = analyze_transition(bag, out_dir / f"{stem}_transition.png")
-        return result
+
+def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str], kinds: dict[str, DriveKind],
+                 min_fraction: float, tolerance_hz: float) -> list[str]:
+    """What a cut-short bag lacks: one sentence per missing run, short run, step frequency or sweep range."""
+    notes = [f"run '{name}' is marked but has no samples in the bag" for name in missing_runs]
+    expected_parts: dict[str, dict[str, Any]] = {}
+    for spec in info.get("runs", []):
+        for part in spec.get("markers") or [[spec["name"]]]:
+            expected_parts[part[0]] = spec.get("drive", {})
+    present = {run.name for run in runs} | set(missing_runs)
+    notes += [f"run '{name}' of the experiment is not in the bag at all" for name in expected_parts if name not in present]
     for run in runs:
-        track = None
-        method = "chirp"
-        if kind == "stepped_sine":
-            method = "stepped"
-            track = stepped_track(info, run.name, run.n_samples, run.sample_rate_hz, run["drive_v"])
-        stroke_est, pitch_est = estimates[run.name]
-        result["runs"][run.name] = analyze_sweep(run, stroke_est, pitch_est, method, track, reference_v,
-                                                 out_dir / f"{stem}_{run.name}_bode.png")
-    return result
+        if run.fraction_present >= min_fraction:
+            continue
+        kind = kinds[run.name]
+        note = (f"run '{run.name}' holds {run.fraction_present:.0%} of its marked samples "
+                f"({run.n_samples / run.sample_rate_hz:.3g} of {run.expected_n_samples / run.sample_rate_hz:.3g} s)")
+        drive = expected_parts.get(run.name, {})
+        found = [s.frequency_hz for s in kind.steps]
+        if drive.get("waveform") == "stepped_sine":
+            from flaair_sim.drive import stepped_sine_frequencies_hz
+
+            wanted = stepped_sine_frequencies_hz(drive["start_hz"], drive["stop_hz"], drive["step_hz"])
+            lost = [f for f in wanted if not any(abs(f - g) <= tolerance_hz for g in found)]
+            note += f"; steps missing: {', '.join(f'{f:g}' for f in lost)} Hz" if lost else ""
+        elif drive.get("waveform") == "chirp" and kind.sweep_hz:
+            note += f"; sweep covered {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz of {drive['start_hz']:g}-{drive['stop_hz']:g} Hz"
+        elif kind.kind == "stepped_sine":
+            note += f"; steps found: {', '.join(f'{f:.4g}' for f in found)} Hz, the steps after them are missing"
+        elif kind.sweep_hz:
+            note += f"; drive seen {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz, the rest of the run is missing"
+        notes.append(note)
+    return notes
 
 
-def run_sample_index(bag: Path, run: Run, blocks: bagio.Blocks) -> np.ndarray:
-    """Absolute sample indices of a run's samples (its marker's first index + time)."""
-    markers = {m.run: m for m in bagio.read_run_markers(bag)}
-    first = markers[run.name].first_sample_index if run.name in markers else int(blocks.sample_index[0])
-    return first + np.round(run["time_s"] * run.sample_rate_hz).astype(np.int64)
+# ----------------------------------------------------------------------------- one bag
 
 
-def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
-    """The paper's headline figures as measured here, beside the paper's."""
-    ours: dict[str, float | None] = {}
+def run_kinds(bag: Path, runs: list[Run], info: dict[str, Any], explicit: dict[str, str],
+              recognition: RecognitionParams) -> tuple[dict[str, DriveKind], list[str]]:
+    """Every run's drive, recognised; an explicit kind (experiment or import --kind) wins, with a warning if they differ."""
+    has_controller = topics.CONTROLLER_STATE in bagio.bag_info(bag).topics
+    kinds, warnings = {}, []
+    for run in runs:
+        drive = run["drive_v"] if "drive_v" in run else np.zeros(run.n_samples)
+        found = recognise(drive, run.sample_rate_hz, recognition, has_controller_state=has_controller)
+        wanted = explicit.get(run.name) or EXPERIMENT_RUN_KIND.get(info.get("kind", ""))
+        if wanted and wanted != found.kind:
+            warnings.append(f"{bag}: run '{run.name}' is marked '{wanted}' but its drive looks like '{found.kind}' "
+                            f"({found.reason}); analysed as '{wanted}'")
+            if wanted == "stepped_sine" and not found.steps or wanted == "sine" and not found.steps:
+                warnings[-1] += " without steps found: analysed as a sweep"
+                wanted = "chirp"
+            found = DriveKind(wanted, f"marked '{wanted}' in the bag; {found.reason}", found.steps, found.sweep_hz,
+                              found.drive_amplitude_v)
+        kinds[run.name] = found
+    return kinds, warnings
 
-    def first_run(kind: str) -> dict[str, Any] | None:
-        for bag in bags:
-            if bag["kind"] == kind and bag["runs"]:
-                return next(iter(bag["runs"].values()))
-        return None
 
-    chirp, stepped = first_run("chirp"), first_run("stepped_sine")
+def marked_kinds(bag: Path) -> dict[str, str]:
+    """Kinds given explicitly at import (`flaair import --kind`), by run name."""
+    out = {}
+    if bagio.RUN_MARKER_TOPIC in bagio.bag_info(bag).topics:
+        for _, _, message in bagio.iter_messages(bag, [bagio.RUN_MARKER_TOPIC]):
+            values = json.loads(message.data)
+            if values.get("kind"):
+                out[str(values["run"])] = str(values["kind"])
+    return out
+
+
+def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | None = None,
+                calibration_file: Path | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Every number of one bag (see module docstring), and the data its figures are drawn from."""
+    recognition, config = settings()
+    info = experiment_info(bag)
+    missing_runs: list[tuple[str, str]] = []
+    runs = load_runs([bag], missing=missing_runs)
+    kinds, warnings = run_kinds(bag, runs, info, marked_kinds(bag), recognition)
+    est, source, on_model = estimates(bag, runs, calibration, calibration_file)
+    name = info.get("name", bag.name)
+    result: dict[str, Any] = {"bag": str(bag), "experiment": name, "kind": info.get("kind", "lab runs"),
+                              "description": info.get("description", "runs imported from the lab"), "runs": {},
+                              "estimate_source": source, "model_gains": on_model, "warnings": warnings}
+    result["missing"] = completeness(info, runs, [r for _, r in missing_runs], kinds, float(config["min_run_fraction"]),
+                                     float(config["tolerance_hz"]))
+    plots: dict[str, Any] = {"bode": {}, "runs": {}}
+    if info.get("kind") == "collision":
+        result["collision"], plots["collision"] = analyze_collision(runs, est, info, bag, kinds)
+        return result, plots
+    if any(k.kind == "transition" for k in kinds.values()):
+        result["transition"], plots["transition"] = analyze_transition(bag)
+    for run in runs:
+        kind = kinds[run.name]
+        stroke_est, pitch_est = est[run.name]
+        entry: dict[str, Any]
+        try:
+            if kind.kind in ("chirp", "unrecognised"):
+                entry, plots["bode"][run.name] = analyze_sweep(run, stroke_est, pitch_est, "chirp", None, reference_v)
+            elif kind.kind == "stepped_sine":
+                entry, plots["bode"][run.name] = analyze_sweep(run, stroke_est, pitch_est, "stepped",
+                                                               kind.frequency_track(run.n_samples), reference_v)
+            elif kind.kind == "sine":
+                entry = analyze_sine(run, stroke_est, pitch_est, kind, reference_v)
+            elif kind.kind == "free":
+                entry = analyze_free(run, stroke_est)
+            else:
+                entry = {"method": "transition"}
+        except ch.CharacterizationError as exc:
+            entry = {"method": kind.kind, "error": str(exc)}
+            warnings.append(f"{bag}: run '{run.name}': {exc}")
+        entry["drive"] = kind.as_dict()
+        entry["fraction_present"] = run.fraction_present
+        entry["drive_amplitude_v"] = kind.drive_amplitude_v
+        result["runs"][run.name] = entry
+    return result, plots
+
+
+# ----------------------------------------------------------------------------- headline
+
+
+def _pick(bags: list[dict[str, Any]], methods: tuple[str, ...]) -> tuple[str, dict[str, Any]] | None:
+    """The run of one of `methods` with the strongest drive (the paper's 200 Vpp), with its 'bag/run' name."""
+    best = None
+    for bag in bags:
+        for name, run in bag["runs"].items():
+            if run.get("method") in methods and "stroke" in run and (best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"]):
+                best = (f"{bag['experiment']}/{name}", run)
+    return best
+
+
+def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The paper's headline figures as measured here, beside the paper's, with label, unit and source."""
+    ours: dict[str, tuple[float | None, str]] = {}
+    chirp = _pick(bags, ("chirp",))
+    stepped = _pick(bags, ("stepped",)) or chirp
     if chirp:
-        ours["stroke_gain_deg_per_v"] = chirp["stroke"].get("gain_deg_per_v")
-        ours["stroke_amplitude_rmse_deg"] = chirp["stroke"]["amplitude_rmse_deg"]
-        ours["stroke_phase_rmse_deg"] = chirp["stroke"]["phase_rmse_deg"]
+        source, run = chirp
+        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "phase_rmse_deg"):
+            ours[f"stroke_{key}"] = (run["stroke"].get(key), source)
     if stepped:
-        ours["pitch_gain_deg_per_v"] = stepped["pitch"].get("gain_deg_per_v")
-        ours["pitch_amplitude_rmse_deg"] = stepped["pitch"]["amplitude_rmse_deg"]
-        ours["pitch_amplitude_rmse_band_deg"] = stepped["pitch"]["amplitude_rmse_band_deg"]
-        ours["pitch_time_rmse_deg"] = stepped["pitch"]["time_rmse_deg"]
-        ours["pitch_time_rmse_lag_corrected_deg"] = stepped["pitch"]["time_rmse_lag_corrected_deg"]
-        ours["pitch_time_rmse_lag_corrected_band_deg"] = stepped["pitch"]["time_rmse_lag_corrected_band_deg"]
-        ours["pitch_phase_rmse_deg"] = stepped["pitch"]["phase_rmse_deg"]
+        source, run = stepped
+        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "amplitude_rmse_band_deg", "time_rmse_deg",
+                    "time_rmse_lag_corrected_deg", "time_rmse_lag_corrected_band_deg", "phase_rmse_deg"):
+            ours[f"pitch_{key}"] = (run["pitch"].get(key), source)
     for bag in bags:
         runs = bag.get("collision", {}).get("runs", {})
-        if "collision" in runs and "no_collision" in runs:
-            ours["collision_spectrum_rmse_deg"] = runs["collision"]["spectrum_rmse_deg"]
-            ours["no_collision_spectrum_rmse_deg"] = runs["no_collision"]["spectrum_rmse_deg"]
-            ours["collision_time_rmse_deg"] = runs["collision"]["time_rmse_deg"]
-            ours["no_collision_time_rmse_deg"] = runs["no_collision"]["time_rmse_deg"]
-    table = {name: {"flaair": ours.get(name), "paper": value} for name, value in PAPER.items()}
+        if "spectrum_rmse_deg" in runs.get("collision", {}) and "spectrum_rmse_deg" in runs.get("no_collision", {}):
+            source = f"{bag['experiment']}/collision, no_collision"
+            for prefix, part in (("", "collision"), ("no_", "no_collision")):
+                ours[f"{prefix}collision_spectrum_rmse_deg"] = (runs[part]["spectrum_rmse_deg"], source)
+                ours[f"{prefix}collision_time_rmse_deg"] = (runs[part]["time_rmse_deg"], source)
+    table = {}
+    for key, paper in PAPER.items():
+        value, source = ours.get(key, (None, ""))
+        table[key] = {"flaair": _finite(value), "paper": paper, "label": LABELS[key][0], "unit": LABELS[key][1], "source": source}
     for bag in bags:
         if "transition" in bag:
             t = bag["transition"]
-            table["transition_final_frequency_hz"] = {"flaair": t["final_frequency_hz"], "paper": None,
-                                                      "note": f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"}
-            table["transition_final_amplitude_deg"] = {"flaair": t["final_amplitude_deg"], "paper": None}
+            note = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"
+            for key, value in (("transition_final_frequency_hz", t["final_frequency_hz"]), ("transition_final_amplitude_deg", t["final_amplitude_deg"])):
+                table[key] = {"flaair": value, "paper": None, "label": LABELS[key][0], "unit": LABELS[key][1],
+                              "source": bag["experiment"], "note": note if key.endswith("hz") else ""}
     return table
 
 
-def write_html(report: dict[str, Any], out_dir: Path) -> Path:
-    """DIR/report.html: the headline table, every figure, and the numbers per bag."""
-    def cell(value: float | None) -> str:
-        return "" if value is None else f"{value:.3g}"
-
-    rows = "".join(f"<tr><td>{html.escape(name)}</td><td>{cell(v['flaair'])}</td><td>{cell(v['paper'])}</td></tr>"
-                   for name, v in report["headline"].items())
-    figures = "".join(f'<figure><img src="{html.escape(p.name)}" style="max-width:900px"><figcaption>{html.escape(p.stem)}</figcaption></figure>'
-                      for p in sorted(out_dir.glob("*.png")))
-    body = (
-        "<!doctype html><html><head><meta charset='utf-8'><title>FLAAIR analysis</title>"
-        "<style>body{font-family:sans-serif;margin:2em}td,th{padding:2px 10px;border-bottom:1px solid #ddd}"
-        "pre{background:#f6f6f6;padding:1em;overflow:auto}</style></head><body>"
-        f"<h1>FLAAIR analysis</h1><p>{len(report['bags'])} bag(s), analysed {html.escape(report['created'])}; "
-        "every number comes from the bags (live front-end estimate vs recorded ground truth).</p>"
-        f"<h2>Headline figures beside the paper's</h2><table><tr><th>figure</th><th>FLAAIR</th><th>paper</th></tr>{rows}</table>"
-        f"<h2>Figures</h2>{figures}<h2>All numbers</h2><pre>{html.escape(json.dumps(report, indent=1)[:200000])}</pre>"
-        "</body></html>")
-    path = out_dir / "report.html"
-    path.write_text(body, encoding="utf-8")
-    return path
+# ----------------------------------------------------------------------------- top level
 
 
-def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True) -> dict[str, Any]:
-    """Analyse `bags` into out_dir (report.json, report.html, PNGs); return the report."""
+def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True, calibration_file: Path | None = None) -> dict[str, Any]:
+    """Analyse `bags` into out_dir (report.html, report.json, PNG figures); return the report.
+
+    Parameters
+    ----------
+    bags
+        Bag directories (FLAAIR experiments or `flaair import`ed lab runs).
+    out_dir
+        Report directory (created).
+    progress
+        Show a progress bar.
+    calibration_file
+        calibration.yaml from `flaair calibrate`; None: the live front end's or the model's gains.
+    """
     from flaair_model.model_io import load_model
+    from flaair_tools import report as html_report
 
+    calibration = load_calibration(calibration_file) if calibration_file is not None else None
+    try:
+        settings()
+    except (ConfigError, RunKindError) as exc:
+        raise AnalysisError(f"config/flaair.yaml analyze: {exc}") from None
     out_dir.mkdir(parents=True, exist_ok=True)
     reference_v = load_model().sensors.reference_voltage_v
-    results = []
+    results, plots = [], []
     for bag in tqdm(bags, desc="analysing bags", unit="bag", disable=not progress):
         try:
-            results.append(analyze_bag(Path(bag), out_dir, reference_v))
+            result, plot = analyze_bag(Path(bag), reference_v, calibration, calibration_file)
         except (bagio.BagError, ch.CharacterizationError, KeyError) as exc:
-            raise AnalysisError(f"{bag}: {exc}") from None
-    report = {"created": time.strftime("%Y-%m-%d %H:%M:%S"), "bags": results}
+            raise AnalysisError(str(exc) if str(bag) in str(exc) else f"{bag}: {exc}") from None
+        results.append(result)
+        plots.append(plot)
+    report: dict[str, Any] = {"created": time.strftime("%Y-%m-%d %H:%M:%S"), "bags": results,
+                              "calibration_file": str(calibration_file) if calibration_file else None}
+    report["model_gains_warning"] = MODEL_GAINS_WARNING if any(r["model_gains"] for r in results) else None
+    report["partial"] = [note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])]
     report["headline"] = headline(results)
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=float))
-    write_html(report, out_dir)
+    report["figures"] = html_report.write_figures(results, plots, out_dir)
+    report = strict(report)
+    (out_dir / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False))
+    html_report.write_html(report, out_dir)
     return report
 
 
 def print_headline(report: dict[str, Any]) -> None:
     """The headline table on stdout."""
-    print(f"{'figure':42s} {'FLAAIR':>10s} {'paper':>8s}")
-    for name, v in report["headline"].items():
+    print(f"{'figure':52s} {'FLAAIR':>10s} {'paper':>8s}  unit")
+    for v in report["headline"].values():
         ours = "-" if v["flaair"] is None else f"{v['flaair']:.3g}"
         paper = "-" if v["paper"] is None else f"{v['paper']:.3g}"
-        print(f"{name:42s} {ours:>10s} {paper:>8s}  {v.get('note', '')}")
+        print(f"{v['label']:52s} {ours:>10s} {paper:>8s}  {v['unit']}  {v.get('note', '')}")
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="flaair analyze", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("bags", nargs="+", type=Path, help="bags recorded by `flaair experiment` or imported")
-    parser.add_argument("--out", type=Path, required=True, help="report directory")
+    parser.add_argument("bags", nargs="+", type=Path, help="bags recorded by `flaair experiment` or made by `flaair import`")
+    parser.add_argument("--out", type=Path, required=True, help="report directory (report.html, report.json, figures)")
+    parser.add_argument("--calibration", type=Path, default=None, metavar="FILE",
+                        help="calibration.yaml from `flaair calibrate`: the front end runs on these gains "
+                             "(default: the live front end's gains, else the model's, with a warning)")
+    parser.add_argument("--allow-partial", action="store_true",
+                        help="exit 0 even when runs, steps or parts of a sweep are missing (recovered or cut-short bags); "
+                             "without it such a bag gives exit code 3 (the report is still written)")
     args = parser.parse_args(argv)
+    os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
     try:
-        report = analyze(args.bags, args.out)
+        report = analyze(args.bags, args.out, calibration_file=args.calibration)
     except (AnalysisError, bagio.BagError, ValueError, OSError) as exc:
         print(f"flaair analyze: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("flaair analyze: interrupted", file=sys.stderr)
+        return 130
+    for bag in report["bags"]:
+        for warning in bag["warnings"]:
+            print(f"flaair analyze: warning: {warning}", file=sys.stderr)
+    if report["model_gains_warning"]:
+        print(f"flaair analyze: WARNING: {report['model_gains_warning']}", file=sys.stderr)
     print_headline(report)
     print(f"report: {args.out / 'report.html'} (numbers in {args.out / 'report.json'})")
+    if report["partial"]:
+        for note in report["partial"]:
+            print(f"flaair analyze: incomplete: {note}", file=sys.stderr)
+        if not args.allow_partial:
+            print(f"flaair analyze: {len(report['partial'])} part(s) of the data are missing (listed above); the figures "
+                  "cover only what is there. Pass --allow-partial to accept that (exit 0).", file=sys.stderr)
+            return EXIT_PARTIAL
+        print("flaair analyze: --allow-partial: reporting on the data present", file=sys.stderr)
     return 0
 
 

@@ -1,6 +1,6 @@
 """Runs from bags: the measured-run columns of every run in one or more bags.
 
-A run is what a lab exports as one CSV (shared/measured-run-format.md): drive, both sensor
+A run is what a lab exports as one CSV (docs/LAB_CSV_FORMAT.md): drive, both sensor
 voltages and ground-truth angles (NaN where the truth is missing or invalid). Bags mark their
 runs on /flaair/run_marker; a bag without markers is one run named after the bag.
 """
@@ -24,6 +24,7 @@ class Run:
     bag: str
     sample_rate_hz: float
     columns: dict[str, np.ndarray]
+    expected_n_samples: int | None = None  # samples its run marker announced (None: no marker)
 
     def __getitem__(self, column: str) -> np.ndarray:
         return self.columns[column]
@@ -34,6 +35,11 @@ class Run:
     @property
     def n_samples(self) -> int:
         return len(self.columns["stroke_sensor_v"])
+
+    @property
+    def fraction_present(self) -> float:
+        """Share of the marker's announced samples that are in the bag (1 without a marker)."""
+        return 1.0 if not self.expected_n_samples else self.n_samples / self.expected_n_samples
 
 
 def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Blocks | None) -> dict[str, np.ndarray]:
@@ -64,7 +70,8 @@ def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Bloc
     return columns
 
 
-def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive: bool = True) -> list[Run]:
+def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive: bool = True,
+              missing: list[tuple[str, str]] | None = None) -> list[Run]:
     """Every run of every bag, as measured-run columns.
 
     Parameters
@@ -73,6 +80,9 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
         Bag directories.
     need_truth, need_drive
         Refuse bags without /flaair/wing_state/truth or /flaair/drive.
+    missing
+        If given, a marked run without any sensor sample (a recovered, cut-short bag) is
+        appended here as (bag, run) instead of refused.
 
     Raises
     ------
@@ -98,6 +108,10 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
             pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)  # noqa: E731
             part = pick(sensor)
             if len(part.sample_index) == 0:
+                if missing is not None:
+                    missing.append((str(bag), marker.run))
+                    continue
                 raise bagio.BagError(f"{bag}: run '{marker.run}' has no sensor samples")
-            runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth))))
+            runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth)),
+                            marker.n_samples))
     return runs
