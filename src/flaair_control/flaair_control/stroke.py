@@ -60,6 +60,7 @@ from numba import njit
 from scipy.optimize import brentq
 
 from flaair_control import dsa, hopf
+from flaair_model.schema import ParamSpec
 
 MODES = ("sync", "dsa")
 
@@ -396,3 +397,30 @@ def params_from_values(values: dict, plant: StrokePlant, sample_rate_hz: float, 
         crossing_hysteresis_deg=values["crossing_hysteresis_deg"], min_wingbeat_hz=values["min_wingbeat_hz"],
         max_wingbeat_hz=values["max_wingbeat_hz"], sync_frequency_hz=values["sync_frequency_hz"],
         dsa_params=dsa_params)
+
+
+# The stroke_controller_node parameters (values: config/flaair.yaml); `params_from_values` maps them.
+_F, _I, _S, _B = float, int, str, bool
+NODE_PARAMS = [ParamSpec(name, kind, text, *rng, read_only=name not in ("setpoint_deg",)) for name, kind, text, *rng in (
+    ("sample_rate_hz", _F, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6),
+    ("block_size", _I, "Samples per block", 1, 100000), ("drive_limit_v", _F, "Drive clamp [V]", 0.0, 300.0),
+    ("model_file", _S, "Model YAML for the design (empty: config/model.yaml)"),
+    ("mode", _S, "sync (drive amplitude) | dsa (loop gain mu)", None, None, MODES),
+    ("setpoint_deg", _F, "Stroke amplitude to hold; settable while running [deg]", 0.1, 80.0),
+    ("sync_frequency_hz", _F, "sync: drive frequency; dsa: kick frequency [Hz]", 1.0, 5000.0),
+    ("error_fraction_per_wingbeat", _F, "lambda: log error removed per wingbeat", 0.01, 1.0),
+    ("crossing_hysteresis_deg", _F, "Wingbeat detector hysteresis [deg]", 0.0, 20.0),
+    ("min_wingbeat_hz", _F, "Longest wingbeat [Hz]", 1.0, 1000.0), ("max_wingbeat_hz", _F, "Shortest wingbeat [Hz]", 2.0, 5000.0),
+    ("drive_amplitude_min_v", _F, "sync: command floor [V]", 0.0, 300.0), ("drive_amplitude_max_v", _F, "sync: command ceiling [V]", 0.0, 300.0),
+    ("mu_min_nm_s_per_rad", _F, "dsa: command floor [N m s/rad]", 0.0, 1.0), ("mu_max_nm_s_per_rad", _F, "dsa: command ceiling", 0.0, 1.0),
+    ("r3_rad_s", _F, "dSA r3 [rad/s]", 1e-3, 1e6), ("kappa", _F, "dSA kappa", 1e-6, 1e3),
+    ("kick_amplitude_v", _F, "dsa: start kick amplitude [V]", 0.0, 300.0), ("kick_s", _F, "dsa: kick length [s]", 0.0, 10.0),
+    ("kick_ramp_s", _F, "dsa: kick hand-over [s]", 0.0, 10.0), ("compensate_delay", _B, "dSA phase advance for the loop delay"),
+    ("compensation_frequency_hz", _F, "Delay cancelled exactly here [Hz]", 1.0, 5000.0),
+    ("velocity_delay_s", _F, "Front-end velocity delay (< 0: from its config) [s]", -1.0, 0.1),
+    ("blocks_in_flight", _I, "Command blocks in the loop", 1, 100),
+    ("slew_limit_v_per_s", _F, "Slew limit [V/s]", 1.0, 1e9), ("watchdog_timeout_s", _F, "Wall-clock silence to trip [s]", 1e-3, 100.0),
+    ("invalid_timeout_s", _F, "Signal time without a valid block to trip [s]", 1e-4, 10.0),
+    ("ramp_down_s", _F, "Drive ramp to zero after a trip [s]", 0.0, 10.0),
+    ("start_delay_s", _F, "Wait after the peers appear [s]", 0.0, 60.0), ("start_retry_s", _F, "Resend a start block after [s]", 0.1, 60.0),
+    ("run_time_s", _F, "Stop after this much signal time (0: never) [s]", 0.0, 1e6))]

@@ -32,7 +32,7 @@ from flaair_model.config import load_yaml, config_dir, node_parameters
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
 from flaair_sensors import frontend
-from flaair_sensors.frontend_node import frontend_params
+from flaair_sensors.frontend_io import frontend_params_from_config as frontend_params
 from flaair_sim import plant
 from flaair_tools import bagio, wingbeat
 

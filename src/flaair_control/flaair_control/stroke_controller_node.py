@@ -1,0 +1,143 @@
+"""stroke_controller_node: holds the per-wingbeat stroke amplitude at a setpoint (paper Fig. 1c).
+
+Subscribes to the front end's estimate (/flaair/wing_state) and answers each block with one
+drive block (/flaair/drive) and a ControllerState (/flaair/controller/state; amplitude_scale
+= command / feed-forward). A thin shell over flaair_control.stroke (wingbeat tracker, integral
+law, sync sine or dSA filter) and flaair_control.safety (non-finite -> 0, slew limit, clamp to
++-drive_limit_v, signal-time watchdog). mode sync adjusts the drive amplitude at
+sync_frequency_hz; mode dsa adjusts the dSA gain mu, the frequency stays free.
+
+Run time: `bin/flaair param set /stroke_controller_node setpoint_deg 18` retargets (feed-forward
+from the plant's amplitude response, the learned correction kept). The watchdog trips when no
+wing-state block arrives for watchdog_timeout_s of wall-clock time or no valid one for
+invalid_timeout_s of signal time: the drive ramps to zero over ramp_down_s, then zero blocks.
+Start: once the plant and front end are up (start_delay_s), blocks_in_flight blocks are sent.
+close() (Ctrl-C, SIGTERM) publishes a zero block.
+
+Usage: bin/flaair run flaair_control stroke_controller_node --ros-args -p mode:=sync -p setpoint_deg:=12.0
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+
+from flaair_common import topics
+from flaair_common.blocks import stamp_from_time_s
+from flaair_common.params import declare_parameters
+from flaair_common.qos import BLOCK_STREAM, STATUS
+from flaair_common.runtime import run_node
+from flaair_control import safety, stroke
+from flaair_control.dsa import loop_delay_s
+from flaair_model.model_io import load_model
+from flaair_msgs.msg import ControllerState, DriveCommandBlock, WingStateBlock
+from flaair_sensors.frontend_io import velocity_delay_s
+
+NODE_NAME = "stroke_controller_node"
+CONFIG_FILE = "flaair.yaml"
+PARAMS = stroke.NODE_PARAMS
+
+class StrokeControllerNode(Node):
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        self.p = p = declare_parameters(self, PARAMS, CONFIG_FILE)
+        self.fs, self.n, self.in_flight = p["sample_rate_hz"], p["block_size"], p["blocks_in_flight"]
+        self.plant = stroke.StrokePlant.from_model(load_model(p["model_file"] or None))
+        velocity = p["velocity_delay_s"] if p["velocity_delay_s"] >= 0 else velocity_delay_s(p["compensation_frequency_hz"])
+        self.params = stroke.params_from_values(p, self.plant, self.fs, loop_delay_s(self.n * self.in_flight, self.fs, velocity * self.fs))
+        self.guard = safety.SafetyParams(p["drive_limit_v"], p["slew_limit_v_per_s"], p["invalid_timeout_s"], p["ramp_down_s"], self.fs)
+        self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(0.0)
+        self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = 0, "waiting", time.monotonic(), None, False
+        self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
+        self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)
+        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+        self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.create_timer(0.02, self.on_timer)
+        self.get_logger().info(f"stroke control ({self.params.mode}): {self.params.setpoint_deg:g} deg, feed-forward "
+                               f"{self.params.command_nominal:.4g}, slope {self.params.elasticity:.3f}, gain {self.params.gain:.3f}/wingbeat")
+
+    def on_set_parameters(self, parameters) -> SetParametersResult:
+        for param in parameters:
+            if param.name == "setpoint_deg":
+                try:
+                    u_ff, slope = stroke.design(self.plant, self.params.mode, float(param.value), sync_frequency_hz=self.p[
+                        "sync_frequency_hz"], r3_rad_s=self.p["r3_rad_s"], kappa=self.p["kappa"])
+                except ValueError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+                self.params = stroke.retarget(self.params, float(param.value), u_ff, slope)
+                self.get_logger().info(f"setpoint {param.value:g} deg: feed-forward {u_ff:.4g}")
+        return SetParametersResult(successful=True)
+
+    def on_wing_state(self, msg: WingStateBlock) -> None:
+        if self.mode == "waiting" and self.drive_pub.get_subscription_count() > 0:
+            self.mode = "loop"
+        if self.mode != "loop":
+            return
+        self.last_wall, self.answered = time.monotonic(), True
+        stroke_rad = np.radians(np.asarray(msg.stroke_deg, dtype=float))
+        valid = np.asarray(msg.stroke_valid, dtype=bool)
+        if valid.size != stroke_rad.size:
+            valid = np.zeros(stroke_rad.size, bool)
+        ok = bool(valid.all() and np.isfinite(stroke_rad).all() and stroke_rad.size == self.n)
+        self.send(stroke_rad, np.radians(np.asarray(msg.stroke_velocity_deg_s, dtype=float)), valid, ok)
+
+    def send(self, stroke_rad: np.ndarray, velocity: np.ndarray, valid: np.ndarray, ok: bool | None) -> None:
+        """Cores on one block; publish the guarded drive block and the controller state."""
+        t = self.next_index / self.fs
+        if stroke_rad.size != self.n:
+            stroke_rad, velocity, valid = np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool)
+        self.state, out = stroke.step(self.state, stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index), self.params)
+        self.safety, guarded = safety.step(self.safety, safety.SafetyInputs(out.drive_v, t, ok), self.guard)
+        self.publish(guarded.drive_v, guarded.tripped, bool(np.abs(out.drive_v).max() > self.guard.drive_limit_v))
+        if self.p["run_time_s"] > 0 and self.next_index / self.fs >= self.p["run_time_s"]:
+            self.mode = "done"
+            self.publish(np.zeros(self.n), guarded.tripped, False)
+            self.get_logger().info(f"run complete after {stroke.wingbeats(self.state)} wingbeats, "
+                                   f"last amplitude {stroke.last_amplitude_deg(self.state):.2f} deg")
+
+    def publish(self, drive_v: np.ndarray, tripped: bool, clamped: bool) -> None:
+        stamp = stamp_from_time_s(self.next_index / self.fs)
+        block = DriveCommandBlock(sample_rate_hz=self.fs, first_sample_index=self.next_index, drive_v=drive_v.tolist())
+        block.header.stamp = stamp
+        self.drive_pub.publish(block)
+        state = ControllerState(k_r=1.0 if self.params.mode == "sync" else 0.0, drive_v=float(drive_v[-1]),
+                                drive_clamped=clamped, amplitude_scale=stroke.command(self.state, self.params) / self.params.command_nominal,
+                                watchdog=ControllerState.WATCHDOG_TRIPPED if tripped else ControllerState.WATCHDOG_OK,
+                                fault="watchdog" if tripped else "")
+        state.header.stamp = stamp
+        self.state_pub.publish(state)
+        self.next_index += self.n
+
+    def on_timer(self) -> None:
+        now = time.monotonic()
+        if self.mode == "waiting":
+            ready = self.drive_pub.get_subscription_count() > 0 and self.count_publishers(topics.WING_STATE) > 0
+            self.peers_wall = (self.peers_wall or now) if ready else None
+            if ready and now - self.peers_wall >= self.p["start_delay_s"]:
+                self.mode, self.last_wall = "loop", now
+                for _ in range(self.in_flight):
+                    self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+        elif self.mode == "loop" and not self.answered and now - self.last_wall > self.p["start_retry_s"]:
+            self.last_wall = now  # no answer to the start yet (a lost first block): one more
+            self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+        elif self.mode == "loop" and now - self.last_wall > self.p["watchdog_timeout_s"]:
+            self.mode = "tripped"
+            self.get_logger().error(f"WATCHDOG TRIPPED: no wing-state block for {now - self.last_wall:.2f} s; ramping to zero")
+            self.safety = safety.note_sensor_block(self.safety, self.next_index / self.fs, False, self.guard)
+            while self.next_index / self.fs < self.safety.trip_time_s + self.p["ramp_down_s"] + self.n / self.fs:
+                self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+
+    def close(self) -> None:
+        """Shutdown: a zero-drive block so the actuator does not hold the last command."""
+        self.publish(np.zeros(self.n), self.safety.status == safety.TRIPPED, False)
+        time.sleep(0.1)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(StrokeControllerNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

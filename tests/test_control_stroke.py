@@ -1,0 +1,166 @@
+"""Stroke-amplitude controller core (flaair_control.stroke): design, tracker, law, safety chain; node over DDS."""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from flaair_control import safety, stroke
+from flaair_model.config import node_parameters
+from flaair_model.model_io import load_model
+from flaair_sim import plant
+
+FS = 20000.0
+# set a parameter of the running node through its parameter service (rclpy's own client)
+_SET_SETPOINT = """
+import sys, rclpy
+from rclpy.parameter import Parameter
+from rclpy.parameter_client import AsyncParameterClient
+rclpy.init()
+node = rclpy.create_node("stroke_test_setter")
+client = AsyncParameterClient(node, "/stroke_controller_node")
+assert client.wait_for_services(timeout_sec=60)
+future = client.set_parameters([Parameter("setpoint_deg", value=16.0)])
+rclpy.spin_until_future_complete(node, future, timeout_sec=60)
+sys.exit(0 if future.result() and future.result().results[0].successful else 1)
+"""
+
+
+@pytest.fixture(scope="module")
+def nominal():
+    model = load_model()
+    return model, stroke.StrokePlant.from_model(model), node_parameters("flaair.yaml", "stroke_controller_node")
+
+
+def _sync_params(values, design_plant, setpoint=15.0, **over):
+    return stroke.params_from_values({**values, "mode": "sync", "setpoint_deg": setpoint, **over}, design_plant, FS, 0.0)
+
+
+def test_sync_design_at_resonance_is_the_quadratic_damping_balance_and_the_plant_agrees(nominal) -> None:
+    model, design_plant, _ = nominal
+    u, slope = stroke.design(design_plant, "sync", 15.0, sync_frequency_hz=140.0)
+    # on resonance K = I w^2: G_a V = A w (8/3pi) Gamma w A  ->  A ~ sqrt(V): slope exactly 1/2
+    w = 2 * math.pi * 140.0
+    a = math.radians(15.0)
+    assert u == pytest.approx(a * w * 8 / (3 * math.pi) * 4.0e-11 * w * a / 1.67e-7, rel=1e-12)
+    assert slope == pytest.approx(0.5, abs=1e-6)
+    t = np.arange(int(0.6 * FS)) / FS
+    out = plant.simulate(u * np.sin(w * t), FS, model)
+    tail = np.degrees(out.stroke_rad[-int(0.1 * FS):])
+    assert 0.5 * np.ptp(tail) == pytest.approx(15.0, rel=0.02)   # describing function vs RK4 plant
+
+
+def test_dsa_design_inverts_the_hopf_limit_cycle(nominal) -> None:
+    _, design_plant, values = nominal
+    mu, slope = stroke.design(design_plant, "dsa", 15.0, r3_rad_s=values["r3_rad_s"], kappa=values["kappa"])
+    assert stroke.dsa_amplitude_deg(design_plant, mu, values["r3_rad_s"], values["kappa"]) == pytest.approx(15.0, rel=1e-8)
+    assert stroke.dsa_amplitude_deg(design_plant, 1.1 * mu, values["r3_rad_s"], values["kappa"]) > 15.0
+    assert 0.5 < slope < 2.0
+
+
+def test_tracker_measures_each_wingbeat_of_a_sine_and_block_splits_change_nothing(nominal) -> None:
+    _, design_plant, values = nominal
+    params = _sync_params(values, design_plant)
+    t = np.arange(int(0.2 * FS)) / FS
+    x = np.radians(12.0) * np.sin(2 * np.pi * 150.0 * t - 0.3)
+    inputs = stroke.StrokeInputs(x, np.zeros_like(x), np.ones(x.size, bool), 10)
+    whole_state, whole = stroke.step(stroke.initial_state(params), inputs, params)
+    amps = whole.signals.wingbeat_amplitude_deg[np.isfinite(whole.signals.wingbeat_amplitude_deg)]
+    assert amps.size == 29  # 30 cycles, the first crossing only starts the count
+    assert np.allclose(amps[1:], 12.0, atol=0.02)
+    state, drives = stroke.initial_state(params), []
+    for k in range(0, x.size, 10):
+        state, out = stroke.step(state, stroke.StrokeInputs(x[k:k + 10], np.zeros(10), np.ones(10, bool), 10 + k), params)
+        drives.append(out.drive_v)
+    assert np.array_equal(state.tracker, whole_state.tracker)
+    # the whole record holds the command of its end; blocks hold each block's: equal at the end
+    assert np.array_equal(drives[-1], whole.drive_v[-10:])
+
+
+def test_law_moves_the_command_by_lambda_over_the_slope_of_the_log_error(nominal) -> None:
+    _, design_plant, values = nominal
+    params = _sync_params(values, design_plant)
+    t = np.arange(int(round(FS / 140.0)) * 3) / FS
+    x = np.radians(10.0) * np.sin(2 * np.pi * 140.0 * t)   # exactly 3 wingbeats of 10 deg, setpoint 15
+    state, out = stroke.step(stroke.initial_state(params), stroke.StrokeInputs(x, x, np.ones(x.size, bool), 0), params)
+    beats = np.isfinite(out.signals.wingbeat_amplitude_deg).sum()
+    expected = params.command_nominal * math.exp(beats * params.gain * math.log(15.0 / 10.0))
+    assert stroke.command(state, params) == pytest.approx(expected, rel=1e-3)
+    moved = stroke.retarget(params, 20.0, *stroke.design(design_plant, "sync", 20.0, sync_frequency_hz=140.0))
+    assert stroke.command(state, moved) / moved.command_nominal == pytest.approx(stroke.command(state, params) / params.command_nominal)
+
+
+def test_command_is_clamped_and_the_safety_chain_zeroes_the_drive_when_the_estimate_turns_invalid(nominal) -> None:
+    _, design_plant, values = nominal
+    params = _sync_params(values, design_plant, drive_amplitude_max_v=12.0)
+    guard = safety.SafetyParams(5.0, 1.0e6, 0.005, 0.01, FS)
+    state, g = stroke.initial_state(params), safety.initial_state(0.0)
+    small = np.radians(1.0) * np.sin(2 * np.pi * 140.0 * np.arange(10) / FS)
+    maxima, k = [], 0
+    for k in range(0, 4000, 10):   # wing stuck at 1 deg: the law pushes the command up to its ceiling
+        state, out = stroke.step(state, stroke.StrokeInputs(np.roll(small, k), small, np.ones(10, bool), k + 10), params)
+        g, o = safety.step(g, safety.SafetyInputs(out.drive_v, (k + 10) / FS, True), guard)
+        maxima.append(np.abs(o.drive_v).max())
+    assert stroke.command(state, params) == pytest.approx(12.0)
+    assert max(maxima) <= 5.0 and max(maxima) == pytest.approx(5.0)
+    nan = np.full(10, np.nan)
+    for j in range(k + 10, k + 10 + 600, 10):   # 30 ms of invalid blocks: trip after 5 ms, zero 10 ms later
+        state, out = stroke.step(state, stroke.StrokeInputs(nan, nan, np.zeros(10, bool), j + 10), params)
+        g, o = safety.step(g, safety.SafetyInputs(out.drive_v, (j + 10) / FS, False), guard)
+    assert o.tripped and np.all(o.drive_v == 0.0)
+
+
+def test_bad_parameters_are_named(nominal) -> None:
+    _, design_plant, values = nominal
+    params = _sync_params(values, design_plant)
+    with pytest.raises(stroke.StrokeParameterError, match="error_fraction_per_wingbeat"):
+        replace(params, error_fraction_per_wingbeat=1.5)
+    with pytest.raises(stroke.StrokeParameterError, match="mode"):
+        stroke.params_from_values({**values, "mode": "chaos"}, design_plant, FS, 0.0)
+    with pytest.raises(stroke.StrokeParameterError, match="dsa_params"):
+        replace(params, mode="dsa")
+
+
+def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) -> None:
+    from rosproc import ros_processes, run, wait_for
+
+    states, wing = tmp_path / "state.jsonl", tmp_path / "wing.jsonl"
+
+    def lines(path):
+        out = []
+        for line in path.read_text().splitlines() if path.exists() else []:
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                break
+        return out
+
+    with ros_processes() as procs:
+        procs.flaair("topic", "echo", "/flaair/controller/state", "flaair_msgs/msg/ControllerState", "--timeout", "300",
+                     stdout=open(states, "w"))
+        procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", "--timeout", "300",
+                     stdout=open(wing, "w"))
+        procs.flaair("run", "flaair_sim", "plant_node")
+        procs.flaair("run", "flaair_sensors", "frontend_node")
+        node = procs.flaair("run", "flaair_control", "stroke_controller_node", "--ros-args", "-p", "mode:=sync",
+                            "-p", "setpoint_deg:=12.0", "-p", "watchdog_timeout_s:=30.0")
+        assert wait_for(lambda: len(lines(wing)) >= 1600, 240), node.stderr.read() if node.poll() else "slow"
+        result = run([sys.executable, "-c", _SET_SETPOINT], procs.env, timeout_s=120)
+        assert result.returncode == 0, result.stdout + result.stderr
+        n_set = len(lines(wing))
+        assert wait_for(lambda: len(lines(wing)) >= n_set + 1600, 240)
+    blocks = lines(wing)
+    stroke_deg = np.concatenate([b["stroke_deg"] for b in blocks])
+    from flaair_tools import wingbeat
+    beats = wingbeat.summarize(stroke_deg, stroke_deg, np.ones(stroke_deg.size, bool),
+                               wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0))
+    split = n_set * 10
+    before = beats.amplitude_deg[(beats.end_sample > split - 0.1 * FS) & (beats.end_sample < split - 1000)]
+    after = beats.amplitude_deg[beats.end_sample > stroke_deg.size - 0.1 * FS]
+    assert np.all(np.abs(before - 12.0) <= 0.5), before
+    assert np.all(np.abs(after - 16.0) <= 0.5), after
+    assert all(s["watchdog"] == 0 and abs(s["drive_v"]) <= 150.0 for s in lines(states))
