@@ -1,0 +1,1 @@
+"""FLAAIR real-time target bridge: UDP protocol, bridge core and node, emulated target."""

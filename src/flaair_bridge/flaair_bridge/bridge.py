@@ -1,0 +1,420 @@
+"""The bridge's pure core: target sensor packets in, FLAAIR blocks out; FLAAIR drive in, drive packets out.
+
+``step(state, inputs, params) -> (state, outputs)`` with four kinds of input (numpy only, no
+sockets, no ROS, time passed in):
+
+- `SensorDatagram`: a datagram from the target. Malformed ones (protocol.ProtocolError, or a
+  sample rate other than the bridge's) are counted and dropped. Sequence numbers are tracked
+  modulo 2^32: a gap counts the packets lost and their samples are published as NaN (the front
+  end marks non-finite samples invalid: loss is marked, never filled in); a duplicate or older
+  sequence is stale and dropped. ``resync_packets`` stale packets in a row mean the target
+  restarted: the bridge follows the new stream and keeps its own published index running.
+  Samples are re-blocked to ``block_size`` (the lab's n = 10 passes straight through).
+- `DriveBlock`: a block of FLAAIR's drive stream (its own sample count). The first block, or
+  the first after a jump in the stream, is anchored ``lead_samples`` ahead of the target's
+  clock (index after the last sensor sample received); later blocks follow contiguously, so
+  the drive the target applies is the stream with a constant delay. A block that would arrive
+  behind the target's clock re-anchors the stream ``lead_samples`` ahead (counted). Samples
+  are clamped to +-drive_limit_v (non-finite ones become 0, counted) and sent in packets of at
+  most 1000 samples, never more than ``max_ahead_samples`` beyond clock + lead (the rest waits
+  for the target's clock).
+- `Tick` (wall clock): the drive watchdog sends a stop packet when a non-zero drive stream falls
+  silent for ``drive_timeout_s``; when the target falls silent for ``sensor_timeout_s`` the
+  bridge sends a stop packet and publishes NaN (lost) blocks at the real-time rate, up to
+  ``max_fill_samples``, so downstream nodes see the loss in signal time.
+- `Stop`: a stop packet now (end of every run).
+
+Latency: a drive packet whose first sample is k + 1 + lead answers the sensor packet that ended
+at sample k; `Outputs.timing` pairs that packet's arrival with the drive packet's send time.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple, Optional, Union
+
+import numpy as np
+
+from flaair_bridge import protocol
+
+ARRIVAL_RING = 256   # recent sensor packets remembered for the latency pairing
+
+
+class BridgeParameterError(ValueError):
+    """A bridge parameter out of range; the message names it."""
+
+
+@dataclass(frozen=True)
+class BridgeParams:
+    """Bridge settings (no defaults: config/flaair.yaml, section bridge_node)."""
+
+    sample_rate_hz: float
+    block_size: int
+    lead_samples: int
+    drive_limit_v: float
+    max_ahead_samples: int
+    max_fill_samples: int
+    resync_packets: int
+    drive_timeout_s: float
+    sensor_timeout_s: float
+
+    def __post_init__(self) -> None:
+        checks = {
+            "sample_rate_hz": self.sample_rate_hz > 0 and math.isfinite(self.sample_rate_hz),
+            "block_size": 1 <= self.block_size <= protocol.MAX_SAMPLES,
+            "lead_samples": self.lead_samples >= 0,
+            "drive_limit_v": self.drive_limit_v >= 0 and math.isfinite(self.drive_limit_v),
+            "max_ahead_samples": self.max_ahead_samples >= 0,
+            "max_fill_samples": self.max_fill_samples >= 0,
+            "resync_packets": self.resync_packets >= 1,
+            "drive_timeout_s": self.drive_timeout_s > 0,
+            "sensor_timeout_s": self.sensor_timeout_s > 0,
+        }
+        for name, ok in checks.items():
+            if not ok:
+                raise BridgeParameterError(f"parameter '{name}' = {getattr(self, name)!r} is out of range")
+
+
+class Counters(NamedTuple):
+    """What the bridge has seen and done since it started."""
+
+    sensor_packets: int = 0          # valid, in-order (or after a gap) packets accepted
+    lost_packets: int = 0            # sequence gaps
+    lost_samples: int = 0            # samples missing in the index sequence (published as NaN)
+    stale_packets: int = 0           # duplicate or older sequence: dropped
+    overlap_samples: int = 0         # samples already published (as NaN, while the target was silent): dropped
+    malformed: int = 0               # not a valid sensor packet (or the wrong sample rate): dropped
+    resyncs: int = 0                 # target restarts followed
+    target_watchdog_packets: int = 0 # packets with the target's watchdog flag set
+    silences: int = 0                # times the target fell silent
+    silence_samples: int = 0         # NaN samples published while the target was silent
+    published_blocks: int = 0
+    drive_blocks: int = 0            # drive blocks received from FLAAIR
+    drive_stale_blocks: int = 0      # older than the drive stream: dropped
+    drive_unscheduled_blocks: int = 0  # arrived before any sensor packet: dropped
+    drive_reanchors: int = 0         # stream re-anchored lead_samples ahead (jump, or late)
+    drive_overflow_blocks: int = 0   # too far ahead of the target's clock to queue: dropped
+    drive_packets: int = 0
+    drive_samples: int = 0
+    clamped_samples: int = 0
+    nonfinite_samples: int = 0
+    watchdog_stops: int = 0          # stop packets because the drive stream fell silent
+    stop_packets: int = 0            # every stop packet sent
+
+
+class BridgeState(NamedTuple):
+    """Everything the bridge remembers between inputs (arrays are never written in place).
+
+    A NamedTuple rather than a frozen dataclass: `_replace` is several times cheaper than
+    dataclasses.replace, and the core runs twice per 0.5 ms packet.
+    """
+
+    sequence: Optional[int] = None        # next expected sensor sequence
+    target_end: Optional[int] = None      # target clock: index after the last sensor sample received
+    index_offset: int = 0                 # published index = target index + index_offset (after a resync)
+    pending_first: Optional[int] = None   # published index of pending[:, 0]
+    pending: np.ndarray = np.empty((3, 0))  # drive, stroke, pitch samples not yet in a full block
+    stale_run: int = 0
+    last_sensor_s: Optional[float] = None
+    silent: bool = False
+    drive_expected: Optional[int] = None  # next index of FLAAIR's drive stream
+    drive_offset: Optional[int] = None    # target index = drive-stream index + drive_offset
+    queue: tuple = ()                     # (target first index, drive_v) not yet sent
+    drive_sequence: int = 0
+    last_drive_s: Optional[float] = None
+    driving: bool = False                 # non-zero drive sent since the last stop
+    arrivals: np.ndarray = np.full((ARRIVAL_RING, 2), -1.0)  # (packet end index, arrival s)
+    counters: Counters = Counters()
+
+
+class SensorDatagram(NamedTuple):
+    data: bytes
+    now_s: float
+
+
+class DriveBlock(NamedTuple):
+    first_sample_index: int
+    drive_v: np.ndarray
+    now_s: float
+
+
+class Tick(NamedTuple):
+    now_s: float
+
+
+class Stop(NamedTuple):
+    now_s: float
+    reason: str
+
+
+Input = Union[SensorDatagram, DriveBlock, Tick, Stop]
+
+
+class SensorBlock(NamedTuple):
+    """One block to publish: published index, and float64 samples (NaN where lost)."""
+
+    first_sample_index: int
+    drive_v: np.ndarray
+    stroke_sensor_v: np.ndarray
+    pitch_sensor_v: np.ndarray
+
+
+class Notice(NamedTuple):
+    kind: str   # the counter it belongs to (for rate-limited logging)
+    text: str
+    error: bool = False
+
+
+class Outputs(NamedTuple):
+    blocks: tuple = ()    # SensorBlock
+    packets: tuple = ()   # bytes to send to the target
+    timing: tuple = ()    # (target index of the drive packet, sensor arrival s, send s)
+    notices: tuple = ()   # Notice
+
+
+def initial_state() -> BridgeState:
+    """State before the first datagram."""
+    return BridgeState()
+
+
+def step(state: BridgeState, inputs: Input, params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    """Advance the bridge by one input; see the module docstring."""
+    if isinstance(inputs, SensorDatagram):
+        return _on_sensor(state, inputs, params)
+    if isinstance(inputs, DriveBlock):
+        return _on_drive(state, inputs, params)
+    if isinstance(inputs, Tick):
+        return _on_tick(state, inputs, params)
+    if isinstance(inputs, Stop):
+        state, packet = _stop_packet(state)
+        return state, Outputs(packets=(packet,), notices=(Notice("stop_packets", f"stop packet sent: {inputs.reason}"),))
+    raise TypeError(f"unknown bridge input {type(inputs).__name__}")
+
+
+def _count(counters: Counters, **increments: int) -> Counters:
+    return counters._replace(**{name: getattr(counters, name) + value for name, value in increments.items()})
+
+
+# ---------------------------------------------------------------------------------- sensor side
+def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    try:
+        packet = protocol.unpack_sensor(inputs.data)
+        if not math.isclose(packet.sample_rate_hz, params.sample_rate_hz, rel_tol=1e-6):
+            raise protocol.ProtocolError(f"sample_rate_hz {packet.sample_rate_hz:g}, the bridge runs at "
+                                         f"{params.sample_rate_hz:g}")
+    except protocol.ProtocolError as exc:
+        counters = _count(state.counters, malformed=1)
+        return state._replace(counters=counters), Outputs(notices=(
+            Notice("malformed", f"malformed datagram ({len(inputs.data)} bytes) dropped: {exc} "
+                                f"[{counters.malformed} malformed so far]"),))
+    notices: list[Notice] = []
+    counters = state.counters
+    index_offset, stale_run = state.index_offset, 0
+    if state.sequence is not None:
+        delta = protocol.sequence_delta(packet.sequence, state.sequence)
+        if delta < 0:
+            stale_run = state.stale_run + 1
+            if stale_run < params.resync_packets:
+                counters = _count(counters, stale_packets=1)
+                return state._replace(stale_run=stale_run, counters=counters), Outputs(notices=(
+                    Notice("stale_packets", f"stale sensor packet (sequence {packet.sequence}, expected "
+                                            f"{state.sequence}) dropped [{counters.stale_packets} stale so far]"),))
+            # the target restarted: follow it, keep the published index running
+            index_offset = _published_end(state) - packet.first_sample_index
+            counters = _count(counters, resyncs=1)
+            notices.append(Notice("resyncs", f"{stale_run} stale packets in a row: the target restarted "
+                                             f"(sequence {packet.sequence}, index {packet.first_sample_index}); following it", True))
+            state = state._replace(target_end=None, drive_offset=None, drive_expected=None, queue=(),
+                            arrivals=np.full((ARRIVAL_RING, 2), -1.0))
+        elif delta > 0:
+            counters = _count(counters, lost_packets=delta)
+            notices.append(Notice("lost_packets", f"{delta} sensor packet(s) lost before sequence {packet.sequence} "
+                                                  f"[{counters.lost_packets} lost so far]"))
+    samples = np.stack([packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v]).astype(np.float64)
+    first = packet.first_sample_index + index_offset
+    pending_first, pending = state.pending_first, state.pending
+    expected = _published_end(state)
+    blocks: list[SensorBlock] = []
+    if expected is None:
+        pending_first = first
+    elif first < expected:
+        skip = min(expected - first, samples.shape[1])
+        samples, first = samples[:, skip:], first + skip
+        counters = _count(counters, overlap_samples=skip)
+    elif first > expected:
+        gap = first - expected
+        counters = _count(counters, lost_samples=gap)
+        if gap <= params.max_fill_samples:
+            pending = np.concatenate([pending, np.full((3, gap), np.nan)], axis=1)
+        else:  # too long to fill: close the partial block with NaN, restart the blocks at `first`
+            notices.append(Notice("lost_samples", f"{gap} samples lost before index {first}: the published stream "
+                                                  "jumps there", True))
+            pad = (-pending.shape[1]) % params.block_size
+            blocks, _, _ = _blocks(pending_first, np.concatenate([pending, np.full((3, pad), np.nan)], axis=1),
+                                   params.block_size)
+            pending, pending_first = pending[:, :0], first
+    more, pending, pending_first = _blocks(pending_first, np.concatenate([pending, samples], axis=1), params.block_size)
+    blocks += more
+    counters = _count(counters, sensor_packets=1, published_blocks=len(blocks))
+    if packet.target_watchdog_tripped:
+        counters = _count(counters, target_watchdog_packets=1)
+        notices.append(Notice("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
+                                                         f"[{counters.target_watchdog_packets} such packets]"))
+    if state.silent:
+        notices.append(Notice("silences", f"the target is sending again (sequence {packet.sequence})"))
+    end = packet.first_sample_index + packet.n
+    arrivals = state.arrivals.copy()
+    arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, inputs.now_s)
+    state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS,
+                    target_end=max(end, state.target_end or 0), index_offset=index_offset,
+                    pending_first=pending_first, pending=pending, stale_run=stale_run, last_sensor_s=inputs.now_s,
+                    silent=False, arrivals=arrivals, counters=counters)
+    state, packets, timing = _release(state, params, inputs.now_s)
+    return state, Outputs(tuple(blocks), packets, timing, tuple(notices))
+
+
+def _published_end(state: BridgeState) -> Optional[int]:
+    if state.pending_first is None:
+        return None
+    return state.pending_first + state.pending.shape[1]
+
+
+def _blocks(first: int, samples: np.ndarray, block_size: int) -> tuple[list[SensorBlock], np.ndarray, int]:
+    """Cut whole blocks off the front of `samples`; return them, the rest and its first index."""
+    n_blocks = samples.shape[1] // block_size
+    blocks = []
+    for b in range(n_blocks):
+        chunk = samples[:, b * block_size:(b + 1) * block_size]
+        blocks.append(SensorBlock(first + b * block_size, chunk[0], chunk[1], chunk[2]))
+    used = n_blocks * block_size
+    return blocks, samples[:, used:], first + used
+
+
+# ---------------------------------------------------------------------------------- drive side
+def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    counters = _count(state.counters, drive_blocks=1)
+    first, n = int(inputs.first_sample_index), len(inputs.drive_v)
+    state = state._replace(last_drive_s=inputs.now_s)
+    if state.target_end is None:
+        counters = _count(counters, drive_unscheduled_blocks=1)
+        return state._replace(counters=counters), Outputs(notices=(Notice(
+            "drive_unscheduled_blocks", f"drive block {first} dropped: no sensor packet from the target yet "
+                                        f"[{counters.drive_unscheduled_blocks} so far]"),))
+    if state.drive_expected is not None and first < state.drive_expected:
+        counters = _count(counters, drive_stale_blocks=1)
+        return state._replace(counters=counters), Outputs(notices=(Notice(
+            "drive_stale_blocks", f"drive block {first} dropped: duplicate or out of order (expected "
+                                  f"{state.drive_expected}) [{counters.drive_stale_blocks} so far]"),))
+    notices = []
+    drive = np.array(inputs.drive_v, dtype=np.float64)
+    bad = ~np.isfinite(drive)
+    if bad.any():
+        drive[bad] = 0.0
+        counters = _count(counters, nonfinite_samples=int(bad.sum()))
+        notices.append(Notice("nonfinite_samples", f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0"))
+    over = np.abs(drive) > params.drive_limit_v
+    if over.any():
+        drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
+        counters = _count(counters, clamped_samples=int(over.sum()))
+    anchor = state.target_end + params.lead_samples
+    offset = state.drive_offset
+    if offset is None or first != state.drive_expected:
+        if offset is not None:
+            counters = _count(counters, drive_reanchors=1)
+            notices.append(Notice("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
+                                                     f"re-anchored {params.lead_samples} samples ahead"))
+        offset = anchor - first
+    elif first + offset < state.target_end:
+        counters = _count(counters, drive_reanchors=1)
+        notices.append(Notice("drive_reanchors", f"drive block {first} is {state.target_end - first - offset} samples "
+                                                 f"behind the target's clock: re-anchored {params.lead_samples} samples "
+                                                 f"ahead [{counters.drive_reanchors} re-anchors so far]"))
+        offset = anchor - first
+    queued = sum(len(v) for _, v in state.queue)
+    if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:  # a runaway source: keep the core bounded
+        counters = _count(counters, drive_overflow_blocks=1)
+        notices.append(Notice("drive_overflow_blocks", f"drive block {first} dropped: {queued} samples already wait "
+                                                       f"for the target's clock [{counters.drive_overflow_blocks} so far]"))
+        return state._replace(drive_offset=offset, drive_expected=first + n, counters=counters), Outputs(notices=tuple(notices))
+    state = state._replace(drive_offset=offset, drive_expected=first + n, queue=state.queue + ((first + offset, drive),),
+                           counters=counters)
+    state, packets, timing = _release(state, params, inputs.now_s)
+    return state, Outputs(packets=packets, timing=timing, notices=tuple(notices))
+
+
+def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[BridgeState, tuple, tuple]:
+    """Send queued drive up to target clock + lead + max_ahead_samples, in packets of <= 1000 samples."""
+    if not state.queue:
+        return state, (), ()
+    limit = state.target_end + params.lead_samples + params.max_ahead_samples
+    packets, timing, queue = [], [], []
+    sequence, counters, driving = state.drive_sequence, state.counters, state.driving
+    for target_first, drive in state.queue:
+        count = max(0, min(len(drive), limit - target_first))
+        for start in range(0, count, protocol.MAX_SAMPLES):
+            chunk = drive[start:min(count, start + protocol.MAX_SAMPLES)]
+            index = target_first + start
+            packets.append(protocol.pack_drive(protocol.DrivePacket(sequence, index, 0, chunk)))
+            sequence = (sequence + 1) % protocol.SEQUENCE_MODULUS
+            counters = _count(counters, drive_packets=1, drive_samples=len(chunk))
+            driving = driving or bool(np.any(chunk != 0.0))
+            cause = np.flatnonzero(state.arrivals[:, 0] == index - params.lead_samples)
+            if cause.size:
+                timing.append((index, float(state.arrivals[cause[-1], 1]), now_s))
+        if count < len(drive):
+            queue.append((target_first + count, drive[count:]))
+    return state._replace(queue=tuple(queue), drive_sequence=sequence, counters=counters,
+                   driving=driving), tuple(packets), tuple(timing)
+
+
+def _stop_packet(state: BridgeState) -> tuple[BridgeState, bytes]:
+    """A stop packet (zero now, hold zero) for the target's current clock; the drive stream re-anchors."""
+    packet = protocol.pack_drive(protocol.DrivePacket(state.drive_sequence, state.target_end or 0, protocol.FLAG_STOP,
+                                                      np.zeros(1)))
+    return state._replace(drive_sequence=(state.drive_sequence + 1) % protocol.SEQUENCE_MODULUS, driving=False,
+                   drive_offset=None, drive_expected=None, queue=(),
+                   counters=_count(state.counters, stop_packets=1)), packet
+
+
+# ---------------------------------------------------------------------------------- wall clock
+def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    now = inputs.now_s
+    packets, notices, blocks = [], [], []
+    if state.driving and state.last_drive_s is not None and now - state.last_drive_s > params.drive_timeout_s:
+        silent_ms = 1e3 * (now - state.last_drive_s)
+        state, packet = _stop_packet(state)
+        state = state._replace(counters=_count(state.counters, watchdog_stops=1))
+        packets.append(packet)
+        notices.append(Notice("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
+                                                f"{params.drive_timeout_s:g} s): stop packet sent, the target zeroes the drive", True))
+    if state.last_sensor_s is not None and now - state.last_sensor_s > params.sensor_timeout_s:
+        if not state.silent:
+            state = state._replace(silent=True, counters=_count(state.counters, silences=1))
+            notices.append(Notice("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_sensor_s):.1f} ms "
+                                              f"(> sensor_timeout_s {params.sensor_timeout_s:g} s) after index "
+                                              f"{state.target_end}: samples published as lost"
+                                              + ("; stop packet sent" if state.driving else ""), True))
+            if state.driving:
+                state, packet = _stop_packet(state)
+                packets.append(packet)
+        # NaN (lost) samples at the real-time rate, so downstream signal time goes on and shows the loss
+        due = state.target_end + state.index_offset + min(int((now - state.last_sensor_s) * params.sample_rate_hz),
+                                                          params.max_fill_samples)
+        missing = due - _published_end(state)
+        missing -= (missing + state.pending.shape[1]) % params.block_size  # whole blocks only
+        if missing > 0:
+            samples = np.concatenate([state.pending, np.full((3, missing), np.nan)], axis=1)
+            blocks, pending, pending_first = _blocks(state.pending_first, samples, params.block_size)
+            state = state._replace(pending=pending, pending_first=pending_first, counters=_count(
+                state.counters, silence_samples=missing, published_blocks=len(blocks)))
+    return state, Outputs(tuple(blocks), tuple(packets), (), tuple(notices))
+
+
+def summary(counters: Counters, timing: list) -> str:
+    """One line of every counter and, from `Outputs.timing` records, the sensor-to-drive latency."""
+    text = ", ".join(f"{name} {value}" for name, value in counters._asdict().items())
+    if timing:
+        latency_ms = 1e3 * np.array([send - arrival for _, arrival, send in timing])
+        text += (f"; sensor arrival -> drive packet p50 {np.percentile(latency_ms, 50):.3f} ms, "
+                 f"p99 {np.percentile(latency_ms, 99):.3f} ms over {len(latency_ms)} packets")
+    return text

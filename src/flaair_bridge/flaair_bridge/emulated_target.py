@@ -1,0 +1,270 @@
+"""emulated_target: plays the real-time target's side of the UDP protocol around the plant model.
+
+Rehearse a bench session without hardware: this program stands where the lab's real-time
+target (a Speedgoat) stands. Every n samples, paced by the wall clock at the sample rate, it
+sends a sensor packet (the drive it applied and the simulated charge-amplifier outputs of the
+plant model, flaair_sim.plant) to the bridge, and it applies the drive packets it receives:
+
+- a drive sample is applied at its index if it arrived in time; one that arrives after its
+  index has passed is discarded and counted late. A packet's drive is decided at the packet's
+  first sample, so every sample of it must be there by then (a real target is as strict or
+  more lenient);
+- with no drive sample for an index it holds the last applied value for at most
+  --hold-samples, then applies zero and sets flags bit 0 until fresh drive arrives (watchdog);
+- every applied sample is clamped to +-target_drive_limit_v (the amplifier's safe range);
+- packets with the wrong magic, a wrong length or a non-finite value are dropped whole;
+- a stop packet zeroes the drive at once and holds it at zero until drive for a later index
+  arrives.
+
+At exit (--duration reached, Ctrl-C or SIGTERM) it prints its counters as one line of strict
+JSON (and writes them to --counters): samples late, missing (applied without a fresh drive
+sample while being driven), fresh, dropped packets, stops, watchdog trips, its own overruns.
+Written from docs/REALTIME_PROTOCOL.md alone, with its own packing (struct): it does not use
+flaair_bridge.protocol, so the two implementations check each other.
+
+Usage: bin/flaair run flaair_bridge emulated_target --duration 10 --counters out/target.json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import select
+import signal
+import socket
+import struct
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SENSOR_HEAD = struct.Struct("<4sIQfHH")   # magic, sequence, first_sample_index, sample_rate_hz, n, flags
+DRIVE_HEAD = struct.Struct("<4sIQHH")     # magic, sequence, first_sample_index, m, flags
+WATCHDOG_FLAG = 1
+STOP_FLAG = 1
+RING = 1 << 16                            # drive samples buffered ahead (3.3 s at 20 kHz)
+
+
+@dataclass
+class TargetCore:
+    """The target's drive logic, no I/O: buffer drive packets, decide each sample's drive."""
+
+    hold_samples: int
+    drive_limit_v: float
+    values: np.ndarray = field(default_factory=lambda: np.zeros(RING))
+    tags: np.ndarray = field(default_factory=lambda: np.full(RING, -1, dtype=np.int64))
+    next_index: int = 0        # first index not yet decided
+    last_v: float = 0.0
+    missing_run: int = 0
+    armed: bool = False        # fresh drive seen since start / the last stop
+    tripped: bool = False
+    stop_index: int = 0        # drive for indices below this (sent before a stop) is ignored
+    counts: dict = field(default_factory=lambda: dict.fromkeys(
+        ("drive_packets", "dropped_packets", "late_samples", "ignored_after_stop_samples", "too_far_ahead_samples",
+         "fresh_samples", "missing_samples", "held_samples", "zeroed_samples", "clamped_samples",
+         "watchdog_trips", "stop_packets"), 0))
+
+    def receive(self, data: bytes) -> None:
+        """One datagram from FLAAIR: validate, then buffer its drive (or honour a stop)."""
+        if len(data) < DRIVE_HEAD.size:
+            self.counts["dropped_packets"] += 1
+            return
+        magic, _sequence, first, m, flags = DRIVE_HEAD.unpack_from(data)
+        if magic != b"FLD1" or not 1 <= m <= 1000 or len(data) != DRIVE_HEAD.size + 4 * m:
+            self.counts["dropped_packets"] += 1
+            return
+        drive = np.array(struct.unpack_from(f"<{m}f", data, DRIVE_HEAD.size))
+        if not all(math.isfinite(v) for v in drive):
+            self.counts["dropped_packets"] += 1
+            return
+        self.counts["drive_packets"] += 1
+        if flags & STOP_FLAG:
+            self.counts["stop_packets"] += 1
+            self.armed, self.tripped, self.last_v, self.missing_run = False, False, 0.0, 0
+            self.tags[:] = -1
+            self.stop_index = max(first, self.next_index)
+            return
+        if first >= self.next_index + RING:  # (also keeps first + m inside int64)
+            self.counts["too_far_ahead_samples"] += m
+            return
+        index = first + np.arange(m)
+        late = index < self.next_index
+        ignored = ~late & (index < self.stop_index)
+        ahead = index >= self.next_index + RING
+        self.counts["late_samples"] += int(late.sum())
+        self.counts["ignored_after_stop_samples"] += int(ignored.sum())
+        self.counts["too_far_ahead_samples"] += int(ahead.sum())
+        keep = ~(late | ignored | ahead)
+        self.values[index[keep] % RING] = drive[keep]
+        self.tags[index[keep] % RING] = index[keep]
+
+    def decide(self, n: int) -> tuple[np.ndarray, int]:
+        """Drive applied at the next n samples (clamped) and the packet's flags."""
+        out = np.zeros(n)
+        counts = self.counts
+        for k in range(n):
+            i = self.next_index + k
+            slot = i % RING
+            if self.tags[slot] == i:
+                raw = self.values[slot]
+                v = min(max(raw, -self.drive_limit_v), self.drive_limit_v)
+                counts["clamped_samples"] += int(v != raw)
+                counts["fresh_samples"] += 1
+                self.last_v, self.missing_run, self.armed, self.tripped = v, 0, True, False
+            elif self.armed:
+                counts["missing_samples"] += 1
+                self.missing_run += 1
+                if self.missing_run > self.hold_samples:
+                    if not self.tripped:
+                        counts["watchdog_trips"] += 1
+                    self.tripped, v = True, 0.0
+                    counts["zeroed_samples"] += 1
+                else:
+                    v = self.last_v
+                    counts["held_samples"] += 1
+            else:
+                v = 0.0
+            out[k] = v
+        self.next_index += n
+        return out, WATCHDOG_FLAG if self.tripped else 0
+
+
+def sensor_packet(sequence: int, first: int, rate_hz: float, flags: int, drive_v, stroke_v, pitch_v) -> bytes:
+    """One sensor packet, packed with struct (independent of flaair_bridge.protocol)."""
+    n = len(drive_v)
+    samples = np.column_stack([drive_v, stroke_v, pitch_v]).astype("<f4")
+    return SENSOR_HEAD.pack(b"FLS1", sequence % 2**32, first, rate_hz, n, flags) + samples.tobytes()
+
+
+def _address(text: str, option: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise SystemExit(f"emulated_target: {option} '{text}' is not HOST:PORT")
+    return host, int(port)
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    from flaair_model.config import ConfigError, node_parameters
+
+    try:
+        shared = node_parameters("flaair.yaml", "emulated_target")
+    except ConfigError as exc:
+        raise SystemExit(f"emulated_target: {exc}")
+    parser = argparse.ArgumentParser(prog="emulated_target", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--bridge", default=shared["bridge"], help="HOST:PORT the sensor packets go to [%(default)s]")
+    parser.add_argument("--listen", default=shared["listen"], help="HOST:PORT drive packets arrive at [%(default)s]")
+    parser.add_argument("--duration", type=float, default=0.0, help="stop after this much signal time, s (0: until Ctrl-C)")
+    parser.add_argument("--packet-samples", type=int, default=shared["packet_samples"], help="samples per sensor packet n [%(default)s]")
+    parser.add_argument("--sample-rate", type=float, default=shared["sample_rate_hz"], help="Hz [%(default)s]")
+    parser.add_argument("--hold-samples", type=int, default=shared["hold_samples"], help="watchdog hold before zero [%(default)s]")
+    parser.add_argument("--drive-limit-v", type=float, default=shared["target_drive_limit_v"], help="own clamp, V [%(default)s]")
+    parser.add_argument("--model", default=shared["model_file"] or None, help="plant model YAML [config/model.yaml]")
+    parser.add_argument("--noise", action=argparse.BooleanOptionalAction, default=shared["noise"], help="sensor noise")
+    parser.add_argument("--seed", type=int, default=shared["noise_seed"], help="noise seed [%(default)s]")
+    parser.add_argument("--counters", help="also write the counters (strict JSON) to this file")
+    args = parser.parse_args(argv)
+    if not 1 <= args.packet_samples <= 1000:
+        parser.error(f"--packet-samples {args.packet_samples}: must be 1..1000")
+    if args.hold_samples < 0 or not args.drive_limit_v >= 0 or not args.sample_rate > 0 or args.duration < 0:
+        parser.error("--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate > 0")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    from flaair_model.model import ModelError
+    from flaair_model.model_io import load_model
+    from flaair_sim import plant
+
+    try:
+        model = load_model(args.model)
+    except (ModelError, OSError) as exc:
+        print(f"emulated_target: --model: {exc}", file=sys.stderr)
+        return 2
+    bridge, listen = _address(args.bridge, "--bridge"), _address(args.listen, "--listen")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(listen)
+    except OSError as exc:
+        print(f"emulated_target: --listen {args.listen}: {exc}", file=sys.stderr)
+        return 2
+    sock.setblocking(False)
+    stop_requested = False
+
+    def _stop(_signum, _frame) -> None:
+        nonlocal stop_requested
+        stop_requested = True
+
+    signal.signal(signal.SIGINT, _stop)
+    signal.signal(signal.SIGTERM, _stop)
+    fs, n = args.sample_rate, args.packet_samples
+    core = TargetCore(args.hold_samples, args.drive_limit_v)
+    params = plant.PlantStepParams(model, fs)
+    state = plant.initial_state(model, fs)
+    rng = np.random.default_rng(args.seed) if args.noise else None
+    state, _ = plant.step(state, plant.PlantInputs(np.zeros(n), None), params)  # compile before the clock starts
+    state = plant.initial_state(model, fs)
+    total = math.ceil(args.duration * fs / n) if args.duration else None
+    progress = _progress(total, n / fs)
+    stats = {"packets_sent": 0, "send_errors": 0, "overruns": 0, "max_lag_ms": 0.0}
+
+    def drain() -> None:
+        while True:
+            try:
+                data = sock.recv(65536)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:  # e.g. ICMP port unreachable reported on the socket
+                continue
+            core.receive(data)
+
+    held: bytes | None = None
+    t0 = time.monotonic()
+    j = 0
+    while not stop_requested and (total is None or j <= total):
+        due = t0 + j * n / fs
+        while (remaining := due - time.monotonic()) > 0 and not stop_requested:
+            if select.select([sock], [], [], remaining)[0]:
+                drain()
+        drain()
+        lag = time.monotonic() - due
+        stats["max_lag_ms"] = max(stats["max_lag_ms"], 1e3 * lag)
+        stats["overruns"] += lag > n / fs
+        if held is not None:  # the packet whose last sample was taken just before `due`
+            try:
+                sock.sendto(held, bridge)
+                stats["packets_sent"] += 1
+            except OSError:
+                stats["send_errors"] += 1
+        if total is not None and j == total:
+            break
+        drive, flags = core.decide(n)
+        state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
+        held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
+        j += 1
+        progress(1)
+    sock.close()
+    counters = {**core.counts, **stats, "samples": core.next_index, "sample_rate_hz": fs, "packet_samples": n,
+                "wall_s": time.monotonic() - t0, "stopped": not core.armed and core.counts["stop_packets"] > 0}
+    text = json.dumps(counters, allow_nan=False)
+    print(text, flush=True)
+    if args.counters:
+        with open(args.counters, "w", encoding="utf-8") as handle:
+            handle.write(text + "\n")
+    return 0
+
+
+def _progress(total: int | None, period_s: float):
+    """tqdm over signal time when a person watches (stderr a terminal), else nothing."""
+    if total is None or not sys.stderr.isatty():
+        return lambda _k: None
+    from tqdm import tqdm
+
+    bar = tqdm(total=round(total * period_s, 3), unit="s", desc="emulated target", bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s")
+    return lambda k: bar.update(k * period_s)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
