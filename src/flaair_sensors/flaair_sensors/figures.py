@@ -85,7 +85,7 @@ def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> An
     Sensor-derived curves solid, ground truth dashed; columns stroke and pitch, rows amplitude
     and phase as in ``bode_figure``.
     """
-    fig, axes = plt.subplots(2, 2, figsize=(10.0, 6.5), sharex="col", constrained_layout=True)
+    fig, axes = plt.subplots(2, 2, figsize=(12.0, 6.5), sharex="col", layout="constrained")
     colors = plt.cm.viridis([i / max(1, len(bodes) - 1) for i in range(len(bodes))])
     for color, (label, bode) in zip(colors, bodes.items()):
         for column, cb in enumerate((bode.stroke, bode.pitch)):
@@ -100,7 +100,7 @@ def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> An
         axes[1, column].set_xlabel("frequency (Hz)")
         for row in range(2):
             axes[row, column].grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize=8, title="run (drive)", title_fontsize=8)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside right upper", fontsize=8, title="run (drive)", title_fontsize=8)
     if title:
         fig.suptitle(title)
     return fig
@@ -130,7 +130,7 @@ def collision_fft_figure(frequency_hz: Any, spectra_deg: dict[str, Any], referen
     ax.grid(True, alpha=0.3)
     ax.legend(loc="center right", fontsize=8)
     for k, (label, (time_s, pitch_deg)) in enumerate(insets.items()):
-        inset = ax.inset_axes([0.42 + 0.3 * k, 0.66, 0.26, 0.28])
+        inset = ax.inset_axes([0.40 + 0.32 * k, 0.66, 0.25, 0.28])
         inset.plot(time_s, pitch_deg, color=colors.get(label, "k"), lw=1.0)
         inset.set_title(f"{label}: pitch vs time", fontsize=7)
         inset.set_xlabel("time (ms)", fontsize=7, labelpad=1)
