@@ -15,7 +15,8 @@ and listed in the bag's custom_data "flaair.runs". The last block of a run may b
 Every file is checked before anything is written; a bad file is named with its line and column
 (exit 2), and a failed or interrupted import leaves no bag behind.
 
-Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S]
+Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S] [--kind KIND]
+Columns and units of RUN.csv: docs/LAB_CSV_FORMAT.md.
 """
 from __future__ import annotations
 
@@ -36,6 +37,7 @@ from flaair_model.config import ConfigError, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
 from flaair_tools import bagio
+from flaair_tools.runkind import KINDS
 
 CONFIG_FILE = "flaair.yaml"
 SECTION = "import_runs"
@@ -121,12 +123,13 @@ def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
 
 
 def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str,
-                progress: Callable[[int], None] | None = None) -> list[bagio.RunMarker]:
+                progress: Callable[[int], None] | None = None, kind: str | None = None) -> list[bagio.RunMarker]:
     """Read and check every CSV, then write the bag; returns the run markers written.
 
     Messages are made and written one block at a time. If anything fails (or the user
     interrupts) after the bag directory was created, it is removed: no partial bag is left
-    that looks valid. `progress` is called with the samples written so far.
+    that looks valid. `progress` is called with the samples written so far. `kind` (a
+    flaair_tools.runkind kind) goes into every run marker's JSON; `flaair analyze` uses it.
     """
     if not math.isfinite(gap_s) or gap_s < 0:
         raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")
@@ -149,6 +152,8 @@ def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, 
             for topic, stamp_ns, message in encode_run(run, source_file=str(path), start_ns=start_ns,
                                                        first_sample_index=first_index, block_size=block_size,
                                                        frame_id=frame_id, store=store):
+                if kind and topic == bagio.RUN_MARKER_TOPIC:
+                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=json.dumps({**json.loads(message.data), "kind": kind}))
                 writer.write_message(topic, stamp_ns, message, offered[topic])
                 if progress is not None and topic == topics.WING_STATE_TRUTH:
                     progress(int(message.first_sample_index) + len(message.stroke_deg))
@@ -180,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-o", "--out", type=Path, required=True, help="bag directory to create")
     parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
                         help=f"time between runs [s] (default {defaults['gap_s']})")
+    parser.add_argument("--kind", choices=[k for k in KINDS if k != "unrecognised"], default=None,
+                        help="the drive of every run given (default: `flaair analyze` recognises it from the drive)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if not math.isfinite(args.gap_s) or args.gap_s < 0:
         parser.error(f"--gap-s must be a finite time >= 0 s, got {args.gap_s}")
@@ -191,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         with tqdm(total=None, unit=" samples", unit_scale=True, desc="import", file=sys.stderr,
                   disable=not sys.stderr.isatty()) as bar:
             markers = import_runs(args.runs, args.out, gap_s=args.gap_s, block_size=int(defaults["block_size"]),
-                                  frame_id=str(defaults["frame_id"]), progress=lambda n: bar.update(n - bar.n))
+                                  frame_id=str(defaults["frame_id"]), progress=lambda n: bar.update(n - bar.n),
+                                  kind=args.kind)
     except (RunFileError, RunSetError, bagio.BagError) as exc:
         print(f"flaair import: {exc}", file=sys.stderr)
         return 2
