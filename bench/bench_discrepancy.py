@@ -8,7 +8,7 @@ hidden effects: structural damping (stroke), a 100 us acquisition delay on both 
 paper's pitch-sensor strain-transfer loss (x0.23).
 
 Figures:
-- the core analysis (`discrepancy_core.analyse`), target <= 120 s; baseline: one simulation of
+- the core analysis (`discrepancy.analyse`), target <= 120 s; baseline: one simulation of
   the whole data set;
 - the command line end to end (`bin/flaair discrepancy` in-process: read 3 CSV files, analyse,
   write model.yaml, discrepancy.json, figures and report.html), target <= 120 s;
@@ -30,9 +30,9 @@ from flaair_common.runcsv import write_run
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
 from flaair_tools import discrepancy
-from flaair_tools.discrepancy_core import analyse
-from flaair_tools.discrepancy_datasets import DatasetCase, confusion_table, dataset_cases, make_runs, score_case
-from flaair_tools.discrepancy_report import write_validation
+from flaair_tools.discrepancy import analyse
+from flaair_tools.discrepancy.datasets import DatasetCase, confusion_table, dataset_cases, make_runs, score_case
+from flaair_tools.discrepancy.report import write_validation
 
 TARGET_S = 120.0
 ROBOT = DatasetCase(

@@ -12,6 +12,7 @@ import math
 import subprocess
 from dataclasses import fields, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -21,10 +22,16 @@ from flaair_sim.drive import chirp
 from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
 from flaair_model.model_io import load_model, save_model
 from flaair_sim.plant import simulate
-from flaair_tools import discrepancy, discrepancy_core as dc
-from flaair_tools.discrepancy_datasets import (
+from flaair_tools import discrepancy
+from flaair_tools.discrepancy import diagnosis, evidence, fitting, search, settings, vocabulary, workflow
+from flaair_tools.discrepancy import runs as run_module
+from flaair_tools.discrepancy.datasets import (
     FS_HZ, DatasetCase, confusion_table, dataset_cases, expected_column, make_runs, run_set_drives, score_case)
-from flaair_tools.discrepancy_report import write_validation
+from flaair_tools.discrepancy.report import write_validation
+
+# the former discrepancy_core, now the discrepancy package's modules
+dc = SimpleNamespace(**{k: v for m in (vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow)
+                        for k, v in vars(m).items() if not k.startswith("__")})
 
 REPO = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO / "bin" / "flaair")
@@ -433,7 +440,8 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
     (3.0, "3.00x larger at full drive"), (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
 ])
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
-    from flaair_tools.discrepancy_core import Settings, _interpret
+    from flaair_tools.discrepancy.diagnosis import _interpret
+    from flaair_tools.discrepancy.settings import Settings
 
     text = _interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
     assert words in text

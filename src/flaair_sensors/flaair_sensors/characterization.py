@@ -635,3 +635,50 @@ def _rate_from_time(run: Mapping[str, Any]) -> float:
     if np.max(np.abs(dt - step_s)) > 1e-3 * step_s:
         raise CharacterizationError("time_s is not uniformly sampled")
     return 1.0 / step_s
+
+
+def tiled_transfer(
+    signals: Mapping[str, np.ndarray],
+    drive_v: np.ndarray,
+    fs_hz: float,
+    window_s: float = 0.025,
+    track: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Transfer function from the drive to each signal, in tiled windows of a sweep.
+
+    In each window of ``window_s`` every signal and the drive are fitted as a sine of the drive's
+    instantaneous phase plus a constant (`sine_phasor`, NaN samples skipped); the ratio is the
+    transfer function at the window's median drive frequency.
+
+    Parameters
+    ----------
+    signals
+        name -> (n,) record (may hold NaN, e.g. video-rate truth).
+    drive_v
+        (n,) drive.
+    fs_hz
+        Sample rate.
+    window_s
+        Window length.
+    track
+        (phase rad, frequency Hz) of the drive, from `frequency_track_from_drive` if not given.
+
+    Returns
+    -------
+    (frequency_hz (k,), {name: complex (k,) per volt of drive, NaN where not estimable})
+    """
+    d = _as_1d(drive_v, "drive_v")
+    phase, freq = track if track is not None else frequency_track_from_drive(d, fs_hz)
+    win = max(8, int(round(window_s * fs_hz)))
+    k = d.size // win
+    f_out = np.full(k, np.nan)
+    out = {name: np.full(k, complex(math.nan, math.nan)) for name in signals}
+    for j in range(k):
+        sl = slice(j * win, (j + 1) * win)
+        dp = sine_phasor(d[sl], phase[sl])
+        if not abs(dp) > 1e-9:
+            continue
+        f_out[j] = float(np.median(freq[sl]))
+        for name, x in signals.items():
+            out[name][j] = sine_phasor(np.asarray(x[sl], float), phase[sl]) / dp
+    return f_out, out

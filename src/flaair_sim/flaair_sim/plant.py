@@ -731,3 +731,85 @@ def sensor_chain(
     _sensor_channel(vp, p[_HPP_ON], p[_HPP_B0], p[_HPP_B1], p[_HPP_A1], 0.0, np.zeros(len_p),
                     prep.delay_pitch_samples, p[_DP_FRAC], p[_VREF])
     return vs, vp
+
+
+# ------------------------------------------------------------- from a moving state, sensor chain
+
+
+@njit(cache=True, parallel=True)
+def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
+    """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared drive."""
+    for i in prange(params.shape[0]):
+        x = x0[i].copy()
+        zi = np.zeros(2)
+        hist_s = np.zeros(hist_len[i, 0])
+        hist_p = np.zeros(hist_len[i, 1])
+        _run(x, zi, hist_s, hist_p, drive, h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0], delays[i, 1],
+             phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+
+
+def simulate_batch_from(
+    drive_v: np.ndarray, fs_hz: float, models: Sequence[Model], mechanical0: np.ndarray
+) -> SimOutput:
+    """Many models over one drive, each starting from a given mechanical state (no noise).
+
+    Parameters
+    ----------
+    drive_v
+        (n_samples,) shared drive (V).
+    fs_hz
+        Sample rate.
+    models
+        The models.
+    mechanical0
+        (4,) or (n_models, 4) initial [phi rad, phi' rad/s, psi rad, psi' rad/s]; the sensor
+        chain starts at rest. With zeros this equals `simulate_batch`.
+
+    Returns
+    -------
+    SimOutput
+        Arrays of shape (n_models, n_samples).
+    """
+    fs = _check_fs(fs_hz)
+    drive = _check_drive(drive_v)
+    models = list(models)
+    m = len(models)
+    x0 = np.broadcast_to(np.asarray(mechanical0, dtype=np.float64), (m, 4)).copy()
+    if not np.all(np.isfinite(x0)):
+        raise ValueError("mechanical0 must be finite")
+    preps = [_prepare(model, fs) for model in models]
+    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
+    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
+    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
+                      dtype=np.int64).reshape(m, 2)
+    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    n = drive.shape[0]
+    phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
+    if m:
+        _run_batch_from(drive, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
+    return SimOutput(phi, psi, vs, vp)
+
+
+def sensor_chain(
+    model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray, drive_v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Both charge-amplifier outputs (V) for a given motion: the plant's sensor chain alone.
+
+    Transduction (transmission_nonlinearity, strain_transfer_loss), feedthrough, high-pass
+    and delay from rest, + V_HREF, exactly as `simulate` applies them to its own motion; lets a
+    caller try sensor effects on a motion (simulated or measured) without integrating again.
+    """
+    fs = _check_fs(fs_hz)
+    prep = _prepare(model, fs)
+    p = prep.params
+    phi = np.asarray(stroke_rad, dtype=np.float64)
+    psi = np.asarray(pitch_rad, dtype=np.float64)
+    drive = np.asarray(drive_v, dtype=np.float64)
+    vs = np.ascontiguousarray(p[_GS] * (phi + p[_TCUBIC] * phi * phi * phi) + p[_FT] * drive)
+    vp = np.ascontiguousarray(p[_GP] * psi)
+    len_s, len_p = prep.delay_lengths
+    _sensor_channel(vs, p[_HPS_ON], p[_HPS_B0], p[_HPS_B1], p[_HPS_A1], 0.0, np.zeros(len_s),
+                    prep.delay_stroke_samples, p[_DS_FRAC], p[_VREF])
+    _sensor_channel(vp, p[_HPP_ON], p[_HPP_B0], p[_HPP_B1], p[_HPP_A1], 0.0, np.zeros(len_p),
+                    prep.delay_pitch_samples, p[_DP_FRAC], p[_VREF])
+    return vs, vp

@@ -19,7 +19,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .discrepancy_core import CHANNELS, DiscrepancyResult, Run, Settings, bode_points  # noqa: E402
+from .diagnosis import bode_points  # noqa: E402
+from .runs import CHANNELS, Run  # noqa: E402
+from .settings import Settings  # noqa: E402
+from .workflow import DiscrepancyResult  # noqa: E402
 
 __all__ = ["result_to_dict", "write_json", "write_figures", "write_report", "write_validation", "confusion_html"]
 
@@ -240,7 +243,7 @@ def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any
 
 
 def _label_match(true: str, found: str) -> bool:
-    from .discrepancy_datasets import expected_column
+    from .datasets import expected_column
 
     return found == expected_column(true)
 

@@ -51,7 +51,8 @@ from flaair_sim.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_model.model import Model, with_effects
 from flaair_sim.plant import synthesize_measured_run
 
-from .discrepancy_core import CHANNELS, DiscrepancyResult, Run
+from .runs import CHANNELS, Run
+from .workflow import DiscrepancyResult
 
 __all__ = [
     "FS_HZ",
@@ -67,6 +68,9 @@ __all__ = [
     "confusion_table",
     "expected_column",
     "found_label",
+    "FAMILIES",
+    "random_robot",
+    "true_plant",
 ]
 
 FS_HZ = 20_000.0
@@ -100,6 +104,10 @@ class DatasetCase:
     noise_scale : noise relative to the model's noise section.
     seed : noise seed.
     note : what the case tests.
+    plant_scale : ((plant key, factor), ...): the robot's plant differs from the model's.
+    hidden : vocabulary effects the robot carries that a plant change reproduces exactly (not
+        separable, e.g. wing_damage): the right answer does not name them.
+    video_every : ground truth only every k-th sample (a video frame rate), NaN between; 1: DAQ rate.
     """
 
     name: str
@@ -110,6 +118,9 @@ class DatasetCase:
     noise_scale: float = 1.0
     seed: int = 0
     note: str = ""
+    plant_scale: tuple = ()
+    hidden: tuple = ()
+    video_every: int = 1
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -146,7 +157,10 @@ class DatasetCase:
 
 def true_model(case: DatasetCase, model: Model) -> Model:
     """The true robot's model (vocabulary effects and the aerodynamic-damping change)."""
-    m = with_effects(model, dict(case.effects)) if case.effects else model
+    effects = dict(case.effects) | dict(case.hidden)
+    m = with_effects(model, effects) if effects else model
+    if case.plant_scale:
+        m = replace(m, plant=replace(m.plant, **{k: getattr(m.plant, k) * f for k, f in case.plant_scale}))
     if case.outside == "aero_damping":
         m = replace(m, plant=replace(m.plant, aero_damping_nm_s2=m.plant.aero_damping_nm_s2 * case.outside_strength))
     if case.noise_scale != 1.0:
@@ -188,6 +202,10 @@ def make_runs(case: DatasetCase, model: Model, fs_hz: float = FS_HZ) -> tuple[Ru
             cols["stroke_deg"] = cols["stroke_deg"] + extra
             cols["stroke_sensor_v"] = cols["stroke_sensor_v"] + math.radians(1.0) * model.stroke_volts_per_rad * extra
         t0 += n
+        if case.video_every > 1:
+            lost = np.arange(n) % case.video_every != 0
+            cols["stroke_deg"] = np.where(lost, np.nan, cols["stroke_deg"])
+            cols["pitch_deg"] = np.where(lost, np.nan, cols["pitch_deg"])
         runs.append(Run(name=name, fs_hz=fs_hz, drive_v=cols["drive_v"], stroke_sensor_v=cols["stroke_sensor_v"],
                         pitch_sensor_v=cols["pitch_sensor_v"], stroke_deg=cols["stroke_deg"],
                         pitch_deg=cols["pitch_deg"]))
@@ -409,3 +427,90 @@ def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
     counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c) for c in cols] for r in rows]
     return {"rows": rows, "columns": cols, "counts": counts, "correct": sum(o.correct for o in outcomes),
             "total": len(outcomes)}
+
+
+# ------------------------------------------------------------------ randomized off-nominal robots
+
+FAMILIES = ("offnominal_null", "offnominal_single", "offnominal_pair", "offnominal_outside")
+# Fabrication spread of the plant: natural frequencies within +-3 %, damping, gain and
+# couplings within +-15 % of nominal.
+FREQUENCY_SPREAD = 0.03
+COEFFICIENT_SPREAD = 0.15
+_FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
+_COEFFICIENTS = ("aero_damping_nm_s2", "actuator_gain_nm_per_v", "hinge_damping_nm_s_per_rad",
+                 "inertial_coupling_kg_m2", "aero_coupling_nm_s2")
+_SEPARABLE = ("sensor_delay", "charge_amp_highpass", "feedthrough", "transmission_nonlinearity",
+              "strain_transfer_loss", "hinge_stiffening", "structural_damping", "collision")
+
+
+def _random_effect(name: str, rng: np.random.Generator) -> dict:
+    """One effect at a random strength (inside the range the run set can resolve)."""
+    side = str(rng.choice(["stroke", "pitch", "both"]))
+    sign = float(rng.choice([-1.0, 1.0]))
+    if name == "sensor_delay":
+        return {"delay_s": float(rng.uniform(30e-6, 300e-6)), "channel": side}
+    if name == "charge_amp_highpass":
+        return {"corner_hz": float(rng.uniform(2.0, 15.0)), "channel": side}
+    if name == "feedthrough":
+        return {"gain_v_per_v": sign * float(rng.uniform(0.002, 0.008))}
+    if name == "transmission_nonlinearity":
+        return {"cubic_per_rad2": sign * float(rng.uniform(0.2, 0.6))}
+    if name == "strain_transfer_loss":
+        return {"efficiency": float(rng.uniform(0.2, 0.8)), "channel": side}
+    if name == "hinge_stiffening":
+        return {"cubic_per_rad2": float(rng.uniform(0.5, 4.0))}
+    if name == "structural_damping":
+        return {"damping_ratio": float(rng.uniform(0.02, 0.08))}
+    if name == "collision":
+        return {"stroke_limit_deg": float(rng.uniform(25.0, 40.0)),
+                "contact_stiffness_ratio": float(np.exp(rng.uniform(np.log(20.0), np.log(200.0)))),
+                "contact_damping_ratio": float(rng.uniform(0.1, 0.5))}
+    if name == "wing_damage":
+        return {"inertia_factor": float(rng.uniform(0.75, 0.95))}
+    raise KeyError(name)
+
+
+def random_robot(family: str, draw: int) -> DatasetCase:
+    """Draw `draw` of a family of off-nominal robots (deterministic in family and draw).
+
+    Every robot's plant is off nominal (natural frequencies within +-3 %, damping, gain and
+    couplings within +-15 %), its noise 1-2x the model's, its truth at the DAQ rate or at a
+    2 kHz video rate (NaN between frames). Families: ``offnominal_null`` (no effect),
+    ``offnominal_single`` (each vocabulary effect in turn, random strength; wing_damage is hidden,
+    since a plant change reproduces it), ``offnominal_pair`` (two separable effects),
+    ``offnominal_outside`` (physics outside the vocabulary: a drifting pitch-sensor gain or a
+    second stroke resonance).
+    """
+    if family not in FAMILIES:
+        raise KeyError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
+    rng = np.random.default_rng([FAMILIES.index(family), draw])
+    scale = tuple((k, float(1.0 + rng.uniform(-FREQUENCY_SPREAD, FREQUENCY_SPREAD))) for k in _FREQUENCIES) + tuple(
+        (k, float(1.0 + rng.uniform(-COEFFICIENT_SPREAD, COEFFICIENT_SPREAD))) for k in _COEFFICIENTS)
+    noise = float(rng.uniform(1.0, 2.0))
+    video = int(rng.choice([1, 10]))
+    effects: tuple = ()
+    hidden: tuple = ()
+    outside, strength = "", 0.0
+    names = list(EFFECT_NAMES_ORDER)
+    if family == "offnominal_single":
+        name = names[draw % len(names)]
+        pair = (name, _random_effect(name, rng))
+        hidden, effects = ((pair,), ()) if name == "wing_damage" else ((), (pair,))
+    elif family == "offnominal_pair":
+        a, b = rng.choice(len(_SEPARABLE), size=2, replace=False)
+        effects = tuple((n, _random_effect(n, rng)) for n in (_SEPARABLE[a], _SEPARABLE[b]))
+    elif family == "offnominal_outside":
+        outside = ("sensor_gain_drift", "second_resonance")[draw % 2]
+        strength = float(rng.uniform(0.2, 0.4) if outside == "sensor_gain_drift" else rng.uniform(0.1, 0.2))
+    group = {"offnominal_null": "null", "offnominal_single": "single", "offnominal_pair": "pair",
+             "offnominal_outside": "outside"}[family]
+    return DatasetCase(f"{family}_{draw:03d}", group, effects, outside, strength, noise, seed=1000 * (1 + FAMILIES.index(family)) + draw,
+                       plant_scale=scale, hidden=hidden, video_every=video)
+
+
+EFFECT_NAMES_ORDER = _SEPARABLE + ("wing_damage",)
+
+
+def true_plant(case: DatasetCase, model: Model) -> dict:
+    """{plant key: true value} of the case's robot."""
+    return {k: float(getattr(true_model(case, model).plant, k)) for k, _ in case.plant_scale}

@@ -38,8 +38,10 @@ from flaair_common.runcsv import RunFileError, read_run
 from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model, save_model
 
-from .discrepancy_core import DiscrepancyInputError, Run, Settings, analyse
-from .discrepancy_report import write_report, write_validation
+from .report import write_report, write_validation
+from .runs import DiscrepancyInputError, Run
+from .settings import Settings
+from .workflow import analyse
 
 PROG = "flaair discrepancy"
 
@@ -62,7 +64,7 @@ def runs_from_csv(path: Path) -> Run:
 
 def runs_from_bag(path: Path) -> list[Run]:
     """Every run of a bag as core Runs (ground truth NaN where invalid)."""
-    from . import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
+    from .. import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
 
     bag = path.parent if path.suffix == ".mcap" else path
     out = []
@@ -98,7 +100,7 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
 def _bad_input_errors() -> tuple[type, ...]:
     errors: list[type] = [InputError, RunFileError, ModelError, DiscrepancyInputError, OSError, yaml.YAMLError]
     try:
-        from .bagio import BagError
+        from ..bagio import BagError
 
         errors.append(BagError)
     except ImportError:  # pragma: no cover - bag support not installed
@@ -119,7 +121,7 @@ def run_validation(model: Model, names: Optional[Sequence[str]], settings: Setti
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
     from tqdm import tqdm
 
-    from .discrepancy_datasets import confusion_table, dataset_cases, make_runs, score_case
+    from .datasets import confusion_table, dataset_cases, make_runs, score_case
 
     cases = [c for c in dataset_cases() if not names or c.name in names]
     unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})

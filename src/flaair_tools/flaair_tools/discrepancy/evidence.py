@@ -1,0 +1,293 @@
+"""Evidence rules R1-R6 for a candidate effect: per-run fits, held-out prediction, BIC, consistency."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from scipy import stats
+
+from flaair_model.model import Model, with_effects
+
+from .diagnosis import _drive_tracks
+from .fitting import _Fit, _fit, _Fold, _folds, _models_for, _Problem, spec_value
+from .runs import Run, _MotionCache, simulate_runs
+from .settings import Settings
+from .vocabulary import SENSOR_CHANNELS, EffectSpec, _UPSTREAM_TRUTH
+
+# ------------------------------------------------------------------------------ evidence
+
+
+def _param_value(model: Model, spec: EffectSpec) -> float:
+    return spec_value(model, spec)
+
+
+@dataclass(frozen=True)
+class CandidateEvidence:
+    """Evidence for one candidate (an effect, or a pair on one channel).
+
+    Attributes
+    ----------
+    labels : effect labels (name[channel]).
+    channel : measured channel judged.
+    values : fitted physical parameters (all runs), one per effect.
+    se : their standard errors.
+    z : distance from the null value in standard errors.
+    per_run : per-run estimates [(run, value, se)] per effect.
+    consistency_p : p-value of the per-run scatter test per effect (NaN: fewer than 2 runs identify it).
+    heldout_nrmse_before, heldout_nrmse_after : channel NRMSE on held-out runs without / with it.
+    heldout_drop : 1 - after / before.
+    heldout_gap_drop : the same for the model error above noise (R1): 1 - sqrt(max(RSS_after - n, 0)
+        / max(RSS_before - n, 0)) in noise-weighted units.
+    delta_bic_heldout : held-out BIC change (negative favours the effect).
+    delta_bic_fit : in-sample BIC change on all runs.
+    rules : {rule: passed}.
+    accepted : all rules passed.
+    """
+
+    labels: tuple
+    channel: str
+    values: tuple
+    se: tuple
+    z: tuple
+    per_run: tuple
+    consistency_p: tuple
+    heldout_nrmse_before: float
+    heldout_nrmse_after: float
+    heldout_drop: float
+    heldout_gap_drop: float
+    delta_bic_heldout: float
+    delta_bic_fit: float
+    rules: dict
+    accepted: bool
+
+    def as_dict(self) -> dict:
+        """JSON-ready evidence."""
+        return {
+            "candidate": "+".join(self.labels), "judged_on": self.channel,
+            "values": list(self.values), "standard_errors": list(self.se), "z_from_null": list(self.z),
+            "per_run": [[{"run": n, "value": v, "se": s} for n, v, s in pr] for pr in self.per_run],
+            "consistency_p": list(self.consistency_p),
+            "heldout_nrmse_before": self.heldout_nrmse_before, "heldout_nrmse_after": self.heldout_nrmse_after,
+            "heldout_drop": self.heldout_drop, "heldout_gap_drop": self.heldout_gap_drop,
+            "delta_bic_heldout": self.delta_bic_heldout,
+            "delta_bic_fit": self.delta_bic_fit, "rules": dict(self.rules), "accepted": self.accepted,
+        }
+
+
+@dataclass(frozen=True)
+class FoundEffect:
+    """An effect the workflow added to the model.
+
+    Attributes
+    ----------
+    name : effect name (model vocabulary).
+    channel : measured channel(s) it was found on.
+    parameters : its parameters as written to the model file.
+    evidence : the accepted candidate's evidence (`CandidateEvidence.as_dict`).
+    explains : channels this effect can possibly change.
+    """
+
+    name: str
+    channel: str
+    parameters: dict
+    evidence: dict
+    explains: tuple
+
+
+def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
+    n_tot = sum(n_list)
+    val = sum(n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list) if n > 0)
+    return val + k * math.log(max(n_tot, 2))
+
+
+def _gap_drop(rss_before: float, rss_after: float, n: int) -> float:
+    """Relative drop of the model error above noise (noise-weighted residuals: noise RSS = n)."""
+    before = math.sqrt(max(rss_before - n, 0.0))
+    after = math.sqrt(max(rss_after - n, 0.0))
+    return 1.0 - after / before if before > 0 else 0.0
+
+
+def _consistency(est: Sequence[tuple[float, float]], size: float, settings: Settings) -> float:
+    """p-value of the scatter of (value, se) estimates about their weighted mean."""
+    pts = [(v, s) for v, s in est if math.isfinite(s) and s > 0]
+    if len(pts) < 2:
+        return math.nan
+    v = np.array([p[0] for p in pts])
+    var = np.array([p[1] ** 2 for p in pts]) + (settings.consistency_rel_tol * size) ** 2
+    if np.any(var <= 0):
+        var = np.maximum(var, 1e-300)
+    w = 1.0 / var
+    mean = float(np.sum(w * v) / np.sum(w))
+    q = float(np.sum((v - mean) ** 2 * w))
+    return float(stats.chi2.sf(q, len(pts) - 1))
+
+
+def _pooled(est: Sequence[tuple[float, float]], fallback: float) -> float:
+    pts = [(v, s) for v, s in est if math.isfinite(s) and s > 0]
+    if not pts:
+        return fallback
+    w = np.array([1.0 / p[1] ** 2 for p in pts])
+    return float(np.sum(w * np.array([p[0] for p in pts])) / np.sum(w))
+
+
+class _Context:
+    """Data shared by the candidate evaluations of one analysis."""
+
+    def __init__(self, runs: Sequence[Run], noise: Mapping[str, float], settings: Settings,
+                 tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None) -> None:
+        self.runs = tuple(runs)
+        self.noise = dict(noise)
+        self.settings = settings
+        self.folds = _folds(self.runs)
+        self.tracks = list(tracks) if tracks is not None else _drive_tracks(self.runs)
+        self.motion = _MotionCache()
+
+    def problem(self, channel: str, folds: Sequence[_Fold], truth_referenced: bool, weight_model: Model) -> _Problem:
+        """Residual problem of `channel` on `folds`."""
+        truth_sigma = self.noise[_UPSTREAM_TRUTH[channel]] if channel in SENSOR_CHANNELS else 0.0
+        return _Problem(self.runs, folds, channel, self.noise[channel], truth_referenced,
+                        self.settings.decimate, truth_sigma, weight_model, self.motion)
+
+
+def _reach_deg(ctx: _Context, model: Model) -> float:
+    sims = simulate_runs([model], ctx.runs)[0]
+    return max(float(np.max(s["stroke_deg"])) for s in sims)
+
+
+def _phys_se(spec: EffectSpec, u: float, se_u: float) -> float:
+    if not math.isfinite(se_u):
+        return math.inf
+    return spec.from_fit(u) * se_u if spec.log else se_u
+
+
+def _null_fit_value(spec: EffectSpec) -> float:
+    if math.isfinite(spec.null) and (not spec.log or spec.null > 0):
+        return spec.to_fit(spec.null)
+    if math.isinf(spec.null):
+        return spec.to_fit(spec.upper)
+    return spec.to_fit(spec.lower)
+
+
+def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: str, truth_referenced: bool,
+              x_start: Optional[np.ndarray] = None,
+              merge_with: Optional[tuple[float, float]] = None) -> tuple[CandidateEvidence, Model]:
+    """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
+
+    merge_with: (value, se) of the same effect already found on the other sensor channel; the
+    candidate then extends it to channel 'both' and must agree with it (rule R5).
+    """
+    st = ctx.settings
+    specs = list(specs)
+    p = len(specs)
+    null_x = np.array([_null_fit_value(s) for s in specs])
+    x0 = null_x if x_start is None else np.asarray(x_start, float)
+    folds = ctx.folds
+    per_fold = [_fit(base, specs, ctx.problem(channel, [f], truth_referenced, base), x0, st,
+                     grid=(x_start is None)) for f in folds]
+    all_prob = ctx.problem(channel, folds, truth_referenced, base)
+    # all-run estimate: inverse-variance pooling of the per-run fits (equivalent to one fit on all
+    # runs for independent runs); if no run identifies the effect, the best run's value
+    identified = [pf for pf in per_fold if np.all(np.isfinite(pf.se)) and np.all(pf.se > 0)]
+    if identified:
+        x_all = np.array([_pooled([(pf.x[j], pf.se[j]) for pf in identified], x0[j]) for j in range(p)])
+        se_all = np.array([1.0 / math.sqrt(sum(1.0 / pf.se[j] ** 2 for pf in identified)) for j in range(p)])
+    else:
+        x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
+        se_all = np.full(p, math.inf)
+    res_all = all_prob.residuals(_models_for(base, specs, x_all[None, :]))[0]
+    fit_all = _Fit(x=x_all, se=se_all, rss=sum(float(np.dot(r, r)) for r in res_all), n=sum(r.size for r in res_all),
+                   rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all))
+    values = [s.from_fit(u) for s, u in zip(specs, fit_all.x)]
+    se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se)]
+    res_null = all_prob.residuals([base])[0]
+    rss_null = [float(np.dot(r, r)) for r in res_null]
+    n_f = all_prob.n_per_fold()
+    # held-out: each fold predicted with the pooled estimates of the other folds
+    models_ho = []
+    for k in range(len(folds)):
+        others = [per_fold[i] for i in range(len(folds)) if i != k]
+        x_ho = [_pooled([(pf.x[j], pf.se[j]) for pf in others], null_x[j]) for j in range(p)]
+        models_ho.append(_models_for(base, specs, np.array([x_ho]))[0])
+    rss_ho = []
+    for k, f in enumerate(folds):
+        r = ctx.problem(channel, [f], truth_referenced, base).residuals([models_ho[k]])[0][0]
+        rss_ho.append(float(np.dot(r, r)))
+    ss = all_prob.signal_ss()
+    before = math.sqrt(sum(rss_null) / ss) if ss > 0 else math.nan
+    after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
+    drop = 1.0 - after / before if before > 0 else 0.0
+    gap_drop = _gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
+    dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
+    dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
+    z, cons, per_run, n_ident, inside = [], [], [], [], []
+    tested = [j for j, s in enumerate(specs) if s.tested]  # shape and plant parameters are fitted along
+    reach = None
+    for j, s in enumerate(specs):
+        lo, hi = s.to_fit(s.lower), s.to_fit(s.upper)
+        near = 1e-3 * (hi - lo)
+        at_lo = fit_all.x[j] - lo < near and s.lower != s.null
+        at_hi = hi - fit_all.x[j] < near and s.upper != s.null
+        inside.append(not (at_lo or at_hi))
+        v, e = values[j], se_phys[j]
+        if math.isinf(s.null):
+            if reach is None:
+                reach = _reach_deg(ctx, base)
+            z.append((reach - v) / e if 0 < e < math.inf and v < reach else 0.0)
+        else:
+            z.append(abs(v - s.null) / e if 0 < e < math.inf else 0.0)
+        est = [(s.from_fit(pf.x[j]), _phys_se(s, pf.x[j], pf.se[j])) for pf in per_fold]
+        per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(folds, est)))
+        cons.append(_consistency(est, s.effect_size(v), st))
+        n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
+    rules = {
+        "R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop),
+        "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
+        "R3_significance": bool(all(z[j] > st.min_z and inside[j] for j in tested)),
+        "R4_consistency": bool(all(n_ident[j] >= 2 for j in tested)
+                               and all(cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))),
+    }
+    model = _models_for(base, specs, fit_all.x[None, :])[0]
+    if merge_with is not None:
+        v_old, se_old = merge_with
+        v_new, se_new = values[0], se_phys[0]
+        tol = 3.0 * math.hypot(se_old, se_new) + st.consistency_rel_tol * specs[0].effect_size(v_old)
+        rules["R5_same_on_both_sensors"] = bool(abs(v_new - v_old) <= tol)
+        w_old, w_new = (1 / se_old**2 if 0 < se_old < math.inf else 0.0), (1 / se_new**2 if 0 < se_new < math.inf else 0.0)
+        merged = (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
+        values = [merged]
+        model = with_effects(base, {specs[0].name: specs[0].params(merged, channel="both")})
+    ev = CandidateEvidence(
+        labels=tuple(s.label for s in specs), channel=channel, values=tuple(values), se=tuple(se_phys),
+        z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons), heldout_nrmse_before=before,
+        heldout_nrmse_after=after, heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic_ho,
+        delta_bic_fit=dbic_fit, rules=rules, accepted=all(rules.values()),
+    )
+    return ev, model
+
+
+def _evaluate_shared(ctx: _Context, current: Model, specs: Sequence[EffectSpec], channel: str,
+                     truth_ref: bool) -> tuple[CandidateEvidence, Model]:
+    """Zero-parameter test: the other sensor's effects `specs`, at their values, on both sensors."""
+    st = ctx.settings
+    model = with_effects(current, {s.name: s.params(_param_value(current, s), channel="both") for s in specs})
+    prob = ctx.problem(channel, ctx.folds, truth_ref, current)
+    res_old, res_new = prob.residuals([current, model])
+    rss_old = [float(np.dot(r, r)) for r in res_old]
+    rss_new = [float(np.dot(r, r)) for r in res_new]
+    n_f = prob.n_per_fold()
+    ss = prob.signal_ss()
+    before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
+    drop = 1.0 - after / before if before > 0 else 0.0
+    gap_drop = _gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
+    dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
+    rules = {"R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop), "R2_delta_bic": bool(dbic < st.max_delta_bic)}
+    values = tuple(_param_value(current, s) for s in specs)
+    ev = CandidateEvidence(
+        labels=tuple(f"{s.name}[both]" for s in specs), channel=channel, values=values,
+        se=tuple(math.nan for _ in specs), z=tuple(math.nan for _ in specs), per_run=tuple(() for _ in specs),
+        consistency_p=tuple(math.nan for _ in specs), heldout_nrmse_before=before, heldout_nrmse_after=after,
+        heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic, delta_bic_fit=dbic, rules=rules,
+        accepted=all(rules.values()))
+    return ev, model

@@ -1,0 +1,225 @@
+"""Least-squares fitting of effect (and plant) parameters on folds of the runs."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from flaair_model.model import Model, ModelError, with_effects
+
+from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage, simulate_runs
+from .settings import Settings
+from .vocabulary import SENSOR_CHANNELS, EffectSpec, _SENSOR_SIDE, _UPSTREAM_TRUTH
+
+# ------------------------------------------------------------------------------------ fitting
+
+
+@dataclass(frozen=True, eq=False)
+class _Fold:
+    """A run and the sample range judged in it (whole run, or half of a lone run)."""
+
+    run: int
+    start: int
+    stop: int
+    name: str
+
+
+def _folds(runs: Sequence[Run]) -> tuple[_Fold, ...]:
+    if len(runs) >= 2:
+        return tuple(_Fold(i, 0, r.n, r.name) for i, r in enumerate(runs))
+    r = runs[0]
+    h = r.n // 2
+    return (_Fold(0, 0, h, f"{r.name}[first half]"), _Fold(0, h, r.n, f"{r.name}[second half]"))
+
+
+class _Problem:
+    """Weighted residuals of one channel, for a family of models, on a set of folds.
+
+    The weight (noise RMS; truth-referenced: sqrt(noise_V^2 + (g noise_deg)^2) with the gain g
+    of `weight_model`) is fixed per problem so that costs of different models compare.
+    """
+
+    def __init__(self, runs: Sequence[Run], folds: Sequence[_Fold], channel: str, sigma: float,
+                 truth_referenced: bool, decimate: int, truth_sigma: float = 0.0,
+                 weight_model: Optional[Model] = None, motion: Optional[_MotionCache] = None) -> None:
+        self.runs = runs
+        self.motion = motion if motion is not None else _MotionCache()
+        self._measured: dict = {}
+        self.folds = list(folds)
+        self.channel = channel
+        self.truth_referenced = truth_referenced and channel in SENSOR_CHANNELS
+        self.weight = sigma
+        if self.truth_referenced:
+            g = _sensor_gain_v_per_deg(weight_model, channel)
+            self.weight = math.sqrt(sigma**2 + (g * truth_sigma) ** 2)
+        self.run_ids = sorted({f.run for f in self.folds})
+        self.idx = []
+        for f in self.folds:
+            sl = np.arange(f.start, f.stop, decimate)
+            ok = np.isfinite(runs[f.run].channel(channel)[sl])
+            if self.truth_referenced:
+                ok &= np.isfinite(runs[f.run].channel(_UPSTREAM_TRUTH[channel])[sl])
+            self.idx.append(sl[ok])
+
+    def n_per_fold(self) -> list[int]:
+        """Residual samples per fold."""
+        return [int(i.size) for i in self.idx]
+
+    def signal_ss(self) -> float:
+        """Weighted sum of squares of the measured channel about its fold means."""
+        total = 0.0
+        for f, idx in zip(self.folds, self.idx):
+            x = self.runs[f.run].channel(self.channel)[idx]
+            total += float(np.sum(((x - x.mean()) / self.weight) ** 2))
+        return total
+
+    def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
+        """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
+        models = list(models)
+        motion = self.motion.get(models, self.runs, self.run_ids) if self.channel in SENSOR_CHANNELS else None
+        sims = None if motion is not None else {j: simulate_runs(models, [self.runs[j]]) for j in self.run_ids}
+        out = []
+        side = _SENSOR_SIDE.get(self.channel)
+        for i, m in enumerate(models):
+            row = []
+            mech = mechanics_model(m) if motion is not None else None
+            for f, idx in zip(self.folds, self.idx):
+                run = self.runs[f.run]
+                if motion is not None:
+                    stroke, pitch = motion[(mech, f.run)]
+                    if self.truth_referenced:
+                        key = (mech, f.run)
+                        if key not in self._measured:
+                            if len(self._measured) >= 8:
+                                self._measured.pop(next(iter(self._measured)))
+                            self._measured[key] = measured_motion(run, stroke, pitch, side)
+                        stroke, pitch = self._measured[key]
+                    v = sensor_voltage(m, run.fs_hz, stroke, pitch, run.drive_v, side)
+                    r = run.channel(self.channel)[idx] - v[idx]
+                else:
+                    r = run.channel(self.channel)[idx] - sims[f.run][i][0][self.channel][idx]
+                if not np.all(np.isfinite(r)):
+                    r = np.where(np.isfinite(r), r, 1e6 * self.weight)
+                row.append((r - r.mean()) / self.weight)
+            out.append(row)
+        return out
+
+
+def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[float],
+                 channels: Optional[Mapping[str, Optional[str]]] = None) -> Model:
+    """`base` with the specs' parameters at physical `values`: plant parameters replaced, effects
+    added (the parameters of one effect merged into one entry). channels: effect -> its
+    `channel` value (default: the spec's, 'both' when `base` has it on the other sensor)."""
+    plant = {}
+    effects: dict = {}
+    for s, v in zip(specs, values):
+        if s.is_plant:
+            plant[s.key] = float(v)
+            continue
+        ch = channels.get(s.name) if channels and s.name in channels else _merged_channel(base, s)
+        effects.setdefault(s.name, {}).update(s.params(v, channel=ch))
+    model = replace(base, plant=replace(base.plant, **plant)) if plant else base
+    return with_effects(model, effects) if effects else model
+
+
+def _models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
+    """Models with the parameters of `specs` at the fit-space rows `xs`."""
+    return [apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x)]) for x in np.atleast_2d(xs)]
+
+
+def spec_value(model: Model, spec: EffectSpec) -> float:
+    """Current physical value of `spec`'s parameter in `model` (plant field or effect parameter)."""
+    if spec.is_plant:
+        return float(getattr(model.plant, spec.key))
+    return float(getattr(model.effect(spec.name), spec.key))
+
+
+def _merged_channel(base: Model, spec: EffectSpec) -> Optional[str]:
+    """Channel parameter for `spec`: 'both' if the base model has it on the other sensor."""
+    if spec.channel_param is None:
+        return None
+    existing = base.effect(spec.name)
+    if existing is not None and getattr(existing, "channel", None) not in (None, spec.channel_param):
+        return "both"
+    return spec.channel_param
+
+
+@dataclass(frozen=True)
+class _Fit:
+    x: np.ndarray  # fit-space optimum
+    se: np.ndarray  # fit-space standard errors (inf: not identifiable)
+    rss: float  # weighted RSS
+    n: int
+    rss_per_fold: tuple
+
+
+def _fit(base: Model, specs: Sequence[EffectSpec], problem: _Problem, x0: np.ndarray, settings: Settings,
+         grid: bool = True) -> _Fit:
+    """Least-squares fit of the specs' parameters on `problem` (grid start, then TRF)."""
+    specs = list(specs)
+    lo = np.array([s.to_fit(s.lower) for s in specs])
+    hi = np.array([s.to_fit(s.upper) for s in specs])
+    steps = np.array([s.step for s in specs])
+    x0 = np.clip(np.asarray(x0, float), lo, hi)
+    if grid and specs[0].grid:
+        s = specs[0]
+        xs = np.array([[s.to_fit(v), *x0[1:]] for v in s.grid if s.lower <= v <= s.upper] + [list(x0)])
+        res = problem.residuals(_models_for(base, specs, xs))
+        costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
+        x0 = xs[int(np.argmin(costs))]
+
+    cache: dict = {}
+
+    def stack(rows: list[np.ndarray]) -> np.ndarray:
+        return np.concatenate(rows) if rows else np.zeros(0)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        key = tuple(np.round(x, 15))
+        if key not in cache:
+            cache.clear()
+            cache[key] = stack(problem.residuals(_models_for(base, specs, x[None, :]))[0])
+        return cache[key]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        f0 = fun(x)
+        h = np.where(x + steps <= hi, steps, -steps)
+        xs = np.repeat(x[None, :], len(specs), axis=0) + np.diag(h)
+        rows = problem.residuals(_models_for(base, specs, xs))
+        return np.column_stack([(stack(rows[i]) - f0) / h[i] for i in range(len(specs))])
+
+    x_scale = np.maximum(np.abs(steps) * 100.0, 1e-12)
+    try:
+        sol = optimize.least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale=x_scale,
+                                     max_nfev=settings.max_nfev, xtol=1e-6, ftol=1e-9, gtol=1e-9)
+        x = sol.x
+    except (ValueError, ModelError):
+        x = x0
+    f = fun(x)
+    J = jac(x)
+    n = f.size
+    rss = float(np.dot(f, f))
+    p = len(specs)
+    s2 = rss / max(n - p, 1)
+    jtj = J.T @ J
+    se = np.full(p, math.inf)
+    try:
+        if np.all(np.isfinite(jtj)) and np.linalg.matrix_rank(jtj) == p:
+            cov = np.linalg.inv(jtj) * s2
+            d = np.diag(cov)
+            se = np.where(d > 0, np.sqrt(np.abs(d)), math.inf)
+    except np.linalg.LinAlgError:
+        pass
+    # a parameter whose column barely moves the residual is not identifiable here
+    col = np.sqrt(np.sum(J * J, axis=0))
+    se = np.where(col * np.abs(steps) < 1e-9 * math.sqrt(max(rss, 1e-300)), math.inf, se)
+    sizes = problem.n_per_fold()
+    per_fold, k = [], 0
+    for m in sizes:
+        per_fold.append(float(np.dot(f[k:k + m], f[k:k + m])))
+        k += m
+    return _Fit(x=np.asarray(x, float), se=np.asarray(se, float), rss=rss, n=n, rss_per_fold=tuple(per_fold))
+
+

@@ -1,0 +1,300 @@
+"""Grey-box identification of the plant from measured runs (pure: numpy, scipy, numba).
+
+Every laminate-fabricated robot differs from the nominal model by a few per cent, so its own
+mechanical parameters are fitted before any missing physics is looked for:
+
+    stroke: natural frequency f, aerodynamic damping Gamma, actuator gain G_a
+    pitch:  natural frequency f_p, hinge damping c_p, couplings J_c (inertial), D_p (aerodynamic)
+
+(`vocabulary.PLANT_PARAMETERS`). The inertias are the scale of each equation and stay at their
+model values (only the ratios to them are observable from motion); the sensor constants
+(Table 1, charge amplifiers, transmission ratio) are fabrication-known and stay fixed.
+
+1. Frequency-domain start (`frequency_domain_start`): the transfer functions drive -> stroke and
+   stroke -> pitch in tiled windows of the sweeps (`characterization.tiled_transfer`), and the
+   linear least-squares solution of the describing-function equations
+
+       (K - I w^2) Phi + j w (8/(3 pi)) w A Gamma Phi = G_a                         (per volt)
+       (k_h - I_p w^2) Psi + j w c_p Psi = J_c w^2 Phi - j w (8/(3 pi)) w A D_p Phi
+
+   with A the window's stroke amplitude (the quadratic damping's equivalent viscous term).
+2. Time-domain fit (`identify_plant`): `scipy.optimize.least_squares` (trust-region reflective)
+   on the noise-weighted residuals of the ground-truth angles of every run, each run simulated
+   from its measured initial state, parameters in log space, Jacobian by finite differences
+   (all columns in one `simulate_batch_from` call per run).
+   Upstream first: the stroke parameters on stroke_deg, then the pitch parameters on pitch_deg
+   (an unmodelled pitch effect cannot bend the stroke fit).
+3. Standard errors and correlations from the Jacobian at the optimum (s^2 (J^T J)^-1, within
+   each stage; NaN across the stages); pairs
+   with |correlation| above `INSEPARABLE_CORRELATION` and parameters whose relative standard
+   error exceeds `UNDETERMINED_REL_SE` are reported as what the data cannot separate.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from flaair_model.model import Model
+from flaair_sensors.characterization import tiled_transfer
+
+from .runs import Run, simulate_motion
+from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
+
+__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "INSEPARABLE_CORRELATION", "UNDETERMINED_REL_SE"]
+
+INSEPARABLE_CORRELATION = 0.95  # |correlation| above which two parameters are reported as not separated
+UNDETERMINED_REL_SE = 0.10  # relative standard error above which a parameter is reported as undetermined
+FIT_RANGE = 0.5  # each parameter is fitted within x(1 -+ FIT_RANGE) of its start (log space)
+MAX_NFEV = 30  # least-squares iterations (each: one simulation of every run with every column)
+FD_STEP = 1e-4  # finite-difference step in log space
+DECIMATE = 4  # keep every k-th truth sample in the fit (noise stays white)
+_DESCRIBING = 8.0 / (3.0 * math.pi)  # |x'| x' ~ (8 / 3 pi) w A x' for a sine of amplitude A
+
+
+@dataclass(frozen=True)
+class PlantFit:
+    """This robot's plant parameters, fitted.
+
+    Attributes
+    ----------
+    model : the input model with the fitted plant parameters.
+    keys : fitted parameter names (model.yaml `plant:` keys).
+    values, nominal, start, stderr : {key: value} fitted, in the input model, from the frequency
+        domain, and the fitted value's standard error.
+    correlation : (p, p) correlation matrix of the estimates (order of `keys`).
+    inseparable : sentences naming the combinations the data cannot separate.
+    cost_before, cost_after : noise-weighted sum of squares of the truth residuals (nominal start
+        and fitted), and n, the number of residuals.
+    """
+
+    model: Model
+    keys: tuple
+    values: dict
+    nominal: dict
+    start: dict
+    stderr: dict
+    correlation: np.ndarray
+    inseparable: tuple
+    cost_before: float
+    cost_after: float
+    n: int
+
+    def as_dict(self) -> dict:
+        """JSON-ready: per parameter value, nominal, start, stderr; correlations; inseparable."""
+        return {
+            "parameters": {k: {"value": self.values[k], "nominal": self.nominal[k], "start": self.start[k],
+                               "stderr": self.stderr[k], "relative_change": self.values[k] / self.nominal[k] - 1.0}
+                           for k in self.keys},
+            "correlation": {"order": list(self.keys), "matrix": [[_finite(x) for x in row] for row in self.correlation]},
+            "inseparable": list(self.inseparable),
+            "chi2_per_sample_before": self.cost_before / max(self.n, 1),
+            "chi2_per_sample_after": self.cost_after / max(self.n, 1),
+        }
+
+
+def _finite(x: float) -> Optional[float]:
+    return float(x) if math.isfinite(x) else None
+
+
+def _window_amplitude(x: np.ndarray, win: int, k: int) -> np.ndarray:
+    blocks = x[: k * win].reshape(k, win)
+    with np.errstate(invalid="ignore"):
+        return math.sqrt(2.0) * np.nanstd(blocks, axis=1)
+
+
+def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 0.025) -> dict:
+    """Plant parameters from the runs' transfer functions (module docstring, step 1).
+
+    A parameter the linear solution leaves non-positive (or no usable window) keeps its model value.
+    """
+    pl = model.plant
+    rows_s, rhs_s, rows_p, rhs_p = [], [], [], []
+    for run in runs:
+        phi = np.radians(run.stroke_deg)
+        psi = np.radians(run.pitch_deg)
+        freq, tf = tiled_transfer({"phi": phi, "psi": psi}, run.drive_v, run.fs_hz, window_s)
+        win = max(8, int(round(window_s * run.fs_hz)))
+        amp = _window_amplitude(phi, win, freq.size)
+        ok = np.isfinite(freq) & np.isfinite(tf["phi"]) & np.isfinite(tf["psi"]) & (freq > 10.0) & (amp > 0)
+        w = 2.0 * math.pi * freq[ok]
+        f_phi, f_psi, a = tf["phi"][ok], tf["psi"][ok], amp[ok]
+        # stroke: K Phi + Gamma (j w^2 c A Phi) - G_a = I w^2 Phi
+        cols = np.column_stack([f_phi, 1j * w * w * _DESCRIBING * a * f_phi, -np.ones_like(f_phi)])
+        rows_s.append(cols)
+        rhs_s.append(pl.stroke_inertia_kg_m2 * w * w * f_phi)
+        # pitch: k_h Psi + c_p j w Psi - J_c w^2 Phi + D_p j w^2 c A Phi = I_p w^2 Psi
+        cols = np.column_stack([f_psi, 1j * w * f_psi, -w * w * f_phi, 1j * w * w * _DESCRIBING * a * f_phi])
+        rows_p.append(cols)
+        rhs_p.append(pl.pitch_inertia_kg_m2 * w * w * f_psi)
+    start = {k: float(getattr(pl, k)) for k in PLANT_PARAMETERS}
+
+    def solve(rows: list, rhs: list) -> Optional[np.ndarray]:
+        a = np.concatenate(rows) if rows else np.zeros((0, 1))
+        b = np.concatenate(rhs) if rhs else np.zeros(0)
+        if a.shape[0] < 2 * a.shape[1]:
+            return None
+        scale = np.maximum(np.abs(a).max(axis=0), 1e-300)
+        a_ri = np.vstack([a.real, a.imag]) / scale
+        sol, *_ = np.linalg.lstsq(a_ri, np.concatenate([b.real, b.imag]), rcond=None)
+        return sol / scale
+
+    s = solve(rows_s, rhs_s)
+    if s is not None:
+        k, gamma, ga = s
+        if k > 0:
+            start["stroke_natural_frequency_hz"] = math.sqrt(k / pl.stroke_inertia_kg_m2) / (2.0 * math.pi)
+        if gamma > 0:
+            start["aero_damping_nm_s2"] = float(gamma)
+        if ga > 0:
+            start["actuator_gain_nm_per_v"] = float(ga)
+    p = solve(rows_p, rhs_p)
+    if p is not None:
+        kh, cp, jc, dp = p
+        if kh > 0:
+            start["pitch_natural_frequency_hz"] = math.sqrt(kh / pl.pitch_inertia_kg_m2) / (2.0 * math.pi)
+        for key, v in (("hinge_damping_nm_s_per_rad", cp), ("inertial_coupling_kg_m2", jc), ("aero_coupling_nm_s2", dp)):
+            if v > 0:
+                start[key] = float(v)
+    # a start far outside the fit range is a failed estimate (e.g. effects the plant lacks)
+    for key, v in start.items():
+        nominal = float(getattr(pl, key))
+        if not (nominal / (1.0 + FIT_RANGE) < v < nominal * (1.0 + FIT_RANGE)):
+            start[key] = nominal
+    return start
+
+
+def with_plant(model: Model, values: Mapping[str, float]) -> Model:
+    """`model` with plant parameters replaced."""
+    return replace(model, plant=replace(model.plant, **{k: float(v) for k, v in values.items()}))
+
+
+class _TruthResiduals:
+    """Noise-weighted, per-run demeaned residuals of the truth angles for a batch of models."""
+
+    def __init__(self, runs: Sequence[Run], noise_deg: Mapping[str, float], decimate: int,
+                 channels: Sequence[str] = TRUTH_CHANNELS) -> None:
+        self.runs = list(runs)
+        self.channels = tuple(channels)
+        self.parts = []
+        for run in self.runs:
+            sl = np.arange(0, run.n, decimate)
+            idx = {c: sl[np.isfinite(run.channel(c)[sl])] for c in self.channels}
+            self.parts.append(idx)
+        self.sigma = {c: max(float(noise_deg[c]), 1e-9) for c in TRUTH_CHANNELS}
+
+    def __call__(self, models: Sequence[Model]) -> np.ndarray:
+        """(m, n) residual rows."""
+        rows = [[] for _ in models]
+        for run, idx in zip(self.runs, self.parts):
+            sim = simulate_motion(models, run)
+            for c, sim_rad in (("stroke_deg", sim.stroke_rad), ("pitch_deg", sim.pitch_rad)):
+                if c not in idx:
+                    continue
+                i = idx[c]
+                if i.size == 0:
+                    continue
+                meas = run.channel(c)[i]
+                r = meas[None, :] - np.degrees(sim_rad[:, i])
+                r = (r - r.mean(axis=1, keepdims=True)) / self.sigma[c]
+                for k in range(len(models)):
+                    rows[k].append(r[k])
+        return np.array([np.concatenate(r) if r else np.zeros(0) for r in rows])
+
+
+def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], keys: Sequence[str],
+               start: Mapping[str, float], channel: str, max_nfev: int, decimate: int) -> dict:
+    """Least-squares fit of `keys` on one truth channel; returns values, log-space covariance, costs."""
+    resid = _TruthResiduals(runs, noise, decimate, (channel,))
+    u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
+    lo, hi = u_nominal - math.log1p(FIT_RANGE), u_nominal + math.log1p(FIT_RANGE)
+
+    def models_at(us: np.ndarray) -> list[Model]:
+        return [with_plant(model, dict(zip(keys, np.exp(u)))) for u in np.atleast_2d(us)]
+
+    cache: dict = {}
+
+    def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = tuple(np.round(u, 14))
+        if key not in cache:
+            cache.clear()
+            h = np.where(u + FD_STEP <= hi, FD_STEP, -FD_STEP)
+            rows = resid(models_at(np.vstack([u, u[None, :] + np.diag(h)])))
+            cache[key] = (rows[0], ((rows[1:] - rows[0]) / h[:, None]).T)
+        return cache[key]
+
+    # the better of the frequency-domain and the model's values starts the fit
+    u_start = np.clip(np.log([start[k] for k in keys]), lo, hi)
+    costs = np.sum(resid(models_at(np.vstack([u_nominal, u_start]))) ** 2, axis=1)
+    u0 = u_start if costs[1] <= costs[0] else u_nominal
+    sol = optimize.least_squares(lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1],
+                                 bounds=(lo, hi), method="trf", max_nfev=max_nfev, x_scale=1.0,
+                                 xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    f, jac = fun_and_jac(sol.x)
+    cost = float(np.dot(f, f))
+    cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - len(keys), 1)
+    return {"values": dict(zip(keys, (float(v) for v in np.exp(sol.x)))), "cov": cov,
+            "cost_before": float(costs[0]), "cost_after": cost, "n": int(f.size)}
+
+
+def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
+                   keys: Sequence[str] = tuple(PLANT_PARAMETERS), max_nfev: int = MAX_NFEV,
+                   decimate: int = DECIMATE) -> PlantFit:
+    """Fit this robot's plant parameters to the truth angles of its runs (module docstring).
+
+    Upstream first: the stroke parameters on stroke_deg, then, with them fixed, the pitch
+    parameters on pitch_deg (so that an unmodelled pitch effect cannot bend the stroke fit).
+
+    Parameters
+    ----------
+    runs
+        Checked runs (`runs.check_runs`), each with its measured initial state.
+    model
+        Model to start from (its effects are kept as they are).
+    noise
+        Noise RMS per channel (degrees for the truth channels), the residual weights.
+    keys
+        Plant parameters to fit.
+    max_nfev, decimate
+        Least-squares iterations per stage; keep every k-th sample.
+    """
+    keys = tuple(keys)
+    nominal = {k: float(getattr(model.plant, k)) for k in keys}
+    start = {k: v for k, v in frequency_domain_start(runs, model).items() if k in keys}
+    values: dict = {}
+    sd = np.full(len(keys), np.nan)
+    corr = np.full((len(keys), len(keys)), np.nan)
+    cost_before = cost_after = 0.0
+    n = 0
+    current = model
+    for channel in TRUTH_CHANNELS:
+        stage = [k for k in keys if PLANT_PARAMETERS[k] == channel]
+        if not stage:
+            continue
+        out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate)
+        current = with_plant(current, out["values"])
+        values.update(out["values"])
+        idx = [keys.index(k) for k in stage]
+        s = np.sqrt(np.abs(np.diag(out["cov"])))
+        sd[idx] = s
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr[np.ix_(idx, idx)] = out["cov"] / np.outer(s, s)
+        cost_before += out["cost_before"]
+        cost_after += out["cost_after"]
+        n += out["n"]
+    stderr = {k: float(values[k] * sd[i]) for i, k in enumerate(keys)}  # log-space SE x value
+    inseparable = []
+    for i in range(len(keys)):
+        for j in range(i + 1, len(keys)):
+            if abs(corr[i, j]) > INSEPARABLE_CORRELATION:
+                inseparable.append(f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the runs fix only "
+                                   "a combination of the two")
+    for i, k in enumerate(keys):
+        if not sd[i] < UNDETERMINED_REL_SE:
+            inseparable.append(f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs")
+    return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start, stderr=stderr,
+                    correlation=corr, inseparable=tuple(inseparable), cost_before=cost_before, cost_after=cost_after,
+                    n=n)

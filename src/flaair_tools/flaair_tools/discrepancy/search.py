@@ -1,0 +1,270 @@
+"""Greedy, channel-by-channel search for the missing effects."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from flaair_model.model import Model, with_effects
+
+from .diagnosis import _gap_test, _residual
+from .evidence import (CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, _param_value)
+from .fitting import _fit, _Fold, apply_values, spec_value
+from .runs import Run, _sensor_gain_v_per_deg, simulate_runs
+from .settings import Settings
+from .vocabulary import (EFFECT_CHANNELS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
+                         candidate_groups, candidate_specs)
+
+# ------------------------------------------------------------------------------ the search
+
+
+@dataclass(frozen=True)
+class ChannelSearch:
+    """Record of the greedy search on one channel.
+
+    Attributes
+    ----------
+    channel : measured channel.
+    truth_referenced : the sensor channel was judged against the measured truth.
+    skipped : why the channel was not searched ('' if it was).
+    steps : per greedy step, the evidence of every candidate tried.
+    """
+
+    channel: str
+    truth_referenced: bool
+    skipped: str
+    steps: tuple
+
+
+_CHANNEL_ORDER = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
+
+
+def _channel_has_gap(ctx: _Context, model: Model, channel: str, truth_ref: bool) -> bool:
+    """The gap test of one channel (noise ratio and whiteness only)."""
+    sims = simulate_runs([model], ctx.runs)[0]
+    res = [_residual(run, sim, channel, model, truth_referenced=truth_ref) for run, sim in zip(ctx.runs, sims)]
+    sigma = ctx.noise[channel]
+    if truth_ref:
+        g = _sensor_gain_v_per_deg(model, channel)
+        sigma = math.sqrt(sigma**2 + (g * ctx.noise[_UPSTREAM_TRUTH[channel]]) ** 2)
+    return _gap_test(res, sigma, ctx.settings)[0]
+
+
+def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequence[EffectSpec]) -> Optional[str]:
+    """'new', 'merge' (extend the other sensor's effect to both) or None (not offered)."""
+    if model_in.effect(spec.name) is not None or any(s.name == spec.name for s in found_here):
+        return None
+    existing = current.effect(spec.name)
+    if existing is None:
+        return "new"
+    if spec.channel_param is not None and getattr(existing, "channel", None) not in (spec.channel_param, "both"):
+        return "merge"
+    return None
+
+
+def _polish(ctx: _Context, base: Model, specs: Sequence[EffectSpec], current: Model, channel: str,
+            truth_ref: bool, folds: Optional[Sequence[_Fold]] = None) -> Model:
+    """Joint least-squares re-fit of `specs` (effects of one channel and the plant parameters
+    fitted along with them), from their values in `current`; `base` lacks those effects."""
+    folds = ctx.folds if folds is None else folds
+    x0 = np.array([s.to_fit(spec_value(current, s)) for s in specs])
+    prob = ctx.problem(channel, folds, truth_ref, base)
+    fit = _fit(base, specs, prob, x0, ctx.settings, grid=False)
+    channels = {s.name: getattr(current.effect(s.name), "channel", None) for s in specs if not s.is_plant}
+    return apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, fit.x)], channels)
+
+
+def _groups(ctx: _Context, channel: str, model: Model) -> tuple[tuple[EffectSpec, ...], ...]:
+    """Candidate parameter sets on `channel`: with the plant parameters they trade off against
+    (and without the effects a plant change mimics) once the plant is fitted."""
+    return candidate_groups(channel, model if ctx.settings.identify else None)
+
+
+def _join(a: Sequence[EffectSpec], b: Sequence[EffectSpec]) -> list[EffectSpec]:
+    """Specs of a and b, each plant parameter once."""
+    keys = {s.key for s in a if s.is_plant}
+    return list(a) + [s for s in b if not (s.is_plant and s.key in keys)]
+
+
+@dataclass
+class _ChannelState:
+    model: Model
+    specs: list
+    evidence: dict  # effect name -> CandidateEvidence that added it
+    last: Optional[CandidateEvidence] = None
+
+
+def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, truth_ref: bool,
+            found: Sequence[FoundEffect], steps: list, max_steps: int) -> tuple[_ChannelState, bool, list]:
+    """Forward selection on one channel; returns (state, has_gap, first-step single evaluations)."""
+    st = ctx.settings
+    has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    first = []
+    for step in range(max_steps):
+        if not has_gap:
+            break
+        offers = [(g, _offer(model_in, state.model, g[0], state.specs)) for g in _groups(ctx, channel, state.model)]
+        offers = [(g, kind) for g, kind in offers if kind is not None]
+        if not offers:
+            break
+        evals = []
+        for group, kind in offers:
+            s = group[0]
+            merge = None
+            base = state.model
+            if kind == "merge":
+                prev = next((f for f in found if f.name == s.name), None)
+                se_prev = (prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None else math.inf
+                merge = (_param_value(state.model, s), float(se_prev))
+                base = _strip(state.model, [s])
+            ev, m = _evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
+            if kind == "merge":
+                m = with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
+            ev = _check_upstream_truth(ctx, ev, m, channel, s)
+            evals.append((ev, m, tuple(group), kind))
+        if step == 0:
+            first = evals
+        steps.append(tuple(e[0] for e in evals))
+        passing = [e for e in evals if e[0].accepted]
+        if not passing:
+            break
+        ev, m, chosen, _ = min(passing, key=lambda e: e[0].delta_bic_heldout)
+        state = _ChannelState(m, _join(state.specs, chosen), {**state.evidence, **{s.name: ev for s in chosen}}, ev)
+        own = [s for s in state.specs
+               if s.is_plant or getattr(state.model.effect(s.name), "channel", None) in (None, s.channel_param)]
+        # Re-fit this channel's own effects whenever anything joined them, a shared (merged)
+        # effect included: an efficiency fitted before a delay was found is biased by cos(w tau).
+        # Likewise whenever parameters were fitted along (plant, shape): their per-run estimates
+        # are correlated, so the pooled values are not the joint optimum on all runs.
+        if own and (len({s.name for s in state.specs if not s.is_plant}) >= 2 or any(not s.tested for s in own)):
+            state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
+        has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    return state, has_gap, first
+
+
+def _check_upstream_truth(ctx: _Context, ev: CandidateEvidence, model: Model, channel: str,
+                          spec: EffectSpec) -> CandidateEvidence:
+    """R6: a stroke-physics effect judged on pitch_deg must leave stroke_deg without a gap."""
+    if channel != "pitch_deg" or "stroke_deg" not in EFFECT_CHANNELS[spec.name] or not ev.accepted:
+        return ev
+    ok = not _channel_has_gap(ctx, model, "stroke_deg", False)
+    rules = {**ev.rules, "R6_stroke_truth_intact": ok}
+    return replace(ev, rules=rules, accepted=all(rules.values()))
+
+
+def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, truth_ref: bool,
+                    found: Sequence[FoundEffect]) -> tuple[_ChannelState, bool, list]:
+    """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left."""
+    st = ctx.settings
+    steps: list = []
+    state = _ChannelState(start, [], {})
+    if channel in SENSOR_CHANNELS:
+        shared = [s for s in candidate_specs(channel) if _offer(model_in, start, s, []) == "merge"]
+        tries = ([shared] if shared else []) + ([[s] for s in shared] if len(shared) > 1 else [])
+        for group in tries:
+            ev, m = _evaluate_shared(ctx, start, group, channel, truth_ref)
+            steps.append((ev,))
+            if ev.accepted:
+                state = _ChannelState(m, list(group), {s.name: ev for s in group}, ev)
+                break
+    base_state = _ChannelState(state.model, list(state.specs), dict(state.evidence), state.last)
+    state, has_gap, first = _greedy(ctx, model_in, state, channel, truth_ref, found, steps, st.max_effects_per_channel)
+    if has_gap and st.pair_fallback:
+        singles = [e for e in first if e[3] == "new"]
+        best = None
+        for i in range(len(singles)):
+            for j in range(i + 1, len(singles)):
+                a, b = singles[i], singles[j]
+                specs = _join(a[2], b[2])
+                start = {(s.name, s.key): v for s, v in zip(list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))}
+                x_start = np.array([s.to_fit(start[(s.name, s.key)]) for s in specs])
+                ev, m = _evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
+                for s in (a[2][0], b[2][0]):
+                    ev = _check_upstream_truth(ctx, ev, m, channel, s)
+                steps.append((ev,))
+                if ev.accepted and (best is None or ev.delta_bic_heldout < best[0].delta_bic_heldout):
+                    best = (ev, m, specs)
+        greedy_after = state.last.heldout_nrmse_after if state.last is not None and state.specs != base_state.specs \
+            else math.inf
+        if best is not None and best[0].heldout_nrmse_after < greedy_after:
+            ev, m, specs = best
+            pair_state = _ChannelState(m, _join(base_state.specs, specs),
+                                       {**base_state.evidence, **{s.name: ev for s in specs}}, ev)
+            state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
+                                        max(st.max_effects_per_channel - 2, 0))
+    return state, has_gap, steps
+
+
+def find_effects(
+    runs: Sequence[Run],
+    model: Model,
+    noise: Mapping[str, float],
+    settings: Settings = Settings(),
+    progress: Optional[Callable[[str], None]] = None,
+    tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None,
+) -> tuple[Model, tuple[FoundEffect, ...], tuple[ChannelSearch, ...]]:
+    """Greedy, channel-by-channel search for the missing effects (rules in the module docstring).
+
+    Returns
+    -------
+    (model_out, found effects, per-channel search records)
+    """
+    ctx = _Context(runs, noise, settings, tracks)
+    current = model
+    found: list[FoundEffect] = []
+    searches = []
+    unexplained_truth: set[str] = set()
+    for channel in _CHANNEL_ORDER:
+        if progress:
+            progress(channel)
+        if channel == "pitch_deg" and "stroke_deg" in unexplained_truth:
+            if _channel_has_gap(ctx, current, channel, False):
+                unexplained_truth.add(channel)
+            searches.append(ChannelSearch(channel, False, "downstream of an unexplained stroke_deg gap", ()))
+            continue
+        truth_ref = channel in SENSOR_CHANNELS and _UPSTREAM_TRUTH[channel] in unexplained_truth
+        if not _channel_has_gap(ctx, current, channel, truth_ref):
+            searches.append(ChannelSearch(channel, truth_ref, "no gap", ()))
+            continue
+        state, has_gap, steps = _search_channel(ctx, model, current, channel, truth_ref, found)
+        current = state.model
+        for s in state.specs:
+            if not s.tested:
+                continue
+            ev = state.evidence.get(s.name)
+            found.append(FoundEffect(name=s.name, channel=channel, parameters={},
+                                     evidence=ev.as_dict() if ev is not None else {}, explains=EFFECT_CHANNELS[s.name]))
+        if has_gap and channel in TRUTH_CHANNELS:
+            unexplained_truth.add(channel)
+        searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))
+    return current, tuple(_merge_sensor_channels(found, current)), tuple(searches)
+
+
+def _strip(model: Model, specs: Sequence[EffectSpec]) -> Model:
+    names = {s.name for s in specs}
+    return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in names))
+
+
+def _effect_params_dict(model: Model, name: str) -> dict:
+    e = model.effect(name)
+    return {k: (v if isinstance(v, str) else float(v)) for k, v in e.__dict__.items()}
+
+
+def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[FoundEffect]:
+    """One entry per effect name (a sensor effect on both sensors once, channel 'a+b')."""
+    by_name: dict[str, FoundEffect] = {}
+    order = []
+    for f in found:
+        params = _effect_params_dict(model, f.name)
+        if f.name in by_name:
+            prev = by_name[f.name]
+            by_name[f.name] = replace(prev, channel=f"{prev.channel}+{f.channel}", parameters=params,
+                                      evidence={**prev.evidence, "merged_from": f.evidence})
+        else:
+            by_name[f.name] = replace(f, parameters=params)
+            order.append(f.name)
+    return [by_name[n] for n in order]
+
+

@@ -1,0 +1,227 @@
+"""The effect vocabulary: each effect registered once (parameters, channels, fit specification).
+
+`VOCABULARY` is the one table: for every effect the channels it changes, the channels it is
+searched on, every parameter with its bounds and starting grid (effects with several
+parameters are fitted whole: collision's stop, contact stiffness and contact damping), the
+fitted plant parameters it trades off against (fitted jointly with it) and whether it can be
+told apart from a change of those plant parameters at all. `candidate_groups` turns it into the
+parameter sets the search fits.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Optional
+
+import numpy as np
+
+from flaair_model.model import Model
+
+CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
+TRUTH_CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg")
+SENSOR_CHANNELS: tuple[str, ...] = ("stroke_sensor_v", "pitch_sensor_v")
+STATUSES: tuple[str, ...] = ("no_discrepancy", "explained", "unexplained")
+# Truth channel upstream of each sensor channel, and the model-channel name of the sensors.
+_UPSTREAM_TRUTH = {"stroke_sensor_v": "stroke_deg", "pitch_sensor_v": "pitch_deg"}
+_SENSOR_SIDE = {"stroke_sensor_v": "stroke", "pitch_sensor_v": "pitch"}
+
+# The fitted plant parameters (model.yaml `plant:` keys) and the truth channel that sets each.
+PLANT_PARAMETERS: dict[str, str] = {
+    "stroke_natural_frequency_hz": "stroke_deg",
+    "aero_damping_nm_s2": "stroke_deg",
+    "actuator_gain_nm_per_v": "stroke_deg",
+    "pitch_natural_frequency_hz": "pitch_deg",
+    "hinge_damping_nm_s_per_rad": "pitch_deg",
+    "inertial_coupling_kg_m2": "pitch_deg",
+    "aero_coupling_nm_s2": "pitch_deg",
+}
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """One fittable parameter: of an effect, or (name 'plant') of the plant.
+
+    Attributes
+    ----------
+    name : effect name (model vocabulary), or 'plant' for a plant parameter.
+    key : the fitted parameter's key in the model file.
+    judged_on : measured channel the effect is judged on.
+    null : parameter value at which the effect does nothing (inf: collision, no contact).
+    lower, upper : bounds of the fit.
+    grid : starting values tried before the local fit (empty: start at the null value; the
+        residual of feedthrough, transmission_nonlinearity and strain_transfer_loss is affine
+        in the parameter, so the first Gauss-Newton step is exact).
+    step : finite-difference step (in fit space).
+    log : fit log(parameter) instead of the parameter.
+    channel_param : value of the effect's `channel` parameter, if it has one.
+    tested : the significance rule (R3) applies to it (False: a shape parameter of a
+        multi-parameter effect, or a plant parameter fitted along).
+    """
+
+    name: str
+    key: str
+    judged_on: str
+    null: float
+    lower: float
+    upper: float
+    grid: tuple[float, ...]
+    step: float
+    log: bool = False
+    channel_param: Optional[str] = None
+    tested: bool = True
+
+    @property
+    def label(self) -> str:
+        """Name with its sensor channel, e.g. 'sensor_delay[pitch]'; 'collision.contact_damping_ratio'
+        for a parameter fitted along (shape parameter or plant parameter)."""
+        if not self.tested:
+            return f"{self.name}.{self.key}"
+        return f"{self.name}[{self.channel_param}]" if self.channel_param else self.name
+
+    @property
+    def is_plant(self) -> bool:
+        """A plant parameter fitted along with an effect."""
+        return self.name == "plant"
+
+    def to_fit(self, value: float) -> float:
+        """Physical parameter -> fit-space value."""
+        return math.log(value) if self.log else float(value)
+
+    def from_fit(self, u: float) -> float:
+        """Fit-space value -> physical parameter."""
+        return math.exp(u) if self.log else float(u)
+
+    def params(self, value: float, channel: Optional[str] = None) -> dict:
+        """Effect parameter dict for the model."""
+        p: dict = {self.key: float(value)}
+        if self.channel_param is not None:
+            p["channel"] = channel or self.channel_param
+        return p
+
+    def effect_size(self, value: float) -> float:
+        """Distance of `value` from the null value (|value| for a null at infinity)."""
+        return abs(value) if math.isinf(self.null) else abs(value - self.null)
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of a vocabulary effect: key, null value, bounds, grid, FD step, log fit."""
+
+    key: str
+    null: float
+    lower: float
+    upper: float
+    grid: tuple[float, ...] = ()
+    step: float = 1e-4
+    log: bool = False
+
+
+@dataclass(frozen=True)
+class VocabularyEntry:
+    """One effect of the vocabulary, registered once.
+
+    Attributes
+    ----------
+    name : effect name (a key of the model's `effects:`).
+    acts_on : measured channels it changes.
+    searched_on : channels it is searched on (physics on the truth, sensor effects on the sensors).
+    params : its parameters, the first one tested for significance; all fitted together.
+    per_sensor : it has a `channel` parameter (found per sensor chain, merged to 'both' when equal).
+    trades_off : fitted plant parameters it is fitted jointly with.
+    separable : its signature differs from every change of the fitted plant parameters.
+    note : why it is (not) separable.
+    """
+
+    name: str
+    acts_on: tuple[str, ...]
+    searched_on: tuple[str, ...]
+    params: tuple[Param, ...]
+    per_sensor: bool = False
+    trades_off: tuple[str, ...] = ()
+    separable: bool = True
+    note: str = ""
+
+
+VOCABULARY: tuple[VocabularyEntry, ...] = (
+    VocabularyEntry("sensor_delay", SENSOR_CHANNELS, SENSOR_CHANNELS,
+                    (Param("delay_s", 0.0, 0.0, 2e-3, (0.0, 1e-4, 3e-4, 1e-3), 2e-7),), per_sensor=True),
+    VocabularyEntry("charge_amp_highpass", SENSOR_CHANNELS, SENSOR_CHANNELS,
+                    (Param("corner_hz", 0.0, 0.05, 100.0, tuple(np.geomspace(0.3, 100.0, 6)), 1e-3, log=True),),
+                    per_sensor=True),
+    VocabularyEntry("feedthrough", ("stroke_sensor_v",), ("stroke_sensor_v",),
+                    (Param("gain_v_per_v", 0.0, -0.05, 0.05, (), 1e-5),)),
+    VocabularyEntry("transmission_nonlinearity", ("stroke_sensor_v",), ("stroke_sensor_v",),
+                    (Param("cubic_per_rad2", 0.0, -3.0, 3.0, (), 1e-3),)),
+    VocabularyEntry("strain_transfer_loss", SENSOR_CHANNELS, SENSOR_CHANNELS,
+                    (Param("efficiency", 1.0, 0.01, 1.0, (), 1e-4),), per_sensor=True),
+    VocabularyEntry("hinge_stiffening", ("pitch_deg", "pitch_sensor_v"), ("pitch_deg",),
+                    (Param("cubic_per_rad2", 0.0, -1.0, 50.0, (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0), 1e-3),),
+                    trades_off=("pitch_natural_frequency_hz", "hinge_damping_nm_s_per_rad", "inertial_coupling_kg_m2",
+                                "aero_coupling_nm_s2")),
+    VocabularyEntry("structural_damping", CHANNELS, TRUTH_CHANNELS,
+                    (Param("damping_ratio", 0.0, 0.0, 1.0, (0.0, 0.01, 0.03, 0.1, 0.3), 1e-4),),
+                    trades_off=("aero_damping_nm_s2", "actuator_gain_nm_per_v", "stroke_natural_frequency_hz")),
+    VocabularyEntry("collision", CHANNELS, TRUTH_CHANNELS,
+                    (Param("stroke_limit_deg", math.inf, 1.0, 90.0, tuple(np.arange(6.0, 62.0, 4.0)), 0.02),
+                     Param("contact_stiffness_ratio", 50.0, 2.0, 2000.0, (), 1e-3, log=True),
+                     Param("contact_damping_ratio", 0.2, 0.01, 2.0, (), 1e-3, log=True)),
+                    trades_off=("aero_damping_nm_s2", "actuator_gain_nm_per_v", "stroke_natural_frequency_hz")),
+    VocabularyEntry("wing_damage", CHANNELS, TRUTH_CHANNELS,
+                    (Param("inertia_factor", 1.0, 0.3, 1.0, (0.5, 0.7, 0.85, 0.95, 1.0), 1e-4),),
+                    separable=False,
+                    note="scaling the wing inertia equals raising both natural frequencies and scaling the "
+                         "damping, gain and coupling coefficients, all of which are fitted plant parameters"),
+)
+ENTRIES: dict[str, VocabularyEntry] = {e.name: e for e in VOCABULARY}
+# Which measured channels each effect can possibly change (the model's structure).
+EFFECT_CHANNELS: dict[str, tuple[str, ...]] = {e.name: e.acts_on for e in VOCABULARY}
+SENSOR_EFFECTS: tuple[str, ...] = tuple(e.name for e in VOCABULARY if set(e.acts_on) <= set(SENSOR_CHANNELS))
+NOT_SEPARABLE: tuple[str, ...] = tuple(e.name for e in VOCABULARY if not e.separable)
+
+
+def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> EffectSpec:
+    side = _SENSOR_SIDE.get(channel) if entry.per_sensor else None
+    return EffectSpec(entry.name, p.key, channel, p.null, p.lower, p.upper, p.grid, p.step, p.log,
+                      channel_param=side, tested=first)
+
+
+def _order(channel: str) -> list[VocabularyEntry]:
+    entries = [e for e in VOCABULARY if channel in e.searched_on]
+    if channel == "pitch_deg":  # the pitch's own physics first, then the stroke physics seen there
+        entries.sort(key=lambda e: "stroke_deg" in e.searched_on)
+    return entries
+
+
+def candidate_specs(channel: str) -> tuple[EffectSpec, ...]:
+    """The tested (first) parameter of every vocabulary effect searched on `channel`."""
+    if channel not in CHANNELS:
+        raise KeyError(f"unknown channel {channel!r}")
+    return tuple(_spec(e, e.params[0], channel, True) for e in _order(channel))
+
+
+def plant_spec(key: str, model: Model, channel: str, rel_range: float = 0.5) -> EffectSpec:
+    """A plant parameter as a fittable spec (log fit, within x(1 -+ rel_range) of its value in `model`)."""
+    v = float(getattr(model.plant, key))
+    return EffectSpec("plant", key, channel, v, v * (1.0 - rel_range), v * (1.0 + rel_range), (), 1e-4,
+                      log=True, tested=False)
+
+
+def candidate_groups(channel: str, plant: Optional[Model] = None) -> tuple[tuple[EffectSpec, ...], ...]:
+    """The parameter sets the search fits on `channel`: every separable effect whole, with the
+    fitted plant parameters it trades off against (when `plant` is given; those that the channel
+    sees: the stroke parameters on either truth channel, the pitch ones on pitch_deg)."""
+    groups = []
+    for e in _order(channel):
+        if plant is not None and not e.separable:
+            continue
+        specs = [_spec(e, p, channel, i == 0) for i, p in enumerate(e.params)]
+        if plant is not None and channel in TRUTH_CHANNELS:
+            specs += [plant_spec(k, plant, channel) for k in e.trades_off
+                      if channel == "pitch_deg" or PLANT_PARAMETERS[k] == channel]
+        groups.append(tuple(specs))
+    return tuple(groups)
+
+
+def with_judged_on(spec: EffectSpec, channel: str) -> EffectSpec:
+    """The same spec judged on another channel."""
+    return replace(spec, judged_on=channel)

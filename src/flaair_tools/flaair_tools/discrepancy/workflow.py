@@ -1,0 +1,269 @@
+"""The whole workflow: identify the plant, compare, localise, name, refit, decide the status."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from flaair_model.model import Model, ModelError
+from flaair_sim.plant import simulate
+
+from .diagnosis import Diagnosis, _drive_tracks, diagnose, noise_estimates, nrmse_by_channel
+from .evidence import FoundEffect, _Context
+from .fitting import _Fold
+from .identification import PlantFit, identify_plant
+from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
+from .search import (_CHANNEL_ORDER, ChannelSearch, _channel_has_gap, _polish, _strip, find_effects)
+from .settings import Settings
+from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, _UPSTREAM_TRUTH,
+                         candidate_groups)
+
+@dataclass(frozen=True)
+class DiscrepancyResult:
+    """Outcome of the whole workflow.
+
+    Attributes
+    ----------
+    status : 'no_discrepancy', 'explained' or 'unexplained'.
+    effects : found effects (`FoundEffect`), in the order they were found.
+    model_in, model_out : input model and input model + found effects.
+    gap_before, gap_after : NRMSE per channel on held-out runs (after: parameters re-fitted
+        without the run they predict; before: the input model, which is not fitted).
+    gap_in_sample_after : NRMSE per channel of model_out on all runs.
+    noise : noise RMS per channel (data estimate).
+    diagnosis_before, diagnosis_after : `Diagnosis` of the input and the output model.
+    searches : the greedy search on each channel.
+    remaining : where a gap remains: ({channel, band_hz, drive_level_ratio, stretch, note}, ...).
+    sims_before, sims_after : simulated channels per run (for figures).
+    summary : the outcome in words.
+    run_names : names of the runs.
+    plant_fit : the identification of this robot's plant (`identification.PlantFit`; None when
+        Settings.identify is off).
+    plant_parameters : {key: {value, nominal, stderr}} of the fitted plant parameters in model_out.
+    not_separable : [{effect, reason}] vocabulary effects whose signature a plant-parameter change
+        reproduces: not searched for, and not claimed.
+    approximate : names of found effects whose channel keeps a gap (named, but not explaining it).
+    """
+
+    status: str
+    effects: tuple
+    model_in: Model
+    model_out: Model
+    gap_before: dict
+    gap_after: dict
+    gap_in_sample_after: dict
+    noise: dict
+    diagnosis_before: Diagnosis
+    diagnosis_after: Diagnosis
+    searches: tuple
+    remaining: tuple
+    sims_before: tuple
+    sims_after: tuple
+    summary: str
+    run_names: tuple = ()
+    plant_fit: Optional[PlantFit] = None
+    plant_parameters: dict = field(default_factory=dict)
+    not_separable: tuple = ()
+    approximate: tuple = ()
+
+
+# ------------------------------------------------------------------------- held-out gap after
+
+
+def _refit_on(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model, folds: Sequence[_Fold]) -> Model:
+    """Re-fit the found effects' parameters on `folds`, channel by channel (upstream first)."""
+    current = model_out
+    for channel in _CHANNEL_ORDER:
+        names = [f.name for f in effects if f.channel.split("+")[0] == channel]
+        specs: list = []
+        for g in candidate_groups(channel, current if ctx.settings.identify else None):
+            if g[0].name in names:
+                specs += [s for s in g if not (s.is_plant and any(t.is_plant and t.key == s.key for t in specs))]
+        if specs:
+            current = _polish(ctx, _strip(current, specs), specs, current, channel, False, folds)
+    return current
+
+
+def _heldout_nrmse(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model) -> dict:
+    """Per-channel NRMSE of held-out predictions: each fold predicted by a re-fit on the others."""
+    rss = {c: 0.0 for c in CHANNELS}
+    ss = {c: 0.0 for c in CHANNELS}
+    for k, f in enumerate(ctx.folds):
+        others = [g for i, g in enumerate(ctx.folds) if i != k]
+        m = _refit_on(ctx, effects, model_out, others) if effects else model_out
+        run = ctx.runs[f.run]
+        sim = simulate_runs([m], [run])[0][0]
+        for c in CHANNELS:
+            r = (run.channel(c) - sim[c])[f.start:f.stop]
+            x = run.channel(c)[f.start:f.stop]
+            ok = np.isfinite(r)
+            r = r[ok] - r[ok].mean()
+            x = x[ok] - x[ok].mean()
+            rss[c] += float(np.dot(r, r))
+            ss[c] += float(np.dot(x, x))
+    return {c: math.sqrt(rss[c] / ss[c]) if ss[c] > 0 else math.nan for c in CHANNELS}
+
+
+# ------------------------------------------------------------------------------- the workflow
+
+
+def analyse(
+    runs: Sequence[Run],
+    model: Model,
+    settings: Settings = Settings(),
+    progress: Optional[Callable[[str], None]] = None,
+) -> DiscrepancyResult:
+    """The whole workflow: compare, localise, name, add, show the gap shrink, decide the status.
+
+    Parameters
+    ----------
+    runs
+        Measured runs (same sample rate, ground truth present; see `check_runs`).
+    model
+        Input model (its effects are kept).
+    settings
+        Decision rules.
+    progress
+        Called with a short label before each long step (the CLI drives a progress bar with it).
+
+    Raises
+    ------
+    DiscrepancyInputError
+        Unusable runs.
+    """
+    runs = check_runs(runs)
+    for r in runs:
+        try:
+            simulate(r.drive_v[:8], r.fs_hz, model)
+        except ModelError as exc:
+            raise DiscrepancyInputError(f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}") from None
+    if progress:
+        progress("compare")
+    sims_before = simulate_runs([model], runs)[0]
+    noise = noise_estimates(runs, sims_before, model)
+    tracks = _drive_tracks(runs)
+    diag_before = diagnose(runs, sims_before, model, noise, settings, tracks=tracks)
+    gap_before = nrmse_by_channel(runs, sims_before)
+    plant_fit, base, sims_fit, diag_fit = None, model, sims_before, diag_before
+    if settings.identify:
+        if progress:
+            progress("identify plant")
+        plant_fit = identify_plant(runs, model, noise)
+        base = plant_fit.model
+        sims_fit = simulate_runs([base], runs)[0]
+        diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
+    common = dict(model_in=model, gap_before=gap_before, noise=noise, diagnosis_before=diag_before,
+                  sims_before=tuple(sims_before), run_names=tuple(r.name for r in runs), plant_fit=plant_fit,
+                  not_separable=tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
+                  if settings.identify else ())
+    if not diag_fit.gaps:
+        gap_fit = nrmse_by_channel(runs, sims_fit)
+        return DiscrepancyResult(
+            status="no_discrepancy", effects=(), model_out=base, gap_after=gap_fit, gap_in_sample_after=dict(gap_fit),
+            diagnosis_after=diag_fit, searches=(), remaining=(), sims_after=tuple(sims_fit),
+            summary=_summary("no_discrepancy", (), diag_fit, (), plant_fit),
+            plant_parameters=_plant_parameters(model, base, plant_fit), **common)
+    model_out, effects, searches = find_effects(runs, base, noise, settings, progress, tracks)
+    if progress:
+        progress("held-out gap")
+    sims_after = simulate_runs([model_out], runs)[0]
+    diag_after = diagnose(runs, sims_after, model_out, noise, settings, tracks=tracks)
+    gap_after = (_heldout_nrmse(_Context(runs, noise, settings, tracks), effects, model_out) if effects
+                 else nrmse_by_channel(runs, sims_fit))
+    in_sample = nrmse_by_channel(runs, sims_after)
+    ctx = _Context(runs, noise, settings, tracks)
+    sensor_ok = {c: not _channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
+                 if any(s.channel == c and s.truth_referenced for s in searches)}
+    remaining = _remaining(diag_after, searches, sensor_ok)
+    if remaining:
+        status = "unexplained"
+    else:
+        status = "explained" if effects else "no_discrepancy"
+    gap_channels = {r["channel"] for r in remaining}
+    approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
+    return DiscrepancyResult(
+        status=status, effects=tuple(effects), model_out=model_out, gap_after=gap_after, gap_in_sample_after=in_sample,
+        diagnosis_after=diag_after, searches=searches, remaining=remaining, sims_after=tuple(sims_after),
+        summary=_summary(status, effects, diag_after, remaining, plant_fit, approximate),
+        plant_parameters=_plant_parameters(model, model_out, plant_fit), approximate=approximate, **common)
+
+
+def _plant_parameters(model_in: Model, model_out: Model, fit: Optional[PlantFit]) -> dict:
+    """{key: {value, nominal, stderr}} of the fitted plant parameters ({} without identification)."""
+    if fit is None:
+        return {}
+    return {k: {"value": float(getattr(model_out.plant, k)), "nominal": float(getattr(model_in.plant, k)),
+                "stderr": fit.stderr.get(k, math.nan)} for k in PLANT_PARAMETERS}
+
+
+def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Mapping[str, bool]) -> tuple:
+    """Where gaps remain; sensor_ok: sensor channel explained when driven by the measured angle."""
+    skipped = {s.channel: s.skipped for s in searches}
+    out = []
+    for c in diag.gaps:
+        g = diag.channels[c]
+        note = g.interpretation
+        if skipped.get(c, "").startswith("downstream"):
+            note = "possibly propagated from the unexplained stroke_deg gap; " + note
+        if c in sensor_ok:
+            note = ("the sensor itself is explained when driven by the measured angle: this gap is the "
+                    f"{_UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
+                    "a sensor gap beyond the propagated physics error (judged against the measured angle); ") + note
+        near = _near_misses(searches, c)
+        if near:
+            note = note + "; " + near
+        out.append({
+            "channel": c, "band_hz": g.worst_band_hz, "drive_level_ratio": g.level_ratio,
+            "level_nrmse": g.level_nrmse, "stretch": list(g.worst_stretch), "model_error_nrmse": g.model_error_nrmse,
+            "note": note,
+        })
+    return tuple(out)
+
+
+def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
+    """Candidates on `channel` refused only because their per-run estimates disagree (R4)."""
+    notes = []
+    for search in searches:
+        if search.channel != channel:
+            continue
+        for step in search.steps:
+            for ev in step:
+                failed = [k for k, v in ev.rules.items() if not v]
+                if failed == ["R4_consistency"]:
+                    runs = "; ".join(", ".join(f"{n} {v:.4g}" for n, v, _ in pr) for pr in ev.per_run)
+                    notes.append(f"{'+'.join(ev.labels)} would fit each run alone but its parameter differs "
+                                 f"between runs ({runs})")
+    return "nearest vocabulary effect refused: " + "; ".join(dict.fromkeys(notes)) if notes else ""
+
+
+def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remaining: Sequence[dict],
+             plant_fit: Optional[PlantFit] = None, approximate: Sequence[str] = ()) -> str:
+    parts = []
+    if plant_fit is not None:
+        moved = sorted(plant_fit.keys, key=lambda k: -abs(plant_fit.values[k] / plant_fit.nominal[k] - 1.0))[:3]
+        parts.append("This robot's plant was fitted first (largest changes from the model: "
+                     + ", ".join(f"{k} {plant_fit.values[k] / plant_fit.nominal[k] - 1.0:+.1%}" for k in moved) + ").")
+    if status == "no_discrepancy":
+        parts.append("With its own plant parameters the model explains every channel to noise level: residuals are "
+                     "white and at the noise RMS; no physics is missing.")
+        return " ".join(parts)
+    if effects:
+        parts.append("Found: " + ", ".join(f"{e.name} on {e.channel} ({_fmt_params(e.parameters)})" for e in effects) + ".")
+    if status == "explained":
+        parts.append("With them every channel is explained to noise level.")
+    else:
+        if approximate:
+            parts.append(f"Named but fitting only approximately (a gap remains where they act): {', '.join(approximate)}.")
+        for r in remaining:
+            parts.append(f"A gap remains on {r['channel']} (worst band {r['band_hz']} Hz, "
+                         f"full/low drive error ratio {r['drive_level_ratio']:.2g}, worst stretch {r['stretch'][0]} "
+                         f"{r['stretch'][1]:.2f}-{r['stretch'][2]:.2f} s) that no vocabulary effect removes: {r['note']}.")
+    return " ".join(parts)
+
+
+def _fmt_params(params: Mapping) -> str:
+    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())
+
+
