@@ -1,0 +1,201 @@
+"""The bridge's pure core: sequence tracking, loss marking, re-blocking, drive scheduling, watchdogs."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flaair_bridge import bridge, protocol
+from flaair_bridge.bridge import DriveBlock, SensorDatagram, Stop, Tick
+from flaair_bridge.emulated_target import sensor_packet
+
+FS = 20000.0
+N = 10
+LEAD = 20
+
+
+def params(**overrides) -> bridge.BridgeParams:
+    values = dict(sample_rate_hz=FS, block_size=N, lead_samples=LEAD, drive_limit_v=150.0, max_ahead_samples=400,
+                  max_fill_samples=20000, resync_packets=5, drive_timeout_s=0.02, sensor_timeout_s=0.02)
+    values.update(overrides)
+    return bridge.BridgeParams(**values)
+
+
+def packet(sequence: int, first: int, n: int = N, flags: int = 0, rate: float = FS) -> bytes:
+    """A sensor packet packed by the emulated target (independent of protocol.py): sample i holds
+    drive i/10, stroke 1 + i/1000, pitch 2 - i/1000 of its absolute index i."""
+    i = np.arange(first, first + n)
+    return sensor_packet(sequence, first, rate, flags, i / 10, 1 + i / 1000, 2 - i / 1000)
+
+
+def run(inputs, p=None, state=None):
+    """Feed inputs; return the final state and every output concatenated."""
+    p = p or params()
+    state = state or bridge.initial_state()
+    blocks, packets, timing, notices = [], [], [], []
+    for item in inputs:
+        state, out = bridge.step(state, item, p)
+        blocks += out.blocks
+        packets += [protocol.unpack_drive(data) for data in out.packets]
+        timing += out.timing
+        notices += out.notices
+    return state, blocks, packets, timing, notices
+
+
+def stream(blocks) -> tuple[np.ndarray, np.ndarray]:
+    """Published indices and stroke samples of the blocks, checked contiguous."""
+    firsts = [b.first_sample_index for b in blocks]
+    assert firsts == list(range(firsts[0], firsts[0] + N * len(firsts), N))
+    return np.arange(firsts[0], firsts[0] + N * len(firsts)), np.concatenate([b.stroke_sensor_v for b in blocks])
+
+
+def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> None:
+    state, blocks, *_ = run([SensorDatagram(packet(s, 100 + s * N), s * 5e-4) for s in range(4)])
+    index, stroke = stream(blocks)
+    assert index[0] == 100 and len(index) == 40
+    np.testing.assert_array_equal(stroke, (1 + index / 1000).astype(np.float32))
+    np.testing.assert_array_equal(np.concatenate([b.drive_v for b in blocks]), (index / 10).astype(np.float32))
+    c = state.counters
+    assert (c.sensor_packets, c.published_blocks, c.lost_packets, c.stale_packets, c.malformed) == (4, 4, 0, 0, 0)
+
+
+def test_lost_packets_are_counted_and_published_as_nan_never_invented() -> None:
+    sequences = [0, 1, 4, 5]   # 2 and 3 lost
+    state, blocks, _, _, notices = run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences])
+    index, stroke = stream(blocks)
+    assert len(index) == 60
+    lost = (index >= 20) & (index < 40)
+    assert np.isnan(stroke[lost]).all() and np.isnan(np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
+    np.testing.assert_array_equal(stroke[~lost], (1 + index[~lost] / 1000).astype(np.float32))
+    assert state.counters.lost_packets == 2 and state.counters.lost_samples == 20
+    assert any("2 sensor packet(s) lost before sequence 4" in n.text for n in notices)
+
+
+def test_duplicates_and_older_packets_are_stale_and_dropped() -> None:
+    inputs = [SensorDatagram(packet(s, s * N), 0.0) for s in (0, 1, 2, 1, 2, 0, 3)]
+    state, blocks, *_ = run(inputs)
+    index, stroke = stream(blocks)
+    assert len(index) == 40 and not np.isnan(stroke).any()
+    assert state.counters.stale_packets == 3 and state.counters.sensor_packets == 4
+
+
+def test_sequence_wraps_at_2_32_without_loss() -> None:
+    top = 2**32 - 2
+    state, blocks, *_ = run([SensorDatagram(packet((top + k) % 2**32, k * N), 0.0) for k in range(4)])
+    assert len(blocks) == 4 and state.counters.lost_packets == 0 and state.counters.stale_packets == 0
+
+
+def test_malformed_datagrams_are_counted_and_change_nothing_else() -> None:
+    good = packet(0, 0)
+    garbage = [b"", b"hello", good[:-1], good + b"\x00", b"FLD1" + good[4:], packet(1, N, rate=10000.0),
+               good[:24] + np.full(30, np.nan, "<f4").tobytes()]
+    state, blocks, _, _, notices = run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
+                                       + [SensorDatagram(packet(1, N), 0.0)])
+    assert state.counters.malformed == len(garbage) and state.counters.lost_packets == 0
+    assert len(blocks) == 2 and blocks[1].first_sample_index == N
+    assert any("sample_rate_hz 10000, the bridge runs at 20000" in n.text for n in notices)
+
+
+def test_packets_of_other_sizes_are_reblocked() -> None:
+    state, blocks, *_ = run([SensorDatagram(packet(s, s * 4, n=4), 0.0) for s in range(10)])   # 40 samples
+    index, stroke = stream(blocks)
+    assert len(index) == 40 and state.pending.shape == (3, 0)
+    np.testing.assert_array_equal(stroke, (1 + index / 1000).astype(np.float32))
+
+
+def test_drive_is_scheduled_lead_samples_ahead_then_contiguous_and_timed() -> None:
+    inputs = []
+    for k in range(5):
+        inputs.append(SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4))           # ends at sample (k+1)N - 1
+        inputs.append(DriveBlock(1000 + k * N, np.full(N, float(k + 1)), 1.0 + k * 5e-4 + 2e-4))  # answers it
+    state, _, packets, timing, _ = run(inputs)
+    assert [p.first_sample_index for p in packets] == [N + LEAD + k * N for k in range(5)]
+    assert [p.drive_v[0] for p in packets] == [1, 2, 3, 4, 5] and not any(p.stop for p in packets)
+    assert [p.sequence for p in packets] == [0, 1, 2, 3, 4]
+    # each drive packet paired with the sensor packet that ended at its first index - 1 - lead
+    assert [t[0] for t in timing] == [p.first_sample_index for p in packets]
+    np.testing.assert_allclose([t[2] - t[1] for t in timing], 2e-4)
+    assert state.counters.drive_reanchors == 0
+
+
+def test_late_drive_is_reanchored_ahead_of_the_target_clock() -> None:
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]          # -> target 10 + 20 = 30
+    inputs += [SensorDatagram(packet(k, k * N), 0.0) for k in range(1, 6)]                # clock now 60
+    inputs += [DriveBlock(N, np.ones(N), 0.0)]                                           # contiguous 40 < 60: late
+    state, _, packets, _, notices = run(inputs)
+    assert [p.first_sample_index for p in packets] == [30, 60 + LEAD]
+    assert state.counters.drive_reanchors == 1
+    assert any("20 samples behind the target's clock" in n.text for n in notices)
+
+
+def test_drive_is_clamped_nonfinite_zeroed_and_stale_or_early_blocks_dropped() -> None:
+    state, _, packets, _, _ = run([DriveBlock(0, np.ones(N), 0.0),                      # no target clock yet
+                                   SensorDatagram(packet(0, 0), 0.0),
+                                   DriveBlock(0, np.array([500.0, -500.0, np.nan] + [1.0] * 7), 0.0),
+                                   DriveBlock(0, np.ones(N), 0.0)])                        # duplicate
+    assert len(packets) == 1
+    np.testing.assert_array_equal(packets[0].drive_v[:4], [150.0, -150.0, 0.0, 1.0])
+    c = state.counters
+    assert (c.drive_unscheduled_blocks, c.clamped_samples, c.nonfinite_samples, c.drive_stale_blocks) == (1, 2, 1, 1)
+
+
+def test_drive_far_ahead_waits_for_the_target_clock() -> None:
+    p = params(max_ahead_samples=20)
+    inputs = [SensorDatagram(packet(0, 0), 0.0)] + [DriveBlock(k * N, np.ones(N), 0.0) for k in range(6)]
+    state, _, packets, _, _ = run(inputs, p)
+    assert [x.first_sample_index for x in packets] == [30, 40]             # up to clock 10 + 20 + 20
+    state, _, packets, _, _ = run([SensorDatagram(packet(1, N), 0.0)], p, state)
+    assert [x.first_sample_index for x in packets] == [50]
+    assert len(state.queue) == 3
+
+
+def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> None:
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0), Tick(0.019)]
+    state, _, packets, _, _ = run(inputs)
+    assert len(packets) == 1
+    state, _, packets, _, notices = run([Tick(0.021), Tick(0.05)], state=state)
+    assert len(packets) == 1 and packets[0].stop and packets[0].first_sample_index == N
+    assert state.counters.watchdog_stops == 1 and "DRIVE WATCHDOG" in notices[0].text
+    # a zero stream falling silent needs no stop; a resumed stream is anchored afresh
+    state, _, packets, _, _ = run([DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)], state=state)
+    assert [x.first_sample_index for x in packets] == [N + LEAD] and state.counters.watchdog_stops == 1
+
+
+def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -> None:
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]
+    inputs += [DriveBlock(k * N, np.ones(N), 0.001 * k) for k in range(1, 40)] + [Tick(0.0401)]   # 40 ms silent
+    state, blocks, packets, _, notices = run(inputs)
+    assert packets[-1].stop and state.counters.silences == 1
+    assert any("TARGET SILENT" in n.text for n in notices)
+    index, stroke = stream(blocks)
+    assert index[-1] + 1 == N + int(0.0401 * FS) // N * N            # lost samples at the real-time rate
+    assert np.isnan(stroke[N:]).all()
+    # the target comes back: what was already published as lost is dropped, the rest goes on
+    state, more, *_ = run([SensorDatagram(packet(1, 500), 0.05), SensorDatagram(packet(2, 1000), 0.0505)], state=state)
+    index2, stroke2 = stream(blocks + more)
+    # published up to 810: the packet at 500 is all overlap, 810..1000 lost, then data again
+    assert index2[-1] == 1009 and state.counters.overlap_samples == N and state.counters.lost_samples == 190
+    assert np.isnan(stroke2[(index2 >= N) & (index2 < 1000)]).all()
+    np.testing.assert_array_equal(stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32))
+
+
+def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
+    inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
+    inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]        # the target restarted at 0
+    state, blocks, _, _, notices = run(inputs)
+    assert state.counters.stale_packets == 4 and state.counters.resyncs == 1
+    index, stroke = stream(blocks)
+    assert len(index) == 3 * N + 2 * N                                           # published index keeps running
+    np.testing.assert_array_equal(stroke[-N:], (1 + np.arange(50, 60) / 1000).astype(np.float32))
+
+
+def test_stop_input_sends_a_stop_packet_at_the_target_clock() -> None:
+    state, _, packets, _, _ = run([SensorDatagram(packet(0, 70), 0.0), DriveBlock(0, np.ones(N), 0.0), Stop(0.0, "end")])
+    assert packets[-1].stop and packets[-1].first_sample_index == 80 and packets[-1].sequence == 1
+    assert state.counters.stop_packets == 1 and not state.driving
+
+
+@pytest.mark.parametrize("name, value", [("block_size", 0), ("lead_samples", -1), ("drive_timeout_s", 0.0),
+                                         ("sample_rate_hz", float("nan")), ("resync_packets", 0)])
+def test_parameters_out_of_range_are_named(name: str, value) -> None:
+    with pytest.raises(bridge.BridgeParameterError, match=f"'{name}'"):
+        params(**{name: value})
