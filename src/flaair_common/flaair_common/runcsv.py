@@ -1,4 +1,4 @@
-"""Measured-run CSV (shared/measured-run-format.md): read with checks, write.
+"""Measured-run CSV (docs/LAB_CSV_FORMAT.md): read with checks, write.
 
 One file per bench run, one row per sample. Columns may come in any order; ground-truth
 columns may be empty or NaN (video lost the wing); sensor columns never may. A file that

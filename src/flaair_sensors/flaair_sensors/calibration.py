@@ -1,7 +1,7 @@
 """Sensor calibration against ground truth: gain, polarity, offset and lag per sensor.
 
 Pure core: numpy and scipy only. Input is a measured-run record (columns of
-shared/measured-run-format.md: voltages in V, truth in deg, NaN where the video lost the wing);
+docs/LAB_CSV_FORMAT.md: voltages in V, truth in deg, NaN where the video lost the wing);
 output is a plain dict ready for JSON, read back by ``frontend.params_from_calibration``::
 
     angle_deg(t) = polarity * gain_deg_per_v * (V(t + lag_s) - reference_voltage_v - offset_v)

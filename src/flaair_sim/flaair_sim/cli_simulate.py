@@ -1,6 +1,6 @@
 """`flaair simulate`: replay a measured run's drive through the model.
 
-Reads time_s and drive_v from a CSV in the measured-run format (shared/measured-run-format.md;
+Reads time_s and drive_v from a CSV in the measured-run format (docs/LAB_CSV_FORMAT.md;
 other columns are ignored), simulates the model (config/model.yaml or --model, effects
 included) and writes the same format with simulated sensor voltages and angles.
 With --noise the output carries the model's sensor and video-tracking noise, like a bench run.
