@@ -6,12 +6,34 @@ import signal
 import sys
 from typing import Callable
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.node import Node
+# A node takes a second or more to import (rclpy, numba) and build (JIT compilation): a Ctrl-C or
+# SIGTERM in that time is remembered here, before the slow imports below, and makes run_node
+# return at once, instead of a KeyboardInterrupt traceback from the middle of an import.
+_early_signals: list[int] = []
 
-from flaair_model.config import node_parameters
-from flaair_common.params import ParameterError, ParamSpec
+
+def _remember_early_signal(signum: int, _frame: object) -> None:
+    _early_signals.append(signum)
+
+
+def _is_node_process() -> bool:
+    """True in a node's own process: started as <prefix>/lib/<package>/<executable> (ros2 run, bin/flaair run)."""
+    path = os.path.abspath(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    return os.path.basename(os.path.dirname(os.path.dirname(path))) == "lib"
+
+
+if _is_node_process():
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _remember_early_signal)
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, _remember_early_signal)
+
+import rclpy  # noqa: E402 - after the early signal handlers on purpose
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+
+from flaair_model.config import node_parameters  # noqa: E402
+from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
 
 
 def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str) -> str:
@@ -63,19 +85,23 @@ def run_node(
     executor_kind is the default of `make_executor` (the recorder drains its queues inside
     a callback, which only the SingleThreadedExecutor allows).
 
-    A refused parameter prints `<node>: <reason>` and returns 2. SIGINT and SIGTERM stop
-    spinning, call the node's `close()` if it has one (flush files, zero the drive), then
-    destroy the node and shut rclpy down.
+    A refused parameter (or any other ValueError while the node is built: a bad value in a
+    file it reads) prints `<node>: <reason>` and returns 2. SIGINT and SIGTERM stop spinning,
+    call the node's `close()` if it has one (flush files, zero the drive), then destroy the
+    node and shut rclpy down; one that arrived while the node was still importing or being
+    built ends it as soon as it is built (exit 0, no traceback).
     """
     args = sys.argv if args is None else args
     if any(a in ("-h", "--help") for a in args[1:]) and "--ros-args" not in args:
         print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file, node_name))
         return 0
+    if _early_signals:
+        return 0
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node: Node | None = None
     executor = make_executor(executor_kind)
 
-    stop_requested = False
+    stop_requested = bool(_early_signals)
 
     def _stop(signum: int, _frame: object) -> None:
         # Only set a flag: shutting the context down here would break a callback mid-publish.
@@ -84,10 +110,15 @@ def run_node(
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
+    program = sys.argv[0].rsplit('/', 1)[-1]
     try:
         node = make_node()
     except ParameterError as exc:
-        print(f"{sys.argv[0].rsplit('/', 1)[-1]}: {exc}", file=sys.stderr)
+        print(f"{program}: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    except ValueError as exc:  # a bad value met while building (ModelError, a calibration file's key)
+        print(f"{program}: {type(exc).__name__}: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     executor.add_node(node)

@@ -135,13 +135,32 @@ def model_to_dict(m: Model) -> dict[str, Any]:
 
 
 def load_model(path: Union[str, Path, None] = None) -> Model:
-    """Read a model YAML file (None: the default config, see `default_model_path`)."""
+    """Read a model YAML file (None: the default config, see `default_model_path`).
+
+    Raises
+    ------
+    ModelError
+        Malformed YAML (file, line, column), or a missing/unknown/invalid key (file and key).
+    OSError
+        The file cannot be opened.
+    """
     path = default_model_path() if path is None else Path(path)
-    with open(path, encoding="utf-8") as fh:
-        data = yaml.safe_load(fh)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ModelError(f"{path}: {where}not valid YAML ({problem})") from None
+    except UnicodeDecodeError as exc:
+        raise ModelError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     if data is None:
         raise ModelError(f"{path}: empty model file")
-    return model_from_dict(data)
+    try:
+        return model_from_dict(data)
+    except (ValueError, TypeError) as exc:  # ModelError included: name the file too
+        raise ModelError(f"{path}: {exc}") from None
 
 
 def save_model(m: Model, path: Union[str, Path]) -> None:

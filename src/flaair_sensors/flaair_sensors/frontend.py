@@ -243,6 +243,9 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float, **over
         fields["reference_voltage_v"] = float(calibration["reference_voltage_v"])
     except KeyError:
         raise FrontendError("calibration has no 'reference_voltage_v'") from None
+    except (TypeError, ValueError):
+        raise FrontendError(f"calibration['reference_voltage_v'] must be a number, "
+                            f"got {calibration['reference_voltage_v']!r}") from None
     for channel in ("stroke", "pitch"):
         if channel not in calibration:
             raise FrontendError(f"calibration has no '{channel}' section")
@@ -250,6 +253,11 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float, **over
         for key in ("gain_deg_per_v", "polarity", "offset_v", "lag_s"):
             if key not in c:
                 raise FrontendError(f"calibration['{channel}'] has no '{key}'")
+        for key in ("gain_deg_per_v", "polarity", "offset_v", "lag_s"):
+            try:
+                float(c[key])
+            except (TypeError, ValueError):
+                raise FrontendError(f"calibration['{channel}']['{key}'] must be a number, got {c[key]!r}") from None
         gain = float(c["gain_deg_per_v"])
         polarity = float(c["polarity"])
         if not (math.isfinite(gain) and gain > 0):
