@@ -149,6 +149,7 @@ def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) ->
         node = procs.flaair("run", "flaair_control", "stroke_controller_node", "--ros-args", "-p", "mode:=sync",
                             "-p", "setpoint_deg:=12.0", "-p", "watchdog_timeout_s:=30.0")
         assert wait_for(lambda: len(lines(wing)) >= 1600, 240), node.stderr.read() if node.poll() else "slow"
+        n_before = len(lines(wing))
         result = run([sys.executable, "-c", _SET_SETPOINT], procs.env, timeout_s=120)
         assert result.returncode == 0, result.stdout + result.stderr
         n_set = len(lines(wing))
@@ -158,8 +159,9 @@ def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) ->
     from flaair_tools import wingbeat
     beats = wingbeat.summarize(stroke_deg, stroke_deg, np.ones(stroke_deg.size, bool),
                                wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0))
-    split = n_set * 10
-    before = beats.amplitude_deg[(beats.end_sample > split - 0.1 * FS) & (beats.end_sample < split - 1000)]
+    split = n_before * 10   # the setpoint changed after this sample
+    before = beats.amplitude_deg[(beats.end_sample > split - 0.1 * FS) & (beats.end_sample < split)]
+    assert before.size >= 10
     after = beats.amplitude_deg[beats.end_sample > stroke_deg.size - 0.1 * FS]
     assert np.all(np.abs(before - 12.0) <= 0.5), before
     assert np.all(np.abs(after - 16.0) <= 0.5), after

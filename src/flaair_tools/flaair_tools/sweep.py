@@ -220,7 +220,7 @@ def execute(rows: list[dict[str, Any]], chunk_size: int, model, *, scheduler: st
     timing["wall_s"] = time.perf_counter() - t0
     timing["robot_seconds_per_s"] = timing["robot_seconds"] / timing["wall_s"]
     merged = []
-    for part, result in zip(parts, results):
+    for part, result in zip(parts, results):  # noqa: B007
         for row, figures in zip(part, result):
             merged.append({**{k: v for k, v in row.items() if k != "track"}, **figures})
     return merged, timing
@@ -255,10 +255,11 @@ def add_theory(rows: list[dict[str, Any]], model, oscillating_deg: float) -> tup
         cycle = hopf.limit_cycle(linear, pl.aero_damping_nm_s2, r["r3_rad_s"], r["kappa"], r["mu_nm_s_per_rad"])
         oscillating = r["stroke_amplitude_deg"] > oscillating_deg
         theory_amp = math.degrees(cycle.amplitude_rad)
+        applies = oscillating and theory_amp > 0 and not r["drive_clamped"]  # the theory has no drive clamp
         out.append({**r, "oscillating": oscillating, "theory_amplitude_deg": theory_amp,
                     "theory_frequency_hz": cycle.frequency_hz if theory_amp > 0 else None,
-                    "amplitude_error_rel": (r["stroke_amplitude_deg"] / theory_amp - 1) if oscillating and theory_amp > 0 else None,
-                    "frequency_error_rel": (r["stroke_frequency_hz"] / cycle.frequency_hz - 1) if oscillating and theory_amp > 0 else None})
+                    "amplitude_error_rel": (r["stroke_amplitude_deg"] / theory_amp - 1) if applies else None,
+                    "frequency_error_rel": (r["stroke_frequency_hz"] / cycle.frequency_hz - 1) if applies else None})
     for key in sorted({(r["r3_rad_s"], r["kappa"]) for r in out}):
         group = sorted((r for r in out if (r["r3_rad_s"], r["kappa"]) == key), key=lambda r: r["mu_nm_s_per_rad"])
         onset = hopf.hopf_onset(linear, key[0], key[1])
@@ -266,7 +267,10 @@ def add_theory(rows: list[dict[str, Any]], model, oscillating_deg: float) -> tup
         last_quiet = max((r["mu_nm_s_per_rad"] for r in group if not r["oscillating"] and (first is None or r["mu_nm_s_per_rad"] < first)),
                          default=None)
         degenerate = math.sqrt(key[1]) * key[0] <= linear.natural_frequency_rad_s
-        consistent = (first is None or onset.mu_nm_s_per_rad <= first) and (last_quiet is None or onset.mu_nm_s_per_rad >= last_quiet)
+        # degenerate (mu* = 0): small gains oscillate with small amplitudes that grow slowly;
+        # the onset check applies where the Hopf threshold is positive
+        consistent = None if degenerate else (
+            (first is None or onset.mu_nm_s_per_rad <= first) and (last_quiet is None or onset.mu_nm_s_per_rad >= last_quiet))
         onsets.append({"r3_rad_s": key[0], "kappa": key[1], "theory_onset_mu_nm_s_per_rad": onset.mu_nm_s_per_rad,
                        "theory_onset_frequency_hz": onset.frequency_hz, "degenerate": degenerate,
                        "simulated_onset_between": [last_quiet, first], "onset_consistent": consistent})

@@ -40,7 +40,8 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
          phi_out, psi_out):
     """One robot over n samples; the last phi_out.size samples of stroke and pitch (rad) are kept.
 
-    Returns the final command (drive amplitude V for SYNC, mu for the dSA modes).
+    Returns the final command (drive amplitude V for SYNC, mu for the dSA modes) and the
+    largest |drive| over the kept window (V; = limit_v when the clamp acts).
     """
     c = _mechanical_constants(p)
     inv_ga = 1.0 / p[_GA]
@@ -51,6 +52,7 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
     keep0 = n - phi_out.shape[0]
     hs = h / nsub
     u = u_ff
+    peak = 0.0
     for k in range(n):
         if mode == SYNC:
             v = amplitude_v * math.sin(omega * k * h)
@@ -69,27 +71,28 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
         elif v < -limit_v:
             v = -limit_v
         if k >= keep0:
+            peak = max(peak, abs(v))
             phi_out[k - keep0] = phi
             psi_out[k - keep0] = psi
         for _ in range(nsub):
             phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, 0)
-    return u
+    return u, peak
 
 
 @njit(cache=True)
 def _batch(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s, limit_v,
            phi_out, psi_out, u_out):
     for i in range(params.shape[0]):
-        u_out[i] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
-                        track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+        u_out[i, 0], u_out[i, 1] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i],
+                                        scales[i], track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
 
 
 @njit(cache=True, parallel=True)
 def _batch_parallel(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s, limit_v,
                     phi_out, psi_out, u_out):
     for i in prange(params.shape[0]):
-        u_out[i] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
-                        track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+        u_out[i, 0], u_out[i, 1] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i],
+                                        scales[i], track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
 
 
 def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: float) -> Model:
@@ -149,7 +152,7 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
             u_ffs[i] = mu
             track[i] = row["track"]
     phi, psi = np.empty((m, keep)), np.empty((m, keep))
-    u_out = np.empty(m)
+    u_out = np.empty((m, 2))
     kernel = _batch_parallel if parallel else _batch
     kernel(params, nsubs, modes, n, 1.0 / fs, amps, omegas, bs, as_, scales, track, u_ffs, phi0s,
            float(rows[0]["drive_limit_v"]), phi, psi, u_out)
@@ -162,7 +165,9 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
             "stroke_frequency_hz": float(np.mean(beats.frequency_hz)) if ok else 0.0,
             "stroke_amplitude_deg": float(np.mean(beats.amplitude_deg)) if ok else float(np.degrees(np.ptp(phi[i])) / 2),
             "pitch_amplitude_deg": float(np.mean(beats.pitch_amplitude_deg)) if ok else float(np.degrees(np.ptp(psi[i])) / 2),
-            "final_command": float(u_out[i]),
+            "final_command": float(u_out[i, 0]),
+            "peak_drive_v": float(u_out[i, 1]),
+            "drive_clamped": bool(u_out[i, 1] >= row["drive_limit_v"]),
         })
     return out
 

@@ -179,12 +179,14 @@ def dsa_map_reading(rows: list[dict[str, Any]], onsets: list[dict[str, Any]], ti
         note = " (sqrt(kappa) r3 <= w_n: mu* = 0 at the resonance)" if o["degenerate"] else ""
         lines.append(f"| {o['r3_rad_s']:g} | {o['kappa']:g} | {o['theory_onset_mu_nm_s_per_rad']:.3g}{note} | "
                      f"{o['theory_onset_frequency_hz']:.1f} | {lo if lo is not None else '-'} .. {hi if hi is not None else '-'} | "
-                     f"{'yes' if o['onset_consistent'] else 'NO'} |")
+                     f"{ {True: 'yes', False: 'NO', None: 'n/a (mu* = 0)'}[o['onset_consistent']]} |")
     osc = [r for r in rows if r["oscillating"] and r["amplitude_error_rel"] is not None]
     if osc:
         amp = np.array([abs(r["amplitude_error_rel"]) for r in osc])
         freq = np.array([abs(r["frequency_error_rel"]) for r in osc])
-        lines += ["", f"Self-excited points: {len(osc)}. Against the describing-function limit cycle "
+        clamped = sum(1 for r in rows if r["oscillating"] and r["drive_clamped"])
+        lines += ["", f"Self-excited points within the drive clamp: {len(osc)} ({clamped} more hit the "
+                  f"{rows[0]['drive_limit_v']:g} V clamp, which the theory leaves out). Against the describing-function limit cycle "
                   f"(flaair_control.hopf.limit_cycle): amplitude error median {100 * np.median(amp):.1f} %, worst "
                   f"{100 * amp.max():.1f} %; frequency error median {100 * np.median(freq):.2f} %, worst {100 * freq.max():.2f} %."]
     lines.append("")
