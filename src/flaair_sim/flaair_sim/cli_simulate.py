@@ -4,6 +4,8 @@ Reads time_s and drive_v from a CSV in the measured-run format (docs/LAB_CSV_FOR
 other columns are ignored), simulates the model (config/model.yaml or --model, effects
 included) and writes the same format with simulated sensor voltages and angles.
 With --noise the output carries the model's sensor and video-tracking noise, like a bench run.
+A drive beyond the actuator's safe range (drive_limit_v, config/flaair.yaml) is clamped to it,
+as the plant node does, with a warning. Bad input gets a one-line error and exit 2.
 
 Example:
   bin/flaair simulate bench/run01.csv --model out/discrepancy/model.yaml --out sim/run01.csv
@@ -17,9 +19,19 @@ from pathlib import Path
 import numpy as np
 
 from flaair_common.runcsv import RunFileError, read_run, write_run
+from flaair_model.config import ConfigError, node_parameters
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, synthesize_measured_run
+
+CONFIG_FILE = "flaair.yaml"
+LIMIT_SECTION = "plant_node"  # the plant clamps its drive to this section's drive_limit_v
+
+
+def clamp_drive(drive_v: np.ndarray, limit_v: float) -> tuple[np.ndarray, int]:
+    """The drive clamped to +-limit_v and how many samples were beyond it."""
+    over = int(np.count_nonzero(np.abs(drive_v) > limit_v))
+    return np.clip(drive_v, -limit_v, limit_v), over
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,22 +41,45 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", action="store_true", help="add sensor and tracking noise (model's noise section)")
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
+    parser.add_argument("--drive-limit-v", type=float, default=None,
+                        help=f"actuator safe range: drive clamped to +-this [V] (default: {LIMIT_SECTION}.drive_limit_v "
+                             f"in config/{CONFIG_FILE})")
     args = parser.parse_args(argv)
     try:
+        limit_v = args.drive_limit_v
+        if limit_v is None:
+            limit_v = float(node_parameters(CONFIG_FILE, LIMIT_SECTION)["drive_limit_v"])
+        if not (np.isfinite(limit_v) and limit_v > 0):
+            raise ModelError(f"drive_limit_v must be a finite voltage > 0, got {limit_v}")
         run = read_run(args.input, required=("time_s", "drive_v"))
         model = load_model(args.model)
-    except (RunFileError, ModelError, OSError) as exc:
+    except (RunFileError, ModelError, ConfigError, OSError, KeyError) as exc:
         print(f"flaair simulate: {exc}", file=sys.stderr)
         return 2
-    drive_v, fs_hz = run["drive_v"], run.sample_rate_hz
-    if args.noise:
-        columns = synthesize_measured_run(drive_v, fs_hz, model, np.random.default_rng(args.seed))
-    else:
-        out = simulate(drive_v, fs_hz, model)
-        columns = {
-            "drive_v": drive_v, "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v,
-            "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
-        }
+    drive_v, over = clamp_drive(run["drive_v"], limit_v)
+    fs_hz = run.sample_rate_hz
+    if over:
+        print(f"flaair simulate: warning: {args.input}: {over} drive_v sample(s) beyond the actuator's safe range, "
+              f"up to {np.abs(run['drive_v']).max():.4g} V; clamped to +-{limit_v:g} V (drive_limit_v)", file=sys.stderr)
+    try:
+        if args.noise:
+            columns = synthesize_measured_run(drive_v, fs_hz, model, np.random.default_rng(args.seed))
+        else:
+            out = simulate(drive_v, fs_hz, model)
+            columns = {
+                "drive_v": drive_v, "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v,
+                "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
+            }
+    except (ModelError, ValueError) as exc:
+        where = args.model or "config/model.yaml"
+        detail = f": {exc}" if isinstance(exc, ModelError) else ""  # the plant's own text blames the drive
+        print(f"flaair simulate: {where}: the model makes the plant diverge with a drive within +-{limit_v:g} V "
+              f"(the model's parameters are at fault, not the drive){detail}", file=sys.stderr)
+        return 2
+    if not all(np.isfinite(values).all() for values in columns.values()):
+        print(f"flaair simulate: {args.model or 'config/model.yaml'}: the simulation produced non-finite values "
+              f"with a drive within +-{limit_v:g} V: the model is at fault", file=sys.stderr)
+        return 2
     columns["time_s"] = run["time_s"]
     write_run(args.out, columns)
     print(f"flaair simulate: {len(drive_v)} samples at {fs_hz:g} Hz -> {args.out}")
