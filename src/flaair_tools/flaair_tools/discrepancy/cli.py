@@ -1,13 +1,18 @@
 """`flaair discrepancy`: find where the model and the measurement disagree, and fix the model.
 
-Inputs are measured-run CSV files (shared/measured-run-format.md) and/or bags (runs marked on
-/flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). Every
-run is simulated with its recorded drive and compared on stroke_deg, pitch_deg,
-stroke_sensor_v and pitch_sensor_v; the missing effects are named from the model's vocabulary,
-fitted, checked on held-out runs and added to the model.
+Inputs are measured-run CSV files (docs/LAB_CSV_FORMAT.md) and/or bags (runs marked on
+/flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). First
+this robot's own plant parameters are fitted (as `flaair identify` does: natural frequencies,
+damping, actuator gain, couplings); then every run is simulated with its recorded drive from
+its measured initial state and compared on stroke_deg, pitch_deg, stroke_sensor_v and
+pitch_sensor_v; the missing effects are named from the model's vocabulary, fitted jointly with
+the plant parameters they trade off against, checked on held-out runs and added to the model.
+Parameter drift alone is not missing physics: it ends `no_discrepancy`, with the refitted
+parameters in model.yaml and under `plant_parameters` in discrepancy.json.
 
 Writes into --out DIR:
-  model.yaml         the input model with the found effects (bin/flaair simulate --model accepts it)
+  model.yaml         the input model with this robot's plant parameters and the found effects
+                     (bin/flaair simulate --model accepts it)
   discrepancy.json   status, effects (name, channel, parameters, evidence), gap_before/gap_after
   report.html        gap per channel, where the model disagrees, search log, decision rules, figures
 
@@ -171,7 +176,7 @@ def main(argv: Optional[list[str]] = None) -> int:
                   f"-> {args.out / 'validation.html'}")
         if not runs:
             return 0
-        bar = _progress_bar(6, "discrepancy")
+        bar = _progress_bar(7, "discrepancy")
         t0 = time.perf_counter()
         started: list[str] = []
 
@@ -195,6 +200,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     save_model(result.model_out, model_path)
     write_report(args.out, runs, result, str(model_path), settings, validation)
     print(f"{PROG}: {len(runs)} run(s) analysed in {elapsed:.1f} s: status {result.status}")
+    for k, p in result.plant_parameters.items():
+        print(f"  plant {k:28s} {p['value']:.5g} (model {p['nominal']:.5g}, {p['value'] / p['nominal'] - 1.0:+.2%}, "
+              f"SE {p['stderr']:.2g})")
     for e in result.effects:
         params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in e.parameters.items())
         print(f"  + {e.name} on {e.channel}: {params}")

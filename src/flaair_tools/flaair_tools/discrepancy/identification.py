@@ -19,9 +19,10 @@ model values (only the ratios to them are observable from motion); the sensor co
 
    with A the window's stroke amplitude (the quadratic damping's equivalent viscous term).
 2. Time-domain fit (`identify_plant`): `scipy.optimize.least_squares` (trust-region reflective)
-   on the noise-weighted residuals of the ground-truth angles of every run, each run simulated
-   from its measured initial state, parameters in log space, Jacobian by finite differences
-   (all columns in one `simulate_batch_from` call per run).
+   on the noise-weighted residuals of the ground-truth angles of every run, parameters in log
+   space, together with each run's initial angle and rate (started from the measured initial
+   state, `runs.initial_mechanical_state`), Jacobian by finite differences (all columns of a run
+   in one `simulate_batch_from` call).
    Upstream first: the stroke parameters on stroke_deg, then the pitch parameters on pitch_deg
    (an unmodelled pitch effect cannot bend the stroke fit).
 3. Standard errors and correlations from the Jacobian at the optimum (s^2 (J^T J)^-1, within
@@ -40,8 +41,9 @@ from scipy import optimize
 
 from flaair_model.model import Model
 from flaair_sensors.characterization import tiled_transfer
+from flaair_sim.plant import simulate_batch_from
 
-from .runs import Run, simulate_motion
+from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
 
 __all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "INSEPARABLE_CORRELATION", "UNDETERMINED_REL_SE"]
@@ -51,7 +53,11 @@ UNDETERMINED_REL_SE = 0.10  # relative standard error above which a parameter is
 FIT_RANGE = 0.5  # each parameter is fitted within x(1 -+ FIT_RANGE) of its start (log space)
 MAX_NFEV = 30  # least-squares iterations (each: one simulation of every run with every column)
 FD_STEP = 1e-4  # finite-difference step in log space
+STATE_STEP_RAD = 1e-4  # finite-difference step of the initial angle (and rate / omega)
 DECIMATE = 4  # keep every k-th truth sample in the fit (noise stays white)
+# Truth channel of plant parameters that are not fitted by default (the inertias scale their
+# equation: fitted along with its damping and gain they are reported as inseparable).
+_OTHER_CHANNELS = {"stroke_inertia_kg_m2": "stroke_deg", "pitch_inertia_kg_m2": "pitch_deg"}
 _DESCRIBING = 8.0 / (3.0 * math.pi)  # |x'| x' ~ (8 / 3 pi) w A x' for a sine of amplitude A
 
 
@@ -69,6 +75,7 @@ class PlantFit:
     inseparable : sentences naming the combinations the data cannot separate.
     cost_before, cost_after : noise-weighted sum of squares of the truth residuals (nominal start
         and fitted), and n, the number of residuals.
+    runs : the runs with their initial states fitted along with the plant.
     """
 
     model: Model
@@ -82,6 +89,7 @@ class PlantFit:
     cost_before: float
     cost_after: float
     n: int
+    runs: tuple = ()
 
     def as_dict(self) -> dict:
         """JSON-ready: per parameter value, nominal, start, stderr; correlations; inseparable."""
@@ -186,11 +194,11 @@ class _TruthResiduals:
             self.parts.append(idx)
         self.sigma = {c: max(float(noise_deg[c]), 1e-9) for c in TRUTH_CHANNELS}
 
-    def __call__(self, models: Sequence[Model]) -> np.ndarray:
-        """(m, n) residual rows."""
+    def __call__(self, models: Sequence[Model], states: Sequence[np.ndarray]) -> np.ndarray:
+        """(m, n) residual rows; states[j]: (m, 4) initial state of each model on run j."""
         rows = [[] for _ in models]
-        for run, idx in zip(self.runs, self.parts):
-            sim = simulate_motion(models, run)
+        for run, idx, x0 in zip(self.runs, self.parts, states):
+            sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
             for c, sim_rad in (("stroke_deg", sim.stroke_rad), ("pitch_deg", sim.pitch_rad)):
                 if c not in idx:
                     continue
@@ -207,13 +215,27 @@ class _TruthResiduals:
 
 def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], keys: Sequence[str],
                start: Mapping[str, float], channel: str, max_nfev: int, decimate: int) -> dict:
-    """Least-squares fit of `keys` on one truth channel; returns values, log-space covariance, costs."""
+    """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
+    channel; returns values, log-space covariance of the plant parameters, states, costs."""
     resid = _TruthResiduals(runs, noise, decimate, (channel,))
+    p = len(keys)
+    comp = [0, 1] if channel == "stroke_deg" else [2, 3]
+    key_f = "stroke_natural_frequency_hz" if channel == "stroke_deg" else "pitch_natural_frequency_hz"
+    omega = 2.0 * math.pi * float(getattr(model.plant, key_f))  # rate scaled to an angle: (x, x'/omega)
+    base_states = [np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs]
     u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
-    lo, hi = u_nominal - math.log1p(FIT_RANGE), u_nominal + math.log1p(FIT_RANGE)
+    lo = np.r_[u_nominal - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
+    hi = np.r_[u_nominal + math.log1p(FIT_RANGE), np.full(2 * len(runs), np.inf)]
+    steps = np.r_[np.full(p, FD_STEP), np.full(2 * len(runs), STATE_STEP_RAD)]
 
-    def models_at(us: np.ndarray) -> list[Model]:
-        return [with_plant(model, dict(zip(keys, np.exp(u)))) for u in np.atleast_2d(us)]
+    def plant_of(u: np.ndarray) -> Model:
+        return with_plant(model, dict(zip(keys, np.exp(u[:p]))))
+
+    def state_of(u: np.ndarray, j: int) -> np.ndarray:
+        x = base_states[j].copy()
+        x[comp[0]] = u[p + 2 * j]
+        x[comp[1]] = u[p + 2 * j + 1] * omega
+        return x
 
     cache: dict = {}
 
@@ -221,22 +243,40 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
         key = tuple(np.round(u, 14))
         if key not in cache:
             cache.clear()
-            h = np.where(u + FD_STEP <= hi, FD_STEP, -FD_STEP)
-            rows = resid(models_at(np.vstack([u, u[None, :] + np.diag(h)])))
-            cache[key] = (rows[0], ((rows[1:] - rows[0]) / h[:, None]).T)
+            h = np.where(u + steps <= hi, steps, -steps)
+            us = np.vstack([u, u[None, :] + np.diag(h)])
+            models = [plant_of(v) for v in us[: p + 1]]
+            # plant columns: every run; state columns of run j: run j only (the base model)
+            f_parts, j_parts = [], []
+            for j, run in enumerate(runs):
+                sub = _TruthResiduals.__new__(_TruthResiduals)
+                sub.runs, sub.parts, sub.sigma, sub.channels = [run], [resid.parts[j]], resid.sigma, resid.channels
+                cols = list(range(p)) + [p + 2 * j, p + 2 * j + 1]
+                ms = models + [models[0], models[0]]
+                x0 = np.array([state_of(u, j)] * (p + 1) + [state_of(us[1 + c], j) for c in cols[p:]])
+                rows = sub(ms, [x0])
+                f_parts.append(rows[0])
+                jac = np.zeros((rows.shape[1], u.size))
+                for r_i, c in enumerate(cols):
+                    jac[:, c] = (rows[1 + r_i] - rows[0]) / h[c]
+                j_parts.append(jac)
+            cache[key] = (np.concatenate(f_parts), np.vstack(j_parts))
         return cache[key]
 
+    x_start = np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base_states])
+    u_start = np.r_[np.clip(np.log([start[k] for k in keys]), lo[:p], hi[:p]), x_start]
+    u_nom = np.r_[u_nominal, x_start]
+    costs = [float(np.dot(fun_and_jac(u)[0], fun_and_jac(u)[0])) for u in (u_nom, u_start)]
     # the better of the frequency-domain and the model's values starts the fit
-    u_start = np.clip(np.log([start[k] for k in keys]), lo, hi)
-    costs = np.sum(resid(models_at(np.vstack([u_nominal, u_start]))) ** 2, axis=1)
-    u0 = u_start if costs[1] <= costs[0] else u_nominal
+    u0 = u_start if costs[1] <= costs[0] else u_nom
     sol = optimize.least_squares(lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1],
                                  bounds=(lo, hi), method="trf", max_nfev=max_nfev, x_scale=1.0,
                                  xtol=1e-10, ftol=1e-10, gtol=1e-10)
     f, jac = fun_and_jac(sol.x)
     cost = float(np.dot(f, f))
-    cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - len(keys), 1)
-    return {"values": dict(zip(keys, (float(v) for v in np.exp(sol.x)))), "cov": cov,
+    cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - sol.x.size, 1)
+    return {"values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])))), "cov": cov[:p, :p],
+            "states": [state_of(sol.x, j) for j in range(len(runs))],
             "cost_before": float(costs[0]), "cost_after": cost, "n": int(f.size)}
 
 
@@ -263,19 +303,22 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     """
     keys = tuple(keys)
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
-    start = {k: v for k, v in frequency_domain_start(runs, model).items() if k in keys}
+    start = {**{k: float(getattr(model.plant, k)) for k in keys},
+             **{k: v for k, v in frequency_domain_start(runs, model).items() if k in keys}}
     values: dict = {}
     sd = np.full(len(keys), np.nan)
     corr = np.full((len(keys), len(keys)), np.nan)
     cost_before = cost_after = 0.0
     n = 0
     current = model
+    runs = list(runs)
     for channel in TRUTH_CHANNELS:
-        stage = [k for k in keys if PLANT_PARAMETERS[k] == channel]
+        stage = [k for k in keys if {**PLANT_PARAMETERS, **_OTHER_CHANNELS}[k] == channel]
         if not stage:
             continue
         out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate)
         current = with_plant(current, out["values"])
+        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"])]
         values.update(out["values"])
         idx = [keys.index(k) for k in stage]
         s = np.sqrt(np.abs(np.diag(out["cov"])))
@@ -297,4 +340,4 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
             inseparable.append(f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs")
     return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start, stderr=stderr,
                     correlation=corr, inseparable=tuple(inseparable), cost_before=cost_before, cost_after=cost_after,
-                    n=n)
+                    n=n, runs=tuple(runs))

@@ -52,7 +52,10 @@ def result_to_dict(result: DiscrepancyResult, model_out: str, settings: Settings
 
     Keys: status, effects [{name, channel, parameters, evidence, explains}], gap_before,
     gap_after (held-out NRMSE per channel), model_out, plus gap_in_sample_after, noise_rms,
-    remaining (where a gap is left), diagnosis before/after, searches, summary, runs, rules.
+    remaining (where a gap is left), diagnosis before/after, searches, summary, runs, rules,
+    plant_parameters {key: {value, nominal, stderr}}, identification (start values,
+    correlations, inseparable combinations), not_separable [{effect, reason}], approximate
+    (named effects that leave a gap where they act).
     """
     def diag(d: Any) -> dict:
         return {c: asdict(g) for c, g in d.channels.items()}
@@ -77,6 +80,10 @@ def result_to_dict(result: DiscrepancyResult, model_out: str, settings: Settings
         "diagnosis_after": diag(result.diagnosis_after),
         "searches": searches,
         "rules": {f.name: getattr(settings, f.name) for f in fields(settings)},
+        "plant_parameters": result.plant_parameters,
+        "identification": result.plant_fit.as_dict() if result.plant_fit is not None else None,
+        "not_separable": list(result.not_separable),
+        "approximate": list(result.approximate),
     }
     return _clean(doc)
 
@@ -295,6 +302,15 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
                         [[c, result.gap_before[c], result.gap_after[c], result.gap_in_sample_after[c],
                           result.diagnosis_before.channels[c].noise_nrmse, result.noise[c]] for c in CHANNELS]))
     parts.append(f"<img src='{figs['gap']}'>")
+    if result.plant_parameters:
+        parts.append("<h2>This robot's plant (fitted first)</h2>")
+        parts.append(_table(["parameter", "fitted", "model", "change", "standard error"],
+                            [[k, p["value"], p["nominal"], f"{p['value'] / p['nominal'] - 1.0:+.2%}", p["stderr"]]
+                             for k, p in result.plant_parameters.items()]))
+        notes = list(result.plant_fit.inseparable) if result.plant_fit is not None else []
+        notes += [f"{d['effect']} is not searched for: {d['reason']}" for d in result.not_separable]
+        if notes:
+            parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
     parts.append("<h2>Found effects</h2>")
     if result.effects:
         rows = []

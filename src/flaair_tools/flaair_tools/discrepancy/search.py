@@ -12,9 +12,10 @@ from flaair_model.model import Model, with_effects
 from .diagnosis import _gap_test, _residual
 from .evidence import (CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, _param_value)
 from .fitting import _fit, _Fold, apply_values, spec_value
+from .identification import identify_plant
 from .runs import Run, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
-from .vocabulary import (EFFECT_CHANNELS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
+from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
                          candidate_groups, candidate_specs)
 
 # ------------------------------------------------------------------------------ the search
@@ -238,6 +239,10 @@ def find_effects(
                                      evidence=ev.as_dict() if ev is not None else {}, explains=EFFECT_CHANNELS[s.name]))
         if has_gap and channel in TRUTH_CHANNELS:
             unexplained_truth.add(channel)
+        if channel == "stroke_deg" and state.specs and settings.identify and not has_gap:
+            # the pitch parameters were identified under the old stroke motion: identify them again
+            current = identify_plant(runs, current, noise, keys=[k for k, c in PLANT_PARAMETERS.items()
+                                                                 if c == "pitch_deg"]).model
         searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))
     return current, tuple(_merge_sensor_channels(found, current)), tuple(searches)
 

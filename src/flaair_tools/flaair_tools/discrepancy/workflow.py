@@ -152,6 +152,7 @@ def analyse(
             progress("identify plant")
         plant_fit = identify_plant(runs, model, noise)
         base = plant_fit.model
+        runs = plant_fit.runs  # with their initial states fitted along with the plant
         sims_fit = simulate_runs([base], runs)[0]
         diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
     common = dict(model_in=model, gap_before=gap_before, noise=noise, diagnosis_before=diag_before,

@@ -1,0 +1,95 @@
+"""`flaair identify`: fit this robot's plant parameters from its measured runs (grey-box).
+
+Inputs are measured-run CSV files and/or bags, as for `flaair discrepancy`. The stroke natural
+frequency, aerodynamic damping and actuator gain are fitted to the ground-truth stroke, then the
+pitch natural frequency, hinge damping and the stroke-to-pitch couplings to the ground-truth
+pitch (scipy least_squares on the simulated runs, each from its measured initial state, started
+from a frequency-domain estimate of the sweeps' transfer functions). The inertias, sensor
+constants (Table 1, charge amplifiers) and transmission ratio are fabrication-known and stay.
+
+Writes into --out DIR:
+  model.yaml           the input model with the fitted plant parameters (same layout as config/model.yaml)
+  identification.json  per parameter: value, nominal, start, stderr; correlations; the
+                       combinations the runs cannot separate
+
+Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
+
+Examples:
+  bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
+  bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Optional
+
+from flaair_model.model_io import load_model, save_model
+
+from .discrepancy.cli import _bad_input_errors, load_inputs
+from .discrepancy.diagnosis import noise_estimates
+from .discrepancy.identification import identify_plant
+from .discrepancy.report import _clean
+from .discrepancy.runs import check_runs, simulate_runs
+
+PROG = "flaair identify"
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bag directories")
+    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from (default: config/model.yaml)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    args = parser.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        from tqdm import tqdm
+
+        with tqdm(total=3, desc="identify", unit="step", file=sys.stderr, leave=False) as bar:
+            bar.set_postfix_str("read runs")
+            model = load_model(args.model)
+            runs = check_runs(load_inputs(args.inputs))
+            bar.update(1)
+            bar.set_postfix_str("noise")
+            noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)
+            bar.update(1)
+            bar.set_postfix_str("fit plant")
+            t0 = time.perf_counter()
+            fit = identify_plant(runs, model, noise)
+            elapsed = time.perf_counter() - t0
+            bar.update(1)
+    except _bad_input_errors() as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    args.out.mkdir(parents=True, exist_ok=True)
+    save_model(fit.model, args.out / "model.yaml")
+    doc = _clean({"runs": [r.name for r in runs], "model_in": str(args.model or "config/model.yaml"),
+                  "model_out": str(args.out / "model.yaml"), **fit.as_dict()})
+    (args.out / "identification.json").write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+    print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
+    print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
+    for k in fit.keys:
+        v, nom, se = fit.values[k], fit.nominal[k], fit.stderr[k]
+        print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
+    for note in fit.inseparable:
+        print(f"  cannot separate: {note}")
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
