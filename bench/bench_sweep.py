@@ -1,0 +1,126 @@
+"""Wing-damage sweep throughput: in-process batch vs local Dask cluster vs an external scheduler, same run.
+
+Run: nice -n 10 python bench/bench_sweep.py [--json out.json] [--factors 31]
+
+Figures (the config/sweeps.yaml wing-damage sweep on a finer inertia grid, same rows and chunks
+for every engine, kernels compiled / loaded from numba's cache before any timing):
+- simulated robot-seconds per second: in-process batch one chunk after the other (one core),
+  in-process with numba threads over each chunk (all cores, no Dask), a LocalCluster with one
+  single-threaded worker process per core, and an external `dask scheduler` + 2 `dask worker`
+  processes started from the project's environment on 127.0.0.1 (--scheduler path);
+- target: the Dask runs within 20 % of the in-process batch on this machine (>= 0.8 x the
+  in-process all-cores figure);
+- overhead per task: 400 empty tasks through the local cluster (submit -> result), and the
+  chunk's compute time it is compared with.
+The results of every engine are checked to be identical.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from benchlib import REPO_ROOT, Figure, print_table, write_json
+
+from flaair_model.config import config_dir, load_yaml, node_parameters
+from flaair_model.model_io import load_model
+from flaair_tools import sweep
+from flaair_tools.sweep_batch import run_rows, warm_up
+
+
+def _noop(x: int) -> int:
+    return x
+
+
+def external_cluster(workers: int) -> tuple[str, list[subprocess.Popen]]:
+    """`dask scheduler` and `dask worker`s on 127.0.0.1 from this environment; (address, processes)."""
+    dask = str(Path(sys.executable).with_name("dask"))
+    port = 20000 + os.getpid() % 20000
+    address = f"tcp://127.0.0.1:{port}"
+    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    for _ in range(workers):
+        procs.append(subprocess.Popen([dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                       "--no-dashboard", "--nworkers", "1"], stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+    return address, procs
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench" / "bench_sweep.json")
+    parser.add_argument("--factors", type=int, default=31, help="inertia factors in the grid")
+    args = parser.parse_args()
+    from dask.distributed import Client
+
+    model = load_model()
+    values = node_parameters("flaair.yaml", "stroke_controller_node")
+    section = dict(load_yaml(config_dir() / "sweeps.yaml")["wing_damage"])
+    section["inertia_factor"] = {"start": 0.5, "stop": 1.0, "num": args.factors}
+    rows = sweep.wing_damage_rows(section, values, model)
+    parts = sweep.chunks(rows, int(section["chunk_size"]))
+    robot_s = sum(r["duration_s"] for r in rows)
+    cores = os.cpu_count() or 1
+    print(f"{len(rows)} simulations, {robot_s:.0f} robot-s, {len(parts)} tasks of {section['chunk_size']}, {cores} cores")
+    warm_up(model, rows[0])
+    run_rows(parts[0], model, parallel=True)  # compile the threaded variant too
+
+    def timed(fn):
+        t0 = time.perf_counter()
+        out = fn()
+        return time.perf_counter() - t0, [r for part in out for r in part]
+
+    t_serial, ref = timed(lambda: sweep.run_in_process(parts, model))
+    t_parallel, par = timed(lambda: sweep.run_in_process(parts, model, parallel=True))
+    timings = {}
+    cluster = sweep.local_cluster(cores)
+    try:
+        with Client(cluster) as client:
+            client.run(warm_up, model, rows[0])
+            t_local, local = timed(lambda: sweep.run_on_dask(client, parts, model))
+            n_noop = 400
+            t0 = time.perf_counter()
+            client.gather(client.map(_noop, range(n_noop), pure=False))
+            timings["per_task_s"] = (time.perf_counter() - t0) / n_noop
+    finally:
+        cluster.close()
+    address, procs = external_cluster(2)
+    try:
+        with Client(address, timeout="60s") as client:
+            client.wait_for_workers(2, timeout=120)
+            client.run(warm_up, model, rows[0])
+            t_external, external = timed(lambda: sweep.run_on_dask(client, parts, model))
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            p.wait(timeout=30)
+    identical = ref == par == local == external
+    rate = {k: robot_s / t for k, t in (("serial", t_serial), ("parallel", t_parallel), ("local", t_local),
+                                         ("external", t_external))}
+    chunk_s = t_serial / len(parts)
+    base = f"in-process batch {rate['parallel']:.0f} robot-s/s ({cores} threads), {rate['serial']:.0f} (1 core)"
+    figures = [
+        Figure("sweep in-process batch, 1 core", rate["serial"], "robot-s/s", "reported", True, "same run"),
+        Figure(f"sweep in-process batch, {cores} numba threads", rate["parallel"], "robot-s/s", "reported", True,
+               f"1 core: {rate['serial']:.0f}"),
+        Figure(f"sweep Dask LocalCluster, {cores} workers", rate["local"], "robot-s/s",
+               ">= 0.8 x in-process", rate["local"] >= 0.8 * rate["parallel"], base),
+        Figure("sweep Dask external scheduler, 2 workers", rate["external"], "robot-s/s",
+               ">= 0.8 x in-process", rate["external"] >= 0.8 * rate["parallel"], base),
+        Figure("Dask overhead per task (empty task)", timings["per_task_s"] * 1e3, "ms", "reported", True,
+               f"one {section['chunk_size']}-simulation chunk computes in {chunk_s * 1e3:.1f} ms"),
+        Figure("sweep results identical on every engine", float(identical), "bool", "1", identical, ""),
+        Figure("machine load average during the run (1 min)", os.getloadavg()[0], "runnable", "reported", True,
+               f"{cores} cores shared"),
+    ]
+    print_table(figures)
+    write_json(figures, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
