@@ -16,6 +16,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -39,10 +40,28 @@ def combine(per_run: list[dict]) -> dict:
         merged = dict(fits[0])
         for key in COMBINED_KEYS:
             values = np.array([f[key] for f in fits], float)
-            merged[key] = float(np.median(values))
-            merged[f"{key}_spread"] = float(np.ptp(values))
+            values = values[np.isfinite(values)]  # a run without a figure (no valid window) does not vote
+            merged[key] = float(np.median(values)) if values.size else None
+            merged[f"{key}_spread"] = float(np.ptp(values)) if values.size else None
         out[channel] = merged
     return out
+
+
+def strict_json(value: Any) -> Any:
+    """`value` with every non-finite float (NaN, inf) replaced by None: strict JSON, null for unknown."""
+    if isinstance(value, dict):
+        return {key: strict_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(item) for item in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def _figure(value: float | None, fmt: str) -> str:
+    return "n/a" if value is None else format(value, fmt)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     result["runs"] = [{"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}} for r, fit in zip(runs, per_run)]
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "calibration.json").write_text(json.dumps(result, indent=2))
+    (args.out / "calibration.json").write_text(json.dumps(strict_json(result), indent=2, allow_nan=False))
     loadable = {"reference_voltage_v": result["reference_voltage_v"]}
     for channel in ("stroke", "pitch"):
         loadable[channel] = {k: result[channel][k] for k in ("gain_deg_per_v", "polarity", "offset_v", "lag_s")}
@@ -79,7 +98,11 @@ def main(argv: list[str] | None = None) -> int:
     for channel in ("stroke", "pitch"):
         c = result[channel]
         print(f"{channel:6s} gain {c['gain_deg_per_v']:8.3f} deg/V  polarity {c['polarity']:+d}  lag {c['lag_s'] * 1e3:7.4f} ms  "
-              f"amplitude RMSE {c['amplitude_rmse_deg']:.3f} deg  phase RMSE {c['phase_rmse_deg']:.2f} deg")
+              f"amplitude RMSE {_figure(c['amplitude_rmse_deg'], '.3f')} deg  "
+              f"phase RMSE {_figure(c['phase_rmse_deg'], '.2f')} deg")
+        if c["amplitude_rmse_deg"] is None:
+            print(f"flaair calibrate: warning: {channel}: no window had enough ground truth for the RMSE figures",
+                  file=sys.stderr)
     print(f"wrote {args.out / 'calibration.yaml'} and {args.out / 'calibration.json'} ({len(runs)} run(s))")
     return 0
 
