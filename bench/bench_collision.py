@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,11 +30,13 @@ for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
         sys.path.insert(0, str(REPO_ROOT / "src" / _pkg))
 
 from flaair_control import collision as col  # noqa: E402
+from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config  # noqa: E402
 from flaair_sim import plant  # noqa: E402
 from flaair_model.model import with_effects  # noqa: E402
 from flaair_model.model_io import load_model  # noqa: E402
 
 FS = 20000.0
+METRIC = spectral_metric_params_from_config()   # the paper metric as configured
 BLOCK = 10
 DRIVE_HZ = 100.0
 AMPLITUDE_V = 75.0
@@ -47,8 +50,8 @@ def sensor_angles(model, out):
 
 
 def monitor_params(model, source: str, f: float) -> col.MonitorParams:
-    return col.MonitorParams(
-        FS, window_source=source, drive_frequency_hz=f,
+    return replace(
+        monitor_windows_from_config(f), window_source=source, drive_frequency_hz=f if source == "drive" else None,
         stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
         pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad),
     )
@@ -76,7 +79,7 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
             strike = t0 + np.argmax(out.stroke_rad >= limit) / FS
         s, p = sensor_angles(model, out)
         pitch.append(p)
-        mon, _, ev = col.step(mon, s, p, prm)
+        mon, (_, ev) = col.step(mon, col.MonitorInputs(s, p), prm)
         if onset_t is None and any(e.kind == col.ONSET for e in ev):
             onset_t = t0 + BLOCK / FS
     pitch_all = np.concatenate(pitch)
@@ -86,7 +89,7 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
     for end in range(10 * period, pitch_all.size + 1, period):
         if end / FS <= strike:
             continue
-        if col.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ).collision:
+        if col.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ, METRIC).collision:
             paper_t = end / FS
             break
     lat = (onset_t - strike) * DRIVE_HZ if onset_t is not None else math.inf
@@ -103,7 +106,7 @@ def false_alarm_sweep(model, source: str, duration_s: float):
             out = plant.simulate(amp * np.sin(2 * np.pi * f * t), FS, model, noise=True,
                                  rng=np.random.default_rng(1000 * f + int(amp)))
             s, p = sensor_angles(model, out)
-            _, rep, ev = col.run(s, p, col.MonitorParams(FS, window_source=source, drive_frequency_hz=float(f)))
+            _, rep, ev = col.run(s, p, replace(monitor_windows_from_config(float(f)), window_source=source))
             armed = rep.status != col.ARMING
             alarms += sum(e.kind == col.ONSET for e in ev)
             wingbeats += int(np.count_nonzero(armed))
@@ -126,9 +129,9 @@ def main() -> None:
     drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * t)
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     free = col.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
-                                                                   rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ)
+                                                                   rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ, METRIC)
     coll = col.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
-                                                                   rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ)
+                                                                   rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ, METRIC)
     figures += [
         Figure("paper metric: pitch FFT RMSE, collision", coll.spectral_rmse_deg, "deg", "> 1 (paper 3.23)",
                coll.spectral_rmse_deg > 1.0, f"no collision {free.spectral_rmse_deg:.3f} deg (paper 0.53)"),
@@ -158,7 +161,7 @@ def main() -> None:
     t10 = np.arange(int(10.0 * FS)) / FS
     out = plant.simulate(50.0 * np.sin(2 * np.pi * 200.0 * t10), FS, model, noise=True, rng=np.random.default_rng(3))
     s, p = sensor_angles(model, out)
-    prm = col.MonitorParams(FS, drive_frequency_hz=200.0)
+    prm = monitor_windows_from_config(200.0)
     whole = best_time_s(lambda: col.run(s, p, prm))
     figures.append(Figure("monitor, whole record (10 s at 200 Hz)", 10.0 / whole, "x realtime", "> 10",
                           10.0 / whole > 10, f"{whole * 1e3:.1f} ms"))
@@ -166,7 +169,7 @@ def main() -> None:
     def live():
         st = col.initial_state(prm)
         for i in range(0, 20000, BLOCK):
-            st, _, _ = col.step(st, s[i:i + BLOCK], p[i:i + BLOCK], prm)
+            st, (_, _) = col.step(st, col.MonitorInputs(s[i:i + BLOCK], p[i:i + BLOCK]), prm)
     per_block = best_time_s(live) / (20000 / BLOCK)
     figures.append(Figure("monitor step per 0.5 ms block (live)", per_block * 1e6, "us", "< 500",
                           per_block < 5e-4, f"{100 * per_block / 5e-4:.1f} % of the block period"))

@@ -2,15 +2,18 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 
 from flaair_control import collision as col
+from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config
 
 FS = 20000.0
 BLOCK = 10
+METRIC = spectral_metric_params_from_config()   # the paper metric as configured
 
 
 # --------------------------------------------------------------------------- paper metric, pure
@@ -21,7 +24,7 @@ BLOCK = 10
 def test_pure_sine_scores_zero(f, reference):
     t = np.arange(int(0.2 * FS)) / FS
     x = math.radians(20.0) * np.sin(2 * np.pi * f * t + 0.7) + 0.1
-    r = col.spectral_metric(x, FS, f, col.SpectralMetricParams(reference=reference))
+    r = col.spectral_metric(x, FS, f, replace(METRIC, reference=reference))
     assert r.spectral_rmse_deg < 0.01
     assert r.time_rmse_deg < 0.01
     assert not r.collision
@@ -32,7 +35,7 @@ def test_harmonic_content_gives_the_expected_rmse():
     f, a1, h = 100.0, math.radians(20.0), math.radians(5.0)
     t = np.arange(int(0.1 * FS)) / FS          # exactly 10 periods
     x = a1 * np.cos(2 * np.pi * f * t + 0.3) + h * np.cos(2 * np.pi * 2 * f * t + 1.1)
-    r = col.spectral_metric(x, FS, f)
+    r = col.spectral_metric(x, FS, f, METRIC)
     n_bins = r.frequency_hz.size
     assert n_bins == 51                          # 0..500 Hz at 10 Hz resolution
     a_ref = math.hypot(a1, h)                    # energy-matched reference sine
@@ -42,28 +45,27 @@ def test_harmonic_content_gives_the_expected_rmse():
     k1, k2 = np.argmin(np.abs(r.frequency_hz - f)), np.argmin(np.abs(r.frequency_hz - 2 * f))
     assert r.signal_spectrum_rad[k1] < r.reference_spectrum_rad[k1]   # fundamental below the sine
     assert r.signal_spectrum_rad[k2] == pytest.approx(h, rel=1e-6)
-    fund = col.spectral_metric(x, FS, f, col.SpectralMetricParams(reference="fundamental"))
+    fund = col.spectral_metric(x, FS, f, replace(METRIC, reference="fundamental"))
     assert fund.spectral_rmse_rad == pytest.approx(h / math.sqrt(n_bins), rel=1e-6)
 
 
 def test_metric_rejects_bad_input_by_name():
     with pytest.raises(ValueError, match="angle_rad"):
-        col.spectral_metric(np.array([0.0, np.nan] * 200), FS, 100.0)
+        col.spectral_metric(np.array([0.0, np.nan] * 200), FS, 100.0, METRIC)
     with pytest.raises(ValueError, match="drive_frequency_hz"):
-        col.spectral_metric(np.zeros(400), FS, 0.0)
+        col.spectral_metric(np.zeros(400), FS, 0.0, METRIC)
     with pytest.raises(ValueError, match="drive period"):
-        col.spectral_metric(np.zeros(100), FS, 100.0)
+        col.spectral_metric(np.zeros(100), FS, 100.0, METRIC)
     with pytest.raises(ValueError, match="reference"):
-        col.SpectralMetricParams(reference="peak")
+        replace(METRIC, reference="peak")
 
 
 # --------------------------------------------------------------------------- monitor, pure
 
 
 def _params(**kw) -> col.MonitorParams:
-    base = dict(sample_rate_hz=FS, drive_frequency_hz=100.0)
-    base.update(kw)
-    return col.MonitorParams(**base)
+    """The configured monitor (config/flaair.yaml) at 100 Hz drive windows, overridden by ``kw``."""
+    return replace(monitor_windows_from_config(100.0), **kw)
 
 
 def _synthetic(n_periods: int, f: float = 100.0, distort_from: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -90,7 +92,7 @@ def test_block_split_equals_whole_record_in_both_window_modes():
         for size in rng.integers(1, 400, 10_000):
             if i >= s.size:
                 break
-            state, rep, ev = col.step(state, s[i:i + size], p[i:i + size], prm)
+            state, (rep, ev) = col.step(state, col.MonitorInputs(s[i:i + size], p[i:i + size]), prm)
             reps.append(rep)
             evs.extend(ev)
             i += size
@@ -133,13 +135,13 @@ def test_invalid_and_idle_windows_decide_nothing():
 
 def test_monitor_parameters_are_validated_by_name():
     with pytest.raises(ValueError, match="drive_frequency_hz"):
-        col.MonitorParams(sample_rate_hz=FS)
+        _params(drive_frequency_hz=None)
     with pytest.raises(ValueError, match="off_level"):
         _params(off_level=2.0)
     with pytest.raises(ValueError, match="window_source"):
         _params(window_source="video")
     with pytest.raises(ValueError, match="same length"):
-        col.step(col.initial_state(_params()), np.zeros(3), np.zeros(4), _params())
+        col.step(col.initial_state(_params()), col.MonitorInputs(np.zeros(3), np.zeros(4)), _params())
 
 
 # --------------------------------------------------------------------------- on the simulated robot
@@ -172,8 +174,8 @@ def test_paper_metric_separates_collision_from_free_flapping(model):
     hit_out = plant_mod.simulate(drive, FS, hit, noise=True, rng=np.random.default_rng(2))
     assert np.degrees(free_out.stroke_rad[-2000:]).max() > LIMIT_DEG + 5     # it would pass the stop
     assert np.degrees(hit_out.stroke_rad[-2000:]).max() < LIMIT_DEG + 2      # ... and is stopped
-    free = col.spectral_metric(sensor_angles(model, free_out)[1], FS, 100.0)
-    coll = col.spectral_metric(sensor_angles(model, hit_out)[1], FS, 100.0)
+    free = col.spectral_metric(sensor_angles(model, free_out)[1], FS, 100.0, METRIC)
+    coll = col.spectral_metric(sensor_angles(model, hit_out)[1], FS, 100.0, METRIC)
     assert coll.collision and not free.collision                            # 1 deg threshold
     assert coll.spectral_rmse_deg > 5 * free.spectral_rmse_deg
     assert coll.time_rmse_deg > 5 * free.time_rmse_deg
@@ -192,7 +194,7 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
     hit = sim_model.with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     limit = math.radians(LIMIT_DEG)
     rng = np.random.default_rng(11)
-    prm = col.MonitorParams(FS, window_source=source, drive_frequency_hz=f,
+    prm = _params(window_source=source, drive_frequency_hz=f if source == "drive" else None,
                             stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
                             pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad))
     mon = col.initial_state(prm)
@@ -213,7 +215,7 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
         if present and first_strike is None and np.any(out.stroke_rad >= limit):
             first_strike = t0 + np.argmax(out.stroke_rad >= limit) / FS
         s, p = sensor_angles(model, out)
-        mon, rep, ev = col.step(mon, s, p, prm)
+        mon, (rep, ev) = col.step(mon, col.MonitorInputs(s, p), prm)
         reports.append(rep)
         events.extend((e, t0 + BLOCK / FS) for e in ev)
     return first_strike, events, col.concat_reports(reports)
@@ -240,7 +242,7 @@ def test_obstacle_present_from_the_start_is_reported_every_wingbeat(model):
     hit = sim_model.with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     out = plant_mod.simulate(75.0 * np.sin(2 * np.pi * 100.0 * t), FS, hit, noise=True, rng=np.random.default_rng(5))
     s, p = sensor_angles(model, out)
-    prm = col.MonitorParams(FS, drive_frequency_hz=100.0)
+    prm = _params()
     _, rep, ev = col.run(s, p, prm)
     armed = rep.status != col.ARMING
     assert np.all(rep.status[armed] == col.COLLISION)
@@ -257,7 +259,7 @@ def _false_alarm_sweep(model, source: str, duration_s: float):
             out = plant_mod.simulate(amp * np.sin(2 * np.pi * f * t), FS, model, noise=True,
                                      rng=np.random.default_rng(f * 7 + int(amp)))
             s, p = sensor_angles(model, out)
-            _, rep, ev = col.run(s, p, col.MonitorParams(FS, window_source=source, drive_frequency_hz=float(f)))
+            _, rep, ev = col.run(s, p, _params(window_source=source, drive_frequency_hz=float(f) if source == "drive" else None))
             armed = rep.status != col.ARMING
             assert np.all(rep.status[armed] == col.CLEAR), (f, amp)
             worst = max(worst, float(rep.score[armed].max()))

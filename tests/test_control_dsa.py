@@ -19,7 +19,9 @@ MU = 2.0e-8
 
 def make(**kw) -> dsa.DsaParams:
     base = dict(r3_rad_s=R3, kappa=KAPPA, mu_nm_s_per_rad=MU, actuator_gain_nm_per_v=G_A,
-                sample_rate_hz=FS, drive_limit_v=100.0)
+                sample_rate_hz=FS, drive_limit_v=100.0, sync_amplitude_v=0.0, sync_frequency_hz=100.0,
+                sync_phase_rad=0.0, kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), loop_delay_s=0.0,
+                compensation_frequency_hz=None)
     base.update(kw)
     return dsa.DsaParams(**base)
 
@@ -67,7 +69,7 @@ def test_loop_delay_and_its_phase_at_140_hz():
 def test_velocity_step_response_matches_the_analytic_solution():
     p = make()  # no advance: torque_raw == torque
     n = 4000
-    state, _, sig = dsa.step(dsa.initial_state(p), np.ones(n), 0.0, p)
+    state, (_, sig) = dsa.step(dsa.initial_state(p), dsa.DsaInputs(np.ones(n), 0.0), p)
     # Tustin sees the sampled step as a ramp over the first sample: half a sample late.
     t = (np.arange(n) + 0.5) / FS
     p1, p2 = R3, KAPPA * R3
@@ -82,14 +84,14 @@ def test_block_splitting_changes_nothing():
              kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.01, 0.02))
     rng = np.random.default_rng(3)
     v = rng.standard_normal(1000) * 100.0
-    _, whole, sig_w = dsa.step(dsa.initial_state(p), v, 0.0, p)
+    _, (whole, sig_w) = dsa.step(dsa.initial_state(p), dsa.DsaInputs(v, 0.0), p)
     state = dsa.initial_state(p)
     parts = []
     i = 0
     for size in rng.integers(1, 37, 200):
         if i >= v.size:
             break
-        state, d, _ = dsa.step(state, v[i:i + size], i / FS, p)
+        state, (d, _) = dsa.step(state, dsa.DsaInputs(v[i:i + size], i / FS), p)
         parts.append(d)
         i += size
     np.testing.assert_allclose(np.concatenate(parts), whole, rtol=0, atol=1e-12)
@@ -100,7 +102,7 @@ def test_kr_schedule_and_blend():
     np.testing.assert_allclose(sched.value(np.array([0.0, 0.1, 0.2, 0.3, 0.5])), [1, 1, 0.5, 0, 0], atol=1e-12)
     p = make(sync_amplitude_v=30.0, sync_frequency_hz=50.0, kr_schedule=sched, drive_limit_v=1e6)
     v = np.sin(np.arange(8000) / FS * 2 * np.pi * 150.0) * 500.0
-    _, drive, sig = dsa.step(dsa.initial_state(p), v, 0.0, p)
+    _, (drive, sig) = dsa.step(dsa.initial_state(p), dsa.DsaInputs(v, 0.0), p)
     t = np.arange(8000) / FS
     sync = 30.0 * np.sin(2 * np.pi * 50.0 * t)
     np.testing.assert_allclose(sig.sync_v, sync, atol=1e-9)
@@ -118,12 +120,12 @@ def test_drive_limit_and_non_finite_velocity():
     v = np.full(200, 1e4)
     v[50:60] = np.nan
     v[70] = np.inf
-    state, drive, sig = dsa.step(dsa.initial_state(p), v, 0.0, p)
+    state, (drive, sig) = dsa.step(dsa.initial_state(p), dsa.DsaInputs(v, 0.0), p)
     assert np.all(np.isfinite(drive)) and np.max(np.abs(drive)) <= 50.0
     assert np.max(np.abs(sig.drive_unclipped_v)) > 50.0      # the limit did act
     assert not sig.velocity_valid[55] and not sig.velocity_valid[70] and sig.velocity_valid[0]
     assert np.all(np.isfinite(state.zi_advanced)) and np.all(np.isfinite(state.zi_raw))
-    _, drive2, _ = dsa.step(state, np.zeros(10), 0.01, p)
+    _, (drive2, _) = dsa.step(state, dsa.DsaInputs(np.zeros(10), 0.01), p)
     assert np.all(np.isfinite(drive2))
 
 
@@ -137,7 +139,7 @@ def test_bad_parameters_are_named(field, value):
 
 def test_bad_schedule_is_named():
     with pytest.raises(ValueError, match="end_value"):
-        dsa.KrSchedule(1.0, 1.5)
+        dsa.KrSchedule(1.0, 1.5, 0.0, 0.0)
 
 
 # --------------------------------------------------------------------------- on the simulated robot
@@ -157,7 +159,8 @@ def test_sync_to_async_transition_on_the_simulated_robot():
     delay = dsa.loop_delay_s(BLOCK, FS)
     p = dsa.DsaParams(r3_rad_s=r3, kappa=KAPPA, mu_nm_s_per_rad=mu, actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
                       sample_rate_hz=FS, drive_limit_v=100.0, sync_amplitude_v=20.0, sync_frequency_hz=60.0,
-                      kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.3, 0.3), loop_delay_s=delay)
+                      kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.3, 0.3), loop_delay_s=delay,
+                      sync_phase_rad=0.0, compensation_frequency_hz=None)
     rng = np.random.default_rng(7)
     state = plant_mod.initial_state(model, FS)
     ctrl = dsa.initial_state(p)
@@ -169,7 +172,7 @@ def test_sync_to_async_transition_on_the_simulated_robot():
         phi = (out.stroke_sensor_v - vref) / vpr                              # sensor-derived stroke
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]
-        ctrl, drive, _ = dsa.step(ctrl, vel, (k + 1) * BLOCK / FS, p)
+        ctrl, (drive, _) = dsa.step(ctrl, dsa.DsaInputs(vel, (k + 1) * BLOCK / FS), p)
         stroke.append(phi)
     x = np.degrees(np.concatenate(stroke))
 

@@ -133,7 +133,7 @@ def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float =
         phi = sim.stroke_rad
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]
-        ctrl, drive, _ = dsa.step(ctrl, vel, (k + 1) * BLOCK / FS, params)
+        ctrl, (drive, _) = dsa.step(ctrl, dsa.DsaInputs(vel, (k + 1) * BLOCK / FS), params)
         out.append(phi)
     return np.concatenate(out)
 
@@ -168,6 +168,8 @@ def _params(model, r3, kappa, mu, compensate: bool) -> dsa.DsaParams:
         r3_rad_s=r3, kappa=kappa, mu_nm_s_per_rad=mu,
         actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v, sample_rate_hz=FS,
         drive_limit_v=1e6, loop_delay_s=dsa.loop_delay_s(BLOCK, FS) if compensate else 0.0,
+        sync_amplitude_v=0.0, sync_frequency_hz=100.0, sync_phase_rad=0.0,
+        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), compensation_frequency_hz=None,
     )
 
 

@@ -258,7 +258,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     finally:
         if owns_rclpy:
             rclpy.shutdown()
-    assert node.locked_hz == 100.0
+    assert node.state.lock.locked_hz == 100.0
     assert len(statuses) >= 35 and all(s.wingbeat_frequency_hz == 100.0 for s in statuses)
     rmse = [s.spectrum_rmse_deg for s in statuses if math.isfinite(s.spectrum_rmse_deg)]
     if obstacle:
@@ -275,7 +275,8 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     from rclpy.serialization import deserialize_message, serialize_message
 
     from flaair_common.blocks import from_array
-    from flaair_control.dsa_controller_node import LOOP, TRIPPED, DsaControllerNode
+    from flaair_control.dsa_controller_node import DsaControllerNode
+    from flaair_control.supervisor import LOOP, TRIPPED
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 
     if rclpy.ok():
@@ -309,7 +310,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
             node.on_wing_state(serialize_message(message))
 
         node.on_timer()                                   # starts: one block in flight
-        assert node.mode == LOOP and [d[0] for d in drive] == [0]
+        assert node.state.mode == LOOP and [d[0] for d in drive] == [0]
         for k in range(100):
             feed(k)
         assert all(s[0] == 1.0 for s in states)          # synchronous until kr_ramp_start_s (0.5 s)
@@ -321,7 +322,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
         assert kr[0] == 1.0 and kr[-1] == 0.0 and np.all(np.diff(kr) <= 0)
         assert all(abs(s[4]) <= 150.0 for s in states) and any(s[3] for s in states[-10:])   # clamped
         node.on_collision_event(CollisionEvent(kind=CollisionEvent.ONSET, wingbeat_index=3, spectrum_rmse_deg=2.5))
-        assert node.mode == TRIPPED and "collision onset at wingbeat 3" in node.fault
+        assert node.state.mode == TRIPPED and "collision onset at wingbeat 3" in node.state.fault
         n_before = len(drive)
         feed(130)                                         # tripped: the timer paces, no reply
         assert len(drive) == n_before
@@ -331,7 +332,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
         # zero from trip + ramp_down_s on (the boundary sample itself is ~1e-13 V: float rounding in the core)
         assert ramp.size >= 101 and abs(ramp[100]) < 1e-9 and np.all(ramp[101:] == 0.0) and states[-1][1] == 1
         assert node.set_parameters([Parameter("reset_watchdog", value=True)])[0].successful
-        assert node.mode == LOOP and node.fault == "" and node.safety.status == 0
+        assert node.state.mode == LOOP and node.state.fault == "" and node.state.safety.status == 0
         node.destroy_node()
     finally:
         rclpy.shutdown()

@@ -19,9 +19,18 @@ params_st = st.builds(
     safety.SafetyParams,
     drive_limit_v=st.floats(0.0, 500.0),
     slew_limit_v_per_s=st.one_of(st.just(math.inf), st.floats(1.0, 1e8)),
-    watchdog_timeout_s=st.floats(1e-4, 1.0),
+    invalid_timeout_s=st.floats(1e-4, 1.0),
     ramp_down_s=st.floats(0.0, 1.0),
+    sample_rate_hz=st.just(FS),
 )
+
+
+def sp(**kw) -> safety.SafetyParams:
+    """Safety parameters: these tests' values, overridden by ``kw``."""
+    base = dict(drive_limit_v=100.0, slew_limit_v_per_s=math.inf, invalid_timeout_s=0.01, ramp_down_s=0.05,
+                sample_rate_hz=FS)
+    base.update(kw)
+    return safety.SafetyParams(**base)
 
 
 @settings(max_examples=300, deadline=None)
@@ -44,7 +53,7 @@ def test_step_never_exceeds_the_limit_or_the_slew_rate(params, seq, t0):
     t = t0
     prev = 0.0
     for block, valid in seq:
-        state, out = safety.step(state, block, t, FS, params, sensor_block_valid=valid)
+        state, out = safety.step(state, safety.SafetyInputs(block, t, valid), params)
         y = out.drive_v
         assert y.shape == block.shape
         assert np.all(np.isfinite(y))
@@ -62,18 +71,18 @@ def _sine(n, t0, amp=80.0, f=100.0):
 
 
 def test_passes_a_safe_drive_untouched_while_sensors_are_fresh():
-    p = safety.SafetyParams(drive_limit_v=100.0, slew_limit_v_per_s=1e6, watchdog_timeout_s=2e-3, ramp_down_s=0.02)
+    p = sp(drive_limit_v=100.0, slew_limit_v_per_s=1e6, invalid_timeout_s=2e-3, ramp_down_s=0.02)
     state = safety.initial_state(0.0)
     for k in range(200):
         t = k * 10 / FS
         d = _sine(10, t)
-        state, out = safety.step(state, d, t, FS, p, sensor_block_valid=True)
+        state, out = safety.step(state, safety.SafetyInputs(d, t, True), p)
         np.testing.assert_array_equal(out.drive_v, d)
         assert not out.tripped
 
 
 def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
-    p = safety.SafetyParams(drive_limit_v=100.0, watchdog_timeout_s=2e-3, ramp_down_s=0.01)
+    p = sp(drive_limit_v=100.0, invalid_timeout_s=2e-3, ramp_down_s=0.01)
     state = safety.initial_state(0.0)
     for t_block in np.arange(0.0005, 0.0051, 0.0005):   # fresh blocks every 0.5 ms up to 5 ms
         state = safety.note_sensor_block(state, float(t_block), True, p)
@@ -82,7 +91,7 @@ def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
     outs, times = [], []
     for k in range(60):
         t = k * 10 / FS
-        state, out = safety.step(state, _sine(10, t), t, FS, p)
+        state, out = safety.step(state, safety.SafetyInputs(_sine(10, t), t), p)
         outs.append(out.drive_v)
         times.append(t + np.arange(10) / FS)
     y, t = np.concatenate(outs), np.concatenate(times)
@@ -97,45 +106,43 @@ def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
 
 
 def test_first_block_later_than_the_timeout_trips_at_the_deadline():
-    p = safety.SafetyParams(drive_limit_v=100.0, watchdog_timeout_s=2e-3)
+    p = sp(drive_limit_v=100.0, invalid_timeout_s=2e-3)
     state = safety.note_sensor_block(safety.initial_state(0.0), 0.005, True, p)
     assert state.status == safety.TRIPPED and state.trip_time_s == pytest.approx(0.002)
 
 
 def test_invalid_block_trips_immediately_and_latches():
-    p = safety.SafetyParams(drive_limit_v=100.0, watchdog_timeout_s=0.1, ramp_down_s=0.0)
+    p = sp(drive_limit_v=100.0, invalid_timeout_s=0.1, ramp_down_s=0.0)
     state = safety.initial_state(0.0)
-    state, out = safety.step(state, np.full(10, 50.0), 0.0, FS, p, sensor_block_valid=True)
+    state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0, True), p)
     assert np.all(out.drive_v == 50.0)
-    state, out = safety.step(state, np.full(10, 50.0), 0.0005, FS, p, sensor_block_valid=False)
+    state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0005, False), p)
     assert out.tripped and state.trip_reason == safety.REASON_INVALID_BLOCK
     assert np.all(out.drive_v == 0.0)                                      # ramp_down_s = 0
-    state, out = safety.step(state, np.full(10, 50.0), 0.001, FS, p, sensor_block_valid=True)
+    state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.001, True), p)
     assert out.tripped and np.all(out.drive_v == 0.0)                      # latched
     state = safety.reset(state, 0.0015)
-    state, out = safety.step(state, np.full(10, 50.0), 0.0015, FS, p, sensor_block_valid=True)
+    state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0015, True), p)
     assert not out.tripped and np.all(out.drive_v == 50.0)
 
 
 def test_slew_limit_spreads_a_step():
-    p = safety.SafetyParams(drive_limit_v=100.0, slew_limit_v_per_s=2e5)   # 10 V per sample
-    state, out = safety.step(safety.initial_state(0.0), np.full(12, 100.0), 0.0, FS, p, sensor_block_valid=True)
+    p = sp(drive_limit_v=100.0, slew_limit_v_per_s=2e5)   # 10 V per sample
+    state, out = safety.step(safety.initial_state(0.0), safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
     np.testing.assert_allclose(out.drive_v, [10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 100, 100])
 
 
 def test_nan_and_inf_drive_become_zero_not_rail():
-    p = safety.SafetyParams(drive_limit_v=100.0)
+    p = sp(drive_limit_v=100.0)
     d = np.array([np.nan, np.inf, -np.inf, 1e9, -1e9, 42.0])
-    _, out = safety.step(safety.initial_state(0.0), d, 0.0, FS, p, sensor_block_valid=True)
+    _, out = safety.step(safety.initial_state(0.0), safety.SafetyInputs(d, 0.0, True), p)
     np.testing.assert_array_equal(out.drive_v, [0, 0, 0, 100, -100, 42])
     assert out.nonfinite_count == 3
 
 
 @pytest.mark.parametrize("field,value", [("drive_limit_v", -1.0), ("drive_limit_v", math.nan),
-                                         ("slew_limit_v_per_s", 0.0), ("watchdog_timeout_s", 0.0),
+                                         ("slew_limit_v_per_s", 0.0), ("invalid_timeout_s", 0.0),
                                          ("ramp_down_s", -0.1)])
 def test_bad_parameters_are_named(field, value):
-    kw = dict(drive_limit_v=100.0)
-    kw[field] = value
     with pytest.raises(ValueError, match=field):
-        safety.SafetyParams(**kw)
+        sp(**{field: value})

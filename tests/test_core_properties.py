@@ -6,6 +6,8 @@ The front end, the safety core and the CDR codec have their own property tests
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import math
 
 import numpy as np
@@ -14,6 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from flaair_control.control_io import monitor_windows_from_config
 from flaair_control import collision, dsa
 from flaair_sim import drive, plant
 from flaair_model.model_io import load_model
@@ -72,7 +75,7 @@ def test_dsa_step_output_is_finite_and_within_the_limit(sequence, nan_at) -> Non
         if nan_at is not None:
             velocity = velocity.copy()
             velocity[nan_at] = math.nan
-        state, drive_v, _ = dsa.step(state, velocity, t_s, params)
+        state, (drive_v, _) = dsa.step(state, dsa.DsaInputs(velocity, t_s), params)
         assert np.isfinite(drive_v).all() and np.abs(drive_v).max() <= LIMIT_V
         t_s += velocity.size / FS_HZ
 
@@ -81,12 +84,11 @@ def test_dsa_step_output_is_finite_and_within_the_limit(sequence, nan_at) -> Non
 @given(stroke=blocks(math.pi, max_blocks=30), pitch=blocks(math.pi, max_blocks=30),
        source=st.sampled_from(["drive", "stroke"]))
 def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> None:
-    params = collision.MonitorParams(sample_rate_hz=FS_HZ, window_source=source, drive_frequency_hz=100.0,
-                                     arm_wingbeats=0)
+    params = replace(monitor_windows_from_config(100.0), window_source=source, arm_wingbeats=0)
     state = collision.initial_state(params)
     n = min(len(stroke), len(pitch))
     for s, p in zip(stroke[:n], pitch[:n]):
-        state, report, events = collision.step(state, s, p, params)
+        state, (report, events) = collision.step(state, collision.MonitorInputs(s, p), params)
         for field in report._fields:
             values = np.asarray(getattr(report, field))
             if values.dtype.kind == "f":
@@ -96,9 +98,9 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
 
 
 def test_collision_monitor_refuses_mismatched_blocks_by_name() -> None:
-    params = collision.MonitorParams(sample_rate_hz=FS_HZ, drive_frequency_hz=100.0)
+    params = monitor_windows_from_config(100.0)
     with pytest.raises(collision.CollisionParameterError, match="stroke_rad and pitch_rad"):
-        collision.step(collision.initial_state(params), np.zeros(10), np.zeros(9), params)
+        collision.step(collision.initial_state(params), collision.MonitorInputs(np.zeros(10), np.zeros(9)), params)
 
 
 @SETTINGS

@@ -6,13 +6,13 @@ and types both at start (overrides from --ros-args or --params-file) and at run 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 from rclpy.node import Node
 
 from flaair_model.config import ConfigError, node_parameters, shared_parameter_names
+from flaair_model.schema import ParameterError, ParamSpec  # noqa: F401 - re-exported for the nodes
 
 _TYPES = {
     float: ParameterType.PARAMETER_DOUBLE,
@@ -23,52 +23,37 @@ _TYPES = {
 }
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One ROS parameter: name (unit in the name), type, description and allowed values."""
+def descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The rcl_interfaces descriptor rclpy uses to validate and to describe `spec`."""
+    constraints = ""
+    if spec.choices:
+        constraints = "one of: " + ", ".join(spec.choices)
+    out = ParameterDescriptor(
+        name=spec.name,
+        type=_TYPES[spec.type],
+        description=spec.description,
+        additional_constraints=constraints,
+        read_only=spec.read_only,
+    )
+    if spec.min_value is not None or spec.max_value is not None:
+        if spec.type is float:
+            out.floating_point_range = [
+                FloatingPointRange(
+                    from_value=float(spec.min_value if spec.min_value is not None else -1e300),
+                    to_value=float(spec.max_value if spec.max_value is not None else 1e300),
+                    step=0.0,
+                )
+            ]
+        elif spec.type is int:
+            out.integer_range = [
+                IntegerRange(
+                    from_value=int(spec.min_value if spec.min_value is not None else -(2**62)),
+                    to_value=int(spec.max_value if spec.max_value is not None else 2**62),
+                    step=1,
+                )
+            ]
+    return out
 
-    name: str
-    type: type
-    description: str
-    min_value: float | None = None
-    max_value: float | None = None
-    choices: tuple[str, ...] = ()
-    read_only: bool = False
-
-    def descriptor(self) -> ParameterDescriptor:
-        """The rcl_interfaces descriptor rclpy uses to validate and to describe."""
-        constraints = ""
-        if self.choices:
-            constraints = "one of: " + ", ".join(self.choices)
-        descriptor = ParameterDescriptor(
-            name=self.name,
-            type=_TYPES[self.type],
-            description=self.description,
-            additional_constraints=constraints,
-            read_only=self.read_only,
-        )
-        if self.min_value is not None or self.max_value is not None:
-            if self.type is float:
-                descriptor.floating_point_range = [
-                    FloatingPointRange(
-                        from_value=float(self.min_value if self.min_value is not None else -1e300),
-                        to_value=float(self.max_value if self.max_value is not None else 1e300),
-                        step=0.0,
-                    )
-                ]
-            elif self.type is int:
-                descriptor.integer_range = [
-                    IntegerRange(
-                        from_value=int(self.min_value if self.min_value is not None else -(2**62)),
-                        to_value=int(self.max_value if self.max_value is not None else 2**62),
-                        step=1,
-                    )
-                ]
-        return descriptor
-
-
-class ParameterError(ValueError):
-    """A parameter value was refused; the message names the parameter."""
 
 
 def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> dict[str, Any]:
@@ -91,7 +76,7 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
         if spec.type is list:
             default = [float(v) for v in default]
         try:
-            parameter = node.declare_parameter(spec.name, default, spec.descriptor())
+            parameter = node.declare_parameter(spec.name, default, descriptor(spec))
         except Exception as exc:  # rclpy raises several exception types here
             raise ParameterError(f"parameter '{spec.name}' refused: {exc}") from exc
         value = parameter.value

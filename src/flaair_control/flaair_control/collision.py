@@ -92,11 +92,11 @@ class CollisionParameterError(ValueError):
 class SpectralMetricParams:
     """Paper metric settings (see module docstring)."""
 
-    band_hz: float = 500.0
-    threshold_deg: float = 1.0
-    remove_mean: bool = True
-    reference: str = "energy"          # "energy" (default) or "fundamental"
-    n_wingbeats: int | None = 10       # use the last n whole drive periods (None: all)
+    band_hz: float
+    threshold_deg: float
+    n_wingbeats: int | None            # use the last n whole drive periods (None: all)
+    remove_mean: bool = True           # definition of the metric, not a tuning knob
+    reference: str = "energy"          # "energy" (the paper's) or "fundamental"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.band_hz) and self.band_hz > 0):
@@ -142,7 +142,7 @@ def _amplitude_spectrum(x: np.ndarray) -> np.ndarray:
 
 def spectral_metric(
     angle_rad: np.ndarray, sample_rate_hz: float, drive_frequency_hz: float,
-    params: SpectralMetricParams = SpectralMetricParams(),
+    params: SpectralMetricParams,
 ) -> SpectralMetric:
     """Paper collision metric of one angle record (sensor-derived pitch or stroke, rad).
 
@@ -204,23 +204,23 @@ class MonitorParams:
     """Per-wingbeat collision monitor parameters (see module docstring)."""
 
     sample_rate_hz: float
-    window_source: str = "drive"                # "drive" or "stroke"
-    drive_frequency_hz: float | None = None     # required for "drive"
-    drive_phase_rad: float = 0.0                # window starts where 2 pi f t + phase = 2 pi k
-    stroke_threshold: float = 0.05              # stroke distortion ratio counted as score 1
-    pitch_threshold: float = 0.25               # pitch distortion ratio counted as score 1
-    use_pitch: bool = True
-    on_level: float = 1.0
-    off_level: float = 0.6
-    n_on: int = 1
-    n_off: int = 3
-    arm_wingbeats: int = 10
-    min_amplitude_rad: float = math.radians(2.0)
-    stroke_noise_rms_rad: float = 0.0
-    pitch_noise_rms_rad: float = 0.0
-    crossing_hysteresis_rad: float = math.radians(2.0)
-    min_period_s: float = 1.0 / 400.0           # stroke mode: shortest accepted wingbeat
-    max_period_s: float = 1.0 / 30.0            # stroke mode: longer = IDLE window
+    window_source: str                          # "drive" or "stroke"
+    drive_frequency_hz: float | None            # required for "drive"
+    drive_phase_rad: float                      # window starts where 2 pi f t + phase = 2 pi k
+    stroke_threshold: float                     # stroke distortion ratio counted as score 1
+    pitch_threshold: float                      # pitch distortion ratio counted as score 1
+    use_pitch: bool
+    off_level: float
+    n_on: int
+    n_off: int
+    arm_wingbeats: int
+    min_amplitude_rad: float
+    stroke_noise_rms_rad: float
+    pitch_noise_rms_rad: float
+    crossing_hysteresis_rad: float
+    min_period_s: float                         # stroke mode: shortest accepted wingbeat
+    max_period_s: float                         # stroke mode: longer = IDLE window
+    on_level: float = 1.0                       # scores are normalised: 1 = threshold
 
     def __post_init__(self) -> None:
         fs = self.sample_rate_hz
@@ -450,16 +450,28 @@ def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
     return wins, int(pos), new
 
 
-def step(
-    state: MonitorState, stroke_rad: np.ndarray, pitch_rad: np.ndarray, params: MonitorParams
-) -> tuple[MonitorState, WingbeatReport, list[MonitorEvent]]:
-    """Feed one block of sensor-derived angles (rad, same length; NaN allowed = invalid).
+class MonitorInputs(NamedTuple):
+    """One block of sensor-derived angles (rad, same length; NaN = invalid sample)."""
 
-    Returns the new state, a report of every wingbeat closed by this block and the events
-    (onset/clearance) they caused.
+    stroke_rad: np.ndarray
+    pitch_rad: np.ndarray
+
+
+class MonitorOutputs(NamedTuple):
+    """Every wingbeat closed by one block, and the onsets/clearances they caused."""
+
+    report: WingbeatReport
+    events: list[MonitorEvent]
+
+
+def step(state: MonitorState, inputs: MonitorInputs, params: MonitorParams) -> tuple[MonitorState, MonitorOutputs]:
+    """Feed one block of sensor-derived angles.
+
+    Returns the new state and the report of every wingbeat closed by this block with the
+    events (onset/clearance) they caused.
     """
-    s_in = np.asarray(stroke_rad, dtype=float).ravel()
-    p_in = np.asarray(pitch_rad, dtype=float).ravel()
+    s_in = np.asarray(inputs.stroke_rad, dtype=float).ravel()
+    p_in = np.asarray(inputs.pitch_rad, dtype=float).ravel()
     if s_in.shape != p_in.shape:
         raise CollisionParameterError(
             f"stroke_rad and pitch_rad must have the same length, got {s_in.size} and {p_in.size}"
@@ -481,7 +493,7 @@ def step(
         rows.append(row)
         events.extend(ev)
     st = st._replace(tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(), tail_start_index=base + pos)
-    return st, _report(rows), events
+    return st, MonitorOutputs(_report(rows), events)
 
 
 def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> list[tuple]:
@@ -574,4 +586,5 @@ def run(
     """Whole record: ``step`` applied once from ``state`` (default ``initial_state``)."""
     if state is None:
         state = initial_state(params)
-    return step(state, stroke_rad, pitch_rad, params)
+    state, out = step(state, MonitorInputs(stroke_rad, pitch_rad), params)
+    return state, out.report, out.events

@@ -1,6 +1,6 @@
 r"""Delayed-stretch-activation (dSA) controller core (paper eqs. dsa, dsaconst).
 
-Pure numpy/scipy; explicit state; ``step(state, velocity_block, t_start_s, params)``.
+Pure numpy/scipy; explicit state; ``step(state, DsaInputs(velocity_block, t_start_s), params)``.
 
 Filter
 ------
@@ -58,7 +58,7 @@ instead would fix the onset frequency but not mu*, since the filter gain changes
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -75,10 +75,10 @@ class KrSchedule:
     """Piecewise-linear K_r(t): ``start_value`` until ``start_time_s``, linear to ``end_value``
     over ``duration_s``, then ``end_value``. K_r = 1 fully synchronous, 0 fully asynchronous."""
 
-    start_value: float = 1.0
-    end_value: float = 1.0
-    start_time_s: float = 0.0
-    duration_s: float = 0.0
+    start_value: float
+    end_value: float
+    start_time_s: float
+    duration_s: float
 
     def __post_init__(self) -> None:
         for name in ("start_value", "end_value"):
@@ -108,13 +108,13 @@ class DsaParams:
     mu_nm_s_per_rad: float
     actuator_gain_nm_per_v: float
     sample_rate_hz: float
-    drive_limit_v: float = 100.0
-    sync_amplitude_v: float = 0.0
-    sync_frequency_hz: float = 100.0
-    sync_phase_rad: float = 0.0
-    kr_schedule: KrSchedule = field(default_factory=lambda: KrSchedule(0.0, 0.0))
-    loop_delay_s: float = 0.0
-    compensation_frequency_hz: float | None = None
+    drive_limit_v: float
+    sync_amplitude_v: float
+    sync_frequency_hz: float
+    sync_phase_rad: float
+    kr_schedule: KrSchedule
+    loop_delay_s: float                         # 0: no phase advance
+    compensation_frequency_hz: float | None     # None: at the filter's design frequency
 
     def __post_init__(self) -> None:
         positive = ("r3_rad_s", "kappa", "actuator_gain_nm_per_v", "sample_rate_hz", "drive_limit_v")
@@ -221,31 +221,27 @@ def kr_at(t_s: np.ndarray, params: DsaParams) -> np.ndarray:
     return params.kr_schedule.value(t_s)
 
 
-def step(
-    state: DsaState, stroke_velocity_rad_s: np.ndarray, t_start_s: float, params: DsaParams
-) -> tuple[DsaState, np.ndarray, DsaSignals]:
-    """Advance the controller over one block.
+class DsaInputs(NamedTuple):
+    """One block of estimated stroke velocity (rad/s; non-finite samples count as 0, flagged in
+    ``velocity_valid``) and the time (s) at which the first sample of the *returned drive block*
+    is applied: the sync sine and K_r are evaluated at t_start_s + n / fs. In the block loop
+    this is the start of the next block (velocity block k produces drive block k + 1)."""
 
-    Parameters
-    ----------
-    state
-        Filter state from ``initial_state`` or the previous call.
-    stroke_velocity_rad_s
-        Estimated stroke velocity samples (rad/s), uniformly sampled at ``sample_rate_hz``.
-        Non-finite samples are treated as 0 (flagged in ``velocity_valid``).
-    t_start_s
-        Time (s) at which the first sample of the *returned drive block* is applied; the sync
-        sine and K_r are evaluated at t_start_s + n / fs. In the block loop this is the start
-        of the next block (velocity block k produces drive block k + 1).
-    params
-        Controller parameters.
+    stroke_velocity_rad_s: np.ndarray
+    t_start_s: float
 
-    Returns
-    -------
-    (state, drive_v, signals): new state, drive volts (|drive| <= drive_limit_v) and the
-    internal signals.
-    """
-    v = np.asarray(stroke_velocity_rad_s, dtype=float).ravel()
+
+class DsaOutputs(NamedTuple):
+    """Drive volts (|drive| <= drive_limit_v) and the controller's internal signals."""
+
+    drive_v: np.ndarray
+    signals: DsaSignals
+
+
+def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaState, DsaOutputs]:
+    """Advance the controller over one block."""
+    v = np.asarray(inputs.stroke_velocity_rad_s, dtype=float).ravel()
+    t_start_s = inputs.t_start_s
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
     valid = np.isfinite(v)
@@ -260,11 +256,7 @@ def step(
     async_v = torque / params.actuator_gain_nm_per_v
     unclipped = kr * sync + (1.0 - kr) * async_v
     drive = np.clip(np.nan_to_num(unclipped, nan=0.0), -params.drive_limit_v, params.drive_limit_v)
-    return (
-        DsaState(zi_adv, zi_raw),
-        drive,
-        DsaSignals(torque_raw, torque, async_v, sync, kr, unclipped, valid),
-    )
+    return DsaState(zi_adv, zi_raw), DsaOutputs(drive, DsaSignals(torque_raw, torque, async_v, sync, kr, unclipped, valid))
 
 
 def frequency_response(params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True) -> np.ndarray:

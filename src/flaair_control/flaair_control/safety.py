@@ -12,7 +12,7 @@ Every drive block passes through ``step`` before it reaches the amplifier:
 
 Watchdog (``ok`` -> ``tripped``, latched until ``reset``): it trips when a sensor block is
 reported invalid (at that block's time) or when no valid sensor block has arrived for more than
-``watchdog_timeout_s`` (at last_valid_time + timeout, resolved to the sample). The clock starts
+``invalid_timeout_s`` (at last_valid_time + timeout, resolved to the sample). The clock starts
 at ``initial_state(t_s)``: the first sensor block is due within the timeout of that time.
 """
 from __future__ import annotations
@@ -41,17 +41,20 @@ class SafetyParams:
     """Actuator safe range and watchdog timing (SI; units in names)."""
 
     drive_limit_v: float
-    slew_limit_v_per_s: float = math.inf
-    watchdog_timeout_s: float = 0.01
-    ramp_down_s: float = 0.05
+    slew_limit_v_per_s: float          # inf: no slew limit
+    invalid_timeout_s: float           # signal time without a valid sensor block before the trip
+    ramp_down_s: float
+    sample_rate_hz: float
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.drive_limit_v) and self.drive_limit_v >= 0):
             raise SafetyParameterError(f"drive_limit_v must be finite and >= 0, got {self.drive_limit_v}")
         if not (self.slew_limit_v_per_s > 0):  # inf allowed: no slew limit
             raise SafetyParameterError(f"slew_limit_v_per_s must be > 0, got {self.slew_limit_v_per_s}")
-        if not (math.isfinite(self.watchdog_timeout_s) and self.watchdog_timeout_s > 0):
-            raise SafetyParameterError(f"watchdog_timeout_s must be finite and > 0, got {self.watchdog_timeout_s}")
+        if not (math.isfinite(self.invalid_timeout_s) and self.invalid_timeout_s > 0):
+            raise SafetyParameterError(f"invalid_timeout_s must be finite and > 0, got {self.invalid_timeout_s}")
+        if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
+            raise SafetyParameterError(f"sample_rate_hz must be finite and > 0, got {self.sample_rate_hz}")
         if not (math.isfinite(self.ramp_down_s) and self.ramp_down_s >= 0):
             raise SafetyParameterError(f"ramp_down_s must be finite and >= 0, got {self.ramp_down_s}")
 
@@ -113,7 +116,7 @@ def note_sensor_block(state: SafetyState, t_s: float, valid: bool, params: Safet
 
 def check_timeout(state: SafetyState, t_s: float, params: SafetyParams) -> SafetyState:
     """Trip (at the deadline) if no valid block arrived within the timeout before ``t_s``."""
-    deadline = state.last_valid_time_s + params.watchdog_timeout_s
+    deadline = state.last_valid_time_s + params.invalid_timeout_s
     if state.status == OK and t_s > deadline:
         return _trip(state, deadline, REASON_TIMEOUT)
     return state
@@ -147,24 +150,25 @@ def _slew(x: np.ndarray, y0: float, max_step: float, limit: float) -> np.ndarray
     return y
 
 
-def step(
-    state: SafetyState,
-    drive_v: np.ndarray,
-    t_start_s: float,
-    sample_rate_hz: float,
-    params: SafetyParams,
-    sensor_block_valid: bool | None = None,
-) -> tuple[SafetyState, SafetyOutput]:
-    """Guard one drive block whose first sample is applied at ``t_start_s``.
+class SafetyInputs(NamedTuple):
+    """One drive block and when its first sample is applied.
 
-    ``sensor_block_valid``: None when no sensor block arrived since the previous call, else the
+    sensor_block_valid: None when no sensor block arrived since the previous call, else the
     validity of the one that arrived (taken to arrive at ``t_start_s``). For sensor callbacks
     that run separately from the drive timer use ``note_sensor_block`` and pass None here.
     """
+
+    drive_v: np.ndarray
+    t_start_s: float
+    sensor_block_valid: bool | None = None
+
+
+def step(state: SafetyState, inputs: SafetyInputs, params: SafetyParams) -> tuple[SafetyState, SafetyOutput]:
+    """Guard one drive block (see the module docstring for the stages)."""
+    drive_v, t_start_s, sensor_block_valid = inputs
+    sample_rate_hz = params.sample_rate_hz
     if not (math.isfinite(t_start_s)):
         raise SafetyParameterError(f"t_start_s must be finite, got {t_start_s}")
-    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
-        raise SafetyParameterError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
     if sensor_block_valid is not None:
         state = note_sensor_block(state, t_start_s, bool(sensor_block_valid), params)
     x = np.asarray(drive_v, dtype=float).ravel()

@@ -151,56 +151,92 @@ def window_stats(time_s: np.ndarray, values: np.ndarray, t0_s: float, t1_s: floa
 # --------------------------------------------------------------------------- crossing frequency
 
 
+class CrossingParams(NamedTuple):
+    """Upward Schmitt-trigger crossings about 0 (+-hysteresis, in the signal's unit)."""
+
+    sample_rate_hz: float
+    hysteresis: float
+    average: int                       # crossings averaged (periods)
+    max_period_s: float                # no crossing for this long: frequency 0
+
+
+class CrossingState(NamedTuple):
+    """Crossing estimator state."""
+
+    index: int                         # absolute index of the next sample
+    high: bool
+    prev: float | None                 # previous finite sample (None after a NaN)
+    crossings: tuple[float, ...]       # fractional sample indices, the last average + 1
+
+
+def crossing_params(sample_rate_hz: float, hysteresis: float, average: int = 4,
+                    max_period_s: float = 0.05) -> CrossingParams:
+    """Checked `CrossingParams`."""
+    if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+    if not (math.isfinite(hysteresis) and hysteresis >= 0):
+        raise TransitionError(f"hysteresis must be finite and >= 0, got {hysteresis}")
+    if average < 1:
+        raise TransitionError(f"average must be >= 1, got {average}")
+    return CrossingParams(float(sample_rate_hz), float(hysteresis), int(average), float(max_period_s))
+
+
+CROSSING_START = CrossingState(0, False, None, ())
+
+
+def crossing_step(state: CrossingState, x: Iterable[float], params: CrossingParams) -> tuple[CrossingState, float]:
+    """Feed samples (one block); return the new state and the frequency estimate (Hz)."""
+    h = params.hysteresis
+    high, prev, i = state.high, state.prev, state.index
+    crossings = list(state.crossings)
+    keep = params.average + 1
+    for v in (x.tolist() if isinstance(x, np.ndarray) else x):
+        if v != v or v in (math.inf, -math.inf):
+            prev = None
+        else:
+            if high:
+                if v < -h:
+                    high = False
+            elif v > h:
+                high = True
+                if prev is not None and prev <= h:
+                    crossings.append(i - 1 + (h - prev) / (v - prev))
+                    if len(crossings) > keep:
+                        del crossings[0]
+            prev = v
+        i += 1
+    state = CrossingState(i, high, prev, tuple(crossings))
+    return state, crossing_frequency_hz(state, params)
+
+
+def crossing_frequency_hz(state: CrossingState, params: CrossingParams) -> float:
+    """The estimate: periods over the crossings kept (0 once the stroke stops crossing)."""
+    c = state.crossings
+    if len(c) < 2 or state.index - c[-1] > params.max_period_s * params.sample_rate_hz:
+        return 0.0
+    return (len(c) - 1) * params.sample_rate_hz / (c[-1] - c[0])
+
+
 class CrossingFrequency:
-    """Streaming stroke frequency from upward Schmitt-trigger crossings (see module docstring)."""
+    """Streaming stroke frequency from upward Schmitt-trigger crossings (`crossing_step` with its state)."""
 
     def __init__(self, sample_rate_hz: float, hysteresis: float, average: int = 4, max_period_s: float = 0.05) -> None:
-        if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
-            raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
-        if not (math.isfinite(hysteresis) and hysteresis >= 0):
-            raise TransitionError(f"hysteresis must be finite and >= 0, got {hysteresis}")
-        if average < 1:
-            raise TransitionError(f"average must be >= 1, got {average}")
-        self.fs = float(sample_rate_hz)
-        self.h = float(hysteresis)
-        self.average = int(average)
-        self.max_period_samples = max_period_s * self.fs
-        self.index = 0                   # absolute index of the next sample
-        self.high = False
-        self.prev: float | None = None   # previous finite sample (None after a NaN)
-        self.crossings: list[float] = []  # fractional sample indices, last average + 1
+        self.params = crossing_params(sample_rate_hz, hysteresis, average, max_period_s)
+        self.fs = self.params.sample_rate_hz
+        self.state = CROSSING_START
 
     def update(self, x: Iterable[float]) -> float:
         """Feed samples (one block); return the current frequency estimate (Hz)."""
-        h = self.h
-        high = self.high
-        prev = self.prev
-        i = self.index
-        crossings = self.crossings
-        for v in (x.tolist() if isinstance(x, np.ndarray) else x):
-            if v != v or v in (math.inf, -math.inf):
-                prev = None
-            else:
-                if high:
-                    if v < -h:
-                        high = False
-                elif v > h:
-                    high = True
-                    if prev is not None and prev <= h:
-                        crossings.append(i - 1 + (h - prev) / (v - prev))
-                        if len(crossings) > self.average + 1:
-                            del crossings[0]
-                prev = v
-            i += 1
-        self.high, self.prev, self.index = high, prev, i
-        return self.frequency_hz
+        self.state, frequency = crossing_step(self.state, x, self.params)
+        return frequency
+
+    @property
+    def crossings(self) -> list[float]:
+        return list(self.state.crossings)
 
     @property
     def frequency_hz(self) -> float:
-        c = self.crossings
-        if len(c) < 2 or self.index - c[-1] > self.max_period_samples:
-            return 0.0
-        return (len(c) - 1) * self.fs / (c[-1] - c[0])
+        return crossing_frequency_hz(self.state, self.params)
 
 
 def crossing_times(angle: np.ndarray, sample_rate_hz: float, hysteresis: float) -> np.ndarray:

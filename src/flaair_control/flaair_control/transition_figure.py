@@ -149,12 +149,12 @@ def predicted_limit_cycle(controller: dict, sample_rate_hz: float = 20000.0, blo
     from flaair_control import dsa, hopf
     from flaair_model.model_io import load_model
 
-    from flaair_control.dsa_controller_node import velocity_delay_from_frontend
+    from flaair_sensors.frontend_io import velocity_delay_s
 
     model = load_model(controller.get("model_file") or None)
     lin = hopf.LinearStrokePlant(model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad)
     fc = controller["compensation_frequency_hz"]
-    vdel = controller["velocity_delay_s"] if controller["velocity_delay_s"] >= 0 else velocity_delay_from_frontend(sample_rate_hz, fc)
+    vdel = controller["velocity_delay_s"] if controller["velocity_delay_s"] >= 0 else velocity_delay_s(fc)
     delay = dsa.loop_delay_s(block_size * controller["blocks_in_flight"], sample_rate_hz, vdel * sample_rate_hz)
     lc = hopf.limit_cycle(lin, model.plant.aero_damping_nm_s2, controller["r3_rad_s"], controller["kappa"],
                           controller["mu_nm_s_per_rad"], delay, delay if controller["compensate_delay"] else 0.0,

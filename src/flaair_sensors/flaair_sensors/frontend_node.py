@@ -22,50 +22,14 @@ from rclpy.node import Node
 
 from flaair_common import cdr, topics
 from flaair_common.blocks import check_block
-from flaair_model.config import ConfigError, load_yaml
-from flaair_common.params import ParameterError, ParamSpec, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node, warn_counted
 from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
 from flaair_sensors import frontend
-from flaair_model.model import ModelError
-from flaair_model.model_io import load_model
+from flaair_sensors.frontend_io import CONFIG_FILE, FRONTEND_PARAMS, NODE_NAME, frontend_params_from_config
 
-NODE_NAME = "frontend_node"
-CONFIG_FILE = "flaair.yaml"
-PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of the sensor blocks [Hz]", 1000.0, 1.0e6, read_only=True),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec("gains_from", str, "Where the sensor gains come from", choices=("model", "calibration"), read_only=True),
-    ParamSpec("model_file", str, "Model YAML (empty: config/model.yaml)", read_only=True),
-    ParamSpec("calibration_file", str, "calibration.yaml from `bin/flaair calibrate`", read_only=True),
-    ParamSpec("drift_corner_hz", float, "Drift-tracking corner (0: off) [Hz]", 0.0, 20.0, read_only=True),
-    ParamSpec("compensate_lag", bool, "Phase-lead compensation of the calibrated lag", read_only=True),
-    ParamSpec("lead_rolloff_hz", float, "Lead compensator roll-off [Hz]", 1.0, 9000.0, read_only=True),
-    ParamSpec("rail_low_v", float, "Charge-amplifier low rail [V]", -100.0, 100.0, read_only=True),
-    ParamSpec("rail_high_v", float, "Charge-amplifier high rail [V]", -100.0, 100.0, read_only=True),
-    ParamSpec("rail_margin_v", float, "Distance from a rail that counts as saturated [V]", 0.0, 10.0, read_only=True),
-    ParamSpec("holdoff_s", float, "Time invalid after an unusable sample [s]", 0.0, 1.0, read_only=True),
-    ParamSpec("velocity_cutoff_hz", float, "Stroke-velocity differentiator cutoff [Hz]", 10.0, 9000.0, read_only=True),
-]
-_TUNING = ("drift_corner_hz", "compensate_lag", "lead_rolloff_hz", "rail_low_v", "rail_high_v",
-           "rail_margin_v", "holdoff_s", "velocity_cutoff_hz")
-
-
-def frontend_params(values: dict, fs_hz: float) -> frontend.FrontendParams:
-    """FrontendParams from the node's parameter values (model or calibration gains)."""
-    tuning = {name: values[name] for name in _TUNING}
-    try:
-        if values["gains_from"] == "calibration":
-            if not values["calibration_file"]:
-                raise ParameterError("parameter 'calibration_file' is empty but gains_from is 'calibration'")
-            calibration = load_yaml(values["calibration_file"])
-            return frontend.params_from_calibration(calibration, fs_hz, **tuning)
-        return frontend.params_from_model(load_model(values["model_file"] or None), fs_hz, **tuning)
-    except (ConfigError, ModelError, OSError) as exc:
-        raise ParameterError(f"parameter '{'calibration_file' if values['gains_from'] == 'calibration' else 'model_file'}': {exc}") from exc
-    except frontend.FrontendError as exc:
-        raise ParameterError(str(exc)) from exc
+PARAMS = FRONTEND_PARAMS
 
 
 class FrontendNode(Node):
@@ -75,7 +39,7 @@ class FrontendNode(Node):
         super().__init__(NODE_NAME)
         values = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.fs_hz = values["sample_rate_hz"]
-        self.params = frontend_params(values, self.fs_hz)
+        self.params = frontend_params_from_config(values, self.fs_hz)
         self.state = frontend.initial_state(self.params)
         self.expected_index: int | None = None
         self.rejected_blocks = 0
@@ -140,3 +104,5 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
+
+frontend_params = frontend_params_from_config  # transitional alias, removed at integration

@@ -599,6 +599,8 @@ def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_
     chunks: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
     lengths, firsts, stamps, gaps = [], [], [], []
     expected: int | None = None
+    kept: list[Any] = []
+    previous: tuple[int, dict[str, np.ndarray]] | None = None
     for number, message in enumerate(messages):
         if float(message.sample_rate_hz) != rate_hz:
             raise BagError(f"{where}: block {number}: sample_rate_hz {message.sample_rate_hz} differs from {rate_hz}")
@@ -607,6 +609,10 @@ def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_
         if len(set(sizes.values())) != 1:
             raise BagError(f"{where}: block {number}: array lengths differ: {sizes}")
         first = int(message.first_sample_index)
+        if previous is not None and first == previous[0] and all(
+                np.array_equal(values[name], previous[1][name]) for name in arrays):
+            continue   # a retransmission (a controller's start-up retry): the same block again
+        previous = (first, values)
         if expected is not None and first != expected:
             if not allow_gaps:
                 kind = f"{first - expected} samples missing" if first > expected else f"{expected - first} samples repeated"
@@ -617,6 +623,7 @@ def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_
         expected = first + length
         for name in arrays:
             chunks[name].append(values[name])
+        kept.append(message)
         lengths.append(length)
         firsts.append(first)
         stamps.append(message.header.stamp.sec * _NS_PER_S + message.header.stamp.nanosec)
@@ -630,7 +637,7 @@ def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_
         topic=topic, msgtype=msgtype, sample_rate_hz=rate_hz, first_sample_index=firsts[0],
         fields={name: np.concatenate(parts) for name, parts in chunks.items()},
         sample_index=sample_index, time_ns=time_ns, block_stamps_ns=stamps_arr, block_first_index=firsts_arr,
-        scalars={name: np.asarray([getattr(m, name) for m in messages]) for name in scalars},
+        scalars={name: np.asarray([getattr(m, name) for m in kept]) for name in scalars},
         gaps=tuple(gaps),
     )
 

@@ -1,0 +1,454 @@
+"""Loop supervisor: the dSA controller's start / loop / trip / keepalive state machine, pure.
+
+``step(state, inputs, params) -> (state, outputs)`` takes one event of the controller node:
+a wing-state block, a wall-clock tick, a collision event, a K_r ramp request, a watchdog reset
+or the close at shutdown, and returns the drive blocks to publish (each with its
+ControllerState fields) and the log lines. The node maps messages to these inputs and the
+outputs back to messages; offline, a recorded bag replays through the same function.
+
+Modes: WAITING (not started: peers and start delay), LOOP (one command block per wing-state
+block; velocity block k drives block k + blocks_in_flight), TRIPPED (the wall-clock tick paces
+the ramp-down and zero_hold_s of zeros at the real-time rate, then one zero block per
+keepalive_period_s), DONE (run_time_s reached: a zero block, then idle).
+
+Watchdogs (latched until `ResetWatchdog`):
+  * no wing-state block for watchdog_timeout_s of *wall-clock* time (in lockstep, signal time
+    stops with the loop, so only the wall clock can see a dead loop);
+  * no fully valid block for invalid_timeout_s of *signal* time (`flaair_control.safety`);
+  * a collision onset with collision_response stop.
+Every block passes the safety core (non-finite -> 0, slew limit, clamp to +-drive_limit_v).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import NamedTuple, Union
+
+import numpy as np
+
+from flaair_common.stream import check_block
+from flaair_control import dsa, safety
+from flaair_control.transition import (CROSSING_START, CrossingParams, CrossingState, crossing_frequency_hz,
+                                       crossing_step)
+
+WAITING = "waiting"
+LOOP = "loop"
+TRIPPED = "tripped"
+DONE = "done"
+
+INFO, WARNING, ERROR = "info", "warning", "error"
+
+
+@dataclass(frozen=True)
+class SupervisorParams:
+    """Loop supervision settings (config/flaair.yaml `dsa_controller_node`; units in names)."""
+
+    sample_rate_hz: float
+    block_size: int
+    blocks_in_flight: int
+    drive_limit_v: float
+    watchdog_timeout_s: float          # wall clock without any wing-state block
+    ramp_down_s: float
+    zero_hold_s: float
+    keepalive_period_s: float
+    wait_for_peers: bool
+    min_drive_subscribers: int
+    start_delay_s: float
+    start_retry_s: float
+    run_time_s: float                  # 0: never
+    collision_response: str            # none | stop | reduce_amplitude
+    collision_reduction_factor: float
+    collision_restore_on_clearance: bool
+    timer_period_s: float
+    dsa: dsa.DsaParams
+    safety: safety.SafetyParams
+    frequency: CrossingParams          # stroke-frequency estimate for ControllerState (deg)
+
+
+class Counts(NamedTuple):
+    """Wing-state blocks seen, by outcome."""
+
+    blocks: int = 0
+    invalid: int = 0
+    rejected: int = 0
+    stale: int = 0
+    gaps: int = 0
+    kicks: int = 0
+
+
+@dataclass(frozen=True)
+class SupervisorState:
+    """Everything the controller remembers between events."""
+
+    mode: str
+    fault: str
+    amplitude_scale: float
+    next_index: int                    # first sample index of the next drive block
+    expected_index: int | None         # first sample index of the next wing-state block
+    dsa_params: dsa.DsaParams          # current (a K_r ramp request replaces the schedule)
+    ctrl: dsa.DsaState
+    safety: safety.SafetyState
+    frequency: CrossingState
+    counts: Counts
+    peers_seen_wall: float | None
+    last_arrival_wall: float
+    first_arrival_wall: float | None
+    first_arrival_index: int
+    last_sent_wall: float
+    trip_pace_wall: float
+    trip_pace_index: int
+    start_blocks: tuple["DriveOut", ...]   # the loop's first blocks, retransmitted until answered
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+class WingBlock(NamedTuple):
+    """A /flaair/wing_state block as it arrived (fields as in the message)."""
+
+    t_wall: float
+    first_sample_index: int
+    sample_rate_hz: float
+    stroke_velocity_deg_s: np.ndarray
+    stroke_deg: np.ndarray
+    stroke_valid: np.ndarray
+    drive_subscribers: int
+
+
+class Tick(NamedTuple):
+    """The wall-clock timer, with the graph's peers as the node sees them."""
+
+    t_wall: float
+    drive_subscribers: int
+    sensor_publishers: int
+    wing_state_publishers: int
+
+
+class Collision(NamedTuple):
+    """A /flaair/collision/events message, and when it arrived."""
+
+    t_wall: float
+    onset: bool
+    wingbeat_index: int
+    spectrum_rmse_deg: float
+
+
+class SetRamp(NamedTuple):
+    """A new K_r ramp from the current K_r to kr_target over kr_ramp_duration_s."""
+
+    kr_target: float
+    kr_ramp_duration_s: float
+
+
+class ResetWatchdog(NamedTuple):
+    """Re-arm a tripped watchdog (restarts the loop)."""
+
+    t_wall: float
+
+
+class Close(NamedTuple):
+    """Shutdown: one zero block so the actuator does not hold the last command."""
+
+
+Input = Union[WingBlock, Tick, Collision, SetRamp, ResetWatchdog, Close]
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+class DriveOut(NamedTuple):
+    """One drive block and the ControllerState that goes with it."""
+
+    first_sample_index: int
+    drive_v: np.ndarray
+    k_r: float
+    async_drive_v: float
+    sync_drive_v: float
+    drive_clamped: bool
+    tripped: bool
+    fault: str
+    amplitude_scale: float
+    stroke_frequency_hz: float
+    answers_wing_block: bool           # True: the reply to a wing-state block (loop timing)
+    with_state: bool                   # False: a bare zero block (run end, shutdown), no ControllerState
+
+
+class Note(NamedTuple):
+    """A log line; `counter` names the count it reports (rate-limited by the node)."""
+
+    level: str
+    text: str
+    counter: str = ""
+
+
+class Outputs(NamedTuple):
+    """What one event produced."""
+
+    blocks: tuple[DriveOut, ...] = ()
+    notes: tuple[Note, ...] = ()
+    refused: str = ""                  # SetRamp refused: why
+
+
+def initial_state(params: SupervisorParams) -> SupervisorState:
+    """Not started; nothing seen."""
+    return SupervisorState(WAITING, "", 1.0, 0, None, params.dsa, dsa.initial_state(params.dsa),
+                           safety.initial_state(0.0), CROSSING_START, Counts(), None, 0.0, None, 0, 0.0, 0.0, 0, ())
+
+
+def step(state: SupervisorState, inputs: Input, params: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    """Advance the supervisor by one event (see the module docstring)."""
+    handler = _HANDLERS[type(inputs)]
+    return handler(state, inputs, params)
+
+
+# --------------------------------------------------------------------------- handlers
+
+
+def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_wall: float,
+          p: SupervisorParams) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
+    """Run the dSA and safety cores on one velocity block: the next drive block."""
+    t_start = state.next_index / p.sample_rate_hz
+    ctrl, out = dsa.step(state.ctrl, dsa.DsaInputs(velocity_rad_s, t_start), state.dsa_params)
+    drive_v = out.drive_v if state.amplitude_scale == 1.0 else out.drive_v * state.amplitude_scale
+    guard, guarded = safety.step(state.safety, safety.SafetyInputs(drive_v, t_start), p.safety)
+    sig = out.signals
+    state = replace(state, ctrl=ctrl, safety=guard, last_sent_wall=t_wall)
+    state, notes = _check_core_trip(state, t_wall, p)
+    block = DriveOut(state.next_index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]), float(sig.sync_v[-1]),
+                     bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v),
+                     bool(guarded.tripped), state.fault, state.amplitude_scale, _frequency_hz(state, p), answers, True)
+    state = replace(state, next_index=state.next_index + p.block_size)
+    blocks = [block]
+    end_index = int(round(p.run_time_s * p.sample_rate_hz))
+    if end_index and state.next_index >= end_index and state.mode != DONE:
+        state = replace(state, mode=DONE)
+        state, zero = _zero_block(state, p)
+        blocks.append(zero)
+        notes.append(Note(INFO, summary(state, p, "run complete")))
+    return state, blocks, notes
+
+
+def _frequency_hz(state: SupervisorState, p: SupervisorParams) -> float:
+    return crossing_frequency_hz(state.frequency, p.frequency)
+
+
+def _zero_block(state: SupervisorState, p: SupervisorParams) -> tuple[SupervisorState, DriveOut]:
+    block = DriveOut(state.next_index, np.zeros(p.block_size), math.nan, math.nan, math.nan, False,
+                     state.mode == TRIPPED, state.fault, state.amplitude_scale, _frequency_hz(state, p), False, False)
+    return replace(state, next_index=state.next_index + p.block_size), block
+
+
+def _check_core_trip(state: SupervisorState, t_wall: float, p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
+    """The safety core tripped by itself (signal-time timeout without a valid block)."""
+    if state.safety.status == safety.TRIPPED and state.mode == LOOP:
+        fault = (f"no valid wing-state block after t = {state.safety.last_valid_time_s:.4f} s for more than "
+                 f"invalid_timeout_s = {p.safety.invalid_timeout_s:g} s of signal time")
+        return _enter_tripped(replace(state, fault=fault), t_wall, p)
+    return state, []
+
+
+def _enter_tripped(state: SupervisorState, t_wall: float, p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
+    state = replace(state, mode=TRIPPED, trip_pace_wall=t_wall, trip_pace_index=state.next_index)
+    return state, [Note(ERROR, f"WATCHDOG TRIPPED at t = {state.safety.trip_time_s:.4f} s: {state.fault}; "
+                               f"ramping the drive to zero over {p.ramp_down_s:g} s")]
+
+
+def _trip(state: SupervisorState, fault: str, t_wall: float, p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
+    """Trip now (at the next unpublished sample) with a fault text."""
+    if state.mode in (TRIPPED, DONE):
+        return state, []
+    t_now = state.next_index / p.sample_rate_hz
+    # The safety core trips an invalid block at its time: the ramp starts at the next sample.
+    guard = safety.note_sensor_block(state.safety, t_now, False, p.safety)
+    return _enter_tripped(replace(state, safety=guard, fault=fault), t_wall, p)
+
+
+def _count(state: SupervisorState, name: str) -> SupervisorState:
+    counts = state.counts
+    return replace(state, counts=counts._replace(**{name: getattr(counts, name) + 1}))
+
+
+def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    if state.mode == DONE:
+        return state, Outputs()
+    notes: list[Note] = []
+    first = int(block.first_sample_index)
+    if state.mode == WAITING:
+        # Blocks already flow (a realtime plant, or a publisher faster than our start check):
+        # join the loop by answering them, no extra start blocks - once someone listens.
+        if block.drive_subscribers == 0:
+            return state, Outputs()
+        state = replace(state, mode=LOOP)
+        notes.append(Note(INFO, f"wing-state block {first} before the start: joining the loop"))
+    state = replace(state, last_arrival_wall=block.t_wall)
+    if state.first_arrival_wall is None:
+        state = replace(state, first_arrival_wall=block.t_wall, first_arrival_index=first,
+                        safety=safety.initial_state(first / p.sample_rate_hz))
+        notes.append(Note(INFO, f"loop closed: first wing-state block {first}"))
+    n = p.block_size
+    field = np.asarray(block.stroke_velocity_deg_s, dtype=float)
+    kind = "ok"
+    # Fast path (every block in a healthy loop): in order, right length and rate.
+    if not (first == state.expected_index and field.size == n and block.sample_rate_hz == p.sample_rate_hz):
+        check = check_block({"stroke_velocity_deg_s": np.zeros(field.size)}, block.sample_rate_hz, p.sample_rate_hz,
+                            first, state.expected_index, n)
+        kind = check.kind
+        if kind == "stale":
+            state = _count(state, "stale")
+            notes.append(Note(WARNING, f"wing-state block {first} ignored: {check.reason}", "stale"))
+            return state, Outputs((), tuple(notes))
+        if kind == "gap":
+            state = _count(state, "gaps")
+            notes.append(Note(WARNING, f"wing-state block {first}: {check.reason}", "gaps"))
+        elif kind == "content":
+            state = _count(state, "rejected")
+            notes.append(Note(WARNING, f"wing-state block {first} rejected: {check.reason}; its samples drive the "
+                                       "filter as 0", "rejected"))
+    state = _count(replace(state, expected_index=first + n), "blocks")
+    if kind == "content":
+        velocity_rad_s, valid = np.full(n, np.nan), False
+    else:
+        velocity_rad_s = np.radians(field)
+        flags = np.asarray(block.stroke_valid, dtype=bool)
+        valid = flags.size == n and bool(flags.all()) and bool(np.isfinite(velocity_rad_s).all())
+        if not valid:
+            state = _count(state, "invalid")
+            notes.append(Note(WARNING, f"wing-state block {first} invalid (stroke_valid false or non-finite velocity); "
+                                       "its invalid samples drive the filter as 0", "invalid"))
+            if flags.size == n:
+                velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
+        stroke_deg = np.asarray(block.stroke_deg, dtype=float)
+        frequency, _ = crossing_step(state.frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan),
+                                     p.frequency)
+        state = replace(state, frequency=frequency)
+    if valid:
+        state = replace(state, safety=safety.note_sensor_block(state.safety, (first + n) / p.sample_rate_hz, True,
+                                                               p.safety))
+        state, more = _check_core_trip(state, block.t_wall, p)
+        notes.extend(more)
+    if state.mode != LOOP:
+        return state, Outputs((), tuple(notes))
+    state, blocks, more = _send(state, velocity_rad_s, True, block.t_wall, p)
+    return state, Outputs(tuple(blocks), tuple(notes + more))
+
+
+def _on_tick(state: SupervisorState, tick: Tick, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    now = tick.t_wall
+    nan_block = np.full(p.block_size, np.nan)
+    blocks: list[DriveOut] = []
+    notes: list[Note] = []
+    if state.mode == WAITING:
+        # A /flaair/drive subscriber alone may be a monitor or a recorder: also wait for the
+        # sensor stream's source (the plant, or the DAQ) and the wing-state source (front end).
+        if p.wait_for_peers and (tick.drive_subscribers < p.min_drive_subscribers or tick.sensor_publishers == 0
+                                 or tick.wing_state_publishers == 0):
+            return state, Outputs()
+        if state.peers_seen_wall is None:
+            state = replace(state, peers_seen_wall=now)
+        if now - state.peers_seen_wall < p.start_delay_s:
+            return state, Outputs()
+        state = replace(state, mode=LOOP)
+        notes.append(Note(INFO, f"starting the loop: {p.blocks_in_flight} block(s) in flight"))
+        for _ in range(p.blocks_in_flight):
+            state, sent, more = _send(state, nan_block, False, now, p)
+            blocks += sent
+            notes += more
+        state = replace(state, start_blocks=tuple(blocks))
+    elif state.mode == LOOP:
+        if state.first_arrival_wall is None:
+            if now - state.last_sent_wall > p.start_retry_s:
+                # A retransmission of the same blocks, not new ones: when the first answer is only
+                # late, new blocks would stay in the loop as extra delay (the plant ignores duplicates).
+                state = replace(_count(state, "kicks"), last_sent_wall=now)
+                notes.append(Note(WARNING, f"no wing-state block {p.start_retry_s:g} s after starting; sending the "
+                                           f"first block(s) again ({state.counts.kicks}) - is the front end running?"))
+                blocks += [b._replace(with_state=False) for b in state.start_blocks]
+        elif now - state.last_arrival_wall > p.watchdog_timeout_s:
+            last = (state.expected_index or p.block_size) - p.block_size
+            state, more = _trip(state, f"no wing-state block for {1e3 * (now - state.last_arrival_wall):.0f} ms of "
+                                       f"wall-clock time (> watchdog_timeout_s {p.watchdog_timeout_s:g} s) after block "
+                                       f"{last}", now, p)
+            notes += more
+    elif state.mode == TRIPPED:
+        t_quiet = state.safety.trip_time_s + p.ramp_down_s + p.zero_hold_s
+        if state.next_index / p.sample_rate_hz < t_quiet:
+            due = state.trip_pace_index + int((now - state.trip_pace_wall) * p.sample_rate_hz)
+            budget = max(1, int(4 * p.timer_period_s * p.sample_rate_hz / p.block_size))
+            while state.next_index + p.block_size <= due and budget > 0:
+                state, sent, more = _send(state, nan_block, False, now, p)
+                blocks += sent
+                notes += more
+                budget -= 1
+        elif now - state.last_sent_wall >= p.keepalive_period_s:
+            state, sent, more = _send(state, nan_block, False, now, p)
+            blocks += sent
+            notes += more
+    return state, Outputs(tuple(blocks), tuple(notes))
+
+
+def _on_collision(state: SupervisorState, event: Collision, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    response = p.collision_response
+    notes: list[Note] = []
+    if event.onset:
+        text = f"collision onset at wingbeat {event.wingbeat_index} (spectrum RMSE {event.spectrum_rmse_deg:.2f} deg)"
+        if response == "stop":
+            state, notes = _trip(state, f"{text}: stop", event.t_wall, p)
+        elif response == "reduce_amplitude":
+            state = replace(state, amplitude_scale=p.collision_reduction_factor)
+            notes.append(Note(WARNING, f"{text}: drive scaled by {p.collision_reduction_factor:g}"))
+        else:
+            notes.append(Note(WARNING, f"{text}: no response configured"))
+    elif response == "reduce_amplitude" and p.collision_restore_on_clearance and state.amplitude_scale != 1.0:
+        state = replace(state, amplitude_scale=1.0)
+        notes.append(Note(INFO, f"collision cleared at wingbeat {event.wingbeat_index}: full drive again"))
+    else:
+        notes.append(Note(INFO, f"collision cleared at wingbeat {event.wingbeat_index}"))
+    return state, Outputs((), tuple(notes))
+
+
+def _on_set_ramp(state: SupervisorState, request: SetRamp, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    t_now = state.next_index / p.sample_rate_hz
+    current = float(state.dsa_params.kr_schedule.value(np.array([t_now]))[0])
+    try:
+        schedule = dsa.KrSchedule(current, float(request.kr_target), t_now, float(request.kr_ramp_duration_s))
+        params = replace(state.dsa_params, kr_schedule=schedule)
+    except dsa.DsaParameterError as exc:
+        return state, Outputs(refused=str(exc))
+    return replace(state, dsa_params=params), Outputs((), (Note(
+        INFO, f"K_r ramp {current:.3f} -> {request.kr_target:g} over {request.kr_ramp_duration_s:g} s "
+              f"from t = {t_now:.4f} s"),))
+
+
+def _on_reset(state: SupervisorState, request: ResetWatchdog, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    if state.mode != TRIPPED:
+        return state, Outputs((), (Note(INFO, "reset_watchdog: watchdog not tripped, nothing to do"),))
+    t_now = state.next_index / p.sample_rate_hz
+    state = replace(state, safety=safety.reset(state.safety, t_now), fault="", mode=LOOP,
+                    last_arrival_wall=request.t_wall)
+    notes = [Note(WARNING, "watchdog reset by request; restarting the loop")]
+    blocks: list[DriveOut] = []
+    for _ in range(p.blocks_in_flight):
+        state, sent, more = _send(state, np.full(p.block_size, np.nan), False, request.t_wall, p)
+        blocks += sent
+        notes += more
+    return state, Outputs(tuple(blocks), tuple(notes))
+
+
+def _on_close(state: SupervisorState, request: Close, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+    state, zero = _zero_block(state, p)
+    return state, Outputs((zero,), (Note(INFO, summary(state, p, "shutting down, zero drive sent")),))
+
+
+_HANDLERS = {WingBlock: _on_wing, Tick: _on_tick, Collision: _on_collision, SetRamp: _on_set_ramp,
+             ResetWatchdog: _on_reset, Close: _on_close}
+
+
+def summary(state: SupervisorState, p: SupervisorParams, what: str) -> str:
+    """One line: blocks by outcome, signal vs wall time, watchdog."""
+    wall = (state.last_arrival_wall - state.first_arrival_wall) if state.first_arrival_wall else 0.0
+    sim = (state.expected_index - state.first_arrival_index) / p.sample_rate_hz if state.expected_index else 0.0
+    rtf = f"{sim / wall:.3f}" if wall > 0 else "n/a"
+    c = state.counts
+    return (f"{what}: {c.blocks} wing-state blocks ({c.invalid} invalid, {c.rejected} rejected, {c.stale} stale, "
+            f"{c.gaps} gaps), {sim:.4f} s signal in {wall:.3f} s wall (RTF {rtf}), "
+            f"watchdog {'TRIPPED: ' + state.fault if state.safety.status == safety.TRIPPED else 'ok'}")

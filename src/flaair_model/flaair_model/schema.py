@@ -1,0 +1,26 @@
+"""The one declaration of a node's parameters: name (unit in the name), type, range, meaning.
+
+Pure (no rclpy): I/O modules list their nodes' parameters here once; `flaair_common.params`
+turns each into the ROS descriptor rclpy enforces, `flaair_common.runtime` into the --help
+table. Values come from config/ only.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter: name (unit in the name), type, description and allowed values."""
+
+    name: str
+    type: type
+    description: str
+    min_value: float | None = None
+    max_value: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+
+class ParameterError(ValueError):
+    """A parameter value was refused; the message names the parameter."""
