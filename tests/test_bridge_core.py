@@ -127,6 +127,15 @@ def test_late_drive_is_reanchored_ahead_of_the_target_clock() -> None:
     assert any("20 samples behind the target's clock" in n.text for n in notices)
 
 
+def test_a_bridge_behind_the_target_anchors_on_the_clock_extrapolated_from_arrival_times() -> None:
+    # the last packet (ending at 10) arrived 5 ms ago: the target is at ~110 by now
+    state, _, packets, _, _ = run([SensorDatagram(packet(0, 0), 1.0), DriveBlock(0, np.ones(N), 1.005)])
+    assert [x.first_sample_index for x in packets] == [N + 100 + LEAD]
+    # a stream that stays contiguous but falls behind the extrapolated clock is re-anchored
+    state, _, packets, _, _ = run([DriveBlock(N, np.ones(N), 1.015)], state=state)
+    assert [x.first_sample_index for x in packets] == [N + 300 + LEAD] and state.counters.drive_reanchors == 1
+
+
 def test_drive_is_clamped_nonfinite_zeroed_and_stale_or_early_blocks_dropped() -> None:
     state, _, packets, _, _ = run([DriveBlock(0, np.ones(N), 0.0),                      # no target clock yet
                                    SensorDatagram(packet(0, 0), 0.0),
@@ -156,8 +165,9 @@ def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> Non
     assert len(packets) == 1 and packets[0].stop and packets[0].first_sample_index == N
     assert state.counters.watchdog_stops == 1 and "DRIVE WATCHDOG" in notices[0].text
     # a zero stream falling silent needs no stop; a resumed stream is anchored afresh
-    state, _, packets, _, _ = run([DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)], state=state)
-    assert [x.first_sample_index for x in packets] == [N + LEAD] and state.counters.watchdog_stops == 1
+    state, _, packets, _, _ = run([SensorDatagram(packet(1, N), 0.06), DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)],
+                                  state=state)
+    assert [x.first_sample_index for x in packets] == [2 * N + LEAD] and state.counters.watchdog_stops == 1
 
 
 def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -> None:

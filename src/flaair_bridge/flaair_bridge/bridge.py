@@ -13,8 +13,10 @@ sockets, no ROS, time passed in):
 - `DriveBlock`: a block of FLAAIR's drive stream (its own sample count). The first block, or
   the first after a jump in the stream, is anchored ``lead_samples`` ahead of the target's
   clock (index after the last sensor sample received); later blocks follow contiguously, so
-  the drive the target applies is the stream with a constant delay. A block that would arrive
-  behind the target's clock re-anchors the stream ``lead_samples`` ahead (counted). Samples
+  the drive the target applies is the stream with a constant delay. The clock is also
+  extrapolated from the last packet's arrival time (kernel timestamp): a block that would
+  arrive behind it (the bridge or the drive source fell behind) re-anchors the stream
+  ``lead_samples`` ahead of the extrapolated clock (counted). Samples
   are clamped to +-drive_limit_v (non-finite ones become 0, counted) and sent in packets of at
   most 1000 samples, never more than ``max_ahead_samples`` beyond clock + lead (the rest waits
   for the target's clock).
@@ -207,6 +209,9 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
         return state._replace(counters=counters), Outputs(notices=(
             Notice("malformed", f"malformed datagram ({len(inputs.data)} bytes) dropped: {exc} "
                                 f"[{counters.malformed} malformed so far]"),))
+    if (packet.sequence == state.sequence and packet.n == params.block_size and not state.pending.shape[1]
+            and not state.silent and not packet.flags and packet.first_sample_index + state.index_offset == state.pending_first):
+        return _in_order_block(state, packet, inputs.now_s, params)
     notices: list[Notice] = []
     counters = state.counters
     index_offset, stale_run = state.index_offset, 0
@@ -273,6 +278,24 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
     return state, Outputs(tuple(blocks), packets, timing, tuple(notices))
 
 
+def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: float,
+                    params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    """The common case, 2000 times a second: the next packet, one whole block. Same result as the
+    general path, a third of its cost."""
+    first = packet.first_sample_index + state.index_offset
+    end = packet.first_sample_index + packet.n
+    counters = state.counters._replace(sensor_packets=state.counters.sensor_packets + 1,
+                                       published_blocks=state.counters.published_blocks + 1)
+    arrivals = state.arrivals.copy()
+    arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, now_s)
+    state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS, target_end=end,
+                           pending_first=first + packet.n, stale_run=0, last_sensor_s=now_s, arrivals=arrivals,
+                           counters=counters)
+    state, packets, timing = _release(state, params, now_s)
+    block = SensorBlock(first, packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)
+    return state, Outputs((block,), packets, timing, ())
+
+
 def _published_end(state: BridgeState) -> Optional[int]:
     if state.pending_first is None:
         return None
@@ -316,17 +339,21 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     if over.any():
         drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
         counters = _count(counters, clamped_samples=int(over.sum()))
-    anchor = state.target_end + params.lead_samples
+    # The target's clock now: the last packet's end, moved on by the time since that packet arrived
+    # (if the bridge fell behind, it has moved on by more than a packet).
+    clock = state.target_end + max(0, int((inputs.now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
+    anchor = max(state.target_end, clock) + params.lead_samples if clock > state.target_end + params.lead_samples \
+        else state.target_end + params.lead_samples
     offset = state.drive_offset
     if offset is None or first != state.drive_expected:
         if offset is not None:
             counters = _count(counters, drive_reanchors=1)
             notices.append(Notice("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
-                                                     f"re-anchored {params.lead_samples} samples ahead"))
+                                                     f"re-anchored {anchor - state.target_end} samples ahead"))
         offset = anchor - first
-    elif first + offset < state.target_end:
+    elif first + offset < clock:
         counters = _count(counters, drive_reanchors=1)
-        notices.append(Notice("drive_reanchors", f"drive block {first} is {state.target_end - first - offset} samples "
+        notices.append(Notice("drive_reanchors", f"drive block {first} is {clock - first - offset} samples "
                                                  f"behind the target's clock: re-anchored {params.lead_samples} samples "
                                                  f"ahead [{counters.drive_reanchors} re-anchors so far]"))
         offset = anchor - first

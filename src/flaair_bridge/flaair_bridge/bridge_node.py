@@ -51,7 +51,7 @@ PARAMS = [
     ParamSpec("tick_period_s", float, "Wall-clock period of the timeout checks [s]", 1e-4, 1.0, read_only=True),
     ParamSpec("receive_buffer_bytes", int, "UDP receive buffer (absorbs the bridge's stalls)", 65536, 1 << 30, read_only=True),
     ParamSpec("publish_applied", bool, "Publish the applied drive on /flaair/drive/applied", read_only=True),
-    ParamSpec("timing_file", str, "Per-drive-packet (index, sensor arrival, send) times (.npz) at exit (empty: off)", read_only=True),
+    ParamSpec("timing_file", str, "Event times (.npz) at exit for benchmarks (empty: off)", read_only=True),
 ]
 
 
@@ -76,13 +76,14 @@ class BridgeNode(Node):
         self.state = bridge.initial_state()
         self.lock = threading.Lock()
         self.timing: list[tuple[int, float, float]] = []
+        self.events = {"sensor": [], "drive": []} if p["timing_file"] else None
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
         self.sensor_pub = self.create_publisher(SensorVoltageBlock, topics.SENSOR_VOLTAGE, BLOCK_STREAM)
         self.applied_pub = self.create_publisher(DriveCommandBlock, APPLIED_DRIVE, BLOCK_STREAM) if p["publish_applied"] else None
         self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)
-        self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.monotonic())))
+        self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time())))
         self.bad_drive_messages = 0
         self.closed = False
         self.get_logger().info(
@@ -101,7 +102,7 @@ class BridgeNode(Node):
             self.bad_drive_messages += 1
             warn_counted(self.get_logger(), self.bad_drive_messages, f"drive message dropped: {exc}")
             return
-        self.process(bridge.DriveBlock(int(message["first_sample_index"]), np.array(message["drive_v"]), time.monotonic()))
+        self.process(bridge.DriveBlock(int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()))
 
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
@@ -112,6 +113,12 @@ class BridgeNode(Node):
                     self.send(packet)
             self.timing.extend(out.timing)
             counters = self.state.counters
+            if self.events is not None:  # raw event times for benchmarks (timing_file)
+                if isinstance(inputs, bridge.DriveBlock):
+                    self.events["drive"].append((inputs.first_sample_index, inputs.now_s,
+                                                 time.time() if out.packets else np.nan))
+                elif isinstance(inputs, bridge.SensorDatagram):
+                    self.events["sensor"].append((counters.sensor_packets, inputs.now_s))
             for block in out.blocks:
                 stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
                 self.sensor_pub.publish(self.sensor_codec.encode(stamp_ns, {
@@ -137,11 +144,12 @@ class BridgeNode(Node):
         if self.closed:
             return
         self.closed = True
-        self.process(bridge.Stop(time.monotonic(), "end of run"), copies=STOP_COPIES)
+        self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
         self.get_logger().info(f"bridge closed, stop packet sent: {bridge.summary(self.state.counters, self.timing)}")
         if self.p["timing_file"]:
-            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3))
+            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3),
+                     sensor=np.array(self.events["sensor"]).reshape(-1, 2), drive=np.array(self.events["drive"]).reshape(-1, 3))
 
     def destroy_node(self) -> None:
         self.close()  # whoever owns the node (run_node, a shared executor): the run ends with a stop packet

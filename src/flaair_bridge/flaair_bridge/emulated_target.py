@@ -173,6 +173,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
+    stop_requested = False
+
+    def _stop(_signum, _frame) -> None:
+        nonlocal stop_requested
+        stop_requested = True
+
+    signal.signal(signal.SIGINT, _stop)   # first: a signal during start-up also ends cleanly, with counters
+    signal.signal(signal.SIGTERM, _stop)
     args = parse_args(sys.argv[1:] if argv is None else argv)
     from flaair_model.model import ModelError
     from flaair_model.model_io import load_model
@@ -191,14 +199,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"emulated_target: --listen {args.listen}: {exc}", file=sys.stderr)
         return 2
     sock.setblocking(False)
-    stop_requested = False
-
-    def _stop(_signum, _frame) -> None:
-        nonlocal stop_requested
-        stop_requested = True
-
-    signal.signal(signal.SIGINT, _stop)
-    signal.signal(signal.SIGTERM, _stop)
     fs, n = args.sample_rate, args.packet_samples
     core = TargetCore(args.hold_samples, args.drive_limit_v)
     params = plant.PlantStepParams(model, fs)
@@ -221,6 +221,9 @@ def main(argv: list[str] | None = None) -> int:
             core.receive(data)
 
     held: bytes | None = None
+    print(f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, drive packets on "
+          f"{sock.getsockname()[0]}:{sock.getsockname()[1]}, hold {args.hold_samples} samples, limit "
+          f"+-{args.drive_limit_v:g} V", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     j = 0
     while not stop_requested and (total is None or j <= total):

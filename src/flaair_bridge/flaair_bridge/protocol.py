@@ -91,13 +91,15 @@ def _check_count(count: int, name: str) -> None:
         raise ProtocolError(f"{name} = {count} samples, must be 1..{MAX_SAMPLES}")
 
 
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
 def _finite_f32(values, name: str) -> np.ndarray:
-    with np.errstate(over="ignore"):  # float64 -> float32: overflow becomes inf, refused below
-        out = np.asarray(values, dtype=np.float64).astype(DRIVE_SAMPLE)
-    if not np.isfinite(out).all():
-        bad = int(np.argmax(~np.isfinite(out)))
+    wide = np.asarray(values, dtype=np.float64)
+    if not (np.isfinite(wide).all() and np.abs(wide).max(initial=0.0) <= _F32_MAX):
+        bad = int(np.argmax(~(np.abs(wide) <= _F32_MAX)))
         raise ProtocolError(f"{name}[{bad}] is not a finite float32")
-    return out
+    return wide.astype(DRIVE_SAMPLE)
 
 
 def pack_sensor(packet: SensorPacket) -> bytes:

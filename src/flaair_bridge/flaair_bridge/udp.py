@@ -1,19 +1,26 @@
 """A bound UDP socket read by a dedicated thread: each datagram is handed to a callback at once.
 
 rclpy's EventsExecutor has no guard conditions, and polling the socket from a timer would add
-up to the timer's period to the loop latency; a thread blocked in recvfrom costs nothing while
-idle and releases the GIL.
+up to the timer's period to the loop latency; a thread blocked in recvmsg costs nothing while
+idle and releases the GIL. Each datagram carries the kernel's receive time (SO_TIMESTAMPNS,
+wall clock, `time.time()` seconds): when the reader falls behind, a datagram's arrival is still
+known, so the bridge knows how far the target's clock has moved on.
 """
 from __future__ import annotations
 
 import socket
+import struct
 import threading
 import time
 from typing import Callable
 
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)   # Linux; Python does not name it
+_TIMESPEC = struct.Struct("@qq")
+
 
 class DatagramEndpoint:
-    """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in the reader thread."""
+    """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in the reader thread
+    (arrival_s: kernel receive time on the `time.time()` clock)."""
 
     def __init__(self, host: str, port: int, receive_buffer_bytes: int,
                  on_datagram: Callable[[bytes, tuple[str, int], float], None]) -> None:
@@ -21,6 +28,7 @@ class DatagramEndpoint:
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
             self.sock.bind((host, port))
+            self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
         except OSError:
             self.sock.close()
             raise
@@ -33,14 +41,19 @@ class DatagramEndpoint:
     def _read(self) -> None:
         while self.running:
             try:
-                data, sender = self.sock.recvfrom(65536)
+                data, ancillary, _flags, sender = self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))
             except socket.timeout:
                 continue
             except OSError:
                 if not self.running:
                     return
                 continue  # e.g. ICMP port unreachable from an earlier send: keep reading
-            self.on_datagram(data, sender, time.monotonic())
+            arrival_s = time.time()
+            for level, kind, value in ancillary:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= _TIMESPEC.size:
+                    seconds, nanoseconds = _TIMESPEC.unpack_from(value)
+                    arrival_s = seconds + 1e-9 * nanoseconds
+            self.on_datagram(data, sender, arrival_s)
 
     def send(self, packet: bytes, address: tuple[str, int]) -> str:
         """Send one datagram; returns '' or the OS error's text (UDP: the peer will notice the silence)."""

@@ -1,0 +1,175 @@
+"""Bridge node and emulated target over real UDP sockets on 127.0.0.1 and real DDS, separate processes.
+
+(a) the target's samples arrive on /flaair/sensor_v and match the plant model driven by the
+    drive the target applied (/flaair/drive/applied); (b) garbage datagrams are survived and
+    counted; (c) a killed drive source leaves the target zeroed by its own watchdog (flag bit
+    set); (d) a target that falls silent is marked as loss and the bridge stops the drive;
+    (e) every run (SIGINT, SIGTERM) ends with a stop packet at the target.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rosproc import ros_processes, wait_for
+
+FS = 20000.0
+N = 10
+BRIDGE = ("run", "flaair_bridge", "bridge_node", "--ros-args")
+DRIVE = ("run", "flaair_sim", "drive_node", "--ros-args", "-p", "frequency_hz:=140.0", "-p", "amplitude_v:=60.0")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def lines(path: Path) -> list[dict]:
+    out = []
+    for line in path.read_text().splitlines() if path.exists() else []:
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:   # a line being written
+            break
+    return out
+
+
+def samples(blocks: list[dict], field: str) -> tuple[np.ndarray, np.ndarray]:
+    index = np.concatenate([b["first_sample_index"] + np.arange(len(b[field])) for b in blocks])
+    return index, np.concatenate([np.asarray(b[field], dtype=float) for b in blocks])
+
+
+def start_graph(procs, tmp_path: Path, port: int, *bridge_args: str, echo_count: int = 0):
+    """Bridge and echoes of /flaair/sensor_v and /flaair/drive/applied, matched before returning."""
+    bridge = procs.flaair(*BRIDGE, "-p", f"listen_port:={port}", *bridge_args)
+    for topic, kind in (("/flaair/sensor_v", "SensorVoltageBlock"), ("/flaair/drive/applied", "DriveCommandBlock")):
+        procs.flaair("topic", "echo", topic, f"flaair_msgs/msg/{kind}", "--count", str(echo_count), "--timeout", "240",
+                     stdout=open(tmp_path / f"{kind}.jsonl", "w"))
+        assert procs.flaair("topic", "wait", topic, "--publishers", "1", "--subscribers", "1",
+                            "--timeout", "120").wait(150) == 0, bridge.stderr.read() if bridge.poll() is not None else ""
+    return bridge
+
+
+def drive_source(procs):
+    """drive_node (a real-time 140 Hz sine), once its /flaair/drive has reached the bridge."""
+    process = procs.flaair(*DRIVE)
+    assert procs.flaair("topic", "wait", "/flaair/drive", "--publishers", "1", "--subscribers", "1",
+                        "--timeout", "120").wait(150) == 0
+    return process
+
+
+def target(procs, tmp_path: Path, port: int, *args: str):
+    """The emulated target, once its clock runs (its log line says so)."""
+    log = tmp_path / "target.log"
+    process = procs.flaair("run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}", "--listen",
+                           "127.0.0.1:0", "--counters", str(tmp_path / "target.json"), *args, stderr=open(log, "w"))
+    assert wait_for(lambda: "emulated target running" in log.read_text() or process.poll() is not None, 120), log.read_text()
+    return process
+
+
+def test_samples_match_the_plant_garbage_is_survived_and_sigint_ends_with_a_stop_packet(tmp_path) -> None:
+    from flaair_model.model_io import load_model
+    from flaair_sim import plant
+
+    port, n_blocks = free_port(), 2000          # 1 s of signal
+    with ros_processes() as procs:
+        # a stalled emulator on a loaded machine must not be taken for a silent target here
+        bridge = start_graph(procs, tmp_path, port, "-p", "sensor_timeout_s:=10.0", echo_count=n_blocks)
+        drive_source(procs)
+        emulator = target(procs, tmp_path, port, "--duration", str(n_blocks * N / FS))
+        # garbage from another socket while the target runs: wrong magic, short, NaN, a drive packet
+        time.sleep(0.3)
+        junk = [b"", b"FLS1", b"hello world" * 5, b"FLS1" + bytes(20) + np.full(3, np.nan, "<f4").tobytes(),
+                b"FLD1" + bytes(16) + np.zeros(1, "<f4").tobytes()] * 10
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+            for data in junk:
+                sender.sendto(data, ("127.0.0.1", port))
+        assert emulator.wait(timeout=180) == 0, (tmp_path / "target.log").read_text()
+        assert wait_for(lambda: len(lines(tmp_path / "SensorVoltageBlock.jsonl")) >= n_blocks
+                        and len(lines(tmp_path / "DriveCommandBlock.jsonl")) >= n_blocks, 180)
+        assert bridge.poll() is None                               # survived the garbage
+        # (e) SIGINT: the bridge ends the run with a stop packet; a second target run receives it
+        counters_path = tmp_path / "target.json"
+        counters_path.unlink()
+        emulator = target(procs, tmp_path, port)
+        time.sleep(2.0)
+        assert procs.stop(bridge, signal.SIGINT, timeout_s=60) == 0
+        log = bridge.stderr.read()
+        time.sleep(0.5)
+        procs.stop(emulator, signal.SIGINT, timeout_s=60)
+        counters = json.loads(counters_path.read_text())
+    assert f"malformed {len(junk)}," in log and "lost_packets 0," in log, log[-2000:]
+    assert "stop packet sent: end of run" in log
+    assert counters["stop_packets"] >= 1 and counters["stopped"] is True, counters
+    # (a) every sample of the first run, in order, none lost, equal to the plant driven by the applied drive
+    index, stroke = samples(lines(tmp_path / "SensorVoltageBlock.jsonl")[:n_blocks], "stroke_sensor_v")
+    _, pitch = samples(lines(tmp_path / "SensorVoltageBlock.jsonl")[:n_blocks], "pitch_sensor_v")
+    applied_index, applied = samples(lines(tmp_path / "DriveCommandBlock.jsonl")[:n_blocks], "drive_v")
+    np.testing.assert_array_equal(index, np.arange(n_blocks * N))
+    np.testing.assert_array_equal(applied_index, index)
+    assert np.isfinite(stroke).all() and np.abs(applied).max() > 10.0      # the drive reached the target
+    sim = plant.simulate(applied, FS, load_model())
+    np.testing.assert_allclose(stroke, sim.stroke_sensor_v.astype(np.float32), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(pitch, sim.pitch_sensor_v.astype(np.float32), rtol=0, atol=1e-6)
+    assert np.ptp(stroke) > 0.05                                            # the wing moved
+
+
+def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigterm_stops(tmp_path) -> None:
+    port = free_port()
+    with ros_processes() as procs:
+        # the bridge's own drive watchdog slowed down, so the target's hold-then-zero acts first
+        bridge = start_graph(procs, tmp_path, port, "-p", "drive_timeout_s:=30.0")
+        drive = drive_source(procs)
+        emulator = target(procs, tmp_path, port)
+        applied = tmp_path / "DriveCommandBlock.jsonl"
+        assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
+        procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
+        kill_index = lines(applied)[-1]["first_sample_index"]
+        assert wait_for(lambda: lines(applied)[-1]["first_sample_index"] > kill_index + 0.5 * FS, 120)
+        assert procs.stop(bridge, signal.SIGTERM, timeout_s=60) == 0
+        log = bridge.stderr.read()
+        time.sleep(0.5)
+        procs.stop(emulator, signal.SIGINT, timeout_s=60)
+        counters = json.loads((tmp_path / "target.json").read_text())
+    index, drive_v = samples(lines(applied), "drive_v")
+    tail = drive_v[index > kill_index + 0.25 * FS]
+    assert len(tail) > 1000 and np.all(tail == 0.0)                         # zeroed, and held at zero
+    assert counters["watchdog_trips"] >= 1 and counters["zeroed_samples"] > 0, counters
+    assert "the target's drive watchdog has tripped" in log and "target_watchdog_packets 0," not in log
+    assert "stop packet sent: end of run" in log and counters["stop_packets"] >= 1   # SIGTERM ends with a stop too
+
+
+def test_silent_target_is_marked_as_loss_and_the_drive_is_stopped(tmp_path) -> None:
+    port = free_port()
+    with ros_processes() as procs:
+        bridge = start_graph(procs, tmp_path, port)
+        drive_source(procs)
+        emulator = target(procs, tmp_path, port)
+        sensor = tmp_path / "SensorVoltageBlock.jsonl"
+        applied = tmp_path / "DriveCommandBlock.jsonl"
+        assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
+        emulator.send_signal(signal.SIGSTOP)            # the target falls silent (its socket keeps what arrives)
+        silent_from = lines(sensor)[-1]["first_sample_index"]
+        assert wait_for(lambda: any(np.isnan(b["stroke_sensor_v"]).all() and b["first_sample_index"] > silent_from
+                                    for b in lines(sensor)[-400:]), 60)
+        time.sleep(0.3)
+        emulator.send_signal(signal.SIGCONT)
+        time.sleep(1.0)
+        assert bridge.poll() is None
+        procs.stop(emulator, signal.SIGINT, timeout_s=60)
+        procs.stop(bridge, signal.SIGINT, timeout_s=60)
+        log = bridge.stderr.read()
+        counters = json.loads((tmp_path / "target.json").read_text())
+    assert "TARGET SILENT" in log and "stop packet sent" in log, log[-2000:]
+    assert "silences 1," in log or "silences 2," in log
+    # the silence stop reached the target once it woke up (plus the run's final one, if it was still up)
+    assert counters["stop_packets"] >= 1, counters
+    index, stroke = samples(lines(sensor), "stroke_sensor_v")
+    lost = np.isnan(stroke)
+    assert lost.any() and not lost[index <= silent_from].any()                # loss marked only after the silence
