@@ -253,7 +253,7 @@ def add_theory(rows: list[dict[str, Any]], model, oscillating_deg: float) -> tup
     out, onsets = [], []
     for r in rows:
         cycle = hopf.limit_cycle(linear, pl.aero_damping_nm_s2, r["r3_rad_s"], r["kappa"], r["mu_nm_s_per_rad"])
-        oscillating = r["stroke_amplitude_deg"] > oscillating_deg
+        oscillating = r["stroke_amplitude_deg"] > oscillating_deg and r["stroke_frequency_hz"] > 0
         theory_amp = math.degrees(cycle.amplitude_rad)
         applies = oscillating and theory_amp > 0 and not r["drive_clamped"]  # the theory has no drive clamp
         out.append({**r, "oscillating": oscillating, "theory_amplitude_deg": theory_amp,

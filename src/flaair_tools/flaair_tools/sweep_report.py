@@ -130,6 +130,13 @@ def wing_damage_reading(rows: list[dict[str, Any]], timing: dict[str, Any]) -> s
         f"* **Both, with the amplitude loop.** The dSA wing with the stroke controller holds the amplitude "
         f"({c['amplitude_rel']:.3f}x) while keeping the adapted frequency ({c['frequency_rel']:.3f}x), so its lift "
         f"proxy rises to {c['lift_rel']:.3f}x, the frequency gain squared.",
+    ]
+    if len(exponents) > 1:
+        d1 = _at(rows, "dsa", 0.7, exponents[-1])
+        lines.append(f"* **If the lost inertia is lost area** (aerodynamic damping x inertia_factor^{exponents[-1]:g}), the "
+                     f"free dSA wing is nearly robust by itself: amplitude {d1['amplitude_rel']:.3f}x, lift proxy "
+                     f"{d1['lift_rel']:.3f}x at 0.7 -- less damping lets the limit cycle grow back.")
+    lines += [
         "",
         "So: asynchronous (dSA) flyers are *adaptive* -- the frequency follows the damaged wing's resonance; "
         "they are *robust* in amplitude only with the proprioceptive amplitude loop closed around them; "
