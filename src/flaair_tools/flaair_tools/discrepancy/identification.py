@@ -282,7 +282,7 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
 
 def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
                    keys: Sequence[str] = tuple(PLANT_PARAMETERS), max_nfev: int = MAX_NFEV,
-                   decimate: int = DECIMATE) -> PlantFit:
+                   decimate: int = DECIMATE, state_channels: Sequence[str] = ()) -> PlantFit:
     """Fit this robot's plant parameters to the truth angles of its runs (module docstring).
 
     Upstream first: the stroke parameters on stroke_deg, then, with them fixed, the pitch
@@ -300,11 +300,15 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
         Plant parameters to fit.
     max_nfev, decimate
         Least-squares iterations per stage; keep every k-th sample.
+    state_channels
+        Truth channels whose initial states are fitted even where no plant parameter is (after an
+        effect joined the model, the states fitted with the old plant are re-fitted).
     """
     keys = tuple(keys)
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
-    start = {**{k: float(getattr(model.plant, k)) for k in keys},
-             **{k: v for k, v in frequency_domain_start(runs, model).items() if k in keys}}
+    start = {k: float(getattr(model.plant, k)) for k in keys}
+    if keys:
+        start.update({k: v for k, v in frequency_domain_start(runs, model).items() if k in keys})
     values: dict = {}
     sd = np.full(len(keys), np.nan)
     corr = np.full((len(keys), len(keys)), np.nan)
@@ -314,7 +318,7 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     runs = list(runs)
     for channel in TRUTH_CHANNELS:
         stage = [k for k in keys if {**PLANT_PARAMETERS, **_OTHER_CHANNELS}[k] == channel]
-        if not stage:
+        if not stage and channel not in state_channels:
             continue
         out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate)
         current = with_plant(current, out["values"])

@@ -13,7 +13,7 @@ from .diagnosis import _gap_test, _residual
 from .evidence import (CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, _param_value)
 from .fitting import _fit, _Fold, apply_values, spec_value
 from .identification import identify_plant
-from .runs import Run, _sensor_gain_v_per_deg, simulate_runs
+from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
 from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
                          candidate_groups, candidate_specs)
@@ -83,6 +83,12 @@ def _groups(ctx: _Context, channel: str, model: Model) -> tuple[tuple[EffectSpec
     return candidate_groups(channel, model if ctx.settings.identify else None)
 
 
+def _use_runs(ctx: _Context, runs: Sequence[Run]) -> None:
+    """Continue the search with `runs` (new initial states): simulations cached so far are stale."""
+    ctx.runs = tuple(runs)
+    ctx.motion = _MotionCache()
+
+
 def _join(a: Sequence[EffectSpec], b: Sequence[EffectSpec]) -> list[EffectSpec]:
     """Specs of a and b, each plant parameter once."""
     keys = {s.key for s in a if s.is_plant}
@@ -141,6 +147,10 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
         # are correlated, so the pooled values are not the joint optimum on all runs.
         if own and (len({s.name for s in state.specs if not s.is_plant}) >= 2 or any(not s.tested for s in own)):
             state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
+        if channel in TRUTH_CHANNELS and ctx.settings.identify:
+            # the runs' initial states were fitted with the plant alone: fit them again with the effect
+            _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
+                                          state_channels=TRUTH_CHANNELS).runs)
         has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
     return state, has_gap, first
 
@@ -205,12 +215,13 @@ def find_effects(
     settings: Settings = Settings(),
     progress: Optional[Callable[[str], None]] = None,
     tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None,
-) -> tuple[Model, tuple[FoundEffect, ...], tuple[ChannelSearch, ...]]:
+) -> tuple[Model, tuple[FoundEffect, ...], tuple[ChannelSearch, ...], tuple[Run, ...]]:
     """Greedy, channel-by-channel search for the missing effects (rules in the module docstring).
 
     Returns
     -------
-    (model_out, found effects, per-channel search records)
+    (model_out, found effects, per-channel search records, the runs with their initial states as
+    last fitted)
     """
     ctx = _Context(runs, noise, settings, tracks)
     current = model
@@ -241,10 +252,12 @@ def find_effects(
             unexplained_truth.add(channel)
         if channel == "stroke_deg" and state.specs and settings.identify and not has_gap:
             # the pitch parameters were identified under the old stroke motion: identify them again
-            current = identify_plant(runs, current, noise, keys=[k for k, c in PLANT_PARAMETERS.items()
-                                                                 if c == "pitch_deg"]).model
+            fit = identify_plant(ctx.runs, current, noise, keys=[k for k, c in PLANT_PARAMETERS.items()
+                                                                 if c == "pitch_deg"])
+            current = fit.model
+            _use_runs(ctx, fit.runs)
         searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))
-    return current, tuple(_merge_sensor_channels(found, current)), tuple(searches)
+    return current, tuple(_merge_sensor_channels(found, current)), tuple(searches), ctx.runs
 
 
 def _strip(model: Model, specs: Sequence[EffectSpec]) -> Model:

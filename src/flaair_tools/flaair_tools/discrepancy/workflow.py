@@ -166,7 +166,7 @@ def analyse(
             diagnosis_after=diag_fit, searches=(), remaining=(), sims_after=tuple(sims_fit),
             summary=_summary("no_discrepancy", (), diag_fit, (), plant_fit),
             plant_parameters=_plant_parameters(model, base, plant_fit), **common)
-    model_out, effects, searches = find_effects(runs, base, noise, settings, progress, tracks)
+    model_out, effects, searches, runs = find_effects(runs, base, noise, settings, progress, tracks)
     if progress:
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
