@@ -45,34 +45,17 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import REPO_ROOT, Figure, print_table, write_json  # noqa: E402
+from flaair_common.graph import Graph  # noqa: E402
 
 FS = 20000.0
 BLOCK = 10
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
-def _env(domain: int) -> dict[str, str]:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
-
-
 def _cpu_s(pid: int) -> float:
     """utime + stime of a process (s)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _stop(procs: list[subprocess.Popen]) -> None:
-    for p in procs:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGINT)
-    for p in procs:
-        try:
-            p.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            os.killpg(p.pid, signal.SIGKILL)
-            p.wait()
 
 
 NODES = {"plant": ("flaair_sim", "plant_node"), "frontend": ("flaair_sensors", "frontend_node"),
@@ -87,16 +70,15 @@ def _node_cmd(name: str) -> list[str]:
 def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | None, tmp: Path,
              executor: str = "events") -> dict:
     """One closed-loop run (executor: FLAAIR_EXECUTOR of the nodes); timing arrays and CPU per block per node."""
-    env = dict(_env(domain), FLAAIR_EXECUTOR=executor)
     timing_file = tmp / f"timing_{domain}.npz"
-    logs = {name: open(tmp / f"{name}_{domain}.log", "w") for name in ("plant", "frontend", "controller", "probe")}
+    log_dir = tmp / f"run{domain}"
     procs: dict[str, subprocess.Popen] = {}
+    with Graph(log_dir=log_dir) as graph:   # a private domain; every node stopped on the way out
+        graph.env["FLAAIR_EXECUTOR"] = executor
 
-    def start(name: str, *args: str) -> None:
-        procs[name] = subprocess.Popen(list(args), env=env, stdout=logs[name], stderr=subprocess.STDOUT,
-                                       start_new_session=True, cwd=REPO_ROOT)
+        def start(name: str, *args: str) -> None:
+            procs[name] = graph.start(name, args)
 
-    try:
         if probe_file is not None:
             start("probe", sys.executable, __file__, "--probe", str(probe_file))
         start("plant", *_node_cmd("plant"), "--ros-args", "-p", "mode:=lockstep")
@@ -104,11 +86,11 @@ def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | 
         start("controller", *_node_cmd("controller"), "--ros-args",
               "-p", f"run_time_s:={duration_s}", "-p", f"timing_file:={timing_file}",
               "-p", f"blocks_in_flight:={in_flight}", "-p", "watchdog_timeout_s:=30.0")
-        log_path = tmp / f"controller_{domain}.log"
+        log_path = log_dir / "controller.log"
         cpu0: dict[str, float] = {}
         deadline = time.monotonic() + 600
         while time.monotonic() < deadline:
-            text = log_path.read_text()
+            text = log_path.read_text() if log_path.exists() else ""
             if not cpu0 and "loop closed" in text:
                 cpu0 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
             if "run complete" in text:
@@ -119,13 +101,9 @@ def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | 
         else:
             raise RuntimeError("closed loop did not complete within 600 s")
         cpu1 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
-    finally:
-        _stop(list(procs.values()))
-        for f in logs.values():
-            f.close()
     timing = np.load(timing_file)["timing"]
     n_blocks = timing.shape[0]
-    summary = [line for line in (tmp / f"controller_{domain}.log").read_text().splitlines() if "run complete" in line]
+    summary = [line for line in (log_dir / "controller.log").read_text().splitlines() if "run complete" in line]
     return {"timing": timing, "cpu_per_block_us": {n: 1e6 * (cpu1[n] - cpu0.get(n, cpu1[n])) / n_blocks for n in cpu1},
             "summary": summary[0] if summary else ""}
 
@@ -238,14 +216,10 @@ def pingpong(role: str, executor: str, n: int) -> int:
 
 
 def run_pingpong(executor: str, domain: int, n: int = 3000) -> dict:
-    env = _env(domain)
-    b = subprocess.Popen([sys.executable, __file__, "--pingpong", "b", executor, str(n + 100)], env=env,
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    try:
-        a = subprocess.run([sys.executable, __file__, "--pingpong", "a", executor, str(n)], env=env,
+    with Graph() as graph:
+        graph.start("pong", [sys.executable, __file__, "--pingpong", "b", executor, str(n + 100)])
+        a = subprocess.run([sys.executable, __file__, "--pingpong", "a", executor, str(n)], env=graph.env,
                            capture_output=True, text=True, timeout=180)
-    finally:
-        _stop([b])
     return json.loads(a.stdout.strip().splitlines()[-1])
 
 

@@ -33,7 +33,6 @@ import argparse
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -44,6 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json  # noqa: E402
+from flaair_common.graph import Graph as LaunchGraph  # noqa: E402
 
 from flaair_model.config import node_parameters  # noqa: E402
 from flaair_tools import bagio  # noqa: E402
@@ -105,44 +105,21 @@ print(json.dumps({"blocks": blocks, "elapsed_s": elapsed}), flush=True)
 """
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(150 + os.getpid() % 60)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
-
-
 def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process so far."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _stop(process: subprocess.Popen, timeout_s: float = 20.0) -> int:
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-    try:
-        return process.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        return process.wait()
-
-
-class Graph:
-    """Processes of one scenario in their own process groups, logs next to the bag; always cleaned up."""
+class Graph(LaunchGraph):
+    """The project's graph launcher, logs next to the bag, with log-based readiness."""
 
     def __init__(self, logs: Path) -> None:
-        self.env = _env()
+        super().__init__(log_dir=logs)
         self.logs = logs
-        self.started: list[subprocess.Popen] = []
 
-    def start(self, name: str, *args: str) -> subprocess.Popen:
-        log = open(self.logs / f"{name}.log", "w")
-        process = subprocess.Popen(list(args), env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                   start_new_session=True, cwd=REPO_ROOT)
-        self.started.append(process)
-        return process
+    def start(self, name: str, *args: str) -> subprocess.Popen:   # type: ignore[override]
+        return super().start(name, args)
 
     def log(self, name: str) -> str:
         return (self.logs / f"{name}.log").read_text()
@@ -154,10 +131,6 @@ class Graph:
                 raise SystemExit(f"{name}: no '{text}' within {timeout_s:g} s; see {self.logs / (name + '.log')}")
             time.sleep(0.1)
 
-    def stop_all(self) -> None:
-        for process in self.started:
-            if process.poll() is None:
-                _stop(process)
 
 
 def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int, rate_hz: float) -> dict[str, object]:
@@ -176,8 +149,8 @@ def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int
             time.sleep(duration_s)
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
             crashed = {name: p.returncode for name, p in (("plant", plant), ("drive", drive)) if p.poll() is not None}
-            _stop(drive)
-            _stop(plant)
+            graph.stop(drive, timeout_s=20.0)
+            graph.stop(plant, timeout_s=20.0)
             reported = None
         else:
             config = {"duration_s": duration_s, "block_size": block_size, "sample_rate_hz": rate_hz, "clock_depth": CLOCK_DEPTH}
@@ -188,12 +161,12 @@ def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
             reported = json.loads(graph.log("steady").strip().splitlines()[-1])
         time.sleep(1.0)
-        code = _stop(recorder)
+        code = graph.stop(recorder, timeout_s=20.0)
         if code != 0:
             raise SystemExit(f"recorder exited with {code}; see {bag.parent / 'recorder.log'}")
         return {"recorder_cores": cpu_s / wall_s, "crashed": crashed, "reported": reported}
     finally:
-        graph.stop_all()
+        graph.close()
 
 
 def _stream_stats(indices: np.ndarray, step: int, samples: int) -> dict[str, float]:

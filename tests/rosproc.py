@@ -1,71 +1,43 @@
-"""Start FLAAIR processes for tests over real DDS: isolated domain, localhost only, always cleaned up."""
+"""Start FLAAIR processes for tests over real DDS, through the project's one launcher.
+
+`flaair_common.graph.Graph` gives each `ros_processes()` block its own leased ROS domain
+(localhost discovery), children in their own process groups that die with the test process,
+and a stop in reverse order. This module only adapts it to the tests' habits (pipes by default).
+"""
 from __future__ import annotations
 
-import fcntl
-import itertools
-import os
+import atexit
 import signal
 import subprocess
-import time
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
+from flaair_common.graph import Graph, graph_env, lease_domain, wait_for  # noqa: F401 - wait_for re-exported
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
-DOMAINS_PER_SLOT = 10
-SLOTS = 20  # domains 1..200
-_domain_counter = itertools.count()
-_slot: tuple[int, object] | None = None
-
-
-def _domain_slot() -> int:
-    """A block of domain IDs this test process holds exclusively (flock) while it lives.
-
-    Two test runs on one machine (say a developer's and another's) must never share a domain:
-    their nodes would see each other's blocks.
-    """
-    global _slot
-    if _slot is None:
-        lock_dir = Path("/tmp/flaair-ros-domains")
-        lock_dir.mkdir(exist_ok=True)
-        for slot in range(SLOTS):
-            handle = open(lock_dir / f"slot{slot}", "w")
-            try:
-                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                handle.close()
-                continue
-            _slot = (slot, handle)
-            break
-        else:
-            raise RuntimeError(f"all {SLOTS} ROS domain slots are taken by other test runs")
-    return _slot[0]
 
 
 def isolated_env() -> dict[str, str]:
-    """Environment for one test: a ROS_DOMAIN_ID no other test run uses, loopback-only discovery."""
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(1 + _domain_slot() * DOMAINS_PER_SLOT + next(_domain_counter) % DOMAINS_PER_SLOT)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+    """Environment on a ROS domain leased for the rest of this test process, localhost discovery."""
+    lease = lease_domain()
+    atexit.register(lease.release)
+    return graph_env(lease.domain_id)
 
 
 class Processes:
-    """Processes started in their own process groups; stop() signals, waits, then kills."""
+    """The tests' view of a Graph: pipes by default, `flaair(...)` for bin/flaair."""
 
-    def __init__(self, env: dict[str, str]) -> None:
-        self.env = env
-        self.started: list[subprocess.Popen] = []
+    def __init__(self, graph: Graph) -> None:
+        self.graph = graph
+        self.env = graph.env
+        self.started = [process for _, process in graph.children]
 
     def start(self, *args: str, stdout=subprocess.PIPE, stderr=subprocess.PIPE) -> subprocess.Popen:
-        """Start a process in its own session; stdout/stderr: PIPE (default) or an open file."""
-        process = subprocess.Popen(
-            list(args), env=self.env, stdout=stdout, stderr=stderr, text=True,
-            start_new_session=True, cwd=REPO_ROOT,
-        )
+        """Start a process on the graph's domain; stdout/stderr: PIPE (default) or an open file."""
+        self.graph.env = self.env   # a test may adjust the environment before starting
+        process = self.graph.start(Path(args[0]).name, args, stdout=stdout, stderr=stderr)
         self.started.append(process)
         return process
 
@@ -73,42 +45,19 @@ class Processes:
         return self.start(FLAAIR, *args, **kwargs)
 
     def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int:
-        if process.poll() is None:
-            try:
-                os.killpg(process.pid, sig)
-            except ProcessLookupError:
-                pass
-        try:
-            return process.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            os.killpg(process.pid, signal.SIGKILL)
-            return process.wait()
+        return self.graph.stop(process, sig, timeout_s)
 
     def stop_all(self) -> None:
-        for process in self.started:
-            self.stop(process)
+        self.graph.stop_all(timeout_s=10.0)
 
 
 @contextmanager
 def ros_processes() -> Iterator[Processes]:
-    """Yield a Processes group on a fresh isolated domain; every process is stopped on exit."""
-    group = Processes(isolated_env())
-    try:
-        yield group
-    finally:
-        group.stop_all()
+    """Yield a Processes group on a fresh leased domain; every process is stopped on exit."""
+    with Graph() as graph:
+        yield Processes(graph)
 
 
 def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """Run a command to completion in `env`, capturing output."""
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
-
-
-def wait_for(predicate, timeout_s: float, interval_s: float = 0.05) -> bool:
-    """Poll `predicate` until true or timeout; return its last value."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(interval_s)
-    return bool(predicate())

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import time
 from pathlib import Path
@@ -21,15 +20,12 @@ BLOCK = 10
 CONTROLLER = ("run", "flaair_control", "dsa_controller_node", "--ros-args")
 
 
-_DOMAINS = iter(range(1000))
 
 
 @contextmanager
 def _ros():
-    """rosproc.ros_processes on a domain above the 1..101 that every other test file draws from
-    (tests of other packages may run at the same time on this machine)."""
+    """rosproc.ros_processes: a leased domain of its own (no other graph on this machine uses it)."""
     with ros_processes() as procs:
-        procs.env["ROS_DOMAIN_ID"] = str(102 + (os.getpid() * 7 + next(_DOMAINS)) % 48)
         yield procs
 
 

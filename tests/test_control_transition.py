@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -94,13 +93,11 @@ def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
     from rosproc import ros_processes
 
     from flaair_model.config import node_parameters
-    from flaair_control.transition_figure import plot_transition, predicted_limit_cycle, run_closed_loop, transition_record
+    from flaair_tools.transition_figure import plot_transition, predicted_limit_cycle, run_closed_loop, transition_record
     from flaair_model.model_io import load_model
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
     with ros_processes() as procs:
-        # above the 1..101 other test files draw from (they may run at the same time on this machine)
-        procs.env["ROS_DOMAIN_ID"] = str(102 + (os.getpid() * 7 + 1000) % 48)
         ws, cs = run_closed_loop(procs.flaair, duration, ["-p", f"kr_ramp_start_s:={ramp_start}",
                                                           "-p", f"kr_ramp_duration_s:={ramp}",
                                                           "-p", "watchdog_timeout_s:=30.0"], FS, 10, timeout_s=150)

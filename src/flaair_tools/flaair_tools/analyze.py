@@ -366,7 +366,7 @@ def analyze_transition(bag: Path, final_window_s: float = 0.5) -> tuple[dict[str
     Savitzky-Golay filter (paper); K_r comes from the recorded controller state.
     """
     from flaair_control import transition as tr
-    from flaair_control.transition_figure import TransitionRecord
+    from flaair_tools.transition_figure import TransitionRecord
     from flaair_model.model_io import load_model
 
     wing = bagio.read_blocks(bag, topics.WING_STATE)

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -27,14 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import rclpy
-from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from rclpy.node import Node
 from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
+from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises
 from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
-from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
@@ -137,44 +135,14 @@ def ros_args(parameters: dict[str, Any]) -> list[str]:
     return args
 
 
-class Graph:
-    """Child processes of one experiment, each in its own process group; stopped in reverse."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.children: list[tuple[str, subprocess.Popen]] = []
-
-    def start(self, role: str, parameters: dict[str, Any]) -> subprocess.Popen:
-        package, executable = NODE_EXECUTABLES[role]
-        try:
-            path = Path(get_package_prefix(package)) / "lib" / package / executable
-        except PackageNotFoundError as exc:
-            raise ExperimentError(f"package {package} is not built (run scripts/setup_env.sh)") from exc
-        log = open(self.log_dir / f"{role}.log", "a", encoding="utf-8")
-        process = subprocess.Popen([sys.executable, str(path), *ros_args(parameters)], stdout=log, stderr=subprocess.STDOUT,
-                                   start_new_session=True)
-        self.children.append((role, process))
-        return process
-
-    def check_alive(self) -> None:
-        for role, process in self.children:
-            if process.poll() is not None and process.returncode not in (0, -signal.SIGINT):
-                log = (self.log_dir / f"{role}.log").read_text(errors="replace")[-2000:]
-                raise ExperimentError(f"{role} exited with code {process.returncode}:\n{log}")
-
-    def stop(self, process: subprocess.Popen, timeout_s: float = 15.0) -> None:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGINT)
-            try:
-                process.wait(timeout=timeout_s)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-        self.children = [(r, p) for r, p in self.children if p is not process]
-
-    def stop_all(self) -> None:
-        for _, process in reversed(list(self.children)):
-            self.stop(process)
+def start_node(graph: Graph, role: str, parameters: dict[str, Any]) -> subprocess.Popen:
+    """Start one of the experiment's nodes on `graph`, its log in the graph's log directory."""
+    package, executable = NODE_EXECUTABLES[role]
+    try:
+        argv = node_argv(package, executable)
+    except GraphError as exc:
+        raise ExperimentError(str(exc)) from exc
+    return graph.start(role, [*argv, *ros_args(parameters)])
 
 
 class Runner(Node):
@@ -204,7 +172,10 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
         if time.monotonic() > deadline:
             raise ExperimentError(f"timed out after {timeout_s:g} s waiting for {what}")
         rclpy.spin_once(node, timeout_sec=0.02)
-        graph.check_alive()
+        try:
+            graph.check_alive()
+        except GraphError as exc:
+            raise ExperimentError(str(exc)) from exc
 
 
 def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True,
@@ -220,20 +191,29 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     fs_hz, block_size = float(shared["sample_rate_hz"]), int(shared["block_size"])
     log_dir = out.parent / f"{out.name}.logs"
     log_dir.mkdir(parents=True, exist_ok=True)
-    graph = Graph(log_dir)
+    graph = Graph(log_dir=log_dir)
+    # This process joins the graph's private domain too (rcl reads the environment at init).
+    os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
+    if progress:
+        print(f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}", file=sys.stderr)
+        if calibration_file is None:
+            print("flaair experiment: WARNING: no --calibration: the front end runs on the model's gains, so the "
+                  "sensor-derived pitch reads about 4x small (the model over-predicts the hinge sensor) and pitch "
+                  "figures, the collision metric among them, are off; run `bin/flaair calibrate` first",
+                  file=sys.stderr)
     rclpy.init(args=[])
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
-        recorder = graph.start("recorder", {"output_path": str(out)})
+        recorder = start_node(graph, "recorder", {"output_path": str(out)})
         plant = {"mode": "lockstep", "noise": noise, **spec.plant}
         if not nominal and robot_effects():
             plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml", robot_effects()))
-        graph.start("plant", plant)
-        graph.start("frontend", {"gains_from": "calibration", "calibration_file": str(calibration_file)}
+        start_node(graph, "plant", plant)
+        start_node(graph, "frontend", {"gains_from": "calibration", "calibration_file": str(calibration_file)}
                     if calibration_file is not None else {})
         for role in spec.nodes:
-            graph.start(role, {})
+            start_node(graph, role, {})
         # Nothing may flow before every consumer listens: a reliable volatile publisher drops
         # what it sent before a subscription matched (the front end once lost 211 blocks so).
         recorded = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
@@ -269,12 +249,12 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 if first != 0:
                     raise ExperimentError(f"{spec.name}: a controller run must be the experiment's first run")
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                driver = graph.start("controller", {"run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2)})
+                driver = start_node(graph, "controller", {"run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2)})
             else:
                 # Every subscriber of the drive (plant, recorder, monitor) must match before the
                 # first block: a lockstep plant that misses the opening window waits forever.
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                driver = graph.start("drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
+                driver = start_node(graph, "drive", {"pacing": "lockstep", "run_time_s": n_samples / fs_hz,
                                                "first_sample_index": first, "min_subscribers": max(listeners, 2),
                                                "pace_on_wing_state": True, "lead_in_s": rest / fs_hz, **run.drive})
             bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample", unit_scale=True,
@@ -304,7 +284,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         total_blocks = runner.sensor_end_index // block_size
         graph.stop(recorder, timeout_s=60.0)
     finally:
-        graph.stop_all()
+        graph.close()
         runner.destroy_node()
         rclpy.try_shutdown()
     counts = bagio.message_counts(out)
@@ -343,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.out is None:
         parser.error("--out BAG is required")
+    terminate_raises()
     try:
         summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise, nominal=args.nominal,
                                  calibration_file=args.calibration)
@@ -350,8 +331,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("flaair experiment: interrupted; the bag was closed", file=sys.stderr)
+        print(f"flaair experiment: interrupted; every node stopped and the bag {args.out} closed", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"flaair experiment: terminated; every node stopped and the bag {args.out} closed", file=sys.stderr)
+        return 143
     print(f"recorded {args.name} to {args.out}: " + ", ".join(f"{t} {c}" for t, c in sorted(summary["message_counts"].items())))
     return 0
 

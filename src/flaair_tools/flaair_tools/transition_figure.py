@@ -3,17 +3,17 @@
 Library: ``transition_record`` joins the echoed wing-state and controller-state messages,
 ``plot_transition`` draws the PNG (matplotlib, Agg backend).
 
-Command line (inside the environment, e.g. ``scripts/in_env.sh python -m flaair_control.transition_figure``):
+Command line (inside the environment, e.g. ``scripts/in_env.sh python -m flaair_tools.transition_figure``):
 
   --run             run the closed loop over DDS first (plant lockstep, front end, dSA controller
-                    on their own ROS_DOMAIN_ID, localhost), record /flaair/wing_state and
+                    on a private ROS domain, localhost discovery), record /flaair/wing_state and
                     /flaair/controller/state with ``flaair topic echo``, then plot
   --wing-state F    JSON-lines echo of /flaair/wing_state (instead of --run)
   --controller-state F  JSON-lines echo of /flaair/controller/state
   -o PNG            output figure (default out/transition/transition.png; the records and a
                     JSON summary are written beside it)
 
-Example: scripts/in_env.sh python -m flaair_control.transition_figure --run --duration 2.0 \\
+Example: scripts/in_env.sh python -m flaair_tools.transition_figure --run --duration 2.0 \\
            --ramp-start 0.5 --ramp-duration 0.5
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from flaair_common.graph import Graph, flaair_argv
 from flaair_control import transition as tr
 
 
@@ -135,15 +136,6 @@ def run_closed_loop(start: Callable[..., subprocess.Popen], duration_s: float, c
     return wing_state, controller_state
 
 
-def _repo_root() -> Path:
-    env = os.environ.get("FLAAIR_ROOT")
-    if env:
-        return Path(env)
-    from flaair_model.config import config_dir
-
-    return config_dir().parent
-
-
 def predicted_limit_cycle(controller: dict, sample_rate_hz: float = 20000.0, block_size: int = 10) -> tuple[float, float]:
     """Describing-function limit cycle (Hz, deg) of the configured loop (flaair_control.hopf)."""
     from flaair_control import dsa, hopf
@@ -179,38 +171,20 @@ def main(argv: list[str] | None = None) -> int:
     shared = node_parameters("flaair.yaml", "dsa_controller_node")
     fs, block = float(shared["sample_rate_hz"]), int(shared["block_size"])
     if args.run:
-        root = _repo_root()
-        env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 80), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                   PYTHONUNBUFFERED="1")
-        env.pop("ROS_LOCALHOST_ONLY", None)
-        started: list[subprocess.Popen] = []
-
-        args.output.parent.mkdir(parents=True, exist_ok=True)
-
-        def start(*flaair_args: str, stdout=subprocess.DEVNULL) -> subprocess.Popen:
-            name = flaair_args[2] if flaair_args[0] == "run" else f"echo{len(started)}"
-            log = open(args.output.parent / f"{name}.log", "w")   # node logs beside the figure
-            proc = subprocess.Popen([str(root / "bin" / "flaair"), *flaair_args], env=env, stdout=stdout,
-                                    stderr=log, start_new_session=True, cwd=root)
-            started.append(proc)
-            return proc
-
         t0 = time.monotonic()
-        try:
+        # node logs beside the figure; the graph on a private domain, stopped on any exit
+        with Graph(log_dir=args.output.parent) as graph:
+            count = iter(range(1000))
+
+            def start(*flaair_args: str, stdout=None) -> subprocess.Popen:
+                name = flaair_args[2] if flaair_args[0] == "run" else f"echo{next(count)}"
+                return graph.start(name, flaair_argv(*flaair_args), stdout=stdout)
+
             # watchdog 10 s: a shared, loaded machine can stall the lockstep loop for over a second
             # of wall-clock time, and a trip would end the experiment with a ramp-down
             ws, cs = run_closed_loop(start, args.duration, ["-p", f"kr_ramp_start_s:={args.ramp_start}",
                                                             "-p", f"kr_ramp_duration_s:={args.ramp_duration}",
                                                             "-p", "watchdog_timeout_s:=10.0"], fs, block)
-        finally:
-            for proc in reversed(started):
-                if proc.poll() is None:
-                    os.killpg(proc.pid, signal.SIGINT)
-            for proc in started:
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(proc.pid, signal.SIGKILL)
         print(f"closed loop: {args.duration:g} s of signal in {time.monotonic() - t0:.1f} s wall")
         args.output.parent.mkdir(parents=True, exist_ok=True)
         (args.output.parent / "wing_state.jsonl").write_text("".join(json.dumps(m) + "\n" for m in ws))

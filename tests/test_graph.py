@@ -1,0 +1,126 @@
+"""The graph launcher (flaair_common.graph): private domains, no orphans, clean ends of `experiment`."""
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from flaair_common.graph import Graph, lease_domain, wait_for
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+
+
+def _pids_on_domain(domain_id: int) -> list[int]:
+    """Processes of a FLAAIR graph on this domain (its launcher marks them with FLAAIR_GRAPH)."""
+    found = []
+    needle = f"FLAAIR_GRAPH={domain_id}:".encode()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if any(item.startswith(needle) for item in environ):
+            found.append(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    status = Path(f"/proc/{pid}/stat")
+    return status.exists() and status.read_text().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_a_leased_domain_is_never_leased_twice_while_held():
+    first = lease_domain()
+    try:
+        others = [lease_domain() for _ in range(20)]
+        assert first.domain_id not in [o.domain_id for o in others]
+        assert len({o.domain_id for o in others}) == 20
+        for other in others:
+            other.release()
+    finally:
+        first.release()
+
+
+def test_graph_env_is_private_and_localhost():
+    with Graph() as graph:
+        assert graph.env["ROS_DOMAIN_ID"] == str(graph.domain_id)
+        assert graph.env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+        assert "localhost" in graph.describe() and str(graph.domain_id) in graph.describe()
+
+
+def test_children_die_when_the_parent_is_killed(tmp_path):
+    """kill -9 of the process that started a graph: its children get SIGTERM (parent-death signal)."""
+    script = textwrap.dedent(f"""
+        import sys, time
+        sys.path[:0] = {[str(p) for p in (REPO_ROOT / "src").iterdir() if (p / "setup.py").exists()]!r}
+        from flaair_common.graph import Graph
+        graph = Graph()
+        child = graph.start("sleeper", [sys.executable, "-c", "import time; time.sleep(120)"])
+        print(child.pid, flush=True)
+        time.sleep(120)
+    """)
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        child_pid = int(parent.stdout.readline())
+        assert _alive(child_pid)
+        parent.kill()
+        parent.wait()
+        assert wait_for(lambda: not _alive(child_pid), 10.0), "the child outlived its killed parent"
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
+    bag = tmp_path / "bag"
+    process = subprocess.Popen([FLAAIR, "experiment", "characterization_chirp", "--out", str(bag)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    seen = []
+    for _ in range(20):
+        seen.append(process.stderr.readline())
+        match = re.search(r"on ROS domain (\d+), localhost discovery", seen[-1])
+        if match:
+            break
+    assert match, f"experiment did not say which domain: {seen!r}"
+    domain = int(match.group(1))
+    # running: the plant has published into the bag
+    assert wait_for(lambda: len(_pids_on_domain(domain)) >= 4, 120.0)
+    time.sleep(8.0)
+    return process, domain, bag
+
+
+@pytest.mark.slow
+def test_sigterm_ends_an_experiment_cleanly(tmp_path):
+    from flaair_tools import bagio
+
+    process, domain, bag = _start_experiment(tmp_path)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 143, stderr
+    assert "Traceback" not in stderr and "terminated" in stderr
+    assert _pids_on_domain(domain) == []
+    counts = bagio.message_counts(bag)          # the bag was closed: an independent read works
+    assert counts.get("/flaair/sensor_v", 0) > 0
+
+
+@pytest.mark.slow
+def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
+    process, domain, _ = _start_experiment(tmp_path)
+    process.kill()
+    process.wait()
+    assert wait_for(lambda: _pids_on_domain(domain) == [], 30.0), \
+        f"orphans on domain {domain}: {_pids_on_domain(domain)}"
