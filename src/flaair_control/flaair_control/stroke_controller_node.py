@@ -26,7 +26,7 @@ from rclpy.node import Node
 
 from flaair_common import topics
 from flaair_common.blocks import stamp_from_time_s
-from flaair_common.params import declare_parameters
+from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_control import safety, stroke
@@ -46,7 +46,10 @@ class StrokeControllerNode(Node):
         self.fs, self.n, self.in_flight = p["sample_rate_hz"], p["block_size"], p["blocks_in_flight"]
         self.plant = stroke.StrokePlant.from_model(load_model(p["model_file"] or None))
         velocity = p["velocity_delay_s"] if p["velocity_delay_s"] >= 0 else velocity_delay_s(p["compensation_frequency_hz"])
-        self.params = stroke.params_from_values(p, self.plant, self.fs, loop_delay_s(self.n * self.in_flight, self.fs, velocity * self.fs))
+        try:
+            self.params = stroke.params_from_values(p, self.plant, self.fs, loop_delay_s(self.n * self.in_flight, self.fs, velocity * self.fs))
+        except ValueError as exc:  # the design cannot reach the setpoint, or the limits contradict it
+            raise ParameterError(f"parameter 'setpoint_deg' / command limits: {exc}") from exc
         self.guard = safety.SafetyParams(p["drive_limit_v"], p["slew_limit_v_per_s"], p["invalid_timeout_s"], p["ramp_down_s"], self.fs)
         self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(0.0)
         self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = 0, "waiting", time.monotonic(), None, False
