@@ -188,6 +188,13 @@ def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -
     np.testing.assert_array_equal(stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32))
 
 
+def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
+    # packets that arrived 50 ms ago and are read only now: the target is not silent, the bridge is late
+    inputs = [SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5) for k in range(5)] + [Tick(1.051)]
+    state, blocks, _, _, notices = run(inputs)
+    assert state.counters.silences == 0 and len(blocks) == 5 and not notices
+
+
 def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
     inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]        # the target restarted at 0

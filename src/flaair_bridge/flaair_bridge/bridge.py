@@ -117,7 +117,8 @@ class BridgeState(NamedTuple):
     pending_first: Optional[int] = None   # published index of pending[:, 0]
     pending: np.ndarray = np.empty((3, 0))  # drive, stroke, pitch samples not yet in a full block
     stale_run: int = 0
-    last_sensor_s: Optional[float] = None
+    last_sensor_s: Optional[float] = None # arrival of the last packet (the target's clock is extrapolated from it)
+    last_read_s: Optional[float] = None   # when the bridge last took a packet from its socket (silence)
     silent: bool = False
     drive_expected: Optional[int] = None  # next index of FLAAIR's drive stream
     drive_offset: Optional[int] = None    # target index = drive-stream index + drive_offset
@@ -131,7 +132,8 @@ class BridgeState(NamedTuple):
 
 class SensorDatagram(NamedTuple):
     data: bytes
-    now_s: float
+    now_s: float                      # arrival (the kernel's receive time)
+    read_s: Optional[float] = None    # when the bridge took it from the socket (default: now_s)
 
 
 class DriveBlock(NamedTuple):
@@ -211,7 +213,7 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
                                 f"[{counters.malformed} malformed so far]"),))
     if (packet.sequence == state.sequence and packet.n == params.block_size and not state.pending.shape[1]
             and not state.silent and not packet.flags and packet.first_sample_index + state.index_offset == state.pending_first):
-        return _in_order_block(state, packet, inputs.now_s, params)
+        return _in_order_block(state, packet, inputs.now_s, _read_s(inputs), params)
     notices: list[Notice] = []
     counters = state.counters
     index_offset, stale_run = state.index_offset, 0
@@ -273,12 +275,23 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
     state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS,
                     target_end=max(end, state.target_end or 0), index_offset=index_offset,
                     pending_first=pending_first, pending=pending, stale_run=stale_run, last_sensor_s=inputs.now_s,
+                    last_read_s=_read_s(inputs),
                     silent=False, arrivals=arrivals, counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
     return state, Outputs(tuple(blocks), packets, timing, tuple(notices))
 
 
-def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: float,
+def _read_s(inputs: SensorDatagram) -> float:
+    return inputs.now_s if inputs.read_s is None else inputs.read_s
+
+
+def _clock(state: BridgeState, now_s: float, params: BridgeParams) -> int:
+    """The target's clock now: the last packet's end, moved on by the time since that packet arrived
+    (if the bridge fell behind, it has moved on by more than a packet)."""
+    return state.target_end + max(0, int((now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
+
+
+def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: float, read_s: float,
                     params: BridgeParams) -> tuple[BridgeState, Outputs]:
     """The common case, 2000 times a second: the next packet, one whole block. Same result as the
     general path, a third of its cost."""
@@ -289,8 +302,8 @@ def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: fl
     arrivals = state.arrivals.copy()
     arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, now_s)
     state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS, target_end=end,
-                           pending_first=first + packet.n, stale_run=0, last_sensor_s=now_s, arrivals=arrivals,
-                           counters=counters)
+                           pending_first=first + packet.n, stale_run=0, last_sensor_s=now_s, last_read_s=read_s,
+                           arrivals=arrivals, counters=counters)
     state, packets, timing = _release(state, params, now_s)
     block = SensorBlock(first, packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)
     return state, Outputs((block,), packets, timing, ())
@@ -339,9 +352,7 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     if over.any():
         drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
         counters = _count(counters, clamped_samples=int(over.sum()))
-    # The target's clock now: the last packet's end, moved on by the time since that packet arrived
-    # (if the bridge fell behind, it has moved on by more than a packet).
-    clock = state.target_end + max(0, int((inputs.now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
+    clock = _clock(state, inputs.now_s, params)
     anchor = max(state.target_end, clock) + params.lead_samples if clock > state.target_end + params.lead_samples \
         else state.target_end + params.lead_samples
     offset = state.drive_offset
@@ -373,7 +384,7 @@ def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[Br
     """Send queued drive up to target clock + lead + max_ahead_samples, in packets of <= 1000 samples."""
     if not state.queue:
         return state, (), ()
-    limit = state.target_end + params.lead_samples + params.max_ahead_samples
+    limit = max(state.target_end, _clock(state, now_s, params)) + params.lead_samples + params.max_ahead_samples
     packets, timing, queue = [], [], []
     sequence, counters, driving = state.drive_sequence, state.counters, state.driving
     for target_first, drive in state.queue:
@@ -414,10 +425,10 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
         packets.append(packet)
         notices.append(Notice("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
                                                 f"{params.drive_timeout_s:g} s): stop packet sent, the target zeroes the drive", True))
-    if state.last_sensor_s is not None and now - state.last_sensor_s > params.sensor_timeout_s:
+    if state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s:
         if not state.silent:
             state = state._replace(silent=True, counters=_count(state.counters, silences=1))
-            notices.append(Notice("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_sensor_s):.1f} ms "
+            notices.append(Notice("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_read_s):.1f} ms "
                                               f"(> sensor_timeout_s {params.sensor_timeout_s:g} s) after index "
                                               f"{state.target_end}: samples published as lost"
                                               + ("; stop packet sent" if state.driving else ""), True))
@@ -425,7 +436,7 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
                 state, packet = _stop_packet(state)
                 packets.append(packet)
         # NaN (lost) samples at the real-time rate, so downstream signal time goes on and shows the loss
-        due = state.target_end + state.index_offset + min(int((now - state.last_sensor_s) * params.sample_rate_hz),
+        due = state.target_end + state.index_offset + min(int((now - state.last_read_s) * params.sample_rate_hz),
                                                           params.max_fill_samples)
         missing = due - _published_end(state)
         missing -= (missing + state.pending.shape[1]) % params.block_size  # whole blocks only
@@ -445,3 +456,21 @@ def summary(counters: Counters, timing: list) -> str:
         text += (f"; sensor arrival -> drive packet p50 {np.percentile(latency_ms, 50):.3f} ms, "
                  f"p99 {np.percentile(latency_ms, 99):.3f} ms over {len(latency_ms)} packets")
     return text
+
+
+class EventLog:
+    """Raw event times for benchmarks: each sensor packet (packets accepted so far, arrival s) and
+    each drive block (stream index, receive s, send s; NaN when it was queued or dropped)."""
+
+    def __init__(self) -> None:
+        self.sensor: list[tuple[int, float]] = []
+        self.drive: list[tuple[int, float, float]] = []
+
+    def record(self, inputs: Input, out: Outputs, counters: Counters, now_s: float) -> None:
+        if isinstance(inputs, DriveBlock):
+            self.drive.append((inputs.first_sample_index, inputs.now_s, now_s if out.packets else math.nan))
+        elif isinstance(inputs, SensorDatagram):
+            self.sensor.append((counters.sensor_packets, inputs.now_s))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"sensor": np.array(self.sensor).reshape(-1, 2), "drive": np.array(self.drive).reshape(-1, 3)}

@@ -7,10 +7,9 @@ target applied becomes DriveCommandBlock on /flaair/drive/applied. DriveCommandB
 packets) lead_samples ahead of its clock, clamped to +-drive_limit_v. A non-zero drive stream
 that falls silent for drive_timeout_s, or a target silent for sensor_timeout_s, sends a stop
 packet; so does every end of a run (Ctrl-C, SIGTERM, shutdown). Malformed datagrams are
-counted and logged (rate-limited). A thin shell over flaair_bridge.bridge.step.
-
-The socket is read by a dedicated thread (flaair_bridge.udp); it and the executor's callbacks
-share the core under one lock, so the class can be loaded into any executor.
+counted and logged (rate-limited). A thin shell over flaair_bridge.bridge.step; the socket is
+read by a thread (flaair_bridge.udp) that shares the core with the executor under one lock, so
+the class can be loaded into any executor.
 
 Usage: bin/flaair run flaair_bridge bridge_node --ros-args -p listen_port:=25000 -p lead_samples:=20
 """
@@ -62,9 +61,7 @@ class BridgeNode(Node):
         super().__init__(NODE_NAME)
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         try:
-            self.params = bridge.BridgeParams(
-                p["sample_rate_hz"], p["block_size"], p["lead_samples"], p["drive_limit_v"], p["max_ahead_samples"],
-                p["max_fill_samples"], p["resync_packets"], p["drive_timeout_s"], p["sensor_timeout_s"])
+            self.params = bridge.BridgeParams(**{name: p[name] for name in bridge.BridgeParams.__dataclass_fields__})
         except bridge.BridgeParameterError as exc:
             raise ParameterError(str(exc)) from exc
         try:
@@ -72,11 +69,10 @@ class BridgeNode(Node):
                                                  self.on_datagram)
         except OSError as exc:
             raise ParameterError(f"parameters 'listen_host'/'listen_port' = {p['listen_host']}:{p['listen_port']}: {exc}") from exc
-        self.target: tuple[str, int] | None = None
-        self.state = bridge.initial_state()
-        self.lock = threading.Lock()
+        self.target: tuple[str, int] | None = None   # where drive packets go (known once the target speaks)
+        self.state, self.lock = bridge.initial_state(), threading.Lock()
         self.timing: list[tuple[int, float, float]] = []
-        self.events = {"sensor": [], "drive": []} if p["timing_file"] else None
+        self.events = bridge.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
@@ -84,8 +80,7 @@ class BridgeNode(Node):
         self.applied_pub = self.create_publisher(DriveCommandBlock, APPLIED_DRIVE, BLOCK_STREAM) if p["publish_applied"] else None
         self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)
         self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time())))
-        self.bad_drive_messages = 0
-        self.closed = False
+        self.bad_drive_messages, self.closed = 0, False
         self.get_logger().info(
             f"bridge ready: sensor packets on udp {p['listen_host']}:{p['listen_port']}, drive to "
             f"{p['target_host'] or '<sender>'}:{p['target_port'] or '<sender port>'}, lead {p['lead_samples']} samples "
@@ -93,7 +88,7 @@ class BridgeNode(Node):
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         self.target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
-        self.process(bridge.SensorDatagram(data, arrival_s))
+        self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
 
     def on_drive(self, data: bytes) -> None:
         try:
@@ -108,17 +103,14 @@ class BridgeNode(Node):
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
         with self.lock:  # publishing inside: blocks from the thread and from the timer stay in order
             self.state, out = bridge.step(self.state, inputs, self.params)
-            for packet in out.packets:
-                for _ in range(copies):
-                    self.send(packet)
+            for packet in [packet for packet in out.packets for _ in range(copies)]:
+                error = self.endpoint.send(packet, self.target) if self.target is not None else ""
+                if error:
+                    self.get_logger().warning(f"drive packet not sent to {self.target}: {error}", throttle_duration_sec=1.0)
             self.timing.extend(out.timing)
             counters = self.state.counters
-            if self.events is not None:  # raw event times for benchmarks (timing_file)
-                if isinstance(inputs, bridge.DriveBlock):
-                    self.events["drive"].append((inputs.first_sample_index, inputs.now_s,
-                                                 time.time() if out.packets else np.nan))
-                elif isinstance(inputs, bridge.SensorDatagram):
-                    self.events["sensor"].append((counters.sensor_packets, inputs.now_s))
+            if self.events is not None:
+                self.events.record(inputs, out, counters, time.time())
             for block in out.blocks:
                 stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
                 self.sensor_pub.publish(self.sensor_codec.encode(stamp_ns, {
@@ -128,16 +120,9 @@ class BridgeNode(Node):
                     self.applied_pub.publish(self.drive_codec.encode(stamp_ns, {
                         "sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
                         "drive_v": block.drive_v}))
-        for notice in out.notices:
-            if notice.error:
-                self.get_logger().error(notice.text)
-            else:
-                warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)
-
-    def send(self, packet: bytes) -> None:
-        error = self.endpoint.send(packet, self.target) if self.target is not None else ""
-        if error:
-            self.get_logger().warning(f"drive packet not sent to {self.target}: {error}", throttle_duration_sec=1.0)
+        for notice in out.notices:  # errors always; the rest rate-limited by their counter
+            log = self.get_logger().error if notice.error else None
+            log(notice.text) if log else warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)
 
     def close(self) -> None:
         """End of the run: stop packet (sent STOP_COPIES times), receiver stopped, counters logged."""
@@ -148,8 +133,7 @@ class BridgeNode(Node):
         self.endpoint.close()
         self.get_logger().info(f"bridge closed, stop packet sent: {bridge.summary(self.state.counters, self.timing)}")
         if self.p["timing_file"]:
-            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3),
-                     sensor=np.array(self.events["sensor"]).reshape(-1, 2), drive=np.array(self.events["drive"]).reshape(-1, 3))
+            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3), **self.events.arrays())
 
     def destroy_node(self) -> None:
         self.close()  # whoever owns the node (run_node, a shared executor): the run ends with a stop packet
