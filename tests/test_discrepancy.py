@@ -397,7 +397,10 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
     # the output model is a normal model file: it loads, and `bin/flaair simulate` accepts it
     found = load_model(out / "model.yaml")
     assert found.effect_names == ("sensor_delay", "strain_transfer_loss")
-    assert found.plant == model.plant and found.sensors == model.sensors
+    # the plant is this robot's, fitted first (here the nominal robot: within noise of the model)
+    assert all(getattr(found.plant, k) == pytest.approx(getattr(model.plant, k), rel=0.01)
+               for k in vars(model.plant))
+    assert found.sensors == model.sensors
     sim_csv = tmp_path / "sim.csv"
     result = subprocess.run([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model", str(out / "model.yaml"),
                              "--out", str(sim_csv)], capture_output=True, text=True, timeout=300)

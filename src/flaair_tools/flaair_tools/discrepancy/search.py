@@ -16,7 +16,7 @@ from .identification import identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
 from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
-                         candidate_groups, candidate_specs)
+                         candidate_groups, candidate_specs, plant_spec)
 
 # ------------------------------------------------------------------------------ the search
 
@@ -205,7 +205,21 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
                                        {**base_state.evidence, **{s.name: ev for s in specs}}, ev)
             state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
                                         max(st.max_effects_per_channel - 2, 0))
+    if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
+        state, has_gap = _refine_plant_on_sensor(ctx, state, channel)
     return state, has_gap, steps
+
+
+def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
+    """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
+    may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor
+    (the sensor chain as found); keep them only if that closes the gap and the truth stays at noise."""
+    truth = _UPSTREAM_TRUTH[channel]
+    specs = [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
+    refined = _polish(ctx, state.model, specs, state.model, channel, False)
+    if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
+        return state, True
+    return _ChannelState(refined, state.specs, state.evidence, state.last), False
 
 
 def find_effects(
