@@ -304,7 +304,7 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
     parts.append(f"<img src='{figs['gap']}'>")
     if result.plant_parameters:
         parts.append("<h2>This robot's plant (fitted first)</h2>")
-        parts.append(_table(["parameter", "fitted", "model", "change", "standard error"],
+        parts.append(_table(["parameter", "fitted", "model", "change", "standard error (identification)"],
                             [[k, p["value"], p["nominal"], f"{p['value'] / p['nominal'] - 1.0:+.2%}", p["stderr"]]
                              for k, p in result.plant_parameters.items()]))
         notes = list(result.plant_fit.inseparable) if result.plant_fit is not None else []

@@ -41,7 +41,8 @@ class DiscrepancyResult:
     run_names : names of the runs.
     plant_fit : the identification of this robot's plant (`identification.PlantFit`; None when
         Settings.identify is off).
-    plant_parameters : {key: {value, nominal, stderr}} of the fitted plant parameters in model_out.
+    plant_parameters : {key: {value, nominal, stderr}} of the fitted plant parameters in model_out
+        (stderr from the identification, before the joint fits with effects).
     not_separable : [{effect, reason}] vocabulary effects whose signature a plant-parameter change
         reproduces: not searched for, and not claimed.
     approximate : names of found effects whose channel keeps a gap (named, but not explaining it).
@@ -164,7 +165,7 @@ def analyse(
         return DiscrepancyResult(
             status="no_discrepancy", effects=(), model_out=base, gap_after=gap_fit, gap_in_sample_after=dict(gap_fit),
             diagnosis_after=diag_fit, searches=(), remaining=(), sims_after=tuple(sims_fit),
-            summary=_summary("no_discrepancy", (), diag_fit, (), plant_fit),
+            summary=_summary("no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)),
             plant_parameters=_plant_parameters(model, base, plant_fit), **common)
     model_out, effects, searches, runs = find_effects(runs, base, noise, settings, progress, tracks)
     if progress:
@@ -187,7 +188,8 @@ def analyse(
     return DiscrepancyResult(
         status=status, effects=tuple(effects), model_out=model_out, gap_after=gap_after, gap_in_sample_after=in_sample,
         diagnosis_after=diag_after, searches=searches, remaining=remaining, sims_after=tuple(sims_after),
-        summary=_summary(status, effects, diag_after, remaining, plant_fit, approximate),
+        summary=_summary(status, effects, diag_after, remaining, _plant_parameters(model, model_out, plant_fit),
+                         approximate),
         plant_parameters=_plant_parameters(model, model_out, plant_fit), approximate=approximate, **common)
 
 
@@ -240,12 +242,13 @@ def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
 
 
 def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remaining: Sequence[dict],
-             plant_fit: Optional[PlantFit] = None, approximate: Sequence[str] = ()) -> str:
+             plant: Optional[Mapping[str, dict]] = None, approximate: Sequence[str] = ()) -> str:
     parts = []
-    if plant_fit is not None:
-        moved = sorted(plant_fit.keys, key=lambda k: -abs(plant_fit.values[k] / plant_fit.nominal[k] - 1.0))[:3]
+    if plant:
+        change = {k: p["value"] / p["nominal"] - 1.0 for k, p in plant.items()}
+        moved = sorted(change, key=lambda k: -abs(change[k]))[:3]
         parts.append("This robot's plant was fitted first (largest changes from the model: "
-                     + ", ".join(f"{k} {plant_fit.values[k] / plant_fit.nominal[k] - 1.0:+.1%}" for k in moved) + ").")
+                     + ", ".join(f"{k} {change[k]:+.1%}" for k in moved) + ").")
     if status == "no_discrepancy":
         parts.append("With its own plant parameters the model explains every channel to noise level: residuals are "
                      "white and at the noise RMS; no physics is missing.")
