@@ -6,7 +6,9 @@ import pytest
 
 from flaair_bridge import bridge, protocol
 from flaair_bridge.bridge import DriveBlock, SensorDatagram, Stop, Tick
-from flaair_bridge.emulated_target import sensor_packet
+import struct
+
+from flaair_bridge.emulated_target import TargetCore, sensor_packet
 
 FS = 20000.0
 N = 10
@@ -216,3 +218,26 @@ def test_stop_input_sends_a_stop_packet_at_the_target_clock() -> None:
 def test_parameters_out_of_range_are_named(name: str, value) -> None:
     with pytest.raises(bridge.BridgeParameterError, match=f"'{name}'"):
         params(**{name: value})
+
+
+def drive_datagram(first: int, values, flags: int = 0) -> bytes:
+    return struct.pack(f"<4sIQHH{len(values)}f", b"FLD1", 0, first, len(values), flags, *values)
+
+
+def test_emulated_target_holds_then_zeroes_clamps_discards_late_and_honours_stop() -> None:
+    core = TargetCore(hold_samples=3, drive_limit_v=150.0)
+    core.receive(drive_datagram(0, [1.0, 2.0, 300.0, -400.0, 5.0]))
+    drive, flags = core.decide(10)
+    np.testing.assert_array_equal(drive, [1, 2, 150, -150, 5, 5, 5, 5, 0, 0])     # held 3 samples, then zero
+    assert flags == 1 and core.counts["watchdog_trips"] == 1 and core.counts["clamped_samples"] == 2
+    core.receive(drive_datagram(8, [7.0] * 4))                # 8, 9 already passed: late; 10, 11 in time
+    drive, flags = core.decide(4)
+    np.testing.assert_array_equal(drive, [7, 7, 7, 7])                          # fresh, then held again
+    assert flags == 0 and core.counts["late_samples"] == 2 and core.counts["watchdog_trips"] == 1
+    core.receive(drive_datagram(14, [9.0] * 10))
+    core.receive(drive_datagram(14, [0.0], flags=1))          # stop: zero now, the buffered drive is gone
+    drive, flags = core.decide(10)
+    assert np.all(drive == 0.0) and flags == 0 and core.counts["stop_packets"] == 1
+    core.receive(b"FLD1" + bytes(3))                          # malformed: dropped
+    core.receive(drive_datagram(30, [float("nan")]))
+    assert core.counts["dropped_packets"] == 2

@@ -124,25 +124,29 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
     port = free_port()
     with ros_processes() as procs:
         # the bridge's own drive watchdog slowed down, so the target's hold-then-zero acts first
-        bridge = start_graph(procs, tmp_path, port, "-p", "drive_timeout_s:=30.0")
+        bridge = start_graph(procs, tmp_path, port, "-p", "drive_timeout_s:=30.0", "-p", "sensor_timeout_s:=10.0")
         drive = drive_source(procs)
         emulator = target(procs, tmp_path, port)
         applied = tmp_path / "DriveCommandBlock.jsonl"
         assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
         procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
-        kill_index = lines(applied)[-1]["first_sample_index"]
-        assert wait_for(lambda: lines(applied)[-1]["first_sample_index"] > kill_index + 0.5 * FS, 120)
+        time.sleep(3.0)
+        # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first
+        procs.stop(emulator, signal.SIGINT, timeout_s=60)
+        before_stop = json.loads((tmp_path / "target.json").read_text())
+        emulator = target(procs, tmp_path, port)
+        time.sleep(1.0)
         assert procs.stop(bridge, signal.SIGTERM, timeout_s=60) == 0
         log = bridge.stderr.read()
         time.sleep(0.5)
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
-        counters = json.loads((tmp_path / "target.json").read_text())
-    index, drive_v = samples(lines(applied), "drive_v")
-    tail = drive_v[index > kill_index + 0.25 * FS]
-    assert len(tail) > 1000 and np.all(tail == 0.0)                         # zeroed, and held at zero
-    assert counters["watchdog_trips"] >= 1 and counters["zeroed_samples"] > 0, counters
+        after_stop = json.loads((tmp_path / "target.json").read_text())
+    assert before_stop["fresh_samples"] > 1000, before_stop                         # it was driven
+    assert before_stop["watchdog_trips"] >= 1 and before_stop["zeroed_samples"] > 0, before_stop
+    assert before_stop["watchdog_tripped_at_exit"] is True and before_stop["applied_v_at_exit"] == 0.0
+    assert before_stop["stop_packets"] == 0                                          # zeroed by its own watchdog
     assert "the target's drive watchdog has tripped" in log and "target_watchdog_packets 0," not in log
-    assert "stop packet sent: end of run" in log and counters["stop_packets"] >= 1   # SIGTERM ends with a stop too
+    assert "stop packet sent: end of run" in log and after_stop["stop_packets"] >= 1   # SIGTERM ends with a stop too
 
 
 def test_silent_target_is_marked_as_loss_and_the_drive_is_stopped(tmp_path) -> None:
@@ -151,14 +155,10 @@ def test_silent_target_is_marked_as_loss_and_the_drive_is_stopped(tmp_path) -> N
         bridge = start_graph(procs, tmp_path, port)
         drive_source(procs)
         emulator = target(procs, tmp_path, port)
-        sensor = tmp_path / "SensorVoltageBlock.jsonl"
         applied = tmp_path / "DriveCommandBlock.jsonl"
         assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
         emulator.send_signal(signal.SIGSTOP)            # the target falls silent (its socket keeps what arrives)
-        silent_from = lines(sensor)[-1]["first_sample_index"]
-        assert wait_for(lambda: any(np.isnan(b["stroke_sensor_v"]).all() and b["first_sample_index"] > silent_from
-                                    for b in lines(sensor)[-400:]), 60)
-        time.sleep(0.3)
+        time.sleep(1.0)
         emulator.send_signal(signal.SIGCONT)
         time.sleep(1.0)
         assert bridge.poll() is None
@@ -166,10 +166,9 @@ def test_silent_target_is_marked_as_loss_and_the_drive_is_stopped(tmp_path) -> N
         procs.stop(bridge, signal.SIGINT, timeout_s=60)
         log = bridge.stderr.read()
         counters = json.loads((tmp_path / "target.json").read_text())
-    assert "TARGET SILENT" in log and "stop packet sent" in log, log[-2000:]
-    assert "silences 1," in log or "silences 2," in log
-    # the silence stop reached the target once it woke up (plus the run's final one, if it was still up)
+    assert "TARGET SILENT" in log and "; stop packet sent" in log, log[-3000:]
+    summary = log[log.index("bridge closed"):]
+    silence_samples = int(summary.split("silence_samples ")[1].split(",")[0])
+    assert silence_samples >= 0.5 * FS * 0.5, summary            # ~1 s of silence published as lost (NaN) blocks
+    # the silence stop reached the target once it woke up (before the run's final one)
     assert counters["stop_packets"] >= 1, counters
-    index, stroke = samples(lines(sensor), "stroke_sensor_v")
-    lost = np.isnan(stroke)
-    assert lost.any() and not lost[index <= silent_from].any()                # loss marked only after the silence

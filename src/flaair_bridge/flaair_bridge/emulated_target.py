@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 SENSOR_HEAD = struct.Struct("<4sIQfHH")   # magic, sequence, first_sample_index, sample_rate_hz, n, flags
 DRIVE_HEAD = struct.Struct("<4sIQHH")     # magic, sequence, first_sample_index, m, flags
@@ -60,6 +61,7 @@ class TargetCore:
     armed: bool = False        # fresh drive seen since start / the last stop
     tripped: bool = False
     stop_index: int = 0        # drive for indices below this (sent before a stop) is ignored
+    applied_v: float = 0.0     # the drive applied at the last sample
     counts: dict = field(default_factory=lambda: dict.fromkeys(
         ("drive_packets", "dropped_packets", "late_samples", "ignored_after_stop_samples", "too_far_ahead_samples",
          "fresh_samples", "missing_samples", "held_samples", "zeroed_samples", "clamped_samples",
@@ -101,33 +103,47 @@ class TargetCore:
 
     def decide(self, n: int) -> tuple[np.ndarray, int]:
         """Drive applied at the next n samples (clamped) and the packet's flags."""
-        out = np.zeros(n)
-        counts = self.counts
-        for k in range(n):
-            i = self.next_index + k
-            slot = i % RING
-            if self.tags[slot] == i:
-                raw = self.values[slot]
-                v = min(max(raw, -self.drive_limit_v), self.drive_limit_v)
-                counts["clamped_samples"] += int(v != raw)
-                counts["fresh_samples"] += 1
-                self.last_v, self.missing_run, self.armed, self.tripped = v, 0, True, False
-            elif self.armed:
-                counts["missing_samples"] += 1
-                self.missing_run += 1
-                if self.missing_run > self.hold_samples:
-                    if not self.tripped:
-                        counts["watchdog_trips"] += 1
-                    self.tripped, v = True, 0.0
-                    counts["zeroed_samples"] += 1
-                else:
-                    v = self.last_v
-                    counts["held_samples"] += 1
-            else:
-                v = 0.0
-            out[k] = v
+        out = np.empty(n)
+        tally = np.zeros(6, dtype=np.int64)
+        self.last_v, self.missing_run, self.armed, self.tripped = _decide(
+            self.values, self.tags, self.next_index, self.hold_samples, self.drive_limit_v, self.last_v,
+            self.missing_run, self.armed, self.tripped, out, tally)
+        for name, count in zip(_TALLY, tally):
+            self.counts[name] += int(count)
+        self.applied_v = float(out[-1])
         self.next_index += n
         return out, WATCHDOG_FLAG if self.tripped else 0
+
+
+_TALLY = ("fresh_samples", "clamped_samples", "missing_samples", "held_samples", "zeroed_samples", "watchdog_trips")
+
+
+@njit(cache=True)
+def _decide(values, tags, first, hold_samples, limit, last_v, missing_run, armed, tripped, out, tally):
+    """Per sample: the fresh drive sample (clamped), else hold the last for hold_samples, then zero."""
+    for k in range(out.shape[0]):
+        i = first + k
+        slot = i % values.shape[0]
+        if tags[slot] == i:
+            raw = values[slot]
+            v = min(max(raw, -limit), limit)
+            tally[0] += 1
+            tally[1] += v != raw
+            last_v, missing_run, armed, tripped = v, 0, True, False
+        elif armed:
+            tally[2] += 1
+            missing_run += 1
+            if missing_run > hold_samples:
+                tally[5] += not tripped
+                tripped, v = True, 0.0
+                tally[4] += 1
+            else:
+                v = last_v
+                tally[3] += 1
+        else:
+            v = 0.0
+        out[k] = v
+    return last_v, missing_run, armed, tripped
 
 
 def sensor_packet(sequence: int, first: int, rate_hz: float, flags: int, drive_v, stroke_v, pitch_v) -> bytes:
@@ -205,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     state = plant.initial_state(model, fs)
     rng = np.random.default_rng(args.seed) if args.noise else None
     state, _ = plant.step(state, plant.PlantInputs(np.zeros(n), None), params)  # compile before the clock starts
+    TargetCore(args.hold_samples, args.drive_limit_v).decide(n)
     state = plant.initial_state(model, fs)
     total = math.ceil(args.duration * fs / n) if args.duration else None
     progress = _progress(total, n / fs)
@@ -250,7 +267,8 @@ def main(argv: list[str] | None = None) -> int:
         progress(1)
     sock.close()
     counters = {**core.counts, **stats, "samples": core.next_index, "sample_rate_hz": fs, "packet_samples": n,
-                "wall_s": time.monotonic() - t0, "stopped": not core.armed and core.counts["stop_packets"] > 0}
+                "wall_s": time.monotonic() - t0, "stopped": not core.armed and core.counts["stop_packets"] > 0,
+                "watchdog_tripped_at_exit": core.tripped, "applied_v_at_exit": core.applied_v}
     text = json.dumps(counters, allow_nan=False)
     print(text, flush=True)
     if args.counters:
