@@ -1,7 +1,8 @@
 """player: republish a bag's messages onto their topics, like `ros2 bag play`.
 
 Messages leave in the bag's log-time order, as recorded (serialized bytes, never decoded),
-paced at real time (`--rate 1`), N times real time (`--rate N`) or as fast as possible
+paced by their log times (which `flaair record` sets to each message's signal time, so a
+replay follows the signal's own clock, not the recording machine's) at real time (`--rate 1`), N times real time (`--rate N`) or as fast as possible
 (`--fast`). With `--clock`, /clock carries the bag's time (for nodes with use_sim_time) and a
 recorded /clock topic is not replayed. Publishers offer what the recording's publishers
 offered (reliable / transient-local if any of them did).

@@ -2,8 +2,12 @@
 
 Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
 for new topics every `discovery_period_s`, and writes each message straight into the bag
-without deserializing it. The log time of a message is its receive time, or, with
-use_sim_time, the stamp of its leading header (the ROS clock for header-less types).
+without deserializing it. The log time of every message is its signal time, so `play`,
+PlotJuggler and Foxglove show the signal's own timeline (3 s of simulated signal span 3 s):
+the stamp of its leading header (a block's first sample; a status's or event's own stamp) or,
+for /clock, the clock value. A header-less message (a run marker) takes the signal time of
+the latest stamped message, and waits for the first one; in a bag with no stamped message at
+all it keeps its receive time. The publisher's send time is kept as the MCAP publish time.
 Subscriptions match what the publishers offer (reliable / transient-local only if every
 publisher offers it); the offered QoS profiles are recorded with each topic, as rosbag2 does.
 
@@ -108,7 +112,8 @@ def cli_to_ros_args(argv: list[str], prog: str = "flaair record") -> list[str]:
     parser.add_argument("--topics", nargs="+", default=None, help="topics to record (default: every /flaair topic)")
     parser.add_argument("--clock", action="store_true", help="also record /clock")
     parser.add_argument("--no-compression", action="store_true", help="store chunks uncompressed")
-    parser.add_argument("--use-sim-time", action="store_true", help="stamp messages with sim time (header stamps)")
+    parser.add_argument("--use-sim-time", action="store_true",
+                        help="run the node on sim time (log times are signal times with or without it)")
     ros_args: list[str] = []
     if "--ros-args" in argv:
         cut = argv.index("--ros-args")
@@ -143,7 +148,8 @@ class RecorderNode(Node):
         super().__init__(NODE_NAME)
         self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.chosen = parse_topic_list(self.p["topics"])
-        self.use_sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.signal_ns: int | None = None  # signal time of the latest stamped message
+        self.pending: list[tuple[str, bytes, int | None]] = []  # header-less messages before the first stamp
         self.store = bagio.typestore()
         path = Path(self.p["output_path"]) if self.p["output_path"] else default_output_path(time.time())
         try:
@@ -191,7 +197,7 @@ class RecorderNode(Node):
                 reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
                 durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE,
             )
-            stamped = self.use_sim_time and bagio.has_leading_stamp(msgtype, self.store)
+            stamped = bagio.has_leading_stamp(msgtype, self.store)
             self.received[topic] = 0
             self.subscribed[topic] = self.create_subscription(
                 cls, topic, self.make_callback(topic, stamped, cls), profile, raw=True)
@@ -207,21 +213,23 @@ class RecorderNode(Node):
         The executor hands over one message per wake-up; draining the subscription's queue in
         the callback keeps up with 20 kHz block streams where one-per-wake-up falls behind.
         """
-        write = self.writer.write
         received = self.received
-        clock = self.get_clock()
         subscriptions = self.subscribed
-        use_sim_time = self.use_sim_time
 
-        def log_time_ns(data: bytes, info: dict) -> int:
+        def write(data: bytes, info: dict) -> None:
+            publish_ns = info.get("source_timestamp") or None
             if stamped:
-                return bagio.leading_stamp_ns(data)
-            if use_sim_time:
-                return clock.now().nanoseconds
-            return info.get("received_timestamp") or time.time_ns()
+                self.signal_ns = bagio.leading_stamp_ns(data)
+                for pending in self.pending:
+                    self.writer.write(pending[0], self.signal_ns, pending[1], pending[2])
+                self.pending.clear()
+            elif self.signal_ns is None:
+                self.pending.append((topic, bytes(data), publish_ns))
+                return
+            self.writer.write(topic, self.signal_ns, data, publish_ns)
 
         def on_message(data: bytes, info: dict) -> None:
-            write(topic, log_time_ns(data, info), data, info.get("source_timestamp") or None)
+            write(data, info)
             count = 1
             handle = subscriptions[topic].handle
             while count < DRAIN_LIMIT:
@@ -229,8 +237,7 @@ class RecorderNode(Node):
                     taken = handle.take_message(cls, True)
                 if taken is None:
                     break
-                data, info = taken
-                write(topic, log_time_ns(data, info), data, info.get("source_timestamp") or None)
+                write(*taken)
                 count += 1
             received[topic] += count
 
@@ -240,6 +247,8 @@ class RecorderNode(Node):
         """Finish the bag (summary, metadata.yaml)."""
         if self.writer.closed:
             return
+        for topic, data, publish_ns in self.pending:  # no stamped message ever came: receive times
+            self.writer.write(topic, publish_ns or time.time_ns(), data, publish_ns)
         self.writer.close()
         counts = ", ".join(f"{topic} {count}" for topic, count in sorted(self.writer.counts.items())) or "nothing"
         self.get_logger().info(f"closed {self.writer.path}: {counts}")
