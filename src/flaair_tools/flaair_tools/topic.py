@@ -3,6 +3,8 @@
 Examples:
   bin/flaair topic list
   bin/flaair topic echo /flaair/wing_state --count 5
+  bin/flaair topic echo /flaair/collision/events --timeout 0     # wait forever
+  bin/flaair topic hz /flaair/sensor_v                           # messages per second, like `ros2 topic hz`
   bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
   bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock '{"drive_v": [1.0, 2.0]}' --count 3
 """
@@ -20,6 +22,19 @@ from rclpy.node import Node
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
+from flaair_model.config import ConfigError, node_parameters
+
+CONFIG_FILE = "flaair.yaml"
+SECTION = "flaair_cli"
+
+
+def rate_report(arrivals_s: list[float]) -> str:
+    """`ros2 topic hz`-style line from arrival times [s]: mean rate and the spread of the periods."""
+    periods = [b - a for a, b in zip(arrivals_s, arrivals_s[1:])]
+    mean = sum(periods) / len(periods)
+    std = (sum((p - mean) ** 2 for p in periods) / len(periods)) ** 0.5
+    return (f"average rate: {1.0 / mean:.1f} Hz  min: {min(periods) * 1e3:.3f} ms  max: {max(periods) * 1e3:.3f} ms  "
+            f"std dev: {std * 1e3:.3f} ms  window: {len(arrivals_s)}")
 
 
 def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
@@ -32,7 +47,54 @@ def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
     raise SystemExit(f"flaair topic: no publisher of '{topic}' seen within {timeout_s:g} s; give its type explicitly")
 
 
+def _listen(node: Node, args: argparse.Namespace) -> int:
+    """echo (JSON lines) or hz (rate reports) until --count, Ctrl-C, or --timeout of silence."""
+    type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
+    received, arrivals, reports = 0, [], 0
+    echo = args.verb == "echo"
+
+    def on_message(message: object) -> None:
+        nonlocal received
+        received += 1
+        if echo:
+            print(json.dumps(to_dict(message)), flush=True)
+        else:
+            arrivals.append(time.monotonic())
+            del arrivals[:-args.window]
+
+    # hz takes the serialized bytes: no conversion cost, so the rate is the topic's, not ours
+    subscription = node.create_subscription(message_class(type_name), args.topic, on_message, BLOCK_STREAM, raw=not echo)
+    last = time.monotonic()
+    next_report, seen = last + getattr(args, "period", 0.0), 0
+    ready = getattr(args, "ready_file", None) is None
+    while args.count == 0 or (received if echo else reports) < args.count:
+        rclpy.spin_once(node, timeout_sec=0.05)
+        now = time.monotonic()
+        if received != seen:
+            seen, last = received, now
+        elif args.timeout and now - last > args.timeout:
+            publishers = node.count_publishers(args.topic)
+            print(f"flaair topic {args.verb}: no message on '{args.topic}' for {args.timeout:g} s "
+                  f"({received} received, {publishers} publisher(s) now); --timeout 0 waits forever", file=sys.stderr)
+            return 1
+        if not ready and subscription.get_publisher_count() > 0:
+            args.ready_file.touch()
+            ready = True
+        if not echo and now >= next_report:
+            next_report += args.period
+            if len(arrivals) >= 2:
+                print(rate_report(arrivals), flush=True)
+                reports += 1
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    try:
+        defaults = node_parameters(CONFIG_FILE, SECTION)
+    except ConfigError as exc:
+        print(f"flaair topic: {exc}", file=sys.stderr)
+        return 2
+    silence = float(defaults["echo_timeout_s"])
     parser = argparse.ArgumentParser(prog="flaair topic", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="verb", required=True)
     sub.add_parser("list", help="topics and their types")
@@ -40,9 +102,19 @@ def main(argv: list[str] | None = None) -> int:
     echo.add_argument("topic")
     echo.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
     echo.add_argument("--count", type=int, default=0, help="stop after N messages (0: forever)")
-    echo.add_argument("--timeout", type=float, default=0.0, help="give up after S seconds (0: never)")
+    echo.add_argument("--timeout", type=float, default=silence,
+                      help=f"end (exit 1) after S seconds without a message (default {silence:g}; 0: wait forever)")
     echo.add_argument("--ready-file", type=Path, help="create this file once a publisher is matched (for scripts "
                       "that must not start the source before the echo listens)")
+    hz = sub.add_parser("hz", help="print the message rate, like `ros2 topic hz`")
+    hz.add_argument("topic")
+    hz.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
+    hz.add_argument("--window", type=int, default=int(defaults["hz_window"]),
+                    help=f"rate over the last N messages (default {defaults['hz_window']})")
+    hz.add_argument("--period", type=float, default=float(defaults["hz_period_s"]), help="print this often [s]")
+    hz.add_argument("--count", type=int, default=0, help="stop after N reports (0: until Ctrl-C)")
+    hz.add_argument("--timeout", type=float, default=silence,
+                    help=f"end (exit 1) after S seconds without a message (default {silence:g}; 0: wait forever)")
     wait = sub.add_parser("wait", help="wait until a topic has enough publishers and subscribers (exit 1 on timeout)")
     wait.add_argument("topic")
     wait.add_argument("--publishers", type=int, default=0, help="at least this many publishers")
@@ -80,28 +152,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"flaair topic wait: '{args.topic}' has {publishers} publisher(s) and {subscribers} subscriber(s) "
                   f"after {args.timeout:g} s; wanted {args.publishers} and {args.subscribers}", file=sys.stderr)
             return 1
-        if args.verb == "echo":
-            type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
-            received = 0
-
-            def on_message(message: object) -> None:
-                nonlocal received
-                received += 1
-                print(json.dumps(to_dict(message)), flush=True)
-
-            subscription = node.create_subscription(message_class(type_name), args.topic, on_message, BLOCK_STREAM)
-            deadline = time.monotonic() + args.timeout if args.timeout else float("inf")
-            ready = args.ready_file is None
-            while (args.count == 0 or received < args.count) and time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=0.05)
-                if not ready and subscription.get_publisher_count() > 0:
-                    args.ready_file.touch()
-                    ready = True
-            if args.count and received < args.count:
-                print(f"flaair topic echo: received {received} of {args.count} message(s) on '{args.topic}' "
-                      f"within {args.timeout:g} s", file=sys.stderr)
-                return 1
-            return 0
+        if args.verb in ("echo", "hz"):
+            return _listen(node, args)
         cls = message_class(args.type)
         try:
             values = json.loads(args.values)
