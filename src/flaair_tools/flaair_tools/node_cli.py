@@ -18,17 +18,23 @@ CONFIG_FILE = "flaair.yaml"
 SECTION = "flaair_cli"
 
 
+def cli_defaults(prog: str) -> dict:
+    """Defaults of the `flaair topic | node | param` commands (config/flaair.yaml, flaair_cli);
+    a broken config prints one line naming it and exits 2."""
+    try:
+        return node_parameters(CONFIG_FILE, SECTION)
+    except ConfigError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
 def full_name(name: str, namespace: str) -> str:
     """'/ns/name' from rclpy's (name, namespace) pair."""
     return f"{namespace.rstrip('/')}/{name}"
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        defaults = node_parameters(CONFIG_FILE, SECTION)
-    except ConfigError as exc:
-        print(f"flaair node: {exc}", file=sys.stderr)
-        return 2
+    defaults = cli_defaults("flaair node")
     parser = argparse.ArgumentParser(prog="flaair node", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="verb", required=True)
     listing = sub.add_parser("list", help="names of the running nodes, one a line")

@@ -19,10 +19,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
-from flaair_model.config import ConfigError, node_parameters
-
-CONFIG_FILE = "flaair.yaml"
-SECTION = "flaair_cli"
+from flaair_tools.node_cli import cli_defaults
 
 
 class ValueTypeError(ValueError):
@@ -58,11 +55,7 @@ def _spin(node, future, timeout_s: float, what: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        defaults = node_parameters(CONFIG_FILE, SECTION)
-    except ConfigError as exc:
-        print(f"flaair param: {exc}", file=sys.stderr)
-        return 2
+    defaults = cli_defaults("flaair param")
     parser = argparse.ArgumentParser(prog="flaair param", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("verb", choices=("get", "list", "set"))
     parser.add_argument("node", help="node name, e.g. /plant_node")

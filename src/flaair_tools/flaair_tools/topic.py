@@ -22,10 +22,7 @@ from rclpy.node import Node
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
-from flaair_model.config import ConfigError, node_parameters
-
-CONFIG_FILE = "flaair.yaml"
-SECTION = "flaair_cli"
+from flaair_tools.node_cli import cli_defaults
 
 
 def rate_report(arrivals_s: list[float]) -> str:
@@ -89,11 +86,7 @@ def _listen(node: Node, args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        defaults = node_parameters(CONFIG_FILE, SECTION)
-    except ConfigError as exc:
-        print(f"flaair topic: {exc}", file=sys.stderr)
-        return 2
+    defaults = cli_defaults("flaair topic")
     silence = float(defaults["echo_timeout_s"])
     parser = argparse.ArgumentParser(prog="flaair topic", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="verb", required=True)
