@@ -12,10 +12,9 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from flaair_common.runcsv import write_run
+from test_discrepancy import _write_case_csvs  # the case's runs as measured-run CSV files
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy import Settings, analyse
@@ -78,12 +77,7 @@ def test_outside_the_vocabulary_stays_unexplained_on_a_fitted_plant(model) -> No
 
 def test_cli_writes_plant_parameters_and_the_fitted_model(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
-    paths = []
-    for r in make_runs(case, model):
-        p = tmp_path / f"{r.name}.csv"
-        write_run(p, {"time_s": np.arange(r.n) / r.fs_hz, "drive_v": r.drive_v, "stroke_sensor_v": r.stroke_sensor_v,
-                      "pitch_sensor_v": r.pitch_sensor_v, "stroke_deg": r.stroke_deg, "pitch_deg": r.pitch_deg})
-        paths.append(str(p))
+    paths = [str(p) for p in _write_case_csvs(case, model, tmp_path)]
     out = tmp_path / "out"
     assert discrepancy.main(paths + ["--out", str(out)]) == 0
     doc = json.loads((out / "discrepancy.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict {c}"))

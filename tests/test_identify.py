@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import write_run
+from test_discrepancy import _write_case_csvs  # the case's runs as measured-run CSV files
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, simulate_batch_from
 from flaair_tools.discrepancy import analyse, check_runs, initial_mechanical_state, noise_estimates, simulate_runs
@@ -116,20 +117,10 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
     assert result.effects == ()
 
 
-def _write_csvs(case, model, directory: Path) -> list[Path]:
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for r in make_runs(case, model):
-        p = directory / f"{r.name}.csv"
-        write_run(p, {"time_s": np.arange(r.n) / r.fs_hz, "drive_v": r.drive_v, "stroke_sensor_v": r.stroke_sensor_v,
-                      "pitch_sensor_v": r.pitch_sensor_v, "stroke_deg": r.stroke_deg, "pitch_deg": r.pitch_deg})
-        paths.append(p)
-    return paths
-
-
 def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
-    paths = _write_csvs(case, model, tmp_path / "runs")
+    (tmp_path / "runs").mkdir()
+    paths = _write_case_csvs(case, model, tmp_path / "runs")
     out = tmp_path / "out"
     proc = subprocess.run([FLAAIR, "identify", *map(str, paths), "--out", str(out)], capture_output=True, text=True,
                           timeout=600)
