@@ -22,6 +22,7 @@ corrupt chunks; `reindex` rebuilds a bag from it (verified before it replaces an
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -1150,42 +1151,34 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
         compression, chunk_size = storage_settings()
         writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size, file_name=source.name,
                            store=store)
-        with open(source, "rb") as stream:
-            try:
-                data: Any = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
-            except ValueError:  # an empty file cannot be mapped
-                data = b""
-            try:
-                for record in scan_mcap(data, log):
-                    if progress is not None:
-                        progress(log.position)
-                    if isinstance(record, ScannedMessage):
-                        channel = channels.get(record.channel_id)
-                        if channel is None or not writer.has_topic(channel.topic):
-                            unverified_dropped += 1
-                            continue
-                        if not record.verified and not _decodable(store, schemas[channel.schema_id].name, record.data):
-                            unverified_dropped += 1
-                            continue
-                        writer.write(channel.topic, record.log_time, record.data, record.publish_time)
-                    elif isinstance(record, McapSchema):
-                        schemas[record.id] = record
-                    elif isinstance(record, McapChannel):
-                        channels[record.id] = record
-                        schema = schemas.get(record.schema_id)
-                        if schema is not None and not writer.has_topic(record.topic):
-                            writer.add_topic(record.topic, schema.name,
-                                             qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
-                                             msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
-                    elif isinstance(record, McapMetadata) and record.name == "rosbag2":
-                        try:
-                            previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
-                            custom.update({str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()})
-                        except (yaml.YAMLError, AttributeError):
-                            pass
-            finally:
-                if isinstance(data, mmap.mmap):
-                    data.close()
+        with _mapped(source) as data:
+            for record in scan_mcap(data, log):
+                if progress is not None:
+                    progress(log.position)
+                if isinstance(record, ScannedMessage):
+                    channel = channels.get(record.channel_id)
+                    if channel is None or not writer.has_topic(channel.topic):
+                        unverified_dropped += 1
+                        continue
+                    if not record.verified and not _decodable(store, schemas[channel.schema_id].name, record.data):
+                        unverified_dropped += 1
+                        continue
+                    writer.write(channel.topic, record.log_time, record.data, record.publish_time)
+                elif isinstance(record, McapSchema):
+                    schemas[record.id] = record
+                elif isinstance(record, McapChannel):
+                    channels[record.id] = record
+                    schema = schemas.get(record.schema_id)
+                    if schema is not None and not writer.has_topic(record.topic):
+                        writer.add_topic(record.topic, schema.name,
+                                         qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
+                                         msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
+                elif isinstance(record, McapMetadata) and record.name == "rosbag2":
+                    try:
+                        previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
+                        custom.update({str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()})
+                    except (yaml.YAMLError, AttributeError):
+                        pass
         kept = writer.counts
         topics = _recovery_counts(kept, channels, log, expected_from_metadata)
         damage = tuple(damage_lines(log))
@@ -1252,19 +1245,26 @@ def check_bag(bag: str | Path) -> tuple[ScanLog, dict[str, int]]:
     log = ScanLog()
     counts: dict[str, int] = {}
     channels: dict[int, str] = {}
-    with open(source, "rb") as stream:
+    with _mapped(source) as data:
+        for record in scan_mcap(data, log):
+            if isinstance(record, McapChannel):
+                channels[record.id] = record.topic
+            elif isinstance(record, ScannedMessage) and record.channel_id in channels:
+                topic = channels[record.channel_id]
+                counts[topic] = counts.get(topic, 0) + 1
+    return log, counts
+
+
+@contextlib.contextmanager
+def _mapped(path: Path) -> Iterator[Any]:
+    """A file's bytes, memory-mapped (an empty file: b"")."""
+    with open(path, "rb") as stream:
         try:
             data: Any = mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ)
-        except ValueError:
-            data = b""
+        except ValueError:  # an empty file cannot be mapped
+            yield b""
+            return
         try:
-            for record in scan_mcap(data, log):
-                if isinstance(record, McapChannel):
-                    channels[record.id] = record.topic
-                elif isinstance(record, ScannedMessage) and record.channel_id in channels:
-                    topic = channels[record.channel_id]
-                    counts[topic] = counts.get(topic, 0) + 1
+            yield data
         finally:
-            if isinstance(data, mmap.mmap):
-                data.close()
-    return log, counts
+            data.close()
