@@ -23,7 +23,7 @@ from rclpy.node import Node
 from flaair_common import topics
 from flaair_common.blocks import check_block, stamp_from_time_s, time_s_from_stamp
 from flaair_common.params import declare_parameters
-from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
+from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import run_node, warn_counted
 from flaair_control import monitor
 from flaair_control.control_io import COLLISION_MONITOR_PARAMS, CONFIG_FILE, collision_monitor_params_from_config
@@ -58,7 +58,7 @@ class CollisionMonitorNode(Node):
         self.wing_expected: int | None = None
         self.time_offset_s: float | None = None   # header time - index / fs
         self.rejected = 0
-        self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS, STATUS)
+        self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS, BLOCK_STREAM)   # one per wingbeat: a stream
         self.event_pub = self.create_publisher(CollisionEvent, topics.COLLISION_EVENTS, EVENTS)
         self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
         if self.params.estimates_frequency:

@@ -213,6 +213,7 @@ class CollisionMonitorState:
     monitor: col.MonitorState | None
     lock: DriveLockState
     expected_index: int | None         # first sample index of the next wing-state block
+    stroke_history_rad: np.ndarray     # last history_samples stroke samples (NaN = none)
     pitch_history_rad: np.ndarray      # last history_samples pitch samples (NaN = none)
     history_end: int                   # absolute index one past the last stored sample
     colliding: bool
@@ -226,7 +227,7 @@ def initial_state(p: CollisionMonitorParams) -> CollisionMonitorState:
     windows = None if p.estimates_frequency else window_params(p, p.drive_frequency_hz or None, p.drive_phase_rad)
     history = np.full(p.history_samples, np.nan)
     history.flags.writeable = False
-    return CollisionMonitorState(windows, None, DriveLockState(None, None, (), 0.0), None, history, 0,
+    return CollisionMonitorState(windows, None, DriveLockState(None, None, (), 0.0), None, history, history, 0,
                                  False, 0, 0, 0)
 
 
@@ -250,21 +251,30 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
         windows = window_params(p, lock.frequency_hz, lock.phase_rad)
     except col.CollisionParameterError as exc:
         return state, MonitorOutputs((), (f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}",))
-    start = state.expected_index if state.expected_index is not None else lock.crossing_index
     note = (f"drive windows locked at {lock.frequency_hz:.3f} Hz"
             + (f" (was {lock.previous_hz:.3f} Hz; monitor re-armed)" if lock.previous_hz else ""))
-    return replace(state, windows=windows, monitor=col.initial_state(windows, start)), MonitorOutputs((), (note,))
+    # The windows start at the lock's crossing, whichever stream is ahead: the verdicts do not
+    # depend on how the drive and wing-state blocks interleaved (live and replay agree).
+    start = lock.crossing_index
+    monitor = col.initial_state(windows, start)
+    state = replace(state, windows=windows, monitor=monitor)
+    behind = state.history_end - start          # wing samples already received past the crossing
+    if state.expected_index is None or behind <= 0:
+        return state, MonitorOutputs((), (note,))
+    if behind > state.pitch_history_rad.size:   # history too short: start at the wing stream
+        return replace(state, monitor=col.initial_state(windows, state.history_end)), MonitorOutputs((), (note,))
+    state, verdicts = _feed(state, monitor, state.stroke_history_rad[-behind:], state.pitch_history_rad[-behind:], p)
+    return state, MonitorOutputs(verdicts, (note,))
 
 
-def _store_pitch(state: CollisionMonitorState, first_index: int, pitch_rad: np.ndarray) -> tuple[np.ndarray, int]:
-    """The pitch history with this block appended (cleared on a discontinuity)."""
-    h = state.pitch_history_rad
-    n = pitch_rad.size
-    if first_index != state.history_end:
-        h = np.full(h.size, np.nan)
-    out = np.concatenate([h, pitch_rad])[-h.size:] if n < h.size else pitch_rad[-h.size:].copy()
+def _store(history: np.ndarray, end: int, first_index: int, x: np.ndarray) -> np.ndarray:
+    """A history with this block appended (cleared on a discontinuity)."""
+    n = x.size
+    if first_index != end:
+        history = np.full(history.size, np.nan)
+    out = np.concatenate([history, x])[-history.size:] if n < history.size else x[-history.size:].copy()
     out.flags.writeable = False
-    return out, first_index + n
+    return out
 
 
 def _paper_metric(history: np.ndarray, history_end: int, end_index: int, frequency_hz: float,
@@ -295,12 +305,27 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     if state.expected_index is not None and first != state.expected_index and state.windows is not None:
         notes.append(f"wing-state block {first} after {state.expected_index - 1}: monitor restarted")
         monitor = None
-    history, history_end = _store_pitch(state, first, pitch)
-    state = replace(state, expected_index=first + stroke.size, pitch_history_rad=history, history_end=history_end)
+    state = replace(state, expected_index=first + stroke.size,
+                    stroke_history_rad=_store(state.stroke_history_rad, state.history_end, first, stroke),
+                    pitch_history_rad=_store(state.pitch_history_rad, state.history_end, first, pitch),
+                    history_end=first + stroke.size)
     if state.windows is None:
         return state, MonitorOutputs((), tuple(notes))   # drive frequency not known yet
-    if monitor is None or monitor.tail_start_index + monitor.tail_stroke_rad.size != first:
-        monitor = col.initial_state(state.windows, first)   # (re)locked off this stream position
+    if monitor is None:
+        monitor = col.initial_state(state.windows, first)
+    skip = monitor.tail_start_index + monitor.tail_stroke_rad.size - first   # > 0: windows start inside/after
+    if skip < 0:
+        monitor = col.initial_state(state.windows, first)   # off this stream position: restart here
+        skip = 0
+    if skip >= stroke.size:
+        return replace(state, monitor=monitor), MonitorOutputs((), tuple(notes))
+    state, verdicts = _feed(state, monitor, stroke[skip:], pitch[skip:], p)
+    return state, MonitorOutputs(verdicts, tuple(notes))
+
+
+def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.ndarray, pitch: np.ndarray,
+          p: CollisionMonitorParams) -> tuple[CollisionMonitorState, tuple[Verdict, ...]]:
+    """Run the window monitor on samples that continue it, and decide every wingbeat it closes."""
     monitor, out = col.step(monitor, col.MonitorInputs(stroke, pitch), state.windows)
     verdicts = []
     colliding, above, below, wingbeats = state.colliding, state.above, state.below, state.wingbeats
@@ -310,7 +335,7 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
         status = int(report.status[k])
         end = int(report.end_index[k])
         frequency = float(report.frequency_hz[k])
-        metric = (_paper_metric(history, history_end, end, frequency, p)
+        metric = (_paper_metric(state.pitch_history_rad, state.history_end, end, frequency, p)
                   if status not in (col.INVALID, col.ARMING) else None)
         rmse = metric.spectral_rmse_deg if metric is not None else math.nan
         event = None
@@ -335,4 +360,4 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
                                 float(report.score[k]), event))
         wingbeats += 1
     state = replace(state, monitor=monitor, colliding=colliding, above=above, below=below, wingbeats=wingbeats)
-    return state, MonitorOutputs(tuple(verdicts), tuple(notes))
+    return state, tuple(verdicts)
