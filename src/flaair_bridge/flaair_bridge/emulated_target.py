@@ -156,7 +156,8 @@ def sensor_packet(sequence: int, first: int, rate_hz: float, flags: int, drive_v
 def _address(text: str, option: str) -> tuple[str, int]:
     host, _, port = text.rpartition(":")
     if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise SystemExit(f"emulated_target: {option} '{text}' is not HOST:PORT")
+        print(f"emulated_target: {option} '{text}' is not HOST:PORT", file=sys.stderr)
+        raise SystemExit(2)
     return host, int(port)
 
 
@@ -166,7 +167,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     try:
         shared = node_parameters("flaair.yaml", "emulated_target")
     except ConfigError as exc:
-        raise SystemExit(f"emulated_target: {exc}")
+        print(f"emulated_target: {exc}", file=sys.stderr)
+        raise SystemExit(2)
     parser = argparse.ArgumentParser(prog="emulated_target", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--bridge", default=shared["bridge"], help="HOST:PORT the sensor packets go to [%(default)s]")
