@@ -47,7 +47,7 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
 def write_csv(path: Path, megabytes: float) -> int:
     """A chirp-like measured run of about `megabytes` MB at 20 kHz (with ground truth)."""
     rng = np.random.default_rng(0)
-    bytes_per_row = 72
+    bytes_per_row = 64
     rows = int(megabytes * 1e6 / bytes_per_row)
     with open(path, "w") as handle:
         handle.write("time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n")

@@ -114,8 +114,11 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
         raise RunFileError(f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
     if not parts or not next(iter(parts.values())):
         raise RunFileError(f"{path}: no data rows after the header")
-    columns = {name: np.concatenate(chunks) if len(chunks) > 1 else chunks[0] for name, chunks in parts.items()}
-    parts.clear()
+    columns: dict[str, np.ndarray] = {}
+    for name in list(parts):  # one column at a time: the parts of only one column live beside the result
+        chunks = parts.pop(name)
+        columns[name] = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
+        del chunks
     return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns)
 
 
