@@ -212,11 +212,14 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
 
 def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
-    may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor
-    (the sensor chain as found); keep them only if that closes the gap and the truth stays at noise."""
+    may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
+    jointly with the effects found on this sensor alone; keep them only if that closes the gap and
+    the truth stays at noise."""
     truth = _UPSTREAM_TRUTH[channel]
-    specs = [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
-    refined = _polish(ctx, state.model, specs, state.model, channel, False)
+    own = [s for s in state.specs if not s.is_plant and s.judged_on == channel
+           and getattr(state.model.effect(s.name), "channel", None) in (None, s.channel_param)]
+    specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
+    refined = _polish(ctx, _strip(state.model, own), specs, state.model, channel, False)
     if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
         return state, True
     return _ChannelState(refined, state.specs, state.evidence, state.last), False
