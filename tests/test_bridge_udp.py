@@ -73,6 +73,17 @@ def target(procs, tmp_path: Path, port: int, *args: str):
     return process
 
 
+def end_of_run(procs, tmp_path: Path, port: int, bridge, sig: int) -> tuple[str, dict]:
+    """A fresh target; then the bridge ends its run by `sig`: the bridge's log and the target's counters."""
+    emulator = target(procs, tmp_path, port)
+    time.sleep(2.0)
+    assert procs.stop(bridge, sig, timeout_s=60) == 0
+    log = bridge.stderr.read()
+    time.sleep(0.5)
+    procs.stop(emulator, signal.SIGINT, timeout_s=60)
+    return log, json.loads((tmp_path / "target.json").read_text())
+
+
 def test_samples_match_the_plant_garbage_is_survived_and_sigint_ends_with_a_stop_packet(tmp_path) -> None:
     from flaair_model.model_io import load_model
     from flaair_sim import plant
@@ -95,15 +106,8 @@ def test_samples_match_the_plant_garbage_is_survived_and_sigint_ends_with_a_stop
                         and len(lines(tmp_path / "DriveCommandBlock.jsonl")) >= n_blocks, 180)
         assert bridge.poll() is None                               # survived the garbage
         # (e) SIGINT: the bridge ends the run with a stop packet; a second target run receives it
-        counters_path = tmp_path / "target.json"
-        counters_path.unlink()
-        emulator = target(procs, tmp_path, port)
-        time.sleep(2.0)
-        assert procs.stop(bridge, signal.SIGINT, timeout_s=60) == 0
-        log = bridge.stderr.read()
-        time.sleep(0.5)
-        procs.stop(emulator, signal.SIGINT, timeout_s=60)
-        counters = json.loads(counters_path.read_text())
+        (tmp_path / "target.json").unlink()
+        log, counters = end_of_run(procs, tmp_path, port, bridge, signal.SIGINT)
     assert f"malformed {len(junk)}," in log and "lost_packets 0," in log, log[-2000:]
     assert "stop packet sent: end of run" in log
     assert counters["stop_packets"] >= 1 and counters["stopped"] is True, counters
@@ -134,13 +138,7 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
         # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
         before_stop = json.loads((tmp_path / "target.json").read_text())
-        emulator = target(procs, tmp_path, port)
-        time.sleep(1.0)
-        assert procs.stop(bridge, signal.SIGTERM, timeout_s=60) == 0
-        log = bridge.stderr.read()
-        time.sleep(0.5)
-        procs.stop(emulator, signal.SIGINT, timeout_s=60)
-        after_stop = json.loads((tmp_path / "target.json").read_text())
+        log, after_stop = end_of_run(procs, tmp_path, port, bridge, signal.SIGTERM)
     assert before_stop["fresh_samples"] > 1000, before_stop                         # it was driven
     assert before_stop["watchdog_trips"] >= 1 and before_stop["zeroed_samples"] > 0, before_stop
     assert before_stop["watchdog_tripped_at_exit"] is True and before_stop["applied_v_at_exit"] == 0.0

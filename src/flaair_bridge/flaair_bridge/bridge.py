@@ -368,7 +368,7 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
                                                  f"behind the target's clock: re-anchored {params.lead_samples} samples "
                                                  f"ahead [{counters.drive_reanchors} re-anchors so far]"))
         offset = anchor - first
-    queued = sum(len(v) for _, v in state.queue)
+    queued = state.queue[-1][0] + len(state.queue[-1][1]) - state.queue[0][0] if state.queue else 0  # O(1): in order
     if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:  # a runaway source: keep the core bounded
         counters = _count(counters, drive_overflow_blocks=1)
         notices.append(Notice("drive_overflow_blocks", f"drive block {first} dropped: {queued} samples already wait "
@@ -387,8 +387,11 @@ def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[Br
     limit = max(state.target_end, _clock(state, now_s, params)) + params.lead_samples + params.max_ahead_samples
     packets, timing, queue = [], [], []
     sequence, counters, driving = state.drive_sequence, state.counters, state.driving
-    for target_first, drive in state.queue:
+    for position, (target_first, drive) in enumerate(state.queue):
         count = max(0, min(len(drive), limit - target_first))
+        if count == 0:  # the queue is in index order: nothing after this can go either (O(1) when idle)
+            queue.extend(state.queue[position:])
+            break
         for start in range(0, count, protocol.MAX_SAMPLES):
             chunk = drive[start:min(count, start + protocol.MAX_SAMPLES)]
             index = target_first + start
