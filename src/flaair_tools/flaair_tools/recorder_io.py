@@ -1,0 +1,63 @@
+"""The recorder's parameters: their one declaration, and `bin/flaair record` options -> ROS args."""
+from __future__ import annotations
+
+import argparse
+
+from flaair_common.qos import BLOCK_STREAM
+from flaair_common.runtime import help_text
+from flaair_model.schema import ParamSpec
+from flaair_tools.recording import RecordingParams
+
+NODE_NAME = "recorder_node"
+CONFIG_FILE = "flaair.yaml"
+# At most one block stream's QoS depth per callback, so other topics get their turn.
+RECORDING = RecordingParams(drain_limit=BLOCK_STREAM.depth)
+RECORDER_PARAMS = [
+    ParamSpec("output_path", str, "Bag directory to create (empty: out/bags/flaair_<date>_<time>)", read_only=True),
+    ParamSpec("topics", str, "Comma-separated topics to record (empty: every /flaair/* topic)", read_only=True),
+    ParamSpec("record_clock", bool, "Also record /clock", read_only=True),
+    ParamSpec("compression", bool, "zstd-compress each MCAP chunk", read_only=True),
+    ParamSpec("chunk_size_bytes", int, "Close an MCAP chunk at this size [bytes]", 1024, 2**31 - 1, read_only=True),
+    ParamSpec("flush_period_s", float, "Close the open chunk and flush this often; older data survives kill -9 [s]",
+              0.01, 3600.0, read_only=True),
+    ParamSpec("discovery_period_s", float, "Look for new topics this often [s]", 0.01, 3600.0, read_only=True),
+    ParamSpec("queue_depth", int, "Subscription queue per topic (KEEP_LAST): slack while the recorder is starved",
+              1, 10**7, read_only=True),
+]
+
+
+def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair record") -> list[str]:
+    """`bin/flaair record` options as the node's --ros-args (anything after --ros-args passes through)."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME))
+    parser.add_argument("-o", "--output", help="bag directory to create")
+    parser.add_argument("--topics", nargs="+", default=None, help="topics to record (default: every /flaair topic)")
+    parser.add_argument("--clock", action="store_true", help="also record /clock")
+    parser.add_argument("--no-compression", action="store_true", help="store chunks uncompressed")
+    parser.add_argument("--use-sim-time", action="store_true",
+                        help="run the node on sim time (log times are signal times with or without it)")
+    ros_args: list[str] = []
+    if "--ros-args" in argv:
+        cut = argv.index("--ros-args")
+        argv, ros_args = argv[:cut], argv[cut + 1:]
+    args = parser.parse_args(argv)
+
+    def param(name: str, value: str) -> list[str]:
+        return ["-p", f"{name}:={value}"]
+
+    def quoted(text: str) -> str:
+        return "'" + text.replace("'", "''") + "'"
+
+    out = [prog, "--ros-args"]
+    if args.output:
+        out += param("output_path", quoted(args.output))
+    if args.topics:
+        out += param("topics", quoted(",".join(args.topics)))
+    if args.clock:
+        out += param("record_clock", "true")
+    if args.no_compression:
+        out += param("compression", "false")
+    if args.use_sim_time:
+        out += param("use_sim_time", "true")
+    return out + ros_args
