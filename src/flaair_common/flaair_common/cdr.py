@@ -3,9 +3,10 @@
 Why: at 2000 blocks/s per stream, rclpy's conversion of a message to and from a Python object
 costs about as much as the transport (bench/bench_closed_loop.py: a raw ping-pong takes half
 the CPU of a typed one). The hot nodes therefore subscribe with ``raw=True`` and publish bytes,
-and this module turns those bytes into numpy views and back. It imports numpy only; the layout
-of each message is written once here and tested byte-for-byte against rclpy's own
-serialization (tests/test_cdr.py), so a change to a .msg file that is not mirrored here fails.
+and this module turns those bytes into numpy views and back. The layout of each message is
+derived from its .msg definition, the field definitions the bag typestore registers too
+(`flaair_common.msgdefs`, parsed by rosbags on first use), and tested byte-for-byte against
+rclpy's own serialization (tests/test_cdr.py).
 
 Layout rules (OMG CDR as Fast DDS writes it for ROS 2): a 4-byte encapsulation header
 (00 01 00 00, CDR little-endian), then every primitive aligned to its own size (at most 8)
@@ -210,21 +211,49 @@ class FixedCodec:
         return decode(self.layout, data)
 
 
-SENSOR_VOLTAGE_BLOCK = Layout("flaair_msgs/msg/SensorVoltageBlock", (
-    ("sample_rate_hz", "float64"), ("first_sample_index", "uint64"),
-    ("stroke_sensor_v", "float64[]"), ("pitch_sensor_v", "float64[]"),
-))
-WING_STATE_BLOCK = Layout("flaair_msgs/msg/WingStateBlock", (
-    ("sample_rate_hz", "float64"), ("first_sample_index", "uint64"), ("source", "uint8"),
-    ("stroke_deg", "float64[]"), ("pitch_deg", "float64[]"), ("stroke_velocity_deg_s", "float64[]"),
-    ("stroke_valid", "bool[]"), ("pitch_valid", "bool[]"),
-))
-DRIVE_COMMAND_BLOCK = Layout("flaair_msgs/msg/DriveCommandBlock", (
-    ("sample_rate_hz", "float64"), ("first_sample_index", "uint64"), ("drive_v", "float64[]"),
-))
-CONTROLLER_STATE = Layout("flaair_msgs/msg/ControllerState", (
-    ("k_r", "float64"), ("async_drive_v", "float64"), ("sync_drive_v", "float64"), ("drive_v", "float64"),
-    ("drive_clamped", "bool"), ("watchdog", "uint8"), ("fault", "string"),
-    ("amplitude_scale", "float64"), ("stroke_frequency_hz", "float64"),
-))
-LAYOUTS = {layout.type_name: layout for layout in (SENSOR_VOLTAGE_BLOCK, WING_STATE_BLOCK, DRIVE_COMMAND_BLOCK, CONTROLLER_STATE)}
+def layout_of(type_name: str) -> Layout:
+    """The layout of a flaair_msgs type from its .msg definition (std_msgs/Header first).
+
+    Raises
+    ------
+    ValueError
+        The type is unknown, does not start with a header, or has a field this codec lacks.
+    """
+    from rosbags.interfaces import Nodetype
+
+    from flaair_common.msgdefs import MsgDefinitionError, project_types
+
+    types = project_types()
+    if type_name not in types:
+        raise MsgDefinitionError(f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})")
+    _, fields = types[type_name]
+    if not fields or fields[0][1] != (Nodetype.NAME, "std_msgs/msg/Header"):
+        raise MsgDefinitionError(f"{type_name}: the CDR codec needs a std_msgs/Header as the first field")
+    kinds: list[tuple[str, str]] = []
+    for name, (node, detail) in fields[1:]:
+        if node == Nodetype.BASE:
+            kinds.append((name, detail[0]))
+        elif node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[1] == 0:
+            kinds.append((name, f"{detail[0][1][0]}[]"))
+        else:
+            raise MsgDefinitionError(f"{type_name}.{name}: unsupported field type for the CDR codec")
+    return Layout(type_name, tuple(kinds))
+
+
+# The block streams' layouts, derived on first use (module attributes, PEP 562).
+_LAYOUT_TYPES = {
+    "SENSOR_VOLTAGE_BLOCK": "flaair_msgs/msg/SensorVoltageBlock",
+    "WING_STATE_BLOCK": "flaair_msgs/msg/WingStateBlock",
+    "DRIVE_COMMAND_BLOCK": "flaair_msgs/msg/DriveCommandBlock",
+    "CONTROLLER_STATE": "flaair_msgs/msg/ControllerState",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAYOUT_TYPES:
+        value = globals()[name] = layout_of(_LAYOUT_TYPES[name])
+        return value
+    if name == "LAYOUTS":
+        value = globals()[name] = {t: __getattr__(n) for n, t in _LAYOUT_TYPES.items()}
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -53,14 +53,14 @@ from rosbags.interfaces import Nodetype, Qos, QosDurability, QosHistory, QosLive
 from rosbags.rosbag2 import Reader
 from rosbags.rosbag2.errors import ReaderError
 from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
-from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from flaair_model.config import ConfigError, config_dir, node_parameters
+from flaair_common.msgdefs import MSG_PACKAGE, MsgDefinitionError, project_types
+from flaair_model.config import ConfigError, node_parameters
 
 BAG_VERSION = 9  # rosbag2 metadata version written by ROS 2 Jazzy
 ROS_DISTRO = "jazzy"
-MSG_PACKAGE = "flaair_msgs"
 RUN_MARKER_TOPIC = "/flaair/run_marker"
 RUN_MARKER_TYPE = "std_msgs/msg/String"
 RUNS_CUSTOM_KEY = "flaair.runs"
@@ -91,44 +91,14 @@ class BagUnfinishedError(BagError):
 # --------------------------------------------------------------------------------------------
 # Types
 # --------------------------------------------------------------------------------------------
-def msg_dirs() -> list[Path]:
-    """Directories that may hold flaair_msgs' `.msg` files: the source tree, then the install."""
-    dirs: list[Path] = []
-    try:
-        repo = str(config_dir().parent)
-    except ConfigError:
-        repo = ""
-    for base in (os.environ.get("FLAAIR_ROOT"), repo):
-        if base:
-            dirs.append(Path(base) / "src" / MSG_PACKAGE / "msg")
-    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
-        if prefix:
-            dirs.append(Path(prefix) / "share" / MSG_PACKAGE / "msg")
-    unique: list[Path] = []
-    for directory in dirs:
-        if directory.is_dir() and directory.resolve() not in [d.resolve() for d in unique]:
-            unique.append(directory)
-    return unique
-
-
-def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
-    """`.msg` texts of flaair_msgs by full type name ('flaair_msgs/msg/Name')."""
-    directories = [directory] if directory is not None else msg_dirs()
-    for candidate in directories:
-        texts = {f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8") for p in sorted(candidate.glob("*.msg"))}
-        if texts:
-            return texts
-    raise BagError(f"no {MSG_PACKAGE} .msg files found (looked in: {', '.join(map(str, directories)) or 'nowhere'})")
-
-
 @functools.lru_cache(maxsize=None)
 def typestore() -> Typestore:
     """rosbags' ROS 2 Jazzy typestore with flaair_msgs registered from its `.msg` files."""
     store = get_typestore(Stores.ROS2_JAZZY)
-    types: dict[str, Any] = {}
-    for name, text in project_msg_texts().items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
+    try:
+        store.register(project_types())
+    except MsgDefinitionError as exc:
+        raise BagError(str(exc)) from exc
     return store
 
 
