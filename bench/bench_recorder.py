@@ -50,7 +50,7 @@ from flaair_tools import bagio  # noqa: E402
 
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 BLOCK_TOPICS = ("/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state/truth")
-from flaair_sim.plant_node import CLOCK_DEPTH  # noqa: E402  (the plant's /clock queue; the steady publisher does the same)
+from flaair_sim.plant_io import CLOCK_DEPTH  # noqa: E402  (the plant's /clock queue; the steady publisher does the same)
 
 # Steady publisher: blocks like the graph's at `rate` msg/s per topic for `duration_s`; prints counts.
 STEADY_PUBLISHER = r"""

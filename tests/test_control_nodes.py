@@ -271,6 +271,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     from rclpy.serialization import deserialize_message, serialize_message
 
     from flaair_common.blocks import from_array
+    from flaair_common import cdr
     from flaair_control.dsa_controller_node import DsaControllerNode
     from flaair_control.supervisor import LOOP, TRIPPED
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
@@ -293,7 +294,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
             m = deserialize_message(data, ControllerState)
             states.append((m.k_r, m.watchdog, m.fault, m.drive_clamped, m.drive_v))
 
-        monkeypatch.setattr(node.drive_pub, "publish", on_drive)
+        monkeypatch.setattr(node.drive.publisher, "publish", on_drive)
         monkeypatch.setattr(node.state_pub, "publish", on_state)
 
         def feed(k: int) -> None:
@@ -303,7 +304,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
             message.stroke_velocity_deg_s = from_array(10 * 2 * np.pi * 140 * np.cos(2 * np.pi * 140 * t))
             message.stroke_valid = [True] * BLOCK
             message.header.frame_id = "robot"
-            node.on_wing_state(serialize_message(message))
+            node.on_wing_state(cdr.decode(cdr.WING_STATE_BLOCK, serialize_message(message)))
 
         node.on_timer()                                   # starts: one block in flight
         assert node.state.mode == LOOP and [d[0] for d in drive] == [0]

@@ -16,5 +16,5 @@ setup(
     maintainer_email="dev@flaair.dev",
     description="FLAAIR node plumbing: parameters from schemas, block message conversion, QoS, measured-run CSV I/O.",
     license="Apache-2.0",
-    entry_points={"console_scripts": []},
+    entry_points={"console_scripts": ["container = flaair_common.container:main"]},
 )

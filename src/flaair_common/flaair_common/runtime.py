@@ -33,6 +33,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  #
 from rclpy.node import Node  # noqa: E402
 
 from flaair_model.config import node_parameters  # noqa: E402
+from flaair_common import intra
 from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
 
 
@@ -95,12 +96,23 @@ def run_node(
     if any(a in ("-h", "--help") for a in args[1:]) and "--ros-args" not in args:
         print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file, node_name))
         return 0
+    return run_nodes([make_node], args, executor_kind)
+
+
+def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, executor_kind: str = "events",
+              bus: "intra.Bus | None" = None) -> int:
+    """Build several nodes in one process and spin them in one executor (a container).
+
+    With a `bus`, block streams between them travel in-process (`flaair_common.intra`): the
+    loop drains it between executor spins. Shutdown closes the nodes last built first (a
+    controller's zero block reaches the actuator's node before that node closes).
+    """
+    args = sys.argv if args is None else args
     if _early_signals:
         return 0
+    intra.install(bus)
     rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    node: Node | None = None
     executor = make_executor(executor_kind)
-
     stop_requested = bool(_early_signals)
 
     def _stop(signum: int, _frame: object) -> None:
@@ -111,30 +123,44 @@ def run_node(
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     program = sys.argv[0].rsplit('/', 1)[-1]
+    nodes: list[Node] = []
     try:
-        node = make_node()
-    except ParameterError as exc:
-        print(f"{program}: {exc}", file=sys.stderr)
+        for make_node in makers:
+            nodes.append(make_node())
+    except ValueError as exc:  # a refused parameter, a bad value met while building (ModelError, ...)
+        text = str(exc) if isinstance(exc, ParameterError) else f"{type(exc).__name__}: {exc}"
+        print(f"{program}: {text}", file=sys.stderr)
+        for node in reversed(nodes):
+            _close(node)
         rclpy.try_shutdown()
         return 2
-    except ValueError as exc:  # a bad value met while building (ModelError, a calibration file's key)
-        print(f"{program}: {type(exc).__name__}: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor.add_node(node)
+    for node in nodes:
+        executor.add_node(node)
     try:
         while not stop_requested and rclpy.ok():
-            executor.spin_once(timeout_sec=0.05)
+            if bus is not None and bus.pending():
+                bus.drain()
+                executor.spin_once(timeout_sec=0)
+            else:
+                executor.spin_once(timeout_sec=0.002 if bus is not None else 0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        close = getattr(node, "close", None)
-        if callable(close):
-            close()
-        executor.remove_node(node)
-        node.destroy_node()
+        for node in reversed(nodes):
+            _close(node)
+            if bus is not None:
+                bus.drain(budget=1000)   # the closing zero block reaches its in-process consumer
+        for node in nodes:
+            executor.remove_node(node)
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _close(node: Node) -> None:
+    close = getattr(node, "close", None)
+    if callable(close):
+        close()
 
 
 def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:

@@ -18,13 +18,14 @@ Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from flaair_common import cdr, topics
+from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
@@ -52,26 +53,28 @@ class DsaControllerNode(Node):
             raise ParameterError(f"parameter 'model_file': {exc}") from exc
         self.params = supervisor_params_from_config(p, model)
         self.state = sv.initial_state(self.params)
-        self.block_size = p["block_size"]
-        self.undecodable = 0
+        self.block_size, self.undecodable = p["block_size"], 0
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None  # index, in, out
-        # Block streams travel as CDR bytes: rclpy's message conversion costs as much as the transport.
-        self.wing_state_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID)
-        self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
-        self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
+        # Block streams as CDR bytes (rclpy's message conversion costs as much as the transport),
+        # or in-process when composed (intra); one lock: a UDP thread may deliver the wing state.
+        self.lock = threading.RLock()
+        self.drive = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE,
+                                          cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size), BLOCK_STREAM)
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, BLOCK_STREAM)
-        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM, raw=True)
-        # Volatile: a stale onset from before this node started is not acted upon.
-        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)
+        intra.subscribe_blocks(self, WingStateBlock, topics.WING_STATE,
+                               cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID),
+                               self.on_wing_state, BLOCK_STREAM, self.on_undecodable)
+        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)  # volatile
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(self.params.timer_period_s, self.on_timer)
         self.get_logger().info("dSA controller ready: " + describe_loop(self.params, p))
 
     def advance(self, inputs: sv.Input, t_receive: float | None = None) -> sv.Outputs:
         """Run the supervisor on one event; publish its blocks, log its notes."""
-        self.state, out = sv.step(self.state, inputs, self.params)
-        for block in out.blocks:
-            self.publish(block, t_receive)
+        with self.lock:
+            self.state, out = sv.step(self.state, inputs, self.params)
+            for block in out.blocks:
+                self.publish(block, t_receive)
         log = self.get_logger()
         for note in out.notes:
             if note.counter:
@@ -87,9 +90,8 @@ class DsaControllerNode(Node):
 
     def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:
         stamp_ns = stamp_ns_of_sample(b.first_sample_index, self.params.sample_rate_hz)
-        self.drive_pub.publish(self.drive_codec.encode(stamp_ns, {
-            "sample_rate_hz": self.params.sample_rate_hz, "first_sample_index": b.first_sample_index,
-            "drive_v": b.drive_v}))
+        self.drive.publish(stamp_ns, {"sample_rate_hz": self.params.sample_rate_hz,
+                                      "first_sample_index": b.first_sample_index, "drive_v": b.drive_v})
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
         if b.with_state:
@@ -98,20 +100,18 @@ class DsaControllerNode(Node):
                 "drive_v": b.drive_v[-1], "drive_clamped": b.drive_clamped, "watchdog": WATCHDOG[b.tripped],
                 "fault": b.fault, "amplitude_scale": b.amplitude_scale, "stroke_frequency_hz": b.stroke_frequency_hz}))
 
-    def on_wing_state(self, data: bytes) -> None:
+    def on_undecodable(self, exc: Exception) -> None:
+        self.undecodable += 1
+        warn_counted(self.get_logger(), self.undecodable, f"wing-state block dropped: {exc} "
+                                                          f"[{self.undecodable} undecodable so far]")
+
+    def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
         if self.state.mode == sv.DONE:
             return
-        try:
-            m = self.wing_state_codec.decode(data)
-        except cdr.CdrError as exc:
-            self.undecodable += 1
-            warn_counted(self.get_logger(), self.undecodable, f"wing-state block dropped: {exc} "
-                                                              f"[{self.undecodable} undecodable so far]")
-            return
         self.advance(sv.WingBlock(t_receive, int(m["first_sample_index"]), float(m["sample_rate_hz"]),
                                   m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"],
-                                  self.drive_pub.get_subscription_count()), t_receive)
+                                  self.drive.publisher.get_subscription_count()), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
         self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,
@@ -130,7 +130,7 @@ class DsaControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def on_timer(self) -> None:
-        self.advance(sv.Tick(time.monotonic(), self.drive_pub.get_subscription_count(),
+        self.advance(sv.Tick(time.monotonic(), self.drive.publisher.get_subscription_count(),
                              self.count_publishers(topics.SENSOR_VOLTAGE), self.count_publishers(topics.WING_STATE)))
 
     def close(self) -> None:

@@ -1,0 +1,66 @@
+"""container: several FLAAIR nodes in one process and one executor (ROS 2 composition).
+
+The same node classes that `bin/flaair run` starts one per process are built here side by
+side; the block streams named by --local-topics travel between them in-process, without
+serialization (`flaair_common.intra`), and every topic is still published on DDS for the
+recorder and any outside listener. `flaair live` runs its hot loop (bridge or plant, front end,
+controller) this way by default.
+
+Usage:
+  bin/flaair run flaair_common container [--local-topics T1,T2,...] MODULE:CLASS [MODULE:CLASS ...]
+                                        [--ros-args --params-file FILE ...]
+Example:
+  bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \\
+      flaair_sensors.frontend_node:FrontendNode flaair_control.dsa_controller_node:DsaControllerNode \\
+      --ros-args -p mode:=lockstep
+
+Node parameters: each node reads its own section of config/flaair.yaml; give per-node
+overrides in a --params-file with one section per node name (a plain -p applies to every node
+that declares the parameter).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Callable
+
+from flaair_common import topics
+
+HOT_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)
+
+
+def load_class(spec: str) -> Callable:
+    """`module.path:ClassName` -> the class; a clear error when it is not there."""
+    module_name, _, class_name = spec.partition(":")
+    if not class_name:
+        raise ValueError(f"{spec!r}: expected MODULE:CLASS, e.g. flaair_sim.plant_node:PlantNode")
+    try:
+        return getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"{spec!r}: {exc}") from exc
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv if argv is None else argv
+    ros_at = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
+    parser = argparse.ArgumentParser(prog="container", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("nodes", nargs="+", metavar="MODULE:CLASS", help="node classes to build, in order")
+    parser.add_argument("--local-topics", default=",".join(HOT_TOPICS),
+                        help="block topics delivered in-process between the nodes (comma-separated; '' for none)")
+    args = parser.parse_args(argv[1:ros_at])
+    try:
+        makers = [load_class(spec) for spec in args.nodes]
+    except ValueError as exc:
+        print(f"container: {exc}", file=sys.stderr)
+        return 2
+    from flaair_common import intra
+    from flaair_common.runtime import run_nodes
+
+    local = {t for t in args.local_topics.split(",") if t}
+    return run_nodes(makers, [argv[0], *argv[ros_at:]], bus=intra.Bus(local) if local else None)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
