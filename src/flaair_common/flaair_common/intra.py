@@ -84,6 +84,11 @@ class BlockPublisher:
         bus = current()
         self.bus = bus if bus is not None and topic in bus.local_topics else None
 
+    def subscription_count(self) -> int:
+        """Subscribers of this stream: on DDS and, when composed, in-process."""
+        local = len(self.bus.subscribers.get(self.topic, ())) if self.bus is not None else 0
+        return self.publisher.get_subscription_count() + local
+
     def publish(self, stamp_ns: int, fields: dict) -> None:
         """Publish one block: its header stamp (ns) and its fields as `cdr` names them."""
         # DDS first: the in-process delivery may run the whole loop before it returns, and an

@@ -111,7 +111,7 @@ class DsaControllerNode(Node):
             return
         self.advance(sv.WingBlock(t_receive, int(m["first_sample_index"]), float(m["sample_rate_hz"]),
                                   m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"],
-                                  self.drive.publisher.get_subscription_count()), t_receive)
+                                  self.drive.subscription_count()), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
         self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,
@@ -130,7 +130,7 @@ class DsaControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def on_timer(self) -> None:
-        self.advance(sv.Tick(time.monotonic(), self.drive.publisher.get_subscription_count(),
+        self.advance(sv.Tick(time.monotonic(), self.drive.subscription_count(),
                              self.count_publishers(topics.SENSOR_VOLTAGE), self.count_publishers(topics.WING_STATE)))
 
     def close(self) -> None:
