@@ -7,6 +7,7 @@ share/flaair_model/config (a plain `colcon build` on a stock ROS install).
 """
 from __future__ import annotations
 
+import copy
 import os
 from pathlib import Path
 from typing import Any
@@ -64,7 +65,7 @@ def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
     Nested mappings become dotted names, as ROS 2 parameter files do.
     """
     path = config_dir() / file_name
-    document = load_yaml(path) or {}
+    document = _parameter_document(path) or {}
     if not isinstance(document, dict):
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     out: dict[str, Any] = {}
@@ -76,7 +77,24 @@ def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
             found = found or key != "/**"
     if not found:
         raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
-    return out
+    return copy.deepcopy(out)   # the parsed document is cached: callers get their own values
+
+
+_PARSED: dict[str, tuple[tuple[int, int], Any]] = {}
+
+
+def _parameter_document(path: Path) -> Any:
+    """`load_yaml(path)`, parsed again only when the file changes (mtime, size): a tool asks
+    `node_parameters` for many sections of one file (parsing flaair.yaml takes ~50 ms)."""
+    try:
+        status = path.stat()
+    except OSError:
+        return load_yaml(path)   # the named error
+    stamp = (status.st_mtime_ns, status.st_size)
+    cached = _PARSED.get(str(path))
+    if cached is None or cached[0] != stamp:
+        cached = _PARSED[str(path)] = (stamp, load_yaml(path))
+    return cached[1]
 
 
 def shared_parameter_names(file_name: str) -> set[str]:

@@ -56,9 +56,11 @@ from flaair_sensors import frontend
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
 from flaair_tools.runkind import DriveKind, RecognitionParams, RunKindError, recognise
-from flaair_tools.runs import Run, load_runs
+from flaair_tools.runs import RUN_TOPICS, Run, runs_of_bag
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
+# Every topic the analysis reads (each bag is read once).
+BAG_TOPICS = (*RUN_TOPICS, EXPERIMENT_TOPIC, topics.WING_STATE, topics.COLLISION_EVENTS, topics.CONTROLLER_STATE)
 EXIT_BAD_INPUT = 2
 EXIT_PARTIAL = 3
 # The paper's published figures, for the side-by-side table (deg, deg/V).
@@ -108,11 +110,9 @@ def settings() -> tuple[RecognitionParams, dict[str, Any]]:
     return RecognitionParams.from_mapping(values), values
 
 
-def experiment_info(bag: Path) -> dict[str, Any]:
+def experiment_info(contents: bagio.BagContents) -> dict[str, Any]:
     """The experiment description recorded in the bag (empty for imported lab data)."""
-    if EXPERIMENT_TOPIC not in bagio.bag_info(bag).topics:
-        return {}
-    for _, _, message in bagio.iter_messages(bag, [EXPERIMENT_TOPIC]):
+    for message in contents.messages(EXPERIMENT_TOPIC)[:1]:
         return json.loads(message.data)
     return {}
 
@@ -176,9 +176,8 @@ def _aligned_estimate(blocks: bagio.Blocks, sample_index: np.ndarray) -> tuple[n
     return stroke, pitch
 
 
-def run_sample_index(bag: Path, run: Run, blocks: bagio.Blocks) -> np.ndarray:
+def run_sample_index(markers: dict[str, bagio.RunMarker], run: Run, blocks: bagio.Blocks) -> np.ndarray:
     """Absolute sample indices of a run's samples (its marker's first index + time)."""
-    markers = {m.run: m for m in bagio.read_run_markers(bag)}
     first = markers[run.name].first_sample_index if run.name in markers else int(blocks.sample_index[0])
     return first + np.round(run["time_s"] * run.sample_rate_hz).astype(np.int64)
 
@@ -192,17 +191,18 @@ def live_runs_on_model_gains(live_pitch: np.ndarray, model_pitch: np.ndarray) ->
     return abs(ratio - 1.0) < 0.1
 
 
-def estimates(bag: Path, runs: list[Run], calibration: dict[str, Any] | None,
+def estimates(contents: bagio.BagContents, runs: list[Run], calibration: dict[str, Any] | None,
               calibration_file: Path | None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
     """Front-end estimate of every run, where it came from, and whether it runs on model gains."""
     if calibration is not None:
         return ({run.name: offline_estimate(run, frontend_params(calibration, run.sample_rate_hz)) for run in runs},
                 f"front-end core run offline on the recorded voltages with the calibration {calibration_file}", False)
     model_est = {run.name: offline_estimate(run, frontend_params(None, run.sample_rate_hz)) for run in runs}
-    if topics.WING_STATE not in bagio.bag_info(bag).topics:
+    if not contents.has(topics.WING_STATE):
         return model_est, "front-end core run offline on the recorded voltages (model gains)", True
-    blocks = bagio.read_blocks(bag, topics.WING_STATE)
-    live = {run.name: _aligned_estimate(blocks, run_sample_index(bag, run, blocks)) for run in runs}
+    blocks = contents.blocks(topics.WING_STATE)
+    markers = {m.run: m for m in contents.run_markers()}
+    live = {run.name: _aligned_estimate(blocks, run_sample_index(markers, run, blocks)) for run in runs}
     on_model = all(live_runs_on_model_gains(live[r.name][1], model_est[r.name][1]) for r in runs)
     return live, "live front end (/flaair/wing_state)" + (", model gains" if on_model else ", calibrated gains"), on_model
 
@@ -309,18 +309,17 @@ def first_strike_s(truth_stroke_deg: np.ndarray, time_s: np.ndarray, window_s: t
     return float(time_s[np.argmax(hit)]) if hit.any() else None
 
 
-def collision_events(bag: Path) -> list[dict[str, Any]]:
+def collision_events(contents: bagio.BagContents) -> list[dict[str, Any]]:
     """The monitor's onset and clearance events recorded on /flaair/collision/events."""
-    if topics.COLLISION_EVENTS not in bagio.bag_info(bag).topics:
-        return []
     return [{"kind": "onset" if m.kind == 1 else "clearance", "wingbeat_index": int(m.wingbeat_index),
              "time_s": m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, "spectrum_rmse_deg": _finite(m.spectrum_rmse_deg)}
-            for _, _, m in bagio.iter_messages(bag, [topics.COLLISION_EVENTS])]
+            for m in contents.messages(topics.COLLISION_EVENTS)]
 
 
 def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarray]], info: dict[str, Any],
-                      bag: Path, kinds: dict[str, DriveKind]) -> tuple[dict[str, Any], dict[str, Any]]:
+                      contents: bagio.BagContents, kinds: dict[str, DriveKind]) -> tuple[dict[str, Any], dict[str, Any]]:
     """The paper's collision metric per run part, the monitor's events and latency; and the figure data."""
+    bag = contents.info.path
     drive_hz = next((k.frequency_hz for k in kinds.values() if k.frequency_hz), None)
     if drive_hz is None and info.get("runs"):
         drive_hz = float(info["runs"][0]["drive"]["frequency_hz"])
@@ -338,12 +337,12 @@ def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarr
         out["runs"][run.name] = strict({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
                                         "collision": bool(metric.collision)})
         figure["runs"][run.name] = (metric, np.degrees(pitch), run.sample_rate_hz)
-    events = collision_events(bag)
+    events = collision_events(contents)
     out["events"] = events
     plant = info.get("plant", {})
     window = plant.get("obstacle_windows_s")
     if window and len(window) >= 2:
-        truth = bagio.read_blocks(bag, topics.WING_STATE_TRUTH)
+        truth = contents.blocks(topics.WING_STATE_TRUTH)
         fs = float(truth.sample_rate_hz)
         strike = first_strike_s(np.where(truth["stroke_valid"].astype(bool), truth["stroke_deg"], np.nan),
                                 truth.sample_index / fs, (float(window[0]), float(window[1])),
@@ -359,7 +358,7 @@ def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarr
     return out, figure
 
 
-def analyze_transition(bag: Path, final_window_s: float = 0.5) -> tuple[dict[str, Any], Any]:
+def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5) -> tuple[dict[str, Any], Any]:
     """Sync-to-async transition: stroke frequency and amplitude from the Hilbert transform.
 
     The recorded sensor-derived stroke is band-passed, Hilbert-transformed and smoothed by a
@@ -369,11 +368,12 @@ def analyze_transition(bag: Path, final_window_s: float = 0.5) -> tuple[dict[str
     from flaair_tools.transition_figure import TransitionRecord
     from flaair_model.model_io import load_model
 
-    wing = bagio.read_blocks(bag, topics.WING_STATE)
+    bag = contents.info.path
+    wing = contents.blocks(topics.WING_STATE)
     fs = float(wing.sample_rate_hz)
     stroke_deg = np.where(wing["stroke_valid"].astype(bool), wing["stroke_deg"], np.nan)
     time_s = wing.sample_index / fs
-    states = [m for _, _, m in bagio.iter_messages(bag, [topics.CONTROLLER_STATE])]
+    states = contents.messages(topics.CONTROLLER_STATE)
     if not states:
         raise AnalysisError(f"{bag}: no {topics.CONTROLLER_STATE} messages (was the controller running?)")
     kr_time_s = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in states])
@@ -433,10 +433,10 @@ def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
 # ----------------------------------------------------------------------------- one bag
 
 
-def run_kinds(bag: Path, runs: list[Run], info: dict[str, Any], explicit: dict[str, str],
+def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any], explicit: dict[str, str],
               recognition: RecognitionParams) -> tuple[dict[str, DriveKind], list[str]]:
     """Every run's drive, recognised; an explicit kind (experiment or import --kind) wins, with a warning if they differ."""
-    has_controller = topics.CONTROLLER_STATE in bagio.bag_info(bag).topics
+    bag, has_controller = contents.info.path, contents.has(topics.CONTROLLER_STATE)
     kinds, warnings = {}, []
     for run in runs:
         drive = run["drive_v"] if "drive_v" in run else np.zeros(run.n_samples)
@@ -454,14 +454,13 @@ def run_kinds(bag: Path, runs: list[Run], info: dict[str, Any], explicit: dict[s
     return kinds, warnings
 
 
-def marked_kinds(bag: Path) -> dict[str, str]:
+def marked_kinds(contents: bagio.BagContents) -> dict[str, str]:
     """Kinds given explicitly at import (`flaair import --kind`), by run name."""
     out = {}
-    if bagio.RUN_MARKER_TOPIC in bagio.bag_info(bag).topics:
-        for _, _, message in bagio.iter_messages(bag, [bagio.RUN_MARKER_TOPIC]):
-            values = json.loads(message.data)
-            if values.get("kind"):
-                out[str(values["run"])] = str(values["kind"])
+    for message in contents.messages(bagio.RUN_MARKER_TOPIC):
+        values = json.loads(message.data)
+        if values.get("kind"):
+            out[str(values["run"])] = str(values["kind"])
     return out
 
 
@@ -469,11 +468,12 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
                 calibration_file: Path | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Every number of one bag (see module docstring), and the data its figures are drawn from."""
     recognition, config = settings()
-    info = experiment_info(bag)
+    contents = bagio.read_bag(bag, BAG_TOPICS)   # the bag is read once
+    info = experiment_info(contents)
     missing_runs: list[tuple[str, str]] = []
-    runs = load_runs([bag], missing=missing_runs)
-    kinds, warnings = run_kinds(bag, runs, info, marked_kinds(bag), recognition)
-    est, source, on_model = estimates(bag, runs, calibration, calibration_file)
+    runs = runs_of_bag(contents, missing=missing_runs)
+    kinds, warnings = run_kinds(contents, runs, info, marked_kinds(contents), recognition)
+    est, source, on_model = estimates(contents, runs, calibration, calibration_file)
     name = info.get("name", bag.name)
     result: dict[str, Any] = {"bag": str(bag), "experiment": name, "kind": info.get("kind", "lab runs"),
                               "description": info.get("description", "runs imported from the lab"), "runs": {},
@@ -482,10 +482,10 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
                                      float(config["tolerance_hz"]))
     plots: dict[str, Any] = {"bode": {}, "runs": {}}
     if info.get("kind") == "collision":
-        result["collision"], plots["collision"] = analyze_collision(runs, est, info, bag, kinds)
+        result["collision"], plots["collision"] = analyze_collision(runs, est, info, contents, kinds)
         return result, plots
     if any(k.kind == "transition" for k in kinds.values()):
-        result["transition"], plots["transition"] = analyze_transition(bag)
+        result["transition"], plots["transition"] = analyze_transition(contents)
     for run in runs:
         kind = kinds[run.name]
         stroke_est, pitch_est = est[run.name]

@@ -56,6 +56,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from flaair_common import cdr
 from flaair_common.msgdefs import MSG_PACKAGE, MsgDefinitionError, project_types
 from flaair_model.config import ConfigError, node_parameters
 
@@ -447,14 +448,18 @@ def bag_info(bag: str | Path) -> BagInfo:
     """Topics (type, count, offered QoS), time span and custom data of a bag."""
     reader = _open(bag)
     try:
-        topics = {}
-        for name, info in reader.topics.items():
-            qos = info.connections[0].ext.offered_qos_profiles if info.connections else []
-            topics[name] = TopicInfo(info.msgtype or "", info.msgcount, tuple(qos))
-        custom = dict(reader.storage.metadata.custom or {}) if hasattr(reader.storage, "metadata") else {}
-        return BagInfo(Path(bag), topics, reader.start_time, reader.end_time, reader.message_count, custom)
+        return _info(bag, reader)
     finally:
         reader.close()
+
+
+def _info(bag: str | Path, reader: Reader) -> BagInfo:
+    topics = {}
+    for name, info in reader.topics.items():
+        qos = info.connections[0].ext.offered_qos_profiles if info.connections else []
+        topics[name] = TopicInfo(info.msgtype or "", info.msgcount, tuple(qos))
+    custom = dict(reader.storage.metadata.custom or {}) if hasattr(reader.storage, "metadata") else {}
+    return BagInfo(Path(bag), topics, reader.start_time, reader.end_time, reader.message_count, custom)
 
 
 def message_counts(bag: str | Path) -> dict[str, int]:
@@ -557,60 +562,231 @@ def block_array_fields(msgtype: str, store: Typestore | None = None) -> tuple[li
     return arrays, scalars
 
 
-def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_gaps: bool = False,
-                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
-    """Concatenate deserialized block messages (pure: no file access); see `read_blocks`."""
+@dataclass(frozen=True)
+class _BlockColumns:
+    """Block messages in columns (message order): one value per message, arrays concatenated."""
+
+    rate_hz: np.ndarray
+    first: np.ndarray
+    stamp_ns: np.ndarray
+    lengths: np.ndarray
+    arrays: dict[str, np.ndarray]
+    scalars: dict[str, np.ndarray]
+    bad_lengths: tuple[int, dict[str, int]] | None = None  # first message whose arrays differ in length
+
+
+def _columns_from_messages(messages: Sequence[Any], arrays: list[str], scalars: list[str]) -> _BlockColumns:
+    """Deserialized block messages in columns (a message whose arrays differ in length contributes none)."""
+    rows: list[dict[str, np.ndarray]] = []
+    bad = None
+    for number, message in enumerate(messages):
+        row = {name: np.asarray(getattr(message, name)) for name in arrays}
+        sizes = {name: v.size for name, v in row.items()}
+        if len(set(sizes.values())) != 1:
+            bad = bad or (number, sizes)
+            row = {name: v[:0] for name, v in row.items()}
+        rows.append(row)
+    return _BlockColumns(
+        rate_hz=np.array([float(m.sample_rate_hz) for m in messages], dtype=float),
+        first=np.array([int(m.first_sample_index) for m in messages], dtype=np.int64),
+        stamp_ns=np.array([m.header.stamp.sec * _NS_PER_S + m.header.stamp.nanosec for m in messages], dtype=np.int64),
+        lengths=np.array([next(iter(row.values())).size for row in rows], dtype=np.int64),
+        arrays={name: np.concatenate([row[name] for row in rows]) if rows else np.zeros(0) for name in arrays},
+        scalars={name: np.asarray([getattr(m, name) for m in messages]) for name in scalars},
+        bad_lengths=bad)
+
+
+def _damaged(bag: str | Path, msgtype: str, exc: Exception) -> BagError:
+    return BagError(f"{bag}: damaged {msgtype} message: {type(exc).__name__}: {exc}")
+
+
+def _decode_by_size(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Path) -> list[tuple[np.ndarray, Any]]:
+    """(message numbers, records) per message size: a structured-array view of all messages of one
+    size that fit the fixed layout, each other message decoded alone (a dict)."""
+    sizes = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+    groups: list[tuple[np.ndarray, Any]] = []
+    for size in np.unique(sizes):
+        numbers = np.flatnonzero(sizes == size)
+        try:
+            sample = cdr.decode(layout, datas[numbers[0]])
+        except cdr.CdrError as exc:
+            raise _damaged(bag, layout.type_name, exc) from None
+        block_size = next(len(sample[name]) for name, kind in layout.fields if kind.endswith("[]"))
+        codec = cdr.FixedCodec(layout, block_size, sample["frame_id"])
+        fits = np.zeros(numbers.size, dtype=bool)
+        if codec.dtype.itemsize <= size:
+            names = codec.dtype.names
+            dtype = np.dtype({"names": names, "formats": [codec.dtype.fields[k][0] for k in names],
+                              "offsets": [codec.dtype.fields[k][1] for k in names], "itemsize": int(size)})
+            records = np.frombuffer(b"".join([datas[i] for i in numbers]), dtype=dtype)
+            fits = (records["frame_len"] == codec.dtype.fields["frame"][0].itemsize) & np.all(
+                records["encapsulation"] == np.frombuffer(cdr.ENCAPSULATION, dtype="u1"), axis=1)
+            for count in codec.counts:
+                fits &= records[count] == block_size
+            groups.append((numbers[fits], records[fits]))
+        for number in numbers[~fits]:
+            try:
+                message = cdr.decode(layout, datas[number])
+            except cdr.CdrError as exc:
+                raise _damaged(bag, layout.type_name, exc) from None
+            groups.append((np.array([number]), {k: np.asarray(v)[None] for k, v in message.items() if k != "frame_id"}))
+    return groups
+
+
+def _columns_from_cdr(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Path) -> _BlockColumns:
+    """CDR bytes of the project's block messages in columns, decoded with numpy (no per-message objects)."""
+    sequences = [name for name, kind in layout.fields if kind.endswith("[]")]
+    scalars = [(name, kind) for name, kind in layout.fields if not kind.endswith("[]") and name not in ("sample_rate_hz", "first_sample_index")]
+    n = len(datas)
+    groups = _decode_by_size(layout, datas, bag)
+    lengths, bad = np.zeros(n, dtype=np.int64), None
+    for numbers, records in groups:
+        found = {name: records[name].shape[1] for name in sequences}
+        if len(set(found.values())) != 1:     # only a message decoded alone can disagree
+            bad = min(bad or (n, found), (int(numbers[0]), found), key=lambda b: b[0])
+        else:
+            lengths[numbers] = found[sequences[0]]
+    starts = np.cumsum(lengths) - lengths
+    rate, first, stamp = np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    scalar_out = {name: np.zeros(n, dtype=bool if kind == "bool" else float if kind == "float64" else np.int64) for name, kind in scalars}
+    array_out = {name: np.zeros(int(lengths.sum()), dtype=cdr._KINDS[kind][0].newbyteorder("="))
+                 for name, kind in layout.fields if kind.endswith("[]")}
+    for numbers, records in groups:
+        rate[numbers] = records["sample_rate_hz"]
+        first[numbers] = records["first_sample_index"].astype(np.int64)
+        stamp[numbers] = records["sec"].astype(np.int64) * _NS_PER_S + records["nanosec"].astype(np.int64)
+        for name in scalar_out:
+            scalar_out[name][numbers] = records[name]
+        width = int(lengths[numbers[0]])
+        if width:
+            where = (starts[numbers][:, None] + np.arange(width)).ravel()
+            for name in array_out:
+                array_out[name][where] = records[name].ravel()
+    return _BlockColumns(rate, first, stamp, lengths, array_out, scalar_out, bad)
+
+
+def _assemble(topic: str, msgtype: str, columns: _BlockColumns, allow_gaps: bool, bag: str | Path) -> Blocks:
+    """Blocks from columns: same sample rate throughout, retransmitted blocks dropped, continuity checked."""
     where = f"{bag}: topic '{topic}'" if bag else f"topic '{topic}'"
-    arrays, scalars = block_array_fields(msgtype, store)
-    if not messages:
+    if columns.rate_hz.size == 0:
         raise BagTopicError(f"{where}: no messages")
-    rate_hz = float(messages[0].sample_rate_hz)
+    rate_hz = float(columns.rate_hz[0])
     if not np.isfinite(rate_hz) or rate_hz <= 0:
         raise BagError(f"{where}: block 0: sample_rate_hz {rate_hz} is not positive")
-    chunks: dict[str, list[np.ndarray]] = {name: [] for name in arrays}
-    lengths, firsts, stamps, gaps = [], [], [], []
-    expected: int | None = None
-    kept: list[Any] = []
-    previous: tuple[int, dict[str, np.ndarray]] | None = None
-    for number, message in enumerate(messages):
-        if float(message.sample_rate_hz) != rate_hz:
-            raise BagError(f"{where}: block {number}: sample_rate_hz {message.sample_rate_hz} differs from {rate_hz}")
-        values = {name: np.asarray(getattr(message, name)) for name in arrays}
-        sizes = {name: v.size for name, v in values.items()}
-        if len(set(sizes.values())) != 1:
-            raise BagError(f"{where}: block {number}: array lengths differ: {sizes}")
-        first = int(message.first_sample_index)
-        if previous is not None and first == previous[0] and all(
-                np.array_equal(values[name], previous[1][name]) for name in arrays):
-            continue   # a retransmission (a controller's start-up retry): the same block again
-        previous = (first, values)
-        if expected is not None and first != expected:
-            if not allow_gaps:
-                kind = f"{first - expected} samples missing" if first > expected else f"{expected - first} samples repeated"
-                raise BagContinuityError(
-                    f"{where}: block {number} has first_sample_index {first}, expected {expected} ({kind})")
-            gaps.append((expected, first))
-        length = next(iter(sizes.values()))
-        expected = first + length
-        for name in arrays:
-            chunks[name].append(values[name])
-        kept.append(message)
-        lengths.append(length)
-        firsts.append(first)
-        stamps.append(message.header.stamp.sec * _NS_PER_S + message.header.stamp.nanosec)
-    lengths_arr = np.asarray(lengths, dtype=np.int64)
-    firsts_arr = np.asarray(firsts, dtype=np.int64)
-    stamps_arr = np.asarray(stamps, dtype=np.int64)
+    errors: list[tuple[int, int, type, str]] = []   # (message, check order within a message, error, text)
+    differs = np.flatnonzero(columns.rate_hz != rate_hz)
+    if differs.size:
+        errors.append((int(differs[0]), 0, BagError, f"sample_rate_hz {float(columns.rate_hz[differs[0]])} differs from {rate_hz}"))
+    if columns.bad_lengths is not None:
+        errors.append((columns.bad_lengths[0], 1, BagError, f"array lengths differ: {columns.bad_lengths[1]}"))
+    first, lengths = columns.first, columns.lengths
+    starts = np.cumsum(lengths) - lengths
+    keep = np.ones(first.size, dtype=bool)
+    for number in np.flatnonzero((first[1:] == first[:-1]) & (lengths[1:] == lengths[:-1])) + 1:
+        now, before = slice(starts[number], starts[number] + lengths[number]), slice(starts[number - 1], starts[number - 1] + lengths[number - 1])
+        keep[number] = not all(np.array_equal(v[now], v[before]) for v in columns.arrays.values())
+    kept = np.flatnonzero(keep)   # a retransmission (a controller's start-up retry) is the same block again: dropped
+    expected = first[kept[:-1]] + lengths[kept[:-1]]
+    jumps = np.flatnonzero(first[kept[1:]] != expected)
+    if jumps.size and not allow_gaps:
+        number, want, got = int(kept[jumps[0] + 1]), int(expected[jumps[0]]), int(first[kept[jumps[0] + 1]])
+        kind = f"{got - want} samples missing" if got > want else f"{want - got} samples repeated"
+        errors.append((number, 2, BagContinuityError, f"block {number} has first_sample_index {got}, expected {want} ({kind})"))
+    if errors:
+        number, _, error, text = min(errors)
+        raise error(f"{where}: {text}" if error is BagContinuityError else f"{where}: block {number}: {text}")
+    gaps = tuple((int(e), int(f)) for e, f in zip(expected[jumps], first[kept[jumps + 1]]))
+    sample_keep = np.repeat(keep, lengths)
+    lengths_arr, firsts_arr, stamps_arr = lengths[kept], first[kept], columns.stamp_ns[kept]
     offsets = np.arange(int(lengths_arr.sum()), dtype=np.int64) - np.repeat(np.cumsum(lengths_arr) - lengths_arr, lengths_arr)
     sample_index = np.repeat(firsts_arr, lengths_arr) + offsets
     time_ns = np.repeat(stamps_arr, lengths_arr) + np.round(offsets * (_NS_PER_S / rate_hz)).astype(np.int64)
     return Blocks(
-        topic=topic, msgtype=msgtype, sample_rate_hz=rate_hz, first_sample_index=firsts[0],
-        fields={name: np.concatenate(parts) for name, parts in chunks.items()},
+        topic=topic, msgtype=msgtype, sample_rate_hz=rate_hz, first_sample_index=int(firsts_arr[0]),
+        fields={name: values if keep.all() else values[sample_keep] for name, values in columns.arrays.items()},
         sample_index=sample_index, time_ns=time_ns, block_stamps_ns=stamps_arr, block_first_index=firsts_arr,
-        scalars={name: np.asarray([getattr(m, name) for m in kept]) for name in scalars},
-        gaps=tuple(gaps),
+        scalars={name: values[kept] for name, values in columns.scalars.items()},
+        gaps=gaps,
     )
+
+
+def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_gaps: bool = False,
+                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
+    """Concatenate deserialized block messages (pure: no file access); see `read_blocks`."""
+    arrays, scalars = block_array_fields(msgtype, store)
+    return _assemble(topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps, bag)
+
+
+def blocks_from_cdr(topic: str, msgtype: str, datas: Sequence[bytes], *, allow_gaps: bool = False,
+                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
+    """`assemble_blocks` of CDR bytes: the project's block types decoded with numpy (flaair_common.cdr),
+    thousands of messages at once; any other block type through the typestore."""
+    arrays, scalars = block_array_fields(msgtype, store)
+    layout = cdr.LAYOUTS.get(msgtype)
+    if layout is not None and datas and {name for name, kind in layout.fields if kind.endswith("[]")} == set(arrays) \
+            and {name for name, kind in layout.fields if not kind.endswith("[]")} >= set(scalars):
+        return _assemble(topic, msgtype, _columns_from_cdr(layout, datas, bag), allow_gaps, bag)
+    store = store or typestore()
+    messages = [_deserialize(bag, store, data, msgtype) for data in datas]
+    return _assemble(topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps, bag)
+
+
+@dataclass(frozen=True)
+class BagContents:
+    """A bag read once: what it holds (`info`) and the CDR bytes of the topics asked for, in log-time order."""
+
+    info: BagInfo
+    raw: dict[str, list[bytes]]
+
+    def has(self, topic: str) -> bool:
+        """True if the bag holds `topic` (read or not)."""
+        return topic in self.info.topics
+
+    def _data(self, topic: str) -> list[bytes]:
+        if topic not in self.info.topics:
+            raise BagTopicError(f"{self.info.path}: no topic '{topic}' in the bag "
+                                f"(it has: {', '.join(sorted(self.info.topics)) or 'no topics'})")
+        if topic not in self.raw:
+            raise BagError(f"{self.info.path}: topic '{topic}' was not read (read_bag(..., topics))")
+        return self.raw[topic]
+
+    def messages(self, topic: str, store: Typestore | None = None) -> list[Any]:
+        """The deserialized messages of `topic` (empty if the bag does not hold it)."""
+        if not self.has(topic):
+            return []
+        store, msgtype = store or typestore(), self.info.topics[topic].msgtype
+        return [_deserialize(self.info.path, store, data, msgtype) for data in self._data(topic)]
+
+    def blocks(self, topic: str, *, allow_gaps: bool = False) -> Blocks:
+        """Every block of `topic`, concatenated per field (see `read_blocks`)."""
+        data, msgtype = self._data(topic), self.info.topics[topic].msgtype
+        if msgtype not in typestore().fielddefs:
+            raise BagTopicError(f"{self.info.path}: topic '{topic}' has type {msgtype}, unknown to the typestore")
+        return blocks_from_cdr(topic, msgtype, data, allow_gaps=allow_gaps, bag=self.info.path)
+
+    def run_markers(self) -> list[RunMarker]:
+        """Run markers, in time order (empty if the bag has none)."""
+        return [RunMarker.from_json(message.data) for message in self.messages(RUN_MARKER_TOPIC)]
+
+
+def read_bag(bag: str | Path, topics: Sequence[str] | None = None) -> BagContents:
+    """Open a bag once: its info and the messages (CDR bytes) of `topics` it holds (None: every topic).
+
+    Topics the bag lacks are skipped (ask `BagContents.has`); reading one of them from the
+    contents raises BagTopicError naming the bag's topics.
+    """
+    reader = _open(bag)
+    try:
+        info = _info(bag, reader)
+        wanted = [t for t in (info.topics if topics is None else topics) if t in info.topics]
+        raw: dict[str, list[bytes]] = {topic: [] for topic in wanted}
+        connections = [c for c in reader.connections if c.topic in raw]
+        if connections:
+            for connection, _, data in _messages(bag, reader, connections):
+                raw[connection.topic].append(data)
+        return BagContents(info, raw)
+    finally:
+        reader.close()
 
 
 def read_blocks(bag: str | Path, topic: str, *, run: str | None = None, allow_gaps: bool = False) -> Blocks:
@@ -635,21 +811,11 @@ def read_blocks(bag: str | Path, topic: str, *, run: str | None = None, allow_ga
     BagContinuityError
         Samples skipped or repeated between blocks.
     """
-    store = typestore()
-    reader = _open(bag)
-    try:
-        _require_topics(bag, reader, [topic])
-        connections = [c for c in reader.connections if c.topic == topic]
-        msgtype = connections[0].msgtype
-        if msgtype not in store.fielddefs:
-            raise BagTopicError(f"{bag}: topic '{topic}' has type {msgtype}, unknown to the typestore")
-        messages = [_deserialize(bag, store, data, msgtype) for _, _, data in _messages(bag, reader, connections)]
-    finally:
-        reader.close()
-    blocks = assemble_blocks(topic, msgtype, messages, allow_gaps=allow_gaps, bag=bag, store=store)
+    contents = read_bag(bag, [topic, RUN_MARKER_TOPIC] if run is not None else [topic])
+    blocks = contents.blocks(topic, allow_gaps=allow_gaps)
     if run is None:
         return blocks
-    markers = {m.run: m for m in read_run_markers(bag)}
+    markers = {m.run: m for m in contents.run_markers()}
     if run not in markers:
         raise BagError(f"{bag}: no run '{run}' (runs: {', '.join(markers) or 'none marked'})")
     return select_samples(blocks, markers[run].first_sample_index, markers[run].n_samples)
@@ -702,13 +868,7 @@ class RunMarker:
 
 def read_run_markers(bag: str | Path) -> list[RunMarker]:
     """Run markers of a bag, in time order (empty if it has none)."""
-    reader = _open(bag)
-    try:
-        if RUN_MARKER_TOPIC not in reader.topics:
-            return []
-    finally:
-        reader.close()
-    return [RunMarker.from_json(message.data) for _, _, message in iter_messages(bag, [RUN_MARKER_TOPIC])]
+    return read_bag(bag, [RUN_MARKER_TOPIC]).run_markers()
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,6 +15,9 @@ import numpy as np
 from flaair_common import topics
 from flaair_tools import bagio
 
+# The topics a run is made of.
+RUN_TOPICS = (topics.SENSOR_VOLTAGE, topics.DRIVE, topics.WING_STATE_TRUTH, bagio.RUN_MARKER_TOPIC)
+
 
 @dataclass(frozen=True)
 class Run:
@@ -81,8 +84,8 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
     need_truth, need_drive
         Refuse bags without /flaair/wing_state/truth or /flaair/drive.
     missing
-        If given, a marked run without any sensor sample (a recovered, cut-short bag) is
-        appended here as (bag, run) instead of refused.
+        A marked run without any sensor sample (a recovered, cut-short bag) is skipped; if
+        `missing` is given, it is appended there as (bag, run).
 
     Raises
     ------
@@ -91,27 +94,35 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
     """
     runs: list[Run] = []
     for bag in bags:
-        present = set(bagio.bag_info(bag).topics)
-        needed = [topics.SENSOR_VOLTAGE] + ([topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
-        missing = [t for t in needed if t not in present]
-        if missing:
-            raise bagio.BagTopicError(f"{bag}: needed topic(s) {', '.join(missing)} not in the bag "
-                                      f"(it has: {', '.join(sorted(present)) or 'nothing'})")
-        sensor = bagio.read_blocks(bag, topics.SENSOR_VOLTAGE)
-        drive = bagio.read_blocks(bag, topics.DRIVE) if topics.DRIVE in present else None
-        truth = bagio.read_blocks(bag, topics.WING_STATE_TRUTH) if topics.WING_STATE_TRUTH in present else None
-        markers = bagio.read_run_markers(bag)
-        if not markers:
-            runs.append(Run(Path(bag).name, str(bag), float(sensor.sample_rate_hz), _columns(sensor, drive, truth)))
+        contents = bagio.read_bag(bag, RUN_TOPICS)
+        runs += runs_of_bag(contents, need_truth=need_truth, need_drive=need_drive, missing=missing)
+    return runs
+
+
+def runs_of_bag(contents: bagio.BagContents, *, need_truth: bool = True, need_drive: bool = True,
+                missing: list[tuple[str, str]] | None = None) -> list[Run]:
+    """Every run of one bag already read (`bagio.read_bag(bag, RUN_TOPICS + ...)`); see `load_runs`."""
+    bag = contents.info.path
+    present = set(contents.info.topics)
+    needed = [topics.SENSOR_VOLTAGE] + ([topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
+    absent = [t for t in needed if t not in present]
+    if absent:
+        raise bagio.BagTopicError(f"{bag}: needed topic(s) {', '.join(absent)} not in the bag "
+                                  f"(it has: {', '.join(sorted(present)) or 'nothing'})")
+    sensor = contents.blocks(topics.SENSOR_VOLTAGE)
+    drive = contents.blocks(topics.DRIVE) if topics.DRIVE in present else None
+    truth = contents.blocks(topics.WING_STATE_TRUTH) if topics.WING_STATE_TRUTH in present else None
+    markers = contents.run_markers()
+    if not markers:
+        return [Run(bag.name, str(bag), float(sensor.sample_rate_hz), _columns(sensor, drive, truth))]
+    runs: list[Run] = []
+    for marker in markers:
+        pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)  # noqa: E731
+        part = pick(sensor)
+        if len(part.sample_index) == 0:
+            if missing is not None:
+                missing.append((str(bag), marker.run))
             continue
-        for marker in markers:
-            pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)  # noqa: E731
-            part = pick(sensor)
-            if len(part.sample_index) == 0:
-                if missing is not None:
-                    missing.append((str(bag), marker.run))
-                    continue
-                raise bagio.BagError(f"{bag}: run '{marker.run}' has no sensor samples")
-            runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth)),
-                            marker.n_samples))
+        runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth)),
+                        marker.n_samples))
     return runs
