@@ -23,6 +23,8 @@ from scipy import signal
 
 from flaair_sensors import calibration, characterization
 from flaair_sensors import frontend as fe
+from flaair_sensors.analysis_io import analysis_bands_from_config
+from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sim.drive import chirp
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
@@ -45,8 +47,10 @@ def main() -> None:
 
     model = load_model()
     # Realistic configuration: drift removal, lag compensation on both channels, rails.
+    tuning = frontend_tuning_from_config()
     params = fe.params_from_model(
-        model, FS, stroke_lag_s=2e-4, pitch_lag_s=3e-4, rail_low_v=-5.0, rail_high_v=5.0, rail_margin_v=0.01
+        model, FS, **{**tuning, "stroke_lag_s": 2e-4, "pitch_lag_s": 3e-4, "rail_low_v": -5.0, "rail_high_v": 5.0,
+                      "rail_margin_v": 0.01}
     )
     drive, sv, pv, out = _record(model, 10.0)
     n = sv.size
@@ -114,10 +118,12 @@ def main() -> None:
         "pitch_deg": np.degrees(o1.pitch_rad),
     }
     vref = model.sensors.reference_voltage_v
-    t_cal = best_time_s(lambda: calibration.calibrate(run, vref), repeats=2)
+    bands = analysis_bands_from_config()
+    t_cal = best_time_s(lambda: calibration.calibrate(run, vref, amplitude_band_hz=bands.amplitude_band_hz), repeats=2)
     track = 20.0 + 180.0 * run["time_s"]
-    p0 = fe.params_from_model(model, FS)
-    t_char = best_time_s(lambda: characterization.characterize_run(run, p0, "chirp", track), repeats=2)
+    p0 = fe.params_from_model(model, FS, **tuning)
+    t_char = best_time_s(lambda: characterization.characterize_run(
+        run, p0, "chirp", track, amplitude_band_hz=bands.amplitude_band_hz, time_band_hz=bands.time_band_hz), repeats=2)
 
     realtime = FS
     figures = [

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rosproc import FLAAIR, isolated_env, run
+from tuning import FRONTEND_TUNING
 
 FS_HZ = 20000.0
 
@@ -57,7 +58,7 @@ def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path:
     from flaair_sensors.frontend import params_from_calibration
 
     assert run([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path)], isolated_env(), 120).returncode == 0
-    params = params_from_calibration(load_yaml(tmp_path / "calibration.yaml"), FS_HZ)
+    params = params_from_calibration(load_yaml(tmp_path / "calibration.yaml"), FS_HZ, **FRONTEND_TUNING)
     assert abs(np.degrees(1 / params.pitch_volts_per_rad)) == pytest.approx(2 * 24.87, rel=0.01)
 
 

@@ -14,6 +14,7 @@ import yaml
 from contextlib import contextmanager
 
 from rosproc import REPO_ROOT, ros_processes, wait_for
+from tuning import FRONTEND_TUNING
 
 FS_HZ = 20000.0
 BLOCK = 10
@@ -231,7 +232,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     fs, n = FS_HZ, int(0.5 * FS_HZ)
     drive = 75.0 * np.sin(2 * np.pi * 100.0 * np.arange(n) / fs + 1.0)   # unknown phase
     out = simulate(drive, fs, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}}) if obstacle else model)
-    est = frontend.estimate(out.stroke_sensor_v, out.pitch_sensor_v, frontend.params_from_model(model, fs))
+    est = frontend.estimate(out.stroke_sensor_v, out.pitch_sensor_v, frontend.params_from_model(model, fs, **FRONTEND_TUNING))
     owns_rclpy = not rclpy.ok()
     if owns_rclpy:
         rclpy.init()

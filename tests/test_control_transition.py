@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,6 +10,8 @@ import pytest
 from flaair_control import transition as tr
 
 FS = 20000.0
+# 4th-order 40-400 Hz band-pass, 20 ms 2nd-order Savitzky-Golay, 20 ms edges
+HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02, savgol_order=2, edge_s=0.02)
 
 
 # --------------------------------------------------------------------------- analysis, pure
@@ -18,7 +21,7 @@ def test_hilbert_recovers_frequency_and_amplitude_of_a_stepped_sine():
     t = np.arange(int(1.0 * FS)) / FS
     x = np.where(t < 0.5, 6.0 * np.sin(2 * np.pi * 90.0 * t), 20.0 * np.sin(2 * np.pi * 144.0 * t + 0.3))
     x = x + 3.0  # offset: removed by the band-pass
-    r = tr.hilbert_analysis(x, FS)
+    r = tr.hilbert_analysis(x, FS, HILBERT)
     assert np.isnan(r.frequency_hz[:10]).all() and np.isnan(r.amplitude[-10:]).all()   # edges
     f1, a1 = tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.45), tr.window_stats(r.time_s, r.amplitude, 0.1, 0.45)
     f2, a2 = tr.window_stats(r.time_s, r.frequency_hz, 0.65, 0.9), tr.window_stats(r.time_s, r.amplitude, 0.65, 0.9)
@@ -30,11 +33,11 @@ def test_hilbert_recovers_frequency_and_amplitude_of_a_stepped_sine():
 def test_savitzky_golay_removes_the_harmonic_ripple_of_a_non_sinusoidal_stroke():
     t = np.arange(int(0.6 * FS)) / FS
     x = 20.0 * np.sin(2 * np.pi * 144.0 * t) + 3.0 * np.sin(2 * np.pi * 432.0 * t + 1.0)   # 3rd harmonic
-    params = tr.HilbertParams(band_hz=(40.0, 300.0))            # the band-pass removes the 432 Hz harmonic
+    params = replace(HILBERT, band_hz=(40.0, 300.0))            # the band-pass removes the 432 Hz harmonic
     r = tr.hilbert_analysis(x, FS, params)
     f = tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.5)
     assert f.mean == pytest.approx(144.0, abs=0.1) and f.ptp < 1.0
-    raw = tr.hilbert_analysis(x, FS, tr.HilbertParams(band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0))
+    raw = tr.hilbert_analysis(x, FS, replace(HILBERT, band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0))
     assert tr.window_stats(raw.time_s, raw.frequency_hz, 0.1, 0.5).ptp > 20 * f.ptp   # unsmoothed: ripples
 
 
@@ -42,7 +45,7 @@ def test_nan_samples_are_filled_and_counted():
     t = np.arange(int(0.4 * FS)) / FS
     x = 10.0 * np.sin(2 * np.pi * 120.0 * t)
     x[3000:3005] = np.nan
-    r = tr.hilbert_analysis(x, FS)
+    r = tr.hilbert_analysis(x, FS, HILBERT)
     assert r.filled_samples == 5
     assert tr.window_stats(r.time_s, r.frequency_hz, 0.05, 0.35).mean == pytest.approx(120.0, abs=0.2)
 
@@ -77,11 +80,11 @@ def test_join_blocks_marks_invalid_and_missing_samples():
 
 def test_bad_parameters_are_named():
     with pytest.raises(ValueError, match="band_hz"):
-        tr.HilbertParams(band_hz=(300.0, 40.0))
+        replace(HILBERT, band_hz=(300.0, 40.0))
     with pytest.raises(ValueError, match="fs/2"):
-        tr.hilbert_analysis(np.zeros(4000), 600.0)
+        tr.hilbert_analysis(np.zeros(4000), 600.0, HILBERT)
     with pytest.raises(ValueError, match="too short"):
-        tr.hilbert_analysis(np.zeros(50), FS)
+        tr.hilbert_analysis(np.zeros(50), FS, HILBERT)
 
 
 # --------------------------------------------------------------------------- closed loop over DDS
@@ -108,7 +111,7 @@ def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
     rec = transition_record(ws, cs, FS)
     assert rec.missing_blocks == 0 and np.isfinite(rec.stroke_deg).all()
     assert rec.kr[0] == 1.0 and rec.kr[-1] == 0.0
-    r = tr.hilbert_analysis(rec.stroke_deg, FS)
+    r = tr.hilbert_analysis(rec.stroke_deg, FS, HILBERT)
     f_n = load_model().plant.stroke_natural_frequency_hz
     config = node_parameters("flaair.yaml", "dsa_controller_node")
     f_lc, a_lc = predicted_limit_cycle(config, FS, 10)

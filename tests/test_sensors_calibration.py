@@ -12,8 +12,10 @@ from flaair_sim.drive import chirp
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, synthesize_measured_run
+from tuning import FRONTEND_TUNING
 
 FS = 20000.0
+BAND = {"amplitude_band_hz": (110.0, 190.0)}  # the stroke-to-pitch resonance band (paper)
 
 
 def _chirp_drive():
@@ -55,7 +57,7 @@ def nominal(model, drive):
 
 @pytest.fixture(scope="module")
 def nominal_cal(model, nominal):
-    return calibrate(nominal, model.sensors.reference_voltage_v)
+    return calibrate(nominal, model.sensors.reference_voltage_v, **BAND)
 
 
 def test_nominal_gains_equal_model_gains(model, nominal_cal):
@@ -77,7 +79,7 @@ def test_nominal_gains_equal_model_gains(model, nominal_cal):
 @pytest.mark.parametrize("efficiency", [0.5, 0.8])
 def test_strain_transfer_loss_scales_pitch_gain(model, drive, nominal_cal, efficiency):
     lossy = with_effects(model, {"strain_transfer_loss": {"efficiency": efficiency, "channel": "pitch"}})
-    cal = calibrate(_run(lossy, drive), model.sensors.reference_voltage_v)
+    cal = calibrate(_run(lossy, drive), model.sensors.reference_voltage_v, **BAND)
     ratio = cal["pitch"]["gain_deg_per_v"] / nominal_cal["pitch"]["gain_deg_per_v"]
     assert ratio == pytest.approx(1.0 / efficiency, rel=0.01)
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-3)
@@ -86,7 +88,7 @@ def test_strain_transfer_loss_scales_pitch_gain(model, drive, nominal_cal, effic
 def test_sensor_delay_effect_recovered_as_lag(model, drive):
     delay = 3e-4
     delayed = with_effects(model, {"sensor_delay": {"delay_s": delay}})
-    cal = calibrate(_run(delayed, drive), model.sensors.reference_voltage_v)
+    cal = calibrate(_run(delayed, drive), model.sensors.reference_voltage_v, **BAND)
     for ch in ("stroke", "pitch"):
         assert cal[ch]["lag_s"] == pytest.approx(delay, rel=0.05)
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(getattr(model, f"{ch}_gain_deg_per_v"), rel=0.01)
@@ -96,10 +98,10 @@ def test_sensor_delay_effect_recovered_as_lag(model, drive):
 
 def test_fractional_delay_and_array_shift_recovered(model, drive, nominal):
     delayed = with_effects(model, {"sensor_delay": {"delay_s": 2.23e-4, "channel": "pitch"}})
-    cal = calibrate(_run(delayed, drive), model.sensors.reference_voltage_v)
+    cal = calibrate(_run(delayed, drive), model.sensors.reference_voltage_v, **BAND)
     assert cal["pitch"]["lag_s"] == pytest.approx(2.23e-4, rel=0.05)
     assert abs(cal["stroke"]["lag_s"]) < 1e-6
-    shifted = calibrate(_run(model, drive, shift_samples=7), model.sensors.reference_voltage_v)
+    shifted = calibrate(_run(model, drive, shift_samples=7), model.sensors.reference_voltage_v, **BAND)
     assert shifted["stroke"]["lag_s"] == pytest.approx(7 / FS, rel=0.05)
     assert shifted["pitch"]["lag_s"] == pytest.approx(7 / FS, rel=0.05)
 
@@ -113,7 +115,7 @@ def test_truth_gaps_and_low_frame_rate(model, nominal, nominal_cal):
     s = run["stroke_deg"].copy()
     s[12000:12500] = np.nan
     run["stroke_deg"] = s
-    cal = calibrate(run, model.sensors.reference_voltage_v)
+    cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
     for ch in ("stroke", "pitch"):
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(nominal_cal[ch]["gain_deg_per_v"], rel=1e-4)
         assert abs(cal[ch]["lag_s"]) < 1e-6
@@ -124,7 +126,7 @@ def test_offset_and_drift_do_not_bias_gain(model, nominal, nominal_cal):
     run = dict(nominal)
     t = run["time_s"]
     run["stroke_sensor_v"] = run["stroke_sensor_v"] + 0.03 + 0.02 * t  # V_HREF error + slow drift
-    cal = calibrate(run, model.sensors.reference_voltage_v)
+    cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-4)
     assert cal["stroke"]["offset_v"] == pytest.approx(0.03 + 0.02 * t.mean(), abs=1e-4)
     assert cal["stroke"]["drift_v_per_s"] == pytest.approx(0.02, rel=1e-3)
@@ -133,7 +135,7 @@ def test_offset_and_drift_do_not_bias_gain(model, nominal, nominal_cal):
 def test_charge_amp_highpass_does_not_bias_gain(model, drive, nominal_cal):
     """A drift-removing high-pass (2 Hz) in the sensor chain leaves the 20-200 Hz gain alone."""
     hp = with_effects(model, {"charge_amp_highpass": {"corner_hz": 2.0}})
-    cal = calibrate(_run(hp, drive), model.sensors.reference_voltage_v)
+    cal = calibrate(_run(hp, drive), model.sensors.reference_voltage_v, **BAND)
     for ch in ("stroke", "pitch"):
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(nominal_cal[ch]["gain_deg_per_v"], rel=1e-3)
         # Its phase lead shows as a small negative lag (tens of microseconds), not as gain.
@@ -142,7 +144,7 @@ def test_charge_amp_highpass_does_not_bias_gain(model, drive, nominal_cal):
 
 def test_noisy_measured_run(model, drive):
     run = synthesize_measured_run(drive, FS, model, np.random.default_rng(11))
-    cal = calibrate(run, model.sensors.reference_voltage_v)
+    cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(model.stroke_gain_deg_per_v, rel=0.01)
     assert cal["pitch"]["gain_deg_per_v"] == pytest.approx(model.pitch_gain_deg_per_v, rel=0.01)
     assert abs(cal["stroke"]["lag_s"]) < 5e-6 and abs(cal["pitch"]["lag_s"]) < 5e-6
@@ -152,8 +154,8 @@ def test_calibration_feeds_front_end(model, drive):
     """Calibrate a delayed sensor, then the front end with lead compensation tracks the truth."""
     delay = 3e-4
     run = _run(with_effects(model, {"sensor_delay": {"delay_s": delay}}), drive)
-    cal = calibrate(run, model.sensors.reference_voltage_v)
-    p = fe.params_from_calibration(cal, FS)
+    cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
+    p = fe.params_from_calibration(cal, FS, **FRONTEND_TUNING)
     assert p.stroke_volts_per_rad == pytest.approx(model.stroke_volts_per_rad, rel=0.01)
     est = fe.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], p)
     raw = fe.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], fe.with_overrides(p, compensate_lag=False))
@@ -166,7 +168,7 @@ def test_calibration_feeds_front_end(model, drive):
 
 def _errors(run, ref=1.25, **kw):
     with pytest.raises(CalibrationError) as info:
-        calibrate(run, ref, **kw)
+        calibrate(run, ref, **kw, **BAND)
     return str(info.value)
 
 

@@ -13,9 +13,11 @@ from flaair_sim.drive import chirp as chirp_drive, stepped_sine
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
+from tuning import FRONTEND_TUNING
 
 FS = 20000.0
 AMP_V = 100.0  # Vpp = 200 V (paper)
+BANDS = {"amplitude_band_hz": (110.0, 190.0), "time_band_hz": (100.0, 190.0)}  # the paper's bands
 
 
 def _stepped(freqs, dwell_s=0.2):
@@ -48,7 +50,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def params(model):
-    return fe.params_from_model(model, FS)
+    return fe.params_from_model(model, FS, **FRONTEND_TUNING)
 
 
 @pytest.fixture(scope="module")
@@ -56,14 +58,14 @@ def stepped(model, params):
     freqs = np.arange(60.0, 201.0, 10.0)
     drive, track = _stepped(freqs)
     out, run = _run(model, drive)
-    return freqs, track, out, run, ch.characterize_run(run, params, "stepped", track)
+    return freqs, track, out, run, ch.characterize_run(run, params, "stepped", track, **BANDS)
 
 
 @pytest.fixture(scope="module")
 def chirp(model, params):
     drive, track = _chirp()
     out, run = _run(model, drive)
-    return track, out, run, ch.characterize_run(run, params, "chirp", track)
+    return track, out, run, ch.characterize_run(run, params, "chirp", track, **BANDS)
 
 
 def _describing_function(model, f_hz):
@@ -148,7 +150,7 @@ def test_delay_shows_in_phase_and_time_figures(model, params):
     freqs = np.arange(60.0, 201.0, 20.0)
     drive, track = _stepped(freqs)
     out, run = _run(with_effects(model, {"sensor_delay": {"delay_s": tau}}), drive)
-    res = ch.characterize_run(run, params, "stepped", track)
+    res = ch.characterize_run(run, params, "stepped", track, **BANDS)
     drift_lead = np.degrees(np.angle(fe.drift_removal_response(params, freqs)))
     expected = -360.0 * freqs * tau + drift_lead
     for cb in (res.bode.stroke, res.bode.pitch):
@@ -158,7 +160,7 @@ def test_delay_shows_in_phase_and_time_figures(model, params):
         assert m.lag_s == pytest.approx(tau, rel=0.05)
         assert m.time_rmse_deg > 5 * m.time_rmse_lag_corrected_deg
     # Pitch phase relative to each curve's own stroke: equal delays cancel.
-    same = ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="sensor")
+    same = ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="sensor", **BANDS)
     assert same.pitch.phase_rmse_deg < 0.5 < res.pitch.phase_rmse_deg
     assert same.stroke.phase_rmse_deg == pytest.approx(res.stroke.phase_rmse_deg)
 
@@ -170,7 +172,7 @@ def test_truth_gaps_tolerated(stepped, params):
     y[np.arange(y.size) % 3 != 0] = np.nan
     y[20000:21000] = np.nan
     gappy["pitch_deg"] = y
-    res = ch.characterize_run(gappy, params, "stepped", track)
+    res = ch.characterize_run(gappy, params, "stepped", track, **BANDS)
     np.testing.assert_allclose(res.bode.pitch.truth_amplitude_deg, result.bode.pitch.truth_amplitude_deg, rtol=1e-3)
     assert res.pitch.n_truth_samples == int(np.isfinite(y).sum())
 
@@ -195,13 +197,13 @@ def test_rmse_closed_form():
 def test_bad_inputs_raise(stepped, params):
     freqs, track, out, run, _ = stepped
     with pytest.raises(ValueError, match="method"):
-        ch.characterize_run(run, params, "sweep", track)
+        ch.characterize_run(run, params, "sweep", track, **BANDS)
     with pytest.raises(ValueError, match="frequency_hz_per_sample"):
-        ch.characterize_run(run, params, "stepped")
+        ch.characterize_run(run, params, "stepped", **BANDS)
     with pytest.raises(ValueError, match="stroke_deg"):
-        ch.characterize_run({k: v for k, v in run.items() if k != "stroke_deg"}, params, "stepped", track)
+        ch.characterize_run({k: v for k, v in run.items() if k != "stroke_deg"}, params, "stepped", track, **BANDS)
     with pytest.raises(ValueError, match="pitch_phase_reference"):
-        ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="drive")
+        ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="drive", **BANDS)
 
 
 def test_bode_figure_png(stepped, chirp, tmp_path):

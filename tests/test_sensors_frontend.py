@@ -12,6 +12,7 @@ from flaair_sensors import frontend as fe
 from flaair_sensors.characterization import sine_phasor
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate
+from tuning import FRONTEND_TUNING
 
 FS = 20000.0
 
@@ -23,7 +24,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def params(model):
-    return fe.params_from_model(model, FS)
+    return fe.params_from_model(model, FS, **FRONTEND_TUNING)
 
 
 def _sine_volts(params, amp_rad, f_hz, n, lag_s=0.0, offset_v=0.0, channel="stroke"):
@@ -249,16 +250,16 @@ def test_params_from_calibration_roundtrip(params):
         "stroke": {"gain_deg_per_v": 25.0, "polarity": -1, "offset_v": 0.01, "lag_s": 1e-4},
         "pitch": {"gain_deg_per_v": 108.0, "polarity": 1, "offset_v": -0.02, "lag_s": 2e-4},
     }
-    p = fe.params_from_calibration(cal, FS, drift_corner_hz=0.0, compensate_lag=False)
+    p = fe.params_from_calibration(cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False})
     v = np.array([1.25 + 0.01 + 0.1])
     est = fe.estimate(v, np.array([1.25 - 0.02 + 0.1]), p)
     assert math.degrees(est.stroke_rad[0]) == pytest.approx(-25.0 * 0.1)
     assert math.degrees(est.pitch_rad[0]) == pytest.approx(108.0 * 0.1)
     assert p.stroke_lag_s == 1e-4 and p.pitch_lag_s == 2e-4
     with pytest.raises(ValueError, match="polarity"):
-        fe.params_from_calibration({**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS)
+        fe.params_from_calibration({**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS, **FRONTEND_TUNING)
     with pytest.raises(ValueError, match="gain_deg_per_v"):
-        fe.params_from_calibration({**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}}, FS)
+        fe.params_from_calibration({**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}}, FS, **FRONTEND_TUNING)
 
 
 def test_bad_parameters_and_inputs_raise(params):

@@ -6,6 +6,7 @@ import json
 import numpy as np
 
 from rosproc import ros_processes
+from tuning import FRONTEND_TUNING
 
 FS_HZ = 20000.0
 
@@ -42,7 +43,7 @@ def test_frontend_node_matches_offline_core_and_tracks_truth() -> None:
     drive = drive_record(DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=140.0), FS_HZ, first + n_blocks * 10)
     sim = simulate(drive, FS_HZ, model)
     seen = slice(first, first + n_blocks * 10)
-    offline = frontend.estimate(sim.stroke_sensor_v[seen], sim.pitch_sensor_v[seen], frontend.params_from_model(model, FS_HZ))
+    offline = frontend.estimate(sim.stroke_sensor_v[seen], sim.pitch_sensor_v[seen], frontend.params_from_model(model, FS_HZ, **FRONTEND_TUNING))
     assert np.allclose(stroke_deg, np.degrees(offline.stroke_rad), rtol=0, atol=1e-9)
     assert np.allclose(velocity, np.degrees(offline.stroke_velocity_rad_s), rtol=0, atol=1e-6)
     truth = np.degrees(sim.stroke_rad[seen])

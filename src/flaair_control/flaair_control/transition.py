@@ -6,17 +6,18 @@ Hilbert analysis (``hilbert_analysis``)
 ---------------------------------------
 The paper reports the stroke frequency and amplitude of the transition from the Hilbert
 transform of the sensor-determined stroke angle, "smoothened through a bandpass and
-Savitzky-Golay filter". It does not give the filters, so (parameters in ``HilbertParams``):
+Savitzky-Golay filter". It does not give the filters, so (parameters in ``HilbertParams``; the values the tools use,
+noted as "config" below, are config/flaair.yaml ``analyze: hilbert_*``):
 
 1. invalid samples (NaN) are filled by linear interpolation (counted in the result);
-2. band-pass: Butterworth (``band_order``, default 4) over ``band_hz`` (default 40-400 Hz, wide
+2. band-pass: Butterworth (``band_order``, config 4) over ``band_hz`` (config 40-400 Hz, wide
    enough for the 80-100 Hz synchronous start and the ~145 Hz self-excited end, removing the
    offset/drift and the higher harmonics), applied forward and backward (zero phase: the
    analysis is offline);
 3. analytic signal z = x + j H[x] (scipy.signal.hilbert); amplitude |z|; frequency
    d(unwrap(arg z))/dt / 2 pi;
-4. Savitzky-Golay smoothing of both (``savgol_window_s`` long, default 20 ms, polynomial order
-   ``savgol_order``, default 2): the instantaneous frequency and amplitude of a non-sinusoidal
+4. Savitzky-Golay smoothing of both (``savgol_window_s`` long, config 20 ms, polynomial order
+   ``savgol_order``, config 2): the instantaneous frequency and amplitude of a non-sinusoidal
    stroke ripple at twice the wingbeat frequency; a window of about 3 wingbeats removes it;
 5. ``edge_s`` at both ends (filter transients) is set to NaN.
 
@@ -51,13 +52,13 @@ class TransitionError(ValueError):
 
 @dataclass(frozen=True)
 class HilbertParams:
-    """Band-pass + Hilbert + Savitzky-Golay settings (see module docstring)."""
+    """Band-pass + Hilbert + Savitzky-Golay settings (see module docstring; values: config/flaair.yaml analyze)."""
 
-    band_hz: tuple[float, float] = (40.0, 400.0)
-    band_order: int = 4
-    savgol_window_s: float = 0.02
-    savgol_order: int = 2
-    edge_s: float = 0.02
+    band_hz: tuple[float, float]
+    band_order: int
+    savgol_window_s: float
+    savgol_order: int
+    edge_s: float
 
     def __post_init__(self) -> None:
         lo, hi = self.band_hz
@@ -96,7 +97,7 @@ def _fill_nan(x: np.ndarray) -> tuple[np.ndarray, int]:
     return out, n_bad
 
 
-def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertParams = HilbertParams(),
+def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertParams,
                      start_time_s: float = 0.0) -> HilbertResult:
     """Frequency and amplitude of ``angle`` (one uniformly sampled record; NaN = invalid)."""
     fs = float(sample_rate_hz)

@@ -223,7 +223,7 @@ def calibrate(
     flat_fraction: float = 0.002,
     window_s: float = 0.03,
     min_valid_fraction: float = 0.5,
-    amplitude_band_hz: tuple[float, float] = (110.0, 190.0),
+    amplitude_band_hz: tuple[float, float],
 ) -> dict[str, Any]:
     """Calibrate both sensors of a measured run against its ground truth.
 
@@ -245,7 +245,7 @@ def calibrate(
         Tiled fit windows for the amplitude/phase figures, and the finite-truth fraction a window
         needs.
     amplitude_band_hz
-        Band of ``amplitude_rmse_band_deg``.
+        Band of ``amplitude_rmse_band_deg`` (config: ``flaair_sensors.analysis_io``).
 
     Returns
     -------

@@ -468,7 +468,7 @@ def time_metrics(
     fs_hz: float,
     frequency_hz_per_sample: np.ndarray | None = None,
     *,
-    band_hz: tuple[float, float] = (100.0, 190.0),
+    band_hz: tuple[float, float],
     max_lag_s: float = 2e-3,
 ) -> tuple[float, float, float, float, int]:
     """Time-domain figures of one sensor.
@@ -521,8 +521,8 @@ def characterize(
     fs_hz: float,
     frequency_hz_per_sample: np.ndarray | None = None,
     *,
-    amplitude_band_hz: tuple[float, float] = (110.0, 190.0),
-    time_band_hz: tuple[float, float] = (100.0, 190.0),
+    amplitude_band_hz: tuple[float, float],
+    time_band_hz: tuple[float, float],
     max_lag_s: float = 2e-3,
 ) -> Characterization:
     """All paper figures of both sensors from Bode data and the time records.
@@ -568,8 +568,8 @@ def characterize_run(
     settle_fraction: float = 0.5,
     frequencies_hz: Sequence[float] | None = None,
     pitch_phase_reference: str = "truth",
-    amplitude_band_hz: tuple[float, float] = (110.0, 190.0),
-    time_band_hz: tuple[float, float] = (100.0, 190.0),
+    amplitude_band_hz: tuple[float, float],
+    time_band_hz: tuple[float, float],
     max_lag_s: float = 2e-3,
 ) -> Characterization:
     """Characterize a measured-run record through the front end.

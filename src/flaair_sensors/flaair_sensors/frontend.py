@@ -119,18 +119,20 @@ class FrontendParams:
     pitch_volts_per_rad: float
     reference_voltage_v: float
     sample_rate_hz: float
+    # tuning: no defaults (config/flaair.yaml frontend_node; flaair_sensors.frontend_io)
+    drift_corner_hz: float
+    compensate_lag: bool
+    lead_rolloff_hz: float
+    rail_low_v: float
+    rail_high_v: float
+    rail_margin_v: float
+    holdoff_s: float
+    velocity_cutoff_hz: float
+    # calibration results: zero for the nominal (uncalibrated) sensor
     stroke_offset_v: float = 0.0
     pitch_offset_v: float = 0.0
-    drift_corner_hz: float = 0.5
     stroke_lag_s: float = 0.0
     pitch_lag_s: float = 0.0
-    compensate_lag: bool = True
-    lead_rolloff_hz: float = 1000.0
-    rail_low_v: float = -math.inf
-    rail_high_v: float = math.inf
-    rail_margin_v: float = 0.0
-    holdoff_s: float = 1.5e-3
-    velocity_cutoff_hz: float = 1000.0
 
     def __post_init__(self) -> None:
         fs = self.sample_rate_hz
@@ -201,7 +203,8 @@ def params_from_model(model: Any, fs_hz: float, **overrides: Any) -> FrontendPar
     fs_hz
         Sample rate.
     **overrides
-        Any other ``FrontendParams`` field (tuning, rails, lags).
+        The tuning fields (required: ``TUNING_FIELDS``, e.g. from
+        ``frontend_io.frontend_tuning_from_config``) and any other ``FrontendParams`` field.
     """
     fields = dict(
         stroke_volts_per_rad=_model_gain(model, "stroke_volts_per_rad"),
@@ -210,6 +213,17 @@ def params_from_model(model: Any, fs_hz: float, **overrides: Any) -> FrontendPar
         sample_rate_hz=float(fs_hz),
     )
     fields.update(overrides)
+    return _params(fields)
+
+
+TUNING_FIELDS = ("drift_corner_hz", "compensate_lag", "lead_rolloff_hz", "rail_low_v", "rail_high_v",
+                 "rail_margin_v", "holdoff_s", "velocity_cutoff_hz")
+
+
+def _params(fields: dict[str, Any]) -> FrontendParams:
+    missing = [name for name in TUNING_FIELDS if name not in fields]
+    if missing:
+        raise FrontendError(f"front-end tuning missing: {', '.join(missing)} (config/flaair.yaml frontend_node)")
     return FrontendParams(**fields)
 
 
@@ -236,7 +250,7 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float, **over
     fs_hz
         Sample rate.
     **overrides
-        Any other ``FrontendParams`` field.
+        The tuning fields (required: ``TUNING_FIELDS``) and any other ``FrontendParams`` field.
     """
     fields: dict[str, Any] = {"sample_rate_hz": float(fs_hz)}
     try:
@@ -268,7 +282,7 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float, **over
         fields[f"{channel}_offset_v"] = float(c["offset_v"])
         fields[f"{channel}_lag_s"] = float(c["lag_s"])
     fields.update(overrides)
-    return FrontendParams(**fields)
+    return _params(fields)
 
 
 # ----------------------------------------------------------------------------- filter design

@@ -32,13 +32,25 @@ FRONTEND_PARAMS = [
     ParamSpec("holdoff_s", float, "Time invalid after an unusable sample [s]", 0.0, 1.0, read_only=True),
     ParamSpec("velocity_cutoff_hz", float, "Stroke-velocity differentiator cutoff [Hz]", 10.0, 9000.0, read_only=True),
 ]
-_TUNING = ("drift_corner_hz", "compensate_lag", "lead_rolloff_hz", "rail_low_v", "rail_high_v",
-           "rail_margin_v", "holdoff_s", "velocity_cutoff_hz")
+_TUNING = frontend.TUNING_FIELDS
+
+
+def frontend_tuning_from_config(values: Mapping | None = None) -> dict:
+    """The front end's tuning fields (filters, rails, hold-off) from frontend_node values
+    (default: config/flaair.yaml), for offline tools that build their own FrontendParams."""
+    try:
+        values = node_parameters(CONFIG_FILE, NODE_NAME) if values is None else values
+    except ConfigError as exc:
+        raise ParameterError(str(exc)) from exc
+    missing = [name for name in _TUNING if name not in values]
+    if missing:
+        raise ParameterError(f"config/{CONFIG_FILE} {NODE_NAME}: missing {', '.join(missing)}")
+    return {name: values[name] for name in _TUNING}
 
 
 def frontend_params_from_config(values: Mapping, fs_hz: float) -> frontend.FrontendParams:
     """FrontendParams from the node's parameter values (model or calibration gains)."""
-    tuning = {name: values[name] for name in _TUNING}
+    tuning = frontend_tuning_from_config(values)
     try:
         if values["gains_from"] == "calibration":
             if not values["calibration_file"]:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_model.model_io import load_model
 from flaair_tools import bagio
@@ -69,17 +70,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("bags", nargs="+", type=Path, help="bags with /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--model", type=Path, default=None, help="model YAML for V_HREF (default: config/model.yaml)")
-    parser.add_argument("--band-hz", type=float, nargs=2, default=(110.0, 190.0), metavar=("LOW", "HIGH"),
-                        help="band of the band-limited amplitude RMSE (default: stroke-to-pitch resonance band)")
+    parser.add_argument("--band-hz", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                        help="band of the band-limited amplitude RMSE (default: config/flaair.yaml "
+                             "analyze.amplitude_band_hz, the stroke-to-pitch resonance band)")
     args = parser.parse_args(argv)
     try:
+        band_hz = tuple(args.band_hz) if args.band_hz else analysis_bands_from_config().amplitude_band_hz
         reference_v = load_model(args.model).sensors.reference_voltage_v
         runs = load_runs(args.bags)
         per_run = []
         for run in runs:
             try:
                 per_run.append(calibrate(run.columns, reference_v, sample_rate_hz=run.sample_rate_hz,
-                                         amplitude_band_hz=tuple(args.band_hz)))
+                                         amplitude_band_hz=band_hz))
             except CalibrationError as exc:
                 raise CalibrationError(f"{run.bag}, run '{run.name}': {exc}") from None
         result = combine(per_run)

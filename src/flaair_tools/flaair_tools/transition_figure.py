@@ -34,6 +34,7 @@ import numpy as np
 
 from flaair_common.graph import Graph, flaair_argv
 from flaair_control import transition as tr
+from flaair_control.transition_io import hilbert_params_from_config
 
 
 class TransitionRecord(NamedTuple):
@@ -197,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         cs = [json.loads(line) for line in args.controller_state.read_text().splitlines() if line]
         controller = shared
     record = transition_record(ws, cs, fs)
-    result = tr.hilbert_analysis(record.stroke_deg, fs, start_time_s=float(record.time_s[0]))
+    result = tr.hilbert_analysis(record.stroke_deg, fs, hilbert_params_from_config(), start_time_s=float(record.time_s[0]))
     f_n = load_model(controller.get("model_file") or None).plant.stroke_natural_frequency_hz
     predicted = predicted_limit_cycle(controller, fs, block)
     path = plot_transition(record, result, args.output, resonance_hz=f_n, predicted=predicted)
