@@ -42,7 +42,6 @@ import math
 import signal as os_signal
 import sys
 import time
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +52,8 @@ from flaair_common import topics
 from flaair_model.config import ConfigError, load_yaml, node_parameters
 from flaair_sensors import characterization as ch
 from flaair_sensors import frontend
+from flaair_sensors.analysis_io import analysis_bands_from_config
+from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
 from flaair_tools.runkind import DriveKind, RecognitionParams, RunKindError, recognise
@@ -72,16 +73,16 @@ PAPER = {
     "collision_spectrum_rmse_deg": 3.23, "no_collision_spectrum_rmse_deg": 0.53,
     "collision_time_rmse_deg": 15.81, "no_collision_time_rmse_deg": 3.34,
 }
-# Human label and unit of every headline figure.
+# Human label and unit of every headline figure ({band} fields: the configured analysis bands).
 LABELS = {
     "stroke_gain_deg_per_v": ("Stroke sensor gain", "deg/V"),
     "pitch_gain_deg_per_v": ("Pitch (hinge) sensor gain", "deg/V"),
     "stroke_amplitude_rmse_deg": ("Stroke amplitude error, RMSE over the Bode", "deg"),
     "pitch_amplitude_rmse_deg": ("Pitch amplitude error, RMSE over the Bode", "deg"),
-    "pitch_amplitude_rmse_band_deg": ("Pitch amplitude error, RMSE 110-190 Hz", "deg"),
+    "pitch_amplitude_rmse_band_deg": ("Pitch amplitude error, RMSE {amplitude_band_hz}", "deg"),
     "pitch_time_rmse_deg": ("Pitch error in time, RMSE", "deg"),
     "pitch_time_rmse_lag_corrected_deg": ("Pitch error in time, lag corrected", "deg"),
-    "pitch_time_rmse_lag_corrected_band_deg": ("Pitch error in time, lag corrected, 100-190 Hz", "deg"),
+    "pitch_time_rmse_lag_corrected_band_deg": ("Pitch error in time, lag corrected, {time_band_hz}", "deg"),
     "stroke_phase_rmse_deg": ("Stroke phase error, RMSE over the Bode", "deg"),
     "pitch_phase_rmse_deg": ("Pitch phase error, RMSE over the Bode", "deg"),
     "collision_spectrum_rmse_deg": ("Collision metric with the obstacle (pitch FFT vs sine)", "deg"),
@@ -145,7 +146,7 @@ def load_calibration(path: Path) -> dict[str, Any]:
     """A calibration.yaml from `flaair calibrate`, checked; the error names the file and key."""
     try:
         calibration = load_yaml(path)
-        frontend.params_from_calibration(calibration, 20000.0)
+        frontend.params_from_calibration(calibration, 20000.0, **frontend_tuning_from_config())
     except (ConfigError, OSError, frontend.FrontendError, TypeError, ValueError) as exc:
         raise AnalysisError(f"--calibration {path}: {exc}") from None
     return calibration
@@ -155,8 +156,7 @@ def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> fronten
     """The front end's parameters as the node would run them (config/flaair.yaml frontend_node)."""
     from flaair_model.model_io import load_model
 
-    names = {f.name for f in fields(frontend.FrontendParams)}
-    tuning = {k: v for k, v in node_parameters("flaair.yaml", "frontend_node").items() if k in names and k != "sample_rate_hz"}
+    tuning = frontend_tuning_from_config()
     if calibration is not None:
         return frontend.params_from_calibration(calibration, fs_hz, **tuning)
     return frontend.params_from_model(load_model(), fs_hz, **tuning)
@@ -218,7 +218,9 @@ def _sweep_figures(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, meth
         bode = ch.bode_from_chirp(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_hz_per_sample=track)
     else:
         bode = ch.bode_from_stepped(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
-    result = ch.characterize(bode, drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
+    bands = analysis_bands_from_config()
+    result = ch.characterize(bode, drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track,
+                             amplitude_band_hz=bands.amplitude_band_hz, time_band_hz=bands.time_band_hz)
     figures = {name: strict(dict(metrics.__dict__)) for name, metrics in (("stroke", result.stroke), ("pitch", result.pitch))}
     return bode, figures
 
@@ -236,14 +238,15 @@ def analyze_sweep(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, metho
     live_bode, out["live"] = _sweep_figures(run, stroke_est, pitch_est, method, track)
     try:
         gains = calibrate(run.columns, reference_v, sample_rate_hz=fs,
-                          frequency_hz_per_sample=track if method != "chirp" else None)
+                          frequency_hz_per_sample=track if method != "chirp" else None,
+                          amplitude_band_hz=analysis_bands_from_config().amplitude_band_hz)
     except CalibrationError as exc:
         out["gain_error"] = str(exc)
         out.update(stroke=out["live"]["stroke"], pitch=out["live"]["pitch"])
         bode = live_bode
     else:
         # Fitted gain and offset only: the lag stays in the estimate, as the paper reports it.
-        params = frontend.params_from_calibration(gains, fs, compensate_lag=False)
+        params = frontend.params_from_calibration(gains, fs, **{**frontend_tuning_from_config(), "compensate_lag": False})
         bode, fitted = _sweep_figures(run, *offline_estimate(run, params), method, track)
         for name in ("stroke", "pitch"):
             fitted[name]["gain_deg_per_v"] = _finite(gains[name]["gain_deg_per_v"])
@@ -365,6 +368,7 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     Savitzky-Golay filter (paper); K_r comes from the recorded controller state.
     """
     from flaair_control import transition as tr
+    from flaair_control.transition_io import hilbert_params_from_config
     from flaair_tools.transition_figure import TransitionRecord
     from flaair_model.model_io import load_model
 
@@ -379,7 +383,7 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     kr_time_s = np.array([m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in states])
     record = TransitionRecord(time_s, stroke_deg, kr_time_s, np.array([m.k_r for m in states]),
                               np.array([m.stroke_frequency_hz for m in states]), np.array([m.drive_v for m in states]), 0)
-    result = tr.hilbert_analysis(stroke_deg, fs, start_time_s=float(time_s[0]))
+    result = tr.hilbert_analysis(stroke_deg, fs, hilbert_params_from_config(), start_time_s=float(time_s[0]))
     resonance_hz = load_model().plant.stroke_natural_frequency_hz
     end_s = float(time_s[-1])
     final = tr.window_stats(result.time_s, result.frequency_hz, end_s - final_window_s, end_s)
@@ -547,9 +551,12 @@ def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
                 ours[f"{prefix}collision_spectrum_rmse_deg"] = (runs[part]["spectrum_rmse_deg"], source)
                 ours[f"{prefix}collision_time_rmse_deg"] = (runs[part]["time_rmse_deg"], source)
     table = {}
+    bands = analysis_bands_from_config()
     for key, paper in PAPER.items():
         value, source = ours.get(key, (None, ""))
-        table[key] = {"flaair": _finite(value), "paper": paper, "label": LABELS[key][0], "unit": LABELS[key][1], "source": source}
+        label = LABELS[key][0].format(amplitude_band_hz=bands.label("amplitude_band_hz"),
+                                      time_band_hz=bands.label("time_band_hz"))
+        table[key] = {"flaair": _finite(value), "paper": paper, "label": label, "unit": LABELS[key][1], "source": source}
     for bag in bags:
         if "transition" in bag:
             t = bag["transition"]
