@@ -6,8 +6,8 @@ and returns the drive blocks the plant must simulate now, in order, with log not
 Modes:
   lockstep  one block per accepted command block, so a closed loop is deterministic whatever
             the wall speed (signal time = samples / sample_rate_hz);
-  realtime  the wall clock sets the pace: each tick steps the blocks that are due, queued
-            commands first, zero drive when none is queued.
+  realtime  the wall clock sets the pace: a tick releases the next due block (call again until
+            none is due), the oldest queued command, or zero drive when none is queued.
 
 A command with NaN/inf samples, the wrong length or rate is stepped as zero drive (counted,
 logged); a duplicate or out-of-order one is ignored; a gap is accepted.
@@ -140,8 +140,9 @@ def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[Actua
     blocks: list[np.ndarray] = []
     zero = np.zeros(p.block_size)
     if p.mode == "realtime":
-        due = int((now - state.wall_start_s) * p.sample_rate_hz) - state.next_index
-        for _ in range(max(0, due // p.block_size)):
+        # One due block per call: the caller steps it and calls again, so a command the step
+        # itself caused (an in-process loop answers at once) is used by the very next block.
+        if int((now - state.wall_start_s) * p.sample_rate_hz) - state.next_index >= p.block_size:
             if state.pending:
                 drive_v, state = state.pending[0], replace(state, pending=state.pending[1:])
             else:

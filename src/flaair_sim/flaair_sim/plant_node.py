@@ -60,7 +60,7 @@ class PlantNode(Node):
             cdr.DRIVE_COMMAND_BLOCK, self.block_size), self.on_command, BLOCK_STREAM, self.on_undecodable)
         if self.p["mode"] == "realtime" or self.p["command_timeout_s"] > 0:
             period = 0.005 if self.p["mode"] == "realtime" else min(0.01, self.p["command_timeout_s"] / 4)
-            self.create_timer(period, lambda: self.drive(actuator.Tick(time.monotonic())))
+            self.create_timer(period, self.on_tick)
         self.get_logger().info(
             f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
             f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
@@ -75,8 +75,12 @@ class PlantNode(Node):
         self.drive(actuator.Command(time.monotonic(), int(m["first_sample_index"]), float(m["sample_rate_hz"]),
                                     m["drive_v"]))
 
-    def drive(self, inputs: actuator.Command | actuator.Tick) -> None:
-        """Run the driver core; step the model through every block it releases."""
+    def on_tick(self) -> None:
+        while self.drive(actuator.Tick(time.monotonic())):   # realtime: every due block, one at a time
+            pass
+
+    def drive(self, inputs: actuator.Command | actuator.Tick) -> bool:
+        """Run the driver core; step the model through every block it releases (True: some)."""
         self.driver, out = actuator.step(self.driver, inputs, self.params)
         for note in out.notes:
             if note.counter:
@@ -87,6 +91,7 @@ class PlantNode(Node):
                 self.get_logger().info(note.text)
         for drive_v in out.drive_blocks:
             self.advance(drive_v)
+        return bool(out.drive_blocks) and self.params.mode == "realtime"
 
     def advance(self, drive_v: np.ndarray) -> None:
         """Step the model one block and publish its outputs."""

@@ -16,6 +16,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "record": ("flaair_tools.recorder_node", "record flaair topics to a rosbag2 (MCAP) bag"),
     "play": ("flaair_tools.player", "replay a bag onto its topics"),
     "bag": ("flaair_tools.bag_cli", "bag info (checks every chunk), or reindex (recover) a damaged or unfinished bag"),
+    "live": ("flaair_tools.live", "run the live graph on a real-time target (or --sim) and record it"),
     "experiment": ("flaair_tools.experiment", "run a paper experiment on the simulated robot and record it"),
     "analyze": ("flaair_tools.analyze", "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report"),
     "discrepancy": ("flaair_tools.discrepancy", "find where model and measurement disagree and fix the model"),

@@ -1,0 +1,233 @@
+"""`flaair live`: bring up the live graph around a real bench (or the simulated robot) and record it.
+
+  bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
+                  [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
+
+The hot loop (the real-time target's bridge, or with --sim the simulated plant paced in real
+time; the front end; the dSA controller) runs composed in one process, its block streams
+delivered in-process (`flaair_common.container`; --processes runs one process per node
+instead). Beside it: the collision monitor (per-wingbeat decision, stroke-locked windows: the
+flapping frequency is free), the recorder (--out) and the Foxglove live view (--foxglove).
+The controller runs the configured K_r schedule (config/flaair.yaml dsa_controller_node: the
+transition experiment's), synchronous first, then self-excited.
+
+The run ends after --duration seconds, or at Ctrl-C / SIGTERM, the same way: the controller
+sends zero drive, the bridge a stop packet to the target, then the monitor, the live view and
+the recorder stop and the bag is closed; exit 0. The graph runs in a private ROS domain with
+localhost discovery (--subnet: discover the whole subnet), said at the start; two `live` or
+`experiment` runs on one machine never see each other.
+
+The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the emulated target:
+  bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000 --listen 127.0.0.1:25001 &
+  bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 --out out/bags/bench
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from flaair_common import topics
+from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises
+from flaair_model.config import ConfigError, node_parameters
+
+HOT_NODES = {
+    "bridge": ("flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
+    "plant": ("flaair_sim", "plant_node", "flaair_sim.plant_node:PlantNode"),
+    "frontend": ("flaair_sensors", "frontend_node", "flaair_sensors.frontend_node:FrontendNode"),
+    "controller": ("flaair_control", "dsa_controller_node", "flaair_control.dsa_controller_node:DsaControllerNode"),
+}
+SIDE_NODES = {
+    "collision_monitor": ("flaair_control", "collision_monitor_node"),
+    "recorder": ("flaair_tools", "recorder_node"),
+    "foxglove": ("flaair_tools", "foxglove_node"),
+}
+
+
+class LiveError(RuntimeError):
+    """The live graph could not run; the message says why."""
+
+
+def host_port(text: str, what: str) -> tuple[str, int]:
+    """'HOST:PORT' -> (host, port), with an error that names the option."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise LiveError(f"{what} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:25000")
+    return host, int(port)
+
+
+def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
+    """Per-node overrides of config/flaair.yaml for this run (a ROS params file's sections)."""
+    block = int(node_parameters("flaair.yaml", "dsa_controller_node")["block_size"])
+    sections: dict[str, dict[str, Any]] = {
+        "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)} if args.calibration else {},
+        # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
+        "collision_monitor_node": {"window_source": "stroke", "decision": "distortion"},
+        # the controller starts once the actuator's node and the recorder listen; live stops it
+        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1},
+    }
+    if args.sim:
+        sections["plant_node"] = {"mode": "realtime", "noise": True}
+    else:
+        (target_host, target_port), (listen_host, listen_port) = args.target, args.listen
+        lead = args.lead_samples if args.lead_samples is not None else int(
+            node_parameters("flaair.yaml", "bridge_node")["lead_samples"])
+        sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port, "target_host": target_host,
+                                   "target_port": target_port, "lead_samples": lead}
+        # the lead is loop delay too: the controller's phase advance covers it
+        sections["dsa_controller_node"]["blocks_in_flight"] = 1 + -(-lead // block)
+    if args.out is not None:
+        sections["recorder_node"] = {"output_path": str(args.out)}
+    if args.foxglove is not None:
+        sections["foxglove_node"] = {"host": args.foxglove[0], "port": args.foxglove[1]}
+    return {name: {"ros__parameters": values} for name, values in sections.items()}
+
+
+def watch_signal_time(graph: Graph, args: argparse.Namespace) -> None:
+    """Wait until the recorder listens, then for --duration seconds of signal time."""
+    import os
+
+    import rclpy
+    from rclpy.node import Node
+
+    from flaair_common import cdr
+    from flaair_common.qos import BLOCK_STREAM
+    from flaair_msgs.msg import SensorVoltageBlock
+
+    os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
+    rclpy.init(args=[])
+    node = Node("flaair_live")
+    end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
+
+    def on_sensor(data: bytes) -> None:
+        m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
+        end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]), rate=float(m["sample_rate_hz"]),
+                   wall=time.monotonic())
+
+    node.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, on_sensor, BLOCK_STREAM, raw=True)
+    needed = [topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE] + (
+        [topics.CONTROLLER_STATE] if args.controller == "dsa" else [])
+
+    def recorder_ready() -> bool:
+        return args.out is None or all(any(i.node_name == "recorder_node" for i in node.get_subscriptions_info_by_topic(t))
+                                       for t in needed)
+
+    try:
+        start_index, deadline = None, time.monotonic() + 120.0
+        while start_index is None or end["index"] < start_index + args.duration * end["rate"]:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            graph.check_alive()
+            if start_index is None and end["index"] >= 0 and recorder_ready():
+                start_index = end["index"]
+                print(f"flaair live: running from sample {start_index} for {args.duration:g} s of signal",
+                      file=sys.stderr)
+            if start_index is None and time.monotonic() > deadline:
+                raise LiveError("the loop did not come up within 120 s (see the logs)")
+            if start_index is not None and time.monotonic() - end["wall"] > 10.0:
+                raise LiveError(f"no sensor block for 10 s after sample {end['index']}: the "
+                                f"{'plant' if args.sim else 'target'} stopped (see the logs)")
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def run_live(args: argparse.Namespace) -> int:
+    """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
+    log_dir = (args.out.parent / f"{args.out.name}.logs") if args.out is not None else Path(
+        "out/live") / time.strftime("%Y%m%d_%H%M%S")
+    graph = Graph(localhost=not args.subnet, log_dir=log_dir)
+    params_file = log_dir / "params.yaml"
+    params_file.parent.mkdir(parents=True, exist_ok=True)
+    params_file.write_text(yaml.safe_dump(node_parameters_for(args), sort_keys=False))
+    ros_args = ["--ros-args", "--params-file", str(params_file)]
+    source = "plant" if args.sim else "bridge"
+    hot = [source, "frontend"] + (["controller"] if args.controller == "dsa" else [])
+    print(f"flaair live: {'simulated robot (real-time plant)' if args.sim else f'target {args.target[0]}:{args.target[1]}'}"
+          f", loop {'composed in one process' if not args.processes else 'one process per node'}, on "
+          f"{graph.describe()}; logs in {log_dir}", file=sys.stderr)
+    if args.calibration is None:
+        print("flaair live: WARNING: no --calibration: the front end runs on the model's gains, so the sensor-derived "
+              "pitch reads about 4x small (the model over-predicts the hinge sensor); run `bin/flaair calibrate`",
+              file=sys.stderr)
+    loop: list = []
+    try:
+        if args.out is not None:
+            graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
+        graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
+        if args.foxglove is not None:
+            graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
+            print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
+                  "(layout: config/foxglove_layout.json)", file=sys.stderr)
+        time.sleep(args.settle_s)  # the recorder and the monitor subscribe before the loop starts
+        if args.processes:
+            loop = [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
+        else:
+            loop = [graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
+                                         ",".join((topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)),
+                                         *(HOT_NODES[role][2] for role in hot), *ros_args])]
+        watch_signal_time(graph, args)
+        status = "duration reached"
+    except KeyboardInterrupt:
+        status = "interrupted"
+    except Terminated:
+        status = "terminated"
+    except (GraphError, LiveError) as exc:
+        for process in reversed(loop):
+            graph.stop(process)
+        graph.close()
+        raise LiveError(str(exc)) from exc
+    # The loop first (zero drive, stop packet), then the listeners; the recorder last.
+    for process in reversed(loop):
+        graph.stop(process)
+    graph.close()
+    print(f"flaair live: {status}; zero drive sent, every node stopped"
+          + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="flaair live", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--sim", action="store_true", help="the simulated robot, paced in real time")
+    where.add_argument("--target", metavar="HOST:PORT", help="the real-time target's drive receiver")
+    parser.add_argument("--listen", metavar="HOST:PORT", help="where the target's sensor packets arrive (with --target)")
+    parser.add_argument("--controller", choices=("dsa", "none"), default="dsa", help="close the loop with the dSA controller")
+    parser.add_argument("--duration", type=float, default=5.0, metavar="S", help="run this long (default 5 s)")
+    parser.add_argument("--out", type=Path, help="record every /flaair topic to this bag directory")
+    parser.add_argument("--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here")
+    parser.add_argument("--calibration", type=Path, help="front end gains from this calibration.yaml")
+    parser.add_argument("--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)")
+    parser.add_argument("--processes", action="store_true", help="one process per node instead of the composed loop")
+    parser.add_argument("--subnet", action="store_true", help="discover the whole subnet, not only this machine")
+    parser.add_argument("--settle-s", type=float, default=2.0, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    terminate_raises()
+    try:
+        if not args.sim:
+            if args.listen is None:
+                raise LiveError("--target needs --listen HOST:PORT (where the target's sensor packets arrive)")
+            args.target, args.listen = host_port(args.target, "--target"), host_port(args.listen, "--listen")
+        if args.foxglove is not None:
+            args.foxglove = host_port(args.foxglove, "--foxglove")
+        if not (args.duration > 0):
+            raise LiveError(f"--duration {args.duration}: must be > 0 s")
+        if args.out is not None and args.out.exists():
+            raise LiveError(f"--out {args.out} exists; choose another or remove it")
+        if args.calibration is not None and not args.calibration.is_file():
+            raise LiveError(f"--calibration {args.calibration}: no such file")
+        return run_live(args)
+    except (LiveError, ConfigError) as exc:
+        print(f"flaair live: {exc}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, Terminated):
+        print("flaair live: interrupted before the graph was up", file=sys.stderr)
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
