@@ -23,7 +23,7 @@ import numpy as np
 from rclpy.node import Node
 
 from flaair_bridge import bridge, udp
-from flaair_common import cdr, topics
+from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
@@ -66,24 +66,25 @@ class BridgeNode(Node):
             self.params = bridge.BridgeParams(**{name: p[name] for name in bridge.BridgeParams.__dataclass_fields__})
         except bridge.BridgeParameterError as exc:
             raise ParameterError(str(exc)) from exc
-        try:
-            self.endpoint = udp.DatagramEndpoint(p["listen_host"], p["listen_port"], p["receive_buffer_bytes"],
-                                                 self.on_datagram)
-        except OSError as exc:
-            raise ParameterError(f"parameters 'listen_host'/'listen_port' = {p['listen_host']}:{p['listen_port']}: {exc}") from exc
         self.target: tuple[str, int] | None = None   # where drive packets go (known once the target speaks)
-        self.state, self.lock = bridge.initial_state(), threading.Lock()
+        self.state, self.lock = bridge.initial_state(), threading.RLock()   # re-entered when composed: the loop answers in-process
         self.timing: list[tuple[int, float, float]] = []
         self.events = bridge.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
-        self.sensor_pub = self.create_publisher(SensorVoltageBlock, topics.SENSOR_VOLTAGE, BLOCK_STREAM)
+        self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.sensor_codec, BLOCK_STREAM)
         self.applied_pub = self.create_publisher(DriveCommandBlock, APPLIED_DRIVE, BLOCK_STREAM) if p["publish_applied"] else None
-        self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)
+        intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, self.drive_codec, self.on_drive, BLOCK_STREAM,
+                               self.on_undecodable)
         self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         self.bad_drive_messages, self.closed = 0, False
+        try:   # the socket last: its reader thread delivers at once, into a fully built node
+            self.endpoint = udp.DatagramEndpoint(p["listen_host"], p["listen_port"], p["receive_buffer_bytes"],
+                                                 self.on_datagram)
+        except OSError as exc:
+            raise ParameterError(f"parameters 'listen_host'/'listen_port' = {p['listen_host']}:{p['listen_port']}: {exc}") from exc
         self.get_logger().info(
             f"bridge ready: sensor packets on udp {p['listen_host']}:{p['listen_port']}, drive to "
             f"{p['target_host'] or '<sender>'}:{p['target_port'] or '<sender port>'}, lead {p['lead_samples']} samples "
@@ -93,12 +94,11 @@ class BridgeNode(Node):
         self.target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
 
-    def on_drive(self, data: bytes) -> None:
-        try:
-            message = self.drive_codec.decode(data)
-        except cdr.CdrError as exc:
-            self.bad_drive_messages += 1
-            return warn_counted(self.get_logger(), self.bad_drive_messages, f"drive message dropped: {exc}")
+    def on_undecodable(self, exc: Exception) -> None:
+        self.bad_drive_messages += 1
+        warn_counted(self.get_logger(), self.bad_drive_messages, f"drive message dropped: {exc}")
+
+    def on_drive(self, message) -> None:
         self.process(bridge.DriveBlock(int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()))
 
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
@@ -114,9 +114,9 @@ class BridgeNode(Node):
                 self.events.record(inputs, out, counters, time.time())
             for block in out.blocks:
                 stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
-                self.sensor_pub.publish(self.sensor_codec.encode(stamp_ns, {
+                self.sensor.publish(stamp_ns, {
                     "sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
-                    "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v}))
+                    "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v})
                 if self.applied_pub is not None:
                     self.applied_pub.publish(self.drive_codec.encode(stamp_ns, {
                         "sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
