@@ -70,8 +70,11 @@ class DriveNode(Node):
             message.header.stamp = stamp_from_time_s(block.first_sample_index / fs)
             message.drive_v = from_array(block.drive_v)
             self.publisher.publish(message)
-        for level, text in out.logs:
-            getattr(self.get_logger(), level)(text)
+        for level, text in out.logs:  # one call site per severity (rclpy refuses to mix them)
+            if level == pacing.WARNING:
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
         return len(out.blocks)
 
     def on_tick(self) -> None:

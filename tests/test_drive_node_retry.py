@@ -1,0 +1,44 @@
+"""drive_node over DDS with a plant that never answers: retries (warnings), then the run's end (info)."""
+from __future__ import annotations
+
+import signal
+import sys
+
+import numpy as np
+
+from rosproc import ros_processes
+
+# A silent "plant": subscribes to /flaair/drive and offers /flaair/sensor_v but never publishes
+# on it, so the lockstep drive gets no acknowledgement; prints every drive block it receives.
+SILENT_PLANT = r"""
+import sys, time
+import rclpy
+from flaair_common.qos import BLOCK_STREAM
+from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
+rclpy.init()
+node = rclpy.create_node("silent_plant")
+node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STREAM)
+def on_drive(m):
+    print(m.first_sample_index, max(abs(v) for v in m.drive_v), flush=True)
+node.create_subscription(DriveCommandBlock, "/flaair/drive", on_drive, BLOCK_STREAM)
+deadline = time.monotonic() + float(sys.argv[1])
+while time.monotonic() < deadline:
+    rclpy.spin_once(node, timeout_sec=0.05)
+"""
+
+
+def test_lockstep_drive_retries_then_ends_on_a_zero_block_and_keeps_running() -> None:
+    with ros_processes() as procs:
+        plant = procs.start(sys.executable, "-c", SILENT_PLANT, "25")
+        drive = procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
+                             "-p", "lockstep_window_blocks:=1", "-p", "ack_retry_s:=0.2",
+                             "-p", "run_time_s:=0.002", "-p", "frequency_hz:=140.0")  # 4 blocks of 10 samples
+        out, _ = plant.communicate(timeout=120)
+        assert drive.poll() is None, drive.stderr.read()   # still running after warnings and the info line
+        assert procs.stop(drive, signal.SIGINT, timeout_s=30) == 0
+        log = drive.stderr.read()
+    blocks = np.array([[float(x) for x in line.split()] for line in out.splitlines()])
+    # one block per retry (nothing acknowledges), then the zero block that ends the run
+    assert list(blocks[:, 0]) == [0, 10, 20, 30, 40]
+    assert np.all(blocks[:4, 1] > 0) and blocks[4, 1] == 0.0
+    assert log.count("no acknowledgement for 0.2 s") == 3 and "run complete at sample 40; zero drive sent" in log
