@@ -28,8 +28,9 @@ warped by about ((w T_s)^2 - (w_c T_s)^2) / 12 (T_s = 50 us): < 1e-4 over 100-20
 one sample, so the step response is the continuous one half a sample late. Tustin has
 no half-sample lag (unlike ZOH discretization of a sampled, not held, input), which matters
 here because the onset is very phase-sensitive. Implemented as scipy.signal.bilinear with an
-effective rate fs_eff = w_c / (2 tan(w_c / (2 fs))), and run with scipy.signal.lfilter; the
-state is the lfilter ``zi`` vector, so splitting a record into blocks changes nothing.
+effective rate fs_eff = w_c / (2 tan(w_c / (2 fs))), and run as scipy.signal.lfilter's
+arithmetic compiled with the rest of the block (``flaair_model.lfilter``: same samples, same
+state); the state is the lfilter ``zi`` vector, so splitting a record into blocks changes nothing.
 
 Transport delay and its compensation
 ------------------------------------
@@ -59,11 +60,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from scipy import signal
+
+from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
 
 
 class DsaParameterError(ValueError):
@@ -160,6 +164,12 @@ class DsaParams:
             return 2.0 * math.pi * self.compensation_frequency_hz
         return math.sqrt(self.kappa) * self.r3_rad_s
 
+    @cached_property
+    def kernel_filters(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Normalized (b, a) of the advanced and the raw filter, as ``step``'s kernel takes them
+        (computed once per parameter set: hashing the dataclass for a cache costs more than a block)."""
+        return (*normalized_ba(*_tf_coefficients(self, True)), *normalized_ba(*_tf_coefficients(self, False)))
+
 
 def loop_delay_s(block_size: int, sample_rate_hz: float, velocity_delay_samples: float = 0.5) -> float:
     """Total loop delay to compensate: block transport + ZOH (T_s/2) + velocity estimator.
@@ -238,25 +248,56 @@ class DsaOutputs(NamedTuple):
     signals: DsaSignals
 
 
+_TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)   # rows of _block's output
+
+
+@njit(cache=True)
+def _block(v_in, t_start_s, fs, b_adv, a_adv, zi_adv, b_raw, a_raw, zi_raw, kr_start, kr_end, kr_t0, kr_duration,
+           sync_amplitude_v, sync_omega, sync_phase_rad, gain, limit_v):
+    """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
+
+    Returns the signals as rows of one array (one allocation, one object to hand back) and the
+    two filter states as the rows of another.
+    """
+    n = v_in.size
+    z = np.empty((2, zi_adv.size))
+    z[0], z[1] = zi_adv, zi_raw
+    out = np.empty((7, n))
+    for i in range(n):
+        x = v_in[i]
+        if not np.isfinite(x):
+            x = 0.0
+        torque = lfilter_sample(b_adv, a_adv, z[0], x)
+        out[_TORQUE, i] = torque
+        out[_TORQUE_RAW, i] = lfilter_sample(b_raw, a_raw, z[1], x)
+        t = t_start_s + i / fs
+        if kr_duration == 0.0:
+            kr = kr_start if t < kr_t0 else kr_end
+        else:
+            kr = kr_start + (kr_end - kr_start) * min(max((t - kr_t0) / kr_duration, 0.0), 1.0)
+        sync = sync_amplitude_v * np.sin(sync_omega * t + sync_phase_rad)
+        async_v = torque / gain
+        u = kr * sync + (1.0 - kr) * async_v
+        out[_KR, i], out[_SYNC, i], out[_ASYNC, i], out[_UNCLIPPED, i] = kr, sync, async_v, u
+        out[_DRIVE, i] = 0.0 if np.isnan(u) else min(max(u, -limit_v), limit_v)
+    return out, z
+
+
 def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaState, DsaOutputs]:
-    """Advance the controller over one block."""
-    v = np.asarray(inputs.stroke_velocity_rad_s, dtype=float).ravel()
-    t_start_s = inputs.t_start_s
+    """Advance the controller over one block (one compiled kernel, ``_block``)."""
+    v = float_block(inputs.stroke_velocity_rad_s)
+    t_start_s = float(inputs.t_start_s)
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
-    valid = np.isfinite(v)
-    v = np.where(valid, v, 0.0)
-    b_adv, a_adv = _tf_coefficients(params, True)
-    b_raw, a_raw = _tf_coefficients(params, False)
-    torque, zi_adv = signal.lfilter(b_adv, a_adv, v, zi=state.zi_advanced)
-    torque_raw, zi_raw = signal.lfilter(b_raw, a_raw, v, zi=state.zi_raw)
-    t = t_start_s + np.arange(v.size) / params.sample_rate_hz
-    kr = kr_at(t, params)
-    sync = params.sync_amplitude_v * np.sin(2.0 * np.pi * params.sync_frequency_hz * t + params.sync_phase_rad)
-    async_v = torque / params.actuator_gain_nm_per_v
-    unclipped = kr * sync + (1.0 - kr) * async_v
-    drive = np.clip(np.nan_to_num(unclipped, nan=0.0), -params.drive_limit_v, params.drive_limit_v)
-    return DsaState(zi_adv, zi_raw), DsaOutputs(drive, DsaSignals(torque_raw, torque, async_v, sync, kr, unclipped, valid))
+    b_adv, a_adv, b_raw, a_raw = params.kernel_filters
+    kr = params.kr_schedule
+    out, z = _block(v, t_start_s, float(params.sample_rate_hz), b_adv, a_adv, state.zi_advanced, b_raw, a_raw,
+                    state.zi_raw, float(kr.start_value), float(kr.end_value), float(kr.start_time_s),
+                    float(kr.duration_s), float(params.sync_amplitude_v), 2.0 * np.pi * params.sync_frequency_hz,
+                    float(params.sync_phase_rad), float(params.actuator_gain_nm_per_v), float(params.drive_limit_v))
+    signals = DsaSignals(out[_TORQUE_RAW], out[_TORQUE], out[_ASYNC], out[_SYNC], out[_KR], out[_UNCLIPPED],
+                         np.isfinite(v))
+    return DsaState(z[0], z[1]), DsaOutputs(out[_DRIVE], signals)
 
 
 def frequency_response(params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True) -> np.ndarray:

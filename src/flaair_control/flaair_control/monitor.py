@@ -22,7 +22,7 @@ Parts (each also usable alone):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple, Union
 
@@ -205,9 +205,8 @@ class MonitorOutputs(NamedTuple):
     notes: tuple[str, ...]
 
 
-@dataclass(frozen=True, eq=False)
-class CollisionMonitorState:
-    """Monitor state between blocks (arrays are read-only)."""
+class CollisionMonitorState(NamedTuple):
+    """Monitor state between blocks (arrays are read-only; a NamedTuple, so ``_replace`` is cheap)."""
 
     windows: col.MonitorParams | None  # None: drive frequency not known yet
     monitor: col.MonitorState | None
@@ -244,7 +243,7 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     if not p.estimates_frequency:
         return state, MonitorOutputs((), ())
     lock_state, lock = lock_step(state.lock, block, p)
-    state = replace(state, lock=lock_state)
+    state = state._replace(lock=lock_state)
     if lock is None:
         return state, MonitorOutputs((), ())
     try:
@@ -257,12 +256,12 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     # depend on how the drive and wing-state blocks interleaved (live and replay agree).
     start = lock.crossing_index
     monitor = col.initial_state(windows, start)
-    state = replace(state, windows=windows, monitor=monitor)
+    state = state._replace(windows=windows, monitor=monitor)
     behind = state.history_end - start          # wing samples already received past the crossing
     if state.expected_index is None or behind <= 0:
         return state, MonitorOutputs((), (note,))
     if behind > state.pitch_history_rad.size:   # history too short: start at the wing stream
-        return replace(state, monitor=col.initial_state(windows, state.history_end)), MonitorOutputs((), (note,))
+        return state._replace(monitor=col.initial_state(windows, state.history_end)), MonitorOutputs((), (note,))
     state, verdicts = _feed(state, monitor, state.stroke_history_rad[-behind:], state.pitch_history_rad[-behind:], p)
     return state, MonitorOutputs(verdicts, (note,))
 
@@ -305,7 +304,7 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     if state.expected_index is not None and first != state.expected_index and state.windows is not None:
         notes.append(f"wing-state block {first} after {state.expected_index - 1}: monitor restarted")
         monitor = None
-    state = replace(state, expected_index=first + stroke.size,
+    state = state._replace(expected_index=first + stroke.size,
                     stroke_history_rad=_store(state.stroke_history_rad, state.history_end, first, stroke),
                     pitch_history_rad=_store(state.pitch_history_rad, state.history_end, first, pitch),
                     history_end=first + stroke.size)
@@ -318,7 +317,7 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
         monitor = col.initial_state(state.windows, first)   # off this stream position: restart here
         skip = 0
     if skip >= stroke.size:
-        return replace(state, monitor=monitor), MonitorOutputs((), tuple(notes))
+        return state._replace(monitor=monitor), MonitorOutputs((), tuple(notes))
     state, verdicts = _feed(state, monitor, stroke[skip:], pitch[skip:], p)
     return state, MonitorOutputs(verdicts, tuple(notes))
 
@@ -359,5 +358,5 @@ def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.nd
                                 metric.time_rmse_deg if metric is not None else math.nan,
                                 float(report.score[k]), event))
         wingbeats += 1
-    state = replace(state, monitor=monitor, colliding=colliding, above=above, below=below, wingbeats=wingbeats)
+    state = state._replace(monitor=monitor, colliding=colliding, above=above, below=below, wingbeats=wingbeats)
     return state, tuple(verdicts)

@@ -14,6 +14,9 @@ Watchdog (``ok`` -> ``tripped``, latched until ``reset``): it trips when a senso
 reported invalid (at that block's time) or when no valid sensor block has arrived for more than
 ``invalid_timeout_s`` (at last_valid_time + timeout, resolved to the sample). The clock starts
 at ``initial_state(t_s)``: the first sensor block is due within the timeout of that time.
+
+Stages 1-4 run sample by sample in one compiled kernel (``_guard``): a block costs a few
+microseconds, not the ~40 us of a dozen numpy calls on 10 samples.
 """
 from __future__ import annotations
 
@@ -23,6 +26,8 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+
+from flaair_model.lfilter import float_block
 
 OK = 0
 TRIPPED = 1
@@ -130,24 +135,43 @@ def clamp(drive_v: np.ndarray, drive_limit_v: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _slew(x: np.ndarray, y0: float, max_step: float, limit: float) -> np.ndarray:
-    y = np.empty_like(x)
+def _guard(x_in: np.ndarray, t_start_s: float, fs: float, tripped: bool, trip_time_s: float, ramp_down_s: float,
+           y0: float, max_step: float, limit: float) -> tuple[np.ndarray, int]:
+    """Stages 1-4 over one block, sample by sample: rows (drive, envelope), non-finite count."""
+    n = x_in.size
+    out = np.empty((2, n))
+    nonfinite = 0
     prev = y0
-    for i in range(x.size):
-        d = x[i] - prev
+    for i in range(n):
+        x = x_in[i]
+        if not np.isfinite(x):
+            x = 0.0
+            nonfinite += 1
+        env = 1.0
+        if tripped:
+            t = t_start_s + i / fs
+            if t >= trip_time_s:
+                env = 0.0
+                if ramp_down_s > 0:
+                    e = 1.0 - (t - trip_time_s) / ramp_down_s
+                    env = min(max(e, 0.0), 1.0) if np.isfinite(e) else 0.0
+        x = x * env
+        d = x - prev
         if d > max_step:
             v = prev + max_step
         elif d < -max_step:
             v = prev - max_step
         else:
-            v = x[i]  # within the slew limit: passed through bit for bit
+            v = x  # within the slew limit: passed through bit for bit
+        if not np.isfinite(v):
+            v = 0.0
         if v > limit:
             v = limit
         elif v < -limit:
             v = -limit
-        y[i] = v
+        out[0, i], out[1, i] = v, env
         prev = v
-    return y
+    return out, nonfinite
 
 
 class SafetyInputs(NamedTuple):
@@ -171,29 +195,15 @@ def step(state: SafetyState, inputs: SafetyInputs, params: SafetyParams) -> tupl
         raise SafetyParameterError(f"t_start_s must be finite, got {t_start_s}")
     if sensor_block_valid is not None:
         state = note_sensor_block(state, t_start_s, bool(sensor_block_valid), params)
-    x = np.asarray(drive_v, dtype=float).ravel()
-    finite = np.isfinite(x)
-    x = np.where(finite, x, 0.0)
+    x = float_block(drive_v)
     n = x.size
-    t = t_start_s + np.arange(n) / sample_rate_hz
     # Timeout inside this block: trips at the deadline.
-    t_end = t[-1] if n else t_start_s
-    state = check_timeout(state, t_end, params)
-    if state.status == TRIPPED:
-        if params.ramp_down_s > 0:
-            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-                env = np.clip(1.0 - (t - state.trip_time_s) / params.ramp_down_s, 0.0, 1.0)
-            env = np.where(np.isfinite(env), env, 0.0)
-        else:
-            env = np.where(t < state.trip_time_s, 1.0, 0.0)
-        env = np.where(t < state.trip_time_s, 1.0, env)
-    else:
-        env = np.ones(n)
-    x = x * env
-    max_step = params.slew_limit_v_per_s / sample_rate_hz
-    y = _slew(x, float(np.clip(state.last_drive_v, -params.drive_limit_v, params.drive_limit_v)),
-              float(max_step), float(params.drive_limit_v))
-    y = clamp(y, params.drive_limit_v)  # belt and braces
+    state = check_timeout(state, t_start_s + (n - 1) / sample_rate_hz if n else t_start_s, params)
+    out, nonfinite = _guard(x, float(t_start_s), float(sample_rate_hz), state.status == TRIPPED,
+                            float(state.trip_time_s), float(params.ramp_down_s),
+                            min(max(float(state.last_drive_v), -params.drive_limit_v), params.drive_limit_v),
+                            float(params.slew_limit_v_per_s / sample_rate_hz), float(params.drive_limit_v))
+    y = out[0]
     last = float(y[-1]) if n else state.last_drive_v
     state = state._replace(last_drive_v=last)
-    return state, SafetyOutput(y, env, int(n - np.count_nonzero(finite)), state.status == TRIPPED)
+    return state, SafetyOutput(y, out[1], nonfinite, state.status == TRIPPED)
