@@ -233,9 +233,10 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     drive = 75.0 * np.sin(2 * np.pi * 100.0 * np.arange(n) / fs + 1.0)   # unknown phase
     out = simulate(drive, fs, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}}) if obstacle else model)
     est = frontend.estimate(out.stroke_sensor_v, out.pitch_sensor_v, frontend.params_from_model(model, fs, **FRONTEND_TUNING))
-    owns_rclpy = not rclpy.ok()
-    if owns_rclpy:
-        rclpy.init()
+    if rclpy.ok():
+        rclpy.shutdown()
+    owns_rclpy = True   # the paper's decision (the default is the per-wingbeat one)
+    rclpy.init(args=["test", "--ros-args", "-p", "decision:=paper"])
     try:
         node = CollisionMonitorNode()
         statuses, events = [], []

@@ -87,52 +87,75 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     return {name: {"ros__parameters": values} for name, values in sections.items()}
 
 
-def watch_signal_time(graph: Graph, args: argparse.Namespace) -> None:
-    """Wait until the recorder listens, then for --duration seconds of signal time."""
-    import os
+class Watcher:
+    """live's own ROS node: advertises the loop's topics early, sees the recorder listen, counts signal time."""
 
-    import rclpy
-    from rclpy.node import Node
+    def __init__(self, graph: Graph, args: argparse.Namespace) -> None:
+        import os
 
-    from flaair_common import cdr
-    from flaair_common.qos import BLOCK_STREAM
-    from flaair_msgs.msg import SensorVoltageBlock
+        import rclpy
+        from rclpy.node import Node
 
-    os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
-    rclpy.init(args=[])
-    node = Node("flaair_live")
-    end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
+        from flaair_common.msgdict import message_class
+        from flaair_common.qos import BLOCK_STREAM
 
-    def on_sensor(data: bytes) -> None:
+        os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
+        self.rclpy, self.graph, self.args = rclpy, graph, args
+        rclpy.init(args=[])
+        self.node = Node("flaair_live")
+        self.end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
+        self.topics = {topics.SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
+                       topics.WING_STATE: "flaair_msgs/msg/WingStateBlock",
+                       topics.DRIVE: "flaair_msgs/msg/DriveCommandBlock"}
+        if args.controller == "dsa":
+            self.topics[topics.CONTROLLER_STATE] = "flaair_msgs/msg/ControllerState"
+        if args.sim:
+            self.topics[topics.WING_STATE_TRUTH] = "flaair_msgs/msg/WingStateBlock"
+        # Advertised before the loop exists, so the recorder subscribes before the first block.
+        self.adverts = [self.node.create_publisher(message_class(kind), topic, BLOCK_STREAM)
+                        for topic, kind in self.topics.items()]
+        self.node.create_subscription(message_class(self.topics[topics.SENSOR_VOLTAGE]), topics.SENSOR_VOLTAGE,
+                                      self.on_sensor, BLOCK_STREAM, raw=True)
+        self.driven = False   # a drive block was seen: the controller runs the loop
+        self.node.create_subscription(message_class(self.topics[topics.DRIVE]), topics.DRIVE,
+                                      lambda _data: setattr(self, "driven", True), BLOCK_STREAM, raw=True)
+
+    def on_sensor(self, data: bytes) -> None:
+        from flaair_common import cdr
+
         m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
-        end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]), rate=float(m["sample_rate_hz"]),
-                   wall=time.monotonic())
+        self.end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]), rate=float(m["sample_rate_hz"]),
+                        wall=time.monotonic())
 
-    node.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, on_sensor, BLOCK_STREAM, raw=True)
-    needed = [topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE] + (
-        [topics.CONTROLLER_STATE] if args.controller == "dsa" else [])
+    def spin_until(self, predicate, timeout_s: float, what: str) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+            self.graph.check_alive()
+            if time.monotonic() > deadline:
+                raise LiveError(f"timed out after {timeout_s:g} s waiting for {what} (see the logs)")
 
-    def recorder_ready() -> bool:
-        return args.out is None or all(any(i.node_name == "recorder_node" for i in node.get_subscriptions_info_by_topic(t))
-                                       for t in needed)
+    def recorder_listens(self) -> bool:
+        return self.args.out is None or all(
+            any(i.node_name == "recorder_node" for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
 
-    try:
-        start_index, deadline = None, time.monotonic() + 120.0
-        while start_index is None or end["index"] < start_index + args.duration * end["rate"]:
-            rclpy.spin_once(node, timeout_sec=0.05)
-            graph.check_alive()
-            if start_index is None and end["index"] >= 0 and recorder_ready():
-                start_index = end["index"]
-                print(f"flaair live: running from sample {start_index} for {args.duration:g} s of signal",
-                      file=sys.stderr)
-            if start_index is None and time.monotonic() > deadline:
-                raise LiveError("the loop did not come up within 120 s (see the logs)")
-            if start_index is not None and time.monotonic() - end["wall"] > 10.0:
-                raise LiveError(f"no sensor block for 10 s after sample {end['index']}: the "
-                                f"{'plant' if args.sim else 'target'} stopped (see the logs)")
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    def run_for_duration(self) -> None:
+        """Wait for the loop to run (the first drive block; without a controller the first sensor
+        block), then for --duration seconds of signal time."""
+        self.spin_until(lambda: self.end["index"] >= 0 and (self.driven or self.args.controller == "none"), 120.0,
+                        "the loop to start")
+        start = self.end["index"]
+        print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal", file=sys.stderr)
+        while self.end["index"] < start + self.args.duration * self.end["rate"]:
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+            self.graph.check_alive()
+            if time.monotonic() - self.end["wall"] > 10.0:
+                raise LiveError(f"no sensor block for 10 s after sample {self.end['index']}: the "
+                                f"{'plant' if self.args.sim else 'target'} stopped (see the logs)")
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.rclpy.try_shutdown()
 
 
 def run_live(args: argparse.Namespace) -> int:
@@ -154,6 +177,7 @@ def run_live(args: argparse.Namespace) -> int:
               "pitch reads about 4x small (the model over-predicts the hinge sensor); run `bin/flaair calibrate`",
               file=sys.stderr)
     loop: list = []
+    watcher: Watcher | None = None
     try:
         if args.out is not None:
             graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
@@ -162,14 +186,16 @@ def run_live(args: argparse.Namespace) -> int:
             graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
             print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
                   "(layout: config/foxglove_layout.json)", file=sys.stderr)
-        time.sleep(args.settle_s)  # the recorder and the monitor subscribe before the loop starts
+        watcher = Watcher(graph, args)
+        watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
+        time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
         if args.processes:
             loop = [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
         else:
             loop = [graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
                                          ",".join((topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)),
                                          *(HOT_NODES[role][2] for role in hot), *ros_args])]
-        watch_signal_time(graph, args)
+        watcher.run_for_duration()
         status = "duration reached"
     except KeyboardInterrupt:
         status = "interrupted"
@@ -178,11 +204,15 @@ def run_live(args: argparse.Namespace) -> int:
     except (GraphError, LiveError) as exc:
         for process in reversed(loop):
             graph.stop(process)
+        if watcher is not None:
+            watcher.close()
         graph.close()
         raise LiveError(str(exc)) from exc
     # The loop first (zero drive, stop packet), then the listeners; the recorder last.
     for process in reversed(loop):
         graph.stop(process)
+    if watcher is not None:
+        watcher.close()
     graph.close()
     print(f"flaair live: {status}; zero drive sent, every node stopped"
           + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
@@ -204,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)")
     parser.add_argument("--processes", action="store_true", help="one process per node instead of the composed loop")
     parser.add_argument("--subnet", action="store_true", help="discover the whole subnet, not only this machine")
-    parser.add_argument("--settle-s", type=float, default=2.0, help=argparse.SUPPRESS)
+    parser.add_argument("--settle-s", type=float, default=1.0, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     terminate_raises()
     try:

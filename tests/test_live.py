@@ -1,0 +1,106 @@
+"""`flaair live`: the live graph, composed hot loop, recorded; ends cleanly on time or on a signal."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rosproc import FLAAIR, REPO_ROOT
+
+pytestmark = pytest.mark.slow
+
+
+def _live(*args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess:
+    return subprocess.run([FLAAIR, "live", *args], capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+
+
+def _final(bag: Path):
+    from flaair_control import transition as tr
+    from flaair_control.transition_io import hilbert_params_from_config
+    from flaair_tools import bagio
+
+    truth = bagio.read_blocks(bag, "/flaair/wing_state/truth", allow_gaps=True)
+    stroke = truth["stroke_deg"][-8000:]
+    r = tr.hilbert_analysis(stroke, truth.sample_rate_hz, hilbert_params_from_config())
+    keep = (r.time_s > 0.05) & (r.time_s < r.time_s[-1] - 0.05)
+    return float(np.mean(r.frequency_hz[keep])), float(np.mean(r.amplitude[keep]))
+
+
+def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_everything(tmp_path):
+    from flaair_model.config import node_parameters
+    from flaair_tools import bagio
+    from flaair_tools.transition_figure import predicted_limit_cycle
+
+    bag = tmp_path / "live"
+    result = _live("--sim", "--duration", "3", "--out", str(bag))
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "localhost discovery" in result.stderr and "Traceback" not in result.stderr
+    counts = bagio.message_counts(bag)
+    for topic in ("/flaair/sensor_v", "/flaair/wing_state", "/flaair/drive", "/flaair/controller/state",
+                  "/flaair/wing_state/truth", "/flaair/collision/status"):
+        assert counts.get(topic, 0) > 0, (topic, counts)
+    assert counts["/flaair/drive"] >= 6000                         # 3 s of 0.5 ms blocks, all of the loop
+    states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
+    assert states[0].k_r == 1.0 and states[-1].k_r == 0.0          # the configured K_r schedule ran
+    drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
+    assert np.all(drive["drive_v"][-10:] == 0.0)                  # ended on zero drive
+    f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
+    f, a = _final(bag)
+    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.05)
+
+
+def test_ctrl_c_ends_live_the_same_way(tmp_path):
+    from flaair_tools import bagio
+
+    bag = tmp_path / "live"
+    process = subprocess.Popen([FLAAIR, "live", "--sim", "--duration", "60", "--out", str(bag)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not (bag / "metadata.yaml").exists() and process.poll() is None:
+        time.sleep(0.5)
+    time.sleep(6.0)
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 0, stderr[-3000:]
+    assert "interrupted" in stderr and "Traceback" not in stderr
+    drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
+    assert drive.n_samples > 0 and np.all(drive["drive_v"][-10:] == 0.0)
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["--target", "127.0.0.1:25001"], "--target needs --listen"),
+    (["--target", "nohost", "--listen", "127.0.0.1:25000"], "expected HOST:PORT"),
+    (["--sim", "--duration", "-1"], "--duration"),
+    (["--sim", "--foxglove", "localhost"], "expected HOST:PORT"),
+])
+def test_bad_arguments_are_named(args, expected):
+    result = _live(*args, timeout_s=120)
+    assert result.returncode == 2 and expected in result.stderr and "Traceback" not in result.stderr
+
+
+def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
+    """Real UDP on localhost: the target's samples are recorded, the drive reaches it, the run ends with a stop."""
+    import json
+
+    from flaair_tools import bagio
+
+    counters = tmp_path / "target.json"
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", "127.0.0.1:26100",
+                               "--listen", "127.0.0.1:26101", "--duration", "90", "--counters", str(counters)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
+    try:
+        bag = tmp_path / "bench"
+        result = _live("--target", "127.0.0.1:26101", "--listen", "127.0.0.1:26100", "--duration", "2",
+                       "--out", str(bag))
+        assert result.returncode == 0, result.stderr[-3000:]
+    finally:
+        target.send_signal(signal.SIGINT)
+        target.wait(timeout=60)
+    counts = bagio.message_counts(bag)
+    assert counts.get("/flaair/sensor_v", 0) >= 4000 and counts.get("/flaair/drive/applied", 0) > 0
+    report = json.loads(counters.read_text())
+    assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
