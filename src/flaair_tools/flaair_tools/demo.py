@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         print("flaair demo: no experiment could run", file=sys.stderr)
         return 1
     try:
-        report = analyze(bags, args.out / "report")
+        report = analyze(bags, args.out / "report", calibration_file=calibration)
     except AnalysisError as exc:
         print(f"flaair demo: analysis failed: {exc}", file=sys.stderr)
         return 1
