@@ -571,6 +571,18 @@ def simulate(
     return out
 
 
+def _batch_tables(models: list[Model], fs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-model parameter, substep, delay and history-length tables of a batch."""
+    m = len(models)
+    preps = [_prepare(model, fs) for model in models]
+    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
+    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
+    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
+                      dtype=np.int64).reshape(m, 2)
+    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    return params, nsubs, delays, hist_len
+
+
 def simulate_batch(
     drive_v: np.ndarray, fs_hz: float, models: Sequence[Model], *, out: Optional[SimOutput] = None
 ) -> SimOutput:
@@ -603,12 +615,7 @@ def simulate_batch(
     elif drive.shape[0] != m:
         raise ValueError(f"drive_v has {drive.shape[0]} rows for {m} models")
     n = drive.shape[1]
-    preps = [_prepare(model, fs) for model in models]
-    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
-    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
-    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
-                      dtype=np.int64).reshape(m, 2)
-    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    params, nsubs, delays, hist_len = _batch_tables(models, fs)
     if out is None:
         phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     else:
@@ -695,12 +702,7 @@ def simulate_batch_from(
     x0 = np.broadcast_to(np.asarray(mechanical0, dtype=np.float64), (m, 4)).copy()
     if not np.all(np.isfinite(x0)):
         raise ValueError("mechanical0 must be finite")
-    preps = [_prepare(model, fs) for model in models]
-    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
-    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
-    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
-                      dtype=np.int64).reshape(m, 2)
-    hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    params, nsubs, delays, hist_len = _batch_tables(models, fs)
     n = drive.shape[0]
     phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     if m:
