@@ -104,3 +104,84 @@ def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
     assert counts.get("/flaair/sensor_v", 0) >= 4000 and counts.get("/flaair/drive/applied", 0) > 0
     report = json.loads(counters.read_text())
     assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
+
+
+def _start_live_against_target(tmp_path: Path, port: int, duration_s: float):
+    """(emulated target, live process, its ROS domain, bag) with the loop running."""
+    import re
+
+    counters = tmp_path / "target.json"
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
+                               "--listen", f"127.0.0.1:{port + 1}", "--duration", "120", "--counters", str(counters)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
+    bag = tmp_path / "bench"
+    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{port + 1}", "--listen", f"127.0.0.1:{port}",
+                             "--duration", str(duration_s), "--out", str(bag)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    domain = None
+    for _ in range(30):
+        line = live.stderr.readline()
+        if match := re.search(r"on ROS domain (\d+)", line):
+            domain = int(match.group(1))
+        if "running from sample" in line:
+            break
+    assert domain is not None, "live did not come up"
+    return target, live, domain, bag, counters
+
+
+def _loop_pid(domain: int) -> int:
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0")
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ) and b"container" in cmdline \
+                and not cmdline.startswith(b"/usr/bin/setpriv"):
+            return int(entry.name)
+    raise AssertionError(f"no loop process on domain {domain}")
+
+
+def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
+    from flaair_msgs.msg import ControllerState
+    from flaair_tools import bagio
+
+    target, live, _, bag, _ = _start_live_against_target(tmp_path, 26200, 12.0)
+    try:
+        time.sleep(2.0)
+        target.send_signal(signal.SIGSTOP)          # the target goes silent
+        time.sleep(3.0)
+        target.send_signal(signal.SIGCONT)
+        live.send_signal(signal.SIGINT)
+        _, stderr = live.communicate(timeout=120)
+        assert live.returncode == 0, stderr[-3000:]
+    finally:
+        target.send_signal(signal.SIGCONT)
+        target.send_signal(signal.SIGINT)
+        target.wait(timeout=60)
+    states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
+    tripped = [i for i, s in enumerate(states) if s.watchdog == ControllerState.WATCHDOG_TRIPPED]
+    assert tripped, "the controller never tripped while the target was silent"
+    assert "no valid wing-state block" in states[tripped[0]].fault or "wall-clock" in states[tripped[0]].fault
+    assert abs(states[-1].drive_v) < 1e-9                       # ramped to zero
+
+
+def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
+    import json
+    import os
+
+    target, live, domain, _, counters = _start_live_against_target(tmp_path, 26300, 30.0)
+    try:
+        time.sleep(2.0)
+        os.kill(_loop_pid(domain), signal.SIGKILL)              # bridge, front end and controller die at once
+        time.sleep(1.0)
+        live.send_signal(signal.SIGINT)
+        live.communicate(timeout=120)
+    finally:
+        target.send_signal(signal.SIGINT)
+        target.wait(timeout=60)
+    report = json.loads(counters.read_text())
+    assert report["watchdog_trips"] >= 1 and report["zeroed_samples"] > 0
+    assert report["applied_v_at_exit"] == 0.0
