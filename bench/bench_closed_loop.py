@@ -27,6 +27,12 @@ Figures:
 * the rclpy floor: a ping-pong of a 10-sample block between two processes with no work in the
   callbacks, with the spin loop of flaair_common.runtime.run_node (SingleThreadedExecutor.spin_once)
   and with rclpy's C++ EventsExecutor;
+* the composed loop (`flaair_common container` with the three nodes, block streams in-process,
+  lockstep, 1 block in flight, --composed-duration of signal, default 4 s): its real-time factor
+  (target >= 2.0) beside the separate-process loop of the same run, and, from a second run with
+  FLAAIR_PROFILE=1, the CPU per block of each node's callback (core, shell and publishes; the
+  container prints them at exit) and of the rest of the process (executor, DDS threads);
+  --composed-only runs just these and the separate-process loop with 1 block in flight.
 The machine's load average is reported beside them: other jobs share the 2 cores.
 """
 from __future__ import annotations
@@ -34,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -86,26 +93,67 @@ def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | 
         start("controller", *_node_cmd("controller"), "--ros-args",
               "-p", f"run_time_s:={duration_s}", "-p", f"timing_file:={timing_file}",
               "-p", f"blocks_in_flight:={in_flight}", "-p", "watchdog_timeout_s:=30.0")
-        log_path = log_dir / "controller.log"
-        cpu0: dict[str, float] = {}
-        deadline = time.monotonic() + 600
-        while time.monotonic() < deadline:
-            text = log_path.read_text() if log_path.exists() else ""
-            if not cpu0 and "loop closed" in text:
-                cpu0 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
-            if "run complete" in text:
-                break
-            if procs["controller"].poll() is not None:
-                raise RuntimeError(f"controller exited:\n{text}")
-            time.sleep(0.02)
-        else:
-            raise RuntimeError("closed loop did not complete within 600 s")
-        cpu1 = {n: _cpu_s(p.pid) for n, p in procs.items() if n != "probe"}
+        cpu0, cpu1 = _wait_for_run(log_dir / "controller.log", {n: p for n, p in procs.items() if n != "probe"},
+                                   procs["controller"])
+    return _run_result(timing_file, log_dir / "controller.log", cpu0, cpu1)
+
+
+def _wait_for_run(log_path: Path, procs: dict[str, subprocess.Popen],
+                  controller: subprocess.Popen) -> tuple[dict[str, float], dict[str, float]]:
+    """Wait for the controller's "run complete"; CPU (s) of each process at "loop closed" and at the end."""
+    cpu0: dict[str, float] = {}
+    deadline = time.monotonic() + 600
+    while time.monotonic() < deadline:
+        text = log_path.read_text() if log_path.exists() else ""
+        if not cpu0 and "loop closed" in text:
+            cpu0 = {n: _cpu_s(p.pid) for n, p in procs.items()}
+        if "run complete" in text:
+            return cpu0, {n: _cpu_s(p.pid) for n, p in procs.items()}
+        if controller.poll() is not None:
+            raise RuntimeError(f"controller exited:\n{text}")
+        time.sleep(0.02)
+    raise RuntimeError("closed loop did not complete within 600 s")
+
+
+def _run_result(timing_file: Path, log_path: Path, cpu0: dict[str, float], cpu1: dict[str, float]) -> dict:
     timing = np.load(timing_file)["timing"]
     n_blocks = timing.shape[0]
-    summary = [line for line in (log_dir / "controller.log").read_text().splitlines() if "run complete" in line]
+    summary = [line for line in log_path.read_text().splitlines() if "run complete" in line]
     return {"timing": timing, "cpu_per_block_us": {n: 1e6 * (cpu1[n] - cpu0.get(n, cpu1[n])) / n_blocks for n in cpu1},
             "summary": summary[0] if summary else ""}
+
+
+COMPOSED = ["flaair_sim.plant_node:PlantNode", "flaair_sensors.frontend_node:FrontendNode",
+            "flaair_control.dsa_controller_node:DsaControllerNode"]
+PROFILE_LINE = re.compile(r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call")
+
+
+def run_composed(duration_s: float, tmp: Path, profile: bool) -> dict:
+    """The same loop composed in one process (flaair_common container, block streams in-process).
+
+    profile: FLAAIR_PROFILE=1, the container prints each node callback's CPU and wall time per
+    call at exit (`flaair_common.intra.CallbackProfile`): `node_cpu_us` / `node_wall_us`.
+    """
+    tag = "profiled" if profile else "plain"
+    timing_file, log_dir, params_file = tmp / f"timing_composed_{tag}.npz", tmp / f"composed_{tag}", tmp / f"{tag}.yaml"
+    params_file.write_text(json.dumps({   # YAML: one section per node name
+        "plant_node": {"ros__parameters": {"mode": "lockstep"}},
+        "dsa_controller_node": {"ros__parameters": {"run_time_s": duration_s, "timing_file": str(timing_file),
+                                                    "blocks_in_flight": 1, "watchdog_timeout_s": 30.0}}}))
+    with Graph(log_dir=log_dir) as graph:
+        if profile:
+            graph.env["FLAAIR_PROFILE"] = "1"
+        process = graph.start("controller", [FLAAIR, "run", "flaair_common", "container", *COMPOSED,
+                                             "--ros-args", "--params-file", str(params_file)])
+        cpu0, cpu1 = _wait_for_run(log_dir / "controller.log", {"container": process}, process)
+        graph.stop(process)   # SIGINT: the nodes close, the container prints its profile
+    result = _run_result(timing_file, log_dir / "controller.log", cpu0, cpu1)
+    lines = PROFILE_LINE.findall((log_dir / "controller.log").read_text())
+    result["node_cpu_us"] = {node: float(cpu) for node, _, _, cpu, _ in lines}
+    result["node_wall_us"] = {node: float(wall) for node, _, _, _, wall in lines}
+    if profile and len(lines) != len(COMPOSED):
+        raise RuntimeError(f"container printed {len(lines)} profile lines, expected {len(COMPOSED)}")
+    return result
 
 
 def rtf(timing: np.ndarray) -> float:
@@ -223,10 +271,32 @@ def run_pingpong(executor: str, domain: int, n: int = 3000) -> dict:
     return json.loads(a.stdout.strip().splitlines()[-1])
 
 
+def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) -> list[Figure]:
+    """The composed loop's RTF beside the separate-process loop of the same run, and its CPU per block by part."""
+    r_composed, r_separate = rtf(composed["timing"]), rtf(separate["timing"])
+    figures = [Figure("composed loop RTF (lockstep, 1 process)", r_composed, "x", ">= 2.0", r_composed >= 2.0,
+                      f"separate processes {r_separate:.3f} x ({r_composed / r_separate:.2f}x); {load}")]
+    total = profiled["cpu_per_block_us"]["container"]
+    nodes = profiled["node_cpu_us"]
+    for node in ("plant_node", "frontend_node", "dsa_controller_node"):
+        figures.append(Figure(f"composed CPU per block: {node}", nodes[node], "us", "", True,
+                              f"wall {profiled['node_wall_us'][node]:.0f} us; its callback: core + shell + publishes"))
+    rest = total - sum(nodes.values())
+    figures.append(Figure("composed CPU per block: rest (executor, DDS threads)", rest, "us", "", True,
+                          "process CPU minus the three callbacks"))
+    figures.append(Figure("composed CPU per block: whole process", total, "us", "<= 250 (2x RT)", total <= 250.0,
+                          f"separate processes: {sum(separate['cpu_per_block_us'].values()):.0f} us summed; "
+                          f"profiled run RTF {rtf(profiled['timing']):.3f} x"))
+    return figures
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=2.0, help="signal time per run [s]")
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_closed_loop.json")
+    parser.add_argument("--composed-duration", type=float, default=4.0, help="signal time of the composed runs [s]")
+    parser.add_argument("--composed-only", action="store_true",
+                        help="only the composed loop and its baseline, the separate-process loop (1 in flight)")
     parser.add_argument("--probe", help=argparse.SUPPRESS)
     parser.add_argument("--pingpong", nargs=3, help=argparse.SUPPRESS)
     args, rest = parser.parse_known_args()
@@ -242,6 +312,15 @@ def main() -> int:
         tmp = Path(tmpdir)
         load0 = os.getloadavg()[0]
         ping = {kind: run_pingpong(kind, base + 3 + i) for i, kind in enumerate(("single", "events"))}
+        composed = run_composed(args.composed_duration, tmp, profile=False)
+        profiled = run_composed(args.composed_duration, tmp, profile=True)
+        if args.composed_only:
+            runs = {1: run_loop(args.duration, 1, base + 5, None, tmp)}
+            load1 = os.getloadavg()[0]
+            figures = composed_figures(composed, profiled, runs[1], f"load avg {load0:.1f} -> {load1:.1f}")
+            print_table(figures)
+            write_json(figures, args.json)
+            return 0
         single = run_loop(args.duration, 1, base, None, tmp, executor="single")
         runs = {k: run_loop(args.duration, k, base + 4 + k, None, tmp) for k in (1, 2, 4)}
         probe_file = tmp / "probe.npz"
@@ -284,9 +363,11 @@ def main() -> int:
             p50, p99 = pct(h[name] * 1e6)
             figures.append(Figure(f"{label} p50 (probe run)", p50, "us", "", True, f"p99 {p99:.0f} us, n={h[name].size}"))
     figures.append(Figure("real-time factor of the probe run", rtf(probed["timing"]), "x", "", True, "probe subscribed to 2 streams"))
+    figures += composed_figures(composed, profiled, runs[1], load)
     print_table(figures)
     for run, name in ((runs[1], "1 in flight"), (runs[2], "2 in flight"), (runs[4], "4 in flight"),
-                      (single, "SingleThreadedExecutor, 1 in flight"), (probed, "probe")):
+                      (single, "SingleThreadedExecutor, 1 in flight"), (probed, "probe"), (composed, "composed"),
+                      (profiled, "composed, FLAAIR_PROFILE=1")):
         print(f"{name}: {run['summary'].split(']: ', 1)[-1]}")
     write_json(figures, args.json)
     return 0

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import collections
 import threading
+import time
 from typing import Any, Callable
 
 from flaair_common import cdr
@@ -26,16 +27,17 @@ _current: "Bus | None" = None
 class Bus:
     """The composed nodes' in-process block streams (only `local_topics` travel here)."""
 
-    def __init__(self, local_topics: set[str], budget: int = 64) -> None:
+    def __init__(self, local_topics: set[str], budget: int = 64, profile: bool = False) -> None:
         self.local_topics = set(local_topics)
         self.budget = budget
+        self.profile = CallbackProfile() if profile else None   # FLAAIR_PROFILE: time every composed callback
         self.subscribers: dict[str, list[Callable[[dict], None]]] = collections.defaultdict(list)
         self.queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()
         self._draining = threading.Lock()
         self.delivered = 0
 
     def subscribe(self, topic: str, callback: Callable[[dict], None]) -> None:
-        self.subscribers[topic].append(callback)
+        self.subscribers[topic].append(callback if self.profile is None else self.profile.wrap(callback))
 
     def deliver(self, topic: str, fields: dict) -> None:
         """Queue the block for every composed subscriber of `topic`, and drain if no one else is."""
@@ -62,6 +64,40 @@ class Bus:
 
     def pending(self) -> bool:
         return bool(self.queue)
+
+
+class CallbackProfile:
+    """CPU (thread time) and wall time spent in each composed subscriber's callback.
+
+    Callbacks on the bus never nest (one drainer at a time), so a callback's time is its node's
+    own work on one block: the core, the shell around it and its publishes (not the neighbour
+    that a publish feeds). The container prints `report()` at exit when FLAAIR_PROFILE is set.
+    """
+
+    def __init__(self) -> None:
+        self.entries: dict[str, list[float]] = {}   # name -> [calls, cpu_s, wall_s]
+
+    def wrap(self, callback: Callable[[dict], None]) -> Callable[[dict], None]:
+        owner = getattr(callback, "__self__", None)
+        node = owner.get_name() if hasattr(owner, "get_name") else type(owner).__name__ if owner else ""
+        entry = self.entries.setdefault(f"{node}.{callback.__name__}" if node else callback.__qualname__, [0, 0.0, 0.0])
+        cpu, wall = time.thread_time, time.perf_counter
+
+        def timed(fields: dict) -> None:
+            c0, w0 = cpu(), wall()
+            try:
+                callback(fields)
+            finally:
+                entry[0] += 1
+                entry[1] += cpu() - c0
+                entry[2] += wall() - w0
+
+        return timed
+
+    def report(self) -> list[str]:
+        """One line per callback: `profile: NAME: N calls, X us CPU, Y us wall per call`."""
+        return [f"profile: {name}: {int(n)} calls, {1e6 * cpu / max(n, 1):.1f} us CPU, "
+                f"{1e6 * wall / max(n, 1):.1f} us wall per call" for name, (n, cpu, wall) in self.entries.items()]
 
 
 def current() -> Bus | None:

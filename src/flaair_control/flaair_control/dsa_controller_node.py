@@ -94,7 +94,7 @@ class DsaControllerNode(Node):
                                       "first_sample_index": b.first_sample_index, "drive_v": b.drive_v})
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
-        if b.with_state:
+        if b.with_state and self.state_pub.get_subscription_count():   # volatile: no listener, nothing lost
             self.state_pub.publish(cdr.encode(cdr.CONTROLLER_STATE, stamp_ns, "", {
                 "k_r": b.k_r, "async_drive_v": b.async_drive_v, "sync_drive_v": b.sync_drive_v,
                 "drive_v": b.drive_v[-1], "drive_clamped": b.drive_clamped, "watchdog": WATCHDOG[b.tripped],

@@ -280,31 +280,32 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
             return state, Outputs()
         state = state._replace(mode=LOOP)
         notes.append(Note(INFO, f"wing-state block {first} before the start: joining the loop"))
-    state = state._replace(last_arrival_wall=block.t_wall)
     if state.first_arrival_wall is None:
         state = state._replace(first_arrival_wall=block.t_wall, first_arrival_index=first,
-                        safety=safety.initial_state(first / p.sample_rate_hz))
+                               safety=safety.initial_state(first / p.sample_rate_hz))
         notes.append(Note(INFO, f"loop closed: first wing-state block {first}"))
     n = p.block_size
     field = np.asarray(block.stroke_velocity_deg_s, dtype=float)
     kind = "ok"
+    counts = state.counts   # the block's updates are gathered and applied in one _replace below
     # Fast path (every block in a healthy loop): in order, right length and rate.
     if not (first == state.expected_index and field.size == n and block.sample_rate_hz == p.sample_rate_hz):
         check = check_block({"stroke_velocity_deg_s": np.zeros(field.size)}, block.sample_rate_hz, p.sample_rate_hz,
                             first, state.expected_index, n)
         kind = check.kind
         if kind == "stale":
-            state = _count(state, "stale")
+            state = state._replace(last_arrival_wall=block.t_wall, counts=counts._replace(stale=counts.stale + 1))
             notes.append(Note(WARNING, f"wing-state block {first} ignored: {check.reason}", "stale"))
             return state, Outputs((), tuple(notes))
         if kind == "gap":
-            state = _count(state, "gaps")
+            counts = counts._replace(gaps=counts.gaps + 1)
             notes.append(Note(WARNING, f"wing-state block {first}: {check.reason}", "gaps"))
         elif kind == "content":
-            state = _count(state, "rejected")
+            counts = counts._replace(rejected=counts.rejected + 1)
             notes.append(Note(WARNING, f"wing-state block {first} rejected: {check.reason}; its samples drive the "
                                        "filter as 0", "rejected"))
-    state = _count(state._replace(expected_index=first + n), "blocks")
+    counts = counts._replace(blocks=counts.blocks + 1)
+    frequency, guard = state.frequency, state.safety
     if kind == "content":
         velocity_rad_s, valid = np.full(n, np.nan), False
     else:
@@ -312,18 +313,18 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         flags = np.asarray(block.stroke_valid, dtype=bool)
         valid = flags.size == n and bool(flags.all()) and bool(np.isfinite(velocity_rad_s).all())
         if not valid:
-            state = _count(state, "invalid")
+            counts = counts._replace(invalid=counts.invalid + 1)
             notes.append(Note(WARNING, f"wing-state block {first} invalid (stroke_valid false or non-finite velocity); "
                                        "its invalid samples drive the filter as 0", "invalid"))
             if flags.size == n:
                 velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)
-        frequency, _ = crossing_step(state.frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan),
-                                     p.frequency)
-        state = state._replace(frequency=frequency)
+        frequency, _ = crossing_step(frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency)
     if valid:
-        state = state._replace(safety=safety.note_sensor_block(state.safety, (first + n) / p.sample_rate_hz, True,
-                                                               p.safety))
+        guard = safety.note_sensor_block(guard, (first + n) / p.sample_rate_hz, True, p.safety)
+    state = state._replace(last_arrival_wall=block.t_wall, expected_index=first + n, counts=counts,
+                           frequency=frequency, safety=guard)
+    if valid:
         state, more = _check_core_trip(state, block.t_wall, p)
         notes.extend(more)
     if state.mode != LOOP:

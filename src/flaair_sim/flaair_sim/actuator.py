@@ -128,7 +128,7 @@ def _on_command(state: ActuatorState, c: Command, p: ActuatorParams) -> tuple[Ac
         return state._replace(pending=(state.pending + (drive_v,))[-MAX_PENDING:]), Outputs((), tuple(notes))
     if state.ring_down is not None:
         notes.append(Note(INFO, f"drive commands resumed at block {first}; drive watchdog re-armed"))
-    state = state._replace(ring_down=None, driven=bool(np.any(drive_v != 0.0)),
+    state = state._replace(ring_down=None, driven=bool(drive_v.any()),
                            commanded_samples=state.commanded_samples + drive_v.size)
     blocks: list[np.ndarray] = []
     state = _emit(state, blocks, drive_v)
