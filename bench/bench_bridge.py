@@ -35,17 +35,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import REPO_ROOT, Figure, print_table, write_json  # noqa: E402
+from flaair_common.graph import Graph  # noqa: E402
 
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 FS = 20000.0
 BLOCK = 10
 LEAD = 20
-
-
-def _env(domain: int) -> dict[str, str]:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
 
 
 def _cpu_s(pid: int) -> float:
@@ -61,16 +56,6 @@ def _tree_cpu_s(pid: int) -> float:
     except OSError:
         children = []
     return total + sum(_tree_cpu_s(int(child)) for child in children)
-
-
-def _stop(process: subprocess.Popen, timeout_s: float = 30.0) -> None:
-    if process.poll() is None:
-        os.killpg(process.pid, signal.SIGINT)
-    try:
-        process.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
 
 
 def _free_port() -> int:
@@ -150,16 +135,14 @@ def echo_main(port: int, out_file: str) -> int:
 
 
 # ------------------------------------------------------------------------------ runs
-def bridge_run(duration_s: float, domain: int, tmp: Path) -> dict:
-    env, port = _env(domain), _free_port()
+def bridge_run(duration_s: float, tmp: Path) -> dict:
+    port = _free_port()
     timing = tmp / "timing.npz"
-    started = []
+    graph = Graph(log_dir=tmp)   # a private domain; every child stopped on the way out
+    env = graph.env
 
     def start(name: str, *args: str) -> subprocess.Popen:
-        process = subprocess.Popen(list(args), env=env, stdout=subprocess.DEVNULL, stderr=open(tmp / f"{name}.log", "w"),
-                                   start_new_session=True, cwd=REPO_ROOT)
-        started.append(process)
-        return process
+        return graph.start(name, args, stdout=subprocess.DEVNULL)
 
     try:
         bridge = start("bridge", FLAAIR, "run", "flaair_bridge", "bridge_node", "--ros-args", "-p", f"listen_port:={port}",
@@ -183,8 +166,7 @@ def bridge_run(duration_s: float, domain: int, tmp: Path) -> dict:
         time.sleep(1.0)  # the bridge and the source drain what is still queued
         cpu1 = {"bridge": _tree_cpu_s(bridge.pid), "source": _cpu_s(source.pid), "target": cpu_target}
     finally:
-        for process in started:
-            _stop(process)
+        graph.close()
     counters = json.loads((tmp / "target.json").read_text())
     n_packets = counters["packets_sent"]
     cpu = {name: 1e6 * (cpu1[name] - cpu0.get(name, 0.0)) / n_packets for name in cpu1}
@@ -193,20 +175,15 @@ def bridge_run(duration_s: float, domain: int, tmp: Path) -> dict:
             "events": dict(np.load(timing)), "cpu_us": cpu, "summary": summary[0] if summary else ""}
 
 
-def echo_run(duration_s: float, domain: int, tmp: Path) -> dict:
-    env, port = _env(domain), _free_port()
-    echo = subprocess.Popen([sys.executable, __file__, "--echo", str(port), str(tmp / "echo.npy")], env=env,
-                            start_new_session=True, cwd=REPO_ROOT)
-    try:
+def echo_run(duration_s: float, tmp: Path) -> dict:
+    port = _free_port()
+    with Graph() as graph:
+        graph.start("echo", [sys.executable, __file__, "--echo", str(port), str(tmp / "echo.npy")])
         time.sleep(3.0)  # the echo imports numpy and binds
-        target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
-                                   "--listen", "127.0.0.1:0", "--duration", str(duration_s),
-                                   "--counters", str(tmp / "echo_target.json")],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-                                  cwd=REPO_ROOT)
+        target = graph.start("target", [FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
+                                        "--listen", "127.0.0.1:0", "--duration", str(duration_s),
+                                        "--counters", str(tmp / "echo_target.json")])
         target.wait(timeout=duration_s * 4 + 120)
-    finally:
-        _stop(echo)
     return {"target": json.loads((tmp / "echo_target.json").read_text()), "latency_s": np.load(tmp / "echo.npy")}
 
 
@@ -248,12 +225,11 @@ def main() -> int:
         return responder_main(args.responder)
     if args.echo:
         return echo_main(int(args.echo[0]), args.echo[1])
-    domain = 215 + os.getpid() % 17
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         load0 = os.getloadavg()[0]
-        echo = echo_run(args.baseline_duration, domain, tmp)
-        run = bridge_run(args.duration, domain, tmp)
+        echo = echo_run(args.baseline_duration, tmp)
+        run = bridge_run(args.duration, tmp)
         load1 = os.getloadavg()[0]
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     t, e = run["target"], echo["target"]

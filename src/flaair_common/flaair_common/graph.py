@@ -159,7 +159,8 @@ class Graph:
         process = subprocess.Popen(
             argv, env=self.env, cwd=repo_root(), text=text, stdin=stdin,
             stdout=stdout if stdout is not None else (log or subprocess.DEVNULL),
-            stderr=stderr if stderr is not None else (subprocess.STDOUT if log else subprocess.DEVNULL),
+            stderr=stderr if stderr is not None else (log if log and stdout is not None
+                                                      else subprocess.STDOUT if log else subprocess.DEVNULL),
             start_new_session=True, preexec_fn=preexec,
         )
         if log is not None:
