@@ -129,3 +129,62 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     assert received.messages[live_view.COLLISION_TOPIC][0][0] == 3_000_000_000
     # the server told the client the latest signal time
     assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
+
+
+def _wing_blocks(firsts: list[int], block: int = BLOCK, frame: str = "robot") -> list[bytes]:
+    from flaair_common import cdr
+
+    codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, frame)
+    out = []
+    for first in firsts:
+        n = np.arange(first, first + block)
+        out.append(codec.encode(int(3e9) + int(round(first * 1e9 / FS)), {
+            "sample_rate_hz": FS, "first_sample_index": first, "stroke_deg": 20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
+            "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * n / FS), "stroke_velocity_deg_s": n * 1.0,
+            "stroke_valid": np.ones(block, bool), "pitch_valid": n // 10 != 100}))
+    return out
+
+
+@pytest.mark.parametrize("decimation", [1, 3, 10])
+def test_a_batch_of_blocks_is_served_exactly_as_block_by_block(decimation: int) -> None:
+    """One numpy pass over many blocks (with a gap, another block size, a bad message) gives the
+    same messages at the same times as serving each block alone; bad bytes are counted, not served."""
+    from flaair_common import cdr
+
+    stream = live_view.STREAMS["wing_state"]
+    datas = _wing_blocks([0, 10, 20, 50, 60]) + _wing_blocks([70], block=7) + [b"\x00\x01\x00\x00garbage"]
+    batches, bad = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
+    assert bad == 1 and [len(b) for b in batches] == [5, 1]
+    times, payloads = [], []
+    for blocks in batches:
+        t, p = live_view.blocks_samples(stream, blocks, decimation)
+        times, payloads = times + t, payloads + p
+    want_t, want_p = [], []
+    for data in datas[:-1]:
+        message = cdr.decode(cdr.WING_STATE_BLOCK, data)
+        t, p = live_view.block_samples(stream, message, cdr.stamp_ns(message), decimation)
+        want_t, want_p = want_t + t, want_p + p
+    assert times == want_t and payloads == want_p
+    assert len(times) == len([i for i in (*range(30), *range(50, 77)) if i % decimation == 0])
+    assert live_view.blocks_end_ns(batches[0], "stroke_deg") == int(3e9) + int(round(70 * 1e9 / FS))
+    assert live_view.contiguous_runs(batches[0], "stroke_deg") == [slice(0, 3), slice(3, 5)]
+
+
+def test_wingbeats_of_a_batch_are_those_of_block_by_block() -> None:
+    from flaair_common import cdr
+
+    params = wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0)
+    datas = _wing_blocks(list(range(0, 3000, BLOCK)) + list(range(3500, 6000, BLOCK)))  # a gap at 3000-3500
+    (blocks,), _ = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
+    state, batched = wingbeat.initial_state(), []
+    for start in range(0, len(blocks), 20):   # batches of 20 blocks, as the node serves them
+        state, beats = live_view.wingbeat_batch(state, blocks[start:start + 20], len(batched), 2.0, 0.5, True, params)
+        batched += beats
+    state, alone = wingbeat.initial_state(), []
+    for data in datas:
+        message = cdr.decode(cdr.WING_STATE_BLOCK, data)
+        valid = np.logical_and(message["stroke_valid"], message["pitch_valid"])
+        state, beats = wingbeat.step(state, wingbeat.WingbeatInputs(message["first_sample_index"], message["stroke_deg"],
+                                                                    message["pitch_deg"], valid, 2.0, 0.5), params)
+        alone += live_view.wingbeat_messages(beats, len(alone), cdr.stamp_ns(message), message["first_sample_index"], FS, True)
+    assert len(batched) > 30 and batched == alone

@@ -1,22 +1,19 @@
 """foxglove_node: the live graph over the Foxglove WebSocket protocol (Foxglove app, Lichtblick).
 
-Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth,
-/sensor_v and /drive (on /flaair/live/..., flaair_tools.live_view) whose log time is the
-sample's own signal time, so the Plot panel draws them as time series; /flaair/live/wingbeat
-summarises each wingbeat (flaair_tools.wingbeat: amplitude, frequency, pitch amplitude,
-collision score, K_r); /flaair/live/collision_status relays the monitor. The latest signal time
-is broadcast (Time capability). Block streams are best effort: a viewer never holds the graph.
+Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth, /sensor_v
+and /drive (on /flaair/live/..., flaair_tools.live_view) at the sample's own signal time, so the Plot
+panel draws time series; /flaair/live/wingbeat summarises each wingbeat (flaair_tools.wingbeat);
+/flaair/live/collision_status relays the monitor; the latest signal time is broadcast. Block streams
+are best effort (a viewer never holds the graph), served in batches of serve_period_s (one numpy call each).
 Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
-Usage:
-  bin/flaair foxglove 127.0.0.1:8765
+Usage: bin/flaair foxglove 127.0.0.1:8765, or
   bin/flaair run flaair_tools foxglove_node --ros-args -p port:=8765 -p sample_decimation:=4
 """
 from __future__ import annotations
 
-import math
+import contextlib
 import sys
 import foxglove
-import numpy as np
 from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -39,6 +36,7 @@ PARAMS = [
     ParamSpec("sample_decimation", int, "Serve every Nth sample of each stream (1: every sample)", 1, 10000, read_only=True),
     ParamSpec("message_backlog", int, "Messages queued per client; the oldest drop when full", 16, 10**7, read_only=True),
     ParamSpec("reliable", bool, "Subscribe to block streams reliably (false: best effort)", read_only=True),
+    ParamSpec("serve_period_s", float, "Serve the blocks received this often, one batch per stream [s]", 0.001, 1.0, read_only=True),
     ParamSpec("time_broadcast_period_s", float, "Broadcast the latest signal time this often [s]", 0.001, 10.0, read_only=True),
     ParamSpec("wingbeat_hysteresis_deg", float, "Stroke below -this arms the wingbeat trigger [deg]", 0.0, 90.0, read_only=True),
     ParamSpec("wingbeat_min_frequency_hz", float, "Longer wingbeats are dropped (idle) [Hz]", 0.1, 10000.0, read_only=True),
@@ -71,58 +69,62 @@ class FoxgloveNode(Node):
                                                 message_backlog_size=p["message_backlog"])
         except (ValueError, RuntimeError) as exc:
             raise ParameterError(f"parameters 'host'/'port'/'wingbeat_*': {exc}") from exc
-        self.decimation, self.period_s = p["sample_decimation"], p["time_broadcast_period_s"]
+        self.decimation = p["sample_decimation"]
         self.channels = {key: foxglove.Channel(stream.topic, message_encoding="cdr", schema=foxglove.Schema(
             name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode())) for key, stream in live_view.STREAMS.items()}
         self.wingbeat_channel, self.collision_channel = (foxglove.Channel(topic, schema=schema) for topic, schema in (
             (live_view.WINGBEAT_TOPIC, live_view.WINGBEAT_SCHEMA), (live_view.COLLISION_TOPIC, live_view.COLLISION_SCHEMA)))
-        self.state, self.beats, self.score, self.k_r, self.colliding = wingbeat.initial_state(), 0, math.nan, math.nan, None
+        self.state, self.beats, self.score, self.k_r, self.colliding = wingbeat.initial_state(), 0, float("nan"), float("nan"), None
         self.latest_ns = self.broadcast_ns = 0
-        self.create_timer(self.period_s, self.broadcast_time, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.create_timer(p["time_broadcast_period_s"], self.broadcast_time, clock=(steady := Clock(clock_type=ClockType.STEADY_TIME)))
+        self.create_timer(p["serve_period_s"], self.serve, clock=steady)  # a stream that stopped
+        self.pending, self.codecs = {key: [] for key in STREAM_SOURCES}, {key: {} for key in STREAM_SOURCES}  # codecs by size
         qos = QoSProfile(depth=BLOCK_STREAM.depth, reliability=ReliabilityPolicy.RELIABLE if p["reliable"]
                          else ReliabilityPolicy.BEST_EFFORT)
-        for key, (topic, cls, layout) in STREAM_SOURCES.items():
-            self.create_subscription(cls, topic, self.block_callback(key, cdr.FixedCodec(layout, p["block_size"], topics.FRAME_ID)),
-                                     qos, raw=True)
+        self.batch_blocks = max(1, round(p["serve_period_s"] * p["sample_rate_hz"] / p["block_size"]))
+        for key, (topic, cls, _) in STREAM_SOURCES.items():
+            self.create_subscription(cls, topic, self.block_callback(key), qos, raw=True)
         self.create_subscription(CollisionStatus, topics.COLLISION_STATUS, self.on_status, STATUS)
         self.create_subscription(ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True)
         self.get_logger().info(f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
                                f"(every {self.decimation} sample(s); layout config/foxglove_layout.json)")
 
-    def block_callback(self, key: str, codec: cdr.FixedCodec):
-        stream, channel = live_view.STREAMS[key], self.channels[key]
-        log = channel.base.log
-
+    def block_callback(self, key: str):  # keeps a block; a serve period's worth is served at once
         def on_block(data: bytes) -> None:
-            try:
-                message = codec.decode(data)
-            except cdr.CdrError as exc:
-                self.get_logger().warning(f"{stream.topic}: block dropped: {exc}", throttle_duration_sec=1.0)
-                return
-            first, rate, stamp_ns = int(message["first_sample_index"]), float(message["sample_rate_hz"]), cdr.stamp_ns(message)
-            if key == "wing_state":
-                self.summarize(message, first, rate, stamp_ns)
-            if channel.has_sinks():
-                for log_time, payload in zip(*live_view.block_samples(stream, message, stamp_ns, self.decimation)):
-                    log(payload, log_time)
-            self.latest_ns = max(self.latest_ns, stamp_ns + int(round(len(message[stream.fields[0][0]]) * 1e9 / rate)))
-
+            self.pending[key].append(data)
+            if len(self.pending[key]) >= self.batch_blocks:
+                self.serve_stream(key)
         return on_block
+
+    def serve(self) -> None:
+        """Every stream's blocks kept since they were last served."""
+        for key in [key for key, pending in self.pending.items() if pending]:
+            self.serve_stream(key)
+
+    def serve_stream(self, key: str) -> None:
+        """A stream's kept blocks: wingbeats, then all their samples in one numpy batch."""
+        datas, stream, channel = self.pending[key].copy(), live_view.STREAMS[key], self.channels[key]
+        self.pending[key].clear()
+        batches, bad = live_view.fixed_blocks(STREAM_SOURCES[key][2], datas, self.codecs[key])
+        if bad:
+            self.get_logger().warning(f"{STREAM_SOURCES[key][0]}: {bad} block(s) dropped: bad CDR", throttle_duration_sec=1.0)
+        for blocks in batches:
+            self.latest_ns = max(self.latest_ns, live_view.blocks_end_ns(blocks, stream.fields[0][0]))
+            if key == "wing_state":
+                self.state, beats = live_view.wingbeat_batch(self.state, blocks, self.beats, self.score, self.k_r,
+                                                             self.colliding, self.wingbeat_params)
+                for log_time, payload in beats:
+                    self.wingbeat_channel.log(payload, log_time=log_time)
+                self.beats += len(beats)
+            if channel.has_sinks():
+                for log_time, payload in zip(*live_view.blocks_samples(stream, blocks, self.decimation)):
+                    channel.base.log(payload, log_time)
 
     def broadcast_time(self) -> None:
         """Tell clients the latest signal time (the end of the newest block), when it moved."""
         if self.latest_ns != self.broadcast_ns:
             self.server.broadcast_time(self.latest_ns)
             self.broadcast_ns = self.latest_ns
-
-    def summarize(self, message, first: int, rate: float, stamp_ns: int) -> None:
-        """Wingbeats ended by this wing-state block -> /flaair/live/wingbeat."""
-        valid = np.logical_and(message["stroke_valid"], message["pitch_valid"])
-        inputs = wingbeat.WingbeatInputs(first, message["stroke_deg"], message["pitch_deg"], valid, self.score, self.k_r)
-        self.state, beats = wingbeat.step(self.state, inputs, self.wingbeat_params)
-        for log_time, payload in live_view.wingbeat_messages(beats, self.beats, stamp_ns, first, rate, self.colliding):
-            self.wingbeat_channel.log(payload, log_time=log_time)
-        self.beats += beats.end_sample.size
 
     def on_status(self, status: CollisionStatus) -> None:
         self.score = wingbeat.collision_score(status.spectrum_rmse_deg, status.threshold_deg)
@@ -132,10 +134,8 @@ class FoxgloveNode(Node):
                                                                status.threshold_deg, stamp_ns), log_time=stamp_ns)
 
     def on_controller(self, data: bytes) -> None:
-        try:
+        with contextlib.suppress(cdr.CdrError):  # not worth a warning at 2000/s: K_r stays the last good one
             self.k_r = float(cdr.decode(cdr.CONTROLLER_STATE, data)["k_r"])
-        except cdr.CdrError:  # not worth a warning at 2000/s: K_r stays the last good one
-            pass
 
     def close(self) -> None:
         self.server.stop()
