@@ -257,3 +257,48 @@ def __getattr__(name: str):
         value = globals()[name] = {t: __getattr__(n) for n, t in _LAYOUT_TYPES.items()}
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def decode_batch(layout: Layout, datas, codecs: dict | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[int]]:
+    """Many messages of one block layout decoded at once: one structured-array view per message size.
+
+    Returns ([(message numbers, records of the fixed layout)] by first arrival of each size, numbers of the messages that fit no
+    fixed layout: decode those one by one with `decode`). A size's layout comes from its first
+    message (block size, frame_id), stretched to the message size (DDS pads to 4 bytes); `codecs`
+    caches it by size across calls.
+    """
+    codecs = {} if codecs is None else codecs
+    sizes = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+    groups, unfit = [], []
+    unique, first_seen = np.unique(sizes, return_index=True)
+    for size in unique[np.argsort(first_seen)].tolist():   # the sizes in order of arrival
+        numbers = np.flatnonzero(sizes == size)
+        if size not in codecs:
+            codecs[size] = _sized_dtype(layout, datas[numbers[0]])
+        if codecs[size] is None:
+            unfit += numbers.tolist()
+            continue
+        codec, dtype = codecs[size]
+        records = np.frombuffer(b"".join([datas[i] for i in numbers]), dtype=dtype)
+        fits = np.all(records["encapsulation"] == np.frombuffer(ENCAPSULATION, dtype="u1"), axis=1)
+        fits &= records["frame_len"] == codec._frame_len
+        for count in codec.counts:
+            fits &= records[count] == codec.block_size
+        unfit += numbers[~fits].tolist()
+        if fits.any():
+            groups.append((numbers[fits], records[fits]))
+    return groups, sorted(unfit)
+
+
+def _sized_dtype(layout: Layout, data: bytes) -> tuple[FixedCodec, np.dtype] | None:
+    try:
+        first = decode(layout, data)
+    except CdrError:
+        return None
+    sequences = [name for name, kind in layout.fields if kind.endswith("[]")]
+    codec = FixedCodec(layout, len(first[sequences[0]]) if sequences else 0, first["frame_id"])
+    if codec.dtype.itemsize > len(data):
+        return None
+    names = codec.dtype.names
+    return codec, np.dtype({"names": names, "formats": [codec.dtype.fields[n][0] for n in names],
+                            "offsets": [codec.dtype.fields[n][1] for n in names], "itemsize": len(data)})

@@ -601,35 +601,15 @@ def _damaged(bag: str | Path, msgtype: str, exc: Exception) -> BagError:
 
 
 def _decode_by_size(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Path) -> list[tuple[np.ndarray, Any]]:
-    """(message numbers, records) per message size: a structured-array view of all messages of one
-    size that fit the fixed layout, each other message decoded alone (a dict)."""
-    sizes = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
-    groups: list[tuple[np.ndarray, Any]] = []
-    for size in np.unique(sizes):
-        numbers = np.flatnonzero(sizes == size)
+    """(message numbers, records) per message size (`cdr.decode_batch`), each message that fits no
+    fixed layout decoded alone (a dict); a message that is no CDR of its type is a damaged bag."""
+    groups, unfit = cdr.decode_batch(layout, datas)
+    for number in unfit:
         try:
-            sample = cdr.decode(layout, datas[numbers[0]])
+            message = cdr.decode(layout, datas[number])
         except cdr.CdrError as exc:
             raise _damaged(bag, layout.type_name, exc) from None
-        block_size = next(len(sample[name]) for name, kind in layout.fields if kind.endswith("[]"))
-        codec = cdr.FixedCodec(layout, block_size, sample["frame_id"])
-        fits = np.zeros(numbers.size, dtype=bool)
-        if codec.dtype.itemsize <= size:
-            names = codec.dtype.names
-            dtype = np.dtype({"names": names, "formats": [codec.dtype.fields[k][0] for k in names],
-                              "offsets": [codec.dtype.fields[k][1] for k in names], "itemsize": int(size)})
-            records = np.frombuffer(b"".join([datas[i] for i in numbers]), dtype=dtype)
-            fits = (records["frame_len"] == codec.dtype.fields["frame"][0].itemsize) & np.all(
-                records["encapsulation"] == np.frombuffer(cdr.ENCAPSULATION, dtype="u1"), axis=1)
-            for count in codec.counts:
-                fits &= records[count] == block_size
-            groups.append((numbers[fits], records[fits]))
-        for number in numbers[~fits]:
-            try:
-                message = cdr.decode(layout, datas[number])
-            except cdr.CdrError as exc:
-                raise _damaged(bag, layout.type_name, exc) from None
-            groups.append((np.array([number]), {k: np.asarray(v)[None] for k, v in message.items() if k != "frame_id"}))
+        groups.append((np.array([number]), {k: np.asarray(v)[None] for k, v in message.items() if k != "frame_id"}))
     return groups
 
 

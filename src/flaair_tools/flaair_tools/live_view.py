@@ -136,45 +136,10 @@ def blocks_samples(stream: SampleStream, blocks: np.ndarray, decimation: int) ->
 
 def fixed_blocks(layout: cdr.Layout, datas: list[bytes], codecs: dict) -> tuple[list[np.ndarray], int]:
     """Block messages as records of a `flaair_common.cdr.FixedCodec`, one array per message size
-    (in arrival order within each), decoded in one call each; and how many did not decode.
-
-    codecs: a cache, message size -> (codec, record dtype) made from the first message of that size.
-    """
-    by_size: dict[int, list[bytes]] = {}
-    for data in datas:
-        by_size.setdefault(len(data), []).append(data)
-    out, bad = [], 0
-    for size, group in by_size.items():
-        if size not in codecs:
-            codecs[size] = _sized_codec(layout, group[0])
-        if codecs[size] is None:
-            bad += len(group)
-            continue
-        codec, dtype = codecs[size]
-        blocks = np.frombuffer(b"".join(group), dtype=dtype)
-        fits = np.all(blocks["encapsulation"] == np.frombuffer(cdr.ENCAPSULATION, dtype="u1"), axis=1)
-        fits &= blocks["frame_len"] == codec.dtype.fields["frame"][0].itemsize
-        for count in codec.counts:
-            fits &= blocks[count] == codec.block_size
-        bad += int(np.count_nonzero(~fits))
-        if fits.any():
-            out.append(blocks[fits])
-    return out, bad
-
-
-def _sized_codec(layout: cdr.Layout, data: bytes) -> tuple[cdr.FixedCodec, np.dtype] | None:
-    """The codec of messages like `data`, and its record dtype stretched to their size (DDS pads a
-    message to a multiple of 4 bytes); None if `data` is no CDR of `layout`."""
-    try:
-        first = cdr.decode(layout, data)
-    except cdr.CdrError:
-        return None
-    codec = cdr.FixedCodec(layout, len(first[next(n for n, k in layout.fields if k.endswith("[]"))]), first["frame_id"])
-    if codec.dtype.itemsize > len(data):
-        return None
-    names = codec.dtype.names
-    return codec, np.dtype({"names": names, "formats": [codec.dtype.fields[n][0] for n in names],
-                            "offsets": [codec.dtype.fields[n][1] for n in names], "itemsize": len(data)})
+    (in arrival order within each), decoded in one call each (`cdr.decode_batch`, `codecs` its
+    cache); and how many are no CDR of the layout's fixed size."""
+    groups, unfit = cdr.decode_batch(layout, datas, codecs)
+    return [records for _, records in groups], len(unfit)
 
 
 def blocks_end_ns(blocks: np.ndarray, field: str) -> int:
