@@ -13,7 +13,7 @@ from flaair_sim.plant import simulate
 from .diagnosis import Diagnosis, _drive_tracks, diagnose, noise_estimates, nrmse_by_channel
 from .evidence import FoundEffect, _Context
 from .fitting import _Fold
-from .identification import PlantFit, identify_plant
+from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
 from .search import (_CHANNEL_ORDER, ChannelSearch, _channel_has_gap, _polish, _strip, find_effects)
 from .settings import Settings
@@ -249,6 +249,10 @@ def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remai
         moved = sorted(change, key=lambda k: -abs(change[k]))[:3]
         parts.append("This robot's plant was fitted first (largest changes from the model: "
                      + ", ".join(f"{k} {change[k]:+.1%}" for k in moved) + ").")
+        edge = [k for k, p in plant.items() if abs(math.log(p["value"] / p["nominal"])) >= 0.999 * math.log1p(FIT_RANGE)]
+        if edge:
+            parts.append(f"At the edge of the plant fit's range (x{1 + FIT_RANGE:g} of the model): {', '.join(edge)}; "
+                         "this robot may lie beyond it.")
     if status == "no_discrepancy":
         parts.append("With its own plant parameters the model explains every channel to noise level: residuals are "
                      "white and at the noise RMS; no physics is missing.")
