@@ -35,6 +35,20 @@ def main() -> None:
         collision.run(np.zeros(400), np.zeros(400), params)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
+    try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
+        from flaair_control import dsa, safety
+        from flaair_control.control_io import supervisor_params_from_config
+        from flaair_model.config import node_parameters
+        from flaair_sensors import frontend
+        from flaair_sensors.frontend_io import frontend_params_from_config
+
+        fe = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), fs_hz)
+        frontend.step(frontend.initial_state(fe), frontend.FrontendInputs(np.ones(10), np.ones(10)), fe)
+        loop = supervisor_params_from_config(node_parameters("flaair.yaml", "dsa_controller_node"), model)
+        dsa.step(dsa.initial_state(loop.dsa), dsa.DsaInputs(np.zeros(10), 0.0), loop.dsa)
+        safety.step(safety.initial_state(0.0), safety.SafetyInputs(np.zeros(10), 0.0), loop.safety)
+    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+        print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")
 
 

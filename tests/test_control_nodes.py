@@ -298,6 +298,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
 
         monkeypatch.setattr(node.drive.publisher, "publish", on_drive)
         monkeypatch.setattr(node.state_pub, "publish", on_state)
+        monkeypatch.setattr(node.state_pub, "get_subscription_count", lambda: 1)   # a listener: states are written
 
         def feed(k: int) -> None:
             message = WingStateBlock(sample_rate_hz=FS_HZ, first_sample_index=k * BLOCK)

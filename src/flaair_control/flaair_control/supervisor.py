@@ -311,7 +311,9 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
     else:
         velocity_rad_s = np.radians(field)
         flags = np.asarray(block.stroke_valid, dtype=bool)
-        valid = flags.size == n and bool(flags.all()) and bool(np.isfinite(velocity_rad_s).all())
+        # a finite sum proves every sample finite (the fast path); an overflowing one is checked sample by sample
+        valid = flags.size == n and bool(flags.all()) and (math.isfinite(np.add.reduce(velocity_rad_s))
+                                                            or bool(np.isfinite(velocity_rad_s).all()))
         if not valid:
             counts = counts._replace(invalid=counts.invalid + 1)
             notes.append(Note(WARNING, f"wing-state block {first} invalid (stroke_valid false or non-finite velocity); "

@@ -30,6 +30,7 @@ from flaair_sensors import frontend
 from flaair_sensors.frontend_io import CONFIG_FILE, FRONTEND_PARAMS, NODE_NAME, frontend_params_from_config
 
 PARAMS = FRONTEND_PARAMS
+SENSOR_ESTIMATE = WingStateBlock.SOURCE_SENSOR_ESTIMATE   # a rosidl class constant costs a metaclass call per read
 
 
 class FrontendNode(Node):
@@ -81,7 +82,7 @@ class FrontendNode(Node):
                     return
         self.expected_index = first + len(stroke_v)
         self.state, estimate = frontend.step(self.state, frontend.FrontendInputs(stroke_v, pitch_v), self.params)
-        out = {"sample_rate_hz": rate_hz, "first_sample_index": first, "source": WingStateBlock.SOURCE_SENSOR_ESTIMATE,
+        out = {"sample_rate_hz": rate_hz, "first_sample_index": first, "source": SENSOR_ESTIMATE,
                "stroke_deg": np.degrees(estimate.stroke_rad), "pitch_deg": np.degrees(estimate.pitch_rad),
                "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),
                "stroke_valid": estimate.stroke_valid, "pitch_valid": estimate.pitch_valid}
