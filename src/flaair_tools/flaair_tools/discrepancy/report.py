@@ -238,7 +238,9 @@ def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any
         rows.append(f"<tr><th>{html.escape(r)}</th>{''.join(cells)}</tr>")
     head = "".join(f"<th>{html.escape(c)}</th>" for c in table["columns"])
     out = (f"<p><b>{table['correct']} of {table['total']}</b> cases fully right (name, status, parameters within "
-           f"15 %, gap reduced by at least half; outside cases: unexplained with the gap on the right channel).</p>"
+           f"15 %, gap reduced by at least half; outside cases: unexplained with the gap on the right channel). "
+           "Row labels: <i>plant:</i> an effect a plant change reproduces (refitted, never named), <i>below:</i> an "
+           "effect below the limit of the fitted-plant search (unexplained, nothing named).</p>"
            f"<table class='confusion'><tr><th>true \\ found</th>{head}</tr>{''.join(rows)}</table>")
     if outcomes:
         out += _table(["case", "true", "found", "status", "correct", "parameter errors", "gap reduction", "problems", "time s"],
