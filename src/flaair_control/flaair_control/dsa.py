@@ -165,10 +165,16 @@ class DsaParams:
         return math.sqrt(self.kappa) * self.r3_rad_s
 
     @cached_property
-    def kernel_filters(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Normalized (b, a) of the advanced and the raw filter, as ``step``'s kernel takes them
-        (computed once per parameter set: hashing the dataclass for a cache costs more than a block)."""
-        return (*normalized_ba(*_tf_coefficients(self, True)), *normalized_ba(*_tf_coefficients(self, False)))
+    def kernel_args(self) -> tuple:
+        """``step``'s kernel arguments after the block and the state: the rate, the normalized (b, a)
+        of the advanced and the raw filter, K_r, the sine, G_a and the limit (once per parameter set:
+        hashing the dataclass for a cache, or a dozen attribute reads a block, cost more than a block)."""
+        kr = self.kr_schedule
+        return (float(self.sample_rate_hz), *normalized_ba(*_tf_coefficients(self, True)),
+                *normalized_ba(*_tf_coefficients(self, False)), float(kr.start_value), float(kr.end_value),
+                float(kr.start_time_s), float(kr.duration_s), float(self.sync_amplitude_v),
+                2.0 * np.pi * self.sync_frequency_hz, float(self.sync_phase_rad), float(self.actuator_gain_nm_per_v),
+                float(self.drive_limit_v))
 
 
 def loop_delay_s(block_size: int, sample_rate_hz: float, velocity_delay_samples: float = 0.5) -> float:
@@ -252,7 +258,7 @@ _TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)   # rows
 
 
 @njit(cache=True)
-def _block(v_in, t_start_s, fs, b_adv, a_adv, zi_adv, b_raw, a_raw, zi_raw, kr_start, kr_end, kr_t0, kr_duration,
+def _block(v_in, t_start_s, zi_adv, zi_raw, fs, b_adv, a_adv, b_raw, a_raw, kr_start, kr_end, kr_t0, kr_duration,
            sync_amplitude_v, sync_omega, sync_phase_rad, gain, limit_v):
     """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
 
@@ -289,12 +295,7 @@ def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaStat
     t_start_s = float(inputs.t_start_s)
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
-    b_adv, a_adv, b_raw, a_raw = params.kernel_filters
-    kr = params.kr_schedule
-    out, z = _block(v, t_start_s, float(params.sample_rate_hz), b_adv, a_adv, state.zi_advanced, b_raw, a_raw,
-                    state.zi_raw, float(kr.start_value), float(kr.end_value), float(kr.start_time_s),
-                    float(kr.duration_s), float(params.sync_amplitude_v), 2.0 * np.pi * params.sync_frequency_hz,
-                    float(params.sync_phase_rad), float(params.actuator_gain_nm_per_v), float(params.drive_limit_v))
+    out, z = _block(v, t_start_s, state.zi_advanced, state.zi_raw, *params.kernel_args)
     signals = DsaSignals(out[_TORQUE_RAW], out[_TORQUE], out[_ASYNC], out[_SYNC], out[_KR], out[_UNCLIPPED],
                          np.isfinite(v))
     return DsaState(z[0], z[1]), DsaOutputs(out[_DRIVE], signals)

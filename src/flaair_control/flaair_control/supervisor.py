@@ -207,17 +207,20 @@ def step(state: SupervisorState, inputs: Input, params: SupervisorParams) -> tup
 def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_wall: float,
           p: SupervisorParams) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
     """Run the dSA and safety cores on one velocity block: the next drive block."""
-    t_start = state.next_index / p.sample_rate_hz
+    index = state.next_index
+    t_start = index / p.sample_rate_hz
     ctrl, out = dsa.step(state.ctrl, dsa.DsaInputs(velocity_rad_s, t_start), state.dsa_params)
     drive_v = out.drive_v if state.amplitude_scale == 1.0 else out.drive_v * state.amplitude_scale
     guard, guarded = safety.step(state.safety, safety.SafetyInputs(drive_v, t_start), p.safety)
     sig = out.signals
-    state = state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall)
-    state, notes = _check_core_trip(state, t_wall, p)
-    block = DriveOut(state.next_index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]), float(sig.sync_v[-1]),
+    if guard.status == safety.TRIPPED and state.mode == LOOP:   # the safety core tripped: trip at this block
+        state, notes = _check_core_trip(state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p)
+        state = state._replace(next_index=index + p.block_size)
+    else:   # every block of a healthy loop: one _replace
+        state, notes = state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size), []
+    block = DriveOut(index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]), float(sig.sync_v[-1]),
                      bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v),
                      bool(guarded.tripped), state.fault, state.amplitude_scale, _frequency_hz(state, p), answers, True)
-    state = state._replace(next_index=state.next_index + p.block_size)
     blocks = [block]
     end_index = int(round(p.run_time_s * p.sample_rate_hz))
     if end_index and state.next_index >= end_index and state.mode != DONE:

@@ -467,35 +467,19 @@ def initial_state(
 _NO_FILTER = np.zeros(1)   # stands in for an absent lead filter (the kernel's arguments keep one type)
 
 
-class _KernelConstants(NamedTuple):
-    """What ``_block`` takes from the parameters (normalized filters, thresholds), once per params."""
-
-    stroke_zero_v: float             # V_HREF + offset
-    pitch_zero_v: float
-    rails: bool
-    usable_above_v: float            # rail_low_v + rail_margin_v
-    usable_below_v: float            # rail_high_v - rail_margin_v
-    holdoff: int
-    drift: bool
-    drift_ba: tuple[np.ndarray, np.ndarray]
-    stroke_lead: bool
-    stroke_lead_ba: tuple[np.ndarray, np.ndarray]
-    pitch_lead: bool
-    pitch_lead_ba: tuple[np.ndarray, np.ndarray]
-    velocity_ba: tuple[np.ndarray, np.ndarray]
-
-
 @lru_cache(maxsize=64)
-def _kernel_constants(p: FrontendParams) -> _KernelConstants:
+def _kernel_constants(p: FrontendParams) -> tuple:
+    """``_block``'s arguments after the block and the state (normalized filters, thresholds), once per params."""
     flt = _filters(p)
-    return _KernelConstants(
-        p.reference_voltage_v + p.stroke_offset_v, p.reference_voltage_v + p.pitch_offset_v,
-        bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf), p.rail_low_v + p.rail_margin_v,
-        p.rail_high_v - p.rail_margin_v, p.holdoff_samples,
-        p.drift_corner_hz > 0, normalized_ba(flt.drift_b, flt.drift_a),
-        flt.stroke_lead is not None, normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER),
-        flt.pitch_lead is not None, normalized_ba(*flt.pitch_lead) if flt.pitch_lead else (_NO_FILTER, _NO_FILTER),
-        normalized_ba(flt.vel_b, flt.vel_a))
+    rails = bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf)
+    stroke_lead = normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER)
+    pitch_lead = normalized_ba(*flt.pitch_lead) if flt.pitch_lead else (_NO_FILTER, _NO_FILTER)
+    return (p.reference_voltage_v + p.stroke_offset_v, p.reference_voltage_v + p.pitch_offset_v,
+            float(p.stroke_volts_per_rad), float(p.pitch_volts_per_rad), rails,
+            p.rail_low_v + p.rail_margin_v, p.rail_high_v - p.rail_margin_v, p.holdoff_samples,
+            p.drift_corner_hz > 0, *normalized_ba(flt.drift_b, flt.drift_a),
+            flt.stroke_lead is not None, *stroke_lead, flt.pitch_lead is not None, *pitch_lead,
+            *normalized_ba(flt.vel_b, flt.vel_a))
 
 
 @njit(cache=True)
@@ -532,10 +516,10 @@ def _channel(v, angle, valid, zero_v, volts_per_rad, rails, above_v, below_v, ho
 
 
 @njit(cache=True)
-def _block(sv, pv, stroke_zero_v, pitch_zero_v, stroke_vpr, pitch_vpr, rails, above_v, below_v, holdoff,
+def _block(sv, pv, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_zi, velocity_zi, stroke_since_bad,
+           pitch_since_bad, stroke_zero_v, pitch_zero_v, stroke_vpr, pitch_vpr, rails, above_v, below_v, holdoff,
            drift, drift_b, drift_a, stroke_lead, stroke_lead_b, stroke_lead_a, pitch_lead, pitch_lead_b, pitch_lead_a,
-           velocity_b, velocity_a, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_zi, velocity_zi,
-           stroke_since_bad, pitch_since_bad):
+           velocity_b, velocity_a):
     """Both channels of one block: rows (stroke, pitch, stroke velocity), rows (stroke, pitch) valid,
     the five new filter states and the two hold-off counters."""
     n = sv.size
@@ -583,12 +567,9 @@ def step(state: FrontendState, inputs: FrontendInputs, params: FrontendParams) -
         raise FrontendError(
             f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and {pv.size}"
         )
-    k = _kernel_constants(params)
     out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = _block(
-        sv, pv, k.stroke_zero_v, k.pitch_zero_v, params.stroke_volts_per_rad, params.pitch_volts_per_rad, k.rails,
-        k.usable_above_v, k.usable_below_v, k.holdoff, k.drift, *k.drift_ba, k.stroke_lead, *k.stroke_lead_ba,
-        k.pitch_lead, *k.pitch_lead_ba, *k.velocity_ba, state.stroke_drift_zi, state.pitch_drift_zi,
-        state.stroke_lead_zi, state.pitch_lead_zi, state.velocity_zi, state.stroke_since_bad, state.pitch_since_bad)
+        sv, pv, state.stroke_drift_zi, state.pitch_drift_zi, state.stroke_lead_zi, state.pitch_lead_zi,
+        state.velocity_zi, state.stroke_since_bad, state.pitch_since_bad, *_kernel_constants(params))
     new_state = FrontendState(
         stroke_drift_zi=s_dzi,
         pitch_drift_zi=p_dzi,

@@ -103,7 +103,7 @@ class PlantNode(Node):
         index = self.next_index
         self.next_index += drive_v.size
         start_s = index / self.fs_hz
-        obstacle = any(a <= start_s < b for a, b in self.windows_s)
+        obstacle = bool(self.windows_s) and any(a <= start_s < b for a, b in self.windows_s)
         self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng),
                                      plant.PlantStepParams(self.obstacle_model if obstacle else self.model, self.fs_hz))
         stamp_ns = stamp_ns_of_sample(index, self.fs_hz)
