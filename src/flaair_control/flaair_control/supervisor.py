@@ -284,8 +284,11 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         state = state._replace(mode=LOOP)
         notes.append(Note(INFO, f"wing-state block {first} before the start: joining the loop"))
     if state.first_arrival_wall is None:
+        # The drive counts from 0 at the controller's start; a loop that was already flowing (a
+        # target, a real-time plant) counts its samples from its own start. The safety watchdog
+        # runs on the drive's timeline: wing block `first` maps to time (first - this index) / fs.
         state = state._replace(first_arrival_wall=block.t_wall, first_arrival_index=first,
-                               safety=safety.initial_state(first / p.sample_rate_hz))
+                               safety=safety.initial_state(0.0))
         notes.append(Note(INFO, f"loop closed: first wing-state block {first}"))
     n = p.block_size
     field = np.asarray(block.stroke_velocity_deg_s, dtype=float)
@@ -326,7 +329,8 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)
         frequency, _ = crossing_step(frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency)
     if valid:
-        guard = safety.note_sensor_block(guard, (first + n) / p.sample_rate_hz, True, p.safety)
+        guard = safety.note_sensor_block(guard, (first + n - state.first_arrival_index) / p.sample_rate_hz, True,
+                                         p.safety)
     state = state._replace(last_arrival_wall=block.t_wall, expected_index=first + n, counts=counts,
                            frequency=frequency, safety=guard)
     if valid:
