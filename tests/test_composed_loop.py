@@ -45,7 +45,8 @@ def test_callback_profile_counts_each_subscriber_and_its_cpu() -> None:
     (line,) = bus.profile.report()
     name, callback, calls, cpu_us, wall_us = PROFILE.match(line).groups()
     assert (name, callback, int(calls)) == ("busy_node", "on_block", 5)
-    assert 1900.0 <= float(cpu_us) <= float(wall_us)           # >= the 2 ms each call burnt
+    # each call burnt 2 ms of its thread's CPU (the process clock may also count other threads)
+    assert float(cpu_us) >= 1900.0 and float(wall_us) >= 1900.0
     assert Bus({"/t"}).profile is None                          # off by default: callbacks unwrapped
     assert CallbackProfile().report() == []
 
