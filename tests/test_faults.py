@@ -30,7 +30,7 @@ NODES = [
 @pytest.mark.parametrize(("package", "executable", "parameter"), NODES)
 @pytest.mark.parametrize(("value", "why"), [("-1.0e9", "out of range"), ("'text'", "expecting type 'DOUBLE'")])
 def test_every_node_refuses_bad_parameters_by_name(package: str, executable: str, parameter: str, value: str, why: str) -> None:
-    result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"], isolated_env())
+    result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"], isolated_env(), 180)
     assert result.returncode == 2, result.stderr
     assert parameter in result.stderr and why in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
