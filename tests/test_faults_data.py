@@ -283,6 +283,8 @@ def test_sigint_while_a_node_still_imports_ends_it_without_a_traceback(tmp_path:
     importing numba, seconds on a loaded machine): the node ends cleanly, exit 0, never built."""
     script = (
         "import os, signal, sys\n"
+        # as from a terminal: Ctrl-C not ignored (a parent test process may pass SIGINT ignored)
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "sys.argv[0] = '/x/install/lib/flaair_sim/plant_node'\n"
         "from flaair_common import runtime\n"
         "os.kill(os.getpid(), signal.SIGINT)\n"

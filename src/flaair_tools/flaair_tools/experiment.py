@@ -206,7 +206,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                   "sensor-derived pitch reads about 4x small (the model over-predicts the hinge sensor) and pitch "
                   "figures, the collision metric among them, are off; run `bin/flaair calibrate` first",
                   file=sys.stderr)
-    rclpy.init(args=[])
+    rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)  # Ctrl-C/SIGTERM are ours
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:

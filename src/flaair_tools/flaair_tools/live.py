@@ -101,7 +101,7 @@ class Watcher:
 
         os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
         self.rclpy, self.graph, self.args = rclpy, graph, args
-        rclpy.init(args=[])
+        rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)  # Ctrl-C/SIGTERM are ours
         self.node = Node("flaair_live")
         self.end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
         self.topics = {topics.SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
