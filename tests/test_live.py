@@ -59,12 +59,16 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     bag = tmp_path / "live"
     process = subprocess.Popen([FLAAIR, "live", "--sim", "--duration", "60", "--out", str(bag)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not (bag / "metadata.yaml").exists() and process.poll() is None:
-        time.sleep(0.5)
-    time.sleep(6.0)
+    seen = []
+    for _ in range(40):     # until the loop runs (a fresh machine starts slowly)
+        seen.append(process.stderr.readline())
+        if "running from sample" in seen[-1] or process.poll() is not None:
+            break
+    assert "running from sample" in seen[-1], seen
+    time.sleep(3.0)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=120)
+    stderr = "".join(seen) + stderr
     assert process.returncode == 0, stderr[-3000:]
     assert "interrupted" in stderr and "Traceback" not in stderr
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
