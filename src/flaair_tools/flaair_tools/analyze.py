@@ -259,11 +259,9 @@ def analyze_sweep(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, metho
 
 def metric_params() -> Any:
     """The collision monitor's paper-metric settings (config/flaair.yaml collision_monitor_node)."""
-    from flaair_control.collision import SpectralMetricParams
+    from flaair_control.control_io import spectral_metric_params_from_config
 
-    p = node_parameters("flaair.yaml", "collision_monitor_node")
-    return SpectralMetricParams(band_hz=float(p["metric_band_hz"]), threshold_deg=float(p["threshold_deg"]),
-                                n_wingbeats=int(p["metric_wingbeats"]))
+    return spectral_metric_params_from_config()
 
 
 def collision_metric(pitch_rad: np.ndarray, fs_hz: float, frequency_hz: float) -> Any:
