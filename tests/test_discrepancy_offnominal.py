@@ -8,6 +8,7 @@ identification every one of these robots ends `unexplained` (asserted for the no
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -55,6 +56,21 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(family: str
         assert result.plant_parameters[key]["stderr"] > 0
     assert result.model_out.plant.stroke_natural_frequency_hz == result.plant_parameters[FREQUENCIES[0]]["value"]
     assert "wing_damage" in {d["effect"] for d in result.not_separable}
+
+
+def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
+    """A robot whose two sensor chains lag differently (0.15 ms and 0.40 ms): both delays are fitted, each
+    on its own chain, and written as one value per chain (one shared value cannot explain both)."""
+    case = dataclasses.replace(random_robot("offnominal_null", 2), group="single",
+                               effects=(("sensor_delay", {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}),))
+    result = analyse(make_runs(case, model), model)
+    assert result.status == "explained", result.summary
+    assert [e.name for e in result.effects] == ["sensor_delay"], result.summary
+    fitted = result.effects[0].parameters
+    assert fitted["stroke"]["delay_s"] == pytest.approx(1.5e-4, rel=0.10)
+    assert fitted["pitch"]["delay_s"] == pytest.approx(4.0e-4, rel=0.10)
+    assert result.model_out.effect_on("sensor_delay", "stroke").delay_s == fitted["stroke"]["delay_s"]
+    assert result.model_out.effect_on("sensor_delay", "pitch").delay_s == fitted["pitch"]["delay_s"]
 
 
 def test_without_identification_parameter_drift_looks_like_missing_physics(model) -> None:

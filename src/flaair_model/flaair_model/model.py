@@ -30,14 +30,21 @@ __all__ = [
     "StrainTransferLoss",
     "Collision",
     "WingDamage",
+    "PerChannel",
+    "PER_CHANNEL_EFFECTS",
+    "SIDES",
     "Effect",
     "Model",
     "effect_from_params",
+    "effect_params",
+    "with_effect_on",
+    "without_effect_on",
     "with_effects",
     "without_effects",
 ]
 
 CHANNELS = ("stroke", "pitch", "both")
+SIDES = ("stroke", "pitch")  # the two sensor chains
 
 
 class ModelError(ValueError):
@@ -316,10 +323,65 @@ EFFECT_TYPES: dict[str, type] = {
     "wing_damage": WingDamage,
 }
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
+# Effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
+PER_CHANNEL_EFFECTS: tuple[str, ...] = tuple(n for n, k in EFFECT_TYPES.items() if "channel" in {f.name for f in fields(k)})
 
 
-def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, None]) -> Effect:
+@dataclass(frozen=True)
+class PerChannel:
+    """One sensor effect with its own value on each sensor chain.
+
+    `stroke` and `pitch` are effects of one `PER_CHANNEL_EFFECTS` type whose `channel` is
+    'stroke' and 'pitch'. In config/model.yaml::
+
+        sensor_delay:
+          stroke: {delay_s: 1.5e-4}
+          pitch: {delay_s: 4.0e-4}
+    """
+
+    stroke: Effect
+    pitch: Effect
+
+    def __post_init__(self) -> None:
+        kind = type(self.stroke)
+        name = next((n for n, k in EFFECT_TYPES.items() if k is kind), "")
+        if name not in PER_CHANNEL_EFFECTS:
+            raise ModelError(f"effects: per-channel values exist only for {', '.join(PER_CHANNEL_EFFECTS)}, "
+                             f"got {kind.__name__}")
+        for side in SIDES:
+            e = getattr(self, side)
+            if type(e) is not kind:
+                raise ModelError(f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}")
+            if e.channel != side:
+                raise ModelError(f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}")
+
+    def on(self, side: str) -> Effect:
+        """The effect on sensor chain `side`."""
+        return getattr(self, side)
+
+
+def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | PerChannel:
+    """{stroke: {...}, pitch: {...}} -> PerChannel (one side only: that side's effect)."""
+    built = {}
+    for side, sub in params.items():
+        if is_dataclass(sub) and not isinstance(sub, type):
+            built[side] = effect_from_params(name, sub)
+            continue
+        if not isinstance(sub, Mapping):
+            raise ModelError(f"effects.{name}.{side} must be a mapping of parameters, got {type(sub).__name__}")
+        if sub.get("channel", side) != side:
+            raise ModelError(f"effects.{name}.{side}.channel must be {side!r}, got {sub['channel']!r}")
+        built[side] = effect_from_params(name, {**sub, "channel": side})
+    if set(built) == set(SIDES):
+        return PerChannel(built["stroke"], built["pitch"])
+    return next(iter(built.values()))
+
+
+def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, PerChannel, None]) -> Effect | PerChannel:
     """Build (and validate) one effect from its name and a parameter dict or dataclass.
+
+    A sensor effect (`PER_CHANNEL_EFFECTS`) may give each chain its own parameters:
+    ``{"stroke": {...}, "pitch": {...}}`` (or a `PerChannel`).
 
     Raises
     ------
@@ -329,6 +391,10 @@ def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, None]
     if name not in EFFECT_TYPES:
         raise ModelError(f"effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
     kind = EFFECT_TYPES[name]
+    if isinstance(params, PerChannel):
+        if not isinstance(params.stroke, kind):
+            raise ModelError(f"effects.{name} must hold {kind.__name__} entries, got {type(params.stroke).__name__}")
+        return params
     if is_dataclass(params) and not isinstance(params, type):
         if not isinstance(params, kind):
             raise ModelError(f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
@@ -337,15 +403,27 @@ def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, None]
         params = {}
     if not isinstance(params, Mapping):
         raise ModelError(f"effects.{name} must be a mapping of parameters, got {type(params).__name__}")
+    if name in PER_CHANNEL_EFFECTS and params and set(params) <= set(SIDES):
+        return _per_channel_from_params(name, params)
     known = {f.name for f in fields(kind)}
     unknown = sorted(set(params) - known)
     if unknown:
-        raise ModelError(f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} (known: {', '.join(sorted(known))})")
+        side_hint = " or per channel {stroke: {...}, pitch: {...}}" if name in PER_CHANNEL_EFFECTS else ""
+        raise ModelError(f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} "
+                         f"(known: {', '.join(sorted(known))}{side_hint})")
     try:
         return kind(**params)
     except TypeError as exc:
         required = [f.name for f in fields(kind) if f.name not in params]
         raise ModelError(f"effects.{name}: missing parameter(s) {', '.join(required)}") from exc
+
+
+def effect_params(effect: Effect | PerChannel) -> dict[str, Any]:
+    """The parameter dict of an effect as config/model.yaml writes it (per channel: {stroke, pitch})."""
+    if isinstance(effect, PerChannel):
+        return {side: {f.name: getattr(effect.on(side), f.name) for f in fields(effect.on(side)) if f.name != "channel"}
+                for side in SIDES}
+    return {f.name: getattr(effect, f.name) for f in fields(effect)}
 
 
 # --------------------------------------------------------------------------- model
@@ -362,7 +440,7 @@ class Model:
     plant: PlantParams
     sensors: SensorParams
     noise: NoiseParams
-    effects: tuple[tuple[str, Effect], ...] = ()
+    effects: tuple[tuple[str, Effect | PerChannel], ...] = ()
 
     def __post_init__(self) -> None:
         for section, kind in (("plant", PlantParams), ("sensors", SensorParams), ("noise", NoiseParams)):
@@ -384,14 +462,32 @@ class Model:
             built[name] = effect_from_params(name, params)
         object.__setattr__(self, "effects", tuple((n, built[n]) for n in EFFECT_NAMES if n in built))
 
-    def effect(self, name: str) -> Effect | None:
-        """The effect called `name` if it is on, else None (unknown names raise ModelError)."""
+    def effect(self, name: str) -> Effect | PerChannel | None:
+        """The effect called `name` if it is on, else None (unknown names raise ModelError).
+
+        A sensor effect with its own value per chain is a `PerChannel`; `effect_on` gives one chain's.
+        """
         if name not in EFFECT_TYPES:
             raise ModelError(f"effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
         for n, e in self.effects:
             if n == name:
                 return e
         return None
+
+    def effect_on(self, name: str, side: str) -> Effect | None:
+        """The effect called `name` as it acts on sensor chain `side` ('stroke' or 'pitch'), else None.
+
+        A sensor effect on the other chain only is None; an effect without a `channel` parameter
+        is returned as it is.
+        """
+        if side not in SIDES:
+            raise ModelError(f"sensor chain must be one of {', '.join(SIDES)}, got {side!r}")
+        e = self.effect(name)
+        if isinstance(e, PerChannel):
+            return e.on(side)
+        if e is not None and getattr(e, "channel", side) not in (side, "both"):
+            return None
+        return e
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -429,7 +525,7 @@ class Model:
         return 1 if self.pitch_volts_per_rad > 0 else -1
 
 
-def with_effects(model: Model, effects: Mapping[str, Union[Mapping[str, Any], Effect]]) -> Model:
+def with_effects(model: Model, effects: Mapping[str, Union[Mapping[str, Any], Effect, PerChannel]]) -> Model:
     """Model with the given effects added (replacing any of the same name).
 
     Parameters
@@ -448,3 +544,34 @@ def with_effects(model: Model, effects: Mapping[str, Union[Mapping[str, Any], Ef
 def without_effects(model: Model) -> Model:
     """The nominal model: the same plant, sensors and noise with every effect off."""
     return replace(model, effects=())
+
+
+def with_effect_on(model: Model, name: str, side: str, params: Union[Mapping[str, Any], Effect]) -> Model:
+    """Model with sensor effect `name` set on chain `side` only; the other chain keeps its value.
+
+    `params` are the effect's parameters without `channel`; the result holds one entry for
+    `side`, or a `PerChannel` when the other chain has the effect too.
+    """
+    if name not in PER_CHANNEL_EFFECTS:
+        raise ModelError(f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})")
+    if side not in SIDES:
+        raise ModelError(f"sensor chain must be one of {', '.join(SIDES)}, got {side!r}")
+    if is_dataclass(params) and not isinstance(params, type):
+        params = effect_params(params)
+    new = effect_from_params(name, {**params, "channel": side})
+    other = "pitch" if side == "stroke" else "stroke"
+    kept = model.effect_on(name, other)
+    if kept is None:
+        return with_effects(model, {name: new})
+    kept = replace(kept, channel=other)
+    return with_effects(model, {name: PerChannel(**{side: new, other: kept})})
+
+
+def without_effect_on(model: Model, name: str, side: str) -> Model:
+    """Model with sensor effect `name` removed from chain `side` only (the other chain keeps it)."""
+    effects = tuple((n, e) for n, e in model.effects if n != name)
+    if name in PER_CHANNEL_EFFECTS:
+        kept = model.effect_on(name, "pitch" if side == "stroke" else "stroke")
+        if kept is not None:
+            effects += ((name, replace(kept, channel="pitch" if side == "stroke" else "stroke")),)
+    return replace(model, effects=effects)

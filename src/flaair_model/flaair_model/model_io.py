@@ -22,6 +22,7 @@ from .model import (
     PlantParams,
     SensorParams,
     effect_from_params,
+    effect_params,
 )
 
 __all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict", "save_model"]
@@ -110,7 +111,9 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
     effects_raw = _mapping("effects", effects_raw)
     effects = []
     for name, params in effects_raw.items():
-        params = {k: _coerce(v) for k, v in _mapping(f"effects.{name}", params or {}).items()} if name in EFFECT_TYPES else params
+        if name in EFFECT_TYPES:
+            params = {k: ({kk: _coerce(vv) for kk, vv in v.items()} if isinstance(v, Mapping) else _coerce(v))
+                      for k, v in _mapping(f"effects.{name}", params or {}).items()}
         effects.append((name, effect_from_params(name, params)))
     return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects))
 
@@ -120,7 +123,8 @@ def _as_dict(obj: Any) -> dict[str, Any]:
 
 
 def model_to_dict(m: Model) -> dict[str, Any]:
-    """Nested dict in the layout of config/model.yaml; effects as {name: {param: value}}."""
+    """Nested dict in the layout of config/model.yaml; effects as {name: {param: value}} (a sensor
+    effect with its own value per chain: {name: {stroke: {param: value}, pitch: {param: value}}})."""
     return {
         "plant": _as_dict(m.plant),
         "sensors": {
@@ -130,7 +134,7 @@ def model_to_dict(m: Model) -> dict[str, Any]:
             "pitch": _as_dict(m.sensors.pitch),
         },
         "noise": _as_dict(m.noise),
-        "effects": {name: _as_dict(effect) for name, effect in m.effects},
+        "effects": {name: effect_params(effect) for name, effect in m.effects},
     }
 
 

@@ -125,10 +125,6 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
     return whole, (0.0 if frac < 1e-9 else frac)
 
 
-def _on(channel: str, which: str) -> bool:
-    return channel in (which, "both")
-
-
 @lru_cache(maxsize=4096)  # a 1000-model batch fits
 def _prepare(model: Model, fs_hz: float) -> _Prepared:
     """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
@@ -162,15 +158,26 @@ def _prepare(model: Model, fs_hz: float) -> _Prepared:
         p[_KC] = collision.contact_stiffness_ratio * stiffness
         p[_CC] = 2.0 * collision.contact_damping_ratio * math.sqrt(p[_KC] * inertia)
 
-    gain_s = model.stroke_volts_per_rad
-    gain_p = model.pitch_volts_per_rad
-    loss = model.effect("strain_transfer_loss")
-    if loss is not None:
-        if _on(loss.channel, "stroke"):
-            gain_s *= loss.efficiency
-        if _on(loss.channel, "pitch"):
-            gain_p *= loss.efficiency
-    p[_GS], p[_GP] = gain_s, gain_p
+    # sensor chains: each effect with a `channel` may hold its own value per chain (model.effect_on)
+    gains = {"stroke": model.stroke_volts_per_rad, "pitch": model.pitch_volts_per_rad}
+    delay_int = [0, 0]
+    for i, (which, hp_base, frac_index) in enumerate((("stroke", _HPS_ON, _DS_FRAC), ("pitch", _HPP_ON, _DP_FRAC))):
+        loss = model.effect_on("strain_transfer_loss", which)
+        if loss is not None:
+            gains[which] *= loss.efficiency
+        highpass = model.effect_on("charge_amp_highpass", which)
+        if highpass is not None:
+            if not highpass.corner_hz < fs_hz / 2:
+                raise ModelError(
+                    f"effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = {fs_hz / 2:g}, got {highpass.corner_hz:g}"
+                )
+            b, a = butter(1, highpass.corner_hz, btype="highpass", fs=fs_hz)
+            b, a = b / a[0], a / a[0]
+            p[hp_base : hp_base + 4] = (1.0, b[0], b[1], a[1])
+        delay = model.effect_on("sensor_delay", which)
+        if delay is not None:
+            delay_int[i], p[frac_index] = _split_delay(delay.delay_s * fs_hz)
+    p[_GS], p[_GP] = gains["stroke"], gains["pitch"]
     nonlinearity = model.effect("transmission_nonlinearity")
     if nonlinearity is not None:
         p[_TCUBIC] = nonlinearity.cubic_per_rad2
@@ -178,26 +185,6 @@ def _prepare(model: Model, fs_hz: float) -> _Prepared:
     if feed is not None:
         p[_FT] = feed.gain_v_per_v
     p[_VREF] = model.sensors.reference_voltage_v
-
-    highpass = model.effect("charge_amp_highpass")
-    if highpass is not None:
-        if not highpass.corner_hz < fs_hz / 2:
-            raise ModelError(
-                f"effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = {fs_hz / 2:g}, got {highpass.corner_hz:g}"
-            )
-        b, a = butter(1, highpass.corner_hz, btype="highpass", fs=fs_hz)
-        b, a = b / a[0], a / a[0]
-        for which, base in (("stroke", _HPS_ON), ("pitch", _HPP_ON)):
-            if _on(highpass.channel, which):
-                p[base : base + 4] = (1.0, b[0], b[1], a[1])
-    delay_int = [0, 0]
-    delay = model.effect("sensor_delay")
-    if delay is not None:
-        whole, frac = _split_delay(delay.delay_s * fs_hz)
-        for i, (which, index) in enumerate((("stroke", _DS_FRAC), ("pitch", _DP_FRAC))):
-            if _on(delay.channel, which):
-                delay_int[i] = whole
-                p[index] = frac
 
     rates = [
         math.sqrt(stiffness / p[_I]),

@@ -46,7 +46,7 @@ from flaair_model.model_io import load_model, save_model
 from .report import write_report, write_validation
 from .runs import DiscrepancyInputError, Run
 from .settings import Settings
-from .workflow import analyse
+from .workflow import analyse, format_parameters
 
 PROG = "flaair discrepancy"
 
@@ -204,8 +204,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         print(f"  plant {k:28s} {p['value']:.5g} (model {p['nominal']:.5g}, {p['value'] / p['nominal'] - 1.0:+.2%}, "
               f"SE {p['stderr']:.2g})")
     for e in result.effects:
-        params = ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in e.parameters.items())
-        print(f"  + {e.name} on {e.channel}: {params}")
+        print(f"  + {e.name} on {e.channel}: {format_parameters(e.parameters)}")
     for c in result.gap_before:
         print(f"  {c:16s} NRMSE {result.gap_before[c]:.4f} -> {result.gap_after[c]:.4f} (held-out)")
     for r in result.remaining:

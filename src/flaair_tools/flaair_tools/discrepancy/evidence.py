@@ -11,16 +11,12 @@ from scipy import stats
 from flaair_model.model import Model, with_effects
 
 from .diagnosis import _drive_tracks
-from .fitting import _Fit, _fit, _Fold, _folds, _models_for, _Problem, spec_value
+from .fitting import _Fit, _fit, _Fold, _folds, _models_for, _Problem
 from .runs import Run, _MotionCache, simulate_runs
 from .settings import Settings
 from .vocabulary import SENSOR_CHANNELS, EffectSpec, _UPSTREAM_TRUTH
 
 # ------------------------------------------------------------------------------ evidence
-
-
-def _param_value(model: Model, spec: EffectSpec) -> float:
-    return spec_value(model, spec)
 
 
 @dataclass(frozen=True)
@@ -44,6 +40,8 @@ class CandidateEvidence:
     delta_bic_fit : in-sample BIC change on all runs.
     rules : {rule: passed}.
     accepted : all rules passed.
+    same_on_both : (the effect already found on the other sensor) R5: the two chains' values agree,
+        so one value acts on both; False: each chain keeps its own; None: not such a candidate.
     """
 
     labels: tuple
@@ -61,6 +59,7 @@ class CandidateEvidence:
     delta_bic_fit: float
     rules: dict
     accepted: bool
+    same_on_both: Optional[bool] = None
 
     def as_dict(self) -> dict:
         """JSON-ready evidence."""
@@ -73,6 +72,7 @@ class CandidateEvidence:
             "heldout_drop": self.heldout_drop, "heldout_gap_drop": self.heldout_gap_drop,
             "delta_bic_heldout": self.delta_bic_heldout,
             "delta_bic_fit": self.delta_bic_fit, "rules": dict(self.rules), "accepted": self.accepted,
+            "same_on_both_sensors": self.same_on_both,
         }
 
 
@@ -176,7 +176,8 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
 
     merge_with: (value, se) of the same effect already found on the other sensor channel; the
-    candidate then extends it to channel 'both' and must agree with it (rule R5).
+    two become one value on channel 'both' (their weighted mean) when they agree (rule R5),
+    else each chain keeps its own (`CandidateEvidence.same_on_both`).
     """
     st = ctx.settings
     specs = list(specs)
@@ -249,20 +250,22 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
                                and all(cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))),
     }
     model = _models_for(base, specs, fit_all.x[None, :])[0]
+    same = None
     if merge_with is not None:
         v_old, se_old = merge_with
         v_new, se_new = values[0], se_phys[0]
         tol = 3.0 * math.hypot(se_old, se_new) + st.consistency_rel_tol * specs[0].effect_size(v_old)
-        rules["R5_same_on_both_sensors"] = bool(abs(v_new - v_old) <= tol)
-        w_old, w_new = (1 / se_old**2 if 0 < se_old < math.inf else 0.0), (1 / se_new**2 if 0 < se_new < math.inf else 0.0)
-        merged = (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
-        values = [merged]
-        model = with_effects(base, {specs[0].name: specs[0].params(merged, channel="both")})
+        same = bool(abs(v_new - v_old) <= tol)
+        if same:
+            w_old = 1 / se_old**2 if 0 < se_old < math.inf else 0.0
+            w_new = 1 / se_new**2 if 0 < se_new < math.inf else 0.0
+            values = [(w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new]
+            model = with_effects(base, {specs[0].name: specs[0].params(values[0], channel="both")})
     ev = CandidateEvidence(
         labels=tuple(s.label for s in specs), channel=channel, values=tuple(values), se=tuple(se_phys),
         z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons), heldout_nrmse_before=before,
         heldout_nrmse_after=after, heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic_ho,
-        delta_bic_fit=dbic_fit, rules=rules, accepted=all(rules.values()),
+        delta_bic_fit=dbic_fit, rules=rules, accepted=all(rules.values()), same_on_both=same,
     )
     return ev, model
 
@@ -271,7 +274,9 @@ def _evaluate_shared(ctx: _Context, current: Model, specs: Sequence[EffectSpec],
                      truth_ref: bool) -> tuple[CandidateEvidence, Model]:
     """Zero-parameter test: the other sensor's effects `specs`, at their values, on both sensors."""
     st = ctx.settings
-    model = with_effects(current, {s.name: s.params(_param_value(current, s), channel="both") for s in specs})
+    values = tuple(float(getattr(current.effect_on(s.name, "pitch" if s.channel_param == "stroke" else "stroke"), s.key))
+                   for s in specs)
+    model = with_effects(current, {s.name: s.params(v, channel="both") for s, v in zip(specs, values)})
     prob = ctx.problem(channel, ctx.folds, truth_ref, current)
     res_old, res_new = prob.residuals([current, model])
     rss_old = [float(np.dot(r, r)) for r in res_old]
@@ -283,7 +288,6 @@ def _evaluate_shared(ctx: _Context, current: Model, specs: Sequence[EffectSpec],
     gap_drop = _gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
     dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
     rules = {"R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop), "R2_delta_bic": bool(dbic < st.max_delta_bic)}
-    values = tuple(_param_value(current, s) for s in specs)
     ev = CandidateEvidence(
         labels=tuple(f"{s.name}[both]" for s in specs), channel=channel, values=values,
         se=tuple(math.nan for _ in specs), z=tuple(math.nan for _ in specs), per_run=tuple(() for _ in specs),

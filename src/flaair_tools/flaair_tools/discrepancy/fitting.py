@@ -8,7 +8,7 @@ from typing import Mapping, Optional, Sequence
 import numpy as np
 from scipy import optimize
 
-from flaair_model.model import Model, ModelError, with_effects
+from flaair_model.model import Model, ModelError, with_effect_on, with_effects
 
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage, simulate_runs
 from .settings import Settings
@@ -111,18 +111,26 @@ class _Problem:
 def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[float],
                  channels: Optional[Mapping[str, Optional[str]]] = None) -> Model:
     """`base` with the specs' parameters at physical `values`: plant parameters replaced, effects
-    added (the parameters of one effect merged into one entry). channels: effect -> its
-    `channel` value (default: the spec's, 'both' when `base` has it on the other sensor)."""
+    added (the parameters of one effect merged into one entry). A sensor effect is set on its
+    spec's chain only (the other chain keeps its own value); channels: effect -> 'both' sets it
+    on both chains."""
     plant = {}
     effects: dict = {}
     for s, v in zip(specs, values):
         if s.is_plant:
             plant[s.key] = float(v)
             continue
-        ch = channels.get(s.name) if channels and s.name in channels else _merged_channel(base, s)
-        effects.setdefault(s.name, {}).update(s.params(v, channel=ch))
+        effects.setdefault(s.name, {}).update(s.params(v))
     model = replace(base, plant=replace(base.plant, **plant)) if plant else base
-    return with_effects(model, effects) if effects else model
+    for s in specs:
+        if s.is_plant or s.name not in effects:
+            continue
+        params = effects.pop(s.name)
+        if s.channel_param is None or (channels or {}).get(s.name) == "both":
+            model = with_effects(model, {s.name: {**params, **({"channel": "both"} if s.channel_param else {})}})
+        else:
+            model = with_effect_on(model, s.name, s.channel_param, {k: v for k, v in params.items() if k != "channel"})
+    return model
 
 
 def _models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
@@ -131,20 +139,13 @@ def _models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> lis
 
 
 def spec_value(model: Model, spec: EffectSpec) -> float:
-    """Current physical value of `spec`'s parameter in `model` (plant field or effect parameter)."""
+    """Current physical value of `spec`'s parameter in `model` (plant field or effect parameter;
+    a sensor effect's value on the spec's chain)."""
     if spec.is_plant:
         return float(getattr(model.plant, spec.key))
+    if spec.channel_param is not None:
+        return float(getattr(model.effect_on(spec.name, spec.channel_param), spec.key))
     return float(getattr(model.effect(spec.name), spec.key))
-
-
-def _merged_channel(base: Model, spec: EffectSpec) -> Optional[str]:
-    """Channel parameter for `spec`: 'both' if the base model has it on the other sensor."""
-    if spec.channel_param is None:
-        return None
-    existing = base.effect(spec.name)
-    if existing is not None and getattr(existing, "channel", None) not in (None, spec.channel_param):
-        return "both"
-    return spec.channel_param
 
 
 @dataclass(frozen=True)

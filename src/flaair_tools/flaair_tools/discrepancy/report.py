@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from .diagnosis import bode_points  # noqa: E402
 from .runs import CHANNELS, Run  # noqa: E402
 from .settings import Settings  # noqa: E402
-from .workflow import DiscrepancyResult  # noqa: E402
+from .workflow import DiscrepancyResult, format_parameters  # noqa: E402
 
 __all__ = ["result_to_dict", "write_json", "write_figures", "write_report", "write_validation", "confusion_html"]
 
@@ -319,7 +319,7 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
         for e in result.effects:
             ev = e.evidence
             rules = ev.get("rules") or {}
-            rows.append([e.name, e.channel, ", ".join(f"{k}={_f(v)}" for k, v in e.parameters.items()),
+            rows.append([e.name, e.channel, format_parameters(e.parameters),
                          ", ".join(ev.get("candidate", "").split("+")), ev.get("heldout_gap_drop"),
                          ev.get("delta_bic_heldout"), ", ".join(_f(z) for z in ev.get("z_from_null") or []),
                          ", ".join(_f(p) for p in ev.get("consistency_p") or []),

@@ -196,8 +196,8 @@ def _sensor_gain_v_per_deg(model: Model, channel: str) -> float:
     """Model's sensor voltage per degree of its truth angle (nominal gain x strain transfer)."""
     side = _SENSOR_SIDE[channel]
     gain = model.stroke_volts_per_rad if side == "stroke" else model.pitch_volts_per_rad
-    loss = model.effect("strain_transfer_loss")
-    if loss is not None and loss.channel in (side, "both"):
+    loss = model.effect_on("strain_transfer_loss", side)
+    if loss is not None:
         gain *= loss.efficiency
     return math.radians(1.0) * gain
 

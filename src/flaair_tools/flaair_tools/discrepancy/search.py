@@ -7,10 +7,10 @@ from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from flaair_model.model import Model, with_effects
+from flaair_model.model import Model, effect_params, with_effect_on, with_effects, without_effect_on
 
 from .diagnosis import _gap_test, _residual
-from .evidence import (CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, _param_value)
+from .evidence import CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared
 from .fitting import _fit, _Fold, apply_values, spec_value
 from .identification import identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
@@ -53,16 +53,34 @@ def _channel_has_gap(ctx: _Context, model: Model, channel: str, truth_ref: bool)
     return _gap_test(res, sigma, ctx.settings)[0]
 
 
-def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequence[EffectSpec]) -> Optional[str]:
-    """'new', 'merge' (extend the other sensor's effect to both) or None (not offered)."""
-    if model_in.effect(spec.name) is not None or any(s.name == spec.name for s in found_here):
+def _other_side(side: str) -> str:
+    return "pitch" if side == "stroke" else "stroke"
+
+
+def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequence[EffectSpec],
+           reopen: Sequence[str] = ()) -> Optional[str]:
+    """'new', 'merge' (the other sensor has the effect: fit this chain's own value, then merge to
+    'both' or keep one value per chain, rule R5) or None (not offered). `reopen`: effects taken
+    over from the other sensor at its value (shared test) whose own value on this chain is fitted."""
+    if model_in.effect(spec.name) is not None:
         return None
-    existing = current.effect(spec.name)
-    if existing is None:
-        return "new"
-    if spec.channel_param is not None and getattr(existing, "channel", None) not in (spec.channel_param, "both"):
-        return "merge"
-    return None
+    if any(s.name == spec.name for s in found_here) and spec.name not in reopen:
+        return None
+    if spec.channel_param is None:
+        return "new" if current.effect(spec.name) is None else None
+    here = current.effect_on(spec.name, spec.channel_param)
+    if current.effect_on(spec.name, _other_side(spec.channel_param)) is None:
+        return "new" if here is None else None
+    return "merge" if here is None or spec.name in reopen else None
+
+
+def _own(model: Model, spec: EffectSpec) -> bool:
+    """`spec` is fitted on its own channel: a plant parameter, an effect without a sensor chain, or a
+    sensor effect whose value on this chain is its own (not one value shared by both chains)."""
+    if spec.is_plant or spec.channel_param is None:
+        return True
+    e = model.effect_on(spec.name, spec.channel_param)
+    return e is not None and e.channel == spec.channel_param
 
 
 def _polish(ctx: _Context, base: Model, specs: Sequence[EffectSpec], current: Model, channel: str,
@@ -73,7 +91,7 @@ def _polish(ctx: _Context, base: Model, specs: Sequence[EffectSpec], current: Mo
     x0 = np.array([s.to_fit(spec_value(current, s)) for s in specs])
     prob = ctx.problem(channel, folds, truth_ref, base)
     fit = _fit(base, specs, prob, x0, ctx.settings, grid=False)
-    channels = {s.name: getattr(current.effect(s.name), "channel", None) for s in specs if not s.is_plant}
+    channels = {s.name: None if _own(current, s) else "both" for s in specs if not s.is_plant}
     return apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, fit.x)], channels)
 
 
@@ -101,6 +119,7 @@ class _ChannelState:
     specs: list
     evidence: dict  # effect name -> CandidateEvidence that added it
     last: Optional[CandidateEvidence] = None
+    reopen: tuple = ()  # effects taken over from the other sensor at its value (shared test)
 
 
 def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, truth_ref: bool,
@@ -112,7 +131,8 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
     for step in range(max_steps):
         if not has_gap:
             break
-        offers = [(g, _offer(model_in, state.model, g[0], state.specs)) for g in _groups(ctx, channel, state.model)]
+        offers = [(g, _offer(model_in, state.model, g[0], state.specs, state.reopen))
+                  for g in _groups(ctx, channel, state.model)]
         offers = [(g, kind) for g, kind in offers if kind is not None]
         if not offers:
             break
@@ -124,11 +144,13 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
             if kind == "merge":
                 prev = next((f for f in found if f.name == s.name), None)
                 se_prev = (prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None else math.inf
-                merge = (_param_value(state.model, s), float(se_prev))
+                other = state.model.effect_on(s.name, _other_side(s.channel_param))
+                merge = (float(getattr(other, s.key)), float(se_prev))
                 base = _strip(state.model, [s])
             ev, m = _evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
-            if kind == "merge":
-                m = with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
+            if kind == "merge":  # one value on both chains when they agree (R5), else one per chain
+                m = (with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")}) if ev.same_on_both
+                     else with_effect_on(state.model, s.name, s.channel_param, {s.key: ev.values[0]}))
             ev = _check_upstream_truth(ctx, ev, m, channel, s)
             evals.append((ev, m, tuple(group), kind))
         if step == 0:
@@ -138,9 +160,10 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
         if not passing:
             break
         ev, m, chosen, _ = min(passing, key=lambda e: e[0].delta_bic_heldout)
-        state = _ChannelState(m, _join(state.specs, chosen), {**state.evidence, **{s.name: ev for s in chosen}}, ev)
-        own = [s for s in state.specs
-               if s.is_plant or getattr(state.model.effect(s.name), "channel", None) in (None, s.channel_param)]
+        reopen = tuple(n for n in state.reopen if n not in {s.name for s in chosen})
+        state = _ChannelState(m, _join([s for s in state.specs if s.name not in state.reopen or s.name in reopen], chosen),
+                              {**state.evidence, **{s.name: ev for s in chosen}}, ev, reopen)
+        own = [s for s in state.specs if _own(state.model, s)]
         # Re-fit this channel's own effects whenever anything joined them, a shared (merged)
         # effect included: an efficiency fitted before a delay was found is biased by cos(w tau).
         # Likewise whenever parameters were fitted along (plant, shape): their per-run estimates
@@ -178,9 +201,9 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
             ev, m = _evaluate_shared(ctx, start, group, channel, truth_ref)
             steps.append((ev,))
             if ev.accepted:
-                state = _ChannelState(m, list(group), {s.name: ev for s in group}, ev)
+                state = _ChannelState(m, list(group), {s.name: ev for s in group}, ev, tuple(s.name for s in group))
                 break
-    base_state = _ChannelState(state.model, list(state.specs), dict(state.evidence), state.last)
+    base_state = _ChannelState(state.model, list(state.specs), dict(state.evidence), state.last, state.reopen)
     state, has_gap, first = _greedy(ctx, model_in, state, channel, truth_ref, found, steps, st.max_effects_per_channel)
     if has_gap and st.pair_fallback:
         singles = [e for e in first if e[3] == "new"]
@@ -202,7 +225,7 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
         if best is not None and best[0].heldout_nrmse_after < greedy_after:
             ev, m, specs = best
             pair_state = _ChannelState(m, _join(base_state.specs, specs),
-                                       {**base_state.evidence, **{s.name: ev for s in specs}}, ev)
+                                       {**base_state.evidence, **{s.name: ev for s in specs}}, ev, base_state.reopen)
             state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
                                         max(st.max_effects_per_channel - 2, 0))
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
@@ -216,13 +239,12 @@ def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -
     jointly with the effects found on this sensor alone; keep them only if that closes the gap and
     the truth stays at noise."""
     truth = _UPSTREAM_TRUTH[channel]
-    own = [s for s in state.specs if not s.is_plant and s.judged_on == channel
-           and getattr(state.model.effect(s.name), "channel", None) in (None, s.channel_param)]
+    own = [s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)]
     specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
     refined = _polish(ctx, _strip(state.model, own), specs, state.model, channel, False)
     if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
         return state, True
-    return _ChannelState(refined, state.specs, state.evidence, state.last), False
+    return _ChannelState(refined, state.specs, state.evidence, state.last, state.reopen), False
 
 
 def find_effects(
@@ -278,13 +300,22 @@ def find_effects(
 
 
 def _strip(model: Model, specs: Sequence[EffectSpec]) -> Model:
-    names = {s.name for s in specs}
-    return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in names))
+    """`model` without the specs' effects: a sensor effect removed from the spec's chain only (and
+    whole when it is one value shared by both chains)."""
+    for s in specs:
+        if s.is_plant or model.effect(s.name) is None:
+            continue
+        if s.channel_param is not None and _own(model, s):
+            model = without_effect_on(model, s.name, s.channel_param)
+        elif s.channel_param is None or model.effect_on(s.name, s.channel_param) is not None:
+            model = replace(model, effects=tuple((n, e) for n, e in model.effects if n != s.name))
+    return model
 
 
 def _effect_params_dict(model: Model, name: str) -> dict:
-    e = model.effect(name)
-    return {k: (v if isinstance(v, str) else float(v)) for k, v in e.__dict__.items()}
+    def clean(d: dict) -> dict:
+        return {k: clean(v) if isinstance(v, dict) else (v if isinstance(v, str) else float(v)) for k, v in d.items()}
+    return clean(effect_params(model.effect(name)))
 
 
 def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[FoundEffect]:

@@ -17,8 +17,8 @@ from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
 from .search import (_CHANNEL_ORDER, ChannelSearch, _channel_has_gap, _polish, _strip, find_effects)
 from .settings import Settings
-from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, _UPSTREAM_TRUTH,
-                         candidate_groups)
+from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, _SENSOR_SIDE,
+                         _UPSTREAM_TRUTH, candidate_groups)
 
 @dataclass(frozen=True)
 class DiscrepancyResult:
@@ -77,7 +77,11 @@ def _refit_on(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model, f
     """Re-fit the found effects' parameters on `folds`, channel by channel (upstream first)."""
     current = model_out
     for channel in _CHANNEL_ORDER:
-        names = [f.name for f in effects if f.channel.split("+")[0] == channel]
+        side = _SENSOR_SIDE.get(channel)
+        # an effect is re-fitted where it was found; one with its own value per sensor chain on each
+        names = [f.name for f in effects if f.channel.split("+")[0] == channel
+                 or (side is not None and channel in f.channel.split("+")
+                     and getattr(current.effect_on(f.name, side), "channel", None) == side)]
         specs: list = []
         for g in candidate_groups(channel, current if ctx.settings.identify else None):
             if g[0].name in names:
@@ -258,7 +262,8 @@ def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remai
                      "white and at the noise RMS; no physics is missing.")
         return " ".join(parts)
     if effects:
-        parts.append("Found: " + ", ".join(f"{e.name} on {e.channel} ({_fmt_params(e.parameters)})" for e in effects) + ".")
+        parts.append("Found: " + ", ".join(f"{e.name} on {e.channel} ({format_parameters(e.parameters)})"
+                                           for e in effects) + ".")
     if status == "explained":
         parts.append("With them every channel is explained to noise level.")
     else:
@@ -271,7 +276,10 @@ def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remai
     return " ".join(parts)
 
 
-def _fmt_params(params: Mapping) -> str:
+def format_parameters(params: Mapping) -> str:
+    """'delay_s=0.00015, channel=stroke'; one value per sensor chain: 'stroke: delay_s=0.00015; pitch: ...'."""
+    if params and all(isinstance(v, Mapping) for v in params.values()):
+        return "; ".join(f"{side}: {format_parameters(p)}" for side, p in params.items())
     return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())
 
 
