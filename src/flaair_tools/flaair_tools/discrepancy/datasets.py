@@ -399,6 +399,22 @@ def _excess(nrmse: float, floor: float) -> float:
     return math.sqrt(max(nrmse**2 - floor**2, 0.0))
 
 
+def _split(params: dict) -> bool:
+    return bool(params) and all(isinstance(v, dict) for v in params.values())
+
+
+def per_chain(params: dict) -> dict:
+    """An effect's numeric parameters per sensor chain it acts on: {'': {...}} for an effect without
+    a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain."""
+    if _split(params):
+        return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side, p in params.items()}
+    values = {k: float(v) for k, v in params.items() if not isinstance(v, str)}
+    channel = params.get("channel")
+    if channel is None:
+        return {"": values}
+    return {side: dict(values) for side in (("stroke", "pitch") if channel == "both" else (channel,))}
+
+
 def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""
     problems = []
@@ -414,16 +430,18 @@ def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = 
     for name, params in case.effects:
         if name not in by_name:
             continue
-        for key, value in params.items():
-            got = by_name[name].parameters.get(key)
-            if isinstance(value, str):
-                if key == "channel" and got != value:
-                    problems.append(f"{name}.channel {got}, hidden {value}")
-                continue
-            rel = abs(float(got) - value) / abs(value) if value else abs(float(got))
-            errors[f"{name}.{key}"] = rel
-            if rel > PARAMETER_TOLERANCE:
-                problems.append(f"{name}.{key} = {float(got):.4g}, hidden {value:.4g} ({rel:.0%} off)")
+        hidden, got_sides = per_chain(params), per_chain(by_name[name].parameters)
+        if set(hidden) != set(got_sides):
+            problems.append(f"{name} acts on {'+'.join(got_sides)}, hidden on {'+'.join(hidden)}")
+            continue
+        for side, values in hidden.items():
+            for key, value in values.items():
+                got = float(got_sides[side][key])
+                rel = abs(got - value) / abs(value) if value else abs(got)
+                label = f"{name}.{key}" + (f"[{side}]" if len(hidden) > 1 and _split(params) else "")
+                errors[label] = max(rel, errors.get(label, 0.0))
+                if rel > PARAMETER_TOLERANCE:
+                    problems.append(f"{label} = {got:.4g}, hidden {value:.4g} ({rel:.0%} off)")
     if case.outside:
         gap_channels = {r["channel"] for r in result.remaining}
         if case.expected_gap_channel not in gap_channels:

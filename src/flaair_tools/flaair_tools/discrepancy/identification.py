@@ -46,7 +46,8 @@ from flaair_sim.plant import simulate_batch_from
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
 
-__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "INSEPARABLE_CORRELATION", "UNDETERMINED_REL_SE"]
+__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "fit_initial_states", "INSEPARABLE_CORRELATION",
+           "UNDETERMINED_REL_SE"]
 
 INSEPARABLE_CORRELATION = 0.95  # |correlation| above which two parameters are reported as not separated
 UNDETERMINED_REL_SE = 0.10  # relative standard error above which a parameter is reported as undetermined
@@ -54,6 +55,7 @@ FIT_RANGE = 0.5  # each parameter is fitted within x(1 -+ FIT_RANGE) of its star
 MAX_NFEV = 30  # least-squares iterations (each: one simulation of every run with every column)
 FD_STEP = 1e-4  # finite-difference step in log space
 STATE_STEP_RAD = 1e-4  # finite-difference step of the initial angle (and rate / omega)
+STATE_MAX_NFEV = 8  # least-squares iterations of an initial-state fit (nearly linear: a few suffice)
 DECIMATE = 4  # keep every k-th truth sample in the fit (noise stays white)
 # Truth channel of plant parameters that are not fitted by default (the inertias scale their
 # equation: fitted along with its damping and gain they are reported as inseparable).
@@ -180,8 +182,18 @@ def with_plant(model: Model, values: Mapping[str, float]) -> Model:
     return replace(model, plant=replace(model.plant, **{k: float(v) for k, v in values.items()}))
 
 
+def _sim_channel(sim, c: str) -> np.ndarray:
+    """(m, n) record of channel `c` (degrees or volts) of a batch simulation."""
+    if c == "stroke_deg":
+        return np.degrees(sim.stroke_rad)
+    if c == "pitch_deg":
+        return np.degrees(sim.pitch_rad)
+    return getattr(sim, c)
+
+
 class _TruthResiduals:
-    """Noise-weighted, per-run demeaned residuals of the truth angles for a batch of models."""
+    """Noise-weighted, per-run demeaned residuals of measured channels (the truth angles unless
+    told otherwise) for a batch of models."""
 
     def __init__(self, runs: Sequence[Run], noise_deg: Mapping[str, float], decimate: int,
                  channels: Sequence[str] = TRUTH_CHANNELS) -> None:
@@ -192,21 +204,19 @@ class _TruthResiduals:
             sl = np.arange(0, run.n, decimate)
             idx = {c: sl[np.isfinite(run.channel(c)[sl])] for c in self.channels}
             self.parts.append(idx)
-        self.sigma = {c: max(float(noise_deg[c]), 1e-9) for c in TRUTH_CHANNELS}
+        self.sigma = {c: max(float(noise_deg[c]), 1e-12) for c in self.channels}
 
     def __call__(self, models: Sequence[Model], states: Sequence[np.ndarray]) -> np.ndarray:
         """(m, n) residual rows; states[j]: (m, 4) initial state of each model on run j."""
         rows = [[] for _ in models]
         for run, idx, x0 in zip(self.runs, self.parts, states):
             sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
-            for c, sim_rad in (("stroke_deg", sim.stroke_rad), ("pitch_deg", sim.pitch_rad)):
-                if c not in idx:
-                    continue
+            for c in self.channels:
                 i = idx[c]
                 if i.size == 0:
                     continue
                 meas = run.channel(c)[i]
-                r = meas[None, :] - np.degrees(sim_rad[:, i])
+                r = meas[None, :] - _sim_channel(sim, c)[:, i]
                 r = (r - r.mean(axis=1, keepdims=True)) / self.sigma[c]
                 for k in range(len(models)):
                     rows[k].append(r[k])
@@ -345,3 +355,44 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start, stderr=stderr,
                     correlation=corr, inseparable=tuple(inseparable), cost_before=cost_before, cost_after=cost_after,
                     n=n, runs=tuple(runs))
+
+
+def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, float], channels: Sequence[str],
+                       max_nfev: int = STATE_MAX_NFEV, decimate: int = DECIMATE) -> tuple[tuple[Run, ...], float, float]:
+    """Each run's initial state [phi, phi', psi, psi'] fitted on `channels` with `model` fixed.
+
+    A sensor resolves the motion far better than a video-rate truth: once the sensor chain is
+    modelled, its channel pins the state the truth leaves loose (a transient the truth cannot see
+    is a gap on the sensor). Least squares per run (Gauss-Newton, trust-region reflective) on the
+    noise-weighted residuals of `channels`, from the run's current state; rates scaled by the
+    natural frequencies. Returns (runs with the fitted states, cost before, cost after).
+    """
+    w = 2.0 * math.pi * np.array([model.plant.stroke_natural_frequency_hz, model.plant.stroke_natural_frequency_hz,
+                                  model.plant.pitch_natural_frequency_hz, model.plant.pitch_natural_frequency_hz])
+    scale = np.where(np.arange(4) % 2 == 1, w, 1.0)  # state = u * scale: (x, x'/omega) in fit space
+    out, before, after = [], 0.0, 0.0
+    for run in runs:
+        resid = _TruthResiduals([run], noise, decimate, channels)
+        x_run = np.zeros(4) if run.mechanical0 is None else np.asarray(run.mechanical0, float)
+        cache: dict = {}
+
+        def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            key = tuple(np.round(u, 14))
+            if key not in cache:
+                cache.clear()
+                us = np.vstack([u, u[None, :] + STATE_STEP_RAD * np.eye(4)])
+                rows = resid([model] * 5, [us * scale])
+                cache[key] = (rows[0], ((rows[1:] - rows[0]) / STATE_STEP_RAD).T)
+            return cache[key]
+
+        u0 = x_run / scale
+        f0 = fun_and_jac(u0)[0]
+        sol = optimize.least_squares(lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1], method="trf",
+                                     max_nfev=max_nfev, x_scale=1.0, xtol=1e-8, ftol=1e-8, gtol=1e-10)
+        f1 = fun_and_jac(sol.x)[0]
+        c0, c1 = float(np.dot(f0, f0)), float(np.dot(f1, f1))
+        keep = c1 < c0
+        out.append(replace(run, mechanical0=sol.x * scale) if keep else run)
+        before += c0
+        after += min(c0, c1)
+    return tuple(out), before, after

@@ -12,7 +12,7 @@ from flaair_model.model import Model, effect_params, with_effect_on, with_effect
 from .diagnosis import _gap_test, _residual
 from .evidence import CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared
 from .fitting import _fit, _Fold, apply_values, spec_value
-from .identification import identify_plant
+from .identification import fit_initial_states, identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
 from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
@@ -188,9 +188,28 @@ def _check_upstream_truth(ctx: _Context, ev: CandidateEvidence, model: Model, ch
     return replace(ev, rules=rules, accepted=all(rules.values()))
 
 
+def _states_on_sensor(ctx: _Context, model: Model, channel: str, sensors_done: Sequence[str]) -> bool:
+    """Fit the runs' initial states on the truth and on the sensors modelled so far (`sensors_done`,
+    `channel`); keep them (True) only if that leaves `channel` without a gap and no gap anywhere else.
+
+    A video-rate truth leaves the initial state loose; the transient of a wrong state shows on the
+    far more precise sensor at the start of a run. No effect of the vocabulary acts only there."""
+    channels = TRUTH_CHANNELS + tuple(dict.fromkeys([*sensors_done, channel]))
+    runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
+    if not after < before:
+        return False
+    trial = _Context(runs, ctx.noise, ctx.settings, ctx.tracks)
+    if any(_channel_has_gap(trial, model, c, False) for c in channels):
+        return False
+    _use_runs(ctx, runs)
+    return True
+
+
 def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, truth_ref: bool,
-                    found: Sequence[FoundEffect]) -> tuple[_ChannelState, bool, list]:
-    """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left."""
+                    found: Sequence[FoundEffect], sensors_done: Sequence[str] = ()) -> tuple[_ChannelState, bool, list]:
+    """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left; on a
+    sensor, a gap left is then tried against the runs' initial states fitted on the sensor, and
+    last against the upstream plant refitted on it."""
     st = ctx.settings
     steps: list = []
     state = _ChannelState(start, [], {})
@@ -228,6 +247,8 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
                                        {**base_state.evidence, **{s.name: ev for s in specs}}, ev, base_state.reopen)
             state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
                                         max(st.max_effects_per_channel - 2, 0))
+    if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref and state.specs:
+        has_gap = not _states_on_sensor(ctx, state.model, channel, sensors_done)
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
         state, has_gap = _refine_plant_on_sensor(ctx, state, channel)
     return state, has_gap, steps
@@ -267,6 +288,7 @@ def find_effects(
     found: list[FoundEffect] = []
     searches = []
     unexplained_truth: set[str] = set()
+    sensors_done: list[str] = []  # sensor channels modelled to noise level (they pin the initial states)
     for channel in _CHANNEL_ORDER:
         if progress:
             progress(channel)
@@ -278,8 +300,15 @@ def find_effects(
         truth_ref = channel in SENSOR_CHANNELS and _UPSTREAM_TRUTH[channel] in unexplained_truth
         if not _channel_has_gap(ctx, current, channel, truth_ref):
             searches.append(ChannelSearch(channel, truth_ref, "no gap", ()))
+            sensors_done += [channel] if channel in SENSOR_CHANNELS and not truth_ref else []
             continue
-        state, has_gap, steps = _search_channel(ctx, model, current, channel, truth_ref, found)
+        if (channel in SENSOR_CHANNELS and not truth_ref and settings.identify
+                and _states_on_sensor(ctx, current, channel, sensors_done)):
+            searches.append(ChannelSearch(channel, truth_ref, "no gap once the runs' initial states are fitted on "
+                                          "this sensor too (a video-rate truth leaves them loose)", ()))
+            sensors_done.append(channel)
+            continue
+        state, has_gap, steps = _search_channel(ctx, model, current, channel, truth_ref, found, sensors_done)
         current = state.model
         for s in state.specs:
             if not s.tested:
@@ -289,6 +318,8 @@ def find_effects(
                                      evidence=ev.as_dict() if ev is not None else {}, explains=EFFECT_CHANNELS[s.name]))
         if has_gap and channel in TRUTH_CHANNELS:
             unexplained_truth.add(channel)
+        if not has_gap and channel in SENSOR_CHANNELS and not truth_ref:
+            sensors_done.append(channel)
         if channel == "stroke_deg" and state.specs and settings.identify and not has_gap:
             # the pitch parameters were identified under the old stroke motion: identify them again
             fit = identify_plant(ctx.runs, current, noise, keys=[k for k, c in PLANT_PARAMETERS.items()
