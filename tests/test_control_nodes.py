@@ -220,9 +220,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     """In-process (no DDS): drive and wing-state messages from the simulated robot, free or with an obstacle."""
     import rclpy
 
-    from flaair_common.blocks import from_array
     from flaair_control.collision_monitor_node import CollisionMonitorNode
-    from flaair_msgs.msg import DriveCommandBlock, WingStateBlock
     from flaair_sensors import frontend
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
@@ -242,16 +240,13 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
         statuses, events = [], []
         monkeypatch.setattr(node.status_pub, "publish", statuses.append)
         monkeypatch.setattr(node.event_pub, "publish", events.append)
-        for k in range(0, n, BLOCK):
-            command = DriveCommandBlock(sample_rate_hz=fs, first_sample_index=k)
-            command.drive_v = from_array(drive[k:k + BLOCK])
-            node.on_drive(command)
-            state = WingStateBlock(sample_rate_hz=fs, first_sample_index=k)
-            state.stroke_deg = from_array(np.degrees(est.stroke_rad[k:k + BLOCK]))
-            state.pitch_deg = from_array(np.degrees(est.pitch_rad[k:k + BLOCK]))
-            state.stroke_valid = est.stroke_valid[k:k + BLOCK].tolist()
-            state.pitch_valid = est.pitch_valid[k:k + BLOCK].tolist()
-            node.on_wing_state(state)
+        for k in range(0, n, BLOCK):   # blocks as the in-process bus hands them over: fields by name
+            stamp = {"sec": k // int(fs), "nanosec": int(round((k % int(fs)) / fs * 1e9))}
+            node.on_drive({"sample_rate_hz": fs, "first_sample_index": k, "drive_v": drive[k:k + BLOCK], **stamp})
+            node.on_wing_state({"sample_rate_hz": fs, "first_sample_index": k, **stamp,
+                                "stroke_deg": np.degrees(est.stroke_rad[k:k + BLOCK]),
+                                "pitch_deg": np.degrees(est.pitch_rad[k:k + BLOCK]),
+                                "stroke_valid": est.stroke_valid[k:k + BLOCK], "pitch_valid": est.pitch_valid[k:k + BLOCK]})
         node.destroy_node()
     finally:
         if owns_rclpy:

@@ -8,7 +8,7 @@ controller) this way by default.
 
 Usage:
   bin/flaair run flaair_common container [--local-topics T1,T2,...] MODULE:CLASS [MODULE:CLASS ...]
-                                        [--ros-args --params-file FILE ...]
+                                        [--background MODULE:CLASS ...] [--ros-args --params-file FILE ...]
 Example:
   bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \\
       flaair_sensors.frontend_node:FrontendNode flaair_control.dsa_controller_node:DsaControllerNode \\
@@ -45,6 +45,19 @@ def load_class(spec: str) -> Callable:
         raise ValueError(f"{spec!r}: {exc}") from exc
 
 
+def _built_in_background(cls: Callable, bus: "object | None") -> Callable:
+    """A maker of `cls` whose in-process subscriptions go to the bus's background FIFO."""
+    def make():
+        if bus is not None:
+            bus.building_background = True
+        try:
+            return cls()
+        finally:
+            if bus is not None:
+                bus.building_background = False
+    return make
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv if argv is None else argv
     ros_at = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
@@ -53,9 +66,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("nodes", nargs="+", metavar="MODULE:CLASS", help="node classes to build, in order")
     parser.add_argument("--local-topics", default=",".join(HOT_TOPICS),
                         help="block topics delivered in-process between the nodes (comma-separated; '' for none)")
+    parser.add_argument("--background", action="append", default=[], metavar="MODULE:CLASS",
+                        help="a node off the hot path (e.g. the collision monitor): its in-process blocks are "
+                             "handled by the main thread after the hot loop's (repeatable)")
     args = parser.parse_args(argv[1:ros_at])
     try:
         makers = [load_class(spec) for spec in args.nodes]
+        background = [load_class(spec) for spec in args.background]
     except ValueError as exc:
         print(f"container: {exc}", file=sys.stderr)
         return 2
@@ -64,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
 
     local = {t for t in args.local_topics.split(",") if t}
     bus = intra.Bus(local, profile=os.environ.get("FLAAIR_PROFILE", "0") not in ("", "0")) if local else None
+    makers += [_built_in_background(cls, bus) for cls in background]
     code = run_nodes(makers, [argv[0], *argv[ros_at:]], bus=bus)
     if bus is not None and bus.profile is not None:   # FLAAIR_PROFILE=1: each node's time per block
         print("\n".join(bus.profile.report()), file=sys.stderr, flush=True)

@@ -9,7 +9,9 @@ only when someone outside listens (the recorder, an echo, the collision monitor 
 
 Delivery is a FIFO drained by whichever thread delivers first (the executor's, or a UDP reader
 thread), one drainer at a time and in order, at most `budget` callbacks per call so the
-executor's timers still run; the container's loop drains the rest. Outside a container
+executor's timers still run; the container's loop drains the rest. Subscribers off the hot
+path (the collision monitor: `background`) have their own FIFO, drained only by the main
+thread when the hot one is empty: a per-wingbeat decision never delays a drive packet. Outside a container
 (`current()` is None) both helpers fall back to plain rclpy publishers and raw subscriptions.
 """
 from __future__ import annotations
@@ -31,39 +33,61 @@ class Bus:
         self.local_topics = set(local_topics)
         self.budget = budget
         self.profile = CallbackProfile() if profile else None   # FLAAIR_PROFILE: time every composed callback
-        self.subscribers: dict[str, list[Callable[[dict], None]]] = collections.defaultdict(list)
+        self.subscribers: dict[str, list[tuple[Callable[[dict], None], bool]]] = collections.defaultdict(list)
         self.queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()
+        self.background_queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()
         self._draining = threading.Lock()
+        self._draining_background = threading.Lock()
+        self.building_background = False   # set by the container while it builds a background node
         self.delivered = 0
 
-    def subscribe(self, topic: str, callback: Callable[[dict], None]) -> None:
-        self.subscribers[topic].append(callback if self.profile is None else self.profile.wrap(callback))
+    def subscribe(self, topic: str, callback: Callable[[dict], None], background: bool = False) -> None:
+        """`callback(fields)` for every block of `topic`; `background`: off the hot path (see the module)."""
+        wrapped = callback if self.profile is None else self.profile.wrap(callback)
+        self.subscribers[topic].append((wrapped, background or self.building_background))
+
+    def subscriber_count(self, topic: str) -> int:
+        return len(self.subscribers.get(topic, ()))
 
     def deliver(self, topic: str, fields: dict) -> None:
         """Queue the block for every composed subscriber of `topic`, and drain if no one else is."""
-        for callback in self.subscribers.get(topic, ()):
-            self.queue.append((callback, fields))
+        for callback, background in self.subscribers.get(topic, ()):
+            (self.background_queue if background else self.queue).append((callback, fields))
         self.drain()
 
     def drain(self, budget: int | None = None) -> int:
-        """Run queued callbacks in order (one thread at a time); returns how many ran."""
+        """Run queued callbacks in order (one thread at a time); returns how many ran.
+
+        The hot FIFO first; the background FIFO only from the main thread, once the hot one is empty.
+        """
         budget = self.budget if budget is None else budget
-        done = 0
-        while self.queue and done < budget:
-            if not self._draining.acquire(blocking=False):
-                return done          # another thread drains: it takes what we queued
-            try:
-                while self.queue and done < budget:
-                    callback, fields = self.queue.popleft()
-                    callback(fields)
-                    done += 1
-            finally:
-                self._draining.release()
+        done = _drain(self.queue, self._draining, budget)
+        if not self.queue and done < budget and threading.current_thread() is threading.main_thread():
+            done += _drain(self.background_queue, self._draining_background, budget - done, stop_if=self.queue)
         self.delivered += done
         return done
 
     def pending(self) -> bool:
-        return bool(self.queue)
+        return bool(self.queue) or bool(self.background_queue)
+
+
+def _drain(queue: collections.deque, lock: threading.Lock, budget: int, stop_if: collections.deque | None = None) -> int:
+    """Run up to `budget` callbacks of `queue` in order under `lock` (skip if another thread holds
+    it: that thread takes what was queued); stop early once `stop_if` has work."""
+    done = 0
+    while queue and done < budget:
+        if not lock.acquire(blocking=False):
+            return done
+        try:
+            while queue and done < budget and not stop_if:
+                callback, fields = queue.popleft()
+                callback(fields)
+                done += 1
+        finally:
+            lock.release()
+        if stop_if:
+            break
+    return done
 
 
 class CallbackProfile:
@@ -122,7 +146,7 @@ class BlockPublisher:
 
     def subscription_count(self) -> int:
         """Subscribers of this stream: on DDS and, when composed, in-process."""
-        local = len(self.bus.subscribers.get(self.topic, ())) if self.bus is not None else 0
+        local = self.bus.subscriber_count(self.topic) if self.bus is not None else 0
         return self.publisher.get_subscription_count() + local
 
     def publish(self, stamp_ns: int, fields: dict) -> None:

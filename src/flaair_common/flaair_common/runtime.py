@@ -1,14 +1,22 @@
 """Run a FLAAIR node: parameter errors become one clear line, Ctrl-C and SIGTERM shut down cleanly."""
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
+import threading
+import time
 from typing import Callable
 
 # A node takes a second or more to import (rclpy, numba) and build (JIT compilation): a Ctrl-C or
 # SIGTERM in that time is remembered here, before the slow imports below, and makes run_node
 # return at once, instead of a KeyboardInterrupt traceback from the middle of an import.
+# Before this module is imported (Python starting, the node module's first imports) nothing of
+# ours runs: the launchers (`bin/flaair run`, flaair_common.graph.Graph) start a node with
+# SIGINT and SIGTERM blocked, so one sent then stays pending, and it is unblocked here, right
+# after the handlers are in place: the pending signal is remembered like any other early one.
+_DEFERRED_SIGNALS = {signal.SIGINT, signal.SIGTERM}
 _early_signals: list[int] = []
 
 
@@ -22,11 +30,14 @@ def _is_node_process() -> bool:
     return os.path.basename(os.path.dirname(os.path.dirname(path))) == "lib"
 
 
-if _is_node_process():
+if _is_node_process() and threading.current_thread() is threading.main_thread():
     if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _remember_early_signal)
     if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _remember_early_signal)
+    _blocked = _DEFERRED_SIGNALS & signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    if _blocked:   # started by a launcher that deferred them: a pending one is delivered now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _blocked)
 
 import rclpy  # noqa: E402 - after the early signal handlers on purpose
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
@@ -163,13 +174,20 @@ def _close(node: Node) -> None:
         close()
 
 
+_last_warned: dict[tuple, float] = {}
+
+
 def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:
     """Log a warning every time for the first `every_up_to` occurrences, then at most once a second.
 
-    rclpy fixes a call site's throttle on its first call (changing it raises), so the two
-    regimes are two call sites.
+    The throttle is kept here, per calling line: rclpy's own throttle looks up its caller with
+    `inspect` on every call, logged or not, which cost a fault-flooded bridge a fifth of its CPU.
     """
-    if count <= every_up_to:
-        logger.warning(text)
-    else:
-        logger.warning(text, throttle_duration_sec=1.0)
+    if count > every_up_to:
+        caller = sys._getframe(1)
+        key = (id(logger), caller.f_code, caller.f_lineno)
+        now = time.monotonic()
+        if now - _last_warned.get(key, -math.inf) < 1.0:
+            return
+        _last_warned[key] = now
+    logger.warning(text)

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 from rclpy.node import Node
 
-from flaair_common import topics
-from flaair_common.blocks import check_block, stamp_from_time_s, time_s_from_stamp
+from flaair_common import cdr, intra, topics
+from flaair_common.blocks import check_block, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import run_node, warn_counted
@@ -34,14 +34,14 @@ PARAMS = COLLISION_MONITOR_PARAMS
 EVENT_KINDS = {monitor.ONSET: CollisionEvent.ONSET, monitor.CLEARANCE: CollisionEvent.CLEARANCE}
 
 
-def wing_block(message: WingStateBlock) -> monitor.WingBlock:
-    """A WingStateBlock as the core's input: angles in rad, NaN where a sample is not valid."""
-    n = len(message.stroke_deg)
-    stroke = np.frombuffer(message.stroke_deg, dtype=np.float64) if n else np.zeros(0)
-    pitch = np.frombuffer(message.pitch_deg, dtype=np.float64) if len(message.pitch_deg) else np.zeros(0)
-    s_ok = np.asarray(message.stroke_valid, dtype=bool) if len(message.stroke_valid) == n else np.zeros(n, bool)
-    p_ok = np.asarray(message.pitch_valid, dtype=bool) if len(message.pitch_valid) == n else np.zeros(n, bool)
-    return monitor.WingBlock(message.first_sample_index, np.where(s_ok, np.radians(stroke), np.nan),
+def wing_block(m) -> monitor.WingBlock:
+    """A wing-state block (its fields by name) as the core's input: angles in rad, NaN where a sample is not valid."""
+    stroke = np.asarray(m["stroke_deg"], dtype=np.float64)
+    pitch = np.asarray(m["pitch_deg"], dtype=np.float64)
+    n = len(stroke)
+    s_ok = np.asarray(m["stroke_valid"], dtype=bool) if len(m["stroke_valid"]) == n else np.zeros(n, bool)
+    p_ok = np.asarray(m["pitch_valid"], dtype=bool) if len(m["pitch_valid"]) == len(pitch) else np.zeros(len(pitch), bool)
+    return monitor.WingBlock(int(m["first_sample_index"]), np.where(s_ok, np.radians(stroke), np.nan),
                              np.where(p_ok, np.radians(pitch), np.nan))
 
 
@@ -57,12 +57,17 @@ class CollisionMonitorNode(Node):
         self.drive_expected: int | None = None
         self.wing_expected: int | None = None
         self.time_offset_s: float | None = None   # header time - index / fs
-        self.rejected = 0
+        self.rejected = self.undecodable = 0
         self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS, BLOCK_STREAM)   # one per wingbeat: a stream
         self.event_pub = self.create_publisher(CollisionEvent, topics.COLLISION_EVENTS, EVENTS)
-        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+        # Block streams as CDR bytes, or in-process when composed beside the loop (flaair_common.intra)
+        block = p["block_size"]
+        intra.subscribe_blocks(self, WingStateBlock, topics.WING_STATE,
+                               cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, topics.FRAME_ID), self.on_wing_state,
+                               BLOCK_STREAM, self.on_undecodable)
         if self.params.estimates_frequency:
-            self.create_subscription(DriveCommandBlock, topics.DRIVE, self.on_drive, BLOCK_STREAM)
+            intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, block),
+                                   self.on_drive, BLOCK_STREAM, self.on_undecodable)
         where = ("stroke windows" if p["window_source"] == "stroke" else
                  "drive windows, frequency estimated from /flaair/drive" if self.params.estimates_frequency
                  else f"drive windows at {p['drive_frequency_hz']:g} Hz")
@@ -72,28 +77,32 @@ class CollisionMonitorNode(Node):
         self.get_logger().info(f"collision monitor ready: {where}; decision {p['decision']} ({how}); "
                                f"onset after {p['n_on']}, clearance after {p['n_off']} wingbeats")
 
-    def on_drive(self, message: DriveCommandBlock) -> None:
-        drive_v = np.frombuffer(message.drive_v, dtype=np.float64) if len(message.drive_v) else np.zeros(0)
-        check = check_block({"drive_v": drive_v}, message.sample_rate_hz, self.fs_hz, message.first_sample_index,
-                            self.drive_expected)
+    def on_undecodable(self, exc: Exception) -> None:
+        self.undecodable += 1
+        warn_counted(self.get_logger(), self.undecodable, f"block dropped: {exc} [{self.undecodable} undecodable so far]")
+
+    def on_drive(self, m) -> None:
+        drive_v = np.asarray(m["drive_v"], dtype=np.float64)
+        first = int(m["first_sample_index"])
+        check = check_block({"drive_v": drive_v}, float(m["sample_rate_hz"]), self.fs_hz, first, self.drive_expected)
         if not check.ok and check.kind != "gap":
             return
-        self.drive_expected = message.first_sample_index + len(drive_v)
-        self.advance(monitor.DriveBlock(message.first_sample_index, drive_v))
+        self.drive_expected = first + len(drive_v)
+        self.advance(monitor.DriveBlock(first, drive_v))
 
-    def on_wing_state(self, message: WingStateBlock) -> None:
-        n = len(message.stroke_deg)
-        check = check_block({"stroke_deg": np.zeros(n), "pitch_deg": np.zeros(len(message.pitch_deg))},
-                            message.sample_rate_hz, self.fs_hz, message.first_sample_index, self.wing_expected)
+    def on_wing_state(self, m) -> None:
+        n, first = len(m["stroke_deg"]), int(m["first_sample_index"])
+        check = check_block({"stroke_deg": np.zeros(n), "pitch_deg": np.zeros(len(m["pitch_deg"]))},
+                            float(m["sample_rate_hz"]), self.fs_hz, first, self.wing_expected)
         if not check.ok and check.kind != "gap":
             self.rejected += 1
-            warn_counted(self.get_logger(), self.rejected, f"wing-state block {message.first_sample_index}: "
+            warn_counted(self.get_logger(), self.rejected, f"wing-state block {first}: "
                                                            f"{check.reason} [{self.rejected} rejected so far]")
             return
-        self.wing_expected = message.first_sample_index + n
+        self.wing_expected = first + n
         if self.time_offset_s is None:
-            self.time_offset_s = time_s_from_stamp(message.header.stamp) - message.first_sample_index / self.fs_hz
-        self.advance(wing_block(message))
+            self.time_offset_s = int(m["sec"]) + int(m["nanosec"]) * 1e-9 - first / self.fs_hz
+        self.advance(wing_block(m))
 
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
         """Run the core on one block; log its notes, publish its verdicts."""
