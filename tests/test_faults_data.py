@@ -7,7 +7,13 @@ Each test fails on the code before the fix.
 from __future__ import annotations
 
 import json
+import os
+import re
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +21,7 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, ros_processes, run
 
 FS_HZ = 20000.0
 HEADER = "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
@@ -298,3 +304,74 @@ def test_sigint_while_a_node_still_imports_ends_it_without_a_traceback(tmp_path:
                  isolated_env(), 120)
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and "KeyboardInterrupt" not in result.stderr
+
+
+def _python_running(pid: int, executable: str) -> bool:
+    """True once the process has exec'd Python on `executable` (after every launcher's exec)."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return False
+    return Path(cmdline[0].decode()).name.startswith("python") and any(
+        part.decode().endswith(executable) for part in cmdline[1:])
+
+
+# From the moment Python is exec'd: before its own handler (killed by the signal), while it
+# imports rclpy, numpy and the node module (a KeyboardInterrupt traceback before the fix),
+# building, spinning.
+_EARLY_DELAYS_S = (0.0, 0.03, 0.1, 0.25, 0.5, 1.0, 2.0)
+
+
+@pytest.mark.parametrize("launcher", ["bin/flaair run", "Graph"])
+def test_sigint_from_the_first_instant_of_a_node_ends_it_cleanly(launcher: str) -> None:
+    """Ctrl-C at any moment after the node's Python starts, as a user starts a node
+    (`bin/flaair run`, from a terminal: SIGINT at its default action) and as a graph does:
+    exit 0, no traceback. Before the fix Python's own handler turned it into a
+    KeyboardInterrupt traceback until flaair_common.runtime was imported."""
+    from flaair_common.graph import node_argv
+
+    failures = []
+    for delay_s in _EARLY_DELAYS_S:
+        with ros_processes() as processes:
+            if launcher == "Graph":
+                argv = node_argv("flaair_sim", "plant_node")
+            else:   # env resets SIGINT to its default action, as a terminal's shell leaves it
+                argv = ["env", "--default-signal=INT", FLAAIR, "run", "flaair_sim", "plant_node"]
+            process = processes.start(*argv)
+            deadline = time.monotonic() + 60.0
+            while not _python_running(process.pid, "/flaair_sim/plant_node") and time.monotonic() < deadline:
+                assert process.poll() is None, process.communicate()
+                time.sleep(0.001)
+            time.sleep(delay_s)
+            os.killpg(process.pid, signal.SIGINT)
+            try:
+                _, stderr = process.communicate(timeout=120)
+            except subprocess.TimeoutExpired:
+                processes.stop(process, signal.SIGKILL)
+                _, stderr = process.communicate()
+            if process.returncode != 0 or "Traceback" in stderr or "KeyboardInterrupt" in stderr:
+                failures.append(f"SIGINT {delay_s} s after exec: exit {process.returncode}\n{stderr[-1500:]}")
+    assert not failures, "\n".join(failures)
+
+
+def test_only_node_executables_start_with_deferred_signals() -> None:
+    """The launchers defer SIGINT/SIGTERM only for programs that end through flaair_common.runtime
+    (which unblocks them): any other program would never see a Ctrl-C."""
+    from flaair_common.graph import is_node_executable, with_deferred_signals
+
+    lib = Path(__file__).resolve().parents[1] / "install" / "lib"
+    scripts = sorted(path for path in lib.glob("flaair_*/*") if path.is_file())
+    assert len(scripts) >= 10
+    for script in scripts:
+        setup = (lib.parents[1] / "src" / script.parent.name / "setup.py").read_text()
+        target = re.search(rf"{re.escape(script.name)} = ([\w.]+):", setup)
+        assert target, script
+        source = (lib.parents[1] / "src" / script.parent.name / Path(*target.group(1).split("."))).with_suffix(".py")
+        uses_runtime = "flaair_common.runtime import" in source.read_text()
+        if is_node_executable(script):
+            assert uses_runtime, f"{script} would start with Ctrl-C blocked but never unblocks it"
+            assert with_deferred_signals([sys.executable, str(script)])[-2:] == [sys.executable, str(script)]
+            assert "--block-signal=INT" in with_deferred_signals([str(script)])
+        else:
+            assert with_deferred_signals([sys.executable, str(script)]) == [sys.executable, str(script)]
+    assert with_deferred_signals(["bin/flaair", "experiment"]) == ["bin/flaair", "experiment"]

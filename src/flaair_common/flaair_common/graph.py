@@ -10,7 +10,9 @@ through `Graph`:
   * each child in its own process group (so a stop reaches its whole tree) with a
     parent-death signal (PR_SET_PDEATHSIG: SIGTERM), so a `kill -9` of the parent leaves no
     orphan feeding the next graph;
-  * stop in reverse start order: SIGINT, then SIGKILL after a timeout; logs per child.
+  * stop in reverse start order: SIGINT, then SIGKILL after a timeout; logs per child;
+  * a node child starts with SIGINT and SIGTERM blocked until its runtime handles them
+    (`with_deferred_signals`): a stop during its first second ends it cleanly.
 
 No rclpy here: readiness is checked by the caller (a predicate for `wait_for`).
 """
@@ -104,6 +106,42 @@ def with_parent_death_signal(argv: Sequence[str]) -> tuple[list[str], Callable[[
     return list(argv), _die_with_parent
 
 
+_ENV = shutil.which("env")   # coreutils >= 8.31 blocks signals for the command it execs (--block-signal)
+_ENV_BLOCKS: list[bool] = []
+
+
+def is_node_executable(path: str | os.PathLike) -> bool:
+    """True for a node's console script, <prefix>/lib/<package>/<name>_node or .../container: those
+    end through flaair_common.runtime, which unblocks SIGINT and SIGTERM once it handles them."""
+    path = Path(path)
+    return path.parent.parent.name == "lib" and (path.name.endswith("_node") or path.name == "container")
+
+
+def with_deferred_signals(argv: Sequence[str]) -> list[str]:
+    """argv that starts a node with SIGINT and SIGTERM at their default action but blocked.
+
+    From exec until flaair_common.runtime has its handlers in place (Python starting, the node
+    module's first imports) a Ctrl-C or SIGTERM then stays pending instead of interrupting an
+    import with a traceback; runtime unblocks them and the node ends cleanly (exit 0). Default,
+    not ignored: a parent that ignores SIGINT (a background shell) still stops its node with it.
+    Any other argv is returned unchanged.
+    """
+    argv = list(argv)
+    program = argv[1] if len(argv) > 1 and Path(argv[0]).name.startswith("python") else argv[0] if argv else ""
+    if not argv or not is_node_executable(program) or not _env_blocks_signals():
+        return argv
+    return [_ENV, "--default-signal=INT", "--default-signal=TERM", "--block-signal=INT", "--block-signal=TERM",
+            "--", *argv]
+
+
+def _env_blocks_signals() -> bool:
+    """Whether this machine's `env` has --block-signal (checked once)."""
+    if not _ENV_BLOCKS:
+        _ENV_BLOCKS.append(_ENV is not None and subprocess.run(
+            [_ENV, "--block-signal=INT", "true"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode == 0)
+    return _ENV_BLOCKS[0]
+
+
 def repo_root() -> Path:
     """The checkout (FLAAIR_ROOT, set by bin/flaair, else the one holding config/)."""
     env = os.environ.get("FLAAIR_ROOT")
@@ -155,7 +193,7 @@ class Graph:
         if self.log_dir is not None and (stdout is None or stderr is None):
             self.log_dir.mkdir(parents=True, exist_ok=True)
             log = open(self.log_dir / f"{name}.log", "w")
-        argv, preexec = with_parent_death_signal(argv)
+        argv, preexec = with_parent_death_signal(with_deferred_signals(argv))
         process = subprocess.Popen(
             argv, env=self.env, cwd=repo_root(), text=text, stdin=stdin,
             stdout=stdout if stdout is not None else (log or subprocess.DEVNULL),

@@ -34,7 +34,8 @@ class MeasuredRun:
         return self.columns[column]
 
 
-CHUNK_LINES = 1 << 16  # rows parsed at a time: memory stays near the size of the result arrays
+CHUNK_LINES = 1 << 13  # rows parsed at a time: their Python strings are the only memory beside the result
+_COUNT_BYTES = 1 << 20  # bytes read at a time while counting lines
 
 
 def _floats(cells: list[str], path: Path, first_line: int, name: str) -> np.ndarray:
@@ -67,11 +68,30 @@ def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
     return header
 
 
+def count_lines(path: str | Path) -> int:
+    """Lines in a text file as `open(path, newline="")` splits them (at \\n, \\r and \\r\\n).
+
+    A last line without a terminator counts. Reads the bytes a block at a time (no decoding).
+    """
+    lines = 0
+    previous_cr = False
+    last = b""
+    with open(path, "rb") as handle:
+        while block := handle.read(_COUNT_BYTES):
+            lines += block.count(b"\n") + block.count(b"\r") - block.count(b"\r\n")
+            if previous_cr and block.startswith(b"\n"):  # a \r\n split between two blocks
+                lines -= 1
+            previous_cr = block.endswith(b"\r")
+            last = block[-1:]
+    return lines + (1 if last not in (b"", b"\n", b"\r") else 0)
+
+
 def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredRun:
     """Read and check one measured-run CSV, a block of rows at a time.
 
     A UTF-8 byte-order mark (Excel's "CSV UTF-8") is accepted. Memory stays near the size
-    of the returned arrays: rows are parsed `CHUNK_LINES` at a time.
+    of the returned arrays: the lines are counted first, then rows are parsed `CHUNK_LINES`
+    at a time straight into float64 arrays of that length (nothing is concatenated).
 
     Parameters
     ----------
@@ -92,39 +112,47 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
         not increasing or not uniform; the message names file, line and column.
     """
     path = Path(path)
-    parts: dict[str, list[np.ndarray]] = {}
+    columns: dict[str, np.ndarray] = {}
+    rows = 0
     try:
+        capacity = max(count_lines(path) - 1, 0)
         with open(path, newline="", encoding="utf-8-sig") as handle:
             first = handle.readline()
             if not first:
                 raise RunFileError(f"{path}: empty file (expected a header line)")
             header = _header(path, first, required)
             wanted = [(index, name) for index, name in enumerate(header) if name in COLUMNS]
-            parts = {name: [] for _, name in wanted}
-            line_no = 2
+            columns = {name: np.empty(capacity, dtype=np.float64) for _, name in wanted}
             while True:
                 lines = list(itertools.islice(handle, CHUNK_LINES))
                 if not lines:
                     break
-                _parse_rows(path, lines, line_no, len(header), wanted, parts)
-                line_no += len(lines)
+                if rows + len(lines) > capacity:  # the file grew after it was counted
+                    capacity = rows + len(lines)
+                    columns = {name: _grown(values, capacity) for name, values in columns.items()}
+                _parse_rows(path, lines, rows + 2, len(header), wanted, columns, rows)
+                rows += len(lines)
     except OSError as exc:
         raise RunFileError(f"{path}: cannot read: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:
         raise RunFileError(f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
-    if not parts or not next(iter(parts.values())):
+    if not columns or rows == 0:
         raise RunFileError(f"{path}: no data rows after the header")
-    columns: dict[str, np.ndarray] = {}
-    for name in list(parts):  # one column at a time: the parts of only one column live beside the result
-        chunks = parts.pop(name)
-        columns[name] = np.concatenate(chunks) if len(chunks) > 1 else chunks[0]
-        del chunks
+    if rows < capacity:  # fewer rows than counted lines (a file that shrank): keep only the rows read
+        columns = {name: values[:rows].copy() for name, values in columns.items()}
     return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns)
 
 
+def _grown(values: np.ndarray, length: int) -> np.ndarray:
+    """`values` in a longer array (its first len(values) entries kept)."""
+    grown = np.empty(length, dtype=values.dtype)
+    grown[:len(values)] = values
+    return grown
+
+
 def _parse_rows(path: Path, lines: list[str], first_line: int, width: int, wanted: list[tuple[int, str]],
-                parts: dict[str, list[np.ndarray]]) -> None:
-    """Parse one block of lines into float arrays appended to `parts` (checks as `read_run`)."""
+                columns: dict[str, np.ndarray], start: int) -> None:
+    """Parse one block of lines into `columns[name][start:start + len(lines)]` (checks as `read_run`)."""
     try:
         rows = list(csv.reader(lines))
     except csv.Error as exc:
@@ -144,22 +172,27 @@ def _parse_rows(path: Path, lines: list[str], first_line: int, width: int, wante
                 offset = int(np.argmax(bad))
                 raise RunFileError(f"{path}: line {first_line + offset}, column {name}: {values[offset]} "
                                    f"(sensor columns must be finite)")
-        parts[name].append(values)
+        columns[name][start:start + len(values)] = values
 
 
 def _sample_rate_hz(path: Path, columns: dict[str, np.ndarray]) -> float:
-    """Sample rate from time_s (NaN if there is none); time must increase uniformly."""
+    """Sample rate from time_s (NaN if there is none); time must increase uniformly.
+
+    Holds one array of time steps beside the columns (the median partitions it in place).
+    """
     if "time_s" not in columns:
         return float("nan")
     time_s = columns["time_s"]
     if len(time_s) < 2:
         raise RunFileError(f"{path}: needs at least two samples")
     steps = np.diff(time_s)
-    if (steps <= 0).any():
+    if steps.min() <= 0:
         line_no = int(np.argmax(steps <= 0)) + 3
         raise RunFileError(f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
-    period_s = float(np.median(steps))
-    if np.max(np.abs(steps - period_s)) > 1e-3 * period_s + 1e-9:
+    shortest, longest = steps.min(), steps.max()
+    period_s = float(np.median(steps, overwrite_input=True))
+    if max(longest - period_s, period_s - shortest) > 1e-3 * period_s + 1e-9:   # max |step - period|
+        steps = np.diff(time_s)   # unpartitioned again, to name the line
         line_no = int(np.argmax(np.abs(steps - period_s))) + 3
         raise RunFileError(f"{path}: line {line_no}, column time_s: sampling is not uniform")
     return 1.0 / period_s

@@ -82,13 +82,13 @@ def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sampl
     rate_hz = run_rate_hz(run)
     time_s = run["time_s"]
     n_samples = len(time_s)
-    relative_ns = np.round((time_s - time_s[0]) * _NS_PER_S).astype(np.int64)
+    block_start_ns = np.round((time_s[::block_size] - time_s[0]) * _NS_PER_S).astype(np.int64)  # one per block
     wing = store.types[WING_TYPE]
     marker = run_marker(run, source_file=source_file, start_ns=start_ns, first_sample_index=first_sample_index)
     yield bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json())
     for k0 in range(0, n_samples, block_size):
         part = slice(k0, min(k0 + block_size, n_samples))
-        stamp_ns = start_ns + int(relative_ns[k0])
+        stamp_ns = start_ns + int(block_start_ns[k0 // block_size])
         index = first_sample_index + k0
 
         def header(frame: str) -> Any:
