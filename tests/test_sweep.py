@@ -24,12 +24,31 @@ def setup():
     return load_model(), node_parameters("flaair.yaml", "stroke_controller_node")
 
 
+SIZING = sweep.TaskSizing(task_s=0.3, tasks_per_worker=2, core_robot_s_per_s=800.0)
+
+
+def test_task_sizing_gives_about_task_s_of_compute_or_an_even_spread() -> None:
+    rows = [{"duration_s": 1.5}] * 1200
+    assert SIZING.chunk_size(rows, 2) == 160            # 0.3 s x 800 robot-s/s / 1.5 robot-s
+    assert SIZING.chunk_size(rows[:186], 2) == 47       # a small sweep: 2 tasks per worker
+    assert SIZING.chunk_size(rows[:186], 1) == 93 and SIZING.chunk_size(rows[:3], 8) == 1
+    with pytest.raises(sweep.SweepError, match="tasks.task_s must be a finite number > 0"):
+        sweep.TaskSizing(task_s=0.0, tasks_per_worker=2, core_robot_s_per_s=800.0)
+    with pytest.raises(sweep.SweepError, match="tasks: missing key 'core_robot_s_per_s'"):
+        sweep.TaskSizing.from_mapping({"task_s": 0.3, "tasks_per_worker": 2})
+
+
 def test_one_worker_and_two_workers_give_the_in_process_numbers_bit_for_bit(setup) -> None:
+    """Chunks sized for the workers found (here 9 and 5 simulations) and a single-threaded
+    worker per core: the numbers stay those of the in-process run, bit for bit."""
     from dask.distributed import Client
     model, values = setup
     rows = sweep.wing_damage_rows(WING, values, model)
-    local, _ = sweep.execute(rows, 4, model, in_process=True, show_progress=False)
+    local, timing = sweep.execute(rows, 4, model, in_process=True, show_progress=False)
+    assert timing["chunk_size"] == 4 and timing["tasks"] == 5
     results = {}
+    sizes = {workers: SIZING.chunk_size(rows, workers) for workers in (1, 2)}
+    assert sizes == {1: 9, 2: 5}
     for workers in (1, 2):
         cluster = sweep.local_cluster(workers)
         try:
@@ -37,7 +56,10 @@ def test_one_worker_and_two_workers_give_the_in_process_numbers_bit_for_bit(setu
             with Client(cluster) as client:
                 assert len(client.scheduler_info()["workers"]) == workers
                 assert all(w.startswith("tcp://127.0.0.1:") for w in client.scheduler_info()["workers"])
-                results[workers] = [r for part in sweep.run_on_dask(client, sweep.chunks(rows, 4), model) for r in part]
+                assert set(client.run(lambda: __import__("os").environ["NUMBA_NUM_THREADS"]).values()) == {"1"}
+                model_future = sweep.prepare_workers(client, model, rows[0])
+                results[workers] = [r for part in sweep.run_on_dask(client, sweep.chunks(rows, sizes[workers]),
+                                                                    model_future) for r in part]
         finally:
             cluster.close()
     flat_local = [{k: r[k] for k in ("stroke_frequency_hz", "stroke_amplitude_deg", "pitch_amplitude_deg", "final_command",

@@ -12,11 +12,12 @@ relative to the undamaged wing. dsa-map: the dSA loop over mu, kappa and r3: ons
 frequency and amplitude, against the Hopf theory (flaair_control.hopf). Both write DIR/sweep.json
 (strict JSON, one row per point), DIR/sweep.csv, DIR/*.png and DIR/reading.md.
 
-The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Tasks
-carry `chunk_size` simulations each through one compiled batch (flaair_tools.sweep_batch);
-a row's result depends on that row alone, so any number of workers gives the same numbers.
-By default a LocalCluster sized to the machine (one single-threaded worker process per core,
-bound to 127.0.0.1, no dashboard) runs them and is shut down with the command (also on
+The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Each
+task carries a chunk of simulations through one compiled batch (flaair_tools.sweep_batch),
+sized for the workers found (`TaskSizing`, config/sweeps.yaml `tasks:`: ~0.3 s of compute, or
+an even spread of a small sweep); a row's result depends on that row alone, so any number of
+workers and any chunking give the same numbers. By default a LocalCluster sized to the machine
+(one single-threaded worker process per core, bound to 127.0.0.1, no dashboard) runs them and is shut down with the command (also on
 Ctrl-C / SIGTERM); --scheduler uses an existing cluster (docs/SWEEPS.md: `dask scheduler` /
 `dask worker`, or Slurm through dask-jobqueue). --in-process runs the chunks here (no Dask).
 
@@ -35,6 +36,8 @@ import os
 import signal
 import sys
 import time
+import uuid
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -135,10 +138,46 @@ def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[s
 
 
 def chunks(rows: list[dict[str, Any]], size: int) -> list[list[dict[str, Any]]]:
-    """Fixed-size chunks in row order (independent of the cluster)."""
+    """Fixed-size chunks in row order (a row's result does not depend on its chunk)."""
     if size < 1:
         raise SweepError(f"chunk_size must be >= 1, got {size}")
     return [rows[i:i + size] for i in range(0, len(rows), size)]
+
+
+@dataclass(frozen=True)
+class TaskSizing:
+    """How many simulations one Dask task carries (config/sweeps.yaml, ``tasks:``).
+
+    A task costs a few milliseconds to schedule (bench/bench_sweep.py), so it must compute for
+    much longer: about ``task_s``. A small sweep is cut into ``tasks_per_worker`` tasks per
+    worker instead, so every worker gets work and the last task leaves little idle time.
+    """
+
+    task_s: float                 # target compute per task [s]
+    tasks_per_worker: int         # a small sweep: this many tasks per worker [-]
+    core_robot_s_per_s: float     # robot-seconds one core simulates per second (measured) [-]
+
+    def __post_init__(self) -> None:
+        for name in ("task_s", "tasks_per_worker", "core_robot_s_per_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise SweepError(f"config/sweeps.yaml: tasks.{name} must be a finite number > 0, got {value!r}")
+
+    @classmethod
+    def from_mapping(cls, section: dict[str, Any]) -> "TaskSizing":
+        try:
+            return cls(float(section["task_s"]), int(section["tasks_per_worker"]), float(section["core_robot_s_per_s"]))
+        except KeyError as exc:
+            raise SweepError(f"config/sweeps.yaml: tasks: missing key {exc}") from None
+        except (TypeError, ValueError) as exc:
+            raise SweepError(f"config/sweeps.yaml: tasks: {exc}") from None
+
+    def chunk_size(self, rows: list[dict[str, Any]], workers: int) -> int:
+        """Simulations per task for `rows` on `workers` workers: min(~task_s of compute, an even spread)."""
+        robot_s = max(float(r["duration_s"]) for r in rows)
+        by_time = max(1, int(self.task_s * self.core_robot_s_per_s / robot_s))
+        by_spread = max(1, math.ceil(len(rows) / (max(1, workers) * self.tasks_per_worker)))
+        return min(by_time, by_spread)
 
 
 # --------------------------------------------------------------------------- execution
@@ -155,6 +194,10 @@ def run_in_process(parts: list[list[dict[str, Any]]], model, progress: Callable[
     return out
 
 
+# One compute thread per worker process (one worker per core): numba, OpenMP and BLAS pools off.
+WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def local_cluster(workers: int | None = None):
     """A LocalCluster on 127.0.0.1: `workers` (default: the cores) single-threaded worker processes."""
     import logging
@@ -162,17 +205,31 @@ def local_cluster(workers: int | None = None):
     from dask.distributed import LocalCluster
     return LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                         host="127.0.0.1", dashboard_address=None, silence_logs=logging.ERROR,
-                        worker_dashboard_address=None)
+                        worker_dashboard_address=None, env=dict(WORKER_ENV))
+
+
+def prepare_workers(client, model, row: dict[str, Any]):
+    """The model goes to every worker once, and every worker runs a short task on it, through the
+    path the sweep's tasks take (its first task costs about a second more than the next:
+    kernels loaded, task machinery warmed). Returns the model's future."""
+    from flaair_tools.sweep_batch import warm_up
+    model_future = client.scatter(model, broadcast=True)
+    client.gather([client.submit(warm_up, model_future, row, workers=[address], allow_other_workers=False,
+                                 pure=False, key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}")
+                   for i, address in enumerate(client.scheduler_info()["workers"])])
+    return model_future
 
 
 def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
                 progress: Callable[[int], None] = lambda n: None) -> list[list[dict[str, Any]]]:
-    """Every chunk as one Dask task; results in chunk order."""
-    from dask.distributed import as_completed
+    """Every chunk as one Dask task; results in chunk order. `model`: a Model, or the future of
+    one already scattered (`prepare_workers`)."""
+    from dask.distributed import Future, as_completed
 
     from flaair_tools.sweep_batch import run_rows
-    model_future = client.scatter(model, broadcast=True)
-    futures = [client.submit(run_rows, part, model_future, key=f"sweep-chunk-{i}", pure=False)
+    model_future = model if isinstance(model, Future) else client.scatter(model, broadcast=True)
+    run = uuid.uuid4().hex[:8]   # keys of this run's tasks: a later run on the same client never meets them
+    futures = [client.submit(run_rows, part, model_future, key=f"sweep-chunk-{run}-{i}", pure=False)
                for i, part in enumerate(parts)]
     index = {f.key: i for i, f in enumerate(futures)}
     out: list[Any] = [None] * len(parts)
@@ -185,19 +242,34 @@ def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
     return out
 
 
-def execute(rows: list[dict[str, Any]], chunk_size: int, model, *, scheduler: str | None = None,
+def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *, scheduler: str | None = None,
             workers: int | None = None, in_process: bool = False, show_progress: bool = True) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """Run the rows; (rows with their results, timing). The cluster (if started here) is closed on return."""
+    """Run the rows; (rows with their results, timing). The cluster (if started here) is closed on return.
+
+    `chunk_size`: simulations per task, or a `TaskSizing` that sizes them for the workers found
+    (the results do not depend on it). Timing: `startup_s` (cluster, kernels, model to the
+    workers) apart from `wall_s` (the tasks).
+    """
     from tqdm import tqdm
-    parts = chunks(rows, chunk_size)
-    timing: dict[str, Any] = {"tasks": len(parts), "simulations": len(rows),
-                              "robot_seconds": float(sum(r["duration_s"] for r in rows))}
-    bar = tqdm(total=len(parts), desc="sweep", unit="task", file=sys.stderr, disable=not show_progress)
-    t0 = time.perf_counter()
+
     from flaair_tools.sweep_batch import warm_up
+
+    def sized(n_workers: int) -> list[list[dict[str, Any]]]:
+        size = chunk_size.chunk_size(rows, n_workers) if isinstance(chunk_size, TaskSizing) else int(chunk_size)
+        timing["chunk_size"] = size
+        parts = chunks(rows, size)
+        timing["tasks"] = len(parts)
+        bar.total = len(parts)
+        bar.refresh()
+        return parts
+
+    timing: dict[str, Any] = {"simulations": len(rows), "robot_seconds": float(sum(r["duration_s"] for r in rows))}
+    bar = tqdm(total=None, desc="sweep", unit="task", file=sys.stderr, disable=not show_progress)
+    t0 = time.perf_counter()
     try:
         if in_process:
             timing["engine"] = "in-process"
+            parts = sized(1)
             timing["startup_s"] = warm_up(model, rows[0])
             t0 = time.perf_counter()
             results = run_in_process(parts, model, bar.update)
@@ -208,10 +280,11 @@ def execute(rows: list[dict[str, Any]], chunk_size: int, model, *, scheduler: st
                 with Client(scheduler or cluster, timeout="30s") as client:
                     timing["engine"] = f"dask {scheduler or 'LocalCluster'}"
                     timing["workers"] = len(client.scheduler_info()["workers"])
-                    client.run(warm_up, model, rows[0])  # every worker compiles / loads the kernels
+                    parts = sized(timing["workers"])
+                    model_future = prepare_workers(client, model, rows[0])
                     timing["startup_s"] = time.perf_counter() - t0
                     t0 = time.perf_counter()
-                    results = run_on_dask(client, parts, model, bar.update)
+                    results = run_on_dask(client, parts, model_future, bar.update)
             finally:
                 if cluster is not None:
                     cluster.close()

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from flaair_model.config import node_parameters
+from flaair_model.config import config_dir, node_parameters
 from flaair_model.model_io import load_model
 from flaair_tools import sweep
 
@@ -24,6 +24,17 @@ def _values() -> dict[str, Any]:
     return node_parameters("flaair.yaml", "stroke_controller_node")
 
 
+def _tasks_section(config: Path) -> dict[str, Any]:
+    """The `tasks:` section of the sweeps file given, else of config/sweeps.yaml (a grid file need not repeat it)."""
+    try:
+        return sweep.load_section(config, "tasks")
+    except sweep.SweepError:
+        default = config_dir() / "sweeps.yaml"
+        if config.resolve() == default.resolve():
+            raise
+        return sweep.load_section(default, "tasks")
+
+
 def run_study(args: argparse.Namespace, config: Path) -> int:
     """Dispatch one study (see flaair_tools.sweep)."""
     if args.study == "stroke":
@@ -34,7 +45,8 @@ def run_study(args: argparse.Namespace, config: Path) -> int:
     section = sweep.load_section(config, key)
     rows = (sweep.wing_damage_rows(section, values, model) if args.study == "wing-damage"
             else sweep.dsa_map_rows(section, values))
-    results, timing = sweep.execute(rows, int(section["chunk_size"]), model, scheduler=args.scheduler,
+    sizing = sweep.TaskSizing.from_mapping(_tasks_section(config))
+    results, timing = sweep.execute(rows, sizing, model, scheduler=args.scheduler,
                                     workers=args.workers, in_process=args.in_process,
                                     show_progress=not args.no_progress)
     document: dict[str, Any] = {"sweep": args.study, "config": section, "timing": timing}
