@@ -57,9 +57,9 @@ def test_one_worker_and_two_workers_give_the_in_process_numbers_bit_for_bit(setu
                 assert len(client.scheduler_info()["workers"]) == workers
                 assert all(w.startswith("tcp://127.0.0.1:") for w in client.scheduler_info()["workers"])
                 assert set(client.run(lambda: __import__("os").environ["NUMBA_NUM_THREADS"]).values()) == {"1"}
-                model_future = sweep.prepare_workers(client, model, rows[0])
+                sweep.prepare_workers(client, model, rows[0])
                 results[workers] = [r for part in sweep.run_on_dask(client, sweep.chunks(rows, sizes[workers]),
-                                                                    model_future) for r in part]
+                                                                    model) for r in part]
         finally:
             cluster.close()
     flat_local = [{k: r[k] for k in ("stroke_frequency_hz", "stroke_amplitude_deg", "pitch_amplitude_deg", "final_command",

@@ -208,28 +208,29 @@ def local_cluster(workers: int | None = None):
                         worker_dashboard_address=None, env=dict(WORKER_ENV))
 
 
-def prepare_workers(client, model, row: dict[str, Any]):
-    """The model goes to every worker once, and every worker runs a short task on it, through the
-    path the sweep's tasks take (its first task costs about a second more than the next:
-    kernels loaded, task machinery warmed). Returns the model's future."""
+def prepare_workers(client, model, row: dict[str, Any]) -> None:
+    """Every worker runs one short task through the path the sweep's tasks take (kernels loaded
+    from numba's cache, task machinery warmed: a worker's first task costs about a second more
+    than the next)."""
     from flaair_tools.sweep_batch import warm_up
-    model_future = client.scatter(model, broadcast=True)
-    client.gather([client.submit(warm_up, model_future, row, workers=[address], allow_other_workers=False,
+    client.gather([client.submit(warm_up, model, row, workers=[address], allow_other_workers=False,
                                  pure=False, key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}")
                    for i, address in enumerate(client.scheduler_info()["workers"])])
-    return model_future
 
 
 def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
                 progress: Callable[[int], None] = lambda n: None) -> list[list[dict[str, Any]]]:
-    """Every chunk as one Dask task; results in chunk order. `model`: a Model, or the future of
-    one already scattered (`prepare_workers`)."""
-    from dask.distributed import Future, as_completed
+    """Every chunk as one Dask task; results in chunk order.
+
+    The model travels inside each task (about 1 kB pickled). Scattered once instead, it made
+    every task depend on one piece of data, whose extra copies Dask's active memory manager
+    removes: the scheduler then sent the tasks to the one worker holding it.
+    """
+    from dask.distributed import as_completed
 
     from flaair_tools.sweep_batch import run_rows
-    model_future = model if isinstance(model, Future) else client.scatter(model, broadcast=True)
     run = uuid.uuid4().hex[:8]   # keys of this run's tasks: a later run on the same client never meets them
-    futures = [client.submit(run_rows, part, model_future, key=f"sweep-chunk-{run}-{i}", pure=False)
+    futures = [client.submit(run_rows, part, model, key=f"sweep-chunk-{run}-{i}", pure=False)
                for i, part in enumerate(parts)]
     index = {f.key: i for i, f in enumerate(futures)}
     out: list[Any] = [None] * len(parts)
@@ -281,10 +282,10 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
                     timing["engine"] = f"dask {scheduler or 'LocalCluster'}"
                     timing["workers"] = len(client.scheduler_info()["workers"])
                     parts = sized(timing["workers"])
-                    model_future = prepare_workers(client, model, rows[0])
+                    prepare_workers(client, model, rows[0])
                     timing["startup_s"] = time.perf_counter() - t0
                     t0 = time.perf_counter()
-                    results = run_on_dask(client, parts, model_future, bar.update)
+                    results = run_on_dask(client, parts, model, bar.update)
             finally:
                 if cluster is not None:
                     cluster.close()
