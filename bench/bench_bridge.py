@@ -1,21 +1,21 @@
-"""Real-time target bridge against the emulated target: late/missing drive, lost sensor packets, loop latency.
+"""`flaair live --target` against the emulated target: late/missing drive, lost sensor packets, loop latency.
 
 The emulated target (flaair_bridge.emulated_target, 20 kHz in 10-sample packets, real-time
-paced) talks UDP on 127.0.0.1 to the bridge node; a drive source in its own process answers
-every /flaair/sensor_v block with one /flaair/drive block (a 140 Hz, 50 V sine), as a
-controller does. Everything runs on a private ROS domain. Figures, each beside its target:
+paced) talks UDP on 127.0.0.1 to `flaair live`, as a lab's real-time target would: the composed
+loop process (bridge, front end, dSA controller with the configured K_r schedule, collision
+monitor) and the recorder, on a private ROS domain. Figures, each beside its target:
 
 - drive samples late or missing at the target, % of the driven samples (target <= 0.1 %);
-- sensor packets lost inside FLAAIR: sent by the target but not delivered, with data, to the
-  drive source over DDS (target 0);
-- latency from a sensor packet's arrival at the bridge (kernel timestamp) to the drive packet it
-  causes leaving the bridge, p99 (target < 1 ms);
-- CPU per packet of the bridge, the drive source and the emulated target.
+- sensor packets lost inside FLAAIR: blocks missing from the recorded /flaair/sensor_v or
+  marked lost by the bridge (target 0);
+- latency from a sensor packet's arrival at the bridge (kernel timestamp) to the drive packet
+  anchored to it leaving the bridge, p99 (target < 1 ms);
+- CPU per packet of the loop process, the recorder and the emulated target.
 
 Same-run baseline: the emulated target against a bare UDP echo (one Python process answering
 each sensor packet with a drive packet, no ROS): what the machine allows without FLAAIR.
-The composed one-process loop (front end and controller in the bridge's executor) belongs to
-`flaair live`; this benchmark measures the bridge's own share.
+
+Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 60]
 """
 from __future__ import annotations
 
@@ -25,7 +25,6 @@ import os
 import signal
 import socket
 import struct
-import subprocess
 import sys
 import tempfile
 import time
@@ -65,47 +64,6 @@ def _free_port() -> int:
 
 
 # ------------------------------------------------------------------------------ helper processes
-def responder_main(out_file: str) -> int:
-    """Drive source: one drive block per sensor block (contiguous stream), counts what arrived."""
-    import rclpy
-    from rclpy.node import Node
-
-    from flaair_common import cdr, topics
-    from flaair_common.qos import BLOCK_STREAM
-    from flaair_common.runtime import make_executor
-    from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
-
-    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    node = Node("bench_drive_source")
-    sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, BLOCK, topics.FRAME_ID)
-    drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, BLOCK)
-    publisher = node.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
-    counts = {"blocks": 0, "nan_blocks": 0, "next_index": 0}
-
-    def on_sensor(data: bytes) -> None:
-        message = sensor_codec.decode(data)
-        counts["blocks"] += 1
-        counts["nan_blocks"] += int(np.isnan(message["stroke_sensor_v"]).any())
-        index = counts["next_index"] + np.arange(BLOCK)
-        drive = 50.0 * np.sin(2 * np.pi * 140.0 * index / FS)
-        publisher.publish(drive_codec.encode(0, {"sample_rate_hz": FS, "first_sample_index": counts["next_index"],
-                                                 "drive_v": drive}))
-        counts["next_index"] += BLOCK
-
-    node.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, on_sensor, BLOCK_STREAM, raw=True)
-    executor = make_executor()
-    executor.add_node(node)
-    stop = []
-    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
-    while not stop:
-        executor.spin_once(timeout_sec=0.05)
-    Path(out_file).write_text(json.dumps(counts))
-    node.destroy_node()
-    rclpy.try_shutdown()
-    return 0
-
-
 def echo_main(port: int, out_file: str) -> int:
     """Baseline: a bare UDP echo answering each sensor packet with a drive packet lead samples ahead."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -113,7 +71,7 @@ def echo_main(port: int, out_file: str) -> int:
     sock.setsockopt(socket.SOL_SOCKET, 35, 1)   # SO_TIMESTAMPNS
     sock.settimeout(0.2)
     head, reply = struct.Struct("<4sIQfHH"), struct.Struct(f"<4sIQHH{BLOCK}f")
-    latency, sequence, last = [], 0, None
+    latency, sequence = [], 0
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -135,44 +93,70 @@ def echo_main(port: int, out_file: str) -> int:
 
 
 # ------------------------------------------------------------------------------ runs
-def bridge_run(duration_s: float, tmp: Path) -> dict:
-    port = _free_port()
-    timing = tmp / "timing.npz"
-    graph = Graph(log_dir=tmp)   # a private domain; every child stopped on the way out
-    env = graph.env
+def live_run(duration_s: float, tmp: Path) -> dict:
+    """`flaair live --target` (the composed loop: bridge, front end, dSA controller, collision monitor;
+    the recorder beside it) against the emulated target for `duration_s` of signal."""
+    import psutil
 
-    def start(name: str, *args: str) -> subprocess.Popen:
-        return graph.start(name, args, stdout=subprocess.DEVNULL)
+    listen, target_port = _free_port(), _free_port()
+    timing, bag = tmp / "timing.npz", tmp / "bag"
+    cpu: dict[str, dict[int, float]] = {}       # role -> pid -> CPU seconds at the last look
+    cpu_start: dict[int, float] = {}
+    with Graph(log_dir=tmp) as graph:
+        live = graph.start("live", [FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
+                                    f"127.0.0.1:{listen}", "--duration", str(duration_s), "--out", str(bag),
+                                    "--bridge-param", f"timing_file={timing}",
+                                    # the emulator on a shared machine stalls now and then, a real target does not
+                                    "--bridge-param", "sensor_timeout_s=1.0"])
+        target = graph.start("target", [FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
+                                        f"127.0.0.1:{listen}", "--listen", f"127.0.0.1:{target_port}", "--duration", "0",
+                                        "--counters", str(tmp / "target.json")])
+        running_at = None
+        while live.poll() is None:
+            if running_at is None and "running from sample" in (tmp / "live.log").read_text():
+                running_at = time.monotonic()
+            try:
+                procs = {"target": [psutil.Process(target.pid)]}
+                for child in psutil.Process(live.pid).children(recursive=True):
+                    line = " ".join(child.cmdline())
+                    role = "loop" if "container" in line else "recorder" if "recorder_node" in line else None
+                    if role:
+                        procs.setdefault(role, []).append(child)
+                for role, members in procs.items():
+                    for proc in members:
+                        times = proc.cpu_times()
+                        cpu.setdefault(role, {})[proc.pid] = times.user + times.system
+                        if running_at is None or proc.pid not in cpu_start:
+                            cpu_start[proc.pid] = times.user + times.system
+            except psutil.Error:
+                pass
+            time.sleep(0.5)
+        ended_at = time.monotonic()
+        graph.stop(target)
+    if live.returncode != 0 or running_at is None:
+        raise RuntimeError(f"flaair live exited {live.returncode}:\n{(tmp / 'live.log').read_text()[-3000:]}")
+    packets = (ended_at - running_at) * FS / BLOCK
+    cpu_us = {role: 1e6 * sum(t - cpu_start.get(pid, t) for pid, t in by_pid.items()) / packets
+              for role, by_pid in cpu.items()}
+    return {"target": json.loads((tmp / "target.json").read_text()), "timing": np.load(timing)["timing"],
+            "sensor": sensor_blocks(bag), "cpu_us": cpu_us,
+            "summary": next((line for line in (tmp / f"{bag.name}.logs" / "loop.log").read_text().splitlines()
+                             if "bridge closed" in line), "")}
 
-    try:
-        bridge = start("bridge", FLAAIR, "run", "flaair_bridge", "bridge_node", "--ros-args", "-p", f"listen_port:={port}",
-                       "-p", f"lead_samples:={LEAD}", "-p", f"timing_file:={timing}",
-                       # the emulator on a shared machine stalls now and then, a real target does not: no false silences
-                       "-p", "sensor_timeout_s:=1.0")
-        source = start("source", sys.executable, __file__, "--responder", str(tmp / "source.json"))
-        for topic in ("/flaair/sensor_v", "/flaair/drive"):
-            wait = subprocess.run([FLAAIR, "topic", "wait", topic, "--publishers", "1", "--subscribers", "1",
-                                   "--timeout", "120"], env=env, capture_output=True, text=True, cwd=REPO_ROOT)
-            if wait.returncode:
-                raise RuntimeError(f"{wait.stderr}\n{(tmp / 'bridge.log').read_text()}")
-        cpu0 = {"bridge": _tree_cpu_s(bridge.pid), "source": _cpu_s(source.pid)}
-        target = start("target", FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
-                       "--listen", "127.0.0.1:0", "--duration", str(duration_s), "--counters", str(tmp / "target.json"))
-        while target.poll() is None:
-            cpu_target = _tree_cpu_s(target.pid)
-            time.sleep(0.2)
-        if target.returncode != 0:
-            raise RuntimeError((tmp / "target.log").read_text())
-        time.sleep(1.0)  # the bridge and the source drain what is still queued
-        cpu1 = {"bridge": _tree_cpu_s(bridge.pid), "source": _cpu_s(source.pid), "target": cpu_target}
-    finally:
-        graph.close()
-    counters = json.loads((tmp / "target.json").read_text())
-    n_packets = counters["packets_sent"]
-    cpu = {name: 1e6 * (cpu1[name] - cpu0.get(name, 0.0)) / n_packets for name in cpu1}
-    summary = [line for line in (tmp / "bridge.log").read_text().splitlines() if "bridge closed" in line]
-    return {"target": counters, "source": json.loads((tmp / "source.json").read_text()),
-            "events": dict(np.load(timing)), "cpu_us": cpu, "summary": summary[0] if summary else ""}
+
+def sensor_blocks(bag: Path) -> dict:
+    """The recorded sensor stream: blocks with data, blocks marked lost (NaN), indexes missing."""
+    from flaair_common import cdr, topics
+    from flaair_tools import bagio
+
+    firsts, lost = [], 0
+    for _, _, _, data in bagio.iter_raw(bag, [topics.SENSOR_VOLTAGE]):
+        message = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
+        firsts.append(int(message["first_sample_index"]))
+        lost += int(np.isnan(message["stroke_sensor_v"]).any())
+    firsts = np.array(firsts)
+    span = (int(firsts.max()) - int(firsts.min())) // BLOCK + 1 if firsts.size else 0
+    return {"blocks": int(firsts.size), "nan_blocks": lost, "missing": span - len(np.unique(firsts))}
 
 
 def echo_run(duration_s: float, tmp: Path) -> dict:
@@ -218,38 +202,38 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="signal time of the bridge run [s]")
     parser.add_argument("--baseline-duration", type=float, default=20.0, help="signal time of the UDP-echo baseline [s]")
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_bridge.json")
-    parser.add_argument("--responder", help=argparse.SUPPRESS)
     parser.add_argument("--echo", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    if args.responder:
-        return responder_main(args.responder)
     if args.echo:
         return echo_main(int(args.echo[0]), args.echo[1])
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         load0 = os.getloadavg()[0]
         echo = echo_run(args.baseline_duration, tmp)
-        run = bridge_run(args.duration, tmp)
+        run = live_run(args.duration, tmp)
         load1 = os.getloadavg()[0]
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     t, e = run["target"], echo["target"]
     figures = []
     pct, pct_echo = late_or_missing_pct(t), late_or_missing_pct(e)
-    figures.append(Figure(f"drive samples late or missing at the target, {args.duration:g} s", pct, "%", "<= 0.1",
+    figures.append(Figure(f"live: drive samples late or missing at the target, {args.duration:g} s", pct, "%", "<= 0.1",
                           pct <= 0.1, f"UDP echo {pct_echo:.3f} %; late {t['late_samples']}, missing {t['missing_samples']} "
                                       f"of {t['fresh_samples'] + t['missing_samples']}; {load}"))
-    lost = t["packets_sent"] - (run["source"]["blocks"] - run["source"]["nan_blocks"])
-    figures.append(Figure("sensor packets lost inside FLAAIR", lost, "packets", "0", lost == 0,
-                          f"of {t['packets_sent']} sent; {run['source']['nan_blocks']} blocks marked lost by the bridge"))
-    latency = sensor_to_drive_ms(run["events"])
+    sensor = run["sensor"]
+    lost = sensor["nan_blocks"] + sensor["missing"]
+    figures.append(Figure("live: sensor packets lost inside FLAAIR", lost, "packets", "0", lost == 0,
+                          f"{sensor['blocks']} blocks in the bag: {sensor['nan_blocks']} marked lost by the bridge, "
+                          f"{sensor['missing']} missing"))
+    latency = 1e3 * (run["timing"][:, 2] - run["timing"][:, 1]) if run["timing"].size else np.zeros(0)
     echo_ms = echo["latency_s"] * 1e3
     p99 = percentile(latency, 99)
-    figures.append(Figure("sensor arrival -> drive packet, p99", p99, "ms", "< 1", p99 < 1.0,
+    figures.append(Figure("live: sensor packet arrival -> drive packet, p99", p99, "ms", "< 1", p99 < 1.0,
                           f"p50 {percentile(latency, 50):.3f} ms over {latency.size} packets; UDP echo p99 "
                           f"{percentile(echo_ms, 99):.3f} ms, p50 {percentile(echo_ms, 50):.3f} ms"))
-    for name, label in (("bridge", "bridge node"), ("source", "drive source (DDS, no work)"), ("target", "emulated target")):
-        figures.append(Figure(f"CPU per 0.5 ms packet: {label}", run["cpu_us"][name], "us", "", True,
-                              "whole process incl. rclpy/DDS" if name != "target" else "plant + UDP + pacing"))
+    for name, label in (("loop", "composed loop process (bridge, front end, controller, monitor)"),
+                        ("recorder", "recorder"), ("target", "emulated target")):
+        figures.append(Figure(f"live: CPU per 0.5 ms packet, {label}", run["cpu_us"].get(name, float("nan")), "us", "",
+                              True, "whole process incl. rclpy/DDS" if name != "target" else "plant + UDP + pacing"))
     figures.append(Figure("emulated target overruns (its own deadline missed)", t["overruns"], "packets", "", True,
                           f"max lag {t['max_lag_ms']:.1f} ms; UDP echo run {e['overruns']}"))
     print_table(figures)

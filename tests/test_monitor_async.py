@@ -29,7 +29,8 @@ LIMIT_DEG = 15.0      # the free self-excited stroke reaches 20.6 deg
 
 
 def closed_loop(duration_s: float):
-    """(sample time, stroke truth deg, monitor verdicts) of the dSA loop with the obstacle window."""
+    """(sample time, stroke truth deg, monitor verdicts, the monitor's input blocks) of the dSA loop
+    with the obstacle window."""
     model = load_model()
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     values = dict(node_parameters("flaair.yaml", "dsa_controller_node"))
@@ -40,7 +41,7 @@ def closed_loop(duration_s: float):
     mon = monitor.initial_state(mon_params)
     ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
     ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)
-    queue, strokes, verdicts = list(out.blocks), [], []
+    queue, strokes, verdicts, wing_blocks = list(out.blocks), [], [], []
     while queue and len(strokes) * loop.block_size < duration_s * FS:
         block = queue.pop(0)
         t = block.first_sample_index / FS
@@ -48,16 +49,16 @@ def closed_loop(duration_s: float):
         plant_state, sim = plant.step(plant_state, plant.PlantInputs(block.drive_v), plant.PlantStepParams(m, FS))
         fe_state, est = frontend.step(fe_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fe_params)
         strokes.append(np.degrees(sim.stroke_rad))
-        mon, result = monitor.step(mon, monitor.WingBlock(block.first_sample_index,
-                                                          np.where(est.stroke_valid, est.stroke_rad, np.nan),
-                                                          np.where(est.pitch_valid, est.pitch_rad, np.nan)), mon_params)
+        wing_blocks.append(monitor.WingBlock(block.first_sample_index, np.where(est.stroke_valid, est.stroke_rad, np.nan),
+                                             np.where(est.pitch_valid, est.pitch_rad, np.nan)))
+        mon, result = monitor.step(mon, wing_blocks[-1], mon_params)
         verdicts += result.verdicts
         ctrl, out = sv.step(ctrl, sv.WingBlock(10.0, block.first_sample_index, FS,
                                                np.degrees(est.stroke_velocity_rad_s), np.degrees(est.stroke_rad),
                                                est.stroke_valid, 1), loop)
         queue += out.blocks
     stroke = np.concatenate(strokes)
-    return np.arange(stroke.size) / FS, stroke, verdicts
+    return np.arange(stroke.size) / FS, stroke, verdicts, (wing_blocks, mon_params)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +71,7 @@ def test_the_default_decision_is_the_per_wingbeat_one():
 
 
 def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run):
-    t, stroke, verdicts = run
+    t, stroke, verdicts, _ = run
     free = (t > 1.3) & (t < OBSTACLE_S[0])
     assert 19.0 < np.ptp(stroke[free]) / 2 < 22.0                    # self-excited, 20.6 deg
     first_strike_s = t[(t >= OBSTACLE_S[0]) & (stroke >= LIMIT_DEG - 0.01)][0]
@@ -91,3 +92,39 @@ def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run
     # while flapping freely the windows follow the emergent frequency, not a drive's
     free_verdicts = [v for v in verdicts if 1.3 < v.end_index / FS < OBSTACLE_S[0]]
     assert free_verdicts and all(math.isclose(v.frequency_hz, 144.1, rel_tol=0.02) for v in free_verdicts)
+
+
+def test_the_monitor_decides_the_same_on_joined_blocks(run):
+    """Composed beside the loop, the monitor gets each run of contiguous blocks that queued up
+    while it was busy as one block (flaair_common.intra.join_contiguous): same verdicts."""
+    from flaair_common.intra import join_contiguous
+
+    _, _, verdicts, (blocks, params) = run
+    as_fields = [{"first_sample_index": b.first_sample_index, "stroke_rad": b.stroke_rad, "pitch_rad": b.pitch_rad,
+                  "sec": 0} for b in blocks]
+    rng = np.random.default_rng(3)
+    state, joined_verdicts, k, joins = monitor.initial_state(params), [], 0, 0
+    while k < len(as_fields):
+        n = int(rng.integers(1, 25))
+        for fields in join_contiguous(as_fields[k:k + n]):
+            joins += 1
+            state, out = monitor.step(state, monitor.WingBlock(fields["first_sample_index"], fields["stroke_rad"],
+                                                               fields["pitch_rad"]), params)
+            joined_verdicts += out.verdicts
+        k += n
+    assert joins < len(blocks) / 5
+    assert [(v.wingbeat_index, v.end_index, v.colliding, v.event) for v in joined_verdicts] == \
+        [(v.wingbeat_index, v.end_index, v.colliding, v.event) for v in verdicts]
+    assert len(verdicts) > 300
+
+
+def test_join_contiguous_joins_runs_and_keeps_gaps():
+    from flaair_common.intra import join_contiguous
+
+    def block(first: int, n: int = 10) -> dict:
+        return {"first_sample_index": first, "x": np.arange(first, first + n, dtype=float), "sec": first}
+
+    out = join_contiguous([block(0), block(10), block(20, 5), block(40), block(50)])
+    assert [(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out] == [(0, 25, 0), (40, 20, 40)]
+    np.testing.assert_array_equal(out[0]["x"], np.arange(25.0))
+    assert join_contiguous([]) == []

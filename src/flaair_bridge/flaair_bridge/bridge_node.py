@@ -32,7 +32,6 @@ from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
 
 NODE_NAME = "bridge_node"
 CONFIG_FILE = "flaair.yaml"
-APPLIED_DRIVE = "/flaair/drive/applied"   # DriveCommandBlock: the drive the target applied
 GIL_SWITCH_S = 1e-4   # process-wide: at the default 5 ms the reader thread got the GIL ~200 times/s, < 2000 packets/s
 STOP_COPIES = 3                           # a run's final stop packet is sent this many times (UDP may drop one)
 PARAMS = [
@@ -74,7 +73,8 @@ class BridgeNode(Node):
         self.sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID)
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
         self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.sensor_codec, BLOCK_STREAM)
-        self.applied_pub = self.create_publisher(DriveCommandBlock, APPLIED_DRIVE, BLOCK_STREAM) if p["publish_applied"] else None
+        self.applied = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE_APPLIED, self.drive_codec,
+                                            BLOCK_STREAM) if p["publish_applied"] else None
         intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, self.drive_codec, self.on_drive, BLOCK_STREAM,
                                self.on_undecodable)
         self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time())))
@@ -117,10 +117,9 @@ class BridgeNode(Node):
                 self.sensor.publish(stamp_ns, {
                     "sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
                     "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v})
-                if self.applied_pub is not None:
-                    self.applied_pub.publish(self.drive_codec.encode(stamp_ns, {
-                        "sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
-                        "drive_v": block.drive_v}))
+                if self.applied is not None:
+                    self.applied.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
+                                                    "drive_v": block.drive_v})
         for notice in out.notices:  # errors always; the rest rate-limited by their counter
             log = self.get_logger().error if notice.error else None
             log(notice.text) if log else warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)

@@ -211,6 +211,18 @@ class FixedCodec:
         return decode(self.layout, data)
 
 
+def encode_fields(layout: Layout, fields, codecs: dict) -> tuple[int, bytes]:
+    """(stamp ns, CDR bytes) of a block handed over in-process (fields by name with sec, nanosec,
+    frame_id), as its DDS message would be; `codecs` caches a FixedCodec per (block size, frame_id)."""
+    stamp_ns = int(fields["sec"]) * 1_000_000_000 + int(fields["nanosec"])
+    lengths = {len(fields[name]) for name, kind in layout.fields if kind.endswith("[]")}
+    if len(lengths) != 1:
+        return stamp_ns, encode(layout, stamp_ns, fields["frame_id"], fields)
+    key = (lengths.pop(), fields["frame_id"])
+    codec = codecs.get(key) or codecs.setdefault(key, FixedCodec(layout, *key))
+    return stamp_ns, codec.encode(stamp_ns, fields)
+
+
 def layout_of(type_name: str) -> Layout:
     """The layout of a flaair_msgs type from its .msg definition (std_msgs/Header first).
 

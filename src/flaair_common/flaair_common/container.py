@@ -67,8 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--local-topics", default=",".join(HOT_TOPICS),
                         help="block topics delivered in-process between the nodes (comma-separated; '' for none)")
     parser.add_argument("--background", action="append", default=[], metavar="MODULE:CLASS",
-                        help="a node off the hot path (e.g. the collision monitor): its in-process blocks are "
-                             "handled by the main thread after the hot loop's (repeatable)")
+                        help="a node off the hot path (the collision monitor, the recorder): built first and "
+                             "closed last; its in-process blocks are handled by the main thread after the hot "
+                             "loop's (repeatable)")
+    parser.add_argument("--executor", choices=("events", "single"), default="events",
+                        help="rclpy executor (single: for nodes that create subscriptions while spinning, "
+                             "as a composed recorder does; rclpy's EventsExecutor fails on that)")
     args = parser.parse_args(argv[1:ros_at])
     try:
         makers = [load_class(spec) for spec in args.nodes]
@@ -81,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
 
     local = {t for t in args.local_topics.split(",") if t}
     bus = intra.Bus(local, profile=os.environ.get("FLAAIR_PROFILE", "0") not in ("", "0")) if local else None
-    makers += [_built_in_background(cls, bus) for cls in background]
-    code = run_nodes(makers, [argv[0], *argv[ros_at:]], bus=bus)
+    # Built first, closed last: a composed recorder records the loop's closing zero block and stop.
+    makers = [_built_in_background(cls, bus) for cls in background] + makers
+    code = run_nodes(makers, [argv[0], *argv[ros_at:]], executor_kind=args.executor, bus=bus)
     if bus is not None and bus.profile is not None:   # FLAAIR_PROFILE=1: each node's time per block
         print("\n".join(bus.profile.report()), file=sys.stderr, flush=True)
     return code

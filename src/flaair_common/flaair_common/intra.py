@@ -10,8 +10,9 @@ only when someone outside listens (the recorder, an echo, the collision monitor 
 Delivery is a FIFO drained by whichever thread delivers first (the executor's, or a UDP reader
 thread), one drainer at a time and in order, at most `budget` callbacks per call so the
 executor's timers still run; the container's loop drains the rest. Subscribers off the hot
-path (the collision monitor: `background`) have their own FIFO, drained only by the main
-thread when the hot one is empty: a per-wingbeat decision never delays a drive packet. Outside a container
+path (the collision monitor, a recorder: `background`) have their own FIFO, drained only by
+the main thread when the hot one is empty and `background_batch` blocks wait: a per-wingbeat
+decision never delays a drive packet, and a background core runs on longer blocks. Outside a container
 (`current()` is None) both helpers fall back to plain rclpy publishers and raw subscriptions.
 """
 from __future__ import annotations
@@ -21,6 +22,8 @@ import threading
 import time
 from typing import Any, Callable
 
+import numpy as np
+
 from flaair_common import cdr
 
 _current: "Bus | None" = None
@@ -29,9 +32,11 @@ _current: "Bus | None" = None
 class Bus:
     """The composed nodes' in-process block streams (only `local_topics` travel here)."""
 
-    def __init__(self, local_topics: set[str], budget: int = 64, profile: bool = False) -> None:
+    def __init__(self, local_topics: set[str], budget: int = 64, profile: bool = False,
+                 background_batch: int = 20) -> None:
         self.local_topics = set(local_topics)
         self.budget = budget
+        self.background_batch = background_batch   # background blocks wait until this many queue (10 ms at 20 kHz)
         self.profile = CallbackProfile() if profile else None   # FLAAIR_PROFILE: time every composed callback
         self.subscribers: dict[str, list[tuple[Callable[[dict], None], bool]]] = collections.defaultdict(list)
         self.queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()
@@ -39,12 +44,18 @@ class Bus:
         self._draining = threading.Lock()
         self._draining_background = threading.Lock()
         self.building_background = False   # set by the container while it builds a background node
+        self.unjoined: set[Callable[[dict], None]] = set()   # background callbacks that take every block whole
         self.delivered = 0
 
-    def subscribe(self, topic: str, callback: Callable[[dict], None], background: bool = False) -> None:
-        """`callback(fields)` for every block of `topic`; `background`: off the hot path (see the module)."""
+    def subscribe(self, topic: str, callback: Callable[[dict], None], background: bool = False,
+                  join: bool = True) -> None:
+        """`callback(fields)` for every block of `topic`; `background`: off the hot path (see the module),
+        its queued contiguous blocks joined into one call unless `join` is False (a recorder keeps
+        every message as it was published)."""
         wrapped = callback if self.profile is None else self.profile.wrap(callback)
         self.subscribers[topic].append((wrapped, background or self.building_background))
+        if not join:
+            self.unjoined.add(wrapped)
 
     def subscriber_count(self, topic: str) -> int:
         return len(self.subscribers.get(topic, ()))
@@ -62,32 +73,88 @@ class Bus:
         """
         budget = self.budget if budget is None else budget
         done = _drain(self.queue, self._draining, budget)
-        if not self.queue and done < budget and threading.current_thread() is threading.main_thread():
-            done += _drain(self.background_queue, self._draining_background, budget - done, stop_if=self.queue)
+        if (not self.queue and done < budget and len(self.background_queue) >= self.background_batch
+                and threading.current_thread() is threading.main_thread()):
+            done += self._drain_background(budget - done)
         self.delivered += done
         return done
 
+    def flush(self) -> int:
+        """Everything queued, background included (a node closes: its last blocks reach their consumers)."""
+        done = _drain(self.queue, self._draining, 1 << 30)
+        while self.background_queue or self.queue:
+            done += self._drain_background(1 << 30) + _drain(self.queue, self._draining, 1 << 30)
+        self.delivered += done
+        return done
+
+    def _drain_background(self, budget: int) -> int:
+        """Up to `budget` queued background blocks, each subscriber's contiguous ones joined into
+        one call (a background core runs per call, not per sample: fewer, longer blocks cost less)."""
+        if not self._draining_background.acquire(blocking=False):
+            return 0
+        try:
+            taken: dict[Callable[[dict], None], list[dict]] = {}
+            while self.background_queue and sum(map(len, taken.values())) < budget:
+                callback, fields = self.background_queue.popleft()
+                taken.setdefault(callback, []).append(fields)
+            for callback, blocks in taken.items():
+                for fields in (blocks if callback in self.unjoined else join_contiguous(blocks)):
+                    callback(fields)
+            return sum(map(len, taken.values()))
+        finally:
+            self._draining_background.release()
+
     def pending(self) -> bool:
-        return bool(self.queue) or bool(self.background_queue)
+        return bool(self.queue) or len(self.background_queue) >= self.background_batch
 
 
-def _drain(queue: collections.deque, lock: threading.Lock, budget: int, stop_if: collections.deque | None = None) -> int:
+def _drain(queue: collections.deque, lock: threading.Lock, budget: int) -> int:
     """Run up to `budget` callbacks of `queue` in order under `lock` (skip if another thread holds
-    it: that thread takes what was queued); stop early once `stop_if` has work."""
+    it: that thread takes what was queued)."""
     done = 0
     while queue and done < budget:
         if not lock.acquire(blocking=False):
             return done
         try:
-            while queue and done < budget and not stop_if:
+            while queue and done < budget:
                 callback, fields = queue.popleft()
                 callback(fields)
                 done += 1
         finally:
             lock.release()
-        if stop_if:
-            break
     return done
+
+
+def join_contiguous(blocks: list[dict]) -> list[dict]:
+    """Blocks of one stream with each run of contiguous ones joined into one block.
+
+    Contiguous: a block's first_sample_index is the previous one's plus its length. A joined
+    block keeps the first block's stamp and scalars; its sample arrays are concatenated.
+    """
+    out: list[dict] = []
+    run: list[dict] = []
+
+    def flush() -> None:
+        if len(run) == 1:
+            out.append(run[0])
+        elif run:
+            first = run[0]
+            out.append({key: np.concatenate([b[key] for b in run]) if isinstance(value, np.ndarray) else value
+                        for key, value in first.items()})
+        run.clear()
+
+    for fields in blocks:
+        if run and fields["first_sample_index"] != run[-1]["first_sample_index"] + _length(run[-1]):
+            flush()
+        if run and any(isinstance(v, np.ndarray) and not isinstance(fields.get(k), np.ndarray) for k, v in run[0].items()):
+            flush()
+        run.append(fields)
+    flush()
+    return out
+
+
+def _length(fields: dict) -> int:
+    return next((len(v) for v in fields.values() if isinstance(v, np.ndarray)), 0)
 
 
 class CallbackProfile:
@@ -163,7 +230,7 @@ class BlockPublisher:
 
 
 def subscribe_blocks(node: Any, msg_type: type, topic: str, codec: cdr.FixedCodec, callback: Callable[[Any], None],
-                     qos: Any, on_error: Callable[[Exception], None]) -> None:
+                     qos: Any, on_error: Callable[[Exception], None], background: bool = False) -> None:
     """Call `callback(fields)` for every block of `topic`: in-process when composed, else from DDS.
 
     ``fields`` is indexable by the message's field names and ``sec``/``nanosec`` either way (a
@@ -171,7 +238,7 @@ def subscribe_blocks(node: Any, msg_type: type, topic: str, codec: cdr.FixedCode
     """
     bus = current()
     if bus is not None and topic in bus.local_topics:
-        bus.subscribe(topic, callback)
+        bus.subscribe(topic, callback, background)
         return
 
     def on_bytes(data: bytes) -> None:

@@ -160,7 +160,7 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
         for node in reversed(nodes):
             _close(node)
             if bus is not None:
-                bus.drain(budget=1000)   # the closing zero block reaches its in-process consumer
+                bus.flush()   # the closing zero block reaches its in-process consumers
         for node in nodes:
             executor.remove_node(node)
             node.destroy_node()

@@ -1,6 +1,7 @@
 """Topic names of the FLAAIR graph (remap with --ros-args -r old:=new)."""
 
 DRIVE = "/flaair/drive"                      # DriveCommandBlock: drive voltage to the actuator
+DRIVE_APPLIED = "/flaair/drive/applied"      # DriveCommandBlock: the drive a real-time target applied
 SENSOR_VOLTAGE = "/flaair/sensor_v"          # SensorVoltageBlock: raw charge-amplifier outputs
 WING_STATE = "/flaair/wing_state"            # WingStateBlock: estimated from the sensors
 WING_STATE_TRUTH = "/flaair/wing_state/truth"  # WingStateBlock: simulator ground truth
@@ -8,5 +9,14 @@ COLLISION_STATUS = "/flaair/collision/status"  # CollisionStatus, one per wingbe
 COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and clearance
 CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
 CLOCK = "/clock"
+
+# The 20 kHz block streams and their types (what a composed recorder records in-process)
+BLOCK_STREAM_TYPES = {
+    DRIVE: "flaair_msgs/msg/DriveCommandBlock",
+    DRIVE_APPLIED: "flaair_msgs/msg/DriveCommandBlock",
+    SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
+    WING_STATE: "flaair_msgs/msg/WingStateBlock",
+    WING_STATE_TRUTH: "flaair_msgs/msg/WingStateBlock",
+}
 
 FRAME_ID = "robot"  # header frame_id of the robot's block streams (the fixed-size CDR fast path expects it)

@@ -7,8 +7,9 @@ The hot loop (the real-time target's bridge, or with --sim the simulated plant p
 time; the front end; the dSA controller) runs composed in one process, its block streams
 delivered in-process (`flaair_common.container`; --processes runs one process per node
 instead). The collision monitor (per-wingbeat decision, stroke-locked windows: the flapping
-frequency is free) runs in that process too, off the hot path: its blocks are handled after
-the loop's. Beside it: the recorder (--out) and the Foxglove live view (--foxglove).
+frequency is free) and the recorder (--out) run in that process too, off the hot path: their
+blocks are handled after the loop's, and the block streams reach the bag without a DDS round
+trip. Beside it: the Foxglove live view (--foxglove).
 The controller runs the configured K_r schedule (config/flaair.yaml dsa_controller_node: the
 transition experiment's), synchronous first, then self-excited.
 
@@ -43,6 +44,8 @@ HOT_NODES = {
     "controller": ("flaair_control", "dsa_controller_node", "flaair_control.dsa_controller_node:DsaControllerNode"),
 }
 COMPOSED_MONITOR = "flaair_control.collision_monitor_node:CollisionMonitorNode"
+COMPOSED_RECORDER = "flaair_tools.recorder_node:RecorderNode"
+LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH)
 SIDE_NODES = {
     "collision_monitor": ("flaair_control", "collision_monitor_node"),
     "recorder": ("flaair_tools", "recorder_node"),
@@ -85,6 +88,8 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
                                    "target_port": target_port, "lead_samples": lead}
         # the lead is loop delay too: the controller's phase advance covers it
         sections["dsa_controller_node"]["blocks_in_flight"] = 1 + -(-lead // block)
+        for key, _, value in (item.partition("=") for item in args.bridge_param):
+            sections["bridge_node"][key] = yaml.safe_load(value)
     if args.out is not None:
         sections["recorder_node"] = {"output_path": str(args.out)}
     if args.foxglove is not None:
@@ -198,24 +203,24 @@ def run_live(args: argparse.Namespace) -> int:
     loop: list = []
     watcher: Watcher | None = None
     try:
-        if args.out is not None:
-            graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
-        if args.processes:   # composed, it runs in the loop's process, off the hot path
+        if args.processes:   # composed, they run in the loop's process, off the hot path
+            if args.out is not None:
+                graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
             graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
         if args.foxglove is not None:
             graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
             print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
                   "(layout: config/foxglove_layout.json)", file=sys.stderr)
         watcher = Watcher(graph, args)
-        watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
-        time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
         if args.processes:
+            watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
+            time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
             loop = [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
-        else:
+        else:   # the recorder and the monitor are built first, so they listen before the first block
+            background = ([COMPOSED_RECORDER] if args.out is not None else []) + [COMPOSED_MONITOR]
             loop = [graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
-                                         ",".join((topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)),
-                                         *(HOT_NODES[role][2] for role in hot),
-                                         "--background", COMPOSED_MONITOR, *ros_args])]
+                                         ",".join(LOCAL_TOPICS), *(HOT_NODES[role][2] for role in hot),
+                                         *(f"--background={spec}" for spec in background), *ros_args])]
         watcher.run_for_duration()
         status = "duration reached"
     except KeyboardInterrupt:
@@ -256,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--processes", action="store_true", help="one process per node instead of the composed loop")
     parser.add_argument("--subnet", action="store_true", help="discover the whole subnet, not only this machine")
     parser.add_argument("--settle-s", type=float, default=1.0, help=argparse.SUPPRESS)
+    # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
+    parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     terminate_raises()
     try:

@@ -8,6 +8,30 @@ from flaair_common.runtime import help_text
 from flaair_model.schema import ParamSpec
 from flaair_tools.recording import RecordingParams
 
+RECORDER_HELP = """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
+
+Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
+for new topics every `discovery_period_s`, and writes each message straight into the bag
+without deserializing it, at its signal time (the leading header's stamp, the
+/clock value, or for a header-less run marker the latest stamp: flaair_tools.recording
+decides), so `play`, PlotJuggler and Foxglove show the signal's own timeline.
+Subscriptions match what the publishers offer (reliable / transient-local only if every
+publisher offers it); the offered QoS profiles are recorded with each topic, as rosbag2 does.
+
+Throughput: each callback also drains the messages already queued on its subscription
+(recording.drain); the subscription queue is `queue_depth` deep, slack for CPU starvation.
+Composed beside the loop (`container --background`, as `flaair live` runs it), it records the
+in-process block streams from the bus, with no DDS round trip.
+
+Durability: chunks are closed and handed to the OS when they reach `chunk_size_bytes` or
+every `flush_period_s`, so after a kill -9 everything older than that stays readable
+(`bin/flaair bag reindex BAG` restores the summary and metadata.yaml). SIGINT / SIGTERM close
+the bag completely.
+
+Usage:
+  bin/flaair record [-o BAG] [--topics /flaair/sensor_v ...] [--clock] [--no-compression] [--use-sim-time]
+  bin/flaair run flaair_tools recorder_node --ros-args -p output_path:=out/bags/run1
+"""
 NODE_NAME = "recorder_node"
 CONFIG_FILE = "flaair.yaml"
 # At most one block stream's QoS depth per callback, so other topics get their turn.

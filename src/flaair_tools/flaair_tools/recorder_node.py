@@ -1,29 +1,13 @@
 """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
 
-Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
-for new topics every `discovery_period_s`, and writes each message straight into the bag
-without deserializing it, at its signal time (the leading header's stamp, the
-/clock value, or for a header-less run marker the latest stamp: flaair_tools.recording
-decides), so `play`, PlotJuggler and Foxglove show the signal's own timeline.
-Subscriptions match what the publishers offer (reliable / transient-local only if every
-publisher offers it); the offered QoS profiles are recorded with each topic, as rosbag2 does.
-
-Throughput: each callback also drains the messages already queued on its subscription
-(recording.drain); the subscription queue is `queue_depth` deep, slack for CPU starvation.
-
-Durability: chunks are closed and handed to the OS when they reach `chunk_size_bytes` or
-every `flush_period_s`, so after a kill -9 everything older than that stays readable
-(`bin/flaair bag reindex BAG` restores the summary and metadata.yaml). SIGINT / SIGTERM close
-the bag completely.
-
-Usage:
-  bin/flaair record [-o BAG] [--topics /flaair/sensor_v ...] [--clock] [--no-compression] [--use-sim-time]
-  bin/flaair run flaair_tools recorder_node --ros-args -p output_path:=out/bags/run1
+What it records, when, and how it survives a kill: flaair_tools.recorder_io.RECORDER_HELP
+(also the --help of `bin/flaair record`).
 """
 from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -31,13 +15,15 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from flaair_common import cdr, intra
 from flaair_common.msgdict import message_class
 from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
+from flaair_common.topics import BLOCK_STREAM_TYPES
 from flaair_tools import bagio, recording
-from flaair_tools.recorder_io import CONFIG_FILE, NODE_NAME, RECORDER_PARAMS, RECORDING, cli_to_ros_args
-
-PARAMS = RECORDER_PARAMS
+from flaair_tools.recorder_io import CONFIG_FILE, NODE_NAME, RECORDER_HELP, RECORDING, cli_to_ros_args
+from flaair_tools.recorder_io import RECORDER_PARAMS as PARAMS
 
 
 class RecorderNode(Node):
@@ -56,22 +42,25 @@ class RecorderNode(Node):
         except bagio.BagError as exc:
             raise ParameterError(f"parameter 'output_path': {exc}") from exc
         self.subscribed: dict[str, Any] = {}
-        self.skipped: set[str] = set()
-        self.received: dict[str, int] = {}
+        self.skipped, self.received = set(), {}
+        # composed (an EventsExecutor): no take() inside a callback; the block streams come in-process
+        self.recording = RECORDING if intra.current() is None else replace(RECORDING, drain_limit=1)
         # Wall-clock (steady) timers: with use_sim_time a ROS-time timer would stop while /clock does.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        for topic in sorted(intra.current().local_topics if intra.current() is not None else ()):
+            if recording.wanted(topic, self.chosen, self.p["record_clock"]) and topic in BLOCK_STREAM_TYPES:
+                self.record_in_process(intra.current(), topic, BLOCK_STREAM_TYPES[topic])
         self.create_timer(self.p["discovery_period_s"], self.discover, clock=steady)
         self.create_timer(self.p["flush_period_s"], self.writer.flush, clock=steady)
         self.discover()
-        what = ", ".join(self.chosen) if self.chosen else f"every {recording.NAMESPACE}* topic"
-        self.get_logger().info(f"recording {what} to {self.writer.path}")
+        self.get_logger().info(f"recording {', '.join(self.chosen) or f'every {recording.NAMESPACE}* topic'} to "
+                               f"{self.writer.path}")
 
     def discover(self) -> None:
         """Subscribe to every wanted topic not subscribed yet."""
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.subscribed or topic in self.skipped:
-                continue
-            if not recording.wanted(topic, self.chosen, self.p["record_clock"]):
+            if topic in self.subscribed or topic in self.skipped or not recording.wanted(topic, self.chosen,
+                                                                                         self.p["record_clock"]):
                 continue
             if len(types) != 1:
                 self.skip(topic, f"published with several types ({', '.join(types)})")
@@ -93,20 +82,32 @@ class RecorderNode(Node):
             profile = QoSProfile(
                 history=HistoryPolicy.KEEP_LAST, depth=self.p["queue_depth"],
                 reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE,
-            )
-            stamped = bagio.has_leading_stamp(msgtype, self.store)
-            self.received[topic] = 0
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE)
+            self.received[topic], stamped = 0, bagio.has_leading_stamp(msgtype, self.store)
             self.subscribed[topic] = self.create_subscription(
                 cls, topic, self.make_callback(topic, stamped, cls), profile, raw=True)
             self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
+
+    def record_in_process(self, bus: intra.Bus, topic: str, msgtype: str) -> None:
+        """Record `topic` from the composed nodes' bus: each block encoded as its DDS message would be."""
+        layout = cdr.layout_of(msgtype)
+        self.writer.add_topic(topic, msgtype, [bagio.qos_from_rclpy(BLOCK_STREAM)])
+        self.received[topic], self.subscribed[topic], codecs = 0, None, {}   # None: not for discover()
+
+        def on_block(fields: dict) -> None:
+            stamp_ns, data = cdr.encode_fields(layout, fields, codecs)
+            self.apply(recording.Received(topic, data, stamp_ns, None))
+            self.received[topic] += 1
+
+        bus.subscribe(topic, on_block, background=True, join=False)
+        self.get_logger().info(f"recording {topic} [{msgtype}] in-process")
 
     def skip(self, topic: str, reason: str) -> None:
         self.skipped.add(topic)
         self.get_logger().warning(f"not recording {topic}: {reason}")
 
     def apply(self, inputs: recording.Received | recording.Finish) -> None:
-        self.log_time, writes = recording.step(self.log_time, inputs, RECORDING)
+        self.log_time, writes = recording.step(self.log_time, inputs, self.recording)
         for w in writes:
             self.writer.write(w.topic, w.log_ns, w.data, w.publish_ns)
 
@@ -118,13 +119,14 @@ class RecorderNode(Node):
                 return handle.take_message(cls, True)
 
         def on_message(data: bytes, info: dict) -> None:
-            queued = recording.drain(take, RECORDING)
+            queued = recording.drain(take, self.recording)
             for data, info in [(data, info), *queued]:
                 stamp = bagio.leading_stamp_ns(data) if stamped else None
                 self.apply(recording.Received(topic, data, stamp, info.get("source_timestamp") or None))
             self.received[topic] += 1 + len(queued)
 
-        return on_message
+        # rclpy's EventsExecutor (composed) cannot hand a callback the message info
+        return on_message if intra.current() is None else (lambda data: on_message(data, {}))
 
     def close(self) -> None:
         """Finish the bag (summary, metadata.yaml)."""
@@ -138,10 +140,9 @@ class RecorderNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script (ROS arguments) or `bin/flaair record` (friendly options, argv given)."""
-    if argv is None:
-        return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, executor_kind="single")
-    args = cli_to_ros_args(argv, __doc__)
-    sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
+    args = None if argv is None else cli_to_ros_args(argv, RECORDER_HELP)
+    if args is not None:
+        sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
     return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, args, executor_kind="single")
 
 

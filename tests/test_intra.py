@@ -1,0 +1,81 @@
+"""The in-process bus of composed nodes (flaair_common.intra): the hot FIFO first, background
+subscribers (collision monitor, recorder) batched on the main thread, everything flushed at the
+end; and the bytes a composed recorder writes are the bytes DDS would have carried."""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from flaair_common import cdr, intra, topics
+from flaair_tools import bagio
+
+FS = 20000.0
+
+
+def block(first: int, n: int = 10) -> dict:
+    stamp_ns = int(round(first / FS * 1e9))
+    return {"sample_rate_hz": FS, "first_sample_index": first, "drive_v": np.arange(first, first + n, dtype=float),
+            "sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000, "frame_id": ""}
+
+
+def test_background_waits_for_a_batch_and_never_runs_before_the_hot_path() -> None:
+    bus = intra.Bus({topics.DRIVE}, background_batch=5)
+    calls: list[tuple[str, int, int]] = []
+    bus.subscribe(topics.DRIVE, lambda f: calls.append(("hot", f["first_sample_index"], len(f["drive_v"]))))
+    bus.subscribe(topics.DRIVE, lambda f: calls.append(("monitor", f["first_sample_index"], len(f["drive_v"]))),
+                  background=True)
+    bus.subscribe(topics.DRIVE, lambda f: calls.append(("recorder", f["first_sample_index"], len(f["drive_v"]))),
+                  background=True, join=False)
+    bus.deliver(topics.DRIVE, block(0))
+    bus.deliver(topics.DRIVE, block(10))
+    assert calls == [("hot", 0, 10), ("hot", 10, 10)] and not bus.pending()   # 4 background blocks wait
+    bus.deliver(topics.DRIVE, block(20))                                        # 6: a batch, after the hot one
+    assert calls[2:] == [("hot", 20, 10), ("monitor", 0, 30),                    # the monitor's joined
+                         ("recorder", 0, 10), ("recorder", 10, 10), ("recorder", 20, 10)]
+    bus.deliver(topics.DRIVE, block(40))                                        # a gap: 30 never came
+    bus.deliver(topics.DRIVE, block(50))
+    assert calls[-1] == ("hot", 50, 10)
+    bus.flush()
+    assert calls[-3:] == [("monitor", 40, 20), ("recorder", 40, 10), ("recorder", 50, 10)]
+
+
+def test_background_runs_only_on_the_main_thread() -> None:
+    bus = intra.Bus({topics.DRIVE}, background_batch=1)
+    ran: list[str] = []
+    bus.subscribe(topics.DRIVE, lambda f: ran.append(threading.current_thread().name), background=True)
+    reader = threading.Thread(target=lambda: bus.deliver(topics.DRIVE, block(0)), name="udp-reader")
+    reader.start()
+    reader.join()
+    assert ran == [] and bus.pending()
+    bus.drain()
+    assert ran == [threading.main_thread().name]
+
+
+@pytest.mark.parametrize("topic", sorted(topics.BLOCK_STREAM_TYPES))
+def test_a_composed_recorder_writes_the_bytes_dds_would_carry(topic: str) -> None:
+    """encode_fields (what the composed recorder writes) == the publisher's FixedCodec bytes, and
+    rosbags (an independent CDR reader) reads the values back."""
+    msgtype = topics.BLOCK_STREAM_TYPES[topic]
+    layout = cdr.layout_of(msgtype)
+    rng = np.random.default_rng(1)
+    fields: dict = {"sample_rate_hz": FS, "first_sample_index": 12340}
+    for name, kind in layout.fields:
+        if kind == "float64[]":
+            fields[name] = rng.normal(size=10)
+        elif kind == "bool[]":
+            fields[name] = rng.random(10) > 0.3
+        elif name not in fields:
+            fields[name] = 1
+    publisher_codec = cdr.FixedCodec(layout, 10, topics.FRAME_ID)
+    stamp_ns = 617_000_050_000
+    dds_bytes = publisher_codec.encode(stamp_ns, fields)
+    handed_over = {**fields, "sec": stamp_ns // 10**9, "nanosec": stamp_ns % 10**9, "frame_id": topics.FRAME_ID}
+    got_stamp, recorded = cdr.encode_fields(layout, handed_over, {})
+    assert got_stamp == stamp_ns and recorded == dds_bytes
+    message = bagio.typestore().deserialize_cdr(recorded, msgtype)
+    assert message.header.frame_id == topics.FRAME_ID and message.first_sample_index == 12340
+    for name, kind in layout.fields:
+        if kind.endswith("[]"):
+            np.testing.assert_array_equal(np.asarray(getattr(message, name)), fields[name])
