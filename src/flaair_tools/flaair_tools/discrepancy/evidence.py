@@ -170,6 +170,18 @@ def _null_fit_value(spec: EffectSpec) -> float:
     return spec.to_fit(spec.lower)
 
 
+def same_on_both(spec: EffectSpec, v_old: float, se_old: float, v_new: float, se_new: float,
+                 settings: Settings) -> Optional[float]:
+    """R5: one sensor effect's values on the two chains agree within 3 combined standard errors plus
+    `consistency_rel_tol` of its size: their inverse-variance mean, else None (one value per chain)."""
+    tol = 3.0 * math.hypot(se_old, se_new) + settings.consistency_rel_tol * spec.effect_size(v_old)
+    if not abs(v_new - v_old) <= tol:
+        return None
+    w_old = 1 / se_old**2 if 0 < se_old < math.inf else 0.0
+    w_new = 1 / se_new**2 if 0 < se_new < math.inf else 0.0
+    return (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
+
+
 def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: str, truth_referenced: bool,
               x_start: Optional[np.ndarray] = None,
               merge_with: Optional[tuple[float, float]] = None) -> tuple[CandidateEvidence, Model]:
@@ -252,15 +264,11 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     model = _models_for(base, specs, fit_all.x[None, :])[0]
     same = None
     if merge_with is not None:
-        v_old, se_old = merge_with
-        v_new, se_new = values[0], se_phys[0]
-        tol = 3.0 * math.hypot(se_old, se_new) + st.consistency_rel_tol * specs[0].effect_size(v_old)
-        same = bool(abs(v_new - v_old) <= tol)
+        merged = same_on_both(specs[0], *merge_with, values[0], se_phys[0], st)
+        same = merged is not None
         if same:
-            w_old = 1 / se_old**2 if 0 < se_old < math.inf else 0.0
-            w_new = 1 / se_new**2 if 0 < se_new < math.inf else 0.0
-            values = [(w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new]
-            model = with_effects(base, {specs[0].name: specs[0].params(values[0], channel="both")})
+            values = [merged]
+            model = with_effects(base, {specs[0].name: specs[0].params(merged, channel="both")})
     ev = CandidateEvidence(
         labels=tuple(s.label for s in specs), channel=channel, values=tuple(values), se=tuple(se_phys),
         z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons), heldout_nrmse_before=before,

@@ -10,7 +10,8 @@ from scipy import optimize
 
 from flaair_model.model import Model, ModelError, with_effect_on, with_effects
 
-from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage, simulate_runs
+from .runs import (Run, _MotionCache, _sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage,
+                   simulate_motion)
 from .settings import Settings
 from .vocabulary import SENSOR_CHANNELS, EffectSpec, _SENSOR_SIDE, _UPSTREAM_TRUTH
 
@@ -80,7 +81,9 @@ class _Problem:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
         models = list(models)
         motion = self.motion.get(models, self.runs, self.run_ids) if self.channel in SENSOR_CHANNELS else None
-        sims = None if motion is not None else {j: simulate_runs(models, [self.runs[j]]) for j in self.run_ids}
+        # truth channels: the motion of every model on every run (degrees only where judged)
+        sims = None if motion is not None else {j: simulate_motion(models, self.runs[j]) for j in self.run_ids}
+        angle = "stroke_rad" if self.channel == "stroke_deg" else "pitch_rad"
         out = []
         side = _SENSOR_SIDE.get(self.channel)
         for i, m in enumerate(models):
@@ -100,7 +103,7 @@ class _Problem:
                     v = sensor_voltage(m, run.fs_hz, stroke, pitch, run.drive_v, side)
                     r = run.channel(self.channel)[idx] - v[idx]
                 else:
-                    r = run.channel(self.channel)[idx] - sims[f.run][i][0][self.channel][idx]
+                    r = run.channel(self.channel)[idx] - np.degrees(getattr(sims[f.run], angle)[i, idx])
                 if not np.all(np.isfinite(r)):
                     r = np.where(np.isfinite(r), r, 1e6 * self.weight)
                 row.append((r - r.mean()) / self.weight)

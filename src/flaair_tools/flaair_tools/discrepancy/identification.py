@@ -224,7 +224,8 @@ class _TruthResiduals:
 
 
 def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], keys: Sequence[str],
-               start: Mapping[str, float], channel: str, max_nfev: int, decimate: int) -> dict:
+               start: Mapping[str, float], channel: str, max_nfev: int, decimate: int,
+               centre: Optional[Mapping[str, float]] = None) -> dict:
     """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
     channel; returns values, log-space covariance of the plant parameters, states, costs."""
     resid = _TruthResiduals(runs, noise, decimate, (channel,))
@@ -234,8 +235,9 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
     omega = 2.0 * math.pi * float(getattr(model.plant, key_f))  # rate scaled to an angle: (x, x'/omega)
     base_states = [np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs]
     u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
-    lo = np.r_[u_nominal - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
-    hi = np.r_[u_nominal + math.log1p(FIT_RANGE), np.full(2 * len(runs), np.inf)]
+    u_centre = np.log([float(centre[k]) for k in keys]) if centre is not None else u_nominal
+    lo = np.r_[u_centre - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
+    hi = np.r_[u_centre + math.log1p(FIT_RANGE), np.full(2 * len(runs), np.inf)]
     steps = np.r_[np.full(p, FD_STEP), np.full(2 * len(runs), STATE_STEP_RAD)]
 
     def plant_of(u: np.ndarray) -> Model:
@@ -275,7 +277,7 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
 
     x_start = np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base_states])
     u_start = np.r_[np.clip(np.log([start[k] for k in keys]), lo[:p], hi[:p]), x_start]
-    u_nom = np.r_[u_nominal, x_start]
+    u_nom = np.r_[np.clip(u_nominal, lo[:p], hi[:p]), x_start]
     costs = [float(np.dot(fun_and_jac(u)[0], fun_and_jac(u)[0])) for u in (u_nom, u_start)]
     # the better of the frequency-domain and the model's values starts the fit
     u0 = u_start if costs[1] <= costs[0] else u_nom
@@ -292,7 +294,8 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
 
 def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
                    keys: Sequence[str] = tuple(PLANT_PARAMETERS), max_nfev: int = MAX_NFEV,
-                   decimate: int = DECIMATE, state_channels: Sequence[str] = ()) -> PlantFit:
+                   decimate: int = DECIMATE, state_channels: Sequence[str] = (),
+                   centre: Optional[Mapping[str, float]] = None) -> PlantFit:
     """Fit this robot's plant parameters to the truth angles of its runs (module docstring).
 
     Upstream first: the stroke parameters on stroke_deg, then, with them fixed, the pitch
@@ -313,6 +316,10 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     state_channels
         Truth channels whose initial states are fitted even where no plant parameter is (after an
         effect joined the model, the states fitted with the old plant are re-fitted).
+    centre
+        {key: value} the fit range (x(1 -+ FIT_RANGE)) is centred on; default: `model`'s values. A
+        re-identification (after an effect joined the model) keeps the range of the first one: a
+        parameter bent by the missing effect must be able to come back.
     """
     keys = tuple(keys)
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
@@ -330,7 +337,7 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
         stage = [k for k in keys if {**PLANT_PARAMETERS, **_OTHER_CHANNELS}[k] == channel]
         if not stage and channel not in state_channels:
             continue
-        out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate)
+        out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate, centre)
         current = with_plant(current, out["values"])
         runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"])]
         values.update(out["values"])

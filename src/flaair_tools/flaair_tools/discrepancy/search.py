@@ -10,7 +10,7 @@ import numpy as np
 from flaair_model.model import Model, effect_params, with_effect_on, with_effects, without_effect_on
 
 from .diagnosis import _gap_test, _residual
-from .evidence import CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared
+from .evidence import CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, same_on_both
 from .fitting import _fit, _Fold, apply_values, spec_value
 from .identification import fit_initial_states, identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
@@ -72,6 +72,14 @@ def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequen
     if current.effect_on(spec.name, _other_side(spec.channel_param)) is None:
         return "new" if here is None else None
     return "merge" if here is None or spec.name in reopen else None
+
+
+def _other_chain(model: Model, spec: EffectSpec, found: Sequence[FoundEffect]) -> tuple[float, float]:
+    """(value, standard error) of sensor effect `spec` on the other chain (found on the other sensor)."""
+    prev = next((f for f in found if f.name == spec.name), None)
+    se_prev = (prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None else math.inf
+    other = model.effect_on(spec.name, _other_side(spec.channel_param))
+    return float(getattr(other, spec.key)), float(se_prev)
 
 
 def _own(model: Model, spec: EffectSpec) -> bool:
@@ -142,10 +150,7 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
             merge = None
             base = state.model
             if kind == "merge":
-                prev = next((f for f in found if f.name == s.name), None)
-                se_prev = (prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None else math.inf
-                other = state.model.effect_on(s.name, _other_side(s.channel_param))
-                merge = (float(getattr(other, s.key)), float(se_prev))
+                merge = _other_chain(state.model, s, found)
                 base = _strip(state.model, [s])
             ev, m = _evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
             if kind == "merge":  # one value on both chains when they agree (R5), else one per chain
@@ -225,7 +230,7 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
     base_state = _ChannelState(state.model, list(state.specs), dict(state.evidence), state.last, state.reopen)
     state, has_gap, first = _greedy(ctx, model_in, state, channel, truth_ref, found, steps, st.max_effects_per_channel)
     if has_gap and st.pair_fallback:
-        singles = [e for e in first if e[3] == "new"]
+        singles = [e for e in first if e[3] in ("new", "merge")]
         best = None
         for i in range(len(singles)):
             for j in range(i + 1, len(singles)):
@@ -236,6 +241,13 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
                 ev, m = _evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
                 for s in (a[2][0], b[2][0]):
                     ev = _check_upstream_truth(ctx, ev, m, channel, s)
+                for s, kind in ((a[2][0], a[3]), (b[2][0], b[3])):
+                    if kind == "merge":  # the other chain's effect: one value on both when they agree (R5)
+                        k = specs.index(s)
+                        merged = same_on_both(s, *_other_chain(base_state.model, s, found), ev.values[k], ev.se[k],
+                                              st)
+                        if merged is not None:
+                            m = with_effects(m, {s.name: s.params(merged, channel="both")})
                 steps.append((ev,))
                 if ev.accepted and (best is None or ev.delta_bic_heldout < best[0].delta_bic_heldout):
                     best = (ev, m, specs)
@@ -275,8 +287,13 @@ def find_effects(
     settings: Settings = Settings(),
     progress: Optional[Callable[[str], None]] = None,
     tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None,
+    nominal: Optional[Mapping[str, float]] = None,
 ) -> tuple[Model, tuple[FoundEffect, ...], tuple[ChannelSearch, ...], tuple[Run, ...]]:
     """Greedy, channel-by-channel search for the missing effects (rules in the module docstring).
+
+    nominal: {plant key: value} the plant identification's fit range is centred on (the input
+    model's; default `model`'s): the pitch parameters identified again after a stroke effect was
+    found may have been bent far by its absence.
 
     Returns
     -------
@@ -323,7 +340,7 @@ def find_effects(
         if channel == "stroke_deg" and state.specs and settings.identify and not has_gap:
             # the pitch parameters were identified under the old stroke motion: identify them again
             fit = identify_plant(ctx.runs, current, noise, keys=[k for k, c in PLANT_PARAMETERS.items()
-                                                                 if c == "pitch_deg"])
+                                                                 if c == "pitch_deg"], centre=nominal)
             current = fit.model
             _use_runs(ctx, fit.runs)
         searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))

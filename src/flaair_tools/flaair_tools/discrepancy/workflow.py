@@ -171,7 +171,8 @@ def analyse(
             diagnosis_after=diag_fit, searches=(), remaining=(), sims_after=tuple(sims_fit),
             summary=_summary("no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)),
             plant_parameters=_plant_parameters(model, base, plant_fit), **common)
-    model_out, effects, searches, runs = find_effects(runs, base, noise, settings, progress, tracks)
+    model_out, effects, searches, runs = find_effects(runs, base, noise, settings, progress, tracks,
+                                                      nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS})
     if progress:
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
