@@ -197,6 +197,17 @@ def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
     assert state.counters.silences == 0 and len(blocks) == 5 and not notices
 
 
+def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_silent() -> None:
+    # 40 ms without a read, but the socket holds unread datagrams (the process stalled: a GIL-heavy
+    # start-up, a long callback): no silence, no stop, no samples published as lost
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.zeros(N), 0.0), Tick(0.0401, backlog=True)]
+    state, blocks, packets, _, notices = run(inputs)
+    assert state.counters.silences == 0 and not any("SILENT" in n.text for n in notices)
+    assert not any(p.stop for p in packets) and len(blocks) == 1
+    state, *_ = run([Tick(0.0402)], state=state)   # nothing waiting any more: now it is a silence
+    assert state.counters.silences == 1
+
+
 def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
     inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]        # the target restarted at 0

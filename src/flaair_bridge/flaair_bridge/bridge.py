@@ -144,6 +144,7 @@ class DriveBlock(NamedTuple):
 
 class Tick(NamedTuple):
     now_s: float
+    backlog: bool = False   # datagrams wait unread: the bridge stalled, the target is not silent
 
 
 class Stop(NamedTuple):
@@ -428,7 +429,7 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
         packets.append(packet)
         notices.append(Notice("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
                                                 f"{params.drive_timeout_s:g} s): stop packet sent, the target zeroes the drive", True))
-    if state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s:
+    if state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s and not inputs.backlog:
         if not state.silent:
             state = state._replace(silent=True, counters=_count(state.counters, silences=1))
             notices.append(Notice("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_read_s):.1f} ms "

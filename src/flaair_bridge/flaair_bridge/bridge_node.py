@@ -77,7 +77,7 @@ class BridgeNode(Node):
                                             BLOCK_STREAM) if p["publish_applied"] else None
         intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, self.drive_codec, self.on_drive, BLOCK_STREAM,
                                self.on_undecodable)
-        self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time())))
+        self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         self.bad_drive_messages, self.closed = 0, False
         try:   # the socket last: its reader thread delivers at once, into a fully built node

@@ -8,6 +8,7 @@ known, so the bridge knows how far the target's clock has moved on.
 """
 from __future__ import annotations
 
+import select
 import socket
 import struct
 import threading
@@ -54,6 +55,13 @@ class DatagramEndpoint:
                     seconds, nanoseconds = _TIMESPEC.unpack_from(value)
                     arrival_s = seconds + 1e-9 * nanoseconds
             self.on_datagram(data, sender, arrival_s)
+
+    def pending(self) -> bool:
+        """Datagrams are queued, not read yet (the reader thread is behind: this process stalled)."""
+        try:
+            return bool(select.select([self.sock], [], [], 0.0)[0])
+        except (OSError, ValueError):
+            return False
 
     def send(self, packet: bytes, address: tuple[str, int]) -> str:
         """Send one datagram; returns '' or the OS error's text (UDP: the peer will notice the silence)."""

@@ -54,6 +54,7 @@ SIDE_NODES = {
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
+LOOP_CLOSE_S = 180.0   # the loop's process writes the recorder's backlog and closes the bag before it exits
 
 
 class LiveError(RuntimeError):
@@ -229,14 +230,14 @@ def run_live(args: argparse.Namespace) -> int:
         status = "terminated"
     except (GraphError, LiveError) as exc:
         for process in reversed(loop):
-            graph.stop(process)
+            graph.stop(process, timeout_s=LOOP_CLOSE_S)
         if watcher is not None:
             watcher.close()
         graph.close()
         raise LiveError(str(exc)) from exc
     # The loop first (zero drive, stop packet), then the listeners; the recorder last.
     for process in reversed(loop):
-        graph.stop(process)
+        graph.stop(process, timeout_s=LOOP_CLOSE_S)
     if watcher is not None:
         watcher.close()
     graph.close()
