@@ -3,6 +3,8 @@ arrays a block at a time, every check and line number the same across block boun
 from __future__ import annotations
 
 import csv
+import os
+import threading
 import tracemalloc
 from pathlib import Path
 
@@ -123,3 +125,23 @@ def test_reading_holds_no_second_copy_of_the_columns(tmp_path: Path, monkeypatch
     time_steps_bytes = 8 * 60_000
     block_strings_bytes = 1000 * 600   # one block of lines, rows and cells as Python strings (about 600 B a row)
     assert peak < result_bytes + time_steps_bytes + block_strings_bytes, (peak, result_bytes)
+
+
+def test_a_pipe_is_read_once_and_gives_the_same_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`bin/flaair import <(unzip -p runs.zip run.csv)`: no line count first (it would consume the
+    pipe); the arrays grow as blocks arrive and end at the row count."""
+    monkeypatch.setattr(runcsv, "CHUNK_LINES", 7)
+    columns = _columns(1000)
+    path = tmp_path / "run.csv"
+    _write(path, columns)
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=lambda: fifo.write_bytes(path.read_bytes()))
+    writer.start()
+    try:
+        run = read_run(fifo)
+    finally:
+        writer.join(timeout=30)
+    for name in COLUMNS:
+        assert run[name].shape == (1000,)
+        np.testing.assert_array_equal(run[name], columns[name])

@@ -115,7 +115,8 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
     columns: dict[str, np.ndarray] = {}
     rows = 0
     try:
-        capacity = max(count_lines(path) - 1, 0)
+        # a pipe (`<(...)`) is read once: its arrays grow as rows come instead
+        capacity = max(count_lines(path) - 1, 0) if path.is_file() else 0
         with open(path, newline="", encoding="utf-8-sig") as handle:
             first = handle.readline()
             if not first:
@@ -127,8 +128,8 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
                 lines = list(itertools.islice(handle, CHUNK_LINES))
                 if not lines:
                     break
-                if rows + len(lines) > capacity:  # the file grew after it was counted
-                    capacity = rows + len(lines)
+                if rows + len(lines) > capacity:  # a pipe, or a file that grew after it was counted
+                    capacity = max(rows + len(lines), 2 * capacity)
                     columns = {name: _grown(values, capacity) for name, values in columns.items()}
                 _parse_rows(path, lines, rows + 2, len(header), wanted, columns, rows)
                 rows += len(lines)
@@ -138,7 +139,7 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
         raise RunFileError(f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
     if not columns or rows == 0:
         raise RunFileError(f"{path}: no data rows after the header")
-    if rows < capacity:  # fewer rows than counted lines (a file that shrank): keep only the rows read
+    if rows < capacity:  # fewer rows than room for them (a pipe, a file that shrank): keep only the rows read
         columns = {name: values[:rows].copy() for name, values in columns.items()}
     return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns)
 
