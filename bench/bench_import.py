@@ -1,9 +1,10 @@
 """`flaair import` of a 200 MB measured-run CSV: peak memory against the file's size.
 
-Each figure runs in its own child process (its peak RSS, ru_maxrss, is its own): the chunked
-`flaair import` (read in blocks of rows, messages streamed into the bag) against the same-run
-baseline of reading the whole file at once (csv.reader over every row, then numpy), which is
-how the reader worked before. Target: import peak < 2x the file size.
+Each figure runs in its own child process (its peak RSS, ru_maxrss, is its own): `flaair import`
+(lines counted, rows parsed a block at a time straight into float64 arrays of that length,
+messages made and streamed into the bag a block at a time, block_size 10 as config/flaair.yaml
+sets it) against the same-run baseline of reading the whole file at once (csv.reader over every
+row, then numpy), which is how the reader worked first. Target: import peak < 2x the file size.
 
 Run: scripts/in_env.sh python bench/bench_import.py [--mb 200]
 """
