@@ -292,8 +292,8 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
             states.append((m.k_r, m.watchdog, m.fault, m.drive_clamped, m.drive_v))
 
         monkeypatch.setattr(node.drive.publisher, "publish", on_drive)
-        monkeypatch.setattr(node.state_pub, "publish", on_state)
-        monkeypatch.setattr(node.state_pub, "get_subscription_count", lambda: 1)   # a listener: states are written
+        monkeypatch.setattr(node.state_pub.publisher, "publish", on_state)
+        monkeypatch.setattr(node.state_pub.publisher, "get_subscription_count", lambda: 1)   # a listener: states are written
 
         def feed(k: int) -> None:
             message = WingStateBlock(sample_rate_hz=FS_HZ, first_sample_index=k * BLOCK)

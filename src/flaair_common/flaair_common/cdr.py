@@ -211,6 +211,19 @@ class FixedCodec:
         return decode(self.layout, data)
 
 
+class GeneralCodec:
+    """`FixedCodec`'s encode/decode for a layout with strings or variable sizes (the general path)."""
+
+    def __init__(self, layout: Layout, frame_id: str = "") -> None:
+        self.layout, self.frame_id = layout, frame_id
+
+    def encode(self, stamp_ns: int, values: dict) -> bytes:
+        return encode(self.layout, stamp_ns, self.frame_id, values)
+
+    def decode(self, data: bytes | memoryview) -> dict:
+        return decode(self.layout, data)
+
+
 def encode_fields(layout: Layout, fields, codecs: dict) -> tuple[int, bytes]:
     """(stamp ns, CDR bytes) of a block handed over in-process (fields by name with sec, nanosec,
     frame_id), as its DDS message would be; `codecs` caches a FixedCodec per (block size, frame_id)."""

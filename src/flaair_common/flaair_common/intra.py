@@ -33,10 +33,11 @@ class Bus:
     """The composed nodes' in-process block streams (only `local_topics` travel here)."""
 
     def __init__(self, local_topics: set[str], budget: int = 64, profile: bool = False,
-                 background_batch: int = 20) -> None:
+                 background_batch: int = 100) -> None:
         self.local_topics = set(local_topics)
         self.budget = budget
-        self.background_batch = background_batch   # background blocks wait until this many queue (10 ms at 20 kHz)
+        # background blocks wait until this many queue: ~10 ms at 20 kHz of a recorder's 6 streams and the monitor's 1
+        self.background_batch = background_batch
         self.profile = CallbackProfile() if profile else None   # FLAAIR_PROFILE: time every composed callback
         self.subscribers: dict[str, list[tuple[Callable[[dict], None], bool]]] = collections.defaultdict(list)
         self.queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()

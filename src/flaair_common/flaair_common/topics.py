@@ -10,8 +10,9 @@ COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and cle
 CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
 CLOCK = "/clock"
 
-# The 20 kHz block streams and their types (what a composed recorder records in-process)
+# The 20 kHz streams and their types (what a composed recorder records in-process)
 BLOCK_STREAM_TYPES = {
+    CONTROLLER_STATE: "flaair_msgs/msg/ControllerState",
     DRIVE: "flaair_msgs/msg/DriveCommandBlock",
     DRIVE_APPLIED: "flaair_msgs/msg/DriveCommandBlock",
     SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",

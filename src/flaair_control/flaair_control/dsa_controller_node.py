@@ -60,7 +60,8 @@ class DsaControllerNode(Node):
         self.lock = threading.RLock()
         self.drive = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE,
                                           cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size), BLOCK_STREAM)
-        self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, BLOCK_STREAM)
+        self.state_pub = intra.BlockPublisher(self, ControllerState, topics.CONTROLLER_STATE,
+                                              cdr.GeneralCodec(cdr.CONTROLLER_STATE), BLOCK_STREAM)
         intra.subscribe_blocks(self, WingStateBlock, topics.WING_STATE,
                                cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID),
                                self.on_wing_state, BLOCK_STREAM, self.on_undecodable)
@@ -94,11 +95,11 @@ class DsaControllerNode(Node):
                                       "first_sample_index": b.first_sample_index, "drive_v": b.drive_v})
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
-        if b.with_state and self.state_pub.get_subscription_count():   # volatile: no listener, nothing lost
-            self.state_pub.publish(cdr.encode(cdr.CONTROLLER_STATE, stamp_ns, "", {
+        if b.with_state and self.state_pub.subscription_count():   # volatile: no listener, nothing lost
+            self.state_pub.publish(stamp_ns, {
                 "k_r": b.k_r, "async_drive_v": b.async_drive_v, "sync_drive_v": b.sync_drive_v,
                 "drive_v": b.drive_v[-1], "drive_clamped": b.drive_clamped, "watchdog": WATCHDOG[b.tripped],
-                "fault": b.fault, "amplitude_scale": b.amplitude_scale, "stroke_frequency_hz": b.stroke_frequency_hz}))
+                "fault": b.fault, "amplitude_scale": b.amplitude_scale, "stroke_frequency_hz": b.stroke_frequency_hz})
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1

@@ -45,7 +45,8 @@ HOT_NODES = {
 }
 COMPOSED_MONITOR = "flaair_control.collision_monitor_node:CollisionMonitorNode"
 COMPOSED_RECORDER = "flaair_tools.recorder_node:RecorderNode"
-LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH)
+LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH,
+                topics.CONTROLLER_STATE)
 SIDE_NODES = {
     "collision_monitor": ("flaair_control", "collision_monitor_node"),
     "recorder": ("flaair_tools", "recorder_node"),
