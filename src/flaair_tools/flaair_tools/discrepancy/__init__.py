@@ -45,8 +45,9 @@ angle + interpolated measured-minus-model error) instead of the simulated one, s
 physics error is not blamed on the sensor; the pitch truth below an unexplained stroke gap is
 not analysed (its gap is reported as possibly propagated). On the second sensor, the sensor
 effects found on the first are tried first on both sensors at the same values (no new
-parameter); a sensor effect found on both sensors with consistent parameters becomes one effect
-with ``channel: both``. Sensor effects are tried without re-integrating the dynamics: the motion
+parameter), then with this sensor's own value; a sensor effect found on both sensors with
+consistent parameters becomes one effect with ``channel: both``, otherwise the model keeps one
+value per sensor chain (``{stroke: {...}, pitch: {...}}``, `flaair_model.model.PerChannel`). Sensor effects are tried without re-integrating the dynamics: the motion
 is simulated once and `sensor_voltage` (the plant's sensor chain in numpy) does the rest.
 
 Decision rules (`Settings`, all documented constants)
@@ -74,8 +75,9 @@ each run is predicted with the inverse-variance mean of the *other* runs' estima
   Runs differ in drive level (full and half chirp) and in time, so an effect whose parameter
   would have to change with the drive level or over time (an effect outside the vocabulary that
   a vocabulary effect only mimics) is refused here;
-* R5 (a sensor effect already found on the other sensor, extended to both): the two sensors'
-  estimates agree within 3 combined standard errors + the R4 allowance;
+* R5 (a sensor effect already found on the other sensor) decides its form, not its acceptance:
+  where the two sensors' estimates agree within 3 combined standard errors + the R4 allowance it
+  becomes one value on both chains, else each chain keeps its own;
 * R6 (stroke physics judged on pitch_deg): stroke_deg keeps no gap with the effect added.
 
 Among the passing candidates the lowest held-out BIC wins; the loop repeats on the channel (the

@@ -276,14 +276,17 @@ white (Ljung-Box, {s.ljung_box_lags} lags, p &lt; {s.whiteness_alpha:g}).</li>
 stroke_sensor_v (sensor_delay, charge_amp_highpass, feedthrough, transmission_nonlinearity, strain_transfer_loss),
 pitch_sensor_v (sensor_delay, charge_amp_highpass, strain_transfer_loss). Physics is judged on the ground-truth
 channels, which sensor effects cannot touch; sensors with the physics corrected (against the measured angle when the
-truth above keeps a gap). A sensor effect of the other sensor is first tried on both sensors with no new parameter.</li>
+truth above keeps a gap). A sensor effect of the other sensor is first tried on both sensors with no new parameter,
+then with this sensor's own value. On a sensor with a gap, the runs' initial states are fitted again on the
+truth and the sensors modelled so far (a video-rate truth leaves them loose).</li>
 <li><b>Accept</b> an effect only if ALL hold: R1 the held-out model error of the channel (NRMSE above
 noise) drops by more than {s.min_heldout_drop:.0%}; R2 held-out Delta-BIC &lt; {s.max_delta_bic:g}; R3 the parameter is more than {s.min_z:g}
 standard errors from its null value and not stuck at a bound of its search range; R4 the per-run estimates (runs differ in drive level and time) agree: chi-square
 p &ge; {s.consistency_alpha:g} with a {s.consistency_rel_tol:.0%} model-imperfection allowance, and at least two runs
-identify the effect; R5 a sensor effect extended from the other sensor to both agrees with it; R6 stroke physics
-judged on pitch_deg leaves stroke_deg without a gap. Held-out: each run is predicted with the pooled estimate of
-the other runs.</li>
+identify the effect; R6 stroke physics judged on pitch_deg leaves stroke_deg without a gap. Held-out: each run is
+predicted with the pooled estimate of the other runs. R5 (form, not acceptance): a sensor effect found on both
+sensors becomes one value on both chains when the two estimates agree within 3 combined standard errors plus
+{s.consistency_rel_tol:.0%}, else each chain keeps its own.</li>
 <li><b>Choose</b> the passing candidate with the lowest held-out BIC; repeat on the channel (at most
 {s.max_effects_per_channel}); if a gap is left, pairs of effects are fitted jointly and replace the greedy choice
 when they pass all rules and predict held-out runs better.</li>
