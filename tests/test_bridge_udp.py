@@ -132,7 +132,8 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
         drive = drive_source(procs)
         emulator = target(procs, tmp_path, port)
         applied = tmp_path / "DriveCommandBlock.jsonl"
-        assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
+        # driven for a while (200 applied blocks above 10 V, 0.1 s), not just started
+        assert wait_for(lambda: sum(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)) >= 200, 120)
         procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
         time.sleep(3.0)
         # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first

@@ -76,7 +76,7 @@ def test_children_die_when_the_parent_is_killed(tmp_path):
     parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     try:
         child_pid = int(parent.stdout.readline())
-        # the child runs its own program (setpriv has set the parent-death signal and exec'd it)
+        # the child runs its own program (its parent-death signal was set before the exec)
         assert wait_for(lambda: b"time.sleep" in Path(f"/proc/{child_pid}/cmdline").read_bytes(), 30.0)
         assert _alive(child_pid)
         parent.kill()
