@@ -40,8 +40,9 @@ class GraphError(RuntimeError):
     """A graph could not be brought up or a child died; the message names which and why."""
 
 
-class Terminated(Exception):
-    """SIGTERM arrived (see `terminate_raises`): unwind, stop the graph, exit 143."""
+class Terminated(BaseException):
+    """SIGTERM arrived (see `terminate_raises`): unwind, stop the graph, exit 143. A BaseException,
+    like KeyboardInterrupt: no `except Exception` on the way may swallow it."""
 
 
 class DomainLease:
