@@ -34,17 +34,6 @@ PARAMS = COLLISION_MONITOR_PARAMS
 EVENT_KINDS = {monitor.ONSET: CollisionEvent.ONSET, monitor.CLEARANCE: CollisionEvent.CLEARANCE}
 
 
-def wing_block(m) -> monitor.WingBlock:
-    """A wing-state block (its fields by name) as the core's input: angles in rad, NaN where a sample is not valid."""
-    stroke = np.asarray(m["stroke_deg"], dtype=np.float64)
-    pitch = np.asarray(m["pitch_deg"], dtype=np.float64)
-    n = len(stroke)
-    s_ok = np.asarray(m["stroke_valid"], dtype=bool) if len(m["stroke_valid"]) == n else np.zeros(n, bool)
-    p_ok = np.asarray(m["pitch_valid"], dtype=bool) if len(m["pitch_valid"]) == len(pitch) else np.zeros(len(pitch), bool)
-    return monitor.WingBlock(int(m["first_sample_index"]), np.where(s_ok, np.radians(stroke), np.nan),
-                             np.where(p_ok, np.radians(pitch), np.nan))
-
-
 class CollisionMonitorNode(Node):
     """Thin shell over flaair_control.monitor.step."""
 
@@ -102,7 +91,7 @@ class CollisionMonitorNode(Node):
         self.wing_expected = first + n
         if self.time_offset_s is None:
             self.time_offset_s = int(m["sec"]) + int(m["nanosec"]) * 1e-9 - first / self.fs_hz
-        self.advance(wing_block(m))
+        self.advance(monitor.wing_block(first, m["stroke_deg"], m["pitch_deg"], m["stroke_valid"], m["pitch_valid"]))
 
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
         """Run the core on one block; log its notes, publish its verdicts."""

@@ -38,15 +38,6 @@ def _blocks_in_loop_order(bag: Path, wanted: tuple[str, ...]) -> Iterator[tuple[
         yield topic, message
 
 
-def _wing_block(message: Any) -> monitor.WingBlock:
-    n = len(message.stroke_deg)
-    s_ok = np.asarray(message.stroke_valid, dtype=bool) if len(message.stroke_valid) == n else np.zeros(n, bool)
-    p_ok = np.asarray(message.pitch_valid, dtype=bool) if len(message.pitch_valid) == n else np.zeros(n, bool)
-    return monitor.WingBlock(int(message.first_sample_index),
-                             np.where(s_ok, np.radians(np.asarray(message.stroke_deg, dtype=float)), np.nan),
-                             np.where(p_ok, np.radians(np.asarray(message.pitch_deg, dtype=float)), np.nan))
-
-
 def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[monitor.Verdict]:
     """The collision monitor's verdicts on a bag (``values``: collision_monitor_node parameters)."""
     params = collision_monitor_params_from_config(values)
@@ -58,7 +49,8 @@ def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[moni
             inputs: monitor.DriveBlock | monitor.WingBlock = monitor.DriveBlock(
                 int(message.first_sample_index), np.asarray(message.drive_v, dtype=float))
         else:
-            inputs = _wing_block(message)
+            inputs = monitor.wing_block(message.first_sample_index, message.stroke_deg, message.pitch_deg,
+                                        message.stroke_valid, message.pitch_valid)
         state, out = monitor.step(state, inputs, params)
         verdicts.extend(out.verdicts)
     return verdicts
