@@ -16,7 +16,7 @@ from .identification import fit_initial_states, identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
 from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
-                         candidate_groups, candidate_specs, plant_spec)
+                         candidate_groups, candidate_specs, plant_spec, with_judged_on)
 
 # ------------------------------------------------------------------------------ the search
 
@@ -133,7 +133,6 @@ class _ChannelState:
 def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, truth_ref: bool,
             found: Sequence[FoundEffect], steps: list, max_steps: int) -> tuple[_ChannelState, bool, list]:
     """Forward selection on one channel; returns (state, has_gap, first-step single evaluations)."""
-    st = ctx.settings
     has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
     first = []
     for step in range(max_steps):
@@ -175,12 +174,57 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
         # are correlated, so the pooled values are not the joint optimum on all runs.
         if own and (len({s.name for s in state.specs if not s.is_plant}) >= 2 or any(not s.tested for s in own)):
             state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
-        if channel in TRUTH_CHANNELS and ctx.settings.identify:
-            # the runs' initial states were fitted with the plant alone: fit them again with the effect
-            _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
-                                          state_channels=TRUTH_CHANNELS).runs)
-        has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+        has_gap = _refit_states_and_polish(ctx, state, channel, truth_ref)
     return state, has_gap, first
+
+
+def _refit_states_and_polish(ctx: _Context, state: _ChannelState, channel: str, truth_ref: bool) -> bool:
+    """After an effect joined `state` (modified in place): the runs' initial states fitted again
+    (on a truth channel), then, while a gap is left, further joint re-fits of this channel's own
+    parameters (`_polish_rounds`). Returns whether a gap is left."""
+    own = [s for s in state.specs if _own(state.model, s)]
+    if channel in TRUTH_CHANNELS and ctx.settings.identify:
+        # the runs' initial states were fitted with the plant alone: fit them again with the effect
+        _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
+                                      state_channels=TRUTH_CHANNELS).runs)
+    has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    if not has_gap or not own:
+        return has_gap
+    model, _ = _polish_rounds(ctx, state.model, own, channel, truth_ref, _channel_cost(ctx, state.model, own, channel,
+                                                                                     truth_ref))
+    if model is state.model:
+        return has_gap
+    state.model = model
+    if channel in TRUTH_CHANNELS and ctx.settings.identify:
+        _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
+                                      state_channels=TRUTH_CHANNELS).runs)
+    return _channel_has_gap(ctx, state.model, channel, truth_ref)
+
+
+def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool,
+                   cost: float) -> tuple[Model, float]:
+    """Joint re-fits of `specs` from `model` (of cost `cost`) while a gap is left and each still
+    lowers the cost by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times.
+
+    A joint fit of many parameters (collision's three with structural damping and the stroke
+    plant) may stop short of its optimum within one least-squares call (`Settings.max_nfev`).
+    """
+    for _ in range(ctx.settings.max_polish_rounds):
+        trial = _polish(ctx, _strip(model, specs), specs, model, channel, truth_ref)
+        trial_cost = _channel_cost(ctx, trial, specs, channel, truth_ref)
+        if not trial_cost < cost:
+            break
+        gain = 1.0 - trial_cost / cost
+        model, cost = trial, trial_cost
+        if gain < ctx.settings.polish_min_gain or not _channel_has_gap(ctx, model, channel, truth_ref):
+            break
+    return model, cost
+
+
+def _channel_cost(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> float:
+    """Weighted residual sum of squares of `model` on `channel` (the fit's own cost)."""
+    problem = ctx.problem(channel, ctx.folds, truth_ref, _strip(model, specs))
+    return sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
 
 
 def _check_upstream_truth(ctx: _Context, ev: CandidateEvidence, model: Model, channel: str,
@@ -257,24 +301,31 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
             ev, m, specs = best
             pair_state = _ChannelState(m, _join(base_state.specs, specs),
                                        {**base_state.evidence, **{s.name: ev for s in specs}}, ev, base_state.reopen)
+            _refit_states_and_polish(ctx, pair_state, channel, truth_ref)
             state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
                                         max(st.max_effects_per_channel - 2, 0))
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref and state.specs:
         has_gap = not _states_on_sensor(ctx, state.model, channel, sensors_done)
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
-        state, has_gap = _refine_plant_on_sensor(ctx, state, channel)
+        state, has_gap = _refine_plant_on_sensor(ctx, state, channel, found)
     return state, has_gap, steps
 
 
-def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
+def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str,
+                            found: Sequence[FoundEffect] = ()) -> tuple[_ChannelState, bool]:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
     may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
-    jointly with the effects found on this sensor alone; keep them only if that closes the gap and
-    the truth stays at noise."""
+    jointly with the effects found on this sensor alone and with the physics effects found on its
+    upstream truth channel (a contact stiffness the noisy truth leaves loose); keep them only if
+    that closes the gap and the truth stays at noise."""
     truth = _UPSTREAM_TRUTH[channel]
     own = [s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)]
-    specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
-    refined = _polish(ctx, _strip(state.model, own), specs, state.model, channel, False)
+    upstream_names = {f.name for f in found if f.channel == truth}
+    upstream = [with_judged_on(s, channel) for g in candidate_groups(truth, state.model) for s in g
+                if not s.is_plant and s.name in upstream_names]
+    plant = [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
+    specs = own + upstream + plant
+    refined, _ = _polish_rounds(ctx, state.model, specs, channel, False, _channel_cost(ctx, state.model, specs, channel, False))
     if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
         return state, True
     return _ChannelState(refined, state.specs, state.evidence, state.last, state.reopen), False

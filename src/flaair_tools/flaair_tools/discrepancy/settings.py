@@ -27,6 +27,8 @@ class Settings:
     max_effects_per_channel : greedy steps per channel.
     pair_fallback : try pairs of effects on a channel when no single effect passes.
     max_nfev : function evaluations per least-squares fit.
+    max_polish_rounds : further joint re-fits of a channel's parameters while a gap is left on it.
+    polish_min_gain : relative cost drop a re-fit must bring for another round.
     band_edges_hz : drive-frequency bands of the localisation.
     window_s : window of the harmonic and worst-stretch analysis.
     xcorr_max_lag_s : largest residual-after-drive lag of the cross-correlation test.
@@ -47,6 +49,8 @@ class Settings:
     max_effects_per_channel: int = 3
     pair_fallback: bool = True
     max_nfev: int = 40
+    max_polish_rounds: int = 3
+    polish_min_gain: float = 0.005
     band_edges_hz: tuple[float, ...] = (0.0, 40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 180.0, 200.0, 1e9)
     window_s: float = 0.05
     xcorr_max_lag_s: float = 0.005
