@@ -16,7 +16,7 @@ from .identification import fit_initial_states, identify_plant
 from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
 from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
-                         candidate_groups, candidate_specs, plant_spec, with_judged_on)
+                         candidate_groups, candidate_specs, plant_spec)
 
 # ------------------------------------------------------------------------------ the search
 
@@ -307,25 +307,19 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref and state.specs:
         has_gap = not _states_on_sensor(ctx, state.model, channel, sensors_done)
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
-        state, has_gap = _refine_plant_on_sensor(ctx, state, channel, found)
+        state, has_gap = _refine_plant_on_sensor(ctx, state, channel)
     return state, has_gap, steps
 
 
-def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str,
-                            found: Sequence[FoundEffect] = ()) -> tuple[_ChannelState, bool]:
+def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
     may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
-    jointly with the effects found on this sensor alone and with the physics effects found on its
-    upstream truth channel (a contact stiffness the noisy truth leaves loose); keep them only if
-    that closes the gap and the truth stays at noise."""
+    jointly with the effects found on this sensor alone; keep them only if that closes the gap and
+    the truth stays at noise."""
     truth = _UPSTREAM_TRUTH[channel]
     own = [s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)]
-    upstream_names = {f.name for f in found if f.channel == truth}
-    upstream = [with_judged_on(s, channel) for g in candidate_groups(truth, state.model) for s in g
-                if not s.is_plant and s.name in upstream_names]
-    plant = [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
-    specs = own + upstream + plant
-    refined, _ = _polish_rounds(ctx, state.model, specs, channel, False, _channel_cost(ctx, state.model, specs, channel, False))
+    specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
+    refined = _polish(ctx, _strip(state.model, own), specs, state.model, channel, False)
     if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
         return state, True
     return _ChannelState(refined, state.specs, state.evidence, state.last, state.reopen), False
