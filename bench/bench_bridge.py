@@ -202,12 +202,14 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=60.0, help="signal time of the bridge run [s]")
     parser.add_argument("--baseline-duration", type=float, default=20.0, help="signal time of the UDP-echo baseline [s]")
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_bridge.json")
+    parser.add_argument("--keep", type=Path, help="keep the runs' logs, counters and bag in this directory")
     parser.add_argument("--echo", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
         return echo_main(int(args.echo[0]), args.echo[1])
     with tempfile.TemporaryDirectory() as tmpdir:
-        tmp = Path(tmpdir)
+        tmp = Path(tmpdir) if args.keep is None else args.keep
+        tmp.mkdir(parents=True, exist_ok=True)
         load0 = os.getloadavg()[0]
         echo = echo_run(args.baseline_duration, tmp)
         run = live_run(args.duration, tmp)

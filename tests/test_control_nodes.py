@@ -316,10 +316,14 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
         kr = [s[0] for s in states[-31:]]     # from the last block before the request
         assert kr[0] == 1.0 and kr[-1] == 0.0 and np.all(np.diff(kr) <= 0)
         assert all(abs(s[4]) <= 150.0 for s in states) and any(s[3] for s in states[-10:])   # clamped
+        node.on_collision_event(CollisionEvent(kind=CollisionEvent.ONSET, wingbeat_index=2, spectrum_rmse_deg=2.5))
+        assert node.state.mode == LOOP             # within collision_ramp_guard_s (0.1 s) of the ramp: not acted on
+        for k in range(130, 360):
+            feed(k)
         node.on_collision_event(CollisionEvent(kind=CollisionEvent.ONSET, wingbeat_index=3, spectrum_rmse_deg=2.5))
         assert node.state.mode == TRIPPED and "collision onset at wingbeat 3" in node.state.fault
         n_before = len(drive)
-        feed(130)                                         # tripped: the timer paces, no reply
+        feed(360)                                         # tripped: the timer paces, no reply
         assert len(drive) == n_before
         time.sleep(0.05)
         node.on_timer()

@@ -28,9 +28,11 @@ OBSTACLE_S = (1.6, 2.1)
 LIMIT_DEG = 15.0      # the free self-excited stroke reaches 20.6 deg
 
 
-def closed_loop(duration_s: float):
+def closed_loop(duration_s: float, respond: bool = False):
     """(sample time, stroke truth deg, monitor verdicts, the monitor's input blocks) of the dSA loop
-    with the obstacle window."""
+    with the obstacle window; respond: the monitor's events go to the supervisor (as the controller
+    node passes them on), and the fourth item also holds the (sample index, amplitude scale) of
+    every drive block."""
     model = load_model()
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     values = dict(node_parameters("flaair.yaml", "dsa_controller_node"))
@@ -41,7 +43,7 @@ def closed_loop(duration_s: float):
     mon = monitor.initial_state(mon_params)
     ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
     ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)
-    queue, strokes, verdicts, wing_blocks = list(out.blocks), [], [], []
+    queue, strokes, verdicts, wing_blocks, scales = list(out.blocks), [], [], [], []
     while queue and len(strokes) * loop.block_size < duration_s * FS:
         block = queue.pop(0)
         t = block.first_sample_index / FS
@@ -53,12 +55,18 @@ def closed_loop(duration_s: float):
                                              np.where(est.pitch_valid, est.pitch_rad, np.nan)))
         mon, result = monitor.step(mon, wing_blocks[-1], mon_params)
         verdicts += result.verdicts
+        for v in result.verdicts if respond else ():
+            if v.event is not None:
+                ctrl, out = sv.step(ctrl, sv.Collision(10.0, v.event == monitor.ONSET, v.wingbeat_index,
+                                                       v.spectrum_rmse_deg), loop)
+                queue += out.blocks
+        scales.append((block.first_sample_index, ctrl.amplitude_scale))
         ctrl, out = sv.step(ctrl, sv.WingBlock(10.0, block.first_sample_index, FS,
                                                np.degrees(est.stroke_velocity_rad_s), np.degrees(est.stroke_rad),
                                                est.stroke_valid, 1), loop)
         queue += out.blocks
     stroke = np.concatenate(strokes)
-    return np.arange(stroke.size) / FS, stroke, verdicts, (wing_blocks, mon_params)
+    return np.arange(stroke.size) / FS, stroke, verdicts, (wing_blocks, mon_params, np.array(scales))
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +107,7 @@ def test_the_monitor_decides_the_same_on_joined_blocks(run):
     while it was busy as one block (flaair_common.intra.join_contiguous): same verdicts."""
     from flaair_common.intra import join_contiguous
 
-    _, _, verdicts, (blocks, params) = run
+    _, _, verdicts, (blocks, params, _) = run
     as_fields = [{"first_sample_index": b.first_sample_index, "stroke_rad": b.stroke_rad, "pitch_rad": b.pitch_rad,
                   "sec": 0} for b in blocks]
     rng = np.random.default_rng(3)
@@ -128,3 +136,17 @@ def test_join_contiguous_joins_runs_and_keeps_gaps():
     assert [(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out] == [(0, 25, 0), (40, 20, 40)]
     np.testing.assert_array_equal(out[0]["x"], np.arange(25.0))
     assert join_contiguous([]) == []
+
+
+def test_the_controller_does_not_take_the_k_r_ramp_for_a_collision_and_does_take_the_obstacle():
+    """collision_response reduce_amplitude (the default), the monitor's events passed on: the
+    waveform change of the K_r ramp reads as distortion (an onset), and the controller leaves
+    the drive alone then (collision_ramp_guard_s); at the obstacle it halves the drive."""
+    t, stroke, verdicts, (_, _, scales) = closed_loop(2.0, respond=True)
+    ramp = [v for v in verdicts if v.event == monitor.ONSET and 0.5 <= v.end_index / FS < 1.1]
+    assert ramp, "no onset during the K_r ramp: this test would not see the guard work"
+    before = scales[scales[:, 0] < OBSTACLE_S[0] * FS]
+    assert np.all(before[:, 1] == 1.0)
+    first_strike_s = t[(t >= OBSTACLE_S[0]) & (stroke >= LIMIT_DEG - 0.01)][0]
+    reduced = scales[(scales[:, 0] >= OBSTACLE_S[0] * FS) & (scales[:, 1] == 0.5)]
+    assert reduced.size and (reduced[0, 0] / FS - first_strike_s) * 144.0 <= 3.0   # within 3 wingbeats

@@ -59,6 +59,7 @@ class SupervisorParams:
     collision_response: str            # none | stop | reduce_amplitude
     collision_reduction_factor: float
     collision_restore_on_clearance: bool
+    collision_ramp_guard_s: float      # onsets during a K_r ramp and this long after it are not acted on
     timer_period_s: float
     dsa: dsa.DsaParams
     safety: safety.SafetyParams
@@ -401,6 +402,11 @@ def _on_collision(state: SupervisorState, event: Collision, p: SupervisorParams)
     notes: list[Note] = []
     if event.onset:
         text = f"collision onset at wingbeat {event.wingbeat_index} (spectrum RMSE {event.spectrum_rmse_deg:.2f} deg)"
+        if response != "none" and _in_ramp_guard(state, p):
+            # the stroke turns from the sync sine into the self-excited one by design: a per-wingbeat
+            # distortion score reads that change as a collision
+            return state, Outputs((), (Note(INFO, f"{text} during the K_r ramp (or within collision_ramp_guard_s = "
+                                                  f"{p.collision_ramp_guard_s:g} s of its end): not acted on"),))
         if response == "stop":
             state, notes = _trip(state, f"{text}: stop", event.t_wall, p)
         elif response == "reduce_amplitude":
@@ -414,6 +420,14 @@ def _on_collision(state: SupervisorState, event: Collision, p: SupervisorParams)
     else:
         notes.append(Note(INFO, f"collision cleared at wingbeat {event.wingbeat_index}"))
     return state, Outputs((), tuple(notes))
+
+
+def _in_ramp_guard(state: SupervisorState, p: SupervisorParams) -> bool:
+    """K_r is ramping now (signal time), or stopped ramping less than collision_ramp_guard_s ago."""
+    kr = state.dsa_params.kr_schedule
+    t_s = state.next_index / p.sample_rate_hz
+    return (kr.start_value != kr.end_value
+            and kr.start_time_s <= t_s < kr.start_time_s + kr.duration_s + p.collision_ramp_guard_s)
 
 
 def _on_set_ramp(state: SupervisorState, request: SetRamp, p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
