@@ -65,8 +65,10 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
         _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors)
         procs.flaair("run", "flaair_sim", "plant_node")
         procs.flaair("run", "flaair_sensors", "frontend_node")
+        # no K_r ramp while the events come (onsets during one are not acted on: collision_ramp_guard_s)
         controller = procs.flaair(*CONTROLLER, "-p", "collision_response:=reduce_amplitude",
-                                  "-p", "collision_reduction_factor:=0.25", "-p", "watchdog_timeout_s:=30.0")
+                                  "-p", "collision_reduction_factor:=0.25", "-p", "watchdog_timeout_s:=30.0",
+                                  "-p", "kr_ramp_start_s:=1000.0")
         assert wait_for(lambda: len(_lines(states)) >= 100, 90), controller.stderr.read() if controller.poll() else ""
         _pub(procs, "/flaair/collision/events", "flaair_msgs/msg/CollisionEvent",
              {"kind": 1, "wingbeat_index": 7, "spectrum_rmse_deg": 3.2})
