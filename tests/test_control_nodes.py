@@ -114,9 +114,9 @@ def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(
         controller = procs.flaair(*CONTROLLER, "-p", "watchdog_timeout_s:=0.3", "-p", "ramp_down_s:=0.02",
                                   "-p", "zero_hold_s:=0.01", "-p", "keepalive_period_s:=0.2", "-p", "start_delay_s:=0.0",
                                   "-p", "sync_amplitude_v:=40.0", "-p", "sync_frequency_hz:=100.0")
-        # repeated for 2 s: the controller joins once it sees the echo's subscription (discovery can
-        # take a while on a loaded machine); later copies are duplicates
-        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", _wing_state(0), count=40)
+        # repeated for 6 s: the controller joins once it sees the echo's subscription (discovery took
+        # over 2 s in 1 of ~8 runs on this machine); later copies are duplicates
+        _pub(procs, "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", _wing_state(0), count=120)
         echo_drive.wait(timeout=60)
         # states keep coming with the keepalive blocks (a burst may overrun the status queue)
         assert wait_for(lambda: any(s["watchdog"] == 1 for s in _lines(states)), 30)
