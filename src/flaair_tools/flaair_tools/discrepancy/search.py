@@ -181,34 +181,36 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
 def _refit_states_and_polish(ctx: _Context, state: _ChannelState, channel: str, truth_ref: bool) -> bool:
     """After an effect joined `state` (modified in place): the runs' initial states fitted again
     (on a truth channel), then, while a gap is left, further joint re-fits of this channel's own
-    parameters (`_polish_rounds`). Returns whether a gap is left."""
-    own = [s for s in state.specs if _own(state.model, s)]
-    if channel in TRUTH_CHANNELS and ctx.settings.identify:
-        # the runs' initial states were fitted with the plant alone: fit them again with the effect
-        _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
-                                      state_channels=TRUTH_CHANNELS).runs)
+    parameters (`_polish_rounds`) and the states once more. Returns whether a gap is left."""
+    _refit_states(ctx, state.model, channel)
     has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    own = [s for s in state.specs if _own(state.model, s)]
     if not has_gap or not own:
         return has_gap
-    model, _ = _polish_rounds(ctx, state.model, own, channel, truth_ref, _channel_cost(ctx, state.model, own, channel,
-                                                                                     truth_ref))
+    model = _polish_rounds(ctx, state.model, own, channel, truth_ref)
     if model is state.model:
         return has_gap
     state.model = model
-    if channel in TRUTH_CHANNELS and ctx.settings.identify:
-        _use_runs(ctx, identify_plant(ctx.runs, state.model, ctx.noise, keys=(),
-                                      state_channels=TRUTH_CHANNELS).runs)
+    _refit_states(ctx, state.model, channel)
     return _channel_has_gap(ctx, state.model, channel, truth_ref)
 
 
-def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool,
-                   cost: float) -> tuple[Model, float]:
-    """Joint re-fits of `specs` from `model` (of cost `cost`) while a gap is left and each still
-    lowers the cost by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times.
+def _refit_states(ctx: _Context, model: Model, channel: str) -> None:
+    """On a truth channel: the runs' initial states fitted again with `model` (they were fitted
+    with the plant alone, or with the effects as they were)."""
+    if channel in TRUTH_CHANNELS and ctx.settings.identify:
+        _use_runs(ctx, identify_plant(ctx.runs, model, ctx.noise, keys=(), state_channels=TRUTH_CHANNELS).runs)
+
+
+def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> Model:
+    """Joint re-fits of `specs` from `model` while a gap is left and each still lowers the cost
+    by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times (`model` itself
+    if none lowers it).
 
     A joint fit of many parameters (collision's three with structural damping and the stroke
     plant) may stop short of its optimum within one least-squares call (`Settings.max_nfev`).
     """
+    cost = _channel_cost(ctx, model, specs, channel, truth_ref)
     for _ in range(ctx.settings.max_polish_rounds):
         trial = _polish(ctx, _strip(model, specs), specs, model, channel, truth_ref)
         trial_cost = _channel_cost(ctx, trial, specs, channel, truth_ref)
@@ -218,7 +220,7 @@ def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], cha
         model, cost = trial, trial_cost
         if gain < ctx.settings.polish_min_gain or not _channel_has_gap(ctx, model, channel, truth_ref):
             break
-    return model, cost
+    return model
 
 
 def _channel_cost(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> float:
