@@ -99,9 +99,13 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
             break
     assert match, f"experiment did not say which domain: {seen!r}"
     domain = int(match.group(1))
-    # running: the plant has published into the bag
     assert wait_for(lambda: len(_pids_on_domain(domain)) >= 4, 120.0)
-    time.sleep(8.0)
+    # running: the run's progress bar has moved, samples are in the bag (a fixed 8 s wait let the
+    # 1 s chirp finish first on a fast machine)
+    text, deadline = "", time.monotonic() + 120.0
+    while not re.search(r" [1-9]\d?%\|", text) and time.monotonic() < deadline and process.poll() is None:
+        text += process.stderr.read(1)
+    assert re.search(r" [1-9]\d?%\|", text), f"the run did not get going: {text[-500:]!r}"
     return process, domain, bag
 
 
