@@ -42,9 +42,12 @@ def _lines(path: Path) -> list[dict]:
     return out
 
 
-def _echo(procs, topic: str, type_name: str, path: Path, count: int = 0, timeout_s: float = 120.0):
+def _echo(procs, topic: str, type_name: str, path: Path, count: int = 0, timeout_s: float = 120.0,
+          ready_file: Path | None = None):
+    """`flaair topic echo` to a JSON-lines file; with `ready_file`, the echo creates it once matched."""
+    ready = ("--ready-file", str(ready_file)) if ready_file is not None else ()
     return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", str(timeout_s),
-                        stdout=open(path, "w"))
+                        *ready, stdout=open(path, "w"))
 
 
 def _pub(procs, topic: str, type_name: str, values: dict, count: int = 1) -> None:
@@ -59,12 +62,16 @@ def _wing_state(index: int, n: int = BLOCK, velocity: float = 0.0, valid: bool =
 
 
 def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_killed(tmp_path) -> None:
-    states, sensors = tmp_path / "state.jsonl", tmp_path / "sensor.jsonl"
+    states, sensors, sensors_ready = tmp_path / "state.jsonl", tmp_path / "sensor.jsonl", tmp_path / "sensor.ready"
     with _ros() as procs:
         _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states)
-        _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors)
+        sensor_echo = _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors, ready_file=sensors_ready)
         procs.flaair("run", "flaair_sim", "plant_node")
         procs.flaair("run", "flaair_sensors", "frontend_node")
+        # The lockstep loop runs as fast as the machine allows once the controller starts it: the
+        # sensor echo must be matched to the plant first, or it misses the loop's first blocks
+        # (a loaded machine brought the echo up 1,340 samples into the run).
+        assert wait_for(sensors_ready.exists, 120), sensor_echo.stderr.read() if sensor_echo.poll() is not None else ""
         # no K_r ramp while the events come (onsets during one are not acted on: collision_ramp_guard_s)
         controller = procs.flaair(*CONTROLLER, "-p", "collision_response:=reduce_amplitude",
                                   "-p", "collision_reduction_factor:=0.25", "-p", "watchdog_timeout_s:=30.0",
@@ -92,7 +99,7 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
         time.sleep(1.5)
         assert len(_lines(sensors)) == n_after_kill
     blocks = _lines(sensors)
-    first = blocks[0]["first_sample_index"]  # the echo may match the plant a block or two late
+    first = blocks[0]["first_sample_index"]  # the plant's writer may match the echo a moment after the echo does
     assert first <= 5 * BLOCK
     assert [b["first_sample_index"] for b in blocks] == list(range(first, first + len(blocks) * BLOCK, BLOCK))
     all_states = _lines(states)
