@@ -90,6 +90,32 @@ def test_bad_parameters_are_named():
 # --------------------------------------------------------------------------- closed loop over DDS
 
 
+def _echoes_listen_before_the_loop_starts(procs, ready_dir):
+    """A `start` for run_closed_loop that starts the dSA controller (which starts the lockstep loop)
+    only once its echoes listen.
+
+    The loop then runs as fast as the machine allows: an echo matched after it started misses the
+    first blocks (a loaded machine: 2,945 and 2,678 of 3,000 wing-state blocks). The wing-state
+    echo creates its ready file once matched to the front end's publisher; the controller-state
+    echo's subscription must be in the graph before the controller comes up (the controller
+    publishes states only to matched listeners, and waits start_delay_s after its peers appear).
+    """
+    from rosproc import wait_for
+
+    wing_state_ready = ready_dir / "wing_state.ready"
+
+    def start(*args, **kwargs):
+        if args[:3] == ("topic", "echo", "/flaair/wing_state"):
+            args = (*args, "--ready-file", str(wing_state_ready))
+        elif "dsa_controller_node" in args:
+            assert wait_for(wing_state_ready.exists, 120), "the wing-state echo never matched the front end"
+            waited = procs.flaair("topic", "wait", "/flaair/controller/state", "--subscribers", "1", "--timeout", "120")
+            assert waited.wait(timeout=150) == 0, waited.stderr.read()
+        return procs.flaair(*args, **kwargs)
+
+    return start
+
+
 def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
     """Plant (lockstep) -> front end -> dSA controller -> plant: 90 Hz synchronous start, K_r 1 -> 0
     over 0.5 s, self-excited slightly above the 140 Hz stroke resonance, steady amplitude."""
@@ -101,9 +127,10 @@ def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
     with ros_processes() as procs:
-        ws, cs = run_closed_loop(procs.flaair, duration, ["-p", f"kr_ramp_start_s:={ramp_start}",
-                                                          "-p", f"kr_ramp_duration_s:={ramp}",
-                                                          "-p", "watchdog_timeout_s:=30.0"], FS, 10, timeout_s=150)
+        start = _echoes_listen_before_the_loop_starts(procs, tmp_path)
+        ws, cs = run_closed_loop(start, duration, ["-p", f"kr_ramp_start_s:={ramp_start}",
+                                                   "-p", f"kr_ramp_duration_s:={ramp}",
+                                                   "-p", "watchdog_timeout_s:=30.0"], FS, 10, timeout_s=150)
     assert len(ws) == 3000
     # The state echo may match the controller a little late (a loaded machine): it must still
     # cover the synchronous start before the ramp and everything after it.
