@@ -159,6 +159,24 @@ def test_drive_far_ahead_waits_for_the_target_clock() -> None:
     assert len(state.queue) == 3
 
 
+def test_a_loop_that_fell_behind_and_caught_up_comes_back_to_lead_samples_ahead() -> None:
+    # The first drive block comes 100 ms after its sensor packet: anchored on the extrapolated
+    # clock, 2000 samples ahead of the packets still to be read. The bridge then reads its backlog
+    # and the loop answers each packet at once: the stream must not stay 100 ms ahead (the target
+    # would get nothing for 100 ms, then old drive), but return to lead_samples ahead.
+    state, _, packets, _, _ = run([SensorDatagram(packet(0, 0), 1.0), DriveBlock(0, np.ones(N), 1.1)])
+    assert [x.first_sample_index for x in packets] == [N + 2000 + LEAD]
+    inputs = []
+    for k in range(1, 400):
+        t = 1.1 + k * 5e-4
+        inputs += [SensorDatagram(packet(k, k * N), t), DriveBlock(k * N, np.full(N, 2.0), t)]
+    state, _, packets, _, notices = run(inputs, state=state)
+    tail = packets[-50:]
+    assert [x.first_sample_index for x in tail] == [(k + 1) * N + LEAD for k in range(350, 400)]
+    assert state.counters.drive_overflow_blocks > 0 and state.counters.drive_reanchors == 1
+    assert any("re-anchored 20 samples ahead" in n.text for n in notices)
+
+
 def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> None:
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0), Tick(0.019)]
     state, _, packets, _, _ = run(inputs)

@@ -19,7 +19,9 @@ sockets, no ROS, time passed in):
   ``lead_samples`` ahead of the extrapolated clock (counted). Samples
   are clamped to +-drive_limit_v (non-finite ones become 0, counted) and sent in packets of at
   most 1000 samples, never more than ``max_ahead_samples`` beyond clock + lead (the rest waits
-  for the target's clock).
+  for the target's clock). A stream that gets further ahead than that plus one packet (a source
+  faster than real time, or a loop that fell behind and caught up) drops its queue and
+  re-anchors ``lead_samples`` ahead of the clock (counted).
 - `Tick` (wall clock): the drive watchdog sends a stop packet when a non-zero drive stream falls
   silent for ``drive_timeout_s``; when the target falls silent for ``sensor_timeout_s`` the
   bridge sends a stop packet and publishes NaN (lost) blocks at the real-time rate, up to
@@ -95,7 +97,7 @@ class Counters(NamedTuple):
     drive_stale_blocks: int = 0      # older than the drive stream: dropped
     drive_unscheduled_blocks: int = 0  # arrived before any sensor packet: dropped
     drive_reanchors: int = 0         # stream re-anchored lead_samples ahead (jump, or late)
-    drive_overflow_blocks: int = 0   # too far ahead of the target's clock to queue: dropped
+    drive_overflow_blocks: int = 0   # queued too far ahead of the target's clock: dropped (the stream re-anchors)
     drive_packets: int = 0
     drive_samples: int = 0
     clamped_samples: int = 0
@@ -369,13 +371,18 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
                                                  f"behind the target's clock: re-anchored {params.lead_samples} samples "
                                                  f"ahead [{counters.drive_reanchors} re-anchors so far]"))
         offset = anchor - first
-    queued = state.queue[-1][0] + len(state.queue[-1][1]) - state.queue[0][0] if state.queue else 0  # O(1): in order
-    if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:  # a runaway source: keep the core bounded
-        counters = _count(counters, drive_overflow_blocks=1)
-        notices.append(Notice("drive_overflow_blocks", f"drive block {first} dropped: {queued} samples already wait "
-                                                       f"for the target's clock [{counters.drive_overflow_blocks} so far]"))
-        return state._replace(drive_offset=offset, drive_expected=first + n, counters=counters), Outputs(notices=tuple(notices))
-    state = state._replace(drive_offset=offset, drive_expected=first + n, queue=state.queue + ((first + offset, drive),),
+    queue = state.queue
+    queued = queue[-1][0] + len(queue[-1][1]) - queue[0][0] if queue else 0  # O(1): in order
+    if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:
+        # The stream runs further ahead of the target than its buffer: a source faster than real
+        # time, or a loop that fell behind (re-anchored on the extrapolated clock) and caught up.
+        # The queued samples are dropped, the stream goes on lead_samples ahead of the clock.
+        counters = _count(counters, drive_overflow_blocks=len(queue), drive_reanchors=1)
+        notices.append(Notice("drive_overflow_blocks", f"drive block {first}: {queued} samples already wait for the "
+                                                       f"target's clock: dropped, re-anchored {params.lead_samples} "
+                                                       f"samples ahead [{counters.drive_overflow_blocks} blocks dropped so far]"))
+        queue, offset = (), anchor - first
+    state = state._replace(drive_offset=offset, drive_expected=first + n, queue=queue + ((first + offset, drive),),
                            counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
     return state, Outputs(packets=packets, timing=timing, notices=tuple(notices))

@@ -129,6 +129,7 @@ class BridgeNode(Node):
         if self.closed:
             return
         self.closed = True
+        self.endpoint.stop_reading()   # a reader behind its backlog would hold the lock against the stop packet
         self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
         self.get_logger().info(f"bridge closed, stop packet sent: {bridge.summary(self.state.counters, self.timing)}")

@@ -71,9 +71,13 @@ class DatagramEndpoint:
         except OSError as exc:
             return str(exc)
 
-    def close(self) -> None:
-        """Stop the reader thread and close the socket."""
+    def stop_reading(self) -> None:
+        """Stop the reader thread (after the datagram it is handling); the socket still sends."""
         self.running = False
         if self.reader is not threading.current_thread():
             self.reader.join(timeout=1.0)
+
+    def close(self) -> None:
+        """Stop the reader thread and close the socket."""
+        self.stop_reading()
         self.sock.close()
