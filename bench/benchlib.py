@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -46,6 +47,13 @@ def print_table(figures: list[Figure]) -> None:
 def write_json(figures: list[Figure], path: Path) -> None:
     """Write figures as JSON (a list of objects)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    # numpy scalars (np.bool_ from a comparison, np.float64) are written as plain numbers
-    path.write_text(json.dumps([asdict(f) for f in figures], indent=2,
-                               default=lambda o: o.item() if hasattr(o, "item") else str(o)))
+    # numpy scalars (np.bool_ from a comparison, np.float64) are written as plain numbers; strict
+    # JSON: a NaN or infinite figure (not measured, never answered) is null
+    def plain(value):
+        value = value.item() if hasattr(value, "item") else value
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        return value if isinstance(value, (str, int, float, bool, type(None))) else str(value)
+
+    rows = [{key: plain(value) for key, value in asdict(f).items()} for f in figures]
+    path.write_text(json.dumps(rows, indent=2, allow_nan=False))

@@ -81,3 +81,53 @@ def test_a_composed_recorder_writes_the_bytes_dds_would_carry(topic: str) -> Non
                 getattr(message, name) == fields[name]
         else:
             np.testing.assert_array_equal(np.asarray(getattr(message, name)), fields[name])
+
+
+class _RecordingPublisher:
+    """Stands in for an rclpy publisher with one DDS subscriber: keeps the bytes it is given."""
+
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def get_subscription_count(self) -> int:
+        return 1
+
+    def publish(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+class _Node:
+    def __init__(self) -> None:
+        self.publisher = _RecordingPublisher()
+
+    def create_publisher(self, *_args):
+        return self.publisher
+
+
+def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() -> None:
+    """With dds_batch 4: in-process subscribers see each 10-sample block at once; DDS gets one
+    40-sample message per 4 contiguous blocks, a shorter one at a gap and at flush, readable by
+    rosbags with every sample in order."""
+    bus = intra.Bus({topics.DRIVE}, dds_batch=4)
+    seen: list[int] = []
+    bus.subscribe(topics.DRIVE, lambda f: seen.append(f["first_sample_index"]))
+    intra.install(bus)
+    try:
+        node = _Node()
+        publisher = intra.BlockPublisher(node, None, topics.DRIVE, cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, 10),
+                                         None)
+    finally:
+        intra.install(None)
+    firsts = [0, 10, 20, 30, 40, 50, 70, 80]            # 60 never came
+    for first in firsts:
+        fields = block(first)
+        publisher.publish(int(first / FS * 1e9), {k: fields[k] for k in ("sample_rate_hz", "first_sample_index", "drive_v")})
+        assert seen[-1] == first
+    assert len(node.publisher.sent) == 2                # 0-30 joined; 40, 50 closed by the gap
+    bus.flush()
+    messages = [bagio.typestore().deserialize_cdr(data, "flaair_msgs/msg/DriveCommandBlock") for data in node.publisher.sent]
+    assert [(m.first_sample_index, len(m.drive_v)) for m in messages] == [(0, 40), (40, 20), (70, 20)]
+    for m in messages:
+        first = m.first_sample_index
+        np.testing.assert_array_equal(m.drive_v, np.arange(first, first + len(m.drive_v), dtype=float))
+        assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == int(first / FS * 1e9)

@@ -1,6 +1,7 @@
 """`flaair live`: the live graph, composed hot loop, recorded; ends cleanly on time or on a signal."""
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import time
@@ -43,10 +44,11 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
     for topic in ("/flaair/sensor_v", "/flaair/wing_state", "/flaair/drive", "/flaair/controller/state",
                   "/flaair/wing_state/truth", "/flaair/collision/status"):
         assert counts.get(topic, 0) > 0, (topic, counts)
-    assert counts["/flaair/drive"] >= 6000                         # 3 s of 0.5 ms blocks, all of the loop
+    drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
+    assert len(drive["drive_v"]) >= 60000                          # 3 s of samples, all of the loop
+    assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10   # reached the bag in joined blocks
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
     assert states[0].k_r == 1.0 and states[-1].k_r == 0.0          # the configured K_r schedule ran
-    drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
     assert np.all(drive["drive_v"][-10:] == 0.0)                  # ended on zero drive
     f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
     f, a = _final(bag)
@@ -105,16 +107,19 @@ def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
     finally:
         target.send_signal(signal.SIGINT)
         target.wait(timeout=60)
-    counts = bagio.message_counts(bag)
-    assert counts.get("/flaair/sensor_v", 0) >= 4000 and counts.get("/flaair/drive/applied", 0) > 0
+    # every sample of the run (from the loop's start, 2 s of signal) is in the bag, in order, no gaps
+    start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
+    messages = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/sensor_v"])]
+    firsts, lengths = [m.first_sample_index for m in messages], [len(m.stroke_sensor_v) for m in messages]
+    gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:]) if b != a + n]
+    assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 40000 and not gaps, (firsts[:3], start, gaps[:5])
+    assert bagio.message_counts(bag).get("/flaair/drive/applied", 0) > 0
     report = json.loads(counters.read_text())
     assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
 
 
 def _start_live_against_target(tmp_path: Path, port: int, duration_s: float):
     """(emulated target, live process, its ROS domain, bag) with the loop running."""
-    import re
-
     counters = tmp_path / "target.json"
     target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
                                "--listen", f"127.0.0.1:{port + 1}", "--duration", "120", "--counters", str(counters)],
@@ -143,7 +148,7 @@ def _loop_pid(domain: int) -> int:
             cmdline = (entry / "cmdline").read_bytes()
         except OSError:
             continue
-        if any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ) and b"container" in cmdline:
+        if any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ) and b"BridgeNode" in cmdline:
             return int(entry.name)
     raise AssertionError(f"no loop process on domain {domain}")
 

@@ -79,7 +79,7 @@ class BridgeNode(Node):
                                self.on_undecodable)
         self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
-        self.bad_drive_messages, self.closed = 0, False
+        self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
         try:   # the socket last: its reader thread delivers at once, into a fully built node
             self.endpoint = udp.DatagramEndpoint(p["listen_host"], p["listen_port"], p["receive_buffer_bytes"],
                                                  self.on_datagram)
@@ -104,6 +104,9 @@ class BridgeNode(Node):
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
         with self.lock:  # publishing inside: blocks from the thread and from the timer stay in order
+            outer_cause_s = self.cause_s   # composed: the drive this packet's blocks produce comes back nested
+            if isinstance(inputs, bridge.SensorDatagram):
+                self.cause_s = inputs.now_s
             self.state, out = bridge.step(self.state, inputs, self.params)
             for packet in [packet for packet in out.packets for _ in range(copies)]:
                 if error := (self.endpoint.send(packet, self.target) if self.target is not None else ""):
@@ -111,7 +114,7 @@ class BridgeNode(Node):
             self.timing.extend(out.timing)
             counters = self.state.counters
             if self.events is not None:
-                self.events.record(inputs, out, counters, time.time())
+                self.events.record(inputs, out, counters, time.time(), self.cause_s)
             for block in out.blocks:
                 stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
                 self.sensor.publish(stamp_ns, {
@@ -120,6 +123,7 @@ class BridgeNode(Node):
                 if self.applied is not None:
                     self.applied.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
                                                     "drive_v": block.drive_v})
+            self.cause_s = outer_cause_s
         for notice in out.notices:  # errors always; the rest rate-limited by their counter
             log = self.get_logger().error if notice.error else None
             log(notice.text) if log else warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import struct
+
 import numpy as np
 
 SENSOR_MAGIC = b"FLS1"
@@ -32,6 +34,9 @@ DRIVE_HEADER = np.dtype([("magic", "S4"), ("sequence", "<u4"), ("first_sample_in
                          ("m", "<u2"), ("flags", "<u2")])
 DRIVE_SAMPLE = np.dtype("<f4")
 assert SENSOR_HEADER.itemsize == 24 and SENSOR_SAMPLE.itemsize == 12 and DRIVE_HEADER.itemsize == 20
+# The same headers as struct formats: one C call to pack or unpack them (2000 packets/s each way)
+_STRUCTS = {SENSOR_HEADER: struct.Struct("<4sIQfHH"), DRIVE_HEADER: struct.Struct("<4sIQHH")}
+assert all(fmt.size == dtype.itemsize for dtype, fmt in _STRUCTS.items())
 
 
 class ProtocolError(ValueError):
@@ -96,7 +101,7 @@ _F32_MAX = float(np.finfo(np.float32).max)
 
 def _finite_f32(values, name: str) -> np.ndarray:
     wide = np.asarray(values, dtype=np.float64)
-    if not (np.isfinite(wide).all() and np.abs(wide).max(initial=0.0) <= _F32_MAX):
+    if not np.abs(wide).max(initial=0.0) <= _F32_MAX:   # NaN compares False, inf is over
         bad = int(np.argmax(~(np.abs(wide) <= _F32_MAX)))
         raise ProtocolError(f"{name}[{bad}] is not a finite float32")
     return wide.astype(DRIVE_SAMPLE)
@@ -141,8 +146,8 @@ def pack_drive(packet: DrivePacket) -> bytes:
     _check_count(m, "m")
     _check_header_fields(packet.sequence, packet.first_sample_index, packet.flags)
     drive = _finite_f32(packet.drive_v, "drive_v")
-    header = np.array((DRIVE_MAGIC, packet.sequence, packet.first_sample_index, m, packet.flags), DRIVE_HEADER)
-    return header.tobytes() + drive.tobytes()
+    return _STRUCTS[DRIVE_HEADER].pack(DRIVE_MAGIC, packet.sequence, packet.first_sample_index, m,
+                                       packet.flags) + drive.tobytes()
 
 
 def unpack_drive(data: bytes | memoryview) -> DrivePacket:
@@ -167,7 +172,7 @@ def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) 
         raise ProtocolError(f"{kind} packet: {len(data)} bytes, shorter than its {dtype.itemsize}-byte header")
     if bytes(data[:4]) != magic:
         raise ProtocolError(f"{kind} packet: magic {bytes(data[:4])!r}, expected {magic!r}")
-    return np.frombuffer(data, dtype, count=1)[0].item()
+    return _STRUCTS[dtype].unpack_from(data)
 
 
 def sequence_delta(sequence: int, expected: int) -> int:

@@ -70,6 +70,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a node off the hot path (the collision monitor, the recorder): built first and "
                              "closed last; its in-process blocks are handled by the main thread after the hot "
                              "loop's (repeatable)")
+    parser.add_argument("--dds-batch", type=int, default=1, metavar="N",
+                        help="the local block streams reach DDS (recorder, monitor, outside listeners) joined, N "
+                             "blocks to a message (in-process subscribers still get every block at once)")
     parser.add_argument("--executor", choices=("events", "single"), default="events",
                         help="rclpy executor (single: for nodes that create subscriptions while spinning, "
                              "as a composed recorder does; rclpy's EventsExecutor fails on that)")
@@ -84,7 +87,11 @@ def main(argv: list[str] | None = None) -> int:
     from flaair_common.runtime import run_nodes
 
     local = {t for t in args.local_topics.split(",") if t}
-    bus = intra.Bus(local, profile=os.environ.get("FLAAIR_PROFILE", "0") not in ("", "0")) if local else None
+    if args.dds_batch < 1:
+        print(f"container: --dds-batch {args.dds_batch}: must be >= 1", file=sys.stderr)
+        return 2
+    bus = intra.Bus(local, profile=os.environ.get("FLAAIR_PROFILE", "0") not in ("", "0"),
+                    dds_batch=args.dds_batch) if local else None
     # Built first, closed last: a composed recorder records the loop's closing zero block and stop.
     makers = [_built_in_background(cls, bus) for cls in background] + makers
     code = run_nodes(makers, [argv[0], *argv[ros_at:]], executor_kind=args.executor, bus=bus)

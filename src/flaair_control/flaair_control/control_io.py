@@ -79,6 +79,7 @@ DSA_CONTROLLER_PARAMS = [
     ParamSpec("collision_response", str, "Reaction to a collision onset", choices=("none", "stop", "reduce_amplitude"), read_only=True),
     ParamSpec("collision_reduction_factor", float, "reduce_amplitude: drive scale while colliding [-]", 0.0, 1.0, read_only=True),
     ParamSpec("collision_restore_on_clearance", bool, "reduce_amplitude: back to full drive at the clearance", read_only=True),
+    ParamSpec("state_every_blocks", int, "ControllerState with every n-th drive block (and at every watchdog or fault change)", 1, 100000, read_only=True),
     ParamSpec("collision_ramp_guard_s", float, "Collision onsets during a K_r ramp and this long after it are not acted on [s]", 0.0, 10.0, read_only=True),
     ParamSpec("min_drive_subscribers", int, "Start once /flaair/drive has this many subscribers (plant, + recorder, + monitor)", 1, 100, read_only=True),
     ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and /flaair/sensor_v and /flaair/wing_state publishers", read_only=True),
@@ -173,6 +174,7 @@ def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> Su
         collision_reduction_factor=v["collision_reduction_factor"],
         collision_restore_on_clearance=v["collision_restore_on_clearance"],
         collision_ramp_guard_s=v["collision_ramp_guard_s"],
+        state_every_blocks=v["state_every_blocks"],
         # Every timer wake-up costs a spin of the executor: no faster than needed.
         timer_period_s=min(0.01, v["watchdog_timeout_s"] / 4),
         dsa=dsa_params, safety=safety_params, frequency=frequency,

@@ -60,6 +60,7 @@ class SupervisorParams:
     collision_reduction_factor: float
     collision_restore_on_clearance: bool
     collision_ramp_guard_s: float      # onsets during a K_r ramp and this long after it are not acted on
+    state_every_blocks: int            # ControllerState with every n-th drive block (and every watchdog/fault change)
     timer_period_s: float
     dsa: dsa.DsaParams
     safety: safety.SafetyParams
@@ -99,6 +100,9 @@ class SupervisorState(NamedTuple):
     trip_pace_wall: float
     trip_pace_index: int
     start_blocks: tuple["DriveOut", ...]   # the loop's first blocks, retransmitted until answered
+    blocks_since_state: int = 0        # drive blocks sent since the last one with a ControllerState
+    clamped_since_state: bool = False  # one of them was clamped (the next state says so)
+    state_key: tuple = (False, "")     # (tripped, fault) of the last ControllerState
 
 
 # --------------------------------------------------------------------------- inputs
@@ -219,9 +223,11 @@ def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_w
         state = state._replace(next_index=index + p.block_size)
     else:   # every block of a healthy loop: one _replace
         state, notes = state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size), []
+    clamped = bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v)
+    state, with_state, clamped = _state_due(state, clamped, bool(guarded.tripped), p)
     block = DriveOut(index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]), float(sig.sync_v[-1]),
-                     bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v),
-                     bool(guarded.tripped), state.fault, state.amplitude_scale, _frequency_hz(state, p), answers, True)
+                     clamped, bool(guarded.tripped), state.fault, state.amplitude_scale, _frequency_hz(state, p),
+                     answers, with_state)
     blocks = [block]
     end_index = int(round(p.run_time_s * p.sample_rate_hz))
     if end_index and state.next_index >= end_index and state.mode != DONE:
@@ -230,6 +236,18 @@ def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_w
         blocks.append(zero)
         notes.append(Note(INFO, summary(state, p, "run complete")))
     return state, blocks, notes
+
+
+def _state_due(state: SupervisorState, clamped: bool, tripped: bool,
+               p: SupervisorParams) -> tuple[SupervisorState, bool, bool]:
+    """Does this drive block carry a ControllerState (every state_every_blocks-th, and at once when
+    the watchdog or the fault changes)? Returns the state, that, and whether any block since the
+    last ControllerState was clamped."""
+    clamped = clamped or state.clamped_since_state
+    key = (tripped, state.fault)
+    if state.blocks_since_state + 1 >= p.state_every_blocks or key != state.state_key:
+        return state._replace(blocks_since_state=0, clamped_since_state=False, state_key=key), True, clamped
+    return state._replace(blocks_since_state=state.blocks_since_state + 1, clamped_since_state=clamped), False, clamped
 
 
 def _frequency_hz(state: SupervisorState, p: SupervisorParams) -> float:

@@ -7,9 +7,10 @@ The hot loop (the real-time target's bridge, or with --sim the simulated plant p
 time; the front end; the dSA controller) runs composed in one process, its block streams
 delivered in-process (`flaair_common.container`; --processes runs one process per node
 instead). The collision monitor (per-wingbeat decision, stroke-locked windows: the flapping
-frequency is free) and the recorder (--out) run in that process too, off the hot path: their
-blocks are handled after the loop's, and the block streams reach the bag without a DDS round
-trip. Beside it: the Foxglove live view (--foxglove).
+frequency is free) and the recorder (--out) run composed in a second process, off the hot path:
+the loop's block streams reach them over DDS joined into 10 ms messages (config/flaair.yaml
+live.dds_batch_blocks), so the loop's interpreter spends its core on the loop. Beside them: the
+Foxglove live view (--foxglove).
 The controller runs the configured K_r schedule (config/flaair.yaml dsa_controller_node: the
 transition experiment's), synchronous first, then self-excited.
 
@@ -55,7 +56,8 @@ SIDE_NODES = {
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
-LOOP_CLOSE_S = 180.0   # the loop's process writes the recorder's backlog and closes the bag before it exits
+LOOP_CLOSE_S = 180.0
+SIDE_SETTLE_S = 0.5    # the loop's last DDS messages (its zero drive) reach the recorder before it stops   # the loop's process writes the recorder's backlog and closes the bag before it exits
 
 
 class LiveError(RuntimeError):
@@ -80,6 +82,8 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         # the controller starts once the actuator's node and the recorder listen; live stops it
         "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1},
     }
+    if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
+        sections["dsa_controller_node"]["state_every_blocks"] = int(node_parameters("flaair.yaml", "live")["dds_batch_blocks"])
     if args.sim:
         sections["plant_node"] = {"mode": "realtime", "noise": True}
     else:
@@ -203,26 +207,31 @@ def run_live(args: argparse.Namespace) -> int:
               "pitch reads about 4x small (the model over-predicts the hinge sensor); run `bin/flaair calibrate`",
               file=sys.stderr)
     loop: list = []
+    side_process = None
     watcher: Watcher | None = None
     try:
-        if args.processes:   # composed, they run in the loop's process, off the hot path
+        if args.processes:
             if args.out is not None:
                 graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
             graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
+        else:   # off the hot path, in a process of their own: the loop's interpreter is for the loop
+            side = ([COMPOSED_RECORDER] if args.out is not None else []) + [COMPOSED_MONITOR]
+            side_process = graph.start("side", [*node_argv("flaair_common", "container"), "--local-topics", "",
+                                                "--executor", "single", *side, *ros_args])
         if args.foxglove is not None:
             graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
             print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
                   "(layout: config/foxglove_layout.json)", file=sys.stderr)
         watcher = Watcher(graph, args)
+        watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
+        time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
         if args.processes:
-            watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
-            time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
-            loop = [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
-        else:   # the recorder and the monitor are built first, so they listen before the first block
-            background = ([COMPOSED_RECORDER] if args.out is not None else []) + [COMPOSED_MONITOR]
-            loop = [graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
-                                         ",".join(LOCAL_TOPICS), *(HOT_NODES[role][2] for role in hot),
-                                         *(f"--background={spec}" for spec in background), *ros_args])]
+            loop += [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
+        else:
+            batch = int(node_parameters("flaair.yaml", "live")["dds_batch_blocks"])
+            loop.append(graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
+                                             ",".join(LOCAL_TOPICS), "--dds-batch", str(batch),
+                                             *(HOT_NODES[role][2] for role in hot), *ros_args]))
         watcher.run_for_duration()
         status = "duration reached"
     except KeyboardInterrupt:
@@ -239,6 +248,9 @@ def run_live(args: argparse.Namespace) -> int:
     # The loop first (zero drive, stop packet), then the listeners; the recorder last.
     for process in reversed(loop):
         graph.stop(process, timeout_s=LOOP_CLOSE_S)
+    if side_process is not None:
+        time.sleep(SIDE_SETTLE_S)
+        graph.stop(side_process, timeout_s=LOOP_CLOSE_S)
     if watcher is not None:
         watcher.close()
     graph.close()
