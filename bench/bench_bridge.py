@@ -119,7 +119,8 @@ def live_run(duration_s: float, tmp: Path) -> dict:
                 procs = {"target": [psutil.Process(target.pid)]}
                 for child in psutil.Process(live.pid).children(recursive=True):
                     line = " ".join(child.cmdline())
-                    role = "loop" if "BridgeNode" in line else "side" if "RecorderNode" in line else None
+                    role = ("loop" if "BridgeNode" in line else "recorder" if "recorder_node" in line
+                            else "monitor" if "collision_monitor_node" in line else None)
                     if role:
                         procs.setdefault(role, []).append(child)
                 for role, members in procs.items():
@@ -235,7 +236,7 @@ def main() -> int:
                           f"at once); UDP echo p99 "
                           f"{percentile(echo_ms, 99):.3f} ms, p50 {percentile(echo_ms, 50):.3f} ms"))
     for name, label in (("loop", "loop process (bridge, front end, controller)"),
-                        ("side", "side process (collision monitor, recorder)"),
+                        ("monitor", "collision monitor process"), ("recorder", "recorder process"),
                         ("target", "emulated target")):
         figures.append(Figure(f"live: CPU per 0.5 ms packet, {label}", run["cpu_us"].get(name, float("nan")), "us",
                               "<= 500 (1 core)" if name == "loop" else "", name != "loop" or run["cpu_us"]["loop"] <= 500,

@@ -106,8 +106,8 @@ class _Node:
 
 def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() -> None:
     """With dds_batch 4: in-process subscribers see each 10-sample block at once; DDS gets one
-    40-sample message per 4 contiguous blocks, a shorter one at a gap and at flush, readable by
-    rosbags with every sample in order."""
+    40-sample message per 4 contiguous blocks, a shorter one at a gap and at flush, published by
+    the main thread, readable by rosbags with every sample in order."""
     bus = intra.Bus({topics.DRIVE}, dds_batch=4)
     seen: list[int] = []
     bus.subscribe(topics.DRIVE, lambda f: seen.append(f["first_sample_index"]))
@@ -123,6 +123,8 @@ def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() 
         fields = block(first)
         publisher.publish(int(first / FS * 1e9), {k: fields[k] for k in ("sample_rate_hz", "first_sample_index", "drive_v")})
         assert seen[-1] == first
+    assert node.publisher.sent == []                    # nothing on DDS from the publishing (hot) thread
+    bus.run_deferred()                                  # the main thread publishes
     assert len(node.publisher.sent) == 2                # 0-30 joined; 40, 50 closed by the gap
     bus.flush()
     messages = [bagio.typestore().deserialize_cdr(data, "flaair_msgs/msg/DriveCommandBlock") for data in node.publisher.sent]

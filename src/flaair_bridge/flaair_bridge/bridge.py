@@ -11,17 +11,17 @@ sockets, no ROS, time passed in):
   restarted: the bridge follows the new stream and keeps its own published index running.
   Samples are re-blocked to ``block_size`` (the lab's n = 10 passes straight through).
 - `DriveBlock`: a block of FLAAIR's drive stream (its own sample count). The first block, or
-  the first after a jump in the stream, is anchored ``lead_samples`` ahead of the target's
-  clock (index after the last sensor sample received); later blocks follow contiguously, so
-  the drive the target applies is the stream with a constant delay. The clock is also
-  extrapolated from the last packet's arrival time (kernel timestamp): a block that would
-  arrive behind it (the bridge or the drive source fell behind) re-anchors the stream
-  ``lead_samples`` ahead of the extrapolated clock (counted). Samples
-  are clamped to +-drive_limit_v (non-finite ones become 0, counted) and sent in packets of at
-  most 1000 samples, never more than ``max_ahead_samples`` beyond clock + lead (the rest waits
-  for the target's clock). A stream that gets further ahead than that plus one packet (a source
-  faster than real time, or a loop that fell behind and caught up) drops its queue and
-  re-anchors ``lead_samples`` ahead of the clock (counted).
+  the first after a jump in the stream, is anchored as the protocol says: computed from samples
+  up to k (the last sensor sample received), it is applied from k + 1 + ``lead_samples``; later
+  blocks follow contiguously, so the drive the target applies is the stream with a constant
+  delay, the one the controller compensates. The target's clock is extrapolated from the last
+  packet's arrival (kernel timestamp). A block already behind it because the bridge fell behind
+  (its packets waited unread) is dropped as late, and the stream keeps its place; a source that
+  fell behind the data re-anchors ``lead_samples`` ahead of it (counted). Samples are clamped
+  to +-drive_limit_v (non-finite ones become 0, counted) and sent in packets of at most 1000
+  samples, never more than ``max_ahead_samples`` beyond clock + lead (the rest waits for the
+  target's clock). A source that runs further ahead than that plus one packet drops its queue
+  and re-anchors (counted).
 - `Tick` (wall clock): the drive watchdog sends a stop packet when a non-zero drive stream falls
   silent for ``drive_timeout_s``; when the target falls silent for ``sensor_timeout_s`` the
   bridge sends a stop packet and publishes NaN (lost) blocks at the real-time rate, up to
@@ -96,7 +96,8 @@ class Counters(NamedTuple):
     drive_blocks: int = 0            # drive blocks received from FLAAIR
     drive_stale_blocks: int = 0      # older than the drive stream: dropped
     drive_unscheduled_blocks: int = 0  # arrived before any sensor packet: dropped
-    drive_reanchors: int = 0         # stream re-anchored lead_samples ahead (jump, or late)
+    drive_reanchors: int = 0         # stream re-anchored lead_samples ahead (jump, or the source fell behind)
+    drive_late_blocks: int = 0       # behind the target's clock because the bridge fell behind: dropped
     drive_overflow_blocks: int = 0   # queued too far ahead of the target's clock: dropped (the stream re-anchors)
     drive_packets: int = 0
     drive_samples: int = 0
@@ -360,16 +361,23 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
         drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
         counters = _count(counters, clamped_samples=int(over.sum()))
     clock = _clock(state, inputs.now_s, params)
-    anchor = max(state.target_end, clock) + params.lead_samples if clock > state.target_end + params.lead_samples \
-        else state.target_end + params.lead_samples
+    anchor = state.target_end + params.lead_samples   # the protocol: data up to k -> drive from k + 1 + lead
     offset = state.drive_offset
     if offset is None or first != state.drive_expected:
         if offset is not None:
             counters = _count(counters, drive_reanchors=1)
             notices.append(Notice("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
-                                                     f"re-anchored {anchor - state.target_end} samples ahead"))
+                                                     f"re-anchored {params.lead_samples} samples ahead"))
         offset = anchor - first
-    elif first + offset < clock:
+    elif first + offset + n <= clock and first + offset >= anchor:
+        # The source keeps pace with the data, the bridge fell behind the target (its packets
+        # waited unread): the block is late. Moving the stream ahead would change the loop's
+        # delay for good, so it is dropped and the stream keeps its place.
+        counters = _count(counters, drive_late_blocks=1)
+        return state._replace(drive_expected=first + n, counters=counters), Outputs(notices=(Notice(
+            "drive_late_blocks", f"drive block {first} dropped: {clock - first - offset} samples behind the target's "
+                                 f"clock (the bridge fell behind) [{counters.drive_late_blocks} so far]"),))
+    elif first + offset < min(clock, anchor):   # the source fell behind the data: it starts again lead_samples ahead
         counters = _count(counters, drive_reanchors=1)
         notices.append(Notice("drive_reanchors", f"drive block {first} is {clock - first - offset} samples "
                                                  f"behind the target's clock: re-anchored {params.lead_samples} samples "
@@ -378,9 +386,8 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     queue = state.queue
     queued = queue[-1][0] + len(queue[-1][1]) - queue[0][0] if queue else 0  # O(1): in order
     if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:
-        # The stream runs further ahead of the target than its buffer: a source faster than real
-        # time, or a loop that fell behind (re-anchored on the extrapolated clock) and caught up.
-        # The queued samples are dropped, the stream goes on lead_samples ahead of the clock.
+        # A source faster than real time runs further ahead of the target than its buffer: the
+        # queued samples are dropped, the stream goes on lead_samples ahead of the data.
         counters = _count(counters, drive_overflow_blocks=len(queue), drive_reanchors=1)
         notices.append(Notice("drive_overflow_blocks", f"drive block {first}: {queued} samples already wait for the "
                                                        f"target's clock: dropped, re-anchored {params.lead_samples} "

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import select
 import signal
 import socket
@@ -182,9 +183,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--noise", action=argparse.BooleanOptionalAction, default=shared["noise"], help="sensor noise")
     parser.add_argument("--seed", type=int, default=shared["noise_seed"], help="noise seed [%(default)s]")
     parser.add_argument("--counters", help="also write the counters (strict JSON) to this file")
+    parser.add_argument("--realtime-priority", type=int, default=shared["realtime_priority"],
+                        help="SCHED_FIFO priority of the target's loop, 0: normal scheduling (a real target is "
+                             "hardware of its own; on a shared machine this keeps its clock) [%(default)s]")
     args = parser.parse_args(argv)
     if not 1 <= args.packet_samples <= 1000:
         parser.error(f"--packet-samples {args.packet_samples}: must be 1..1000")
+    if not 0 <= args.realtime_priority <= 99:
+        parser.error(f"--realtime-priority {args.realtime_priority}: must be 0..99")
     if args.hold_samples < 0 or not args.drive_limit_v >= 0 or not args.sample_rate > 0 or args.duration < 0:
         parser.error("--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate > 0")
     return args
@@ -239,6 +245,12 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             core.receive(data)
 
+    if args.realtime_priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime_priority))
+        except (OSError, AttributeError) as exc:
+            print(f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} ({exc})",
+                  file=sys.stderr, flush=True)
     held: bytes | None = None
     print(f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, drive packets on "
           f"{sock.getsockname()[0]}:{sock.getsockname()[1]}, hold {args.hold_samples} samples, limit "

@@ -8,6 +8,7 @@ known, so the bridge knows how far the target's clock has moved on.
 """
 from __future__ import annotations
 
+import os
 import select
 import socket
 import struct
@@ -24,7 +25,7 @@ class DatagramEndpoint:
     (arrival_s: kernel receive time on the `time.time()` clock)."""
 
     def __init__(self, host: str, port: int, receive_buffer_bytes: int,
-                 on_datagram: Callable[[bytes, tuple[str, int], float], None]) -> None:
+                 on_datagram: Callable[[bytes, tuple[str, int], float], None], realtime_priority: int = 0) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
@@ -35,11 +36,25 @@ class DatagramEndpoint:
             raise
         self.sock.settimeout(0.1)  # the reader checks for close() this often
         self.on_datagram = on_datagram
+        self.realtime_priority = realtime_priority
+        self.priority_error = ""   # why the reader could not take its real-time priority ("" if it did, or none asked)
+        self.priority_set = threading.Event()
         self.running = True
         self.reader = threading.Thread(target=self._read, name=f"udp-{host}:{port}", daemon=True)
         self.reader.start()
 
+    def _take_priority(self) -> None:
+        """SCHED_FIFO for this thread: a datagram preempts the other processes at once, instead of
+        waiting out their time slice while the socket fills (needs CAP_SYS_NICE or root)."""
+        if self.realtime_priority > 0:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+            except (OSError, AttributeError) as exc:
+                self.priority_error = str(exc)
+        self.priority_set.set()
+
     def _read(self) -> None:
+        self._take_priority()
         while self.running:
             try:
                 data, ancillary, _flags, sender = self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))

@@ -73,6 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--dds-batch", type=int, default=1, metavar="N",
                         help="the local block streams reach DDS (recorder, monitor, outside listeners) joined, N "
                              "blocks to a message (in-process subscribers still get every block at once)")
+    parser.add_argument("--realtime-priority", type=int, default=0, metavar="P",
+                        help="run every thread of the container SCHED_FIFO at priority P (1-99; 0: normal "
+                             "scheduling): a thread that holds the interpreter lock is then never preempted "
+                             "by other processes while the loop waits for it")
     parser.add_argument("--executor", choices=("events", "single"), default="events",
                         help="rclpy executor (single: for nodes that create subscriptions while spinning, "
                              "as a composed recorder does; rclpy's EventsExecutor fails on that)")
@@ -87,6 +91,15 @@ def main(argv: list[str] | None = None) -> int:
     from flaair_common.runtime import run_nodes
 
     local = {t for t in args.local_topics.split(",") if t}
+    if not 0 <= args.realtime_priority <= 99:
+        print(f"container: --realtime-priority {args.realtime_priority}: must be 0..99", file=sys.stderr)
+        return 2
+    if args.realtime_priority:   # before rclpy starts its threads: they inherit the policy
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime_priority))
+        except (OSError, AttributeError) as exc:
+            print(f"container: WARNING: runs without real-time priority {args.realtime_priority} ({exc}); "
+                  "run as root or grant CAP_SYS_NICE", file=sys.stderr)
     if args.dds_batch < 1:
         print(f"container: --dds-batch {args.dds_batch}: must be >= 1", file=sys.stderr)
         return 2

@@ -40,6 +40,7 @@ class Bus:
         # one rclpy publish costs tens of us, 2000 blocks/s per stream are most of a core
         self.dds_batch = dds_batch
         self.publishers: list["BlockPublisher"] = []
+        self.deferred: collections.deque[Callable[[], None]] = collections.deque()
         # background blocks wait until this many queue: ~10 ms at 20 kHz of a recorder's 6 streams and the monitor's 1
         self.background_batch = background_batch
         self.profile = CallbackProfile() if profile else None   # FLAAIR_PROFILE: time every composed callback
@@ -61,6 +62,24 @@ class Bus:
         self.subscribers[topic].append((wrapped, background or self.building_background))
         if not join:
             self.unjoined.add(wrapped)
+
+    def defer(self, task: Callable[[], None]) -> None:
+        """Run `task` on the main thread, in order (DDS copies: encoding and publishing them would
+        hold the interpreter lock against the hot path; the main thread gives it up every
+        switch interval)."""
+        self.deferred.append(task)
+
+    def run_deferred(self) -> int:
+        """The deferred tasks queued so far (main thread); returns how many ran."""
+        done = 0
+        while self.deferred:
+            self.deferred.popleft()()
+            done += 1
+        return done
+
+    def has_background(self) -> bool:
+        """Some subscriber is off the hot path (its blocks wait for the main thread)."""
+        return any(background for subscribers in self.subscribers.values() for _, background in subscribers)
 
     def subscriber_count(self, topic: str) -> int:
         return len(self.subscribers.get(topic, ()))
@@ -93,6 +112,7 @@ class Bus:
         self.delivered += done
         for publisher in self.publishers:
             publisher.flush_dds()
+        self.run_deferred()
         return done
 
     def _drain_background(self, budget: int) -> int:
@@ -223,8 +243,12 @@ class BlockPublisher:
         self.publisher = node.create_publisher(msg_type, topic, qos)
         bus = current()
         self.bus = bus if bus is not None and topic in bus.local_topics else None
-        self.batch = self.bus.dds_batch if self.bus is not None and "first_sample_index" in dict(codec.layout.fields) else 1
+        fields = dict(codec.layout.fields)
+        sampled = "first_sample_index" in fields and any(kind.endswith("[]") for kind in fields.values())
+        self.batch = self.bus.dds_batch if self.bus is not None and sampled else 1
         self.held: list[tuple[int, dict]] = []   # blocks not yet on DDS (batching)
+        self.held_end = 0                         # sample index after the last held block
+        self.samples = next((name for name, kind in codec.layout.fields if kind.endswith("[]")), "")
         self.sized: dict[int, cdr.FixedCodec] = {}
         if self.bus is not None:
             self.bus.publishers.append(self)
@@ -240,6 +264,8 @@ class BlockPublisher:
         # outside listener must still see this stream in order.
         if self.batch > 1:
             self._hold(stamp_ns, fields)
+        elif self.bus is not None and self.bus.dds_batch > 1:   # off the hot path, as the batches
+            self.bus.defer(lambda: self._publish_now(stamp_ns, fields))
         elif self.bus is None or self.publisher.get_subscription_count() > 0:
             self.publisher.publish(self.codec.encode(stamp_ns, fields))
         if self.bus is not None:
@@ -250,19 +276,26 @@ class BlockPublisher:
 
 
     def _hold(self, stamp_ns: int, fields: dict) -> None:
-        if self.held:
-            last = self.held[-1][1]
-            if int(fields["first_sample_index"]) != int(last["first_sample_index"]) + _length(last):
-                self.flush_dds()
+        first = fields["first_sample_index"]
+        if self.held and first != self.held_end:
+            self.flush_dds()
         self.held.append((stamp_ns, fields))
+        self.held_end = first + len(fields[self.samples])
         if len(self.held) >= self.batch:
             self.flush_dds()
 
+    def _publish_now(self, stamp_ns: int, fields: dict) -> None:
+        if self.publisher.get_subscription_count() > 0:
+            self.publisher.publish(self.codec.encode(stamp_ns, fields))
+
     def flush_dds(self) -> None:
-        """Publish the held blocks joined into one message (if anyone listens on DDS)."""
-        if not self.held:
-            return
-        held, self.held = self.held, []
+        """Hand the held blocks to the main thread, which publishes them joined into one message."""
+        if self.held:
+            held, self.held = self.held, []
+            self.bus.defer(lambda: self._publish_joined(held))
+
+    def _publish_joined(self, held: list[tuple[int, dict]]) -> None:
+        """Publish held blocks joined into one message (if anyone listens on DDS)."""
         if self.publisher.get_subscription_count() == 0:   # volatile: no listener, nothing lost
             return
         joined = join_contiguous([fields for _, fields in held])

@@ -1,6 +1,7 @@
 """Run a FLAAIR node: parameter errors become one clear line, Ctrl-C and SIGTERM shut down cleanly."""
 from __future__ import annotations
 
+import gc
 import math
 import os
 import signal
@@ -147,13 +148,26 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
         return 2
     for node in nodes:
         executor.add_node(node)
+    # Everything built so far (modules, nodes, compiled kernels) is kept out of the cyclic garbage
+    # collector: a full collection over it stalled the loop for milliseconds.
+    gc.collect()
+    gc.freeze()
+    # Background blocks and deferred DDS copies queued by another thread wait for this one: look
+    # often if there can be any.
+    idle_s = 0.002 if bus is not None and (bus.has_background() or bus.dds_batch > 1) else 0.05
+    seen = -1
     try:
         while not stop_requested and rclpy.ok():
-            if bus is not None and bus.pending():
-                bus.drain()
+            # Blocks left queued are taken here only when no other thread (a UDP reader) has
+            # delivered since the last look: that thread takes its own, at its own priority, and
+            # a drain here would take the loop's blocks (and the interpreter lock) from it.
+            if bus is not None and bus.pending() and bus.delivered == seen and bus.drain() > 0:
                 executor.spin_once(timeout_sec=0)
             else:
-                executor.spin_once(timeout_sec=0.002 if bus is not None else 0.05)
+                seen = bus.delivered if bus is not None else -1
+                if bus is not None:
+                    bus.run_deferred()
+                executor.spin_once(timeout_sec=idle_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -1,8 +1,8 @@
 """dsa_controller_node: the delayed-stretch-activation (dSA) controller that closes the wingbeat loop.
 
-One drive block (/flaair/drive) and one ControllerState (/flaair/controller/state) per
-wing-state block (/flaair/wing_state). A thin shell over the pure loop supervisor
-`flaair_control.supervisor`, which runs the dSA core (`dsa`) and the safety core (`safety`).
+One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
+(/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
+supervisor `flaair_control.supervisor` (the dSA core `dsa`, the safety core `safety`).
 
 Drive (paper eqs. dsa/dsaconst): the dSA filter tau'' + a tau' + b tau = -c phi' runs on the
 measured stroke velocity; drive = K_r sync + (1 - K_r) tau / G_a, K_r ramped from kr_initial
@@ -10,9 +10,8 @@ to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
 K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
 
-Loop delay (blocks in flight + zero-order hold + the front end's velocity filter) is
-compensated by the dsa core's phase advance (`control_io.loop_delay_s`). Safety: clamp, slew
-limit, and the watchdogs of `flaair_control.supervisor`; Ctrl-C / SIGTERM publish a zero block.
+Loop delay (blocks in flight, hold, velocity filter): the dsa core's phase advance compensates it
+(`control_io.loop_delay_s`). Safety: clamp, slew limit, watchdogs; Ctrl-C / SIGTERM: a zero block.
 
 Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
@@ -53,6 +52,7 @@ class DsaControllerNode(Node):
             raise ParameterError(f"parameter 'model_file': {exc}") from exc
         self.params = supervisor_params_from_config(p, model)
         self.state = sv.initial_state(self.params)
+        sv.warm_up(self.params)   # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None  # index, in, out
         # Block streams as CDR bytes (rclpy's message conversion costs as much as the transport),

@@ -543,6 +543,12 @@ class FrontendInputs(NamedTuple):
     pitch_sensor_v: np.ndarray
 
 
+def warm_up(params: FrontendParams, n: int = 10) -> None:
+    """Load the compiled kernels now (~0.2 s on the first call), not on the first live block, when
+    the target's packets would queue up behind it."""
+    step(initial_state(params), FrontendInputs(np.zeros(n), np.zeros(n)), params)
+
+
 def step(state: FrontendState, inputs: FrontendInputs, params: FrontendParams) -> tuple[FrontendState, WingEstimate]:
     """Advance the front end by one block of samples.
 

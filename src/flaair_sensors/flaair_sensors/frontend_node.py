@@ -42,6 +42,7 @@ class FrontendNode(Node):
         self.fs_hz = values["sample_rate_hz"]
         self.params = frontend_params_from_config(values, self.fs_hz)
         self.state = frontend.initial_state(self.params)
+        frontend.warm_up(self.params, values["block_size"])
         self.expected_index: int | None = None
         self.rejected_blocks = 0
         self.latencies_s: list[float] = []

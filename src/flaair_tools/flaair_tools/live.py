@@ -7,7 +7,7 @@ The hot loop (the real-time target's bridge, or with --sim the simulated plant p
 time; the front end; the dSA controller) runs composed in one process, its block streams
 delivered in-process (`flaair_common.container`; --processes runs one process per node
 instead). The collision monitor (per-wingbeat decision, stroke-locked windows: the flapping
-frequency is free) and the recorder (--out) run composed in a second process, off the hot path:
+frequency is free) and the recorder (--out) run in processes of their own, off the hot path:
 the loop's block streams reach them over DDS joined into 10 ms messages (config/flaair.yaml
 live.dds_batch_blocks), so the loop's interpreter spends its core on the loop. Beside them: the
 Foxglove live view (--foxglove).
@@ -44,8 +44,6 @@ HOT_NODES = {
     "frontend": ("flaair_sensors", "frontend_node", "flaair_sensors.frontend_node:FrontendNode"),
     "controller": ("flaair_control", "dsa_controller_node", "flaair_control.dsa_controller_node:DsaControllerNode"),
 }
-COMPOSED_MONITOR = "flaair_control.collision_monitor_node:CollisionMonitorNode"
-COMPOSED_RECORDER = "flaair_tools.recorder_node:RecorderNode"
 LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH,
                 topics.CONTROLLER_STATE)
 SIDE_NODES = {
@@ -74,7 +72,9 @@ def host_port(text: str, what: str) -> tuple[str, int]:
 
 def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """Per-node overrides of config/flaair.yaml for this run (a ROS params file's sections)."""
-    block = int(node_parameters("flaair.yaml", "dsa_controller_node")["block_size"])
+    live = node_parameters("flaair.yaml", "live")
+    block = int(node_parameters("flaair.yaml", "dsa_controller_node")["block_size"] if args.sim
+                else live["target_block_size"])
     sections: dict[str, dict[str, Any]] = {
         "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)} if args.calibration else {},
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
@@ -83,7 +83,7 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1},
     }
     if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
-        sections["dsa_controller_node"]["state_every_blocks"] = int(node_parameters("flaair.yaml", "live")["dds_batch_blocks"])
+        sections["dsa_controller_node"]["state_every_blocks"] = int(live["dds_batch_blocks"])
     if args.sim:
         sections["plant_node"] = {"mode": "realtime", "noise": True}
     else:
@@ -92,6 +92,7 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
             node_parameters("flaair.yaml", "bridge_node")["lead_samples"])
         sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port, "target_host": target_host,
                                    "target_port": target_port, "lead_samples": lead}
+        sections["/**"] = {"block_size": block}   # the bridge re-blocks the target's packets to this
         # the lead is loop delay too: the controller's phase advance covers it
         sections["dsa_controller_node"]["blocks_in_flight"] = 1 + -(-lead // block)
         for key, _, value in (item.partition("=") for item in args.bridge_param):
@@ -197,8 +198,11 @@ def run_live(args: argparse.Namespace) -> int:
     params_file.parent.mkdir(parents=True, exist_ok=True)
     params_file.write_text(yaml.safe_dump(node_parameters_for(args), sort_keys=False))
     ros_args = ["--ros-args", "--params-file", str(params_file)]
-    source = "plant" if args.sim else "bridge"
-    hot = [source, "frontend"] + (["controller"] if args.controller == "dsa" else [])
+    control = ["controller"] if args.controller == "dsa" else []
+    # The plant first, closed last: the controller's zero block reaches it. The bridge last: its
+    # socket opens once the front end and the controller have loaded their kernels (the target's
+    # packets would queue up meanwhile), and its stop packet zeroes the target when it closes.
+    hot = ["plant", "frontend", *control] if args.sim else ["frontend", *control, "bridge"]
     print(f"flaair live: {'simulated robot (real-time plant)' if args.sim else f'target {args.target[0]}:{args.target[1]}'}"
           f", loop {'composed in one process' if not args.processes else 'one process per node'}, on "
           f"{graph.describe()}; logs in {log_dir}", file=sys.stderr)
@@ -207,17 +211,14 @@ def run_live(args: argparse.Namespace) -> int:
               "pitch reads about 4x small (the model over-predicts the hinge sensor); run `bin/flaair calibrate`",
               file=sys.stderr)
     loop: list = []
-    side_process = None
+    recorder_process = None
     watcher: Watcher | None = None
     try:
-        if args.processes:
-            if args.out is not None:
-                graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
-            graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
-        else:   # off the hot path, in a process of their own: the loop's interpreter is for the loop
-            side = ([COMPOSED_RECORDER] if args.out is not None else []) + [COMPOSED_MONITOR]
-            side_process = graph.start("side", [*node_argv("flaair_common", "container"), "--local-topics", "",
-                                                "--executor", "single", *side, *ros_args])
+        # Off the hot path, each in a process of its own: the loop's interpreter is for the loop, and
+        # the monitor keeps the C++ events executor (the recorder needs the single-threaded one)
+        if args.out is not None:
+            recorder_process = graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
+        graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
         if args.foxglove is not None:
             graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
             print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
@@ -229,8 +230,10 @@ def run_live(args: argparse.Namespace) -> int:
             loop += [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
         else:
             batch = int(node_parameters("flaair.yaml", "live")["dds_batch_blocks"])
+            priority = 0 if args.sim else int(node_parameters("flaair.yaml", "bridge_node")["realtime_priority"])
             loop.append(graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
                                              ",".join(LOCAL_TOPICS), "--dds-batch", str(batch),
+                                             "--realtime-priority", str(priority),
                                              *(HOT_NODES[role][2] for role in hot), *ros_args]))
         watcher.run_for_duration()
         status = "duration reached"
@@ -248,9 +251,9 @@ def run_live(args: argparse.Namespace) -> int:
     # The loop first (zero drive, stop packet), then the listeners; the recorder last.
     for process in reversed(loop):
         graph.stop(process, timeout_s=LOOP_CLOSE_S)
-    if side_process is not None:
+    if recorder_process is not None:
         time.sleep(SIDE_SETTLE_S)
-        graph.stop(side_process, timeout_s=LOOP_CLOSE_S)
+        graph.stop(recorder_process, timeout_s=LOOP_CLOSE_S)
     if watcher is not None:
         watcher.close()
     graph.close()
