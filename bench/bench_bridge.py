@@ -1,16 +1,18 @@
 """`flaair live --target` against the emulated target: late/missing drive, lost sensor packets, loop latency.
 
 The emulated target (flaair_bridge.emulated_target, 20 kHz in 10-sample packets, real-time
-paced) talks UDP on 127.0.0.1 to `flaair live`, as a lab's real-time target would: the composed
-loop process (bridge, front end, dSA controller with the configured K_r schedule, collision
-monitor, recorder), on a private ROS domain. Figures, each beside its target:
+paced at SCHED_FIFO) talks UDP on 127.0.0.1 to `flaair live`, as a lab's real-time target would:
+the composed loop process (bridge, front end, dSA controller with the configured K_r schedule;
+1 ms blocks), the collision monitor and the recorder in processes of their own, on a private
+ROS domain. Figures, each beside its target:
 
 - drive samples late or missing at the target, % of the driven samples (target <= 0.1 %);
-- sensor packets lost inside FLAAIR: blocks missing from the recorded /flaair/sensor_v or
-  marked lost by the bridge (target 0);
+- sensor packets lost inside FLAAIR: samples missing from the recorded /flaair/sensor_v or
+  marked lost by the bridge, in packets (target 0);
 - latency from a sensor packet's arrival at the bridge (kernel timestamp) to the drive packet
-  anchored to it leaving the bridge, p99 (target < 1 ms);
-- CPU per packet of the loop process (the recorder composed in it) and the emulated target.
+  the loop produced while handling it leaving the bridge, p99 over every such block; a block
+  not sent at once (late, queued) counts as infinitely late (target < 1 ms);
+- CPU per packet of the loop process, the monitor, the recorder and the emulated target.
 
 Same-run baseline: the emulated target against a bare UDP echo (one Python process answering
 each sensor packet with a drive packet, no ROS): what the machine allows without FLAAIR.

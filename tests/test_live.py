@@ -89,11 +89,17 @@ def test_bad_arguments_are_named(args, expected):
     assert result.returncode == 2 and expected in result.stderr and "Traceback" not in result.stderr
 
 
-def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
-    """Real UDP on localhost: the target's samples are recorded, the drive reaches it, the run ends with a stop."""
+def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_predicts(tmp_path):
+    """Real UDP on localhost: the target's samples are recorded, the drive reaches it, the wing
+    flaps by itself at the Hopf analysis's limit cycle (seen through the front end, 1 ms blocks
+    and a 2 ms lead: 3 ms of loop delay, compensated), and the run ends with a stop."""
     import json
 
+    from flaair_control import transition as tr
+    from flaair_control.transition_io import hilbert_params_from_config
+    from flaair_model.config import node_parameters
     from flaair_tools import bagio
+    from flaair_tools.transition_figure import predicted_limit_cycle
 
     counters = tmp_path / "target.json"
     target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", "127.0.0.1:26100",
@@ -101,7 +107,7 @@ def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
     try:
         bag = tmp_path / "bench"
-        result = _live("--target", "127.0.0.1:26101", "--listen", "127.0.0.1:26100", "--duration", "2",
+        result = _live("--target", "127.0.0.1:26101", "--listen", "127.0.0.1:26100", "--duration", "4",
                        "--out", str(bag))
         assert result.returncode == 0, result.stderr[-3000:]
     finally:
@@ -112,10 +118,17 @@ def test_live_against_the_emulated_target_drives_it_and_stops_it(tmp_path):
     messages = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/sensor_v"])]
     firsts, lengths = [m.first_sample_index for m in messages], [len(m.stroke_sensor_v) for m in messages]
     gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:]) if b != a + n]
-    assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 40000 and not gaps, (firsts[:3], start, gaps[:5])
+    assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000 and not gaps, (firsts[:3], start, gaps[:5])
     assert bagio.message_counts(bag).get("/flaair/drive/applied", 0) > 0
     report = json.loads(counters.read_text())
     assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
+    wing = bagio.read_blocks(bag, "/flaair/wing_state", allow_gaps=True)
+    stroke_deg = wing["stroke_deg"][-40000:-2000]             # the last 2 s of flapping, before the stop
+    r = tr.hilbert_analysis(stroke_deg, wing.sample_rate_hz, hilbert_params_from_config())
+    keep = (r.time_s > 0.05) & (r.time_s < r.time_s[-1] - 0.05)
+    f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
+    f, a = float(np.median(r.frequency_hz[keep])), float(np.median(r.amplitude[keep]))
+    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.1), (f, a, f_theory, a_theory)
 
 
 def _start_live_against_target(tmp_path: Path, port: int, duration_s: float):
