@@ -167,7 +167,7 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
                 seen = bus.delivered if bus is not None else -1
                 if bus is not None:
                     bus.run_deferred()
-                executor.spin_once(timeout_sec=idle_s)
+                executor.spin_once(timeout_sec=0.002 if bus is not None and bus.pending() else idle_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
