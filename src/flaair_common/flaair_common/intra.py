@@ -52,6 +52,7 @@ class Bus:
         self.building_background = False   # set by the container while it builds a background node
         self.unjoined: set[Callable[[dict], None]] = set()   # background callbacks that take every block whole
         self.delivered = 0
+        self.threaded = False   # some thread other than the main one has delivered blocks
 
     def subscribe(self, topic: str, callback: Callable[[dict], None], background: bool = False,
                   join: bool = True) -> None:
@@ -96,6 +97,8 @@ class Bus:
         The hot FIFO first; the background FIFO only from the main thread, once the hot one is empty.
         """
         budget = self.budget if budget is None else budget
+        if not self.threaded and threading.current_thread() is not threading.main_thread():
+            self.threaded = True   # a reader thread delivers: the main thread leaves its blocks to it
         done = _drain(self.queue, self._draining, budget)
         if (not self.queue and done < budget and len(self.background_queue) >= self.background_batch
                 and threading.current_thread() is threading.main_thread()):

@@ -158,10 +158,12 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
     seen = -1
     try:
         while not stop_requested and rclpy.ok():
-            # Blocks left queued are taken here only when no other thread (a UDP reader) has
-            # delivered since the last look: that thread takes its own, at its own priority, and
-            # a drain here would take the loop's blocks (and the interpreter lock) from it.
-            if bus is not None and bus.pending() and bus.delivered == seen and bus.drain() > 0:
+            # Where a reader thread delivers (a UDP bridge), blocks left queued are taken here only
+            # when it has delivered nothing since the last look: it takes its own, at its own
+            # priority, and a drain here would take the loop's blocks (and the interpreter lock)
+            # from it. Elsewhere (lockstep) this thread's own callbacks leave them: drain at once.
+            if (bus is not None and bus.pending() and (not bus.threaded or bus.delivered == seen)
+                    and bus.drain() > 0):
                 executor.spin_once(timeout_sec=0)
             else:
                 seen = bus.delivered if bus is not None else -1
