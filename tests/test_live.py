@@ -102,8 +102,9 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     from flaair_tools.transition_figure import predicted_limit_cycle
 
     counters = tmp_path / "target.json"
+    # sensor noise, as on a real robot: the dSA loop starts from it if the sync phase's kick is lost
     target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", "127.0.0.1:26100",
-                               "--listen", "127.0.0.1:26101", "--duration", "90", "--counters", str(counters)],
+                               "--listen", "127.0.0.1:26101", "--duration", "90", "--counters", str(counters), "--noise"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
     try:
         bag = tmp_path / "bench"

@@ -66,11 +66,12 @@ class BridgeNode(Node):
             raise ParameterError(f"parameters 'listen_host'/'listen_port' = {p['listen_host']}:{p['listen_port']}: {exc}") from exc
         self.endpoint.priority_set.wait(1.0)
         error = self.endpoint.priority_error   # not root, no CAP_SYS_NICE: a warning, the bridge still runs
-        (self.get_logger().warning if error else self.get_logger().info)(
+        if error:
+            self.get_logger().warning(f"UDP reader runs WITHOUT its real-time priority ({error})")
+        self.get_logger().info(
             f"bridge ready: sensor packets on udp {p['listen_host']}:{p['listen_port']}, drive to "
             f"{p['target_host'] or '<sender>'}:{p['target_port'] or '<sender port>'}, lead {p['lead_samples']} samples "
-            f"({1e3 * p['lead_samples'] / self.fs_hz:g} ms), limit +-{p['drive_limit_v']:g} V, reader "
-            + (f"WITHOUT its real-time priority ({error})" if error else f"SCHED_FIFO {p['realtime_priority']}"))
+            f"({1e3 * p['lead_samples'] / self.fs_hz:g} ms), limit +-{p['drive_limit_v']:g} V")
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         self.target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])

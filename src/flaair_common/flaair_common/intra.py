@@ -312,6 +312,14 @@ class BlockPublisher:
         self.publisher.publish(codec.encode(held[0][0], joined[0]))
 
 
+def dds_listeners() -> int:
+    """The fewest DDS subscribers any of this container's batched block streams has (a recorder in
+    another process listens to all of them); a large number outside such a container."""
+    bus = current()
+    counts = [p.publisher.get_subscription_count() for p in bus.publishers if p.batch > 1] if bus is not None else []
+    return min(counts) if counts else 1 << 30
+
+
 def subscribe_blocks(node: Any, msg_type: type, topic: str, codec: cdr.FixedCodec, callback: Callable[[Any], None],
                      qos: Any, on_error: Callable[[Exception], None], background: bool = False) -> None:
     """Call `callback(fields)` for every block of `topic`: in-process when composed, else from DDS.

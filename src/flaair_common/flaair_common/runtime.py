@@ -1,7 +1,6 @@
 """Run a FLAAIR node: parameter errors become one clear line, Ctrl-C and SIGTERM shut down cleanly."""
 from __future__ import annotations
 
-import gc
 import math
 import os
 import signal
@@ -148,10 +147,6 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
         return 2
     for node in nodes:
         executor.add_node(node)
-    # Everything built so far (modules, nodes, compiled kernels) is kept out of the cyclic garbage
-    # collector: a full collection over it stalled the loop for milliseconds.
-    gc.collect()
-    gc.freeze()
     # Background blocks and deferred DDS copies queued by another thread wait for this one: look
     # often if there can be any.
     idle_s = 0.002 if bus is not None and (bus.has_background() or bus.dds_batch > 1) else 0.05

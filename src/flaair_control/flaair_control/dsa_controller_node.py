@@ -55,9 +55,7 @@ class DsaControllerNode(Node):
         sv.warm_up(self.params)   # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None  # index, in, out
-        # Block streams as CDR bytes (rclpy's message conversion costs as much as the transport),
-        # or in-process when composed (intra); one lock: a UDP thread may deliver the wing state.
-        self.lock = threading.RLock()
+        self.lock = threading.RLock()   # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
         self.drive = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE,
                                           cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size), BLOCK_STREAM)
         self.state_pub = intra.BlockPublisher(self, ControllerState, topics.CONTROLLER_STATE,
@@ -85,7 +83,7 @@ class DsaControllerNode(Node):
                 log.error(note.text)
             elif note.level == sv.WARNING:
                 log.warning(note.text)
-            else:
+            else:   # rclpy ties a call site to one severity: one call per level
                 log.info(note.text)
         return out
 
@@ -103,16 +101,14 @@ class DsaControllerNode(Node):
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable, f"wing-state block dropped: {exc} "
-                                                          f"[{self.undecodable} undecodable so far]")
+        warn_counted(self.get_logger(), self.undecodable, f"wing-state block dropped: {exc} [{self.undecodable} so far]")
 
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
         if self.state.mode == sv.DONE:
             return
         self.advance(sv.WingBlock(t_receive, int(m["first_sample_index"]), float(m["sample_rate_hz"]),
-                                  m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"],
-                                  self.drive.subscription_count()), t_receive)
+                                  m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"], self.peers()), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
         self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,
@@ -131,8 +127,12 @@ class DsaControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def on_timer(self) -> None:
-        self.advance(sv.Tick(time.monotonic(), self.drive.subscription_count(),
-                             self.count_publishers(topics.SENSOR_VOLTAGE), self.count_publishers(topics.WING_STATE)))
+        self.advance(sv.Tick(time.monotonic(), self.peers(), self.count_publishers(topics.SENSOR_VOLTAGE),
+                             self.count_publishers(topics.WING_STATE)))
+
+    def peers(self) -> int:
+        """/flaair/drive's subscribers; 0 until every block stream has min_stream_listeners on DDS."""
+        return self.drive.subscription_count() if intra.dds_listeners() >= self.p["min_stream_listeners"] else 0
 
     def close(self) -> None:
         """Shutdown: a zero-drive block so the actuator does not hold the last command."""

@@ -84,6 +84,8 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     }
     if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
         sections["dsa_controller_node"]["state_every_blocks"] = int(live["dds_batch_blocks"])
+        # the loop starts once the recorder is matched on every stream, not only on /flaair/drive
+        sections["dsa_controller_node"]["min_stream_listeners"] = 1 if args.out is not None else 0
     if args.sim:
         sections["plant_node"] = {"mode": "realtime", "noise": True}
     else:
