@@ -129,7 +129,9 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     keep = (r.time_s > 0.05) & (r.time_s < r.time_s[-1] - 0.05)
     f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
     f, a = float(np.median(r.frequency_hz[keep])), float(np.median(r.amplitude[keep]))
-    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.1), (f, a, f_theory, a_theory)
+    # the frequency is the loop's (the Hopf analysis); drive the target applied late or not at all
+    # (several % on a loaded machine: docs/CLOSED_LOOP_SPEED.md) takes amplitude off, not frequency
+    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25), (f, a, f_theory, a_theory)
 
 
 def _start_live_against_target(tmp_path: Path, port: int, duration_s: float):

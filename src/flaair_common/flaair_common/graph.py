@@ -263,6 +263,15 @@ def wait_for(predicate: Callable[[], bool], timeout_s: float, interval_s: float 
     return bool(predicate())
 
 
+_terminate_requested = False
+
+
+def terminate_requested() -> bool:
+    """SIGTERM has arrived. rclpy turns an exception raised inside one of its calls into a
+    RuntimeError ("Unable to convert call argument"): a caller checks this to tell the two apart."""
+    return _terminate_requested
+
+
 def terminate_raises() -> None:
     """From now on SIGTERM raises `Terminated` in the main thread (a CLI unwinds and exits 143).
 
@@ -270,6 +279,8 @@ def terminate_raises() -> None:
     started with them blocked (a launcher's signal mask is inherited across exec).
     """
     def handler(signum: int, frame: object) -> None:
+        global _terminate_requested
+        _terminate_requested = True
         raise Terminated()
 
     signal.signal(signal.SIGTERM, handler)

@@ -31,7 +31,7 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
-from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises
+from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises, terminate_requested
 from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
@@ -349,7 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"flaair experiment: interrupted; every node stopped and the bag {args.out} closed", file=sys.stderr)
         return 130
-    except Terminated:
+    except (Terminated, RuntimeError) as exc:
+        if not isinstance(exc, Terminated) and not terminate_requested():
+            raise
         print(f"flaair experiment: terminated; every node stopped and the bag {args.out} closed", file=sys.stderr)
         return 143
     print(f"recorded {args.name} to {args.out}: " + ", ".join(f"{t} {c}" for t, c in sorted(summary["message_counts"].items())))
