@@ -29,7 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import select
 import signal
 import socket
@@ -40,6 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+
+from flaair_common.realtime import take_realtime_priority
 
 SENSOR_HEAD = struct.Struct("<4sIQfHH")   # magic, sequence, first_sample_index, sample_rate_hz, n, flags
 DRIVE_HEAD = struct.Struct("<4sIQHH")     # magic, sequence, first_sample_index, m, flags
@@ -245,12 +246,9 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             core.receive(data)
 
-    if args.realtime_priority:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime_priority))
-        except (OSError, AttributeError) as exc:
-            print(f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} ({exc})",
-                  file=sys.stderr, flush=True)
+    if error := take_realtime_priority(args.realtime_priority):
+        print(f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} ({error})",
+              file=sys.stderr, flush=True)
     held: bytes | None = None
     print(f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, drive packets on "
           f"{sock.getsockname()[0]}:{sock.getsockname()[1]}, hold {args.hold_samples} samples, limit "

@@ -8,13 +8,14 @@ known, so the bridge knows how far the target's clock has moved on.
 """
 from __future__ import annotations
 
-import os
 import select
 import socket
 import struct
 import threading
 import time
 from typing import Callable
+
+from flaair_common.realtime import take_realtime_priority
 
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)   # Linux; Python does not name it
 _TIMESPEC = struct.Struct("@qq")
@@ -43,18 +44,11 @@ class DatagramEndpoint:
         self.reader = threading.Thread(target=self._read, name=f"udp-{host}:{port}", daemon=True)
         self.reader.start()
 
-    def _take_priority(self) -> None:
-        """SCHED_FIFO for this thread: a datagram preempts the other processes at once, instead of
-        waiting out their time slice while the socket fills (needs CAP_SYS_NICE or root)."""
-        if self.realtime_priority > 0:
-            try:
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
-            except (OSError, AttributeError) as exc:
-                self.priority_error = str(exc)
-        self.priority_set.set()
-
     def _read(self) -> None:
-        self._take_priority()
+        # SCHED_FIFO: a datagram preempts the other processes at once, instead of waiting out
+        # their time slice while the socket fills
+        self.priority_error = take_realtime_priority(self.realtime_priority)
+        self.priority_set.set()
         while self.running:
             try:
                 data, ancillary, _flags, sender = self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))

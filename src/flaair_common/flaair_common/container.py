@@ -30,6 +30,7 @@ import sys
 from typing import Callable
 
 from flaair_common import topics
+from flaair_common.realtime import take_realtime_priority
 
 HOT_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)
 
@@ -94,12 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 <= args.realtime_priority <= 99:
         print(f"container: --realtime-priority {args.realtime_priority}: must be 0..99", file=sys.stderr)
         return 2
-    if args.realtime_priority:   # before rclpy starts its threads: they inherit the policy
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime_priority))
-        except (OSError, AttributeError) as exc:
-            print(f"container: WARNING: runs without real-time priority {args.realtime_priority} ({exc}); "
-                  "run as root or grant CAP_SYS_NICE", file=sys.stderr)
+    # before rclpy starts its threads: they inherit the policy
+    if error := take_realtime_priority(args.realtime_priority):
+        print(f"container: WARNING: runs without real-time priority {args.realtime_priority} ({error}); "
+              "run as root or grant CAP_SYS_NICE", file=sys.stderr)
     if args.dds_batch < 1:
         print(f"container: --dds-batch {args.dds_batch}: must be >= 1", file=sys.stderr)
         return 2

@@ -251,7 +251,7 @@ class BlockPublisher:
         self.batch = self.bus.dds_batch if self.bus is not None and sampled else 1
         self.held: list[tuple[int, dict]] = []   # blocks not yet on DDS (batching)
         self.held_end = 0                         # sample index after the last held block
-        self.samples = next((name for name, kind in codec.layout.fields if kind.endswith("[]")), "")
+        self.arrays = [name for name, kind in codec.layout.fields if kind.endswith("[]")]   # per-sample fields
         self.sized: dict[int, cdr.FixedCodec] = {}
         if self.bus is not None:
             self.bus.publishers.append(self)
@@ -283,7 +283,7 @@ class BlockPublisher:
         if self.held and first != self.held_end:
             self.flush_dds()
         self.held.append((stamp_ns, fields))
-        self.held_end = first + len(fields[self.samples])
+        self.held_end = first + len(fields[self.arrays[0]])
         if len(self.held) >= self.batch:
             self.flush_dds()
 
@@ -298,18 +298,15 @@ class BlockPublisher:
             self.bus.defer(lambda: self._publish_joined(held))
 
     def _publish_joined(self, held: list[tuple[int, dict]]) -> None:
-        """Publish held blocks joined into one message (if anyone listens on DDS)."""
+        """Publish held (contiguous: `_hold` sees to it) blocks joined into one message, the first
+        block's stamp and scalars, every sample in order (if anyone listens on DDS)."""
         if self.publisher.get_subscription_count() == 0:   # volatile: no listener, nothing lost
             return
-        joined = join_contiguous([fields for _, fields in held])
-        n = _length(joined[0])
-        if len(joined) != 1 or n != sum(_length(fields) for _, fields in held):   # not plain sample blocks
-            for stamp_ns, fields in held:
-                self.publisher.publish(self.codec.encode(stamp_ns, fields))
-            return
+        joined = {**held[0][1], **{name: np.concatenate([fields[name] for _, fields in held]) for name in self.arrays}}
+        n = len(joined[self.arrays[0]])
         codec = self.codec if n == self.codec.block_size else self.sized.get(n) or self.sized.setdefault(
             n, cdr.FixedCodec(self.codec.layout, n, self.codec.frame_id))
-        self.publisher.publish(codec.encode(held[0][0], joined[0]))
+        self.publisher.publish(codec.encode(held[0][0], joined))
 
 
 def dds_listeners() -> int:

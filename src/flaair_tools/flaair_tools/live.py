@@ -54,8 +54,8 @@ SIDE_NODES = {
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
-LOOP_CLOSE_S = 180.0
-SIDE_SETTLE_S = 0.5    # the loop's last DDS messages (its zero drive) reach the recorder before it stops   # the loop's process writes the recorder's backlog and closes the bag before it exits
+LOOP_CLOSE_S = 180.0   # a process of the graph gets this long to close (the recorder: write its backlog, close the bag)
+SIDE_SETTLE_S = 0.5    # the loop's last DDS messages (its zero drive) reach the recorder before it stops
 
 
 class LiveError(RuntimeError):
