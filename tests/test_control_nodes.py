@@ -66,7 +66,9 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
     with _ros() as procs:
         _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states)
         sensor_echo = _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors, ready_file=sensors_ready)
-        procs.flaair("run", "flaair_sim", "plant_node")
+        # No drive watchdog in the plant: after the kill it must simply stop. (Its 2 s watchdog would
+        # ring the wing down for 400 blocks just as the quiet wait below ends: test_faults tests that.)
+        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "command_timeout_s:=0.0")
         procs.flaair("run", "flaair_sensors", "frontend_node")
         # The lockstep loop runs as fast as the machine allows once the controller starts it: the
         # sensor echo must be matched to the plant first, or it misses the loop's first blocks
@@ -108,6 +110,25 @@ def test_closed_loop_runs_reacts_to_collisions_and_stops_when_the_controller_is_
     assert scales[0] == 1.0 and 0.25 in scales[n_reduced - 5:] and scales[-1] == 1.0
     assert all(abs(s["drive_v"]) <= 150.0 for s in all_states)
     assert any(abs(s["sync_drive_v"]) > 10.0 for s in all_states)   # synchronous 20 V sine at the start
+
+
+def test_controller_waits_for_a_state_listener_when_asked(tmp_path) -> None:
+    """min_state_subscribers:=1: plant and front end up, yet no loop until /flaair/controller/state
+    has a listener; then it starts, and the listener sees the loop from its first block."""
+    states, sensors, sensors_ready = tmp_path / "state.jsonl", tmp_path / "sensor.jsonl", tmp_path / "sensor.ready"
+    with _ros() as procs:
+        _echo(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", sensors, ready_file=sensors_ready)
+        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "command_timeout_s:=0.0")
+        procs.flaair("run", "flaair_sensors", "frontend_node")
+        assert wait_for(sensors_ready.exists, 120)
+        controller = procs.flaair(*CONTROLLER, "-p", "min_state_subscribers:=1", "-p", "start_delay_s:=0.0",
+                                  "-p", "watchdog_timeout_s:=30.0")
+        assert not wait_for(lambda: len(_lines(sensors)) > 0, 6.0), "the loop started without a state listener"
+        assert controller.poll() is None
+        _echo(procs, "/flaair/controller/state", "flaair_msgs/msg/ControllerState", states)
+        assert wait_for(lambda: len(_lines(states)) >= 50, 90), controller.stderr.read() if controller.poll() else ""
+    first_states = _lines(states)[:5]
+    assert first_states[0]["header"]["stamp"] == {"sec": 0, "nanosec": 0}, first_states
 
 
 def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(tmp_path) -> None:

@@ -97,8 +97,9 @@ def _echoes_listen_before_the_loop_starts(procs, ready_dir):
     The loop then runs as fast as the machine allows: an echo matched after it started misses the
     first blocks (a loaded machine: 2,945 and 2,678 of 3,000 wing-state blocks). The wing-state
     echo creates its ready file once matched to the front end's publisher; the controller-state
-    echo's subscription must be in the graph before the controller comes up (the controller
-    publishes states only to matched listeners, and waits start_delay_s after its peers appear).
+    echo's subscription must be in the graph before the controller comes up, and the controller
+    (min_state_subscribers:=1) starts only once it has matched it: it publishes states only to
+    matched listeners, and a CI run whose controller discovered the echo late lost the first 0.4 s.
     """
     from rosproc import wait_for
 
@@ -130,7 +131,8 @@ def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
         start = _echoes_listen_before_the_loop_starts(procs, tmp_path)
         ws, cs = run_closed_loop(start, duration, ["-p", f"kr_ramp_start_s:={ramp_start}",
                                                    "-p", f"kr_ramp_duration_s:={ramp}",
-                                                   "-p", "watchdog_timeout_s:=30.0"], FS, 10, timeout_s=150)
+                                                   "-p", "watchdog_timeout_s:=30.0",
+                                                   "-p", "min_state_subscribers:=1"], FS, 10, timeout_s=150)
     assert len(ws) == 3000
     # The state echo may match the controller a little late (a loaded machine): it must still
     # cover the synchronous start before the ramp and everything after it.

@@ -82,6 +82,7 @@ DSA_CONTROLLER_PARAMS = [
     ParamSpec("state_every_blocks", int, "ControllerState with every n-th drive block (and at every watchdog or fault change)", 1, 100000, read_only=True),
     ParamSpec("collision_ramp_guard_s", float, "Collision onsets during a K_r ramp and this long after it are not acted on [s]", 0.0, 10.0, read_only=True),
     ParamSpec("min_stream_listeners", int, "Composed: start once every batched block stream has this many DDS subscribers (live: the recorder)", 0, 100, read_only=True),
+    ParamSpec("min_state_subscribers", int, "Start once /flaair/controller/state has this many subscribers (a listener that must see the whole run)", 0, 100, read_only=True),
     ParamSpec("min_drive_subscribers", int, "Start once /flaair/drive has this many subscribers (plant, + recorder, + monitor)", 1, 100, read_only=True),
     ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and /flaair/sensor_v and /flaair/wing_state publishers", read_only=True),
     ParamSpec("start_delay_s", float, "Wall time between seeing the peers and sending the first blocks [s]", 0.0, 60.0, read_only=True),

@@ -10,10 +10,8 @@ to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
 K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
 
-Loop delay (blocks in flight, hold, velocity filter): the dsa core's phase advance compensates it
-(`control_io.loop_delay_s`). Safety: clamp, slew limit, watchdogs; Ctrl-C / SIGTERM: a zero block.
-
-Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
+Loop delay: compensated by the dsa core's phase advance (`control_io.loop_delay_s`). Safety:
+clamp, slew limit, watchdogs; Ctrl-C / SIGTERM: a zero block. Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 from __future__ import annotations
 
@@ -127,12 +125,14 @@ class DsaControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def on_timer(self) -> None:
-        self.advance(sv.Tick(time.monotonic(), self.peers(), self.count_publishers(topics.SENSOR_VOLTAGE),
-                             self.count_publishers(topics.WING_STATE)))
+        count = self.count_publishers
+        self.advance(sv.Tick(time.monotonic(), self.peers(), count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE)))
 
     def peers(self) -> int:
-        """/flaair/drive's subscribers; 0 until every block stream has min_stream_listeners on DDS."""
-        return self.drive.subscription_count() if intra.dds_listeners() >= self.p["min_stream_listeners"] else 0
+        """/flaair/drive's subscribers; 0 until min_stream_listeners and min_state_subscribers listen."""
+        ready = (intra.dds_listeners() >= self.p["min_stream_listeners"]
+                 and self.state_pub.subscription_count() >= self.p["min_state_subscribers"])
+        return self.drive.subscription_count() if ready else 0
 
     def close(self) -> None:
         """Shutdown: a zero-drive block so the actuator does not hold the last command."""
