@@ -254,7 +254,9 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 if first != 0:
                     raise ExperimentError(f"{spec.name}: a controller run must be the experiment's first run")
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                driver = start_node(graph, "controller", {"run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2)})
+                # the recorder subscribes to the controller's state topic only once it appears
+                driver = start_node(graph, "controller", {"run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2),
+                                                          "min_state_subscribers": 1})
             else:
                 # Every subscriber of the drive (plant, recorder, monitor) must match before the
                 # first block: a lockstep plant that misses the opening window waits forever.

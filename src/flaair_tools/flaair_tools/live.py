@@ -80,7 +80,8 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
         "collision_monitor_node": {"window_source": "stroke", "decision": "distortion"},
         # the controller starts once the actuator's node and the recorder listen; live stops it
-        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1},
+        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1,
+                                "min_state_subscribers": 1 if args.out is not None else 0},
     }
     if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
         sections["dsa_controller_node"]["state_every_blocks"] = int(live["dds_batch_blocks"])
