@@ -25,7 +25,7 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import run_node, warn_counted
+from flaair_common.runtime import ERROR, log, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
 
 NODE_NAME = "bridge_node"
@@ -107,8 +107,10 @@ class BridgeNode(Node):
                                                     "drive_v": block.drive_v})
             self.cause_s = outer_cause_s
         for notice in out.notices:  # errors always; the rest rate-limited by their counter
-            self.get_logger().error(notice.text) if notice.error else warn_counted(
-                self.get_logger(), getattr(counters, notice.kind), notice.text)
+            if notice.error:
+                log(self.get_logger(), ERROR, notice.text)
+            else:
+                warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)
 
     def close(self) -> None:
         """End of the run: stop packet (sent STOP_COPIES times), receiver stopped, counters logged."""

@@ -24,7 +24,7 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import check_block, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
-from flaair_common.runtime import run_node, warn_counted
+from flaair_common.runtime import INFO, WARN, log, run_node, warn_counted
 from flaair_control import monitor
 from flaair_control.control_io import COLLISION_MONITOR_PARAMS, CONFIG_FILE, collision_monitor_params_from_config
 from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
@@ -97,7 +97,7 @@ class CollisionMonitorNode(Node):
         """Run the core on one block; log its notes, publish its verdicts."""
         self.state, out = monitor.step(self.state, inputs, self.params)
         for note in out.notes:
-            self.get_logger().info(note)
+            log(self.get_logger(), INFO, note)
         for verdict in out.verdicts:
             self.publish(verdict)
 
@@ -111,11 +111,7 @@ class CollisionMonitorNode(Node):
             text = (f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, {v.frequency_hz:.1f} Hz): "
                     f"pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg (threshold {self.p['threshold_deg']:g} deg), "
                     f"distortion score {v.score:.2f}")
-            # rclpy fixes a call site's severity at its first call: one call site per severity.
-            if v.colliding:
-                self.get_logger().warning(f"collision ONSET {text}")
-            else:
-                self.get_logger().info(f"collision CLEARANCE {text}")
+            log(self.get_logger(), WARN if v.colliding else INFO, f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}")
         out = CollisionStatus(wingbeat_index=v.wingbeat_index, wingbeat_frequency_hz=v.frequency_hz,
                               colliding=v.colliding, spectrum_rmse_deg=v.spectrum_rmse_deg,
                               time_rmse_deg=v.time_rmse_deg, threshold_deg=self.p["threshold_deg"])

@@ -26,7 +26,7 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
-from flaair_common.runtime import run_node, warn_counted
+from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
 from flaair_control import supervisor as sv
 from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS, describe_loop, supervisor_params_from_config
 from flaair_model.model import ModelError
@@ -72,17 +72,13 @@ class DsaControllerNode(Node):
             self.state, out = sv.step(self.state, inputs, self.params)
             for block in out.blocks:
                 self.publish(block, t_receive)
-        log = self.get_logger()
+        logger = self.get_logger()
         for note in out.notes:
             if note.counter:
                 count = getattr(self.state.counts, note.counter)
-                warn_counted(log, count, f"{note.text} [{count} {note.counter} so far]")
-            elif note.level == sv.ERROR:
-                log.error(note.text)
-            elif note.level == sv.WARNING:
-                log.warning(note.text)
-            else:   # rclpy ties a call site to one severity: one call per level
-                log.info(note.text)
+                warn_counted(logger, count, f"{note.text} [{count} {note.counter} so far]")
+            else:
+                log(logger, SEVERITY[note.level], note.text)
         return out
 
     def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:

@@ -398,7 +398,7 @@ def estimate_delay_s(params: FrontendParams, frequency_hz: float = 140.0) -> dic
     out = {}
     for ch in ("stroke", "pitch"):
         out[f"{ch}_s"] = -float(np.angle(lag_compensation_response(params, f, ch)[0])) / w + drift
-    out["stroke_velocity_s"] = out["stroke_s"] + np.radians(velocity_phase_lag_deg(params, f)) / w
+    out["stroke_velocity_s"] = out["stroke_s"] + float(np.radians(velocity_phase_lag_deg(params, f))) / w
     return out
 
 

@@ -26,7 +26,7 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_from_time_s, stamp_ns_of_sample
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import run_node, warn_counted
+from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim import actuator, plant
 from flaair_sim.plant_io import CLOCK_DEPTH, CONFIG_FILE, NODE_NAME, PLANT_PARAMS, actuator_params_from_config, plant_models
@@ -88,10 +88,8 @@ class PlantNode(Node):
         for note in out.notes:
             if note.counter:
                 warn_counted(self.get_logger(), self.driver.rejected, note.text)
-            elif note.level == actuator.ERROR:
-                self.get_logger().error(note.text)
             else:
-                self.get_logger().info(note.text)
+                log(self.get_logger(), SEVERITY[note.level], note.text)
         for drive_v in out.drive_blocks:
             self.advance(drive_v)
         return bool(out.drive_blocks) and self.params.mode == "realtime"
