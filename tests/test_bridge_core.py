@@ -269,3 +269,34 @@ def test_emulated_target_holds_then_zeroes_clamps_discards_late_and_honours_stop
     core.receive(b"FLD1" + bytes(3))                          # malformed: dropped
     core.receive(drive_datagram(30, [float("nan")]))
     assert core.counts["dropped_packets"] == 2
+
+
+def _same(a, b) -> bool:
+    """Equal NamedTuples, tuples and arrays, field by field (NaN equal to NaN)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+    if isinstance(a, tuple) and isinstance(b, tuple):
+        return type(a) is type(b) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included() -> None:
+    """Every packet the fast path takes (in order, one whole block, the target's watchdog flag set
+    or not) gives the state and outputs the general path gives, with drive queued and released."""
+    p, state = params(), bridge.initial_state()
+    rng = np.random.default_rng(7)
+    compared = flagged = 0
+    for k in range(80):
+        now = 1.0 + k * 5e-4
+        flags = protocol.FLAG_TARGET_WATCHDOG if rng.random() < 0.3 else 0
+        item = SensorDatagram(packet(k, k * N, flags=flags), now, now + 1e-4)
+        decoded = protocol.unpack_sensor(item.data)
+        if k and not state.pending.shape[1] and decoded.sequence == state.sequence and not state.silent:
+            fast = bridge._in_order_block(state, decoded, item.now_s, item.read_s, p)
+            general = bridge._any_packet(state, decoded, item, p)
+            assert _same(fast, general), k
+            compared, flagged = compared + 1, flagged + bool(flags)
+        state, _ = bridge.step(state, item, p)
+        if k % 2:   # the loop answers every second packet with a drive block
+            state, _ = bridge.step(state, DriveBlock(k * N, np.full(N, float(k)), now + 2e-4), p)
+    assert compared == 79 and flagged > 15

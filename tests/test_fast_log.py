@@ -6,7 +6,7 @@ import json
 import sys
 import textwrap
 
-from rosproc import REPO_ROOT, isolated_env, run
+from rosproc import isolated_env, run
 
 SCRIPT = textwrap.dedent("""
     import json, sys, time

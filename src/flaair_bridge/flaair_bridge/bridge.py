@@ -216,8 +216,14 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
             Notice("malformed", f"malformed datagram ({len(inputs.data)} bytes) dropped: {exc} "
                                 f"[{counters.malformed} malformed so far]"),))
     if (packet.sequence == state.sequence and packet.n == params.block_size and not state.pending.shape[1]
-            and not state.silent and not packet.flags and packet.first_sample_index + state.index_offset == state.pending_first):
+            and not state.silent and not packet.flags & ~protocol.FLAG_TARGET_WATCHDOG and packet.first_sample_index + state.index_offset == state.pending_first):
         return _in_order_block(state, packet, inputs.now_s, _read_s(inputs), params)
+    return _any_packet(state, packet, inputs, params)
+
+
+def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: SensorDatagram,
+                params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    """Any well-formed sensor packet: lost, stale, overlapping, partial blocks, a target restart."""
     notices: list[Notice] = []
     counters = state.counters
     index_offset, stale_run = state.index_offset, 0
@@ -269,8 +275,7 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
     counters = _count(counters, sensor_packets=1, published_blocks=len(blocks))
     if packet.target_watchdog_tripped:
         counters = _count(counters, target_watchdog_packets=1)
-        notices.append(Notice("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
-                                                         f"[{counters.target_watchdog_packets} such packets]"))
+        notices.append(_target_watchdog_notice(packet, counters))
     if state.silent:
         notices.append(Notice("silences", f"the target is sending again (sequence {packet.sequence})"))
     end = packet.first_sample_index + packet.n
@@ -301,8 +306,10 @@ def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: fl
     general path, a third of its cost."""
     first = packet.first_sample_index + state.index_offset
     end = packet.first_sample_index + packet.n
+    tripped = packet.target_watchdog_tripped   # while the loop catches up after a stall: as cheap as the rest
     counters = state.counters._replace(sensor_packets=state.counters.sensor_packets + 1,
-                                       published_blocks=state.counters.published_blocks + 1)
+                                       published_blocks=state.counters.published_blocks + 1,
+                                       target_watchdog_packets=state.counters.target_watchdog_packets + tripped)
     arrivals = state.arrivals.copy()
     arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, now_s)
     state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS, target_end=end,
@@ -310,7 +317,12 @@ def _in_order_block(state: BridgeState, packet: protocol.SensorPacket, now_s: fl
                            arrivals=arrivals, counters=counters)
     state, packets, timing = _release(state, params, now_s)
     block = SensorBlock(first, packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)
-    return state, Outputs((block,), packets, timing, ())
+    return state, Outputs((block,), packets, timing, (_target_watchdog_notice(packet, counters),) if tripped else ())
+
+
+def _target_watchdog_notice(packet: protocol.SensorPacket, counters: Counters) -> Notice:
+    return Notice("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
+                                             f"[{counters.target_watchdog_packets} such packets]")
 
 
 def _published_end(state: BridgeState) -> Optional[int]:

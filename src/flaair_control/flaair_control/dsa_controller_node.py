@@ -101,8 +101,9 @@ class DsaControllerNode(Node):
         t_receive = time.monotonic()
         if self.state.mode == sv.DONE:
             return
+        peers = self.peers() if self.state.mode == sv.WAITING else 0   # only the start reads them (rclpy: ~20 us)
         self.advance(sv.WingBlock(t_receive, int(m["first_sample_index"]), float(m["sample_rate_hz"]),
-                                  m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"], self.peers()), t_receive)
+                                  m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"], peers), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
         self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,
