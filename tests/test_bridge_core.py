@@ -280,10 +280,12 @@ def _same(a, b) -> bool:
     return a == b
 
 
-def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included() -> None:
-    """Every packet the fast path takes (in order, one whole block, the target's watchdog flag set
-    or not) gives the state and outputs the general path gives, with drive queued and released."""
-    p, state = params(), bridge.initial_state()
+@pytest.mark.parametrize("block_size", [N, 2 * N])
+def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included(block_size) -> None:
+    """Every packet the fast path takes (in order; a whole block, or part of one as a target's
+    0.5 ms packets are of 1 ms blocks; the target's watchdog flag set or not) gives the state and
+    outputs the general path gives, with drive queued and released."""
+    p, state = params(block_size=block_size), bridge.initial_state()
     rng = np.random.default_rng(7)
     compared = flagged = 0
     for k in range(80):
@@ -291,12 +293,12 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
         flags = protocol.FLAG_TARGET_WATCHDOG if rng.random() < 0.3 else 0
         item = SensorDatagram(packet(k, k * N, flags=flags), now, now + 1e-4)
         decoded = protocol.unpack_sensor(item.data)
-        if k and not state.pending.shape[1] and decoded.sequence == state.sequence and not state.silent:
-            fast = bridge._in_order_block(state, decoded, item.now_s, item.read_s, p)
+        if bridge.in_order(state, decoded, p):
+            fast = bridge._in_order_packet(state, decoded, item.now_s, item.read_s, p)
             general = bridge._any_packet(state, decoded, item, p)
             assert _same(fast, general), k
             compared, flagged = compared + 1, flagged + bool(flags)
         state, _ = bridge.step(state, item, p)
-        if k % 2:   # the loop answers every second packet with a drive block
-            state, _ = bridge.step(state, DriveBlock(k * N, np.full(N, float(k)), now + 2e-4), p)
-    assert compared == 79 and flagged > 15
+        if (k + 1) * N % block_size == 0:   # the loop answers each whole block with a drive block
+            state, out = bridge.step(state, DriveBlock(k * N + N - block_size, np.full(block_size, float(k)), now + 2e-4), p)
+    assert compared == 79 and flagged > 15 and state.counters.drive_packets > 30
