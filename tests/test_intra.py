@@ -133,3 +133,33 @@ def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() 
         first = m.first_sample_index
         np.testing.assert_array_equal(m.drive_v, np.arange(first, first + len(m.drive_v), dtype=float))
         assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == int(first / FS * 1e9)
+
+
+def test_a_reader_thread_sends_deferred_copies_one_per_gap_and_the_main_thread_only_stragglers(monkeypatch) -> None:
+    """Deferred DDS copies: the thread that answered a block sends one per gap (use_gap), in
+    order; the main thread leaves fresh ones to it and sends only those waiting past the backstop;
+    a copy another thread is sending is never overtaken."""
+    clock = [100.0]
+    monkeypatch.setattr(intra.time, "monotonic", lambda: clock[0])
+    bus = intra.Bus({topics.DRIVE})
+    sent: list[int] = []
+    for k in range(4):
+        bus.defer(lambda k=k: sent.append(k))
+    intra.install(bus)
+    try:
+        intra.use_gap()
+        assert sent == [0]
+        assert bus.run_deferred(older_than_s=0.05) == 0            # fresh: left to the reader's gaps
+        clock[0] += 0.06
+        intra.use_gap()
+        assert sent == [0, 1]
+        assert bus.run_deferred(older_than_s=0.05) == 2 and sent == [0, 1, 2, 3]   # stragglers, in order
+        bus.defer(lambda: sent.append(4))
+        with bus._deferring:                                       # another thread is sending one
+            intra.use_gap()
+        assert sent == [0, 1, 2, 3]
+        intra.use_gap()
+        assert sent == [0, 1, 2, 3, 4]
+    finally:
+        intra.install(None)
+    intra.use_gap()   # outside a container: nothing to do

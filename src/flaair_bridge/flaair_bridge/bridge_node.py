@@ -75,7 +75,10 @@ class BridgeNode(Node):
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         self.target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
+        answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
+        if self.state.counters.drive_packets != answered:   # the loop has answered: a gap until the next block
+            intra.use_gap()
 
     def on_undecodable(self, exc: Exception) -> None:
         self.bad_drive_messages += 1

@@ -164,8 +164,8 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
                 executor.spin_once(timeout_sec=0)
             else:
                 seen = bus.delivered if bus is not None else -1
-                if bus is not None:
-                    bus.run_deferred()
+                if bus is not None:   # a reader thread sends the DDS copies in its gaps (intra.use_gap)
+                    bus.run_deferred(older_than_s=DEFERRED_BACKSTOP_S if bus.threaded else 0.0)
                 executor.spin_once(timeout_sec=0.002 if bus is not None and bus.pending() else idle_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -206,6 +206,7 @@ def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
 
 
 _last_warned: dict[tuple, float] = {}
+DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 
 
 def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:
