@@ -63,7 +63,8 @@ class FrontendNode(Node):
             f"front end ready: gains from {values['gains_from']}, "
             f"stroke {abs(np.degrees(1 / self.params.stroke_volts_per_rad)):.2f} deg/V, "
             f"pitch {abs(np.degrees(1 / self.params.pitch_volts_per_rad)):.2f} deg/V, "
-            f"velocity phase lag at 140 Hz {frontend.velocity_phase_lag_deg(self.params):.1f} deg, delays {delay}"
+            f"velocity phase lag at 140 Hz {frontend.velocity_phase_lag_deg(self.params):.1f} deg, remaining delay at 140 Hz "
+            + ", ".join(f"{name[:-2].replace('_', ' ')} {1e6 * delay_s:.1f} us" for name, delay_s in delay.items())
         )
 
     def on_undecodable(self, exc: Exception) -> None:
