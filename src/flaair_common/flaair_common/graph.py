@@ -266,10 +266,11 @@ def wait_for(predicate: Callable[[], bool], timeout_s: float, interval_s: float 
 _terminate_requested = False
 
 
-def terminate_requested() -> bool:
-    """SIGTERM has arrived. rclpy turns an exception raised inside one of its calls into a
-    RuntimeError ("Unable to convert call argument"): a caller checks this to tell the two apart."""
-    return _terminate_requested
+def is_termination(exc: BaseException) -> bool:
+    """`exc` is SIGTERM's `Terminated`, or what rclpy made of it: rclpy turns an exception raised
+    inside one of its calls into a RuntimeError ("Unable to convert call argument"), told apart
+    from a real one by SIGTERM having arrived."""
+    return isinstance(exc, Terminated) or (isinstance(exc, RuntimeError) and _terminate_requested)
 
 
 def terminate_raises() -> None:

@@ -50,6 +50,9 @@ from flaair_common import intra
 from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
 
 
+DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
+
+
 def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str) -> str:
     """The node's --help: its docstring and a table of parameters with defaults and ranges."""
     try:
@@ -206,7 +209,6 @@ def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
 
 
 _last_warned: dict[tuple, float] = {}
-DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 
 
 def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:

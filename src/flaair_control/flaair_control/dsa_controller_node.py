@@ -10,8 +10,8 @@ to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
 K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
 
-Loop delay: compensated by the dsa core's phase advance (`control_io.loop_delay_s`). Safety:
-clamp, slew limit, watchdogs; Ctrl-C / SIGTERM: a zero block. Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
+Loop delay: the dsa core's phase advance compensates it. Safety: clamp, slew, watchdogs, a zero block at exit.
+Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 from __future__ import annotations
 

@@ -105,8 +105,7 @@ class FrontendNode(Node):
         if self.n_timed == self.n_reported:
             return
         n = min(self.n_timed - self.n_reported, TIMED_BLOCKS)
-        last = np.roll(self.latencies_s, -(self.n_timed % TIMED_BLOCKS))[-n:] * 1e3
-        p50, p99 = np.percentile(last, [50, 99])
+        p50, p99 = 1e3 * np.percentile(self.latencies_s[(self.n_timed - 1 - np.arange(n)) % TIMED_BLOCKS], [50, 99])
         log(self.get_logger(), INFO, f"block processing over the last {n} blocks: p50 {p50:.3f} ms, p99 {p99:.3f} ms")
         self.n_reported = self.n_timed
 

@@ -31,7 +31,7 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
-from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises, terminate_requested
+from flaair_common.graph import Graph, GraphError, Terminated, node_argv, is_termination, terminate_raises
 from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
@@ -352,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"flaair experiment: interrupted; every node stopped and the bag {args.out} closed", file=sys.stderr)
         return 130
     except (Terminated, RuntimeError) as exc:
-        if not isinstance(exc, Terminated) and not terminate_requested():
+        if not is_termination(exc):
             raise
         print(f"flaair experiment: terminated; every node stopped and the bag {args.out} closed", file=sys.stderr)
         return 143

@@ -35,7 +35,7 @@ from typing import Any
 import yaml
 
 from flaair_common import topics
-from flaair_common.graph import Graph, GraphError, Terminated, node_argv, terminate_raises, terminate_requested
+from flaair_common.graph import Graph, GraphError, Terminated, node_argv, is_termination, terminate_raises
 from flaair_model.config import ConfigError, node_parameters
 
 HOT_NODES = {
@@ -243,7 +243,7 @@ def run_live(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         status = "interrupted"
     except (Terminated, RuntimeError) as exc:   # rclpy may hand SIGTERM's exception on as a RuntimeError
-        if not isinstance(exc, Terminated) and not terminate_requested():
+        if not is_termination(exc):
             raise
         status = "terminated"
     except (GraphError, LiveError) as exc:
