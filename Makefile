@@ -4,11 +4,12 @@ SHELL := /bin/bash
 .DEFAULT_GOAL := help
 IN_ENV := scripts/in_env.sh
 
-.PHONY: help setup demo test test-fast bench lock clean
+.PHONY: help setup demo test test-quick test-graph-soak bench lock clean
 
 help:
 	@echo "make demo   set up, run every paper experiment on the simulated robot, write the report"
 	@echo "make test   set up, run all tests (pure cores, nodes over real DDS, bags, faults)"
+	@echo "make test-quick  the edit-test loop: no graph and no slow tests, in parallel (< 2 min)"
 	@echo "make bench  set up, run every benchmark and print figures beside their targets"
 
 setup:
@@ -17,11 +18,16 @@ setup:
 demo: setup
 	@bin/flaair demo --out out/demo
 
+# Pure and CLI tests in parallel, then the graph tests one at a time (scripts/run_tests.sh).
 test: setup
-	@$(IN_ENV) python -m pytest tests -q -p no:cacheprovider
+	@$(IN_ENV) scripts/run_tests.sh full
 
-test-fast: setup
-	@$(IN_ENV) python -m pytest tests -q -p no:cacheprovider -m "not slow"
+test-quick: setup
+	@$(IN_ENV) scripts/run_tests.sh quick
+
+# The graph tests N times in a row while another job loads every core (scripts/soak_graph_tests.sh).
+test-graph-soak: setup
+	@$(IN_ENV) scripts/soak_graph_tests.sh $(or $(RUNS),20)
 
 bench: setup
 	@$(IN_ENV) python bench/run_all.py --json out/bench/bench.json

@@ -6,7 +6,6 @@ and a stop in reverse order. This module only adapts it to the tests' habits (pi
 """
 from __future__ import annotations
 
-import atexit
 import signal
 import subprocess
 from contextlib import contextmanager
@@ -19,11 +18,23 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
+_LEASES: list = []
+
+
 def isolated_env() -> dict[str, str]:
-    """Environment on a ROS domain leased for the rest of this test process, localhost discovery."""
+    """Environment on a ROS domain leased until the end of the current test, localhost discovery.
+
+    conftest's autouse fixture releases every lease taken during a test when it ends.
+    """
     lease = lease_domain()
-    atexit.register(lease.release)
+    _LEASES.append(lease)
     return graph_env(lease.domain_id)
+
+
+def release_leases() -> None:
+    """Release every domain `isolated_env` leased (called after each test)."""
+    while _LEASES:
+        _LEASES.pop().release()
 
 
 class Processes:

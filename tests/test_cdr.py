@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from flaair_common import cdr
 
-rclpy_serialization = pytest.importorskip("rclpy.serialization")
+import rclpy.serialization as rclpy_serialization  # noqa: E402
 from flaair_common.msgdict import from_dict, message_class, to_dict  # noqa: E402
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)

@@ -5,7 +5,6 @@ import pytest
 
 from flaair_common import cdr, msgdefs
 
-pytest.importorskip("rclpy")
 from flaair_common.msgdict import message_class  # noqa: E402
 
 ROSIDL_KINDS = {"double": "float64", "uint64": "uint64", "uint8": "uint8", "octet": "uint8", "boolean": "bool",

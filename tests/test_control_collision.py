@@ -146,9 +146,9 @@ def test_monitor_parameters_are_validated_by_name():
 
 # --------------------------------------------------------------------------- on the simulated robot
 
-sim_model_io = pytest.importorskip("flaair_model.model_io")
-sim_model = pytest.importorskip("flaair_model.model")
-plant_mod = pytest.importorskip("flaair_sim.plant")
+import flaair_model.model as sim_model  # noqa: E402
+import flaair_model.model_io as sim_model_io  # noqa: E402
+import flaair_sim.plant as plant_mod  # noqa: E402
 
 LIMIT_DEG = 20.0   # obstacle below the 28.3 deg free stroke at 100 Hz, 75 V
 

@@ -144,8 +144,8 @@ def test_bad_schedule_is_named():
 
 # --------------------------------------------------------------------------- on the simulated robot
 
-sim_model_io = pytest.importorskip("flaair_model.model_io")
-plant_mod = pytest.importorskip("flaair_sim.plant")
+import flaair_model.model_io as sim_model_io  # noqa: E402
+import flaair_sim.plant as plant_mod  # noqa: E402
 
 
 def test_sync_to_async_transition_on_the_simulated_robot():

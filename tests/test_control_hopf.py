@@ -101,8 +101,8 @@ def test_bad_parameters_are_named():
 
 # --------------------------------------------------------------------------- simulated loop
 
-sim_model_io = pytest.importorskip("flaair_model.model_io")
-plant_mod = pytest.importorskip("flaair_sim.plant")
+import flaair_model.model_io as sim_model_io  # noqa: E402
+import flaair_sim.plant as plant_mod  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -32,7 +32,9 @@ from pathlib import Path
 from typing import IO, Callable, Sequence
 
 DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / "flaair-ros-domains"
-DOMAIN_IDS = range(1, 233)          # ROS 2 domain IDs usable with the default port mapping
+# 1-101: the domain IDs the ROS 2 docs call safe on Linux (above 101 a domain's ports can reach
+# the ephemeral port range); 0 is left alone as every other ROS program's default.
+DOMAIN_IDS = range(1, 102)
 _PR_SET_PDEATHSIG = 1
 
 

@@ -121,7 +121,11 @@ def main(argv: list[str] | None = None) -> int:
     pub.add_argument("values", help="JSON object of field values, or a JSON list of them (published in order)")
     pub.add_argument("--count", type=int, default=1)
     pub.add_argument("--rate", type=float, default=10.0, help="messages per second")
-    pub.add_argument("--wait-subscribers", type=int, default=0, help="wait for N subscribers first")
+    pub.add_argument("--wait-subscribers", type=int, default=0,
+                     help="publish only once N subscribers are matched; exit 1 without publishing if they are "
+                          "not within --wait-timeout")
+    pub.add_argument("--wait-timeout", type=float, default=30.0, metavar="S",
+                     help="how long --wait-subscribers waits (default 30 s)")
     args = parser.parse_args(argv)
 
     rclpy.init()
@@ -155,8 +159,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"flaair topic pub: {exc}", file=sys.stderr)
             return 2
         publisher = node.create_publisher(cls, args.topic, BLOCK_STREAM)
-        deadline = time.monotonic() + 10.0
-        while publisher.get_subscription_count() < args.wait_subscribers and time.monotonic() < deadline:
+        deadline = time.monotonic() + args.wait_timeout
+        while publisher.get_subscription_count() < args.wait_subscribers:
+            if time.monotonic() > deadline:
+                print(f"flaair topic pub: '{args.topic}' has {publisher.get_subscription_count()} subscriber(s) "
+                      f"after {args.wait_timeout:g} s; wanted {args.wait_subscribers}: nothing published",
+                      file=sys.stderr)
+                return 1
             rclpy.spin_once(node, timeout_sec=0.05)
         for _ in range(args.count):
             for message in messages:
