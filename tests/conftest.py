@@ -13,11 +13,16 @@ for package_dir in sorted((REPO_ROOT / "src").iterdir()):
     if (package_dir / "setup.py").exists() and str(package_dir) not in sys.path:
         sys.path.insert(0, str(package_dir))
 
-from rosproc import release_leases  # noqa: E402 - needs the path above
+import rosproc  # noqa: E402 - needs the path above
 
 
 @pytest.fixture(autouse=True)
-def _release_ros_domains() -> Iterator[None]:
-    """A domain leased by `rosproc.isolated_env` is free again once its test ends."""
-    yield
-    release_leases()
+def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test that starts a ROS graph (or an experiment, `live`, a recorder) must be marked `graph`,
+    so that it runs alone (scripts/run_tests.sh); a domain it leased is released when it ends."""
+    yield   # (a module fixture's graph, started before this fixture, counts for its first test)
+    rosproc.release_leases()
+    started, rosproc.GRAPHS_STARTED[:] = list(rosproc.GRAPHS_STARTED), []
+    if started and request.node.get_closest_marker("graph") is None:
+        pytest.fail(f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not marked "
+                    "@pytest.mark.graph (graph tests run alone, after the others)", pytrace=False)

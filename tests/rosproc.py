@@ -19,6 +19,8 @@ FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
 _LEASES: list = []
+GRAPHS_STARTED: list[str] = []   # what this test started that exchanges data in real time (conftest checks the mark)
+GRAPH_COMMANDS = {"experiment", "live", "record", "play"}
 
 
 def isolated_env() -> dict[str, str]:
@@ -65,10 +67,13 @@ class Processes:
 @contextmanager
 def ros_processes() -> Iterator[Processes]:
     """Yield a Processes group on a fresh leased domain; every process is stopped on exit."""
+    GRAPHS_STARTED.append("ros_processes()")
     with Graph() as graph:
         yield Processes(graph)
 
 
 def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """Run a command to completion in `env`, capturing output."""
+    if args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS:
+        GRAPHS_STARTED.append(f"flaair {args[1]}")
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)

@@ -70,6 +70,7 @@ def _check_blocks_exact(blocks: bagio.Blocks, n: int) -> None:
     assert np.array_equal(blocks["pitch_sensor_v"], -i - 0.1 * np.tile(np.arange(10), n))
 
 
+@pytest.mark.graph
 def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) -> None:
     bag, sim_bag = tmp_path / "rec", tmp_path / "sim"
     with ros_processes() as procs:
@@ -101,6 +102,7 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
     assert [e.wingbeat_index for e in events] == list(range(40))
 
 
+@pytest.mark.graph
 def test_sigkill_leaves_flushed_chunks_readable(tmp_path: Path) -> None:
     bag = tmp_path / "killed"
     with ros_processes() as procs:
@@ -131,6 +133,7 @@ def test_sigkill_leaves_flushed_chunks_readable(tmp_path: Path) -> None:
     _check_blocks_exact(bagio.read_blocks(bag, "/flaair/sensor_v"), len(indices))
 
 
+@pytest.mark.graph
 def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
     source = tmp_path / "source"
     store = bagio.typestore()

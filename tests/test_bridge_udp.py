@@ -8,6 +8,8 @@
 """
 from __future__ import annotations
 
+import pytest
+
 import json
 import signal
 import socket
@@ -17,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from rosproc import ros_processes, wait_for
+
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 
 FS = 20000.0
 N = 10

@@ -6,6 +6,8 @@ listener that is there still gets every block of them.
 """
 from __future__ import annotations
 
+import pytest
+
 import json
 import re
 import time
@@ -51,6 +53,7 @@ def test_callback_profile_counts_each_subscriber_and_its_cpu() -> None:
     assert CallbackProfile().report() == []
 
 
+@pytest.mark.graph
 def test_composed_loop_profiles_its_nodes_and_a_listener_gets_every_truth_and_state_block(tmp_path: Path) -> None:
     n_blocks = 400
     params = tmp_path / "params.yaml"

@@ -125,6 +125,7 @@ def test_bad_parameters_are_named(nominal) -> None:
         replace(params, mode="dsa")
 
 
+@pytest.mark.graph
 def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) -> None:
     from rosproc import ros_processes, run, wait_for
 

@@ -87,56 +87,40 @@ def test_bad_parameters_are_named():
         tr.hilbert_analysis(np.zeros(50), FS, HILBERT)
 
 
-# --------------------------------------------------------------------------- closed loop over DDS
+# --------------------------------------------------------------------------- the closed loop, composed
 
 
-def _echoes_listen_before_the_loop_starts(procs, ready_dir):
-    """A `start` for run_closed_loop that starts the dSA controller (which starts the lockstep loop)
-    only once its echoes listen.
-
-    The loop then runs as fast as the machine allows: an echo matched after it started misses the
-    first blocks (a loaded machine: 2,945 and 2,678 of 3,000 wing-state blocks). The wing-state
-    echo creates its ready file once matched to the front end's publisher; the controller-state
-    echo's subscription must be in the graph before the controller comes up, and the controller
-    (min_state_subscribers:=1) starts only once it has matched it: it publishes states only to
-    matched listeners, and a CI run whose controller discovered the echo late lost the first 0.4 s.
-    """
-    from rosproc import wait_for
-
-    wing_state_ready = ready_dir / "wing_state.ready"
-
-    def start(*args, **kwargs):
-        if args[:3] == ("topic", "echo", "/flaair/wing_state"):
-            args = (*args, "--ready-file", str(wing_state_ready))
-        elif "dsa_controller_node" in args:
-            assert wait_for(wing_state_ready.exists, 120), "the wing-state echo never matched the front end"
-            waited = procs.flaair("topic", "wait", "/flaair/controller/state", "--subscribers", "1", "--timeout", "120")
-            assert waited.wait(timeout=150) == 0, waited.stderr.read()
-        return procs.flaair(*args, **kwargs)
-
-    return start
+def _with_header(block: dict) -> dict:
+    """An in-process block as an echoed message dict (the stamp under header)."""
+    return {**block, "header": {"stamp": {"sec": block["sec"], "nanosec": block["nanosec"]}}}
 
 
-def test_sync_to_async_transition_in_closed_loop_over_dds(tmp_path):
-    """Plant (lockstep) -> front end -> dSA controller -> plant: 90 Hz synchronous start, K_r 1 -> 0
-    over 0.5 s, self-excited slightly above the 140 Hz stroke resonance, steady amplitude."""
-    from rosproc import ros_processes
-
+def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_path):
+    """Plant (lockstep) -> front end -> dSA controller -> plant, the node classes composed on one bus
+    (tests/composed.py): 90 Hz synchronous start, K_r 1 -> 0 over 0.5 s, self-excited slightly
+    above the 140 Hz stroke resonance, steady amplitude."""
+    from composed import composed
+    from flaair_common import topics
+    from flaair_control.dsa_controller_node import DsaControllerNode
     from flaair_model.config import node_parameters
-    from flaair_tools.transition_figure import plot_transition, predicted_limit_cycle, run_closed_loop, transition_record
     from flaair_model.model_io import load_model
+    from flaair_sensors.frontend_node import FrontendNode
+    from flaair_sim.plant_node import PlantNode
+    from flaair_tools.transition_figure import plot_transition, predicted_limit_cycle, transition_record
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
-    with ros_processes() as procs:
-        start = _echoes_listen_before_the_loop_starts(procs, tmp_path)
-        ws, cs = run_closed_loop(start, duration, ["-p", f"kr_ramp_start_s:={ramp_start}",
-                                                   "-p", f"kr_ramp_duration_s:={ramp}",
-                                                   "-p", "watchdog_timeout_s:=30.0",
-                                                   "-p", "min_state_subscribers:=1"], FS, 10, timeout_s=150)
-    assert len(ws) == 3000
-    # The state echo may match the controller a little late (a loaded machine): it must still
-    # cover the synchronous start before the ramp and everything after it.
-    assert len(cs) >= 0.8 * 3000 and min(c["header"]["stamp"]["nanosec"] * 1e-9 + c["header"]["stamp"]["sec"] for c in cs) < ramp_start
+    params = {"plant_node": {"command_timeout_s": 0.0},
+              "dsa_controller_node": {"kr_ramp_start_s": ramp_start, "kr_ramp_duration_s": ramp,
+                                      "watchdog_timeout_s": 30.0, "run_time_s": duration}}
+    with composed(monkeypatch, [PlantNode, FrontendNode, DsaControllerNode], params, tmp_path) as loop:
+        wing, states = loop.sink(topics.WING_STATE), loop.sink(topics.CONTROLLER_STATE)
+        loop.run_until(lambda: len(wing) >= duration * FS / 10 and len(states) >= duration * FS / 10)
+        loop.run_for(0.1)                      # the run ends: nothing more comes
+    ws, cs = [_with_header(b) for b in wing], [_with_header(s) for s in states]
+    # 1.5 s of blocks, and the closing zero block (run_time_s reached) stepped by the plant too
+    assert [b["first_sample_index"] for b in ws] == list(range(0, 30010, 10))
+    # a ControllerState with every drive block of the run (the closing zero block carries none)
+    assert sorted(round(tr.stamp_s(c) * FS) for c in cs) == list(range(0, 30000, 10))
     rec = transition_record(ws, cs, FS)
     assert rec.missing_blocks == 0 and np.isfinite(rec.stroke_deg).all()
     assert rec.kr[0] == 1.0 and rec.kr[-1] == 0.0

@@ -1,6 +1,8 @@
 """drive_node over DDS with a plant that never answers: retries (warnings), then the run's end (info)."""
 from __future__ import annotations
 
+import pytest
+
 import signal
 import sys
 
@@ -15,6 +17,8 @@ import sys, time
 import rclpy
 from flaair_common.qos import BLOCK_STREAM
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
+
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 rclpy.init()
 node = rclpy.create_node("silent_plant")
 node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STREAM)

@@ -9,6 +9,8 @@ import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
+
 
 @pytest.fixture(scope="module")
 def chirp_bag(tmp_path_factory) -> Path:

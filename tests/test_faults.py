@@ -118,9 +118,20 @@ def test_malformed_csv_gives_file_line_column(tmp_path: Path, kind: str, command
         assert where[kind] in result.stderr, result.stderr
 
 
-def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running() -> None:
-    def block(index: int, stroke: list, pitch: list, rate: float = FS_HZ) -> dict:
-        return {"sample_rate_hz": rate, "first_sample_index": index, "stroke_sensor_v": stroke, "pitch_sensor_v": pitch}
+def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, tmp_path, capfd) -> None:
+    """The front-end node, in process: CDR bytes into its own DDS subscription callback (as rclpy
+    hands them over), its wing-state blocks read back from the bytes it publishes."""
+    from rclpy.serialization import serialize_message
+
+    from composed import composed
+    from flaair_common import cdr
+    from flaair_common.msgdict import from_dict
+    from flaair_msgs.msg import SensorVoltageBlock
+    from flaair_sensors.frontend_node import FrontendNode
+
+    def block(index: int, stroke: list, pitch: list, rate: float = FS_HZ) -> bytes:
+        return serialize_message(from_dict(SensorVoltageBlock, {
+            "sample_rate_hz": rate, "first_sample_index": index, "stroke_sensor_v": stroke, "pitch_sensor_v": pitch}))
 
     good = [1.25] * 10
     sequence = [
@@ -130,24 +141,27 @@ def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running() -> None:
         block(20, good, good[:5]),                   # stroke/pitch lengths differ: rejected
         block(30, good, good, rate=1000.0),          # wrong rate: rejected
         block(40, good, good),
+        b"\x00\x01garbage",                          # not CDR at all: dropped, counted
     ]
-    with ros_processes() as procs:
-        node = procs.flaair("run", "flaair_sensors", "frontend_node")
-        echo = procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", "--count", "3", "--timeout", "60")
-        pub = procs.flaair("topic", "pub", "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", json.dumps(sequence),
-                           "--wait-subscribers", "2", "--count", "1", "--rate", "20")
-        assert pub.wait(timeout=60) == 0
-        out, err = echo.communicate(timeout=60)
-        assert node.poll() is None
-        procs.stop(node)
-        log = node.stderr.read()
-    blocks = [json.loads(line) for line in out.splitlines()]
+    with composed(monkeypatch, [FrontendNode], tmp_path=tmp_path, local_topics=()) as loop:
+        node = loop.node("frontend_node")
+        published: list[bytes] = []
+        monkeypatch.setattr(node.publisher.publisher, "publish", published.append)
+        monkeypatch.setattr(node.publisher.publisher, "get_subscription_count", lambda: 1)
+        (subscription,) = [s for s in node.subscriptions if s.topic_name == "/flaair/sensor_v"]
+        for data in sequence:
+            subscription.callback(data)
+    log = capfd.readouterr().err
+    blocks = [cdr.decode(cdr.WING_STATE_BLOCK, data) for data in published]
     assert [b["first_sample_index"] for b in blocks] == [0, 10, 40]
     nan_block = blocks[1]
-    assert nan_block["stroke_valid"][0] is False and not any(np.isfinite(nan_block["stroke_deg"][:1]))
+    assert not nan_block["stroke_valid"][0] and not np.isfinite(nan_block["stroke_deg"][0])
     assert "duplicate or out of order" in log and "array lengths differ" in log and "sample_rate_hz 1000.0" in log
+    # counted: the duplicate, the lengths, the rate, the gap before 40 (taken all the same), the garbage
+    assert "sensor block dropped" in log and node.rejected_blocks == 5
 
 
+@pytest.mark.graph
 def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_bag(tmp_path: Path) -> None:
     """kill -9 of the dSA controller in a recorded closed loop: the plant's drive watchdog zeroes
     the drive within command_timeout_s and rings the wing down; the recorder's bag (closed with

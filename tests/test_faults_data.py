@@ -322,6 +322,7 @@ def _python_running(pid: int, executable: str) -> bool:
 _EARLY_DELAYS_S = (0.0, 0.03, 0.1, 0.25, 0.5, 1.0, 2.0)
 
 
+@pytest.mark.graph
 @pytest.mark.parametrize("launcher", ["bin/flaair run", "Graph"])
 def test_sigint_from_the_first_instant_of_a_node_ends_it_cleanly(launcher: str) -> None:
     """Ctrl-C at any moment after the node's Python starts, as a user starts a node
@@ -354,6 +355,7 @@ def test_sigint_from_the_first_instant_of_a_node_ends_it_cleanly(launcher: str) 
     assert not failures, "\n".join(failures)
 
 
+@pytest.mark.graph
 def test_only_node_executables_start_with_deferred_signals() -> None:
     """The launchers defer SIGINT/SIGTERM only for programs that end through flaair_common.runtime
     (which unblocks them): any other program would never see a Ctrl-C."""

@@ -64,6 +64,7 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.mark.graph
 def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -> None:
     port = _free_port()
     topics = [live_view.STREAMS["wing_state"].topic, live_view.STREAMS["sensor_v"].topic,

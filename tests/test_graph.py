@@ -62,6 +62,7 @@ def test_graph_env_is_private_and_localhost():
         assert "localhost" in graph.describe() and str(graph.domain_id) in graph.describe()
 
 
+@pytest.mark.graph
 def test_children_die_when_the_parent_is_killed(tmp_path):
     """kill -9 of the process that started a graph: its children get SIGTERM (parent-death signal)."""
     script = textwrap.dedent(f"""
@@ -109,6 +110,7 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     return process, domain, bag
 
 
+@pytest.mark.graph
 @pytest.mark.slow
 def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     from flaair_tools import bagio
@@ -125,6 +127,7 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     assert counts.get("/flaair/sensor_v", 0) > 0
 
 
+@pytest.mark.graph
 @pytest.mark.slow
 def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
     process, domain, _ = _start_experiment(tmp_path)

@@ -12,7 +12,7 @@ import pytest
 
 from rosproc import FLAAIR, REPO_ROOT
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 
 def _live(*args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess:

@@ -1,6 +1,8 @@
 """Bags on the signal's clock: 3 s of simulated signal span 3 s of log time, read with the mcap library."""
 from __future__ import annotations
 
+import pytest
+
 import signal
 import sys
 from pathlib import Path
@@ -26,6 +28,8 @@ from std_msgs.msg import String
 from flaair_common import cdr
 from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
 from flaair_msgs.msg import CollisionStatus, SensorVoltageBlock, WingStateBlock
+
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 fs, block, run_s = 20000.0, 10, float(sys.argv[1])
 rclpy.init()
 node = rclpy.create_node("signal_source")

@@ -8,7 +8,7 @@ import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 
 def _experiment(tmp_path_factory, name: str) -> Path:

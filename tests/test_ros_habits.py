@@ -12,6 +12,7 @@ from flaair_tools.topic import rate_report
 from rosproc import FLAAIR, ros_processes, run, wait_for
 
 
+@pytest.mark.graph
 def test_param_set_changes_the_dsa_controllers_kr_target_at_run_time_and_node_list_shows_it() -> None:
     with ros_processes() as procs:
         controller = procs.flaair("run", "flaair_control", "dsa_controller_node")
@@ -35,6 +36,7 @@ def test_param_set_changes_the_dsa_controllers_kr_target_at_run_time_and_node_li
         assert controller.poll() is None
 
 
+@pytest.mark.graph
 def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publishes() -> None:
     with ros_processes() as procs:
         publisher = procs.flaair("topic", "pub", "/flaair/hz_probe", "std_msgs/msg/String", '{"data": "x"}',

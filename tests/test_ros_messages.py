@@ -7,6 +7,8 @@ import pytest
 
 from rosproc import ros_processes
 
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
+
 MESSAGES = {
     "flaair_msgs/msg/SensorVoltageBlock": {
         "header": {"stamp": {"sec": 12, "nanosec": 345000}, "frame_id": "robot"},

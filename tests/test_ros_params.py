@@ -6,6 +6,7 @@ import pytest
 from rosproc import FLAAIR, isolated_env, ros_processes, run
 
 
+@pytest.mark.graph
 def test_run_applies_ros_args_parameter() -> None:
     with ros_processes() as procs:
         node = procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "mode:=realtime",

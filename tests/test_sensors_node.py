@@ -1,12 +1,16 @@
 """Front-end node over real DDS: live wing state equals the offline core on the same voltages."""
 from __future__ import annotations
 
+import pytest
+
 import json
 
 import numpy as np
 
 from rosproc import ros_processes
 from tuning import FRONTEND_TUNING
+
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 
 FS_HZ = 20000.0
 

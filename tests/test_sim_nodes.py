@@ -1,6 +1,8 @@
 """Plant and drive nodes over real DDS: lockstep equals the offline core; bad blocks are rejected."""
 from __future__ import annotations
 
+import pytest
+
 import json
 import time
 from pathlib import Path
@@ -8,6 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from rosproc import ros_processes, wait_for
+
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 
 FS_HZ = 20000.0
 BLOCK = 10
