@@ -14,6 +14,8 @@ from mcap_ros2.decoder import DecoderFactory
 from flaair_tools import bagio
 from rosproc import ros_processes, wait_for
 
+pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
+
 FS, BLOCK, RUN_S = 20000.0, 10, 3.0
 # A simulated robot's streams as the plant stamps them (block i at i * 0.5 ms of signal time, /clock
 # with it, a collision status at 1.5 s), sent as fast as DDS takes them, so the wall-clock span
@@ -28,8 +30,6 @@ from std_msgs.msg import String
 from flaair_common import cdr
 from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
 from flaair_msgs.msg import CollisionStatus, SensorVoltageBlock, WingStateBlock
-
-pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 fs, block, run_s = 20000.0, 10, float(sys.argv[1])
 rclpy.init()
 node = rclpy.create_node("signal_source")

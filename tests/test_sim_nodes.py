@@ -11,7 +11,6 @@ import numpy as np
 
 from rosproc import ros_processes, wait_for
 
-pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 
 FS_HZ = 20000.0
 BLOCK = 10
@@ -22,6 +21,7 @@ def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path
     return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300", *ready)
 
 
+@pytest.mark.graph
 def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> None:
     from flaair_sim.drive import DriveParams, drive_record
     from flaair_model.model_io import load_model
@@ -59,28 +59,39 @@ def _command(index: int, values: list[float]) -> dict:
     return {"sample_rate_hz": FS_HZ, "first_sample_index": index, "drive_v": values}
 
 
-def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running() -> None:
+def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch, tmp_path, capfd) -> None:
+    """The plant node in process: CDR bytes into its own DDS subscription callback, its sensor
+    blocks read back from the bytes it publishes (no DDS delivery to wait for)."""
+    from rclpy.serialization import serialize_message
+
+    from composed import composed
+    from flaair_common import cdr
+    from flaair_common.msgdict import from_dict
+    from flaair_msgs.msg import DriveCommandBlock
+    from flaair_sim.plant_node import PlantNode
+
     good = [50.0] * BLOCK
-    with ros_processes() as procs:
-        plant = procs.flaair("run", "flaair_sim", "plant_node")
-        echo = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", 4)
-        sequence = [
-            _command(0, good),
-            _command(10, [float("nan")] + good[1:]),  # NaN: rejected, zero drive for this block
-            _command(10, good),                       # duplicate index: rejected, no step
-            _command(20, [1e9] * BLOCK),              # finite but huge: clamped to drive_limit_v
-            _command(30, good),
-        ]
-        pub = procs.flaair("topic", "pub", "/flaair/drive", "flaair_msgs/msg/DriveCommandBlock", json.dumps(sequence),
-                           "--wait-subscribers", "2", "--count", "1", "--rate", "20")
-        assert pub.wait(timeout=60) == 0
-        out, err = echo.communicate(timeout=60)
-        assert echo.returncode == 0, err
-        assert plant.poll() is None  # still running
-        procs.stop(plant)
-        log = plant.stderr.read()
-    blocks = [json.loads(line) for line in out.splitlines()]
-    assert [b["first_sample_index"] for b in blocks] == [0, 10, 20, 30]
+    sequence = [
+        _command(0, good),
+        _command(10, [float("nan")] + good[1:]),  # NaN: rejected, zero drive for this block
+        _command(10, good),                       # duplicate index: rejected, no step
+        _command(20, [1e9] * BLOCK),              # finite but huge: clamped to drive_limit_v
+        _command(30, good),
+    ]
+    with composed(monkeypatch, [PlantNode], {"plant_node": {"command_timeout_s": 0.0}}, tmp_path,
+                  local_topics=()) as loop:
+        plant = loop.node("plant_node")
+        published: list[bytes] = []
+        monkeypatch.setattr(plant.sensor.publisher, "publish", published.append)
+        (subscription,) = [s for s in plant.subscriptions if s.topic_name == "/flaair/drive"]
+        for values in sequence:
+            subscription.callback(serialize_message(from_dict(DriveCommandBlock, values)))
+        subscription.callback(b"\x00\x01garbage")   # not CDR: dropped, counted
+        subscription.callback(serialize_message(from_dict(DriveCommandBlock, _command(40, good))))
+    log = capfd.readouterr().err
+    blocks = [cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data) for data in published]
+    assert [b["first_sample_index"] for b in blocks] == [0, 10, 20, 30, 40]
     assert all(np.isfinite(b["stroke_sensor_v"]).all() for b in blocks)
     assert "rejected command block 10 (drive_v has 1 non-finite sample(s)" in log
     assert "duplicate or out of order" in log and "[2 rejected so far]" in log
+    assert "[1 undecodable so far]" in log and plant.undecodable == 1
