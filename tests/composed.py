@@ -39,7 +39,8 @@ LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.W
                 topics.CONTROLLER_STATE)
 # Node modules whose `time.monotonic` / `time.sleep` the fake clock replaces.
 NODE_MODULES = ("flaair_control.dsa_controller_node", "flaair_sim.plant_node", "flaair_sensors.frontend_node",
-                "flaair_control.collision_monitor_node", "flaair_sim.drive_node")
+                "flaair_control.collision_monitor_node", "flaair_sim.drive_node",
+                "flaair_control.stroke_controller_node")
 
 
 class FakeClock:
@@ -85,6 +86,13 @@ class Composed:
         kept: list[dict] = []
         self.bus.subscribe(topic, lambda fields: kept.append(copy.deepcopy(fields)))
         return kept
+
+    def post(self, topic: str, fields: dict) -> None:
+        """Queue a block for `topic`'s in-process subscribers without running them now: what a node
+        that publishes on plain rclpy (not `intra`) would have DDS deliver later, not from inside
+        its own publish call."""
+        for callback, background in self.bus.subscribers.get(topic, ()):
+            (self.bus.background_queue if background else self.bus.queue).append((callback, fields))
 
     def fire_due_timers(self) -> int:
         fired = 0

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import replace
 
 import numpy as np
@@ -16,20 +15,6 @@ from flaair_sim import plant
 
 FS = 20000.0
 # set a parameter of the running node through its parameter service (rclpy's own client)
-_SET_SETPOINT = """
-import sys, rclpy
-from rclpy.parameter import Parameter
-from rclpy.parameter_client import AsyncParameterClient
-rclpy.init()
-node = rclpy.create_node("stroke_test_setter")
-client = AsyncParameterClient(node, "/stroke_controller_node")
-assert client.wait_for_services(timeout_sec=60)
-future = client.set_parameters([Parameter("setpoint_deg", value=16.0)])
-rclpy.spin_until_future_complete(node, future, timeout_sec=60)
-sys.exit(0 if future.result() and future.result().results[0].successful else 1)
-"""
-
-
 @pytest.fixture(scope="module")
 def nominal():
     model = load_model()
@@ -125,38 +110,38 @@ def test_bad_parameters_are_named(nominal) -> None:
         replace(params, mode="dsa")
 
 
-@pytest.mark.graph
-def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) -> None:
-    from rosproc import ros_processes, run, wait_for
+def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path) -> None:
+    """Plant, front end and the stroke controller node composed in process (tests/composed.py):
+    12 deg held, then 16 deg after a parameter change while running. The controller node talks
+    plain rclpy messages; here they are handed to and from the bus."""
+    from types import SimpleNamespace
 
-    states, wing = tmp_path / "state.jsonl", tmp_path / "wing.jsonl"
+    from rclpy.parameter import Parameter
 
-    def lines(path):
-        out = []
-        for line in path.read_text().splitlines() if path.exists() else []:
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError:
-                break
-        return out
+    from composed import composed
+    from flaair_common import topics
+    from flaair_control.stroke_controller_node import StrokeControllerNode
+    from flaair_sensors.frontend_node import FrontendNode
+    from flaair_sim.plant_node import PlantNode
 
-    with ros_processes() as procs:
-        procs.flaair("topic", "echo", "/flaair/controller/state", "flaair_msgs/msg/ControllerState", "--timeout", "300",
-                     stdout=open(states, "w"))
-        procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock", "--timeout", "300",
-                     stdout=open(wing, "w"))
-        procs.flaair("run", "flaair_sim", "plant_node")
-        procs.flaair("run", "flaair_sensors", "frontend_node")
-        node = procs.flaair("run", "flaair_control", "stroke_controller_node", "--ros-args", "-p", "mode:=sync",
-                            "-p", "setpoint_deg:=12.0", "-p", "watchdog_timeout_s:=30.0")
-        assert wait_for(lambda: len(lines(wing)) >= 1600, 240), node.stderr.read() if node.poll() else "slow"
-        n_before = len(lines(wing))
-        result = run([sys.executable, "-c", _SET_SETPOINT], procs.env, timeout_s=120)
-        assert result.returncode == 0, result.stdout + result.stderr
-        n_set = len(lines(wing))
-        assert wait_for(lambda: len(lines(wing)) >= n_set + 1600, 240)
-    blocks = lines(wing)
-    stroke_deg = np.concatenate([b["stroke_deg"] for b in blocks])
+    params = {"plant_node": {"command_timeout_s": 0.0},
+              "stroke_controller_node": {"mode": "sync", "setpoint_deg": 12.0, "watchdog_timeout_s": 30.0}}
+    with composed(monkeypatch, [PlantNode, FrontendNode, StrokeControllerNode], params, tmp_path) as loop:
+        node = loop.node("stroke_controller_node")
+        states: list = []
+        monkeypatch.setattr(node.drive_pub, "publish", lambda m: loop.post(topics.DRIVE, {
+            "sample_rate_hz": m.sample_rate_hz, "first_sample_index": m.first_sample_index, "sec": 0, "nanosec": 0,
+            "frame_id": "", "drive_v": np.asarray(m.drive_v)}))
+        monkeypatch.setattr(node.drive_pub, "get_subscription_count", lambda: 1)
+        monkeypatch.setattr(node.state_pub, "publish", states.append)
+        loop.bus.subscribe(topics.WING_STATE, lambda fields: node.on_wing_state(SimpleNamespace(**fields)))
+        wing = loop.sink(topics.WING_STATE)
+        loop.run_until(lambda: len(wing) >= 1600)
+        n_before = len(wing)
+        assert node.set_parameters([Parameter("setpoint_deg", value=16.0)])[0].successful
+        loop.run_until(lambda: len(wing) >= n_before + 1600)
+    assert [b["first_sample_index"] for b in wing] == list(range(0, len(wing) * 10, 10))
+    stroke_deg = np.concatenate([b["stroke_deg"] for b in wing])
     from flaair_tools import wingbeat
     beats = wingbeat.summarize(stroke_deg, stroke_deg, np.ones(stroke_deg.size, bool),
                                wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0))
@@ -166,4 +151,4 @@ def test_node_holds_the_setpoint_over_dds_and_retargets_at_run_time(tmp_path) ->
     after = beats.amplitude_deg[beats.end_sample > stroke_deg.size - 0.1 * FS]
     assert np.all(np.abs(before - 12.0) <= 0.5), before
     assert np.all(np.abs(after - 16.0) <= 0.5), after
-    assert all(s["watchdog"] == 0 and abs(s["drive_v"]) <= 150.0 for s in lines(states))
+    assert len(states) == len(wing) + 1 and all(s.watchdog == 0 and abs(s.drive_v) <= 150.0 for s in states)

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -43,17 +45,23 @@ MESSAGES = {
 }
 
 
-@pytest.mark.parametrize("type_name", sorted(MESSAGES))
-def test_message_crosses_processes_intact(type_name: str) -> None:
-    values = MESSAGES[type_name]
-    topic = "/flaair/test/" + type_name.rsplit("/", 1)[-1].lower()
+def test_every_message_type_crosses_processes_intact(tmp_path) -> None:
+    """One graph: an echo and a publisher per message type, each in a process of its own."""
+    topics = {name: "/flaair/test/" + name.rsplit("/", 1)[-1].lower() for name in MESSAGES}
     with ros_processes() as procs:
-        echo = procs.flaair("topic", "echo", topic, type_name, "--count", "1", "--timeout", "120")
-        pub = procs.flaair("topic", "pub", topic, type_name, json.dumps(values), "--count", "3",
-                           "--rate", "5", "--wait-subscribers", "1")
-        out, err = echo.communicate(timeout=150)
-        assert echo.returncode == 0, err
-        assert pub.wait(timeout=30) == 0, pub.stderr.read()
-    received = json.loads(out.strip().splitlines()[0])
-    for key, expected in values.items():
-        assert received[key] == expected, key
+        outs = {name: tmp_path / f"{name.rsplit('/', 1)[-1]}.jsonl" for name in MESSAGES}
+        echoes = {name: procs.flaair("topic", "echo", topics[name], name, "--count", "1", "--timeout", "120",
+                                     stdout=open(outs[name], "w"), stderr=open(f"{outs[name]}.err", "w"))
+                  for name in MESSAGES}
+        # each publisher sends only once its echo is matched (and fails if it never is)
+        pubs = {name: procs.flaair("topic", "pub", topics[name], name, json.dumps(values), "--count", "1",
+                                   "--wait-subscribers", "1", "--wait-timeout", "120",
+                                   stdout=open(f"{outs[name]}.pub", "w"), stderr=subprocess.STDOUT)
+                for name, values in MESSAGES.items()}
+        for name in MESSAGES:
+            assert echoes[name].wait(timeout=150) == 0, Path(f"{outs[name]}.err").read_text()
+            assert pubs[name].wait(timeout=150) == 0, Path(f"{outs[name]}.pub").read_text()
+    for name, values in MESSAGES.items():
+        received = json.loads(outs[name].read_text().strip().splitlines()[0])
+        for key, expected in values.items():
+            assert received[key] == expected, (name, key)

@@ -171,7 +171,13 @@ def main(argv: list[str] | None = None) -> int:
             for message in messages:
                 publisher.publish(message)
                 time.sleep(1.0 / args.rate)
-        time.sleep(0.5)  # let reliable delivery finish before the participant goes away
+        # every matched reader has the messages before the participant goes away (reliable QoS)
+        from rclpy.duration import Duration
+
+        if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout)):
+            print(f"flaair topic pub: '{args.topic}': not every subscriber acknowledged the messages within "
+                  f"{args.wait_timeout:g} s", file=sys.stderr)
+            return 1
         return 0
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
