@@ -67,8 +67,7 @@ class Composed:
 
     def __init__(self, bus: intra.Bus, nodes: list[Any], clock: FakeClock, block_period_s: float) -> None:
         self.bus, self.nodes, self.clock, self.block_period_s = bus, nodes, clock, block_period_s
-        self.timers = [(timer, timer.timer_period_ns * 1e-9) for node in nodes for timer in node.timers]
-        self.due_s = {id(timer): clock.now_s + period for timer, period in self.timers}
+        self.due_s: dict[int, float] = {}   # id(timer) -> when it fires next (a node may add or destroy timers)
         self.stepped_blocks = 0
         bus.subscribe(topics.SENSOR_VOLTAGE, self._on_stepped)
 
@@ -94,30 +93,45 @@ class Composed:
         for callback, background in self.bus.subscribers.get(topic, ()):
             (self.bus.background_queue if background else self.bus.queue).append((callback, fields))
 
+    def live_timers(self) -> list[tuple[Any, float]]:
+        """(timer, period s) of every node's timers now, each with its next due time set."""
+        timers = [(timer, timer.timer_period_ns * 1e-9) for node in self.nodes for timer in node.timers
+                  if not timer.is_canceled()]
+        for timer, period in timers:
+            self.due_s.setdefault(id(timer), self.clock.now_s + period)
+        return timers
+
     def fire_due_timers(self) -> int:
         fired = 0
-        for timer, period in self.timers:
-            if not timer.is_canceled() and self.clock.now_s >= self.due_s[id(timer)]:
+        for timer, period in self.live_timers():
+            if self.clock.now_s >= self.due_s[id(timer)]:
                 self.due_s[id(timer)] = self.clock.now_s + period
                 timer.callback()
                 fired += 1
         return fired
 
-    def run_until(self, done: Callable[[], bool], max_clock_s: float = 60.0, budget: int = 8) -> None:
-        """Drain the bus and fire due timers until `done()`; fail after `max_clock_s` of fake time."""
+    def run_until(self, done: Callable[[], bool], max_clock_s: float = 60.0, budget: int = 8,
+                  idle_until_s: float | None = None) -> None:
+        """Drain the bus and fire due timers until `done()`; fail after `max_clock_s` of fake time.
+
+        With nothing queued and no timer left, the clock jumps to `idle_until_s` (if given: the
+        end of a `run_for`), else the run fails: `done()` could never come true.
+        """
         end_s = self.clock.now_s + max_clock_s
         while not done():
             assert self.clock.now_s < end_s, f"not done after {max_clock_s:g} s of (fake) clock"
             worked = self.bus.drain(budget) + self.fire_due_timers()
             if not worked and not self.bus.pending():
-                live = [self.due_s[id(timer)] for timer, _ in self.timers if not timer.is_canceled()]
+                live = [self.due_s[id(timer)] for timer, _ in self.live_timers()]
+                if idle_until_s is not None:
+                    live.append(idle_until_s)
                 assert live, "nothing left to run: no queued block and no timer"
                 self.clock.now_s = max(self.clock.now_s, min(live))
 
     def run_for(self, duration_s: float) -> None:
         """Run on for `duration_s` of the fake clock."""
         end_s = self.clock.now_s + duration_s
-        self.run_until(lambda: self.clock.now_s >= end_s, duration_s + 1.0)
+        self.run_until(lambda: self.clock.now_s >= end_s, duration_s + 1.0, idle_until_s=end_s)
 
 
 def write_params(path: Path, params: dict[str, dict[str, Any]]) -> Path:

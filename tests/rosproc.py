@@ -20,7 +20,7 @@ FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 _LEASES: list = []
 GRAPHS_STARTED: list[str] = []   # what this test started that exchanges data in real time (conftest checks the mark)
-GRAPH_COMMANDS = {"experiment", "live", "record", "play"}
+GRAPH_COMMANDS = {"experiment", "live"}   # `flaair` commands that bring a graph up
 
 
 def isolated_env() -> dict[str, str]:

@@ -4,7 +4,6 @@ from __future__ import annotations
 import pytest
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -32,10 +31,10 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> No
         ready = [tmp_path / "truth.ready", tmp_path / "sensor.ready"]
         echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock", n_blocks, ready[0])
         sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", n_blocks, ready[1])
-        procs.flaair("run", "flaair_sim", "plant_node")
-        # The comparison starts at sample 0, so the plant must not step before both listeners are matched.
-        assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
-        time.sleep(0.5)  # the writer side completes its match a moment after the reader's
+        # The comparison starts at sample 0: the plant takes drive commands (and so the lockstep drive
+        # starts) only once both its output streams have matched their listener, writer side.
+        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "min_output_subscribers:=1")
+        assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)   # the readers' side too
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=chirp",
                      "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
         truth_out, err = echo.communicate(timeout=330)
@@ -95,3 +94,21 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
     assert "rejected command block 10 (drive_v has 1 non-finite sample(s)" in log
     assert "duplicate or out of order" in log and "[2 rejected so far]" in log
     assert "[1 undecodable so far]" in log and plant.undecodable == 1
+
+
+def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch, tmp_path) -> None:
+    """min_output_subscribers: the plant's drive subscription (what a lockstep source waits for)
+    appears only once the sensor and truth streams each have that many listeners."""
+    from composed import composed
+    from flaair_common import topics
+    from flaair_sim.plant_node import PlantNode
+
+    params = {"plant_node": {"min_output_subscribers": 2, "command_timeout_s": 0.0}}
+    with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:   # the harness listens to sensor_v
+        loop.sink(topics.SENSOR_VOLTAGE)
+        loop.sink(topics.WING_STATE_TRUTH)
+        loop.run_for(1.0)
+        assert loop.bus.subscriber_count(topics.DRIVE) == 0              # truth has 1 listener of 2
+        loop.sink(topics.WING_STATE_TRUTH)
+        loop.run_for(0.02)
+        assert loop.bus.subscriber_count(topics.DRIVE) == 1

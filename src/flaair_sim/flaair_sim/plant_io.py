@@ -29,6 +29,9 @@ PLANT_PARAMS = [
     ParamSpec("obstacle_windows_s", list, "Obstacle in place over these [start, end) sim-time pairs [s]", read_only=True),
     ParamSpec("command_timeout_s", float, "lockstep: no command for this long (wall clock) while driven: zero drive, ring down (0: off) [s]", 0.0, 60.0, read_only=True),
     ParamSpec("ring_down_s", float, "Signal time stepped with zero drive after a drive-watchdog trip [s]", 0.0, 60.0, read_only=True),
+    ParamSpec("min_output_subscribers", int, "Subscribe to the drive only once the sensor and truth streams each "
+              "have this many matched listeners (a lockstep source then starts no earlier) [0: at once]", 0, 100,
+              read_only=True),
     ParamSpec("obstacle_stroke_limit_deg", float, "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0, read_only=True),
 ]
 

@@ -56,8 +56,10 @@ class PlantNode(Node):
         self.all_valid = np.ones(self.block_size, dtype=bool)
         self.no_velocity = np.full(self.block_size, np.nan)
         self.undecodable, self.next_index = 0, 0   # next_index: first sample of the next stepped block
-        intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, cdr.FixedCodec(
-            cdr.DRIVE_COMMAND_BLOCK, self.block_size), self.on_command, BLOCK_STREAM, self.on_undecodable)
+        # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
+        # the plant subscribes only once its outputs' listeners are matched (none misses block 0).
+        self.listeners_timer = self.create_timer(0.01, self.subscribe_when_listened)
+        self.subscribe_when_listened()
         if self.p["mode"] == "realtime" or self.p["command_timeout_s"] > 0:
             period = 0.005 if self.p["mode"] == "realtime" else min(0.01, self.p["command_timeout_s"] / 4)
             self.create_timer(period, self.on_tick)
@@ -65,6 +67,16 @@ class PlantNode(Node):
             f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
             f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
             + (f", obstacle at {self.p['obstacle_stroke_limit_deg']:g} deg over {self.windows_s} s" if self.windows_s else ""))
+
+    def subscribe_when_listened(self) -> None:
+        wanted = self.p["min_output_subscribers"]
+        if self.sensor.subscription_count() < wanted or self.truth.subscription_count() < wanted:
+            return
+        self.destroy_timer(self.listeners_timer)
+        intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, cdr.FixedCodec(
+            cdr.DRIVE_COMMAND_BLOCK, self.block_size), self.on_command, BLOCK_STREAM, self.on_undecodable)
+        if wanted:
+            self.get_logger().info(f"outputs matched ({wanted} listener(s) each): taking drive commands")
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
