@@ -50,6 +50,7 @@ from flaair_common import intra
 from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
 
 
+ACK_WAIT_S = 2.0            # at exit, a node's reliable readers get this long to acknowledge its last messages
 DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 
 
@@ -177,11 +178,29 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
             _close(node)
             if bus is not None:
                 bus.flush()   # the closing zero block reaches its in-process consumers
+        _wait_for_acks(nodes)
         for node in nodes:
             executor.remove_node(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
+    """Every reliable reader has what the nodes published (their last blocks, the zero drive)
+    before the process goes: a writer that exits first takes the undelivered messages with it."""
+    from rclpy.duration import Duration
+
+    deadline = time.monotonic() + timeout_s
+    for node in nodes:
+        for publisher in node.publishers:
+            left_s = deadline - time.monotonic()
+            if left_s <= 0:
+                return
+            try:
+                publisher.wait_for_all_acked(Duration(nanoseconds=int(left_s * 1e9)))
+            except Exception:   # noqa: BLE001 - a context already shut down: nothing left to wait for
+                return
 
 
 def _close(node: Node) -> None:

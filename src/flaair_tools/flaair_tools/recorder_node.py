@@ -42,6 +42,7 @@ class RecorderNode(Node):
         except bagio.BagError as exc:
             raise ParameterError(f"parameter 'output_path': {exc}") from exc
         self.subscribed: dict[str, Any] = {}
+        self.takers: dict[str, tuple] = {}   # topic -> (take, on_message) of its DDS subscription
         self.skipped, self.received = set(), {}
         # composed (an EventsExecutor): no take() inside a callback; the block streams come in-process
         self.recording = RECORDING if intra.current() is None else replace(RECORDING, drain_limit=1)
@@ -125,13 +126,29 @@ class RecorderNode(Node):
                 self.apply(recording.Received(topic, data, stamp, info.get("source_timestamp") or None))
             self.received[topic] += 1 + len(queued)
 
+        self.takers[topic] = (take, on_message)
+
         # rclpy's EventsExecutor (composed) cannot hand a callback the message info
         return on_message if intra.current() is None else (lambda data: on_message(data, {}))
 
+    def take_remaining(self) -> int:
+        """Write what DDS has delivered but no callback has handled yet (a stop came first: the
+        loop's last blocks, its zero drive, are often among them). Returns how many."""
+        taken = 0
+        for topic, (take, on_message) in self.takers.items():
+            try:
+                while (item := take()) is not None:
+                    on_message(*item)
+                    taken += 1
+            except Exception as exc:   # noqa: BLE001 - a dying middleware must not cost the bag
+                self.get_logger().warning(f"{topic}: could not take the last messages ({exc})")
+        return taken
+
     def close(self) -> None:
-        """Finish the bag (summary, metadata.yaml)."""
+        """Finish the bag (summary, metadata.yaml), with every message DDS had delivered."""
         if self.writer.closed:
             return
+        self.take_remaining()
         self.apply(recording.Finish(time.time_ns()))
         self.writer.close()
         counts = ", ".join(f"{topic} {count}" for topic, count in sorted(self.writer.counts.items())) or "nothing"
