@@ -15,6 +15,11 @@ WORKERS="${FLAAIR_TEST_WORKERS:-$(nproc)}"
 REPORTS="$(mktemp -d)"
 trap 'rm -rf "$REPORTS"' EXIT
 
+# One BLAS/OpenMP thread per xdist worker: the workers already fill the cores, and a multithreaded
+# numpy in each of them only makes them wait for each other.
+export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}" OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" \
+       MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}" NUMBA_NUM_THREADS="${NUMBA_NUM_THREADS:-1}"
+
 status=0
 phase() {   # phase NAME PYTEST_ARGS...
   local name="$1"; shift
@@ -27,11 +32,11 @@ phase() {   # phase NAME PYTEST_ARGS...
 
 case "$MODE" in
   full)
-    phase parallel -n "$WORKERS" --dist loadfile -m "not graph" "$@"
+    phase parallel -n "$WORKERS" --dist load -m "not graph" "$@"
     phase graph -p no:xdist -m graph "$@"
     ;;
   quick)
-    phase quick -n "$WORKERS" --dist loadfile -m "not graph and not slow" "$@"
+    phase quick -n "$WORKERS" --dist load -m "not graph and not slow" "$@"
     ;;
   *) echo "usage: scripts/run_tests.sh [full|quick] [pytest args...]" >&2; exit 2 ;;
 esac

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import signal
 import subprocess
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import IO, Iterator
 
 from flaair_common.graph import Graph, graph_env, lease_domain, wait_for  # noqa: F401 - wait_for re-exported
 
@@ -40,17 +41,35 @@ def release_leases() -> None:
 
 
 class Processes:
-    """The tests' view of a Graph: pipes by default, `flaair(...)` for bin/flaair."""
+    """The tests' view of a Graph: child output to files, `flaair(...)` for bin/flaair.
+
+    A child's stdout and stderr go to files in `log_dir` (never to a pipe nobody reads, which
+    blocks a chatty child once 64 KiB wait in it). The Popen's `.stdout` / `.stderr` read those
+    files (what was written so far), and its `.communicate()` waits for the exit and returns both.
+    """
 
     def __init__(self, graph: Graph) -> None:
         self.graph = graph
         self.env = graph.env
         self.started = [process for _, process in graph.children]
+        self.log_dir = Path(tempfile.mkdtemp(prefix="flaair-test-graph-"))
 
-    def start(self, *args: str, stdout=subprocess.PIPE, stderr=subprocess.PIPE) -> subprocess.Popen:
-        """Start a process on the graph's domain; stdout/stderr: PIPE (default) or an open file."""
+    def start(self, *args: str, stdout: IO | None = None, stderr: IO | int | None = None) -> subprocess.Popen:
+        """Start a process on the graph's domain; stdout/stderr: its own log files (default) or an open file."""
         self.graph.env = self.env   # a test may adjust the environment before starting
-        process = self.graph.start(Path(args[0]).name, args, stdout=stdout, stderr=stderr)
+        name = f"{len(self.started):02d}_{Path(args[0]).name}_{'_'.join(a for a in args[1:3] if a.isidentifier())}"
+        out_path, err_path = self.log_dir / f"{name}.out", self.log_dir / f"{name}.err"
+        with open(out_path, "w") as out_file, open(err_path, "w") as err_file:
+            process = self.graph.start(Path(args[0]).name, args, stdout=stdout or out_file,
+                                       stderr=err_file if stderr is None else stderr)
+        process.stdout = open(out_path) if stdout is None else None
+        process.stderr = open(err_path) if stderr is None else None
+
+        def communicate(input: str | None = None, timeout: float | None = None) -> tuple[str, str]:
+            process.wait(timeout=timeout)
+            return (out_path.read_text() if stdout is None else "", err_path.read_text() if stderr is None else "")
+
+        process.communicate = communicate
         self.started.append(process)
         return process
 

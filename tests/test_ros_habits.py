@@ -1,6 +1,7 @@
 """ROS habits over real DDS: param set on the dSA controller, node list, topic hz, echo that ends on silence."""
 from __future__ import annotations
 
+import os
 import re
 import time
 
@@ -46,14 +47,23 @@ def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publis
         reports = re.findall(r"average rate: ([0-9.]+) Hz .* window: (\d+)", hz.stdout)
         assert len(reports) == 2 and all(float(rate) > 0 and int(window) >= 2 for rate, window in reports), hz.stdout
         procs.stop(publisher)
-        # nobody publishes: the default timeout (config/flaair.yaml flaair_cli echo_timeout_s) ends it
+        # nobody publishes: the timeout ends it (its default, 10 s, is config/flaair.yaml's: below)
         start = time.monotonic()
-        silent = run([FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String"], procs.env, 120)
+        silent = run([FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "2"],
+                     procs.env, 120)
         assert silent.returncode == 1
-        assert "no message on '/flaair/nobody' for 10 s (0 received, 0 publisher(s) now)" in silent.stderr
-        assert time.monotonic() - start >= 10.0
+        assert "no message on '/flaair/nobody' for 2 s (0 received, 0 publisher(s) now)" in silent.stderr
+        assert time.monotonic() - start >= 2.0
         short = run([FLAAIR, "topic", "hz", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "1"], procs.env, 120)
         assert short.returncode == 1 and "no message on '/flaair/nobody' for 1 s" in short.stderr
+
+
+def test_echo_takes_its_default_timeout_from_the_config() -> None:
+    from flaair_model.config import node_parameters
+
+    default_s = node_parameters("flaair.yaml", "flaair_cli")["echo_timeout_s"]
+    result = run([FLAAIR, "topic", "echo", "--help"], dict(os.environ), 60)
+    assert result.returncode == 0 and f"(default {default_s:g}; 0: wait forever)" in re.sub(r"\s+", " ", result.stdout)
 
 
 def test_values_convert_to_the_parameters_type_and_rates_are_reported() -> None:

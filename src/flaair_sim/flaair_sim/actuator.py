@@ -170,5 +170,7 @@ def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[Actua
     due = min(end, first + int((now - wall_start) * p.sample_rate_hz))
     while state.next_index + p.block_size <= due:
         state = _emit(state, blocks, zero)
+    if blocks and state.next_index == end:
+        notes.append(Note(INFO, f"ring-down done at sample {end}: zero drive held until a command block comes"))
     # the stream continues from here: a command for the next block is in order
     return state._replace(expected_command_index=state.next_index), Outputs(tuple(blocks), tuple(notes))
