@@ -11,6 +11,7 @@ from __future__ import annotations
 import pytest
 
 import json
+import re
 import signal
 import socket
 import time
@@ -80,10 +81,13 @@ def target(procs, tmp_path: Path, port: int, *args: str):
 def end_of_run(procs, tmp_path: Path, port: int, bridge, sig: int) -> tuple[str, dict]:
     """A fresh target; then the bridge ends its run by `sig`: the bridge's log and the target's counters."""
     emulator = target(procs, tmp_path, port)
-    time.sleep(2.0)
+    target_log, bridge_log = tmp_path / "target.log", Path(bridge.stderr.name)
+    # the bridge has heard the fresh target (learnt where to send), then its end sends it the stop
+    address = re.search(r"drive packets on (\S+):(\d+),", target_log.read_text()).group(2)
+    assert wait_for(lambda: f"target at 127.0.0.1:{address}:" in bridge_log.read_text(), 60), bridge_log.read_text()[-2000:]
     assert procs.stop(bridge, sig, timeout_s=60) == 0
     log = bridge.stderr.read()
-    time.sleep(0.5)
+    assert wait_for(lambda: "stop packet 1 received" in target_log.read_text(), 30), target_log.read_text()
     procs.stop(emulator, signal.SIGINT, timeout_s=60)
     return log, json.loads((tmp_path / "target.json").read_text())
 
@@ -99,7 +103,7 @@ def test_samples_match_the_plant_garbage_is_survived_and_sigint_ends_with_a_stop
         drive_source(procs)
         emulator = target(procs, tmp_path, port, "--duration", str(n_blocks * N / FS))
         # garbage from another socket while the target runs: wrong magic, short, NaN, a drive packet
-        time.sleep(0.3)
+        assert wait_for(lambda: len(lines(tmp_path / "SensorVoltageBlock.jsonl")) >= 100, 120)
         junk = [b"", b"FLS1", b"hello world" * 5, b"FLS1" + bytes(20) + np.full(3, np.nan, "<f4").tobytes(),
                 b"FLD1" + bytes(16) + np.zeros(1, "<f4").tobytes()] * 10
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
@@ -139,7 +143,8 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
         # driven for a while (200 applied blocks above 10 V, 0.1 s), not just started
         assert wait_for(lambda: sum(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)) >= 200, 120)
         procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
-        time.sleep(3.0)
+        target_log = tmp_path / "target.log"
+        assert wait_for(lambda: "drive watchdog tripped" in target_log.read_text(), 60), target_log.read_text()
         # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
         before_stop = json.loads((tmp_path / "target.json").read_text())
@@ -163,9 +168,10 @@ def test_silent_target_is_marked_as_loss_and_the_drive_is_stopped(tmp_path) -> N
         applied = tmp_path / "DriveCommandBlock.jsonl"
         assert wait_for(lambda: any(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)[-200:]), 120)
         emulator.send_signal(signal.SIGSTOP)            # the target falls silent (its socket keeps what arrives)
-        time.sleep(1.0)
+        time.sleep(1.0)                                 # the fault: 1 s of silence (a stimulus, not a wait)
         emulator.send_signal(signal.SIGCONT)
-        time.sleep(1.0)
+        bridge_log = Path(bridge.stderr.name)
+        assert wait_for(lambda: "the target is sending again" in bridge_log.read_text(), 60), bridge_log.read_text()[-2000:]
         assert bridge.poll() is None
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
         procs.stop(bridge, signal.SIGINT, timeout_s=60)

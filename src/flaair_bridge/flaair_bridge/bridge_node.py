@@ -74,7 +74,10 @@ class BridgeNode(Node):
             f"({1e3 * p['lead_samples'] / self.fs_hz:g} ms), limit +-{p['drive_limit_v']:g} V")
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
-        self.target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
+        target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
+        if target != self.target:   # the first packet, or a target that restarted elsewhere
+            self.target = target
+            self.get_logger().info(f"target at {target[0]}:{target[1]}: drive and stop packets go there")
         answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
         if self.state.counters.drive_packets != answered:   # the loop has answered: a gap until the next block

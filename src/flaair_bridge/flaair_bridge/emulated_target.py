@@ -239,12 +239,19 @@ def main(argv: list[str] | None = None) -> int:
     def drain() -> None:
         while True:
             try:
-                data = sock.recv(65536)
+                data, sender = sock.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:  # e.g. ICMP port unreachable reported on the socket
                 continue
+            before = core.counts["drive_packets"], core.counts["stop_packets"]
             core.receive(data)
+            # said once each (stderr): a script or test can wait on them instead of guessing a time
+            if before[0] == 0 and core.counts["drive_packets"] > 0:
+                print(f"emulated_target: first drive packet from {sender[0]}:{sender[1]}", file=sys.stderr, flush=True)
+            if core.counts["stop_packets"] > before[1]:
+                print(f"emulated_target: stop packet {core.counts['stop_packets']} received: drive zeroed, disarmed",
+                      file=sys.stderr, flush=True)
 
     if error := take_realtime_priority(args.realtime_priority):
         print(f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} ({error})",
@@ -272,7 +279,11 @@ def main(argv: list[str] | None = None) -> int:
                 stats["send_errors"] += 1
         if total is not None and j == total:
             break
+        trips = core.counts["watchdog_trips"]
         drive, flags = core.decide(n)
+        if core.counts["watchdog_trips"] > trips:
+            print(f"emulated_target: drive watchdog tripped at sample {core.next_index}: holding zero drive",
+                  file=sys.stderr, flush=True)
         state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
         j += 1
