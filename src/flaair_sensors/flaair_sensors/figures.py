@@ -1,4 +1,4 @@
-"""Bode figure laid out like the paper's Fig. "bode" (matplotlib, Agg backend).
+"""Bode figure laid out like the paper's Fig. "bode" (matplotlib Figure, no pyplot).
 
 Two columns: (a) stroke, (b) pitch. Top row: amplitude (deg); bottom row: phase (deg;
 stroke relative to the drive, pitch relative to stroke). Sensor-derived curve (blue) against
@@ -10,9 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
 from .characterization import Bode, ChannelBode  # noqa: E402
 
@@ -57,7 +55,8 @@ def bode_figure(stroke_bode: Bode, pitch_bode: Bode | None = None, title: str | 
     pitch_bode = stroke_bode if pitch_bode is None else pitch_bode
     # Fixed margins (room for 5-character tick labels and the axis labels): the same look as
     # constrained layout at half the drawing time, which measures every tick label first.
-    fig, axes = plt.subplots(2, 2, figsize=(9.0, 5.5), sharex="col")
+    fig = Figure(figsize=(9.0, 5.5))
+    axes = fig.subplots(2, 2, sharex="col")
     fig.subplots_adjust(left=0.085, right=0.985, bottom=0.09, top=0.88 if title else 0.93, wspace=0.28, hspace=0.08)
     _column(axes[0, 0], axes[1, 0], stroke_bode.stroke, f"(a) stroke ({stroke_bode.method})", "phase vs drive (deg)")
     _column(axes[0, 1], axes[1, 1], pitch_bode.pitch, f"(b) pitch ({pitch_bode.method})", "phase vs stroke (deg)")
@@ -72,13 +71,10 @@ def save_bode_figure(path: str | Path, stroke_bode: Bode, pitch_bode: Bode | Non
 
 
 def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
-    """Save a figure as PNG and close it; returns the path."""
+    """Save a figure as PNG; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fig.savefig(path, dpi=dpi, format="png")
-    finally:
-        plt.close(fig)
+    fig.savefig(path, dpi=dpi, format="png")
     return path
 
 
@@ -88,8 +84,9 @@ def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> An
     Sensor-derived curves solid, ground truth dashed; columns stroke and pitch, rows amplitude
     and phase as in ``bode_figure``.
     """
-    fig, axes = plt.subplots(2, 2, figsize=(12.0, 6.5), sharex="col", layout="constrained")
-    colors = plt.cm.viridis([i / max(1, len(bodes) - 1) for i in range(len(bodes))])
+    fig = Figure(figsize=(12.0, 6.5), layout="constrained")
+    axes = fig.subplots(2, 2, sharex="col")
+    colors = matplotlib.colormaps['viridis']([i / max(1, len(bodes) - 1) for i in range(len(bodes))])
     for color, (label, bode) in zip(colors, bodes.items()):
         for column, cb in enumerate((bode.stroke, bode.pitch)):
             axes[0, column].plot(cb.frequency_hz, cb.sensor_amplitude_deg, "-", color=color, lw=1.4, label=label)
@@ -123,7 +120,8 @@ def collision_fft_figure(frequency_hz: Any, spectra_deg: dict[str, Any], referen
         label -> (time_s, pitch_deg): a few wingbeats of each run's pitch, drawn as insets.
     """
     colors = {"collision": "tab:blue", "no collision": "tab:green"}
-    fig, ax = plt.subplots(figsize=(9.0, 5.0))
+    fig = Figure(figsize=(9.0, 5.0))
+    ax = fig.subplots()
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.1, top=0.93)   # fixed: see bode_figure
     for label, spectrum in spectra_deg.items():
         ax.plot(frequency_hz, spectrum, "-", lw=1.5, color=colors.get(label), label=f"sensor pitch, {label}")

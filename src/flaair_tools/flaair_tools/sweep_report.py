@@ -7,17 +7,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
 from flaair_model.config import config_dir, node_parameters
 from flaair_model.model_io import load_model
 from flaair_tools import sweep
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
 
 
 def _values() -> dict[str, Any]:
@@ -79,8 +75,8 @@ _FIGURES = (("frequency_rel", "stroke frequency"), ("amplitude_rel", "stroke amp
 
 def wing_damage_figure(rows: list[dict[str, Any]], path: Path) -> None:
     """2 x 2 panels: each figure relative to the undamaged wing vs the inertia factor."""
-    plt = _pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8), sharex=True)
+    fig = Figure(figsize=(11, 8))
+    axes = fig.subplots(2, 2, sharex=True)
     colors = {"sync_open_loop": "tab:gray", "dsa": "tab:blue", "dsa_stroke_control": "tab:red"}
     exponents = sorted({r["aero_damping_exponent"] for r in rows})
     styles = ["-", "--", ":", "-."]
@@ -101,7 +97,6 @@ def wing_damage_figure(rows: list[dict[str, Any]], path: Path) -> None:
     fig.suptitle("Wing damage: steady flapping relative to the undamaged wing")
     fig.tight_layout(rect=(0, 0.1, 1, 0.96))
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _at(rows: list[dict[str, Any]], drive: str, factor: float, exponent: float) -> dict[str, Any]:
@@ -162,9 +157,9 @@ def wing_damage_reading(rows: list[dict[str, Any]], timing: dict[str, Any]) -> s
 
 def dsa_map_figure(rows: list[dict[str, Any]], path: Path) -> None:
     """Amplitude and frequency vs mu per (r3, kappa), simulated (dots) and describing-function theory (lines)."""
-    plt = _pyplot()
     r3s = sorted({r["r3_rad_s"] for r in rows})
-    fig, axes = plt.subplots(2, len(r3s), figsize=(6 * len(r3s), 8), squeeze=False)
+    fig = Figure(figsize=(6 * len(r3s), 8))
+    axes = fig.subplots(2, len(r3s), squeeze=False)
     for j, r3 in enumerate(r3s):
         for kappa, color in zip(sorted({r["kappa"] for r in rows}), ("tab:blue", "tab:orange", "tab:green", "tab:red")):
             sel = sorted((r for r in rows if r["r3_rad_s"] == r3 and r["kappa"] == kappa), key=lambda r: r["mu_nm_s_per_rad"])
@@ -185,7 +180,6 @@ def dsa_map_figure(rows: list[dict[str, Any]], path: Path) -> None:
     fig.suptitle("dSA map: self-excited stroke vs mu, kappa, r3 (dots: simulation, lines: Hopf / describing function)")
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def dsa_map_reading(rows: list[dict[str, Any]], onsets: list[dict[str, Any]], timing: dict[str, Any]) -> str:
@@ -257,9 +251,9 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
 
 def stroke_figure(results: list[dict[str, Any]], path: Path) -> None:
     """Per-wingbeat amplitude around the event, one panel per experiment."""
-    plt = _pyplot()
     names = sorted({r["experiment"].rsplit("_", 1)[0] for r in results})
-    fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 4), squeeze=False)
+    fig = Figure(figsize=(5 * len(names), 4))
+    axes = fig.subplots(1, len(names), squeeze=False)
     for ax, name in zip(axes[0], names):
         for r in (r for r in results if r["experiment"].rsplit("_", 1)[0] == name):
             for key, style in (("estimate", "-"), ("truth", ":")):
@@ -276,4 +270,3 @@ def stroke_figure(results: list[dict[str, Any]], path: Path) -> None:
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)

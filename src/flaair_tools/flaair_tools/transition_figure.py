@@ -1,7 +1,7 @@
 """Figure of the sync -> async transition (paper Fig. asynch b): K_r, stroke, Hilbert frequency, amplitude.
 
 Library: ``transition_record`` joins the echoed wing-state and controller-state messages,
-``plot_transition`` draws the PNG (matplotlib, Agg backend).
+``plot_transition`` draws the PNG (a matplotlib Figure, no pyplot).
 
 Command line (inside the environment, e.g. ``scripts/in_env.sh python -m flaair_tools.transition_figure``):
 
@@ -68,14 +68,12 @@ def plot_transition(record: TransitionRecord, result: tr.HilbertResult, path: Pa
 
     ``predicted`` = (frequency_hz, amplitude_deg) of the describing-function limit cycle, drawn dashed.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure   # no pyplot: a notebook user's backend is left alone
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(4, 1, figsize=(7.0, 8.0), sharex=True, constrained_layout=True)
+    fig = Figure(figsize=(7.0, 8.0), constrained_layout=True)
+    axes = fig.subplots(4, 1, sharex=True)
     ax_kr, ax_s, ax_f, ax_a = axes
     ax_kr.plot(record.kr_time_s, record.kr, color="k")
     ax_kr.set_ylabel("$K_r$")
@@ -98,7 +96,6 @@ def plot_transition(record: TransitionRecord, result: tr.HilbertResult, path: Pa
         ax.grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 

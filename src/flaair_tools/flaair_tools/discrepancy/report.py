@@ -1,4 +1,4 @@
-"""Discrepancy report: DIR/discrepancy.json, figures (matplotlib Agg) and DIR/report.html.
+"""Discrepancy report: DIR/discrepancy.json, figures (matplotlib, no pyplot) and DIR/report.html.
 
 `write_report` writes everything for one analysis; `write_validation` writes the confusion table
 of the hidden-effect datasets (validation.json, validation.html), which `write_report` can also
@@ -6,17 +6,14 @@ embed in report.html.
 """
 from __future__ import annotations
 
-import html
 import json
 import math
 from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 import numpy as np  # noqa: E402
 
 from .diagnosis import bode_points  # noqa: E402
@@ -98,7 +95,8 @@ def write_json(path: Path, doc: Any) -> None:
 
 
 def _fig_gap(result: DiscrepancyResult, path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(7, 3.6))
+    fig = Figure(figsize=(7, 3.6))
+    ax = fig.subplots()
     x = np.arange(len(CHANNELS))
     floor = [result.diagnosis_before.channels[c].noise_nrmse for c in CHANNELS]
     ax.bar(x - 0.27, [result.gap_before[c] for c in CHANNELS], 0.27, label="input model (held-out)")
@@ -112,11 +110,11 @@ def _fig_gap(result: DiscrepancyResult, path: Path) -> None:
     ax.grid(True, axis="y", which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
-    fig, axes = plt.subplots(len(CHANNELS), 1, figsize=(9, 10))
+    fig = Figure(figsize=(9, 10))
+    axes = fig.subplots(len(CHANNELS), 1)
     names = [r.name for r in runs]
     for ax, c in zip(axes, CHANNELS):
         run_name, t0, t1, _ = result.diagnosis_before.channels[c].worst_stretch
@@ -136,11 +134,11 @@ def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> 
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
-    fig, axes = plt.subplots(2, len(CHANNELS), figsize=(14, 6), sharex=True)
+    fig = Figure(figsize=(14, 6))
+    axes = fig.subplots(2, len(CHANNELS), sharex=True)
     markers = "os^vD<>"
     for j, run in enumerate(runs):
         before = bode_points(run, result.sims_before[j])
@@ -170,11 +168,11 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
     axes[0, 0].legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
-    fig, axes = plt.subplots(1, len(CHANNELS), figsize=(14, 3.2))
+    fig = Figure(figsize=(14, 3.2))
+    axes = fig.subplots(1, len(CHANNELS))
     for ax, c in zip(axes, CHANNELS):
         b = result.diagnosis_before.channels[c].band_nrmse
         a = result.diagnosis_after.channels[c].band_nrmse
@@ -189,7 +187,6 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def write_figures(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult) -> dict[str, str]:
@@ -204,9 +201,19 @@ def write_figures(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult)
 
 
 # --------------------------------------------------------------------------------------- HTML
+# Jinja2 templates (templates/discrepancy_*.html.j2), autoescaped: every text, run and file names
+# included, reaches the page as text, never as markup.
+
+TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
+
+
+def _environment() -> Environment:
+    return Environment(loader=FileSystemLoader(TEMPLATES), autoescape=select_autoescape(["html", "j2"]),
+                       trim_blocks=True, lstrip_blocks=True)
 
 
 def _f(v: Any, digits: int = 4) -> str:
+    """A cell's text: numbers to `digits` significant digits, '-' when undefined."""
     if v is None:
         return "-"
     if isinstance(v, bool):
@@ -215,40 +222,33 @@ def _f(v: Any, digits: int = 4) -> str:
         return str(int(v))
     if isinstance(v, (float, np.floating)):
         return f"{float(v):.{digits}g}" if math.isfinite(float(v)) else "-"
-    return html.escape(str(v))
+    return str(v)
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, str) and c.startswith('<') else _f(c)}</td>"
-                                    for c in row) + "</tr>" for row in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> dict:
+    """A table for the templates: header and rows of cell texts (escaped when rendered)."""
+    return {"header": list(header), "rows": [[_f(c) for c in row] for row in rows]}
+
+
+def _confusion(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] = ()) -> dict:
+    """A confusion table (true vs found), cells marked right or wrong, and the per-case outcomes."""
+    rows = [{"label": r, "cells": [{"text": n or "", "cls": ("ok" if _label_match(r, col) else "bad") if n else ""}
+                                   for col, n in zip(table["columns"], counts)]}
+            for r, counts in zip(table["rows"], table["counts"])]
+    cases = _table(["case", "true", "found", "status", "correct", "parameter errors", "gap reduction", "problems",
+                    "time s"],
+                   [[o["case"], o["true"], o["found"], o["status"], o["correct"],
+                     ", ".join(f"{k}: {v:.1%}" for k, v in (o.get("parameter_errors") or {}).items()),
+                     ", ".join(f"{k}: {v:.0%}" for k, v in (o.get("gap_reduction") or {}).items()),
+                     "; ".join(o.get("problems") or []), o.get("elapsed_s")] for o in outcomes]) if outcomes else None
+    return {"correct": table["correct"], "total": table["total"], "columns": list(table["columns"]), "rows": rows,
+            "cases": cases}
 
 
 def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] = ()) -> str:
     """HTML of a confusion table (true vs found) and, if given, the per-case outcomes."""
-    rows = []
-    for r, counts in zip(table["rows"], table["counts"]):
-        cells = []
-        for col, n in zip(table["columns"], counts):
-            style = ""
-            if n:
-                style = ' class="ok"' if _label_match(r, col) else ' class="bad"'
-            cells.append(f"<td{style}>{n or ''}</td>")
-        rows.append(f"<tr><th>{html.escape(r)}</th>{''.join(cells)}</tr>")
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in table["columns"])
-    out = (f"<p><b>{table['correct']} of {table['total']}</b> cases fully right (name, status, parameters within "
-           f"15 %, gap reduced by at least half; outside cases: unexplained with the gap on the right channel). "
-           "Row labels: <i>plant:</i> an effect a plant change reproduces (refitted, never named), <i>below:</i> an "
-           "effect below the limit of the fitted-plant search (unexplained, nothing named).</p>"
-           f"<table class='confusion'><tr><th>true \\ found</th>{head}</tr>{''.join(rows)}</table>")
-    if outcomes:
-        out += _table(["case", "true", "found", "status", "correct", "parameter errors", "gap reduction", "problems", "time s"],
-                      [[o["case"], o["true"], o["found"], o["status"], o["correct"],
-                        ", ".join(f"{k}: {v:.1%}" for k, v in (o.get("parameter_errors") or {}).items()),
-                        ", ".join(f"{k}: {v:.0%}" for k, v in (o.get("gap_reduction") or {}).items()),
-                        "; ".join(o.get("problems") or []), o.get("elapsed_s")] for o in outcomes])
-    return out
+    parts = _environment().get_template("discrepancy_parts.html.j2").module
+    return str(parts.confusion(_confusion(table, outcomes)))
 
 
 def _label_match(true: str, found: str) -> bool:
@@ -257,66 +257,28 @@ def _label_match(true: str, found: str) -> bool:
     return found == expected_column(true)
 
 
-_CSS = """
-body{font-family:sans-serif;max-width:1250px;margin:auto;padding:1em;color:#222}
-table{border-collapse:collapse;margin:0.5em 0 1em 0;font-size:0.85em}
-td,th{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
-th{background:#eee} .ok{background:#cfc} .bad{background:#fcc} .status{font-size:1.3em;font-weight:bold}
-img{max-width:100%} code{background:#f4f4f4}
-"""
+def _rules(s: Settings) -> dict[str, str]:
+    """The decision rules' numbers, as the report states them."""
+    return {"gap_noise_ratio": f"{s.gap_noise_ratio:g}", "whiteness_decimate": f"{s.whiteness_decimate}",
+            "ljung_box_lags": f"{s.ljung_box_lags}", "whiteness_alpha": f"{s.whiteness_alpha:g}",
+            "min_heldout_drop": f"{s.min_heldout_drop:.0%}", "max_delta_bic": f"{s.max_delta_bic:g}",
+            "min_z": f"{s.min_z:g}", "consistency_alpha": f"{s.consistency_alpha:g}",
+            "consistency_rel_tol": f"{s.consistency_rel_tol:.0%}",
+            "max_effects_per_channel": f"{s.max_effects_per_channel}"}
 
 
-def _rules_html(settings: Settings) -> str:
-    s = settings
-    return f"""<ol>
-<li><b>Gap</b>: a channel has a gap when its residual RMS exceeds {s.gap_noise_ratio:g}x the noise RMS (noise from
-the median absolute second difference of the residual) AND the residual, decimated {s.whiteness_decimate}x, is not
-white (Ljung-Box, {s.ljung_box_lags} lags, p &lt; {s.whiteness_alpha:g}).</li>
-<li><b>Order</b>: stroke_deg (structural_damping, collision, wing_damage), pitch_deg (hinge_stiffening),
-stroke_sensor_v (sensor_delay, charge_amp_highpass, feedthrough, transmission_nonlinearity, strain_transfer_loss),
-pitch_sensor_v (sensor_delay, charge_amp_highpass, strain_transfer_loss). Physics is judged on the ground-truth
-channels, which sensor effects cannot touch; sensors with the physics corrected (against the measured angle when the
-truth above keeps a gap). A sensor effect of the other sensor is first tried on both sensors with no new parameter,
-then with this sensor's own value. On a sensor with a gap, the runs' initial states are fitted again on the
-truth and the sensors modelled so far (a video-rate truth leaves them loose).</li>
-<li><b>Accept</b> an effect only if ALL hold: R1 the held-out model error of the channel (NRMSE above
-noise) drops by more than {s.min_heldout_drop:.0%}; R2 held-out Delta-BIC &lt; {s.max_delta_bic:g}; R3 the parameter is more than {s.min_z:g}
-standard errors from its null value and not stuck at a bound of its search range; R4 the per-run estimates (runs differ in drive level and time) agree: chi-square
-p &ge; {s.consistency_alpha:g} with a {s.consistency_rel_tol:.0%} model-imperfection allowance, and at least two runs
-identify the effect; R6 stroke physics judged on pitch_deg leaves stroke_deg without a gap. Held-out: each run is
-predicted with the pooled estimate of the other runs. R5 (form, not acceptance): a sensor effect found on both
-sensors becomes one value on both chains when the two estimates agree within 3 combined standard errors plus
-{s.consistency_rel_tol:.0%}, else each chain keeps its own.</li>
-<li><b>Choose</b> the passing candidate with the lowest held-out BIC; repeat on the channel (at most
-{s.max_effects_per_channel}); if a gap is left, pairs of effects are fitted jointly and replace the greedy choice
-when they pass all rules and predict held-out runs better.</li>
-<li><b>Status</b>: no_discrepancy if no channel has a gap with the input model; explained if effects were added and
-no gap is left; unexplained otherwise (where: channel, band, drive level, time stretch).</li>
-</ol>"""
-
-
-def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any], figs: Mapping[str, str],
-          settings: Settings, validation: Optional[Mapping[str, Any]]) -> str:
-    parts = [f"<html><head><meta charset='utf-8'><title>FLAAIR discrepancy report</title><style>{_CSS}</style></head><body>",
-             "<h1>Model vs measurement</h1>",
-             f"<p class='status'>Status: {html.escape(result.status)}</p><p>{html.escape(result.summary)}</p>",
-             f"<p>Runs: {', '.join(html.escape(f'{r.name} ({r.n / r.fs_hz:.2f} s at {r.fs_hz:g} Hz, drive {r.drive_level_v:.0f} V)') for r in runs)}."
-             f" Output model: <code>{html.escape(str(doc.get('model_out')))}</code></p>"]
-    parts.append("<h2>Gap per channel (NRMSE on held-out runs)</h2>")
-    parts.append(_table(["channel", "input model", "output model", "output model, in-sample", "noise floor", "noise RMS"],
-                        [[c, result.gap_before[c], result.gap_after[c], result.gap_in_sample_after[c],
-                          result.diagnosis_before.channels[c].noise_nrmse, result.noise[c]] for c in CHANNELS]))
-    parts.append(f"<img src='{figs['gap']}'>")
+def _context(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any], figs: Mapping[str, str],
+             settings: Settings, validation: Optional[Mapping[str, Any]]) -> dict:
+    """Everything report.html shows, as plain values for the template."""
+    plant = None
     if result.plant_parameters:
-        parts.append("<h2>This robot's plant (fitted first)</h2>")
-        parts.append(_table(["parameter", "fitted", "model", "change", "standard error (identification)"],
-                            [[k, p["value"], p["nominal"], f"{p['value'] / p['nominal'] - 1.0:+.2%}", p["stderr"]]
-                             for k, p in result.plant_parameters.items()]))
         notes = list(result.plant_fit.inseparable) if result.plant_fit is not None else []
         notes += [f"{d['effect']} is not searched for: {d['reason']}" for d in result.not_separable]
-        if notes:
-            parts.append("<ul>" + "".join(f"<li>{html.escape(n)}</li>" for n in notes) + "</ul>")
-    parts.append("<h2>Found effects</h2>")
+        plant = {"table": _table(["parameter", "fitted", "model", "change", "standard error (identification)"],
+                                 [[k, p["value"], p["nominal"], f"{p['value'] / p['nominal'] - 1.0:+.2%}", p["stderr"]]
+                                  for k, p in result.plant_parameters.items()]),
+                 "notes": notes}
+    effects = None
     if result.effects:
         rows = []
         for e in result.effects:
@@ -327,17 +289,14 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
                          ev.get("delta_bic_heldout"), ", ".join(_f(z) for z in ev.get("z_from_null") or []),
                          ", ".join(_f(p) for p in ev.get("consistency_p") or []),
                          ", ".join(k for k, v in rules.items() if v), ", ".join(e.explains)])
-        parts.append(_table(["effect", "found on", "parameters", "candidate", "held-out gap drop", "held-out dBIC",
-                             "z from null", "consistency p", "rules passed", "can change"], rows))
-    else:
-        parts.append("<p>None.</p>")
-    if result.remaining:
-        parts.append("<h2>Where a gap remains</h2>")
-        parts.append(_table(["channel", "worst band Hz", "full/low drive error ratio", "worst stretch", "model-error NRMSE", "reading"],
-                            [[r["channel"], r["band_hz"], r["drive_level_ratio"],
-                              f"{r['stretch'][0]} {r['stretch'][1]:.3f}-{r['stretch'][2]:.3f} s", r["model_error_nrmse"],
-                              r["note"]] for r in result.remaining]))
-    parts.append("<h2>Where the input model disagrees</h2>")
+        effects = _table(["effect", "found on", "parameters", "candidate", "held-out gap drop", "held-out dBIC",
+                          "z from null", "consistency p", "rules passed", "can change"], rows)
+    remaining = _table(["channel", "worst band Hz", "full/low drive error ratio", "worst stretch", "model-error NRMSE",
+                        "reading"],
+                       [[r["channel"], r["band_hz"], r["drive_level_ratio"],
+                         f"{r['stretch'][0]} {r['stretch'][1]:.3f}-{r['stretch'][2]:.3f} s", r["model_error_nrmse"],
+                         r["note"]] for r in result.remaining]) if result.remaining else None
+    diagnosis = []
     for label, d in (("input model", result.diagnosis_before), ("output model", result.diagnosis_after)):
         rows = []
         for c in CHANNELS:
@@ -345,36 +304,30 @@ def _html(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any]
             rows.append([c, g.has_gap, g.noise_ratio, g.ljung_box_p, g.xcorr_drive, g.worst_band_hz, g.level_ratio,
                          ", ".join(f"h{k}: {v:.0%}" for k, v in g.harmonic_fraction.items()),
                          f"{g.worst_stretch[0]} {g.worst_stretch[1]:.3f}-{g.worst_stretch[2]:.3f} s", g.interpretation])
-        parts.append(f"<h3>{label}</h3>")
-        parts.append(_table(["channel", "gap", "residual/noise", "Ljung-Box p", "xcorr with drive", "worst band Hz",
-                             "full/low drive ratio", "harmonics of residual", "worst stretch", "reading"], rows))
-    parts.append(f"<img src='{figs['bands']}'><img src='{figs['overlay']}'><img src='{figs['bode']}'>")
-    parts.append("<h2>Search log</h2>")
+        diagnosis.append((label, _table(["channel", "gap", "residual/noise", "Ljung-Box p", "xcorr with drive",
+                                         "worst band Hz", "full/low drive ratio", "harmonics of residual",
+                                         "worst stretch", "reading"], rows)))
+    searches = []
     for s in result.searches:
-        parts.append(f"<h3>{html.escape(s.channel)}{' (truth-referenced)' if s.truth_referenced else ''}</h3>")
-        if s.skipped:
-            parts.append(f"<p>Not searched: {html.escape(s.skipped)}.</p>")
-            continue
-        rows = []
-        for i, step in enumerate(s.steps):
-            for ev in step:
-                rows.append([i, "+".join(ev.labels), ", ".join(_f(v) for v in ev.values), ev.heldout_gap_drop,
-                             ev.delta_bic_heldout, ", ".join(_f(z) for z in ev.z),
-                             ", ".join(_f(p) for p in ev.consistency_p),
-                             "; ".join(" / ".join(f"{n}: {_f(v)}" for n, v, _ in pr) for pr in ev.per_run),
-                             ", ".join(k for k, v in ev.rules.items() if not v) or "-",
-                             f"<b>{'accepted' if ev.accepted else 'refused'}</b>"])
-        parts.append(_table(["step", "candidate", "value", "held-out gap drop", "held-out dBIC", "z", "consistency p",
-                             "per-run estimates", "failed rules", "verdict"], rows))
-    parts.append("<h2>Decision rules</h2>" + _rules_html(settings))
-    parts.append("<h2>Validation on the project's hidden-effect datasets</h2>")
-    if validation:
-        parts.append(confusion_html(validation["confusion"], validation.get("cases", ())))
-    else:
-        parts.append("<p>Not embedded; run <code>bin/flaair discrepancy --validate --out DIR</code> "
-                     "(or pass <code>--validation DIR/validation.json</code>).</p>")
-    parts.append("</body></html>")
-    return "\n".join(parts)
+        rows = [[i, "+".join(ev.labels), ", ".join(_f(v) for v in ev.values), ev.heldout_gap_drop,
+                 ev.delta_bic_heldout, ", ".join(_f(z) for z in ev.z), ", ".join(_f(p) for p in ev.consistency_p),
+                 "; ".join(" / ".join(f"{n}: {_f(v)}" for n, v, _ in pr) for pr in ev.per_run),
+                 ", ".join(k for k, v in ev.rules.items() if not v) or "-", "accepted" if ev.accepted else "refused"]
+                for i, step in enumerate(s.steps) for ev in step]
+        searches.append({"title": s.channel + (" (truth-referenced)" if s.truth_referenced else ""),
+                         "skipped": s.skipped,
+                         "table": _table(["step", "candidate", "value", "held-out gap drop", "held-out dBIC", "z",
+                                          "consistency p", "per-run estimates", "failed rules", "verdict"], rows)})
+    return {
+        "status": result.status, "summary": result.summary, "model_out": str(doc.get("model_out")),
+        "runs": [f"{r.name} ({r.n / r.fs_hz:.2f} s at {r.fs_hz:g} Hz, drive {r.drive_level_v:.0f} V)" for r in runs],
+        "gap": _table(["channel", "input model", "output model", "output model, in-sample", "noise floor", "noise RMS"],
+                      [[c, result.gap_before[c], result.gap_after[c], result.gap_in_sample_after[c],
+                        result.diagnosis_before.channels[c].noise_nrmse, result.noise[c]] for c in CHANNELS]),
+        "figs": figs, "plant": plant, "effects": effects, "remaining": remaining, "diagnosis": diagnosis,
+        "searches": searches, "r": _rules(settings),
+        "validation": _confusion(validation["confusion"], validation.get("cases", ())) if validation else None,
+    }
 
 
 def write_report(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult, model_out: str,
@@ -385,7 +338,9 @@ def write_report(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult, 
     doc = result_to_dict(result, model_out, settings)
     write_json(out_dir / "discrepancy.json", doc)
     figs = write_figures(out_dir, runs, result)
-    (out_dir / "report.html").write_text(_html(runs, result, doc, figs, settings, validation), encoding="utf-8")
+    page = _environment().get_template("discrepancy_report.html.j2").render(
+        _context(runs, result, doc, figs, settings, validation))
+    (out_dir / "report.html").write_text(page, encoding="utf-8")
     return doc
 
 
@@ -396,8 +351,7 @@ def write_validation(out_dir: Path, outcomes: Sequence[Mapping[str, Any]], confu
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = {"confusion": confusion, "cases": list(outcomes), "total_s": total_s}
     write_json(out_dir / "validation.json", doc)
-    page = (f"<html><head><meta charset='utf-8'><title>FLAAIR discrepancy validation</title><style>{_CSS}</style>"
-            f"</head><body><h1>Discrepancy workflow on the hidden-effect datasets</h1>"
-            f"<p>{len(outcomes)} cases in {total_s:.0f} s.</p>{confusion_html(confusion, outcomes)}</body></html>")
+    page = _environment().get_template("discrepancy_validation.html.j2").render(
+        n_cases=len(outcomes), total_s=f"{total_s:.0f}", confusion=_confusion(confusion, outcomes))
     (out_dir / "validation.html").write_text(page, encoding="utf-8")
     return _clean(doc)
