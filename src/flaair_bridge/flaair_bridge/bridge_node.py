@@ -44,7 +44,10 @@ class BridgeNode(Node):
             self.params = bridge.BridgeParams(**{name: p[name] for name in bridge.BridgeParams.__dataclass_fields__})
         except bridge.BridgeParameterError as exc:
             raise ParameterError(str(exc)) from exc
-        self.target: tuple[str, int] | None = None   # where drive packets go (known once the target speaks)
+        # where drive and stop packets go: the configured target, else learnt when the target speaks
+        # (a configured target that never speaks still gets the stop packet at the end)
+        self.target: tuple[str, int] | None = (p["target_host"], p["target_port"]) if (
+            p["target_host"] and p["target_port"]) else None
         self.state, self.lock = bridge.initial_state(), threading.RLock()   # re-entered when composed: the loop answers in-process
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")

@@ -20,6 +20,13 @@ the recorder stop and the bag is closed; exit 0. The graph runs in a private ROS
 localhost discovery (--subnet: discover the whole subnet), said at the start; two `live` or
 `experiment` runs on one machine never see each other.
 
+Against a target, live says where it waits for the first sensor packet as soon as the bridge
+listens, and gives up after --first-packet-timeout (a mistyped port looks like a hang otherwise).
+
+Exit status: 0 the run ended (duration, Ctrl-C, SIGTERM); 2 bad arguments, or the graph could not
+run (a port in use, a node that failed); 3 no sensor packet from the target in time (the stop
+packet sent, the bag closed).
+
 The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the emulated target:
   bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000 --listen 127.0.0.1:25001 &
   bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 --out out/bags/bench
@@ -62,12 +69,32 @@ class LiveError(RuntimeError):
     """The live graph could not run; the message says why."""
 
 
+class SilentTarget(LiveError):
+    """No sensor packet from the target within first_packet_timeout_s of the bridge listening."""
+
+
+EXIT_USAGE, EXIT_SILENT_TARGET = 2, 3
+
+
 def host_port(text: str, what: str) -> tuple[str, int]:
     """'HOST:PORT' -> (host, port), with an error that names the option."""
     host, sep, port = text.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise LiveError(f"{what} {text!r}: expected HOST:PORT, e.g. 127.0.0.1:25000")
     return host, int(port)
+
+
+def port_free(address: tuple[str, int], what: str) -> None:
+    """Refuse, by name, a TCP address that another program already listens on."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        # as a server binds: a port only in TIME_WAIT is free, one with a listener is not
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(address)
+        except OSError as exc:
+            raise LiveError(f"{what} {address[0]}:{address[1]}: port in use ({exc.strerror})") from None
 
 
 def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
@@ -158,6 +185,23 @@ class Watcher:
             if time.monotonic() > deadline:
                 raise LiveError(f"timed out after {timeout_s:g} s waiting for {what} (see the logs)")
 
+    def wait_for_the_target(self) -> None:
+        """Once the bridge listens: say where packets are awaited, and give up (SilentTarget) if the
+        target's first sensor packet has not come within --first-packet-timeout."""
+        self.spin_until(lambda: self.node.count_publishers(topics.SENSOR_VOLTAGE) > 0, 120.0, "the bridge to start")
+        (target_host, target_port), (listen_host, listen_port) = self.args.target, self.args.listen
+        timeout_s = self.args.first_packet_timeout
+        print(f"flaair live: waiting for the target's first sensor packet on {listen_host}:{listen_port} (drive goes "
+              f"to {target_host}:{target_port}); giving up after {timeout_s:g} s", file=sys.stderr, flush=True)
+        deadline = time.monotonic() + timeout_s
+        while self.end["index"] < 0:
+            self.rclpy.spin_once(self.node, timeout_sec=0.05)
+            self.graph.check_alive()
+            if time.monotonic() > deadline:
+                raise SilentTarget(f"no sensor packet from the target on {listen_host}:{listen_port} in {timeout_s:g} s "
+                                   f"(drive was addressed to {target_host}:{target_port}): is the target running, "
+                                   "and sending to this address and port?")
+
     def recorder_listens(self) -> bool:
         return self.args.out is None or all(
             any(i.node_name == "recorder_node" for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
@@ -165,6 +209,8 @@ class Watcher:
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
         block), then for --duration seconds of signal time."""
+        if not self.args.sim:
+            self.wait_for_the_target()
         self.spin_until(lambda: self.end["index"] >= 0 and (self.driven or self.args.controller == "none"), 120.0,
                         "the loop to start")
         start = self.end["index"]
@@ -239,20 +285,22 @@ def run_live(args: argparse.Namespace) -> int:
                                              "--realtime-priority", str(priority),
                                              *(HOT_NODES[role][2] for role in hot), *ros_args]))
         watcher.run_for_duration()
-        status = "duration reached"
+        status, silent = "duration reached", None
     except KeyboardInterrupt:
-        status = "interrupted"
-    except (Terminated, RuntimeError) as exc:   # rclpy may hand SIGTERM's exception on as a RuntimeError
-        if not is_termination(exc):
-            raise
-        status = "terminated"
-    except (GraphError, LiveError) as exc:
+        status, silent = "interrupted", None
+    except SilentTarget as exc:   # ended the same way as a run: stop packet, bag closed; then the error
+        status, silent = "no target", exc
+    except (GraphError, LiveError) as exc:   # before RuntimeError: both are RuntimeErrors
         for process in reversed(loop):
             graph.stop(process, timeout_s=LOOP_CLOSE_S)
         if watcher is not None:
             watcher.close()
         graph.close()
         raise LiveError(str(exc)) from exc
+    except (Terminated, RuntimeError) as exc:   # rclpy may hand SIGTERM's exception on as a RuntimeError
+        if not is_termination(exc):
+            raise
+        status, silent = "terminated", None
     # The loop first (zero drive, stop packet), then the listeners; the recorder last.
     for process in reversed(loop):
         graph.stop(process, timeout_s=LOOP_CLOSE_S)
@@ -262,8 +310,11 @@ def run_live(args: argparse.Namespace) -> int:
     if watcher is not None:
         watcher.close()
     graph.close()
-    print(f"flaair live: {status}; zero drive sent, every node stopped"
+    print(f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node stopped"
           + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
+    if silent is not None:
+        print(f"flaair live: error: {silent}", file=sys.stderr)
+        return EXIT_SILENT_TARGET
     return 0
 
 
@@ -280,6 +331,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here")
     parser.add_argument("--calibration", type=Path, help="front end gains from this calibration.yaml")
     parser.add_argument("--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)")
+    parser.add_argument("--first-packet-timeout", type=float, metavar="S",
+                        help="--target: give up (exit 3) if the target's first sensor packet has not come this long "
+                             "after the bridge listens (default: config/flaair.yaml live.first_packet_timeout_s)")
     parser.add_argument("--processes", action="store_true", help="one process per node instead of the composed loop")
     parser.add_argument("--subnet", action="store_true", help="discover the whole subnet, not only this machine")
     parser.add_argument("--settle-s", type=float, default=1.0, help=argparse.SUPPRESS)
@@ -294,6 +348,11 @@ def main(argv: list[str] | None = None) -> int:
             args.target, args.listen = host_port(args.target, "--target"), host_port(args.listen, "--listen")
         if args.foxglove is not None:
             args.foxglove = host_port(args.foxglove, "--foxglove")
+            port_free(args.foxglove, "--foxglove")
+        if args.first_packet_timeout is None:
+            args.first_packet_timeout = float(node_parameters("flaair.yaml", "live")["first_packet_timeout_s"])
+        if not (args.first_packet_timeout > 0):
+            raise LiveError(f"first packet timeout {args.first_packet_timeout}: must be > 0 s")
         if not (args.duration > 0):
             raise LiveError(f"--duration {args.duration}: must be > 0 s")
         if args.out is not None and args.out.exists():
@@ -303,7 +362,7 @@ def main(argv: list[str] | None = None) -> int:
         return run_live(args)
     except (LiveError, ConfigError) as exc:
         print(f"flaair live: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
     except (KeyboardInterrupt, Terminated):
         print("flaair live: interrupted before the graph was up", file=sys.stderr)
         return 0
