@@ -102,13 +102,15 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     from flaair_tools.transition_figure import predicted_limit_cycle
 
     counters = tmp_path / "target.json"
+    bridge_port, target_port = _free_udp_ports(2)
     # sensor noise, as on a real robot: the dSA loop starts from it if the sync phase's kick is lost
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", "127.0.0.1:26100",
-                               "--listen", "127.0.0.1:26101", "--duration", "90", "--counters", str(counters), "--noise"],
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{bridge_port}",
+                               "--listen", f"127.0.0.1:{target_port}", "--duration", "90", "--counters", str(counters),
+                               "--noise"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
     try:
         bag = tmp_path / "bench"
-        result = _live("--target", "127.0.0.1:26101", "--listen", "127.0.0.1:26100", "--duration", "4",
+        result = _live("--target", f"127.0.0.1:{target_port}", "--listen", f"127.0.0.1:{bridge_port}", "--duration", "4",
                        "--out", str(bag))
         assert result.returncode == 0, result.stderr[-3000:]
     finally:
@@ -134,25 +136,37 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25), (f, a, f_theory, a_theory)
 
 
-def _start_live_against_target(tmp_path: Path, port: int, duration_s: float):
-    """(emulated target, live process, its ROS domain, bag) with the loop running."""
+def _free_udp_ports(n: int) -> list[int]:
+    """n UDP ports free on localhost now (two runs on one machine must not share fixed ones)."""
+    import socket
+
+    socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
+    for sock in socks:
+        sock.bind(("127.0.0.1", 0))
+    ports = [sock.getsockname()[1] for sock in socks]
+    for sock in socks:
+        sock.close()
+    return ports
+
+
+def _start_live_against_target(tmp_path: Path, duration_s: float):
+    """(emulated target, live process, its ROS domain, bag, target counters) with the loop running.
+    Output goes to files (tmp_path/live.err, target.err), never to a pipe left unread."""
+    from rosproc import wait_for
+
+    bridge_port, target_port = _free_udp_ports(2)
     counters = tmp_path / "target.json"
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
-                               "--listen", f"127.0.0.1:{port + 1}", "--duration", "120", "--counters", str(counters)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
-    bag = tmp_path / "bench"
-    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{port + 1}", "--listen", f"127.0.0.1:{port}",
-                             "--duration", str(duration_s), "--out", str(bag)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
-    domain = None
-    for _ in range(30):
-        line = live.stderr.readline()
-        if match := re.search(r"on ROS domain (\d+)", line):
-            domain = int(match.group(1))
-        if "running from sample" in line:
-            break
-    assert domain is not None, "live did not come up"
-    return target, live, domain, bag, counters
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{bridge_port}",
+                               "--listen", f"127.0.0.1:{target_port}", "--duration", "120", "--counters", str(counters)],
+                              stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"), cwd=REPO_ROOT)
+    bag, log = tmp_path / "bench", tmp_path / "live.err"
+    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
+                             f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out", str(bag)],
+                            stdout=subprocess.DEVNULL, stderr=open(log, "w"), cwd=REPO_ROOT)
+    assert wait_for(lambda: "running from sample" in log.read_text() or live.poll() is not None, 120), log.read_text()
+    match = re.search(r"on ROS domain (\d+)", log.read_text())
+    assert match and live.poll() is None, f"live did not come up: {log.read_text()[-2000:]}"
+    return target, live, int(match.group(1)), bag, counters
 
 
 def _loop_pid(domain: int) -> int:
@@ -173,15 +187,13 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
     from flaair_msgs.msg import ControllerState
     from flaair_tools import bagio
 
-    target, live, _, bag, _ = _start_live_against_target(tmp_path, 26200, 12.0)
+    target, live, _, bag, _ = _start_live_against_target(tmp_path, 12.0)
     try:
-        time.sleep(2.0)
-        target.send_signal(signal.SIGSTOP)          # the target goes silent
-        time.sleep(3.0)
+        target.send_signal(signal.SIGSTOP)          # the target goes silent ...
+        time.sleep(3.0)                             # ... for 3 s (the fault itself, not a wait for something)
         target.send_signal(signal.SIGCONT)
         live.send_signal(signal.SIGINT)
-        _, stderr = live.communicate(timeout=120)
-        assert live.returncode == 0, stderr[-3000:]
+        assert live.wait(timeout=120) == 0, (tmp_path / "live.err").read_text()[-3000:]
     finally:
         target.send_signal(signal.SIGCONT)
         target.send_signal(signal.SIGINT)
@@ -197,13 +209,15 @@ def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
     import json
     import os
 
-    target, live, domain, _, counters = _start_live_against_target(tmp_path, 26300, 30.0)
+    from rosproc import wait_for
+
+    target, live, domain, _, counters = _start_live_against_target(tmp_path, 30.0)
     try:
-        time.sleep(2.0)
         os.kill(_loop_pid(domain), signal.SIGKILL)              # bridge, front end and controller die at once
-        time.sleep(1.0)
+        target_log = tmp_path / "target.err"
+        assert wait_for(lambda: "drive watchdog tripped" in target_log.read_text(), 60), target_log.read_text()[-2000:]
         live.send_signal(signal.SIGINT)
-        live.communicate(timeout=120)
+        live.wait(timeout=120)
     finally:
         target.send_signal(signal.SIGINT)
         target.wait(timeout=60)

@@ -62,7 +62,6 @@ SIDE_NODES = {
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
 LOOP_CLOSE_S = 180.0   # a process of the graph gets this long to close (the recorder: write its backlog, close the bag)
-SIDE_SETTLE_S = 0.5    # the loop's last DDS messages (its zero drive) reach the recorder before it stops
 
 
 class LiveError(RuntimeError):
@@ -305,7 +304,7 @@ def run_live(args: argparse.Namespace) -> int:
     for process in reversed(loop):
         graph.stop(process, timeout_s=LOOP_CLOSE_S)
     if recorder_process is not None:
-        time.sleep(SIDE_SETTLE_S)
+        # (the loop's process exited only once the recorder had acknowledged its last messages)
         graph.stop(recorder_process, timeout_s=LOOP_CLOSE_S)
     if watcher is not None:
         watcher.close()
