@@ -54,8 +54,10 @@ for i in range(cfg["blocks"]):
     delay = next_t - time.monotonic()
     if delay > 0:
         time.sleep(delay)
+from rclpy.duration import Duration
+for publisher in (blocks, events, other):   # every reader has them before this participant goes
+    publisher.wait_for_all_acked(Duration(seconds=30))
 print("published", flush=True)
-time.sleep(1.0)
 """
 
 
@@ -79,7 +81,6 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
         # publish only after both recorders are up: topics must be found by periodic discovery
         # (with use_sim_time and no /clock, a ROS-time discovery timer would never fire)
         assert wait_for(lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)), 60.0)
-        time.sleep(0.5)
         publisher = _publisher(procs, blocks=600, events=40, rate=2000.0, block_subscribers=2)
         assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0

@@ -53,8 +53,10 @@ for i in range(blocks):
     sensor.publish(sensor_codec.encode(stamp_ns, {"sample_rate_hz": fs, "first_sample_index": int(n[0]),
         "stroke_sensor_v": 1.0 + n, "pitch_sensor_v": -1.0 - n}))
     time.sleep(0.001)
+from rclpy.duration import Duration
+for p in (wing, sensor, status, controller):   # every reader has them before this participant goes
+    p.wait_for_all_acked(Duration(seconds=30))
 print("published", flush=True)
-time.sleep(1.0)
 """
 
 

@@ -59,8 +59,10 @@ for i in range(int(run_s * fs / block)):
         status.publish(message)
     if i % 200 == 0:
         time.sleep(0.02)  # a few pauses: the recorder drains its queues meanwhile
+from rclpy.duration import Duration
+for p in (sensor, truth, clock, status, marker):   # every reader has them before this participant goes
+    p.wait_for_all_acked(Duration(seconds=30))
 print("published", flush=True)
-time.sleep(2.0)
 """
 
 
