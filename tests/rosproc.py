@@ -96,3 +96,9 @@ def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subpro
     if args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS:
         GRAPHS_STARTED.append(f"flaair {args[1]}")
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+
+
+def target_watchdog_tripped(log: Path) -> bool:
+    """The emulated target's drive watchdog is tripped now: the last state line of its log says so."""
+    states = [line for line in log.read_text().splitlines() if "emulated_target: drive watchdog " in line]
+    return bool(states) and " tripped at sample " in states[-1]

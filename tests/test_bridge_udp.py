@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rosproc import ros_processes, wait_for
+from rosproc import ros_processes, target_watchdog_tripped, wait_for
 
 pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 
@@ -144,7 +144,7 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
         assert wait_for(lambda: sum(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)) >= 200, 120)
         procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
         target_log = tmp_path / "target.log"
-        assert wait_for(lambda: "drive watchdog tripped" in target_log.read_text(), 60), target_log.read_text()
+        assert wait_for(lambda: target_watchdog_tripped(target_log), 60), target_log.read_text()
         # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
         before_stop = json.loads((tmp_path / "target.json").read_text())

@@ -279,10 +279,11 @@ def main(argv: list[str] | None = None) -> int:
                 stats["send_errors"] += 1
         if total is not None and j == total:
             break
-        trips = core.counts["watchdog_trips"]
+        was_tripped = core.tripped
         drive, flags = core.decide(n)
-        if core.counts["watchdog_trips"] > trips:
-            print(f"emulated_target: drive watchdog tripped at sample {core.next_index}: holding zero drive",
+        if core.tripped != was_tripped:   # said at each change: a script can wait on the state, not guess a time
+            print(f"emulated_target: drive watchdog {'tripped' if core.tripped else 'cleared'} at sample "
+                  f"{core.next_index}: {'holding zero drive' if core.tripped else 'fresh drive again'}",
                   file=sys.stderr, flush=True)
         state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
