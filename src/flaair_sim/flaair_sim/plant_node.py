@@ -69,6 +69,7 @@ class PlantNode(Node):
             + (f", obstacle at {self.p['obstacle_stroke_limit_deg']:g} deg over {self.windows_s} s" if self.windows_s else ""))
 
     def subscribe_when_listened(self) -> None:
+        """Subscribe to the drive once sensor_v and truth each have min_output_subscribers listeners."""
         wanted = self.p["min_output_subscribers"]
         if self.sensor.subscription_count() < wanted or self.truth.subscription_count() < wanted:
             return
