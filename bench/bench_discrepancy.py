@@ -47,7 +47,7 @@ from flaair_sim.plant import simulate
 from flaair_tools.discrepancy import Settings, analyse
 from flaair_tools.discrepancy.datasets import (FAMILIES, confusion_table, dataset_cases, make_runs, random_robot,
                                                score_case, true_plant)
-from flaair_tools.discrepancy.report import _clean, write_validation
+from flaair_tools.discrepancy.report import json_safe, write_validation
 
 TIME_TARGET_S = 60.0
 ACCURACY_TARGET = 0.90
@@ -145,7 +145,7 @@ def main() -> None:
     times = [o["elapsed_s"] for o in outcomes]
     out_dir = REPO_ROOT / "out" / "bench"
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "discrepancy_offnominal.json").write_text(json.dumps(_clean(outcomes), indent=2, allow_nan=False))
+    (out_dir / "discrepancy_offnominal.json").write_text(json.dumps(json_safe(outcomes), indent=2, allow_nan=False))
 
     figures: list[Figure] = []
     for family in args.families:

@@ -401,7 +401,7 @@ def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_pa
 # ------------------------------------------------------------------------------------- CLI
 
 
-def _write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
+def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
     paths = []
     for r in make_runs(case, model):
         path = directory / f"{r.name}.csv"
@@ -416,7 +416,7 @@ def paper_robot_csvs(tmp_path_factory, model) -> list[Path]:
     """The paper's robot: pitch sensor 4.3x below the model, plus a 100 us acquisition delay."""
     case = DatasetCase("paper_robot", "pair", (("sensor_delay", {"delay_s": 1e-4, "channel": "both"}),
                                                ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"})), seed=3)
-    return _write_case_csvs(case, model, tmp_path_factory.mktemp("csv"))
+    return write_case_csvs(case, model, tmp_path_factory.mktemp("csv"))
 
 
 def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, model) -> None:
@@ -490,8 +490,8 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
     (3.0, "3.00x larger at full drive"), (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
 ])
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
-    from flaair_tools.discrepancy.diagnosis import _interpret
+    from flaair_tools.discrepancy.diagnosis import interpret
     from flaair_tools.discrepancy.settings import Settings
 
-    text = _interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
+    text = interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
     assert words in text

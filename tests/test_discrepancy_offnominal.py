@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from test_discrepancy import _write_case_csvs  # the case's runs as measured-run CSV files
+from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy import Settings, analyse
@@ -93,7 +93,7 @@ def test_outside_the_vocabulary_stays_unexplained_on_a_fitted_plant(model) -> No
 
 def test_cli_writes_plant_parameters_and_the_fitted_model(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
-    paths = [str(p) for p in _write_case_csvs(case, model, tmp_path)]
+    paths = [str(p) for p in write_case_csvs(case, model, tmp_path)]
     out = tmp_path / "out"
     assert discrepancy.main(paths + ["--out", str(out)]) == 0
     doc = json.loads((out / "discrepancy.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict {c}"))

@@ -155,7 +155,7 @@ def test_imported_messages_carry_the_signal_time_as_log_time(megabyte_bag: Path)
         assert log_time_ns == message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
 
 
-def test_calibrate_on_video_rate_truth_gives_finite_rmse_and_strict_json(tmp_path: Path) -> None:
+def test_calibrate_on_video_rate_truth_gives_finite_rmse_and_json_safe(tmp_path: Path) -> None:
     """1 kHz video at a 20 kHz DAQ: ground truth on every 20th sample (the format allows it)."""
     _lab_csv(tmp_path / "video.csv", 20000, 3, video_stride=20)
     assert run([FLAAIR, "import", str(tmp_path / "video.csv"), "--out", str(tmp_path / "bag")], isolated_env(), 120).returncode == 0
@@ -170,9 +170,9 @@ def test_calibrate_on_video_rate_truth_gives_finite_rmse_and_strict_json(tmp_pat
 
 
 def test_strict_json_turns_nan_into_null() -> None:
-    from flaair_tools.calibrate import strict_json
+    from flaair_common.strictjson import json_safe
 
-    text = json.dumps(strict_json({"a": float("nan"), "b": [np.float64("inf"), 1.5], "c": np.int64(2)}), allow_nan=False)
+    text = json.dumps(json_safe({"a": float("nan"), "b": [np.float64("inf"), 1.5], "c": np.int64(2)}), allow_nan=False)
     assert json.loads(text) == {"a": None, "b": [None, 1.5], "c": 2}
 
 

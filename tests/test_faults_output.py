@@ -11,14 +11,14 @@ from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy.datasets import DatasetCase
 from flaair_tools.discrepancy.report import write_validation
-from test_discrepancy import _write_case_csvs
+from test_discrepancy import write_case_csvs
 
 EVIL = "<b onclick=x>run1"
 
 
 def test_a_run_named_like_markup_reaches_the_discrepancy_report_as_text(tmp_path: Path) -> None:
     case = DatasetCase("named", "null", (), seed=5)
-    csvs = _write_case_csvs(case, load_model(), tmp_path / "csv")
+    csvs = write_case_csvs(case, load_model(), tmp_path / "csv")
     renamed = []
     for k, path in enumerate(csvs):
         target = path.with_name(f"{EVIL}{k} & 'q\".csv")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import write_run
-from test_discrepancy import _write_case_csvs  # the case's runs as measured-run CSV files
+from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 from flaair_model.model_io import load_model
 from flaair_sim.plant import simulate, simulate_batch_from
 from flaair_tools.discrepancy import analyse, check_runs, initial_mechanical_state, noise_estimates, simulate_runs
@@ -120,7 +120,7 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
 def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
     (tmp_path / "runs").mkdir()
-    paths = _write_case_csvs(case, model, tmp_path / "runs")
+    paths = write_case_csvs(case, model, tmp_path / "runs")
     out = tmp_path / "out"
     proc = subprocess.run([FLAAIR, "identify", *map(str, paths), "--out", str(out)], capture_output=True, text=True,
                           timeout=600)

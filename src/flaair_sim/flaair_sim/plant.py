@@ -51,6 +51,14 @@ __all__ = [
     "n_substeps",
     "simulate_batch_from",
     "sensor_chain",
+    # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
+    "Prepared",
+    "prepare",
+    "mechanical_constants",
+    "rk4_step",
+    "GA_INDEX",
+    "CONTACT_ON_INDEX",
+    "N_KERNEL_PARAMS",
 ]
 
 # Largest (fastest linear rate) x (RK4 substep) allowed: a numerical-method setting, not a
@@ -61,15 +69,16 @@ _MAX_OMEGA_H_CONTACT = 0.05
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
 
-# Layout of the per-model parameter vector handed to the numba kernels.
+# Layout of the per-model parameter vector handed to the numba kernels (the upper-case names
+# are read by batch engines; the underscored ones only here).
 (
-    _I, _GAMMA, _K, _GA, _IP, _CP, _KH, _JC, _DP, _CSTRUCT, _HCUBIC,
-    _CONTACT_ON, _PHI_LIM, _KC, _CC,
+    _I, _GAMMA, _K, GA_INDEX, _IP, _CP, _KH, _JC, _DP, _CSTRUCT, _HCUBIC,
+    CONTACT_ON_INDEX, _PHI_LIM, _KC, _CC,
     _GS, _GP, _TCUBIC, _FT, _VREF,
     _HPS_ON, _HPS_B0, _HPS_B1, _HPS_A1,
     _HPP_ON, _HPP_B0, _HPP_B1, _HPP_A1,
     _DS_FRAC, _DP_FRAC,
-    _NPARAM,
+    N_KERNEL_PARAMS,
 ) = range(31)
 
 
@@ -104,7 +113,7 @@ class PlantState:
     sample_index: int = 0
 
 
-class _Prepared(NamedTuple):
+class Prepared(NamedTuple):
     params: np.ndarray
     n_substeps: int
     n_substeps_contact: int
@@ -126,10 +135,10 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
 
 
 @lru_cache(maxsize=4096)  # a 1000-model batch fits
-def _prepare(model: Model, fs_hz: float) -> _Prepared:
+def prepare(model: Model, fs_hz: float) -> Prepared:
     """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
     pl = model.plant
-    p = np.zeros(_NPARAM)
+    p = np.zeros(N_KERNEL_PARAMS)
     inertia = pl.stroke_inertia_kg_m2
     stiffness = pl.stroke_stiffness_nm_per_rad
     pitch_inertia = pl.pitch_inertia_kg_m2
@@ -140,7 +149,7 @@ def _prepare(model: Model, fs_hz: float) -> _Prepared:
     p[_IP] = pitch_inertia * factor
     p[_GAMMA] = pl.aero_damping_nm_s2
     p[_K] = stiffness
-    p[_GA] = pl.actuator_gain_nm_per_v
+    p[GA_INDEX] = pl.actuator_gain_nm_per_v
     p[_CP] = pl.hinge_damping_nm_s_per_rad
     p[_KH] = hinge_stiffness
     p[_JC] = pl.inertial_coupling_kg_m2
@@ -153,7 +162,7 @@ def _prepare(model: Model, fs_hz: float) -> _Prepared:
         p[_HCUBIC] = hinge.cubic_per_rad2
     collision = model.effect("collision")
     if collision is not None:
-        p[_CONTACT_ON] = 1.0
+        p[CONTACT_ON_INDEX] = 1.0
         p[_PHI_LIM] = math.radians(collision.stroke_limit_deg)
         p[_KC] = collision.contact_stiffness_ratio * stiffness
         p[_CC] = 2.0 * collision.contact_damping_ratio * math.sqrt(p[_KC] * inertia)
@@ -198,26 +207,26 @@ def _prepare(model: Model, fs_hz: float) -> _Prepared:
         rates += [math.sqrt((stiffness + p[_KC]) / p[_I]), p[_CC] / p[_I]]
         substeps_contact = max(1, math.ceil(max(rates) / fs_hz / _MAX_OMEGA_H_CONTACT))
     p.setflags(write=False)
-    return _Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
 
 
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
     """RK4 substeps per sample for `model` at `fs_hz`: (free flight, sample periods touching the stop)."""
-    prep = _prepare(model, _check_fs(fs_hz))
+    prep = prepare(model, _check_fs(fs_hz))
     return prep.n_substeps, prep.n_substeps_contact
 
 
 # --------------------------------------------------------------------------- numba kernels
 # The mechanical constants travel as a tuple `c` (immutable, so the compiler can keep them in
-# registers across the stores to the output arrays); see _mechanical_constants for the order.
+# registers across the stores to the output arrays); see mechanical_constants for the order.
 
 
 @njit(cache=True, fastmath=_FMA)
-def _mechanical_constants(p):
+def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
     inv_i = 1.0 / p[_I]
     inv_ip = 1.0 / p[_IP]
-    return (p[_GA] * inv_i, p[_GAMMA] * inv_i, p[_K] * inv_i, p[_CSTRUCT] * inv_i,
+    return (p[GA_INDEX] * inv_i, p[_GAMMA] * inv_i, p[_K] * inv_i, p[_CSTRUCT] * inv_i,
             p[_KH] * inv_ip, p[_HCUBIC], p[_CP] * inv_ip, p[_JC] * inv_ip, p[_DP] * inv_ip,
             p[_PHI_LIM], p[_KC] * inv_i, p[_CC] * inv_i)
 
@@ -238,7 +247,7 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _rk4(phi, dphi, psi, dpsi, v, c, hs, contact):
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact):
     """One RK4 step of length hs; also reports whether any stage was past the stop."""
     a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact)
     phi2 = phi + 0.5 * hs * dphi
@@ -292,15 +301,15 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
     limit = c[9]
     for _ in range(nsub):
         if phi <= limit:
-            f_phi, f_dphi, f_psi, f_dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, 0)
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
             if f_phi <= limit:
                 phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
                 continue
             theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
-            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, theta * hs, 0)
-            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2)
         else:
-            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, 1)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1)
     return phi, dphi, psi, dpsi
 
 
@@ -314,8 +323,8 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
     `_contact_sample`, so before the first contact the trajectory is bit-identical to the
     model without the collision effect.
     """
-    c = _mechanical_constants(p)
-    contact = 1 if p[_CONTACT_ON] != 0.0 else 0
+    c = mechanical_constants(p)
+    contact = 1 if p[CONTACT_ON_INDEX] != 0.0 else 0
     gs, gp, cubic, feed = p[_GS], p[_GP], p[_TCUBIC], p[_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
     hs = h / nsub
@@ -327,7 +336,7 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
             psi_out[k] = psi
             dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
             dev_p_out[k] = gp * psi
-            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, 0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
         x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
         return
     for k in range(drive.shape[0]):
@@ -339,7 +348,7 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
         phi0, dphi0, psi0, dpsi0 = phi, dphi, psi, dpsi
         touched = False
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, contact)
+            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact)
             touched = touched or hit
         if contact == 1 and (touched or phi > c[9]):
             phi, dphi, psi, dpsi = _contact_sample(phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact)
@@ -445,7 +454,7 @@ def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
 def initial_state(model: Model, fs_hz: float) -> PlantState:
     """At-rest state (phi = phi' = psi = psi' = 0, sensor chain at V_HREF) for `model` at `fs_hz`."""
     fs = _check_fs(fs_hz)
-    len_s, len_p = _prepare(model, fs).delay_lengths
+    len_s, len_p = prepare(model, fs).delay_lengths
     return PlantState(
         mechanical=_frozen(np.zeros(4)),
         highpass_zi=_frozen(np.zeros(2)),
@@ -498,7 +507,7 @@ def step(state: PlantState, inputs: PlantInputs, params: PlantStepParams) -> tup
     if fs != state.fs_hz:
         raise ValueError(f"fs_hz {fs:g} differs from the state's fs_hz {state.fs_hz:g}")
     drive = _check_drive(drive_v_block)
-    prep = _prepare(model, fs)
+    prep = prepare(model, fs)
     len_s, len_p = prep.delay_lengths
     x = state.mechanical.copy()
     zi = state.highpass_zi.copy()
@@ -561,8 +570,8 @@ def simulate(
 def _batch_tables(models: list[Model], fs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-model parameter, substep, delay and history-length tables of a batch."""
     m = len(models)
-    preps = [_prepare(model, fs) for model in models]
-    params = np.array([prep.params for prep in preps]).reshape(m, _NPARAM)
+    preps = [prepare(model, fs) for model in models]
+    params = np.array([prep.params for prep in preps]).reshape(m, N_KERNEL_PARAMS)
     nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
     delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
                       dtype=np.int64).reshape(m, 2)
@@ -707,7 +716,7 @@ def sensor_chain(
     caller try sensor effects on a motion (simulated or measured) without integrating again.
     """
     fs = _check_fs(fs_hz)
-    prep = _prepare(model, fs)
+    prep = prepare(model, fs)
     p = prep.params
     phi = np.asarray(stroke_rad, dtype=np.float64)
     psi = np.asarray(pitch_rad, dtype=np.float64)

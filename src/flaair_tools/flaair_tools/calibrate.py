@@ -16,11 +16,11 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import yaml
 
+from flaair_common.strictjson import json_safe
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.calibration import CalibrationError, calibrate
 from flaair_model.model_io import load_model
@@ -46,19 +46,6 @@ def combine(per_run: list[dict]) -> dict:
             merged[f"{key}_spread"] = float(np.ptp(values)) if values.size else None
         out[channel] = merged
     return out
-
-
-def strict_json(value: Any) -> Any:
-    """`value` with every non-finite float (NaN, inf) replaced by None: strict JSON, null for unknown."""
-    if isinstance(value, dict):
-        return {key: strict_json(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict_json(item) for item in value]
-    if isinstance(value, (float, np.floating)):
-        return float(value) if np.isfinite(value) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
 
 
 def _figure(value: float | None, fmt: str) -> str:
@@ -91,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     result["runs"] = [{"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}} for r, fit in zip(runs, per_run)]
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "calibration.json").write_text(json.dumps(strict_json(result), indent=2, allow_nan=False))
+    (args.out / "calibration.json").write_text(json.dumps(json_safe(result), indent=2, allow_nan=False))
     loadable = {"reference_voltage_v": result["reference_voltage_v"]}
     for channel in ("stroke", "pitch"):
         loadable[channel] = {k: result[channel][k] for k in ("gain_deg_per_v", "polarity", "offset_v", "lag_s")}

@@ -21,7 +21,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("flaair_tools.analyze", "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report"),
     "discrepancy": ("flaair_tools.discrepancy", "find where model and measurement disagree and fix the model"),
     "identify": ("flaair_tools.identify", "fit this robot's plant parameters (frequencies, damping, gain, couplings) from its runs"),
-    "sweep": ("flaair_tools.sweep", "simulation studies on Dask (wing damage, dSA map) and the stroke-controller experiments"),
+    "sweep": ("flaair_tools.sweep_cli", "simulation studies on Dask (wing damage, dSA map) and the stroke-controller experiments"),
     "demo": ("flaair_tools.demo", "run every experiment, record bags, write the report"),
 }
 

@@ -30,10 +30,10 @@ from typing import Optional
 
 from flaair_model.model_io import load_model, save_model
 
-from .discrepancy.cli import _bad_input_errors, load_inputs
+from .discrepancy.cli import bad_input_errors, load_inputs
 from .discrepancy.diagnosis import noise_estimates
 from .discrepancy.identification import identify_plant
-from .discrepancy.report import _clean
+from .discrepancy.report import json_safe
 from .discrepancy.runs import check_runs, simulate_runs
 
 PROG = "flaair identify"
@@ -67,7 +67,7 @@ def main(argv: Optional[list[str]] = None) -> int:
             fit = identify_plant(runs, model, noise)
             elapsed = time.perf_counter() - t0
             bar.update(1)
-    except _bad_input_errors() as exc:
+    except bad_input_errors() as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -77,7 +77,7 @@ def main(argv: Optional[list[str]] = None) -> int:
         signal.signal(signal.SIGTERM, previous)
     args.out.mkdir(parents=True, exist_ok=True)
     save_model(fit.model, args.out / "model.yaml")
-    doc = _clean({"runs": [r.name for r in runs], "model_in": str(args.model or "config/model.yaml"),
+    doc = json_safe({"runs": [r.name for r in runs], "model_in": str(args.model or "config/model.yaml"),
                   "model_out": str(args.out / "model.yaml"), **fit.as_dict()})
     (args.out / "identification.json").write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
     print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")

@@ -27,7 +27,7 @@ from numba import njit, prange
 from flaair_control import dsa, stroke
 from flaair_model.model import Model
 from flaair_sim import plant
-from flaair_sim.plant import _GA, _NPARAM, _mechanical_constants, _prepare, _rk4  # the plant's own kernels
+from flaair_sim.plant import GA_INDEX, N_KERNEL_PARAMS, mechanical_constants, prepare, rk4_step  # the plant's own kernels
 from flaair_tools import wingbeat
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2
@@ -43,8 +43,8 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
     Returns the final command (drive amplitude V for SYNC, mu for the dSA modes) and the
     largest |drive| over the kept window (V; = limit_v when the clamp acts).
     """
-    c = _mechanical_constants(p)
-    inv_ga = 1.0 / p[_GA]
+    c = mechanical_constants(p)
+    inv_ga = 1.0 / p[GA_INDEX]
     phi, dphi, psi, dpsi = phi0, 0.0, 0.0, 0.0
     z1, z2 = 0.0, 0.0   # dSA filter state (direct form II transposed, as scipy lfilter)
     s = np.zeros(9)
@@ -75,7 +75,7 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
             phi_out[k - keep0] = phi
             psi_out[k - keep0] = psi
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, _hit = _rk4(phi, dphi, psi, dpsi, v, c, hs, 0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
     return u, peak
 
 
@@ -128,7 +128,7 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
     fs = float(rows[0]["sample_rate_hz"])
     n = int(round(rows[0]["duration_s"] * fs))
     keep = int(round(rows[0]["steady_s"] * fs))
-    params = np.empty((m, _NPARAM))
+    params = np.empty((m, N_KERNEL_PARAMS))
     nsubs, modes = np.empty(m, np.int64), np.empty(m, np.int64)
     amps, omegas, scales, u_ffs, phi0s = (np.zeros(m) for _ in range(5))
     bs, as_ = np.zeros((m, 3)), np.zeros((m, 3))
@@ -137,8 +137,8 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
         if float(row["sample_rate_hz"]) != fs or int(round(row["duration_s"] * fs)) != n:
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
-        prep = _prepare(robot, fs)
-        if prep.params[plant._CONTACT_ON]:
+        prep = prepare(robot, fs)
+        if prep.params[plant.CONTACT_ON_INDEX]:
             raise ValueError("the sweep batch has no collision stop")
         params[i], nsubs[i], modes[i] = prep.params, prep.n_substeps, row["mode"]
         phi0s[i] = math.radians(row["start_stroke_deg"]) if row["mode"] != SYNC else 0.0

@@ -36,7 +36,6 @@ import time
 from pathlib import Path
 from typing import Optional, Sequence
 
-import numpy as np
 import yaml
 
 from flaair_common.runcsv import RunFileError, read_run
@@ -102,7 +101,7 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
     return runs
 
 
-def _bad_input_errors() -> tuple[type, ...]:
+def bad_input_errors() -> tuple[type, ...]:
     errors: list[type] = [InputError, RunFileError, ModelError, DiscrepancyInputError, OSError, yaml.YAMLError]
     try:
         from ..bagio import BagError
@@ -192,7 +191,7 @@ def main(argv: Optional[list[str]] = None) -> int:
             bar.update(bar.total - bar.n)
             bar.close()
         elapsed = time.perf_counter() - t0
-    except _bad_input_errors() as exc:
+    except bad_input_errors() as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)

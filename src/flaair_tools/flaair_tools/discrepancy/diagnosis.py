@@ -13,7 +13,7 @@ from flaair_sensors.characterization import frequency_track_from_drive, tiled_tr
 
 from .runs import Run, measured_motion, sensor_voltage
 from .settings import Settings
-from .vocabulary import CHANNELS, SENSOR_CHANNELS, _SENSOR_SIDE, _UPSTREAM_TRUTH
+from .vocabulary import CHANNELS, SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH
 
 # ---------------------------------------------------------------------------- residual stats
 
@@ -25,7 +25,7 @@ def _demean(r: np.ndarray) -> np.ndarray:
     return r
 
 
-def _residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, model: Optional[Model] = None,
+def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, model: Optional[Model] = None,
               truth_referenced: bool = False) -> np.ndarray:
     """Measured minus simulated record (mean removed); NaN where the measurement is missing.
 
@@ -34,10 +34,10 @@ def _residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, model: Opti
     sensor; NaN where the truth is missing.
     """
     if truth_referenced and channel in SENSOR_CHANNELS:
-        side = _SENSOR_SIDE[channel]
+        side = SENSOR_SIDE[channel]
         stroke, pitch = measured_motion(run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side)
         r = run.channel(channel) - sensor_voltage(model, run.fs_hz, stroke, pitch, run.drive_v, side)
-        r = np.where(np.isfinite(run.channel(_UPSTREAM_TRUTH[channel])), r, np.nan)
+        r = np.where(np.isfinite(run.channel(UPSTREAM_TRUTH[channel])), r, np.nan)
     else:
         r = run.channel(channel) - sim[channel]
     return _demean(r)
@@ -216,7 +216,7 @@ def _harmonic_fractions(r: np.ndarray, phase: np.ndarray, win: int, orders: int 
     return fractions
 
 
-def _drive_tracks(runs: Sequence[Run]) -> list[tuple[np.ndarray, np.ndarray]]:
+def drive_tracks(runs: Sequence[Run]) -> list[tuple[np.ndarray, np.ndarray]]:
     return [frequency_track_from_drive(r.drive_v, r.fs_hz) for r in runs]
 
 
@@ -250,14 +250,14 @@ def diagnose(
     tracks
         Drive phase and frequency of each run (computed if not given).
     """
-    tracks = list(tracks) if tracks is not None else _drive_tracks(runs)
+    tracks = list(tracks) if tracks is not None else drive_tracks(runs)
     levels = _level_groups(runs)
     edges = settings.band_edges_hz
     win = max(8, int(round(settings.window_s * runs[0].fs_hz)))
     out = {}
     for c in CHANNELS:
         sigma = float(noise[c])
-        res = [_residual(run, sim, c) for run, sim in zip(runs, sims)]
+        res = [channel_residual(run, sim, c) for run, sim in zip(runs, sims)]
         ss_n = [_signal_ss(run, c) for run in runs]
         rss = sum(float(np.nansum(r**2)) for r in res)
         n = sum(int(np.isfinite(r).sum()) for r in res)
@@ -265,7 +265,7 @@ def diagnose(
         nrmse = math.sqrt(rss / ss) if ss > 0 else math.nan
         noise_nrmse = sigma / math.sqrt(ss / n) if ss > 0 and n else math.nan
         excess = _excess(rss, n, sigma, ss)
-        has_gap, ratio, q, p = _gap_test(res, sigma, settings)
+        has_gap, ratio, q, p = gap_test(res, sigma, settings)
         # cross-correlation with the drive (strongest run)
         max_lag = max(1, int(round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate)))
         best = (0.0, 0, 0)
@@ -343,12 +343,12 @@ def diagnose(
             xcorr_lag_s=best[1] * settings.decimate / runs[0].fs_hz, xcorr_significant=bool(xsig),
             band_nrmse=band, worst_band_hz=worst_band, level_nrmse=level_vals, level_ratio=level_ratio,
             harmonic_fraction=harmonics, worst_stretch=worst, has_gap=has_gap,
-            interpretation=_interpret(ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
+            interpretation=interpret(ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
         )
     return Diagnosis(channels=out, noise=dict(noise))
 
 
-def _interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float], level_ratio: float,
+def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float], level_ratio: float,
                has_gap: bool, settings: Settings) -> str:
     if not has_gap:
         return "residual at noise level and white: the model explains this channel"
@@ -377,13 +377,13 @@ def nrmse_by_channel(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray
     """Residual RMS / measured RMS per channel, pooled over runs (means removed per run)."""
     out = {}
     for c in CHANNELS:
-        rss = sum(float(np.nansum(_residual(run, sim, c) ** 2)) for run, sim in zip(runs, sims))
+        rss = sum(float(np.nansum(channel_residual(run, sim, c) ** 2)) for run, sim in zip(runs, sims))
         ss = sum(_signal_ss(run, c)[0] for run in runs)
         out[c] = math.sqrt(rss / ss) if ss > 0 else math.nan
     return out
 
 
-def _gap_test(res: Sequence[np.ndarray], sigma: float, settings: Settings) -> tuple[bool, float, float, float]:
+def gap_test(res: Sequence[np.ndarray], sigma: float, settings: Settings) -> tuple[bool, float, float, float]:
     """(has_gap, noise ratio, Ljung-Box Q, p) of residual records."""
     rss = sum(float(np.nansum(r**2)) for r in res)
     n = sum(int(np.isfinite(r).sum()) for r in res)

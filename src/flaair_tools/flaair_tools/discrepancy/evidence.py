@@ -10,11 +10,11 @@ from scipy import stats
 
 from flaair_model.model import Model, with_effects
 
-from .diagnosis import _drive_tracks
-from .fitting import _Fit, _fit, _Fold, _folds, _models_for, _Problem
-from .runs import Run, _MotionCache, simulate_runs
+from .diagnosis import drive_tracks
+from .fitting import FitResult, fit_specs, Fold, make_folds, models_for, ResidualProblem
+from .runs import Run, MotionCache, simulate_runs
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, EffectSpec, _UPSTREAM_TRUTH
+from .vocabulary import SENSOR_CHANNELS, EffectSpec, UPSTREAM_TRUTH
 
 # ------------------------------------------------------------------------------ evidence
 
@@ -132,7 +132,7 @@ def _pooled(est: Sequence[tuple[float, float]], fallback: float) -> float:
     return float(np.sum(w * np.array([p[0] for p in pts])) / np.sum(w))
 
 
-class _Context:
+class AnalysisContext:
     """Data shared by the candidate evaluations of one analysis."""
 
     def __init__(self, runs: Sequence[Run], noise: Mapping[str, float], settings: Settings,
@@ -140,18 +140,18 @@ class _Context:
         self.runs = tuple(runs)
         self.noise = dict(noise)
         self.settings = settings
-        self.folds = _folds(self.runs)
-        self.tracks = list(tracks) if tracks is not None else _drive_tracks(self.runs)
-        self.motion = _MotionCache()
+        self.folds = make_folds(self.runs)
+        self.tracks = list(tracks) if tracks is not None else drive_tracks(self.runs)
+        self.motion = MotionCache()
 
-    def problem(self, channel: str, folds: Sequence[_Fold], truth_referenced: bool, weight_model: Model) -> _Problem:
+    def problem(self, channel: str, folds: Sequence[Fold], truth_referenced: bool, weight_model: Model) -> ResidualProblem:
         """Residual problem of `channel` on `folds`."""
-        truth_sigma = self.noise[_UPSTREAM_TRUTH[channel]] if channel in SENSOR_CHANNELS else 0.0
-        return _Problem(self.runs, folds, channel, self.noise[channel], truth_referenced,
+        truth_sigma = self.noise[UPSTREAM_TRUTH[channel]] if channel in SENSOR_CHANNELS else 0.0
+        return ResidualProblem(self.runs, folds, channel, self.noise[channel], truth_referenced,
                         self.settings.decimate, truth_sigma, weight_model, self.motion)
 
 
-def _reach_deg(ctx: _Context, model: Model) -> float:
+def _reach_deg(ctx: AnalysisContext, model: Model) -> float:
     sims = simulate_runs([model], ctx.runs)[0]
     return max(float(np.max(s["stroke_deg"])) for s in sims)
 
@@ -182,7 +182,7 @@ def same_on_both(spec: EffectSpec, v_old: float, se_old: float, v_new: float, se
     return (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
 
 
-def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: str, truth_referenced: bool,
+def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], channel: str, truth_referenced: bool,
               x_start: Optional[np.ndarray] = None,
               merge_with: Optional[tuple[float, float]] = None) -> tuple[CandidateEvidence, Model]:
     """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
@@ -197,7 +197,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     null_x = np.array([_null_fit_value(s) for s in specs])
     x0 = null_x if x_start is None else np.asarray(x_start, float)
     folds = ctx.folds
-    per_fold = [_fit(base, specs, ctx.problem(channel, [f], truth_referenced, base), x0, st,
+    per_fold = [fit_specs(base, specs, ctx.problem(channel, [f], truth_referenced, base), x0, st,
                      grid=(x_start is None)) for f in folds]
     all_prob = ctx.problem(channel, folds, truth_referenced, base)
     # all-run estimate: inverse-variance pooling of the per-run fits (equivalent to one fit on all
@@ -209,8 +209,8 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     else:
         x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
         se_all = np.full(p, math.inf)
-    res_all = all_prob.residuals(_models_for(base, specs, x_all[None, :]))[0]
-    fit_all = _Fit(x=x_all, se=se_all, rss=sum(float(np.dot(r, r)) for r in res_all), n=sum(r.size for r in res_all),
+    res_all = all_prob.residuals(models_for(base, specs, x_all[None, :]))[0]
+    fit_all = FitResult(x=x_all, se=se_all, rss=sum(float(np.dot(r, r)) for r in res_all), n=sum(r.size for r in res_all),
                    rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all))
     values = [s.from_fit(u) for s, u in zip(specs, fit_all.x)]
     se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se)]
@@ -222,7 +222,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     for k in range(len(folds)):
         others = [per_fold[i] for i in range(len(folds)) if i != k]
         x_ho = [_pooled([(pf.x[j], pf.se[j]) for pf in others], null_x[j]) for j in range(p)]
-        models_ho.append(_models_for(base, specs, np.array([x_ho]))[0])
+        models_ho.append(models_for(base, specs, np.array([x_ho]))[0])
     rss_ho = []
     for k, f in enumerate(folds):
         r = ctx.problem(channel, [f], truth_referenced, base).residuals([models_ho[k]])[0][0]
@@ -261,7 +261,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
         "R4_consistency": bool(all(n_ident[j] >= 2 for j in tested)
                                and all(cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))),
     }
-    model = _models_for(base, specs, fit_all.x[None, :])[0]
+    model = models_for(base, specs, fit_all.x[None, :])[0]
     same = None
     if merge_with is not None:
         merged = same_on_both(specs[0], *merge_with, values[0], se_phys[0], st)
@@ -278,7 +278,7 @@ def _evaluate(ctx: _Context, base: Model, specs: Sequence[EffectSpec], channel: 
     return ev, model
 
 
-def _evaluate_shared(ctx: _Context, current: Model, specs: Sequence[EffectSpec], channel: str,
+def evaluate_shared(ctx: AnalysisContext, current: Model, specs: Sequence[EffectSpec], channel: str,
                      truth_ref: bool) -> tuple[CandidateEvidence, Model]:
     """Zero-parameter test: the other sensor's effects `specs`, at their values, on both sensors."""
     st = ctx.settings

@@ -10,16 +10,16 @@ from scipy import optimize
 
 from flaair_model.model import Model, ModelError, with_effect_on, with_effects
 
-from .runs import (Run, _MotionCache, _sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage,
+from .runs import (Run, MotionCache, sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage,
                    simulate_motion)
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, EffectSpec, _SENSOR_SIDE, _UPSTREAM_TRUTH
+from .vocabulary import SENSOR_CHANNELS, EffectSpec, SENSOR_SIDE, UPSTREAM_TRUTH
 
 # ------------------------------------------------------------------------------------ fitting
 
 
 @dataclass(frozen=True, eq=False)
-class _Fold:
+class Fold:
     """A run and the sample range judged in it (whole run, or half of a lone run)."""
 
     run: int
@@ -28,33 +28,33 @@ class _Fold:
     name: str
 
 
-def _folds(runs: Sequence[Run]) -> tuple[_Fold, ...]:
+def make_folds(runs: Sequence[Run]) -> tuple[Fold, ...]:
     if len(runs) >= 2:
-        return tuple(_Fold(i, 0, r.n, r.name) for i, r in enumerate(runs))
+        return tuple(Fold(i, 0, r.n, r.name) for i, r in enumerate(runs))
     r = runs[0]
     h = r.n // 2
-    return (_Fold(0, 0, h, f"{r.name}[first half]"), _Fold(0, h, r.n, f"{r.name}[second half]"))
+    return (Fold(0, 0, h, f"{r.name}[first half]"), Fold(0, h, r.n, f"{r.name}[second half]"))
 
 
-class _Problem:
+class ResidualProblem:
     """Weighted residuals of one channel, for a family of models, on a set of folds.
 
     The weight (noise RMS; truth-referenced: sqrt(noise_V^2 + (g noise_deg)^2) with the gain g
     of `weight_model`) is fixed per problem so that costs of different models compare.
     """
 
-    def __init__(self, runs: Sequence[Run], folds: Sequence[_Fold], channel: str, sigma: float,
+    def __init__(self, runs: Sequence[Run], folds: Sequence[Fold], channel: str, sigma: float,
                  truth_referenced: bool, decimate: int, truth_sigma: float = 0.0,
-                 weight_model: Optional[Model] = None, motion: Optional[_MotionCache] = None) -> None:
+                 weight_model: Optional[Model] = None, motion: Optional[MotionCache] = None) -> None:
         self.runs = runs
-        self.motion = motion if motion is not None else _MotionCache()
+        self.motion = motion if motion is not None else MotionCache()
         self._measured: dict = {}
         self.folds = list(folds)
         self.channel = channel
         self.truth_referenced = truth_referenced and channel in SENSOR_CHANNELS
         self.weight = sigma
         if self.truth_referenced:
-            g = _sensor_gain_v_per_deg(weight_model, channel)
+            g = sensor_gain_v_per_deg(weight_model, channel)
             self.weight = math.sqrt(sigma**2 + (g * truth_sigma) ** 2)
         self.run_ids = sorted({f.run for f in self.folds})
         self.idx = []
@@ -62,7 +62,7 @@ class _Problem:
             sl = np.arange(f.start, f.stop, decimate)
             ok = np.isfinite(runs[f.run].channel(channel)[sl])
             if self.truth_referenced:
-                ok &= np.isfinite(runs[f.run].channel(_UPSTREAM_TRUTH[channel])[sl])
+                ok &= np.isfinite(runs[f.run].channel(UPSTREAM_TRUTH[channel])[sl])
             self.idx.append(sl[ok])
 
     def n_per_fold(self) -> list[int]:
@@ -85,7 +85,7 @@ class _Problem:
         sims = None if motion is not None else {j: simulate_motion(models, self.runs[j]) for j in self.run_ids}
         angle = "stroke_rad" if self.channel == "stroke_deg" else "pitch_rad"
         out = []
-        side = _SENSOR_SIDE.get(self.channel)
+        side = SENSOR_SIDE.get(self.channel)
         for i, m in enumerate(models):
             row = []
             mech = mechanics_model(m) if motion is not None else None
@@ -136,7 +136,7 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
     return model
 
 
-def _models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
+def models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
     """Models with the parameters of `specs` at the fit-space rows `xs`."""
     return [apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x)]) for x in np.atleast_2d(xs)]
 
@@ -152,7 +152,7 @@ def spec_value(model: Model, spec: EffectSpec) -> float:
 
 
 @dataclass(frozen=True)
-class _Fit:
+class FitResult:
     x: np.ndarray  # fit-space optimum
     se: np.ndarray  # fit-space standard errors (inf: not identifiable)
     rss: float  # weighted RSS
@@ -160,8 +160,8 @@ class _Fit:
     rss_per_fold: tuple
 
 
-def _fit(base: Model, specs: Sequence[EffectSpec], problem: _Problem, x0: np.ndarray, settings: Settings,
-         grid: bool = True) -> _Fit:
+def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem, x0: np.ndarray, settings: Settings,
+         grid: bool = True) -> FitResult:
     """Least-squares fit of the specs' parameters on `problem` (grid start, then TRF)."""
     specs = list(specs)
     lo = np.array([s.to_fit(s.lower) for s in specs])
@@ -171,7 +171,7 @@ def _fit(base: Model, specs: Sequence[EffectSpec], problem: _Problem, x0: np.nda
     if grid and specs[0].grid:
         s = specs[0]
         xs = np.array([[s.to_fit(v), *x0[1:]] for v in s.grid if s.lower <= v <= s.upper] + [list(x0)])
-        res = problem.residuals(_models_for(base, specs, xs))
+        res = problem.residuals(models_for(base, specs, xs))
         costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
         x0 = xs[int(np.argmin(costs))]
 
@@ -184,14 +184,14 @@ def _fit(base: Model, specs: Sequence[EffectSpec], problem: _Problem, x0: np.nda
         key = tuple(np.round(x, 15))
         if key not in cache:
             cache.clear()
-            cache[key] = stack(problem.residuals(_models_for(base, specs, x[None, :]))[0])
+            cache[key] = stack(problem.residuals(models_for(base, specs, x[None, :]))[0])
         return cache[key]
 
     def jac(x: np.ndarray) -> np.ndarray:
         f0 = fun(x)
         h = np.where(x + steps <= hi, steps, -steps)
         xs = np.repeat(x[None, :], len(specs), axis=0) + np.diag(h)
-        rows = problem.residuals(_models_for(base, specs, xs))
+        rows = problem.residuals(models_for(base, specs, xs))
         return np.column_stack([(stack(rows[i]) - f0) / h[i] for i in range(len(specs))])
 
     x_scale = np.maximum(np.abs(steps) * 100.0, 1e-12)
@@ -224,6 +224,6 @@ def _fit(base: Model, specs: Sequence[EffectSpec], problem: _Problem, x0: np.nda
     for m in sizes:
         per_fold.append(float(np.dot(f[k:k + m], f[k:k + m])))
         k += m
-    return _Fit(x=np.asarray(x, float), se=np.asarray(se, float), rss=rss, n=n, rss_per_fold=tuple(per_fold))
+    return FitResult(x=np.asarray(x, float), se=np.asarray(se, float), rss=rss, n=n, rss_per_fold=tuple(per_fold))
 
 

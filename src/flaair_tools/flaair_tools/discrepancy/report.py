@@ -12,6 +12,7 @@ from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
+from flaair_common.strictjson import json_safe
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 import numpy as np  # noqa: E402
@@ -24,24 +25,6 @@ from .workflow import DiscrepancyResult, format_parameters  # noqa: E402
 __all__ = ["result_to_dict", "write_json", "write_figures", "write_report", "write_validation", "confusion_html"]
 
 _UNITS = {"stroke_deg": "deg", "pitch_deg": "deg", "stroke_sensor_v": "V", "pitch_sensor_v": "V"}
-
-
-def _clean(value: Any) -> Any:
-    """JSON-safe copy: NaN/inf -> None, numpy scalars -> Python, tuples -> lists."""
-    if isinstance(value, Mapping):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_clean(v) for v in value.tolist()]
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
 
 
 def result_to_dict(result: DiscrepancyResult, model_out: str, settings: Settings = Settings()) -> dict:
@@ -82,13 +65,13 @@ def result_to_dict(result: DiscrepancyResult, model_out: str, settings: Settings
         "not_separable": list(result.not_separable),
         "approximate": list(result.approximate),
     }
-    return _clean(doc)
+    return json_safe(doc)
 
 
 def write_json(path: Path, doc: Any) -> None:
     """Write a JSON document (NaN/inf as null)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(_clean(doc), indent=2), encoding="utf-8")
+    path.write_text(json.dumps(json_safe(doc), indent=2), encoding="utf-8")
 
 
 # ------------------------------------------------------------------------------------ figures
@@ -354,4 +337,4 @@ def write_validation(out_dir: Path, outcomes: Sequence[Mapping[str, Any]], confu
     page = _environment().get_template("discrepancy_validation.html.j2").render(
         n_cases=len(outcomes), total_s=f"{total_s:.0f}", confusion=_confusion(confusion, outcomes))
     (out_dir / "validation.html").write_text(page, encoding="utf-8")
-    return _clean(doc)
+    return json_safe(doc)

@@ -11,7 +11,7 @@ from flaair_model.model import Model
 from flaair_sim.plant import SimOutput, sensor_chain, simulate_batch_from
 
 from .vocabulary import (CHANNELS, EFFECT_CHANNELS, SENSOR_CHANNELS, SENSOR_EFFECTS, STATUSES, TRUTH_CHANNELS,
-                         _SENSOR_SIDE)
+                         SENSOR_SIDE)
 
 __all__ = ["CHANNELS", "TRUTH_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "EFFECT_CHANNELS", "DiscrepancyInputError",
            "Run", "check_runs", "initial_mechanical_state", "simulate_runs", "simulate_motion", "mechanics_model",
@@ -192,9 +192,9 @@ def simulate_runs(models: Sequence[Model], runs: Sequence[Run]) -> list[list[dic
     return [[{c: per_run[j][c][i] for c in CHANNELS} for j in range(len(runs))] for i in range(len(models))]
 
 
-def _sensor_gain_v_per_deg(model: Model, channel: str) -> float:
+def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
     """Model's sensor voltage per degree of its truth angle (nominal gain x strain transfer)."""
-    side = _SENSOR_SIDE[channel]
+    side = SENSOR_SIDE[channel]
     gain = model.stroke_volts_per_rad if side == "stroke" else model.pitch_volts_per_rad
     loss = model.effect_on("strain_transfer_loss", side)
     if loss is not None:
@@ -218,7 +218,7 @@ def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad
     return vs if side == "stroke" else vp
 
 
-class _MotionCache:
+class MotionCache:
     """Simulated motion (stroke, pitch in rad) per (mechanics model, run), least recently used first out."""
 
     def __init__(self, size: int = 24) -> None:

@@ -9,13 +9,13 @@ import numpy as np
 
 from flaair_model.model import Model, effect_params, with_effect_on, with_effects, without_effect_on
 
-from .diagnosis import _gap_test, _residual
-from .evidence import CandidateEvidence, FoundEffect, _Context, _evaluate, _evaluate_shared, same_on_both
-from .fitting import _fit, _Fold, apply_values, spec_value
+from .diagnosis import gap_test, channel_residual
+from .evidence import CandidateEvidence, FoundEffect, AnalysisContext, evaluate, evaluate_shared, same_on_both
+from .fitting import fit_specs, Fold, apply_values, spec_value
 from .identification import fit_initial_states, identify_plant
-from .runs import Run, _MotionCache, _sensor_gain_v_per_deg, simulate_runs
+from .runs import Run, MotionCache, sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
-from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, _UPSTREAM_TRUTH,
+from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, UPSTREAM_TRUTH,
                          candidate_groups, candidate_specs, plant_spec)
 
 # ------------------------------------------------------------------------------ the search
@@ -39,18 +39,18 @@ class ChannelSearch:
     steps: tuple
 
 
-_CHANNEL_ORDER = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
+CHANNEL_ORDER = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
 
 
-def _channel_has_gap(ctx: _Context, model: Model, channel: str, truth_ref: bool) -> bool:
+def channel_has_gap(ctx: AnalysisContext, model: Model, channel: str, truth_ref: bool) -> bool:
     """The gap test of one channel (noise ratio and whiteness only)."""
     sims = simulate_runs([model], ctx.runs)[0]
-    res = [_residual(run, sim, channel, model, truth_referenced=truth_ref) for run, sim in zip(ctx.runs, sims)]
+    res = [channel_residual(run, sim, channel, model, truth_referenced=truth_ref) for run, sim in zip(ctx.runs, sims)]
     sigma = ctx.noise[channel]
     if truth_ref:
-        g = _sensor_gain_v_per_deg(model, channel)
-        sigma = math.sqrt(sigma**2 + (g * ctx.noise[_UPSTREAM_TRUTH[channel]]) ** 2)
-    return _gap_test(res, sigma, ctx.settings)[0]
+        g = sensor_gain_v_per_deg(model, channel)
+        sigma = math.sqrt(sigma**2 + (g * ctx.noise[UPSTREAM_TRUTH[channel]]) ** 2)
+    return gap_test(res, sigma, ctx.settings)[0]
 
 
 def _other_side(side: str) -> str:
@@ -91,28 +91,28 @@ def _own(model: Model, spec: EffectSpec) -> bool:
     return e is not None and e.channel == spec.channel_param
 
 
-def _polish(ctx: _Context, base: Model, specs: Sequence[EffectSpec], current: Model, channel: str,
-            truth_ref: bool, folds: Optional[Sequence[_Fold]] = None) -> Model:
+def polish(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], current: Model, channel: str,
+            truth_ref: bool, folds: Optional[Sequence[Fold]] = None) -> Model:
     """Joint least-squares re-fit of `specs` (effects of one channel and the plant parameters
     fitted along with them), from their values in `current`; `base` lacks those effects."""
     folds = ctx.folds if folds is None else folds
     x0 = np.array([s.to_fit(spec_value(current, s)) for s in specs])
     prob = ctx.problem(channel, folds, truth_ref, base)
-    fit = _fit(base, specs, prob, x0, ctx.settings, grid=False)
+    fit = fit_specs(base, specs, prob, x0, ctx.settings, grid=False)
     channels = {s.name: None if _own(current, s) else "both" for s in specs if not s.is_plant}
     return apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, fit.x)], channels)
 
 
-def _groups(ctx: _Context, channel: str, model: Model) -> tuple[tuple[EffectSpec, ...], ...]:
+def _groups(ctx: AnalysisContext, channel: str, model: Model) -> tuple[tuple[EffectSpec, ...], ...]:
     """Candidate parameter sets on `channel`: with the plant parameters they trade off against
     (and without the effects a plant change mimics) once the plant is fitted."""
     return candidate_groups(channel, model if ctx.settings.identify else None)
 
 
-def _use_runs(ctx: _Context, runs: Sequence[Run]) -> None:
+def _use_runs(ctx: AnalysisContext, runs: Sequence[Run]) -> None:
     """Continue the search with `runs` (new initial states): simulations cached so far are stale."""
     ctx.runs = tuple(runs)
-    ctx.motion = _MotionCache()
+    ctx.motion = MotionCache()
 
 
 def _join(a: Sequence[EffectSpec], b: Sequence[EffectSpec]) -> list[EffectSpec]:
@@ -130,10 +130,10 @@ class _ChannelState:
     reopen: tuple = ()  # effects taken over from the other sensor at its value (shared test)
 
 
-def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, truth_ref: bool,
+def _greedy(ctx: AnalysisContext, model_in: Model, state: _ChannelState, channel: str, truth_ref: bool,
             found: Sequence[FoundEffect], steps: list, max_steps: int) -> tuple[_ChannelState, bool, list]:
     """Forward selection on one channel; returns (state, has_gap, first-step single evaluations)."""
-    has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    has_gap = channel_has_gap(ctx, state.model, channel, truth_ref)
     first = []
     for step in range(max_steps):
         if not has_gap:
@@ -150,8 +150,8 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
             base = state.model
             if kind == "merge":
                 merge = _other_chain(state.model, s, found)
-                base = _strip(state.model, [s])
-            ev, m = _evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
+                base = strip_effects(state.model, [s])
+            ev, m = evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
             if kind == "merge":  # one value on both chains when they agree (R5), else one per chain
                 m = (with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")}) if ev.same_on_both
                      else with_effect_on(state.model, s.name, s.channel_param, {s.key: ev.values[0]}))
@@ -173,17 +173,17 @@ def _greedy(ctx: _Context, model_in: Model, state: _ChannelState, channel: str, 
         # Likewise whenever parameters were fitted along (plant, shape): their per-run estimates
         # are correlated, so the pooled values are not the joint optimum on all runs.
         if own and (len({s.name for s in state.specs if not s.is_plant}) >= 2 or any(not s.tested for s in own)):
-            state.model = _polish(ctx, _strip(state.model, own), own, state.model, channel, truth_ref)
+            state.model = polish(ctx, strip_effects(state.model, own), own, state.model, channel, truth_ref)
         has_gap = _refit_states_and_polish(ctx, state, channel, truth_ref)
     return state, has_gap, first
 
 
-def _refit_states_and_polish(ctx: _Context, state: _ChannelState, channel: str, truth_ref: bool) -> bool:
+def _refit_states_and_polish(ctx: AnalysisContext, state: _ChannelState, channel: str, truth_ref: bool) -> bool:
     """After an effect joined `state` (modified in place): the runs' initial states fitted again
     (on a truth channel), then, while a gap is left, further joint re-fits of this channel's own
     parameters (`_polish_rounds`) and the states once more. Returns whether a gap is left."""
     _refit_states(ctx, state.model, channel)
-    has_gap = _channel_has_gap(ctx, state.model, channel, truth_ref)
+    has_gap = channel_has_gap(ctx, state.model, channel, truth_ref)
     own = [s for s in state.specs if _own(state.model, s)]
     if not has_gap or not own:
         return has_gap
@@ -192,17 +192,17 @@ def _refit_states_and_polish(ctx: _Context, state: _ChannelState, channel: str, 
         return has_gap
     state.model = model
     _refit_states(ctx, state.model, channel)
-    return _channel_has_gap(ctx, state.model, channel, truth_ref)
+    return channel_has_gap(ctx, state.model, channel, truth_ref)
 
 
-def _refit_states(ctx: _Context, model: Model, channel: str) -> None:
+def _refit_states(ctx: AnalysisContext, model: Model, channel: str) -> None:
     """On a truth channel: the runs' initial states fitted again with `model` (they were fitted
     with the plant alone, or with the effects as they were)."""
     if channel in TRUTH_CHANNELS and ctx.settings.identify:
         _use_runs(ctx, identify_plant(ctx.runs, model, ctx.noise, keys=(), state_channels=TRUTH_CHANNELS).runs)
 
 
-def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> Model:
+def _polish_rounds(ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> Model:
     """Joint re-fits of `specs` from `model` while a gap is left and each still lowers the cost
     by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times (`model` itself
     if none lowers it).
@@ -212,34 +212,34 @@ def _polish_rounds(ctx: _Context, model: Model, specs: Sequence[EffectSpec], cha
     """
     cost = _channel_cost(ctx, model, specs, channel, truth_ref)
     for _ in range(ctx.settings.max_polish_rounds):
-        trial = _polish(ctx, _strip(model, specs), specs, model, channel, truth_ref)
+        trial = polish(ctx, strip_effects(model, specs), specs, model, channel, truth_ref)
         trial_cost = _channel_cost(ctx, trial, specs, channel, truth_ref)
         if not trial_cost < cost:
             break
         gain = 1.0 - trial_cost / cost
         model, cost = trial, trial_cost
-        if gain < ctx.settings.polish_min_gain or not _channel_has_gap(ctx, model, channel, truth_ref):
+        if gain < ctx.settings.polish_min_gain or not channel_has_gap(ctx, model, channel, truth_ref):
             break
     return model
 
 
-def _channel_cost(ctx: _Context, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> float:
+def _channel_cost(ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool) -> float:
     """Weighted residual sum of squares of `model` on `channel` (the fit's own cost)."""
-    problem = ctx.problem(channel, ctx.folds, truth_ref, _strip(model, specs))
+    problem = ctx.problem(channel, ctx.folds, truth_ref, strip_effects(model, specs))
     return sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
 
 
-def _check_upstream_truth(ctx: _Context, ev: CandidateEvidence, model: Model, channel: str,
+def _check_upstream_truth(ctx: AnalysisContext, ev: CandidateEvidence, model: Model, channel: str,
                           spec: EffectSpec) -> CandidateEvidence:
     """R6: a stroke-physics effect judged on pitch_deg must leave stroke_deg without a gap."""
     if channel != "pitch_deg" or "stroke_deg" not in EFFECT_CHANNELS[spec.name] or not ev.accepted:
         return ev
-    ok = not _channel_has_gap(ctx, model, "stroke_deg", False)
+    ok = not channel_has_gap(ctx, model, "stroke_deg", False)
     rules = {**ev.rules, "R6_stroke_truth_intact": ok}
     return replace(ev, rules=rules, accepted=all(rules.values()))
 
 
-def _states_on_sensor(ctx: _Context, model: Model, channel: str, sensors_done: Sequence[str]) -> bool:
+def _states_on_sensor(ctx: AnalysisContext, model: Model, channel: str, sensors_done: Sequence[str]) -> bool:
     """Fit the runs' initial states on the truth and on the sensors modelled so far (`sensors_done`,
     `channel`); keep them (True) only if that leaves `channel` without a gap and no gap anywhere else.
 
@@ -249,14 +249,14 @@ def _states_on_sensor(ctx: _Context, model: Model, channel: str, sensors_done: S
     runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
     if not after < before:
         return False
-    trial = _Context(runs, ctx.noise, ctx.settings, ctx.tracks)
-    if any(_channel_has_gap(trial, model, c, False) for c in channels):
+    trial = AnalysisContext(runs, ctx.noise, ctx.settings, ctx.tracks)
+    if any(channel_has_gap(trial, model, c, False) for c in channels):
         return False
     _use_runs(ctx, runs)
     return True
 
 
-def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, truth_ref: bool,
+def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel: str, truth_ref: bool,
                     found: Sequence[FoundEffect], sensors_done: Sequence[str] = ()) -> tuple[_ChannelState, bool, list]:
     """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left; on a
     sensor, a gap left is then tried against the runs' initial states fitted on the sensor, and
@@ -268,7 +268,7 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
         shared = [s for s in candidate_specs(channel) if _offer(model_in, start, s, []) == "merge"]
         tries = ([shared] if shared else []) + ([[s] for s in shared] if len(shared) > 1 else [])
         for group in tries:
-            ev, m = _evaluate_shared(ctx, start, group, channel, truth_ref)
+            ev, m = evaluate_shared(ctx, start, group, channel, truth_ref)
             steps.append((ev,))
             if ev.accepted:
                 state = _ChannelState(m, list(group), {s.name: ev for s in group}, ev, tuple(s.name for s in group))
@@ -284,7 +284,7 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
                 specs = _join(a[2], b[2])
                 start = {(s.name, s.key): v for s, v in zip(list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))}
                 x_start = np.array([s.to_fit(start[(s.name, s.key)]) for s in specs])
-                ev, m = _evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
+                ev, m = evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
                 for s in (a[2][0], b[2][0]):
                     ev = _check_upstream_truth(ctx, ev, m, channel, s)
                 for s, kind in ((a[2][0], a[3]), (b[2][0], b[3])):
@@ -313,16 +313,16 @@ def _search_channel(ctx: _Context, model_in: Model, start: Model, channel: str, 
     return state, has_gap, steps
 
 
-def _refine_plant_on_sensor(ctx: _Context, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
+def _refine_plant_on_sensor(ctx: AnalysisContext, state: _ChannelState, channel: str) -> tuple[_ChannelState, bool]:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
     may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
     jointly with the effects found on this sensor alone; keep them only if that closes the gap and
     the truth stays at noise."""
-    truth = _UPSTREAM_TRUTH[channel]
+    truth = UPSTREAM_TRUTH[channel]
     own = [s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)]
     specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
-    refined = _polish(ctx, _strip(state.model, own), specs, state.model, channel, False)
-    if _channel_has_gap(ctx, refined, channel, False) or _channel_has_gap(ctx, refined, truth, False):
+    refined = polish(ctx, strip_effects(state.model, own), specs, state.model, channel, False)
+    if channel_has_gap(ctx, refined, channel, False) or channel_has_gap(ctx, refined, truth, False):
         return state, True
     return _ChannelState(refined, state.specs, state.evidence, state.last, state.reopen), False
 
@@ -347,22 +347,22 @@ def find_effects(
     (model_out, found effects, per-channel search records, the runs with their initial states as
     last fitted)
     """
-    ctx = _Context(runs, noise, settings, tracks)
+    ctx = AnalysisContext(runs, noise, settings, tracks)
     current = model
     found: list[FoundEffect] = []
     searches = []
     unexplained_truth: set[str] = set()
     sensors_done: list[str] = []  # sensor channels modelled to noise level (they pin the initial states)
-    for channel in _CHANNEL_ORDER:
+    for channel in CHANNEL_ORDER:
         if progress:
             progress(channel)
         if channel == "pitch_deg" and "stroke_deg" in unexplained_truth:
-            if _channel_has_gap(ctx, current, channel, False):
+            if channel_has_gap(ctx, current, channel, False):
                 unexplained_truth.add(channel)
             searches.append(ChannelSearch(channel, False, "downstream of an unexplained stroke_deg gap", ()))
             continue
-        truth_ref = channel in SENSOR_CHANNELS and _UPSTREAM_TRUTH[channel] in unexplained_truth
-        if not _channel_has_gap(ctx, current, channel, truth_ref):
+        truth_ref = channel in SENSOR_CHANNELS and UPSTREAM_TRUTH[channel] in unexplained_truth
+        if not channel_has_gap(ctx, current, channel, truth_ref):
             searches.append(ChannelSearch(channel, truth_ref, "no gap", ()))
             sensors_done += [channel] if channel in SENSOR_CHANNELS and not truth_ref else []
             continue
@@ -394,7 +394,7 @@ def find_effects(
     return current, tuple(_merge_sensor_channels(found, current)), tuple(searches), ctx.runs
 
 
-def _strip(model: Model, specs: Sequence[EffectSpec]) -> Model:
+def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
     """`model` without the specs' effects: a sensor effect removed from the spec's chain only (and
     whole when it is one value shared by both chains)."""
     for s in specs:

@@ -22,8 +22,8 @@ TRUTH_CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg")
 SENSOR_CHANNELS: tuple[str, ...] = ("stroke_sensor_v", "pitch_sensor_v")
 STATUSES: tuple[str, ...] = ("no_discrepancy", "explained", "unexplained")
 # Truth channel upstream of each sensor channel, and the model-channel name of the sensors.
-_UPSTREAM_TRUTH = {"stroke_sensor_v": "stroke_deg", "pitch_sensor_v": "pitch_deg"}
-_SENSOR_SIDE = {"stroke_sensor_v": "stroke", "pitch_sensor_v": "pitch"}
+UPSTREAM_TRUTH = {"stroke_sensor_v": "stroke_deg", "pitch_sensor_v": "pitch_deg"}
+SENSOR_SIDE = {"stroke_sensor_v": "stroke", "pitch_sensor_v": "pitch"}
 
 # The fitted plant parameters (model.yaml `plant:` keys) and the truth channel that sets each.
 PLANT_PARAMETERS: dict[str, str] = {
@@ -180,7 +180,7 @@ NOT_SEPARABLE: tuple[str, ...] = tuple(e.name for e in VOCABULARY if not e.separ
 
 
 def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> EffectSpec:
-    side = _SENSOR_SIDE.get(channel) if entry.per_sensor else None
+    side = SENSOR_SIDE.get(channel) if entry.per_sensor else None
     return EffectSpec(entry.name, p.key, channel, p.null, p.lower, p.upper, p.grid, p.step, p.log,
                       channel_param=side, tested=first)
 

@@ -10,15 +10,15 @@ import numpy as np
 from flaair_model.model import Model, ModelError
 from flaair_sim.plant import simulate
 
-from .diagnosis import Diagnosis, _drive_tracks, diagnose, noise_estimates, nrmse_by_channel
-from .evidence import FoundEffect, _Context
-from .fitting import _Fold
+from .diagnosis import Diagnosis, drive_tracks, diagnose, noise_estimates, nrmse_by_channel
+from .evidence import FoundEffect, AnalysisContext
+from .fitting import Fold
 from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
-from .search import (_CHANNEL_ORDER, ChannelSearch, _channel_has_gap, _polish, _strip, find_effects)
+from .search import (CHANNEL_ORDER, ChannelSearch, channel_has_gap, polish, strip_effects, find_effects)
 from .settings import Settings
-from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, _SENSOR_SIDE,
-                         _UPSTREAM_TRUTH, candidate_groups)
+from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, SENSOR_SIDE,
+                         UPSTREAM_TRUTH, candidate_groups)
 
 @dataclass(frozen=True)
 class DiscrepancyResult:
@@ -73,11 +73,11 @@ class DiscrepancyResult:
 # ------------------------------------------------------------------------- held-out gap after
 
 
-def _refit_on(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model, folds: Sequence[_Fold]) -> Model:
+def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model, folds: Sequence[Fold]) -> Model:
     """Re-fit the found effects' parameters on `folds`, channel by channel (upstream first)."""
     current = model_out
-    for channel in _CHANNEL_ORDER:
-        side = _SENSOR_SIDE.get(channel)
+    for channel in CHANNEL_ORDER:
+        side = SENSOR_SIDE.get(channel)
         # an effect is re-fitted where it was found; one with its own value per sensor chain on each
         names = [f.name for f in effects if f.channel.split("+")[0] == channel
                  or (side is not None and channel in f.channel.split("+")
@@ -87,11 +87,11 @@ def _refit_on(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model, f
             if g[0].name in names:
                 specs += [s for s in g if not (s.is_plant and any(t.is_plant and t.key == s.key for t in specs))]
         if specs:
-            current = _polish(ctx, _strip(current, specs), specs, current, channel, False, folds)
+            current = polish(ctx, strip_effects(current, specs), specs, current, channel, False, folds)
     return current
 
 
-def _heldout_nrmse(ctx: _Context, effects: Sequence[FoundEffect], model_out: Model) -> dict:
+def _heldout_nrmse(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model) -> dict:
     """Per-channel NRMSE of held-out predictions: each fold predicted by a re-fit on the others."""
     rss = {c: 0.0 for c in CHANNELS}
     ss = {c: 0.0 for c in CHANNELS}
@@ -148,7 +148,7 @@ def analyse(
         progress("compare")
     sims_before = simulate_runs([model], runs)[0]
     noise = noise_estimates(runs, sims_before, model)
-    tracks = _drive_tracks(runs)
+    tracks = drive_tracks(runs)
     diag_before = diagnose(runs, sims_before, model, noise, settings, tracks=tracks)
     gap_before = nrmse_by_channel(runs, sims_before)
     plant_fit, base, sims_fit, diag_fit = None, model, sims_before, diag_before
@@ -177,11 +177,11 @@ def analyse(
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
     diag_after = diagnose(runs, sims_after, model_out, noise, settings, tracks=tracks)
-    gap_after = (_heldout_nrmse(_Context(runs, noise, settings, tracks), effects, model_out) if effects
+    gap_after = (_heldout_nrmse(AnalysisContext(runs, noise, settings, tracks), effects, model_out) if effects
                  else nrmse_by_channel(runs, sims_fit))
     in_sample = nrmse_by_channel(runs, sims_after)
-    ctx = _Context(runs, noise, settings, tracks)
-    sensor_ok = {c: not _channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
+    ctx = AnalysisContext(runs, noise, settings, tracks)
+    sensor_ok = {c: not channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
                  if any(s.channel == c and s.truth_referenced for s in searches)}
     remaining = _remaining(diag_after, searches, sensor_ok)
     if remaining:
@@ -217,7 +217,7 @@ def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Ma
             note = "possibly propagated from the unexplained stroke_deg gap; " + note
         if c in sensor_ok:
             note = ("the sensor itself is explained when driven by the measured angle: this gap is the "
-                    f"{_UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
+                    f"{UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
                     "a sensor gap beyond the propagated physics error (judged against the measured angle); ") + note
         near = _near_misses(searches, c)
         if near:

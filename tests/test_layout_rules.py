@@ -1,0 +1,130 @@
+"""The layout's rules, read from the source: no module imports another's underscore names, no
+import cycle between modules, and every import between FLAAIR packages points down the layers
+(model and messages at the bottom, then the node plumbing, the domain packages, the tools)."""
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SRC = ROOT / "src"
+
+# Lower number, lower layer: a package may import only packages on a lower layer.
+LAYERS = {"flaair_model": 0, "flaair_msgs": 0, "flaair_common": 1, "flaair_sim": 2, "flaair_sensors": 2,
+          "flaair_control": 3, "flaair_bridge": 3, "flaair_tools": 4}
+
+
+def _source_files(*dirs: Path) -> list[Path]:
+    return sorted(p for d in dirs for p in d.rglob("*.py")
+                  if "build" not in p.relative_to(ROOT).parts and p.name != "setup.py")
+
+
+def _module_name(path: Path) -> str:
+    """`flaair_tools.discrepancy.fitting` for src/flaair_tools/flaair_tools/discrepancy/fitting.py."""
+    parts = list(path.relative_to(SRC).parts[1:])
+    parts[-1] = parts[-1][:-3]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path, module: str) -> list[tuple[str, list[str], int]]:
+    """(absolute module, imported names, line) of each import statement in `path`."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, [], node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            found.append((target, [alias.name for alias in node.names], node.lineno))
+    return found
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def _module_graph() -> tuple[dict[str, Path], dict[str, set[str]]]:
+    modules = {_module_name(p): p for p in _source_files(SRC)}
+    graph: dict[str, set[str]] = defaultdict(set)
+    for name, path in modules.items():
+        for target, names, _line in _imports(path, name):
+            for candidate in [target] + [f"{target}.{n}" for n in names]:
+                if candidate in modules and candidate != name:
+                    graph[name].add(candidate)
+    return modules, graph
+
+
+def test_no_module_imports_another_modules_underscore_names() -> None:
+    offences = []
+    for path in _source_files(SRC, ROOT / "tests", ROOT / "bench", ROOT / "scripts"):
+        module = _module_name(path) if SRC in path.parents else path.stem
+        for target, names, line in _imports(path, module):
+            private = [n for n in names if _private(n)]
+            if private or any(_private(part) for part in target.split(".")[1:]):
+                offences.append(f"{path.relative_to(ROOT)}:{line}: from {target} import {', '.join(private or names)}")
+    assert offences == [], "underscore names are private to their module:\n" + "\n".join(offences)
+
+
+def test_no_import_cycle_between_modules() -> None:
+    _modules, graph = _module_graph()
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[list[str]] = []
+
+    def visit(node: str) -> None:          # Tarjan's strongly connected components
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for succ in sorted(graph[node]):
+            if succ not in index:
+                visit(succ)
+                low[node] = min(low[node], low[succ])
+            elif succ in stack:
+                low[node] = min(low[node], index[succ])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    assert cycles == [], f"modules that import each other: {cycles}"
+
+
+def test_every_import_between_packages_points_down_the_layers() -> None:
+    modules, _graph = _module_graph()
+    packages = {p.name for p in SRC.iterdir() if (p / "package.xml").exists()}
+    assert packages == set(LAYERS), f"a package without a layer (or a layer without a package): {packages ^ set(LAYERS)}"
+    upward = []
+    for name, path in modules.items():
+        own = name.split(".")[0]
+        for target, _names, line in _imports(path, name):
+            other = target.split(".")[0]
+            if other in LAYERS and other != own and LAYERS[other] >= LAYERS[own]:
+                upward.append(f"{path.relative_to(ROOT)}:{line}: {own} (layer {LAYERS[own]}) imports "
+                              f"{other} (layer {LAYERS[other]})")
+    assert upward == [], "imports must point down the layers:\n" + "\n".join(upward)
+
+
+@pytest.mark.parametrize("source, offence", [
+    ("from .fitting import _Fold\n", "_Fold"),
+    ("from flaair_sim.plant import prepare, _rk4\n", "_rk4"),
+])
+def test_the_underscore_rule_catches_an_offence(tmp_path: Path, source: str, offence: str) -> None:
+    path = tmp_path / "module.py"
+    path.write_text(source)
+    names = [n for _t, ns, _l in _imports(path, "pkg.module") for n in ns if _private(n)]
+    assert names == [offence]
