@@ -22,10 +22,10 @@ TARGET_S = 5.0
 def make_bag(directory: Path) -> Path:
     """A 1 s chirp of the bench robot, as a lab would import it."""
     from flaair_common.runcsv import write_run
-    from flaair_sim.drive import DriveParams, drive_record
+    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
-    from flaair_sim.plant import synthesize_measured_run
+    from flaair_sim.core.plant import synthesize_measured_run
     from flaair_tools.experiment import robot_effects
     from flaair_tools.import_runs import import_runs
 

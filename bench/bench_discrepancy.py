@@ -43,7 +43,7 @@ from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 from tqdm import tqdm
 
 from flaair_model.model_io import load_model
-from flaair_sim.plant import simulate
+from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy import Settings, analyse
 from flaair_tools.discrepancy.datasets import (FAMILIES, confusion_table, dataset_cases, make_runs, random_robot,
                                                score_case, true_plant)

@@ -1,4 +1,4 @@
-"""Benchmark of the sensor front-end core (flaair_sensors.frontend).
+"""Benchmark of the sensor front-end core (flaair_sensors.core.frontend).
 
 Figures:
 - step() on 10-sample blocks (0.5 ms of data at 20 kHz): throughput in samples/s and per-block
@@ -21,13 +21,13 @@ import numpy as np
 from benchlib import Figure, best_time_s, print_table, write_json
 from scipy import signal
 
-from flaair_sensors import calibration, characterization
-from flaair_sensors import frontend as fe
+from flaair_sensors.core import calibration, characterization
+from flaair_sensors.core import frontend as fe
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.frontend_io import frontend_tuning_from_config
-from flaair_sim.drive import chirp
+from flaair_sim.core.drive import chirp
 from flaair_model.model_io import load_model
-from flaair_sim.plant import simulate
+from flaair_sim.core.plant import simulate
 
 FS = 20000.0
 BLOCK = 10

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from benchlib import Figure, best_time_s, print_table, write_json
 
-from flaair_sim import plant
-from flaair_sim.drive import chirp
+from flaair_sim.core import plant
+from flaair_sim.core.drive import chirp
 from flaair_model.model import Model, with_effects
 from flaair_model.model_io import load_model
 
@@ -37,7 +37,7 @@ SPEEDUP_TARGET = 100.0
 def python_rk4(drive_v: np.ndarray, fs_hz: float, model: Model) -> tuple[np.ndarray, np.ndarray]:
     """Plain-Python reference: nominal stroke/pitch dynamics, one RK4 step per sample, ZOH drive.
 
-    Same sample convention as flaair_sim.plant (sample k = state at t_k). Returns (stroke_rad, pitch_rad).
+    Same sample convention as flaair_sim.core.plant (sample k = state at t_k). Returns (stroke_rad, pitch_rad).
     """
     pl = model.plant
     inertia, gamma, k, ga = (pl.stroke_inertia_kg_m2, pl.aero_damping_nm_s2, pl.stroke_stiffness_nm_per_rad,
@@ -87,7 +87,7 @@ def cold_compile_s() -> float:
     code = (
         "import time, numpy as np\n"
         "t = time.perf_counter()\n"
-        "from flaair_sim import plant\n"
+        "from flaair_sim.core import plant\n"
         "from flaair_model.model_io import load_model\n"
         "m = load_model()\n"
         "plant.simulate(np.zeros(10), 20000.0, m)\n"

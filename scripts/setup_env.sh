@@ -89,7 +89,7 @@ if [ "$FORCE" = "--force" ] || [ "$(cat install/.flaair-build-stamp 2>/dev/null)
 fi
 # --- 3. numba cache ---------------------------------------------------------------------
 # Compile the kernels once, so that no node pays 10-20 s of compilation at its first block.
-numba_sources=$(grep -l "njit" src/*/*/*.py | sort)
+numba_sources=$(find src -path "*/build" -prune -o -name "*.py" -print | xargs grep -l "njit" | sort)
 # shellcheck disable=SC2086
 numba_hash="$(hash_of $numba_sources scripts/warm_numba.py)"
 if [ "$(cat install/.flaair-numba-stamp 2>/dev/null)" != "$numba_hash" ]; then

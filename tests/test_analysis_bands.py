@@ -30,7 +30,7 @@ def test_bands_are_the_config_values_and_bad_ones_are_named() -> None:
 
 
 def test_cores_take_the_bands_as_required_arguments() -> None:
-    from flaair_sensors import calibration, characterization
+    from flaair_sensors.core import calibration, characterization
 
     with pytest.raises(TypeError, match="amplitude_band_hz"):
         calibration.calibrate({}, 1.25)
@@ -42,8 +42,8 @@ def test_calibrate_cli_band_defaults_to_config_and_reaches_the_output(tmp_path: 
     """Without --band-hz the calibration's band is the configured one; --band-hz overrides it."""
     from flaair_common.runcsv import write_run
     from flaair_model.model_io import load_model
-    from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.plant import synthesize_measured_run
+    from flaair_sim.core.drive import DriveParams, drive_record
+    from flaair_sim.core.plant import synthesize_measured_run
 
     fs = 20000.0
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), fs, 20000)
@@ -60,7 +60,7 @@ def test_calibrate_cli_band_defaults_to_config_and_reaches_the_output(tmp_path: 
 
 
 def test_hilbert_settings_come_from_the_analyze_section() -> None:
-    from flaair_control.transition import HilbertParams
+    from flaair_control.core.transition import HilbertParams
     from flaair_control.transition_io import hilbert_params_from_config
 
     section = yaml.safe_load((config_dir() / "flaair.yaml").read_text())["analyze"]["ros__parameters"]

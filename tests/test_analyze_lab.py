@@ -22,8 +22,8 @@ def bench_model():
 
 def lab_runs() -> dict[str, dict[str, np.ndarray]]:
     """A lab's typical set: a chirp, a stepped sine (60-200 Hz, 10 Hz, 0.2 s) and a 100 Hz sine."""
-    from flaair_sim.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
-    from flaair_sim.plant import synthesize_measured_run
+    from flaair_sim.core.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
+    from flaair_sim.core.plant import synthesize_measured_run
 
     model, rng = bench_model(), np.random.default_rng(7)
     chirp = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)

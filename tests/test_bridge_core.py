@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flaair_bridge import bridge, protocol
-from flaair_bridge.bridge import DriveBlock, SensorDatagram, Stop, Tick
+from flaair_bridge.core import bridge, protocol
+from flaair_bridge.core.bridge import DriveBlock, SensorDatagram, Stop, Tick
 import struct
 
 from flaair_bridge.emulated_target import TargetCore, sensor_packet

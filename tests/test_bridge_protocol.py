@@ -14,8 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from flaair_bridge import emulated_target, protocol
-from flaair_bridge.protocol import DrivePacket, ProtocolError, SensorPacket
+from flaair_bridge.core import protocol
+from flaair_bridge import emulated_target
+from flaair_bridge.core.protocol import DrivePacket, ProtocolError, SensorPacket
 
 F32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 U32 = st.integers(0, 2**32 - 1)

@@ -94,7 +94,7 @@ def end_of_run(procs, tmp_path: Path, port: int, bridge, sig: int) -> tuple[str,
 
 def test_samples_match_the_plant_garbage_is_survived_and_sigint_ends_with_a_stop_packet(tmp_path) -> None:
     from flaair_model.model_io import load_model
-    from flaair_sim import plant
+    from flaair_sim.core import plant
 
     port, n_blocks = free_port(), 2000          # 1 s of signal
     with ros_processes() as procs:

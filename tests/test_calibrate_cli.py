@@ -15,8 +15,8 @@ FS_HZ = 20000.0
 
 def _lab_csv(path: Path, model, seed: int, amplitude_v: float = 100.0) -> None:
     from flaair_common.runcsv import write_run
-    from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.plant import synthesize_measured_run
+    from flaair_sim.core.drive import DriveParams, drive_record
+    from flaair_sim.core.plant import synthesize_measured_run
 
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=amplitude_v, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 20000)
     columns = synthesize_measured_run(drive, FS_HZ, model, np.random.default_rng(seed))
@@ -55,7 +55,7 @@ def test_calibrate_recovers_hidden_gain_and_lag(imported_bag: Path, tmp_path: Pa
 
 def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path: Path) -> None:
     from flaair_model.config import load_yaml
-    from flaair_sensors.frontend import params_from_calibration
+    from flaair_sensors.core.frontend import params_from_calibration
 
     assert run([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path)], isolated_env(), 120).returncode == 0
     params = params_from_calibration(load_yaml(tmp_path / "calibration.yaml"), FS_HZ, **FRONTEND_TUNING)

@@ -1,4 +1,4 @@
-"""Collision metric (paper) and per-wingbeat collision monitor (flaair_control.collision)."""
+"""Collision metric (paper) and per-wingbeat collision monitor (flaair_control.core.collision)."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 
-from flaair_control import collision as col
+from flaair_control.core import collision as col
 from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config
 
 FS = 20000.0
@@ -148,7 +148,7 @@ def test_monitor_parameters_are_validated_by_name():
 
 import flaair_model.model as sim_model  # noqa: E402
 import flaair_model.model_io as sim_model_io  # noqa: E402
-import flaair_sim.plant as plant_mod  # noqa: E402
+import flaair_sim.core.plant as plant_mod  # noqa: E402
 
 LIMIT_DEG = 20.0   # obstacle below the 28.3 deg free stroke at 100 Hz, 75 V
 

@@ -1,4 +1,4 @@
-"""dSA controller core (flaair_control.dsa): discretization, blend, limits, sync->async transition."""
+"""dSA controller core (flaair_control.core.dsa): discretization, blend, limits, sync->async transition."""
 from __future__ import annotations
 
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 
-from flaair_control import dsa, hopf
+from flaair_control.core import dsa, hopf
 
 FS = 20000.0
 BLOCK = 10
@@ -145,7 +145,7 @@ def test_bad_schedule_is_named():
 # --------------------------------------------------------------------------- on the simulated robot
 
 import flaair_model.model_io as sim_model_io  # noqa: E402
-import flaair_sim.plant as plant_mod  # noqa: E402
+import flaair_sim.core.plant as plant_mod  # noqa: E402
 
 
 def test_sync_to_async_transition_on_the_simulated_robot():

@@ -1,4 +1,4 @@
-"""Hopf theory of the dSA loop (flaair_control.hopf) against polynomial roots and the simulator."""
+"""Hopf theory of the dSA loop (flaair_control.core.hopf) against polynomial roots and the simulator."""
 from __future__ import annotations
 
 import math
@@ -9,7 +9,7 @@ import pytest
 from scipy.signal import hilbert
 
 
-from flaair_control import dsa, hopf
+from flaair_control.core import dsa, hopf
 
 FS = 20000.0
 BLOCK = 10
@@ -102,7 +102,7 @@ def test_bad_parameters_are_named():
 # --------------------------------------------------------------------------- simulated loop
 
 import flaair_model.model_io as sim_model_io  # noqa: E402
-import flaair_sim.plant as plant_mod  # noqa: E402
+import flaair_sim.core.plant as plant_mod  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Drive safety core (flaair_control.safety): clamp, slew limit, watchdog."""
+"""Drive safety core (flaair_control.core.safety): clamp, slew limit, watchdog."""
 from __future__ import annotations
 
 import math
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from flaair_control import safety
+from flaair_control.core import safety
 
 FS = 20000.0
 

@@ -1,4 +1,4 @@
-"""Stroke-amplitude controller core (flaair_control.stroke): design, tracker, law, safety chain; node over DDS."""
+"""Stroke-amplitude controller core (flaair_control.core.stroke): design, tracker, law, safety chain; node over DDS."""
 from __future__ import annotations
 
 import json
@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_control import safety, stroke
+from flaair_control.core import safety, stroke
 from flaair_model.config import node_parameters
 from flaair_model.model_io import load_model
-from flaair_sim import plant
+from flaair_sim.core import plant
 
 FS = 20000.0
 # set a parameter of the running node through its parameter service (rclpy's own client)

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_control import transition as tr
+from flaair_control.core import transition as tr
 
 FS = 20000.0
 # 4th-order 40-400 Hz band-pass, 20 ms 2nd-order Savitzky-Golay, 20 ms edges

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from flaair_control.control_io import monitor_windows_from_config
-from flaair_control import collision, dsa
-from flaair_sim import drive, plant
+from flaair_control.core import collision, dsa
+from flaair_sim.core import drive, plant
 from flaair_model.model_io import load_model
 
 FS_HZ = 20000.0

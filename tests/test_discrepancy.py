@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import write_run
-from flaair_sim.drive import chirp
+from flaair_sim.core.drive import chirp
 from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
 from flaair_model.model_io import load_model, save_model
-from flaair_sim.plant import simulate
+from flaair_sim.core.plant import simulate
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy import diagnosis, evidence, fitting, search, settings, vocabulary, workflow
 from flaair_tools.discrepancy import runs as run_module

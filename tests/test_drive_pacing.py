@@ -1,12 +1,12 @@
-"""flaair_sim.drive_pacing: the drive node's decisions, event by event, without ROS."""
+"""flaair_sim.core.drive_pacing: the drive node's decisions, event by event, without ROS."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from flaair_model.schema import ParameterError
-from flaair_sim import drive_pacing as pacing
-from flaair_sim.drive import DriveError, DriveParams, drive_record
+from flaair_sim.core import drive_pacing as pacing
+from flaair_sim.core.drive import DriveError, DriveParams, drive_record
 from flaair_sim.drive_io import DRIVE_NODE_PARAMS, pacing_params_from_config
 
 FS_HZ, BLOCK = 20_000.0, 10

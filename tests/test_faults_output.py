@@ -54,7 +54,7 @@ def test_drawing_figures_leaves_the_users_matplotlib_backend_alone(tmp_path: Pat
         from flaair_sensors import figures
         from flaair_tools import sweep_report, transition_figure
         from flaair_tools.discrepancy import report
-        from flaair_control import transition as tr
+        from flaair_control.core import transition as tr
         t = np.arange(4000) / 20000.0
         rec = transition_figure.TransitionRecord(t, 10 * np.sin(2 * np.pi * 140 * t), t[::10], np.ones(400),
                                                  np.full(400, 140.0), np.zeros(400), 0)

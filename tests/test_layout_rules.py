@@ -121,10 +121,46 @@ def test_every_import_between_packages_points_down_the_layers() -> None:
 
 @pytest.mark.parametrize("source, offence", [
     ("from .fitting import _Fold\n", "_Fold"),
-    ("from flaair_sim.plant import prepare, _rk4\n", "_rk4"),
+    ("from flaair_sim.core.plant import prepare, _rk4\n", "_rk4"),
 ])
 def test_the_underscore_rule_catches_an_offence(tmp_path: Path, source: str, offence: str) -> None:
     path = tmp_path / "module.py"
     path.write_text(source)
     names = [n for _t, ns, _l in _imports(path, "pkg.module") for n in ns if _private(n)]
     assert names == [offence]
+
+
+CORE_PACKAGES = ("flaair_sensors", "flaair_control", "flaair_sim", "flaair_bridge")
+
+
+def _core_modules() -> dict[str, Path]:
+    return {_module_name(p): p for pkg in CORE_PACKAGES for p in _source_files(SRC / pkg / pkg / "core")}
+
+
+def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
+    """A core imports no rclpy and no shell: from its own package only other cores, and from other
+    FLAAIR packages only their cores, the model and the node plumbing's pure modules."""
+    cores = _core_modules()
+    assert {name.split(".")[0] for name in cores} == set(CORE_PACKAGES)
+    offences = []
+    for name, path in cores.items():
+        for target, names, line in _imports(path, name):
+            top, _, rest = target.partition(".")
+            shell_of_domain = top in CORE_PACKAGES and not (rest == "core" or rest.startswith("core."))
+            if top == "rclpy" or shell_of_domain:
+                offences.append(f"{path.relative_to(ROOT)}:{line}: imports {target}")
+    assert offences == [], "a core may import no rclpy and no shell module:\n" + "\n".join(offences)
+
+
+@pytest.mark.timeout(120)
+def test_importing_every_core_loads_no_rclpy() -> None:
+    """Transitively too: the cores run offline (replay, sweeps, analysis) on a machine with no ROS."""
+    import subprocess
+    import sys
+
+    names = sorted(_core_modules())
+    code = ("import importlib, sys\n"
+            f"for name in {names!r}:\n    importlib.import_module(name)\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'rmw')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=110, check=True)
+    assert out.stdout.strip() == "[]", out.stdout

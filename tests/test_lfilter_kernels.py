@@ -14,9 +14,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 
-from flaair_control import dsa, safety
+from flaair_control.core import dsa, safety
 from flaair_model.lfilter import float_block, lfilter, normalized_ba
-from flaair_sensors import frontend as fe
+from flaair_sensors.core import frontend as fe
 
 FS = 20000.0
 

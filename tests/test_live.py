@@ -20,7 +20,7 @@ def _live(*args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess:
 
 
 def _final(bag: Path):
-    from flaair_control import transition as tr
+    from flaair_control.core import transition as tr
     from flaair_control.transition_io import hilbert_params_from_config
     from flaair_tools import bagio
 
@@ -95,7 +95,7 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     and a 2 ms lead: 3 ms of loop delay, compensated), and the run ends with a stop."""
     import json
 
-    from flaair_control import transition as tr
+    from flaair_control.core import transition as tr
     from flaair_control.transition_io import hilbert_params_from_config
     from flaair_model.config import node_parameters
     from flaair_tools import bagio

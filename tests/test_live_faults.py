@@ -32,7 +32,7 @@ def test_a_foxglove_port_in_use_is_named_in_one_line() -> None:
 
 
 def test_a_silent_target_is_waited_for_named_then_given_up_with_a_stop_packet_and_a_closed_bag(tmp_path: Path) -> None:
-    from flaair_bridge import protocol
+    from flaair_bridge.core import protocol
     from flaair_tools import bagio
 
     target = _udp_socket()            # where drive goes: nothing answers from here

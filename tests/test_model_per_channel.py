@@ -10,7 +10,7 @@ import yaml
 from flaair_model.model import (ModelError, PerChannel, SensorDelay, effect_params, with_effect_on, with_effects,
                                 without_effect_on)
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
-from flaair_sim.plant import sensor_chain, simulate
+from flaair_sim.core.plant import sensor_chain, simulate
 
 FS_HZ = 20_000.0
 SPLIT = {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}

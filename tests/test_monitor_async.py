@@ -13,15 +13,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_control import monitor
-from flaair_control import supervisor as sv
+from flaair_control.core import monitor
+from flaair_control.core import supervisor as sv
 from flaair_control.control_io import collision_monitor_params_from_config, supervisor_params_from_config
 from flaair_model.config import node_parameters
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
-from flaair_sensors import frontend
+from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_params_from_config
-from flaair_sim import plant
+from flaair_sim.core import plant
 
 FS = 20000.0
 OBSTACLE_S = (1.6, 2.1)

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from flaair_model.config import node_parameters
-from flaair_sim.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
+from flaair_sim.core.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
 from flaair_tools.runkind import RecognitionParams, RunKindError, recognise
 
 FS = 20000.0

@@ -15,10 +15,10 @@ def test_frontend_node_matches_offline_core_and_tracks_truth(monkeypatch, tmp_pa
     from composed import composed, joined
     from flaair_common import topics
     from flaair_model.model_io import load_model
-    from flaair_sensors import frontend
+    from flaair_sensors.core import frontend
     from flaair_sensors.frontend_node import FrontendNode
-    from flaair_sim.drive import DriveParams, drive_record
-    from flaair_sim.plant import simulate
+    from flaair_sim.core.drive import DriveParams, drive_record
+    from flaair_sim.core.plant import simulate
     from flaair_sim.plant_node import PlantNode
 
     n_blocks, block = 400, 10

@@ -1,10 +1,10 @@
-"""The plant's actuator driver core (flaair_sim.actuator), lockstep drive watchdog: exact, on a
+"""The plant's actuator driver core (flaair_sim.core.actuator), lockstep drive watchdog: exact, on a
 fake wall clock. Over DDS, the same ring-down after a kill -9 of the controller is test_faults'."""
 from __future__ import annotations
 
 import numpy as np
 
-from flaair_sim import actuator
+from flaair_sim.core import actuator
 
 FS_HZ, BLOCK = 20000.0, 10
 PARAMS = actuator.ActuatorParams(sample_rate_hz=FS_HZ, block_size=BLOCK, mode="lockstep", command_timeout_s=0.3,

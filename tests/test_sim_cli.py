@@ -22,7 +22,7 @@ def _write_drive_csv(path: Path, fs_hz: float, n: int) -> np.ndarray:
 
 def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
     from flaair_model.model_io import load_model
-    from flaair_sim.plant import simulate
+    from flaair_sim.core.plant import simulate
 
     drive = _write_drive_csv(tmp_path / "in.csv", 20000.0, 4000)
     result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv")], isolated_env())

@@ -1,10 +1,10 @@
-"""flaair_sim.drive: closed-form generators and the sample-exact block form."""
+"""flaair_sim.core.drive: closed-form generators and the sample-exact block form."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from flaair_sim.drive import (
+from flaair_sim.core.drive import (
     DriveError,
     DriveParams,
     DriveState,

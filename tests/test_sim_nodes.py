@@ -22,9 +22,9 @@ def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path
 
 @pytest.mark.graph
 def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> None:
-    from flaair_sim.drive import DriveParams, drive_record
+    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model_io import load_model
-    from flaair_sim.plant import simulate
+    from flaair_sim.core.plant import simulate
 
     n_blocks = 200
     with ros_processes() as procs:

@@ -1,4 +1,4 @@
-"""flaair_sim.plant: dynamics against closed forms and solve_ivp, sensor chain, effects, step/batch."""
+"""flaair_sim.core.plant: dynamics against closed forms and solve_ivp, sensor chain, effects, step/batch."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from flaair_sim.drive import chirp, sine, stepped_sine
+from flaair_sim.core.drive import chirp, sine, stepped_sine
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
-from flaair_sim.plant import (
+from flaair_sim.core.plant import (
     PlantInputs,
     PlantState,
     PlantStepParams,

@@ -12,7 +12,7 @@ def test_source_install_setup_bash_gives_rclpy_and_flaair_packages() -> None:
     env = {"HOME": os.environ.get("HOME", "/root"), "PATH": "/usr/local/bin:/usr/bin:/bin"}
     script = (
         "source install/setup.bash && python -c '"
-        "import rclpy, flaair_msgs.msg, flaair_sim.plant, flaair_model.pvdf, flaair_common.params;"
+        "import rclpy, flaair_msgs.msg, flaair_sim.core.plant, flaair_model.pvdf, flaair_common.params;"
         "print(rclpy.__file__)'"
     )
     result = subprocess.run(["bash", "-c", script], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120)

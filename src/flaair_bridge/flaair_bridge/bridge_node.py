@@ -5,7 +5,7 @@ samples NaN: the front end marks them invalid), the drive the target applied Dri
 /flaair/drive/applied. /flaair/drive goes to the target (target_host:target_port; empty / 0: the
 sender) lead_samples ahead, clamped to +-drive_limit_v. A drive stream silent for drive_timeout_s,
 a target silent for sensor_timeout_s, and every end of a run send a stop packet. Malformed
-datagrams are counted and logged. A thin shell over flaair_bridge.bridge.step; a reader thread
+datagrams are counted and logged. A thin shell over flaair_bridge.core.bridge.step; a reader thread
 (flaair_bridge.udp, SCHED_FIFO at realtime_priority) shares the node with the executor under one lock.
 
 Usage: bin/flaair run flaair_bridge bridge_node --ros-args -p listen_port:=25000 -p lead_samples:=20
@@ -19,7 +19,8 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from flaair_bridge import bridge, udp
+from flaair_bridge.core import bridge
+from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
@@ -35,7 +36,7 @@ STOP_COPIES = 3                           # a run's final stop packet is sent th
 
 
 class BridgeNode(Node):
-    """Thin shell over flaair_bridge.bridge.step: UDP and messages to core inputs and back."""
+    """Thin shell over flaair_bridge.core.bridge.step: UDP and messages to core inputs and back."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

@@ -3,7 +3,7 @@
 Rehearse a bench session without hardware: this program stands where the lab's real-time
 target (a Speedgoat) stands. Every n samples, paced by the wall clock at the sample rate, it
 sends a sensor packet (the drive it applied and the simulated charge-amplifier outputs of the
-plant model, flaair_sim.plant) to the bridge, and it applies the drive packets it receives:
+plant model, flaair_sim.core.plant) to the bridge, and it applies the drive packets it receives:
 
 - a drive sample is applied at its index if it arrived in time; one that arrives after its
   index has passed is discarded and counted late. A packet's drive is decided at the packet's
@@ -20,7 +20,7 @@ At exit (--duration reached, Ctrl-C or SIGTERM) it prints its counters as one li
 JSON (and writes them to --counters): samples late, missing (applied without a fresh drive
 sample while being driven), fresh, dropped packets, stops, watchdog trips, its own overruns.
 Written from docs/REALTIME_PROTOCOL.md alone, with its own packing (struct): it does not use
-flaair_bridge.protocol, so the two implementations check each other.
+flaair_bridge.core.protocol, so the two implementations check each other.
 
 Usage: bin/flaair run flaair_bridge emulated_target --duration 10 --counters out/target.json
 """
@@ -149,7 +149,7 @@ def _decide(values, tags, first, hold_samples, limit, last_v, missing_run, armed
 
 
 def sensor_packet(sequence: int, first: int, rate_hz: float, flags: int, drive_v, stroke_v, pitch_v) -> bytes:
-    """One sensor packet, packed with struct (independent of flaair_bridge.protocol)."""
+    """One sensor packet, packed with struct (independent of flaair_bridge.core.protocol)."""
     n = len(drive_v)
     samples = np.column_stack([drive_v, stroke_v, pitch_v]).astype("<f4")
     return SENSOR_HEAD.pack(b"FLS1", sequence % 2**32, first, rate_hz, n, flags) + samples.tobytes()
@@ -209,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     from flaair_model.model import ModelError
     from flaair_model.model_io import load_model
-    from flaair_sim import plant
+    from flaair_sim.core import plant
 
     try:
         model = load_model(args.model)

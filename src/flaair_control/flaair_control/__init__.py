@@ -1,9 +1,9 @@
-"""FLAAIR control cores: collision metric/monitor, dSA controller, Hopf theory, drive safety.
+"""FLAAIR control: collision monitor, dSA controller, stroke-amplitude control.
 
-Pure numpy/scipy/numba modules (no ROS, no file I/O):
+``core/`` holds the pure decisions (no rclpy); beside it the ROS shells and their adapters:
 
-- ``collision``: paper FFT/RMSE collision metric and a per-wingbeat collision monitor
-- ``dsa``: delayed-stretch-activation controller (filter, sync/async blend, delay compensation)
-- ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset)
-- ``safety``: drive clamp, slew limit and sensor watchdog
+- ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``: the nodes (rclpy)
+- ``control_io``, ``transition_io``: their parameters and message <-> core mappings (no rclpy)
 """
+
+__all__ = ["core", "dsa_controller_node", "collision_monitor_node", "stroke_controller_node", "control_io", "transition_io"]

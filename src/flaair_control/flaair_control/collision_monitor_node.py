@@ -4,7 +4,7 @@ Subscribes to the estimated wing state (/flaair/wing_state) and, for drive windo
 estimated frequency, to the drive (/flaair/drive). Publishes a CollisionStatus for every
 wingbeat (/flaair/collision/status) and a CollisionEvent at each onset and clearance
 (/flaair/collision/events, reliable + transient-local). A thin shell over the pure core
-`flaair_control.monitor` (windows, drive-frequency lock, the paper metric, the decision),
+`flaair_control.core.monitor` (windows, drive-frequency lock, the paper metric, the decision),
 which `analyze` also runs on bags: read its docstring for what is decided and how.
 
 Windows (window_source): drive (locked to the drive phase; drive_frequency_hz 0 estimates the
@@ -25,7 +25,7 @@ from flaair_common.blocks import check_block, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import INFO, WARN, log, run_node, warn_counted
-from flaair_control import monitor
+from flaair_control.core import monitor
 from flaair_control.control_io import COLLISION_MONITOR_PARAMS, CONFIG_FILE, collision_monitor_params_from_config
 from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
 
@@ -35,7 +35,7 @@ EVENT_KINDS = {monitor.ONSET: CollisionEvent.ONSET, monitor.CLEARANCE: Collision
 
 
 class CollisionMonitorNode(Node):
-    """Thin shell over flaair_control.monitor.step."""
+    """Thin shell over flaair_control.core.monitor.step."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

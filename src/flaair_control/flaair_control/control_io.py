@@ -11,11 +11,11 @@ import math
 from dataclasses import replace
 from typing import Any, Mapping
 
-from flaair_control import dsa, safety
-from flaair_control import collision as col
-from flaair_control.monitor import CollisionMonitorParams, metric_params, window_params
-from flaair_control.supervisor import SupervisorParams
-from flaair_control.transition import TransitionError, crossing_params
+from flaair_control.core import dsa, safety
+from flaair_control.core import collision as col
+from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
+from flaair_control.core.supervisor import SupervisorParams
+from flaair_control.core.transition import TransitionError, crossing_params
 from flaair_model.config import node_parameters
 from flaair_model.model import Model
 from flaair_model.schema import ParameterError, ParamSpec

@@ -2,7 +2,7 @@
 
 One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
 (/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
-supervisor `flaair_control.supervisor` (the dSA core `dsa`, the safety core `safety`).
+supervisor `flaair_control.core.supervisor` (the dSA core `dsa`, the safety core `safety`).
 
 Drive (paper eqs. dsa/dsaconst): the dSA filter tau'' + a tau' + b tau = -c phi' runs on the
 measured stroke velocity; drive = K_r sync + (1 - K_r) tau / G_a, K_r ramped from kr_initial
@@ -27,7 +27,7 @@ from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
-from flaair_control import supervisor as sv
+from flaair_control.core import supervisor as sv
 from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS, describe_loop, supervisor_params_from_config
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
@@ -39,7 +39,7 @@ WATCHDOG = {False: ControllerState.WATCHDOG_OK, True: ControllerState.WATCHDOG_T
 
 
 class DsaControllerNode(Node):
-    """Thin shell over flaair_control.supervisor.step."""
+    """Thin shell over flaair_control.core.supervisor.step."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

@@ -2,8 +2,8 @@
 
 Subscribes to the front end's estimate (/flaair/wing_state) and answers each block with one
 drive block (/flaair/drive) and a ControllerState (/flaair/controller/state; amplitude_scale
-= command / feed-forward). A thin shell over flaair_control.stroke (wingbeat tracker, integral
-law, sync sine or dSA filter) and flaair_control.safety (non-finite -> 0, slew limit, clamp to
+= command / feed-forward). A thin shell over flaair_control.core.stroke (wingbeat tracker, integral
+law, sync sine or dSA filter) and flaair_control.core.safety (non-finite -> 0, slew limit, clamp to
 +-drive_limit_v, signal-time watchdog). mode sync adjusts the drive amplitude at
 sync_frequency_hz; mode dsa adjusts the dSA gain mu, the frequency stays free.
 
@@ -29,8 +29,8 @@ from flaair_common.blocks import stamp_from_time_s
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
-from flaair_control import safety, stroke
-from flaair_control.dsa import loop_delay_s
+from flaair_control.core import safety, stroke
+from flaair_control.core.dsa import loop_delay_s
 from flaair_model.model_io import load_model
 from flaair_msgs.msg import ControllerState, DriveCommandBlock, WingStateBlock
 from flaair_sensors.frontend_io import velocity_delay_s

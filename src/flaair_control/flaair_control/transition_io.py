@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from flaair_control.transition import HilbertParams, TransitionError
+from flaair_control.core.transition import HilbertParams, TransitionError
 from flaair_model.schema import ParameterError
 from flaair_sensors.analysis_io import CONFIG_FILE, SECTION, analysis_values, band_from_config
 

@@ -12,7 +12,7 @@ from typing import Any
 import matplotlib
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
-from .characterization import Bode, ChannelBode  # noqa: E402
+from .core.characterization import Bode, ChannelBode  # noqa: E402
 
 __all__ = ["bode_figure", "save_bode_figure", "save_figure", "overlaid_bode_figure", "collision_fft_figure"]
 

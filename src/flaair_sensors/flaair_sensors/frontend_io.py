@@ -13,7 +13,7 @@ from flaair_model.config import ConfigError, load_yaml, node_parameters
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
-from flaair_sensors import frontend
+from flaair_sensors.core import frontend
 
 NODE_NAME = "frontend_node"
 CONFIG_FILE = "flaair.yaml"

@@ -2,7 +2,7 @@
 
 Subscribes to raw sensor-voltage blocks (/flaair/sensor_v) and publishes wing-state blocks
 (/flaair/wing_state: stroke_deg, pitch_deg, stroke_velocity_deg_s, validity), through the
-same core (flaair_sensors.frontend.step) that runs offline on bags.
+same core (flaair_sensors.core.frontend.step) that runs offline on bags.
 
 Gains come from the model (paper Table 1 through the composite-beam charge model) or from a
 calibration file written by `bin/flaair calibrate`. V_HREF and slow drift are removed, the
@@ -26,7 +26,7 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
 from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
-from flaair_sensors import frontend
+from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import CONFIG_FILE, FRONTEND_PARAMS, NODE_NAME, frontend_params_from_config
 
 PARAMS = FRONTEND_PARAMS
@@ -35,7 +35,7 @@ TIMED_BLOCKS, STATS_PERIOD_S = 20000, 10.0   # processing times kept; logged thi
 
 
 class FrontendNode(Node):
-    """Thin shell over flaair_sensors.frontend.step."""
+    """Thin shell over flaair_sensors.core.frontend.step."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

@@ -1,5 +1,10 @@
-"""FLAAIR plant simulation core: model parameters and effects (`model`), YAML I/O (`model_io`),
-plant dynamics and sensor chain (`plant`), drive signals (`drive`).
+"""FLAAIR plant simulation: the robot's dynamics and sensor chain, the drive generator.
 
-Core modules import numpy, scipy and numba only; ROS nodes and the CLI sit on top of them.
+``core/`` holds the pure functions (no rclpy); beside it the ROS shells and the CLI:
+
+- ``plant_node``, ``drive_node``: the nodes (rclpy)
+- ``plant_io``, ``drive_io``: their parameters and message <-> core mappings (no rclpy)
+- ``cli_simulate``: `bin/flaair simulate`
 """
+
+__all__ = ["core", "plant_node", "drive_node", "plant_io", "drive_io", "cli_simulate"]

@@ -10,8 +10,8 @@ from typing import Any, Mapping
 
 from flaair_model.config import node_parameters
 from flaair_model.schema import ParameterError, ParamSpec
-from flaair_sim import drive
-from flaair_sim.drive_pacing import PACINGS, PacingParams
+from flaair_sim.core import drive
+from flaair_sim.core.drive_pacing import PACINGS, PacingParams
 
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "drive_node"

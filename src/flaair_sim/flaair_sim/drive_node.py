@@ -12,7 +12,7 @@ Ending: after run_time_s, and on SIGINT/SIGTERM if the last block was not zero, 
 zero drive follows, so the actuator is never left holding a voltage (a lockstep plant's drive
 watchdog trips on a command source that falls silent while driving).
 
-The decisions (pacing, retries, the closing zero block) are flaair_sim.drive_pacing's; the
+The decisions (pacing, retries, the closing zero block) are flaair_sim.core.drive_pacing's; the
 parameters are declared in flaair_sim.drive_io.
 
 Usage: bin/flaair run flaair_sim drive_node --ros-args -p waveform:=chirp -p amplitude_v:=100.0
@@ -29,14 +29,14 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import SEVERITY, log, run_node
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
-from flaair_sim import drive_pacing as pacing
+from flaair_sim.core import drive_pacing as pacing
 from flaair_sim.drive_io import CONFIG_FILE, DRIVE_NODE_PARAMS, NODE_NAME, pacing_params_from_config
 
 PARAMS = DRIVE_NODE_PARAMS
 
 
 class DriveNode(Node):
-    """Thin shell over flaair_sim.drive_pacing.step."""
+    """Thin shell over flaair_sim.core.drive_pacing.step."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

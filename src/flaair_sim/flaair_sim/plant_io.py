@@ -2,7 +2,7 @@
 
 `PLANT_PARAMS` declares the plant_node parameters (config/flaair.yaml); `plant_models` loads
 the robot's model (and its obstacle variant), `actuator_params_from_config` the pacing and
-watchdog of `flaair_sim.actuator`, for the node and offline tools alike.
+watchdog of `flaair_sim.core.actuator`, for the node and offline tools alike.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from typing import Any, Mapping
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
-from flaair_sim.actuator import ActuatorParams
+from flaair_sim.core.actuator import ActuatorParams
 
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "plant_node"

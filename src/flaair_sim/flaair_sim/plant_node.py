@@ -5,7 +5,7 @@ Subscribes to drive-command blocks (/flaair/drive) and publishes raw sensor-volt
 
 Pacing (lockstep: one block per command block; realtime: the wall clock), command checks
 and the lockstep drive watchdog (zero drive and ring-down when a driving source falls silent)
-are the pure core `flaair_sim.actuator`; drive is clamped to +-drive_limit_v before the model.
+are the pure core `flaair_sim.core.actuator`; drive is clamped to +-drive_limit_v before the model.
 When composed with the front end and a controller (`flaair_common.container`), the block
 streams travel in-process.
 
@@ -28,14 +28,14 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
-from flaair_sim import actuator, plant
+from flaair_sim.core import actuator, plant
 from flaair_sim.plant_io import CLOCK_DEPTH, CONFIG_FILE, NODE_NAME, PLANT_PARAMS, actuator_params_from_config, plant_models
 
 PARAMS = PLANT_PARAMS
 
 
 class PlantNode(Node):
-    """Thin shell over flaair_sim.actuator.step and flaair_sim.plant.step."""
+    """Thin shell over flaair_sim.core.actuator.step and flaair_sim.core.plant.step."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

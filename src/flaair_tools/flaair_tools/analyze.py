@@ -50,11 +50,11 @@ from tqdm import tqdm
 
 from flaair_common import topics
 from flaair_model.config import ConfigError, load_yaml, node_parameters
-from flaair_sensors import characterization as ch
-from flaair_sensors import frontend
+from flaair_sensors.core import characterization as ch
+from flaair_sensors.core import frontend
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.frontend_io import frontend_tuning_from_config
-from flaair_sensors.calibration import CalibrationError, calibrate
+from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
 from flaair_tools.runkind import DriveKind, RecognitionParams, RunKindError, recognise
 from flaair_tools.runs import RUN_TOPICS, Run, runs_of_bag
@@ -266,7 +266,7 @@ def metric_params() -> Any:
 
 def collision_metric(pitch_rad: np.ndarray, fs_hz: float, frequency_hz: float) -> Any:
     """The paper's collision metric of a pitch record (its finite samples)."""
-    from flaair_control.collision import spectral_metric
+    from flaair_control.core.collision import spectral_metric
 
     valid = pitch_rad[np.isfinite(pitch_rad)]
     return spectral_metric(valid, fs_hz, frequency_hz, metric_params())
@@ -365,7 +365,7 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     The recorded sensor-derived stroke is band-passed, Hilbert-transformed and smoothed by a
     Savitzky-Golay filter (paper); K_r comes from the recorded controller state.
     """
-    from flaair_control import transition as tr
+    from flaair_control.core import transition as tr
     from flaair_control.transition_io import hilbert_params_from_config
     from flaair_tools.transition_figure import TransitionRecord
     from flaair_model.model_io import load_model
@@ -417,7 +417,7 @@ def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
         drive = expected_parts.get(run.name, {})
         found = [s.frequency_hz for s in kind.steps]
         if drive.get("waveform") == "stepped_sine":
-            from flaair_sim.drive import stepped_sine_frequencies_hz
+            from flaair_sim.core.drive import stepped_sine_frequencies_hz
 
             wanted = stepped_sine_frequencies_hz(drive["start_hz"], drive["stop_hz"], drive["step_hz"])
             lost = [f for f in wanted if not any(abs(f - g) <= tolerance_hz for g in found)]

@@ -1,7 +1,7 @@
 """`flaair calibrate`: fit each sensor's gain (deg/V) and lag against ground truth in bags.
 
 Reads every run of the given bags (sensor voltages, drive and ground-truth angles), fits per
-sensor the gain, polarity, offset and lag (flaair_sensors.calibration), and writes:
+sensor the gain, polarity, offset and lag (flaair_sensors.core.calibration), and writes:
   DIR/calibration.yaml  loadable by the front end (-p gains_from:=calibration -p calibration_file:=...)
   DIR/calibration.json  {"stroke": {"gain_deg_per_v", "lag_s", "amplitude_rmse_deg",
                         "phase_rmse_deg", ...}, "pitch": {...}} plus band-limited figures.
@@ -22,7 +22,7 @@ import yaml
 
 from flaair_common.strictjson import json_safe
 from flaair_sensors.analysis_io import analysis_bands_from_config
-from flaair_sensors.calibration import CalibrationError, calibrate
+from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_model.model_io import load_model
 from flaair_tools import bagio
 from flaair_tools.runs import load_runs

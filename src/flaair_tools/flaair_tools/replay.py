@@ -1,7 +1,7 @@
 """Replay a recorded bag through the live nodes' pure cores, offline.
 
 The collision monitor node and the dSA controller node are thin shells over
-`flaair_control.monitor` and `flaair_control.supervisor`; fed the recorded blocks in the
+`flaair_control.core.monitor` and `flaair_control.core.supervisor`; fed the recorded blocks in the
 order the nodes saw them (in lockstep: drive block k, then wing-state block k), the cores give
 back what the live nodes published: collision statuses and events, drive blocks and
 controller states. `analyze` uses it to show what the monitor decided; the tests use it to
@@ -16,8 +16,8 @@ from typing import Any, Iterator
 import numpy as np
 
 from flaair_common import topics
-from flaair_control import monitor
-from flaair_control import supervisor as sv
+from flaair_control.core import monitor
+from flaair_control.core import supervisor as sv
 from flaair_control.control_io import collision_monitor_params_from_config, supervisor_params_from_config
 from flaair_model.config import node_parameters
 from flaair_model.model import Model

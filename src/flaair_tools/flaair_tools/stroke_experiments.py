@@ -25,15 +25,15 @@ import numpy as np
 
 from flaair_common import topics
 from flaair_common.qos import BLOCK_STREAM, STATUS
-from flaair_control import safety, stroke
-from flaair_control.dsa import loop_delay_s
-from flaair_control.transition import CrossingFrequency
+from flaair_control.core import safety, stroke
+from flaair_control.core.dsa import loop_delay_s
+from flaair_control.core.transition import CrossingFrequency
 from flaair_model.config import load_yaml, config_dir, node_parameters
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
-from flaair_sensors import frontend
+from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_params_from_config as frontend_params
-from flaair_sim import plant
+from flaair_sim.core import plant
 from flaair_tools import bagio, wingbeat
 
 CUSTOM_KEY = "flaair.stroke_experiment"

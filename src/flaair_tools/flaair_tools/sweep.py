@@ -63,7 +63,7 @@ def _common_row(values: dict[str, Any], section: dict[str, Any]) -> dict[str, An
 
 def wing_damage_rows(section: dict[str, Any], values: dict[str, Any], model) -> list[dict[str, Any]]:
     """One row per (aero damping exponent, inertia factor, drive); drives set for the undamaged wing."""
-    from flaair_control import stroke
+    from flaair_control.core import stroke
     from flaair_tools.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
     try:
         factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
@@ -294,7 +294,7 @@ def add_relative(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def add_theory(rows: list[dict[str, Any]], model, oscillating_deg: float) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """dsa-map rows with the Hopf/describing-function prediction; per (r3, kappa) the onset check."""
-    from flaair_control import hopf
+    from flaair_control.core import hopf
     pl = model.plant
     linear = hopf.LinearStrokePlant(pl.stroke_inertia_kg_m2, pl.stroke_stiffness_nm_per_rad)
     out, onsets = [], []

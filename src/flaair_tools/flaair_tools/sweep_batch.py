@@ -1,13 +1,13 @@
 """Compiled closed-loop batch for the sweeps: many robots, each flapping under its own drive (pure).
 
-One simulation is the plant's numba RK4 (``flaair_sim.plant``: the same kernels and parameter
+One simulation is the plant's numba RK4 (``flaair_sim.core.plant``: the same kernels and parameter
 vector, so a point equals the plant model) closed sample by sample through the drive:
 
 * ``SYNC``: open loop, drive = A sin(2 pi f t);
-* ``DSA``: the dSA filter of ``flaair_control.dsa`` (its discrete coefficients, phase-advanced
+* ``DSA``: the dSA filter of ``flaair_control.core.dsa`` (its discrete coefficients, phase-advanced
   for the half-sample zero-order hold) on the true stroke velocity; drive = torque / G_a;
 * ``DSA_STROKE``: the same filter, its gain moved by the stroke-amplitude controller
-  (``flaair_control.stroke.track_sample``: the very tracker the controller core runs).
+  (``flaair_control.core.stroke.track_sample``: the very tracker the controller core runs).
 
 Ideal proprioception (the sweep asks about the wing, not the sensor): the loop sees the
 true stroke. The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through
@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
-from flaair_control import dsa, stroke
+from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
-from flaair_sim import plant
-from flaair_sim.plant import GA_INDEX, N_KERNEL_PARAMS, mechanical_constants, prepare, rk4_step  # the plant's own kernels
+from flaair_sim.core import plant
+from flaair_sim.core.plant import GA_INDEX, N_KERNEL_PARAMS, mechanical_constants, prepare, rk4_step  # the plant's own kernels
 from flaair_tools import wingbeat
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2

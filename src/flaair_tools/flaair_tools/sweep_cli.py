@@ -9,7 +9,7 @@ wing-damage: the stroke frequency, stroke amplitude, pitch amplitude and lift pr
 whose aerodynamic damping scales with its area), for a synchronous open-loop drive at the
 undamaged resonance, the dSA loop, and the dSA loop with the stroke-amplitude controller; each
 relative to the undamaged wing. dsa-map: the dSA loop over mu, kappa and r3: onset, emergent
-frequency and amplitude, against the Hopf theory (flaair_control.hopf). Both write DIR/sweep.json
+frequency and amplitude, against the Hopf theory (flaair_control.core.hopf). Both write DIR/sweep.json
 (strict JSON, one row per point), DIR/sweep.csv, DIR/*.png and DIR/reading.md.
 
 The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Each

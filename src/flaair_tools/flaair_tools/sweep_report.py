@@ -200,7 +200,7 @@ def dsa_map_reading(rows: list[dict[str, Any]], onsets: list[dict[str, Any]], ti
         clamped = sum(1 for r in rows if r["oscillating"] and r["drive_clamped"])
         lines += ["", f"Self-excited points within the drive clamp: {len(osc)} ({clamped} more hit the "
                   f"{rows[0]['drive_limit_v']:g} V clamp, which the theory leaves out). Against the describing-function limit cycle "
-                  f"(flaair_control.hopf.limit_cycle): amplitude error median {100 * np.median(amp):.1f} %, worst "
+                  f"(flaair_control.core.hopf.limit_cycle): amplitude error median {100 * np.median(amp):.1f} %, worst "
                   f"{100 * amp.max():.1f} %; frequency error median {100 * np.median(freq):.2f} %, worst {100 * freq.max():.2f} %."]
     lines.append("")
     return "\n".join(lines)

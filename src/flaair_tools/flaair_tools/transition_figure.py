@@ -33,7 +33,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from flaair_common.graph import Graph, flaair_argv
-from flaair_control import transition as tr
+from flaair_control.core import transition as tr
 from flaair_control.transition_io import hilbert_params_from_config
 
 
@@ -135,8 +135,8 @@ def run_closed_loop(start: Callable[..., subprocess.Popen], duration_s: float, c
 
 
 def predicted_limit_cycle(controller: dict, sample_rate_hz: float = 20000.0, block_size: int = 10) -> tuple[float, float]:
-    """Describing-function limit cycle (Hz, deg) of the configured loop (flaair_control.hopf)."""
-    from flaair_control import dsa, hopf
+    """Describing-function limit cycle (Hz, deg) of the configured loop (flaair_control.core.hopf)."""
+    from flaair_control.core import dsa, hopf
     from flaair_model.model_io import load_model
 
     from flaair_sensors.frontend_io import velocity_delay_s

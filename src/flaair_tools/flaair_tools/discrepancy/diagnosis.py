@@ -9,7 +9,7 @@ import numpy as np
 from scipy import stats
 
 from flaair_model.model import Model
-from flaair_sensors.characterization import frequency_track_from_drive, tiled_transfer
+from flaair_sensors.core.characterization import frequency_track_from_drive, tiled_transfer
 
 from .runs import Run, measured_motion, sensor_voltage
 from .settings import Settings
@@ -402,7 +402,7 @@ def bode_points(run: Run, sim: Mapping[str, np.ndarray], window_s: float = 0.025
                 track: Optional[tuple[np.ndarray, np.ndarray]] = None) -> dict:
     """Amplitude and phase (relative to the drive) of measured and simulated channels per window.
 
-    `flaair_sensors.characterization.tiled_transfer` on every channel, measured and model.
+    `flaair_sensors.core.characterization.tiled_transfer` on every channel, measured and model.
     Returns {"frequency_hz": (k,), channel: {"measured": complex (k,), "model": complex (k,)}}
     with phasors per volt of drive.
     """

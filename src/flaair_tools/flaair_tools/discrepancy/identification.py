@@ -40,8 +40,8 @@ import numpy as np
 from scipy import optimize
 
 from flaair_model.model import Model
-from flaair_sensors.characterization import tiled_transfer
-from flaair_sim.plant import simulate_batch_from
+from flaair_sensors.core.characterization import tiled_transfer
+from flaair_sim.core.plant import simulate_batch_from
 
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS

@@ -8,7 +8,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from flaair_model.model import Model
-from flaair_sim.plant import SimOutput, sensor_chain, simulate_batch_from
+from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
 
 from .vocabulary import (CHANNELS, EFFECT_CHANNELS, SENSOR_CHANNELS, SENSOR_EFFECTS, STATUSES, TRUTH_CHANNELS,
                          SENSOR_SIDE)
@@ -211,7 +211,7 @@ def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad
                    side: str) -> np.ndarray:
     """Charge-amplifier output of one sensor ('stroke' or 'pitch') for a given motion.
 
-    The plant's own sensor chain (`flaair_sim.plant.sensor_chain`): used to try sensor effects
+    The plant's own sensor chain (`flaair_sim.core.plant.sensor_chain`): used to try sensor effects
     without integrating the dynamics again; equal to `simulate` to rounding (tested).
     """
     vs, vp = sensor_chain(model, fs_hz, stroke_rad, pitch_rad, drive_v)

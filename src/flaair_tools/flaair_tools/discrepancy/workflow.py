@@ -8,7 +8,7 @@ from typing import Callable, Mapping, Optional, Sequence
 import numpy as np
 
 from flaair_model.model import Model, ModelError
-from flaair_sim.plant import simulate
+from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, drive_tracks, diagnose, noise_estimates, nrmse_by_channel
 from .evidence import FoundEffect, AnalysisContext

@@ -14,7 +14,7 @@ What it moves (the command u)
 -----------------------------
 * ``mode = "sync"``: the drive amplitude (V) of a sine at the fixed ``sync_frequency_hz``.
 * ``mode = "dsa"``: the dSA loop gain mu (N m s / rad). The dSA filter of
-  ``flaair_control.dsa`` runs at a fixed reference gain mu_ref (``dsa_params``); its output is
+  ``flaair_control.core.dsa`` runs at a fixed reference gain mu_ref (``dsa_params``); its output is
   scaled by u / mu_ref, which is the filter with gain u (c = mu kappa r3^2 is linear in mu).
   The frequency stays free: it emerges from the loop.
 
@@ -41,7 +41,7 @@ Design from the plant's amplitude response (``design``; nominal plant, config/mo
   damping, A |K - I w^2 + j w (8 / (3 pi)) Gamma w A| = G_a V. On resonance V ~ A^2, so
   epsilon = 0.500 (0.5-1 off resonance): 15 deg needs u_ff = 10.78 V, 20 deg 19.17 V; the RK4
   plant driven open loop at 10.78 V flaps at 15 deg within 2 % (tests/test_control_stroke.py).
-* dSA (r3 = 180 rad/s, kappa = 0.5; ``flaair_control.hopf.limit_cycle``): sqrt(kappa) r3 lies
+* dSA (r3 = 180 rad/s, kappa = 0.5; ``flaair_control.core.hopf.limit_cycle``): sqrt(kappa) r3 lies
   below the resonance, so the onset is mu* = 0 and the amplitude grows with mu: 15 deg needs
   mu_ff = 4.27e-7 N m s/rad, 20 deg 5.81e-7; epsilon = 0.94 at 15 deg, 0.92 at 20 deg.
 * lambda = 0.35 per wingbeat (config/flaair.yaml). The resonant wing's amplitude envelope has
@@ -61,7 +61,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import brentq
 
-from flaair_control import dsa, hopf
+from flaair_control.core import dsa, hopf
 from flaair_model.schema import ParamSpec
 
 MODES = ("sync", "dsa")

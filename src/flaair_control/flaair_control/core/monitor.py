@@ -11,7 +11,7 @@ Parts (each also usable alone):
     periods / samples over the last frequency_average_wingbeats of them and the window phase
     puts a window start on the last crossing. The monitor (re)locks when the estimate moves by
     more than relock_tolerance (and re-arms: the metric record must hold one frequency);
-  * wingbeat windows and the distortion score: `flaair_control.collision` (per wingbeat);
+  * wingbeat windows and the distortion score: `flaair_control.core.collision` (per wingbeat);
   * the paper's metric: the FFT of the sensor-derived pitch over the last metric_wingbeats
     wingbeats against a pure sine (`collision.spectral_metric`), from a pitch history kept
     in the state;
@@ -28,7 +28,7 @@ from typing import NamedTuple, Union
 
 import numpy as np
 
-from flaair_control import collision as col
+from flaair_control.core import collision as col
 
 ONSET = "onset"
 CLEARANCE = "clearance"

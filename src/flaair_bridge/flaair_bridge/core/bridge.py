@@ -39,7 +39,7 @@ from typing import NamedTuple, Optional, Union
 
 import numpy as np
 
-from flaair_bridge import protocol
+from flaair_bridge.core import protocol
 
 ARRIVAL_RING = 256   # recent sensor packets remembered for the latency pairing
 

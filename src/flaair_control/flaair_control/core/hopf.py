@@ -68,7 +68,7 @@ onset moves to where atan(w/r3) + atan(w/(kappa r3)) + w T = 90 deg: *lower* w, 
 mu* grows with (w*^2 - w_n^2) the threshold collapses. With the nominal numbers (T = 0.55 ms,
 w/2pi ~ 150 Hz: w T ~ 30 deg) this is a first-order effect. ``onset_with_delay`` solves the
 delayed loop numerically (optionally with the phase-advance compensation used by
-``flaair_control.dsa``, which restores the undelayed onset exactly at its design frequency).
+``flaair_control.core.dsa``, which restores the undelayed onset exactly at its design frequency).
 
 Limit cycle with aerodynamic damping
 ------------------------------------
@@ -196,7 +196,7 @@ def r3_for_onset_frequency(kappa: float, onset_frequency_hz: float) -> float:
 def phase_advance(
     s: complex | np.ndarray, advance_s: float, design_omega_rad_s: float
 ) -> complex | np.ndarray:
-    """Phase-advance term of ``flaair_control.dsa``: cos(w_c T) + s sin(w_c T) / w_c.
+    """Phase-advance term of ``flaair_control.core.dsa``: cos(w_c T) + s sin(w_c T) / w_c.
 
     Applied to the filter state (tau, tau'), it predicts tau(t + T) exactly for a sinusoid at
     the design frequency w_c: at s = j w_c it equals exp(j w_c T).

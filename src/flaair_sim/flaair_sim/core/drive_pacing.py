@@ -26,7 +26,7 @@ from typing import NamedTuple, Union
 
 import numpy as np
 
-from flaair_sim.drive import DriveError, DriveParams, DriveState, drive_step
+from flaair_sim.core.drive import DriveError, DriveParams, DriveState, drive_step
 
 REALTIME = "realtime"
 LOCKSTEP = "lockstep"

@@ -21,7 +21,7 @@ K_r(t) is a piecewise-linear ramp given as data (``KrSchedule``). The filter run
 Discretization
 --------------
 Bilinear (Tustin) transform with frequency pre-warping at the compensation/design frequency
-w_c (default sqrt(kappa) r3, the delay-free Hopf onset, see ``flaair_control.hopf``): the
+w_c (default sqrt(kappa) r3, the delay-free Hopf onset, see ``flaair_control.core.hopf``): the
 discrete filter's frequency response equals H(j w_c) exactly at w_c; elsewhere the frequency is
 warped by about ((w T_s)^2 - (w_c T_s)^2) / 12 (T_s = 50 us): < 1e-4 over 100-200 Hz, 1e-3 at
 400 Hz (magnitude error ~2x that above the filter corners). A sampled step enters as a ramp over

@@ -14,7 +14,7 @@ keepalive_period_s), DONE (run_time_s reached: a zero block, then idle).
 Watchdogs (latched until `ResetWatchdog`):
   * no wing-state block for watchdog_timeout_s of *wall-clock* time (in lockstep, signal time
     stops with the loop, so only the wall clock can see a dead loop);
-  * no fully valid block for invalid_timeout_s of *signal* time (`flaair_control.safety`);
+  * no fully valid block for invalid_timeout_s of *signal* time (`flaair_control.core.safety`);
   * a collision onset with collision_response stop.
 Every block passes the safety core (non-finite -> 0, slew limit, clamp to +-drive_limit_v).
 """
@@ -27,8 +27,8 @@ from typing import NamedTuple, Union
 import numpy as np
 
 from flaair_common.stream import check_block
-from flaair_control import dsa, safety
-from flaair_control.transition import (CROSSING_START, CrossingParams, CrossingState, crossing_frequency_hz,
+from flaair_control.core import dsa, safety
+from flaair_control.core.transition import (CROSSING_START, CrossingParams, CrossingState, crossing_frequency_hz,
                                        crossing_step)
 
 WAITING = "waiting"

@@ -1,0 +1,14 @@
+"""Pure cores of the control package: no rclpy, no files, no plots. Each decision the nodes make
+is a function of explicit state, inputs and frozen parameters here.
+
+- ``collision``: the paper's FFT/RMSE collision metric and a per-wingbeat collision monitor
+- ``monitor``: the collision monitor node's decisions as a step function
+- ``dsa``: delayed-stretch-activation controller (filter, sync/async blend, delay compensation)
+- ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset, limit cycle)
+- ``safety``: drive clamp, slew limit and sensor watchdog
+- ``stroke``: the per-wingbeat stroke-amplitude controller
+- ``supervisor``: the dSA controller's start / loop / trip / keepalive state machine
+- ``transition``: sync -> async transition analysis
+"""
+
+__all__ = ["collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor", "transition"]

@@ -1,0 +1,9 @@
+"""Pure cores of the simulation package: no rclpy, no files, no plots.
+
+- ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
+- ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
+- ``drive``: drive-voltage generators, whole-record and sample-exact blocks
+- ``drive_pacing``: when the open-loop drive generator sends which block
+"""
+
+__all__ = ["plant", "actuator", "drive", "drive_pacing"]
