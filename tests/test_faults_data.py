@@ -130,7 +130,7 @@ def test_reindex_never_replaces_the_original_with_an_unverified_copy(megabyte_ba
     def fails(*_args) -> None:
         raise bagio.BagError("verification failed")
 
-    monkeypatch.setattr(bagio, "_verify_copy", fails)
+    monkeypatch.setattr(bagio.recovery, "_verify_copy", fails)
     with pytest.raises(bagio.BagError, match="verification failed"):
         bagio.reindex(bag)
     assert (bag / "bag_0.mcap").read_bytes() == cut_bytes and (bag / "metadata.yaml").read_bytes() == metadata
