@@ -26,8 +26,8 @@ def make_bag(directory: Path) -> Path:
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
     from flaair_sim.core.plant import synthesize_measured_run
-    from flaair_tools.experiment import robot_effects
-    from flaair_tools.import_runs import import_runs
+    from flaair_tools.orchestration.experiment import robot_effects
+    from flaair_tools.bagio.import_runs import import_runs
 
     model = with_effects(load_model(), robot_effects())
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, int(FS_HZ))
@@ -41,8 +41,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    from flaair_tools.analyze import analyze
-    from flaair_tools.runs import load_runs
+    from flaair_tools.analysis.analyze import analyze
+    from flaair_tools.bagio.runs import load_runs
 
     with tempfile.TemporaryDirectory() as tmp:
         bag = make_bag(Path(tmp))

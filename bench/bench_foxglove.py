@@ -6,7 +6,7 @@ for --duration seconds and says how many blocks it sent, so "streamed" is exact.
 (foxglove_node) serves every sample (or every Nth) as its own message; a WebSocket client in
 this process subscribes to the four channels and counts what arrives. The client parses the
 frames off the socket itself (RawFoxgloveCounter, ~1 us a frame) so that it, not the live view,
-is never what falls behind; `flaair_tools.foxglove_client` (the `websockets` package, ~12 us a
+is never what falls behind; `flaair_tools.liveview.foxglove_client` (the `websockets` package, ~12 us a
 frame) cannot take 80,000 frames/s on a loaded 2-core machine.
 
 Figures, each beside its same-run baseline:
@@ -34,7 +34,7 @@ import psutil
 
 from benchlib import Figure, print_table, write_json  # noqa: E402  (puts src/ packages on the path)
 from flaair_common.graph import Graph, node_argv, wait_for  # noqa: E402
-from flaair_tools import live_view  # noqa: E402
+from flaair_tools.liveview import live_view  # noqa: E402
 
 FS_HZ, BLOCK, STREAMS = 20000.0, 10, 4
 # The source: the live view's four block streams as raw CDR, paced by the wall clock; prints what it sent.

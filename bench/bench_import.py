@@ -25,7 +25,7 @@ FS_HZ = 20000.0
 
 CHILD_IMPORT = """
 import resource, sys
-from flaair_tools.import_runs import import_runs
+from flaair_tools.bagio.import_runs import import_runs
 import_runs([__import__('pathlib').Path(sys.argv[1])], __import__('pathlib').Path(sys.argv[2]), gap_s=1.0,
             block_size=10, frame_id='robot')
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
@@ -40,7 +40,7 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
 """
 CHILD_BASE = """
 import resource
-import flaair_tools.import_runs
+import flaair_tools.bagio.import_runs
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
 """
 

@@ -19,7 +19,8 @@ from benchlib import REPO_ROOT, Figure, print_table, write_json
 
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools import stroke_experiments as se, wingbeat
+from flaair_tools.sweeps import stroke_experiments as se
+from flaair_tools.analysis import wingbeat
 
 
 def main() -> int:

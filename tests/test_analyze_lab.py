@@ -49,7 +49,7 @@ def lab_bag(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def uncalibrated(lab_bag: Path, tmp_path_factory) -> dict:
-    from flaair_tools.analyze import analyze
+    from flaair_tools.analysis.analyze import analyze
 
     return analyze([lab_bag], tmp_path_factory.mktemp("rep"), progress=False)
 
@@ -95,7 +95,7 @@ def test_lab_runs_get_the_paper_headline_figures(uncalibrated: dict) -> None:
 def test_without_calibration_pitch_reads_small_and_analyze_says_so(uncalibrated: dict, lab_bag: Path, tmp_path: Path) -> None:
     assert uncalibrated["model_gains_warning"] and "4.3x" in uncalibrated["model_gains_warning"]
     # With the model's gains the estimate's pitch is 0.23x the truth: the collision metric shrinks with it.
-    from flaair_tools.analyze import analyze
+    from flaair_tools.analysis.analyze import analyze
 
     calibrated = analyze([lab_bag], tmp_path / "cal", progress=False, calibration_file=calibration_file(tmp_path))
     assert calibrated["model_gains_warning"] is None
@@ -121,7 +121,7 @@ def test_a_bad_calibration_file_is_named_exit_2(lab_bag: Path, tmp_path: Path) -
 
 def test_import_kind_is_used_and_a_disagreeing_drive_is_warned(tmp_path: Path) -> None:
     from flaair_common.runcsv import write_run
-    from flaair_tools.analyze import analyze
+    from flaair_tools.analysis.analyze import analyze
 
     write_run(tmp_path / "sweep.csv", lab_runs()["chirp_full"])
     result = run([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out", str(tmp_path / "bag"), "--kind", "chirp"], isolated_env(), 120)
@@ -137,7 +137,7 @@ def truncated_bag(columns: dict[str, np.ndarray], out: Path, fraction: float) ->
     """A bag holding the first `fraction` of a run's messages, as a recovered bag does (marker intact)."""
     from flaair_common.runcsv import MeasuredRun
     from flaair_tools import bagio
-    from flaair_tools.import_runs import encode_run
+    from flaair_tools.bagio.import_runs import encode_run
 
     messages = list(encode_run(MeasuredRun("stepped", FS, columns), source_file="stepped.csv", start_ns=0,
                                first_sample_index=0, block_size=10, frame_id="robot"))

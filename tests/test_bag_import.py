@@ -12,7 +12,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from flaair_model.config import node_parameters
-from flaair_tools import bagio, import_runs
+from flaair_tools import bagio
+from flaair_tools.bagio import import_runs
 from rosproc import FLAAIR, isolated_env, run
 
 HEADER = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg")

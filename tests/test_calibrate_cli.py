@@ -65,7 +65,7 @@ def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path:
 def test_calibrate_names_missing_topic(tmp_path: Path) -> None:
     from flaair_tools import bagio
 
-    with bagio.BagWriter(tmp_path / "empty") as writer:  # a bag with only a run marker
+    with bagio.BagWriter(tmp_path / "empty"):  # a bag with only a run marker
         pass
     result = run([FLAAIR, "calibrate", str(tmp_path / "empty"), "--out", str(tmp_path / "o")], isolated_env())
     assert result.returncode == 2 and "/flaair/sensor_v" in result.stderr and "Traceback" not in result.stderr

@@ -1,7 +1,6 @@
 """Stroke-amplitude controller core (flaair_control.core.stroke): design, tracker, law, safety chain; node over DDS."""
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import replace
 
@@ -142,7 +141,7 @@ def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path
         loop.run_until(lambda: len(wing) >= n_before + 1600)
     assert [b["first_sample_index"] for b in wing] == list(range(0, len(wing) * 10, 10))
     stroke_deg = np.concatenate([b["stroke_deg"] for b in wing])
-    from flaair_tools import wingbeat
+    from flaair_tools.analysis import wingbeat
     beats = wingbeat.summarize(stroke_deg, stroke_deg, np.ones(stroke_deg.size, bool),
                                wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0))
     split = n_before * 10   # the setpoint changed after this sample

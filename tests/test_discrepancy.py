@@ -460,7 +460,7 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
 
 
 def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: Path) -> None:
-    from flaair_tools.import_runs import import_runs
+    from flaair_tools.bagio.import_runs import import_runs
 
     bag = tmp_path / "robot_bag"
     import_runs(paper_robot_csvs, bag, gap_s=0.01, block_size=1000, frame_id="robot")

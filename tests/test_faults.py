@@ -5,7 +5,6 @@ fails, no traceback, and a node that keeps running.
 """
 from __future__ import annotations
 
-import json
 import re
 import shutil
 import time

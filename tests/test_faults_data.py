@@ -47,7 +47,7 @@ def _lab_csv(path: Path, n: int, seed: int, video_stride: int = 1) -> Path:
 @pytest.fixture(scope="module")
 def megabyte_bag(tmp_path_factory) -> Path:
     """The issue's repro: two 0.5 s lab runs imported, 6,002 messages, ~0.9 MB of zstd chunks."""
-    from flaair_tools.import_runs import import_runs
+    from flaair_tools.bagio.import_runs import import_runs
 
     tmp = tmp_path_factory.mktemp("bag")
     runs = [_lab_csv(tmp / f"run{k}.csv", 10000, k) for k in range(2)]
@@ -236,7 +236,8 @@ def test_import_refuses_a_nan_gap_and_leaves_no_bag(tmp_path: Path) -> None:
 
 
 def test_import_removes_its_bag_when_writing_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from flaair_tools import bagio, import_runs
+    from flaair_tools import bagio
+    from flaair_tools.bagio import import_runs
 
     csv = _lab_csv(tmp_path / "run.csv", 200, 0)
     calls = {"n": 0}

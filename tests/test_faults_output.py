@@ -52,7 +52,8 @@ def test_drawing_figures_leaves_the_users_matplotlib_backend_alone(tmp_path: Pat
         matplotlib.use("svg")
         import numpy as np
         from flaair_sensors import figures
-        from flaair_tools import sweep_report, transition_figure
+        from flaair_tools.sweeps import sweep_report
+        from flaair_tools.analysis import transition as transition_figure
         from flaair_tools.discrepancy import report
         from flaair_control.core import transition as tr
         t = np.arange(4000) / 20000.0

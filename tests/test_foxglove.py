@@ -8,10 +8,12 @@ import sys
 import numpy as np
 import pytest
 
-from flaair_tools import live_view, wingbeat
-from flaair_tools.foxglove_client import FoxgloveClient
-from flaair_tools.foxglove_node import foxglove_node_args
-from rosproc import FLAAIR, ros_processes, run, wait_for
+from flaair_tools.liveview import live_view
+
+from flaair_tools.analysis import wingbeat
+from flaair_tools.liveview.foxglove_client import FoxgloveClient
+from flaair_tools.liveview.foxglove_node import foxglove_node_args
+from rosproc import ros_processes, wait_for
 
 FS, BLOCK, BLOCKS, START_S = 20000.0, 10, 400, 3.0
 # Publishes CollisionStatus (colliding, 3 deg vs 1 deg) and ControllerState (K_r 0.25) first, then

@@ -164,3 +164,43 @@ def test_importing_every_core_loads_no_rclpy() -> None:
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'rmw')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=110, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+# flaair_tools is split by job; inside it, too, imports point down these layers.
+TOOLS_LAYERS = {"bagio": 0, "recorder": 1, "roscli": 1, "analysis": 1, "discrepancy": 2, "sweeps": 2,
+                "liveview": 2, "orchestration": 3, "cli": 4}
+
+
+def test_flaair_tools_is_split_by_job_and_its_imports_point_down() -> None:
+    tools = SRC / "flaair_tools" / "flaair_tools"
+    jobs = {p.name for p in tools.iterdir() if (p / "__init__.py").exists()}
+    jobs |= {p.stem for p in tools.glob("*.py") if p.name != "__init__.py"}
+    assert jobs == set(TOOLS_LAYERS), f"a job without a layer (or a layer without a job): {jobs ^ set(TOOLS_LAYERS)}"
+    modules, _graph = _module_graph()
+    upward = []
+    for name, path in modules.items():
+        parts = name.split(".")
+        if parts[0] != "flaair_tools" or len(parts) < 2:
+            continue
+        for target, names, line in _imports(path, name):
+            tparts = target.split(".")
+            if tparts[0] != "flaair_tools":
+                continue
+            others = [tparts[1]] if len(tparts) > 1 else names
+            for other in others:
+                if other in TOOLS_LAYERS and other != parts[1] and TOOLS_LAYERS[other] >= TOOLS_LAYERS[parts[1]]:
+                    upward.append(f"{path.relative_to(ROOT)}:{line}: {parts[1]} imports {other}")
+    assert upward == [], "imports inside flaair_tools must point down its layers:\n" + "\n".join(upward)
+
+
+def test_every_package_init_declares_its_table_of_contents() -> None:
+    """Each package's __init__ says what it holds (a docstring) and exports it (__all__)."""
+    missing = []
+    for path in _source_files(SRC):
+        if path.name == "__init__.py" and "msg" not in path.parts:
+            tree = ast.parse(path.read_text())
+            has_all = any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") == "__all__" for t in n.targets)
+                          for n in tree.body)
+            if not (ast.get_docstring(tree) and has_all):
+                missing.append(str(path.relative_to(ROOT)))
+    assert missing == [], f"package __init__ without a docstring or __all__: {missing}"

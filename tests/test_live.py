@@ -34,7 +34,7 @@ def _final(bag: Path):
 def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_everything(tmp_path):
     from flaair_model.config import node_parameters
     from flaair_tools import bagio
-    from flaair_tools.transition_figure import predicted_limit_cycle
+    from flaair_tools.analysis.transition import predicted_limit_cycle
 
     bag = tmp_path / "live"
     result = _live("--sim", "--duration", "3", "--out", str(bag))
@@ -99,7 +99,7 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     from flaair_control.transition_io import hilbert_params_from_config
     from flaair_model.config import node_parameters
     from flaair_tools import bagio
-    from flaair_tools.transition_figure import predicted_limit_cycle
+    from flaair_tools.analysis.transition import predicted_limit_cycle
 
     counters = tmp_path / "target.json"
     bridge_port, target_port = _free_udp_ports(2)

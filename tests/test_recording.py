@@ -1,11 +1,11 @@
-"""flaair_tools.recording: the recorder's log-time rule and drain, message by message, without ROS."""
+"""flaair_tools.recorder.recording: the recorder's log-time rule and drain, message by message, without ROS."""
 from __future__ import annotations
 
 import pytest
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from flaair_model.schema import ParameterError
-from flaair_tools import recording as rec
+from flaair_tools.recorder import recording as rec
 
 PARAMS = rec.RecordingParams(drain_limit=4)
 

@@ -30,7 +30,7 @@ def transition_bag(tmp_path_factory) -> Path:
 
 def test_collision_monitor_replays_to_the_live_statuses_and_events(collision_bag: Path) -> None:
     from flaair_tools import bagio
-    from flaair_tools.replay import replay_monitor
+    from flaair_tools.analysis.replay import replay_monitor
 
     live = [m for _, _, m in bagio.iter_messages(collision_bag, ["/flaair/collision/status"])]
     events = [m for _, _, m in bagio.iter_messages(collision_bag, ["/flaair/collision/events"])]
@@ -48,7 +48,7 @@ def test_collision_monitor_replays_to_the_live_statuses_and_events(collision_bag
 def test_controller_replays_to_the_live_drive_and_states(transition_bag: Path) -> None:
     from flaair_model.model_io import load_model
     from flaair_tools import bagio
-    from flaair_tools.replay import replay_controller
+    from flaair_tools.analysis.replay import replay_controller
 
     states = [m for _, _, m in bagio.iter_messages(transition_bag, ["/flaair/controller/state"])]
     drive = bagio.read_blocks(transition_bag, "/flaair/drive")

@@ -31,7 +31,7 @@ def write_bag(out: Path, parts: list[tuple[str, dict[str, np.ndarray]]], experim
     """Runs back to back in one bag (contiguous samples), an experiment description and monitor events."""
     from flaair_common.runcsv import MeasuredRun
     from flaair_tools import bagio
-    from flaair_tools.import_runs import encode_run
+    from flaair_tools.bagio.import_runs import encode_run
 
     store = bagio.typestore()
     with bagio.BagWriter(out, store=store) as writer:
@@ -54,7 +54,7 @@ def write_bag(out: Path, parts: list[tuple[str, dict[str, np.ndarray]]], experim
 
 @pytest.fixture(scope="module")
 def collision_report(tmp_path_factory) -> tuple[Path, dict]:
-    from flaair_tools.analyze import analyze
+    from flaair_tools.analysis.analyze import analyze
 
     directory = tmp_path_factory.mktemp("col")
     obstacle = {"collision": {"stroke_limit_deg": 20.0}}
@@ -96,7 +96,7 @@ def test_report_is_self_contained_and_links_the_json(collision_report: tuple[Pat
 
 
 def test_run_names_are_escaped_everywhere(tmp_path: Path) -> None:
-    from flaair_tools.analyze import analyze
+    from flaair_tools.analysis.analyze import analyze
 
     write_bag(tmp_path / "bag", [(EVIL, measured(sine(8000)))])
     analyze([tmp_path / "bag"], tmp_path / "rep", progress=False)
@@ -119,7 +119,7 @@ def test_file_name_with_markup_is_escaped_through_the_cli(tmp_path: Path) -> Non
 
 
 def test_template_passes_nothing_through_raw() -> None:
-    from flaair_tools import report
+    from flaair_tools.analysis import report
 
     template = (report.TEMPLATES / report.TEMPLATE).read_text()
     assert "|safe" not in template.replace(" ", "") and "autoescape false" not in template

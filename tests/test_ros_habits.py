@@ -8,9 +8,9 @@ import time
 import pytest
 from rcl_interfaces.msg import ParameterType
 
-from flaair_tools.param import ValueTypeError, convert
-from flaair_tools.topic import rate_report
-from rosproc import FLAAIR, ros_processes, run, wait_for
+from flaair_tools.roscli.param import ValueTypeError, convert
+from flaair_tools.roscli.topic import rate_report
+from rosproc import FLAAIR, ros_processes, run
 
 
 @pytest.mark.graph

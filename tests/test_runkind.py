@@ -1,4 +1,4 @@
-"""Drive recognition (flaair_tools.runkind) on synthetic drives with known answers."""
+"""Drive recognition (flaair_tools.analysis.runkind) on synthetic drives with known answers."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from flaair_model.config import node_parameters
 from flaair_sim.core.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
-from flaair_tools.runkind import RecognitionParams, RunKindError, recognise
+from flaair_tools.analysis.runkind import RecognitionParams, RunKindError, recognise
 
 FS = 20000.0
 PARAMS = RecognitionParams.from_mapping(node_parameters("flaair.yaml", "analyze"))

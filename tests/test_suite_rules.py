@@ -6,7 +6,6 @@ import re
 import subprocess
 from pathlib import Path
 
-import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 

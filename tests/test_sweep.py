@@ -6,14 +6,12 @@ import json
 import math
 import subprocess
 
-import numpy as np
 import pytest
 import yaml
 
 from flaair_model.config import node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools import sweep
-from flaair_tools.sweep_batch import DSA, DSA_STROKE, SYNC, run_rows
+from flaair_tools.sweeps import sweep
 
 WING = {"inertia_factor": [0.6, 0.8, 1.0], "aero_damping_exponent": [0.0, 1.0], "setpoint_deg": 15.0,
         "duration_s": 0.8, "steady_s": 0.15, "start_stroke_deg": 1.0, "chunk_size": 4}

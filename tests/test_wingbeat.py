@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from flaair_tools import wingbeat
+from flaair_tools.analysis import wingbeat
 
 FS = 20000.0
 PARAMS = wingbeat.WingbeatParams(sample_rate_hz=FS, hysteresis_deg=2.0, min_frequency_hz=30.0, max_frequency_hz=400.0)

@@ -1,1 +1,18 @@
-"""FLAAIR node plumbing: parameters from schemas, config lookup, block message conversion, QoS, measured-run CSV I/O."""
+"""FLAAIR node plumbing, shared by every node and tool.
+
+Load rclpy on import (ROS shells only):
+- `params`: declare a node's parameters from its schema (descriptors, units, ranges);
+- `runtime`: run a node with clean Ctrl-C/SIGTERM and one-line parameter errors;
+- `qos`: the QoS profiles of FLAAIR topics.
+
+Load no rclpy on import:
+- `container`: several nodes in one process and executor; `intra`: their in-process streams;
+- `blocks`: block messages <-> numpy arrays; `msgdict`: any message <-> dict;
+- `graph`: the one launcher (private ROS domain, localhost discovery, parent-death signal);
+- `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
+- `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
+- `runcsv`: measured-run CSV; `strictjson`: strict JSON out.
+"""
+
+__all__ = ["params", "runtime", "qos", "container", "intra", "blocks", "msgdict", "graph", "cdr", "msgdefs",
+           "stream", "topics", "realtime", "runcsv", "strictjson"]

@@ -7,4 +7,8 @@ it depends on nothing of FLAAIR's.
 - `model`: frozen parameter dataclasses and the effect registry (`EFFECT_TYPES`).
 - `model_io`: config/model.yaml <-> `Model`.
 - `config`: the one locator of config/ and the ROS parameter-file reader.
+- `schema`: `ParamSpec`, each node parameter declared once.
+- `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
 """
+
+__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter"]

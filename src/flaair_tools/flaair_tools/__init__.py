@@ -1,1 +1,18 @@
-"""FLAAIR tools: bag recorder/player/import, paper experiments, analysis report, model-vs-measurement discrepancy workflow, the flaair command line."""
+"""FLAAIR tools, one subpackage per job.
+
+- `bagio`: bags and data I/O (types, QoS, writer, reader and blocks, run markers, MCAP scan and
+  recovery; runs from bags, measured-run CSV import);
+- `recorder`: the recorder and the player;
+- `roscli`: the ros2cli stand-ins (`bin/flaair topic|param|node|bag`);
+- `analysis`: analysis of recorded runs and the report;
+- `discrepancy`: the model-vs-measurement workflow and grey-box identification;
+- `sweeps`: simulation studies on Dask;
+- `liveview`: the Foxglove live view;
+- `orchestration`: graphs brought up and run (experiments, `live`, the demo);
+- `cli`: the `flaair` command, dispatching to each subcommand's module.
+
+Arrows point down that list's layers (tests/test_layout_rules.py): `bagio` imports no other
+subpackage, `orchestration` and `cli` sit on top.
+"""
+
+__all__ = ["bagio", "recorder", "roscli", "analysis", "discrepancy", "sweeps", "liveview", "orchestration", "cli"]

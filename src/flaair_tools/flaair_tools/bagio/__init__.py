@@ -18,7 +18,7 @@ Bag-level conventions
 
 Recovery: `scan_mcap` reads every record an MCAP file still holds, through cut-off and
 corrupt chunks; `reindex` rebuilds a bag from it (verified before it replaces anything) and
-`check_bag` reports damage. The command line is `flaair_tools.bag_cli` (`bin/flaair bag`).
+`check_bag` reports damage. The command line is `flaair_tools.roscli.bag_cli` (`bin/flaair bag`).
 
 Modules
 -------
@@ -26,7 +26,9 @@ Modules
 - `qos`: QoS profiles as rosbag2 records them
 - `writer`: BagWriter
 - `blocks`: block streams joined and checked
-- `markers`: run markers
+- `markers`: run markers and the drive kinds they name
+- `runs`: the measured-run columns of every run in bags (imported on use)
+- `import_runs`: measured-run CSV files into a bag, `bin/flaair import` (imported on use)
 - `reader`: info, messages, read_bag, read_blocks
 - `scan`: MCAP record scan through damage
 - `recovery`: reindex, check_bag
@@ -45,6 +47,7 @@ from flaair_tools.bagio.blocks import (
     select_samples,
 )
 from flaair_tools.bagio.markers import (
+    RUN_KINDS,
     RunMarker,
 )
 from flaair_tools.bagio.messages import (
@@ -115,7 +118,7 @@ __all__ = [
     "new_message", "time_msg", "has_leading_stamp", "leading_stamp_ns", "deserialize",
     "qos_from_rclpy", "qos_to_yaml", "qos_from_yaml", "storage_settings", "BagWriter",
     "bag_metadata", "Blocks", "block_array_fields", "assemble_blocks", "blocks_from_cdr",
-    "select_samples", "RunMarker", "TopicInfo", "BagInfo", "bag_info", "message_counts",
+    "select_samples", "RUN_KINDS", "RunMarker", "TopicInfo", "BagInfo", "bag_info", "message_counts",
     "iter_raw", "iter_messages", "BagContents", "read_bag", "read_blocks", "read_run_markers",
     "MCAP_MAGIC", "RECOVERED_CUSTOM_KEY", "ScanLog", "ScannedMessage", "scan_mcap",
     "TopicRecovery", "ReindexReport", "single_mcap_file", "reindex", "damage_lines", "check_bag",

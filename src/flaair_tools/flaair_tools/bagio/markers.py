@@ -10,7 +10,10 @@ from dataclasses import dataclass
 
 from flaair_tools.bagio.messages import BagError
 
-__all__ = ["RunMarker"]
+__all__ = ["RUN_KINDS", "RunMarker"]
+
+# The drive kinds a run marker's "kind" may name (flaair_tools.analysis.runkind recognises them).
+RUN_KINDS = ("chirp", "stepped_sine", "sine", "transition", "free", "unrecognised")
 
 
 @dataclass(frozen=True)

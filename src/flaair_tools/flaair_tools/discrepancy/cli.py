@@ -68,7 +68,7 @@ def runs_from_csv(path: Path) -> Run:
 
 def runs_from_bag(path: Path) -> list[Run]:
     """Every run of a bag as core Runs (ground truth NaN where invalid)."""
-    from .. import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
+    from flaair_tools.bagio import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
 
     bag = path.parent if path.suffix == ".mcap" else path
     out = []
@@ -104,7 +104,7 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
 def bad_input_errors() -> tuple[type, ...]:
     errors: list[type] = [InputError, RunFileError, ModelError, DiscrepancyInputError, OSError, yaml.YAMLError]
     try:
-        from ..bagio import BagError
+        from flaair_tools.bagio import BagError
 
         errors.append(BagError)
     except ImportError:  # pragma: no cover - bag support not installed

@@ -13,7 +13,7 @@ frequency and amplitude, against the Hopf theory (flaair_control.core.hopf). Bot
 (strict JSON, one row per point), DIR/sweep.csv, DIR/*.png and DIR/reading.md.
 
 The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Each
-task carries a chunk of simulations through one compiled batch (flaair_tools.sweep_batch),
+task carries a chunk of simulations through one compiled batch (flaair_tools.sweeps.sweep_batch),
 sized for the workers found (`TaskSizing`, config/sweeps.yaml `tasks:`: ~0.3 s of compute, or
 an even spread of a small sweep); a row's result depends on that row alone, so any number of
 workers and any chunking give the same numbers. By default a LocalCluster sized to the machine
@@ -21,7 +21,7 @@ workers and any chunking give the same numbers. By default a LocalCluster sized 
 Ctrl-C / SIGTERM); --scheduler uses an existing cluster (docs/SWEEPS.md: `dask scheduler` /
 `dask worker`, or Slurm through dask-jobqueue). --in-process runs the chunks here (no Dask).
 
-stroke: the stroke controller's three experiments (flaair_tools.stroke_experiments), one bag
+stroke: the stroke controller's three experiments (flaair_tools.sweeps.stroke_experiments), one bag
 each in DIR/bags, analysed from the bags: DIR/stroke.json, DIR/stroke_*.png, DIR/reading.md.
 
 Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted.
@@ -35,7 +35,7 @@ from pathlib import Path
 
 from flaair_model.config import ConfigError, config_dir
 from flaair_model.model import ModelError
-from flaair_tools.sweep import SUBCOMMANDS, SweepError
+from flaair_tools.sweeps.sweep import SUBCOMMANDS, SweepError
 
 __all__ = ["main"]
 
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
 
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        from flaair_tools import sweep_report  # matplotlib: not for --help
+        from flaair_tools.sweeps import sweep_report  # matplotlib: not for --help
         config = args.config or config_dir() / "sweeps.yaml"
         if args.workers is not None and args.workers < 1:
             raise SweepError(f"--workers must be >= 1, got {args.workers}")

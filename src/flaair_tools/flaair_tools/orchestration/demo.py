@@ -19,8 +19,8 @@ from pathlib import Path
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
-from flaair_tools.analyze import AnalysisError, analyze, print_headline
-from flaair_tools.experiment import (NODE_EXECUTABLES, ExperimentError, ExperimentSpec, load_experiments, robot_effects,
+from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
+from flaair_tools.orchestration.experiment import (NODE_EXECUTABLES, ExperimentError, ExperimentSpec, load_experiments, robot_effects,
                                      run_experiment)
 
 
@@ -36,9 +36,8 @@ def missing_nodes(spec: ExperimentSpec) -> list[str]:
             missing.append(f"{package}/{executable}")
             continue
         script = prefix / "lib" / package / executable
-        module = executable
-        source = Path(__file__).resolve().parents[2] / package / package / f"{module}.py"
-        if not script.exists() or (source.parent.exists() and not source.exists()):
+        sources = Path(__file__).resolve().parents[3] / package / package
+        if not script.exists() or (sources.exists() and not any(sources.rglob(f"{executable}.py"))):
             missing.append(f"{package}/{executable}")
     return missing
 
@@ -77,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         bags.append(bag)
         sweeps = [b for b in bags if b.name in ("characterization_chirp", "stepped_sine")]
         if calibration is None and len(sweeps) == 2:
-            from flaair_tools import calibrate
+            from flaair_tools.analysis import calibrate
 
             print("[demo] calibrating the front end from the chirp and stepped-sine bags")
             if calibrate.main([*map(str, sweeps), "--out", str(args.out / "calibration")]) != 0:

@@ -37,7 +37,7 @@ from flaair_model.config import ConfigError, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
 from flaair_tools import bagio
-from flaair_tools.runkind import KINDS
+from flaair_tools.bagio.markers import RUN_KINDS as KINDS
 
 CONFIG_FILE = "flaair.yaml"
 SECTION = "import_runs"
@@ -129,7 +129,7 @@ def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, 
     Messages are made and written one block at a time. If anything fails (or the user
     interrupts) after the bag directory was created, it is removed: no partial bag is left
     that looks valid. `progress` is called with the samples written so far. `kind` (a
-    flaair_tools.runkind kind) goes into every run marker's JSON; `flaair analyze` uses it.
+    flaair_tools.analysis.runkind kind) goes into every run marker's JSON; `flaair analyze` uses it.
     """
     if not math.isfinite(gap_s) or gap_s < 0:
         raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")

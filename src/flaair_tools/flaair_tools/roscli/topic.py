@@ -22,7 +22,7 @@ from rclpy.node import Node
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
-from flaair_tools.node_cli import cli_defaults
+from flaair_tools.roscli.node_cli import cli_defaults
 
 
 def rate_report(arrivals_s: list[float]) -> str:

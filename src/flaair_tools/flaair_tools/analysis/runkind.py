@@ -27,7 +27,9 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import optimize, signal
 
-KINDS = ("chirp", "stepped_sine", "sine", "transition", "free", "unrecognised")
+from flaair_tools.bagio.markers import RUN_KINDS
+
+KINDS = RUN_KINDS  # the vocabulary run markers carry
 
 
 class RunKindError(ValueError):

@@ -19,7 +19,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
-from flaair_tools.node_cli import cli_defaults
+from flaair_tools.roscli.node_cli import cli_defaults
 
 
 class ValueTypeError(ValueError):

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 
-TEMPLATES = Path(__file__).resolve().parent / "templates"
+TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
 TEMPLATE = "report.html.j2"
 INSET_WINGBEATS = 3
 
@@ -77,7 +77,7 @@ def write_figures(results: list[dict[str, Any]], plots: list[dict[str, Any]], ou
                         "caption": "FFT of the sensor-derived pitch with the obstacle (blue) and without (green) against a pure "
                                    f"sine at the drive frequency (red); insets: {INSET_WINGBEATS} wingbeats of each in time."})
         if "transition" in plot:
-            from flaair_tools.transition_figure import plot_transition
+            from flaair_tools.analysis.transition import plot_transition
 
             record, hilbert, resonance_hz = plot["transition"]
             path = out_dir / f"{file_stem(experiment)}_transition.png"

@@ -30,11 +30,11 @@ from typing import Optional
 
 from flaair_model.model_io import load_model, save_model
 
-from .discrepancy.cli import bad_input_errors, load_inputs
-from .discrepancy.diagnosis import noise_estimates
-from .discrepancy.identification import identify_plant
-from .discrepancy.report import json_safe
-from .discrepancy.runs import check_runs, simulate_runs
+from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
+from flaair_tools.discrepancy.diagnosis import noise_estimates
+from flaair_tools.discrepancy.identification import identify_plant
+from flaair_tools.discrepancy.report import json_safe
+from flaair_tools.discrepancy.runs import check_runs, simulate_runs
 
 PROG = "flaair identify"
 

@@ -11,7 +11,7 @@ from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is 
 
 from flaair_model.config import config_dir, node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools import sweep
+from flaair_tools.sweeps import sweep
 
 
 
@@ -32,7 +32,7 @@ def _tasks_section(config: Path) -> dict[str, Any]:
 
 
 def run_study(args: argparse.Namespace, config: Path) -> int:
-    """Dispatch one study (see flaair_tools.sweep)."""
+    """Dispatch one study (see flaair_tools.sweeps.sweep)."""
     if args.study == "stroke":
         return stroke_study(args, config)
     model = load_model()
@@ -213,7 +213,9 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
     """Run the three stroke experiments per mode, one bag each, analysed from the bags."""
     from tqdm import tqdm
 
-    from flaair_tools import stroke_experiments as se, wingbeat
+    from flaair_tools.sweeps import stroke_experiments as se
+
+    from flaair_tools.analysis import wingbeat
     section = sweep.load_section(config, "stroke_experiments")
     values = _values()
     frontend_values = node_parameters("flaair.yaml", "frontend_node")

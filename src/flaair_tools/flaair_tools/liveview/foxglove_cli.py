@@ -5,8 +5,8 @@ import argparse
 import sys
 
 from flaair_common.runtime import help_text, run_node
-from flaair_tools import foxglove_node
-from flaair_tools.foxglove_node import CONFIG_FILE, NODE_NAME, PARAMS, FoxgloveNode, foxglove_node_args
+from flaair_tools.liveview import foxglove_node
+from flaair_tools.liveview.foxglove_node import CONFIG_FILE, NODE_NAME, PARAMS, FoxgloveNode, foxglove_node_args
 
 
 def main(argv: list[str]) -> int:

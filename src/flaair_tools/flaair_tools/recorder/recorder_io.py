@@ -6,14 +6,14 @@ import argparse
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import help_text
 from flaair_model.schema import ParamSpec
-from flaair_tools.recording import RecordingParams
+from flaair_tools.recorder.recording import RecordingParams
 
 RECORDER_HELP = """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
 
 Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
 for new topics every `discovery_period_s`, and writes each message straight into the bag
 without deserializing it, at its signal time (the leading header's stamp, the
-/clock value, or for a header-less run marker the latest stamp: flaair_tools.recording
+/clock value, or for a header-less run marker the latest stamp: flaair_tools.recorder.recording
 decides), so `play`, PlotJuggler and Foxglove show the signal's own timeline.
 Subscriptions match what the publishers offer (reliable / transient-local only if every
 publisher offers it); the offered QoS profiles are recorded with each topic, as rosbag2 does.

@@ -11,7 +11,7 @@ vector, so a point equals the plant model) closed sample by sample through the d
 
 Ideal proprioception (the sweep asks about the wing, not the sensor): the loop sees the
 true stroke. The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through
-one compiled call and summarises each with ``flaair_tools.wingbeat`` over the steady window:
+one compiled call and summarises each with ``flaair_tools.analysis.wingbeat`` over the steady window:
 the result of a row depends on that row alone, so any chunking or cluster gives the same
 numbers bit for bit.
 """
@@ -28,7 +28,7 @@ from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
 from flaair_sim.core import plant
 from flaair_sim.core.plant import GA_INDEX, N_KERNEL_PARAMS, mechanical_constants, prepare, rk4_step  # the plant's own kernels
-from flaair_tools import wingbeat
+from flaair_tools.analysis import wingbeat
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2
 MODE_NAMES = {SYNC: "sync_open_loop", DSA: "dsa", DSA_STROKE: "dsa_stroke_control"}

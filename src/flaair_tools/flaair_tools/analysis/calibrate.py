@@ -25,7 +25,7 @@ from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_model.model_io import load_model
 from flaair_tools import bagio
-from flaair_tools.runs import load_runs
+from flaair_tools.bagio.runs import load_runs
 
 COMBINED_KEYS = ("gain_deg_per_v", "offset_v", "lag_s", "amplitude_rmse_deg", "phase_rmse_deg", "amplitude_rmse_band_deg")
 

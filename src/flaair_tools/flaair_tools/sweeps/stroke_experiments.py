@@ -16,7 +16,6 @@ its inertia mid-run, an obstacle that clips the stroke.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -28,13 +27,12 @@ from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_control.core import safety, stroke
 from flaair_control.core.dsa import loop_delay_s
 from flaair_control.core.transition import CrossingFrequency
-from flaair_model.config import load_yaml, config_dir, node_parameters
 from flaair_model.model import Model
-from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_params_from_config as frontend_params
 from flaair_sim.core import plant
-from flaair_tools import bagio, wingbeat
+from flaair_tools import bagio
+from flaair_tools.analysis import wingbeat
 
 CUSTOM_KEY = "flaair.stroke_experiment"
 DRIVE_TYPE = "flaair_msgs/msg/DriveCommandBlock"

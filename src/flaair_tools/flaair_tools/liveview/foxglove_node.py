@@ -1,8 +1,8 @@
 """foxglove_node: the live graph over the Foxglove WebSocket protocol (Foxglove app, Lichtblick).
 
 Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth, /sensor_v
-and /drive (on /flaair/live/..., flaair_tools.live_view) at the sample's own signal time, so the Plot
-panel draws time series; /flaair/live/wingbeat summarises each wingbeat (flaair_tools.wingbeat);
+and /drive (on /flaair/live/..., flaair_tools.liveview.live_view) at the sample's own signal time, so the Plot
+panel draws time series; /flaair/live/wingbeat summarises each wingbeat (flaair_tools.analysis.wingbeat);
 /flaair/live/collision_status relays the monitor; the latest signal time is broadcast. Block streams
 are best effort (a viewer never holds the graph), served in batches of serve_period_s (one numpy call each).
 Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
@@ -24,7 +24,8 @@ from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_msgs.msg import CollisionStatus, ControllerState, DriveCommandBlock, SensorVoltageBlock, WingStateBlock
-from flaair_tools import live_view, wingbeat
+from flaair_tools.liveview import live_view
+from flaair_tools.analysis import wingbeat
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"

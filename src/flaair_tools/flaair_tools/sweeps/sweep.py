@@ -64,7 +64,7 @@ def _common_row(values: dict[str, Any], section: dict[str, Any]) -> dict[str, An
 def wing_damage_rows(section: dict[str, Any], values: dict[str, Any], model) -> list[dict[str, Any]]:
     """One row per (aero damping exponent, inertia factor, drive); drives set for the undamaged wing."""
     from flaair_control.core import stroke
-    from flaair_tools.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
+    from flaair_tools.sweeps.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
     try:
         factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
         exponents = _grid(section["aero_damping_exponent"], "wing_damage.aero_damping_exponent")
@@ -97,7 +97,7 @@ def wing_damage_rows(section: dict[str, Any], values: dict[str, Any], model) -> 
 
 def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per (r3, kappa, mu): the free dSA loop on the undamaged wing."""
-    from flaair_tools.sweep_batch import DSA, MODE_NAMES
+    from flaair_tools.sweeps.sweep_batch import DSA, MODE_NAMES
     try:
         mus = _grid(section["mu_nm_s_per_rad"], "dsa_map.mu_nm_s_per_rad")
         kappas = _grid(section["kappa"], "dsa_map.kappa")
@@ -159,7 +159,7 @@ class TaskSizing:
 def run_in_process(parts: list[list[dict[str, Any]]], model, progress: Callable[[int], None] = lambda n: None,
                    parallel: bool = False) -> list[list[dict[str, Any]]]:
     """Every chunk here, one after the other (``parallel``: numba threads over each chunk)."""
-    from flaair_tools.sweep_batch import run_rows
+    from flaair_tools.sweeps.sweep_batch import run_rows
     out = []
     for part in parts:
         out.append(run_rows(part, model, parallel))
@@ -185,7 +185,7 @@ def prepare_workers(client, model, row: dict[str, Any]) -> None:
     """Every worker runs one short task through the path the sweep's tasks take (kernels loaded
     from numba's cache, task machinery warmed: a worker's first task costs about a second more
     than the next)."""
-    from flaair_tools.sweep_batch import warm_up
+    from flaair_tools.sweeps.sweep_batch import warm_up
     client.gather([client.submit(warm_up, model, row, workers=[address], allow_other_workers=False,
                                  pure=False, key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}")
                    for i, address in enumerate(client.scheduler_info()["workers"])])
@@ -201,7 +201,7 @@ def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
     """
     from dask.distributed import as_completed
 
-    from flaair_tools.sweep_batch import run_rows
+    from flaair_tools.sweeps.sweep_batch import run_rows
     run = uuid.uuid4().hex[:8]   # keys of this run's tasks: a later run on the same client never meets them
     futures = [client.submit(run_rows, part, model, key=f"sweep-chunk-{run}-{i}", pure=False)
                for i, part in enumerate(parts)]
@@ -226,7 +226,7 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
     """
     from tqdm import tqdm
 
-    from flaair_tools.sweep_batch import warm_up
+    from flaair_tools.sweeps.sweep_batch import warm_up
 
     def sized(n_workers: int) -> list[list[dict[str, Any]]]:
         size = chunk_size.chunk_size(rows, n_workers) if isinstance(chunk_size, TaskSizing) else int(chunk_size)

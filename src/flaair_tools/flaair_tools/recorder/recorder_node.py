@@ -1,6 +1,6 @@
 """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
 
-What it records, when, and how it survives a kill: flaair_tools.recorder_io.RECORDER_HELP
+What it records, when, and how it survives a kill: flaair_tools.recorder.recorder_io.RECORDER_HELP
 (also the --help of `bin/flaair record`).
 """
 from __future__ import annotations
@@ -21,13 +21,14 @@ from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
 from flaair_common.topics import BLOCK_STREAM_TYPES
-from flaair_tools import bagio, recording
-from flaair_tools.recorder_io import CONFIG_FILE, NODE_NAME, RECORDER_HELP, RECORDING, cli_to_ros_args
-from flaair_tools.recorder_io import RECORDER_PARAMS as PARAMS
+from flaair_tools import bagio
+from flaair_tools.recorder import recording
+from flaair_tools.recorder.recorder_io import CONFIG_FILE, NODE_NAME, RECORDER_HELP, RECORDING, cli_to_ros_args
+from flaair_tools.recorder.recorder_io import RECORDER_PARAMS as PARAMS
 
 
 class RecorderNode(Node):
-    """Raw subscriptions -> flaair_tools.recording (log times) -> bagio.BagWriter."""
+    """Raw subscriptions -> flaair_tools.recorder.recording (log times) -> bagio.BagWriter."""
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)

@@ -1,7 +1,7 @@
 """`flaair analyze BAG... --out DIR`: the paper's analysis of recorded experiments and lab runs, from the bags.
 
 Every run's drive is recognised from the drive signal itself (chirp, stepped sine, single sine,
-dSA transition, free run; flaair_tools.runkind) unless the bag says what it is (a FLAAIR
+dSA transition, free run; flaair_tools.analysis.runkind) unless the bag says what it is (a FLAAIR
 experiment, or `flaair import --kind`), and each gets its analysis, using the front-end
 estimate against the ground truth on /flaair/wing_state/truth:
   chirp         Bode of sensor vs truth (paper Fig. Bode a), gains (deg/V), amplitude and phase
@@ -56,8 +56,8 @@ from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
-from flaair_tools.runkind import DriveKind, RecognitionParams, RunKindError, recognise
-from flaair_tools.runs import RUN_TOPICS, Run, runs_of_bag
+from flaair_tools.analysis.runkind import DriveKind, RecognitionParams, RunKindError, recognise
+from flaair_tools.bagio.runs import RUN_TOPICS, Run, runs_of_bag
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
 # Every topic the analysis reads (each bag is read once).
@@ -367,7 +367,7 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     """
     from flaair_control.core import transition as tr
     from flaair_control.transition_io import hilbert_params_from_config
-    from flaair_tools.transition_figure import TransitionRecord
+    from flaair_tools.analysis.transition import TransitionRecord
     from flaair_model.model_io import load_model
 
     bag = contents.info.path
@@ -583,7 +583,7 @@ def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True, calibrati
         calibration.yaml from `flaair calibrate`; None: the live front end's or the model's gains.
     """
     from flaair_model.model_io import load_model
-    from flaair_tools import report as html_report
+    from flaair_tools.analysis import report as html_report
 
     calibration = load_calibration(calibration_file) if calibration_file is not None else None
     try:

@@ -1,0 +1,10 @@
+"""The live view over the Foxglove WebSocket protocol.
+
+Modules (import them by name; this package imports none of them eagerly):
+- `live_view`: what is published (per-sample messages, wingbeat summary, layout)
+- `foxglove_node`: the node serving it
+- `foxglove_cli`: `bin/flaair foxglove`
+- `foxglove_client`: a minimal protocol client for tests and benchmarks
+"""
+
+__all__ = ["live_view", "foxglove_node", "foxglove_cli", "foxglove_client"]

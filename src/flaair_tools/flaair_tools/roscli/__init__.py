@@ -1,0 +1,10 @@
+"""Stand-ins for ros2cli, which PyPI does not carry: `bin/flaair topic|param|node|bag`.
+
+Modules (import them by name; this package imports none of them eagerly):
+- `topic`: list, echo, publish
+- `param`: get and set a running node's parameters
+- `node_cli`: list the running nodes
+- `bag_cli`: bag info and recovery
+"""
+
+__all__ = ["topic", "param", "node_cli", "bag_cli"]

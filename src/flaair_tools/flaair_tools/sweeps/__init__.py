@@ -1,0 +1,11 @@
+"""Simulation studies on Dask: wing damage, the dSA map, the stroke-controller experiments.
+
+Modules (import them by name; this package imports none of them eagerly):
+- `sweep`: the engine: grids, chunks, cluster or in process
+- `sweep_batch`: compiled closed-loop batch (pure)
+- `sweep_report`: run, write, draw, read
+- `stroke_experiments`: the stroke controller's experiments, closed loop in process, recorded as bags
+- `sweep_cli`: `bin/flaair sweep`
+"""
+
+__all__ = ["sweep", "sweep_batch", "sweep_report", "stroke_experiments", "sweep_cli"]
