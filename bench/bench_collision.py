@@ -29,11 +29,14 @@ for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
     if str(REPO_ROOT / "src" / _pkg) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT / "src" / _pkg))
 
+from flaair_control.control_io import (  # noqa: E402
+    monitor_windows_from_config,
+    spectral_metric_params_from_config,
+)
 from flaair_control.core import collision as col  # noqa: E402
-from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config  # noqa: E402
-from flaair_sim.core import plant  # noqa: E402
 from flaair_model.model import with_effects  # noqa: E402
 from flaair_model.model_io import load_model  # noqa: E402
+from flaair_sim.core import plant  # noqa: E402
 
 FS = 20000.0
 METRIC = spectral_metric_params_from_config()   # the paper metric as configured

@@ -39,14 +39,21 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from functools import lru_cache
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 from tqdm import tqdm
 
+from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy import Settings, analyse
-from flaair_tools.discrepancy.datasets import (FAMILIES, confusion_table, dataset_cases, make_runs, random_robot,
-                                               score_case, true_plant)
+from flaair_tools.discrepancy.datasets import (
+    FAMILIES,
+    confusion_table,
+    dataset_cases,
+    make_runs,
+    random_robot,
+    score_case,
+    true_plant,
+)
 from flaair_tools.discrepancy.report import json_safe, write_validation
 
 TIME_TARGET_S = 60.0

@@ -18,15 +18,15 @@ import time
 from pathlib import Path
 
 import numpy as np
-from benchlib import Figure, best_time_s, print_table, write_json
 from scipy import signal
 
+from benchlib import Figure, best_time_s, print_table, write_json
+from flaair_model.model_io import load_model
+from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import calibration, characterization
 from flaair_sensors.core import frontend as fe
-from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sim.core.drive import chirp
-from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 
 FS = 20000.0

@@ -44,7 +44,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json  # noqa: E402
 from flaair_common.graph import Graph as LaunchGraph  # noqa: E402
-
 from flaair_model.config import node_parameters  # noqa: E402
 from flaair_tools import bagio  # noqa: E402
 

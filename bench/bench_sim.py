@@ -22,12 +22,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from benchlib import Figure, best_time_s, print_table, write_json
 
-from flaair_sim.core import plant
-from flaair_sim.core.drive import chirp
+from benchlib import Figure, best_time_s, print_table, write_json
 from flaair_model.model import Model, with_effects
 from flaair_model.model_io import load_model
+from flaair_sim.core import plant
+from flaair_sim.core.drive import chirp
 
 FS_HZ = 20_000.0
 DURATION_S = 1.0

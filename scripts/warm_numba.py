@@ -12,10 +12,17 @@ import numpy as np
 
 def main() -> None:
     start = time.perf_counter()
-    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
-    from flaair_sim.core.plant import PlantInputs, PlantStepParams, initial_state, simulate, simulate_batch, step
+    from flaair_sim.core.drive import DriveParams, drive_record
+    from flaair_sim.core.plant import (
+        PlantInputs,
+        PlantStepParams,
+        initial_state,
+        simulate,
+        simulate_batch,
+        step,
+    )
 
     fs_hz = 20000.0
     model = load_model()
@@ -26,9 +33,11 @@ def main() -> None:
         step(initial_state(m, fs_hz), PlantInputs(drive[:10]), PlantStepParams(m, fs_hz))
     simulate_batch(drive, fs_hz, [model, model])
     try:
+        from flaair_control.control_io import (
+            monitor_windows_from_config,
+            spectral_metric_params_from_config,
+        )
         from flaair_control.core import collision
-
-        from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config
 
         collision.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config())
         params = monitor_windows_from_config(100.0)
@@ -36,8 +45,8 @@ def main() -> None:
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
     try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
-        from flaair_control.core import dsa, safety
         from flaair_control.control_io import supervisor_params_from_config
+        from flaair_control.core import dsa, safety
         from flaair_model.config import node_parameters
         from flaair_sensors.core import frontend
         from flaair_sensors.frontend_io import frontend_params_from_config

@@ -22,7 +22,12 @@ def bench_model():
 
 def lab_runs() -> dict[str, dict[str, np.ndarray]]:
     """A lab's typical set: a chirp, a stepped sine (60-200 Hz, 10 Hz, 0.2 s) and a 100 Hz sine."""
-    from flaair_sim.core.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
+    from flaair_sim.core.drive import (
+        DriveParams,
+        drive_record,
+        stepped_sine,
+        stepped_sine_frequencies_hz,
+    )
     from flaair_sim.core.plant import synthesize_measured_run
 
     model, rng = bench_model(), np.random.default_rng(7)

@@ -13,16 +13,21 @@ from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Reader
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
 
 from flaair_common.blocks import from_array
 from flaair_common.msgdict import to_dict
 from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
 from flaair_msgs.msg import (
-    CollisionEvent, CollisionStatus, ControllerState, DriveCommandBlock, SensorVoltageBlock, WingStateBlock,
+    CollisionEvent,
+    CollisionStatus,
+    ControllerState,
+    DriveCommandBlock,
+    SensorVoltageBlock,
+    WingStateBlock,
 )
 from flaair_tools import bagio
-from rosgraph_msgs.msg import Clock
-from std_msgs.msg import String
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 PROJECT_TYPES = ("CollisionEvent", "CollisionStatus", "ControllerState", "DriveCommandBlock",

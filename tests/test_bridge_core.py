@@ -1,13 +1,13 @@
 """The bridge's pure core: sequence tracking, loss marking, re-blocking, drive scheduling, watchdogs."""
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 import pytest
 
 from flaair_bridge.core import bridge, protocol
 from flaair_bridge.core.bridge import DriveBlock, SensorDatagram, Stop, Tick
-import struct
-
 from flaair_bridge.emulated_target import TargetCore, sensor_packet
 
 FS = 20000.0
@@ -33,14 +33,14 @@ def run(inputs, p=None, state=None):
     """Feed inputs; return the final state and every output concatenated."""
     p = p or params()
     state = state or bridge.initial_state()
-    blocks, packets, timing, notices = [], [], [], []
+    blocks, packets, timing, notes = [], [], [], []
     for item in inputs:
         state, out = bridge.step(state, item, p)
         blocks += out.blocks
         packets += [protocol.unpack_drive(data) for data in out.packets]
         timing += out.timing
-        notices += out.notices
-    return state, blocks, packets, timing, notices
+        notes += out.notes
+    return state, blocks, packets, timing, notes
 
 
 def stream(blocks) -> tuple[np.ndarray, np.ndarray]:
@@ -62,14 +62,14 @@ def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> No
 
 def test_lost_packets_are_counted_and_published_as_nan_never_invented() -> None:
     sequences = [0, 1, 4, 5]   # 2 and 3 lost
-    state, blocks, _, _, notices = run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences])
+    state, blocks, _, _, notes = run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences])
     index, stroke = stream(blocks)
     assert len(index) == 60
     lost = (index >= 20) & (index < 40)
     assert np.isnan(stroke[lost]).all() and np.isnan(np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
     np.testing.assert_array_equal(stroke[~lost], (1 + index[~lost] / 1000).astype(np.float32))
     assert state.counters.lost_packets == 2 and state.counters.lost_samples == 20
-    assert any("2 sensor packet(s) lost before sequence 4" in n.text for n in notices)
+    assert any("2 sensor packet(s) lost before sequence 4" in n.text for n in notes)
 
 
 def test_duplicates_and_older_packets_are_stale_and_dropped() -> None:
@@ -90,11 +90,11 @@ def test_malformed_datagrams_are_counted_and_change_nothing_else() -> None:
     good = packet(0, 0)
     garbage = [b"", b"hello", good[:-1], good + b"\x00", b"FLD1" + good[4:], packet(1, N, rate=10000.0),
                good[:24] + np.full(30, np.nan, "<f4").tobytes()]
-    state, blocks, _, _, notices = run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
+    state, blocks, _, _, notes = run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
                                        + [SensorDatagram(packet(1, N), 0.0)])
     assert state.counters.malformed == len(garbage) and state.counters.lost_packets == 0
     assert len(blocks) == 2 and blocks[1].first_sample_index == N
-    assert any("sample_rate_hz 10000, the bridge runs at 20000" in n.text for n in notices)
+    assert any("sample_rate_hz 10000, the bridge runs at 20000" in n.text for n in notes)
 
 
 def test_packets_of_other_sizes_are_reblocked() -> None:
@@ -123,10 +123,10 @@ def test_late_drive_is_reanchored_ahead_of_the_target_clock() -> None:
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]          # -> target 10 + 20 = 30
     inputs += [SensorDatagram(packet(k, k * N), 0.0) for k in range(1, 6)]                # clock now 60
     inputs += [DriveBlock(N, np.ones(N), 0.0)]                                           # contiguous 40 < 60: late
-    state, _, packets, _, notices = run(inputs)
+    state, _, packets, _, notes = run(inputs)
     assert [p.first_sample_index for p in packets] == [30, 60 + LEAD]
     assert state.counters.drive_reanchors == 1
-    assert any("20 samples behind the target's clock" in n.text for n in notices)
+    assert any("20 samples behind the target's clock" in n.text for n in notes)
 
 
 def test_a_bridge_behind_the_target_drops_late_blocks_and_keeps_the_loops_delay() -> None:
@@ -140,19 +140,19 @@ def test_a_bridge_behind_the_target_drops_late_blocks_and_keeps_the_loops_delay(
         arrival = 1.0 + k * 5e-4
         now = max(1.005, arrival)
         inputs += [SensorDatagram(packet(k, k * N), arrival, now), DriveBlock(k * N, np.ones(N), now)]
-    state, _, packets, _, notices = run(inputs)
+    state, _, packets, _, notes = run(inputs)
     assert [x.first_sample_index for x in packets] == [N + LEAD] + [(k + 1) * N + LEAD for k in range(8, 20)]
     assert state.counters.drive_late_blocks == 7 and state.counters.drive_reanchors == 0
-    assert any("behind the target's clock (the bridge fell behind)" in n.text for n in notices)
+    assert any("behind the target's clock (the bridge fell behind)" in n.text for n in notes)
 
 
 def test_a_source_faster_than_real_time_drops_its_queue_and_reanchors() -> None:
     p = params(max_ahead_samples=20)
     inputs = [SensorDatagram(packet(0, 0), 0.0)] + [DriveBlock(k * N, np.ones(N), 0.0) for k in range(110)]
-    state, _, packets, _, notices = run(inputs, p)
+    state, _, packets, _, notes = run(inputs, p)
     queued = sum(len(d) for _, d in state.queue)
     assert state.counters.drive_overflow_blocks > 0 and state.counters.drive_reanchors == 1
-    assert queued <= 20 + protocol.MAX_SAMPLES and any("already wait" in n.text for n in notices)
+    assert queued <= 20 + protocol.MAX_SAMPLES and any("already wait" in n.text for n in notes)
 
 
 def test_drive_is_clamped_nonfinite_zeroed_and_stale_or_early_blocks_dropped() -> None:
@@ -180,9 +180,9 @@ def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> Non
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0), Tick(0.019)]
     state, _, packets, _, _ = run(inputs)
     assert len(packets) == 1
-    state, _, packets, _, notices = run([Tick(0.021), Tick(0.05)], state=state)
+    state, _, packets, _, notes = run([Tick(0.021), Tick(0.05)], state=state)
     assert len(packets) == 1 and packets[0].stop and packets[0].first_sample_index == N
-    assert state.counters.watchdog_stops == 1 and "DRIVE WATCHDOG" in notices[0].text
+    assert state.counters.watchdog_stops == 1 and "DRIVE WATCHDOG" in notes[0].text
     # a zero stream falling silent needs no stop; a resumed stream is anchored afresh
     state, _, packets, _, _ = run([SensorDatagram(packet(1, N), 0.06), DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)],
                                   state=state)
@@ -192,9 +192,9 @@ def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> Non
 def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -> None:
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]
     inputs += [DriveBlock(k * N, np.ones(N), 0.001 * k) for k in range(1, 40)] + [Tick(0.0401)]   # 40 ms silent
-    state, blocks, packets, _, notices = run(inputs)
+    state, blocks, packets, _, notes = run(inputs)
     assert packets[-1].stop and state.counters.silences == 1
-    assert any("TARGET SILENT" in n.text for n in notices)
+    assert any("TARGET SILENT" in n.text for n in notes)
     index, stroke = stream(blocks)
     assert index[-1] + 1 == N + int(0.0401 * FS) // N * N            # lost samples at the real-time rate
     assert np.isnan(stroke[N:]).all()
@@ -210,16 +210,16 @@ def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -
 def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
     # packets that arrived 50 ms ago and are read only now: the target is not silent, the bridge is late
     inputs = [SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5) for k in range(5)] + [Tick(1.051)]
-    state, blocks, _, _, notices = run(inputs)
-    assert state.counters.silences == 0 and len(blocks) == 5 and not notices
+    state, blocks, _, _, notes = run(inputs)
+    assert state.counters.silences == 0 and len(blocks) == 5 and not notes
 
 
 def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_silent() -> None:
     # 40 ms without a read, but the socket holds unread datagrams (the process stalled: a GIL-heavy
     # start-up, a long callback): no silence, no stop, no samples published as lost
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.zeros(N), 0.0), Tick(0.0401, backlog=True)]
-    state, blocks, packets, _, notices = run(inputs)
-    assert state.counters.silences == 0 and not any("SILENT" in n.text for n in notices)
+    state, blocks, packets, _, notes = run(inputs)
+    assert state.counters.silences == 0 and not any("SILENT" in n.text for n in notes)
     assert not any(p.stop for p in packets) and len(blocks) == 1
     state, *_ = run([Tick(0.0402)], state=state)   # nothing waiting any more: now it is a silence
     assert state.counters.silences == 1
@@ -228,7 +228,7 @@ def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_si
 def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
     inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]        # the target restarted at 0
-    state, blocks, _, _, notices = run(inputs)
+    state, blocks, _, _, notes = run(inputs)
     assert state.counters.stale_packets == 4 and state.counters.resyncs == 1
     index, stroke = stream(blocks)
     assert len(index) == 3 * N + 2 * N                                           # published index keeps running

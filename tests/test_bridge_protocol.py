@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from flaair_bridge.core import protocol
 from flaair_bridge import emulated_target
+from flaair_bridge.core import protocol
 from flaair_bridge.core.protocol import DrivePacket, ProtocolError, SensorPacket
 
 F32 = st.floats(width=32, allow_nan=False, allow_infinity=False)

@@ -8,8 +8,6 @@
 """
 from __future__ import annotations
 
-import pytest
-
 import json
 import re
 import signal
@@ -18,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rosproc import ros_processes, target_watchdog_tripped, wait_for
 

@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import rclpy.serialization as rclpy_serialization  # noqa: E402
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from flaair_common import cdr
-
-import rclpy.serialization as rclpy_serialization  # noqa: E402
 from flaair_common.msgdict import from_dict, message_class, to_dict  # noqa: E402
 
 finite = st.floats(allow_nan=False, allow_infinity=False, width=64)

@@ -4,7 +4,6 @@ from __future__ import annotations
 import pytest
 
 from flaair_common import cdr, msgdefs
-
 from flaair_common.msgdict import message_class  # noqa: E402
 
 ROSIDL_KINDS = {"double": "float64", "uint64": "uint64", "uint8": "uint8", "octet": "uint8", "boolean": "bool",

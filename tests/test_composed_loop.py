@@ -6,12 +6,12 @@ listener that is there still gets every block of them.
 """
 from __future__ import annotations
 
-import pytest
-
 import json
 import re
 import time
 from pathlib import Path
+
+import pytest
 
 from flaair_common.intra import Bus, CallbackProfile
 from rosproc import ros_processes, wait_for

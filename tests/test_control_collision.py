@@ -7,9 +7,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-
+from flaair_control.control_io import (
+    monitor_windows_from_config,
+    spectral_metric_params_from_config,
+)
 from flaair_control.core import collision as col
-from flaair_control.control_io import monitor_windows_from_config, spectral_metric_params_from_config
 
 FS = 20000.0
 BLOCK = 10

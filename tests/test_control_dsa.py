@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 
-
 from flaair_control.core import dsa, hopf
 
 FS = 20000.0

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from scipy.signal import hilbert
 
-
 from flaair_control.core import dsa, hopf
 
 FS = 20000.0

@@ -191,9 +191,9 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     import rclpy
 
     from flaair_control.collision_monitor_node import CollisionMonitorNode
-    from flaair_sensors.core import frontend
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
+    from flaair_sensors.core import frontend
     from flaair_sim.core.plant import simulate
 
     model = load_model()
@@ -237,10 +237,10 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     from rclpy.parameter import Parameter
     from rclpy.serialization import deserialize_message, serialize_message
 
-    from flaair_common.blocks import from_array
     from flaair_common import cdr
-    from flaair_control.dsa_controller_node import DsaControllerNode
+    from flaair_common.blocks import from_array
     from flaair_control.core.supervisor import LOOP, TRIPPED
+    from flaair_control.dsa_controller_node import DsaControllerNode
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 
     if rclpy.ok():

@@ -106,7 +106,11 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     from flaair_model.model_io import load_model
     from flaair_sensors.frontend_node import FrontendNode
     from flaair_sim.plant_node import PlantNode
-    from flaair_tools.analysis.transition import plot_transition, predicted_limit_cycle, transition_record
+    from flaair_tools.analysis.transition import (
+        plot_transition,
+        predicted_limit_cycle,
+        transition_record,
+    )
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
     params = {"plant_node": {"command_timeout_s": 0.0},

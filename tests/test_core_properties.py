@@ -6,9 +6,8 @@ The front end, the safety core and the CDR codec have their own property tests
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,8 +17,8 @@ from hypothesis.extra.numpy import arrays
 
 from flaair_control.control_io import monitor_windows_from_config
 from flaair_control.core import collision, dsa
-from flaair_sim.core import drive, plant
 from flaair_model.model_io import load_model
+from flaair_sim.core import drive, plant
 
 FS_HZ = 20000.0
 LIMIT_V = 150.0

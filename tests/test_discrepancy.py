@@ -21,19 +21,35 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import write_run
-from flaair_sim.core.drive import chirp
 from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
 from flaair_model.model_io import load_model, save_model
+from flaair_sim.core.drive import chirp
 from flaair_sim.core.plant import simulate
 from flaair_tools import discrepancy
-from flaair_tools.discrepancy import diagnosis, evidence, fitting, search, settings, vocabulary, workflow
+from flaair_tools.discrepancy import (
+    diagnosis,
+    evidence,
+    fitting,
+    search,
+    settings,
+    vocabulary,
+    workflow,
+)
 from flaair_tools.discrepancy import runs as run_module
 from flaair_tools.discrepancy.datasets import (
-    FS_HZ, DatasetCase, confusion_table, dataset_cases, effective_plant, expected_column, make_runs, run_set_drives,
-    score_case)
+    FS_HZ,
+    DatasetCase,
+    confusion_table,
+    dataset_cases,
+    effective_plant,
+    expected_column,
+    make_runs,
+    run_set_drives,
+    score_case,
+)
 from flaair_tools.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
-from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from flaair_tools.discrepancy.report import write_validation
+from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 
 # the former discrepancy_core, now the discrepancy package's modules
 dc = SimpleNamespace(**{k: v for m in (vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow)

@@ -26,7 +26,7 @@ def run(p: pacing.PacingParams, events, t0: float = 0.0):
     for event in events:
         state, out = pacing.step(state, event, p)
         blocks += out.blocks
-        logs += out.logs
+        logs += [(note.level, note.text) for note in out.notes]
     return state, blocks, logs
 
 

@@ -49,9 +49,9 @@ def test_analyze_reports_paper_figures_from_the_bag(chirp_bag: Path, tmp_path: P
 def test_analyze_numbers_follow_the_bag_not_the_simulator(tmp_path: Path) -> None:
     """An imported lab bag with a hidden 0.25 hinge strain-transfer efficiency: the report sees it."""
     from flaair_common.runcsv import write_run
-    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
+    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.plant import synthesize_measured_run
     from flaair_tools import bagio
 

@@ -12,7 +12,8 @@ SCRIPT = textwrap.dedent("""
     import json, sys, time
     import rclpy
     from rcl_interfaces.msg import Log
-    from flaair_common.runtime import ERROR, INFO, WARN, log, warn_counted
+    from flaair_common.runtime import ERROR, INFO, WARN, log, log_notes, warn_counted
+    from flaair_model.notes import Note
 
     rclpy.init()
     node = rclpy.create_node("fast_log_test")
@@ -31,10 +32,17 @@ SCRIPT = textwrap.dedent("""
         for count in range(1, 5):
             warn_counted(logger, count, f"counted {count}", every_up_to=2)
 
+    def noted():
+        counts = iter(range(11, 15))   # past the first ten: once a second per counter
+        notes = [Note("warning", f"gap {i}", "gaps") for i in range(4)] + [Note("error", "tripped", "gaps"),
+                                                                            Note("info", "plain")]
+        log_notes(logger, notes, lambda counter: next(counts))
+
     through_rclpy()
     fast()
+    noted()
     deadline = time.monotonic() + 10
-    while len(got) < 7 and time.monotonic() < deadline:
+    while len(got) < 10 and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.1)
     settle = time.monotonic() + 0.5   # anything more (a warning the throttle should have held back)
     while time.monotonic() < settle:
@@ -71,3 +79,7 @@ def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     assert "[WARN] [fast_log_test] through_rclpy:" in console[0] and console[0].endswith(": from rclpy")
     assert console[1] == f"[WARN] [fast_log_test] fast:{fast_record['line']}: from log"
     assert console[3].startswith("[ERROR] [fast_log_test] fast:")
+    # log_notes: one counted warning per counter a second, errors and plain notes always; the
+    # records name the caller of log_notes
+    assert [r["msg"] for r in records if r["function"] == "noted"] == ["gap 0", "tripped", "plain"]
+    assert [by_msg[m]["level"] for m in ("gap 0", "tripped", "plain")] == [30, 40, 20]

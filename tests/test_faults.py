@@ -40,8 +40,8 @@ def test_every_node_refuses_bad_parameters_by_name(package: str, executable: str
 @pytest.fixture(scope="module")
 def lab_bag(tmp_path_factory) -> Path:
     from flaair_common.runcsv import write_run
-    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model_io import load_model
+    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.plant import synthesize_measured_run
 
     tmp = tmp_path_factory.mktemp("faults")

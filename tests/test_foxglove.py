@@ -8,9 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from flaair_tools.liveview import live_view
-
 from flaair_tools.analysis import wingbeat
+from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_client import FoxgloveClient
 from flaair_tools.liveview.foxglove_node import foxglove_node_args
 from rosproc import ros_processes, wait_for

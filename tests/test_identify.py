@@ -16,12 +16,18 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import write_run
-from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate, simulate_batch_from
-from flaair_tools.discrepancy import analyse, check_runs, initial_mechanical_state, noise_estimates, simulate_runs
+from flaair_tools.discrepancy import (
+    analyse,
+    check_runs,
+    initial_mechanical_state,
+    noise_estimates,
+    simulate_runs,
+)
 from flaair_tools.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
 from flaair_tools.discrepancy.identification import frequency_domain_start, identify_plant
+from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
 REPO = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO / "bin" / "flaair")

@@ -204,3 +204,13 @@ def test_every_package_init_declares_its_table_of_contents() -> None:
             if not (ast.get_docstring(tree) and has_all):
                 missing.append(str(path.relative_to(ROOT)))
     assert missing == [], f"package __init__ without a docstring or __all__: {missing}"
+
+
+def test_cores_share_one_note_type() -> None:
+    """Every core's log lines are `flaair_model.notes.Note`: no module defines a note type of its own."""
+    own = []
+    for path in _source_files(SRC):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ClassDef) and node.name in ("Note", "Notice", "LogLine"):
+                own.append(f"{path.relative_to(ROOT)}:{node.lineno}: class {node.name}")
+    assert own == ["src/flaair_model/flaair_model/notes.py:17: class Note"], own

@@ -1,13 +1,12 @@
 """Bags on the signal's clock: 3 s of simulated signal span 3 s of log time, read with the mcap library."""
 from __future__ import annotations
 
-import pytest
-
 import signal
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 

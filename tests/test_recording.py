@@ -2,7 +2,14 @@
 from __future__ import annotations
 
 import pytest
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 
 from flaair_model.schema import ParameterError
 from flaair_tools.recorder import recording as rec

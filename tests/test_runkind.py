@@ -3,10 +3,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from flaair_model.config import node_parameters
-from flaair_sim.core.drive import DriveParams, drive_record, stepped_sine, stepped_sine_frequencies_hz
+from flaair_sim.core.drive import (
+    DriveParams,
+    drive_record,
+    stepped_sine,
+    stepped_sine_frequencies_hz,
+)
 from flaair_tools.analysis.runkind import RecognitionParams, RunKindError, recognise
 
 FS = 20000.0

@@ -6,11 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend as fe
 from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_sim.core.drive import chirp
-from flaair_model.model import with_effects
-from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate, synthesize_measured_run
 from tuning import FRONTEND_TUNING
 

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from flaair_sensors.core import characterization as ch
-from flaair_sensors.core import frontend as fe
-from flaair_sim.core.drive import chirp as chirp_drive, stepped_sine
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
+from flaair_sensors.core import characterization as ch
+from flaair_sensors.core import frontend as fe
+from flaair_sim.core.drive import chirp as chirp_drive
+from flaair_sim.core.drive import stepped_sine
 from flaair_sim.core.plant import simulate
 from tuning import FRONTEND_TUNING
 

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend as fe
 from flaair_sensors.core.characterization import sine_phasor
-from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 from tuning import FRONTEND_TUNING
 

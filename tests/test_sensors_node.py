@@ -5,7 +5,6 @@ import numpy as np
 
 from tuning import FRONTEND_TUNING
 
-
 FS_HZ = 20000.0
 
 

@@ -18,7 +18,13 @@ from flaair_model.model import (
     with_effects,
     without_effects,
 )
-from flaair_model.model_io import default_model_path, load_model, model_from_dict, model_to_dict, save_model
+from flaair_model.model_io import (
+    default_model_path,
+    load_model,
+    model_from_dict,
+    model_to_dict,
+    save_model,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "model.yaml"

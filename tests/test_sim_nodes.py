@@ -1,15 +1,13 @@
 """Plant and drive nodes over real DDS: lockstep equals the offline core; bad blocks are rejected."""
 from __future__ import annotations
 
-import pytest
-
 import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rosproc import ros_processes, wait_for
-
 
 FS_HZ = 20000.0
 BLOCK = 10
@@ -22,8 +20,8 @@ def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path
 
 @pytest.mark.graph
 def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> None:
-    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_model.model_io import load_model
+    from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.plant import simulate
 
     n_blocks = 200

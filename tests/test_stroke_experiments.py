@@ -12,8 +12,8 @@ from rosbags.highlevel import AnyReader
 
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools.sweeps import stroke_experiments as se
 from flaair_tools.analysis import wingbeat
+from flaair_tools.sweeps import stroke_experiments as se
 
 TOPICS = {"/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state", "/flaair/wing_state/truth",
           "/flaair/controller/state", "/flaair/run_marker"}

@@ -6,7 +6,6 @@ import re
 import subprocess
 from pathlib import Path
 
-
 from rosproc import FLAAIR, isolated_env, run
 
 TESTS = Path(__file__).resolve().parent

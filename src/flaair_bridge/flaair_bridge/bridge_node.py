@@ -19,14 +19,14 @@ import time
 import numpy as np
 from rclpy.node import Node
 
-from flaair_bridge.core import bridge
 from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
+from flaair_bridge.core import bridge
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import ERROR, log, run_node, warn_counted
+from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
 
 NODE_NAME = "bridge_node"
@@ -116,11 +116,7 @@ class BridgeNode(Node):
                     self.applied.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
                                                     "drive_v": block.drive_v})
             self.cause_s = outer_cause_s
-        for notice in out.notices:  # errors always; the rest rate-limited by their counter
-            if notice.error:
-                log(self.get_logger(), ERROR, notice.text)
-            else:
-                warn_counted(self.get_logger(), getattr(counters, notice.kind), notice.text)
+        log_notes(self.get_logger(), out.notes, lambda counter: getattr(counters, counter))
 
     def close(self) -> None:
         """End of the run: stop packet (sent STOP_COPIES times), receiver stopped, counters logged."""

@@ -7,6 +7,7 @@ avoids a per-sample Python loop in both directions.
 from __future__ import annotations
 
 import array
+
 import numpy as np
 from builtin_interfaces.msg import Time
 

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from typing import Callable
 
 # A node takes a second or more to import (rclpy, numba) and build (JIT compilation): a Ctrl-C or
@@ -45,10 +46,11 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_i
 from rclpy.impl.logging_severity import LoggingSeverity  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from flaair_model.config import node_parameters  # noqa: E402
 from flaair_common import intra
 from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
-
+from flaair_model.config import node_parameters  # noqa: E402
+from flaair_model.notes import ERROR as ERROR_LEVEL  # noqa: E402
+from flaair_model.notes import Note
 
 ACK_WAIT_S = 2.0            # at exit, a node's reliable readers get this long to acknowledge its last messages
 DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
@@ -230,17 +232,33 @@ def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
 _last_warned: dict[tuple, float] = {}
 
 
-def warn_counted(logger, count: int, text: str, every_up_to: int = 10) -> None:
+def warn_counted(logger, count: int, text: str, every_up_to: int = 10, key: object = None,
+                 depth: int = 1) -> None:
     """Log a warning every time for the first `every_up_to` occurrences, then at most once a second.
 
-    The throttle is kept here, per calling line: rclpy's own throttle looks up its caller with
-    `inspect` on every call, logged or not, which cost a fault-flooded bridge a fifth of its CPU.
+    The throttle is kept here, per `key` (default: the calling line): rclpy's own throttle looks up
+    its caller with `inspect` on every call, logged or not, which cost a fault-flooded bridge a
+    fifth of its CPU. `depth` counts the frames up to the caller the record names.
     """
     if count > every_up_to:
-        caller = sys._getframe(1)
-        key = (id(logger), caller.f_code, caller.f_lineno)
+        caller = sys._getframe(depth)
+        key = (id(logger), caller.f_code, caller.f_lineno) if key is None else (id(logger), key)
         now = time.monotonic()
         if now - _last_warned.get(key, -math.inf) < 1.0:
             return
         _last_warned[key] = now
-    log(logger, WARN, text, depth=2)
+    log(logger, WARN, text, depth=depth + 1)
+
+
+def log_notes(logger, notes: Iterable[Note], count_of: Callable[[str], int] = lambda _counter: 0) -> None:
+    """Log a core's notes, the same way in every node.
+
+    Errors and uncounted notes are logged at their level; a counted warning (`Note.counter`) is
+    logged every time for its first ten occurrences, then at most once a second per counter.
+    `count_of(counter)` gives the count now (the core's state holds it).
+    """
+    for note in notes:
+        if note.counter and note.level != ERROR_LEVEL:
+            warn_counted(logger, count_of(note.counter), note.text, key=note.counter, depth=2)
+        else:
+            log(logger, SEVERITY[note.level], note.text, depth=2)

@@ -24,9 +24,13 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import check_block, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
-from flaair_common.runtime import INFO, WARN, log, run_node, warn_counted
+from flaair_common.runtime import INFO, WARN, log, log_notes, run_node, warn_counted
+from flaair_control.control_io import (
+    COLLISION_MONITOR_PARAMS,
+    CONFIG_FILE,
+    collision_monitor_params_from_config,
+)
 from flaair_control.core import monitor
-from flaair_control.control_io import COLLISION_MONITOR_PARAMS, CONFIG_FILE, collision_monitor_params_from_config
 from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
 
 NODE_NAME = "collision_monitor_node"
@@ -96,8 +100,7 @@ class CollisionMonitorNode(Node):
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
         """Run the core on one block; log its notes, publish its verdicts."""
         self.state, out = monitor.step(self.state, inputs, self.params)
-        for note in out.notes:
-            log(self.get_logger(), INFO, note)
+        log_notes(self.get_logger(), out.notes)
         for verdict in out.verdicts:
             self.publish(verdict)
 

@@ -11,8 +11,8 @@ import math
 from dataclasses import replace
 from typing import Any, Mapping
 
-from flaair_control.core import dsa, safety
 from flaair_control.core import collision as col
+from flaair_control.core import dsa, safety
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params

@@ -26,9 +26,14 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
-from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
+from flaair_common.runtime import log_notes, run_node, warn_counted
+from flaair_control.control_io import (
+    CONFIG_FILE,
+    DSA_CONTROLLER_PARAMS,
+    describe_loop,
+    supervisor_params_from_config,
+)
 from flaair_control.core import supervisor as sv
-from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS, describe_loop, supervisor_params_from_config
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
@@ -72,13 +77,7 @@ class DsaControllerNode(Node):
             self.state, out = sv.step(self.state, inputs, self.params)
             for block in out.blocks:
                 self.publish(block, t_receive)
-        logger = self.get_logger()
-        for note in out.notes:
-            if note.counter:
-                count = getattr(self.state.counts, note.counter)
-                warn_counted(logger, count, f"{note.text} [{count} {note.counter} so far]")
-            else:
-                log(logger, SEVERITY[note.level], note.text)
+        log_notes(self.get_logger(), out.notes, lambda counter: getattr(self.state.counts, counter))
         return out
 
     def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:

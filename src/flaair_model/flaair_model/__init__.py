@@ -9,6 +9,7 @@ it depends on nothing of FLAAIR's.
 - `config`: the one locator of config/ and the ROS parameter-file reader.
 - `schema`: `ParamSpec`, each node parameter declared once.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
+- `notes`: `Note`, the one type of a core's log lines.
 """
 
-__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter"]
+__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes"]

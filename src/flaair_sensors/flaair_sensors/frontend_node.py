@@ -27,7 +27,12 @@ from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
 from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
 from flaair_sensors.core import frontend
-from flaair_sensors.frontend_io import CONFIG_FILE, FRONTEND_PARAMS, NODE_NAME, frontend_params_from_config
+from flaair_sensors.frontend_io import (
+    CONFIG_FILE,
+    FRONTEND_PARAMS,
+    NODE_NAME,
+    frontend_params_from_config,
+)
 
 PARAMS = FRONTEND_PARAMS
 SENSOR_ESTIMATE = WingStateBlock.SOURCE_SENSOR_ESTIMATE   # a rosidl class constant costs a metaclass call per read

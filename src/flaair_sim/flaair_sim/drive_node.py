@@ -27,7 +27,7 @@ from flaair_common import topics
 from flaair_common.blocks import from_array, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import SEVERITY, log, run_node
+from flaair_common.runtime import log_notes, run_node
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim.core import drive_pacing as pacing
 from flaair_sim.drive_io import CONFIG_FILE, DRIVE_NODE_PARAMS, NODE_NAME, pacing_params_from_config
@@ -70,8 +70,7 @@ class DriveNode(Node):
             message.header.stamp = stamp_from_time_s(block.first_sample_index / fs)
             message.drive_v = from_array(block.drive_v)
             self.publisher.publish(message)
-        for level, text in out.logs:
-            log(self.get_logger(), SEVERITY[level], text)
+        log_notes(self.get_logger(), out.notes)
         return len(out.blocks)
 
     def on_tick(self) -> None:

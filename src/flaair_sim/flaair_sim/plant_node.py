@@ -26,10 +26,17 @@ from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_from_time_s, stamp_ns_of_sample
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import SEVERITY, log, run_node, warn_counted
+from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
 from flaair_sim.core import actuator, plant
-from flaair_sim.plant_io import CLOCK_DEPTH, CONFIG_FILE, NODE_NAME, PLANT_PARAMS, actuator_params_from_config, plant_models
+from flaair_sim.plant_io import (
+    CLOCK_DEPTH,
+    CONFIG_FILE,
+    NODE_NAME,
+    PLANT_PARAMS,
+    actuator_params_from_config,
+    plant_models,
+)
 
 PARAMS = PLANT_PARAMS
 
@@ -98,11 +105,7 @@ class PlantNode(Node):
     def drive(self, inputs: actuator.Command | actuator.Tick) -> bool:
         """Run the driver core; step the model through every block it releases (True: some)."""
         self.driver, out = actuator.step(self.driver, inputs, self.params)
-        for note in out.notes:
-            if note.counter:
-                warn_counted(self.get_logger(), self.driver.rejected, note.text)
-            else:
-                log(self.get_logger(), SEVERITY[note.level], note.text)
+        log_notes(self.get_logger(), out.notes, lambda counter: getattr(self.driver, counter))
         for drive_v in out.drive_blocks:
             self.advance(drive_v)
         return bool(out.drive_blocks) and self.params.mode == "realtime"

@@ -40,6 +40,7 @@ from typing import NamedTuple, Optional, Union
 import numpy as np
 
 from flaair_bridge.core import protocol
+from flaair_model.notes import ERROR, WARNING, Note
 
 ARRIVAL_RING = 256   # recent sensor packets remembered for the latency pairing
 
@@ -167,17 +168,16 @@ class SensorBlock(NamedTuple):
     pitch_sensor_v: np.ndarray
 
 
-class Notice(NamedTuple):
-    kind: str   # the counter it belongs to (for rate-limited logging)
-    text: str
-    error: bool = False
+def _note(counter: str, text: str, error: bool = False) -> Note:
+    """A warning (or an error) counted under `counter`, the name of its field in `Counters`."""
+    return Note(ERROR if error else WARNING, text, counter)
 
 
 class Outputs(NamedTuple):
     blocks: tuple = ()    # SensorBlock
     packets: tuple = ()   # bytes to send to the target
     timing: tuple = ()    # (target index of the drive packet, sensor arrival s, send s)
-    notices: tuple = ()   # Notice
+    notes: tuple = ()     # Note
 
 
 def initial_state() -> BridgeState:
@@ -195,7 +195,7 @@ def step(state: BridgeState, inputs: Input, params: BridgeParams) -> tuple[Bridg
         return _on_tick(state, inputs, params)
     if isinstance(inputs, Stop):
         state, packet = _stop_packet(state)
-        return state, Outputs(packets=(packet,), notices=(Notice("stop_packets", f"stop packet sent: {inputs.reason}"),))
+        return state, Outputs(packets=(packet,), notes=(_note("stop_packets", f"stop packet sent: {inputs.reason}"),))
     raise TypeError(f"unknown bridge input {type(inputs).__name__}")
 
 
@@ -212,8 +212,8 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
                                          f"{params.sample_rate_hz:g}")
     except protocol.ProtocolError as exc:
         counters = _count(state.counters, malformed=1)
-        return state._replace(counters=counters), Outputs(notices=(
-            Notice("malformed", f"malformed datagram ({len(inputs.data)} bytes) dropped: {exc} "
+        return state._replace(counters=counters), Outputs(notes=(
+            _note("malformed", f"malformed datagram ({len(inputs.data)} bytes) dropped: {exc} "
                                 f"[{counters.malformed} malformed so far]"),))
     if in_order(state, packet, params):
         return _in_order_packet(state, packet, inputs.now_s, _read_s(inputs), params)
@@ -223,7 +223,7 @@ def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams)
 def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: SensorDatagram,
                 params: BridgeParams) -> tuple[BridgeState, Outputs]:
     """Any well-formed sensor packet: lost, stale, overlapping, partial blocks, a target restart."""
-    notices: list[Notice] = []
+    notes: list[Note] = []
     counters = state.counters
     index_offset, stale_run = state.index_offset, 0
     if state.sequence is not None:
@@ -232,19 +232,19 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
             stale_run = state.stale_run + 1
             if stale_run < params.resync_packets:
                 counters = _count(counters, stale_packets=1)
-                return state._replace(stale_run=stale_run, counters=counters), Outputs(notices=(
-                    Notice("stale_packets", f"stale sensor packet (sequence {packet.sequence}, expected "
+                return state._replace(stale_run=stale_run, counters=counters), Outputs(notes=(
+                    _note("stale_packets", f"stale sensor packet (sequence {packet.sequence}, expected "
                                             f"{state.sequence}) dropped [{counters.stale_packets} stale so far]"),))
             # the target restarted: follow it, keep the published index running
             index_offset = _published_end(state) - packet.first_sample_index
             counters = _count(counters, resyncs=1)
-            notices.append(Notice("resyncs", f"{stale_run} stale packets in a row: the target restarted "
+            notes.append(_note("resyncs", f"{stale_run} stale packets in a row: the target restarted "
                                              f"(sequence {packet.sequence}, index {packet.first_sample_index}); following it", True))
             state = state._replace(target_end=None, drive_offset=None, drive_expected=None, queue=(),
                             arrivals=np.full((ARRIVAL_RING, 2), -1.0))
         elif delta > 0:
             counters = _count(counters, lost_packets=delta)
-            notices.append(Notice("lost_packets", f"{delta} sensor packet(s) lost before sequence {packet.sequence} "
+            notes.append(_note("lost_packets", f"{delta} sensor packet(s) lost before sequence {packet.sequence} "
                                                   f"[{counters.lost_packets} lost so far]"))
     samples = np.stack([packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v]).astype(np.float64)
     first = packet.first_sample_index + index_offset
@@ -263,7 +263,7 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
         if gap <= params.max_fill_samples:
             pending = np.concatenate([pending, np.full((3, gap), np.nan)], axis=1)
         else:  # too long to fill: close the partial block with NaN, restart the blocks at `first`
-            notices.append(Notice("lost_samples", f"{gap} samples lost before index {first}: the published stream "
+            notes.append(_note("lost_samples", f"{gap} samples lost before index {first}: the published stream "
                                                   "jumps there", True))
             pad = (-pending.shape[1]) % params.block_size
             blocks, _, _ = _blocks(pending_first, np.concatenate([pending, np.full((3, pad), np.nan)], axis=1),
@@ -274,9 +274,9 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
     counters = _count(counters, sensor_packets=1, published_blocks=len(blocks))
     if packet.target_watchdog_tripped:
         counters = _count(counters, target_watchdog_packets=1)
-        notices.append(_target_watchdog_notice(packet, counters))
+        notes.append(_target_watchdog_notice(packet, counters))
     if state.silent:
-        notices.append(Notice("silences", f"the target is sending again (sequence {packet.sequence})"))
+        notes.append(_note("silences", f"the target is sending again (sequence {packet.sequence})"))
     end = packet.first_sample_index + packet.n
     arrivals = state.arrivals.copy()
     arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, inputs.now_s)
@@ -286,7 +286,7 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
                     last_read_s=_read_s(inputs),
                     silent=False, arrivals=arrivals, counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
-    return state, Outputs(tuple(blocks), packets, timing, tuple(notices))
+    return state, Outputs(tuple(blocks), packets, timing, tuple(notes))
 
 
 def _read_s(inputs: SensorDatagram) -> float:
@@ -336,8 +336,8 @@ def _in_order_packet(state: BridgeState, packet: protocol.SensorPacket, now_s: f
     return state, Outputs(blocks, packets, timing, (_target_watchdog_notice(packet, counters),) if tripped else ())
 
 
-def _target_watchdog_notice(packet: protocol.SensorPacket, counters: Counters) -> Notice:
-    return Notice("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
+def _target_watchdog_notice(packet: protocol.SensorPacket, counters: Counters) -> Note:
+    return _note("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
                                              f"[{counters.target_watchdog_packets} such packets]")
 
 
@@ -369,21 +369,21 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     state = state._replace(last_drive_s=inputs.now_s)
     if state.target_end is None:
         counters = _count(counters, drive_unscheduled_blocks=1)
-        return state._replace(counters=counters), Outputs(notices=(Notice(
+        return state._replace(counters=counters), Outputs(notes=(_note(
             "drive_unscheduled_blocks", f"drive block {first} dropped: no sensor packet from the target yet "
                                         f"[{counters.drive_unscheduled_blocks} so far]"),))
     if state.drive_expected is not None and first < state.drive_expected:
         counters = _count(counters, drive_stale_blocks=1)
-        return state._replace(counters=counters), Outputs(notices=(Notice(
+        return state._replace(counters=counters), Outputs(notes=(_note(
             "drive_stale_blocks", f"drive block {first} dropped: duplicate or out of order (expected "
                                   f"{state.drive_expected}) [{counters.drive_stale_blocks} so far]"),))
-    notices = []
+    notes = []
     drive = np.array(inputs.drive_v, dtype=np.float64)
     bad = ~np.isfinite(drive)
     if bad.any():
         drive[bad] = 0.0
         counters = _count(counters, nonfinite_samples=int(bad.sum()))
-        notices.append(Notice("nonfinite_samples", f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0"))
+        notes.append(_note("nonfinite_samples", f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0"))
     over = np.abs(drive) > params.drive_limit_v
     if over.any():
         drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
@@ -394,7 +394,7 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     if offset is None or first != state.drive_expected:
         if offset is not None:
             counters = _count(counters, drive_reanchors=1)
-            notices.append(Notice("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
+            notes.append(_note("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
                                                      f"re-anchored {params.lead_samples} samples ahead"))
         offset = anchor - first
     elif first + offset + n <= clock and first + offset >= anchor:
@@ -402,12 +402,12 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
         # waited unread): the block is late. Moving the stream ahead would change the loop's
         # delay for good, so it is dropped and the stream keeps its place.
         counters = _count(counters, drive_late_blocks=1)
-        return state._replace(drive_expected=first + n, counters=counters), Outputs(notices=(Notice(
+        return state._replace(drive_expected=first + n, counters=counters), Outputs(notes=(_note(
             "drive_late_blocks", f"drive block {first} dropped: {clock - first - offset} samples behind the target's "
                                  f"clock (the bridge fell behind) [{counters.drive_late_blocks} so far]"),))
     elif first + offset < min(clock, anchor):   # the source fell behind the data: it starts again lead_samples ahead
         counters = _count(counters, drive_reanchors=1)
-        notices.append(Notice("drive_reanchors", f"drive block {first} is {clock - first - offset} samples "
+        notes.append(_note("drive_reanchors", f"drive block {first} is {clock - first - offset} samples "
                                                  f"behind the target's clock: re-anchored {params.lead_samples} samples "
                                                  f"ahead [{counters.drive_reanchors} re-anchors so far]"))
         offset = anchor - first
@@ -417,14 +417,14 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
         # A source faster than real time runs further ahead of the target than its buffer: the
         # queued samples are dropped, the stream goes on lead_samples ahead of the data.
         counters = _count(counters, drive_overflow_blocks=len(queue), drive_reanchors=1)
-        notices.append(Notice("drive_overflow_blocks", f"drive block {first}: {queued} samples already wait for the "
+        notes.append(_note("drive_overflow_blocks", f"drive block {first}: {queued} samples already wait for the "
                                                        f"target's clock: dropped, re-anchored {params.lead_samples} "
                                                        f"samples ahead [{counters.drive_overflow_blocks} blocks dropped so far]"))
         queue, offset = (), anchor - first
     state = state._replace(drive_offset=offset, drive_expected=first + n, queue=queue + ((first + offset, drive),),
                            counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
-    return state, Outputs(packets=packets, timing=timing, notices=tuple(notices))
+    return state, Outputs(packets=packets, timing=timing, notes=tuple(notes))
 
 
 def _in_order_drive(state: BridgeState, inputs: DriveBlock,
@@ -492,18 +492,18 @@ def _stop_packet(state: BridgeState) -> tuple[BridgeState, bytes]:
 # ---------------------------------------------------------------------------------- wall clock
 def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[BridgeState, Outputs]:
     now = inputs.now_s
-    packets, notices, blocks = [], [], []
+    packets, notes, blocks = [], [], []
     if state.driving and state.last_drive_s is not None and now - state.last_drive_s > params.drive_timeout_s:
         silent_ms = 1e3 * (now - state.last_drive_s)
         state, packet = _stop_packet(state)
         state = state._replace(counters=_count(state.counters, watchdog_stops=1))
         packets.append(packet)
-        notices.append(Notice("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
+        notes.append(_note("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
                                                 f"{params.drive_timeout_s:g} s): stop packet sent, the target zeroes the drive", True))
     if state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s and not inputs.backlog:
         if not state.silent:
             state = state._replace(silent=True, counters=_count(state.counters, silences=1))
-            notices.append(Notice("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_read_s):.1f} ms "
+            notes.append(_note("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_read_s):.1f} ms "
                                               f"(> sensor_timeout_s {params.sensor_timeout_s:g} s) after index "
                                               f"{state.target_end}: samples published as lost"
                                               + ("; stop packet sent" if state.driving else ""), True))
@@ -520,7 +520,7 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
             blocks, pending, pending_first = _blocks(state.pending_first, samples, params.block_size)
             state = state._replace(pending=pending, pending_first=pending_first, counters=_count(
                 state.counters, silence_samples=missing, published_blocks=len(blocks)))
-    return state, Outputs(tuple(blocks), tuple(packets), (), tuple(notices))
+    return state, Outputs(tuple(blocks), tuple(packets), (), tuple(notes))
 
 
 def summary(counters: Counters, timing: list) -> str:

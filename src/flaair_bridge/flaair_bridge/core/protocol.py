@@ -14,9 +14,8 @@ value finite, a positive sample rate); anything else raises `ProtocolError`, and
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import struct
+from dataclasses import dataclass
 
 import numpy as np
 

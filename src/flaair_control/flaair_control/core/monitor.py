@@ -29,6 +29,7 @@ from typing import NamedTuple, Union
 import numpy as np
 
 from flaair_control.core import collision as col
+from flaair_model.notes import INFO, Note
 
 ONSET = "onset"
 CLEARANCE = "clearance"
@@ -212,7 +213,7 @@ class MonitorOutputs(NamedTuple):
     """Verdicts of the wingbeats a block closed, and notes worth a log line."""
 
     verdicts: tuple[Verdict, ...]
-    notes: tuple[str, ...]
+    notes: tuple[Note, ...]
 
 
 class CollisionMonitorState(NamedTuple):
@@ -259,9 +260,9 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     try:
         windows = window_params(p, lock.frequency_hz, lock.phase_rad)
     except col.CollisionParameterError as exc:
-        return state, MonitorOutputs((), (f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}",))
-    note = (f"drive windows locked at {lock.frequency_hz:.3f} Hz"
-            + (f" (was {lock.previous_hz:.3f} Hz; monitor re-armed)" if lock.previous_hz else ""))
+        return state, MonitorOutputs((), (Note(INFO, f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}"),))
+    note = Note(INFO, f"drive windows locked at {lock.frequency_hz:.3f} Hz"
+                + (f" (was {lock.previous_hz:.3f} Hz; monitor re-armed)" if lock.previous_hz else ""))
     # The windows start at the lock's crossing, whichever stream is ahead: the verdicts do not
     # depend on how the drive and wing-state blocks interleaved (live and replay agree).
     start = lock.crossing_index
@@ -309,10 +310,10 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     first = block.first_sample_index
     stroke = np.asarray(block.stroke_rad, dtype=float)
     pitch = np.asarray(block.pitch_rad, dtype=float)
-    notes: list[str] = []
+    notes: list[Note] = []
     monitor = state.monitor
     if state.expected_index is not None and first != state.expected_index and state.windows is not None:
-        notes.append(f"wing-state block {first} after {state.expected_index - 1}: monitor restarted")
+        notes.append(Note(INFO, f"wing-state block {first} after {state.expected_index - 1}: monitor restarted"))
         monitor = None
     state = state._replace(expected_index=first + stroke.size,
                     stroke_history_rad=_store(state.stroke_history_rad, state.history_end, first, stroke),

@@ -28,15 +28,19 @@ import numpy as np
 
 from flaair_common.stream import check_block
 from flaair_control.core import dsa, safety
-from flaair_control.core.transition import (CROSSING_START, CrossingParams, CrossingState, crossing_frequency_hz,
-                                       crossing_step)
+from flaair_control.core.transition import (
+    CROSSING_START,
+    CrossingParams,
+    CrossingState,
+    crossing_frequency_hz,
+    crossing_step,
+)
+from flaair_model.notes import ERROR, INFO, WARNING, Note
 
 WAITING = "waiting"
 LOOP = "loop"
 TRIPPED = "tripped"
 DONE = "done"
-
-INFO, WARNING, ERROR = "info", "warning", "error"
 
 
 @dataclass(frozen=True)
@@ -176,14 +180,6 @@ class DriveOut(NamedTuple):
     stroke_frequency_hz: float
     answers_wing_block: bool           # True: the reply to a wing-state block (loop timing)
     with_state: bool                   # False: a bare zero block (run end, shutdown), no ControllerState
-
-
-class Note(NamedTuple):
-    """A log line; `counter` names the count it reports (rate-limited by the node)."""
-
-    level: str
-    text: str
-    counter: str = ""
 
 
 class Outputs(NamedTuple):
@@ -329,15 +325,16 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         kind = check.kind
         if kind == "stale":
             state = state._replace(last_arrival_wall=block.t_wall, counts=counts._replace(stale=counts.stale + 1))
-            notes.append(Note(WARNING, f"wing-state block {first} ignored: {check.reason}", "stale"))
+            notes.append(Note(WARNING, f"wing-state block {first} ignored: {check.reason} "
+                                       f"[{state.counts.stale} stale so far]", "stale"))
             return state, Outputs((), tuple(notes))
         if kind == "gap":
             counts = counts._replace(gaps=counts.gaps + 1)
-            notes.append(Note(WARNING, f"wing-state block {first}: {check.reason}", "gaps"))
+            notes.append(Note(WARNING, f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]", "gaps"))
         elif kind == "content":
             counts = counts._replace(rejected=counts.rejected + 1)
             notes.append(Note(WARNING, f"wing-state block {first} rejected: {check.reason}; its samples drive the "
-                                       "filter as 0", "rejected"))
+                                       f"filter as 0 [{counts.rejected} rejected so far]", "rejected"))
     counts = counts._replace(blocks=counts.blocks + 1)
     frequency, guard = state.frequency, state.safety
     if kind == "content":
@@ -351,7 +348,7 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         if not valid:
             counts = counts._replace(invalid=counts.invalid + 1)
             notes.append(Note(WARNING, f"wing-state block {first} invalid (stroke_valid false or non-finite velocity); "
-                                       "its invalid samples drive the filter as 0", "invalid"))
+                                       f"its invalid samples drive the filter as 0 [{counts.invalid} invalid so far]", "invalid"))
             if flags.size == n:
                 velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)

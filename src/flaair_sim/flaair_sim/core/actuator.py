@@ -28,8 +28,8 @@ from typing import NamedTuple, Union
 import numpy as np
 
 from flaair_common.stream import check_block
+from flaair_model.notes import ERROR, INFO, WARNING, Note
 
-INFO, WARNING, ERROR = "info", "warning", "error"
 MAX_PENDING = 1000   # realtime: queued command blocks kept (0.5 s at 20 kHz in 10-sample blocks)
 
 
@@ -59,13 +59,6 @@ class Tick(NamedTuple):
 
     t_wall: float
 
-
-class Note(NamedTuple):
-    """A log line; `counter` is set for rate-limited (counted) warnings."""
-
-    level: str
-    text: str
-    counter: bool = False
 
 
 class Outputs(NamedTuple):
@@ -120,7 +113,7 @@ def _on_command(state: ActuatorState, c: Command, p: ActuatorParams) -> tuple[Ac
             state = state._replace(rejected=state.rejected + 1)
             action = {"stale": "ignored", "gap": "accepted after the gap", "content": "holding zero drive"}[check.kind]
             notes.append(Note(WARNING, f"rejected command block {first} ({check.reason}); {action} "
-                                       f"[{state.rejected} rejected so far]", True))
+                                       f"[{state.rejected} rejected so far]", "rejected"))
             if check.kind == "stale":
                 return state, Outputs((), tuple(notes))   # a duplicate must not advance the plant again
             if check.kind == "content":

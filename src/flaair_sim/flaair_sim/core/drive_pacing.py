@@ -26,12 +26,12 @@ from typing import NamedTuple, Union
 
 import numpy as np
 
+from flaair_model.notes import INFO, WARNING, Note
 from flaair_sim.core.drive import DriveError, DriveParams, DriveState, drive_step
 
 REALTIME = "realtime"
 LOCKSTEP = "lockstep"
 PACINGS = (REALTIME, LOCKSTEP)
-INFO, WARNING = "info", "warning"
 
 
 @dataclass(frozen=True)
@@ -113,10 +113,10 @@ class Block(NamedTuple):
 
 
 class Outputs(NamedTuple):
-    """Blocks to publish, in order, and (level, text) log lines."""
+    """Blocks to publish, in order, and log lines."""
 
     blocks: tuple[Block, ...] = ()
-    logs: tuple[tuple[str, str], ...] = ()
+    notes: tuple[Note, ...] = ()
 
 
 def initial_state(params: PacingParams, t_wall: float) -> PacingState:
@@ -145,7 +145,7 @@ def _send(state: PacingState, params: PacingParams, limit_v: float, blocks: list
                     last_block_zero=not np.any(drive_v))
     if finished(state, params) and not state.last_block_zero:
         state = _send(state, params, limit_v, blocks, logs, zero=True)
-        logs.append((INFO, f"run complete at sample {state.next_index - params.block_size}; zero drive sent"))
+        logs.append(Note(INFO, f"run complete at sample {state.next_index - params.block_size}; zero drive sent"))
     return state
 
 
@@ -172,7 +172,7 @@ def _lockstep(state: PacingState, event: Tick | Ack, params: PacingParams, block
         state = _send(state, params, event.drive_limit_v, blocks, logs)
     if not finished(state, params) and event.t_wall - state.last_ack_wall > params.ack_retry_s:
         state = replace(state, retries=state.retries + 1, last_ack_wall=event.t_wall)
-        logs.append((WARNING, f"no acknowledgement for {params.ack_retry_s:g} s at block {state.next_index}; "
+        logs.append(Note(WARNING, f"no acknowledgement for {params.ack_retry_s:g} s at block {state.next_index}; "
                               f"sending one more block ({state.retries})"))
         state = _send(state, params, event.drive_limit_v, blocks, logs)
     return state
@@ -181,7 +181,7 @@ def _lockstep(state: PacingState, event: Tick | Ack, params: PacingParams, block
 def step(state: PacingState, inputs: Inputs, params: PacingParams) -> tuple[PacingState, Outputs]:
     """Advance the pacing by one event; return the new state and what to publish and log."""
     blocks: list[Block] = []
-    logs: list[tuple[str, str]] = []
+    logs: list[Note] = []
     if isinstance(inputs, Close):
         if state.next_index > params.first_sample_index and not state.last_block_zero:
             state = _send(state, params, inputs.drive_limit_v, blocks, logs, zero=True)

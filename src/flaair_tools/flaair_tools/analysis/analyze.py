@@ -50,11 +50,11 @@ from tqdm import tqdm
 
 from flaair_common import topics
 from flaair_model.config import ConfigError, load_yaml, node_parameters
+from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
-from flaair_sensors.analysis_io import analysis_bands_from_config
-from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sensors.core.calibration import CalibrationError, calibrate
+from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_tools import bagio
 from flaair_tools.analysis.runkind import DriveKind, RecognitionParams, RunKindError, recognise
 from flaair_tools.bagio.runs import RUN_TOPICS, Run, runs_of_bag
@@ -367,8 +367,8 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     """
     from flaair_control.core import transition as tr
     from flaair_control.transition_io import hilbert_params_from_config
-    from flaair_tools.analysis.transition import TransitionRecord
     from flaair_model.model_io import load_model
+    from flaair_tools.analysis.transition import TransitionRecord
 
     bag = contents.info.path
     wing = contents.blocks(topics.WING_STATE)

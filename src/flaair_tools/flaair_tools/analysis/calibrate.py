@@ -21,9 +21,9 @@ import numpy as np
 import yaml
 
 from flaair_common.strictjson import json_safe
+from flaair_model.model_io import load_model
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core.calibration import CalibrationError, calibrate
-from flaair_model.model_io import load_model
 from flaair_tools import bagio
 from flaair_tools.bagio.runs import load_runs
 

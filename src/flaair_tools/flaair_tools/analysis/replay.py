@@ -16,9 +16,12 @@ from typing import Any, Iterator
 import numpy as np
 
 from flaair_common import topics
+from flaair_control.control_io import (
+    collision_monitor_params_from_config,
+    supervisor_params_from_config,
+)
 from flaair_control.core import monitor
 from flaair_control.core import supervisor as sv
-from flaair_control.control_io import collision_monitor_params_from_config, supervisor_params_from_config
 from flaair_model.config import node_parameters
 from flaair_model.model import Model
 from flaair_tools import bagio

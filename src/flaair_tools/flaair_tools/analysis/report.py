@@ -53,7 +53,12 @@ def write_figures(results: list[dict[str, Any]], plots: list[dict[str, Any]], ou
     Each description: file, title, caption, experiment (the bag's experiment name). Per-run
     Bode figures are named in the run's entry ("figure").
     """
-    from flaair_sensors.figures import collision_fft_figure, overlaid_bode_figure, save_bode_figure, save_figure
+    from flaair_sensors.figures import (
+        collision_fft_figure,
+        overlaid_bode_figure,
+        save_bode_figure,
+        save_figure,
+    )
 
     out: list[dict[str, Any]] = []
     sweeps: dict[str, Any] = {}

@@ -33,9 +33,9 @@ import numpy as np
 from tqdm import tqdm
 
 from flaair_common import topics
-from flaair_model.config import ConfigError, node_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
+from flaair_model.config import ConfigError, node_parameters
 from flaair_tools import bagio
 from flaair_tools.bagio.markers import RUN_KINDS as KINDS
 

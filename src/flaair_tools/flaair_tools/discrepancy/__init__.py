@@ -103,12 +103,31 @@ Effects already in the input model are kept as they are and are not offered as c
 from __future__ import annotations
 
 from .cli import main
-from .diagnosis import ChannelGap, Diagnosis, bode_points, diagnose, noise_estimates, nrmse_by_channel
+from .diagnosis import (
+                   ChannelGap,
+                   Diagnosis,
+                   bode_points,
+                   diagnose,
+                   noise_estimates,
+                   nrmse_by_channel,
+)
 from .evidence import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
-from .runs import (CHANNELS, EFFECT_CHANNELS, SENSOR_CHANNELS, STATUSES, TRUTH_CHANNELS, DiscrepancyInputError, Run,
-                   check_runs, initial_mechanical_state, measured_motion, mechanics_model, sensor_voltage,
-                   simulate_runs)
+from .runs import (
+                   CHANNELS,
+                   EFFECT_CHANNELS,
+                   SENSOR_CHANNELS,
+                   STATUSES,
+                   TRUTH_CHANNELS,
+                   DiscrepancyInputError,
+                   Run,
+                   check_runs,
+                   initial_mechanical_state,
+                   measured_motion,
+                   mechanics_model,
+                   sensor_voltage,
+                   simulate_runs,
+)
 from .search import ChannelSearch, find_effects
 from .settings import Settings
 from .vocabulary import SENSOR_EFFECTS, VOCABULARY, EffectSpec, candidate_groups, candidate_specs

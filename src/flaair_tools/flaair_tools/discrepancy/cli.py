@@ -68,7 +68,9 @@ def runs_from_csv(path: Path) -> Run:
 
 def runs_from_bag(path: Path) -> list[Run]:
     """Every run of a bag as core Runs (ground truth NaN where invalid)."""
-    from flaair_tools.bagio import runs as bag_runs  # bag support (rosbags, mcap) only when a bag is given
+    from flaair_tools.bagio import (
+        runs as bag_runs,  # bag support (rosbags, mcap) only when a bag is given
+    )
 
     bag = path.parent if path.suffix == ".mcap" else path
     out = []

@@ -49,8 +49,8 @@ from typing import Sequence
 import numpy as np
 from scipy import signal
 
-from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_model.model import Model, with_effects
+from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_sim.core.plant import synthesize_measured_run
 
 from .runs import CHANNELS, Run

@@ -11,10 +11,10 @@ from scipy import stats
 from flaair_model.model import Model, with_effects
 
 from .diagnosis import drive_tracks
-from .fitting import FitResult, fit_specs, Fold, make_folds, models_for, ResidualProblem
-from .runs import Run, MotionCache, simulate_runs
+from .fitting import FitResult, Fold, ResidualProblem, fit_specs, make_folds, models_for
+from .runs import MotionCache, Run, simulate_runs
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, EffectSpec, UPSTREAM_TRUTH
+from .vocabulary import SENSOR_CHANNELS, UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------ evidence
 

@@ -10,10 +10,17 @@ from scipy import optimize
 
 from flaair_model.model import Model, ModelError, with_effect_on, with_effects
 
-from .runs import (Run, MotionCache, sensor_gain_v_per_deg, measured_motion, mechanics_model, sensor_voltage,
-                   simulate_motion)
+from .runs import (
+    MotionCache,
+    Run,
+    measured_motion,
+    mechanics_model,
+    sensor_gain_v_per_deg,
+    sensor_voltage,
+    simulate_motion,
+)
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, EffectSpec, SENSOR_SIDE, UPSTREAM_TRUTH
+from .vocabulary import SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------------ fitting
 

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Optional
 
 from flaair_model.model_io import load_model, save_model
-
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
 from flaair_tools.discrepancy.diagnosis import noise_estimates
 from flaair_tools.discrepancy.identification import identify_plant

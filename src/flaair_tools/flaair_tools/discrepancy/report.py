@@ -12,10 +12,11 @@ from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
-from flaair_common.strictjson import json_safe
+import numpy as np  # noqa: E402
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
-import numpy as np  # noqa: E402
+
+from flaair_common.strictjson import json_safe
 
 from .diagnosis import bode_points  # noqa: E402
 from .runs import CHANNELS, Run  # noqa: E402

@@ -10,8 +10,15 @@ import numpy as np
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
 
-from .vocabulary import (CHANNELS, EFFECT_CHANNELS, SENSOR_CHANNELS, SENSOR_EFFECTS, STATUSES, TRUTH_CHANNELS,
-                         SENSOR_SIDE)
+from .vocabulary import (
+    CHANNELS,
+    EFFECT_CHANNELS,
+    SENSOR_CHANNELS,
+    SENSOR_EFFECTS,
+    SENSOR_SIDE,
+    STATUSES,
+    TRUTH_CHANNELS,
+)
 
 __all__ = ["CHANNELS", "TRUTH_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "EFFECT_CHANNELS", "DiscrepancyInputError",
            "Run", "check_runs", "initial_mechanical_state", "simulate_runs", "simulate_motion", "mechanics_model",

@@ -9,14 +9,30 @@ import numpy as np
 
 from flaair_model.model import Model, effect_params, with_effect_on, with_effects, without_effect_on
 
-from .diagnosis import gap_test, channel_residual
-from .evidence import CandidateEvidence, FoundEffect, AnalysisContext, evaluate, evaluate_shared, same_on_both
-from .fitting import fit_specs, Fold, apply_values, spec_value
+from .diagnosis import channel_residual, gap_test
+from .evidence import (
+    AnalysisContext,
+    CandidateEvidence,
+    FoundEffect,
+    evaluate,
+    evaluate_shared,
+    same_on_both,
+)
+from .fitting import Fold, apply_values, fit_specs, spec_value
 from .identification import fit_initial_states, identify_plant
-from .runs import Run, MotionCache, sensor_gain_v_per_deg, simulate_runs
+from .runs import MotionCache, Run, sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
-from .vocabulary import (EFFECT_CHANNELS, PLANT_PARAMETERS, SENSOR_CHANNELS, TRUTH_CHANNELS, EffectSpec, UPSTREAM_TRUTH,
-                         candidate_groups, candidate_specs, plant_spec)
+from .vocabulary import (
+    EFFECT_CHANNELS,
+    PLANT_PARAMETERS,
+    SENSOR_CHANNELS,
+    TRUTH_CHANNELS,
+    UPSTREAM_TRUTH,
+    EffectSpec,
+    candidate_groups,
+    candidate_specs,
+    plant_spec,
+)
 
 # ------------------------------------------------------------------------------ the search
 

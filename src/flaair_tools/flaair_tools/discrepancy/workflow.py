@@ -10,15 +10,31 @@ import numpy as np
 from flaair_model.model import Model, ModelError
 from flaair_sim.core.plant import simulate
 
-from .diagnosis import Diagnosis, drive_tracks, diagnose, noise_estimates, nrmse_by_channel
-from .evidence import FoundEffect, AnalysisContext
+from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
+from .evidence import AnalysisContext, FoundEffect
 from .fitting import Fold
 from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
-from .search import (CHANNEL_ORDER, ChannelSearch, channel_has_gap, polish, strip_effects, find_effects)
+from .search import (
+    CHANNEL_ORDER,
+    ChannelSearch,
+    channel_has_gap,
+    find_effects,
+    polish,
+    strip_effects,
+)
 from .settings import Settings
-from .vocabulary import (CHANNELS, ENTRIES, NOT_SEPARABLE, PLANT_PARAMETERS, SENSOR_CHANNELS, SENSOR_SIDE,
-                         UPSTREAM_TRUTH, candidate_groups)
+from .vocabulary import (
+    CHANNELS,
+    ENTRIES,
+    NOT_SEPARABLE,
+    PLANT_PARAMETERS,
+    SENSOR_CHANNELS,
+    SENSOR_SIDE,
+    UPSTREAM_TRUTH,
+    candidate_groups,
+)
+
 
 @dataclass(frozen=True)
 class DiscrepancyResult:

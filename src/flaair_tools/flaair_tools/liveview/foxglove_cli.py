@@ -6,7 +6,13 @@ import sys
 
 from flaair_common.runtime import help_text, run_node
 from flaair_tools.liveview import foxglove_node
-from flaair_tools.liveview.foxglove_node import CONFIG_FILE, NODE_NAME, PARAMS, FoxgloveNode, foxglove_node_args
+from flaair_tools.liveview.foxglove_node import (
+    CONFIG_FILE,
+    NODE_NAME,
+    PARAMS,
+    FoxgloveNode,
+    foxglove_node_args,
+)
 
 
 def main(argv: list[str]) -> int:

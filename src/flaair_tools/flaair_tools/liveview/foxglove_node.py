@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import sys
+
 import foxglove
 from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
@@ -23,9 +24,15 @@ from flaair_common import cdr, topics
 from flaair_common.params import ParameterError, ParamSpec, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
-from flaair_msgs.msg import CollisionStatus, ControllerState, DriveCommandBlock, SensorVoltageBlock, WingStateBlock
-from flaair_tools.liveview import live_view
+from flaair_msgs.msg import (
+    CollisionStatus,
+    ControllerState,
+    DriveCommandBlock,
+    SensorVoltageBlock,
+    WingStateBlock,
+)
 from flaair_tools.analysis import wingbeat
+from flaair_tools.liveview import live_view
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"

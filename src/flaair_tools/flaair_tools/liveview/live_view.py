@@ -24,7 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from flaair_common import cdr
-from flaair_tools.analysis.wingbeat import Wingbeats, WingbeatInputs, WingbeatParams, WingbeatState, step
+from flaair_tools.analysis.wingbeat import (
+    WingbeatInputs,
+    WingbeatParams,
+    Wingbeats,
+    WingbeatState,
+    step,
+)
 
 LIVE_PREFIX = "/flaair/live"
 TIME_DEFINITION = "================================================================================\n" \

@@ -20,8 +20,14 @@ from pathlib import Path
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
-from flaair_tools.orchestration.experiment import (NODE_EXECUTABLES, ExperimentError, ExperimentSpec, load_experiments, robot_effects,
-                                     run_experiment)
+from flaair_tools.orchestration.experiment import (
+    NODE_EXECUTABLES,
+    ExperimentError,
+    ExperimentSpec,
+    load_experiments,
+    robot_effects,
+    run_experiment,
+)
 
 
 def missing_nodes(spec: ExperimentSpec) -> list[str]:

@@ -31,9 +31,16 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
-from flaair_common.graph import Graph, GraphError, Terminated, node_argv, is_termination, terminate_raises
-from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
+from flaair_common.graph import (
+    Graph,
+    GraphError,
+    Terminated,
+    is_termination,
+    node_argv,
+    terminate_raises,
+)
 from flaair_common.qos import BLOCK_STREAM, EVENTS
+from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
 

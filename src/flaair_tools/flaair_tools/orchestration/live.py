@@ -42,7 +42,14 @@ from typing import Any
 import yaml
 
 from flaair_common import topics
-from flaair_common.graph import Graph, GraphError, Terminated, node_argv, is_termination, terminate_raises
+from flaair_common.graph import (
+    Graph,
+    GraphError,
+    Terminated,
+    is_termination,
+    node_argv,
+    terminate_raises,
+)
 from flaair_model.config import ConfigError, node_parameters
 
 HOT_NODES = {

@@ -22,14 +22,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import rclpy
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from builtin_interfaces.msg import Time
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
 from flaair_common import topics as topic_names
-from flaair_model.config import ConfigError, node_parameters
 from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM
+from flaair_model.config import ConfigError, node_parameters
 from flaair_tools import bagio
 
 CONFIG_FILE = "flaair.yaml"

@@ -23,7 +23,13 @@ from flaair_common.runtime import run_node
 from flaair_common.topics import BLOCK_STREAM_TYPES
 from flaair_tools import bagio
 from flaair_tools.recorder import recording
-from flaair_tools.recorder.recorder_io import CONFIG_FILE, NODE_NAME, RECORDER_HELP, RECORDING, cli_to_ros_args
+from flaair_tools.recorder.recorder_io import (
+    CONFIG_FILE,
+    NODE_NAME,
+    RECORDER_HELP,
+    RECORDING,
+    cli_to_ros_args,
+)
 from flaair_tools.recorder.recorder_io import RECORDER_PARAMS as PARAMS
 
 

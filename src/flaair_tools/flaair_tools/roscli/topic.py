@@ -13,8 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 import time
+from pathlib import Path
 
 import rclpy
 from rclpy.executors import ExternalShutdownException

@@ -27,7 +27,13 @@ from numba import njit, prange
 from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
 from flaair_sim.core import plant
-from flaair_sim.core.plant import GA_INDEX, N_KERNEL_PARAMS, mechanical_constants, prepare, rk4_step  # the plant's own kernels
+from flaair_sim.core.plant import (  # the plant's own kernels
+    GA_INDEX,
+    N_KERNEL_PARAMS,
+    mechanical_constants,
+    prepare,
+    rk4_step,
+)
 from flaair_tools.analysis import wingbeat
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2

@@ -14,8 +14,6 @@ from flaair_model.model_io import load_model
 from flaair_tools.sweeps import sweep
 
 
-
-
 def _values() -> dict[str, Any]:
     return node_parameters("flaair.yaml", "stroke_controller_node")
 
@@ -213,9 +211,8 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
     """Run the three stroke experiments per mode, one bag each, analysed from the bags."""
     from tqdm import tqdm
 
-    from flaair_tools.sweeps import stroke_experiments as se
-
     from flaair_tools.analysis import wingbeat
+    from flaair_tools.sweeps import stroke_experiments as se
     section = sweep.load_section(config, "stroke_experiments")
     values = _values()
     frontend_values = node_parameters("flaair.yaml", "frontend_node")
