@@ -25,7 +25,7 @@ def make_bag(directory: Path) -> Path:
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
     from flaair_tools.bagio.import_runs import import_runs
     from flaair_tools.orchestration.experiment import robot_effects
 

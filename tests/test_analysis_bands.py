@@ -43,7 +43,7 @@ def test_calibrate_cli_band_defaults_to_config_and_reaches_the_output(tmp_path: 
     from flaair_common.runcsv import write_run
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
 
     fs = 20000.0
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), fs, 20000)

@@ -28,7 +28,7 @@ def lab_runs() -> dict[str, dict[str, np.ndarray]]:
         stepped_sine,
         stepped_sine_frequencies_hz,
     )
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
 
     model, rng = bench_model(), np.random.default_rng(7)
     chirp = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)

@@ -16,7 +16,7 @@ FS_HZ = 20000.0
 def _lab_csv(path: Path, model, seed: int, amplitude_v: float = 100.0) -> None:
     from flaair_common.runcsv import write_run
     from flaair_sim.core.drive import DriveParams, drive_record
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
 
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=amplitude_v, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 20000)
     columns = synthesize_measured_run(drive, FS_HZ, model, np.random.default_rng(seed))

@@ -52,7 +52,7 @@ def test_analyze_numbers_follow_the_bag_not_the_simulator(tmp_path: Path) -> Non
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
     from flaair_tools import bagio
 
     model = with_effects(load_model(), {"strain_transfer_loss": {"efficiency": 0.25, "channel": "pitch"}})

@@ -42,7 +42,7 @@ def lab_bag(tmp_path_factory) -> Path:
     from flaair_common.runcsv import write_run
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
 
     tmp = tmp_path_factory.mktemp("faults")
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 8000)

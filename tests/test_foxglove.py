@@ -11,7 +11,7 @@ import pytest
 from flaair_tools.analysis import wingbeat
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_client import FoxgloveClient
-from flaair_tools.liveview.foxglove_node import foxglove_node_args
+from flaair_tools.liveview.foxglove_io import foxglove_node_args
 from rosproc import ros_processes, wait_for
 
 FS, BLOCK, BLOCKS, START_S = 20000.0, 10, 400, 3.0

@@ -17,7 +17,7 @@ EVIL = "<script>alert(1)</script>"
 def measured(drive: np.ndarray, effects: dict | None = None, seed: int = 0) -> dict[str, np.ndarray]:
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
-    from flaair_sim.core.plant import synthesize_measured_run
+    from flaair_sim.core.measured_run import synthesize_measured_run
 
     return synthesize_measured_run(drive, FS, with_effects(load_model(), effects or {}), np.random.default_rng(seed))
 

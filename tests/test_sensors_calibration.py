@@ -11,7 +11,8 @@ from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend as fe
 from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_sim.core.drive import chirp
-from flaair_sim.core.plant import simulate, synthesize_measured_run
+from flaair_sim.core.measured_run import synthesize_measured_run
+from flaair_sim.core.plant import simulate
 from tuning import FRONTEND_TUNING
 
 FS = 20000.0

@@ -11,6 +11,7 @@ from scipy.integrate import solve_ivp
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.core.drive import chirp, sine, stepped_sine
+from flaair_sim.core.measured_run import synthesize_measured_run
 from flaair_sim.core.plant import (
     PlantInputs,
     PlantState,
@@ -21,7 +22,6 @@ from flaair_sim.core.plant import (
     simulate,
     simulate_batch,
     step,
-    synthesize_measured_run,
 )
 
 FS_HZ = 20_000.0

@@ -22,7 +22,8 @@ from flaair_common.runcsv import RunFileError, read_run, write_run
 from flaair_model.config import ConfigError, node_parameters
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
-from flaair_sim.core.plant import simulate, synthesize_measured_run
+from flaair_sim.core.measured_run import synthesize_measured_run
+from flaair_sim.core.plant import simulate
 
 CONFIG_FILE = "flaair.yaml"
 LIMIT_SECTION = "plant_node"  # the plant clamps its drive to this section's drive_limit_v

@@ -1,9 +1,11 @@
 """Pure cores of the simulation package: no rclpy, no files, no plots.
 
 - ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
+- ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
+- ``measured_run``: a simulated run in the measured-run CSV's columns
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
 - ``drive``: drive-voltage generators, whole-record and sample-exact blocks
 - ``drive_pacing``: when the open-loop drive generator sends which block
 """
 
-__all__ = ["plant", "actuator", "drive", "drive_pacing"]
+__all__ = ["plant", "plant_params", "measured_run", "actuator", "drive", "drive_pacing"]

@@ -31,14 +31,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 from numba import njit, prange
-from scipy.signal import butter
 
-from flaair_model.model import Model, ModelError
+from flaair_model.model import Model
+from flaair_sim.core import plant_params as pp
+from flaair_sim.core.plant_params import Prepared, prepare
 
 __all__ = [
     "SimOutput",
@@ -47,7 +47,6 @@ __all__ = [
     "step",
     "simulate",
     "simulate_batch",
-    "synthesize_measured_run",
     "n_substeps",
     "simulate_batch_from",
     "sensor_chain",
@@ -56,31 +55,10 @@ __all__ = [
     "prepare",
     "mechanical_constants",
     "rk4_step",
-    "GA_INDEX",
-    "CONTACT_ON_INDEX",
-    "N_KERNEL_PARAMS",
 ]
 
-# Largest (fastest linear rate) x (RK4 substep) allowed: a numerical-method setting, not a
-# model number. 0.1 keeps RK4's per-cycle error ~1e-6 and is far inside its stability region.
-_MAX_OMEGA_H = 0.1
-# Finer in the (rare) sample periods touching the collision stop, where the force has kinks.
-_MAX_OMEGA_H_CONTACT = 0.05
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
-
-# Layout of the per-model parameter vector handed to the numba kernels (the upper-case names
-# are read by batch engines; the underscored ones only here).
-(
-    _I, _GAMMA, _K, GA_INDEX, _IP, _CP, _KH, _JC, _DP, _CSTRUCT, _HCUBIC,
-    CONTACT_ON_INDEX, _PHI_LIM, _KC, _CC,
-    _GS, _GP, _TCUBIC, _FT, _VREF,
-    _HPS_ON, _HPS_B0, _HPS_B1, _HPS_A1,
-    _HPP_ON, _HPP_B0, _HPP_B1, _HPP_A1,
-    _DS_FRAC, _DP_FRAC,
-    N_KERNEL_PARAMS,
-) = range(31)
-
 
 class SimOutput(NamedTuple):
     """Simulated signals, one value per sample (rad, rad, V, V)."""
@@ -113,103 +91,6 @@ class PlantState:
     sample_index: int = 0
 
 
-class Prepared(NamedTuple):
-    params: np.ndarray
-    n_substeps: int
-    n_substeps_contact: int
-    delay_stroke_samples: int
-    delay_pitch_samples: int
-
-    @property
-    def delay_lengths(self) -> tuple[int, int]:
-        return (
-            self.delay_stroke_samples + (1 if self.params[_DS_FRAC] > 0 else 0),
-            self.delay_pitch_samples + (1 if self.params[_DP_FRAC] > 0 else 0),
-        )
-
-
-def _split_delay(delay_samples: float) -> tuple[int, float]:
-    whole = math.floor(delay_samples + 1e-9)  # tolerate 10/fs * fs = 9.999999999
-    frac = delay_samples - whole
-    return whole, (0.0 if frac < 1e-9 else frac)
-
-
-@lru_cache(maxsize=4096)  # a 1000-model batch fits
-def prepare(model: Model, fs_hz: float) -> Prepared:
-    """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
-    pl = model.plant
-    p = np.zeros(N_KERNEL_PARAMS)
-    inertia = pl.stroke_inertia_kg_m2
-    stiffness = pl.stroke_stiffness_nm_per_rad
-    pitch_inertia = pl.pitch_inertia_kg_m2
-    hinge_stiffness = pl.hinge_stiffness_nm_per_rad
-    damage = model.effect("wing_damage")
-    factor = damage.inertia_factor if damage is not None else 1.0
-    p[_I] = inertia * factor
-    p[_IP] = pitch_inertia * factor
-    p[_GAMMA] = pl.aero_damping_nm_s2
-    p[_K] = stiffness
-    p[GA_INDEX] = pl.actuator_gain_nm_per_v
-    p[_CP] = pl.hinge_damping_nm_s_per_rad
-    p[_KH] = hinge_stiffness
-    p[_JC] = pl.inertial_coupling_kg_m2
-    p[_DP] = pl.aero_coupling_nm_s2
-    structural = model.effect("structural_damping")
-    if structural is not None:
-        p[_CSTRUCT] = 2.0 * structural.damping_ratio * math.sqrt(stiffness * inertia)
-    hinge = model.effect("hinge_stiffening")
-    if hinge is not None:
-        p[_HCUBIC] = hinge.cubic_per_rad2
-    collision = model.effect("collision")
-    if collision is not None:
-        p[CONTACT_ON_INDEX] = 1.0
-        p[_PHI_LIM] = math.radians(collision.stroke_limit_deg)
-        p[_KC] = collision.contact_stiffness_ratio * stiffness
-        p[_CC] = 2.0 * collision.contact_damping_ratio * math.sqrt(p[_KC] * inertia)
-
-    # sensor chains: each effect with a `channel` may hold its own value per chain (model.effect_on)
-    gains = {"stroke": model.stroke_volts_per_rad, "pitch": model.pitch_volts_per_rad}
-    delay_int = [0, 0]
-    for i, (which, hp_base, frac_index) in enumerate((("stroke", _HPS_ON, _DS_FRAC), ("pitch", _HPP_ON, _DP_FRAC))):
-        loss = model.effect_on("strain_transfer_loss", which)
-        if loss is not None:
-            gains[which] *= loss.efficiency
-        highpass = model.effect_on("charge_amp_highpass", which)
-        if highpass is not None:
-            if not highpass.corner_hz < fs_hz / 2:
-                raise ModelError(
-                    f"effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = {fs_hz / 2:g}, got {highpass.corner_hz:g}"
-                )
-            b, a = butter(1, highpass.corner_hz, btype="highpass", fs=fs_hz)
-            b, a = b / a[0], a / a[0]
-            p[hp_base : hp_base + 4] = (1.0, b[0], b[1], a[1])
-        delay = model.effect_on("sensor_delay", which)
-        if delay is not None:
-            delay_int[i], p[frac_index] = _split_delay(delay.delay_s * fs_hz)
-    p[_GS], p[_GP] = gains["stroke"], gains["pitch"]
-    nonlinearity = model.effect("transmission_nonlinearity")
-    if nonlinearity is not None:
-        p[_TCUBIC] = nonlinearity.cubic_per_rad2
-    feed = model.effect("feedthrough")
-    if feed is not None:
-        p[_FT] = feed.gain_v_per_v
-    p[_VREF] = model.sensors.reference_voltage_v
-
-    rates = [
-        math.sqrt(stiffness / p[_I]),
-        math.sqrt(hinge_stiffness / p[_IP]),
-        p[_CP] / p[_IP],
-        p[_CSTRUCT] / p[_I],
-    ]
-    substeps = max(1, math.ceil(max(rates) / fs_hz / _MAX_OMEGA_H))
-    substeps_contact = substeps
-    if collision is not None:
-        rates += [math.sqrt((stiffness + p[_KC]) / p[_I]), p[_CC] / p[_I]]
-        substeps_contact = max(1, math.ceil(max(rates) / fs_hz / _MAX_OMEGA_H_CONTACT))
-    p.setflags(write=False)
-    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
-
-
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
     """RK4 substeps per sample for `model` at `fs_hz`: (free flight, sample periods touching the stop)."""
     prep = prepare(model, _check_fs(fs_hz))
@@ -224,11 +105,11 @@ def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
 @njit(cache=True, fastmath=_FMA)
 def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
-    inv_i = 1.0 / p[_I]
-    inv_ip = 1.0 / p[_IP]
-    return (p[GA_INDEX] * inv_i, p[_GAMMA] * inv_i, p[_K] * inv_i, p[_CSTRUCT] * inv_i,
-            p[_KH] * inv_ip, p[_HCUBIC], p[_CP] * inv_ip, p[_JC] * inv_ip, p[_DP] * inv_ip,
-            p[_PHI_LIM], p[_KC] * inv_i, p[_CC] * inv_i)
+    inv_i = 1.0 / p[pp.P_I]
+    inv_ip = 1.0 / p[pp.P_IP]
+    return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i, p[pp.P_CSTRUCT] * inv_i,
+            p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip, p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip,
+            p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i, p[pp.P_CC] * inv_i)
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -324,8 +205,8 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
     model without the collision effect.
     """
     c = mechanical_constants(p)
-    contact = 1 if p[CONTACT_ON_INDEX] != 0.0 else 0
-    gs, gp, cubic, feed = p[_GS], p[_GP], p[_TCUBIC], p[_FT]
+    contact = 1 if p[pp.CONTACT_ON_INDEX] != 0.0 else 0
+    gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
     hs = h / nsub
     if contact == 0 and nsub == 1:
@@ -399,10 +280,10 @@ def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_
          phi_out, psi_out, vs_out, vp_out):
     """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
     _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
-    zi[0] = _sensor_channel(vs_out, p[_HPS_ON], p[_HPS_B0], p[_HPS_B1], p[_HPS_A1], zi[0], hist_s, delay_s,
-                            p[_DS_FRAC], p[_VREF])
-    zi[1] = _sensor_channel(vp_out, p[_HPP_ON], p[_HPP_B0], p[_HPP_B1], p[_HPP_A1], zi[1], hist_p, delay_p,
-                            p[_DP_FRAC], p[_VREF])
+    zi[0] = _sensor_channel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], zi[0], hist_s, delay_s,
+                            p[pp.P_DS_FRAC], p[pp.P_VREF])
+    zi[1] = _sensor_channel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], zi[1], hist_p, delay_p,
+                            p[pp.P_DP_FRAC], p[pp.P_VREF])
 
 
 @njit(cache=True, parallel=True)
@@ -571,7 +452,7 @@ def _batch_tables(models: list[Model], fs: float) -> tuple[np.ndarray, np.ndarra
     """Per-model parameter, substep, delay and history-length tables of a batch."""
     m = len(models)
     preps = [prepare(model, fs) for model in models]
-    params = np.array([prep.params for prep in preps]).reshape(m, N_KERNEL_PARAMS)
+    params = np.array([prep.params for prep in preps]).reshape(m, pp.N_KERNEL_PARAMS)
     nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
     delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
                       dtype=np.int64).reshape(m, 2)
@@ -626,32 +507,6 @@ def simulate_batch(
     elif m:
         _run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
-
-
-def synthesize_measured_run(
-    drive_v: np.ndarray, fs_hz: float, model: Model, rng: np.random.Generator
-) -> dict[str, np.ndarray]:
-    """Synthetic measured run in the measured-run CSV columns and units.
-
-    Sensor voltages carry sensor noise; angles are the truth plus video-tracking noise
-    (model.noise.tracking_noise_deg_rms).
-
-    Returns
-    -------
-    dict
-        time_s, drive_v, stroke_sensor_v, pitch_sensor_v, stroke_deg, pitch_deg.
-    """
-    drive = _check_drive(drive_v)
-    out = simulate(drive, fs_hz, model, noise=True, rng=rng)
-    tracking = rng.standard_normal((drive.shape[0], 2)) * model.noise.tracking_noise_deg_rms
-    return {
-        "time_s": np.arange(drive.shape[0]) / float(fs_hz),
-        "drive_v": drive.copy(),
-        "stroke_sensor_v": out.stroke_sensor_v,
-        "pitch_sensor_v": out.pitch_sensor_v,
-        "stroke_deg": np.degrees(out.stroke_rad) + tracking[:, 0],
-        "pitch_deg": np.degrees(out.pitch_rad) + tracking[:, 1],
-    }
 
 
 # ------------------------------------------------------------- from a moving state, sensor chain
@@ -721,11 +576,11 @@ def sensor_chain(
     phi = np.asarray(stroke_rad, dtype=np.float64)
     psi = np.asarray(pitch_rad, dtype=np.float64)
     drive = np.asarray(drive_v, dtype=np.float64)
-    vs = np.ascontiguousarray(p[_GS] * (phi + p[_TCUBIC] * phi * phi * phi) + p[_FT] * drive)
-    vp = np.ascontiguousarray(p[_GP] * psi)
+    vs = np.ascontiguousarray(p[pp.P_GS] * (phi + p[pp.P_TCUBIC] * phi * phi * phi) + p[pp.P_FT] * drive)
+    vp = np.ascontiguousarray(p[pp.P_GP] * psi)
     len_s, len_p = prep.delay_lengths
-    _sensor_channel(vs, p[_HPS_ON], p[_HPS_B0], p[_HPS_B1], p[_HPS_A1], 0.0, np.zeros(len_s),
-                    prep.delay_stroke_samples, p[_DS_FRAC], p[_VREF])
-    _sensor_channel(vp, p[_HPP_ON], p[_HPP_B0], p[_HPP_B1], p[_HPP_A1], 0.0, np.zeros(len_p),
-                    prep.delay_pitch_samples, p[_DP_FRAC], p[_VREF])
+    _sensor_channel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0, np.zeros(len_s),
+                    prep.delay_stroke_samples, p[pp.P_DS_FRAC], p[pp.P_VREF])
+    _sensor_channel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0, np.zeros(len_p),
+                    prep.delay_pitch_samples, p[pp.P_DP_FRAC], p[pp.P_VREF])
     return vs, vp

@@ -2,7 +2,7 @@
 
 Each case is a "true robot": the nominal model plus hidden effects (or something outside the
 vocabulary), measured with one standard run set at 20 kHz with sensor and tracking noise on
-(`flaair_sim.core.plant.synthesize_measured_run`):
+(`flaair_sim.core.measured_run.synthesize_measured_run`):
 
 * ``chirp_full``: chirp 20-200 Hz, 1 s, 100 V amplitude (200 Vpp);
 * ``chirp_half``: the same chirp at 50 V;
@@ -51,7 +51,7 @@ from scipy import signal
 
 from flaair_model.model import Model, with_effects
 from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
-from flaair_sim.core.plant import synthesize_measured_run
+from flaair_sim.core.measured_run import synthesize_measured_run
 
 from .runs import CHANNELS, Run
 from .vocabulary import PLANT_PARAMETERS

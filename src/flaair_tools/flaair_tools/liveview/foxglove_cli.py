@@ -6,13 +6,8 @@ import sys
 
 from flaair_common.runtime import help_text, run_node
 from flaair_tools.liveview import foxglove_node
-from flaair_tools.liveview.foxglove_node import (
-    CONFIG_FILE,
-    NODE_NAME,
-    PARAMS,
-    FoxgloveNode,
-    foxglove_node_args,
-)
+from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS, foxglove_node_args
+from flaair_tools.liveview.foxglove_node import FoxgloveNode
 
 
 def main(argv: list[str]) -> int:

@@ -21,7 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from flaair_common import cdr, topics
-from flaair_common.params import ParameterError, ParamSpec, declare_parameters
+from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_msgs.msg import (
@@ -33,35 +33,14 @@ from flaair_msgs.msg import (
 )
 from flaair_tools.analysis import wingbeat
 from flaair_tools.liveview import live_view
+from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS
 
-NODE_NAME = "foxglove_node"
-CONFIG_FILE = "flaair.yaml"
-PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of the block streams [Hz]", 1000.0, 1.0e6, read_only=True),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec("host", str, "Address the WebSocket server listens on", read_only=True),
-    ParamSpec("port", int, "TCP port of the WebSocket server (0: any free port, logged)", 0, 65535, read_only=True),
-    ParamSpec("sample_decimation", int, "Serve every Nth sample of each stream (1: every sample)", 1, 10000, read_only=True),
-    ParamSpec("message_backlog", int, "Messages queued per client; the oldest drop when full", 16, 10**7, read_only=True),
-    ParamSpec("reliable", bool, "Subscribe to block streams reliably (false: best effort)", read_only=True),
-    ParamSpec("serve_period_s", float, "Serve the blocks received this often, one batch per stream [s]", 0.001, 1.0, read_only=True),
-    ParamSpec("time_broadcast_period_s", float, "Broadcast the latest signal time this often [s]", 0.001, 10.0, read_only=True),
-    ParamSpec("wingbeat_hysteresis_deg", float, "Stroke below -this arms the wingbeat trigger [deg]", 0.0, 90.0, read_only=True),
-    ParamSpec("wingbeat_min_frequency_hz", float, "Longer wingbeats are dropped (idle) [Hz]", 0.1, 10000.0, read_only=True),
-    ParamSpec("wingbeat_max_frequency_hz", float, "Shorter wingbeats are dropped [Hz]", 0.1, 10000.0, read_only=True),
-]
 STREAM_SOURCES = {  # live_view stream -> (ROS topic, message class, CDR layout)
     "wing_state": (topics.WING_STATE, WingStateBlock, cdr.WING_STATE_BLOCK),
     "wing_state_truth": (topics.WING_STATE_TRUTH, WingStateBlock, cdr.WING_STATE_BLOCK),
     "sensor_v": (topics.SENSOR_VOLTAGE, SensorVoltageBlock, cdr.SENSOR_VOLTAGE_BLOCK),
     "drive": (topics.DRIVE, DriveCommandBlock, cdr.DRIVE_COMMAND_BLOCK),
 }
-
-
-def foxglove_node_args(host_port: str) -> list[str]:
-    """`bin/flaair` argv starting the live view on HOST:PORT (ValueError naming a bad HOST:PORT)."""
-    host, port = live_view.parse_host_port(host_port)
-    return ["run", "flaair_tools", NODE_NAME, "--ros-args", "-p", f"host:={host}", "-p", f"port:={port}"]
 
 
 class FoxgloveNode(Node):

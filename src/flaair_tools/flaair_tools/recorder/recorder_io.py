@@ -2,10 +2,19 @@
 from __future__ import annotations
 
 import argparse
+import time
+from pathlib import Path
+from typing import Any
 
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from flaair_common.msgdict import message_class
+from flaair_common.params import ParameterError
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import help_text
 from flaair_model.schema import ParamSpec
+from flaair_tools import bagio
+from flaair_tools.recorder import recording
 from flaair_tools.recorder.recording import RecordingParams
 
 RECORDER_HELP = """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
@@ -85,3 +94,40 @@ def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair recor
     if args.use_sim_time:
         out += param("use_sim_time", "true")
     return out + ros_args
+
+
+class SkipTopic(ValueError):
+    """A discovered topic the recorder cannot record (the message says why)."""
+
+
+def topic_to_record(topic: str, types: list[str], publishers: list[Any],
+                    writer: bagio.BagWriter, depth: int) -> tuple[str, type, QoSProfile] | None:
+    """(type, message class, subscription QoS) of a discovered topic, its offered QoS added to the
+    bag; None while it has no publisher (whose QoS decides ours); SkipTopic if it cannot be recorded."""
+    if len(types) != 1:
+        raise SkipTopic(f"published with several types ({', '.join(types)})")
+    if not publishers:
+        return None
+    msgtype = types[0]
+    try:
+        cls = message_class(msgtype)
+        offered = [bagio.qos_from_rclpy(info.qos_profile) for info in publishers]
+        writer.add_topic(topic, msgtype, offered)
+    except (ValueError, bagio.BagError) as exc:
+        raise SkipTopic(str(exc)) from None
+    qos = recording.adapt_qos(offered)
+    return msgtype, cls, QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=depth,
+        reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE)
+
+
+def open_writer(values: dict[str, Any], store: Any) -> bagio.BagWriter:
+    """The bag writer the recorder's parameters ask for (`output_path` empty: a timestamped name)."""
+    path = Path(values["output_path"]) if values["output_path"] else recording.default_output_path(time.time())
+    try:
+        return bagio.BagWriter(path, compression=values["compression"], chunk_size_bytes=values["chunk_size_bytes"],
+                               store=store)
+    except bagio.BagError as exc:
+        raise ParameterError(f"parameter 'output_path': {exc}") from exc
+

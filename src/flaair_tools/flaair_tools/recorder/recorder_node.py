@@ -8,51 +8,36 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from flaair_common import cdr, intra
-from flaair_common.msgdict import message_class
-from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
 from flaair_common.topics import BLOCK_STREAM_TYPES
 from flaair_tools import bagio
+from flaair_tools.recorder import recorder_io as rio
 from flaair_tools.recorder import recording
-from flaair_tools.recorder.recorder_io import (
-    CONFIG_FILE,
-    NODE_NAME,
-    RECORDER_HELP,
-    RECORDING,
-    cli_to_ros_args,
-)
-from flaair_tools.recorder.recorder_io import RECORDER_PARAMS as PARAMS
 
 
 class RecorderNode(Node):
     """Raw subscriptions -> flaair_tools.recorder.recording (log times) -> bagio.BagWriter."""
 
     def __init__(self) -> None:
-        super().__init__(NODE_NAME)
-        self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
+        super().__init__(rio.NODE_NAME)
+        self.p = declare_parameters(self, rio.RECORDER_PARAMS, rio.CONFIG_FILE)
         self.chosen = recording.parse_topic_list(self.p["topics"])
         self.log_time = recording.LogTimeState()
         self.store = bagio.typestore()
-        path = Path(self.p["output_path"]) if self.p["output_path"] else recording.default_output_path(time.time())
-        try:
-            self.writer = bagio.BagWriter(path, compression=self.p["compression"],
-                                          chunk_size_bytes=self.p["chunk_size_bytes"], store=self.store)
-        except bagio.BagError as exc:
-            raise ParameterError(f"parameter 'output_path': {exc}") from exc
+        self.writer = rio.open_writer(self.p, self.store)
         self.subscribed: dict[str, Any] = {}
         self.takers: dict[str, tuple] = {}   # topic -> (take, on_message) of its DDS subscription
         self.skipped, self.received = set(), {}
         # composed (an EventsExecutor): no take() inside a callback; the block streams come in-process
-        self.recording = RECORDING if intra.current() is None else replace(RECORDING, drain_limit=1)
+        self.recording = rio.RECORDING if intra.current() is None else replace(rio.RECORDING, drain_limit=1)
         # Wall-clock (steady) timers: with use_sim_time a ROS-time timer would stop while /clock does.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         for topic in sorted(intra.current().local_topics if intra.current() is not None else ()):
@@ -67,30 +52,18 @@ class RecorderNode(Node):
     def discover(self) -> None:
         """Subscribe to every wanted topic not subscribed yet."""
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.subscribed or topic in self.skipped or not recording.wanted(topic, self.chosen,
-                                                                                         self.p["record_clock"]):
-                continue
-            if len(types) != 1:
-                self.skip(topic, f"published with several types ({', '.join(types)})")
-                continue
-            msgtype = types[0]
-            publishers = self.get_publishers_info_by_topic(topic)
-            if not publishers:
-                # Seen through a subscriber only: wait for a publisher, whose QoS decides ours
-                # and is recorded with the topic (the next discovery round picks it up).
+            if topic in self.subscribed or topic in self.skipped or not recording.wanted(
+                    topic, self.chosen, self.p["record_clock"]):
                 continue
             try:
-                cls = message_class(msgtype)
-                offered = [bagio.qos_from_rclpy(info.qos_profile) for info in publishers]
-                self.writer.add_topic(topic, msgtype, offered)
-            except (ValueError, bagio.BagError) as exc:
+                found = rio.topic_to_record(topic, types, self.get_publishers_info_by_topic(topic), self.writer,
+                                            self.p["queue_depth"])
+            except rio.SkipTopic as exc:
                 self.skip(topic, str(exc))
                 continue
-            qos = recording.adapt_qos(offered)
-            profile = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=self.p["queue_depth"],
-                reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE)
+            if found is None:   # seen through a subscriber only: the next round, with a publisher
+                continue
+            msgtype, cls, profile = found
             self.received[topic], stamped = 0, bagio.has_leading_stamp(msgtype, self.store)
             self.subscribed[topic] = self.create_subscription(
                 cls, topic, self.make_callback(topic, stamped, cls), profile, raw=True)
@@ -164,10 +137,10 @@ class RecorderNode(Node):
 
 def main(argv: list[str] | None = None) -> int:
     """Console script (ROS arguments) or `bin/flaair record` (friendly options, argv given)."""
-    args = None if argv is None else cli_to_ros_args(argv, RECORDER_HELP)
+    args = None if argv is None else rio.cli_to_ros_args(argv, rio.RECORDER_HELP)
     if args is not None:
         sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
-    return run_node(RecorderNode, PARAMS, CONFIG_FILE, NODE_NAME, args, executor_kind="single")
+    return run_node(RecorderNode, rio.RECORDER_PARAMS, rio.CONFIG_FILE, rio.NODE_NAME, args, executor_kind="single")
 
 
 if __name__ == "__main__":

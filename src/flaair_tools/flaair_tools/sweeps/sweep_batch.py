@@ -26,14 +26,8 @@ from numba import njit, prange
 
 from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
-from flaair_sim.core import plant
-from flaair_sim.core.plant import (  # the plant's own kernels
-    GA_INDEX,
-    N_KERNEL_PARAMS,
-    mechanical_constants,
-    prepare,
-    rk4_step,
-)
+from flaair_sim.core.plant import mechanical_constants, rk4_step  # the plant's own kernels
+from flaair_sim.core.plant_params import CONTACT_ON_INDEX, GA_INDEX, N_KERNEL_PARAMS, prepare
 from flaair_tools.analysis import wingbeat
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2
@@ -144,7 +138,7 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
         prep = prepare(robot, fs)
-        if prep.params[plant.CONTACT_ON_INDEX]:
+        if prep.params[CONTACT_ON_INDEX]:
             raise ValueError("the sweep batch has no collision stop")
         params[i], nsubs[i], modes[i] = prep.params, prep.n_substeps, row["mode"]
         phi0s[i] = math.radians(row["start_stroke_deg"]) if row["mode"] != SYNC else 0.0
