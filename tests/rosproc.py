@@ -93,7 +93,7 @@ def ros_processes() -> Iterator[Processes]:
 
 def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """Run a command to completion in `env`, capturing output."""
-    if args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS:
+    if args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS and "--help" not in args:
         GRAPHS_STARTED.append(f"flaair {args[1]}")
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
 

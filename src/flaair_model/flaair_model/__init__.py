@@ -10,6 +10,7 @@ it depends on nothing of FLAAIR's.
 - `schema`: `ParamSpec`, each node parameter declared once.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
 - `notes`: `Note`, the one type of a core's log lines.
+- `settings`: typed accessors of the config sections a tool reads that are not its own.
 """
 
-__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes"]
+__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes", "settings"]

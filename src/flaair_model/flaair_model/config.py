@@ -97,11 +97,16 @@ def _parameter_document(path: Path) -> Any:
     return cached[1]
 
 
-def shared_parameter_names(file_name: str) -> set[str]:
-    """Names in the `/**` section of config/`file_name` (values every node may receive)."""
-    document = load_yaml(config_dir() / file_name) or {}
+def shared_parameters(file_name: str) -> dict[str, Any]:
+    """The `/**` section of config/`file_name` (values every node receives), flattened."""
+    document = _parameter_document(config_dir() / file_name) or {}
     out: dict[str, Any] = {}
     section = document.get("/**") if isinstance(document, dict) else None
     if isinstance(section, dict):
         _flatten("", section.get("ros__parameters", {}), out)
-    return set(out)
+    return copy.deepcopy(out)
+
+
+def shared_parameter_names(file_name: str) -> set[str]:
+    """Names in the `/**` section of config/`file_name` (values every node may receive)."""
+    return set(shared_parameters(file_name))

@@ -40,7 +40,8 @@ from flaair_common.graph import (
     terminate_raises,
 )
 from flaair_common.qos import BLOCK_STREAM, EVENTS
-from flaair_model.config import ConfigError, config_dir, load_yaml, node_parameters
+from flaair_model import settings
+from flaair_model.config import ConfigError, config_dir, load_yaml
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
 
@@ -199,8 +200,8 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     """
     if out.exists():
         raise ExperimentError(f"{out} exists; choose another --out or remove it")
-    shared = node_parameters("flaair.yaml", "drive_node")
-    fs_hz, block_size = float(shared["sample_rate_hz"]), int(shared["block_size"])
+    shared = settings.stream()
+    fs_hz, block_size = shared.sample_rate_hz, shared.block_size
     log_dir = out.parent / f"{out.name}.logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     graph = Graph(log_dir=log_dir)
@@ -289,8 +290,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             if "collision_monitor" in spec.nodes:
                 # On a loaded machine the monitor can lag the plant by seconds: let it judge the
                 # whole run (to within two of the slowest wingbeats) before anything stops.
-                run_end_s = (first + n_samples) / fs_hz - 2.0 / float(node_parameters(
-                    "flaair.yaml", "collision_monitor_node")["min_wingbeat_hz"])
+                run_end_s = (first + n_samples) / fs_hz - 2.0 / settings.monitor().min_wingbeat_hz
                 _spin_until(runner, graph, lambda: runner.monitor_end_s >= run_end_s, 300.0,
                             f"the collision monitor to judge the run up to {run_end_s:.2f} s")
             # A stopped publisher takes with it what a lagging recorder has not fetched yet

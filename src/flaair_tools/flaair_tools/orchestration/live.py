@@ -50,7 +50,8 @@ from flaair_common.graph import (
     node_argv,
     terminate_raises,
 )
-from flaair_model.config import ConfigError, node_parameters
+from flaair_model import settings
+from flaair_model.config import ConfigError
 
 HOT_NODES = {
     "bridge": ("flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
@@ -105,9 +106,8 @@ def port_free(address: tuple[str, int], what: str) -> None:
 
 def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     """Per-node overrides of config/flaair.yaml for this run (a ROS params file's sections)."""
-    live = node_parameters("flaair.yaml", "live")
-    block = int(node_parameters("flaair.yaml", "dsa_controller_node")["block_size"] if args.sim
-                else live["target_block_size"])
+    live = settings.live()
+    block = settings.controller().block_size if args.sim else live.target_block_size
     sections: dict[str, dict[str, Any]] = {
         "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)} if args.calibration else {},
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
@@ -117,15 +117,14 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
                                 "min_state_subscribers": 1 if args.out is not None else 0},
     }
     if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
-        sections["dsa_controller_node"]["state_every_blocks"] = int(live["dds_batch_blocks"])
+        sections["dsa_controller_node"]["state_every_blocks"] = live.dds_batch_blocks
         # the loop starts once the recorder is matched on every stream, not only on /flaair/drive
         sections["dsa_controller_node"]["min_stream_listeners"] = 1 if args.out is not None else 0
     if args.sim:
         sections["plant_node"] = {"mode": "realtime", "noise": True}
     else:
         (target_host, target_port), (listen_host, listen_port) = args.target, args.listen
-        lead = args.lead_samples if args.lead_samples is not None else int(
-            node_parameters("flaair.yaml", "bridge_node")["lead_samples"])
+        lead = args.lead_samples if args.lead_samples is not None else settings.bridge().lead_samples
         sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port, "target_host": target_host,
                                    "target_port": target_port, "lead_samples": lead}
         sections["/**"] = {"block_size": block}   # the bridge re-blocks the target's packets to this
@@ -284,8 +283,8 @@ def run_live(args: argparse.Namespace) -> int:
         if args.processes:
             loop += [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
         else:
-            batch = int(node_parameters("flaair.yaml", "live")["dds_batch_blocks"])
-            priority = 0 if args.sim else int(node_parameters("flaair.yaml", "bridge_node")["realtime_priority"])
+            batch = settings.live().dds_batch_blocks
+            priority = 0 if args.sim else settings.bridge().realtime_priority
             loop.append(graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
                                              ",".join(LOCAL_TOPICS), "--dds-batch", str(batch),
                                              "--realtime-priority", str(priority),
@@ -356,7 +355,7 @@ def main(argv: list[str] | None = None) -> int:
             args.foxglove = host_port(args.foxglove, "--foxglove")
             port_free(args.foxglove, "--foxglove")
         if args.first_packet_timeout is None:
-            args.first_packet_timeout = float(node_parameters("flaair.yaml", "live")["first_packet_timeout_s"])
+            args.first_packet_timeout = settings.live().first_packet_timeout_s
         if not (args.first_packet_timeout > 0):
             raise LiveError(f"first packet timeout {args.first_packet_timeout}: must be > 0 s")
         if not (args.duration > 0):

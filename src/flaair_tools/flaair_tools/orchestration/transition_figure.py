@@ -84,11 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--controller-state", type=Path, help="echo of /flaair/controller/state (JSON lines)")
     parser.add_argument("-o", "--output", type=Path, default=Path("out/transition/transition.png"))
     args = parser.parse_args(argv)
-    from flaair_model.config import node_parameters
+    from flaair_model import settings
     from flaair_model.model_io import load_model
 
-    shared = node_parameters("flaair.yaml", "dsa_controller_node")
-    fs, block = float(shared["sample_rate_hz"]), int(shared["block_size"])
+    shared = settings.controller()
+    fs, block = shared.sample_rate_hz, shared.block_size
     if args.run:
         t0 = time.monotonic()
         # node logs beside the figure; the graph on a private domain, stopped on any exit

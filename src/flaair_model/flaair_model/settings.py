@@ -1,0 +1,112 @@
+"""Typed accessors of config/flaair.yaml for the tools that read a section not their own.
+
+A node reads its own section through its `ParamSpec` schema (typed, ranged). A tool that needs
+another section's values (the shared stream settings, the bridge's lead, `live`'s own settings)
+reads them here, each section through one function returning a frozen dataclass: a missing key
+or a value of the wrong type is a `ConfigError` naming the file, section and key.
+"""
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from flaair_model.config import ConfigError, config_dir, node_parameters, shared_parameters
+
+__all__ = ["StreamSettings", "LiveSettings", "BridgeSettings", "MonitorSettings", "ControllerSettings",
+           "stream", "live", "bridge", "monitor", "controller", "read_section"]
+
+CONFIG_FILE = "flaair.yaml"
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class StreamSettings:
+    """The `/**` section: what every block stream shares."""
+
+    sample_rate_hz: float
+    block_size: int
+    drive_limit_v: float
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """`bin/flaair live`: the composed loop's DDS batching, block size against a target, patience."""
+
+    dds_batch_blocks: int
+    target_block_size: int
+    first_packet_timeout_s: float
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """What a graph's launcher needs of the UDP bridge's section."""
+
+    lead_samples: int
+    realtime_priority: int
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """What an experiment needs of the collision monitor's section."""
+
+    min_wingbeat_hz: float
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """The dSA controller's stream settings (its section over `/**`)."""
+
+    sample_rate_hz: float
+    block_size: int
+
+
+def _convert(value: Any, kind: type, where: str) -> Any:
+    if kind is bool:
+        if isinstance(value, bool):
+            return value
+    elif kind is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+    elif kind is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+    elif kind is str:
+        if isinstance(value, str):
+            return value
+    raise ConfigError(f"{where}: must be {kind.__name__}, got {value!r}")
+
+
+def read_section(section: str, cls: type[T], file_name: str = CONFIG_FILE) -> T:
+    """`cls` (a frozen dataclass) filled from `section` of config/`file_name`, each field checked."""
+    values = shared_parameters(file_name) if section == "/**" else node_parameters(file_name, section)
+    hints = typing.get_type_hints(cls)
+    out = {}
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        where = f"{config_dir() / file_name}: {section}.{f.name}"
+        if f.name not in values:
+            raise ConfigError(f"{where}: missing")
+        out[f.name] = _convert(values[f.name], hints[f.name], where)
+    return cls(**out)
+
+
+def stream() -> StreamSettings:
+    """Sample rate, block size and drive limit of every block stream (`/**`)."""
+    return read_section("/**", StreamSettings)
+
+
+def live() -> LiveSettings:
+    return read_section("live", LiveSettings)
+
+
+def bridge() -> BridgeSettings:
+    return read_section("bridge_node", BridgeSettings)
+
+
+def monitor() -> MonitorSettings:
+    return read_section("collision_monitor_node", MonitorSettings)
+
+
+def controller() -> ControllerSettings:
+    return read_section("dsa_controller_node", ControllerSettings)

@@ -1,0 +1,42 @@
+"""flaair_model.settings: the typed accessors tools use for sections not their own."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from flaair_model import settings
+from flaair_model.config import ConfigError, config_dir
+
+
+def test_each_accessor_reads_its_section_with_types() -> None:
+    document = yaml.safe_load((config_dir() / "flaair.yaml").read_text())
+    shared = document["/**"]["ros__parameters"]
+    assert settings.stream() == settings.StreamSettings(float(shared["sample_rate_hz"]), shared["block_size"],
+                                                        float(shared["drive_limit_v"]))
+    live = document["live"]["ros__parameters"]
+    assert settings.live().dds_batch_blocks == live["dds_batch_blocks"]
+    assert isinstance(settings.live().first_packet_timeout_s, float)
+    assert settings.bridge().lead_samples == document["bridge_node"]["ros__parameters"]["lead_samples"]
+    assert settings.controller().block_size == shared["block_size"]   # from /** under its own section
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["live"]["ros__parameters"].pop("dds_batch_blocks"), "live.dds_batch_blocks: missing"),
+    (lambda d: d["live"]["ros__parameters"].update(dds_batch_blocks="20"), "live.dds_batch_blocks: must be int, got '20'"),
+    (lambda d: d["bridge_node"]["ros__parameters"].update(lead_samples=True), "bridge_node.lead_samples: must be int"),
+    (lambda d: d["live"]["ros__parameters"].update(first_packet_timeout_s=None), "first_packet_timeout_s: must be float"),
+])
+def test_a_missing_or_mistyped_key_is_named(tmp_path: Path, monkeypatch, edit, message) -> None:
+    shutil.copytree(config_dir(), tmp_path / "config")
+    path = tmp_path / "config" / "flaair.yaml"
+    document = yaml.safe_load(path.read_text())
+    edit(document)
+    path.write_text(yaml.safe_dump(document))
+    monkeypatch.setenv("FLAAIR_CONFIG_DIR", str(tmp_path / "config"))
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")) as error:
+        settings.live()
+        settings.bridge()
+    assert str(path) in str(error.value)
