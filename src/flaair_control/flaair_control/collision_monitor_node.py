@@ -29,6 +29,8 @@ from flaair_control.control_io import (
     COLLISION_MONITOR_PARAMS,
     CONFIG_FILE,
     collision_monitor_params_from_config,
+    monitor_drive_input,
+    monitor_wing_input,
 )
 from flaair_control.core import monitor
 from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
@@ -81,7 +83,7 @@ class CollisionMonitorNode(Node):
         if not check.ok and check.kind != "gap":
             return
         self.drive_expected = first + len(drive_v)
-        self.advance(monitor.DriveBlock(first, drive_v))
+        self.advance(monitor_drive_input(m))
 
     def on_wing_state(self, m) -> None:
         n, first = len(m["stroke_deg"]), int(m["first_sample_index"])
@@ -95,7 +97,7 @@ class CollisionMonitorNode(Node):
         self.wing_expected = first + n
         if self.time_offset_s is None:
             self.time_offset_s = int(m["sec"]) + int(m["nanosec"]) * 1e-9 - first / self.fs_hz
-        self.advance(monitor.wing_block(first, m["stroke_deg"], m["pitch_deg"], m["stroke_valid"], m["pitch_valid"]))
+        self.advance(monitor_wing_input(m))
 
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
         """Run the core on one block; log its notes, publish its verdicts."""

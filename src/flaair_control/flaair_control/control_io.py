@@ -11,8 +11,11 @@ import math
 from dataclasses import replace
 from typing import Any, Mapping
 
+import numpy as np
+
 from flaair_control.core import collision as col
-from flaair_control.core import dsa, safety
+from flaair_control.core import dsa, monitor, safety
+from flaair_control.core import supervisor as sv
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
@@ -194,3 +197,24 @@ def describe_loop(params: SupervisorParams, values: Mapping[str, Any]) -> str:
             f"{360 * f_c * loop_delay_s(values)[0]:.1f} deg at {f_c:g} Hz "
             f"{'compensated' if values['compensate_delay'] else '(NOT compensated)'}; limit +-{d.drive_limit_v:g} V; "
             f"collision response {values['collision_response']}")
+
+
+# One adapter between the block messages (their fields, as the nodes and `replay` decode them)
+# and the cores' inputs: the live nodes and the offline replay feed the cores the same values.
+
+def monitor_drive_input(fields: Mapping[str, Any]) -> monitor.DriveBlock:
+    """A /flaair/drive block's fields as the collision monitor's input."""
+    return monitor.DriveBlock(int(fields["first_sample_index"]), np.asarray(fields["drive_v"], dtype=np.float64))
+
+
+def monitor_wing_input(fields: Mapping[str, Any]) -> monitor.WingBlock:
+    """A /flaair/wing_state block's fields as the collision monitor's input (rad, NaN where invalid)."""
+    return monitor.wing_block(fields["first_sample_index"], fields["stroke_deg"], fields["pitch_deg"],
+                              fields["stroke_valid"], fields["pitch_valid"])
+
+
+def supervisor_wing_input(fields: Mapping[str, Any], t_wall: float, drive_subscribers: int) -> sv.WingBlock:
+    """A /flaair/wing_state block's fields as the dSA loop supervisor's input, received at `t_wall`."""
+    return sv.WingBlock(t_wall, int(fields["first_sample_index"]), float(fields["sample_rate_hz"]),
+                        fields["stroke_velocity_deg_s"], fields["stroke_deg"], fields["stroke_valid"], drive_subscribers)
+

@@ -32,6 +32,7 @@ from flaair_control.control_io import (
     DSA_CONTROLLER_PARAMS,
     describe_loop,
     supervisor_params_from_config,
+    supervisor_wing_input,
 )
 from flaair_control.core import supervisor as sv
 from flaair_model.model import ModelError
@@ -101,8 +102,7 @@ class DsaControllerNode(Node):
         if self.state.mode == sv.DONE:
             return
         peers = self.peers() if self.state.mode == sv.WAITING else 0   # only the start reads them (rclpy: ~20 us)
-        self.advance(sv.WingBlock(t_receive, int(m["first_sample_index"]), float(m["sample_rate_hz"]),
-                                  m["stroke_velocity_deg_s"], m["stroke_deg"], m["stroke_valid"], peers), t_receive)
+        self.advance(supervisor_wing_input(m, t_receive, peers), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
         self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,

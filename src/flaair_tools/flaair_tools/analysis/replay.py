@@ -2,7 +2,8 @@
 
 The collision monitor node and the dSA controller node are thin shells over
 `flaair_control.core.monitor` and `flaair_control.core.supervisor`; fed the recorded blocks in the
-order the nodes saw them (in lockstep: drive block k, then wing-state block k), the cores give
+order the nodes saw them (in lockstep: drive block k, then wing-state block k), decoded and
+mapped to the cores' inputs exactly as the nodes do it (`cdr.decode`, the `control_io` adapters), the cores give
 back what the live nodes published: collision statuses and events, drive blocks and
 controller states. `analyze` uses it to show what the monitor decided; the tests use it to
 prove the live and offline paths identical.
@@ -13,12 +14,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
-import numpy as np
-
-from flaair_common import topics
+from flaair_common import cdr, topics
 from flaair_control.control_io import (
     collision_monitor_params_from_config,
+    monitor_drive_input,
+    monitor_wing_input,
     supervisor_params_from_config,
+    supervisor_wing_input,
 )
 from flaair_control.core import monitor
 from flaair_control.core import supervisor as sv
@@ -26,19 +28,24 @@ from flaair_model.config import node_parameters
 from flaair_model.model import Model
 from flaair_tools import bagio
 
+LAYOUTS = {topics.DRIVE: cdr.DRIVE_COMMAND_BLOCK, topics.WING_STATE: cdr.WING_STATE_BLOCK}
 
-def _blocks_in_loop_order(bag: Path, wanted: tuple[str, ...]) -> Iterator[tuple[str, Any]]:
-    """(topic, message) of the block topics, ordered by sample index; at one index drive first."""
+
+def _blocks_in_loop_order(bag: Path, wanted: tuple[str, ...]) -> Iterator[tuple[str, dict[str, Any]]]:
+    """(topic, message fields) of the block topics, decoded as the nodes decode them, ordered by
+    sample index; at one index drive first."""
     rank = {topics.DRIVE: 0, topics.WING_STATE: 1}
-    messages = [(int(m.first_sample_index), rank[t], n, t, m)
-                for n, (t, _, m) in enumerate(bagio.iter_messages(bag, list(wanted)))]
+    messages = []
+    for n, (topic, _, _, data) in enumerate(bagio.iter_raw(bag, list(wanted))):
+        fields = cdr.decode(LAYOUTS[topic], data)
+        messages.append((int(fields["first_sample_index"]), rank[topic], n, topic, fields))
     messages.sort(key=lambda item: item[:3])
     seen: set[tuple[str, int]] = set()
-    for index, _, _, topic, message in messages:
+    for index, _, _, topic, fields in messages:
         if (topic, index) in seen:     # a retransmitted block: the node ignored it as stale
             continue
         seen.add((topic, index))
-        yield topic, message
+        yield topic, fields
 
 
 def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[monitor.Verdict]:
@@ -47,13 +54,8 @@ def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[moni
     state = monitor.initial_state(params)
     wanted = (topics.DRIVE, topics.WING_STATE) if params.estimates_frequency else (topics.WING_STATE,)
     verdicts: list[monitor.Verdict] = []
-    for topic, message in _blocks_in_loop_order(bag, wanted):
-        if topic == topics.DRIVE:
-            inputs: monitor.DriveBlock | monitor.WingBlock = monitor.DriveBlock(
-                int(message.first_sample_index), np.asarray(message.drive_v, dtype=float))
-        else:
-            inputs = monitor.wing_block(message.first_sample_index, message.stroke_deg, message.pitch_deg,
-                                        message.stroke_valid, message.pitch_valid)
+    for topic, fields in _blocks_in_loop_order(bag, wanted):
+        inputs = monitor_drive_input(fields) if topic == topics.DRIVE else monitor_wing_input(fields)
         state, out = monitor.step(state, inputs, params)
         verdicts.extend(out.verdicts)
     return verdicts
@@ -72,10 +74,7 @@ def replay_controller(bag: Path, model: Model, values: dict[str, Any] | None = N
     for t_wall in (0.0, params.start_delay_s + 1.0):
         state, result = sv.step(state, sv.Tick(t_wall, 99, 1, 1), params)
         out.extend(result.blocks)
-    for _, message in _blocks_in_loop_order(bag, (topics.WING_STATE,)):
-        state, result = sv.step(state, sv.WingBlock(
-            params.start_delay_s + 1.0, int(message.first_sample_index), float(message.sample_rate_hz),
-            np.asarray(message.stroke_velocity_deg_s, dtype=float), np.asarray(message.stroke_deg, dtype=float),
-            np.asarray(message.stroke_valid, dtype=bool), 1), params)
+    for _, fields in _blocks_in_loop_order(bag, (topics.WING_STATE,)):
+        state, result = sv.step(state, supervisor_wing_input(fields, params.start_delay_s + 1.0, 1), params)
         out.extend(result.blocks)
     return out
