@@ -58,7 +58,7 @@ def main() -> None:
     blocks_p = pv[: n - n % BLOCK].reshape(-1, BLOCK)
 
     # --- step() on 10-sample blocks: latency distribution over 2 s of data (4000 blocks).
-    state = fe.initial_state(params, sv[0], pv[0])
+    state = fe.initial_state(params, first_stroke_v=sv[0], first_pitch_v=pv[0])
     fe.step(state, fe.FrontendInputs(blocks_s[0], blocks_p[0]), params)  # warm the filter-design cache
     lat = np.empty(4000)
     cpu = np.empty(4000)
@@ -72,7 +72,7 @@ def main() -> None:
     cpu50, cpu99 = np.percentile(cpu, [50, 99])
 
     def run_blocks() -> None:
-        st = fe.initial_state(params, sv[0], pv[0])
+        st = fe.initial_state(params, first_stroke_v=sv[0], first_pitch_v=pv[0])
         for i in range(2000):
             st, _ = fe.step(st, fe.FrontendInputs(blocks_s[i], blocks_p[i]), params)
 

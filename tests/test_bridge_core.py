@@ -32,7 +32,7 @@ def packet(sequence: int, first: int, n: int = N, flags: int = 0, rate: float = 
 def run(inputs, p=None, state=None):
     """Feed inputs; return the final state and every output concatenated."""
     p = p or params()
-    state = state or bridge.initial_state()
+    state = state or bridge.initial_state(p)
     blocks, packets, timing, notes = [], [], [], []
     for item in inputs:
         state, out = bridge.step(state, item, p)
@@ -285,7 +285,8 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
     """Every packet the fast path takes (in order; a whole block, or part of one as a target's
     0.5 ms packets are of 1 ms blocks; the target's watchdog flag set or not) gives the state and
     outputs the general path gives, with drive queued and released."""
-    p, state = params(block_size=block_size), bridge.initial_state()
+    p = params(block_size=block_size)
+    state = bridge.initial_state(p)
     rng = np.random.default_rng(7)
     compared = flagged = 0
     for k in range(80):

@@ -200,7 +200,7 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
                             stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
                             pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad))
     mon = col.initial_state(prm)
-    state = plant_mod.initial_state(model, FS)
+    state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     present = False
     first_strike = None
     events, reports = [], []

@@ -161,7 +161,7 @@ def test_sync_to_async_transition_on_the_simulated_robot():
                       kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.3, 0.3), loop_delay_s=delay,
                       sync_phase_rad=0.0, compensation_frequency_hz=None)
     rng = np.random.default_rng(7)
-    state = plant_mod.initial_state(model, FS)
+    state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     ctrl = dsa.initial_state(p)
     drive = np.zeros(BLOCK)
     prev = 0.0

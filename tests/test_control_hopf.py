@@ -121,7 +121,7 @@ def _lin_plant(model) -> hopf.LinearStrokePlant:
 def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float = 5.0) -> np.ndarray:
     """Block loop: plant block k -> ideal stroke -> backward-difference velocity -> dSA -> block k+1."""
     n_blocks = int(round(duration_s * FS / BLOCK))
-    state = plant_mod.initial_state(model, FS)
+    state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     ctrl = dsa.initial_state(params)
     drive = np.zeros(BLOCK)
     drive[:5] = kick_v

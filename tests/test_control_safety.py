@@ -49,7 +49,7 @@ def test_clamp_output_is_finite_and_within_limit(block, limit):
 @given(params=params_st, seq=st.lists(st.tuples(blocks, st.sampled_from([None, True, False])), min_size=1, max_size=8),
        t0=st.floats(-10.0, 10.0))
 def test_step_never_exceeds_the_limit_or_the_slew_rate(params, seq, t0):
-    state = safety.initial_state(t0)
+    state = safety.initial_state(params, t_s=t0)
     t = t0
     prev = 0.0
     for block, valid in seq:
@@ -72,7 +72,7 @@ def _sine(n, t0, amp=80.0, f=100.0):
 
 def test_passes_a_safe_drive_untouched_while_sensors_are_fresh():
     p = sp(drive_limit_v=100.0, slew_limit_v_per_s=1e6, invalid_timeout_s=2e-3, ramp_down_s=0.02)
-    state = safety.initial_state(0.0)
+    state = safety.initial_state(p)
     for k in range(200):
         t = k * 10 / FS
         d = _sine(10, t)
@@ -83,7 +83,7 @@ def test_passes_a_safe_drive_untouched_while_sensors_are_fresh():
 
 def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
     p = sp(drive_limit_v=100.0, invalid_timeout_s=2e-3, ramp_down_s=0.01)
-    state = safety.initial_state(0.0)
+    state = safety.initial_state(p)
     for t_block in np.arange(0.0005, 0.0051, 0.0005):   # fresh blocks every 0.5 ms up to 5 ms
         state = safety.note_sensor_block(state, float(t_block), True, p)
     assert state.status == safety.OK
@@ -107,13 +107,13 @@ def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
 
 def test_first_block_later_than_the_timeout_trips_at_the_deadline():
     p = sp(drive_limit_v=100.0, invalid_timeout_s=2e-3)
-    state = safety.note_sensor_block(safety.initial_state(0.0), 0.005, True, p)
+    state = safety.note_sensor_block(safety.initial_state(p), 0.005, True, p)
     assert state.status == safety.TRIPPED and state.trip_time_s == pytest.approx(0.002)
 
 
 def test_invalid_block_trips_immediately_and_latches():
     p = sp(drive_limit_v=100.0, invalid_timeout_s=0.1, ramp_down_s=0.0)
-    state = safety.initial_state(0.0)
+    state = safety.initial_state(p)
     state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0, True), p)
     assert np.all(out.drive_v == 50.0)
     state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0005, False), p)
@@ -128,14 +128,14 @@ def test_invalid_block_trips_immediately_and_latches():
 
 def test_slew_limit_spreads_a_step():
     p = sp(drive_limit_v=100.0, slew_limit_v_per_s=2e5)   # 10 V per sample
-    state, out = safety.step(safety.initial_state(0.0), safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
+    state, out = safety.step(safety.initial_state(p), safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
     np.testing.assert_allclose(out.drive_v, [10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 100, 100])
 
 
 def test_nan_and_inf_drive_become_zero_not_rail():
     p = sp(drive_limit_v=100.0)
     d = np.array([np.nan, np.inf, -np.inf, 1e9, -1e9, 42.0])
-    _, out = safety.step(safety.initial_state(0.0), safety.SafetyInputs(d, 0.0, True), p)
+    _, out = safety.step(safety.initial_state(p), safety.SafetyInputs(d, 0.0, True), p)
     np.testing.assert_array_equal(out.drive_v, [0, 0, 0, 100, -100, 42])
     assert out.nonfinite_count == 3
 

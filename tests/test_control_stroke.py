@@ -82,7 +82,7 @@ def test_command_is_clamped_and_the_safety_chain_zeroes_the_drive_when_the_estim
     _, design_plant, values = nominal
     params = _sync_params(values, design_plant, drive_amplitude_max_v=12.0)
     guard = safety.SafetyParams(5.0, 1.0e6, 0.005, 0.01, FS)
-    state, g = stroke.initial_state(params), safety.initial_state(0.0)
+    state, g = stroke.initial_state(params), safety.initial_state(guard)
     small = np.radians(1.0) * np.sin(2 * np.pi * 140.0 * np.arange(10) / FS)
     maxima, k = [], 0
     for k in range(0, 4000, 10):   # wing stuck at 1 deg: the law pushes the command up to its ceiling

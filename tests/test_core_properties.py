@@ -35,7 +35,7 @@ def blocks(bound: float, max_blocks: int = 6):
 @SETTINGS
 @given(sequence=blocks(LIMIT_V, max_blocks=20))
 def test_plant_step_in_the_actuator_range_stays_finite(sequence) -> None:
-    state = plant.initial_state(MODEL, FS_HZ)
+    state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
         state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))
         for name in ("stroke_rad", "pitch_rad", "stroke_sensor_v", "pitch_sensor_v"):
@@ -46,7 +46,7 @@ def test_plant_step_in_the_actuator_range_stays_finite(sequence) -> None:
 @given(sequence=blocks(1e300, max_blocks=3))
 def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
     """The nodes clamp to drive_limit_v first; the core itself either stays finite or refuses."""
-    state = plant.initial_state(MODEL, FS_HZ)
+    state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
         try:
             state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))

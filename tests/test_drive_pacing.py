@@ -21,7 +21,7 @@ def params(**changes) -> pacing.PacingParams:
 
 
 def run(p: pacing.PacingParams, events, t0: float = 0.0):
-    state = pacing.initial_state(p, t0)
+    state = pacing.initial_state(p, t_wall=t0)
     blocks, logs = [], []
     for event in events:
         state, out = pacing.step(state, event, p)

@@ -180,11 +180,11 @@ def test_wingbeats_of_a_batch_are_those_of_block_by_block() -> None:
     params = wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0)
     datas = _wing_blocks(list(range(0, 3000, BLOCK)) + list(range(3500, 6000, BLOCK)))  # a gap at 3000-3500
     (blocks,), _ = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
-    state, batched = wingbeat.initial_state(), []
+    state, batched = wingbeat.initial_state(params), []
     for start in range(0, len(blocks), 20):   # batches of 20 blocks, as the node serves them
         state, beats = live_view.wingbeat_batch(state, blocks[start:start + 20], len(batched), 2.0, 0.5, True, params)
         batched += beats
-    state, alone = wingbeat.initial_state(), []
+    state, alone = wingbeat.initial_state(params), []
     for data in datas:
         message = cdr.decode(cdr.WING_STATE_BLOCK, data)
         valid = np.logical_and(message["stroke_valid"], message["pitch_valid"])

@@ -230,3 +230,16 @@ def test_no_module_over_600_lines_and_no_node_over_150() -> None:
         if n >= limit + (0 if path.name.endswith("_node.py") else 1):
             long.append(f"{path.relative_to(ROOT)}: {n} lines (limit {limit})")
     assert long == [], "\n".join(long)
+
+
+def test_every_core_starts_from_initial_state_of_its_params() -> None:
+    """One shape: `initial_state(params, *, ...)`, the core's frozen parameters the one positional
+    argument; anything else (a start time, a warm start) by keyword."""
+    shapes = []
+    for path in _source_files(SRC):
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.FunctionDef) and node.name == "initial_state":
+                positional = [a.arg for a in node.args.posonlyargs + node.args.args]
+                if len(positional) != 1 or not positional[0].startswith("p") or node.args.vararg:
+                    shapes.append(f"{path.relative_to(ROOT)}:{node.lineno}: initial_state({', '.join(positional)})")
+    assert shapes == [], "\n".join(shapes)

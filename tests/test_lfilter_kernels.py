@@ -108,7 +108,7 @@ def test_safety_step_matches_the_numpy_stages(ramp_down_s: float) -> None:
     p = safety.SafetyParams(drive_limit_v=100.0, slew_limit_v_per_s=4e5, invalid_timeout_s=0.004,
                             ramp_down_s=ramp_down_s, sample_rate_hz=FS)
     rng = np.random.default_rng(11)
-    state = ref = safety.initial_state(0.0)
+    state = ref = safety.initial_state(p)
     for k in range(60):
         x = rng.standard_normal(10) * 150.0
         x[rng.integers(0, 10)] = [np.nan, np.inf, -np.inf, 0.0][k % 4]

@@ -42,7 +42,7 @@ def closed_loop(duration_s: float, respond: bool = False):
     loop = supervisor_params_from_config(values, model)
     fe_params = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), FS)
     mon_params = replace(collision_monitor_params_from_config(), window_source="stroke")
-    ctrl, plant_state, fe_state = sv.initial_state(loop), plant.initial_state(model, FS), frontend.initial_state(fe_params)
+    ctrl, plant_state, fe_state = sv.initial_state(loop), plant.initial_state(plant.PlantStepParams(model, FS)), frontend.initial_state(fe_params)
     mon = monitor.initial_state(mon_params)
     ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
     ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)

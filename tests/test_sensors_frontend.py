@@ -95,7 +95,7 @@ def test_initial_state_at_rest_voltage_removes_startup_offset(params):
     t, theta, v = _sine_volts(params, 0.3, 140.0, 4000, offset_v=0.04)
     v[:400] = params.reference_voltage_v + 0.04  # wing at rest first
     theta[:400] = 0.0
-    est = fe.estimate(v, v, params, fe.initial_state(params, v[0], v[0]))
+    est = fe.estimate(v, v, params, fe.initial_state(params, first_stroke_v=v[0], first_pitch_v=v[0]))
     assert np.degrees(np.abs(est.stroke_rad - theta)).max() < 0.2
     cold = fe.estimate(v, v, params)
     assert np.degrees(np.abs(cold.stroke_rad - theta)).max() > 0.5
@@ -109,7 +109,7 @@ def test_block_stepping_equals_whole_record(params):
     sv = sv + 1e-3 * rng.standard_normal(sv.size)
     sv[rng.integers(0, sv.size, 30)] = np.nan
     pv[rng.integers(0, pv.size, 10)] = np.inf
-    state0 = fe.initial_state(p, 1.25, 1.26)
+    state0 = fe.initial_state(p, first_stroke_v=1.25, first_pitch_v=1.26)
     whole = fe.step(state0, fe.FrontendInputs(sv, pv), p)[1]
     for sizes in (np.full(601, 10), rng.integers(0, 25, 2000)):
         state, parts, start = state0, [], 0
@@ -137,7 +137,7 @@ def test_block_partition_property(params, sizes, bad, lag):
     t, _, sv = _sine_volts(p, 0.55, 150.0, 600)
     pv = sv[::-1].copy()
     sv[bad] = np.nan
-    state0 = fe.initial_state(p, 1.25, 1.25)
+    state0 = fe.initial_state(p, first_stroke_v=1.25, first_pitch_v=1.25)
     whole = fe.estimate(sv, pv, p, state0)
     state, parts, start = state0, [], 0
     for size in sizes + [sv.size]:

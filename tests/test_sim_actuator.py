@@ -23,7 +23,7 @@ def _drive(state: actuator.ActuatorState, t_wall: float, n_blocks: int, volts: f
 
 
 def test_a_silent_driving_source_is_zeroed_and_the_wing_rings_down_for_ring_down_s() -> None:
-    state = _drive(actuator.initial_state(0.0), 0.0, 100)            # 50 ms of commands: armed
+    state = _drive(actuator.initial_state(PARAMS, t_wall=0.0), 0.0, 100)            # 50 ms of commands: armed
     assert actuator.step(state, actuator.Tick(0.3), PARAMS)[1] == actuator.Outputs()   # not yet silent for > 0.3 s
     state, out = actuator.step(state, actuator.Tick(0.31), PARAMS)  # silent 310 ms: trip, ring-down starts
     assert out.drive_blocks == () and [n.level for n in out.notes] == ["error"]
@@ -45,12 +45,12 @@ def test_a_silent_driving_source_is_zeroed_and_the_wing_rings_down_for_ring_down
 
 def test_a_zero_driving_source_that_falls_silent_is_left_alone() -> None:
     """A source whose last block was zero drive (a controller's goodbye) leaves nothing to zero."""
-    state = _drive(actuator.initial_state(0.0), 0.0, 100)
+    state = _drive(actuator.initial_state(PARAMS, t_wall=0.0), 0.0, 100)
     state = _drive(state, 0.0, 1, volts=0.0)
     assert actuator.step(state, actuator.Tick(5.0), PARAMS)[1] == actuator.Outputs()
 
 
 def test_the_watchdog_waits_until_commands_have_flowed_for_arm_s() -> None:
     """A controller's start-up (its first blocks unanswered until a retry) is not a dead source."""
-    state = _drive(actuator.initial_state(0.0), 0.0, 10)             # 5 ms of commands < arm_s 10 ms
+    state = _drive(actuator.initial_state(PARAMS, t_wall=0.0), 0.0, 10)             # 5 ms of commands < arm_s 10 ms
     assert actuator.step(state, actuator.Tick(5.0), PARAMS)[1] == actuator.Outputs()

@@ -347,7 +347,7 @@ def test_block_stepping_equals_whole_record(model, drive):
     whole = simulate(drive, FS_HZ, m, noise=True, rng=np.random.default_rng(7))
     rng_blocks = np.random.default_rng(3)
     noise_rng = np.random.default_rng(7)
-    state = initial_state(m, FS_HZ)
+    state = initial_state(PlantStepParams(m, FS_HZ))
     parts = []
     start = 0
     while start < DRIVE_N:
@@ -361,7 +361,7 @@ def test_block_stepping_equals_whole_record(model, drive):
 
 
 def test_state_is_immutable_and_checked(model):
-    state = initial_state(model, FS_HZ)
+    state = initial_state(PlantStepParams(model, FS_HZ))
     assert isinstance(state, PlantState)
     new_state, _ = step(state, PlantInputs(np.full(10, 50.0)), PlantStepParams(model, FS_HZ))
     assert np.all(state.mechanical == 0) and np.any(new_state.mechanical != 0)
@@ -375,7 +375,7 @@ def test_state_is_immutable_and_checked(model):
 
 def test_model_may_change_between_blocks(model, drive):
     delayed = with_effects(model, {"sensor_delay": {"delay_s": 4 / FS_HZ}})
-    state, first = step(initial_state(model, FS_HZ), PlantInputs(drive[:1000]), PlantStepParams(model, FS_HZ))
+    state, first = step(initial_state(PlantStepParams(model, FS_HZ)), PlantInputs(drive[:1000]), PlantStepParams(model, FS_HZ))
     state, second = step(state, PlantInputs(drive[1000:2000]), PlantStepParams(delayed, FS_HZ))
     whole = simulate(drive[:2000], FS_HZ, model)
     assert np.array_equal(second.stroke_rad, whole.stroke_rad[1000:])

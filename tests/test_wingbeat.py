@@ -42,7 +42,7 @@ def test_sine_gives_its_amplitude_frequency_and_pitch_amplitude(amplitude_deg, f
 def test_blocks_of_ten_equal_the_whole_record_and_carry_the_latest_slow_values() -> None:
     stroke, pitch, valid = _sines(20.0, 140.0, 30.0, 0.3)
     whole = wingbeat.summarize(stroke, pitch, valid, PARAMS)
-    state, parts = wingbeat.initial_state(), []
+    state, parts = wingbeat.initial_state(PARAMS), []
     for first in range(0, stroke.size, 10):
         score, k_r = first / stroke.size, 1.0 - first / stroke.size
         inputs = wingbeat.WingbeatInputs(first, stroke[first:first + 10], pitch[first:first + 10], valid[first:first + 10],
@@ -71,7 +71,7 @@ def test_invalid_samples_idle_wing_and_gaps_drop_wingbeats() -> None:
     slow, pitch_slow, ok = _sines(20.0, 20.0, 3.0, 0.5)
     assert wingbeat.summarize(slow, pitch_slow, ok, PARAMS).amplitude_deg.size == 0
     # a gap in the stream starts over
-    state, _ = wingbeat.step(wingbeat.initial_state(), wingbeat.WingbeatInputs(0, stroke[:500], pitch[:500], valid[:500],
+    state, _ = wingbeat.step(wingbeat.initial_state(PARAMS), wingbeat.WingbeatInputs(0, stroke[:500], pitch[:500], valid[:500],
                                                                                math.nan, math.nan), PARAMS)
     state, out = wingbeat.step(state, wingbeat.WingbeatInputs(600, stroke[600:900], pitch[600:900], valid[600:900],
                                                               math.nan, math.nan), PARAMS)

@@ -49,7 +49,7 @@ class BridgeNode(Node):
         # (a configured target that never speaks still gets the stop packet at the end)
         self.target: tuple[str, int] | None = (p["target_host"], p["target_port"]) if (
             p["target_host"] and p["target_port"]) else None
-        self.state, self.lock = bridge.initial_state(), threading.RLock()   # re-entered when composed: the loop answers in-process
+        self.state, self.lock = bridge.initial_state(self.params), threading.RLock()   # re-entered when composed: the loop answers in-process
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
         self.events = bridge.EventLog() if p["timing_file"] else None   # raw event times for benchmarks

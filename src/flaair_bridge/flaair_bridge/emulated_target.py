@@ -227,11 +227,11 @@ def main(argv: list[str] | None = None) -> int:
     fs, n = args.sample_rate, args.packet_samples
     core = TargetCore(args.hold_samples, args.drive_limit_v)
     params = plant.PlantStepParams(model, fs)
-    state = plant.initial_state(model, fs)
+    state = plant.initial_state(plant.PlantStepParams(model, fs))
     rng = np.random.default_rng(args.seed) if args.noise else None
     state, _ = plant.step(state, plant.PlantInputs(np.zeros(n), None), params)  # compile before the clock starts
     TargetCore(args.hold_samples, args.drive_limit_v).decide(n)
-    state = plant.initial_state(model, fs)
+    state = plant.initial_state(plant.PlantStepParams(model, fs))
     total = math.ceil(args.duration * fs / n) if args.duration else None
     progress = _progress(total, n / fs)
     stats = {"packets_sent": 0, "send_errors": 0, "overruns": 0, "max_lag_ms": 0.0}

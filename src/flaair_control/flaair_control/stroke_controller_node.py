@@ -51,7 +51,7 @@ class StrokeControllerNode(Node):
         except ValueError as exc:  # the design cannot reach the setpoint, or the limits contradict it
             raise ParameterError(f"parameter 'setpoint_deg' / command limits: {exc}") from exc
         self.guard = safety.SafetyParams(p["drive_limit_v"], p["slew_limit_v_per_s"], p["invalid_timeout_s"], p["ramp_down_s"], self.fs)
-        self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(0.0)
+        self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(self.guard)
         self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = 0, "waiting", time.monotonic(), None, False
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)

@@ -42,7 +42,7 @@ class DriveNode(Node):
         super().__init__(NODE_NAME)
         self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.params = pacing_params_from_config(self.p)
-        self.state = pacing.initial_state(self.params, time.monotonic())
+        self.state = pacing.initial_state(self.params, t_wall=time.monotonic())
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.ack = None
         if self.params.pacing == pacing.LOCKSTEP:

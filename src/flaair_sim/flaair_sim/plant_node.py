@@ -50,8 +50,8 @@ class PlantNode(Node):
         self.model, self.obstacle_model, self.windows_s = plant_models(self.p)
         self.fs_hz, self.block_size = self.p["sample_rate_hz"], self.p["block_size"]
         self.params = actuator_params_from_config(self.p)
-        self.driver = actuator.initial_state(time.monotonic())
-        self.state = plant.initial_state(self.model, self.fs_hz)
+        self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
+        self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
         self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, cdr.FixedCodec(
             cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID), BLOCK_STREAM)

@@ -180,7 +180,7 @@ class Outputs(NamedTuple):
     notes: tuple = ()     # Note
 
 
-def initial_state() -> BridgeState:
+def initial_state(params: BridgeParams) -> BridgeState:
     """State before the first datagram."""
     return BridgeState()
 

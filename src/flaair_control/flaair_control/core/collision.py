@@ -298,7 +298,7 @@ class MonitorEvent(NamedTuple):
     score: float
 
 
-def initial_state(params: MonitorParams, start_index: int = 0) -> MonitorState:
+def initial_state(params: MonitorParams, *, start_index: int = 0) -> MonitorState:
     """Empty monitor whose first sample has absolute index ``start_index`` (time index / fs)."""
     if params.window_source == "drive":
         k = _cycle_of(start_index, params)

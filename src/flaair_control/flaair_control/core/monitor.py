@@ -146,7 +146,7 @@ def lock_step(state: DriveLockState, block: "DriveBlock", p: CollisionMonitorPar
     finder = state.finder
     crossings = state.crossings
     if state.expected_index is None or block.first_sample_index != state.expected_index:
-        finder = col.initial_state(drive_lock_params(p), block.first_sample_index)
+        finder = col.initial_state(drive_lock_params(p), start_index=block.first_sample_index)
         crossings = ()
     drive_v = np.asarray(block.drive_v, dtype=float)
     finder, out = col.step(finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)), drive_lock_params(p))
@@ -266,13 +266,13 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     # The windows start at the lock's crossing, whichever stream is ahead: the verdicts do not
     # depend on how the drive and wing-state blocks interleaved (live and replay agree).
     start = lock.crossing_index
-    monitor = col.initial_state(windows, start)
+    monitor = col.initial_state(windows, start_index=start)
     state = state._replace(windows=windows, monitor=monitor)
     behind = state.history_end - start          # wing samples already received past the crossing
     if state.expected_index is None or behind <= 0:
         return state, MonitorOutputs((), (note,))
     if behind > state.pitch_history_rad.size:   # history too short: start at the wing stream
-        return state._replace(monitor=col.initial_state(windows, state.history_end)), MonitorOutputs((), (note,))
+        return state._replace(monitor=col.initial_state(windows, start_index=state.history_end)), MonitorOutputs((), (note,))
     state, verdicts = _feed(state, monitor, state.stroke_history_rad[-behind:], state.pitch_history_rad[-behind:], p)
     return state, MonitorOutputs(verdicts, (note,))
 
@@ -322,10 +322,10 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     if state.windows is None:
         return state, MonitorOutputs((), tuple(notes))   # drive frequency not known yet
     if monitor is None:
-        monitor = col.initial_state(state.windows, first)
+        monitor = col.initial_state(state.windows, start_index=first)
     skip = monitor.tail_start_index + monitor.tail_stroke_rad.size - first   # > 0: windows start inside/after
     if skip < 0:
-        monitor = col.initial_state(state.windows, first)   # off this stream position: restart here
+        monitor = col.initial_state(state.windows, start_index=first)   # off this stream position: restart here
         skip = 0
     if skip >= stroke.size:
         return state._replace(monitor=monitor), MonitorOutputs((), tuple(notes))

@@ -83,7 +83,7 @@ class SafetyOutput(NamedTuple):
     tripped: bool                # watchdog status at the end of the block
 
 
-def initial_state(t_s: float = 0.0) -> SafetyState:
+def initial_state(params: SafetyParams, *, t_s: float = 0.0) -> SafetyState:
     """Watchdog armed at time ``t_s`` (ok), drive memory 0 V."""
     if not math.isfinite(t_s):
         raise SafetyParameterError(f"t_s must be finite, got {t_s}")

@@ -193,7 +193,7 @@ class Outputs(NamedTuple):
 def initial_state(params: SupervisorParams) -> SupervisorState:
     """Not started; nothing seen."""
     return SupervisorState(WAITING, "", 1.0, 0, None, params.dsa, dsa.initial_state(params.dsa),
-                           safety.initial_state(0.0), CROSSING_START, Counts(), None, 0.0, None, 0, 0.0, 0.0, 0, ())
+                           safety.initial_state(params.safety), CROSSING_START, Counts(), None, 0.0, None, 0, 0.0, 0.0, 0, ())
 
 
 def warm_up(params: SupervisorParams) -> None:
@@ -312,7 +312,7 @@ def _on_wing(state: SupervisorState, block: WingBlock, p: SupervisorParams) -> t
         # target, a real-time plant) counts its samples from its own start. The safety watchdog
         # runs on the drive's timeline: wing block `first` maps to time (first - this index) / fs.
         state = state._replace(first_arrival_wall=block.t_wall, first_arrival_index=first,
-                               safety=safety.initial_state(0.0))
+                               safety=safety.initial_state(p.safety))
         notes.append(Note(INFO, f"loop closed: first wing-state block {first}"))
     n = p.block_size
     field = np.asarray(block.stroke_velocity_deg_s, dtype=float)

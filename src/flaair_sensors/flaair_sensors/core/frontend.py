@@ -251,6 +251,7 @@ _NEVER_BAD = 2**40  # "no unusable sample seen yet" (and the cap of the counter)
 
 def initial_state(
     params: FrontendParams,
+    *,
     first_stroke_v: float | None = None,
     first_pitch_v: float | None = None,
 ) -> FrontendState:

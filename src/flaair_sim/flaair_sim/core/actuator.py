@@ -83,7 +83,8 @@ class ActuatorState(NamedTuple):
     rejected: int
 
 
-def initial_state(t_wall: float) -> ActuatorState:
+def initial_state(params: ActuatorParams, *, t_wall: float) -> ActuatorState:
+    """Nothing commanded yet; the watchdog's clock starts at `t_wall`."""
     return ActuatorState(0, None, t_wall, False, 0, None, (), t_wall, 0)
 
 

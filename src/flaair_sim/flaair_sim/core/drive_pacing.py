@@ -119,7 +119,7 @@ class Outputs(NamedTuple):
     notes: tuple[Note, ...] = ()
 
 
-def initial_state(params: PacingParams, t_wall: float) -> PacingState:
+def initial_state(params: PacingParams, *, t_wall: float) -> PacingState:
     """Nothing sent, nothing acknowledged; the acknowledgement clock starts at `t_wall`."""
     first = params.first_sample_index
     return PacingState(drive=DriveState(), next_index=first, acknowledged_index=first, last_ack_index=-1,

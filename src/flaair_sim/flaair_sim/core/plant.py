@@ -332,10 +332,10 @@ def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
     return np.concatenate([np.zeros(length - hist.shape[0]), hist])
 
 
-def initial_state(model: Model, fs_hz: float) -> PlantState:
-    """At-rest state (phi = phi' = psi = psi' = 0, sensor chain at V_HREF) for `model` at `fs_hz`."""
-    fs = _check_fs(fs_hz)
-    len_s, len_p = prepare(model, fs).delay_lengths
+def initial_state(params: PlantStepParams) -> PlantState:
+    """At-rest state (phi = phi' = psi = psi' = 0, sensor chain at V_HREF) for the model and rate."""
+    fs = _check_fs(params.sample_rate_hz)
+    len_s, len_p = prepare(params.model, fs).delay_lengths
     return PlantState(
         mechanical=_frozen(np.zeros(4)),
         highpass_zi=_frozen(np.zeros(2)),
@@ -441,7 +441,7 @@ def simulate(
     rng
         Random generator used when noise is True.
     """
-    state = initial_state(model, fs_hz)
+    state = initial_state(PlantStepParams(model, fs_hz))
     if noise and rng is None:
         rng = np.random.default_rng()
     _, out = step(state, PlantInputs(drive_v, rng if noise else None), PlantStepParams(model, fs_hz))

@@ -88,7 +88,7 @@ class Wingbeats(NamedTuple):
     k_r: np.ndarray
 
 
-def initial_state() -> WingbeatState:
+def initial_state(params: WingbeatParams) -> WingbeatState:
     """State before any sample: nothing armed, no crossing seen."""
     return WingbeatState(0, False, math.nan, math.nan, -math.inf, math.inf, -math.inf, math.inf, False)
 
@@ -149,7 +149,7 @@ def step(state: WingbeatState, inputs: WingbeatInputs, params: WingbeatParams) -
         raise WingbeatParameterError(f"stroke_deg, pitch_deg and valid must be 1-D of one length, got "
                                      f"{stroke.shape}, {pitch.shape}, {valid.shape}")
     if inputs.first_sample_index != state.next_index:
-        state = initial_state()
+        state = initial_state(params)
     fs = params.sample_rate_hz
     rows, *rest = _scan(
         int(inputs.first_sample_index), stroke, pitch, valid, state.armed, state.last_crossing, state.previous_deg,
@@ -165,7 +165,7 @@ def step(state: WingbeatState, inputs: WingbeatInputs, params: WingbeatParams) -
 def summarize(stroke_deg: np.ndarray, pitch_deg: np.ndarray, valid: np.ndarray, params: WingbeatParams,
               first_sample_index: int = 0) -> Wingbeats:
     """The wingbeats of a whole record: `step` once over it from the initial state."""
-    state = initial_state()._replace(next_index=first_sample_index)
+    state = initial_state(params)._replace(next_index=first_sample_index)
     return step(state, WingbeatInputs(first_sample_index, stroke_deg, pitch_deg, valid, math.nan, math.nan), params)[1]
 
 

@@ -61,7 +61,7 @@ class FoxgloveNode(Node):
             name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode())) for key, stream in live_view.STREAMS.items()}
         self.wingbeat_channel, self.collision_channel = (foxglove.Channel(topic, schema=schema) for topic, schema in (
             (live_view.WINGBEAT_TOPIC, live_view.WINGBEAT_SCHEMA), (live_view.COLLISION_TOPIC, live_view.COLLISION_SCHEMA)))
-        self.state, self.beats, self.score, self.k_r, self.colliding = wingbeat.initial_state(), 0, float("nan"), float("nan"), None
+        self.state, self.beats, self.score, self.k_r, self.colliding = wingbeat.initial_state(self.wingbeat_params), 0, float("nan"), float("nan"), None
         self.latest_ns = self.broadcast_ns = 0
         self.create_timer(p["time_broadcast_period_s"], self.broadcast_time, clock=(steady := Clock(clock_type=ClockType.STEADY_TIME)))
         self.create_timer(p["serve_period_s"], self.serve, clock=steady)  # a stream that stopped

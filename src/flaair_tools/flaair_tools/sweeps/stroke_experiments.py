@@ -95,10 +95,10 @@ def run_closed_loop(exp: Experiment, model: Model, values: dict[str, Any], front
     blocks = int(round(exp.duration_s * fs / n))
     event_block = int(round(exp.event_s * fs / n))
     after = _robot_after(model, exp)
-    p_state = plant.initial_state(model, fs)
+    p_state = plant.initial_state(plant.PlantStepParams(model, fs))
     f_state = frontend.initial_state(fp)
     c_state = stroke.initial_state(params)
-    g_state = safety.initial_state(0.0)
+    g_state = safety.initial_state(guard)
     frequency = CrossingFrequency(fs, values["crossing_hysteresis_deg"])
     keys = ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg", "stroke_velocity_deg_s",
             "stroke_valid", "pitch_valid", "true_stroke_deg", "true_pitch_deg")
