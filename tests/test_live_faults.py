@@ -52,6 +52,13 @@ def test_a_silent_target_is_waited_for_named_then_given_up_with_a_stop_packet_an
                 received.append(target.recvfrom(65536)[0])
             except socket.timeout:
                 pass
+        # live has exited: what it sent last (the stop packet) may still wait unread in the buffer
+        target.setblocking(False)
+        while True:
+            try:
+                received.append(target.recvfrom(65536)[0])
+            except BlockingIOError:
+                break
     finally:
         if live.poll() is None:
             live.kill()

@@ -193,7 +193,10 @@ class Watcher:
     def wait_for_the_target(self) -> None:
         """Once the bridge listens: say where packets are awaited, and give up (SilentTarget) if the
         target's first sensor packet has not come within --first-packet-timeout."""
-        self.spin_until(lambda: self.node.count_publishers(topics.SENSOR_VOLTAGE) > 0, 120.0, "the bridge to start")
+        # the bridge's own publisher (this node advertises the topic too, for the recorder)
+        self.spin_until(lambda: any(info.node_name != self.node.get_name() for info in
+                                    self.node.get_publishers_info_by_topic(topics.SENSOR_VOLTAGE)),
+                        120.0, "the bridge to start")
         (target_host, target_port), (listen_host, listen_port) = self.args.target, self.args.listen
         timeout_s = self.args.first_packet_timeout
         print(f"flaair live: waiting for the target's first sensor packet on {listen_host}:{listen_port} (drive goes "
