@@ -48,6 +48,7 @@ import numpy as np
 from tqdm import tqdm
 
 from flaair_common import topics
+from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml, node_parameters
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import characterization as ch
@@ -63,7 +64,6 @@ from flaair_tools.analysis.per_run import (
     analyze_transition,
     finite_or_none,
     offline_estimate,
-    strict,
 )
 from flaair_tools.analysis.runkind import DriveKind, RecognitionParams, RunKindError, recognise
 from flaair_tools.bagio.runs import RUN_TOPICS, Run, runs_of_bag
@@ -399,7 +399,7 @@ def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True, calibrati
     report["partial"] = [note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])]
     report["headline"] = headline(results)
     report["figures"] = html_report.write_figures(results, plots, out_dir)
-    report = strict(report)
+    report = json_safe(report)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False))
     html_report.write_html(report, out_dir)
     return report

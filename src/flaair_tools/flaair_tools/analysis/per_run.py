@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from flaair_common import topics
+from flaair_common.strictjson import json_safe
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
@@ -16,7 +17,7 @@ from flaair_tools import bagio
 from flaair_tools.analysis.runkind import DriveKind
 from flaair_tools.bagio.runs import Run
 
-__all__ = ["AnalysisError", "finite_or_none", "strict", "offline_estimate", "analyze_sweep", "metric_params", "collision_metric", "analyze_sine", "analyze_free", "first_strike_s", "collision_events", "analyze_collision", "analyze_transition"]
+__all__ = ["AnalysisError", "finite_or_none", "offline_estimate", "analyze_sweep", "metric_params", "collision_metric", "analyze_sine", "analyze_free", "first_strike_s", "collision_events", "analyze_collision", "analyze_transition"]
 
 
 class AnalysisError(ValueError):
@@ -25,23 +26,6 @@ class AnalysisError(ValueError):
 
 def finite_or_none(value: Any) -> float | None:
     return float(value) if value is not None and math.isfinite(value) else None
-
-
-def strict(value: Any) -> Any:
-    """`value` with every non-finite float as None and numpy scalars/arrays as plain Python (strict JSON)."""
-    if isinstance(value, dict):
-        return {str(k): strict(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return strict(value.tolist())
-    if isinstance(value, (np.bool_, bool)):
-        return bool(value)
-    if isinstance(value, (np.integer, int)):
-        return int(value)
-    if isinstance(value, (np.floating, float)):
-        return finite_or_none(float(value))
-    return value
 
 
 def offline_estimate(run: Run, params: frontend.FrontendParams) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +45,7 @@ def _sweep_figures(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, meth
     bands = analysis_bands_from_config()
     result = ch.characterize(bode, drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track,
                              amplitude_band_hz=bands.amplitude_band_hz, time_band_hz=bands.time_band_hz)
-    figures = {name: strict(dict(metrics.__dict__)) for name, metrics in (("stroke", result.stroke), ("pitch", result.pitch))}
+    figures = {name: json_safe(dict(metrics.__dict__)) for name, metrics in (("stroke", result.stroke), ("pitch", result.pitch))}
     return bode, figures
 
 
@@ -92,7 +76,7 @@ def analyze_sweep(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, metho
             fitted[name]["gain_deg_per_v"] = finite_or_none(gains[name]["gain_deg_per_v"])
             fitted[name]["sensor_lag_s"] = finite_or_none(gains[name]["lag_s"])
             out[name] = fitted[name]
-    out["bode"] = {name: strict({k: v for k, v in getattr(bode, name).__dict__.items() if isinstance(v, np.ndarray)})
+    out["bode"] = {name: json_safe({k: v for k, v in getattr(bode, name).__dict__.items() if isinstance(v, np.ndarray)})
                    for name in ("stroke", "pitch")}
     return out, bode
 
@@ -118,11 +102,11 @@ def analyze_sine(run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, kind: 
     out["frequency_hz"] = kind.frequency_hz
     for name in ("stroke", "pitch"):
         cb = getattr(bode, name)
-        out[f"{name}_at_frequency"] = strict({"sensor_amplitude_deg": cb.sensor_amplitude_deg[0], "truth_amplitude_deg": cb.truth_amplitude_deg[0],
+        out[f"{name}_at_frequency"] = json_safe({"sensor_amplitude_deg": cb.sensor_amplitude_deg[0], "truth_amplitude_deg": cb.truth_amplitude_deg[0],
                                               "phase_error_deg": ch.wrap_deg(cb.sensor_phase_deg[0] - cb.truth_phase_deg[0])})
     try:
         metric = collision_metric(pitch_est, run.sample_rate_hz, float(kind.frequency_hz))
-        out["collision_metric"] = strict({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
+        out["collision_metric"] = json_safe({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
                                           "collision": bool(metric.collision), "threshold_deg": metric_params().threshold_deg})
     except ValueError as exc:
         out["collision_metric"] = {"error": str(exc)}
@@ -140,7 +124,7 @@ def analyze_free(run: Run, stroke_est: np.ndarray) -> dict[str, Any]:
         x = x - x.mean()
         spectrum = np.abs(np.fft.rfft(x * np.hanning(x.size)))
         peak = int(np.argmax(spectrum[1:])) + 1
-        out[name] = strict({"frequency_hz": peak * run.sample_rate_hz / x.size, "amplitude_deg": np.sqrt(2) * np.std(x)})
+        out[name] = json_safe({"frequency_hz": peak * run.sample_rate_hz / x.size, "amplitude_deg": np.sqrt(2) * np.std(x)})
     return out
 
 
@@ -175,7 +159,7 @@ def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarr
         except ValueError as exc:
             out["runs"][run.name] = {"error": str(exc)}
             continue
-        out["runs"][run.name] = strict({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
+        out["runs"][run.name] = json_safe({"spectrum_rmse_deg": metric.spectral_rmse_deg, "time_rmse_deg": metric.time_rmse_deg,
                                         "collision": bool(metric.collision)})
         figure["runs"][run.name] = (metric, np.degrees(pitch), run.sample_rate_hz)
     events = collision_events(contents)
@@ -190,7 +174,7 @@ def analyze_collision(runs: list[Run], est: dict[str, tuple[np.ndarray, np.ndarr
                                 float(plant.get("obstacle_stroke_limit_deg", np.inf)))
         onset = next((e for e in events if e["kind"] == "onset" and e["time_s"] >= float(window[0])), None)
         clearance = next((e for e in events if e["kind"] == "clearance" and e["time_s"] >= float(window[1])), None)
-        out["obstacle"] = strict({
+        out["obstacle"] = json_safe({
             "window_s": [float(window[0]), float(window[1])], "first_strike_s": strike,
             "onset_s": onset["time_s"] if onset else None, "clearance_s": clearance["time_s"] if clearance else None,
             "detection_latency_wingbeats": (onset["time_s"] - strike) * drive_hz if onset and strike is not None else None,
@@ -229,7 +213,7 @@ def analyze_transition(contents: bagio.BagContents, final_window_s: float = 0.5)
     dropped = record.kr < record.kr[0] - 1e-9
     ramp_start = float(kr_time_s[np.argmax(dropped)]) if dropped.any() else end_s
     initial = tr.window_stats(result.time_s, result.frequency_hz, float(time_s[0]), ramp_start)
-    out = strict({"resonance_hz": resonance_hz, "initial_frequency_hz": initial.mean, "final_frequency_hz": final.mean,
+    out = json_safe({"resonance_hz": resonance_hz, "initial_frequency_hz": initial.mean, "final_frequency_hz": final.mean,
                   "final_frequency_spread_hz": final.std, "final_amplitude_deg": final_amplitude.mean,
                   "final_amplitude_spread_deg": final_amplitude.std, "final_k_r": float(record.kr[-1])})
     return out, (record, result, resonance_hz)
