@@ -164,7 +164,7 @@ class CrossingParams(NamedTuple):
 class CrossingState(NamedTuple):
     """Crossing estimator state."""
 
-    index: int                         # absolute index of the next sample
+    next_index: int                    # absolute index of the next sample
     high: bool
     prev: float | None                 # previous finite sample (None after a NaN)
     crossings: tuple[float, ...]       # fractional sample indices, the last average + 1
@@ -188,7 +188,7 @@ CROSSING_START = CrossingState(0, False, None, ())
 def crossing_step(state: CrossingState, x: Iterable[float], params: CrossingParams) -> tuple[CrossingState, float]:
     """Feed samples (one block); return the new state and the frequency estimate (Hz)."""
     h = params.hysteresis
-    high, prev, i = state.high, state.prev, state.index
+    high, prev, i = state.high, state.prev, state.next_index
     crossings = list(state.crossings)
     keep = params.average + 1
     for v in (x.tolist() if isinstance(x, np.ndarray) else x):
@@ -213,7 +213,7 @@ def crossing_step(state: CrossingState, x: Iterable[float], params: CrossingPara
 def crossing_frequency_hz(state: CrossingState, params: CrossingParams) -> float:
     """The estimate: periods over the crossings kept (0 once the stroke stops crossing)."""
     c = state.crossings
-    if len(c) < 2 or state.index - c[-1] > params.max_period_s * params.sample_rate_hz:
+    if len(c) < 2 or state.next_index - c[-1] > params.max_period_s * params.sample_rate_hz:
         return 0.0
     return (len(c) - 1) * params.sample_rate_hz / (c[-1] - c[0])
 
