@@ -106,7 +106,9 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     text, deadline = "", time.monotonic() + 120.0
     while not re.search(r" [1-9]\d?%\|", text) and time.monotonic() < deadline and process.poll() is None:
         text += process.stderr.read(1)
-    assert re.search(r" [1-9]\d?%\|", text), f"the run did not get going: {text[-500:]!r}"
+    if not re.search(r" [1-9]\d?%\|", text):   # say why: the experiment's own last words, if it ended
+        rest = process.stderr.read() if process.poll() is not None else ""
+        raise AssertionError(f"the run did not get going (exit {process.poll()}): {(text + rest)[-1500:]!r}")
     return process, domain, bag
 
 
