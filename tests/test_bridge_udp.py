@@ -49,13 +49,18 @@ def samples(blocks: list[dict], field: str) -> tuple[np.ndarray, np.ndarray]:
     return index, np.concatenate([np.asarray(b[field], dtype=float) for b in blocks])
 
 
-def tripped_for(target_log: Path, applied: Path, n_samples: int) -> bool:
-    """The target's watchdog is tripped, and has been for `n_samples` of the drive it applied since."""
-    if not target_watchdog_tripped(target_log):
-        return False
+def tripped_for(target_log: Path, counters: Path, n_samples: int) -> bool:
+    """The target's watchdog is tripped, and has been for `n_samples` of the target's own clock since.
+
+    Producer-side: the target's periodic counters (its sample count, its watchdog state now, its
+    trip count) against the trip its log names, not what an echo happened to receive.
+    """
     trips = re.findall(r"drive watchdog tripped at sample (\d+)", target_log.read_text())
-    after = [b for b in lines(applied) if b["first_sample_index"] >= int(trips[-1])]
-    return sum(len(b["drive_v"]) for b in after) >= n_samples and target_watchdog_tripped(target_log)
+    if not trips or not target_watchdog_tripped(target_log) or not counters.exists():
+        return False
+    now = json.loads(counters.read_text())
+    return (now["watchdog_tripped_now"] and now["watchdog_trips"] == len(trips)
+            and now["samples"] - int(trips[-1]) >= n_samples)
 
 
 def start_graph(procs, tmp_path: Path, port: int, *bridge_args: str, echo_count: int = 0):
@@ -152,10 +157,10 @@ def test_killed_drive_source_leaves_the_target_zeroed_by_its_watchdog_and_sigter
         assert wait_for(lambda: sum(max(map(abs, b["drive_v"])) > 10.0 for b in lines(applied)) >= 200, 120)
         procs.stop(drive, signal.SIGKILL)                                    # no goodbye, no zero block
         target_log = tmp_path / "target.log"
-        # tripped, and still tripped 0.5 s of applied samples later: a load stall of the bridge can trip
-        # the target before the drive source's last blocks reach it (the bridge re-anchors a late
+        # tripped, and still tripped 0.5 s of the target's clock later: a load stall of the bridge can
+        # trip the target before the drive source's last blocks reach it (the bridge re-anchors a late
         # source's blocks ahead of the target's clock); those clear it, then it trips again
-        assert wait_for(lambda: tripped_for(target_log, applied, 10_000), 50), target_log.read_text()
+        assert wait_for(lambda: tripped_for(target_log, tmp_path / "target.json", 10_000), 50), target_log.read_text()
         # the target's stop counter must come from the bridge's SIGTERM, so read the watchdog state first
         procs.stop(emulator, signal.SIGINT, timeout_s=60)
         before_stop = json.loads((tmp_path / "target.json").read_text())

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import select
 import signal
 import socket
@@ -183,7 +184,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--model", default=shared["model_file"] or None, help="plant model YAML [config/model.yaml]")
     parser.add_argument("--noise", action=argparse.BooleanOptionalAction, default=shared["noise"], help="sensor noise")
     parser.add_argument("--seed", type=int, default=shared["noise_seed"], help="noise seed [%(default)s]")
-    parser.add_argument("--counters", help="also write the counters (strict JSON) to this file")
+    parser.add_argument("--counters", help="also write the counters (strict JSON) to this file: once a second "
+                        "of signal while running (\"final\": false), and at exit")
     parser.add_argument("--realtime-priority", type=int, default=shared["realtime_priority"],
                         help="SCHED_FIFO priority of the target's loop, 0: normal scheduling (a real target is "
                              "hardware of its own; on a shared machine this keeps its clock) [%(default)s]")
@@ -262,6 +264,14 @@ def main(argv: list[str] | None = None) -> int:
           f"+-{args.drive_limit_v:g} V", file=sys.stderr, flush=True)
     t0 = time.monotonic()
     j = 0
+    snapshot_every = max(1, round(fs / n))
+
+    def counters(final: bool) -> dict:
+        """What the target counted so far; `final` once it has stopped."""
+        return {**core.counts, **stats, "samples": core.next_index, "sample_rate_hz": fs, "packet_samples": n,
+                "wall_s": time.monotonic() - t0, "stopped": not core.armed and core.counts["stop_packets"] > 0,
+                "watchdog_tripped_now": core.tripped, "final": final,
+                "watchdog_tripped_at_exit": core.tripped if final else None, "applied_v_at_exit": core.applied_v if final else None}
     while not stop_requested and (total is None or j <= total):
         due = t0 + j * n / fs
         while (remaining := due - time.monotonic()) > 0 and not stop_requested:
@@ -289,16 +299,22 @@ def main(argv: list[str] | None = None) -> int:
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
         j += 1
         progress(1)
+        if args.counters and j % snapshot_every == 0:   # the counters so far, once a second of signal
+            _write_atomically(args.counters, json.dumps(counters(final=False), allow_nan=False))
     sock.close()
-    counters = {**core.counts, **stats, "samples": core.next_index, "sample_rate_hz": fs, "packet_samples": n,
-                "wall_s": time.monotonic() - t0, "stopped": not core.armed and core.counts["stop_packets"] > 0,
-                "watchdog_tripped_at_exit": core.tripped, "applied_v_at_exit": core.applied_v}
-    text = json.dumps(counters, allow_nan=False)
+    text = json.dumps(counters(final=True), allow_nan=False)
     print(text, flush=True)
     if args.counters:
-        with open(args.counters, "w", encoding="utf-8") as handle:
-            handle.write(text + "\n")
+        _write_atomically(args.counters, text)
     return 0
+
+
+def _write_atomically(path: str, text: str) -> None:
+    """Replace `path` whole, so a reader never sees half a file."""
+    partial = f"{path}.partial"
+    with open(partial, "w", encoding="utf-8") as handle:
+        handle.write(text + "\n")
+    os.replace(partial, path)
 
 
 def _progress(total: int | None, period_s: float):
