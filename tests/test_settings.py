@@ -40,3 +40,39 @@ def test_a_missing_or_mistyped_key_is_named(tmp_path: Path, monkeypatch, edit, m
         settings.live()
         settings.bridge()
     assert str(path) in str(error.value)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s.pop("kr_target"), "dsa_controller_node.kr_target: missing"),
+    (lambda s: s.update(kr_target="fast"), "dsa_controller_node.kr_target: must be float, got 'fast'"),
+    (lambda s: s.update(collision_response="panic"), "collision_response: 'panic' is not one of"),
+])
+def test_a_node_section_is_checked_against_the_node_schema(tmp_path: Path, monkeypatch, edit, message) -> None:
+    from flaair_control.control_io import DSA_CONTROLLER_PARAMS, dsa_controller_values
+    from flaair_model.schema import ParameterError
+
+    assert dsa_controller_values()["kr_target"] == settings.node_section(DSA_CONTROLLER_PARAMS, "dsa_controller_node")[
+        "kr_target"]
+    shutil.copytree(config_dir(), tmp_path / "config")
+    path = tmp_path / "config" / "flaair.yaml"
+    document = yaml.safe_load(path.read_text())
+    edit(document["dsa_controller_node"]["ros__parameters"])
+    path.write_text(yaml.safe_dump(document))
+    monkeypatch.setenv("FLAAIR_CONFIG_DIR", str(tmp_path / "config"))
+    with pytest.raises(ParameterError, match=message):
+        dsa_controller_values()
+
+
+def test_a_value_outside_its_range_is_refused_with_the_range(tmp_path: Path, monkeypatch) -> None:
+    from flaair_control.control_io import COLLISION_MONITOR_PARAMS, collision_monitor_values
+    from flaair_model.schema import ParameterError
+
+    spec = next(s for s in COLLISION_MONITOR_PARAMS if s.type is float and s.max_value is not None)
+    shutil.copytree(config_dir(), tmp_path / "config")
+    path = tmp_path / "config" / "flaair.yaml"
+    document = yaml.safe_load(path.read_text())
+    document["collision_monitor_node"]["ros__parameters"][spec.name] = spec.max_value * 2 + 1
+    path.write_text(yaml.safe_dump(document))
+    monkeypatch.setenv("FLAAIR_CONFIG_DIR", str(tmp_path / "config"))
+    with pytest.raises(ParameterError, match=f"collision_monitor_node.{spec.name}: .* is outside"):
+        collision_monitor_values()

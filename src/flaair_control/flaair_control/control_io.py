@@ -14,14 +14,14 @@ from typing import Any, Mapping
 import numpy as np
 
 from flaair_control.core import collision as col
-from flaair_control.core import dsa, monitor, safety
+from flaair_control.core import dsa, monitor, safety, stroke
 from flaair_control.core import supervisor as sv
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
-from flaair_model.config import node_parameters
 from flaair_model.model import Model
 from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.settings import node_section
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
 
 CONFIG_FILE = "flaair.yaml"
@@ -103,9 +103,24 @@ def _fields(values: Mapping[str, Any], specs: list[ParamSpec], skip: tuple[str, 
     return {s.name: values[s.name] for s in specs if s.name not in skip}
 
 
+def collision_monitor_values() -> dict[str, Any]:
+    """collision_monitor_node's values in config/flaair.yaml, checked against its schema."""
+    return node_section(COLLISION_MONITOR_PARAMS, "collision_monitor_node", CONFIG_FILE)
+
+
+def dsa_controller_values() -> dict[str, Any]:
+    """dsa_controller_node's values in config/flaair.yaml, checked against its schema."""
+    return node_section(DSA_CONTROLLER_PARAMS, "dsa_controller_node", CONFIG_FILE)
+
+
+def stroke_controller_values() -> dict[str, Any]:
+    """stroke_controller_node's values in config/flaair.yaml, checked against its schema."""
+    return node_section(stroke.NODE_PARAMS, "stroke_controller_node", CONFIG_FILE)
+
+
 def collision_monitor_params_from_config(values: Mapping[str, Any] | None = None) -> CollisionMonitorParams:
     """The monitor core's parameters from collision_monitor_node values (default: config/flaair.yaml)."""
-    values = node_parameters(CONFIG_FILE, "collision_monitor_node") if values is None else values
+    values = collision_monitor_values() if values is None else values
     try:
         return CollisionMonitorParams(**_fields(values, COLLISION_MONITOR_PARAMS))
     except col.CollisionParameterError as exc:

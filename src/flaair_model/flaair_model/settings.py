@@ -1,6 +1,8 @@
 """Typed accessors of config/flaair.yaml for the tools that read a section not their own.
 
-A node reads its own section through its `ParamSpec` schema (typed, ranged). A tool that needs
+A node reads its own section through its `ParamSpec` schema (typed, ranged); offline code that
+needs a node's values (replay, the stroke study, a node's own I/O helpers) reads them through
+`node_section` with that same schema, so they are checked as the running node checks them. A tool that needs
 another section's values (the shared stream settings, the bridge's lead, `live`'s own settings)
 reads them here, each section through one function returning a frozen dataclass: a missing key
 or a value of the wrong type is a `ConfigError` naming the file, section and key.
@@ -13,9 +15,10 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from flaair_model.config import ConfigError, config_dir, node_parameters, shared_parameters
+from flaair_model.schema import ParameterError, ParamSpec
 
 __all__ = ["StreamSettings", "LiveSettings", "BridgeSettings", "MonitorSettings", "ControllerSettings",
-           "stream", "live", "bridge", "monitor", "controller", "read_section"]
+           "stream", "live", "bridge", "monitor", "controller", "read_section", "node_section"]
 
 CONFIG_FILE = "flaair.yaml"
 T = TypeVar("T")
@@ -110,3 +113,39 @@ def monitor() -> MonitorSettings:
 
 def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
+
+
+def node_section(specs: list[ParamSpec], section: str, file_name: str = CONFIG_FILE) -> dict[str, Any]:
+    """A node's values from `section` of config/`file_name`, checked against its `specs` as the node
+    checks them (type, range, choices), plus the shared `/**` values it inherits.
+
+    Raises
+    ------
+    ParameterError
+        Naming the file, section and parameter when one is missing or refused.
+    """
+    try:
+        values = dict(node_parameters(file_name, section))
+    except ConfigError as exc:
+        raise ParameterError(str(exc)) from exc
+    for spec in specs:
+        where = f"{config_dir() / file_name}: {section}.{spec.name}"
+        if spec.name not in values:
+            raise ParameterError(f"{where}: missing")
+        value = values[spec.name]
+        try:
+            if spec.type is list:
+                if not isinstance(value, list):
+                    raise ConfigError(f"{where}: must be a list of numbers, got {value!r}")
+                value = [_convert(v, float, where) for v in value]
+            else:
+                value = _convert(value, spec.type, where)
+        except ConfigError as exc:
+            raise ParameterError(str(exc)) from exc
+        if spec.type in (int, float) and ((spec.min_value is not None and value < spec.min_value)
+                                          or (spec.max_value is not None and value > spec.max_value)):
+            raise ParameterError(f"{where}: {value!r} is outside [{spec.min_value}, {spec.max_value}]")
+        if spec.choices and value not in spec.choices:
+            raise ParameterError(f"{where}: {value!r} is not one of {', '.join(spec.choices)}")
+        values[spec.name] = value
+    return values

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from typing import Mapping
 
-from flaair_model.config import ConfigError, load_yaml, node_parameters
+from flaair_model.config import ConfigError, load_yaml
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.settings import node_section
 from flaair_sensors.core import frontend
 
 NODE_NAME = "frontend_node"
@@ -35,13 +36,15 @@ FRONTEND_PARAMS = [
 _TUNING = frontend.TUNING_FIELDS
 
 
+def frontend_values() -> dict:
+    """frontend_node's values in config/flaair.yaml, checked against its schema."""
+    return node_section(FRONTEND_PARAMS, NODE_NAME, CONFIG_FILE)
+
+
 def frontend_tuning_from_config(values: Mapping | None = None) -> dict:
     """The front end's tuning fields (filters, rails, hold-off) from frontend_node values
     (default: config/flaair.yaml), for offline tools that build their own FrontendParams."""
-    try:
-        values = node_parameters(CONFIG_FILE, NODE_NAME) if values is None else values
-    except ConfigError as exc:
-        raise ParameterError(str(exc)) from exc
+    values = frontend_values() if values is None else values
     missing = [name for name in _TUNING if name not in values]
     if missing:
         raise ParameterError(f"config/{CONFIG_FILE} {NODE_NAME}: missing {', '.join(missing)}")
@@ -72,8 +75,8 @@ def velocity_delay_s(frequency_hz: float, values: Mapping | None = None) -> floa
     ``values``: the frontend_node parameter values (default: its config/flaair.yaml section).
     """
     try:
-        values = node_parameters(CONFIG_FILE, NODE_NAME) if values is None else values
-    except ConfigError as exc:
+        values = frontend_values() if values is None else values
+    except ParameterError as exc:
         raise ParameterError(f"the frontend_node config is needed for its velocity delay: {exc}") from exc
     params = frontend_params_from_config(values, values["sample_rate_hz"])
     return float(frontend.estimate_delay_s(params, frequency_hz)["stroke_velocity_s"])

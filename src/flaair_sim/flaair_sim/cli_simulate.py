@@ -19,11 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from flaair_common.runcsv import RunFileError, read_run, write_run
-from flaair_model.config import ConfigError, node_parameters
+from flaair_model.config import ConfigError
+from flaair_model.schema import ParameterError
+from flaair_model.settings import node_section
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_sim.core.measured_run import synthesize_measured_run
 from flaair_sim.core.plant import simulate
+from flaair_sim.plant_io import PLANT_PARAMS
 
 CONFIG_FILE = "flaair.yaml"
 LIMIT_SECTION = "plant_node"  # the plant clamps its drive to this section's drive_limit_v
@@ -49,12 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         limit_v = args.drive_limit_v
         if limit_v is None:
-            limit_v = float(node_parameters(CONFIG_FILE, LIMIT_SECTION)["drive_limit_v"])
+            limit_v = float(node_section(PLANT_PARAMS, LIMIT_SECTION, CONFIG_FILE)["drive_limit_v"])
         if not (np.isfinite(limit_v) and limit_v > 0):
             raise ModelError(f"drive_limit_v must be a finite voltage > 0, got {limit_v}")
         run = read_run(args.input, required=("time_s", "drive_v"))
         model = load_model(args.model)
-    except (RunFileError, ModelError, ConfigError, OSError, KeyError) as exc:
+    except (RunFileError, ModelError, ConfigError, ParameterError, OSError, KeyError) as exc:
         print(f"flaair simulate: {exc}", file=sys.stderr)
         return 2
     drive_v, over = clamp_drive(run["drive_v"], limit_v)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from flaair_model.config import node_parameters
 from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.settings import node_section
 from flaair_sim.core import drive
 from flaair_sim.core.drive_pacing import PACINGS, PacingParams
 
@@ -42,7 +42,7 @@ DRIVE_NODE_PARAMS = [
 
 def pacing_params_from_config(values: Mapping[str, Any] | None = None) -> PacingParams:
     """The pacing core's parameters from drive_node values (default: config/flaair.yaml)."""
-    values = node_parameters(CONFIG_FILE, NODE_NAME) if values is None else values
+    values = node_section(DRIVE_NODE_PARAMS, NODE_NAME, CONFIG_FILE) if values is None else values
     missing = [s.name for s in DRIVE_NODE_PARAMS if s.name not in values]
     if missing:
         raise ParameterError(f"missing parameter(s): {', '.join(missing)}")

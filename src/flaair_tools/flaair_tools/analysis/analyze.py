@@ -49,8 +49,8 @@ from tqdm import tqdm
 
 from flaair_common import topics
 from flaair_common.strictjson import json_safe
-from flaair_model.config import ConfigError, load_yaml, node_parameters
-from flaair_sensors.analysis_io import analysis_bands_from_config
+from flaair_model.config import ConfigError, load_yaml
+from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_tuning_from_config
@@ -112,7 +112,7 @@ EXPERIMENT_RUN_KIND = {"chirp": "chirp", "stepped_sine": "stepped_sine", "collis
 
 def settings() -> tuple[RecognitionParams, dict[str, Any]]:
     """Drive recognition thresholds and the other analysis settings (config/flaair.yaml analyze)."""
-    values = node_parameters("flaair.yaml", "analyze")
+    values = analysis_values()
     return RecognitionParams.from_mapping(values), values
 
 

@@ -17,6 +17,7 @@ from typing import Any, Iterator
 from flaair_common import cdr, topics
 from flaair_control.control_io import (
     collision_monitor_params_from_config,
+    dsa_controller_values,
     monitor_drive_input,
     monitor_wing_input,
     supervisor_params_from_config,
@@ -24,7 +25,6 @@ from flaair_control.control_io import (
 )
 from flaair_control.core import monitor
 from flaair_control.core import supervisor as sv
-from flaair_model.config import node_parameters
 from flaair_model.model import Model
 from flaair_tools import bagio
 
@@ -67,7 +67,7 @@ def replay_controller(bag: Path, model: Model, values: dict[str, Any] | None = N
     The start (peers seen, start delay passed) is replayed as two ticks; then every recorded
     wing-state block in order. Wall-clock watchdogs do not trip offline.
     """
-    values = dict(node_parameters("flaair.yaml", "dsa_controller_node") if values is None else values)
+    values = dict(dsa_controller_values() if values is None else values)
     params = replace(supervisor_params_from_config(values, model), run_time_s=0.0, watchdog_timeout_s=1e9)
     state = sv.initial_state(params)
     out: list[sv.DriveOut] = []

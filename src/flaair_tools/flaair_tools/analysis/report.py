@@ -180,9 +180,9 @@ def _verdict(bag: dict[str, Any], headline: dict[str, Any], factor: float) -> st
 
 def write_html(report: dict[str, Any], out_dir: Path, json_name: str = "report.json") -> Path:
     """DIR/report.html: one self-contained file (figures embedded), linking report.json."""
-    from flaair_model.config import node_parameters
+    from flaair_sensors.analysis_io import analysis_values
 
-    factor = float(node_parameters("flaair.yaml", "analyze")["verdict_rmse_factor"])
+    factor = float(analysis_values()["verdict_rmse_factor"])
     images = {f["file"]: base64.b64encode((out_dir / f["file"]).read_bytes()).decode("ascii")
               for f in report["figures"] if (out_dir / f["file"]).exists()}
     html = _environment().get_template(TEMPLATE).render(

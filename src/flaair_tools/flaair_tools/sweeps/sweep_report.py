@@ -9,13 +9,15 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
-from flaair_model.config import config_dir, node_parameters
+from flaair_control.control_io import stroke_controller_values
+from flaair_model.config import config_dir
 from flaair_model.model_io import load_model
+from flaair_sensors.frontend_io import frontend_values
 from flaair_tools.sweeps import sweep
 
 
 def _values() -> dict[str, Any]:
-    return node_parameters("flaair.yaml", "stroke_controller_node")
+    return stroke_controller_values()
 
 
 def _tasks_section(config: Path) -> dict[str, Any]:
@@ -215,7 +217,7 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
     from flaair_tools.sweeps import stroke_experiments as se
     section = sweep.load_section(config, "stroke_experiments")
     values = _values()
-    frontend_values = node_parameters("flaair.yaml", "frontend_node")
+    frontend_section = frontend_values()
     model = load_model()
     beats = wingbeat.WingbeatParams(float(values["sample_rate_hz"]), float(values["crossing_hysteresis_deg"]),
                                     float(values["min_wingbeat_hz"]), float(values["max_wingbeat_hz"]))
@@ -228,7 +230,7 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
         if bag.exists():
             import shutil
             shutil.rmtree(bag)
-        se.write_bag(bag, exp, se.run_closed_loop(exp, model, values, frontend_values))
+        se.write_bag(bag, exp, se.run_closed_loop(exp, model, values, frontend_section))
         results.append(se.analyse_bag(bag, float(section["settle_band_deg"]), int(section["steady_wingbeats"]), beats))
     stroke_figure(results, args.out / "stroke_experiments.png")
     sweep.write_json(args.out / "stroke.json", {"experiments": results, "targets": {
