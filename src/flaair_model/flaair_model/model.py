@@ -1,17 +1,33 @@
-"""Model parameters: nominal plant, sensors, noise and the optional effects.
+"""Model parameters: nominal plant, sensors, noise, and the effects a robot carries.
 
 Frozen dataclasses, SI units, validated on construction (numpy only, no file I/O: see
-`model_io`). The numbers live in `config/model.yaml`; this module holds none of them.
-Effect parameter defaults are those fixed by docs/ARCHITECTURE.md.
+`model_io`). The numbers live in `config/model.yaml`; this module holds none of them. The
+effects themselves (their parameters, kernel terms, channels, fit and draw ranges) are
+declared once in `flaair_model.effects`; this module builds and combines them in a `Model`.
 """
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, fields, is_dataclass, replace
 from typing import Any, Mapping, Union
 
+from flaair_model.effects import (
+    EFFECT_NAMES,
+    EFFECT_TYPES,
+    PER_CHANNEL_EFFECTS,
+    ChargeAmpHighpass,
+    Collision,
+    Effect,
+    Feedthrough,
+    HingeStiffening,
+    SensorDelay,
+    StrainTransferLoss,
+    StructuralDamping,
+    TransmissionNonlinearity,
+    WingDamage,
+)
 from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
+from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
 
 __all__ = [
     "EFFECT_NAMES",
@@ -43,49 +59,6 @@ __all__ = [
     "without_effects",
 ]
 
-CHANNELS = ("stroke", "pitch", "both")
-SIDES = ("stroke", "pitch")  # the two sensor chains
-
-
-class ModelError(ValueError):
-    """Invalid model: the message names the offending parameter, key or section."""
-
-
-# --------------------------------------------------------------------------- validation
-
-
-def _number(where: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ModelError(f"{where} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ModelError(f"{where} must be finite, got {value}")
-    return value
-
-
-def _check(obj: object, prefix: str, rules: Mapping[str, str]) -> None:
-    """Coerce each float field to float and check it against its rule.
-
-    Rules: "pos" (> 0), "nonneg" (>= 0), "finite", "nonzero", "unit" (in (0, 1]).
-    """
-    for name, rule in rules.items():
-        where = f"{prefix}.{name}"
-        value = _number(where, getattr(obj, name))
-        if rule == "pos" and not value > 0:
-            raise ModelError(f"{where} must be > 0, got {value:g}")
-        if rule == "nonneg" and not value >= 0:
-            raise ModelError(f"{where} must be >= 0, got {value:g}")
-        if rule == "nonzero" and value == 0:
-            raise ModelError(f"{where} must be nonzero, got {value:g}")
-        if rule == "unit" and not 0 < value <= 1:
-            raise ModelError(f"{where} must be in (0, 1], got {value:g}")
-        object.__setattr__(obj, name, value)
-
-
-def _check_channel(obj: object, prefix: str) -> None:
-    channel = getattr(obj, "channel")
-    if channel not in CHANNELS:
-        raise ModelError(f"{prefix}.channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
 
 
 # --------------------------------------------------------------------------- nominal model
@@ -107,7 +80,7 @@ class PlantParams:
     transmission_ratio_rad_per_m: float
 
     def __post_init__(self) -> None:
-        _check(
+        check_fields(
             self,
             "plant",
             {
@@ -149,7 +122,7 @@ class SensorParams:
     pitch: SensorBeam
 
     def __post_init__(self) -> None:
-        _check(self, "sensors", {"reference_voltage_v": "finite"})
+        check_fields(self, "sensors", {"reference_voltage_v": "finite"})
         for section, obj, kind, rules in (
             ("pvdf", self.pvdf, PvdfMaterial, _MATERIAL_RULES),
             ("stroke", self.stroke, SensorBeam, _BEAM_RULES),
@@ -158,7 +131,7 @@ class SensorParams:
             if not isinstance(obj, kind):
                 raise ModelError(f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
             # PvdfMaterial/SensorBeam are frozen dataclasses owned by pvdf.py: check, don't coerce
-            values = {name: _number(f"sensors.{section}.{name}", getattr(obj, name)) for name in rules}
+            values = {name: check_number(f"sensors.{section}.{name}", getattr(obj, name)) for name in rules}
             for name, value in values.items():
                 if not value > 0:
                     raise ModelError(f"sensors.{section}.{name} must be > 0, got {value:g}")
@@ -187,144 +160,7 @@ class NoiseParams:
     tracking_noise_deg_rms: float
 
     def __post_init__(self) -> None:
-        _check(self, "noise", {"sensor_noise_v_rms": "nonneg", "tracking_noise_deg_rms": "nonneg"})
-
-
-# --------------------------------------------------------------------------- effects
-
-
-@dataclass(frozen=True)
-class SensorDelay:
-    """Pure delay of the sensor voltage; fractional samples by linear interpolation."""
-
-    delay_s: float
-    channel: str = "both"
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.sensor_delay", {"delay_s": "nonneg"})
-        _check_channel(self, "effects.sensor_delay")
-
-
-@dataclass(frozen=True)
-class ChargeAmpHighpass:
-    """First-order high-pass (bilinear) of the charge-amplifier output about V_HREF."""
-
-    corner_hz: float
-    channel: str = "both"
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.charge_amp_highpass", {"corner_hz": "pos"})
-        _check_channel(self, "effects.charge_amp_highpass")
-
-
-@dataclass(frozen=True)
-class Feedthrough:
-    """Drive voltage added to the stroke-sensor output: gain * V."""
-
-    gain_v_per_v: float
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.feedthrough", {"gain_v_per_v": "finite"})
-
-
-@dataclass(frozen=True)
-class TransmissionNonlinearity:
-    """Actuator sensor sees delta_a = (phi + c phi^3) / T_r; the dynamics are unchanged."""
-
-    cubic_per_rad2: float
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.transmission_nonlinearity", {"cubic_per_rad2": "finite"})
-
-
-@dataclass(frozen=True)
-class HingeStiffening:
-    """Hinge torque k_h (psi + c psi^3)."""
-
-    cubic_per_rad2: float
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.hinge_stiffening", {"cubic_per_rad2": "finite"})
-
-
-@dataclass(frozen=True)
-class StructuralDamping:
-    """Viscous stroke damping 2 zeta sqrt(K I) (nominal I, so independent of wing_damage)."""
-
-    damping_ratio: float
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.structural_damping", {"damping_ratio": "nonneg"})
-
-
-@dataclass(frozen=True)
-class StrainTransferLoss:
-    """Sensor film sees `efficiency` x beam strain: the voltage deviation is scaled."""
-
-    efficiency: float
-    channel: str = "pitch"
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.strain_transfer_loss", {"efficiency": "unit"})
-        _check_channel(self, "effects.strain_transfer_loss")
-
-
-@dataclass(frozen=True)
-class Collision:
-    """One-sided stiff spring-damper stop when stroke exceeds `stroke_limit_deg`.
-
-    Contact stiffness = ratio x K; contact damping = 2 zeta sqrt(k_c I) (nominal I).
-    The contact only pushes (no sticking).
-    """
-
-    stroke_limit_deg: float
-    contact_stiffness_ratio: float = 50.0
-    contact_damping_ratio: float = 0.2
-
-    def __post_init__(self) -> None:
-        _check(
-            self,
-            "effects.collision",
-            {"stroke_limit_deg": "finite", "contact_stiffness_ratio": "pos", "contact_damping_ratio": "nonneg"},
-        )
-
-
-@dataclass(frozen=True)
-class WingDamage:
-    """Stroke and pitch inertia scaled by `inertia_factor`; stiffnesses (and J_c) unchanged."""
-
-    inertia_factor: float
-
-    def __post_init__(self) -> None:
-        _check(self, "effects.wing_damage", {"inertia_factor": "unit"})
-
-
-Effect = Union[
-    SensorDelay,
-    ChargeAmpHighpass,
-    Feedthrough,
-    TransmissionNonlinearity,
-    HingeStiffening,
-    StructuralDamping,
-    StrainTransferLoss,
-    Collision,
-    WingDamage,
-]
-
-EFFECT_TYPES: dict[str, type] = {
-    "sensor_delay": SensorDelay,
-    "charge_amp_highpass": ChargeAmpHighpass,
-    "feedthrough": Feedthrough,
-    "transmission_nonlinearity": TransmissionNonlinearity,
-    "hinge_stiffening": HingeStiffening,
-    "structural_damping": StructuralDamping,
-    "strain_transfer_loss": StrainTransferLoss,
-    "collision": Collision,
-    "wing_damage": WingDamage,
-}
-EFFECT_NAMES: tuple[str, ...] = tuple(EFFECT_TYPES)
-# Effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
-PER_CHANNEL_EFFECTS: tuple[str, ...] = tuple(n for n, k in EFFECT_TYPES.items() if "channel" in {f.name for f in fields(k)})
+        check_fields(self, "noise", {"sensor_noise_v_rms": "nonneg", "tracking_noise_deg_rms": "nonneg"})
 
 
 @dataclass(frozen=True)

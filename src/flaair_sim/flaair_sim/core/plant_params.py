@@ -1,5 +1,8 @@
 """The plant's parameter vector: how a `Model` (with its effects) becomes the numbers the kernels read.
 
+Each effect's kernel terms come from its entry in the effect table (`flaair_model.effects`);
+this module only says where each term lands in the vector.
+
 `prepare(model, fs_hz)` maps the model's parameters and effects to one float vector (layout:
 the `P_*` indices) plus the RK4 substep counts and the sensor delays; the numba kernels in
 `flaair_sim.core.plant` read only that vector, so a batch of robots is a matrix of such rows.
@@ -11,9 +14,9 @@ from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.signal import butter
 
-from flaair_model.model import Model, ModelError
+from flaair_model.effects import EFFECTS, TermContext
+from flaair_model.model import SIDES, Model, ModelError
 
 __all__ = [
     "MAX_OMEGA_H",
@@ -92,19 +95,35 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
     return whole, (0.0 if frac < 1e-9 else frac)
 
 
+# Where each kernel term of the effect table (flaair_model.effects) lands in the vector.
+_PLANT_INDEX = {
+    "structural_damping_nm_s_per_rad": P_CSTRUCT, "hinge_cubic_per_rad2": P_HCUBIC, "contact_on": CONTACT_ON_INDEX,
+    "stroke_limit_rad": P_PHI_LIM, "contact_stiffness_nm_per_rad": P_KC, "contact_damping_nm_s_per_rad": P_CC,
+    "transmission_cubic_per_rad2": P_TCUBIC, "feedthrough_v_per_v": P_FT,
+}
+_SCALE_INDEX = {"inertia_factor": (P_I, P_IP)}
+_SENSOR_INDEX = {   # per chain: (stroke, pitch)
+    "highpass_b0": (P_HPS_B0, P_HPP_B0), "highpass_b1": (P_HPS_B1, P_HPP_B1), "highpass_a1": (P_HPS_A1, P_HPP_A1),
+    "gain_factor": (P_GS, P_GP),
+}
+_HIGHPASS_ON = (P_HPS_ON, P_HPP_ON)
+_DELAY_FRACTION = (P_DS_FRAC, P_DP_FRAC)
+
+
 @lru_cache(maxsize=4096)  # a 1000-model batch fits
 def prepare(model: Model, fs_hz: float) -> Prepared:
-    """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached)."""
+    """Numeric parameter vector and integer settings of `model` at `fs_hz` (cached).
+
+    The nominal plant and sensor gains first; then each effect the model carries writes the
+    kernel terms its entry in `flaair_model.effects.EFFECTS` computes.
+    """
     pl = model.plant
     p = np.zeros(N_KERNEL_PARAMS)
     inertia = pl.stroke_inertia_kg_m2
     stiffness = pl.stroke_stiffness_nm_per_rad
-    pitch_inertia = pl.pitch_inertia_kg_m2
     hinge_stiffness = pl.hinge_stiffness_nm_per_rad
-    damage = model.effect("wing_damage")
-    factor = damage.inertia_factor if damage is not None else 1.0
-    p[P_I] = inertia * factor
-    p[P_IP] = pitch_inertia * factor
+    p[P_I] = inertia
+    p[P_IP] = pl.pitch_inertia_kg_m2
     p[P_GAMMA] = pl.aero_damping_nm_s2
     p[P_K] = stiffness
     p[GA_INDEX] = pl.actuator_gain_nm_per_v
@@ -112,46 +131,35 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     p[P_KH] = hinge_stiffness
     p[P_JC] = pl.inertial_coupling_kg_m2
     p[P_DP] = pl.aero_coupling_nm_s2
-    structural = model.effect("structural_damping")
-    if structural is not None:
-        p[P_CSTRUCT] = 2.0 * structural.damping_ratio * math.sqrt(stiffness * inertia)
-    hinge = model.effect("hinge_stiffening")
-    if hinge is not None:
-        p[P_HCUBIC] = hinge.cubic_per_rad2
-    collision = model.effect("collision")
-    if collision is not None:
-        p[CONTACT_ON_INDEX] = 1.0
-        p[P_PHI_LIM] = math.radians(collision.stroke_limit_deg)
-        p[P_KC] = collision.contact_stiffness_ratio * stiffness
-        p[P_CC] = 2.0 * collision.contact_damping_ratio * math.sqrt(p[P_KC] * inertia)
-
-    # sensor chains: each effect with a `channel` may hold its own value per chain (model.effect_on)
-    gains = {"stroke": model.stroke_volts_per_rad, "pitch": model.pitch_volts_per_rad}
-    delay_int = [0, 0]
-    for i, (which, hp_base, frac_index) in enumerate((("stroke", P_HPS_ON, P_DS_FRAC), ("pitch", P_HPP_ON, P_DP_FRAC))):
-        loss = model.effect_on("strain_transfer_loss", which)
-        if loss is not None:
-            gains[which] *= loss.efficiency
-        highpass = model.effect_on("charge_amp_highpass", which)
-        if highpass is not None:
-            if not highpass.corner_hz < fs_hz / 2:
-                raise ModelError(
-                    f"effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = {fs_hz / 2:g}, got {highpass.corner_hz:g}"
-                )
-            b, a = butter(1, highpass.corner_hz, btype="highpass", fs=fs_hz)
-            b, a = b / a[0], a / a[0]
-            p[hp_base : hp_base + 4] = (1.0, b[0], b[1], a[1])
-        delay = model.effect_on("sensor_delay", which)
-        if delay is not None:
-            delay_int[i], p[frac_index] = _split_delay(delay.delay_s * fs_hz)
-    p[P_GS], p[P_GP] = gains["stroke"], gains["pitch"]
-    nonlinearity = model.effect("transmission_nonlinearity")
-    if nonlinearity is not None:
-        p[P_TCUBIC] = nonlinearity.cubic_per_rad2
-    feed = model.effect("feedthrough")
-    if feed is not None:
-        p[P_FT] = feed.gain_v_per_v
+    p[P_GS], p[P_GP] = model.stroke_volts_per_rad, model.pitch_volts_per_rad
     p[P_VREF] = model.sensors.reference_voltage_v
+
+    context = TermContext(inertia, stiffness, fs_hz)
+    delay_int = [0, 0]
+    for entry in EFFECTS:
+        if model.effect(entry.name) is None:
+            continue
+        sides = [(i, model.effect_on(entry.name, side)) for i, side in enumerate(SIDES)] if entry.per_sensor \
+            else [(None, model.effect(entry.name))]
+        for i, effect in sides:
+            if effect is None:
+                continue
+            for term, value in entry.terms(effect, context).items():
+                if i is None and term in _PLANT_INDEX:
+                    p[_PLANT_INDEX[term]] = value
+                elif i is None and term in _SCALE_INDEX:
+                    for index in _SCALE_INDEX[term]:
+                        p[index] *= value
+                elif i is not None and term == "delay_samples":
+                    delay_int[i], p[_DELAY_FRACTION[i]] = _split_delay(value)
+                elif i is not None and term in _SENSOR_INDEX:
+                    index = _SENSOR_INDEX[term][i]
+                    p[index] = p[index] * value if term == "gain_factor" else value
+                    if term.startswith("highpass_"):
+                        p[_HIGHPASS_ON[i]] = 1.0
+                else:
+                    raise ModelError(f"effects.{entry.name}: kernel term {term!r} is not one the plant knows "
+                                     f"({'per sensor chain' if i is not None else 'plant-wide'})")
 
     rates = [
         math.sqrt(stiffness / p[P_I]),
@@ -161,7 +169,7 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     ]
     substeps = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H))
     substeps_contact = substeps
-    if collision is not None:
+    if p[CONTACT_ON_INDEX] > 0:
         rates += [math.sqrt((stiffness + p[P_KC]) / p[P_I]), p[P_CC] / p[P_I]]
         substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
     p.setflags(write=False)

@@ -49,6 +49,7 @@ from typing import Sequence
 import numpy as np
 from scipy import signal
 
+from flaair_model.effects import EFFECTS, ENTRIES
 from flaair_model.model import Model, with_effects
 from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_sim.core.measured_run import synthesize_measured_run
@@ -59,6 +60,7 @@ from .workflow import DiscrepancyResult
 
 __all__ = [
     "FS_HZ",
+    "random_effect",
     "FULL_DRIVE_V",
     "OUTSIDE_KINDS",
     "DatasetCase",
@@ -484,35 +486,22 @@ COEFFICIENT_SPREAD = 0.15
 _FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
 _COEFFICIENTS = ("aero_damping_nm_s2", "actuator_gain_nm_per_v", "hinge_damping_nm_s_per_rad",
                  "inertial_coupling_kg_m2", "aero_coupling_nm_s2")
-_SEPARABLE = ("sensor_delay", "charge_amp_highpass", "feedthrough", "transmission_nonlinearity",
-              "strain_transfer_loss", "hinge_stiffening", "structural_damping", "collision")
+_SEPARABLE = tuple(e.name for e in EFFECTS if e.separable)
 
 
-def _random_effect(name: str, rng: np.random.Generator) -> dict:
-    """One effect at a random strength (inside the range the run set can resolve)."""
+def random_effect(name: str, rng: np.random.Generator) -> dict:
+    """One effect at a random strength, from its draw ranges in the effect table (inside the range
+    the run set can resolve)."""
+    entry = ENTRIES[name]
     side = str(rng.choice(["stroke", "pitch", "both"]))
     sign = float(rng.choice([-1.0, 1.0]))
-    if name == "sensor_delay":
-        return {"delay_s": float(rng.uniform(30e-6, 300e-6)), "channel": side}
-    if name == "charge_amp_highpass":
-        return {"corner_hz": float(rng.uniform(2.0, 15.0)), "channel": side}
-    if name == "feedthrough":
-        return {"gain_v_per_v": sign * float(rng.uniform(0.002, 0.008))}
-    if name == "transmission_nonlinearity":
-        return {"cubic_per_rad2": sign * float(rng.uniform(0.2, 0.6))}
-    if name == "strain_transfer_loss":
-        return {"efficiency": float(rng.uniform(0.2, 0.8)), "channel": side}
-    if name == "hinge_stiffening":
-        return {"cubic_per_rad2": float(rng.uniform(0.5, 4.0))}
-    if name == "structural_damping":
-        return {"damping_ratio": float(rng.uniform(0.02, 0.08))}
-    if name == "collision":
-        return {"stroke_limit_deg": float(rng.uniform(25.0, 40.0)),
-                "contact_stiffness_ratio": float(np.exp(rng.uniform(np.log(20.0), np.log(200.0)))),
-                "contact_damping_ratio": float(rng.uniform(0.1, 0.5))}
-    if name == "wing_damage":
-        return {"inertia_factor": float(rng.uniform(0.75, 0.95))}
-    raise KeyError(name)
+    params: dict = {}
+    for r in entry.draw:
+        value = float(np.exp(rng.uniform(np.log(r.low), np.log(r.high)))) if r.log else float(rng.uniform(r.low, r.high))
+        params[r.key] = sign * value if r.signed else value
+    if entry.per_sensor:
+        params["channel"] = side
+    return params
 
 
 def random_robot(family: str, draw: int) -> DatasetCase:
@@ -539,11 +528,11 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     names = list(EFFECT_NAMES_ORDER)
     if family == "offnominal_single":
         name = names[draw % len(names)]
-        pair = (name, _random_effect(name, rng))
+        pair = (name, random_effect(name, rng))
         hidden, effects = ((pair,), ()) if name == "wing_damage" else ((), (pair,))
     elif family == "offnominal_pair":
         a, b = rng.choice(len(_SEPARABLE), size=2, replace=False)
-        effects = tuple((n, _random_effect(n, rng)) for n in (_SEPARABLE[a], _SEPARABLE[b]))
+        effects = tuple((n, random_effect(n, rng)) for n in (_SEPARABLE[a], _SEPARABLE[b]))
     elif family == "offnominal_outside":
         outside = ("sensor_gain_drift", "second_resonance")[draw % 2]
         strength = float(rng.uniform(0.2, 0.4) if outside == "sensor_gain_drift" else rng.uniform(0.1, 0.2))

@@ -1,11 +1,11 @@
-"""The effect vocabulary: each effect registered once (parameters, channels, fit specification).
+"""The effect vocabulary: the search's view of the effect table (`flaair_model.effects`).
 
-`VOCABULARY` is the one table: for every effect the channels it changes, the channels it is
-searched on, every parameter with its bounds and starting grid (effects with several
-parameters are fitted whole: collision's stop, contact stiffness and contact damping), the
-fitted plant parameters it trades off against (fitted jointly with it) and whether it can be
-told apart from a change of those plant parameters at all. `candidate_groups` turns it into the
-parameter sets the search fits.
+`VOCABULARY` is read from the effect table, where each effect is declared once: the channels it
+changes, the channels it is searched on, every parameter with its bounds and starting grid
+(effects with several parameters are fitted whole: collision's stop, contact stiffness and
+contact damping), the fitted plant parameters it trades off against (fitted jointly with it) and
+whether it can be told apart from a change of those plant parameters at all.
+`candidate_groups` turns it into the parameter sets the search fits.
 """
 from __future__ import annotations
 
@@ -13,13 +13,16 @@ import math
 from dataclasses import dataclass, replace
 from typing import Optional
 
-import numpy as np
-
+from flaair_model.effects import (
+    EFFECTS,
+    MEASURED_CHANNELS,
+    SENSOR_CHANNELS,
+    TRUTH_CHANNELS,
+    FitParam,
+)
 from flaair_model.model import Model
 
-CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
-TRUTH_CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg")
-SENSOR_CHANNELS: tuple[str, ...] = ("stroke_sensor_v", "pitch_sensor_v")
+CHANNELS: tuple[str, ...] = MEASURED_CHANNELS
 STATUSES: tuple[str, ...] = ("no_discrepancy", "explained", "unexplained")
 # Truth channel upstream of each sensor channel, and the model-channel name of the sensors.
 UPSTREAM_TRUTH = {"stroke_sensor_v": "stroke_deg", "pitch_sensor_v": "pitch_deg"}
@@ -103,22 +106,13 @@ class EffectSpec:
         return abs(value) if math.isinf(self.null) else abs(value - self.null)
 
 
-@dataclass(frozen=True)
-class Param:
-    """One parameter of a vocabulary effect: key, null value, bounds, grid, FD step, log fit."""
-
-    key: str
-    null: float
-    lower: float
-    upper: float
-    grid: tuple[float, ...] = ()
-    step: float = 1e-4
-    log: bool = False
+# One fittable parameter of an effect: the effect table's fit specification.
+Param = FitParam
 
 
 @dataclass(frozen=True)
 class VocabularyEntry:
-    """One effect of the vocabulary, registered once.
+    """One effect of the vocabulary, as the search sees it (built from its `EffectEntry`).
 
     Attributes
     ----------
@@ -142,36 +136,9 @@ class VocabularyEntry:
     note: str = ""
 
 
-VOCABULARY: tuple[VocabularyEntry, ...] = (
-    VocabularyEntry("sensor_delay", SENSOR_CHANNELS, SENSOR_CHANNELS,
-                    (Param("delay_s", 0.0, 0.0, 2e-3, (0.0, 1e-4, 3e-4, 1e-3), 2e-7),), per_sensor=True),
-    VocabularyEntry("charge_amp_highpass", SENSOR_CHANNELS, SENSOR_CHANNELS,
-                    (Param("corner_hz", 0.0, 0.05, 100.0, tuple(np.geomspace(0.3, 100.0, 6)), 1e-3, log=True),),
-                    per_sensor=True),
-    VocabularyEntry("feedthrough", ("stroke_sensor_v",), ("stroke_sensor_v",),
-                    (Param("gain_v_per_v", 0.0, -0.05, 0.05, (), 1e-5),)),
-    VocabularyEntry("transmission_nonlinearity", ("stroke_sensor_v",), ("stroke_sensor_v",),
-                    (Param("cubic_per_rad2", 0.0, -3.0, 3.0, (), 1e-3),)),
-    VocabularyEntry("strain_transfer_loss", SENSOR_CHANNELS, SENSOR_CHANNELS,
-                    (Param("efficiency", 1.0, 0.01, 1.0, (), 1e-4),), per_sensor=True),
-    VocabularyEntry("hinge_stiffening", ("pitch_deg", "pitch_sensor_v"), ("pitch_deg",),
-                    (Param("cubic_per_rad2", 0.0, -1.0, 50.0, (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0), 1e-3),),
-                    trades_off=("pitch_natural_frequency_hz", "hinge_damping_nm_s_per_rad", "inertial_coupling_kg_m2",
-                                "aero_coupling_nm_s2")),
-    VocabularyEntry("structural_damping", CHANNELS, TRUTH_CHANNELS,
-                    (Param("damping_ratio", 0.0, 0.0, 1.0, (0.0, 0.01, 0.03, 0.1, 0.3), 1e-4),),
-                    trades_off=("aero_damping_nm_s2", "actuator_gain_nm_per_v", "stroke_natural_frequency_hz")),
-    VocabularyEntry("collision", CHANNELS, TRUTH_CHANNELS,
-                    (Param("stroke_limit_deg", math.inf, 1.0, 90.0, tuple(np.arange(6.0, 62.0, 4.0)), 0.02),
-                     Param("contact_stiffness_ratio", 50.0, 2.0, 2000.0, (), 1e-3, log=True),
-                     Param("contact_damping_ratio", 0.2, 0.01, 2.0, (), 1e-3, log=True)),
-                    trades_off=("aero_damping_nm_s2", "actuator_gain_nm_per_v", "stroke_natural_frequency_hz")),
-    VocabularyEntry("wing_damage", CHANNELS, TRUTH_CHANNELS,
-                    (Param("inertia_factor", 1.0, 0.3, 1.0, (0.5, 0.7, 0.85, 0.95, 1.0), 1e-4),),
-                    separable=False,
-                    note="scaling the wing inertia equals raising both natural frequencies and scaling the "
-                         "damping, gain and coupling coefficients, all of which are fitted plant parameters"),
-)
+VOCABULARY: tuple[VocabularyEntry, ...] = tuple(
+    VocabularyEntry(e.name, e.acts_on, e.searched_on, e.fit, e.per_sensor, e.trades_off, e.separable, e.note)
+    for e in EFFECTS)
 ENTRIES: dict[str, VocabularyEntry] = {e.name: e for e in VOCABULARY}
 # Which measured channels each effect can possibly change (the model's structure).
 EFFECT_CHANNELS: dict[str, tuple[str, ...]] = {e.name: e.acts_on for e in VOCABULARY}
