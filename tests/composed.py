@@ -30,17 +30,15 @@ import yaml
 
 from flaair_common import intra, topics
 from flaair_common.graph import lease_domain
+from flaair_tools.orchestration.graphs import GRAPHS, component_modules
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FS_HZ = 20000.0
 BLOCK = 10
 # The block streams composed nodes hand each other in-process (everything `live` composes).
-LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.WING_STATE_TRUTH,
-                topics.CONTROLLER_STATE)
+LOCAL_TOPICS = GRAPHS["lockstep_loop"].local_topics
 # Node modules whose `time.monotonic` / `time.sleep` the fake clock replaces.
-NODE_MODULES = ("flaair_control.dsa_controller_node", "flaair_sim.plant_node", "flaair_sensors.frontend_node",
-                "flaair_control.collision_monitor_node", "flaair_sim.drive_node",
-                "flaair_control.stroke_controller_node")
+NODE_MODULES = component_modules()
 
 
 class FakeClock:

@@ -14,12 +14,12 @@ from pathlib import Path
 import pytest
 
 from flaair_common.intra import Bus, CallbackProfile
+from flaair_tools.orchestration.graphs import GRAPHS
 from rosproc import ros_processes, wait_for
 
 FS_HZ = 20000.0
 BLOCK = 10
-NODES = ("flaair_sim.plant_node:PlantNode", "flaair_sensors.frontend_node:FrontendNode",
-         "flaair_control.dsa_controller_node:DsaControllerNode")
+NODES = tuple(node.component for node in GRAPHS["lockstep_loop"].nodes())   # the declared loop
 PROFILE = re.compile(r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call")
 
 

@@ -21,21 +21,21 @@ from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
 from flaair_tools.orchestration.experiment import (
-    NODE_EXECUTABLES,
     ExperimentError,
     ExperimentSpec,
+    experiment_roles,
     load_experiments,
     robot_effects,
     run_experiment,
 )
+from flaair_tools.orchestration.graphs import node_of
 
 
 def missing_nodes(spec: ExperimentSpec) -> list[str]:
     """Executables an experiment needs that are not built."""
-    roles = ["plant", "frontend", "recorder", *spec.nodes, "controller" if spec.controller else "drive"]
     missing = []
-    for role in roles:
-        package, executable = NODE_EXECUTABLES[role]
+    for role in experiment_roles(spec):
+        package, executable = node_of(role).package, node_of(role).executable
         try:
             prefix = Path(get_package_prefix(package))
         except PackageNotFoundError:

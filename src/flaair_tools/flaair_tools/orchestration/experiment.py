@@ -44,16 +44,15 @@ from flaair_model import settings
 from flaair_model.config import ConfigError, config_dir, load_yaml
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
+from flaair_tools.orchestration.graphs import GRAPHS, node_of
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
-NODE_EXECUTABLES = {
-    "plant": ("flaair_sim", "plant_node"),
-    "drive": ("flaair_sim", "drive_node"),
-    "frontend": ("flaair_sensors", "frontend_node"),
-    "collision_monitor": ("flaair_control", "collision_monitor_node"),
-    "controller": ("flaair_control", "dsa_controller_node"),
-    "recorder": ("flaair_tools", "recorder_node"),
-}
+GRAPH = GRAPHS["experiment"]   # recorder, plant (lockstep), front end; a spec adds its nodes and driver
+
+
+def experiment_roles(spec: ExperimentSpec) -> tuple[str, ...]:
+    """Every node `spec` runs, in start order: the graph's, the spec's own, then its driver."""
+    return (*GRAPH.roles, *spec.nodes, "controller" if spec.controller else "drive")
 
 
 class ExperimentError(RuntimeError):
@@ -145,9 +144,9 @@ def ros_args(parameters: dict[str, Any]) -> list[str]:
 
 def start_node(graph: Graph, role: str, parameters: dict[str, Any]) -> subprocess.Popen:
     """Start one of the experiment's nodes on `graph`, its log in the graph's log directory."""
-    package, executable = NODE_EXECUTABLES[role]
+    node = node_of(role)
     try:
-        argv = node_argv(package, executable)
+        argv = node_argv(node.package, node.executable)
     except GraphError as exc:
         raise ExperimentError(str(exc)) from exc
     return graph.start(role, [*argv, *ros_args(parameters)])
@@ -218,13 +217,15 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
-        recorder = start_node(graph, "recorder", {"output_path": str(out)})
-        plant = {"mode": "lockstep", "noise": noise, **spec.plant}
+        plant: dict[str, Any] = {"noise": noise, **spec.plant}
         if not nominal and robot_effects():
             plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml", robot_effects()))
-        start_node(graph, "plant", plant)
-        start_node(graph, "frontend", {"gains_from": "calibration", "calibration_file": str(calibration_file)}
-                    if calibration_file is not None else {})
+        run_parameters: dict[str, dict[str, Any]] = {
+            "recorder": {"output_path": str(out)}, "plant": plant,
+            "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
+            if calibration_file is not None else {}}
+        started = {role: start_node(graph, role, {**GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})})
+                   for role in GRAPH.roles}
         for role in spec.nodes:
             start_node(graph, role, {})
         # Nothing may flow before every consumer listens: a reliable volatile publisher drops
@@ -303,7 +304,7 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         settle_until = time.monotonic() + 1.0
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
         total_blocks = runner.sensor_end_index // block_size
-        graph.stop(recorder, timeout_s=60.0)
+        graph.stop(started["recorder"], timeout_s=60.0)
     finally:
         graph.close()
         runner.destroy_node()

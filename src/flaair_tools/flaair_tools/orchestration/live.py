@@ -52,20 +52,17 @@ from flaair_common.graph import (
 )
 from flaair_model import settings
 from flaair_model.config import ConfigError
+from flaair_tools.orchestration.graphs import GRAPHS, GraphDecl, node_of
 
-HOT_NODES = {
-    "bridge": ("flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
-    "plant": ("flaair_sim", "plant_node", "flaair_sim.plant_node:PlantNode"),
-    "frontend": ("flaair_sensors", "frontend_node", "flaair_sensors.frontend_node:FrontendNode"),
-    "controller": ("flaair_control", "dsa_controller_node", "flaair_control.dsa_controller_node:DsaControllerNode"),
-}
-LOCAL_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH,
-                topics.CONTROLLER_STATE)
-SIDE_NODES = {
-    "collision_monitor": ("flaair_control", "collision_monitor_node"),
-    "recorder": ("flaair_tools", "recorder_node"),
-    "foxglove": ("flaair_tools", "foxglove_node"),
-}
+
+def live_graph(args: argparse.Namespace) -> GraphDecl:
+    """The declared graph this run brings up (graphs.GRAPHS: live_sim or live_target)."""
+    return GRAPHS["live_sim" if args.sim else "live_target"]
+
+
+def _argv(role: str, ros_args: list[str]) -> list[str]:
+    node = node_of(role)
+    return node_argv(node.package, node.executable, ros_args)
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
@@ -120,9 +117,9 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         sections["dsa_controller_node"]["state_every_blocks"] = live.dds_batch_blocks
         # the loop starts once the recorder is matched on every stream, not only on /flaair/drive
         sections["dsa_controller_node"]["min_stream_listeners"] = 1 if args.out is not None else 0
-    if args.sim:
-        sections["plant_node"] = {"mode": "realtime", "noise": True}
-    else:
+    for role, overrides in live_graph(args).parameters.items():
+        sections.setdefault(node_of(role).node_name, {}).update(overrides)
+    if not args.sim:
         (target_host, target_port), (listen_host, listen_port) = args.target, args.listen
         lead = args.lead_samples if args.lead_samples is not None else settings.bridge().lead_samples
         sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port, "target_host": target_host,
@@ -255,11 +252,12 @@ def run_live(args: argparse.Namespace) -> int:
     params_file.parent.mkdir(parents=True, exist_ok=True)
     params_file.write_text(yaml.safe_dump(node_parameters_for(args), sort_keys=False))
     ros_args = ["--ros-args", "--params-file", str(params_file)]
-    control = ["controller"] if args.controller == "dsa" else []
-    # The plant first, closed last: the controller's zero block reaches it. The bridge last: its
-    # socket opens once the front end and the controller have loaded their kernels (the target's
-    # packets would queue up meanwhile), and its stop packet zeroes the target when it closes.
-    hot = ["plant", "frontend", *control] if args.sim else ["frontend", *control, "bridge"]
+    declared = live_graph(args)
+    # In the declared order: the plant first, closed last (the controller's zero block reaches it);
+    # the bridge last: its socket opens once the front end and the controller have loaded their
+    # kernels (the target's packets would queue up meanwhile), and its stop packet zeroes the target
+    # when it closes.
+    hot = [role for role in declared.hot if role != "controller" or args.controller == "dsa"]
     print(f"flaair live: {'simulated robot (real-time plant)' if args.sim else f'target {args.target[0]}:{args.target[1]}'}"
           f", loop {'composed in one process' if not args.processes else 'one process per node'}, on "
           f"{graph.describe()}; logs in {log_dir}", file=sys.stderr)
@@ -274,24 +272,24 @@ def run_live(args: argparse.Namespace) -> int:
         # Off the hot path, each in a process of its own: the loop's interpreter is for the loop, and
         # the monitor keeps the C++ events executor (the recorder needs the single-threaded one)
         if args.out is not None:
-            recorder_process = graph.start("recorder", node_argv(*SIDE_NODES["recorder"], ros_args[1:]))
-        graph.start("collision_monitor", node_argv(*SIDE_NODES["collision_monitor"], ros_args[1:]))
+            recorder_process = graph.start("recorder", _argv("recorder", ros_args[1:]))
+        graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
         if args.foxglove is not None:
-            graph.start("foxglove", node_argv(*SIDE_NODES["foxglove"], ros_args[1:]))
+            graph.start("foxglove", _argv("foxglove", ros_args[1:]))
             print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
                   "(layout: config/foxglove_layout.json)", file=sys.stderr)
         watcher = Watcher(graph, args)
         watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
         time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
         if args.processes:
-            loop += [graph.start(role, node_argv(*HOT_NODES[role][:2], ros_args[1:])) for role in hot]
+            loop += [graph.start(role, _argv(role, ros_args[1:])) for role in hot]
         else:
             batch = settings.live().dds_batch_blocks
             priority = 0 if args.sim else settings.bridge().realtime_priority
             loop.append(graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
-                                             ",".join(LOCAL_TOPICS), "--dds-batch", str(batch),
+                                             ",".join(declared.local_topics), "--dds-batch", str(batch),
                                              "--realtime-priority", str(priority),
-                                             *(HOT_NODES[role][2] for role in hot), *ros_args]))
+                                             *(node_of(role).component for role in hot), *ros_args]))
         watcher.run_for_duration()
         status, silent = "duration reached", None
     except KeyboardInterrupt:

@@ -37,6 +37,7 @@ from flaair_tools.analysis.transition import (
     predicted_limit_cycle,
     transition_record,
 )
+from flaair_tools.orchestration.graphs import GRAPHS
 
 # --------------------------------------------------------------------------- closed-loop experiment
 
@@ -44,7 +45,7 @@ from flaair_tools.analysis.transition import (
 def run_closed_loop(start: Callable[..., subprocess.Popen], duration_s: float, controller_args: Sequence[str] = (),
                     sample_rate_hz: float = 20000.0, block_size: int = 10, timeout_s: float = 600.0,
                     ) -> tuple[list[dict], list[dict]]:
-    """Run plant (lockstep) + front end + dSA controller for ``duration_s`` of signal time.
+    """Run the declared lockstep loop (plant, front end, dSA controller) for ``duration_s`` of signal time.
 
     ``start(*flaair_args, stdout=...)`` starts ``bin/flaair <args>`` (tests pass
     ``rosproc.Processes.flaair``); the caller owns and stops the processes. Returns the echoed
@@ -58,10 +59,14 @@ def run_closed_loop(start: Callable[..., subprocess.Popen], duration_s: float, c
                             "--count", str(n_blocks), "--timeout", str(timeout_s), stdout=ws_file)
             echo_cs = start("topic", "echo", "/flaair/controller/state", "flaair_msgs/msg/ControllerState",
                             "--count", str(n_blocks), "--timeout", str(timeout_s), stdout=cs_file)
-            start("run", "flaair_sim", "plant_node", "--ros-args", "-p", "mode:=lockstep")
-            start("run", "flaair_sensors", "frontend_node")
-            start("run", "flaair_control", "dsa_controller_node", "--ros-args",
-                  "-p", f"run_time_s:={duration_s + 4 * block_size / sample_rate_hz}", *controller_args)
+            loop = GRAPHS["lockstep_loop"]
+            extra = {"controller": ["-p", f"run_time_s:={duration_s + 4 * block_size / sample_rate_hz}",
+                                    *controller_args]}
+            for node in loop.nodes():
+                declared = [arg for key, value in loop.parameters.get(node.role, {}).items()
+                            for arg in ("-p", f"{key}:={value}")]
+                ros_args = [*declared, *extra.get(node.role, [])]
+                start("run", node.package, node.executable, *(["--ros-args", *ros_args] if ros_args else []))
             echo_ws.wait(timeout=timeout_s + 30)
             try:   # the states come with the blocks; under load a few may still be in flight
                 echo_cs.wait(timeout=10)

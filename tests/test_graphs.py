@@ -1,0 +1,45 @@
+"""The declared graphs (flaair_tools.orchestration.graphs) name real nodes, and the tools use them."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import inspect
+
+import pytest
+
+from flaair_tools.orchestration import graphs
+
+ROLES = sorted(graphs.NODES)
+
+
+@pytest.mark.parametrize("role", ROLES)
+def test_each_declared_node_is_built_and_its_component_class_exists(role: str) -> None:
+    from flaair_common.graph import node_argv
+
+    node = graphs.NODES[role]
+    assert node_argv(node.package, node.executable)                     # installed, like `ros2 run`
+    if node.component:
+        module, cls = node.component.split(":")
+        assert inspect.isclass(getattr(importlib.import_module(module), cls))
+        assert module.startswith(node.package + ".") and module.endswith(node.executable)
+
+
+def test_every_graph_names_declared_roles_and_overrides_only_its_own_nodes() -> None:
+    for graph in graphs.GRAPHS.values():
+        assert set(graph.roles) <= set(graphs.NODES), graph.name
+        assert set(graph.parameters) <= set(graph.roles), graph.name
+        assert len(set(graph.roles)) == len(graph.roles), graph.name
+    with pytest.raises(KeyError, match="no node plays 'camera'"):
+        graphs.node_of("camera")
+
+
+def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
+    from flaair_tools.orchestration import experiment, live
+
+    sim = argparse.Namespace(sim=True, calibration=None, processes=False, out=None, controller="dsa", foxglove=None)
+    sections = live.node_parameters_for(sim)
+    assert sections["plant_node"]["ros__parameters"] == dict(graphs.GRAPHS["live_sim"].parameters["plant"])
+    assert live.live_graph(sim).hot == ("plant", "frontend", "controller")
+    spec = next(iter(experiment.load_experiments().values()))
+    roles = experiment.experiment_roles(spec)
+    assert roles[:3] == graphs.GRAPHS["experiment"].roles and roles[-1] in ("drive", "controller")
