@@ -43,6 +43,7 @@ __all__ = [
     "Collision",
     "WingDamage",
     "Effect",
+    "SensorEffect",
     "FitParam",
     "DrawRange",
     "TermContext",
@@ -193,6 +194,8 @@ Effect = Union[
     Collision,
     WingDamage,
 ]
+# The effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
+SensorEffect = Union[SensorDelay, ChargeAmpHighpass, StrainTransferLoss]
 
 
 # --------------------------------------------------------------------------- the table

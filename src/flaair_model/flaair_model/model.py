@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, is_dataclass, replace
-from typing import Any, Mapping, Union
+from typing import Any, Mapping, Union, cast
 
 from flaair_model.effects import (
     EFFECT_NAMES,
@@ -21,6 +21,7 @@ from flaair_model.effects import (
     Feedthrough,
     HingeStiffening,
     SensorDelay,
+    SensorEffect,
     StrainTransferLoss,
     StructuralDamping,
     TransmissionNonlinearity,
@@ -123,11 +124,12 @@ class SensorParams:
 
     def __post_init__(self) -> None:
         check_fields(self, "sensors", {"reference_voltage_v": "finite"})
-        for section, obj, kind, rules in (
+        sections: tuple[tuple[str, Any, Any, Any], ...] = (
             ("pvdf", self.pvdf, PvdfMaterial, _MATERIAL_RULES),
             ("stroke", self.stroke, SensorBeam, _BEAM_RULES),
             ("pitch", self.pitch, SensorBeam, _BEAM_RULES),
-        ):
+        )
+        for section, obj, kind, rules in sections:
             if not isinstance(obj, kind):
                 raise ModelError(f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
             # PvdfMaterial/SensorBeam are frozen dataclasses owned by pvdf.py: check, don't coerce
@@ -175,8 +177,8 @@ class PerChannel:
           pitch: {delay_s: 4.0e-4}
     """
 
-    stroke: Effect
-    pitch: Effect
+    stroke: SensorEffect
+    pitch: SensorEffect
 
     def __post_init__(self) -> None:
         kind = type(self.stroke)
@@ -185,20 +187,20 @@ class PerChannel:
             raise ModelError(f"effects: per-channel values exist only for {', '.join(PER_CHANNEL_EFFECTS)}, "
                              f"got {kind.__name__}")
         for side in SIDES:
-            e = getattr(self, side)
+            e: Any = getattr(self, side)
             if type(e) is not kind:
                 raise ModelError(f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}")
             if e.channel != side:
                 raise ModelError(f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}")
 
-    def on(self, side: str) -> Effect:
+    def on(self, side: str) -> SensorEffect:
         """The effect on sensor chain `side`."""
         return getattr(self, side)
 
 
 def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | PerChannel:
     """{stroke: {...}, pitch: {...}} -> PerChannel (one side only: that side's effect)."""
-    built = {}
+    built: dict[str, Any] = {}
     for side, sub in params.items():
         if is_dataclass(sub) and not isinstance(sub, type):
             built[side] = effect_from_params(name, sub)
@@ -213,8 +215,8 @@ def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | P
     return next(iter(built.values()))
 
 
-def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, PerChannel, None]) -> Effect | PerChannel:
-    """Build (and validate) one effect from its name and a parameter dict or dataclass.
+def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
+    """Build (and validate) one effect from its name and a parameter dict or dataclass (or None).
 
     A sensor effect (`PER_CHANNEL_EFFECTS`) may give each chain its own parameters:
     ``{"stroke": {...}, "pitch": {...}}`` (or a `PerChannel`).
@@ -234,7 +236,7 @@ def effect_from_params(name: str, params: Union[Mapping[str, Any], Effect, PerCh
     if is_dataclass(params) and not isinstance(params, type):
         if not isinstance(params, kind):
             raise ModelError(f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
-        return params
+        return cast(Effect, params)
     if params is None:
         params = {}
     if not isinstance(params, Mapping):
@@ -291,7 +293,7 @@ class Model:
                 if not (isinstance(item, tuple) and len(item) == 2):
                     raise ModelError(f"effects must be (name, effect) pairs, got {item!r}")
                 pairs.append(item)
-        built: dict[str, Effect] = {}
+        built: dict[str, Effect | PerChannel] = {}
         for name, params in pairs:
             if name in built:
                 raise ModelError(f"effects.{name} given twice")
@@ -392,11 +394,10 @@ def with_effect_on(model: Model, name: str, side: str, params: Union[Mapping[str
         raise ModelError(f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})")
     if side not in SIDES:
         raise ModelError(f"sensor chain must be one of {', '.join(SIDES)}, got {side!r}")
-    if is_dataclass(params) and not isinstance(params, type):
-        params = effect_params(params)
-    new = effect_from_params(name, {**params, "channel": side})
+    values: Any = effect_params(params) if is_dataclass(params) and not isinstance(params, type) else params
+    new = effect_from_params(name, {**values, "channel": side})
     other = "pitch" if side == "stroke" else "stroke"
-    kept = model.effect_on(name, other)
+    kept: Any = model.effect_on(name, other)
     if kept is None:
         return with_effects(model, {name: new})
     kept = replace(kept, channel=other)
@@ -407,7 +408,7 @@ def without_effect_on(model: Model, name: str, side: str) -> Model:
     """Model with sensor effect `name` removed from chain `side` only (the other chain keeps it)."""
     effects = tuple((n, e) for n, e in model.effects if n != name)
     if name in PER_CHANNEL_EFFECTS:
-        kept = model.effect_on(name, "pitch" if side == "stroke" else "stroke")
+        kept: Any = model.effect_on(name, "pitch" if side == "stroke" else "stroke")
         if kept is not None:
             effects += ((name, replace(kept, channel="pitch" if side == "stroke" else "stroke")),)
     return replace(model, effects=effects)

@@ -314,7 +314,8 @@ def _in_order_packet(state: BridgeState, packet: protocol.SensorPacket, now_s: f
     end = packet.first_sample_index + packet.n
     held = state.pending.shape[1]
     if not held and packet.n == params.block_size:   # packets as long as blocks: passed on as they are
-        blocks = (SensorBlock(state.pending_first, packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v),)
+        blocks: tuple[SensorBlock, ...] = (SensorBlock(state.pending_first, packet.drive_v, packet.stroke_sensor_v,
+                                                       packet.pitch_sensor_v),)
         pending, pending_first = state.pending, state.pending_first + packet.n
     else:   # several packets to a block (a target's 0.5 ms packets, 1 ms control blocks)
         pending = np.concatenate([state.pending, (packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)], axis=1)
@@ -457,7 +458,9 @@ def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[Br
     if not state.queue:
         return state, (), ()
     limit = max(state.target_end, _clock(state, now_s, params)) + params.lead_samples + params.max_ahead_samples
-    packets, timing, queue = [], [], []
+    packets: list[bytes] = []
+    timing: list = []
+    queue: list = []
     sequence, counters, driving = state.drive_sequence, state.counters, state.driving
     for position, (target_first, drive) in enumerate(state.queue):
         count = max(0, min(len(drive), limit - target_first))
@@ -492,7 +495,9 @@ def _stop_packet(state: BridgeState) -> tuple[BridgeState, bytes]:
 # ---------------------------------------------------------------------------------- wall clock
 def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[BridgeState, Outputs]:
     now = inputs.now_s
-    packets, notes, blocks = [], [], []
+    packets: list[bytes] = []
+    notes: list[Note] = []
+    blocks: list[SensorBlock] = []
     if state.driving and state.last_drive_s is not None and now - state.last_drive_s > params.drive_timeout_s:
         silent_ms = 1e3 * (now - state.last_drive_s)
         state, packet = _stop_packet(state)

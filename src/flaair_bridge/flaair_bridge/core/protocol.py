@@ -28,7 +28,8 @@ SEQUENCE_MODULUS = 2**32
 
 SENSOR_HEADER = np.dtype([("magic", "S4"), ("sequence", "<u4"), ("first_sample_index", "<u8"),
                           ("sample_rate_hz", "<f4"), ("n", "<u2"), ("flags", "<u2")])
-SENSOR_SAMPLE = np.dtype([("drive_v", "<f4"), ("stroke_sensor_v", "<f4"), ("pitch_sensor_v", "<f4")])
+SENSOR_FIELDS: tuple[str, ...] = ("drive_v", "stroke_sensor_v", "pitch_sensor_v")
+SENSOR_SAMPLE = np.dtype([(name, "<f4") for name in SENSOR_FIELDS])
 DRIVE_HEADER = np.dtype([("magic", "S4"), ("sequence", "<u4"), ("first_sample_index", "<u8"),
                          ("m", "<u2"), ("flags", "<u2")])
 DRIVE_SAMPLE = np.dtype("<f4")
@@ -111,7 +112,7 @@ def pack_sensor(packet: SensorPacket) -> bytes:
     n = len(packet.drive_v)
     _check_count(n, "n")
     _check_header_fields(packet.sequence, packet.first_sample_index, packet.flags)
-    columns = {name: _finite_f32(getattr(packet, name), name) for name in SENSOR_SAMPLE.names}
+    columns = {name: _finite_f32(getattr(packet, name), name) for name in SENSOR_FIELDS}
     if any(len(c) != n for c in columns.values()):
         raise ProtocolError(f"sample arrays differ in length: {[len(c) for c in columns.values()]}")
     rate = _finite_f32([packet.sample_rate_hz], "sample_rate_hz")[0]
@@ -134,7 +135,7 @@ def unpack_sensor(data: bytes | memoryview) -> SensorPacket:
     columns = np.frombuffer(data, "<f4", count=3 * n, offset=SENSOR_HEADER.itemsize).reshape(n, 3).T.copy()
     if not np.isfinite(columns).all():
         row, column = np.argwhere(~np.isfinite(columns))[0]
-        raise ProtocolError(f"{SENSOR_SAMPLE.names[row]}[{column}] is not finite")
+        raise ProtocolError(f"{SENSOR_FIELDS[row]}[{column}] is not finite")
     columns.setflags(write=False)
     return SensorPacket(sequence, first, float(rate), flags, columns[0], columns[1], columns[2])
 

@@ -313,13 +313,19 @@ def rearm(state: MonitorState) -> MonitorState:
     return state._replace(wingbeats_seen=0, in_collision=False, above_count=0, below_count=0)
 
 
+def _drive_hz(p: MonitorParams) -> float:
+    """The drive frequency of drive-locked windows (MonitorParams requires it for window_source 'drive')."""
+    assert p.drive_frequency_hz is not None
+    return p.drive_frequency_hz
+
+
 def _cycle_of(index: int, p: MonitorParams) -> int:
-    return int(math.floor(index * p.drive_frequency_hz / p.sample_rate_hz + p.drive_phase_rad / (2 * math.pi) + 1e-12))
+    return int(math.floor(index * _drive_hz(p) / p.sample_rate_hz + p.drive_phase_rad / (2 * math.pi) + 1e-12))
 
 
 def _cycle_start(k: int, p: MonitorParams) -> int:
     # first sample n with f n / fs + phase / 2pi >= k
-    return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / p.drive_frequency_hz - 1e-9))
+    return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / _drive_hz(p) - 1e-9))
 
 
 @lru_cache(maxsize=256)
@@ -377,7 +383,7 @@ def _drive_windows(st: MonitorState, n_avail: int, base: int, p: MonitorParams):
     k = st.window_index
     pos = 0
     synced = st.synced
-    omega = 2 * math.pi * p.drive_frequency_hz / p.sample_rate_hz
+    omega = 2 * math.pi * _drive_hz(p) / p.sample_rate_hz
     while True:
         end = _cycle_start(k + 1, p) - base
         if end > n_avail:

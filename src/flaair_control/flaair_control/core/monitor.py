@@ -148,6 +148,7 @@ def lock_step(state: DriveLockState, block: "DriveBlock", p: CollisionMonitorPar
     if state.expected_index is None or block.first_sample_index != state.expected_index:
         finder = col.initial_state(drive_lock_params(p), start_index=block.first_sample_index)
         crossings = ()
+    assert finder is not None   # started above when the stream (re)starts
     drive_v = np.asarray(block.drive_v, dtype=float)
     finder, out = col.step(finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)), drive_lock_params(p))
     kept = list(crossings)
@@ -336,6 +337,7 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
 def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.ndarray, pitch: np.ndarray,
           p: CollisionMonitorParams) -> tuple[CollisionMonitorState, tuple[Verdict, ...]]:
     """Run the window monitor on samples that continue it, and decide every wingbeat it closes."""
+    assert state.windows is not None   # the caller feeds only once windows are known
     monitor, out = col.step(monitor, col.MonitorInputs(stroke, pitch), state.windows)
     verdicts = []
     colliding, above, below, wingbeats = state.colliding, state.above, state.below, state.wingbeats

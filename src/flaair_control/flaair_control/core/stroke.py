@@ -277,6 +277,7 @@ def step(state: StrokeState, inputs: StrokeInputs, params: StrokeParams) -> tupl
     if params.mode == "sync":
         drive = u * np.sin(2.0 * np.pi * params.sync_frequency_hz * t)
     else:
+        assert params.dsa_params is not None   # StrokeParams requires it for mode 'dsa'
         v = np.where(ok, np.asarray(stroke_velocity_rad_s, dtype=float).ravel(), np.nan)
         dsa_state, dsa_out = dsa.step(dsa_state, dsa.DsaInputs(v, t[0] if x.size else 0.0), params.dsa_params)
         sig = dsa_out.signals
@@ -403,7 +404,8 @@ def params_from_values(values: dict, plant: StrokePlant, sample_rate_hz: float, 
 
 # The stroke_controller_node parameters (values: config/flaair.yaml); `params_from_values` maps them.
 _F, _I, _S, _B = float, int, str, bool
-NODE_PARAMS = [ParamSpec(name, kind, text, *rng, read_only=name not in ("setpoint_deg",)) for name, kind, text, *rng in (
+NODE_PARAMS = [ParamSpec(name, kind, text, *rng, read_only=name not in ("setpoint_deg",))  # type: ignore[misc]
+               for name, kind, text, *rng in (  # rng: (min, max[, choices]) or none
     ("sample_rate_hz", _F, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6),
     ("block_size", _I, "Samples per block", 1, 100000), ("drive_limit_v", _F, "Drive clamp [V]", 0.0, 300.0),
     ("model_file", _S, "Model YAML for the design (empty: config/model.yaml)"),

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Union
+from typing import Callable, NamedTuple, Union
 
 import numpy as np
 
@@ -378,9 +378,11 @@ def _on_tick(state: SupervisorState, tick: Tick, p: SupervisorParams) -> tuple[S
         if p.wait_for_peers and (tick.drive_subscribers < p.min_drive_subscribers or tick.sensor_publishers == 0
                                  or tick.wing_state_publishers == 0):
             return state, Outputs()
-        if state.peers_seen_wall is None:
+        seen_wall = state.peers_seen_wall
+        if seen_wall is None:
+            seen_wall = now
             state = state._replace(peers_seen_wall=now)
-        if now - state.peers_seen_wall < p.start_delay_s:
+        if now - seen_wall < p.start_delay_s:
             return state, Outputs()
         state = state._replace(mode=LOOP)
         notes.append(Note(INFO, f"starting the loop: {p.blocks_in_flight} block(s) in flight"))
@@ -487,7 +489,7 @@ def _on_close(state: SupervisorState, request: Close, p: SupervisorParams) -> tu
     return state, Outputs((zero,), (Note(INFO, summary(state, p, "shutting down, zero drive sent")),))
 
 
-_HANDLERS = {WingBlock: _on_wing, Tick: _on_tick, Collision: _on_collision, SetRamp: _on_set_ramp,
+_HANDLERS: dict[type, Callable[..., tuple[SupervisorState, Outputs]]] = {WingBlock: _on_wing, Tick: _on_tick, Collision: _on_collision, SetRamp: _on_set_ramp,
              ResetWatchdog: _on_reset, Close: _on_close}
 
 

@@ -213,10 +213,12 @@ def bode_from_chirp(
     rising = np.maximum.accumulate(track)
     if frequencies_hz is None:
         lo, hi = max(60.0, float(np.nanmin(track))), float(rising[-1])
-        frequencies_hz = np.arange(math.ceil(lo / 5.0) * 5.0, hi + 1e-9, 5.0)
-    freqs = np.asarray(frequencies_hz, float)
+        freqs = np.arange(math.ceil(lo / 5.0) * 5.0, hi + 1e-9, 5.0)
+    else:
+        freqs = np.asarray(frequencies_hz, float)
     half = max(4, int(round(window_s * fs_hz / 2)))
-    out_f, out = [], {k: [] for k in SIGNALS}
+    out_f: list[float] = []
+    out: dict[str, list] = {k: [] for k in SIGNALS}
     for f in freqs:
         c = int(np.searchsorted(rising, f))
         if c >= n:
@@ -259,7 +261,8 @@ def bode_from_stepped(
     if not segs:
         raise CharacterizationError("frequency_hz_per_sample has no dwell with a positive frequency")
     t = np.arange(n) / fs_hz
-    out_f, out = [], {k: [] for k in SIGNALS}
+    out_f: list[float] = []
+    out: dict[str, list] = {k: [] for k in SIGNALS}
     for a, b, f in segs:
         a2 = b - max(8, int(round(settle_fraction * (b - a))))
         a2 = max(a, a2)

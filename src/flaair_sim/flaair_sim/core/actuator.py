@@ -160,6 +160,7 @@ def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[Actua
         notes.append(Note(ERROR, f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> command_timeout_s "
                                  f"{p.command_timeout_s:g} s) after block {state.next_index - p.block_size}, last drive "
                                  f"not zero: drive zeroed, ringing down for {p.ring_down_s:g} s"))
+    assert state.ring_down is not None   # set just above when the watchdog trips
     wall_start, first, end = state.ring_down
     due = min(end, first + int((now - wall_start) * p.sample_rate_hz))
     while state.next_index + p.block_size <= due:

@@ -150,11 +150,13 @@ def _send(state: PacingState, params: PacingParams, limit_v: float, blocks: list
 
 
 def _realtime(state: PacingState, tick: Tick, params: PacingParams, blocks: list, logs: list) -> PacingState:
-    if state.wall_start is None:
+    wall_start = state.wall_start
+    if wall_start is None:
         if tick.drive_subscribers < params.min_subscribers:
             return state
-        state = replace(state, wall_start=tick.t_wall)
-    due = int((tick.t_wall - state.wall_start) * params.sample_rate_hz)
+        wall_start = tick.t_wall
+        state = replace(state, wall_start=wall_start)
+    due = int((tick.t_wall - wall_start) * params.sample_rate_hz)
     while not finished(state, params) and state.next_index + params.block_size <= due:
         state = _send(state, params, tick.drive_limit_v, blocks, logs)
     return state
