@@ -97,7 +97,8 @@ def echo_main(port: int, out_file: str) -> int:
 # ------------------------------------------------------------------------------ runs
 def live_run(duration_s: float, tmp: Path) -> dict:
     """`flaair live --target` (the composed loop: bridge, front end, dSA controller, collision monitor;
-    the recorder beside it) against the emulated target for `duration_s` of signal."""
+    the recorder beside it) against the emulated target for `duration_s` of signal.
+    """
     import psutil
 
     listen, target_port = _free_port(), _free_port()
@@ -186,7 +187,8 @@ def sensor_to_drive_ms(drive_events: np.ndarray) -> tuple[np.ndarray, int]:
     """Every drive block the loop produced while handling a sensor packet: the packet's kernel
     arrival -> the drive packet leaving the bridge (ms). A block that was not sent at once
     (queued behind the target's clock, or dropped) counts as infinitely late. Also returns how
-    many such blocks there were."""
+    many such blocks there were.
+    """
     caused = drive_events[np.isfinite(drive_events[:, 3])]
     latency = 1e3 * (caused[:, 2] - caused[:, 3])
     return np.where(np.isfinite(latency), latency, np.inf), int(np.isnan(caused[:, 2]).sum())

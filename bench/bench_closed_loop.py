@@ -60,7 +60,7 @@ FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
 def _cpu_s(pid: int) -> float:
-    """utime + stime of a process (s)."""
+    """Utime + stime of a process (s)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
@@ -218,7 +218,7 @@ def probe_main(out_file: str) -> int:
 
 
 def pingpong(role: str, executor: str, n: int) -> int:
-    """rclpy floor: two processes bounce a 10-sample DriveCommandBlock; the spin loop of run_node."""
+    """Rclpy floor: two processes bounce a 10-sample DriveCommandBlock; the spin loop of run_node."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 

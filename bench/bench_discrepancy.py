@@ -98,7 +98,8 @@ def _model():
 
 def analyse_robot(family: str, draw: int, baseline: bool) -> tuple[dict, dict | None]:
     """One robot of the generator, analysed (in a worker process): its outcome and, if asked, the
-    outcome of the workflow without identification."""
+    outcome of the workflow without identification.
+    """
     model = _model()
     case = random_robot(family, draw)
     runs = make_runs(case, model)

@@ -1,4 +1,4 @@
-"""Live view benchmark: does the Foxglove live view keep up with four 20 kHz block streams?
+"""Live view benchmark: does the Foxglove live view keep up with four 20 kHz block streams.
 
 Source: one publisher process streams what the graph streams to the live view (drive, sensor
 voltages, ground truth, estimate: 20 kHz each in 10-sample blocks, 8,000 blocks/s, as raw CDR)
@@ -75,7 +75,8 @@ time.sleep(2.0)
 class RawFoxgloveCounter:
     """A Foxglove WebSocket client that only counts: the handshake, `advertise`, `subscribe`, then
     message-data frames counted per subscription and the latest Time broadcast (server frames are
-    unmasked and unfragmented; parsed straight off the socket in bulk)."""
+    unmasked and unfragmented; parsed straight off the socket in bulk).
+    """
 
     def __init__(self, port: int, timeout_s: float) -> None:
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=timeout_s)
@@ -165,7 +166,8 @@ def _cpu_s(process) -> float:
 def run(duration_s: float, decimation: int, logs: Path, node: list[str] | None = None,
         extra: tuple[str, ...] = ()) -> dict[str, float]:
     """Stream for `duration_s` into the live view at `decimation` (`node`: another foxglove_node command,
-    `extra`: more ROS arguments); what was streamed and delivered, and the CPU."""
+    `extra`: more ROS arguments); what was streamed and delivered, and the CPU.
+    """
     port = _free_port()
     with Graph(log_dir=logs) as graph:
         args = ["-p", f"port:={port}", "-p", f"sample_decimation:={decimation}", *extra]

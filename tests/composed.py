@@ -87,7 +87,8 @@ class Composed:
     def post(self, topic: str, fields: dict) -> None:
         """Queue a block for `topic`'s in-process subscribers without running them now: what a node
         that publishes on plain rclpy (not `intra`) would have DDS deliver later, not from inside
-        its own publish call."""
+        its own publish call.
+        """
         for callback, background in self.bus.subscribers.get(topic, ()):
             (self.bus.background_queue if background else self.bus.queue).append((callback, fields))
 
@@ -142,7 +143,8 @@ def write_params(path: Path, params: dict[str, dict[str, Any]]) -> Path:
 def composed(monkeypatch, node_classes: list[type], params: dict[str, dict[str, Any]] | None = None,
              tmp_path: Path | None = None, local_topics: tuple[str, ...] = LOCAL_TOPICS) -> Iterator[Composed]:
     """Build `node_classes` in this process on one bus (per-node parameter overrides in `params`),
-    their clocks faked; destroy them and shut rclpy down at the end."""
+    their clocks faked; destroy them and shut rclpy down at the end.
+    """
     import tempfile
 
     import rclpy

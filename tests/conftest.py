@@ -1,5 +1,6 @@
 """Shared pytest setup: the pure cores import straight from src/ (no build needed); every ROS
-domain a test leased is released when the test ends."""
+domain a test leased is released when the test ends.
+"""
 from __future__ import annotations
 
 import sys
@@ -19,7 +20,8 @@ import rosproc  # noqa: E402 - needs the path above
 @pytest.fixture(autouse=True)
 def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
     """A test that starts a ROS graph (or an experiment, `live`, a recorder) must be marked `graph`,
-    so that it runs alone (scripts/run_tests.sh); a domain it leased is released when it ends."""
+    so that it runs alone (scripts/run_tests.sh); a domain it leased is released when it ends.
+    """
     yield   # (a module fixture's graph, started before this fixture, counts for its first test)
     rosproc.release_leases()
     started, rosproc.GRAPHS_STARTED[:] = list(rosproc.GRAPHS_STARTED), []

@@ -40,7 +40,7 @@ def _stamp(message, sec: int, nanosec: int) -> None:
 
 
 def _rclpy_messages() -> dict[str, tuple[str, object, object]]:
-    """topic -> (type, rclpy message, QoS) covering every flaair_msgs type and std_msgs/String."""
+    """Topic -> (type, rclpy message, QoS) covering every flaair_msgs type and std_msgs/String."""
     sensor = SensorVoltageBlock(sample_rate_hz=20000.0, first_sample_index=40)
     _stamp(sensor, 3, 2_000_000)
     sensor.header.frame_id = "robot"

@@ -1,6 +1,7 @@
 """The bag read path: block topics decoded from raw CDR with numpy give exactly what the
 typestore's per-message deserialization gives (values, dtypes, gaps, retransmissions, errors);
-a bag is opened once for everything `analyze` needs."""
+a bag is opened once for everything `analyze` needs.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -24,7 +24,8 @@ def params(**overrides) -> bridge.BridgeParams:
 
 def packet(sequence: int, first: int, n: int = N, flags: int = 0, rate: float = FS) -> bytes:
     """A sensor packet packed by the emulated target (independent of protocol.py): sample i holds
-    drive i/10, stroke 1 + i/1000, pitch 2 - i/1000 of its absolute index i."""
+    drive i/10, stroke 1 + i/1000, pitch 2 - i/1000 of its absolute index i.
+    """
     i = np.arange(first, first + n)
     return sensor_packet(sequence, first, rate, flags, i / 10, 1 + i / 1000, 2 - i / 1000)
 
@@ -284,7 +285,8 @@ def _same(a, b) -> bool:
 def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included(block_size) -> None:
     """Every packet the fast path takes (in order; a whole block, or part of one as a target's
     0.5 ms packets are of 1 ms blocks; the target's watchdog flag set or not) gives the state and
-    outputs the general path gives, with drive queued and released."""
+    outputs the general path gives, with drive queued and released.
+    """
     p = params(block_size=block_size)
     state = bridge.initial_state(p)
     rng = np.random.default_rng(7)

@@ -192,7 +192,8 @@ def test_paper_metric_separates_collision_from_free_flapping(model):
 def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: float, f: float = 100.0,
                        amplitude_v: float = 75.0):
     """Block loop; the obstacle appears at ~t_in (first block boundary with the wing below it) and
-    goes at t_out. Returns (first strike time, [(event, time the step returned it)], reports)."""
+    goes at t_out. Returns (first strike time, [(event, time the step returned it)], reports).
+    """
     hit = sim_model.with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     limit = math.radians(LIMIT_DEG)
     rng = np.random.default_rng(11)

@@ -149,7 +149,7 @@ def growth_and_frequency(phi: np.ndarray, skip_s: float = 0.05) -> tuple[float, 
 
 
 def bisect_onset(model, make_params, mu_lo: float, mu_hi: float, iterations: int = 8) -> float:
-    """mu where the simulated loop turns from decay to growth."""
+    """Mu where the simulated loop turns from decay to growth."""
     def grows(mu):
         return growth_and_frequency(closed_loop(model, make_params(mu), 0.4))[0] > 0
     assert not grows(mu_lo) and grows(mu_hi)

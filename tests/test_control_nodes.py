@@ -1,6 +1,7 @@
 """Control nodes, in process and deterministic: the node classes composed on one bus with a fake
 clock (tests/composed.py), so every check is exact. The same loop over real DDS in separate
-processes is tested end to end in test_faults (kill -9 of the controller) and test_replay."""
+processes is tested end to end in test_faults (kill -9 of the controller) and test_replay.
+"""
 from __future__ import annotations
 
 import math
@@ -36,7 +37,8 @@ def _stamp_index(block: dict) -> int:
 def test_closed_loop_scales_the_drive_at_a_collision_onset_and_restores_it_at_clearance(monkeypatch, tmp_path) -> None:
     """Plant (lockstep), front end and controller composed: a ControllerState with every drive
     block; an onset scales the drive by collision_reduction_factor from the next block on, the
-    clearance restores it; the sensor stream is gap-free from sample 0."""
+    clearance restores it; the sensor stream is gap-free from sample 0.
+    """
     from flaair_msgs.msg import CollisionEvent
 
     params = {"plant_node": {"command_timeout_s": 0.0},
@@ -73,7 +75,8 @@ def test_closed_loop_scales_the_drive_at_a_collision_onset_and_restores_it_at_cl
 
 def test_controller_waits_for_a_state_listener_when_asked(monkeypatch, tmp_path) -> None:
     """min_state_subscribers:=1: plant and front end up, yet no loop until /flaair/controller/state
-    has a listener; then it starts, and the listener sees the loop from its first block."""
+    has a listener; then it starts, and the listener sees the loop from its first block.
+    """
     params = {"plant_node": {"command_timeout_s": 0.0},
               "dsa_controller_node": {"min_state_subscribers": 1, "start_delay_s": 0.0, "watchdog_timeout_s": 30.0}}
     with composed(monkeypatch, _loop_classes(), params, tmp_path) as loop:
@@ -88,7 +91,8 @@ def test_controller_waits_for_a_state_listener_when_asked(monkeypatch, tmp_path)
 
 def test_watchdog_trips_and_ramps_the_drive_to_zero_when_wing_state_blocks_stop(monkeypatch, tmp_path, capfd) -> None:
     """No plant: the controller does not start the loop itself but answers the first wing-state
-    block, then trips on the wall clock: reply, 20 ms ramp, 10 ms zero hold, keepalives."""
+    block, then trips on the wall clock: reply, 20 ms ramp, 10 ms zero hold, keepalives.
+    """
     from flaair_control.dsa_controller_node import DsaControllerNode
 
     params = {"dsa_controller_node": {"watchdog_timeout_s": 0.3, "ramp_down_s": 0.02, "zero_hold_s": 0.01,
@@ -149,7 +153,8 @@ def test_invalid_wing_state_blocks_are_counted_and_the_loop_goes_on(monkeypatch,
 
 def test_collision_monitor_reports_every_wingbeat_and_flags_an_obstacle(monkeypatch, tmp_path) -> None:
     """Paper scenario, the nodes composed: 100 Hz, 75 V about the bias, obstacle at 20 deg against a
-    28 deg free stroke; the monitor's verdicts, one per wingbeat, and exactly one onset."""
+    28 deg free stroke; the monitor's verdicts, one per wingbeat, and exactly one onset.
+    """
     import yaml
 
     from composed import REPO_ROOT

@@ -112,7 +112,8 @@ def test_bad_parameters_are_named(nominal) -> None:
 def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path) -> None:
     """Plant, front end and the stroke controller node composed in process (tests/composed.py):
     12 deg held, then 16 deg after a parameter change while running. The controller node talks
-    plain rclpy messages; here they are handed to and from the bus."""
+    plain rclpy messages; here they are handed to and from the bus.
+    """
     from types import SimpleNamespace
 
     from rclpy.parameter import Parameter

@@ -98,7 +98,8 @@ def _with_header(block: dict) -> dict:
 def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_path):
     """Plant (lockstep) -> front end -> dSA controller -> plant, the node classes composed on one bus
     (tests/composed.py): 90 Hz synchronous start, K_r 1 -> 0 over 0.5 s, self-excited slightly
-    above the 140 Hz stroke resonance, steady amplitude."""
+    above the 140 Hz stroke resonance, steady amplitude.
+    """
     from composed import composed
     from flaair_common import topics
     from flaair_control.dsa_controller_node import DsaControllerNode

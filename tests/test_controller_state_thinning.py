@@ -1,5 +1,6 @@
 """ControllerState thinning (state_every_blocks): `flaair live` sends one ControllerState per
-DDS batch; the drive itself must not change, and no clamp may go unreported."""
+DDS batch; the drive itself must not change, and no clamp may go unreported.
+"""
 from __future__ import annotations
 
 from dataclasses import replace

@@ -124,7 +124,8 @@ BELOW_LIMIT_GAPS = {"structural_0p005_noisy_weak": {"stroke_sensor_v", "pitch_se
 
 def _assert_plant_parameters(case: DatasetCase, result, model) -> None:
     """Every fitted plant parameter is reported (value, nominal, stderr); where the robot's plant is
-    known (no effect, or drift and non-separable effects only) the values are the robot's own."""
+    known (no effect, or drift and non-separable effects only) the values are the robot's own.
+    """
     assert set(result.plant_parameters) == set(PLANT_PARAMETERS)
     for key, p in result.plant_parameters.items():
         assert set(p) == {"value", "nominal", "stderr"}, key

@@ -63,7 +63,8 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(family: str
 
 def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
     """A robot whose two sensor chains lag differently (0.15 ms and 0.40 ms): both delays are fitted, each
-    on its own chain, and written as one value per chain (one shared value cannot explain both)."""
+    on its own chain, and written as one value per chain (one shared value cannot explain both).
+    """
     case = dataclasses.replace(random_robot("offnominal_null", 2), group="single",
                                effects=(("sensor_delay", {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}),))
     result = analyse(make_runs(case, model), model)

@@ -1,6 +1,7 @@
 """drive_node in lockstep with a plant that never answers: retries (warnings), then the run's end
 (info), and the node keeps running. In process, on a fake clock (tests/composed.py): the timings
-are exact."""
+are exact.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -1,5 +1,6 @@
 """flaair_common.runtime.log: the console line and the /rosout record rclpy's logger writes, with
-the caller's file, function and line, without rclpy's per-call source lookup (1.1 ms a call)."""
+the caller's file, function and line, without rclpy's per-call source lookup (1.1 ms a call).
+"""
 from __future__ import annotations
 
 import json

@@ -120,7 +120,8 @@ def test_malformed_csv_gives_file_line_column(tmp_path: Path, kind: str, command
 
 def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, tmp_path, capfd) -> None:
     """The front-end node, in process: CDR bytes into its own DDS subscription callback (as rclpy
-    hands them over), its wing-state blocks read back from the bytes it publishes."""
+    hands them over), its wing-state blocks read back from the bytes it publishes.
+    """
     from rclpy.serialization import serialize_message
 
     from composed import composed
@@ -174,9 +175,10 @@ def _rung_down_after(plant_log: str, killed_at_s: float) -> bool:
 
 @pytest.mark.graph
 def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_bag(tmp_path: Path) -> None:
-    """kill -9 of the dSA controller in a recorded closed loop: the plant's drive watchdog zeroes
+    """Kill -9 of the dSA controller in a recorded closed loop: the plant's drive watchdog zeroes
     the drive within command_timeout_s and rings the wing down; the recorder's bag (closed with
-    SIGINT afterwards) holds the plant's every block up to the kill and the ring-down, in order."""
+    SIGINT afterwards) holds the plant's every block up to the kill and the ring-down, in order.
+    """
     import signal
     import subprocess
 

@@ -287,7 +287,8 @@ def test_frontend_names_a_calibration_value_that_is_not_a_number(tmp_path: Path)
 
 def test_sigint_while_a_node_still_imports_ends_it_without_a_traceback(tmp_path: Path) -> None:
     """Ctrl-C after flaair_common.runtime is imported but before run_node (the node module still
-    importing numba, seconds on a loaded machine): the node ends cleanly, exit 0, never built."""
+    importing numba, seconds on a loaded machine): the node ends cleanly, exit 0, never built.
+    """
     script = (
         "import os, signal, sys\n"
         # as from a terminal: Ctrl-C not ignored (a parent test process may pass SIGINT ignored)
@@ -329,7 +330,8 @@ def test_sigint_from_the_first_instant_of_a_node_ends_it_cleanly(launcher: str) 
     """Ctrl-C at any moment after the node's Python starts, as a user starts a node
     (`bin/flaair run`, from a terminal: SIGINT at its default action) and as a graph does:
     exit 0, no traceback. Before the fix Python's own handler turned it into a
-    KeyboardInterrupt traceback until flaair_common.runtime was imported."""
+    KeyboardInterrupt traceback until flaair_common.runtime was imported.
+    """
     from flaair_common.graph import node_argv
 
     failures = []
@@ -359,7 +361,8 @@ def test_sigint_from_the_first_instant_of_a_node_ends_it_cleanly(launcher: str) 
 @pytest.mark.graph
 def test_only_node_executables_start_with_deferred_signals() -> None:
     """The launchers defer SIGINT/SIGTERM only for programs that end through flaair_common.runtime
-    (which unblocks them): any other program would never see a Ctrl-C."""
+    (which unblocks them): any other program would never see a Ctrl-C.
+    """
     from flaair_common.graph import is_node_executable, with_deferred_signals
 
     lib = Path(__file__).resolve().parents[1] / "install" / "lib"

@@ -1,5 +1,6 @@
 """What the project writes for people: no markup from a file name in a report, and no change to
-a notebook user's matplotlib backend."""
+a notebook user's matplotlib backend.
+"""
 from __future__ import annotations
 
 import subprocess

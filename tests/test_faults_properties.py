@@ -1,5 +1,6 @@
 """Property tests (issue 15 item 7): random bytes into the CSV reader, the bag reader and
-recovery, and the CDR codec. Each answers with its named error, never another exception."""
+recovery, and the CDR codec. Each answers with its named error, never another exception.
+"""
 from __future__ import annotations
 
 import tempfile

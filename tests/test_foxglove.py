@@ -152,7 +152,8 @@ def _wing_blocks(firsts: list[int], block: int = BLOCK, frame: str = "robot") ->
 @pytest.mark.parametrize("decimation", [1, 3, 10])
 def test_a_batch_of_blocks_is_served_exactly_as_block_by_block(decimation: int) -> None:
     """One numpy pass over many blocks (with a gap, another block size, a bad message) gives the
-    same messages at the same times as serving each block alone; bad bytes are counted, not served."""
+    same messages at the same times as serving each block alone; bad bytes are counted, not served.
+    """
     from flaair_common import cdr
 
     stream = live_view.STREAMS["wing_state"]

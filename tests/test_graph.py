@@ -64,7 +64,7 @@ def test_graph_env_is_private_and_localhost():
 
 @pytest.mark.graph
 def test_children_die_when_the_parent_is_killed(tmp_path):
-    """kill -9 of the process that started a graph: its children get SIGTERM (parent-death signal)."""
+    """Kill -9 of the process that started a graph: its children get SIGTERM (parent-death signal)."""
     script = textwrap.dedent(f"""
         import sys, time
         sys.path[:0] = {[str(p) for p in (REPO_ROOT / "src").iterdir() if (p / "setup.py").exists()]!r}

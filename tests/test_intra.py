@@ -1,6 +1,7 @@
 """The in-process bus of composed nodes (flaair_common.intra): the hot FIFO first, background
 subscribers (collision monitor, recorder) batched on the main thread, everything flushed at the
-end; and the bytes a composed recorder writes are the bytes DDS would have carried."""
+end; and the bytes a composed recorder writes are the bytes DDS would have carried.
+"""
 from __future__ import annotations
 
 import threading
@@ -56,7 +57,8 @@ def test_background_runs_only_on_the_main_thread() -> None:
 @pytest.mark.parametrize("topic", sorted(topics.BLOCK_STREAM_TYPES))
 def test_a_composed_recorder_writes_the_bytes_dds_would_carry(topic: str) -> None:
     """encode_fields (what the composed recorder writes) == the publisher's FixedCodec bytes, and
-    rosbags (an independent CDR reader) reads the values back."""
+    rosbags (an independent CDR reader) reads the values back.
+    """
     msgtype = topics.BLOCK_STREAM_TYPES[topic]
     layout = cdr.layout_of(msgtype)
     rng = np.random.default_rng(1)
@@ -107,7 +109,8 @@ class _Node:
 def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() -> None:
     """With dds_batch 4: in-process subscribers see each 10-sample block at once; DDS gets one
     40-sample message per 4 contiguous blocks, a shorter one at a gap and at flush, published by
-    the main thread, readable by rosbags with every sample in order."""
+    the main thread, readable by rosbags with every sample in order.
+    """
     bus = intra.Bus({topics.DRIVE}, dds_batch=4)
     seen: list[int] = []
     bus.subscribe(topics.DRIVE, lambda f: seen.append(f["first_sample_index"]))
@@ -138,7 +141,8 @@ def test_dds_copies_are_joined_batches_in_process_subscribers_get_every_block() 
 def test_a_reader_thread_sends_deferred_copies_one_per_gap_and_the_main_thread_only_stragglers(monkeypatch) -> None:
     """Deferred DDS copies: the thread that answered a block sends one per gap (use_gap), in
     order; the main thread leaves fresh ones to it and sends only those waiting past the backstop;
-    a copy another thread is sending is never overtaken."""
+    a copy another thread is sending is never overtaken.
+    """
     clock = [100.0]
     monkeypatch.setattr(intra.time, "monotonic", lambda: clock[0])
     bus = intra.Bus({topics.DRIVE})

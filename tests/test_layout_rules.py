@@ -1,6 +1,7 @@
 """The layout's rules, read from the source: no module imports another's underscore names, no
 import cycle between modules, and every import between FLAAIR packages points down the layers
-(model and messages at the bottom, then the node plumbing, the domain packages, the tools)."""
+(model and messages at the bottom, then the node plumbing, the domain packages, the tools).
+"""
 from __future__ import annotations
 
 import ast
@@ -139,7 +140,8 @@ def _core_modules() -> dict[str, Path]:
 
 def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
     """A core imports no rclpy and no shell: from its own package only other cores, and from other
-    FLAAIR packages only their cores, the model and the node plumbing's pure modules."""
+    FLAAIR packages only their cores, the model and the node plumbing's pure modules.
+    """
     cores = _core_modules()
     assert {name.split(".")[0] for name in cores} == set(CORE_PACKAGES)
     offences = []
@@ -222,7 +224,8 @@ MAX_NODE_LINES = 150
 
 def test_no_module_over_600_lines_and_no_node_over_150() -> None:
     """A module that grows past 600 lines is doing two jobs; a node past 150 holds logic that
-    belongs in a core (docs/ARCHITECTURE.md)."""
+    belongs in a core (docs/ARCHITECTURE.md).
+    """
     long = []
     for path in _source_files(SRC):
         n = len(path.read_text().splitlines())
@@ -234,7 +237,8 @@ def test_no_module_over_600_lines_and_no_node_over_150() -> None:
 
 def test_every_core_starts_from_initial_state_of_its_params() -> None:
     """One shape: `initial_state(params, *, ...)`, the core's frozen parameters the one positional
-    argument; anything else (a start time, a warm start) by keyword."""
+    argument; anything else (a start time, a warm start) by keyword.
+    """
     shapes = []
     for path in _source_files(SRC):
         for node in ast.parse(path.read_text()).body:

@@ -92,7 +92,8 @@ def test_bad_arguments_are_named(args, expected):
 def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_predicts(tmp_path):
     """Real UDP on localhost: the target's samples are recorded, the drive reaches it, the wing
     flaps by itself at the Hopf analysis's limit cycle (seen through the front end, 1 ms blocks
-    and a 2 ms lead: 3 ms of loop delay, compensated), and the run ends with a stop."""
+    and a 2 ms lead: 3 ms of loop delay, compensated), and the run ends with a stop.
+    """
     import json
 
     from flaair_control.core import transition as tr
@@ -137,7 +138,7 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
 
 
 def _free_udp_ports(n: int) -> list[int]:
-    """n UDP ports free on localhost now (two runs on one machine must not share fixed ones)."""
+    """N UDP ports free on localhost now (two runs on one machine must not share fixed ones)."""
     import socket
 
     socks = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(n)]
@@ -151,7 +152,9 @@ def _free_udp_ports(n: int) -> list[int]:
 
 def _start_live_against_target(tmp_path: Path, duration_s: float):
     """(emulated target, live process, its ROS domain, bag, target counters) with the loop running.
-    Output goes to files (tmp_path/live.err, target.err), never to a pipe left unread."""
+
+    Output goes to files (tmp_path/live.err, target.err), never to a pipe left unread.
+    """
     from rosproc import wait_for
 
     bridge_port, target_port = _free_udp_ports(2)

@@ -1,5 +1,6 @@
 """`flaair live` faults a person meets at the bench: a Foxglove port already taken, a target that
-never answers (a mistyped port). One clear line, a non-zero exit, nothing left half done."""
+never answers (a mistyped port). One clear line, a non-zero exit, nothing left half done.
+"""
 from __future__ import annotations
 
 import socket

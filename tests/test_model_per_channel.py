@@ -82,7 +82,8 @@ def test_setting_one_chain_keeps_the_other(model) -> None:
 
 def test_plant_applies_each_chains_own_value(model) -> None:
     """Each sensor output of the split model equals the model with that chain's values alone (to the bit);
-    an 8-sample delay on the pitch chain alone shifts the pitch output by 8 samples and leaves the stroke's."""
+    an 8-sample delay on the pitch chain alone shifts the pitch output by 8 samples and leaves the stroke's.
+    """
     t = np.arange(int(0.2 * FS_HZ)) / FS_HZ
     drive = 80.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.02, 1.0)
     effects = {"sensor_delay": {"stroke": {"delay_s": 3 / FS_HZ}, "pitch": {"delay_s": 8 / FS_HZ}},

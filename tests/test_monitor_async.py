@@ -35,7 +35,8 @@ def closed_loop(duration_s: float, respond: bool = False):
     """(sample time, stroke truth deg, monitor verdicts, the monitor's input blocks) of the dSA loop
     with the obstacle window; respond: the monitor's events go to the supervisor (as the controller
     node passes them on), and the fourth item also holds the (sample index, amplitude scale) of
-    every drive block."""
+    every drive block.
+    """
     model = load_model()
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     values = dict(node_parameters("flaair.yaml", "dsa_controller_node"))
@@ -107,7 +108,8 @@ def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run
 
 def test_the_monitor_decides_the_same_on_joined_blocks(run):
     """Composed beside the loop, the monitor gets each run of contiguous blocks that queued up
-    while it was busy as one block (flaair_common.intra.join_contiguous): same verdicts."""
+    while it was busy as one block (flaair_common.intra.join_contiguous): same verdicts.
+    """
     from flaair_common.intra import join_contiguous
 
     _, _, verdicts, (blocks, params, _) = run
@@ -144,7 +146,8 @@ def test_join_contiguous_joins_runs_and_keeps_gaps():
 def test_the_controller_does_not_take_the_k_r_ramp_for_a_collision_and_does_take_the_obstacle():
     """collision_response reduce_amplitude (the default), the monitor's events passed on: the
     waveform change of the K_r ramp reads as distortion (an onset), and the controller leaves
-    the drive alone then (collision_ramp_guard_s); at the obstacle it halves the drive."""
+    the drive alone then (collision_ramp_guard_s); at the obstacle it halves the drive.
+    """
     t, stroke, verdicts, (_, _, scales) = closed_loop(2.0, respond=True)
     ramp = [v for v in verdicts if v.event == monitor.ONSET and 0.5 <= v.end_index / FS < 1.1]
     assert ramp, "no onset during the K_r ramp: this test would not see the guard work"

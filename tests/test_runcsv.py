@@ -1,5 +1,6 @@
 """Measured-run CSV reader (issue 15 item 8): counted lines, rows parsed straight into their
-arrays a block at a time, every check and line number the same across block boundaries."""
+arrays a block at a time, every check and line number the same across block boundaries.
+"""
 from __future__ import annotations
 
 import csv
@@ -109,7 +110,8 @@ def test_reading_holds_no_second_copy_of_the_columns(tmp_path: Path, monkeypatch
     """Peak allocation while reading stays within the result, one column of time steps (the
     sample-rate check) and one block's strings: the rows go straight into their arrays
     (per-block parts concatenated held the result and a column of parts at once, and the
-    rate check three more columns)."""
+    rate check three more columns).
+    """
     monkeypatch.setattr(runcsv, "CHUNK_LINES", 1000)
     path = tmp_path / "run.csv"
     _write(path, _columns(60_000))
@@ -129,7 +131,8 @@ def test_reading_holds_no_second_copy_of_the_columns(tmp_path: Path, monkeypatch
 
 def test_a_pipe_is_read_once_and_gives_the_same_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """`bin/flaair import <(unzip -p runs.zip run.csv)`: no line count first (it would consume the
-    pipe); the arrays grow as blocks arrive and end at the row count."""
+    pipe); the arrays grow as blocks arrive and end at the row count.
+    """
     monkeypatch.setattr(runcsv, "CHUNK_LINES", 7)
     columns = _columns(1000)
     path = tmp_path / "run.csv"

@@ -10,7 +10,8 @@ FS_HZ = 20000.0
 
 def test_frontend_node_matches_offline_core_and_tracks_truth(monkeypatch, tmp_path) -> None:
     """Plant and front-end nodes composed in process (tests/composed.py), driven in lockstep: the
-    node's wing-state blocks equal the offline core on the same samples, from sample 0."""
+    node's wing-state blocks equal the offline core on the same samples, from sample 0.
+    """
     from composed import composed, joined
     from flaair_common import topics
     from flaair_model.model_io import load_model

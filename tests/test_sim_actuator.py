@@ -1,5 +1,6 @@
 """The plant's actuator driver core (flaair_sim.core.actuator), lockstep drive watchdog: exact, on a
-fake wall clock. Over DDS, the same ring-down after a kill -9 of the controller is test_faults'."""
+fake wall clock. Over DDS, the same ring-down after a kill -9 of the controller is test_faults'.
+"""
 from __future__ import annotations
 
 import numpy as np

@@ -58,7 +58,8 @@ def _command(index: int, values: list[float]) -> dict:
 
 def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch, tmp_path, capfd) -> None:
     """The plant node in process: CDR bytes into its own DDS subscription callback, its sensor
-    blocks read back from the bytes it publishes (no DDS delivery to wait for)."""
+    blocks read back from the bytes it publishes (no DDS delivery to wait for).
+    """
     from rclpy.serialization import serialize_message
 
     from composed import composed
@@ -96,7 +97,8 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
 
 def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch, tmp_path) -> None:
     """min_output_subscribers: the plant's drive subscription (what a lockstep source waits for)
-    appears only once the sensor and truth streams each have that many listeners."""
+    appears only once the sensor and truth streams each have that many listeners.
+    """
     from composed import composed
     from flaair_common import topics
     from flaair_sim.plant_node import PlantNode

@@ -1,5 +1,6 @@
 """The rules the test suite keeps: every graph test marked, no test skipped for a missing module of
-the project's own, and `topic pub --wait-subscribers` that fails rather than publishing to no one."""
+the project's own, and `topic pub --wait-subscribers` that fails rather than publishing to no one.
+"""
 from __future__ import annotations
 
 import re
@@ -20,7 +21,7 @@ def test_no_test_module_skips_on_an_import() -> None:
 
 
 def test_an_unmarked_test_that_starts_a_graph_fails(tmp_path: Path) -> None:
-    """conftest's check: a test starting a ROS graph without @pytest.mark.graph fails by name."""
+    """Conftest's check: a test starting a ROS graph without @pytest.mark.graph fails by name."""
     (tmp_path / "conftest.py").write_text(
         "import importlib.util, sys\nsys.path.insert(0, %r)\n"
         "spec = importlib.util.spec_from_file_location('suite_conftest', %r)\n"

@@ -318,7 +318,7 @@ def _write_atomically(path: str, text: str) -> None:
 
 
 def _progress(total: int | None, period_s: float):
-    """tqdm over signal time when a person watches (stderr a terminal), else nothing."""
+    """Tqdm over signal time when a person watches (stderr a terminal), else nothing."""
     if total is None or not sys.stderr.isatty():
         return lambda _k: None
     from tqdm import tqdm

@@ -23,7 +23,8 @@ _TIMESPEC = struct.Struct("@qq")
 
 class DatagramEndpoint:
     """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in the reader thread
-    (arrival_s: kernel receive time on the `time.time()` clock)."""
+    (arrival_s: kernel receive time on the `time.time()` clock).
+    """
 
     def __init__(self, host: str, port: int, receive_buffer_bytes: int,
                  on_datagram: Callable[[bytes, tuple[str, int], float], None], realtime_priority: int = 0) -> None:

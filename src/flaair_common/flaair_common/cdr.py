@@ -202,7 +202,8 @@ class FixedCodec:
 
     def decode(self, data: bytes | memoryview):
         """As `decode`, indexable by field name and ``sec``/``nanosec``: a read-only record of the
-        fixed layout when the message fits it (no copy), else the general decoder's dict."""
+        fixed layout when the message fits it (no copy), else the general decoder's dict.
+        """
         if len(data) >= self.dtype.itemsize:
             record = np.frombuffer(data, dtype=self.dtype, count=1)[0]
             if record["frame_len"] == self._frame_len and data[:4] == ENCAPSULATION and all(
@@ -226,7 +227,8 @@ class GeneralCodec:
 
 def encode_fields(layout: Layout, fields, codecs: dict) -> tuple[int, bytes]:
     """(stamp ns, CDR bytes) of a block handed over in-process (fields by name with sec, nanosec,
-    frame_id), as its DDS message would be; `codecs` caches a FixedCodec per (block size, frame_id)."""
+    frame_id), as its DDS message would be; `codecs` caches a FixedCodec per (block size, frame_id).
+    """
     stamp_ns = int(fields["sec"]) * 1_000_000_000 + int(fields["nanosec"])
     lengths = {len(fields[name]) for name, kind in layout.fields if kind.endswith("[]")}
     if len(lengths) != 1:

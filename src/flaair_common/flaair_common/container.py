@@ -1,4 +1,4 @@
-"""container: several FLAAIR nodes in one process and one executor (ROS 2 composition).
+r"""container: several FLAAIR nodes in one process and one executor (ROS 2 composition).
 
 The same node classes that `bin/flaair run` starts one per process are built here side by
 side; the block streams named by --local-topics travel between them in-process, without
@@ -10,8 +10,8 @@ Usage:
   bin/flaair run flaair_common container [--local-topics T1,T2,...] MODULE:CLASS [MODULE:CLASS ...]
                                         [--background MODULE:CLASS ...] [--ros-args --params-file FILE ...]
 Example:
-  bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \\
-      flaair_sensors.frontend_node:FrontendNode flaair_control.dsa_controller_node:DsaControllerNode \\
+  bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \
+      flaair_sensors.frontend_node:FrontendNode flaair_control.dsa_controller_node:DsaControllerNode \
       --ros-args -p mode:=lockstep
 
 FLAAIR_PROFILE=1 times every in-process callback (thread CPU and wall) and prints one line per

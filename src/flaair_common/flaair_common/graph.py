@@ -43,8 +43,10 @@ class GraphError(RuntimeError):
 
 
 class Terminated(BaseException):
-    """SIGTERM arrived (see `terminate_raises`): unwind, stop the graph, exit 143. A BaseException,
-    like KeyboardInterrupt: no `except Exception` on the way may swallow it."""
+    """SIGTERM arrived (see `terminate_raises`): unwind, stop the graph, exit 143.
+
+    A BaseException, like KeyboardInterrupt: no `except Exception` on the way may swallow it.
+    """
 
 
 class DomainLease:
@@ -114,13 +116,14 @@ _ENV_BLOCKS: list[bool] = []
 
 def is_node_executable(path: str | os.PathLike) -> bool:
     """True for a node's console script, <prefix>/lib/<package>/<name>_node or .../container: those
-    end through flaair_common.runtime, which unblocks SIGINT and SIGTERM once it handles them."""
+    end through flaair_common.runtime, which unblocks SIGINT and SIGTERM once it handles them.
+    """
     path = Path(path)
     return path.parent.parent.name == "lib" and (path.name.endswith("_node") or path.name == "container")
 
 
 def with_deferred_signals(argv: Sequence[str]) -> list[str]:
-    """argv that starts a node with SIGINT and SIGTERM at their default action but blocked.
+    """Argv that starts a node with SIGINT and SIGTERM at their default action but blocked.
 
     From exec until flaair_common.runtime has its handlers in place (Python starting, the node
     module's first imports) a Ctrl-C or SIGTERM then stays pending instead of interrupting an
@@ -155,12 +158,12 @@ def repo_root() -> Path:
 
 
 def flaair_argv(*args: str) -> list[str]:
-    """argv of `bin/flaair ARGS...`."""
+    """Argv of `bin/flaair ARGS...`."""
     return [str(repo_root() / "bin" / "flaair"), *args]
 
 
 def node_argv(package: str, executable: str, ros_args: Sequence[str] = ()) -> list[str]:
-    """argv of one node from the install space (like `ros2 run`), in this interpreter."""
+    """Argv of one node from the install space (like `ros2 run`), in this interpreter."""
     from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
     try:
@@ -271,7 +274,8 @@ _terminate_requested = False
 def is_termination(exc: BaseException) -> bool:
     """`exc` is SIGTERM's `Terminated`, or what rclpy made of it: rclpy turns an exception raised
     inside one of its calls into a RuntimeError ("Unable to convert call argument"), told apart
-    from a real one by SIGTERM having arrived."""
+    from a real one by SIGTERM having arrived.
+    """
     return isinstance(exc, Terminated) or (isinstance(exc, RuntimeError) and _terminate_requested)
 
 

@@ -59,7 +59,8 @@ class Bus:
                   join: bool = True) -> None:
         """`callback(fields)` for every block of `topic`; `background`: off the hot path (see the module),
         its queued contiguous blocks joined into one call unless `join` is False (a recorder keeps
-        every message as it was published)."""
+        every message as it was published).
+        """
         wrapped = callback if self.profile is None else self.profile.wrap(callback)
         self.subscribers[topic].append((wrapped, background or self.building_background))
         if not join:
@@ -118,7 +119,8 @@ class Bus:
 
     def flush(self) -> int:
         """Everything queued, background included, and the held DDS batches (a node closes: its
-        last blocks reach their consumers)."""
+        last blocks reach their consumers).
+        """
         done = _drain(self.queue, self._draining, 1 << 30)
         while self.background_queue or self.queue:
             done += self._drain_background(1 << 30) + _drain(self.queue, self._draining, 1 << 30)
@@ -130,7 +132,8 @@ class Bus:
 
     def _drain_background(self, budget: int) -> int:
         """Up to `budget` queued background blocks, each subscriber's contiguous ones joined into
-        one call (a background core runs per call, not per sample: fewer, longer blocks cost less)."""
+        one call (a background core runs per call, not per sample: fewer, longer blocks cost less).
+        """
         if not self._draining_background.acquire(blocking=False):
             return 0
         try:
@@ -151,7 +154,8 @@ class Bus:
 
 def _drain(queue: collections.deque, lock: threading.Lock, budget: int) -> int:
     """Run up to `budget` callbacks of `queue` in order under `lock` (skip if another thread holds
-    it: that thread takes what was queued)."""
+    it: that thread takes what was queued).
+    """
     done = 0
     while queue and done < budget:
         if not lock.acquire(blocking=False):
@@ -240,7 +244,8 @@ def current() -> Bus | None:
 def use_gap() -> None:
     """The hot path has just answered a block and has a gap until the next one: one deferred DDS
     copy goes out now, on this thread, instead of competing with the next block for the
-    interpreter lock (a main-thread flush every 20 blocks made the blocks it met 0.3 ms later)."""
+    interpreter lock (a main-thread flush every 20 blocks made the blocks it met 0.3 ms later).
+    """
     if _current is not None and _current.deferred:
         _current.run_deferred(limit=1, wait=False)
 
@@ -317,7 +322,8 @@ class BlockPublisher:
 
     def _publish_joined(self, held: list[tuple[int, dict]]) -> None:
         """Publish held (contiguous: `_hold` sees to it) blocks joined into one message, the first
-        block's stamp and scalars, every sample in order (if anyone listens on DDS)."""
+        block's stamp and scalars, every sample in order (if anyone listens on DDS).
+        """
         if self.publisher.get_subscription_count() == 0:   # volatile: no listener, nothing lost
             return
         joined = {**held[0][1], **{name: np.concatenate([fields[name] for _, fields in held]) for name in self.arrays}}
@@ -329,7 +335,8 @@ class BlockPublisher:
 
 def dds_listeners() -> int:
     """The fewest DDS subscribers any of this container's batched block streams has (a recorder in
-    another process listens to all of them); a large number outside such a container."""
+    another process listens to all of them); a large number outside such a container.
+    """
     bus = current()
     counts = [p.publisher.get_subscription_count() for p in bus.publishers if p.batch > 1] if bus is not None else []
     return min(counts) if counts else 1 << 30

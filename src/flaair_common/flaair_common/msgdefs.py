@@ -53,7 +53,7 @@ def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
 
 @functools.lru_cache(maxsize=None)
 def project_types() -> dict[str, Any]:
-    """rosbags field definitions of every flaair_msgs type: name -> (constants, fields)."""
+    """Rosbags field definitions of every flaair_msgs type: name -> (constants, fields)."""
     from rosbags.typesys import get_types_from_msg  # parsing is only needed once, here
 
     types: dict[str, Any] = {}

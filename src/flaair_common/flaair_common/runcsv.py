@@ -69,7 +69,7 @@ def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
 
 
 def count_lines(path: str | Path) -> int:
-    """Lines in a text file as `open(path, newline="")` splits them (at \\n, \\r and \\r\\n).
+    r"""Lines in a text file as `open(path, newline="")` splits them (at \n, \r and \r\n).
 
     A last line without a terminator counts. Reads the bytes a block at a time (no decoding).
     """

@@ -75,7 +75,7 @@ def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str
 
 
 def make_executor(default: str = "events"):
-    """rclpy's C++ EventsExecutor by default, or the SingleThreadedExecutor.
+    """Rclpy's C++ EventsExecutor by default, or the SingleThreadedExecutor.
 
     The EventsExecutor takes a third of the CPU per message (bench/bench_closed_loop.py:
     ping-pong ~200 us vs ~600 us on the 2-core machine), which bounds a graph moving 2000
@@ -190,7 +190,8 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
 
 def _wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
     """Every reliable reader has what the nodes published (their last blocks, the zero drive)
-    before the process goes: a writer that exits first takes the undelivered messages with it."""
+    before the process goes: a writer that exits first takes the undelivered messages with it.
+    """
     from rclpy.duration import Duration
 
     deadline = time.monotonic() + timeout_s

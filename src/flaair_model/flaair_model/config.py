@@ -85,7 +85,8 @@ _PARSED: dict[str, tuple[tuple[int, int], Any]] = {}
 
 def _parameter_document(path: Path) -> Any:
     """`load_yaml(path)`, parsed again only when the file changes (mtime, size): a tool asks
-    `node_parameters` for many sections of one file (parsing flaair.yaml takes ~50 ms)."""
+    `node_parameters` for many sections of one file (parsing flaair.yaml takes ~50 ms).
+    """
     try:
         status = path.stat()
     except OSError:

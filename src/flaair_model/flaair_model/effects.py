@@ -222,7 +222,8 @@ class FitParam:
 @dataclass(frozen=True)
 class DrawRange:
     """Where the hidden-effect generator draws one parameter: uniform in [low, high] (in log
-    space if `log`), times a random sign if `signed`."""
+    space if `log`), times a random sign if `signed`.
+    """
 
     key: str
     low: float

@@ -124,7 +124,8 @@ def _as_dict(obj: Any) -> dict[str, Any]:
 
 def model_to_dict(m: Model) -> dict[str, Any]:
     """Nested dict in the layout of config/model.yaml; effects as {name: {param: value}} (a sensor
-    effect with its own value per chain: {name: {stroke: {param: value}, pitch: {param: value}}})."""
+    effect with its own value per chain: {name: {stroke: {param: value}, pitch: {param: value}}}).
+    """
     return {
         "plant": _as_dict(m.plant),
         "sensors": {

@@ -43,7 +43,8 @@ def frontend_values() -> dict:
 
 def frontend_tuning_from_config(values: Mapping | None = None) -> dict:
     """The front end's tuning fields (filters, rails, hold-off) from frontend_node values
-    (default: config/flaair.yaml), for offline tools that build their own FrontendParams."""
+    (default: config/flaair.yaml), for offline tools that build their own FrontendParams.
+    """
     values = frontend_values() if values is None else values
     missing = [name for name in _TUNING if name not in values]
     if missing:

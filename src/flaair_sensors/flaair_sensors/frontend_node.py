@@ -1,4 +1,4 @@
-"""frontend_node: PVDF charge-amplifier voltages in, wing stroke and pitch out, live.
+r"""frontend_node: PVDF charge-amplifier voltages in, wing stroke and pitch out, live.
 
 Subscribes to raw sensor-voltage blocks (/flaair/sensor_v) and publishes wing-state blocks
 (/flaair/wing_state: stroke_deg, pitch_deg, stroke_velocity_deg_s, validity), through the
@@ -10,7 +10,7 @@ calibrated lag is compensated by a phase lead, samples near the charge-amplifier
 non-finite are marked invalid (never reported as angles), and the stroke velocity comes from
 a low-pass differentiator (its phase at 140 Hz is logged at start).
 
-Usage: bin/flaair run flaair_sensors frontend_node --ros-args -p gains_from:=calibration \\
+Usage: bin/flaair run flaair_sensors frontend_node --ros-args -p gains_from:=calibration \
          -p calibration_file:=out/cal/calibration.yaml
 """
 from __future__ import annotations

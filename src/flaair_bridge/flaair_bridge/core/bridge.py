@@ -295,13 +295,15 @@ def _read_s(inputs: SensorDatagram) -> float:
 
 def _clock(state: BridgeState, now_s: float, params: BridgeParams) -> int:
     """The target's clock now: the last packet's end, moved on by the time since that packet arrived
-    (if the bridge fell behind, it has moved on by more than a packet)."""
+    (if the bridge fell behind, it has moved on by more than a packet).
+    """
     return state.target_end + max(0, int((now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
 
 
 def in_order(state: BridgeState, packet: protocol.SensorPacket, params: BridgeParams) -> bool:
     """The common case, 2000 times a second: the next packet in sequence and in samples, fitting in
-    the block being filled, no flag but the target's watchdog, the target not silent before it."""
+    the block being filled, no flag but the target's watchdog, the target not silent before it.
+    """
     return (packet.sequence == state.sequence and state.pending_first is not None and not state.silent
             and not packet.flags & ~protocol.FLAG_TARGET_WATCHDOG
             and packet.first_sample_index + state.index_offset == state.pending_first + state.pending.shape[1]
@@ -432,7 +434,8 @@ def _in_order_drive(state: BridgeState, inputs: DriveBlock,
                     params: BridgeParams) -> tuple[BridgeState, Outputs] | None:
     """The common case, 2000 times a second: the stream's next block, finite, within the limit, in
     time and within the target's buffer, nothing queued: one packet. Same result as the general
-    path (None when the block is not that case), a fraction of its cost."""
+    path (None when the block is not that case), a fraction of its cost.
+    """
     drive = np.asarray(inputs.drive_v, dtype=np.float64)
     n = len(drive)
     if not 0 < n <= protocol.MAX_SAMPLES or not np.abs(drive).max() <= params.drive_limit_v:   # NaN fails too
@@ -542,7 +545,8 @@ class EventLog:
     """Raw event times for benchmarks: each sensor packet (packets accepted so far, arrival s) and
     each drive block (stream index, receive s, send s, cause s). Send is NaN when the block was
     queued or dropped; cause is the arrival of the sensor packet whose handling produced the block
-    (the composed loop answers a packet before it reads the next), NaN when there was none."""
+    (the composed loop answers a packet before it reads the next), NaN when there was none.
+    """
 
     def __init__(self) -> None:
         self.sensor: list[tuple[int, float]] = []

@@ -177,6 +177,7 @@ def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) 
 
 def sequence_delta(sequence: int, expected: int) -> int:
     """Signed distance of `sequence` from `expected` modulo 2^32: 0 in order, > 0 packets skipped,
-    < 0 a duplicate or older packet."""
+    < 0 a duplicate or older packet.
+    """
     delta = (sequence - expected) % SEQUENCE_MODULUS
     return delta - SEQUENCE_MODULUS if delta >= SEQUENCE_MODULUS // 2 else delta

@@ -1,5 +1,6 @@
-"""Pure cores of the control package: no rclpy, no files, no plots. Each decision the nodes make
-is a function of explicit state, inputs and frozen parameters here.
+"""Pure cores of the control package: no rclpy, no files, no plots.
+
+Each decision the nodes make is a function of explicit state, inputs and frozen parameters here.
 
 - ``collision``: the paper's FFT/RMSE collision metric and a per-wingbeat collision monitor
 - ``monitor``: the collision monitor node's decisions as a step function

@@ -341,7 +341,8 @@ def _projector(n: int, omega_per_sample: float) -> tuple[np.ndarray, np.ndarray]
 @numba.njit(cache=True)
 def _fit_rows(segments, basis, pinv):  # pragma: no cover - numba
     """Per row: fundamental amplitude and residual rms (fixed summation order, so the result of
-    a window never depends on which other windows share the batch)."""
+    a window never depends on which other windows share the batch).
+    """
     m, n = segments.shape
     amp = np.empty(m)
     rms = np.empty(m)

@@ -77,7 +77,8 @@ class DsaParameterError(ValueError):
 @dataclass(frozen=True)
 class KrSchedule:
     """Piecewise-linear K_r(t): ``start_value`` until ``start_time_s``, linear to ``end_value``
-    over ``duration_s``, then ``end_value``. K_r = 1 fully synchronous, 0 fully asynchronous."""
+    over ``duration_s``, then ``end_value``. K_r = 1 fully synchronous, 0 fully asynchronous.
+    """
 
     start_value: float
     end_value: float
@@ -144,17 +145,17 @@ class DsaParams:
 
     @property
     def a(self) -> float:
-        """a = r3 (1 + kappa) (1/s)."""
+        """A = r3 (1 + kappa) (1/s)."""
         return self.r3_rad_s * (1.0 + self.kappa)
 
     @property
     def b(self) -> float:
-        """b = kappa r3^2 (1/s^2)."""
+        """B = kappa r3^2 (1/s^2)."""
         return self.kappa * self.r3_rad_s**2
 
     @property
     def c(self) -> float:
-        """c = mu kappa r3^2 (N m / rad / s)."""
+        """C = mu kappa r3^2 (N m / rad / s)."""
         return self.mu_nm_s_per_rad * self.b
 
     @property
@@ -168,7 +169,8 @@ class DsaParams:
     def kernel_args(self) -> tuple:
         """``step``'s kernel arguments after the block and the state: the rate, the normalized (b, a)
         of the advanced and the raw filter, K_r, the sine, G_a and the limit (once per parameter set:
-        hashing the dataclass for a cache, or a dozen attribute reads a block, cost more than a block)."""
+        hashing the dataclass for a cache, or a dozen attribute reads a block, cost more than a block).
+        """
         kr = self.kr_schedule
         return (float(self.sample_rate_hz), *normalized_ba(*_tf_coefficients(self, True)),
                 *normalized_ba(*_tf_coefficients(self, False)), float(kr.start_value), float(kr.end_value),
@@ -241,7 +243,8 @@ class DsaInputs(NamedTuple):
     """One block of estimated stroke velocity (rad/s; non-finite samples count as 0, flagged in
     ``velocity_valid``) and the time (s) at which the first sample of the *returned drive block*
     is applied: the sync sine and K_r are evaluated at t_start_s + n / fs. In the block loop
-    this is the start of the next block (velocity block k produces drive block k + 1)."""
+    this is the start of the next block (velocity block k produces drive block k + 1).
+    """
 
     stroke_velocity_rad_s: np.ndarray
     t_start_s: float

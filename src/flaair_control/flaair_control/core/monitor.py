@@ -189,7 +189,8 @@ class WingBlock(NamedTuple):
 
 def wing_block(first_sample_index: int, stroke_deg, pitch_deg, stroke_valid, pitch_valid) -> WingBlock:
     """A wing-state block's fields as the core's input: rad, NaN where a sample is not valid
-    (validity flags of the wrong length mark the whole channel invalid)."""
+    (validity flags of the wrong length mark the whole channel invalid).
+    """
     stroke, pitch = np.asarray(stroke_deg, dtype=np.float64), np.asarray(pitch_deg, dtype=np.float64)
     s_ok = np.asarray(stroke_valid, dtype=bool) if len(stroke_valid) == len(stroke) else np.zeros(len(stroke), bool)
     p_ok = np.asarray(pitch_valid, dtype=bool) if len(pitch_valid) == len(pitch) else np.zeros(len(pitch), bool)

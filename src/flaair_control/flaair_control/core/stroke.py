@@ -332,7 +332,7 @@ def dsa_amplitude_deg(plant: StrokePlant, mu_nm_s_per_rad: float, r3_rad_s: floa
 
 
 def dsa_gain_for_amplitude(plant: StrokePlant, amplitude_deg: float, r3_rad_s: float, kappa: float) -> float:
-    """mu (N m s/rad) whose limit cycle has ``amplitude_deg`` (inverse of ``dsa_amplitude_deg``)."""
+    """Mu (N m s/rad) whose limit cycle has ``amplitude_deg`` (inverse of ``dsa_amplitude_deg``)."""
     linear = hopf.LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad)
     onset = hopf.hopf_onset(linear, r3_rad_s, kappa).mu_nm_s_per_rad
     lo = onset * (1.0 + 1e-9) + 1e-18

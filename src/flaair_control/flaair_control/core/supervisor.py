@@ -84,7 +84,8 @@ class Counts(NamedTuple):
 
 class SupervisorState(NamedTuple):
     """Everything the controller remembers between events (a NamedTuple: ``_replace`` costs
-    ~1 us against ~10 us for a frozen dataclass's ``replace``, and it runs several times a block)."""
+    ~1 us against ~10 us for a frozen dataclass's ``replace``, and it runs several times a block).
+    """
 
     mode: str
     fault: str
@@ -198,7 +199,8 @@ def initial_state(params: SupervisorParams) -> SupervisorState:
 
 def warm_up(params: SupervisorParams) -> None:
     """Load the dSA and safety cores' compiled kernels now (a throwaway loop start), not on the
-    first live block, when the target's packets would queue up behind it."""
+    first live block, when the target's packets would queue up behind it.
+    """
     params = replace(params, min_drive_subscribers=1)
     state = initial_state(params)
     for t_wall in (0.0, 1e3):
@@ -247,7 +249,8 @@ def _state_due(state: SupervisorState, clamped: bool, tripped: bool,
                p: SupervisorParams) -> tuple[SupervisorState, bool, bool]:
     """Does this drive block carry a ControllerState (every state_every_blocks-th, and at once when
     the watchdog or the fault changes)? Returns the state, that, and whether any block since the
-    last ControllerState was clamped."""
+    last ControllerState was clamped.
+    """
     clamped = clamped or state.clamped_since_state
     key = (tripped, state.fault)
     if state.blocks_since_state + 1 >= p.state_every_blocks or key != state.state_key:

@@ -1,6 +1,7 @@
-"""Pure cores of the sensor front end: no rclpy, no files, no plots. Each takes frozen parameters
-and explicit state; the node (`flaair_sensors.frontend_node`) and the offline tools call the same
-functions.
+"""Pure cores of the sensor front end: no rclpy, no files, no plots.
+
+Each takes frozen parameters and explicit state; the node (`flaair_sensors.frontend_node`) and the
+offline tools call the same functions.
 
 - ``frontend``: inverse sensor model, charge-amplifier volts -> wing angles (`step`, `estimate`)
 - ``frontend_params``: its frozen parameters, from a model or a calibration

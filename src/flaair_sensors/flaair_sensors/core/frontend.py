@@ -356,7 +356,8 @@ def _block(sv, pv, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_z
            drift, drift_b, drift_a, stroke_lead, stroke_lead_b, stroke_lead_a, pitch_lead, pitch_lead_b, pitch_lead_a,
            velocity_b, velocity_a):
     """Both channels of one block: rows (stroke, pitch, stroke velocity), rows (stroke, pitch) valid,
-    the five new filter states and the two hold-off counters."""
+    the five new filter states and the two hold-off counters.
+    """
     n = sv.size
     out = np.empty((3, n))
     valid = np.empty((2, n), np.bool_)
@@ -380,7 +381,8 @@ class FrontendInputs(NamedTuple):
 
 def warm_up(params: FrontendParams, n: int = 10) -> None:
     """Load the compiled kernels now (~0.2 s on the first call), not on the first live block, when
-    the target's packets would queue up behind it."""
+    the target's packets would queue up behind it.
+    """
     step(initial_state(params), FrontendInputs(np.zeros(n), np.zeros(n)), params)
 
 

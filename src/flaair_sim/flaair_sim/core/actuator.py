@@ -70,7 +70,8 @@ class Outputs(NamedTuple):
 
 class ActuatorState(NamedTuple):
     """Pacing state (a NamedTuple: ``_replace`` is ~1 us, a frozen dataclass's ``replace`` ~10 us,
-    and a command block takes several)."""
+    and a command block takes several).
+    """
 
     next_index: int                                  # first sample index of the next stepped block
     expected_command_index: int | None

@@ -115,7 +115,8 @@ def mechanical_constants(p):
 @njit(cache=True, fastmath=_FMA)
 def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
-    2: stop acts (just after an impact, where phi may be a rounding error below the limit)."""
+    2: stop acts (just after an impact, where phi may be a rounding error below the limit).
+    """
     ga, gamma, k, cstruct, kh, hcubic, cp, jc, dp, limit, kc, cc = c
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag

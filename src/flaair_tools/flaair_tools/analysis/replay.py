@@ -33,7 +33,8 @@ LAYOUTS = {topics.DRIVE: cdr.DRIVE_COMMAND_BLOCK, topics.WING_STATE: cdr.WING_ST
 
 def _blocks_in_loop_order(bag: Path, wanted: tuple[str, ...]) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message fields) of the block topics, decoded as the nodes decode them, ordered by
-    sample index; at one index drive first."""
+    sample index; at one index drive first.
+    """
     rank = {topics.DRIVE: 0, topics.WING_STATE: 1}
     messages = []
     for n, (topic, _, _, data) in enumerate(bagio.iter_raw(bag, list(wanted))):

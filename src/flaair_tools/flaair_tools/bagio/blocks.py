@@ -118,7 +118,8 @@ def _damaged(bag: str | Path, msgtype: str, exc: Exception) -> BagError:
 
 def _decode_by_size(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Path) -> list[tuple[np.ndarray, Any]]:
     """(message numbers, records) per message size (`cdr.decode_batch`), each message that fits no
-    fixed layout decoded alone (a dict); a message that is no CDR of its type is a damaged bag."""
+    fixed layout decoded alone (a dict); a message that is no CDR of its type is a damaged bag.
+    """
     groups, unfit = cdr.decode_batch(layout, datas)
     for number in unfit:
         try:
@@ -216,7 +217,8 @@ def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_
 def blocks_from_cdr(topic: str, msgtype: str, datas: Sequence[bytes], *, allow_gaps: bool = False,
                     bag: str | Path = "", store: Typestore | None = None) -> Blocks:
     """`assemble_blocks` of CDR bytes: the project's block types decoded with numpy (flaair_common.cdr),
-    thousands of messages at once; any other block type through the typestore."""
+    thousands of messages at once; any other block type through the typestore.
+    """
     arrays, scalars = block_array_fields(msgtype, store)
     layout = cdr.LAYOUTS.get(msgtype)
     if layout is not None and datas and {name for name, kind in layout.fields if kind.endswith("[]")} == set(arrays) \

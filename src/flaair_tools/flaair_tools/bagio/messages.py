@@ -50,7 +50,7 @@ class BagUnfinishedError(BagError):
 
 @functools.lru_cache(maxsize=None)
 def typestore() -> Typestore:
-    """rosbags' ROS 2 Jazzy typestore with flaair_msgs registered from its `.msg` files."""
+    """Rosbags' ROS 2 Jazzy typestore with flaair_msgs registered from its `.msg` files."""
     store = get_typestore(Stores.ROS2_JAZZY)
     try:
         store.register(project_types())

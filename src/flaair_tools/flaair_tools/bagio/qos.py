@@ -30,7 +30,7 @@ def _qos_time(duration: Any) -> QosTime:
 
 
 def qos_from_rclpy(profile: Any) -> Qos:
-    """rosbags Qos of an rclpy QoSProfile (duck-typed: rclpy is not imported here)."""
+    """Rosbags Qos of an rclpy QoSProfile (duck-typed: rclpy is not imported here)."""
     return Qos(
         QosHistory(int(profile.history)),
         int(profile.depth),

@@ -223,7 +223,8 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
 def _recovery_counts(kept: dict[str, int], channels: dict[int, McapChannel], log: ScanLog,
                      from_metadata: dict[str, int] | None) -> dict[str, TopicRecovery]:
     """Kept and expected messages per topic: from the summary's statistics, else metadata.yaml,
-    else the message indexes (unknown when a chunk without an index was cut off)."""
+    else the message indexes (unknown when a chunk without an index was cut off).
+    """
     topic_of = {cid: channel.topic for cid, channel in channels.items()}
     names = set(kept) | set(topic_of.values())
     if log.statistics is not None:

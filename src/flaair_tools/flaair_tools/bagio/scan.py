@@ -266,7 +266,8 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
 
 def _chunk_head(data: Any, body: int) -> tuple[int, int, int, int, str, int]:
     """Chunk fields from the offset of its body: (start ns, end ns, uncompressed size, CRC,
-    compression, offset of the compressed data)."""
+    compression, offset of the compressed data).
+    """
     start_ns, end_ns, usize, crc, comp_len = struct.unpack_from("<QQQII", data, body)
     compression = bytes(data[body + _CHUNK_FIXED:body + _CHUNK_FIXED + comp_len]).decode("ascii")
     return start_ns, end_ns, usize, crc, compression, body + _CHUNK_FIXED + comp_len + 8
@@ -282,7 +283,8 @@ def _plausible_chunk_head(data: Any, position: int, size: int) -> bool:
 
 def _chunk(data: Any, position: int, end: int, log: ScanLog) -> Generator[Any, None, bool]:
     """The records of the chunk at `position` (ending at `end`, or cut off by the file's end);
-    returns True if it was damaged."""
+    returns True if it was damaged.
+    """
     start_ns, end_ns, usize, crc, compression, offset = _chunk_head(data, position + _RECORD_HEAD)
     available = memoryview(data[offset:min(end, len(data))])
     raw, why = _decompress_prefix(compression, available, usize)

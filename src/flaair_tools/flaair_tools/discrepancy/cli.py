@@ -22,7 +22,8 @@ the table is embedded in report.html (--validation FILE embeds a saved one).
 
 Exit status: 0 when the analysis ran (whatever the status), 2 on bad input.
 
-Examples:
+Examples
+--------
   bin/flaair discrepancy lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/discrepancy
   bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
   bin/flaair discrepancy --validate --out out/discrepancy-validation

@@ -384,7 +384,8 @@ class CaseOutcome:
 
 def expected_column(true_label: str) -> str:
     """Confusion-table column of a right answer for a row label ('a+outside:x' -> 'a (gap left)';
-    hidden 'plant:' effects are not named: 'a+plant:wing_damage' -> 'a'; 'below:a' -> 'none (gap left)')."""
+    hidden 'plant:' effects are not named: 'a+plant:wing_damage' -> 'a'; 'below:a' -> 'none (gap left)').
+    """
     parts = true_label.split("+")
     names = "+".join(p for p in parts if p != "none" and not p.startswith(("outside:", "plant:", "below:")))
     gap = any(p.startswith(("outside:", "below:")) for p in parts)
@@ -407,7 +408,8 @@ def _split(params: dict) -> bool:
 
 def per_chain(params: dict) -> dict:
     """An effect's numeric parameters per sensor chain it acts on: {'': {...}} for an effect without
-    a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain."""
+    a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain.
+    """
     if _split(params):
         return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side, p in params.items()}
     values = {k: float(v) for k, v in params.items() if not isinstance(v, str)}
@@ -491,7 +493,8 @@ _SEPARABLE = tuple(e.name for e in EFFECTS if e.separable)
 
 def random_effect(name: str, rng: np.random.Generator) -> dict:
     """One effect at a random strength, from its draw ranges in the effect table (inside the range
-    the run set can resolve)."""
+    the run set can resolve).
+    """
     entry = ENTRIES[name]
     side = str(rng.choice(["stroke", "pitch", "both"]))
     sign = float(rng.choice([-1.0, 1.0]))

@@ -173,7 +173,8 @@ def _null_fit_value(spec: EffectSpec) -> float:
 def same_on_both(spec: EffectSpec, v_old: float, se_old: float, v_new: float, se_new: float,
                  settings: Settings) -> Optional[float]:
     """R5: one sensor effect's values on the two chains agree within 3 combined standard errors plus
-    `consistency_rel_tol` of its size: their inverse-variance mean, else None (one value per chain)."""
+    `consistency_rel_tol` of its size: their inverse-variance mean, else None (one value per chain).
+    """
     tol = 3.0 * math.hypot(se_old, se_new) + settings.consistency_rel_tol * spec.effect_size(v_old)
     if not abs(v_new - v_old) <= tol:
         return None

@@ -123,7 +123,8 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
     """`base` with the specs' parameters at physical `values`: plant parameters replaced, effects
     added (the parameters of one effect merged into one entry). A sensor effect is set on its
     spec's chain only (the other chain keeps its own value); channels: effect -> 'both' sets it
-    on both chains."""
+    on both chains.
+    """
     plant = {}
     effects: dict = {}
     for s, v in zip(specs, values):
@@ -150,7 +151,8 @@ def models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list
 
 def spec_value(model: Model, spec: EffectSpec) -> float:
     """Current physical value of `spec`'s parameter in `model` (plant field or effect parameter;
-    a sensor effect's value on the spec's chain)."""
+    a sensor effect's value on the spec's chain).
+    """
     if spec.is_plant:
         return float(getattr(model.plant, spec.key))
     if spec.channel_param is not None:

@@ -65,7 +65,7 @@ _DESCRIBING = 8.0 / (3.0 * math.pi)  # |x'| x' ~ (8 / 3 pi) w A x' for a sine of
 
 @dataclass(frozen=True)
 class PlantFit:
-    """This robot's plant parameters, fitted.
+    """The plant parameters fitted to this robot.
 
     Attributes
     ----------
@@ -193,7 +193,8 @@ def _sim_channel(sim, c: str) -> np.ndarray:
 
 class _TruthResiduals:
     """Noise-weighted, per-run demeaned residuals of measured channels (the truth angles unless
-    told otherwise) for a batch of models."""
+    told otherwise) for a batch of models.
+    """
 
     def __init__(self, runs: Sequence[Run], noise_deg: Mapping[str, float], decimate: int,
                  channels: Sequence[str] = TRUTH_CHANNELS) -> None:
@@ -227,7 +228,8 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
                start: Mapping[str, float], channel: str, max_nfev: int, decimate: int,
                centre: Optional[Mapping[str, float]] = None) -> dict:
     """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
-    channel; returns values, log-space covariance of the plant parameters, states, costs."""
+    channel; returns values, log-space covariance of the plant parameters, states, costs.
+    """
     resid = _TruthResiduals(runs, noise, decimate, (channel,))
     p = len(keys)
     comp = [0, 1] if channel == "stroke_deg" else [2, 3]

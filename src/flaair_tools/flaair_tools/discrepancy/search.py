@@ -77,7 +77,8 @@ def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequen
            reopen: Sequence[str] = ()) -> Optional[str]:
     """'new', 'merge' (the other sensor has the effect: fit this chain's own value, then merge to
     'both' or keep one value per chain, rule R5) or None (not offered). `reopen`: effects taken
-    over from the other sensor at its value (shared test) whose own value on this chain is fitted."""
+    over from the other sensor at its value (shared test) whose own value on this chain is fitted.
+    """
     if model_in.effect(spec.name) is not None:
         return None
     if any(s.name == spec.name for s in found_here) and spec.name not in reopen:
@@ -100,7 +101,8 @@ def _other_chain(model: Model, spec: EffectSpec, found: Sequence[FoundEffect]) -
 
 def _own(model: Model, spec: EffectSpec) -> bool:
     """`spec` is fitted on its own channel: a plant parameter, an effect without a sensor chain, or a
-    sensor effect whose value on this chain is its own (not one value shared by both chains)."""
+    sensor effect whose value on this chain is its own (not one value shared by both chains).
+    """
     if spec.is_plant or spec.channel_param is None:
         return True
     e = model.effect_on(spec.name, spec.channel_param)
@@ -110,7 +112,8 @@ def _own(model: Model, spec: EffectSpec) -> bool:
 def polish(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], current: Model, channel: str,
             truth_ref: bool, folds: Optional[Sequence[Fold]] = None) -> Model:
     """Joint least-squares re-fit of `specs` (effects of one channel and the plant parameters
-    fitted along with them), from their values in `current`; `base` lacks those effects."""
+    fitted along with them), from their values in `current`; `base` lacks those effects.
+    """
     folds = ctx.folds if folds is None else folds
     x0 = np.array([s.to_fit(spec_value(current, s)) for s in specs])
     prob = ctx.problem(channel, folds, truth_ref, base)
@@ -121,7 +124,8 @@ def polish(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], curre
 
 def _groups(ctx: AnalysisContext, channel: str, model: Model) -> tuple[tuple[EffectSpec, ...], ...]:
     """Candidate parameter sets on `channel`: with the plant parameters they trade off against
-    (and without the effects a plant change mimics) once the plant is fitted."""
+    (and without the effects a plant change mimics) once the plant is fitted.
+    """
     return candidate_groups(channel, model if ctx.settings.identify else None)
 
 
@@ -197,7 +201,8 @@ def _greedy(ctx: AnalysisContext, model_in: Model, state: _ChannelState, channel
 def _refit_states_and_polish(ctx: AnalysisContext, state: _ChannelState, channel: str, truth_ref: bool) -> bool:
     """After an effect joined `state` (modified in place): the runs' initial states fitted again
     (on a truth channel), then, while a gap is left, further joint re-fits of this channel's own
-    parameters (`_polish_rounds`) and the states once more. Returns whether a gap is left."""
+    parameters (`_polish_rounds`) and the states once more. Returns whether a gap is left.
+    """
     _refit_states(ctx, state.model, channel)
     has_gap = channel_has_gap(ctx, state.model, channel, truth_ref)
     own = [s for s in state.specs if _own(state.model, s)]
@@ -213,7 +218,8 @@ def _refit_states_and_polish(ctx: AnalysisContext, state: _ChannelState, channel
 
 def _refit_states(ctx: AnalysisContext, model: Model, channel: str) -> None:
     """On a truth channel: the runs' initial states fitted again with `model` (they were fitted
-    with the plant alone, or with the effects as they were)."""
+    with the plant alone, or with the effects as they were).
+    """
     if channel in TRUTH_CHANNELS and ctx.settings.identify:
         _use_runs(ctx, identify_plant(ctx.runs, model, ctx.noise, keys=(), state_channels=TRUTH_CHANNELS).runs)
 
@@ -260,7 +266,8 @@ def _states_on_sensor(ctx: AnalysisContext, model: Model, channel: str, sensors_
     `channel`); keep them (True) only if that leaves `channel` without a gap and no gap anywhere else.
 
     A video-rate truth leaves the initial state loose; the transient of a wrong state shows on the
-    far more precise sensor at the start of a run. No effect of the vocabulary acts only there."""
+    far more precise sensor at the start of a run. No effect of the vocabulary acts only there.
+    """
     channels = TRUTH_CHANNELS + tuple(dict.fromkeys([*sensors_done, channel]))
     runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
     if not after < before:
@@ -276,7 +283,8 @@ def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel
                     found: Sequence[FoundEffect], sensors_done: Sequence[str] = ()) -> tuple[_ChannelState, bool, list]:
     """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left; on a
     sensor, a gap left is then tried against the runs' initial states fitted on the sensor, and
-    last against the upstream plant refitted on it."""
+    last against the upstream plant refitted on it.
+    """
     st = ctx.settings
     steps: list = []
     state = _ChannelState(start, [], {})
@@ -333,7 +341,8 @@ def _refine_plant_on_sensor(ctx: AnalysisContext, state: _ChannelState, channel:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
     may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
     jointly with the effects found on this sensor alone; keep them only if that closes the gap and
-    the truth stays at noise."""
+    the truth stays at noise.
+    """
     truth = UPSTREAM_TRUTH[channel]
     own = [s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)]
     specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k, c in PLANT_PARAMETERS.items() if c == truth]
@@ -412,7 +421,8 @@ def find_effects(
 
 def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
     """`model` without the specs' effects: a sensor effect removed from the spec's chain only (and
-    whole when it is one value shared by both chains)."""
+    whole when it is one value shared by both chains).
+    """
     for s in specs:
         if s.is_plant or model.effect(s.name) is None:
             continue

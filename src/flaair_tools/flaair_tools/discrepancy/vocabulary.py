@@ -76,7 +76,8 @@ class EffectSpec:
     @property
     def label(self) -> str:
         """Name with its sensor channel, e.g. 'sensor_delay[pitch]'; 'collision.contact_damping_ratio'
-        for a parameter fitted along (shape parameter or plant parameter)."""
+        for a parameter fitted along (shape parameter or plant parameter).
+        """
         if not self.tested:
             return f"{self.name}.{self.key}"
         return f"{self.name}[{self.channel_param}]" if self.channel_param else self.name
@@ -176,7 +177,8 @@ def plant_spec(key: str, model: Model, channel: str, rel_range: float = 0.5) -> 
 def candidate_groups(channel: str, plant: Optional[Model] = None) -> tuple[tuple[EffectSpec, ...], ...]:
     """The parameter sets the search fits on `channel`: every separable effect whole, with the
     fitted plant parameters it trades off against (when `plant` is given; those that the channel
-    sees: the stroke parameters on either truth channel, the pitch ones on pitch_deg)."""
+    sees: the stroke parameters on either truth channel, the pitch ones on pitch_deg).
+    """
     groups = []
     for e in _order(channel):
         if plant is not None and not e.separable:

@@ -100,7 +100,8 @@ COLLISION_SCHEMA = {"title": "flaair_live.CollisionStatus", "type": "object", "p
 
 def sample_indices(first_sample_index: int, length: int, decimation: int) -> np.ndarray:
     """Positions within a block of the samples to publish: those whose stream index is a multiple
-    of `decimation` (so the kept samples are evenly spaced across blocks)."""
+    of `decimation` (so the kept samples are evenly spaced across blocks).
+    """
     return np.arange((-first_sample_index) % decimation, length, decimation)
 
 
@@ -131,7 +132,8 @@ def blocks_samples(stream: SampleStream, blocks: np.ndarray, decimation: int) ->
     """`block_samples` of many blocks at once, in their order: `blocks` are the records of a
     `flaair_common.cdr.FixedCodec` (``sec``, ``nanosec``, ``first_sample_index``,
     ``sample_rate_hz``, the stream's fields as (blocks, block size) arrays); one numpy pass
-    encodes them all, so a batch costs about what one block did."""
+    encodes them all, so a batch costs about what one block did.
+    """
     first = blocks["first_sample_index"].astype(np.int64)[:, None]
     position = np.arange(blocks[stream.fields[0][0]].shape[1])
     chosen = (first + position) % decimation == 0
@@ -143,7 +145,8 @@ def blocks_samples(stream: SampleStream, blocks: np.ndarray, decimation: int) ->
 def fixed_blocks(layout: cdr.Layout, datas: list[bytes], codecs: dict) -> tuple[list[np.ndarray], int]:
     """Block messages as records of a `flaair_common.cdr.FixedCodec`, one array per message size
     (in arrival order within each), decoded in one call each (`cdr.decode_batch`, `codecs` its
-    cache); and how many are no CDR of the layout's fixed size."""
+    cache); and how many are no CDR of the layout's fixed size.
+    """
     groups, unfit = cdr.decode_batch(layout, datas, codecs)
     return [records for _, records in groups], len(unfit)
 
@@ -207,7 +210,8 @@ def wingbeat_messages(beats: Wingbeats, first_index: int, stamp0_ns: int, first_
 def wingbeat_batch(state: WingbeatState, blocks: np.ndarray, first_index: int, collision_score: float, k_r: float,
                    colliding: bool | None, params: WingbeatParams) -> tuple[WingbeatState, list[tuple[int, bytes]]]:
     """`wingbeat.step` over wing-state block records (one step per run of contiguous blocks, so the
-    same wingbeats as block by block) and their `wingbeat_messages`, numbered from `first_index`."""
+    same wingbeats as block by block) and their `wingbeat_messages`, numbered from `first_index`.
+    """
     out: list[tuple[int, bytes]] = []
     for run in contiguous_runs(blocks, "stroke_deg"):
         part = blocks[run]

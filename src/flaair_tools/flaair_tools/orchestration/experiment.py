@@ -9,7 +9,8 @@ nothing the plant published is missing.
 
 Experiments: {names}
 
-Examples:
+Examples
+--------
   bin/flaair experiment characterization_chirp --out out/bags/chirp
   bin/flaair experiment --list
 """

@@ -19,7 +19,8 @@ __all__ = ["NodeDecl", "GraphDecl", "NODES", "GRAPHS", "node_of", "component_mod
 @dataclass(frozen=True)
 class NodeDecl:
     """One node: `bin/flaair run PACKAGE EXECUTABLE`; `component` ("module:Class") if it can be
-    composed into one process with others (the hot loop of `live`)."""
+    composed into one process with others (the hot loop of `live`).
+    """
 
     role: str
     package: str

@@ -189,7 +189,8 @@ class Watcher:
 
     def wait_for_the_target(self) -> None:
         """Once the bridge listens: say where packets are awaited, and give up (SilentTarget) if the
-        target's first sensor packet has not come within --first-packet-timeout."""
+        target's first sensor packet has not come within --first-packet-timeout.
+        """
         # the bridge's own publisher (this node advertises the topic too, for the recorder)
         self.spin_until(lambda: any(info.node_name != self.node.get_name() for info in
                                     self.node.get_publishers_info_by_topic(topics.SENSOR_VOLTAGE)),
@@ -213,7 +214,8 @@ class Watcher:
 
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
-        block), then for --duration seconds of signal time."""
+        block), then for --duration seconds of signal time.
+        """
         if not self.args.sim:
             self.wait_for_the_target()
         self.spin_until(lambda: self.end["index"] >= 0 and (self.driven or self.args.controller == "none"), 120.0,

@@ -1,4 +1,4 @@
-"""Figure of the sync -> async transition (paper Fig. asynch b): K_r, stroke, Hilbert frequency, amplitude.
+r"""Figure of the sync -> async transition (paper Fig. asynch b): K_r, stroke, Hilbert frequency, amplitude.
 
 Runs the closed loop and draws the figure; the record, the predicted limit cycle and the plot
 are ``flaair_tools.analysis.transition``.
@@ -13,7 +13,7 @@ Command line (inside the environment, e.g. ``scripts/in_env.sh python -m flaair_
   -o PNG            output figure (default out/transition/transition.png; the records and a
                     JSON summary are written beside it)
 
-Example: scripts/in_env.sh python -m flaair_tools.orchestration.transition_figure --run --duration 2.0 \\
+Example: scripts/in_env.sh python -m flaair_tools.orchestration.transition_figure --run --duration 2.0 \
            --ramp-start 0.5 --ramp-duration 0.5
 """
 from __future__ import annotations

@@ -103,7 +103,8 @@ class SkipTopic(ValueError):
 def topic_to_record(topic: str, types: list[str], publishers: list[Any],
                     writer: bagio.BagWriter, depth: int) -> tuple[str, type, QoSProfile] | None:
     """(type, message class, subscription QoS) of a discovered topic, its offered QoS added to the
-    bag; None while it has no publisher (whose QoS decides ours); SkipTopic if it cannot be recorded."""
+    bag; None while it has no publisher (whose QoS decides ours); SkipTopic if it cannot be recorded.
+    """
     if len(types) != 1:
         raise SkipTopic(f"published with several types ({', '.join(types)})")
     if not publishers:

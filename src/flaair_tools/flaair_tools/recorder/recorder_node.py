@@ -113,7 +113,8 @@ class RecorderNode(Node):
 
     def take_remaining(self) -> int:
         """Write what DDS has delivered but no callback has handled yet (a stop came first: the
-        loop's last blocks, its zero drive, are often among them). Returns how many."""
+        loop's last blocks, its zero drive, are often among them). Returns how many.
+        """
         taken = 0
         for topic, (take, on_message) in self.takers.items():
             try:

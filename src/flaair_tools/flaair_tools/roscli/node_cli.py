@@ -1,6 +1,7 @@
 """`flaair node`: the running nodes of the graph (ros2cli's `ros2 node` is not installable here).
 
-Examples:
+Examples
+--------
   bin/flaair node list
   bin/flaair node list --discovery-s 3
 """
@@ -20,7 +21,8 @@ SECTION = "flaair_cli"
 
 def cli_defaults(prog: str) -> dict:
     """Defaults of the `flaair topic | node | param` commands (config/flaair.yaml, flaair_cli);
-    a broken config prints one line naming it and exits 2."""
+    a broken config prints one line naming it and exits 2.
+    """
     try:
         return node_parameters(CONFIG_FILE, SECTION)
     except ConfigError as exc:

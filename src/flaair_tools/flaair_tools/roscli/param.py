@@ -3,7 +3,8 @@
 `set` converts VALUE to the parameter's current type (a double takes "0" as 0.0; bools take
 true/false; arrays take JSON or YAML lists) and prints the node's reason when it refuses.
 
-Examples:
+Examples
+--------
   bin/flaair param list /plant_node
   bin/flaair param get /plant_node mode
   bin/flaair param set /dsa_controller_node kr_target 0.0     # K_r ramps to asynchronous from now

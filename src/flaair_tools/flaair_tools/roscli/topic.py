@@ -1,6 +1,7 @@
 """`flaair topic`: list, echo and publish topics (ros2cli's `ros2 topic` is not installable here).
 
-Examples:
+Examples
+--------
   bin/flaair topic list
   bin/flaair topic echo /flaair/wing_state --count 5
   bin/flaair topic echo /flaair/collision/events --timeout 0     # wait forever
@@ -45,7 +46,7 @@ def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
 
 
 def _listen(node: Node, args: argparse.Namespace) -> int:
-    """echo (JSON lines) or hz (rate reports) until --count, Ctrl-C, or --timeout of silence."""
+    """Echo (JSON lines) or hz (rate reports) until --count, Ctrl-C, or --timeout of silence."""
     type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
     received, arrivals, reports = 0, [], 0
     echo = args.verb == "echo"

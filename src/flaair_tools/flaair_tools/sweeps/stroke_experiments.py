@@ -195,7 +195,8 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
 def analyse_bag(bag: Path, band_deg: float, steady_wingbeats: int, beats: wingbeat.WingbeatParams) -> dict[str, Any]:
     """Settling time (wingbeats after the event until every later amplitude stays within
     ``band_deg`` of the setpoint) and steady error (mean amplitude - setpoint over the last
-    ``steady_wingbeats``), for the estimate (what the controller holds) and the truth."""
+    ``steady_wingbeats``), for the estimate (what the controller holds) and the truth.
+    """
     info = bagio.bag_info(bag)
     spec = json.loads(info.custom_data[CUSTOM_KEY])
     result: dict[str, Any] = {"bag": str(bag), **spec}

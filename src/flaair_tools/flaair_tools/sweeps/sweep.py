@@ -184,7 +184,8 @@ def local_cluster(workers: int | None = None):
 def prepare_workers(client, model, row: dict[str, Any]) -> None:
     """Every worker runs one short task through the path the sweep's tasks take (kernels loaded
     from numba's cache, task machinery warmed: a worker's first task costs about a second more
-    than the next)."""
+    than the next).
+    """
     from flaair_tools.sweeps.sweep_batch import warm_up
     client.gather([client.submit(warm_up, model, row, workers=[address], allow_other_workers=False,
                                  pure=False, key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}")
