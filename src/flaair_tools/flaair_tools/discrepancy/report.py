@@ -162,14 +162,29 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
         a = result.diagnosis_after.channels[c].band_nrmse
         labels = list(b)
         x = np.arange(len(labels))
-        ax.bar(x - 0.2, [b[k] for k in labels], 0.4, label="input model")
-        ax.bar(x + 0.2, [a.get(k, np.nan) for k in labels], 0.4, label="output model")
+        before = np.array([b[k] for k in labels], dtype=float)
+        after = np.array([a.get(k, np.nan) for k in labels], dtype=float)
+        ax.bar(x - 0.2, before, 0.4, label="input model")
+        ax.bar(x + 0.2, after, 0.4, label="output model")
         ax.set_xticks(x, labels, rotation=60, fontsize=7)
         ax.set_title(f"{c}: model error by band", fontsize=9)
         ax.set_ylabel("model-error NRMSE", fontsize=8)
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.tight_layout()
+        shown = np.concatenate([before, after])
+        shown = shown[np.isfinite(shown) & (shown > 0)]
+        if shown.size:   # log: the output model's error is often 100x below the input model's
+            ax.set_yscale("log")
+            ax.set_ylim(shown.min() / 2, shown.max() * 4)
+            if np.any(np.concatenate([before, after]) == 0):
+                ax.text(0.98, 0.97, "no bar: error at the noise", ha="right", va="top", fontsize=7,
+                        color="0.35", transform=ax.transAxes)
+        else:
+            ax.set_yticks([])
+            ax.text(0.5, 0.5, "no model error above the noise\nin any band",
+                    ha="center", va="center", fontsize=8, color="0.4", transform=ax.transAxes)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(path, dpi=100)
 
 
