@@ -4,7 +4,7 @@ Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each e
 once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
 search), `workflow` (`analyse`: identify, then search on top of the fitted plant), `report`,
-`datasets` (hidden-effect cases and the randomized off-nominal robot generator), `cli`.
+`datasets` (hidden-effect cases and the randomized off-nominal robot generator; `case` holds one case, `scoring` scores the workflow on them), `cli`.
 Everything but `report` and `cli` is pure (numpy, scipy, numba via flaair_sim; no file I/O).
 
 Given measured runs (drive, both sensor voltages, ground-truth angles) and a model, the core

@@ -43,8 +43,7 @@ This module only builds data and scores results (no file I/O).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Sequence
+from dataclasses import replace
 
 import numpy as np
 from scipy import signal
@@ -54,9 +53,10 @@ from flaair_model.model import Model, with_effects
 from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_sim.core.measured_run import synthesize_measured_run
 
-from .runs import CHANNELS, Run
+from .case import DatasetCase
+from .runs import Run
+from .scoring import CaseOutcome, confusion_table, expected_column, found_label, score_case
 from .vocabulary import PLANT_PARAMETERS
-from .workflow import DiscrepancyResult
 
 __all__ = [
     "FS_HZ",
@@ -82,8 +82,6 @@ __all__ = [
 FS_HZ = 20_000.0
 FULL_DRIVE_V = 100.0
 OUTSIDE_KINDS = ("aero_damping", "sensor_gain_drift", "second_resonance")
-PARAMETER_TOLERANCE = 0.15  # found parameters within 15 % of the truth
-MIN_GAP_REDUCTION = 0.5  # model-error NRMSE reduced by at least half on every channel with a gap
 
 
 def run_set_drives(fs_hz: float = FS_HZ, amplitude_v: float = FULL_DRIVE_V) -> tuple[tuple[str, np.ndarray], ...]:
@@ -93,83 +91,6 @@ def run_set_drives(fs_hz: float = FS_HZ, amplitude_v: float = FULL_DRIVE_V) -> t
     half = chirp(t, 0.5 * amplitude_v, 20.0, 200.0, 1.0)
     stepped, _ = stepped_sine(fs_hz, amplitude_v, stepped_sine_frequencies_hz(60.0, 200.0, 10.0), 0.2)
     return (("chirp_full", full), ("chirp_half", half), ("stepped", np.asarray(stepped)))
-
-
-@dataclass(frozen=True)
-class DatasetCase:
-    """One hidden-effect case.
-
-    Attributes
-    ----------
-    name : unique case name.
-    group : 'single', 'pair', 'null', 'outside' or 'confusable'.
-    effects : vocabulary effects of the true robot, ((name, params), ...).
-    outside : '' or one of OUTSIDE_KINDS (aero_damping: a Gamma change beyond the plant
-        identification's fit range).
-    outside_strength : its size (aero_damping: Gamma factor; sensor_gain_drift: gain lost over the
-        session; second_resonance: mode gain relative to the stroke's static gain).
-    noise_scale : noise relative to the model's noise section.
-    seed : noise seed.
-    note : what the case tests.
-    plant_scale : ((plant key, factor), ...): the robot's plant differs from the model's.
-    hidden : vocabulary effects the robot carries that a plant change reproduces exactly (not
-        separable, e.g. wing_damage): the right answer does not name them.
-    video_every : ground truth only every k-th sample (a video frame rate), NaN between; 1: DAQ rate.
-    below_limit : the effects are below what the search on the fitted plant resolves (the joint fit
-        absorbs them into the plant on the truth, and the sensors do not search physics): the right
-        answer names nothing and leaves the gap located (``unexplained``).
-    """
-
-    name: str
-    group: str
-    effects: tuple = ()
-    outside: str = ""
-    outside_strength: float = 0.0
-    noise_scale: float = 1.0
-    seed: int = 0
-    note: str = ""
-    plant_scale: tuple = ()
-    hidden: tuple = ()
-    video_every: int = 1
-    below_limit: bool = False
-
-    @property
-    def effect_names(self) -> tuple[str, ...]:
-        """Names of the hidden vocabulary effects, sorted."""
-        return tuple(sorted(n for n, _ in self.effects))
-
-    @property
-    def expected_names(self) -> tuple[str, ...]:
-        """Names the workflow must report, sorted (none for effects below the limit)."""
-        return () if self.below_limit else self.effect_names
-
-    @property
-    def expected_status(self) -> str:
-        """Status the workflow must report."""
-        if self.outside or self.below_limit:
-            return "unexplained"
-        return "explained" if self.effects else "no_discrepancy"
-
-    @property
-    def expected_gap_channel(self) -> str:
-        """Channel where an outside case must leave its gap ('' otherwise)."""
-        return {"aero_damping": "stroke_deg", "sensor_gain_drift": "pitch_sensor_v",
-                "second_resonance": "stroke_deg"}.get(self.outside, "")
-
-    @property
-    def true_label(self) -> str:
-        """Row label of the confusion table ('plant:' marks a hidden, not separable effect)."""
-        below = "below:" if self.below_limit else ""
-        parts = [below + n for n in self.effect_names] + [f"plant:{n}" for n in sorted(n for n, _ in self.hidden)]
-        if self.outside:
-            parts.append(f"outside:{self.outside}")
-        return "+".join(parts) or "none"
-
-    @property
-    def expected_found_label(self) -> str:
-        """The confusion-table column a right answer falls in."""
-        names = "+".join(self.expected_names) or "none"
-        return names + (" (gap left)" if self.expected_status == "unexplained" else "")
 
 
 def true_model(case: DatasetCase, model: Model) -> Model:
@@ -342,143 +263,6 @@ def dataset_cases() -> tuple[DatasetCase, ...]:
 
 # ------------------------------------------------------------------------------------ scoring
 
-
-@dataclass(frozen=True)
-class CaseOutcome:
-    """How the workflow did on one case.
-
-    Attributes
-    ----------
-    case : case name.
-    true_label, found_label : confusion-table row and column.
-    status, expected_status : reported and expected status.
-    found : names of the found effects, sorted.
-    parameter_errors : {effect.key: relative error} of the hidden effects' parameters.
-    gap_reduction : {channel: 1 - model-error NRMSE after / before} on channels with a gap before.
-    correct : name(s) and status right, parameters within 15 %, gap reduced by >= 50 % on every
-        channel that had one (outside cases: status unexplained, exactly the hidden vocabulary
-        effects found (usually none), the gap on the expected channel).
-    problems : why it is not correct.
-    elapsed_s : analysis time.
-    """
-
-    case: str
-    true_label: str
-    found_label: str
-    status: str
-    expected_status: str
-    found: tuple
-    parameter_errors: dict
-    gap_reduction: dict
-    correct: bool
-    problems: tuple
-    elapsed_s: float = math.nan
-
-    def as_dict(self) -> dict:
-        """JSON-ready outcome."""
-        return {"case": self.case, "true": self.true_label, "found": self.found_label, "status": self.status,
-                "expected_status": self.expected_status, "found_effects": list(self.found),
-                "parameter_errors": self.parameter_errors, "gap_reduction": self.gap_reduction,
-                "correct": self.correct, "problems": list(self.problems), "elapsed_s": self.elapsed_s}
-
-
-def expected_column(true_label: str) -> str:
-    """Confusion-table column of a right answer for a row label ('a+outside:x' -> 'a (gap left)';
-    hidden 'plant:' effects are not named: 'a+plant:wing_damage' -> 'a'; 'below:a' -> 'none (gap left)').
-    """
-    parts = true_label.split("+")
-    names = "+".join(p for p in parts if p != "none" and not p.startswith(("outside:", "plant:", "below:")))
-    gap = any(p.startswith(("outside:", "below:")) for p in parts)
-    return (names or "none") + (" (gap left)" if gap else "")
-
-
-def found_label(result: DiscrepancyResult) -> str:
-    """Confusion-table column: found effect names, 'none', and ' (gap left)' if unexplained."""
-    names = "+".join(sorted(e.name for e in result.effects)) or "none"
-    return names + (" (gap left)" if result.status == "unexplained" else "")
-
-
-def _excess(nrmse: float, floor: float) -> float:
-    return math.sqrt(max(nrmse**2 - floor**2, 0.0))
-
-
-def _split(params: dict) -> bool:
-    return bool(params) and all(isinstance(v, dict) for v in params.values())
-
-
-def per_chain(params: dict) -> dict:
-    """An effect's numeric parameters per sensor chain it acts on: {'': {...}} for an effect without
-    a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain.
-    """
-    if _split(params):
-        return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side, p in params.items()}
-    values = {k: float(v) for k, v in params.items() if not isinstance(v, str)}
-    channel = params.get("channel")
-    if channel is None:
-        return {"": values}
-    return {side: dict(values) for side in (("stroke", "pitch") if channel == "both" else (channel,))}
-
-
-def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan) -> CaseOutcome:
-    """Judge a workflow result against the case's hidden truth."""
-    problems = []
-    found = tuple(sorted(e.name for e in result.effects))
-    if result.status != case.expected_status:
-        problems.append(f"status {result.status}, expected {case.expected_status}")
-    errors: dict = {}
-    reduction: dict = {}
-    if found != case.expected_names:
-        problems.append(f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
-                        + (f" + outside:{case.outside}" if case.outside else ""))
-    by_name = {e.name: e for e in result.effects}
-    for name, params in case.effects:
-        if name not in by_name:
-            continue
-        hidden, got_sides = per_chain(params), per_chain(by_name[name].parameters)
-        if set(hidden) != set(got_sides):
-            problems.append(f"{name} acts on {'+'.join(got_sides)}, hidden on {'+'.join(hidden)}")
-            continue
-        for side, values in hidden.items():
-            for key, value in values.items():
-                got = float(got_sides[side][key])
-                rel = abs(got - value) / abs(value) if value else abs(got)
-                label = f"{name}.{key}" + (f"[{side}]" if len(hidden) > 1 and _split(params) else "")
-                errors[label] = max(rel, errors.get(label, 0.0))
-                if rel > PARAMETER_TOLERANCE:
-                    problems.append(f"{label} = {got:.4g}, hidden {value:.4g} ({rel:.0%} off)")
-    if case.outside:
-        gap_channels = {r["channel"] for r in result.remaining}
-        if case.expected_gap_channel not in gap_channels:
-            problems.append(f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})")
-    elif case.below_limit:
-        if not result.remaining:
-            problems.append("no gap reported")
-    elif case.effects:
-        for c in CHANNELS:
-            if not result.diagnosis_before.channels[c].has_gap:
-                continue
-            floor = result.diagnosis_before.channels[c].noise_nrmse
-            before = _excess(result.gap_before[c], floor)
-            after = _excess(result.gap_after[c], floor)
-            reduction[c] = 1.0 - after / before if before > 0 else 0.0
-            if reduction[c] < MIN_GAP_REDUCTION:
-                problems.append(f"{c}: gap reduced by {reduction[c]:.0%} only")
-    return CaseOutcome(case=case.name, true_label=case.true_label, found_label=found_label(result),
-                       status=result.status, expected_status=case.expected_status, found=found,
-                       parameter_errors=errors, gap_reduction=reduction, correct=not problems,
-                       problems=tuple(problems), elapsed_s=elapsed_s)
-
-
-def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
-    """{"rows": true labels, "columns": found labels, "counts": [[...]], "correct": k, "total": n}."""
-    rows = sorted({o.true_label for o in outcomes})
-    cols = sorted({o.found_label for o in outcomes})
-    counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c) for c in cols] for r in rows]
-    return {"rows": rows, "columns": cols, "counts": counts, "correct": sum(o.correct for o in outcomes),
-            "total": len(outcomes)}
-
-
-# ------------------------------------------------------------------ randomized off-nominal robots
 
 FAMILIES = ("offnominal_null", "offnominal_single", "offnominal_pair", "offnominal_outside")
 # Fabrication spread of the plant: natural frequencies within +-3 %, damping, gain and
