@@ -34,6 +34,7 @@ from flaair_control.control_io import (  # noqa: E402
     spectral_metric_params_from_config,
 )
 from flaair_control.core import collision as col  # noqa: E402
+from flaair_control.core import spectral  # noqa: E402
 from flaair_model.model import with_effects  # noqa: E402
 from flaair_model.model_io import load_model  # noqa: E402
 from flaair_sim.core import plant  # noqa: E402
@@ -92,7 +93,7 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
     for end in range(10 * period, pitch_all.size + 1, period):
         if end / FS <= strike:
             continue
-        if col.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ, METRIC).collision:
+        if spectral.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ, METRIC).collision:
             paper_t = end / FS
             break
     lat = (onset_t - strike) * DRIVE_HZ if onset_t is not None else math.inf
@@ -131,9 +132,9 @@ def main() -> None:
     t = np.arange(int(0.5 * FS)) / FS
     drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * t)
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
-    free = col.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
+    free = spectral.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
                                                                    rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ, METRIC)
-    coll = col.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
+    coll = spectral.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
                                                                    rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ, METRIC)
     figures += [
         Figure("paper metric: pitch FFT RMSE, collision", coll.spectral_rmse_deg, "deg", "> 1 (paper 3.23)",

@@ -12,6 +12,7 @@ from flaair_control.control_io import (
     spectral_metric_params_from_config,
 )
 from flaair_control.core import collision as col
+from flaair_control.core import spectral
 
 FS = 20000.0
 BLOCK = 10
@@ -26,7 +27,7 @@ METRIC = spectral_metric_params_from_config()   # the paper metric as configured
 def test_pure_sine_scores_zero(f, reference):
     t = np.arange(int(0.2 * FS)) / FS
     x = math.radians(20.0) * np.sin(2 * np.pi * f * t + 0.7) + 0.1
-    r = col.spectral_metric(x, FS, f, replace(METRIC, reference=reference))
+    r = spectral.spectral_metric(x, FS, f, replace(METRIC, reference=reference))
     assert r.spectral_rmse_deg < 0.01
     assert r.time_rmse_deg < 0.01
     assert not r.collision
@@ -37,7 +38,7 @@ def test_harmonic_content_gives_the_expected_rmse():
     f, a1, h = 100.0, math.radians(20.0), math.radians(5.0)
     t = np.arange(int(0.1 * FS)) / FS          # exactly 10 periods
     x = a1 * np.cos(2 * np.pi * f * t + 0.3) + h * np.cos(2 * np.pi * 2 * f * t + 1.1)
-    r = col.spectral_metric(x, FS, f, METRIC)
+    r = spectral.spectral_metric(x, FS, f, METRIC)
     n_bins = r.frequency_hz.size
     assert n_bins == 51                          # 0..500 Hz at 10 Hz resolution
     a_ref = math.hypot(a1, h)                    # energy-matched reference sine
@@ -47,17 +48,17 @@ def test_harmonic_content_gives_the_expected_rmse():
     k1, k2 = np.argmin(np.abs(r.frequency_hz - f)), np.argmin(np.abs(r.frequency_hz - 2 * f))
     assert r.signal_spectrum_rad[k1] < r.reference_spectrum_rad[k1]   # fundamental below the sine
     assert r.signal_spectrum_rad[k2] == pytest.approx(h, rel=1e-6)
-    fund = col.spectral_metric(x, FS, f, replace(METRIC, reference="fundamental"))
+    fund = spectral.spectral_metric(x, FS, f, replace(METRIC, reference="fundamental"))
     assert fund.spectral_rmse_rad == pytest.approx(h / math.sqrt(n_bins), rel=1e-6)
 
 
 def test_metric_rejects_bad_input_by_name():
     with pytest.raises(ValueError, match="angle_rad"):
-        col.spectral_metric(np.array([0.0, np.nan] * 200), FS, 100.0, METRIC)
+        spectral.spectral_metric(np.array([0.0, np.nan] * 200), FS, 100.0, METRIC)
     with pytest.raises(ValueError, match="drive_frequency_hz"):
-        col.spectral_metric(np.zeros(400), FS, 0.0, METRIC)
+        spectral.spectral_metric(np.zeros(400), FS, 0.0, METRIC)
     with pytest.raises(ValueError, match="drive period"):
-        col.spectral_metric(np.zeros(100), FS, 100.0, METRIC)
+        spectral.spectral_metric(np.zeros(100), FS, 100.0, METRIC)
     with pytest.raises(ValueError, match="reference"):
         replace(METRIC, reference="peak")
 
@@ -176,8 +177,8 @@ def test_paper_metric_separates_collision_from_free_flapping(model):
     hit_out = plant_mod.simulate(drive, FS, hit, noise=True, rng=np.random.default_rng(2))
     assert np.degrees(free_out.stroke_rad[-2000:]).max() > LIMIT_DEG + 5     # it would pass the stop
     assert np.degrees(hit_out.stroke_rad[-2000:]).max() < LIMIT_DEG + 2      # ... and is stopped
-    free = col.spectral_metric(sensor_angles(model, free_out)[1], FS, 100.0, METRIC)
-    coll = col.spectral_metric(sensor_angles(model, hit_out)[1], FS, 100.0, METRIC)
+    free = spectral.spectral_metric(sensor_angles(model, free_out)[1], FS, 100.0, METRIC)
+    coll = spectral.spectral_metric(sensor_angles(model, hit_out)[1], FS, 100.0, METRIC)
     assert coll.collision and not free.collision                            # 1 deg threshold
     assert coll.spectral_rmse_deg > 5 * free.spectral_rmse_deg
     assert coll.time_rmse_deg > 5 * free.time_rmse_deg

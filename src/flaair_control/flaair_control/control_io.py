@@ -14,7 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from flaair_control.core import collision as col
-from flaair_control.core import dsa, monitor, safety, stroke
+from flaair_control.core import dsa, monitor, safety, spectral, stroke
 from flaair_control.core import supervisor as sv
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
@@ -136,7 +136,7 @@ def monitor_windows_from_config(frequency_hz: float | None, phase_rad: float = 0
     return window_params(p, frequency_hz, phase_rad)
 
 
-def spectral_metric_params_from_config(values: Mapping[str, Any] | None = None) -> col.SpectralMetricParams:
+def spectral_metric_params_from_config(values: Mapping[str, Any] | None = None) -> spectral.SpectralMetricParams:
     """The paper collision metric as configured (threshold, band, wingbeats)."""
     return metric_params(collision_monitor_params_from_config(values))
 

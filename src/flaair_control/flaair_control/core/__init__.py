@@ -2,7 +2,8 @@
 
 Each decision the nodes make is a function of explicit state, inputs and frozen parameters here.
 
-- ``collision``: the paper's FFT/RMSE collision metric and a per-wingbeat collision monitor
+- ``spectral``: the paper's FFT/RMSE collision metric
+- ``collision``: the per-wingbeat collision monitor (windows, distortion, decision)
 - ``monitor``: the collision monitor node's decisions as a step function
 - ``dsa``: delayed-stretch-activation controller (filter, sync/async blend, delay compensation)
 - ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset, limit cycle)
@@ -12,4 +13,4 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``transition``: sync -> async transition analysis
 """
 
-__all__ = ["collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor", "transition"]
+__all__ = ["spectral", "collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor", "transition"]

@@ -29,6 +29,7 @@ from typing import NamedTuple, Union
 import numpy as np
 
 from flaair_control.core import collision as col
+from flaair_control.core import spectral
 from flaair_model.notes import INFO, Note
 
 ONSET = "onset"
@@ -87,9 +88,9 @@ class CollisionMonitorParams:
 
 
 @lru_cache(maxsize=64)
-def metric_params(p: CollisionMonitorParams) -> col.SpectralMetricParams:
+def metric_params(p: CollisionMonitorParams) -> spectral.SpectralMetricParams:
     """The paper metric's settings."""
-    return col.SpectralMetricParams(band_hz=p.metric_band_hz, threshold_deg=p.threshold_deg, n_wingbeats=p.metric_wingbeats)
+    return spectral.SpectralMetricParams(band_hz=p.metric_band_hz, threshold_deg=p.threshold_deg, n_wingbeats=p.metric_wingbeats)
 
 
 @lru_cache(maxsize=256)
@@ -290,7 +291,7 @@ def _store(history: np.ndarray, end: int, first_index: int, x: np.ndarray) -> np
 
 
 def _paper_metric(history: np.ndarray, history_end: int, end_index: int, frequency_hz: float,
-                  p: CollisionMonitorParams) -> col.SpectralMetric | None:
+                  p: CollisionMonitorParams) -> spectral.SpectralMetric | None:
     """The paper metric over the metric_wingbeats wingbeats ending at ``end_index``."""
     if not (math.isfinite(frequency_hz) and frequency_hz > 0):
         return None
@@ -302,7 +303,7 @@ def _paper_metric(history: np.ndarray, history_end: int, end_index: int, frequen
     if not np.isfinite(x).all():
         return None
     try:
-        return col.spectral_metric(x, p.sample_rate_hz, frequency_hz, metric_params(p))
+        return spectral.spectral_metric(x, p.sample_rate_hz, frequency_hz, metric_params(p))
     except col.CollisionParameterError:
         return None
 

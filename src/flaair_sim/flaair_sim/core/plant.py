@@ -23,9 +23,7 @@ deviation), feedthrough (stroke), charge-amplifier high-pass (first-order, bilin
 pre-warped corner, scipy `lfilter` zi convention), sensor delay (integer samples + linear
 interpolation between the two neighbouring samples for the fractional part), + V_HREF, noise.
 
-Effect coefficients that are damping ratios (structural_damping, collision) use the nominal
-inertia, so each effect maps to a fixed physical coefficient whatever else is on; wing_damage
-scales only I and I_p (K, k_h, J_c, damping coefficients unchanged).
+Each effect's coefficients come from its entry in the effect table (`flaair_model.effects`).
 """
 from __future__ import annotations
 
@@ -40,22 +38,10 @@ from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
 from flaair_sim.core.plant_params import Prepared, prepare
 
-__all__ = [
-    "SimOutput",
-    "PlantState",
-    "initial_state",
-    "step",
-    "simulate",
-    "simulate_batch",
-    "n_substeps",
-    "simulate_batch_from",
-    "sensor_chain",
-    # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
-    "Prepared",
-    "prepare",
-    "mechanical_constants",
-    "rk4_step",
-]
+__all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch", "n_substeps",
+           "simulate_batch_from", "sensor_chain",
+           # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
+           "Prepared", "prepare", "mechanical_constants", "rk4_step"]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}

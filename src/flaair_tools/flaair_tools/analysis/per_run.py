@@ -90,7 +90,7 @@ def metric_params() -> Any:
 
 def collision_metric(pitch_rad: np.ndarray, fs_hz: float, frequency_hz: float) -> Any:
     """The paper's collision metric of a pitch record (its finite samples)."""
-    from flaair_control.core.collision import spectral_metric
+    from flaair_control.core.spectral import spectral_metric
 
     valid = pitch_rad[np.isfinite(pitch_rad)]
     return spectral_metric(valid, fs_hz, frequency_hz, metric_params())
