@@ -6,7 +6,7 @@ import struct
 import numpy as np
 import pytest
 
-from flaair_bridge.core import bridge, protocol
+from flaair_bridge.core import bridge, bridge_params, protocol
 from flaair_bridge.core.bridge import DriveBlock, SensorDatagram, Stop, Tick
 from flaair_bridge.emulated_target import TargetCore, sensor_packet
 
@@ -15,11 +15,11 @@ N = 10
 LEAD = 20
 
 
-def params(**overrides) -> bridge.BridgeParams:
+def params(**overrides) -> bridge_params.BridgeParams:
     values = dict(sample_rate_hz=FS, block_size=N, lead_samples=LEAD, drive_limit_v=150.0, max_ahead_samples=400,
                   max_fill_samples=20000, resync_packets=5, drive_timeout_s=0.02, sensor_timeout_s=0.02)
     values.update(overrides)
-    return bridge.BridgeParams(**values)
+    return bridge_params.BridgeParams(**values)
 
 
 def packet(sequence: int, first: int, n: int = N, flags: int = 0, rate: float = FS) -> bytes:
@@ -245,7 +245,7 @@ def test_stop_input_sends_a_stop_packet_at_the_target_clock() -> None:
 @pytest.mark.parametrize("name, value", [("block_size", 0), ("lead_samples", -1), ("drive_timeout_s", 0.0),
                                          ("sample_rate_hz", float("nan")), ("resync_packets", 0)])
 def test_parameters_out_of_range_are_named(name: str, value) -> None:
-    with pytest.raises(bridge.BridgeParameterError, match=f"'{name}'"):
+    with pytest.raises(bridge_params.BridgeParameterError, match=f"'{name}'"):
         params(**{name: value})
 
 

@@ -21,7 +21,7 @@ from rclpy.node import Node
 
 from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
-from flaair_bridge.core import bridge
+from flaair_bridge.core import bridge, bridge_params, bridge_report
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
@@ -42,8 +42,8 @@ class BridgeNode(Node):
         super().__init__(NODE_NAME)
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         try:
-            self.params = bridge.BridgeParams(**{name: p[name] for name in bridge.BridgeParams.__dataclass_fields__})
-        except bridge.BridgeParameterError as exc:
+            self.params = bridge_params.BridgeParams(**{name: p[name] for name in bridge_params.BridgeParams.__dataclass_fields__})
+        except bridge_params.BridgeParameterError as exc:
             raise ParameterError(str(exc)) from exc
         # where drive and stop packets go: the configured target, else learnt when the target speaks
         # (a configured target that never speaks still gets the stop packet at the end)
@@ -52,7 +52,7 @@ class BridgeNode(Node):
         self.state, self.lock = bridge.initial_state(self.params), threading.RLock()   # re-entered when composed: the loop answers in-process
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
-        self.events = bridge.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
+        self.events = bridge_report.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
         self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, cdr.FixedCodec(
@@ -126,7 +126,7 @@ class BridgeNode(Node):
         self.endpoint.stop_reading()   # a reader behind its backlog would hold the lock against the stop packet
         self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
-        self.get_logger().info(f"bridge closed, stop packet sent: {bridge.summary(self.state.counters, self.timing)}")
+        self.get_logger().info(f"bridge closed, stop packet sent: {bridge_report.summary(self.state.counters, self.timing)}")
         if self.p["timing_file"]:
             np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3), **self.events.arrays())
 

@@ -34,50 +34,15 @@ at sample k; `Outputs.timing` pairs that packet's arrival with the drive packet'
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import NamedTuple, Optional, Union
 
 import numpy as np
 
 from flaair_bridge.core import protocol
+from flaair_bridge.core.bridge_params import BridgeParams
 from flaair_model.notes import ERROR, WARNING, Note
 
 ARRIVAL_RING = 256   # recent sensor packets remembered for the latency pairing
-
-
-class BridgeParameterError(ValueError):
-    """A bridge parameter out of range; the message names it."""
-
-
-@dataclass(frozen=True)
-class BridgeParams:
-    """Bridge settings (no defaults: config/flaair.yaml, section bridge_node)."""
-
-    sample_rate_hz: float
-    block_size: int
-    lead_samples: int
-    drive_limit_v: float
-    max_ahead_samples: int
-    max_fill_samples: int
-    resync_packets: int
-    drive_timeout_s: float
-    sensor_timeout_s: float
-
-    def __post_init__(self) -> None:
-        checks = {
-            "sample_rate_hz": self.sample_rate_hz > 0 and math.isfinite(self.sample_rate_hz),
-            "block_size": 1 <= self.block_size <= protocol.MAX_SAMPLES,
-            "lead_samples": self.lead_samples >= 0,
-            "drive_limit_v": self.drive_limit_v >= 0 and math.isfinite(self.drive_limit_v),
-            "max_ahead_samples": self.max_ahead_samples >= 0,
-            "max_fill_samples": self.max_fill_samples >= 0,
-            "resync_packets": self.resync_packets >= 1,
-            "drive_timeout_s": self.drive_timeout_s > 0,
-            "sensor_timeout_s": self.sensor_timeout_s > 0,
-        }
-        for name, ok in checks.items():
-            if not ok:
-                raise BridgeParameterError(f"parameter '{name}' = {getattr(self, name)!r} is out of range")
 
 
 class Counters(NamedTuple):
@@ -529,34 +494,3 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
             state = state._replace(pending=pending, pending_first=pending_first, counters=_count(
                 state.counters, silence_samples=missing, published_blocks=len(blocks)))
     return state, Outputs(tuple(blocks), tuple(packets), (), tuple(notes))
-
-
-def summary(counters: Counters, timing: list) -> str:
-    """One line of every counter and, from `Outputs.timing` records, the sensor-to-drive latency."""
-    text = ", ".join(f"{name} {value}" for name, value in counters._asdict().items())
-    if timing:
-        latency_ms = 1e3 * np.array([send - arrival for _, arrival, send in timing])
-        text += (f"; sensor arrival -> drive packet p50 {np.percentile(latency_ms, 50):.3f} ms, "
-                 f"p99 {np.percentile(latency_ms, 99):.3f} ms over {len(latency_ms)} packets")
-    return text
-
-
-class EventLog:
-    """Raw event times for benchmarks: each sensor packet (packets accepted so far, arrival s) and
-    each drive block (stream index, receive s, send s, cause s). Send is NaN when the block was
-    queued or dropped; cause is the arrival of the sensor packet whose handling produced the block
-    (the composed loop answers a packet before it reads the next), NaN when there was none.
-    """
-
-    def __init__(self) -> None:
-        self.sensor: list[tuple[int, float]] = []
-        self.drive: list[tuple[int, float, float, float]] = []
-
-    def record(self, inputs: Input, out: Outputs, counters: Counters, now_s: float, cause_s: float = math.nan) -> None:
-        if isinstance(inputs, DriveBlock):
-            self.drive.append((inputs.first_sample_index, inputs.now_s, now_s if out.packets else math.nan, cause_s))
-        elif isinstance(inputs, SensorDatagram):
-            self.sensor.append((counters.sensor_packets, inputs.now_s))
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {"sensor": np.array(self.sensor).reshape(-1, 2), "drive": np.array(self.drive).reshape(-1, 4)}
