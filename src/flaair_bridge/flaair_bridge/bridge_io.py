@@ -1,7 +1,12 @@
-"""The bridge node's parameters (their values: config/flaair.yaml, section bridge_node)."""
+"""The bridge node's parameters (their values: config/flaair.yaml, section bridge_node) and its
+mapping between the core's blocks and settings and the node's messages and log lines.
+"""
 from __future__ import annotations
 
-from flaair_common.params import ParamSpec
+from typing import Any, Mapping
+
+from flaair_bridge.core import bridge, bridge_params
+from flaair_common.params import ParameterError, ParamSpec
 
 PARAMS = [
     ParamSpec("sample_rate_hz", float, "Sample rate of the target and every block stream [Hz]", 1000.0, 1.0e6, read_only=True),
@@ -23,3 +28,36 @@ PARAMS = [
     ParamSpec("publish_applied", bool, "Publish the applied drive on /flaair/drive/applied", read_only=True),
     ParamSpec("timing_file", str, "Event times (.npz) at exit for benchmarks (empty: off)", read_only=True),
 ]
+
+
+def params_from_values(values: Mapping[str, Any]) -> bridge_params.BridgeParams:
+    """The core's parameters from the node's values; a refused one is a ParameterError naming it."""
+    try:
+        return bridge_params.BridgeParams(**{name: values[name]
+                                             for name in bridge_params.BridgeParams.__dataclass_fields__})
+    except bridge_params.BridgeParameterError as exc:
+        raise ParameterError(str(exc)) from exc
+
+
+def configured_target(values: Mapping[str, Any]) -> tuple[str, int] | None:
+    """Where drive and stop packets go when configured; None: learnt when the target speaks."""
+    return (values["target_host"], values["target_port"]) if values["target_host"] and values["target_port"] else None
+
+
+def ready_text(values: Mapping[str, Any]) -> str:
+    """The node's start-up log line: where it listens, where it sends, lead and limit."""
+    lead = values["lead_samples"]
+    return (f"bridge ready: sensor packets on udp {values['listen_host']}:{values['listen_port']}, drive to "
+            f"{values['target_host'] or '<sender>'}:{values['target_port'] or '<sender port>'}, lead {lead} "
+            f"samples ({1e3 * lead / values['sample_rate_hz']:g} ms), limit +-{values['drive_limit_v']:g} V")
+
+
+def sensor_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
+    """A published SensorVoltageBlock's fields (for `intra.BlockPublisher.publish`)."""
+    return {"sample_rate_hz": fs_hz, "first_sample_index": block.first_sample_index,
+            "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v}
+
+
+def applied_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
+    """The DriveCommandBlock of the drive the target applied over `block`."""
+    return {"sample_rate_hz": fs_hz, "first_sample_index": block.first_sample_index, "drive_v": block.drive_v}

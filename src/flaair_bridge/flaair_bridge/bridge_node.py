@@ -19,9 +19,10 @@ import time
 import numpy as np
 from rclpy.node import Node
 
+from flaair_bridge import bridge_io as io
 from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
-from flaair_bridge.core import bridge, bridge_params, bridge_report
+from flaair_bridge.core import bridge, bridge_report
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
@@ -41,14 +42,9 @@ class BridgeNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        try:
-            self.params = bridge_params.BridgeParams(**{name: p[name] for name in bridge_params.BridgeParams.__dataclass_fields__})
-        except bridge_params.BridgeParameterError as exc:
-            raise ParameterError(str(exc)) from exc
-        # where drive and stop packets go: the configured target, else learnt when the target speaks
-        # (a configured target that never speaks still gets the stop packet at the end)
-        self.target: tuple[str, int] | None = (p["target_host"], p["target_port"]) if (
-            p["target_host"] and p["target_port"]) else None
+        self.params = io.params_from_values(p)
+        # a configured target that never speaks still gets the stop packet at the end
+        self.target = io.configured_target(p)
         self.state, self.lock = bridge.initial_state(self.params), threading.RLock()   # re-entered when composed: the loop answers in-process
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
@@ -72,10 +68,7 @@ class BridgeNode(Node):
         error = self.endpoint.priority_error   # not root, no CAP_SYS_NICE: a warning, the bridge still runs
         if error:
             self.get_logger().warning(f"UDP reader runs WITHOUT its real-time priority ({error})")
-        self.get_logger().info(
-            f"bridge ready: sensor packets on udp {p['listen_host']}:{p['listen_port']}, drive to "
-            f"{p['target_host'] or '<sender>'}:{p['target_port'] or '<sender port>'}, lead {p['lead_samples']} samples "
-            f"({1e3 * p['lead_samples'] / self.fs_hz:g} ms), limit +-{p['drive_limit_v']:g} V")
+        self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
@@ -110,11 +103,9 @@ class BridgeNode(Node):
                 self.events.record(inputs, out, counters, time.time(), self.cause_s)
             for block in out.blocks:
                 stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
-                self.sensor.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
-                                               "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v})
+                self.sensor.publish(stamp_ns, io.sensor_fields(block, self.fs_hz))
                 if self.applied is not None:
-                    self.applied.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": block.first_sample_index,
-                                                    "drive_v": block.drive_v})
+                    self.applied.publish(stamp_ns, io.applied_fields(block, self.fs_hz))
             self.cause_s = outer_cause_s
         log_notes(self.get_logger(), out.notes, lambda counter: getattr(counters, counter))
 

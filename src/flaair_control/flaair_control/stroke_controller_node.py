@@ -26,14 +26,12 @@ from rclpy.node import Node
 
 from flaair_common import topics
 from flaair_common.blocks import stamp_from_time_s
-from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
+from flaair_control import stroke_io as io
 from flaair_control.core import safety, stroke
-from flaair_control.core.dsa import loop_delay_s
-from flaair_model.model_io import load_model
 from flaair_msgs.msg import ControllerState, DriveCommandBlock, WingStateBlock
-from flaair_sensors.frontend_io import velocity_delay_s
 
 NODE_NAME = "stroke_controller_node"
 CONFIG_FILE = "flaair.yaml"
@@ -44,13 +42,8 @@ class StrokeControllerNode(Node):
         super().__init__(NODE_NAME)
         self.p = p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.fs, self.n, self.in_flight = p["sample_rate_hz"], p["block_size"], p["blocks_in_flight"]
-        self.plant = stroke.StrokePlant.from_model(load_model(p["model_file"] or None))
-        velocity = p["velocity_delay_s"] if p["velocity_delay_s"] >= 0 else velocity_delay_s(p["compensation_frequency_hz"])
-        try:
-            self.params = stroke.params_from_values(p, self.plant, self.fs, loop_delay_s(self.n * self.in_flight, self.fs, velocity * self.fs))
-        except ValueError as exc:  # the design cannot reach the setpoint, or the limits contradict it
-            raise ParameterError(f"parameter 'setpoint_deg' / command limits: {exc}") from exc
-        self.guard = safety.SafetyParams(p["drive_limit_v"], p["slew_limit_v_per_s"], p["invalid_timeout_s"], p["ramp_down_s"], self.fs)
+        self.setup = io.setup_from_values(p)
+        self.params, self.guard = self.setup.params, self.setup.guard
         self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(self.guard)
         self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = 0, "waiting", time.monotonic(), None, False
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
@@ -58,19 +51,16 @@ class StrokeControllerNode(Node):
         self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(0.02, self.on_timer)
-        self.get_logger().info(f"stroke control ({self.params.mode}): {self.params.setpoint_deg:g} deg, feed-forward "
-                               f"{self.params.command_nominal:.4g}, slope {self.params.elasticity:.3f}, gain {self.params.gain:.3f}/wingbeat")
+        self.get_logger().info(io.ready_text(self.params))
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
         for param in parameters:
             if param.name == "setpoint_deg":
                 try:
-                    u_ff, slope = stroke.design(self.plant, self.params.mode, float(param.value), sync_frequency_hz=self.p[
-                        "sync_frequency_hz"], r3_rad_s=self.p["r3_rad_s"], kappa=self.p["kappa"])
+                    self.params = io.retargeted(self.setup, self.params, self.p, float(param.value))
                 except ValueError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
-                self.params = stroke.retarget(self.params, float(param.value), u_ff, slope)
-                self.get_logger().info(f"setpoint {param.value:g} deg: feed-forward {u_ff:.4g}")
+                self.get_logger().info(f"setpoint {param.value:g} deg: feed-forward {self.params.command_nominal:.4g}")
         return SetParametersResult(successful=True)
 
     def on_wing_state(self, msg: WingStateBlock) -> None:
@@ -79,18 +69,14 @@ class StrokeControllerNode(Node):
         if self.mode != "loop":
             return
         self.last_wall, self.answered = time.monotonic(), True
-        stroke_rad = np.radians(np.asarray(msg.stroke_deg, dtype=float))
-        valid = np.asarray(msg.stroke_valid, dtype=bool)
-        if valid.size != stroke_rad.size:
-            valid = np.zeros(stroke_rad.size, bool)
-        ok = bool(valid.all() and np.isfinite(stroke_rad).all() and stroke_rad.size == self.n)
-        self.send(stroke_rad, np.radians(np.asarray(msg.stroke_velocity_deg_s, dtype=float)), valid, ok)
+        self.send(*io.wing_input({"stroke_deg": msg.stroke_deg, "stroke_valid": msg.stroke_valid,
+                                  "stroke_velocity_deg_s": msg.stroke_velocity_deg_s}, self.n))
 
     def send(self, stroke_rad: np.ndarray, velocity: np.ndarray, valid: np.ndarray, ok: bool | None) -> None:
         """Cores on one block; publish the guarded drive block and the controller state."""
         t = self.next_index / self.fs
         if stroke_rad.size != self.n:
-            stroke_rad, velocity, valid = np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool)
+            stroke_rad, velocity, valid, _ = io.empty_input(self.n)
         self.state, out = stroke.step(self.state, stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index), self.params)
         self.safety, guarded = safety.step(self.safety, safety.SafetyInputs(out.drive_v, t, ok), self.guard)
         self.publish(guarded.drive_v, guarded.tripped, bool(np.abs(out.drive_v).max() > self.guard.drive_limit_v))
@@ -121,16 +107,16 @@ class StrokeControllerNode(Node):
             if ready and now - self.peers_wall >= self.p["start_delay_s"]:
                 self.mode, self.last_wall = "loop", now
                 for _ in range(self.in_flight):
-                    self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+                    self.send(*io.empty_input(self.n))
         elif self.mode == "loop" and not self.answered and now - self.last_wall > self.p["start_retry_s"]:
             self.last_wall = now  # no answer to the start yet (a lost first block): one more
-            self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+            self.send(*io.empty_input(self.n))
         elif self.mode == "loop" and now - self.last_wall > self.p["watchdog_timeout_s"]:
             self.mode = "tripped"
             self.get_logger().error(f"WATCHDOG TRIPPED: no wing-state block for {now - self.last_wall:.2f} s; ramping to zero")
             self.safety = safety.note_sensor_block(self.safety, self.next_index / self.fs, False, self.guard)
             while self.next_index / self.fs < self.safety.trip_time_s + self.p["ramp_down_s"] + self.n / self.fs:
-                self.send(np.full(self.n, np.nan), np.full(self.n, np.nan), np.zeros(self.n, bool), None)
+                self.send(*io.empty_input(self.n))
 
     def close(self) -> None:
         """Shutdown: a zero-drive block so the actuator does not hold the last command."""
