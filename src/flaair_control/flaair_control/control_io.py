@@ -19,7 +19,8 @@ from flaair_control.core import supervisor as sv
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
-from flaair_model.model import Model
+from flaair_model.model import Model, ModelError
+from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
@@ -233,3 +234,25 @@ def supervisor_wing_input(fields: Mapping[str, Any], t_wall: float, drive_subscr
     return sv.WingBlock(t_wall, int(fields["first_sample_index"]), float(fields["sample_rate_hz"]),
                         fields["stroke_velocity_deg_s"], fields["stroke_deg"], fields["stroke_valid"], drive_subscribers)
 
+
+
+def supervisor_params_from_values(values: Mapping[str, Any]) -> SupervisorParams:
+    """The dSA controller node's supervisor parameters, its model file loaded (ParameterError names it)."""
+    try:
+        model = load_model(values["model_file"] or None)
+    except (ModelError, OSError) as exc:
+        raise ParameterError(f"parameter 'model_file': {exc}") from exc
+    return supervisor_params_from_config(values, model)
+
+
+def drive_fields(block: sv.DriveOut, sample_rate_hz: float) -> dict[str, Any]:
+    """A DriveCommandBlock's fields (for `intra.BlockPublisher.publish`)."""
+    return {"sample_rate_hz": sample_rate_hz, "first_sample_index": block.first_sample_index, "drive_v": block.drive_v}
+
+
+def controller_state_fields(block: sv.DriveOut, watchdog_code: int) -> dict[str, Any]:
+    """A ControllerState's fields for the drive block `block` (`watchdog_code`: the message's constant)."""
+    return {"k_r": block.k_r, "async_drive_v": block.async_drive_v, "sync_drive_v": block.sync_drive_v,
+            "drive_v": block.drive_v[-1], "drive_clamped": block.drive_clamped, "watchdog": watchdog_code,
+            "fault": block.fault, "amplitude_scale": block.amplitude_scale,
+            "stroke_frequency_hz": block.stroke_frequency_hz}

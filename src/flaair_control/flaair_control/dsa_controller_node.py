@@ -24,19 +24,17 @@ from rclpy.node import Node
 
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
-from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import log_notes, run_node, warn_counted
+from flaair_control import control_io as io
 from flaair_control.control_io import (
     CONFIG_FILE,
     DSA_CONTROLLER_PARAMS,
     describe_loop,
-    supervisor_params_from_config,
     supervisor_wing_input,
 )
 from flaair_control.core import supervisor as sv
-from flaair_model.model import ModelError
-from flaair_model.model_io import load_model
 from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 
 NODE_NAME = "dsa_controller_node"
@@ -50,11 +48,7 @@ class DsaControllerNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        try:
-            model = load_model(p["model_file"] or None)
-        except (ModelError, OSError) as exc:
-            raise ParameterError(f"parameter 'model_file': {exc}") from exc
-        self.params = supervisor_params_from_config(p, model)
+        self.params = io.supervisor_params_from_values(p)
         self.state = sv.initial_state(self.params)
         sv.warm_up(self.params)   # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
@@ -83,15 +77,11 @@ class DsaControllerNode(Node):
 
     def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:
         stamp_ns = stamp_ns_of_sample(b.first_sample_index, self.params.sample_rate_hz)
-        self.drive.publish(stamp_ns, {"sample_rate_hz": self.params.sample_rate_hz,
-                                      "first_sample_index": b.first_sample_index, "drive_v": b.drive_v})
+        self.drive.publish(stamp_ns, io.drive_fields(b, self.params.sample_rate_hz))
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
         if b.with_state and self.state_pub.subscription_count():   # volatile: no listener, nothing lost
-            self.state_pub.publish(stamp_ns, {
-                "k_r": b.k_r, "async_drive_v": b.async_drive_v, "sync_drive_v": b.sync_drive_v,
-                "drive_v": b.drive_v[-1], "drive_clamped": b.drive_clamped, "watchdog": WATCHDOG[b.tripped],
-                "fault": b.fault, "amplitude_scale": b.amplitude_scale, "stroke_frequency_hz": b.stroke_frequency_hz})
+            self.state_pub.publish(stamp_ns, io.controller_state_fields(b, WATCHDOG[b.tripped]))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1

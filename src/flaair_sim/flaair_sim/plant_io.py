@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+import numpy as np
+
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
@@ -62,3 +64,30 @@ def actuator_params_from_config(values: Mapping[str, Any]) -> ActuatorParams:
     """The simulated driver's pacing and watchdog from plant_node values."""
     return ActuatorParams(values["sample_rate_hz"], values["block_size"], values["mode"],
                           values["command_timeout_s"], values["ring_down_s"], ARM_S)
+
+
+def ready_text(values: Mapping[str, Any], model: Model, windows_s: list[tuple[float, float]]) -> str:
+    """The plant node's start-up log line: mode, rate, block size, effects, obstacle windows."""
+    obstacle = (f", obstacle at {values['obstacle_stroke_limit_deg']:g} deg over {windows_s} s" if windows_s else "")
+    return (f"plant ready: {values['mode']}, {values['sample_rate_hz']:g} Hz, {values['block_size']}-sample blocks, "
+            f"effects: {', '.join(name for name, _ in model.effects) or 'none'}{obstacle}")
+
+
+def model_at(start_s: float, model: Model, obstacle_model: Model, windows_s: list[tuple[float, float]]) -> Model:
+    """The model a block starting at `start_s` runs on: the obstacle's inside its windows."""
+    return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
+
+
+def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
+    """A SensorVoltageBlock's fields for the plant's output `out` from sample `index`."""
+    return {"sample_rate_hz": fs_hz, "first_sample_index": index,
+            "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v}
+
+
+def truth_fields(index: int, fs_hz: float, out: Any, source: int) -> dict[str, Any]:
+    """A ground-truth WingStateBlock's fields (degrees, every sample valid, no velocity)."""
+    n = out.stroke_rad.size
+    valid = np.ones(n, dtype=bool)
+    return {"sample_rate_hz": fs_hz, "first_sample_index": index, "source": source,
+            "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
+            "stroke_velocity_deg_s": np.full(n, np.nan), "stroke_valid": valid, "pitch_valid": valid}

@@ -28,6 +28,7 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
+from flaair_sim import plant_io as io
 from flaair_sim.core import actuator, plant
 from flaair_sim.plant_io import (
     CLOCK_DEPTH,
@@ -60,8 +61,6 @@ class PlantNode(Node):
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, CLOCK_DEPTH) if self.p["publish_clock"] else None
-        self.all_valid = np.ones(self.block_size, dtype=bool)
-        self.no_velocity = np.full(self.block_size, np.nan)
         self.undecodable, self.next_index = 0, 0   # next_index: first sample of the next stepped block
         # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
         # the plant subscribes only once its outputs' listeners are matched (none misses block 0).
@@ -70,10 +69,7 @@ class PlantNode(Node):
         if self.p["mode"] == "realtime" or self.p["command_timeout_s"] > 0:
             period = 0.005 if self.p["mode"] == "realtime" else min(0.01, self.p["command_timeout_s"] / 4)
             self.create_timer(period, self.on_tick)
-        self.get_logger().info(
-            f"plant ready: {self.p['mode']}, {self.fs_hz:g} Hz, {self.block_size}-sample blocks, "
-            f"effects: {', '.join(name for name, _ in self.model.effects) or 'none'}"
-            + (f", obstacle at {self.p['obstacle_stroke_limit_deg']:g} deg over {self.windows_s} s" if self.windows_s else ""))
+        self.get_logger().info(io.ready_text(self.p, self.model, self.windows_s))
 
     def subscribe_when_listened(self) -> None:
         """Subscribe to the drive once sensor_v and truth each have min_output_subscribers listeners."""
@@ -116,20 +112,15 @@ class PlantNode(Node):
         drive_v = np.minimum(np.maximum(drive_v, -limit), limit)   # np.clip, at a third of its call overhead
         index = self.next_index
         self.next_index += drive_v.size
-        start_s = index / self.fs_hz
-        obstacle = bool(self.windows_s) and any(a <= start_s < b for a, b in self.windows_s)
+        model = io.model_at(index / self.fs_hz, self.model, self.obstacle_model, self.windows_s)
         self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng),
-                                     plant.PlantStepParams(self.obstacle_model if obstacle else self.model, self.fs_hz))
+                                     plant.PlantStepParams(model, self.fs_hz))
         stamp_ns = stamp_ns_of_sample(index, self.fs_hz)
-        self.sensor.publish(stamp_ns, {"sample_rate_hz": self.fs_hz, "first_sample_index": index,
-                                       "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v})
+        self.sensor.publish(stamp_ns, io.sensor_fields(index, self.fs_hz, out))
         # Truth and /clock only when someone listens (volatile: a subscriber gets what follows its
         # match either way); the composed loop alone spends no encoding or DDS write on them.
         if self.truth.subscription_count():
-            self.truth.publish(stamp_ns, {
-                "sample_rate_hz": self.fs_hz, "first_sample_index": index, "source": WingStateBlock.SOURCE_GROUND_TRUTH,
-                "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
-                "stroke_velocity_deg_s": self.no_velocity, "stroke_valid": self.all_valid, "pitch_valid": self.all_valid})
+            self.truth.publish(stamp_ns, io.truth_fields(index, self.fs_hz, out, WingStateBlock.SOURCE_GROUND_TRUTH))
         if self.clock_pub is not None and self.clock_pub.get_subscription_count():
             self.clock_pub.publish(Clock(clock=stamp_from_time_s((index + drive_v.size) / self.fs_hz)))
 
