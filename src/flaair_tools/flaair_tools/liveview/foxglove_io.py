@@ -1,10 +1,13 @@
 """foxglove_node's parameters (declared once) and the `bin/flaair` argv that starts it."""
 from __future__ import annotations
 
+from typing import Any, Mapping
+
 from flaair_model.schema import ParamSpec
+from flaair_tools.analysis import wingbeat
 from flaair_tools.liveview import live_view
 
-__all__ = ["NODE_NAME", "CONFIG_FILE", "PARAMS", "foxglove_node_args"]
+__all__ = ["NODE_NAME", "CONFIG_FILE", "PARAMS", "foxglove_node_args", "wingbeat_params", "open_channels"]
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"
@@ -28,3 +31,20 @@ def foxglove_node_args(host_port: str) -> list[str]:
     """`bin/flaair` argv starting the live view on HOST:PORT (ValueError naming a bad HOST:PORT)."""
     host, port = live_view.parse_host_port(host_port)
     return ["run", "flaair_tools", NODE_NAME, "--ros-args", "-p", f"host:={host}", "-p", f"port:={port}"]
+
+
+def wingbeat_params(values: Mapping[str, Any]) -> wingbeat.WingbeatParams:
+    """The wingbeat detector's parameters from foxglove_node's values."""
+    return wingbeat.WingbeatParams(values["sample_rate_hz"], values["wingbeat_hysteresis_deg"],
+                                   values["wingbeat_min_frequency_hz"], values["wingbeat_max_frequency_hz"])
+
+
+def open_channels(foxglove: Any) -> tuple[dict[str, Any], Any, Any]:
+    """The server's channels (`foxglove`: the SDK module): one per block stream (CDR, ros2msg schema),
+    the wingbeat summaries and the collision status (JSON).
+    """
+    streams = {key: foxglove.Channel(stream.topic, message_encoding="cdr", schema=foxglove.Schema(
+        name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode()))
+        for key, stream in live_view.STREAMS.items()}
+    return (streams, foxglove.Channel(live_view.WINGBEAT_TOPIC, schema=live_view.WINGBEAT_SCHEMA),
+            foxglove.Channel(live_view.COLLISION_TOPIC, schema=live_view.COLLISION_SCHEMA))

@@ -24,22 +24,17 @@ from flaair_common import cdr, topics
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
-from flaair_msgs.msg import (
-    CollisionStatus,
-    ControllerState,
-    DriveCommandBlock,
-    SensorVoltageBlock,
-    WingStateBlock,
-)
+from flaair_msgs import msg as msgs
 from flaair_tools.analysis import wingbeat
+from flaair_tools.liveview import foxglove_io as io
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS
 
 STREAM_SOURCES = {  # live_view stream -> (ROS topic, message class, CDR layout)
-    "wing_state": (topics.WING_STATE, WingStateBlock, cdr.WING_STATE_BLOCK),
-    "wing_state_truth": (topics.WING_STATE_TRUTH, WingStateBlock, cdr.WING_STATE_BLOCK),
-    "sensor_v": (topics.SENSOR_VOLTAGE, SensorVoltageBlock, cdr.SENSOR_VOLTAGE_BLOCK),
-    "drive": (topics.DRIVE, DriveCommandBlock, cdr.DRIVE_COMMAND_BLOCK),
+    "wing_state": (topics.WING_STATE, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
+    "wing_state_truth": (topics.WING_STATE_TRUTH, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
+    "sensor_v": (topics.SENSOR_VOLTAGE, msgs.SensorVoltageBlock, cdr.SENSOR_VOLTAGE_BLOCK),
+    "drive": (topics.DRIVE, msgs.DriveCommandBlock, cdr.DRIVE_COMMAND_BLOCK),
 }
 
 
@@ -50,17 +45,13 @@ class FoxgloveNode(Node):
         super().__init__(NODE_NAME)
         p = declare_parameters(self, PARAMS, CONFIG_FILE)
         try:
-            self.wingbeat_params = wingbeat.WingbeatParams(p["sample_rate_hz"], p["wingbeat_hysteresis_deg"],
-                                                           p["wingbeat_min_frequency_hz"], p["wingbeat_max_frequency_hz"])
+            self.wingbeat_params = io.wingbeat_params(p)
             self.server = foxglove.start_server(name="flaair", host=p["host"], port=p["port"], capabilities=[Capability.Time],
                                                 message_backlog_size=p["message_backlog"])
         except (ValueError, RuntimeError) as exc:
             raise ParameterError(f"parameters 'host'/'port'/'wingbeat_*': {exc}") from exc
         self.decimation = p["sample_decimation"]
-        self.channels = {key: foxglove.Channel(stream.topic, message_encoding="cdr", schema=foxglove.Schema(
-            name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode())) for key, stream in live_view.STREAMS.items()}
-        self.wingbeat_channel, self.collision_channel = (foxglove.Channel(topic, schema=schema) for topic, schema in (
-            (live_view.WINGBEAT_TOPIC, live_view.WINGBEAT_SCHEMA), (live_view.COLLISION_TOPIC, live_view.COLLISION_SCHEMA)))
+        self.channels, self.wingbeat_channel, self.collision_channel = io.open_channels(foxglove)
         self.state, self.beats, self.score, self.k_r, self.colliding = wingbeat.initial_state(self.wingbeat_params), 0, float("nan"), float("nan"), None
         self.latest_ns = self.broadcast_ns = 0
         self.create_timer(p["time_broadcast_period_s"], self.broadcast_time, clock=(steady := Clock(clock_type=ClockType.STEADY_TIME)))
@@ -71,8 +62,8 @@ class FoxgloveNode(Node):
         self.batch_blocks = max(1, round(p["serve_period_s"] * p["sample_rate_hz"] / p["block_size"]))
         for key, (topic, cls, _) in STREAM_SOURCES.items():
             self.create_subscription(cls, topic, self.block_callback(key), qos, raw=True)
-        self.create_subscription(CollisionStatus, topics.COLLISION_STATUS, self.on_status, STATUS)
-        self.create_subscription(ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True)
+        self.create_subscription(msgs.CollisionStatus, topics.COLLISION_STATUS, self.on_status, STATUS)
+        self.create_subscription(msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True)
         self.get_logger().info(f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
                                f"(every {self.decimation} sample(s); layout config/foxglove_layout.json)")
 
@@ -113,7 +104,7 @@ class FoxgloveNode(Node):
             self.server.broadcast_time(self.latest_ns)
             self.broadcast_ns = self.latest_ns
 
-    def on_status(self, status: CollisionStatus) -> None:
+    def on_status(self, status: msgs.CollisionStatus) -> None:
         self.score = wingbeat.collision_score(status.spectrum_rmse_deg, status.threshold_deg)
         self.colliding = bool(status.colliding)
         stamp_ns = status.header.stamp.sec * 1_000_000_000 + status.header.stamp.nanosec

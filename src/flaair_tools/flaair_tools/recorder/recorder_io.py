@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -132,3 +132,26 @@ def open_writer(values: dict[str, Any], store: Any) -> bagio.BagWriter:
     except bagio.BagError as exc:
         raise ParameterError(f"parameter 'output_path': {exc}") from exc
 
+
+
+def take_all(takers: dict[str, tuple], warn: Callable[[str], None]) -> int:
+    """Hand every message DDS has delivered but no callback has handled yet to its handler.
+
+    `takers`: topic -> (take, on_message) of its subscription; a failing take is warned about
+    (a dying middleware must not cost the bag). Returns how many were handled.
+    """
+    taken = 0
+    for topic, (take, on_message) in takers.items():
+        try:
+            while (item := take()) is not None:
+                on_message(*item)
+                taken += 1
+        except Exception as exc:   # noqa: BLE001 - whatever the middleware raises while it dies
+            warn(f"{topic}: could not take the last messages ({exc})")
+    return taken
+
+
+def closed_text(path: object, counts: dict[str, int]) -> str:
+    """The recorder's last log line: the bag and how many messages of each topic it holds."""
+    listed = ", ".join(f"{topic} {count}" for topic, count in sorted(counts.items())) or "nothing"
+    return f"closed {path}: {listed}"

@@ -115,15 +115,7 @@ class RecorderNode(Node):
         """Write what DDS has delivered but no callback has handled yet (a stop came first: the
         loop's last blocks, its zero drive, are often among them). Returns how many.
         """
-        taken = 0
-        for topic, (take, on_message) in self.takers.items():
-            try:
-                while (item := take()) is not None:
-                    on_message(*item)
-                    taken += 1
-            except Exception as exc:   # noqa: BLE001 - a dying middleware must not cost the bag
-                self.get_logger().warning(f"{topic}: could not take the last messages ({exc})")
-        return taken
+        return rio.take_all(self.takers, self.get_logger().warning)
 
     def close(self) -> None:
         """Finish the bag (summary, metadata.yaml), with every message DDS had delivered."""
@@ -132,8 +124,7 @@ class RecorderNode(Node):
         self.take_remaining()
         self.apply(recording.Finish(time.time_ns()))
         self.writer.close()
-        counts = ", ".join(f"{topic} {count}" for topic, count in sorted(self.writer.counts.items())) or "nothing"
-        self.get_logger().info(f"closed {self.writer.path}: {counts}")
+        self.get_logger().info(rio.closed_text(self.writer.path, self.writer.counts))
 
 
 def main(argv: list[str] | None = None) -> int:
