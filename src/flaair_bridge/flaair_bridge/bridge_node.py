@@ -23,12 +23,11 @@ from flaair_bridge import bridge_io as io
 from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
 from flaair_bridge.core import bridge, bridge_report
-from flaair_common import cdr, intra, topics
+from flaair_common import intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
-from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock
 
 NODE_NAME = "bridge_node"
 CONFIG_FILE = "flaair.yaml"
@@ -50,13 +49,10 @@ class BridgeNode(Node):
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
         self.events = bridge_report.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
-        self.drive_codec = cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size)
-        self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, cdr.FixedCodec(
-            cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID), BLOCK_STREAM)
-        self.applied = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE_APPLIED, self.drive_codec,
-                                            BLOCK_STREAM) if p["publish_applied"] else None
-        intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, self.drive_codec, self.on_drive, BLOCK_STREAM,
-                               self.on_undecodable)
+        self.sensor = intra.block_publisher(self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
+        self.applied = (intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size, BLOCK_STREAM)
+                        if p["publish_applied"] else None)
+        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_drive, BLOCK_STREAM, self.on_undecodable)
         self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         try:   # the socket last: its reader thread delivers at once, into a fully built node

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from flaair_common import cdr
+from flaair_common import cdr, topics
 
 _current: "Bus | None" = None
 
@@ -363,3 +363,37 @@ def subscribe_blocks(node: Any, msg_type: type, topic: str, codec: cdr.FixedCode
         callback(fields)
 
     node.create_subscription(msg_type, topic, on_bytes, qos, raw=True)
+
+
+# The fixed-size sample-block streams: topic -> (CDR layout, header frame_id or None).
+_SAMPLE_STREAMS = {
+    topics.DRIVE: (cdr.DRIVE_COMMAND_BLOCK, None),
+    topics.DRIVE_APPLIED: (cdr.DRIVE_COMMAND_BLOCK, None),
+    topics.SENSOR_VOLTAGE: (cdr.SENSOR_VOLTAGE_BLOCK, topics.FRAME_ID),
+    topics.WING_STATE: (cdr.WING_STATE_BLOCK, topics.FRAME_ID),
+    topics.WING_STATE_TRUTH: (cdr.WING_STATE_BLOCK, topics.FRAME_ID),
+}
+
+
+def stream_codec(topic: str, block_size: int) -> cdr.FixedCodec:
+    """The fixed-size CDR codec of the sample-block stream `topic` at `block_size` samples."""
+    layout, frame_id = _SAMPLE_STREAMS[topic]
+    return cdr.FixedCodec(layout, block_size, frame_id) if frame_id else cdr.FixedCodec(layout, block_size)
+
+
+def _message_class(topic: str) -> type:
+    import importlib
+
+    return getattr(importlib.import_module("flaair_msgs.msg"), topics.BLOCK_STREAM_TYPES[topic].rsplit("/", 1)[1])
+
+
+def block_publisher(node: Any, topic: str, block_size: int, qos: Any) -> BlockPublisher:
+    """The `BlockPublisher` of the sample-block stream `topic` (message type and codec from the topic)."""
+    return BlockPublisher(node, _message_class(topic), topic, stream_codec(topic, block_size), qos)
+
+
+def subscribe_stream(node: Any, topic: str, block_size: int, callback: Callable[[Any], None], qos: Any,
+                     on_error: Callable[[Exception], None], background: bool = False) -> None:
+    """`subscribe_blocks` to the sample-block stream `topic` (message type and codec from the topic)."""
+    subscribe_blocks(node, _message_class(topic), topic, stream_codec(topic, block_size), callback, qos, on_error,
+                     background)

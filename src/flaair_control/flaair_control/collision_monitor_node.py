@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from rclpy.node import Node
 
-from flaair_common import cdr, intra, topics
+from flaair_common import intra, topics
 from flaair_common.blocks import check_block, stamp_from_time_s
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
@@ -33,7 +33,7 @@ from flaair_control.control_io import (
     monitor_wing_input,
 )
 from flaair_control.core import monitor
-from flaair_msgs.msg import CollisionEvent, CollisionStatus, DriveCommandBlock, WingStateBlock
+from flaair_msgs.msg import CollisionEvent, CollisionStatus
 
 NODE_NAME = "collision_monitor_node"
 PARAMS = COLLISION_MONITOR_PARAMS
@@ -57,12 +57,9 @@ class CollisionMonitorNode(Node):
         self.event_pub = self.create_publisher(CollisionEvent, topics.COLLISION_EVENTS, EVENTS)
         # Block streams as CDR bytes, or in-process when composed beside the loop (flaair_common.intra)
         block = p["block_size"]
-        intra.subscribe_blocks(self, WingStateBlock, topics.WING_STATE,
-                               cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, topics.FRAME_ID), self.on_wing_state,
-                               BLOCK_STREAM, self.on_undecodable)
+        intra.subscribe_stream(self, topics.WING_STATE, block, self.on_wing_state, BLOCK_STREAM, self.on_undecodable)
         if self.params.estimates_frequency:
-            intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, block),
-                                   self.on_drive, BLOCK_STREAM, self.on_undecodable)
+            intra.subscribe_stream(self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM, self.on_undecodable)
         where = ("stroke windows" if p["window_source"] == "stroke" else
                  "drive windows, frequency estimated from /flaair/drive" if self.params.estimates_frequency
                  else f"drive windows at {p['drive_frequency_hz']:g} Hz")

@@ -35,7 +35,7 @@ from flaair_control.control_io import (
     supervisor_wing_input,
 )
 from flaair_control.core import supervisor as sv
-from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
+from flaair_msgs.msg import CollisionEvent, ControllerState
 
 NODE_NAME = "dsa_controller_node"
 PARAMS = DSA_CONTROLLER_PARAMS
@@ -54,13 +54,11 @@ class DsaControllerNode(Node):
         self.block_size, self.undecodable = p["block_size"], 0
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None  # index, in, out
         self.lock = threading.RLock()   # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
-        self.drive = intra.BlockPublisher(self, DriveCommandBlock, topics.DRIVE,
-                                          cdr.FixedCodec(cdr.DRIVE_COMMAND_BLOCK, self.block_size), BLOCK_STREAM)
+        self.drive = intra.block_publisher(self, topics.DRIVE, self.block_size, BLOCK_STREAM)
         self.state_pub = intra.BlockPublisher(self, ControllerState, topics.CONTROLLER_STATE,
                                               cdr.GeneralCodec(cdr.CONTROLLER_STATE), BLOCK_STREAM)
-        intra.subscribe_blocks(self, WingStateBlock, topics.WING_STATE,
-                               cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID),
-                               self.on_wing_state, BLOCK_STREAM, self.on_undecodable)
+        intra.subscribe_stream(self, topics.WING_STATE, self.block_size, self.on_wing_state, BLOCK_STREAM,
+                               self.on_undecodable)
         self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)  # volatile
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(self.params.timer_period_s, self.on_timer)

@@ -25,7 +25,7 @@ from flaair_common.blocks import check_block
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
-from flaair_msgs.msg import SensorVoltageBlock, WingStateBlock
+from flaair_msgs.msg import WingStateBlock
 from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import (
     CONFIG_FILE,
@@ -58,11 +58,9 @@ class FrontendNode(Node):
         self.block_size = values["block_size"]
         # CDR bytes in and out through flaair_common.cdr (rclpy's message conversion costs about
         # as much CPU as the transport at 2000 blocks/s), or in-process when composed (intra).
-        self.output_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID)
-        self.publisher = intra.BlockPublisher(self, WingStateBlock, topics.WING_STATE, self.output_codec, BLOCK_STREAM)
-        intra.subscribe_blocks(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE,
-                               cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID),
-                               self.on_sensor, BLOCK_STREAM, self.on_undecodable)
+        self.publisher = intra.block_publisher(self, topics.WING_STATE, self.block_size, BLOCK_STREAM)
+        intra.subscribe_stream(self, topics.SENSOR_VOLTAGE, self.block_size, self.on_sensor, BLOCK_STREAM,
+                               self.on_undecodable)
         delay = frontend.estimate_delay_s(self.params)
         self.get_logger().info(
             f"front end ready: gains from {values['gains_from']}, "

@@ -22,12 +22,12 @@ import numpy as np
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
-from flaair_common import cdr, intra, topics
+from flaair_common import intra, topics
 from flaair_common.blocks import stamp_from_time_s, stamp_ns_of_sample
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
-from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
+from flaair_msgs.msg import WingStateBlock
 from flaair_sim import plant_io as io
 from flaair_sim.core import actuator, plant
 from flaair_sim.plant_io import (
@@ -54,10 +54,8 @@ class PlantNode(Node):
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
-        self.sensor = intra.BlockPublisher(self, SensorVoltageBlock, topics.SENSOR_VOLTAGE, cdr.FixedCodec(
-            cdr.SENSOR_VOLTAGE_BLOCK, self.block_size, topics.FRAME_ID), BLOCK_STREAM)
-        self.truth = intra.BlockPublisher(self, WingStateBlock, topics.WING_STATE_TRUTH, cdr.FixedCodec(
-            cdr.WING_STATE_BLOCK, self.block_size, topics.FRAME_ID), BLOCK_STREAM)
+        self.sensor = intra.block_publisher(self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
+        self.truth = intra.block_publisher(self, topics.WING_STATE_TRUTH, self.block_size, BLOCK_STREAM)
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
         self.clock_pub = self.create_publisher(Clock, topics.CLOCK, CLOCK_DEPTH) if self.p["publish_clock"] else None
@@ -77,8 +75,7 @@ class PlantNode(Node):
         if self.sensor.subscription_count() < wanted or self.truth.subscription_count() < wanted:
             return
         self.destroy_timer(self.listeners_timer)
-        intra.subscribe_blocks(self, DriveCommandBlock, topics.DRIVE, cdr.FixedCodec(
-            cdr.DRIVE_COMMAND_BLOCK, self.block_size), self.on_command, BLOCK_STREAM, self.on_undecodable)
+        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_command, BLOCK_STREAM, self.on_undecodable)
         if wanted:
             self.get_logger().info(f"outputs matched ({wanted} listener(s) each): taking drive commands")
 
