@@ -29,6 +29,7 @@ Modules
 - `markers`: run markers and the drive kinds they name
 - `runs`: the measured-run columns of every run in bags (imported on use)
 - `import_runs`: measured-run CSV files into a bag, `bin/flaair import` (imported on use)
+- `video_angles`: stroke and pitch from tracked video points (DLTdv8), pure (imported on use)
 - `reader`: info, messages, read_bag, read_blocks
 - `scan`: MCAP record scan through damage
 - `recovery`: reindex, check_bag
