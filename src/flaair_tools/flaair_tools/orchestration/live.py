@@ -167,10 +167,9 @@ class Watcher:
         self.listen_to_sensor = lambda: self.node.create_subscription(
             message_class(self.topics[topics.SENSOR_VOLTAGE]), topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM,
             raw=True)
-        self.driven = False   # a drive block was seen: the controller runs the loop
+        self.first_drive_index: int | None = None   # the controller's first drive sample: the loop runs
         self.listening = [self.listen_to_sensor(), self.node.create_subscription(
-            message_class(self.topics[topics.DRIVE]), topics.DRIVE, lambda _data: setattr(self, "driven", True),
-            BLOCK_STREAM, raw=True)]
+            message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)]
 
     def on_sensor(self, data: bytes) -> None:
         from flaair_common import cdr
@@ -178,6 +177,12 @@ class Watcher:
         m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
         self.end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]), rate=float(m["sample_rate_hz"]),
                         wall=time.monotonic())
+
+    def on_drive(self, data: bytes) -> None:
+        from flaair_common import cdr
+
+        if self.first_drive_index is None:
+            self.first_drive_index = int(cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)["first_sample_index"])
 
     def spin_until(self, predicate, timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -218,9 +223,11 @@ class Watcher:
         """
         if not self.args.sim:
             self.wait_for_the_target()
-        self.spin_until(lambda: self.end["index"] >= 0 and (self.driven or self.args.controller == "none"), 120.0,
+        self.spin_until(lambda: self.end["index"] >= 0 and (self.first_drive_index is not None
+                                                            or self.args.controller == "none"), 120.0,
                         "the loop to start")
-        start = self.end["index"]
+        # from the controller's first drive sample: the sensor blocks seen so far may lag it (batched, loaded)
+        start = max(self.end["index"], self.first_drive_index or 0)
         print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal", file=sys.stderr)
         # Listening to 2,000 blocks/s costs this process a fifth of a core, which the loop needs:
         # unsubscribe, wait out most of the duration on the wall clock (the loop runs in real
