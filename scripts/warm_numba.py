@@ -37,9 +37,9 @@ def main() -> None:
             monitor_windows_from_config,
             spectral_metric_params_from_config,
         )
-        from flaair_control.core import collision
+        from flaair_control.core import collision, spectral
 
-        collision.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config())
+        spectral.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config())
         params = monitor_windows_from_config(100.0)
         collision.run(np.zeros(400), np.zeros(400), params)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway

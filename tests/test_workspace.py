@@ -24,3 +24,13 @@ def test_setup_is_idempotent_and_quick_when_nothing_changed() -> None:
     result = subprocess.run([str(REPO_ROOT / "scripts" / "setup_env.sh")], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert "installing" not in result.stdout and "building" not in result.stdout, result.stdout
+
+
+def test_the_numba_warm_up_reaches_every_kernel_it_names() -> None:
+    # best effort by design, so a renamed kernel would only print "skipped": that is a failure here
+    import sys
+
+    result = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "warm_numba.py")], cwd=REPO_ROOT,
+                            capture_output=True, text=True, timeout=280)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "skipped" not in result.stdout + result.stderr, result.stdout + result.stderr
