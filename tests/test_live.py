@@ -45,7 +45,11 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
                   "/flaair/wing_state/truth", "/flaair/collision/status"):
         assert counts.get(topic, 0) > 0, (topic, counts)
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
-    assert len(drive["drive_v"]) >= 60000                          # 3 s of samples, all of the loop
+    firsts = np.asarray(drive.block_first_index)
+    start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
+    where = {"loop start": start, "first drive block": int(firsts[0]), "last": int(firsts[-1]),
+             "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts))))}
+    assert len(drive["drive_v"]) >= 60000, where                   # 3 s of samples, all of the loop
     assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10   # reached the bag in joined blocks
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
     assert states[0].k_r == 1.0 and states[-1].k_r == 0.0          # the configured K_r schedule ran

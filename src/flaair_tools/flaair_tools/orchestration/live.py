@@ -115,8 +115,9 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     }
     if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
         sections["dsa_controller_node"]["state_every_blocks"] = live.dds_batch_blocks
-        # the loop starts once the recorder is matched on every stream, not only on /flaair/drive
-        sections["dsa_controller_node"]["min_stream_listeners"] = 1 if args.out is not None else 0
+        # the loop starts once the recorder is matched on every stream, not only on /flaair/drive: this
+        # process listens to every batched stream until then (Watcher), so the recorder makes it two
+        sections["dsa_controller_node"]["min_stream_listeners"] = 2 if args.out is not None else 0
     for role, overrides in live_graph(args).parameters.items():
         sections.setdefault(node_of(role).node_name, {}).update(overrides)
     if not args.sim:
@@ -170,6 +171,13 @@ class Watcher:
         self.first_drive_index: int | None = None   # the controller's first drive sample: the loop runs
         self.listening = [self.listen_to_sensor(), self.node.create_subscription(
             message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)]
+        # Every other batched stream of the loop too, until it starts: the controller waits for two
+        # listeners on each (this process and the recorder), so a recorder matched late on one of them
+        # cannot lose that stream's first blocks (a soak run lost 179 drive blocks so).
+        for topic, kind in ((topics.WING_STATE, "WingStateBlock"), (topics.WING_STATE_TRUTH, "WingStateBlock"),
+                            (topics.DRIVE_APPLIED, "DriveCommandBlock")):
+            self.listening.append(self.node.create_subscription(
+                message_class(f"flaair_msgs/msg/{kind}"), topic, lambda _data: None, BLOCK_STREAM, raw=True))
 
     def on_sensor(self, data: bytes) -> None:
         from flaair_common import cdr
