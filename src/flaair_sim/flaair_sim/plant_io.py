@@ -6,6 +6,7 @@ watchdog of `flaair_sim.core.actuator`, for the node and offline tools alike.
 """
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any, Mapping
 
 import numpy as np
@@ -86,8 +87,13 @@ def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
 
 def truth_fields(index: int, fs_hz: float, out: Any, source: int) -> dict[str, Any]:
     """A ground-truth WingStateBlock's fields (degrees, every sample valid, no velocity)."""
-    n = out.stroke_rad.size
-    valid = np.ones(n, dtype=bool)
+    valid, no_velocity = _truth_constants(out.stroke_rad.size)
     return {"sample_rate_hz": fs_hz, "first_sample_index": index, "source": source,
             "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
-            "stroke_velocity_deg_s": np.full(n, np.nan), "stroke_valid": valid, "pitch_valid": valid}
+            "stroke_velocity_deg_s": no_velocity, "stroke_valid": valid, "pitch_valid": valid}
+
+
+@lru_cache(maxsize=8)
+def _truth_constants(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every sample valid, no velocity: built once per block size, not on every block (2000/s)."""
+    return np.ones(n, dtype=bool), np.full(n, np.nan)
