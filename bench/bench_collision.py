@@ -55,7 +55,8 @@ def sensor_angles(model, out):
 
 def monitor_params(model, source: str, f: float) -> col.MonitorParams:
     return replace(
-        monitor_windows_from_config(f), window_source=source, drive_frequency_hz=f if source == "drive" else None,
+        monitor_windows_from_config(f), window_source=source, drive_frequency_hz=f
+        if source == "drive" else None,
         stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
         pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad),
     )
@@ -77,7 +78,8 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
         if not present and t0 >= t_in and last_phi < 0.5 * limit:
             present = True
         drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * (t0 + np.arange(BLOCK) / FS))
-        state, out = plant.step(state, plant.PlantInputs(drive, rng), plant.PlantStepParams(hit if present else model, FS))
+        state, out = plant.step(state, plant.PlantInputs(drive, rng),
+                                plant.PlantStepParams(hit if present else model, FS))
         last_phi = out.stroke_rad[-1]
         if present and strike is None and np.any(out.stroke_rad >= limit):
             strike = t0 + np.argmax(out.stroke_rad >= limit) / FS
@@ -93,7 +95,8 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
     for end in range(10 * period, pitch_all.size + 1, period):
         if end / FS <= strike:
             continue
-        if spectral.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ, METRIC).collision:
+        if spectral.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ,
+                                    METRIC).collision:
             paper_t = end / FS
             break
     lat = (onset_t - strike) * DRIVE_HZ if onset_t is not None else math.inf
@@ -110,7 +113,8 @@ def false_alarm_sweep(model, source: str, duration_s: float):
             out = plant.simulate(amp * np.sin(2 * np.pi * f * t), FS, model, noise=True,
                                  rng=np.random.default_rng(1000 * f + int(amp)))
             s, p = sensor_angles(model, out)
-            _, rep, ev = col.run(s, p, replace(monitor_windows_from_config(float(f)), window_source=source))
+            _, rep, ev = col.run(s, p, replace(
+                monitor_windows_from_config(float(f)), window_source=source))
             armed = rep.status != col.ARMING
             alarms += sum(e.kind == col.ONSET for e in ev)
             wingbeats += int(np.count_nonzero(armed))
@@ -132,15 +136,19 @@ def main() -> None:
     t = np.arange(int(0.5 * FS)) / FS
     drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * t)
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
-    free = spectral.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
-                                                                   rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ, METRIC)
-    coll = spectral.spectral_metric(sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
-                                                                   rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ, METRIC)
+    free = spectral.spectral_metric(
+        sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
+                                            rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ, METRIC)
+    coll = spectral.spectral_metric(
+        sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
+                                            rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ, METRIC)
     figures += [
-        Figure("paper metric: pitch FFT RMSE, collision", coll.spectral_rmse_deg, "deg", "> 1 (paper 3.23)",
-               coll.spectral_rmse_deg > 1.0, f"no collision {free.spectral_rmse_deg:.3f} deg (paper 0.53)"),
-        Figure("paper metric: pitch time RMSE, collision", coll.time_rmse_deg, "deg", "(paper 15.81)",
-               coll.time_rmse_deg > free.time_rmse_deg, f"no collision {free.time_rmse_deg:.3f} deg (paper 3.34)"),
+        Figure("paper metric: pitch FFT RMSE, collision", coll.spectral_rmse_deg, "deg",
+               "> 1 (paper 3.23)", coll.spectral_rmse_deg > 1.0,
+               f"no collision {free.spectral_rmse_deg:.3f} deg (paper 0.53)"), Figure(
+        "paper metric: pitch time RMSE, collision", coll.time_rmse_deg, "deg", "(paper 15.81)",
+        coll.time_rmse_deg > free.time_rmse_deg,
+        f"no collision {free.time_rmse_deg:.3f} deg (paper 3.34)"),
     ]
 
     # Detection latency.
@@ -150,25 +158,29 @@ def main() -> None:
             a, b = latency_trial(model, source, t_in, seed=100 + i)
             lats.append(a)
             paper.append(b)
-        figures.append(Figure(f"detection latency, worst of 6 ({source} windows)", max(lats), "wingbeats", "<= 2",
-                              max(lats) <= 2.0,
-                              f"mean {np.mean(lats):.2f}; paper metric (10-beat FFT, 1 deg) worst {max(paper):.2f}"))
+        figures.append(Figure(f"detection latency, worst of 6 ({source} windows)", max(lats),
+                              "wingbeats", "<= 2", max(lats) <= 2.0,
+                              f"mean {np.mean(lats):.2f}; paper metric (10-beat FFT, 1 deg) worst "
+                              f"{max(paper):.2f}"))
 
     # False alarms.
     duration = 1.0 if args.quick else 10.0
     for source in ("drive", "stroke"):
         alarms, worst, at, beats = false_alarm_sweep(model, source, duration)
-        figures.append(Figure(f"false alarms, {duration:g} s x 15 freqs x 2 amps ({source})", alarms, "events", "0",
-                              alarms == 0, f"{beats} armed wingbeats; worst score {worst:.3f} (onset 1.0) at {at[0]} Hz {at[1]:g} Vpp"))
+        figures.append(Figure(f"false alarms, {duration:g} s x 15 freqs x 2 amps ({source})",
+                              alarms, "events", "0", alarms == 0, f"{beats} armed wingbeats; worst "
+                                                                  f"score {worst:.3f} (onset 1.0) "
+                                                                  f"at {at[0]} Hz {at[1]:g} Vpp"))
 
     # Throughput.
     t10 = np.arange(int(10.0 * FS)) / FS
-    out = plant.simulate(50.0 * np.sin(2 * np.pi * 200.0 * t10), FS, model, noise=True, rng=np.random.default_rng(3))
+    out = plant.simulate(50.0 * np.sin(2 * np.pi * 200.0 * t10), FS, model, noise=True,
+                         rng=np.random.default_rng(3))
     s, p = sensor_angles(model, out)
     prm = monitor_windows_from_config(200.0)
     whole = best_time_s(lambda: col.run(s, p, prm))
-    figures.append(Figure("monitor, whole record (10 s at 200 Hz)", 10.0 / whole, "x realtime", "> 10",
-                          10.0 / whole > 10, f"{whole * 1e3:.1f} ms"))
+    figures.append(Figure("monitor, whole record (10 s at 200 Hz)", 10.0 / whole, "x realtime",
+                          "> 10", 10.0 / whole > 10, f"{whole * 1e3:.1f} ms"))
 
     def live():
         st = col.initial_state(prm)
@@ -178,7 +190,8 @@ def main() -> None:
     figures.append(Figure("monitor step per 0.5 ms block (live)", per_block * 1e6, "us", "< 500",
                           per_block < 5e-4, f"{100 * per_block / 5e-4:.1f} % of the block period"))
 
-    figures = [Figure(f.name, float(f.value), f.unit, f.target, bool(f.met), f.baseline) for f in figures]
+    figures = [Figure(f.name, float(f.value), f.unit, f.target, bool(f.met), f.baseline)
+               for f in figures]
     print_table(figures)
     write_json(figures, args.json)
     print(f"wrote {args.json}")

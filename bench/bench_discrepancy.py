@@ -1,6 +1,7 @@
 """Discrepancy workflow on off-nominal robots: names, status, parameters, natural frequencies, time.
 
-Run: python bench/bench_discrepancy.py [--json out.json] [--draws 30] [--baseline-draws 5] [--jobs 2] [--sweep]
+Run: python bench/bench_discrepancy.py [--json out.json]
+[--draws 30] [--baseline-draws 5] [--jobs 2] [--sweep]
 
 Robots come from the project's randomized generator (`discrepancy.datasets.random_robot`): every
 fitted plant parameter off nominal (natural frequencies within +-3 %, damping, gain and couplings
@@ -74,16 +75,18 @@ def judge(case, result, model) -> dict:
     effect_ok = {}
     for name, params in case.effects:
         if name in found:
-            mine = [v for k, v in errors.items() if k.startswith(f"{name}.")]  # every parameter, every chain
+            # every parameter, every chain
+            mine = [v for k, v in errors.items() if k.startswith(f"{name}.")]
             effect_ok[name] = bool(mine) and all(v <= PARAMETER_TOLERANCE for v in mine)
     truth = true_plant(case, model)
     damage = dict(case.hidden).get("wing_damage", {}).get("inertia_factor", 1.0)
     freq_err = {k: result.plant_parameters[k]["value"] / (truth[k] / math.sqrt(damage)) - 1.0
                 for k in FREQUENCIES if k in result.plant_parameters}
     return {"case": case.name, "family": case.name.rsplit("_", 1)[0], "expected": sorted(expected),
-            "hidden_not_separable": [n for n, _ in case.hidden], "outside": case.outside, "found": sorted(found),
-            "status": result.status, "expected_status": case.expected_status, "exact": exact,
-            "parameter_errors": errors, "effect_parameters_ok": effect_ok, "frequency_errors": freq_err,
+            "hidden_not_separable": [n for n, _ in case.hidden], "outside": case.outside,
+            "found": sorted(found), "status": result.status,
+            "expected_status": case.expected_status, "exact": exact, "parameter_errors": errors,
+            "effect_parameters_ok": effect_ok, "frequency_errors": freq_err,
             "video_every": case.video_every, "noise_scale": case.noise_scale}
 
 
@@ -119,12 +122,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures as JSON here")
     parser.add_argument("--draws", type=int, default=30, help="robots per family (default 30)")
-    parser.add_argument("--baseline-draws", type=int, default=5, help="robots per family for the no-identification baseline")
+    parser.add_argument("--baseline-draws", type=int, default=5,
+                        help="robots per family for the no-identification baseline")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="robots analysed at once, one process each (default: 2, both cores)")
     parser.add_argument("--families", nargs="*", choices=FAMILIES, default=list(FAMILIES),
                         help="families to draw (default: all four)")
-    parser.add_argument("--sweep", action="store_true", help="also run the fixed hidden-effect cases")
+    parser.add_argument("--sweep", action="store_true",
+                        help="also run the fixed hidden-effect cases")
     args = parser.parse_args()
     model = _model()
     first = make_runs(random_robot(FAMILIES[0], 0), model)
@@ -137,7 +142,8 @@ def main() -> None:
     pool = ProcessPoolExecutor(max_workers=max(1, args.jobs))
     try:
         futures = [pool.submit(analyse_robot, *job) for job in jobs]
-        for fut in tqdm(as_completed(futures), total=len(futures), desc="off-nominal robots", unit="robot"):
+        for fut in tqdm(as_completed(futures), total=len(futures), desc="off-nominal robots",
+                        unit="robot"):
             outcome, base = fut.result()
             outcomes.append(outcome)
             if base is not None:
@@ -153,7 +159,8 @@ def main() -> None:
     times = [o["elapsed_s"] for o in outcomes]
     out_dir = REPO_ROOT / "out" / "bench"
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "discrepancy_offnominal.json").write_text(json.dumps(json_safe(outcomes), indent=2, allow_nan=False))
+    (out_dir / "discrepancy_offnominal.json").write_text(
+        json.dumps(json_safe(outcomes), indent=2, allow_nan=False))
 
     figures: list[Figure] = []
     for family in args.families:
@@ -164,49 +171,63 @@ def main() -> None:
                           for o in rows if not o["exact"])[:200]
         figures.append(Figure(f"exact-set accuracy, {family} ({len(rows)} robots)", 100 * acc, "%",
                               f">= {100 * ACCURACY_TARGET:.0f} %", acc >= ACCURACY_TARGET,
-                              f"without identification {100 * base:.0f} %" + (f"; wrong {wrong}" if wrong else "")))
+                              f"without identification {100 * base:.0f} %"
+                              + (f"; wrong {wrong}" if wrong else "")))
     null = [o for o in outcomes if o["family"] == "offnominal_null"]
     if null:
         fd = share([bool(o["found"]) for o in null])
-        figures.append(Figure(f"false discoveries on no-effect robots ({len(null)} robots)", 100 * fd, "%",
-                              f"<= {100 * FALSE_DISCOVERY_TARGET:.0f} %", fd <= FALSE_DISCOVERY_TARGET, ""))
+        figures.append(Figure(f"false discoveries on no-effect robots ({len(null)} robots)",
+                              100 * fd, "%", f"<= {100 * FALSE_DISCOVERY_TARGET:.0f} %",
+                              fd <= FALSE_DISCOVERY_TARGET, ""))
     outside = [o for o in outcomes if o["family"] == "offnominal_outside"]
     if outside:
         flagged = share([o["status"] == "unexplained" for o in outside])
-        figures.append(Figure(f"out-of-vocabulary robots flagged unexplained ({len(outside)} robots)", 100 * flagged,
-                              "%", f">= {100 * OUTSIDE_TARGET:.0f} %", flagged >= OUTSIDE_TARGET, ""))
+        figures.append(
+            Figure(f"out-of-vocabulary robots flagged unexplained ({len(outside)} robots)",
+                   100 * flagged, "%", f">= {100 * OUTSIDE_TARGET:.0f} %",
+                   flagged >= OUTSIDE_TARGET, ""))
     named = [ok for o in outcomes for ok in o["effect_parameters_ok"].values()]
     p_ok = share(named)
     worst = max((v for o in outcomes for v in o["parameter_errors"].values()), default=math.nan)
-    figures.append(Figure(f"named effects with parameters within 10 % ({len(named)} effects)", 100 * p_ok, "%",
-                          f">= {100 * ACCURACY_TARGET:.0f} %", p_ok >= ACCURACY_TARGET, f"worst parameter {100 * worst:.1f} % off"))
+    figures.append(Figure(f"named effects with parameters within 10 % ({len(named)} effects)",
+                          100 * p_ok, "%", f">= {100 * ACCURACY_TARGET:.0f} %",
+                          p_ok >= ACCURACY_TARGET, f"worst parameter {100 * worst:.1f} % off"))
     for key in FREQUENCIES:
-        # robots the vocabulary can describe; an extra resonance (outside) pulls the fitted frequency
-        errs = [abs(o["frequency_errors"][key]) for o in outcomes if key in o["frequency_errors"] and not o["outside"]]
-        out_errs = [abs(o["frequency_errors"][key]) for o in outcomes if key in o["frequency_errors"] and o["outside"]]
+        # robots the vocabulary can describe; an extra
+        # resonance (outside) pulls the fitted frequency
+        errs = [abs(o["frequency_errors"][key]) for o in outcomes
+                if key in o["frequency_errors"] and not o["outside"]]
+        out_errs = [abs(o["frequency_errors"][key]) for o in outcomes
+                    if key in o["frequency_errors"] and o["outside"]]
         if not errs:
             continue
         within = share([e <= FREQUENCY_TOLERANCE for e in errs])
-        figures.append(Figure(f"{key} within 0.5 % ({len(errs)} in-vocabulary robots)", 100 * within, "% of robots", "all",
-                              within == 1.0, f"median {100 * statistics.median(errs):.3f} %, worst {100 * max(errs):.3f} %"
-                              + (f"; outside robots worst {100 * max(out_errs):.1f} %" if out_errs else "")))
-    figures.append(Figure(f"time per robot data set (max of {len(times)}, {args.jobs} at once)", max(times), "s",
-                          f"<= {TIME_TARGET_S:g} s", max(times) <= TIME_TARGET_S,
-                          f"median {statistics.median(times):.1f} s; all robots {wall / 60:.1f} min wall; "
-                          f"1 simulation of the set {1e3 * t_sim:.0f} ms"))
+        figures.append(Figure(f"{key} within 0.5 % ({len(errs)} in-vocabulary robots)",
+                              100 * within, "% of robots", "all",
+                              within == 1.0,
+                              f"median {100 * statistics.median(errs):.3f} %, worst "
+                              f"{100 * max(errs):.3f} %"
+                              + (f"; outside robots worst {100 * max(out_errs):.1f} %" if out_errs
+                                 else "")))
+    figures.append(Figure(f"time per robot data set (max of {len(times)}, {args.jobs} at once)",
+                          max(times), "s", f"<= {TIME_TARGET_S:g} s", max(times) <= TIME_TARGET_S,
+                          f"median {statistics.median(times):.1f} s; all robots {wall / 60:.1f} "
+                          f"min wall; 1 simulation of the set {1e3 * t_sim:.0f} ms"))
 
     if args.sweep:
         sweep = []
         start = time.perf_counter()
         for case in tqdm(dataset_cases(), desc="hidden-effect cases", unit="case"):
             t0 = time.perf_counter()
-            sweep.append(score_case(case, analyse(make_runs(case, model), model), time.perf_counter() - t0))
+            sweep.append(score_case(case, analyse(make_runs(case, model), model),
+                                    time.perf_counter() - t0))
         table = confusion_table(sweep)
         write_validation(out_dir / "discrepancy_validation", [o.as_dict() for o in sweep], table,
                          time.perf_counter() - start)
         wrong = ", ".join(o.case for o in sweep if not o.correct) or "none wrong"
-        figures.append(Figure(f"hidden-effect dataset cases right ({len(sweep)} cases)", table["correct"], "cases",
-                              f"all {table['total']}", table["correct"] == table["total"], wrong))
+        figures.append(Figure(f"hidden-effect dataset cases right ({len(sweep)} cases)",
+                              table["correct"], "cases", f"all {table['total']}",
+                              table["correct"] == table["total"], wrong))
 
     print_table(figures)
     if args.json:

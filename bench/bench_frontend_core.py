@@ -49,8 +49,8 @@ def main() -> None:
     # Realistic configuration: drift removal, lag compensation on both channels, rails.
     tuning = frontend_tuning_from_config()
     params = fe.params_from_model(
-        model, FS, **{**tuning, "stroke_lag_s": 2e-4, "pitch_lag_s": 3e-4, "rail_low_v": -5.0, "rail_high_v": 5.0,
-                      "rail_margin_v": 0.01}
+        model, FS, **{**tuning, "stroke_lag_s": 2e-4, "pitch_lag_s": 3e-4, "rail_low_v": -5.0,
+                      "rail_high_v": 5.0, "rail_margin_v": 0.01}
     )
     drive, sv, pv, out = _record(model, 10.0)
     n = sv.size
@@ -59,7 +59,8 @@ def main() -> None:
 
     # --- step() on 10-sample blocks: latency distribution over 2 s of data (4000 blocks).
     state = fe.initial_state(params, first_stroke_v=sv[0], first_pitch_v=pv[0])
-    fe.step(state, fe.FrontendInputs(blocks_s[0], blocks_p[0]), params)  # warm the filter-design cache
+    # warm the filter-design cache
+    fe.step(state, fe.FrontendInputs(blocks_s[0], blocks_p[0]), params)
     lat = np.empty(4000)
     cpu = np.empty(4000)
     for i in range(lat.size):
@@ -119,24 +120,28 @@ def main() -> None:
     }
     vref = model.sensors.reference_voltage_v
     bands = analysis_bands_from_config()
-    t_cal = best_time_s(lambda: calibration.calibrate(run, vref, amplitude_band_hz=bands.amplitude_band_hz), repeats=2)
+    t_cal = best_time_s(lambda: calibration.calibrate(
+        run, vref, amplitude_band_hz=bands.amplitude_band_hz), repeats=2)
     track = 20.0 + 180.0 * run["time_s"]
     p0 = fe.params_from_model(model, FS, **tuning)
     t_char = best_time_s(lambda: characterization.characterize_run(
-        run, p0, "chirp", track, amplitude_band_hz=bands.amplitude_band_hz, time_band_hz=bands.time_band_hz), repeats=2)
+        run, p0, "chirp", track, amplitude_band_hz=bands.amplitude_band_hz,
+        time_band_hz=bands.time_band_hz), repeats=2)
 
     realtime = FS
     figures = [
-        Figure("frontend step, 10-sample blocks: throughput", step_rate, "samples/s", f">= {realtime:.0f} (real time)",
-               step_rate >= realtime, f"bare lfilter calls: {bare_rate:.3g} samples/s"),
-        Figure("frontend step, 10-sample block latency p50", p50 * 1e3, "ms", "< 0.5 (block length)", p50 < 0.5e-3,
-               f"block = {BLOCK / FS * 1e3:.2f} ms of data"),
+        Figure("frontend step, 10-sample blocks: throughput", step_rate, "samples/s",
+               f">= {realtime:.0f} (real time)", step_rate >= realtime,
+               f"bare lfilter calls: {bare_rate:.3g} samples/s"),
+        Figure("frontend step, 10-sample block latency p50", p50 * 1e3, "ms",
+               "< 0.5 (block length)", p50 < 0.5e-3, f"block = {BLOCK / FS * 1e3:.2f} ms of data"),
         Figure("frontend step, 10-sample block latency p99", p99 * 1e3, "ms", "< 1", p99 < 1e-3,
                f"max {lat.max() * 1e3:.3f} ms over {lat.size} blocks (wall clock)"),
-        Figure("frontend step, 10-sample block CPU time p99", cpu99 * 1e3, "ms", "< 1", cpu99 < 1e-3,
-               f"p50 {cpu50 * 1e3:.3f} ms (thread CPU time: excludes preemption)"),
-        Figure("frontend estimate, whole 10 s record: throughput", whole_rate, "samples/s", ">= 2e6 (100x real time)",
-               whole_rate >= 2e6, f"bare lfilter chain: {bare_whole_rate:.3g} samples/s"),
+        Figure("frontend step, 10-sample block CPU time p99", cpu99 * 1e3, "ms", "< 1",
+               cpu99 < 1e-3, f"p50 {cpu50 * 1e3:.3f} ms (thread CPU time: excludes preemption)"),
+        Figure("frontend estimate, whole 10 s record: throughput", whole_rate, "samples/s",
+               ">= 2e6 (100x real time)", whole_rate >= 2e6,
+               f"bare lfilter chain: {bare_whole_rate:.3g} samples/s"),
         Figure("calibrate, 1 s chirp (2 channels)", t_cal, "s", "< 2", t_cal < 2.0, ""),
         Figure("characterize_run chirp, 1 s chirp", t_char, "s", "< 2", t_char < 2.0, ""),
     ]

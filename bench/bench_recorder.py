@@ -1,6 +1,7 @@
 """Recorder benchmark: messages/s and samples/s into the bag, loss, with the whole graph at 20 kHz.
 
-Run: scripts/in_env.sh python bench/bench_recorder.py [--duration 10] [--json out/bench_recorder.json]
+Run: scripts/in_env.sh python bench/bench_recorder.py
+[--duration 10] [--json out/bench_recorder.json]
 
 Scenario "graph": plant_node (mode realtime) + drive_node (pacing realtime), 20 kHz in 10-sample
 blocks (config/flaair.yaml): /flaair/drive, /flaair/sensor_v, /flaair/wing_state/truth at
@@ -22,10 +23,10 @@ drive catches up in bursts).
 Baseline (same run): BagWriter alone writing the recorded serialized blocks (no DDS, no callbacks).
 Throughput is counted over the window in which all four streams were flowing.
 
-Reading the graph scenario: on a loaded machine the realtime plant and drive fall behind and
-catch up in bursts; the plant then rejects gapped command blocks from /flaair/drive too (its
-log says so), i.e. the loss is not the recorder's alone. /clock is published CLOCK_DEPTH (1000) deep,
-as plant_node does.
+Reading the graph scenario: on a loaded machine the realtime plant and drive
+fall behind and catch up in bursts; the plant then rejects gapped command blocks
+from /flaair/drive too (its log says so), i.e. the loss is not the recorder's
+alone. /clock is published CLOCK_DEPTH (1000) deep, as plant_node does.
 """
 from __future__ import annotations
 
@@ -51,7 +52,8 @@ FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 BLOCK_TOPICS = ("/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state/truth")
 from flaair_sim.plant_io import CLOCK_DEPTH  # noqa: E402  (the plant's /clock queue; the steady publisher does the same)
 
-# Steady publisher: blocks like the graph's at `rate` msg/s per topic for `duration_s`; prints counts.
+# Steady publisher: blocks like the graph's at `rate`
+# msg/s per topic for `duration_s`; prints counts.
 STEADY_PUBLISHER = r"""
 import json, sys, time
 import numpy as np
@@ -127,34 +129,45 @@ class Graph(LaunchGraph):
         deadline = time.monotonic() + timeout_s
         while text not in self.log(name):
             if time.monotonic() > deadline:
-                raise SystemExit(f"{name}: no '{text}' within {timeout_s:g} s; see {self.logs / (name + '.log')}")
+                raise SystemExit(
+                    f"{name}: no '{text}' within {timeout_s:g} s; see "
+                    f"{self.logs / (name + '.log')}")
             time.sleep(0.1)
 
 
 
-def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int, rate_hz: float) -> dict[str, object]:
-    """Record one scenario ("graph" or "steady") into `bag`; returns recorder CPU and what publishers reported."""
+def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int,
+                    rate_hz: float) -> dict[str, object]:
+    """Record one scenario ("graph" or "steady") into `bag`;
+    returns recorder CPU and what publishers reported.
+    """
     graph = Graph(bag.parent)
     try:
         recorder = graph.start("recorder", FLAAIR, "record", "-o", str(bag), "--clock")
         graph.wait_log("recorder", "recording", 60.0)
         crashed: dict[str, int] = {}
         if scenario == "graph":
-            plant = graph.start("plant", FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", "mode:=realtime")
-            graph.wait_log("plant", "plant ready", 300.0)  # numba compiles the plant kernel on a cold cache
-            drive = graph.start("drive", FLAAIR, "run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=realtime")
+            plant = graph.start("plant", FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args",
+                                "-p", "mode:=realtime")
+            # numba compiles the plant kernel on a cold cache
+            graph.wait_log("plant", "plant ready", 300.0)
+            drive = graph.start("drive", FLAAIR, "run", "flaair_sim", "drive_node", "--ros-args",
+                                "-p", "pacing:=realtime")
             graph.wait_log("drive", "drive:", 60.0)
             cpu_start_s, wall_start_s = _cpu_s(recorder.pid), time.monotonic()
             time.sleep(duration_s)
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
-            crashed = {name: p.returncode for name, p in (("plant", plant), ("drive", drive)) if p.poll() is not None}
+            crashed = {name: p.returncode for name, p in (("plant", plant), ("drive", drive))
+                       if p.poll() is not None}
             graph.stop(drive, timeout_s=20.0)
             graph.stop(plant, timeout_s=20.0)
             reported = None
         else:
-            config = {"duration_s": duration_s, "block_size": block_size, "sample_rate_hz": rate_hz, "clock_depth": CLOCK_DEPTH}
+            config = {"duration_s": duration_s, "block_size": block_size, "sample_rate_hz": rate_hz,
+                      "clock_depth": CLOCK_DEPTH}
             cpu_start_s, wall_start_s = _cpu_s(recorder.pid), time.monotonic()
-            publisher = graph.start("steady", sys.executable, "-c", STEADY_PUBLISHER, json.dumps(config))
+            publisher = graph.start("steady", sys.executable, "-c", STEADY_PUBLISHER,
+                                    json.dumps(config))
             if publisher.wait(timeout=duration_s + 120.0) != 0:
                 raise SystemExit(f"steady publisher failed; see {bag.parent / 'steady.log'}")
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
@@ -169,17 +182,23 @@ def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int
 
 
 def _stream_stats(indices: np.ndarray, step: int, samples: int) -> dict[str, float]:
-    """Counts of one stream from its block indices: recorded, published in the window, lost, duplicated."""
+    """Counts of one stream from its block indices:
+    recorded, published in the window, lost, duplicated.
+    """
     if indices.size == 0:
-        return {"recorded": 0.0, "published": 0.0, "lost": 0.0, "duplicates": 0.0, "samples": 0.0, "first_index": 0.0}
+        return {"recorded": 0.0, "published": 0.0, "lost": 0.0, "duplicates": 0.0, "samples": 0.0,
+                "first_index": 0.0}
     published = int((indices.max() - indices.min()) // step + 1)
     unique = np.unique(indices).size
-    return {"recorded": float(indices.size), "published": float(published), "lost": float(published - unique),
-            "duplicates": float(indices.size - unique), "samples": float(samples), "first_index": float(indices.min())}
+    return {"recorded": float(indices.size), "published": float(published),
+            "lost": float(published - unique), "duplicates": float(indices.size - unique),
+            "samples": float(samples), "first_index": float(indices.min())}
 
 
 def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, float]]:
-    """Per topic: recorded count, count published in the window, lost, duplicated, first index; and the span."""
+    """Per topic: recorded count, count published in the
+    window, lost, duplicated, first index; and the span.
+    """
     out: dict[str, dict[str, float]] = {}
     counts = bagio.message_counts(bag)
     for topic in BLOCK_TOPICS:
@@ -188,20 +207,23 @@ def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, f
             out[topic] = _stream_stats(blocks.block_first_index, block_size, blocks.n_samples)
         else:
             out[topic] = _stream_stats(np.zeros(0, dtype=np.int64), block_size, 0)
-    clock_ns = np.array([m.clock.sec * 1_000_000_000 + m.clock.nanosec
-                         for _, _, m in bagio.iter_messages(bag, ["/clock"])] if counts.get("/clock") else [],
+    clock_ns = np.array([m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _,
+                         m in bagio.iter_messages(bag, ["/clock"])] if counts.get("/clock") else [],
                         dtype=np.int64)
-    out["/clock"] = _stream_stats(np.round(clock_ns * rate_hz / 1e9).astype(np.int64), block_size, 0)
+    out["/clock"] = _stream_stats(
+        np.round(clock_ns * rate_hz / 1e9).astype(np.int64), block_size, 0)
     # Throughput window: while every stream was flowing (first to last receive time common to all).
     received: dict[str, list[int]] = {}
     for topic, _, t, _ in bagio.iter_raw(bag):
         received.setdefault(topic, []).append(t)
-    streams = [np.asarray(received.get(topic, []), dtype=np.int64) for topic in (*BLOCK_TOPICS, "/clock")]
+    streams = [np.asarray(received.get(topic, []), dtype=np.int64)
+               for topic in (*BLOCK_TOPICS, "/clock")]
     if all(r.size > 1 for r in streams):
         start, stop = max(int(r.min()) for r in streams), min(int(r.max()) for r in streams)
     else:
         start = stop = 0
-    in_window = {topic: int(((r >= start) & (r <= stop)).sum()) for topic, r in zip((*BLOCK_TOPICS, "/clock"), streams)}
+    in_window = {topic: int(((r >= start) & (r <= stop)).sum()) for topic,
+                 r in zip((*BLOCK_TOPICS, "/clock"), streams)}
     window_s = max(stop - start, 1) * 1e-9
     out["_span"] = {"span_s": window_s, "messages": float(sum(in_window.values())),
                     "samples": float(sum(in_window[t] for t in BLOCK_TOPICS) * block_size),
@@ -211,7 +233,8 @@ def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, f
 
 def writer_baseline(bag_dir: Path, source: Path, n_messages: int) -> float:
     """Messages/s of BagWriter alone, writing recorded serialized blocks (best of 3)."""
-    raw = [(topic, t, bytes(data)) for topic, _, t, data in bagio.iter_raw(source, list(BLOCK_TOPICS))][:n_messages]
+    raw = [(topic, t, bytes(data)) for topic, _, t,
+           data in bagio.iter_raw(source, list(BLOCK_TOPICS))][:n_messages]
     types = {t: i.msgtype for t, i in bagio.bag_info(source).topics.items()}
     counter = iter(range(1000))
 
@@ -231,14 +254,17 @@ def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_h
     stats = analyse(bag, block_size, rate_hz)
     span = stats.pop("_span")
     for node, code in run["crashed"].items():
-        print(f"WARNING: {node} exited (code {code}) during the run; see {bag.parent / (node + '.log')}")
-    if run["reported"] is not None:  # the steady publisher's exact counts replace the index-span estimate
+        print(f"WARNING: {node} exited (code {code}) during the run; see "
+              f"{bag.parent / (node + '.log')}")
+    # the steady publisher's exact counts replace the index-span estimate
+    if run["reported"] is not None:
         for s in stats.values():
             s["published"] = float(run["reported"]["blocks"])
             s["lost"] = s["published"] - s["recorded"] + s["duplicates"]
-    print(f"\n[{name}] {bag}: {int(span['messages'])} messages in the {span['span_s']:.2f} s while all 4 streams flowed")
-    print(f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} {'rate in bag':>13s} "
-          f"{'before subscription':>20s}")
+    print(f"\n[{name}] {bag}: {int(span['messages'])} messages in the {span['span_s']:.2f} s while "
+          "all 4 streams flowed")
+    print(f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} "
+          f"{'rate in bag':>13s} {'before subscription':>20s}")
     for topic, s in stats.items():
         print(f"{topic:28s} {int(s['published']):10d} {int(s['recorded']):8d} {int(s['lost']):6d} "
               f"{int(s['duplicates']):5d} {span['rate ' + topic]:9.0f} /s "
@@ -250,25 +276,35 @@ def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_h
     lost_clock = stats["/clock"]["lost"] + stats["/clock"]["duplicates"]
     target_msg_s = (len(BLOCK_TOPICS) + 1) * rate_hz / block_size
     target_samples_s = len(BLOCK_TOPICS) * rate_hz
-    msg_s, samples_s, cores = span["messages"] / span["span_s"], span["samples"] / span["span_s"], run["recorder_cores"]
+    msg_s, samples_s, cores = (span["messages"] / span["span_s"], span["samples"] / span["span_s"],
+                               run["recorder_cores"])
     return [
-        Figure(f"[{name}] recorder throughput (3 block topics + /clock)", msg_s, "msg/s", f">= {target_msg_s:g}",
+        Figure(f"[{name}] recorder throughput (3 block topics + /clock)", msg_s, "msg/s",
+               f">= {target_msg_s:g}",
                msg_s >= 0.95 * target_msg_s,
-               f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone {baseline_msg_s:,.0f}/s"),
-        Figure(f"[{name}] recorder throughput, samples (3 x 20 kHz)", samples_s, "samples/s", f">= {target_samples_s:g}",
-               samples_s >= 0.95 * target_samples_s, f"{int(span['samples'])} samples in {span['span_s']:.2f} s"),
-        Figure(f"[{name}] block messages lost or duplicated", lost_blocks, "messages", "0", lost_blocks == 0,
+               f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone "
+               f"{baseline_msg_s:,.0f}/s"),
+        Figure(f"[{name}] recorder throughput, samples (3 x 20 kHz)", samples_s, "samples/s",
+               f">= {target_samples_s:g}",
+               samples_s >= 0.95 * target_samples_s,
+               f"{int(span['samples'])} samples in {span['span_s']:.2f} s"),
+        Figure(f"[{name}] block messages lost or duplicated", lost_blocks, "messages", "0",
+               lost_blocks == 0,
                f"of {int(published_blocks)} published (queues 1000 deep)"),
-        Figure(f"[{name}] /clock messages lost or duplicated", lost_clock, "messages", "0", lost_clock == 0,
-               f"of {int(stats['/clock']['published'])} published (publisher queue {CLOCK_DEPTH} deep)"),
-        Figure(f"[{name}] recorder CPU", cores, "cores", "< 1", cores < 1.0, "2-core machine shared with other work"),
+        Figure(f"[{name}] /clock messages lost or duplicated", lost_clock, "messages", "0",
+               lost_clock == 0,
+               f"of {int(stats['/clock']['published'])} published (publisher queue {CLOCK_DEPTH} "
+               "deep)"),
+        Figure(f"[{name}] recorder CPU", cores, "cores", "< 1", cores < 1.0,
+               "2-core machine shared with other work"),
     ]
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="seconds recorded per scenario")
-    ap.add_argument("--scenarios", nargs="+", default=["graph", "steady"], choices=["graph", "steady"])
+    ap.add_argument("--scenarios", nargs="+", default=["graph", "steady"],
+                    choices=["graph", "steady"])
     ap.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_recorder.json")
     ap.add_argument("--keep", action="store_true", help="keep the bags and logs (printed path)")
     args = ap.parse_args()

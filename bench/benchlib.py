@@ -41,7 +41,8 @@ def print_table(figures: list[Figure]) -> None:
     """Print figures as an aligned table."""
     print(f"{'benchmark':52s} {'value':>14s} {'unit':10s} {'target':18s} {'met':4s} baseline")
     for f in figures:
-        print(f"{f.name:52s} {f.value:14.4g} {f.unit:10s} {f.target:18s} {'yes' if f.met else 'NO':4s} {f.baseline}")
+        print(f"{f.name:52s} {f.value:14.4g} {f.unit:10s} {f.target:18s} "
+              f"{'yes' if f.met else 'NO':4s} {f.baseline}")
 
 
 def write_json(figures: list[Figure], path: Path) -> None:

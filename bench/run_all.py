@@ -16,7 +16,9 @@ from pathlib import Path
 
 from benchlib import REPO_ROOT, Figure, print_table, write_json
 
-BENCHES = ["bench_sim", "bench_frontend_core", "bench_collision", "bench_analysis", "bench_recorder", "bench_closed_loop", "bench_discrepancy", "bench_stroke", "bench_sweep", "bench_bridge", "bench_import", "bench_foxglove"]
+BENCHES = ["bench_sim", "bench_frontend_core", "bench_collision", "bench_analysis",
+           "bench_recorder", "bench_closed_loop", "bench_discrepancy", "bench_stroke",
+           "bench_sweep", "bench_bridge", "bench_import", "bench_foxglove"]
 
 
 def main() -> int:
@@ -36,7 +38,8 @@ def main() -> int:
         print(f"[bench] {name} ...", flush=True)
         start = time.monotonic()
         part = out_dir / f"{name}.json"
-        result = subprocess.run([sys.executable, str(script), "--json", str(part)], capture_output=True, text=True)
+        result = subprocess.run([sys.executable, str(script), "--json", str(part)],
+                                capture_output=True, text=True)
         print(f"[bench] {name}: {time.monotonic() - start:.0f} s", flush=True)
         if result.returncode != 0 or not part.exists():
             failures.append(name)
@@ -45,7 +48,8 @@ def main() -> int:
         loaded = json.loads(part.read_text())
         entries = loaded if isinstance(loaded, list) else loaded.get("figures", [])
         for entry in entries:
-            figures.append(Figure(**{k: entry[k] for k in ("name", "value", "unit", "target", "met", "baseline") if k in entry}))
+            figures.append(Figure(**{k: entry[k] for k in (
+                "name", "value", "unit", "target", "met", "baseline") if k in entry}))
     print()
     print_table(figures)
     write_json(figures, args.json)

@@ -22,11 +22,14 @@ def _spin(deadline: float) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="busy processes (default: one per core)")
-    parser.add_argument("--duration", type=float, default=3600.0, metavar="S", help="stop after S seconds (default 1 h)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                        help="busy processes (default: one per core)")
+    parser.add_argument("--duration", type=float, default=3600.0, metavar="S",
+                        help="stop after S seconds (default 1 h)")
     args = parser.parse_args()
     deadline = time.monotonic() + args.duration
-    workers = [multiprocessing.Process(target=_spin, args=(deadline,), daemon=True) for _ in range(args.workers)]
+    workers = [multiprocessing.Process(
+        target=_spin, args=(deadline,), daemon=True) for _ in range(args.workers)]
     for worker in workers:
         worker.start()
 

@@ -26,11 +26,14 @@ def main() -> None:
 
     fs_hz = 20000.0
     model = load_model()
-    drive = drive_record(DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400)
-    for m in (model, with_effects(model, {"collision": {"stroke_limit_deg": 20.0}, "sensor_delay": {"delay_s": 1e-4},
-                                          "charge_amp_highpass": {"corner_hz": 1.0}})):
+    drive = drive_record(DriveParams(
+        kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400)
+    for m in (model, with_effects(
+            model, {"collision": {"stroke_limit_deg": 20.0}, "sensor_delay": {"delay_s": 1e-4},
+                    "charge_amp_highpass": {"corner_hz": 1.0}})):
         simulate(drive, fs_hz, m)
-        step(initial_state(PlantStepParams(m, fs_hz)), PlantInputs(drive[:10]), PlantStepParams(m, fs_hz))
+        step(initial_state(PlantStepParams(m, fs_hz)), PlantInputs(drive[:10]),
+             PlantStepParams(m, fs_hz))
     simulate_batch(drive, fs_hz, [model, model])
     try:
         from flaair_control.control_io import (
@@ -39,7 +42,8 @@ def main() -> None:
         )
         from flaair_control.core import collision, spectral
 
-        spectral.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config())
+        spectral.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0,
+                                 spectral_metric_params_from_config())
         params = monitor_windows_from_config(100.0)
         collision.run(np.zeros(400), np.zeros(400), params)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
@@ -52,10 +56,13 @@ def main() -> None:
         from flaair_sensors.frontend_io import frontend_params_from_config
 
         fe = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), fs_hz)
-        frontend.step(frontend.initial_state(fe), frontend.FrontendInputs(np.ones(10), np.ones(10)), fe)
-        loop = supervisor_params_from_config(node_parameters("flaair.yaml", "dsa_controller_node"), model)
+        frontend.step(frontend.initial_state(fe), frontend.FrontendInputs(np.ones(10), np.ones(10)),
+                      fe)
+        loop = supervisor_params_from_config(
+            node_parameters("flaair.yaml", "dsa_controller_node"), model)
         dsa.step(dsa.initial_state(loop.dsa), dsa.DsaInputs(np.zeros(10), 0.0), loop.dsa)
-        safety.step(safety.initial_state(loop.safety), safety.SafetyInputs(np.zeros(10), 0.0), loop.safety)
+        safety.step(safety.initial_state(loop.safety), safety.SafetyInputs(np.zeros(10), 0.0),
+                    loop.safety)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")

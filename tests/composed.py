@@ -63,9 +63,11 @@ class FakeClock:
 class Composed:
     """Nodes on one bus, a fake clock, and sinks that keep every block of a topic."""
 
-    def __init__(self, bus: intra.Bus, nodes: list[Any], clock: FakeClock, block_period_s: float) -> None:
+    def __init__(self, bus: intra.Bus, nodes: list[Any], clock: FakeClock,
+                 block_period_s: float) -> None:
         self.bus, self.nodes, self.clock, self.block_period_s = bus, nodes, clock, block_period_s
-        self.due_s: dict[int, float] = {}   # id(timer) -> when it fires next (a node may add or destroy timers)
+        # id(timer) -> when it fires next (a node may add or destroy timers)
+        self.due_s: dict[int, float] = {}
         self.stepped_blocks = 0
         bus.subscribe(topics.SENSOR_VOLTAGE, self._on_stepped)
 
@@ -94,8 +96,8 @@ class Composed:
 
     def live_timers(self) -> list[tuple[Any, float]]:
         """(timer, period s) of every node's timers now, each with its next due time set."""
-        timers = [(timer, timer.timer_period_ns * 1e-9) for node in self.nodes for timer in node.timers
-                  if not timer.is_canceled()]
+        timers = [(timer, timer.timer_period_ns * 1e-9) for node in self.nodes
+                  for timer in node.timers if not timer.is_canceled()]
         for timer, period in timers:
             self.due_s.setdefault(id(timer), self.clock.now_s + period)
         return timers
@@ -135,13 +137,15 @@ class Composed:
 
 def write_params(path: Path, params: dict[str, dict[str, Any]]) -> Path:
     """A ROS params file with one section per node name."""
-    path.write_text(yaml.safe_dump({name: {"ros__parameters": values} for name, values in params.items()}))
+    path.write_text(yaml.safe_dump(
+        {name: {"ros__parameters": values} for name, values in params.items()}))
     return path
 
 
 @contextmanager
 def composed(monkeypatch, node_classes: list[type], params: dict[str, dict[str, Any]] | None = None,
-             tmp_path: Path | None = None, local_topics: tuple[str, ...] = LOCAL_TOPICS) -> Iterator[Composed]:
+             tmp_path: Path | None = None,
+             local_topics: tuple[str, ...] = LOCAL_TOPICS) -> Iterator[Composed]:
     """Build `node_classes` in this process on one bus (per-node parameter overrides in `params`),
     their clocks faked; destroy them and shut rclpy down at the end.
     """
@@ -160,7 +164,8 @@ def composed(monkeypatch, node_classes: list[type], params: dict[str, dict[str, 
     bus = intra.Bus(set(local_topics))
     if rclpy.ok():
         rclpy.shutdown()
-    rclpy.init(args=["composed", "--ros-args", "--params-file", str(params_file)], domain_id=lease.domain_id)
+    rclpy.init(args=["composed", "--ros-args", "--params-file", str(params_file)],
+               domain_id=lease.domain_id)
     intra.install(bus)
     nodes: list[Any] = []
     try:

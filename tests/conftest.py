@@ -26,5 +26,6 @@ def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
     rosproc.release_leases()
     started, rosproc.GRAPHS_STARTED[:] = list(rosproc.GRAPHS_STARTED), []
     if started and request.node.get_closest_marker("graph") is None:
-        pytest.fail(f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not marked "
-                    "@pytest.mark.graph (graph tests run alone, after the others)", pytrace=False)
+        pytest.fail(f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not "
+                    "marked @pytest.mark.graph (graph tests run alone, after the others)",
+                    pytrace=False)

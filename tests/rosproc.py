@@ -20,7 +20,8 @@ FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
 _LEASES: list = []
-GRAPHS_STARTED: list[str] = []   # what this test started that exchanges data in real time (conftest checks the mark)
+# what this test started that exchanges data in real time (conftest checks the mark)
+GRAPHS_STARTED: list[str] = []
 GRAPH_COMMANDS = {"experiment", "live"}   # `flaair` commands that bring a graph up
 
 
@@ -54,10 +55,14 @@ class Processes:
         self.started = [process for _, process in graph.children]
         self.log_dir = Path(tempfile.mkdtemp(prefix="flaair-test-graph-"))
 
-    def start(self, *args: str, stdout: IO | None = None, stderr: IO | int | None = None) -> subprocess.Popen:
-        """Start a process on the graph's domain; stdout/stderr: its own log files (default) or an open file."""
+    def start(self, *args: str, stdout: IO | None = None,
+              stderr: IO | int | None = None) -> subprocess.Popen:
+        """Start a process on the graph's domain; stdout/stderr:
+        its own log files (default) or an open file.
+        """
         self.graph.env = self.env   # a test may adjust the environment before starting
-        name = f"{len(self.started):02d}_{Path(args[0]).name}_{'_'.join(a for a in args[1:3] if a.isidentifier())}"
+        words = "_".join(a for a in args[1:3] if a.isidentifier())
+        name = f"{len(self.started):02d}_{Path(args[0]).name}_{words}"
         out_path, err_path = self.log_dir / f"{name}.out", self.log_dir / f"{name}.err"
         with open(out_path, "w") as out_file, open(err_path, "w") as err_file:
             process = self.graph.start(Path(args[0]).name, args, stdout=stdout or out_file,
@@ -67,7 +72,8 @@ class Processes:
 
         def communicate(input: str | None = None, timeout: float | None = None) -> tuple[str, str]:
             process.wait(timeout=timeout)
-            return (out_path.read_text() if stdout is None else "", err_path.read_text() if stderr is None else "")
+            return (out_path.read_text() if stdout is None else "", err_path.read_text()
+                    if stderr is None else "")
 
         process.communicate = communicate
         self.started.append(process)
@@ -76,7 +82,8 @@ class Processes:
     def flaair(self, *args: str, **kwargs) -> subprocess.Popen:
         return self.start(FLAAIR, *args, **kwargs)
 
-    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int:
+    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT,
+             timeout_s: float = 10.0) -> int:
         return self.graph.stop(process, sig, timeout_s)
 
     def stop_all(self) -> None:
@@ -91,14 +98,20 @@ def ros_processes() -> Iterator[Processes]:
         yield Processes(graph)
 
 
-def run(args: list[str], env: dict[str, str], timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+def run(args: list[str], env: dict[str, str],
+        timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """Run a command to completion in `env`, capturing output."""
-    if args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS and "--help" not in args:
+    if (args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS
+        and "--help" not in args):
         GRAPHS_STARTED.append(f"flaair {args[1]}")
-    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s,
+                          cwd=REPO_ROOT)
 
 
 def target_watchdog_tripped(log: Path) -> bool:
-    """The emulated target's drive watchdog is tripped now: the last state line of its log says so."""
-    states = [line for line in log.read_text().splitlines() if "emulated_target: drive watchdog " in line]
+    """The emulated target's drive watchdog is tripped
+    now: the last state line of its log says so.
+    """
+    states = [line for line in log.read_text().splitlines()
+              if "emulated_target: drive watchdog " in line]
     return bool(states) and " tripped at sample " in states[-1]

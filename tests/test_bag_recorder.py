@@ -36,8 +36,9 @@ blocks = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STR
 events = node.create_publisher(CollisionEvent, "/flaair/collision/events", EVENTS)
 other = node.create_publisher(String, "/other/chatter", BLOCK_STREAM)
 deadline = time.monotonic() + 30.0
-while time.monotonic() < deadline and (blocks.get_subscription_count() < cfg.get("block_subscribers", 1)
-                                       or events.get_subscription_count() == 0):
+while time.monotonic() < deadline and (
+        blocks.get_subscription_count() < cfg.get("block_subscribers", 1)
+        or events.get_subscription_count() == 0):
     time.sleep(0.02)
 next_t = time.monotonic()
 for i in range(cfg["blocks"]):
@@ -76,27 +77,33 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
     bag, sim_bag = tmp_path / "rec", tmp_path / "sim"
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(bag))
-        sim_recorder = procs.flaair("record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v", "--use-sim-time")
+        sim_recorder = procs.flaair("record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v",
+                                    "--use-sim-time")
         # publish only after both recorders are up: topics must be found by periodic discovery
         # (with use_sim_time and no /clock, a ROS-time discovery timer would never fire)
-        assert wait_for(lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)), 60.0)
+        assert wait_for(lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)),
+                        60.0)
         publisher = _publisher(procs, blocks=600, events=40, rate=2000.0, block_subscribers=2)
         assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
         assert procs.stop(sim_recorder, signal.SIGTERM) == 0
         log = recorder.stderr.read()
     assert "closed" in log, log
-    # SIGTERM closes too; --topics chose one topic; with use_sim_time the log time is the header stamp
+    # SIGTERM closes too; --topics chose one topic; with
+    # use_sim_time the log time is the header stamp
     assert bagio.message_counts(sim_bag) == {"/flaair/sensor_v": 600}
     stamps = [t for _, _, t, _ in bagio.iter_raw(sim_bag)]
     assert stamps == [i * 500_000 for i in range(600)]
     assert (bag / "metadata.yaml").exists()
     assert bagio.message_counts(bag) == {"/flaair/sensor_v": 600, "/flaair/collision/events": 40}
     info = bagio.bag_info(bag)
-    assert {t: i.count for t, i in info.topics.items()} == {"/flaair/sensor_v": 600, "/flaair/collision/events": 40}
-    assert info.topics["/flaair/collision/events"].offered_qos[0].durability == bagio.QosDurability.TRANSIENT_LOCAL
+    assert {t: i.count for t, i in info.topics.items()} == {
+        "/flaair/sensor_v": 600, "/flaair/collision/events": 40}
+    assert (info.topics["/flaair/collision/events"].offered_qos[0].durability
+            == bagio.QosDurability.TRANSIENT_LOCAL)
     # history and depth do not travel in DDS discovery: recorded as unknown / 0, as rosbag2 does
-    assert info.topics["/flaair/sensor_v"].offered_qos[0].reliability == bagio.QosReliability.RELIABLE
+    assert (info.topics["/flaair/sensor_v"].offered_qos[0].reliability
+            == bagio.QosReliability.RELIABLE)
     _check_blocks_exact(bagio.read_blocks(bag, "/flaair/sensor_v"), 600)
     events = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/collision/events"])]
     assert [e.wingbeat_index for e in events] == list(range(40))
@@ -141,19 +148,23 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
     with bagio.BagWriter(source, store=store) as writer:
         for i in range(n):
             stamp_ns = 10_000_000_000 + i * period_ns
-            message = bagio.new_message(
-                "flaair_msgs/msg/SensorVoltageBlock", store,
-                header=bagio.new_message("std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
-                sample_rate_hz=20000.0, first_sample_index=10 * i,
-                stroke_sensor_v=i + 0.1 * np.arange(10), pitch_sensor_v=-i - 0.1 * np.arange(10))
-            writer.write_message("/flaair/sensor_v", stamp_ns, message, [bagio.qos_from_rclpy(BLOCK_STREAM)])
+            message = bagio.new_message("flaair_msgs/msg/SensorVoltageBlock", store,
+                                        header=bagio.new_message(
+                "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
+                                        sample_rate_hz=20000.0, first_sample_index=10 * i,
+                                        stroke_sensor_v=i + 0.1 * np.arange(10),
+                                        pitch_sensor_v=-i - 0.1 * np.arange(10))
+            writer.write_message("/flaair/sensor_v", stamp_ns, message,
+                                 [bagio.qos_from_rclpy(BLOCK_STREAM)])
             if i % 50 == 0:
                 marker = bagio.new_message("std_msgs/msg/String", store, data=f"run {i}")
-                writer.write_message(bagio.RUN_MARKER_TOPIC, stamp_ns, marker, [bagio.qos_from_rclpy(EVENTS)])
+                writer.write_message(bagio.RUN_MARKER_TOPIC, stamp_ns, marker,
+                                     [bagio.qos_from_rclpy(EVENTS)])
     replay = tmp_path / "replay"
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(replay), "--clock")
-        player = procs.flaair("play", str(source), "--rate", str(rate), "--clock", "--wait-subscribers")
+        player = procs.flaair("play", str(source), "--rate", str(rate), "--clock",
+                              "--wait-subscribers")
         assert player.wait(timeout=60) == 0, player.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
     counts = bagio.message_counts(replay)
@@ -168,9 +179,12 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
 
     (mcap_file,) = replay.glob("*.mcap")
     with open(mcap_file, "rb") as handle:
-        published_ns = np.array([message.publish_time for _, channel, message in make_reader(handle).iter_messages()
+        published_ns = np.array([message.publish_time for _, channel,
+                                 message in make_reader(handle).iter_messages()
                                  if channel.topic == "/flaair/sensor_v"])
     span_s = (published_ns.max() - published_ns.min()) * 1e-9
-    assert 0.8 * (n - 1) * period_ns * 1e-9 / rate < span_s < 2.0 * (n - 1) * period_ns * 1e-9 / rate
-    clocks = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _, m in bagio.iter_messages(replay, ["/clock"])]
+    assert (0.8 * (n - 1) * period_ns * 1e-9 / rate < span_s < 2.0 * (n - 1) * period_ns * 1e-9
+            / rate)
+    clocks = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _,
+              m in bagio.iter_messages(replay, ["/clock"])]
     assert clocks[0] == 10_000_000_000 and clocks[-1] == 10_000_000_000 + (n - 1) * period_ns

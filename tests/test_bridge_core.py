@@ -1,4 +1,6 @@
-"""The bridge's pure core: sequence tracking, loss marking, re-blocking, drive scheduling, watchdogs."""
+"""The bridge's pure core: sequence tracking, loss
+marking, re-blocking, drive scheduling, watchdogs.
+"""
 from __future__ import annotations
 
 import struct
@@ -16,8 +18,9 @@ LEAD = 20
 
 
 def params(**overrides) -> bridge_params.BridgeParams:
-    values = dict(sample_rate_hz=FS, block_size=N, lead_samples=LEAD, drive_limit_v=150.0, max_ahead_samples=400,
-                  max_fill_samples=20000, resync_packets=5, drive_timeout_s=0.02, sensor_timeout_s=0.02)
+    values = dict(sample_rate_hz=FS, block_size=N, lead_samples=LEAD, drive_limit_v=150.0,
+                  max_ahead_samples=400, max_fill_samples=20000, resync_packets=5,
+                  drive_timeout_s=0.02, sensor_timeout_s=0.02)
     values.update(overrides)
     return bridge_params.BridgeParams(**values)
 
@@ -48,7 +51,8 @@ def stream(blocks) -> tuple[np.ndarray, np.ndarray]:
     """Published indices and stroke samples of the blocks, checked contiguous."""
     firsts = [b.first_sample_index for b in blocks]
     assert firsts == list(range(firsts[0], firsts[0] + N * len(firsts), N))
-    return np.arange(firsts[0], firsts[0] + N * len(firsts)), np.concatenate([b.stroke_sensor_v for b in blocks])
+    return (np.arange(firsts[0], firsts[0] + N * len(firsts)),
+            np.concatenate([b.stroke_sensor_v for b in blocks]))
 
 
 def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> None:
@@ -56,18 +60,22 @@ def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> No
     index, stroke = stream(blocks)
     assert index[0] == 100 and len(index) == 40
     np.testing.assert_array_equal(stroke, (1 + index / 1000).astype(np.float32))
-    np.testing.assert_array_equal(np.concatenate([b.drive_v for b in blocks]), (index / 10).astype(np.float32))
+    np.testing.assert_array_equal(
+        np.concatenate([b.drive_v for b in blocks]), (index / 10).astype(np.float32))
     c = state.counters
-    assert (c.sensor_packets, c.published_blocks, c.lost_packets, c.stale_packets, c.malformed) == (4, 4, 0, 0, 0)
+    assert ((c.sensor_packets, c.published_blocks, c.lost_packets, c.stale_packets, c.malformed)
+            == (4, 4, 0, 0, 0))
 
 
 def test_lost_packets_are_counted_and_published_as_nan_never_invented() -> None:
     sequences = [0, 1, 4, 5]   # 2 and 3 lost
-    state, blocks, _, _, notes = run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences])
+    state, blocks, _, _, notes = (
+        run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences]))
     index, stroke = stream(blocks)
     assert len(index) == 60
     lost = (index >= 20) & (index < 40)
-    assert np.isnan(stroke[lost]).all() and np.isnan(np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
+    assert np.isnan(stroke[lost]).all() and np.isnan(
+        np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
     np.testing.assert_array_equal(stroke[~lost], (1 + index[~lost] / 1000).astype(np.float32))
     assert state.counters.lost_packets == 2 and state.counters.lost_samples == 20
     assert any("2 sensor packet(s) lost before sequence 4" in n.text for n in notes)
@@ -83,23 +91,27 @@ def test_duplicates_and_older_packets_are_stale_and_dropped() -> None:
 
 def test_sequence_wraps_at_2_32_without_loss() -> None:
     top = 2**32 - 2
-    state, blocks, *_ = run([SensorDatagram(packet((top + k) % 2**32, k * N), 0.0) for k in range(4)])
-    assert len(blocks) == 4 and state.counters.lost_packets == 0 and state.counters.stale_packets == 0
+    state, blocks, *_ = run([SensorDatagram(packet((top + k) % 2**32, k * N), 0.0)
+                             for k in range(4)])
+    assert (len(blocks) == 4 and state.counters.lost_packets == 0
+            and state.counters.stale_packets == 0)
 
 
 def test_malformed_datagrams_are_counted_and_change_nothing_else() -> None:
     good = packet(0, 0)
-    garbage = [b"", b"hello", good[:-1], good + b"\x00", b"FLD1" + good[4:], packet(1, N, rate=10000.0),
-               good[:24] + np.full(30, np.nan, "<f4").tobytes()]
-    state, blocks, _, _, notes = run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
-                                       + [SensorDatagram(packet(1, N), 0.0)])
+    garbage = [b"", b"hello", good[:-1], good + b"\x00", b"FLD1" + good[4:],
+               packet(1, N, rate=10000.0), good[:24] + np.full(30, np.nan, "<f4").tobytes()]
+    state, blocks, _, _, notes = (
+        run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
+            + [SensorDatagram(packet(1, N), 0.0)]))
     assert state.counters.malformed == len(garbage) and state.counters.lost_packets == 0
     assert len(blocks) == 2 and blocks[1].first_sample_index == N
     assert any("sample_rate_hz 10000, the bridge runs at 20000" in n.text for n in notes)
 
 
 def test_packets_of_other_sizes_are_reblocked() -> None:
-    state, blocks, *_ = run([SensorDatagram(packet(s, s * 4, n=4), 0.0) for s in range(10)])   # 40 samples
+    # 40 samples
+    state, blocks, *_ = run([SensorDatagram(packet(s, s * 4, n=4), 0.0) for s in range(10)])
     index, stroke = stream(blocks)
     assert len(index) == 40 and state.pending.shape == (3, 0)
     np.testing.assert_array_equal(stroke, (1 + index / 1000).astype(np.float32))
@@ -108,8 +120,10 @@ def test_packets_of_other_sizes_are_reblocked() -> None:
 def test_drive_is_scheduled_lead_samples_ahead_then_contiguous_and_timed() -> None:
     inputs = []
     for k in range(5):
-        inputs.append(SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4))           # ends at sample (k+1)N - 1
-        inputs.append(DriveBlock(1000 + k * N, np.full(N, float(k + 1)), 1.0 + k * 5e-4 + 2e-4))  # answers it
+        # ends at sample (k+1)N - 1
+        inputs.append(SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4))
+        # answers it
+        inputs.append(DriveBlock(1000 + k * N, np.full(N, float(k + 1)), 1.0 + k * 5e-4 + 2e-4))
     state, _, packets, timing, _ = run(inputs)
     assert [p.first_sample_index for p in packets] == [N + LEAD + k * N for k in range(5)]
     assert [p.drive_v[0] for p in packets] == [1, 2, 3, 4, 5] and not any(p.stop for p in packets)
@@ -121,9 +135,12 @@ def test_drive_is_scheduled_lead_samples_ahead_then_contiguous_and_timed() -> No
 
 
 def test_late_drive_is_reanchored_ahead_of_the_target_clock() -> None:
-    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]          # -> target 10 + 20 = 30
-    inputs += [SensorDatagram(packet(k, k * N), 0.0) for k in range(1, 6)]                # clock now 60
-    inputs += [DriveBlock(N, np.ones(N), 0.0)]                                           # contiguous 40 < 60: late
+    # -> target 10 + 20 = 30
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]
+    # clock now 60
+    inputs += [SensorDatagram(packet(k, k * N), 0.0) for k in range(1, 6)]
+    # contiguous 40 < 60: late
+    inputs += [DriveBlock(N, np.ones(N), 0.0)]
     state, _, packets, _, notes = run(inputs)
     assert [p.first_sample_index for p in packets] == [30, 60 + LEAD]
     assert state.counters.drive_reanchors == 1
@@ -140,16 +157,19 @@ def test_a_bridge_behind_the_target_drops_late_blocks_and_keeps_the_loops_delay(
     for k in range(20):
         arrival = 1.0 + k * 5e-4
         now = max(1.005, arrival)
-        inputs += [SensorDatagram(packet(k, k * N), arrival, now), DriveBlock(k * N, np.ones(N), now)]
+        inputs += [SensorDatagram(packet(k, k * N), arrival, now),
+                   DriveBlock(k * N, np.ones(N), now)]
     state, _, packets, _, notes = run(inputs)
-    assert [x.first_sample_index for x in packets] == [N + LEAD] + [(k + 1) * N + LEAD for k in range(8, 20)]
+    assert [x.first_sample_index for x in packets] == [N + LEAD] + [
+        (k + 1) * N + LEAD for k in range(8, 20)]
     assert state.counters.drive_late_blocks == 7 and state.counters.drive_reanchors == 0
     assert any("behind the target's clock (the bridge fell behind)" in n.text for n in notes)
 
 
 def test_a_source_faster_than_real_time_drops_its_queue_and_reanchors() -> None:
     p = params(max_ahead_samples=20)
-    inputs = [SensorDatagram(packet(0, 0), 0.0)] + [DriveBlock(k * N, np.ones(N), 0.0) for k in range(110)]
+    inputs = [SensorDatagram(packet(0, 0), 0.0)] + [
+        DriveBlock(k * N, np.ones(N), 0.0) for k in range(110)]
     state, _, packets, _, notes = run(inputs, p)
     queued = sum(len(d) for _, d in state.queue)
     assert state.counters.drive_overflow_blocks > 0 and state.counters.drive_reanchors == 1
@@ -157,21 +177,27 @@ def test_a_source_faster_than_real_time_drops_its_queue_and_reanchors() -> None:
 
 
 def test_drive_is_clamped_nonfinite_zeroed_and_stale_or_early_blocks_dropped() -> None:
-    state, _, packets, _, _ = run([DriveBlock(0, np.ones(N), 0.0),                      # no target clock yet
+    # no target clock yet
+    state, _, packets, _, _ = run([DriveBlock(0, np.ones(N), 0.0),
                                    SensorDatagram(packet(0, 0), 0.0),
-                                   DriveBlock(0, np.array([500.0, -500.0, np.nan] + [1.0] * 7), 0.0),
-                                   DriveBlock(0, np.ones(N), 0.0)])                        # duplicate
+                                   DriveBlock(0, np.array([500.0, -500.0, np.nan] + [1.0] * 7),
+                                              0.0),
+                                   # duplicate
+                                   DriveBlock(0, np.ones(N), 0.0)])
     assert len(packets) == 1
     np.testing.assert_array_equal(packets[0].drive_v[:4], [150.0, -150.0, 0.0, 1.0])
     c = state.counters
-    assert (c.drive_unscheduled_blocks, c.clamped_samples, c.nonfinite_samples, c.drive_stale_blocks) == (1, 2, 1, 1)
+    assert (c.drive_unscheduled_blocks, c.clamped_samples, c.nonfinite_samples,
+            c.drive_stale_blocks) == (1, 2, 1, 1)
 
 
 def test_drive_far_ahead_waits_for_the_target_clock() -> None:
     p = params(max_ahead_samples=20)
-    inputs = [SensorDatagram(packet(0, 0), 0.0)] + [DriveBlock(k * N, np.ones(N), 0.0) for k in range(6)]
+    inputs = [SensorDatagram(packet(0, 0), 0.0)] + [
+        DriveBlock(k * N, np.ones(N), 0.0) for k in range(6)]
     state, _, packets, _, _ = run(inputs, p)
-    assert [x.first_sample_index for x in packets] == [30, 40]             # up to clock 10 + 20 + 20
+    # up to clock 10 + 20 + 20
+    assert [x.first_sample_index for x in packets] == [30, 40]
     state, _, packets, _, _ = run([SensorDatagram(packet(1, N), 0.0)], p, state)
     assert [x.first_sample_index for x in packets] == [50]
     assert len(state.queue) == 3
@@ -185,32 +211,41 @@ def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> Non
     assert len(packets) == 1 and packets[0].stop and packets[0].first_sample_index == N
     assert state.counters.watchdog_stops == 1 and "DRIVE WATCHDOG" in notes[0].text
     # a zero stream falling silent needs no stop; a resumed stream is anchored afresh
-    state, _, packets, _, _ = run([SensorDatagram(packet(1, N), 0.06), DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)],
-                                  state=state)
-    assert [x.first_sample_index for x in packets] == [2 * N + LEAD] and state.counters.watchdog_stops == 1
+    state, _, packets, _, _ = run(
+        [SensorDatagram(packet(1, N), 0.06), DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)],
+        state=state)
+    assert ([x.first_sample_index for x in packets] == [2 * N + LEAD]
+            and state.counters.watchdog_stops == 1)
 
 
 def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -> None:
     inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.ones(N), 0.0)]
-    inputs += [DriveBlock(k * N, np.ones(N), 0.001 * k) for k in range(1, 40)] + [Tick(0.0401)]   # 40 ms silent
+    # 40 ms silent
+    inputs += [DriveBlock(k * N, np.ones(N), 0.001 * k) for k in range(1, 40)] + [Tick(0.0401)]
     state, blocks, packets, _, notes = run(inputs)
     assert packets[-1].stop and state.counters.silences == 1
     assert any("TARGET SILENT" in n.text for n in notes)
     index, stroke = stream(blocks)
-    assert index[-1] + 1 == N + int(0.0401 * FS) // N * N            # lost samples at the real-time rate
+    # lost samples at the real-time rate
+    assert index[-1] + 1 == N + int(0.0401 * FS) // N * N
     assert np.isnan(stroke[N:]).all()
     # the target comes back: what was already published as lost is dropped, the rest goes on
-    state, more, *_ = run([SensorDatagram(packet(1, 500), 0.05), SensorDatagram(packet(2, 1000), 0.0505)], state=state)
+    state, more, *_ = run([SensorDatagram(packet(1, 500), 0.05),
+                           SensorDatagram(packet(2, 1000), 0.0505)], state=state)
     index2, stroke2 = stream(blocks + more)
     # published up to 810: the packet at 500 is all overlap, 810..1000 lost, then data again
-    assert index2[-1] == 1009 and state.counters.overlap_samples == N and state.counters.lost_samples == 190
+    assert (index2[-1] == 1009 and state.counters.overlap_samples == N
+            and state.counters.lost_samples == 190)
     assert np.isnan(stroke2[(index2 >= N) & (index2 < 1000)]).all()
-    np.testing.assert_array_equal(stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32))
+    np.testing.assert_array_equal(
+        stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32))
 
 
 def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
-    # packets that arrived 50 ms ago and are read only now: the target is not silent, the bridge is late
-    inputs = [SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5) for k in range(5)] + [Tick(1.051)]
+    # packets that arrived 50 ms ago and are read only
+    # now: the target is not silent, the bridge is late
+    inputs = [SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5)
+              for k in range(5)] + [Tick(1.051)]
     state, blocks, _, _, notes = run(inputs)
     assert state.counters.silences == 0 and len(blocks) == 5 and not notes
 
@@ -218,7 +253,8 @@ def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
 def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_silent() -> None:
     # 40 ms without a read, but the socket holds unread datagrams (the process stalled: a GIL-heavy
     # start-up, a long callback): no silence, no stop, no samples published as lost
-    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.zeros(N), 0.0), Tick(0.0401, backlog=True)]
+    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.zeros(N), 0.0),
+              Tick(0.0401, backlog=True)]
     state, blocks, packets, _, notes = run(inputs)
     assert state.counters.silences == 0 and not any("SILENT" in n.text for n in notes)
     assert not any(p.stop for p in packets) and len(blocks) == 1
@@ -228,22 +264,26 @@ def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_si
 
 def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
-    inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]        # the target restarted at 0
+    # the target restarted at 0
+    inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]
     state, blocks, _, _, notes = run(inputs)
     assert state.counters.stale_packets == 4 and state.counters.resyncs == 1
     index, stroke = stream(blocks)
-    assert len(index) == 3 * N + 2 * N                                           # published index keeps running
+    # published index keeps running
+    assert len(index) == 3 * N + 2 * N
     np.testing.assert_array_equal(stroke[-N:], (1 + np.arange(50, 60) / 1000).astype(np.float32))
 
 
 def test_stop_input_sends_a_stop_packet_at_the_target_clock() -> None:
-    state, _, packets, _, _ = run([SensorDatagram(packet(0, 70), 0.0), DriveBlock(0, np.ones(N), 0.0), Stop(0.0, "end")])
+    state, _, packets, _, _ = run(
+        [SensorDatagram(packet(0, 70), 0.0), DriveBlock(0, np.ones(N), 0.0), Stop(0.0, "end")])
     assert packets[-1].stop and packets[-1].first_sample_index == 80 and packets[-1].sequence == 1
     assert state.counters.stop_packets == 1 and not state.driving
 
 
-@pytest.mark.parametrize("name, value", [("block_size", 0), ("lead_samples", -1), ("drive_timeout_s", 0.0),
-                                         ("sample_rate_hz", float("nan")), ("resync_packets", 0)])
+@pytest.mark.parametrize("name, value", [
+    ("block_size", 0), ("lead_samples", -1), ("drive_timeout_s", 0.0),
+    ("sample_rate_hz", float("nan")), ("resync_packets", 0)])
 def test_parameters_out_of_range_are_named(name: str, value) -> None:
     with pytest.raises(bridge_params.BridgeParameterError, match=f"'{name}'"):
         params(**{name: value})
@@ -257,14 +297,18 @@ def test_emulated_target_holds_then_zeroes_clamps_discards_late_and_honours_stop
     core = TargetCore(hold_samples=3, drive_limit_v=150.0)
     core.receive(drive_datagram(0, [1.0, 2.0, 300.0, -400.0, 5.0]))
     drive, flags = core.decide(10)
-    np.testing.assert_array_equal(drive, [1, 2, 150, -150, 5, 5, 5, 5, 0, 0])     # held 3 samples, then zero
+    # held 3 samples, then zero
+    np.testing.assert_array_equal(drive, [1, 2, 150, -150, 5, 5, 5, 5, 0, 0])
     assert flags == 1 and core.counts["watchdog_trips"] == 1 and core.counts["clamped_samples"] == 2
-    core.receive(drive_datagram(8, [7.0] * 4))                # 8, 9 already passed: late; 10, 11 in time
+    # 8, 9 already passed: late; 10, 11 in time
+    core.receive(drive_datagram(8, [7.0] * 4))
     drive, flags = core.decide(4)
-    np.testing.assert_array_equal(drive, [7, 7, 7, 7])                          # fresh, then held again
+    # fresh, then held again
+    np.testing.assert_array_equal(drive, [7, 7, 7, 7])
     assert flags == 0 and core.counts["late_samples"] == 2 and core.counts["watchdog_trips"] == 1
     core.receive(drive_datagram(14, [9.0] * 10))
-    core.receive(drive_datagram(14, [0.0], flags=1))          # stop: zero now, the buffered drive is gone
+    # stop: zero now, the buffered drive is gone
+    core.receive(drive_datagram(14, [0.0], flags=1))
     drive, flags = core.decide(10)
     assert np.all(drive == 0.0) and flags == 0 and core.counts["stop_packets"] == 1
     core.receive(b"FLD1" + bytes(3))                          # malformed: dropped
@@ -282,7 +326,8 @@ def _same(a, b) -> bool:
 
 
 @pytest.mark.parametrize("block_size", [N, 2 * N])
-def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included(block_size) -> None:
+def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included(
+        block_size) -> None:
     """Every packet the fast path takes (in order; a whole block, or part of one as a target's
     0.5 ms packets are of 1 ms blocks; the target's watchdog flag set or not) gives the state and
     outputs the general path gives, with drive queued and released.
@@ -303,5 +348,6 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
             compared, flagged = compared + 1, flagged + bool(flags)
         state, _ = bridge.step(state, item, p)
         if (k + 1) * N % block_size == 0:   # the loop answers each whole block with a drive block
-            state, out = bridge.step(state, DriveBlock(k * N + N - block_size, np.full(block_size, float(k)), now + 2e-4), p)
+            state, out = bridge.step(state, DriveBlock(
+                k * N + N - block_size, np.full(block_size, float(k)), now + 2e-4), p)
     assert compared == 79 and flagged > 15 and state.counters.drive_packets > 30

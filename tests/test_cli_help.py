@@ -39,7 +39,8 @@ def test_every_subcommand_has_a_help() -> None:
     assert sorted(results) == sorted(SUBCOMMANDS)
     bad = {name: r for name, r in results.items()
            if r["code"] != 0 or "usage:" not in r["stdout"].lower() or "Traceback" in r["stderr"]}
-    assert bad == {}, {name: (r["code"], r["stdout"][:300], r["stderr"][-600:]) for name, r in bad.items()}
+    assert (bad == {}), {name: (r["code"], r["stdout"][:300], r["stderr"][-600:]) for name,
+                         r in bad.items()}
 
 
 def test_bare_flaair_lists_every_subcommand() -> None:

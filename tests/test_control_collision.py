@@ -43,7 +43,8 @@ def test_harmonic_content_gives_the_expected_rmse():
     assert n_bins == 51                          # 0..500 Hz at 10 Hz resolution
     a_ref = math.hypot(a1, h)                    # energy-matched reference sine
     assert r.reference_amplitude_rad == pytest.approx(a_ref, rel=1e-9)
-    assert r.spectral_rmse_rad == pytest.approx(math.sqrt(((a_ref - a1) ** 2 + h**2) / n_bins), rel=1e-6)
+    assert r.spectral_rmse_rad == pytest.approx(
+        math.sqrt(((a_ref - a1) ** 2 + h**2) / n_bins), rel=1e-6)
     assert r.time_rmse_rad == pytest.approx(math.sqrt(((a_ref - a1) ** 2 + h**2) / 2), rel=1e-6)
     k1, k2 = np.argmin(np.abs(r.frequency_hz - f)), np.argmin(np.abs(r.frequency_hz - 2 * f))
     assert r.signal_spectrum_rad[k1] < r.reference_spectrum_rad[k1]   # fundamental below the sine
@@ -71,7 +72,8 @@ def _params(**kw) -> col.MonitorParams:
     return replace(monitor_windows_from_config(100.0), **kw)
 
 
-def _synthetic(n_periods: int, f: float = 100.0, distort_from: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _synthetic(n_periods: int, f: float = 100.0,
+               distort_from: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(int(round(n_periods * FS / f))) / FS
     s = math.radians(25.0) * np.sin(2 * np.pi * f * t)
     p = math.radians(10.0) * np.sin(2 * np.pi * f * t + 0.5)
@@ -144,7 +146,8 @@ def test_monitor_parameters_are_validated_by_name():
     with pytest.raises(ValueError, match="window_source"):
         _params(window_source="video")
     with pytest.raises(ValueError, match="same length"):
-        col.step(col.initial_state(_params()), col.MonitorInputs(np.zeros(3), np.zeros(4)), _params())
+        col.step(col.initial_state(_params()), col.MonitorInputs(np.zeros(3), np.zeros(4)),
+                 _params())
 
 
 # --------------------------------------------------------------------------- on the simulated robot
@@ -175,7 +178,8 @@ def test_paper_metric_separates_collision_from_free_flapping(model):
     hit = sim_model.with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     free_out = plant_mod.simulate(drive, FS, model, noise=True, rng=np.random.default_rng(1))
     hit_out = plant_mod.simulate(drive, FS, hit, noise=True, rng=np.random.default_rng(2))
-    assert np.degrees(free_out.stroke_rad[-2000:]).max() > LIMIT_DEG + 5     # it would pass the stop
+    # it would pass the stop
+    assert np.degrees(free_out.stroke_rad[-2000:]).max() > LIMIT_DEG + 5
     assert np.degrees(hit_out.stroke_rad[-2000:]).max() < LIMIT_DEG + 2      # ... and is stopped
     free = spectral.spectral_metric(sensor_angles(model, free_out)[1], FS, 100.0, METRIC)
     coll = spectral.spectral_metric(sensor_angles(model, hit_out)[1], FS, 100.0, METRIC)
@@ -190,8 +194,8 @@ def test_paper_metric_separates_collision_from_free_flapping(model):
     assert coll.signal_spectrum_rad[k2] > math.radians(1.0)
 
 
-def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: float, f: float = 100.0,
-                       amplitude_v: float = 75.0):
+def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: float,
+                       f: float = 100.0, amplitude_v: float = 75.0):
     """Block loop; the obstacle appears at ~t_in (first block boundary with the wing below it) and
     goes at t_out. Returns (first strike time, [(event, time the step returned it)], reports).
     """
@@ -199,8 +203,10 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
     limit = math.radians(LIMIT_DEG)
     rng = np.random.default_rng(11)
     prm = _params(window_source=source, drive_frequency_hz=f if source == "drive" else None,
-                            stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
-                            pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad))
+                  stroke_noise_rms_rad=model.noise.sensor_noise_v_rms
+                  / abs(model.stroke_volts_per_rad),
+                  pitch_noise_rms_rad=model.noise.sensor_noise_v_rms
+                  / abs(model.pitch_volts_per_rad))
     mon = col.initial_state(prm)
     state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     present = False
@@ -214,7 +220,8 @@ def _live_obstacle_run(model, source: str, t_in: float, t_out: float, duration: 
         if present and t0 >= t_out:
             present = False
         drive = amplitude_v * np.sin(2 * np.pi * f * (t0 + np.arange(BLOCK) / FS))
-        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng), plant_mod.PlantStepParams(hit if present else model, FS))
+        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng),
+                                    plant_mod.PlantStepParams(hit if present else model, FS))
         last_phi = out.stroke_rad[-1]
         if present and first_strike is None and np.any(out.stroke_rad >= limit):
             first_strike = t0 + np.argmax(out.stroke_rad >= limit) / FS
@@ -236,7 +243,8 @@ def test_detects_a_new_obstacle_within_two_wingbeats_and_clears_after_it_goes(mo
     latency_beats = (onset_seen - strike) * f
     assert 0 < latency_beats <= 2.0
     clear_seen = events[1][1]
-    assert 0 < (clear_seen - 0.6) * f <= 3 + 2    # n_off = 3 clean wingbeats (+ partial, + ring-down)
+    # n_off = 3 clean wingbeats (+ partial, + ring-down)
+    assert 0 < (clear_seen - 0.6) * f <= 3 + 2
     armed = rep.status != col.ARMING
     assert np.all(rep.status[armed & (rep.end_time_s < 0.3)] == col.CLEAR)
 
@@ -244,7 +252,8 @@ def test_detects_a_new_obstacle_within_two_wingbeats_and_clears_after_it_goes(mo
 def test_obstacle_present_from_the_start_is_reported_every_wingbeat(model):
     t = np.arange(int(0.5 * FS)) / FS
     hit = sim_model.with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
-    out = plant_mod.simulate(75.0 * np.sin(2 * np.pi * 100.0 * t), FS, hit, noise=True, rng=np.random.default_rng(5))
+    out = plant_mod.simulate(75.0 * np.sin(2 * np.pi * 100.0 * t), FS, hit, noise=True,
+                             rng=np.random.default_rng(5))
     s, p = sensor_angles(model, out)
     prm = _params()
     _, rep, ev = col.run(s, p, prm)
@@ -263,7 +272,8 @@ def _false_alarm_sweep(model, source: str, duration_s: float):
             out = plant_mod.simulate(amp * np.sin(2 * np.pi * f * t), FS, model, noise=True,
                                      rng=np.random.default_rng(f * 7 + int(amp)))
             s, p = sensor_angles(model, out)
-            _, rep, ev = col.run(s, p, _params(window_source=source, drive_frequency_hz=float(f) if source == "drive" else None))
+            _, rep, ev = col.run(s, p, _params(
+                window_source=source, drive_frequency_hz=float(f) if source == "drive" else None))
             armed = rep.status != col.ARMING
             assert np.all(rep.status[armed] == col.CLEAR), (f, amp)
             worst = max(worst, float(rep.score[armed].max()))

@@ -1,4 +1,6 @@
-"""dSA controller core (flaair_control.core.dsa): discretization, blend, limits, sync->async transition."""
+"""dSA controller core (flaair_control.core.dsa):
+discretization, blend, limits, sync->async transition.
+"""
 from __future__ import annotations
 
 import math
@@ -18,8 +20,9 @@ MU = 2.0e-8
 
 def make(**kw) -> dsa.DsaParams:
     base = dict(r3_rad_s=R3, kappa=KAPPA, mu_nm_s_per_rad=MU, actuator_gain_nm_per_v=G_A,
-                sample_rate_hz=FS, drive_limit_v=100.0, sync_amplitude_v=0.0, sync_frequency_hz=100.0,
-                sync_phase_rad=0.0, kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), loop_delay_s=0.0,
+                sample_rate_hz=FS, drive_limit_v=100.0, sync_amplitude_v=0.0,
+                sync_frequency_hz=100.0, sync_phase_rad=0.0,
+                kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), loop_delay_s=0.0,
                 compensation_frequency_hz=None)
     base.update(kw)
     return dsa.DsaParams(**base)
@@ -41,7 +44,8 @@ def test_discrete_response_matches_continuous_filter(advanced):
     assert np.max(np.abs(np.degrees(np.angle(ratio)))) < 0.05
     # exact at the pre-warp frequency
     fc = p.design_omega_rad_s / (2 * math.pi)
-    r_c = dsa.frequency_response(p, [fc], advanced)[0] / dsa.continuous_response(p, [fc], advanced)[0]
+    r_c = (dsa.frequency_response(p, [fc], advanced)[0]
+           / dsa.continuous_response(p, [fc], advanced)[0])
     assert abs(r_c - 1) < 1e-7
 
 
@@ -72,7 +76,8 @@ def test_velocity_step_response_matches_the_analytic_solution():
     # Tustin sees the sampled step as a ramp over the first sample: half a sample late.
     t = (np.arange(n) + 0.5) / FS
     p1, p2 = R3, KAPPA * R3
-    analytic = -p.c * (1 / (p1 * p2) + np.exp(-p1 * t) / (p1 * (p1 - p2)) + np.exp(-p2 * t) / (p2 * (p2 - p1)))
+    analytic = -p.c * (1 / (p1 * p2) + np.exp(-p1 * t) / (p1 * (p1 - p2)) + np.exp(-p2 * t)
+                       / (p2 * (p2 - p1)))
     assert np.max(np.abs(sig.torque_nm - analytic)) < 1e-3 * MU
     assert sig.torque_nm[-1] == pytest.approx(-MU, rel=1e-6)  # DC: tau = -mu phi'
     np.testing.assert_array_equal(sig.torque_nm, sig.torque_raw_nm)
@@ -98,7 +103,8 @@ def test_block_splitting_changes_nothing():
 
 def test_kr_schedule_and_blend():
     sched = dsa.KrSchedule(start_value=1.0, end_value=0.0, start_time_s=0.1, duration_s=0.2)
-    np.testing.assert_allclose(sched.value(np.array([0.0, 0.1, 0.2, 0.3, 0.5])), [1, 1, 0.5, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(sched.value(np.array([0.0, 0.1, 0.2, 0.3, 0.5])), [1, 1, 0.5, 0, 0],
+                               atol=1e-12)
     p = make(sync_amplitude_v=30.0, sync_frequency_hz=50.0, kr_schedule=sched, drive_limit_v=1e6)
     v = np.sin(np.arange(8000) / FS * 2 * np.pi * 150.0) * 500.0
     _, (drive, sig) = dsa.step(dsa.initial_state(p), dsa.DsaInputs(v, 0.0), p)
@@ -128,9 +134,9 @@ def test_drive_limit_and_non_finite_velocity():
     assert np.all(np.isfinite(drive2))
 
 
-@pytest.mark.parametrize("field,value", [("r3_rad_s", 0.0), ("kappa", -1.0), ("actuator_gain_nm_per_v", 0.0),
-                                         ("sample_rate_hz", math.nan), ("loop_delay_s", -1e-3),
-                                         ("mu_nm_s_per_rad", math.inf)])
+@pytest.mark.parametrize("field,value", [
+    ("r3_rad_s", 0.0), ("kappa", -1.0), ("actuator_gain_nm_per_v", 0.0),
+    ("sample_rate_hz", math.nan), ("loop_delay_s", -1e-3), ("mu_nm_s_per_rad", math.inf)])
 def test_bad_parameters_are_named(field, value):
     with pytest.raises(ValueError, match=field):
         make(**{field: value})
@@ -152,12 +158,14 @@ def test_sync_to_async_transition_on_the_simulated_robot():
     model = sim_model_io.load_model()
     vpr = model.stroke_volts_per_rad
     vref = model.sensors.reference_voltage_v
-    lin = hopf.LinearStrokePlant(model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad)
+    lin = (hopf.LinearStrokePlant(
+        model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad))
     r3 = hopf.r3_for_onset_frequency(KAPPA, 142.0)
     mu = 10.0 * hopf.hopf_onset(lin, r3, KAPPA).mu_nm_s_per_rad
     delay = dsa.loop_delay_s(BLOCK, FS)
-    p = dsa.DsaParams(r3_rad_s=r3, kappa=KAPPA, mu_nm_s_per_rad=mu, actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
-                      sample_rate_hz=FS, drive_limit_v=100.0, sync_amplitude_v=20.0, sync_frequency_hz=60.0,
+    p = dsa.DsaParams(r3_rad_s=r3, kappa=KAPPA, mu_nm_s_per_rad=mu,
+                      actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v, sample_rate_hz=FS,
+                      drive_limit_v=100.0, sync_amplitude_v=20.0, sync_frequency_hz=60.0,
                       kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.3, 0.3), loop_delay_s=delay,
                       sync_phase_rad=0.0, compensation_frequency_hz=None)
     rng = np.random.default_rng(7)
@@ -167,8 +175,10 @@ def test_sync_to_async_transition_on_the_simulated_robot():
     prev = 0.0
     stroke = []
     for k in range(int(1.6 * FS / BLOCK)):
-        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng), plant_mod.PlantStepParams(model, FS))       # sensor noise on
-        phi = (out.stroke_sensor_v - vref) / vpr                              # sensor-derived stroke
+        state, out = plant_mod.step(state, plant_mod.PlantInputs(drive, rng),
+                                    plant_mod.PlantStepParams(model, FS))       # sensor noise on
+        # sensor-derived stroke
+        phi = (out.stroke_sensor_v - vref) / vpr
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]
         ctrl, (drive, _) = dsa.step(ctrl, dsa.DsaInputs(vel, (k + 1) * BLOCK / FS), p)

@@ -1,4 +1,6 @@
-"""Hopf theory of the dSA loop (flaair_control.core.hopf) against polynomial roots and the simulator."""
+"""Hopf theory of the dSA loop (flaair_control.core.hopf)
+against polynomial roots and the simulator.
+"""
 from __future__ import annotations
 
 import math
@@ -115,11 +117,14 @@ def undamped(model):
 
 
 def _lin_plant(model) -> hopf.LinearStrokePlant:
-    return hopf.LinearStrokePlant(model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad)
+    return hopf.LinearStrokePlant(
+        model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad)
 
 
 def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float = 5.0) -> np.ndarray:
-    """Block loop: plant block k -> ideal stroke -> backward-difference velocity -> dSA -> block k+1."""
+    """Block loop: plant block k -> ideal stroke ->
+    backward-difference velocity -> dSA -> block k+1.
+    """
     n_blocks = int(round(duration_s * FS / BLOCK))
     state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     ctrl = dsa.initial_state(params)
@@ -128,7 +133,8 @@ def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float =
     prev = 0.0
     out = []
     for k in range(n_blocks):
-        state, sim = plant_mod.step(state, plant_mod.PlantInputs(drive), plant_mod.PlantStepParams(model, FS))
+        state, sim = plant_mod.step(state, plant_mod.PlantInputs(drive),
+                                    plant_mod.PlantStepParams(model, FS))
         phi = sim.stroke_rad
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]
@@ -179,7 +185,8 @@ def test_compensated_simulated_loop_starts_at_the_predicted_onset(undamped):
     mu_sim = bisect_onset(undamped, lambda mu: _params(undamped, r3, kappa, mu, True),
                           0.5 * theory.mu_nm_s_per_rad, 1.5 * theory.mu_nm_s_per_rad)
     assert mu_sim == pytest.approx(theory.mu_nm_s_per_rad, rel=0.05)
-    _, f_sim = growth_and_frequency(closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, True), 0.4))
+    _, f_sim = growth_and_frequency(
+        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, True), 0.4))
     assert f_sim == pytest.approx(theory.frequency_hz, rel=0.03)
     assert f_sim == pytest.approx(math.sqrt(kappa) * r3 / (2 * math.pi), rel=0.03)
 
@@ -193,7 +200,8 @@ def test_uncompensated_loop_follows_the_delayed_theory_not_the_ideal_one(undampe
     mu_sim = bisect_onset(undamped, lambda mu: _params(undamped, r3, kappa, mu, False),
                           0.5 * delayed.mu_nm_s_per_rad, 1.5 * delayed.mu_nm_s_per_rad)
     assert mu_sim == pytest.approx(delayed.mu_nm_s_per_rad, rel=0.05)
-    _, f_sim = growth_and_frequency(closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, False), 0.4))
+    _, f_sim = growth_and_frequency(
+        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, False), 0.4))
     assert f_sim == pytest.approx(delayed.frequency_hz, rel=0.03)
     assert f_sim < 0.6 * ideal.frequency_hz  # 161 Hz instead of the designed 300 Hz
 

@@ -27,8 +27,8 @@ params_st = st.builds(
 
 def sp(**kw) -> safety.SafetyParams:
     """Safety parameters: these tests' values, overridden by ``kw``."""
-    base = dict(drive_limit_v=100.0, slew_limit_v_per_s=math.inf, invalid_timeout_s=0.01, ramp_down_s=0.05,
-                sample_rate_hz=FS)
+    base = dict(drive_limit_v=100.0, slew_limit_v_per_s=math.inf, invalid_timeout_s=0.01,
+                ramp_down_s=0.05, sample_rate_hz=FS)
     base.update(kw)
     return safety.SafetyParams(**base)
 
@@ -46,8 +46,8 @@ def test_clamp_output_is_finite_and_within_limit(block, limit):
 
 
 @settings(max_examples=200, deadline=None)
-@given(params=params_st, seq=st.lists(st.tuples(blocks, st.sampled_from([None, True, False])), min_size=1, max_size=8),
-       t0=st.floats(-10.0, 10.0))
+@given(params=params_st, seq=st.lists(st.tuples(blocks, st.sampled_from([None, True, False])),
+                                      min_size=1, max_size=8), t0=st.floats(-10.0, 10.0))
 def test_step_never_exceeds_the_limit_or_the_slew_rate(params, seq, t0):
     state = safety.initial_state(params, t_s=t0)
     t = t0
@@ -128,7 +128,8 @@ def test_invalid_block_trips_immediately_and_latches():
 
 def test_slew_limit_spreads_a_step():
     p = sp(drive_limit_v=100.0, slew_limit_v_per_s=2e5)   # 10 V per sample
-    state, out = safety.step(safety.initial_state(p), safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
+    state, out = safety.step(safety.initial_state(p),
+                             safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
     np.testing.assert_allclose(out.drive_v, [10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 100, 100])
 
 

@@ -1,4 +1,6 @@
-"""Sync -> async transition: Hilbert analysis (pure) and the closed loop over DDS (plant lockstep)."""
+"""Sync -> async transition: Hilbert analysis (pure)
+and the closed loop over DDS (plant lockstep).
+"""
 from __future__ import annotations
 
 import math
@@ -11,7 +13,8 @@ from flaair_control.core import transition as tr
 
 FS = 20000.0
 # 4th-order 40-400 Hz band-pass, 20 ms 2nd-order Savitzky-Golay, 20 ms edges
-HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02, savgol_order=2, edge_s=0.02)
+HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02,
+                           savgol_order=2, edge_s=0.02)
 
 
 # --------------------------------------------------------------------------- analysis, pure
@@ -19,12 +22,15 @@ HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=
 
 def test_hilbert_recovers_frequency_and_amplitude_of_a_stepped_sine():
     t = np.arange(int(1.0 * FS)) / FS
-    x = np.where(t < 0.5, 6.0 * np.sin(2 * np.pi * 90.0 * t), 20.0 * np.sin(2 * np.pi * 144.0 * t + 0.3))
+    x = np.where(t < 0.5, 6.0 * np.sin(2 * np.pi * 90.0 * t),
+                 20.0 * np.sin(2 * np.pi * 144.0 * t + 0.3))
     x = x + 3.0  # offset: removed by the band-pass
     r = tr.hilbert_analysis(x, FS, HILBERT)
     assert np.isnan(r.frequency_hz[:10]).all() and np.isnan(r.amplitude[-10:]).all()   # edges
-    f1, a1 = tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.45), tr.window_stats(r.time_s, r.amplitude, 0.1, 0.45)
-    f2, a2 = tr.window_stats(r.time_s, r.frequency_hz, 0.65, 0.9), tr.window_stats(r.time_s, r.amplitude, 0.65, 0.9)
+    f1, a1 = (tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.45),
+              tr.window_stats(r.time_s, r.amplitude, 0.1, 0.45))
+    f2, a2 = (tr.window_stats(r.time_s, r.frequency_hz, 0.65, 0.9),
+              tr.window_stats(r.time_s, r.amplitude, 0.65, 0.9))
     assert f1.mean == pytest.approx(90.0, abs=0.05) and a1.mean == pytest.approx(6.0, rel=2e-3)
     assert f2.mean == pytest.approx(144.0, abs=0.05) and a2.mean == pytest.approx(20.0, rel=2e-3)
     assert f2.ptp < 1.0 and a2.ptp < 0.1  # after the step's ringing through the band-pass
@@ -32,13 +38,17 @@ def test_hilbert_recovers_frequency_and_amplitude_of_a_stepped_sine():
 
 def test_savitzky_golay_removes_the_harmonic_ripple_of_a_non_sinusoidal_stroke():
     t = np.arange(int(0.6 * FS)) / FS
-    x = 20.0 * np.sin(2 * np.pi * 144.0 * t) + 3.0 * np.sin(2 * np.pi * 432.0 * t + 1.0)   # 3rd harmonic
-    params = replace(HILBERT, band_hz=(40.0, 300.0))            # the band-pass removes the 432 Hz harmonic
+    # 3rd harmonic
+    x = 20.0 * np.sin(2 * np.pi * 144.0 * t) + 3.0 * np.sin(2 * np.pi * 432.0 * t + 1.0)
+    # the band-pass removes the 432 Hz harmonic
+    params = replace(HILBERT, band_hz=(40.0, 300.0))
     r = tr.hilbert_analysis(x, FS, params)
     f = tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.5)
     assert f.mean == pytest.approx(144.0, abs=0.1) and f.ptp < 1.0
-    raw = tr.hilbert_analysis(x, FS, replace(HILBERT, band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0))
-    assert tr.window_stats(raw.time_s, raw.frequency_hz, 0.1, 0.5).ptp > 20 * f.ptp   # unsmoothed: ripples
+    raw = tr.hilbert_analysis(x, FS, replace(
+        HILBERT, band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0))
+    # unsmoothed: ripples
+    assert tr.window_stats(raw.time_s, raw.frequency_hz, 0.1, 0.5).ptp > 20 * f.ptp
 
 
 def test_nan_samples_are_filled_and_counted():
@@ -47,7 +57,8 @@ def test_nan_samples_are_filled_and_counted():
     x[3000:3005] = np.nan
     r = tr.hilbert_analysis(x, FS, HILBERT)
     assert r.filled_samples == 5
-    assert tr.window_stats(r.time_s, r.frequency_hz, 0.05, 0.35).mean == pytest.approx(120.0, abs=0.2)
+    assert (tr.window_stats(r.time_s, r.frequency_hz, 0.05, 0.35).mean
+            == pytest.approx(120.0, abs=0.2))
 
 
 def test_crossing_frequency_streams_like_the_whole_record():
@@ -70,7 +81,8 @@ def test_join_blocks_marks_invalid_and_missing_samples():
     blocks = [
         {"first_sample_index": 20, "stroke_deg": [1.0, 2.0], "stroke_valid": [True, False]},
         {"first_sample_index": 16, "stroke_deg": [3.0, 4.0], "stroke_valid": [True, True]},
-        {"first_sample_index": 16, "stroke_deg": [9.0, 9.0], "stroke_valid": [True, True]},  # duplicate
+        # duplicate
+        {"first_sample_index": 16, "stroke_deg": [9.0, 9.0], "stroke_valid": [True, True]},
     ]
     rec = tr.join_blocks(blocks, ["stroke_deg"], 4.0, valid_field="stroke_valid")
     assert rec.first_sample_index == 16 and rec.missing_blocks == 1
@@ -87,7 +99,8 @@ def test_bad_parameters_are_named():
         tr.hilbert_analysis(np.zeros(50), FS, HILBERT)
 
 
-# --------------------------------------------------------------------------- the closed loop, composed
+# ---------------------------------------------------------------------------
+# the closed loop, composed
 
 
 def _with_header(block: dict) -> dict:
@@ -96,9 +109,9 @@ def _with_header(block: dict) -> dict:
 
 
 def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_path):
-    """Plant (lockstep) -> front end -> dSA controller -> plant, the node classes composed on one bus
-    (tests/composed.py): 90 Hz synchronous start, K_r 1 -> 0 over 0.5 s, self-excited slightly
-    above the 140 Hz stroke resonance, steady amplitude.
+    """Plant (lockstep) -> front end -> dSA controller -> plant, the node classes
+    composed on one bus (tests/composed.py): 90 Hz synchronous start, K_r 1 -> 0 over
+    0.5 s, self-excited slightly above the 140 Hz stroke resonance, steady amplitude.
     """
     from composed import composed
     from flaair_common import topics
@@ -117,9 +130,11 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     params = {"plant_node": {"command_timeout_s": 0.0},
               "dsa_controller_node": {"kr_ramp_start_s": ramp_start, "kr_ramp_duration_s": ramp,
                                       "watchdog_timeout_s": 30.0, "run_time_s": duration}}
-    with composed(monkeypatch, [PlantNode, FrontendNode, DsaControllerNode], params, tmp_path) as loop:
+    with composed(monkeypatch, [PlantNode, FrontendNode, DsaControllerNode], params,
+                  tmp_path) as loop:
         wing, states = loop.sink(topics.WING_STATE), loop.sink(topics.CONTROLLER_STATE)
-        loop.run_until(lambda: len(wing) >= duration * FS / 10 and len(states) >= duration * FS / 10)
+        loop.run_until(lambda: len(wing) >= duration * FS / 10
+                       and len(states) >= duration * FS / 10)
         loop.run_for(0.1)                      # the run ends: nothing more comes
     ws, cs = [_with_header(b) for b in wing], [_with_header(s) for s in states]
     # 1.5 s of blocks, and the closing zero block (run_time_s reached) stepped by the plant too
@@ -138,15 +153,21 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     f_end = tr.window_stats(r.time_s, r.frequency_hz, 1.1, 1.45)
     a_end = tr.window_stats(r.time_s, r.amplitude, 1.1, 1.45)
     a_mid = tr.window_stats(r.time_s, r.amplitude, 0.9, 1.1)
-    assert f_sync.mean == pytest.approx(90.0, abs=0.5)                      # synchronous, well below resonance
-    assert 1.01 * f_n < f_end.mean < 1.06 * f_n                             # slightly above the resonance
-    assert f_end.mean == pytest.approx(f_lc, rel=0.01)                      # where the loop theory puts it
+    # synchronous, well below resonance
+    assert f_sync.mean == pytest.approx(90.0, abs=0.5)
+    # slightly above the resonance
+    assert 1.01 * f_n < f_end.mean < 1.06 * f_n
+    # where the loop theory puts it
+    assert f_end.mean == pytest.approx(f_lc, rel=0.01)
     assert f_end.std < 0.2                                                  # settled
     assert a_end.mean == pytest.approx(a_lc, rel=0.03)
-    assert a_end.std < 0.01 * a_end.mean and abs(a_end.mean - a_mid.mean) < 0.01 * a_end.mean   # stable
-    assert a_end.mean > 2.5 * tr.window_stats(r.time_s, r.amplitude, 0.1, 0.3).mean           # grew from sync
+    # stable
+    assert a_end.std < 0.01 * a_end.mean and abs(a_end.mean - a_mid.mean) < 0.01 * a_end.mean
+    # grew from sync
+    assert a_end.mean > 2.5 * tr.window_stats(r.time_s, r.amplitude, 0.1, 0.3).mean
     # the controller's live crossing estimate agrees
     live = rec.controller_frequency_hz[rec.kr_time_s > 1.1]
     assert np.allclose(live, f_end.mean, rtol=0.005)
-    png = plot_transition(rec, r, tmp_path / "transition.png", resonance_hz=f_n, predicted=(f_lc, a_lc))
+    png = plot_transition(rec, r, tmp_path / "transition.png", resonance_hz=f_n,
+                          predicted=(f_lc, a_lc))
     assert png.stat().st_size > 20_000

@@ -37,7 +37,8 @@ def blocks(bound: float, max_blocks: int = 6):
 def test_plant_step_in_the_actuator_range_stays_finite(sequence) -> None:
     state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
-        state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))
+        state, out = plant.step(state, plant.PlantInputs(drive_v),
+                                plant.PlantStepParams(MODEL, FS_HZ))
         for name in ("stroke_rad", "pitch_rad", "stroke_sensor_v", "pitch_sensor_v"):
             assert np.isfinite(getattr(out, name)).all(), name
 
@@ -49,7 +50,8 @@ def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
     state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
         try:
-            state, out = plant.step(state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ))
+            state, out = plant.step(state, plant.PlantInputs(drive_v),
+                                    plant.PlantStepParams(MODEL, FS_HZ))
         except ValueError as exc:
             assert "drive" in str(exc)
             return
@@ -57,8 +59,9 @@ def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
 
 
 def _dsa_params() -> dsa.DsaParams:
-    return dsa.DsaParams(r3_rad_s=180.0, kappa=0.5, mu_nm_s_per_rad=1e-3, actuator_gain_nm_per_v=1.67e-7,
-                         sample_rate_hz=FS_HZ, drive_limit_v=LIMIT_V, sync_amplitude_v=20.0, sync_frequency_hz=90.0,
+    return dsa.DsaParams(r3_rad_s=180.0, kappa=0.5, mu_nm_s_per_rad=1e-3,
+                         actuator_gain_nm_per_v=1.67e-7, sample_rate_hz=FS_HZ,
+                         drive_limit_v=LIMIT_V, sync_amplitude_v=20.0, sync_frequency_hz=90.0,
                          sync_phase_rad=0.0, kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.0, 0.001),
                          loop_delay_s=0.00075, compensation_frequency_hz=145.0)
 
@@ -66,7 +69,9 @@ def _dsa_params() -> dsa.DsaParams:
 @SETTINGS
 @given(sequence=blocks(1e6, max_blocks=40), nan_at=st.one_of(st.none(), st.integers(0, 9)))
 def test_dsa_step_output_is_finite_and_within_the_limit(sequence, nan_at) -> None:
-    """Any finite velocity (and NaN samples, which drive the filter as 0): drive finite, |drive| <= limit."""
+    """Any finite velocity (and NaN samples, which drive
+    the filter as 0): drive finite, |drive| <= limit.
+    """
     params = _dsa_params()
     state = dsa.initial_state(params)
     t_s = 0.0
@@ -91,7 +96,8 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
         for field in report._fields:
             values = np.asarray(getattr(report, field))
             if values.dtype.kind == "f":
-                # a window may be judged unusable (NaN score is documented as "no verdict"), never inf
+                # a window may be judged unusable (NaN score
+                # is documented as "no verdict"), never inf
                 assert not np.isinf(values).any(), field
         assert all(e.kind in ("onset", "clearance") or isinstance(e.kind, int) for e in events)
 
@@ -99,13 +105,16 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
 def test_collision_monitor_refuses_mismatched_blocks_by_name() -> None:
     params = monitor_windows_from_config(100.0)
     with pytest.raises(collision.CollisionParameterError, match="stroke_rad and pitch_rad"):
-        collision.step(collision.initial_state(params), collision.MonitorInputs(np.zeros(10), np.zeros(9)), params)
+        collision.step(collision.initial_state(params),
+                       collision.MonitorInputs(np.zeros(10), np.zeros(9)), params)
 
 
 @SETTINGS
-@given(amplitude_v=st.floats(0, 300), frequency_hz=st.floats(0.1, 5000), lead_in_s=st.floats(0, 0.01),
-       n=st.integers(0, 500))
-def test_drive_blocks_are_finite_and_bounded_by_amplitude(amplitude_v, frequency_hz, lead_in_s, n) -> None:
+@given(amplitude_v=st.floats(0, 300), frequency_hz=st.floats(0.1, 5000),
+       lead_in_s=st.floats(0, 0.01), n=st.integers(0, 500))
+def test_drive_blocks_are_finite_and_bounded_by_amplitude(amplitude_v, frequency_hz, lead_in_s,
+                                                          n) -> None:
     params = drive.DriveParams("sine", amplitude_v, frequency_hz=frequency_hz, lead_in_s=lead_in_s)
     _, block = drive.drive_step(drive.DriveState(), n, FS_HZ, params)
-    assert block.shape == (n,) and np.isfinite(block).all() and np.all(np.abs(block) <= amplitude_v + 1e-9)
+    assert (block.shape == (n,) and np.isfinite(block).all()
+            and np.all(np.abs(block) <= amplitude_v + 1e-9))

@@ -1,4 +1,5 @@
-"""Model-vs-measurement discrepancy workflow: hidden-effect datasets, decision rules, CLI, bad input.
+"""Model-vs-measurement discrepancy workflow:
+hidden-effect datasets, decision rules, CLI, bad input.
 
 The workflow runs without the answer on data the plant generates with hidden effects; the
 tests then compare its findings with the hidden truth (names, parameters within 15 %, gap
@@ -52,8 +53,9 @@ from flaair_tools.discrepancy.report import write_validation
 from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 
 # the former discrepancy_core, now the discrepancy package's modules
-dc = SimpleNamespace(**{k: v for m in (vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow)
-                        for k, v in vars(m).items() if not k.startswith("__")})
+dc = SimpleNamespace(**{k: v for m in (
+    vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow) for k,
+                        v in vars(m).items() if not k.startswith("__")})
 
 REPO = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO / "bin" / "flaair")
@@ -80,8 +82,8 @@ def _case(name: str) -> DatasetCase:
 
 
 def _params():
-    return [pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES else pytest.mark.slow)
-            for c in dataset_cases()]
+    return [pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES
+                         else pytest.mark.slow) for c in dataset_cases()]
 
 
 # ------------------------------------------------------------------------------ hidden effects
@@ -117,8 +119,8 @@ def test_hidden_effect_case_is_found_without_the_answer(name: str, model) -> Non
     assert outcome.correct, outcome.problems
 
 
-# Where a case below the detection limit leaves its (located) gap: the sensors resolve what the truth's
-# noise hides, but physics is not searched on them.
+# Where a case below the detection limit leaves its (located) gap: the sensors
+# resolve what the truth's noise hides, but physics is not searched on them.
 BELOW_LIMIT_GAPS = {"structural_0p005_noisy_weak": {"stroke_sensor_v", "pitch_sensor_v"}}
 
 
@@ -130,7 +132,8 @@ def _assert_plant_parameters(case: DatasetCase, result, model) -> None:
     for key, p in result.plant_parameters.items():
         assert set(p) == {"value", "nominal", "stderr"}, key
         assert p["nominal"] == getattr(model.plant, key), key
-        assert 0 < p["stderr"] < UNDETERMINED_REL_SE * p["value"], (key, p)  # determined by these runs
+        # determined by these runs
+        assert 0 < p["stderr"] < UNDETERMINED_REL_SE * p["value"], (key, p)
     assert {d["effect"] for d in result.not_separable} == set(NOT_SEPARABLE) == {"wing_damage"}
     gamma = result.plant_parameters["aero_damping_nm_s2"]
     if case.outside == "aero_damping" and case.outside_strength > 1 + FIT_RANGE:
@@ -138,7 +141,8 @@ def _assert_plant_parameters(case: DatasetCase, result, model) -> None:
         # summary says where the fit stopped
         assert gamma["value"] == pytest.approx((1 + FIT_RANGE) * gamma["nominal"], rel=0.01)
         assert f"range (x{1 + FIT_RANGE:g} of the model): aero_damping_nm_s2;" in result.summary
-    elif not (case.outside or case.below_limit or any(vocabulary.ENTRIES[n].trades_off for n in case.effect_names)):
+    elif not (case.outside or case.below_limit or any(
+            vocabulary.ENTRIES[n].trades_off for n in case.effect_names)):
         # no effect, or effects no plant parameter trades off against: the plant is the robot's
         effective = effective_plant(case, model)
         for key, want in effective.items():
@@ -166,7 +170,8 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
         for col, n in zip(table["columns"], counts):
             assert n == 0 or col == expected, (row, col)
     doc = write_validation(tmp_path, [o.as_dict() for o in outcomes], table, 0.0)
-    assert json.loads((tmp_path / "validation.json").read_text())["confusion"]["correct"] == table["correct"]
+    assert json.loads(
+        (tmp_path / "validation.json").read_text())["confusion"]["correct"] == table["correct"]
     page = (tmp_path / "validation.html").read_text()
     assert "true \\ found" in page and f"{table['correct']} of {table['total']}" in page
     assert doc["confusion"]["rows"] == table["rows"]
@@ -175,14 +180,17 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
 def test_dataset_cases_cover_the_vocabulary_and_the_required_groups() -> None:
     cases = dataset_cases()
     assert len({c.name for c in cases}) == len(cases)
-    singles = {(c.effect_names + tuple(n for n, _ in c.hidden))[0] for c in cases if c.group == "single"}
+    singles = {(c.effect_names + tuple(n for n, _ in c.hidden))[0] for c in cases
+               if c.group == "single"}
     assert singles == set(EFFECT_NAMES)
     # effects a plant change reproduces are carried hidden (never to be named), and only those
     assert {n for c in cases for n, _ in c.hidden} == set(NOT_SEPARABLE)
-    assert {k for c in cases if c.group == "confusable" for k, _ in c.plant_scale} == {"aero_damping_nm_s2"}
+    assert ({k for c in cases if c.group == "confusable" for k, _ in c.plant_scale}
+            == {"aero_damping_nm_s2"})
     assert {c.group for c in cases} == {"single", "pair", "null", "outside", "confusable"}
     assert any(c.noise_scale > 1 for c in cases if c.group == "single")
-    confusable = {n for c in cases if c.group == "confusable" for n in (c.effect_names or (c.outside,))}
+    confusable = {n for c in cases if c.group == "confusable"
+                  for n in (c.effect_names or (c.outside,))}
     assert {"sensor_delay", "charge_amp_highpass", "hinge_stiffening", "transmission_nonlinearity",
             "structural_damping", "aero_damping"} <= confusable
     drives = dict(run_set_drives())
@@ -201,15 +209,18 @@ def test_effect_channels_are_what_the_plant_changes(model) -> None:
     drive = chirp(t, 100.0, 60.0, 200.0, 0.3)
     params = {"sensor_delay": {"delay_s": 1e-4, "channel": "both"},
               "charge_amp_highpass": {"corner_hz": 5.0, "channel": "both"},
-              "feedthrough": {"gain_v_per_v": 0.003}, "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
-              "hinge_stiffening": {"cubic_per_rad2": 1.0}, "structural_damping": {"damping_ratio": 0.05},
-              "strain_transfer_loss": {"efficiency": 0.5, "channel": "both"}, "collision": {"stroke_limit_deg": 20.0},
-              "wing_damage": {"inertia_factor": 0.8}}
+              "feedthrough": {"gain_v_per_v": 0.003},
+              "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
+              "hinge_stiffening": {"cubic_per_rad2": 1.0},
+              "structural_damping": {"damping_ratio": 0.05},
+              "strain_transfer_loss": {"efficiency": 0.5, "channel": "both"},
+              "collision": {"stroke_limit_deg": 20.0}, "wing_damage": {"inertia_factor": 0.8}}
     assert set(params) == set(EFFECT_NAMES) == set(dc.EFFECT_CHANNELS)
     base = dc._as_channels(simulate(drive, FS_HZ, model))
     for name, p in params.items():
         out = dc._as_channels(simulate(drive, FS_HZ, with_effects(model, {name: p})))
-        changed = {c for c in dc.CHANNELS if np.max(np.abs(out[c] - base[c])) > 1e-9 * np.max(np.abs(base[c]))}
+        changed = {c for c in dc.CHANNELS
+                   if np.max(np.abs(out[c] - base[c])) > 1e-9 * np.max(np.abs(base[c]))}
         assert changed == set(dc.EFFECT_CHANNELS[name]), name
 
 
@@ -226,9 +237,10 @@ def test_candidate_specs_name_every_effect_on_a_channel_it_can_change() -> None:
                 assert "channel" in {f.name for f in fields(EFFECT_TYPES[spec.name])}
     assert seen == set(EFFECT_NAMES)
     # physics is judged on the ground truth, sensor effects on the sensors
-    assert {s.name for s in dc.candidate_specs("stroke_deg")} == {"structural_damping", "collision", "wing_damage"}
-    assert {s.name for s in dc.candidate_specs("pitch_deg")} == {"hinge_stiffening", "structural_damping", "collision",
-                                                                 "wing_damage"}
+    assert {s.name for s in dc.candidate_specs("stroke_deg")} == {
+        "structural_damping", "collision", "wing_damage"}
+    assert {s.name for s in dc.candidate_specs("pitch_deg")} == {
+        "hinge_stiffening", "structural_damping", "collision", "wing_damage"}
 
 
 def test_noise_estimate_recovers_the_noise_of_the_data(model) -> None:
@@ -237,10 +249,14 @@ def test_noise_estimate_recovers_the_noise_of_the_data(model) -> None:
         runs = make_runs(case, model)
         sims = dc.simulate_runs([model], runs)[0]
         noise = dc.noise_estimates(runs, sims, model)
-        assert noise["stroke_sensor_v"] == pytest.approx(scale * model.noise.sensor_noise_v_rms, rel=0.05)
-        assert noise["pitch_sensor_v"] == pytest.approx(scale * model.noise.sensor_noise_v_rms, rel=0.05)
-        assert noise["stroke_deg"] == pytest.approx(scale * model.noise.tracking_noise_deg_rms, rel=0.05)
-        assert noise["pitch_deg"] == pytest.approx(scale * model.noise.tracking_noise_deg_rms, rel=0.05)
+        assert noise["stroke_sensor_v"] == pytest.approx(
+            scale * model.noise.sensor_noise_v_rms, rel=0.05)
+        assert noise["pitch_sensor_v"] == pytest.approx(
+            scale * model.noise.sensor_noise_v_rms, rel=0.05)
+        assert noise["stroke_deg"] == pytest.approx(
+            scale * model.noise.tracking_noise_deg_rms, rel=0.05)
+        assert noise["pitch_deg"] == pytest.approx(
+            scale * model.noise.tracking_noise_deg_rms, rel=0.05)
 
 
 def test_residual_tests_separate_noise_from_a_modelled_path() -> None:
@@ -258,7 +274,8 @@ def test_residual_tests_separate_noise_from_a_modelled_path() -> None:
     assert dc._ljung_box(gappy[::10], 20)[1] > 1e-3
     rho, lag, _ = dc._xcorr_with_drive(white, drive, 50)
     assert abs(rho) * math.sqrt(n) < 5
-    leak = white + 0.01 * np.r_[np.zeros(5), drive[:-5]]  # an unmodelled path from the drive, 5 samples late
+    # an unmodelled path from the drive, 5 samples late
+    leak = white + 0.01 * np.r_[np.zeros(5), drive[:-5]]
     rho, lag, m = dc._xcorr_with_drive(leak, drive, 50)
     assert lag == 5 and abs(rho) * math.sqrt(m) > 5
 
@@ -300,11 +317,14 @@ def test_sensor_chain_shortcut_equals_the_plant(model) -> None:
     t = np.arange(int(0.5 * FS_HZ)) / FS_HZ
     drive = chirp(t, 100.0, 20.0, 200.0, 0.5)
     for effects in ({"sensor_delay": {"delay_s": 1.234e-4, "channel": "both"},
-                     "charge_amp_highpass": {"corner_hz": 3.3, "channel": "stroke"}, "feedthrough": {"gain_v_per_v": 0.003},
-                     "transmission_nonlinearity": {"cubic_per_rad2": 0.3}, "hinge_stiffening": {"cubic_per_rad2": 1.0},
-                     "strain_transfer_loss": {"efficiency": 0.4, "channel": "both"}},
-                    {"sensor_delay": {"delay_s": 1.5e-4, "channel": "pitch"},
-                     "charge_amp_highpass": {"corner_hz": 10.0, "channel": "pitch"}, "collision": {"stroke_limit_deg": 30.0}}):
+                     "charge_amp_highpass": {"corner_hz": 3.3, "channel": "stroke"},
+                     "feedthrough": {"gain_v_per_v": 0.003},
+                     "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
+                     "hinge_stiffening": {"cubic_per_rad2": 1.0},
+                     "strain_transfer_loss": {"efficiency": 0.4, "channel": "both"}}, {
+            "sensor_delay": {"delay_s": 1.5e-4, "channel": "pitch"},
+            "charge_amp_highpass": {"corner_hz": 10.0, "channel": "pitch"},
+            "collision": {"stroke_limit_deg": 30.0}}):
         m = with_effects(model, effects)
         full = simulate(drive, FS_HZ, m)
         motion = simulate(drive, FS_HZ, dc.mechanics_model(m))
@@ -341,11 +361,13 @@ def _run(name: str, n: int = 4000, fs: float = FS_HZ, **over) -> dc.Run:
 
 
 def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
-    with pytest.raises(dc.DiscrepancyInputError, match="different sample rates.*a: 20000 Hz.*b: 10000 Hz"):
+    with pytest.raises(dc.DiscrepancyInputError,
+                       match="different sample rates.*a: 20000 Hz.*b: 10000 Hz"):
         dc.check_runs([_run("a"), _run("b", fs=10000.0)])
     with pytest.raises(dc.DiscrepancyInputError, match="run a: ground truth pitch_deg is missing"):
         dc.check_runs([_run("a", pitch_deg=np.full(4000, np.nan))])
-    with pytest.raises(dc.DiscrepancyInputError, match="run a: column stroke_sensor_v has non-finite"):
+    with pytest.raises(dc.DiscrepancyInputError,
+                       match="run a: column stroke_sensor_v has non-finite"):
         dc.check_runs([_run("a", stroke_sensor_v=np.r_[np.full(3999, 1.25), np.nan])])
     with pytest.raises(dc.DiscrepancyInputError, match="run a: column pitch_deg has 3 samples"):
         dc.check_runs([_run("a", pitch_deg=np.zeros(3))])
@@ -357,10 +379,10 @@ def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
 
 def _csv(path: Path, fs: float = FS_HZ, n: int = 2000, truth: bool = True) -> Path:
     t = np.arange(n) / fs
-    cols = {"time_s": t, "drive_v": 100 * np.sin(2 * np.pi * 140 * t), "stroke_sensor_v": np.full(n, 1.25),
-            "pitch_sensor_v": np.full(n, 1.25),
-            "stroke_deg": np.zeros(n) if truth else np.full(n, np.nan),
-            "pitch_deg": np.zeros(n) if truth else np.full(n, np.nan)}
+    cols = {"time_s": t, "drive_v": 100 * np.sin(2 * np.pi * 140 * t),
+            "stroke_sensor_v": np.full(n, 1.25), "pitch_sensor_v": np.full(n, 1.25),
+            "stroke_deg": np.zeros(n) if truth else np.full(n, np.nan), "pitch_deg": np.zeros(n)
+            if truth else np.full(n, np.nan)}
     write_run(path, cols)
     return path
 
@@ -370,13 +392,16 @@ def _bag_without_truth(path: Path) -> Path:
 
     store = bagio.typestore()
     with bagio.BagWriter(path, store=store) as writer:
-        msg = bagio.new_message("std_msgs/msg/String", store, data='{"run": "r", "first_sample_index": 0, "n_samples": 1}')
+        msg = bagio.new_message("std_msgs/msg/String", store,
+                                data='{"run": "r", "first_sample_index": 0, "n_samples": 1}')
         writer.write_message(bagio.RUN_MARKER_TOPIC, 1, msg)
     return path
 
 
-@pytest.mark.parametrize("kind", ["rates", "truth", "unknown_effect", "bag_topics", "missing_file", "bad_csv"])
-def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path: Path, capsys) -> None:
+@pytest.mark.parametrize("kind", [
+    "rates", "truth", "unknown_effect", "bag_topics", "missing_file", "bad_csv"])
+def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path: Path,
+                                                            capsys) -> None:
     args: list[str]
     if kind == "rates":
         args = [str(_csv(tmp_path / "a.csv")), str(_csv(tmp_path / "b.csv", fs=10000.0))]
@@ -385,7 +410,8 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path:
         args = [str(_csv(tmp_path / "a.csv", truth=False))]
         expect = "ground truth stroke_deg is missing"
     elif kind == "unknown_effect":
-        text = (REPO / "config" / "model.yaml").read_text().replace("effects: {}", "effects:\n  warp_drive: {}")
+        text = (REPO / "config" / "model.yaml").read_text().replace(
+            "effects: {}", "effects:\n  warp_drive: {}")
         (tmp_path / "m.yaml").write_text(text)
         args = [str(_csv(tmp_path / "a.csv")), "--model", str(tmp_path / "m.yaml")]
         expect = "unknown effect 'warp_drive'"
@@ -407,10 +433,12 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path:
 
 
 def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_path: Path) -> None:
-    text = (REPO / "config" / "model.yaml").read_text().replace("effects: {}", "effects:\n  warp_drive: {}")
+    text = (REPO / "config" / "model.yaml").read_text().replace(
+        "effects: {}", "effects:\n  warp_drive: {}")
     (tmp_path / "m.yaml").write_text(text)
-    result = subprocess.run([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model", str(tmp_path / "m.yaml"),
-                             "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=300)
+    result = subprocess.run([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
+                             str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")],
+                            capture_output=True, text=True, timeout=300)
     assert result.returncode == 2
     assert "unknown effect 'warp_drive'" in result.stderr and "Traceback" not in result.stderr
 
@@ -422,8 +450,9 @@ def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
     paths = []
     for r in make_runs(case, model):
         path = directory / f"{r.name}.csv"
-        write_run(path, {"time_s": np.arange(r.n) / r.fs_hz, "drive_v": r.drive_v, "stroke_sensor_v": r.stroke_sensor_v,
-                         "pitch_sensor_v": r.pitch_sensor_v, "stroke_deg": r.stroke_deg, "pitch_deg": r.pitch_deg})
+        write_run(path, {"time_s": np.arange(r.n) / r.fs_hz, "drive_v": r.drive_v,
+                         "stroke_sensor_v": r.stroke_sensor_v, "pitch_sensor_v": r.pitch_sensor_v,
+                         "stroke_deg": r.stroke_deg, "pitch_deg": r.pitch_deg})
         paths.append(path)
     return paths
 
@@ -431,8 +460,9 @@ def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
 @pytest.fixture(scope="module")
 def paper_robot_csvs(tmp_path_factory, model) -> list[Path]:
     """The paper's robot: pitch sensor 4.3x below the model, plus a 100 us acquisition delay."""
-    case = DatasetCase("paper_robot", "pair", (("sensor_delay", {"delay_s": 1e-4, "channel": "both"}),
-                                               ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"})), seed=3)
+    case = DatasetCase("paper_robot", "pair", (
+        ("sensor_delay", {"delay_s": 1e-4, "channel": "both"}),
+        ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"})), seed=3)
     return write_case_csvs(case, model, tmp_path_factory.mktemp("csv"))
 
 
@@ -441,8 +471,8 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
     assert discrepancy.main(["--validate", "--cases", "null", "--out", str(val)]) == 0
     assert json.loads((val / "validation.json").read_text())["confusion"]["correct"] == 1
     out = tmp_path / "out"
-    assert discrepancy.main([str(p) for p in paper_robot_csvs]
-                            + ["--out", str(out), "--validation", str(val / "validation.json")]) == 0
+    assert discrepancy.main([str(p) for p in paper_robot_csvs] + [
+        "--out", str(out), "--validation", str(val / "validation.json")]) == 0
     doc = json.loads((out / "discrepancy.json").read_text())
     assert {"status", "effects", "gap_before", "gap_after", "model_out"} <= set(doc)
     assert doc["status"] == "explained"
@@ -454,7 +484,8 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
         assert e["evidence"]["accepted"] and all(e["evidence"]["rules"].values())
     assert effects["sensor_delay"]["parameters"]["delay_s"] == pytest.approx(1e-4, rel=0.15)
     assert effects["sensor_delay"]["parameters"]["channel"] == "both"
-    assert effects["strain_transfer_loss"]["parameters"]["efficiency"] == pytest.approx(0.23, rel=0.15)
+    assert (effects["strain_transfer_loss"]["parameters"]["efficiency"]
+            == pytest.approx(0.23, rel=0.15))
     for c in dc.CHANNELS:
         assert doc["gap_after"][c] <= doc["gap_before"][c] * 1.01
     assert doc["gap_after"]["pitch_sensor_v"] < 0.05 * doc["gap_before"]["pitch_sensor_v"]
@@ -466,8 +497,9 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
                for k in vars(model.plant))
     assert found.sensors == model.sensors
     sim_csv = tmp_path / "sim.csv"
-    result = subprocess.run([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model", str(out / "model.yaml"),
-                             "--out", str(sim_csv)], capture_output=True, text=True, timeout=300)
+    result = subprocess.run([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model",
+                             str(out / "model.yaml"), "--out", str(sim_csv)], capture_output=True,
+                            text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     page = (out / "report.html").read_text()
     assert "Status: explained" in page and "Decision rules" in page
@@ -492,8 +524,9 @@ def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: P
 def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, model) -> None:
     """An input model that already has an effect keeps it; the found effect is added beside it."""
     start = with_effects(model, {"strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"}})
-    case = DatasetCase("x", "pair", (("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"}),
-                                     ("feedthrough", {"gain_v_per_v": 0.003})), seed=4)
+    case = DatasetCase("x", "pair", (
+        ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"}),
+        ("feedthrough", {"gain_v_per_v": 0.003})), seed=4)
     result = dc.analyse(make_runs(case, model), start)
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["feedthrough"]
@@ -503,8 +536,9 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
 
 
 @pytest.mark.parametrize("level_ratio, words", [
-    (0.0, "only at the lower drive levels"), (math.inf, "only at the highest drive level"),
-    (3.0, "3.00x larger at full drive"), (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
+    (0.0, "only at the lower drive levels"), (
+    math.inf, "only at the highest drive level"), (3.0, "3.00x larger at full drive"),
+    (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
 ])
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
     from flaair_tools.discrepancy.diagnosis import interpret

@@ -35,8 +35,8 @@ SCRIPT = textwrap.dedent("""
 
     def noted():
         counts = iter(range(11, 15))   # past the first ten: once a second per counter
-        notes = [Note("warning", f"gap {i}", "gaps") for i in range(4)] + [Note("error", "tripped", "gaps"),
-                                                                            Note("info", "plain")]
+        notes = [Note("warning", f"gap {i}", "gaps") for i in range(4)]
+        notes += [Note("error", "tripped", "gaps"), Note("info", "plain")]
         log_notes(logger, notes, lambda counter: next(counts))
 
     through_rclpy()
@@ -48,8 +48,9 @@ SCRIPT = textwrap.dedent("""
     settle = time.monotonic() + 0.5   # anything more (a warning the throttle should have held back)
     while time.monotonic() < settle:
         rclpy.spin_once(node, timeout_sec=0.1)
-    print(json.dumps([{"level": m.level, "name": m.name, "msg": m.msg, "file": m.file, "function": m.function,
-                       "line": m.line} for m in got if m.name == "fast_log_test"]))
+    print(json.dumps([{"level": m.level, "name": m.name, "msg": m.msg, "file": m.file,
+                       "function": m.function, "line": m.line}
+                      for m in got if m.name == "fast_log_test"]))
     node.destroy_node()
     rclpy.shutdown()
 """)
@@ -59,7 +60,8 @@ def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     script = tmp_path / "fast_log.py"
     script.write_text(SCRIPT)
     env = isolated_env()
-    env["RCUTILS_CONSOLE_OUTPUT_FORMAT"] = "[{severity}] [{name}] {function_name}:{line_number}: {message}"
+    env["RCUTILS_CONSOLE_OUTPUT_FORMAT"] = (
+        "[{severity}] [{name}] {function_name}:{line_number}: {message}")
     done = run([sys.executable, str(script)], env, timeout_s=60)
     assert done.returncode == 0, done.stderr
     records = json.loads(done.stdout.strip().splitlines()[-1])
@@ -73,11 +75,13 @@ def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     assert lines[fast_record["line"] - 1].strip() == 'log(logger, WARN, "from log")'
     assert (by_msg["an info"]["level"], by_msg["an error"]["level"]) == (20, 40)
     # warn_counted: the first two every time, then once a second; its record names its own caller
-    assert [r["msg"] for r in records if r["msg"].startswith("counted")] == ["counted 1", "counted 2", "counted 3"]
+    assert ([r["msg"] for r in records if r["msg"].startswith("counted")]
+            == ["counted 1", "counted 2", "counted 3"])
     assert by_msg["counted 1"]["function"] == "fast"
     # the console: the same format, the same fields
     console = [line for line in done.stderr.splitlines() if line.startswith("[")]
-    assert "[WARN] [fast_log_test] through_rclpy:" in console[0] and console[0].endswith(": from rclpy")
+    assert ("[WARN] [fast_log_test] through_rclpy:" in console[0]
+            and console[0].endswith(": from rclpy"))
     assert console[1] == f"[WARN] [fast_log_test] fast:{fast_record['line']}: from log"
     assert console[3].startswith("[ERROR] [fast_log_test] fast:")
     # log_notes: one counted warning per counter a second, errors and plain notes always; the

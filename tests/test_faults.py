@@ -1,4 +1,5 @@
-"""Fault suite: bad parameters, bad blocks, malformed files and damaged bags, for every node and command.
+"""Fault suite: bad parameters, bad blocks, malformed
+files and damaged bags, for every node and command.
 
 Each fault must give a clear message naming what is wrong, a non-zero exit where a command
 fails, no traceback, and a node that keeps running.
@@ -29,9 +30,12 @@ NODES = [
 
 
 @pytest.mark.parametrize(("package", "executable", "parameter"), NODES)
-@pytest.mark.parametrize(("value", "why"), [("-1.0e9", "out of range"), ("'text'", "expecting type 'DOUBLE'")])
-def test_every_node_refuses_bad_parameters_by_name(package: str, executable: str, parameter: str, value: str, why: str) -> None:
-    result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"], isolated_env(), 180)
+@pytest.mark.parametrize(("value", "why"), [
+    ("-1.0e9", "out of range"), ("'text'", "expecting type 'DOUBLE'")])
+def test_every_node_refuses_bad_parameters_by_name(
+        package: str, executable: str, parameter: str, value: str, why: str) -> None:
+    result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"],
+                 isolated_env(), 180)
     assert result.returncode == 2, result.stderr
     assert parameter in result.stderr and why in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
@@ -45,9 +49,12 @@ def lab_bag(tmp_path_factory) -> Path:
     from flaair_sim.core.measured_run import synthesize_measured_run
 
     tmp = tmp_path_factory.mktemp("faults")
-    drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 8000)
-    write_run(tmp / "run.csv", synthesize_measured_run(drive, FS_HZ, load_model(), np.random.default_rng(0)))
-    assert run([FLAAIR, "import", str(tmp / "run.csv"), "--out", str(tmp / "bag")], isolated_env(), 120).returncode == 0
+    drive = drive_record(DriveParams(
+        kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS_HZ, 8000)
+    write_run(tmp / "run.csv", synthesize_measured_run(
+        drive, FS_HZ, load_model(), np.random.default_rng(0)))
+    assert run([FLAAIR, "import", str(tmp / "run.csv"), "--out", str(tmp / "bag")], isolated_env(),
+               120).returncode == 0
     return tmp / "bag"
 
 
@@ -81,7 +88,8 @@ COMMANDS = {
 
 @pytest.mark.parametrize("how", ["truncated", "corrupted", "no_metadata", "empty_dir", "not_a_bag"])
 @pytest.mark.parametrize("command", sorted(COMMANDS))
-def test_damaged_bags_give_a_clear_error(lab_bag: Path, tmp_path: Path, how: str, command: str) -> None:
+def test_damaged_bags_give_a_clear_error(
+        lab_bag: Path, tmp_path: Path, how: str, command: str) -> None:
     bag = _damaged(lab_bag, tmp_path, how)
     result = run([FLAAIR, *COMMANDS[command](bag, tmp_path / "out")], isolated_env(), 120)
     assert result.returncode != 0, (how, command, result.stdout[-500:])
@@ -90,10 +98,14 @@ def test_damaged_bags_give_a_clear_error(lab_bag: Path, tmp_path: Path, how: str
 
 
 MALFORMED = {
-    "missing_column": "time_s,drive_v,stroke_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,0,0\n5e-05,0,1.25,0,0\n",
-    "non_numeric": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,1.25,0,0\n5e-05,0,oops,1.25,0,0\n",
-    "time_backwards": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,1.25,0,0\n5e-05,0,1.25,1.25,0,0\n1e-05,0,1.25,1.25,0,0\n",
-    "nan_sensor": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,1.25,nan,0,0\n5e-05,0,1.25,1.25,0,0\n",
+    "missing_column": "time_s,drive_v,stroke_sensor_v,stroke_deg,pitch_deg\n"
+                      "0,0,1.25,0,0\n5e-05,0,1.25,0,0\n",
+    "non_numeric": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
+                   "0,0,1.25,1.25,0,0\n5e-05,0,oops,1.25,0,0\n",
+    "time_backwards": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
+                      "0,0,1.25,1.25,0,0\n5e-05,0,1.25,1.25,0,0\n1e-05,0,1.25,1.25,0,0\n",
+    "nan_sensor": "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
+                  "0,0,1.25,nan,0,0\n5e-05,0,1.25,1.25,0,0\n",
     "empty": "",
     "binary": "\x00\x01\x02garbage\xff",
 }
@@ -104,7 +116,8 @@ MALFORMED = {
 def test_malformed_csv_gives_file_line_column(tmp_path: Path, kind: str, command: str) -> None:
     path = tmp_path / f"{kind}.csv"
     path.write_bytes(MALFORMED[kind].encode("latin-1"))
-    args = [FLAAIR, command, str(path), "--out", str(tmp_path / ("o.csv" if command == "simulate" else "bag"))]
+    args = [FLAAIR, command, str(path), "--out", str(
+        tmp_path / ("o.csv" if command == "simulate" else "bag"))]
     result = run(args, isolated_env(), 60)
     if command == "simulate" and kind == "missing_column":
         # simulate needs only time_s and drive_v: this file is fine for it
@@ -112,13 +125,16 @@ def test_malformed_csv_gives_file_line_column(tmp_path: Path, kind: str, command
         return
     assert result.returncode != 0
     assert f"{kind}.csv" in result.stderr and "Traceback" not in result.stderr, result.stderr
-    where = {"non_numeric": "line 3, column stroke_sensor_v", "time_backwards": "line 4, column time_s",
-             "nan_sensor": "line 2, column pitch_sensor_v", "missing_column": "missing column(s) pitch_sensor_v"}
+    where = {"non_numeric": "line 3, column stroke_sensor_v",
+             "time_backwards": "line 4, column time_s",
+             "nan_sensor": "line 2, column pitch_sensor_v",
+             "missing_column": "missing column(s) pitch_sensor_v"}
     if kind in where:
         assert where[kind] in result.stderr, result.stderr
 
 
-def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, tmp_path, capfd) -> None:
+def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, tmp_path,
+                                                                   capfd) -> None:
     """The front-end node, in process: CDR bytes into its own DDS subscription callback (as rclpy
     hands them over), its wing-state blocks read back from the bytes it publishes.
     """
@@ -131,8 +147,9 @@ def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, 
     from flaair_sensors.frontend_node import FrontendNode
 
     def block(index: int, stroke: list, pitch: list, rate: float = FS_HZ) -> bytes:
-        return serialize_message(from_dict(SensorVoltageBlock, {
-            "sample_rate_hz": rate, "first_sample_index": index, "stroke_sensor_v": stroke, "pitch_sensor_v": pitch}))
+        return serialize_message(from_dict(
+            SensorVoltageBlock, {"sample_rate_hz": rate, "first_sample_index": index,
+                                 "stroke_sensor_v": stroke, "pitch_sensor_v": pitch}))
 
     good = [1.25] * 10
     sequence = [
@@ -157,24 +174,30 @@ def test_frontend_rejects_bad_blocks_counts_them_and_keeps_running(monkeypatch, 
     assert [b["first_sample_index"] for b in blocks] == [0, 10, 40]
     nan_block = blocks[1]
     assert not nan_block["stroke_valid"][0] and not np.isfinite(nan_block["stroke_deg"][0])
-    assert "duplicate or out of order" in log and "array lengths differ" in log and "sample_rate_hz 1000.0" in log
-    # counted: the duplicate, the lengths, the rate, the gap before 40 (taken all the same), the garbage
+    assert ("duplicate or out of order" in log and "array lengths differ" in log
+            and "sample_rate_hz 1000.0" in log)
+    # counted: the duplicate, the lengths, the rate, the
+    # gap before 40 (taken all the same), the garbage
     assert "sensor block dropped" in log and node.rejected_blocks == 5
 
 
-_WATCHDOG_EVENT = re.compile(r"^\[\w+\] \[(\d+\.\d+)\] \[plant_node\]: "
-                             r"(DRIVE WATCHDOG|ring-down done|drive commands resumed)", re.MULTILINE)
+_WATCHDOG_EVENT = re.compile(
+    r"^\[\w+\] \[(\d+\.\d+)\] \[plant_node\]: " r"(DRIVE WATCHDOG|ring-down done|drive commands "
+                                                r"resumed)", re.MULTILINE)
 
 
 def _rung_down_after(plant_log: str, killed_at_s: float) -> bool:
-    """The plant's last watchdog event is a finished ring-down, after a trip stamped after the kill."""
+    """The plant's last watchdog event is a finished
+    ring-down, after a trip stamped after the kill.
+    """
     events = [(float(stamp), what) for stamp, what in _WATCHDOG_EVENT.findall(plant_log)]
     trips = [stamp for stamp, what in events if what == "DRIVE WATCHDOG"]
     return bool(trips) and trips[-1] > killed_at_s and events[-1][1] == "ring-down done"
 
 
 @pytest.mark.graph
-def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_bag(tmp_path: Path) -> None:
+def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_bag(
+        tmp_path: Path) -> None:
     """Kill -9 of the dSA controller in a recorded closed loop: the plant's drive watchdog zeroes
     the drive within command_timeout_s and rings the wing down; the recorder's bag (closed with
     SIGINT afterwards) holds the plant's every block up to the kill and the ring-down, in order.
@@ -190,16 +213,18 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
         recorder = procs.flaair("record", "-o", str(bag))
         assert wait_for(lambda: (bag / f"{bag.name}_0.mcap").exists(), 60.0)
         logs = {name: tmp_path / f"{name}.log" for name in ("plant", "controller")}
-        plant = procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", f"command_timeout_s:={timeout_s}",
-                             "-p", f"ring_down_s:={ring_down_s}", stderr=open(logs["plant"], "w"))
+        plant = procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p",
+                             f"command_timeout_s:={timeout_s}", "-p", f"ring_down_s:={ring_down_s}",
+                             stderr=open(logs["plant"], "w"))
         procs.flaair("run", "flaair_sensors", "frontend_node")
         # 400 wing-state blocks (0.2 s of flapping) seen by an echo: the loop is mid-run
-        flapping = procs.flaair("topic", "echo", "/flaair/wing_state", "flaair_msgs/msg/WingStateBlock",
-                                "--count", "400", "--timeout", "120", stdout=subprocess.DEVNULL)
+        flapping = procs.flaair("topic", "echo", "/flaair/wing_state",
+                                "flaair_msgs/msg/WingStateBlock", "--count", "400", "--timeout",
+                                "120", stdout=subprocess.DEVNULL)
         # the recorder listens on /flaair/drive too: start only once it and the plant match
         controller = procs.flaair("run", "flaair_control", "dsa_controller_node", "--ros-args",
-                                  "-p", "min_drive_subscribers:=2", "-p", "watchdog_timeout_s:=30.0",
-                                  stderr=open(logs["controller"], "w"))
+                                  "-p", "min_drive_subscribers:=2", "-p",
+                                  "watchdog_timeout_s:=30.0", stderr=open(logs["controller"], "w"))
         assert flapping.wait(timeout=150) == 0, logs["controller"].read_text()[-2000:]
         killed_at_s = time.time()
         procs.stop(controller, signal.SIGKILL)
@@ -216,7 +241,8 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
     sensor = bagio.read_blocks(bag, "/flaair/sensor_v")
     truth = bagio.read_blocks(bag, "/flaair/wing_state/truth")
     last_command = int(drive.sample_index[-1]) + 1
-    assert np.abs(drive["drive_v"][-BLOCK:]).max() > 0.0     # killed while driving: no goodbye block
+    # killed while driving: no goodbye block
+    assert np.abs(drive["drive_v"][-BLOCK:]).max() > 0.0
     watchdog = plant_log.split("DRIVE WATCHDOG: no command block for ")[-1]
     silent_ms = float(watchdog.split(" ms")[0])
     assert silent_ms > timeout_s * 1e3      # (its exact timing on a fake clock: test_sim_actuator)
@@ -225,14 +251,16 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
     # every applied block was stepped and recorded, then exactly the ring-down
     ring = int(round(ring_down_s * FS_HZ))
     assert sensor.sample_index[-1] + 1 == last_applied + ring == truth.sample_index[-1] + 1
-    # The bag's drive is the killed controller's stream as the recorder got it: gap-free (read_blocks)
-    # and never past the plant's last block plus the one block lockstep keeps in flight (written to
-    # plant and recorder one after the other). Its tail may stop short: what a reliable reader has
-    # not received when its writer is killed is lost with the writer (seen: the plant's last block
-    # missing, in 2 slow suite runs; 377 blocks short once in 8 runs at load average 6).
-    # That the recorder keeps everything a live publisher sent is the sensor and truth check above.
+    # The bag's drive is the killed controller's stream as the recorder got it:
+    # gap-free (read_blocks) and never past the plant's last block plus the one block
+    # lockstep keeps in flight (written to plant and recorder one after the other). Its
+    # tail may stop short: what a reliable reader has not received when its writer is
+    # killed is lost with the writer (seen: the plant's last block missing, in 2 slow
+    # suite runs; 377 blocks short once in 8 runs at load average 6). That the recorder
+    # keeps everything a live publisher sent is the sensor and truth check above.
     assert last_command <= last_applied + BLOCK, (last_command, last_applied)
     stroke = truth["stroke_deg"]
-    before = np.abs(stroke[(truth.sample_index >= last_applied - ring) & (truth.sample_index < last_applied)]).max()
+    before = np.abs(stroke[(truth.sample_index >= last_applied - ring)
+                           & (truth.sample_index < last_applied)]).max()
     tail = np.abs(stroke[truth.sample_index >= last_applied + ring - 200]).max()
     assert before > 1.0 and tail < 0.5 * before            # zero drive: the wing rings down

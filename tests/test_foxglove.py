@@ -1,4 +1,6 @@
-"""Live view over real DDS and a real WebSocket: per-sample messages at their signal times, wingbeats."""
+"""Live view over real DDS and a real WebSocket:
+per-sample messages at their signal times, wingbeats.
+"""
 from __future__ import annotations
 
 import json
@@ -33,10 +35,12 @@ sensor = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STR
 status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
 controller = node.create_publisher(ControllerState, "/flaair/controller/state", BLOCK_STREAM)
 deadline = time.monotonic() + 60.0
-while time.monotonic() < deadline and min(p.get_subscription_count() for p in (wing, sensor, status, controller)) == 0:
+readers = (wing, sensor, status, controller)
+while time.monotonic() < deadline and min(p.get_subscription_count() for p in readers) == 0:
     time.sleep(0.05)
 time.sleep(0.5)
-message = CollisionStatus(wingbeat_index=7, colliding=True, spectrum_rmse_deg=3.0, threshold_deg=1.0)
+message = CollisionStatus(wingbeat_index=7, colliding=True, spectrum_rmse_deg=3.0,
+                          threshold_deg=1.0)
 message.header.stamp.sec = 3
 status.publish(message)
 controller.publish(ControllerState(k_r=0.25))
@@ -48,11 +52,13 @@ for i in range(blocks):
     t = n / fs
     stamp_ns = int(round(start_s * 1e9)) + int(round(i * block / fs * 1e9))
     stroke = 20.0 * np.sin(2 * np.pi * 140.0 * t)
-    wing.publish(wing_codec.encode(stamp_ns, {"sample_rate_hz": fs, "first_sample_index": int(n[0]), "stroke_deg": stroke,
-        "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * t), "stroke_velocity_deg_s": n.astype(float),
-        "stroke_valid": np.ones(block, bool), "pitch_valid": n // 10 != 100}))
-    sensor.publish(sensor_codec.encode(stamp_ns, {"sample_rate_hz": fs, "first_sample_index": int(n[0]),
-        "stroke_sensor_v": 1.0 + n, "pitch_sensor_v": -1.0 - n}))
+    head = {"sample_rate_hz": fs, "first_sample_index": int(n[0])}
+    wing.publish(wing_codec.encode(stamp_ns, {
+        **head, "stroke_deg": stroke, "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * t),
+        "stroke_velocity_deg_s": n.astype(float), "stroke_valid": np.ones(block, bool),
+        "pitch_valid": n // 10 != 100}))
+    sensor.publish(sensor_codec.encode(stamp_ns, {
+        **head, "stroke_sensor_v": 1.0 + n, "pitch_sensor_v": -1.0 - n}))
     time.sleep(0.001)
 from rclpy.duration import Duration
 for p in (wing, sensor, status, controller):   # every reader has them before this participant goes
@@ -93,7 +99,8 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
         publisher = procs.start(sys.executable, "-c", PUBLISHER, str(BLOCKS), str(START_S))
         expected = BLOCKS * BLOCK
         received = client.received
-        while len(received.messages[topics[0]]) < expected or len(received.messages[topics[1]]) < expected:
+        while (len(received.messages[topics[0]]) < expected
+               or len(received.messages[topics[1]]) < expected):
             if not client.receive(timeout_s=30.0):
                 break
         while client.receive(timeout_s=1.0):  # the last wingbeats and time broadcasts
@@ -104,18 +111,25 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     # every sample one message, its log time and stamp its own signal time
     wing = received.messages[topics[0]]
     assert len(wing) == expected
-    decoded = [live_view.decode_sample(live_view.STREAMS["wing_state"], payload) for _, payload in wing]
+    decoded = [live_view.decode_sample(
+        live_view.STREAMS["wing_state"], payload) for _, payload in wing]
     np.testing.assert_array_equal([t for t, _ in wing], sample_ns)
     np.testing.assert_array_equal([d["stamp_ns"] for d in decoded], sample_ns)
-    np.testing.assert_array_equal([d["stroke_velocity_deg_s"] for d in decoded], np.arange(expected))
-    np.testing.assert_array_equal([d["pitch_valid"] for d in decoded], np.arange(expected) // 10 != 100)
-    sensor = [live_view.decode_sample(live_view.STREAMS["sensor_v"], payload) for _, payload in received.messages[topics[1]]]
+    np.testing.assert_array_equal(
+        [d["stroke_velocity_deg_s"] for d in decoded], np.arange(expected))
+    np.testing.assert_array_equal(
+        [d["pitch_valid"] for d in decoded], np.arange(expected) // 10 != 100)
+    sensor = [live_view.decode_sample(live_view.STREAMS["sensor_v"], payload) for _,
+              payload in received.messages[topics[1]]]
     np.testing.assert_array_equal([d["stroke_sensor_v"] for d in sensor], 1.0 + np.arange(expected))
     np.testing.assert_array_equal([t for t, _ in received.messages[topics[1]]], sample_ns)
-    # wingbeats: those of the same core over the whole record, with the latest K_r and collision score
+    # wingbeats: those of the same core over the whole
+    # record, with the latest K_r and collision score
     n = np.arange(expected)
-    stroke, pitch = 20.0 * np.sin(2 * np.pi * 140.0 * n / FS), 30.0 * np.cos(2 * np.pi * 140.0 * n / FS)
-    truth = wingbeat.summarize(stroke, pitch, n // 10 != 100, wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0))
+    stroke, pitch = (20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
+                     30.0 * np.cos(2 * np.pi * 140.0 * n / FS))
+    truth = wingbeat.summarize(stroke, pitch, n // 10 != 100,
+                               wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0))
     beats = [json.loads(p) for _, p in received.messages[live_view.WINGBEAT_TOPIC]]
     # upward crossings every 142.86 samples: 27 in 4000 samples, 26 wingbeats; the invalid block at
     # samples 1000-1009 hides the crossing at 1000 and spoils the wingbeats on both sides of it
@@ -124,12 +138,13 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     np.testing.assert_allclose([b["amplitude_deg"] for b in beats], 20.0, rtol=1e-3)
     np.testing.assert_allclose([b["pitch_amplitude_deg"] for b in beats], 30.0, rtol=1e-3)
     np.testing.assert_allclose([b["frequency_hz"] for b in beats], 140.0, rtol=1e-5)
-    assert all(b["k_r"] == 0.25 and b["collision_score"] == 3.0 and b["colliding"] is True for b in beats)
+    assert all(b["k_r"] == 0.25 and b["collision_score"] == 3.0 and b["colliding"] is True
+               for b in beats)
     end_ns = [t for t, _ in received.messages[live_view.WINGBEAT_TOPIC]]
     np.testing.assert_allclose(end_ns, START_S * 1e9 + truth.end_sample * 1e9 / FS, atol=1.0)
     status = [json.loads(p) for _, p in received.messages[live_view.COLLISION_TOPIC]]
-    assert status == [{"stamp": {"sec": 3, "nsec": 0}, "wingbeat_index": 7, "colliding": True, "spectrum_rmse_deg": 3.0,
-                       "threshold_deg": 1.0, "collision_score": 3.0}]
+    assert status == [{"stamp": {"sec": 3, "nsec": 0}, "wingbeat_index": 7, "colliding": True,
+                       "spectrum_rmse_deg": 3.0, "threshold_deg": 1.0, "collision_score": 3.0}]
     assert received.messages[live_view.COLLISION_TOPIC][0][0] == 3_000_000_000
     # the server told the client the latest signal time
     assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
@@ -143,9 +158,11 @@ def _wing_blocks(firsts: list[int], block: int = BLOCK, frame: str = "robot") ->
     for first in firsts:
         n = np.arange(first, first + block)
         out.append(codec.encode(int(3e9) + int(round(first * 1e9 / FS)), {
-            "sample_rate_hz": FS, "first_sample_index": first, "stroke_deg": 20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
-            "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * n / FS), "stroke_velocity_deg_s": n * 1.0,
-            "stroke_valid": np.ones(block, bool), "pitch_valid": n // 10 != 100}))
+            "sample_rate_hz": FS, "first_sample_index": first,
+            "stroke_deg": 20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
+            "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * n / FS),
+            "stroke_velocity_deg_s": n * 1.0, "stroke_valid": np.ones(block, bool),
+            "pitch_valid": n // 10 != 100}))
     return out
 
 
@@ -157,7 +174,8 @@ def test_a_batch_of_blocks_is_served_exactly_as_block_by_block(decimation: int) 
     from flaair_common import cdr
 
     stream = live_view.STREAMS["wing_state"]
-    datas = _wing_blocks([0, 10, 20, 50, 60]) + _wing_blocks([70], block=7) + [b"\x00\x01\x00\x00garbage"]
+    datas = (_wing_blocks([0, 10, 20, 50, 60]) + _wing_blocks([70], block=7)
+             + [b"\x00\x01\x00\x00garbage"])
     batches, bad = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
     assert bad == 1 and [len(b) for b in batches] == [5, 1]
     times, payloads = [], []
@@ -179,17 +197,21 @@ def test_wingbeats_of_a_batch_are_those_of_block_by_block() -> None:
     from flaair_common import cdr
 
     params = wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0)
-    datas = _wing_blocks(list(range(0, 3000, BLOCK)) + list(range(3500, 6000, BLOCK)))  # a gap at 3000-3500
+    # a gap at 3000-3500
+    datas = _wing_blocks(list(range(0, 3000, BLOCK)) + list(range(3500, 6000, BLOCK)))
     (blocks,), _ = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
     state, batched = wingbeat.initial_state(params), []
     for start in range(0, len(blocks), 20):   # batches of 20 blocks, as the node serves them
-        state, beats = live_view.wingbeat_batch(state, blocks[start:start + 20], len(batched), 2.0, 0.5, True, params)
+        state, beats = live_view.wingbeat_batch(
+            state, blocks[start:start + 20], len(batched), 2.0, 0.5, True, params)
         batched += beats
     state, alone = wingbeat.initial_state(params), []
     for data in datas:
         message = cdr.decode(cdr.WING_STATE_BLOCK, data)
         valid = np.logical_and(message["stroke_valid"], message["pitch_valid"])
-        state, beats = wingbeat.step(state, wingbeat.WingbeatInputs(message["first_sample_index"], message["stroke_deg"],
-                                                                    message["pitch_deg"], valid, 2.0, 0.5), params)
-        alone += live_view.wingbeat_messages(beats, len(alone), cdr.stamp_ns(message), message["first_sample_index"], FS, True)
+        state, beats = (wingbeat.step(
+            state, wingbeat.WingbeatInputs(message["first_sample_index"], message["stroke_deg"],
+                                           message["pitch_deg"], valid, 2.0, 0.5), params))
+        alone += live_view.wingbeat_messages(
+            beats, len(alone), cdr.stamp_ns(message), message["first_sample_index"], FS, True)
     assert len(batched) > 30 and batched == alone

@@ -1,4 +1,6 @@
-"""The graph launcher (flaair_common.graph): private domains, no orphans, clean ends of `experiment`."""
+"""The graph launcher (flaair_common.graph): private
+domains, no orphans, clean ends of `experiment`.
+"""
 from __future__ import annotations
 
 import os
@@ -16,6 +18,7 @@ from flaair_common.graph import Graph, lease_domain, wait_for
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+PACKAGE_DIRS = [str(p) for p in (REPO_ROOT / "src").iterdir() if (p / "setup.py").exists()]
 
 
 def _pids_on_domain(domain_id: int) -> list[int]:
@@ -64,10 +67,12 @@ def test_graph_env_is_private_and_localhost():
 
 @pytest.mark.graph
 def test_children_die_when_the_parent_is_killed(tmp_path):
-    """Kill -9 of the process that started a graph: its children get SIGTERM (parent-death signal)."""
+    """Kill -9 of the process that started a graph:
+    its children get SIGTERM (parent-death signal).
+    """
     script = textwrap.dedent(f"""
         import sys, time
-        sys.path[:0] = {[str(p) for p in (REPO_ROOT / "src").iterdir() if (p / "setup.py").exists()]!r}
+        sys.path[:0] = {PACKAGE_DIRS!r}
         from flaair_common.graph import Graph
         graph = Graph()
         child = graph.start("sleeper", [sys.executable, "-c", "import time; time.sleep(120)"])
@@ -78,7 +83,8 @@ def test_children_die_when_the_parent_is_killed(tmp_path):
     try:
         child_pid = int(parent.stdout.readline())
         # the child runs its own program (its parent-death signal was set before the exec)
-        assert wait_for(lambda: b"time.sleep" in Path(f"/proc/{child_pid}/cmdline").read_bytes(), 30.0)
+        assert wait_for(lambda: b"time.sleep" in Path(f"/proc/{child_pid}/cmdline").read_bytes(),
+                        30.0)
         assert _alive(child_pid)
         parent.kill()
         parent.wait()
@@ -91,7 +97,8 @@ def test_children_die_when_the_parent_is_killed(tmp_path):
 def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     bag = tmp_path / "bag"
     process = subprocess.Popen([FLAAIR, "experiment", "characterization_chirp", "--out", str(bag)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               cwd=REPO_ROOT)
     seen = []
     for _ in range(20):
         seen.append(process.stderr.readline())
@@ -104,11 +111,14 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     # running: the run's progress bar has moved, samples are in the bag (a fixed 8 s wait let the
     # 1 s chirp finish first on a fast machine)
     text, deadline = "", time.monotonic() + 120.0
-    while not re.search(r" [1-9]\d?%\|", text) and time.monotonic() < deadline and process.poll() is None:
+    while (not re.search(r" [1-9]\d?%\|", text) and time.monotonic() < deadline
+           and process.poll() is None):
         text += process.stderr.read(1)
-    if not re.search(r" [1-9]\d?%\|", text):   # say why: the experiment's own last words, if it ended
+    # say why: the experiment's own last words, if it ended
+    if not re.search(r" [1-9]\d?%\|", text):
         rest = process.stderr.read() if process.poll() is not None else ""
-        raise AssertionError(f"the run did not get going (exit {process.poll()}): {(text + rest)[-1500:]!r}")
+        raise AssertionError(
+            f"the run did not get going (exit {process.poll()}): {(text + rest)[-1500:]!r}")
     return process, domain, bag
 
 

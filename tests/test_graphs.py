@@ -1,4 +1,6 @@
-"""The declared graphs (flaair_tools.orchestration.graphs) name real nodes, and the tools use them."""
+"""The declared graphs (flaair_tools.orchestration.graphs)
+name real nodes, and the tools use them.
+"""
 from __future__ import annotations
 
 import argparse
@@ -36,9 +38,11 @@ def test_every_graph_names_declared_roles_and_overrides_only_its_own_nodes() -> 
 def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
     from flaair_tools.orchestration import experiment, live
 
-    sim = argparse.Namespace(sim=True, calibration=None, processes=False, out=None, controller="dsa", foxglove=None)
+    sim = argparse.Namespace(sim=True, calibration=None, processes=False, out=None,
+                             controller="dsa", foxglove=None)
     sections = live.node_parameters_for(sim)
-    assert sections["plant_node"]["ros__parameters"] == dict(graphs.GRAPHS["live_sim"].parameters["plant"])
+    assert sections["plant_node"]["ros__parameters"] == dict(
+        graphs.GRAPHS["live_sim"].parameters["plant"])
     assert live.live_graph(sim).hot == ("plant", "frontend", "controller")
     spec = next(iter(experiment.load_experiments().values()))
     roles = experiment.experiment_roles(spec)

@@ -14,8 +14,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 
 # Lower number, lower layer: a package may import only packages on a lower layer.
-LAYERS = {"flaair_model": 0, "flaair_msgs": 0, "flaair_common": 1, "flaair_sim": 2, "flaair_sensors": 2,
-          "flaair_control": 3, "flaair_bridge": 3, "flaair_tools": 4}
+LAYERS = {"flaair_model": 0, "flaair_msgs": 0, "flaair_common": 1, "flaair_sim": 2,
+          "flaair_sensors": 2, "flaair_control": 3, "flaair_bridge": 3, "flaair_tools": 4}
 
 
 def _source_files(*dirs: Path) -> list[Path]:
@@ -24,7 +24,9 @@ def _source_files(*dirs: Path) -> list[Path]:
 
 
 def _module_name(path: Path) -> str:
-    """`flaair_tools.discrepancy.fitting` for src/flaair_tools/flaair_tools/discrepancy/fitting.py."""
+    """`flaair_tools.discrepancy.fitting` for
+    src/flaair_tools/flaair_tools/discrepancy/fitting.py.
+    """
     parts = list(path.relative_to(SRC).parts[1:])
     parts[-1] = parts[-1][:-3]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
@@ -69,7 +71,8 @@ def test_no_module_imports_another_modules_underscore_names() -> None:
         for target, names, line in _imports(path, module):
             private = [n for n in names if _private(n)]
             if private or any(_private(part) for part in target.split(".")[1:]):
-                offences.append(f"{path.relative_to(ROOT)}:{line}: from {target} import {', '.join(private or names)}")
+                offences.append(f"{path.relative_to(ROOT)}:{line}: from {target} import "
+                                f"{', '.join(private or names)}")
     assert offences == [], "underscore names are private to their module:\n" + "\n".join(offences)
 
 
@@ -108,15 +111,16 @@ def test_no_import_cycle_between_modules() -> None:
 def test_every_import_between_packages_points_down_the_layers() -> None:
     modules, _graph = _module_graph()
     packages = {p.name for p in SRC.iterdir() if (p / "package.xml").exists()}
-    assert packages == set(LAYERS), f"a package without a layer (or a layer without a package): {packages ^ set(LAYERS)}"
+    unmatched = packages ^ set(LAYERS)
+    assert not unmatched, f"a package without a layer (or a layer without a package): {unmatched}"
     upward = []
     for name, path in modules.items():
         own = name.split(".")[0]
         for target, _names, line in _imports(path, name):
             other = target.split(".")[0]
             if other in LAYERS and other != own and LAYERS[other] >= LAYERS[own]:
-                upward.append(f"{path.relative_to(ROOT)}:{line}: {own} (layer {LAYERS[own]}) imports "
-                              f"{other} (layer {LAYERS[other]})")
+                upward.append(f"{path.relative_to(ROOT)}:{line}: {own} (layer {LAYERS[own]}) "
+                              f"imports {other} (layer {LAYERS[other]})")
     assert upward == [], "imports must point down the layers:\n" + "\n".join(upward)
 
 
@@ -135,7 +139,8 @@ CORE_PACKAGES = ("flaair_sensors", "flaair_control", "flaair_sim", "flaair_bridg
 
 
 def _core_modules() -> dict[str, Path]:
-    return {_module_name(p): p for pkg in CORE_PACKAGES for p in _source_files(SRC / pkg / pkg / "core")}
+    return {_module_name(p): p for pkg in CORE_PACKAGES
+            for p in _source_files(SRC / pkg / pkg / "core")}
 
 
 def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
@@ -148,7 +153,8 @@ def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
     for name, path in cores.items():
         for target, names, line in _imports(path, name):
             top, _, rest = target.partition(".")
-            shell_of_domain = top in CORE_PACKAGES and not (rest == "core" or rest.startswith("core."))
+            shell_of_domain = top in CORE_PACKAGES and not (
+                rest == "core" or rest.startswith("core."))
             if top == "rclpy" or shell_of_domain:
                 offences.append(f"{path.relative_to(ROOT)}:{line}: imports {target}")
     assert offences == [], "a core may import no rclpy and no shell module:\n" + "\n".join(offences)
@@ -156,28 +162,32 @@ def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
 
 @pytest.mark.timeout(120)
 def test_importing_every_core_loads_no_rclpy() -> None:
-    """Transitively too: the cores run offline (replay, sweeps, analysis) on a machine with no ROS."""
+    """Transitively too: the cores run offline (replay,
+    sweeps, analysis) on a machine with no ROS.
+    """
     import subprocess
     import sys
 
     names = sorted(_core_modules())
-    code = ("import importlib, sys\n"
-            f"for name in {names!r}:\n    importlib.import_module(name)\n"
-            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('rclpy', 'rosidl_runtime_py', 'rmw')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=110, check=True)
+    code = (f"import importlib, sys\nfor name in {names!r}:\n    "
+            "importlib.import_module(name)\nprint(sorted(m for m in sys.modules if m.split('.')[0] "
+            "in ('rclpy', 'rosidl_runtime_py', 'rmw')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=110,
+                         check=True)
     assert out.stdout.strip() == "[]", out.stdout
 
 
 # flaair_tools is split by job; inside it, too, imports point down these layers.
-TOOLS_LAYERS = {"bagio": 0, "recorder": 1, "roscli": 1, "analysis": 1, "discrepancy": 2, "sweeps": 2,
-                "liveview": 2, "orchestration": 3, "cli": 4}
+TOOLS_LAYERS = {"bagio": 0, "recorder": 1, "roscli": 1, "analysis": 1, "discrepancy": 2,
+                "sweeps": 2, "liveview": 2, "orchestration": 3, "cli": 4}
 
 
 def test_flaair_tools_is_split_by_job_and_its_imports_point_down() -> None:
     tools = SRC / "flaair_tools" / "flaair_tools"
     jobs = {p.name for p in tools.iterdir() if (p / "__init__.py").exists()}
     jobs |= {p.stem for p in tools.glob("*.py") if p.name != "__init__.py"}
-    assert jobs == set(TOOLS_LAYERS), f"a job without a layer (or a layer without a job): {jobs ^ set(TOOLS_LAYERS)}"
+    unmatched = jobs ^ set(TOOLS_LAYERS)
+    assert not unmatched, f"a job without a layer (or a layer without a job): {unmatched}"
     modules, _graph = _module_graph()
     upward = []
     for name, path in modules.items():
@@ -190,9 +200,11 @@ def test_flaair_tools_is_split_by_job_and_its_imports_point_down() -> None:
                 continue
             others = [tparts[1]] if len(tparts) > 1 else names
             for other in others:
-                if other in TOOLS_LAYERS and other != parts[1] and TOOLS_LAYERS[other] >= TOOLS_LAYERS[parts[1]]:
+                if (other in TOOLS_LAYERS and other != parts[1]
+                    and TOOLS_LAYERS[other] >= TOOLS_LAYERS[parts[1]]):
                     upward.append(f"{path.relative_to(ROOT)}:{line}: {parts[1]} imports {other}")
-    assert upward == [], "imports inside flaair_tools must point down its layers:\n" + "\n".join(upward)
+    assert (upward == []), "imports inside flaair_tools must point down its layers:\n" + "\n".join(
+        upward)
 
 
 def test_every_package_init_declares_its_table_of_contents() -> None:
@@ -201,15 +213,17 @@ def test_every_package_init_declares_its_table_of_contents() -> None:
     for path in _source_files(SRC):
         if path.name == "__init__.py" and "msg" not in path.parts:
             tree = ast.parse(path.read_text())
-            has_all = any(isinstance(n, ast.Assign) and any(getattr(t, "id", "") == "__all__" for t in n.targets)
-                          for n in tree.body)
+            has_all = any(isinstance(n, ast.Assign) and any(
+                getattr(t, "id", "") == "__all__" for t in n.targets) for n in tree.body)
             if not (ast.get_docstring(tree) and has_all):
                 missing.append(str(path.relative_to(ROOT)))
     assert missing == [], f"package __init__ without a docstring or __all__: {missing}"
 
 
 def test_cores_share_one_note_type() -> None:
-    """Every core's log lines are `flaair_model.notes.Note`: no module defines a note type of its own."""
+    """Every core's log lines are `flaair_model.notes.Note`:
+    no module defines a note type of its own.
+    """
     own = []
     for path in _source_files(SRC):
         for node in ast.walk(ast.parse(path.read_text())):
@@ -245,5 +259,6 @@ def test_every_core_starts_from_initial_state_of_its_params() -> None:
             if isinstance(node, ast.FunctionDef) and node.name == "initial_state":
                 positional = [a.arg for a in node.args.posonlyargs + node.args.args]
                 if len(positional) != 1 or not positional[0].startswith("p") or node.args.vararg:
-                    shapes.append(f"{path.relative_to(ROOT)}:{node.lineno}: initial_state({', '.join(positional)})")
+                    shapes.append(f"{path.relative_to(ROOT)}:{node.lineno}: "
+                                  f"initial_state({', '.join(positional)})")
     assert shapes == [], "\n".join(shapes)

@@ -1,4 +1,6 @@
-"""`flaair live`: the live graph, composed hot loop, recorded; ends cleanly on time or on a signal."""
+"""`flaair live`: the live graph, composed hot loop,
+recorded; ends cleanly on time or on a signal.
+"""
 from __future__ import annotations
 
 import re
@@ -16,7 +18,8 @@ pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 
 def _live(*args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess:
-    return subprocess.run([FLAAIR, "live", *args], capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT)
+    return subprocess.run([FLAAIR, "live", *args], capture_output=True, text=True,
+                          timeout=timeout_s, cwd=REPO_ROOT)
 
 
 def _final(bag: Path):
@@ -41,8 +44,9 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
     assert result.returncode == 0, result.stderr[-3000:]
     assert "localhost discovery" in result.stderr and "Traceback" not in result.stderr
     counts = bagio.message_counts(bag)
-    for topic in ("/flaair/sensor_v", "/flaair/wing_state", "/flaair/drive", "/flaair/controller/state",
-                  "/flaair/wing_state/truth", "/flaair/collision/status"):
+    for topic in ("/flaair/sensor_v", "/flaair/wing_state", "/flaair/drive",
+                  "/flaair/controller/state", "/flaair/wing_state/truth",
+                  "/flaair/collision/status"):
         assert counts.get(topic, 0) > 0, (topic, counts)
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
     firsts = np.asarray(drive.block_first_index)
@@ -50,11 +54,13 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
     where = {"loop start": start, "first drive block": int(firsts[0]), "last": int(firsts[-1]),
              "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts))))}
     assert len(drive["drive_v"]) >= 60000, where                   # 3 s of samples, all of the loop
-    assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10   # reached the bag in joined blocks
+    # reached the bag in joined blocks
+    assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
     assert states[0].k_r == 1.0 and states[-1].k_r == 0.0          # the configured K_r schedule ran
     assert np.all(drive["drive_v"][-10:] == 0.0)                  # ended on zero drive
-    f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
+    f_theory, a_theory = predicted_limit_cycle(
+        node_parameters("flaair.yaml", "dsa_controller_node"))
     f, a = _final(bag)
     assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.05)
 
@@ -63,9 +69,11 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     from flaair_tools import bagio
 
     bag = tmp_path / "live"
-    # as from a terminal: Ctrl-C at its default action, not blocked (the test process may pass it on otherwise)
-    process = subprocess.Popen(["env", "--default-signal=INT", FLAAIR, "live", "--sim", "--duration", "60", "--out",
-                                str(bag)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    # as from a terminal: Ctrl-C at its default action, not
+    # blocked (the test process may pass it on otherwise)
+    process = subprocess.Popen(["env", "--default-signal=INT", FLAAIR, "live", "--sim",
+                                "--duration", "60", "--out", str(bag)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
     seen = []
     for _ in range(40):     # until the loop runs (a fresh machine starts slowly)
         seen.append(process.stderr.readline())
@@ -109,36 +117,44 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     counters = tmp_path / "target.json"
     bridge_port, target_port = _free_udp_ports(2)
     # sensor noise, as on a real robot: the dSA loop starts from it if the sync phase's kick is lost
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{bridge_port}",
-                               "--listen", f"127.0.0.1:{target_port}", "--duration", "90", "--counters", str(counters),
-                               "--noise"],
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
+                               f"127.0.0.1:{bridge_port}", "--listen", f"127.0.0.1:{target_port}",
+                               "--duration", "90", "--counters", str(counters), "--noise"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
     try:
         bag = tmp_path / "bench"
-        result = _live("--target", f"127.0.0.1:{target_port}", "--listen", f"127.0.0.1:{bridge_port}", "--duration", "4",
-                       "--out", str(bag))
+        result = _live("--target", f"127.0.0.1:{target_port}", "--listen",
+                       f"127.0.0.1:{bridge_port}", "--duration", "4", "--out", str(bag))
         assert result.returncode == 0, result.stderr[-3000:]
     finally:
         target.send_signal(signal.SIGINT)
         target.wait(timeout=60)
-    # every sample of the run (from the loop's start, 2 s of signal) is in the bag, in order, no gaps
+    # every sample of the run (from the loop's start,
+    # 2 s of signal) is in the bag, in order, no gaps
     start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
     messages = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/sensor_v"])]
-    firsts, lengths = [m.first_sample_index for m in messages], [len(m.stroke_sensor_v) for m in messages]
+    firsts, lengths = [m.first_sample_index for m in messages], [
+        len(m.stroke_sensor_v) for m in messages]
     gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:]) if b != a + n]
-    assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000 and not gaps, (firsts[:3], start, gaps[:5])
+    assert (firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000
+            and not gaps), (firsts[:3], start, gaps[:5])
     assert bagio.message_counts(bag).get("/flaair/drive/applied", 0) > 0
     report = json.loads(counters.read_text())
     assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
     wing = bagio.read_blocks(bag, "/flaair/wing_state", allow_gaps=True)
-    stroke_deg = wing["stroke_deg"][-40000:-2000]             # the last 2 s of flapping, before the stop
+    # the last 2 s of flapping, before the stop
+    stroke_deg = wing["stroke_deg"][-40000:-2000]
     r = tr.hilbert_analysis(stroke_deg, wing.sample_rate_hz, hilbert_params_from_config())
     keep = (r.time_s > 0.05) & (r.time_s < r.time_s[-1] - 0.05)
-    f_theory, a_theory = predicted_limit_cycle(node_parameters("flaair.yaml", "dsa_controller_node"))
+    f_theory, a_theory = predicted_limit_cycle(
+        node_parameters("flaair.yaml", "dsa_controller_node"))
     f, a = float(np.median(r.frequency_hz[keep])), float(np.median(r.amplitude[keep]))
     # the frequency is the loop's (the Hopf analysis); drive the target applied late or not at all
     # (several % on a loaded machine: docs/CLOSED_LOOP_SPEED.md) takes amplitude off, not frequency
-    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25), (f, a, f_theory, a_theory)
+    assert (f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25)), (f,
+                                                                                                 a,
+                                                                                                 f_theory,
+                                                                                                 a_theory)
 
 
 def _free_udp_ports(n: int) -> list[int]:
@@ -163,14 +179,18 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
 
     bridge_port, target_port = _free_udp_ports(2)
     counters = tmp_path / "target.json"
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{bridge_port}",
-                               "--listen", f"127.0.0.1:{target_port}", "--duration", "120", "--counters", str(counters)],
-                              stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"), cwd=REPO_ROOT)
+    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
+                               f"127.0.0.1:{bridge_port}", "--listen", f"127.0.0.1:{target_port}",
+                               "--duration", "120", "--counters", str(counters)],
+                              stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"),
+                              cwd=REPO_ROOT)
     bag, log = tmp_path / "bench", tmp_path / "live.err"
     live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
-                             f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out", str(bag)],
-                            stdout=subprocess.DEVNULL, stderr=open(log, "w"), cwd=REPO_ROOT)
-    assert wait_for(lambda: "running from sample" in log.read_text() or live.poll() is not None, 120), log.read_text()
+                             f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out",
+                             str(bag)], stdout=subprocess.DEVNULL, stderr=open(log, "w"),
+                            cwd=REPO_ROOT)
+    assert wait_for(lambda: "running from sample" in log.read_text() or live.poll() is not None,
+                    120), log.read_text()
     match = re.search(r"on ROS domain (\d+)", log.read_text())
     assert match and live.poll() is None, f"live did not come up: {log.read_text()[-2000:]}"
     return target, live, int(match.group(1)), bag, counters
@@ -185,7 +205,8 @@ def _loop_pid(domain: int) -> int:
             cmdline = (entry / "cmdline").read_bytes()
         except OSError:
             continue
-        if any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ) and b"BridgeNode" in cmdline:
+        if (any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ)
+            and b"BridgeNode" in cmdline):
             return int(entry.name)
     raise AssertionError(f"no loop process on domain {domain}")
 
@@ -197,7 +218,8 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
     target, live, _, bag, _ = _start_live_against_target(tmp_path, 12.0)
     try:
         target.send_signal(signal.SIGSTOP)          # the target goes silent ...
-        time.sleep(3.0)                             # ... for 3 s (the fault itself, not a wait for something)
+        # ... for 3 s (the fault itself, not a wait for something)
+        time.sleep(3.0)
         target.send_signal(signal.SIGCONT)
         live.send_signal(signal.SIGINT)
         assert live.wait(timeout=120) == 0, (tmp_path / "live.err").read_text()[-3000:]
@@ -208,7 +230,8 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
     tripped = [i for i, s in enumerate(states) if s.watchdog == ControllerState.WATCHDOG_TRIPPED]
     assert tripped, "the controller never tripped while the target was silent"
-    assert "no valid wing-state block" in states[tripped[0]].fault or "wall-clock" in states[tripped[0]].fault
+    assert ("no valid wing-state block" in states[tripped[0]].fault
+            or "wall-clock" in states[tripped[0]].fault)
     assert abs(states[-1].drive_v) < 1e-9                       # ramped to zero
 
 
@@ -220,9 +243,11 @@ def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
 
     target, live, domain, _, counters = _start_live_against_target(tmp_path, 30.0)
     try:
-        os.kill(_loop_pid(domain), signal.SIGKILL)              # bridge, front end and controller die at once
+        # bridge, front end and controller die at once
+        os.kill(_loop_pid(domain), signal.SIGKILL)
         target_log = tmp_path / "target.err"
-        assert wait_for(lambda: target_watchdog_tripped(target_log), 60), target_log.read_text()[-2000:]
+        assert wait_for(lambda: target_watchdog_tripped(target_log),
+                        60), target_log.read_text()[-2000:]
         live.send_signal(signal.SIGINT)
         live.wait(timeout=120)
     finally:

@@ -26,13 +26,16 @@ def test_a_foxglove_port_in_use_is_named_in_one_line() -> None:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
-        result = subprocess.run([FLAAIR, "live", "--sim", "--duration", "2", "--foxglove", f"127.0.0.1:{port}"],
-                                env=isolated_env(), capture_output=True, text=True, timeout=120, cwd=REPO_ROOT)
+        result = subprocess.run([FLAAIR, "live", "--sim", "--duration", "2", "--foxglove",
+                                 f"127.0.0.1:{port}"], env=isolated_env(), capture_output=True,
+                                text=True, timeout=120, cwd=REPO_ROOT)
     assert result.returncode == 2, result.stderr[-3000:]
-    assert result.stderr.strip() == f"flaair live: --foxglove 127.0.0.1:{port}: port in use (Address already in use)"
+    assert (result.stderr.strip()
+            == f"flaair live: --foxglove 127.0.0.1:{port}: port in use (Address already in use)")
 
 
-def test_a_silent_target_is_waited_for_named_then_given_up_with_a_stop_packet_and_a_closed_bag(tmp_path: Path) -> None:
+def test_a_silent_target_is_waited_for_named_then_given_up_with_a_stop_packet_and_a_closed_bag(
+        tmp_path: Path) -> None:
     from flaair_bridge.core import protocol
     from flaair_tools import bagio
 
@@ -67,13 +70,15 @@ def test_a_silent_target_is_waited_for_named_then_given_up_with_a_stop_packet_an
     stderr = (tmp_path / "live.err").read_text()
     assert live.wait(timeout=10) == 3, stderr[-3000:]
     assert "Traceback" not in stderr
-    assert (f"waiting for the target's first sensor packet on 127.0.0.1:{listen_port} (drive goes to "
-            f"127.0.0.1:{target_port}); giving up after 2 s") in stderr
-    assert (f"error: no sensor packet from the target on 127.0.0.1:{listen_port} in 2 s (drive was addressed to "
-            f"127.0.0.1:{target_port})") in stderr
+    assert (f"waiting for the target's first sensor packet on 127.0.0.1:{listen_port} (drive goes "
+            f"to 127.0.0.1:{target_port}); giving up after 2 s") in stderr
+    assert (f"error: no sensor packet from the target on 127.0.0.1:{listen_port} in 2 s (drive was "
+            f"addressed to 127.0.0.1:{target_port})") in stderr
     stops = [p for p in map(protocol.unpack_drive, received) if p.stop]
-    assert stops and all(not p.drive_v.any() for p in stops)           # the stop packet reached the target
+    # the stop packet reached the target
+    assert stops and all(not p.drive_v.any() for p in stops)
     assert f"bag {bag} closed" in stderr
     bagio.message_counts(bag)                                          # a complete bag: it reads
-    info = subprocess.run([FLAAIR, "bag", "info", str(bag)], capture_output=True, text=True, timeout=60)
+    info = subprocess.run([FLAAIR, "bag", "info", str(bag)], capture_output=True, text=True,
+                          timeout=60)
     assert info.returncode == 0, info.stdout + info.stderr

@@ -43,7 +43,9 @@ def closed_loop(duration_s: float, respond: bool = False):
     loop = supervisor_params_from_config(values, model)
     fe_params = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), FS)
     mon_params = replace(collision_monitor_params_from_config(), window_source="stroke")
-    ctrl, plant_state, fe_state = sv.initial_state(loop), plant.initial_state(plant.PlantStepParams(model, FS)), frontend.initial_state(fe_params)
+    ctrl, plant_state, fe_state = (
+        sv.initial_state(loop), plant.initial_state(plant.PlantStepParams(model, FS)),
+        frontend.initial_state(fe_params))
     mon = monitor.initial_state(mon_params)
     ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
     ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)
@@ -52,25 +54,29 @@ def closed_loop(duration_s: float, respond: bool = False):
         block = queue.pop(0)
         t = block.first_sample_index / FS
         m = hit if OBSTACLE_S[0] <= t < OBSTACLE_S[1] else model
-        plant_state, sim = plant.step(plant_state, plant.PlantInputs(block.drive_v), plant.PlantStepParams(m, FS))
-        fe_state, est = frontend.step(fe_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fe_params)
+        plant_state, sim = plant.step(
+            plant_state, plant.PlantInputs(block.drive_v), plant.PlantStepParams(m, FS))
+        fe_state, est = frontend.step(
+            fe_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fe_params)
         strokes.append(np.degrees(sim.stroke_rad))
-        wing_blocks.append(monitor.WingBlock(block.first_sample_index, np.where(est.stroke_valid, est.stroke_rad, np.nan),
-                                             np.where(est.pitch_valid, est.pitch_rad, np.nan)))
+        wing_blocks.append(monitor.WingBlock(
+            block.first_sample_index, np.where(est.stroke_valid, est.stroke_rad, np.nan),
+            np.where(est.pitch_valid, est.pitch_rad, np.nan)))
         mon, result = monitor.step(mon, wing_blocks[-1], mon_params)
         verdicts += result.verdicts
         for v in result.verdicts if respond else ():
             if v.event is not None:
-                ctrl, out = sv.step(ctrl, sv.Collision(10.0, v.event == monitor.ONSET, v.wingbeat_index,
-                                                       v.spectrum_rmse_deg), loop)
+                ctrl, out = sv.step(ctrl, sv.Collision(
+                    10.0, v.event == monitor.ONSET, v.wingbeat_index, v.spectrum_rmse_deg), loop)
                 queue += out.blocks
         scales.append((block.first_sample_index, ctrl.amplitude_scale))
-        ctrl, out = sv.step(ctrl, sv.WingBlock(10.0, block.first_sample_index, FS,
-                                               np.degrees(est.stroke_velocity_rad_s), np.degrees(est.stroke_rad),
-                                               est.stroke_valid, 1), loop)
+        ctrl, out = sv.step(ctrl, sv.WingBlock(
+            10.0, block.first_sample_index, FS, np.degrees(est.stroke_velocity_rad_s),
+            np.degrees(est.stroke_rad), est.stroke_valid, 1), loop)
         queue += out.blocks
     stroke = np.concatenate(strokes)
-    return np.arange(stroke.size) / FS, stroke, verdicts, (wing_blocks, mon_params, np.array(scales))
+    return np.arange(stroke.size) / FS, stroke, verdicts, (
+        wing_blocks, mon_params, np.array(scales))
 
 
 @pytest.fixture(scope="module")
@@ -100,10 +106,12 @@ def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run
     latency_wingbeats = (onset.end_index / FS - first_strike_s) / period_s
     assert 0.0 < latency_wingbeats <= 2.0, latency_wingbeats
     assert onset.end_index / FS >= OBSTACLE_S[0], "false alarm before the obstacle"
-    assert clearances and OBSTACLE_S[1] < clearances[-1].end_index / FS < OBSTACLE_S[1] + 10 * period_s
+    assert (clearances and OBSTACLE_S[1] < clearances[-1].end_index / FS < OBSTACLE_S[1] + 10
+            * period_s)
     # while flapping freely the windows follow the emergent frequency, not a drive's
     free_verdicts = [v for v in verdicts if 1.3 < v.end_index / FS < OBSTACLE_S[0]]
-    assert free_verdicts and all(math.isclose(v.frequency_hz, 144.1, rel_tol=0.02) for v in free_verdicts)
+    assert (free_verdicts and all(
+        math.isclose(v.frequency_hz, 144.1, rel_tol=0.02) for v in free_verdicts))
 
 
 def test_the_monitor_decides_the_same_on_joined_blocks(run):
@@ -113,16 +121,16 @@ def test_the_monitor_decides_the_same_on_joined_blocks(run):
     from flaair_common.intra import join_contiguous
 
     _, _, verdicts, (blocks, params, _) = run
-    as_fields = [{"first_sample_index": b.first_sample_index, "stroke_rad": b.stroke_rad, "pitch_rad": b.pitch_rad,
-                  "sec": 0} for b in blocks]
+    as_fields = [{"first_sample_index": b.first_sample_index, "stroke_rad": b.stroke_rad,
+                  "pitch_rad": b.pitch_rad, "sec": 0} for b in blocks]
     rng = np.random.default_rng(3)
     state, joined_verdicts, k, joins = monitor.initial_state(params), [], 0, 0
     while k < len(as_fields):
         n = int(rng.integers(1, 25))
         for fields in join_contiguous(as_fields[k:k + n]):
             joins += 1
-            state, out = monitor.step(state, monitor.WingBlock(fields["first_sample_index"], fields["stroke_rad"],
-                                                               fields["pitch_rad"]), params)
+            state, out = monitor.step(state, monitor.WingBlock(
+                fields["first_sample_index"], fields["stroke_rad"], fields["pitch_rad"]), params)
             joined_verdicts += out.verdicts
         k += n
     assert joins < len(blocks) / 5
@@ -135,10 +143,12 @@ def test_join_contiguous_joins_runs_and_keeps_gaps():
     from flaair_common.intra import join_contiguous
 
     def block(first: int, n: int = 10) -> dict:
-        return {"first_sample_index": first, "x": np.arange(first, first + n, dtype=float), "sec": first}
+        return {"first_sample_index": first, "x": np.arange(first, first + n, dtype=float),
+                "sec": first}
 
     out = join_contiguous([block(0), block(10), block(20, 5), block(40), block(50)])
-    assert [(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out] == [(0, 25, 0), (40, 20, 40)]
+    assert ([(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out]
+            == [(0, 25, 0), (40, 20, 40)])
     np.testing.assert_array_equal(out[0]["x"], np.arange(25.0))
     assert join_contiguous([]) == []
 
@@ -155,4 +165,5 @@ def test_the_controller_does_not_take_the_k_r_ramp_for_a_collision_and_does_take
     assert np.all(before[:, 1] == 1.0)
     first_strike_s = t[(t >= OBSTACLE_S[0]) & (stroke >= LIMIT_DEG - 0.01)][0]
     reduced = scales[(scales[:, 0] >= OBSTACLE_S[0] * FS) & (scales[:, 1] == 0.5)]
-    assert reduced.size and (reduced[0, 0] / FS - first_strike_s) * 144.0 <= 3.0   # within 3 wingbeats
+    # within 3 wingbeats
+    assert reduced.size and (reduced[0, 0] / FS - first_strike_s) * 144.0 <= 3.0

@@ -1,4 +1,6 @@
-"""Bags on the signal's clock: 3 s of simulated signal span 3 s of log time, read with the mcap library."""
+"""Bags on the signal's clock: 3 s of simulated signal
+span 3 s of log time, read with the mcap library.
+"""
 from __future__ import annotations
 
 import signal
@@ -38,7 +40,8 @@ clock = node.create_publisher(Clock, "/clock", 1000)
 status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
 marker = node.create_publisher(String, "/flaair/run_marker", EVENTS)
 deadline = time.monotonic() + 120.0
-while time.monotonic() < deadline and min(p.get_subscription_count() for p in (sensor, truth, clock, status, marker)) == 0:
+readers = (sensor, truth, clock, status, marker)
+while time.monotonic() < deadline and min(p.get_subscription_count() for p in readers) == 0:
     time.sleep(0.05)
 time.sleep(1.0)
 marker.publish(String(data="run 1"))
@@ -48,7 +51,8 @@ truth_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, "robot")
 for i in range(int(run_s * fs / block)):
     stamp_ns = int(round(i * block / fs * 1e9))
     values = {"sample_rate_hz": fs, "first_sample_index": i * block}
-    sensor.publish(sensor_codec.encode(stamp_ns, {**values, "stroke_sensor_v": np.full(block, 1.0 * i)}))
+    sensor.publish(sensor_codec.encode(stamp_ns,
+                                       {**values, "stroke_sensor_v": np.full(block, 1.0 * i)}))
     truth.publish(truth_codec.encode(stamp_ns, {**values, "stroke_deg": np.full(block, 1.0 * i)}))
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     clock.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
@@ -59,7 +63,8 @@ for i in range(int(run_s * fs / block)):
     if i % 200 == 0:
         time.sleep(0.02)  # a few pauses: the recorder drains its queues meanwhile
 from rclpy.duration import Duration
-for p in (sensor, truth, clock, status, marker):   # every reader has them before this participant goes
+# every reader has them before this participant goes
+for p in readers:
     p.wait_for_all_acked(Duration(seconds=30))
 print("published", flush=True)
 """
@@ -80,12 +85,15 @@ def test_three_seconds_of_simulated_signal_span_three_seconds_of_log_time(tmp_pa
     stamp_ns: dict[str, list[int]] = {}
     publish_ns: list[int] = []
     with open(mcap_file, "rb") as handle:
-        for _, channel, message, decoded in make_reader(handle, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+        for _, channel, message, decoded in make_reader(
+                handle, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
             log_ns.setdefault(channel.topic, []).append(message.log_time)
             if channel.topic == "/clock":
-                stamp_ns.setdefault("/clock", []).append(decoded.clock.sec * 10**9 + decoded.clock.nanosec)
+                stamp_ns.setdefault("/clock", []).append(
+                    decoded.clock.sec * 10**9 + decoded.clock.nanosec)
             elif hasattr(decoded, "header"):
-                stamp_ns.setdefault(channel.topic, []).append(decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec)
+                stamp_ns.setdefault(channel.topic, []).append(
+                    decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec)
             if channel.topic == "/flaair/sensor_v":
                 publish_ns.append(message.publish_time)
     for topic in ("/flaair/sensor_v", "/flaair/wing_state/truth"):
@@ -93,7 +101,8 @@ def test_three_seconds_of_simulated_signal_span_three_seconds_of_log_time(tmp_pa
         # every block, its log time its first sample's signal time: 0, 0.5 ms, ... 3 s - 0.5 ms
         assert log_ns[topic] == stamp_ns[topic], topic
         np.testing.assert_array_equal(times, np.round(np.arange(n_blocks) * BLOCK / FS * 1e9))
-        assert times[-1] - times[0] + 500_000 == 3_000_000_000  # 3 s of signal (+ the last block), 3 s of log time
+        # 3 s of signal (+ the last block), 3 s of log time
+        assert times[-1] - times[0] + 500_000 == 3_000_000_000
     assert log_ns["/clock"] == stamp_ns["/clock"] and len(log_ns["/clock"]) == n_blocks
     assert log_ns["/flaair/collision/status"] == [1_500_000_000]
     # the run marker, published before the first sample, sits at the first signal time

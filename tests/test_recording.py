@@ -1,4 +1,6 @@
-"""flaair_tools.recorder.recording: the recorder's log-time rule and drain, message by message, without ROS."""
+"""flaair_tools.recorder.recording: the recorder's log-time
+rule and drain, message by message, without ROS.
+"""
 from __future__ import annotations
 
 import pytest
@@ -28,7 +30,8 @@ def run(events, state=rec.LogTimeState()):
 def test_header_less_messages_wait_for_the_first_stamp_then_take_the_latest():
     marker = rec.Received("/flaair/run_marker", bytearray(b"run 1"), None, 111)
     state, writes = run([marker])
-    assert writes == [] and state.pending[0].data == b"run 1" and isinstance(state.pending[0].data, bytes)
+    assert (writes == [] and state.pending[0].data == b"run 1"
+            and isinstance(state.pending[0].data, bytes))
     marker.data[:] = b"XXXXX"   # the middleware reuses its buffer: the pending copy is unaffected
     state, writes = run([rec.Received("/flaair/sensor_v", b"s", 5_000, 222),
                          rec.Received("/flaair/run_marker", b"run 2", None, 333),
@@ -48,15 +51,18 @@ def test_finish_without_any_stamp_keeps_publish_or_receive_times():
     state, _ = run([rec.Received("/a", b"1", None, 40), rec.Received("/b", b"2", None, None)])
     state, writes = rec.step(state, rec.Finish(now_ns=99), PARAMS)
     assert [(w.topic, w.log_ns) for w in writes] == [("/a", 40), ("/b", 99)] and state.pending == ()
-    assert rec.step(rec.LogTimeState(5, ()), rec.Finish(99), PARAMS) == (rec.LogTimeState(5, ()), ())
+    assert (rec.step(rec.LogTimeState(5, ()), rec.Finish(99), PARAMS)
+            == (rec.LogTimeState(5, ()), ()))
 
 
 def test_drain_takes_queued_messages_up_to_the_limit():
     queue = list(range(10))
-    assert rec.drain(lambda: queue.pop(0) if queue else None, PARAMS) == [0, 1, 2]   # 1 + 3 = limit 4
+    # 1 + 3 = limit 4
+    assert rec.drain(lambda: queue.pop(0) if queue else None, PARAMS) == [0, 1, 2]
     assert rec.drain(lambda: queue.pop(0) if queue else None, PARAMS, already=3) == [3]
     queue[:] = [7]
-    assert rec.drain(lambda: queue.pop(0) if queue else None, PARAMS) == [7]   # stops at an empty queue
+    # stops at an empty queue
+    assert rec.drain(lambda: queue.pop(0) if queue else None, PARAMS) == [7]
 
 
 def test_topic_choice_and_qos_adaptation():
@@ -64,7 +70,8 @@ def test_topic_choice_and_qos_adaptation():
     with pytest.raises(ParameterError, match="'topics'.*flaair/x"):
         rec.parse_topic_list("/a,flaair/x")
     assert rec.wanted("/flaair/drive", (), False) and not rec.wanted("/rosout", (), False)
-    assert not rec.wanted("/clock", (), False) and rec.wanted("/clock", (), True) and rec.wanted("/clock", ("/clock",), False)
+    assert (not rec.wanted("/clock", (), False) and rec.wanted("/clock", (), True)
+            and rec.wanted("/clock", ("/clock",), False))
     assert not rec.wanted("/flaair/drive", ("/flaair/sensor_v",), False)
 
     def qos(reliability, durability):

@@ -1,4 +1,6 @@
-"""Nodes start through bin/flaair run with parameters applied; bad parameters are refused by name."""
+"""Nodes start through bin/flaair run with parameters
+applied; bad parameters are refused by name.
+"""
 from __future__ import annotations
 
 import pytest
@@ -13,7 +15,8 @@ def test_run_applies_ros_args_parameter() -> None:
                             "-p", "drive_limit_v:=42.5")
         env = procs.env
         mode = run([FLAAIR, "param", "get", "/plant_node", "mode", "--timeout", "30"], env)
-        limit = run([FLAAIR, "param", "get", "/plant_node", "drive_limit_v", "--timeout", "30"], env)
+        limit = run([FLAAIR, "param", "get", "/plant_node", "drive_limit_v", "--timeout", "30"],
+                    env)
         assert mode.returncode == 0, mode.stderr
         assert mode.stdout.strip() == "realtime"
         assert float(limit.stdout.strip()) == 42.5
@@ -31,7 +34,8 @@ def test_run_applies_ros_args_parameter() -> None:
     ],
 )
 def test_bad_parameter_refused_at_start_with_its_name(override: str, named: str, why: str) -> None:
-    result = run([FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", override], isolated_env())
+    result = run([FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", override],
+                 isolated_env())
     assert result.returncode == 2
     assert named in result.stderr and why in result.stderr, result.stderr
     assert "Traceback" not in result.stderr

@@ -29,7 +29,8 @@ def test_paper_stepped_sine_steps_are_found_from_the_drive() -> None:
         # every dwell lies inside its true 0.2 s step and holds most of it
         true_start = int(np.flatnonzero(track == f)[0])
         assert true_start <= step.start < step.stop <= true_start + 4000
-        edge = 1.5 * FS / f if f in (freqs[0], freqs[-1]) else 0.0  # the record's ends are unreliable
+        # the record's ends are unreliable
+        edge = 1.5 * FS / f if f in (freqs[0], freqs[-1]) else 0.0
         assert step.stop - step.start >= 3500 - edge
     assert kind.drive_amplitude_v == pytest.approx(100.0, rel=0.02)
     recognised_track = kind.frequency_track(drive.size)
@@ -38,7 +39,8 @@ def test_paper_stepped_sine_steps_are_found_from_the_drive() -> None:
 
 
 def test_paper_chirp_is_a_sweep_with_its_range() -> None:
-    drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)
+    drive = drive_record(DriveParams(
+        kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)
     kind = recognise(drive, FS, PARAMS)
     assert kind.kind == "chirp", kind.reason
     assert kind.steps == ()
@@ -47,7 +49,8 @@ def test_paper_chirp_is_a_sweep_with_its_range() -> None:
 
 def test_slow_chirp_is_not_mistaken_for_steps() -> None:
     """20 Hz/s: every 40 ms stays within tolerance, but it drifts, so it is no dwell."""
-    drive = drive_record(DriveParams(kind="chirp", amplitude_v=50.0, start_hz=100.0, stop_hz=160.0, duration_s=3.0), FS, 60000)
+    drive = drive_record(DriveParams(
+        kind="chirp", amplitude_v=50.0, start_hz=100.0, stop_hz=160.0, duration_s=3.0), FS, 60000)
     assert recognise(drive, FS, PARAMS).kind == "chirp"
 
 
@@ -58,14 +61,16 @@ def test_single_sine_with_rest_before_it() -> None:
     assert kind.kind == "sine", kind.reason
     assert kind.frequency_hz == pytest.approx(100.0, abs=1e-3)
     (step,) = kind.steps
-    assert 0.25 * FS <= step.start <= 0.25 * FS + 300 and step.stop >= drive.size - 1.5 * FS / 100.0 - 200
+    assert (0.25 * FS <= step.start <= 0.25 * FS + 300
+            and step.stop >= drive.size - 1.5 * FS / 100.0 - 200)
 
 
 def test_controller_drive_is_a_transition_and_no_drive_is_a_free_run() -> None:
     noise = np.random.default_rng(1).normal(0.0, 0.05, 20000)
     assert recognise(noise, FS, PARAMS).kind == "free"
     assert recognise(np.zeros(20000), FS, PARAMS).kind == "free"
-    assert recognise(100 * np.sin(np.arange(20000) / 20.0), FS, PARAMS, has_controller_state=True).kind == "transition"
+    assert recognise(100 * np.sin(np.arange(20000) / 20.0), FS, PARAMS,
+                     has_controller_state=True).kind == "transition"
 
 
 def test_random_drive_is_unrecognised() -> None:
@@ -84,9 +89,10 @@ def test_bad_parameters_are_named() -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(start=st.floats(50.0, 150.0), step=st.floats(5.0, 30.0), n=st.integers(2, 6), dwell_s=st.floats(0.15, 0.3),
-       amplitude=st.floats(10.0, 150.0))
-def test_any_stepped_sine_is_recognised_with_its_frequencies(start: float, step: float, n: int, dwell_s: float, amplitude: float) -> None:
+@given(start=st.floats(50.0, 150.0), step=st.floats(5.0, 30.0), n=st.integers(2, 6),
+       dwell_s=st.floats(0.15, 0.3), amplitude=st.floats(10.0, 150.0))
+def test_any_stepped_sine_is_recognised_with_its_frequencies(
+        start: float, step: float, n: int, dwell_s: float, amplitude: float) -> None:
     freqs = start + step * np.arange(n)
     drive, _ = stepped_sine(FS, amplitude, freqs, dwell_s)
     kind = recognise(drive, FS, PARAMS)
@@ -95,7 +101,8 @@ def test_any_stepped_sine_is_recognised_with_its_frequencies(start: float, step:
 
 
 @settings(max_examples=25, deadline=None)
-@given(frequency=st.floats(30.0, 300.0), amplitude=st.floats(5.0, 150.0), duration_s=st.floats(0.3, 2.0))
+@given(frequency=st.floats(30.0, 300.0), amplitude=st.floats(5.0, 150.0),
+       duration_s=st.floats(0.3, 2.0))
 def test_any_sine_is_one_frequency(frequency: float, amplitude: float, duration_s: float) -> None:
     t = np.arange(int(duration_s * FS)) / FS
     kind = recognise(amplitude * np.sin(2 * np.pi * frequency * t + 0.3), FS, PARAMS)

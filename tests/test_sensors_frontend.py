@@ -31,7 +31,8 @@ def _sine_volts(params, amp_rad, f_hz, n, lag_s=0.0, offset_v=0.0, channel="stro
     t = np.arange(n) / FS
     vpr = params.stroke_volts_per_rad if channel == "stroke" else params.pitch_volts_per_rad
     theta = amp_rad * np.sin(2 * np.pi * f_hz * t)
-    v = params.reference_voltage_v + offset_v + vpr * amp_rad * np.sin(2 * np.pi * f_hz * (t - lag_s))
+    v = (params.reference_voltage_v + offset_v + vpr * amp_rad
+         * np.sin(2 * np.pi * f_hz * (t - lag_s)))
     return t, theta, v
 
 
@@ -41,8 +42,10 @@ def _phasor(x, t, f_hz, sl):
 
 def test_params_from_model_matches_model_gains(model, params):
     # Spec values (shared/model-spec.md): 25.39 deg/V stroke, 24.87 deg/V pitch, polarity -1.
-    assert math.degrees(1 / abs(params.stroke_volts_per_rad)) == pytest.approx(model.stroke_gain_deg_per_v, rel=1e-12)
-    assert math.degrees(1 / abs(params.pitch_volts_per_rad)) == pytest.approx(model.pitch_gain_deg_per_v, rel=1e-12)
+    assert (math.degrees(1 / abs(params.stroke_volts_per_rad))
+            == pytest.approx(model.stroke_gain_deg_per_v, rel=1e-12))
+    assert (math.degrees(1 / abs(params.pitch_volts_per_rad))
+            == pytest.approx(model.pitch_gain_deg_per_v, rel=1e-12))
     assert math.degrees(1 / abs(params.stroke_volts_per_rad)) == pytest.approx(25.39, rel=1e-3)
     assert math.degrees(1 / abs(params.pitch_volts_per_rad)) == pytest.approx(24.87, rel=1e-3)
     assert params.stroke_volts_per_rad < 0 and params.pitch_volts_per_rad < 0
@@ -50,12 +53,15 @@ def test_params_from_model_matches_model_gains(model, params):
 
 
 def test_plant_angles_recovered(model, params):
-    """Nominal plant, noise off: the inverse model returns the simulated angles (drift removal aside)."""
+    """Nominal plant, noise off: the inverse model returns
+    the simulated angles (drift removal aside).
+    """
     n = 8000
     t = np.arange(n) / FS
     drive = 100.0 * np.sin(2 * np.pi * 140.0 * t)
     out = simulate(drive, FS, model)
-    exact = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, fe.with_overrides(params, drift_corner_hz=0.0))
+    exact = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v,
+                        fe.with_overrides(params, drift_corner_hz=0.0))
     np.testing.assert_allclose(exact.stroke_rad, out.stroke_rad, atol=1e-12)
     np.testing.assert_allclose(exact.pitch_rad, out.pitch_rad, atol=1e-12)
     est = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, params)
@@ -75,7 +81,8 @@ def test_drift_removal_phase_is_documented(params):
         assert abs(ratio / expected - 1) < 1e-4
     # Docstring: 0.48 deg lead at 60 Hz for the 0.5 Hz default corner, gain error < 0.004 %.
     h60 = fe.drift_removal_response(params, 60.0)[0]
-    assert math.degrees(np.angle(h60)) == pytest.approx(math.degrees(math.atan(params.drift_corner_hz / 60.0)), abs=0.01)
+    assert math.degrees(np.angle(h60)) == pytest.approx(
+        math.degrees(math.atan(params.drift_corner_hz / 60.0)), abs=0.01)
     assert abs(abs(fe.drift_removal_response(params, [20.0, 200.0])) - 1).max() < 4e-4
 
 
@@ -95,7 +102,8 @@ def test_initial_state_at_rest_voltage_removes_startup_offset(params):
     t, theta, v = _sine_volts(params, 0.3, 140.0, 4000, offset_v=0.04)
     v[:400] = params.reference_voltage_v + 0.04  # wing at rest first
     theta[:400] = 0.0
-    est = fe.estimate(v, v, params, fe.initial_state(params, first_stroke_v=v[0], first_pitch_v=v[0]))
+    est = fe.estimate(v, v, params, fe.initial_state(
+        params, first_stroke_v=v[0], first_pitch_v=v[0]))
     assert np.degrees(np.abs(est.stroke_rad - theta)).max() < 0.2
     cold = fe.estimate(v, v, params)
     assert np.degrees(np.abs(cold.stroke_rad - theta)).max() > 0.5
@@ -103,7 +111,8 @@ def test_initial_state_at_rest_voltage_removes_startup_offset(params):
 
 def test_block_stepping_equals_whole_record(params):
     rng = np.random.default_rng(3)
-    p = fe.with_overrides(params, stroke_lag_s=2e-4, pitch_lag_s=-1e-4, rail_low_v=0.0, rail_high_v=2.5, rail_margin_v=0.01)
+    p = fe.with_overrides(params, stroke_lag_s=2e-4, pitch_lag_s=-1e-4, rail_low_v=0.0,
+                          rail_high_v=2.5, rail_margin_v=0.01)
     t, _, sv = _sine_volts(p, 0.6, 130.0, 6003)
     _, _, pv = _sine_volts(p, 0.4, 130.0, 6003, lag_s=1e-3, channel="pitch")
     sv = sv + 1e-3 * rng.standard_normal(sv.size)
@@ -121,7 +130,8 @@ def test_block_stepping_equals_whole_record(params):
         state, out = fe.step(state, fe.FrontendInputs(sv[start:], pv[start:]), p)
         parts.append(out)
         for i, name in enumerate(fe.WingEstimate._fields):
-            np.testing.assert_array_equal(np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
+            np.testing.assert_array_equal(
+                np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
     np.testing.assert_array_equal(fe.estimate(sv, pv, p, state0).stroke_rad, whole.stroke_rad)
 
 
@@ -163,10 +173,12 @@ def test_nan_and_inf_never_valid_never_in_state(params):
     state, est = fe.step(fe.initial_state(params), fe.FrontendInputs(bad, bad), params)
     unusable = ~np.isfinite(bad)
     assert not est.stroke_valid[unusable].any() and not est.pitch_valid[unusable].any()
-    assert np.isnan(est.stroke_rad[unusable]).all() and np.isnan(est.stroke_velocity_rad_s[unusable]).all()
+    assert (np.isnan(est.stroke_rad[unusable]).all()
+            and np.isnan(est.stroke_velocity_rad_s[unusable]).all())
     for arr in (est.stroke_rad, est.pitch_rad, est.stroke_velocity_rad_s):
         assert np.isfinite(arr[est.stroke_valid]).all()
-    for field in ("stroke_drift_zi", "pitch_drift_zi", "stroke_lead_zi", "pitch_lead_zi", "velocity_zi"):
+    for field in ("stroke_drift_zi", "pitch_drift_zi", "stroke_lead_zi", "pitch_lead_zi",
+                  "velocity_zi"):
         assert np.isfinite(getattr(state, field)).all()
     # Hold-off: the samples right after each unusable one are invalid, later ones valid again.
     h = params.holdoff_samples
@@ -178,12 +190,14 @@ def test_nan_and_inf_never_valid_never_in_state(params):
     ok = est.stroke_valid
     assert np.abs(est.stroke_rad[ok] - clean.stroke_rad[ok]).max() < 0.01 * 0.5
     vel_amp = 2 * np.pi * 140.0 * 0.5
-    assert np.abs(est.stroke_velocity_rad_s[ok] - clean.stroke_velocity_rad_s[ok]).max() < 0.02 * vel_amp
+    assert (np.abs(est.stroke_velocity_rad_s[ok] - clean.stroke_velocity_rad_s[ok]).max() < 0.02
+            * vel_amp)
 
 
 def test_saturation_marks_samples_invalid(params):
     p = fe.with_overrides(params, rail_low_v=0.0, rail_high_v=2.5, rail_margin_v=0.02)
-    t, theta, v = _sine_volts(p, 0.6, 140.0, 4000)  # 0.6 rad * 2.26 V/rad = 1.35 V: clips at both rails
+    # 0.6 rad * 2.26 V/rad = 1.35 V: clips at both rails
+    t, theta, v = _sine_volts(p, 0.6, 140.0, 4000)
     v = np.clip(v, 0.0, 2.5)
     est = fe.estimate(v, v, p)
     near_rail = (v <= 0.02) | (v >= 2.48)
@@ -241,7 +255,8 @@ def test_lag_compensation_phase_lead(params):
     assert abs(r) - 1 == pytest.approx(0.008, abs=0.001)
     assert fe.lag_compensation_noise_gain(p) == pytest.approx(5.9, abs=0.1)
     assert abs(fe.estimate_delay_s(p, 140.0)["stroke_s"]) < 0.1 * lag
-    assert fe.estimate_delay_s(fe.with_overrides(p, compensate_lag=False), 140.0)["stroke_s"] == pytest.approx(lag, rel=0.05)
+    assert (fe.estimate_delay_s(fe.with_overrides(p, compensate_lag=False), 140.0)["stroke_s"]
+            == pytest.approx(lag, rel=0.05))
 
 
 def test_params_from_calibration_roundtrip(params):
@@ -250,16 +265,19 @@ def test_params_from_calibration_roundtrip(params):
         "stroke": {"gain_deg_per_v": 25.0, "polarity": -1, "offset_v": 0.01, "lag_s": 1e-4},
         "pitch": {"gain_deg_per_v": 108.0, "polarity": 1, "offset_v": -0.02, "lag_s": 2e-4},
     }
-    p = fe.params_from_calibration(cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False})
+    p = fe.params_from_calibration(
+        cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False})
     v = np.array([1.25 + 0.01 + 0.1])
     est = fe.estimate(v, np.array([1.25 - 0.02 + 0.1]), p)
     assert math.degrees(est.stroke_rad[0]) == pytest.approx(-25.0 * 0.1)
     assert math.degrees(est.pitch_rad[0]) == pytest.approx(108.0 * 0.1)
     assert p.stroke_lag_s == 1e-4 and p.pitch_lag_s == 2e-4
     with pytest.raises(ValueError, match="polarity"):
-        fe.params_from_calibration({**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS, **FRONTEND_TUNING)
+        fe.params_from_calibration({**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS,
+                                   **FRONTEND_TUNING)
     with pytest.raises(ValueError, match="gain_deg_per_v"):
-        fe.params_from_calibration({**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}}, FS, **FRONTEND_TUNING)
+        fe.params_from_calibration({**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}},
+                                   FS, **FRONTEND_TUNING)
 
 
 def test_bad_parameters_and_inputs_raise(params):

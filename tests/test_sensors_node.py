@@ -22,13 +22,15 @@ def test_frontend_node_matches_offline_core_and_tracks_truth(monkeypatch, tmp_pa
     from flaair_sim.plant_node import PlantNode
 
     n_blocks, block = 400, 10
-    drive = drive_record(DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=140.0), FS_HZ, n_blocks * block)
-    with composed(monkeypatch, [PlantNode, FrontendNode], {"plant_node": {"command_timeout_s": 0.0}},
-                  tmp_path) as loop:
+    drive = drive_record(DriveParams(
+        kind="sine", amplitude_v=100.0, frequency_hz=140.0), FS_HZ, n_blocks * block)
+    with composed(monkeypatch, [PlantNode, FrontendNode], {
+            "plant_node": {"command_timeout_s": 0.0}}, tmp_path) as loop:
         wing = loop.sink(topics.WING_STATE)
         for k in range(0, n_blocks * block, block):
-            loop.bus.deliver(topics.DRIVE, {"sample_rate_hz": FS_HZ, "first_sample_index": k, "sec": 0, "nanosec": 0,
-                                            "frame_id": "", "drive_v": drive[k:k + block]})
+            loop.bus.deliver(topics.DRIVE, {
+                "sample_rate_hz": FS_HZ, "first_sample_index": k, "sec": 0, "nanosec": 0,
+                "frame_id": "", "drive_v": drive[k:k + block]})
             loop.bus.flush()
     assert [b["first_sample_index"] for b in wing] == list(range(0, n_blocks * block, block))
     assert all(b["source"] == 0 for b in wing)

@@ -1,4 +1,6 @@
-"""Plant and drive nodes over real DDS: lockstep equals the offline core; bad blocks are rejected."""
+"""Plant and drive nodes over real DDS: lockstep
+equals the offline core; bad blocks are rejected.
+"""
 from __future__ import annotations
 
 import json
@@ -15,7 +17,8 @@ BLOCK = 10
 
 def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path | None = None):
     ready = ("--ready-file", str(ready_file)) if ready_file else ()
-    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300", *ready)
+    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout",
+                        "300", *ready)
 
 
 @pytest.mark.graph
@@ -27,14 +30,18 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> No
     n_blocks = 200
     with ros_processes() as procs:
         ready = [tmp_path / "truth.ready", tmp_path / "sensor.ready"]
-        echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock", n_blocks, ready[0])
-        sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock", n_blocks, ready[1])
-        # The comparison starts at sample 0: the plant takes drive commands (and so the lockstep drive
-        # starts) only once both its output streams have matched their listener, writer side.
-        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "min_output_subscribers:=1")
-        assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)   # the readers' side too
-        procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep", "-p", "waveform:=chirp",
-                     "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
+        echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock",
+                            n_blocks, ready[0])
+        sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock",
+                              n_blocks, ready[1])
+        # The comparison starts at sample 0: the plant takes drive commands (and so the lockstep
+        # drive starts) only once both its output streams have matched their listener, writer side.
+        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p",
+                     "min_output_subscribers:=1")
+        # the readers' side too
+        assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
+        procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
+                     "-p", "waveform:=chirp", "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
         truth_out, err = echo.communicate(timeout=330)
         sensor_out, _ = sensor.communicate(timeout=120)
         assert echo.returncode == 0, err
@@ -44,7 +51,8 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> No
     stroke_deg = np.concatenate([b["stroke_deg"] for b in truth])
     pitch_deg = np.concatenate([b["pitch_deg"] for b in truth])
     stroke_v = np.concatenate([b["stroke_sensor_v"] for b in sensor_blocks])
-    params = DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0)
+    params = DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0,
+                         duration_s=1.0)
     offline = simulate(drive_record(params, FS_HZ, n_blocks * BLOCK), FS_HZ, load_model())
     assert np.array_equal(stroke_deg, np.degrees(offline.stroke_rad))
     assert np.array_equal(pitch_deg, np.degrees(offline.pitch_rad))
@@ -56,7 +64,8 @@ def _command(index: int, values: list[float]) -> dict:
     return {"sample_rate_hz": FS_HZ, "first_sample_index": index, "drive_v": values}
 
 
-def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch, tmp_path, capfd) -> None:
+def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch, tmp_path,
+                                                                     capfd) -> None:
     """The plant node in process: CDR bytes into its own DDS subscription callback, its sensor
     blocks read back from the bytes it publishes (no DDS delivery to wait for).
     """
@@ -95,7 +104,8 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
     assert "[1 undecodable so far]" in log and plant.undecodable == 1
 
 
-def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch, tmp_path) -> None:
+def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch,
+                                                                              tmp_path) -> None:
     """min_output_subscribers: the plant's drive subscription (what a lockstep source waits for)
     appears only once the sensor and truth streams each have that many listeners.
     """
@@ -104,7 +114,8 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(mo
     from flaair_sim.plant_node import PlantNode
 
     params = {"plant_node": {"min_output_subscribers": 2, "command_timeout_s": 0.0}}
-    with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:   # the harness listens to sensor_v
+    # the harness listens to sensor_v
+    with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:
         loop.sink(topics.SENSOR_VOLTAGE)
         loop.sink(topics.WING_STATE_TRUTH)
         loop.run_for(1.0)

@@ -26,13 +26,15 @@ def test_an_unmarked_test_that_starts_a_graph_fails(tmp_path: Path) -> None:
         "import importlib.util, sys\nsys.path.insert(0, %r)\n"
         "spec = importlib.util.spec_from_file_location('suite_conftest', %r)\n"
         "suite = importlib.util.module_from_spec(spec)\nspec.loader.exec_module(suite)\n"
-        "_graph_tests_are_marked = suite._graph_tests_are_marked\n" % (str(TESTS), str(TESTS / "conftest.py")))
+        "_graph_tests_are_marked = suite._graph_tests_are_marked\n" % (str(TESTS),
+                                                                       str(TESTS / "conftest.py")))
     (tmp_path / "test_unmarked.py").write_text(
         "import sys\nsys.path.insert(0, %r)\nfrom rosproc import ros_processes\n\n"
         "def test_starts_a_graph():\n    with ros_processes():\n        pass\n" % str(TESTS))
     (tmp_path / "pytest.ini").write_text("[pytest]\n")
-    result = subprocess.run(["python", "-m", "pytest", "-q", "-p", "no:cacheprovider", str(tmp_path)],
-                            capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    result = subprocess.run(["python", "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                             str(tmp_path)], capture_output=True, text=True, timeout=120,
+                            cwd=tmp_path)
     assert result.returncode == 1, result.stdout[-2000:]
     assert "starts ros_processes() but is not marked @pytest.mark.graph" in result.stdout
 
@@ -41,5 +43,6 @@ def test_topic_pub_fails_without_publishing_when_its_subscribers_never_come() ->
     result = run([FLAAIR, "topic", "pub", "/flaair/nobody", "std_msgs/msg/String", '{"data": "x"}',
                   "--wait-subscribers", "1", "--wait-timeout", "1"], isolated_env(), 60)
     assert result.returncode == 1, result.stderr
-    assert "'/flaair/nobody' has 0 subscriber(s) after 1 s; wanted 1: nothing published" in result.stderr
+    assert ("'/flaair/nobody' has 0 subscriber(s) after 1 s; wanted 1: nothing published"
+            in result.stderr)
     assert "Traceback" not in result.stderr

@@ -41,10 +41,11 @@ def wing(up: np.ndarray, rest_span: np.ndarray, stroke: float, pitch: float, ori
 @settings(max_examples=300, deadline=None)
 @given(up=vectors, rest=vectors, stroke=angles, pitch=angles, origin=vectors,
        span_len=st.floats(0.5, 20.0), chord_len=st.floats(0.2, 10.0), rise=finite, slide=finite)
-def test_a_wing_placed_from_known_angles_reads_them_back(up, rest, stroke, pitch, origin, span_len, chord_len,
-                                                          rise, slide) -> None:
+def test_a_wing_placed_from_known_angles_reads_them_back(
+        up, rest, stroke, pitch, origin, span_len, chord_len, rise, slide) -> None:
     u = up / np.linalg.norm(up)
-    if np.linalg.norm(rest - np.dot(rest, u) * u) < 0.1:     # rest_span (nearly) along up: no zero stroke
+    # rest_span (nearly) along up: no zero stroke
+    if np.linalg.norm(rest - np.dot(rest, u) * u) < 0.1:
         return
     le1, te1, le2 = wing(up, rest, stroke, pitch, origin, span_len, chord_len, rise, slide)
     assert va.stroke_from_span_rad(le1, le2, up, rest)[0] == pytest.approx(stroke, abs=1e-9)
@@ -53,7 +54,8 @@ def test_a_wing_placed_from_known_angles_reads_them_back(up, rest, stroke, pitch
 
 def test_signs_follow_the_right_hand_rule() -> None:
     up, rest = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    le1, te1, le2 = wing(up, rest, math.radians(30), math.radians(20), np.zeros(3), 10.0, 3.0, 0.0, 0.0)
+    le1, te1, le2 = wing(up, rest, math.radians(30), math.radians(20), np.zeros(3), 10.0, 3.0, 0.0,
+                         0.0)
     assert le2[0, 1] > 0                                      # +30 deg about +z turns +x towards +y
     assert math.degrees(va.stroke_from_span_rad(le1, le2, up, rest)[0]) == pytest.approx(30.0)
     assert math.degrees(va.pitch_rad(le1, te1, le2, up)[0]) == pytest.approx(20.0)
@@ -61,7 +63,8 @@ def test_signs_follow_the_right_hand_rule() -> None:
 
 def test_untracked_frames_give_nan_and_leave_the_others_alone() -> None:
     up, rest = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    rows = [wing(up, rest, math.radians(a), 0.0, np.zeros(3), 10.0, 3.0, 0.0, 0.0) for a in (-10, 0, 10)]
+    rows = [wing(up, rest, math.radians(a), 0.0, np.zeros(3), 10.0, 3.0, 0.0, 0.0)
+            for a in (-10, 0, 10)]
     le1, te1, le2 = (np.vstack([r[i] for r in rows]) for i in range(3))
     le2[1] = np.nan
     stroke = np.degrees(va.stroke_from_span_rad(le1, le2, up, rest))
@@ -71,8 +74,10 @@ def test_untracked_frames_give_nan_and_leave_the_others_alone() -> None:
 @settings(max_examples=100, deadline=None)
 @given(axis=st.tuples(finite, finite).map(np.array).filter(lambda v: np.linalg.norm(v) > 0.2),
        m_per_px=st.floats(1e-6, 1e-3), ratio=st.floats(100.0, 1e4), amplitude=st.floats(0.05, 1.0))
-def test_the_actuator_tip_path_follows_the_transmission_ratio(axis, m_per_px, ratio, amplitude) -> None:
-    stroke = amplitude * np.sin(np.linspace(0, 4 * np.pi, 400, endpoint=False))   # zero mean: rest = mean tip
+def test_the_actuator_tip_path_follows_the_transmission_ratio(axis, m_per_px, ratio,
+                                                              amplitude) -> None:
+    # zero mean: rest = mean tip
+    stroke = amplitude * np.sin(np.linspace(0, 4 * np.pi, 400, endpoint=False))
     unit = axis / np.linalg.norm(axis)
     tip = np.array([512.0, 300.0]) + np.outer(stroke / ratio / m_per_px, unit)
     got = va.stroke_from_tip_rad(tip, axis, m_per_px, ratio)
@@ -81,7 +86,8 @@ def test_the_actuator_tip_path_follows_the_transmission_ratio(axis, m_per_px, ra
 
 def test_tip_motion_across_the_axis_does_not_count() -> None:
     unit = np.array([1.0, 0.0])
-    tip = np.column_stack([np.zeros(100), np.linspace(-50, 50, 100)])      # moves only across the axis
+    # moves only across the axis
+    tip = np.column_stack([np.zeros(100), np.linspace(-50, 50, 100)])
     assert np.abs(va.stroke_from_tip_rad(tip, unit, 2e-5, 3000.0)).max() == 0.0
 
 
@@ -91,20 +97,24 @@ def test_tip_motion_across_the_axis_does_not_count() -> None:
 ])
 def test_coinciding_points_are_refused_naming_the_frame(points, message) -> None:
     up, rest = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
-    le1, te1, le2 = (np.vstack([a, a]) for a in wing(up, rest, 0.3, 0.2, np.zeros(3), 10.0, 3.0, 0.0, 0.0))
+    le1, te1, le2 = (np.vstack([a, a]) for a in wing(
+        up, rest, 0.3, 0.2, np.zeros(3), 10.0, 3.0, 0.0, 0.0))
     if points == "le2=le1":
         le2[0] = le1[0]
     else:
         te1[0] = le1[0]
-    with pytest.raises(va.VideoGeometryError, match=message.replace("(", r"\(").replace(")", r"\)")):
+    with pytest.raises(va.VideoGeometryError,
+                       match=message.replace("(", r"\(").replace(")", r"\)")):
         va.pitch_rad(le1, te1, le2, up)
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: va.stroke_from_span_rad(np.zeros((1, 3)), np.ones((1, 3)), [0, 0, 0], [1, 0, 0]), "geometry.up"),
+    (lambda: va.stroke_from_span_rad(
+    np.zeros((1, 3)), np.ones((1, 3)), [0, 0, 0], [1, 0, 0]), "geometry.up"),
     (lambda: va.stroke_from_span_rad(np.zeros((1, 3)), np.ones((1, 3)), [0, 0, 1], [0, 0, 2]),
      "rest_span is parallel to geometry.up"),
-    (lambda: va.stroke_from_tip_rad(np.full((3, 2), np.nan), [1, 0], 2e-5, 3000.0), "never tracked"),
+    (lambda: va.stroke_from_tip_rad(np.full((3, 2), np.nan), [1, 0], 2e-5, 3000.0),
+     "never tracked"),
     (lambda: va.stroke_from_tip_rad(np.zeros((3, 2)), [1, 0], 0.0, 3000.0), "m_per_px"),
 ])
 def test_rig_geometry_that_defines_no_angle_is_refused(call, message) -> None:

@@ -6,6 +6,7 @@ The values the tests were written against: drift tracking at 0.5 Hz, lag compens
 import math
 
 FRONTEND_TUNING = {
-    "drift_corner_hz": 0.5, "compensate_lag": True, "lead_rolloff_hz": 1000.0, "rail_low_v": -math.inf,
-    "rail_high_v": math.inf, "rail_margin_v": 0.0, "holdoff_s": 1.5e-3, "velocity_cutoff_hz": 1000.0,
+    "drift_corner_hz": 0.5, "compensate_lag": True, "lead_rolloff_hz": 1000.0,
+    "rail_low_v": -math.inf, "rail_high_v": math.inf, "rail_margin_v": 0.0, "holdoff_s": 1.5e-3,
+    "velocity_cutoff_hz": 1000.0,
 }

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
-    description="FLAAIR real-time target bridge: the UDP protocol, the bridge node and an emulated target around the plant model.",
+    description="FLAAIR real-time target bridge: the UDP protocol, the bridge node and an emulated "
+                "target around the plant model.",
     license="Apache-2.0",
     entry_points={"console_scripts": [
         "bridge_node = flaair_bridge.bridge_node:main",

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
-    description="FLAAIR sensor front end: PVDF charge model, voltage-to-angle estimation, calibration and characterization.",
+    description="FLAAIR sensor front end: PVDF charge model, voltage-to-angle estimation, "
+                "calibration and characterization.",
     license="Apache-2.0",
     entry_points={"console_scripts": ['frontend_node = flaair_sensors.frontend_node:main']},
 )

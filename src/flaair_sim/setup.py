@@ -14,7 +14,9 @@ setup(
     zip_safe=True,
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
-    description="FLAAIR plant simulation: flapping-wing stroke/pitch dynamics, PVDF sensors, missing effects; plant and drive nodes.",
+    description="FLAAIR plant simulation: flapping-wing stroke/pitch dynamics, PVDF sensors, "
+                "missing effects; plant and drive nodes.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ['plant_node = flaair_sim.plant_node:main', 'drive_node = flaair_sim.drive_node:main']},
+    entry_points={"console_scripts": [
+    'plant_node = flaair_sim.plant_node:main', 'drive_node = flaair_sim.drive_node:main']},
 )

@@ -1,12 +1,13 @@
-"""bridge_node: FLAAIR's side of the real-time target protocol (docs/REALTIME_PROTOCOL.md), over UDP.
+"""bridge_node: FLAAIR's side of the real-time target protocol (docs/REALTIME_PROTOCOL.md).
 
 Sensor packets (listen_host:listen_port) become SensorVoltageBlock on /flaair/sensor_v (lost
-samples NaN: the front end marks them invalid), the drive the target applied DriveCommandBlock on
-/flaair/drive/applied. /flaair/drive goes to the target (target_host:target_port; empty / 0: the
-sender) lead_samples ahead, clamped to +-drive_limit_v. A drive stream silent for drive_timeout_s,
-a target silent for sensor_timeout_s, and every end of a run send a stop packet. Malformed
-datagrams are counted and logged. A thin shell over flaair_bridge.core.bridge.step; a reader thread
-(flaair_bridge.udp, SCHED_FIFO at realtime_priority) shares the node with the executor under one lock.
+samples NaN: the front end marks them invalid), the drive the target applied DriveCommandBlock
+on /flaair/drive/applied. /flaair/drive goes to the target (target_host:target_port; empty /
+0: the sender) lead_samples ahead, clamped to +-drive_limit_v. A drive stream silent for
+drive_timeout_s, a target silent for sensor_timeout_s, and every end of a run send a stop
+packet. Malformed datagrams are counted and logged. A thin shell over
+flaair_bridge.core.bridge.step; a reader thread (flaair_bridge.udp, SCHED_FIFO at
+realtime_priority) shares the node with the executor under one lock.
 
 Usage: bin/flaair run flaair_bridge bridge_node --ros-args -p listen_port:=25000 -p lead_samples:=20
 """
@@ -20,19 +21,20 @@ import numpy as np
 from rclpy.node import Node
 
 from flaair_bridge import bridge_io as io
-from flaair_bridge import udp
 from flaair_bridge.bridge_io import PARAMS
 from flaair_bridge.core import bridge, bridge_report
 from flaair_common import intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
-from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
 
 NODE_NAME = "bridge_node"
 CONFIG_FILE = "flaair.yaml"
-GIL_SWITCH_S = 1e-4   # process-wide: at the default 5 ms the reader thread got the GIL ~200 times/s, < 2000 packets/s
-STOP_COPIES = 3                           # a run's final stop packet is sent this many times (UDP may drop one)
+# process-wide: at the default 5 ms the reader thread got the GIL ~200 times/s, < 2000 packets/s
+GIL_SWITCH_S = 1e-4
+# a run's final stop packet is sent this many times (UDP may drop one)
+STOP_COPIES = 3
 
 
 class BridgeNode(Node):
@@ -44,36 +46,36 @@ class BridgeNode(Node):
         self.params = io.params_from_values(p)
         # a configured target that never speaks still gets the stop packet at the end
         self.target = io.configured_target(p)
-        self.state, self.lock = bridge.initial_state(self.params), threading.RLock()   # re-entered when composed: the loop answers in-process
+        # re-entered when composed: the loop answers in-process
+        self.state, self.lock = bridge.initial_state(self.params), threading.RLock()
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
-        self.events = bridge_report.EventLog() if p["timing_file"] else None   # raw event times for benchmarks
+        # raw event times for benchmarks
+        self.events = bridge_report.EventLog() if p["timing_file"] else None
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
-        self.sensor = intra.block_publisher(self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
-        self.applied = (intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size, BLOCK_STREAM)
-                        if p["publish_applied"] else None)
-        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_drive, BLOCK_STREAM, self.on_undecodable)
-        self.create_timer(p["tick_period_s"], lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())))
+        self.sensor = intra.block_publisher(
+            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
+        self.applied = (intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size,
+                                              BLOCK_STREAM) if p["publish_applied"] else None)
+        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_drive, BLOCK_STREAM,
+                               self.on_undecodable)
+        self.create_timer(p["tick_period_s"], lambda: self.process(
+            bridge.Tick(time.time(), self.endpoint.pending())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
-        try:   # the socket last: its reader thread delivers at once, into a fully built node
-            self.endpoint = udp.DatagramEndpoint(p["listen_host"], p["listen_port"], p["receive_buffer_bytes"],
-                                                 self.on_datagram, p["realtime_priority"])
-        except OSError as exc:
-            raise ParameterError(f"parameters 'listen_host'/'listen_port' = {p['listen_host']}:{p['listen_port']}: {exc}") from exc
-        self.endpoint.priority_set.wait(1.0)
-        error = self.endpoint.priority_error   # not root, no CAP_SYS_NICE: a warning, the bridge still runs
-        if error:
-            self.get_logger().warning(f"UDP reader runs WITHOUT its real-time priority ({error})")
+        # the socket last: its reader thread delivers at once, into a fully built node
+        self.endpoint = io.open_endpoint(p, self.on_datagram, self.get_logger())
         self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
         if target != self.target:   # the first packet, or a target that restarted elsewhere
             self.target = target
-            self.get_logger().info(f"target at {target[0]}:{target[1]}: drive and stop packets go there")
+            self.get_logger().info(
+                f"target at {target[0]}:{target[1]}: drive and stop packets go there")
         answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
-        if self.state.counters.drive_packets != answered:   # the loop has answered: a gap until the next block
+        # the loop has answered: a gap until the next block
+        if self.state.counters.drive_packets != answered:
             intra.use_gap()
 
     def on_undecodable(self, exc: Exception) -> None:
@@ -81,18 +83,26 @@ class BridgeNode(Node):
         warn_counted(self.get_logger(), self.bad_drive_messages, f"drive message dropped: {exc}")
 
     def on_drive(self, message) -> None:
-        if not self.closed:   # composed, the controller's closing zero block follows the stop packet
-            self.process(bridge.DriveBlock(int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()))
+        # composed, the controller's closing zero block follows the stop packet
+        if not self.closed:
+            self.process(bridge.DriveBlock(
+                int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()))
 
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
-        with self.lock:  # publishing inside: blocks from the thread and from the timer stay in order
-            # composed, the drive this packet's blocks produce comes back nested: its cause is this packet
-            outer_cause_s, self.cause_s = self.cause_s, inputs.now_s if isinstance(inputs, bridge.SensorDatagram) else self.cause_s
+        # publishing inside: blocks from the thread and from the timer stay in order
+        with self.lock:
+            # composed, the drive this packet's blocks produce
+            # comes back nested: its cause is this packet
+            outer_cause_s, self.cause_s = (
+                self.cause_s, inputs.now_s if isinstance(inputs, bridge.SensorDatagram)
+                else self.cause_s)
             self.state, out = bridge.step(self.state, inputs, self.params)
             for packet in [packet for packet in out.packets for _ in range(copies)]:
-                if error := (self.endpoint.send(packet, self.target) if self.target is not None else ""):
-                    self.get_logger().warning(f"drive packet not sent to {self.target}: {error}", throttle_duration_sec=1.0)
+                if error := (self.endpoint.send(packet, self.target) if self.target is not None
+                             else ""):
+                    self.get_logger().warning(f"drive packet not sent to {self.target}: {error}",
+                                              throttle_duration_sec=1.0)
             self.timing.extend(out.timing)
             counters = self.state.counters
             if self.events is not None:
@@ -106,19 +116,23 @@ class BridgeNode(Node):
         log_notes(self.get_logger(), out.notes, lambda counter: getattr(counters, counter))
 
     def close(self) -> None:
-        """End of the run: stop packet (sent STOP_COPIES times), receiver stopped, counters logged."""
+        """End of the run: stop packet (STOP_COPIES times), receiver stopped, counters logged."""
         if self.closed:
             return
         self.closed = True
-        self.endpoint.stop_reading()   # a reader behind its backlog would hold the lock against the stop packet
+        # a reader behind its backlog would hold the lock against the stop packet
+        self.endpoint.stop_reading()
         self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
-        self.get_logger().info(f"bridge closed, stop packet sent: {bridge_report.summary(self.state.counters, self.timing)}")
+        self.get_logger().info("bridge closed, stop packet sent: "
+                               f"{bridge_report.summary(self.state.counters, self.timing)}")
         if self.p["timing_file"]:
-            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3), **self.events.arrays())
+            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3),
+                     **self.events.arrays())
 
     def destroy_node(self) -> None:
-        self.close()  # whoever owns the node (run_node, a shared executor): the run ends with a stop packet
+        # whoever owns the node (run_node, a shared executor): the run ends with a stop packet
+        self.close()
         super().destroy_node()
 
 

@@ -22,12 +22,13 @@ _TIMESPEC = struct.Struct("@qq")
 
 
 class DatagramEndpoint:
-    """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in the reader thread
-    (arrival_s: kernel receive time on the `time.time()` clock).
+    """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in
+    the reader thread (arrival_s: kernel receive time on the `time.time()` clock).
     """
 
     def __init__(self, host: str, port: int, receive_buffer_bytes: int,
-                 on_datagram: Callable[[bytes, tuple[str, int], float], None], realtime_priority: int = 0) -> None:
+                 on_datagram: Callable[[bytes, tuple[str, int], float], None],
+                 realtime_priority: int = 0) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
@@ -39,7 +40,8 @@ class DatagramEndpoint:
         self.sock.settimeout(0.1)  # the reader checks for close() this often
         self.on_datagram = on_datagram
         self.realtime_priority = realtime_priority
-        self.priority_error = ""   # why the reader could not take its real-time priority ("" if it did, or none asked)
+        # why the reader could not take its real-time priority ("" if it did, or none asked)
+        self.priority_error = ""
         self.priority_set = threading.Event()
         self.running = True
         self.reader = threading.Thread(target=self._read, name=f"udp-{host}:{port}", daemon=True)
@@ -52,7 +54,8 @@ class DatagramEndpoint:
         self.priority_set.set()
         while self.running:
             try:
-                data, ancillary, _flags, sender = self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size))
+                data, ancillary, _flags, sender = (
+                    self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size)))
             except socket.timeout:
                 continue
             except OSError:
@@ -61,20 +64,25 @@ class DatagramEndpoint:
                 continue  # e.g. ICMP port unreachable from an earlier send: keep reading
             arrival_s = time.time()
             for level, kind, value in ancillary:
-                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(value) >= _TIMESPEC.size:
+                if (level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS
+                    and len(value) >= _TIMESPEC.size):
                     seconds, nanoseconds = _TIMESPEC.unpack_from(value)
                     arrival_s = seconds + 1e-9 * nanoseconds
             self.on_datagram(data, sender, arrival_s)
 
     def pending(self) -> bool:
-        """Datagrams are queued, not read yet (the reader thread is behind: this process stalled)."""
+        """Datagrams are queued, not read yet (the reader
+        thread is behind: this process stalled).
+        """
         try:
             return bool(select.select([self.sock], [], [], 0.0)[0])
         except (OSError, ValueError):
             return False
 
     def send(self, packet: bytes, address: tuple[str, int]) -> str:
-        """Send one datagram; returns '' or the OS error's text (UDP: the peer will notice the silence)."""
+        """Send one datagram; returns '' or the OS error's
+        text (UDP: the peer will notice the silence).
+        """
         try:
             self.sock.sendto(packet, address)
             return ""

@@ -85,7 +85,8 @@ def encode(layout: Layout, stamp_ns: int, frame_id: str, values: dict) -> bytes:
             if array.size:
                 out += b"\x00" * _pad(len(out) - 4, dtype.itemsize) + array.tobytes()
         else:
-            out += b"\x00" * _pad(body, dtype.itemsize) + np.array(0 if value is None else value, dtype=dtype).tobytes()
+            out += b"\x00" * _pad(body, dtype.itemsize) + np.array(
+                0 if value is None else value, dtype=dtype).tobytes()
     return bytes(out)
 
 
@@ -101,13 +102,15 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
     """
     buffer = memoryview(data)
     if bytes(buffer[:4]) != ENCAPSULATION:
-        raise CdrError(f"{layout.type_name}: not little-endian CDR (encapsulation {bytes(buffer[:4]).hex()})")
+        raise CdrError(
+            f"{layout.type_name}: not little-endian CDR (encapsulation {bytes(buffer[:4]).hex()})")
     try:
         sec, nanosec, frame_len = struct.unpack_from("<iII", buffer, 4)
         offset = 16
         frame_id = bytes(buffer[offset:offset + frame_len - 1]).decode()
         offset += frame_len
-        out: dict = {"stamp_ns": sec * 1_000_000_000 + nanosec, "sec": sec, "nanosec": nanosec, "frame_id": frame_id}
+        out: dict = {"stamp_ns": sec * 1_000_000_000 + nanosec, "sec": sec, "nanosec": nanosec,
+                     "frame_id": frame_id}
         for name, kind in layout.fields:
             if kind == "string":
                 offset += _pad(offset - 4, 4)
@@ -125,7 +128,8 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
                     offset += _pad(offset - 4, dtype.itemsize)
                 end = offset + count * dtype.itemsize
                 if end > len(buffer):
-                    raise CdrError(f"{layout.type_name}.{name}: {count} elements run past the end ({len(buffer)} bytes)")
+                    raise CdrError(f"{layout.type_name}.{name}: {count} elements run past the end "
+                                   f"({len(buffer)} bytes)")
                 out[name] = np.frombuffer(buffer, dtype=dtype, count=count, offset=offset)
                 offset = end
             else:
@@ -140,7 +144,9 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
 
 
 def stamp_ns(decoded) -> int:
-    """Header stamp in ns of a decoded message (record fields are int32/uint32: no overflow here)."""
+    """Header stamp in ns of a decoded message (record
+    fields are int32/uint32: no overflow here).
+    """
     return int(decoded["sec"]) * 1_000_000_000 + int(decoded["nanosec"])
 
 
@@ -178,7 +184,8 @@ class FixedCodec:
                 offset += _pad(offset - 4, dtype.itemsize)
                 names.append(name), formats.append(dtype), offsets.append(offset)
                 offset += dtype.itemsize
-        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset})
+        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
+                               "itemsize": offset})
         # A record over zeroed bytes holding the constant parts (encapsulation, frame, counts):
         # encode() fills the rest in place. (A structured array's copy() would leave the padding
         # uninitialised, hence a view on a bytearray.)
@@ -213,7 +220,9 @@ class FixedCodec:
 
 
 class GeneralCodec:
-    """`FixedCodec`'s encode/decode for a layout with strings or variable sizes (the general path)."""
+    """`FixedCodec`'s encode/decode for a layout with
+    strings or variable sizes (the general path).
+    """
 
     def __init__(self, layout: Layout, frame_id: str = "") -> None:
         self.layout, self.frame_id = layout, frame_id
@@ -252,10 +261,12 @@ def layout_of(type_name: str) -> Layout:
 
     types = project_types()
     if type_name not in types:
-        raise MsgDefinitionError(f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})")
+        raise MsgDefinitionError(
+            f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})")
     _, fields = types[type_name]
     if not fields or fields[0][1] != (Nodetype.NAME, "std_msgs/msg/Header"):
-        raise MsgDefinitionError(f"{type_name}: the CDR codec needs a std_msgs/Header as the first field")
+        raise MsgDefinitionError(
+            f"{type_name}: the CDR codec needs a std_msgs/Header as the first field")
     kinds: list[tuple[str, str]] = []
     for name, (node, detail) in fields[1:]:
         if node == Nodetype.BASE:
@@ -263,7 +274,8 @@ def layout_of(type_name: str) -> Layout:
         elif node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[1] == 0:
             kinds.append((name, f"{detail[0][1][0]}[]"))
         else:
-            raise MsgDefinitionError(f"{type_name}.{name}: unsupported field type for the CDR codec")
+            raise MsgDefinitionError(
+                f"{type_name}.{name}: unsupported field type for the CDR codec")
     return Layout(type_name, tuple(kinds))
 
 
@@ -286,13 +298,16 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def decode_batch(layout: Layout, datas, codecs: dict | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[int]]:
-    """Many messages of one block layout decoded at once: one structured-array view per message size.
+def decode_batch(layout: Layout, datas,
+                 codecs: dict | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]],
+                                                      list[int]]:
+    """Many messages of one block layout decoded at
+    once: one structured-array view per message size.
 
-    Returns ([(message numbers, records of the fixed layout)] by first arrival of each size, numbers of the messages that fit no
-    fixed layout: decode those one by one with `decode`). A size's layout comes from its first
-    message (block size, frame_id), stretched to the message size (DDS pads to 4 bytes); `codecs`
-    caches it by size across calls.
+    Returns ([(message numbers, records of the fixed layout)] by first arrival of each size,
+    numbers of the messages that fit no fixed layout: decode those one by one with `decode`).
+    A size's layout comes from its first message (block size, frame_id), stretched to the
+    message size (DDS pads to 4 bytes); `codecs` caches it by size across calls.
     """
     codecs = {} if codecs is None else codecs
     sizes = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
@@ -328,4 +343,5 @@ def _sized_dtype(layout: Layout, data: bytes) -> tuple[FixedCodec, np.dtype] | N
         return None
     names = codec.dtype.names
     return codec, np.dtype({"names": names, "formats": [codec.dtype.fields[n][0] for n in names],
-                            "offsets": [codec.dtype.fields[n][1] for n in names], "itemsize": len(data)})
+                            "offsets": [codec.dtype.fields[n][1] for n in names],
+                            "itemsize": len(data)})

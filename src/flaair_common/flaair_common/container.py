@@ -8,11 +8,12 @@ controller) this way by default.
 
 Usage:
   bin/flaair run flaair_common container [--local-topics T1,T2,...] MODULE:CLASS [MODULE:CLASS ...]
-                                        [--background MODULE:CLASS ...] [--ros-args --params-file FILE ...]
+                                        [--background MODULE:CLASS ...]
+                                        [--ros-args --params-file FILE ...]
 Example:
   bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \
-      flaair_sensors.frontend_node:FrontendNode flaair_control.dsa_controller_node:DsaControllerNode \
-      --ros-args -p mode:=lockstep
+      flaair_sensors.frontend_node:FrontendNode
+      flaair_control.dsa_controller_node:DsaControllerNode \ --ros-args -p mode:=lockstep
 
 FLAAIR_PROFILE=1 times every in-process callback (thread CPU and wall) and prints one line per
 node callback at exit: `profile: plant_node.on_command: N calls, X us CPU, Y us wall per call`.
@@ -64,22 +65,34 @@ def main(argv: list[str] | None = None) -> int:
     ros_at = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     parser = argparse.ArgumentParser(prog="container", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("nodes", nargs="+", metavar="MODULE:CLASS", help="node classes to build, in order")
+    parser.add_argument("nodes", nargs="+", metavar="MODULE:CLASS",
+                        help="node classes to build, in order")
     parser.add_argument("--local-topics", default=",".join(HOT_TOPICS),
-                        help="block topics delivered in-process between the nodes (comma-separated; '' for none)")
+                        help="block topics delivered in-process between the nodes "
+                             "(comma-separated; '' for none)")
     parser.add_argument("--background", action="append", default=[], metavar="MODULE:CLASS",
-                        help="a node off the hot path (the collision monitor, the recorder): built first and "
-                             "closed last; its in-process blocks are handled by the main thread after the hot "
-                             "loop's (repeatable)")
-    parser.add_argument("--dds-batch", type=int, default=1, metavar="N",
-                        help="the local block streams reach DDS (recorder, monitor, outside listeners) joined, N "
-                             "blocks to a message (in-process subscribers still get every block at once)")
+                        help="a node off the hot path (the collision monitor, the recorder): built "
+                             "first and closed last; its in-process blocks are handled by the main "
+                             "thread after the hot loop's (repeatable)")
+    parser.add_argument("--dds-batch", type=int, default=1, metavar="N", help="the local block "
+                                                                              "streams reach DDS "
+                                                                              "(recorder, monitor, "
+                                                                              "outside listeners) "
+                                                                              "joined, N blocks to "
+                                                                              "a message "
+                                                                              "(in-process "
+                                                                              "subscribers still "
+                                                                              "get every block at "
+                                                                              "once)")
     parser.add_argument("--realtime-priority", type=int, default=0, metavar="P",
-                        help="run every thread of the container SCHED_FIFO at priority P (1-99; 0: normal "
-                             "scheduling): a thread that holds the interpreter lock is then never preempted "
+                        help="run every thread of the container SCHED_FIFO at priority P (1-99; 0: "
+                             "normal "
+                             "scheduling): a thread that holds the interpreter lock is then never "
+                             "preempted "
                              "by other processes while the loop waits for it")
     parser.add_argument("--executor", choices=("events", "single"), default="events",
-                        help="rclpy executor (single: for nodes that create subscriptions while spinning, "
+                        help="rclpy executor (single: for nodes that create subscriptions while "
+                             "spinning, "
                              "as a composed recorder does; rclpy's EventsExecutor fails on that)")
     args = parser.parse_args(argv[1:ros_at])
     try:
@@ -93,12 +106,13 @@ def main(argv: list[str] | None = None) -> int:
 
     local = {t for t in args.local_topics.split(",") if t}
     if not 0 <= args.realtime_priority <= 99:
-        print(f"container: --realtime-priority {args.realtime_priority}: must be 0..99", file=sys.stderr)
+        print(f"container: --realtime-priority {args.realtime_priority}: must be 0..99",
+              file=sys.stderr)
         return 2
     # before rclpy starts its threads: they inherit the policy
     if error := take_realtime_priority(args.realtime_priority):
-        print(f"container: WARNING: runs without real-time priority {args.realtime_priority} ({error}); "
-              "run as root or grant CAP_SYS_NICE", file=sys.stderr)
+        print(f"container: WARNING: runs without real-time priority {args.realtime_priority} "
+              f"({error}); run as root or grant CAP_SYS_NICE", file=sys.stderr)
     if args.dds_batch < 1:
         print(f"container: --dds-batch {args.dds_batch}: must be >= 1", file=sys.stderr)
         return 2

@@ -75,11 +75,12 @@ def lease_domain() -> DomainLease:
             handle.close()
             continue
         return DomainLease(domain_id, handle)
-    raise GraphError(f"every ROS domain in {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} is leased by another "
-                     f"FLAAIR graph on this machine (locks in {DOMAIN_LOCK_DIR})")
+    raise GraphError(f"every ROS domain in {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} is leased by "
+                     f"another FLAAIR graph on this machine (locks in {DOMAIN_LOCK_DIR})")
 
 
-def graph_env(domain_id: int, *, localhost: bool = True, base: dict[str, str] | None = None) -> dict[str, str]:
+def graph_env(domain_id: int, *, localhost: bool = True,
+              base: dict[str, str] | None = None) -> dict[str, str]:
     """Environment for a graph's processes: its domain, localhost discovery, unbuffered output."""
     env = dict(os.environ if base is None else base)
     env["ROS_DOMAIN_ID"] = str(domain_id)
@@ -110,7 +111,8 @@ def with_parent_death_signal(argv: Sequence[str]) -> tuple[list[str], Callable[[
     return list(argv), _die_with_parent
 
 
-_ENV = shutil.which("env")   # coreutils >= 8.31 blocks signals for the command it execs (--block-signal)
+# coreutils >= 8.31 blocks signals for the command it execs (--block-signal)
+_ENV = shutil.which("env")
 _ENV_BLOCKS: list[bool] = []
 
 
@@ -119,7 +121,8 @@ def is_node_executable(path: str | os.PathLike) -> bool:
     end through flaair_common.runtime, which unblocks SIGINT and SIGTERM once it handles them.
     """
     path = Path(path)
-    return path.parent.parent.name == "lib" and (path.name.endswith("_node") or path.name == "container")
+    return path.parent.parent.name == "lib" and (
+        path.name.endswith("_node") or path.name == "container")
 
 
 def with_deferred_signals(argv: Sequence[str]) -> list[str]:
@@ -132,18 +135,20 @@ def with_deferred_signals(argv: Sequence[str]) -> list[str]:
     Any other argv is returned unchanged.
     """
     argv = list(argv)
-    program = argv[1] if len(argv) > 1 and Path(argv[0]).name.startswith("python") else argv[0] if argv else ""
+    program = (argv[1] if len(argv) > 1 and Path(argv[0]).name.startswith("python") else argv[0]
+               if argv else "")
     if not argv or not is_node_executable(program) or not _env_blocks_signals():
         return argv
-    return [_ENV, "--default-signal=INT", "--default-signal=TERM", "--block-signal=INT", "--block-signal=TERM",
-            "--", *argv]
+    return [_ENV, "--default-signal=INT", "--default-signal=TERM", "--block-signal=INT",
+            "--block-signal=TERM", "--", *argv]
 
 
 def _env_blocks_signals() -> bool:
     """Whether this machine's `env` has --block-signal (checked once)."""
     if not _ENV_BLOCKS:
         _ENV_BLOCKS.append(_ENV is not None and subprocess.run(
-            [_ENV, "--block-signal=INT", "true"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode == 0)
+            [_ENV, "--block-signal=INT", "true"], stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL).returncode == 0)
     return _ENV_BLOCKS[0]
 
 
@@ -178,7 +183,8 @@ def node_argv(package: str, executable: str, ros_args: Sequence[str] = ()) -> li
 class Graph:
     """Child processes of one graph on one private domain (a context manager: stops them all)."""
 
-    def __init__(self, *, domain_id: int | None = None, localhost: bool = True, log_dir: Path | None = None) -> None:
+    def __init__(self, *, domain_id: int | None = None, localhost: bool = True,
+                 log_dir: Path | None = None) -> None:
         self.lease = lease_domain() if domain_id is None else None
         self.domain_id = self.lease.domain_id if self.lease is not None else int(domain_id)
         self.localhost = localhost
@@ -189,10 +195,11 @@ class Graph:
         self.children: list[tuple[str, subprocess.Popen]] = []
 
     def describe(self) -> str:
-        return f"ROS domain {self.domain_id}, {'localhost' if self.localhost else 'subnet'} discovery"
+        scope = "localhost" if self.localhost else "subnet"
+        return f"ROS domain {self.domain_id}, {scope} discovery"
 
-    def start(self, name: str, argv: Sequence[str], *, stdout=None, stderr=None, stdin=subprocess.DEVNULL,
-              text: bool = True) -> subprocess.Popen:
+    def start(self, name: str, argv: Sequence[str], *, stdout=None, stderr=None,
+              stdin=subprocess.DEVNULL, text: bool = True) -> subprocess.Popen:
         """Start a child; output goes to LOG_DIR/NAME.log unless stdout/stderr say otherwise."""
         log = None
         if self.log_dir is not None and (stdout is None or stderr is None):
@@ -200,11 +207,11 @@ class Graph:
             log = open(self.log_dir / f"{name}.log", "w")
         argv, preexec = with_parent_death_signal(with_deferred_signals(argv))
         process = subprocess.Popen(
-            argv, env=self.env, cwd=repo_root(), text=text, stdin=stdin,
-            stdout=stdout if stdout is not None else (log or subprocess.DEVNULL),
-            stderr=stderr if stderr is not None else (log if log and stdout is not None
-                                                      else subprocess.STDOUT if log else subprocess.DEVNULL),
-            start_new_session=True, preexec_fn=preexec,
+            argv, env=self.env, cwd=repo_root(), text=text, stdin=stdin, stdout=stdout
+            if stdout is not None else (log or subprocess.DEVNULL), stderr=stderr
+            if stderr is not None else (
+            log if log and stdout is not None else subprocess.STDOUT if log
+            else subprocess.DEVNULL), start_new_session=True, preexec_fn=preexec,
         )
         if log is not None:
             log.close()   # the child holds its own descriptor
@@ -223,9 +230,11 @@ class Graph:
         for name, process in self.children:
             if process.poll() is not None and process.returncode not in ok_codes:
                 tail = self.log_tail(name)
-                raise GraphError(f"{name} exited with code {process.returncode}" + (f":\n{tail}" if tail else ""))
+                raise GraphError(f"{name} exited with code {process.returncode}"
+                                 + (f":\n{tail}" if tail else ""))
 
-    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 15.0) -> int:
+    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT,
+             timeout_s: float = 15.0) -> int:
         """Signal a child's process group, wait, then kill it; returns its exit code."""
         if process.poll() is None:
             try:

@@ -44,11 +44,12 @@ def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
     """`.msg` texts of flaair_msgs by full type name ('flaair_msgs/msg/Name')."""
     directories = [directory] if directory is not None else msg_dirs()
     for candidate in directories:
-        texts = {f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8") for p in sorted(candidate.glob("*.msg"))}
+        texts = {f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8")
+                 for p in sorted(candidate.glob("*.msg"))}
         if texts:
             return texts
-    raise MsgDefinitionError(
-        f"no {MSG_PACKAGE} .msg files found (looked in: {', '.join(map(str, directories)) or 'nowhere'})")
+    raise MsgDefinitionError(f"no {MSG_PACKAGE} .msg files found (looked in: "
+                             f"{', '.join(map(str, directories)) or 'nowhere'})")
 
 
 @functools.lru_cache(maxsize=None)

@@ -1,4 +1,6 @@
-"""Convert any rosidl Python message to and from plain dicts (rosidl_runtime_py is not installable here)."""
+"""Convert any rosidl Python message to and from plain
+dicts (rosidl_runtime_py is not installable here).
+"""
 from __future__ import annotations
 
 import array
@@ -23,7 +25,8 @@ def message_class(type_name: str) -> type:
 def to_dict(message: Any) -> Any:
     """A message as nested dicts, lists and numbers (JSON-ready)."""
     if hasattr(message, "get_fields_and_field_types"):
-        return {name: to_dict(getattr(message, name)) for name in message.get_fields_and_field_types()}
+        return {name: to_dict(getattr(message, name))
+                for name in message.get_fields_and_field_types()}
     if isinstance(message, (array.array, list, tuple)):
         return [to_dict(item) for item in message]
     if hasattr(message, "tolist"):

@@ -89,7 +89,8 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
         values[spec.name] = value
     overrides = getattr(node, "_parameter_overrides", {}) or {}
     # Shared `/**` values reach every node given the whole file as --params-file; not an error.
-    unknown = sorted(set(overrides) - {s.name for s in specs} - shared_parameter_names(config_file) - {"use_sim_time"})
+    unknown = sorted(set(overrides) - {s.name for s in specs}
+                     - shared_parameter_names(config_file) - {"use_sim_time"})
     if unknown:
         known = ", ".join(s.name for s in specs)
         raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; this node takes: {known}")

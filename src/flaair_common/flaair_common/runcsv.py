@@ -34,7 +34,8 @@ class MeasuredRun:
         return self.columns[column]
 
 
-CHUNK_LINES = 1 << 13  # rows parsed at a time: their Python strings are the only memory beside the result
+# rows parsed at a time: their Python strings are the only memory beside the result
+CHUNK_LINES = 1 << 13
 _COUNT_BYTES = 1 << 20  # bytes read at a time while counting lines
 
 
@@ -47,8 +48,12 @@ def _floats(cells: list[str], path: Path, first_line: int, name: str) -> np.ndar
             try:
                 np.array([cell], dtype=np.float64)
             except (ValueError, OverflowError):
-                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: not a number: {cell!r}") from None
-        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(cells) - 1}, column {name}: not numbers") from None
+                raise RunFileError(
+                    f"{path}: line {first_line + offset}, column {name}: not a number: "
+                    f"{cell!r}") from None
+        raise RunFileError(
+            f"{path}: lines {first_line}-{first_line + len(cells) - 1}, column {name}: not "
+            "numbers") from None
 
 
 def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
@@ -64,7 +69,8 @@ def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
         seen[name] = number
     missing = [name for name in required if name not in header]
     if missing:
-        raise RunFileError(f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
+        raise RunFileError(
+            f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
     return header
 
 
@@ -136,12 +142,15 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
     except OSError as exc:
         raise RunFileError(f"{path}: cannot read: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:
-        raise RunFileError(f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
+        raise RunFileError(
+            f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
     if not columns or rows == 0:
         raise RunFileError(f"{path}: no data rows after the header")
-    if rows < capacity:  # fewer rows than room for them (a pipe, a file that shrank): keep only the rows read
+    # fewer rows than room for them (a pipe, a file that shrank): keep only the rows read
+    if rows < capacity:
         columns = {name: values[:rows].copy() for name, values in columns.items()}
-    return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns)
+    return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns),
+                       columns=columns)
 
 
 def _grown(values: np.ndarray, length: int) -> np.ndarray:
@@ -151,18 +160,24 @@ def _grown(values: np.ndarray, length: int) -> np.ndarray:
     return grown
 
 
-def _parse_rows(path: Path, lines: list[str], first_line: int, width: int, wanted: list[tuple[int, str]],
-                columns: dict[str, np.ndarray], start: int) -> None:
-    """Parse one block of lines into `columns[name][start:start + len(lines)]` (checks as `read_run`)."""
+def _parse_rows(path: Path, lines: list[str], first_line: int, width: int,
+                wanted: list[tuple[int, str]], columns: dict[str, np.ndarray], start: int) -> None:
+    """Parse one block of lines into `columns[name][start:start
+    + len(lines)]` (checks as `read_run`).
+    """
     try:
         rows = list(csv.reader(lines))
     except csv.Error as exc:
-        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(lines) - 1}: not a CSV file: {exc}") from None
+        last_line = first_line + len(lines) - 1
+        raise RunFileError(
+            f"{path}: lines {first_line}-{last_line}: not a CSV file: {exc}") from None
     if len(rows) != len(lines):  # a quoted cell spanning lines: the line numbers below would drift
-        raise RunFileError(f"{path}: lines {first_line}-{first_line + len(lines) - 1}: a quoted cell spans lines")
+        raise RunFileError(
+            f"{path}: lines {first_line}-{first_line + len(lines) - 1}: a quoted cell spans lines")
     for offset, row in enumerate(rows):
         if len(row) != width:
-            raise RunFileError(f"{path}: line {first_line + offset}: {len(row)} cells, header has {width}")
+            raise RunFileError(
+                f"{path}: line {first_line + offset}: {len(row)} cells, header has {width}")
     for index, name in wanted:
         is_truth = name in TRUTH_COLUMNS
         cells = [row[index].strip() or ("nan" if is_truth else "") for row in rows]
@@ -171,8 +186,8 @@ def _parse_rows(path: Path, lines: list[str], first_line: int, width: int, wante
             bad = ~np.isfinite(values)
             if bad.any():
                 offset = int(np.argmax(bad))
-                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: {values[offset]} "
-                                   f"(sensor columns must be finite)")
+                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: "
+                                   f"{values[offset]} (sensor columns must be finite)")
         columns[name][start:start + len(values)] = values
 
 
@@ -189,10 +204,12 @@ def _sample_rate_hz(path: Path, columns: dict[str, np.ndarray]) -> float:
     steps = np.diff(time_s)
     if steps.min() <= 0:
         line_no = int(np.argmax(steps <= 0)) + 3
-        raise RunFileError(f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
+        raise RunFileError(
+            f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
     shortest, longest = steps.min(), steps.max()
     period_s = float(np.median(steps, overwrite_input=True))
-    if max(longest - period_s, period_s - shortest) > 1e-3 * period_s + 1e-9:   # max |step - period|
+    # max |step - period|
+    if max(longest - period_s, period_s - shortest) > 1e-3 * period_s + 1e-9:
         steps = np.diff(time_s)   # unpartitioned again, to name the line
         line_no = int(np.argmax(np.abs(steps - period_s))) + 3
         raise RunFileError(f"{path}: line {line_no}, column time_s: sampling is not uniform")

@@ -1,4 +1,6 @@
-"""Run a FLAAIR node: parameter errors become one clear line, Ctrl-C and SIGTERM shut down cleanly."""
+"""Run a FLAAIR node: parameter errors become one
+clear line, Ctrl-C and SIGTERM shut down cleanly.
+"""
 from __future__ import annotations
 
 import math
@@ -26,7 +28,9 @@ def _remember_early_signal(signum: int, _frame: object) -> None:
 
 
 def _is_node_process() -> bool:
-    """True in a node's own process: started as <prefix>/lib/<package>/<executable> (ros2 run, bin/flaair run)."""
+    """True in a node's own process: started as
+    <prefix>/lib/<package>/<executable> (ros2 run, bin/flaair run).
+    """
     path = os.path.abspath(sys.argv[0]) if sys.argv and sys.argv[0] else ""
     return os.path.basename(os.path.dirname(os.path.dirname(path))) == "lib"
 
@@ -52,8 +56,10 @@ from flaair_model.config import node_parameters  # noqa: E402
 from flaair_model.notes import ERROR as ERROR_LEVEL  # noqa: E402
 from flaair_model.notes import Note
 
-ACK_WAIT_S = 2.0            # at exit, a node's reliable readers get this long to acknowledge its last messages
-DEFERRED_BACKSTOP_S = 0.05   # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
+# at exit, a node's reliable readers get this long to acknowledge its last messages
+ACK_WAIT_S = 2.0
+# DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
+DEFERRED_BACKSTOP_S = 0.05
 
 
 def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str) -> str:
@@ -62,14 +68,17 @@ def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str
         defaults = node_parameters(config_file, node_name)
     except ValueError:
         defaults = {}
-    lines = [doc.strip(), "", f"Parameters (defaults from config/{config_file}; set with --ros-args -p NAME:=VALUE):"]
+    lines = [doc.strip(), "",
+             f"Parameters (defaults from config/{config_file}; set with --ros-args -p "
+             "NAME:=VALUE):"]
     for spec in specs:
         allowed = ""
         if spec.choices:
             allowed = " {" + "|".join(spec.choices) + "}"
         elif spec.min_value is not None or spec.max_value is not None:
             allowed = f" [{spec.min_value}, {spec.max_value}]"
-        lines.append(f"  {spec.name} ({spec.type.__name__}, default {defaults.get(spec.name)!r}){allowed}")
+        lines.append(f"  {spec.name} ({spec.type.__name__}, default "
+                     f"{defaults.get(spec.name)!r}){allowed}")
         lines.append(f"      {spec.description}")
     return "\n".join(lines)
 
@@ -113,13 +122,14 @@ def run_node(
     """
     args = sys.argv if args is None else args
     if any(a in ("-h", "--help") for a in args[1:]) and "--ros-args" not in args:
-        print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file, node_name))
+        print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file,
+                        node_name))
         return 0
     return run_nodes([make_node], args, executor_kind)
 
 
-def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, executor_kind: str = "events",
-              bus: "intra.Bus | None" = None) -> int:
+def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
+              executor_kind: str = "events", bus: "intra.Bus | None" = None) -> int:
     """Build several nodes in one process and spin them in one executor (a container).
 
     With a `bus`, block streams between them travel in-process (`flaair_common.intra`): the
@@ -146,7 +156,8 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
     try:
         for make_node in makers:
             nodes.append(make_node())
-    except ValueError as exc:  # a refused parameter, a bad value met while building (ModelError, ...)
+    # a refused parameter, a bad value met while building (ModelError, ...)
+    except ValueError as exc:
         text = str(exc) if isinstance(exc, ParameterError) else f"{type(exc).__name__}: {exc}"
         print(f"{program}: {text}", file=sys.stderr)
         for node in reversed(nodes):
@@ -170,9 +181,11 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None, e
                 executor.spin_once(timeout_sec=0)
             else:
                 seen = bus.delivered if bus is not None else -1
-                if bus is not None:   # a reader thread sends the DDS copies in its gaps (intra.use_gap)
+                # a reader thread sends the DDS copies in its gaps (intra.use_gap)
+                if bus is not None:
                     bus.run_deferred(older_than_s=DEFERRED_BACKSTOP_S if bus.threaded else 0.0)
-                executor.spin_once(timeout_sec=0.002 if bus is not None and bus.pending() else idle_s)
+                executor.spin_once(timeout_sec=0.002 if bus is not None and bus.pending()
+                                   else idle_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -217,7 +230,8 @@ SEVERITY = {"info": INFO, "warning": WARN, "error": ERROR}   # the pure cores' n
 
 
 def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
-    """What `logger.info/warning/error(text)` writes (console and /rosout), at a hundredth of the cost.
+    """What `logger.info/warning/error(text)` writes
+    (console and /rosout), at a hundredth of the cost.
 
     rclpy finds each call's source line with `inspect.getframeinfo`, which searches every loaded
     module: 1.1 ms a warning here, on the thread that logs. A live loop's UDP reader that logged its
@@ -251,7 +265,8 @@ def warn_counted(logger, count: int, text: str, every_up_to: int = 10, key: obje
     log(logger, WARN, text, depth=depth + 1)
 
 
-def log_notes(logger, notes: Iterable[Note], count_of: Callable[[str], int] = lambda _counter: 0) -> None:
+def log_notes(logger, notes: Iterable[Note],
+              count_of: Callable[[str], int] = lambda _counter: 0) -> None:
     """Log a core's notes, the same way in every node.
 
     Errors and uncounted notes are logged at their level; a counted warning (`Note.counter`) is

@@ -1,7 +1,8 @@
 """Topic names of the FLAAIR graph (remap with --ros-args -r old:=new)."""
 
 DRIVE = "/flaair/drive"                      # DriveCommandBlock: drive voltage to the actuator
-DRIVE_APPLIED = "/flaair/drive/applied"      # DriveCommandBlock: the drive a real-time target applied
+# DriveCommandBlock: the drive a real-time target applied
+DRIVE_APPLIED = "/flaair/drive/applied"
 SENSOR_VOLTAGE = "/flaair/sensor_v"          # SensorVoltageBlock: raw charge-amplifier outputs
 WING_STATE = "/flaair/wing_state"            # WingStateBlock: estimated from the sensors
 WING_STATE_TRUTH = "/flaair/wing_state/truth"  # WingStateBlock: simulator ground truth
@@ -20,4 +21,5 @@ BLOCK_STREAM_TYPES = {
     WING_STATE_TRUTH: "flaair_msgs/msg/WingStateBlock",
 }
 
-FRAME_ID = "robot"  # header frame_id of the robot's block streams (the fixed-size CDR fast path expects it)
+# header frame_id of the robot's block streams (the fixed-size CDR fast path expects it)
+FRAME_ID = "robot"

@@ -3,8 +3,9 @@
 ``core/`` holds the pure decisions (no rclpy); beside it the ROS shells and their adapters:
 
 - ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``: the nodes (rclpy)
-- ``control_io``, ``stroke_io``, ``transition_io``: their parameters and message <-> core mappings (no rclpy)
+- ``control_io``, ``stroke_io``, ``transition_io``: their
+  parameters and message <-> core mappings (no rclpy)
 """
 
-__all__ = ["core", "dsa_controller_node", "collision_monitor_node", "stroke_controller_node", "control_io", "stroke_io",
-           "transition_io"]
+__all__ = ["core", "dsa_controller_node", "collision_monitor_node", "stroke_controller_node",
+           "control_io", "stroke_io", "transition_io"]

@@ -13,7 +13,8 @@ of the measured stroke: asynchronous flapping). Decision (decision): distortion 
 per-wingbeat score; about one wingbeat to detect) or paper (the paper's 10-wingbeat pitch FFT
 against a pure sine, 1 deg threshold).
 
-Usage: bin/flaair run flaair_control collision_monitor_node [--ros-args -p drive_frequency_hz:=100.0]
+Usage: bin/flaair run flaair_control collision_monitor_node
+[--ros-args -p drive_frequency_hz:=100.0]
 """
 from __future__ import annotations
 
@@ -53,30 +54,39 @@ class CollisionMonitorNode(Node):
         self.wing_expected: int | None = None
         self.time_offset_s: float | None = None   # header time - index / fs
         self.rejected = self.undecodable = 0
-        self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS, BLOCK_STREAM)   # one per wingbeat: a stream
+        self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS,
+                                                BLOCK_STREAM)   # one per wingbeat: a stream
         self.event_pub = self.create_publisher(CollisionEvent, topics.COLLISION_EVENTS, EVENTS)
-        # Block streams as CDR bytes, or in-process when composed beside the loop (flaair_common.intra)
+        # Block streams as CDR bytes, or in-process when
+        # composed beside the loop (flaair_common.intra)
         block = p["block_size"]
-        intra.subscribe_stream(self, topics.WING_STATE, block, self.on_wing_state, BLOCK_STREAM, self.on_undecodable)
+        intra.subscribe_stream(self, topics.WING_STATE, block, self.on_wing_state, BLOCK_STREAM,
+                               self.on_undecodable)
         if self.params.estimates_frequency:
-            intra.subscribe_stream(self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM, self.on_undecodable)
-        where = ("stroke windows" if p["window_source"] == "stroke" else
-                 "drive windows, frequency estimated from /flaair/drive" if self.params.estimates_frequency
+            intra.subscribe_stream(self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM,
+                                   self.on_undecodable)
+        where = ("stroke windows" if p["window_source"] == "stroke"
+                 else "drive windows, frequency estimated from /flaair/drive"
+                 if self.params.estimates_frequency
                  else f"drive windows at {p['drive_frequency_hz']:g} Hz")
-        how = (f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} Hz, threshold "
-               f"{p['threshold_deg']:g} deg" if p["decision"] == "paper" else
-               f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch {p['pitch_threshold']:g}")
-        self.get_logger().info(f"collision monitor ready: {where}; decision {p['decision']} ({how}); "
-                               f"onset after {p['n_on']}, clearance after {p['n_off']} wingbeats")
+        how = (f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
+               f"Hz, threshold {p['threshold_deg']:g} deg" if p["decision"] == "paper"
+               else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
+                    f"{p['pitch_threshold']:g}")
+        self.get_logger().info(f"collision monitor ready: {where}; decision {p['decision']} "
+                               f"({how}); onset after {p['n_on']}, clearance after {p['n_off']} "
+                               "wingbeats")
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable, f"block dropped: {exc} [{self.undecodable} undecodable so far]")
+        warn_counted(self.get_logger(), self.undecodable,
+                     f"block dropped: {exc} [{self.undecodable} undecodable so far]")
 
     def on_drive(self, m) -> None:
         drive_v = np.asarray(m["drive_v"], dtype=np.float64)
         first = int(m["first_sample_index"])
-        check = check_block({"drive_v": drive_v}, float(m["sample_rate_hz"]), self.fs_hz, first, self.drive_expected)
+        check = check_block({"drive_v": drive_v}, float(m["sample_rate_hz"]), self.fs_hz, first,
+                            self.drive_expected)
         if not check.ok and check.kind != "gap":
             return
         self.drive_expected = first + len(drive_v)
@@ -89,7 +99,8 @@ class CollisionMonitorNode(Node):
         if not check.ok and check.kind != "gap":
             self.rejected += 1
             warn_counted(self.get_logger(), self.rejected, f"wing-state block {first}: "
-                                                           f"{check.reason} [{self.rejected} rejected so far]")
+                                                           f"{check.reason} [{self.rejected} "
+                                                           "rejected so far]")
             return
         self.wing_expected = first + n
         if self.time_offset_s is None:
@@ -110,10 +121,11 @@ class CollisionMonitorNode(Node):
                                    spectrum_rmse_deg=v.spectrum_rmse_deg)
             event.header.stamp = stamp
             self.event_pub.publish(event)
-            text = (f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, {v.frequency_hz:.1f} Hz): "
-                    f"pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg (threshold {self.p['threshold_deg']:g} deg), "
-                    f"distortion score {v.score:.2f}")
-            log(self.get_logger(), WARN if v.colliding else INFO, f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}")
+            text = (f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, "
+                    f"{v.frequency_hz:.1f} Hz): pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg "
+                    f"(threshold {self.p['threshold_deg']:g} deg), distortion score {v.score:.2f}")
+            log(self.get_logger(), WARN if v.colliding else INFO,
+                f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}")
         out = CollisionStatus(wingbeat_index=v.wingbeat_index, wingbeat_frequency_hz=v.frequency_hz,
                               colliding=v.colliding, spectrum_rmse_deg=v.spectrum_rmse_deg,
                               time_rmse_deg=v.time_rmse_deg, threshold_deg=self.p["threshold_deg"])

@@ -1,4 +1,5 @@
-"""dsa_controller_node: the delayed-stretch-activation (dSA) controller that closes the wingbeat loop.
+"""dsa_controller_node: the delayed-stretch-activation
+(dSA) controller that closes the wingbeat loop.
 
 One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
 (/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
@@ -10,8 +11,9 @@ to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
 K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
 
-Loop delay: the dsa core's phase advance compensates it. Safety: clamp, slew, watchdogs, a zero block at exit.
-Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
+Loop delay: the dsa core's phase advance compensates it. Safety: clamp,
+slew, watchdogs, a zero block at exit. Usage: bin/flaair run flaair_control
+dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 from __future__ import annotations
 
@@ -52,14 +54,17 @@ class DsaControllerNode(Node):
         self.state = sv.initial_state(self.params)
         sv.warm_up(self.params)   # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
-        self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None  # index, in, out
-        self.lock = threading.RLock()   # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
+        # index, in, out
+        self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None
+        # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
+        self.lock = threading.RLock()
         self.drive = intra.block_publisher(self, topics.DRIVE, self.block_size, BLOCK_STREAM)
         self.state_pub = intra.BlockPublisher(self, ControllerState, topics.CONTROLLER_STATE,
                                               cdr.GeneralCodec(cdr.CONTROLLER_STATE), BLOCK_STREAM)
-        intra.subscribe_stream(self, topics.WING_STATE, self.block_size, self.on_wing_state, BLOCK_STREAM,
-                               self.on_undecodable)
-        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS)  # volatile
+        intra.subscribe_stream(self, topics.WING_STATE, self.block_size, self.on_wing_state,
+                               BLOCK_STREAM, self.on_undecodable)
+        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event,
+                                 STATUS)  # volatile
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(self.params.timer_period_s, self.on_timer)
         self.get_logger().info("dSA controller ready: " + describe_loop(self.params, p))
@@ -78,30 +83,34 @@ class DsaControllerNode(Node):
         self.drive.publish(stamp_ns, io.drive_fields(b, self.params.sample_rate_hz))
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
-        if b.with_state and self.state_pub.subscription_count():   # volatile: no listener, nothing lost
+        # volatile: no listener, nothing lost
+        if b.with_state and self.state_pub.subscription_count():
             self.state_pub.publish(stamp_ns, io.controller_state_fields(b, WATCHDOG[b.tripped]))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable, f"wing-state block dropped: {exc} [{self.undecodable} so far]")
+        warn_counted(self.get_logger(), self.undecodable,
+                     f"wing-state block dropped: {exc} [{self.undecodable} so far]")
 
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
         if self.state.mode == sv.DONE:
             return
-        peers = self.peers() if self.state.mode == sv.WAITING else 0   # only the start reads them (rclpy: ~20 us)
+        # only the start reads them (rclpy: ~20 us)
+        peers = self.peers() if self.state.mode == sv.WAITING else 0
         self.advance(supervisor_wing_input(m, t_receive, peers), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
-        self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET, message.wingbeat_index,
-                                  message.spectrum_rmse_deg))
+        self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET,
+                                  message.wingbeat_index, message.spectrum_rmse_deg))
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
         """kr_target / kr_ramp_duration_s: new ramp from the current K_r; reset_watchdog: re-arm."""
         changes = {param.name: param.value for param in parameters}
         if "kr_target" in changes or "kr_ramp_duration_s" in changes:
-            out = self.advance(sv.SetRamp(changes.get("kr_target", self.get_parameter("kr_target").value),
-                                          changes.get("kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value)))
+            out = self.advance(sv.SetRamp(
+                changes.get("kr_target", self.get_parameter("kr_target").value),
+                changes.get("kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value)))
             if out.refused:
                 return SetParametersResult(successful=False, reason=out.refused)
         if changes.get("reset_watchdog"):
@@ -110,10 +119,13 @@ class DsaControllerNode(Node):
 
     def on_timer(self) -> None:
         count = self.count_publishers
-        self.advance(sv.Tick(time.monotonic(), self.peers(), count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE)))
+        self.advance(sv.Tick(time.monotonic(), self.peers(), count(topics.SENSOR_VOLTAGE),
+                             count(topics.WING_STATE)))
 
     def peers(self) -> int:
-        """/flaair/drive's subscribers; 0 until min_stream_listeners and min_state_subscribers listen."""
+        """/flaair/drive's subscribers; 0 until
+        min_stream_listeners and min_state_subscribers listen.
+        """
         ready = (intra.dds_listeners() >= self.p["min_stream_listeners"]
                  and self.state_pub.subscription_count() >= self.p["min_state_subscribers"])
         return self.drive.subscription_count() if ready else 0

@@ -14,7 +14,8 @@ invalid_timeout_s of signal time: the drive ramps to zero over ramp_down_s, then
 Start: once the plant and front end are up (start_delay_s), blocks_in_flight blocks are sent.
 close() (Ctrl-C, SIGTERM) publishes a zero block.
 
-Usage: bin/flaair run flaair_control stroke_controller_node --ros-args -p mode:=sync -p setpoint_deg:=12.0
+Usage:
+  bin/flaair run flaair_control stroke_controller_node --ros-args -p mode:=sync -p setpoint_deg:=12
 """
 from __future__ import annotations
 
@@ -37,18 +38,23 @@ NODE_NAME = "stroke_controller_node"
 CONFIG_FILE = "flaair.yaml"
 PARAMS = stroke.NODE_PARAMS
 
+
 class StrokeControllerNode(Node):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         self.p = p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        self.fs, self.n, self.in_flight = p["sample_rate_hz"], p["block_size"], p["blocks_in_flight"]
+        self.fs, self.n, self.in_flight = (
+            p["sample_rate_hz"], p["block_size"], p["blocks_in_flight"])
         self.setup = io.setup_from_values(p)
         self.params, self.guard = self.setup.params, self.setup.guard
-        self.state, self.safety = stroke.initial_state(self.params), safety.initial_state(self.guard)
-        self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = 0, "waiting", time.monotonic(), None, False
+        self.state, self.safety = (stroke.initial_state(self.params),
+                                   safety.initial_state(self.guard))
+        self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = (
+            0, "waiting", time.monotonic(), None, False)
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)
-        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+        self.create_subscription(WingStateBlock, topics.WING_STATE, self.on_wing_state,
+                                 BLOCK_STREAM)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(0.02, self.on_timer)
         self.get_logger().info(io.ready_text(self.params))
@@ -60,7 +66,8 @@ class StrokeControllerNode(Node):
                     self.params = io.retargeted(self.setup, self.params, self.p, float(param.value))
                 except ValueError as exc:
                     return SetParametersResult(successful=False, reason=str(exc))
-                self.get_logger().info(f"setpoint {param.value:g} deg: feed-forward {self.params.command_nominal:.4g}")
+                self.get_logger().info(
+                    f"setpoint {param.value:g} deg: feed-forward {self.params.command_nominal:.4g}")
         return SetParametersResult(successful=True)
 
     def on_wing_state(self, msg: WingStateBlock) -> None:
@@ -72,29 +79,33 @@ class StrokeControllerNode(Node):
         self.send(*io.wing_input({"stroke_deg": msg.stroke_deg, "stroke_valid": msg.stroke_valid,
                                   "stroke_velocity_deg_s": msg.stroke_velocity_deg_s}, self.n))
 
-    def send(self, stroke_rad: np.ndarray, velocity: np.ndarray, valid: np.ndarray, ok: bool | None) -> None:
+    def send(self, stroke_rad: np.ndarray, velocity: np.ndarray, valid: np.ndarray,
+             ok: bool | None) -> None:
         """Cores on one block; publish the guarded drive block and the controller state."""
         t = self.next_index / self.fs
         if stroke_rad.size != self.n:
             stroke_rad, velocity, valid, _ = io.empty_input(self.n)
-        self.state, out = stroke.step(self.state, stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index), self.params)
-        self.safety, guarded = safety.step(self.safety, safety.SafetyInputs(out.drive_v, t, ok), self.guard)
-        self.publish(guarded.drive_v, guarded.tripped, bool(np.abs(out.drive_v).max() > self.guard.drive_limit_v))
+        self.state, out = stroke.step(
+            self.state, stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index),
+            self.params)
+        self.safety, guarded = safety.step(
+            self.safety, safety.SafetyInputs(out.drive_v, t, ok), self.guard)
+        self.publish(guarded.drive_v, guarded.tripped, bool(
+            np.abs(out.drive_v).max() > self.guard.drive_limit_v))
         if self.p["run_time_s"] > 0 and self.next_index / self.fs >= self.p["run_time_s"]:
             self.mode = "done"
             self.publish(np.zeros(self.n), guarded.tripped, False)
-            self.get_logger().info(f"run complete after {stroke.wingbeats(self.state)} wingbeats, "
-                                   f"last amplitude {stroke.last_amplitude_deg(self.state):.2f} deg")
+            self.get_logger().info(io.complete_text(self.state))
 
     def publish(self, drive_v: np.ndarray, tripped: bool, clamped: bool) -> None:
         stamp = stamp_from_time_s(self.next_index / self.fs)
-        block = DriveCommandBlock(sample_rate_hz=self.fs, first_sample_index=self.next_index, drive_v=drive_v.tolist())
+        block = DriveCommandBlock(sample_rate_hz=self.fs, first_sample_index=self.next_index,
+                                  drive_v=drive_v.tolist())
         block.header.stamp = stamp
         self.drive_pub.publish(block)
-        state = ControllerState(k_r=1.0 if self.params.mode == "sync" else 0.0, drive_v=float(drive_v[-1]),
-                                drive_clamped=clamped, amplitude_scale=stroke.command(self.state, self.params) / self.params.command_nominal,
-                                watchdog=ControllerState.WATCHDOG_TRIPPED if tripped else ControllerState.WATCHDOG_OK,
-                                fault="watchdog" if tripped else "")
+        watchdog = ControllerState.WATCHDOG_TRIPPED if tripped else ControllerState.WATCHDOG_OK
+        state = ControllerState(**io.state_fields(self.params, self.state, drive_v, clamped),
+                                watchdog=watchdog, fault="watchdog" if tripped else "")
         state.header.stamp = stamp
         self.state_pub.publish(state)
         self.next_index += self.n
@@ -102,20 +113,25 @@ class StrokeControllerNode(Node):
     def on_timer(self) -> None:
         now = time.monotonic()
         if self.mode == "waiting":
-            ready = self.drive_pub.get_subscription_count() > 0 and self.count_publishers(topics.WING_STATE) > 0
+            ready = (self.drive_pub.get_subscription_count() > 0
+                     and self.count_publishers(topics.WING_STATE) > 0)
             self.peers_wall = (self.peers_wall or now) if ready else None
             if ready and now - self.peers_wall >= self.p["start_delay_s"]:
                 self.mode, self.last_wall = "loop", now
                 for _ in range(self.in_flight):
                     self.send(*io.empty_input(self.n))
-        elif self.mode == "loop" and not self.answered and now - self.last_wall > self.p["start_retry_s"]:
+        elif (self.mode == "loop" and not self.answered
+              and now - self.last_wall > self.p["start_retry_s"]):
             self.last_wall = now  # no answer to the start yet (a lost first block): one more
             self.send(*io.empty_input(self.n))
         elif self.mode == "loop" and now - self.last_wall > self.p["watchdog_timeout_s"]:
             self.mode = "tripped"
-            self.get_logger().error(f"WATCHDOG TRIPPED: no wing-state block for {now - self.last_wall:.2f} s; ramping to zero")
-            self.safety = safety.note_sensor_block(self.safety, self.next_index / self.fs, False, self.guard)
-            while self.next_index / self.fs < self.safety.trip_time_s + self.p["ramp_down_s"] + self.n / self.fs:
+            self.get_logger().error("WATCHDOG TRIPPED: no wing-state block for "
+                                    f"{now - self.last_wall:.2f} s; ramping to zero")
+            self.safety = safety.note_sensor_block(
+                self.safety, self.next_index / self.fs, False, self.guard)
+            while (self.next_index / self.fs < self.safety.trip_time_s + self.p["ramp_down_s"]
+                   + self.n / self.fs):
                 self.send(*io.empty_input(self.n))
 
     def close(self) -> None:

@@ -1,4 +1,5 @@
-"""The stroke controller node's mapping: its parameters to the cores' and its messages to their inputs.
+"""The stroke controller node's mapping: its parameters
+to the cores' and its messages to their inputs.
 
 No rclpy: `stroke_controller_node` calls these, and an offline tool may too.
 """
@@ -14,7 +15,8 @@ from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError
 from flaair_sensors.frontend_io import velocity_delay_s
 
-__all__ = ["StrokeSetup", "setup_from_values", "ready_text", "retargeted", "wing_input", "empty_input"]
+__all__ = ["StrokeSetup", "setup_from_values", "ready_text", "retargeted", "wing_input",
+           "empty_input", "state_fields", "complete_text"]
 
 
 class StrokeSetup(NamedTuple):
@@ -26,14 +28,16 @@ class StrokeSetup(NamedTuple):
 
 
 def setup_from_values(p: Mapping[str, Any]) -> StrokeSetup:
-    """The cores' parameters from the node's values (loop delay: blocks in flight + front-end lag)."""
+    """The cores' parameters from the node's values
+    (loop delay: blocks in flight + front-end lag).
+    """
     fs, n = p["sample_rate_hz"], p["block_size"]
     plant = stroke.StrokePlant.from_model(load_model(p["model_file"] or None))
     velocity = (p["velocity_delay_s"] if p["velocity_delay_s"] >= 0
                 else velocity_delay_s(p["compensation_frequency_hz"]))
     try:
-        params = stroke.params_from_values(dict(p), plant, fs,
-                                           loop_delay_s(n * p["blocks_in_flight"], fs, velocity * fs))
+        params = stroke.params_from_values(
+            dict(p), plant, fs, loop_delay_s(n * p["blocks_in_flight"], fs, velocity * fs))
     except ValueError as exc:  # the design cannot reach the setpoint, or the limits contradict it
         raise ParameterError(f"parameter 'setpoint_deg' / command limits: {exc}") from exc
     guard = safety.SafetyParams(p["drive_limit_v"], p["slew_limit_v_per_s"], p["invalid_timeout_s"],
@@ -44,7 +48,8 @@ def setup_from_values(p: Mapping[str, Any]) -> StrokeSetup:
 def ready_text(params: stroke.StrokeParams) -> str:
     """The node's start-up log line: mode, setpoint, feed-forward, slope and gain."""
     return (f"stroke control ({params.mode}): {params.setpoint_deg:g} deg, feed-forward "
-            f"{params.command_nominal:.4g}, slope {params.elasticity:.3f}, gain {params.gain:.3f}/wingbeat")
+            f"{params.command_nominal:.4g}, slope {params.elasticity:.3f}, gain "
+            f"{params.gain:.3f}/wingbeat")
 
 
 def retargeted(setup: StrokeSetup, params: stroke.StrokeParams, p: Mapping[str, Any],
@@ -52,21 +57,40 @@ def retargeted(setup: StrokeSetup, params: stroke.StrokeParams, p: Mapping[str, 
     """`params` held at a new setpoint (feed-forward redesigned, learnt correction kept); ValueError
     if the design cannot reach it.
     """
-    u_ff, slope = stroke.design(setup.plant, params.mode, setpoint_deg, sync_frequency_hz=p["sync_frequency_hz"],
-                                r3_rad_s=p["r3_rad_s"], kappa=p["kappa"])
+    u_ff, slope = stroke.design(setup.plant, params.mode, setpoint_deg,
+                                sync_frequency_hz=p["sync_frequency_hz"], r3_rad_s=p["r3_rad_s"],
+                                kappa=p["kappa"])
     return stroke.retarget(params, setpoint_deg, u_ff, slope)
 
 
-def wing_input(fields: Mapping[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
-    """(stroke rad, stroke velocity rad/s, valid, whole block valid) of a WingStateBlock's fields."""
+def wing_input(fields: Mapping[str, Any],
+               n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """(stroke rad, stroke velocity rad/s, valid, whole
+    block valid) of a WingStateBlock's fields.
+    """
     stroke_rad = np.radians(np.asarray(fields["stroke_deg"], dtype=float))
     valid = np.asarray(fields["stroke_valid"], dtype=bool)
     if valid.size != stroke_rad.size:
         valid = np.zeros(stroke_rad.size, bool)
     ok = bool(valid.all() and np.isfinite(stroke_rad).all() and stroke_rad.size == n)
-    return stroke_rad, np.radians(np.asarray(fields["stroke_velocity_deg_s"], dtype=float)), valid, ok
+    return stroke_rad, np.radians(
+        np.asarray(fields["stroke_velocity_deg_s"], dtype=float)), valid, ok
 
 
 def empty_input(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, None]:
     """No estimate (start, retry, ramp-down blocks): NaN samples, none valid, validity unknown."""
     return np.full(n, np.nan), np.full(n, np.nan), np.zeros(n, bool), None
+
+
+def state_fields(params: stroke.StrokeParams, state: stroke.StrokeState, drive_v: np.ndarray,
+                 clamped: bool) -> dict[str, Any]:
+    """A ControllerState's fields for a block (amplitude_scale = command / feed-forward)."""
+    return {"k_r": 1.0 if params.mode == "sync" else 0.0, "drive_v": float(drive_v[-1]),
+            "drive_clamped": clamped,
+            "amplitude_scale": stroke.command(state, params) / params.command_nominal}
+
+
+def complete_text(state: stroke.StrokeState) -> str:
+    """The log line at the end of a run of run_time_s."""
+    return (f"run complete after {stroke.wingbeats(state)} wingbeats, "
+            f"last amplitude {stroke.last_amplitude_deg(state):.2f} deg")

@@ -46,7 +46,8 @@ def lfilter_sample(b: np.ndarray, a: np.ndarray, z: np.ndarray, x: float) -> flo
 
 
 @njit(cache=True)
-def lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray,
+            zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``scipy.signal.lfilter(b, a, x, zi=zi)`` for normalized (b, a) of one length: (y, zf)."""
     z = zi.copy()
     y = np.empty(x.size)

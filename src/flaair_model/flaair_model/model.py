@@ -131,9 +131,11 @@ class SensorParams:
         )
         for section, obj, kind, rules in sections:
             if not isinstance(obj, kind):
-                raise ModelError(f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
+                raise ModelError(
+                    f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
             # PvdfMaterial/SensorBeam are frozen dataclasses owned by pvdf.py: check, don't coerce
-            values = {name: check_number(f"sensors.{section}.{name}", getattr(obj, name)) for name in rules}
+            values = {name: check_number(f"sensors.{section}.{name}", getattr(obj, name))
+                      for name in rules}
             for name, value in values.items():
                 if not value > 0:
                     raise ModelError(f"sensors.{section}.{name} must be > 0, got {value:g}")
@@ -162,7 +164,8 @@ class NoiseParams:
     tracking_noise_deg_rms: float
 
     def __post_init__(self) -> None:
-        check_fields(self, "noise", {"sensor_noise_v_rms": "nonneg", "tracking_noise_deg_rms": "nonneg"})
+        check_fields(self, "noise", {"sensor_noise_v_rms": "nonneg",
+                                     "tracking_noise_deg_rms": "nonneg"})
 
 
 @dataclass(frozen=True)
@@ -184,14 +187,16 @@ class PerChannel:
         kind = type(self.stroke)
         name = next((n for n, k in EFFECT_TYPES.items() if k is kind), "")
         if name not in PER_CHANNEL_EFFECTS:
-            raise ModelError(f"effects: per-channel values exist only for {', '.join(PER_CHANNEL_EFFECTS)}, "
-                             f"got {kind.__name__}")
+            raise ModelError("effects: per-channel values exist only for "
+                             f"{', '.join(PER_CHANNEL_EFFECTS)}, got {kind.__name__}")
         for side in SIDES:
             e: Any = getattr(self, side)
             if type(e) is not kind:
-                raise ModelError(f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}")
+                raise ModelError(
+                    f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}")
             if e.channel != side:
-                raise ModelError(f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}")
+                raise ModelError(
+                    f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}")
 
     def on(self, side: str) -> SensorEffect:
         """The effect on sensor chain `side`."""
@@ -206,9 +211,11 @@ def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | P
             built[side] = effect_from_params(name, sub)
             continue
         if not isinstance(sub, Mapping):
-            raise ModelError(f"effects.{name}.{side} must be a mapping of parameters, got {type(sub).__name__}")
+            raise ModelError(
+                f"effects.{name}.{side} must be a mapping of parameters, got {type(sub).__name__}")
         if sub.get("channel", side) != side:
-            raise ModelError(f"effects.{name}.{side}.channel must be {side!r}, got {sub['channel']!r}")
+            raise ModelError(
+                f"effects.{name}.{side}.channel must be {side!r}, got {sub['channel']!r}")
         built[side] = effect_from_params(name, {**sub, "channel": side})
     if set(built) == set(SIDES):
         return PerChannel(built["stroke"], built["pitch"])
@@ -231,22 +238,26 @@ def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
     kind = EFFECT_TYPES[name]
     if isinstance(params, PerChannel):
         if not isinstance(params.stroke, kind):
-            raise ModelError(f"effects.{name} must hold {kind.__name__} entries, got {type(params.stroke).__name__}")
+            raise ModelError(f"effects.{name} must hold {kind.__name__} entries, got "
+                             f"{type(params.stroke).__name__}")
         return params
     if is_dataclass(params) and not isinstance(params, type):
         if not isinstance(params, kind):
-            raise ModelError(f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
+            raise ModelError(
+                f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
         return cast(Effect, params)
     if params is None:
         params = {}
     if not isinstance(params, Mapping):
-        raise ModelError(f"effects.{name} must be a mapping of parameters, got {type(params).__name__}")
+        raise ModelError(
+            f"effects.{name} must be a mapping of parameters, got {type(params).__name__}")
     if name in PER_CHANNEL_EFFECTS and params and set(params) <= set(SIDES):
         return _per_channel_from_params(name, params)
     known = {f.name for f in fields(kind)}
     unknown = sorted(set(params) - known)
     if unknown:
-        side_hint = " or per channel {stroke: {...}, pitch: {...}}" if name in PER_CHANNEL_EFFECTS else ""
+        side_hint = (" or per channel {stroke: {...}, pitch: {...}}"
+                     if name in PER_CHANNEL_EFFECTS else "")
         raise ModelError(f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} "
                          f"(known: {', '.join(sorted(known))}{side_hint})")
     try:
@@ -257,10 +268,12 @@ def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
 
 
 def effect_params(effect: Effect | PerChannel) -> dict[str, Any]:
-    """The parameter dict of an effect as config/model.yaml writes it (per channel: {stroke, pitch})."""
+    """The parameter dict of an effect as config/model.yaml
+    writes it (per channel: {stroke, pitch}).
+    """
     if isinstance(effect, PerChannel):
-        return {side: {f.name: getattr(effect.on(side), f.name) for f in fields(effect.on(side)) if f.name != "channel"}
-                for side in SIDES}
+        return {side: {f.name: getattr(effect.on(side), f.name) for f in fields(effect.on(side))
+                       if f.name != "channel"} for side in SIDES}
     return {f.name: getattr(effect, f.name) for f in fields(effect)}
 
 
@@ -281,9 +294,11 @@ class Model:
     effects: tuple[tuple[str, Effect | PerChannel], ...] = ()
 
     def __post_init__(self) -> None:
-        for section, kind in (("plant", PlantParams), ("sensors", SensorParams), ("noise", NoiseParams)):
+        for section, kind in (("plant", PlantParams), ("sensors", SensorParams),
+                              ("noise", NoiseParams)):
             if not isinstance(getattr(self, section), kind):
-                raise ModelError(f"{section} must be a {kind.__name__}, got {type(getattr(self, section)).__name__}")
+                raise ModelError(f"{section} must be a {kind.__name__}, got "
+                                 f"{type(getattr(self, section)).__name__}")
         raw = self.effects
         if isinstance(raw, Mapping):
             pairs = list(raw.items())
@@ -298,12 +313,14 @@ class Model:
             if name in built:
                 raise ModelError(f"effects.{name} given twice")
             built[name] = effect_from_params(name, params)
-        object.__setattr__(self, "effects", tuple((n, built[n]) for n in EFFECT_NAMES if n in built))
+        object.__setattr__(self, "effects", tuple(
+            (n, built[n]) for n in EFFECT_NAMES if n in built))
 
     def effect(self, name: str) -> Effect | PerChannel | None:
         """The effect called `name` if it is on, else None (unknown names raise ModelError).
 
-        A sensor effect with its own value per chain is a `PerChannel`; `effect_on` gives one chain's.
+        A sensor effect with its own value per chain is
+        a `PerChannel`; `effect_on` gives one chain's.
         """
         if name not in EFFECT_TYPES:
             raise ModelError(f"effects: unknown effect {name!r} (known: {', '.join(EFFECT_NAMES)})")
@@ -313,7 +330,8 @@ class Model:
         return None
 
     def effect_on(self, name: str, side: str) -> Effect | None:
-        """The effect called `name` as it acts on sensor chain `side` ('stroke' or 'pitch'), else None.
+        """The effect called `name` as it acts on sensor
+        chain `side` ('stroke' or 'pitch'), else None.
 
         A sensor effect on the other chain only is None; an effect without a `channel` parameter
         is returned as it is.
@@ -363,7 +381,8 @@ class Model:
         return 1 if self.pitch_volts_per_rad > 0 else -1
 
 
-def with_effects(model: Model, effects: Mapping[str, Union[Mapping[str, Any], Effect, PerChannel]]) -> Model:
+def with_effects(model: Model,
+                 effects: Mapping[str, Union[Mapping[str, Any], Effect, PerChannel]]) -> Model:
     """Model with the given effects added (replacing any of the same name).
 
     Parameters
@@ -384,17 +403,20 @@ def without_effects(model: Model) -> Model:
     return replace(model, effects=())
 
 
-def with_effect_on(model: Model, name: str, side: str, params: Union[Mapping[str, Any], Effect]) -> Model:
+def with_effect_on(model: Model, name: str, side: str,
+                   params: Union[Mapping[str, Any], Effect]) -> Model:
     """Model with sensor effect `name` set on chain `side` only; the other chain keeps its value.
 
     `params` are the effect's parameters without `channel`; the result holds one entry for
     `side`, or a `PerChannel` when the other chain has the effect too.
     """
     if name not in PER_CHANNEL_EFFECTS:
-        raise ModelError(f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})")
+        raise ModelError(
+            f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})")
     if side not in SIDES:
         raise ModelError(f"sensor chain must be one of {', '.join(SIDES)}, got {side!r}")
-    values: Any = effect_params(params) if is_dataclass(params) and not isinstance(params, type) else params
+    values: Any = (effect_params(params) if is_dataclass(params)
+                   and not isinstance(params, type) else params)
     new = effect_from_params(name, {**values, "channel": side})
     other = "pitch" if side == "stroke" else "stroke"
     kept: Any = model.effect_on(name, other)

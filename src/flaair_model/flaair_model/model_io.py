@@ -25,7 +25,8 @@ from .model import (
     effect_params,
 )
 
-__all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict", "save_model"]
+__all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict",
+           "save_model"]
 
 _MODEL_FILE = "model.yaml"
 _SECTIONS = ("plant", "sensors", "noise", "effects")
@@ -112,8 +113,9 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
     effects = []
     for name, params in effects_raw.items():
         if name in EFFECT_TYPES:
-            params = {k: ({kk: _coerce(vv) for kk, vv in v.items()} if isinstance(v, Mapping) else _coerce(v))
-                      for k, v in _mapping(f"effects.{name}", params or {}).items()}
+            params = {k: ({kk: _coerce(vv) for kk, vv in v.items()} if isinstance(v, Mapping)
+                          else _coerce(v)) for k,
+                      v in _mapping(f"effects.{name}", params or {}).items()}
         effects.append((name, effect_from_params(name, params)))
     return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects))
 
@@ -159,7 +161,8 @@ def load_model(path: Union[str, Path, None] = None) -> Model:
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ModelError(f"{path}: {where}not valid YAML ({problem})") from None
     except UnicodeDecodeError as exc:
-        raise ModelError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+        raise ModelError(
+            f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
     if data is None:
         raise ModelError(f"{path}: empty model file")
     try:
@@ -173,4 +176,5 @@ def save_model(m: Model, path: Union[str, Path]) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(model_to_dict(m), sort_keys=False, default_flow_style=False)
-    path.write_text("# FLAAIR plant and sensor model (flaair_model.model_io.save_model)\n" + text, encoding="utf-8")
+    path.write_text("# FLAAIR plant and sensor model (flaair_model.model_io.save_model)\n" + text,
+                    encoding="utf-8")

@@ -57,11 +57,14 @@ def charge_per_tip_displacement_c_per_m(material: PvdfMaterial, beam: SensorBeam
 
 
 def volts_per_tip_displacement_v_per_m(material: PvdfMaterial, beam: SensorBeam) -> float:
-    """Charge-amplifier output change per metre of tip displacement (signed: V = V_HREF - k*delta)."""
+    """Charge-amplifier output change per metre of tip
+    displacement (signed: V = V_HREF - k*delta).
+    """
     return -beam.charge_amp_gain_per_f * charge_per_tip_displacement_c_per_m(material, beam)
 
 
-def stroke_volts_per_rad(material: PvdfMaterial, beam: SensorBeam, transmission_ratio_rad_per_m: float) -> float:
+def stroke_volts_per_rad(material: PvdfMaterial, beam: SensorBeam,
+                         transmission_ratio_rad_per_m: float) -> float:
     """Actuator-sensor output per radian of stroke, with delta_a = phi / T_r."""
     return volts_per_tip_displacement_v_per_m(material, beam) / transmission_ratio_rad_per_m
 

@@ -2,10 +2,10 @@
 
 A node reads its own section through its `ParamSpec` schema (typed, ranged); offline code that
 needs a node's values (replay, the stroke study, a node's own I/O helpers) reads them through
-`node_section` with that same schema, so they are checked as the running node checks them. A tool that needs
-another section's values (the shared stream settings, the bridge's lead, `live`'s own settings)
-reads them here, each section through one function returning a frozen dataclass: a missing key
-or a value of the wrong type is a `ConfigError` naming the file, section and key.
+`node_section` with that same schema, so they are checked as the running node checks them. A tool
+that needs another section's values (the shared stream settings, the bridge's lead, `live`'s own
+settings) reads them here, each section through one function returning a frozen dataclass: a
+missing key or a value of the wrong type is a `ConfigError` naming the file, section and key.
 """
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ from typing import Any, TypeVar
 from flaair_model.config import ConfigError, config_dir, node_parameters, shared_parameters
 from flaair_model.schema import ParameterError, ParamSpec
 
-__all__ = ["StreamSettings", "LiveSettings", "BridgeSettings", "MonitorSettings", "ControllerSettings",
-           "stream", "live", "bridge", "monitor", "controller", "read_section", "node_section"]
+__all__ = ["StreamSettings", "LiveSettings", "BridgeSettings", "MonitorSettings",
+           "ControllerSettings", "stream", "live", "bridge", "monitor", "controller",
+           "read_section", "node_section"]
 
 CONFIG_FILE = "flaair.yaml"
 T = TypeVar("T")
@@ -35,7 +36,9 @@ class StreamSettings:
 
 @dataclass(frozen=True)
 class LiveSettings:
-    """`bin/flaair live`: the composed loop's DDS batching, block size against a target, patience."""
+    """`bin/flaair live`: the composed loop's DDS
+    batching, block size against a target, patience.
+    """
 
     dds_batch_blocks: int
     target_block_size: int
@@ -82,8 +85,11 @@ def _convert(value: Any, kind: type, where: str) -> Any:
 
 
 def read_section(section: str, cls: type[T], file_name: str = CONFIG_FILE) -> T:
-    """`cls` (a frozen dataclass) filled from `section` of config/`file_name`, each field checked."""
-    values = shared_parameters(file_name) if section == "/**" else node_parameters(file_name, section)
+    """`cls` (a frozen dataclass) filled from `section`
+    of config/`file_name`, each field checked.
+    """
+    values = (shared_parameters(file_name) if section == "/**"
+              else node_parameters(file_name, section))
     hints = typing.get_type_hints(cls)
     out = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
@@ -115,7 +121,8 @@ def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
 
 
-def node_section(specs: list[ParamSpec], section: str, file_name: str = CONFIG_FILE) -> dict[str, Any]:
+def node_section(specs: list[ParamSpec], section: str,
+                 file_name: str = CONFIG_FILE) -> dict[str, Any]:
     """A node's values from `section` of config/`file_name`, checked against its `specs` as the node
     checks them (type, range, choices), plus the shared `/**` values it inherits.
 
@@ -142,9 +149,11 @@ def node_section(specs: list[ParamSpec], section: str, file_name: str = CONFIG_F
                 value = _convert(value, spec.type, where)
         except ConfigError as exc:
             raise ParameterError(str(exc)) from exc
-        if spec.type in (int, float) and ((spec.min_value is not None and value < spec.min_value)
-                                          or (spec.max_value is not None and value > spec.max_value)):
-            raise ParameterError(f"{where}: {value!r} is outside [{spec.min_value}, {spec.max_value}]")
+        if spec.type in (int, float) and (
+                (spec.min_value is not None and value < spec.min_value)
+                or (spec.max_value is not None and value > spec.max_value)):
+            raise ParameterError(
+                f"{where}: {value!r} is outside [{spec.min_value}, {spec.max_value}]")
         if spec.choices and value not in spec.choices:
             raise ParameterError(f"{where}: {value!r} is not one of {', '.join(spec.choices)}")
         values[spec.name] = value

@@ -1,4 +1,5 @@
-"""FLAAIR sensor front end: charge-amplifier volts -> wing stroke and pitch, calibration, characterization.
+"""FLAAIR sensor front end: charge-amplifier volts ->
+wing stroke and pitch, calibration, characterization.
 
 ``core/`` holds the pure functions (no rclpy); beside it the ROS shell and its adapters:
 

@@ -57,4 +57,5 @@ def analysis_values() -> dict[str, Any]:
 def analysis_bands_from_config(values: Mapping[str, Any] | None = None) -> AnalysisBands:
     """The bands from the `analyze` section's values (default: config/flaair.yaml)."""
     values = analysis_values() if values is None else values
-    return AnalysisBands(band_from_config(values, "amplitude_band_hz"), band_from_config(values, "time_band_hz"))
+    return AnalysisBands(band_from_config(values, "amplitude_band_hz"),
+                         band_from_config(values, "time_band_hz"))

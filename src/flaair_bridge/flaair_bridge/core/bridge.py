@@ -1,4 +1,5 @@
-"""The bridge's pure core: target sensor packets in, FLAAIR blocks out; FLAAIR drive in, drive packets out.
+"""The bridge's pure core: target sensor packets in,
+FLAAIR blocks out; FLAAIR drive in, drive packets out.
 
 ``step(state, inputs, params) -> (state, outputs)`` with four kinds of input (numpy only, no
 sockets, no ROS, time passed in):
@@ -52,7 +53,8 @@ class Counters(NamedTuple):
     lost_packets: int = 0            # sequence gaps
     lost_samples: int = 0            # samples missing in the index sequence (published as NaN)
     stale_packets: int = 0           # duplicate or older sequence: dropped
-    overlap_samples: int = 0         # samples already published (as NaN, while the target was silent): dropped
+    # samples already published (as NaN, while the target was silent): dropped
+    overlap_samples: int = 0
     malformed: int = 0               # not a valid sensor packet (or the wrong sample rate): dropped
     resyncs: int = 0                 # target restarts followed
     target_watchdog_packets: int = 0 # packets with the target's watchdog flag set
@@ -62,9 +64,12 @@ class Counters(NamedTuple):
     drive_blocks: int = 0            # drive blocks received from FLAAIR
     drive_stale_blocks: int = 0      # older than the drive stream: dropped
     drive_unscheduled_blocks: int = 0  # arrived before any sensor packet: dropped
-    drive_reanchors: int = 0         # stream re-anchored lead_samples ahead (jump, or the source fell behind)
-    drive_late_blocks: int = 0       # behind the target's clock because the bridge fell behind: dropped
-    drive_overflow_blocks: int = 0   # queued too far ahead of the target's clock: dropped (the stream re-anchors)
+    # stream re-anchored lead_samples ahead (jump, or the source fell behind)
+    drive_reanchors: int = 0
+    # behind the target's clock because the bridge fell behind: dropped
+    drive_late_blocks: int = 0
+    # queued too far ahead of the target's clock: dropped (the stream re-anchors)
+    drive_overflow_blocks: int = 0
     drive_packets: int = 0
     drive_samples: int = 0
     clamped_samples: int = 0
@@ -81,13 +86,17 @@ class BridgeState(NamedTuple):
     """
 
     sequence: Optional[int] = None        # next expected sensor sequence
-    target_end: Optional[int] = None      # target clock: index after the last sensor sample received
-    index_offset: int = 0                 # published index = target index + index_offset (after a resync)
+    # target clock: index after the last sensor sample received
+    target_end: Optional[int] = None
+    # published index = target index + index_offset (after a resync)
+    index_offset: int = 0
     pending_first: Optional[int] = None   # published index of pending[:, 0]
     pending: np.ndarray = np.empty((3, 0))  # drive, stroke, pitch samples not yet in a full block
     stale_run: int = 0
-    last_sensor_s: Optional[float] = None # arrival of the last packet (the target's clock is extrapolated from it)
-    last_read_s: Optional[float] = None   # when the bridge last took a packet from its socket (silence)
+    # arrival of the last packet (the target's clock is extrapolated from it)
+    last_sensor_s: Optional[float] = None
+    # when the bridge last took a packet from its socket (silence)
+    last_read_s: Optional[float] = None
     silent: bool = False
     drive_expected: Optional[int] = None  # next index of FLAAIR's drive stream
     drive_offset: Optional[int] = None    # target index = drive-stream index + drive_offset
@@ -160,21 +169,24 @@ def step(state: BridgeState, inputs: Input, params: BridgeParams) -> tuple[Bridg
         return _on_tick(state, inputs, params)
     if isinstance(inputs, Stop):
         state, packet = _stop_packet(state)
-        return state, Outputs(packets=(packet,), notes=(_note("stop_packets", f"stop packet sent: {inputs.reason}"),))
+        return state, Outputs(packets=(packet,), notes=(
+            _note("stop_packets", f"stop packet sent: {inputs.reason}"),))
     raise TypeError(f"unknown bridge input {type(inputs).__name__}")
 
 
 def _count(counters: Counters, **increments: int) -> Counters:
-    return counters._replace(**{name: getattr(counters, name) + value for name, value in increments.items()})
+    return counters._replace(**{name: getattr(counters, name) + value for name,
+                                value in increments.items()})
 
 
 # ---------------------------------------------------------------------------------- sensor side
-def _on_sensor(state: BridgeState, inputs: SensorDatagram, params: BridgeParams) -> tuple[BridgeState, Outputs]:
+def _on_sensor(state: BridgeState, inputs: SensorDatagram,
+               params: BridgeParams) -> tuple[BridgeState, Outputs]:
     try:
         packet = protocol.unpack_sensor(inputs.data)
         if not math.isclose(packet.sample_rate_hz, params.sample_rate_hz, rel_tol=1e-6):
-            raise protocol.ProtocolError(f"sample_rate_hz {packet.sample_rate_hz:g}, the bridge runs at "
-                                         f"{params.sample_rate_hz:g}")
+            raise protocol.ProtocolError(f"sample_rate_hz {packet.sample_rate_hz:g}, the bridge "
+                                         f"runs at {params.sample_rate_hz:g}")
     except protocol.ProtocolError as exc:
         counters = _count(state.counters, malformed=1)
         return state._replace(counters=counters), Outputs(notes=(
@@ -197,21 +209,27 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
             stale_run = state.stale_run + 1
             if stale_run < params.resync_packets:
                 counters = _count(counters, stale_packets=1)
-                return state._replace(stale_run=stale_run, counters=counters), Outputs(notes=(
-                    _note("stale_packets", f"stale sensor packet (sequence {packet.sequence}, expected "
-                                            f"{state.sequence}) dropped [{counters.stale_packets} stale so far]"),))
+                return (state._replace(stale_run=stale_run, counters=counters),
+                        Outputs(notes=(_note("stale_packets", "stale sensor packet (sequence "
+                                                              f"{packet.sequence}, expected "
+                                                              f"{state.sequence}) dropped "
+                                                              f"[{counters.stale_packets} stale so "
+                                                              "far]"),)))
             # the target restarted: follow it, keep the published index running
             index_offset = _published_end(state) - packet.first_sample_index
             counters = _count(counters, resyncs=1)
-            notes.append(_note("resyncs", f"{stale_run} stale packets in a row: the target restarted "
-                                             f"(sequence {packet.sequence}, index {packet.first_sample_index}); following it", True))
-            state = state._replace(target_end=None, drive_offset=None, drive_expected=None, queue=(),
-                            arrivals=np.full((ARRIVAL_RING, 2), -1.0))
+            notes.append(_note("resyncs", f"{stale_run} stale packets in a row: the target "
+                                          f"restarted (sequence {packet.sequence}, index "
+                                          f"{packet.first_sample_index}); following it", True))
+            state = state._replace(target_end=None, drive_offset=None, drive_expected=None,
+                                   queue=(), arrivals=np.full((ARRIVAL_RING, 2), -1.0))
         elif delta > 0:
             counters = _count(counters, lost_packets=delta)
-            notes.append(_note("lost_packets", f"{delta} sensor packet(s) lost before sequence {packet.sequence} "
-                                                  f"[{counters.lost_packets} lost so far]"))
-    samples = np.stack([packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v]).astype(np.float64)
+            notes.append(_note("lost_packets", f"{delta} sensor packet(s) lost before sequence "
+                                               f"{packet.sequence} [{counters.lost_packets} lost "
+                                               "so far]"))
+    samples = np.stack([packet.drive_v, packet.stroke_sensor_v,
+                        packet.pitch_sensor_v]).astype(np.float64)
     first = packet.first_sample_index + index_offset
     pending_first, pending = state.pending_first, state.pending
     expected = _published_end(state)
@@ -228,13 +246,15 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
         if gap <= params.max_fill_samples:
             pending = np.concatenate([pending, np.full((3, gap), np.nan)], axis=1)
         else:  # too long to fill: close the partial block with NaN, restart the blocks at `first`
-            notes.append(_note("lost_samples", f"{gap} samples lost before index {first}: the published stream "
-                                                  "jumps there", True))
+            notes.append(_note("lost_samples",
+                               f"{gap} samples lost before index {first}: the published stream "
+                               "jumps there", True))
             pad = (-pending.shape[1]) % params.block_size
-            blocks, _, _ = _blocks(pending_first, np.concatenate([pending, np.full((3, pad), np.nan)], axis=1),
-                                   params.block_size)
+            blocks, _, _ = _blocks(pending_first, np.concatenate(
+                [pending, np.full((3, pad), np.nan)], axis=1), params.block_size)
             pending, pending_first = pending[:, :0], first
-    more, pending, pending_first = _blocks(pending_first, np.concatenate([pending, samples], axis=1), params.block_size)
+    more, pending, pending_first = (
+        _blocks(pending_first, np.concatenate([pending, samples], axis=1), params.block_size))
     blocks += more
     counters = _count(counters, sensor_packets=1, published_blocks=len(blocks))
     if packet.target_watchdog_tripped:
@@ -246,10 +266,10 @@ def _any_packet(state: BridgeState, packet: protocol.SensorPacket, inputs: Senso
     arrivals = state.arrivals.copy()
     arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, inputs.now_s)
     state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS,
-                    target_end=max(end, state.target_end or 0), index_offset=index_offset,
-                    pending_first=pending_first, pending=pending, stale_run=stale_run, last_sensor_s=inputs.now_s,
-                    last_read_s=_read_s(inputs),
-                    silent=False, arrivals=arrivals, counters=counters)
+                           target_end=max(end, state.target_end or 0), index_offset=index_offset,
+                           pending_first=pending_first, pending=pending, stale_run=stale_run,
+                           last_sensor_s=inputs.now_s, last_read_s=_read_s(inputs), silent=False,
+                           arrivals=arrivals, counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
     return state, Outputs(tuple(blocks), packets, timing, tuple(notes))
 
@@ -262,51 +282,63 @@ def _clock(state: BridgeState, now_s: float, params: BridgeParams) -> int:
     """The target's clock now: the last packet's end, moved on by the time since that packet arrived
     (if the bridge fell behind, it has moved on by more than a packet).
     """
-    return state.target_end + max(0, int((now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
+    return state.target_end + max(
+        0, int((now_s - state.last_sensor_s) * params.sample_rate_hz + 1e-6))
 
 
 def in_order(state: BridgeState, packet: protocol.SensorPacket, params: BridgeParams) -> bool:
     """The common case, 2000 times a second: the next packet in sequence and in samples, fitting in
     the block being filled, no flag but the target's watchdog, the target not silent before it.
     """
-    return (packet.sequence == state.sequence and state.pending_first is not None and not state.silent
-            and not packet.flags & ~protocol.FLAG_TARGET_WATCHDOG
-            and packet.first_sample_index + state.index_offset == state.pending_first + state.pending.shape[1]
-            and state.pending.shape[1] + packet.n <= params.block_size)
+    return (packet.sequence == state.sequence and state.pending_first is not None
+            and not state.silent and not packet.flags & ~protocol.FLAG_TARGET_WATCHDOG
+            and packet.first_sample_index + state.index_offset == state.pending_first
+            + state.pending.shape[1] and state.pending.shape[1] + packet.n <= params.block_size)
 
 
 def _in_order_packet(state: BridgeState, packet: protocol.SensorPacket, now_s: float, read_s: float,
                      params: BridgeParams) -> tuple[BridgeState, Outputs]:
-    """An `in_order` packet: same result as the general path (`_any_packet`), a third of its cost."""
+    """An `in_order` packet: same result as the general
+    path (`_any_packet`), a third of its cost.
+    """
     end = packet.first_sample_index + packet.n
     held = state.pending.shape[1]
-    if not held and packet.n == params.block_size:   # packets as long as blocks: passed on as they are
-        blocks: tuple[SensorBlock, ...] = (SensorBlock(state.pending_first, packet.drive_v, packet.stroke_sensor_v,
-                                                       packet.pitch_sensor_v),)
+    # packets as long as blocks: passed on as they are
+    if not held and packet.n == params.block_size:
+        blocks: tuple[SensorBlock, ...] = (
+            SensorBlock(state.pending_first, packet.drive_v, packet.stroke_sensor_v,
+                        packet.pitch_sensor_v),)
         pending, pending_first = state.pending, state.pending_first + packet.n
     else:   # several packets to a block (a target's 0.5 ms packets, 1 ms control blocks)
-        pending = np.concatenate([state.pending, (packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)], axis=1)
+        pending = np.concatenate([state.pending, (
+            packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v)], axis=1)
         pending_first = state.pending_first
         blocks = ()
         if pending.shape[1] == params.block_size:
             blocks = (SensorBlock(pending_first, pending[0], pending[1], pending[2]),)
             pending, pending_first = pending[:, :0], pending_first + params.block_size
-    tripped = packet.target_watchdog_tripped   # while the loop catches up after a stall: as cheap as the rest
+    # while the loop catches up after a stall: as cheap as the rest
+    tripped = packet.target_watchdog_tripped
     counters = state.counters._replace(sensor_packets=state.counters.sensor_packets + 1,
-                                       published_blocks=state.counters.published_blocks + len(blocks),
-                                       target_watchdog_packets=state.counters.target_watchdog_packets + tripped)
+                                       published_blocks=state.counters.published_blocks
+                                       + len(blocks),
+                                       target_watchdog_packets=state.counters.target_watchdog_packets
+                                       + tripped)
     arrivals = state.arrivals.copy()
     arrivals[counters.sensor_packets % ARRIVAL_RING] = (end, now_s)
-    state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS, target_end=end,
-                           pending_first=pending_first, pending=pending, stale_run=0, last_sensor_s=now_s,
-                           last_read_s=read_s, arrivals=arrivals, counters=counters)
+    state = state._replace(sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS,
+                           target_end=end, pending_first=pending_first, pending=pending,
+                           stale_run=0, last_sensor_s=now_s, last_read_s=read_s, arrivals=arrivals,
+                           counters=counters)
     state, packets, timing = _release(state, params, now_s)
-    return state, Outputs(blocks, packets, timing, (_target_watchdog_notice(packet, counters),) if tripped else ())
+    return state, Outputs(blocks, packets, timing, (
+        _target_watchdog_notice(packet, counters),) if tripped else ())
 
 
 def _target_watchdog_notice(packet: protocol.SensorPacket, counters: Counters) -> Note:
-    return _note("target_watchdog_packets", f"the target's drive watchdog has tripped (packet {packet.sequence}) "
-                                             f"[{counters.target_watchdog_packets} such packets]")
+    return _note("target_watchdog_packets", "the target's drive watchdog has tripped (packet "
+                                            f"{packet.sequence}) "
+                                            f"[{counters.target_watchdog_packets} such packets]")
 
 
 def _published_end(state: BridgeState) -> Optional[int]:
@@ -315,7 +347,8 @@ def _published_end(state: BridgeState) -> Optional[int]:
     return state.pending_first + state.pending.shape[1]
 
 
-def _blocks(first: int, samples: np.ndarray, block_size: int) -> tuple[list[SensorBlock], np.ndarray, int]:
+def _blocks(first: int, samples: np.ndarray,
+            block_size: int) -> tuple[list[SensorBlock], np.ndarray, int]:
     """Cut whole blocks off the front of `samples`; return them, the rest and its first index."""
     n_blocks = samples.shape[1] // block_size
     blocks = []
@@ -327,8 +360,10 @@ def _blocks(first: int, samples: np.ndarray, block_size: int) -> tuple[list[Sens
 
 
 # ---------------------------------------------------------------------------------- drive side
-def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> tuple[BridgeState, Outputs]:
-    if state.drive_offset is not None and inputs.first_sample_index == state.drive_expected and not state.queue:
+def _on_drive(state: BridgeState, inputs: DriveBlock,
+              params: BridgeParams) -> tuple[BridgeState, Outputs]:
+    if (state.drive_offset is not None and inputs.first_sample_index == state.drive_expected
+        and not state.queue):
         fast = _in_order_drive(state, inputs, params)
         if fast is not None:
             return fast
@@ -338,32 +373,38 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
     if state.target_end is None:
         counters = _count(counters, drive_unscheduled_blocks=1)
         return state._replace(counters=counters), Outputs(notes=(_note(
-            "drive_unscheduled_blocks", f"drive block {first} dropped: no sensor packet from the target yet "
-                                        f"[{counters.drive_unscheduled_blocks} so far]"),))
+            "drive_unscheduled_blocks", f"drive block {first} dropped: no sensor packet from the "
+                                        f"target yet [{counters.drive_unscheduled_blocks} so far]"
+        ),))
     if state.drive_expected is not None and first < state.drive_expected:
         counters = _count(counters, drive_stale_blocks=1)
         return state._replace(counters=counters), Outputs(notes=(_note(
-            "drive_stale_blocks", f"drive block {first} dropped: duplicate or out of order (expected "
-                                  f"{state.drive_expected}) [{counters.drive_stale_blocks} so far]"),))
+            "drive_stale_blocks", f"drive block {first} dropped: duplicate or out of order "
+                                  f"(expected {state.drive_expected}) "
+                                  f"[{counters.drive_stale_blocks} so far]"
+        ),))
     notes = []
     drive = np.array(inputs.drive_v, dtype=np.float64)
     bad = ~np.isfinite(drive)
     if bad.any():
         drive[bad] = 0.0
         counters = _count(counters, nonfinite_samples=int(bad.sum()))
-        notes.append(_note("nonfinite_samples", f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0"))
+        notes.append(_note("nonfinite_samples",
+                           f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0"))
     over = np.abs(drive) > params.drive_limit_v
     if over.any():
         drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
         counters = _count(counters, clamped_samples=int(over.sum()))
     clock = _clock(state, inputs.now_s, params)
-    anchor = state.target_end + params.lead_samples   # the protocol: data up to k -> drive from k + 1 + lead
+    # the protocol: data up to k -> drive from k + 1 + lead
+    anchor = state.target_end + params.lead_samples
     offset = state.drive_offset
     if offset is None or first != state.drive_expected:
         if offset is not None:
             counters = _count(counters, drive_reanchors=1)
-            notes.append(_note("drive_reanchors", f"drive stream jumped to {first} (expected {state.drive_expected}): "
-                                                     f"re-anchored {params.lead_samples} samples ahead"))
+            notes.append(_note("drive_reanchors", f"drive stream jumped to {first} (expected "
+                                                  f"{state.drive_expected}): re-anchored "
+                                                  f"{params.lead_samples} samples ahead"))
         offset = anchor - first
     elif first + offset + n <= clock and first + offset >= anchor:
         # The source keeps pace with the data, the bridge fell behind the target (its packets
@@ -371,13 +412,17 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
         # delay for good, so it is dropped and the stream keeps its place.
         counters = _count(counters, drive_late_blocks=1)
         return state._replace(drive_expected=first + n, counters=counters), Outputs(notes=(_note(
-            "drive_late_blocks", f"drive block {first} dropped: {clock - first - offset} samples behind the target's "
-                                 f"clock (the bridge fell behind) [{counters.drive_late_blocks} so far]"),))
-    elif first + offset < min(clock, anchor):   # the source fell behind the data: it starts again lead_samples ahead
+            "drive_late_blocks", f"drive block {first} dropped: {clock - first - offset} samples "
+                                 "behind the target's clock (the bridge fell behind) "
+                                 f"[{counters.drive_late_blocks} so far]"
+        ),))
+    # the source fell behind the data: it starts again lead_samples ahead
+    elif first + offset < min(clock, anchor):
         counters = _count(counters, drive_reanchors=1)
-        notes.append(_note("drive_reanchors", f"drive block {first} is {clock - first - offset} samples "
-                                                 f"behind the target's clock: re-anchored {params.lead_samples} samples "
-                                                 f"ahead [{counters.drive_reanchors} re-anchors so far]"))
+        notes.append(_note("drive_reanchors", f"drive block {first} is {clock - first - offset} "
+                                              "samples behind the target's clock: re-anchored "
+                                              f"{params.lead_samples} samples ahead "
+                                              f"[{counters.drive_reanchors} re-anchors so far]"))
         offset = anchor - first
     queue = state.queue
     queued = queue[-1][0] + len(queue[-1][1]) - queue[0][0] if queue else 0  # O(1): in order
@@ -385,12 +430,15 @@ def _on_drive(state: BridgeState, inputs: DriveBlock, params: BridgeParams) -> t
         # A source faster than real time runs further ahead of the target than its buffer: the
         # queued samples are dropped, the stream goes on lead_samples ahead of the data.
         counters = _count(counters, drive_overflow_blocks=len(queue), drive_reanchors=1)
-        notes.append(_note("drive_overflow_blocks", f"drive block {first}: {queued} samples already wait for the "
-                                                       f"target's clock: dropped, re-anchored {params.lead_samples} "
-                                                       f"samples ahead [{counters.drive_overflow_blocks} blocks dropped so far]"))
+        notes.append(_note("drive_overflow_blocks", f"drive block {first}: {queued} samples "
+                                                    "already wait for the target's clock: "
+                                                    f"dropped, re-anchored {params.lead_samples} "
+                                                    "samples ahead "
+                                                    f"[{counters.drive_overflow_blocks} blocks "
+                                                    "dropped so far]"))
         queue, offset = (), anchor - first
-    state = state._replace(drive_offset=offset, drive_expected=first + n, queue=queue + ((first + offset, drive),),
-                           counters=counters)
+    state = state._replace(drive_offset=offset, drive_expected=first + n,
+                           queue=queue + ((first + offset, drive),), counters=counters)
     state, packets, timing = _release(state, params, inputs.now_s)
     return state, Outputs(packets=packets, timing=timing, notes=tuple(notes))
 
@@ -403,11 +451,13 @@ def _in_order_drive(state: BridgeState, inputs: DriveBlock,
     """
     drive = np.asarray(inputs.drive_v, dtype=np.float64)
     n = len(drive)
-    if not 0 < n <= protocol.MAX_SAMPLES or not np.abs(drive).max() <= params.drive_limit_v:   # NaN fails too
+    # NaN fails too
+    if not 0 < n <= protocol.MAX_SAMPLES or not np.abs(drive).max() <= params.drive_limit_v:
         return None
     index = inputs.first_sample_index + state.drive_offset
     clock = _clock(state, inputs.now_s, params)
-    if index < clock or index + n > max(state.target_end, clock) + params.lead_samples + params.max_ahead_samples:
+    if (index < clock or index + n > max(state.target_end, clock) + params.lead_samples
+        + params.max_ahead_samples):
         return None
     packet = protocol.pack_drive(protocol.DrivePacket(state.drive_sequence, index, 0, drive))
     c = state.counters
@@ -421,18 +471,23 @@ def _in_order_drive(state: BridgeState, inputs: DriveBlock,
     return state, Outputs(packets=(packet,), timing=timing)
 
 
-def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[BridgeState, tuple, tuple]:
-    """Send queued drive up to target clock + lead + max_ahead_samples, in packets of <= 1000 samples."""
+def _release(state: BridgeState, params: BridgeParams,
+             now_s: float) -> tuple[BridgeState, tuple, tuple]:
+    """Send queued drive up to target clock + lead +
+    max_ahead_samples, in packets of <= 1000 samples.
+    """
     if not state.queue:
         return state, (), ()
-    limit = max(state.target_end, _clock(state, now_s, params)) + params.lead_samples + params.max_ahead_samples
+    limit = (max(state.target_end, _clock(state, now_s, params)) + params.lead_samples
+             + params.max_ahead_samples)
     packets: list[bytes] = []
     timing: list = []
     queue: list = []
     sequence, counters, driving = state.drive_sequence, state.counters, state.driving
     for position, (target_first, drive) in enumerate(state.queue):
         count = max(0, min(len(drive), limit - target_first))
-        if count == 0:  # the queue is in index order: nothing after this can go either (O(1) when idle)
+        # the queue is in index order: nothing after this can go either (O(1) when idle)
+        if count == 0:
             queue.extend(state.queue[position:])
             break
         for start in range(0, count, protocol.MAX_SAMPLES):
@@ -452,12 +507,14 @@ def _release(state: BridgeState, params: BridgeParams, now_s: float) -> tuple[Br
 
 
 def _stop_packet(state: BridgeState) -> tuple[BridgeState, bytes]:
-    """A stop packet (zero now, hold zero) for the target's current clock; the drive stream re-anchors."""
-    packet = protocol.pack_drive(protocol.DrivePacket(state.drive_sequence, state.target_end or 0, protocol.FLAG_STOP,
-                                                      np.zeros(1)))
-    return state._replace(drive_sequence=(state.drive_sequence + 1) % protocol.SEQUENCE_MODULUS, driving=False,
-                   drive_offset=None, drive_expected=None, queue=(),
-                   counters=_count(state.counters, stop_packets=1)), packet
+    """A stop packet (zero now, hold zero) for the target's
+    current clock; the drive stream re-anchors.
+    """
+    packet = protocol.pack_drive(protocol.DrivePacket(
+        state.drive_sequence, state.target_end or 0, protocol.FLAG_STOP, np.zeros(1)))
+    return state._replace(drive_sequence=(state.drive_sequence + 1) % protocol.SEQUENCE_MODULUS,
+                          driving=False, drive_offset=None, drive_expected=None, queue=(),
+                          counters=_count(state.counters, stop_packets=1)), packet
 
 
 # ---------------------------------------------------------------------------------- wall clock
@@ -466,31 +523,38 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
     packets: list[bytes] = []
     notes: list[Note] = []
     blocks: list[SensorBlock] = []
-    if state.driving and state.last_drive_s is not None and now - state.last_drive_s > params.drive_timeout_s:
+    if (state.driving and state.last_drive_s is not None
+        and now - state.last_drive_s > params.drive_timeout_s):
         silent_ms = 1e3 * (now - state.last_drive_s)
         state, packet = _stop_packet(state)
         state = state._replace(counters=_count(state.counters, watchdog_stops=1))
         packets.append(packet)
-        notes.append(_note("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} ms (> drive_timeout_s "
-                                                f"{params.drive_timeout_s:g} s): stop packet sent, the target zeroes the drive", True))
-    if state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s and not inputs.backlog:
+        notes.append(_note("watchdog_stops", f"DRIVE WATCHDOG: no drive block for {silent_ms:.1f} "
+                                             f"ms (> drive_timeout_s {params.drive_timeout_s:g} "
+                                             "s): stop packet sent, the target zeroes the drive",
+                           True))
+    if (state.last_read_s is not None and now - state.last_read_s > params.sensor_timeout_s
+        and not inputs.backlog):
         if not state.silent:
             state = state._replace(silent=True, counters=_count(state.counters, silences=1))
-            notes.append(_note("silences", f"TARGET SILENT: no sensor packet for {1e3 * (now - state.last_read_s):.1f} ms "
-                                              f"(> sensor_timeout_s {params.sensor_timeout_s:g} s) after index "
-                                              f"{state.target_end}: samples published as lost"
-                                              + ("; stop packet sent" if state.driving else ""), True))
+            notes.append(_note("silences", "TARGET SILENT: no sensor packet for "
+                                           f"{1e3 * (now - state.last_read_s):.1f} ms (> "
+                                           f"sensor_timeout_s {params.sensor_timeout_s:g} s) after "
+                                           f"index {state.target_end}: samples published as lost"
+                               + ("; stop packet sent" if state.driving else ""), True))
             if state.driving:
                 state, packet = _stop_packet(state)
                 packets.append(packet)
-        # NaN (lost) samples at the real-time rate, so downstream signal time goes on and shows the loss
-        due = state.target_end + state.index_offset + min(int((now - state.last_read_s) * params.sample_rate_hz),
-                                                          params.max_fill_samples)
+        # NaN (lost) samples at the real-time rate, so downstream signal time goes on and shows
+        # the loss
+        behind_samples = int((now - state.last_read_s) * params.sample_rate_hz)
+        due = state.target_end + state.index_offset + min(behind_samples, params.max_fill_samples)
         missing = due - _published_end(state)
         missing -= (missing + state.pending.shape[1]) % params.block_size  # whole blocks only
         if missing > 0:
             samples = np.concatenate([state.pending, np.full((3, missing), np.nan)], axis=1)
-            blocks, pending, pending_first = _blocks(state.pending_first, samples, params.block_size)
+            blocks, pending, pending_first = (
+                _blocks(state.pending_first, samples, params.block_size))
             state = state._replace(pending=pending, pending_first=pending_first, counters=_count(
                 state.counters, silence_samples=missing, published_blocks=len(blocks)))
     return state, Outputs(tuple(blocks), tuple(packets), (), tuple(notes))

@@ -1,4 +1,6 @@
-"""The bridge core's parameters: frozen, validated, no defaults (config/flaair.yaml, bridge_node)."""
+"""The bridge core's parameters: frozen, validated,
+no defaults (config/flaair.yaml, bridge_node).
+"""
 from __future__ import annotations
 
 import math
@@ -41,4 +43,5 @@ class BridgeParams:
         }
         for name, ok in checks.items():
             if not ok:
-                raise BridgeParameterError(f"parameter '{name}' = {getattr(self, name)!r} is out of range")
+                raise BridgeParameterError(
+                    f"parameter '{name}' = {getattr(self, name)!r} is out of range")

@@ -33,11 +33,14 @@ class EventLog:
         self.sensor: list[tuple[int, float]] = []
         self.drive: list[tuple[int, float, float, float]] = []
 
-    def record(self, inputs: Input, out: Outputs, counters: Counters, now_s: float, cause_s: float = math.nan) -> None:
+    def record(self, inputs: Input, out: Outputs, counters: Counters, now_s: float,
+               cause_s: float = math.nan) -> None:
         if isinstance(inputs, DriveBlock):
-            self.drive.append((inputs.first_sample_index, inputs.now_s, now_s if out.packets else math.nan, cause_s))
+            self.drive.append((inputs.first_sample_index, inputs.now_s, now_s if out.packets
+                               else math.nan, cause_s))
         elif isinstance(inputs, SensorDatagram):
             self.sensor.append((counters.sensor_packets, inputs.now_s))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {"sensor": np.array(self.sensor).reshape(-1, 2), "drive": np.array(self.drive).reshape(-1, 4)}
+        return {"sensor": np.array(self.sensor).reshape(-1, 2),
+                "drive": np.array(self.drive).reshape(-1, 4)}

@@ -22,7 +22,8 @@ import numpy as np
 SENSOR_MAGIC = b"FLS1"
 DRIVE_MAGIC = b"FLD1"
 MAX_SAMPLES = 1000
-FLAG_TARGET_WATCHDOG = 0x1   # sensor packet: the target's drive watchdog has tripped (drive held at 0)
+# sensor packet: the target's drive watchdog has tripped (drive held at 0)
+FLAG_TARGET_WATCHDOG = 0x1
 FLAG_STOP = 0x1              # drive packet: zero the drive now and hold it at zero
 SEQUENCE_MODULUS = 2**32
 
@@ -40,7 +41,9 @@ assert all(fmt.size == dtype.itemsize for dtype, fmt in _STRUCTS.items())
 
 
 class ProtocolError(ValueError):
-    """A datagram that is not a valid packet, or values that cannot be packed; says what is wrong."""
+    """A datagram that is not a valid packet, or values
+    that cannot be packed; says what is wrong.
+    """
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +121,8 @@ def pack_sensor(packet: SensorPacket) -> bytes:
     rate = _finite_f32([packet.sample_rate_hz], "sample_rate_hz")[0]
     if not rate > 0:
         raise ProtocolError(f"sample_rate_hz {packet.sample_rate_hz} must be > 0")
-    header = np.array((SENSOR_MAGIC, packet.sequence, packet.first_sample_index, rate, n, packet.flags), SENSOR_HEADER)
+    header = np.array((SENSOR_MAGIC, packet.sequence, packet.first_sample_index, rate, n,
+                       packet.flags), SENSOR_HEADER)
     return header.tobytes() + np.column_stack(list(columns.values())).tobytes()
 
 
@@ -131,8 +135,10 @@ def unpack_sensor(data: bytes | memoryview) -> SensorPacket:
         raise ProtocolError(f"sensor packet of n = {n} must be {expected} bytes, got {len(data)}")
     if not (np.isfinite(rate) and rate > 0):
         raise ProtocolError(f"sample_rate_hz {rate} is not a finite positive number")
-    # the samples as an (n, 3) float32 view (SENSOR_SAMPLE is three packed float32), one transposed copy
-    columns = np.frombuffer(data, "<f4", count=3 * n, offset=SENSOR_HEADER.itemsize).reshape(n, 3).T.copy()
+    # the samples as an (n, 3) float32 view (SENSOR_SAMPLE
+    # is three packed float32), one transposed copy
+    columns = np.frombuffer(data, "<f4", count=3 * n, offset=SENSOR_HEADER.itemsize).reshape(n,
+                                                                                             3).T.copy()
     if not np.isfinite(columns).all():
         row, column = np.argwhere(~np.isfinite(columns))[0]
         raise ProtocolError(f"{SENSOR_FIELDS[row]}[{column}] is not finite")
@@ -169,7 +175,8 @@ def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) 
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"{kind} packet: expected bytes, got {type(data).__name__}")
     if len(data) < dtype.itemsize:
-        raise ProtocolError(f"{kind} packet: {len(data)} bytes, shorter than its {dtype.itemsize}-byte header")
+        raise ProtocolError(
+            f"{kind} packet: {len(data)} bytes, shorter than its {dtype.itemsize}-byte header")
     if bytes(data[:4]) != magic:
         raise ProtocolError(f"{kind} packet: magic {bytes(data[:4])!r}, expected {magic!r}")
     return _STRUCTS[dtype].unpack_from(data)

@@ -13,4 +13,5 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``transition``: sync -> async transition analysis
 """
 
-__all__ = ["spectral", "collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor", "transition"]
+__all__ = ["spectral", "collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor",
+           "transition"]

@@ -92,25 +92,29 @@ class MonitorParams:
         if not (math.isfinite(fs) and fs > 0):
             raise CollisionParameterError(f"sample_rate_hz must be finite and > 0, got {fs}")
         if self.window_source not in ("drive", "stroke"):
-            raise CollisionParameterError(f"window_source must be 'drive' or 'stroke', got {self.window_source!r}")
+            raise CollisionParameterError(
+                f"window_source must be 'drive' or 'stroke', got {self.window_source!r}")
         if self.window_source == "drive":
             f = self.drive_frequency_hz
             if f is None or not (math.isfinite(f) and 0 < f < fs / 8):
                 raise CollisionParameterError(
-                    f"drive_frequency_hz must be in (0, sample_rate_hz/8) for window_source='drive', got {f}"
+                    "drive_frequency_hz must be in (0, sample_rate_hz/8) for "
+                    f"window_source='drive', got {f}"
                 )
         for name in ("stroke_threshold", "pitch_threshold", "on_level", "off_level"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise CollisionParameterError(f"{name} must be finite and > 0, got {v}")
         if not self.off_level <= self.on_level:
-            raise CollisionParameterError(f"off_level ({self.off_level}) must be <= on_level ({self.on_level})")
+            raise CollisionParameterError(
+                f"off_level ({self.off_level}) must be <= on_level ({self.on_level})")
         for name in ("n_on", "n_off"):
             if getattr(self, name) < 1:
                 raise CollisionParameterError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.arm_wingbeats < 0:
             raise CollisionParameterError(f"arm_wingbeats must be >= 0, got {self.arm_wingbeats}")
-        for name in ("min_amplitude_rad", "stroke_noise_rms_rad", "pitch_noise_rms_rad", "crossing_hysteresis_rad"):
+        for name in ("min_amplitude_rad", "stroke_noise_rms_rad", "pitch_noise_rms_rad",
+                     "crossing_hysteresis_rad"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise CollisionParameterError(f"{name} must be finite and >= 0, got {v}")
@@ -134,7 +138,8 @@ class MonitorState(NamedTuple):
     schmitt_high: bool                # stroke mode: trigger state at the tail's end
     center_rad: float                 # stroke mode: crossing centre (last window mean)
     scan_index: int                   # stroke mode: samples of the tail already scanned
-    synced: bool                      # False until the first window boundary (partial window dropped)
+    # False until the first window boundary (partial window dropped)
+    synced: bool
 
 
 class WingbeatReport(NamedTuple):
@@ -170,7 +175,8 @@ def initial_state(params: MonitorParams, *, start_index: int = 0) -> MonitorStat
         synced = _cycle_start(k, params) == start_index
     else:
         k, synced = 0, False
-    return MonitorState(np.zeros(0), np.zeros(0), int(start_index), k, 0, False, 0, 0, False, 0.0, 0, synced)
+    return MonitorState(np.zeros(0), np.zeros(0), int(start_index), k, 0, False, 0, 0, False, 0.0,
+                        0, synced)
 
 
 def rearm(state: MonitorState) -> MonitorState:
@@ -179,18 +185,22 @@ def rearm(state: MonitorState) -> MonitorState:
 
 
 def _drive_hz(p: MonitorParams) -> float:
-    """The drive frequency of drive-locked windows (MonitorParams requires it for window_source 'drive')."""
+    """The drive frequency of drive-locked windows
+    (MonitorParams requires it for window_source 'drive').
+    """
     assert p.drive_frequency_hz is not None
     return p.drive_frequency_hz
 
 
 def _cycle_of(index: int, p: MonitorParams) -> int:
-    return int(math.floor(index * _drive_hz(p) / p.sample_rate_hz + p.drive_phase_rad / (2 * math.pi) + 1e-12))
+    return int(math.floor(index * _drive_hz(p) / p.sample_rate_hz + p.drive_phase_rad
+                          / (2 * math.pi) + 1e-12))
 
 
 def _cycle_start(k: int, p: MonitorParams) -> int:
     # first sample n with f n / fs + phase / 2pi >= k
-    return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / _drive_hz(p) - 1e-9))
+    return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / _drive_hz(p)
+                         - 1e-9))
 
 
 @lru_cache(maxsize=256)
@@ -316,7 +326,8 @@ def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
     starts, ends, idles, pos, high, center, synced = _schmitt_scan(
         np.ascontiguousarray(xs, dtype=np.float64), int(st.scan_index), bool(st.schmitt_high),
         float(st.center_rad), bool(st.synced), min_len, max_len, float(p.crossing_hysteresis_rad))
-    wins = [(int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b, c in zip(starts, ends, idles)]
+    wins = [(int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b,
+            c in zip(starts, ends, idles)]
     new = st._replace(schmitt_high=bool(high), center_rad=float(center), synced=bool(synced),
                       scan_index=int(xs.size - pos))
     return wins, int(pos), new
@@ -336,7 +347,8 @@ class MonitorOutputs(NamedTuple):
     events: list[MonitorEvent]
 
 
-def step(state: MonitorState, inputs: MonitorInputs, params: MonitorParams) -> tuple[MonitorState, MonitorOutputs]:
+def step(state: MonitorState, inputs: MonitorInputs,
+         params: MonitorParams) -> tuple[MonitorState, MonitorOutputs]:
     """Feed one block of sensor-derived angles.
 
     Returns the new state and the report of every wingbeat closed by this block with the
@@ -361,10 +373,12 @@ def step(state: MonitorState, inputs: MonitorInputs, params: MonitorParams) -> t
     rows: list[tuple] = []
     events: list[MonitorEvent] = []
     for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats):
-        st, row, ev = _decide(st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p, score, params)
+        st, row, ev = _decide(st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p,
+                              score, params)
         rows.append(row)
         events.extend(ev)
-    st = st._replace(tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(), tail_start_index=base + pos)
+    st = st._replace(tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(),
+                     tail_start_index=base + pos)
     return st, MonitorOutputs(_report(rows), events)
 
 
@@ -392,7 +406,8 @@ def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> l
             d_p = np.zeros(len(members))
             score = d_s / p.stroke_threshold
         for j, w in enumerate(members):
-            out[w] = (float(a_s[j]), float(a_p[j]), float(d_s[j]), float(d_p[j]), float(score[j]), True)
+            out[w] = (float(a_s[j]), float(a_p[j]), float(d_s[j]), float(d_p[j]), float(score[j]),
+                      True)
     return out
 
 
@@ -438,11 +453,12 @@ def _report(rows: list[tuple]) -> WingbeatReport:
     if not rows:
         empty_i = np.zeros(0, dtype=np.int64)
         empty_f = np.zeros(0)
-        return WingbeatReport(empty_i, empty_i, empty_i, empty_f, empty_f, empty_f, empty_f, empty_f,
-                              empty_f, empty_f, empty_i)
+        return WingbeatReport(empty_i, empty_i, empty_i, empty_f, empty_f, empty_f, empty_f,
+                              empty_f, empty_f, empty_f, empty_i)
     cols = list(zip(*rows))
     ints = {0, 1, 2, 10}
-    return WingbeatReport(*[np.asarray(c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)])
+    return WingbeatReport(*[np.asarray(
+        c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)])
 
 
 def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
@@ -453,7 +469,8 @@ def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
 
 
 def run(
-    stroke_rad: np.ndarray, pitch_rad: np.ndarray, params: MonitorParams, state: MonitorState | None = None
+    stroke_rad: np.ndarray, pitch_rad: np.ndarray, params: MonitorParams,
+    state: MonitorState | None = None
 ) -> tuple[MonitorState, WingbeatReport, list[MonitorEvent]]:
     """Whole record: ``step`` applied once from ``state`` (default ``initial_state``)."""
     if state is None:

@@ -91,7 +91,8 @@ class KrSchedule:
             if not (math.isfinite(v) and 0.0 <= v <= 1.0):
                 raise DsaParameterError(f"KrSchedule.{name} must be in [0, 1], got {v}")
         if not math.isfinite(self.start_time_s):
-            raise DsaParameterError(f"KrSchedule.start_time_s must be finite, got {self.start_time_s}")
+            raise DsaParameterError(
+                f"KrSchedule.start_time_s must be finite, got {self.start_time_s}")
         if not (math.isfinite(self.duration_s) and self.duration_s >= 0):
             raise DsaParameterError(f"KrSchedule.duration_s must be >= 0, got {self.duration_s}")
 
@@ -122,7 +123,8 @@ class DsaParams:
     compensation_frequency_hz: float | None     # None: at the filter's design frequency
 
     def __post_init__(self) -> None:
-        positive = ("r3_rad_s", "kappa", "actuator_gain_nm_per_v", "sample_rate_hz", "drive_limit_v")
+        positive = ("r3_rad_s", "kappa", "actuator_gain_nm_per_v", "sample_rate_hz",
+                    "drive_limit_v")
         for name in positive:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -138,7 +140,8 @@ class DsaParams:
             and 0 < self.compensation_frequency_hz < self.sample_rate_hz / 2
         ):
             raise DsaParameterError(
-                f"compensation_frequency_hz must be in (0, fs/2), got {self.compensation_frequency_hz}"
+                "compensation_frequency_hz must be in (0, fs/2), got "
+                f"{self.compensation_frequency_hz}"
             )
         if self.design_omega_rad_s >= math.pi * self.sample_rate_hz:
             raise DsaParameterError("sqrt(kappa) * r3_rad_s must lie below the Nyquist frequency")
@@ -167,19 +170,22 @@ class DsaParams:
 
     @cached_property
     def kernel_args(self) -> tuple:
-        """``step``'s kernel arguments after the block and the state: the rate, the normalized (b, a)
-        of the advanced and the raw filter, K_r, the sine, G_a and the limit (once per parameter set:
-        hashing the dataclass for a cache, or a dozen attribute reads a block, cost more than a block).
+        """``step``'s kernel arguments after the block and the state: the rate, the
+        normalized (b, a) of the advanced and the raw filter, K_r, the sine,
+        G_a and the limit (once per parameter set: hashing the dataclass for
+        a cache, or a dozen attribute reads a block, cost more than a block).
         """
         kr = self.kr_schedule
         return (float(self.sample_rate_hz), *normalized_ba(*_tf_coefficients(self, True)),
-                *normalized_ba(*_tf_coefficients(self, False)), float(kr.start_value), float(kr.end_value),
-                float(kr.start_time_s), float(kr.duration_s), float(self.sync_amplitude_v),
-                2.0 * np.pi * self.sync_frequency_hz, float(self.sync_phase_rad), float(self.actuator_gain_nm_per_v),
+                *normalized_ba(*_tf_coefficients(self, False)), float(kr.start_value),
+                float(kr.end_value), float(kr.start_time_s), float(kr.duration_s),
+                float(self.sync_amplitude_v), 2.0 * np.pi * self.sync_frequency_hz,
+                float(self.sync_phase_rad), float(self.actuator_gain_nm_per_v),
                 float(self.drive_limit_v))
 
 
-def loop_delay_s(block_size: int, sample_rate_hz: float, velocity_delay_samples: float = 0.5) -> float:
+def loop_delay_s(block_size: int, sample_rate_hz: float,
+                 velocity_delay_samples: float = 0.5) -> float:
     """Total loop delay to compensate: block transport + ZOH (T_s/2) + velocity estimator.
 
     ``velocity_delay_samples`` is the estimator's group delay in samples (0.5 for a backward
@@ -261,8 +267,8 @@ _TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)   # rows
 
 
 @njit(cache=True)
-def _block(v_in, t_start_s, zi_adv, zi_raw, fs, b_adv, a_adv, b_raw, a_raw, kr_start, kr_end, kr_t0, kr_duration,
-           sync_amplitude_v, sync_omega, sync_phase_rad, gain, limit_v):
+def _block(v_in, t_start_s, zi_adv, zi_raw, fs, b_adv, a_adv, b_raw, a_raw, kr_start, kr_end, kr_t0,
+           kr_duration, sync_amplitude_v, sync_omega, sync_phase_rad, gain, limit_v):
     """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
 
     Returns the signals as rows of one array (one allocation, one object to hand back) and the
@@ -299,19 +305,22 @@ def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaStat
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
     out, z = _block(v, t_start_s, state.zi_advanced, state.zi_raw, *params.kernel_args)
-    signals = DsaSignals(out[_TORQUE_RAW], out[_TORQUE], out[_ASYNC], out[_SYNC], out[_KR], out[_UNCLIPPED],
-                         np.isfinite(v))
+    signals = DsaSignals(out[_TORQUE_RAW], out[_TORQUE], out[_ASYNC], out[_SYNC], out[_KR],
+                         out[_UNCLIPPED], np.isfinite(v))
     return DsaState(z[0], z[1]), DsaOutputs(out[_DRIVE], signals)
 
 
-def frequency_response(params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True) -> np.ndarray:
+def frequency_response(params: DsaParams, frequency_hz: np.ndarray,
+                       advanced: bool = True) -> np.ndarray:
     """Discrete filter response torque/velocity (N m s / rad) at ``frequency_hz``."""
     bz, az = _tf_coefficients(params, advanced)
-    _, h = signal.freqz(bz, az, worN=np.asarray(frequency_hz, dtype=float), fs=params.sample_rate_hz)
+    _, h = signal.freqz(bz, az, worN=np.asarray(frequency_hz, dtype=float),
+                        fs=params.sample_rate_hz)
     return h
 
 
-def continuous_response(params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True) -> np.ndarray:
+def continuous_response(params: DsaParams, frequency_hz: np.ndarray,
+                        advanced: bool = True) -> np.ndarray:
     """Continuous-time H(j w) (times the phase-advance term if ``advanced``)."""
     s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
     h = -params.c / (s * s + params.a * s + params.b)

@@ -38,7 +38,9 @@ CLEARANCE = "clearance"
 
 @dataclass(frozen=True)
 class CollisionMonitorParams:
-    """Every setting of the monitor (config/flaair.yaml `collision_monitor_node`; units in names)."""
+    """Every setting of the monitor (config/flaair.yaml
+    `collision_monitor_node`; units in names).
+    """
 
     sample_rate_hz: float
     block_size: int
@@ -67,7 +69,8 @@ class CollisionMonitorParams:
 
     def __post_init__(self) -> None:
         if self.decision not in ("distortion", "paper"):
-            raise col.CollisionParameterError(f"decision must be 'distortion' or 'paper', got {self.decision!r}")
+            raise col.CollisionParameterError(
+                f"decision must be 'distortion' or 'paper', got {self.decision!r}")
         if self.min_wingbeat_hz >= self.max_wingbeat_hz:
             raise col.CollisionParameterError("min_wingbeat_hz must be below max_wingbeat_hz")
         metric_params(self)
@@ -83,23 +86,29 @@ class CollisionMonitorParams:
 
     @property
     def history_samples(self) -> int:
-        """Pitch samples kept for the paper metric (metric_wingbeats + 2 of the slowest wingbeat)."""
-        return int(math.ceil((self.metric_wingbeats + 2) * self.sample_rate_hz / self.min_wingbeat_hz)) + self.block_size
+        """Pitch samples kept for the paper metric
+        (metric_wingbeats + 2 of the slowest wingbeat).
+        """
+        return int(math.ceil((self.metric_wingbeats + 2) * self.sample_rate_hz
+                             / self.min_wingbeat_hz)) + self.block_size
 
 
 @lru_cache(maxsize=64)
 def metric_params(p: CollisionMonitorParams) -> spectral.SpectralMetricParams:
     """The paper metric's settings."""
-    return spectral.SpectralMetricParams(band_hz=p.metric_band_hz, threshold_deg=p.threshold_deg, n_wingbeats=p.metric_wingbeats)
+    return spectral.SpectralMetricParams(
+        band_hz=p.metric_band_hz, threshold_deg=p.threshold_deg, n_wingbeats=p.metric_wingbeats)
 
 
 @lru_cache(maxsize=256)
-def window_params(p: CollisionMonitorParams, frequency_hz: float | None, phase_rad: float) -> col.MonitorParams:
+def window_params(p: CollisionMonitorParams, frequency_hz: float | None,
+                  phase_rad: float) -> col.MonitorParams:
     """Per-wingbeat window monitor at a drive frequency (None: stroke windows)."""
     return col.MonitorParams(
-        p.sample_rate_hz, window_source=p.window_source, drive_frequency_hz=frequency_hz, drive_phase_rad=phase_rad,
-        stroke_threshold=p.stroke_threshold, pitch_threshold=p.pitch_threshold, use_pitch=True,
-        off_level=p.off_level, n_on=p.n_on, n_off=p.n_off, arm_wingbeats=p.arm_wingbeats,
+        p.sample_rate_hz, window_source=p.window_source, drive_frequency_hz=frequency_hz,
+        drive_phase_rad=phase_rad, stroke_threshold=p.stroke_threshold,
+        pitch_threshold=p.pitch_threshold, use_pitch=True, off_level=p.off_level, n_on=p.n_on,
+        n_off=p.n_off, arm_wingbeats=p.arm_wingbeats,
         min_amplitude_rad=math.radians(p.min_amplitude_deg),
         stroke_noise_rms_rad=math.radians(p.stroke_noise_rms_deg),
         pitch_noise_rms_rad=math.radians(p.pitch_noise_rms_deg),
@@ -142,7 +151,8 @@ class Lock(NamedTuple):
     previous_hz: float
 
 
-def lock_step(state: DriveLockState, block: "DriveBlock", p: CollisionMonitorParams) -> tuple[DriveLockState, Lock | None]:
+def lock_step(state: DriveLockState, block: "DriveBlock",
+              p: CollisionMonitorParams) -> tuple[DriveLockState, Lock | None]:
     """Feed one drive block to the frequency estimator; returns a `Lock` when it (re)locks."""
     finder = state.finder
     crossings = state.crossings
@@ -151,7 +161,8 @@ def lock_step(state: DriveLockState, block: "DriveBlock", p: CollisionMonitorPar
         crossings = ()
     assert finder is not None   # started above when the stream (re)starts
     drive_v = np.asarray(block.drive_v, dtype=float)
-    finder, out = col.step(finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)), drive_lock_params(p))
+    finder, out = col.step(finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)),
+                           drive_lock_params(p))
     kept = list(crossings)
     for start, status in zip(out.report.start_index.tolist(), out.report.status.tolist()):
         if status == col.IDLE:
@@ -160,7 +171,8 @@ def lock_step(state: DriveLockState, block: "DriveBlock", p: CollisionMonitorPar
             kept.append(start)
     need = p.frequency_average_wingbeats + 1
     kept = kept[-need:]
-    state = DriveLockState(finder, block.first_sample_index + drive_v.size, tuple(kept), state.locked_hz)
+    state = DriveLockState(finder, block.first_sample_index + drive_v.size, tuple(kept),
+                           state.locked_hz)
     if len(kept) < need or out.report.start_index.size == 0:
         return state, None
     f = (need - 1) * p.sample_rate_hz / (kept[-1] - kept[0])
@@ -188,13 +200,17 @@ class WingBlock(NamedTuple):
     pitch_rad: np.ndarray
 
 
-def wing_block(first_sample_index: int, stroke_deg, pitch_deg, stroke_valid, pitch_valid) -> WingBlock:
+def wing_block(first_sample_index: int, stroke_deg, pitch_deg, stroke_valid,
+               pitch_valid) -> WingBlock:
     """A wing-state block's fields as the core's input: rad, NaN where a sample is not valid
     (validity flags of the wrong length mark the whole channel invalid).
     """
-    stroke, pitch = np.asarray(stroke_deg, dtype=np.float64), np.asarray(pitch_deg, dtype=np.float64)
-    s_ok = np.asarray(stroke_valid, dtype=bool) if len(stroke_valid) == len(stroke) else np.zeros(len(stroke), bool)
-    p_ok = np.asarray(pitch_valid, dtype=bool) if len(pitch_valid) == len(pitch) else np.zeros(len(pitch), bool)
+    stroke, pitch = (np.asarray(stroke_deg, dtype=np.float64),
+                     np.asarray(pitch_deg, dtype=np.float64))
+    s_ok = (np.asarray(stroke_valid, dtype=bool) if len(stroke_valid) == len(stroke)
+            else np.zeros(len(stroke), bool))
+    p_ok = (np.asarray(pitch_valid, dtype=bool) if len(pitch_valid) == len(pitch)
+            else np.zeros(len(pitch), bool))
     return WingBlock(int(first_sample_index), np.where(s_ok, np.radians(stroke), np.nan),
                      np.where(p_ok, np.radians(pitch), np.nan))
 
@@ -220,7 +236,9 @@ class MonitorOutputs(NamedTuple):
 
 
 class CollisionMonitorState(NamedTuple):
-    """Monitor state between blocks (arrays are read-only; a NamedTuple, so ``_replace`` is cheap)."""
+    """Monitor state between blocks (arrays are read-only;
+    a NamedTuple, so ``_replace`` is cheap).
+    """
 
     windows: col.MonitorParams | None  # None: drive frequency not known yet
     monitor: col.MonitorState | None
@@ -237,11 +255,12 @@ class CollisionMonitorState(NamedTuple):
 
 def initial_state(p: CollisionMonitorParams) -> CollisionMonitorState:
     """Monitor before the first block."""
-    windows = None if p.estimates_frequency else window_params(p, p.drive_frequency_hz or None, p.drive_phase_rad)
+    windows = None if p.estimates_frequency else window_params(
+        p, p.drive_frequency_hz or None, p.drive_phase_rad)
     history = np.full(p.history_samples, np.nan)
     history.flags.writeable = False
-    return CollisionMonitorState(windows, None, DriveLockState(None, None, (), 0.0), None, history, history, 0,
-                                 False, 0, 0, 0)
+    return CollisionMonitorState(windows, None, DriveLockState(None, None, (), 0.0), None, history,
+                                 history, 0, False, 0, 0, 0)
 
 
 def step(state: CollisionMonitorState, inputs: Union[DriveBlock, WingBlock],
@@ -263,9 +282,10 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     try:
         windows = window_params(p, lock.frequency_hz, lock.phase_rad)
     except col.CollisionParameterError as exc:
-        return state, MonitorOutputs((), (Note(INFO, f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}"),))
-    note = Note(INFO, f"drive windows locked at {lock.frequency_hz:.3f} Hz"
-                + (f" (was {lock.previous_hz:.3f} Hz; monitor re-armed)" if lock.previous_hz else ""))
+        return state, MonitorOutputs((), (
+            Note(INFO, f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}"),))
+    note = Note(INFO, f"drive windows locked at {lock.frequency_hz:.3f} Hz" + (
+        f" (was {lock.previous_hz:.3f} Hz; monitor re-armed)" if lock.previous_hz else ""))
     # The windows start at the lock's crossing, whichever stream is ahead: the verdicts do not
     # depend on how the drive and wing-state blocks interleaved (live and replay agree).
     start = lock.crossing_index
@@ -275,8 +295,10 @@ def _on_drive(state: CollisionMonitorState, block: DriveBlock,
     if state.expected_index is None or behind <= 0:
         return state, MonitorOutputs((), (note,))
     if behind > state.pitch_history_rad.size:   # history too short: start at the wing stream
-        return state._replace(monitor=col.initial_state(windows, start_index=state.history_end)), MonitorOutputs((), (note,))
-    state, verdicts = _feed(state, monitor, state.stroke_history_rad[-behind:], state.pitch_history_rad[-behind:], p)
+        return (state._replace(monitor=col.initial_state(windows, start_index=state.history_end)),
+                MonitorOutputs((), (note,)))
+    state, verdicts = _feed(state, monitor, state.stroke_history_rad[-behind:],
+                            state.pitch_history_rad[-behind:], p)
     return state, MonitorOutputs(verdicts, (note,))
 
 
@@ -285,7 +307,8 @@ def _store(history: np.ndarray, end: int, first_index: int, x: np.ndarray) -> np
     n = x.size
     if first_index != end:
         history = np.full(history.size, np.nan)
-    out = np.concatenate([history, x])[-history.size:] if n < history.size else x[-history.size:].copy()
+    out = (np.concatenate([history, x])[-history.size:] if n < history.size
+           else x[-history.size:].copy())
     out.flags.writeable = False
     return out
 
@@ -315,20 +338,26 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     pitch = np.asarray(block.pitch_rad, dtype=float)
     notes: list[Note] = []
     monitor = state.monitor
-    if state.expected_index is not None and first != state.expected_index and state.windows is not None:
-        notes.append(Note(INFO, f"wing-state block {first} after {state.expected_index - 1}: monitor restarted"))
+    if (state.expected_index is not None and first != state.expected_index
+        and state.windows is not None):
+        notes.append(Note(
+            INFO, f"wing-state block {first} after {state.expected_index - 1}: monitor restarted"))
         monitor = None
     state = state._replace(expected_index=first + stroke.size,
-                    stroke_history_rad=_store(state.stroke_history_rad, state.history_end, first, stroke),
-                    pitch_history_rad=_store(state.pitch_history_rad, state.history_end, first, pitch),
-                    history_end=first + stroke.size)
+                           stroke_history_rad=_store(
+        state.stroke_history_rad, state.history_end, first, stroke),
+                           pitch_history_rad=_store(state.pitch_history_rad, state.history_end,
+                                                    first, pitch),
+                           history_end=first + stroke.size)
     if state.windows is None:
         return state, MonitorOutputs((), tuple(notes))   # drive frequency not known yet
     if monitor is None:
         monitor = col.initial_state(state.windows, start_index=first)
-    skip = monitor.tail_start_index + monitor.tail_stroke_rad.size - first   # > 0: windows start inside/after
+    # > 0: windows start inside/after
+    skip = monitor.tail_start_index + monitor.tail_stroke_rad.size - first
     if skip < 0:
-        monitor = col.initial_state(state.windows, start_index=first)   # off this stream position: restart here
+        # off this stream position: restart here
+        monitor = col.initial_state(state.windows, start_index=first)
         skip = 0
     if skip >= stroke.size:
         return state._replace(monitor=monitor), MonitorOutputs((), tuple(notes))
@@ -336,8 +365,9 @@ def _on_wing(state: CollisionMonitorState, block: WingBlock,
     return state, MonitorOutputs(verdicts, tuple(notes))
 
 
-def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.ndarray, pitch: np.ndarray,
-          p: CollisionMonitorParams) -> tuple[CollisionMonitorState, tuple[Verdict, ...]]:
+def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.ndarray,
+          pitch: np.ndarray, p: CollisionMonitorParams) -> tuple[CollisionMonitorState,
+                                                                 tuple[Verdict, ...]]:
     """Run the window monitor on samples that continue it, and decide every wingbeat it closes."""
     assert state.windows is not None   # the caller feeds only once windows are known
     monitor, out = col.step(monitor, col.MonitorInputs(stroke, pitch), state.windows)
@@ -373,5 +403,6 @@ def _feed(state: CollisionMonitorState, monitor: col.MonitorState, stroke: np.nd
                                 metric.time_rmse_deg if metric is not None else math.nan,
                                 float(report.score[k]), event))
         wingbeats += 1
-    state = state._replace(monitor=monitor, colliding=colliding, above=above, below=below, wingbeats=wingbeats)
+    state = state._replace(monitor=monitor, colliding=colliding, above=above, below=below,
+                           wingbeats=wingbeats)
     return state, tuple(verdicts)

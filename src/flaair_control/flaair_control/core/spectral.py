@@ -57,11 +57,14 @@ class SpectralMetricParams:
         if not (math.isfinite(self.band_hz) and self.band_hz > 0):
             raise CollisionParameterError(f"band_hz must be finite and > 0, got {self.band_hz}")
         if not (math.isfinite(self.threshold_deg) and self.threshold_deg > 0):
-            raise CollisionParameterError(f"threshold_deg must be finite and > 0, got {self.threshold_deg}")
+            raise CollisionParameterError(
+                f"threshold_deg must be finite and > 0, got {self.threshold_deg}")
         if self.reference not in ("energy", "fundamental"):
-            raise CollisionParameterError(f"reference must be 'energy' or 'fundamental', got {self.reference!r}")
+            raise CollisionParameterError(
+                f"reference must be 'energy' or 'fundamental', got {self.reference!r}")
         if self.n_wingbeats is not None and self.n_wingbeats < 1:
-            raise CollisionParameterError(f"n_wingbeats must be >= 1 or None, got {self.n_wingbeats}")
+            raise CollisionParameterError(
+                f"n_wingbeats must be >= 1 or None, got {self.n_wingbeats}")
 
 
 class SpectralMetric(NamedTuple):
@@ -107,15 +110,19 @@ def spectral_metric(
     x = np.asarray(angle_rad, dtype=float).ravel()
     fs, f = float(sample_rate_hz), float(drive_frequency_hz)
     if not (math.isfinite(fs) and fs > 0):
-        raise CollisionParameterError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+        raise CollisionParameterError(
+            f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
     if not (math.isfinite(f) and 0 < f < fs / 2):
-        raise CollisionParameterError(f"drive_frequency_hz must be in (0, fs/2), got {drive_frequency_hz}")
+        raise CollisionParameterError(
+            f"drive_frequency_hz must be in (0, fs/2), got {drive_frequency_hz}")
     if not np.all(np.isfinite(x)):
         raise CollisionParameterError("angle_rad must be finite")
     periods_available = math.floor(x.size * f / fs + 1e-9)
-    periods = periods_available if params.n_wingbeats is None else min(params.n_wingbeats, periods_available)
+    periods = (periods_available if params.n_wingbeats is None
+               else min(params.n_wingbeats, periods_available))
     if periods < 1:
-        raise CollisionParameterError(f"angle_rad holds less than one drive period ({x.size} samples)")
+        raise CollisionParameterError(
+            f"angle_rad holds less than one drive period ({x.size} samples)")
     n = int(round(periods * fs / f))
     n = min(n, x.size)
     x = x[x.size - n:]

@@ -6,8 +6,8 @@ Hilbert analysis (``hilbert_analysis``)
 ---------------------------------------
 The paper reports the stroke frequency and amplitude of the transition from the Hilbert
 transform of the sensor-determined stroke angle, "smoothened through a bandpass and
-Savitzky-Golay filter". It does not give the filters, so (parameters in ``HilbertParams``; the values the tools use,
-noted as "config" below, are config/flaair.yaml ``analyze: hilbert_*``):
+Savitzky-Golay filter". It does not give the filters, so (parameters in ``HilbertParams``; the
+values the tools use, noted as "config" below, are config/flaair.yaml ``analyze: hilbert_*``):
 
 1. invalid samples (NaN) are filled by linear interpolation (counted in the result);
 2. band-pass: Butterworth (``band_order``, config 4) over ``band_hz`` (config 40-400 Hz, wide
@@ -52,7 +52,9 @@ class TransitionError(ValueError):
 
 @dataclass(frozen=True)
 class HilbertParams:
-    """Band-pass + Hilbert + Savitzky-Golay settings (see module docstring; values: config/flaair.yaml analyze)."""
+    """Band-pass + Hilbert + Savitzky-Golay settings (see
+    module docstring; values: config/flaair.yaml analyze).
+    """
 
     band_hz: tuple[float, float]
     band_order: int
@@ -104,7 +106,8 @@ def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertPa
     if not (math.isfinite(fs) and fs > 0):
         raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
     if params.band_hz[1] >= fs / 2:
-        raise TransitionError(f"band_hz upper edge {params.band_hz[1]} must lie below fs/2 = {fs / 2}")
+        raise TransitionError(
+            f"band_hz upper edge {params.band_hz[1]} must lie below fs/2 = {fs / 2}")
     x = np.asarray(angle, dtype=float).ravel()
     window = int(round(params.savgol_window_s * fs)) | 1
     if window <= params.savgol_order:
@@ -179,13 +182,15 @@ def crossing_params(sample_rate_hz: float, hysteresis: float, average: int = 4,
         raise TransitionError(f"hysteresis must be finite and >= 0, got {hysteresis}")
     if average < 1:
         raise TransitionError(f"average must be >= 1, got {average}")
-    return CrossingParams(float(sample_rate_hz), float(hysteresis), int(average), float(max_period_s))
+    return CrossingParams(float(sample_rate_hz), float(hysteresis), int(average),
+                          float(max_period_s))
 
 
 CROSSING_START = CrossingState(0, False, None, ())
 
 
-def crossing_step(state: CrossingState, x: Iterable[float], params: CrossingParams) -> tuple[CrossingState, float]:
+def crossing_step(state: CrossingState, x: Iterable[float],
+                  params: CrossingParams) -> tuple[CrossingState, float]:
     """Feed samples (one block); return the new state and the frequency estimate (Hz)."""
     h = params.hysteresis
     high, prev, i = state.high, state.prev, state.next_index
@@ -219,9 +224,12 @@ def crossing_frequency_hz(state: CrossingState, params: CrossingParams) -> float
 
 
 class CrossingFrequency:
-    """Streaming stroke frequency from upward Schmitt-trigger crossings (`crossing_step` with its state)."""
+    """Streaming stroke frequency from upward Schmitt-trigger
+    crossings (`crossing_step` with its state).
+    """
 
-    def __init__(self, sample_rate_hz: float, hysteresis: float, average: int = 4, max_period_s: float = 0.05) -> None:
+    def __init__(self, sample_rate_hz: float, hysteresis: float, average: int = 4,
+                 max_period_s: float = 0.05) -> None:
         self.params = crossing_params(sample_rate_hz, hysteresis, average, max_period_s)
         self.fs = self.params.sample_rate_hz
         self.state = CROSSING_START

@@ -77,20 +77,21 @@ def _sample_rate(run: Mapping[str, Any], sample_rate_hz: float | None) -> tuple[
     return 1.0 / step, t.size
 
 
-def _check_sensor(v: np.ndarray, name: str, rails_v: tuple[float, float] | None, flat_fraction: float) -> None:
+def _check_sensor(v: np.ndarray, name: str, rails_v: tuple[float, float] | None,
+                  flat_fraction: float) -> None:
     bad = ~np.isfinite(v)
     if bad.any():
         raise CalibrationError(
-            f"column '{name}' has {int(bad.sum())} non-finite samples (first at index {int(np.argmax(bad))}); "
-            "sensor columns must be complete"
+            f"column '{name}' has {int(bad.sum())} non-finite samples (first at index "
+            f"{int(np.argmax(bad))}); sensor columns must be complete"
         )
     if rails_v is not None:
         lo, hi = rails_v
         at_rail = (v <= lo) | (v >= hi)
         if at_rail.any():
             raise CalibrationError(
-                f"column '{name}' is saturated: {int(at_rail.sum())} samples at or beyond the rails "
-                f"[{lo:g}, {hi:g}] V (first at index {int(np.argmax(at_rail))})"
+                f"column '{name}' is saturated: {int(at_rail.sum())} samples at or beyond the "
+                f"rails [{lo:g}, {hi:g}] V (first at index {int(np.argmax(at_rail))})"
             )
     span = float(v.max() - v.min())
     if span <= 0:
@@ -185,7 +186,8 @@ def calibrate_channel(
     n_ok = int(np.isfinite(y).sum())
     if n_ok < min_valid_truth:
         raise CalibrationError(
-            f"column '{truth_name}' has too few valid ground-truth samples ({n_ok} < {min_valid_truth})"
+            f"column '{truth_name}' has too few valid ground-truth samples ({n_ok} < "
+            f"{min_valid_truth})"
         )
     finite = y[np.isfinite(y)]
     if float(np.ptp(finite)) <= 0:
@@ -195,7 +197,8 @@ def calibrate_channel(
     except CharacterizationError as exc:
         raise CalibrationError(f"columns '{sensor_name}'/'{truth_name}': {exc}") from None
     if not (math.isfinite(fit.gain) and fit.gain != 0):
-        raise CalibrationError(f"column '{sensor_name}' does not follow '{truth_name}': gain fit failed")
+        raise CalibrationError(
+            f"column '{sensor_name}' does not follow '{truth_name}': gain fit failed")
     g = fit.gain
     zero_v = -float(fit.trend[0]) / g if fit.trend.size else 0.0
     drift = -float(fit.trend[1]) / g * 2.0 / (v.size / fs_hz) if fit.trend.size > 1 else 0.0
@@ -270,12 +273,14 @@ def calibrate(
     if frequency_hz_per_sample is not None:
         track = np.asarray(frequency_hz_per_sample, float).reshape(-1)
         if track.size != n:
-            raise CalibrationError(f"frequency_hz_per_sample has {track.size} samples, expected {n}")
+            raise CalibrationError(
+                f"frequency_hz_per_sample has {track.size} samples, expected {n}")
         phase = 2 * np.pi * np.cumsum(track) / fs
     else:
         phase, track = frequency_track_from_drive(drive, fs)
 
-    result: dict[str, Any] = {"reference_voltage_v": float(reference_voltage_v), "sample_rate_hz": fs}
+    result: dict[str, Any] = {"reference_voltage_v": float(reference_voltage_v),
+                              "sample_rate_hz": fs}
     for ch, (vcol, tcol) in CHANNELS.items():
         v = _column(run, vcol, n)
         _check_sensor(v, vcol, rails_v, flat_fraction)
@@ -285,7 +290,8 @@ def calibrate(
             v, y, fs, reference_voltage_v, sensor_name=vcol, truth_name=tcol,
             max_lag_s=max_lag_s, trend_order=trend_order, min_valid_truth=min_valid_truth,
         )
-        angle = cal["polarity"] * cal["gain_deg_per_v"] * (v - reference_voltage_v - cal["offset_v"])
+        angle = cal["polarity"] * cal["gain_deg_per_v"] * (
+            v - reference_voltage_v - cal["offset_v"])
         freqs, damp, dph = _window_errors(angle, y, phase, track, fs, window_s, min_valid_fraction)
         band = (freqs >= amplitude_band_hz[0]) & (freqs <= amplitude_band_hz[1])
         cal.update(

@@ -105,7 +105,8 @@ class Characterization:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict, ready for JSON."""
-        return {"bode": self.bode.as_dict(), "stroke": asdict(self.stroke), "pitch": asdict(self.pitch)}
+        return {"bode": self.bode.as_dict(), "stroke": asdict(self.stroke),
+                "pitch": asdict(self.pitch)}
 
 
 class DelayFit(NamedTuple):
@@ -161,7 +162,8 @@ def fit_delay(
     n = y.size
     ok = np.isfinite(y)
     if ok.sum() < min_samples:
-        raise CharacterizationError(f"too few finite truth samples ({int(ok.sum())} < {min_samples})")
+        raise CharacterizationError(
+            f"too few finite truth samples ({int(ok.sum())} < {min_samples})")
     t = np.arange(n, dtype=float)
     idx = np.flatnonzero(ok)
     tc = (t - 0.5 * (n - 1)) / max(1.0, 0.5 * (n - 1))
@@ -181,10 +183,12 @@ def fit_delay(
         trend = coef[1:] if fit_gain else coef
         return gain, trend, float(np.mean(r**2))
 
-    # Coarse: integer lags (keep only truth samples whose shifted sensor sample exists for all lags).
+    # Coarse: integer lags (keep only truth samples
+    # whose shifted sensor sample exists for all lags).
     sel = idx[(idx >= max_lag) & (idx < n - max_lag)]
     if sel.size < min_samples:
-        raise CharacterizationError(f"too few finite truth samples away from the record ends ({sel.size})")
+        raise CharacterizationError(
+            f"too few finite truth samples away from the record ends ({sel.size})")
     costs = np.array([solve(x[sel + m], sel)[2] for m in range(-max_lag, max_lag + 1)])
     m0 = int(np.argmin(costs)) - max_lag
     spline = interpolate.CubicSpline(t, x)
@@ -275,7 +279,8 @@ def characterize(
     ``frequency_hz_per_sample`` selects the in-band samples for the band time RMSE (estimated
     from the drive when omitted).
     """
-    sig = run_signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad)
+    sig = run_signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad,
+                      pitch_truth_rad)
     if frequency_hz_per_sample is None:
         _, frequency_hz_per_sample = frequency_track_from_drive(sig["drive"], fs_hz)
     metrics = {}

@@ -66,7 +66,9 @@ from numba import njit
 from scipy import signal
 
 from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
-from flaair_sensors.core.frontend_params import (  # re-exported: the front end's whole API in one place
+
+# re-exported: the front end's whole API in one place
+from flaair_sensors.core.frontend_params import (
     TUNING_FIELDS,
     FrontendError,
     FrontendParams,
@@ -159,8 +161,10 @@ def _filters(p: FrontendParams) -> _Filters:
         db, da = signal.butter(1, p.drift_corner_hz, btype="low", fs=fs)
     else:
         db, da = np.array([0.0, 0.0]), np.array([1.0, 0.0])
-    sl = _lead_ba(p.stroke_lag_s, p.lead_rolloff_hz, fs) if (p.compensate_lag and p.stroke_lag_s != 0.0) else None
-    pl = _lead_ba(p.pitch_lag_s, p.lead_rolloff_hz, fs) if (p.compensate_lag and p.pitch_lag_s != 0.0) else None
+    sl = _lead_ba(p.stroke_lag_s, p.lead_rolloff_hz, fs) if (
+        p.compensate_lag and p.stroke_lag_s != 0.0) else None
+    pl = _lead_ba(p.pitch_lag_s, p.lead_rolloff_hz, fs) if (
+        p.compensate_lag and p.pitch_lag_s != 0.0) else None
     vb, va = _velocity_ba(p.velocity_cutoff_hz, fs)
     return _Filters(np.asarray(db, float), np.asarray(da, float), sl, pl, vb, va)
 
@@ -178,7 +182,8 @@ def drift_removal_response(params: FrontendParams, frequency_hz: np.ndarray | fl
     return 1.0 - h
 
 
-def lag_compensation_response(params: FrontendParams, frequency_hz: np.ndarray | float, channel: str = "stroke") -> np.ndarray:
+def lag_compensation_response(params: FrontendParams, frequency_hz: np.ndarray | float,
+                              channel: str = "stroke") -> np.ndarray:
     """Residual of lag compensation: LEAD(f) * exp(-j 2 pi f lag) (1 = perfect; identity if off)."""
     f = np.atleast_1d(np.asarray(frequency_hz, float))
     lag = _channel_lag(params, channel)
@@ -213,7 +218,8 @@ def velocity_response(params: FrontendParams, frequency_hz: float) -> tuple[floa
     _, h = signal.freqz(flt.vel_b, flt.vel_a, worN=[f], fs=params.sample_rate_hz)
     ratio = h[0] / (2j * np.pi * f)
     _, gd = signal.group_delay((flt.vel_b, flt.vel_a), w=[f], fs=params.sample_rate_hz)
-    return float(abs(ratio)), float(-np.degrees(np.angle(ratio))), float(gd[0] / params.sample_rate_hz)
+    return (float(abs(ratio)), float(-np.degrees(np.angle(ratio))),
+            float(gd[0] / params.sample_rate_hz))
 
 
 def velocity_phase_lag_deg(params: FrontendParams, frequency_hz: float = 140.0) -> float:
@@ -232,7 +238,8 @@ def estimate_delay_s(params: FrontendParams, frequency_hz: float = 140.0) -> dic
     out = {}
     for ch in ("stroke", "pitch"):
         out[f"{ch}_s"] = -float(np.angle(lag_compensation_response(params, f, ch)[0])) / w + drift
-    out["stroke_velocity_s"] = out["stroke_s"] + float(np.radians(velocity_phase_lag_deg(params, f))) / w
+    out["stroke_velocity_s"] = out["stroke_s"] + float(
+        np.radians(velocity_phase_lag_deg(params, f))) / w
     return out
 
 
@@ -266,7 +273,8 @@ def initial_state(
         transient from a V_HREF error). ``None`` trusts the calibrated offset (tracker at zero).
     """
     flt = _filters(params)
-    zi_drift_unit = signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0 else np.zeros(1)
+    zi_drift_unit = (signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0
+                     else np.zeros(1))
 
     def drift_zi(first_v: float | None, offset: float, name: str) -> np.ndarray:
         if first_v is None or params.drift_corner_hz <= 0:
@@ -299,12 +307,15 @@ def initial_state(
     )
 
 
-_NO_FILTER = np.zeros(1)   # stands in for an absent lead filter (the kernel's arguments keep one type)
+# stands in for an absent lead filter (the kernel's arguments keep one type)
+_NO_FILTER = np.zeros(1)
 
 
 @lru_cache(maxsize=64)
 def _kernel_constants(p: FrontendParams) -> tuple:
-    """``_block``'s arguments after the block and the state (normalized filters, thresholds), once per params."""
+    """``_block``'s arguments after the block and the state
+    (normalized filters, thresholds), once per params.
+    """
     flt = _filters(p)
     rails = bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf)
     stroke_lead = normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER)
@@ -321,7 +332,8 @@ def _kernel_constants(p: FrontendParams) -> tuple:
 def _channel(v, angle, valid, zero_v, volts_per_rad, rails, above_v, below_v, holdoff, since_bad,
              drift, drift_b, drift_a, drift_z, lead, lead_b, lead_a, lead_z,
              velocity, velocity_b, velocity_a, velocity_z, velocity_out):
-    """One channel, sample by sample; filter states (``*_z``) advance in place on usable samples only.
+    """One channel, sample by sample; filter states
+    (``*_z``) advance in place on usable samples only.
 
     Usable: finite and, with rails, inside (above_v, below_v). Valid: usable and more than
     ``holdoff`` samples after the last unusable one (``since_bad`` samples before this block).
@@ -351,24 +363,25 @@ def _channel(v, angle, valid, zero_v, volts_per_rad, rails, above_v, below_v, ho
 
 
 @njit(cache=True)
-def _block(sv, pv, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_zi, velocity_zi, stroke_since_bad,
-           pitch_since_bad, stroke_zero_v, pitch_zero_v, stroke_vpr, pitch_vpr, rails, above_v, below_v, holdoff,
-           drift, drift_b, drift_a, stroke_lead, stroke_lead_b, stroke_lead_a, pitch_lead, pitch_lead_b, pitch_lead_a,
-           velocity_b, velocity_a):
-    """Both channels of one block: rows (stroke, pitch, stroke velocity), rows (stroke, pitch) valid,
-    the five new filter states and the two hold-off counters.
+def _block(sv, pv, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_zi, velocity_zi,
+           stroke_since_bad, pitch_since_bad, stroke_zero_v, pitch_zero_v, stroke_vpr, pitch_vpr,
+           rails, above_v, below_v, holdoff, drift, drift_b, drift_a, stroke_lead, stroke_lead_b,
+           stroke_lead_a, pitch_lead, pitch_lead_b, pitch_lead_a, velocity_b, velocity_a):
+    """Both channels of one block: rows (stroke, pitch, stroke velocity), rows
+    (stroke, pitch) valid, the five new filter states and the two hold-off counters.
     """
     n = sv.size
     out = np.empty((3, n))
     valid = np.empty((2, n), np.bool_)
-    s_dz, p_dz, s_lz, p_lz, v_z = (stroke_drift_zi.copy(), pitch_drift_zi.copy(), stroke_lead_zi.copy(),
-                                   pitch_lead_zi.copy(), velocity_zi.copy())
-    s_since = _channel(sv, out[0], valid[0], stroke_zero_v, stroke_vpr, rails, above_v, below_v, holdoff,
-                       stroke_since_bad, drift, drift_b, drift_a, s_dz, stroke_lead, stroke_lead_b, stroke_lead_a,
-                       s_lz, True, velocity_b, velocity_a, v_z, out[2])
-    p_since = _channel(pv, out[1], valid[1], pitch_zero_v, pitch_vpr, rails, above_v, below_v, holdoff,
-                       pitch_since_bad, drift, drift_b, drift_a, p_dz, pitch_lead, pitch_lead_b, pitch_lead_a,
-                       p_lz, False, velocity_b, velocity_a, v_z, out[2])
+    s_dz, p_dz, s_lz, p_lz, v_z = (stroke_drift_zi.copy(), pitch_drift_zi.copy(),
+                                   stroke_lead_zi.copy(), pitch_lead_zi.copy(), velocity_zi.copy())
+    s_since = _channel(sv, out[0], valid[0], stroke_zero_v, stroke_vpr, rails, above_v, below_v,
+                       holdoff, stroke_since_bad, drift, drift_b, drift_a, s_dz, stroke_lead,
+                       stroke_lead_b, stroke_lead_a, s_lz, True, velocity_b, velocity_a, v_z,
+                       out[2])
+    p_since = _channel(pv, out[1], valid[1], pitch_zero_v, pitch_vpr, rails, above_v, below_v,
+                       holdoff, pitch_since_bad, drift, drift_b, drift_a, p_dz, pitch_lead,
+                       pitch_lead_b, pitch_lead_a, p_lz, False, velocity_b, velocity_a, v_z, out[2])
     return out, valid, s_dz, p_dz, s_lz, p_lz, v_z, s_since, p_since
 
 
@@ -386,7 +399,8 @@ def warm_up(params: FrontendParams, n: int = 10) -> None:
     step(initial_state(params), FrontendInputs(np.zeros(n), np.zeros(n)), params)
 
 
-def step(state: FrontendState, inputs: FrontendInputs, params: FrontendParams) -> tuple[FrontendState, WingEstimate]:
+def step(state: FrontendState, inputs: FrontendInputs,
+         params: FrontendParams) -> tuple[FrontendState, WingEstimate]:
     """Advance the front end by one block of samples.
 
     Parameters
@@ -408,11 +422,13 @@ def step(state: FrontendState, inputs: FrontendInputs, params: FrontendParams) -
     pv = float_block(inputs.pitch_sensor_v)
     if sv.shape != pv.shape:
         raise FrontendError(
-            f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and {pv.size}"
+            f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and "
+            f"{pv.size}"
         )
-    out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = _block(
-        sv, pv, state.stroke_drift_zi, state.pitch_drift_zi, state.stroke_lead_zi, state.pitch_lead_zi,
-        state.velocity_zi, state.stroke_since_bad, state.pitch_since_bad, *_kernel_constants(params))
+    out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = (
+        _block(sv, pv, state.stroke_drift_zi, state.pitch_drift_zi, state.stroke_lead_zi,
+               state.pitch_lead_zi, state.velocity_zi, state.stroke_since_bad,
+               state.pitch_since_bad, *_kernel_constants(params)))
     new_state = FrontendState(
         stroke_drift_zi=s_dzi,
         pitch_drift_zi=p_dzi,
@@ -431,7 +447,9 @@ def estimate(
     params: FrontendParams,
     state: FrontendState | None = None,
 ) -> WingEstimate:
-    """Whole-record front end: ``step`` over the record from ``state`` (default ``initial_state``)."""
+    """Whole-record front end: ``step`` over the record
+    from ``state`` (default ``initial_state``).
+    """
     if state is None:
         state = initial_state(params)
     return step(state, FrontendInputs(stroke_sensor_v, pitch_sensor_v), params)[1]

@@ -89,7 +89,8 @@ def initial_state(params: ActuatorParams, *, t_wall: float) -> ActuatorState:
     return ActuatorState(0, None, t_wall, False, 0, None, (), t_wall, 0)
 
 
-def step(state: ActuatorState, inputs: Union[Command, Tick], p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
+def step(state: ActuatorState, inputs: Union[Command, Tick],
+         p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
     """Advance the driver by one command block or one wall-clock tick."""
     if isinstance(inputs, Command):
         return _on_command(state, inputs, p)
@@ -101,7 +102,8 @@ def _emit(state: ActuatorState, blocks: list[np.ndarray], drive_v: np.ndarray) -
     return state._replace(next_index=state.next_index + drive_v.size)
 
 
-def _on_command(state: ActuatorState, c: Command, p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
+def _on_command(state: ActuatorState, c: Command,
+                p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
     first = int(c.first_sample_index)
     drive_v = np.array(c.drive_v, dtype=np.float64)
     notes: list[Note] = []
@@ -113,18 +115,22 @@ def _on_command(state: ActuatorState, c: Command, p: ActuatorParams) -> tuple[Ac
                             state.expected_command_index, p.block_size)
         if not check.ok:
             state = state._replace(rejected=state.rejected + 1)
-            action = {"stale": "ignored", "gap": "accepted after the gap", "content": "holding zero drive"}[check.kind]
+            action = {"stale": "ignored", "gap": "accepted after the gap",
+                      "content": "holding zero drive"}[check.kind]
             notes.append(Note(WARNING, f"rejected command block {first} ({check.reason}); {action} "
                                        f"[{state.rejected} rejected so far]", "rejected"))
             if check.kind == "stale":
-                return state, Outputs((), tuple(notes))   # a duplicate must not advance the plant again
+                # a duplicate must not advance the plant again
+                return state, Outputs((), tuple(notes))
             if check.kind == "content":
                 drive_v = np.zeros(p.block_size)
     state = state._replace(expected_command_index=first + p.block_size, last_command_wall=c.t_wall)
     if p.mode != "lockstep":
-        return state._replace(pending=(state.pending + (drive_v,))[-MAX_PENDING:]), Outputs((), tuple(notes))
+        return (state._replace(pending=(state.pending + (drive_v,))[-MAX_PENDING:]),
+                Outputs((), tuple(notes)))
     if state.ring_down is not None:
-        notes.append(Note(INFO, f"drive commands resumed at block {first}; drive watchdog re-armed"))
+        notes.append(Note(
+            INFO, f"drive commands resumed at block {first}; drive watchdog re-armed"))
     state = state._replace(ring_down=None, driven=bool(drive_v.any()),
                            commanded_samples=state.commanded_samples + drive_v.size)
     blocks: list[np.ndarray] = []
@@ -157,16 +163,20 @@ def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[Actua
         if not (armed and state.driven and silent_s > p.command_timeout_s):
             return state, Outputs()
         n_ring = int(round(p.ring_down_s * p.sample_rate_hz / p.block_size)) * p.block_size
-        state = state._replace(ring_down=(now, state.next_index, state.next_index + n_ring), driven=False)
-        notes.append(Note(ERROR, f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> command_timeout_s "
-                                 f"{p.command_timeout_s:g} s) after block {state.next_index - p.block_size}, last drive "
-                                 f"not zero: drive zeroed, ringing down for {p.ring_down_s:g} s"))
+        state = state._replace(ring_down=(
+            now, state.next_index, state.next_index + n_ring), driven=False)
+        notes.append(Note(ERROR, f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> "
+                                 f"command_timeout_s {p.command_timeout_s:g} s) after block "
+                                 f"{state.next_index - p.block_size}, last drive not zero: drive "
+                                 f"zeroed, ringing down for {p.ring_down_s:g} s"))
     assert state.ring_down is not None   # set just above when the watchdog trips
     wall_start, first, end = state.ring_down
     due = min(end, first + int((now - wall_start) * p.sample_rate_hz))
     while state.next_index + p.block_size <= due:
         state = _emit(state, blocks, zero)
     if blocks and state.next_index == end:
-        notes.append(Note(INFO, f"ring-down done at sample {end}: zero drive held until a command block comes"))
+        notes.append(Note(
+            INFO, f"ring-down done at sample {end}: zero drive held until a command block comes"))
     # the stream continues from here: a command for the next block is in order
-    return state._replace(expected_command_index=state.next_index), Outputs(tuple(blocks), tuple(notes))
+    return (state._replace(expected_command_index=state.next_index),
+            Outputs(tuple(blocks), tuple(notes)))

@@ -57,14 +57,16 @@ def _positive(name: str, value: float) -> float:
 
 
 def sine(
-    t_s: np.ndarray, amplitude_v: float, frequency_hz: float, bias_v: float = 0.0, phase_rad: float = 0.0
+    t_s: np.ndarray, amplitude_v: float, frequency_hz: float, bias_v: float = 0.0,
+    phase_rad: float = 0.0
 ) -> np.ndarray:
     """bias_v + amplitude_v * sin(2 pi frequency_hz t + phase_rad)."""
     t = np.asarray(t_s, dtype=np.float64)
     return bias_v + amplitude_v * np.sin(2.0 * np.pi * frequency_hz * t + phase_rad)
 
 
-def chirp(t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float, duration_s: float) -> np.ndarray:
+def chirp(t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float,
+          duration_s: float) -> np.ndarray:
     """Linear, phase-continuous chirp from start_hz (t = 0) to stop_hz (t = duration_s).
 
     Past duration_s the frequency stays at stop_hz (phase-continuous); before 0 at start_hz.
@@ -73,7 +75,8 @@ def chirp(t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float, 
     t = np.asarray(t_s, dtype=np.float64)
     rate = (stop_hz - start_hz) / duration_s
     inside = np.clip(t, 0.0, duration_s)
-    cycles = start_hz * inside + 0.5 * rate * inside * inside + stop_hz * np.maximum(t - duration_s, 0.0)
+    cycles = (start_hz * inside + 0.5 * rate * inside * inside + stop_hz
+              * np.maximum(t - duration_s, 0.0))
     cycles = cycles + start_hz * np.minimum(t, 0.0)
     return amplitude_v * np.sin(2.0 * np.pi * cycles)
 
@@ -149,8 +152,8 @@ class DriveParams:
     def __post_init__(self) -> None:
         if self.kind not in DRIVE_KINDS:
             raise DriveError(f"kind must be one of {', '.join(DRIVE_KINDS)}, got {self.kind!r}")
-        for name in ("amplitude_v", "bias_v", "frequency_hz", "start_hz", "stop_hz", "duration_s", "step_hz", "dwell_s",
-                     "lead_in_s"):
+        for name in ("amplitude_v", "bias_v", "frequency_hz", "start_hz", "stop_hz", "duration_s",
+                     "step_hz", "dwell_s", "lead_in_s"):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.lead_in_s < 0:
             raise DriveError(f"lead_in_s must be >= 0, got {self.lead_in_s:g}")
@@ -162,7 +165,8 @@ class DriveParams:
         for name in required:
             _positive(name, getattr(self, name))
         if self.kind == "stepped_sine" and self.stop_hz < self.start_hz:
-            raise DriveError(f"stop_hz {self.stop_hz:g} must be >= start_hz {self.start_hz:g} for stepped_sine")
+            raise DriveError(
+                f"stop_hz {self.stop_hz:g} must be >= start_hz {self.start_hz:g} for stepped_sine")
 
 
 @dataclass(frozen=True)
@@ -187,7 +191,8 @@ def _waveform(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
     if params.kind == "sine":
         return sine(t, params.amplitude_v, params.frequency_hz, params.bias_v)
     if params.kind == "chirp":
-        return params.bias_v + chirp(t, params.amplitude_v, params.start_hz, params.stop_hz, params.duration_s)
+        return (params.bias_v + chirp(
+            t, params.amplitude_v, params.start_hz, params.stop_hz, params.duration_s))
     freqs = stepped_sine_frequencies_hz(params.start_hz, params.stop_hz, params.step_hz)
     dwell = _dwell_samples(fs_hz, params.dwell_s)
     return params.bias_v + _stepped_sine_at(k, fs_hz, params.amplitude_v, freqs, dwell)[0]
@@ -198,7 +203,8 @@ def drive_record(params: DriveParams, fs_hz: float, n_samples: int) -> np.ndarra
     return _samples(np.arange(int(n_samples)), _positive("fs_hz", fs_hz), params)
 
 
-def drive_step(state: DriveState, n_samples: int, fs_hz: float, params: DriveParams) -> tuple[DriveState, np.ndarray]:
+def drive_step(state: DriveState, n_samples: int, fs_hz: float,
+               params: DriveParams) -> tuple[DriveState, np.ndarray]:
     """Next `n_samples` of the drive.
 
     Parameters

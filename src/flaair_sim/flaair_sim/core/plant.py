@@ -38,7 +38,8 @@ from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
 from flaair_sim.core.plant_params import Prepared, prepare
 
-__all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch", "n_substeps",
+__all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
+           "n_substeps",
            "simulate_batch_from", "sensor_chain",
            # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
            "Prepared", "prepare", "mechanical_constants", "rk4_step"]
@@ -78,7 +79,9 @@ class PlantState:
 
 
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
-    """RK4 substeps per sample for `model` at `fs_hz`: (free flight, sample periods touching the stop)."""
+    """RK4 substeps per sample for `model` at `fs_hz`:
+    (free flight, sample periods touching the stop).
+    """
     prep = prepare(model, _check_fs(fs_hz))
     return prep.n_substeps, prep.n_substeps_contact
 
@@ -93,9 +96,10 @@ def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
     inv_i = 1.0 / p[pp.P_I]
     inv_ip = 1.0 / p[pp.P_IP]
-    return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i, p[pp.P_CSTRUCT] * inv_i,
-            p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip, p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip,
-            p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i, p[pp.P_CC] * inv_i)
+    return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i,
+            p[pp.P_CSTRUCT] * inv_i, p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip,
+            p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip, p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i,
+            p[pp.P_CC] * inv_i)
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -267,10 +271,10 @@ def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_
          phi_out, psi_out, vs_out, vp_out):
     """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
     _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
-    zi[0] = _sensor_channel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], zi[0], hist_s, delay_s,
-                            p[pp.P_DS_FRAC], p[pp.P_VREF])
-    zi[1] = _sensor_channel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], zi[1], hist_p, delay_p,
-                            p[pp.P_DP_FRAC], p[pp.P_VREF])
+    zi[0] = _sensor_channel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1],
+                            zi[0], hist_s, delay_s, p[pp.P_DS_FRAC], p[pp.P_VREF])
+    zi[1] = _sensor_channel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1],
+                            zi[1], hist_p, delay_p, p[pp.P_DP_FRAC], p[pp.P_VREF])
 
 
 @njit(cache=True, parallel=True)
@@ -283,8 +287,8 @@ def _run_batch(drive, h, nsubs, params, delays, hist_len, phi_out, psi_out, vs_o
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
-        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0], delays[i, 1],
-             phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i],
+             delays[i, 0], delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
 
 
 # --------------------------------------------------------------------------- public API
@@ -300,7 +304,9 @@ def _check_fs(fs_hz: float) -> float:
 def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarray:
     drive = np.ascontiguousarray(drive_v, dtype=np.float64)
     if drive.ndim not in ndim:
-        raise ValueError(f"drive_v must have {' or '.join(map(str, ndim))} dimension(s), got shape {drive.shape}")
+        raise ValueError(
+            f"drive_v must have {' or '.join(map(str, ndim))} dimension(s), got shape "
+            f"{drive.shape}")
     # a finite sum proves every sample finite (fast path); otherwise check sample by sample
     if not math.isfinite(float(np.add.reduce(drive, axis=None))) and not np.all(np.isfinite(drive)):
         raise ValueError("drive_v must be finite")
@@ -320,7 +326,9 @@ def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
 
 
 def initial_state(params: PlantStepParams) -> PlantState:
-    """At-rest state (phi = phi' = psi = psi' = 0, sensor chain at V_HREF) for the model and rate."""
+    """At-rest state (phi = phi' = psi = psi' = 0,
+    sensor chain at V_HREF) for the model and rate.
+    """
     fs = _check_fs(params.sample_rate_hz)
     len_s, len_p = prepare(params.model, fs).delay_lengths
     return PlantState(
@@ -352,7 +360,8 @@ class PlantStepParams(NamedTuple):
     sample_rate_hz: float
 
 
-def step(state: PlantState, inputs: PlantInputs, params: PlantStepParams) -> tuple[PlantState, SimOutput]:
+def step(state: PlantState, inputs: PlantInputs,
+         params: PlantStepParams) -> tuple[PlantState, SimOutput]:
     """Advance the plant over one block of drive samples.
 
     Parameters
@@ -383,13 +392,14 @@ def step(state: PlantState, inputs: PlantInputs, params: PlantStepParams) -> tup
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
     phi, psi, vs, vp = (np.empty(n) for _ in range(4))
-    _run(x, zi, hist_s, hist_p, drive, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact, prep.params,
-         prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
+    _run(x, zi, hist_s, hist_p, drive, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact,
+         prep.params, prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
     if not math.isfinite(float(np.add.reduce(x))):
         # Only a drive far outside any actuator's range (kV and up) gets here: the nodes clamp
         # to drive_limit_v before the model, so this is a caller's error, never a silent NaN.
-        raise ValueError(f"drive_v up to {np.abs(drive).max():.3g} V drove the plant model out of its range "
-                         f"(the simulation diverged); clamp the drive to the actuator's limit")
+        raise ValueError(f"drive_v up to {np.abs(drive).max():.3g} V drove the plant model out of "
+                         "its range (the simulation diverged); clamp the drive to the actuator's "
+                         "limit")
     if rng is not None:
         noise = rng.standard_normal((n, 2)) * model.noise.sensor_noise_v_rms
         vs += noise[:, 0]
@@ -431,16 +441,19 @@ def simulate(
     state = initial_state(PlantStepParams(model, fs_hz))
     if noise and rng is None:
         rng = np.random.default_rng()
-    _, out = step(state, PlantInputs(drive_v, rng if noise else None), PlantStepParams(model, fs_hz))
+    _, out = step(state, PlantInputs(drive_v, rng if noise else None),
+                  PlantStepParams(model, fs_hz))
     return out
 
 
-def _batch_tables(models: list[Model], fs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _batch_tables(models: list[Model],
+                  fs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-model parameter, substep, delay and history-length tables of a batch."""
     m = len(models)
     preps = [prepare(model, fs) for model in models]
     params = np.array([prep.params for prep in preps]).reshape(m, pp.N_KERNEL_PARAMS)
-    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64).reshape(m, 2)
+    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps],
+                     dtype=np.int64).reshape(m, 2)
     delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
                       dtype=np.int64).reshape(m, 2)
     hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
@@ -484,13 +497,16 @@ def simulate_batch(
         phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     else:
         for name, array in zip(SimOutput._fields, out):
-            if not (isinstance(array, np.ndarray) and array.shape == (m, n) and array.dtype == np.float64
-                    and array.flags.c_contiguous and array.flags.writeable):
-                raise ValueError(f"out.{name} must be a writeable C-contiguous float64 array of shape {(m, n)}")
+            if not (isinstance(array, np.ndarray) and array.shape == (m, n)
+                    and array.dtype == np.float64 and array.flags.c_contiguous
+                    and array.flags.writeable):
+                raise ValueError(
+                    f"out.{name} must be a writeable C-contiguous float64 array of shape {(m, n)}")
         phi, psi, vs, vp = out
     if m == 1:  # skip the thread pool
-        _run(np.zeros(4), np.zeros(2), np.zeros(hist_len[0, 0]), np.zeros(hist_len[0, 1]), drive[0], 1.0 / fs,
-             nsubs[0, 0], nsubs[0, 1], params[0], delays[0, 0], delays[0, 1], phi[0], psi[0], vs[0], vp[0])
+        _run(np.zeros(4), np.zeros(2), np.zeros(hist_len[0, 0]), np.zeros(hist_len[0, 1]), drive[0],
+             1.0 / fs, nsubs[0, 0], nsubs[0, 1], params[0], delays[0, 0], delays[0, 1], phi[0],
+             psi[0], vs[0], vp[0])
     elif m:
         _run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
@@ -500,15 +516,16 @@ def simulate_batch(
 
 
 @njit(cache=True, parallel=True)
-def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
+def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out,
+                    vp_out):
     """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared drive."""
     for i in prange(params.shape[0]):
         x = x0[i].copy()
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
-        _run(x, zi, hist_s, hist_p, drive, h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0], delays[i, 1],
-             phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+        _run(x, zi, hist_s, hist_p, drive, h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0],
+             delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
 
 
 def simulate_batch_from(
@@ -563,11 +580,12 @@ def sensor_chain(
     phi = np.asarray(stroke_rad, dtype=np.float64)
     psi = np.asarray(pitch_rad, dtype=np.float64)
     drive = np.asarray(drive_v, dtype=np.float64)
-    vs = np.ascontiguousarray(p[pp.P_GS] * (phi + p[pp.P_TCUBIC] * phi * phi * phi) + p[pp.P_FT] * drive)
+    vs = np.ascontiguousarray(p[pp.P_GS] * (phi + p[pp.P_TCUBIC] * phi * phi * phi) + p[pp.P_FT]
+                              * drive)
     vp = np.ascontiguousarray(p[pp.P_GP] * psi)
     len_s, len_p = prep.delay_lengths
-    _sensor_channel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0, np.zeros(len_s),
-                    prep.delay_stroke_samples, p[pp.P_DS_FRAC], p[pp.P_VREF])
-    _sensor_channel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0, np.zeros(len_p),
-                    prep.delay_pitch_samples, p[pp.P_DP_FRAC], p[pp.P_VREF])
+    _sensor_channel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0,
+                    np.zeros(len_s), prep.delay_stroke_samples, p[pp.P_DS_FRAC], p[pp.P_VREF])
+    _sensor_channel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0,
+                    np.zeros(len_p), prep.delay_pitch_samples, p[pp.P_DP_FRAC], p[pp.P_VREF])
     return vs, vp

@@ -1,4 +1,5 @@
-"""The plant's parameter vector: how a `Model` (with its effects) becomes the numbers the kernels read.
+"""The plant's parameter vector: how a `Model` (with
+its effects) becomes the numbers the kernels read.
 
 Each effect's kernel terms come from its entry in the effect table (`flaair_model.effects`);
 this module only says where each term lands in the vector.
@@ -97,13 +98,15 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
 
 # Where each kernel term of the effect table (flaair_model.effects) lands in the vector.
 _PLANT_INDEX = {
-    "structural_damping_nm_s_per_rad": P_CSTRUCT, "hinge_cubic_per_rad2": P_HCUBIC, "contact_on": CONTACT_ON_INDEX,
-    "stroke_limit_rad": P_PHI_LIM, "contact_stiffness_nm_per_rad": P_KC, "contact_damping_nm_s_per_rad": P_CC,
+    "structural_damping_nm_s_per_rad": P_CSTRUCT, "hinge_cubic_per_rad2": P_HCUBIC,
+    "contact_on": CONTACT_ON_INDEX, "stroke_limit_rad": P_PHI_LIM,
+    "contact_stiffness_nm_per_rad": P_KC, "contact_damping_nm_s_per_rad": P_CC,
     "transmission_cubic_per_rad2": P_TCUBIC, "feedthrough_v_per_v": P_FT,
 }
 _SCALE_INDEX = {"inertia_factor": (P_I, P_IP)}
 _SENSOR_INDEX = {   # per chain: (stroke, pitch)
-    "highpass_b0": (P_HPS_B0, P_HPP_B0), "highpass_b1": (P_HPS_B1, P_HPP_B1), "highpass_a1": (P_HPS_A1, P_HPP_A1),
+    "highpass_b0": (P_HPS_B0, P_HPP_B0), "highpass_b1": (P_HPS_B1, P_HPP_B1),
+                 "highpass_a1": (P_HPS_A1, P_HPP_A1),
     "gain_factor": (P_GS, P_GP),
 }
 _HIGHPASS_ON = (P_HPS_ON, P_HPP_ON)
@@ -139,8 +142,8 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     for entry in EFFECTS:
         if model.effect(entry.name) is None:
             continue
-        sides = [(i, model.effect_on(entry.name, side)) for i, side in enumerate(SIDES)] if entry.per_sensor \
-            else [(None, model.effect(entry.name))]
+        sides = ([(i, model.effect_on(entry.name, side)) for i, side in enumerate(SIDES)]
+                 if entry.per_sensor else [(None, model.effect(entry.name))])
         for i, effect in sides:
             if effect is None:
                 continue
@@ -158,7 +161,8 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
                     if term.startswith("highpass_"):
                         p[_HIGHPASS_ON[i]] = 1.0
                 else:
-                    raise ModelError(f"effects.{entry.name}: kernel term {term!r} is not one the plant knows "
+                    raise ModelError(f"effects.{entry.name}: kernel term {term!r} is not one the "
+                                     "plant knows "
                                      f"({'per sensor chain' if i is not None else 'plant-wide'})")
 
     rates = [

@@ -1,4 +1,5 @@
-"""Analysis of recorded runs, from the bags: run recognition, per-wingbeat summaries, the report, calibration, offline replay.
+"""Analysis of recorded runs, from the bags: run recognition,
+per-wingbeat summaries, the report, calibration, offline replay.
 
 Modules (import them by name; this package imports none of them eagerly):
 - `analyze`: `bin/flaair analyze`: the paper's analysis and the HTML report

@@ -1,4 +1,5 @@
-"""`flaair analyze BAG... --out DIR`: the paper's analysis of recorded experiments and lab runs, from the bags.
+"""`flaair analyze BAG... --out DIR`: the paper's analysis
+of recorded experiments and lab runs, from the bags.
 
 Every run's drive is recognised from the drive signal itself (chirp, stepped sine, single sine,
 dSA transition, free run; flaair_tools.analysis.runkind) unless the bag says what it is (a FLAAIR
@@ -32,7 +33,8 @@ Run CSV columns and units: docs/LAB_CSV_FORMAT.md.
 Exit codes: 0 done; 2 bad input (bag, calibration file); 3 partial data without --allow-partial.
 
 Example:
-  bin/flaair analyze out/demo/bags/* --out out/demo/report --calibration out/demo/calibration/calibration.yaml
+  bin/flaair analyze out/demo/bags/* --out out/demo/report
+  --calibration out/demo/calibration/calibration.yaml
 """
 from __future__ import annotations
 
@@ -70,17 +72,19 @@ from flaair_tools.bagio.runs import RUN_TOPICS, Run, runs_of_bag
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
 # Every topic the analysis reads (each bag is read once).
-BAG_TOPICS = (*RUN_TOPICS, EXPERIMENT_TOPIC, topics.WING_STATE, topics.COLLISION_EVENTS, topics.CONTROLLER_STATE)
+BAG_TOPICS = (*RUN_TOPICS, EXPERIMENT_TOPIC, topics.WING_STATE, topics.COLLISION_EVENTS,
+              topics.CONTROLLER_STATE)
 EXIT_BAD_INPUT = 2
 EXIT_PARTIAL = 3
 # The paper's published figures, for the side-by-side table (deg, deg/V).
 PAPER = {
-    "stroke_gain_deg_per_v": 25.5, "pitch_gain_deg_per_v": 108.0,
-    "stroke_amplitude_rmse_deg": 0.44, "pitch_amplitude_rmse_deg": 4.04, "pitch_amplitude_rmse_band_deg": 2.44,
-    "pitch_time_rmse_deg": 8.20, "pitch_time_rmse_lag_corrected_deg": 4.44, "pitch_time_rmse_lag_corrected_band_deg": 3.93,
-    "stroke_phase_rmse_deg": 9.69, "pitch_phase_rmse_deg": 14.41,
-    "collision_spectrum_rmse_deg": 3.23, "no_collision_spectrum_rmse_deg": 0.53,
-    "collision_time_rmse_deg": 15.81, "no_collision_time_rmse_deg": 3.34,
+    "stroke_gain_deg_per_v": 25.5, "pitch_gain_deg_per_v": 108.0, "stroke_amplitude_rmse_deg": 0.44,
+    "pitch_amplitude_rmse_deg": 4.04, "pitch_amplitude_rmse_band_deg": 2.44,
+    "pitch_time_rmse_deg": 8.20, "pitch_time_rmse_lag_corrected_deg": 4.44,
+    "pitch_time_rmse_lag_corrected_band_deg": 3.93, "stroke_phase_rmse_deg": 9.69,
+    "pitch_phase_rmse_deg": 14.41, "collision_spectrum_rmse_deg": 3.23,
+    "no_collision_spectrum_rmse_deg": 0.53, "collision_time_rmse_deg": 15.81,
+    "no_collision_time_rmse_deg": 3.34,
 }
 # Human label and unit of every headline figure ({band} fields: the configured analysis bands).
 LABELS = {
@@ -91,10 +95,12 @@ LABELS = {
     "pitch_amplitude_rmse_band_deg": ("Pitch amplitude error, RMSE {amplitude_band_hz}", "deg"),
     "pitch_time_rmse_deg": ("Pitch error in time, RMSE", "deg"),
     "pitch_time_rmse_lag_corrected_deg": ("Pitch error in time, lag corrected", "deg"),
-    "pitch_time_rmse_lag_corrected_band_deg": ("Pitch error in time, lag corrected, {time_band_hz}", "deg"),
+    "pitch_time_rmse_lag_corrected_band_deg": (
+    "Pitch error in time, lag corrected, {time_band_hz}", "deg"),
     "stroke_phase_rmse_deg": ("Stroke phase error, RMSE over the Bode", "deg"),
     "pitch_phase_rmse_deg": ("Pitch phase error, RMSE over the Bode", "deg"),
-    "collision_spectrum_rmse_deg": ("Collision metric with the obstacle (pitch FFT vs sine)", "deg"),
+    "collision_spectrum_rmse_deg": ("Collision metric with the obstacle (pitch FFT vs sine)",
+                                    "deg"),
     "no_collision_spectrum_rmse_deg": ("Collision metric without the obstacle", "deg"),
     "collision_time_rmse_deg": ("Pitch vs sine in time, with the obstacle", "deg"),
     "no_collision_time_rmse_deg": ("Pitch vs sine in time, without the obstacle", "deg"),
@@ -103,11 +109,14 @@ LABELS = {
 }
 MODEL_GAINS_WARNING = (
     "the front end runs on the model's gains (no --calibration): the model over-predicts the hinge "
-    "sensor ~4.3x on a real robot, so pitch reads ~4x small - the live pitch figures and the collision "
-    "metric come out too small and a collision can be missed. The sweep figures use gains fitted against "
-    "ground truth and are unaffected. Give --calibration FILE (from `flaair calibrate`).")
+    "sensor ~4.3x on a real robot, so pitch reads ~4x small - the live pitch figures and the "
+    "collision metric come out too small and a collision can be missed. The sweep figures use "
+    "gains fitted against ground truth and are unaffected. Give --calibration FILE (from `flaair "
+    "calibrate`)."
+)
 # The kind an experiment (config/experiments.yaml) gives each of its runs.
-EXPERIMENT_RUN_KIND = {"chirp": "chirp", "stepped_sine": "stepped_sine", "collision": "sine", "transition": "transition"}
+EXPERIMENT_RUN_KIND = {"chirp": "chirp", "stepped_sine": "stepped_sine", "collision": "sine",
+                       "transition": "transition"}
 
 
 def settings() -> tuple[RecognitionParams, dict[str, Any]]:
@@ -146,17 +155,23 @@ def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> fronten
     return frontend.params_from_model(load_model(), fs_hz, **tuning)
 
 
-def _aligned_estimate(blocks: bagio.Blocks, sample_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    position = np.clip(np.searchsorted(blocks.sample_index, sample_index), 0, len(blocks.sample_index) - 1)
+def _aligned_estimate(blocks: bagio.Blocks,
+                      sample_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    position = np.clip(np.searchsorted(blocks.sample_index, sample_index), 0,
+                       len(blocks.sample_index) - 1)
     found = blocks.sample_index[position] == sample_index
-    stroke = np.where(found & blocks["stroke_valid"][position].astype(bool), np.radians(blocks["stroke_deg"][position]), np.nan)
-    pitch = np.where(found & blocks["pitch_valid"][position].astype(bool), np.radians(blocks["pitch_deg"][position]), np.nan)
+    stroke = np.where(found & blocks["stroke_valid"][position].astype(bool),
+                      np.radians(blocks["stroke_deg"][position]), np.nan)
+    pitch = np.where(found & blocks["pitch_valid"][position].astype(bool),
+                     np.radians(blocks["pitch_deg"][position]), np.nan)
     return stroke, pitch
 
 
-def run_sample_index(markers: dict[str, bagio.RunMarker], run: Run, blocks: bagio.Blocks) -> np.ndarray:
+def run_sample_index(markers: dict[str, bagio.RunMarker], run: Run,
+                     blocks: bagio.Blocks) -> np.ndarray:
     """Absolute sample indices of a run's samples (its marker's first index + time)."""
-    first = markers[run.name].first_sample_index if run.name in markers else int(blocks.sample_index[0])
+    first = (markers[run.name].first_sample_index if run.name in markers
+             else int(blocks.sample_index[0]))
     return first + np.round(run["time_s"] * run.sample_rate_hz).astype(np.int64)
 
 
@@ -170,19 +185,25 @@ def live_runs_on_model_gains(live_pitch: np.ndarray, model_pitch: np.ndarray) ->
 
 
 def estimates(contents: bagio.BagContents, runs: list[Run], calibration: dict[str, Any] | None,
-              calibration_file: Path | None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
+              calibration_file: Path
+              | None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
     """Front-end estimate of every run, where it came from, and whether it runs on model gains."""
     if calibration is not None:
-        return ({run.name: offline_estimate(run, frontend_params(calibration, run.sample_rate_hz)) for run in runs},
-                f"front-end core run offline on the recorded voltages with the calibration {calibration_file}", False)
-    model_est = {run.name: offline_estimate(run, frontend_params(None, run.sample_rate_hz)) for run in runs}
+        return ({run.name: offline_estimate(run,
+                                            frontend_params(calibration, run.sample_rate_hz))
+                 for run in runs}, "front-end core run offline on the recorded voltages with the "
+                                   f"calibration {calibration_file}", False)
+    model_est = {run.name: offline_estimate(
+        run, frontend_params(None, run.sample_rate_hz)) for run in runs}
     if not contents.has(topics.WING_STATE):
         return model_est, "front-end core run offline on the recorded voltages (model gains)", True
     blocks = contents.blocks(topics.WING_STATE)
     markers = {m.run: m for m in contents.run_markers()}
-    live = {run.name: _aligned_estimate(blocks, run_sample_index(markers, run, blocks)) for run in runs}
+    live = {run.name: _aligned_estimate(
+        blocks, run_sample_index(markers, run, blocks)) for run in runs}
     on_model = all(live_runs_on_model_gains(live[r.name][1], model_est[r.name][1]) for r in runs)
-    return live, "live front end (/flaair/wing_state)" + (", model gains" if on_model else ", calibrated gains"), on_model
+    return live, "live front end (/flaair/wing_state)" + (
+        ", model gains" if on_model else ", calibrated gains"), on_model
 
 
 # ----------------------------------------------------------------------------- per-run analyses
@@ -191,36 +212,45 @@ def estimates(contents: bagio.BagContents, runs: list[Run], calibration: dict[st
 # ----------------------------------------------------------------------------- completeness
 
 
-def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str], kinds: dict[str, DriveKind],
-                 min_fraction: float, tolerance_hz: float) -> list[str]:
-    """What a cut-short bag lacks: one sentence per missing run, short run, step frequency or sweep range."""
+def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
+                 kinds: dict[str, DriveKind], min_fraction: float,
+                 tolerance_hz: float) -> list[str]:
+    """What a cut-short bag lacks: one sentence per missing
+    run, short run, step frequency or sweep range.
+    """
     notes = [f"run '{name}' is marked but has no samples in the bag" for name in missing_runs]
     expected_parts: dict[str, dict[str, Any]] = {}
     for spec in info.get("runs", []):
         for part in spec.get("markers") or [[spec["name"]]]:
             expected_parts[part[0]] = spec.get("drive", {})
     present = {run.name for run in runs} | set(missing_runs)
-    notes += [f"run '{name}' of the experiment is not in the bag at all" for name in expected_parts if name not in present]
+    notes += [f"run '{name}' of the experiment is not in the bag at all"
+              for name in expected_parts if name not in present]
     for run in runs:
         if run.fraction_present >= min_fraction:
             continue
         kind = kinds[run.name]
         note = (f"run '{run.name}' holds {run.fraction_present:.0%} of its marked samples "
-                f"({run.n_samples / run.sample_rate_hz:.3g} of {run.expected_n_samples / run.sample_rate_hz:.3g} s)")
+                f"({run.n_samples / run.sample_rate_hz:.3g} of "
+                f"{run.expected_n_samples / run.sample_rate_hz:.3g} s)")
         drive = expected_parts.get(run.name, {})
         found = [s.frequency_hz for s in kind.steps]
         if drive.get("waveform") == "stepped_sine":
             from flaair_sim.core.drive import stepped_sine_frequencies_hz
 
-            wanted = stepped_sine_frequencies_hz(drive["start_hz"], drive["stop_hz"], drive["step_hz"])
+            wanted = stepped_sine_frequencies_hz(
+                drive["start_hz"], drive["stop_hz"], drive["step_hz"])
             lost = [f for f in wanted if not any(abs(f - g) <= tolerance_hz for g in found)]
             note += f"; steps missing: {', '.join(f'{f:g}' for f in lost)} Hz" if lost else ""
         elif drive.get("waveform") == "chirp" and kind.sweep_hz:
-            note += f"; sweep covered {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz of {drive['start_hz']:g}-{drive['stop_hz']:g} Hz"
+            note += (f"; sweep covered {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz "
+                     f"of {drive['start_hz']:g}-{drive['stop_hz']:g} Hz")
         elif kind.kind == "stepped_sine":
-            note += f"; steps found: {', '.join(f'{f:.4g}' for f in found)} Hz, the steps after them are missing"
+            note += (f"; steps found: {', '.join(f'{f:.4g}' for f in found)} Hz, "
+                     "the steps after them are missing")
         elif kind.sweep_hz:
-            note += f"; drive seen {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz, the rest of the run is missing"
+            note += (f"; drive seen {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz, "
+                     "the rest of the run is missing")
         notes.append(note)
     return notes
 
@@ -228,23 +258,27 @@ def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
 # ----------------------------------------------------------------------------- one bag
 
 
-def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any], explicit: dict[str, str],
+def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any],
+              explicit: dict[str, str],
               recognition: RecognitionParams) -> tuple[dict[str, DriveKind], list[str]]:
-    """Every run's drive, recognised; an explicit kind (experiment or import --kind) wins, with a warning if they differ."""
+    """Every run's drive, recognised; an explicit kind (experiment
+    or import --kind) wins, with a warning if they differ.
+    """
     bag, has_controller = contents.info.path, contents.has(topics.CONTROLLER_STATE)
     kinds, warnings = {}, []
     for run in runs:
         drive = run["drive_v"] if "drive_v" in run else np.zeros(run.n_samples)
-        found = recognise(drive, run.sample_rate_hz, recognition, has_controller_state=has_controller)
+        found = recognise(drive, run.sample_rate_hz, recognition,
+                          has_controller_state=has_controller)
         wanted = explicit.get(run.name) or EXPERIMENT_RUN_KIND.get(info.get("kind", ""))
         if wanted and wanted != found.kind:
-            warnings.append(f"{bag}: run '{run.name}' is marked '{wanted}' but its drive looks like '{found.kind}' "
-                            f"({found.reason}); analysed as '{wanted}'")
+            warnings.append(f"{bag}: run '{run.name}' is marked '{wanted}' but its drive looks "
+                            f"like '{found.kind}' ({found.reason}); analysed as '{wanted}'")
             if wanted == "stepped_sine" and not found.steps or wanted == "sine" and not found.steps:
                 warnings[-1] += " without steps found: analysed as a sweep"
                 wanted = "chirp"
-            found = DriveKind(wanted, f"marked '{wanted}' in the bag; {found.reason}", found.steps, found.sweep_hz,
-                              found.drive_amplitude_v)
+            found = DriveKind(wanted, f"marked '{wanted}' in the bag; {found.reason}", found.steps,
+                              found.sweep_hz, found.drive_amplitude_v)
         kinds[run.name] = found
     return kinds, warnings
 
@@ -270,14 +304,17 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
     kinds, warnings = run_kinds(contents, runs, info, marked_kinds(contents), recognition)
     est, source, on_model = estimates(contents, runs, calibration, calibration_file)
     name = info.get("name", bag.name)
-    result: dict[str, Any] = {"bag": str(bag), "experiment": name, "kind": info.get("kind", "lab runs"),
-                              "description": info.get("description", "runs imported from the lab"), "runs": {},
-                              "estimate_source": source, "model_gains": on_model, "warnings": warnings}
-    result["missing"] = completeness(info, runs, [r for _, r in missing_runs], kinds, float(config["min_run_fraction"]),
-                                     float(config["tolerance_hz"]))
+    result: dict[str, Any] = {"bag": str(bag), "experiment": name,
+                              "kind": info.get("kind", "lab runs"), "description": info.get(
+        "description", "runs imported from the lab"), "runs": {}, "estimate_source": source,
+                              "model_gains": on_model, "warnings": warnings}
+    result["missing"] = completeness(
+        info, runs, [r for _, r in missing_runs], kinds, float(config["min_run_fraction"]),
+        float(config["tolerance_hz"]))
     plots: dict[str, Any] = {"bode": {}, "runs": {}}
     if info.get("kind") == "collision":
-        result["collision"], plots["collision"] = analyze_collision(runs, est, info, contents, kinds)
+        result["collision"], plots["collision"] = (
+            analyze_collision(runs, est, info, contents, kinds))
         return result, plots
     if any(k.kind == "transition" for k in kinds.values()):
         result["transition"], plots["transition"] = analyze_transition(contents)
@@ -287,10 +324,12 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
         entry: dict[str, Any]
         try:
             if kind.kind in ("chirp", "unrecognised"):
-                entry, plots["bode"][run.name] = analyze_sweep(run, stroke_est, pitch_est, "chirp", None, reference_v)
+                entry, plots["bode"][run.name] = (
+                    analyze_sweep(run, stroke_est, pitch_est, "chirp", None, reference_v))
             elif kind.kind == "stepped_sine":
-                entry, plots["bode"][run.name] = analyze_sweep(run, stroke_est, pitch_est, "stepped",
-                                                               kind.frequency_track(run.n_samples), reference_v)
+                entry, plots["bode"][run.name] = (
+                    analyze_sweep(run, stroke_est, pitch_est, "stepped",
+                                  kind.frequency_track(run.n_samples), reference_v))
             elif kind.kind == "sine":
                 entry = analyze_sine(run, stroke_est, pitch_est, kind, reference_v)
             elif kind.kind == "free":
@@ -310,18 +349,24 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
 # ----------------------------------------------------------------------------- headline
 
 
-def _pick(bags: list[dict[str, Any]], methods: tuple[str, ...]) -> tuple[str, dict[str, Any]] | None:
-    """The run of one of `methods` with the strongest drive (the paper's 200 Vpp), with its 'bag/run' name."""
+def _pick(bags: list[dict[str, Any]],
+          methods: tuple[str, ...]) -> tuple[str, dict[str, Any]] | None:
+    """The run of one of `methods` with the strongest drive
+    (the paper's 200 Vpp), with its 'bag/run' name.
+    """
     best = None
     for bag in bags:
         for name, run in bag["runs"].items():
-            if run.get("method") in methods and "stroke" in run and (best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"]):
+            if run.get("method") in methods and "stroke" in run and (
+                    best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"]):
                 best = (f"{bag['experiment']}/{name}", run)
     return best
 
 
 def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """The paper's headline figures as measured here, beside the paper's, with label, unit and source."""
+    """The paper's headline figures as measured here,
+    beside the paper's, with label, unit and source.
+    """
     ours: dict[str, tuple[float | None, str]] = {}
     chirp = _pick(bags, ("chirp",))
     stepped = _pick(bags, ("stepped",)) or chirp
@@ -331,15 +376,18 @@ def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             ours[f"stroke_{key}"] = (run["stroke"].get(key), source)
     if stepped:
         source, run = stepped
-        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "amplitude_rmse_band_deg", "time_rmse_deg",
-                    "time_rmse_lag_corrected_deg", "time_rmse_lag_corrected_band_deg", "phase_rmse_deg"):
+        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "amplitude_rmse_band_deg",
+                    "time_rmse_deg", "time_rmse_lag_corrected_deg",
+                    "time_rmse_lag_corrected_band_deg", "phase_rmse_deg"):
             ours[f"pitch_{key}"] = (run["pitch"].get(key), source)
     for bag in bags:
         runs = bag.get("collision", {}).get("runs", {})
-        if "spectrum_rmse_deg" in runs.get("collision", {}) and "spectrum_rmse_deg" in runs.get("no_collision", {}):
+        if ("spectrum_rmse_deg" in runs.get("collision", {})
+            and "spectrum_rmse_deg" in runs.get("no_collision", {})):
             source = f"{bag['experiment']}/collision, no_collision"
             for prefix, part in (("", "collision"), ("no_", "no_collision")):
-                ours[f"{prefix}collision_spectrum_rmse_deg"] = (runs[part]["spectrum_rmse_deg"], source)
+                ours[f"{prefix}collision_spectrum_rmse_deg"] = (runs[part]["spectrum_rmse_deg"],
+                                                                source)
                 ours[f"{prefix}collision_time_rmse_deg"] = (runs[part]["time_rmse_deg"], source)
     table = {}
     bands = analysis_bands_from_config()
@@ -347,21 +395,25 @@ def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
         value, source = ours.get(key, (None, ""))
         label = LABELS[key][0].format(amplitude_band_hz=bands.label("amplitude_band_hz"),
                                       time_band_hz=bands.label("time_band_hz"))
-        table[key] = {"flaair": finite_or_none(value), "paper": paper, "label": label, "unit": LABELS[key][1], "source": source}
+        table[key] = {"flaair": finite_or_none(value), "paper": paper, "label": label,
+                      "unit": LABELS[key][1], "source": source}
     for bag in bags:
         if "transition" in bag:
             t = bag["transition"]
             note = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"
-            for key, value in (("transition_final_frequency_hz", t["final_frequency_hz"]), ("transition_final_amplitude_deg", t["final_amplitude_deg"])):
-                table[key] = {"flaair": value, "paper": None, "label": LABELS[key][0], "unit": LABELS[key][1],
-                              "source": bag["experiment"], "note": note if key.endswith("hz") else ""}
+            for key, value in (("transition_final_frequency_hz", t["final_frequency_hz"]), (
+                    "transition_final_amplitude_deg", t["final_amplitude_deg"])):
+                table[key] = {"flaair": value, "paper": None, "label": LABELS[key][0],
+                              "unit": LABELS[key][1], "source": bag["experiment"], "note": note
+                              if key.endswith("hz") else ""}
     return table
 
 
 # ----------------------------------------------------------------------------- top level
 
 
-def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True, calibration_file: Path | None = None) -> dict[str, Any]:
+def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True,
+            calibration_file: Path | None = None) -> dict[str, Any]:
     """Analyse `bags` into out_dir (report.html, report.json, PNG figures); return the report.
 
     Parameters
@@ -394,9 +446,12 @@ def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True, calibrati
         results.append(result)
         plots.append(plot)
     report: dict[str, Any] = {"created": time.strftime("%Y-%m-%d %H:%M:%S"), "bags": results,
-                              "calibration_file": str(calibration_file) if calibration_file else None}
-    report["model_gains_warning"] = MODEL_GAINS_WARNING if any(r["model_gains"] for r in results) else None
-    report["partial"] = [note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])]
+                              "calibration_file": str(calibration_file) if calibration_file
+                              else None}
+    report["model_gains_warning"] = (
+        MODEL_GAINS_WARNING if any(r["model_gains"] for r in results) else None)
+    report["partial"] = [note for r in results for note in (
+        f"{r['bag']}: {m}" for m in r["missing"])]
     report["headline"] = headline(results)
     report["figures"] = html_report.write_figures(results, plots, out_dir)
     report = json_safe(report)
@@ -415,15 +470,23 @@ def print_headline(report: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair analyze", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("bags", nargs="+", type=Path, help="bags recorded by `flaair experiment` or made by `flaair import`")
-    parser.add_argument("--out", type=Path, required=True, help="report directory (report.html, report.json, figures)")
+    parser = argparse.ArgumentParser(prog="flaair analyze", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("bags", nargs="+", type=Path,
+                        help="bags recorded by `flaair experiment` or made by `flaair import`")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="report directory (report.html, report.json, figures)")
     parser.add_argument("--calibration", type=Path, default=None, metavar="FILE",
-                        help="calibration.yaml from `flaair calibrate`: the front end runs on these gains "
-                             "(default: the live front end's gains, else the model's, with a warning)")
-    parser.add_argument("--allow-partial", action="store_true",
-                        help="exit 0 even when runs, steps or parts of a sweep are missing (recovered or cut-short bags); "
-                             "without it such a bag gives exit code 3 (the report is still written)")
+                        help="calibration.yaml from `flaair calibrate`: the front end runs on "
+                             "these gains (default: the live front end's gains, else the model's, "
+                             "with a warning)")
+    parser.add_argument("--allow-partial", action="store_true", help="exit 0 even when runs, steps "
+                                                                     "or parts of a sweep are "
+                                                                     "missing (recovered or "
+                                                                     "cut-short bags); without it "
+                                                                     "such a bag gives exit code 3 "
+                                                                     "(the report is still "
+                                                                     "written)")
     args = parser.parse_args(argv)
     os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
     try:
@@ -445,8 +508,9 @@ def main(argv: list[str] | None = None) -> int:
         for note in report["partial"]:
             print(f"flaair analyze: incomplete: {note}", file=sys.stderr)
         if not args.allow_partial:
-            print(f"flaair analyze: {len(report['partial'])} part(s) of the data are missing (listed above); the figures "
-                  "cover only what is there. Pass --allow-partial to accept that (exit 0).", file=sys.stderr)
+            print(f"flaair analyze: {len(report['partial'])} part(s) of the data are missing "
+                  "(listed above); the figures cover only what is there. Pass --allow-partial to "
+                  "accept that (exit 0).", file=sys.stderr)
             return EXIT_PARTIAL
         print("flaair analyze: --allow-partial: reporting on the data present", file=sys.stderr)
     return 0

@@ -1,12 +1,12 @@
 """Replay a recorded bag through the live nodes' pure cores, offline.
 
 The collision monitor node and the dSA controller node are thin shells over
-`flaair_control.core.monitor` and `flaair_control.core.supervisor`; fed the recorded blocks in the
-order the nodes saw them (in lockstep: drive block k, then wing-state block k), decoded and
-mapped to the cores' inputs exactly as the nodes do it (`cdr.decode`, the `control_io` adapters), the cores give
-back what the live nodes published: collision statuses and events, drive blocks and
-controller states. `analyze` uses it to show what the monitor decided; the tests use it to
-prove the live and offline paths identical.
+`flaair_control.core.monitor` and `flaair_control.core.supervisor`; fed the recorded
+blocks in the order the nodes saw them (in lockstep: drive block k, then wing-state block
+k), decoded and mapped to the cores' inputs exactly as the nodes do it (`cdr.decode`, the
+`control_io` adapters), the cores give back what the live nodes published: collision
+statuses and events, drive blocks and controller states. `analyze` uses it to show what
+the monitor decided; the tests use it to prove the live and offline paths identical.
 """
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ from flaair_tools import bagio
 LAYOUTS = {topics.DRIVE: cdr.DRIVE_COMMAND_BLOCK, topics.WING_STATE: cdr.WING_STATE_BLOCK}
 
 
-def _blocks_in_loop_order(bag: Path, wanted: tuple[str, ...]) -> Iterator[tuple[str, dict[str, Any]]]:
+def _blocks_in_loop_order(bag: Path,
+                          wanted: tuple[str, ...]) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message fields) of the block topics, decoded as the nodes decode them, ordered by
     sample index; at one index drive first.
     """
@@ -53,29 +54,34 @@ def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[moni
     """The collision monitor's verdicts on a bag (``values``: collision_monitor_node parameters)."""
     params = collision_monitor_params_from_config(values)
     state = monitor.initial_state(params)
-    wanted = (topics.DRIVE, topics.WING_STATE) if params.estimates_frequency else (topics.WING_STATE,)
+    wanted = ((topics.DRIVE, topics.WING_STATE) if params.estimates_frequency
+              else (topics.WING_STATE,))
     verdicts: list[monitor.Verdict] = []
     for topic, fields in _blocks_in_loop_order(bag, wanted):
-        inputs = monitor_drive_input(fields) if topic == topics.DRIVE else monitor_wing_input(fields)
+        inputs = (monitor_drive_input(fields) if topic == topics.DRIVE
+                  else monitor_wing_input(fields))
         state, out = monitor.step(state, inputs, params)
         verdicts.extend(out.verdicts)
     return verdicts
 
 
-def replay_controller(bag: Path, model: Model, values: dict[str, Any] | None = None) -> list[sv.DriveOut]:
+def replay_controller(bag: Path, model: Model,
+                      values: dict[str, Any] | None = None) -> list[sv.DriveOut]:
     """The dSA controller's drive blocks on a bag of a closed loop it ran (lockstep plant).
 
     The start (peers seen, start delay passed) is replayed as two ticks; then every recorded
     wing-state block in order. Wall-clock watchdogs do not trip offline.
     """
     values = dict(dsa_controller_values() if values is None else values)
-    params = replace(supervisor_params_from_config(values, model), run_time_s=0.0, watchdog_timeout_s=1e9)
+    params = replace(supervisor_params_from_config(values, model), run_time_s=0.0,
+                     watchdog_timeout_s=1e9)
     state = sv.initial_state(params)
     out: list[sv.DriveOut] = []
     for t_wall in (0.0, params.start_delay_s + 1.0):
         state, result = sv.step(state, sv.Tick(t_wall, 99, 1, 1), params)
         out.extend(result.blocks)
     for _, fields in _blocks_in_loop_order(bag, (topics.WING_STATE,)):
-        state, result = sv.step(state, supervisor_wing_input(fields, params.start_delay_s + 1.0, 1), params)
+        state, result = sv.step(state, supervisor_wing_input(fields, params.start_delay_s + 1.0, 1),
+                                params)
         out.extend(result.blocks)
     return out

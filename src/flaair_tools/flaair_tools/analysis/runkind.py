@@ -52,10 +52,12 @@ class RecognitionParams:
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise RunKindError(f"recognition parameter '{name}' must be a finite number > 0, got {value!r}")
+                raise RunKindError(
+                    f"recognition parameter '{name}' must be a finite number > 0, got {value!r}")
         for name in ("dwell_coverage", "sweep_monotone_fraction", "tolerance_fraction"):
             if getattr(self, name) > 1:
-                raise RunKindError(f"recognition parameter '{name}' must be <= 1, got {getattr(self, name)!r}")
+                raise RunKindError(
+                    f"recognition parameter '{name}' must be <= 1, got {getattr(self, name)!r}")
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> RecognitionParams:
@@ -99,13 +101,17 @@ class DriveKind:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-ready form."""
-        return {"kind": self.kind, "reason": self.reason, "drive_amplitude_v": self.drive_amplitude_v,
-                "sweep_hz": list(self.sweep_hz) if self.sweep_hz else None,
-                "steps": [{"start": s.start, "stop": s.stop, "frequency_hz": s.frequency_hz} for s in self.steps]}
+        return {"kind": self.kind, "reason": self.reason,
+                "drive_amplitude_v": self.drive_amplitude_v, "sweep_hz": list(self.sweep_hz)
+                if self.sweep_hz else None, "steps": [
+            {"start": s.start, "stop": s.stop, "frequency_hz": s.frequency_hz} for s in self.steps]}
 
 
-def _block_frequency(drive_v: np.ndarray, fs_hz: float, block: int, floor_v: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unwrapped phase per sample, and median frequency and envelope per block (NaN when undriven)."""
+def _block_frequency(drive_v: np.ndarray, fs_hz: float, block: int,
+                     floor_v: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unwrapped phase per sample, and median frequency
+    and envelope per block (NaN when undriven).
+    """
     analytic = signal.hilbert(drive_v - np.median(drive_v))
     phase = np.unwrap(np.angle(analytic))
     frequency = np.gradient(phase) * fs_hz / (2 * np.pi)
@@ -151,8 +157,11 @@ def _tolerance(frequency_hz: float, p: RecognitionParams) -> float:
     return max(p.tolerance_hz, p.tolerance_fraction * frequency_hz)
 
 
-def _dwell_frequency(drive_v: np.ndarray, phase: np.ndarray, start: int, stop: int, fs_hz: float, tolerance_hz: float) -> float:
-    """A dwell's frequency: the phase slope over its middle 80 %, refined by a least-squares sine fit."""
+def _dwell_frequency(drive_v: np.ndarray, phase: np.ndarray, start: int, stop: int, fs_hz: float,
+                     tolerance_hz: float) -> float:
+    """A dwell's frequency: the phase slope over its
+    middle 80 %, refined by a least-squares sine fit.
+    """
     trim = (stop - start) // 10
     a, b = start + trim, stop - trim
     rough = float(np.polyfit(np.arange(a, b) / fs_hz, phase[a:b], 1)[0] / (2 * np.pi))
@@ -160,16 +169,18 @@ def _dwell_frequency(drive_v: np.ndarray, phase: np.ndarray, start: int, stop: i
     x = drive_v[start:stop]
 
     def residual(f: float) -> float:
-        basis = np.column_stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t), np.ones(t.size)])
+        basis = np.column_stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t),
+                                 np.ones(t.size)])
         coef = np.linalg.lstsq(basis, x, rcond=None)[0]
         return float(np.sum((x - basis @ coef) ** 2))
 
-    best = optimize.minimize_scalar(residual, bounds=(rough - tolerance_hz, rough + tolerance_hz), method="bounded",
-                                    options={"xatol": 1e-5})
+    best = optimize.minimize_scalar(residual, bounds=(rough - tolerance_hz, rough + tolerance_hz),
+                                    method="bounded", options={"xatol": 1e-5})
     return float(best.x) if best.success and best.fun <= residual(rough) else rough
 
 
-def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *, has_controller_state: bool = False) -> DriveKind:
+def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *,
+              has_controller_state: bool = False) -> DriveKind:
     """Recognise a run's drive (see module docstring).
 
     Parameters
@@ -188,10 +199,12 @@ def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *, h
         raise RunKindError(f"sample rate must be a finite number > 0, got {fs_hz!r}")
     drive = np.where(np.isfinite(drive), drive, 0.0)
     if has_controller_state:
-        return DriveKind("transition", "the drive was made by the dSA controller from stroke feedback (controller state recorded)",
+        return DriveKind("transition", "the drive was made by the dSA controller from stroke "
+                                       "feedback (controller state recorded)",
                          drive_amplitude_v=float(np.sqrt(2) * np.std(drive)) if drive.size else 0.0)
     block = max(8, int(round(params.block_s * fs_hz)))
-    if drive.size < 4 * block or np.max(np.abs(drive - np.median(drive)), initial=0.0) < params.free_run_drive_v:
+    if drive.size < 4 * block or np.max(
+            np.abs(drive - np.median(drive)), initial=0.0) < params.free_run_drive_v:
         return DriveKind("free", f"no drive above {params.free_run_drive_v:g} V")
     phase, block_f, block_env = _block_frequency(drive, fs_hz, block, params.free_run_drive_v)
     driven = np.isfinite(block_f)
@@ -202,32 +215,39 @@ def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *, h
     dwells: list[Step] = []
     for a, b in _plateaus(block_f, params):
         f0 = float(np.median(block_f[a:b]))
-        long_enough = (b - a) * block >= max(params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0)
+        long_enough = (b - a) * block >= max(
+            params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0)
         # A slow chirp also stays within tolerance for a while, but it drifts across it.
         drift = abs(np.polyfit(np.arange(a, b), block_f[a:b], 1)[0]) * (b - a) if b - a > 2 else 0.0
         if long_enough and drift < 0.5 * _tolerance(f0, params):
-            dwells.append(Step(a * block, b * block, _dwell_frequency(drive, phase, a * block, b * block, fs_hz,
-                                                                        _tolerance(f0, params))))
+            dwells.append(Step(a * block, b * block, _dwell_frequency(
+                drive, phase, a * block, b * block, fs_hz, _tolerance(f0, params))))
     covered = sum(s.stop - s.start for s in dwells) / (driven.sum() * block)
     levels = _levels([s.frequency_hz for s in dwells], params)
     if dwells and covered >= params.dwell_coverage:
         if len(levels) == 1:
             start, stop = dwells[0].start, dwells[-1].stop
-            step = Step(start, stop, _dwell_frequency(drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)))
-            return DriveKind("sine", f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of the driven time",
-                             (step,), sweep, amplitude_v)
+            step = Step(start, stop, _dwell_frequency(
+                drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)))
+            return DriveKind("sine",
+                             f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of "
+                             "the driven time", (step,), sweep, amplitude_v)
         return DriveKind("stepped_sine", f"{len(dwells)} dwells at {len(levels)} frequencies "
-                         f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover {covered:.0%} of the driven time",
-                         tuple(dwells), sweep, amplitude_v)
+                                         f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover "
+                                         f"{covered:.0%} of the driven time", tuple(dwells), sweep,
+                         amplitude_v)
     changes = np.diff(block_f[driven])
     changes = changes[np.abs(changes) > 1e-9]
     rising = float(np.mean(changes > 0)) if changes.size else 0.5
-    if sweep[1] - sweep[0] > 3 * _tolerance(sweep[1], params) and max(rising, 1 - rising) >= params.sweep_monotone_fraction:
+    if (sweep[1] - sweep[0] > 3 * _tolerance(sweep[1], params)
+        and max(rising, 1 - rising) >= params.sweep_monotone_fraction):
         return DriveKind("chirp", f"the frequency sweeps {'up' if rising >= 0.5 else 'down'} from "
-                         f"{sweep[0]:.4g} to {sweep[1]:.4g} Hz ({max(rising, 1 - rising):.0%} of changes one way)",
-                         (), sweep, amplitude_v)
-    return DriveKind("unrecognised", f"neither steady dwells ({covered:.0%} of the driven time) nor a monotone sweep "
-                     f"({sweep[0]:.4g}-{sweep[1]:.4g} Hz)", (), sweep, amplitude_v)
+                                  f"{sweep[0]:.4g} to {sweep[1]:.4g} Hz "
+                                  f"({max(rising, 1 - rising):.0%} of changes one way)", (), sweep,
+                         amplitude_v)
+    return DriveKind("unrecognised", f"neither steady dwells ({covered:.0%} of the driven time) "
+                                     f"nor a monotone sweep ({sweep[0]:.4g}-{sweep[1]:.4g} Hz)", (),
+                     sweep, amplitude_v)
 
 
 def _levels(frequencies_hz: list[float], params: RecognitionParams) -> list[float]:

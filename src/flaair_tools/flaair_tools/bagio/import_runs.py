@@ -53,7 +53,9 @@ class RunSetError(ValueError):
 
 
 def run_rate_hz(run: MeasuredRun) -> float:
-    """The run's sample rate, rounded to the precision CSV times carry (5e-05 s steps -> 20000 Hz)."""
+    """The run's sample rate, rounded to the precision
+    CSV times carry (5e-05 s steps -> 20000 Hz).
+    """
     return float(f"{run.sample_rate_hz:.{RATE_DIGITS}g}")
 
 
@@ -63,14 +65,16 @@ def run_span_ns(run: MeasuredRun) -> int:
     return int(round((time_s[-1] - time_s[0] + 1.0 / run_rate_hz(run)) * _NS_PER_S))
 
 
-def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int) -> bagio.RunMarker:
+def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int,
+               first_sample_index: int) -> bagio.RunMarker:
     """The marker of a run starting at `start_ns` and `first_sample_index`."""
-    return bagio.RunMarker(run=run.name, first_sample_index=first_sample_index, n_samples=len(run["time_s"]),
-                           source_file=source_file, sample_rate_hz=run_rate_hz(run), start_ns=start_ns)
+    return bagio.RunMarker(run=run.name, first_sample_index=first_sample_index,
+                           n_samples=len(run["time_s"]), source_file=source_file,
+                           sample_rate_hz=run_rate_hz(run), start_ns=start_ns)
 
 
-def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int, block_size: int,
-               frame_id: str, store: Any = None) -> Iterator[tuple[str, int, Any]]:
+def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int,
+               block_size: int, frame_id: str, store: Any = None) -> Iterator[tuple[str, int, Any]]:
     """A run as (topic, stamp ns, typestore message) tuples in time order, made one block at a
     time (pure): its marker first, then per block drive, sensor and ground truth.
 
@@ -82,17 +86,21 @@ def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sampl
     rate_hz = run_rate_hz(run)
     time_s = run["time_s"]
     n_samples = len(time_s)
-    block_start_ns = np.round((time_s[::block_size] - time_s[0]) * _NS_PER_S).astype(np.int64)  # one per block
+    # one per block
+    block_start_ns = np.round((time_s[::block_size] - time_s[0]) * _NS_PER_S).astype(np.int64)
     wing = store.types[WING_TYPE]
-    marker = run_marker(run, source_file=source_file, start_ns=start_ns, first_sample_index=first_sample_index)
-    yield bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json())
+    marker = run_marker(run, source_file=source_file, start_ns=start_ns,
+                        first_sample_index=first_sample_index)
+    yield bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
+        bagio.RUN_MARKER_TYPE, store, data=marker.to_json())
     for k0 in range(0, n_samples, block_size):
         part = slice(k0, min(k0 + block_size, n_samples))
         stamp_ns = start_ns + int(block_start_ns[k0 // block_size])
         index = first_sample_index + k0
 
         def header(frame: str) -> Any:
-            return bagio.new_message("std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store), frame_id=frame)
+            return bagio.new_message("std_msgs/msg/Header", store,
+                                     stamp=bagio.time_msg(stamp_ns, store), frame_id=frame)
 
         stroke_deg = run["stroke_deg"][part].copy()
         pitch_deg = run["pitch_deg"][part].copy()
@@ -100,12 +108,13 @@ def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sampl
             DRIVE_TYPE, store, header=header(""), sample_rate_hz=rate_hz, first_sample_index=index,
             drive_v=run["drive_v"][part].copy())
         yield topics.SENSOR_VOLTAGE, stamp_ns, bagio.new_message(
-            SENSOR_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
-            stroke_sensor_v=run["stroke_sensor_v"][part].copy(), pitch_sensor_v=run["pitch_sensor_v"][part].copy())
+            SENSOR_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz,
+            first_sample_index=index, stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
+            pitch_sensor_v=run["pitch_sensor_v"][part].copy())
         yield topics.WING_STATE_TRUTH, stamp_ns, bagio.new_message(
-            WING_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz, first_sample_index=index,
-            source=wing.SOURCE_GROUND_TRUTH, stroke_deg=stroke_deg, pitch_deg=pitch_deg,
-            stroke_velocity_deg_s=np.full(stroke_deg.size, np.nan),
+            WING_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz,
+            first_sample_index=index, source=wing.SOURCE_GROUND_TRUTH, stroke_deg=stroke_deg,
+            pitch_deg=pitch_deg, stroke_velocity_deg_s=np.full(stroke_deg.size, np.nan),
             stroke_valid=np.isfinite(stroke_deg), pitch_valid=np.isfinite(pitch_deg))
 
 
@@ -114,16 +123,19 @@ def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
     names: dict[str, Path] = {}
     for path, run in runs:
         if run.name in names:
-            raise RunSetError(f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file")
+            raise RunSetError(
+                f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file")
         names[run.name] = path
     rates = {run_rate_hz(run): path for path, run in runs}
     if len(rates) > 1:
         listing = ", ".join(f"{path} {rate:g} Hz" for rate, path in rates.items())
-        raise RunSetError(f"runs have different sample rates ({listing}); import them into separate bags")
+        raise RunSetError(
+            f"runs have different sample rates ({listing}); import them into separate bags")
 
 
 def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str,
-                progress: Callable[[int], None] | None = None, kind: str | None = None) -> list[bagio.RunMarker]:
+                progress: Callable[[int], None] | None = None,
+                kind: str | None = None) -> list[bagio.RunMarker]:
     """Read and check every CSV, then write the bag; returns the run markers written.
 
     Messages are made and written one block at a time. If anything fails (or the user
@@ -134,7 +146,8 @@ def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, 
     if not math.isfinite(gap_s) or gap_s < 0:
         raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")
     if block_size < 1:
-        raise RunSetError(f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}")
+        raise RunSetError(
+            f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}")
     runs = [(path, read_run(path)) for path in paths]
     check_runs(runs)
     store = bagio.typestore()
@@ -148,19 +161,22 @@ def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, 
     writer = bagio.BagWriter(out, store=store)
     try:
         for path, run in runs:
-            marker = run_marker(run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index)
-            for topic, stamp_ns, message in encode_run(run, source_file=str(path), start_ns=start_ns,
-                                                       first_sample_index=first_index, block_size=block_size,
-                                                       frame_id=frame_id, store=store):
+            marker = run_marker(run, source_file=str(path), start_ns=start_ns,
+                                first_sample_index=first_index)
+            for topic, stamp_ns, message in encode_run(
+                    run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index,
+                    block_size=block_size, frame_id=frame_id, store=store):
                 if kind and topic == bagio.RUN_MARKER_TOPIC:
-                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=json.dumps({**json.loads(message.data), "kind": kind}))
+                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=json.dumps(
+                        {**json.loads(message.data), "kind": kind}))
                 writer.write_message(topic, stamp_ns, message, offered[topic])
                 if progress is not None and topic == topics.WING_STATE_TRUTH:
                     progress(int(message.first_sample_index) + len(message.stroke_deg))
             markers.append(marker)
             first_index += marker.n_samples
             start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
-        writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps([json.loads(m.to_json()) for m in markers]))
+        writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps(
+            [json.loads(m.to_json()) for m in markers]))
         writer.close()
     except BaseException:
         writer.abandon()
@@ -186,20 +202,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
                         help=f"time between runs [s] (default {defaults['gap_s']})")
     parser.add_argument("--kind", choices=[k for k in KINDS if k != "unrecognised"], default=None,
-                        help="the drive of every run given (default: `flaair analyze` recognises it from the drive)")
+                        help="the drive of every run given (default: `flaair analyze` recognises "
+                             "it from the drive)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if not math.isfinite(args.gap_s) or args.gap_s < 0:
         parser.error(f"--gap-s must be a finite time >= 0 s, got {args.gap_s}")
     if args.out.exists():
-        print(f"flaair import: {args.out}: exists already; choose a new bag directory", file=sys.stderr)
+        print(f"flaair import: {args.out}: exists already; choose a new bag directory",
+              file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, _interrupted)
     try:
         with tqdm(total=None, unit=" samples", unit_scale=True, desc="import", file=sys.stderr,
                   disable=not sys.stderr.isatty()) as bar:
-            markers = import_runs(args.runs, args.out, gap_s=args.gap_s, block_size=int(defaults["block_size"]),
-                                  frame_id=str(defaults["frame_id"]), progress=lambda n: bar.update(n - bar.n),
-                                  kind=args.kind)
+            markers = import_runs(args.runs, args.out, gap_s=args.gap_s,
+                                  block_size=int(defaults["block_size"]),
+                                  frame_id=str(defaults["frame_id"]),
+                                  progress=lambda n: bar.update(n - bar.n), kind=args.kind)
     except (RunFileError, RunSetError, bagio.BagError) as exc:
         print(f"flaair import: {exc}", file=sys.stderr)
         return 2

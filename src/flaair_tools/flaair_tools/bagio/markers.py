@@ -37,7 +37,9 @@ class RunMarker:
         try:
             values = json.loads(text)
             return cls(run=str(values["run"]), first_sample_index=int(values["first_sample_index"]),
-                       n_samples=int(values["n_samples"]), source_file=str(values.get("source_file", "")),
-                       sample_rate_hz=float(values.get("sample_rate_hz", "nan")), start_ns=int(values.get("start_ns", 0)))
+                       n_samples=int(values["n_samples"]),
+                       source_file=str(values.get("source_file", "")),
+                       sample_rate_hz=float(values.get("sample_rate_hz", "nan")),
+                       start_ns=int(values.get("start_ns", 0)))
         except (ValueError, KeyError, TypeError) as exc:
             raise BagError(f"bad run marker {text!r}: {exc!r}") from None

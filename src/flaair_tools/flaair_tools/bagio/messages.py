@@ -1,4 +1,5 @@
-"""Bag message types: the typestore (Jazzy + flaair_msgs), new messages, stamps, bag errors and conventions.
+"""Bag message types: the typestore (Jazzy + flaair_msgs),
+new messages, stamps, bag errors and conventions.
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
@@ -17,19 +18,25 @@ from rosbags.typesys.store import Typestore
 
 from flaair_common.msgdefs import MSG_PACKAGE, MsgDefinitionError, project_types
 
-__all__ = ["BAG_VERSION", "ROS_DISTRO", "RUN_MARKER_TOPIC", "RUN_MARKER_TYPE", "RUNS_CUSTOM_KEY", "STORAGE_SECTION", "CONFIG_FILE", "HEADER_TYPE", "TIME_TYPE", "NS_PER_S", "WRITER_LIBRARY", "BagError", "BagTopicError", "BagContinuityError", "BagUnfinishedError", "typestore", "message_definition", "new_message", "time_msg", "has_leading_stamp", "leading_stamp_ns", "deserialize"]
+__all__ = ["BAG_VERSION", "ROS_DISTRO", "RUN_MARKER_TOPIC", "RUN_MARKER_TYPE", "RUNS_CUSTOM_KEY",
+           "STORAGE_SECTION", "CONFIG_FILE", "HEADER_TYPE", "TIME_TYPE", "NS_PER_S",
+           "WRITER_LIBRARY", "BagError", "BagTopicError", "BagContinuityError",
+           "BagUnfinishedError", "typestore", "message_definition", "new_message", "time_msg",
+           "has_leading_stamp", "leading_stamp_ns", "deserialize"]
 
 BAG_VERSION = 9  # rosbag2 metadata version written by ROS 2 Jazzy
 ROS_DISTRO = "jazzy"
 RUN_MARKER_TOPIC = "/flaair/run_marker"
 RUN_MARKER_TYPE = "std_msgs/msg/String"
 RUNS_CUSTOM_KEY = "flaair.runs"
-STORAGE_SECTION = "recorder_node"  # config section holding the storage settings (compression, chunk size)
+# config section holding the storage settings (compression, chunk size)
+STORAGE_SECTION = "recorder_node"
 CONFIG_FILE = "flaair.yaml"
 HEADER_TYPE = "std_msgs/msg/Header"
 TIME_TYPE = "builtin_interfaces/msg/Time"
 NS_PER_S = 1_000_000_000
-WRITER_LIBRARY = f"flaair bagio (mcap {package_version('mcap')}, rosbags {package_version('rosbags')})"
+WRITER_LIBRARY = (f"flaair bagio (mcap {package_version('mcap')}, "
+                  f"rosbags {package_version('rosbags')})")
 
 
 class BagError(ValueError):
@@ -45,7 +52,9 @@ class BagContinuityError(BagError):
 
 
 class BagUnfinishedError(BagError):
-    """The bag has no metadata.yaml: its writer did not close it (repair with `bin/flaair bag reindex`)."""
+    """The bag has no metadata.yaml: its writer did not
+    close it (repair with `bin/flaair bag reindex`).
+    """
 
 
 @functools.lru_cache(maxsize=None)
@@ -63,7 +72,8 @@ def message_definition(msgtype: str, store: Typestore | None = None) -> tuple[st
     """The `ros2msg` definition (with dependencies) and RIHS01 hash of `msgtype`."""
     store = store or typestore()
     if msgtype not in store.fielddefs:
-        raise BagTopicError(f"message type '{msgtype}' is unknown to the typestore (Jazzy + {MSG_PACKAGE})")
+        raise BagTopicError(
+            f"message type '{msgtype}' is unknown to the typestore (Jazzy + {MSG_PACKAGE})")
     text, _ = store.generate_msgdef(msgtype, ros_version=2)
     return text, store.hash_rihs01(msgtype)
 
@@ -81,7 +91,8 @@ def new_message(msgtype: str, store: Typestore | None = None, **values: Any) -> 
             kwargs[name] = new_message(detail, store)
         elif node == Nodetype.BASE:
             kwargs[name] = "" if detail[0] == "string" else (False if detail[0] == "bool" else 0)
-        elif node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[0][1][0] != "string":
+        elif (node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE
+              and detail[0][1][0] != "string"):
             kwargs[name] = np.zeros(0, dtype=_numpy_dtype(detail[0][1][0]))
         else:
             kwargs[name] = []
@@ -108,7 +119,8 @@ def has_leading_stamp(msgtype: str, store: Typestore | None = None) -> bool:
     """True if the first field of `msgtype` is a std_msgs/Header or a builtin_interfaces/Time."""
     store = store or typestore()
     _, fields = store.fielddefs[msgtype]
-    return bool(fields) and fields[0][1][0] == Nodetype.NAME and fields[0][1][1] in (HEADER_TYPE, TIME_TYPE)
+    return (bool(fields) and fields[0][1][0] == Nodetype.NAME
+            and fields[0][1][1] in (HEADER_TYPE, TIME_TYPE))
 
 
 def leading_stamp_ns(data: bytes | memoryview) -> int:

@@ -48,9 +48,12 @@ def qos_to_yaml(profiles: Sequence[Qos]) -> str:
     """Offered QoS profiles as the YAML text rosbag2 (Jazzy, v9) stores in MCAP channel metadata."""
     if not profiles:
         return ""
-    return yaml.safe_dump(dump_qos_v9(list(profiles)), default_flow_style=False, sort_keys=False).strip()
+    return yaml.safe_dump(dump_qos_v9(list(profiles)), default_flow_style=False,
+                          sort_keys=False).strip()
 
 
 def qos_from_yaml(text: str) -> list[Qos]:
-    """Offered QoS profiles from the YAML text of a channel's metadata (inverse of `qos_to_yaml`)."""
+    """Offered QoS profiles from the YAML text of a
+    channel's metadata (inverse of `qos_to_yaml`).
+    """
     return parse_qos(text)

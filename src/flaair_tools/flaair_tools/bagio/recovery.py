@@ -1,4 +1,5 @@
-"""Recover a damaged or unfinished bag: `reindex` rebuilds it (verified first), `check_bag` reports damage.
+"""Recover a damaged or unfinished bag: `reindex` rebuilds
+it (verified first), `check_bag` reports damage.
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
@@ -27,7 +28,8 @@ from flaair_tools.bagio.qos import qos_from_yaml
 from flaair_tools.bagio.scan import RECOVERED_CUSTOM_KEY, ScanLog, ScannedMessage, scan_mcap
 from flaair_tools.bagio.writer import BagWriter, storage_settings
 
-__all__ = ["TopicRecovery", "ReindexReport", "single_mcap_file", "reindex", "damage_lines", "check_bag"]
+__all__ = ["TopicRecovery", "ReindexReport", "single_mcap_file", "reindex", "damage_lines",
+           "check_bag"]
 
 
 @dataclass(frozen=True)
@@ -39,7 +41,9 @@ class TopicRecovery:
 
     @property
     def lost(self) -> int | None:
-        """Messages the file once held (by its summary, metadata.yaml or message indexes) and lost."""
+        """Messages the file once held (by its summary,
+        metadata.yaml or message indexes) and lost.
+        """
         return None if self.expected is None else max(0, self.expected - self.kept)
 
 
@@ -76,7 +80,8 @@ class ReindexReport:
         """How the scan ended, in words."""
         if self.was_complete:
             return "footer (complete file)"
-        return "a chunk cut off by the end of the file" if self.partial_tail else "end of file without a footer"
+        return ("a chunk cut off by the end of the file" if self.partial_tail
+                else "end of file without a footer")
 
 
 def single_mcap_file(path: Path) -> Path:
@@ -93,7 +98,8 @@ def _metadata_counts(path: Path) -> tuple[dict[str, int] | None, dict[str, str]]
     try:
         document = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))
         info = document["rosbag2_bagfile_information"]
-        counts = {str(t["topic_metadata"]["name"]): int(t["message_count"]) for t in info["topics_with_message_count"]}
+        counts = {str(t["topic_metadata"]["name"]): int(t["message_count"])
+                  for t in info["topics_with_message_count"]}
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
         return counts, custom
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
@@ -123,8 +129,8 @@ def _verify_copy(bag: Path, expected: dict[str, int]) -> None:
             mcap_seen[channel.topic] = mcap_seen.get(channel.topic, 0) + 1
     wanted = {t: n for t, n in expected.items() if n}
     if seen != wanted or mcap_seen != wanted:
-        raise BagError(f"{bag}: the recovered copy does not read back as written "
-                       f"(wrote {wanted}, rosbags reads {seen}, mcap reads {mcap_seen}); the original is unchanged")
+        raise BagError(f"{bag}: the recovered copy does not read back as written (wrote {wanted}, "
+                       f"rosbags reads {seen}, mcap reads {mcap_seen}); the original is unchanged")
 
 
 def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
@@ -161,8 +167,8 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
     unverified_dropped = 0
     try:
         compression, chunk_size = storage_settings()
-        writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size, file_name=source.name,
-                           store=store)
+        writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size,
+                           file_name=source.name, store=store)
         with _mapped(source) as data:
             for record in scan_mcap(data, log):
                 if progress is not None:
@@ -172,7 +178,8 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
                     if channel is None or not writer.has_topic(channel.topic):
                         unverified_dropped += 1
                         continue
-                    if not record.verified and not _decodable(store, schemas[channel.schema_id].name, record.data):
+                    if not record.verified and not _decodable(
+                            store, schemas[channel.schema_id].name, record.data):
                         unverified_dropped += 1
                         continue
                     writer.write(channel.topic, record.log_time, record.data, record.publish_time)
@@ -182,13 +189,16 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
                     channels[record.id] = record
                     schema = schemas.get(record.schema_id)
                     if schema is not None and not writer.has_topic(record.topic):
-                        writer.add_topic(record.topic, schema.name,
-                                         qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
-                                         msgdef=schema.data.decode(), type_hash=record.metadata.get("topic_type_hash", ""))
+                        writer.add_topic(record.topic, schema.name, qos_from_yaml(
+                            record.metadata.get("offered_qos_profiles", "")),
+                                         msgdef=schema.data.decode(),
+                                         type_hash=record.metadata.get("topic_type_hash", ""))
                 elif isinstance(record, McapMetadata) and record.name == "rosbag2":
                     try:
-                        previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
-                        custom.update({str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()})
+                        previous = yaml.safe_load(record.metadata.get("serialized_metadata",
+                                                                      "")) or {}
+                        custom.update({str(k): str(v) for k,
+                                       v in (previous.get("custom_data") or {}).items()})
                     except (yaml.YAMLError, AttributeError):
                         pass
         kept = writer.counts
@@ -200,8 +210,9 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
                 writer.set_custom_data(key, value)
         if lost_any:
             writer.set_custom_data(RECOVERED_CUSTOM_KEY, json.dumps({
-                "source_file": source.name, "damage": list(damage),
-                "topics": {t: {"kept": r.kept, "expected": r.expected, "lost": r.lost} for t, r in sorted(topics.items())},
+                "source_file": source.name, "damage": list(damage), "topics": {
+                t: {"kept": r.kept, "expected": r.expected, "lost": r.lost} for t,
+                r in sorted(topics.items())},
             }, allow_nan=False))
         writer.close()
         _verify_copy(temporary, kept)
@@ -217,7 +228,8 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
     finally:
         if temporary.exists():
             shutil.rmtree(temporary, ignore_errors=True)
-    return ReindexReport(path, topics, log.complete, damage, log.partial_tail, backup, unverified_dropped)
+    return ReindexReport(path, topics, log.complete, damage, log.partial_tail, backup,
+                         unverified_dropped)
 
 
 def _recovery_counts(kept: dict[str, int], channels: dict[int, McapChannel], log: ScanLog,
@@ -253,7 +265,9 @@ def damage_lines(log: ScanLog) -> Iterator[str]:
 
 
 def check_bag(bag: str | Path) -> tuple[ScanLog, dict[str, int]]:
-    """Scan a bag's MCAP file for damage without changing it: (scan log, readable messages per channel topic)."""
+    """Scan a bag's MCAP file for damage without changing
+    it: (scan log, readable messages per channel topic).
+    """
     source = single_mcap_file(Path(bag))
     log = ScanLog()
     counts: dict[str, int] = {}

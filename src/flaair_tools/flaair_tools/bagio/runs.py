@@ -45,7 +45,8 @@ class Run:
         return 1.0 if not self.expected_n_samples else self.n_samples / self.expected_n_samples
 
 
-def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Blocks | None) -> dict[str, np.ndarray]:
+def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None,
+             truth: bagio.Blocks | None) -> dict[str, np.ndarray]:
     first = int(sensor.sample_index[0])
     n = len(sensor.sample_index)
     fs = float(sensor.sample_rate_hz)
@@ -101,10 +102,13 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
 
 def runs_of_bag(contents: bagio.BagContents, *, need_truth: bool = True, need_drive: bool = True,
                 missing: list[tuple[str, str]] | None = None) -> list[Run]:
-    """Every run of one bag already read (`bagio.read_bag(bag, RUN_TOPICS + ...)`); see `load_runs`."""
+    """Every run of one bag already read (`bagio.read_bag(bag,
+    RUN_TOPICS + ...)`); see `load_runs`.
+    """
     bag = contents.info.path
     present = set(contents.info.topics)
-    needed = [topics.SENSOR_VOLTAGE] + ([topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
+    needed = [topics.SENSOR_VOLTAGE] + (
+        [topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
     absent = [t for t in needed if t not in present]
     if absent:
         raise bagio.BagTopicError(f"{bag}: needed topic(s) {', '.join(absent)} not in the bag "
@@ -114,15 +118,17 @@ def runs_of_bag(contents: bagio.BagContents, *, need_truth: bool = True, need_dr
     truth = contents.blocks(topics.WING_STATE_TRUTH) if topics.WING_STATE_TRUTH in present else None
     markers = contents.run_markers()
     if not markers:
-        return [Run(bag.name, str(bag), float(sensor.sample_rate_hz), _columns(sensor, drive, truth))]
+        return [Run(bag.name, str(bag), float(sensor.sample_rate_hz),
+                    _columns(sensor, drive, truth))]
     runs: list[Run] = []
     for marker in markers:
-        pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)  # noqa: E731
+        pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index,
+                                                                     marker.n_samples)  # noqa: E731
         part = pick(sensor)
         if len(part.sample_index) == 0:
             if missing is not None:
                 missing.append((str(bag), marker.run))
             continue
-        runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz), _columns(part, pick(drive), pick(truth)),
-                        marker.n_samples))
+        runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz),
+                        _columns(part, pick(drive), pick(truth)), marker.n_samples))
     return runs

@@ -71,8 +71,9 @@ class ScannedMessage:
 
 def _read_record(opcode: int, body: bytes | memoryview) -> Any:
     """One non-chunk record through the mcap library's own parsers (None: not needed here)."""
-    readers = {Opcode.SCHEMA: McapSchema.read, Opcode.CHANNEL: McapChannel.read, Opcode.METADATA: McapMetadata.read,
-               Opcode.STATISTICS: Statistics.read, Opcode.MESSAGE_INDEX: MessageIndex.read}
+    readers = {Opcode.SCHEMA: McapSchema.read, Opcode.CHANNEL: McapChannel.read,
+               Opcode.METADATA: McapMetadata.read, Opcode.STATISTICS: Statistics.read,
+               Opcode.MESSAGE_INDEX: MessageIndex.read}
     reader = readers.get(opcode)
     return None if reader is None else reader(ReadDataStream(BytesIO(bytes(body))))
 
@@ -235,7 +236,8 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
             yield from _chunk(data, position, end, log)
             log.partial_tail = True
             break
-        if opcode not in _KNOWN_OPCODES or end > size or (opcode == Opcode.CHUNK and not _plausible_chunk(data, position, size)):
+        if opcode not in _KNOWN_OPCODES or end > size or (
+                opcode == Opcode.CHUNK and not _plausible_chunk(data, position, size)):
             following = _resync(data, position, size)
             log.skipped_bytes.append((position, following - position))
             position = following
@@ -247,7 +249,8 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
         elif opcode == Opcode.MESSAGE_INDEX and damaged_chunk:
             try:
                 index = _read_record(opcode, body)
-                log.index_counts[index.channel_id] = log.index_counts.get(index.channel_id, 0) + len(index.records)
+                log.index_counts[index.channel_id] = (
+                    log.index_counts.get(index.channel_id, 0) + len(index.records))
             except Exception:  # noqa: BLE001 - a damaged index counts nothing
                 pass
         elif opcode == Opcode.FOOTER:
@@ -255,7 +258,8 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
             break
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.MESSAGE):
             try:
-                yield _parse_message(body, True) if opcode == Opcode.MESSAGE else _read_record(opcode, body)
+                yield _parse_message(body, True) if opcode == Opcode.MESSAGE else _read_record(
+                    opcode, body)
             except Exception:  # noqa: BLE001 - a damaged record outside chunks
                 log.skipped_bytes.append((position, end - position))
         if opcode != Opcode.MESSAGE_INDEX:

@@ -35,12 +35,15 @@ __all__ = ["storage_settings", "BagWriter", "bag_metadata"]
 
 
 def storage_settings() -> tuple[bool, int]:
-    """(compression, chunk_size_bytes) for new bags, from config/flaair.yaml's recorder_node section."""
+    """(compression, chunk_size_bytes) for new bags,
+    from config/flaair.yaml's recorder_node section.
+    """
     try:
         values = node_parameters(CONFIG_FILE, STORAGE_SECTION)
         return bool(values["compression"]), int(values["chunk_size_bytes"])
     except (ConfigError, KeyError) as exc:
-        raise BagError(f"config/{CONFIG_FILE}: {STORAGE_SECTION}: storage settings missing: {exc}") from exc
+        raise BagError(
+            f"config/{CONFIG_FILE}: {STORAGE_SECTION}: storage settings missing: {exc}") from exc
 
 
 @dataclass
@@ -69,8 +72,9 @@ class BagWriter:
         MCAP file name inside the bag (default `<bag name>_0.mcap`, as rosbag2 names it).
     """
 
-    def __init__(self, path: str | Path, *, compression: bool | None = None, chunk_size_bytes: int | None = None,
-                 store: Typestore | None = None, file_name: str | None = None) -> None:
+    def __init__(self, path: str | Path, *, compression: bool | None = None,
+                 chunk_size_bytes: int | None = None, store: Typestore | None = None,
+                 file_name: str | None = None) -> None:
         self.path = Path(path)
         if compression is None or chunk_size_bytes is None:
             default_compression, default_chunk = storage_settings()
@@ -83,7 +87,8 @@ class BagWriter:
         except FileExistsError:
             raise BagError(f"{self.path}: exists already; choose a new bag directory") from None
         except OSError as exc:
-            raise BagError(f"{self.path}: cannot create the bag directory: {exc.strerror}") from None
+            raise BagError(
+                f"{self.path}: cannot create the bag directory: {exc.strerror}") from None
         self.file_path = self.path / (file_name or f"{self.path.name}_0.mcap")
         self._stream = open(self.file_path, "xb")
         self._mcap = McapWriter(
@@ -98,11 +103,14 @@ class BagWriter:
 
     def add_topic(self, topic: str, msgtype: str, offered_qos: Sequence[Qos] = (), *,
                   msgdef: str | None = None, type_hash: str | None = None) -> None:
-        """Register `topic` of `msgtype`; its schema comes from the typestore unless `msgdef` is given."""
+        """Register `topic` of `msgtype`; its schema comes
+        from the typestore unless `msgdef` is given.
+        """
         known = self._topics.get(topic)
         if known is not None:
             if known.msgtype != msgtype:
-                raise BagTopicError(f"{self.path}: topic '{topic}' is already recorded as {known.msgtype}, not {msgtype}")
+                raise BagTopicError(f"{self.path}: topic '{topic}' is already recorded as "
+                                    f"{known.msgtype}, not {msgtype}")
             return
         if msgdef is None or type_hash is None:
             generated, generated_hash = message_definition(msgtype, self.store)
@@ -114,7 +122,8 @@ class BagWriter:
         channel_id = self._mcap.register_channel(topic, "cdr", self._schemas[msgtype], metadata)
         self._topics[topic] = _Topic(channel_id, msgtype, type_hash, list(offered_qos))
 
-    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview, publish_time_ns: int | None = None) -> None:
+    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview,
+              publish_time_ns: int | None = None) -> None:
         """Append one CDR-serialized message of a registered topic."""
         entry = self._topics.get(topic)
         if entry is None:
@@ -124,10 +133,12 @@ class BagWriter:
                                timestamp_ns if publish_time_ns is None else int(publish_time_ns),
                                entry.count & 0xFFFFFFFF)  # MCAP sequence is uint32
         entry.count += 1
-        entry.first_ns = timestamp_ns if entry.first_ns is None else min(entry.first_ns, timestamp_ns)
+        entry.first_ns = (timestamp_ns if entry.first_ns is None
+                          else min(entry.first_ns, timestamp_ns))
         entry.last_ns = timestamp_ns if entry.last_ns is None else max(entry.last_ns, timestamp_ns)
 
-    def write_message(self, topic: str, timestamp_ns: int, message: Any, offered_qos: Sequence[Qos] = ()) -> None:
+    def write_message(self, topic: str, timestamp_ns: int, message: Any,
+                      offered_qos: Sequence[Qos] = ()) -> None:
         """Serialize a typestore message and append it (registering the topic on first use)."""
         msgtype = message.__msgtype__
         if topic not in self._topics:
@@ -150,21 +161,27 @@ class BagWriter:
         return {topic: entry.count for topic, entry in self._topics.items()}
 
     def flush(self) -> None:
-        """Close the open chunk and hand everything to the OS: it survives a kill of this process."""
+        """Close the open chunk and hand everything to
+        the OS: it survives a kill of this process.
+        """
         self._mcap.flush()
 
     def close(self) -> None:
-        """Finish the MCAP file (summary, indexes, rosbag2 metadata record) and write metadata.yaml."""
+        """Finish the MCAP file (summary, indexes, rosbag2
+        metadata record) and write metadata.yaml.
+        """
         if self.closed:
             return
         self.closed = True
         info = self.metadata()
-        text = yaml.safe_dump(info["rosbag2_bagfile_information"], default_flow_style=False, sort_keys=False)
+        text = yaml.safe_dump(info["rosbag2_bagfile_information"], default_flow_style=False,
+                              sort_keys=False)
         self._mcap.add_metadata("rosbag2", {"serialized_metadata": text, "ROS_DISTRO": ROS_DISTRO})
         self._mcap.finish()
         self._stream.close()
         temporary = self.path / "metadata.yaml.tmp"
-        temporary.write_text(yaml.safe_dump(info, default_flow_style=False, sort_keys=False), encoding="utf-8")
+        temporary.write_text(yaml.safe_dump(
+            info, default_flow_style=False, sort_keys=False), encoding="utf-8")
         temporary.replace(self.path / "metadata.yaml")
 
     def abandon(self) -> None:
@@ -184,7 +201,8 @@ class BagWriter:
         self.close()
 
 
-def bag_metadata(file_name: str, topics: dict[str, _Topic], custom_data: dict[str, str]) -> dict[str, Any]:
+def bag_metadata(file_name: str, topics: dict[str, _Topic],
+                 custom_data: dict[str, str]) -> dict[str, Any]:
     """rosbag2 (version 9) metadata.yaml document for one MCAP file with `topics`."""
     firsts = [t.first_ns for t in topics.values() if t.first_ns is not None]
     lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]

@@ -1,4 +1,6 @@
-"""One hidden-effect case of the discrepancy datasets: the true robot, its runs, what must be found."""
+"""One hidden-effect case of the discrepancy datasets:
+the true robot, its runs, what must be found.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -25,8 +27,9 @@ class DatasetCase:
     plant_scale : ((plant key, factor), ...): the robot's plant differs from the model's.
     hidden : vocabulary effects the robot carries that a plant change reproduces exactly (not
         separable, e.g. wing_damage): the right answer does not name them.
-    video_every : ground truth only every k-th sample (a video frame rate), NaN between; 1: DAQ rate.
-    below_limit : the effects are below what the search on the fitted plant resolves (the joint fit
+    video_every : ground truth only every k-th sample (a video frame
+    rate), NaN between; 1: DAQ rate. below_limit : the effects are
+    below what the search on the fitted plant resolves (the joint fit
         absorbs them into the plant on the truth, and the sensors do not search physics): the right
         answer names nothing and leaves the gap located (``unexplained``).
     """
@@ -71,7 +74,8 @@ class DatasetCase:
     def true_label(self) -> str:
         """Row label of the confusion table ('plant:' marks a hidden, not separable effect)."""
         below = "below:" if self.below_limit else ""
-        parts = [below + n for n in self.effect_names] + [f"plant:{n}" for n in sorted(n for n, _ in self.hidden)]
+        parts = [below + n for n in self.effect_names] + [
+            f"plant:{n}" for n in sorted(n for n, _ in self.hidden)]
         if self.outside:
             parts.append(f"outside:{self.outside}")
         return "+".join(parts) or "none"

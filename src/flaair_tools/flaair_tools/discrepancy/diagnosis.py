@@ -1,4 +1,6 @@
-"""Residual diagnosis: noise, whiteness, drive correlation, bands, levels, harmonics, worst stretch."""
+"""Residual diagnosis: noise, whiteness, drive
+correlation, bands, levels, harmonics, worst stretch.
+"""
 from __future__ import annotations
 
 import math
@@ -25,8 +27,8 @@ def _demean(r: np.ndarray) -> np.ndarray:
     return r
 
 
-def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, model: Optional[Model] = None,
-              truth_referenced: bool = False) -> np.ndarray:
+def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str,
+                     model: Optional[Model] = None, truth_referenced: bool = False) -> np.ndarray:
     """Measured minus simulated record (mean removed); NaN where the measurement is missing.
 
     truth_referenced (sensor channels): the sensor is simulated with the *measured* angle as its
@@ -35,8 +37,10 @@ def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str, mode
     """
     if truth_referenced and channel in SENSOR_CHANNELS:
         side = SENSOR_SIDE[channel]
-        stroke, pitch = measured_motion(run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side)
-        r = run.channel(channel) - sensor_voltage(model, run.fs_hz, stroke, pitch, run.drive_v, side)
+        stroke, pitch = measured_motion(
+            run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side)
+        r = run.channel(channel) - sensor_voltage(
+            model, run.fs_hz, stroke, pitch, run.drive_v, side)
         r = np.where(np.isfinite(run.channel(UPSTREAM_TRUTH[channel])), r, np.nan)
     else:
         r = run.channel(channel) - sim[channel]
@@ -49,7 +53,8 @@ def _signal_ss(run: Run, channel: str) -> tuple[float, int]:
     return float(np.sum((x - x.mean()) ** 2)), int(x.size)
 
 
-def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]], model: Model) -> dict[str, float]:
+def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]],
+                    model: Model) -> dict[str, float]:
     """Noise RMS of each channel from the residual's second differences (MAD, robust).
 
     A smooth model error hardly changes second differences at the sample rate (a 200 Hz error
@@ -57,8 +62,10 @@ def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]
     differences of RMS s sqrt(6). Where fewer than 64 triples of consecutive finite samples
     exist (ground truth at a low frame rate), the model's noise section is used instead.
     """
-    spec = {"stroke_deg": model.noise.tracking_noise_deg_rms, "pitch_deg": model.noise.tracking_noise_deg_rms,
-            "stroke_sensor_v": model.noise.sensor_noise_v_rms, "pitch_sensor_v": model.noise.sensor_noise_v_rms}
+    spec = {"stroke_deg": model.noise.tracking_noise_deg_rms,
+            "pitch_deg": model.noise.tracking_noise_deg_rms,
+            "stroke_sensor_v": model.noise.sensor_noise_v_rms,
+            "pitch_sensor_v": model.noise.sensor_noise_v_rms}
     out = {}
     for c in CHANNELS:
         parts = []
@@ -106,7 +113,9 @@ def _ljung_box(r: np.ndarray, lags: int) -> tuple[float, float]:
 
 
 def _xcorr_with_drive(r: np.ndarray, drive: np.ndarray, max_lag: int) -> tuple[float, int, int]:
-    """Largest |normalised cross-correlation| of residual r(t) with drive(t - lag), lag 0..max_lag."""
+    """Largest |normalised cross-correlation| of residual
+    r(t) with drive(t - lag), lag 0..max_lag.
+    """
     ok = np.isfinite(r)
     n = int(ok.sum())
     if n < 16:
@@ -118,7 +127,8 @@ def _xcorr_with_drive(r: np.ndarray, drive: np.ndarray, max_lag: int) -> tuple[f
     if den <= 0:
         return 0.0, 0, n
     size = 1 << int(math.ceil(math.log2(2 * x.size)))
-    cc = np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(d, size)), size)[: max_lag + 1] / den
+    cc = (np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(d, size)), size)[: max_lag + 1]
+          / den)
     lag = int(np.argmax(np.abs(cc)))
     return float(cc[lag]), lag, n
 
@@ -132,23 +142,19 @@ class ChannelGap:
 
     Attributes
     ----------
-    channel : measured channel.
-    nrmse : residual RMS / measured RMS, all runs pooled.
-    noise_nrmse : noise RMS / measured RMS (the floor an exact model reaches).
-    noise_ratio : residual RMS / noise RMS.
-    model_error_nrmse : sqrt(max(residual^2 - noise^2, 0)) / measured RMS.
-    ljung_box_q, ljung_box_p : whiteness test of the decimated residual.
-    xcorr_drive : largest normalised cross-correlation of residual with the drive.
-    xcorr_lag_s : its lag (residual after drive).
-    xcorr_significant : |rho| sqrt(n) > Settings.xcorr_z.
-    band_nrmse : {"lo-hi Hz": model-error NRMSE of the samples whose drive frequency is in the band}.
-    worst_band_hz : band with the largest model-error NRMSE.
-    level_nrmse : {drive level V: model-error NRMSE of the runs at that level}.
-    level_ratio : model-error NRMSE at the highest over the lowest drive level (NaN: one level).
-    harmonic_fraction : residual power fraction at drive harmonics 1..4 (rest: broadband).
-    worst_stretch : (run, start s, stop s, model-error NRMSE) of the worst window.
-    has_gap : the channel disagrees beyond noise (see module docstring).
-    interpretation : one-line reading of the tests.
+    channel : measured channel. nrmse : residual RMS / measured RMS, all runs pooled.
+    noise_nrmse : noise RMS / measured RMS (the floor an exact model reaches). noise_ratio :
+    residual RMS / noise RMS. model_error_nrmse : sqrt(max(residual^2 - noise^2, 0)) /
+    measured RMS. ljung_box_q, ljung_box_p : whiteness test of the decimated residual.
+    xcorr_drive : largest normalised cross-correlation of residual with the drive. xcorr_lag_s
+    : its lag (residual after drive). xcorr_significant : |rho| sqrt(n) > Settings.xcorr_z.
+    band_nrmse : {"lo-hi Hz": model-error NRMSE of the samples whose drive frequency is in the
+    band}. worst_band_hz : band with the largest model-error NRMSE. level_nrmse : {drive level
+    V: model-error NRMSE of the runs at that level}. level_ratio : model-error NRMSE at the
+    highest over the lowest drive level (NaN: one level). harmonic_fraction : residual power
+    fraction at drive harmonics 1..4 (rest: broadband). worst_stretch : (run, start s, stop s,
+    model-error NRMSE) of the worst window. has_gap : the channel disagrees beyond noise (see
+    module docstring). interpretation : one-line reading of the tests.
     """
 
     channel: str
@@ -270,7 +276,8 @@ def diagnose(
         max_lag = max(1, int(round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate)))
         best = (0.0, 0, 0)
         for run, r in zip(runs, res):
-            rho, lag, m = _xcorr_with_drive(r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag)
+            rho, lag, m = _xcorr_with_drive(
+                r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag)
             if abs(rho) * math.sqrt(max(m, 1)) > abs(best[0]) * math.sqrt(max(best[2], 1)):
                 best = (rho, lag, m)
         xsig = abs(best[0]) * math.sqrt(max(best[2], 1)) > settings.xcorr_z
@@ -338,18 +345,19 @@ def diagnose(
             if ex[j] > worst[3]:
                 worst = (run.name, j * win / run.fs_hz, (j + 1) * win / run.fs_hz, float(ex[j]))
         out[c] = ChannelGap(
-            channel=c, nrmse=nrmse, noise_nrmse=noise_nrmse, noise_ratio=ratio, model_error_nrmse=excess,
-            ljung_box_q=q, ljung_box_p=p, xcorr_drive=best[0],
+            channel=c, nrmse=nrmse, noise_nrmse=noise_nrmse, noise_ratio=ratio,
+            model_error_nrmse=excess, ljung_box_q=q, ljung_box_p=p, xcorr_drive=best[0],
             xcorr_lag_s=best[1] * settings.decimate / runs[0].fs_hz, xcorr_significant=bool(xsig),
-            band_nrmse=band, worst_band_hz=worst_band, level_nrmse=level_vals, level_ratio=level_ratio,
-            harmonic_fraction=harmonics, worst_stretch=worst, has_gap=has_gap,
-            interpretation=interpret(ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
+            band_nrmse=band, worst_band_hz=worst_band, level_nrmse=level_vals,
+            level_ratio=level_ratio, harmonic_fraction=harmonics, worst_stretch=worst,
+            has_gap=has_gap, interpretation=interpret(
+            ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
         )
     return Diagnosis(channels=out, noise=dict(noise))
 
 
-def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float], level_ratio: float,
-               has_gap: bool, settings: Settings) -> str:
+def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float],
+              level_ratio: float, has_gap: bool, settings: Settings) -> str:
     if not has_gap:
         return "residual at noise level and white: the model explains this channel"
     parts = [f"residual {ratio:.2f}x noise, not white (Ljung-Box p={p:.1e})"]
@@ -365,33 +373,41 @@ def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float]
         parts.append("only at the lower drive levels (none at full drive)")
     elif math.isfinite(level_ratio):
         if level_ratio > 1.5:
-            parts.append(f"relative error {level_ratio:.2f}x larger at full drive (grows with amplitude)")
+            parts.append(f"relative error {level_ratio:.2f}x larger at full drive (grows with "
+                         "amplitude)")
         elif level_ratio < 1 / 1.5:
-            parts.append(f"relative error {1 / level_ratio:.2f}x larger at low drive (shrinks with amplitude)")
+            parts.append(f"relative error {1 / level_ratio:.2f}x larger at low drive (shrinks with "
+                         "amplitude)")
         else:
-            parts.append("relative error about the same at every drive level (amplitude independent)")
+            parts.append("relative error about the same at every drive level (amplitude "
+                         "independent)")
     return "; ".join(parts)
 
 
-def nrmse_by_channel(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]]) -> dict[str, float]:
+def nrmse_by_channel(runs: Sequence[Run],
+                     sims: Sequence[Mapping[str, np.ndarray]]) -> dict[str, float]:
     """Residual RMS / measured RMS per channel, pooled over runs (means removed per run)."""
     out = {}
     for c in CHANNELS:
-        rss = sum(float(np.nansum(channel_residual(run, sim, c) ** 2)) for run, sim in zip(runs, sims))
+        rss = sum(float(np.nansum(channel_residual(run, sim, c) ** 2)) for run,
+                  sim in zip(runs, sims))
         ss = sum(_signal_ss(run, c)[0] for run in runs)
         out[c] = math.sqrt(rss / ss) if ss > 0 else math.nan
     return out
 
 
-def gap_test(res: Sequence[np.ndarray], sigma: float, settings: Settings) -> tuple[bool, float, float, float]:
+def gap_test(res: Sequence[np.ndarray], sigma: float,
+             settings: Settings) -> tuple[bool, float, float, float]:
     """(has_gap, noise ratio, Ljung-Box Q, p) of residual records."""
     rss = sum(float(np.nansum(r**2)) for r in res)
     n = sum(int(np.isfinite(r).sum()) for r in res)
     ratio = math.sqrt(rss / n) / sigma if n and sigma > 0 else math.inf
     dec = settings.whiteness_decimate
-    joined = np.concatenate([np.r_[r[::dec], np.full(settings.ljung_box_lags, np.nan)] for r in res])
+    joined = np.concatenate([np.r_[r[::dec], np.full(settings.ljung_box_lags, np.nan)]
+                             for r in res])
     q, p = _ljung_box(joined, settings.ljung_box_lags)
-    has_gap = bool(ratio > settings.gap_noise_ratio and (not math.isfinite(p) or p < settings.whiteness_alpha))
+    has_gap = bool(ratio > settings.gap_noise_ratio and (
+        not math.isfinite(p) or p < settings.whiteness_alpha))
     return has_gap, ratio, q, p
 
 

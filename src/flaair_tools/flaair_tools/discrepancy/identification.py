@@ -46,16 +46,19 @@ from flaair_sim.core.plant import simulate_batch_from
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
 
-__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "fit_initial_states", "INSEPARABLE_CORRELATION",
-           "UNDETERMINED_REL_SE"]
+__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "fit_initial_states",
+           "INSEPARABLE_CORRELATION", "UNDETERMINED_REL_SE"]
 
-INSEPARABLE_CORRELATION = 0.95  # |correlation| above which two parameters are reported as not separated
-UNDETERMINED_REL_SE = 0.10  # relative standard error above which a parameter is reported as undetermined
+# |correlation| above which two parameters are reported as not separated
+INSEPARABLE_CORRELATION = 0.95
+# relative standard error above which a parameter is reported as undetermined
+UNDETERMINED_REL_SE = 0.10
 FIT_RANGE = 0.5  # each parameter is fitted within x(1 -+ FIT_RANGE) of its start (log space)
 MAX_NFEV = 30  # least-squares iterations (each: one simulation of every run with every column)
 FD_STEP = 1e-4  # finite-difference step in log space
 STATE_STEP_RAD = 1e-4  # finite-difference step of the initial angle (and rate / omega)
-STATE_MAX_NFEV = 8  # least-squares iterations of an initial-state fit (nearly linear: a few suffice)
+# least-squares iterations of an initial-state fit (nearly linear: a few suffice)
+STATE_MAX_NFEV = 8
 DECIMATE = 4  # keep every k-th truth sample in the fit (noise stays white)
 # Truth channel of plant parameters that are not fitted by default (the inertias scale their
 # equation: fitted along with its damping and gain they are reported as inseparable).
@@ -96,10 +99,12 @@ class PlantFit:
     def as_dict(self) -> dict:
         """JSON-ready: per parameter value, nominal, start, stderr; correlations; inseparable."""
         return {
-            "parameters": {k: {"value": self.values[k], "nominal": self.nominal[k], "start": self.start[k],
-                               "stderr": self.stderr[k], "relative_change": self.values[k] / self.nominal[k] - 1.0}
+            "parameters": {k: {"value": self.values[k], "nominal": self.nominal[k],
+                               "start": self.start[k], "stderr": self.stderr[k],
+                               "relative_change": self.values[k] / self.nominal[k] - 1.0}
                            for k in self.keys},
-            "correlation": {"order": list(self.keys), "matrix": [[_finite(x) for x in row] for row in self.correlation]},
+            "correlation": {"order": list(self.keys), "matrix": [
+            [_finite(x) for x in row] for row in self.correlation]},
             "inseparable": list(self.inseparable),
             "chi2_per_sample_before": self.cost_before / max(self.n, 1),
             "chi2_per_sample_after": self.cost_after / max(self.n, 1),
@@ -129,7 +134,8 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         freq, tf = tiled_transfer({"phi": phi, "psi": psi}, run.drive_v, run.fs_hz, window_s)
         win = max(8, int(round(window_s * run.fs_hz)))
         amp = _window_amplitude(phi, win, freq.size)
-        ok = np.isfinite(freq) & np.isfinite(tf["phi"]) & np.isfinite(tf["psi"]) & (freq > 10.0) & (amp > 0)
+        ok = (np.isfinite(freq) & np.isfinite(tf["phi"]) & np.isfinite(tf["psi"]) & (freq > 10.0)
+              & (amp > 0))
         w = 2.0 * math.pi * freq[ok]
         f_phi, f_psi, a = tf["phi"][ok], tf["psi"][ok], amp[ok]
         # stroke: K Phi + Gamma (j w^2 c A Phi) - G_a = I w^2 Phi
@@ -137,7 +143,8 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         rows_s.append(cols)
         rhs_s.append(pl.stroke_inertia_kg_m2 * w * w * f_phi)
         # pitch: k_h Psi + c_p j w Psi - J_c w^2 Phi + D_p j w^2 c A Phi = I_p w^2 Psi
-        cols = np.column_stack([f_psi, 1j * w * f_psi, -w * w * f_phi, 1j * w * w * _DESCRIBING * a * f_phi])
+        cols = np.column_stack([f_psi, 1j * w * f_psi, -w * w * f_phi,
+                                1j * w * w * _DESCRIBING * a * f_phi])
         rows_p.append(cols)
         rhs_p.append(pl.pitch_inertia_kg_m2 * w * w * f_psi)
     start = {k: float(getattr(pl, k)) for k in PLANT_PARAMETERS}
@@ -156,7 +163,8 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
     if s is not None:
         k, gamma, ga = s
         if k > 0:
-            start["stroke_natural_frequency_hz"] = math.sqrt(k / pl.stroke_inertia_kg_m2) / (2.0 * math.pi)
+            start["stroke_natural_frequency_hz"] = (
+                math.sqrt(k / pl.stroke_inertia_kg_m2) / (2.0 * math.pi))
         if gamma > 0:
             start["aero_damping_nm_s2"] = float(gamma)
         if ga > 0:
@@ -165,8 +173,10 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
     if p is not None:
         kh, cp, jc, dp = p
         if kh > 0:
-            start["pitch_natural_frequency_hz"] = math.sqrt(kh / pl.pitch_inertia_kg_m2) / (2.0 * math.pi)
-        for key, v in (("hinge_damping_nm_s_per_rad", cp), ("inertial_coupling_kg_m2", jc), ("aero_coupling_nm_s2", dp)):
+            start["pitch_natural_frequency_hz"] = (
+                math.sqrt(kh / pl.pitch_inertia_kg_m2) / (2.0 * math.pi))
+        for key, v in (("hinge_damping_nm_s_per_rad", cp), ("inertial_coupling_kg_m2", jc),
+                       ("aero_coupling_nm_s2", dp)):
             if v > 0:
                 start[key] = float(v)
     # a start far outside the fit range is a failed estimate (e.g. effects the plant lacks)
@@ -233,9 +243,12 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
     resid = _TruthResiduals(runs, noise, decimate, (channel,))
     p = len(keys)
     comp = [0, 1] if channel == "stroke_deg" else [2, 3]
-    key_f = "stroke_natural_frequency_hz" if channel == "stroke_deg" else "pitch_natural_frequency_hz"
-    omega = 2.0 * math.pi * float(getattr(model.plant, key_f))  # rate scaled to an angle: (x, x'/omega)
-    base_states = [np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs]
+    key_f = ("stroke_natural_frequency_hz" if channel == "stroke_deg"
+             else "pitch_natural_frequency_hz")
+    # rate scaled to an angle: (x, x'/omega)
+    omega = 2.0 * math.pi * float(getattr(model.plant, key_f))
+    base_states = [np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float)
+                   for r in runs]
     u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
     u_centre = np.log([float(centre[k]) for k in keys]) if centre is not None else u_nominal
     lo = np.r_[u_centre - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
@@ -264,10 +277,12 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
             f_parts, j_parts = [], []
             for j, run in enumerate(runs):
                 sub = _TruthResiduals.__new__(_TruthResiduals)
-                sub.runs, sub.parts, sub.sigma, sub.channels = [run], [resid.parts[j]], resid.sigma, resid.channels
+                sub.runs, sub.parts, sub.sigma, sub.channels = (
+                    [run], [resid.parts[j]], resid.sigma, resid.channels)
                 cols = list(range(p)) + [p + 2 * j, p + 2 * j + 1]
                 ms = models + [models[0], models[0]]
-                x0 = np.array([state_of(u, j)] * (p + 1) + [state_of(us[1 + c], j) for c in cols[p:]])
+                x0 = np.array([state_of(u, j)] * (p + 1) + [
+                    state_of(us[1 + c], j) for c in cols[p:]])
                 rows = sub(ms, [x0])
                 f_parts.append(rows[0])
                 jac = np.zeros((rows.shape[1], u.size))
@@ -356,18 +371,20 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):
             if abs(corr[i, j]) > INSEPARABLE_CORRELATION:
-                inseparable.append(f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the runs fix only "
-                                   "a combination of the two")
+                inseparable.append(f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the "
+                                   "runs fix only a combination of the two")
     for i, k in enumerate(keys):
         if not sd[i] < UNDETERMINED_REL_SE:
-            inseparable.append(f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs")
-    return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start, stderr=stderr,
-                    correlation=corr, inseparable=tuple(inseparable), cost_before=cost_before, cost_after=cost_after,
-                    n=n, runs=tuple(runs))
+            inseparable.append(
+                f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs")
+    return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start,
+                    stderr=stderr, correlation=corr, inseparable=tuple(inseparable),
+                    cost_before=cost_before, cost_after=cost_after, n=n, runs=tuple(runs))
 
 
-def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, float], channels: Sequence[str],
-                       max_nfev: int = STATE_MAX_NFEV, decimate: int = DECIMATE) -> tuple[tuple[Run, ...], float, float]:
+def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
+                       channels: Sequence[str], max_nfev: int = STATE_MAX_NFEV,
+                       decimate: int = DECIMATE) -> tuple[tuple[Run, ...], float, float]:
     """Each run's initial state [phi, phi', psi, psi'] fitted on `channels` with `model` fixed.
 
     A sensor resolves the motion far better than a video-rate truth: once the sensor chain is
@@ -376,8 +393,9 @@ def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, fl
     noise-weighted residuals of `channels`, from the run's current state; rates scaled by the
     natural frequencies. Returns (runs with the fitted states, cost before, cost after).
     """
-    w = 2.0 * math.pi * np.array([model.plant.stroke_natural_frequency_hz, model.plant.stroke_natural_frequency_hz,
-                                  model.plant.pitch_natural_frequency_hz, model.plant.pitch_natural_frequency_hz])
+    w = (2.0 * math.pi * np.array(
+        [model.plant.stroke_natural_frequency_hz, model.plant.stroke_natural_frequency_hz,
+         model.plant.pitch_natural_frequency_hz, model.plant.pitch_natural_frequency_hz]))
     scale = np.where(np.arange(4) % 2 == 1, w, 1.0)  # state = u * scale: (x, x'/omega) in fit space
     out, before, after = [], 0.0, 0.0
     for run in runs:
@@ -396,8 +414,9 @@ def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, fl
 
         u0 = x_run / scale
         f0 = fun_and_jac(u0)[0]
-        sol = optimize.least_squares(lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1], method="trf",
-                                     max_nfev=max_nfev, x_scale=1.0, xtol=1e-8, ftol=1e-8, gtol=1e-10)
+        sol = (optimize.least_squares(
+            lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1], method="trf",
+            max_nfev=max_nfev, x_scale=1.0, xtol=1e-8, ftol=1e-8, gtol=1e-10))
         f1 = fun_and_jac(sol.x)[0]
         c0, c1 = float(np.dot(f0, f0)), float(np.dot(f1, f1))
         keep = c1 < c0

@@ -8,8 +8,9 @@ from a frequency-domain estimate of the sweeps' transfer functions). The inertia
 constants (Table 1, charge amplifiers) and transmission ratio are fabrication-known and stay.
 
 Writes into --out DIR:
-  model.yaml           the input model with the fitted plant parameters (same layout as config/model.yaml)
-  identification.json  per parameter: value, nominal, start, stderr; correlations; the
+  model.yaml           the input model with the fitted plant
+  parameters (same layout as config/model.yaml) identification.json
+  per parameter: value, nominal, start, stderr; correlations; the
                        combinations the runs cannot separate
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
@@ -45,9 +46,12 @@ def _terminate(signum: int, frame: object) -> None:
 
 def main(argv: Optional[list[str]] = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bag directories")
-    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from (default: config/model.yaml)")
+    parser = argparse.ArgumentParser(
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("inputs", nargs="+", type=Path,
+                        help="measured-run CSV files and/or bag directories")
+    parser.add_argument("--model", type=Path, default=None,
+                        help="model YAML to start from (default: config/model.yaml)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     args = parser.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate)
@@ -77,9 +81,11 @@ def main(argv: Optional[list[str]] = None) -> int:
         signal.signal(signal.SIGTERM, previous)
     args.out.mkdir(parents=True, exist_ok=True)
     save_model(fit.model, args.out / "model.yaml")
-    doc = json_safe({"runs": [r.name for r in runs], "model_in": str(args.model or "config/model.yaml"),
-                  "model_out": str(args.out / "model.yaml"), **fit.as_dict()})
-    (args.out / "identification.json").write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+    doc = json_safe({"runs": [r.name for r in runs],
+                     "model_in": str(args.model or "config/model.yaml"),
+                     "model_out": str(args.out / "model.yaml"), **fit.as_dict()})
+    (args.out / "identification.json").write_text(
+        json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
     print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
     for k in fit.keys:

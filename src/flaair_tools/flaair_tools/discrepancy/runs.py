@@ -20,9 +20,10 @@ from .vocabulary import (
     TRUTH_CHANNELS,
 )
 
-__all__ = ["CHANNELS", "TRUTH_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "EFFECT_CHANNELS", "DiscrepancyInputError",
-           "Run", "check_runs", "initial_mechanical_state", "simulate_runs", "simulate_motion", "mechanics_model",
-           "sensor_voltage", "measured_motion"]
+__all__ = ["CHANNELS", "TRUTH_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "EFFECT_CHANNELS",
+           "DiscrepancyInputError", "Run", "check_runs", "initial_mechanical_state",
+           "simulate_runs", "simulate_motion", "mechanics_model", "sensor_voltage",
+           "measured_motion"]
 
 # Initial state from the truth: a cubic fitted to the first INITIAL_WINDOW_S of each angle (at
 # least INITIAL_MIN_FRAMES finite samples, the window widened up to INITIAL_MAX_WINDOW_S for a
@@ -96,37 +97,46 @@ def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:
     rates = sorted({float(r.fs_hz) for r in runs})
     if len(rates) > 1:
         detail = ", ".join(f"{r.name}: {float(r.fs_hz):g} Hz" for r in runs)
-        raise DiscrepancyInputError(f"runs have different sample rates ({detail}); resample them to one rate first")
+        raise DiscrepancyInputError(
+            f"runs have different sample rates ({detail}); resample them to one rate first")
     out = []
     for r in runs:
         fs = float(r.fs_hz)
         if not (math.isfinite(fs) and fs > 0):
-            raise DiscrepancyInputError(f"run {r.name}: sample rate {r.fs_hz!r} is not a positive number")
+            raise DiscrepancyInputError(
+                f"run {r.name}: sample rate {r.fs_hz!r} is not a positive number")
         arrays = {}
         n = None
         for name in ("drive_v",) + CHANNELS:
             a = np.asarray(getattr(r, name), dtype=np.float64)
             if a.ndim != 1:
-                raise DiscrepancyInputError(f"run {r.name}: column {name} must be one-dimensional, got shape {a.shape}")
+                raise DiscrepancyInputError(
+                    f"run {r.name}: column {name} must be one-dimensional, got shape {a.shape}")
             if n is None:
                 n = a.shape[0]
             elif a.shape[0] != n:
-                raise DiscrepancyInputError(f"run {r.name}: column {name} has {a.shape[0]} samples, drive_v has {n}")
+                raise DiscrepancyInputError(
+                    f"run {r.name}: column {name} has {a.shape[0]} samples, drive_v has {n}")
             arrays[name] = a
         if n < int(0.05 * fs):
-            raise DiscrepancyInputError(f"run {r.name}: only {n} samples ({n / fs:.3f} s); at least 0.05 s is needed")
+            raise DiscrepancyInputError(
+                f"run {r.name}: only {n} samples ({n / fs:.3f} s); at least 0.05 s is needed")
         for name in ("drive_v",) + SENSOR_CHANNELS:
             bad = ~np.isfinite(arrays[name])
             if bad.any():
-                raise DiscrepancyInputError(f"run {r.name}: column {name} has non-finite samples (first at sample {int(np.argmax(bad))})")
+                raise DiscrepancyInputError(f"run {r.name}: column {name} has non-finite samples "
+                                            f"(first at sample {int(np.argmax(bad))})")
         for name in TRUTH_CHANNELS:
             finite = int(np.isfinite(arrays[name]).sum())
             if finite < max(16, n // 100):
                 raise DiscrepancyInputError(
-                    f"run {r.name}: ground truth {name} is missing ({finite} of {n} samples finite); "
-                    "the workflow needs ground-truth angles to separate physics from sensor effects")
+                    f"run {r.name}: ground truth {name} is missing ({finite} of {n} samples "
+                    "finite); the workflow needs ground-truth angles to separate physics from "
+                    "sensor effects"
+                )
         if not np.any(arrays["drive_v"] != 0):
-            raise DiscrepancyInputError(f"run {r.name}: drive_v is zero throughout; nothing excites the model")
+            raise DiscrepancyInputError(
+                f"run {r.name}: drive_v is zero throughout; nothing excites the model")
         x0 = initial_mechanical_state(arrays["stroke_deg"], arrays["pitch_deg"], fs)
         out.append(Run(str(r.name), fs, **arrays, mechanical0=x0))
     return tuple(out)
@@ -144,14 +154,15 @@ def _as_channels(out: SimOutput) -> dict[str, np.ndarray]:
     }
 
 
-def initial_mechanical_state(stroke_deg: np.ndarray, pitch_deg: np.ndarray, fs_hz: float) -> np.ndarray:
+def initial_mechanical_state(stroke_deg: np.ndarray, pitch_deg: np.ndarray,
+                             fs_hz: float) -> np.ndarray:
     """[phi, phi', psi, psi'] at sample 0 (rad, rad/s) from the first ground-truth samples.
 
     A cubic in time is fitted (least squares) to each angle's finite samples in the first
-    `INITIAL_WINDOW_S` (widened up to `INITIAL_MAX_WINDOW_S` until `INITIAL_MIN_FRAMES` are
-    finite); its value and slope at t = 0 are the state. Where too few frames exist, or neither
-    differs from zero by `INITIAL_MIN_Z` standard errors, that angle starts at rest. A run that starts while the wing still moves (back-to-back runs)
-    is then simulated from where the wing is, not from rest.
+    `INITIAL_WINDOW_S` (widened up to `INITIAL_MAX_WINDOW_S` until `INITIAL_MIN_FRAMES` are finite);
+    its value and slope at t = 0 are the state. Where too few frames exist, or neither differs from
+    zero by `INITIAL_MIN_Z` standard errors, that angle starts at rest. A run that starts while the
+    wing still moves (back-to-back runs) is then simulated from where the wing is, not from rest.
     """
     x0 = np.zeros(4)
     for k, angle in enumerate((stroke_deg, pitch_deg)):
@@ -186,7 +197,8 @@ def simulate_motion(models: Sequence[Model], run: Run) -> SimOutput:
     return simulate_batch_from(run.drive_v, run.fs_hz, list(models), _x0(run))
 
 
-def simulate_runs(models: Sequence[Model], runs: Sequence[Run]) -> list[list[dict[str, np.ndarray]]]:
+def simulate_runs(models: Sequence[Model],
+                  runs: Sequence[Run]) -> list[list[dict[str, np.ndarray]]]:
     """Simulate each model with each run's drive from the run's initial state (no noise).
 
     Returns
@@ -196,7 +208,8 @@ def simulate_runs(models: Sequence[Model], runs: Sequence[Run]) -> list[list[dic
     """
     models = list(models)
     per_run = [_as_channels(simulate_motion(models, run)) for run in runs]
-    return [[{c: per_run[j][c][i] for c in CHANNELS} for j in range(len(runs))] for i in range(len(models))]
+    return [[{c: per_run[j][c][i] for c in CHANNELS} for j in range(len(runs))]
+            for i in range(len(models))]
 
 
 def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
@@ -211,11 +224,12 @@ def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
 
 def mechanics_model(model: Model) -> Model:
     """`model` without its sensor effects: the part that sets the stroke and pitch motion."""
-    return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in SENSOR_EFFECTS))
+    return replace(model, effects=tuple(
+        (n, e) for n, e in model.effects if n not in SENSOR_EFFECTS))
 
 
-def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray, drive_v: np.ndarray,
-                   side: str) -> np.ndarray:
+def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray,
+                   drive_v: np.ndarray, side: str) -> np.ndarray:
     """Charge-amplifier output of one sensor ('stroke' or 'pitch') for a given motion.
 
     The plant's own sensor chain (`flaair_sim.core.plant.sensor_chain`): used to try sensor effects
@@ -226,7 +240,9 @@ def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad
 
 
 class MotionCache:
-    """Simulated motion (stroke, pitch in rad) per (mechanics model, run), least recently used first out."""
+    """Simulated motion (stroke, pitch in rad) per (mechanics
+    model, run), least recently used first out.
+    """
 
     def __init__(self, size: int = 24) -> None:
         self.size = size
@@ -251,8 +267,11 @@ class MotionCache:
         return out
 
 
-def measured_motion(run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray, side: str) -> tuple[np.ndarray, np.ndarray]:
-    """Model motion with one angle replaced by the measured one (gaps: model + interpolated error)."""
+def measured_motion(run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray,
+                    side: str) -> tuple[np.ndarray, np.ndarray]:
+    """Model motion with one angle replaced by the
+    measured one (gaps: model + interpolated error).
+    """
     truth = run.stroke_deg if side == "stroke" else run.pitch_deg
     sim = stroke_rad if side == "stroke" else pitch_rad
     err = np.radians(truth) - sim

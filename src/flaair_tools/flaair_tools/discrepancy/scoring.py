@@ -15,8 +15,8 @@ from .case import DatasetCase
 from .runs import CHANNELS
 from .workflow import DiscrepancyResult
 
-__all__ = ["PARAMETER_TOLERANCE", "MIN_GAP_REDUCTION", "CaseOutcome", "score_case", "confusion_table",
-           "expected_column", "found_label", "per_chain"]
+__all__ = ["PARAMETER_TOLERANCE", "MIN_GAP_REDUCTION", "CaseOutcome", "score_case",
+           "confusion_table", "expected_column", "found_label", "per_chain"]
 
 PARAMETER_TOLERANCE = 0.15  # found parameters within 15 % of the truth
 MIN_GAP_REDUCTION = 0.5  # model-error NRMSE reduced by at least half on every channel with a gap
@@ -55,18 +55,21 @@ class CaseOutcome:
 
     def as_dict(self) -> dict:
         """JSON-ready outcome."""
-        return {"case": self.case, "true": self.true_label, "found": self.found_label, "status": self.status,
-                "expected_status": self.expected_status, "found_effects": list(self.found),
-                "parameter_errors": self.parameter_errors, "gap_reduction": self.gap_reduction,
-                "correct": self.correct, "problems": list(self.problems), "elapsed_s": self.elapsed_s}
+        return {"case": self.case, "true": self.true_label, "found": self.found_label,
+                "status": self.status, "expected_status": self.expected_status,
+                "found_effects": list(self.found), "parameter_errors": self.parameter_errors,
+                "gap_reduction": self.gap_reduction, "correct": self.correct,
+                "problems": list(self.problems), "elapsed_s": self.elapsed_s}
 
 
 def expected_column(true_label: str) -> str:
     """Confusion-table column of a right answer for a row label ('a+outside:x' -> 'a (gap left)';
-    hidden 'plant:' effects are not named: 'a+plant:wing_damage' -> 'a'; 'below:a' -> 'none (gap left)').
+    hidden 'plant:' effects are not named: 'a+plant:wing_damage'
+    -> 'a'; 'below:a' -> 'none (gap left)').
     """
     parts = true_label.split("+")
-    names = "+".join(p for p in parts if p != "none" and not p.startswith(("outside:", "plant:", "below:")))
+    names = "+".join(p for p in parts if p != "none"
+                     and not p.startswith(("outside:", "plant:", "below:")))
     gap = any(p.startswith(("outside:", "below:")) for p in parts)
     return (names or "none") + (" (gap left)" if gap else "")
 
@@ -90,15 +93,18 @@ def per_chain(params: dict) -> dict:
     a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain.
     """
     if _split(params):
-        return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side, p in params.items()}
+        return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side,
+                p in params.items()}
     values = {k: float(v) for k, v in params.items() if not isinstance(v, str)}
     channel = params.get("channel")
     if channel is None:
         return {"": values}
-    return {side: dict(values) for side in (("stroke", "pitch") if channel == "both" else (channel,))}
+    return {side: dict(values) for side in (
+        ("stroke", "pitch") if channel == "both" else (channel,))}
 
 
-def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan) -> CaseOutcome:
+def score_case(case: DatasetCase, result: DiscrepancyResult,
+               elapsed_s: float = math.nan) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""
     problems = []
     found = tuple(sorted(e.name for e in result.effects))
@@ -107,8 +113,9 @@ def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = 
     errors: dict = {}
     reduction: dict = {}
     if found != case.expected_names:
-        problems.append(f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
-                        + (f" + outside:{case.outside}" if case.outside else ""))
+        problems.append(
+            f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
+            + (f" + outside:{case.outside}" if case.outside else ""))
     by_name = {e.name: e for e in result.effects}
     for name, params in case.effects:
         if name not in by_name:
@@ -121,14 +128,16 @@ def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = 
             for key, value in values.items():
                 got = float(got_sides[side][key])
                 rel = abs(got - value) / abs(value) if value else abs(got)
-                label = f"{name}.{key}" + (f"[{side}]" if len(hidden) > 1 and _split(params) else "")
+                label = f"{name}.{key}" + (f"[{side}]" if len(hidden) > 1 and _split(params)
+                                           else "")
                 errors[label] = max(rel, errors.get(label, 0.0))
                 if rel > PARAMETER_TOLERANCE:
                     problems.append(f"{label} = {got:.4g}, hidden {value:.4g} ({rel:.0%} off)")
     if case.outside:
         gap_channels = {r["channel"] for r in result.remaining}
         if case.expected_gap_channel not in gap_channels:
-            problems.append(f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})")
+            problems.append(
+                f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})")
     elif case.below_limit:
         if not result.remaining:
             problems.append("no gap reported")
@@ -149,12 +158,15 @@ def score_case(case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = 
 
 
 def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
-    """{"rows": true labels, "columns": found labels, "counts": [[...]], "correct": k, "total": n}."""
+    """{"rows": true labels, "columns": found labels,
+    "counts": [[...]], "correct": k, "total": n}.
+    """
     rows = sorted({o.true_label for o in outcomes})
     cols = sorted({o.found_label for o in outcomes})
-    counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c) for c in cols] for r in rows]
-    return {"rows": rows, "columns": cols, "counts": counts, "correct": sum(o.correct for o in outcomes),
-            "total": len(outcomes)}
+    counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c)
+               for c in cols] for r in rows]
+    return {"rows": rows, "columns": cols, "counts": counts,
+            "correct": sum(o.correct for o in outcomes), "total": len(outcomes)}
 
 
 # ------------------------------------------------------------------ randomized off-nominal robots

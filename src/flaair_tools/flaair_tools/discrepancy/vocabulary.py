@@ -75,8 +75,9 @@ class EffectSpec:
 
     @property
     def label(self) -> str:
-        """Name with its sensor channel, e.g. 'sensor_delay[pitch]'; 'collision.contact_damping_ratio'
-        for a parameter fitted along (shape parameter or plant parameter).
+        """Name with its sensor channel, e.g. 'sensor_delay[pitch]';
+        'collision.contact_damping_ratio' for a parameter
+        fitted along (shape parameter or plant parameter).
         """
         if not self.tested:
             return f"{self.name}.{self.key}"
@@ -137,13 +138,14 @@ class VocabularyEntry:
     note: str = ""
 
 
-VOCABULARY: tuple[VocabularyEntry, ...] = tuple(
-    VocabularyEntry(e.name, e.acts_on, e.searched_on, e.fit, e.per_sensor, e.trades_off, e.separable, e.note)
-    for e in EFFECTS)
+VOCABULARY: tuple[VocabularyEntry, ...] = (
+    tuple(VocabularyEntry(e.name, e.acts_on, e.searched_on, e.fit, e.per_sensor, e.trades_off,
+                          e.separable, e.note) for e in EFFECTS))
 ENTRIES: dict[str, VocabularyEntry] = {e.name: e for e in VOCABULARY}
 # Which measured channels each effect can possibly change (the model's structure).
 EFFECT_CHANNELS: dict[str, tuple[str, ...]] = {e.name: e.acts_on for e in VOCABULARY}
-SENSOR_EFFECTS: tuple[str, ...] = tuple(e.name for e in VOCABULARY if set(e.acts_on) <= set(SENSOR_CHANNELS))
+SENSOR_EFFECTS: tuple[str, ...] = (
+    tuple(e.name for e in VOCABULARY if set(e.acts_on) <= set(SENSOR_CHANNELS)))
 NOT_SEPARABLE: tuple[str, ...] = tuple(e.name for e in VOCABULARY if not e.separable)
 
 
@@ -168,13 +170,16 @@ def candidate_specs(channel: str) -> tuple[EffectSpec, ...]:
 
 
 def plant_spec(key: str, model: Model, channel: str, rel_range: float = 0.5) -> EffectSpec:
-    """A plant parameter as a fittable spec (log fit, within x(1 -+ rel_range) of its value in `model`)."""
+    """A plant parameter as a fittable spec (log fit,
+    within x(1 -+ rel_range) of its value in `model`).
+    """
     v = float(getattr(model.plant, key))
-    return EffectSpec("plant", key, channel, v, v * (1.0 - rel_range), v * (1.0 + rel_range), (), 1e-4,
-                      log=True, tested=False)
+    return EffectSpec("plant", key, channel, v, v * (1.0 - rel_range), v * (1.0 + rel_range), (),
+                      1e-4, log=True, tested=False)
 
 
-def candidate_groups(channel: str, plant: Optional[Model] = None) -> tuple[tuple[EffectSpec, ...], ...]:
+def candidate_groups(channel: str,
+                     plant: Optional[Model] = None) -> tuple[tuple[EffectSpec, ...], ...]:
     """The parameter sets the search fits on `channel`: every separable effect whole, with the
     fitted plant parameters it trades off against (when `plant` is given; those that the channel
     sees: the stroke parameters on either truth channel, the pitch ones on pitch_deg).

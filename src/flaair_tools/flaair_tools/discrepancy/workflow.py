@@ -89,7 +89,8 @@ class DiscrepancyResult:
 # ------------------------------------------------------------------------- held-out gap after
 
 
-def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model, folds: Sequence[Fold]) -> Model:
+def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model,
+              folds: Sequence[Fold]) -> Model:
     """Re-fit the found effects' parameters on `folds`, channel by channel (upstream first)."""
     current = model_out
     for channel in CHANNEL_ORDER:
@@ -101,9 +102,11 @@ def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: M
         specs: list = []
         for g in candidate_groups(channel, current if ctx.settings.identify else None):
             if g[0].name in names:
-                specs += [s for s in g if not (s.is_plant and any(t.is_plant and t.key == s.key for t in specs))]
+                specs += [s for s in g if not (
+                    s.is_plant and any(t.is_plant and t.key == s.key for t in specs))]
         if specs:
-            current = polish(ctx, strip_effects(current, specs), specs, current, channel, False, folds)
+            current = polish(ctx, strip_effects(current, specs), specs, current, channel, False,
+                             folds)
     return current
 
 
@@ -159,7 +162,8 @@ def analyse(
         try:
             simulate(r.drive_v[:8], r.fs_hz, model)
         except ModelError as exc:
-            raise DiscrepancyInputError(f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}") from None
+            raise DiscrepancyInputError(
+                f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}") from None
     if progress:
         progress("compare")
     sims_before = simulate_runs([model], runs)[0]
@@ -177,24 +181,28 @@ def analyse(
         sims_fit = simulate_runs([base], runs)[0]
         diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
     common = dict(model_in=model, gap_before=gap_before, noise=noise, diagnosis_before=diag_before,
-                  sims_before=tuple(sims_before), run_names=tuple(r.name for r in runs), plant_fit=plant_fit,
-                  not_separable=tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
-                  if settings.identify else ())
+                  sims_before=tuple(sims_before), run_names=tuple(r.name for r in runs),
+                  plant_fit=plant_fit, not_separable=tuple(
+        {"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE) if settings.identify
+                  else ())
     if not diag_fit.gaps:
         gap_fit = nrmse_by_channel(runs, sims_fit)
-        return DiscrepancyResult(
-            status="no_discrepancy", effects=(), model_out=base, gap_after=gap_fit, gap_in_sample_after=dict(gap_fit),
-            diagnosis_after=diag_fit, searches=(), remaining=(), sims_after=tuple(sims_fit),
-            summary=_summary("no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)),
-            plant_parameters=_plant_parameters(model, base, plant_fit), **common)
-    model_out, effects, searches, runs = find_effects(runs, base, noise, settings, progress, tracks,
-                                                      nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS})
+        return DiscrepancyResult(status="no_discrepancy", effects=(), model_out=base,
+                                 gap_after=gap_fit, gap_in_sample_after=dict(gap_fit),
+                                 diagnosis_after=diag_fit, searches=(), remaining=(),
+                                 sims_after=tuple(sims_fit), summary=_summary(
+            "no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)),
+                                 plant_parameters=_plant_parameters(model, base, plant_fit),
+                                 **common)
+    model_out, effects, searches, runs = (
+        find_effects(runs, base, noise, settings, progress, tracks,
+                     nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS}))
     if progress:
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
     diag_after = diagnose(runs, sims_after, model_out, noise, settings, tracks=tracks)
-    gap_after = (_heldout_nrmse(AnalysisContext(runs, noise, settings, tracks), effects, model_out) if effects
-                 else nrmse_by_channel(runs, sims_fit))
+    gap_after = (_heldout_nrmse(AnalysisContext(runs, noise, settings, tracks), effects,
+                                model_out) if effects else nrmse_by_channel(runs, sims_fit))
     in_sample = nrmse_by_channel(runs, sims_after)
     ctx = AnalysisContext(runs, noise, settings, tracks)
     sensor_ok = {c: not channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
@@ -206,23 +214,28 @@ def analyse(
         status = "explained" if effects else "no_discrepancy"
     gap_channels = {r["channel"] for r in remaining}
     approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
-    return DiscrepancyResult(
-        status=status, effects=tuple(effects), model_out=model_out, gap_after=gap_after, gap_in_sample_after=in_sample,
-        diagnosis_after=diag_after, searches=searches, remaining=remaining, sims_after=tuple(sims_after),
-        summary=_summary(status, effects, diag_after, remaining, _plant_parameters(model, model_out, plant_fit),
-                         approximate),
-        plant_parameters=_plant_parameters(model, model_out, plant_fit), approximate=approximate, **common)
+    return DiscrepancyResult(status=status, effects=tuple(effects), model_out=model_out,
+                             gap_after=gap_after, gap_in_sample_after=in_sample,
+                             diagnosis_after=diag_after, searches=searches, remaining=remaining,
+                             sims_after=tuple(sims_after), summary=_summary(
+        status, effects, diag_after, remaining, _plant_parameters(model, model_out, plant_fit),
+        approximate), plant_parameters=_plant_parameters(model, model_out, plant_fit),
+                             approximate=approximate, **common)
 
 
 def _plant_parameters(model_in: Model, model_out: Model, fit: Optional[PlantFit]) -> dict:
-    """{key: {value, nominal, stderr}} of the fitted plant parameters ({} without identification)."""
+    """{key: {value, nominal, stderr}} of the fitted
+    plant parameters ({} without identification).
+    """
     if fit is None:
         return {}
-    return {k: {"value": float(getattr(model_out.plant, k)), "nominal": float(getattr(model_in.plant, k)),
+    return {k: {"value": float(getattr(model_out.plant, k)),
+                "nominal": float(getattr(model_in.plant, k)),
                 "stderr": fit.stderr.get(k, math.nan)} for k in PLANT_PARAMETERS}
 
 
-def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Mapping[str, bool]) -> tuple:
+def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch],
+               sensor_ok: Mapping[str, bool]) -> tuple:
     """Where gaps remain; sensor_ok: sensor channel explained when driven by the measured angle."""
     skipped = {s.channel: s.skipped for s in searches}
     out = []
@@ -232,16 +245,18 @@ def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Ma
         if skipped.get(c, "").startswith("downstream"):
             note = "possibly propagated from the unexplained stroke_deg gap; " + note
         if c in sensor_ok:
-            note = ("the sensor itself is explained when driven by the measured angle: this gap is the "
+            note = ("the sensor itself is explained when driven by the measured angle: this gap is "
+                    "the "
                     f"{UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
-                    "a sensor gap beyond the propagated physics error (judged against the measured angle); ") + note
+                    "a sensor gap beyond the propagated physics error (judged against the measured "
+                    "angle); ") + note
         near = _near_misses(searches, c)
         if near:
             note = note + "; " + near
         out.append({
             "channel": c, "band_hz": g.worst_band_hz, "drive_level_ratio": g.level_ratio,
-            "level_nrmse": g.level_nrmse, "stretch": list(g.worst_stretch), "model_error_nrmse": g.model_error_nrmse,
-            "note": note,
+            "level_nrmse": g.level_nrmse, "stretch": list(g.worst_stretch),
+            "model_error_nrmse": g.model_error_nrmse, "note": note,
         })
     return tuple(out)
 
@@ -256,47 +271,55 @@ def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
             for ev in step:
                 failed = [k for k, v in ev.rules.items() if not v]
                 if failed == ["R4_consistency"]:
-                    runs = "; ".join(", ".join(f"{n} {v:.4g}" for n, v, _ in pr) for pr in ev.per_run)
-                    notes.append(f"{'+'.join(ev.labels)} would fit each run alone but its parameter differs "
-                                 f"between runs ({runs})")
+                    runs = "; ".join(", ".join(f"{n} {v:.4g}" for n, v, _ in pr)
+                                     for pr in ev.per_run)
+                    notes.append(f"{'+'.join(ev.labels)} would fit each run alone but its "
+                                 f"parameter differs between runs ({runs})")
     return "nearest vocabulary effect refused: " + "; ".join(dict.fromkeys(notes)) if notes else ""
 
 
-def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis, remaining: Sequence[dict],
-             plant: Optional[Mapping[str, dict]] = None, approximate: Sequence[str] = ()) -> str:
+def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis,
+             remaining: Sequence[dict], plant: Optional[Mapping[str, dict]] = None,
+             approximate: Sequence[str] = ()) -> str:
     parts = []
     if plant:
         change = {k: p["value"] / p["nominal"] - 1.0 for k, p in plant.items()}
         moved = sorted(change, key=lambda k: -abs(change[k]))[:3]
         parts.append("This robot's plant was fitted first (largest changes from the model: "
                      + ", ".join(f"{k} {change[k]:+.1%}" for k in moved) + ").")
-        edge = [k for k, p in plant.items() if abs(math.log(p["value"] / p["nominal"])) >= 0.999 * math.log1p(FIT_RANGE)]
+        edge = [k for k, p in plant.items()
+                if abs(math.log(p["value"] / p["nominal"])) >= 0.999 * math.log1p(FIT_RANGE)]
         if edge:
-            parts.append(f"At the edge of the plant fit's range (x{1 + FIT_RANGE:g} of the model): {', '.join(edge)}; "
-                         "this robot may lie beyond it.")
+            parts.append(f"At the edge of the plant fit's range (x{1 + FIT_RANGE:g} of the model): "
+                         f"{', '.join(edge)}; this robot may lie beyond it.")
     if status == "no_discrepancy":
-        parts.append("With its own plant parameters the model explains every channel to noise level: residuals are "
-                     "white and at the noise RMS; no physics is missing.")
+        parts.append("With its own plant parameters the model explains every channel to noise "
+                     "level: residuals are white and at the noise RMS; no physics is missing.")
         return " ".join(parts)
     if effects:
-        parts.append("Found: " + ", ".join(f"{e.name} on {e.channel} ({format_parameters(e.parameters)})"
-                                           for e in effects) + ".")
+        parts.append("Found: " + ", ".join(
+            f"{e.name} on {e.channel} ({format_parameters(e.parameters)})" for e in effects) + ".")
     if status == "explained":
         parts.append("With them every channel is explained to noise level.")
     else:
         if approximate:
-            parts.append(f"Named but fitting only approximately (a gap remains where they act): {', '.join(approximate)}.")
+            parts.append("Named but fitting only approximately (a gap remains where they act): "
+                         f"{', '.join(approximate)}.")
         for r in remaining:
-            parts.append(f"A gap remains on {r['channel']} (worst band {r['band_hz']} Hz, "
-                         f"full/low drive error ratio {r['drive_level_ratio']:.2g}, worst stretch {r['stretch'][0]} "
-                         f"{r['stretch'][1]:.2f}-{r['stretch'][2]:.2f} s) that no vocabulary effect removes: {r['note']}.")
+            parts.append(f"A gap remains on {r['channel']} (worst band {r['band_hz']} Hz, full/low "
+                         f"drive error ratio {r['drive_level_ratio']:.2g}, worst stretch "
+                         f"{r['stretch'][0]} {r['stretch'][1]:.2f}-{r['stretch'][2]:.2f} s) that "
+                         f"no vocabulary effect removes: {r['note']}.")
     return " ".join(parts)
 
 
 def format_parameters(params: Mapping) -> str:
-    """'delay_s=0.00015, channel=stroke'; one value per sensor chain: 'stroke: delay_s=0.00015; pitch: ...'."""
+    """'delay_s=0.00015, channel=stroke'; one value per
+    sensor chain: 'stroke: delay_s=0.00015; pitch: ...'.
+    """
     if params and all(isinstance(v, Mapping) for v in params.values()):
         return "; ".join(f"{side}: {format_parameters(p)}" for side, p in params.items())
-    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items())
+    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k,
+                     v in params.items())
 
 

@@ -1,4 +1,6 @@
-"""`bin/flaair foxglove [HOST:PORT]`: serve the running graph to Foxglove / Lichtblick (foxglove_node)."""
+"""`bin/flaair foxglove [HOST:PORT]`: serve the running
+graph to Foxglove / Lichtblick (foxglove_node).
+"""
 from __future__ import annotations
 
 import argparse
@@ -15,7 +17,8 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="flaair foxglove", description=foxglove_node.__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog=help_text("", PARAMS, CONFIG_FILE, NODE_NAME))
-    parser.add_argument("listen", nargs="?", help="HOST:PORT to serve on (default: host and port in config/flaair.yaml)")
+    parser.add_argument("listen", nargs="?",
+                        help="HOST:PORT to serve on (default: host and port in config/flaair.yaml)")
     cut = argv.index("--ros-args") if "--ros-args" in argv else len(argv)
     listen, ros_args = parser.parse_args(argv[:cut]).listen, argv[cut + 1:]
     try:
@@ -24,4 +27,5 @@ def main(argv: list[str]) -> int:
         print(f"flaair foxglove: {exc}", file=sys.stderr)
         return 2
     sys.argv[0] = "flaair foxglove"  # errors read "flaair foxglove: ..."
-    return run_node(FoxgloveNode, PARAMS, CONFIG_FILE, NODE_NAME, ["flaair foxglove", "--ros-args", *ros_args])
+    return run_node(FoxgloveNode, PARAMS, CONFIG_FILE, NODE_NAME, [
+        "flaair foxglove", "--ros-args", *ros_args])

@@ -1,4 +1,5 @@
-"""A minimal Foxglove WebSocket protocol client (the `websockets` package), for tests and benchmarks.
+"""A minimal Foxglove WebSocket protocol client (the
+`websockets` package), for tests and benchmarks.
 
 Protocol (https://github.com/foxglove/ws-protocol): the client offers the subprotocol
 (``foxglove.websocket.v1``, or ``foxglove.sdk.v1`` which foxglove-sdk 0.30 servers speak);
@@ -33,8 +34,8 @@ class FoxgloveClient:
     """Connect, learn the channels, subscribe to topics, receive until told to stop."""
 
     def __init__(self, url: str, open_timeout_s: float = 10.0) -> None:
-        self.connection: ClientConnection = connect(url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s,
-                                                    max_size=None, legacy=True)
+        self.connection: ClientConnection = connect(
+            url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s, max_size=None, legacy=True)
         self.channels: dict[str, dict] = {}
         self.by_subscription: dict[int, str] = {}
         self.received = Received()
@@ -70,7 +71,8 @@ class FoxgloveClient:
             return
         if frame[0] == MESSAGE_DATA:
             subscription, log_time_ns = struct.unpack_from("<IQ", frame, 1)
-            self.received.messages[self.by_subscription[subscription]].append((log_time_ns, bytes(frame[13:])))
+            self.received.messages[self.by_subscription[subscription]].append((log_time_ns,
+                                                                               bytes(frame[13:])))
         elif frame[0] == TIME:
             self.received.times_ns.append(struct.unpack_from("<Q", frame, 1)[0])
 

@@ -1,4 +1,5 @@
-"""`flaair demo`: run every paper experiment on the simulated robot, record the bags, write the report.
+"""`flaair demo`: run every paper experiment on the
+simulated robot, record the bags, write the report.
 
 Runs each experiment of config/experiments.yaml in turn (bags in OUT/bags/<name>), analyses
 all bags (OUT/report/report.html and report.json), prints the headline figures beside the
@@ -49,8 +50,10 @@ def missing_nodes(spec: ExperimentSpec) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair demo", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
+    parser = argparse.ArgumentParser(prog="flaair demo", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, default=Path("out/demo"),
+                        help="output directory (default out/demo)")
     parser.add_argument("--only", nargs="*", help="run only these experiments")
     args = parser.parse_args(argv)
     experiments = load_experiments()
@@ -61,7 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     calibration: Path | None = None
     # The sweeps first: they calibrate the front end for the live experiments after them
     # (with the model's gains the bench robot's pitch reads 4.3x small and hides collisions).
-    names = sorted(names, key=lambda n: experiments[n].kind not in ("chirp", "stepped_sine") or n == "drive_levels")
+    names = sorted(names, key=lambda n: experiments[n].kind not in ("chirp", "stepped_sine")
+                   or n == "drive_levels")
     for name in names:
         spec = experiments[name]
         missing = missing_nodes(spec)
@@ -99,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print()
     print_headline(report)
-    sweeps = [b for b in bags if b.name in ("characterization_chirp", "stepped_sine", "drive_levels")]
+    sweeps = [b for b in bags if b.name in (
+        "characterization_chirp", "stepped_sine", "drive_levels")]
     if sweeps:
         print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
         from flaair_tools import discrepancy

@@ -61,7 +61,8 @@ class GraphDecl:
 NODES: dict[str, NodeDecl] = {n.role: n for n in (
     NodeDecl("plant", "flaair_sim", "plant_node", "flaair_sim.plant_node:PlantNode"),
     NodeDecl("drive", "flaair_sim", "drive_node", "flaair_sim.drive_node:DriveNode"),
-    NodeDecl("frontend", "flaair_sensors", "frontend_node", "flaair_sensors.frontend_node:FrontendNode"),
+    NodeDecl("frontend", "flaair_sensors", "frontend_node",
+             "flaair_sensors.frontend_node:FrontendNode"),
     NodeDecl("controller", "flaair_control", "dsa_controller_node",
              "flaair_control.dsa_controller_node:DsaControllerNode"),
     NodeDecl("stroke_controller", "flaair_control", "stroke_controller_node",
@@ -74,22 +75,26 @@ NODES: dict[str, NodeDecl] = {n.role: n for n in (
 )}
 
 # The streams the composed loop hands from node to node in-process (what `live` composes).
-_LOOP_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED, topics.WING_STATE_TRUTH,
-                topics.CONTROLLER_STATE)
+_LOOP_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED,
+                topics.WING_STATE_TRUTH, topics.CONTROLLER_STATE)
 
 GRAPHS: dict[str, GraphDecl] = {g.name: g for g in (
-    GraphDecl("lockstep_loop", "the closed dSA loop in signal time: plant (lockstep), front end, dSA controller",
+    GraphDecl("lockstep_loop",
+              "the closed dSA loop in signal time: plant (lockstep), front end, dSA controller",
               hot=("plant", "frontend", "controller"), parameters={"plant": {"mode": "lockstep"}},
               local_topics=_LOOP_TOPICS),
-    GraphDecl("experiment", "a paper experiment on the simulated robot, recorded: the experiment adds its driver "
-              "(drive or controller) and its own nodes (config/experiments.yaml)",
-              hot=("plant", "frontend"), side=("recorder",), parameters={"plant": {"mode": "lockstep"}}),
+    GraphDecl("experiment", "a paper experiment on the simulated robot, recorded: the experiment "
+                            "adds its driver (drive or controller) and its own nodes "
+                            "(config/experiments.yaml)", hot=("plant", "frontend"),
+              side=("recorder",), parameters={"plant": {"mode": "lockstep"}}),
     GraphDecl("live_sim", "`flaair live --sim`: the real-time simulated robot in the loop",
-              hot=("plant", "frontend", "controller"), side=("recorder", "collision_monitor", "foxglove"),
+              hot=("plant", "frontend", "controller"), side=(
+    "recorder", "collision_monitor", "foxglove"),
               parameters={"plant": {"mode": "realtime", "noise": True}}, local_topics=_LOOP_TOPICS),
-    GraphDecl("live_target", "`flaair live --target`: a lab's real-time target over UDP in the loop",
-              hot=("frontend", "controller", "bridge"), side=("recorder", "collision_monitor", "foxglove"),
-              local_topics=_LOOP_TOPICS),
+    GraphDecl("live_target",
+              "`flaair live --target`: a lab's real-time target over UDP in the loop",
+              hot=("frontend", "controller", "bridge"),
+              side=("recorder", "collision_monitor", "foxglove"), local_topics=_LOOP_TOPICS),
 )}
 
 

@@ -1,4 +1,5 @@
-"""`flaair live`: bring up the live graph around a real bench (or the simulated robot) and record it.
+"""`flaair live`: bring up the live graph around a
+real bench (or the simulated robot) and record it.
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
@@ -28,8 +29,9 @@ run (a port in use, a node that failed); 3 no sensor packet from the target in t
 packet sent, the bag closed).
 
 The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the emulated target:
-  bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000 --listen 127.0.0.1:25001 &
-  bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 --out out/bags/bench
+  bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000
+  --listen 127.0.0.1:25001 & bin/flaair live --target 127.0.0.1:25001
+  --listen 127.0.0.1:25000 --duration 5 --out out/bags/bench
 """
 from __future__ import annotations
 
@@ -66,7 +68,8 @@ def _argv(role: str, ros_args: list[str]) -> list[str]:
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
-LOOP_CLOSE_S = 180.0   # a process of the graph gets this long to close (the recorder: write its backlog, close the bag)
+# a process of the graph gets this long to close (the recorder: write its backlog, close the bag)
+LOOP_CLOSE_S = 180.0
 
 
 class LiveError(RuntimeError):
@@ -98,7 +101,8 @@ def port_free(address: tuple[str, int], what: str) -> None:
         try:
             probe.bind(address)
         except OSError as exc:
-            raise LiveError(f"{what} {address[0]}:{address[1]}: port in use ({exc.strerror})") from None
+            raise LiveError(
+                f"{what} {address[0]}:{address[1]}: port in use ({exc.strerror})") from None
 
 
 def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
@@ -106,26 +110,33 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     live = settings.live()
     block = settings.controller().block_size if args.sim else live.target_block_size
     sections: dict[str, dict[str, Any]] = {
-        "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)} if args.calibration else {},
+        "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)}
+                                           if args.calibration else {},
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
         "collision_monitor_node": {"window_source": "stroke", "decision": "distortion"},
         # the controller starts once the actuator's node and the recorder listen; live stops it
-        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2 if args.out is not None else 1,
+        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2
+                                if args.out is not None else 1,
                                 "min_state_subscribers": 1 if args.out is not None else 0},
     }
-    if not args.processes:   # ControllerState travels on DDS one message per batch of blocks, as the block streams
+    # ControllerState travels on DDS one message per batch of blocks, as the block streams
+    if not args.processes:
         sections["dsa_controller_node"]["state_every_blocks"] = live.dds_batch_blocks
-        # the loop starts once the recorder is matched on every stream, not only on /flaair/drive: this
-        # process listens to every batched stream until then (Watcher), so the recorder makes it two
+        # the loop starts once the recorder is matched on every stream,
+        # not only on /flaair/drive: this process listens to every batched
+        # stream until then (Watcher), so the recorder makes it two
         sections["dsa_controller_node"]["min_stream_listeners"] = 2 if args.out is not None else 0
     for role, overrides in live_graph(args).parameters.items():
         sections.setdefault(node_of(role).node_name, {}).update(overrides)
     if not args.sim:
         (target_host, target_port), (listen_host, listen_port) = args.target, args.listen
-        lead = args.lead_samples if args.lead_samples is not None else settings.bridge().lead_samples
-        sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port, "target_host": target_host,
-                                   "target_port": target_port, "lead_samples": lead}
-        sections["/**"] = {"block_size": block}   # the bridge re-blocks the target's packets to this
+        lead = (args.lead_samples if args.lead_samples is not None
+                else settings.bridge().lead_samples)
+        sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port,
+                                   "target_host": target_host, "target_port": target_port,
+                                   "lead_samples": lead}
+        # the bridge re-blocks the target's packets to this
+        sections["/**"] = {"block_size": block}
         # the lead is loop delay too: the controller's phase advance covers it
         sections["dsa_controller_node"]["blocks_in_flight"] = 1 + -(-lead // block)
         for key, _, value in (item.partition("=") for item in args.bridge_param):
@@ -138,7 +149,9 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
 
 
 class Watcher:
-    """live's own ROS node: advertises the loop's topics early, sees the recorder listen, counts signal time."""
+    """live's own ROS node: advertises the loop's topics
+    early, sees the recorder listen, counts signal time.
+    """
 
     def __init__(self, graph: Graph, args: argparse.Namespace) -> None:
         import os
@@ -151,7 +164,8 @@ class Watcher:
 
         os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
         self.rclpy, self.graph, self.args = rclpy, graph, args
-        rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)  # Ctrl-C/SIGTERM are ours
+        # Ctrl-C/SIGTERM are ours
+        rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
         self.node = Node("flaair_live")
         self.end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
         self.topics = {topics.SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
@@ -166,31 +180,36 @@ class Watcher:
         self.adverts = [self.node.create_publisher(message_class(kind), topic, BLOCK_STREAM)
                         for topic, kind in self.topics.items()]
         self.listen_to_sensor = lambda: self.node.create_subscription(
-            message_class(self.topics[topics.SENSOR_VOLTAGE]), topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM,
-            raw=True)
-        self.first_drive_index: int | None = None   # the controller's first drive sample: the loop runs
+            message_class(self.topics[topics.SENSOR_VOLTAGE]), topics.SENSOR_VOLTAGE,
+            self.on_sensor, BLOCK_STREAM, raw=True)
+        # the controller's first drive sample: the loop runs
+        self.first_drive_index: int | None = None
         self.listening = [self.listen_to_sensor(), self.node.create_subscription(
-            message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM, raw=True)]
-        # Every other batched stream of the loop too, until it starts: the controller waits for two
-        # listeners on each (this process and the recorder), so a recorder matched late on one of them
-        # cannot lose that stream's first blocks (a soak run lost 179 drive blocks so).
-        for topic, kind in ((topics.WING_STATE, "WingStateBlock"), (topics.WING_STATE_TRUTH, "WingStateBlock"),
+            message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM,
+            raw=True)]
+        # Every other batched stream of the loop too, until it starts: the controller waits for
+        # two listeners on each (this process and the recorder), so a recorder matched late on one
+        # of them cannot lose that stream's first blocks (a soak run lost 179 drive blocks so).
+        for topic, kind in ((topics.WING_STATE, "WingStateBlock"), (
+                topics.WING_STATE_TRUTH, "WingStateBlock"),
                             (topics.DRIVE_APPLIED, "DriveCommandBlock")):
             self.listening.append(self.node.create_subscription(
-                message_class(f"flaair_msgs/msg/{kind}"), topic, lambda _data: None, BLOCK_STREAM, raw=True))
+                message_class(f"flaair_msgs/msg/{kind}"), topic, lambda _data: None, BLOCK_STREAM,
+                raw=True))
 
     def on_sensor(self, data: bytes) -> None:
         from flaair_common import cdr
 
         m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
-        self.end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]), rate=float(m["sample_rate_hz"]),
-                        wall=time.monotonic())
+        self.end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]),
+                        rate=float(m["sample_rate_hz"]), wall=time.monotonic())
 
     def on_drive(self, data: bytes) -> None:
         from flaair_common import cdr
 
         if self.first_drive_index is None:
-            self.first_drive_index = int(cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)["first_sample_index"])
+            self.first_drive_index = (int(
+                cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)["first_sample_index"]))
 
     def spin_until(self, predicate, timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -198,7 +217,8 @@ class Watcher:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
             if time.monotonic() > deadline:
-                raise LiveError(f"timed out after {timeout_s:g} s waiting for {what} (see the logs)")
+                raise LiveError(
+                    f"timed out after {timeout_s:g} s waiting for {what} (see the logs)")
 
     def wait_for_the_target(self) -> None:
         """Once the bridge listens: say where packets are awaited, and give up (SilentTarget) if the
@@ -210,20 +230,23 @@ class Watcher:
                         120.0, "the bridge to start")
         (target_host, target_port), (listen_host, listen_port) = self.args.target, self.args.listen
         timeout_s = self.args.first_packet_timeout
-        print(f"flaair live: waiting for the target's first sensor packet on {listen_host}:{listen_port} (drive goes "
-              f"to {target_host}:{target_port}); giving up after {timeout_s:g} s", file=sys.stderr, flush=True)
+        print("flaair live: waiting for the target's first sensor packet on "
+              f"{listen_host}:{listen_port} (drive goes to {target_host}:{target_port}); giving up "
+              f"after {timeout_s:g} s", file=sys.stderr, flush=True)
         deadline = time.monotonic() + timeout_s
         while self.end["index"] < 0:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
             if time.monotonic() > deadline:
-                raise SilentTarget(f"no sensor packet from the target on {listen_host}:{listen_port} in {timeout_s:g} s "
-                                   f"(drive was addressed to {target_host}:{target_port}): is the target running, "
-                                   "and sending to this address and port?")
+                raise SilentTarget("no sensor packet from the target on "
+                                   f"{listen_host}:{listen_port} in {timeout_s:g} s (drive was "
+                                   f"addressed to {target_host}:{target_port}): is the target "
+                                   "running, and sending to this address and port?")
 
     def recorder_listens(self) -> bool:
         return self.args.out is None or all(
-            any(i.node_name == "recorder_node" for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
+            any(i.node_name == "recorder_node"
+                for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
 
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
@@ -231,12 +254,14 @@ class Watcher:
         """
         if not self.args.sim:
             self.wait_for_the_target()
-        self.spin_until(lambda: self.end["index"] >= 0 and (self.first_drive_index is not None
-                                                            or self.args.controller == "none"), 120.0,
+        self.spin_until(lambda: self.end["index"] >= 0 and (
+            self.first_drive_index is not None or self.args.controller == "none"), 120.0,
                         "the loop to start")
-        # from the controller's first drive sample: the sensor blocks seen so far may lag it (batched, loaded)
+        # from the controller's first drive sample: the sensor
+        # blocks seen so far may lag it (batched, loaded)
         start = max(self.end["index"], self.first_drive_index or 0)
-        print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal", file=sys.stderr)
+        print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal",
+              file=sys.stderr)
         # Listening to 2,000 blocks/s costs this process a fifth of a core, which the loop needs:
         # unsubscribe, wait out most of the duration on the wall clock (the loop runs in real
         # time), then listen again to end on the signal's own clock.
@@ -275,19 +300,21 @@ def run_live(args: argparse.Namespace) -> int:
     # kernels (the target's packets would queue up meanwhile), and its stop packet zeroes the target
     # when it closes.
     hot = [role for role in declared.hot if role != "controller" or args.controller == "dsa"]
-    print(f"flaair live: {'simulated robot (real-time plant)' if args.sim else f'target {args.target[0]}:{args.target[1]}'}"
-          f", loop {'composed in one process' if not args.processes else 'one process per node'}, on "
-          f"{graph.describe()}; logs in {log_dir}", file=sys.stderr)
+    robot = ("simulated robot (real-time plant)" if args.sim
+             else f"target {args.target[0]}:{args.target[1]}")
+    loop = "one process per node" if args.processes else "composed in one process"
+    print(f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}",
+          file=sys.stderr)
     if args.calibration is None:
-        print("flaair live: WARNING: no --calibration: the front end runs on the model's gains, so the sensor-derived "
-              "pitch reads about 4x small (the model over-predicts the hinge sensor); run `bin/flaair calibrate`",
-              file=sys.stderr)
+        print("flaair live: WARNING: no --calibration: the front end runs on the model's gains, so "
+              "the sensor-derived pitch reads about 4x small (the model over-predicts the hinge "
+              "sensor); run `bin/flaair calibrate`", file=sys.stderr)
     loop: list = []
     recorder_process = None
     watcher: Watcher | None = None
     try:
-        # Off the hot path, each in a process of its own: the loop's interpreter is for the loop, and
-        # the monitor keeps the C++ events executor (the recorder needs the single-threaded one)
+        # Off the hot path, each in a process of its own: the loop's interpreter is for the loop,
+        # and the monitor keeps the C++ events executor (the recorder needs the single-threaded one)
         if args.out is not None:
             recorder_process = graph.start("recorder", _argv("recorder", ros_args[1:]))
         graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
@@ -303,15 +330,16 @@ def run_live(args: argparse.Namespace) -> int:
         else:
             batch = settings.live().dds_batch_blocks
             priority = 0 if args.sim else settings.bridge().realtime_priority
-            loop.append(graph.start("loop", [*node_argv("flaair_common", "container"), "--local-topics",
-                                             ",".join(declared.local_topics), "--dds-batch", str(batch),
-                                             "--realtime-priority", str(priority),
-                                             *(node_of(role).component for role in hot), *ros_args]))
+            loop.append(graph.start("loop", [
+                *node_argv("flaair_common", "container"), "--local-topics",
+                ",".join(declared.local_topics), "--dds-batch", str(batch), "--realtime-priority",
+                str(priority), *(node_of(role).component for role in hot), *ros_args]))
         watcher.run_for_duration()
         status, silent = "duration reached", None
     except KeyboardInterrupt:
         status, silent = "interrupted", None
-    except SilentTarget as exc:   # ended the same way as a run: stop packet, bag closed; then the error
+    # ended the same way as a run: stop packet, bag closed; then the error
+    except SilentTarget as exc:
         status, silent = "no target", exc
     except (GraphError, LiveError) as exc:   # before RuntimeError: both are RuntimeErrors
         for process in reversed(loop):
@@ -320,7 +348,8 @@ def run_live(args: argparse.Namespace) -> int:
             watcher.close()
         graph.close()
         raise LiveError(str(exc)) from exc
-    except (Terminated, RuntimeError) as exc:   # rclpy may hand SIGTERM's exception on as a RuntimeError
+    # rclpy may hand SIGTERM's exception on as a RuntimeError
+    except (Terminated, RuntimeError) as exc:
         if not is_termination(exc):
             raise
         status, silent = "terminated", None
@@ -333,8 +362,8 @@ def run_live(args: argparse.Namespace) -> int:
     if watcher is not None:
         watcher.close()
     graph.close()
-    print(f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node stopped"
-          + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
+    print(f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node "
+          "stopped" + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
     if silent is not None:
         print(f"flaair live: error: {silent}", file=sys.stderr)
         return EXIT_SILENT_TARGET
@@ -346,19 +375,30 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--sim", action="store_true", help="the simulated robot, paced in real time")
-    where.add_argument("--target", metavar="HOST:PORT", help="the real-time target's drive receiver")
-    parser.add_argument("--listen", metavar="HOST:PORT", help="where the target's sensor packets arrive (with --target)")
-    parser.add_argument("--controller", choices=("dsa", "none"), default="dsa", help="close the loop with the dSA controller")
-    parser.add_argument("--duration", type=float, default=5.0, metavar="S", help="run this long (default 5 s)")
+    where.add_argument("--target", metavar="HOST:PORT",
+                       help="the real-time target's drive receiver")
+    parser.add_argument("--listen", metavar="HOST:PORT",
+                        help="where the target's sensor packets arrive (with --target)")
+    parser.add_argument("--controller", choices=("dsa", "none"), default="dsa",
+                        help="close the loop with the dSA controller")
+    parser.add_argument("--duration", type=float, default=5.0, metavar="S",
+                        help="run this long (default 5 s)")
     parser.add_argument("--out", type=Path, help="record every /flaair topic to this bag directory")
-    parser.add_argument("--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here")
-    parser.add_argument("--calibration", type=Path, help="front end gains from this calibration.yaml")
-    parser.add_argument("--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)")
+    parser.add_argument("--foxglove", metavar="HOST:PORT",
+                        help="serve the live graph to Foxglove / Lichtblick here")
+    parser.add_argument("--calibration", type=Path,
+                        help="front end gains from this calibration.yaml")
+    parser.add_argument("--lead-samples", type=int,
+                        help="bridge: drive sent this far ahead (default: config)")
     parser.add_argument("--first-packet-timeout", type=float, metavar="S",
-                        help="--target: give up (exit 3) if the target's first sensor packet has not come this long "
-                             "after the bridge listens (default: config/flaair.yaml live.first_packet_timeout_s)")
-    parser.add_argument("--processes", action="store_true", help="one process per node instead of the composed loop")
-    parser.add_argument("--subnet", action="store_true", help="discover the whole subnet, not only this machine")
+                        help="--target: give up (exit 3) if the target's first sensor packet has "
+                             "not come this long "
+                             "after the bridge listens (default: config/flaair.yaml "
+                             "live.first_packet_timeout_s)")
+    parser.add_argument("--processes", action="store_true",
+                        help="one process per node instead of the composed loop")
+    parser.add_argument("--subnet", action="store_true",
+                        help="discover the whole subnet, not only this machine")
     parser.add_argument("--settle-s", type=float, default=1.0, help=argparse.SUPPRESS)
     # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
     parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
@@ -367,8 +407,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if not args.sim:
             if args.listen is None:
-                raise LiveError("--target needs --listen HOST:PORT (where the target's sensor packets arrive)")
-            args.target, args.listen = host_port(args.target, "--target"), host_port(args.listen, "--listen")
+                raise LiveError(
+                    "--target needs --listen HOST:PORT (where the target's sensor packets arrive)")
+            args.target, args.listen = (host_port(args.target, "--target"),
+                                        host_port(args.listen, "--listen"))
         if args.foxglove is not None:
             args.foxglove = host_port(args.foxglove, "--foxglove")
             port_free(args.foxglove, "--foxglove")

@@ -1,16 +1,17 @@
 """player: republish a bag's messages onto their topics, like `ros2 bag play`.
 
-Messages leave in the bag's log-time order, as recorded (serialized bytes, never decoded),
-paced by their log times (which `flaair record` sets to each message's signal time, so a
-replay follows the signal's own clock, not the recording machine's) at real time (`--rate 1`), N times real time (`--rate N`) or as fast as possible
-(`--fast`). With `--clock`, /clock carries the bag's time (for nodes with use_sim_time) and a
-recorded /clock topic is not replayed. Publishers offer what the recording's publishers
-offered (reliable / transient-local if any of them did).
+Messages leave in the bag's log-time order, as recorded (serialized bytes, never decoded), paced
+by their log times (which `flaair record` sets to each message's signal time, so a replay
+follows the signal's own clock, not the recording machine's) at real time (`--rate 1`), N times
+real time (`--rate N`) or as fast as possible (`--fast`). With `--clock`, /clock carries the
+bag's time (for nodes with use_sim_time) and a recorded /clock topic is not replayed. Publishers
+offer what the recording's publishers offered (reliable / transient-local if any of them did).
 
 `--fast` can outrun a slow subscriber: a reliable KEEP_LAST queue then drops the oldest.
 
 Usage:
-  bin/flaair play BAG [--rate N | --fast] [--topics /flaair/sensor_v ...] [--clock] [--wait-subscribers]
+  bin/flaair play BAG [--rate N | --fast] [--topics
+  /flaair/sensor_v ...] [--clock] [--wait-subscribers]
 """
 from __future__ import annotations
 
@@ -35,7 +36,8 @@ from flaair_tools import bagio
 CONFIG_FILE = "flaair.yaml"
 SECTION = "player"
 CLOCK_QOS_DEPTH = 10  # as plant_node publishes /clock
-DRAIN_S = 0.5  # after the last message: let reliable delivery finish before the participant goes away
+# after the last message: let reliable delivery finish before the participant goes away
+DRAIN_S = 0.5
 
 
 # ---- functional core ------------------------------------------------------------------------
@@ -54,7 +56,9 @@ class PublisherQos:
 
 
 def offer_qos(offered: tuple[Any, ...]) -> PublisherQos:
-    """Offer reliable / transient-local if any recorded publisher did; the deepest recorded queue."""
+    """Offer reliable / transient-local if any recorded
+    publisher did; the deepest recorded queue.
+    """
     if not offered:
         return PublisherQos(True, False, BLOCK_STREAM.depth)
     reliable = any(q.reliability == bagio.QosReliability.RELIABLE for q in offered)
@@ -80,7 +84,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument("--clock", action="store_true", default=bool(defaults["publish_clock"]),
                         help="publish /clock with the bag's time")
     parser.add_argument("--start-delay", type=float, default=float(defaults["start_delay_s"]),
-                        help=f"seconds between creating publishers and the first message (default {defaults['start_delay_s']})")
+                        help="seconds between creating publishers and the first message (default "
+                             f"{defaults['start_delay_s']})")
     parser.add_argument("--wait-subscribers", action="store_true",
                         help="start only once every topic has a subscriber "
                              f"(give up after {defaults['wait_subscribers_timeout_s']} s)")
@@ -105,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     except bagio.BagError as exc:
         print(f"flaair play: {exc}", file=sys.stderr)
         return 1
-    chosen = [t for t in (args.topics or sorted(info.topics)) if not (args.clock and t == topic_names.CLOCK)]
+    chosen = [t for t in (args.topics or sorted(info.topics))
+              if not (args.clock and t == topic_names.CLOCK)]
 
     stop = False
 
@@ -123,15 +129,19 @@ def main(argv: list[str] | None = None) -> int:
             qos = offer_qos(info.topics[topic].offered_qos)
             profile = QoSProfile(
                 history=HistoryPolicy.KEEP_LAST, depth=qos.depth,
-                reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE,
+                reliability=ReliabilityPolicy.RELIABLE if qos.reliable
+                else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if qos.transient_local else DurabilityPolicy.VOLATILE,
             )
-            publishers[topic] = node.create_publisher(message_class(info.topics[topic].msgtype), topic, profile)
-        clock_pub = node.create_publisher(Clock, topic_names.CLOCK, CLOCK_QOS_DEPTH) if args.clock else None
+            publishers[topic] = node.create_publisher(
+                message_class(info.topics[topic].msgtype), topic, profile)
+        clock_pub = node.create_publisher(
+            Clock, topic_names.CLOCK, CLOCK_QOS_DEPTH) if args.clock else None
         if args.wait_subscribers:
             deadline = time.monotonic() + args.wait_timeout_s
             waiting = list(publishers.values()) + ([clock_pub] if clock_pub is not None else [])
-            while not stop and time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in waiting):
+            while not stop and time.monotonic() < deadline and any(
+                    p.get_subscription_count() == 0 for p in waiting):
                 time.sleep(0.05)
         deadline = time.monotonic() + args.start_delay
         while not stop and time.monotonic() < deadline:
@@ -156,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
             publishers[topic].publish(bytes(data))
             sent += 1
         time.sleep(DRAIN_S)
-        node.get_logger().info(f"played {sent} messages from {args.bag} in {time.monotonic() - start_wall:.2f} s")
+        node.get_logger().info(
+            f"played {sent} messages from {args.bag} in {time.monotonic() - start_wall:.2f} s")
         return 0
     except bagio.BagError as exc:
         print(f"flaair play: {exc}", file=sys.stderr)

@@ -17,7 +17,8 @@ from flaair_tools import bagio
 from flaair_tools.recorder import recording
 from flaair_tools.recorder.recording import RecordingParams
 
-RECORDER_HELP = """recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
+RECORDER_HELP = """\
+recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
 
 Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
 for new topics every `discovery_period_s`, and writes each message straight into the bag
@@ -38,7 +39,8 @@ every `flush_period_s`, so after a kill -9 everything older than that stays read
 the bag completely.
 
 Usage:
-  bin/flaair record [-o BAG] [--topics /flaair/sensor_v ...] [--clock] [--no-compression] [--use-sim-time]
+  bin/flaair record [-o BAG] [--topics /flaair/sensor_v ...] [--clock] [--no-compression]
+                    [--use-sim-time]
   bin/flaair run flaair_tools recorder_node --ros-args -p output_path:=out/bags/run1
 """
 NODE_NAME = "recorder_node"
@@ -46,30 +48,40 @@ CONFIG_FILE = "flaair.yaml"
 # At most one block stream's QoS depth per callback, so other topics get their turn.
 RECORDING = RecordingParams(drain_limit=BLOCK_STREAM.depth)
 RECORDER_PARAMS = [
-    ParamSpec("output_path", str, "Bag directory to create (empty: out/bags/flaair_<date>_<time>)", read_only=True),
-    ParamSpec("topics", str, "Comma-separated topics to record (empty: every /flaair/* topic)", read_only=True),
+    ParamSpec("output_path", str, "Bag directory to create (empty: out/bags/flaair_<date>_<time>)",
+              read_only=True),
+    ParamSpec("topics", str, "Comma-separated topics to record (empty: every /flaair/* topic)",
+              read_only=True),
     ParamSpec("record_clock", bool, "Also record /clock", read_only=True),
     ParamSpec("compression", bool, "zstd-compress each MCAP chunk", read_only=True),
-    ParamSpec("chunk_size_bytes", int, "Close an MCAP chunk at this size [bytes]", 1024, 2**31 - 1, read_only=True),
-    ParamSpec("flush_period_s", float, "Close the open chunk and flush this often; older data survives kill -9 [s]",
-              0.01, 3600.0, read_only=True),
-    ParamSpec("discovery_period_s", float, "Look for new topics this often [s]", 0.01, 3600.0, read_only=True),
-    ParamSpec("queue_depth", int, "Subscription queue per topic (KEEP_LAST): slack while the recorder is starved",
-              1, 10**7, read_only=True),
+    ParamSpec("chunk_size_bytes", int, "Close an MCAP chunk at this size [bytes]", 1024, 2**31 - 1,
+              read_only=True),
+    ParamSpec("flush_period_s", float,
+              "Close the open chunk and flush this often; older data survives kill -9 [s]", 0.01,
+              3600.0, read_only=True),
+    ParamSpec("discovery_period_s", float, "Look for new topics this often [s]", 0.01, 3600.0,
+              read_only=True),
+    ParamSpec("queue_depth", int,
+              "Subscription queue per topic (KEEP_LAST): slack while the recorder is starved", 1,
+              10**7, read_only=True),
 ]
 
 
 def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair record") -> list[str]:
-    """`bin/flaair record` options as the node's --ros-args (anything after --ros-args passes through)."""
+    """`bin/flaair record` options as the node's --ros-args
+    (anything after --ros-args passes through).
+    """
     parser = argparse.ArgumentParser(
         prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME))
     parser.add_argument("-o", "--output", help="bag directory to create")
-    parser.add_argument("--topics", nargs="+", default=None, help="topics to record (default: every /flaair topic)")
+    parser.add_argument("--topics", nargs="+", default=None,
+                        help="topics to record (default: every /flaair topic)")
     parser.add_argument("--clock", action="store_true", help="also record /clock")
     parser.add_argument("--no-compression", action="store_true", help="store chunks uncompressed")
     parser.add_argument("--use-sim-time", action="store_true",
-                        help="run the node on sim time (log times are signal times with or without it)")
+                        help="run the node on sim time (log times are signal times with or without "
+                             "it)")
     ros_args: list[str] = []
     if "--ros-args" in argv:
         cut = argv.index("--ros-args")
@@ -103,7 +115,8 @@ class SkipTopic(ValueError):
 def topic_to_record(topic: str, types: list[str], publishers: list[Any],
                     writer: bagio.BagWriter, depth: int) -> tuple[str, type, QoSProfile] | None:
     """(type, message class, subscription QoS) of a discovered topic, its offered QoS added to the
-    bag; None while it has no publisher (whose QoS decides ours); SkipTopic if it cannot be recorded.
+    bag; None while it has no publisher (whose QoS
+    decides ours); SkipTopic if it cannot be recorded.
     """
     if len(types) != 1:
         raise SkipTopic(f"published with several types ({', '.join(types)})")
@@ -118,17 +131,21 @@ def topic_to_record(topic: str, types: list[str], publishers: list[Any],
         raise SkipTopic(str(exc)) from None
     qos = recording.adapt_qos(offered)
     return msgtype, cls, QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth,
-        reliability=ReliabilityPolicy.RELIABLE if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local else DurabilityPolicy.VOLATILE)
+        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE
+        if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local
+        else DurabilityPolicy.VOLATILE)
 
 
 def open_writer(values: dict[str, Any], store: Any) -> bagio.BagWriter:
-    """The bag writer the recorder's parameters ask for (`output_path` empty: a timestamped name)."""
-    path = Path(values["output_path"]) if values["output_path"] else recording.default_output_path(time.time())
+    """The bag writer the recorder's parameters ask
+    for (`output_path` empty: a timestamped name).
+    """
+    path = (Path(values["output_path"]) if values["output_path"]
+            else recording.default_output_path(time.time()))
     try:
-        return bagio.BagWriter(path, compression=values["compression"], chunk_size_bytes=values["chunk_size_bytes"],
-                               store=store)
+        return bagio.BagWriter(path, compression=values["compression"],
+                               chunk_size_bytes=values["chunk_size_bytes"], store=store)
     except bagio.BagError as exc:
         raise ParameterError(f"parameter 'output_path': {exc}") from exc
 

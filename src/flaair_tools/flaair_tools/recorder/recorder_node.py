@@ -36,18 +36,20 @@ class RecorderNode(Node):
         self.subscribed: dict[str, Any] = {}
         self.takers: dict[str, tuple] = {}   # topic -> (take, on_message) of its DDS subscription
         self.skipped, self.received = set(), {}
-        # composed (an EventsExecutor): no take() inside a callback; the block streams come in-process
-        self.recording = rio.RECORDING if intra.current() is None else replace(rio.RECORDING, drain_limit=1)
-        # Wall-clock (steady) timers: with use_sim_time a ROS-time timer would stop while /clock does.
+        # composed (an EventsExecutor): no take() in a callback; the block streams come in-process
+        self.recording = (rio.RECORDING if intra.current() is None
+                          else replace(rio.RECORDING, drain_limit=1))
+        # wall-clock (steady) timers: with use_sim_time, a ROS-time timer stops when /clock does
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         for topic in sorted(intra.current().local_topics if intra.current() is not None else ()):
-            if recording.wanted(topic, self.chosen, self.p["record_clock"]) and topic in BLOCK_STREAM_TYPES:
+            if (recording.wanted(topic, self.chosen, self.p["record_clock"])
+                and topic in BLOCK_STREAM_TYPES):
                 self.record_in_process(intra.current(), topic, BLOCK_STREAM_TYPES[topic])
         self.create_timer(self.p["discovery_period_s"], self.discover, clock=steady)
         self.create_timer(self.p["flush_period_s"], self.writer.flush, clock=steady)
         self.discover()
-        self.get_logger().info(f"recording {', '.join(self.chosen) or f'every {recording.NAMESPACE}* topic'} to "
-                               f"{self.writer.path}")
+        what = ", ".join(self.chosen) or f"every {recording.NAMESPACE}* topic"
+        self.get_logger().info(f"recording {what} to {self.writer.path}")
 
     def discover(self) -> None:
         """Subscribe to every wanted topic not subscribed yet."""
@@ -56,8 +58,8 @@ class RecorderNode(Node):
                     topic, self.chosen, self.p["record_clock"]):
                 continue
             try:
-                found = rio.topic_to_record(topic, types, self.get_publishers_info_by_topic(topic), self.writer,
-                                            self.p["queue_depth"])
+                found = rio.topic_to_record(topic, types, self.get_publishers_info_by_topic(topic),
+                                            self.writer, self.p["queue_depth"])
             except rio.SkipTopic as exc:
                 self.skip(topic, str(exc))
                 continue
@@ -70,10 +72,11 @@ class RecorderNode(Node):
             self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
 
     def record_in_process(self, bus: intra.Bus, topic: str, msgtype: str) -> None:
-        """Record `topic` from the composed nodes' bus: each block encoded as its DDS message would be."""
+        """Record `topic` from the composed nodes' bus (each block encoded as its DDS message)."""
         layout = cdr.layout_of(msgtype)
         self.writer.add_topic(topic, msgtype, [bagio.qos_from_rclpy(BLOCK_STREAM)])
-        self.received[topic], self.subscribed[topic], codecs = 0, None, {}   # None: not for discover()
+        # None: not for discover()
+        self.received[topic], self.subscribed[topic], codecs = 0, None, {}
 
         def on_block(fields: dict) -> None:
             stamp_ns, data = cdr.encode_fields(layout, fields, codecs)
@@ -93,7 +96,7 @@ class RecorderNode(Node):
             self.writer.write(w.topic, w.log_ns, w.data, w.publish_ns)
 
     def make_callback(self, topic: str, stamped: bool, cls: type):
-        """Callback writing the raw message of `topic`, then those queued behind it (recording.drain)."""
+        """Callback writing `topic`'s raw message, then those queued behind it (recording.drain)."""
         def take() -> Any:
             handle = self.subscribed[topic].handle
             with handle:
@@ -103,7 +106,8 @@ class RecorderNode(Node):
             queued = recording.drain(take, self.recording)
             for data, info in [(data, info), *queued]:
                 stamp = bagio.leading_stamp_ns(data) if stamped else None
-                self.apply(recording.Received(topic, data, stamp, info.get("source_timestamp") or None))
+                self.apply(recording.Received(
+                    topic, data, stamp, info.get("source_timestamp") or None))
             self.received[topic] += 1 + len(queued)
 
         self.takers[topic] = (take, on_message)
@@ -132,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     args = None if argv is None else rio.cli_to_ros_args(argv, rio.RECORDER_HELP)
     if args is not None:
         sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
-    return run_node(RecorderNode, rio.RECORDER_PARAMS, rio.CONFIG_FILE, rio.NODE_NAME, args, executor_kind="single")
+    return run_node(RecorderNode, rio.RECORDER_PARAMS, rio.CONFIG_FILE, rio.NODE_NAME, args,
+                    executor_kind="single")
 
 
 if __name__ == "__main__":

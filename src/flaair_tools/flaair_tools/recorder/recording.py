@@ -100,7 +100,8 @@ def parse_topic_list(text: str) -> tuple[str, ...]:
     names = tuple(name for name in text.replace(",", " ").split() if name)
     bad = [name for name in names if not name.startswith("/")]
     if bad:
-        raise ParameterError(f"parameter 'topics': topic names must start with '/': {', '.join(bad)}")
+        raise ParameterError(
+            f"parameter 'topics': topic names must start with '/': {', '.join(bad)}")
     return names
 
 

@@ -34,8 +34,8 @@ def _reindex(bag: Path) -> int:
 
     source = bagio.single_mcap_file(bag)
     start = time.perf_counter()
-    with tqdm(total=source.stat().st_size, unit="B", unit_scale=True, desc="reindex", file=sys.stderr,
-              disable=not sys.stderr.isatty()) as bar:
+    with tqdm(total=source.stat().st_size, unit="B", unit_scale=True, desc="reindex",
+              file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
         report = bagio.reindex(bag, progress=lambda offset: bar.update(offset - bar.n))
     print(f"{report.path}: read up to {report.stopped_at} in {time.perf_counter() - start:.2f} s")
     for line in report.damage:
@@ -45,14 +45,15 @@ def _reindex(bag: Path) -> int:
         lost = "unknown" if counts.lost is None else str(counts.lost)
         print(f"  {topic:{width}s}  kept {counts.kept:8d}  lost {lost:>8s}")
     if report.unverified_dropped:
-        print(f"  {report.unverified_dropped} undecodable message record(s) from damaged chunks dropped")
+        print(f"  {report.unverified_dropped} undecodable message record(s) from damaged chunks "
+              "dropped")
     if report.partial_tail:
         print("  the file ends inside a chunk: what it held past the cut never reached the disk")
     if report.backup is not None:
         print(f"  the damaged original is kept as {report.backup}")
     if report.lost or report.backup is not None:
-        print(f"flaair bag reindex: {report.path}: {report.lost} message(s) lost; the bag now holds "
-              f"{sum(report.counts.values())}", file=sys.stderr)
+        print(f"flaair bag reindex: {report.path}: {report.lost} message(s) lost; the bag now "
+              f"holds {sum(report.counts.values())}", file=sys.stderr)
         return 1
     return 0
 
@@ -88,7 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     info = sub.add_parser("info", help="topics, types, counts, time span; checks every chunk")
     info.add_argument("bag", type=Path)
     info.add_argument("--quick", action="store_true", help="do not read the chunks to check them")
-    sub.add_parser("reindex", help="recover a damaged bag or one whose recorder was killed").add_argument("bag", type=Path)
+    sub.add_parser(
+        "reindex", help="recover a damaged bag or one whose recorder was killed").add_argument(
+        "bag", type=Path)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     signal.signal(signal.SIGTERM, _interrupted)
     try:

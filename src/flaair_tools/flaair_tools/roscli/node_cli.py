@@ -37,11 +37,13 @@ def full_name(name: str, namespace: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     defaults = cli_defaults("flaair node")
-    parser = argparse.ArgumentParser(prog="flaair node", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="flaair node", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="verb", required=True)
     listing = sub.add_parser("list", help="names of the running nodes, one a line")
     listing.add_argument("--discovery-s", type=float, default=float(defaults["discovery_s"]),
-                         help=f"listen this long for nodes to announce themselves (default {defaults['discovery_s']} s)")
+                         help="listen this long for nodes to announce themselves (default "
+                              f"{defaults['discovery_s']} s)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     rclpy.init()
     node = rclpy.create_node("flaair_node_cli")

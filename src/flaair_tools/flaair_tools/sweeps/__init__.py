@@ -4,7 +4,8 @@ Modules (import them by name; this package imports none of them eagerly):
 - `sweep`: the engine: grids, chunks, cluster or in process
 - `sweep_batch`: compiled closed-loop batch (pure)
 - `sweep_report`: run, write, draw, read
-- `stroke_experiments`: the stroke controller's experiments, closed loop in process, recorded as bags
+- `stroke_experiments`: the stroke controller's
+  experiments, closed loop in process, recorded as bags
 - `sweep_cli`: `bin/flaair sweep`
 """
 

@@ -9,11 +9,10 @@ vector, so a point equals the plant model) closed sample by sample through the d
 * ``DSA_STROKE``: the same filter, its gain moved by the stroke-amplitude controller
   (``flaair_control.core.stroke.track_sample``: the very tracker the controller core runs).
 
-Ideal proprioception (the sweep asks about the wing, not the sensor): the loop sees the
-true stroke. The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through
-one compiled call and summarises each with ``flaair_tools.analysis.wingbeat`` over the steady window:
-the result of a row depends on that row alone, so any chunking or cluster gives the same
-numbers bit for bit.
+Ideal proprioception (the sweep asks about the wing, not the sensor): the loop sees the true stroke.
+The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through one compiled call
+and summarises each with ``flaair_tools.analysis.wingbeat`` over the steady window: the result of
+a row depends on that row alone, so any chunking or cluster gives the same numbers bit for bit.
 """
 from __future__ import annotations
 
@@ -80,19 +79,21 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
 
 
 @njit(cache=True)
-def _batch(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s, limit_v,
-           phi_out, psi_out, u_out):
+def _batch(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s,
+           limit_v, phi_out, psi_out, u_out):
     for i in range(params.shape[0]):
-        u_out[i, 0], u_out[i, 1] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i],
-                                        scales[i], track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+        u_out[i, 0], u_out[i, 1] = _one(
+            params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
+            track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
 
 
 @njit(cache=True, parallel=True)
-def _batch_parallel(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s, limit_v,
-                    phi_out, psi_out, u_out):
+def _batch_parallel(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs,
+                    phi0s, limit_v, phi_out, psi_out, u_out):
     for i in prange(params.shape[0]):
-        u_out[i, 0], u_out[i, 1] = _one(params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i],
-                                        scales[i], track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+        u_out[i, 0], u_out[i, 1] = _one(
+            params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
+            track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
 
 
 def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: float) -> Model:
@@ -100,21 +101,25 @@ def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: floa
     effects = dict(model.effects)
     if inertia_factor != 1.0:
         effects["wing_damage"] = {"inertia_factor": inertia_factor}
-    pl = replace(model.plant, aero_damping_nm_s2=model.plant.aero_damping_nm_s2 * aero_damping_factor,
+    pl = replace(model.plant, aero_damping_nm_s2=model.plant.aero_damping_nm_s2
+                 * aero_damping_factor,
                  aero_coupling_nm_s2=model.plant.aero_coupling_nm_s2 * aero_damping_factor)
     return replace(model, plant=pl, effects=effects)
 
 
-def _filter(row: dict[str, Any], model: Model, fs: float, mu: float) -> tuple[np.ndarray, np.ndarray]:
-    params = dsa.DsaParams(
-        r3_rad_s=row["r3_rad_s"], kappa=row["kappa"], mu_nm_s_per_rad=mu,
-        actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v, sample_rate_hz=fs, drive_limit_v=row["drive_limit_v"],
-        sync_amplitude_v=0.0, sync_frequency_hz=1.0, sync_phase_rad=0.0, kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0),
-        loop_delay_s=0.5 / fs, compensation_frequency_hz=None)
+def _filter(row: dict[str, Any], model: Model, fs: float,
+            mu: float) -> tuple[np.ndarray, np.ndarray]:
+    params = dsa.DsaParams(r3_rad_s=row["r3_rad_s"], kappa=row["kappa"], mu_nm_s_per_rad=mu,
+                           actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
+                           sample_rate_hz=fs, drive_limit_v=row["drive_limit_v"],
+                           sync_amplitude_v=0.0, sync_frequency_hz=1.0, sync_phase_rad=0.0,
+                           kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), loop_delay_s=0.5 / fs,
+                           compensation_frequency_hz=None)
     return dsa._tf_coefficients(params, True)  # the controller core's own discretization
 
 
-def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -> list[dict[str, Any]]:
+def run_rows(rows: list[dict[str, Any]], model: Model,
+             parallel: bool = False) -> list[dict[str, Any]]:
     """Simulate a chunk of rows (one compiled call) and summarise each over its steady window.
 
     A row holds: mode (SYNC/DSA/DSA_STROKE), inertia_factor, aero_damping_factor, sample_rate_hz,
@@ -158,13 +163,16 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
            float(rows[0]["drive_limit_v"]), phi, psi, u_out)
     out = []
     for i, row in enumerate(rows):
-        beats = wingbeat.summarize(np.degrees(phi[i]), np.degrees(psi[i]), np.ones(keep, bool), wingbeat.WingbeatParams(
+        beats = wingbeat.summarize(np.degrees(phi[i]), np.degrees(psi[i]), np.ones(keep, bool),
+                                   wingbeat.WingbeatParams(
             fs, row["hysteresis_deg"], row["min_wingbeat_hz"], row["max_wingbeat_hz"]))
         ok = beats.amplitude_deg.size > 0
         out.append({
             "stroke_frequency_hz": float(np.mean(beats.frequency_hz)) if ok else 0.0,
-            "stroke_amplitude_deg": float(np.mean(beats.amplitude_deg)) if ok else float(np.degrees(np.ptp(phi[i])) / 2),
-            "pitch_amplitude_deg": float(np.mean(beats.pitch_amplitude_deg)) if ok else float(np.degrees(np.ptp(psi[i])) / 2),
+            "stroke_amplitude_deg": float(np.mean(beats.amplitude_deg)) if ok
+            else float(np.degrees(np.ptp(phi[i])) / 2),
+            "pitch_amplitude_deg": float(np.mean(beats.pitch_amplitude_deg)) if ok
+            else float(np.degrees(np.ptp(psi[i])) / 2),
             "final_command": float(u_out[i, 0]),
             "peak_drive_v": float(u_out[i, 1]),
             "drive_clamped": bool(u_out[i, 1] >= row["drive_limit_v"]),
@@ -173,7 +181,9 @@ def run_rows(rows: list[dict[str, Any]], model: Model, parallel: bool = False) -
 
 
 def warm_up(model: Model, row: dict[str, Any]) -> float:
-    """Compile (or load from numba's cache) and run the kernels once on a 20 ms copy of ``row``; seconds taken."""
+    """Compile (or load from numba's cache) and run the
+    kernels once on a 20 ms copy of ``row``; seconds taken.
+    """
     import time
     t0 = time.perf_counter()
     tiny = {**row, "duration_s": 0.02, "steady_s": 0.01}
