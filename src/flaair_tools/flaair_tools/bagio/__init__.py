@@ -30,6 +30,7 @@ Modules
 - `runs`: the measured-run columns of every run in bags (imported on use)
 - `import_runs`: measured-run CSV files into a bag, `bin/flaair import` (imported on use)
 - `video_angles`: stroke and pitch from tracked video points (DLTdv8), pure (imported on use)
+- `target_log`: a real-time target's MAT log (Structure with time, v5 and v7.3) (imported on use)
 - `reader`: info, messages, read_bag, read_blocks
 - `scan`: MCAP record scan through damage
 - `recovery`: reindex, check_bag
