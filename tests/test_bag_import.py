@@ -15,7 +15,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from flaair_model.config import node_parameters
 from flaair_tools import bagio
-from flaair_tools.bagio import import_runs
+from flaair_tools.bagio import import_cli
 from rosproc import FLAAIR, isolated_env, run
 
 HEADER = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg")
@@ -61,7 +61,7 @@ def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None
     b = _write_csv(tmp_path / "chirp_half.csv", 400, seed=2, order=tuple(reversed(HEADER)),
                    stroke_gap=range(0, 3))
     bag = tmp_path / "runs"
-    assert import_runs.main([str(tmp_path / "chirp_full.csv"), str(tmp_path / "chirp_half.csv"),
+    assert import_cli.main([str(tmp_path / "chirp_full.csv"), str(tmp_path / "chirp_half.csv"),
                              "--out", str(bag)]) == 0
 
     markers = bagio.read_run_markers(bag)
@@ -111,7 +111,7 @@ def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None
 
 def test_reader_names_a_missing_topic(tmp_path: Path) -> None:
     _write_csv(tmp_path / "r.csv", 50, seed=3)
-    assert import_runs.main([str(tmp_path / "r.csv"), "--out", str(tmp_path / "bag")]) == 0
+    assert import_cli.main([str(tmp_path / "r.csv"), "--out", str(tmp_path / "bag")]) == 0
     with pytest.raises(bagio.BagTopicError, match="no topic '/flaair/wing_state' in the bag"):
         bagio.read_blocks(tmp_path / "bag", "/flaair/wing_state")
     with pytest.raises(bagio.BagError, match="no run 'sweep'"):
@@ -139,7 +139,7 @@ def test_malformed_csv_is_refused_naming_file_line_column(tmp_path: Path, case: 
     _write_csv(good, 20, seed=4)
     bad = tmp_path / f"{case}.csv"
     bad.write_text(text, encoding="utf-8")
-    assert import_runs.main([str(good), str(bad), "--out", str(tmp_path / "bag")]) != 0
+    assert import_cli.main([str(good), str(bad), "--out", str(tmp_path / "bag")]) != 0
     err = capsys.readouterr().err
     assert str(bad) in err and re.search(expected, err), err
     assert not (tmp_path / "bag").exists()  # nothing written: every file is checked first

@@ -21,8 +21,8 @@ RUFF = [sys.executable, "-m", "ruff", "check", "--no-cache", "--output-format", 
 def test_ruff_finds_nothing() -> None:
     done = subprocess.run(RUFF + ["src", "tests", "bench", "scripts"], cwd=ROOT,
                           capture_output=True, text=True, timeout=110)
-    assert (done.returncode
-            == 0), f"ruff check (fix with: .venv/bin/ruff check --fix):\n{done.stdout}{done.stderr}"
+    assert done.returncode == 0, (
+        f"ruff check (fix with: .venv/bin/ruff check --fix):\n{done.stdout}{done.stderr}")
 
 
 @pytest.mark.timeout(120)

@@ -1,4 +1,4 @@
-"""`flaair import`: turn measured-run CSV files (lab exports) into one rosbag2 (MCAP) bag.
+"""Runs into one rosbag2 (MCAP) bag: measured-run CSV files, or runs a lab import has read.
 
 Each run becomes block messages, block_size samples each (config/flaair.yaml), exactly as
 the simulated robot publishes them:
@@ -16,28 +16,22 @@ Every file is checked before anything is written; a bad file is named with its l
 (exit 2), and a failed or interrupted import leaves no bag behind.
 
 Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S] [--kind KIND]
-Columns and units of RUN.csv: docs/LAB_CSV_FORMAT.md.
+(flaair_tools.bagio.import_cli). Columns and units of RUN.csv: docs/LAB_CSV_FORMAT.md.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import signal
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from flaair_common import topics
 from flaair_common.qos import BLOCK_STREAM, EVENTS
-from flaair_common.runcsv import MeasuredRun, RunFileError, read_run
-from flaair_model.config import ConfigError, node_parameters
+from flaair_common.runcsv import MeasuredRun, read_run
 from flaair_tools import bagio
-from flaair_tools.bagio.markers import RUN_KINDS as KINDS
 
 CONFIG_FILE = "flaair.yaml"
 SECTION = "import_runs"
@@ -136,102 +130,65 @@ def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
 def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str,
                 progress: Callable[[int], None] | None = None,
                 kind: str | None = None) -> list[bagio.RunMarker]:
-    """Read and check every CSV, then write the bag; returns the run markers written.
+    """Read and check every CSV, then write the bag (`write_runs`); returns the run markers."""
+    check_settings(gap_s, block_size)
+    runs = [(path, read_run(path)) for path in paths]
+    check_runs(runs)
+    return write_runs([(str(path), run, {}) for path, run in runs], out, gap_s=gap_s,
+                      block_size=block_size, frame_id=frame_id, progress=progress, kind=kind)
 
-    Messages are made and written one block at a time. If anything fails (or the user
-    interrupts) after the bag directory was created, it is removed: no partial bag is left
-    that looks valid. `progress` is called with the samples written so far. `kind` (a
-    flaair_tools.analysis.runkind kind) goes into every run marker's JSON; `flaair analyze` uses it.
-    """
+
+def check_settings(gap_s: float, block_size: int) -> None:
+    """The gap between runs and the block size, before any file is read."""
     if not math.isfinite(gap_s) or gap_s < 0:
         raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")
     if block_size < 1:
         raise RunSetError(
             f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}")
-    runs = [(path, read_run(path)) for path in paths]
-    check_runs(runs)
+
+
+def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *, gap_s: float,
+               block_size: int, frame_id: str, progress: Callable[[int], None] | None = None,
+               kind: str | None = None) -> list[bagio.RunMarker]:
+    """Write runs already read and checked, (source, run, marker extras) each, into a new bag.
+
+    Messages are made and written one block at a time. If anything fails (or the user
+    interrupts) after the bag directory was created, it is removed: no partial bag is left
+    that looks valid. `progress` is called with the samples written so far. `kind` (a
+    flaair_tools.analysis.runkind kind) and each run's extras (what a lab import recorded: its
+    files, rig and sync) go into the run marker's JSON; `flaair analyze` reads them.
+    """
     store = bagio.typestore()
     offered = {topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
                topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
                topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)],
                bagio.RUN_MARKER_TOPIC: [bagio.qos_from_rclpy(EVENTS)]}
     markers: list[bagio.RunMarker] = []
+    marker_values: list[dict[str, Any]] = []
     start_ns = 0
     first_index = 0
     writer = bagio.BagWriter(out, store=store)
     try:
-        for path, run in runs:
-            marker = run_marker(run, source_file=str(path), start_ns=start_ns,
+        for source, run, extras in runs:
+            marker = run_marker(run, source_file=source, start_ns=start_ns,
                                 first_sample_index=first_index)
+            values = {**json.loads(marker.to_json()), **extras, **({"kind": kind} if kind else {})}
             for topic, stamp_ns, message in encode_run(
-                    run, source_file=str(path), start_ns=start_ns, first_sample_index=first_index,
+                    run, source_file=source, start_ns=start_ns, first_sample_index=first_index,
                     block_size=block_size, frame_id=frame_id, store=store):
-                if kind and topic == bagio.RUN_MARKER_TOPIC:
-                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=json.dumps(
-                        {**json.loads(message.data), "kind": kind}))
+                if topic == bagio.RUN_MARKER_TOPIC:
+                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store,
+                                                data=json.dumps(values))
                 writer.write_message(topic, stamp_ns, message, offered[topic])
                 if progress is not None and topic == topics.WING_STATE_TRUTH:
                     progress(int(message.first_sample_index) + len(message.stroke_deg))
             markers.append(marker)
+            marker_values.append(values)
             first_index += marker.n_samples
             start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
-        writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps(
-            [json.loads(m.to_json()) for m in markers]))
+        writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps(marker_values))
         writer.close()
     except BaseException:
         writer.abandon()
         raise
     return markers
-
-
-def _interrupted(signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt(signum)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`bin/flaair import RUN.csv... --out BAG`; exit 2 with file/line/column on a bad file."""
-    try:
-        defaults = node_parameters(CONFIG_FILE, SECTION)
-    except ConfigError as exc:
-        print(f"flaair import: {exc}", file=sys.stderr)
-        return 2
-    parser = argparse.ArgumentParser(prog="flaair import", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, help="measured-run CSV files")
-    parser.add_argument("-o", "--out", type=Path, required=True, help="bag directory to create")
-    parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
-                        help=f"time between runs [s] (default {defaults['gap_s']})")
-    parser.add_argument("--kind", choices=[k for k in KINDS if k != "unrecognised"], default=None,
-                        help="the drive of every run given (default: `flaair analyze` recognises "
-                             "it from the drive)")
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
-    if not math.isfinite(args.gap_s) or args.gap_s < 0:
-        parser.error(f"--gap-s must be a finite time >= 0 s, got {args.gap_s}")
-    if args.out.exists():
-        print(f"flaair import: {args.out}: exists already; choose a new bag directory",
-              file=sys.stderr)
-        return 2
-    signal.signal(signal.SIGTERM, _interrupted)
-    try:
-        with tqdm(total=None, unit=" samples", unit_scale=True, desc="import", file=sys.stderr,
-                  disable=not sys.stderr.isatty()) as bar:
-            markers = import_runs(args.runs, args.out, gap_s=args.gap_s,
-                                  block_size=int(defaults["block_size"]),
-                                  frame_id=str(defaults["frame_id"]),
-                                  progress=lambda n: bar.update(n - bar.n), kind=args.kind)
-    except (RunFileError, RunSetError, bagio.BagError) as exc:
-        print(f"flaair import: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        signum = int(exc.args[0]) if exc.args else int(signal.SIGINT)
-        print(f"flaair import: interrupted; no bag written at {args.out}", file=sys.stderr)
-        return 128 + signum
-    for marker in markers:
-        print(f"{marker.run}: {marker.n_samples} samples at {marker.sample_rate_hz:g} Hz "
-              f"(first_sample_index {marker.first_sample_index}) from {marker.source_file}")
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
