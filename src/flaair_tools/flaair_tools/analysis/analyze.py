@@ -283,14 +283,12 @@ def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any]
     return kinds, warnings
 
 
-def marked_kinds(contents: bagio.BagContents) -> dict[str, str]:
-    """Kinds given explicitly at import (`flaair import --kind`), by run name."""
-    out = {}
-    for message in contents.messages(bagio.RUN_MARKER_TOPIC):
-        values = json.loads(message.data)
-        if values.get("kind"):
-            out[str(values["run"])] = str(values["kind"])
-    return out
+def marker_values(contents: bagio.BagContents) -> dict[str, dict[str, Any]]:
+    """Every run marker's JSON by run name: an explicit kind (`flaair import --kind`), and for a
+    lab run its files, rig, sync and video (`flaair import RUN.mat`).
+    """
+    return {str(values["run"]): values for values in (
+        json.loads(message.data) for message in contents.messages(bagio.RUN_MARKER_TOPIC))}
 
 
 def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | None = None,
@@ -301,7 +299,9 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
     info = experiment_info(contents)
     missing_runs: list[tuple[str, str]] = []
     runs = runs_of_bag(contents, missing=missing_runs)
-    kinds, warnings = run_kinds(contents, runs, info, marked_kinds(contents), recognition)
+    markers = marker_values(contents)
+    kinds, warnings = run_kinds(contents, runs, info, {
+        name: str(m["kind"]) for name, m in markers.items() if m.get("kind")}, recognition)
     est, source, on_model = estimates(contents, runs, calibration, calibration_file)
     name = info.get("name", bag.name)
     result: dict[str, Any] = {"bag": str(bag), "experiment": name,
@@ -342,6 +342,8 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
         entry["drive"] = kind.as_dict()
         entry["fraction_present"] = run.fraction_present
         entry["drive_amplitude_v"] = kind.drive_amplitude_v
+        if "video" in markers.get(run.name, {}):   # a lab run: the video's rate and coverage
+            entry["video"] = markers[run.name]["video"]
         result["runs"][run.name] = entry
     return result, plots
 
