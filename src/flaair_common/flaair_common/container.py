@@ -8,12 +8,11 @@ controller) this way by default.
 
 Usage:
   bin/flaair run flaair_common container [--local-topics T1,T2,...] MODULE:CLASS [MODULE:CLASS ...]
-                                        [--background MODULE:CLASS ...]
-                                        [--ros-args --params-file FILE ...]
+      [--background MODULE:CLASS ...] [--ros-args --params-file FILE ...]
 Example:
   bin/flaair run flaair_common container flaair_sim.plant_node:PlantNode \
-      flaair_sensors.frontend_node:FrontendNode
-      flaair_control.dsa_controller_node:DsaControllerNode \ --ros-args -p mode:=lockstep
+      flaair_sensors.frontend_node:FrontendNode \
+      flaair_control.dsa_controller_node:DsaControllerNode --ros-args -p mode:=lockstep
 
 FLAAIR_PROFILE=1 times every in-process callback (thread CPU and wall) and prints one line per
 node callback at exit: `profile: plant_node.on_command: N calls, X us CPU, Y us wall per call`.

@@ -1,5 +1,5 @@
-"""dsa_controller_node: the delayed-stretch-activation
-(dSA) controller that closes the wingbeat loop.
+"""dsa_controller_node: the delayed-stretch-activation (dSA) controller that closes the wingbeat
+loop.
 
 One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
 (/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
@@ -11,9 +11,9 @@ to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
 K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
 
-Loop delay: the dsa core's phase advance compensates it. Safety: clamp,
-slew, watchdogs, a zero block at exit. Usage: bin/flaair run flaair_control
-dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
+Loop delay: the dsa core's phase advance compensates it. Safety: clamp, slew, watchdogs, a zero
+block at exit.
+Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 from __future__ import annotations
 

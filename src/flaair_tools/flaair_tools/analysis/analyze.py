@@ -1,5 +1,4 @@
-"""`flaair analyze BAG... --out DIR`: the paper's analysis
-of recorded experiments and lab runs, from the bags.
+"""`flaair analyze BAG... --out DIR`: the paper's analysis of experiments and lab runs, from bags.
 
 Every run's drive is recognised from the drive signal itself (chirp, stepped sine, single sine,
 dSA transition, free run; flaair_tools.analysis.runkind) unless the bag says what it is (a FLAAIR
@@ -33,8 +32,8 @@ Run CSV columns and units: docs/LAB_CSV_FORMAT.md.
 Exit codes: 0 done; 2 bad input (bag, calibration file); 3 partial data without --allow-partial.
 
 Example:
-  bin/flaair analyze out/demo/bags/* --out out/demo/report
-  --calibration out/demo/calibration/calibration.yaml
+  bin/flaair analyze out/demo/bags/* --out out/demo/report \
+      --calibration out/demo/calibration/calibration.yaml
 """
 from __future__ import annotations
 

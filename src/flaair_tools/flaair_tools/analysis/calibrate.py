@@ -2,9 +2,9 @@
 
 Reads every run of the given bags (sensor voltages, drive and ground-truth angles), fits per
 sensor the gain, polarity, offset and lag (flaair_sensors.core.calibration), and writes:
-  DIR/calibration.yaml  loadable by the front end (-p
-  gains_from:=calibration -p calibration_file:=...) DIR/calibration.json
-  {"stroke": {"gain_deg_per_v", "lag_s", "amplitude_rmse_deg",
+  DIR/calibration.yaml  loadable by the front end
+                        (-p gains_from:=calibration -p calibration_file:=...)
+  DIR/calibration.json  {"stroke": {"gain_deg_per_v", "lag_s", "amplitude_rmse_deg",
                         "phase_rmse_deg", ...}, "pitch": {...}} plus band-limited figures.
 With several runs, gains and lags are fitted per run and combined (median); the spread is reported.
 

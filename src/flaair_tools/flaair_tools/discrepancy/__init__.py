@@ -1,11 +1,11 @@
 """Model-vs-measurement discrepancy workflow (`bin/flaair discrepancy`, `bin/flaair identify`).
 
-Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect
-registered once), `identification` (grey-box fit of the plant), `diagnosis` (where a
-residual disagrees), `fitting` (least squares on folds), `evidence` (rules R1-R6), `search`
-(channel-by-channel search), `workflow` (`analyse`: identify, then search on top of the
-fitted plant), `report`, `datasets` (hidden-effect cases and the randomized off-nominal
-robot generator; `case` holds one case, `scoring` scores the workflow on them), `cli`.
+Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect registered
+once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
+`fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
+search), `workflow` (`analyse`: identify, then search on top of the fitted plant), `report`,
+`datasets` (hidden-effect cases and the randomized off-nominal robot generator; `case` holds one
+case, `scoring` scores the workflow on them), `cli`.
 Everything but `report` and `cli` is pure (numpy, scipy, numba via flaair_sim; no file I/O).
 
 Given measured runs (drive, both sensor voltages, ground-truth angles) and a model, the core
@@ -28,11 +28,11 @@ Signal path and order of analysis
 The four measured channels sit on a directed signal path, and each channel is analysed in turn,
 upstream first, with only the effects that can act on it (`EFFECT_CHANNELS`)::
 
-    drive -> stroke dynamics -> stroke_deg  (truth)   candidates:
-    structural_damping, collision, wing_damage stroke -> pitch dynamics
-    -> pitch_deg   (truth)   candidates: hinge_stiffening (and the stroke
-                                                       physics, in case only the
-                                                       pitch truth shows it)
+    drive -> stroke dynamics -> stroke_deg  (truth)   candidates: structural_damping, collision,
+                                                       wing_damage
+    stroke -> pitch dynamics -> pitch_deg   (truth)   candidates: hinge_stiffening (and the
+                                                       stroke physics, in case only the pitch
+                                                       truth shows it)
     stroke -> actuator sensor -> stroke_sensor_v      candidates: sensor_delay, charge_amp_highpass,
                                                        feedthrough, transmission_nonlinearity,
                                                        strain_transfer_loss (channel stroke)
@@ -40,8 +40,8 @@ upstream first, with only the effects that can act on it (`EFFECT_CHANNELS`)::
                                                        strain_transfer_loss (channel pitch)
 
 The ground-truth channels separate physics from sensor effects: sensor effects cannot change
-``stroke_deg``/``pitch_deg``, so physics effects are judged on the truth channels alone (where
-an unmodelled sensor effect cannot bias them), sensor effects on the sensor channels with the
+``stroke_deg``/``pitch_deg``, so physics effects are judged on the truth channels alone (where an
+unmodelled sensor effect cannot bias them), sensor effects on the sensor channels with the
 physics already corrected. When a truth channel keeps an unexplained gap, the sensor channel
 below it is judged *truth-referenced*: the sensor model is driven by the measured angle (model
 angle + interpolated measured-minus-model error) instead of the simulated one, so a propagated
@@ -76,9 +76,10 @@ each run is predicted with the inverse-variance mean of the *other* runs' estima
   fit);
 * R4 consistency: the per-run estimates agree (chi-square of their scatter about the mean, with
   each variance widened by (``consistency_rel_tol`` x effect size)^2, has p >=
-  ``consistency_alpha``). Runs differ in drive level (full and half chirp) and in time,
-  so an effect whose parameter would have to change with the drive level or over time (an
-  effect outside the vocabulary that a vocabulary effect only mimics) is refused here;
+  ``consistency_alpha``).
+  Runs differ in drive level (full and half chirp) and in time, so an effect whose parameter
+  would have to change with the drive level or over time (an effect outside the vocabulary that
+  a vocabulary effect only mimics) is refused here;
 * R5 (a sensor effect already found on the other sensor) decides its form, not its acceptance:
   where the two sensors' estimates agree within 3 combined standard errors + the R4 allowance it
   becomes one value on both chains, else each chain keeps its own;

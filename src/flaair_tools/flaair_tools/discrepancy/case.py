@@ -27,9 +27,9 @@ class DatasetCase:
     plant_scale : ((plant key, factor), ...): the robot's plant differs from the model's.
     hidden : vocabulary effects the robot carries that a plant change reproduces exactly (not
         separable, e.g. wing_damage): the right answer does not name them.
-    video_every : ground truth only every k-th sample (a video frame
-    rate), NaN between; 1: DAQ rate. below_limit : the effects are
-    below what the search on the fitted plant resolves (the joint fit
+    video_every : ground truth only every k-th sample (a video frame rate), NaN between; 1: DAQ
+        rate.
+    below_limit : the effects are below what the search on the fitted plant resolves (the joint fit
         absorbs them into the plant on the truth, and the sensors do not search physics): the right
         answer names nothing and leaves the gap located (``unexplained``).
     """

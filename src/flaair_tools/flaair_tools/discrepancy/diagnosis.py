@@ -142,19 +142,24 @@ class ChannelGap:
 
     Attributes
     ----------
-    channel : measured channel. nrmse : residual RMS / measured RMS, all runs pooled.
-    noise_nrmse : noise RMS / measured RMS (the floor an exact model reaches). noise_ratio :
-    residual RMS / noise RMS. model_error_nrmse : sqrt(max(residual^2 - noise^2, 0)) /
-    measured RMS. ljung_box_q, ljung_box_p : whiteness test of the decimated residual.
-    xcorr_drive : largest normalised cross-correlation of residual with the drive. xcorr_lag_s
-    : its lag (residual after drive). xcorr_significant : |rho| sqrt(n) > Settings.xcorr_z.
+    channel : measured channel.
+    nrmse : residual RMS / measured RMS, all runs pooled.
+    noise_nrmse : noise RMS / measured RMS (the floor an exact model reaches).
+    noise_ratio : residual RMS / noise RMS.
+    model_error_nrmse : sqrt(max(residual^2 - noise^2, 0)) / measured RMS.
+    ljung_box_q, ljung_box_p : whiteness test of the decimated residual.
+    xcorr_drive : largest normalised cross-correlation of residual with the drive.
+    xcorr_lag_s : its lag (residual after drive).
+    xcorr_significant : |rho| sqrt(n) > Settings.xcorr_z.
     band_nrmse : {"lo-hi Hz": model-error NRMSE of the samples whose drive frequency is in the
-    band}. worst_band_hz : band with the largest model-error NRMSE. level_nrmse : {drive level
-    V: model-error NRMSE of the runs at that level}. level_ratio : model-error NRMSE at the
-    highest over the lowest drive level (NaN: one level). harmonic_fraction : residual power
-    fraction at drive harmonics 1..4 (rest: broadband). worst_stretch : (run, start s, stop s,
-    model-error NRMSE) of the worst window. has_gap : the channel disagrees beyond noise (see
-    module docstring). interpretation : one-line reading of the tests.
+        band}.
+    worst_band_hz : band with the largest model-error NRMSE.
+    level_nrmse : {drive level V: model-error NRMSE of the runs at that level}.
+    level_ratio : model-error NRMSE at the highest over the lowest drive level (NaN: one level).
+    harmonic_fraction : residual power fraction at drive harmonics 1..4 (rest: broadband).
+    worst_stretch : (run, start s, stop s, model-error NRMSE) of the worst window.
+    has_gap : the channel disagrees beyond noise (see module docstring).
+    interpretation : one-line reading of the tests.
     """
 
     channel: str

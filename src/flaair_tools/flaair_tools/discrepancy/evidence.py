@@ -27,13 +27,17 @@ class CandidateEvidence:
 
     Attributes
     ----------
-    labels : effect labels (name[channel]). channel : measured channel judged. values : fitted
-    physical parameters (all runs), one per effect. se : their standard errors. z : distance
-    from the null value in standard errors. per_run : per-run estimates [(run, value, se)]
-    per effect. consistency_p : p-value of the per-run scatter test per effect (NaN: fewer
-    than 2 runs identify it). heldout_nrmse_before, heldout_nrmse_after : channel NRMSE on
-    held-out runs without / with it. heldout_drop : 1 - after / before. heldout_gap_drop :
-    the same for the model error above noise (R1): 1 - sqrt(max(RSS_after - n, 0)
+    labels : effect labels (name[channel]).
+    channel : measured channel judged.
+    values : fitted physical parameters (all runs), one per effect.
+    se : their standard errors.
+    z : distance from the null value in standard errors.
+    per_run : per-run estimates [(run, value, se)] per effect.
+    consistency_p : p-value of the per-run scatter test per effect (NaN: fewer than 2 runs identify
+        it).
+    heldout_nrmse_before, heldout_nrmse_after : channel NRMSE on held-out runs without / with it.
+    heldout_drop : 1 - after / before.
+    heldout_gap_drop : the same for the model error above noise (R1): 1 - sqrt(max(RSS_after - n, 0)
         / max(RSS_before - n, 0)) in noise-weighted units.
     delta_bic_heldout : held-out BIC change (negative favours the effect).
     delta_bic_fit : in-sample BIC change on all runs.

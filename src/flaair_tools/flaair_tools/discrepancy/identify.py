@@ -8,9 +8,8 @@ from a frequency-domain estimate of the sweeps' transfer functions). The inertia
 constants (Table 1, charge amplifiers) and transmission ratio are fabrication-known and stay.
 
 Writes into --out DIR:
-  model.yaml           the input model with the fitted plant
-  parameters (same layout as config/model.yaml) identification.json
-  per parameter: value, nominal, start, stderr; correlations; the
+  model.yaml           the input model with the fitted plant parameters (as config/model.yaml)
+  identification.json  per parameter: value, nominal, start, stderr; correlations; the
                        combinations the runs cannot separate
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).

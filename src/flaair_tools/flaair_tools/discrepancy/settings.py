@@ -16,19 +16,23 @@ class Settings:
         candidate jointly with the plant parameters it trades off against.
     decimate : keep every k-th sample in fits (noise stays white; 20 kHz -> 5 kHz).
     gap_noise_ratio : residual RMS / noise RMS above which a channel may have a gap.
-    whiteness_alpha : Ljung-Box p-value below which the residual is not white. ljung_box_lags :
-    lags of the Ljung-Box test. whiteness_decimate : decimation of the residual before the
-    Ljung-Box test. min_heldout_drop : R1, relative drop of the held-out model error (above noise)
-    an effect must bring. max_delta_bic : R2, held-out Delta-BIC must be below this. min_z : R3,
-    distance of the parameter from its null value in standard errors. consistency_alpha : R4,
-    p-value of the per-run scatter test below which an effect is refused. consistency_rel_tol :
-    R4, allowance for model imperfection, as a fraction of the effect size.
-    max_effects_per_channel : greedy steps per channel. pair_fallback : try pairs of effects on a
-    channel when no single effect passes. max_nfev : function evaluations per least-squares fit.
+    whiteness_alpha : Ljung-Box p-value below which the residual is not white.
+    ljung_box_lags : lags of the Ljung-Box test.
+    whiteness_decimate : decimation of the residual before the Ljung-Box test.
+    min_heldout_drop : R1, relative drop of the held-out model error (above noise) an effect must
+        bring.
+    max_delta_bic : R2, held-out Delta-BIC must be below this.
+    min_z : R3, distance of the parameter from its null value in standard errors.
+    consistency_alpha : R4, p-value of the per-run scatter test below which an effect is refused.
+    consistency_rel_tol : R4, allowance for model imperfection, as a fraction of the effect size.
+    max_effects_per_channel : greedy steps per channel.
+    pair_fallback : try pairs of effects on a channel when no single effect passes.
+    max_nfev : function evaluations per least-squares fit.
     max_polish_rounds : further joint re-fits of a channel's parameters while a gap is left on it.
-    polish_min_gain : relative cost drop a re-fit must bring for another round. band_edges_hz :
-    drive-frequency bands of the localisation. window_s : window of the harmonic and worst-stretch
-    analysis. xcorr_max_lag_s : largest residual-after-drive lag of the cross-correlation test.
+    polish_min_gain : relative cost drop a re-fit must bring for another round.
+    band_edges_hz : drive-frequency bands of the localisation.
+    window_s : window of the harmonic and worst-stretch analysis.
+    xcorr_max_lag_s : largest residual-after-drive lag of the cross-correlation test.
     xcorr_z : |rho| sqrt(n) above which the cross-correlation with the drive is significant.
     """
 

@@ -2,11 +2,14 @@
 
 Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth, /sensor_v
 and /drive (on /flaair/live/..., flaair_tools.liveview.live_view) at the sample's own signal time,
-so the Plot panel draws time series; /flaair/live/wingbeat summarises each wingbeat
-(flaair_tools.analysis.wingbeat); /flaair/live/collision_status relays the monitor; the latest
-signal time is broadcast. Block streams are best effort (a viewer never holds the graph), served in
-batches of serve_period_s (one numpy call each). Foxglove: Open connection > ws://127.0.0.1:8765;
-Layout > Import config/foxglove_layout.json. Usage: bin/flaair foxglove 127.0.0.1:8765, or
+so the Plot
+panel draws time series; /flaair/live/wingbeat summarises each wingbeat
+(flaair_tools.analysis.wingbeat);
+/flaair/live/collision_status relays the monitor; the latest signal time is broadcast. Block streams
+are best effort (a viewer never holds the graph), served in batches of serve_period_s (one numpy
+call each).
+Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
+Usage: bin/flaair foxglove 127.0.0.1:8765, or
   bin/flaair run flaair_tools foxglove_node --ros-args -p port:=8765 -p sample_decimation:=4
 """
 from __future__ import annotations

@@ -1,5 +1,4 @@
-"""`flaair live`: bring up the live graph around a
-real bench (or the simulated robot) and record it.
+"""`flaair live`: bring up the live graph around a real bench (or the simulated robot), record it.
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
@@ -29,9 +28,9 @@ run (a port in use, a node that failed); 3 no sensor packet from the target in t
 packet sent, the bag closed).
 
 The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the emulated target:
-  bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000
-  --listen 127.0.0.1:25001 & bin/flaair live --target 127.0.0.1:25001
-  --listen 127.0.0.1:25000 --duration 5 --out out/bags/bench
+  bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000 --listen 127.0.0.1:25001 &
+  bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 \
+      --out out/bags/bench
 """
 from __future__ import annotations
 

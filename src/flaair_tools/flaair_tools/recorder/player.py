@@ -1,17 +1,18 @@
 """player: republish a bag's messages onto their topics, like `ros2 bag play`.
 
-Messages leave in the bag's log-time order, as recorded (serialized bytes, never decoded), paced
-by their log times (which `flaair record` sets to each message's signal time, so a replay
-follows the signal's own clock, not the recording machine's) at real time (`--rate 1`), N times
-real time (`--rate N`) or as fast as possible (`--fast`). With `--clock`, /clock carries the
-bag's time (for nodes with use_sim_time) and a recorded /clock topic is not replayed. Publishers
-offer what the recording's publishers offered (reliable / transient-local if any of them did).
+Messages leave in the bag's log-time order, as recorded (serialized bytes, never decoded),
+paced by their log times (which `flaair record` sets to each message's signal time, so a
+replay follows the signal's own clock, not the recording machine's) at real time (`--rate 1`),
+N times real time (`--rate N`) or as fast as possible (`--fast`). With `--clock`, /clock
+carries the bag's time (for nodes with use_sim_time) and a recorded /clock topic is not
+replayed. Publishers offer what the recording's publishers offered (reliable / transient-local
+if any of them did).
 
 `--fast` can outrun a slow subscriber: a reliable KEEP_LAST queue then drops the oldest.
 
 Usage:
-  bin/flaair play BAG [--rate N | --fast] [--topics
-  /flaair/sensor_v ...] [--clock] [--wait-subscribers]
+  bin/flaair play BAG [--rate N | --fast] [--topics /flaair/sensor_v ...] [--clock]
+                      [--wait-subscribers]
 """
 from __future__ import annotations
 

@@ -2,11 +2,13 @@
 
 Examples
 --------
-  bin/flaair topic list bin/flaair topic echo /flaair/wing_state --count 5 bin/flaair topic
-  echo /flaair/collision/events --timeout 0     # wait forever bin/flaair topic hz
-  /flaair/sensor_v                           # messages per second, like `ros2 topic hz`
-  bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30 bin/flaair
-  topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock '{"drive_v": [1.0, 2.0]}' --count 3
+  bin/flaair topic list
+  bin/flaair topic echo /flaair/wing_state --count 5
+  bin/flaair topic echo /flaair/collision/events --timeout 0   # wait forever
+  bin/flaair topic hz /flaair/sensor_v                         # per second, like `ros2 topic hz`
+  bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
+  bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock \
+      '{"drive_v": [1.0, 2.0]}' --count 3
 """
 from __future__ import annotations
 
