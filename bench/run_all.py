@@ -18,7 +18,7 @@ from benchlib import REPO_ROOT, Figure, print_table, write_json
 
 BENCHES = ["bench_sim", "bench_frontend_core", "bench_collision", "bench_analysis",
            "bench_recorder", "bench_closed_loop", "bench_discrepancy", "bench_stroke",
-           "bench_sweep", "bench_bridge", "bench_import", "bench_foxglove"]
+           "bench_sweep", "bench_bridge", "bench_import", "bench_lab_import", "bench_foxglove"]
 
 
 def main() -> int:

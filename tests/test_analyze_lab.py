@@ -162,13 +162,26 @@ def truncated_bag(columns: dict[str, np.ndarray], out: Path, fraction: float) ->
     """
     from flaair_common.runcsv import MeasuredRun
     from flaair_tools import bagio
-    from flaair_tools.bagio.import_runs import encode_run
+    from flaair_tools.bagio.import_runs import (
+        DRIVE_TYPE,
+        SENSOR_TYPE,
+        WING_TYPE,
+        encode_run,
+        run_marker,
+    )
 
-    messages = list(encode_run(MeasuredRun("stepped", FS, columns), source_file="stepped.csv",
-                               start_ns=0, first_sample_index=0, block_size=10, frame_id="robot"))
+    run = MeasuredRun("stepped", FS, columns)
+    messages = list(encode_run(run, start_ns=0, first_sample_index=0, block_size=10,
+                               frame_id="robot"))
     with bagio.BagWriter(out) as writer:
-        for topic, stamp_ns, message in messages[:int(len(messages) * fraction)]:
-            writer.write_message(topic, stamp_ns, message)
+        writer.write_message(bagio.RUN_MARKER_TOPIC, 0, bagio.new_message(
+            bagio.RUN_MARKER_TYPE, writer.store, data=run_marker(
+                run, source_file="stepped.csv", start_ns=0, first_sample_index=0).to_json()))
+        for topic, msgtype in (("/flaair/drive", DRIVE_TYPE), ("/flaair/sensor_v", SENSOR_TYPE),
+                               ("/flaair/wing_state/truth", WING_TYPE)):
+            writer.add_topic(topic, msgtype)
+        for topic, stamp_ns, data in messages[:int(len(messages) * fraction)]:
+            writer.write(topic, stamp_ns, data)
 
 
 def test_partial_bag_names_what_is_missing_and_exits_3_unless_allowed(tmp_path: Path) -> None:

@@ -269,7 +269,7 @@ def test_import_removes_its_bag_when_writing_fails(
 
     csv = _lab_csv(tmp_path / "run.csv", 200, 0)
     calls = {"n": 0}
-    original = bagio.BagWriter.write_message
+    original = bagio.BagWriter.write
 
     def failing(self, *args, **kwargs):
         calls["n"] += 1
@@ -277,7 +277,7 @@ def test_import_removes_its_bag_when_writing_fails(
             raise KeyboardInterrupt
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(bagio.BagWriter, "write_message", failing)
+    monkeypatch.setattr(bagio.BagWriter, "write", failing)
     with pytest.raises(KeyboardInterrupt):
         import_runs.import_runs([csv], tmp_path / "bag", gap_s=1.0, block_size=10, frame_id="robot")
     assert not (tmp_path / "bag").exists()

@@ -20,23 +20,26 @@ __all__ = ["read_xyz_points", "read_xy_point", "XYZ_COLUMN", "XY_COLUMN"]
 
 XYZ_COLUMN = re.compile(r"pt(\d+)_([XYZ])")
 XY_COLUMN = re.compile(r"pt(\d+)_cam(\d+)_([XY])")
-_EMPTY_CELL = re.compile(r"(?m)(?:^|(?<=,))[ \t]*(?=,|$)")
+_EMPTY_CELL = re.compile(rb"(?m)(?:^|(?<=,))[ \t]*(?=,|$)")
 
 
-def _read_text(path: Path) -> tuple[list[str], str]:
+def _read_text(path: Path) -> tuple[list[str], bytes]:
+    """The header's column names and the body's bytes (kept as bytes: a str copy of a long
+    track would cost several times the file in memory)."""
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if b"\r" in raw:
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    head, _, body = raw.partition(b"\n")
     try:
-        text = raw.decode("utf-8-sig")
+        header_text = head.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise LabFileError(
-            f"{path}: not a DLTdv8 track file: not text (byte {exc.start})") from None
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
-    head, _, body = text.partition("\n")
-    header = [cell.strip().strip('"') for cell in head.split(",")]
-    return header, body.rstrip("\n")
+            f"{path}: not a DLTdv8 track file: line 1 is not text (byte {exc.start})") from None
+    header = [cell.strip().strip('"') for cell in header_text.split(",")]
+    return header, body.rstrip(b"\n")
 
 
 def _columns(path: Path, header: list[str], pattern: re.Pattern, kind: str) -> dict[tuple, int]:
@@ -54,14 +57,15 @@ def _columns(path: Path, header: list[str], pattern: re.Pattern, kind: str) -> d
     return columns
 
 
-def _load(path: Path, body: str, usecols: list[int], n_columns: int) -> np.ndarray:
+def _load(path: Path, body: bytes, usecols: list[int], n_columns: int) -> np.ndarray:
     """Rows x usecols as float64 (NaN where empty); a bad cell is named by line and column."""
     if not body.strip():
         raise LabFileError(f"{path}: no frames (only a header line)")
-    filled = _EMPTY_CELL.sub("nan", body)
+    filled = _EMPTY_CELL.sub(b"nan", body)
+    del body
     try:
-        return np.loadtxt(io.StringIO(filled), delimiter=",", usecols=usecols, ndmin=2,
-                          dtype=np.float64, comments=None)
+        return np.loadtxt(io.BytesIO(filled), delimiter=",", usecols=usecols, ndmin=2,
+                          dtype=np.float64, comments=None, encoding="latin-1")
     except ValueError as exc:
         text = str(exc)
         row = re.search(r"at row (\d+)", text)

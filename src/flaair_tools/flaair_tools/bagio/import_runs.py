@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from flaair_common import topics
+from flaair_common import cdr, topics
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, read_run
 from flaair_tools import bagio
@@ -38,6 +38,8 @@ SECTION = "import_runs"
 DRIVE_TYPE = "flaair_msgs/msg/DriveCommandBlock"
 SENSOR_TYPE = "flaair_msgs/msg/SensorVoltageBlock"
 WING_TYPE = "flaair_msgs/msg/WingStateBlock"
+SOURCE_GROUND_TRUTH = 1  # WingStateBlock.SOURCE_GROUND_TRUTH
+PROGRESS_BLOCKS = 1000  # progress is reported every this many blocks
 RATE_DIGITS = 9  # CSV times carry about this many significant digits: the rate is rounded to them
 _NS_PER_S = 1_000_000_000
 
@@ -67,49 +69,40 @@ def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int,
                            sample_rate_hz=run_rate_hz(run), start_ns=start_ns)
 
 
-def encode_run(run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int,
-               block_size: int, frame_id: str, store: Any = None) -> Iterator[tuple[str, int, Any]]:
-    """A run as (topic, stamp ns, typestore message) tuples in time order, made one block at a
-    time (pure): its marker first, then per block drive, sensor and ground truth.
+def encode_run(run: MeasuredRun, *, start_ns: int, first_sample_index: int, block_size: int,
+               frame_id: str) -> Iterator[tuple[str, int, bytes]]:
+    """A run's block messages as (topic, stamp ns, CDR bytes) in time order, made one block at
+    a time (pure): per block drive, sensor and ground truth (the run marker is the caller's).
 
     Block k starts at sample k * block_size; its header stamp is start_ns plus the CSV time of
     that sample (relative to the run's first sample). The stamp is also the message's log
-    time in the bag, so viewers show the signal's own timeline.
+    time in the bag, so viewers show the signal's own timeline. The bytes are those rclpy
+    would publish (flaair_common.cdr, checked against rclpy in tests/test_cdr.py).
     """
-    store = store or bagio.typestore()
     rate_hz = run_rate_hz(run)
     time_s = run["time_s"]
     n_samples = len(time_s)
     # one per block
     block_start_ns = np.round((time_s[::block_size] - time_s[0]) * _NS_PER_S).astype(np.int64)
-    wing = store.types[WING_TYPE]
-    marker = run_marker(run, source_file=source_file, start_ns=start_ns,
-                        first_sample_index=first_sample_index)
-    yield bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
-        bagio.RUN_MARKER_TYPE, store, data=marker.to_json())
+    codecs: dict = {}
     for k0 in range(0, n_samples, block_size):
         part = slice(k0, min(k0 + block_size, n_samples))
         stamp_ns = start_ns + int(block_start_ns[k0 // block_size])
-        index = first_sample_index + k0
-
-        def header(frame: str) -> Any:
-            return bagio.new_message("std_msgs/msg/Header", store,
-                                     stamp=bagio.time_msg(stamp_ns, store), frame_id=frame)
-
-        stroke_deg = run["stroke_deg"][part].copy()
-        pitch_deg = run["pitch_deg"][part].copy()
-        yield topics.DRIVE, stamp_ns, bagio.new_message(
-            DRIVE_TYPE, store, header=header(""), sample_rate_hz=rate_hz, first_sample_index=index,
-            drive_v=run["drive_v"][part].copy())
-        yield topics.SENSOR_VOLTAGE, stamp_ns, bagio.new_message(
-            SENSOR_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz,
-            first_sample_index=index, stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
-            pitch_sensor_v=run["pitch_sensor_v"][part].copy())
-        yield topics.WING_STATE_TRUTH, stamp_ns, bagio.new_message(
-            WING_TYPE, store, header=header(frame_id), sample_rate_hz=rate_hz,
-            first_sample_index=index, source=wing.SOURCE_GROUND_TRUTH, stroke_deg=stroke_deg,
-            pitch_deg=pitch_deg, stroke_velocity_deg_s=np.full(stroke_deg.size, np.nan),
-            stroke_valid=np.isfinite(stroke_deg), pitch_valid=np.isfinite(pitch_deg))
+        sec, nanosec = divmod(stamp_ns, _NS_PER_S)
+        head = {"sec": sec, "nanosec": nanosec, "sample_rate_hz": rate_hz,
+                "first_sample_index": first_sample_index + k0}
+        stroke_deg, pitch_deg = run["stroke_deg"][part], run["pitch_deg"][part]
+        yield topics.DRIVE, stamp_ns, cdr.encode_fields(
+            cdr.DRIVE_COMMAND_BLOCK, {**head, "frame_id": "", "drive_v": run["drive_v"][part]},
+            codecs.setdefault(DRIVE_TYPE, {}))[1]
+        yield topics.SENSOR_VOLTAGE, stamp_ns, cdr.encode_fields(cdr.SENSOR_VOLTAGE_BLOCK, {
+            **head, "frame_id": frame_id, "stroke_sensor_v": run["stroke_sensor_v"][part],
+            "pitch_sensor_v": run["pitch_sensor_v"][part]}, codecs.setdefault(SENSOR_TYPE, {}))[1]
+        yield topics.WING_STATE_TRUTH, stamp_ns, cdr.encode_fields(cdr.WING_STATE_BLOCK, {
+            **head, "frame_id": frame_id, "source": SOURCE_GROUND_TRUTH, "stroke_deg": stroke_deg,
+            "pitch_deg": pitch_deg, "stroke_velocity_deg_s": np.full(stroke_deg.size, np.nan),
+            "stroke_valid": np.isfinite(stroke_deg), "pitch_valid": np.isfinite(pitch_deg)},
+            codecs.setdefault(WING_TYPE, {}))[1]
 
 
 def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
@@ -169,19 +162,24 @@ def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *
     first_index = 0
     writer = bagio.BagWriter(out, store=store)
     try:
+        for topic, msgtype in ((topics.DRIVE, DRIVE_TYPE), (topics.SENSOR_VOLTAGE, SENSOR_TYPE),
+                               (topics.WING_STATE_TRUTH, WING_TYPE)):
+            writer.add_topic(topic, msgtype, offered[topic])
         for source, run, extras in runs:
             marker = run_marker(run, source_file=source, start_ns=start_ns,
                                 first_sample_index=first_index)
             values = {**json.loads(marker.to_json()), **extras, **({"kind": kind} if kind else {})}
-            for topic, stamp_ns, message in encode_run(
-                    run, source_file=source, start_ns=start_ns, first_sample_index=first_index,
-                    block_size=block_size, frame_id=frame_id, store=store):
-                if topic == bagio.RUN_MARKER_TOPIC:
-                    message = bagio.new_message(bagio.RUN_MARKER_TYPE, store,
-                                                data=json.dumps(values))
-                writer.write_message(topic, stamp_ns, message, offered[topic])
-                if progress is not None and topic == topics.WING_STATE_TRUTH:
-                    progress(int(message.first_sample_index) + len(message.stroke_deg))
+            writer.write_message(bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
+                bagio.RUN_MARKER_TYPE, store, data=json.dumps(values)),
+                offered[bagio.RUN_MARKER_TOPIC])
+            for k, (topic, stamp_ns, data) in enumerate(encode_run(
+                    run, start_ns=start_ns, first_sample_index=first_index, block_size=block_size,
+                    frame_id=frame_id)):
+                writer.write(topic, stamp_ns, data)
+                if progress is not None and k % (3 * PROGRESS_BLOCKS) == 0:
+                    progress(first_index + min(k // 3 * block_size, marker.n_samples))
+            if progress is not None:
+                progress(first_index + marker.n_samples)
             markers.append(marker)
             marker_values.append(values)
             first_index += marker.n_samples

@@ -1,0 +1,145 @@
+"""`flaair import RUN.mat --rig --tracks --tip-track`: a 10 s run at 20 kHz, video at 10,000 fps.
+
+The lab files are made here: the target's log as a Structure-with-time MAT file (v5 through
+scipy.io, and v7.3 through hdf5storage), the wing's three points as a DLTdv8 xyzpts CSV of
+100,000 frames and the actuator tip as an xypts CSV. Each import runs in a fresh interpreter
+(`import_cli.main`, everything a lab's call does: read, angles, sync check, bag), timed from
+its first line; its peak RSS is taken against the same interpreter's RSS once its imports are
+loaded (the same-run baseline: what the data costs, not the interpreter and its libraries).
+A v7.3 log is read in a child process of its own (docs/LAB_FILES.md); its peak is reported.
+Targets (#24): <= 5 s, and peak memory <= 3x the files' size.
+
+Run: scripts/in_env.sh python bench/bench_lab_import.py
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from benchlib import REPO_ROOT, Figure, print_table, write_json
+
+FS_HZ, FPS, DURATION_S = 20000.0, 10000.0, 10.0
+CHILD = """
+import json, resource, sys, time
+from pathlib import Path
+t0 = time.perf_counter()
+from flaair_tools.bagio import import_cli
+from flaair_tools.bagio.lab_import import sensor_stroke_deg
+import numpy as np
+sensor_stroke_deg(np.full(100, 1.25), np.full(100, 1.25), 20000.0)   # numba kernels loaded
+base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+start = time.perf_counter()
+code = import_cli.main(sys.argv[1:])
+wall = time.perf_counter() - start
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+print(json.dumps({"code": code, "wall_s": wall, "startup_s": start - t0, "base": base,
+                  "peak": peak, "child_peak": child}))
+"""
+
+
+def write_files(root: Path) -> dict[str, Path]:
+    """The lab's files of one run (both MAT versions) and its rig file."""
+    import hdf5storage
+    import scipy.io
+
+    n = int(DURATION_S * FS_HZ)
+    t = np.arange(n) / FS_HZ
+    rng = np.random.default_rng(0)
+    drive = 100.0 * np.sin(2 * np.pi * 120.0 * t)
+    signals = {"amp_in": drive / 100.0,
+               "pvdf_act": 1.25 - 0.3 * np.sin(2 * np.pi * 120.0 * t)
+               + rng.normal(0, 0.002, n),
+               "pvdf_hinge": 1.25 - 0.1 * np.sin(2 * np.pi * 120.0 * t - 1.0)
+               + rng.normal(0, 0.002, n),
+               "cam_trig": np.where(t >= 0.01, 5.0, 0.0)}
+    array = np.zeros((1, len(signals)),
+                     dtype=[("values", object), ("label", object), ("blockName", object)])
+    for k, (label, values) in enumerate(signals.items()):
+        array[0, k] = (values.reshape(-1, 1), label, f"bench/{label}")
+    log = {"time": t.reshape(-1, 1), "signals": array, "blockName": "bench"}
+    files = {"v5": root / "run_v5.mat", "v7.3": root / "run_v73.mat"}
+    scipy.io.savemat(str(files["v5"]), {"rt_log": log}, do_compression=True)
+    hdf5storage.savemat(str(files["v7.3"]), {"rt_log": log}, format="7.3",
+                        matlab_compatible=True)
+    frames = int(DURATION_S * FPS)
+    tf = 0.01 + np.arange(frames) / FPS
+    stroke, pitch = np.radians(30) * np.sin(2 * np.pi * 120 * tf), np.radians(40) * np.cos(
+        2 * np.pi * 120 * tf)
+    span = np.column_stack([np.cos(stroke), np.sin(stroke), np.zeros(frames)])
+    chord = np.column_stack([np.sin(pitch) * -np.sin(stroke), np.sin(pitch) * np.cos(stroke),
+                             -np.cos(pitch)])
+    le1 = np.zeros((frames, 3)) + [10.0, 5.0, 20.0]
+    table = np.column_stack([le1 + 9 * span, le1, le1 + 4 * chord])
+    files["tracks"] = root / "run_xyzpts.csv"
+    with open(files["tracks"], "w") as handle:
+        handle.write(",".join(f"pt{p}_{a}" for p in (1, 2, 3) for a in "XYZ") + "\n")
+        np.savetxt(handle, table, delimiter=",", fmt="%.6f")
+    files["tip"] = root / "run_xypts.csv"
+    tip = np.column_stack([640 + 1e3 * stroke, 360 + 0 * stroke])
+    with open(files["tip"], "w", newline="") as handle:
+        csv.writer(handle).writerow(["pt1_cam1_X", "pt1_cam1_Y"])
+        np.savetxt(handle, tip, delimiter=",", fmt="%.4f")
+    files["rig"] = root / "rig.yaml"
+    files["rig"].write_text(yaml.safe_dump({
+        "signals": {"drive": "amp_in", "stroke_sensor": "pvdf_act", "pitch_sensor": "pvdf_hinge",
+                    "camera_trigger": "cam_trig"},
+        "drive_gain_v_per_v": 100.0,
+        "video": {"fps": FPS, "sync": {"trigger_frame": 0, "trigger_threshold_v": 2.5},
+                  "length_unit_m": 0.001},
+        "points": {"wing_leading_edge_1": 2, "wing_trailing_edge_1": 3, "wing_leading_edge_2": 1,
+                   "actuator_tip": {"point": 1, "camera": 1}},
+        "geometry": {"up": [0, 0, 1], "rest_span": [1, 0, 0], "m_per_px": 1e-5,
+                     "tip_axis_px": [1, 0], "transmission_ratio_rad_per_m": 100.0},
+        "stroke_from": "actuator_tip"}))
+    return files
+
+
+def run_import(files: dict[str, Path], version: str, out: Path) -> dict:
+    args = [str(files[version]), "--rig", str(files["rig"]), "--tracks", str(files["tracks"]),
+            "--tip-track", str(files["tip"]), "--out", str(out)]
+    done = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
+                          check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert result["code"] == 0, done.stderr
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path,
+                        default=REPO_ROOT / "out" / "bench" / "bench_lab_import.json")
+    args = parser.parse_args()
+    mb = 1e6
+    figures = []
+    with tempfile.TemporaryDirectory() as tmp:
+        files = write_files(Path(tmp))
+        for version in ("v5", "v7.3"):
+            size = sum(files[k].stat().st_size for k in (version, "tracks", "tip"))
+            r = run_import(files, version, Path(tmp) / f"bag_{version}")
+            data_peak = r["peak"] - r["base"]
+            figures += [
+                Figure(f"lab import (MAT {version}), 10 s at 20 kHz + 10,000 fps: wall time",
+                       r["wall_s"], "s", "<= 5 s", r["wall_s"] <= 5.0,
+                       f"interpreter start and imports: {r['startup_s']:.1f} s"),
+                Figure(f"lab import (MAT {version}): peak RSS above the imports / files' size",
+                       data_peak / size, "x", "<= 3x", data_peak <= 3 * size,
+                       f"files {size / mb:.1f} MB; interpreter + imports {r['base'] / mb:.0f} MB"
+                       + (f"; v7.3 reader process peak {r['child_peak'] / mb:.0f} MB"
+                          if version == "v7.3" else "")),
+            ]
+    print_table(figures)
+    write_json(figures, args.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
