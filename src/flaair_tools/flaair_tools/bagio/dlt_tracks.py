@@ -25,7 +25,8 @@ _EMPTY_CELL = re.compile(rb"(?m)(?:^|(?<=,))[ \t]*(?=,|$)")
 
 def _read_text(path: Path) -> tuple[list[str], bytes]:
     """The header's column names and the body's bytes (kept as bytes: a str copy of a long
-    track would cost several times the file in memory)."""
+    track would cost several times the file in memory).
+    """
     try:
         raw = path.read_bytes()
     except OSError as exc:
