@@ -1,13 +1,14 @@
-"""A real-time target's log as a lab saves it: a MATLAB
-MAT file in Simulink's Structure-with-time form.
+"""A real-time target's log as a lab saves it: a MATLAB MAT file in Simulink's Structure-with-time
+form.
 
 MAT version 5 (MATLAB's default ``-v7``, compressed or not) is read with ``scipy.io``;
 version 7.3 (HDF5) with ``h5py``, reading only the signals asked for, so memory stays near
 the size of what is used. The HDF5 library is C code that a damaged file can crash
-outright, so v7.3 is read in a child process (``python -m flaair_tools.bagio.target_log
-FILE OUT.npz LABEL...``): a crash there is one more `LabFileError`, and the import that
-asked loses nothing. The variable holds ``time`` (N x 1, seconds, uniform) and ``signals``,
-a 1 x k struct array whose elements carry ``values`` (N x 1), ``label`` and ``blockName``.
+outright, so v7.3 is read in a child process (this file run as a script, ``FILE OUT.npz
+LABEL...``, importing numpy and h5py only): a crash there is one more `LabFileError`, and the
+import that asked loses nothing. The variable holds ``time`` (N x 1, seconds, uniform) and
+``signals``, a 1 x k struct array whose elements carry ``values`` (N x 1), ``label`` and
+``blockName``.
 
 Every refusal is a `LabFileError` whose message names the file and what is wrong.
 """
@@ -169,7 +170,7 @@ def _read_v73_in_child(path: Path, wanted: Sequence[str]) -> tuple[str, np.ndarr
     with tempfile.TemporaryDirectory(prefix="flaair-mat-") as tmp:
         out = Path(tmp) / "log.npz"
         try:
-            done = subprocess.run([sys.executable, "-m", __name__, str(path), str(out), *wanted],
+            done = subprocess.run([sys.executable, __file__, str(path), str(out), *wanted],
                                   capture_output=True, text=True, timeout=V73_READ_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             raise LabFileError(f"{path}: reading the MAT v7.3 file took over "
