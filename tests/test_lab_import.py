@@ -283,3 +283,14 @@ def test_random_bytes_as_tracks_give_a_lab_file_error(tmp_path_factory, data, pr
         assert "random_xyzpts.csv" in str(exc)
     else:
         assert np.isfinite(got["le1"]).any()
+
+
+def test_identify_takes_the_imported_bag_as_it_is(imported, tmp_path) -> None:
+    from flaair_tools.discrepancy import identify
+
+    code, _, stderr = main_in_process(identify, [str(imported["v5"]), "--out", str(tmp_path)])
+    assert code == 0, stderr
+    fitted = json.loads((tmp_path / "identification.json").read_text())["parameters"]
+    # the bench robot's plant is the nominal one: the fit on the imported run lands on it
+    assert fitted["stroke_natural_frequency_hz"]["value"] == pytest.approx(140.0, rel=0.01)
+    assert fitted["actuator_gain_nm_per_v"]["value"] == pytest.approx(1.67e-7, rel=0.01)
