@@ -35,7 +35,7 @@ def write_bag(out: Path, parts: list[tuple[str, dict[str, np.ndarray]]],
     """
     from flaair_common.runcsv import MeasuredRun
     from flaair_tools import bagio
-    from flaair_tools.bagio.import_runs import encode_run
+    from flaair_tools.bagio.import_runs import write_run
 
     store = bagio.typestore()
     with bagio.BagWriter(out, store=store) as writer:
@@ -44,11 +44,9 @@ def write_bag(out: Path, parts: list[tuple[str, dict[str, np.ndarray]]],
                 bagio.RUN_MARKER_TYPE, store, data=json.dumps(experiment)))
         first = 0
         for name, columns in parts:
-            for topic, stamp_ns, message in encode_run(
-                    MeasuredRun(name, FS, columns), source_file=f"{name}.csv",
-                    start_ns=int(first / FS * 1e9), first_sample_index=first, block_size=10,
-                    frame_id="robot", store=store):
-                writer.write_message(topic, stamp_ns, message)
+            write_run(writer, MeasuredRun(name, FS, columns), source_file=f"{name}.csv",
+                      start_ns=int(first / FS * 1e9), first_sample_index=first, block_size=10,
+                      frame_id="robot")
             first += len(columns["time_s"])
         event_type = store.types["flaair_msgs/msg/CollisionEvent"]
         for kind, time_s in events:

@@ -151,38 +151,20 @@ def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *
     flaair_tools.analysis.runkind kind) and each run's extras (what a lab import recorded: its
     files, rig and sync) go into the run marker's JSON; `flaair analyze` reads them.
     """
-    store = bagio.typestore()
-    offered = {topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
-               topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
-               topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)],
-               bagio.RUN_MARKER_TOPIC: [bagio.qos_from_rclpy(EVENTS)]}
     markers: list[bagio.RunMarker] = []
     marker_values: list[dict[str, Any]] = []
     start_ns = 0
     first_index = 0
-    writer = bagio.BagWriter(out, store=store)
+    writer = bagio.BagWriter(out, store=bagio.typestore())
     try:
-        for topic, msgtype in ((topics.DRIVE, DRIVE_TYPE), (topics.SENSOR_VOLTAGE, SENSOR_TYPE),
-                               (topics.WING_STATE_TRUTH, WING_TYPE)):
-            writer.add_topic(topic, msgtype, offered[topic])
         for source, run, extras in runs:
-            marker = run_marker(run, source_file=source, start_ns=start_ns,
-                                first_sample_index=first_index)
-            values = {**json.loads(marker.to_json()), **extras, **({"kind": kind} if kind else {})}
-            writer.write_message(bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
-                bagio.RUN_MARKER_TYPE, store, data=json.dumps(values)),
-                offered[bagio.RUN_MARKER_TOPIC])
-            for k, (topic, stamp_ns, data) in enumerate(encode_run(
-                    run, start_ns=start_ns, first_sample_index=first_index, block_size=block_size,
-                    frame_id=frame_id)):
-                writer.write(topic, stamp_ns, data)
-                if progress is not None and k % (3 * PROGRESS_BLOCKS) == 0:
-                    progress(first_index + min(k // 3 * block_size, marker.n_samples))
-            if progress is not None:
-                progress(first_index + marker.n_samples)
-            markers.append(marker)
+            values = write_run(writer, run, source_file=source, start_ns=start_ns,
+                               first_sample_index=first_index, block_size=block_size,
+                               frame_id=frame_id, extras={**extras, **(
+                                   {"kind": kind} if kind else {})}, progress=progress)
+            markers.append(bagio.RunMarker.from_json(json.dumps(values)))
             marker_values.append(values)
-            first_index += marker.n_samples
+            first_index += markers[-1].n_samples
             start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
         writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps(marker_values))
         writer.close()
@@ -190,3 +172,33 @@ def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *
         writer.abandon()
         raise
     return markers
+
+
+def write_run(writer: bagio.BagWriter, run: MeasuredRun, *, source_file: str, start_ns: int,
+              first_sample_index: int, block_size: int, frame_id: str,
+              extras: dict[str, Any] | None = None,
+              progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+    """Write one run into an open bag: its marker (with `extras`), then its blocks
+    (`encode_run`); returns the marker's JSON values.
+    """
+    offered = {topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+               topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+               topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)]}
+    for topic, msgtype in ((topics.DRIVE, DRIVE_TYPE), (topics.SENSOR_VOLTAGE, SENSOR_TYPE),
+                           (topics.WING_STATE_TRUTH, WING_TYPE)):
+        writer.add_topic(topic, msgtype, offered[topic])
+    marker = run_marker(run, source_file=source_file, start_ns=start_ns,
+                        first_sample_index=first_sample_index)
+    values = {**json.loads(marker.to_json()), **(extras or {})}
+    writer.write_message(bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
+        bagio.RUN_MARKER_TYPE, writer.store, data=json.dumps(values)),
+        [bagio.qos_from_rclpy(EVENTS)])
+    for k, (topic, stamp_ns, data) in enumerate(encode_run(
+            run, start_ns=start_ns, first_sample_index=first_sample_index, block_size=block_size,
+            frame_id=frame_id)):
+        writer.write(topic, stamp_ns, data)
+        if progress is not None and k % (3 * PROGRESS_BLOCKS) == 0:
+            progress(first_sample_index + min(k // 3 * block_size, marker.n_samples))
+    if progress is not None:
+        progress(first_sample_index + marker.n_samples)
+    return values
