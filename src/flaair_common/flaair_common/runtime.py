@@ -56,8 +56,10 @@ from flaair_model.config import node_parameters  # noqa: E402
 from flaair_model.notes import ERROR as ERROR_LEVEL  # noqa: E402
 from flaair_model.notes import Note
 
-# at exit, a node's reliable readers get this long to acknowledge its last messages
-ACK_WAIT_S = 2.0
+# at exit, a node's reliable readers get this long (in all) to acknowledge its last messages: a
+# recorder half a second of signal behind on an overloaded machine needed more than the 2 s this
+# was (the tail of a soak run's drive was lost); it returns at once when every reader has acked
+ACK_WAIT_S = 10.0
 # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 DEFERRED_BACKSTOP_S = 0.05
 
@@ -204,19 +206,24 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
 def _wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
     """Every reliable reader has what the nodes published (their last blocks, the zero drive)
     before the process goes: a writer that exits first takes the undelivered messages with it.
+    Topics still unacknowledged when `timeout_s` is up are named in the log.
     """
     from rclpy.duration import Duration
 
     deadline = time.monotonic() + timeout_s
     for node in nodes:
+        late = []
         for publisher in node.publishers:
-            left_s = deadline - time.monotonic()
-            if left_s <= 0:
-                return
+            left_s = max(0.0, deadline - time.monotonic())
             try:
-                publisher.wait_for_all_acked(Duration(nanoseconds=int(left_s * 1e9)))
+                if not publisher.wait_for_all_acked(Duration(nanoseconds=int(left_s * 1e9))):
+                    late.append(publisher.topic_name)
             except Exception:   # noqa: BLE001 - a context already shut down: nothing left to wait for
                 return
+        if late:
+            node.get_logger().warning(
+                f"not acknowledged by every reader within {timeout_s:g} s, may be lost: "
+                f"the last messages on {', '.join(late)}")
 
 
 def _close(node: Node) -> None:
