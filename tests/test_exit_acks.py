@@ -54,7 +54,7 @@ def clock(monkeypatch) -> FakeClock:
 
 def test_a_slow_first_reader_leaves_the_other_topics_their_wait(clock) -> None:
     sensor = FakePublisher("/flaair/sensor_v", 3.0, clock)   # a recorder 3 s behind
-    drive = FakePublisher("/flaair/drive", 2.0, clock)
+    drive = FakePublisher("/flaair/drive", 1.5, clock)
     node = FakeNode([sensor, drive])
     runtime._wait_for_acks([node])
     assert drive.offered_s == pytest.approx(runtime.ACK_WAIT_S - 3.0)

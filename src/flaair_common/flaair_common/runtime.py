@@ -58,8 +58,9 @@ from flaair_model.notes import Note
 
 # at exit, a node's reliable readers get this long (in all) to acknowledge its last messages: a
 # recorder half a second of signal behind on an overloaded machine needed more than the 2 s this
-# was (the tail of a soak run's drive was lost); it returns at once when every reader has acked
-ACK_WAIT_S = 10.0
+# was (the tail of a soak run's drive was lost). It returns at once when every reader has acked;
+# a reader killed -9 is waited for in full (until DDS drops it), hence not more.
+ACK_WAIT_S = 5.0
 # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 DEFERRED_BACKSTOP_S = 0.05
 
