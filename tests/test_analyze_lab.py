@@ -171,9 +171,10 @@ def truncated_bag(columns: dict[str, np.ndarray], out: Path, fraction: float) ->
     )
 
     run = MeasuredRun("stepped", FS, columns)
-    messages = list(encode_run(run, start_ns=0, first_sample_index=0, block_size=10,
-                               frame_id="robot"))
     with bagio.BagWriter(out) as writer:
+        messages = list(encode_run(
+            run, start_ns=0, first_sample_index=0, block_size=10, frame_id="robot",
+            truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH))
         writer.write_message(bagio.RUN_MARKER_TOPIC, 0, bagio.new_message(
             bagio.RUN_MARKER_TYPE, writer.store, data=run_marker(
                 run, source_file="stepped.csv", start_ns=0, first_sample_index=0).to_json()))

@@ -38,7 +38,6 @@ SECTION = "import_runs"
 DRIVE_TYPE = "flaair_msgs/msg/DriveCommandBlock"
 SENSOR_TYPE = "flaair_msgs/msg/SensorVoltageBlock"
 WING_TYPE = "flaair_msgs/msg/WingStateBlock"
-SOURCE_GROUND_TRUTH = 1  # WingStateBlock.SOURCE_GROUND_TRUTH
 PROGRESS_BLOCKS = 1000  # progress is reported every this many blocks
 RATE_DIGITS = 9  # CSV times carry about this many significant digits: the rate is rounded to them
 _NS_PER_S = 1_000_000_000
@@ -70,7 +69,7 @@ def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int,
 
 
 def encode_run(run: MeasuredRun, *, start_ns: int, first_sample_index: int, block_size: int,
-               frame_id: str) -> Iterator[tuple[str, int, bytes]]:
+               frame_id: str, truth_source: int) -> Iterator[tuple[str, int, bytes]]:
     """A run's block messages as (topic, stamp ns, CDR bytes) in time order, made one block at
     a time (pure): per block drive, sensor and ground truth (the run marker is the caller's).
 
@@ -99,7 +98,7 @@ def encode_run(run: MeasuredRun, *, start_ns: int, first_sample_index: int, bloc
             **head, "frame_id": frame_id, "stroke_sensor_v": run["stroke_sensor_v"][part],
             "pitch_sensor_v": run["pitch_sensor_v"][part]}, codecs.setdefault(SENSOR_TYPE, {}))[1]
         yield topics.WING_STATE_TRUTH, stamp_ns, cdr.encode_fields(cdr.WING_STATE_BLOCK, {
-            **head, "frame_id": frame_id, "source": SOURCE_GROUND_TRUTH, "stroke_deg": stroke_deg,
+            **head, "frame_id": frame_id, "source": truth_source, "stroke_deg": stroke_deg,
             "pitch_deg": pitch_deg, "stroke_velocity_deg_s": np.full(stroke_deg.size, np.nan),
             "stroke_valid": np.isfinite(stroke_deg), "pitch_valid": np.isfinite(pitch_deg)},
             codecs.setdefault(WING_TYPE, {}))[1]
@@ -195,7 +194,8 @@ def write_run(writer: bagio.BagWriter, run: MeasuredRun, *, source_file: str, st
         [bagio.qos_from_rclpy(EVENTS)])
     for k, (topic, stamp_ns, data) in enumerate(encode_run(
             run, start_ns=start_ns, first_sample_index=first_sample_index, block_size=block_size,
-            frame_id=frame_id)):
+            frame_id=frame_id,
+            truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH)):
         writer.write(topic, stamp_ns, data)
         if progress is not None and k % (3 * PROGRESS_BLOCKS) == 0:
             progress(first_sample_index + min(k // 3 * block_size, marker.n_samples))

@@ -35,7 +35,8 @@ from flaair_tools.bagio.rig import Rig, read_rig
 from flaair_tools.bagio.target_log import LabFileError, read_target_log
 from flaair_tools.bagio.video_angles import VideoGeometryError
 
-__all__ = ["LabRunFiles", "LabRun", "read_lab_run", "read_manifest", "sensor_stroke_deg"]
+__all__ = ["LabRunFiles", "LabRun", "read_lab_run", "read_manifest", "sensor_stroke_deg",
+           "check_max_lag"]
 
 
 @dataclass(frozen=True)

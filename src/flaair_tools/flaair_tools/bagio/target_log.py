@@ -80,7 +80,7 @@ def read_target_log(path: Path | str, labels: Sequence[str]) -> TargetLog:
         raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
     if head.startswith(_V5_HEADER):
         variable, time_s, found, raw = _read_v5(path, labels)
-    elif _HDF5_SIGNATURE in head[:8] or head[512:520] == _HDF5_SIGNATURE or _is_hdf5(path):
+    elif head.startswith(_HDF5_SIGNATURE) or _is_hdf5(path):
         variable, time_s, found, raw = _read_v73_in_child(path, labels)
     else:
         raise LabFileError(f"{path}: not a MATLAB MAT file (version 5 or 7.3)")
