@@ -44,9 +44,14 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
         missing = run([FLAAIR, "param", "set", "/dsa_controller_node", "no_such", "1"], procs.env,
                       120)
         assert missing.returncode == 1 and "has no parameter 'no_such'" in missing.stderr
-        nodes = run([FLAAIR, "node", "list", "--discovery-s", "3"], procs.env, 120)
+        nodes = run([FLAAIR, "node", "list", "--wait-for", "/dsa_controller_node"],
+                    procs.env, 120)
         assert (nodes.returncode == 0
                 and "/dsa_controller_node" in nodes.stdout.split()), nodes.stdout + nodes.stderr
+        absent = run([FLAAIR, "node", "list", "--wait-for", "/nobody", "--timeout", "1"],
+                     procs.env, 60)
+        assert (absent.returncode == 1 and "/dsa_controller_node" in absent.stdout.split()
+                and "/nobody not seen in 1 s" in absent.stderr), absent.stderr
         assert controller.poll() is None
 
 

@@ -4,6 +4,7 @@ Examples
 --------
   bin/flaair node list
   bin/flaair node list --discovery-s 3
+  bin/flaair node list --wait-for /dsa_controller_node --timeout 60
 """
 from __future__ import annotations
 
@@ -44,20 +45,37 @@ def main(argv: list[str] | None = None) -> int:
     listing.add_argument("--discovery-s", type=float, default=float(defaults["discovery_s"]),
                          help="listen this long for nodes to announce themselves (default "
                               f"{defaults['discovery_s']} s)")
+    listing.add_argument("--wait-for", metavar="NODE", action="append", default=[],
+                         help="keep listening until NODE (a full name, e.g. /dsa_controller_node) "
+                              "is seen, up to --timeout; repeatable. Exit 1 if one never appears")
+    listing.add_argument("--timeout", type=float, default=60.0,
+                         help="longest wait for the --wait-for nodes (default 60 s)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.discovery_s < 0 or args.timeout <= 0:
+        parser.error("--discovery-s must be >= 0 and --timeout > 0")
     rclpy.init()
     node = rclpy.create_node("flaair_node_cli")
     try:
-        deadline = time.monotonic() + args.discovery_s
-        while time.monotonic() < deadline:
-            rclpy.spin_once(node, timeout_sec=0.05)
         me = full_name(node.get_name(), node.get_namespace())
-        names = sorted({full_name(n, ns) for n, ns in node.get_node_names_and_namespaces()} - {me})
-        for name in names:
+        wanted = set(args.wait_for)
+        start = time.monotonic()
+        names: set[str] = set()
+        while True:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            names = {full_name(n, ns) for n, ns in node.get_node_names_and_namespaces()} - {me}
+            waited_s = time.monotonic() - start
+            if waited_s >= args.discovery_s and (wanted <= names or waited_s >= args.timeout):
+                break
+        for name in sorted(names):
             print(name)
+        domain = node.context.get_domain_id()
+        if wanted - names:
+            print(f"flaair node list: {', '.join(sorted(wanted - names))} not seen in "
+                  f"{args.timeout:g} s on ROS_DOMAIN_ID {domain}", file=sys.stderr)
+            return 1
         if not names:
             print(f"flaair node list: no nodes seen in {args.discovery_s:g} s on ROS_DOMAIN_ID "
-                  f"{node.context.get_domain_id()}", file=sys.stderr)
+                  f"{domain}", file=sys.stderr)
         return 0
     except KeyboardInterrupt:
         return 130
