@@ -50,8 +50,7 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
                 and "/dsa_controller_node" in nodes.stdout.split()), nodes.stdout + nodes.stderr
         absent = run([FLAAIR, "node", "list", "--wait-for", "/nobody", "--timeout", "1"],
                      procs.env, 60)
-        assert (absent.returncode == 1 and "/dsa_controller_node" in absent.stdout.split()
-                and "/nobody not seen in 1 s" in absent.stderr), absent.stderr
+        assert absent.returncode == 1 and "/nobody not seen in 1 s" in absent.stderr, absent.stderr
         assert controller.poll() is None
 
 
