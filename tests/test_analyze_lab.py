@@ -1,6 +1,7 @@
 """`flaair analyze` on a lab's imported runs: drive recognition, calibration, partial bags."""
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 
@@ -22,8 +23,11 @@ def bench_model():
         "strain_transfer_loss": {"efficiency": HINGE_EFFICIENCY, "channel": "pitch"}})
 
 
+@functools.cache
 def lab_runs() -> dict[str, dict[str, np.ndarray]]:
-    """A lab's typical set: a chirp, a stepped sine (60-200 Hz, 10 Hz, 0.2 s) and a 100 Hz sine."""
+    """A lab's typical set: a chirp, a stepped sine (60-200 Hz, 10 Hz, 0.2 s) and a 100 Hz sine.
+    Simulated once per test process (read only: the tests write and encode them).
+    """
     from flaair_sim.core.drive import (
         DriveParams,
         drive_record,
