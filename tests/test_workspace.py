@@ -35,3 +35,21 @@ def test_the_numba_warm_up_reaches_every_kernel_it_names() -> None:
                             cwd=REPO_ROOT, capture_output=True, text=True, timeout=280)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "skipped" not in result.stdout + result.stderr, result.stdout + result.stderr
+
+
+def test_flaair_model_installs_every_config_file_to_its_share(monkeypatch) -> None:
+    """A plain (not symlinked) `colcon build` copies config/ to share/flaair_model/config, where
+    flaair_model.config.config_dir finds it through the ament index outside the source tree.
+    """
+    import runpy
+
+    import setuptools
+
+    captured: dict = {}
+    monkeypatch.setattr(setuptools, "setup", lambda **kwargs: captured.update(kwargs))
+    monkeypatch.chdir(REPO_ROOT / "src" / "flaair_model")
+    runpy.run_path("setup.py")
+    installed = dict(captured["data_files"])["share/flaair_model/config"]
+    assert sorted(os.path.basename(p) for p in installed) == sorted(
+        p.name for p in (REPO_ROOT / "config").iterdir() if p.suffix in (".yaml", ".json"))
+    assert all(os.path.isfile(p) for p in installed)

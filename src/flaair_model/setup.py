@@ -1,6 +1,11 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "flaair_model"
+# The repository's config/ (every tunable number), installed to share/flaair_model/config where
+# an installed FLAAIR finds it through the ament index (flaair_model.config.config_dir).
+CONFIG_FILES = sorted(glob("../../config/*.yaml") + glob("../../config/*.json"))
 
 setup(
     name=PACKAGE,
@@ -9,6 +14,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/config", CONFIG_FILES),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
