@@ -9,8 +9,6 @@ import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 
-pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
-
 
 @pytest.fixture(scope="module")
 def chirp_bag(tmp_path_factory) -> Path:
@@ -21,6 +19,7 @@ def chirp_bag(tmp_path_factory) -> Path:
     return bag
 
 
+@pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
 def test_experiment_records_every_block(chirp_bag: Path) -> None:
     from flaair_tools import bagio
 
@@ -36,6 +35,7 @@ def test_experiment_records_every_block(chirp_bag: Path) -> None:
             == [("chirp_200vpp", 0, 20000)])
 
 
+@pytest.mark.graph
 def test_analyze_reports_paper_figures_from_the_bag(chirp_bag: Path, tmp_path: Path) -> None:
     result = run([FLAAIR, "analyze", str(chirp_bag), "--out", str(tmp_path)], isolated_env(), 120)
     assert result.returncode == 0, result.stderr[-3000:]
