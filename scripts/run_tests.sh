@@ -24,7 +24,8 @@ status=0
 phase() {   # phase NAME PYTEST_ARGS...
   local name="$1"; shift
   echo "== $name"
-  python -m pytest tests -q --junitxml="$REPORTS/$name.xml" "$@"
+  # --durations: each phase ends with its slowest tests, to see where the time goes
+  python -m pytest tests -q --durations=12 --junitxml="$REPORTS/$name.xml" "$@"
   local rc=$?
   # pytest exits 5 when a phase selects no test (e.g. -k matching only the other phase)
   if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then status=1; fi
