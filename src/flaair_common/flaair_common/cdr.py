@@ -163,7 +163,7 @@ class FixedCodec:
         self.layout, self.block_size, self.frame_id = layout, block_size, frame_id
         frame = frame_id.encode() + b"\x00"
         names: list[str] = ["encapsulation", "sec", "nanosec", "frame_len", "frame"]
-        formats: list = [("u1", 4), "<i4", "<u4", "<u4", ("S1", len(frame))]
+        formats: list = [("u1", (4,)), "<i4", "<u4", "<u4", ("S1", (len(frame),))]
         offsets: list[int] = [0, 4, 8, 12, 16]
         offset = 16 + len(frame)
         self.counts: list[str] = []
