@@ -51,8 +51,13 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
     firsts = np.asarray(drive.block_first_index)
     start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
+    # the controller's own account of its run (its last log line), to tell a short run from a
+    # lost tail
+    account = [line for line in (bag.parent / "live.logs" / "loop.log").read_text().splitlines()
+               if "zero drive sent" in line]
     where = {"loop start": start, "first drive block": int(firsts[0]), "last": int(firsts[-1]),
-             "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts))))}
+             "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts)))),
+             "controller": account[-1:]}
     assert len(drive["drive_v"]) >= 60000, where                   # 3 s of samples, all of the loop
     # reached the bag in joined blocks
     assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10

@@ -183,9 +183,11 @@ class Watcher:
             self.on_sensor, BLOCK_STREAM, raw=True)
         # the controller's first drive sample: the loop runs
         self.first_drive_index: int | None = None
-        self.listening = [self.listen_to_sensor(), self.node.create_subscription(
+        self.drive_end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
+        self.listen_to_drive = lambda: self.node.create_subscription(
             message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM,
-            raw=True)]
+            raw=True)
+        self.listening = [self.listen_to_sensor(), self.listen_to_drive()]
         # Every other batched stream of the loop too, until it starts: the controller waits for
         # two listeners on each (this process and the recorder), so a recorder matched late on one
         # of them cannot lose that stream's first blocks (a soak run lost 179 drive blocks so).
@@ -206,9 +208,11 @@ class Watcher:
     def on_drive(self, data: bytes) -> None:
         from flaair_common import cdr
 
+        m = cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)
         if self.first_drive_index is None:
-            self.first_drive_index = (int(
-                cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)["first_sample_index"]))
+            self.first_drive_index = int(m["first_sample_index"])
+        self.drive_end.update(index=int(m["first_sample_index"]) + len(m["drive_v"]),
+                              rate=float(m["sample_rate_hz"]), wall=time.monotonic())
 
     def spin_until(self, predicate, timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -261,6 +265,13 @@ class Watcher:
         start = max(self.end["index"], self.first_drive_index or 0)
         print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal",
               file=sys.stderr)
+        # The run is timed on the drive's own samples when a controller runs: the sensor blocks
+        # this process has taken when the first drive block comes may lag the plant by a loaded
+        # executor's backlog, and a run timed on them ended early (a soak run recorded 2.7 s of a
+        # 3 s run's drive).
+        first = self.first_drive_index
+        clock, listen, end = ((self.drive_end, self.listen_to_drive, first) if first is not None
+                              else (self.end, self.listen_to_sensor, start))
         # Listening to 2,000 blocks/s costs this process a fifth of a core, which the loop needs:
         # unsubscribe, wait out most of the duration on the wall clock (the loop runs in real
         # time), then listen again to end on the signal's own clock.
@@ -270,13 +281,14 @@ class Watcher:
         while time.monotonic() < quiet_until:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
-        self.listening = [self.listen_to_sensor()]
-        self.end["wall"] = time.monotonic()
-        while self.end["index"] < start + self.args.duration * self.end["rate"]:
+        self.listening = [listen()]
+        clock["wall"] = time.monotonic()
+        while clock["index"] < end + self.args.duration * clock["rate"]:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
-            if time.monotonic() - self.end["wall"] > 10.0:
-                raise LiveError(f"no sensor block for 10 s after sample {self.end['index']}: the "
+            if time.monotonic() - clock["wall"] > 10.0:
+                stream = "drive" if clock is self.drive_end else "sensor"
+                raise LiveError(f"no {stream} block for 10 s after sample {clock['index']}: the "
                                 f"{'plant' if self.args.sim else 'target'} stopped (see the logs)")
 
     def close(self) -> None:
