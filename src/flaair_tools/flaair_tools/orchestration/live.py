@@ -265,13 +265,13 @@ class Watcher:
         start = max(self.end["index"], self.first_drive_index or 0)
         print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal",
               file=sys.stderr)
-        # The run is timed on the drive's own samples when a controller runs: the sensor blocks
-        # this process has taken when the first drive block comes may lag the plant by a loaded
-        # executor's backlog, and a run timed on them ended early (a soak run recorded 2.7 s of a
-        # 3 s run's drive).
-        first = self.first_drive_index
-        clock, listen, end = ((self.drive_end, self.listen_to_drive, first) if first is not None
-                              else (self.end, self.listen_to_sensor, start))
+        # The run ends once both the sensor blocks and, with a controller, the drive's own samples
+        # cover --duration: the sensor blocks this process has taken when the first drive block
+        # comes may lag the plant by a loaded executor's backlog (a soak run timed on them alone
+        # ended 0.29 s early), and the drive leads the sensor by the loop's delay.
+        clocks = [(self.end, start, self.listen_to_sensor)]
+        if self.first_drive_index is not None:
+            clocks.append((self.drive_end, self.first_drive_index, self.listen_to_drive))
         # Listening to 2,000 blocks/s costs this process a fifth of a core, which the loop needs:
         # unsubscribe, wait out most of the duration on the wall clock (the loop runs in real
         # time), then listen again to end on the signal's own clock.
@@ -281,15 +281,19 @@ class Watcher:
         while time.monotonic() < quiet_until:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
-        self.listening = [listen()]
-        clock["wall"] = time.monotonic()
-        while clock["index"] < end + self.args.duration * clock["rate"]:
+        self.listening = [listen() for _, _, listen in clocks]
+        for clock, _, _ in clocks:
+            clock["wall"] = time.monotonic()
+        while any(clock["index"] < first + self.args.duration * clock["rate"]
+                  for clock, first, _ in clocks):
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
-            if time.monotonic() - clock["wall"] > 10.0:
-                stream = "drive" if clock is self.drive_end else "sensor"
-                raise LiveError(f"no {stream} block for 10 s after sample {clock['index']}: the "
-                                f"{'plant' if self.args.sim else 'target'} stopped (see the logs)")
+            for clock, _, _ in clocks:
+                if time.monotonic() - clock["wall"] > 10.0:
+                    stream = "drive" if clock is self.drive_end else "sensor"
+                    raise LiveError(
+                        f"no {stream} block for 10 s after sample {clock['index']}: the "
+                        f"{'plant' if self.args.sim else 'target'} stopped (see the logs)")
 
     def close(self) -> None:
         self.node.destroy_node()
