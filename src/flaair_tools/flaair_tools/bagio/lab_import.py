@@ -27,8 +27,6 @@ import yaml
 
 from flaair_common.runcsv import MeasuredRun
 from flaair_model.model_io import load_model
-from flaair_sensors import frontend_io
-from flaair_sensors.core import frontend
 from flaair_tools.bagio import lab_run
 from flaair_tools.bagio.dlt_tracks import read_xy_point, read_xyz_points
 from flaair_tools.bagio.rig import Rig, read_rig
@@ -61,6 +59,10 @@ class LabRun:
 def sensor_stroke_deg(stroke_sensor_v: np.ndarray, pitch_sensor_v: np.ndarray,
                       fs_hz: float) -> np.ndarray:
     """The stroke the front end estimates from the sensor voltages on the nominal model."""
+    # imported here: a CSV import never needs the front end (nor scipy.signal, ~1 s to import)
+    from flaair_sensors import frontend_io
+    from flaair_sensors.core import frontend
+
     params = frontend.params_from_model(load_model(), fs_hz,
                                         **frontend_io.frontend_tuning_from_config())
     return np.degrees(frontend.estimate(stroke_sensor_v, pitch_sensor_v, params).stroke_rad)
