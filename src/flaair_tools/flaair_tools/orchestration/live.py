@@ -251,6 +251,10 @@ class Watcher:
             any(i.node_name == "recorder_node"
                 for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
 
+    def monitor_listens(self) -> bool:
+        return any(i.node_name == "collision_monitor_node"
+                   for i in self.node.get_subscriptions_info_by_topic(topics.WING_STATE))
+
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
         block), then for --duration seconds of signal time.
@@ -339,7 +343,8 @@ def run_live(args: argparse.Namespace) -> int:
                   "(layout: config/foxglove_layout.json)", file=sys.stderr)
         watcher = Watcher(graph, args)
         watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
-        time.sleep(args.settle_s)  # the monitor subscribes before the loop starts too
+        # the monitor subscribes before the loop starts too
+        watcher.spin_until(watcher.monitor_listens, 120.0, "the collision monitor to subscribe")
         if args.processes:
             loop += [graph.start(role, _argv(role, ros_args[1:])) for role in hot]
         else:
@@ -414,7 +419,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="one process per node instead of the composed loop")
     parser.add_argument("--subnet", action="store_true",
                         help="discover the whole subnet, not only this machine")
-    parser.add_argument("--settle-s", type=float, default=1.0, help=argparse.SUPPRESS)
     # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
     parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
