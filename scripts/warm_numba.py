@@ -21,6 +21,7 @@ def main() -> None:
         initial_state,
         simulate,
         simulate_batch,
+        simulate_batch_from,
         step,
     )
 
@@ -35,6 +36,19 @@ def main() -> None:
         step(initial_state(PlantStepParams(m, fs_hz)), PlantInputs(drive[:10]),
              PlantStepParams(m, fs_hz))
     simulate_batch(drive, fs_hz, [model, model])
+    # identification and the discrepancy search: many models from measured initial states (the
+    # costliest kernel to compile, 10-30 s, and every test worker would otherwise compile it)
+    simulate_batch_from(drive, fs_hz, [model, model], np.zeros((2, 4)))
+    try:  # the offline analysis kernels
+        from flaair_model import lfilter
+        from flaair_tools.analysis import wingbeat
+
+        lfilter.lfilter(np.array([1.0, 0.0]), np.array([1.0, 0.0]), np.zeros(10), np.zeros(1))
+        wingbeat.summarize(20.0 * np.sin(np.arange(2000) / 20.0), np.zeros(2000),
+                           np.ones(2000, dtype=bool), wingbeat.WingbeatParams(fs_hz, 2.0, 20.0,
+                                                                             400.0))
+    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+        print(f"[setup] numba warm-up of the analysis kernels skipped: {exc}")
     try:
         from flaair_control.control_io import (
             monitor_windows_from_config,
@@ -46,6 +60,9 @@ def main() -> None:
                                  spectral_metric_params_from_config())
         params = monitor_windows_from_config(100.0)
         collision.run(np.zeros(400), np.zeros(400), params)
+        stroke_windows = monitor_windows_from_config(None)   # the Schmitt scan of the stroke
+        wave = 20.0 * np.sin(2 * np.pi * 100.0 * np.arange(4000) / fs_hz)
+        collision.run(np.radians(wave), np.zeros(4000), stroke_windows)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
     try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
