@@ -82,6 +82,17 @@ def main() -> None:
                     loop.safety)
     except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
+    try:  # the wing-damage sweep's batch kernels (the stroke tracker among them)
+        from flaair_control.control_io import stroke_controller_values
+        from flaair_model.config import config_dir
+        from flaair_tools.sweeps import sweep, sweep_batch
+
+        rows = sweep.wing_damage_rows(sweep.load_section(config_dir() / "sweeps.yaml",
+                                                         "wing_damage"),
+                                      stroke_controller_values(), model)
+        sweep_batch.warm_up(model, rows[0])
+    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+        print(f"[setup] numba warm-up of the sweep kernels skipped: {exc}")
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")
 
 
