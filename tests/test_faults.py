@@ -213,8 +213,12 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
         recorder = procs.flaair("record", "-o", str(bag))
         assert wait_for(lambda: (bag / f"{bag.name}_0.mcap").exists(), 60.0)
         logs = {name: tmp_path / f"{name}.log" for name in ("plant", "controller")}
+        # the plant takes drive (and the controller starts) only once the front end and the
+        # recorder listen to its sensor stream: a first block published before the front end
+        # matched was lost to it, and the loop never started (a soak run)
         plant = procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p",
                              f"command_timeout_s:={timeout_s}", "-p", f"ring_down_s:={ring_down_s}",
+                             "-p", "min_sensor_subscribers:=2", "-p", "min_truth_subscribers:=1",
                              stderr=open(logs["plant"], "w"))
         procs.flaair("run", "flaair_sensors", "frontend_node")
         # 400 wing-state blocks (0.2 s of flapping) seen by an echo: the loop is mid-run

@@ -37,7 +37,7 @@ def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> No
         # The comparison starts at sample 0: the plant takes drive commands (and so the lockstep
         # drive starts) only once both its output streams have matched their listener, writer side.
         procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p",
-                     "min_output_subscribers:=1")
+                     "min_sensor_subscribers:=1", "-p", "min_truth_subscribers:=1")
         # the readers' side too
         assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
         procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
@@ -106,14 +106,16 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
 
 def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch,
                                                                               tmp_path) -> None:
-    """min_output_subscribers: the plant's drive subscription (what a lockstep source waits for)
-    appears only once the sensor and truth streams each have that many listeners.
+    """min_sensor_subscribers, min_truth_subscribers: the plant's drive subscription (what a
+    lockstep source waits for) appears only once the sensor and truth streams have that many
+    listeners.
     """
     from composed import composed
     from flaair_common import topics
     from flaair_sim.plant_node import PlantNode
 
-    params = {"plant_node": {"min_output_subscribers": 2, "command_timeout_s": 0.0}}
+    params = {"plant_node": {"min_sensor_subscribers": 2, "min_truth_subscribers": 2,
+                             "command_timeout_s": 0.0}}
     # the harness listens to sensor_v
     with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:
         loop.sink(topics.SENSOR_VOLTAGE)

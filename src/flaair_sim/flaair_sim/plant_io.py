@@ -42,10 +42,12 @@ PLANT_PARAMS = [
     ParamSpec("ring_down_s", float,
               "Signal time stepped with zero drive after a drive-watchdog trip [s]", 0.0, 60.0,
               read_only=True),
-    ParamSpec("min_output_subscribers", int, "Subscribe to the drive only once the sensor and "
-                                             "truth streams each have this many matched listeners "
-                                             "(a lockstep source then starts no earlier) [0: at "
-                                             "once]", 0, 100, read_only=True),
+    ParamSpec("min_sensor_subscribers", int, "Subscribe to the drive only once the sensor stream "
+                                             "has this many matched listeners (the front end, a "
+                                             "recorder: a lockstep source then starts no earlier) "
+                                             "[0: at once]", 0, 100, read_only=True),
+    ParamSpec("min_truth_subscribers", int, "... and the ground-truth stream this many (a "
+                                            "recorder) [0: at once]", 0, 100, read_only=True),
     ParamSpec("obstacle_stroke_limit_deg", float,
               "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0,
               read_only=True),

@@ -75,18 +75,19 @@ class PlantNode(Node):
         self.get_logger().info(io.ready_text(self.p, self.model, self.windows_s))
 
     def subscribe_when_listened(self) -> None:
-        """Subscribe to the drive once sensor_v and truth
-        each have min_output_subscribers listeners.
+        """Subscribe to the drive once sensor_v and truth have min_sensor_subscribers and
+        min_truth_subscribers matched listeners (counted on the writer's side).
         """
-        wanted = self.p["min_output_subscribers"]
-        if self.sensor.subscription_count() < wanted or self.truth.subscription_count() < wanted:
+        sensors, truths = self.p["min_sensor_subscribers"], self.p["min_truth_subscribers"]
+        if (self.sensor.subscription_count() < sensors
+                or self.truth.subscription_count() < truths):
             return
         self.destroy_timer(self.listeners_timer)
         intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_command, BLOCK_STREAM,
                                self.on_undecodable)
-        if wanted:
-            self.get_logger().info(
-                f"outputs matched ({wanted} listener(s) each): taking drive commands")
+        if sensors or truths:
+            self.get_logger().info(f"outputs matched (sensor {sensors}, truth {truths} "
+                                   "listener(s)): taking drive commands")
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
