@@ -86,7 +86,10 @@ GRAPHS: dict[str, GraphDecl] = {g.name: g for g in (
     GraphDecl("experiment", "a paper experiment on the simulated robot, recorded: the experiment "
                             "adds its driver (drive or controller) and its own nodes "
                             "(config/experiments.yaml)", hot=("plant", "frontend"),
-              side=("recorder",), parameters={"plant": {"mode": "lockstep"}}),
+              side=("recorder",), parameters={"plant": {
+                  # drive is taken (and the driver starts) once the front end and the recorder
+                  # listen to the sensor stream and the recorder to the truth stream
+                  "mode": "lockstep", "min_sensor_subscribers": 2, "min_truth_subscribers": 1}}),
     GraphDecl("live_sim", "`flaair live --sim`: the real-time simulated robot in the loop",
               hot=("plant", "frontend", "controller"), side=(
     "recorder", "collision_monitor", "foxglove"),
