@@ -10,6 +10,9 @@ import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 
+# CLI runs of import and analyze on 5 s of a lab's runs: `make test`, not the edit-test loop
+pytestmark = pytest.mark.slow
+
 FS = 20000.0
 # the bench robot's hidden hinge strain transfer: pitch gain 24.87 / 0.23 = 108 deg/V
 HINGE_EFFICIENCY = 0.23

@@ -481,6 +481,7 @@ def paper_robot_csvs(tmp_path_factory, model) -> list[Path]:
     return write_case_csvs(case, model, tmp_path_factory.mktemp("csv"))
 
 
+@pytest.mark.slow   # the whole workflow through the CLI, twice with the null case
 def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, model) -> None:
     val = tmp_path / "val"
     assert discrepancy.main(["--validate", "--cases", "null", "--out", str(val)]) == 0
@@ -523,6 +524,7 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
         assert (out / fig).stat().st_size > 10_000 and fig in page
 
 
+@pytest.mark.slow
 def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: Path) -> None:
     from flaair_tools.bagio.import_runs import import_runs
 

@@ -39,6 +39,7 @@ def test_task_sizing_gives_about_task_s_of_compute_or_an_even_spread() -> None:
         sweep.TaskSizing.from_mapping({"task_s": 0.3, "tasks_per_worker": 2})
 
 
+@pytest.mark.slow   # three Dask clusters
 def test_one_worker_and_two_workers_give_the_in_process_numbers_bit_for_bit(setup) -> None:
     """Chunks sized for the workers found (here 9 and 5 simulations) and a single-threaded
     worker per core: the numbers stay those of the in-process run, bit for bit.
