@@ -22,42 +22,59 @@ def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path
 
 
 @pytest.mark.graph
-def test_lockstep_chirp_over_dds_equals_offline_simulation(tmp_path: Path) -> None:
+def test_lockstep_chirps_in_two_namespaces_each_equal_their_own_offline_simulation(
+        tmp_path: Path) -> None:
+    """Two benches on one domain, each in its namespace (one with renamed nodes): each plant
+    sees only its own drive, so each equals the offline simulation of that drive bit for bit.
+    """
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.plant import simulate
 
     n_blocks = 200
+    benches = {"/bench_a": 100.0, "/bench_b": 40.0}   # namespace: drive amplitude (V)
     with ros_processes() as procs:
-        ready = [tmp_path / "truth.ready", tmp_path / "sensor.ready"]
-        echo = _echo_blocks(procs, "/flaair/wing_state/truth", "flaair_msgs/msg/WingStateBlock",
-                            n_blocks, ready[0])
-        sensor = _echo_blocks(procs, "/flaair/sensor_v", "flaair_msgs/msg/SensorVoltageBlock",
-                              n_blocks, ready[1])
-        # The comparison starts at sample 0: the plant takes drive commands (and so the lockstep
-        # drive starts) only once both its output streams have matched their listener, writer side.
-        procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p",
-                     "min_sensor_subscribers:=1", "-p", "min_truth_subscribers:=1")
+        echoes, ready = {}, []
+        for ns in benches:
+            for name, topic, kind in (("truth", "flaair/wing_state/truth", "WingStateBlock"),
+                                      ("sensor", "flaair/sensor_v", "SensorVoltageBlock")):
+                ready.append(tmp_path / f"{ns[1:]}_{name}.ready")
+                echoes[ns, name] = _echo_blocks(procs, f"{ns}/{topic}", f"flaair_msgs/msg/{kind}",
+                                                n_blocks, ready[-1])
+        for ns in benches:
+            # the comparison starts at sample 0: the plant takes drive commands (and so the
+            # lockstep drive starts) only once both its output streams have their listener,
+            # writer side. bench_b's nodes are renamed: they still find their parameters.
+            rename = ("-r", "__node:=plant_b") if ns == "/bench_b" else ()
+            procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-r", f"__ns:={ns}",
+                         *rename, "-p", "min_sensor_subscribers:=1", "-p",
+                         "min_truth_subscribers:=1")
         # the readers' side too
         assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
-        procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-p", "pacing:=lockstep",
-                     "-p", "waveform:=chirp", "-p", f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
-        truth_out, err = echo.communicate(timeout=330)
-        sensor_out, _ = sensor.communicate(timeout=120)
-        assert echo.returncode == 0, err
-    truth = [json.loads(line) for line in truth_out.splitlines()]
-    sensor_blocks = [json.loads(line) for line in sensor_out.splitlines()]
-    assert [b["first_sample_index"] for b in truth] == list(range(0, n_blocks * BLOCK, BLOCK))
-    stroke_deg = np.concatenate([b["stroke_deg"] for b in truth])
-    pitch_deg = np.concatenate([b["pitch_deg"] for b in truth])
-    stroke_v = np.concatenate([b["stroke_sensor_v"] for b in sensor_blocks])
-    params = DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0,
-                         duration_s=1.0)
-    offline = simulate(drive_record(params, FS_HZ, n_blocks * BLOCK), FS_HZ, load_model())
-    assert np.array_equal(stroke_deg, np.degrees(offline.stroke_rad))
-    assert np.array_equal(pitch_deg, np.degrees(offline.pitch_rad))
-    assert np.array_equal(stroke_v, offline.stroke_sensor_v)
-    assert np.max(np.abs(stroke_deg)) > 0.5  # the wing moved
+        for ns, amplitude_v in benches.items():
+            rename = ("-r", "__node:=drive_b") if ns == "/bench_b" else ()
+            procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-r", f"__ns:={ns}",
+                         *rename, "-p", "pacing:=lockstep", "-p", "waveform:=chirp", "-p",
+                         f"amplitude_v:={amplitude_v}", "-p",
+                         f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
+        outputs = {}
+        for key, echo in echoes.items():
+            out, err = echo.communicate(timeout=330)
+            assert echo.returncode == 0, (key, err)
+            outputs[key] = [json.loads(line) for line in out.splitlines()]
+    for ns, amplitude_v in benches.items():
+        truth, sensor_blocks = outputs[ns, "truth"], outputs[ns, "sensor"]
+        assert [b["first_sample_index"] for b in truth] == list(range(0, n_blocks * BLOCK, BLOCK))
+        stroke_deg = np.concatenate([b["stroke_deg"] for b in truth])
+        pitch_deg = np.concatenate([b["pitch_deg"] for b in truth])
+        stroke_v = np.concatenate([b["stroke_sensor_v"] for b in sensor_blocks])
+        params = DriveParams(kind="chirp", amplitude_v=amplitude_v, start_hz=20.0, stop_hz=200.0,
+                             duration_s=1.0)
+        offline = simulate(drive_record(params, FS_HZ, n_blocks * BLOCK), FS_HZ, load_model())
+        assert np.array_equal(stroke_deg, np.degrees(offline.stroke_rad)), ns
+        assert np.array_equal(pitch_deg, np.degrees(offline.pitch_rad)), ns
+        assert np.array_equal(stroke_v, offline.stroke_sensor_v), ns
+        assert np.max(np.abs(stroke_deg)) > 0.5  # the wing moved
 
 
 def _command(index: int, values: list[float]) -> dict:

@@ -18,13 +18,13 @@ import threading
 import time
 
 import numpy as np
-from rclpy.node import Node
 
 from flaair_bridge import bridge_io as io
 from flaair_bridge.bridge_io import PARAMS
 from flaair_bridge.core import bridge, bridge_report
 from flaair_common import intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
@@ -37,7 +37,7 @@ GIL_SWITCH_S = 1e-4
 STOP_COPIES = 3
 
 
-class BridgeNode(Node):
+class BridgeNode(FlaairNode):
     """Thin shell over flaair_bridge.core.bridge.step: UDP and messages to core inputs and back."""
 
     def __init__(self) -> None:

@@ -63,7 +63,8 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
     when a value is of the wrong type, out of range, or not one of the allowed choices.
     """
     try:
-        defaults = node_parameters(config_file, node.get_name())
+        defaults = node_parameters(config_file, getattr(node, "default_name", node.get_name()),
+                                   renamed=node.get_name())
     except ConfigError as exc:
         raise ParameterError(str(exc)) from exc
     values: dict[str, Any] = {}
@@ -89,8 +90,9 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
         values[spec.name] = value
     overrides = getattr(node, "_parameter_overrides", {}) or {}
     # Shared `/**` values reach every node given the whole file as --params-file; not an error.
-    unknown = sorted(set(overrides) - {s.name for s in specs}
-                     - shared_parameter_names(config_file) - {"use_sim_time"})
+    unknown = sorted(name for name in set(overrides) - {s.name for s in specs}
+                     - shared_parameter_names(config_file) - {"use_sim_time"}
+                     if not name.startswith("qos_overrides."))   # rclpy's own, per topic
     if unknown:
         known = ", ".join(s.name for s in specs)
         raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; this node takes: {known}")

@@ -23,3 +23,17 @@ BLOCK_STREAM_TYPES = {
 
 # header frame_id of the robot's block streams (the fixed-size CDR fast path expects it)
 FRAME_ID = "robot"
+
+
+def is_flaair(topic: str) -> bool:
+    """Whether `topic` is one of FLAAIR's own streams (under /flaair/, or relative to a node)."""
+    return topic.startswith("/flaair/") or topic.startswith("flaair/")
+
+
+def relative(topic: str) -> str:
+    """`topic` as a node creates it: FLAAIR's streams relative to the node's namespace, so a graph
+    started in a namespace (`-r __ns:=/bench2`) keeps its streams to itself. The names above are
+    what a graph in the root namespace resolves them to (and what its bags hold); /clock and
+    every other name stay as they are.
+    """
+    return topic[1:] if topic.startswith("/flaair/") else topic

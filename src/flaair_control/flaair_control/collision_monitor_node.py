@@ -19,10 +19,10 @@ Usage: bin/flaair run flaair_control collision_monitor_node
 from __future__ import annotations
 
 import numpy as np
-from rclpy.node import Node
 
 from flaair_common import intra, topics
 from flaair_common.blocks import check_block, stamp_from_time_s
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import INFO, WARN, log, log_notes, run_node, warn_counted
@@ -41,7 +41,7 @@ PARAMS = COLLISION_MONITOR_PARAMS
 EVENT_KINDS = {monitor.ONSET: CollisionEvent.ONSET, monitor.CLEARANCE: CollisionEvent.CLEARANCE}
 
 
-class CollisionMonitorNode(Node):
+class CollisionMonitorNode(FlaairNode):
     """Thin shell over flaair_control.core.monitor.step."""
 
     def __init__(self) -> None:

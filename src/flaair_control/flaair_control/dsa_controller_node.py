@@ -22,10 +22,10 @@ import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import log_notes, run_node, warn_counted
@@ -44,7 +44,7 @@ PARAMS = DSA_CONTROLLER_PARAMS
 WATCHDOG = {False: ControllerState.WATCHDOG_OK, True: ControllerState.WATCHDOG_TRIPPED}
 
 
-class DsaControllerNode(Node):
+class DsaControllerNode(FlaairNode):
     """Thin shell over flaair_control.core.supervisor.step."""
 
     def __init__(self) -> None:

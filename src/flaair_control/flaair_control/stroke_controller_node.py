@@ -23,10 +23,10 @@ import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 
 from flaair_common import topics
 from flaair_common.blocks import stamp_from_time_s
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
@@ -39,7 +39,7 @@ CONFIG_FILE = "flaair.yaml"
 PARAMS = stroke.NODE_PARAMS
 
 
-class StrokeControllerNode(Node):
+class StrokeControllerNode(FlaairNode):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         self.p = p = declare_parameters(self, PARAMS, CONFIG_FILE)

@@ -58,10 +58,12 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
-def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
+def node_parameters(file_name: str, node_name: str, renamed: str | None = None
+                    ) -> dict[str, Any]:
     """Return the flattened `ros__parameters` of `node_name` in config/`file_name`.
 
-    The `/**` section (shared by every node) is read first, the node's own section over it.
+    The `/**` section (shared by every node) is read first, the node's own section over it, then
+    a section named `renamed` (the name a node was given at launch, `-r __node:=plant2`), if any.
     Nested mappings become dotted names, as ROS 2 parameter files do.
     """
     path = config_dir() / file_name
@@ -70,7 +72,10 @@ def node_parameters(file_name: str, node_name: str) -> dict[str, Any]:
         raise ConfigError(f"{path}: expected a mapping of node names to ros__parameters")
     out: dict[str, Any] = {}
     found = False
-    for key in ("/**", node_name, f"/{node_name}"):
+    keys = ["/**", node_name, f"/{node_name}"]
+    if renamed and renamed != node_name:
+        keys += [renamed, f"/{renamed}"]
+    for key in keys:
         section = document.get(key)
         if isinstance(section, dict) and "ros__parameters" in section:
             _flatten("", section["ros__parameters"], out)

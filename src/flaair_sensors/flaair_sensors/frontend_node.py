@@ -18,10 +18,10 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rclpy.node import Node
 
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import check_block
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
@@ -41,7 +41,7 @@ SENSOR_ESTIMATE = WingStateBlock.SOURCE_SENSOR_ESTIMATE
 TIMED_BLOCKS, STATS_PERIOD_S = 20000, 10.0
 
 
-class FrontendNode(Node):
+class FrontendNode(FlaairNode):
     """Thin shell over flaair_sensors.core.frontend.step."""
 
     def __init__(self) -> None:

@@ -21,10 +21,9 @@ from __future__ import annotations
 
 import time
 
-from rclpy.node import Node
-
 from flaair_common import topics
 from flaair_common.blocks import from_array, stamp_from_time_s
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node
@@ -35,7 +34,7 @@ from flaair_sim.drive_io import CONFIG_FILE, DRIVE_NODE_PARAMS, NODE_NAME, pacin
 PARAMS = DRIVE_NODE_PARAMS
 
 
-class DriveNode(Node):
+class DriveNode(FlaairNode):
     """Thin shell over flaair_sim.core.drive_pacing.step."""
 
     def __init__(self) -> None:

@@ -19,11 +19,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
 from flaair_common import intra, topics
 from flaair_common.blocks import stamp_from_time_s, stamp_ns_of_sample
+from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
@@ -42,7 +42,7 @@ from flaair_sim.plant_io import (
 PARAMS = PLANT_PARAMS
 
 
-class PlantNode(Node):
+class PlantNode(FlaairNode):
     """Thin shell over flaair_sim.core.actuator.step and flaair_sim.core.plant.step."""
 
     def __init__(self) -> None:

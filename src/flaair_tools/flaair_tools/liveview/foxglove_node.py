@@ -20,10 +20,10 @@ import sys
 import foxglove
 from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from flaair_common import cdr, topics
+from flaair_common.node import FlaairNode
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
@@ -41,7 +41,7 @@ STREAM_SOURCES = {  # live_view stream -> (ROS topic, message class, CDR layout)
 }
 
 
-class FoxgloveNode(Node):
+class FoxgloveNode(FlaairNode):
     """Block streams -> per-sample Foxglove messages; wing state -> wingbeat summaries."""
 
     def __init__(self) -> None:
