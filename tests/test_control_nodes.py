@@ -266,15 +266,18 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
 
 def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process(
         monkeypatch) -> None:
-    """The parameter 'service' (kr_ramp_duration_s /
-    reset_watchdog) and the stop response, without DDS.
+    """The parameter 'service' (kr_ramp_duration_s), the stop response, the watchdog's health
+    and its reset service, without DDS.
     """
     import rclpy
     from rclpy.parameter import Parameter
     from rclpy.serialization import deserialize_message, serialize_message
+    from std_srvs.srv import Trigger
 
     from flaair_common import cdr
     from flaair_common.blocks import from_array
+    from flaair_common.health import ERROR, OK
+    from flaair_control.control_io import controller_health
     from flaair_control.core.supervisor import LOOP, TRIPPED
     from flaair_control.dsa_controller_node import DsaControllerNode
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
@@ -347,8 +350,16 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
         # itself is ~1e-13 V: float rounding in the core)
         assert (ramp.size >= 101 and abs(ramp[100]) < 1e-9 and np.all(ramp[101:] == 0.0)
                 and states[-1][1] == 1)
-        assert node.set_parameters([Parameter("reset_watchdog", value=True)])[0].successful
+        # /diagnostics says so: ERROR, the fault, one trip; the clamping was in an earlier period
+        tripped = controller_health(node.state, node.state)
+        assert (tripped.level, dict(tripped.values)["trips"], dict(tripped.values)["watchdog"]) == (
+            ERROR, "1", "tripped") and "collision onset at wingbeat 3" in tripped.message
+        assert controller_health(node.state, None).message.endswith("block(s)")   # clamped: WARN
+        # the std_srvs/Trigger service ~/reset_watchdog re-arms it (called as the executor would)
+        reply = node.on_reset_watchdog(Trigger.Request(), Trigger.Response())
+        assert reply.success and "watchdog reset by request" in reply.message
         assert node.state.mode == LOOP and node.state.fault == "" and node.state.safety.status == 0
+        assert controller_health(node.state, node.state).level == OK
         node.destroy_node()
     finally:
         rclpy.shutdown()

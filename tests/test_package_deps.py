@@ -21,7 +21,8 @@ ROSDEP_KEYS = {
     "tqdm": "python3-tqdm", "h5py": "python3-h5py", "rosbags": "python3-rosbags-pip",
     "websockets": "python3-websockets",
     **{ros: ros for ros in ("rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs",
-                            "rosgraph_msgs", "ament_index_python")},
+                            "rosgraph_msgs", "ament_index_python", "diagnostic_msgs",
+                            "std_srvs")},
 }
 # Imported, but with no rosdep key: installed by the README's pip step (PyPI distribution names).
 PIP_ONLY = {"dask": "dask", "distributed": "distributed", "foxglove": "foxglove-sdk",

@@ -3,6 +3,7 @@ node list, topic hz, echo that ends on silence.
 """
 from __future__ import annotations
 
+import json
 import os
 import re
 import time
@@ -27,9 +28,7 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
         changed = run([FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1"], procs.env,
                       120)
         assert changed.returncode == 0, changed.stderr
-        assert "kr_target = 1.0" in changed.stdout  # "1" became the double 1.0
-        assert float(run([FLAAIR, "param", "get", "/dsa_controller_node", "kr_target"], procs.env,
-                         120).stdout) == 1.0
+        assert "kr_target = 1.0" in changed.stdout  # "1" became the double 1.0 (read back below)
         # out of the declared range [0, 1]: the node refuses and says why; the value stays
         refused = run([FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1.5"],
                       procs.env, 120)
@@ -51,6 +50,22 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
         absent = run([FLAAIR, "node", "list", "--wait-for", "/nobody", "--timeout", "1"],
                      procs.env, 60)
         assert absent.returncode == 1 and "/nobody not seen in 1 s" in absent.stderr, absent.stderr
+        # health on /diagnostics, the watchdog's reset as a std_srvs/Trigger service
+        health = run([FLAAIR, "topic", "echo", "/diagnostics",
+                      "diagnostic_msgs/msg/DiagnosticArray", "--count", "1", "--timeout", "60"],
+                     procs.env, 120)
+        assert health.returncode == 0, health.stderr
+        (status,) = json.loads(health.stdout)["status"]
+        assert (status["level"], status["name"], status["message"], status["hardware_id"]) == (
+            0, "dsa_controller_node: dSA controller", "waiting for the loop to start",
+            "/dsa_controller_node")
+        assert {"watchdog": "ok", "trips": "0"}.items() <= {
+            v["key"]: v["value"] for v in status["values"]}.items()
+        reset = run([FLAAIR, "service", "call", "/dsa_controller_node/reset_watchdog",
+                     "std_srvs/srv/Trigger"], procs.env, 120)
+        assert reset.returncode == 0, reset.stderr
+        assert json.loads(reset.stdout) == {
+            "success": False, "message": "reset_watchdog: watchdog not tripped, nothing to do"}
         assert controller.poll() is None
 
 

@@ -7,6 +7,7 @@ from typing import Any, Callable, Mapping
 
 from flaair_bridge import udp
 from flaair_bridge.core import bridge, bridge_params
+from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
 from flaair_common.params import ParameterError, ParamSpec
 
 PARAMS = [
@@ -103,3 +104,30 @@ def applied_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
     """The DriveCommandBlock of the drive the target applied over `block`."""
     return {"sample_rate_hz": fs_hz, "first_sample_index": block.first_sample_index,
             "drive_v": block.drive_v}
+
+
+def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) -> Health:
+    """/diagnostics of the bridge: the target link (silence, packet loss), late drive and both
+    watchdogs (the target's flag, the bridge's own stop). Losses: in the period since `before`.
+    """
+    c, b = now.counters, (before.counters if before is not None else bridge.Counters())
+    packets, lost = c.sensor_packets - b.sensor_packets, c.lost_packets - b.lost_packets
+    problems = [(ERROR, "target silent: no sensor packet") if now.silent else (OK, "")]
+    if lost:
+        problems.append((WARN, f"{lost} sensor packet(s) lost "
+                               f"({loss_percent(lost, lost + packets):.2f} % of the period)"))
+    if c.drive_late_blocks > b.drive_late_blocks:
+        problems.append((WARN, f"{c.drive_late_blocks - b.drive_late_blocks} drive block(s) "
+                               "late for the target: dropped"))
+    if c.target_watchdog_packets > b.target_watchdog_packets:
+        problems.append((ERROR, "the target's watchdog is tripped"))
+    if c.watchdog_stops > b.watchdog_stops:
+        problems.append((ERROR, "the drive stream fell silent: stop packet sent"))
+    ok = "streaming" if c.sensor_packets else "waiting for the target's first packet"
+    return health("UDP bridge", problems, ok, {
+        "sensor_packets": c.sensor_packets, "lost_packets": c.lost_packets,
+        "loss_percent": loss_percent(c.lost_packets, c.lost_packets + c.sensor_packets),
+        "malformed_packets": c.malformed, "drive_packets": c.drive_packets,
+        "drive_late_blocks": c.drive_late_blocks, "clamped_samples": c.clamped_samples,
+        "target_watchdog_packets": c.target_watchdog_packets,
+        "watchdog_stops": c.watchdog_stops, "target_silent": now.silent})

@@ -62,6 +62,7 @@ class BridgeNode(FlaairNode):
         self.create_timer(p["tick_period_s"], lambda: self.process(
             bridge.Tick(time.time(), self.endpoint.pending())))
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
+        self.publish_health(lambda: self.state, io.bridge_health)
         # the socket last: its reader thread delivers at once, into a fully built node
         self.endpoint = io.open_endpoint(p, self.on_datagram, self.get_logger())
         self.get_logger().info(io.ready_text(p))

@@ -27,6 +27,8 @@ def to_dict(message: Any) -> Any:
     if hasattr(message, "get_fields_and_field_types"):
         return {name: to_dict(getattr(message, name))
                 for name in message.get_fields_and_field_types()}
+    if isinstance(message, (bytes, bytearray)):   # a rosidl `byte` (one) or raw bytes: numbers
+        return message[0] if len(message) == 1 else list(message)
     if isinstance(message, (array.array, list, tuple)):
         return [to_dict(item) for item in message]
     if hasattr(message, "tolist"):

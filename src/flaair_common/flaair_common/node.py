@@ -9,15 +9,20 @@ a lab's workspace expects kept in one place.
 * Parameters come from config/ under the node's default name (`plant_node`), then from a section
   named as the node was renamed at launch (`-r __node:=plant2`), so a renamed node still finds
   its parameters; see `flaair_common.params.declare_parameters`.
+* Health goes to /diagnostics (`publish_health`), once a second, as ROS's diagnostic_updater does.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable, TypeVar
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from flaair_common import topics
+from flaair_common.health import DIAGNOSTICS_PERIOD_S, Health
+
+T = TypeVar("T")
 
 __all__ = ["FlaairNode"]
 
@@ -50,3 +55,26 @@ class FlaairNode(Node):
 
     def count_subscribers(self, topic_name: str) -> int:
         return super().count_subscribers(topics.relative(topic_name))
+
+    def publish_health(self, snapshot: Callable[[], T],
+                       judge: Callable[[T, T | None], Health]) -> None:
+        """Every DIAGNOSTICS_PERIOD_S, publish `judge(snapshot(), previous snapshot)` on
+        /diagnostics (hardware id: this node's fully qualified name). The judge is a pure function
+        (flaair_common.health); the previous snapshot lets it speak of the last period.
+        """
+        publisher = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        previous: list[Any] = [None]
+
+        def tick() -> None:
+            now = snapshot()
+            found = judge(now, previous[0])
+            previous[0] = now
+            message = DiagnosticArray()
+            message.header.stamp = self.get_clock().now().to_msg()
+            message.status = [DiagnosticStatus(
+                level=bytes([found.level]), name=f"{self.get_name()}: {found.name}",
+                message=found.message, hardware_id=self.get_fully_qualified_name(),
+                values=[KeyValue(key=k, value=v) for k, v in found.values])]
+            publisher.publish(message)
+
+        self.create_timer(DIAGNOSTICS_PERIOD_S, tick)

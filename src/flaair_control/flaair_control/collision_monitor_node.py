@@ -30,7 +30,9 @@ from flaair_control.control_io import (
     COLLISION_MONITOR_PARAMS,
     CONFIG_FILE,
     collision_monitor_params_from_config,
+    describe_monitor,
     monitor_drive_input,
+    monitor_health,
     monitor_wing_input,
 )
 from flaair_control.core import monitor
@@ -65,17 +67,9 @@ class CollisionMonitorNode(FlaairNode):
         if self.params.estimates_frequency:
             intra.subscribe_stream(self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM,
                                    self.on_undecodable)
-        where = ("stroke windows" if p["window_source"] == "stroke"
-                 else "drive windows, frequency estimated from /flaair/drive"
-                 if self.params.estimates_frequency
-                 else f"drive windows at {p['drive_frequency_hz']:g} Hz")
-        how = (f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
-               f"Hz, threshold {p['threshold_deg']:g} deg" if p["decision"] == "paper"
-               else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
-                    f"{p['pitch_threshold']:g}")
-        self.get_logger().info(f"collision monitor ready: {where}; decision {p['decision']} "
-                               f"({how}); onset after {p['n_on']}, clearance after {p['n_off']} "
-                               "wingbeats")
+        self.publish_health(lambda: (self.state, self.rejected, self.undecodable),
+                            monitor_health)
+        self.get_logger().info(describe_monitor(p, self.params.estimates_frequency))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1

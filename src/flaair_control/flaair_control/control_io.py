@@ -13,6 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from flaair_common.health import ERROR, OK, WARN, Health, health
 from flaair_control.core import collision as col
 from flaair_control.core import dsa, monitor, safety, spectral, stroke
 from flaair_control.core import supervisor as sv
@@ -137,8 +138,6 @@ DSA_CONTROLLER_PARAMS = [
     ParamSpec("keepalive_period_s", float,
               "Tripped and ramped down: one zero block per this period (wall clock) [s]", 1e-3,
               60.0, read_only=True),
-    ParamSpec("reset_watchdog", bool,
-              "Set true while running to re-arm a tripped watchdog (restarts the loop)"),
     ParamSpec("collision_response", str, "Reaction to a collision onset",
               choices=("none", "stop", "reduce_amplitude"), read_only=True),
     ParamSpec("collision_reduction_factor", float,
@@ -259,7 +258,7 @@ def kr_schedule(values: Mapping[str, Any]) -> dsa.KrSchedule:
 
 def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> SupervisorParams:
     """The dSA loop's parameters from dsa_controller_node values and the model (for G_a)."""
-    v = _fields(values, DSA_CONTROLLER_PARAMS, skip=("model_file", "reset_watchdog", "timing_file"))
+    v = _fields(values, DSA_CONTROLLER_PARAMS, skip=("model_file", "timing_file"))
     fs = v["sample_rate_hz"]
     try:
         delay, _ = loop_delay_s(v)
@@ -366,3 +365,64 @@ def controller_state_fields(block: sv.DriveOut, watchdog_code: int) -> dict[str,
             "drive_clamped": block.drive_clamped, "watchdog": watchdog_code, "fault": block.fault,
             "amplitude_scale": block.amplitude_scale,
             "stroke_frequency_hz": block.stroke_frequency_hz}
+
+
+_MODE_TEXT = {sv.WAITING: "waiting for the loop to start", sv.LOOP: "closing the loop",
+              sv.DONE: "run complete"}
+
+
+def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None) -> Health:
+    """/diagnostics of the dSA controller: watchdog, trips, clamping, bad wing-state blocks
+    (clamping and bad blocks: in the period since `before`).
+    """
+    c, b = now.counts, (before.counts if before is not None else sv.Counts())
+    problems = []
+    if now.mode == sv.TRIPPED:
+        problems.append((ERROR, f"watchdog tripped: {now.fault} (re-arm: ~/reset_watchdog)"))
+    if c.clamped > b.clamped:
+        problems.append((WARN, f"drive clamped at the limit in {c.clamped - b.clamped} block(s)"))
+    bad = c.invalid + c.rejected + c.stale - b.invalid - b.rejected - b.stale
+    if bad:
+        problems.append((WARN, f"{bad} wing-state block(s) invalid, rejected or stale"))
+    return health("dSA controller", problems, _MODE_TEXT.get(now.mode, now.mode), {
+        "mode": now.mode, "watchdog": "tripped" if now.mode == sv.TRIPPED else "ok",
+        "fault": now.fault, "trips": c.trips, "clamped_blocks": c.clamped,
+        "wing_state_blocks": c.blocks, "invalid_blocks": c.invalid,
+        "rejected_blocks": c.rejected, "stale_blocks": c.stale, "gaps": c.gaps,
+        "amplitude_scale": now.amplitude_scale})
+
+
+def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
+    """std_srvs/Trigger's answer to ~/reset_watchdog: success once the loop runs again."""
+    return mode == sv.LOOP, "; ".join(note.text for note in notes) or mode
+
+
+def monitor_health(now: tuple[monitor.CollisionMonitorState, int, int],
+                   before: tuple[monitor.CollisionMonitorState, int, int] | None) -> Health:
+    """/diagnostics of the collision monitor: collision state, wingbeats, dropped blocks."""
+    state, rejected, undecodable = now
+    dropped = rejected + undecodable - (before[1] + before[2] if before is not None else 0)
+    problems = [(WARN, "COLLISION: the pitch spectrum left the free-flapping one")
+                if state.colliding else (OK, "")]
+    if dropped:
+        problems.append((WARN, f"{dropped} wing-state block(s) dropped"))
+    frequency_hz = state.lock.locked_hz or (
+        state.windows.drive_frequency_hz or 0.0 if state.windows else 0.0)
+    return health("collision monitor", problems,
+                  "no collision" if state.wingbeats else "waiting for the first wingbeat", {
+                      "colliding": state.colliding, "wingbeats": state.wingbeats,
+                      "wingbeat_frequency_hz": float(frequency_hz),
+                      "rejected_blocks": rejected, "undecodable_blocks": undecodable})
+
+
+def describe_monitor(p: Mapping[str, Any], estimates_frequency: bool) -> str:
+    """The collision monitor's ready line: its windows and its decision."""
+    where = ("stroke windows" if p["window_source"] == "stroke"
+             else "drive windows, frequency estimated from /flaair/drive" if estimates_frequency
+             else f"drive windows at {p['drive_frequency_hz']:g} Hz")
+    how = (f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
+           f"Hz, threshold {p['threshold_deg']:g} deg" if p["decision"] == "paper"
+           else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
+                f"{p['pitch_threshold']:g}")
+    return (f"collision monitor ready: {where}; decision {p['decision']} ({how}); onset after "
+            f"{p['n_on']}, clearance after {p['n_off']} wingbeats")

@@ -1,18 +1,15 @@
-"""dsa_controller_node: the delayed-stretch-activation (dSA) controller that closes the wingbeat
-loop.
+"""dsa_controller_node: the delayed-stretch-activation (dSA) controller closing the wingbeat loop.
 
 One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
 (/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
 supervisor `flaair_control.core.supervisor` (the dSA core `dsa`, the safety core `safety`).
-
 Drive (paper eqs. dsa/dsaconst): the dSA filter tau'' + a tau' + b tau = -c phi' runs on the
 measured stroke velocity; drive = K_r sync + (1 - K_r) tau / G_a, K_r ramped from kr_initial
 to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting kr_target or
 kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
-K_r; reset_watchdog:=true re-arms a tripped watchdog. G_a comes from the model file.
-
-Loop delay: the dsa core's phase advance compensates it. Safety: clamp, slew, watchdogs, a zero
-block at exit.
+K_r; the std_srvs/Trigger service ~/reset_watchdog re-arms a tripped watchdog. Health (watchdog,
+trips, clamping) on /diagnostics. G_a comes from the model file. The dsa core's phase advance
+compensates the loop delay. Safety: clamp, slew, watchdogs, a zero block at exit.
 Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 from __future__ import annotations
@@ -22,6 +19,7 @@ import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
+from std_srvs.srv import Trigger
 
 from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_ns_of_sample
@@ -67,6 +65,8 @@ class DsaControllerNode(FlaairNode):
                                  STATUS)  # volatile
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(self.params.timer_period_s, self.on_timer)
+        self.create_service(Trigger, "~/reset_watchdog", self.on_reset_watchdog)
+        self.publish_health(lambda: self.state, io.controller_health)
         self.get_logger().info("dSA controller ready: " + describe_loop(self.params, p))
 
     def advance(self, inputs: sv.Input, t_receive: float | None = None) -> sv.Outputs:
@@ -105,7 +105,7 @@ class DsaControllerNode(FlaairNode):
                                   message.wingbeat_index, message.spectrum_rmse_deg))
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
-        """kr_target / kr_ramp_duration_s: new ramp from the current K_r; reset_watchdog: re-arm."""
+        """kr_target / kr_ramp_duration_s: a new ramp from the current K_r."""
         changes = {param.name: param.value for param in parameters}
         if "kr_target" in changes or "kr_ramp_duration_s" in changes:
             out = self.advance(sv.SetRamp(
@@ -113,9 +113,12 @@ class DsaControllerNode(FlaairNode):
                 changes.get("kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value)))
             if out.refused:
                 return SetParametersResult(successful=False, reason=out.refused)
-        if changes.get("reset_watchdog"):
-            self.advance(sv.ResetWatchdog(time.monotonic()))
         return SetParametersResult(successful=True)
+
+    def on_reset_watchdog(self, request: Trigger.Request, response: Trigger.Response):
+        out = self.advance(sv.ResetWatchdog(time.monotonic()))
+        response.success, response.message = io.reset_reply(out.notes, self.state.mode)
+        return response
 
     def on_timer(self) -> None:
         count = self.count_publishers

@@ -13,6 +13,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "param": ("flaair_tools.roscli.param",
               "read and set a running node's parameters (stands in for `ros2 param`)"),
     "node": ("flaair_tools.roscli.node_cli", "list the running nodes (stands in for `ros2 node`)"),
+    "service": ("flaair_tools.roscli.service",
+                "list services and call one (stands in for `ros2 service`)"),
     "foxglove": ("flaair_tools.liveview.foxglove_cli",
                  "serve the live graph to Foxglove / Lichtblick over WebSocket"),
     "simulate": ("flaair_sim.cli_simulate",

@@ -82,6 +82,8 @@ class Counts(NamedTuple):
     stale: int = 0
     gaps: int = 0
     kicks: int = 0
+    trips: int = 0       # watchdog trips (each latched until a reset)
+    clamped: int = 0     # drive blocks the limiter clamped
 
 
 class SupervisorState(NamedTuple):
@@ -239,6 +241,8 @@ def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_w
         state, notes = state._replace(
             ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size), []
     clamped = bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v)
+    if clamped:
+        state = _count(state, "clamped")
     state, with_state, clamped = _state_due(state, clamped, bool(guarded.tripped), p)
     block = DriveOut(index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]),
                      float(sig.sync_v[-1]), clamped, bool(guarded.tripped), state.fault,
@@ -291,7 +295,8 @@ def _check_core_trip(state: SupervisorState, t_wall: float,
 
 def _enter_tripped(state: SupervisorState, t_wall: float,
                    p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
-    state = state._replace(mode=TRIPPED, trip_pace_wall=t_wall, trip_pace_index=state.next_index)
+    state = _count(state, "trips")._replace(mode=TRIPPED, trip_pace_wall=t_wall,
+                                            trip_pace_index=state.next_index)
     return state, [Note(ERROR, f"WATCHDOG TRIPPED at t = {state.safety.trip_time_s:.4f} s: "
                                f"{state.fault}; ramping the drive to zero over {p.ramp_down_s:g} "
                                "s")]
