@@ -27,6 +27,7 @@ import rclpy
 from flaair_common import cdr
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_msgs.msg import CollisionStatus, ControllerState, SensorVoltageBlock, WingStateBlock
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 fs, block, blocks, start_s = 20000.0, 10, int(sys.argv[1]), float(sys.argv[2])
 rclpy.init()
 node = rclpy.create_node("test_publisher")
@@ -34,8 +35,9 @@ wing = node.create_publisher(WingStateBlock, "/flaair/wing_state", BLOCK_STREAM)
 sensor = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STREAM)
 status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
 controller = node.create_publisher(ControllerState, "/flaair/controller/state", BLOCK_STREAM)
+diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
 deadline = time.monotonic() + 60.0
-readers = (wing, sensor, status, controller)
+readers = (wing, sensor, status, controller, diagnostics)
 while time.monotonic() < deadline and min(p.get_subscription_count() for p in readers) == 0:
     time.sleep(0.05)
 time.sleep(0.5)
@@ -44,6 +46,9 @@ message = CollisionStatus(wingbeat_index=7, colliding=True, spectrum_rmse_deg=3.
 message.header.stamp.sec = 3
 status.publish(message)
 controller.publish(ControllerState(k_r=0.25))
+diagnostics.publish(DiagnosticArray(status=[DiagnosticStatus(
+    level=b"\x02", name="bridge_node: UDP bridge", message="target silent: no sensor packet",
+    hardware_id="/bridge_node", values=[KeyValue(key="lost_packets", value="3")])]))
 time.sleep(1.0)
 wing_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, "robot")
 sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, block, "robot")
@@ -61,7 +66,7 @@ for i in range(blocks):
         **head, "stroke_sensor_v": 1.0 + n, "pitch_sensor_v": -1.0 - n}))
     time.sleep(0.001)
 from rclpy.duration import Duration
-for p in (wing, sensor, status, controller):   # every reader has them before this participant goes
+for p in readers:   # every reader has them before this participant goes
     p.wait_for_all_acked(Duration(seconds=30))
 print("published", flush=True)
 """
@@ -77,7 +82,7 @@ def _free_port() -> int:
 def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -> None:
     port = _free_port()
     topics = [live_view.STREAMS["wing_state"].topic, live_view.STREAMS["sensor_v"].topic,
-              live_view.WINGBEAT_TOPIC, live_view.COLLISION_TOPIC]
+              live_view.WINGBEAT_TOPIC, live_view.COLLISION_TOPIC, "/diagnostics"]
     with ros_processes() as procs:
         node = procs.flaair(*foxglove_node_args(f"127.0.0.1:{port}"), "-p", "reliable:=true")
         client = None
@@ -146,6 +151,11 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     assert status == [{"stamp": {"sec": 3, "nsec": 0}, "wingbeat_index": 7, "colliding": True,
                        "spectrum_rmse_deg": 3.0, "threshold_deg": 1.0, "collision_score": 3.0}]
     assert received.messages[live_view.COLLISION_TOPIC][0][0] == 3_000_000_000
+    # every node's health, as ROS's DiagnosticArray in JSON (Foxglove's Diagnostics panels)
+    ((_, health),) = received.messages["/diagnostics"]
+    assert json.loads(health)["status"] == [{
+        "level": 2, "name": "bridge_node: UDP bridge", "message": "target silent: no sensor packet",
+        "hardware_id": "/bridge_node", "values": [{"key": "lost_packets", "value": "3"}]}]
     # the server told the client the latest signal time
     assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
 

@@ -1,6 +1,7 @@
 """foxglove_node's parameters (declared once) and the `bin/flaair` argv that starts it."""
 from __future__ import annotations
 
+import json
 from typing import Any, Mapping
 
 from flaair_model.schema import ParamSpec
@@ -8,7 +9,7 @@ from flaair_tools.analysis import wingbeat
 from flaair_tools.liveview import live_view
 
 __all__ = ["NODE_NAME", "CONFIG_FILE", "PARAMS", "foxglove_node_args", "wingbeat_params",
-           "open_channels"]
+           "open_channels", "DIAGNOSTICS_TOPIC", "open_diagnostics_channel"]
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"
@@ -51,6 +52,24 @@ def wingbeat_params(values: Mapping[str, Any]) -> wingbeat.WingbeatParams:
     return wingbeat.WingbeatParams(
         values["sample_rate_hz"], values["wingbeat_hysteresis_deg"],
         values["wingbeat_min_frequency_hz"], values["wingbeat_max_frequency_hz"])
+
+
+DIAGNOSTICS_TOPIC = "/diagnostics"
+# ROS's DiagnosticArray as JSON, under its ROS type name: Foxglove's Diagnostics panels read it
+_DIAGNOSTICS_SCHEMA = {"type": "object", "properties": {
+    "header": {"type": "object"}, "status": {"type": "array", "items": {
+        "type": "object", "properties": {
+            "level": {"type": "integer"}, "name": {"type": "string"},
+            "message": {"type": "string"}, "hardware_id": {"type": "string"},
+            "values": {"type": "array", "items": {"type": "object", "properties": {
+                "key": {"type": "string"}, "value": {"type": "string"}}}}}}}}}
+
+
+def open_diagnostics_channel(foxglove: Any) -> Any:
+    """The /diagnostics channel (JSON, schema named diagnostic_msgs/msg/DiagnosticArray)."""
+    return foxglove.Channel(DIAGNOSTICS_TOPIC, message_encoding="json", schema=foxglove.Schema(
+        name="diagnostic_msgs/msg/DiagnosticArray", encoding="jsonschema",
+        data=json.dumps(_DIAGNOSTICS_SCHEMA).encode()))
 
 
 def open_channels(foxglove: Any) -> tuple[dict[str, Any], Any, Any]:

@@ -2,12 +2,10 @@
 
 Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth, /sensor_v
 and /drive (on /flaair/live/..., flaair_tools.liveview.live_view) at the sample's own signal time,
-so the Plot
-panel draws time series; /flaair/live/wingbeat summarises each wingbeat
-(flaair_tools.analysis.wingbeat);
-/flaair/live/collision_status relays the monitor; the latest signal time is broadcast. Block streams
-are best effort (a viewer never holds the graph), served in batches of serve_period_s (one numpy
-call each).
+so the Plot panel draws time series; /flaair/live/wingbeat summarises each wingbeat
+(flaair_tools.analysis.wingbeat); /flaair/live/collision_status relays the monitor, /diagnostics
+every node's health; the latest signal time is broadcast. Block streams are best effort (a viewer
+never holds the graph), served in batches of serve_period_s (one numpy call each).
 Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
 Usage: bin/flaair foxglove 127.0.0.1:8765, or
   bin/flaair run flaair_tools foxglove_node --ros-args -p port:=8765 -p sample_decimation:=4
@@ -15,14 +13,17 @@ Usage: bin/flaair foxglove 127.0.0.1:8765, or
 from __future__ import annotations
 
 import contextlib
+import json
 import sys
 
 import foxglove
+from diagnostic_msgs.msg import DiagnosticArray
 from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from flaair_common import cdr, topics
+from flaair_common.msgdict import to_dict
 from flaair_common.node import FlaairNode
 from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
@@ -74,6 +75,9 @@ class FoxgloveNode(FlaairNode):
                                  STATUS)
         self.create_subscription(msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller,
                                  qos, raw=True)
+        diagnostics = io.open_diagnostics_channel(foxglove)   # every node's health, as it is
+        self.create_subscription(DiagnosticArray, io.DIAGNOSTICS_TOPIC, lambda m: diagnostics.log(
+            json.dumps(to_dict(m), allow_nan=False)), 10)
         self.get_logger().info(f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
                                f"(every {self.decimation} sample(s); layout "
                                "config/foxglove_layout.json)")
