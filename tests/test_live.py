@@ -128,8 +128,10 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
     try:
         bag = tmp_path / "bench"
+        started_ns = time.time_ns()
         result = _live("--target", f"127.0.0.1:{target_port}", "--listen",
                        f"127.0.0.1:{bridge_port}", "--duration", "4", "--out", str(bag))
+        ended_ns = time.time_ns()
         assert result.returncode == 0, result.stderr[-3000:]
     finally:
         target.send_signal(signal.SIGINT)
@@ -144,6 +146,25 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     assert (firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000
             and not gaps), (firsts[:3], start, gaps[:5])
     assert bagio.message_counts(bag).get("/flaair/drive/applied", 0) > 0
+    # stamps are acquisition times in ROS time: the target's sample clock anchored at its first
+    # packet (the anchoring is in the bag), so they line up with what other nodes record
+    ((_, _, anchor),) = list(bagio.iter_messages(bag, ["/flaair/time_anchor"]))
+    anchor_ns = anchor.header.stamp.sec * 1_000_000_000 + anchor.header.stamp.nanosec
+    assert anchor.sample_clock == "target" and started_ns < anchor_ns < ended_ns
+    stamps = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages]
+    assert stamps == [anchor_ns + round((first - anchor.sample_index) / 20000.0 * 1e9)
+                      for first in firsts]
+    assert started_ns < stamps[0] and stamps[-1] < ended_ns
+    wing_stamps = {m.first_sample_index: m.header.stamp for _, _, m in bagio.iter_messages(
+        bag, ["/flaair/wing_state"])}
+    drive_stamps = {m.first_sample_index: m.header.stamp for _, _, m in bagio.iter_messages(
+        bag, ["/flaair/drive"])}
+    assert all(wing_stamps[first] == m.header.stamp for first, m in zip(firsts, messages)
+               if first in wing_stamps)
+    # the controller's drive follows the wing state's clock from its first wing-state block on
+    # (only the loop's first blocks in flight, sent before it, carry sample time)
+    drive_ns = [s.sec * 1_000_000_000 + s.nanosec for s in drive_stamps.values()]
+    assert sum(not started_ns < t < ended_ns for t in drive_ns) <= 10 < len(drive_ns)
     report = json.loads(counters.read_text())
     assert report["drive_packets"] > 0 and report["stop_packets"] >= 1
     wing = bagio.read_blocks(bag, "/flaair/wing_state", allow_gaps=True)

@@ -23,7 +23,6 @@ from flaair_bridge import bridge_io as io
 from flaair_bridge.bridge_io import PARAMS
 from flaair_bridge.core import bridge, bridge_report
 from flaair_common import intra, topics
-from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
@@ -108,8 +107,10 @@ class BridgeNode(FlaairNode):
             counters = self.state.counters
             if self.events is not None:
                 self.events.record(inputs, out, counters, time.time(), self.cause_s)
-            for block in out.blocks:
-                stamp_ns = stamp_ns_of_sample(block.first_sample_index, self.fs_hz)
+            for block in out.blocks:   # stamps: the target's sample clock, anchored to ROS time
+                if self.sample_clock_offset_ns is None:
+                    self.anchor_sample_clock(block.first_sample_index, self.fs_hz, "target")
+                stamp_ns = self.stamp_ns_of(block.first_sample_index, self.fs_hz)
                 self.sensor.publish(stamp_ns, io.sensor_fields(block, self.fs_hz))
                 if self.applied is not None:
                     self.applied.publish(stamp_ns, io.applied_fields(block, self.fs_hz))

@@ -42,6 +42,12 @@ def stamp_from_time_s(time_s: float) -> Time:
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 
+def stamp_from_ns(stamp_ns: int) -> Time:
+    """builtin_interfaces/Time for a time in integer nanoseconds (exact)."""
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
 def time_s_from_stamp(stamp: Time) -> float:
     """Seconds of a builtin_interfaces/Time."""
     return stamp.sec + stamp.nanosec * 1e-9

@@ -10,6 +10,10 @@ a lab's workspace expects kept in one place.
   named as the node was renamed at launch (`-r __node:=plant2`), so a renamed node still finds
   its parameters; see `flaair_common.params.declare_parameters`.
 * Health goes to /diagnostics (`publish_health`), once a second, as ROS's diagnostic_updater does.
+* Block stamps are acquisition times in the ROS clock (`stamp_ns_of`): sample time plus an offset
+  that a source anchors to its clock at its first block (`anchor_sample_clock`, recorded on
+  flaair/time_anchor) and that the nodes downstream take from their input (`follow_sample_clock`).
+  In simulation the offset is 0: sample time is the plant's /clock.
 """
 from __future__ import annotations
 
@@ -19,8 +23,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from flaair_common import topics
+from flaair_common import cdr, topics
+from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.health import DIAGNOSTICS_PERIOD_S, Health
+from flaair_common.qos import EVENTS
+from flaair_msgs.msg import TimeAnchor
 
 T = TypeVar("T")
 
@@ -36,6 +43,7 @@ class FlaairNode(Node):
     def __init__(self, default_name: str, **kwargs: Any) -> None:
         super().__init__(default_name, **kwargs)
         self.default_name = default_name
+        self.sample_clock_offset_ns: int | None = None   # ROS time - sample time, once known
 
     def create_publisher(self, msg_type: Any, topic: str, qos_profile: Any,
                          **kwargs: Any) -> Any:
@@ -78,3 +86,30 @@ class FlaairNode(Node):
             publisher.publish(message)
 
         self.create_timer(DIAGNOSTICS_PERIOD_S, tick)
+
+    def anchor_sample_clock(self, sample_index: int, sample_rate_hz: float, clock: str) -> None:
+        """Sample `sample_index` is acquired now (ROS time): from here on `stamp_ns_of` is ROS
+        time. The anchoring is published once, latched, on flaair/time_anchor, and logged.
+        """
+        now = self.get_clock().now()
+        self.sample_clock_offset_ns = now.nanoseconds - stamp_ns_of_sample(sample_index,
+                                                                           sample_rate_hz)
+        anchor = TimeAnchor(sample_index=sample_index, sample_rate_hz=sample_rate_hz,
+                            sample_clock=clock)
+        anchor.header.stamp = now.to_msg()
+        self.create_publisher(TimeAnchor, topics.TIME_ANCHOR, EVENTS).publish(anchor)
+        self.get_logger().info(f"{clock} sample {sample_index} anchored at ROS time "
+                               f"{now.nanoseconds * 1e-9:.6f} s (block stamps follow from it)")
+
+    def follow_sample_clock(self, fields: dict, sample_rate_hz: float) -> None:
+        """Take the stamp offset from an input block's header (once), so what this node publishes
+        carries the same clock as what it reads.
+        """
+        if self.sample_clock_offset_ns is None:
+            self.sample_clock_offset_ns = cdr.stamp_ns(fields) - stamp_ns_of_sample(
+                int(fields["first_sample_index"]), sample_rate_hz)
+
+    def stamp_ns_of(self, sample_index: int, sample_rate_hz: float) -> int:
+        """Header stamp (ns) of the block starting at `sample_index`: its acquisition time."""
+        return (self.sample_clock_offset_ns or 0) + stamp_ns_of_sample(sample_index,
+                                                                       sample_rate_hz)

@@ -10,6 +10,7 @@ COLLISION_STATUS = "/flaair/collision/status"  # CollisionStatus, one per wingbe
 COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and clearance
 CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
 CLOCK = "/clock"
+TIME_ANCHOR = "/flaair/time_anchor"              # TimeAnchor: a stream's sample clock in ROS time
 
 # The 20 kHz streams and their types (what a composed recorder records in-process)
 BLOCK_STREAM_TYPES = {

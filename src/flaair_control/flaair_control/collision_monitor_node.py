@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from flaair_common import intra, topics
-from flaair_common.blocks import check_block, stamp_from_time_s
+from flaair_common.blocks import check_block, stamp_from_ns
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
@@ -54,7 +54,6 @@ class CollisionMonitorNode(FlaairNode):
         self.fs_hz = p["sample_rate_hz"]
         self.drive_expected: int | None = None
         self.wing_expected: int | None = None
-        self.time_offset_s: float | None = None   # header time - index / fs
         self.rejected = self.undecodable = 0
         self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS,
                                                 BLOCK_STREAM)   # one per wingbeat: a stream
@@ -97,8 +96,7 @@ class CollisionMonitorNode(FlaairNode):
                                                            "rejected so far]")
             return
         self.wing_expected = first + n
-        if self.time_offset_s is None:
-            self.time_offset_s = int(m["sec"]) + int(m["nanosec"]) * 1e-9 - first / self.fs_hz
+        self.follow_sample_clock(m, self.fs_hz)   # verdict stamps: the wing state's clock
         self.advance(monitor_wing_input(m))
 
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
@@ -109,7 +107,7 @@ class CollisionMonitorNode(FlaairNode):
             self.publish(verdict)
 
     def publish(self, v: monitor.Verdict) -> None:
-        stamp = stamp_from_time_s((self.time_offset_s or 0.0) + v.end_index / self.fs_hz)
+        stamp = stamp_from_ns(self.stamp_ns_of(v.end_index, self.fs_hz))
         if v.event is not None:
             event = CollisionEvent(kind=EVENT_KINDS[v.event], wingbeat_index=v.wingbeat_index,
                                    spectrum_rmse_deg=v.spectrum_rmse_deg)

@@ -22,7 +22,6 @@ from rcl_interfaces.msg import SetParametersResult
 from std_srvs.srv import Trigger
 
 from flaair_common import cdr, intra, topics
-from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
@@ -79,7 +78,7 @@ class DsaControllerNode(FlaairNode):
         return out
 
     def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:
-        stamp_ns = stamp_ns_of_sample(b.first_sample_index, self.params.sample_rate_hz)
+        stamp_ns = self.stamp_ns_of(b.first_sample_index, self.params.sample_rate_hz)
         self.drive.publish(stamp_ns, io.drive_fields(b, self.params.sample_rate_hz))
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
@@ -94,6 +93,7 @@ class DsaControllerNode(FlaairNode):
 
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
+        self.follow_sample_clock(m, self.params.sample_rate_hz)   # stamps: the wing state's clock
         if self.state.mode == sv.DONE:
             return
         # only the start reads them (rclpy: ~20 us)
