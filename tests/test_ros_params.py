@@ -31,6 +31,7 @@ def test_run_applies_ros_args_parameter() -> None:
         ("block_size:=2.5", "block_size", "expecting type 'INTEGER'"),
         ("mode:=fast", "mode", "not one of lockstep, realtime"),
         ("modde:=realtime", "modde", "unknown parameter"),
+        ("mode:=", "'-p mode:='", "bad --ros-args: Couldn't parse parameter override rule"),
     ],
 )
 def test_bad_parameter_refused_at_start_with_its_name(override: str, named: str, why: str) -> None:

@@ -143,7 +143,12 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
     if _early_signals:
         return 0
     intra.install(bus)
-    rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args word (`-p name:=` with no value, ...)
+        why = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
+        print(f"{sys.argv[0].rsplit('/', 1)[-1]}: bad --ros-args: {why}", file=sys.stderr)
+        return 2
     executor = make_executor(executor_kind)
     stop_requested = bool(_early_signals)
 
