@@ -19,7 +19,7 @@ from benchlib import REPO_ROOT, Figure, print_table, write_json
 BENCHES = ["bench_sim", "bench_frontend_core", "bench_collision", "bench_analysis",
            "bench_recorder", "bench_closed_loop", "bench_discrepancy", "bench_stroke",
            "bench_sweep", "bench_bridge", "bench_import", "bench_lab_import", "bench_foxglove",
-           "bench_stock_numpy"]
+           "bench_stock_numpy", "bench_workspace"]
 # Extra arguments per benchmark: the discrepancy benchmark also runs the whole fixed hidden-effect
 # dataset (45 cases; `make test` runs one case of each kind, tests/test_discrepancy.py).
 EXTRA_ARGS = {"bench_discrepancy": ["--sweep"]}

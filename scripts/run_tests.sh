@@ -4,7 +4,7 @@
 #   2. the `graph` tests (ROS 2 processes exchanging data in real time): one at a time, alone on
 #      the machine, so a DDS graph never shares the cores with a model fit.
 # Usage: scripts/run_tests.sh [full|quick] [extra pytest args...]
-#   full   (make test)       everything
+#   full   (make test)       everything but `workspace` (a plain colcon build: `make bench` runs it)
 #   quick  (make test-quick) neither `graph` nor `slow`: the edit-test loop, in parallel only
 # Run inside the environment (scripts/in_env.sh). Exit status: non-zero if any phase failed.
 set -uo pipefail
@@ -33,11 +33,11 @@ phase() {   # phase NAME PYTEST_ARGS...
 
 case "$MODE" in
   full)
-    phase parallel -n "$WORKERS" --dist load -m "not graph" "$@"
+    phase parallel -n "$WORKERS" --dist load -m "not graph and not workspace" "$@"
     phase graph -p no:xdist -m graph "$@"
     ;;
   quick)
-    phase quick -n "$WORKERS" --dist load -m "not graph and not slow" "$@"
+    phase quick -n "$WORKERS" --dist load -m "not graph and not slow and not workspace" "$@"
     ;;
   *) echo "usage: scripts/run_tests.sh [full|quick] [pytest args...]" >&2; exit 2 ;;
 esac

@@ -1,3 +1,5 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "flaair_tools"
@@ -10,6 +12,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
+        # the graphs, as ROS 2 XML launch files (`flaair launch`, `ros2 launch flaair_tools ...`)
+        ("share/" + PACKAGE + "/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

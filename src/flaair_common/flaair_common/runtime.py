@@ -145,7 +145,7 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
     intra.install(bus)
     try:
         rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args word (`-p name:=` with no value, ...)
+    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args word (`-p name:=`, ...)
         why = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
         print(f"{sys.argv[0].rsplit('/', 1)[-1]}: bad --ros-args: {why}", file=sys.stderr)
         return 2

@@ -28,6 +28,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "play": ("flaair_tools.recorder.player", "replay a bag onto its topics"),
     "bag": ("flaair_tools.roscli.bag_cli",
             "bag info (checks every chunk), or reindex (recover) a damaged or unfinished bag"),
+    "launch": ("flaair_tools.orchestration.launch_cli",
+               "run a ROS 2 XML launch file, e.g. flaair_tools lockstep_loop.launch.xml (stands in "
+               "for `ros2 launch`)"),
     "live": ("flaair_tools.orchestration.live",
              "run the live graph on a real-time target (or --sim) and record it"),
     "experiment": ("flaair_tools.orchestration.experiment",

@@ -52,6 +52,17 @@ EXPERIMENT_TOPIC = "/flaair/experiment"
 GRAPH = GRAPHS["experiment"]
 
 
+def experiment_nodes(name: str) -> tuple[str, ...]:
+    """The roles experiment `name` runs beyond the common experiment graph: those its launch file
+    (experiment_NAME.launch.xml) adds. ExperimentError when it has none.
+    """
+    graph = GRAPHS.get(f"experiment_{name}")
+    if graph is None:
+        raise ExperimentError(f"experiment '{name}' has no launch file experiment_{name}.launch.xml"
+                              " in src/flaair_tools/launch")
+    return tuple(role for role in graph.roles if role not in GRAPH.roles)
+
+
 def experiment_roles(spec: ExperimentSpec) -> tuple[str, ...]:
     """Every node `spec` runs, in start order: the graph's, the spec's own, then its driver."""
     return (*GRAPH.roles, *spec.nodes, "controller" if spec.controller else "drive")
@@ -117,7 +128,7 @@ def load_experiments() -> dict[str, ExperimentSpec]:
             )
             out[name] = ExperimentSpec(name=name, description=str(entry.get("description", "")),
                                        kind=str(entry["kind"]), runs=runs,
-                                       nodes=tuple(entry.get("nodes", [])),
+                                       nodes=experiment_nodes(name),
                                        plant=dict(entry.get("plant", {})),
                                        controller=bool(entry.get("controller", False)),
                                        rest_s=float(entry.get("rest_s", 0.0)))

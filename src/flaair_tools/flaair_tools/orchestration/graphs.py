@@ -1,19 +1,26 @@
-"""Every FLAAIR graph, declared once as data: which nodes, in which order, with which overrides.
+"""Every FLAAIR graph, declared once, as a ROS 2 launch file: which nodes, in which order, with
+which overrides.
 
-`NODES` names each node once (its package, executable and, for the nodes `live` composes in one
-process, its component class). `GRAPHS` lists the graphs the tools bring up; `experiment`,
-`live`, the transition figure, the demo's build check and the tests read them instead of
-writing node lists of their own. No rclpy here: `flaair_common.graph.Graph` starts the
-processes.
+`NODES` names each kind of node once (its package, executable and, for the nodes `live` composes
+in one process, its component class). `GRAPHS` holds the graphs of the launch files in
+src/flaair_tools/launch (installed to share/flaair_tools/launch): `flaair launch` runs them as
+they are, and `experiment`, `live`, the transition figure, the demo's build check and the tests
+read them instead of writing node lists of their own. No rclpy here:
+`flaair_common.graph.Graph` starts the processes.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Mapping
 
-from flaair_common import topics
+import yaml
 
-__all__ = ["NodeDecl", "GraphDecl", "NODES", "GRAPHS", "node_of", "component_modules"]
+from flaair_common import topics
+from flaair_tools.orchestration import launch_file
+
+__all__ = ["NodeDecl", "GraphDecl", "NODES", "GRAPHS", "node_of", "component_modules",
+           "launch_dir", "graph_from_launch", "LAUNCH_PACKAGE"]
 
 
 @dataclass(frozen=True)
@@ -78,27 +85,54 @@ NODES: dict[str, NodeDecl] = {n.role: n for n in (
 _LOOP_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED,
                 topics.WING_STATE_TRUTH, topics.CONTROLLER_STATE)
 
+LAUNCH_PACKAGE = "flaair_tools"
+
+
+def launch_dir() -> Path:
+    """The directory of FLAAIR's launch files: the checkout's (src/flaair_tools/launch), else the
+    installed package's share/flaair_tools/launch.
+    """
+    from flaair_common.graph import repo_root
+    from flaair_model.config import ConfigError
+
+    try:
+        source = repo_root() / "src" / LAUNCH_PACKAGE / "launch"
+    except ConfigError:
+        source = Path("/nonexistent")
+    if source.is_dir():
+        return source
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory(LAUNCH_PACKAGE)) / "launch"
+
+
+def graph_from_launch(path: Path) -> GraphDecl:
+    """The graph a launch file declares: its nodes as roles in launch order, their parameters,
+    the loop's nodes (`loop_nodes`, what `live` composes) and its description
+    (`graph_description`). LaunchFileError for a node FLAAIR does not know.
+    """
+    described = launch_file.load(path)
+    by_executable = {(n.package, n.executable): n.role for n in NODES.values()}
+    loop = described.configurations.get("loop_nodes", "").split()
+    roles, parameters = [], {}
+    for node in described.nodes:
+        role = by_executable.get((node.package, node.executable))
+        if role is None:
+            raise launch_file.LaunchFileError(
+                f"{path}: node {node.package}/{node.executable} is not one of FLAAIR's")
+        roles.append(role)
+        if node.parameters:
+            parameters[role] = {k: yaml.safe_load(v) for k, v in node.parameters}
+    hot = tuple(r for r, n in zip(roles, described.nodes) if (n.name or n.executable) in loop)
+    return GraphDecl(path.name.removesuffix(".launch.xml"),
+                     described.configurations.get("graph_description", ""), hot=hot,
+                     side=tuple(r for r in roles if r not in hot), parameters=parameters,
+                     local_topics=_LOOP_TOPICS if hot else ())
+
+
+# Every graph, one per launch file (src/flaair_tools/launch/NAME.launch.xml): the one declaration
 GRAPHS: dict[str, GraphDecl] = {g.name: g for g in (
-    GraphDecl("lockstep_loop",
-              "the closed dSA loop in signal time: plant (lockstep), front end, dSA controller",
-              hot=("plant", "frontend", "controller"), parameters={"plant": {"mode": "lockstep"}},
-              local_topics=_LOOP_TOPICS),
-    GraphDecl("experiment", "a paper experiment on the simulated robot, recorded: the experiment "
-                            "adds its driver (drive or controller) and its own nodes "
-                            "(config/experiments.yaml)", hot=("plant", "frontend"),
-              side=("recorder",), parameters={"plant": {
-                  # drive is taken (and the driver starts) once the front end and the recorder
-                  # listen to the sensor stream and the recorder to the truth stream
-                  "mode": "lockstep", "min_sensor_subscribers": 2, "min_truth_subscribers": 1}}),
-    GraphDecl("live_sim", "`flaair live --sim`: the real-time simulated robot in the loop",
-              hot=("plant", "frontend", "controller"), side=(
-    "recorder", "collision_monitor", "foxglove"),
-              parameters={"plant": {"mode": "realtime", "noise": True}}, local_topics=_LOOP_TOPICS),
-    GraphDecl("live_target",
-              "`flaair live --target`: a lab's real-time target over UDP in the loop",
-              hot=("frontend", "controller", "bridge"),
-              side=("recorder", "collision_monitor", "foxglove"), local_topics=_LOOP_TOPICS),
-)}
+    graph_from_launch(path) for path in sorted(launch_dir().glob("*.launch.xml")))}
 
 
 def node_of(role: str) -> NodeDecl:
