@@ -73,6 +73,11 @@ def test_topic_choice_and_qos_adaptation():
     assert (not rec.wanted("/clock", (), False) and rec.wanted("/clock", (), True)
             and rec.wanted("/clock", ("/clock",), False))
     assert not rec.wanted("/flaair/drive", ("/flaair/sensor_v",), False)
+    # a recorder in a namespace records its own bench's streams, not another's
+    assert rec.wanted("/bench2/flaair/drive", (), False, "/bench2")
+    assert not rec.wanted("/flaair/drive", (), False, "/bench2")
+    assert not rec.wanted("/bench1/flaair/drive", (), False, "/bench2")
+    assert not rec.wanted("/bench2/flaair/drive", (), False)
 
     def qos(reliability, durability):
         return Qos(QosHistory.KEEP_LAST, 10, reliability, durability, QosTime(0, 0), QosTime(0, 0),

@@ -55,7 +55,7 @@ class RecorderNode(Node):
         """Subscribe to every wanted topic not subscribed yet."""
         for topic, types in self.get_topic_names_and_types():
             if topic in self.subscribed or topic in self.skipped or not recording.wanted(
-                    topic, self.chosen, self.p["record_clock"]):
+                    topic, self.chosen, self.p["record_clock"], self.get_namespace()):
                 continue
             try:
                 found = rio.topic_to_record(topic, types, self.get_publishers_info_by_topic(topic),

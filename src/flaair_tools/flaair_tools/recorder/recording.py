@@ -105,13 +105,16 @@ def parse_topic_list(text: str) -> tuple[str, ...]:
     return names
 
 
-def wanted(topic: str, chosen: tuple[str, ...], record_clock: bool) -> bool:
-    """Whether to record `topic`: the chosen ones, else every /flaair topic; /clock if asked."""
+def wanted(topic: str, chosen: tuple[str, ...], record_clock: bool,
+           namespace: str = "/") -> bool:
+    """Whether to record `topic`: the chosen ones, else every /flaair topic of the recorder's
+    `namespace` (a recorder started in /bench2 records /bench2/flaair/...); /clock if asked.
+    """
     if topic == CLOCK:
         return record_clock or topic in chosen
     if chosen:
         return topic in chosen
-    return topic.startswith(NAMESPACE)
+    return topic.startswith(namespace.rstrip("/") + NAMESPACE)
 
 
 @dataclass(frozen=True)
