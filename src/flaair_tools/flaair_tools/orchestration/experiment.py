@@ -262,15 +262,17 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
         # what it sent before a subscription matched (the front end once lost 211 blocks so).
         recorded = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
                     bagio.RUN_MARKER_TOPIC, EXPERIMENT_TOPIC]
-        consumers = [("plant_node", topics.DRIVE), ("frontend_node", topics.SENSOR_VOLTAGE)]
+        node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
+        consumers = [(node_name["plant"], topics.DRIVE),
+                     (node_name["frontend"], topics.SENSOR_VOLTAGE)]
         if "collision_monitor" in spec.nodes:
             recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
-            consumers += [("collision_monitor_node", topics.WING_STATE)]
+            consumers += [(node_name["collision_monitor"], topics.WING_STATE)]
         if spec.controller:
-            consumers += [("dsa_controller_node", topics.WING_STATE)]
-        needed = [("recorder_node", t) for t in recorded] + consumers
+            consumers += [(node_name["controller"], topics.WING_STATE)]
+        needed = [(node_name["recorder"], t) for t in recorded] + consumers
         _spin_until(runner, graph, lambda: all(
-            runner.subscribed(n, t) for n, t in needed if n != "dsa_controller_node"), 90.0,
+            runner.subscribed(n, t) for n, t in needed if n != node_name.get("controller")), 90.0,
                     "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed))
         # discovery is seen here a moment before the publishers see it
         settle_until = time.monotonic() + 0.5

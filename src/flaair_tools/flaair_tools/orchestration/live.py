@@ -248,11 +248,11 @@ class Watcher:
 
     def recorder_listens(self) -> bool:
         return self.args.out is None or all(
-            any(i.node_name == "recorder_node"
+            any(i.node_name == node_of("recorder").node_name
                 for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
 
     def monitor_listens(self) -> bool:
-        return any(i.node_name == "collision_monitor_node"
+        return any(i.node_name == node_of("collision_monitor").node_name
                    for i in self.node.get_subscriptions_info_by_topic(topics.WING_STATE))
 
     def run_for_duration(self) -> None:
