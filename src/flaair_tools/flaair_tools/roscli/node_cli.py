@@ -11,13 +11,28 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from typing import Any, Callable
 
 import rclpy
+from rclpy.executors import ExternalShutdownException
 
 from flaair_model.config import ConfigError, node_parameters
 
 CONFIG_FILE = "flaair.yaml"
 SECTION = "flaair_cli"
+
+
+def run_with_node(name: str, body: Callable[[Any], int]) -> int:
+    """Rclpy up, `body(node)` on a node called `name`, everything torn down after; Ctrl-C: 130."""
+    rclpy.init()
+    node = rclpy.create_node(name)
+    try:
+        return body(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 130
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 def cli_defaults(prog: str) -> dict:
@@ -53,9 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.discovery_s < 0 or args.timeout <= 0:
         parser.error("--discovery-s must be >= 0 and --timeout > 0")
-    rclpy.init()
-    node = rclpy.create_node("flaair_node_cli")
-    try:
+    def body(node) -> int:
         me = full_name(node.get_name(), node.get_namespace())
         wanted = set(args.wait_for)
         start = time.monotonic()
@@ -77,11 +90,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"flaair node list: no nodes seen in {args.discovery_s:g} s on ROS_DOMAIN_ID "
                   f"{domain}", file=sys.stderr)
         return 0
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+
+    return run_with_node("flaair_node_cli", body)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import Parameter, parameter_value_to_python
 from rclpy.parameter_client import AsyncParameterClient
 
-from flaair_tools.roscli.node_cli import cli_defaults
+from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
 
 
 class ValueTypeError(ValueError):
@@ -75,49 +75,46 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{args.verb} needs a parameter name")
     if args.verb == "set" and args.value is None:
         parser.error("set needs a value: bin/flaair param set NODE NAME VALUE")
-    rclpy.init()
-    node = rclpy.create_node("flaair_param")
-    try:
-        client = AsyncParameterClient(node, args.node)
-        if not client.wait_for_services(timeout_sec=args.timeout):
-            print(f"flaair param: node '{args.node}' not found within {args.timeout:g} s",
-                  file=sys.stderr)
-            return 1
-        if args.verb == "list":
-            for name in sorted(_spin(node, client.list_parameters(), args.timeout,
-                                     "list_parameters").result.names):
-                print(name)
-            return 0
-        values = _spin(node, client.get_parameters([args.name]), args.timeout,
-                       "get_parameters").values
-        if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
-            print(f"flaair param: node '{args.node}' has no parameter '{args.name}'",
-                  file=sys.stderr)
-            return 1
-        if args.verb == "get":
-            print(parameter_value_to_python(values[0]))
-            return 0
+
+    def body(node) -> int:
         try:
-            value = convert(args.value, values[0].type, args.name)
-        except ValueTypeError as exc:
-            print(f"flaair param set: {exc}", file=sys.stderr)
-            return 2
-        (result,) = _spin(node, client.set_parameters([Parameter(args.name, value=value)]),
-                          args.timeout, "set_parameters").results
-        if not result.successful:
-            print(f"flaair param set: {args.node} refused {args.name} = {value!r}: {result.reason}",
-                  file=sys.stderr)
+            client = AsyncParameterClient(node, args.node)
+            if not client.wait_for_services(timeout_sec=args.timeout):
+                print(f"flaair param: node '{args.node}' not found within {args.timeout:g} s",
+                      file=sys.stderr)
+                return 1
+            if args.verb == "list":
+                for name in sorted(_spin(node, client.list_parameters(), args.timeout,
+                                         "list_parameters").result.names):
+                    print(name)
+                return 0
+            values = _spin(node, client.get_parameters([args.name]), args.timeout,
+                           "get_parameters").values
+            if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
+                print(f"flaair param: node '{args.node}' has no parameter '{args.name}'",
+                      file=sys.stderr)
+                return 1
+            if args.verb == "get":
+                print(parameter_value_to_python(values[0]))
+                return 0
+            try:
+                value = convert(args.value, values[0].type, args.name)
+            except ValueTypeError as exc:
+                print(f"flaair param set: {exc}", file=sys.stderr)
+                return 2
+            (result,) = _spin(node, client.set_parameters([Parameter(args.name, value=value)]),
+                              args.timeout, "set_parameters").results
+            if not result.successful:
+                print(f"flaair param set: {args.node} refused {args.name} = {value!r}: "
+                      f"{result.reason}", file=sys.stderr)
+                return 1
+            print(f"set {args.name} = {value!r} on {args.node}")
+            return 0
+        except TimeoutError as exc:
+            print(f"flaair param: {exc}", file=sys.stderr)
             return 1
-        print(f"set {args.name} = {value!r} on {args.node}")
-        return 0
-    except TimeoutError as exc:
-        print(f"flaair param: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+
+    return run_with_node("flaair_param", body)
 
 
 if __name__ == "__main__":

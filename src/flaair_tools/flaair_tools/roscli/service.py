@@ -18,7 +18,7 @@ import sys
 import yaml
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
-from flaair_tools.roscli.node_cli import cli_defaults
+from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
 
 
 def parse_request(service_class: type, text: str) -> object:
@@ -59,9 +59,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     import rclpy
 
-    rclpy.init()
-    node = rclpy.create_node("flaair_service")
-    try:
+    def body(node) -> int:
         if args.verb == "list":
             wait_s = min(args.timeout, 2.0)   # discovery: what answers within a moment
             rclpy.spin_once(node, timeout_sec=wait_s)
@@ -81,11 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         print(json.dumps(to_dict(future.result()), allow_nan=False))
         return 0
-    except KeyboardInterrupt:
-        return 130
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+
+    return run_with_node("flaair_service", body)
 
 
 if __name__ == "__main__":

@@ -19,12 +19,11 @@ import time
 from pathlib import Path
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
-from flaair_tools.roscli.node_cli import cli_defaults
+from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
 
 
 def rate_report(arrivals_s: list[float]) -> str:
@@ -146,9 +145,7 @@ def main(argv: list[str] | None = None) -> int:
                      help="how long --wait-subscribers waits (default 30 s)")
     args = parser.parse_args(argv)
 
-    rclpy.init()
-    node = rclpy.create_node("flaair_topic")
-    try:
+    def body(node) -> int:
         if args.verb == "list":
             deadline = time.monotonic() + 1.0
             while time.monotonic() < deadline:
@@ -200,11 +197,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"messages within {args.wait_timeout:g} s", file=sys.stderr)
             return 1
         return 0
-    except (KeyboardInterrupt, ExternalShutdownException):
-        return 130
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+
+    return run_with_node("flaair_topic", body)
 
 
 if __name__ == "__main__":
