@@ -63,8 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     listing.add_argument("--wait-for", metavar="NODE", action="append", default=[],
                          help="keep listening until NODE (a full name, e.g. /dsa_controller_node) "
                               "is seen, up to --timeout; repeatable. Exit 1 if one never appears")
-    listing.add_argument("--timeout", type=float, default=60.0,
-                         help="longest wait for the --wait-for nodes (default 60 s)")
+    listing.add_argument("--timeout", type=float, default=float(defaults["wait_for_timeout_s"]),
+                         help="longest wait for the --wait-for nodes (default "
+                              f"{defaults['wait_for_timeout_s']} s)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.discovery_s < 0 or args.timeout <= 0:
         parser.error("--discovery-s must be >= 0 and --timeout > 0")
