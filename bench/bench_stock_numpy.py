@@ -32,7 +32,7 @@ TESTS = [
     "test_cdr.py", "test_cdr_layouts.py", "test_lfilter_kernels.py", "test_wingbeat.py",
     "test_effect_table.py", "test_model_per_channel.py", "test_bag_io.py", "test_runcsv.py",
     "test_bridge_core.py", "test_bridge_protocol.py", "test_core_properties.py",
-    "test_identify.py", "test_composed_loop.py",
+    "test_identify.py", "test_composed_loop.py", "test_health.py",
 ]
 
 
