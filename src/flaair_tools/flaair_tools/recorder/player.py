@@ -166,9 +166,9 @@ def main(argv: list[str] | None = None) -> int:
                 last_clock_ns = timestamp_ns
             publishers[topic].publish(bytes(data))
             sent += 1
+        played_s = time.monotonic() - start_wall
         time.sleep(DRAIN_S)
-        node.get_logger().info(
-            f"played {sent} messages from {args.bag} in {time.monotonic() - start_wall:.2f} s")
+        node.get_logger().info(f"played {sent} messages from {args.bag} in {played_s:.3f} s")
         return 0
     except bagio.BagError as exc:
         print(f"flaair play: {exc}", file=sys.stderr)
