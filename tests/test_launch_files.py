@@ -42,7 +42,8 @@ def test_the_graphs_are_those_of_the_launch_files_and_as_the_tools_had_them() ->
     assert sorted(by_name) == sorted(p.name.removesuffix(".launch.xml") for p in LAUNCH_FILES)
     loop = by_name["lockstep_loop"]
     assert (loop.hot, loop.side, dict(loop.parameters)) == (
-        ("plant", "frontend", "controller"), (), {"plant": {"mode": "lockstep"}})
+        ("plant", "frontend", "controller"), (), {"plant": {
+            "mode": "lockstep", "min_sensor_subscribers": 1}})
     experiment = by_name["experiment"]
     assert (experiment.roles, dict(experiment.parameters)) == (
         ("recorder", "plant", "frontend"), {"plant": {
@@ -147,7 +148,8 @@ def test_launch_cli_prints_the_commands_and_names_bad_input() -> None:
     lines = shown.stdout.splitlines()
     assert [line.split()[1].rsplit("/", 1)[1] for line in lines] == [
         "plant_node", "frontend_node", "dsa_controller_node"]
-    assert lines[0].endswith("--ros-args -r __node:=plant_node -r __ns:=/bench2 -p mode:=lockstep")
+    assert lines[0].endswith("--ros-args -r __node:=plant_node -r __ns:=/bench2 -p mode:=lockstep "
+                             "-p min_sensor_subscribers:=1")
     listed = subprocess.run([FLAAIR, "launch", "flaair_tools", "lockstep_loop.launch.xml",
                              "--show-args"], capture_output=True, text=True, timeout=120)
     assert listed.stdout.startswith("namespace (default '/'): ROS namespace")
