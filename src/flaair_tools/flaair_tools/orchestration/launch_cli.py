@@ -66,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--subnet", action="store_true",
                         help="discover the whole subnet (default: localhost only)")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.domain_id is not None and not 0 <= args.domain_id <= 232:
+        parser.error(f"--domain-id {args.domain_id}: a ROS domain is 0-232 (1-101 are safe "
+                     "on Linux)")
     try:
         path = find_launch_file(args.package, args.file)
         if args.show_args:
