@@ -13,7 +13,6 @@ from typing import Mapping
 __all__ = ["OK", "WARN", "ERROR", "STALE", "Health", "health", "loss_percent"]
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
-LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
 DIAGNOSTICS_PERIOD_S = 1.0   # diagnostic_updater's default rate: 1 Hz
 
 
