@@ -6,6 +6,7 @@ it depends on nothing of FLAAIR's.
 - `pvdf`: the composite-beam PVDF charge model (paper eqs. charge, strain, chargeamp).
 - `model`: frozen parameter dataclasses and the effect registry (`EFFECT_TYPES`).
 - `model_io`: config/model.yaml <-> `Model`.
+- `terms`: the term library the discrepancy workflow discovers missing physics from.
 - `config`: the one locator of config/ and the ROS parameter-file reader.
 - `schema`: `ParamSpec`, each node parameter declared once.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
@@ -13,4 +14,5 @@ it depends on nothing of FLAAIR's.
 - `settings`: typed accessors of the config sections a tool reads that are not its own.
 """
 
-__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes", "settings"]
+__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes", "settings",
+           "terms"]

@@ -28,6 +28,7 @@ from flaair_model.effects import (
     WingDamage,
 )
 from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
+from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm, term_from_dict
 from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
 
 __all__ = [
@@ -292,6 +293,7 @@ class Model:
     sensors: SensorParams
     noise: NoiseParams
     effects: tuple[tuple[str, Effect | PerChannel], ...] = ()
+    discovered: tuple[DiscoveredTerm, ...] = ()
 
     def __post_init__(self) -> None:
         for section, kind in (("plant", PlantParams), ("sensors", SensorParams),
@@ -315,6 +317,15 @@ class Model:
             built[name] = effect_from_params(name, params)
         object.__setattr__(self, "effects", tuple(
             (n, built[n]) for n in EFFECT_NAMES if n in built))
+        terms = tuple(t if isinstance(t, DiscoveredTerm) else term_from_dict(t, f"discovered[{i}]")
+                      for i, t in enumerate(self.discovered))
+        places = [(t.kind, t.acts_on) for t in terms]
+        if len(set(places)) < len(places):
+            raise ModelError("discovered: a term is given twice on the same site")
+        if sum(t.is_dynamics for t in terms) > MAX_DYNAMICS_TERMS:
+            raise ModelError(f"discovered: at most {MAX_DYNAMICS_TERMS} terms may act on the "
+                             "dynamics")
+        object.__setattr__(self, "discovered", terms)
 
     def effect(self, name: str) -> Effect | PerChannel | None:
         """The effect called `name` if it is on, else None (unknown names raise ModelError).

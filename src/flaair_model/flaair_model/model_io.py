@@ -13,6 +13,7 @@ import yaml
 
 from flaair_model.config import CONFIG_DIR_ENV, ConfigError, config_dir
 from flaair_model.pvdf import PvdfMaterial, SensorBeam
+from flaair_model.terms import term_from_dict, term_to_dict
 
 from .model import (
     EFFECT_TYPES,
@@ -29,7 +30,7 @@ __all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dic
            "save_model"]
 
 _MODEL_FILE = "model.yaml"
-_SECTIONS = ("plant", "sensors", "noise", "effects")
+_SECTIONS = ("plant", "sensors", "noise", "effects", "discovered")
 _SENSOR_KEYS = ("reference_voltage_v", "pvdf", "stroke", "pitch")
 
 
@@ -117,7 +118,12 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
                           else _coerce(v)) for k,
                       v in _mapping(f"effects.{name}", params or {}).items()}
         effects.append((name, effect_from_params(name, params)))
-    return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects))
+    terms_raw = d.get("discovered") or []
+    if not isinstance(terms_raw, list):
+        raise ModelError(f"discovered must be a list of terms, got {type(terms_raw).__name__}")
+    terms = tuple(term_from_dict(t, f"discovered[{i}]") for i, t in enumerate(terms_raw))
+    return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects),
+                 discovered=terms)
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:
@@ -138,6 +144,7 @@ def model_to_dict(m: Model) -> dict[str, Any]:
         },
         "noise": _as_dict(m.noise),
         "effects": {name: effect_params(effect) for name, effect in m.effects},
+        **({"discovered": [term_to_dict(t) for t in m.discovered]} if m.discovered else {}),
     }
 
 

@@ -36,6 +36,15 @@ from numba import njit, prange
 
 from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
+from flaair_sim.core.plant_terms import (
+    add_batch_sensor_terms,
+    add_sensor_terms,
+    batch_drives,
+    drive_seen,
+    terms_state,
+)
+from flaair_sim.core.sensor_kernel import sensor_channel_kernel
+from flaair_sim.core.term_kernel import dynamics_terms
 from flaair_sim.core.plant_params import Prepared, prepare
 
 __all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
@@ -68,6 +77,7 @@ class PlantState:
         line, oldest first (length = integer delay in samples, + 1 with a fractional part).
     fs_hz : sample rate the state belongs to.
     sample_index : number of samples simulated so far.
+    terms : state of the model's drive and sensor terms (`plant_terms.terms_state`; None: rest).
     """
 
     mechanical: np.ndarray
@@ -76,6 +86,7 @@ class PlantState:
     delay_pitch_v: np.ndarray
     fs_hz: float
     sample_index: int = 0
+    terms: Optional[np.ndarray] = None
 
 
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
@@ -96,10 +107,14 @@ def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
     inv_i = 1.0 / p[pp.P_I]
     inv_ip = 1.0 / p[pp.P_IP]
+    t = pp.P_TERMS
     return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i,
             p[pp.P_CSTRUCT] * inv_i, p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip,
             p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip, p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i,
-            p[pp.P_CC] * inv_i)
+            p[pp.P_CC] * inv_i, p[pp.P_NTERMS],  # then the term slots (term_kernel.C_TERMS)
+            p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5], p[t + 6], p[t + 7], p[t + 8],
+            p[t + 9], p[t + 10], p[t + 11], p[t + 12], p[t + 13], p[t + 14], p[t + 15], p[t + 16],
+            p[t + 17], p[t + 18], p[t + 19])
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -107,14 +122,19 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
     2: stop acts (just after an impact, where phi may be a rounding error below the limit).
     """
-    ga, gamma, k, cstruct, kh, hcubic, cp, jc, dp, limit, kc, cc = c
+    ga, gamma, k, cstruct, kh, hcubic, cp, jc, dp, limit, kc, cc = (
+        c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11])
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
+    if c[12] > 0.0:
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
     ddpsi = -cp * dpsi - kh * (psi + hcubic * psi * psi * psi) - dp * drag - jc * ddphi
+    if c[12] > 0.0:
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
     return ddphi, ddpsi
 
 
@@ -228,52 +248,13 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
 
 
 @njit(cache=True)
-def _sensor_channel(out, hp_on, b0, b1, a1, z, hist, whole, frac, v_ref):
-    """Turn the deviations in `out` into sensor volts in place: high-pass, delay, + v_ref.
-
-    `hist` holds the last len(hist) high-passed deviations (oldest first) and is updated in
-    place; returns the high-pass state.
-    """
-    n = out.shape[0]
-    if hp_on != 0.0:
-        for k in range(n):
-            y = b0 * out[k] + z
-            z = b1 * out[k] - a1 * y
-            out[k] = y
-    length = hist.shape[0]
-    if length == 0:
-        for k in range(n):
-            out[k] = v_ref + out[k]
-        return z
-    dev = out.copy()
-    # sample j of the concatenation [hist, dev] is hist[j] for j < length, else dev[j - length]
-    for k in range(n):
-        j = length + k - whole
-        newest = dev[j - length] if j >= length else hist[j]
-        if frac == 0.0:
-            out[k] = v_ref + newest
-        else:
-            older = dev[j - 1 - length] if j - 1 >= length else hist[j - 1]
-            out[k] = v_ref + ((1.0 - frac) * newest + frac * older)
-    if n >= length:
-        for j in range(length):
-            hist[j] = dev[n - length + j]
-    else:
-        for j in range(length - n):
-            hist[j] = hist[j + n]
-        for j in range(n):
-            hist[length - n + j] = dev[j]
-    return z
-
-
-@njit(cache=True)
 def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_p,
          phi_out, psi_out, vs_out, vp_out):
     """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
     _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
-    zi[0] = _sensor_channel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1],
+    zi[0] = sensor_channel_kernel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1],
                             zi[0], hist_s, delay_s, p[pp.P_DS_FRAC], p[pp.P_VREF])
-    zi[1] = _sensor_channel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1],
+    zi[1] = sensor_channel_kernel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1],
                             zi[1], hist_p, delay_p, p[pp.P_DP_FRAC], p[pp.P_VREF])
 
 
@@ -385,6 +366,8 @@ def step(state: PlantState, inputs: PlantInputs,
         raise ValueError(f"fs_hz {fs:g} differs from the state's fs_hz {state.fs_hz:g}")
     drive = _check_drive(drive_v_block)
     prep = prepare(model, fs)
+    terms = terms_state(model, state.terms)
+    seen = drive_seen(model, fs, drive, state.sample_index, terms)
     len_s, len_p = prep.delay_lengths
     x = state.mechanical.copy()
     zi = state.highpass_zi.copy()
@@ -392,8 +375,9 @@ def step(state: PlantState, inputs: PlantInputs,
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
     phi, psi, vs, vp = (np.empty(n) for _ in range(4))
-    _run(x, zi, hist_s, hist_p, drive, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact,
+    _run(x, zi, hist_s, hist_p, seen, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact,
          prep.params, prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
+    add_sensor_terms(model, fs, drive, state.sample_index, phi, psi, vs, vp, terms)
     if not math.isfinite(float(np.add.reduce(x))):
         # Only a drive far outside any actuator's range (kV and up) gets here: the nodes clamp
         # to drive_limit_v before the model, so this is a caller's error, never a silent NaN.
@@ -411,6 +395,7 @@ def step(state: PlantState, inputs: PlantInputs,
         delay_pitch_v=_frozen(hist_p),
         fs_hz=fs,
         sample_index=state.sample_index + n,
+        terms=_frozen(terms),
     )
     return new_state, SimOutput(phi, psi, vs, vp)
 
@@ -493,6 +478,7 @@ def simulate_batch(
         raise ValueError(f"drive_v has {drive.shape[0]} rows for {m} models")
     n = drive.shape[1]
     params, nsubs, delays, hist_len = _batch_tables(models, fs)
+    commanded, (drive, states) = drive, batch_drives(models, fs, drive)
     if out is None:
         phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     else:
@@ -509,6 +495,7 @@ def simulate_batch(
              psi[0], vs[0], vp[0])
     elif m:
         _run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
+    add_batch_sensor_terms(models, fs, commanded, states, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
 
 
@@ -518,14 +505,18 @@ def simulate_batch(
 @njit(cache=True, parallel=True)
 def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out,
                     vp_out):
-    """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared drive."""
+    """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared (1, n)
+    or per-model (m, n) drive.
+    """
+    shared = drive.shape[0] == 1
     for i in prange(params.shape[0]):
+        row = np.int64(0) if shared else np.int64(i)
         x = x0[i].copy()
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
-        _run(x, zi, hist_s, hist_p, drive, h, nsubs[i, 0], nsubs[i, 1], params[i], delays[i, 0],
-             delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i],
+             delays[i, 0], delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
 
 
 def simulate_batch_from(
@@ -560,8 +551,10 @@ def simulate_batch_from(
     params, nsubs, delays, hist_len = _batch_tables(models, fs)
     n = drive.shape[0]
     phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
+    seen, states = batch_drives(models, fs, drive[None, :])
     if m:
-        _run_batch_from(drive, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
+        _run_batch_from(seen, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
+    add_batch_sensor_terms(models, fs, drive[None, :], states, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
 
 
@@ -584,8 +577,9 @@ def sensor_chain(
                               * drive)
     vp = np.ascontiguousarray(p[pp.P_GP] * psi)
     len_s, len_p = prep.delay_lengths
-    _sensor_channel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0,
+    sensor_channel_kernel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0,
                     np.zeros(len_s), prep.delay_stroke_samples, p[pp.P_DS_FRAC], p[pp.P_VREF])
-    _sensor_channel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0,
+    sensor_channel_kernel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0,
                     np.zeros(len_p), prep.delay_pitch_samples, p[pp.P_DP_FRAC], p[pp.P_VREF])
+    add_sensor_terms(model, fs, drive, 0, phi, psi, vs, vp, terms_state(model))
     return vs, vp

@@ -18,6 +18,7 @@ import numpy as np
 
 from flaair_model.effects import EFFECTS, TermContext
 from flaair_model.model import SIDES, Model, ModelError
+from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES
 
 __all__ = [
     "MAX_OMEGA_H",
@@ -53,6 +54,10 @@ __all__ = [
     "P_HPP_A1",
     "P_DS_FRAC",
     "P_DP_FRAC",
+    "P_NTERMS",
+    "P_TERMS",
+    "TERM_SLOT",
+    "MAX_DYNAMICS_TERMS",
     "Prepared",
     "prepare",
 ]
@@ -71,8 +76,12 @@ MAX_OMEGA_H_CONTACT = 0.05
     P_HPS_ON, P_HPS_B0, P_HPS_B1, P_HPS_A1,
     P_HPP_ON, P_HPP_B0, P_HPP_B1, P_HPP_A1,
     P_DS_FRAC, P_DP_FRAC,
-    N_KERNEL_PARAMS,
-) = range(31)
+    P_NTERMS, P_TERMS,
+) = range(32)
+# Each dynamics slot of the discovered terms: [equation (1 stroke, 2 pitch; 0 empty),
+# coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES].
+TERM_SLOT = 2 + len(PRIMITIVES)
+N_KERNEL_PARAMS = P_TERMS + MAX_DYNAMICS_TERMS * TERM_SLOT
 
 
 class Prepared(NamedTuple):
@@ -164,6 +173,15 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
                     raise ModelError(f"effects.{entry.name}: kernel term {term!r} is not one the "
                                      "plant knows "
                                      f"({'per sensor chain' if i is not None else 'plant-wide'})")
+
+    dynamics = [t for t in model.discovered if t.is_dynamics]
+    p[P_NTERMS] = len(dynamics)
+    for slot, term in enumerate(dynamics):
+        base = P_TERMS + slot * TERM_SLOT
+        stroke = term.acts_on == "stroke_dynamics"
+        p[base] = 1.0 if stroke else 2.0
+        p[base + 1] = term.coefficient / (p[P_I] if stroke else p[P_IP])
+        p[base + 2:base + TERM_SLOT] = term.monomial
 
     rates = [
         math.sqrt(stiffness / p[P_I]),

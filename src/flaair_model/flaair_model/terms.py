@@ -1,0 +1,354 @@
+"""The term library: generic candidate terms for physics the effect vocabulary lacks.
+
+When the discrepancy workflow's vocabulary (`flaair_model.effects`) leaves a located gap, its
+discovery step searches this table for the term that closes it (docs/DISCREPANCY.md). A term
+found that way is a `DiscoveredTerm`: a `TermKind` of the table, the place it acts on and its
+fitted parameters. A model carries its discovered terms (config/model.yaml `discovered:`) and
+the plant applies them wherever it simulates (`flaair_sim.core.plant`).
+
+Where a term acts (`SITES`) and what its coefficient means:
+
+- ``stroke_dynamics``, ``pitch_dynamics``: a torque (N m) added to the right-hand side of the
+  stroke or pitch equation of motion; its feature is a monomial of the mechanical state
+  (`PRIMITIVES`: phi, dphi, psi, dpsi in rad and rad/s, sign() and abs() of the velocities),
+  evaluated inside the plant's RK4 kernel;
+- ``drive``: volts added to the drive before the actuator (a function of the drive alone);
+- ``stroke_sensor_v``, ``pitch_sensor_v``: volts added to that charge amplifier's output, after
+  its high-pass and delay, before noise. There, ``stroke_sensor_v`` and ``pitch_sensor_v`` name
+  the outputs measured from the reference voltage V_HREF (the deviations).
+
+Each `TermKind` is one row: its name, the sites it may act on, its form in the model's variable
+names (`form`; ``{corner_hz}`` stands for a shape parameter), how it is evaluated (a monomial
+for the dynamics, a numpy feature for the drive and the sensors), its shape parameters and the
+vocabulary effect it duplicates at a site (`same_as`: the search reports that effect instead).
+Adding a term is one row in `TERM_KINDS`; the search and the plant read the table.
+
+Signals a drive or sensor feature may use (`TermSignals`): ``drive_v``; ``ddrive_v`` (V/s, the
+backward difference of the held drive); ``t`` (s from the start of the simulation); ``phi`` and
+``psi`` (rad, sensor sites only); the two sensor deviations (sensor sites only); and
+``lowpass(x, corner_hz)`` (first-order, bilinear, one per term, its state carried across blocks).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Optional
+
+import numpy as np
+from scipy import signal
+
+from flaair_model.validation import ModelError, check_number
+
+__all__ = ["SITES", "DYNAMICS_SITES", "SENSOR_SITES", "PRIMITIVES", "ShapeParam", "TermSignals",
+           "TermKind", "TERM_KINDS", "KINDS", "DiscoveredTerm", "MAX_DYNAMICS_TERMS",
+           "term_from_dict", "term_to_dict", "lowpass_ba", "kinds_for"]
+
+SITES: tuple[str, ...] = (
+    "stroke_dynamics", "pitch_dynamics", "drive", "stroke_sensor_v", "pitch_sensor_v")
+DYNAMICS_SITES: tuple[str, ...] = SITES[:2]
+SENSOR_SITES: tuple[str, ...] = SITES[3:]
+# The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order.
+PRIMITIVES: tuple[str, ...] = (
+    "phi", "dphi", "psi", "dpsi", "sign(dphi)", "sign(dpsi)", "abs(dphi)", "abs(dpsi)")
+# The plant kernel has this many slots for dynamics terms (the search adds one or two).
+MAX_DYNAMICS_TERMS = 2
+
+
+@dataclass(frozen=True)
+class ShapeParam:
+    """A term's shape parameter (fitted along with its coefficient): bounds and start values."""
+
+    key: str
+    lower: float
+    upper: float
+    grid: tuple[float, ...]
+
+
+def lowpass_ba(corner_hz: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """First-order low-pass (bilinear, pre-warped corner) as normalized (b, a)."""
+    k = math.tan(math.pi * min(corner_hz, 0.49 * fs_hz) / fs_hz)
+    return np.array([k, k]) / (1.0 + k), np.array([1.0, (k - 1.0) / (k + 1.0)])
+
+
+class TermSignals:
+    """The signals a drive or sensor feature is evaluated on, for one block.
+
+    `zi` is the term's low-pass state on entry; `lowpass` leaves the state after the block in
+    `zf` (a feature may use one low-pass).
+    """
+
+    def __init__(self, fs_hz: float, drive_v: np.ndarray, ddrive_v: np.ndarray, t: np.ndarray,
+                 phi: Optional[np.ndarray] = None, psi: Optional[np.ndarray] = None,
+                 stroke_sensor_v: Optional[np.ndarray] = None,
+                 pitch_sensor_v: Optional[np.ndarray] = None, zi: float = 0.0) -> None:
+        self.fs_hz = fs_hz
+        self.drive_v, self.ddrive_v, self.t = drive_v, ddrive_v, t
+        self.phi, self.psi = phi, psi
+        self.stroke_sensor_v, self.pitch_sensor_v = stroke_sensor_v, pitch_sensor_v
+        self.zi = self.zf = float(zi)
+
+    def lowpass(self, x: np.ndarray, corner_hz: float) -> np.ndarray:
+        """`x` through the term's first-order low-pass at `corner_hz`."""
+        b, a = lowpass_ba(corner_hz, self.fs_hz)
+        y, zf = signal.lfilter(b, a, x, zi=np.array([self.zi]))
+        self.zf = float(zf[0])
+        return y
+
+    def need(self, name: str) -> np.ndarray:
+        """A sensor-site signal; a term that reads it elsewhere is a table error."""
+        value = getattr(self, name)
+        if value is None:
+            raise ModelError(f"term signal {name!r} exists at the sensor sites only")
+        return value
+
+
+Feature = Callable[[TermSignals, Mapping[str, float]], np.ndarray]
+
+
+@dataclass(frozen=True)
+class TermKind:
+    """One row of the term library.
+
+    Attributes
+    ----------
+    name : its key (`DiscoveredTerm.kind`).
+    words : what it is, in words.
+    sites : the sites it may act on.
+    form : the feature in the model's variable names; ``{key}`` marks a shape parameter.
+    monomial : exponents over `PRIMITIVES` (dynamics sites).
+    feature : (signals, shape values) -> feature per sample (drive and sensor sites).
+    shape : its shape parameters.
+    same_as : {site: vocabulary effect} where the term is that effect under another name.
+    examples : physics it stands for, for the report.
+    """
+
+    name: str
+    words: str
+    sites: tuple[str, ...]
+    form: str
+    monomial: tuple[int, ...] = ()
+    feature: Optional[Feature] = None
+    shape: tuple[ShapeParam, ...] = ()
+    same_as: Mapping[str, str] = field(default_factory=dict)
+    examples: str = ""
+
+    def __post_init__(self) -> None:
+        dynamic = set(self.sites) & set(DYNAMICS_SITES)
+        if dynamic and (len(self.monomial) != len(PRIMITIVES) or self.feature is not None
+                        or set(self.sites) - dynamic):
+            raise ModelError(f"term {self.name}: a dynamics term is a monomial over "
+                             f"{len(PRIMITIVES)} primitives and acts on the dynamics only")
+        if not dynamic and self.feature is None:
+            raise ModelError(f"term {self.name}: a drive or sensor term needs a feature")
+        unknown = set(self.sites) - set(SITES)
+        if unknown:
+            raise ModelError(f"term {self.name}: unknown site(s) {', '.join(sorted(unknown))}")
+
+
+def _other(site: str) -> str:
+    return {"stroke_sensor_v": "pitch_sensor_v", "pitch_sensor_v": "stroke_sensor_v"}.get(site, "")
+
+
+def _mono(**exponents: int) -> tuple[int, ...]:
+    names = {"phi": 0, "dphi": 1, "psi": 2, "dpsi": 3, "sign_dphi": 4, "sign_dpsi": 5,
+             "abs_dphi": 6, "abs_dpsi": 7}
+    e = [0] * len(PRIMITIVES)
+    for k, v in exponents.items():
+        e[names[k]] = v
+    return tuple(e)
+
+
+_S, _P = ("stroke_dynamics",), ("pitch_dynamics",)
+_SP = _S + _P
+_SENS = SENSOR_SITES
+_CORNER = (ShapeParam("corner_hz", 20.0, 5000.0, (150.0, 400.0, 1200.0)),)
+
+TERM_KINDS: tuple[TermKind, ...] = (
+    # ---- dynamics: torques, monomials of the mechanical state
+    TermKind("constant", "a constant torque", _SP, "1", _mono(),
+             examples="a hinge or flexure that does not rest at zero; a bias in the actuator"),
+    TermKind("cross_angle", "a torque proportional to the other angle", _SP, "{y}",
+             _mono(), examples="stroke-pitch stiffness coupling"),
+    TermKind("square_angle", "a torque in the square of the angle", _SP, "{x}**2", _mono(),
+             examples="an asymmetric flexure"),
+    TermKind("cube_angle", "a torque in the cube of the angle", _SP, "{x}**3", _mono(),
+             same_as={"pitch_dynamics": "hinge_stiffening"},
+             examples="a stiffening flexure"),
+    TermKind("sign_velocity", "a torque of constant size against the velocity's sign", _SP,
+             "sign({v})", _mono(), examples="dry (Coulomb) friction"),
+    TermKind("abs_velocity", "a torque in the velocity's magnitude", _SP, "abs({v})", _mono(),
+             examples="an even (one-sided) drag"),
+    TermKind("linear_velocity", "a viscous torque", _S, "dphi", _mono(dphi=1),
+             same_as={"stroke_dynamics": "structural_damping"},
+             examples="structural damping"),
+    TermKind("cube_velocity", "a torque in the cube of the velocity", _SP, "{v}**3", _mono(),
+             examples="a cubic damper"),
+    TermKind("cross_product", "a torque in the product of the two angles", _SP, "phi*psi",
+             _mono(phi=1, psi=1), examples="a geometric coupling"),
+    TermKind("cross_rates", "a torque in the product of the two rates", _SP, "dphi*dpsi",
+             _mono(dphi=1, dpsi=1), examples="a rotational (Coriolis-like) coupling"),
+    # ---- drive before the actuator
+    TermKind("drive_rate", "the drive's rate of change", ("drive",), "ddrive_v",
+             feature=lambda s, p: s.ddrive_v, examples="a differentiating amplifier stage"),
+    TermKind("drive_lag", "a first-order lag of the drive", ("drive",),
+             "(lowpass(drive_v, {corner_hz}) - drive_v)",
+             feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]) - s.drive_v,
+             shape=_CORNER, examples="an amplifier with a finite bandwidth (coefficient 1)"),
+    TermKind("drive_square", "the square of the drive", ("drive",), "drive_v**2",
+             feature=lambda s, p: s.drive_v**2, examples="an asymmetric actuator"),
+    TermKind("drive_cube", "the cube of the drive", ("drive",), "drive_v**3",
+             feature=lambda s, p: s.drive_v**3, examples="an amplifier or piezo saturating"),
+    TermKind("drive_drift", "a drive gain changing with time", ("drive",), "t*drive_v",
+             feature=lambda s, p: s.t * s.drive_v, examples="an actuator warming up"),
+    # ---- each sensor chain's output
+    TermKind("drive_leak", "the drive leaking into the film", _SENS, "drive_v",
+             feature=lambda s, p: s.drive_v, same_as={"stroke_sensor_v": "feedthrough"},
+             examples="capacitive or resistive pickup of the drive"),
+    TermKind("drive_rate_leak", "the drive's rate leaking into the film", _SENS, "ddrive_v",
+             feature=lambda s, p: s.ddrive_v, examples="capacitive pickup through the substrate"),
+    TermKind("drive_lowpass_leak", "a low-passed drive leaking into the film", _SENS,
+             "lowpass(drive_v, {corner_hz})",
+             feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]), shape=_CORNER,
+             examples="pickup through a filtering path"),
+    TermKind("crosstalk", "the other sensor's voltage", _SENS, "{other}",
+             feature=lambda s, p: s.need("pitch_sensor_v" if p["_site"] == 0
+                                         else "stroke_sensor_v"),
+             examples="crosstalk between the two charge amplifiers"),
+    TermKind("gain_drift", "a sensor gain changing with time", _SENS, "t*{own}",
+             feature=lambda s, p: s.t * (s.need("stroke_sensor_v") if p["_site"] == 0
+                                         else s.need("pitch_sensor_v")),
+             examples="a film debonding or warming over the session"),
+    TermKind("square_angle_sensor", "the square of the chain's angle", _SENS, "{x}**2",
+             feature=lambda s, p: (s.need("phi") if p["_site"] == 0 else s.need("psi")) ** 2,
+             examples="an even-order transduction"),
+)
+
+# The dynamics rows with an angle or velocity placeholder take the site's own variables.
+_SITE_VARS = {"stroke_dynamics": {"x": "phi", "v": "dphi", "y": "psi"},
+              "pitch_dynamics": {"x": "psi", "v": "dpsi", "y": "phi"},
+              "stroke_sensor_v": {"x": "phi"}, "pitch_sensor_v": {"x": "psi"}}
+_SITE_MONOMIALS = {
+    "cross_angle": {"stroke_dynamics": _mono(psi=1), "pitch_dynamics": _mono(phi=1)},
+    "square_angle": {"stroke_dynamics": _mono(phi=2), "pitch_dynamics": _mono(psi=2)},
+    "cube_angle": {"stroke_dynamics": _mono(phi=3), "pitch_dynamics": _mono(psi=3)},
+    "sign_velocity": {"stroke_dynamics": _mono(sign_dphi=1), "pitch_dynamics": _mono(sign_dpsi=1)},
+    "abs_velocity": {"stroke_dynamics": _mono(abs_dphi=1), "pitch_dynamics": _mono(abs_dpsi=1)},
+    "cube_velocity": {"stroke_dynamics": _mono(dphi=3), "pitch_dynamics": _mono(dpsi=3)},
+}
+KINDS: dict[str, TermKind] = {k.name: k for k in TERM_KINDS}
+
+
+def kinds_for(site: str) -> tuple[TermKind, ...]:
+    """The library rows that may act on `site`, in table order."""
+    return tuple(k for k in TERM_KINDS if site in k.sites)
+
+
+@dataclass(frozen=True)
+class DiscoveredTerm:
+    """A library term acting on one site with fitted parameters (a model's `discovered` entry).
+
+    Attributes
+    ----------
+    kind : its `TERM_KINDS` row.
+    acts_on : one of `SITES`.
+    coefficient : multiplies the feature (N m at a dynamics site, V at the drive and sensors).
+    shape : its shape parameters ((key, value) pairs, e.g. corner_hz).
+    """
+
+    kind: str
+    acts_on: str
+    coefficient: float
+    shape: tuple[tuple[str, float], ...] = ()
+
+    def __post_init__(self) -> None:
+        where = f"discovered.{self.kind}"
+        if self.kind not in KINDS:
+            raise ModelError(f"discovered: unknown term {self.kind!r} (the library: "
+                             f"{', '.join(KINDS)})")
+        row = KINDS[self.kind]
+        if self.acts_on not in row.sites:
+            raise ModelError(f"{where}.acts_on must be one of {', '.join(row.sites)}, got "
+                             f"{self.acts_on!r}")
+        object.__setattr__(self, "coefficient", check_number(f"{where}.coefficient",
+                                                             self.coefficient))
+        shape = dict(self.shape)
+        keys = [s.key for s in row.shape]
+        if sorted(shape) != sorted(keys):
+            raise ModelError(f"{where}: shape parameters must be {keys or 'none'}, got "
+                             f"{sorted(shape) or 'none'}")
+        for s in row.shape:
+            value = check_number(f"{where}.{s.key}", shape[s.key])
+            if not s.lower <= value <= s.upper:
+                raise ModelError(f"{where}.{s.key} must be in [{s.lower:g}, {s.upper:g}], got "
+                                 f"{value:g}")
+            shape[s.key] = value
+        object.__setattr__(self, "shape", tuple((k, shape[k]) for k in keys))
+
+    @property
+    def row(self) -> TermKind:
+        """Its library row."""
+        return KINDS[self.kind]
+
+    @property
+    def feature_expression(self) -> str:
+        """The feature in the model's variables, e.g. 'sign(dphi)'."""
+        names = _SITE_VARS.get(self.acts_on, {})
+        form = self.row.form.format(**names, **{k: "{" + k + "}" for k, _ in self.shape},
+                                    own=self.acts_on, other=_other(self.acts_on))
+        return form.format(**{k: f"{v:.6g}" for k, v in self.shape})
+
+    @property
+    def expression(self) -> str:
+        """'coefficient * feature', e.g. '-2.1e-07 * sign(dphi)'."""
+        return f"{self.coefficient:.6g} * {self.feature_expression}"
+
+    @property
+    def monomial(self) -> tuple[int, ...]:
+        """Exponents over `PRIMITIVES` (a dynamics term)."""
+        return _SITE_MONOMIALS.get(self.kind, {}).get(self.acts_on, self.row.monomial)
+
+    @property
+    def is_dynamics(self) -> bool:
+        """It acts inside the equations of motion."""
+        return self.acts_on in DYNAMICS_SITES
+
+    def feature(self, sig: TermSignals) -> np.ndarray:
+        """The feature on one block (a drive or sensor term)."""
+        values: dict[str, Any] = dict(self.shape)
+        values["_site"] = SENSOR_SITES.index(self.acts_on) if self.acts_on in SENSOR_SITES else -1
+        assert self.row.feature is not None
+        return np.asarray(self.row.feature(sig, values), dtype=np.float64)
+
+
+def term_to_dict(term: DiscoveredTerm) -> dict[str, Any]:
+    """The model-file entry: kind, acts_on, expression (for the reader), parameters."""
+    return {"kind": term.kind, "acts_on": term.acts_on, "expression": term.expression,
+            "parameters": {"coefficient": term.coefficient, **dict(term.shape)}}
+
+
+def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
+    """A `DiscoveredTerm` from its model-file entry (`expression` is derived, not read)."""
+    if not isinstance(raw, Mapping):
+        raise ModelError(f"{where} must be a mapping with kind, acts_on and parameters, got "
+                         f"{type(raw).__name__}")
+    unknown = sorted(set(raw) - {"kind", "acts_on", "expression", "parameters"})
+    if unknown:
+        raise ModelError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}")
+    missing = [k for k in ("kind", "acts_on", "parameters") if k not in raw]
+    if missing:
+        raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
+    params = raw["parameters"]
+    if not isinstance(params, Mapping) or "coefficient" not in params:
+        raise ModelError(f"{where}.parameters must be a mapping with a coefficient")
+    shape = {str(k): _number(v) for k, v in params.items() if k != "coefficient"}
+    return DiscoveredTerm(str(raw["kind"]), str(raw["acts_on"]), _number(params["coefficient"]),
+                          tuple(shape.items()))
+
+
+def _number(value: Any) -> Any:
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
