@@ -36,6 +36,7 @@ from numba import njit, prange
 
 from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
+from flaair_sim.core.plant_params import Prepared, prepare
 from flaair_sim.core.plant_terms import (
     add_batch_sensor_terms,
     add_sensor_terms,
@@ -45,7 +46,6 @@ from flaair_sim.core.plant_terms import (
 )
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
 from flaair_sim.core.term_kernel import dynamics_terms
-from flaair_sim.core.plant_params import Prepared, prepare
 
 __all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
            "n_substeps",
@@ -252,10 +252,12 @@ def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_
          phi_out, psi_out, vs_out, vp_out):
     """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
     _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
-    zi[0] = sensor_channel_kernel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1],
-                            zi[0], hist_s, delay_s, p[pp.P_DS_FRAC], p[pp.P_VREF])
-    zi[1] = sensor_channel_kernel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1],
-                            zi[1], hist_p, delay_p, p[pp.P_DP_FRAC], p[pp.P_VREF])
+    zi[0] = sensor_channel_kernel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1],
+                                  p[pp.P_HPS_A1], zi[0], hist_s, delay_s, p[pp.P_DS_FRAC],
+                                  p[pp.P_VREF])
+    zi[1] = sensor_channel_kernel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1],
+                                  p[pp.P_HPP_A1], zi[1], hist_p, delay_p, p[pp.P_DP_FRAC],
+                                  p[pp.P_VREF])
 
 
 @njit(cache=True, parallel=True)

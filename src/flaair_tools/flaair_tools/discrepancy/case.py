@@ -29,6 +29,9 @@ class DatasetCase:
         separable, e.g. wing_damage): the right answer does not name them.
     video_every : ground truth only every k-th sample (a video frame rate), NaN between; 1: DAQ
         rate.
+    terms : physics outside the vocabulary that the term library can express
+        (`flaair_model.terms.DiscoveredTerm`, ...): the right answer discovers each (its kind,
+        acts_on and coefficient) and ends ``explained``.
     below_limit : the effects are below what the search on the fitted plant resolves (the joint fit
         absorbs them into the plant on the truth, and the sensors do not search physics): the right
         answer names nothing and leaves the gap located (``unexplained``).
@@ -46,6 +49,7 @@ class DatasetCase:
     hidden: tuple = ()
     video_every: int = 1
     below_limit: bool = False
+    terms: tuple = ()
 
     @property
     def effect_names(self) -> tuple[str, ...]:
@@ -62,7 +66,7 @@ class DatasetCase:
         """Status the workflow must report."""
         if self.outside or self.below_limit:
             return "unexplained"
-        return "explained" if self.effects else "no_discrepancy"
+        return "explained" if self.effects or self.terms else "no_discrepancy"
 
     @property
     def expected_gap_channel(self) -> str:
@@ -78,6 +82,7 @@ class DatasetCase:
             f"plant:{n}" for n in sorted(n for n, _ in self.hidden)]
         if self.outside:
             parts.append(f"outside:{self.outside}")
+        parts += [f"term:{t.kind}@{t.acts_on}" for t in self.terms]
         return "+".join(parts) or "none"
 
     @property

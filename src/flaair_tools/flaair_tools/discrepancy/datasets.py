@@ -105,6 +105,8 @@ def true_model(case: DatasetCase, model: Model) -> Model:
     if case.outside == "aero_damping":
         m = (replace(m, plant=replace(
             m.plant, aero_damping_nm_s2=m.plant.aero_damping_nm_s2 * case.outside_strength)))
+    if case.terms:
+        m = replace(m, discovered=tuple(case.terms))
     if case.noise_scale != 1.0:
         m = (replace(m, noise=replace(
             m.noise, sensor_noise_v_rms=m.noise.sensor_noise_v_rms * case.noise_scale,

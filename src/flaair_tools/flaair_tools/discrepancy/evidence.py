@@ -63,6 +63,7 @@ class CandidateEvidence:
     rules: dict
     accepted: bool
     same_on_both: Optional[bool] = None
+    heldout_models: tuple = ()  # fold k's prediction: fitted on the other folds
 
     def as_dict(self) -> dict:
         """JSON-ready evidence."""
@@ -106,7 +107,7 @@ def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
     return val + k * math.log(max(n_tot, 2))
 
 
-def _gap_drop(rss_before: float, rss_after: float, n: int) -> float:
+def gap_drop(rss_before: float, rss_after: float, n: int) -> float:
     """Relative drop of the model error above noise (noise-weighted residuals: noise RSS = n)."""
     before = math.sqrt(max(rss_before - n, 0.0))
     after = math.sqrt(max(rss_after - n, 0.0))
@@ -240,7 +241,7 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
     before = math.sqrt(sum(rss_null) / ss) if ss > 0 else math.nan
     after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
     drop = 1.0 - after / before if before > 0 else 0.0
-    gap_drop = _gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
+    drop_above_noise = gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
     dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
     dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
     z, cons, per_run, n_ident, inside = [], [], [], [], []
@@ -265,7 +266,7 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
         cons.append(_consistency(est, s.effect_size(v), st))
         n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
     rules = {
-        "R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop),
+        "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
         "R3_significance": bool(all(z[j] > st.min_z and inside[j] for j in tested)),
         "R4_consistency": bool(all(n_ident[j] >= 2 for j in tested) and all(
@@ -283,8 +284,9 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
         labels=tuple(s.label for s in specs), channel=channel, values=tuple(values),
         se=tuple(se_phys), z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons),
         heldout_nrmse_before=before, heldout_nrmse_after=after, heldout_drop=drop,
-        heldout_gap_drop=gap_drop, delta_bic_heldout=dbic_ho, delta_bic_fit=dbic_fit, rules=rules,
-        accepted=all(rules.values()), same_on_both=same,
+        heldout_gap_drop=drop_above_noise, delta_bic_heldout=dbic_ho, delta_bic_fit=dbic_fit,
+        rules=rules,
+        accepted=all(rules.values()), same_on_both=same, heldout_models=tuple(models_ho),
     )
     return ev, model
 
@@ -305,15 +307,16 @@ def evaluate_shared(ctx: AnalysisContext, current: Model, specs: Sequence[Effect
     ss = prob.signal_ss()
     before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
     drop = 1.0 - after / before if before > 0 else 0.0
-    gap_drop = _gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
+    drop_above_noise = gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
     dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
-    rules = {"R1_heldout_gap_drop": bool(gap_drop > st.min_heldout_drop),
+    rules = {"R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
              "R2_delta_bic": bool(dbic < st.max_delta_bic)}
     ev = CandidateEvidence(labels=tuple(f"{s.name}[both]" for s in specs), channel=channel,
                            values=values, se=tuple(math.nan for _ in specs),
                            z=tuple(math.nan for _ in specs), per_run=tuple(() for _ in specs),
                            consistency_p=tuple(math.nan for _ in specs),
                            heldout_nrmse_before=before, heldout_nrmse_after=after,
-                           heldout_drop=drop, heldout_gap_drop=gap_drop, delta_bic_heldout=dbic,
-                           delta_bic_fit=dbic, rules=rules, accepted=all(rules.values()))
+                           heldout_drop=drop, heldout_gap_drop=drop_above_noise,
+                           delta_bic_heldout=dbic, delta_bic_fit=dbic, rules=rules,
+                           accepted=all(rules.values()))
     return ev, model

@@ -9,6 +9,7 @@ import numpy as np
 from scipy import optimize
 
 from flaair_model.model import Model, ModelError, with_effect_on, with_effects
+from flaair_model.terms import DiscoveredTerm
 
 from .runs import (
     MotionCache,
@@ -131,14 +132,19 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
     """
     plant = {}
     effects: dict = {}
+    terms: dict = {}
     for s, v in zip(specs, values):
         if s.is_plant:
             plant[s.key] = float(v)
             continue
-        effects.setdefault(s.name, {}).update(s.params(v))
+        (terms if s.is_term else effects).setdefault(s.name, {}).update(s.params(v))
     model = replace(base, plant=replace(base.plant, **plant)) if plant else base
+    if terms:
+        model = with_terms(model, [DiscoveredTerm(*s.term_place, p.pop("coefficient"),
+                                                  tuple(p.items()))
+                                   for s in specs for p in [terms.pop(s.name, None)] if p])
     for s in specs:
-        if s.is_plant or s.name not in effects:
+        if s.is_plant or s.is_term or s.name not in effects:
             continue
         params = effects.pop(s.name)
         if s.channel_param is None or (channels or {}).get(s.name) == "both":
@@ -148,6 +154,13 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
             model = with_effect_on(model, s.name, s.channel_param, {
                 k: v for k, v in params.items() if k != "channel"})
     return model
+
+
+def with_terms(model: Model, terms: Sequence[DiscoveredTerm]) -> Model:
+    """`model` with `terms` added (each replacing a term of the same kind on the same site)."""
+    places = {(t.kind, t.acts_on) for t in terms}
+    kept = tuple(t for t in model.discovered if (t.kind, t.acts_on) not in places)
+    return replace(model, discovered=kept + tuple(terms))
 
 
 def models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
@@ -162,6 +175,9 @@ def spec_value(model: Model, spec: EffectSpec) -> float:
     """
     if spec.is_plant:
         return float(getattr(model.plant, spec.key))
+    if spec.is_term:
+        term = next(t for t in model.discovered if (t.kind, t.acts_on) == spec.term_place)
+        return term.coefficient if spec.key == "coefficient" else dict(term.shape)[spec.key]
     if spec.channel_param is not None:
         return float(getattr(model.effect_on(spec.name, spec.channel_param), spec.key))
     return float(getattr(model.effect(spec.name), spec.key))

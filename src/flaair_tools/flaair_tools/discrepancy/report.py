@@ -38,7 +38,9 @@ def result_to_dict(result: DiscrepancyResult, model_out: str,
     remaining (where a gap is left), diagnosis before/after, searches, summary, runs, rules,
     plant_parameters {key: {value, nominal, stderr}}, identification (start values,
     correlations, inseparable combinations), not_separable [{effect, reason}], approximate
-    (named effects that leave a gap where they act).
+    (named effects that leave a gap where they act), discovered [{kind, acts_on, expression,
+    parameters {value, stderr}, gap_before, gap_after, candidates_beaten, evidence}] (terms from
+    the library, hypotheses), discovery_candidates (every term tried, per step).
     """
     def diag(d: Any) -> dict:
         return {c: asdict(g) for c, g in d.channels.items()}
@@ -68,6 +70,8 @@ def result_to_dict(result: DiscrepancyResult, model_out: str,
         "identification": result.plant_fit.as_dict() if result.plant_fit is not None else None,
         "not_separable": list(result.not_separable),
         "approximate": list(result.approximate),
+        "discovered": [d.as_dict() for d in result.discovered],
+        "discovery_candidates": list(result.discovery_tried),
     }
     return json_safe(doc)
 

@@ -223,9 +223,10 @@ def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
 
 
 def mechanics_model(model: Model) -> Model:
-    """`model` without its sensor effects: the part that sets the stroke and pitch motion."""
+    """`model` without its sensor effects and sensor terms: the part that sets the motion."""
     return replace(model, effects=tuple(
-        (n, e) for n, e in model.effects if n not in SENSOR_EFFECTS))
+        (n, e) for n, e in model.effects if n not in SENSOR_EFFECTS), discovered=tuple(
+        t for t in model.discovered if t.acts_on not in SENSOR_CHANNELS))
 
 
 def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray,

@@ -34,6 +34,11 @@ class Settings:
     window_s : window of the harmonic and worst-stretch analysis.
     xcorr_max_lag_s : largest residual-after-drive lag of the cross-correlation test.
     xcorr_z : |rho| sqrt(n) above which the cross-correlation with the drive is significant.
+    discover : search the term library when the vocabulary leaves a located gap (`discovery`).
+    max_discovered_terms : terms the discovery may add in all.
+    discovery_shortlist : candidate terms per step judged on held-out runs (the best fits first).
+    discovery_max_nfev : function evaluations of a shortlisted term's joint fit with the plant
+        (the plant must move back from where the identification put it to mimic the term).
     """
 
     identify: bool = True
@@ -57,5 +62,9 @@ class Settings:
     window_s: float = 0.05
     xcorr_max_lag_s: float = 0.005
     xcorr_z: float = 5.0
+    discover: bool = True
+    max_discovered_terms: int = 2
+    discovery_shortlist: int = 3
+    discovery_max_nfev: int = 100
 
 

@@ -21,6 +21,7 @@ from flaair_model.effects import (
     FitParam,
 )
 from flaair_model.model import Model
+from flaair_model.terms import TermKind
 
 CHANNELS: tuple[str, ...] = MEASURED_CHANNELS
 STATUSES: tuple[str, ...] = ("no_discrepancy", "explained", "unexplained")
@@ -88,6 +89,17 @@ class EffectSpec:
         """A plant parameter fitted along with an effect."""
         return self.name == "plant"
 
+    @property
+    def is_term(self) -> bool:
+        """A parameter of a library term (name 'term:KIND@SITE')."""
+        return self.name.startswith(TERM_PREFIX)
+
+    @property
+    def term_place(self) -> tuple[str, str]:
+        """(kind, site) of a library term's spec."""
+        kind, site = self.name[len(TERM_PREFIX):].split("@")
+        return kind, site
+
     def to_fit(self, value: float) -> float:
         """Physical parameter -> fit-space value."""
         return math.log(value) if self.log else float(value)
@@ -106,6 +118,26 @@ class EffectSpec:
     def effect_size(self, value: float) -> float:
         """Distance of `value` from the null value (|value| for a null at infinity)."""
         return abs(value) if math.isinf(self.null) else abs(value - self.null)
+
+
+TERM_PREFIX = "term:"
+
+
+def term_specs(kind: TermKind, site: str, channel: str, coefficient_scale: float,
+               shape_start: Optional[dict] = None) -> tuple[EffectSpec, ...]:
+    """The fittable parameters of library term `kind` at `site`, judged on `channel`.
+
+    The coefficient (null 0, tested) within +-`coefficient_scale` (the size of the feature's
+    whole share of the channel), then its shape parameters (log fit, fitted along).
+    """
+    name = f"{TERM_PREFIX}{kind.name}@{site}"
+    scale = float(coefficient_scale)
+    specs = [EffectSpec(name, "coefficient", channel, 0.0, -scale, scale,
+                        (-0.1 * scale, 0.1 * scale), 1e-4 * scale)]
+    for sh in kind.shape:
+        specs.append(EffectSpec(name, sh.key, channel, (shape_start or {}).get(sh.key, sh.grid[0]),
+                                sh.lower, sh.upper, (), 1e-3, log=True, tested=False))
+    return tuple(specs)
 
 
 # One fittable parameter of an effect: the effect table's fit specification.

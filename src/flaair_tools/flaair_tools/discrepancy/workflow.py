@@ -11,6 +11,7 @@ from flaair_model.model import Model, ModelError
 from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
+from .discovery import discover
 from .evidence import AnalysisContext, FoundEffect
 from .fitting import Fold
 from .identification import FIT_RANGE, PlantFit, identify_plant
@@ -62,6 +63,8 @@ class DiscrepancyResult:
     not_separable : [{effect, reason}] vocabulary effects whose signature a plant-parameter change
         reproduces: not searched for, and not claimed.
     approximate : names of found effects whose channel keeps a gap (named, but not explaining it).
+    discovered : library terms the discovery step added (`discovery.Discovered`).
+    discovery_tried : the discovery's candidates per step ({channel, candidates}).
     """
 
     status: str
@@ -84,6 +87,8 @@ class DiscrepancyResult:
     plant_parameters: dict = field(default_factory=dict)
     not_separable: tuple = ()
     approximate: tuple = ()
+    discovered: tuple = ()
+    discovery_tried: tuple = ()
 
 
 # ------------------------------------------------------------------------- held-out gap after
@@ -197,21 +202,33 @@ def analyse(
     model_out, effects, searches, runs = (
         find_effects(runs, base, noise, settings, progress, tracks,
                      nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS}))
+    ctx = AnalysisContext(runs, noise, settings, tracks)
+    diag_after, remaining = _where_left(ctx, model_out, searches)
+    discovery = None
+    if remaining and settings.discover:
+        gaps = {r["channel"] for r in remaining}
+        found_ctx = ctx if plant_fit is None else AnalysisContext(plant_fit.runs, noise, settings,
+                                                                   tracks)
+        discovery = discover(found_ctx, model_out, sorted(gaps), progress,
+                             [e for e in effects if gaps & set(e.explains)],
+                             plant_fit.model.plant if plant_fit is not None else None)
+        if discovery.discovered or discovery.named:
+            model_out = discovery.model
+            runs = discovery.runs
+            ctx = found_ctx
+            effects = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
+            diag_after, remaining = _where_left(ctx, model_out, searches)
+    discovered = discovery.discovered if discovery is not None else ()
     if progress:
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
-    diag_after = diagnose(runs, sims_after, model_out, noise, settings, tracks=tracks)
-    gap_after = (_heldout_nrmse(AnalysisContext(runs, noise, settings, tracks), effects,
-                                model_out) if effects else nrmse_by_channel(runs, sims_fit))
+    gap_after = (_heldout_nrmse(ctx, effects, model_out) if effects or discovered
+                 else nrmse_by_channel(runs, sims_fit))
     in_sample = nrmse_by_channel(runs, sims_after)
-    ctx = AnalysisContext(runs, noise, settings, tracks)
-    sensor_ok = {c: not channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
-                 if any(s.channel == c and s.truth_referenced for s in searches)}
-    remaining = _remaining(diag_after, searches, sensor_ok)
     if remaining:
         status = "unexplained"
     else:
-        status = "explained" if effects else "no_discrepancy"
+        status = "explained" if effects or discovered else "no_discrepancy"
     gap_channels = {r["channel"] for r in remaining}
     approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
     return DiscrepancyResult(status=status, effects=tuple(effects), model_out=model_out,
@@ -219,8 +236,20 @@ def analyse(
                              diagnosis_after=diag_after, searches=searches, remaining=remaining,
                              sims_after=tuple(sims_after), summary=_summary(
         status, effects, diag_after, remaining, _plant_parameters(model, model_out, plant_fit),
-        approximate), plant_parameters=_plant_parameters(model, model_out, plant_fit),
-                             approximate=approximate, **common)
+        approximate, discovered), plant_parameters=_plant_parameters(model, model_out, plant_fit),
+                             approximate=approximate, discovered=tuple(discovered),
+                             discovery_tried=discovery.tried if discovery is not None else (),
+                             **common)
+
+
+def _where_left(ctx: AnalysisContext, model_out: Model,
+                searches: Sequence[ChannelSearch]) -> tuple[Diagnosis, tuple]:
+    """The diagnosis of `model_out` and where gaps remain."""
+    sims = simulate_runs([model_out], ctx.runs)[0]
+    diag = diagnose(ctx.runs, sims, model_out, ctx.noise, ctx.settings, tracks=ctx.tracks)
+    sensor_ok = {c: not channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
+                 if any(s.channel == c and s.truth_referenced for s in searches)}
+    return diag, _remaining(diag, searches, sensor_ok)
 
 
 def _plant_parameters(model_in: Model, model_out: Model, fit: Optional[PlantFit]) -> dict:
@@ -280,7 +309,7 @@ def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
 
 def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis,
              remaining: Sequence[dict], plant: Optional[Mapping[str, dict]] = None,
-             approximate: Sequence[str] = ()) -> str:
+             approximate: Sequence[str] = (), discovered: Sequence = ()) -> str:
     parts = []
     if plant:
         change = {k: p["value"] / p["nominal"] - 1.0 for k, p in plant.items()}
@@ -299,6 +328,10 @@ def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis,
     if effects:
         parts.append("Found: " + ", ".join(
             f"{e.name} on {e.channel} ({format_parameters(e.parameters)})" for e in effects) + ".")
+    if discovered:
+        parts.append("Outside the vocabulary, discovered from the term library (a hypothesis "
+                     "for the lab to test, not a named effect): " + ", ".join(
+                         f"{d.term.expression} on {d.term.acts_on}" for d in discovered) + ".")
     if status == "explained":
         parts.append("With them every channel is explained to noise level.")
     else:

@@ -1,0 +1,454 @@
+"""Discovery: propose the form of a missing effect from the term library, fit it, judge it.
+
+Run after the vocabulary search when a located gap remains (docs/DISCREPANCY.md). For each
+channel with a gap, upstream first, every library term (`flaair_model.terms.TERM_KINDS`) that can
+act where the channel's signal comes from is fitted through the simulator:
+
+    stroke_deg       -> stroke_dynamics, drive        (with the stroke plant parameters)
+    pitch_deg        -> pitch_dynamics                (with the pitch plant parameters)
+    stroke_sensor_v  -> stroke_sensor_v
+    pitch_sensor_v   -> pitch_sensor_v
+
+The coefficient (and any shape parameter) is fitted by least squares on the runs jointly with
+the fitted plant parameters it trades off against; nothing is regressed on differentiated data,
+so a video-rate truth with NaN between frames is used as it is. The best `discovery_shortlist`
+fits are then judged like a vocabulary effect (`evidence.evaluate`: per-run fits, each run
+predicted from the others), and a term is accepted only if it passes the same rules R1-R4: the
+held-out model error above noise drops by more than `min_heldout_drop`, the held-out BIC falls
+by more than `-max_delta_bic`, the coefficient is `min_z` standard errors from zero, and the
+runs (full and half drive, early and late) agree on it. Among accepted terms the lowest held-out
+BIC wins. A winner that is a vocabulary effect under another name (`TermKind.same_as`) is
+reported as that effect, fitted as the vocabulary fits it. A gap no term closes stays.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from flaair_model.model import Model, PlantParams
+from flaair_model.terms import (
+    DYNAMICS_SITES,
+    MAX_DYNAMICS_TERMS,
+    DiscoveredTerm,
+    TermKind,
+    TermSignals,
+    kinds_for,
+)
+
+from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
+from .fitting import fit_specs, models_for, spec_value
+from .identification import identify_plant
+from .runs import MotionCache, simulate_runs
+from .search import CHANNEL_ORDER, channel_has_gap
+from .vocabulary import (
+    CHANNELS,
+    ENTRIES,
+    PLANT_PARAMETERS,
+    SENSOR_CHANNELS,
+    UPSTREAM_TRUTH,
+    EffectSpec,
+    candidate_groups,
+    plant_spec,
+    term_specs,
+)
+
+__all__ = ["SITES_FOR_GAP", "Discovered", "DiscoveryOutcome", "discover"]
+
+SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
+    "stroke_deg": ("stroke_dynamics", "drive"), "pitch_deg": ("pitch_dynamics",),
+    "stroke_sensor_v": ("stroke_sensor_v",), "pitch_sensor_v": ("pitch_sensor_v",)}
+# A coefficient may reach this many times the size of its feature's whole share of the channel.
+COEFFICIENT_RANGE = 3.0
+
+
+@dataclass(frozen=True)
+class Discovered:
+    """One accepted library term, with its evidence.
+
+    Attributes
+    ----------
+    term : the term as the model carries it.
+    channel : the measured channel whose gap it closes (judged on).
+    stderr : standard error of each parameter.
+    gap_before, gap_after : NRMSE per channel on held-out runs without and with it (after: its
+        parameters fitted without the run they predict).
+    evidence : `CandidateEvidence.as_dict` of the accepted fit.
+    beaten : the other candidates of its step, best first: {term, acts_on, expression,
+        accepted, delta_bic_heldout, heldout_gap_drop, bic_margin}.
+    """
+
+    term: DiscoveredTerm
+    channel: str
+    stderr: dict
+    gap_before: dict
+    gap_after: dict
+    evidence: dict
+    beaten: tuple
+
+    def as_dict(self) -> dict:
+        """The discrepancy.json entry."""
+        t = self.term
+        params = {"coefficient": {"value": t.coefficient, "stderr": self.stderr["coefficient"]}}
+        params |= {k: {"value": v, "stderr": self.stderr[k]} for k, v in t.shape}
+        return {"kind": t.kind, "acts_on": t.acts_on, "expression": t.expression,
+                "feature": t.feature_expression, "words": t.row.words,
+                "examples": t.row.examples, "judged_on": self.channel, "parameters": params,
+                "gap_before": dict(self.gap_before), "gap_after": dict(self.gap_after),
+                "candidates_beaten": list(self.beaten), "evidence": dict(self.evidence)}
+
+
+@dataclass(frozen=True)
+class DiscoveryOutcome:
+    """The model with the accepted terms, the terms, the vocabulary effects found instead, the
+    vocabulary effects the terms replaced, every candidate tried and the runs (their initial
+    states fitted again with the terms).
+    """
+
+    model: Model
+    discovered: tuple[Discovered, ...]
+    named: tuple[FoundEffect, ...]
+    replaced: tuple[FoundEffect, ...]
+    tried: tuple
+    runs: tuple
+
+
+def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
+    """Simulated channels per run, with the velocities (rad/s) and the sensor deviations."""
+    sims = simulate_runs([model], ctx.runs)[0]
+    vref = model.sensors.reference_voltage_v
+    out = []
+    for run, sim in zip(ctx.runs, sims):
+        phi, psi = np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"])
+        out.append({"phi": phi, "dphi": np.gradient(phi) * run.fs_hz, "psi": psi,
+                    "dpsi": np.gradient(psi) * run.fs_hz,
+                    "stroke_sensor_v": sim["stroke_sensor_v"] - vref,
+                    "pitch_sensor_v": sim["pitch_sensor_v"] - vref})
+    return out
+
+
+def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[dict]) -> float:
+    """RMS of the term's feature over the runs, along the current model's motion."""
+    total, count = 0.0, 0
+    shape = tuple((s.key, s.grid[-1]) for s in kind.shape)
+    term = DiscoveredTerm(kind.name, site, 1.0, shape)
+    for run, m in zip(ctx.runs, motion):
+        if site in DYNAMICS_SITES:
+            prim = [m["phi"], m["dphi"], m["psi"], m["dpsi"], np.sign(m["dphi"]),
+                    np.sign(m["dpsi"]), np.abs(m["dphi"]), np.abs(m["dpsi"])]
+            f = np.ones(run.n)
+            for x, e in zip(prim, term.monomial):
+                f = f * x**e
+        else:
+            sig = TermSignals(run.fs_hz, run.drive_v, np.diff(run.drive_v, prepend=0.0) * run.fs_hz,
+                              np.arange(run.n) / run.fs_hz, phi=m["phi"], psi=m["psi"],
+                              stroke_sensor_v=m["stroke_sensor_v"],
+                              pitch_sensor_v=m["pitch_sensor_v"])
+            f = term.feature(sig)
+        total += float(np.dot(f, f))
+        count += f.size
+    return math.sqrt(total / max(count, 1))
+
+
+def _share_rms(site: str, ctx: AnalysisContext, model: Model, motion: list[dict]) -> float:
+    """Size of the signal the term adds to: spring torque, drive or sensor deviation (RMS)."""
+    def rms(key: str) -> float:
+        x = np.concatenate([m[key] for m in motion])
+        return float(np.sqrt(np.mean(x * x)))
+    if site == "stroke_dynamics":
+        return model.plant.stroke_stiffness_nm_per_rad * rms("phi")
+    if site == "pitch_dynamics":
+        return model.plant.hinge_stiffness_nm_per_rad * rms("psi")
+    if site == "drive":
+        d = np.concatenate([r.drive_v for r in ctx.runs])
+        return float(np.sqrt(np.mean(d * d)))
+    return rms(site)
+
+
+def _plant_specs(site: str, model: Model, channel: str, identify: bool) -> list[EffectSpec]:
+    if not identify or site not in ("stroke_dynamics", "pitch_dynamics", "drive"):
+        return []
+    truth = "pitch_deg" if site == "pitch_dynamics" else "stroke_deg"
+    return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
+
+
+def _candidates(ctx: AnalysisContext, current: Model, channel: str) -> list[tuple]:
+    """(rss, kind, site, specs, x) of every library term that may close `channel`'s gap."""
+    motion = _motion(ctx, current)
+    truth_ref = _truth_ref(ctx, current, channel)
+    problem = ctx.problem(channel, ctx.folds, truth_ref, current)
+    out = []
+    n_dynamics = sum(t.is_dynamics for t in current.discovered)
+    placed = {(t.kind, t.acts_on) for t in current.discovered}
+    for site in SITES_FOR_GAP[channel]:
+        for kind in kinds_for(site):
+            if (kind.name, site) in placed or (
+                    site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS):
+                continue
+            rms = _feature_rms(kind, site, ctx, motion)
+            if not (math.isfinite(rms) and rms > 0):
+                continue
+            scale = COEFFICIENT_RANGE * _share_rms(site, ctx, current, motion) / rms
+            starts = [{s.key: g} for s in kind.shape for g in s.grid] or [{}]
+            for start in starts:  # the term alone on the current plant: a quick ranking
+                specs = term_specs(kind, site, channel, scale, start)
+                x0 = np.array([s.to_fit(s.null) for s in specs])
+                fit = fit_specs(current, specs, problem, x0, ctx.settings)
+                out.append((fit.rss, kind, site, specs, fit.x))
+    out.sort(key=lambda c: c[0])
+    best: dict = {}
+    for c in out:  # one entry per term (its best shape start)
+        best.setdefault((c[1].name, c[2]), c)
+    return list(best.values())
+
+
+def _truth_ref(ctx: AnalysisContext, model: Model, channel: str) -> bool:
+    return channel in SENSOR_CHANNELS and channel_has_gap(ctx, model, UPSTREAM_TRUTH[channel],
+                                                          False)
+
+
+def _heldout_gap(ctx: AnalysisContext, per_fold: Sequence[Model]) -> dict:
+    """NRMSE per channel of fold k predicted by per_fold[k], pooled over the folds."""
+    rss = {c: 0.0 for c in CHANNELS}
+    ss = {c: 0.0 for c in CHANNELS}
+    for f, model in zip(ctx.folds, per_fold):
+        run = ctx.runs[f.run]
+        sim = simulate_runs([model], [run])[0][0]
+        for c in CHANNELS:
+            r = (run.channel(c) - sim[c])[f.start:f.stop]
+            x = run.channel(c)[f.start:f.stop]
+            ok = np.isfinite(r)
+            r, x = r[ok] - r[ok].mean(), x[ok] - x[ok].mean()
+            rss[c] += float(np.dot(r, r))
+            ss[c] += float(np.dot(x, x))
+    return {c: math.sqrt(rss[c] / ss[c]) if ss[c] > 0 else math.nan for c in CHANNELS}
+
+
+def _as_vocabulary(ctx: AnalysisContext, current: Model, name: str,
+                   channel: str) -> Optional[tuple[CandidateEvidence, Model]]:
+    """The vocabulary effect `name` fitted on `channel` as the vocabulary fits it, if accepted."""
+    if current.effect(name) is not None:
+        return None
+    for group in candidate_groups(channel, current if ctx.settings.identify else None):
+        if group[0].name == name:
+            ev, model = evaluate(ctx, current, group, channel, _truth_ref(ctx, current, channel))
+            return (ev, model) if ev.accepted else None
+    return None
+
+
+def _beaten(winner: CandidateEvidence, judged: Sequence[tuple], rest: Sequence[tuple]) -> tuple:
+    rows = []
+    for ev, kind, site, specs in judged:
+        if ev is winner:
+            continue
+        term = DiscoveredTerm(kind.name, site, ev.values[0], tuple(
+            (s.key, v) for s, v in zip(specs[1:], ev.values[1:])))
+        rows.append({"term": kind.name, "acts_on": site, "expression": term.expression,
+                     "accepted": ev.accepted, "heldout_nrmse_after": ev.heldout_nrmse_after,
+                     "heldout_gap_drop": ev.heldout_gap_drop,
+                     "nrmse_margin": ev.heldout_nrmse_after - winner.heldout_nrmse_after,
+                     "failed_rules": [k for k, v in ev.rules.items() if not v]})
+    for _rss, kind, site, _specs, _x in rest:  # not shortlisted: their fits left more residual
+        rows.append({"term": kind.name, "acts_on": site, "expression": None, "accepted": False,
+                     "heldout_nrmse_after": None, "heldout_gap_drop": None,
+                     "nrmse_margin": None, "failed_rules": ["not shortlisted"]})
+    return tuple(rows)
+
+
+def _against(ctx: AnalysisContext, ev: CandidateEvidence, current: Model, base: Model,
+             channel: str, truth_ref: bool) -> CandidateEvidence:
+    """R1 judged against the model before the step (the plant as it was, without the term)."""
+    problem = ctx.problem(channel, ctx.folds, truth_ref, base)
+    ss, n = problem.signal_ss(), sum(problem.n_per_fold())
+    rss_now = sum(float(np.dot(r, r)) for r in problem.residuals([current])[0])
+    drop = gap_drop(rss_now, ev.heldout_nrmse_after ** 2 * ss, n)
+    rules = dict(ev.rules) | {"R1_heldout_gap_drop": bool(drop > ctx.settings.min_heldout_drop)}
+    return replace(ev, rules=rules, accepted=all(rules.values()), heldout_gap_drop=drop,
+                   heldout_nrmse_before=math.sqrt(rss_now / ss) if ss > 0 else math.nan)
+
+
+def _step(ctx: AnalysisContext, current: Model, channel: str,
+          start_plant: Optional[PlantParams] = None) -> tuple[Optional[tuple], list]:
+    """One discovery step on `channel`: the winner (evidence, model, kind, site, specs) or None."""
+    cands = _candidates(ctx, current, channel)
+    shortlist = cands[:ctx.settings.discovery_shortlist]
+    truth_ref = _truth_ref(ctx, current, channel)
+    judged = []
+    st = ctx.settings
+    for _rss, kind, site, specs, x in shortlist:
+        # the term and the plant parameters it trades off against, fitted on all runs; then the
+        # term run by run on that plant (the rules judge the term, as the identification fits
+        # the plant on every run)
+        plant = _plant_specs(site, current, channel, st.identify)
+        base = current
+        if plant:
+            joint = list(specs) + plant
+            start = replace(current, plant=start_plant) if start_plant is not None else current
+            x0 = np.concatenate([x, [s.to_fit(spec_value(start, s)) for s in plant]])
+            fit = fit_specs(current, joint, ctx.problem(channel, ctx.folds, truth_ref, current), x0,
+                            replace(st, max_nfev=st.discovery_max_nfev), grid=False)
+            x = fit.x[:len(specs)]
+            base = models_for(current, plant, fit.x[None, len(specs):])[0]
+        ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+        judged.append((_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs,
+                       model))
+    tried = [{"term": k.name, "acts_on": s, "fit_rss": r} for r, k, s, _sp, _x in cands]
+    for row, (ev, *_rest) in zip(tried, judged):
+        row |= {"rules": dict(ev.rules), "delta_bic_heldout": ev.delta_bic_heldout,
+                "heldout_gap_drop": ev.heldout_gap_drop, "values": list(ev.values),
+                "z": list(ev.z), "consistency_p": list(ev.consistency_p)}
+    # each candidate's plant is its own: rank on the held-out error, which all share
+    passing = sorted((j for j in judged if j[0].accepted), key=lambda j: j[0].heldout_nrmse_after)
+    return passing, [judged, cands[len(shortlist):], tried]
+
+
+def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
+    names = {e.name for e in effects}
+    return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in names))
+
+
+def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
+    """`model` with its pitch plant parameters fitted again on pitch_deg (kept if better)."""
+    specs = _plant_specs("pitch_dynamics", model, "pitch_deg", True)
+    problem = ctx.problem("pitch_deg", ctx.folds, False, model)
+    x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
+    fit = fit_specs(model, specs, problem, x0,
+                    replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev), grid=False)
+    refit = models_for(model, specs, fit.x[None, :])[0]
+    before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
+    return refit if fit.rss < before else model
+
+
+def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
+    """The discovered dynamics and drive terms with the plant, fitted again on the truth channels,
+    then the runs' initial states (`ctx.runs` replaced): the accepted coefficient is the mean of
+    per-run fits, the in-sample optimum lies beside it.
+    """
+    st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
+    for truth, sites in (("stroke_deg", ("stroke_dynamics", "drive")),
+                         ("pitch_deg", ("pitch_dynamics",))):
+        specs: list[EffectSpec] = []
+        for t in model.discovered:
+            if t.acts_on in sites:
+                specs += term_specs(t.row, t.acts_on, truth, max(3.0 * abs(t.coefficient), 1e-30),
+                                    dict(t.shape))
+        if not specs and truth == "stroke_deg":
+            continue
+        specs += _plant_specs(sites[0], model, truth, st.identify)
+        if not specs:
+            continue
+        problem = ctx.problem(truth, ctx.folds, False, model)
+        x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
+        fit = fit_specs(model, specs, problem, x0, st, grid=False)
+        before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
+        if fit.rss < before:
+            model = models_for(model, specs, fit.x[None, :])[0]
+    if st.identify:
+        ctx.runs = identify_plant(ctx.runs, model, ctx.noise, keys=(),
+                                  state_channels=("stroke_deg", "pitch_deg")).runs
+        ctx.motion = MotionCache()
+    return model
+
+
+def _replacing(ctx: AnalysisContext, current: Model, channel: str,
+               replaceable: Sequence[FoundEffect], start_plant: Optional[PlantParams] = None,
+               ) -> tuple[Optional[tuple], list, list, list]:
+    """A discovery step on `channel`, first in place of the vocabulary effects found there that
+    leave its gap (the winner must then predict the held-out runs better than they did), else on
+    top of them: (winner, step record, effects replaced, the step's base model).
+    """
+    here = [e for e in replaceable
+            if e.channel.split("+")[0] == channel and current.effect(e.name) is not None]
+    tried = []
+    for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
+        passing, record = _step(ctx, base, channel, start_plant)
+        tried.append({"channel": channel, "in_place_of": [e.name for e in dropped],
+                      "candidates": record[2]})
+        if dropped:
+            passing = [w for w in passing if w[0].heldout_nrmse_after < min(
+                e.evidence.get("heldout_nrmse_after", math.inf) for e in dropped)]
+        if passing:
+            return passing, record, dropped, tried
+    return [], record, [], tried
+
+
+def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
+             progress: Optional[Callable[[str], None]] = None,
+             replaceable: Sequence[FoundEffect] = (),
+             start_plant: Optional[PlantParams] = None) -> DiscoveryOutcome:
+    """Search the term library for what closes the located gaps (see the module docstring).
+
+    replaceable: vocabulary effects found where a gap is left (named, but fitting only
+    approximately); a term may replace them. start_plant: where a term's joint fit starts the
+    plant parameters (the identification's plant: the vocabulary search may have moved them to
+    mimic what it could not name).
+    """
+    current = model
+    found: list[Discovered] = []
+    named: list[FoundEffect] = []
+    replaced: list[FoundEffect] = []
+    tried = []
+    for channel in CHANNEL_ORDER:
+        if channel not in gap_channels:
+            continue
+        # one term per channel: a second on the same channel would fit what the first left, and
+        # the first's error is mostly its plant's, which the joint fit already moved
+        for _once in range(1 if len(found) < ctx.settings.max_discovered_terms else 0):
+            if not channel_has_gap(ctx, current, channel, _truth_ref(ctx, current, channel)):
+                break
+            if channel == "pitch_deg" and channel_has_gap(ctx, current, "stroke_deg", False):
+                tried.append({"channel": channel, "skipped": "below the stroke_deg gap (possibly "
+                              "propagated from it)", "candidates": []})
+                break
+            if progress:
+                progress(f"discover on {channel}")
+            passing, (judged, rest, _tried), dropped, step_tried = _replacing(
+                ctx, current, channel, [e for e in replaceable if e not in replaced], start_plant)
+            tried += step_tried
+            win, named_fit = None, None
+            for candidate in passing:  # a term that is a vocabulary effect must pass as that
+                vocabulary = candidate[1].same_as.get(candidate[2])
+                if vocabulary is None:
+                    win = candidate
+                    break
+                named_fit = _as_vocabulary(ctx, _without(current, dropped), vocabulary, channel)
+                if named_fit is not None:
+                    win = candidate
+                    break
+            if win is None:
+                break
+            replaced += dropped
+            current = _without(current, dropped)
+            ev, kind, site, specs, new_model = win
+            if named_fit is not None:
+                vev, current = named_fit
+                named.append(FoundEffect(vocabulary, channel, {
+                    p.key: float(v) for p, v in zip(ENTRIES[vocabulary].params, vev.values)},
+                    {**vev.as_dict(), "found_by": "discovery (a library term that is this "
+                                                  "vocabulary effect)"},
+                    ENTRIES[vocabulary].acts_on))
+                continue
+            before_models = [current] * len(ctx.folds)
+            gap_before = _heldout_gap(ctx, before_models)
+            after_models = list(ev.heldout_models)
+            if channel == "stroke_deg" and ctx.settings.identify:
+                # the pitch plant was identified under the stroke's error: fit it again under
+                # the corrected stroke (its parameters are the plant's, not the term's)
+                new_model = _refit_pitch_plant(ctx, new_model)
+                pitch = {k: getattr(new_model.plant, k) for k, c in PLANT_PARAMETERS.items()
+                         if c == "pitch_deg"}
+                after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
+            gap_after = _heldout_gap(ctx, after_models)
+            term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
+            stderr = {s.key: e for s, e in zip(specs, ev.se) if s.is_term}
+            found.append(Discovered(term, channel, stderr, gap_before, gap_after, ev.as_dict(),
+                                    _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest)))
+            current = new_model
+    if found:
+        current = _polish_truth(ctx, current)
+        final = {(t.kind, t.acts_on): t for t in current.discovered}
+        found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
+    return DiscoveryOutcome(current, tuple(found), tuple(named), tuple(replaced), tuple(tried),
+                            ctx.runs)
