@@ -43,13 +43,15 @@ This module only builds data and scores results (no file I/O).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import signal
 
 from flaair_model.effects import EFFECTS, ENTRIES
 from flaair_model.model import Model, with_effects
+from flaair_model.model_io import load_model
+from flaair_model.terms import DiscoveredTerm
 from flaair_sim.core.drive import chirp, stepped_sine, stepped_sine_frequencies_hz
 from flaair_sim.core.measured_run import synthesize_measured_run
 
@@ -74,6 +76,8 @@ __all__ = [
     "expected_column",
     "found_label",
     "FAMILIES",
+    "DISCOVER_KINDS",
+    "DiscoverKind",
     "random_robot",
     "true_plant",
     "effective_plant",
@@ -321,7 +325,52 @@ def dataset_cases() -> tuple[DatasetCase, ...]:
 # ------------------------------------------------------------------------------------ scoring
 
 
-FAMILIES = ("offnominal_null", "offnominal_single", "offnominal_pair", "offnominal_outside")
+FAMILIES = ("offnominal_null", "offnominal_single", "offnominal_pair", "offnominal_outside",
+            "offnominal_discover")
+
+
+@dataclass(frozen=True)
+class DiscoverKind:
+    """Physics outside the vocabulary (and outside `OUTSIDE_KINDS`) that a library term expresses.
+
+    The coefficient is drawn as sign x uniform(low, high) x the reference (`scale`: the nominal
+    stroke stiffness 'K', hinge stiffness 'k_h', or 1); a shape parameter uniform in its range.
+    """
+
+    name: str
+    kind: str
+    acts_on: str
+    low: float
+    high: float
+    sign: float  # +1 or -1; 0: a random sign
+    scale: str
+    shape: tuple = ()  # ((key, low, high), ...)
+    note: str = ""
+
+    def draw(self, rng: np.random.Generator, model: Model) -> DiscoveredTerm:
+        """One robot's term."""
+        ref = {"K": model.plant.stroke_stiffness_nm_per_rad,
+               "k_h": model.plant.hinge_stiffness_nm_per_rad, "1": 1.0}[self.scale]
+        sign = self.sign or float(rng.choice([-1.0, 1.0]))
+        value = sign * float(rng.uniform(self.low, self.high)) * ref
+        shape = tuple((k, float(rng.uniform(lo, hi))) for k, lo, hi in self.shape)
+        return DiscoveredTerm(self.kind, self.acts_on, value, shape)
+
+
+DISCOVER_KINDS: tuple[DiscoverKind, ...] = (
+    DiscoverKind("flexure_friction", "sign_velocity", "stroke_dynamics", 0.015, 0.04, -1.0, "K",
+                 note="dry friction in the stroke flexure: K x 0.015-0.04 rad"),
+    DiscoverKind("flexure_stiffening", "cube_angle", "stroke_dynamics", 0.3, 0.8, -1.0, "K",
+                 note="a flexure stiffening with the cube of the stroke"),
+    DiscoverKind("amplifier_bandwidth", "drive_lag", "drive", 1.0, 1.0, 1.0, "1",
+                 (("corner_hz", 350.0, 900.0),), note="a drive amplifier with a finite bandwidth"),
+    DiscoverKind("film_drive_leak", "drive_leak", "pitch_sensor_v", 1e-4, 4e-4, 0.0, "1",
+                 note="the drive leaking into the hinge film"),
+    DiscoverKind("sensor_crosstalk", "crosstalk", "pitch_sensor_v", 0.01, 0.04, 0.0, "1",
+                 note="the stroke charge amplifier's output crossing into the pitch one"),
+    DiscoverKind("hinge_friction", "sign_velocity", "pitch_dynamics", 0.01, 0.03, -1.0, "k_h",
+                 note="dry friction in the wing hinge: k_h x 0.01-0.03 rad"),
+)
 # Fabrication spread of the plant: natural frequencies within +-3 %, damping, gain and
 # couplings within +-15 % of nominal.
 FREQUENCY_SPREAD = 0.03
@@ -358,7 +407,8 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     ``offnominal_single`` (each vocabulary effect in turn, random strength; wing_damage is hidden,
     since a plant change reproduces it), ``offnominal_pair`` (two separable effects),
     ``offnominal_outside`` (physics outside the vocabulary: a drifting pitch-sensor gain or a
-    second stroke resonance).
+    second stroke resonance), ``offnominal_discover`` (physics outside the vocabulary that the
+    term library expresses: each of `DISCOVER_KINDS` in turn, random strength).
     """
     if family not in FAMILIES:
         raise KeyError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
@@ -371,6 +421,7 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     video = int(rng.choice([1, 10]))
     effects: tuple = ()
     hidden: tuple = ()
+    terms: tuple = ()
     outside, strength = "", 0.0
     names = list(EFFECT_NAMES_ORDER)
     if family == "offnominal_single":
@@ -380,15 +431,21 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     elif family == "offnominal_pair":
         a, b = rng.choice(len(_SEPARABLE), size=2, replace=False)
         effects = tuple((n, random_effect(n, rng)) for n in (_SEPARABLE[a], _SEPARABLE[b]))
+    elif family == "offnominal_discover":
+        terms = (DISCOVER_KINDS[draw % len(DISCOVER_KINDS)].draw(rng, _nominal()),)
     elif family == "offnominal_outside":
         outside = ("sensor_gain_drift", "second_resonance")[draw % 2]
         strength = float(rng.uniform(0.2, 0.4) if outside == "sensor_gain_drift"
                          else rng.uniform(0.1, 0.2))
     group = {"offnominal_null": "null", "offnominal_single": "single", "offnominal_pair": "pair",
-             "offnominal_outside": "outside"}[family]
+             "offnominal_outside": "outside", "offnominal_discover": "discover"}[family]
     return DatasetCase(f"{family}_{draw:03d}", group, effects, outside, strength, noise,
                        seed=1000 * (1 + FAMILIES.index(family)) + draw, plant_scale=scale,
-                       hidden=hidden, video_every=video)
+                       hidden=hidden, video_every=video, terms=terms)
+
+
+def _nominal() -> Model:
+    return load_model()
 
 
 EFFECT_NAMES_ORDER = _SEPARABLE + ("wing_damage",)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
@@ -19,7 +19,7 @@ from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is 
 from flaair_common.strictjson import json_safe
 
 from .diagnosis import bode_points  # noqa: E402
-from .runs import CHANNELS, Run  # noqa: E402
+from .runs import CHANNELS, Run, simulate_runs  # noqa: E402
 from .settings import Settings  # noqa: E402
 from .workflow import DiscrepancyResult, format_parameters  # noqa: E402
 
@@ -198,10 +198,65 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
+def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int,
+                    path: Path) -> None:
+    """Residual of the channel a discovered term closes, on each run: without and with it."""
+    d = result.discovered[index]
+    c = d.channel
+    without = replace(result.model_out, discovered=tuple(
+        t for t in result.model_out.discovered if t != d.term))
+    before = simulate_runs([without], runs)[0]
+    fig = Figure(figsize=(9, 2.2 * len(runs)))
+    axes = np.atleast_1d(fig.subplots(len(runs), 1))
+    for ax, run, b, a in zip(axes, runs, before, result.sims_after):
+        t = np.arange(run.n) / run.fs_hz
+        ax.plot(t, run.channel(c) - b[c], lw=0.6, label=f"without {d.term.feature_expression}")
+        ax.plot(t, run.channel(c) - a[c], lw=0.6, label="with it")
+        ax.set_ylabel(f"residual [{_UNITS[c]}]")
+        ax.set_title(f"{run.name}: measured - model, {c}", fontsize=9)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict]:
+    """Each discovered term for the page: words, equation, gaps, candidates beaten, figure."""
+    out = []
+    for i, d in enumerate(result.discovered):
+        t = d.term
+        where = {"stroke_dynamics": "a torque (N m) in the stroke equation of motion",
+                 "pitch_dynamics": "a torque (N m) in the pitch equation of motion",
+                 "drive": "volts added to the drive before the actuator"}.get(
+            t.acts_on, f"volts added to {t.acts_on} (voltages measured from V_HREF)")
+        params = ", ".join(f"{k} = {_f(v)} (SE {_f(d.stderr.get(k))})"
+                           for k, v in [("coefficient", t.coefficient), *t.shape])
+        beaten = [[b["term"], b["acts_on"], b["expression"] or "-", b["heldout_nrmse_after"],
+                   b["nrmse_margin"], ", ".join(b["failed_rules"]) or "passed, lost on error"]
+                  for b in d.beaten]
+        out.append({
+            "title": f"{t.row.words} on {t.acts_on}", "equation": f"{t.acts_on} += {t.expression}",
+            "words": f"{t.row.words.capitalize()}, acting as {where}; such a term stands for "
+                     f"{t.row.examples or 'physics the vocabulary does not name'}.",
+            "parameters": params,
+            "gap": _table(["channel", "held-out NRMSE without", "held-out NRMSE with"],
+                          [[c, d.gap_before[c], d.gap_after[c]] for c in CHANNELS]),
+            "beaten": _table(["candidate", "acts on", "fitted", "held-out NRMSE", "margin",
+                              "failed rules"], beaten) if beaten else None,
+            "fig": figs.get(f"discovered_{i}")})
+    return out
+
+
 def write_figures(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult) -> dict[str, str]:
-    """Write gap.png, overlay.png, bode.png and bands.png; returns {figure: file name}."""
+    """Write gap.png, overlay.png, bode.png, bands.png and discovered_K.png per discovered term;
+    returns {figure: file name}.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     figs = {"gap": "gap.png", "overlay": "overlay.png", "bode": "bode.png", "bands": "bands.png"}
+    for i in range(len(result.discovered)):
+        figs[f"discovered_{i}"] = f"discovered_{i}.png"
+        _fig_discovered(runs, result, i, out_dir / figs[f"discovered_{i}"])
     _fig_gap(result, out_dir / figs["gap"])
     _fig_overlay(runs, result, out_dir / figs["overlay"])
     _fig_bode(runs, result, out_dir / figs["bode"])
@@ -350,6 +405,7 @@ def _context(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, A
                         result.diagnosis_before.channels[c].noise_nrmse, result.noise[c]]
                        for c in CHANNELS]), "figs": figs, "plant": plant, "effects": effects,
         "remaining": remaining, "diagnosis": diagnosis, "searches": searches, "r": _rules(settings),
+        "discovered": _discovered(result, figs),
         "validation": _confusion(validation["confusion"], validation.get("cases", ()))
         if validation else None,
     }

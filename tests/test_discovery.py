@@ -1,0 +1,207 @@
+"""Discovery: the term library, a model's discovered terms, and the workflow proposing one.
+
+The model side against closed forms (a constant hinge torque rests the wing at tau / k_h; a
+crosstalk term adds exactly c x the other chain's deviation; the drive lag is a bilinear
+low-pass), exact round trips through the model file, block stepping equal to one record, and
+clear errors for bad entries. The workflow side on fixed draws of the generator's
+`offnominal_discover` family (off-nominal plant, noise, physics the vocabulary lacks): the right
+form, the right site, the coefficient within 10 %, the status.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
+from flaair_model.terms import KINDS, TERM_KINDS, DiscoveredTerm, kinds_for, lowpass_ba
+from flaair_sim.core.plant import (
+    PlantInputs,
+    PlantStepParams,
+    initial_state,
+    simulate,
+    simulate_batch,
+    step,
+)
+from flaair_tools import discrepancy
+from flaair_tools.discrepancy import analyse
+from flaair_tools.discrepancy.datasets import DISCOVER_KINDS, make_runs, random_robot
+from test_discrepancy import write_case_csvs
+
+FS = 20_000.0
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+def _drive(n: int = 8000) -> np.ndarray:
+    t = np.arange(n) / FS
+    return 60.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.05, 1.0)
+
+
+def test_the_library_offers_what_the_issue_lists() -> None:
+    forms = {k.form for k in TERM_KINDS}
+    for needed in ("1", "{x}**2", "{x}**3", "sign({v})", "abs({v})", "phi*psi", "ddrive_v",
+                   "drive_v", "{other}", "t*{own}", "t*drive_v"):
+        assert needed in forms, needed
+    assert any("lowpass(drive_v" in f for f in forms)
+    for site in ("stroke_dynamics", "pitch_dynamics", "drive", "stroke_sensor_v",
+                 "pitch_sensor_v"):
+        assert kinds_for(site), site
+    assert len(DISCOVER_KINDS) >= 6
+
+
+def test_a_constant_hinge_torque_rests_the_wing_at_tau_over_k_h(model) -> None:
+    tau = 0.02 * model.plant.hinge_stiffness_nm_per_rad
+    m = replace(model, discovered=(DiscoveredTerm("constant", "pitch_dynamics", tau),))
+    out = simulate(np.zeros(int(0.4 * FS)), FS, m)
+    assert out.pitch_rad[-1] == pytest.approx(tau / model.plant.hinge_stiffness_nm_per_rad,
+                                              rel=1e-3)
+    assert np.max(np.abs(out.stroke_rad)) == 0.0  # a pitch torque does not move the stroke
+
+
+def test_a_stroke_torque_is_the_same_as_the_actuator_pushing(model) -> None:
+    """Tau in the stroke equation == a drive of tau / G_a volts (both are torques)."""
+    tau = 1e-6
+    m = replace(model, discovered=(DiscoveredTerm("constant", "stroke_dynamics", tau),))
+    with_term = simulate(np.zeros(4000), FS, m)
+    pushed = simulate(np.full(4000, tau / model.plant.actuator_gain_nm_per_v), FS, model)
+    np.testing.assert_allclose(with_term.stroke_rad, pushed.stroke_rad, rtol=1e-9, atol=1e-15)
+
+
+def test_crosstalk_adds_c_times_the_other_chain(model) -> None:
+    c = 0.03
+    d = _drive()
+    m = replace(model, discovered=(DiscoveredTerm("crosstalk", "pitch_sensor_v", c),))
+    base, out = simulate(d, FS, model), simulate(d, FS, m)
+    vref = model.sensors.reference_voltage_v
+    np.testing.assert_allclose(out.pitch_sensor_v - base.pitch_sensor_v,
+                               c * (base.stroke_sensor_v - vref), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(out.stroke_sensor_v, base.stroke_sensor_v)
+
+
+def test_a_drive_lag_of_one_is_an_amplifier_with_that_bandwidth(model) -> None:
+    d = _drive()
+    lag = DiscoveredTerm("drive_lag", "drive", 1.0, (("corner_hz", 400.0),))
+    b, a = lowpass_ba(400.0, FS)
+    b_ref, a_ref = signal.bilinear([2 * np.pi * 400.0], [1.0, 2 * np.pi * 400.0], fs=FS)
+    np.testing.assert_allclose(np.polyval(b, 1) / np.polyval(a, 1), 1.0)  # unit DC gain
+    w, h = signal.freqz(b, a, worN=[120.0], fs=FS)
+    assert abs(h[0]) == pytest.approx(1 / math.hypot(1, 120.0 / 400.0), rel=2e-3)
+    assert b_ref.size == b.size
+    out = simulate(d, FS, replace(model, discovered=(lag,)))
+    through = simulate(signal.lfilter(b, a, d), FS, model)
+    np.testing.assert_allclose(out.stroke_rad, through.stroke_rad, rtol=1e-9, atol=1e-14)
+
+
+def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
+    terms = (DiscoveredTerm("sign_velocity", "stroke_dynamics", -1e-6),
+             DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
+             DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
+             DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1))
+    m = replace(model, discovered=terms)
+    d = _drive()
+    whole = simulate(d, FS, m)
+    state = initial_state(PlantStepParams(m, FS))
+    blocks = []
+    for k in range(0, d.size, 97):
+        state, y = step(state, PlantInputs(d[k:k + 97]), PlantStepParams(m, FS))
+        blocks.append(y)
+    batch = simulate_batch(d, FS, [model, m])
+    for i, name in enumerate(whole._fields):
+        np.testing.assert_array_equal(np.concatenate([b[i] for b in blocks]), whole[i], name)
+        np.testing.assert_array_equal(batch[i][1], whole[i], name)
+
+
+def test_a_model_with_a_discovered_term_round_trips_exactly(tmp_path: Path, model) -> None:
+    m = replace(model, discovered=(
+        DiscoveredTerm("drive_lag", "drive", 1.0173, (("corner_hz", 512.25),)),
+        DiscoveredTerm("cube_angle", "stroke_dynamics", -3.3e-5)))
+    path = tmp_path / "model.yaml"
+    save_model(m, path)
+    back = load_model(path)
+    assert back == m
+    text = path.read_text()
+    assert "discovered:" in text and "lowpass(drive_v, 512.25) - drive_v" in text
+    d = _drive(3000)
+    np.testing.assert_array_equal(simulate(d, FS, back).stroke_rad, simulate(d, FS, m).stroke_rad)
+
+
+@pytest.mark.parametrize("entry,message", [
+    ({"kind": "warp_drive", "acts_on": "drive", "parameters": {"coefficient": 1}}, "unknown term"),
+    ({"kind": "constant", "acts_on": "drive", "parameters": {"coefficient": 1}}, "acts_on"),
+    ({"kind": "drive_lag", "acts_on": "drive", "parameters": {"coefficient": 1}}, "corner_hz"),
+    ({"kind": "drive_lag", "acts_on": "drive",
+      "parameters": {"coefficient": 1, "corner_hz": 1e6}}, "corner_hz must be in"),
+    ({"kind": "constant", "acts_on": "stroke_dynamics",
+      "parameters": {"coefficient": float("nan")}}, "finite"),
+    ({"kind": "constant", "acts_on": "stroke_dynamics"}, "missing key(s) parameters"),
+])
+def test_a_bad_discovered_entry_is_refused_by_name(model, entry: dict, message: str) -> None:
+    doc = model_to_dict(model) | {"discovered": [entry]}
+    with pytest.raises(ModelError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        model_from_dict(doc)
+
+
+def test_a_third_dynamics_term_is_refused(model) -> None:
+    terms = tuple(DiscoveredTerm(k, "stroke_dynamics", 1e-7)
+                  for k in ("constant", "square_angle", "cube_angle"))
+    with pytest.raises(ModelError, match="at most 2 terms"):
+        replace(model, discovered=terms)
+
+
+# ------------------------------------------------------------------------ the workflow
+
+
+def _check_found(case, result) -> None:
+    (truth,) = case.terms
+    found = {(d.term.kind, d.term.acts_on): d for d in result.discovered}
+    assert (truth.kind, truth.acts_on) in found, result.summary
+    term = found[(truth.kind, truth.acts_on)].term
+    assert term.coefficient == pytest.approx(truth.coefficient, rel=0.10)
+    for (key, value), (key2, fitted) in zip(truth.shape, term.shape):
+        assert key == key2 and fitted == pytest.approx(value, rel=0.10)
+    assert result.status == "explained", result.summary
+    assert not result.effects  # no vocabulary name for what the vocabulary lacks
+
+
+def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> None:
+    case = random_robot("offnominal_discover", 1)
+    assert case.terms[0].kind == "cube_angle" and case.video_every == 10  # video-rate truth
+    result = analyse(make_runs(case, model), model)
+    _check_found(case, result)
+    (d,) = result.discovered
+    assert d.gap_after["stroke_deg"] < 0.3 * d.gap_before["stroke_deg"]
+
+
+def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(tmp_path: Path,
+                                                                        model) -> None:
+    case = random_robot("offnominal_discover", 3)
+    assert (case.terms[0].kind, case.terms[0].acts_on) == ("drive_leak", "pitch_sensor_v")
+    paths = [str(p) for p in write_case_csvs(case, model, tmp_path)]
+    out = tmp_path / "out"
+    assert discrepancy.main(paths + ["--out", str(out)]) == 0
+    doc = json.loads((out / "discrepancy.json").read_text(),
+                     parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
+    assert doc["status"] == "explained"
+    (entry,) = doc["discovered"]
+    assert entry["acts_on"] == "pitch_sensor_v" and entry["expression"].endswith("* drive_v")
+    coefficient = entry["parameters"]["coefficient"]
+    assert coefficient["value"] == pytest.approx(case.terms[0].coefficient, rel=0.10)
+    assert 0 < coefficient["stderr"] < 0.1 * abs(coefficient["value"])
+    assert entry["gap_after"]["pitch_sensor_v"] < 0.5 * entry["gap_before"]["pitch_sensor_v"]
+    assert entry["candidates_beaten"] and entry["kind"] in KINDS
+    fitted = load_model(out / "model.yaml")
+    (term,) = fitted.discovered
+    assert term.coefficient == coefficient["value"]
+    page = (out / "report.html").read_text()
+    assert "hypothesis for the lab to test" in page and "discovered_0.png" in page
+    assert (out / "discovered_0.png").stat().st_size > 10_000
