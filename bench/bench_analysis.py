@@ -22,14 +22,12 @@ TARGET_S = 5.0
 def make_bag(directory: Path) -> Path:
     """A 1 s chirp of the bench robot, as a lab would import it."""
     from flaair_common.runcsv import write_run
-    from flaair_model.model import with_effects
-    from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.measured_run import synthesize_measured_run
     from flaair_tools.bagio.import_runs import import_runs
-    from flaair_tools.orchestration.experiment import robot_effects
+    from flaair_tools.orchestration.experiment import robot_model
 
-    model = with_effects(load_model(), robot_effects())
+    model = robot_model()
     drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0,
                                      duration_s=1.0), FS_HZ, int(FS_HZ))
     write_run(directory / "chirp.csv", synthesize_measured_run(

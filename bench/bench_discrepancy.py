@@ -23,7 +23,12 @@ Figures (targets from the issue) and same-run baselines:
   every robot whose physics the vocabulary describes (the outside family's extra resonance pulls
   the fitted frequency; its worst error is printed beside);
 - time per robot data set: <= 60 s (max), each robot in one process while --jobs robots run at
-  once (default 2: both cores of the machine busy); baseline: one simulation of the data set.
+  once (default 2: both cores of the machine busy); baseline: one simulation of the data set;
+- discovery (family offnominal_discover: physics outside the vocabulary and outside the outside
+  family's kinds, each of `DISCOVER_KINDS` in turn, --draws robots): the true term's form and
+  site discovered >= 70 %; the fraction ending `explained` and the parameters of the right forms
+  within 10 % reported; false discoveries of terms on no-effect robots 0 %; time per robot
+  <= 120 s.
 --sweep adds the fixed hidden-effect cases of `dataset_cases()` (confusion table in
 out/bench/discrepancy_validation/validation.html).
 """
@@ -63,6 +68,8 @@ FALSE_DISCOVERY_TARGET = 0.05
 OUTSIDE_TARGET = 0.80
 PARAMETER_TOLERANCE = 0.10
 FREQUENCY_TOLERANCE = 0.005
+DISCOVER_TARGET = 0.70
+DISCOVER_TIME_S = 120.0
 FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
 
 
@@ -87,7 +94,23 @@ def judge(case, result, model) -> dict:
             "found": sorted(found), "status": result.status,
             "expected_status": case.expected_status, "exact": exact, "parameter_errors": errors,
             "effect_parameters_ok": effect_ok, "frequency_errors": freq_err,
-            "video_every": case.video_every, "noise_scale": case.noise_scale}
+            "video_every": case.video_every, "noise_scale": case.noise_scale,
+            "true_terms": [f"{t.kind}@{t.acts_on}" for t in case.terms],
+            "discovered": [f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered],
+            "term_errors": _term_errors(case, result)}
+
+
+def _term_errors(case, result) -> dict:
+    """Relative error of each true term's parameters where the same form was discovered."""
+    found = {(d.term.kind, d.term.acts_on): d.term for d in result.discovered}
+    out = {}
+    for t in case.terms:
+        f = found.get((t.kind, t.acts_on))
+        if f is not None:
+            out[f"{t.kind}.coefficient"] = abs(f.coefficient / t.coefficient - 1.0)
+            for (k, v), (_, fv) in zip(t.shape, f.shape):
+                out[f"{t.kind}.{k}"] = abs(fv / v - 1.0)
+    return out
 
 
 def share(xs: list[bool]) -> float:
@@ -127,7 +150,10 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="robots analysed at once, one process each (default: 2, both cores)")
     parser.add_argument("--families", nargs="*", choices=FAMILIES, default=list(FAMILIES),
-                        help="families to draw (default: all four)")
+                        help="families to draw (default: all five)")
+    parser.add_argument("--discover-draws", type=int, default=60,
+                        help="robots of the discovery family (default 60: each of its six kinds "
+                             "10 times)")
     parser.add_argument("--sweep", action="store_true",
                         help="also run the fixed hidden-effect cases")
     args = parser.parse_args()
@@ -137,7 +163,8 @@ def main() -> None:
     t_sim = best_time_s(lambda: [simulate(r.drive_v, r.fs_hz, model) for r in first], repeats=3)
 
     outcomes, baseline = [], []
-    jobs = [(f, d, d < args.baseline_draws) for f in args.families for d in range(args.draws)]
+    jobs = [(f, d, d < args.baseline_draws and f != "offnominal_discover") for f in args.families
+            for d in range(args.discover_draws if f == "offnominal_discover" else args.draws)]
     start = time.perf_counter()
     pool = ProcessPoolExecutor(max_workers=max(1, args.jobs))
     try:
@@ -156,14 +183,14 @@ def main() -> None:
     wall = time.perf_counter() - start
     order = {(f, d): i for i, (f, d, _) in enumerate(jobs)}
     outcomes.sort(key=lambda o: order[(o["family"], int(o["case"].rsplit("_", 1)[1]))])
-    times = [o["elapsed_s"] for o in outcomes]
+    times = [o["elapsed_s"] for o in outcomes if o["family"] != "offnominal_discover"]
     out_dir = REPO_ROOT / "out" / "bench"
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "discrepancy_offnominal.json").write_text(
         json.dumps(json_safe(outcomes), indent=2, allow_nan=False))
 
     figures: list[Figure] = []
-    for family in args.families:
+    for family in [f for f in args.families if f != "offnominal_discover"]:
         rows = [o for o in outcomes if o["family"] == family]
         acc = share([o["exact"] for o in rows])
         base = share([b["exact"] for b in baseline if b["family"] == family])
@@ -173,8 +200,33 @@ def main() -> None:
                               f">= {100 * ACCURACY_TARGET:.0f} %", acc >= ACCURACY_TARGET,
                               f"without identification {100 * base:.0f} %"
                               + (f"; wrong {wrong}" if wrong else "")))
+    discover = [o for o in outcomes if o["family"] == "offnominal_discover"]
+    if discover:
+        right = [set(o["true_terms"]) <= set(o["discovered"]) for o in discover]
+        kinds = sorted({o["true_terms"][0] for o in discover})
+        of_kind = {k: [r for r, o in zip(right, discover) if o["true_terms"][0] == k]
+                   for k in kinds}
+        per_kind = ", ".join(f"{k.split('@')[0]} {sum(v)}/{len(v)}" for k, v in of_kind.items())
+        figures.append(Figure(f"discovery: right acts_on and form ({len(discover)} robots, "
+                              f"{len(kinds)} kinds)", 100 * share(right), "%",
+                              f">= {100 * DISCOVER_TARGET:.0f} %", share(right) >= DISCOVER_TARGET,
+                              per_kind))
+        errs = [v for o in discover for v in o["term_errors"].values()]
+        figures.append(Figure("discovery: ending explained", 100 * share(
+            [o["status"] == "explained" for o in discover]), "%", "reported", True,
+            f"parameters of right forms within 10 %: {100 * share([e <= 0.1 for e in errs]):.0f}"
+            f" % ({len(errs)}); wrong forms: " + (", ".join(
+                f"{o['case'][-3:]}: {'+'.join(o['discovered']) or 'none'}"
+                for o, r in zip(discover, right) if not r) or "none")[:160]))
+        d_times = [o["elapsed_s"] for o in discover]
+        figures.append(Figure(f"discovery: time per robot (max of {len(d_times)})", max(d_times),
+                              "s", f"<= {DISCOVER_TIME_S:g} s", max(d_times) <= DISCOVER_TIME_S,
+                              f"median {statistics.median(d_times):.1f} s"))
     null = [o for o in outcomes if o["family"] == "offnominal_null"]
     if null:
+        fd_terms = share([bool(o["discovered"]) for o in null])
+        figures.append(Figure(f"false discoveries of terms on no-effect robots ({len(null)})",
+                              100 * fd_terms, "%", "0 %", fd_terms == 0.0, ""))
         fd = share([bool(o["found"]) for o in null])
         figures.append(Figure(f"false discoveries on no-effect robots ({len(null)} robots)",
                               100 * fd, "%", f"<= {100 * FALSE_DISCOVERY_TARGET:.0f} %",
@@ -196,7 +248,7 @@ def main() -> None:
         # robots the vocabulary can describe; an extra
         # resonance (outside) pulls the fitted frequency
         errs = [abs(o["frequency_errors"][key]) for o in outcomes
-                if key in o["frequency_errors"] and not o["outside"]]
+                if key in o["frequency_errors"] and not o["outside"] and not o["true_terms"]]
         out_errs = [abs(o["frequency_errors"][key]) for o in outcomes
                     if key in o["frequency_errors"] and o["outside"]]
         if not errs:
@@ -209,7 +261,8 @@ def main() -> None:
                               f"{100 * max(errs):.3f} %"
                               + (f"; outside robots worst {100 * max(out_errs):.1f} %" if out_errs
                                  else "")))
-    figures.append(Figure(f"time per robot data set (max of {len(times)}, {args.jobs} at once)",
+    figures.append(Figure(f"time per robot data set (max of {len(times)}, {args.jobs} at once, "
+                          "existing families)",
                           max(times), "s", f"<= {TIME_TARGET_S:g} s", max(times) <= TIME_TARGET_S,
                           f"median {statistics.median(times):.1f} s; all robots {wall / 60:.1f} "
                           f"min wall; 1 simulation of the set {1e3 * t_sim:.0f} ms"))

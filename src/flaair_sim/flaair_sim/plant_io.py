@@ -8,7 +8,7 @@ watchdog of `flaair_sim.core.actuator`, for the node and offline tools alike.
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Any, Mapping
+from typing import Any, Mapping, Optional
 
 import numpy as np
 
@@ -48,6 +48,10 @@ PLANT_PARAMS = [
                                              "[0: at once]", 0, 100, read_only=True),
     ParamSpec("min_truth_subscribers", int, "... and the ground-truth stream this many (a "
                                             "recorder) [0: at once]", 0, 100, read_only=True),
+    ParamSpec("truth_frame_every", int, "Ground truth as a camera sees it: one valid frame every "
+                                        "this many samples (with the model's tracking noise when "
+                                        "noise is on) [1: every sample]", 1, 1000,
+              read_only=True),
     ParamSpec("obstacle_stroke_limit_deg", float,
               "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0,
               read_only=True),
@@ -106,11 +110,23 @@ def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
             "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v}
 
 
-def truth_fields(index: int, fs_hz: float, out: Any, source: int) -> dict[str, Any]:
-    """A ground-truth WingStateBlock's fields (degrees, every sample valid, no velocity)."""
-    valid, no_velocity = _truth_constants(out.stroke_rad.size)
+def truth_fields(index: int, fs_hz: float, out: Any, source: int, frame_every: int = 1,
+                 tracking_rng: Optional[np.random.Generator] = None,
+                 tracking_deg_rms: float = 0.0) -> dict[str, Any]:
+    """A ground-truth WingStateBlock's fields (degrees, no velocity): every sample valid, or one
+    frame every `frame_every` samples (sample index a multiple of it), with tracking noise
+    drawn from `tracking_rng` ((n, 2) per block, so the draw does not depend on the split).
+    """
+    n = out.stroke_rad.size
+    valid, no_velocity = _truth_constants(n)
+    stroke, pitch = np.degrees(out.stroke_rad), np.degrees(out.pitch_rad)
+    if tracking_rng is not None:
+        noise = tracking_rng.standard_normal((n, 2)) * tracking_deg_rms
+        stroke, pitch = stroke + noise[:, 0], pitch + noise[:, 1]
+    if frame_every > 1:
+        valid = (index + np.arange(n)) % frame_every == 0
     return {"sample_rate_hz": fs_hz, "first_sample_index": index, "source": source,
-            "stroke_deg": np.degrees(out.stroke_rad), "pitch_deg": np.degrees(out.pitch_rad),
+            "stroke_deg": stroke, "pitch_deg": pitch,
             "stroke_velocity_deg_s": no_velocity, "stroke_valid": valid, "pitch_valid": valid}
 
 

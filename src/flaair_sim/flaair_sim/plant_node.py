@@ -54,6 +54,8 @@ class PlantNode(FlaairNode):
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
+        self.tracking_rng = (np.random.default_rng([self.p["noise_seed"], 1])
+                             if self.p["noise"] and self.p["truth_frame_every"] > 1 else None)
         self.sensor = intra.block_publisher(
             self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
         self.truth = intra.block_publisher(
@@ -130,7 +132,9 @@ class PlantNode(FlaairNode):
         # match either way); the composed loop alone spends no encoding or DDS write on them.
         if self.truth.subscription_count():
             self.truth.publish(stamp_ns, io.truth_fields(
-                index, self.fs_hz, out, WingStateBlock.SOURCE_GROUND_TRUTH))
+                index, self.fs_hz, out, WingStateBlock.SOURCE_GROUND_TRUTH,
+                self.p["truth_frame_every"], self.tracking_rng,
+                self.model.noise.tracking_noise_deg_rms))
         if self.clock_pub is not None and self.clock_pub.get_subscription_count():
             self.clock_pub.publish(Clock(clock=stamp_from_time_s((index + drive_v.size)
                                                                  / self.fs_hz)))

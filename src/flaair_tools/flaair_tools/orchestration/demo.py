@@ -20,6 +20,7 @@ from pathlib import Path
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
+from flaair_model.terms import term_from_dict
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
 from flaair_tools.orchestration.experiment import (
     ExperimentError,
@@ -27,6 +28,7 @@ from flaair_tools.orchestration.experiment import (
     experiment_roles,
     load_experiments,
     robot_effects,
+    robot_section,
     run_experiment,
 )
 from flaair_tools.orchestration.graphs import node_of
@@ -113,8 +115,15 @@ def main(argv: list[str] | None = None) -> int:
         if code != 0:
             print("flaair demo: the discrepancy workflow failed", file=sys.stderr)
             return 1
+        robot = robot_section()
         hidden = ", ".join(f"{name} {params}" for name, params in robot_effects().items()) or "none"
-        print(f"[demo] hidden in the simulated bench robot (config/experiments.yaml): {hidden}")
+        plant = ", ".join(f"{k} x{f:g}" for k, f in (robot.get("plant") or {}).items()) or "nominal"
+        print("[demo] hidden in the simulated bench robot (config/experiments.yaml):")
+        print(f"[demo]   plant off nominal: {plant}")
+        print(f"[demo]   vocabulary effects: {hidden}")
+        outside = ", ".join(term_from_dict(t).expression + " on " + t["acts_on"]
+                            for t in robot.get("discovered") or []) or "none"
+        print(f"[demo]   outside the vocabulary: {outside}")
     print(f"\n[demo] done in {time.monotonic() - start:.0f} s.")
     print(f"[demo] report: {args.out / 'report' / 'report.html'}")
     if sweeps:

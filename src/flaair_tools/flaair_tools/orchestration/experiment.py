@@ -96,18 +96,44 @@ class ExperimentSpec:
     controller: bool = False
 
 
-def robot_effects() -> dict[str, dict[str, Any]]:
-    """The hidden effects of the simulated bench robot (config/experiments.yaml `robot:`)."""
+def robot_section() -> dict[str, Any]:
+    """The simulated bench robot (config/experiments.yaml `robot:`): plant factors, effects,
+    discovered terms, video frame spacing.
+    """
     document = load_yaml(config_dir() / "experiments.yaml") or {}
-    return dict((document.get("robot") or {}).get("effects") or {})
+    return dict(document.get("robot") or {})
 
 
-def write_robot_model(path: Path, effects: dict[str, dict[str, Any]]) -> Path:
-    """The bench robot's model file: config/model.yaml with `effects` added."""
+def robot_effects() -> dict[str, dict[str, Any]]:
+    """The hidden vocabulary effects of the simulated bench robot."""
+    return dict(robot_section().get("effects") or {})
+
+
+def robot_model() -> Any:
+    """The bench robot's model: config/model.yaml with its plant off nominal by the `plant:`
+    factors, its `effects` and its `discovered` terms (physics outside the vocabulary).
+    """
+    from dataclasses import replace
+
     from flaair_model.model import with_effects
-    from flaair_model.model_io import load_model, save_model
+    from flaair_model.model_io import load_model
+    from flaair_model.terms import term_from_dict
 
-    save_model(with_effects(load_model(), effects), path)
+    section = robot_section()
+    model = with_effects(load_model(), robot_effects())
+    factors = dict(section.get("plant") or {})
+    model = replace(model, plant=replace(model.plant, **{
+        k: getattr(model.plant, k) * float(f) for k, f in factors.items()}))
+    terms = tuple(term_from_dict(t, f"robot.discovered[{i}]")
+                  for i, t in enumerate(section.get("discovered") or []))
+    return replace(model, discovered=terms)
+
+
+def write_robot_model(path: Path) -> Path:
+    """The bench robot's model file (`robot_model`)."""
+    from flaair_model.model_io import save_model
+
+    save_model(robot_model(), path)
     return path
 
 
@@ -246,9 +272,9 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
         plant: dict[str, Any] = {"noise": noise, **spec.plant}
-        if not nominal and robot_effects():
-            plant["model_file"] = str(write_robot_model(
-                log_dir / "robot_model.yaml", robot_effects()))
+        if not nominal and robot_section():
+            plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
+            plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
         run_parameters: dict[str, dict[str, Any]] = {
             "recorder": {"output_path": str(out)}, "plant": plant,
             "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
