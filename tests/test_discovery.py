@@ -205,3 +205,36 @@ def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(tmp_path
     page = (out / "report.html").read_text()
     assert "hypothesis for the lab to test" in page and "discovered_0.png" in page
     assert (out / "discovered_0.png").stat().st_size > 10_000
+
+
+def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, model) -> None:
+    """The CLIs load `discovered:` and apply it: simulate's output equals the core with the term,
+    and identify keeps the term in the model it writes.
+    """
+    import csv
+
+    from rosproc import FLAAIR, isolated_env, run
+
+    k = model.plant.stroke_stiffness_nm_per_rad
+    term = DiscoveredTerm("cube_angle", "stroke_dynamics", -0.6 * k)
+    m = replace(model, discovered=(term,))
+    save_model(m, tmp_path / "robot.yaml")
+    drive = _drive(4000)
+    with open(tmp_path / "in.csv", "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["time_s", "drive_v"])
+        writer.writerows([[f"{k / FS:.17g}", f"{v:.17g}"] for k, v in enumerate(drive)])
+    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
+                  str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "out.csv")],
+                 isolated_env())
+    assert result.returncode == 0, result.stderr
+    with open(tmp_path / "out.csv", newline="") as handle:
+        stroke = np.array([float(r["stroke_deg"]) for r in csv.DictReader(handle)])
+    np.testing.assert_allclose(stroke, np.degrees(simulate(drive, FS, m).stroke_rad), rtol=1e-7,
+                               atol=1e-7)
+    assert not np.allclose(stroke, np.degrees(simulate(drive, FS, model).stroke_rad), atol=0.05)
+    out = tmp_path / "fit"
+    result = run([FLAAIR, "identify", str(tmp_path / "out.csv"), "--model",
+                  str(tmp_path / "robot.yaml"), "--out", str(out)], isolated_env())
+    assert result.returncode == 0, result.stderr
+    assert load_model(out / "model.yaml").discovered == (term,)

@@ -218,6 +218,8 @@ def main(argv: Optional[list[str]] = None) -> int:
               f"{p['value'] / p['nominal'] - 1.0:+.2%}, SE {p['stderr']:.2g})")
     for e in result.effects:
         print(f"  + {e.name} on {e.channel}: {format_parameters(e.parameters)}")
+    for d in result.discovered:
+        print(f"  + discovered (a hypothesis to test): {d.term.acts_on} += {d.term.expression}")
     for c in result.gap_before:
         print(f"  {c:16s} NRMSE {result.gap_before[c]:.4f} -> {result.gap_after[c]:.4f} (held-out)")
     for r in result.remaining:

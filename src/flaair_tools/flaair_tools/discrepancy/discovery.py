@@ -48,6 +48,7 @@ from .vocabulary import (
     ENTRIES,
     PLANT_PARAMETERS,
     SENSOR_CHANNELS,
+    SENSOR_SIDE,
     UPSTREAM_TRUTH,
     EffectSpec,
     candidate_groups,
@@ -167,7 +168,22 @@ def _share_rms(site: str, ctx: AnalysisContext, model: Model, motion: list[dict]
     return rms(site)
 
 
+def _sensor_effect_specs(site: str, model: Model) -> list[EffectSpec]:
+    """The parameters of the vocabulary effects already on sensor chain `site` (a term there
+    trades off against them: a delay fitted without a leak has bent to mimic part of it).
+    """
+    side = SENSOR_SIDE[site]
+    specs = []
+    for group in candidate_groups(site):
+        if model.effect_on(group[0].name, side) is not None and group[0].channel_param in (
+                None, side):
+            specs += [replace(s, tested=False) for s in group]
+    return specs
+
+
 def _plant_specs(site: str, model: Model, channel: str, identify: bool) -> list[EffectSpec]:
+    if site in SENSOR_CHANNELS:
+        return _sensor_effect_specs(site, model)
     if not identify or site not in ("stroke_dynamics", "pitch_dynamics", "drive"):
         return []
     truth = "pitch_deg" if site == "pitch_dynamics" else "stroke_deg"
@@ -359,8 +375,9 @@ def _replacing(ctx: AnalysisContext, current: Model, channel: str,
     leave its gap (the winner must then predict the held-out runs better than they did), else on
     top of them: (winner, step record, effects replaced, the step's base model).
     """
-    here = [e for e in replaceable
-            if e.channel.split("+")[0] == channel and current.effect(e.name) is not None]
+    # on a sensor the chain's effects are fitted along with the term instead
+    here = [e for e in replaceable if channel not in SENSOR_CHANNELS
+            and e.channel.split("+")[0] == channel and current.effect(e.name) is not None]
     tried = []
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
         passing, record = _step(ctx, base, channel, start_plant)

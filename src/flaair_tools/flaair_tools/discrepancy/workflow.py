@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from flaair_model.model import Model, ModelError
+from flaair_model.model import Model, ModelError, effect_params
 from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
@@ -217,6 +217,9 @@ def analyse(
             runs = discovery.runs
             ctx = found_ctx
             effects = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
+            # the discovery re-fits effects along with its terms: report the values of the model
+            effects = [replace(e, parameters=effect_params(model_out.effect(e.name)))
+                       if model_out.effect(e.name) is not None else e for e in effects]
             diag_after, remaining = _where_left(ctx, model_out, searches)
     discovered = discovery.discovered if discovery is not None else ()
     if progress:
