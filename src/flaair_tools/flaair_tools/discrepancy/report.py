@@ -200,11 +200,14 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
 
 def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int,
                     path: Path) -> None:
-    """Residual of the channel a discovered term closes, on each run: without and with it."""
+    """Residual of the channel a discovered term closes, on the first three runs: without and with
+    it.
+    """
     d = result.discovered[index]
     c = d.channel
     without = replace(result.model_out, discovered=tuple(
         t for t in result.model_out.discovered if t != d.term))
+    runs = list(runs)[:3]
     before = simulate_runs([without], runs)[0]
     fig = Figure(figsize=(9, 2.2 * len(runs)))
     axes = np.atleast_1d(fig.subplots(len(runs), 1))
@@ -236,7 +239,7 @@ def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict
                    b["nrmse_margin"], ", ".join(b["failed_rules"]) or "passed, lost on error"]
                   for b in d.beaten]
         out.append({
-            "title": f"{t.row.words} on {t.acts_on}", "equation": f"{t.acts_on} += {t.expression}",
+            "title": f"{t.row.words.capitalize()} on {t.acts_on}", "equation": f"{t.acts_on} += {t.expression}",
             "words": f"{t.row.words.capitalize()}, acting as {where}; such a term stands for "
                      f"{t.row.examples or 'physics the vocabulary does not name'}.",
             "parameters": params,
