@@ -205,7 +205,8 @@ def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem
         xs = np.array([[s.to_fit(v), *x0[1:]] for v in s.grid if s.lower <= v <= s.upper]
                       + [list(x0)])
         res = problem.residuals(models_for(base, specs, xs))
-        costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
+        with np.errstate(over="ignore"):  # a start that drives the model wild costs inf
+            costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
         x0 = xs[int(np.argmin(costs))]
 
     cache: dict = {}

@@ -239,7 +239,8 @@ def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict
                    b["nrmse_margin"], ", ".join(b["failed_rules"]) or "passed, lost on error"]
                   for b in d.beaten]
         out.append({
-            "title": f"{t.row.words.capitalize()} on {t.acts_on}", "equation": f"{t.acts_on} += {t.expression}",
+            "title": f"{t.row.words.capitalize()} on {t.acts_on}",
+            "equation": f"{t.acts_on} += {t.expression}",
             "words": f"{t.row.words.capitalize()}, acting as {where}; such a term stands for "
                      f"{t.row.examples or 'physics the vocabulary does not name'}.",
             "parameters": params,
