@@ -278,6 +278,8 @@ class DiscoveredTerm:
                              f"{sorted(shape) or 'none'}")
         for s in row.shape:
             value = check_number(f"{where}.{s.key}", shape[s.key])
+            if s.lower * (1 - 1e-9) <= value <= s.upper * (1 + 1e-9):  # exp(log(bound)) rounds
+                value = min(max(value, s.lower), s.upper)
             if not s.lower <= value <= s.upper:
                 raise ModelError(f"{where}.{s.key} must be in [{s.lower:g}, {s.upper:g}], got "
                                  f"{value:g}")

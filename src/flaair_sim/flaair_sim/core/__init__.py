@@ -2,10 +2,14 @@
 
 - ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
 - ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
+- ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
+- ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
+- ``sensor_kernel``: the sensor chain's kernel (high-pass, delay)
 - ``measured_run``: a simulated run in the measured-run CSV's columns
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
 - ``drive``: drive-voltage generators, whole-record and sample-exact blocks
 - ``drive_pacing``: when the open-loop drive generator sends which block
 """
 
-__all__ = ["plant", "plant_params", "measured_run", "actuator", "drive", "drive_pacing"]
+__all__ = ["plant", "plant_params", "plant_terms", "term_kernel", "sensor_kernel", "measured_run",
+           "actuator", "drive", "drive_pacing"]

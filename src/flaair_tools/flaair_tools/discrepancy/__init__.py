@@ -3,7 +3,8 @@
 Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect registered
 once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
-search), `workflow` (`analyse`: identify, then search on top of the fitted plant), `report`,
+search), `discovery` (terms from the library `flaair_model.terms` where the vocabulary leaves
+a gap), `workflow` (`analyse`: identify, search on top of the fitted plant, discover), `report`,
 `datasets` (hidden-effect cases and the randomized off-nominal robot generator; `case` holds one
 case, `scoring` scores the workflow on them), `cli`.
 Everything but `report` and `cli` is pure (numpy, scipy, numba via flaair_sim; no file I/O).
@@ -116,6 +117,7 @@ from .diagnosis import (
                    noise_estimates,
                    nrmse_by_channel,
 )
+from .discovery import Discovered, DiscoveryOutcome, discover
 from .evidence import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
 from .runs import (
@@ -145,5 +147,5 @@ __all__ = [
     "DiscrepancyInputError", "Run", "check_runs", "initial_mechanical_state", "measured_motion",
     "mechanics_model", "sensor_voltage", "simulate_runs", "ChannelSearch", "find_effects",
     "Settings", "SENSOR_EFFECTS", "VOCABULARY", "EffectSpec", "candidate_groups", "candidate_specs",
-    "DiscrepancyResult", "analyse",
+    "DiscrepancyResult", "analyse", "Discovered", "DiscoveryOutcome", "discover",
 ]
