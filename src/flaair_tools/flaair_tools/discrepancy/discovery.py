@@ -28,7 +28,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from flaair_model.model import Model, PlantParams
+from flaair_model.model import Model, ModelError, PlantParams
 from flaair_model.terms import (
     DYNAMICS_SITES,
     MAX_DYNAMICS_TERMS,
@@ -211,7 +211,10 @@ def _candidates(ctx: AnalysisContext, current: Model, channel: str) -> list[tupl
             for start in starts:  # the term alone on the current plant: a quick ranking
                 specs = term_specs(kind, site, channel, scale, start)
                 x0 = np.array([s.to_fit(s.null) for s in specs])
-                fit = fit_specs(current, specs, problem, x0, ctx.settings)
+                try:
+                    fit = fit_specs(current, specs, problem, x0, ctx.settings)
+                except (ModelError, ValueError):  # a start that leaves the term's own range
+                    continue
                 out.append((fit.rss, kind, site, specs, fit.x))
     out.sort(key=lambda c: c[0])
     best: dict = {}
@@ -299,22 +302,27 @@ def _step(ctx: AnalysisContext, current: Model, channel: str,
         # the plant on every run)
         plant = _plant_specs(site, current, channel, st.identify)
         base = current
-        if plant:
-            joint = list(specs) + plant
-            start = replace(current, plant=start_plant) if start_plant is not None else current
-            x0 = np.concatenate([x, [s.to_fit(spec_value(start, s)) for s in plant]])
-            fit = fit_specs(current, joint, ctx.problem(channel, ctx.folds, truth_ref, current), x0,
-                            replace(st, max_nfev=st.discovery_max_nfev), grid=False)
-            x = fit.x[:len(specs)]
-            base = models_for(current, plant, fit.x[None, len(specs):])[0]
-        ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+        try:
+            if plant:
+                joint = list(specs) + plant
+                start = replace(current, plant=start_plant) if start_plant is not None else current
+                x0 = np.concatenate([x, [s.to_fit(spec_value(start, s)) for s in plant]])
+                fit = fit_specs(current, joint, ctx.problem(channel, ctx.folds, truth_ref, current),
+                                x0, replace(st, max_nfev=st.discovery_max_nfev), grid=False)
+                x = fit.x[:len(specs)]
+                base = models_for(current, plant, fit.x[None, len(specs):])[0]
+            ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+        except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
+            continue
         judged.append((_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs,
                        model))
     tried = [{"term": k.name, "acts_on": s, "fit_rss": r} for r, k, s, _sp, _x in cands]
-    for row, (ev, *_rest) in zip(tried, judged):
-        row |= {"rules": dict(ev.rules), "delta_bic_heldout": ev.delta_bic_heldout,
-                "heldout_gap_drop": ev.heldout_gap_drop, "values": list(ev.values),
-                "z": list(ev.z), "consistency_p": list(ev.consistency_p)}
+    rows = {(row["term"], row["acts_on"]): row for row in tried}
+    for ev, kind, site, *_rest in judged:
+        rows[(kind.name, site)] |= {
+            "rules": dict(ev.rules), "heldout_nrmse_after": ev.heldout_nrmse_after,
+            "heldout_gap_drop": ev.heldout_gap_drop, "values": list(ev.values), "z": list(ev.z),
+            "consistency_p": list(ev.consistency_p)}
     # each candidate's plant is its own: rank on the held-out error, which all share
     passing = sorted((j for j in judged if j[0].accepted), key=lambda j: j[0].heldout_nrmse_after)
     return passing, [judged, cands[len(shortlist):], tried]
