@@ -208,8 +208,8 @@ def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(tmp_path
 
 
 def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, model) -> None:
-    """The CLIs load `discovered:` and apply it: simulate's output equals the core with the term,
-    and identify keeps the term in the model it writes.
+    """The CLIs load `discovered:` and apply it: simulate's output equals the core with the term;
+    the identification fits through it (and keeps it in the model it returns).
     """
     import csv
 
@@ -233,8 +233,21 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     np.testing.assert_allclose(stroke, np.degrees(simulate(drive, FS, m).stroke_rad), rtol=1e-7,
                                atol=1e-7)
     assert not np.allclose(stroke, np.degrees(simulate(drive, FS, model).stroke_rad), atol=0.05)
-    out = tmp_path / "fit"
-    result = run([FLAAIR, "identify", str(tmp_path / "out.csv"), "--model",
-                  str(tmp_path / "robot.yaml"), "--out", str(out)], isolated_env())
-    assert result.returncode == 0, result.stderr
-    assert load_model(out / "model.yaml").discovered == (term,)
+    # identify applies it too: on this robot's data it finds the model's own stroke frequency,
+    # which it could not with the term left out
+    from flaair_tools.discrepancy import Run, check_runs, identify_plant
+
+    with open(tmp_path / "out.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    col = {c: np.array([float(r[c]) for r in rows]) for c in rows[0] if c != "time_s"}
+    runs = check_runs([Run("r", FS, col["drive_v"], col["stroke_sensor_v"], col["pitch_sensor_v"],
+                           col["stroke_deg"], col["pitch_deg"])])
+    noise = {"stroke_deg": 0.01, "pitch_deg": 0.01, "stroke_sensor_v": 1e-3,
+             "pitch_sensor_v": 1e-3}
+    keys = ("stroke_natural_frequency_hz",)
+    fit = identify_plant(runs, m, noise, keys=keys)
+    assert fit.model.discovered == (term,)
+    f_n = model.plant.stroke_natural_frequency_hz
+    assert fit.model.plant.stroke_natural_frequency_hz == pytest.approx(f_n, rel=1e-4)
+    blind = identify_plant(runs, model, noise, keys=keys).model.plant.stroke_natural_frequency_hz
+    assert abs(blind / f_n - 1) > 1e-3

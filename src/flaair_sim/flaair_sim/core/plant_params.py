@@ -176,12 +176,12 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
 
     dynamics = [t for t in model.discovered if t.is_dynamics]
     p[P_NTERMS] = len(dynamics)
-    for slot, term in enumerate(dynamics):
+    for slot, dterm in enumerate(dynamics):
         base = P_TERMS + slot * TERM_SLOT
-        stroke = term.acts_on == "stroke_dynamics"
+        stroke = dterm.acts_on == "stroke_dynamics"
         p[base] = 1.0 if stroke else 2.0
-        p[base + 1] = term.coefficient / (p[P_I] if stroke else p[P_IP])
-        p[base + 2:base + TERM_SLOT] = term.monomial
+        p[base + 1] = dterm.coefficient / (p[P_I] if stroke else p[P_IP])
+        p[base + 2:base + TERM_SLOT] = dterm.monomial
 
     rates = [
         math.sqrt(stiffness / p[P_I]),
