@@ -14,6 +14,7 @@ import yaml
 from flaair_model.config import CONFIG_DIR_ENV, ConfigError, config_dir
 from flaair_model.pvdf import PvdfMaterial, SensorBeam
 from flaair_model.terms import term_from_dict, term_to_dict
+from flaair_model.validation import coerce_number
 
 from .model import (
     EFFECT_TYPES,
@@ -57,16 +58,6 @@ def _mapping(where: str, value: Any) -> Mapping[str, Any]:
     return value
 
 
-def _coerce(value: Any) -> Any:
-    # YAML 1.1 reads "1e-11" (no dot) as a string: accept numeric strings as numbers.
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
-
-
 def _build(kind: type, where: str, raw: Any) -> Any:
     raw = _mapping(where, raw)
     names = [f.name for f in fields(kind)]
@@ -76,7 +67,7 @@ def _build(kind: type, where: str, raw: Any) -> Any:
     missing = [n for n in names if n not in raw]
     if missing:
         raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
-    return kind(**{n: _coerce(raw[n]) for n in names})
+    return kind(**{n: coerce_number(raw[n]) for n in names})
 
 
 def model_from_dict(d: Mapping[str, Any]) -> Model:
@@ -103,7 +94,7 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
     if missing:
         raise ModelError(f"sensors: missing key(s) {', '.join(missing)}")
     sensors = SensorParams(
-        reference_voltage_v=_coerce(sensors_raw["reference_voltage_v"]),
+        reference_voltage_v=coerce_number(sensors_raw["reference_voltage_v"]),
         pvdf=_build(PvdfMaterial, "sensors.pvdf", sensors_raw["pvdf"]),
         stroke=_build(SensorBeam, "sensors.stroke", sensors_raw["stroke"]),
         pitch=_build(SensorBeam, "sensors.pitch", sensors_raw["pitch"]),
@@ -114,8 +105,8 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
     effects = []
     for name, params in effects_raw.items():
         if name in EFFECT_TYPES:
-            params = {k: ({kk: _coerce(vv) for kk, vv in v.items()} if isinstance(v, Mapping)
-                          else _coerce(v)) for k,
+            params = {k: ({kk: coerce_number(vv) for kk, vv in v.items()} if isinstance(v, Mapping)
+                          else coerce_number(v)) for k,
                       v in _mapping(f"effects.{name}", params or {}).items()}
         effects.append((name, effect_from_params(name, params)))
     terms_raw = d.get("discovered") or []

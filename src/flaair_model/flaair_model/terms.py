@@ -37,7 +37,7 @@ from typing import Any, Callable, Mapping, Optional
 import numpy as np
 from scipy import signal
 
-from flaair_model.validation import ModelError, check_number
+from flaair_model.validation import ModelError, check_number, coerce_number
 
 __all__ = ["SITES", "DYNAMICS_SITES", "SENSOR_SITES", "PRIMITIVES", "ShapeParam", "TermSignals",
            "TermKind", "TERM_KINDS", "KINDS", "DiscoveredTerm", "MAX_DYNAMICS_TERMS",
@@ -342,15 +342,7 @@ def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
     params = raw["parameters"]
     if not isinstance(params, Mapping) or "coefficient" not in params:
         raise ModelError(f"{where}.parameters must be a mapping with a coefficient")
-    shape = {str(k): _number(v) for k, v in params.items() if k != "coefficient"}
-    return DiscoveredTerm(str(raw["kind"]), str(raw["acts_on"]), _number(params["coefficient"]),
-                          tuple(shape.items()))
+    shape = {str(k): coerce_number(v) for k, v in params.items() if k != "coefficient"}
+    return DiscoveredTerm(str(raw["kind"]), str(raw["acts_on"]),
+                          coerce_number(params["coefficient"]), tuple(shape.items()))
 
-
-def _number(value: Any) -> Any:
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value

@@ -9,7 +9,8 @@ import math
 import numbers
 from typing import Any, Mapping
 
-__all__ = ["CHANNELS", "SIDES", "ModelError", "check_number", "check_fields", "check_channel"]
+__all__ = ["CHANNELS", "SIDES", "ModelError", "check_number", "check_fields", "check_channel",
+           "coerce_number"]
 
 CHANNELS = ("stroke", "pitch", "both")
 SIDES = ("stroke", "pitch")  # the two sensor chains
@@ -17,6 +18,16 @@ SIDES = ("stroke", "pitch")  # the two sensor chains
 
 class ModelError(ValueError):
     """Invalid model: the message names the offending parameter, key or section."""
+
+
+def coerce_number(value: Any) -> Any:
+    """A numeric string as a float (YAML 1.1 reads "1e-11", without a dot, as a string)."""
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
 
 
 def check_number(where: str, value: Any) -> float:

@@ -39,12 +39,11 @@ from flaair_model.terms import (
 )
 
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
-from .fitting import fit_specs, models_for, spec_value
+from .fitting import fit_specs, fold_nrmse, models_for, spec_value
 from .identification import identify_plant
 from .runs import MotionCache, simulate_runs
 from .search import CHANNEL_ORDER, channel_has_gap
 from .vocabulary import (
-    CHANNELS,
     ENTRIES,
     PLANT_PARAMETERS,
     SENSOR_CHANNELS,
@@ -226,23 +225,6 @@ def _candidates(ctx: AnalysisContext, current: Model, channel: str) -> list[tupl
 def _truth_ref(ctx: AnalysisContext, model: Model, channel: str) -> bool:
     return channel in SENSOR_CHANNELS and channel_has_gap(ctx, model, UPSTREAM_TRUTH[channel],
                                                           False)
-
-
-def _heldout_gap(ctx: AnalysisContext, per_fold: Sequence[Model]) -> dict:
-    """NRMSE per channel of fold k predicted by per_fold[k], pooled over the folds."""
-    rss = {c: 0.0 for c in CHANNELS}
-    ss = {c: 0.0 for c in CHANNELS}
-    for f, model in zip(ctx.folds, per_fold):
-        run = ctx.runs[f.run]
-        sim = simulate_runs([model], [run])[0][0]
-        for c in CHANNELS:
-            r = (run.channel(c) - sim[c])[f.start:f.stop]
-            x = run.channel(c)[f.start:f.stop]
-            ok = np.isfinite(r)
-            r, x = r[ok] - r[ok].mean(), x[ok] - x[ok].mean()
-            rss[c] += float(np.dot(r, r))
-            ss[c] += float(np.dot(x, x))
-    return {c: math.sqrt(rss[c] / ss[c]) if ss[c] > 0 else math.nan for c in CHANNELS}
 
 
 def _as_vocabulary(ctx: AnalysisContext, current: Model, name: str,
@@ -456,7 +438,7 @@ def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
                     ENTRIES[vocabulary].acts_on))
                 continue
             before_models = [current] * len(ctx.folds)
-            gap_before = _heldout_gap(ctx, before_models)
+            gap_before = fold_nrmse(ctx.runs, ctx.folds, before_models)
             after_models = list(ev.heldout_models)
             if channel == "stroke_deg" and ctx.settings.identify:
                 # the pitch plant was identified under the stroke's error: fit it again under
@@ -465,7 +447,7 @@ def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
                 pitch = {k: getattr(new_model.plant, k) for k, c in PLANT_PARAMETERS.items()
                          if c == "pitch_deg"}
                 after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
-            gap_after = _heldout_gap(ctx, after_models)
+            gap_after = fold_nrmse(ctx.runs, ctx.folds, after_models)
             term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
             stderr = {s.key: e for s, e in zip(specs, ev.se) if s.is_term}
             found.append(Discovered(term, channel, stderr, gap_before, gap_after, ev.as_dict(),

@@ -12,6 +12,7 @@ from flaair_model.model import Model, ModelError, with_effect_on, with_effects
 from flaair_model.terms import DiscoveredTerm
 
 from .runs import (
+    CHANNELS,
     MotionCache,
     Run,
     measured_motion,
@@ -19,6 +20,7 @@ from .runs import (
     sensor_gain_v_per_deg,
     sensor_voltage,
     simulate_motion,
+    simulate_runs,
 )
 from .settings import Settings
 from .vocabulary import SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH, EffectSpec
@@ -34,6 +36,25 @@ class Fold:
     start: int
     stop: int
     name: str
+
+
+def fold_nrmse(runs: Sequence[Run], folds: Sequence[Fold], per_fold: Sequence[Model]) -> dict:
+    """NRMSE per channel of fold k predicted by per_fold[k], pooled over the folds (fold means
+    removed, missing truth skipped).
+    """
+    rss = {c: 0.0 for c in CHANNELS}
+    ss = {c: 0.0 for c in CHANNELS}
+    for f, model in zip(folds, per_fold):
+        run = runs[f.run]
+        sim = simulate_runs([model], [run])[0][0]
+        for c in CHANNELS:
+            r = (run.channel(c) - sim[c])[f.start:f.stop]
+            x = run.channel(c)[f.start:f.stop]
+            ok = np.isfinite(r)
+            r, x = r[ok] - r[ok].mean(), x[ok] - x[ok].mean()
+            rss[c] += float(np.dot(r, r))
+            ss[c] += float(np.dot(x, x))
+    return {c: math.sqrt(rss[c] / ss[c]) if ss[c] > 0 else math.nan for c in CHANNELS}
 
 
 def make_folds(runs: Sequence[Run]) -> tuple[Fold, ...]:

@@ -5,15 +5,13 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Callable, Mapping, Optional, Sequence
 
-import numpy as np
-
 from flaair_model.model import Model, ModelError, effect_params
 from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
 from .discovery import discover
 from .evidence import AnalysisContext, FoundEffect
-from .fitting import Fold
+from .fitting import Fold, fold_nrmse
 from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs
 from .search import (
@@ -26,7 +24,6 @@ from .search import (
 )
 from .settings import Settings
 from .vocabulary import (
-    CHANNELS,
     ENTRIES,
     NOT_SEPARABLE,
     PLANT_PARAMETERS,
@@ -117,22 +114,9 @@ def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: M
 
 def _heldout_nrmse(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model) -> dict:
     """Per-channel NRMSE of held-out predictions: each fold predicted by a re-fit on the others."""
-    rss = {c: 0.0 for c in CHANNELS}
-    ss = {c: 0.0 for c in CHANNELS}
-    for k, f in enumerate(ctx.folds):
-        others = [g for i, g in enumerate(ctx.folds) if i != k]
-        m = _refit_on(ctx, effects, model_out, others) if effects else model_out
-        run = ctx.runs[f.run]
-        sim = simulate_runs([m], [run])[0][0]
-        for c in CHANNELS:
-            r = (run.channel(c) - sim[c])[f.start:f.stop]
-            x = run.channel(c)[f.start:f.stop]
-            ok = np.isfinite(r)
-            r = r[ok] - r[ok].mean()
-            x = x[ok] - x[ok].mean()
-            rss[c] += float(np.dot(r, r))
-            ss[c] += float(np.dot(x, x))
-    return {c: math.sqrt(rss[c] / ss[c]) if ss[c] > 0 else math.nan for c in CHANNELS}
+    per_fold = [_refit_on(ctx, effects, model_out, [g for i, g in enumerate(ctx.folds) if i != k])
+                if effects else model_out for k in range(len(ctx.folds))]
+    return fold_nrmse(ctx.runs, ctx.folds, per_fold)
 
 
 # ------------------------------------------------------------------------------- the workflow
