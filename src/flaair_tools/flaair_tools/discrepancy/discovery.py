@@ -17,7 +17,8 @@ predicted from the others), and a term is accepted only if it passes the same ru
 held-out model error above noise drops by more than `min_heldout_drop`, the held-out BIC falls
 by more than `-max_delta_bic`, the coefficient is `min_z` standard errors from zero, and the
 runs (full and half drive, early and late) agree on it. Among accepted terms the lowest held-out
-BIC wins. A winner that is a vocabulary effect under another name (`TermKind.same_as`) is
+error of the channel wins; errors within `PARSIMONY` (2 %) of the best are a tie, won by the term
+with fewer parameters. A winner that is a vocabulary effect under another name (`TermKind.same_as`) is
 reported as that effect, fitted as the vocabulary fits it. A gap no term closes stays.
 """
 from __future__ import annotations
@@ -62,6 +63,9 @@ SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
     "stroke_sensor_v": ("stroke_sensor_v",), "pitch_sensor_v": ("pitch_sensor_v",)}
 # A coefficient may reach this many times the size of its feature's whole share of the channel.
 COEFFICIENT_RANGE = 3.0
+# Held-out errors within this fraction of the best are a tie, won by the term with fewer
+# parameters.
+PARSIMONY = 0.02
 
 
 @dataclass(frozen=True)
@@ -305,8 +309,14 @@ def _step(ctx: AnalysisContext, current: Model, channel: str,
             "rules": dict(ev.rules), "heldout_nrmse_after": ev.heldout_nrmse_after,
             "heldout_gap_drop": ev.heldout_gap_drop, "values": list(ev.values), "z": list(ev.z),
             "consistency_p": list(ev.consistency_p)}
-    # each candidate's plant is its own: rank on the held-out error, which all share
+    # each candidate's plant is its own: rank on the held-out error, which all share; a term
+    # with fewer parameters within PARSIMONY of the best error comes first (a leak through a
+    # low-pass at its 5 kHz bound is the plain leak)
     passing = sorted((j for j in judged if j[0].accepted), key=lambda j: j[0].heldout_nrmse_after)
+    if passing:
+        best = passing[0][0].heldout_nrmse_after
+        passing.sort(key=lambda j: (j[0].heldout_nrmse_after > best * (1.0 + PARSIMONY),
+                                    len(j[3]), j[0].heldout_nrmse_after))
     return passing, [judged, cands[len(shortlist):], tried]
 
 
