@@ -18,8 +18,9 @@ held-out model error above noise drops by more than `min_heldout_drop`, the held
 by more than `-max_delta_bic`, the coefficient is `min_z` standard errors from zero, and the
 runs (full and half drive, early and late) agree on it. Among accepted terms the lowest held-out
 error of the channel wins; errors within `PARSIMONY` (2 %) of the best are a tie, won by the term
-with fewer parameters. A winner that is a vocabulary effect under another name (`TermKind.same_as`) is
-reported as that effect, fitted as the vocabulary fits it. A gap no term closes stays.
+with fewer parameters. A winner that is a vocabulary effect under another name
+(`TermKind.same_as`) is reported as that effect, fitted as the vocabulary fits it. A gap no term
+closes stays.
 """
 from __future__ import annotations
 
