@@ -107,14 +107,22 @@ def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
     inv_i = 1.0 / p[pp.P_I]
     inv_ip = 1.0 / p[pp.P_IP]
-    t = pp.P_TERMS
     return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i,
             p[pp.P_CSTRUCT] * inv_i, p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip,
             p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip, p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i,
-            p[pp.P_CC] * inv_i, p[pp.P_NTERMS],  # then the term slots (term_kernel.C_TERMS)
-            p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5], p[t + 6], p[t + 7], p[t + 8],
-            p[t + 9], p[t + 10], p[t + 11], p[t + 12], p[t + 13], p[t + 14], p[t + 15], p[t + 16],
-            p[t + 17], p[t + 18], p[t + 19])
+            p[pp.P_CC] * inv_i)
+
+
+@njit(cache=True, fastmath=_FMA)
+def constants_with_terms(p):
+    """`mechanical_constants` followed by the term count and the discovered terms' slots: a
+    longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
+    """
+    t = pp.P_TERMS
+    return mechanical_constants(p) + (
+        p[pp.P_NTERMS], p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5], p[t + 6],
+        p[t + 7], p[t + 8], p[t + 9], p[t + 10], p[t + 11], p[t + 12], p[t + 13], p[t + 14],
+        p[t + 15], p[t + 16], p[t + 17], p[t + 18], p[t + 19])
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -126,14 +134,14 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11])
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
-    if c[12] > 0.0:
+    if len(c) > 12:  # a compile-time constant: the nominal kernels carry no term code
         ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
     ddpsi = -cp * dpsi - kh * (psi + hcubic * psi * psi * psi) - dp * drag - jc * ddphi
-    if c[12] > 0.0:
+    if len(c) > 12:
         ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
     return ddphi, ddpsi
 
@@ -207,6 +215,18 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
 
 @njit(cache=True, fastmath=_FMA)
 def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out):
+    """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
+    if p[pp.P_NTERMS] > 0.0:
+        _mechanics_with(x, drive, h, nsub, nsub_contact, p, constants_with_terms(p), phi_out,
+                        psi_out, dev_s_out, dev_p_out)
+    else:
+        _mechanics_with(x, drive, h, nsub, nsub_contact, p, mechanical_constants(p), phi_out,
+                        psi_out, dev_s_out, dev_p_out)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out,
+                    dev_p_out):
     """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time.
 
     x (the state after the block) is updated in place. The transduction is computed here
@@ -215,7 +235,6 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
     `_contact_sample`, so before the first contact the trajectory is bit-identical to the
     model without the collision effect.
     """
-    c = mechanical_constants(p)
     contact = 1 if p[pp.CONTACT_ON_INDEX] != 0.0 else 0
     gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]

@@ -145,9 +145,9 @@ def run_rows(rows: list[dict[str, Any]], model: Model,
         prep = prepare(robot, fs)
         if prep.params[CONTACT_ON_INDEX]:
             raise ValueError("the sweep batch has no collision stop")
-        if any(not t.is_dynamics for t in robot.discovered):
-            raise ValueError("the sweep batch applies discovered terms on the dynamics only, not "
-                             "on the drive or the sensors; run the sweep on a model without them")
+        if robot.discovered:
+            raise ValueError("the sweep batch runs the model without discovered terms; run the "
+                             "sweep on a model without them")
         params[i], nsubs[i], modes[i] = prep.params, prep.n_substeps, row["mode"]
         phi0s[i] = math.radians(row["start_stroke_deg"]) if row["mode"] != SYNC else 0.0
         if row["mode"] == SYNC:
