@@ -36,7 +36,8 @@ rclpy.init()
 node = rclpy.create_node("signal_source")
 sensor = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STREAM)
 truth = node.create_publisher(WingStateBlock, "/flaair/wing_state/truth", BLOCK_STREAM)
-clock = node.create_publisher(Clock, "/clock", 1000)
+clock = node.create_publisher(Clock, "/clock", BLOCK_STREAM)  # as deep as the data: a starved
+# recorder must lose none, and a 1000-deep writer history had overwritten 30 unacknowledged
 status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
 marker = node.create_publisher(String, "/flaair/run_marker", EVENTS)
 deadline = time.monotonic() + 120.0
