@@ -45,7 +45,7 @@ from flaair_sim.core.plant_terms import (
     terms_state,
 )
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
-from flaair_sim.core.term_kernel import dynamics_terms
+from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
 
 __all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
            "n_substeps",
@@ -100,29 +100,6 @@ def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
 # --------------------------------------------------------------------------- numba kernels
 # The mechanical constants travel as a tuple `c` (immutable, so the compiler can keep them in
 # registers across the stores to the output arrays); see mechanical_constants for the order.
-
-
-@njit(cache=True, fastmath=_FMA)
-def mechanical_constants(p):
-    # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
-    inv_i = 1.0 / p[pp.P_I]
-    inv_ip = 1.0 / p[pp.P_IP]
-    return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i,
-            p[pp.P_CSTRUCT] * inv_i, p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip,
-            p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip, p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i,
-            p[pp.P_CC] * inv_i)
-
-
-@njit(cache=True, fastmath=_FMA)
-def constants_with_terms(p):
-    """`mechanical_constants` followed by the term count and the discovered terms' slots: a
-    longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
-    """
-    t = pp.P_TERMS
-    return mechanical_constants(p) + (
-        p[pp.P_NTERMS], p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5], p[t + 6],
-        p[t + 7], p[t + 8], p[t + 9], p[t + 10], p[t + 11], p[t + 12], p[t + 13], p[t + 14],
-        p[t + 15], p[t + 16], p[t + 17], p[t + 18], p[t + 19])
 
 
 @njit(cache=True, fastmath=_FMA)
