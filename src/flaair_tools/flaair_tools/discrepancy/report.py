@@ -103,6 +103,14 @@ def _fig_gap(result: DiscrepancyResult, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def _save_stacked(fig: Figure, axes: Sequence[Any], path: Path) -> None:
+    """Legend on the top axes, time axis on the bottom one, saved."""
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
 def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
     fig = Figure(figsize=(9, 10))
     axes = fig.subplots(len(CHANNELS), 1)
@@ -121,10 +129,7 @@ def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> 
         ax.set_ylabel(f"{c} [{_UNITS[c]}]")
         ax.set_title(f"{run.name}, worst stretch of {c}", fontsize=9)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=8, loc="upper right")
-    axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    _save_stacked(fig, axes, path)
 
 
 def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
@@ -218,10 +223,7 @@ def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int,
         ax.set_ylabel(f"residual [{_UNITS[c]}]")
         ax.set_title(f"{run.name}: measured - model, {c}", fontsize=9)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(fontsize=8, loc="upper right")
-    axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    _save_stacked(fig, axes, path)
 
 
 def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict]:
