@@ -87,6 +87,17 @@ class TermSignals:
         self.stroke_sensor_v, self.pitch_sensor_v = stroke_sensor_v, pitch_sensor_v
         self.zi = self.zf = float(zi)
 
+    @classmethod
+    def of_block(cls, fs_hz: float, drive_v: np.ndarray, first_index: int = 0,
+                 last_drive_v: float = 0.0, zi: float = 0.0,
+                 **sensors: np.ndarray) -> "TermSignals":
+        """The signals of a block of commanded drive starting at sample `first_index`:
+        ``ddrive_v`` the backward difference from `last_drive_v`, ``t`` from the sample index.
+        """
+        ddrive = np.diff(drive_v, prepend=last_drive_v) * fs_hz
+        t = (first_index + np.arange(drive_v.shape[0])) / fs_hz
+        return cls(fs_hz, drive_v, ddrive, t, zi=zi, **sensors)
+
     def lowpass(self, x: np.ndarray, corner_hz: float) -> np.ndarray:
         """`x` through the term's first-order low-pass at `corner_hz`."""
         b, a = lowpass_ba(corner_hz, self.fs_hz)
@@ -308,6 +319,15 @@ class DiscoveredTerm:
     def monomial(self) -> tuple[int, ...]:
         """Exponents over `PRIMITIVES` (a dynamics term)."""
         return _SITE_MONOMIALS.get(self.kind, {}).get(self.acts_on, self.row.monomial)
+
+    def monomial_value(self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray,
+                       dpsi: np.ndarray) -> np.ndarray:
+        """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
+        factors = (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
+        out = np.ones(np.shape(phi))
+        for x, e in zip(factors, self.monomial):
+            out = out * x**e
+        return out
 
     @property
     def is_dynamics(self) -> bool:

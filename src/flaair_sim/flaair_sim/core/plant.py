@@ -45,7 +45,12 @@ from flaair_sim.core.plant_terms import (
     terms_state,
 )
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
-from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
+from flaair_sim.core.term_kernel import (
+    N_CONSTANTS,
+    constants_with_terms,
+    dynamics_terms,
+    mechanical_constants,
+)
 
 __all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
            "n_substeps",
@@ -111,14 +116,14 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11])
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
-    if len(c) > 12:  # a compile-time constant: the nominal kernels carry no term code
+    if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
         ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
     ddpsi = -cp * dpsi - kh * (psi + hcubic * psi * psi * psi) - dp * drag - jc * ddphi
-    if len(c) > 12:
+    if len(c) > N_CONSTANTS:
         ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
     return ddphi, ddpsi
 

@@ -44,13 +44,6 @@ def terms_state(model: Model, state: Optional[np.ndarray] = None) -> np.ndarray:
     return fresh
 
 
-def _signals(fs_hz: float, drive_v: np.ndarray, first_index: int, last_drive_v: float,
-             zi: float, **sensors: np.ndarray) -> TermSignals:
-    ddrive = np.diff(drive_v, prepend=last_drive_v) * fs_hz
-    t = (first_index + np.arange(drive_v.shape[0])) / fs_hz
-    return TermSignals(fs_hz, drive_v, ddrive, t, zi=zi, **sensors)
-
-
 def drive_seen(model: Model, fs_hz: float, drive_v: np.ndarray, first_index: int,
                state: np.ndarray) -> np.ndarray:
     """The drive the actuator sees (V); `state` (from `terms_state`) updated in place.
@@ -64,7 +57,7 @@ def drive_seen(model: Model, fs_hz: float, drive_v: np.ndarray, first_index: int
     for i, term in enumerate(terms):
         if term.acts_on != "drive":
             continue
-        sig = _signals(fs_hz, drive_v, first_index, state[0], state[1 + i])
+        sig = TermSignals.of_block(fs_hz, drive_v, first_index, state[0], state[1 + i])
         out += term.coefficient * term.feature(sig)
         state[1 + i] = sig.zf
     return out
@@ -82,7 +75,8 @@ def add_sensor_terms(model: Model, fs_hz: float, drive_v: np.ndarray, first_inde
         for i, term in enumerate(terms):
             if term.acts_on not in SENSOR_SITES:
                 continue
-            sig = _signals(fs_hz, drive_v, first_index, state[0], state[1 + i], phi=stroke_rad,
+            sig = TermSignals.of_block(fs_hz, drive_v, first_index, state[0], state[1 + i],
+                                       phi=stroke_rad,
                            psi=pitch_rad, **dev)
             out[term.acts_on] += term.coefficient * term.feature(sig)
             state[1 + i] = sig.zf

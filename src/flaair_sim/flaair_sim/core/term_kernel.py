@@ -16,11 +16,14 @@ from numba import njit
 
 from flaair_sim.core import plant_params as pp
 
-__all__ = ["C_TERMS", "primitive", "dynamics_terms", "mechanical_constants", "constants_with_terms"]
+__all__ = ["C_TERMS", "N_CONSTANTS", "primitive", "dynamics_terms", "mechanical_constants",
+           "constants_with_terms"]
 
 _FMA = {"contract"}
-# where the discovered dynamics terms sit in `c` (after the 12 constants and their count)
-C_TERMS = 13
+# length of the nominal constants tuple (`mechanical_constants`); a longer one carries terms:
+# their count, then their slots from C_TERMS on
+N_CONSTANTS = 12
+C_TERMS = N_CONSTANTS + 1
 
 
 @njit(cache=True, fastmath=_FMA)

@@ -141,17 +141,11 @@ def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[d
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     for run, m in zip(ctx.runs, motion):
         if site in DYNAMICS_SITES:
-            prim = [m["phi"], m["dphi"], m["psi"], m["dpsi"], np.sign(m["dphi"]),
-                    np.sign(m["dpsi"]), np.abs(m["dphi"]), np.abs(m["dpsi"])]
-            f = np.ones(run.n)
-            for x, e in zip(prim, term.monomial):
-                f = f * x**e
+            f = term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"])
         else:
-            sig = TermSignals(run.fs_hz, run.drive_v, np.diff(run.drive_v, prepend=0.0) * run.fs_hz,
-                              np.arange(run.n) / run.fs_hz, phi=m["phi"], psi=m["psi"],
-                              stroke_sensor_v=m["stroke_sensor_v"],
-                              pitch_sensor_v=m["pitch_sensor_v"])
-            f = term.feature(sig)
+            f = term.feature(TermSignals.of_block(
+                run.fs_hz, run.drive_v, phi=m["phi"], psi=m["psi"],
+                stroke_sensor_v=m["stroke_sensor_v"], pitch_sensor_v=m["pitch_sensor_v"]))
         total += float(np.dot(f, f))
         count += f.size
     return math.sqrt(total / max(count, 1))
@@ -185,7 +179,10 @@ def _sensor_effect_specs(site: str, model: Model) -> list[EffectSpec]:
     return specs
 
 
-def _plant_specs(site: str, model: Model, channel: str, identify: bool) -> list[EffectSpec]:
+def _fitted_along(site: str, model: Model, channel: str, identify: bool) -> list[EffectSpec]:
+    """What a term at `site` is fitted jointly with: the plant parameters of its equation (a
+    drive term: the stroke's), or the sensor chain's vocabulary effects.
+    """
     if site in SENSOR_CHANNELS:
         return _sensor_effect_specs(site, model)
     if not identify or site not in ("stroke_dynamics", "pitch_dynamics", "drive"):
@@ -194,10 +191,10 @@ def _plant_specs(site: str, model: Model, channel: str, identify: bool) -> list[
     return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
 
 
-def _candidates(ctx: AnalysisContext, current: Model, channel: str) -> list[tuple]:
+def _candidates(ctx: AnalysisContext, current: Model, channel: str,
+                truth_ref: bool) -> list[tuple]:
     """(rss, kind, site, specs, x) of every library term that may close `channel`'s gap."""
     motion = _motion(ctx, current)
-    truth_ref = _truth_ref(ctx, current, channel)
     problem = ctx.problem(channel, ctx.folds, truth_ref, current)
     out = []
     n_dynamics = sum(t.is_dynamics for t in current.discovered)
@@ -276,18 +273,20 @@ def _against(ctx: AnalysisContext, ev: CandidateEvidence, current: Model, base: 
 
 
 def _step(ctx: AnalysisContext, current: Model, channel: str,
-          start_plant: Optional[PlantParams] = None) -> tuple[Optional[tuple], list]:
-    """One discovery step on `channel`: the winner (evidence, model, kind, site, specs) or None."""
-    cands = _candidates(ctx, current, channel)
-    shortlist = cands[:ctx.settings.discovery_shortlist]
+          start_plant: Optional[PlantParams] = None) -> tuple[list[tuple], list]:
+    """One discovery step on `channel`: the accepted candidates, best first, each (evidence,
+    kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
+    """
     truth_ref = _truth_ref(ctx, current, channel)
+    cands = _candidates(ctx, current, channel, truth_ref)
+    shortlist = cands[:ctx.settings.discovery_shortlist]
     judged = []
     st = ctx.settings
     for _rss, kind, site, specs, x in shortlist:
         # the term and the plant parameters it trades off against, fitted on all runs; then the
         # term run by run on that plant (the rules judge the term, as the identification fits
         # the plant on every run)
-        plant = _plant_specs(site, current, channel, st.identify)
+        plant = _fitted_along(site, current, channel, st.identify)
         base = current
         try:
             if plant:
@@ -328,7 +327,7 @@ def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
 
 def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
     """`model` with its pitch plant parameters fitted again on pitch_deg (kept if better)."""
-    specs = _plant_specs("pitch_dynamics", model, "pitch_deg", True)
+    specs = _fitted_along("pitch_dynamics", model, "pitch_deg", True)
     problem = ctx.problem("pitch_deg", ctx.folds, False, model)
     x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
     fit = fit_specs(model, specs, problem, x0,
@@ -353,7 +352,7 @@ def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
                                     dict(t.shape))
         if not specs and truth == "stroke_deg":
             continue
-        specs += _plant_specs(sites[0], model, truth, st.identify)
+        specs += _fitted_along(sites[0], model, truth, st.identify)
         if not specs:
             continue
         problem = ctx.problem(truth, ctx.folds, False, model)

@@ -161,9 +161,9 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
         (terms if s.is_term else effects).setdefault(s.name, {}).update(s.params(v))
     model = replace(base, plant=replace(base.plant, **plant)) if plant else base
     if terms:
-        model = with_terms(model, [DiscoveredTerm(*s.term_place, p.pop("coefficient"),
-                                                  tuple(p.items()))
-                                   for s in specs for p in [terms.pop(s.name, None)] if p])
+        places = {s.name: s.term_place for s in specs if s.is_term}
+        model = with_terms(model, [DiscoveredTerm(*places[name], p.pop("coefficient"),
+                                                  tuple(p.items())) for name, p in terms.items()])
     for s in specs:
         if s.is_plant or s.is_term or s.name not in effects:
             continue
