@@ -6,9 +6,14 @@ and a stop in reverse order. This module only adapts it to the tests' habits (pi
 """
 from __future__ import annotations
 
+import contextlib
+import importlib
+import io
+import os
 import signal
 import subprocess
 import tempfile
+import traceback
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Iterator
@@ -106,6 +111,52 @@ def run(args: list[str], env: dict[str, str],
         GRAPHS_STARTED.append(f"flaair {args[1]}")
     return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s,
                           cwd=REPO_ROOT)
+
+
+# `flaair` commands that only read and write files: run_offline runs them in the test's process
+OFFLINE_COMMANDS = {"simulate", "calibrate", "import", "analyze", "discrepancy", "identify", "bag"}
+
+
+def run_offline(args: list[str], env: dict[str, str],
+                timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    """Run an offline `bin/flaair` command as `run` would, but in this process.
+
+    The same entry point (`flaair_tools.cli.main`) gets the same arguments, environment and
+    working directory; stdout and stderr are captured, and the exit status is what the
+    interpreter would return: SystemExit's code, or 1 with the traceback on stderr for an
+    uncaught exception. This spares a new interpreter importing numpy, scipy and numba (about
+    2 s a command). `timeout_s` is kept for `run`'s signature: pytest-timeout bounds the test.
+    The signal handlers a command installs are put back. test_cli_help still starts every
+    command through bin/flaair.
+    """
+    if args[:1] != [FLAAIR] or len(args) < 2 or args[1] not in OFFLINE_COMMANDS:
+        raise ValueError(f"run_offline runs offline flaair commands only, not {args[:2]}")
+    cli = importlib.import_module("flaair_tools.cli")
+    out, err = io.StringIO(), io.StringIO()
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    saved_env = dict(os.environ)
+    os.environ.clear()
+    os.environ.update(env)
+    try:
+        with contextlib.chdir(REPO_ROOT), contextlib.redirect_stdout(out), \
+                contextlib.redirect_stderr(err):
+            try:
+                returncode = int(cli.main(args[1:]) or 0)
+            except SystemExit as exc:
+                if exc.code is None or isinstance(exc.code, int):
+                    returncode = int(exc.code or 0)
+                else:
+                    print(exc.code, file=err)
+                    returncode = 1
+            except Exception:
+                traceback.print_exc(file=err)
+                returncode = 1
+    finally:
+        os.environ.clear()
+        os.environ.update(saved_env)
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    return subprocess.CompletedProcess(args, returncode, out.getvalue(), err.getvalue())
 
 
 def target_watchdog_tripped(log: Path) -> bool:

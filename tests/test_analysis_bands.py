@@ -11,7 +11,7 @@ import yaml
 from flaair_model.config import config_dir
 from flaair_model.schema import ParameterError
 from flaair_sensors.analysis_io import AnalysisBands, analysis_bands_from_config
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 
 
 def test_bands_are_the_config_values_and_bad_ones_are_named() -> None:
@@ -56,14 +56,14 @@ def test_calibrate_cli_band_defaults_to_config_and_reaches_the_output(tmp_path: 
         kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), fs, 20000)
     write_run(tmp_path / "run.csv", synthesize_measured_run(
         drive, fs, load_model(), np.random.default_rng(3)))
-    imported = run([FLAAIR, "import", str(tmp_path / "run.csv"), "--out", str(tmp_path / "bag")],
-                   isolated_env(), 120)
+    imported = run_offline([FLAAIR, "import", str(tmp_path / "run.csv"), "--out",
+                            str(tmp_path / "bag")], isolated_env(), 120)
     assert imported.returncode == 0, imported.stderr
     configured = list(analysis_bands_from_config().amplitude_band_hz)
     for extra, expected in (([], configured), (["--band-hz", "120", "170"], [120.0, 170.0])):
         out = tmp_path / f"cal{len(extra)}"
-        done = run([FLAAIR, "calibrate", str(tmp_path / "bag"), "--out", str(out), *extra],
-                   isolated_env(), 120)
+        done = run_offline([FLAAIR, "calibrate", str(tmp_path / "bag"), "--out", str(out), *extra],
+                           isolated_env(), 120)
         assert done.returncode == 0, done.stderr
         result = json.loads((out / "calibration.json").read_text())
         assert (result["stroke"]["amplitude_band_hz"]

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 
 # CLI runs of import and analyze on 5 s of a lab's runs: `make test`, not the edit-test loop
 pytestmark = pytest.mark.slow
@@ -57,7 +57,8 @@ def lab_bag(tmp_path_factory) -> Path:
     for name, columns in lab_runs().items():
         write_run(directory / f"{name}.csv", columns)
         paths.append(str(directory / f"{name}.csv"))
-    result = run([FLAAIR, "import", *paths, "--out", str(directory / "bag")], isolated_env(), 180)
+    result = run_offline([FLAAIR, "import", *paths, "--out", str(directory / "bag")],
+                          isolated_env(), 180)
     assert result.returncode == 0, result.stderr[-2000:]
     return directory / "bag"
 
@@ -129,8 +130,8 @@ def test_without_calibration_pitch_reads_small_and_analyze_says_so(
     assert right / small == pytest.approx(1 / HINGE_EFFICIENCY, rel=0.1)
     html = (tmp_path / "cal" / "report.html").read_text()
     assert "Front end on model gains" not in html
-    result = run([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "cli")], isolated_env(),
-                 240)
+    result = run_offline([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "cli")],
+                         isolated_env(), 240)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "WARNING: the front end runs on the model's gains" in result.stderr
     assert "Front end on model gains" in (tmp_path / "cli" / "report.html").read_text()
@@ -140,8 +141,8 @@ def test_a_bad_calibration_file_is_named_exit_2(lab_bag: Path, tmp_path: Path) -
     bad = tmp_path / "calibration.yaml"
     bad.write_text(calibration_file(tmp_path).read_text().replace(
         "gain_deg_per_v: 25.39", "gain_deg_per_v: abc"))
-    result = run([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "rep"), "--calibration",
-                  str(bad)], isolated_env(), 120)
+    result = run_offline([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "rep"),
+                          "--calibration", str(bad)], isolated_env(), 120)
     assert result.returncode == 2
     assert str(bad) in result.stderr and "Traceback" not in result.stderr
 
@@ -151,14 +152,14 @@ def test_import_kind_is_used_and_a_disagreeing_drive_is_warned(tmp_path: Path) -
     from flaair_tools.analysis.analyze import analyze
 
     write_run(tmp_path / "sweep.csv", lab_runs()["chirp_full"])
-    result = run([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out", str(tmp_path / "bag"),
-                  "--kind", "chirp"], isolated_env(), 120)
+    result = run_offline([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out",
+                          str(tmp_path / "bag"), "--kind", "chirp"], isolated_env(), 120)
     assert result.returncode == 0, result.stderr[-2000:]
     report = analyze([tmp_path / "bag"], tmp_path / "rep", progress=False)
     assert (report["bags"][0]["runs"]["sweep"]["drive"]["kind"] == "chirp"
             and not report["bags"][0]["warnings"])
-    result = run([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out", str(tmp_path / "bag2"),
-                  "--kind", "free"], isolated_env(), 120)
+    result = run_offline([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out",
+                          str(tmp_path / "bag2"), "--kind", "free"], isolated_env(), 120)
     report = analyze([tmp_path / "bag2"], tmp_path / "rep2", progress=False)
     assert "marked 'free' but its drive looks like 'chirp'" in report["bags"][0]["warnings"][0]
 
@@ -194,20 +195,20 @@ def truncated_bag(columns: dict[str, np.ndarray], out: Path, fraction: float) ->
 
 def test_partial_bag_names_what_is_missing_and_exits_3_unless_allowed(tmp_path: Path) -> None:
     truncated_bag(lab_runs()["stepped"], tmp_path / "bag", 0.16)
-    result = run([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
-                 isolated_env(), 120)
+    result = run_offline([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
+                         isolated_env(), 120)
     assert result.returncode == 3, result.stderr[-2000:]
     assert "run 'stepped' holds 16% of its marked samples (0.48 of 3 s)" in result.stderr
     assert ("steps found: 60, 70, 80 Hz, the steps after them are missing" in result.stderr
             and "--allow-partial" in result.stderr)
     assert "Incomplete data" in (tmp_path / "rep" / "report.html").read_text()
-    result = run([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep2"),
-                  "--allow-partial"], isolated_env(), 120)
+    result = run_offline([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep2"),
+                          "--allow-partial"], isolated_env(), 120)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "incomplete: " in result.stderr
     report = json.loads((tmp_path / "rep2" / "report.json").read_text())
     assert len(report["partial"]) == 1
     full = tmp_path / "full"
     truncated_bag(lab_runs()["stepped"], full, 1.0)
-    assert run([FLAAIR, "analyze", str(full), "--out", str(tmp_path / "rep3")], isolated_env(),
-               120).returncode == 0
+    assert run_offline([FLAAIR, "analyze", str(full), "--out", str(tmp_path / "rep3")],
+                       isolated_env(), 120).returncode == 0

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 from tuning import FRONTEND_TUNING
 
 FS_HZ = 20000.0
@@ -38,15 +38,15 @@ def imported_bag(tmp_path_factory) -> Path:
         "sensor_delay": {"delay_s": 2e-4, "channel": "stroke"}})
     _lab_csv(tmp / "run_full.csv", model, 1)
     _lab_csv(tmp / "run_half.csv", model, 2, amplitude_v=50.0)
-    result = run([FLAAIR, "import", str(tmp / "run_full.csv"), str(tmp / "run_half.csv"), "--out",
-                  str(tmp / "bag")], isolated_env(), 120)
+    result = run_offline([FLAAIR, "import", str(tmp / "run_full.csv"), str(tmp / "run_half.csv"),
+                          "--out", str(tmp / "bag")], isolated_env(), 120)
     assert result.returncode == 0, result.stderr
     return tmp / "bag"
 
 
 def test_calibrate_recovers_hidden_gain_and_lag(imported_bag: Path, tmp_path: Path) -> None:
-    result = run([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path / "cal")],
-                 isolated_env(), 120)
+    result = run_offline([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path / "cal")],
+                         isolated_env(), 120)
     assert result.returncode == 0, result.stderr
     cal = json.loads((tmp_path / "cal" / "calibration.json").read_text())
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(25.39, rel=0.01)
@@ -64,8 +64,8 @@ def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path:
     from flaair_model.config import load_yaml
     from flaair_sensors.core.frontend import params_from_calibration
 
-    assert run([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path)], isolated_env(),
-               120).returncode == 0
+    assert run_offline([FLAAIR, "calibrate", str(imported_bag), "--out", str(tmp_path)],
+                       isolated_env(), 120).returncode == 0
     params = params_from_calibration(
         load_yaml(tmp_path / "calibration.yaml"), FS_HZ, **FRONTEND_TUNING)
     assert abs(np.degrees(1 / params.pitch_volts_per_rad)) == pytest.approx(2 * 24.87, rel=0.01)
@@ -76,7 +76,7 @@ def test_calibrate_names_missing_topic(tmp_path: Path) -> None:
 
     with bagio.BagWriter(tmp_path / "empty"):  # a bag with only a run marker
         pass
-    result = run([FLAAIR, "calibrate", str(tmp_path / "empty"), "--out", str(tmp_path / "o")],
-                 isolated_env())
+    result = run_offline([FLAAIR, "calibrate", str(tmp_path / "empty"), "--out",
+                          str(tmp_path / "o")], isolated_env())
     assert (result.returncode == 2 and "/flaair/sensor_v" in result.stderr
             and "Traceback" not in result.stderr)

@@ -213,7 +213,7 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     """
     import csv
 
-    from rosproc import FLAAIR, isolated_env, run
+    from rosproc import FLAAIR, isolated_env, run_offline
 
     k = model.plant.stroke_stiffness_nm_per_rad
     term = DiscoveredTerm("cube_angle", "stroke_dynamics", -0.6 * k)
@@ -224,9 +224,9 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
         writer = csv.writer(handle)
         writer.writerow(["time_s", "drive_v"])
         writer.writerows([[f"{k / FS:.17g}", f"{v:.17g}"] for k, v in enumerate(drive)])
-    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
-                  str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "out.csv")],
-                 isolated_env())
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
+                          str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "out.csv")],
+                         isolated_env())
     assert result.returncode == 0, result.stderr
     with open(tmp_path / "out.csv", newline="") as handle:
         stroke = np.array([float(r["stroke_deg"]) for r in csv.DictReader(handle)])

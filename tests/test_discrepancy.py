@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
+import os
 from dataclasses import fields, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -54,6 +54,7 @@ from flaair_tools.discrepancy.datasets import (
 from flaair_tools.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
 from flaair_tools.discrepancy.report import write_validation
 from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
+from rosproc import FLAAIR, run_offline
 
 # the former discrepancy_core, now the discrepancy package's modules
 dc = SimpleNamespace(**{k: v for m in (
@@ -61,7 +62,6 @@ dc = SimpleNamespace(**{k: v for m in (
                         v in vars(m).items() if not k.startswith("__")})
 
 REPO = Path(__file__).resolve().parents[1]
-FLAAIR = str(REPO / "bin" / "flaair")
 
 # Cases that run by default: null, a sensor effect on both sensors, the paper's robot, physics
 # effects (one reached at full drive only), two effects on one sensor, outside the vocabulary,
@@ -451,9 +451,9 @@ def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_pa
     text = (REPO / "config" / "model.yaml").read_text().replace(
         "effects: {}", "effects:\n  warp_drive: {}")
     (tmp_path / "m.yaml").write_text(text)
-    result = subprocess.run([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
-                             str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")],
-                            capture_output=True, text=True, timeout=300)
+    result = run_offline([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
+                          str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")],
+                         dict(os.environ), 300)
     assert result.returncode == 2
     assert "unknown effect 'warp_drive'" in result.stderr and "Traceback" not in result.stderr
 
@@ -513,9 +513,8 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
                for k in vars(model.plant))
     assert found.sensors == model.sensors
     sim_csv = tmp_path / "sim.csv"
-    result = subprocess.run([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model",
-                             str(out / "model.yaml"), "--out", str(sim_csv)], capture_output=True,
-                            text=True, timeout=300)
+    result = run_offline([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model",
+                          str(out / "model.yaml"), "--out", str(sim_csv)], dict(os.environ), 300)
     assert result.returncode == 0, result.stderr
     page = (out / "report.html").read_text()
     assert "Status: explained" in page and "Decision rules" in page

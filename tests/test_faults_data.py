@@ -21,7 +21,7 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 
-from rosproc import FLAAIR, isolated_env, ros_processes, run
+from rosproc import FLAAIR, isolated_env, ros_processes, run, run_offline
 
 FS_HZ = 20000.0
 HEADER = "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
@@ -90,7 +90,7 @@ def test_reindex_of_a_cut_bag_recovers_the_partial_chunk_and_keeps_the_original(
     from flaair_tools import bagio
 
     bag, cut_bytes = _copy(megabyte_bag, tmp_path, "cut")
-    result = run([FLAAIR, "bag", "reindex", str(bag)], isolated_env(), 120)
+    result = run_offline([FLAAIR, "bag", "reindex", str(bag)], isolated_env(), 120)
     assert result.returncode == 1, result.stderr           # messages were lost: not a success
     assert "Traceback" not in result.stderr
     counts = _read_both(bag)
@@ -113,7 +113,7 @@ def test_reindex_skips_a_corrupt_region_and_goes_on(megabyte_bag: Path, tmp_path
     from flaair_tools import bagio
 
     bag, _ = _copy(megabyte_bag, tmp_path, "zeroed")
-    info = run([FLAAIR, "bag", "info", str(bag)], isolated_env(), 120)
+    info = run_offline([FLAAIR, "bag", "info", str(bag)], isolated_env(), 120)
     assert (info.returncode == 1 and "DAMAGED" in info.stderr
             and "bag reindex" in info.stderr), info.stderr
     report = bagio.reindex(bag)
@@ -147,12 +147,13 @@ def test_reindex_never_replaces_the_original_with_an_unverified_copy(
 def test_reindex_of_a_complete_bag_changes_nothing_and_exits_0(megabyte_bag: Path,
                                                                tmp_path: Path) -> None:
     bag, _ = _copy(megabyte_bag, tmp_path, "whole")
-    result = run([FLAAIR, "bag", "reindex", str(bag)], isolated_env(), 120)
+    result = run_offline([FLAAIR, "bag", "reindex", str(bag)], isolated_env(), 120)
     assert result.returncode == 0, result.stderr
     assert _read_both(bag) == {"/flaair/drive": 2000, "/flaair/run_marker": 2,
                                "/flaair/sensor_v": 2000, "/flaair/wing_state/truth": 2000}
     assert not list(bag.glob("*.damaged"))
-    not_a_bag = run([FLAAIR, "bag", "reindex", str(tmp_path / "nothing")], isolated_env(), 60)
+    not_a_bag = run_offline([FLAAIR, "bag", "reindex", str(tmp_path / "nothing")],
+                            isolated_env(), 60)
     assert (not_a_bag.returncode == 2 and "nothing" in not_a_bag.stderr
             and "Traceback" not in not_a_bag.stderr)
 
@@ -168,10 +169,10 @@ def test_imported_messages_carry_the_signal_time_as_log_time(megabyte_bag: Path)
 def test_calibrate_on_video_rate_truth_gives_finite_rmse_and_json_safe(tmp_path: Path) -> None:
     """1 kHz video at a 20 kHz DAQ: ground truth on every 20th sample (the format allows it)."""
     _lab_csv(tmp_path / "video.csv", 20000, 3, video_stride=20)
-    assert run([FLAAIR, "import", str(tmp_path / "video.csv"), "--out", str(tmp_path / "bag")],
-               isolated_env(), 120).returncode == 0
-    result = run([FLAAIR, "calibrate", str(tmp_path / "bag"), "--out", str(tmp_path / "cal")],
-                 isolated_env(), 300)
+    assert run_offline([FLAAIR, "import", str(tmp_path / "video.csv"), "--out",
+                        str(tmp_path / "bag")], isolated_env(), 120).returncode == 0
+    result = run_offline([FLAAIR, "calibrate", str(tmp_path / "bag"), "--out",
+                          str(tmp_path / "cal")], isolated_env(), 300)
     assert result.returncode == 0, result.stderr
     text = (tmp_path / "cal" / "calibration.json").read_text()
     values = json.loads(text, parse_constant=lambda name: pytest.fail(
@@ -200,14 +201,14 @@ def test_simulate_clamps_an_over_limit_drive_and_warns(tmp_path: Path) -> None:
         "time_s": t, "drive_v": 10_000.0 * np.sin(2 * np.pi * 100.0 * t)})
     write_run(tmp_path / "limit.csv", {
         "time_s": t, "drive_v": np.clip(10_000.0 * np.sin(2 * np.pi * 100.0 * t), -150.0, 150.0)})
-    result = run([FLAAIR, "simulate", str(tmp_path / "kv.csv"), "--out",
-                  str(tmp_path / "kv_out.csv")], isolated_env(), 120)
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "kv.csv"), "--out",
+                          str(tmp_path / "kv_out.csv")], isolated_env(), 120)
     assert result.returncode == 0, result.stderr
     assert "clamped to +-150 V" in result.stderr and "kv.csv" in result.stderr
     clamped = read_run(tmp_path / "kv_out.csv")
     assert np.abs(clamped["drive_v"]).max() == 150.0
-    assert run([FLAAIR, "simulate", str(tmp_path / "limit.csv"), "--out",
-                str(tmp_path / "limit_out.csv")], isolated_env(), 120).returncode == 0
+    assert run_offline([FLAAIR, "simulate", str(tmp_path / "limit.csv"), "--out",
+                        str(tmp_path / "limit_out.csv")], isolated_env(), 120).returncode == 0
     # the clamped 10 kV run is the same as a run at the limit: a real stroke, not 1,907 degrees
     assert np.allclose(clamped["stroke_deg"], read_run(tmp_path / "limit_out.csv")["stroke_deg"],
                        atol=1e-6)
@@ -222,9 +223,9 @@ def test_a_diverging_model_is_blamed_not_the_drive(tmp_path: Path) -> None:
         model.replace("actuator_gain_nm_per_v: 1.67e-7", "actuator_gain_nm_per_v: 1.67e+1"))
     t = np.arange(2000) / FS_HZ
     write_run(tmp_path / "run.csv", {"time_s": t, "drive_v": 100.0 * np.sin(2 * np.pi * 100.0 * t)})
-    result = run([FLAAIR, "simulate", str(tmp_path / "run.csv"), "--model",
-                  str(tmp_path / "strong.yaml"), "--out", str(tmp_path / "o.csv")], isolated_env(),
-                 120)
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "run.csv"), "--model",
+                          str(tmp_path / "strong.yaml"), "--out", str(tmp_path / "o.csv")],
+                         isolated_env(), 120)
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
     assert "strong.yaml" in result.stderr and "model's parameters are at fault" in result.stderr
     assert "clamp the drive" not in result.stderr and not (tmp_path / "o.csv").exists()
@@ -235,8 +236,8 @@ def test_duplicated_header_column_is_refused_with_line_and_column(tmp_path: Path
     path.write_text("time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg,drive_v\n"
                     "0,0,1.25,1.25,0,0,9\n5e-05,0,1.25,1.25,0,0,9\n")
     for command, out in (("import", "bag"), ("simulate", "o.csv")):
-        result = run([FLAAIR, command, str(path), "--out", str(tmp_path / out)], isolated_env(),
-                     120)
+        result = run_offline([FLAAIR, command, str(path), "--out", str(tmp_path / out)],
+                             isolated_env(), 120)
         assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
         assert ("dup.csv: line 1, column 7: duplicate column 'drive_v' (also column 2)"
                 in result.stderr)
@@ -255,8 +256,8 @@ def test_a_utf8_bom_is_accepted(tmp_path: Path) -> None:
 
 def test_import_refuses_a_nan_gap_and_leaves_no_bag(tmp_path: Path) -> None:
     csv = _lab_csv(tmp_path / "run.csv", 200, 0)
-    result = run([FLAAIR, "import", str(csv), str(csv), "--out", str(tmp_path / "bag"), "--gap-s",
-                  "nan"], isolated_env(), 60)
+    result = run_offline([FLAAIR, "import", str(csv), str(csv), "--out", str(tmp_path / "bag"),
+                          "--gap-s", "nan"], isolated_env(), 60)
     assert (result.returncode == 2 and "--gap-s" in result.stderr
             and "Traceback" not in result.stderr)
     assert not (tmp_path / "bag").exists()
@@ -289,8 +290,8 @@ def test_malformed_model_yaml_names_file_line_and_column(
     (tmp_path / "broken.yaml").write_text("plant:\n  stroke_inertia_kg_m2: [6.5e-11,\n")
     csv = _lab_csv(tmp_path / "run.csv", 200, 0)
     target = [str(megabyte_bag)] if command == "calibrate" else [str(csv)]
-    result = run([FLAAIR, command, *target, "--model", str(tmp_path / "broken.yaml"), "--out",
-                  str(tmp_path / "o")], isolated_env(), 120)
+    result = run_offline([FLAAIR, command, *target, "--model", str(tmp_path / "broken.yaml"),
+                          "--out", str(tmp_path / "o")], isolated_env(), 120)
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
     assert "broken.yaml: line 3, column 1: not valid YAML" in result.stderr
 

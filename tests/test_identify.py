@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,10 +27,10 @@ from flaair_tools.discrepancy import (
 )
 from flaair_tools.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
 from flaair_tools.discrepancy.identification import frequency_domain_start, identify_plant
+from rosproc import FLAAIR, run_offline
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
 REPO = Path(__file__).resolve().parents[1]
-FLAAIR = str(REPO / "bin" / "flaair")
 FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
 
 
@@ -138,8 +138,8 @@ def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: P
     (tmp_path / "runs").mkdir()
     paths = write_case_csvs(case, model, tmp_path / "runs")
     out = tmp_path / "out"
-    proc = subprocess.run([FLAAIR, "identify", *map(str, paths), "--out", str(out)],
-                          capture_output=True, text=True, timeout=600)
+    proc = run_offline([FLAAIR, "identify", *map(str, paths), "--out", str(out)],
+                       dict(os.environ), 600)
     assert proc.returncode == 0, proc.stderr
     assert "stroke_natural_frequency_hz" in proc.stdout
     fitted = load_model(out / "model.yaml")  # same layout as config/model.yaml
@@ -169,8 +169,8 @@ def test_bin_flaair_identify_bad_input_exits_2_without_traceback(kind: str, tmp_
                       "stroke_deg": np.full(n, np.nan), "pitch_deg": np.full(n, np.nan)})
         args = [str(p)]
         words = "ground truth"
-    proc = subprocess.run([FLAAIR, "identify", *args, "--out", str(tmp_path / "out")],
-                          capture_output=True, text=True, timeout=300)
+    proc = run_offline([FLAAIR, "identify", *args, "--out", str(tmp_path / "out")],
+                       dict(os.environ), 300)
     assert proc.returncode == 2
     assert words in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "model.yaml").exists()

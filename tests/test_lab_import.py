@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import lab_files as lf
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 
 
 @pytest.fixture(scope="module")
@@ -115,7 +115,7 @@ def imported(session, tmp_path_factory) -> dict[str, Path]:
         argv = [str(s.mat), "--rig", str(s.rig), "--tracks", str(s.tracks), "--tip-track",
                 str(s.tip_track), "--out", str(bag)]
         if version == "v7.3":
-            result = run([FLAAIR, "import", *argv], isolated_env(), 180)
+            result = run_offline([FLAAIR, "import", *argv], isolated_env(), 180)
             code, stdout, stderr = result.returncode, result.stdout, result.stderr
         else:
             code, stdout, stderr = main_in_process(import_cli, argv)
@@ -226,7 +226,7 @@ def test_bad_files_exit_2_with_one_line_and_leave_no_bag(session, tmp_path) -> N
         if name != "no tip track":
             args += ["--tip-track", str(s.tip_track)]
         if name == "never tracked":      # once as a lab types it, in a process of its own
-            result = run([FLAAIR, "import", *args, "--out", str(bag)], isolated_env(), 120)
+            result = run_offline([FLAAIR, "import", *args, "--out", str(bag)], isolated_env(), 120)
             code, stderr = result.returncode, result.stderr
         else:
             code, _, stderr = main_in_process(import_cli, args + ["--out", str(bag)])

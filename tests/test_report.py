@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 
 FS = 20000.0
 EVIL = "<script>alert(1)</script>"
@@ -125,10 +125,10 @@ def test_file_name_with_markup_is_escaped_through_the_cli(tmp_path: Path) -> Non
 
     name = "<img src=x onerror=alert(1)>"
     write_run(tmp_path / f"{name}.csv", measured(sine(8000)))
-    assert run([FLAAIR, "import", str(tmp_path / f"{name}.csv"), "--out", str(tmp_path / "bag")],
-               isolated_env(), 120).returncode == 0
-    result = run([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
-                 isolated_env(), 120)
+    assert run_offline([FLAAIR, "import", str(tmp_path / f"{name}.csv"), "--out",
+                        str(tmp_path / "bag")], isolated_env(), 120).returncode == 0
+    result = run_offline([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
+                         isolated_env(), 120)
     assert result.returncode == 0, result.stderr[-2000:]
     html = (tmp_path / "rep" / "report.html").read_text()
     assert name not in html and "&lt;img src=x onerror=alert(1)&gt;" in html

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rosproc import FLAAIR, isolated_env, run
+from rosproc import FLAAIR, isolated_env, run_offline
 
 
 def _write_drive_csv(path: Path, fs_hz: float, n: int) -> np.ndarray:
@@ -25,8 +25,8 @@ def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
     from flaair_sim.core.plant import simulate
 
     drive = _write_drive_csv(tmp_path / "in.csv", 20000.0, 4000)
-    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv")],
-                 isolated_env())
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out",
+                          str(tmp_path / "out.csv")], isolated_env())
     assert result.returncode == 0, result.stderr
     with open(tmp_path / "out.csv", newline="") as handle:  # independent reader: csv module
         rows = list(csv.DictReader(handle))
@@ -40,8 +40,8 @@ def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
 
 def test_simulate_refuses_malformed_input_naming_line_and_column(tmp_path: Path) -> None:
     (tmp_path / "bad.csv").write_text("time_s,drive_v\n0,1.0\n5e-05,abc\n")
-    result = run([FLAAIR, "simulate", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "o.csv")],
-                 isolated_env())
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "bad.csv"), "--out",
+                          str(tmp_path / "o.csv")], isolated_env())
     assert result.returncode == 2
     assert "bad.csv: line 3, column drive_v" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "o.csv").exists()
@@ -52,6 +52,7 @@ def test_simulate_refuses_unknown_effect_in_model(tmp_path: Path) -> None:
     model = Path(__file__).resolve().parents[1] / "config" / "model.yaml"
     (tmp_path / "m.yaml").write_text(
         model.read_text().replace("effects: {}", "effects:\n  warp_drive: {factor: 2}"))
-    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model", str(tmp_path / "m.yaml"),
-                  "--out", str(tmp_path / "o.csv")], isolated_env())
+    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
+                          str(tmp_path / "m.yaml"), "--out", str(tmp_path / "o.csv")],
+                         isolated_env())
     assert result.returncode == 2 and "warp_drive" in result.stderr, result.stderr
