@@ -126,8 +126,8 @@ def run_offline(args: list[str], env: dict[str, str],
     interpreter would return: SystemExit's code, or 1 with the traceback on stderr for an
     uncaught exception. This spares a new interpreter importing numpy, scipy and numba (about
     2 s a command). `timeout_s` is kept for `run`'s signature: pytest-timeout bounds the test.
-    The signal handlers a command installs are put back. test_cli_help still starts every
-    command through bin/flaair.
+    The signal handlers a command installs are put back. One test per command still starts it
+    through bin/flaair in a new process, as a person runs it (they say so).
     """
     if args[:1] != [FLAAIR] or len(args) < 2 or args[1] not in OFFLINE_COMMANDS:
         raise ValueError(f"run_offline runs offline flaair commands only, not {args[:2]}")

@@ -16,7 +16,7 @@ from mcap_ros2.decoder import DecoderFactory
 from flaair_model.config import node_parameters
 from flaair_tools import bagio
 from flaair_tools.bagio import import_cli
-from rosproc import FLAAIR, isolated_env, run_offline
+from rosproc import FLAAIR, isolated_env, run
 
 HEADER = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg")
 FS_HZ = 20000.0
@@ -149,8 +149,8 @@ def test_malformed_csv_cli_exits_nonzero_without_traceback(tmp_path: Path) -> No
     text, expected = BAD_FILES["non_numeric_sensor"]
     bad = tmp_path / "bad.csv"
     bad.write_text(text, encoding="utf-8")
-    result = run_offline([FLAAIR, "import", str(bad), "--out", str(tmp_path / "bag")],
-                         isolated_env())
+    # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
+    result = run([FLAAIR, "import", str(bad), "--out", str(tmp_path / "bag")], isolated_env())
     assert result.returncode != 0
     assert "Traceback" not in result.stderr
     expected = f"{bad}: line 4, column stroke_sensor_v: not a number: 'abc'"

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, isolated_env, run_offline
+from rosproc import FLAAIR, isolated_env, run, run_offline
 from tuning import FRONTEND_TUNING
 
 FS_HZ = 20000.0
@@ -76,7 +76,8 @@ def test_calibrate_names_missing_topic(tmp_path: Path) -> None:
 
     with bagio.BagWriter(tmp_path / "empty"):  # a bag with only a run marker
         pass
-    result = run_offline([FLAAIR, "calibrate", str(tmp_path / "empty"), "--out",
-                          str(tmp_path / "o")], isolated_env())
+    # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
+    result = run([FLAAIR, "calibrate", str(tmp_path / "empty"), "--out", str(tmp_path / "o")],
+                 isolated_env())
     assert (result.returncode == 2 and "/flaair/sensor_v" in result.stderr
             and "Traceback" not in result.stderr)

@@ -54,7 +54,7 @@ from flaair_tools.discrepancy.datasets import (
 from flaair_tools.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
 from flaair_tools.discrepancy.report import write_validation
 from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
-from rosproc import FLAAIR, run_offline
+from rosproc import FLAAIR, isolated_env, run, run_offline
 
 # the former discrepancy_core, now the discrepancy package's modules
 dc = SimpleNamespace(**{k: v for m in (
@@ -451,9 +451,9 @@ def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_pa
     text = (REPO / "config" / "model.yaml").read_text().replace(
         "effects: {}", "effects:\n  warp_drive: {}")
     (tmp_path / "m.yaml").write_text(text)
-    result = run_offline([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
-                          str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")],
-                         dict(os.environ), 300)
+    # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
+    result = run([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
+                  str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")], isolated_env(), 300)
     assert result.returncode == 2
     assert "unknown effect 'warp_drive'" in result.stderr and "Traceback" not in result.stderr
 

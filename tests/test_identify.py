@@ -27,7 +27,7 @@ from flaair_tools.discrepancy import (
 )
 from flaair_tools.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
 from flaair_tools.discrepancy.identification import frequency_domain_start, identify_plant
-from rosproc import FLAAIR, run_offline
+from rosproc import FLAAIR, isolated_env, run, run_offline
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
 REPO = Path(__file__).resolve().parents[1]
@@ -138,8 +138,8 @@ def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: P
     (tmp_path / "runs").mkdir()
     paths = write_case_csvs(case, model, tmp_path / "runs")
     out = tmp_path / "out"
-    proc = run_offline([FLAAIR, "identify", *map(str, paths), "--out", str(out)],
-                       dict(os.environ), 600)
+    # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
+    proc = run([FLAAIR, "identify", *map(str, paths), "--out", str(out)], isolated_env(), 600)
     assert proc.returncode == 0, proc.stderr
     assert "stroke_natural_frequency_hz" in proc.stdout
     fitted = load_model(out / "model.yaml")  # same layout as config/model.yaml

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rosproc import FLAAIR, isolated_env, run_offline
+from rosproc import FLAAIR, isolated_env, run, run_offline
 
 
 def _write_drive_csv(path: Path, fs_hz: float, n: int) -> np.ndarray:
@@ -25,8 +25,9 @@ def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
     from flaair_sim.core.plant import simulate
 
     drive = _write_drive_csv(tmp_path / "in.csv", 20000.0, 4000)
-    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out",
-                          str(tmp_path / "out.csv")], isolated_env())
+    # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
+    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv")],
+                 isolated_env())
     assert result.returncode == 0, result.stderr
     with open(tmp_path / "out.csv", newline="") as handle:  # independent reader: csv module
         rows = list(csv.DictReader(handle))
