@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from flaair_common.graph import STOP_TIMEOUT_S
 from flaair_tools.orchestration import graphs, launch_file
 from flaair_tools.orchestration.launch_file import LaunchFileError, load
 from rosproc import FLAAIR
@@ -186,7 +187,11 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
         children = [p for p in Path("/proc").iterdir() if p.name.isdigit()
                     and mark in _environ(p)]
         assert len(children) == 3    # one process per node of the file
-        assert procs.stop(launcher, signal.SIGINT) == 0, launcher.stderr.read()
+        # the launcher stops its nodes one by one, each within Graph's STOP_TIMEOUT_S (a node may
+        # wait up to ACK_WAIT_S for its readers); the test allows it that, and no less
+        assert procs.stop(launcher, signal.SIGINT,
+                          timeout_s=len(children) * STOP_TIMEOUT_S + 5.0) == 0, \
+            launcher.stderr.read()
         assert "stopped (Ctrl-C)" in launcher.stderr.read()
         assert not [p for p in children if p.exists() and os.path.exists(p / "environ")
                     and b"Z" != (p / "stat").read_bytes().rsplit(b")", 1)[1].split()[0]]

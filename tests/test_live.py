@@ -222,6 +222,18 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
     return target, live, int(match.group(1)), bag, counters
 
 
+def _exit_code(live: subprocess.Popen, tmp_path: Path, timeout_s: float = 120.0) -> int:
+    """`live`'s exit code; still running after `timeout_s`: fail with its log and its nodes' logs
+    (what each node did last says where it hangs).
+    """
+    try:
+        return live.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*"))]
+        raise AssertionError(f"live still running {timeout_s:g} s after the signal:\n" + "\n".join(
+            f"== {log.name}\n{log.read_text()[-1500:]}" for log in logs if log.is_file())) from None
+
+
 def _loop_pid(domain: int) -> int:
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -248,7 +260,7 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
         time.sleep(3.0)
         target.send_signal(signal.SIGCONT)
         live.send_signal(signal.SIGINT)
-        assert live.wait(timeout=120) == 0, (tmp_path / "live.err").read_text()[-3000:]
+        assert _exit_code(live, tmp_path) == 0, (tmp_path / "live.err").read_text()[-3000:]
     finally:
         target.send_signal(signal.SIGCONT)
         target.send_signal(signal.SIGINT)
@@ -275,7 +287,7 @@ def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
         assert wait_for(lambda: target_watchdog_tripped(target_log),
                         60), target_log.read_text()[-2000:]
         live.send_signal(signal.SIGINT)
-        live.wait(timeout=120)
+        _exit_code(live, tmp_path)
     finally:
         target.send_signal(signal.SIGINT)
         target.wait(timeout=60)

@@ -35,6 +35,8 @@ DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / "flaair-ros-domains"
 # 1-101: the domain IDs the ROS 2 docs call safe on Linux (above 101 a domain's ports can reach
 # the ephemeral port range); 0 is left alone as every other ROS program's default.
 DOMAIN_IDS = range(1, 102)
+# how long `Graph.stop` waits for a signalled child before it kills the child's process group
+STOP_TIMEOUT_S = 15.0
 _PR_SET_PDEATHSIG = 1
 
 
@@ -234,7 +236,7 @@ class Graph:
                                  + (f":\n{tail}" if tail else ""))
 
     def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT,
-             timeout_s: float = 15.0) -> int:
+             timeout_s: float = STOP_TIMEOUT_S) -> int:
         """Signal a child's process group, wait, then kill it; returns its exit code."""
         if process.poll() is None:
             try:
@@ -250,7 +252,7 @@ class Graph:
                 pass
             return process.wait()
 
-    def stop_all(self, timeout_s: float = 15.0) -> None:
+    def stop_all(self, timeout_s: float = STOP_TIMEOUT_S) -> None:
         """Stop every child, last started first."""
         for _, process in reversed(self.children):
             self.stop(process, timeout_s=timeout_s)
