@@ -29,10 +29,36 @@ NODES = [
 ]
 
 
+BAD_VALUES = [(-1.0e9, "out of range"), ("text", "expecting type 'DOUBLE'")]
+
+
 @pytest.mark.parametrize(("package", "executable", "parameter"), NODES)
-@pytest.mark.parametrize(("value", "why"), [
-    ("-1.0e9", "out of range"), ("'text'", "expecting type 'DOUBLE'")])
+@pytest.mark.parametrize(("value", "why"), BAD_VALUES)
 def test_every_node_refuses_bad_parameters_by_name(
+        monkeypatch, tmp_path: Path, package: str, executable: str, parameter: str, value: object,
+        why: str) -> None:
+    """The node class itself, built in this process from a parameters file (as a container or
+    `bin/flaair run` builds it), refuses the value naming the parameter and the rule.
+    """
+    from composed import composed
+    from flaair_common.container import load_class
+    from flaair_tools.orchestration.graphs import NODES as DECLARED
+
+    component = {n.executable: n.component for n in DECLARED.values()}.get(executable)
+    if component is None:   # not composable (the recorder): its module's node class
+        component = f"flaair_tools.recorder.{executable}:RecorderNode"
+    node_class = load_class(component)
+    with pytest.raises(ValueError) as refused:
+        with composed(monkeypatch, [node_class], {executable: {parameter: value}},
+                      tmp_path=tmp_path, local_topics=()):
+            pass
+    assert parameter in str(refused.value) and why in str(refused.value), str(refused.value)
+
+
+@pytest.mark.parametrize(("package", "executable", "parameter", "value", "why"), [
+    ("flaair_sim", "plant_node", "drive_limit_v", "-1.0e9", "out of range"),
+    ("flaair_tools", "recorder_node", "flush_period_s", "'text'", "expecting type 'DOUBLE'")])
+def test_a_refused_parameter_ends_the_node_process_with_one_line_and_exit_2(
         package: str, executable: str, parameter: str, value: str, why: str) -> None:
     result = run([FLAAIR, "run", package, executable, "--ros-args", "-p", f"{parameter}:={value}"],
                  isolated_env(), 180)
