@@ -342,6 +342,86 @@ def test_sigint_while_a_node_still_imports_ends_it_without_a_traceback(tmp_path:
     assert "Traceback" not in result.stderr and "KeyboardInterrupt" not in result.stderr
 
 
+_HANGING_NODE = (
+    "import sys, time\n"
+    "sys.argv[0] = '/x/install/lib/flaair_sim/plant_node'\n"
+    "from rclpy.node import Node\n"
+    "from flaair_common import runtime\n"
+    "class Hanging(Node):\n"
+    "    def __init__(self):\n"
+    "        super().__init__('hanging_node')\n"
+    "        print('built', file=sys.stderr, flush=True)\n"
+    "    def close(self):\n"
+    "        while {hang_in_close}:\n"
+    "            time.sleep(0.01)\n"
+    "code = runtime.run_nodes([Hanging], args=['hanging_node'], exit_deadline_s={deadline_s})\n"
+    "{after}\n"
+    "sys.exit(code)\n"
+)
+
+
+def _stop_a_node_script(script: str, timeout_s: float) -> tuple[int | None, str, float]:
+    """Start the node `script`, SIGTERM it once built; (exit code or None if still running after
+    `timeout_s`, stderr, seconds from the signal to the end).
+    """
+    process = subprocess.Popen(
+        [str(Path(__file__).resolve().parents[1] / "scripts" / "in_env.sh"), "python", "-c",
+         script], env=isolated_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        while "built" not in "".join(lines[-1:]):
+            lines.append(process.stderr.readline())
+            assert lines[-1] or process.poll() is None, "".join(lines)
+        process.send_signal(signal.SIGTERM)
+        start = time.monotonic()
+        try:
+            _, rest = process.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return None, "".join(lines), time.monotonic() - start
+        return process.returncode, "".join(lines) + rest, time.monotonic() - start
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+
+
+@pytest.mark.timeout(120)
+def test_a_node_whose_close_hangs_ends_at_its_exit_deadline_with_its_stacks_in_its_log() -> None:
+    """A node nobody waits for (its launcher killed -9: the parent-death SIGTERM reaches it) ends
+    even when its stop hangs; before the fix it ran on for ever.
+    """
+    code, stderr, took_s = _stop_a_node_script(_HANGING_NODE.format(
+        hang_in_close=True, deadline_s=1.0, after=""), timeout_s=20.0)
+    assert code == 1, f"exit {code} after {took_s:.1f} s:\n{stderr[-2000:]}"
+    assert 1.0 <= took_s < 10.0
+    assert "stopping (SIGTERM)" in stderr and "ends within 1 s" in stderr
+    assert "Timeout (0:00:01)!" in stderr and re.search(r'line \d+ in close\n', stderr), stderr
+
+
+@pytest.mark.timeout(120)
+def test_a_node_that_hangs_past_its_interpreter_cleanup_is_ended_by_sigalrm() -> None:
+    """The second guard: a hang where faulthandler no longer runs (here: cancelled by hand, as the
+    interpreter's finalisation does) is ended by SIGALRM, EXIT_ALARM_MARGIN_S later.
+    """
+    from flaair_common.runtime import EXIT_ALARM_MARGIN_S
+
+    code, stderr, took_s = _stop_a_node_script(_HANGING_NODE.format(
+        hang_in_close=False, deadline_s=1.0,
+        after="import faulthandler; faulthandler.cancel_dump_traceback_later(); time.sleep(600)"),
+        timeout_s=20.0 + EXIT_ALARM_MARGIN_S)
+    assert code == -signal.SIGALRM, f"exit {code} after {took_s:.1f} s:\n{stderr[-2000:]}"
+    assert 1.0 + EXIT_ALARM_MARGIN_S <= took_s < 10.0 + EXIT_ALARM_MARGIN_S
+
+
+def test_only_a_node_process_has_an_exit_deadline(monkeypatch) -> None:
+    """In a test or a CLI composing nodes in its own process, their own time limits rule."""
+    from flaair_common import runtime
+
+    assert runtime.default_exit_deadline_s() is None          # pytest's own process
+    monkeypatch.setattr(sys, "argv", ["/opt/ws/install/lib/flaair_sim/plant_node"])
+    assert runtime.default_exit_deadline_s() == runtime.EXIT_DEADLINE_S == 30.0
+
+
 def _python_running(pid: int, executable: str) -> bool:
     """True once the process has exec'd Python on `executable` (after every launcher's exec)."""
     try:

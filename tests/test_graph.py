@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -35,6 +36,33 @@ def _pids_on_domain(domain_id: int) -> list[int]:
         if any(item.startswith(needle) for item in environ):
             found.append(int(entry.name))
     return found
+
+
+def _describe(pids: list[int], log_dir: Path | None = None) -> str:
+    """What a lingering process is doing: its command, state, signal masks, kernel wait channel
+    and the last lines of its log (a graph child's log is LOG_DIR/<role>.log).
+    """
+    lines = []
+    logs = sorted(log_dir.glob("*.log")) if log_dir is not None and log_dir.is_dir() else []
+    for pid in pids:
+        proc = Path(f"/proc/{pid}")
+        try:
+            cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            status = {k: v.strip() for k, _, v in (
+                line.partition(":") for line in (proc / "status").read_text().splitlines())}
+            wchan = (proc / "wchan").read_text()
+        except OSError as exc:
+            lines.append(f"{pid}: gone ({exc.strerror})")
+            continue
+        lines.append(f"{pid}: {cmdline[:300]}")
+        lines.append(f"  state {status.get('State')} threads {status.get('Threads')} wchan {wchan} "
+                     + " ".join(f"{k} {status.get(k)}" for k in
+                                ("SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt")))
+        for log in logs:
+            if log.stem in cmdline:
+                tail = log.read_text(errors="replace").splitlines()[-12:]
+                lines += [f"  {log.name}: {line}" for line in tail]
+    return "\n".join(lines)
 
 
 def _alive(pid: int) -> bool:
@@ -149,8 +177,8 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     assert process.returncode == 143, stderr
     assert "Traceback" not in stderr and "terminated" in stderr
     # every child was stopped; one still exiting (a zombie being reaped) gets a moment
-    assert wait_for(lambda: _pids_on_domain(domain) == [], 15.0), [
-        (pid, Path(f"/proc/{pid}/cmdline").read_bytes()[:200]) for pid in _pids_on_domain(domain)]
+    assert wait_for(lambda: _pids_on_domain(domain) == [], 15.0), \
+        _describe(_pids_on_domain(domain), bag.parent / f"{bag.name}.logs")
     counts = bagio.message_counts(bag)          # the bag was closed: an independent read works
     assert counts.get("/flaair/sensor_v", 0) > 0
 
@@ -158,8 +186,18 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
 @pytest.mark.graph
 @pytest.mark.slow
 def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
-    process, domain, _ = _start_experiment(tmp_path)
+    from flaair_common.runtime import EXIT_ALARM_MARGIN_S, EXIT_DEADLINE_S
+
+    process, domain, bag = _start_experiment(tmp_path)
     process.kill()
     process.wait()
-    assert wait_for(lambda: _pids_on_domain(domain) == [], 30.0), \
-        f"orphans on domain {domain}: {_pids_on_domain(domain)}"
+    # Each node ends on its parent-death SIGTERM, in about ACK_WAIT_S (its readers in the killed
+    # process never ack); one whose stop hangs ends at its exit deadline.
+    logs = bag.parent / f"{bag.name}.logs"
+    assert wait_for(lambda: _pids_on_domain(domain) == [],
+                    EXIT_DEADLINE_S + EXIT_ALARM_MARGIN_S + 10.0), \
+        f"orphans on domain {domain}:\n" + _describe(_pids_on_domain(domain), logs)
+    hung = {log.name: log.read_text(errors="replace")[-4000:] for log in logs.glob("*.log")
+            if "Timeout (0:" in log.read_text(errors="replace")}
+    if hung:   # ended by the deadline: say where the stop hung (once seen in CI, not here)
+        warnings.warn(f"a node's stop hung until its exit deadline: {hung}")

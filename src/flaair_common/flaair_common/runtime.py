@@ -3,6 +3,7 @@ clear line, Ctrl-C and SIGTERM shut down cleanly.
 """
 from __future__ import annotations
 
+import faulthandler
 import math
 import os
 import signal
@@ -63,6 +64,15 @@ from flaair_model.notes import Note
 ACK_WAIT_S = 5.0
 # DDS copies a reader thread has not sent in its gaps for this long: the main thread sends them
 DEFERRED_BACKSTOP_S = 0.05
+# A node told to stop has ended within this, whatever hangs on the way (closing, the acks, DDS's
+# teardown): then the stacks of its threads go to its log and it exits 1 (faulthandler). A
+# launcher that waits for its node kills it sooner (graph.STOP_TIMEOUT_S, 15 s); this bounds a
+# node nobody waits for, as after a kill -9 of its launcher (a CI run once found a node still
+# running 30 s after it, cause unknown). Above ACK_WAIT_S and a recorder's close under load.
+EXIT_DEADLINE_S = 30.0
+# ... and SIGALRM (its default action ends the process) this much later, should even
+# faulthandler be gone (a hang after the interpreter's finalisation, in a library's destructor)
+EXIT_ALARM_MARGIN_S = 5
 
 
 def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str) -> str:
@@ -131,15 +141,42 @@ def run_node(
     return run_nodes([make_node], args, executor_kind)
 
 
+def default_exit_deadline_s() -> float | None:
+    """EXIT_DEADLINE_S in a node's own process; None in any other (a test, a CLI that composes
+    nodes in its own process: their own time limits rule there).
+    """
+    return EXIT_DEADLINE_S if _is_node_process() else None
+
+
+def _arm_exit_deadline(deadline_s: float | None) -> None:
+    """From now on the process ends within `deadline_s`, its threads' stacks on stderr if it hangs.
+
+    Only the first call counts (a second Ctrl-C does not move the deadline).
+    """
+    if deadline_s is None or _exit_deadline_armed:
+        return
+    _exit_deadline_armed.append(deadline_s)
+    faulthandler.dump_traceback_later(deadline_s, exit=True)
+    signal.alarm(math.ceil(deadline_s) + EXIT_ALARM_MARGIN_S)
+
+
+_exit_deadline_armed: list[float] = []
+
+
 def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
-              executor_kind: str = "events", bus: "intra.Bus | None" = None) -> int:
+              executor_kind: str = "events", bus: "intra.Bus | None" = None,
+              exit_deadline_s: float | None = None) -> int:
     """Build several nodes in one process and spin them in one executor (a container).
 
     With a `bus`, block streams between them travel in-process (`flaair_common.intra`): the
     loop drains it between executor spins. Shutdown closes the nodes last built first (a
     controller's zero block reaches the actuator's node before that node closes).
+    From a stop request on, the process ends within `exit_deadline_s` (None:
+    `default_exit_deadline_s()`), see EXIT_DEADLINE_S.
     """
     args = sys.argv if args is None else args
+    if exit_deadline_s is None:
+        exit_deadline_s = default_exit_deadline_s()
     if _early_signals:
         return 0
     intra.install(bus)
@@ -151,11 +188,14 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
         return 2
     executor = make_executor(executor_kind)
     stop_requested = bool(_early_signals)
+    stop_signals: list[int] = []
 
     def _stop(signum: int, _frame: object) -> None:
         # Only set a flag: shutting the context down here would break a callback mid-publish.
         nonlocal stop_requested
         stop_requested = True
+        stop_signals.append(signum)
+        _arm_exit_deadline(exit_deadline_s)   # even if a callback never returns to the loop
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
@@ -197,6 +237,12 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        _arm_exit_deadline(exit_deadline_s)
+        if nodes:
+            why = signal.Signals(stop_signals[0]).name if stop_signals else "shutdown"
+            nodes[0].get_logger().info(
+                f"stopping ({why}): closing, then up to {ACK_WAIT_S:g} s for readers' acks"
+                + (f"; ends within {exit_deadline_s:g} s" if exit_deadline_s is not None else ""))
         for node in reversed(nodes):
             _close(node)
             if bus is not None:
