@@ -360,16 +360,17 @@ _HANGING_NODE = (
 )
 
 
-def _stop_a_node_script(script: str, timeout_s: float) -> tuple[int | None, str, float]:
-    """Start the node `script`, SIGTERM it once built; (exit code or None if still running after
-    `timeout_s`, stderr, seconds from the signal to the end).
+def _stop_a_node_script(script: str, timeout_s: float,
+                        ready: str = "built") -> tuple[int | None, str, float]:
+    """Start the node `script`, SIGTERM it once it prints `ready`; (exit code or None if still
+    running after `timeout_s`, stderr, seconds from the signal to the end).
     """
     process = subprocess.Popen(
         [str(Path(__file__).resolve().parents[1] / "scripts" / "in_env.sh"), "python", "-c",
          script], env=isolated_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         lines = []
-        while "built" not in "".join(lines[-1:]):
+        while ready not in "".join(lines[-1:]):
             lines.append(process.stderr.readline())
             assert lines[-1] or process.poll() is None, "".join(lines)
         process.send_signal(signal.SIGTERM)
@@ -396,6 +397,36 @@ def test_a_node_whose_close_hangs_ends_at_its_exit_deadline_with_its_stacks_in_i
     assert 1.0 <= took_s < 10.0
     assert "stopping (SIGTERM)" in stderr and "ends within 1 s" in stderr
     assert "Timeout (0:00:01)!" in stderr and re.search(r'line \d+ in close\n', stderr), stderr
+
+
+_STUCK_IN_C = (
+    "import ctypes, sys\n"
+    "sys.argv[0] = '/x/install/lib/flaair_sim/plant_node'\n"
+    "from rclpy.node import Node\n"
+    "from flaair_common import runtime\n"
+    "libc = ctypes.CDLL(None)\n"
+    "mutex = ctypes.create_string_buffer(64)   # PTHREAD_MUTEX_INITIALIZER: zeros\n"
+    "class Stuck(Node):\n"
+    "    def __init__(self):\n"
+    "        super().__init__('stuck_node')\n"
+    "        self.create_timer(0.01, self.tick)\n"
+    "    def tick(self):\n"
+    "        print('stuck', file=sys.stderr, flush=True)\n"
+    "        libc.pthread_mutex_lock(mutex)\n"
+    "        libc.pthread_mutex_lock(mutex)   # a lock that is never released, in C\n"
+    "sys.exit(runtime.run_nodes([Stuck], args=['stuck_node'], exit_deadline_s=1.0))\n"
+)
+
+
+@pytest.mark.timeout(120)
+def test_a_node_stuck_in_c_code_when_told_to_stop_ends_at_its_exit_deadline() -> None:
+    """Its main thread never comes back to Python, so its SIGTERM handler never runs: the deadline
+    is armed by a thread that sees the signal arrive (the interpreter's wakeup fd).
+    """
+    code, stderr, took_s = _stop_a_node_script(_STUCK_IN_C, timeout_s=20.0, ready="stuck")
+    assert code == 1, f"exit {code} after {took_s:.1f} s:\n{stderr[-2000:]}"
+    assert 1.0 <= took_s < 10.0
+    assert "Timeout (0:00:01)!" in stderr and re.search(r'line \d+ in tick\n', stderr), stderr
 
 
 @pytest.mark.timeout(120)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import faulthandler
 import math
 import os
+import select
 import signal
 import sys
 import threading
@@ -151,16 +152,38 @@ def default_exit_deadline_s() -> float | None:
 def _arm_exit_deadline(deadline_s: float | None) -> None:
     """From now on the process ends within `deadline_s`, its threads' stacks on stderr if it hangs.
 
-    Only the first call counts (a second Ctrl-C does not move the deadline).
+    Only the first call counts (a second Ctrl-C does not move the deadline); any thread may call.
     """
-    if deadline_s is None or _exit_deadline_armed:
-        return
-    _exit_deadline_armed.append(deadline_s)
+    with _exit_deadline_lock:
+        if deadline_s is None or _exit_deadline_armed:
+            return
+        _exit_deadline_armed.append(deadline_s)
     faulthandler.dump_traceback_later(deadline_s, exit=True)
     signal.alarm(math.ceil(deadline_s) + EXIT_ALARM_MARGIN_S)
 
 
+_exit_deadline_lock = threading.Lock()
 _exit_deadline_armed: list[float] = []
+
+
+def _watch_for_stop_signals(deadline_s: float | None) -> None:
+    """Arm the exit deadline from a thread of its own as soon as SIGINT or SIGTERM arrives.
+
+    Python runs a signal's handler only when the main thread comes back to the interpreter; a
+    main thread stuck for good in a library's C code (a DDS lock) would never arm it. The
+    interpreter's own C-level handler writes the signal's number to the wakeup fd at once: this
+    thread waits on it. Call from the main thread once the stop handlers are in place.
+    """
+    if deadline_s is None:
+        return
+    read_fd, write_fd = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        select.select([read_fd], [], [])
+        _arm_exit_deadline(deadline_s)
+
+    threading.Thread(target=watch, name="exit-deadline", daemon=True).start()
 
 
 def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
@@ -199,6 +222,7 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
+    _watch_for_stop_signals(exit_deadline_s)
     program = sys.argv[0].rsplit('/', 1)[-1]
     nodes: list[Node] = []
     try:
