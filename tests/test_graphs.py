@@ -47,3 +47,21 @@ def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
     spec = next(iter(experiment.load_experiments().values()))
     roles = experiment.experiment_roles(spec)
     assert roles[:3] == graphs.GRAPHS["experiment"].roles and roles[-1] in ("drive", "controller")
+
+
+def test_a_live_run_ends_on_both_clocks_or_on_the_sensor_clock_after_the_grace() -> None:
+    """`live --duration`: the drive's samples lead the sensor's while the controller loops; after a
+    trip they come one zero block per keepalive period and would need ~100x the duration (a run
+    against a target silent for 3 s never ended before the fix).
+    """
+    from flaair_tools.orchestration.live import DRIVE_GRACE_S, run_end
+
+    assert DRIVE_GRACE_S == 2.0
+    assert run_end(0.3, -0.1, 0.0) is None                  # the sensor still needs 0.3 s
+    assert run_end(0.0, -0.1, 0.0) == "covered"
+    assert run_end(-0.01, None, 0.0) == "covered"           # no controller: the sensor alone
+    assert run_end(-0.01, 0.2, 1.99) is None                 # a loaded executor's backlog: wait
+    why = run_end(-0.01, 11.74, 2.0)
+    assert why == ("ending on the sensor clock: the drive is still 11.74 s of signal short of the "
+                   "duration 2.0 s after the sensor reached it (the controller tripped or stopped: "
+                   "see the loop's log)")

@@ -3,6 +3,7 @@ recorded; ends cleanly on time or on a signal.
 """
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -211,7 +212,9 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
                               stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"),
                               cwd=REPO_ROOT)
     bag, log = tmp_path / "bench", tmp_path / "live.err"
-    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
+    # as from a terminal: Ctrl-C at its default action (a test run in the background ignores it)
+    live = subprocess.Popen(["env", "--default-signal=INT", FLAAIR, "live", "--target",
+                             f"127.0.0.1:{target_port}", "--listen",
                              f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out",
                              str(bag)], stdout=subprocess.DEVNULL, stderr=open(log, "w"),
                             cwd=REPO_ROOT)
@@ -229,9 +232,30 @@ def _exit_code(live: subprocess.Popen, tmp_path: Path, timeout_s: float = 120.0)
     try:
         return live.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
-        logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*"))]
+        # live and its nodes write every thread's stack to their logs on SIGUSR1
+        for pid in [live.pid, *_graph_pids(f":{live.pid}")]:
+            try:
+                os.kill(pid, signal.SIGUSR1)
+            except ProcessLookupError:
+                pass
+        time.sleep(1.0)   # (the dumps are written from a signal handler: no reply to wait for)
+        logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*.log"))]
         raise AssertionError(f"live still running {timeout_s:g} s after the signal:\n" + "\n".join(
-            f"== {log.name}\n{log.read_text()[-1500:]}" for log in logs if log.is_file())) from None
+            f"== {log.name}\n{log.read_text()[-4000:]}" for log in logs if log.is_file())) from None
+
+
+def _graph_pids(mark_suffix: str) -> list[int]:
+    """Processes whose FLAAIR_GRAPH mark (domain:launcher pid) ends with `mark_suffix`."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0") if entry.name.isdigit() else []
+        except OSError:
+            continue
+        if any(e.startswith(b"FLAAIR_GRAPH=") and e.endswith(mark_suffix.encode())
+               for e in environ):
+            found.append(int(entry.name))
+    return found
 
 
 def _loop_pid(domain: int) -> int:
@@ -259,8 +283,11 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
         # ... for 3 s (the fault itself, not a wait for something)
         time.sleep(3.0)
         target.send_signal(signal.SIGCONT)
-        live.send_signal(signal.SIGINT)
+        # live ends by itself at --duration on the sensor clock: the tripped controller's drive
+        # (a zero block per keepalive period) never covers it (before the fix live ran on for ever)
         assert _exit_code(live, tmp_path) == 0, (tmp_path / "live.err").read_text()[-3000:]
+        text = (tmp_path / "live.err").read_text()
+        assert "ending on the sensor clock" in text and "duration reached" in text, text[-2000:]
     finally:
         target.send_signal(signal.SIGCONT)
         target.send_signal(signal.SIGINT)
@@ -275,7 +302,6 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
 
 def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
     import json
-    import os
 
     from rosproc import wait_for
 

@@ -45,6 +45,8 @@ if _is_node_process() and threading.current_thread() is threading.main_thread():
     _blocked = _DEFERRED_SIGNALS & signal.pthread_sigmask(signal.SIG_BLOCK, [])
     if _blocked:   # started by a launcher that deferred them: a pending one is delivered now
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _blocked)
+    # `kill -USR1 PID` writes every thread's stack to the node's log (where is it stuck?)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 import rclpy  # noqa: E402 - after the early signal handlers on purpose
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402

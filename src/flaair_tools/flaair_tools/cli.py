@@ -3,7 +3,9 @@ subcommand lives in its own module with main(argv).
 """
 from __future__ import annotations
 
+import faulthandler
 import importlib
+import signal
 import sys
 
 # name -> (module, one-line help). `run` is handled by bin/flaair itself (it execs the node).
@@ -54,7 +56,8 @@ commands:
   run <package> <executable> [--ros-args ...]   start a node, like `ros2 run`
 {commands}
 
-`bin/flaair <command> --help` explains each command."""
+`bin/flaair <command> --help` explains each command. A command or node that seems stuck:
+`kill -USR1 PID` writes where each of its threads is to its stderr (a node's: its log)."""
 
 
 def _usage() -> str:
@@ -85,4 +88,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    # `kill -USR1 PID` writes every thread's stack to stderr (where is a command stuck?)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     sys.exit(main())

@@ -35,6 +35,7 @@ The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the e
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -67,6 +68,10 @@ def _argv(role: str, ros_args: list[str]) -> list[str]:
 
 
 LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
+# Once the sensor blocks cover --duration, the drive's own samples get this much longer (wall clock)
+# to: they lead the sensor by the loop's delay while the controller loops, but a tripped controller
+# sends one zero block per keepalive period, a drive clock at a hundredth of the signal's rate
+DRIVE_GRACE_S = 2.0
 # a process of the graph gets this long to close (the recorder: write its backlog, close the bag)
 LOOP_CLOSE_S = 180.0
 
@@ -288,8 +293,18 @@ class Watcher:
         self.listening = [listen() for _, _, listen in clocks]
         for clock, _, _ in clocks:
             clock["wall"] = time.monotonic()
-        while any(clock["index"] < first + self.args.duration * clock["rate"]
-                  for clock, first, _ in clocks):
+        sensor_done_wall: float | None = None
+        while True:
+            left_s = [self.args.duration - (clock["index"] - first) / clock["rate"]
+                      if clock["rate"] > 0 else math.inf for clock, first, _ in clocks]
+            if left_s[0] <= 0.0 and sensor_done_wall is None:
+                sensor_done_wall = time.monotonic()
+            why = run_end(left_s[0], left_s[1] if len(left_s) > 1 else None,
+                          0.0 if sensor_done_wall is None else time.monotonic() - sensor_done_wall)
+            if why is not None:
+                if why != "covered":
+                    print(f"flaair live: {why}", file=sys.stderr)
+                break
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
             for clock, _, _ in clocks:
@@ -302,6 +317,25 @@ class Watcher:
     def close(self) -> None:
         self.node.destroy_node()
         self.rclpy.try_shutdown()
+
+
+def run_end(sensor_left_s: float, drive_left_s: float | None, sensor_done_for_s: float,
+            grace_s: float = DRIVE_GRACE_S) -> str | None:
+    """Whether a run of --duration is over: None (not yet), "covered" (both clocks reached it), or
+    why it ends on the sensor clock alone.
+
+    sensor_left_s, drive_left_s: signal time each stream still needs (None: no drive stream);
+    sensor_done_for_s: wall time since the sensor stream covered the duration.
+    """
+    if sensor_left_s > 0.0:
+        return None
+    if drive_left_s is None or drive_left_s <= 0.0:
+        return "covered"
+    if sensor_done_for_s < grace_s:
+        return None
+    return (f"ending on the sensor clock: the drive is still {drive_left_s:.2f} s of signal short "
+            f"of the duration {sensor_done_for_s:.1f} s after the sensor reached it (the controller "
+            "tripped or stopped: see the loop's log)")
 
 
 def run_live(args: argparse.Namespace) -> int:
