@@ -3,6 +3,7 @@ domain a test leased is released when the test ends.
 """
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 from typing import Iterator
@@ -15,6 +16,18 @@ for package_dir in sorted((REPO_ROOT / "src").iterdir()):
         sys.path.insert(0, str(package_dir))
 
 import rosproc  # noqa: E402 - needs the path above
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C at its default action for every process a test starts, as from a terminal.
+
+    A test run started in the background (`make test &` in a script, a CI runner's job) may have
+    SIGINT ignored, and every process it starts inherits that: the tests that stop a node, `live`
+    or `launch` with Ctrl-C would wait out their limits instead (seen: two graph tests, 50 and
+    120 s each). A Python handler here becomes the default action across exec.
+    """
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)
