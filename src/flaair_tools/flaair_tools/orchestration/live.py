@@ -333,9 +333,9 @@ def run_end(sensor_left_s: float, drive_left_s: float | None, sensor_done_for_s:
         return "covered"
     if sensor_done_for_s < grace_s:
         return None
-    return (f"ending on the sensor clock: the drive is still {drive_left_s:.2f} s of signal short "
-            f"of the duration {sensor_done_for_s:.1f} s after the sensor reached it (the controller "
-            "tripped or stopped: see the loop's log)")
+    return (f"ending on the sensor clock: the drive is still {drive_left_s:.2f} s of signal "
+            f"short of the duration {sensor_done_for_s:.1f} s after the sensor reached it (the "
+            "controller tripped or stopped: see the loop's log)")
 
 
 def run_live(args: argparse.Namespace) -> int:
