@@ -24,6 +24,29 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
+def graph_pids(domain_id: int | None = None, launcher_pid: int | None = None) -> list[int]:
+    """Processes of FLAAIR graphs (their launcher marks them FLAAIR_GRAPH=domain:launcher_pid):
+    those on `domain_id`, of `launcher_pid`, or both; never this process.
+    """
+    wanted = (None if domain_id is None else str(domain_id).encode(),
+              None if launcher_pid is None else str(launcher_pid).encode())
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            environ = (entry / "environ").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        for item in environ:
+            if item.startswith(b"FLAAIR_GRAPH="):
+                mark = tuple(item.removeprefix(b"FLAAIR_GRAPH=").split(b":", 1))
+                if all(w is None or w == m for w, m in zip(wanted, mark)):
+                    found.append(int(entry.name))
+                break
+    return found
+
+
 _LEASES: list = []
 # what this test started that exchanges data in real time (conftest checks the mark)
 GRAPHS_STARTED: list[str] = []

@@ -16,26 +16,11 @@ from pathlib import Path
 import pytest
 
 from flaair_common.graph import Graph, lease_domain, wait_for
+from rosproc import graph_pids
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 PACKAGE_DIRS = [str(p) for p in (REPO_ROOT / "src").iterdir() if (p / "setup.py").exists()]
-
-
-def _pids_on_domain(domain_id: int) -> list[int]:
-    """Processes of a FLAAIR graph on this domain (its launcher marks them with FLAAIR_GRAPH)."""
-    found = []
-    needle = f"FLAAIR_GRAPH={domain_id}:".encode()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            environ = (entry / "environ").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if any(item.startswith(needle) for item in environ):
-            found.append(int(entry.name))
-    return found
 
 
 def _describe(pids: list[int], log_dir: Path | None = None) -> str:
@@ -147,7 +132,7 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
             break
     assert match, f"experiment did not say which domain: {seen!r}"
     domain = int(match.group(1))
-    assert wait_for(lambda: len(_pids_on_domain(domain)) >= 4, 120.0)
+    assert wait_for(lambda: len(graph_pids(domain)) >= 4, 120.0)
     text, deadline = "", time.monotonic() + 120.0
     while not _samples_moved(text) and time.monotonic() < deadline and process.poll() is None:
         text += process.stderr.read(1)
@@ -177,8 +162,8 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     assert process.returncode == 143, stderr
     assert "Traceback" not in stderr and "terminated" in stderr
     # every child was stopped; one still exiting (a zombie being reaped) gets a moment
-    assert wait_for(lambda: _pids_on_domain(domain) == [], 15.0), \
-        _describe(_pids_on_domain(domain), bag.parent / f"{bag.name}.logs")
+    assert wait_for(lambda: graph_pids(domain) == [], 15.0), \
+        _describe(graph_pids(domain), bag.parent / f"{bag.name}.logs")
     counts = bagio.message_counts(bag)          # the bag was closed: an independent read works
     assert counts.get("/flaair/sensor_v", 0) > 0
 
@@ -194,10 +179,10 @@ def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
     # Each node ends on its parent-death SIGTERM, in about ACK_WAIT_S (its readers in the killed
     # process never ack); one whose stop hangs ends at its exit deadline.
     logs = bag.parent / f"{bag.name}.logs"
-    assert wait_for(lambda: _pids_on_domain(domain) == [],
+    assert wait_for(lambda: graph_pids(domain) == [],
                     EXIT_DEADLINE_S + EXIT_ALARM_MARGIN_S + 10.0), \
-        f"orphans on domain {domain}:\n" + _describe(_pids_on_domain(domain), logs)
-    hung = {log.name: log.read_text(errors="replace")[-4000:] for log in logs.glob("*.log")
-            if "Timeout (0:" in log.read_text(errors="replace")}
+        f"orphans on domain {domain}:\n" + _describe(graph_pids(domain), logs)
+    texts = {log.name: log.read_text(errors="replace") for log in logs.glob("*.log")}
+    hung = {name: text[-4000:] for name, text in texts.items() if "Timeout (0:" in text}
     if hung:   # ended by the deadline: say where the stop hung (once seen in CI, not here)
         warnings.warn(f"a node's stop hung until its exit deadline: {hung}")

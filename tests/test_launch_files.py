@@ -11,7 +11,7 @@ import pytest
 from flaair_common.graph import STOP_TIMEOUT_S
 from flaair_tools.orchestration import graphs, launch_file
 from flaair_tools.orchestration.launch_file import LaunchFileError, load
-from rosproc import FLAAIR
+from rosproc import FLAAIR, graph_pids
 
 LAUNCH_DIR = Path(__file__).resolve().parents[1] / "src" / "flaair_tools" / "launch"
 LAUNCH_FILES = sorted(LAUNCH_DIR.glob("*.launch.xml"))
@@ -183,9 +183,7 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
                   for s in states]
         assert len(states) == 3 and all(0.0 <= s["k_r"] <= 1.0 for s in states)
         assert stamps == sorted(stamps) and len(set(stamps)) == 3
-        mark = f"FLAAIR_GRAPH={domain}:{launcher.pid}".encode()
-        children = [p for p in Path("/proc").iterdir() if p.name.isdigit()
-                    and mark in _environ(p)]
+        children = [Path(f"/proc/{pid}") for pid in graph_pids(int(domain), launcher.pid)]
         assert len(children) == 3    # one process per node of the file
         # the launcher stops its nodes one by one, each within Graph's STOP_TIMEOUT_S (a node may
         # wait up to ACK_WAIT_S for its readers); the test allows it that, and no less
@@ -195,10 +193,3 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
         assert "stopped (Ctrl-C)" in launcher.stderr.read()
         assert not [p for p in children if p.exists() and os.path.exists(p / "environ")
                     and b"Z" != (p / "stat").read_bytes().rsplit(b")", 1)[1].split()[0]]
-
-
-def _environ(proc: Path) -> bytes:
-    try:
-        return (proc / "environ").read_bytes()
-    except OSError:
-        return b""

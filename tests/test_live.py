@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, REPO_ROOT, target_watchdog_tripped
+from rosproc import FLAAIR, REPO_ROOT, graph_pids, target_watchdog_tripped, wait_for
 
 pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
@@ -75,9 +75,8 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     from flaair_tools import bagio
 
     bag = tmp_path / "live"
-    # as from a terminal: Ctrl-C at its default action, not
-    # blocked (the test process may pass it on otherwise)
-    process = subprocess.Popen(["env", "--default-signal=INT", FLAAIR, "live", "--sim",
+    # Ctrl-C at its default action, as from a terminal (conftest sees to it)
+    process = subprocess.Popen([FLAAIR, "live", "--sim",
                                 "--duration", "60", "--out", str(bag)], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
     seen = []
@@ -202,8 +201,6 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
 
     Output goes to files (tmp_path/live.err, target.err), never to a pipe left unread.
     """
-    from rosproc import wait_for
-
     bridge_port, target_port = _free_udp_ports(2)
     counters = tmp_path / "target.json"
     target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
@@ -212,9 +209,7 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
                               stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"),
                               cwd=REPO_ROOT)
     bag, log = tmp_path / "bench", tmp_path / "live.err"
-    # as from a terminal: Ctrl-C at its default action (a test run in the background ignores it)
-    live = subprocess.Popen(["env", "--default-signal=INT", FLAAIR, "live", "--target",
-                             f"127.0.0.1:{target_port}", "--listen",
+    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
                              f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out",
                              str(bag)], stdout=subprocess.DEVNULL, stderr=open(log, "w"),
                             cwd=REPO_ROOT)
@@ -233,43 +228,24 @@ def _exit_code(live: subprocess.Popen, tmp_path: Path, timeout_s: float = 120.0)
         return live.wait(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         # live and its nodes write every thread's stack to their logs on SIGUSR1
-        for pid in [live.pid, *_graph_pids(f":{live.pid}")]:
+        for pid in [live.pid, *graph_pids(launcher_pid=live.pid)]:
             try:
                 os.kill(pid, signal.SIGUSR1)
             except ProcessLookupError:
                 pass
-        time.sleep(1.0)   # (the dumps are written from a signal handler: no reply to wait for)
+        wait_for(lambda: "most recent call first" in (tmp_path / "live.err").read_text(), 10.0)
         logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*.log"))]
         raise AssertionError(f"live still running {timeout_s:g} s after the signal:\n" + "\n".join(
             f"== {log.name}\n{log.read_text()[-4000:]}" for log in logs if log.is_file())) from None
 
 
-def _graph_pids(mark_suffix: str) -> list[int]:
-    """Processes whose FLAAIR_GRAPH mark (domain:launcher pid) ends with `mark_suffix`."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        try:
-            environ = (entry / "environ").read_bytes().split(b"\0") if entry.name.isdigit() else []
-        except OSError:
-            continue
-        if any(e.startswith(b"FLAAIR_GRAPH=") and e.endswith(mark_suffix.encode())
-               for e in environ):
-            found.append(int(entry.name))
-    return found
-
-
 def _loop_pid(domain: int) -> int:
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
+    for pid in graph_pids(domain):
         try:
-            environ = (entry / "environ").read_bytes().split(b"\0")
-            cmdline = (entry / "cmdline").read_bytes()
+            if b"BridgeNode" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return pid
         except OSError:
             continue
-        if (any(e.startswith(f"FLAAIR_GRAPH={domain}:".encode()) for e in environ)
-            and b"BridgeNode" in cmdline):
-            return int(entry.name)
     raise AssertionError(f"no loop process on domain {domain}")
 
 
@@ -302,8 +278,6 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
 
 def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
     import json
-
-    from rosproc import wait_for
 
     target, live, domain, _, counters = _start_live_against_target(tmp_path, 30.0)
     try:

@@ -157,15 +157,15 @@ def _arm_exit_deadline(deadline_s: float | None) -> None:
     Only the first call counts (a second Ctrl-C does not move the deadline); any thread may call.
     """
     with _exit_deadline_lock:
-        if deadline_s is None or _exit_deadline_armed:
+        if deadline_s is None or _exit_deadline_armed.is_set():
             return
-        _exit_deadline_armed.append(deadline_s)
+        _exit_deadline_armed.set()
     faulthandler.dump_traceback_later(deadline_s, exit=True)
     signal.alarm(math.ceil(deadline_s) + EXIT_ALARM_MARGIN_S)
 
 
 _exit_deadline_lock = threading.Lock()
-_exit_deadline_armed: list[float] = []
+_exit_deadline_armed = threading.Event()
 
 
 def _watch_for_stop_signals(deadline_s: float | None) -> None:
@@ -220,11 +220,10 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
         nonlocal stop_requested
         stop_requested = True
         stop_signals.append(signum)
-        _arm_exit_deadline(exit_deadline_s)   # even if a callback never returns to the loop
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    _watch_for_stop_signals(exit_deadline_s)
+    _watch_for_stop_signals(exit_deadline_s)   # arms the deadline the moment either arrives
     program = sys.argv[0].rsplit('/', 1)[-1]
     nodes: list[Node] = []
     try:

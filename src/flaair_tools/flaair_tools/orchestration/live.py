@@ -438,7 +438,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=5.0, metavar="S",
                         help="run this long of signal time (default 5 s): until the sensor "
                              "and drive streams both cover it; a tripped controller's drive, "
-                             "which no longer keeps pace, is waited for 2 s more at most")
+                             f"which no longer keeps pace, is waited for {DRIVE_GRACE_S:g} s "
+                             "more at most")
     parser.add_argument("--out", type=Path, help="record every /flaair topic to this bag directory")
     parser.add_argument("--foxglove", metavar="HOST:PORT",
                         help="serve the live graph to Foxglove / Lichtblick here")
