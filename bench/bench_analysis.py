@@ -4,6 +4,7 @@ The bag is a lab-format chirp of the bench robot imported with `flaair import` (
 needed); the same-run baseline is reading the bag's block topics alone.
 Run: scripts/in_env.sh python bench/bench_analysis.py [--json PATH]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,10 +29,15 @@ def make_bag(directory: Path) -> Path:
     from flaair_tools.orchestration.experiment import robot_model
 
     model = robot_model()
-    drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0,
-                                     duration_s=1.0), FS_HZ, int(FS_HZ))
-    write_run(directory / "chirp.csv", synthesize_measured_run(
-        drive, FS_HZ, model, np.random.default_rng(0)))
+    drive = drive_record(
+        DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0),
+        FS_HZ,
+        int(FS_HZ),
+    )
+    write_run(
+        directory / "chirp.csv",
+        synthesize_measured_run(drive, FS_HZ, model, np.random.default_rng(0)),
+    )
     bag = directory / "bag"
     import_runs([directory / "chirp.csv"], bag, gap_s=0.1, block_size=10, frame_id="robot")
     return bag
@@ -53,8 +59,16 @@ def main() -> None:
         start = time.perf_counter()
         load_runs([bag])
         read_s = time.perf_counter() - start
-    figures = [Figure("analysis of a 1 s 20 kHz chirp bag", analysis_s, "s", f"<= {TARGET_S:g} s",
-                      analysis_s <= TARGET_S, f"reading the bag alone: {read_s:.2f} s")]
+    figures = [
+        Figure(
+            "analysis of a 1 s 20 kHz chirp bag",
+            analysis_s,
+            "s",
+            f"<= {TARGET_S:g} s",
+            analysis_s <= TARGET_S,
+            f"reading the bag alone: {read_s:.2f} s",
+        )
+    ]
     print_table(figures)
     if args.json:
         write_json(figures, args.json)

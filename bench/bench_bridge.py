@@ -20,6 +20,7 @@ each sensor packet with a drive packet, no ROS): what the machine allows without
 
 Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 60]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, print_table, write_json  # noqa: E402
-from flaair_common.graph import Graph  # noqa: E402
+from benchlib import REPO_ROOT, Figure, print_table, write_json
+from flaair_common.graph import Graph
 
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 FS = 20000.0
@@ -73,7 +74,7 @@ def echo_main(port: int, out_file: str) -> int:
     """
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", port))
-    sock.setsockopt(socket.SOL_SOCKET, 35, 1)   # SO_TIMESTAMPNS
+    sock.setsockopt(socket.SOL_SOCKET, 35, 1)  # SO_TIMESTAMPNS
     sock.settimeout(0.2)
     head, reply = struct.Struct("<4sIQfHH"), struct.Struct(f"<4sIQHH{BLOCK}f")
     latency, sequence = [], 0
@@ -83,12 +84,21 @@ def echo_main(port: int, out_file: str) -> int:
     while not stop:
         try:
             data, ancillary, _, sender = sock.recvmsg(65536, socket.CMSG_SPACE(16))
-        except (socket.timeout, InterruptedError):
+        except (TimeoutError, InterruptedError):
             continue
         _, _, first, _, n, _ = head.unpack_from(data)
         index = first + n + LEAD + np.arange(BLOCK)
-        sock.sendto(reply.pack(b"FLD1", sequence, first + n + LEAD, BLOCK, 0,
-                               *(50.0 * np.sin(2 * np.pi * 140.0 * index / FS))), sender)
+        sock.sendto(
+            reply.pack(
+                b"FLD1",
+                sequence,
+                first + n + LEAD,
+                BLOCK,
+                0,
+                *(50.0 * np.sin(2 * np.pi * 140.0 * index / FS)),
+            ),
+            sender,
+        )
         sequence += 1
         if ancillary:
             seconds, nanoseconds = struct.unpack("@qq", ancillary[0][2][:16])
@@ -106,21 +116,47 @@ def live_run(duration_s: float, tmp: Path) -> dict:
 
     listen, target_port = _free_port(), _free_port()
     timing, bag = tmp / "timing.npz", tmp / "bag"
-    cpu: dict[str, dict[int, float]] = {}       # role -> pid -> CPU seconds at the last look
+    cpu: dict[str, dict[int, float]] = {}  # role -> pid -> CPU seconds at the last look
     cpu_start: dict[int, float] = {}
     with Graph(log_dir=tmp) as graph:
-        live = graph.start("live", [FLAAIR, "live", "--target", f"127.0.0.1:{target_port}",
-                                    "--listen",
-                                    f"127.0.0.1:{listen}", "--duration", str(duration_s), "--out",
-                                    str(bag),
-                                    "--bridge-param", f"timing_file={timing}",
-                                    # the emulator on a shared machine stalls
-                                    # now and then, a real target does not
-                                    "--bridge-param", "sensor_timeout_s=1.0"])
-        target = graph.start("target", [
-            FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{listen}",
-            "--listen", f"127.0.0.1:{target_port}", "--duration", "0", "--counters",
-            str(tmp / "target.json")])
+        live = graph.start(
+            "live",
+            [
+                FLAAIR,
+                "live",
+                "--target",
+                f"127.0.0.1:{target_port}",
+                "--listen",
+                f"127.0.0.1:{listen}",
+                "--duration",
+                str(duration_s),
+                "--out",
+                str(bag),
+                "--bridge-param",
+                f"timing_file={timing}",
+                # the emulator on a shared machine stalls
+                # now and then, a real target does not
+                "--bridge-param",
+                "sensor_timeout_s=1.0",
+            ],
+        )
+        target = graph.start(
+            "target",
+            [
+                FLAAIR,
+                "run",
+                "flaair_bridge",
+                "emulated_target",
+                "--bridge",
+                f"127.0.0.1:{listen}",
+                "--listen",
+                f"127.0.0.1:{target_port}",
+                "--duration",
+                "0",
+                "--counters",
+                str(tmp / "target.json"),
+            ],
+        )
         running_at = None
         while live.poll() is None:
             if running_at is None and "running from sample" in (tmp / "live.log").read_text():
@@ -129,9 +165,15 @@ def live_run(duration_s: float, tmp: Path) -> dict:
                 procs = {"target": [psutil.Process(target.pid)]}
                 for child in psutil.Process(live.pid).children(recursive=True):
                     line = " ".join(child.cmdline())
-                    role = ("loop" if "BridgeNode" in line else "recorder"
-                            if "recorder_node" in line else "monitor"
-                            if "collision_monitor_node" in line else None)
+                    role = (
+                        "loop"
+                        if "BridgeNode" in line
+                        else "recorder"
+                        if "recorder_node" in line
+                        else "monitor"
+                        if "collision_monitor_node" in line
+                        else None
+                    )
                     if role:
                         procs.setdefault(role, []).append(child)
                 for role, members in procs.items():
@@ -147,15 +189,27 @@ def live_run(duration_s: float, tmp: Path) -> dict:
         graph.stop(target)
     if live.returncode != 0 or running_at is None:
         raise RuntimeError(
-            f"flaair live exited {live.returncode}:\n{(tmp / 'live.log').read_text()[-3000:]}")
+            f"flaair live exited {live.returncode}:\n{(tmp / 'live.log').read_text()[-3000:]}"
+        )
     packets = (ended_at - running_at) * FS / BLOCK
-    cpu_us = {role: 1e6 * sum(t - cpu_start.get(pid, t) for pid, t in by_pid.items()) / packets
-              for role, by_pid in cpu.items()}
-    return {"target": json.loads((tmp / "target.json").read_text()),
-            "drive_events": np.load(timing)["drive"], "sensor": sensor_blocks(bag),
-            "cpu_us": cpu_us, "summary": next(
-        (line for line in (tmp / f"{bag.name}.logs" / "loop.log").read_text().splitlines()
-         if "bridge closed" in line), "")}
+    cpu_us = {
+        role: 1e6 * sum(t - cpu_start.get(pid, t) for pid, t in by_pid.items()) / packets
+        for role, by_pid in cpu.items()
+    }
+    return {
+        "target": json.loads((tmp / "target.json").read_text()),
+        "drive_events": np.load(timing)["drive"],
+        "sensor": sensor_blocks(bag),
+        "cpu_us": cpu_us,
+        "summary": next(
+            (
+                line
+                for line in (tmp / f"{bag.name}.logs" / "loop.log").read_text().splitlines()
+                if "bridge closed" in line
+            ),
+            "",
+        ),
+    }
 
 
 def sensor_blocks(bag: Path) -> dict:
@@ -165,7 +219,7 @@ def sensor_blocks(bag: Path) -> dict:
 
     firsts, lengths, lost, messages = [], [], 0, 0
     for _, _, _, data in bagio.iter_raw(bag, [topics.SENSOR_VOLTAGE]):
-        message = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)   # live joins 20 packets to a message
+        message = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)  # live joins 20 packets to a message
         stroke = np.asarray(message["stroke_sensor_v"])
         firsts.append(int(message["first_sample_index"]))
         lengths.append(len(stroke))
@@ -176,9 +230,13 @@ def sensor_blocks(bag: Path) -> dict:
     firsts, lengths = np.array(firsts), np.array(lengths)
     covered = np.zeros(int((firsts + lengths).max() - firsts.min()), bool)
     for first, n in zip(firsts - firsts.min(), lengths):
-        covered[first:first + n] = True
-    return {"blocks": int(covered.sum()) // BLOCK, "nan_blocks": lost,
-            "missing": int((~covered).sum()) // BLOCK, "messages": messages}
+        covered[first : first + n] = True
+    return {
+        "blocks": int(covered.sum()) // BLOCK,
+        "nan_blocks": lost,
+        "missing": int((~covered).sum()) // BLOCK,
+        "messages": messages,
+    }
 
 
 def echo_run(duration_s: float, tmp: Path) -> dict:
@@ -186,13 +244,28 @@ def echo_run(duration_s: float, tmp: Path) -> dict:
     with Graph() as graph:
         graph.start("echo", [sys.executable, __file__, "--echo", str(port), str(tmp / "echo.npy")])
         time.sleep(3.0)  # the echo imports numpy and binds
-        target = graph.start("target", [
-            FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge", f"127.0.0.1:{port}",
-            "--listen", "127.0.0.1:0", "--duration", str(duration_s), "--counters",
-            str(tmp / "echo_target.json")])
+        target = graph.start(
+            "target",
+            [
+                FLAAIR,
+                "run",
+                "flaair_bridge",
+                "emulated_target",
+                "--bridge",
+                f"127.0.0.1:{port}",
+                "--listen",
+                "127.0.0.1:0",
+                "--duration",
+                str(duration_s),
+                "--counters",
+                str(tmp / "echo_target.json"),
+            ],
+        )
         target.wait(timeout=duration_s * 4 + 120)
-    return {"target": json.loads((tmp / "echo_target.json").read_text()),
-            "latency_s": np.load(tmp / "echo.npy")}
+    return {
+        "target": json.loads((tmp / "echo_target.json").read_text()),
+        "latency_s": np.load(tmp / "echo.npy"),
+    }
 
 
 def sensor_to_drive_ms(drive_events: np.ndarray) -> tuple[np.ndarray, int]:
@@ -217,14 +290,21 @@ def late_or_missing_pct(counters: dict) -> float:
 
 def main() -> int:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--duration", type=float, default=60.0,
-                        help="signal time of the bridge run [s]")
-    parser.add_argument("--baseline-duration", type=float, default=20.0,
-                        help="signal time of the UDP-echo baseline [s]")
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--duration", type=float, default=60.0, help="signal time of the bridge run [s]"
+    )
+    parser.add_argument(
+        "--baseline-duration",
+        type=float,
+        default=20.0,
+        help="signal time of the UDP-echo baseline [s]",
+    )
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_bridge.json")
-    parser.add_argument("--keep", type=Path,
-                        help="keep the runs' logs, counters and bag in this directory")
+    parser.add_argument(
+        "--keep", type=Path, help="keep the runs' logs, counters and bag in this directory"
+    )
     parser.add_argument("--echo", nargs=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.echo:
@@ -240,37 +320,76 @@ def main() -> int:
     t, e = run["target"], echo["target"]
     figures = []
     pct, pct_echo = late_or_missing_pct(t), late_or_missing_pct(e)
-    figures.append(Figure(f"live: drive samples late or missing at the target, {args.duration:g} s",
-                          pct, "%", "<= 0.1", pct <= 0.1,
-                          f"UDP echo {pct_echo:.3f} %; late {t['late_samples']}, missing "
-                          f"{t['missing_samples']} of {t['fresh_samples'] + t['missing_samples']}; "
-                          f"{load}"))
+    figures.append(
+        Figure(
+            f"live: drive samples late or missing at the target, {args.duration:g} s",
+            pct,
+            "%",
+            "<= 0.1",
+            pct <= 0.1,
+            f"UDP echo {pct_echo:.3f} %; late {t['late_samples']}, missing "
+            f"{t['missing_samples']} of {t['fresh_samples'] + t['missing_samples']}; "
+            f"{load}",
+        )
+    )
     sensor = run["sensor"]
     lost = sensor["nan_blocks"] + sensor["missing"]
-    figures.append(Figure("live: sensor packets lost inside FLAAIR", lost, "packets", "0",
-                          lost == 0, f"{sensor['blocks']} packets' samples in the bag "
-                                     f"({sensor['messages']} messages): {sensor['nan_blocks']} "
-                                     f"marked lost by the bridge, {sensor['missing']} missing"))
+    figures.append(
+        Figure(
+            "live: sensor packets lost inside FLAAIR",
+            lost,
+            "packets",
+            "0",
+            lost == 0,
+            f"{sensor['blocks']} packets' samples in the bag "
+            f"({sensor['messages']} messages): {sensor['nan_blocks']} "
+            f"marked lost by the bridge, {sensor['missing']} missing",
+        )
+    )
     latency, unsent = sensor_to_drive_ms(run["drive_events"])
     echo_ms = echo["latency_s"] * 1e3
     p99 = percentile(latency, 99)
-    figures.append(Figure("live: sensor packet arrival -> drive packet, p99", p99, "ms", "< 1",
-                          p99 < 1.0, f"p50 {percentile(latency, 50):.3f} ms over {latency.size} "
-                                     f"drive blocks ({unsent} not sent at once); UDP echo p99 "
-                                     f"{percentile(echo_ms, 99):.3f} ms, p50 "
-                                     f"{percentile(echo_ms, 50):.3f} ms"))
-    for name, label in (("loop", "loop process (bridge, front end, controller)"),
-                        ("monitor", "collision monitor process"), ("recorder", "recorder process"),
-                        ("target", "emulated target")):
-        figures.append(Figure(f"live: CPU per 0.5 ms packet, {label}",
-                              run["cpu_us"].get(name, float("nan")), "us", "<= 500 (1 core)"
-                              if name == "loop" else "", name != "loop"
-                              or run["cpu_us"]["loop"] <= 500,
-                              "whole process incl. rclpy/DDS; one GIL" if name != "target"
-                              else "plant + UDP + pacing"))
-    figures.append(Figure("emulated target overruns (its own deadline missed)", t["overruns"],
-                          "packets", "", True,
-                          f"max lag {t['max_lag_ms']:.1f} ms; UDP echo run {e['overruns']}"))
+    figures.append(
+        Figure(
+            "live: sensor packet arrival -> drive packet, p99",
+            p99,
+            "ms",
+            "< 1",
+            p99 < 1.0,
+            f"p50 {percentile(latency, 50):.3f} ms over {latency.size} "
+            f"drive blocks ({unsent} not sent at once); UDP echo p99 "
+            f"{percentile(echo_ms, 99):.3f} ms, p50 "
+            f"{percentile(echo_ms, 50):.3f} ms",
+        )
+    )
+    for name, label in (
+        ("loop", "loop process (bridge, front end, controller)"),
+        ("monitor", "collision monitor process"),
+        ("recorder", "recorder process"),
+        ("target", "emulated target"),
+    ):
+        figures.append(
+            Figure(
+                f"live: CPU per 0.5 ms packet, {label}",
+                run["cpu_us"].get(name, float("nan")),
+                "us",
+                "<= 500 (1 core)" if name == "loop" else "",
+                name != "loop" or run["cpu_us"]["loop"] <= 500,
+                "whole process incl. rclpy/DDS; one GIL"
+                if name != "target"
+                else "plant + UDP + pacing",
+            )
+        )
+    figures.append(
+        Figure(
+            "emulated target overruns (its own deadline missed)",
+            t["overruns"],
+            "packets",
+            "",
+            True,
+            f"max lag {t['max_lag_ms']:.1f} ms; UDP echo run {e['overruns']}",
+        )
+    )
     print_table(figures)
     print(run["summary"].split("]: ", 1)[-1])
     write_json(figures, args.json)

@@ -36,6 +36,7 @@ Figures:
   --composed-only runs just these and the separate-process loop with 1 block in flight.
 The machine's load average is reported beside them: other jobs share the 2 cores.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,8 +53,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, print_table, write_json  # noqa: E402
-from flaair_common.graph import Graph  # noqa: E402
+from benchlib import REPO_ROOT, Figure, print_table, write_json
+from flaair_common.graph import Graph
 
 FS = 20000.0
 BLOCK = 10
@@ -66,8 +67,11 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-NODES = {"plant": ("flaair_sim", "plant_node"), "frontend": ("flaair_sensors", "frontend_node"),
-         "controller": ("flaair_control", "dsa_controller_node")}
+NODES = {
+    "plant": ("flaair_sim", "plant_node"),
+    "frontend": ("flaair_sensors", "frontend_node"),
+    "controller": ("flaair_control", "dsa_controller_node"),
+}
 
 
 def _node_cmd(name: str) -> list[str]:
@@ -75,15 +79,21 @@ def _node_cmd(name: str) -> list[str]:
     return [FLAAIR, "run", package, executable]
 
 
-def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | None, tmp: Path,
-             executor: str = "events") -> dict:
+def run_loop(
+    duration_s: float,
+    in_flight: int,
+    domain: int,
+    probe_file: Path | None,
+    tmp: Path,
+    executor: str = "events",
+) -> dict:
     """One closed-loop run (executor: FLAAIR_EXECUTOR of the
     nodes); timing arrays and CPU per block per node.
     """
     timing_file = tmp / f"timing_{domain}.npz"
     log_dir = tmp / f"run{domain}"
     procs: dict[str, subprocess.Popen] = {}
-    with Graph(log_dir=log_dir) as graph:   # a private domain; every node stopped on the way out
+    with Graph(log_dir=log_dir) as graph:  # a private domain; every node stopped on the way out
         graph.env["FLAAIR_EXECUTOR"] = executor
 
         def start(name: str, *args: str) -> None:
@@ -93,16 +103,30 @@ def run_loop(duration_s: float, in_flight: int, domain: int, probe_file: Path | 
             start("probe", sys.executable, __file__, "--probe", str(probe_file))
         start("plant", *_node_cmd("plant"), "--ros-args", "-p", "mode:=lockstep")
         start("frontend", *_node_cmd("frontend"))
-        start("controller", *_node_cmd("controller"), "--ros-args",
-              "-p", f"run_time_s:={duration_s}", "-p", f"timing_file:={timing_file}",
-              "-p", f"blocks_in_flight:={in_flight}", "-p", "watchdog_timeout_s:=30.0")
-        cpu0, cpu1 = _wait_for_run(log_dir / "controller.log", {
-            n: p for n, p in procs.items() if n != "probe"}, procs["controller"])
+        start(
+            "controller",
+            *_node_cmd("controller"),
+            "--ros-args",
+            "-p",
+            f"run_time_s:={duration_s}",
+            "-p",
+            f"timing_file:={timing_file}",
+            "-p",
+            f"blocks_in_flight:={in_flight}",
+            "-p",
+            "watchdog_timeout_s:=30.0",
+        )
+        cpu0, cpu1 = _wait_for_run(
+            log_dir / "controller.log",
+            {n: p for n, p in procs.items() if n != "probe"},
+            procs["controller"],
+        )
     return _run_result(timing_file, log_dir / "controller.log", cpu0, cpu1)
 
 
-def _wait_for_run(log_path: Path, procs: dict[str, subprocess.Popen],
-                  controller: subprocess.Popen) -> tuple[dict[str, float], dict[str, float]]:
+def _wait_for_run(
+    log_path: Path, procs: dict[str, subprocess.Popen], controller: subprocess.Popen
+) -> tuple[dict[str, float], dict[str, float]]:
     """Wait for the controller's "run complete"; CPU (s)
     of each process at "loop closed" and at the end.
     """
@@ -120,20 +144,27 @@ def _wait_for_run(log_path: Path, procs: dict[str, subprocess.Popen],
     raise RuntimeError("closed loop did not complete within 600 s")
 
 
-def _run_result(timing_file: Path, log_path: Path, cpu0: dict[str, float],
-                cpu1: dict[str, float]) -> dict:
+def _run_result(
+    timing_file: Path, log_path: Path, cpu0: dict[str, float], cpu1: dict[str, float]
+) -> dict:
     timing = np.load(timing_file)["timing"]
     n_blocks = timing.shape[0]
     summary = [line for line in log_path.read_text().splitlines() if "run complete" in line]
-    return {"timing": timing, "cpu_per_block_us": {
-        n: 1e6 * (cpu1[n] - cpu0.get(n, cpu1[n])) / n_blocks for n in cpu1},
-            "summary": summary[0] if summary else ""}
+    return {
+        "timing": timing,
+        "cpu_per_block_us": {n: 1e6 * (cpu1[n] - cpu0.get(n, cpu1[n])) / n_blocks for n in cpu1},
+        "summary": summary[0] if summary else "",
+    }
 
 
-COMPOSED = ["flaair_sim.plant_node:PlantNode", "flaair_sensors.frontend_node:FrontendNode",
-            "flaair_control.dsa_controller_node:DsaControllerNode"]
-PROFILE_LINE = (
-    re.compile(r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call"))
+COMPOSED = [
+    "flaair_sim.plant_node:PlantNode",
+    "flaair_sensors.frontend_node:FrontendNode",
+    "flaair_control.dsa_controller_node:DsaControllerNode",
+]
+PROFILE_LINE = re.compile(
+    r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call"
+)
 
 
 def run_composed(duration_s: float, tmp: Path, profile: bool) -> dict:
@@ -144,27 +175,51 @@ def run_composed(duration_s: float, tmp: Path, profile: bool) -> dict:
     """
     tag = "profiled" if profile else "plain"
     timing_file, log_dir, params_file = (
-        tmp / f"timing_composed_{tag}.npz", tmp / f"composed_{tag}", tmp / f"{tag}.yaml")
-    params_file.write_text(json.dumps({   # YAML: one section per node name
-        "plant_node": {"ros__parameters": {"mode": "lockstep"}},
-        "dsa_controller_node": {"ros__parameters": {"run_time_s": duration_s,
-                                                    "timing_file": str(timing_file),
-                                                    "blocks_in_flight": 1,
-                                                    "watchdog_timeout_s": 30.0}}}))
+        tmp / f"timing_composed_{tag}.npz",
+        tmp / f"composed_{tag}",
+        tmp / f"{tag}.yaml",
+    )
+    params_file.write_text(
+        json.dumps(
+            {  # YAML: one section per node name
+                "plant_node": {"ros__parameters": {"mode": "lockstep"}},
+                "dsa_controller_node": {
+                    "ros__parameters": {
+                        "run_time_s": duration_s,
+                        "timing_file": str(timing_file),
+                        "blocks_in_flight": 1,
+                        "watchdog_timeout_s": 30.0,
+                    }
+                },
+            }
+        )
+    )
     with Graph(log_dir=log_dir) as graph:
         if profile:
             graph.env["FLAAIR_PROFILE"] = "1"
-        process = graph.start("controller", [FLAAIR, "run", "flaair_common", "container", *COMPOSED,
-                                             "--ros-args", "--params-file", str(params_file)])
+        process = graph.start(
+            "controller",
+            [
+                FLAAIR,
+                "run",
+                "flaair_common",
+                "container",
+                *COMPOSED,
+                "--ros-args",
+                "--params-file",
+                str(params_file),
+            ],
+        )
         cpu0, cpu1 = _wait_for_run(log_dir / "controller.log", {"container": process}, process)
-        graph.stop(process)   # SIGINT: the nodes close, the container prints its profile
+        graph.stop(process)  # SIGINT: the nodes close, the container prints its profile
     result = _run_result(timing_file, log_dir / "controller.log", cpu0, cpu1)
     lines = PROFILE_LINE.findall((log_dir / "controller.log").read_text())
     result["node_cpu_us"] = {node: float(cpu) for node, _, _, cpu, _ in lines}
     result["node_wall_us"] = {node: float(wall) for node, _, _, _, wall in lines}
     if profile and len(lines) != len(COMPOSED):
         raise RuntimeError(
-            f"container printed {len(lines)} profile lines, expected {len(COMPOSED)}")
+            f"container printed {len(lines)} profile lines, expected {len(COMPOSED)}"
+        )
     return result
 
 
@@ -188,7 +243,12 @@ def hops(timing: np.ndarray, probe: dict, in_flight: int) -> dict[str, np.ndarra
     sensor = dict(zip(probe["sensor_index"].tolist(), probe["sensor_t"].tolist()))
     ws = dict(zip(probe["ws_index"].tolist(), probe["ws_t"].tolist()))
     out: dict[str, list[float]] = {
-        "plant": [], "frontend": [], "to_controller": [], "controller": [], "loop": []}
+        "plant": [],
+        "frontend": [],
+        "to_controller": [],
+        "controller": [],
+        "loop": [],
+    }
     for i, t_tx in tx_of.items():
         if i in sensor:
             out["plant"].append(sensor[i] - t_tx)
@@ -200,7 +260,7 @@ def hops(timing: np.ndarray, probe: dict, in_flight: int) -> dict[str, np.ndarra
             out["loop"].append(rx_of_ws[i] - t_tx)
     out["controller"] = list(ctrl_tx - ctrl_rx)
     k = 0.1
-    return {name: np.asarray(v[int(k * len(v)):]) for name, v in out.items()}
+    return {name: np.asarray(v[int(k * len(v)) :]) for name, v in out.items()}
 
 
 def probe_main(out_file: str) -> int:
@@ -214,10 +274,18 @@ def probe_main(out_file: str) -> int:
     node = rclpy.create_node("bench_probe")
     sensor: list[tuple[int, float]] = []
     ws: list[tuple[int, float]] = []
-    node.create_subscription(SensorVoltageBlock, "/flaair/sensor_v", lambda m: sensor.append(
-        (m.first_sample_index, time.monotonic())), BLOCK_STREAM)
-    node.create_subscription(WingStateBlock, "/flaair/wing_state", lambda m: ws.append(
-        (m.first_sample_index, time.monotonic())), BLOCK_STREAM)
+    node.create_subscription(
+        SensorVoltageBlock,
+        "/flaair/sensor_v",
+        lambda m: sensor.append((m.first_sample_index, time.monotonic())),
+        BLOCK_STREAM,
+    )
+    node.create_subscription(
+        WingStateBlock,
+        "/flaair/wing_state",
+        lambda m: ws.append((m.first_sample_index, time.monotonic())),
+        BLOCK_STREAM,
+    )
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -225,8 +293,13 @@ def probe_main(out_file: str) -> int:
         rclpy.spin_once(node, timeout_sec=0.05)
     s = np.array(sensor or [(0, 0.0)])
     w = np.array(ws or [(0, 0.0)])
-    np.savez(out_file, sensor_index=s[:, 0].astype(np.int64), sensor_t=s[:, 1],
-             ws_index=w[:, 0].astype(np.int64), ws_t=w[:, 1])
+    np.savez(
+        out_file,
+        sensor_index=s[:, 0].astype(np.int64),
+        sensor_t=s[:, 1],
+        ws_index=w[:, 0].astype(np.int64),
+        ws_t=w[:, 1],
+    )
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
@@ -245,8 +318,9 @@ def pingpong(role: str, executor: str, n: int) -> int:
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node(f"bench_pingpong_{role}")
-    out_topic, in_topic = (("/bench/ping", "/bench/pong") if role == "a"
-                           else ("/bench/pong", "/bench/ping"))
+    out_topic, in_topic = (
+        ("/bench/ping", "/bench/pong") if role == "a" else ("/bench/pong", "/bench/ping")
+    )
     pub = node.create_publisher(DriveCommandBlock, out_topic, BLOCK_STREAM)
     msg = DriveCommandBlock(sample_rate_hz=FS)
     msg.drive_v = from_array(np.zeros(BLOCK))
@@ -262,6 +336,7 @@ def pingpong(role: str, executor: str, n: int) -> int:
     node.create_subscription(DriveCommandBlock, in_topic, on_message, BLOCK_STREAM)
     if executor == "events":
         from rclpy.experimental import EventsExecutor
+
         ex = EventsExecutor()
     else:
         ex = SingleThreadedExecutor()
@@ -276,16 +351,27 @@ def pingpong(role: str, executor: str, n: int) -> int:
         ex.spin_once(timeout_sec=0.05)
     if role == "a":
         k = st["count"] - 100
-        print(json.dumps({"wall_us": 1e6 * (time.monotonic() - st["t0"]) / k,
-                          "cpu_us": 1e6 * (time.process_time() - st["c0"]) / k}))
+        print(
+            json.dumps(
+                {
+                    "wall_us": 1e6 * (time.monotonic() - st["t0"]) / k,
+                    "cpu_us": 1e6 * (time.process_time() - st["c0"]) / k,
+                }
+            )
+        )
     return 0
 
 
 def run_pingpong(executor: str, domain: int, n: int = 3000) -> dict:
     with Graph() as graph:
         graph.start("pong", [sys.executable, __file__, "--pingpong", "b", executor, str(n + 100)])
-        a = subprocess.run([sys.executable, __file__, "--pingpong", "a", executor, str(n)],
-                           env=graph.env, capture_output=True, text=True, timeout=180)
+        a = subprocess.run(
+            [sys.executable, __file__, "--pingpong", "a", executor, str(n)],
+            env=graph.env,
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
     return json.loads(a.stdout.strip().splitlines()[-1])
 
 
@@ -294,36 +380,71 @@ def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) 
     loop of the same run, and its CPU per block by part.
     """
     r_composed, r_separate = rtf(composed["timing"]), rtf(separate["timing"])
-    figures = [Figure("composed loop RTF (lockstep, 1 process)", r_composed, "x", ">= 2.0",
-                      r_composed >= 2.0, f"separate processes {r_separate:.3f} x "
-                                         f"({r_composed / r_separate:.2f}x); {load}")]
+    figures = [
+        Figure(
+            "composed loop RTF (lockstep, 1 process)",
+            r_composed,
+            "x",
+            ">= 2.0",
+            r_composed >= 2.0,
+            f"separate processes {r_separate:.3f} x ({r_composed / r_separate:.2f}x); {load}",
+        )
+    ]
     total = profiled["cpu_per_block_us"]["container"]
     nodes = profiled["node_cpu_us"]
     for node in ("plant_node", "frontend_node", "dsa_controller_node"):
-        figures.append(Figure(f"composed CPU per block: {node}", nodes[node], "us", "", True,
-                              f"wall {profiled['node_wall_us'][node]:.0f} us; its callback: core + "
-                              "shell + publishes"))
+        figures.append(
+            Figure(
+                f"composed CPU per block: {node}",
+                nodes[node],
+                "us",
+                "",
+                True,
+                f"wall {profiled['node_wall_us'][node]:.0f} us; its callback: core + "
+                "shell + publishes",
+            )
+        )
     rest = total - sum(nodes.values())
-    figures.append(Figure("composed CPU per block: rest (executor, DDS threads)", rest, "us", "",
-                          True, "process CPU minus the three callbacks"))
-    figures.append(Figure("composed CPU per block: whole process", total, "us", "<= 250 (2x RT)",
-                          total <= 250.0, "separate processes: "
-                                          f"{sum(separate['cpu_per_block_us'].values()):.0f} us "
-                                          f"summed; profiled run RTF {rtf(profiled['timing']):.3f} "
-                                          "x"))
+    figures.append(
+        Figure(
+            "composed CPU per block: rest (executor, DDS threads)",
+            rest,
+            "us",
+            "",
+            True,
+            "process CPU minus the three callbacks",
+        )
+    )
+    figures.append(
+        Figure(
+            "composed CPU per block: whole process",
+            total,
+            "us",
+            "<= 250 (2x RT)",
+            total <= 250.0,
+            "separate processes: "
+            f"{sum(separate['cpu_per_block_us'].values()):.0f} us "
+            f"summed; profiled run RTF {rtf(profiled['timing']):.3f} "
+            "x",
+        )
+    )
     return figures
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--duration", type=float, default=2.0, help="signal time per run [s]")
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_closed_loop.json")
-    parser.add_argument("--composed-duration", type=float, default=4.0,
-                        help="signal time of the composed runs [s]")
-    parser.add_argument("--composed-only", action="store_true",
-                        help="only the composed loop and its baseline, the separate-process loop "
-                             "(1 in flight)")
+    parser.add_argument(
+        "--composed-duration", type=float, default=4.0, help="signal time of the composed runs [s]"
+    )
+    parser.add_argument(
+        "--composed-only",
+        action="store_true",
+        help="only the composed loop and its baseline, the separate-process loop (1 in flight)",
+    )
     parser.add_argument("--probe", help=argparse.SUPPRESS)
     parser.add_argument("--pingpong", nargs=3, help=argparse.SUPPRESS)
     args, rest = parser.parse_known_args()
@@ -338,15 +459,17 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         load0 = os.getloadavg()[0]
-        ping = {kind: run_pingpong(kind, base + 3 + i) for i,
-                kind in enumerate(("single", "events"))}
+        ping = {
+            kind: run_pingpong(kind, base + 3 + i) for i, kind in enumerate(("single", "events"))
+        }
         composed = run_composed(args.composed_duration, tmp, profile=False)
         profiled = run_composed(args.composed_duration, tmp, profile=True)
         if args.composed_only:
             runs = {1: run_loop(args.duration, 1, base + 5, None, tmp)}
             load1 = os.getloadavg()[0]
-            figures = composed_figures(composed, profiled, runs[1],
-                                       f"load avg {load0:.1f} -> {load1:.1f}")
+            figures = composed_figures(
+                composed, profiled, runs[1], f"load avg {load0:.1f} -> {load1:.1f}"
+            )
             print_table(figures)
             write_json(figures, args.json)
             return 0
@@ -359,56 +482,136 @@ def main() -> int:
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     r_single = rtf(single["timing"])
     r = {k: rtf(run["timing"]) for k, run in runs.items()}
-    figures.append(Figure("closed loop real-time factor, 1 block in flight", r[1], "x", ">= 1.0",
-                          r[1] >= 1.0, f"SingleThreadedExecutor {r_single:.3f} x "
-                                       f"({r[1] / r_single:.2f}x); {load}"))
+    figures.append(
+        Figure(
+            "closed loop real-time factor, 1 block in flight",
+            r[1],
+            "x",
+            ">= 1.0",
+            r[1] >= 1.0,
+            f"SingleThreadedExecutor {r_single:.3f} x ({r[1] / r_single:.2f}x); {load}",
+        )
+    )
     for k in (2, 4):
-        figures.append(Figure(f"closed loop real-time factor, {k} blocks in flight", r[k], "x",
-                              ">= 1.0", r[k] >= 1.0,
-                              f"pipelined; {r[k] / r[1]:.2f}x the 1-block loop"))
+        figures.append(
+            Figure(
+                f"closed loop real-time factor, {k} blocks in flight",
+                r[k],
+                "x",
+                ">= 1.0",
+                r[k] >= 1.0,
+                f"pipelined; {r[k] / r[1]:.2f}x the 1-block loop",
+            )
+        )
     cpu = runs[1]["cpu_per_block_us"]
     cpu_sum = sum(cpu.values())
     for name in ("plant", "frontend", "controller"):
-        figures.append(Figure(f"CPU per block: {name} process", cpu[name], "us", "", True,
-                              f"SingleThreadedExecutor {single['cpu_per_block_us'][name]:.0f} us; "
-                              "whole process incl. rclpy/DDS"))
-    for kind, label in (("single", "SingleThreadedExecutor.spin_once"),
-                        ("events", "EventsExecutor")):
-        figures.append(Figure(f"rclpy ping-pong, {label}: CPU per message", ping[kind]["cpu_us"],
-                              "us", "", True, f"round trip {ping[kind]['wall_us']:.0f} us wall; no "
-                                              "work in the callback"))
+        figures.append(
+            Figure(
+                f"CPU per block: {name} process",
+                cpu[name],
+                "us",
+                "",
+                True,
+                f"SingleThreadedExecutor {single['cpu_per_block_us'][name]:.0f} us; "
+                "whole process incl. rclpy/DDS",
+            )
+        )
+    for kind, label in (
+        ("single", "SingleThreadedExecutor.spin_once"),
+        ("events", "EventsExecutor"),
+    ):
+        figures.append(
+            Figure(
+                f"rclpy ping-pong, {label}: CPU per message",
+                ping[kind]["cpu_us"],
+                "us",
+                "",
+                True,
+                f"round trip {ping[kind]['wall_us']:.0f} us wall; no work in the callback",
+            )
+        )
     bound1 = 500.0 / cpu_sum
-    figures.append(Figure("RTF bound from CPU, 1 in flight (0.5 ms / sum)", bound1, "x", ">= 1.0",
-                          bound1 >= 1.0, f"sum {cpu_sum:.0f} us per block"))
-    figures.append(Figure("RTF bound from CPU, pipelined on 2 cores", 2 * bound1, "x", ">= 1.0",
-                          2 * bound1 >= 1.0, ""))
+    figures.append(
+        Figure(
+            "RTF bound from CPU, 1 in flight (0.5 ms / sum)",
+            bound1,
+            "x",
+            ">= 1.0",
+            bound1 >= 1.0,
+            f"sum {cpu_sum:.0f} us per block",
+        )
+    )
+    figures.append(
+        Figure(
+            "RTF bound from CPU, pipelined on 2 cores",
+            2 * bound1,
+            "x",
+            ">= 1.0",
+            2 * bound1 >= 1.0,
+            "",
+        )
+    )
     t = runs[1]["timing"]
     k = t.shape[0] // 10
-    loop_out = (t[k + 1:, 1] - t[k:-1, 2]) * 1e6     # publish of block j -> wing state answering it
+    loop_out = (t[k + 1 :, 1] - t[k:-1, 2]) * 1e6  # publish of block j -> wing state answering it
     ctrl = (t[k:, 2] - t[k:, 1]) * 1e6
     p50, p99 = pct(loop_out)
-    figures.append(Figure("loop outside the controller p50 (drive pub -> wing state)", p50, "us",
-                          "< 500", p50 < 500, f"p99 {p99:.0f} us"))
+    figures.append(
+        Figure(
+            "loop outside the controller p50 (drive pub -> wing state)",
+            p50,
+            "us",
+            "< 500",
+            p50 < 500,
+            f"p99 {p99:.0f} us",
+        )
+    )
     p50, p99 = pct(ctrl)
-    figures.append(Figure("controller callback -> drive publish p50", p50, "us", "", True,
-                          f"p99 {p99:.0f} us"))
+    figures.append(
+        Figure("controller callback -> drive publish p50", p50, "us", "", True, f"p99 {p99:.0f} us")
+    )
     h = hops(probed["timing"], probe, 1)
-    for name, label in (("plant", "hop controller -> plant -> sensor_v"), (
-            "frontend", "hop sensor_v -> front end -> wing_state"),
-                        ("to_controller", "hop wing_state -> controller callback"),
-                        ("controller", "hop controller callback -> drive"),
-                        ("loop", "whole loop drive -> wing state at controller")):
+    for name, label in (
+        ("plant", "hop controller -> plant -> sensor_v"),
+        ("frontend", "hop sensor_v -> front end -> wing_state"),
+        ("to_controller", "hop wing_state -> controller callback"),
+        ("controller", "hop controller callback -> drive"),
+        ("loop", "whole loop drive -> wing state at controller"),
+    ):
         if h[name].size:
             p50, p99 = pct(h[name] * 1e6)
-            figures.append(Figure(f"{label} p50 (probe run)", p50, "us", "", True,
-                                  f"p99 {p99:.0f} us, n={h[name].size}"))
-    figures.append(Figure("real-time factor of the probe run", rtf(probed["timing"]), "x", "", True,
-                          "probe subscribed to 2 streams"))
+            figures.append(
+                Figure(
+                    f"{label} p50 (probe run)",
+                    p50,
+                    "us",
+                    "",
+                    True,
+                    f"p99 {p99:.0f} us, n={h[name].size}",
+                )
+            )
+    figures.append(
+        Figure(
+            "real-time factor of the probe run",
+            rtf(probed["timing"]),
+            "x",
+            "",
+            True,
+            "probe subscribed to 2 streams",
+        )
+    )
     figures += composed_figures(composed, profiled, runs[1], load)
     print_table(figures)
-    for run, name in ((runs[1], "1 in flight"), (runs[2], "2 in flight"), (runs[4], "4 in flight"),
-                      (single, "SingleThreadedExecutor, 1 in flight"), (probed, "probe"),
-                      (composed, "composed"), (profiled, "composed, FLAAIR_PROFILE=1")):
+    for run, name in (
+        (runs[1], "1 in flight"),
+        (runs[2], "2 in flight"),
+        (runs[4], "4 in flight"),
+        (single, "SingleThreadedExecutor, 1 in flight"),
+        (probed, "probe"),
+        (composed, "composed"),
+        (profiled, "composed, FLAAIR_PROFILE=1"),
+    ):
         print(f"{name}: {run['summary'].split(']: ', 1)[-1]}")
     write_json(figures, args.json)
     return 0

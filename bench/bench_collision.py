@@ -12,6 +12,7 @@ evaluated at every wingbeat end.
 False alarms: nominal plant, noise on, 10 s at each drive frequency 60-200 Hz (10 Hz steps) at
 100 and 200 Vpp, from rest (abrupt start), both window sources; whole-record simulate + run.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -23,24 +24,24 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json  # noqa: E402
+from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 
 for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
     if str(REPO_ROOT / "src" / _pkg) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT / "src" / _pkg))
 
-from flaair_control.control_io import (  # noqa: E402
+from flaair_control.control_io import (
     monitor_windows_from_config,
     spectral_metric_params_from_config,
 )
-from flaair_control.core import collision as col  # noqa: E402
-from flaair_control.core import spectral  # noqa: E402
-from flaair_model.model import with_effects  # noqa: E402
-from flaair_model.model_io import load_model  # noqa: E402
-from flaair_sim.core import plant  # noqa: E402
+from flaair_control.core import collision as col
+from flaair_control.core import spectral
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
+from flaair_sim.core import plant
 
 FS = 20000.0
-METRIC = spectral_metric_params_from_config()   # the paper metric as configured
+METRIC = spectral_metric_params_from_config()  # the paper metric as configured
 BLOCK = 10
 DRIVE_HZ = 100.0
 AMPLITUDE_V = 75.0
@@ -49,14 +50,17 @@ LIMIT_DEG = 20.0
 
 def sensor_angles(model, out):
     vref = model.sensors.reference_voltage_v
-    return ((out.stroke_sensor_v - vref) / model.stroke_volts_per_rad,
-            (out.pitch_sensor_v - vref) / model.pitch_volts_per_rad)
+    return (
+        (out.stroke_sensor_v - vref) / model.stroke_volts_per_rad,
+        (out.pitch_sensor_v - vref) / model.pitch_volts_per_rad,
+    )
 
 
 def monitor_params(model, source: str, f: float) -> col.MonitorParams:
     return replace(
-        monitor_windows_from_config(f), window_source=source, drive_frequency_hz=f
-        if source == "drive" else None,
+        monitor_windows_from_config(f),
+        window_source=source,
+        drive_frequency_hz=f if source == "drive" else None,
         stroke_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.stroke_volts_per_rad),
         pitch_noise_rms_rad=model.noise.sensor_noise_v_rms / abs(model.pitch_volts_per_rad),
     )
@@ -78,8 +82,11 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
         if not present and t0 >= t_in and last_phi < 0.5 * limit:
             present = True
         drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * (t0 + np.arange(BLOCK) / FS))
-        state, out = plant.step(state, plant.PlantInputs(drive, rng),
-                                plant.PlantStepParams(hit if present else model, FS))
+        state, out = plant.step(
+            state,
+            plant.PlantInputs(drive, rng),
+            plant.PlantStepParams(hit if present else model, FS),
+        )
         last_phi = out.stroke_rad[-1]
         if present and strike is None and np.any(out.stroke_rad >= limit):
             strike = t0 + np.argmax(out.stroke_rad >= limit) / FS
@@ -90,13 +97,14 @@ def latency_trial(model, source: str, t_in: float, seed: int, duration: float = 
             onset_t = t0 + BLOCK / FS
     pitch_all = np.concatenate(pitch)
     # Baseline: paper metric on the last 10 wingbeats, evaluated at each wingbeat end.
-    period = int(round(FS / DRIVE_HZ))
+    period = round(FS / DRIVE_HZ)
     paper_t = None
     for end in range(10 * period, pitch_all.size + 1, period):
         if end / FS <= strike:
             continue
-        if spectral.spectral_metric(pitch_all[end - 10 * period:end], FS, DRIVE_HZ,
-                                    METRIC).collision:
+        if spectral.spectral_metric(
+            pitch_all[end - 10 * period : end], FS, DRIVE_HZ, METRIC
+        ).collision:
             paper_t = end / FS
             break
     lat = (onset_t - strike) * DRIVE_HZ if onset_t is not None else math.inf
@@ -110,11 +118,17 @@ def false_alarm_sweep(model, source: str, duration_s: float):
     worst_at = None
     for f in range(60, 201, 10):
         for amp in (50.0, 100.0):
-            out = plant.simulate(amp * np.sin(2 * np.pi * f * t), FS, model, noise=True,
-                                 rng=np.random.default_rng(1000 * f + int(amp)))
+            out = plant.simulate(
+                amp * np.sin(2 * np.pi * f * t),
+                FS,
+                model,
+                noise=True,
+                rng=np.random.default_rng(1000 * f + int(amp)),
+            )
             s, p = sensor_angles(model, out)
-            _, rep, ev = col.run(s, p, replace(
-                monitor_windows_from_config(float(f)), window_source=source))
+            _, rep, ev = col.run(
+                s, p, replace(monitor_windows_from_config(float(f)), window_source=source)
+            )
             armed = rep.status != col.ARMING
             alarms += sum(e.kind == col.ONSET for e in ev)
             wingbeats += int(np.count_nonzero(armed))
@@ -137,18 +151,38 @@ def main() -> None:
     drive = AMPLITUDE_V * np.sin(2 * np.pi * DRIVE_HZ * t)
     hit = with_effects(model, {"collision": {"stroke_limit_deg": LIMIT_DEG}})
     free = spectral.spectral_metric(
-        sensor_angles(model, plant.simulate(drive, FS, model, noise=True,
-                                            rng=np.random.default_rng(1)))[1], FS, DRIVE_HZ, METRIC)
+        sensor_angles(
+            model, plant.simulate(drive, FS, model, noise=True, rng=np.random.default_rng(1))
+        )[1],
+        FS,
+        DRIVE_HZ,
+        METRIC,
+    )
     coll = spectral.spectral_metric(
-        sensor_angles(model, plant.simulate(drive, FS, hit, noise=True,
-                                            rng=np.random.default_rng(2)))[1], FS, DRIVE_HZ, METRIC)
+        sensor_angles(
+            model, plant.simulate(drive, FS, hit, noise=True, rng=np.random.default_rng(2))
+        )[1],
+        FS,
+        DRIVE_HZ,
+        METRIC,
+    )
     figures += [
-        Figure("paper metric: pitch FFT RMSE, collision", coll.spectral_rmse_deg, "deg",
-               "> 1 (paper 3.23)", coll.spectral_rmse_deg > 1.0,
-               f"no collision {free.spectral_rmse_deg:.3f} deg (paper 0.53)"), Figure(
-        "paper metric: pitch time RMSE, collision", coll.time_rmse_deg, "deg", "(paper 15.81)",
-        coll.time_rmse_deg > free.time_rmse_deg,
-        f"no collision {free.time_rmse_deg:.3f} deg (paper 3.34)"),
+        Figure(
+            "paper metric: pitch FFT RMSE, collision",
+            coll.spectral_rmse_deg,
+            "deg",
+            "> 1 (paper 3.23)",
+            coll.spectral_rmse_deg > 1.0,
+            f"no collision {free.spectral_rmse_deg:.3f} deg (paper 0.53)",
+        ),
+        Figure(
+            "paper metric: pitch time RMSE, collision",
+            coll.time_rmse_deg,
+            "deg",
+            "(paper 15.81)",
+            coll.time_rmse_deg > free.time_rmse_deg,
+            f"no collision {free.time_rmse_deg:.3f} deg (paper 3.34)",
+        ),
     ]
 
     # Detection latency.
@@ -158,40 +192,74 @@ def main() -> None:
             a, b = latency_trial(model, source, t_in, seed=100 + i)
             lats.append(a)
             paper.append(b)
-        figures.append(Figure(f"detection latency, worst of 6 ({source} windows)", max(lats),
-                              "wingbeats", "<= 2", max(lats) <= 2.0,
-                              f"mean {np.mean(lats):.2f}; paper metric (10-beat FFT, 1 deg) worst "
-                              f"{max(paper):.2f}"))
+        figures.append(
+            Figure(
+                f"detection latency, worst of 6 ({source} windows)",
+                max(lats),
+                "wingbeats",
+                "<= 2",
+                max(lats) <= 2.0,
+                f"mean {np.mean(lats):.2f}; paper metric (10-beat FFT, 1 deg) worst "
+                f"{max(paper):.2f}",
+            )
+        )
 
     # False alarms.
     duration = 1.0 if args.quick else 10.0
     for source in ("drive", "stroke"):
         alarms, worst, at, beats = false_alarm_sweep(model, source, duration)
-        figures.append(Figure(f"false alarms, {duration:g} s x 15 freqs x 2 amps ({source})",
-                              alarms, "events", "0", alarms == 0, f"{beats} armed wingbeats; worst "
-                                                                  f"score {worst:.3f} (onset 1.0) "
-                                                                  f"at {at[0]} Hz {at[1]:g} Vpp"))
+        figures.append(
+            Figure(
+                f"false alarms, {duration:g} s x 15 freqs x 2 amps ({source})",
+                alarms,
+                "events",
+                "0",
+                alarms == 0,
+                f"{beats} armed wingbeats; worst "
+                f"score {worst:.3f} (onset 1.0) "
+                f"at {at[0]} Hz {at[1]:g} Vpp",
+            )
+        )
 
     # Throughput.
     t10 = np.arange(int(10.0 * FS)) / FS
-    out = plant.simulate(50.0 * np.sin(2 * np.pi * 200.0 * t10), FS, model, noise=True,
-                         rng=np.random.default_rng(3))
+    out = plant.simulate(
+        50.0 * np.sin(2 * np.pi * 200.0 * t10), FS, model, noise=True, rng=np.random.default_rng(3)
+    )
     s, p = sensor_angles(model, out)
     prm = monitor_windows_from_config(200.0)
     whole = best_time_s(lambda: col.run(s, p, prm))
-    figures.append(Figure("monitor, whole record (10 s at 200 Hz)", 10.0 / whole, "x realtime",
-                          "> 10", 10.0 / whole > 10, f"{whole * 1e3:.1f} ms"))
+    figures.append(
+        Figure(
+            "monitor, whole record (10 s at 200 Hz)",
+            10.0 / whole,
+            "x realtime",
+            "> 10",
+            10.0 / whole > 10,
+            f"{whole * 1e3:.1f} ms",
+        )
+    )
 
     def live():
         st = col.initial_state(prm)
         for i in range(0, 20000, BLOCK):
-            st, (_, _) = col.step(st, col.MonitorInputs(s[i:i + BLOCK], p[i:i + BLOCK]), prm)
-    per_block = best_time_s(live) / (20000 / BLOCK)
-    figures.append(Figure("monitor step per 0.5 ms block (live)", per_block * 1e6, "us", "< 500",
-                          per_block < 5e-4, f"{100 * per_block / 5e-4:.1f} % of the block period"))
+            st, (_, _) = col.step(st, col.MonitorInputs(s[i : i + BLOCK], p[i : i + BLOCK]), prm)
 
-    figures = [Figure(f.name, float(f.value), f.unit, f.target, bool(f.met), f.baseline)
-               for f in figures]
+    per_block = best_time_s(live) / (20000 / BLOCK)
+    figures.append(
+        Figure(
+            "monitor step per 0.5 ms block (live)",
+            per_block * 1e6,
+            "us",
+            "< 500",
+            per_block < 5e-4,
+            f"{100 * per_block / 5e-4:.1f} % of the block period",
+        )
+    )
+
+    figures = [
+        Figure(f.name, float(f.value), f.unit, f.target, bool(f.met), f.baseline) for f in figures
+    ]
     print_table(figures)
     write_json(figures, args.json)
     print(f"wrote {args.json}")

@@ -32,6 +32,7 @@ Figures (targets from the issue) and same-run baselines:
 --sweep adds the fixed hidden-effect cases of `dataset_cases()` (confusion table in
 out/bench/discrepancy_validation/validation.html).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -87,17 +88,30 @@ def judge(case, result, model) -> dict:
             effect_ok[name] = bool(mine) and all(v <= PARAMETER_TOLERANCE for v in mine)
     truth = true_plant(case, model)
     damage = dict(case.hidden).get("wing_damage", {}).get("inertia_factor", 1.0)
-    freq_err = {k: result.plant_parameters[k]["value"] / (truth[k] / math.sqrt(damage)) - 1.0
-                for k in FREQUENCIES if k in result.plant_parameters}
-    return {"case": case.name, "family": case.name.rsplit("_", 1)[0], "expected": sorted(expected),
-            "hidden_not_separable": [n for n, _ in case.hidden], "outside": case.outside,
-            "found": sorted(found), "status": result.status,
-            "expected_status": case.expected_status, "exact": exact, "parameter_errors": errors,
-            "effect_parameters_ok": effect_ok, "frequency_errors": freq_err,
-            "video_every": case.video_every, "noise_scale": case.noise_scale,
-            "true_terms": [f"{t.kind}@{t.acts_on}" for t in case.terms],
-            "discovered": [f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered],
-            "term_errors": _term_errors(case, result)}
+    freq_err = {
+        k: result.plant_parameters[k]["value"] / (truth[k] / math.sqrt(damage)) - 1.0
+        for k in FREQUENCIES
+        if k in result.plant_parameters
+    }
+    return {
+        "case": case.name,
+        "family": case.name.rsplit("_", 1)[0],
+        "expected": sorted(expected),
+        "hidden_not_separable": [n for n, _ in case.hidden],
+        "outside": case.outside,
+        "found": sorted(found),
+        "status": result.status,
+        "expected_status": case.expected_status,
+        "exact": exact,
+        "parameter_errors": errors,
+        "effect_parameters_ok": effect_ok,
+        "frequency_errors": freq_err,
+        "video_every": case.video_every,
+        "noise_scale": case.noise_scale,
+        "true_terms": [f"{t.kind}@{t.acts_on}" for t in case.terms],
+        "discovered": [f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered],
+        "term_errors": _term_errors(case, result),
+    }
 
 
 def _term_errors(case, result) -> dict:
@@ -136,8 +150,11 @@ def analyse_robot(family: str, draw: int, baseline: bool) -> tuple[dict, dict | 
     base = None
     if baseline:
         old = analyse(runs, model, Settings(identify=False))
-        base = {"family": family, "exact": {e.name for e in old.effects} == set(case.effect_names)
-                and old.status == case.expected_status}
+        base = {
+            "family": family,
+            "exact": {e.name for e in old.effects} == set(case.effect_names)
+            and old.status == case.expected_status,
+        }
     return outcome, base
 
 
@@ -145,17 +162,34 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures as JSON here")
     parser.add_argument("--draws", type=int, default=30, help="robots per family (default 30)")
-    parser.add_argument("--baseline-draws", type=int, default=5,
-                        help="robots per family for the no-identification baseline")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                        help="robots analysed at once, one process each (default: 2, both cores)")
-    parser.add_argument("--families", nargs="*", choices=FAMILIES, default=list(FAMILIES),
-                        help="families to draw (default: all five)")
-    parser.add_argument("--discover-draws", type=int, default=60,
-                        help="robots of the discovery family (default 60: each of its six kinds "
-                             "10 times)")
-    parser.add_argument("--sweep", action="store_true",
-                        help="also run the fixed hidden-effect cases")
+    parser.add_argument(
+        "--baseline-draws",
+        type=int,
+        default=5,
+        help="robots per family for the no-identification baseline",
+    )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=min(2, os.cpu_count() or 1),
+        help="robots analysed at once, one process each (default: 2, both cores)",
+    )
+    parser.add_argument(
+        "--families",
+        nargs="*",
+        choices=FAMILIES,
+        default=list(FAMILIES),
+        help="families to draw (default: all five)",
+    )
+    parser.add_argument(
+        "--discover-draws",
+        type=int,
+        default=60,
+        help="robots of the discovery family (default 60: each of its six kinds 10 times)",
+    )
+    parser.add_argument(
+        "--sweep", action="store_true", help="also run the fixed hidden-effect cases"
+    )
     args = parser.parse_args()
     model = _model()
     first = make_runs(random_robot(FAMILIES[0], 0), model)
@@ -163,14 +197,18 @@ def main() -> None:
     t_sim = best_time_s(lambda: [simulate(r.drive_v, r.fs_hz, model) for r in first], repeats=3)
 
     outcomes, baseline = [], []
-    jobs = [(f, d, d < args.baseline_draws and f != "offnominal_discover") for f in args.families
-            for d in range(args.discover_draws if f == "offnominal_discover" else args.draws)]
+    jobs = [
+        (f, d, d < args.baseline_draws and f != "offnominal_discover")
+        for f in args.families
+        for d in range(args.discover_draws if f == "offnominal_discover" else args.draws)
+    ]
     start = time.perf_counter()
     pool = ProcessPoolExecutor(max_workers=max(1, args.jobs))
     try:
         futures = [pool.submit(analyse_robot, *job) for job in jobs]
-        for fut in tqdm(as_completed(futures), total=len(futures), desc="off-nominal robots",
-                        unit="robot"):
+        for fut in tqdm(
+            as_completed(futures), total=len(futures), desc="off-nominal robots", unit="robot"
+        ):
             outcome, base = fut.result()
             outcomes.append(outcome)
             if base is not None:
@@ -187,100 +225,196 @@ def main() -> None:
     out_dir = REPO_ROOT / "out" / "bench"
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "discrepancy_offnominal.json").write_text(
-        json.dumps(json_safe(outcomes), indent=2, allow_nan=False))
+        json.dumps(json_safe(outcomes), indent=2, allow_nan=False)
+    )
 
     figures: list[Figure] = []
     for family in [f for f in args.families if f != "offnominal_discover"]:
         rows = [o for o in outcomes if o["family"] == family]
         acc = share([o["exact"] for o in rows])
         base = share([b["exact"] for b in baseline if b["family"] == family])
-        wrong = ", ".join(f"{o['case'][-3:]}: {'+'.join(o['found']) or 'none'}/{o['status'][:5]}"
-                          for o in rows if not o["exact"])[:200]
-        figures.append(Figure(f"exact-set accuracy, {family} ({len(rows)} robots)", 100 * acc, "%",
-                              f">= {100 * ACCURACY_TARGET:.0f} %", acc >= ACCURACY_TARGET,
-                              f"without identification {100 * base:.0f} %"
-                              + (f"; wrong {wrong}" if wrong else "")))
+        wrong = ", ".join(
+            f"{o['case'][-3:]}: {'+'.join(o['found']) or 'none'}/{o['status'][:5]}"
+            for o in rows
+            if not o["exact"]
+        )[:200]
+        figures.append(
+            Figure(
+                f"exact-set accuracy, {family} ({len(rows)} robots)",
+                100 * acc,
+                "%",
+                f">= {100 * ACCURACY_TARGET:.0f} %",
+                acc >= ACCURACY_TARGET,
+                f"without identification {100 * base:.0f} %"
+                + (f"; wrong {wrong}" if wrong else ""),
+            )
+        )
     discover = [o for o in outcomes if o["family"] == "offnominal_discover"]
     if discover:
         right = [set(o["true_terms"]) <= set(o["discovered"]) for o in discover]
         kinds = sorted({o["true_terms"][0] for o in discover})
-        of_kind = {k: [r for r, o in zip(right, discover) if o["true_terms"][0] == k]
-                   for k in kinds}
+        of_kind = {
+            k: [r for r, o in zip(right, discover) if o["true_terms"][0] == k] for k in kinds
+        }
         per_kind = ", ".join(f"{k.split('@')[0]} {sum(v)}/{len(v)}" for k, v in of_kind.items())
-        figures.append(Figure(f"discovery: right acts_on and form ({len(discover)} robots, "
-                              f"{len(kinds)} kinds)", 100 * share(right), "%",
-                              f">= {100 * DISCOVER_TARGET:.0f} %", share(right) >= DISCOVER_TARGET,
-                              per_kind))
+        figures.append(
+            Figure(
+                f"discovery: right acts_on and form ({len(discover)} robots, {len(kinds)} kinds)",
+                100 * share(right),
+                "%",
+                f">= {100 * DISCOVER_TARGET:.0f} %",
+                share(right) >= DISCOVER_TARGET,
+                per_kind,
+            )
+        )
         errs = [v for o in discover for v in o["term_errors"].values()]
-        figures.append(Figure("discovery: ending explained", 100 * share(
-            [o["status"] == "explained" for o in discover]), "%", "reported", True,
-            f"parameters of right forms within 10 %: {100 * share([e <= 0.1 for e in errs]):.0f}"
-            f" % ({len(errs)}); wrong forms: " + (", ".join(
-                f"{o['case'][-3:]}: {'+'.join(o['discovered']) or 'none'}"
-                for o, r in zip(discover, right) if not r) or "none")[:160]))
+        figures.append(
+            Figure(
+                "discovery: ending explained",
+                100 * share([o["status"] == "explained" for o in discover]),
+                "%",
+                "reported",
+                True,
+                f"parameters of right forms within 10 %: {100 * share([e <= 0.1 for e in errs]):.0f}"
+                f" % ({len(errs)}); wrong forms: "
+                + (
+                    ", ".join(
+                        f"{o['case'][-3:]}: {'+'.join(o['discovered']) or 'none'}"
+                        for o, r in zip(discover, right)
+                        if not r
+                    )
+                    or "none"
+                )[:160],
+            )
+        )
         d_times = [o["elapsed_s"] for o in discover]
-        figures.append(Figure(f"discovery: time per robot (max of {len(d_times)})", max(d_times),
-                              "s", f"<= {DISCOVER_TIME_S:g} s", max(d_times) <= DISCOVER_TIME_S,
-                              f"median {statistics.median(d_times):.1f} s"))
+        figures.append(
+            Figure(
+                f"discovery: time per robot (max of {len(d_times)})",
+                max(d_times),
+                "s",
+                f"<= {DISCOVER_TIME_S:g} s",
+                max(d_times) <= DISCOVER_TIME_S,
+                f"median {statistics.median(d_times):.1f} s",
+            )
+        )
     null = [o for o in outcomes if o["family"] == "offnominal_null"]
     if null:
         fd_terms = share([bool(o["discovered"]) for o in null])
-        figures.append(Figure(f"false discoveries of terms on no-effect robots ({len(null)})",
-                              100 * fd_terms, "%", "0 %", fd_terms == 0.0, ""))
+        figures.append(
+            Figure(
+                f"false discoveries of terms on no-effect robots ({len(null)})",
+                100 * fd_terms,
+                "%",
+                "0 %",
+                fd_terms == 0.0,
+                "",
+            )
+        )
         fd = share([bool(o["found"]) for o in null])
-        figures.append(Figure(f"false discoveries on no-effect robots ({len(null)} robots)",
-                              100 * fd, "%", f"<= {100 * FALSE_DISCOVERY_TARGET:.0f} %",
-                              fd <= FALSE_DISCOVERY_TARGET, ""))
+        figures.append(
+            Figure(
+                f"false discoveries on no-effect robots ({len(null)} robots)",
+                100 * fd,
+                "%",
+                f"<= {100 * FALSE_DISCOVERY_TARGET:.0f} %",
+                fd <= FALSE_DISCOVERY_TARGET,
+                "",
+            )
+        )
     outside = [o for o in outcomes if o["family"] == "offnominal_outside"]
     if outside:
         flagged = share([o["status"] == "unexplained" for o in outside])
         figures.append(
-            Figure(f"out-of-vocabulary robots flagged unexplained ({len(outside)} robots)",
-                   100 * flagged, "%", f">= {100 * OUTSIDE_TARGET:.0f} %",
-                   flagged >= OUTSIDE_TARGET, ""))
+            Figure(
+                f"out-of-vocabulary robots flagged unexplained ({len(outside)} robots)",
+                100 * flagged,
+                "%",
+                f">= {100 * OUTSIDE_TARGET:.0f} %",
+                flagged >= OUTSIDE_TARGET,
+                "",
+            )
+        )
     named = [ok for o in outcomes for ok in o["effect_parameters_ok"].values()]
     p_ok = share(named)
     worst = max((v for o in outcomes for v in o["parameter_errors"].values()), default=math.nan)
-    figures.append(Figure(f"named effects with parameters within 10 % ({len(named)} effects)",
-                          100 * p_ok, "%", f">= {100 * ACCURACY_TARGET:.0f} %",
-                          p_ok >= ACCURACY_TARGET, f"worst parameter {100 * worst:.1f} % off"))
+    figures.append(
+        Figure(
+            f"named effects with parameters within 10 % ({len(named)} effects)",
+            100 * p_ok,
+            "%",
+            f">= {100 * ACCURACY_TARGET:.0f} %",
+            p_ok >= ACCURACY_TARGET,
+            f"worst parameter {100 * worst:.1f} % off",
+        )
+    )
     for key in FREQUENCIES:
         # robots the vocabulary can describe; an extra
         # resonance (outside) pulls the fitted frequency
-        errs = [abs(o["frequency_errors"][key]) for o in outcomes
-                if key in o["frequency_errors"] and not o["outside"] and not o["true_terms"]]
-        out_errs = [abs(o["frequency_errors"][key]) for o in outcomes
-                    if key in o["frequency_errors"] and o["outside"]]
+        errs = [
+            abs(o["frequency_errors"][key])
+            for o in outcomes
+            if key in o["frequency_errors"] and not o["outside"] and not o["true_terms"]
+        ]
+        out_errs = [
+            abs(o["frequency_errors"][key])
+            for o in outcomes
+            if key in o["frequency_errors"] and o["outside"]
+        ]
         if not errs:
             continue
         within = share([e <= FREQUENCY_TOLERANCE for e in errs])
-        figures.append(Figure(f"{key} within 0.5 % ({len(errs)} in-vocabulary robots)",
-                              100 * within, "% of robots", "all",
-                              within == 1.0,
-                              f"median {100 * statistics.median(errs):.3f} %, worst "
-                              f"{100 * max(errs):.3f} %"
-                              + (f"; outside robots worst {100 * max(out_errs):.1f} %" if out_errs
-                                 else "")))
-    figures.append(Figure(f"time per robot data set (max of {len(times)}, {args.jobs} at once, "
-                          "existing families)",
-                          max(times), "s", f"<= {TIME_TARGET_S:g} s", max(times) <= TIME_TARGET_S,
-                          f"median {statistics.median(times):.1f} s; all robots {wall / 60:.1f} "
-                          f"min wall; 1 simulation of the set {1e3 * t_sim:.0f} ms"))
+        figures.append(
+            Figure(
+                f"{key} within 0.5 % ({len(errs)} in-vocabulary robots)",
+                100 * within,
+                "% of robots",
+                "all",
+                within == 1.0,
+                f"median {100 * statistics.median(errs):.3f} %, worst "
+                f"{100 * max(errs):.3f} %"
+                + (f"; outside robots worst {100 * max(out_errs):.1f} %" if out_errs else ""),
+            )
+        )
+    figures.append(
+        Figure(
+            f"time per robot data set (max of {len(times)}, {args.jobs} at once, "
+            "existing families)",
+            max(times),
+            "s",
+            f"<= {TIME_TARGET_S:g} s",
+            max(times) <= TIME_TARGET_S,
+            f"median {statistics.median(times):.1f} s; all robots {wall / 60:.1f} "
+            f"min wall; 1 simulation of the set {1e3 * t_sim:.0f} ms",
+        )
+    )
 
     if args.sweep:
         sweep = []
         start = time.perf_counter()
         for case in tqdm(dataset_cases(), desc="hidden-effect cases", unit="case"):
             t0 = time.perf_counter()
-            sweep.append(score_case(case, analyse(make_runs(case, model), model),
-                                    time.perf_counter() - t0))
+            sweep.append(
+                score_case(case, analyse(make_runs(case, model), model), time.perf_counter() - t0)
+            )
         table = confusion_table(sweep)
-        write_validation(out_dir / "discrepancy_validation", [o.as_dict() for o in sweep], table,
-                         time.perf_counter() - start)
+        write_validation(
+            out_dir / "discrepancy_validation",
+            [o.as_dict() for o in sweep],
+            table,
+            time.perf_counter() - start,
+        )
         wrong = ", ".join(o.case for o in sweep if not o.correct) or "none wrong"
-        figures.append(Figure(f"hidden-effect dataset cases right ({len(sweep)} cases)",
-                              table["correct"], "cases", f"all {table['total']}",
-                              table["correct"] == table["total"], wrong))
+        figures.append(
+            Figure(
+                f"hidden-effect dataset cases right ({len(sweep)} cases)",
+                table["correct"],
+                "cases",
+                f"all {table['total']}",
+                table["correct"] == table["total"],
+                wrong,
+            )
+        )
 
     print_table(figures)
     if args.json:

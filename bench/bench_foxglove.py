@@ -18,6 +18,7 @@ Figures, each beside its same-run baseline:
 Run: scripts/in_env.sh nice -n 10 python bench/bench_foxglove.py
 [--duration 10] [--json out/bench_foxglove.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,9 +34,9 @@ from pathlib import Path
 
 import psutil
 
-from benchlib import Figure, print_table, write_json  # noqa: E402  (puts src/ packages on the path)
-from flaair_common.graph import Graph, node_argv, wait_for  # noqa: E402
-from flaair_tools.liveview import live_view  # noqa: E402
+from benchlib import Figure, print_table, write_json
+from flaair_common.graph import Graph, node_argv, wait_for
+from flaair_tools.liveview import live_view
 
 FS_HZ, BLOCK, STREAMS = 20000.0, 10, 4
 # The source: the live view's four block streams as raw
@@ -88,10 +89,14 @@ class RawFoxgloveCounter:
     def __init__(self, port: int, timeout_s: float) -> None:
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=timeout_s)
         key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: "
-                           "websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: "
-                           f"{key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: "
-                           "foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n").encode())
+        self.sock.sendall(
+            (
+                f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: "
+                "websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Key: "
+                f"{key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: "
+                "foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
+            ).encode()
+        )
         self.buffer = b""
         while b"\r\n\r\n" not in self.buffer:
             self._read()
@@ -105,7 +110,7 @@ class RawFoxgloveCounter:
     def _read(self) -> bool:
         try:
             chunk = self.sock.recv(1 << 20)
-        except (TimeoutError, socket.timeout):
+        except TimeoutError:
             return False
         if not chunk:
             raise OSError("server closed the connection")
@@ -138,7 +143,7 @@ class RawFoxgloveCounter:
             elif opcode == 2 and data[body] == 2:
                 self.latest_time_ns = struct.unpack_from("<Q", data, body + 1)[0]
             elif opcode == 1:
-                message = json.loads(data[body:body + length])
+                message = json.loads(data[body : body + length])
                 if message.get("op") == "advertise":
                     self.channels.update({c["topic"]: c["id"] for c in message["channels"]})
             position = body + length
@@ -149,12 +154,21 @@ class RawFoxgloveCounter:
         """Subscribe to `topics` (subscription id = position + 1), once they are advertised."""
         while not all(topic in self.channels for topic in topics):
             self.poll()
-        text = json.dumps({"op": "subscribe", "subscriptions": [
-            {"id": number, "channelId": self.channels[topic]} for number,
-            topic in enumerate(topics, start=1)]}).encode()
+        text = json.dumps(
+            {
+                "op": "subscribe",
+                "subscriptions": [
+                    {"id": number, "channelId": self.channels[topic]}
+                    for number, topic in enumerate(topics, start=1)
+                ],
+            }
+        ).encode()
         mask = os.urandom(4)
-        header = (bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(text)) if len(text) >= 126
-                  else bytes([0x81, 0x80 | len(text)]))
+        header = (
+            bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(text))
+            if len(text) >= 126
+            else bytes([0x81, 0x80 | len(text)])
+        )
         self.sock.sendall(header + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(text)))
 
     def count(self) -> int:
@@ -175,16 +189,25 @@ def _cpu_s(process) -> float:
     return times.user + times.system
 
 
-def run(duration_s: float, decimation: int, logs: Path, node: list[str] | None = None,
-        extra: tuple[str, ...] = ()) -> dict[str, float]:
+def run(
+    duration_s: float,
+    decimation: int,
+    logs: Path,
+    node: list[str] | None = None,
+    extra: tuple[str, ...] = (),
+) -> dict[str, float]:
     """Stream for `duration_s` into the live view at `decimation` (`node`: another foxglove_node
     command, `extra`: more ROS arguments); what was streamed and delivered, and the CPU.
     """
     port = _free_port()
     with Graph(log_dir=logs) as graph:
         args = ["-p", f"port:={port}", "-p", f"sample_decimation:={decimation}", *extra]
-        fox = graph.start("foxglove", node + ["--ros-args", *args] if node
-                          else node_argv("flaair_tools", "foxglove_node", args))
+        fox = graph.start(
+            "foxglove",
+            [*node, "--ros-args", *args]
+            if node
+            else node_argv("flaair_tools", "foxglove_node", args),
+        )
         client = None
 
         def connect() -> bool:
@@ -198,10 +221,12 @@ def run(duration_s: float, decimation: int, logs: Path, node: list[str] | None =
 
         if not wait_for(connect, 120.0, 0.5):
             raise SystemExit(
-                f"foxglove_node did not listen on {port}:\n{graph.log_tail('foxglove')}")
+                f"foxglove_node did not listen on {port}:\n{graph.log_tail('foxglove')}"
+            )
         client.subscribe([stream.topic for stream in live_view.STREAMS.values()])
-        source = graph.start("source", [
-            sys.executable, "-c", SOURCE, str(BLOCK), str(FS_HZ), str(duration_s)])
+        source = graph.start(
+            "source", [sys.executable, "-c", SOURCE, str(BLOCK), str(FS_HZ), str(duration_s)]
+        )
         fox_cpu0, source_cpu, sampled = _cpu_s(fox), 0.0, time.monotonic()
         # the source sleeps 2 s after its last block: the client drains meanwhile
         while source.poll() is None:
@@ -216,16 +241,23 @@ def run(duration_s: float, decimation: int, logs: Path, node: list[str] | None =
         sent = json.loads(graph.log_tail("source").strip().splitlines()[-1])
         client.close()
     signal_s = sent["blocks"] * BLOCK / FS_HZ
-    return {"delivered": client.count(), "streamed": STREAMS * sent["blocks"] * BLOCK / decimation,
-            "signal_s": signal_s, "wall_s": sent["elapsed_s"], "fox_cpu_s": fox_cpu,
-            "source_cpu_s": source_cpu}
+    return {
+        "delivered": client.count(),
+        "streamed": STREAMS * sent["blocks"] * BLOCK / decimation,
+        "signal_s": signal_s,
+        "wall_s": sent["elapsed_s"],
+        "fox_cpu_s": fox_cpu,
+        "source_cpu_s": source_cpu,
+    }
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--duration", type=float, default=10.0,
-                        help="seconds streamed per configuration")
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--duration", type=float, default=10.0, help="seconds streamed per configuration"
+    )
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     logs = Path(tempfile.mkdtemp(prefix="bench_foxglove_"))
@@ -234,17 +266,31 @@ def main() -> int:
         live = run(args.duration, decimation, logs / f"live{decimation}")
         rate, fraction = live["delivered"] / live["wall_s"], live["delivered"] / live["streamed"]
         figures += [
-            Figure(f"live view 1/{decimation}: messages/s delivered to a WS client", rate, "msg/s",
-                   "reported", True,
-                   f"streamed {live['streamed'] / live['wall_s']:,.0f} samples/s to serve"),
-            Figure(f"live view 1/{decimation}: delivered / streamed", fraction, "fraction",
-                   ">= 0.95", fraction >= 0.95,
-                   f"{live['delivered']:,} of {live['streamed']:,.0f}"),
-            Figure(f"live view 1/{decimation}: CPU added per signal second",
-                   live["fox_cpu_s"] / live["signal_s"], "cpu-s/s",
-                   "reported", True,
-                   "the source publishing the 4 streams: "
-                   f"{live['source_cpu_s'] / live['signal_s']:.2f} cpu-s/s"),
+            Figure(
+                f"live view 1/{decimation}: messages/s delivered to a WS client",
+                rate,
+                "msg/s",
+                "reported",
+                True,
+                f"streamed {live['streamed'] / live['wall_s']:,.0f} samples/s to serve",
+            ),
+            Figure(
+                f"live view 1/{decimation}: delivered / streamed",
+                fraction,
+                "fraction",
+                ">= 0.95",
+                fraction >= 0.95,
+                f"{live['delivered']:,} of {live['streamed']:,.0f}",
+            ),
+            Figure(
+                f"live view 1/{decimation}: CPU added per signal second",
+                live["fox_cpu_s"] / live["signal_s"],
+                "cpu-s/s",
+                "reported",
+                True,
+                "the source publishing the 4 streams: "
+                f"{live['source_cpu_s'] / live['signal_s']:.2f} cpu-s/s",
+            ),
         ]
     print_table(figures)
     if args.json:

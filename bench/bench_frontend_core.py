@@ -11,6 +11,7 @@ end's bookkeeping.
 
 Usage: python bench/bench_frontend_core.py [--json PATH]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -49,10 +50,18 @@ def main() -> None:
     # Realistic configuration: drift removal, lag compensation on both channels, rails.
     tuning = frontend_tuning_from_config()
     params = fe.params_from_model(
-        model, FS, **{**tuning, "stroke_lag_s": 2e-4, "pitch_lag_s": 3e-4, "rail_low_v": -5.0,
-                      "rail_high_v": 5.0, "rail_margin_v": 0.01}
+        model,
+        FS,
+        **{
+            **tuning,
+            "stroke_lag_s": 2e-4,
+            "pitch_lag_s": 3e-4,
+            "rail_low_v": -5.0,
+            "rail_high_v": 5.0,
+            "rail_margin_v": 0.01,
+        },
     )
-    drive, sv, pv, out = _record(model, 10.0)
+    _drive, sv, pv, _out = _record(model, 10.0)
     n = sv.size
     blocks_s = sv[: n - n % BLOCK].reshape(-1, BLOCK)
     blocks_p = pv[: n - n % BLOCK].reshape(-1, BLOCK)
@@ -81,7 +90,7 @@ def main() -> None:
     step_rate = 2000 * BLOCK / t_blocks
 
     # Baseline: the five bare lfilter calls per block (drift x2, lead x2, velocity).
-    flt = fe._filters(params)  # noqa: SLF001 - benchmark looks at the designed coefficients
+    flt = fe._filters(params)
     zd = np.zeros(1)
     zl = np.zeros(2)
 
@@ -120,28 +129,66 @@ def main() -> None:
     }
     vref = model.sensors.reference_voltage_v
     bands = analysis_bands_from_config()
-    t_cal = best_time_s(lambda: calibration.calibrate(
-        run, vref, amplitude_band_hz=bands.amplitude_band_hz), repeats=2)
+    t_cal = best_time_s(
+        lambda: calibration.calibrate(run, vref, amplitude_band_hz=bands.amplitude_band_hz),
+        repeats=2,
+    )
     track = 20.0 + 180.0 * run["time_s"]
     p0 = fe.params_from_model(model, FS, **tuning)
-    t_char = best_time_s(lambda: characterization.characterize_run(
-        run, p0, "chirp", track, amplitude_band_hz=bands.amplitude_band_hz,
-        time_band_hz=bands.time_band_hz), repeats=2)
+    t_char = best_time_s(
+        lambda: characterization.characterize_run(
+            run,
+            p0,
+            "chirp",
+            track,
+            amplitude_band_hz=bands.amplitude_band_hz,
+            time_band_hz=bands.time_band_hz,
+        ),
+        repeats=2,
+    )
 
     realtime = FS
     figures = [
-        Figure("frontend step, 10-sample blocks: throughput", step_rate, "samples/s",
-               f">= {realtime:.0f} (real time)", step_rate >= realtime,
-               f"bare lfilter calls: {bare_rate:.3g} samples/s"),
-        Figure("frontend step, 10-sample block latency p50", p50 * 1e3, "ms",
-               "< 0.5 (block length)", p50 < 0.5e-3, f"block = {BLOCK / FS * 1e3:.2f} ms of data"),
-        Figure("frontend step, 10-sample block latency p99", p99 * 1e3, "ms", "< 1", p99 < 1e-3,
-               f"max {lat.max() * 1e3:.3f} ms over {lat.size} blocks (wall clock)"),
-        Figure("frontend step, 10-sample block CPU time p99", cpu99 * 1e3, "ms", "< 1",
-               cpu99 < 1e-3, f"p50 {cpu50 * 1e3:.3f} ms (thread CPU time: excludes preemption)"),
-        Figure("frontend estimate, whole 10 s record: throughput", whole_rate, "samples/s",
-               ">= 2e6 (100x real time)", whole_rate >= 2e6,
-               f"bare lfilter chain: {bare_whole_rate:.3g} samples/s"),
+        Figure(
+            "frontend step, 10-sample blocks: throughput",
+            step_rate,
+            "samples/s",
+            f">= {realtime:.0f} (real time)",
+            step_rate >= realtime,
+            f"bare lfilter calls: {bare_rate:.3g} samples/s",
+        ),
+        Figure(
+            "frontend step, 10-sample block latency p50",
+            p50 * 1e3,
+            "ms",
+            "< 0.5 (block length)",
+            p50 < 0.5e-3,
+            f"block = {BLOCK / FS * 1e3:.2f} ms of data",
+        ),
+        Figure(
+            "frontend step, 10-sample block latency p99",
+            p99 * 1e3,
+            "ms",
+            "< 1",
+            p99 < 1e-3,
+            f"max {lat.max() * 1e3:.3f} ms over {lat.size} blocks (wall clock)",
+        ),
+        Figure(
+            "frontend step, 10-sample block CPU time p99",
+            cpu99 * 1e3,
+            "ms",
+            "< 1",
+            cpu99 < 1e-3,
+            f"p50 {cpu50 * 1e3:.3f} ms (thread CPU time: excludes preemption)",
+        ),
+        Figure(
+            "frontend estimate, whole 10 s record: throughput",
+            whole_rate,
+            "samples/s",
+            ">= 2e6 (100x real time)",
+            whole_rate >= 2e6,
+            f"bare lfilter chain: {bare_whole_rate:.3g} samples/s",
+        ),
         Figure("calibrate, 1 s chirp (2 channels)", t_cal, "s", "< 2", t_cal < 2.0, ""),
         Figure("characterize_run chirp, 1 s chirp", t_char, "s", "< 2", t_char < 2.0, ""),
     ]

@@ -8,6 +8,7 @@ row, then numpy), which is how the reader worked first. Target: import peak < 2x
 
 Run: scripts/in_env.sh python bench/bench_import.py [--mb 200]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -57,12 +58,16 @@ def write_csv(path: Path, megabytes: float) -> int:
             n = min(500_000, rows - start)
             t = (start + np.arange(n)) / FS_HZ
             drive = 100.0 * np.sin(2 * np.pi * 120.0 * t)
-            table = np.column_stack([t, drive,
-                                     1.25 + 0.1 * np.sin(2 * np.pi * 120.0 * t)
-                                     + rng.normal(0, 0.002, n),
-                                     1.25 + 0.05 * np.cos(2 * np.pi * 120.0 * t),
-                                     30 * np.sin(2 * np.pi * 120.0 * t),
-                                     20 * np.cos(2 * np.pi * 120.0 * t)])
+            table = np.column_stack(
+                [
+                    t,
+                    drive,
+                    1.25 + 0.1 * np.sin(2 * np.pi * 120.0 * t) + rng.normal(0, 0.002, n),
+                    1.25 + 0.05 * np.cos(2 * np.pi * 120.0 * t),
+                    30 * np.sin(2 * np.pi * 120.0 * t),
+                    20 * np.cos(2 * np.pi * 120.0 * t),
+                ]
+            )
             np.savetxt(handle, table, delimiter=",", fmt="%.9g")
     return path.stat().st_size
 
@@ -70,16 +75,18 @@ def write_csv(path: Path, megabytes: float) -> int:
 def child_peak_bytes(code: str, *args: str) -> tuple[int, float]:
     """(peak RSS in bytes, wall seconds) of `code` run in a fresh interpreter."""
     start = time.perf_counter()
-    result = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
-                            check=True)
+    result = subprocess.run(
+        [sys.executable, "-c", code, *args], capture_output=True, text=True, check=True
+    )
     return int(result.stdout.split()[-1]), time.perf_counter() - start
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mb", type=float, default=200.0, help="CSV size to import [MB]")
-    parser.add_argument("--json", type=Path,
-                        default=REPO_ROOT / "out" / "bench" / "bench_import.json")
+    parser.add_argument(
+        "--json", type=Path, default=REPO_ROOT / "out" / "bench" / "bench_import.json"
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         csv_path = Path(tmp) / "big.csv"
@@ -89,13 +96,30 @@ def main() -> int:
         peak, import_s = child_peak_bytes(CHILD_IMPORT, str(csv_path), str(Path(tmp) / "bag"))
     mb = 1e6
     figures = [
-        Figure(f"import {size / mb:.0f} MB CSV: peak RSS / file size", peak / size, "x", "< 2x",
-               peak < 2 * size,
-               f"whole-file read alone: {whole / size:.2f}x ({whole / mb:.0f} MB)"),
-        Figure("import: peak RSS", peak / mb, "MB", f"< {2 * size / mb:.0f} MB", peak < 2 * size,
-               f"interpreter + imports alone: {base / mb:.0f} MB"),
-        Figure("import: wall time", import_s, "s", "reported", True,
-               f"whole-file read alone: {whole_s:.1f} s"),
+        Figure(
+            f"import {size / mb:.0f} MB CSV: peak RSS / file size",
+            peak / size,
+            "x",
+            "< 2x",
+            peak < 2 * size,
+            f"whole-file read alone: {whole / size:.2f}x ({whole / mb:.0f} MB)",
+        ),
+        Figure(
+            "import: peak RSS",
+            peak / mb,
+            "MB",
+            f"< {2 * size / mb:.0f} MB",
+            peak < 2 * size,
+            f"interpreter + imports alone: {base / mb:.0f} MB",
+        ),
+        Figure(
+            "import: wall time",
+            import_s,
+            "s",
+            "reported",
+            True,
+            f"whole-file read alone: {whole_s:.1f} s",
+        ),
     ]
     print_table(figures)
     write_json(figures, args.json)

@@ -11,6 +11,7 @@ Targets (#24): <= 5 s, and peak memory <= 3x the files' size.
 
 Run: scripts/in_env.sh python bench/bench_lab_import.py
 """
+
 from __future__ import annotations
 
 import argparse
@@ -55,29 +56,32 @@ def write_files(root: Path) -> dict[str, Path]:
     t = np.arange(n) / FS_HZ
     rng = np.random.default_rng(0)
     drive = 100.0 * np.sin(2 * np.pi * 120.0 * t)
-    signals = {"amp_in": drive / 100.0,
-               "pvdf_act": 1.25 - 0.3 * np.sin(2 * np.pi * 120.0 * t)
-               + rng.normal(0, 0.002, n),
-               "pvdf_hinge": 1.25 - 0.1 * np.sin(2 * np.pi * 120.0 * t - 1.0)
-               + rng.normal(0, 0.002, n),
-               "cam_trig": np.where(t >= 0.01, 5.0, 0.0)}
-    array = np.zeros((1, len(signals)),
-                     dtype=[("values", object), ("label", object), ("blockName", object)])
+    signals = {
+        "amp_in": drive / 100.0,
+        "pvdf_act": 1.25 - 0.3 * np.sin(2 * np.pi * 120.0 * t) + rng.normal(0, 0.002, n),
+        "pvdf_hinge": 1.25 - 0.1 * np.sin(2 * np.pi * 120.0 * t - 1.0) + rng.normal(0, 0.002, n),
+        "cam_trig": np.where(t >= 0.01, 5.0, 0.0),
+    }
+    array = np.zeros(
+        (1, len(signals)), dtype=[("values", object), ("label", object), ("blockName", object)]
+    )
     for k, (label, values) in enumerate(signals.items()):
         array[0, k] = (values.reshape(-1, 1), label, f"bench/{label}")
     log = {"time": t.reshape(-1, 1), "signals": array, "blockName": "bench"}
     files = {"v5": root / "run_v5.mat", "v7.3": root / "run_v73.mat"}
     scipy.io.savemat(str(files["v5"]), {"rt_log": log}, do_compression=True)
-    hdf5storage.savemat(str(files["v7.3"]), {"rt_log": log}, format="7.3",
-                        matlab_compatible=True)
+    hdf5storage.savemat(str(files["v7.3"]), {"rt_log": log}, format="7.3", matlab_compatible=True)
     frames = int(DURATION_S * FPS)
     tf = 0.01 + np.arange(frames) / FPS
-    stroke, pitch = np.radians(30) * np.sin(2 * np.pi * 120 * tf), np.radians(40) * np.cos(
-        2 * np.pi * 120 * tf)
+    stroke, pitch = (
+        np.radians(30) * np.sin(2 * np.pi * 120 * tf),
+        np.radians(40) * np.cos(2 * np.pi * 120 * tf),
+    )
     span = np.column_stack([np.cos(stroke), np.sin(stroke), np.zeros(frames)])
-    chord = np.column_stack([np.sin(pitch) * -np.sin(stroke), np.sin(pitch) * np.cos(stroke),
-                             -np.cos(pitch)])
-    le1 = np.zeros((frames, 3)) + [10.0, 5.0, 20.0]
+    chord = np.column_stack(
+        [np.sin(pitch) * -np.sin(stroke), np.sin(pitch) * np.cos(stroke), -np.cos(pitch)]
+    )
+    le1 = [*np.zeros((frames, 3)), 10.0, 5.0, 20.0]
     table = np.column_stack([le1 + 9 * span, le1, le1 + 4 * chord])
     files["tracks"] = root / "run_xyzpts.csv"
     with open(files["tracks"], "w") as handle:
@@ -89,25 +93,56 @@ def write_files(root: Path) -> dict[str, Path]:
         csv.writer(handle).writerow(["pt1_cam1_X", "pt1_cam1_Y"])
         np.savetxt(handle, tip, delimiter=",", fmt="%.4f")
     files["rig"] = root / "rig.yaml"
-    files["rig"].write_text(yaml.safe_dump({
-        "signals": {"drive": "amp_in", "stroke_sensor": "pvdf_act", "pitch_sensor": "pvdf_hinge",
-                    "camera_trigger": "cam_trig"},
-        "drive_gain_v_per_v": 100.0,
-        "video": {"fps": FPS, "sync": {"trigger_frame": 0, "trigger_threshold_v": 2.5},
-                  "length_unit_m": 0.001},
-        "points": {"wing_leading_edge_1": 2, "wing_trailing_edge_1": 3, "wing_leading_edge_2": 1,
-                   "actuator_tip": {"point": 1, "camera": 1}},
-        "geometry": {"up": [0, 0, 1], "rest_span": [1, 0, 0], "m_per_px": 1e-5,
-                     "tip_axis_px": [1, 0], "transmission_ratio_rad_per_m": 100.0},
-        "stroke_from": "actuator_tip"}))
+    files["rig"].write_text(
+        yaml.safe_dump(
+            {
+                "signals": {
+                    "drive": "amp_in",
+                    "stroke_sensor": "pvdf_act",
+                    "pitch_sensor": "pvdf_hinge",
+                    "camera_trigger": "cam_trig",
+                },
+                "drive_gain_v_per_v": 100.0,
+                "video": {
+                    "fps": FPS,
+                    "sync": {"trigger_frame": 0, "trigger_threshold_v": 2.5},
+                    "length_unit_m": 0.001,
+                },
+                "points": {
+                    "wing_leading_edge_1": 2,
+                    "wing_trailing_edge_1": 3,
+                    "wing_leading_edge_2": 1,
+                    "actuator_tip": {"point": 1, "camera": 1},
+                },
+                "geometry": {
+                    "up": [0, 0, 1],
+                    "rest_span": [1, 0, 0],
+                    "m_per_px": 1e-5,
+                    "tip_axis_px": [1, 0],
+                    "transmission_ratio_rad_per_m": 100.0,
+                },
+                "stroke_from": "actuator_tip",
+            }
+        )
+    )
     return files
 
 
 def run_import(files: dict[str, Path], version: str, out: Path) -> dict:
-    args = [str(files[version]), "--rig", str(files["rig"]), "--tracks", str(files["tracks"]),
-            "--tip-track", str(files["tip"]), "--out", str(out)]
-    done = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
-                          check=True)
+    args = [
+        str(files[version]),
+        "--rig",
+        str(files["rig"]),
+        "--tracks",
+        str(files["tracks"]),
+        "--tip-track",
+        str(files["tip"]),
+        "--out",
+        str(out),
+    ]
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD, *args], capture_output=True, text=True, check=True
+    )
     result = json.loads(done.stdout.strip().splitlines()[-1])
     assert result["code"] == 0, done.stderr
     return result
@@ -115,8 +150,9 @@ def run_import(files: dict[str, Path], version: str, out: Path) -> dict:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", type=Path,
-                        default=REPO_ROOT / "out" / "bench" / "bench_lab_import.json")
+    parser.add_argument(
+        "--json", type=Path, default=REPO_ROOT / "out" / "bench" / "bench_lab_import.json"
+    )
     args = parser.parse_args()
     mb = 1e6
     figures = []
@@ -127,14 +163,27 @@ def main() -> int:
             r = run_import(files, version, Path(tmp) / f"bag_{version}")
             data_peak = r["peak"] - r["base"]
             figures += [
-                Figure(f"lab import (MAT {version}), 10 s at 20 kHz + 10,000 fps: wall time",
-                       r["wall_s"], "s", "<= 5 s", r["wall_s"] <= 5.0,
-                       f"interpreter start and imports: {r['startup_s']:.1f} s"),
-                Figure(f"lab import (MAT {version}): peak RSS above the imports / files' size",
-                       data_peak / size, "x", "<= 3x", data_peak <= 3 * size,
-                       f"files {size / mb:.1f} MB; interpreter + imports {r['base'] / mb:.0f} MB"
-                       + (f"; v7.3 reader process peak {r['child_peak'] / mb:.0f} MB"
-                          if version == "v7.3" else "")),
+                Figure(
+                    f"lab import (MAT {version}), 10 s at 20 kHz + 10,000 fps: wall time",
+                    r["wall_s"],
+                    "s",
+                    "<= 5 s",
+                    r["wall_s"] <= 5.0,
+                    f"interpreter start and imports: {r['startup_s']:.1f} s",
+                ),
+                Figure(
+                    f"lab import (MAT {version}): peak RSS above the imports / files' size",
+                    data_peak / size,
+                    "x",
+                    "<= 3x",
+                    data_peak <= 3 * size,
+                    f"files {size / mb:.1f} MB; interpreter + imports {r['base'] / mb:.0f} MB"
+                    + (
+                        f"; v7.3 reader process peak {r['child_peak'] / mb:.0f} MB"
+                        if version == "v7.3"
+                        else ""
+                    ),
+                ),
             ]
     print_table(figures)
     write_json(figures, args.json)

@@ -28,6 +28,7 @@ fall behind and catch up in bursts; the plant then rejects gapped command blocks
 from /flaair/drive too (its log says so), i.e. the loss is not the recorder's
 alone. /clock is published CLOCK_DEPTH (1000) deep, as plant_node does.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,14 +44,14 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json  # noqa: E402
-from flaair_common.graph import Graph as LaunchGraph  # noqa: E402
-from flaair_model.config import node_parameters  # noqa: E402
-from flaair_tools import bagio  # noqa: E402
+from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
+from flaair_common.graph import Graph as LaunchGraph
+from flaair_model.config import node_parameters
+from flaair_tools import bagio
 
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 BLOCK_TOPICS = ("/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state/truth")
-from flaair_sim.plant_io import CLOCK_DEPTH  # noqa: E402  (the plant's /clock queue; the steady publisher does the same)
+from flaair_sim.plant_io import CLOCK_DEPTH
 
 # Steady publisher: blocks like the graph's at `rate`
 # msg/s per topic for `duration_s`; prints counts.
@@ -119,7 +120,7 @@ class Graph(LaunchGraph):
         super().__init__(log_dir=logs)
         self.logs = logs
 
-    def start(self, name: str, *args: str) -> subprocess.Popen:   # type: ignore[override]
+    def start(self, name: str, *args: str) -> subprocess.Popen:  # type: ignore[override]
         return super().start(name, args)
 
     def log(self, name: str) -> str:
@@ -130,14 +131,14 @@ class Graph(LaunchGraph):
         while text not in self.log(name):
             if time.monotonic() > deadline:
                 raise SystemExit(
-                    f"{name}: no '{text}' within {timeout_s:g} s; see "
-                    f"{self.logs / (name + '.log')}")
+                    f"{name}: no '{text}' within {timeout_s:g} s; see {self.logs / (name + '.log')}"
+                )
             time.sleep(0.1)
 
 
-
-def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int,
-                    rate_hz: float) -> dict[str, object]:
+def record_scenario(
+    bag: Path, scenario: str, duration_s: float, block_size: int, rate_hz: float
+) -> dict[str, object]:
     """Record one scenario ("graph" or "steady") into `bag`;
     returns recorder CPU and what publishers reported.
     """
@@ -147,27 +148,51 @@ def record_scenario(bag: Path, scenario: str, duration_s: float, block_size: int
         graph.wait_log("recorder", "recording", 60.0)
         crashed: dict[str, int] = {}
         if scenario == "graph":
-            plant = graph.start("plant", FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args",
-                                "-p", "mode:=realtime")
+            plant = graph.start(
+                "plant",
+                FLAAIR,
+                "run",
+                "flaair_sim",
+                "plant_node",
+                "--ros-args",
+                "-p",
+                "mode:=realtime",
+            )
             # numba compiles the plant kernel on a cold cache
             graph.wait_log("plant", "plant ready", 300.0)
-            drive = graph.start("drive", FLAAIR, "run", "flaair_sim", "drive_node", "--ros-args",
-                                "-p", "pacing:=realtime")
+            drive = graph.start(
+                "drive",
+                FLAAIR,
+                "run",
+                "flaair_sim",
+                "drive_node",
+                "--ros-args",
+                "-p",
+                "pacing:=realtime",
+            )
             graph.wait_log("drive", "drive:", 60.0)
             cpu_start_s, wall_start_s = _cpu_s(recorder.pid), time.monotonic()
             time.sleep(duration_s)
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
-            crashed = {name: p.returncode for name, p in (("plant", plant), ("drive", drive))
-                       if p.poll() is not None}
+            crashed = {
+                name: p.returncode
+                for name, p in (("plant", plant), ("drive", drive))
+                if p.poll() is not None
+            }
             graph.stop(drive, timeout_s=20.0)
             graph.stop(plant, timeout_s=20.0)
             reported = None
         else:
-            config = {"duration_s": duration_s, "block_size": block_size, "sample_rate_hz": rate_hz,
-                      "clock_depth": CLOCK_DEPTH}
+            config = {
+                "duration_s": duration_s,
+                "block_size": block_size,
+                "sample_rate_hz": rate_hz,
+                "clock_depth": CLOCK_DEPTH,
+            }
             cpu_start_s, wall_start_s = _cpu_s(recorder.pid), time.monotonic()
-            publisher = graph.start("steady", sys.executable, "-c", STEADY_PUBLISHER,
-                                    json.dumps(config))
+            publisher = graph.start(
+                "steady", sys.executable, "-c", STEADY_PUBLISHER, json.dumps(config)
+            )
             if publisher.wait(timeout=duration_s + 120.0) != 0:
                 raise SystemExit(f"steady publisher failed; see {bag.parent / 'steady.log'}")
             cpu_s, wall_s = _cpu_s(recorder.pid) - cpu_start_s, time.monotonic() - wall_start_s
@@ -186,13 +211,24 @@ def _stream_stats(indices: np.ndarray, step: int, samples: int) -> dict[str, flo
     recorded, published in the window, lost, duplicated.
     """
     if indices.size == 0:
-        return {"recorded": 0.0, "published": 0.0, "lost": 0.0, "duplicates": 0.0, "samples": 0.0,
-                "first_index": 0.0}
+        return {
+            "recorded": 0.0,
+            "published": 0.0,
+            "lost": 0.0,
+            "duplicates": 0.0,
+            "samples": 0.0,
+            "first_index": 0.0,
+        }
     published = int((indices.max() - indices.min()) // step + 1)
     unique = np.unique(indices).size
-    return {"recorded": float(indices.size), "published": float(published),
-            "lost": float(published - unique), "duplicates": float(indices.size - unique),
-            "samples": float(samples), "first_index": float(indices.min())}
+    return {
+        "recorded": float(indices.size),
+        "published": float(published),
+        "lost": float(published - unique),
+        "duplicates": float(indices.size - unique),
+        "samples": float(samples),
+        "first_index": float(indices.min()),
+    }
 
 
 def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, float]]:
@@ -207,34 +243,48 @@ def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, f
             out[topic] = _stream_stats(blocks.block_first_index, block_size, blocks.n_samples)
         else:
             out[topic] = _stream_stats(np.zeros(0, dtype=np.int64), block_size, 0)
-    clock_ns = np.array([m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _,
-                         m in bagio.iter_messages(bag, ["/clock"])] if counts.get("/clock") else [],
-                        dtype=np.int64)
+    clock_ns = np.array(
+        [
+            m.clock.sec * 1_000_000_000 + m.clock.nanosec
+            for _, _, m in bagio.iter_messages(bag, ["/clock"])
+        ]
+        if counts.get("/clock")
+        else [],
+        dtype=np.int64,
+    )
     out["/clock"] = _stream_stats(
-        np.round(clock_ns * rate_hz / 1e9).astype(np.int64), block_size, 0)
+        np.round(clock_ns * rate_hz / 1e9).astype(np.int64), block_size, 0
+    )
     # Throughput window: while every stream was flowing (first to last receive time common to all).
     received: dict[str, list[int]] = {}
     for topic, _, t, _ in bagio.iter_raw(bag):
         received.setdefault(topic, []).append(t)
-    streams = [np.asarray(received.get(topic, []), dtype=np.int64)
-               for topic in (*BLOCK_TOPICS, "/clock")]
+    streams = [
+        np.asarray(received.get(topic, []), dtype=np.int64) for topic in (*BLOCK_TOPICS, "/clock")
+    ]
     if all(r.size > 1 for r in streams):
         start, stop = max(int(r.min()) for r in streams), min(int(r.max()) for r in streams)
     else:
         start = stop = 0
-    in_window = {topic: int(((r >= start) & (r <= stop)).sum()) for topic,
-                 r in zip((*BLOCK_TOPICS, "/clock"), streams)}
+    in_window = {
+        topic: int(((r >= start) & (r <= stop)).sum())
+        for topic, r in zip((*BLOCK_TOPICS, "/clock"), streams)
+    }
     window_s = max(stop - start, 1) * 1e-9
-    out["_span"] = {"span_s": window_s, "messages": float(sum(in_window.values())),
-                    "samples": float(sum(in_window[t] for t in BLOCK_TOPICS) * block_size),
-                    **{f"rate {t}": in_window[t] / window_s for t in in_window}}
+    out["_span"] = {
+        "span_s": window_s,
+        "messages": float(sum(in_window.values())),
+        "samples": float(sum(in_window[t] for t in BLOCK_TOPICS) * block_size),
+        **{f"rate {t}": in_window[t] / window_s for t in in_window},
+    }
     return out
 
 
 def writer_baseline(bag_dir: Path, source: Path, n_messages: int) -> float:
     """Messages/s of BagWriter alone, writing recorded serialized blocks (best of 3)."""
-    raw = [(topic, t, bytes(data)) for topic, _, t,
-           data in bagio.iter_raw(source, list(BLOCK_TOPICS))][:n_messages]
+    raw = [
+        (topic, t, bytes(data)) for topic, _, t, data in bagio.iter_raw(source, list(BLOCK_TOPICS))
+    ][:n_messages]
     types = {t: i.msgtype for t, i in bagio.bag_info(source).topics.items()}
     counter = iter(range(1000))
 
@@ -248,27 +298,41 @@ def writer_baseline(bag_dir: Path, source: Path, n_messages: int) -> float:
     return len(raw) / best_time_s(write)
 
 
-def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_hz: float,
-           baseline_msg_s: float) -> list[Figure]:
+def report(
+    name: str,
+    bag: Path,
+    run: dict[str, object],
+    block_size: int,
+    rate_hz: float,
+    baseline_msg_s: float,
+) -> list[Figure]:
     """Print the per-topic table of one scenario and return its figures."""
     stats = analyse(bag, block_size, rate_hz)
     span = stats.pop("_span")
     for node, code in run["crashed"].items():
-        print(f"WARNING: {node} exited (code {code}) during the run; see "
-              f"{bag.parent / (node + '.log')}")
+        print(
+            f"WARNING: {node} exited (code {code}) during the run; see "
+            f"{bag.parent / (node + '.log')}"
+        )
     # the steady publisher's exact counts replace the index-span estimate
     if run["reported"] is not None:
         for s in stats.values():
             s["published"] = float(run["reported"]["blocks"])
             s["lost"] = s["published"] - s["recorded"] + s["duplicates"]
-    print(f"\n[{name}] {bag}: {int(span['messages'])} messages in the {span['span_s']:.2f} s while "
-          "all 4 streams flowed")
-    print(f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} "
-          f"{'rate in bag':>13s} {'before subscription':>20s}")
+    print(
+        f"\n[{name}] {bag}: {int(span['messages'])} messages in the {span['span_s']:.2f} s while "
+        "all 4 streams flowed"
+    )
+    print(
+        f"{'topic':28s} {'published':>10s} {'in bag':>8s} {'lost':>6s} {'dup':>5s} "
+        f"{'rate in bag':>13s} {'before subscription':>20s}"
+    )
     for topic, s in stats.items():
-        print(f"{topic:28s} {int(s['published']):10d} {int(s['recorded']):8d} {int(s['lost']):6d} "
-              f"{int(s['duplicates']):5d} {span['rate ' + topic]:9.0f} /s "
-              f"{int(s['first_index'] // block_size):20d}")
+        print(
+            f"{topic:28s} {int(s['published']):10d} {int(s['recorded']):8d} {int(s['lost']):6d} "
+            f"{int(s['duplicates']):5d} {span['rate ' + topic]:9.0f} /s "
+            f"{int(s['first_index'] // block_size):20d}"
+        )
     recorded = sum(s["recorded"] for s in stats.values())
     published = sum(s["published"] for s in stats.values())
     lost_blocks = sum(stats[t]["lost"] + stats[t]["duplicates"] for t in BLOCK_TOPICS)
@@ -276,32 +340,60 @@ def report(name: str, bag: Path, run: dict[str, object], block_size: int, rate_h
     lost_clock = stats["/clock"]["lost"] + stats["/clock"]["duplicates"]
     target_msg_s = (len(BLOCK_TOPICS) + 1) * rate_hz / block_size
     target_samples_s = len(BLOCK_TOPICS) * rate_hz
-    msg_s, samples_s, cores = (span["messages"] / span["span_s"], span["samples"] / span["span_s"],
-                               run["recorder_cores"])
+    msg_s, samples_s, cores = (
+        span["messages"] / span["span_s"],
+        span["samples"] / span["span_s"],
+        run["recorder_cores"],
+    )
     return [
-        Figure(f"[{name}] recorder throughput (3 block topics + /clock)", msg_s, "msg/s",
-               f">= {target_msg_s:g}",
-               msg_s >= 0.95 * target_msg_s,
-               f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone "
-               f"{baseline_msg_s:,.0f}/s"),
-        Figure(f"[{name}] recorder throughput, samples (3 x 20 kHz)", samples_s, "samples/s",
-               f">= {target_samples_s:g}",
-               samples_s >= 0.95 * target_samples_s,
-               f"{int(span['samples'])} samples in {span['span_s']:.2f} s"),
-        Figure(f"[{name}] block messages lost or duplicated", lost_blocks, "messages", "0",
-               lost_blocks == 0,
-               f"of {int(published_blocks)} published (queues 1000 deep)"),
-        Figure(f"[{name}] /clock messages lost or duplicated", lost_clock, "messages", "0",
-               lost_clock == 0,
-               f"of {int(stats['/clock']['published'])} published (publisher queue {CLOCK_DEPTH} "
-               "deep)"),
-        Figure(f"[{name}] recorder CPU", cores, "cores", "< 1", cores < 1.0,
-               "2-core machine shared with other work"),
+        Figure(
+            f"[{name}] recorder throughput (3 block topics + /clock)",
+            msg_s,
+            "msg/s",
+            f">= {target_msg_s:g}",
+            msg_s >= 0.95 * target_msg_s,
+            f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone "
+            f"{baseline_msg_s:,.0f}/s",
+        ),
+        Figure(
+            f"[{name}] recorder throughput, samples (3 x 20 kHz)",
+            samples_s,
+            "samples/s",
+            f">= {target_samples_s:g}",
+            samples_s >= 0.95 * target_samples_s,
+            f"{int(span['samples'])} samples in {span['span_s']:.2f} s",
+        ),
+        Figure(
+            f"[{name}] block messages lost or duplicated",
+            lost_blocks,
+            "messages",
+            "0",
+            lost_blocks == 0,
+            f"of {int(published_blocks)} published (queues 1000 deep)",
+        ),
+        Figure(
+            f"[{name}] /clock messages lost or duplicated",
+            lost_clock,
+            "messages",
+            "0",
+            lost_clock == 0,
+            f"of {int(stats['/clock']['published'])} published (publisher queue {CLOCK_DEPTH} "
+            "deep)",
+        ),
+        Figure(
+            f"[{name}] recorder CPU",
+            cores,
+            "cores",
+            "< 1",
+            cores < 1.0,
+            "2-core machine shared with other work",
+        ),
     ]
 
 
-def player_pacing(work: Path, n: int = 400, period_ns: int = 5_000_000,
-                  rate: float = 2.0) -> list[Figure]:
+def player_pacing(
+    work: Path, n: int = 400, period_ns: int = 5_000_000, rate: float = 2.0
+) -> list[Figure]:
     """`flaair play --rate 2` of a 2 s bag: how long the play lasts against the schedule's span
     (the test checks only that it never runs ahead). Baseline: the same schedule slept out in this
     process with the player's own wait loop, in the same run.
@@ -314,38 +406,54 @@ def player_pacing(work: Path, n: int = 400, period_ns: int = 5_000_000,
         for i in range(n):
             stamp_ns = 10_000_000_000 + i * period_ns
             message = bagio.new_message(
-                "flaair_msgs/msg/SensorVoltageBlock", store, header=bagio.new_message(
-                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
-                sample_rate_hz=20000.0, first_sample_index=10 * i,
-                stroke_sensor_v=np.zeros(10), pitch_sensor_v=np.zeros(10))
-            writer.write_message("/flaair/sensor_v", stamp_ns, message,
-                                 [bagio.qos_from_rclpy(BLOCK_STREAM)])
+                "flaair_msgs/msg/SensorVoltageBlock",
+                store,
+                header=bagio.new_message(
+                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)
+                ),
+                sample_rate_hz=20000.0,
+                first_sample_index=10 * i,
+                stroke_sensor_v=np.zeros(10),
+                pitch_sensor_v=np.zeros(10),
+            )
+            writer.write_message(
+                "/flaair/sensor_v", stamp_ns, message, [bagio.qos_from_rclpy(BLOCK_STREAM)]
+            )
     span_s = (n - 1) * period_ns * 1e-9 / rate
     with Graph(work / "pacing_logs") as graph:
-        player = graph.start("player", str(REPO_ROOT / "bin" / "flaair"), "play", str(bag),
-                             "--rate", str(rate))
+        player = graph.start(
+            "player", str(REPO_ROOT / "bin" / "flaair"), "play", str(bag), "--rate", str(rate)
+        )
         player.wait(timeout=120)
         import re
 
         found = re.search(r"in ([0-9.]+) s", graph.log("player"))
     played_s = float(found.group(1)) if found else float("nan")
     start = time.monotonic()
-    for i in range(n):   # the baseline: the player's wait loop alone
+    for i in range(n):  # the baseline: the player's wait loop alone
         due = start + wall_offset_s(i * period_ns, 0, rate)
         while (wait := due - time.monotonic()) > 0:
             time.sleep(min(wait, 0.1))
     slept_s = time.monotonic() - start
     late_ms = (played_s - span_s) * 1e3
-    return [Figure("player --rate 2: play time beyond the schedule's span (2 s bag)",
-                   round(late_ms, 2), "ms", "< 20", bool(0 <= late_ms < 20.0),
-                   f"wait loop alone: {(slept_s - span_s) * 1e3:.2f} ms")]
+    return [
+        Figure(
+            "player --rate 2: play time beyond the schedule's span (2 s bag)",
+            round(late_ms, 2),
+            "ms",
+            "< 20",
+            bool(0 <= late_ms < 20.0),
+            f"wait loop alone: {(slept_s - span_s) * 1e3:.2f} ms",
+        )
+    ]
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=10.0, help="seconds recorded per scenario")
-    ap.add_argument("--scenarios", nargs="+", default=["graph", "steady"],
-                    choices=["graph", "steady"])
+    ap.add_argument(
+        "--scenarios", nargs="+", default=["graph", "steady"], choices=["graph", "steady"]
+    )
     ap.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_recorder.json")
     ap.add_argument("--keep", action="store_true", help="keep the bags and logs (printed path)")
     args = ap.parse_args()

@@ -9,6 +9,7 @@ Figures (1 s of robot time at 20 kHz, 1 s chirp 20-200 Hz at 100 V):
 - simulate_batch throughput in robot-seconds per second for 1, 100, 1000 parameter sets
   (outputs reused via out=, as in a fitting loop; and 1000 with fresh output arrays).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,11 +42,19 @@ def python_rk4(drive_v: np.ndarray, fs_hz: float, model: Model) -> tuple[np.ndar
     k = state at t_k). Returns (stroke_rad, pitch_rad).
     """
     pl = model.plant
-    inertia, gamma, k, ga = (pl.stroke_inertia_kg_m2, pl.aero_damping_nm_s2,
-                             pl.stroke_stiffness_nm_per_rad, pl.actuator_gain_nm_per_v)
-    ip, cp, kh, jc, dp = (pl.pitch_inertia_kg_m2, pl.hinge_damping_nm_s_per_rad,
-                          pl.hinge_stiffness_nm_per_rad, pl.inertial_coupling_kg_m2,
-                          pl.aero_coupling_nm_s2)
+    inertia, gamma, k, ga = (
+        pl.stroke_inertia_kg_m2,
+        pl.aero_damping_nm_s2,
+        pl.stroke_stiffness_nm_per_rad,
+        pl.actuator_gain_nm_per_v,
+    )
+    ip, cp, kh, jc, dp = (
+        pl.pitch_inertia_kg_m2,
+        pl.hinge_damping_nm_s_per_rad,
+        pl.hinge_stiffness_nm_per_rad,
+        pl.inertial_coupling_kg_m2,
+        pl.aero_coupling_nm_s2,
+    )
 
     def accel(phi: float, dphi: float, psi: float, dpsi: float, v: float) -> tuple[float, float]:
         ddphi = (ga * v - gamma * abs(dphi) * dphi - k * phi) / inertia
@@ -58,16 +67,33 @@ def python_rk4(drive_v: np.ndarray, fs_hz: float, model: Model) -> tuple[np.ndar
         stroke.append(phi)
         pitch.append(psi)
         a1, b1 = accel(phi, dphi, psi, dpsi, v)
-        a2, b2 = accel(phi + 0.5 * h * dphi, dphi + 0.5 * h * a1, psi + 0.5 * h * dpsi,
-                       dpsi + 0.5 * h * b1, v)
-        a3, b3 = accel(phi + 0.5 * h * (dphi + 0.5 * h * a1), dphi + 0.5 * h * a2,
-                       psi + 0.5 * h * (dpsi + 0.5 * h * b1), dpsi + 0.5 * h * b2, v)
-        a4, b4 = accel(phi + h * (dphi + 0.5 * h * a2), dphi + h * a3,
-                       psi + h * (dpsi + 0.5 * h * b2), dpsi + h * b3, v)
-        phi += h / 6.0 * (dphi + 2.0 * (dphi + 0.5 * h * a1) + 2.0 * (dphi + 0.5 * h * a2)
-                          + (dphi + h * a3))
-        psi += h / 6.0 * (dpsi + 2.0 * (dpsi + 0.5 * h * b1) + 2.0 * (dpsi + 0.5 * h * b2)
-                          + (dpsi + h * b3))
+        a2, b2 = accel(
+            phi + 0.5 * h * dphi, dphi + 0.5 * h * a1, psi + 0.5 * h * dpsi, dpsi + 0.5 * h * b1, v
+        )
+        a3, b3 = accel(
+            phi + 0.5 * h * (dphi + 0.5 * h * a1),
+            dphi + 0.5 * h * a2,
+            psi + 0.5 * h * (dpsi + 0.5 * h * b1),
+            dpsi + 0.5 * h * b2,
+            v,
+        )
+        a4, b4 = accel(
+            phi + h * (dphi + 0.5 * h * a2),
+            dphi + h * a3,
+            psi + h * (dpsi + 0.5 * h * b2),
+            dpsi + h * b3,
+            v,
+        )
+        phi += (
+            h
+            / 6.0
+            * (dphi + 2.0 * (dphi + 0.5 * h * a1) + 2.0 * (dphi + 0.5 * h * a2) + (dphi + h * a3))
+        )
+        psi += (
+            h
+            / 6.0
+            * (dpsi + 2.0 * (dpsi + 0.5 * h * b1) + 2.0 * (dpsi + 0.5 * h * b2) + (dpsi + h * b3))
+        )
         dphi += h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
         dpsi += h / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4)
     return np.array(stroke), np.array(pitch)
@@ -105,9 +131,11 @@ def cold_compile_s() -> float:
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
         env["PYTHONPATH"] = os.pathsep.join(
-            [p for p in sys.path if p] + [env.get("PYTHONPATH", "")])
-        result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                                text=True, check=True)
+            [p for p in sys.path if p] + [env.get("PYTHONPATH", "")]
+        )
+        result = subprocess.run(
+            [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+        )
     return float(result.stdout.strip().splitlines()[-1])
 
 
@@ -121,59 +149,110 @@ def main() -> None:
     drive = chirp(np.arange(n) / FS_HZ, 100.0, 20.0, 200.0, DURATION_S)
     figures: list[Figure] = []
 
-    figures.append(Figure("numba compile, cold cache (fresh process)", cold_compile_s(), "s",
-                          "reported", True))
+    figures.append(
+        Figure("numba compile, cold cache (fresh process)", cold_compile_s(), "s", "reported", True)
+    )
     start = time.perf_counter()
     plant.simulate(drive[:10], FS_HZ, model)
     plant.simulate_batch(drive[:10], FS_HZ, [model, model])
     first = time.perf_counter() - start
     cached = plant._run.stats.cache_hits and plant._run_batch.stats.cache_hits
     how = "numba cache load" if cached else "numba compile"
-    figures.append(Figure(f"first simulate() + simulate_batch() here ({how})", first, "s",
-                          "reported", True))
+    figures.append(
+        Figure(f"first simulate() + simulate_batch() here ({how})", first, "s", "reported", True)
+    )
 
     t_numba = best_time_s(lambda: plant.simulate(drive, FS_HZ, model), repeats=5)
     t_python = best_time_s(lambda: python_rk4(drive, FS_HZ, model), repeats=5)
     ref_stroke, ref_pitch = python_rk4(drive, FS_HZ, model)
     out = plant.simulate(drive, FS_HZ, model)
-    assert (plant.n_substeps(model, FS_HZ)[0]
-            == 1), "the Python reference takes one RK4 step per sample"
-    max_diff_deg = math.degrees(max(
-        np.max(np.abs(out.stroke_rad - ref_stroke)), np.max(np.abs(out.pitch_rad - ref_pitch))))
+    assert plant.n_substeps(model, FS_HZ)[0] == 1, (
+        "the Python reference takes one RK4 step per sample"
+    )
+    max_diff_deg = math.degrees(
+        max(np.max(np.abs(out.stroke_rad - ref_stroke)), np.max(np.abs(out.pitch_rad - ref_pitch)))
+    )
     speedup = t_python / t_numba
-    figures.append(Figure("simulate 1 s @ 20 kHz, nominal (numba)", t_numba * 1e3, "ms", "", True,
-                          f"python RK4 {t_python * 1e3:.0f} ms"))
-    figures.append(Figure("speedup numba / plain Python RK4", speedup, "x",
-                          f">= {SPEEDUP_TARGET:g}x", speedup >= SPEEDUP_TARGET,
-                          f"max |diff| {max_diff_deg:.1e} deg"))
-    all_effects = with_effects(model, {
-        "sensor_delay": {"delay_s": 2.3e-4}, "charge_amp_highpass": {"corner_hz": 3.0},
-        "feedthrough": {"gain_v_per_v": 2e-3}, "transmission_nonlinearity": {"cubic_per_rad2": 0.2},
-        "hinge_stiffening": {"cubic_per_rad2": 1.5}, "structural_damping": {"damping_ratio": 0.03},
-        "strain_transfer_loss": {"efficiency": 0.23}, "collision": {"stroke_limit_deg": 30.0},
-        "wing_damage": {"inertia_factor": 0.85},
-    })
+    figures.append(
+        Figure(
+            "simulate 1 s @ 20 kHz, nominal (numba)",
+            t_numba * 1e3,
+            "ms",
+            "",
+            True,
+            f"python RK4 {t_python * 1e3:.0f} ms",
+        )
+    )
+    figures.append(
+        Figure(
+            "speedup numba / plain Python RK4",
+            speedup,
+            "x",
+            f">= {SPEEDUP_TARGET:g}x",
+            speedup >= SPEEDUP_TARGET,
+            f"max |diff| {max_diff_deg:.1e} deg",
+        )
+    )
+    all_effects = with_effects(
+        model,
+        {
+            "sensor_delay": {"delay_s": 2.3e-4},
+            "charge_amp_highpass": {"corner_hz": 3.0},
+            "feedthrough": {"gain_v_per_v": 2e-3},
+            "transmission_nonlinearity": {"cubic_per_rad2": 0.2},
+            "hinge_stiffening": {"cubic_per_rad2": 1.5},
+            "structural_damping": {"damping_ratio": 0.03},
+            "strain_transfer_loss": {"efficiency": 0.23},
+            "collision": {"stroke_limit_deg": 30.0},
+            "wing_damage": {"inertia_factor": 0.85},
+        },
+    )
     t_effects = best_time_s(lambda: plant.simulate(drive, FS_HZ, all_effects), repeats=5)
-    figures.append(Figure("simulate 1 s @ 20 kHz, all nine effects", t_effects * 1e3, "ms", "",
-                          True, f"nominal {t_numba * 1e3:.2f} ms"))
+    figures.append(
+        Figure(
+            "simulate 1 s @ 20 kHz, all nine effects",
+            t_effects * 1e3,
+            "ms",
+            "",
+            True,
+            f"nominal {t_numba * 1e3:.2f} ms",
+        )
+    )
 
     single_rate = DURATION_S / t_numba
     for count in (1, 100, 1000):
         models = parameter_sets(model, count)
         out = plant.SimOutput(*(np.empty((count, n)) for _ in range(4)))
-        t_batch = best_time_s(lambda models=models,
-                              out=out: plant.simulate_batch(drive, FS_HZ, models, out=out),
-                              repeats=3)
+        t_batch = best_time_s(
+            lambda models=models, out=out: plant.simulate_batch(drive, FS_HZ, models, out=out),
+            repeats=3,
+        )
         rate = count * DURATION_S / t_batch
-        target, met = ((">= simulate() rate", rate >= single_rate) if count == 1000
-                       else ("reported", True))
-        figures.append(Figure(f"simulate_batch, {count} parameter sets (out= reused)", rate,
-                              "robot-s/s", target, met, f"simulate() {single_rate:.0f} robot-s/s"))
+        target, met = (
+            (">= simulate() rate", rate >= single_rate) if count == 1000 else ("reported", True)
+        )
+        figures.append(
+            Figure(
+                f"simulate_batch, {count} parameter sets (out= reused)",
+                rate,
+                "robot-s/s",
+                target,
+                met,
+                f"simulate() {single_rate:.0f} robot-s/s",
+            )
+        )
         del out
     t_fresh = best_time_s(lambda: plant.simulate_batch(drive, FS_HZ, models), repeats=2)
-    figures.append(Figure("simulate_batch, 1000 parameter sets (fresh outputs)",
-                          1000 * DURATION_S / t_fresh, "robot-s/s", "reported", True,
-                          "allocates 640 MB per call"))
+    figures.append(
+        Figure(
+            "simulate_batch, 1000 parameter sets (fresh outputs)",
+            1000 * DURATION_S / t_fresh,
+            "robot-s/s",
+            "reported",
+            True,
+            "allocates 640 MB per call",
+        )
+    )
 
     print_table(figures)
     if args.json:

@@ -8,6 +8,7 @@ the same tests on the locked stack. Target: every test passes on both.
 
 Run: scripts/in_env.sh python bench/bench_stock_numpy.py [--json out.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,14 +26,33 @@ VENV = REPO_ROOT / "out" / "bench" / "stock-jazzy-venv"
 # In-process tests: they run in the interpreter under test (a test that starts bin/flaair would
 # run the project's own .venv instead, and a graph test measures nothing about numpy).
 TESTS = [
-    "test_sim_plant.py", "test_sim_model.py", "test_sim_actuator.py", "test_sim_drive.py",
-    "test_sensors_frontend.py", "test_sensors_calibration.py", "test_sensors_characterization.py",
-    "test_control_collision.py", "test_control_dsa.py", "test_control_hopf.py",
-    "test_control_safety.py", "test_control_stroke.py", "test_control_transition.py",
-    "test_cdr.py", "test_cdr_layouts.py", "test_lfilter_kernels.py", "test_wingbeat.py",
-    "test_effect_table.py", "test_model_per_channel.py", "test_bag_io.py", "test_runcsv.py",
-    "test_bridge_core.py", "test_bridge_protocol.py", "test_core_properties.py",
-    "test_identify.py", "test_composed_loop.py", "test_health.py",
+    "test_sim_plant.py",
+    "test_sim_model.py",
+    "test_sim_actuator.py",
+    "test_sim_drive.py",
+    "test_sensors_frontend.py",
+    "test_sensors_calibration.py",
+    "test_sensors_characterization.py",
+    "test_control_collision.py",
+    "test_control_dsa.py",
+    "test_control_hopf.py",
+    "test_control_safety.py",
+    "test_control_stroke.py",
+    "test_control_transition.py",
+    "test_cdr.py",
+    "test_cdr_layouts.py",
+    "test_lfilter_kernels.py",
+    "test_wingbeat.py",
+    "test_effect_table.py",
+    "test_model_per_channel.py",
+    "test_bag_io.py",
+    "test_runcsv.py",
+    "test_bridge_core.py",
+    "test_bridge_protocol.py",
+    "test_core_properties.py",
+    "test_identify.py",
+    "test_composed_loop.py",
+    "test_health.py",
 ]
 
 
@@ -42,34 +62,81 @@ def stock_python() -> Path:
     stamp = VENV / ".pins"
     if not (python.exists() and stamp.exists() and stamp.read_text() == PINS.read_text()):
         subprocess.run([sys.executable, "-m", "venv", "--clear", str(VENV)], check=True)
-        subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--no-deps",
-                        "--disable-pip-version-check", "-r", str(PINS)], check=True)
-        site = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()"
-                               "['purelib'])"], capture_output=True, text=True, check=True)
+        subprocess.run(
+            [
+                str(python),
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--no-deps",
+                "--disable-pip-version-check",
+                "-r",
+                str(PINS),
+            ],
+            check=True,
+        )
+        site = subprocess.run(
+            [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         project_site = sysconfig.get_paths()["purelib"]
         (Path(site.stdout.strip()) / "zz_flaair_project_venv.pth").write_text(
-            f"import site; site.addsitedir({project_site!r})\n")
+            f"import site; site.addsitedir({project_site!r})\n"
+        )
         stamp.write_text(PINS.read_text())
     return python
 
 
 def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str]:
     """(passed, failed, versions line) of TESTS under `python`."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(numba_cache), OPENBLAS_NUM_THREADS="1",
-               _ROS_WHEELS_BOOTSTRAP_COMPLETE="1")
+    env = dict(
+        os.environ,
+        NUMBA_CACHE_DIR=str(numba_cache),
+        OPENBLAS_NUM_THREADS="1",
+        _ROS_WHEELS_BOOTSTRAP_COMPLETE="1",
+    )
     # the ROS wheels' bundled libraries, which their start-up hook finds only in its own prefix
     project_site = Path(sysconfig.get_paths()["purelib"])
     libs = [str(p) for p in sorted(project_site.glob("ros_*.libs"))] + [
-        str(Path(sys.prefix) / "lib")]
-    env["LD_LIBRARY_PATH"] = os.pathsep.join(libs + [env.get("LD_LIBRARY_PATH", "")])
-    versions = subprocess.run([str(python), "-c", "import numpy, scipy, numba; print("
-                               "f'numpy {numpy.__version__}, scipy {scipy.__version__}, "
-                               "numba {numba.__version__}')"], env=env, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    done = subprocess.run([str(python), "-m", "pytest", "-q", "-p", "no:xdist", "-p",
-                           "no:cacheprovider", "-m", "not graph and not slow",
-                           *[f"tests/{t}" for t in TESTS]], cwd=REPO_ROOT, env=env,
-                          capture_output=True, text=True, timeout=3600)
+        str(Path(sys.prefix) / "lib")
+    ]
+    env["LD_LIBRARY_PATH"] = os.pathsep.join([*libs, env.get("LD_LIBRARY_PATH", "")])
+    versions = subprocess.run(
+        [
+            str(python),
+            "-c",
+            "import numpy, scipy, numba; print("
+            "f'numpy {numpy.__version__}, scipy {scipy.__version__}, "
+            "numba {numba.__version__}')",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.strip()
+    done = subprocess.run(
+        [
+            str(python),
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:xdist",
+            "-p",
+            "no:cacheprovider",
+            "-m",
+            "not graph and not slow",
+            *[f"tests/{t}" for t in TESTS],
+        ],
+        cwd=REPO_ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=3600,
+    )
     counts = {k: int(n) for n, k in re.findall(r"(\d+) (passed|failed|error)", done.stdout)}
     if done.returncode not in (0, 1):
         print(done.stdout[-3000:], done.stderr[-3000:], sep="\n")
@@ -83,9 +150,16 @@ def main() -> None:
     caches = REPO_ROOT / "out" / "bench" / "numba-cache"
     stock = run_tests(stock_python(), caches / "stock")
     locked = run_tests(Path(sys.executable), caches / "locked")
-    figures = [Figure(f"in-process tests on a stock Jazzy stack ({stock[2]})", stock[0],
-                      "passed", f"all {stock[0] + stock[1]}", stock[1] == 0 and stock[0] > 0,
-                      f"locked stack ({locked[2]}): {locked[0]} passed, {locked[1]} failed")]
+    figures = [
+        Figure(
+            f"in-process tests on a stock Jazzy stack ({stock[2]})",
+            stock[0],
+            "passed",
+            f"all {stock[0] + stock[1]}",
+            stock[1] == 0 and stock[0] > 0,
+            f"locked stack ({locked[2]}): {locked[0]} passed, {locked[1]} failed",
+        )
+    ]
     print_table(figures)
     if args.json:
         write_json(figures, args.json)

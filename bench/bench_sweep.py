@@ -18,6 +18,7 @@ on every worker before any timing; the external cluster's start-up is not timed)
 Each engine runs the sweep --repeats times and its best time counts (other jobs share the
 machine). The results of every engine are checked to be identical.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,24 +46,45 @@ def external_cluster(workers: int) -> tuple[str, list[subprocess.Popen]]:
     dask = str(Path(sys.executable).with_name("dask"))
     port = 20000 + os.getpid() % 20000
     address = f"tcp://127.0.0.1:{port}"
-    procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                               "--no-dashboard"], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)]
+    procs = [
+        subprocess.Popen(
+            [dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
     for _ in range(workers):
-        procs.append(subprocess.Popen(
-            [dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1", "--no-dashboard",
-             "--nworkers", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-            env={**os.environ, **sweep.WORKER_ENV}))
+        procs.append(
+            subprocess.Popen(
+                [
+                    dask,
+                    "worker",
+                    address,
+                    "--host",
+                    "127.0.0.1",
+                    "--nthreads",
+                    "1",
+                    "--no-dashboard",
+                    "--nworkers",
+                    "1",
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                env={**os.environ, **sweep.WORKER_ENV},
+            )
+        )
     return address, procs
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", type=Path,
-                        default=REPO_ROOT / "out" / "bench" / "bench_sweep.json")
+    parser.add_argument(
+        "--json", type=Path, default=REPO_ROOT / "out" / "bench" / "bench_sweep.json"
+    )
     parser.add_argument("--factors", type=int, default=31, help="inertia factors in the grid")
-    parser.add_argument("--repeats", type=int, default=3,
-                        help="runs per engine; the best time counts")
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="runs per engine; the best time counts"
+    )
     args = parser.parse_args()
     from dask.distributed import Client
 
@@ -76,9 +98,11 @@ def main() -> int:
     cores = os.cpu_count() or 1
     in_process_parts = sweep.chunks(rows, sizing.chunk_size(rows, 1))
     robot_s = sum(r["duration_s"] for r in rows)
-    print(f"{len(rows)} simulations, {robot_s:.0f} robot-s, {cores} cores; chunks: in-process "
-          f"{len(in_process_parts)} x {len(in_process_parts[0])}, {cores} workers "
-          f"{sizing.chunk_size(rows, cores)}, 2 workers {sizing.chunk_size(rows, 2)} simulations")
+    print(
+        f"{len(rows)} simulations, {robot_s:.0f} robot-s, {cores} cores; chunks: in-process "
+        f"{len(in_process_parts)} x {len(in_process_parts[0])}, {cores} workers "
+        f"{sizing.chunk_size(rows, cores)}, 2 workers {sizing.chunk_size(rows, 2)} simulations"
+    )
     warm_up(model, rows[0])
     run_rows(in_process_parts[0][:4], model, parallel=True)  # compile the threaded variant too
 
@@ -121,29 +145,75 @@ def main() -> int:
         for p in procs:
             p.wait(timeout=30)
     identical = ref == par == local == external
-    rate = {k: robot_s / t for k, t in (("serial", t_serial), ("parallel", t_parallel),
-                                        ("local", t_local), ("external", t_external))}
-    chunk_s = t_serial / len(rows) * len(local_parts[0])   # one local-cluster chunk, one core
+    rate = {
+        k: robot_s / t
+        for k, t in (
+            ("serial", t_serial),
+            ("parallel", t_parallel),
+            ("local", t_local),
+            ("external", t_external),
+        )
+    }
+    chunk_s = t_serial / len(rows) * len(local_parts[0])  # one local-cluster chunk, one core
     # the in-process batch: the better of its two ways
     best = max(rate["serial"], rate["parallel"])
-    base = (f"in-process batch {rate['parallel']:.0f} robot-s/s ({cores} threads), "
-            f"{rate['serial']:.0f} (1 core)")
+    base = (
+        f"in-process batch {rate['parallel']:.0f} robot-s/s ({cores} threads), "
+        f"{rate['serial']:.0f} (1 core)"
+    )
     figures = [
-        Figure("sweep in-process batch, 1 core", rate["serial"], "robot-s/s", "reported", True,
-               "same run"),
-        Figure(f"sweep in-process batch, {cores} numba threads", rate["parallel"], "robot-s/s",
-               "reported", True, f"1 core: {rate['serial']:.0f}"),
-        Figure(f"sweep Dask LocalCluster, {cores} workers", rate["local"], "robot-s/s",
-               ">= 0.8 x in-process", rate["local"] >= 0.8 * best, base),
-        Figure("sweep Dask external scheduler, 2 workers", rate["external"], "robot-s/s",
-               ">= 0.8 x in-process", rate["external"] >= 0.8 * best, base),
-        Figure("Dask overhead per task (empty task)", timings["per_task_s"] * 1e3, "ms", "reported",
-               True, f"one {len(local_parts[0])}-simulation chunk ({len(local_parts)} tasks) "
-                     f"computes in {chunk_s * 1e3:.0f} ms"),
-        Figure("sweep results identical on every engine", float(identical), "bool", "1", identical,
-               ""),
-        Figure("machine load average during the run (1 min)", os.getloadavg()[0], "runnable",
-               "reported", True, f"{cores} cores shared"),
+        Figure(
+            "sweep in-process batch, 1 core",
+            rate["serial"],
+            "robot-s/s",
+            "reported",
+            True,
+            "same run",
+        ),
+        Figure(
+            f"sweep in-process batch, {cores} numba threads",
+            rate["parallel"],
+            "robot-s/s",
+            "reported",
+            True,
+            f"1 core: {rate['serial']:.0f}",
+        ),
+        Figure(
+            f"sweep Dask LocalCluster, {cores} workers",
+            rate["local"],
+            "robot-s/s",
+            ">= 0.8 x in-process",
+            rate["local"] >= 0.8 * best,
+            base,
+        ),
+        Figure(
+            "sweep Dask external scheduler, 2 workers",
+            rate["external"],
+            "robot-s/s",
+            ">= 0.8 x in-process",
+            rate["external"] >= 0.8 * best,
+            base,
+        ),
+        Figure(
+            "Dask overhead per task (empty task)",
+            timings["per_task_s"] * 1e3,
+            "ms",
+            "reported",
+            True,
+            f"one {len(local_parts[0])}-simulation chunk ({len(local_parts)} tasks) "
+            f"computes in {chunk_s * 1e3:.0f} ms",
+        ),
+        Figure(
+            "sweep results identical on every engine", float(identical), "bool", "1", identical, ""
+        ),
+        Figure(
+            "machine load average during the run (1 min)",
+            os.getloadavg()[0],
+            "runnable",
+            "reported",
+            True,
+            f"{cores} cores shared",
+        ),
     ]
     print_table(figures)
     write_json(figures, args.json)

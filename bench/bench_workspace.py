@@ -5,6 +5,7 @@ the source tree. Target: every one passes. Baseline: the time of this checkout's
 
 Run: scripts/in_env.sh python bench/bench_workspace.py [--json out.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,9 +23,22 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     start = time.monotonic()
-    result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:xdist", "-m",
-                             "workspace", "tests/test_workspace_build.py"], cwd=REPO_ROOT,
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:xdist",
+            "-m",
+            "workspace",
+            "tests/test_workspace_build.py",
+        ],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+    )
     took_s = time.monotonic() - start
     passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
     failed = int(m.group(1)) if (m := re.search(r"(\d+) (failed|error)", result.stdout)) else 0
@@ -34,11 +48,22 @@ def main() -> None:
     subprocess.run([str(REPO_ROOT / "scripts" / "setup_env.sh")], capture_output=True)
     setup_s = time.monotonic() - start
     figures = [
-        Figure("plain colcon build + a node from its install tree: tests passed", passed, "tests",
-               "all, none failed", passed > 0 and failed == 0 and result.returncode == 0,
-               f"{failed} failed"),
-        Figure("plain colcon build + node start: wall time", round(took_s, 1), "s", "(reported)",
-               True, f"setup check with nothing to rebuild: {setup_s:.1f} s"),
+        Figure(
+            "plain colcon build + a node from its install tree: tests passed",
+            passed,
+            "tests",
+            "all, none failed",
+            passed > 0 and failed == 0 and result.returncode == 0,
+            f"{failed} failed",
+        ),
+        Figure(
+            "plain colcon build + node start: wall time",
+            round(took_s, 1),
+            "s",
+            "(reported)",
+            True,
+            f"setup check with nothing to rebuild: {setup_s:.1f} s",
+        ),
     ]
     print_table(figures)
     if args.json:

@@ -1,13 +1,14 @@
 """Tiny benchmark reporting: each figure beside its target and its same-run baseline."""
+
 from __future__ import annotations
 
 import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 for _package_dir in sorted((REPO_ROOT / "src").iterdir()):
@@ -41,13 +42,16 @@ def print_table(figures: list[Figure]) -> None:
     """Print figures as an aligned table."""
     print(f"{'benchmark':52s} {'value':>14s} {'unit':10s} {'target':18s} {'met':4s} baseline")
     for f in figures:
-        print(f"{f.name:52s} {f.value:14.4g} {f.unit:10s} {f.target:18s} "
-              f"{'yes' if f.met else 'NO':4s} {f.baseline}")
+        print(
+            f"{f.name:52s} {f.value:14.4g} {f.unit:10s} {f.target:18s} "
+            f"{'yes' if f.met else 'NO':4s} {f.baseline}"
+        )
 
 
 def write_json(figures: list[Figure], path: Path) -> None:
     """Write figures as JSON (a list of objects)."""
     path.parent.mkdir(parents=True, exist_ok=True)
+
     # numpy scalars (np.bool_ from a comparison, np.float64) are written as plain numbers; strict
     # JSON: a NaN or infinite figure (not measured, never answered) is null
     def plain(value):

@@ -5,6 +5,7 @@ disturb another) and writes its figures as JSON; this collects them into one tab
 figure beside its target, its same-run baseline where one applies, and whether it is met,
 and writes the table as JSON (--json).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -16,10 +17,23 @@ from pathlib import Path
 
 from benchlib import REPO_ROOT, Figure, print_table, write_json
 
-BENCHES = ["bench_sim", "bench_frontend_core", "bench_collision", "bench_analysis",
-           "bench_recorder", "bench_closed_loop", "bench_discrepancy", "bench_stroke",
-           "bench_sweep", "bench_bridge", "bench_import", "bench_lab_import", "bench_foxglove",
-           "bench_stock_numpy", "bench_workspace"]
+BENCHES = [
+    "bench_sim",
+    "bench_frontend_core",
+    "bench_collision",
+    "bench_analysis",
+    "bench_recorder",
+    "bench_closed_loop",
+    "bench_discrepancy",
+    "bench_stroke",
+    "bench_sweep",
+    "bench_bridge",
+    "bench_import",
+    "bench_lab_import",
+    "bench_foxglove",
+    "bench_stock_numpy",
+    "bench_workspace",
+]
 # Extra arguments per benchmark: the discrepancy benchmark also runs the whole fixed hidden-effect
 # dataset (45 cases; `make test` runs one case of each kind, tests/test_discrepancy.py).
 EXTRA_ARGS = {"bench_discrepancy": ["--sweep"]}
@@ -42,9 +56,11 @@ def main() -> int:
         print(f"[bench] {name} ...", flush=True)
         start = time.monotonic()
         part = out_dir / f"{name}.json"
-        result = subprocess.run([sys.executable, str(script), "--json", str(part),
-                                 *EXTRA_ARGS.get(name, [])],
-                                capture_output=True, text=True)
+        result = subprocess.run(
+            [sys.executable, str(script), "--json", str(part), *EXTRA_ARGS.get(name, [])],
+            capture_output=True,
+            text=True,
+        )
         print(f"[bench] {name}: {time.monotonic() - start:.0f} s", flush=True)
         if result.returncode != 0 or not part.exists():
             failures.append(name)
@@ -53,8 +69,15 @@ def main() -> int:
         loaded = json.loads(part.read_text())
         entries = loaded if isinstance(loaded, list) else loaded.get("figures", [])
         for entry in entries:
-            figures.append(Figure(**{k: entry[k] for k in (
-                "name", "value", "unit", "target", "met", "baseline") if k in entry}))
+            figures.append(
+                Figure(
+                    **{
+                        k: entry[k]
+                        for k in ("name", "value", "unit", "target", "met", "baseline")
+                        if k in entry
+                    }
+                )
+            )
     print()
     print_table(figures)
     write_json(figures, args.json)

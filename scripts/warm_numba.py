@@ -3,6 +3,7 @@
 Without this, the first node processes of a fresh checkout each spend 10-20 s compiling the
 plant before their first block; with the cache written here they start in well under a second.
 """
+
 from __future__ import annotations
 
 import time
@@ -27,14 +28,26 @@ def main() -> None:
 
     fs_hz = 20000.0
     model = load_model()
-    drive = drive_record(DriveParams(
-        kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400)
-    for m in (model, with_effects(
-            model, {"collision": {"stroke_limit_deg": 20.0}, "sensor_delay": {"delay_s": 1e-4},
-                    "charge_amp_highpass": {"corner_hz": 1.0}})):
+    drive = drive_record(
+        DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400
+    )
+    for m in (
+        model,
+        with_effects(
+            model,
+            {
+                "collision": {"stroke_limit_deg": 20.0},
+                "sensor_delay": {"delay_s": 1e-4},
+                "charge_amp_highpass": {"corner_hz": 1.0},
+            },
+        ),
+    ):
         simulate(drive, fs_hz, m)
-        step(initial_state(PlantStepParams(m, fs_hz)), PlantInputs(drive[:10]),
-             PlantStepParams(m, fs_hz))
+        step(
+            initial_state(PlantStepParams(m, fs_hz)),
+            PlantInputs(drive[:10]),
+            PlantStepParams(m, fs_hz),
+        )
     simulate_batch(drive, fs_hz, [model, model])
     # identification and the discrepancy search: many models from measured initial states (the
     # costliest kernel to compile, 10-30 s, and every test worker would otherwise compile it)
@@ -44,10 +57,13 @@ def main() -> None:
         from flaair_tools.analysis import wingbeat
 
         lfilter.lfilter(np.array([1.0, 0.0]), np.array([1.0, 0.0]), np.zeros(10), np.zeros(1))
-        wingbeat.summarize(20.0 * np.sin(np.arange(2000) / 20.0), np.zeros(2000),
-                           np.ones(2000, dtype=bool), wingbeat.WingbeatParams(fs_hz, 2.0, 20.0,
-                                                                             400.0))
-    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+        wingbeat.summarize(
+            20.0 * np.sin(np.arange(2000) / 20.0),
+            np.zeros(2000),
+            np.ones(2000, dtype=bool),
+            wingbeat.WingbeatParams(fs_hz, 2.0, 20.0, 400.0),
+        )
+    except Exception as exc:
         print(f"[setup] numba warm-up of the analysis kernels skipped: {exc}")
     try:
         from flaair_control.control_io import (
@@ -56,14 +72,15 @@ def main() -> None:
         )
         from flaair_control.core import collision, spectral
 
-        spectral.spectral_metric(np.sin(np.arange(2000) / 20.0), fs_hz, 100.0,
-                                 spectral_metric_params_from_config())
+        spectral.spectral_metric(
+            np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config()
+        )
         params = monitor_windows_from_config(100.0)
         collision.run(np.zeros(400), np.zeros(400), params)
-        stroke_windows = monitor_windows_from_config(None)   # the Schmitt scan of the stroke
+        stroke_windows = monitor_windows_from_config(None)  # the Schmitt scan of the stroke
         wave = 20.0 * np.sin(2 * np.pi * 100.0 * np.arange(4000) / fs_hz)
         collision.run(np.radians(wave), np.zeros(4000), stroke_windows)
-    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+    except Exception as exc:
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
     try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
         from flaair_control.control_io import supervisor_params_from_config
@@ -73,25 +90,30 @@ def main() -> None:
         from flaair_sensors.frontend_io import frontend_params_from_config
 
         fe = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), fs_hz)
-        frontend.step(frontend.initial_state(fe), frontend.FrontendInputs(np.ones(10), np.ones(10)),
-                      fe)
+        frontend.step(
+            frontend.initial_state(fe), frontend.FrontendInputs(np.ones(10), np.ones(10)), fe
+        )
         loop = supervisor_params_from_config(
-            node_parameters("flaair.yaml", "dsa_controller_node"), model)
+            node_parameters("flaair.yaml", "dsa_controller_node"), model
+        )
         dsa.step(dsa.initial_state(loop.dsa), dsa.DsaInputs(np.zeros(10), 0.0), loop.dsa)
-        safety.step(safety.initial_state(loop.safety), safety.SafetyInputs(np.zeros(10), 0.0),
-                    loop.safety)
-    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+        safety.step(
+            safety.initial_state(loop.safety), safety.SafetyInputs(np.zeros(10), 0.0), loop.safety
+        )
+    except Exception as exc:
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     try:  # the wing-damage sweep's batch kernels (the stroke tracker among them)
         from flaair_control.control_io import stroke_controller_values
         from flaair_model.config import config_dir
         from flaair_tools.sweeps import sweep, sweep_batch
 
-        rows = sweep.wing_damage_rows(sweep.load_section(config_dir() / "sweeps.yaml",
-                                                         "wing_damage"),
-                                      stroke_controller_values(), model)
+        rows = sweep.wing_damage_rows(
+            sweep.load_section(config_dir() / "sweeps.yaml", "wing_damage"),
+            stroke_controller_values(),
+            model,
+        )
         sweep_batch.warm_up(model, rows[0])
-    except Exception as exc:  # noqa: BLE001 - warming is best effort; the real call compiles anyway
+    except Exception as exc:
         print(f"[setup] numba warm-up of the sweep kernels skipped: {exc}")
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")
 

@@ -16,14 +16,16 @@ with every sensor block the plant steps (lockstep at the real-time rate), and ju
 due timer when nothing else is left to do. Each node still has its DDS participant (on a leased
 domain of its own), which no one outside listens to.
 """
+
 from __future__ import annotations
 
 import copy
 import importlib
 import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 import yaml
@@ -56,15 +58,16 @@ class FakeClock:
     def advance(self, duration_s: float) -> None:
         self.now_s += duration_s
 
-    def __getattr__(self, name: str) -> Any:   # perf_counter, thread_time, ...: the real ones
+    def __getattr__(self, name: str) -> Any:  # perf_counter, thread_time, ...: the real ones
         return getattr(time, name)
 
 
 class Composed:
     """Nodes on one bus, a fake clock, and sinks that keep every block of a topic."""
 
-    def __init__(self, bus: intra.Bus, nodes: list[Any], clock: FakeClock,
-                 block_period_s: float) -> None:
+    def __init__(
+        self, bus: intra.Bus, nodes: list[Any], clock: FakeClock, block_period_s: float
+    ) -> None:
         self.bus, self.nodes, self.clock, self.block_period_s = bus, nodes, clock, block_period_s
         # id(timer) -> when it fires next (a node may add or destroy timers)
         self.due_s: dict[int, float] = {}
@@ -96,8 +99,12 @@ class Composed:
 
     def live_timers(self) -> list[tuple[Any, float]]:
         """(timer, period s) of every node's timers now, each with its next due time set."""
-        timers = [(timer, timer.timer_period_ns * 1e-9) for node in self.nodes
-                  for timer in node.timers if not timer.is_canceled()]
+        timers = [
+            (timer, timer.timer_period_ns * 1e-9)
+            for node in self.nodes
+            for timer in node.timers
+            if not timer.is_canceled()
+        ]
         for timer, period in timers:
             self.due_s.setdefault(id(timer), self.clock.now_s + period)
         return timers
@@ -111,8 +118,13 @@ class Composed:
                 fired += 1
         return fired
 
-    def run_until(self, done: Callable[[], bool], max_clock_s: float = 60.0, budget: int = 8,
-                  idle_until_s: float | None = None) -> None:
+    def run_until(
+        self,
+        done: Callable[[], bool],
+        max_clock_s: float = 60.0,
+        budget: int = 8,
+        idle_until_s: float | None = None,
+    ) -> None:
         """Drain the bus and fire due timers until `done()`; fail after `max_clock_s` of fake time.
 
         With nothing queued and no timer left, the clock jumps to `idle_until_s` (if given: the
@@ -137,15 +149,20 @@ class Composed:
 
 def write_params(path: Path, params: dict[str, dict[str, Any]]) -> Path:
     """A ROS params file with one section per node name."""
-    path.write_text(yaml.safe_dump(
-        {name: {"ros__parameters": values} for name, values in params.items()}))
+    path.write_text(
+        yaml.safe_dump({name: {"ros__parameters": values} for name, values in params.items()})
+    )
     return path
 
 
 @contextmanager
-def composed(monkeypatch, node_classes: list[type], params: dict[str, dict[str, Any]] | None = None,
-             tmp_path: Path | None = None,
-             local_topics: tuple[str, ...] = LOCAL_TOPICS) -> Iterator[Composed]:
+def composed(
+    monkeypatch,
+    node_classes: list[type],
+    params: dict[str, dict[str, Any]] | None = None,
+    tmp_path: Path | None = None,
+    local_topics: tuple[str, ...] = LOCAL_TOPICS,
+) -> Iterator[Composed]:
     """Build `node_classes` in this process on one bus (per-node parameter overrides in `params`),
     their clocks faked; destroy them and shut rclpy down at the end.
     """
@@ -164,8 +181,10 @@ def composed(monkeypatch, node_classes: list[type], params: dict[str, dict[str, 
     bus = intra.Bus(set(local_topics))
     if rclpy.ok():
         rclpy.shutdown()
-    rclpy.init(args=["composed", "--ros-args", "--params-file", str(params_file)],
-               domain_id=lease.domain_id)
+    rclpy.init(
+        args=["composed", "--ros-args", "--params-file", str(params_file)],
+        domain_id=lease.domain_id,
+    )
     intra.install(bus)
     nodes: list[Any] = []
     try:

@@ -1,12 +1,13 @@
 """Shared pytest setup: the pure cores import straight from src/ (no build needed); every ROS
 domain a test leased is released when the test ends.
 """
+
 from __future__ import annotations
 
 import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
@@ -15,7 +16,7 @@ for package_dir in sorted((REPO_ROOT / "src").iterdir()):
     if (package_dir / "setup.py").exists() and str(package_dir) not in sys.path:
         sys.path.insert(0, str(package_dir))
 
-import rosproc  # noqa: E402 - needs the path above
+import rosproc
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -35,10 +36,12 @@ def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
     """A test that starts a ROS graph (or an experiment, `live`, a recorder) must be marked `graph`,
     so that it runs alone (scripts/run_tests.sh); a domain it leased is released when it ends.
     """
-    yield   # (a module fixture's graph, started before this fixture, counts for its first test)
+    yield  # (a module fixture's graph, started before this fixture, counts for its first test)
     rosproc.release_leases()
     started, rosproc.GRAPHS_STARTED[:] = list(rosproc.GRAPHS_STARTED), []
     if started and request.node.get_closest_marker("graph") is None:
-        pytest.fail(f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not "
-                    "marked @pytest.mark.graph (graph tests run alone, after the others)",
-                    pytrace=False)
+        pytest.fail(
+            f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not "
+            "marked @pytest.mark.graph (graph tests run alone, after the others)",
+            pytrace=False,
+        )

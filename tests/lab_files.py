@@ -5,6 +5,7 @@ and MAT v7.3 (hdf5storage); the wing's points as a DLTdv8 ``*_xyzpts.csv`` (mill
 numbered out of order) and the actuator tip as a ``*_xypts.csv`` (pixels); the rig file as YAML.
 The generator's own angles at every frame come back for comparison.
 """
+
 from __future__ import annotations
 
 import csv
@@ -19,8 +20,8 @@ FS_HZ = 20000.0
 FPS = 10000.0
 GAIN_V_PER_V = 100.0
 BIAS_V = 0.0
-TRIGGER_S = 0.0123                 # the camera trigger's rising edge
-TRIGGER_FRAME = 150                # the frame taken at that edge: frames 0-26 precede the log
+TRIGGER_S = 0.0123  # the camera trigger's rising edge
+TRIGGER_FRAME = 150  # the frame taken at that edge: frames 0-26 precede the log
 UP = np.array([0.2, -0.3, 0.93])
 REST_SPAN = np.array([1.0, 0.4, 0.1])
 ORIGIN_MM = np.array([12.0, -4.0, 30.0])
@@ -38,8 +39,8 @@ class LabSession:
     rig: Path
     tracks: Path
     tip_track: Path
-    frame_sample: np.ndarray         # DAQ sample of each frame (-1: outside the log)
-    stroke_deg: np.ndarray           # generator's angles per frame (NaN: not tracked)
+    frame_sample: np.ndarray  # DAQ sample of each frame (-1: outside the log)
+    stroke_deg: np.ndarray  # generator's angles per frame (NaN: not tracked)
     pitch_deg: np.ndarray
 
 
@@ -48,8 +49,9 @@ def bench_model():
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
 
-    return with_effects(load_model(), {
-        "strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"}})
+    return with_effects(
+        load_model(), {"strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"}}
+    )
 
 
 def chirp_run(seed: int = 3, duration_s: float = 1.0) -> dict[str, np.ndarray]:
@@ -58,12 +60,21 @@ def chirp_run(seed: int = 3, duration_s: float = 1.0) -> dict[str, np.ndarray]:
     from flaair_sim.core.plant import simulate
 
     n = int(duration_s * FS_HZ)
-    drive = drive_record(DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0,
-                                     stop_hz=200.0, duration_s=duration_s), FS_HZ, n)
+    drive = drive_record(
+        DriveParams(
+            kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=duration_s
+        ),
+        FS_HZ,
+        n,
+    )
     out = simulate(drive, FS_HZ, bench_model(), noise=True, rng=np.random.default_rng(seed))
-    return {"drive_v": drive, "stroke_sensor_v": out.stroke_sensor_v,
-            "pitch_sensor_v": out.pitch_sensor_v, "stroke_rad": out.stroke_rad,
-            "pitch_rad": out.pitch_rad}
+    return {
+        "drive_v": drive,
+        "stroke_sensor_v": out.stroke_sensor_v,
+        "pitch_sensor_v": out.pitch_sensor_v,
+        "stroke_rad": out.stroke_rad,
+        "pitch_rad": out.pitch_rad,
+    }
 
 
 def _rotate(v: np.ndarray, axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -83,31 +94,53 @@ def wing_points_mm(stroke_rad: np.ndarray, pitch_rad: np.ndarray) -> dict[str, n
     s = _rotate(r, u, stroke_rad)
     c = _rotate(np.broadcast_to(-u, s.shape), s, pitch_rad)
     le1 = np.tile(ORIGIN_MM, (stroke_rad.size, 1))
-    return {"wing_leading_edge_1": le1, "wing_leading_edge_2": le1 + 9.0 * s + 0.7 * u,
-            "wing_trailing_edge_1": le1 + 4.0 * c + 0.5 * s}
-
-
-def rig_mapping(sync: str = "trigger", stroke_from: str = "wing_span",
-                trigger_frame: int = TRIGGER_FRAME) -> dict:
-    """The rig file's content for these files."""
-    video = {"fps": FPS, "length_unit_m": 0.001,
-             "sync": ({"trigger_frame": trigger_frame, "trigger_threshold_v": 2.5}
-                      if sync == "trigger" else {"frame0_time_s": TRIGGER_S - TRIGGER_FRAME / FPS})}
     return {
-        "signals": {"drive": "amp_in", "stroke_sensor": "pvdf_act", "pitch_sensor": "pvdf_hinge",
-                    "camera_trigger": "cam_trig"},
-        "drive_gain_v_per_v": GAIN_V_PER_V, "drive_bias_v": BIAS_V, "video": video,
+        "wing_leading_edge_1": le1,
+        "wing_leading_edge_2": le1 + 9.0 * s + 0.7 * u,
+        "wing_trailing_edge_1": le1 + 4.0 * c + 0.5 * s,
+    }
+
+
+def rig_mapping(
+    sync: str = "trigger", stroke_from: str = "wing_span", trigger_frame: int = TRIGGER_FRAME
+) -> dict:
+    """The rig file's content for these files."""
+    video = {
+        "fps": FPS,
+        "length_unit_m": 0.001,
+        "sync": (
+            {"trigger_frame": trigger_frame, "trigger_threshold_v": 2.5}
+            if sync == "trigger"
+            else {"frame0_time_s": TRIGGER_S - TRIGGER_FRAME / FPS}
+        ),
+    }
+    return {
+        "signals": {
+            "drive": "amp_in",
+            "stroke_sensor": "pvdf_act",
+            "pitch_sensor": "pvdf_hinge",
+            "camera_trigger": "cam_trig",
+        },
+        "drive_gain_v_per_v": GAIN_V_PER_V,
+        "drive_bias_v": BIAS_V,
+        "video": video,
         "points": {**POINTS, "actuator_tip": {"point": 1, "camera": 2}},
-        "geometry": {"up": UP.tolist(), "rest_span": REST_SPAN.tolist(), "m_per_px": M_PER_PX,
-                     "tip_axis_px": TIP_AXIS_PX.tolist(),
-                     "transmission_ratio_rad_per_m": TRANSMISSION_RAD_PER_M},
-        "stroke_from": stroke_from}
+        "geometry": {
+            "up": UP.tolist(),
+            "rest_span": REST_SPAN.tolist(),
+            "m_per_px": M_PER_PX,
+            "tip_axis_px": TIP_AXIS_PX.tolist(),
+            "transmission_ratio_rad_per_m": TRANSMISSION_RAD_PER_M,
+        },
+        "stroke_from": stroke_from,
+    }
 
 
 def structure_with_time(time_s: np.ndarray, signals: dict[str, np.ndarray]) -> dict:
     """Simulink's Structure with time: time N x 1, signals a 1 x k struct array."""
-    array = np.zeros((1, len(signals)),
-                     dtype=[("values", object), ("label", object), ("blockName", object)])
+    array = np.zeros(
+        (1, len(signals)), dtype=[("values", object), ("label", object), ("blockName", object)]
+    )
     for k, (label, values) in enumerate(signals.items()):
         array[0, k] = (values.reshape(-1, 1), label, f"bench/{label}")
     return {"time": time_s.reshape(-1, 1), "signals": array, "blockName": "bench"}
@@ -141,15 +174,27 @@ def write_xyzpts(path: Path, points_mm: dict[str, np.ndarray], numbers: dict[str
             writer.writerow(row)
 
 
-def write_lab_run(directory: Path, name: str, run: dict[str, np.ndarray], version: str = "v5",
-                  untracked_every: int = 50, **rig_options) -> LabSession:
+def write_lab_run(
+    directory: Path,
+    name: str,
+    run: dict[str, np.ndarray],
+    version: str = "v5",
+    untracked_every: int = 50,
+    **rig_options,
+) -> LabSession:
     """The run's MAT log (`version`), tracks and rig file in `directory`."""
     n = run["drive_v"].size
     time_s = np.arange(n) / FS_HZ
     trigger = np.where(time_s >= TRIGGER_S - 1e-12, 5.0, 0.0)
-    log = structure_with_time(time_s, {"amp_in": (run["drive_v"] + BIAS_V) / GAIN_V_PER_V,
-                                       "pvdf_act": run["stroke_sensor_v"],
-                                       "pvdf_hinge": run["pitch_sensor_v"], "cam_trig": trigger})
+    log = structure_with_time(
+        time_s,
+        {
+            "amp_in": (run["drive_v"] + BIAS_V) / GAIN_V_PER_V,
+            "pvdf_act": run["stroke_sensor_v"],
+            "pvdf_hinge": run["pitch_sensor_v"],
+            "cam_trig": trigger,
+        },
+    )
     mat = write_mat(directory / f"{name}.mat", log, version)
     # frames from before the log starts to past its end: those are dropped
     frames = np.arange(int((time_s[-1] + 0.002 - TRIGGER_S) * FPS) + TRIGGER_FRAME)
@@ -164,8 +209,9 @@ def write_lab_run(directory: Path, name: str, run: dict[str, np.ndarray], versio
         xyz[~tracked] = np.nan
     tracks = directory / f"{name}_xyzpts.csv"
     write_xyzpts(tracks, points, POINTS)
-    tip_px = (np.array([640.0, 360.0]) + (stroke / TRANSMISSION_RAD_PER_M / M_PER_PX)[:, None]
-              * TIP_AXIS_PX / np.linalg.norm(TIP_AXIS_PX))
+    tip_px = np.array([640.0, 360.0]) + (stroke / TRANSMISSION_RAD_PER_M / M_PER_PX)[
+        :, None
+    ] * TIP_AXIS_PX / np.linalg.norm(TIP_AXIS_PX)
     tip_px[~tracked] = np.nan
     tip_track = directory / f"{name}_xypts.csv"
     with open(tip_track, "w", newline="") as handle:
@@ -178,5 +224,6 @@ def write_lab_run(directory: Path, name: str, run: dict[str, np.ndarray], versio
     rig.write_text(yaml.safe_dump(rig_mapping(**rig_options), sort_keys=False))
     truth_stroke = np.where(inside & tracked, np.degrees(stroke), np.nan)
     truth_pitch = np.where(inside & tracked, np.degrees(pitch), np.nan)
-    return LabSession(mat, rig, tracks, tip_track, np.where(inside, sample, -1), truth_stroke,
-                      truth_pitch)
+    return LabSession(
+        mat, rig, tracks, tip_track, np.where(inside, sample, -1), truth_stroke, truth_pitch
+    )

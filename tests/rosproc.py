@@ -4,6 +4,7 @@
 (localhost discovery), children in their own process groups that die with the test process,
 and a stop in reverse order. This module only adapts it to the tests' habits (pipes by default).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -14,9 +15,10 @@ import signal
 import subprocess
 import tempfile
 import traceback
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
 from flaair_common.graph import Graph, graph_env, lease_domain, wait_for  # noqa: F401 - wait_for re-exported
 
@@ -28,8 +30,10 @@ def graph_pids(domain_id: int | None = None, launcher_pid: int | None = None) ->
     """Processes of FLAAIR graphs (their launcher marks them FLAAIR_GRAPH=domain:launcher_pid):
     those on `domain_id`, of `launcher_pid`, or both; never this process.
     """
-    wanted = (None if domain_id is None else str(domain_id).encode(),
-              None if launcher_pid is None else str(launcher_pid).encode())
+    wanted = (
+        None if domain_id is None else str(domain_id).encode(),
+        None if launcher_pid is None else str(launcher_pid).encode(),
+    )
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
@@ -50,7 +54,7 @@ def graph_pids(domain_id: int | None = None, launcher_pid: int | None = None) ->
 _LEASES: list = []
 # what this test started that exchanges data in real time (conftest checks the mark)
 GRAPHS_STARTED: list[str] = []
-GRAPH_COMMANDS = {"experiment", "live"}   # `flaair` commands that bring a graph up
+GRAPH_COMMANDS = {"experiment", "live"}  # `flaair` commands that bring a graph up
 
 
 def isolated_env() -> dict[str, str]:
@@ -83,25 +87,32 @@ class Processes:
         self.started = [process for _, process in graph.children]
         self.log_dir = Path(tempfile.mkdtemp(prefix="flaair-test-graph-"))
 
-    def start(self, *args: str, stdout: IO | None = None,
-              stderr: IO | int | None = None) -> subprocess.Popen:
+    def start(
+        self, *args: str, stdout: IO | None = None, stderr: IO | int | None = None
+    ) -> subprocess.Popen:
         """Start a process on the graph's domain; stdout/stderr:
         its own log files (default) or an open file.
         """
-        self.graph.env = self.env   # a test may adjust the environment before starting
+        self.graph.env = self.env  # a test may adjust the environment before starting
         words = "_".join(a for a in args[1:3] if a.isidentifier())
         name = f"{len(self.started):02d}_{Path(args[0]).name}_{words}"
         out_path, err_path = self.log_dir / f"{name}.out", self.log_dir / f"{name}.err"
         with open(out_path, "w") as out_file, open(err_path, "w") as err_file:
-            process = self.graph.start(Path(args[0]).name, args, stdout=stdout or out_file,
-                                       stderr=err_file if stderr is None else stderr)
+            process = self.graph.start(
+                Path(args[0]).name,
+                args,
+                stdout=stdout or out_file,
+                stderr=err_file if stderr is None else stderr,
+            )
         process.stdout = open(out_path) if stdout is None else None
         process.stderr = open(err_path) if stderr is None else None
 
         def communicate(input: str | None = None, timeout: float | None = None) -> tuple[str, str]:
             process.wait(timeout=timeout)
-            return (out_path.read_text() if stdout is None else "", err_path.read_text()
-                    if stderr is None else "")
+            return (
+                out_path.read_text() if stdout is None else "",
+                err_path.read_text() if stderr is None else "",
+            )
 
         process.communicate = communicate
         self.started.append(process)
@@ -110,8 +121,9 @@ class Processes:
     def flaair(self, *args: str, **kwargs) -> subprocess.Popen:
         return self.start(FLAAIR, *args, **kwargs)
 
-    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT,
-             timeout_s: float = 10.0) -> int:
+    def stop(
+        self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = 10.0
+    ) -> int:
         return self.graph.stop(process, sig, timeout_s)
 
     def stop_all(self) -> None:
@@ -126,22 +138,29 @@ def ros_processes() -> Iterator[Processes]:
         yield Processes(graph)
 
 
-def run(args: list[str], env: dict[str, str],
-        timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+def run(
+    args: list[str], env: dict[str, str], timeout_s: float = 60.0
+) -> subprocess.CompletedProcess:
     """Run a command to completion in `env`, capturing output."""
-    if (args[:1] == [FLAAIR] and len(args) > 1 and args[1] in GRAPH_COMMANDS
-        and "--help" not in args):
+    if (
+        args[:1] == [FLAAIR]
+        and len(args) > 1
+        and args[1] in GRAPH_COMMANDS
+        and "--help" not in args
+    ):
         GRAPHS_STARTED.append(f"flaair {args[1]}")
-    return subprocess.run(args, env=env, capture_output=True, text=True, timeout=timeout_s,
-                          cwd=REPO_ROOT)
+    return subprocess.run(
+        args, env=env, capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT
+    )
 
 
 # `flaair` commands that only read and write files: run_offline runs them in the test's process
 OFFLINE_COMMANDS = {"simulate", "calibrate", "import", "analyze", "discrepancy", "identify", "bag"}
 
 
-def run_offline(args: list[str], env: dict[str, str],
-                timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+def run_offline(
+    args: list[str], env: dict[str, str], timeout_s: float = 60.0
+) -> subprocess.CompletedProcess:
     """Run an offline `bin/flaair` command as `run` would, but in this process.
 
     The same entry point (`flaair_tools.cli.main`) gets the same arguments, environment and
@@ -161,8 +180,11 @@ def run_offline(args: list[str], env: dict[str, str],
     os.environ.clear()
     os.environ.update(env)
     try:
-        with contextlib.chdir(REPO_ROOT), contextlib.redirect_stdout(out), \
-                contextlib.redirect_stderr(err):
+        with (
+            contextlib.chdir(REPO_ROOT),
+            contextlib.redirect_stdout(out),
+            contextlib.redirect_stderr(err),
+        ):
             try:
                 returncode = int(cli.main(args[1:]) or 0)
             except SystemExit as exc:
@@ -186,6 +208,7 @@ def target_watchdog_tripped(log: Path) -> bool:
     """The emulated target's drive watchdog is tripped
     now: the last state line of its log says so.
     """
-    states = [line for line in log.read_text().splitlines()
-              if "emulated_target: drive watchdog " in line]
+    states = [
+        line for line in log.read_text().splitlines() if "emulated_target: drive watchdog " in line
+    ]
     return bool(states) and " tripped at sample " in states[-1]

@@ -1,4 +1,5 @@
 """`flaair analyze` on a lab's imported runs: drive recognition, calibration, partial bags."""
+
 from __future__ import annotations
 
 import functools
@@ -22,8 +23,9 @@ def bench_model():
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
 
-    return with_effects(load_model(), {
-        "strain_transfer_loss": {"efficiency": HINGE_EFFICIENCY, "channel": "pitch"}})
+    return with_effects(
+        load_model(), {"strain_transfer_loss": {"efficiency": HINGE_EFFICIENCY, "channel": "pitch"}}
+    )
 
 
 @functools.cache
@@ -40,12 +42,17 @@ def lab_runs() -> dict[str, dict[str, np.ndarray]]:
     from flaair_sim.core.measured_run import synthesize_measured_run
 
     model, rng = bench_model(), np.random.default_rng(7)
-    chirp = drive_record(DriveParams(
-        kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)
+    chirp = drive_record(
+        DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0),
+        FS,
+        20000,
+    )
     stepped, _ = stepped_sine(FS, 100.0, stepped_sine_frequencies_hz(60.0, 200.0, 10.0), 0.2)
     sine = 75.0 * np.sin(2 * np.pi * 100.0 * np.arange(20000) / FS)
-    return {name: synthesize_measured_run(drive, FS, model, rng) for name, drive in
-            (("chirp_full", chirp), ("stepped", stepped), ("sine100", sine))}
+    return {
+        name: synthesize_measured_run(drive, FS, model, rng)
+        for name, drive in (("chirp_full", chirp), ("stepped", stepped), ("sine100", sine))
+    }
 
 
 @pytest.fixture(scope="module")
@@ -57,8 +64,9 @@ def lab_bag(tmp_path_factory) -> Path:
     for name, columns in lab_runs().items():
         write_run(directory / f"{name}.csv", columns)
         paths.append(str(directory / f"{name}.csv"))
-    result = run_offline([FLAAIR, "import", *paths, "--out", str(directory / "bag")],
-                          isolated_env(), 180)
+    result = run_offline(
+        [FLAAIR, "import", *paths, "--out", str(directory / "bag")], isolated_env(), 180
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     return directory / "bag"
 
@@ -73,10 +81,12 @@ def uncalibrated(lab_bag: Path, tmp_path_factory) -> dict:
 def calibration_file(directory: Path) -> Path:
     """The bench robot's true gains, as `flaair calibrate` writes them."""
     path = directory / "calibration.yaml"
-    path.write_text("reference_voltage_v: 1.25\nstroke: "
-                    f"{{gain_deg_per_v: 25.39, polarity: -1, offset_v: 0.0, lag_s: 0.0}}\npitch: "
-                    f"{{gain_deg_per_v: {24.87 / HINGE_EFFICIENCY:.4f}, polarity: -1, "
-                    "offset_v: 0.0, lag_s: 0.0}\n")
+    path.write_text(
+        "reference_voltage_v: 1.25\nstroke: "
+        f"{{gain_deg_per_v: 25.39, polarity: -1, offset_v: 0.0, lag_s: 0.0}}\npitch: "
+        f"{{gain_deg_per_v: {24.87 / HINGE_EFFICIENCY:.4f}, polarity: -1, "
+        "offset_v: 0.0, lag_s: 0.0}\n"
+    )
     return path
 
 
@@ -84,7 +94,10 @@ def test_each_imported_run_is_recognised_and_analysed_by_its_drive(uncalibrated:
     (bag,) = uncalibrated["bags"]
     runs = bag["runs"]
     assert {name: r["drive"]["kind"] for name, r in runs.items()} == {
-        "chirp_full": "chirp", "stepped": "stepped_sine", "sine100": "sine"}
+        "chirp_full": "chirp",
+        "stepped": "stepped_sine",
+        "sine100": "sine",
+    }
     steps = [s["frequency_hz"] for s in runs["stepped"]["drive"]["steps"]]
     assert steps == pytest.approx(list(range(60, 201, 10)), abs=0.02)
     # stepped sine: one Bode point per step, at the step frequency (no jagged chirp-style Bode)
@@ -92,8 +105,9 @@ def test_each_imported_run_is_recognised_and_analysed_by_its_drive(uncalibrated:
     assert runs["stepped"]["bode"]["pitch"]["frequency_hz"] == pytest.approx(steps)
     # the sine: gain and phase at its one frequency
     sine = runs["sine100"]
-    assert (sine["frequency_hz"] == pytest.approx(100.0, abs=1e-3)
-            and sine["bode"]["stroke"]["frequency_hz"] == pytest.approx([100.0], abs=1e-3))
+    assert sine["frequency_hz"] == pytest.approx(100.0, abs=1e-3) and sine["bode"]["stroke"][
+        "frequency_hz"
+    ] == pytest.approx([100.0], abs=1e-3)
     assert sine["stroke"]["gain_deg_per_v"] == pytest.approx(25.39, rel=0.02)
     assert sine["pitch"]["gain_deg_per_v"] == pytest.approx(24.87 / HINGE_EFFICIENCY, rel=0.03)
 
@@ -104,25 +118,34 @@ def test_lab_runs_get_the_paper_headline_figures(uncalibrated: dict) -> None:
     assert h["stroke_gain_deg_per_v"]["source"].endswith("/chirp_full")
     assert h["pitch_gain_deg_per_v"]["flaair"] == pytest.approx(24.87 / HINGE_EFFICIENCY, rel=0.02)
     assert h["pitch_gain_deg_per_v"]["source"].endswith("/stepped")
-    for key in ("stroke_amplitude_rmse_deg", "stroke_phase_rmse_deg", "pitch_amplitude_rmse_deg",
-                "pitch_amplitude_rmse_band_deg", "pitch_phase_rmse_deg",
-                "pitch_time_rmse_lag_corrected_band_deg"):
+    for key in (
+        "stroke_amplitude_rmse_deg",
+        "stroke_phase_rmse_deg",
+        "pitch_amplitude_rmse_deg",
+        "pitch_amplitude_rmse_band_deg",
+        "pitch_phase_rmse_deg",
+        "pitch_time_rmse_lag_corrected_band_deg",
+    ):
         assert h[key]["flaair"] is not None, key
     # fitted gain: the hidden 0.23 is absorbed
     assert h["pitch_amplitude_rmse_band_deg"]["flaair"] < 1.0
-    assert (h["pitch_gain_deg_per_v"]["label"] == "Pitch (hinge) sensor gain"
-            and h["pitch_gain_deg_per_v"]["unit"] == "deg/V")
+    assert (
+        h["pitch_gain_deg_per_v"]["label"] == "Pitch (hinge) sensor gain"
+        and h["pitch_gain_deg_per_v"]["unit"] == "deg/V"
+    )
 
 
 def test_without_calibration_pitch_reads_small_and_analyze_says_so(
-        uncalibrated: dict, lab_bag: Path, tmp_path: Path) -> None:
+    uncalibrated: dict, lab_bag: Path, tmp_path: Path
+) -> None:
     assert uncalibrated["model_gains_warning"] and "4.3x" in uncalibrated["model_gains_warning"]
     # With the model's gains the estimate's pitch is 0.23x
     # the truth: the collision metric shrinks with it.
     from flaair_tools.analysis.analyze import analyze
 
-    calibrated = analyze([lab_bag], tmp_path / "cal", progress=False,
-                         calibration_file=calibration_file(tmp_path))
+    calibrated = analyze(
+        [lab_bag], tmp_path / "cal", progress=False, calibration_file=calibration_file(tmp_path)
+    )
     assert calibrated["model_gains_warning"] is None
     assert "calibration" in calibrated["bags"][0]["estimate_source"]
     small = uncalibrated["bags"][0]["runs"]["sine100"]["collision_metric"]["time_rmse_deg"]
@@ -130,8 +153,9 @@ def test_without_calibration_pitch_reads_small_and_analyze_says_so(
     assert right / small == pytest.approx(1 / HINGE_EFFICIENCY, rel=0.1)
     html = (tmp_path / "cal" / "report.html").read_text()
     assert "Front end on model gains" not in html
-    result = run_offline([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "cli")],
-                         isolated_env(), 240)
+    result = run_offline(
+        [FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "cli")], isolated_env(), 240
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "WARNING: the front end runs on the model's gains" in result.stderr
     assert "Front end on model gains" in (tmp_path / "cli" / "report.html").read_text()
@@ -139,10 +163,24 @@ def test_without_calibration_pitch_reads_small_and_analyze_says_so(
 
 def test_a_bad_calibration_file_is_named_exit_2(lab_bag: Path, tmp_path: Path) -> None:
     bad = tmp_path / "calibration.yaml"
-    bad.write_text(calibration_file(tmp_path).read_text().replace(
-        "gain_deg_per_v: 25.39", "gain_deg_per_v: abc"))
-    result = run_offline([FLAAIR, "analyze", str(lab_bag), "--out", str(tmp_path / "rep"),
-                          "--calibration", str(bad)], isolated_env(), 120)
+    bad.write_text(
+        calibration_file(tmp_path)
+        .read_text()
+        .replace("gain_deg_per_v: 25.39", "gain_deg_per_v: abc")
+    )
+    result = run_offline(
+        [
+            FLAAIR,
+            "analyze",
+            str(lab_bag),
+            "--out",
+            str(tmp_path / "rep"),
+            "--calibration",
+            str(bad),
+        ],
+        isolated_env(),
+        120,
+    )
     assert result.returncode == 2
     assert str(bad) in result.stderr and "Traceback" not in result.stderr
 
@@ -152,14 +190,38 @@ def test_import_kind_is_used_and_a_disagreeing_drive_is_warned(tmp_path: Path) -
     from flaair_tools.analysis.analyze import analyze
 
     write_run(tmp_path / "sweep.csv", lab_runs()["chirp_full"])
-    result = run_offline([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out",
-                          str(tmp_path / "bag"), "--kind", "chirp"], isolated_env(), 120)
+    result = run_offline(
+        [
+            FLAAIR,
+            "import",
+            str(tmp_path / "sweep.csv"),
+            "--out",
+            str(tmp_path / "bag"),
+            "--kind",
+            "chirp",
+        ],
+        isolated_env(),
+        120,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     report = analyze([tmp_path / "bag"], tmp_path / "rep", progress=False)
-    assert (report["bags"][0]["runs"]["sweep"]["drive"]["kind"] == "chirp"
-            and not report["bags"][0]["warnings"])
-    result = run_offline([FLAAIR, "import", str(tmp_path / "sweep.csv"), "--out",
-                          str(tmp_path / "bag2"), "--kind", "free"], isolated_env(), 120)
+    assert (
+        report["bags"][0]["runs"]["sweep"]["drive"]["kind"] == "chirp"
+        and not report["bags"][0]["warnings"]
+    )
+    result = run_offline(
+        [
+            FLAAIR,
+            "import",
+            str(tmp_path / "sweep.csv"),
+            "--out",
+            str(tmp_path / "bag2"),
+            "--kind",
+            "free",
+        ],
+        isolated_env(),
+        120,
+    )
     report = analyze([tmp_path / "bag2"], tmp_path / "rep2", progress=False)
     assert "marked 'free' but its drive looks like 'chirp'" in report["bags"][0]["warnings"][0]
 
@@ -180,35 +242,72 @@ def truncated_bag(columns: dict[str, np.ndarray], out: Path, fraction: float) ->
 
     run = MeasuredRun("stepped", FS, columns)
     with bagio.BagWriter(out) as writer:
-        messages = list(encode_run(
-            run, start_ns=0, first_sample_index=0, block_size=10, frame_id="robot",
-            truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH))
-        writer.write_message(bagio.RUN_MARKER_TOPIC, 0, bagio.new_message(
-            bagio.RUN_MARKER_TYPE, writer.store, data=run_marker(
-                run, source_file="stepped.csv", start_ns=0, first_sample_index=0).to_json()))
-        for topic, msgtype in (("/flaair/drive", DRIVE_TYPE), ("/flaair/sensor_v", SENSOR_TYPE),
-                               ("/flaair/wing_state/truth", WING_TYPE)):
+        messages = list(
+            encode_run(
+                run,
+                start_ns=0,
+                first_sample_index=0,
+                block_size=10,
+                frame_id="robot",
+                truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH,
+            )
+        )
+        writer.write_message(
+            bagio.RUN_MARKER_TOPIC,
+            0,
+            bagio.new_message(
+                bagio.RUN_MARKER_TYPE,
+                writer.store,
+                data=run_marker(
+                    run, source_file="stepped.csv", start_ns=0, first_sample_index=0
+                ).to_json(),
+            ),
+        )
+        for topic, msgtype in (
+            ("/flaair/drive", DRIVE_TYPE),
+            ("/flaair/sensor_v", SENSOR_TYPE),
+            ("/flaair/wing_state/truth", WING_TYPE),
+        ):
             writer.add_topic(topic, msgtype)
-        for topic, stamp_ns, data in messages[:int(len(messages) * fraction)]:
+        for topic, stamp_ns, data in messages[: int(len(messages) * fraction)]:
             writer.write(topic, stamp_ns, data)
 
 
 def test_partial_bag_names_what_is_missing_and_exits_3_unless_allowed(tmp_path: Path) -> None:
     truncated_bag(lab_runs()["stepped"], tmp_path / "bag", 0.16)
-    result = run_offline([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
-                         isolated_env(), 120)
+    result = run_offline(
+        [FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep")],
+        isolated_env(),
+        120,
+    )
     assert result.returncode == 3, result.stderr[-2000:]
     assert "run 'stepped' holds 16% of its marked samples (0.48 of 3 s)" in result.stderr
-    assert ("steps found: 60, 70, 80 Hz, the steps after them are missing" in result.stderr
-            and "--allow-partial" in result.stderr)
+    assert (
+        "steps found: 60, 70, 80 Hz, the steps after them are missing" in result.stderr
+        and "--allow-partial" in result.stderr
+    )
     assert "Incomplete data" in (tmp_path / "rep" / "report.html").read_text()
-    result = run_offline([FLAAIR, "analyze", str(tmp_path / "bag"), "--out", str(tmp_path / "rep2"),
-                          "--allow-partial"], isolated_env(), 120)
+    result = run_offline(
+        [
+            FLAAIR,
+            "analyze",
+            str(tmp_path / "bag"),
+            "--out",
+            str(tmp_path / "rep2"),
+            "--allow-partial",
+        ],
+        isolated_env(),
+        120,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "incomplete: " in result.stderr
     report = json.loads((tmp_path / "rep2" / "report.json").read_text())
     assert len(report["partial"]) == 1
     full = tmp_path / "full"
     truncated_bag(lab_runs()["stepped"], full, 1.0)
-    assert run_offline([FLAAIR, "analyze", str(full), "--out", str(tmp_path / "rep3")],
-                       isolated_env(), 120).returncode == 0
+    assert (
+        run_offline(
+            [FLAAIR, "analyze", str(full), "--out", str(tmp_path / "rep3")], isolated_env(), 120
+        ).returncode
+        == 0
+    )

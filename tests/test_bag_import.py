@@ -1,6 +1,7 @@
 """`flaair import`: lab CSVs become block messages,
 values exact, truth gaps kept, bad files named.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,16 +23,22 @@ HEADER = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg"
 FS_HZ = 20000.0
 
 
-def _write_csv(path: Path, n: int, seed: int, order: tuple[str, ...] = HEADER,
-               stroke_gap: range = range(0), pitch_gap: range = range(0)) -> dict[str, np.ndarray]:
+def _write_csv(
+    path: Path,
+    n: int,
+    seed: int,
+    order: tuple[str, ...] = HEADER,
+    stroke_gap: range = range(0),
+    pitch_gap: range = range(0),
+) -> dict[str, np.ndarray]:
     """A run CSV with full float64 precision (repr) and
     truth gaps (empty cells, 'nan'); returns the columns.
     """
     rng = np.random.default_rng(seed)
     columns = {
         "time_s": np.arange(n) / FS_HZ,
-        "drive_v": 100.0 * np.sin(
-        2 * np.pi * 140.0 * np.arange(n) / FS_HZ) + rng.normal(0, 1e-3, n),
+        "drive_v": 100.0 * np.sin(2 * np.pi * 140.0 * np.arange(n) / FS_HZ)
+        + rng.normal(0, 1e-3, n),
         "stroke_sensor_v": 1.25 + rng.normal(0, 0.3, n),
         "pitch_sensor_v": 1.25 + rng.normal(0, 0.3, n),
         "stroke_deg": rng.normal(0, 30.0, n),
@@ -56,19 +63,37 @@ def _write_csv(path: Path, n: int, seed: int, order: tuple[str, ...] = HEADER,
 def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None:
     block_size = int(node_parameters("flaair.yaml", "import_runs")["block_size"])
     gap_s = float(node_parameters("flaair.yaml", "import_runs")["gap_s"])
-    a = _write_csv(tmp_path / "chirp_full.csv", 1003, seed=1, stroke_gap=range(100, 160),
-                   pitch_gap=range(500, 505))
-    b = _write_csv(tmp_path / "chirp_half.csv", 400, seed=2, order=tuple(reversed(HEADER)),
-                   stroke_gap=range(0, 3))
+    a = _write_csv(
+        tmp_path / "chirp_full.csv",
+        1003,
+        seed=1,
+        stroke_gap=range(100, 160),
+        pitch_gap=range(500, 505),
+    )
+    b = _write_csv(
+        tmp_path / "chirp_half.csv",
+        400,
+        seed=2,
+        order=tuple(reversed(HEADER)),
+        stroke_gap=range(0, 3),
+    )
     bag = tmp_path / "runs"
-    assert import_cli.main([str(tmp_path / "chirp_full.csv"), str(tmp_path / "chirp_half.csv"),
-                             "--out", str(bag)]) == 0
+    assert (
+        import_cli.main(
+            [str(tmp_path / "chirp_full.csv"), str(tmp_path / "chirp_half.csv"), "--out", str(bag)]
+        )
+        == 0
+    )
 
     markers = bagio.read_run_markers(bag)
     assert [(m.run, m.first_sample_index, m.n_samples) for m in markers] == [
-        ("chirp_full", 0, 1003), ("chirp_half", 1003, 400)]
-    assert (markers[0].source_file == str(tmp_path / "chirp_full.csv")
-            and markers[0].sample_rate_hz == FS_HZ)
+        ("chirp_full", 0, 1003),
+        ("chirp_half", 1003, 400),
+    ]
+    assert (
+        markers[0].source_file == str(tmp_path / "chirp_full.csv")
+        and markers[0].sample_rate_hz == FS_HZ
+    )
     span_a_ns = round(1003 / FS_HZ * 1e9)
     # one after the other, gap between
     assert markers[1].start_ns == markers[0].start_ns + span_a_ns + round(gap_s * 1e9)
@@ -77,8 +102,12 @@ def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None
 
     counts = bagio.message_counts(bag)
     blocks_expected = math.ceil(1003 / block_size) + math.ceil(400 / block_size)
-    assert counts == {"/flaair/drive": blocks_expected, "/flaair/sensor_v": blocks_expected,
-                      "/flaair/wing_state/truth": blocks_expected, bagio.RUN_MARKER_TOPIC: 2}
+    assert counts == {
+        "/flaair/drive": blocks_expected,
+        "/flaair/sensor_v": blocks_expected,
+        "/flaair/wing_state/truth": blocks_expected,
+        bagio.RUN_MARKER_TOPIC: 2,
+    }
 
     for marker, columns in zip(markers, (a, b)):
         sensor = bagio.read_blocks(bag, "/flaair/sensor_v", run=marker.run)
@@ -93,17 +122,23 @@ def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None
             assert np.array_equal(valid, np.isfinite(columns[f"{name}_deg"]))
             assert np.isnan(values[~valid]).all()  # a gap stays a gap, never zero-filled
             assert np.array_equal(values[valid], columns[f"{name}_deg"][valid])
-        assert np.array_equal(truth.sample_index,
-                              marker.first_sample_index + np.arange(marker.n_samples))
+        assert np.array_equal(
+            truth.sample_index, marker.first_sample_index + np.arange(marker.n_samples)
+        )
         assert (truth.scalars["source"] == 1).all()  # SOURCE_GROUND_TRUTH
-        assert np.allclose(truth.time_ns - marker.start_ns, columns["time_s"] * 1e9, rtol=0.0,
-                           atol=1.0)
+        assert np.allclose(
+            truth.time_ns - marker.start_ns, columns["time_s"] * 1e9, rtol=0.0, atol=1.0
+        )
         assert set(np.diff(truth.block_first_index)) <= {block_size}
     assert not np.any(bagio.read_blocks(bag, "/flaair/wing_state/truth")["stroke_valid"][100:160])
 
     with open(next(bag.glob("*.mcap")), "rb") as stream:  # and the mcap library decodes them too
-        decoded = [(c.topic, m) for _, c, _, m in make_reader(
-            stream, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+        decoded = [
+            (c.topic, m)
+            for _, c, _, m in make_reader(
+                stream, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages()
+        ]
     assert len(decoded) == sum(counts.values())
     first_truth = next(m for topic, m in decoded if topic == "/flaair/wing_state/truth")
     assert first_truth.source == 1 and first_truth.header.frame_id == "robot"
@@ -119,21 +154,27 @@ def test_reader_names_a_missing_topic(tmp_path: Path) -> None:
 
 
 BAD_FILES = {
-    "missing_column": ("time_s,drive_v,stroke_sensor_v,stroke_deg,pitch_deg\n"
-                       "0,1,1.2,0,0\n5e-05,1,1.2,0,0\n",
-                       r"line 1: missing column\(s\) pitch_sensor_v"),
-    "non_numeric_sensor": ("time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
-                           "0,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n0.0001,1,abc,1.3,,0\n",
-                           r"line 4, column stroke_sensor_v: not a number: 'abc'"),
-    "time_not_increasing": ("time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
-                            "0,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n",
-                            r"line 4, column time_s: time not increasing"),
+    "missing_column": (
+        "time_s,drive_v,stroke_sensor_v,stroke_deg,pitch_deg\n0,1,1.2,0,0\n5e-05,1,1.2,0,0\n",
+        r"line 1: missing column\(s\) pitch_sensor_v",
+    ),
+    "non_numeric_sensor": (
+        "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
+        "0,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n0.0001,1,abc,1.3,,0\n",
+        r"line 4, column stroke_sensor_v: not a number: 'abc'",
+    ),
+    "time_not_increasing": (
+        "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
+        "0,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n5e-05,1,1.2,1.3,0,0\n",
+        r"line 4, column time_s: time not increasing",
+    ),
 }
 
 
 @pytest.mark.parametrize("case", sorted(BAD_FILES))
-def test_malformed_csv_is_refused_naming_file_line_column(tmp_path: Path, case: str,
-                                                          capsys) -> None:
+def test_malformed_csv_is_refused_naming_file_line_column(
+    tmp_path: Path, case: str, capsys
+) -> None:
     text, expected = BAD_FILES[case]
     good = tmp_path / "good.csv"
     _write_csv(good, 20, seed=4)

@@ -1,4 +1,5 @@
 """bagio: bags written here are read back by rosbags and, independently, by the mcap library."""
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,14 @@ from flaair_msgs.msg import (
 from flaair_tools import bagio
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-PROJECT_TYPES = ("CollisionEvent", "CollisionStatus", "ControllerState", "DriveCommandBlock",
-                 "SensorVoltageBlock", "WingStateBlock")
+PROJECT_TYPES = (
+    "CollisionEvent",
+    "CollisionStatus",
+    "ControllerState",
+    "DriveCommandBlock",
+    "SensorVoltageBlock",
+    "WingStateBlock",
+)
 
 
 def _stamp(message, sec: int, nanosec: int) -> None:
@@ -49,23 +56,37 @@ def _rclpy_messages() -> dict[str, tuple[str, object, object]]:
     drive = DriveCommandBlock(sample_rate_hz=20000.0, first_sample_index=40)
     _stamp(drive, 3, 2_000_000)
     drive.drive_v = from_array(np.linspace(-100.0, 100.0, 10))
-    truth = WingStateBlock(sample_rate_hz=20000.0, first_sample_index=40,
-                           source=WingStateBlock.SOURCE_GROUND_TRUTH)
+    truth = WingStateBlock(
+        sample_rate_hz=20000.0, first_sample_index=40, source=WingStateBlock.SOURCE_GROUND_TRUTH
+    )
     _stamp(truth, 3, 2_000_000)
     truth.stroke_deg = from_array(np.array([1.0, np.nan, 3.0]))
     truth.pitch_deg = from_array(np.array([-1.0, -2.0, np.nan]))
     truth.stroke_velocity_deg_s = from_array(np.array([10.0, 20.0, 30.0]))
     truth.stroke_valid = [True, False, True]
     truth.pitch_valid = [True, True, False]
-    status = CollisionStatus(wingbeat_index=7, wingbeat_frequency_hz=140.0, colliding=True,
-                             spectrum_rmse_deg=2.5, time_rmse_deg=1.5, threshold_deg=2.0)
+    status = CollisionStatus(
+        wingbeat_index=7,
+        wingbeat_frequency_hz=140.0,
+        colliding=True,
+        spectrum_rmse_deg=2.5,
+        time_rmse_deg=1.5,
+        threshold_deg=2.0,
+    )
     _stamp(status, 3, 5_000_000)
     event = CollisionEvent(kind=CollisionEvent.ONSET, wingbeat_index=7, spectrum_rmse_deg=2.5)
     _stamp(event, 3, 5_000_000)
-    state = ControllerState(k_r=0.25, async_drive_v=12.5, sync_drive_v=-3.0, drive_v=9.5,
-                            drive_clamped=True, watchdog=ControllerState.WATCHDOG_TRIPPED,
-                            fault="stroke sensor silent", amplitude_scale=0.5,
-                            stroke_frequency_hz=139.5)
+    state = ControllerState(
+        k_r=0.25,
+        async_drive_v=12.5,
+        sync_drive_v=-3.0,
+        drive_v=9.5,
+        drive_clamped=True,
+        watchdog=ControllerState.WATCHDOG_TRIPPED,
+        fault="stroke sensor silent",
+        amplitude_scale=0.5,
+        stroke_frequency_hz=139.5,
+    )
     _stamp(state, 3, 6_000_000)
     return {
         "/flaair/sensor_v": ("flaair_msgs/msg/SensorVoltageBlock", sensor, BLOCK_STREAM),
@@ -74,8 +95,11 @@ def _rclpy_messages() -> dict[str, tuple[str, object, object]]:
         "/flaair/collision/status": ("flaair_msgs/msg/CollisionStatus", status, STATUS),
         "/flaair/collision/events": ("flaair_msgs/msg/CollisionEvent", event, EVENTS),
         "/flaair/controller/state": ("flaair_msgs/msg/ControllerState", state, STATUS),
-        bagio.RUN_MARKER_TOPIC: ("std_msgs/msg/String", String(data='{"run": "chirp_full"}'),
-                                 EVENTS),
+        bagio.RUN_MARKER_TOPIC: (
+            "std_msgs/msg/String",
+            String(data='{"run": "chirp_full"}'),
+            EVENTS,
+        ),
     }
 
 
@@ -93,7 +117,8 @@ def _equal(expected: object, decoded: object) -> bool:
         expected_arr, decoded_arr = np.asarray(expected), np.asarray(decoded)
         if expected_arr.dtype.kind == "f":
             return expected_arr.shape == decoded_arr.shape and bool(
-                np.array_equal(expected_arr, decoded_arr, equal_nan=True))
+                np.array_equal(expected_arr, decoded_arr, equal_nan=True)
+            )
         return expected_arr.tolist() == decoded_arr.tolist()
     return expected == decoded
 
@@ -116,8 +141,9 @@ def test_rosbags_reads_every_type_back_equal(all_types_bag: tuple[Path, dict]) -
     store = bagio.typestore()
     seen: dict[str, int] = {}
     with Reader(bag) as reader:
-        assert ({c.topic: c.msgtype for c in reader.connections}
-                == {t: v[0] for t, v in messages.items()})
+        assert {c.topic: c.msgtype for c in reader.connections} == {
+            t: v[0] for t, v in messages.items()
+        }
         for connection, timestamp, data in reader.messages():
             decoded = store.deserialize_cdr(data, connection.msgtype)
             assert _same(messages[connection.topic][1], decoded), connection.topic
@@ -144,8 +170,9 @@ def test_mcap_library_decodes_every_type_independently(all_types_bag: tuple[Path
     assert seen == {topic: 3 for topic in messages}
 
 
-def test_offered_qos_and_type_hashes_recorded_as_rosbag2_does(all_types_bag: tuple[Path,
-                                                                                   dict]) -> None:
+def test_offered_qos_and_type_hashes_recorded_as_rosbag2_does(
+    all_types_bag: tuple[Path, dict],
+) -> None:
     bag, messages = all_types_bag
     with open(next(bag.glob("*.mcap")), "rb") as stream:
         summary = make_reader(stream).get_summary()
@@ -155,15 +182,21 @@ def test_offered_qos_and_type_hashes_recorded_as_rosbag2_does(all_types_bag: tup
     events = next(c for c in summary.channels.values() if c.topic == "/flaair/collision/events")
     assert "durability: transient_local" in events.metadata["offered_qos_profiles"]
     metadata = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
-    assert (metadata["version"] == 9 and metadata["storage_identifier"] == "mcap"
-            and metadata["ros_distro"] == "jazzy")
+    assert (
+        metadata["version"] == 9
+        and metadata["storage_identifier"] == "mcap"
+        and metadata["ros_distro"] == "jazzy"
+    )
     assert metadata["message_count"] == 3 * len(messages)
-    hashes = {t["topic_metadata"]["type"]: t["topic_metadata"]["type_description_hash"]
-              for t in metadata["topics_with_message_count"]}
+    hashes = {
+        t["topic_metadata"]["type"]: t["topic_metadata"]["type_description_hash"]
+        for t in metadata["topics_with_message_count"]
+    }
     # the hashes the typestore computes from the .msg files equal the ones rosidl generated
     for name in PROJECT_TYPES:
-        generated = json.loads((REPO_ROOT / "install" / "share" / "flaair_msgs" / "msg"
-                                / f"{name}.json").read_text())
+        generated = json.loads(
+            (REPO_ROOT / "install" / "share" / "flaair_msgs" / "msg" / f"{name}.json").read_text()
+        )
         assert hashes[f"flaair_msgs/msg/{name}"] == generated["type_hashes"][0]["hash_string"]
 
 
@@ -184,28 +217,39 @@ def _write_sensor_blocks(bag: Path, firsts: list[int], length: int = 10) -> None
     with bagio.BagWriter(bag, store=store) as writer:
         for number, first in enumerate(firsts):
             stamp_ns = first * 50_000
-            message = bagio.new_message("flaair_msgs/msg/SensorVoltageBlock", store,
-                                        header=bagio.new_message(
-                "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
-                                        sample_rate_hz=20000.0, first_sample_index=first,
-                                        stroke_sensor_v=first + np.arange(length, dtype=float),
-                                        pitch_sensor_v=np.full(length, number * 1.0))
+            message = bagio.new_message(
+                "flaair_msgs/msg/SensorVoltageBlock",
+                store,
+                header=bagio.new_message(
+                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)
+                ),
+                sample_rate_hz=20000.0,
+                first_sample_index=first,
+                stroke_sensor_v=first + np.arange(length, dtype=float),
+                pitch_sensor_v=np.full(length, number * 1.0),
+            )
             writer.write_message("/flaair/sensor_v", stamp_ns, message)
 
 
 def test_read_blocks_concatenates_and_checks_continuity(tmp_path: Path) -> None:
     _write_sensor_blocks(tmp_path / "ok", [0, 10, 20, 30])
     blocks = bagio.read_blocks(tmp_path / "ok", "/flaair/sensor_v")
-    assert (blocks.sample_rate_hz == 20000.0 and blocks.first_sample_index == 0
-            and blocks.n_samples == 40)
+    assert (
+        blocks.sample_rate_hz == 20000.0
+        and blocks.first_sample_index == 0
+        and blocks.n_samples == 40
+    )
     assert np.array_equal(blocks["stroke_sensor_v"], np.arange(40.0))
     assert np.array_equal(blocks.sample_index, np.arange(40))
     assert np.array_equal(blocks.time_ns, np.arange(40) * 50_000)
 
     _write_sensor_blocks(tmp_path / "gap", [0, 10, 30, 40])
-    with pytest.raises(bagio.BagContinuityError, match=r"'/flaair/sensor_v': block 2 has "
-                                                       r"first_sample_index 30, expected 20 \(10 "
-                                                       r"samples missing\)"):
+    with pytest.raises(
+        bagio.BagContinuityError,
+        match=r"'/flaair/sensor_v': block 2 has "
+        r"first_sample_index 30, expected 20 \(10 "
+        r"samples missing\)",
+    ):
         bagio.read_blocks(tmp_path / "gap", "/flaair/sensor_v")
     gappy = bagio.read_blocks(tmp_path / "gap", "/flaair/sensor_v", allow_gaps=True)
     # the gap stays a gap: nothing filled in
@@ -219,9 +263,11 @@ def test_read_blocks_concatenates_and_checks_continuity(tmp_path: Path) -> None:
 
 def test_missing_topic_is_named(tmp_path: Path) -> None:
     _write_sensor_blocks(tmp_path / "bag", [0, 10])
-    with pytest.raises(bagio.BagTopicError,
-                       match=r"no topic '/flaair/wing_state/truth' in the bag \(it has: "
-                             r"/flaair/sensor_v\)"):
+    with pytest.raises(
+        bagio.BagTopicError,
+        match=r"no topic '/flaair/wing_state/truth' in the bag \(it has: "
+        r"/flaair/sensor_v\)",
+    ):
         bagio.read_blocks(tmp_path / "bag", "/flaair/wing_state/truth")
     with pytest.raises(bagio.BagError, match="no such bag"):
         bagio.read_blocks(tmp_path / "nothing", "/flaair/sensor_v")
@@ -230,8 +276,9 @@ def test_missing_topic_is_named(tmp_path: Path) -> None:
 def test_unflushed_data_lost_flushed_chunks_recovered_by_reindex(tmp_path: Path) -> None:
     """What a kill -9 leaves: the file as it is on disk, a half-written chunk at its end."""
     store = bagio.typestore()
-    writer = bagio.BagWriter(tmp_path / "live", store=store, compression=True,
-                             chunk_size_bytes=1 << 20)
+    writer = bagio.BagWriter(
+        tmp_path / "live", store=store, compression=True, chunk_size_bytes=1 << 20
+    )
     message = bagio.new_message("std_msgs/msg/String", store, data="x" * 100)
     for k in range(50):
         writer.write_message("/flaair/chatter", k, message)
@@ -242,7 +289,7 @@ def test_unflushed_data_lost_flushed_chunks_recovered_by_reindex(tmp_path: Path)
     shutil.copytree(tmp_path / "live", killed)
     writer.close()
     mcap_file = next(killed.glob("*.mcap"))
-    complete_chunk = (tmp_path / "live" / mcap_file.name).read_bytes()[mcap_file.stat().st_size:]
+    complete_chunk = (tmp_path / "live" / mcap_file.name).read_bytes()[mcap_file.stat().st_size :]
     with open(mcap_file, "ab") as stream:  # a chunk cut off in the middle of its write
         stream.write(complete_chunk[: len(complete_chunk) // 3])
 

@@ -1,4 +1,5 @@
 """Recorder and player over real DDS: exact counts, clean SIGINT, kill -9 survivable, replay."""
+
 from __future__ import annotations
 
 import json
@@ -78,12 +79,14 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
     bag, sim_bag = tmp_path / "rec", tmp_path / "sim"
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(bag))
-        sim_recorder = procs.flaair("record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v",
-                                    "--use-sim-time")
+        sim_recorder = procs.flaair(
+            "record", "-o", str(sim_bag), "--topics", "/flaair/sensor_v", "--use-sim-time"
+        )
         # publish only after both recorders are up: topics must be found by periodic discovery
         # (with use_sim_time and no /clock, a ROS-time discovery timer would never fire)
-        assert wait_for(lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)),
-                        60.0)
+        assert wait_for(
+            lambda: all((b / f"{b.name}_0.mcap").exists() for b in (bag, sim_bag)), 60.0
+        )
         publisher = _publisher(procs, blocks=600, events=40, rate=2000.0, block_subscribers=2)
         assert publisher.wait(timeout=60) == 0, publisher.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
@@ -99,12 +102,17 @@ def test_counts_in_bag_equal_counts_published_and_sigint_closes(tmp_path: Path) 
     assert bagio.message_counts(bag) == {"/flaair/sensor_v": 600, "/flaair/collision/events": 40}
     info = bagio.bag_info(bag)
     assert {t: i.count for t, i in info.topics.items()} == {
-        "/flaair/sensor_v": 600, "/flaair/collision/events": 40}
-    assert (info.topics["/flaair/collision/events"].offered_qos[0].durability
-            == bagio.QosDurability.TRANSIENT_LOCAL)
+        "/flaair/sensor_v": 600,
+        "/flaair/collision/events": 40,
+    }
+    assert (
+        info.topics["/flaair/collision/events"].offered_qos[0].durability
+        == bagio.QosDurability.TRANSIENT_LOCAL
+    )
     # history and depth do not travel in DDS discovery: recorded as unknown / 0, as rosbag2 does
-    assert (info.topics["/flaair/sensor_v"].offered_qos[0].reliability
-            == bagio.QosReliability.RELIABLE)
+    assert (
+        info.topics["/flaair/sensor_v"].offered_qos[0].reliability == bagio.QosReliability.RELIABLE
+    )
     _check_blocks_exact(bagio.read_blocks(bag, "/flaair/sensor_v"), 600)
     events = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/collision/events"])]
     assert [e.wingbeat_index for e in events] == list(range(40))
@@ -149,23 +157,31 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
     with bagio.BagWriter(source, store=store) as writer:
         for i in range(n):
             stamp_ns = 10_000_000_000 + i * period_ns
-            message = bagio.new_message("flaair_msgs/msg/SensorVoltageBlock", store,
-                                        header=bagio.new_message(
-                "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)),
-                                        sample_rate_hz=20000.0, first_sample_index=10 * i,
-                                        stroke_sensor_v=i + 0.1 * np.arange(10),
-                                        pitch_sensor_v=-i - 0.1 * np.arange(10))
-            writer.write_message("/flaair/sensor_v", stamp_ns, message,
-                                 [bagio.qos_from_rclpy(BLOCK_STREAM)])
+            message = bagio.new_message(
+                "flaair_msgs/msg/SensorVoltageBlock",
+                store,
+                header=bagio.new_message(
+                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp_ns, store)
+                ),
+                sample_rate_hz=20000.0,
+                first_sample_index=10 * i,
+                stroke_sensor_v=i + 0.1 * np.arange(10),
+                pitch_sensor_v=-i - 0.1 * np.arange(10),
+            )
+            writer.write_message(
+                "/flaair/sensor_v", stamp_ns, message, [bagio.qos_from_rclpy(BLOCK_STREAM)]
+            )
             if i % 50 == 0:
                 marker = bagio.new_message("std_msgs/msg/String", store, data=f"run {i}")
-                writer.write_message(bagio.RUN_MARKER_TOPIC, stamp_ns, marker,
-                                     [bagio.qos_from_rclpy(EVENTS)])
+                writer.write_message(
+                    bagio.RUN_MARKER_TOPIC, stamp_ns, marker, [bagio.qos_from_rclpy(EVENTS)]
+                )
     replay = tmp_path / "replay"
     with ros_processes() as procs:
         recorder = procs.flaair("record", "-o", str(replay), "--clock")
-        player = procs.flaair("play", str(source), "--rate", str(rate), "--clock",
-                              "--wait-subscribers")
+        player = procs.flaair(
+            "play", str(source), "--rate", str(rate), "--clock", "--wait-subscribers"
+        )
         assert player.wait(timeout=60) == 0, player.stderr.read()
         player_log = player.stderr.read()
         assert procs.stop(recorder, signal.SIGINT) == 0
@@ -178,9 +194,10 @@ def test_player_replays_a_bag_at_rate_with_clock(tmp_path: Path) -> None:
     # Paced: the player never sends a message before it is due, so the play lasts at least the
     # bag's span / rate however loaded the machine (unpaced it takes milliseconds). How close to
     # the schedule it stays is a speed figure: bench/bench_recorder.py.
-    played_s = float(re.search(r"played 204 messages from \S+ in ([0-9.]+) s",
-                               player_log).group(1))
+    played_s = float(re.search(r"played 204 messages from \S+ in ([0-9.]+) s", player_log).group(1))
     assert played_s >= (n - 1) * period_ns * 1e-9 / rate, player_log
-    clocks = [m.clock.sec * 1_000_000_000 + m.clock.nanosec for _, _,
-              m in bagio.iter_messages(replay, ["/clock"])]
+    clocks = [
+        m.clock.sec * 1_000_000_000 + m.clock.nanosec
+        for _, _, m in bagio.iter_messages(replay, ["/clock"])
+    ]
     assert clocks[0] == 10_000_000_000 and clocks[-1] == 10_000_000_000 + (n - 1) * period_ns

@@ -1,6 +1,7 @@
 """The bridge's pure core: sequence tracking, loss
 marking, re-blocking, drive scheduling, watchdogs.
 """
+
 from __future__ import annotations
 
 import struct
@@ -18,9 +19,17 @@ LEAD = 20
 
 
 def params(**overrides) -> bridge_params.BridgeParams:
-    values = dict(sample_rate_hz=FS, block_size=N, lead_samples=LEAD, drive_limit_v=150.0,
-                  max_ahead_samples=400, max_fill_samples=20000, resync_packets=5,
-                  drive_timeout_s=0.02, sensor_timeout_s=0.02)
+    values = dict(
+        sample_rate_hz=FS,
+        block_size=N,
+        lead_samples=LEAD,
+        drive_limit_v=150.0,
+        max_ahead_samples=400,
+        max_fill_samples=20000,
+        resync_packets=5,
+        drive_timeout_s=0.02,
+        sensor_timeout_s=0.02,
+    )
     values.update(overrides)
     return bridge_params.BridgeParams(**values)
 
@@ -51,8 +60,10 @@ def stream(blocks) -> tuple[np.ndarray, np.ndarray]:
     """Published indices and stroke samples of the blocks, checked contiguous."""
     firsts = [b.first_sample_index for b in blocks]
     assert firsts == list(range(firsts[0], firsts[0] + N * len(firsts), N))
-    return (np.arange(firsts[0], firsts[0] + N * len(firsts)),
-            np.concatenate([b.stroke_sensor_v for b in blocks]))
+    return (
+        np.arange(firsts[0], firsts[0] + N * len(firsts)),
+        np.concatenate([b.stroke_sensor_v for b in blocks]),
+    )
 
 
 def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> None:
@@ -61,21 +72,30 @@ def test_in_order_packets_pass_through_as_blocks_with_the_targets_values() -> No
     assert index[0] == 100 and len(index) == 40
     np.testing.assert_array_equal(stroke, (1 + index / 1000).astype(np.float32))
     np.testing.assert_array_equal(
-        np.concatenate([b.drive_v for b in blocks]), (index / 10).astype(np.float32))
+        np.concatenate([b.drive_v for b in blocks]), (index / 10).astype(np.float32)
+    )
     c = state.counters
-    assert ((c.sensor_packets, c.published_blocks, c.lost_packets, c.stale_packets, c.malformed)
-            == (4, 4, 0, 0, 0))
+    assert (c.sensor_packets, c.published_blocks, c.lost_packets, c.stale_packets, c.malformed) == (
+        4,
+        4,
+        0,
+        0,
+        0,
+    )
 
 
 def test_lost_packets_are_counted_and_published_as_nan_never_invented() -> None:
-    sequences = [0, 1, 4, 5]   # 2 and 3 lost
-    state, blocks, _, _, notes = (
-        run([SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences]))
+    sequences = [0, 1, 4, 5]  # 2 and 3 lost
+    state, blocks, _, _, notes = run(
+        [SensorDatagram(packet(s, s * N), s * 5e-4) for s in sequences]
+    )
     index, stroke = stream(blocks)
     assert len(index) == 60
     lost = (index >= 20) & (index < 40)
-    assert np.isnan(stroke[lost]).all() and np.isnan(
-        np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
+    assert (
+        np.isnan(stroke[lost]).all()
+        and np.isnan(np.concatenate([b.pitch_sensor_v for b in blocks])[lost]).all()
+    )
     np.testing.assert_array_equal(stroke[~lost], (1 + index[~lost] / 1000).astype(np.float32))
     assert state.counters.lost_packets == 2 and state.counters.lost_samples == 20
     assert any("2 sensor packet(s) lost before sequence 4" in n.text for n in notes)
@@ -91,19 +111,30 @@ def test_duplicates_and_older_packets_are_stale_and_dropped() -> None:
 
 def test_sequence_wraps_at_2_32_without_loss() -> None:
     top = 2**32 - 2
-    state, blocks, *_ = run([SensorDatagram(packet((top + k) % 2**32, k * N), 0.0)
-                             for k in range(4)])
-    assert (len(blocks) == 4 and state.counters.lost_packets == 0
-            and state.counters.stale_packets == 0)
+    state, blocks, *_ = run(
+        [SensorDatagram(packet((top + k) % 2**32, k * N), 0.0) for k in range(4)]
+    )
+    assert (
+        len(blocks) == 4 and state.counters.lost_packets == 0 and state.counters.stale_packets == 0
+    )
 
 
 def test_malformed_datagrams_are_counted_and_change_nothing_else() -> None:
     good = packet(0, 0)
-    garbage = [b"", b"hello", good[:-1], good + b"\x00", b"FLD1" + good[4:],
-               packet(1, N, rate=10000.0), good[:24] + np.full(30, np.nan, "<f4").tobytes()]
-    state, blocks, _, _, notes = (
-        run([SensorDatagram(good, 0.0)] + [SensorDatagram(g, 0.0) for g in garbage]
-            + [SensorDatagram(packet(1, N), 0.0)]))
+    garbage = [
+        b"",
+        b"hello",
+        good[:-1],
+        good + b"\x00",
+        b"FLD1" + good[4:],
+        packet(1, N, rate=10000.0),
+        good[:24] + np.full(30, np.nan, "<f4").tobytes(),
+    ]
+    state, blocks, _, _, notes = run(
+        [SensorDatagram(good, 0.0)]
+        + [SensorDatagram(g, 0.0) for g in garbage]
+        + [SensorDatagram(packet(1, N), 0.0)]
+    )
     assert state.counters.malformed == len(garbage) and state.counters.lost_packets == 0
     assert len(blocks) == 2 and blocks[1].first_sample_index == N
     assert any("sample_rate_hz 10000, the bridge runs at 20000" in n.text for n in notes)
@@ -157,11 +188,14 @@ def test_a_bridge_behind_the_target_drops_late_blocks_and_keeps_the_loops_delay(
     for k in range(20):
         arrival = 1.0 + k * 5e-4
         now = max(1.005, arrival)
-        inputs += [SensorDatagram(packet(k, k * N), arrival, now),
-                   DriveBlock(k * N, np.ones(N), now)]
+        inputs += [
+            SensorDatagram(packet(k, k * N), arrival, now),
+            DriveBlock(k * N, np.ones(N), now),
+        ]
     state, _, packets, _, notes = run(inputs)
     assert [x.first_sample_index for x in packets] == [N + LEAD] + [
-        (k + 1) * N + LEAD for k in range(8, 20)]
+        (k + 1) * N + LEAD for k in range(8, 20)
+    ]
     assert state.counters.drive_late_blocks == 7 and state.counters.drive_reanchors == 0
     assert any("behind the target's clock (the bridge fell behind)" in n.text for n in notes)
 
@@ -169,8 +203,9 @@ def test_a_bridge_behind_the_target_drops_late_blocks_and_keeps_the_loops_delay(
 def test_a_source_faster_than_real_time_drops_its_queue_and_reanchors() -> None:
     p = params(max_ahead_samples=20)
     inputs = [SensorDatagram(packet(0, 0), 0.0)] + [
-        DriveBlock(k * N, np.ones(N), 0.0) for k in range(110)]
-    state, _, packets, _, notes = run(inputs, p)
+        DriveBlock(k * N, np.ones(N), 0.0) for k in range(110)
+    ]
+    state, _, _packets, _, notes = run(inputs, p)
     queued = sum(len(d) for _, d in state.queue)
     assert state.counters.drive_overflow_blocks > 0 and state.counters.drive_reanchors == 1
     assert queued <= 20 + protocol.MAX_SAMPLES and any("already wait" in n.text for n in notes)
@@ -178,23 +213,31 @@ def test_a_source_faster_than_real_time_drops_its_queue_and_reanchors() -> None:
 
 def test_drive_is_clamped_nonfinite_zeroed_and_stale_or_early_blocks_dropped() -> None:
     # no target clock yet
-    state, _, packets, _, _ = run([DriveBlock(0, np.ones(N), 0.0),
-                                   SensorDatagram(packet(0, 0), 0.0),
-                                   DriveBlock(0, np.array([500.0, -500.0, np.nan] + [1.0] * 7),
-                                              0.0),
-                                   # duplicate
-                                   DriveBlock(0, np.ones(N), 0.0)])
+    state, _, packets, _, _ = run(
+        [
+            DriveBlock(0, np.ones(N), 0.0),
+            SensorDatagram(packet(0, 0), 0.0),
+            DriveBlock(0, np.array([500.0, -500.0, np.nan] + [1.0] * 7), 0.0),
+            # duplicate
+            DriveBlock(0, np.ones(N), 0.0),
+        ]
+    )
     assert len(packets) == 1
     np.testing.assert_array_equal(packets[0].drive_v[:4], [150.0, -150.0, 0.0, 1.0])
     c = state.counters
-    assert (c.drive_unscheduled_blocks, c.clamped_samples, c.nonfinite_samples,
-            c.drive_stale_blocks) == (1, 2, 1, 1)
+    assert (
+        c.drive_unscheduled_blocks,
+        c.clamped_samples,
+        c.nonfinite_samples,
+        c.drive_stale_blocks,
+    ) == (1, 2, 1, 1)
 
 
 def test_drive_far_ahead_waits_for_the_target_clock() -> None:
     p = params(max_ahead_samples=20)
     inputs = [SensorDatagram(packet(0, 0), 0.0)] + [
-        DriveBlock(k * N, np.ones(N), 0.0) for k in range(6)]
+        DriveBlock(k * N, np.ones(N), 0.0) for k in range(6)
+    ]
     state, _, packets, _, _ = run(inputs, p)
     # up to clock 10 + 20 + 20
     assert [x.first_sample_index for x in packets] == [30, 40]
@@ -213,9 +256,11 @@ def test_drive_watchdog_sends_a_stop_when_a_nonzero_stream_falls_silent() -> Non
     # a zero stream falling silent needs no stop; a resumed stream is anchored afresh
     state, _, packets, _, _ = run(
         [SensorDatagram(packet(1, N), 0.06), DriveBlock(N, np.zeros(N), 0.06), Tick(0.2)],
-        state=state)
-    assert ([x.first_sample_index for x in packets] == [2 * N + LEAD]
-            and state.counters.watchdog_stops == 1)
+        state=state,
+    )
+    assert [x.first_sample_index for x in packets] == [
+        2 * N + LEAD
+    ] and state.counters.watchdog_stops == 1
 
 
 def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -> None:
@@ -230,22 +275,28 @@ def test_silent_target_stops_the_drive_and_its_samples_are_published_as_lost() -
     assert index[-1] + 1 == N + int(0.0401 * FS) // N * N
     assert np.isnan(stroke[N:]).all()
     # the target comes back: what was already published as lost is dropped, the rest goes on
-    state, more, *_ = run([SensorDatagram(packet(1, 500), 0.05),
-                           SensorDatagram(packet(2, 1000), 0.0505)], state=state)
+    state, more, *_ = run(
+        [SensorDatagram(packet(1, 500), 0.05), SensorDatagram(packet(2, 1000), 0.0505)], state=state
+    )
     index2, stroke2 = stream(blocks + more)
     # published up to 810: the packet at 500 is all overlap, 810..1000 lost, then data again
-    assert (index2[-1] == 1009 and state.counters.overlap_samples == N
-            and state.counters.lost_samples == 190)
+    assert (
+        index2[-1] == 1009
+        and state.counters.overlap_samples == N
+        and state.counters.lost_samples == 190
+    )
     assert np.isnan(stroke2[(index2 >= N) & (index2 < 1000)]).all()
     np.testing.assert_array_equal(
-        stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32))
+        stroke2[-10:], (1 + np.arange(1000, 1010) / 1000).astype(np.float32)
+    )
 
 
 def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
     # packets that arrived 50 ms ago and are read only
     # now: the target is not silent, the bridge is late
-    inputs = [SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5)
-              for k in range(5)] + [Tick(1.051)]
+    inputs = [
+        SensorDatagram(packet(k, k * N), 1.0 + k * 5e-4, 1.05 + k * 1e-5) for k in range(5)
+    ] + [Tick(1.051)]
     state, blocks, _, _, notes = run(inputs)
     assert state.counters.silences == 0 and len(blocks) == 5 and not notes
 
@@ -253,12 +304,15 @@ def test_a_backlog_in_the_bridge_is_not_taken_for_a_silent_target() -> None:
 def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_silent() -> None:
     # 40 ms without a read, but the socket holds unread datagrams (the process stalled: a GIL-heavy
     # start-up, a long callback): no silence, no stop, no samples published as lost
-    inputs = [SensorDatagram(packet(0, 0), 0.0), DriveBlock(0, np.zeros(N), 0.0),
-              Tick(0.0401, backlog=True)]
+    inputs = [
+        SensorDatagram(packet(0, 0), 0.0),
+        DriveBlock(0, np.zeros(N), 0.0),
+        Tick(0.0401, backlog=True),
+    ]
     state, blocks, packets, _, notes = run(inputs)
     assert state.counters.silences == 0 and not any("SILENT" in n.text for n in notes)
     assert not any(p.stop for p in packets) and len(blocks) == 1
-    state, *_ = run([Tick(0.0402)], state=state)   # nothing waiting any more: now it is a silence
+    state, *_ = run([Tick(0.0402)], state=state)  # nothing waiting any more: now it is a silence
     assert state.counters.silences == 1
 
 
@@ -266,7 +320,7 @@ def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
     # the target restarted at 0
     inputs += [SensorDatagram(packet(s, s * N), 0.0) for s in range(6)]
-    state, blocks, _, _, notes = run(inputs)
+    state, blocks, _, _, _notes = run(inputs)
     assert state.counters.stale_packets == 4 and state.counters.resyncs == 1
     index, stroke = stream(blocks)
     # published index keeps running
@@ -276,14 +330,22 @@ def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
 
 def test_stop_input_sends_a_stop_packet_at_the_target_clock() -> None:
     state, _, packets, _, _ = run(
-        [SensorDatagram(packet(0, 70), 0.0), DriveBlock(0, np.ones(N), 0.0), Stop(0.0, "end")])
+        [SensorDatagram(packet(0, 70), 0.0), DriveBlock(0, np.ones(N), 0.0), Stop(0.0, "end")]
+    )
     assert packets[-1].stop and packets[-1].first_sample_index == 80 and packets[-1].sequence == 1
     assert state.counters.stop_packets == 1 and not state.driving
 
 
-@pytest.mark.parametrize("name, value", [
-    ("block_size", 0), ("lead_samples", -1), ("drive_timeout_s", 0.0),
-    ("sample_rate_hz", float("nan")), ("resync_packets", 0)])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("block_size", 0),
+        ("lead_samples", -1),
+        ("drive_timeout_s", 0.0),
+        ("sample_rate_hz", float("nan")),
+        ("resync_packets", 0),
+    ],
+)
 def test_parameters_out_of_range_are_named(name: str, value) -> None:
     with pytest.raises(bridge_params.BridgeParameterError, match=f"'{name}'"):
         params(**{name: value})
@@ -311,7 +373,7 @@ def test_emulated_target_holds_then_zeroes_clamps_discards_late_and_honours_stop
     core.receive(drive_datagram(14, [0.0], flags=1))
     drive, flags = core.decide(10)
     assert np.all(drive == 0.0) and flags == 0 and core.counts["stop_packets"] == 1
-    core.receive(b"FLD1" + bytes(3))                          # malformed: dropped
+    core.receive(b"FLD1" + bytes(3))  # malformed: dropped
     core.receive(drive_datagram(30, [float("nan")]))
     assert core.counts["dropped_packets"] == 2
 
@@ -327,7 +389,8 @@ def _same(a, b) -> bool:
 
 @pytest.mark.parametrize("block_size", [N, 2 * N])
 def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_included(
-        block_size) -> None:
+    block_size,
+) -> None:
     """Every packet the fast path takes (in order; a whole block, or part of one as a target's
     0.5 ms packets are of 1 ms blocks; the target's watchdog flag set or not) gives the state and
     outputs the general path gives, with drive queued and released.
@@ -347,7 +410,10 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
             assert _same(fast, general), k
             compared, flagged = compared + 1, flagged + bool(flags)
         state, _ = bridge.step(state, item, p)
-        if (k + 1) * N % block_size == 0:   # the loop answers each whole block with a drive block
-            state, out = bridge.step(state, DriveBlock(
-                k * N + N - block_size, np.full(block_size, float(k)), now + 2e-4), p)
+        if (k + 1) * N % block_size == 0:  # the loop answers each whole block with a drive block
+            state, _out = bridge.step(
+                state,
+                DriveBlock(k * N + N - block_size, np.full(block_size, float(k)), now + 2e-4),
+                p,
+            )
     assert compared == 79 and flagged > 15 and state.counters.drive_packets > 30

@@ -3,6 +3,7 @@
 The layout is checked against struct formats written from docs/REALTIME_PROTOCOL.md (an
 independent reading of the same table), and against the emulated target's own packing.
 """
+
 from __future__ import annotations
 
 import math
@@ -55,8 +56,9 @@ def test_lab_sensor_packet_has_the_documented_bytes() -> None:
 
 
 def test_drive_packet_has_the_documented_bytes_and_the_stop_flag() -> None:
-    data = protocol.pack_drive(DrivePacket(
-        2**32 - 1, 40, protocol.FLAG_STOP, np.array([0.0, -150.0, 12.5])))
+    data = protocol.pack_drive(
+        DrivePacket(2**32 - 1, 40, protocol.FLAG_STOP, np.array([0.0, -150.0, 12.5]))
+    )
     assert len(data) == 20 + 4 * 3
     assert struct.unpack("<4sIQHH3f", data) == (b"FLD1", 2**32 - 1, 40, 3, 1, 0.0, -150.0, 12.5)
     packet = protocol.unpack_drive(data)
@@ -68,7 +70,11 @@ def test_drive_packet_has_the_documented_bytes_and_the_stop_flag() -> None:
 def test_sensor_packets_round_trip(packet: SensorPacket) -> None:
     back = protocol.unpack_sensor(protocol.pack_sensor(packet))
     assert (back.sequence, back.first_sample_index, back.flags, back.n) == (
-        packet.sequence, packet.first_sample_index, packet.flags, len(packet.drive_v))
+        packet.sequence,
+        packet.first_sample_index,
+        packet.flags,
+        len(packet.drive_v),
+    )
     assert back.sample_rate_hz == float(np.float32(packet.sample_rate_hz))
     for name in ("drive_v", "stroke_sensor_v", "pitch_sensor_v"):
         np.testing.assert_array_equal(getattr(back, name), getattr(packet, name))
@@ -81,7 +87,10 @@ def test_drive_packets_round_trip_and_the_emulator_reads_them(packet: DrivePacke
     data = protocol.pack_drive(packet)
     back = protocol.unpack_drive(data)
     assert (back.sequence, back.first_sample_index, back.flags) == (
-        packet.sequence, packet.first_sample_index, packet.flags)
+        packet.sequence,
+        packet.first_sample_index,
+        packet.flags,
+    )
     np.testing.assert_array_equal(back.drive_v, packet.drive_v)
     # the emulated target (its own struct decoding) accepts every valid packet
     core = emulated_target.TargetCore(hold_samples=40, drive_limit_v=150.0)
@@ -102,11 +111,15 @@ def test_random_bytes_raise_only_protocol_error(data: bytes) -> None:
 @settings(max_examples=300, deadline=None)
 @given(sensor_packets(), st.integers(0, 12 * 1000 + 24), st.binary(min_size=1, max_size=4))
 def test_corrupted_sensor_packets_raise_only_protocol_error(
-        packet: SensorPacket, position: int, junk: bytes) -> None:
+    packet: SensorPacket, position: int, junk: bytes
+) -> None:
     data = bytearray(protocol.pack_sensor(packet))
     position %= len(data)
-    mutated = [bytes(data[:position]), bytes(data[:position] + junk + data[position:]),
-               bytes(data[:position] + junk + data[position + len(junk):])]
+    mutated = [
+        bytes(data[:position]),
+        bytes(data[:position] + junk + data[position:]),
+        bytes(data[:position] + junk + data[position + len(junk) :]),
+    ]
     for candidate in mutated:
         try:
             back = protocol.unpack_sensor(candidate)
@@ -114,22 +127,40 @@ def test_corrupted_sensor_packets_raise_only_protocol_error(
             continue
         # what is accepted is a valid packet: finite values, the right length
         assert len(candidate) == 24 + 12 * back.n
-        assert all(np.isfinite(getattr(back, f)).all() for f in (
-            "drive_v", "stroke_sensor_v", "pitch_sensor_v"))
+        assert all(
+            np.isfinite(getattr(back, f)).all()
+            for f in ("drive_v", "stroke_sensor_v", "pitch_sensor_v")
+        )
 
 
-@pytest.mark.parametrize("data, message", [
-    (b"FLS1" + bytes(10), "shorter than its 24-byte header"),
-    (b"XXXX" + bytes(20 + 12), "magic"),
-    (struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 0, 0), "n = 0 samples"),
-    (struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 1001, 0) + bytes(12 * 1001),
-     "n = 1001 samples"),
-    (struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 2, 0) + bytes(12), "must be 48 bytes, got 36"),
-    (struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 2, 0) + bytes(36), "must be 48 bytes, got 60"),
-    (struct.pack("<4sIQfHH3f", b"FLS1", 0, 0, 20000.0, 1, 0, 0.0, math.nan, 0.0),
-     "stroke_sensor_v[0] is not finite"),
-    (struct.pack("<4sIQfHH3f", b"FLS1", 0, 0, math.inf, 1, 0, 0.0, 0.0, 0.0), "sample_rate_hz inf"),
-])
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        (b"FLS1" + bytes(10), "shorter than its 24-byte header"),
+        (b"XXXX" + bytes(20 + 12), "magic"),
+        (struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 0, 0), "n = 0 samples"),
+        (
+            struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 1001, 0) + bytes(12 * 1001),
+            "n = 1001 samples",
+        ),
+        (
+            struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 2, 0) + bytes(12),
+            "must be 48 bytes, got 36",
+        ),
+        (
+            struct.pack("<4sIQfHH", b"FLS1", 0, 0, 20000.0, 2, 0) + bytes(36),
+            "must be 48 bytes, got 60",
+        ),
+        (
+            struct.pack("<4sIQfHH3f", b"FLS1", 0, 0, 20000.0, 1, 0, 0.0, math.nan, 0.0),
+            "stroke_sensor_v[0] is not finite",
+        ),
+        (
+            struct.pack("<4sIQfHH3f", b"FLS1", 0, 0, math.inf, 1, 0, 0.0, 0.0, 0.0),
+            "sample_rate_hz inf",
+        ),
+    ],
+)
 def test_invalid_sensor_packets_name_what_is_wrong(data: bytes, message: str) -> None:
     with pytest.raises(ProtocolError, match=message.replace("[", r"\[").replace("]", r"\]")):
         protocol.unpack_sensor(data)
@@ -139,10 +170,11 @@ def test_invalid_drive_packets_and_unpackable_values() -> None:
     with pytest.raises(ProtocolError, match=r"drive_v\[1\] is not finite"):
         protocol.unpack_drive(struct.pack("<4sIQHH2f", b"FLD1", 0, 0, 2, 0, 1.0, math.inf))
     with pytest.raises(ProtocolError, match="magic"):
-        protocol.unpack_drive(protocol.pack_sensor(
-            SensorPacket(0, 0, 20000.0, 0, *np.zeros((3, 1)))))
+        protocol.unpack_drive(
+            protocol.pack_sensor(SensorPacket(0, 0, 20000.0, 0, *np.zeros((3, 1))))
+        )
     with pytest.raises(ProtocolError, match="not a finite float32"):
-        protocol.pack_drive(DrivePacket(0, 0, 0, np.array([1e39])))    # overflows float32
+        protocol.pack_drive(DrivePacket(0, 0, 0, np.array([1e39])))  # overflows float32
     with pytest.raises(ProtocolError, match="m = 0"):
         protocol.pack_drive(DrivePacket(0, 0, 0, np.zeros(0)))
     with pytest.raises(ProtocolError, match="sequence"):

@@ -3,6 +3,7 @@
 All subcommands are asked in one process (`flaair_tools.cli.main`, what bin/flaair runs), each
 with its own captured output; one process instead of one per command keeps this under 10 s.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,10 +38,14 @@ def test_every_subcommand_has_a_help() -> None:
     assert result.returncode == 0, result.stderr[-3000:]
     results = json.loads(result.stdout.strip().splitlines()[-1])
     assert sorted(results) == sorted(SUBCOMMANDS)
-    bad = {name: r for name, r in results.items()
-           if r["code"] != 0 or "usage:" not in r["stdout"].lower() or "Traceback" in r["stderr"]}
-    assert (bad == {}), {name: (r["code"], r["stdout"][:300], r["stderr"][-600:]) for name,
-                         r in bad.items()}
+    bad = {
+        name: r
+        for name, r in results.items()
+        if r["code"] != 0 or "usage:" not in r["stdout"].lower() or "Traceback" in r["stderr"]
+    }
+    assert bad == {}, {
+        name: (r["code"], r["stdout"][:300], r["stderr"][-600:]) for name, r in bad.items()
+    }
 
 
 def test_bare_flaair_lists_every_subcommand() -> None:

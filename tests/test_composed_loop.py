@@ -4,6 +4,7 @@ The container prints each node callback's CPU and wall time per block at exit; t
 controller skip their truth, /clock and ControllerState writes when nobody listens, and a
 listener that is there still gets every block of them.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,9 +20,10 @@ from rosproc import ros_processes, wait_for
 
 FS_HZ = 20000.0
 BLOCK = 10
-NODES = tuple(node.component for node in GRAPHS["lockstep_loop"].nodes())   # the declared loop
+NODES = tuple(node.component for node in GRAPHS["lockstep_loop"].nodes())  # the declared loop
 PROFILE = re.compile(
-    r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call")
+    r"profile: (\w+)\.(\w+): (\d+) calls, ([\d.]+) us CPU, ([\d.]+) us wall per call"
+)
 
 
 class _Node:
@@ -33,7 +35,7 @@ class _Node:
 
     def on_block(self, fields: dict) -> None:
         self.seen.append(fields["i"])
-        end = time.thread_time() + 0.002       # 2 ms of CPU
+        end = time.thread_time() + 0.002  # 2 ms of CPU
         while time.thread_time() < end:
             pass
 
@@ -58,27 +60,56 @@ def test_callback_profile_counts_each_subscriber_and_its_cpu() -> None:
 
 @pytest.mark.graph
 def test_composed_loop_profiles_its_nodes_and_a_listener_gets_every_truth_and_state_block(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     n_blocks = 400
     params = tmp_path / "params.yaml"
-    params.write_text(json.dumps({
-        "plant_node": {"ros__parameters": {"mode": "lockstep"}},
-        # The loop starts start_delay_s after the controller sees its peers: time for the two
-        # listeners (started first) to match the container's truth and state writers.
-        "dsa_controller_node": {"ros__parameters": {"run_time_s": n_blocks * BLOCK / FS_HZ,
-                                                    "start_delay_s": 5.0,
-                                                    "watchdog_timeout_s": 30.0}}}))
+    params.write_text(
+        json.dumps(
+            {
+                "plant_node": {"ros__parameters": {"mode": "lockstep"}},
+                # The loop starts start_delay_s after the controller sees its peers: time for the two
+                # listeners (started first) to match the container's truth and state writers.
+                "dsa_controller_node": {
+                    "ros__parameters": {
+                        "run_time_s": n_blocks * BLOCK / FS_HZ,
+                        "start_delay_s": 5.0,
+                        "watchdog_timeout_s": 30.0,
+                    }
+                },
+            }
+        )
+    )
     with ros_processes() as procs:
         ready = [tmp_path / "truth.ready", tmp_path / "state.ready"]
-        truth = procs.flaair("topic", "echo", "/flaair/wing_state/truth",
-                             "flaair_msgs/msg/WingStateBlock", "--count", str(n_blocks),
-                             "--timeout", "300", "--ready-file", str(ready[0]))
-        state = procs.flaair("topic", "echo", "/flaair/controller/state",
-                             "flaair_msgs/msg/ControllerState", "--count", str(n_blocks),
-                             "--timeout", "300", "--ready-file", str(ready[1]))
+        truth = procs.flaair(
+            "topic",
+            "echo",
+            "/flaair/wing_state/truth",
+            "flaair_msgs/msg/WingStateBlock",
+            "--count",
+            str(n_blocks),
+            "--timeout",
+            "300",
+            "--ready-file",
+            str(ready[0]),
+        )
+        state = procs.flaair(
+            "topic",
+            "echo",
+            "/flaair/controller/state",
+            "flaair_msgs/msg/ControllerState",
+            "--count",
+            str(n_blocks),
+            "--timeout",
+            "300",
+            "--ready-file",
+            str(ready[1]),
+        )
         procs.env = {**procs.env, "FLAAIR_PROFILE": "1"}
-        container = procs.flaair("run", "flaair_common", "container", *NODES, "--ros-args",
-                                 "--params-file", str(params))
+        container = procs.flaair(
+            "run", "flaair_common", "container", *NODES, "--ros-args", "--params-file", str(params)
+        )
         assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
         truth_out, err = truth.communicate(timeout=330)
         assert truth.returncode == 0, err
@@ -88,13 +119,16 @@ def test_composed_loop_profiles_its_nodes_and_a_listener_gets_every_truth_and_st
         log = container.stderr.read() + container.stdout.read()
     assert "run complete" in log, log[-2000:]
     # The plant stepped from sample 0 with the listener matched: every truth block, in order.
-    assert [json.loads(line)["first_sample_index"] for line in truth_out.splitlines()] == \
-        list(range(0, n_blocks * BLOCK, BLOCK))
+    assert [json.loads(line)["first_sample_index"] for line in truth_out.splitlines()] == list(
+        range(0, n_blocks * BLOCK, BLOCK)
+    )
     states = [json.loads(line) for line in state_out.splitlines()]
     assert len(states) == n_blocks and all(s["watchdog"] == 0 for s in states)
-    profile = {node: (int(calls), float(cpu), float(wall)) for node, _, calls, cpu,
-               wall in PROFILE.findall(log)}
+    profile = {
+        node: (int(calls), float(cpu), float(wall))
+        for node, _, calls, cpu, wall in PROFILE.findall(log)
+    }
     assert set(profile) == {"plant_node", "frontend_node", "dsa_controller_node"}, log[-2000:]
     for node, (calls, cpu_us, wall_us) in profile.items():
-        assert calls >= n_blocks, node                          # one callback per block
+        assert calls >= n_blocks, node  # one callback per block
         assert 0.0 < cpu_us <= wall_us * 1.05, node

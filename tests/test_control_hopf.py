@@ -1,6 +1,7 @@
 """Hopf theory of the dSA loop (flaair_control.core.hopf)
 against polynomial roots and the simulator.
 """
+
 from __future__ import annotations
 
 import math
@@ -66,8 +67,10 @@ def test_filter_below_resonance_destabilises_the_undamped_plant_at_once():
 
 def test_damping_moves_the_onset_above_sqrt_kappa_r3_and_vanishes_continuously():
     kappa, r3 = 0.5, hopf.r3_for_onset_frequency(0.5, 150.0)
-    freqs = [hopf.hopf_onset(replace(PLANT, damping_nm_s_per_rad=c), r3, kappa).frequency_hz
-             for c in (1e-8, 1e-10, 1e-12, 1e-14)]
+    freqs = [
+        hopf.hopf_onset(replace(PLANT, damping_nm_s_per_rad=c), r3, kappa).frequency_hz
+        for c in (1e-8, 1e-10, 1e-12, 1e-14)
+    ]
     assert all(f > 150.0 for f in freqs)
     assert freqs == sorted(freqs, reverse=True)
     # For small c_s the shift of w*^2 is linear in c_s: c_s a b / (I b - K).
@@ -102,8 +105,8 @@ def test_bad_parameters_are_named():
 
 # --------------------------------------------------------------------------- simulated loop
 
-import flaair_model.model_io as sim_model_io  # noqa: E402
-import flaair_sim.core.plant as plant_mod  # noqa: E402
+import flaair_model.model_io as sim_model_io
+import flaair_sim.core.plant as plant_mod
 
 
 @pytest.fixture(scope="module")
@@ -118,14 +121,15 @@ def undamped(model):
 
 def _lin_plant(model) -> hopf.LinearStrokePlant:
     return hopf.LinearStrokePlant(
-        model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad)
+        model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad
+    )
 
 
 def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float = 5.0) -> np.ndarray:
     """Block loop: plant block k -> ideal stroke ->
     backward-difference velocity -> dSA -> block k+1.
     """
-    n_blocks = int(round(duration_s * FS / BLOCK))
+    n_blocks = round(duration_s * FS / BLOCK)
     state = plant_mod.initial_state(plant_mod.PlantStepParams(model, FS))
     ctrl = dsa.initial_state(params)
     drive = np.zeros(BLOCK)
@@ -133,8 +137,9 @@ def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float =
     prev = 0.0
     out = []
     for k in range(n_blocks):
-        state, sim = plant_mod.step(state, plant_mod.PlantInputs(drive),
-                                    plant_mod.PlantStepParams(model, FS))
+        state, sim = plant_mod.step(
+            state, plant_mod.PlantInputs(drive), plant_mod.PlantStepParams(model, FS)
+        )
         phi = sim.stroke_rad
         vel = np.diff(np.concatenate([[prev], phi])) * FS
         prev = phi[-1]
@@ -145,7 +150,7 @@ def closed_loop(model, params: dsa.DsaParams, duration_s: float, kick_v: float =
 
 def growth_and_frequency(phi: np.ndarray, skip_s: float = 0.05) -> tuple[float, float]:
     """Exponential growth rate (1/s) of the envelope and zero-crossing frequency (Hz)."""
-    x = phi[int(skip_s * FS):]
+    x = phi[int(skip_s * FS) :]
     env = np.abs(hilbert(x))
     t = np.arange(x.size) / FS
     sl = slice(x.size // 10, -x.size // 10)
@@ -156,8 +161,10 @@ def growth_and_frequency(phi: np.ndarray, skip_s: float = 0.05) -> tuple[float, 
 
 def bisect_onset(model, make_params, mu_lo: float, mu_hi: float, iterations: int = 8) -> float:
     """Mu where the simulated loop turns from decay to growth."""
+
     def grows(mu):
         return growth_and_frequency(closed_loop(model, make_params(mu), 0.4))[0] > 0
+
     assert not grows(mu_lo) and grows(mu_hi)
     for _ in range(iterations):
         mid = 0.5 * (mu_lo + mu_hi)
@@ -170,11 +177,18 @@ def bisect_onset(model, make_params, mu_lo: float, mu_hi: float, iterations: int
 
 def _params(model, r3, kappa, mu, compensate: bool) -> dsa.DsaParams:
     return dsa.DsaParams(
-        r3_rad_s=r3, kappa=kappa, mu_nm_s_per_rad=mu,
-        actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v, sample_rate_hz=FS,
-        drive_limit_v=1e6, loop_delay_s=dsa.loop_delay_s(BLOCK, FS) if compensate else 0.0,
-        sync_amplitude_v=0.0, sync_frequency_hz=100.0, sync_phase_rad=0.0,
-        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), compensation_frequency_hz=None,
+        r3_rad_s=r3,
+        kappa=kappa,
+        mu_nm_s_per_rad=mu,
+        actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
+        sample_rate_hz=FS,
+        drive_limit_v=1e6,
+        loop_delay_s=dsa.loop_delay_s(BLOCK, FS) if compensate else 0.0,
+        sync_amplitude_v=0.0,
+        sync_frequency_hz=100.0,
+        sync_phase_rad=0.0,
+        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0),
+        compensation_frequency_hz=None,
     )
 
 
@@ -182,11 +196,16 @@ def test_compensated_simulated_loop_starts_at_the_predicted_onset(undamped):
     kappa = 0.5
     r3 = hopf.r3_for_onset_frequency(kappa, 150.0)
     theory = hopf.hopf_onset(_lin_plant(undamped), r3, kappa)
-    mu_sim = bisect_onset(undamped, lambda mu: _params(undamped, r3, kappa, mu, True),
-                          0.5 * theory.mu_nm_s_per_rad, 1.5 * theory.mu_nm_s_per_rad)
+    mu_sim = bisect_onset(
+        undamped,
+        lambda mu: _params(undamped, r3, kappa, mu, True),
+        0.5 * theory.mu_nm_s_per_rad,
+        1.5 * theory.mu_nm_s_per_rad,
+    )
     assert mu_sim == pytest.approx(theory.mu_nm_s_per_rad, rel=0.05)
     _, f_sim = growth_and_frequency(
-        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, True), 0.4))
+        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, True), 0.4)
+    )
     assert f_sim == pytest.approx(theory.frequency_hz, rel=0.03)
     assert f_sim == pytest.approx(math.sqrt(kappa) * r3 / (2 * math.pi), rel=0.03)
 
@@ -197,11 +216,16 @@ def test_uncompensated_loop_follows_the_delayed_theory_not_the_ideal_one(undampe
     ideal = hopf.hopf_onset(_lin_plant(undamped), r3, kappa)
     delayed = hopf.onset_with_delay(_lin_plant(undamped), r3, kappa, dsa.loop_delay_s(BLOCK, FS))
     assert delayed.mu_nm_s_per_rad < 0.2 * ideal.mu_nm_s_per_rad  # the delay matters a lot
-    mu_sim = bisect_onset(undamped, lambda mu: _params(undamped, r3, kappa, mu, False),
-                          0.5 * delayed.mu_nm_s_per_rad, 1.5 * delayed.mu_nm_s_per_rad)
+    mu_sim = bisect_onset(
+        undamped,
+        lambda mu: _params(undamped, r3, kappa, mu, False),
+        0.5 * delayed.mu_nm_s_per_rad,
+        1.5 * delayed.mu_nm_s_per_rad,
+    )
     assert mu_sim == pytest.approx(delayed.mu_nm_s_per_rad, rel=0.05)
     _, f_sim = growth_and_frequency(
-        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, False), 0.4))
+        closed_loop(undamped, _params(undamped, r3, kappa, 1.01 * mu_sim, False), 0.4)
+    )
     assert f_sim == pytest.approx(delayed.frequency_hz, rel=0.03)
     assert f_sim < 0.6 * ideal.frequency_hz  # 161 Hz instead of the designed 300 Hz
 
@@ -212,14 +236,14 @@ def test_aero_damping_gives_a_stable_limit_cycle_slightly_above_resonance(model)
     mu = 10.0 * hopf.hopf_onset(_lin_plant(model), r3, kappa).mu_nm_s_per_rad
     params = _params(model, r3, kappa, mu, True)
     phi = np.degrees(closed_loop(model, params, 1.2))
-    amps = [np.ptp(phi[int(a * FS):int((a + 0.1) * FS)]) / 2 for a in (0.7, 0.9, 1.1)]
-    assert amps[-1] > 1.0                                    # it does flap
-    assert max(amps) - min(amps) < 0.005 * amps[-1]          # settled: a limit cycle
-    x = phi[int(1.0 * FS):]
+    amps = [np.ptp(phi[int(a * FS) : int((a + 0.1) * FS)]) / 2 for a in (0.7, 0.9, 1.1)]
+    assert amps[-1] > 1.0  # it does flap
+    assert max(amps) - min(amps) < 0.005 * amps[-1]  # settled: a limit cycle
+    x = phi[int(1.0 * FS) :]
     up = np.nonzero((x[:-1] < 0) & (x[1:] >= 0))[0]
     f_sim = FS / np.mean(np.diff(up))
     fn = model.plant.stroke_natural_frequency_hz
-    assert fn < f_sim < 1.15 * fn                            # above the stroke resonance
+    assert fn < f_sim < 1.15 * fn  # above the stroke resonance
     t = dsa.loop_delay_s(BLOCK, FS)
     df = hopf.limit_cycle(_lin_plant(model), model.plant.aero_damping_nm_s2, r3, kappa, mu, t, t)
     assert f_sim == pytest.approx(df.frequency_hz, rel=0.01)

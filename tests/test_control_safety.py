@@ -1,4 +1,5 @@
 """Drive safety core (flaair_control.core.safety): clamp, slew limit, watchdog."""
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,13 @@ params_st = st.builds(
 
 def sp(**kw) -> safety.SafetyParams:
     """Safety parameters: these tests' values, overridden by ``kw``."""
-    base = dict(drive_limit_v=100.0, slew_limit_v_per_s=math.inf, invalid_timeout_s=0.01,
-                ramp_down_s=0.05, sample_rate_hz=FS)
+    base = dict(
+        drive_limit_v=100.0,
+        slew_limit_v_per_s=math.inf,
+        invalid_timeout_s=0.01,
+        ramp_down_s=0.05,
+        sample_rate_hz=FS,
+    )
     base.update(kw)
     return safety.SafetyParams(**base)
 
@@ -41,13 +47,16 @@ def test_clamp_output_is_finite_and_within_limit(block, limit):
     assert np.all(np.isfinite(y))
     assert np.all(np.abs(y) <= limit)
     finite = np.isfinite(block)
-    np.testing.assert_array_equal(y[~finite], 0.0)                         # NaN/inf -> 0
+    np.testing.assert_array_equal(y[~finite], 0.0)  # NaN/inf -> 0
     np.testing.assert_array_equal(y[finite], np.clip(block[finite], -limit, limit))
 
 
 @settings(max_examples=200, deadline=None)
-@given(params=params_st, seq=st.lists(st.tuples(blocks, st.sampled_from([None, True, False])),
-                                      min_size=1, max_size=8), t0=st.floats(-10.0, 10.0))
+@given(
+    params=params_st,
+    seq=st.lists(st.tuples(blocks, st.sampled_from([None, True, False])), min_size=1, max_size=8),
+    t0=st.floats(-10.0, 10.0),
+)
 def test_step_never_exceeds_the_limit_or_the_slew_rate(params, seq, t0):
     state = safety.initial_state(params, t_s=t0)
     t = t0
@@ -84,7 +93,7 @@ def test_passes_a_safe_drive_untouched_while_sensors_are_fresh():
 def test_timeout_trips_at_the_deadline_and_ramps_to_zero():
     p = sp(drive_limit_v=100.0, invalid_timeout_s=2e-3, ramp_down_s=0.01)
     state = safety.initial_state(p)
-    for t_block in np.arange(0.0005, 0.0051, 0.0005):   # fresh blocks every 0.5 ms up to 5 ms
+    for t_block in np.arange(0.0005, 0.0051, 0.0005):  # fresh blocks every 0.5 ms up to 5 ms
         state = safety.note_sensor_block(state, float(t_block), True, p)
     assert state.status == safety.OK
     # sensors go silent after t = 5 ms: deadline 7 ms
@@ -118,18 +127,19 @@ def test_invalid_block_trips_immediately_and_latches():
     assert np.all(out.drive_v == 50.0)
     state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0005, False), p)
     assert out.tripped and state.trip_reason == safety.REASON_INVALID_BLOCK
-    assert np.all(out.drive_v == 0.0)                                      # ramp_down_s = 0
+    assert np.all(out.drive_v == 0.0)  # ramp_down_s = 0
     state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.001, True), p)
-    assert out.tripped and np.all(out.drive_v == 0.0)                      # latched
+    assert out.tripped and np.all(out.drive_v == 0.0)  # latched
     state = safety.reset(state, 0.0015)
     state, out = safety.step(state, safety.SafetyInputs(np.full(10, 50.0), 0.0015, True), p)
     assert not out.tripped and np.all(out.drive_v == 50.0)
 
 
 def test_slew_limit_spreads_a_step():
-    p = sp(drive_limit_v=100.0, slew_limit_v_per_s=2e5)   # 10 V per sample
-    state, out = safety.step(safety.initial_state(p),
-                             safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p)
+    p = sp(drive_limit_v=100.0, slew_limit_v_per_s=2e5)  # 10 V per sample
+    _state, out = safety.step(
+        safety.initial_state(p), safety.SafetyInputs(np.full(12, 100.0), 0.0, True), p
+    )
     np.testing.assert_allclose(out.drive_v, [10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 100, 100])
 
 
@@ -141,9 +151,16 @@ def test_nan_and_inf_drive_become_zero_not_rail():
     assert out.nonfinite_count == 3
 
 
-@pytest.mark.parametrize("field,value", [("drive_limit_v", -1.0), ("drive_limit_v", math.nan),
-                                         ("slew_limit_v_per_s", 0.0), ("invalid_timeout_s", 0.0),
-                                         ("ramp_down_s", -0.1)])
+@pytest.mark.parametrize(
+    "field,value",
+    [
+        ("drive_limit_v", -1.0),
+        ("drive_limit_v", math.nan),
+        ("slew_limit_v_per_s", 0.0),
+        ("invalid_timeout_s", 0.0),
+        ("ramp_down_s", -0.1),
+    ],
+)
 def test_bad_parameters_are_named(field, value):
     with pytest.raises(ValueError, match=field):
         sp(**{field: value})

@@ -1,6 +1,7 @@
 """Stroke-amplitude controller core (flaair_control.core.stroke):
 design, tracker, law, safety chain; node over DDS.
 """
+
 from __future__ import annotations
 
 import math
@@ -15,21 +16,28 @@ from flaair_model.model_io import load_model
 from flaair_sim.core import plant
 
 FS = 20000.0
+
+
 # set a parameter of the running node through its parameter service (rclpy's own client)
 @pytest.fixture(scope="module")
 def nominal():
     model = load_model()
-    return (model, stroke.StrokePlant.from_model(model),
-            node_parameters("flaair.yaml", "stroke_controller_node"))
+    return (
+        model,
+        stroke.StrokePlant.from_model(model),
+        node_parameters("flaair.yaml", "stroke_controller_node"),
+    )
 
 
 def _sync_params(values, design_plant, setpoint=15.0, **over):
     return stroke.params_from_values(
-        {**values, "mode": "sync", "setpoint_deg": setpoint, **over}, design_plant, FS, 0.0)
+        {**values, "mode": "sync", "setpoint_deg": setpoint, **over}, design_plant, FS, 0.0
+    )
 
 
 def test_sync_design_at_resonance_is_the_quadratic_damping_balance_and_the_plant_agrees(
-        nominal) -> None:
+    nominal,
+) -> None:
     model, design_plant, _ = nominal
     u, slope = stroke.design(design_plant, "sync", 15.0, sync_frequency_hz=140.0)
     # on resonance K = I w^2: G_a V = A w (8/3pi) Gamma w A  ->  A ~ sqrt(V): slope exactly 1/2
@@ -39,18 +47,21 @@ def test_sync_design_at_resonance_is_the_quadratic_damping_balance_and_the_plant
     assert slope == pytest.approx(0.5, abs=1e-6)
     t = np.arange(int(0.6 * FS)) / FS
     out = plant.simulate(u * np.sin(w * t), FS, model)
-    tail = np.degrees(out.stroke_rad[-int(0.1 * FS):])
-    assert 0.5 * np.ptp(tail) == pytest.approx(15.0, rel=0.02)   # describing function vs RK4 plant
+    tail = np.degrees(out.stroke_rad[-int(0.1 * FS) :])
+    assert 0.5 * np.ptp(tail) == pytest.approx(15.0, rel=0.02)  # describing function vs RK4 plant
 
 
 def test_dsa_design_inverts_the_hopf_limit_cycle(nominal) -> None:
     _, design_plant, values = nominal
-    mu, slope = stroke.design(design_plant, "dsa", 15.0, r3_rad_s=values["r3_rad_s"],
-                              kappa=values["kappa"])
+    mu, slope = stroke.design(
+        design_plant, "dsa", 15.0, r3_rad_s=values["r3_rad_s"], kappa=values["kappa"]
+    )
     assert stroke.dsa_amplitude_deg(
-        design_plant, mu, values["r3_rad_s"], values["kappa"]) == pytest.approx(15.0, rel=1e-8)
-    assert stroke.dsa_amplitude_deg(
-        design_plant, 1.1 * mu, values["r3_rad_s"], values["kappa"]) > 15.0
+        design_plant, mu, values["r3_rad_s"], values["kappa"]
+    ) == pytest.approx(15.0, rel=1e-8)
+    assert (
+        stroke.dsa_amplitude_deg(design_plant, 1.1 * mu, values["r3_rad_s"], values["kappa"]) > 15.0
+    )
     assert 0.5 < slope < 2.0
 
 
@@ -66,8 +77,11 @@ def test_tracker_measures_each_wingbeat_of_a_sine_and_block_splits_change_nothin
     assert np.allclose(amps[1:], 12.0, atol=0.02)
     state, drives = stroke.initial_state(params), []
     for k in range(0, x.size, 10):
-        state, out = stroke.step(state, stroke.StrokeInputs(
-            x[k:k + 10], np.zeros(10), np.ones(10, bool), 10 + k), params)
+        state, out = stroke.step(
+            state,
+            stroke.StrokeInputs(x[k : k + 10], np.zeros(10), np.ones(10, bool), 10 + k),
+            params,
+        )
         drives.append(out.drive_v)
     assert np.array_equal(state.tracker, whole_state.tracker)
     # the whole record holds the command of its end; blocks hold each block's: equal at the end
@@ -77,22 +91,26 @@ def test_tracker_measures_each_wingbeat_of_a_sine_and_block_splits_change_nothin
 def test_law_moves_the_command_by_lambda_over_the_slope_of_the_log_error(nominal) -> None:
     _, design_plant, values = nominal
     params = _sync_params(values, design_plant)
-    t = np.arange(int(round(FS / 140.0)) * 3) / FS
+    t = np.arange(round(FS / 140.0) * 3) / FS
     # exactly 3 wingbeats of 10 deg, setpoint 15
     x = np.radians(10.0) * np.sin(2 * np.pi * 140.0 * t)
-    state, out = stroke.step(stroke.initial_state(params),
-                             stroke.StrokeInputs(x, x, np.ones(x.size, bool), 0), params)
+    state, out = stroke.step(
+        stroke.initial_state(params), stroke.StrokeInputs(x, x, np.ones(x.size, bool), 0), params
+    )
     beats = np.isfinite(out.signals.wingbeat_amplitude_deg).sum()
     expected = params.command_nominal * math.exp(beats * params.gain * math.log(15.0 / 10.0))
     assert stroke.command(state, params) == pytest.approx(expected, rel=1e-3)
-    moved = stroke.retarget(params, 20.0, *stroke.design(
-        design_plant, "sync", 20.0, sync_frequency_hz=140.0))
+    moved = stroke.retarget(
+        params, 20.0, *stroke.design(design_plant, "sync", 20.0, sync_frequency_hz=140.0)
+    )
     assert stroke.command(state, moved) / moved.command_nominal == pytest.approx(
-        stroke.command(state, params) / params.command_nominal)
+        stroke.command(state, params) / params.command_nominal
+    )
 
 
 def test_command_is_clamped_and_the_safety_chain_zeroes_the_drive_when_the_estimate_turns_invalid(
-        nominal) -> None:
+    nominal,
+) -> None:
     _, design_plant, values = nominal
     params = _sync_params(values, design_plant, drive_amplitude_max_v=12.0)
     guard = safety.SafetyParams(5.0, 1.0e6, 0.005, 0.01, FS)
@@ -101,8 +119,9 @@ def test_command_is_clamped_and_the_safety_chain_zeroes_the_drive_when_the_estim
     maxima, k = [], 0
     # wing stuck at 1 deg: the law pushes the command up to its ceiling
     for k in range(0, 4000, 10):
-        state, out = stroke.step(state, stroke.StrokeInputs(
-            np.roll(small, k), small, np.ones(10, bool), k + 10), params)
+        state, out = stroke.step(
+            state, stroke.StrokeInputs(np.roll(small, k), small, np.ones(10, bool), k + 10), params
+        )
         g, o = safety.step(g, safety.SafetyInputs(out.drive_v, (k + 10) / FS, True), guard)
         maxima.append(np.abs(o.drive_v).max())
     assert stroke.command(state, params) == pytest.approx(12.0)
@@ -110,8 +129,9 @@ def test_command_is_clamped_and_the_safety_chain_zeroes_the_drive_when_the_estim
     nan = np.full(10, np.nan)
     # 30 ms of invalid blocks: trip after 5 ms, zero 10 ms later
     for j in range(k + 10, k + 10 + 600, 10):
-        state, out = stroke.step(state, stroke.StrokeInputs(nan, nan, np.zeros(10, bool), j + 10),
-                                 params)
+        state, out = stroke.step(
+            state, stroke.StrokeInputs(nan, nan, np.zeros(10, bool), j + 10), params
+        )
         g, o = safety.step(g, safety.SafetyInputs(out.drive_v, (j + 10) / FS, False), guard)
     assert o.tripped and np.all(o.drive_v == 0.0)
 
@@ -142,20 +162,39 @@ def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path
     from flaair_sensors.frontend_node import FrontendNode
     from flaair_sim.plant_node import PlantNode
 
-    params = {"plant_node": {"command_timeout_s": 0.0}, "stroke_controller_node": {
-        "mode": "sync", "setpoint_deg": 12.0, "watchdog_timeout_s": 30.0}}
-    with composed(monkeypatch, [PlantNode, FrontendNode, StrokeControllerNode], params,
-                  tmp_path) as loop:
+    params = {
+        "plant_node": {"command_timeout_s": 0.0},
+        "stroke_controller_node": {
+            "mode": "sync",
+            "setpoint_deg": 12.0,
+            "watchdog_timeout_s": 30.0,
+        },
+    }
+    with composed(
+        monkeypatch, [PlantNode, FrontendNode, StrokeControllerNode], params, tmp_path
+    ) as loop:
         node = loop.node("stroke_controller_node")
         states: list = []
-        monkeypatch.setattr(node.drive_pub, "publish", lambda m: loop.post(
-            topics.DRIVE, {"sample_rate_hz": m.sample_rate_hz,
-                           "first_sample_index": m.first_sample_index, "sec": 0, "nanosec": 0,
-                           "frame_id": "", "drive_v": np.asarray(m.drive_v)}))
+        monkeypatch.setattr(
+            node.drive_pub,
+            "publish",
+            lambda m: loop.post(
+                topics.DRIVE,
+                {
+                    "sample_rate_hz": m.sample_rate_hz,
+                    "first_sample_index": m.first_sample_index,
+                    "sec": 0,
+                    "nanosec": 0,
+                    "frame_id": "",
+                    "drive_v": np.asarray(m.drive_v),
+                },
+            ),
+        )
         monkeypatch.setattr(node.drive_pub, "get_subscription_count", lambda: 1)
         monkeypatch.setattr(node.state_pub, "publish", states.append)
-        loop.bus.subscribe(topics.WING_STATE,
-                           lambda fields: node.on_wing_state(SimpleNamespace(**fields)))
+        loop.bus.subscribe(
+            topics.WING_STATE, lambda fields: node.on_wing_state(SimpleNamespace(**fields))
+        )
         wing = loop.sink(topics.WING_STATE)
         loop.run_until(lambda: len(wing) >= 1600)
         n_before = len(wing)
@@ -164,13 +203,19 @@ def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path
     assert [b["first_sample_index"] for b in wing] == list(range(0, len(wing) * 10, 10))
     stroke_deg = np.concatenate([b["stroke_deg"] for b in wing])
     from flaair_tools.analysis import wingbeat
-    beats = wingbeat.summarize(stroke_deg, stroke_deg, np.ones(stroke_deg.size, bool),
-                               wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0))
-    split = n_before * 10   # the setpoint changed after this sample
+
+    beats = wingbeat.summarize(
+        stroke_deg,
+        stroke_deg,
+        np.ones(stroke_deg.size, bool),
+        wingbeat.WingbeatParams(FS, 1.0, 30.0, 400.0),
+    )
+    split = n_before * 10  # the setpoint changed after this sample
     before = beats.amplitude_deg[(beats.end_sample > split - 0.1 * FS) & (beats.end_sample < split)]
     assert before.size >= 10
     after = beats.amplitude_deg[beats.end_sample > stroke_deg.size - 0.1 * FS]
     assert np.all(np.abs(before - 12.0) <= 0.5), before
     assert np.all(np.abs(after - 16.0) <= 0.5), after
     assert len(states) == len(wing) + 1 and all(
-        s.watchdog == 0 and abs(s.drive_v) <= 150.0 for s in states)
+        s.watchdog == 0 and abs(s.drive_v) <= 150.0 for s in states
+    )

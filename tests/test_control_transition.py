@@ -1,6 +1,7 @@
 """Sync -> async transition: Hilbert analysis (pure)
 and the closed loop over DDS (plant lockstep).
 """
+
 from __future__ import annotations
 
 import math
@@ -13,8 +14,9 @@ from flaair_control.core import transition as tr
 
 FS = 20000.0
 # 4th-order 40-400 Hz band-pass, 20 ms 2nd-order Savitzky-Golay, 20 ms edges
-HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02,
-                           savgol_order=2, edge_s=0.02)
+HILBERT = tr.HilbertParams(
+    band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02, savgol_order=2, edge_s=0.02
+)
 
 
 # --------------------------------------------------------------------------- analysis, pure
@@ -22,15 +24,20 @@ HILBERT = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=
 
 def test_hilbert_recovers_frequency_and_amplitude_of_a_stepped_sine():
     t = np.arange(int(1.0 * FS)) / FS
-    x = np.where(t < 0.5, 6.0 * np.sin(2 * np.pi * 90.0 * t),
-                 20.0 * np.sin(2 * np.pi * 144.0 * t + 0.3))
+    x = np.where(
+        t < 0.5, 6.0 * np.sin(2 * np.pi * 90.0 * t), 20.0 * np.sin(2 * np.pi * 144.0 * t + 0.3)
+    )
     x = x + 3.0  # offset: removed by the band-pass
     r = tr.hilbert_analysis(x, FS, HILBERT)
-    assert np.isnan(r.frequency_hz[:10]).all() and np.isnan(r.amplitude[-10:]).all()   # edges
-    f1, a1 = (tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.45),
-              tr.window_stats(r.time_s, r.amplitude, 0.1, 0.45))
-    f2, a2 = (tr.window_stats(r.time_s, r.frequency_hz, 0.65, 0.9),
-              tr.window_stats(r.time_s, r.amplitude, 0.65, 0.9))
+    assert np.isnan(r.frequency_hz[:10]).all() and np.isnan(r.amplitude[-10:]).all()  # edges
+    f1, a1 = (
+        tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.45),
+        tr.window_stats(r.time_s, r.amplitude, 0.1, 0.45),
+    )
+    f2, a2 = (
+        tr.window_stats(r.time_s, r.frequency_hz, 0.65, 0.9),
+        tr.window_stats(r.time_s, r.amplitude, 0.65, 0.9),
+    )
     assert f1.mean == pytest.approx(90.0, abs=0.05) and a1.mean == pytest.approx(6.0, rel=2e-3)
     assert f2.mean == pytest.approx(144.0, abs=0.05) and a2.mean == pytest.approx(20.0, rel=2e-3)
     assert f2.ptp < 1.0 and a2.ptp < 0.1  # after the step's ringing through the band-pass
@@ -45,8 +52,9 @@ def test_savitzky_golay_removes_the_harmonic_ripple_of_a_non_sinusoidal_stroke()
     r = tr.hilbert_analysis(x, FS, params)
     f = tr.window_stats(r.time_s, r.frequency_hz, 0.1, 0.5)
     assert f.mean == pytest.approx(144.0, abs=0.1) and f.ptp < 1.0
-    raw = tr.hilbert_analysis(x, FS, replace(
-        HILBERT, band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0))
+    raw = tr.hilbert_analysis(
+        x, FS, replace(HILBERT, band_hz=(40.0, 1000.0), savgol_window_s=1e-4, savgol_order=0)
+    )
     # unsmoothed: ripples
     assert tr.window_stats(raw.time_s, raw.frequency_hz, 0.1, 0.5).ptp > 20 * f.ptp
 
@@ -57,8 +65,9 @@ def test_nan_samples_are_filled_and_counted():
     x[3000:3005] = np.nan
     r = tr.hilbert_analysis(x, FS, HILBERT)
     assert r.filled_samples == 5
-    assert (tr.window_stats(r.time_s, r.frequency_hz, 0.05, 0.35).mean
-            == pytest.approx(120.0, abs=0.2))
+    assert tr.window_stats(r.time_s, r.frequency_hz, 0.05, 0.35).mean == pytest.approx(
+        120.0, abs=0.2
+    )
 
 
 def test_crossing_frequency_streams_like_the_whole_record():
@@ -66,11 +75,11 @@ def test_crossing_frequency_streams_like_the_whole_record():
     x = 15.0 * np.sin(2 * np.pi * 141.3 * t) + np.random.default_rng(0).normal(0, 0.2, t.size)
     est = tr.CrossingFrequency(FS, 1.0)
     for k in range(0, x.size, 10):
-        est.update(x[k:k + 10])
+        est.update(x[k : k + 10])
     assert est.frequency_hz == pytest.approx(141.3, rel=2e-3)
     times = tr.crossing_times(x, FS, 1.0)
     assert np.allclose(1 / np.diff(times), 141.3, rtol=0.02)
-    est.update(np.zeros(int(0.06 * FS)))          # stopped for longer than max_period_s
+    est.update(np.zeros(int(0.06 * FS)))  # stopped for longer than max_period_s
     assert est.frequency_hz == 0.0
     nan_est = tr.CrossingFrequency(FS, 1.0)
     nan_est.update([math.nan] * 10)
@@ -127,15 +136,23 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     )
 
     duration, ramp_start, ramp = 1.5, 0.3, 0.5
-    params = {"plant_node": {"command_timeout_s": 0.0},
-              "dsa_controller_node": {"kr_ramp_start_s": ramp_start, "kr_ramp_duration_s": ramp,
-                                      "watchdog_timeout_s": 30.0, "run_time_s": duration}}
-    with composed(monkeypatch, [PlantNode, FrontendNode, DsaControllerNode], params,
-                  tmp_path) as loop:
+    params = {
+        "plant_node": {"command_timeout_s": 0.0},
+        "dsa_controller_node": {
+            "kr_ramp_start_s": ramp_start,
+            "kr_ramp_duration_s": ramp,
+            "watchdog_timeout_s": 30.0,
+            "run_time_s": duration,
+        },
+    }
+    with composed(
+        monkeypatch, [PlantNode, FrontendNode, DsaControllerNode], params, tmp_path
+    ) as loop:
         wing, states = loop.sink(topics.WING_STATE), loop.sink(topics.CONTROLLER_STATE)
-        loop.run_until(lambda: len(wing) >= duration * FS / 10
-                       and len(states) >= duration * FS / 10)
-        loop.run_for(0.1)                      # the run ends: nothing more comes
+        loop.run_until(
+            lambda: len(wing) >= duration * FS / 10 and len(states) >= duration * FS / 10
+        )
+        loop.run_for(0.1)  # the run ends: nothing more comes
     ws, cs = [_with_header(b) for b in wing], [_with_header(s) for s in states]
     # 1.5 s of blocks, and the closing zero block (run_time_s reached) stepped by the plant too
     assert [b["first_sample_index"] for b in ws] == list(range(0, 30010, 10))
@@ -159,7 +176,7 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     assert 1.01 * f_n < f_end.mean < 1.06 * f_n
     # where the loop theory puts it
     assert f_end.mean == pytest.approx(f_lc, rel=0.01)
-    assert f_end.std < 0.2                                                  # settled
+    assert f_end.std < 0.2  # settled
     assert a_end.mean == pytest.approx(a_lc, rel=0.03)
     # stable
     assert a_end.std < 0.01 * a_end.mean and abs(a_end.mean - a_mid.mean) < 0.01 * a_end.mean
@@ -168,6 +185,7 @@ def test_sync_to_async_transition_in_the_composed_closed_loop(monkeypatch, tmp_p
     # the controller's live crossing estimate agrees
     live = rec.controller_frequency_hz[rec.kr_time_s > 1.1]
     assert np.allclose(live, f_end.mean, rtol=0.005)
-    png = plot_transition(rec, r, tmp_path / "transition.png", resonance_hz=f_n,
-                          predicted=(f_lc, a_lc))
+    png = plot_transition(
+        rec, r, tmp_path / "transition.png", resonance_hz=f_n, predicted=(f_lc, a_lc)
+    )
     assert png.stat().st_size > 20_000

@@ -1,6 +1,7 @@
 """ControllerState thinning (state_every_blocks): `flaair live` sends one ControllerState per
 DDS batch; the drive itself must not change, and no clamp may go unreported.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -18,7 +19,8 @@ FS = 20000.0
 def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[sv.DriveOut]:
     """40 blocks of the controller answering a 140 Hz, 20 deg stroke (fixed wing-state input)."""
     params = supervisor_params_from_config(
-        dict(node_parameters("flaair.yaml", "dsa_controller_node")), load_model())
+        dict(node_parameters("flaair.yaml", "dsa_controller_node")), load_model()
+    )
     params = replace(params, state_every_blocks=every, min_drive_subscribers=1)
     if drive_limit_v is not None:
         params = replace(params, drive_limit_v=drive_limit_v)
@@ -33,8 +35,13 @@ def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[sv.Driv
         t = (b.first_sample_index + np.arange(n)) / FS
         stroke_deg = 20.0 * np.sin(2 * np.pi * 140.0 * t)
         velocity_deg_s = 20.0 * 2 * np.pi * 140.0 * np.cos(2 * np.pi * 140.0 * t)
-        state, out = sv.step(state, sv.WingBlock(10.0, b.first_sample_index, FS, velocity_deg_s,
-                                                 stroke_deg, np.ones(n, bool), 1), params)
+        state, out = sv.step(
+            state,
+            sv.WingBlock(
+                10.0, b.first_sample_index, FS, velocity_deg_s, stroke_deg, np.ones(n, bool), 1
+            ),
+            params,
+        )
         queue += out.blocks
     return blocks
 
@@ -55,4 +62,4 @@ def test_a_clamp_in_a_block_without_state_is_reported_by_the_next_state() -> Non
     assert any(clamped) and not all(clamped)
     thinned = drive_blocks(5, drive_limit_v=19.0)
     for k in range(4, 40, 5):
-        assert thinned[k].drive_clamped == any(clamped[k - 4:k + 1])
+        assert thinned[k].drive_clamped == any(clamped[k - 4 : k + 1])

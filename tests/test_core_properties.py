@@ -4,6 +4,7 @@ block gives finite output, or a documented error (a ValueError subclass naming t
 The front end, the safety core and the CDR codec have their own property tests
 (test_sensors_frontend.py, test_control_safety.py, test_cdr.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -37,8 +38,9 @@ def blocks(bound: float, max_blocks: int = 6):
 def test_plant_step_in_the_actuator_range_stays_finite(sequence) -> None:
     state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
-        state, out = plant.step(state, plant.PlantInputs(drive_v),
-                                plant.PlantStepParams(MODEL, FS_HZ))
+        state, out = plant.step(
+            state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ)
+        )
         for name in ("stroke_rad", "pitch_rad", "stroke_sensor_v", "pitch_sensor_v"):
             assert np.isfinite(getattr(out, name)).all(), name
 
@@ -50,8 +52,9 @@ def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
     state = plant.initial_state(plant.PlantStepParams(MODEL, FS_HZ))
     for drive_v in sequence:
         try:
-            state, out = plant.step(state, plant.PlantInputs(drive_v),
-                                    plant.PlantStepParams(MODEL, FS_HZ))
+            state, out = plant.step(
+                state, plant.PlantInputs(drive_v), plant.PlantStepParams(MODEL, FS_HZ)
+            )
         except ValueError as exc:
             assert "drive" in str(exc)
             return
@@ -59,11 +62,20 @@ def test_plant_step_any_finite_drive_is_finite_or_refused(sequence) -> None:
 
 
 def _dsa_params() -> dsa.DsaParams:
-    return dsa.DsaParams(r3_rad_s=180.0, kappa=0.5, mu_nm_s_per_rad=1e-3,
-                         actuator_gain_nm_per_v=1.67e-7, sample_rate_hz=FS_HZ,
-                         drive_limit_v=LIMIT_V, sync_amplitude_v=20.0, sync_frequency_hz=90.0,
-                         sync_phase_rad=0.0, kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.0, 0.001),
-                         loop_delay_s=0.00075, compensation_frequency_hz=145.0)
+    return dsa.DsaParams(
+        r3_rad_s=180.0,
+        kappa=0.5,
+        mu_nm_s_per_rad=1e-3,
+        actuator_gain_nm_per_v=1.67e-7,
+        sample_rate_hz=FS_HZ,
+        drive_limit_v=LIMIT_V,
+        sync_amplitude_v=20.0,
+        sync_frequency_hz=90.0,
+        sync_phase_rad=0.0,
+        kr_schedule=dsa.KrSchedule(1.0, 0.0, 0.0, 0.001),
+        loop_delay_s=0.00075,
+        compensation_frequency_hz=145.0,
+    )
 
 
 @SETTINGS
@@ -85,8 +97,11 @@ def test_dsa_step_output_is_finite_and_within_the_limit(sequence, nan_at) -> Non
 
 
 @SETTINGS
-@given(stroke=blocks(math.pi, max_blocks=30), pitch=blocks(math.pi, max_blocks=30),
-       source=st.sampled_from(["drive", "stroke"]))
+@given(
+    stroke=blocks(math.pi, max_blocks=30),
+    pitch=blocks(math.pi, max_blocks=30),
+    source=st.sampled_from(["drive", "stroke"]),
+)
 def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> None:
     params = replace(monitor_windows_from_config(100.0), window_source=source, arm_wingbeats=0)
     state = collision.initial_state(params)
@@ -105,16 +120,27 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
 def test_collision_monitor_refuses_mismatched_blocks_by_name() -> None:
     params = monitor_windows_from_config(100.0)
     with pytest.raises(collision.CollisionParameterError, match="stroke_rad and pitch_rad"):
-        collision.step(collision.initial_state(params),
-                       collision.MonitorInputs(np.zeros(10), np.zeros(9)), params)
+        collision.step(
+            collision.initial_state(params),
+            collision.MonitorInputs(np.zeros(10), np.zeros(9)),
+            params,
+        )
 
 
 @SETTINGS
-@given(amplitude_v=st.floats(0, 300), frequency_hz=st.floats(0.1, 5000),
-       lead_in_s=st.floats(0, 0.01), n=st.integers(0, 500))
-def test_drive_blocks_are_finite_and_bounded_by_amplitude(amplitude_v, frequency_hz, lead_in_s,
-                                                          n) -> None:
+@given(
+    amplitude_v=st.floats(0, 300),
+    frequency_hz=st.floats(0.1, 5000),
+    lead_in_s=st.floats(0, 0.01),
+    n=st.integers(0, 500),
+)
+def test_drive_blocks_are_finite_and_bounded_by_amplitude(
+    amplitude_v, frequency_hz, lead_in_s, n
+) -> None:
     params = drive.DriveParams("sine", amplitude_v, frequency_hz=frequency_hz, lead_in_s=lead_in_s)
     _, block = drive.drive_step(drive.DriveState(), n, FS_HZ, params)
-    assert (block.shape == (n,) and np.isfinite(block).all()
-            and np.all(np.abs(block) <= amplitude_v + 1e-9))
+    assert (
+        block.shape == (n,)
+        and np.isfinite(block).all()
+        and np.all(np.abs(block) <= amplitude_v + 1e-9)
+    )

@@ -7,6 +7,7 @@ clear errors for bad entries. The workflow side on fixed draws of the generator'
 `offnominal_discover` family (off-nominal plant, noise, physics the vocabulary lacks): the right
 form, the right site, the coefficient within 10 %, the status.
 """
+
 from __future__ import annotations
 
 import json
@@ -49,12 +50,22 @@ def _drive(n: int = 8000) -> np.ndarray:
 
 def test_the_library_offers_what_the_issue_lists() -> None:
     forms = {k.form for k in TERM_KINDS}
-    for needed in ("1", "{x}**2", "{x}**3", "sign({v})", "abs({v})", "phi*psi", "ddrive_v",
-                   "drive_v", "{other}", "t*{own}", "t*drive_v"):
+    for needed in (
+        "1",
+        "{x}**2",
+        "{x}**3",
+        "sign({v})",
+        "abs({v})",
+        "phi*psi",
+        "ddrive_v",
+        "drive_v",
+        "{other}",
+        "t*{own}",
+        "t*drive_v",
+    ):
         assert needed in forms, needed
     assert any("lowpass(drive_v" in f for f in forms)
-    for site in ("stroke_dynamics", "pitch_dynamics", "drive", "stroke_sensor_v",
-                 "pitch_sensor_v"):
+    for site in ("stroke_dynamics", "pitch_dynamics", "drive", "stroke_sensor_v", "pitch_sensor_v"):
         assert kinds_for(site), site
     assert len(DISCOVER_KINDS) >= 6
 
@@ -63,8 +74,9 @@ def test_a_constant_hinge_torque_rests_the_wing_at_tau_over_k_h(model) -> None:
     tau = 0.02 * model.plant.hinge_stiffness_nm_per_rad
     m = replace(model, discovered=(DiscoveredTerm("constant", "pitch_dynamics", tau),))
     out = simulate(np.zeros(int(0.4 * FS)), FS, m)
-    assert out.pitch_rad[-1] == pytest.approx(tau / model.plant.hinge_stiffness_nm_per_rad,
-                                              rel=1e-3)
+    assert out.pitch_rad[-1] == pytest.approx(
+        tau / model.plant.hinge_stiffness_nm_per_rad, rel=1e-3
+    )
     assert np.max(np.abs(out.stroke_rad)) == 0.0  # a pitch torque does not move the stroke
 
 
@@ -83,8 +95,12 @@ def test_crosstalk_adds_c_times_the_other_chain(model) -> None:
     m = replace(model, discovered=(DiscoveredTerm("crosstalk", "pitch_sensor_v", c),))
     base, out = simulate(d, FS, model), simulate(d, FS, m)
     vref = model.sensors.reference_voltage_v
-    np.testing.assert_allclose(out.pitch_sensor_v - base.pitch_sensor_v,
-                               c * (base.stroke_sensor_v - vref), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        out.pitch_sensor_v - base.pitch_sensor_v,
+        c * (base.stroke_sensor_v - vref),
+        rtol=0,
+        atol=1e-15,
+    )
     np.testing.assert_array_equal(out.stroke_sensor_v, base.stroke_sensor_v)
 
 
@@ -92,9 +108,9 @@ def test_a_drive_lag_of_one_is_an_amplifier_with_that_bandwidth(model) -> None:
     d = _drive()
     lag = DiscoveredTerm("drive_lag", "drive", 1.0, (("corner_hz", 400.0),))
     b, a = lowpass_ba(400.0, FS)
-    b_ref, a_ref = signal.bilinear([2 * np.pi * 400.0], [1.0, 2 * np.pi * 400.0], fs=FS)
+    b_ref, _a_ref = signal.bilinear([2 * np.pi * 400.0], [1.0, 2 * np.pi * 400.0], fs=FS)
     np.testing.assert_allclose(np.polyval(b, 1) / np.polyval(a, 1), 1.0)  # unit DC gain
-    w, h = signal.freqz(b, a, worN=[120.0], fs=FS)
+    _w, h = signal.freqz(b, a, worN=[120.0], fs=FS)
     assert abs(h[0]) == pytest.approx(1 / math.hypot(1, 120.0 / 400.0), rel=2e-3)
     assert b_ref.size == b.size
     out = simulate(d, FS, replace(model, discovered=(lag,)))
@@ -103,17 +119,19 @@ def test_a_drive_lag_of_one_is_an_amplifier_with_that_bandwidth(model) -> None:
 
 
 def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
-    terms = (DiscoveredTerm("sign_velocity", "stroke_dynamics", -1e-6),
-             DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
-             DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
-             DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1))
+    terms = (
+        DiscoveredTerm("sign_velocity", "stroke_dynamics", -1e-6),
+        DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
+        DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
+        DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1),
+    )
     m = replace(model, discovered=terms)
     d = _drive()
     whole = simulate(d, FS, m)
     state = initial_state(PlantStepParams(m, FS))
     blocks = []
     for k in range(0, d.size, 97):
-        state, y = step(state, PlantInputs(d[k:k + 97]), PlantStepParams(m, FS))
+        state, y = step(state, PlantInputs(d[k : k + 97]), PlantStepParams(m, FS))
         blocks.append(y)
     batch = simulate_batch(d, FS, [model, m])
     for i, name in enumerate(whole._fields):
@@ -122,9 +140,13 @@ def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
 
 
 def test_a_model_with_a_discovered_term_round_trips_exactly(tmp_path: Path, model) -> None:
-    m = replace(model, discovered=(
-        DiscoveredTerm("drive_lag", "drive", 1.0173, (("corner_hz", 512.25),)),
-        DiscoveredTerm("cube_angle", "stroke_dynamics", -3.3e-5)))
+    m = replace(
+        model,
+        discovered=(
+            DiscoveredTerm("drive_lag", "drive", 1.0173, (("corner_hz", 512.25),)),
+            DiscoveredTerm("cube_angle", "stroke_dynamics", -3.3e-5),
+        ),
+    )
     path = tmp_path / "model.yaml"
     save_model(m, path)
     back = load_model(path)
@@ -135,16 +157,34 @@ def test_a_model_with_a_discovered_term_round_trips_exactly(tmp_path: Path, mode
     np.testing.assert_array_equal(simulate(d, FS, back).stroke_rad, simulate(d, FS, m).stroke_rad)
 
 
-@pytest.mark.parametrize("entry,message", [
-    ({"kind": "warp_drive", "acts_on": "drive", "parameters": {"coefficient": 1}}, "unknown term"),
-    ({"kind": "constant", "acts_on": "drive", "parameters": {"coefficient": 1}}, "acts_on"),
-    ({"kind": "drive_lag", "acts_on": "drive", "parameters": {"coefficient": 1}}, "corner_hz"),
-    ({"kind": "drive_lag", "acts_on": "drive",
-      "parameters": {"coefficient": 1, "corner_hz": 1e6}}, "corner_hz must be in"),
-    ({"kind": "constant", "acts_on": "stroke_dynamics",
-      "parameters": {"coefficient": float("nan")}}, "finite"),
-    ({"kind": "constant", "acts_on": "stroke_dynamics"}, "missing key(s) parameters"),
-])
+@pytest.mark.parametrize(
+    "entry,message",
+    [
+        (
+            {"kind": "warp_drive", "acts_on": "drive", "parameters": {"coefficient": 1}},
+            "unknown term",
+        ),
+        ({"kind": "constant", "acts_on": "drive", "parameters": {"coefficient": 1}}, "acts_on"),
+        ({"kind": "drive_lag", "acts_on": "drive", "parameters": {"coefficient": 1}}, "corner_hz"),
+        (
+            {
+                "kind": "drive_lag",
+                "acts_on": "drive",
+                "parameters": {"coefficient": 1, "corner_hz": 1e6},
+            },
+            "corner_hz must be in",
+        ),
+        (
+            {
+                "kind": "constant",
+                "acts_on": "stroke_dynamics",
+                "parameters": {"coefficient": float("nan")},
+            },
+            "finite",
+        ),
+        ({"kind": "constant", "acts_on": "stroke_dynamics"}, "missing key(s) parameters"),
+    ],
+)
 def test_a_bad_discovered_entry_is_refused_by_name(model, entry: dict, message: str) -> None:
     doc = model_to_dict(model) | {"discovered": [entry]}
     with pytest.raises(ModelError, match=message.replace("(", r"\(").replace(")", r"\)")):
@@ -152,8 +192,10 @@ def test_a_bad_discovered_entry_is_refused_by_name(model, entry: dict, message: 
 
 
 def test_a_third_dynamics_term_is_refused(model) -> None:
-    terms = tuple(DiscoveredTerm(k, "stroke_dynamics", 1e-7)
-                  for k in ("constant", "square_angle", "cube_angle"))
+    terms = tuple(
+        DiscoveredTerm(k, "stroke_dynamics", 1e-7)
+        for k in ("constant", "square_angle", "cube_angle")
+    )
     with pytest.raises(ModelError, match="at most 2 terms"):
         replace(model, discovered=terms)
 
@@ -182,15 +224,18 @@ def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> Non
     assert d.gap_after["stroke_deg"] < 0.3 * d.gap_before["stroke_deg"]
 
 
-def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(tmp_path: Path,
-                                                                        model) -> None:
+def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(
+    tmp_path: Path, model
+) -> None:
     case = random_robot("offnominal_discover", 3)
     assert (case.terms[0].kind, case.terms[0].acts_on) == ("drive_leak", "pitch_sensor_v")
     paths = [str(p) for p in write_case_csvs(case, model, tmp_path)]
     out = tmp_path / "out"
-    assert discrepancy.main(paths + ["--out", str(out)]) == 0
-    doc = json.loads((out / "discrepancy.json").read_text(),
-                     parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
+    assert discrepancy.main([*paths, "--out", str(out)]) == 0
+    doc = json.loads(
+        (out / "discrepancy.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"non-strict {c}"),
+    )
     assert doc["status"] == "explained"
     (entry,) = doc["discovered"]
     assert entry["acts_on"] == "pitch_sensor_v" and entry["expression"].endswith("* drive_v")
@@ -224,14 +269,24 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
         writer = csv.writer(handle)
         writer.writerow(["time_s", "drive_v"])
         writer.writerows([[f"{k / FS:.17g}", f"{v:.17g}"] for k, v in enumerate(drive)])
-    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
-                          str(tmp_path / "robot.yaml"), "--out", str(tmp_path / "out.csv")],
-                         isolated_env())
+    result = run_offline(
+        [
+            FLAAIR,
+            "simulate",
+            str(tmp_path / "in.csv"),
+            "--model",
+            str(tmp_path / "robot.yaml"),
+            "--out",
+            str(tmp_path / "out.csv"),
+        ],
+        isolated_env(),
+    )
     assert result.returncode == 0, result.stderr
     with open(tmp_path / "out.csv", newline="") as handle:
         stroke = np.array([float(r["stroke_deg"]) for r in csv.DictReader(handle)])
-    np.testing.assert_allclose(stroke, np.degrees(simulate(drive, FS, m).stroke_rad), rtol=1e-7,
-                               atol=1e-7)
+    np.testing.assert_allclose(
+        stroke, np.degrees(simulate(drive, FS, m).stroke_rad), rtol=1e-7, atol=1e-7
+    )
     assert not np.allclose(stroke, np.degrees(simulate(drive, FS, model).stroke_rad), atol=0.05)
     # identify applies it too: on this robot's data it finds the model's own stroke frequency,
     # which it could not with the term left out
@@ -240,10 +295,20 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     with open(tmp_path / "out.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     col = {c: np.array([float(r[c]) for r in rows]) for c in rows[0] if c != "time_s"}
-    runs = check_runs([Run("r", FS, col["drive_v"], col["stroke_sensor_v"], col["pitch_sensor_v"],
-                           col["stroke_deg"], col["pitch_deg"])])
-    noise = {"stroke_deg": 0.01, "pitch_deg": 0.01, "stroke_sensor_v": 1e-3,
-             "pitch_sensor_v": 1e-3}
+    runs = check_runs(
+        [
+            Run(
+                "r",
+                FS,
+                col["drive_v"],
+                col["stroke_sensor_v"],
+                col["pitch_sensor_v"],
+                col["stroke_deg"],
+                col["pitch_deg"],
+            )
+        ]
+    )
+    noise = {"stroke_deg": 0.01, "pitch_deg": 0.01, "stroke_sensor_v": 1e-3, "pitch_sensor_v": 1e-3}
     keys = ("stroke_natural_frequency_hz",)
     fit = identify_plant(runs, m, noise, keys=keys)
     assert fit.model.discovered == (term,)

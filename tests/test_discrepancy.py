@@ -12,6 +12,7 @@ cases that complete its coverage of the effects and decision branches (FULL_CASE
 slow). The whole fixed dataset (45 cases) is the benchmark's sweep (`make bench`:
 bench_discrepancy --sweep, target "all right"), not a test: each case is 3-15 s of model fitting.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,9 +58,14 @@ from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
 # the former discrepancy_core, now the discrepancy package's modules
-dc = SimpleNamespace(**{k: v for m in (
-    vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow) for k,
-                        v in vars(m).items() if not k.startswith("__")})
+dc = SimpleNamespace(
+    **{
+        k: v
+        for m in (vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow)
+        for k, v in vars(m).items()
+        if not k.startswith("__")
+    }
+)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -67,9 +73,17 @@ REPO = Path(__file__).resolve().parents[1]
 # effects (one reached at full drive only), two effects on one sensor, outside the vocabulary,
 # and every confusable pair member.
 DEFAULT_CASES = {
-    "null", "delay_60us_both", "strain_loss_pitch_0p23", "collision_40deg_full_only", "hinge_0p5",
-    "pair_delay_feedthrough_same_sensor", "outside_gain_drift", "confusable_delay_and_highpass",
-    "confusable_transmission_0p3", "confusable_hinge_1", "confusable_structural_0p04",
+    "null",
+    "delay_60us_both",
+    "strain_loss_pitch_0p23",
+    "collision_40deg_full_only",
+    "hinge_0p5",
+    "pair_delay_feedthrough_same_sensor",
+    "outside_gain_drift",
+    "confusable_delay_and_highpass",
+    "confusable_transmission_0p3",
+    "confusable_hinge_1",
+    "confusable_structural_0p04",
     "confusable_aero_damping_x1p6",
 }
 # In `make test` as well: what the default set leaves out of the effects and of the decision
@@ -90,9 +104,11 @@ def _case(name: str) -> DatasetCase:
 
 
 def _params():
-    return [pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES
-                         else pytest.mark.slow) for c in dataset_cases()
-            if c.name in DEFAULT_CASES | FULL_CASES]
+    return [
+        pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES else pytest.mark.slow)
+        for c in dataset_cases()
+        if c.name in DEFAULT_CASES | FULL_CASES
+    ]
 
 
 # ------------------------------------------------------------------------------ hidden effects
@@ -150,16 +166,22 @@ def _assert_plant_parameters(case: DatasetCase, result, model) -> None:
         # summary says where the fit stopped
         assert gamma["value"] == pytest.approx((1 + FIT_RANGE) * gamma["nominal"], rel=0.01)
         assert f"range (x{1 + FIT_RANGE:g} of the model): aero_damping_nm_s2;" in result.summary
-    elif not (case.outside or case.below_limit or any(
-            vocabulary.ENTRIES[n].trades_off for n in case.effect_names)):
+    elif not (
+        case.outside
+        or case.below_limit
+        or any(vocabulary.ENTRIES[n].trades_off for n in case.effect_names)
+    ):
         # no effect, or effects no plant parameter trades off against: the plant is the robot's
         effective = effective_plant(case, model)
         for key, want in effective.items():
             tol = 0.005 if key.endswith("_natural_frequency_hz") else 0.03
             assert result.plant_parameters[key]["value"] == pytest.approx(want, rel=tol), key
         # a robot on the edge of the fit's range (aerodynamic damping x1.5) is said to be there
-        on_edge = [k for k, v in effective.items()
-                   if abs(math.log(v / getattr(model.plant, k))) >= 0.999 * math.log1p(FIT_RANGE)]
+        on_edge = [
+            k
+            for k, v in effective.items()
+            if abs(math.log(v / getattr(model.plant, k))) >= 0.999 * math.log1p(FIT_RANGE)
+        ]
         assert ("At the edge" in result.summary) == bool(on_edge), (on_edge, result.summary)
 
 
@@ -179,8 +201,10 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
         for col, n in zip(table["columns"], counts):
             assert n == 0 or col == expected, (row, col)
     doc = write_validation(tmp_path, [o.as_dict() for o in outcomes], table, 0.0)
-    assert json.loads(
-        (tmp_path / "validation.json").read_text())["confusion"]["correct"] == table["correct"]
+    assert (
+        json.loads((tmp_path / "validation.json").read_text())["confusion"]["correct"]
+        == table["correct"]
+    )
     page = (tmp_path / "validation.html").read_text()
     assert "true \\ found" in page and f"{table['correct']} of {table['total']}" in page
     assert doc["confusion"]["rows"] == table["rows"]
@@ -189,24 +213,34 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
 def test_dataset_cases_cover_the_vocabulary_and_the_required_groups() -> None:
     cases = dataset_cases()
     assert len({c.name for c in cases}) == len(cases)
-    singles = {(c.effect_names + tuple(n for n, _ in c.hidden))[0] for c in cases
-               if c.group == "single"}
+    singles = {
+        (c.effect_names + tuple(n for n, _ in c.hidden))[0] for c in cases if c.group == "single"
+    }
     assert singles == set(EFFECT_NAMES)
     # effects a plant change reproduces are carried hidden (never to be named), and only those
     assert {n for c in cases for n, _ in c.hidden} == set(NOT_SEPARABLE)
-    assert ({k for c in cases if c.group == "confusable" for k, _ in c.plant_scale}
-            == {"aero_damping_nm_s2"})
+    assert {k for c in cases if c.group == "confusable" for k, _ in c.plant_scale} == {
+        "aero_damping_nm_s2"
+    }
     assert {c.group for c in cases} == {"single", "pair", "null", "outside", "confusable"}
     assert any(c.noise_scale > 1 for c in cases if c.group == "single")
-    confusable = {n for c in cases if c.group == "confusable"
-                  for n in (c.effect_names or (c.outside,))}
-    assert {"sensor_delay", "charge_amp_highpass", "hinge_stiffening", "transmission_nonlinearity",
-            "structural_damping", "aero_damping"} <= confusable
+    confusable = {
+        n for c in cases if c.group == "confusable" for n in (c.effect_names or (c.outside,))
+    }
+    assert {
+        "sensor_delay",
+        "charge_amp_highpass",
+        "hinge_stiffening",
+        "transmission_nonlinearity",
+        "structural_damping",
+        "aero_damping",
+    } <= confusable
     # the cases `make test` runs still name every effect of the vocabulary and every group
     tested = [c for c in cases if c.name in DEFAULT_CASES | FULL_CASES]
     assert len(tested) == len(DEFAULT_CASES | FULL_CASES)
     assert {n for c in tested for n in c.effect_names + tuple(n for n, _ in c.hidden)} == set(
-        EFFECT_NAMES)
+        EFFECT_NAMES
+    )
     assert {c.group for c in tested} == {c.group for c in cases}
     drives = dict(run_set_drives())
     assert set(drives) == {"chirp_full", "chirp_half", "stepped"}
@@ -222,20 +256,26 @@ def test_effect_channels_are_what_the_plant_changes(model) -> None:
     """EFFECT_CHANNELS (what each effect can explain) agrees with the simulator."""
     t = np.arange(int(0.3 * FS_HZ)) / FS_HZ
     drive = chirp(t, 100.0, 60.0, 200.0, 0.3)
-    params = {"sensor_delay": {"delay_s": 1e-4, "channel": "both"},
-              "charge_amp_highpass": {"corner_hz": 5.0, "channel": "both"},
-              "feedthrough": {"gain_v_per_v": 0.003},
-              "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
-              "hinge_stiffening": {"cubic_per_rad2": 1.0},
-              "structural_damping": {"damping_ratio": 0.05},
-              "strain_transfer_loss": {"efficiency": 0.5, "channel": "both"},
-              "collision": {"stroke_limit_deg": 20.0}, "wing_damage": {"inertia_factor": 0.8}}
+    params = {
+        "sensor_delay": {"delay_s": 1e-4, "channel": "both"},
+        "charge_amp_highpass": {"corner_hz": 5.0, "channel": "both"},
+        "feedthrough": {"gain_v_per_v": 0.003},
+        "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
+        "hinge_stiffening": {"cubic_per_rad2": 1.0},
+        "structural_damping": {"damping_ratio": 0.05},
+        "strain_transfer_loss": {"efficiency": 0.5, "channel": "both"},
+        "collision": {"stroke_limit_deg": 20.0},
+        "wing_damage": {"inertia_factor": 0.8},
+    }
     assert set(params) == set(EFFECT_NAMES) == set(dc.EFFECT_CHANNELS)
     base = dc._as_channels(simulate(drive, FS_HZ, model))
     for name, p in params.items():
         out = dc._as_channels(simulate(drive, FS_HZ, with_effects(model, {name: p})))
-        changed = {c for c in dc.CHANNELS
-                   if np.max(np.abs(out[c] - base[c])) > 1e-9 * np.max(np.abs(base[c]))}
+        changed = {
+            c
+            for c in dc.CHANNELS
+            if np.max(np.abs(out[c] - base[c])) > 1e-9 * np.max(np.abs(base[c]))
+        }
         assert changed == set(dc.EFFECT_CHANNELS[name]), name
 
 
@@ -253,9 +293,16 @@ def test_candidate_specs_name_every_effect_on_a_channel_it_can_change() -> None:
     assert seen == set(EFFECT_NAMES)
     # physics is judged on the ground truth, sensor effects on the sensors
     assert {s.name for s in dc.candidate_specs("stroke_deg")} == {
-        "structural_damping", "collision", "wing_damage"}
+        "structural_damping",
+        "collision",
+        "wing_damage",
+    }
     assert {s.name for s in dc.candidate_specs("pitch_deg")} == {
-        "hinge_stiffening", "structural_damping", "collision", "wing_damage"}
+        "hinge_stiffening",
+        "structural_damping",
+        "collision",
+        "wing_damage",
+    }
 
 
 def test_noise_estimate_recovers_the_noise_of_the_data(model) -> None:
@@ -265,13 +312,17 @@ def test_noise_estimate_recovers_the_noise_of_the_data(model) -> None:
         sims = dc.simulate_runs([model], runs)[0]
         noise = dc.noise_estimates(runs, sims, model)
         assert noise["stroke_sensor_v"] == pytest.approx(
-            scale * model.noise.sensor_noise_v_rms, rel=0.05)
+            scale * model.noise.sensor_noise_v_rms, rel=0.05
+        )
         assert noise["pitch_sensor_v"] == pytest.approx(
-            scale * model.noise.sensor_noise_v_rms, rel=0.05)
+            scale * model.noise.sensor_noise_v_rms, rel=0.05
+        )
         assert noise["stroke_deg"] == pytest.approx(
-            scale * model.noise.tracking_noise_deg_rms, rel=0.05)
+            scale * model.noise.tracking_noise_deg_rms, rel=0.05
+        )
         assert noise["pitch_deg"] == pytest.approx(
-            scale * model.noise.tracking_noise_deg_rms, rel=0.05)
+            scale * model.noise.tracking_noise_deg_rms, rel=0.05
+        )
 
 
 def test_residual_tests_separate_noise_from_a_modelled_path() -> None:
@@ -280,7 +331,7 @@ def test_residual_tests_separate_noise_from_a_modelled_path() -> None:
     t = np.arange(n) / FS_HZ
     drive = chirp(t, 100.0, 20.0, 200.0, 2.0)
     white = rng.standard_normal(n)
-    q, p = dc._ljung_box(white[::10], 20)
+    _q, p = dc._ljung_box(white[::10], 20)
     assert p > 1e-3
     structured = white + 0.5 * np.sin(2 * np.pi * 150 * t)
     assert dc._ljung_box(structured[::10], 20)[1] < 1e-12
@@ -306,7 +357,7 @@ def test_diagnosis_says_where_channel_band_drive_level_harmonics_and_time(model)
     g = _diagnosis("collision_40deg_full_only", model).channels["stroke_deg"]
     assert g.has_gap and math.isinf(g.level_ratio)
     lo, hi = (float(x) for x in g.worst_band_hz.split("-"))
-    assert 100 <= lo and hi <= 160
+    assert lo >= 100 and hi <= 160
     assert g.worst_stretch[0] in ("chirp_full", "stepped")
     assert "only at the highest drive level" in g.interpretation
     # a cubic transmission: actuator sensor only, 3rd harmonic, error grows with amplitude
@@ -331,15 +382,21 @@ def test_diagnosis_says_where_channel_band_drive_level_harmonics_and_time(model)
 def test_sensor_chain_shortcut_equals_the_plant(model) -> None:
     t = np.arange(int(0.5 * FS_HZ)) / FS_HZ
     drive = chirp(t, 100.0, 20.0, 200.0, 0.5)
-    for effects in ({"sensor_delay": {"delay_s": 1.234e-4, "channel": "both"},
-                     "charge_amp_highpass": {"corner_hz": 3.3, "channel": "stroke"},
-                     "feedthrough": {"gain_v_per_v": 0.003},
-                     "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
-                     "hinge_stiffening": {"cubic_per_rad2": 1.0},
-                     "strain_transfer_loss": {"efficiency": 0.4, "channel": "both"}}, {
+    for effects in (
+        {
+            "sensor_delay": {"delay_s": 1.234e-4, "channel": "both"},
+            "charge_amp_highpass": {"corner_hz": 3.3, "channel": "stroke"},
+            "feedthrough": {"gain_v_per_v": 0.003},
+            "transmission_nonlinearity": {"cubic_per_rad2": 0.3},
+            "hinge_stiffening": {"cubic_per_rad2": 1.0},
+            "strain_transfer_loss": {"efficiency": 0.4, "channel": "both"},
+        },
+        {
             "sensor_delay": {"delay_s": 1.5e-4, "channel": "pitch"},
             "charge_amp_highpass": {"corner_hz": 10.0, "channel": "pitch"},
-            "collision": {"stroke_limit_deg": 30.0}}):
+            "collision": {"stroke_limit_deg": 30.0},
+        },
+    ):
         m = with_effects(model, effects)
         full = simulate(drive, FS_HZ, m)
         motion = simulate(drive, FS_HZ, dc.mechanics_model(m))
@@ -354,8 +411,11 @@ def test_gappy_truth_and_a_single_run_still_work(model) -> None:
     runs = make_runs(case, model)
     mask = np.ones(runs[0].n, bool)
     mask[::10] = False
-    one = replace(runs[0], stroke_deg=np.where(mask, np.nan, runs[0].stroke_deg),
-                  pitch_deg=np.where(mask, np.nan, runs[0].pitch_deg))
+    one = replace(
+        runs[0],
+        stroke_deg=np.where(mask, np.nan, runs[0].stroke_deg),
+        pitch_deg=np.where(mask, np.nan, runs[0].pitch_deg),
+    )
     result = dc.analyse([one], model)
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["strain_transfer_loss"]
@@ -369,20 +429,27 @@ def test_gappy_truth_and_a_single_run_still_work(model) -> None:
 
 def _run(name: str, n: int = 4000, fs: float = FS_HZ, **over) -> dc.Run:
     t = np.arange(n) / fs
-    cols = dict(drive_v=100 * np.sin(2 * np.pi * 140 * t), stroke_sensor_v=np.full(n, 1.25),
-                pitch_sensor_v=np.full(n, 1.25), stroke_deg=np.zeros(n), pitch_deg=np.zeros(n))
+    cols = dict(
+        drive_v=100 * np.sin(2 * np.pi * 140 * t),
+        stroke_sensor_v=np.full(n, 1.25),
+        pitch_sensor_v=np.full(n, 1.25),
+        stroke_deg=np.zeros(n),
+        pitch_deg=np.zeros(n),
+    )
     cols.update(over)
     return dc.Run(name, fs, **cols)
 
 
 def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
-    with pytest.raises(dc.DiscrepancyInputError,
-                       match="different sample rates.*a: 20000 Hz.*b: 10000 Hz"):
+    with pytest.raises(
+        dc.DiscrepancyInputError, match="different sample rates.*a: 20000 Hz.*b: 10000 Hz"
+    ):
         dc.check_runs([_run("a"), _run("b", fs=10000.0)])
     with pytest.raises(dc.DiscrepancyInputError, match="run a: ground truth pitch_deg is missing"):
         dc.check_runs([_run("a", pitch_deg=np.full(4000, np.nan))])
-    with pytest.raises(dc.DiscrepancyInputError,
-                       match="run a: column stroke_sensor_v has non-finite"):
+    with pytest.raises(
+        dc.DiscrepancyInputError, match="run a: column stroke_sensor_v has non-finite"
+    ):
         dc.check_runs([_run("a", stroke_sensor_v=np.r_[np.full(3999, 1.25), np.nan])])
     with pytest.raises(dc.DiscrepancyInputError, match="run a: column pitch_deg has 3 samples"):
         dc.check_runs([_run("a", pitch_deg=np.zeros(3))])
@@ -394,10 +461,14 @@ def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
 
 def _csv(path: Path, fs: float = FS_HZ, n: int = 2000, truth: bool = True) -> Path:
     t = np.arange(n) / fs
-    cols = {"time_s": t, "drive_v": 100 * np.sin(2 * np.pi * 140 * t),
-            "stroke_sensor_v": np.full(n, 1.25), "pitch_sensor_v": np.full(n, 1.25),
-            "stroke_deg": np.zeros(n) if truth else np.full(n, np.nan), "pitch_deg": np.zeros(n)
-            if truth else np.full(n, np.nan)}
+    cols = {
+        "time_s": t,
+        "drive_v": 100 * np.sin(2 * np.pi * 140 * t),
+        "stroke_sensor_v": np.full(n, 1.25),
+        "pitch_sensor_v": np.full(n, 1.25),
+        "stroke_deg": np.zeros(n) if truth else np.full(n, np.nan),
+        "pitch_deg": np.zeros(n) if truth else np.full(n, np.nan),
+    }
     write_run(path, cols)
     return path
 
@@ -407,16 +478,21 @@ def _bag_without_truth(path: Path) -> Path:
 
     store = bagio.typestore()
     with bagio.BagWriter(path, store=store) as writer:
-        msg = bagio.new_message("std_msgs/msg/String", store,
-                                data='{"run": "r", "first_sample_index": 0, "n_samples": 1}')
+        msg = bagio.new_message(
+            "std_msgs/msg/String",
+            store,
+            data='{"run": "r", "first_sample_index": 0, "n_samples": 1}',
+        )
         writer.write_message(bagio.RUN_MARKER_TOPIC, 1, msg)
     return path
 
 
-@pytest.mark.parametrize("kind", [
-    "rates", "truth", "unknown_effect", "bag_topics", "missing_file", "bad_csv"])
-def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path: Path,
-                                                            capsys) -> None:
+@pytest.mark.parametrize(
+    "kind", ["rates", "truth", "unknown_effect", "bag_topics", "missing_file", "bad_csv"]
+)
+def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(
+    kind: str, tmp_path: Path, capsys
+) -> None:
     args: list[str]
     if kind == "rates":
         args = [str(_csv(tmp_path / "a.csv")), str(_csv(tmp_path / "b.csv", fs=10000.0))]
@@ -425,8 +501,11 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path:
         args = [str(_csv(tmp_path / "a.csv", truth=False))]
         expect = "ground truth stroke_deg is missing"
     elif kind == "unknown_effect":
-        text = (REPO / "config" / "model.yaml").read_text().replace(
-            "effects: {}", "effects:\n  warp_drive: {}")
+        text = (
+            (REPO / "config" / "model.yaml")
+            .read_text()
+            .replace("effects: {}", "effects:\n  warp_drive: {}")
+        )
         (tmp_path / "m.yaml").write_text(text)
         args = [str(_csv(tmp_path / "a.csv")), "--model", str(tmp_path / "m.yaml")]
         expect = "unknown effect 'warp_drive'"
@@ -440,7 +519,7 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path:
         (tmp_path / "bad.csv").write_text("time_s,drive_v,stroke_sensor_v\n0,1,1.25\n")
         args = [str(tmp_path / "bad.csv")]
         expect = "missing column(s) pitch_sensor_v"
-    code = discrepancy.main(args + ["--out", str(tmp_path / "out")])
+    code = discrepancy.main([*args, "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 2
     assert expect in err and "Traceback" not in err
@@ -448,12 +527,26 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(kind: str, tmp_path:
 
 
 def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_path: Path) -> None:
-    text = (REPO / "config" / "model.yaml").read_text().replace(
-        "effects: {}", "effects:\n  warp_drive: {}")
+    text = (
+        (REPO / "config" / "model.yaml")
+        .read_text()
+        .replace("effects: {}", "effects:\n  warp_drive: {}")
+    )
     (tmp_path / "m.yaml").write_text(text)
     # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
-    result = run([FLAAIR, "discrepancy", str(_csv(tmp_path / "a.csv")), "--model",
-                  str(tmp_path / "m.yaml"), "--out", str(tmp_path / "out")], isolated_env(), 300)
+    result = run(
+        [
+            FLAAIR,
+            "discrepancy",
+            str(_csv(tmp_path / "a.csv")),
+            "--model",
+            str(tmp_path / "m.yaml"),
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        isolated_env(),
+        300,
+    )
     assert result.returncode == 2
     assert "unknown effect 'warp_drive'" in result.stderr and "Traceback" not in result.stderr
 
@@ -465,9 +558,17 @@ def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
     paths = []
     for r in make_runs(case, model):
         path = directory / f"{r.name}.csv"
-        write_run(path, {"time_s": np.arange(r.n) / r.fs_hz, "drive_v": r.drive_v,
-                         "stroke_sensor_v": r.stroke_sensor_v, "pitch_sensor_v": r.pitch_sensor_v,
-                         "stroke_deg": r.stroke_deg, "pitch_deg": r.pitch_deg})
+        write_run(
+            path,
+            {
+                "time_s": np.arange(r.n) / r.fs_hz,
+                "drive_v": r.drive_v,
+                "stroke_sensor_v": r.stroke_sensor_v,
+                "pitch_sensor_v": r.pitch_sensor_v,
+                "stroke_deg": r.stroke_deg,
+                "pitch_deg": r.pitch_deg,
+            },
+        )
         paths.append(path)
     return paths
 
@@ -475,20 +576,31 @@ def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
 @pytest.fixture(scope="module")
 def paper_robot_csvs(tmp_path_factory, model) -> list[Path]:
     """The paper's robot: pitch sensor 4.3x below the model, plus a 100 us acquisition delay."""
-    case = DatasetCase("paper_robot", "pair", (
-        ("sensor_delay", {"delay_s": 1e-4, "channel": "both"}),
-        ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"})), seed=3)
+    case = DatasetCase(
+        "paper_robot",
+        "pair",
+        (
+            ("sensor_delay", {"delay_s": 1e-4, "channel": "both"}),
+            ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"}),
+        ),
+        seed=3,
+    )
     return write_case_csvs(case, model, tmp_path_factory.mktemp("csv"))
 
 
-@pytest.mark.slow   # the whole workflow through the CLI, twice with the null case
+@pytest.mark.slow  # the whole workflow through the CLI, twice with the null case
 def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, model) -> None:
     val = tmp_path / "val"
     assert discrepancy.main(["--validate", "--cases", "null", "--out", str(val)]) == 0
     assert json.loads((val / "validation.json").read_text())["confusion"]["correct"] == 1
     out = tmp_path / "out"
-    assert discrepancy.main([str(p) for p in paper_robot_csvs] + [
-        "--out", str(out), "--validation", str(val / "validation.json")]) == 0
+    assert (
+        discrepancy.main(
+            [str(p) for p in paper_robot_csvs]
+            + ["--out", str(out), "--validation", str(val / "validation.json")]
+        )
+        == 0
+    )
     doc = json.loads((out / "discrepancy.json").read_text())
     assert {"status", "effects", "gap_before", "gap_after", "model_out"} <= set(doc)
     assert doc["status"] == "explained"
@@ -500,8 +612,9 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
         assert e["evidence"]["accepted"] and all(e["evidence"]["rules"].values())
     assert effects["sensor_delay"]["parameters"]["delay_s"] == pytest.approx(1e-4, rel=0.15)
     assert effects["sensor_delay"]["parameters"]["channel"] == "both"
-    assert (effects["strain_transfer_loss"]["parameters"]["efficiency"]
-            == pytest.approx(0.23, rel=0.15))
+    assert effects["strain_transfer_loss"]["parameters"]["efficiency"] == pytest.approx(
+        0.23, rel=0.15
+    )
     for c in dc.CHANNELS:
         assert doc["gap_after"][c] <= doc["gap_before"][c] * 1.01
     assert doc["gap_after"]["pitch_sensor_v"] < 0.05 * doc["gap_before"]["pitch_sensor_v"]
@@ -509,12 +622,25 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
     found = load_model(out / "model.yaml")
     assert found.effect_names == ("sensor_delay", "strain_transfer_loss")
     # the plant is this robot's, fitted first (here the nominal robot: within noise of the model)
-    assert all(getattr(found.plant, k) == pytest.approx(getattr(model.plant, k), rel=0.01)
-               for k in vars(model.plant))
+    assert all(
+        getattr(found.plant, k) == pytest.approx(getattr(model.plant, k), rel=0.01)
+        for k in vars(model.plant)
+    )
     assert found.sensors == model.sensors
     sim_csv = tmp_path / "sim.csv"
-    result = run_offline([FLAAIR, "simulate", str(paper_robot_csvs[0]), "--model",
-                          str(out / "model.yaml"), "--out", str(sim_csv)], dict(os.environ), 300)
+    result = run_offline(
+        [
+            FLAAIR,
+            "simulate",
+            str(paper_robot_csvs[0]),
+            "--model",
+            str(out / "model.yaml"),
+            "--out",
+            str(sim_csv),
+        ],
+        dict(os.environ),
+        300,
+    )
     assert result.returncode == 0, result.stderr
     page = (out / "report.html").read_text()
     assert "Status: explained" in page and "Decision rules" in page
@@ -540,9 +666,15 @@ def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: P
 def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, model) -> None:
     """An input model that already has an effect keeps it; the found effect is added beside it."""
     start = with_effects(model, {"strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"}})
-    case = DatasetCase("x", "pair", (
-        ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"}),
-        ("feedthrough", {"gain_v_per_v": 0.003})), seed=4)
+    case = DatasetCase(
+        "x",
+        "pair",
+        (
+            ("strain_transfer_loss", {"efficiency": 0.23, "channel": "pitch"}),
+            ("feedthrough", {"gain_v_per_v": 0.003}),
+        ),
+        seed=4,
+    )
     result = dc.analyse(make_runs(case, model), start)
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["feedthrough"]
@@ -551,11 +683,16 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
     assert load_model(tmp_path / "m.yaml") == result.model_out
 
 
-@pytest.mark.parametrize("level_ratio, words", [
-    (0.0, "only at the lower drive levels"), (
-    math.inf, "only at the highest drive level"), (3.0, "3.00x larger at full drive"),
-    (0.25, "4.00x larger at low drive"), (math.nan, "not white"),
-])
+@pytest.mark.parametrize(
+    "level_ratio, words",
+    [
+        (0.0, "only at the lower drive levels"),
+        (math.inf, "only at the highest drive level"),
+        (3.0, "3.00x larger at full drive"),
+        (0.25, "4.00x larger at low drive"),
+        (math.nan, "not white"),
+    ],
+)
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
     from flaair_tools.discrepancy.diagnosis import interpret
     from flaair_tools.discrepancy.settings import Settings

@@ -6,6 +6,7 @@ nominal (frequencies +-3 %, damping, gain, couplings +-15 %), noise 1-2x, truth 
 parameters (10 %) and natural frequencies (0.5 %) with the hidden truth. Without the plant
 identification every one of these robots ends `unexplained` (asserted for the no-effect robot).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -43,8 +44,9 @@ def model():
 
 
 @pytest.mark.parametrize("family,draw", DRAWS, ids=[f"{f}_{d}" for f, d in DRAWS])
-def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(family: str, draw: int,
-                                                                     model) -> None:
+def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
+    family: str, draw: int, model
+) -> None:
     case = random_robot(family, draw)
     result = analyse(make_runs(case, model), model)
     assert result.status == case.expected_status, result.summary
@@ -58,12 +60,15 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(family: str
                 assert found[name].parameters[key] == pytest.approx(value, rel=0.10), (name, key)
     effective = effective_plant(case, model)  # a lighter wing resonates higher
     for key in FREQUENCIES:
-        assert (result.plant_parameters[key]["value"]
-                == pytest.approx(effective[key], rel=0.005)), key
+        assert result.plant_parameters[key]["value"] == pytest.approx(effective[key], rel=0.005), (
+            key
+        )
         assert result.plant_parameters[key]["nominal"] == getattr(model.plant, key)
         assert result.plant_parameters[key]["stderr"] > 0
-    assert (result.model_out.plant.stroke_natural_frequency_hz
-            == result.plant_parameters[FREQUENCIES[0]]["value"])
+    assert (
+        result.model_out.plant.stroke_natural_frequency_hz
+        == result.plant_parameters[FREQUENCIES[0]]["value"]
+    )
     assert "wing_damage" in {d["effect"] for d in result.not_separable}
 
 
@@ -72,16 +77,20 @@ def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
     ms): both delays are fitted, each on its own chain, and written
     as one value per chain (one shared value cannot explain both).
     """
-    case = dataclasses.replace(random_robot("offnominal_null", 2), group="single", effects=(
-        ("sensor_delay", {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}),))
+    case = dataclasses.replace(
+        random_robot("offnominal_null", 2),
+        group="single",
+        effects=(("sensor_delay", {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}),),
+    )
     result = analyse(make_runs(case, model), model)
     assert result.status == "explained", result.summary
     assert [e.name for e in result.effects] == ["sensor_delay"], result.summary
     fitted = result.effects[0].parameters
     assert fitted["stroke"]["delay_s"] == pytest.approx(1.5e-4, rel=0.10)
     assert fitted["pitch"]["delay_s"] == pytest.approx(4.0e-4, rel=0.10)
-    assert (result.model_out.effect_on("sensor_delay", "stroke").delay_s
-            == fitted["stroke"]["delay_s"])
+    assert (
+        result.model_out.effect_on("sensor_delay", "stroke").delay_s == fitted["stroke"]["delay_s"]
+    )
     assert result.model_out.effect_on("sensor_delay", "pitch").delay_s == fitted["pitch"]["delay_s"]
 
 
@@ -106,9 +115,11 @@ def test_cli_writes_plant_parameters_and_the_fitted_model(tmp_path: Path, model)
     case = random_robot("offnominal_null", 1)
     paths = [str(p) for p in write_case_csvs(case, model, tmp_path)]
     out = tmp_path / "out"
-    assert discrepancy.main(paths + ["--out", str(out)]) == 0
-    doc = json.loads((out / "discrepancy.json").read_text(),
-                     parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
+    assert discrepancy.main([*paths, "--out", str(out)]) == 0
+    doc = json.loads(
+        (out / "discrepancy.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"non-strict {c}"),
+    )
     assert doc["status"] == "no_discrepancy" and doc["effects"] == []
     fitted = load_model(out / "model.yaml")
     truth = true_plant(case, model)

@@ -2,6 +2,7 @@
 (info), and the node keeps running. In process, on a fake clock (tests/composed.py): the timings
 are exact.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,19 +10,35 @@ import numpy as np
 from composed import composed
 
 
-def test_lockstep_drive_retries_then_ends_on_a_zero_block_and_keeps_running(monkeypatch, tmp_path,
-                                                                            capfd) -> None:
+def test_lockstep_drive_retries_then_ends_on_a_zero_block_and_keeps_running(
+    monkeypatch, tmp_path, capfd
+) -> None:
     from flaair_sim.drive_node import DriveNode
 
-    params = {"drive_node": {"pacing": "lockstep", "lockstep_window_blocks": 1, "ack_retry_s": 0.2,
-                             "run_time_s": 0.002, "frequency_hz": 140.0}}   # 4 blocks of 10 samples
+    params = {
+        "drive_node": {
+            "pacing": "lockstep",
+            "lockstep_window_blocks": 1,
+            "ack_retry_s": 0.2,
+            "run_time_s": 0.002,
+            "frequency_hz": 140.0,
+        }
+    }  # 4 blocks of 10 samples
     with composed(monkeypatch, [DriveNode], params, tmp_path, local_topics=()) as loop:
         drive = loop.node("drive_node")
-        sent: list[tuple[float, int, float]] = []   # (clock, first sample, peak |drive|)
+        sent: list[tuple[float, int, float]] = []  # (clock, first sample, peak |drive|)
         t0 = loop.clock.now_s
-        monkeypatch.setattr(drive.publisher, "publish", lambda m: sent.append(
-            (round(loop.clock.now_s - t0, 6), m.first_sample_index,
-             float(np.abs(m.drive_v).max()))))
+        monkeypatch.setattr(
+            drive.publisher,
+            "publish",
+            lambda m: sent.append(
+                (
+                    round(loop.clock.now_s - t0, 6),
+                    m.first_sample_index,
+                    float(np.abs(m.drive_v).max()),
+                )
+            ),
+        )
         # a silent plant: it subscribes to the drive and
         # offers the sensor stream, and never publishes
         monkeypatch.setattr(drive.publisher, "get_subscription_count", lambda: 1)
@@ -36,5 +53,7 @@ def test_lockstep_drive_retries_then_ends_on_a_zero_block_and_keeps_running(monk
     assert [index for _, index, _ in sent] == [0, 10, 20, 30, 40]
     assert all(peak > 0 for _, _, peak in sent[:4]) and sent[4][2] == 0.0
     assert [t for t, _, _ in sent] == [0.002, 0.204, 0.406, 0.608, 0.608]
-    assert (log.count("no acknowledgement for 0.2 s") == 3
-            and "run complete at sample 40; zero drive sent" in log)
+    assert (
+        log.count("no acknowledgement for 0.2 s") == 3
+        and "run complete at sample 40; zero drive sent" in log
+    )

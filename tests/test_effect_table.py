@@ -5,6 +5,7 @@ changes exactly the measured channels it names, and is known to the discrepancy 
 to the hidden-effect generator with ranges inside its fit bounds. An entry whose term the plant
 does not know is refused by name: adding an effect is one entry plus its kernel term.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -32,8 +33,9 @@ NAMES = [e.name for e in EFFECTS]
 
 def _middle(entry) -> dict:
     """The effect at the middle of its draw ranges (both sensor chains for a sensor effect)."""
-    params = {r.key: math.sqrt(r.low * r.high) if r.log else 0.5 * (r.low + r.high)
-              for r in entry.draw}
+    params = {
+        r.key: math.sqrt(r.low * r.high) if r.log else 0.5 * (r.low + r.high) for r in entry.draw
+    }
     return params | ({"channel": "both"} if entry.per_sensor else {})
 
 
@@ -43,10 +45,13 @@ def nominal():
 
 
 def test_the_model_vocabulary_and_generator_list_the_table_in_its_order() -> None:
-    assert EFFECT_NAMES == tuple(NAMES)
+    assert tuple(NAMES) == EFFECT_NAMES
     assert tuple(e.name for e in vocabulary.VOCABULARY) == tuple(NAMES)
-    assert datasets.EFFECT_NAMES_ORDER == tuple(n for n in NAMES if ENTRIES[n].separable) + tuple(
-        n for n in NAMES if not ENTRIES[n].separable)
+    assert (
+        tuple(n for n in NAMES if ENTRIES[n].separable)
+        + tuple(n for n in NAMES if not ENTRIES[n].separable)
+        == datasets.EFFECT_NAMES_ORDER
+    )
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -65,7 +70,7 @@ def test_the_generator_draws_each_effect_inside_its_ranges(name: str) -> None:
     entry = ENTRIES[name]
     for seed in range(20):
         params = datasets.random_effect(name, np.random.default_rng(seed))
-        with_effects(load_model(), {name: params})                    # a valid effect
+        with_effects(load_model(), {name: params})  # a valid effect
         for r in entry.draw:
             assert r.low <= abs(params[r.key]) <= r.high, (r, params)
         assert ("channel" in params) == entry.per_sensor
@@ -75,27 +80,38 @@ def test_the_generator_draws_each_effect_inside_its_ranges(name: str) -> None:
 def test_an_effect_changes_its_kernel_terms_and_nothing_else(name: str, nominal) -> None:
     entry = ENTRIES[name]
     model = with_effects(nominal, {name: _middle(entry)})
-    terms = entry.terms(model.effect_on(name, "stroke") if entry.per_sensor else model.effect(name),
-                        TermContext(
-        nominal.plant.stroke_inertia_kg_m2, nominal.plant.stroke_stiffness_nm_per_rad, FS_HZ))
+    terms = entry.terms(
+        model.effect_on(name, "stroke") if entry.per_sensor else model.effect(name),
+        TermContext(
+            nominal.plant.stroke_inertia_kg_m2, nominal.plant.stroke_stiffness_nm_per_rad, FS_HZ
+        ),
+    )
     assert tuple(terms) == entry.kernel_terms
     before, after = plant_params.prepare(nominal, FS_HZ), plant_params.prepare(model, FS_HZ)
     changed = set(np.flatnonzero(before.params != after.params))
     delays = (after.delay_stroke_samples, after.delay_pitch_samples) != (
-        before.delay_stroke_samples, before.delay_pitch_samples)
+        before.delay_stroke_samples,
+        before.delay_pitch_samples,
+    )
     assert changed or delays, f"{name} does not reach the plant"
     if "delay_samples" in terms:
         assert delays
     expected = {
         "structural_damping_nm_s_per_rad": {plant_params.P_CSTRUCT},
         "hinge_cubic_per_rad2": {plant_params.P_HCUBIC},
-        "contact_on": {plant_params.CONTACT_ON_INDEX}, "stroke_limit_rad": {plant_params.P_PHI_LIM},
+        "contact_on": {plant_params.CONTACT_ON_INDEX},
+        "stroke_limit_rad": {plant_params.P_PHI_LIM},
         "contact_stiffness_nm_per_rad": {plant_params.P_KC},
         "contact_damping_nm_s_per_rad": {plant_params.P_CC},
         "transmission_cubic_per_rad2": {plant_params.P_TCUBIC},
         "feedthrough_v_per_v": {plant_params.P_FT},
-        "inertia_factor": {plant_params.P_I, plant_params.P_IP}, "highpass_b0": {
-        plant_params.P_HPS_B0, plant_params.P_HPP_B0, plant_params.P_HPS_ON, plant_params.P_HPP_ON},
+        "inertia_factor": {plant_params.P_I, plant_params.P_IP},
+        "highpass_b0": {
+            plant_params.P_HPS_B0,
+            plant_params.P_HPP_B0,
+            plant_params.P_HPS_ON,
+            plant_params.P_HPP_ON,
+        },
         "highpass_b1": {plant_params.P_HPS_B1, plant_params.P_HPP_B1},
         "highpass_a1": {plant_params.P_HPS_A1, plant_params.P_HPP_A1},
         "gain_factor": {plant_params.P_GS, plant_params.P_GP},
@@ -113,25 +129,40 @@ def test_an_effect_changes_the_channels_it_acts_on_and_no_other(name: str, nomin
     drive_v = 100.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(1.0, t / 0.02)
     base = plant.simulate(drive_v, FS_HZ, nominal)
     out = plant.simulate(drive_v, FS_HZ, with_effects(nominal, {name: _middle(entry)}))
-    signals = {"stroke_deg": "stroke_rad", "pitch_deg": "pitch_rad",
-               "stroke_sensor_v": "stroke_sensor_v", "pitch_sensor_v": "pitch_sensor_v"}
-    changed = {channel for channel, field in signals.items() if np.max(
-        np.abs(getattr(out, field) - getattr(base, field))) > 1e-3 * np.ptp(getattr(base, field))}
+    signals = {
+        "stroke_deg": "stroke_rad",
+        "pitch_deg": "pitch_rad",
+        "stroke_sensor_v": "stroke_sensor_v",
+        "pitch_sensor_v": "pitch_sensor_v",
+    }
+    changed = {
+        channel
+        for channel, field in signals.items()
+        if np.max(np.abs(getattr(out, field) - getattr(base, field)))
+        > 1e-3 * np.ptp(getattr(base, field))
+    }
     assert changed == set(entry.acts_on), (name, sorted(changed))
 
 
-def test_an_entry_with_a_term_the_plant_does_not_know_is_refused_by_name(monkeypatch,
-                                                                         nominal) -> None:
-    bad = dataclasses.replace(ENTRIES["feedthrough"], kernel_terms=("feedthrough_gain",),
-                              terms=lambda e, c: {"feedthrough_gain": e.gain_v_per_v})
-    monkeypatch.setattr(plant_params, "EFFECTS", tuple(
-        bad if e.name == "feedthrough" else e for e in EFFECTS))
+def test_an_entry_with_a_term_the_plant_does_not_know_is_refused_by_name(
+    monkeypatch, nominal
+) -> None:
+    bad = dataclasses.replace(
+        ENTRIES["feedthrough"],
+        kernel_terms=("feedthrough_gain",),
+        terms=lambda e, c: {"feedthrough_gain": e.gain_v_per_v},
+    )
+    monkeypatch.setattr(
+        plant_params, "EFFECTS", tuple(bad if e.name == "feedthrough" else e for e in EFFECTS)
+    )
     plant_params.prepare.cache_clear()
     try:
-        with pytest.raises(ModelError,
-                           match="effects.feedthrough: kernel term 'feedthrough_gain' is not one "
-                                 "the plant"):
-            plant_params.prepare(with_effects(
-                nominal, {"feedthrough": {"gain_v_per_v": 0.01}}), FS_HZ)
+        with pytest.raises(
+            ModelError,
+            match="effects.feedthrough: kernel term 'feedthrough_gain' is not one the plant",
+        ):
+            plant_params.prepare(
+                with_effects(nominal, {"feedthrough": {"gain_v_per_v": 0.01}}), FS_HZ
+            )
     finally:
         plant_params.prepare.cache_clear()

@@ -3,6 +3,7 @@ with a budget a loaded machine's recorder can meet, and names the topics still u
 A soak run lost the last 0.6 s of a `live` run's drive when the wait was 2 s in all and the
 first publisher's reader had used it up.
 """
+
 from __future__ import annotations
 
 import pytest
@@ -53,7 +54,7 @@ def clock(monkeypatch) -> FakeClock:
 
 
 def test_a_slow_first_reader_leaves_the_other_topics_their_wait(clock) -> None:
-    sensor = FakePublisher("/flaair/sensor_v", 3.0, clock)   # a recorder 3 s behind
+    sensor = FakePublisher("/flaair/sensor_v", 3.0, clock)  # a recorder 3 s behind
     drive = FakePublisher("/flaair/drive", 1.5, clock)
     node = FakeNode([sensor, drive])
     runtime._wait_for_acks([node])
@@ -67,5 +68,7 @@ def test_topics_still_unacknowledged_are_named(clock) -> None:
     node = FakeNode([stuck, fine])
     runtime._wait_for_acks([node], timeout_s=4.0)
     assert clock.now_s == pytest.approx(104.0)
-    assert node.warnings == ["not acknowledged by every reader within 4 s, may be lost: the last "
-                             "messages on /flaair/drive"]
+    assert node.warnings == [
+        "not acknowledged by every reader within 4 s, may be lost: the last "
+        "messages on /flaair/drive"
+    ]

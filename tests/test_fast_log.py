@@ -1,6 +1,7 @@
 """flaair_common.runtime.log: the console line and the /rosout record rclpy's logger writes, with
 the caller's file, function and line, without rclpy's per-call source lookup (1.1 ms a call).
 """
+
 from __future__ import annotations
 
 import json
@@ -61,7 +62,8 @@ def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     script.write_text(SCRIPT)
     env = isolated_env()
     env["RCUTILS_CONSOLE_OUTPUT_FORMAT"] = (
-        "[{severity}] [{name}] {function_name}:{line_number}: {message}")
+        "[{severity}] [{name}] {function_name}:{line_number}: {message}"
+    )
     done = run([sys.executable, str(script)], env, timeout_s=60)
     assert done.returncode == 0, done.stderr
     records = json.loads(done.stdout.strip().splitlines()[-1])
@@ -75,13 +77,17 @@ def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     assert lines[fast_record["line"] - 1].strip() == 'log(logger, WARN, "from log")'
     assert (by_msg["an info"]["level"], by_msg["an error"]["level"]) == (20, 40)
     # warn_counted: the first two every time, then once a second; its record names its own caller
-    assert ([r["msg"] for r in records if r["msg"].startswith("counted")]
-            == ["counted 1", "counted 2", "counted 3"])
+    assert [r["msg"] for r in records if r["msg"].startswith("counted")] == [
+        "counted 1",
+        "counted 2",
+        "counted 3",
+    ]
     assert by_msg["counted 1"]["function"] == "fast"
     # the console: the same format, the same fields
     console = [line for line in done.stderr.splitlines() if line.startswith("[")]
-    assert ("[WARN] [fast_log_test] through_rclpy:" in console[0]
-            and console[0].endswith(": from rclpy"))
+    assert "[WARN] [fast_log_test] through_rclpy:" in console[0] and console[0].endswith(
+        ": from rclpy"
+    )
     assert console[1] == f"[WARN] [fast_log_test] fast:{fast_record['line']}: from log"
     assert console[3].startswith("[ERROR] [fast_log_test] fast:")
     # log_notes: one counted warning per counter a second, errors and plain notes always; the

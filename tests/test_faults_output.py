@@ -1,6 +1,7 @@
 """What the project writes for people: no markup from a file name in a report, and no change to
 a notebook user's matplotlib backend.
 """
+
 from __future__ import annotations
 
 import subprocess
@@ -34,11 +35,24 @@ def test_a_run_named_like_markup_reaches_the_discrepancy_report_as_text(tmp_path
 
 
 def test_case_names_like_markup_reach_the_validation_page_as_text(tmp_path: Path) -> None:
-    outcome = {"case": EVIL, "true": "<i>x</i>", "found": "none", "status": "no_discrepancy",
-               "correct": True, "parameter_errors": {}, "gap_reduction": {},
-               "problems": ["<script>alert(1)</script>"], "elapsed_s": 1.0}
-    confusion = {"rows": ["<i>x</i>"], "columns": ["none"], "counts": [[1]], "correct": 1,
-                 "total": 1}
+    outcome = {
+        "case": EVIL,
+        "true": "<i>x</i>",
+        "found": "none",
+        "status": "no_discrepancy",
+        "correct": True,
+        "parameter_errors": {},
+        "gap_reduction": {},
+        "problems": ["<script>alert(1)</script>"],
+        "elapsed_s": 1.0,
+    }
+    confusion = {
+        "rows": ["<i>x</i>"],
+        "columns": ["none"],
+        "counts": [[1]],
+        "correct": 1,
+        "total": 1,
+    }
     write_validation(tmp_path, [outcome], confusion, 1.0)
     page = (tmp_path / "validation.html").read_text()
     assert "<b onclick" not in page and "<script>" not in page and "<i>x</i>" not in page
@@ -68,12 +82,13 @@ def test_drawing_figures_leaves_the_users_matplotlib_backend_alone(tmp_path: Pat
         hp = tr.HilbertParams(band_hz=(40.0, 400.0), band_order=4, savgol_window_s=0.02,
                               savgol_order=2, edge_s=0.02)
         transition_figure.plot_transition(rec, tr.hilbert_analysis(rec.stroke_deg, 20000.0, hp),
-                                          {str(tmp_path / 'f.png')!r})
+                                          {str(tmp_path / "f.png")!r})
         assert matplotlib.get_backend() == "svg", matplotlib.get_backend()
         assert "matplotlib.pyplot" not in sys.modules
         print("ok")
     """)
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                            timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr[-3000:]
     assert (tmp_path / "f.png").stat().st_size > 10_000

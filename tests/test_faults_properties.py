@@ -1,6 +1,7 @@
 """Property tests (issue 15 item 7): random bytes into the CSV reader, the bag reader and
 recovery, and the CDR codec. Each answers with its named error, never another exception.
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -15,16 +16,37 @@ from flaair_common.runcsv import RunFileError, read_run
 from flaair_tools import bagio
 
 HEADER = b"time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n"
-CELL = st.sampled_from(["0", "1.25", "", "nan", "inf", "-1e309", "1_0", " 2 ", "0x1", "1e", "\"3\"",
-                        "abc", "\x00", "\ufeff"])
+CELL = st.sampled_from(
+    [
+        "0",
+        "1.25",
+        "",
+        "nan",
+        "inf",
+        "-1e309",
+        "1_0",
+        " 2 ",
+        "0x1",
+        "1e",
+        '"3"',
+        "abc",
+        "\x00",
+        "\ufeff",
+    ]
+)
 ROW = st.lists(CELL, min_size=0, max_size=8).map(lambda cells: ",".join(cells).encode())
-SETTINGS = settings(max_examples=150, deadline=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture])
+SETTINGS = settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 @SETTINGS
-@given(st.one_of(st.binary(max_size=400),
-                 st.lists(ROW, max_size=6).map(lambda rows: HEADER + b"\n".join(rows))))
+@given(
+    st.one_of(
+        st.binary(max_size=400),
+        st.lists(ROW, max_size=6).map(lambda rows: HEADER + b"\n".join(rows)),
+    )
+)
 def test_csv_reader_answers_random_bytes_with_run_file_error(data: bytes) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "run.csv"
@@ -34,16 +56,21 @@ def test_csv_reader_answers_random_bytes_with_run_file_error(data: bytes) -> Non
         except RunFileError as exc:
             assert "run.csv" in str(exc)
             return
-        assert all(np.isfinite(run[name]).all() for name in (
-            "time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v"))
+        assert all(
+            np.isfinite(run[name]).all()
+            for name in ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v")
+        )
 
 
 def _small_bag(directory: Path) -> bytes:
     store = bagio.typestore()
     with bagio.BagWriter(directory, store=store, compression=True, chunk_size_bytes=2000) as writer:
         for k in range(60):
-            writer.write_message("/flaair/chatter", k, bagio.new_message(
-                "std_msgs/msg/String", store, data=f"m{k}" * 20))
+            writer.write_message(
+                "/flaair/chatter",
+                k,
+                bagio.new_message("std_msgs/msg/String", store, data=f"m{k}" * 20),
+            )
     return next(directory.glob("*.mcap")).read_bytes()
 
 
@@ -57,12 +84,16 @@ def test_bag_reader_and_recovery_answer_damaged_bytes_with_bag_error(data) -> No
         damaged = bytearray(original)
         for _ in range(data.draw(st.integers(1, 4))):
             start = data.draw(st.integers(0, len(damaged) - 1))
-            damaged[start:start + data.draw(st.integers(1, 300))] = (
-                data.draw(st.binary(min_size=1, max_size=300)))
+            damaged[start : start + data.draw(st.integers(1, 300))] = data.draw(
+                st.binary(min_size=1, max_size=300)
+            )
         cut = data.draw(st.integers(0, len(damaged)))
         mcap_file.write_bytes(bytes(damaged[:cut]))
-        for read in (lambda: bagio.bag_info(bag), lambda: list(bagio.iter_messages(bag)),
-                     lambda: bagio.check_bag(bag)):
+        for read in (
+            lambda: bagio.bag_info(bag),
+            lambda: list(bagio.iter_messages(bag)),
+            lambda: bagio.check_bag(bag),
+        ):
             try:
                 read()
             except bagio.BagError:
@@ -79,8 +110,10 @@ def test_bag_reader_and_recovery_answer_damaged_bytes_with_bag_error(data) -> No
 
 
 @SETTINGS
-@given(st.binary(max_size=64).map(lambda b: b"\x00\x01\x00\x00" + b),
-       st.sampled_from(sorted(cdr.LAYOUTS)))
+@given(
+    st.binary(max_size=64).map(lambda b: b"\x00\x01\x00\x00" + b),
+    st.sampled_from(sorted(cdr.LAYOUTS)),
+)
 def test_cdr_decoder_answers_random_bytes_with_cdr_error(data: bytes, type_name: str) -> None:
     layout = cdr.LAYOUTS[type_name]
     try:

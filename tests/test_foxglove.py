@@ -1,6 +1,7 @@
 """Live view over real DDS and a real WebSocket:
 per-sample messages at their signal times, wingbeats.
 """
+
 from __future__ import annotations
 
 import json
@@ -81,8 +82,13 @@ def _free_port() -> int:
 @pytest.mark.graph
 def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -> None:
     port = _free_port()
-    topics = [live_view.STREAMS["wing_state"].topic, live_view.STREAMS["sensor_v"].topic,
-              live_view.WINGBEAT_TOPIC, live_view.COLLISION_TOPIC, "/diagnostics"]
+    topics = [
+        live_view.STREAMS["wing_state"].topic,
+        live_view.STREAMS["sensor_v"].topic,
+        live_view.WINGBEAT_TOPIC,
+        live_view.COLLISION_TOPIC,
+        "/diagnostics",
+    ]
     with ros_processes() as procs:
         node = procs.flaair(*foxglove_node_args(f"127.0.0.1:{port}"), "-p", "reliable:=true")
         client = None
@@ -104,8 +110,10 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
         publisher = procs.start(sys.executable, "-c", PUBLISHER, str(BLOCKS), str(START_S))
         expected = BLOCKS * BLOCK
         received = client.received
-        while (len(received.messages[topics[0]]) < expected
-               or len(received.messages[topics[1]]) < expected):
+        while (
+            len(received.messages[topics[0]]) < expected
+            or len(received.messages[topics[1]]) < expected
+        ):
             if not client.receive(timeout_s=30.0):
                 break
         while client.receive(timeout_s=1.0):  # the last wingbeats and time broadcasts
@@ -116,25 +124,33 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     # every sample one message, its log time and stamp its own signal time
     wing = received.messages[topics[0]]
     assert len(wing) == expected
-    decoded = [live_view.decode_sample(
-        live_view.STREAMS["wing_state"], payload) for _, payload in wing]
+    decoded = [
+        live_view.decode_sample(live_view.STREAMS["wing_state"], payload) for _, payload in wing
+    ]
     np.testing.assert_array_equal([t for t, _ in wing], sample_ns)
     np.testing.assert_array_equal([d["stamp_ns"] for d in decoded], sample_ns)
     np.testing.assert_array_equal(
-        [d["stroke_velocity_deg_s"] for d in decoded], np.arange(expected))
+        [d["stroke_velocity_deg_s"] for d in decoded], np.arange(expected)
+    )
     np.testing.assert_array_equal(
-        [d["pitch_valid"] for d in decoded], np.arange(expected) // 10 != 100)
-    sensor = [live_view.decode_sample(live_view.STREAMS["sensor_v"], payload) for _,
-              payload in received.messages[topics[1]]]
+        [d["pitch_valid"] for d in decoded], np.arange(expected) // 10 != 100
+    )
+    sensor = [
+        live_view.decode_sample(live_view.STREAMS["sensor_v"], payload)
+        for _, payload in received.messages[topics[1]]
+    ]
     np.testing.assert_array_equal([d["stroke_sensor_v"] for d in sensor], 1.0 + np.arange(expected))
     np.testing.assert_array_equal([t for t, _ in received.messages[topics[1]]], sample_ns)
     # wingbeats: those of the same core over the whole
     # record, with the latest K_r and collision score
     n = np.arange(expected)
-    stroke, pitch = (20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
-                     30.0 * np.cos(2 * np.pi * 140.0 * n / FS))
-    truth = wingbeat.summarize(stroke, pitch, n // 10 != 100,
-                               wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0))
+    stroke, pitch = (
+        20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
+        30.0 * np.cos(2 * np.pi * 140.0 * n / FS),
+    )
+    truth = wingbeat.summarize(
+        stroke, pitch, n // 10 != 100, wingbeat.WingbeatParams(FS, 2.0, 30.0, 400.0)
+    )
     beats = [json.loads(p) for _, p in received.messages[live_view.WINGBEAT_TOPIC]]
     # upward crossings every 142.86 samples: 27 in 4000 samples, 26 wingbeats; the invalid block at
     # samples 1000-1009 hides the crossing at 1000 and spoils the wingbeats on both sides of it
@@ -143,19 +159,34 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
     np.testing.assert_allclose([b["amplitude_deg"] for b in beats], 20.0, rtol=1e-3)
     np.testing.assert_allclose([b["pitch_amplitude_deg"] for b in beats], 30.0, rtol=1e-3)
     np.testing.assert_allclose([b["frequency_hz"] for b in beats], 140.0, rtol=1e-5)
-    assert all(b["k_r"] == 0.25 and b["collision_score"] == 3.0 and b["colliding"] is True
-               for b in beats)
+    assert all(
+        b["k_r"] == 0.25 and b["collision_score"] == 3.0 and b["colliding"] is True for b in beats
+    )
     end_ns = [t for t, _ in received.messages[live_view.WINGBEAT_TOPIC]]
     np.testing.assert_allclose(end_ns, START_S * 1e9 + truth.end_sample * 1e9 / FS, atol=1.0)
     status = [json.loads(p) for _, p in received.messages[live_view.COLLISION_TOPIC]]
-    assert status == [{"stamp": {"sec": 3, "nsec": 0}, "wingbeat_index": 7, "colliding": True,
-                       "spectrum_rmse_deg": 3.0, "threshold_deg": 1.0, "collision_score": 3.0}]
+    assert status == [
+        {
+            "stamp": {"sec": 3, "nsec": 0},
+            "wingbeat_index": 7,
+            "colliding": True,
+            "spectrum_rmse_deg": 3.0,
+            "threshold_deg": 1.0,
+            "collision_score": 3.0,
+        }
+    ]
     assert received.messages[live_view.COLLISION_TOPIC][0][0] == 3_000_000_000
     # every node's health, as ROS's DiagnosticArray in JSON (Foxglove's Diagnostics panels)
     ((_, health),) = received.messages["/diagnostics"]
-    assert json.loads(health)["status"] == [{
-        "level": 2, "name": "bridge_node: UDP bridge", "message": "target silent: no sensor packet",
-        "hardware_id": "/bridge_node", "values": [{"key": "lost_packets", "value": "3"}]}]
+    assert json.loads(health)["status"] == [
+        {
+            "level": 2,
+            "name": "bridge_node: UDP bridge",
+            "message": "target silent: no sensor packet",
+            "hardware_id": "/bridge_node",
+            "values": [{"key": "lost_packets", "value": "3"}],
+        }
+    ]
     # the server told the client the latest signal time
     assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
 
@@ -167,12 +198,20 @@ def _wing_blocks(firsts: list[int], block: int = BLOCK, frame: str = "robot") ->
     out = []
     for first in firsts:
         n = np.arange(first, first + block)
-        out.append(codec.encode(int(3e9) + int(round(first * 1e9 / FS)), {
-            "sample_rate_hz": FS, "first_sample_index": first,
-            "stroke_deg": 20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
-            "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * n / FS),
-            "stroke_velocity_deg_s": n * 1.0, "stroke_valid": np.ones(block, bool),
-            "pitch_valid": n // 10 != 100}))
+        out.append(
+            codec.encode(
+                int(3e9) + round(first * 1e9 / FS),
+                {
+                    "sample_rate_hz": FS,
+                    "first_sample_index": first,
+                    "stroke_deg": 20.0 * np.sin(2 * np.pi * 140.0 * n / FS),
+                    "pitch_deg": 30.0 * np.cos(2 * np.pi * 140.0 * n / FS),
+                    "stroke_velocity_deg_s": n * 1.0,
+                    "stroke_valid": np.ones(block, bool),
+                    "pitch_valid": n // 10 != 100,
+                },
+            )
+        )
     return out
 
 
@@ -184,8 +223,11 @@ def test_a_batch_of_blocks_is_served_exactly_as_block_by_block(decimation: int) 
     from flaair_common import cdr
 
     stream = live_view.STREAMS["wing_state"]
-    datas = (_wing_blocks([0, 10, 20, 50, 60]) + _wing_blocks([70], block=7)
-             + [b"\x00\x01\x00\x00garbage"])
+    datas = (
+        _wing_blocks([0, 10, 20, 50, 60])
+        + _wing_blocks([70], block=7)
+        + [b"\x00\x01\x00\x00garbage"]
+    )
     batches, bad = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
     assert bad == 1 and [len(b) for b in batches] == [5, 1]
     times, payloads = [], []
@@ -199,7 +241,7 @@ def test_a_batch_of_blocks_is_served_exactly_as_block_by_block(decimation: int) 
         want_t, want_p = want_t + t, want_p + p
     assert times == want_t and payloads == want_p
     assert len(times) == len([i for i in (*range(30), *range(50, 77)) if i % decimation == 0])
-    assert live_view.blocks_end_ns(batches[0], "stroke_deg") == int(3e9) + int(round(70 * 1e9 / FS))
+    assert live_view.blocks_end_ns(batches[0], "stroke_deg") == int(3e9) + round(70 * 1e9 / FS)
     assert live_view.contiguous_runs(batches[0], "stroke_deg") == [slice(0, 3), slice(3, 5)]
 
 
@@ -211,17 +253,28 @@ def test_wingbeats_of_a_batch_are_those_of_block_by_block() -> None:
     datas = _wing_blocks(list(range(0, 3000, BLOCK)) + list(range(3500, 6000, BLOCK)))
     (blocks,), _ = live_view.fixed_blocks(cdr.WING_STATE_BLOCK, datas, {})
     state, batched = wingbeat.initial_state(params), []
-    for start in range(0, len(blocks), 20):   # batches of 20 blocks, as the node serves them
+    for start in range(0, len(blocks), 20):  # batches of 20 blocks, as the node serves them
         state, beats = live_view.wingbeat_batch(
-            state, blocks[start:start + 20], len(batched), 2.0, 0.5, True, params)
+            state, blocks[start : start + 20], len(batched), 2.0, 0.5, True, params
+        )
         batched += beats
     state, alone = wingbeat.initial_state(params), []
     for data in datas:
         message = cdr.decode(cdr.WING_STATE_BLOCK, data)
         valid = np.logical_and(message["stroke_valid"], message["pitch_valid"])
-        state, beats = (wingbeat.step(
-            state, wingbeat.WingbeatInputs(message["first_sample_index"], message["stroke_deg"],
-                                           message["pitch_deg"], valid, 2.0, 0.5), params))
+        state, beats = wingbeat.step(
+            state,
+            wingbeat.WingbeatInputs(
+                message["first_sample_index"],
+                message["stroke_deg"],
+                message["pitch_deg"],
+                valid,
+                2.0,
+                0.5,
+            ),
+            params,
+        )
         alone += live_view.wingbeat_messages(
-            beats, len(alone), cdr.stamp_ns(message), message["first_sample_index"], FS, True)
+            beats, len(alone), cdr.stamp_ns(message), message["first_sample_index"], FS, True
+        )
     assert len(batched) > 30 and batched == alone

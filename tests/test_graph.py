@@ -1,6 +1,7 @@
 """The graph launcher (flaair_common.graph): private
 domains, no orphans, clean ends of `experiment`.
 """
+
 from __future__ import annotations
 
 import os
@@ -33,16 +34,23 @@ def _describe(pids: list[int], log_dir: Path | None = None) -> str:
         proc = Path(f"/proc/{pid}")
         try:
             cmdline = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            status = {k: v.strip() for k, _, v in (
-                line.partition(":") for line in (proc / "status").read_text().splitlines())}
+            status = {
+                k: v.strip()
+                for k, _, v in (
+                    line.partition(":") for line in (proc / "status").read_text().splitlines()
+                )
+            }
             wchan = (proc / "wchan").read_text()
         except OSError as exc:
             lines.append(f"{pid}: gone ({exc.strerror})")
             continue
         lines.append(f"{pid}: {cmdline[:300]}")
-        lines.append(f"  state {status.get('State')} threads {status.get('Threads')} wchan {wchan} "
-                     + " ".join(f"{k} {status.get(k)}" for k in
-                                ("SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt")))
+        lines.append(
+            f"  state {status.get('State')} threads {status.get('Threads')} wchan {wchan} "
+            + " ".join(
+                f"{k} {status.get(k)}" for k in ("SigPnd", "ShdPnd", "SigBlk", "SigIgn", "SigCgt")
+            )
+        )
         for log in logs:
             if log.stem in cmdline:
                 tail = log.read_text(errors="replace").splitlines()[-12:]
@@ -96,8 +104,9 @@ def test_children_die_when_the_parent_is_killed(tmp_path):
     try:
         child_pid = int(parent.stdout.readline())
         # the child runs its own program (its parent-death signal was set before the exec)
-        assert wait_for(lambda: b"time.sleep" in Path(f"/proc/{child_pid}/cmdline").read_bytes(),
-                        30.0)
+        assert wait_for(
+            lambda: b"time.sleep" in Path(f"/proc/{child_pid}/cmdline").read_bytes(), 30.0
+        )
         assert _alive(child_pid)
         parent.kill()
         parent.wait()
@@ -107,7 +116,7 @@ def test_children_die_when_the_parent_is_killed(tmp_path):
             parent.kill()
 
 
-_BAR_COUNT = re.compile(r"\| *([\d.]+)([kM]?)/")   # tqdm's "| 10.0/60.0k": samples done so far
+_BAR_COUNT = re.compile(r"\| *([\d.]+)([kM]?)/")  # tqdm's "| 10.0/60.0k": samples done so far
 
 
 def _samples_moved(text: str) -> bool:
@@ -121,9 +130,13 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     The 1 s chirp once ran whole between two progress-bar updates, so the gate missed it.
     """
     bag = tmp_path / "bag"
-    process = subprocess.Popen([FLAAIR, "experiment", "stepped_sine", "--out", str(bag)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               cwd=REPO_ROOT)
+    process = subprocess.Popen(
+        [FLAAIR, "experiment", "stepped_sine", "--out", str(bag)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO_ROOT,
+    )
     seen = []
     for _ in range(20):
         seen.append(process.stderr.readline())
@@ -140,7 +153,8 @@ def _start_experiment(tmp_path: Path) -> tuple[subprocess.Popen, int, Path]:
     if not _samples_moved(text) or process.poll() is not None:
         rest = process.stderr.read() if process.poll() is not None else ""
         raise AssertionError(
-            f"the run did not get going (exit {process.poll()}): {(text + rest)[-1500:]!r}")
+            f"the run did not get going (exit {process.poll()}): {(text + rest)[-1500:]!r}"
+        )
     return process, domain, bag
 
 
@@ -162,9 +176,10 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     assert process.returncode == 143, stderr
     assert "Traceback" not in stderr and "terminated" in stderr
     # every child was stopped; one still exiting (a zombie being reaped) gets a moment
-    assert wait_for(lambda: graph_pids(domain) == [], 15.0), \
-        _describe(graph_pids(domain), bag.parent / f"{bag.name}.logs")
-    counts = bagio.message_counts(bag)          # the bag was closed: an independent read works
+    assert wait_for(lambda: graph_pids(domain) == [], 15.0), _describe(
+        graph_pids(domain), bag.parent / f"{bag.name}.logs"
+    )
+    counts = bagio.message_counts(bag)  # the bag was closed: an independent read works
     assert counts.get("/flaair/sensor_v", 0) > 0
 
 
@@ -179,10 +194,10 @@ def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
     # Each node ends on its parent-death SIGTERM, in about ACK_WAIT_S (its readers in the killed
     # process never ack); one whose stop hangs ends at its exit deadline.
     logs = bag.parent / f"{bag.name}.logs"
-    assert wait_for(lambda: graph_pids(domain) == [],
-                    EXIT_DEADLINE_S + EXIT_ALARM_MARGIN_S + 10.0), \
-        f"orphans on domain {domain}:\n" + _describe(graph_pids(domain), logs)
+    assert wait_for(
+        lambda: graph_pids(domain) == [], EXIT_DEADLINE_S + EXIT_ALARM_MARGIN_S + 10.0
+    ), f"orphans on domain {domain}:\n" + _describe(graph_pids(domain), logs)
     texts = {log.name: log.read_text(errors="replace") for log in logs.glob("*.log")}
     hung = {name: text[-4000:] for name, text in texts.items() if "Timeout (0:" in text}
-    if hung:   # ended by the deadline: say where the stop hung (once seen in CI, not here)
+    if hung:  # ended by the deadline: say where the stop hung (once seen in CI, not here)
         warnings.warn(f"a node's stop hung until its exit deadline: {hung}")

@@ -1,6 +1,7 @@
 """The declared graphs (flaair_tools.orchestration.graphs)
 name real nodes, and the tools use them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,7 +20,7 @@ def test_each_declared_node_is_built_and_its_component_class_exists(role: str) -
     from flaair_common.graph import node_argv
 
     node = graphs.NODES[role]
-    assert node_argv(node.package, node.executable)                     # installed, like `ros2 run`
+    assert node_argv(node.package, node.executable)  # installed, like `ros2 run`
     if node.component:
         module, cls = node.component.split(":")
         assert inspect.isclass(getattr(importlib.import_module(module), cls))
@@ -38,11 +39,13 @@ def test_every_graph_names_declared_roles_and_overrides_only_its_own_nodes() -> 
 def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
     from flaair_tools.orchestration import experiment, live
 
-    sim = argparse.Namespace(sim=True, calibration=None, processes=False, out=None,
-                             controller="dsa", foxglove=None)
+    sim = argparse.Namespace(
+        sim=True, calibration=None, processes=False, out=None, controller="dsa", foxglove=None
+    )
     sections = live.node_parameters_for(sim)
     assert sections["plant_node"]["ros__parameters"] == dict(
-        graphs.GRAPHS["live_sim"].parameters["plant"])
+        graphs.GRAPHS["live_sim"].parameters["plant"]
+    )
     assert live.live_graph(sim).hot == ("plant", "frontend", "controller")
     spec = next(iter(experiment.load_experiments().values()))
     roles = experiment.experiment_roles(spec)
@@ -57,11 +60,13 @@ def test_a_live_run_ends_on_both_clocks_or_on_the_sensor_clock_after_the_grace()
     from flaair_tools.orchestration.live import DRIVE_GRACE_S, run_end
 
     assert DRIVE_GRACE_S == 2.0
-    assert run_end(0.3, -0.1, 0.0) is None                  # the sensor still needs 0.3 s
+    assert run_end(0.3, -0.1, 0.0) is None  # the sensor still needs 0.3 s
     assert run_end(0.0, -0.1, 0.0) == "covered"
-    assert run_end(-0.01, None, 0.0) == "covered"           # no controller: the sensor alone
-    assert run_end(-0.01, 0.2, 1.99) is None                 # a loaded executor's backlog: wait
+    assert run_end(-0.01, None, 0.0) == "covered"  # no controller: the sensor alone
+    assert run_end(-0.01, 0.2, 1.99) is None  # a loaded executor's backlog: wait
     why = run_end(-0.01, 11.74, 2.0)
-    assert why == ("ending on the sensor clock: the drive is still 11.74 s of signal short of the "
-                   "duration 2.0 s after the sensor reached it (the controller tripped or stopped: "
-                   "see the loop's log)")
+    assert why == (
+        "ending on the sensor clock: the drive is still 11.74 s of signal short of the "
+        "duration 2.0 s after the sensor reached it (the controller tripped or stopped: "
+        "see the loop's log)"
+    )

@@ -4,6 +4,7 @@ start while the wing still moves.
 Robots are fixed draws of the project's randomized generator (`random_robot`): plant
 parameters a few per cent off nominal, noise 1-2x, truth at the DAQ or a video rate.
 """
+
 from __future__ import annotations
 
 import json
@@ -52,7 +53,7 @@ def test_identification_recovers_an_off_nominal_plant(draw: int, model) -> None:
     truth = true_plant(case, model)
     # really off nominal
     assert any(abs(truth[k] / getattr(model.plant, k) - 1) > 0.05 for k in truth)
-    runs, fit = _fit(case, model)
+    _runs, fit = _fit(case, model)
     for k in FREQUENCIES:
         assert fit.values[k] == pytest.approx(truth[k], rel=0.005), k
     for k in truth:
@@ -61,8 +62,10 @@ def test_identification_recovers_an_off_nominal_plant(draw: int, model) -> None:
         assert abs(fit.values[k] - truth[k]) < 6 * fit.stderr[k] + 1e-3 * truth[k], k
     assert fit.cost_after < fit.cost_before
     corr = fit.correlation
-    stroke = [fit.keys.index(k) for k in (
-        "stroke_natural_frequency_hz", "aero_damping_nm_s2", "actuator_gain_nm_per_v")]
+    stroke = [
+        fit.keys.index(k)
+        for k in ("stroke_natural_frequency_hz", "aero_damping_nm_s2", "actuator_gain_nm_per_v")
+    ]
     block = corr[np.ix_(stroke, stroke)]
     assert np.allclose(np.diag(block), 1.0) and np.allclose(block, block.T)
     # inertias, sensors stay
@@ -77,7 +80,8 @@ def test_frequency_domain_start_is_near_the_robot(model) -> None:
     for k in FREQUENCIES:
         assert start[k] == pytest.approx(truth[k], rel=0.02), k
     assert start["actuator_gain_nm_per_v"] == pytest.approx(
-        truth["actuator_gain_nm_per_v"], rel=0.05)
+        truth["actuator_gain_nm_per_v"], rel=0.05
+    )
 
 
 def test_inertia_fitted_with_damping_and_gain_is_reported_inseparable(model) -> None:
@@ -87,9 +91,17 @@ def test_inertia_fitted_with_damping_and_gain_is_reported_inseparable(model) -> 
     case = random_robot("offnominal_null", 1)
     runs = check_runs(make_runs(case, model))
     noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)
-    fit = identify_plant(runs, model, noise, keys=(
-        "stroke_natural_frequency_hz", "aero_damping_nm_s2", "actuator_gain_nm_per_v",
-        "stroke_inertia_kg_m2"))
+    fit = identify_plant(
+        runs,
+        model,
+        noise,
+        keys=(
+            "stroke_natural_frequency_hz",
+            "aero_damping_nm_s2",
+            "actuator_gain_nm_per_v",
+            "stroke_inertia_kg_m2",
+        ),
+    )
     assert any("stroke_inertia_kg_m2" in note for note in fit.inseparable), fit.inseparable
 
 
@@ -99,14 +111,24 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
     case = random_robot("offnominal_null", 1)
     whole = make_runs(case, model)[0]
     h = whole.n // 2
-    second = replace(whole, name="second", drive_v=whole.drive_v[h:],
-                     stroke_sensor_v=whole.stroke_sensor_v[h:],
-                     pitch_sensor_v=whole.pitch_sensor_v[h:], stroke_deg=whole.stroke_deg[h:],
-                     pitch_deg=whole.pitch_deg[h:])
-    first = replace(whole, name="first", drive_v=whole.drive_v[:h],
-                    stroke_sensor_v=whole.stroke_sensor_v[:h],
-                    pitch_sensor_v=whole.pitch_sensor_v[:h], stroke_deg=whole.stroke_deg[:h],
-                    pitch_deg=whole.pitch_deg[:h])
+    second = replace(
+        whole,
+        name="second",
+        drive_v=whole.drive_v[h:],
+        stroke_sensor_v=whole.stroke_sensor_v[h:],
+        pitch_sensor_v=whole.pitch_sensor_v[h:],
+        stroke_deg=whole.stroke_deg[h:],
+        pitch_deg=whole.pitch_deg[h:],
+    )
+    first = replace(
+        whole,
+        name="first",
+        drive_v=whole.drive_v[:h],
+        stroke_sensor_v=whole.stroke_sensor_v[:h],
+        pitch_sensor_v=whole.pitch_sensor_v[:h],
+        stroke_deg=whole.stroke_deg[:h],
+        pitch_deg=whole.pitch_deg[:h],
+    )
     # the state measured from the first frames is near the robot's true state at the split (a
     # start), and the state fitted with the plant is on it
     from flaair_tools.discrepancy.datasets import true_model
@@ -143,8 +165,10 @@ def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: P
     assert proc.returncode == 0, proc.stderr
     assert "stroke_natural_frequency_hz" in proc.stdout
     fitted = load_model(out / "model.yaml")  # same layout as config/model.yaml
-    doc = json.loads((out / "identification.json").read_text(),
-                     parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    doc = json.loads(
+        (out / "identification.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"),
+    )
     truth = true_plant(case, model)
     for k in FREQUENCIES:
         assert getattr(fitted.plant, k) == pytest.approx(truth[k], rel=0.005)
@@ -164,13 +188,22 @@ def test_bin_flaair_identify_bad_input_exits_2_without_traceback(kind: str, tmp_
         n = 2000
         t = np.arange(n) / 20000.0
         p = tmp_path / "no_truth.csv"
-        write_run(p, {"time_s": t, "drive_v": 100 * np.sin(2 * np.pi * 100 * t),
-                      "stroke_sensor_v": np.full(n, 1.25), "pitch_sensor_v": np.full(n, 1.25),
-                      "stroke_deg": np.full(n, np.nan), "pitch_deg": np.full(n, np.nan)})
+        write_run(
+            p,
+            {
+                "time_s": t,
+                "drive_v": 100 * np.sin(2 * np.pi * 100 * t),
+                "stroke_sensor_v": np.full(n, 1.25),
+                "pitch_sensor_v": np.full(n, 1.25),
+                "stroke_deg": np.full(n, np.nan),
+                "pitch_deg": np.full(n, np.nan),
+            },
+        )
         args = [str(p)]
         words = "ground truth"
-    proc = run_offline([FLAAIR, "identify", *args, "--out", str(tmp_path / "out")],
-                       dict(os.environ), 300)
+    proc = run_offline(
+        [FLAAIR, "identify", *args, "--out", str(tmp_path / "out")], dict(os.environ), 300
+    )
     assert proc.returncode == 2
     assert words in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "model.yaml").exists()

@@ -3,6 +3,7 @@ through a camera geometry and written as MAT v5, MAT v7.3 and DLTdv8 CSVs (tests
 comes back with the generator's angles, calibrates to the bench robot's gains, and analyses;
 bad files are refused by name with exit 2 and leave no bag.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -28,8 +29,10 @@ def chirp() -> dict[str, np.ndarray]:
 @pytest.fixture(scope="module")
 def session(chirp, tmp_path_factory) -> dict[str, lf.LabSession]:
     root = tmp_path_factory.mktemp("lab")
-    return {version: lf.write_lab_run(root, f"bench_{version.replace('.', '')}", chirp, version)
-            for version in ("v5", "v7.3")}
+    return {
+        version: lf.write_lab_run(root, f"bench_{version.replace('.', '')}", chirp, version)
+        for version in ("v5", "v7.3")
+    }
 
 
 def read(s: lf.LabSession, **changes):
@@ -50,10 +53,10 @@ def test_the_generators_angles_come_back_within_0_1_deg_at_the_frames(session, v
         at_frames = got.run[column][s.frame_sample[placed]]
         tracked = np.isfinite(want[placed])
         assert np.max(np.abs(at_frames[tracked] - want[placed][tracked])) < 0.1
-        assert np.isnan(at_frames[~tracked]).all()            # untracked frames stay NaN
+        assert np.isnan(at_frames[~tracked]).all()  # untracked frames stay NaN
     between = np.ones(got.run["stroke_deg"].size, bool)
     between[s.frame_sample[placed]] = False
-    assert np.isnan(got.run["stroke_deg"][between]).all()     # NaN between the frames
+    assert np.isnan(got.run["stroke_deg"][between]).all()  # NaN between the frames
     sync = got.extras["sync"]
     assert sync["trigger_time_s"] == pytest.approx(lf.TRIGGER_S, abs=0.5 / lf.FS_HZ)
     assert sync["frames_placed"] == int(placed.sum()) and sync["frames_dropped"] == 46
@@ -112,22 +115,34 @@ def imported(session, tmp_path_factory) -> dict[str, Path]:
     out = {}
     for version, s in session.items():
         bag = tmp_path_factory.mktemp("bags") / f"bag_{version}"
-        argv = [str(s.mat), "--rig", str(s.rig), "--tracks", str(s.tracks), "--tip-track",
-                str(s.tip_track), "--out", str(bag)]
+        argv = [
+            str(s.mat),
+            "--rig",
+            str(s.rig),
+            "--tracks",
+            str(s.tracks),
+            "--tip-track",
+            str(s.tip_track),
+            "--out",
+            str(bag),
+        ]
         if version == "v7.3":
             result = run_offline([FLAAIR, "import", *argv], isolated_env(), 180)
             code, stdout, stderr = result.returncode, result.stdout, result.stderr
         else:
             code, stdout, stderr = main_in_process(import_cli, argv)
         assert code == 0, stderr
-        assert "video 10000 fps, 10046 frames (98.0 % tracked), 10000 placed, 46 outside the " \
-               "log; trigger at 0.012300 s; video vs stroke sensor" in stdout
+        assert (
+            "video 10000 fps, 10046 frames (98.0 % tracked), 10000 placed, 46 outside the "
+            "log; trigger at 0.012300 s; video vs stroke sensor" in stdout
+        )
         out[version] = bag
     return out
 
 
 def test_both_mat_versions_import_to_bags_that_calibrate_to_the_bench_robot(
-        imported, tmp_path) -> None:
+    imported, tmp_path
+) -> None:
     from flaair_tools.analysis import calibrate
 
     gains = {}
@@ -146,8 +161,11 @@ def test_the_bag_records_files_rig_and_sync_and_analyze_shows_the_video(imported
     from flaair_tools.analysis.analyze import analyze_bag
 
     bag = imported["v7.3"]
-    marker = json.loads(next(iter(bagio.read_bag(bag, [bagio.RUN_MARKER_TOPIC]).messages(
-        bagio.RUN_MARKER_TOPIC))).data)
+    marker = json.loads(
+        next(
+            iter(bagio.read_bag(bag, [bagio.RUN_MARKER_TOPIC]).messages(bagio.RUN_MARKER_TOPIC))
+        ).data
+    )
     assert marker["lab_files"]["variable"] == "rt_log"
     assert marker["lab_files"]["tracks"].endswith("bench_v73_xyzpts.csv")
     assert yaml.safe_load(marker["rig"])["video"]["fps"] == lf.FPS
@@ -160,13 +178,22 @@ def test_the_bag_records_files_rig_and_sync_and_analyze_shows_the_video(imported
 
 def test_a_session_manifest_imports_every_run_into_one_bag(session, tmp_path) -> None:
     manifest = tmp_path / "session.yaml"
-    manifest.write_text(yaml.safe_dump({"rig": str(session["v5"].rig), "runs": [
-        {"mat": str(s.mat), "tracks": str(s.tracks), "tip_track": str(s.tip_track)}
-        for s in session.values()]}))
+    manifest.write_text(
+        yaml.safe_dump(
+            {
+                "rig": str(session["v5"].rig),
+                "runs": [
+                    {"mat": str(s.mat), "tracks": str(s.tracks), "tip_track": str(s.tip_track)}
+                    for s in session.values()
+                ],
+            }
+        )
+    )
     from flaair_tools.bagio import import_cli
 
     code, stdout, stderr = main_in_process(
-        import_cli, ["--manifest", str(manifest), "--out", str(tmp_path / "bag")])
+        import_cli, ["--manifest", str(manifest), "--out", str(tmp_path / "bag")]
+    )
     assert code == 0, stderr
     assert stdout.count("video 10000 fps") == 2 and "bench_v73: " in stdout
 
@@ -174,16 +201,26 @@ def test_a_session_manifest_imports_every_run_into_one_bag(session, tmp_path) ->
 BAD_RIGS = {
     "missing key": (lambda r: r["video"].pop("fps"), "video: missing key(s) fps"),
     "unknown key": (lambda r: r["geometry"].update(upp=[0, 0, 1]), "geometry: unknown key(s) upp"),
-    "label the log lacks": (lambda r: r["signals"].update(pitch_sensor="pvdf_wing"),
-                            "no signal labelled 'pvdf_wing'"),
-    "no trigger edge": (lambda r: r["video"]["sync"].update(trigger_threshold_v=7.5),
-                        "no rising edge through 7.5 V in the camera trigger"),
-    "frame rate above the DAQ rate": (lambda r: r["video"].update(fps=40000.0),
-                                      "frame rate 40000 fps is above the DAQ rate 20000 Hz"),
-    "a point the file lacks": (lambda r: r["points"].update(wing_leading_edge_2=7),
-                               "no point 7 (wing_leading_edge_2)"),
-    "coinciding points": (lambda r: r["points"].update(wing_leading_edge_2=2),
-                          "the wing points must be different points"),
+    "label the log lacks": (
+        lambda r: r["signals"].update(pitch_sensor="pvdf_wing"),
+        "no signal labelled 'pvdf_wing'",
+    ),
+    "no trigger edge": (
+        lambda r: r["video"]["sync"].update(trigger_threshold_v=7.5),
+        "no rising edge through 7.5 V in the camera trigger",
+    ),
+    "frame rate above the DAQ rate": (
+        lambda r: r["video"].update(fps=40000.0),
+        "frame rate 40000 fps is above the DAQ rate 20000 Hz",
+    ),
+    "a point the file lacks": (
+        lambda r: r["points"].update(wing_leading_edge_2=7),
+        "no point 7 (wing_leading_edge_2)",
+    ),
+    "coinciding points": (
+        lambda r: r["points"].update(wing_leading_edge_2=2),
+        "the wing points must be different points",
+    ),
 }
 
 
@@ -205,14 +242,26 @@ def test_bad_files_exit_2_with_one_line_and_leave_no_bag(session, tmp_path) -> N
     never = tmp_path / "never_xyzpts.csv"
     lines = s.tracks.read_text().splitlines()
     header = lines[0].split(",")
-    never.write_text("\n".join([lines[0]] + [",".join(
-        "" if header[k].startswith("pt1_") else cell for k, cell in enumerate(row.split(",")))
-        for row in lines[1:]]) + "\n")
+    never.write_text(
+        "\n".join(
+            [lines[0]]
+            + [
+                ",".join(
+                    "" if header[k].startswith("pt1_") else cell
+                    for k, cell in enumerate(row.split(","))
+                )
+                for row in lines[1:]
+            ]
+        )
+        + "\n"
+    )
     wrong = tmp_path / "wrong_xyzpts.csv"
     wrong.write_text("frame,x,y\n1,2,3\n")
     cases = {
-        "never tracked": (["--tracks", str(never)],
-                          "point 1 (wing_leading_edge_2) is never tracked"),
+        "never tracked": (
+            ["--tracks", str(never)],
+            "point 1 (wing_leading_edge_2) is never tracked",
+        ),
         "not DLTdv8": (["--tracks", str(wrong)], "column 1 'frame' is not a DLTdv8 xyzpts column"),
         "no tip track": (["--tracks", str(s.tracks)], "needs the 2D track (--tip-track"),
     }
@@ -225,11 +274,11 @@ def test_bad_files_exit_2_with_one_line_and_leave_no_bag(session, tmp_path) -> N
         args = [str(s.mat), "--rig", str(rig if name == "no tip track" else s.rig), *extra]
         if name != "no tip track":
             args += ["--tip-track", str(s.tip_track)]
-        if name == "never tracked":      # once as a lab types it, in a process of its own
+        if name == "never tracked":  # once as a lab types it, in a process of its own
             result = run_offline([FLAAIR, "import", *args, "--out", str(bag)], isolated_env(), 120)
             code, stderr = result.returncode, result.stderr
         else:
-            code, _, stderr = main_in_process(import_cli, args + ["--out", str(bag)])
+            code, _, stderr = main_in_process(import_cli, [*args, "--out", str(bag)])
         assert code == 2, (name, stderr)
         assert message in stderr and "Traceback" not in stderr, stderr
         assert len(stderr.strip().splitlines()) == 1, stderr
@@ -239,23 +288,30 @@ def test_bad_files_exit_2_with_one_line_and_leave_no_bag(session, tmp_path) -> N
 @pytest.fixture(scope="module")
 def track_bytes(session) -> dict[str, bytes]:
     s = session["v5"]
-    return {"xyz": "\n".join(s.tracks.read_text().splitlines()[:400]).encode(),
-            "xy": "\n".join(s.tip_track.read_text().splitlines()[:400]).encode()}
+    return {
+        "xyz": "\n".join(s.tracks.read_text().splitlines()[:400]).encode(),
+        "xy": "\n".join(s.tip_track.read_text().splitlines()[:400]).encode(),
+    }
 
 
-@settings(max_examples=60, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(kind=st.sampled_from(["xyz", "xy"]), cut=st.floats(0.0, 0.999), flips=st.lists(
-    st.tuples(st.floats(0.0, 0.999), st.integers(0, 255)), max_size=6))
-def test_cut_or_damaged_tracks_give_a_lab_file_error_or_points(tmp_path_factory, track_bytes, kind,
-                                                               cut, flips) -> None:
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    kind=st.sampled_from(["xyz", "xy"]),
+    cut=st.floats(0.0, 0.999),
+    flips=st.lists(st.tuples(st.floats(0.0, 0.999), st.integers(0, 255)), max_size=6),
+)
+def test_cut_or_damaged_tracks_give_a_lab_file_error_or_points(
+    tmp_path_factory, track_bytes, kind, cut, flips
+) -> None:
     from flaair_tools.bagio.dlt_tracks import read_xy_point, read_xyz_points
     from flaair_tools.bagio.target_log import LabFileError
 
     data = bytearray(track_bytes[kind])
     for where, byte in flips:
         data[int(where * len(data))] = byte
-    data = data[:max(1, int(len(data) * (1 - cut)))] if cut > 0.001 else data
+    data = data[: max(1, int(len(data) * (1 - cut)))] if cut > 0.001 else data
     path = tmp_path_factory.mktemp("tracks") / "damaged.csv"
     path.write_bytes(bytes(data))
     try:

@@ -2,6 +2,7 @@
 import cycle between modules, and every import between FLAAIR packages points down the layers
 (model and messages at the bottom, then the node plumbing, the domain packages, the tools).
 """
+
 from __future__ import annotations
 
 import ast
@@ -14,13 +15,25 @@ ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 
 # Lower number, lower layer: a package may import only packages on a lower layer.
-LAYERS = {"flaair_model": 0, "flaair_msgs": 0, "flaair_common": 1, "flaair_sim": 2,
-          "flaair_sensors": 2, "flaair_control": 3, "flaair_bridge": 3, "flaair_tools": 4}
+LAYERS = {
+    "flaair_model": 0,
+    "flaair_msgs": 0,
+    "flaair_common": 1,
+    "flaair_sim": 2,
+    "flaair_sensors": 2,
+    "flaair_control": 3,
+    "flaair_bridge": 3,
+    "flaair_tools": 4,
+}
 
 
 def _source_files(*dirs: Path) -> list[Path]:
-    return sorted(p for d in dirs for p in d.rglob("*.py")
-                  if "build" not in p.relative_to(ROOT).parts and p.name != "setup.py")
+    return sorted(
+        p
+        for d in dirs
+        for p in d.rglob("*.py")
+        if "build" not in p.relative_to(ROOT).parts and p.name != "setup.py"
+    )
 
 
 def _module_name(path: Path) -> str:
@@ -41,7 +54,7 @@ def _imports(path: Path, module: str) -> list[tuple[str, list[str], int]]:
             found += [(alias.name, [], node.lineno) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             if node.level:
-                base = package.split(".")[:len(package.split(".")) - node.level + 1]
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
@@ -71,8 +84,10 @@ def test_no_module_imports_another_modules_underscore_names() -> None:
         for target, names, line in _imports(path, module):
             private = [n for n in names if _private(n)]
             if private or any(_private(part) for part in target.split(".")[1:]):
-                offences.append(f"{path.relative_to(ROOT)}:{line}: from {target} import "
-                                f"{', '.join(private or names)}")
+                offences.append(
+                    f"{path.relative_to(ROOT)}:{line}: from {target} import "
+                    f"{', '.join(private or names)}"
+                )
     assert offences == [], "underscore names are private to their module:\n" + "\n".join(offences)
 
 
@@ -83,7 +98,7 @@ def test_no_import_cycle_between_modules() -> None:
     stack: list[str] = []
     cycles: list[list[str]] = []
 
-    def visit(node: str) -> None:          # Tarjan's strongly connected components
+    def visit(node: str) -> None:  # Tarjan's strongly connected components
         index[node] = low[node] = len(index)
         stack.append(node)
         for succ in sorted(graph[node]):
@@ -119,15 +134,20 @@ def test_every_import_between_packages_points_down_the_layers() -> None:
         for target, _names, line in _imports(path, name):
             other = target.split(".")[0]
             if other in LAYERS and other != own and LAYERS[other] >= LAYERS[own]:
-                upward.append(f"{path.relative_to(ROOT)}:{line}: {own} (layer {LAYERS[own]}) "
-                              f"imports {other} (layer {LAYERS[other]})")
+                upward.append(
+                    f"{path.relative_to(ROOT)}:{line}: {own} (layer {LAYERS[own]}) "
+                    f"imports {other} (layer {LAYERS[other]})"
+                )
     assert upward == [], "imports must point down the layers:\n" + "\n".join(upward)
 
 
-@pytest.mark.parametrize("source, offence", [
-    ("from .fitting import _Fold\n", "_Fold"),
-    ("from flaair_sim.core.plant import prepare, _rk4\n", "_rk4"),
-])
+@pytest.mark.parametrize(
+    "source, offence",
+    [
+        ("from .fitting import _Fold\n", "_Fold"),
+        ("from flaair_sim.core.plant import prepare, _rk4\n", "_rk4"),
+    ],
+)
 def test_the_underscore_rule_catches_an_offence(tmp_path: Path, source: str, offence: str) -> None:
     path = tmp_path / "module.py"
     path.write_text(source)
@@ -139,8 +159,9 @@ CORE_PACKAGES = ("flaair_sensors", "flaair_control", "flaair_sim", "flaair_bridg
 
 
 def _core_modules() -> dict[str, Path]:
-    return {_module_name(p): p for pkg in CORE_PACKAGES
-            for p in _source_files(SRC / pkg / pkg / "core")}
+    return {
+        _module_name(p): p for pkg in CORE_PACKAGES for p in _source_files(SRC / pkg / pkg / "core")
+    }
 
 
 def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
@@ -154,7 +175,8 @@ def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
         for target, names, line in _imports(path, name):
             top, _, rest = target.partition(".")
             shell_of_domain = top in CORE_PACKAGES and not (
-                rest == "core" or rest.startswith("core."))
+                rest == "core" or rest.startswith("core.")
+            )
             if top == "rclpy" or shell_of_domain:
                 offences.append(f"{path.relative_to(ROOT)}:{line}: imports {target}")
     assert offences == [], "a core may import no rclpy and no shell module:\n" + "\n".join(offences)
@@ -169,17 +191,29 @@ def test_importing_every_core_loads_no_rclpy() -> None:
     import sys
 
     names = sorted(_core_modules())
-    code = (f"import importlib, sys\nfor name in {names!r}:\n    "
-            "importlib.import_module(name)\nprint(sorted(m for m in sys.modules if m.split('.')[0] "
-            "in ('rclpy', 'rosidl_runtime_py', 'rmw')))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=110,
-                         check=True)
+    code = (
+        f"import importlib, sys\nfor name in {names!r}:\n    "
+        "importlib.import_module(name)\nprint(sorted(m for m in sys.modules if m.split('.')[0] "
+        "in ('rclpy', 'rosidl_runtime_py', 'rmw')))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=110, check=True
+    )
     assert out.stdout.strip() == "[]", out.stdout
 
 
 # flaair_tools is split by job; inside it, too, imports point down these layers.
-TOOLS_LAYERS = {"bagio": 0, "recorder": 1, "roscli": 1, "analysis": 1, "discrepancy": 2,
-                "sweeps": 2, "liveview": 2, "orchestration": 3, "cli": 4}
+TOOLS_LAYERS = {
+    "bagio": 0,
+    "recorder": 1,
+    "roscli": 1,
+    "analysis": 1,
+    "discrepancy": 2,
+    "sweeps": 2,
+    "liveview": 2,
+    "orchestration": 3,
+    "cli": 4,
+}
 
 
 def test_flaair_tools_is_split_by_job_and_its_imports_point_down() -> None:
@@ -200,11 +234,15 @@ def test_flaair_tools_is_split_by_job_and_its_imports_point_down() -> None:
                 continue
             others = [tparts[1]] if len(tparts) > 1 else names
             for other in others:
-                if (other in TOOLS_LAYERS and other != parts[1]
-                    and TOOLS_LAYERS[other] >= TOOLS_LAYERS[parts[1]]):
+                if (
+                    other in TOOLS_LAYERS
+                    and other != parts[1]
+                    and TOOLS_LAYERS[other] >= TOOLS_LAYERS[parts[1]]
+                ):
                     upward.append(f"{path.relative_to(ROOT)}:{line}: {parts[1]} imports {other}")
-    assert (upward == []), "imports inside flaair_tools must point down its layers:\n" + "\n".join(
-        upward)
+    assert upward == [], "imports inside flaair_tools must point down its layers:\n" + "\n".join(
+        upward
+    )
 
 
 def test_every_package_init_declares_its_table_of_contents() -> None:
@@ -213,8 +251,11 @@ def test_every_package_init_declares_its_table_of_contents() -> None:
     for path in _source_files(SRC):
         if path.name == "__init__.py" and "msg" not in path.parts:
             tree = ast.parse(path.read_text())
-            has_all = any(isinstance(n, ast.Assign) and any(
-                getattr(t, "id", "") == "__all__" for t in n.targets) for n in tree.body)
+            has_all = any(
+                isinstance(n, ast.Assign)
+                and any(getattr(t, "id", "") == "__all__" for t in n.targets)
+                for n in tree.body
+            )
             if not (ast.get_docstring(tree) and has_all):
                 missing.append(str(path.relative_to(ROOT)))
     assert missing == [], f"package __init__ without a docstring or __all__: {missing}"
@@ -229,7 +270,7 @@ def test_cores_share_one_note_type() -> None:
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ClassDef) and node.name in ("Note", "Notice", "LogLine"):
                 own.append(f"{path.relative_to(ROOT)}:{node.lineno}: class {node.name}")
-    assert own == ["src/flaair_model/flaair_model/notes.py:17: class Note"], own
+    assert own == ["src/flaair_model/flaair_model/notes.py:18: class Note"], own
 
 
 MAX_MODULE_LINES = 600
@@ -259,6 +300,8 @@ def test_every_core_starts_from_initial_state_of_its_params() -> None:
             if isinstance(node, ast.FunctionDef) and node.name == "initial_state":
                 positional = [a.arg for a in node.args.posonlyargs + node.args.args]
                 if len(positional) != 1 or not positional[0].startswith("p") or node.args.vararg:
-                    shapes.append(f"{path.relative_to(ROOT)}:{node.lineno}: "
-                                  f"initial_state({', '.join(positional)})")
+                    shapes.append(
+                        f"{path.relative_to(ROOT)}:{node.lineno}: "
+                        f"initial_state({', '.join(positional)})"
+                    )
     assert shapes == [], "\n".join(shapes)

@@ -1,6 +1,7 @@
 """`flaair live`: the live graph, composed hot loop,
 recorded; ends cleanly on time or on a signal.
 """
+
 from __future__ import annotations
 
 import os
@@ -19,8 +20,9 @@ pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 
 def _live(*args: str, timeout_s: float = 300.0) -> subprocess.CompletedProcess:
-    return subprocess.run([FLAAIR, "live", *args], capture_output=True, text=True,
-                          timeout=timeout_s, cwd=REPO_ROOT)
+    return subprocess.run(
+        [FLAAIR, "live", *args], capture_output=True, text=True, timeout=timeout_s, cwd=REPO_ROOT
+    )
 
 
 def _final(bag: Path):
@@ -45,28 +47,41 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
     assert result.returncode == 0, result.stderr[-3000:]
     assert "localhost discovery" in result.stderr and "Traceback" not in result.stderr
     counts = bagio.message_counts(bag)
-    for topic in ("/flaair/sensor_v", "/flaair/wing_state", "/flaair/drive",
-                  "/flaair/controller/state", "/flaair/wing_state/truth",
-                  "/flaair/collision/status"):
+    for topic in (
+        "/flaair/sensor_v",
+        "/flaair/wing_state",
+        "/flaair/drive",
+        "/flaair/controller/state",
+        "/flaair/wing_state/truth",
+        "/flaair/collision/status",
+    ):
         assert counts.get(topic, 0) > 0, (topic, counts)
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
     firsts = np.asarray(drive.block_first_index)
     start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
     # the controller's own account of its run (its last log line), to tell a short run from a
     # lost tail
-    account = [line for line in (bag.parent / "live.logs" / "loop.log").read_text().splitlines()
-               if "zero drive sent" in line]
-    where = {"loop start": start, "first drive block": int(firsts[0]), "last": int(firsts[-1]),
-             "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts)))),
-             "controller": account[-1:]}
-    assert len(drive["drive_v"]) >= 60000, where                   # 3 s of samples, all of the loop
+    account = [
+        line
+        for line in (bag.parent / "live.logs" / "loop.log").read_text().splitlines()
+        if "zero drive sent" in line
+    ]
+    where = {
+        "loop start": start,
+        "first drive block": int(firsts[0]),
+        "last": int(firsts[-1]),
+        "gaps": int(np.sum(np.diff(firsts) != np.median(np.diff(firsts)))),
+        "controller": account[-1:],
+    }
+    assert len(drive["drive_v"]) >= 60000, where  # 3 s of samples, all of the loop
     # reached the bag in joined blocks
     assert counts["/flaair/drive"] < len(drive["drive_v"]) / 10 / 10
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
-    assert states[0].k_r == 1.0 and states[-1].k_r == 0.0          # the configured K_r schedule ran
-    assert np.all(drive["drive_v"][-10:] == 0.0)                  # ended on zero drive
+    assert states[0].k_r == 1.0 and states[-1].k_r == 0.0  # the configured K_r schedule ran
+    assert np.all(drive["drive_v"][-10:] == 0.0)  # ended on zero drive
     f_theory, a_theory = predicted_limit_cycle(
-        node_parameters("flaair.yaml", "dsa_controller_node"))
+        node_parameters("flaair.yaml", "dsa_controller_node")
+    )
     f, a = _final(bag)
     assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.05)
 
@@ -76,11 +91,15 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
 
     bag = tmp_path / "live"
     # Ctrl-C at its default action, as from a terminal (conftest sees to it)
-    process = subprocess.Popen([FLAAIR, "live", "--sim",
-                                "--duration", "60", "--out", str(bag)], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+    process = subprocess.Popen(
+        [FLAAIR, "live", "--sim", "--duration", "60", "--out", str(bag)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO_ROOT,
+    )
     seen = []
-    for _ in range(40):     # until the loop runs (a fresh machine starts slowly)
+    for _ in range(40):  # until the loop runs (a fresh machine starts slowly)
         seen.append(process.stderr.readline())
         if "running from sample" in seen[-1] or process.poll() is not None:
             break
@@ -95,12 +114,15 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     assert drive.n_samples > 0 and np.all(drive["drive_v"][-10:] == 0.0)
 
 
-@pytest.mark.parametrize("args,expected", [
-    (["--target", "127.0.0.1:25001"], "--target needs --listen"),
-    (["--target", "nohost", "--listen", "127.0.0.1:25000"], "expected HOST:PORT"),
-    (["--sim", "--duration", "-1"], "--duration"),
-    (["--sim", "--foxglove", "localhost"], "expected HOST:PORT"),
-])
+@pytest.mark.parametrize(
+    "args,expected",
+    [
+        (["--target", "127.0.0.1:25001"], "--target needs --listen"),
+        (["--target", "nohost", "--listen", "127.0.0.1:25000"], "expected HOST:PORT"),
+        (["--sim", "--duration", "-1"], "--duration"),
+        (["--sim", "--foxglove", "localhost"], "expected HOST:PORT"),
+    ],
+)
 def test_bad_arguments_are_named(args, expected):
     result = _live(*args, timeout_s=120)
     assert result.returncode == 2 and expected in result.stderr and "Traceback" not in result.stderr
@@ -122,15 +144,39 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     counters = tmp_path / "target.json"
     bridge_port, target_port = _free_udp_ports(2)
     # sensor noise, as on a real robot: the dSA loop starts from it if the sync phase's kick is lost
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
-                               f"127.0.0.1:{bridge_port}", "--listen", f"127.0.0.1:{target_port}",
-                               "--duration", "90", "--counters", str(counters), "--noise"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO_ROOT)
+    target = subprocess.Popen(
+        [
+            FLAAIR,
+            "run",
+            "flaair_bridge",
+            "emulated_target",
+            "--bridge",
+            f"127.0.0.1:{bridge_port}",
+            "--listen",
+            f"127.0.0.1:{target_port}",
+            "--duration",
+            "90",
+            "--counters",
+            str(counters),
+            "--noise",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        cwd=REPO_ROOT,
+    )
     try:
         bag = tmp_path / "bench"
         started_ns = time.time_ns()
-        result = _live("--target", f"127.0.0.1:{target_port}", "--listen",
-                       f"127.0.0.1:{bridge_port}", "--duration", "4", "--out", str(bag))
+        result = _live(
+            "--target",
+            f"127.0.0.1:{target_port}",
+            "--listen",
+            f"127.0.0.1:{bridge_port}",
+            "--duration",
+            "4",
+            "--out",
+            str(bag),
+        )
         ended_ns = time.time_ns()
         assert result.returncode == 0, result.stderr[-3000:]
     finally:
@@ -140,11 +186,16 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     # 2 s of signal) is in the bag, in order, no gaps
     start = int(re.search(r"running from sample (\d+)", result.stderr).group(1))
     messages = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/sensor_v"])]
-    firsts, lengths = [m.first_sample_index for m in messages], [
-        len(m.stroke_sensor_v) for m in messages]
+    firsts, lengths = (
+        [m.first_sample_index for m in messages],
+        [len(m.stroke_sensor_v) for m in messages],
+    )
     gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:]) if b != a + n]
-    assert (firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000
-            and not gaps), (firsts[:3], start, gaps[:5])
+    assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000 and not gaps, (
+        firsts[:3],
+        start,
+        gaps[:5],
+    )
     assert bagio.message_counts(bag).get("/flaair/drive/applied", 0) > 0
     # stamps are acquisition times in ROS time: the target's sample clock anchored at its first
     # packet (the anchoring is in the bag), so they line up with what other nodes record
@@ -152,15 +203,23 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     anchor_ns = anchor.header.stamp.sec * 1_000_000_000 + anchor.header.stamp.nanosec
     assert anchor.sample_clock == "target" and started_ns < anchor_ns < ended_ns
     stamps = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in messages]
-    assert stamps == [anchor_ns + round((first - anchor.sample_index) / 20000.0 * 1e9)
-                      for first in firsts]
+    assert stamps == [
+        anchor_ns + round((first - anchor.sample_index) / 20000.0 * 1e9) for first in firsts
+    ]
     assert started_ns < stamps[0] and stamps[-1] < ended_ns
-    wing_stamps = {m.first_sample_index: m.header.stamp for _, _, m in bagio.iter_messages(
-        bag, ["/flaair/wing_state"])}
-    drive_stamps = {m.first_sample_index: m.header.stamp for _, _, m in bagio.iter_messages(
-        bag, ["/flaair/drive"])}
-    assert all(wing_stamps[first] == m.header.stamp for first, m in zip(firsts, messages)
-               if first in wing_stamps)
+    wing_stamps = {
+        m.first_sample_index: m.header.stamp
+        for _, _, m in bagio.iter_messages(bag, ["/flaair/wing_state"])
+    }
+    drive_stamps = {
+        m.first_sample_index: m.header.stamp
+        for _, _, m in bagio.iter_messages(bag, ["/flaair/drive"])
+    }
+    assert all(
+        wing_stamps[first] == m.header.stamp
+        for first, m in zip(firsts, messages)
+        if first in wing_stamps
+    )
     # the controller's drive follows the wing state's clock from its first wing-state block on
     # (only the loop's first blocks in flight, sent before it, carry sample time)
     drive_ns = [s.sec * 1_000_000_000 + s.nanosec for s in drive_stamps.values()]
@@ -173,14 +232,17 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     r = tr.hilbert_analysis(stroke_deg, wing.sample_rate_hz, hilbert_params_from_config())
     keep = (r.time_s > 0.05) & (r.time_s < r.time_s[-1] - 0.05)
     f_theory, a_theory = predicted_limit_cycle(
-        node_parameters("flaair.yaml", "dsa_controller_node"))
+        node_parameters("flaair.yaml", "dsa_controller_node")
+    )
     f, a = float(np.median(r.frequency_hz[keep])), float(np.median(r.amplitude[keep]))
     # the frequency is the loop's (the Hopf analysis); drive the target applied late or not at all
     # (several % on a loaded machine: docs/CLOSED_LOOP_SPEED.md) takes amplitude off, not frequency
-    assert (f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25)), (f,
-                                                                                                 a,
-                                                                                                 f_theory,
-                                                                                                 a_theory)
+    assert f == pytest.approx(f_theory, rel=0.01) and a == pytest.approx(a_theory, rel=0.25), (
+        f,
+        a,
+        f_theory,
+        a_theory,
+    )
 
 
 def _free_udp_ports(n: int) -> list[int]:
@@ -203,18 +265,46 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
     """
     bridge_port, target_port = _free_udp_ports(2)
     counters = tmp_path / "target.json"
-    target = subprocess.Popen([FLAAIR, "run", "flaair_bridge", "emulated_target", "--bridge",
-                               f"127.0.0.1:{bridge_port}", "--listen", f"127.0.0.1:{target_port}",
-                               "--duration", "120", "--counters", str(counters)],
-                              stdout=subprocess.DEVNULL, stderr=open(tmp_path / "target.err", "w"),
-                              cwd=REPO_ROOT)
+    target = subprocess.Popen(
+        [
+            FLAAIR,
+            "run",
+            "flaair_bridge",
+            "emulated_target",
+            "--bridge",
+            f"127.0.0.1:{bridge_port}",
+            "--listen",
+            f"127.0.0.1:{target_port}",
+            "--duration",
+            "120",
+            "--counters",
+            str(counters),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=open(tmp_path / "target.err", "w"),
+        cwd=REPO_ROOT,
+    )
     bag, log = tmp_path / "bench", tmp_path / "live.err"
-    live = subprocess.Popen([FLAAIR, "live", "--target", f"127.0.0.1:{target_port}", "--listen",
-                             f"127.0.0.1:{bridge_port}", "--duration", str(duration_s), "--out",
-                             str(bag)], stdout=subprocess.DEVNULL, stderr=open(log, "w"),
-                            cwd=REPO_ROOT)
-    assert wait_for(lambda: "running from sample" in log.read_text() or live.poll() is not None,
-                    120), log.read_text()
+    live = subprocess.Popen(
+        [
+            FLAAIR,
+            "live",
+            "--target",
+            f"127.0.0.1:{target_port}",
+            "--listen",
+            f"127.0.0.1:{bridge_port}",
+            "--duration",
+            str(duration_s),
+            "--out",
+            str(bag),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=open(log, "w"),
+        cwd=REPO_ROOT,
+    )
+    assert wait_for(
+        lambda: "running from sample" in log.read_text() or live.poll() is not None, 120
+    ), log.read_text()
     match = re.search(r"on ROS domain (\d+)", log.read_text())
     assert match and live.poll() is None, f"live did not come up: {log.read_text()[-2000:]}"
     return target, live, int(match.group(1)), bag, counters
@@ -235,8 +325,12 @@ def _exit_code(live: subprocess.Popen, tmp_path: Path, timeout_s: float = 120.0)
                 pass
         wait_for(lambda: "most recent call first" in (tmp_path / "live.err").read_text(), 10.0)
         logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*.log"))]
-        raise AssertionError(f"live still running {timeout_s:g} s after the signal:\n" + "\n".join(
-            f"== {log.name}\n{log.read_text()[-4000:]}" for log in logs if log.is_file())) from None
+        raise AssertionError(
+            f"live still running {timeout_s:g} s after the signal:\n"
+            + "\n".join(
+                f"== {log.name}\n{log.read_text()[-4000:]}" for log in logs if log.is_file()
+            )
+        ) from None
 
 
 def _loop_pid(domain: int) -> int:
@@ -255,7 +349,7 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
 
     target, live, _, bag, _ = _start_live_against_target(tmp_path, 12.0)
     try:
-        target.send_signal(signal.SIGSTOP)          # the target goes silent ...
+        target.send_signal(signal.SIGSTOP)  # the target goes silent ...
         # ... for 3 s (the fault itself, not a wait for something)
         time.sleep(3.0)
         target.send_signal(signal.SIGCONT)
@@ -271,9 +365,11 @@ def test_a_silent_target_leaves_the_controller_ramping_to_zero(tmp_path):
     states = [m for _, _, m in bagio.iter_messages(bag, ["/flaair/controller/state"])]
     tripped = [i for i, s in enumerate(states) if s.watchdog == ControllerState.WATCHDOG_TRIPPED]
     assert tripped, "the controller never tripped while the target was silent"
-    assert ("no valid wing-state block" in states[tripped[0]].fault
-            or "wall-clock" in states[tripped[0]].fault)
-    assert abs(states[-1].drive_v) < 1e-9                       # ramped to zero
+    assert (
+        "no valid wing-state block" in states[tripped[0]].fault
+        or "wall-clock" in states[tripped[0]].fault
+    )
+    assert abs(states[-1].drive_v) < 1e-9  # ramped to zero
 
 
 def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
@@ -284,8 +380,9 @@ def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
         # bridge, front end and controller die at once
         os.kill(_loop_pid(domain), signal.SIGKILL)
         target_log = tmp_path / "target.err"
-        assert wait_for(lambda: target_watchdog_tripped(target_log),
-                        60), target_log.read_text()[-2000:]
+        assert wait_for(lambda: target_watchdog_tripped(target_log), 60), target_log.read_text()[
+            -2000:
+        ]
         live.send_signal(signal.SIGINT)
         _exit_code(live, tmp_path)
     finally:

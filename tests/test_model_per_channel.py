@@ -1,4 +1,5 @@
 """A sensor effect with its own value per sensor chain: model, model file, plant."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -29,12 +30,17 @@ def model():
 
 
 def test_per_channel_values_round_trip_through_the_model_file(model, tmp_path: Path) -> None:
-    m = with_effects(model, {"sensor_delay": SPLIT,
-                             "charge_amp_highpass": {"corner_hz": 5.0, "channel": "pitch"},
-                             "strain_transfer_loss": {
-        "stroke": {"efficiency": 0.8}, "pitch": {"efficiency": 0.25}}})
+    m = with_effects(
+        model,
+        {
+            "sensor_delay": SPLIT,
+            "charge_amp_highpass": {"corner_hz": 5.0, "channel": "pitch"},
+            "strain_transfer_loss": {"stroke": {"efficiency": 0.8}, "pitch": {"efficiency": 0.25}},
+        },
+    )
     assert m.effect("sensor_delay") == PerChannel(
-        SensorDelay(1.5e-4, "stroke"), SensorDelay(4.0e-4, "pitch"))
+        SensorDelay(1.5e-4, "stroke"), SensorDelay(4.0e-4, "pitch")
+    )
     assert m.effect_on("sensor_delay", "pitch").delay_s == 4.0e-4
     assert m.effect_on("charge_amp_highpass", "stroke") is None
     assert m.effect_on("charge_amp_highpass", "pitch").corner_hz == 5.0
@@ -53,14 +59,24 @@ def test_one_chain_given_is_that_chain_alone(model) -> None:
     assert effect_params(m.effect("sensor_delay")) == {"delay_s": 2e-4, "channel": "pitch"}
 
 
-@pytest.mark.parametrize("bad,words", [
-    ({"stroke": {"delay_s": 1e-4}, "pitch": {"delay_s": 1e-4, "channel": "stroke"}},
-     "sensor_delay.pitch.channel"),
-    ({"stroke": {"delay_s": -1e-4}, "pitch": {"delay_s": 1e-4}},
-     "effects.sensor_delay.delay_s must be >= 0"),
-    ({"stroke": 3.0, "pitch": {"delay_s": 1e-4}}, "effects.sensor_delay.stroke must be a mapping"),
-    ({"stroke": {"delay_s": 1e-4}, "left": {"delay_s": 1e-4}}, "unknown parameter(s) left"),
-])
+@pytest.mark.parametrize(
+    "bad,words",
+    [
+        (
+            {"stroke": {"delay_s": 1e-4}, "pitch": {"delay_s": 1e-4, "channel": "stroke"}},
+            "sensor_delay.pitch.channel",
+        ),
+        (
+            {"stroke": {"delay_s": -1e-4}, "pitch": {"delay_s": 1e-4}},
+            "effects.sensor_delay.delay_s must be >= 0",
+        ),
+        (
+            {"stroke": 3.0, "pitch": {"delay_s": 1e-4}},
+            "effects.sensor_delay.stroke must be a mapping",
+        ),
+        ({"stroke": {"delay_s": 1e-4}, "left": {"delay_s": 1e-4}}, "unknown parameter(s) left"),
+    ],
+)
 def test_bad_per_channel_values_name_the_key(model, bad: dict, words: str) -> None:
     with pytest.raises(ModelError) as info:
         with_effects(model, {"sensor_delay": bad})
@@ -69,8 +85,10 @@ def test_bad_per_channel_values_name_the_key(model, bad: dict, words: str) -> No
 
 def test_feedthrough_has_no_per_channel_form(model) -> None:
     with pytest.raises(ModelError, match="unknown parameter"):
-        with_effects(model, {"feedthrough": {
-            "stroke": {"gain_v_per_v": 0.01}, "pitch": {"gain_v_per_v": 0.01}}})
+        with_effects(
+            model,
+            {"feedthrough": {"stroke": {"gain_v_per_v": 0.01}, "pitch": {"gain_v_per_v": 0.01}}},
+        )
     with pytest.raises(ModelError, match="no per-channel value"):
         with_effect_on(model, "feedthrough", "stroke", {"gain_v_per_v": 0.01})
 
@@ -80,12 +98,15 @@ def test_setting_one_chain_keeps_the_other(model) -> None:
     split = with_effect_on(both, "sensor_delay", "pitch", {"delay_s": 3e-4})
     assert split.effect_on("sensor_delay", "stroke") == SensorDelay(1e-4, "stroke")
     assert split.effect_on("sensor_delay", "pitch") == SensorDelay(3e-4, "pitch")
-    assert (without_effect_on(split, "sensor_delay", "pitch").effect("sensor_delay")
-            == SensorDelay(1e-4, "stroke"))
-    assert (without_effect_on(split, "sensor_delay", "stroke").effect("sensor_delay")
-            == SensorDelay(3e-4, "pitch"))
-    assert with_effect_on(model, "sensor_delay", "stroke",
-                          {"delay_s": 2e-4}).effect("sensor_delay") == SensorDelay(2e-4, "stroke")
+    assert without_effect_on(split, "sensor_delay", "pitch").effect("sensor_delay") == SensorDelay(
+        1e-4, "stroke"
+    )
+    assert without_effect_on(split, "sensor_delay", "stroke").effect("sensor_delay") == SensorDelay(
+        3e-4, "pitch"
+    )
+    assert with_effect_on(model, "sensor_delay", "stroke", {"delay_s": 2e-4}).effect(
+        "sensor_delay"
+    ) == SensorDelay(2e-4, "stroke")
 
 
 def test_plant_applies_each_chains_own_value(model) -> None:
@@ -95,26 +116,34 @@ def test_plant_applies_each_chains_own_value(model) -> None:
     """
     t = np.arange(int(0.2 * FS_HZ)) / FS_HZ
     drive = 80.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.02, 1.0)
-    effects = {"sensor_delay": {"stroke": {"delay_s": 3 / FS_HZ}, "pitch": {"delay_s": 8 / FS_HZ}},
-               "charge_amp_highpass": {"stroke": {"corner_hz": 4.0}, "pitch": {"corner_hz": 12.0}},
-               "strain_transfer_loss": {
-        "stroke": {"efficiency": 0.8}, "pitch": {"efficiency": 0.3}}}
+    effects = {
+        "sensor_delay": {"stroke": {"delay_s": 3 / FS_HZ}, "pitch": {"delay_s": 8 / FS_HZ}},
+        "charge_amp_highpass": {"stroke": {"corner_hz": 4.0}, "pitch": {"corner_hz": 12.0}},
+        "strain_transfer_loss": {"stroke": {"efficiency": 0.8}, "pitch": {"efficiency": 0.3}},
+    }
     split = simulate(drive, FS_HZ, with_effects(model, effects))
     for side in ("stroke", "pitch"):
         alone = with_effects(model, {n: {**v[side], "channel": side} for n, v in effects.items()})
         out = simulate(drive, FS_HZ, alone)
         key = f"{side}_sensor_v"
         np.testing.assert_array_equal(getattr(split, key), getattr(out, key))
-    plain = simulate(drive, FS_HZ, with_effects(
-        model, {"sensor_delay": {"stroke": {"delay_s": 0.0}, "pitch": {"delay_s": 8 / FS_HZ}}}))
+    plain = simulate(
+        drive,
+        FS_HZ,
+        with_effects(
+            model, {"sensor_delay": {"stroke": {"delay_s": 0.0}, "pitch": {"delay_s": 8 / FS_HZ}}}
+        ),
+    )
     ref = simulate(drive, FS_HZ, model)
     vref = model.sensors.reference_voltage_v
-    np.testing.assert_allclose(plain.pitch_sensor_v[8:], ref.pitch_sensor_v[:-8], rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        plain.pitch_sensor_v[8:], ref.pitch_sensor_v[:-8], rtol=0, atol=1e-12
+    )
     np.testing.assert_array_equal(plain.pitch_sensor_v[:8], vref)
     np.testing.assert_array_equal(plain.stroke_sensor_v, ref.stroke_sensor_v)
     # the sensor chain alone (used by the discrepancy search) agrees with the simulation
-    vs, vp = sensor_chain(with_effects(model, effects), FS_HZ, split.stroke_rad, split.pitch_rad,
-                          drive)
+    vs, vp = sensor_chain(
+        with_effects(model, effects), FS_HZ, split.stroke_rad, split.pitch_rad, drive
+    )
     np.testing.assert_allclose(vs, split.stroke_sensor_v, rtol=0, atol=1e-12)
     np.testing.assert_allclose(vp, split.pitch_sensor_v, rtol=0, atol=1e-12)

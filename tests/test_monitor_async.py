@@ -5,6 +5,7 @@ supervisor (dSA) -> plant, the collision monitor on the front end's output with 
 settings (per-wingbeat decision) on stroke-locked windows. An obstacle is put in the stroke's
 way once the wing flaps by itself, then taken away.
 """
+
 from __future__ import annotations
 
 import math
@@ -28,7 +29,7 @@ from flaair_sim.core import plant
 
 FS = 20000.0
 OBSTACLE_S = (1.6, 2.1)
-LIMIT_DEG = 15.0      # the free self-excited stroke reaches 20.6 deg
+LIMIT_DEG = 15.0  # the free self-excited stroke reaches 20.6 deg
 
 
 def closed_loop(duration_s: float, respond: bool = False):
@@ -44,8 +45,10 @@ def closed_loop(duration_s: float, respond: bool = False):
     fe_params = frontend_params_from_config(node_parameters("flaair.yaml", "frontend_node"), FS)
     mon_params = replace(collision_monitor_params_from_config(), window_source="stroke")
     ctrl, plant_state, fe_state = (
-        sv.initial_state(loop), plant.initial_state(plant.PlantStepParams(model, FS)),
-        frontend.initial_state(fe_params))
+        sv.initial_state(loop),
+        plant.initial_state(plant.PlantStepParams(model, FS)),
+        frontend.initial_state(fe_params),
+    )
     mon = monitor.initial_state(mon_params)
     ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
     ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)
@@ -55,28 +58,53 @@ def closed_loop(duration_s: float, respond: bool = False):
         t = block.first_sample_index / FS
         m = hit if OBSTACLE_S[0] <= t < OBSTACLE_S[1] else model
         plant_state, sim = plant.step(
-            plant_state, plant.PlantInputs(block.drive_v), plant.PlantStepParams(m, FS))
+            plant_state, plant.PlantInputs(block.drive_v), plant.PlantStepParams(m, FS)
+        )
         fe_state, est = frontend.step(
-            fe_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fe_params)
+            fe_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fe_params
+        )
         strokes.append(np.degrees(sim.stroke_rad))
-        wing_blocks.append(monitor.WingBlock(
-            block.first_sample_index, np.where(est.stroke_valid, est.stroke_rad, np.nan),
-            np.where(est.pitch_valid, est.pitch_rad, np.nan)))
+        wing_blocks.append(
+            monitor.WingBlock(
+                block.first_sample_index,
+                np.where(est.stroke_valid, est.stroke_rad, np.nan),
+                np.where(est.pitch_valid, est.pitch_rad, np.nan),
+            )
+        )
         mon, result = monitor.step(mon, wing_blocks[-1], mon_params)
         verdicts += result.verdicts
         for v in result.verdicts if respond else ():
             if v.event is not None:
-                ctrl, out = sv.step(ctrl, sv.Collision(
-                    10.0, v.event == monitor.ONSET, v.wingbeat_index, v.spectrum_rmse_deg), loop)
+                ctrl, out = sv.step(
+                    ctrl,
+                    sv.Collision(
+                        10.0, v.event == monitor.ONSET, v.wingbeat_index, v.spectrum_rmse_deg
+                    ),
+                    loop,
+                )
                 queue += out.blocks
         scales.append((block.first_sample_index, ctrl.amplitude_scale))
-        ctrl, out = sv.step(ctrl, sv.WingBlock(
-            10.0, block.first_sample_index, FS, np.degrees(est.stroke_velocity_rad_s),
-            np.degrees(est.stroke_rad), est.stroke_valid, 1), loop)
+        ctrl, out = sv.step(
+            ctrl,
+            sv.WingBlock(
+                10.0,
+                block.first_sample_index,
+                FS,
+                np.degrees(est.stroke_velocity_rad_s),
+                np.degrees(est.stroke_rad),
+                est.stroke_valid,
+                1,
+            ),
+            loop,
+        )
         queue += out.blocks
     stroke = np.concatenate(strokes)
-    return np.arange(stroke.size) / FS, stroke, verdicts, (
-        wing_blocks, mon_params, np.array(scales))
+    return (
+        np.arange(stroke.size) / FS,
+        stroke,
+        verdicts,
+        (wing_blocks, mon_params, np.array(scales)),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +119,7 @@ def test_the_default_decision_is_the_per_wingbeat_one():
 def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run):
     t, stroke, verdicts, _ = run
     free = (t > 1.3) & (t < OBSTACLE_S[0])
-    assert 19.0 < np.ptp(stroke[free]) / 2 < 22.0                    # self-excited, 20.6 deg
+    assert 19.0 < np.ptp(stroke[free]) / 2 < 22.0  # self-excited, 20.6 deg
     first_strike_s = t[(t >= OBSTACLE_S[0]) & (stroke >= LIMIT_DEG - 0.01)][0]
     # During the K_r ramp (0.5-1.0 s) the stroke turns from the 90 Hz sine into the 144 Hz
     # self-excited one by design, and the per-wingbeat monitor reports that change as distortion:
@@ -106,12 +134,14 @@ def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run
     latency_wingbeats = (onset.end_index / FS - first_strike_s) / period_s
     assert 0.0 < latency_wingbeats <= 2.0, latency_wingbeats
     assert onset.end_index / FS >= OBSTACLE_S[0], "false alarm before the obstacle"
-    assert (clearances and OBSTACLE_S[1] < clearances[-1].end_index / FS < OBSTACLE_S[1] + 10
-            * period_s)
+    assert (
+        clearances and OBSTACLE_S[1] < clearances[-1].end_index / FS < OBSTACLE_S[1] + 10 * period_s
+    )
     # while flapping freely the windows follow the emergent frequency, not a drive's
     free_verdicts = [v for v in verdicts if 1.3 < v.end_index / FS < OBSTACLE_S[0]]
-    assert (free_verdicts and all(
-        math.isclose(v.frequency_hz, 144.1, rel_tol=0.02) for v in free_verdicts))
+    assert free_verdicts and all(
+        math.isclose(v.frequency_hz, 144.1, rel_tol=0.02) for v in free_verdicts
+    )
 
 
 def test_the_monitor_decides_the_same_on_joined_blocks(run):
@@ -121,21 +151,34 @@ def test_the_monitor_decides_the_same_on_joined_blocks(run):
     from flaair_common.intra import join_contiguous
 
     _, _, verdicts, (blocks, params, _) = run
-    as_fields = [{"first_sample_index": b.first_sample_index, "stroke_rad": b.stroke_rad,
-                  "pitch_rad": b.pitch_rad, "sec": 0} for b in blocks]
+    as_fields = [
+        {
+            "first_sample_index": b.first_sample_index,
+            "stroke_rad": b.stroke_rad,
+            "pitch_rad": b.pitch_rad,
+            "sec": 0,
+        }
+        for b in blocks
+    ]
     rng = np.random.default_rng(3)
     state, joined_verdicts, k, joins = monitor.initial_state(params), [], 0, 0
     while k < len(as_fields):
         n = int(rng.integers(1, 25))
-        for fields in join_contiguous(as_fields[k:k + n]):
+        for fields in join_contiguous(as_fields[k : k + n]):
             joins += 1
-            state, out = monitor.step(state, monitor.WingBlock(
-                fields["first_sample_index"], fields["stroke_rad"], fields["pitch_rad"]), params)
+            state, out = monitor.step(
+                state,
+                monitor.WingBlock(
+                    fields["first_sample_index"], fields["stroke_rad"], fields["pitch_rad"]
+                ),
+                params,
+            )
             joined_verdicts += out.verdicts
         k += n
     assert joins < len(blocks) / 5
-    assert [(v.wingbeat_index, v.end_index, v.colliding, v.event) for v in joined_verdicts] == \
-        [(v.wingbeat_index, v.end_index, v.colliding, v.event) for v in verdicts]
+    assert [(v.wingbeat_index, v.end_index, v.colliding, v.event) for v in joined_verdicts] == [
+        (v.wingbeat_index, v.end_index, v.colliding, v.event) for v in verdicts
+    ]
     assert len(verdicts) > 300
 
 
@@ -143,12 +186,17 @@ def test_join_contiguous_joins_runs_and_keeps_gaps():
     from flaair_common.intra import join_contiguous
 
     def block(first: int, n: int = 10) -> dict:
-        return {"first_sample_index": first, "x": np.arange(first, first + n, dtype=float),
-                "sec": first}
+        return {
+            "first_sample_index": first,
+            "x": np.arange(first, first + n, dtype=float),
+            "sec": first,
+        }
 
     out = join_contiguous([block(0), block(10), block(20, 5), block(40), block(50)])
-    assert ([(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out]
-            == [(0, 25, 0), (40, 20, 40)])
+    assert [(b["first_sample_index"], len(b["x"]), b["sec"]) for b in out] == [
+        (0, 25, 0),
+        (40, 20, 40),
+    ]
     np.testing.assert_array_equal(out[0]["x"], np.arange(25.0))
     assert join_contiguous([]) == []
 

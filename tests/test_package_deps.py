@@ -1,6 +1,7 @@
 """Each package.xml declares what its code imports, so `rosdep install` can set a ROS 2 workspace
 up; what rosdep has no key for is the README's one pip step, pinned as in requirements.lock.
 """
+
 from __future__ import annotations
 
 import ast
@@ -16,17 +17,39 @@ PACKAGES = sorted(p for p in (ROOT / "src").iterdir() if (p / "package.xml").exi
 
 # Import name -> rosdep key (ros/rosdistro rosdep/python.yaml) or ROS package name.
 ROSDEP_KEYS = {
-    "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-    "numba": "python3-numba", "matplotlib": "python3-matplotlib", "jinja2": "python3-jinja2",
-    "tqdm": "python3-tqdm", "h5py": "python3-h5py", "rosbags": "python3-rosbags-pip",
+    "numpy": "python3-numpy",
+    "scipy": "python3-scipy",
+    "yaml": "python3-yaml",
+    "numba": "python3-numba",
+    "matplotlib": "python3-matplotlib",
+    "jinja2": "python3-jinja2",
+    "tqdm": "python3-tqdm",
+    "h5py": "python3-h5py",
+    "rosbags": "python3-rosbags-pip",
     "websockets": "python3-websockets",
-    **{ros: ros for ros in ("rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs",
-                            "rosgraph_msgs", "ament_index_python", "diagnostic_msgs",
-                            "std_srvs")},
+    **{
+        ros: ros
+        for ros in (
+            "rclpy",
+            "rcl_interfaces",
+            "builtin_interfaces",
+            "std_msgs",
+            "rosgraph_msgs",
+            "ament_index_python",
+            "diagnostic_msgs",
+            "std_srvs",
+        )
+    },
 }
 # Imported, but with no rosdep key: installed by the README's pip step (PyPI distribution names).
-PIP_ONLY = {"dask": "dask", "distributed": "distributed", "foxglove": "foxglove-sdk",
-            "mcap": "mcap", "zstandard": "zstandard", "lz4": "lz4"}
+PIP_ONLY = {
+    "dask": "dask",
+    "distributed": "distributed",
+    "foxglove": "foxglove-sdk",
+    "mcap": "mcap",
+    "zstandard": "zstandard",
+    "lz4": "lz4",
+}
 
 
 def imported_modules(package: Path) -> set[str]:
@@ -53,15 +76,15 @@ def test_package_xml_declares_every_import(package: Path) -> None:
     modules = imported_modules(package)
     unknown = modules - set(ROSDEP_KEYS) - set(PIP_ONLY) - {p.name for p in PACKAGES}
     assert not unknown, f"{package.name} imports {sorted(unknown)}: add them to this test's tables"
-    needed = {ROSDEP_KEYS.get(m, m) for m in modules
-              if m not in PIP_ONLY and m != package.name}
+    needed = {ROSDEP_KEYS.get(m, m) for m in modules if m not in PIP_ONLY and m != package.name}
     missing = needed - declared(package)
     assert not missing, f"{package.name}/package.xml lacks <exec_depend> for {sorted(missing)}"
 
 
 def test_the_pip_step_installs_what_rosdep_cannot_at_the_locked_versions() -> None:
-    lock = dict(re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (ROOT / "requirements.lock").read_text(),
-                           re.M))
+    lock = dict(
+        re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (ROOT / "requirements.lock").read_text(), re.M)
+    )
     lock = {name.lower(): version for name, version in lock.items()}
     readme = (ROOT / "README.md").read_text()
     step = re.search(r"^pip install (.+)$", readme, re.M)
@@ -70,4 +93,5 @@ def test_the_pip_step_installs_what_rosdep_cannot_at_the_locked_versions() -> No
     for module in sorted(used):
         distribution = PIP_ONLY[module]
         assert f"{distribution}=={lock[distribution]}" in step.group(1).split(), (
-            f"README's pip step lacks {distribution}=={lock[distribution]}")
+            f"README's pip step lacks {distribution}=={lock[distribution]}"
+        )

@@ -1,6 +1,7 @@
 """Bags on the signal's clock: 3 s of simulated signal
 span 3 s of log time, read with the mcap library.
 """
+
 from __future__ import annotations
 
 import signal
@@ -15,7 +16,7 @@ from mcap_ros2.decoder import DecoderFactory
 from flaair_tools import bagio
 from rosproc import ros_processes, wait_for
 
-pytestmark = pytest.mark.graph   # ROS 2 processes exchanging data in real time: run alone
+pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
 
 FS, BLOCK, RUN_S = 20000.0, 10, 3.0
 # A simulated robot's streams as the plant stamps them (block i at i * 0.5 ms of signal time, /clock
@@ -87,14 +88,17 @@ def test_three_seconds_of_simulated_signal_span_three_seconds_of_log_time(tmp_pa
     publish_ns: list[int] = []
     with open(mcap_file, "rb") as handle:
         for _, channel, message, decoded in make_reader(
-                handle, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            handle, decoder_factories=[DecoderFactory()]
+        ).iter_decoded_messages():
             log_ns.setdefault(channel.topic, []).append(message.log_time)
             if channel.topic == "/clock":
                 stamp_ns.setdefault("/clock", []).append(
-                    decoded.clock.sec * 10**9 + decoded.clock.nanosec)
+                    decoded.clock.sec * 10**9 + decoded.clock.nanosec
+                )
             elif hasattr(decoded, "header"):
                 stamp_ns.setdefault(channel.topic, []).append(
-                    decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec)
+                    decoded.header.stamp.sec * 10**9 + decoded.header.stamp.nanosec
+                )
             if channel.topic == "/flaair/sensor_v":
                 publish_ns.append(message.publish_time)
     for topic in ("/flaair/sensor_v", "/flaair/wing_state/truth"):

@@ -1,6 +1,7 @@
 """flaair_tools.recorder.recording: the recorder's log-time
 rule and drain, message by message, without ROS.
 """
+
 from __future__ import annotations
 
 import pytest
@@ -30,15 +31,23 @@ def run(events, state=rec.LogTimeState()):
 def test_header_less_messages_wait_for_the_first_stamp_then_take_the_latest():
     marker = rec.Received("/flaair/run_marker", bytearray(b"run 1"), None, 111)
     state, writes = run([marker])
-    assert (writes == [] and state.pending[0].data == b"run 1"
-            and isinstance(state.pending[0].data, bytes))
-    marker.data[:] = b"XXXXX"   # the middleware reuses its buffer: the pending copy is unaffected
-    state, writes = run([rec.Received("/flaair/sensor_v", b"s", 5_000, 222),
-                         rec.Received("/flaair/run_marker", b"run 2", None, 333),
-                         rec.Received("/clock", b"c", 7_000, None),
-                         rec.Received("/flaair/run_marker", b"run 3", None, None)], state)
+    assert (
+        writes == []
+        and state.pending[0].data == b"run 1"
+        and isinstance(state.pending[0].data, bytes)
+    )
+    marker.data[:] = b"XXXXX"  # the middleware reuses its buffer: the pending copy is unaffected
+    state, writes = run(
+        [
+            rec.Received("/flaair/sensor_v", b"s", 5_000, 222),
+            rec.Received("/flaair/run_marker", b"run 2", None, 333),
+            rec.Received("/clock", b"c", 7_000, None),
+            rec.Received("/flaair/run_marker", b"run 3", None, None),
+        ],
+        state,
+    )
     assert [(w.topic, w.log_ns, bytes(w.data), w.publish_ns) for w in writes] == [
-        ("/flaair/run_marker", 5_000, b"run 1", 111),   # released by the first stamp, at its time
+        ("/flaair/run_marker", 5_000, b"run 1", 111),  # released by the first stamp, at its time
         ("/flaair/sensor_v", 5_000, b"s", 222),
         ("/flaair/run_marker", 5_000, b"run 2", 333),
         ("/clock", 7_000, b"c", None),
@@ -51,8 +60,10 @@ def test_finish_without_any_stamp_keeps_publish_or_receive_times():
     state, _ = run([rec.Received("/a", b"1", None, 40), rec.Received("/b", b"2", None, None)])
     state, writes = rec.step(state, rec.Finish(now_ns=99), PARAMS)
     assert [(w.topic, w.log_ns) for w in writes] == [("/a", 40), ("/b", 99)] and state.pending == ()
-    assert (rec.step(rec.LogTimeState(5, ()), rec.Finish(99), PARAMS)
-            == (rec.LogTimeState(5, ()), ()))
+    assert rec.step(rec.LogTimeState(5, ()), rec.Finish(99), PARAMS) == (
+        rec.LogTimeState(5, ()),
+        (),
+    )
 
 
 def test_drain_takes_queued_messages_up_to_the_limit():
@@ -70,8 +81,11 @@ def test_topic_choice_and_qos_adaptation():
     with pytest.raises(ParameterError, match="'topics'.*flaair/x"):
         rec.parse_topic_list("/a,flaair/x")
     assert rec.wanted("/flaair/drive", (), False) and not rec.wanted("/rosout", (), False)
-    assert (not rec.wanted("/clock", (), False) and rec.wanted("/clock", (), True)
-            and rec.wanted("/clock", ("/clock",), False))
+    assert (
+        not rec.wanted("/clock", (), False)
+        and rec.wanted("/clock", (), True)
+        and rec.wanted("/clock", ("/clock",), False)
+    )
     assert not rec.wanted("/flaair/drive", ("/flaair/sensor_v",), False)
     # a recorder in a namespace records its own bench's streams, not another's
     assert rec.wanted("/bench2/flaair/drive", (), False, "/bench2")
@@ -80,8 +94,17 @@ def test_topic_choice_and_qos_adaptation():
     assert not rec.wanted("/bench2/flaair/drive", (), False)
 
     def qos(reliability, durability):
-        return Qos(QosHistory.KEEP_LAST, 10, reliability, durability, QosTime(0, 0), QosTime(0, 0),
-                   QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
+        return Qos(
+            QosHistory.KEEP_LAST,
+            10,
+            reliability,
+            durability,
+            QosTime(0, 0),
+            QosTime(0, 0),
+            QosLiveliness.AUTOMATIC,
+            QosTime(0, 0),
+            False,
+        )
 
     reliable = qos(QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL)
     best_effort = qos(QosReliability.BEST_EFFORT, QosDurability.VOLATILE)

@@ -1,4 +1,5 @@
 """A recorded live run replays through the pure cores to exactly what the live nodes published."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -38,10 +39,12 @@ def test_collision_monitor_replays_to_the_live_statuses_and_events(collision_bag
     assert len(live) > 200 and len(verdicts) == len(live)
     assert [v.wingbeat_index for v in verdicts] == [m.wingbeat_index for m in live]
     assert [v.colliding for v in verdicts] == [m.colliding for m in live]
-    assert np.array_equal([v.frequency_hz for v in verdicts],
-                          [m.wingbeat_frequency_hz for m in live])
-    assert np.array_equal([v.spectrum_rmse_deg for v in verdicts],
-                          [m.spectrum_rmse_deg for m in live], equal_nan=True)
+    assert np.array_equal(
+        [v.frequency_hz for v in verdicts], [m.wingbeat_frequency_hz for m in live]
+    )
+    assert np.array_equal(
+        [v.spectrum_rmse_deg for v in verdicts], [m.spectrum_rmse_deg for m in live], equal_nan=True
+    )
     replayed = [(v.event, v.wingbeat_index) for v in verdicts if v.event is not None]
     assert replayed == [("onset" if e.kind == 1 else "clearance", e.wingbeat_index) for e in events]
     # the obstacle was seen and cleared
@@ -61,19 +64,32 @@ def test_controller_replays_to_the_live_drive_and_states(transition_bag: Path) -
     # every state from the first block on is in the bag (the controller
     # waits for the recorder's state subscription); the replay adds
     # only the closing zero blocks the recorder did not wait for
-    recorded_indices = [int(round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) * fs))
-                        for m in states]
+    recorded_indices = [
+        round((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9) * fs) for m in states
+    ]
     assert len(states) > 5000 and recorded_indices == [
-        b.first_sample_index for b in with_state[:len(states)]]
+        b.first_sample_index for b in with_state[: len(states)]
+    ]
     assert len(with_state) - len(states) <= 3
     by_index = {b.first_sample_index: b for b in with_state}
     for message in states:
-        index = int(round((message.header.stamp.sec + message.header.stamp.nanosec * 1e-9) * fs))
+        index = round((message.header.stamp.sec + message.header.stamp.nanosec * 1e-9) * fs)
         b = by_index[index]
-        assert (b.k_r, b.async_drive_v, b.sync_drive_v, float(b.drive_v[-1]), b.stroke_frequency_hz,
-                b.amplitude_scale) == (
-            message.k_r, message.async_drive_v, message.sync_drive_v, message.drive_v,
-            message.stroke_frequency_hz, message.amplitude_scale), index
+        assert (
+            b.k_r,
+            b.async_drive_v,
+            b.sync_drive_v,
+            float(b.drive_v[-1]),
+            b.stroke_frequency_hz,
+            b.amplitude_scale,
+        ) == (
+            message.k_r,
+            message.async_drive_v,
+            message.sync_drive_v,
+            message.drive_v,
+            message.stroke_frequency_hz,
+            message.amplitude_scale,
+        ), index
     # the recorded drive ends on the controller's zero blocks (run complete, shutdown)
     n = int(np.flatnonzero(drive["drive_v"])[-1]) + 1
     assert drive.n_samples - n in (10, 20)

@@ -1,6 +1,7 @@
 """ROS habits over real DDS: param set on the dSA controller,
 node list, topic hz, echo that ends on silence.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,77 +21,143 @@ from rosproc import FLAAIR, ros_processes, run
 def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it() -> None:
     with ros_processes() as procs:
         controller = procs.flaair("run", "flaair_control", "dsa_controller_node")
-        got = run([FLAAIR, "param", "get", "/dsa_controller_node", "kr_target", "--timeout", "120"],
-                  procs.env, 180)
-        assert got.returncode == 0, (got.stderr + controller.stderr.read()
-                                     if controller.poll() is not None else got.stderr)
+        got = run(
+            [FLAAIR, "param", "get", "/dsa_controller_node", "kr_target", "--timeout", "120"],
+            procs.env,
+            180,
+        )
+        assert got.returncode == 0, (
+            got.stderr + controller.stderr.read() if controller.poll() is not None else got.stderr
+        )
         assert float(got.stdout) == 0.0  # config/flaair.yaml
-        changed = run([FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1"], procs.env,
-                      120)
+        changed = run(
+            [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1"], procs.env, 120
+        )
         assert changed.returncode == 0, changed.stderr
         assert "kr_target = 1.0" in changed.stdout  # "1" became the double 1.0 (read back below)
         # out of the declared range [0, 1]: the node refuses and says why; the value stays
-        refused = run([FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1.5"],
-                      procs.env, 120)
-        assert (refused.returncode == 1
-                and "refused kr_target = 1.5" in refused.stderr), refused.stderr
-        assert float(run([FLAAIR, "param", "get", "/dsa_controller_node", "kr_target"], procs.env,
-                         120).stdout) == 1.0
-        wrong_type = run([FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "fast"],
-                         procs.env, 120)
-        assert (wrong_type.returncode == 2
-                and "parameter 'kr_target' takes a number, got 'fast'" in wrong_type.stderr)
-        missing = run([FLAAIR, "param", "set", "/dsa_controller_node", "no_such", "1"], procs.env,
-                      120)
+        refused = run(
+            [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1.5"], procs.env, 120
+        )
+        assert refused.returncode == 1 and "refused kr_target = 1.5" in refused.stderr, (
+            refused.stderr
+        )
+        assert (
+            float(
+                run(
+                    [FLAAIR, "param", "get", "/dsa_controller_node", "kr_target"], procs.env, 120
+                ).stdout
+            )
+            == 1.0
+        )
+        wrong_type = run(
+            [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "fast"], procs.env, 120
+        )
+        assert (
+            wrong_type.returncode == 2
+            and "parameter 'kr_target' takes a number, got 'fast'" in wrong_type.stderr
+        )
+        missing = run(
+            [FLAAIR, "param", "set", "/dsa_controller_node", "no_such", "1"], procs.env, 120
+        )
         assert missing.returncode == 1 and "has no parameter 'no_such'" in missing.stderr
-        nodes = run([FLAAIR, "node", "list", "--wait-for", "/dsa_controller_node"],
-                    procs.env, 120)
-        assert (nodes.returncode == 0
-                and "/dsa_controller_node" in nodes.stdout.split()), nodes.stdout + nodes.stderr
-        absent = run([FLAAIR, "node", "list", "--wait-for", "/nobody", "--timeout", "1"],
-                     procs.env, 60)
+        nodes = run([FLAAIR, "node", "list", "--wait-for", "/dsa_controller_node"], procs.env, 120)
+        assert nodes.returncode == 0 and "/dsa_controller_node" in nodes.stdout.split(), (
+            nodes.stdout + nodes.stderr
+        )
+        absent = run(
+            [FLAAIR, "node", "list", "--wait-for", "/nobody", "--timeout", "1"], procs.env, 60
+        )
         assert absent.returncode == 1 and "/nobody not seen in 1 s" in absent.stderr, absent.stderr
         # health on /diagnostics, the watchdog's reset as a std_srvs/Trigger service
-        health = run([FLAAIR, "topic", "echo", "/diagnostics",
-                      "diagnostic_msgs/msg/DiagnosticArray", "--count", "1", "--timeout", "60"],
-                     procs.env, 120)
+        health = run(
+            [
+                FLAAIR,
+                "topic",
+                "echo",
+                "/diagnostics",
+                "diagnostic_msgs/msg/DiagnosticArray",
+                "--count",
+                "1",
+                "--timeout",
+                "60",
+            ],
+            procs.env,
+            120,
+        )
         assert health.returncode == 0, health.stderr
         (status,) = json.loads(health.stdout)["status"]
         assert (status["level"], status["name"], status["message"], status["hardware_id"]) == (
-            0, "dsa_controller_node: dSA controller", "waiting for the loop to start",
-            "/dsa_controller_node")
+            0,
+            "dsa_controller_node: dSA controller",
+            "waiting for the loop to start",
+            "/dsa_controller_node",
+        )
         assert {"watchdog": "ok", "trips": "0"}.items() <= {
-            v["key"]: v["value"] for v in status["values"]}.items()
-        reset = run([FLAAIR, "service", "call", "/dsa_controller_node/reset_watchdog",
-                     "std_srvs/srv/Trigger"], procs.env, 120)
+            v["key"]: v["value"] for v in status["values"]
+        }.items()
+        reset = run(
+            [
+                FLAAIR,
+                "service",
+                "call",
+                "/dsa_controller_node/reset_watchdog",
+                "std_srvs/srv/Trigger",
+            ],
+            procs.env,
+            120,
+        )
         assert reset.returncode == 0, reset.stderr
         assert json.loads(reset.stdout) == {
-            "success": False, "message": "reset_watchdog: watchdog not tripped, nothing to do"}
+            "success": False,
+            "message": "reset_watchdog: watchdog not tripped, nothing to do",
+        }
         assert controller.poll() is None
 
 
 @pytest.mark.graph
 def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publishes() -> None:
     with ros_processes() as procs:
-        publisher = procs.flaair("topic", "pub", "/flaair/hz_probe", "std_msgs/msg/String",
-                                 '{"data": "x"}', "--count", "100000", "--rate", "50")
-        hz = run([FLAAIR, "topic", "hz", "/flaair/hz_probe", "--count", "2", "--timeout", "120"],
-                 procs.env, 240)
+        publisher = procs.flaair(
+            "topic",
+            "pub",
+            "/flaair/hz_probe",
+            "std_msgs/msg/String",
+            '{"data": "x"}',
+            "--count",
+            "100000",
+            "--rate",
+            "50",
+        )
+        hz = run(
+            [FLAAIR, "topic", "hz", "/flaair/hz_probe", "--count", "2", "--timeout", "120"],
+            procs.env,
+            240,
+        )
         assert hz.returncode == 0, hz.stderr
         reports = re.findall(r"average rate: ([0-9.]+) Hz .* window: (\d+)", hz.stdout)
         assert len(reports) == 2 and all(
-            float(rate) > 0 and int(window) >= 2 for rate, window in reports), hz.stdout
+            float(rate) > 0 and int(window) >= 2 for rate, window in reports
+        ), hz.stdout
         procs.stop(publisher)
         # nobody publishes: the timeout ends it (its default, 10 s, is config/flaair.yaml's: below)
         start = time.monotonic()
-        silent = run([FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String", "--timeout",
-                      "2"], procs.env, 120)
+        silent = run(
+            [FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "2"],
+            procs.env,
+            120,
+        )
         assert silent.returncode == 1
-        assert ("no message on '/flaair/nobody' for 2 s (0 received, 0 publisher(s) now)"
-                in silent.stderr)
+        assert (
+            "no message on '/flaair/nobody' for 2 s (0 received, 0 publisher(s) now)"
+            in silent.stderr
+        )
         assert time.monotonic() - start >= 2.0
-        short = run([FLAAIR, "topic", "hz", "/flaair/nobody", "std_msgs/msg/String", "--timeout",
-                     "1"], procs.env, 120)
+        short = run(
+            [FLAAIR, "topic", "hz", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "1"],
+            procs.env,
+            120,
+        )
         assert short.returncode == 1 and "no message on '/flaair/nobody' for 1 s" in short.stderr
 
 
@@ -99,19 +166,23 @@ def test_echo_takes_its_default_timeout_from_the_config() -> None:
 
     default_s = node_parameters("flaair.yaml", "flaair_cli")["echo_timeout_s"]
     result = run([FLAAIR, "topic", "echo", "--help"], dict(os.environ), 60)
-    assert (result.returncode == 0
-            and f"(default {default_s:g}; 0: wait forever)" in re.sub(r"\s+", " ", result.stdout))
+    assert result.returncode == 0 and f"(default {default_s:g}; 0: wait forever)" in re.sub(
+        r"\s+", " ", result.stdout
+    )
 
 
 def test_values_convert_to_the_parameters_type_and_rates_are_reported() -> None:
     assert convert("0", ParameterType.PARAMETER_DOUBLE, "kr_target") == 0.0
     assert convert("true", ParameterType.PARAMETER_BOOL, "reset_watchdog") is True
-    assert (convert("[0.5, 1]", ParameterType.PARAMETER_DOUBLE_ARRAY, "obstacle_windows_s")
-            == [0.5, 1.0])
+    assert convert("[0.5, 1]", ParameterType.PARAMETER_DOUBLE_ARRAY, "obstacle_windows_s") == [
+        0.5,
+        1.0,
+    ]
     assert convert("0.5", ParameterType.PARAMETER_STRING, "mode") == "0.5"
     with pytest.raises(ValueTypeError, match="'n_on' takes an integer, got 'true'"):
         convert("true", ParameterType.PARAMETER_INTEGER, "n_on")
     with pytest.raises(ValueTypeError, match="'noise' takes true or false, got '1'"):
         convert("1", ParameterType.PARAMETER_BOOL, "noise")
     assert rate_report([0.0, 0.5, 1.0]).startswith(
-        "average rate: 2.0 Hz  min: 500.000 ms  max: 500.000 ms")
+        "average rate: 2.0 Hz  min: 500.000 ms  max: 500.000 ms"
+    )

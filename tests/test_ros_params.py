@@ -1,6 +1,7 @@
 """Nodes start through bin/flaair run with parameters
 applied; bad parameters are refused by name.
 """
+
 from __future__ import annotations
 
 import pytest
@@ -11,12 +12,21 @@ from rosproc import FLAAIR, isolated_env, ros_processes, run
 @pytest.mark.graph
 def test_run_applies_ros_args_parameter() -> None:
     with ros_processes() as procs:
-        node = procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-p", "mode:=realtime",
-                            "-p", "drive_limit_v:=42.5")
+        node = procs.flaair(
+            "run",
+            "flaair_sim",
+            "plant_node",
+            "--ros-args",
+            "-p",
+            "mode:=realtime",
+            "-p",
+            "drive_limit_v:=42.5",
+        )
         env = procs.env
         mode = run([FLAAIR, "param", "get", "/plant_node", "mode", "--timeout", "30"], env)
-        limit = run([FLAAIR, "param", "get", "/plant_node", "drive_limit_v", "--timeout", "30"],
-                    env)
+        limit = run(
+            [FLAAIR, "param", "get", "/plant_node", "drive_limit_v", "--timeout", "30"], env
+        )
         assert mode.returncode == 0, mode.stderr
         assert mode.stdout.strip() == "realtime"
         assert float(limit.stdout.strip()) == 42.5
@@ -35,8 +45,9 @@ def test_run_applies_ros_args_parameter() -> None:
     ],
 )
 def test_bad_parameter_refused_at_start_with_its_name(override: str, named: str, why: str) -> None:
-    result = run([FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", override],
-                 isolated_env())
+    result = run(
+        [FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", override], isolated_env()
+    )
     assert result.returncode == 2
     assert named in result.stderr and why in result.stderr, result.stderr
     assert "Traceback" not in result.stderr

@@ -1,4 +1,5 @@
 """Drive recognition (flaair_tools.analysis.runkind) on synthetic drives with known answers."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,8 +40,11 @@ def test_paper_stepped_sine_steps_are_found_from_the_drive() -> None:
 
 
 def test_paper_chirp_is_a_sweep_with_its_range() -> None:
-    drive = drive_record(DriveParams(
-        kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0), FS, 20000)
+    drive = drive_record(
+        DriveParams(kind="chirp", amplitude_v=100.0, start_hz=20.0, stop_hz=200.0, duration_s=1.0),
+        FS,
+        20000,
+    )
     kind = recognise(drive, FS, PARAMS)
     assert kind.kind == "chirp", kind.reason
     assert kind.steps == ()
@@ -49,8 +53,11 @@ def test_paper_chirp_is_a_sweep_with_its_range() -> None:
 
 def test_slow_chirp_is_not_mistaken_for_steps() -> None:
     """20 Hz/s: every 40 ms stays within tolerance, but it drifts, so it is no dwell."""
-    drive = drive_record(DriveParams(
-        kind="chirp", amplitude_v=50.0, start_hz=100.0, stop_hz=160.0, duration_s=3.0), FS, 60000)
+    drive = drive_record(
+        DriveParams(kind="chirp", amplitude_v=50.0, start_hz=100.0, stop_hz=160.0, duration_s=3.0),
+        FS,
+        60000,
+    )
     assert recognise(drive, FS, PARAMS).kind == "chirp"
 
 
@@ -61,16 +68,20 @@ def test_single_sine_with_rest_before_it() -> None:
     assert kind.kind == "sine", kind.reason
     assert kind.frequency_hz == pytest.approx(100.0, abs=1e-3)
     (step,) = kind.steps
-    assert (0.25 * FS <= step.start <= 0.25 * FS + 300
-            and step.stop >= drive.size - 1.5 * FS / 100.0 - 200)
+    assert (
+        0.25 * FS <= step.start <= 0.25 * FS + 300
+        and step.stop >= drive.size - 1.5 * FS / 100.0 - 200
+    )
 
 
 def test_controller_drive_is_a_transition_and_no_drive_is_a_free_run() -> None:
     noise = np.random.default_rng(1).normal(0.0, 0.05, 20000)
     assert recognise(noise, FS, PARAMS).kind == "free"
     assert recognise(np.zeros(20000), FS, PARAMS).kind == "free"
-    assert recognise(100 * np.sin(np.arange(20000) / 20.0), FS, PARAMS,
-                     has_controller_state=True).kind == "transition"
+    assert (
+        recognise(100 * np.sin(np.arange(20000) / 20.0), FS, PARAMS, has_controller_state=True).kind
+        == "transition"
+    )
 
 
 def test_random_drive_is_unrecognised() -> None:
@@ -89,10 +100,16 @@ def test_bad_parameters_are_named() -> None:
 
 
 @settings(max_examples=25, deadline=None)
-@given(start=st.floats(50.0, 150.0), step=st.floats(5.0, 30.0), n=st.integers(2, 6),
-       dwell_s=st.floats(0.15, 0.3), amplitude=st.floats(10.0, 150.0))
+@given(
+    start=st.floats(50.0, 150.0),
+    step=st.floats(5.0, 30.0),
+    n=st.integers(2, 6),
+    dwell_s=st.floats(0.15, 0.3),
+    amplitude=st.floats(10.0, 150.0),
+)
 def test_any_stepped_sine_is_recognised_with_its_frequencies(
-        start: float, step: float, n: int, dwell_s: float, amplitude: float) -> None:
+    start: float, step: float, n: int, dwell_s: float, amplitude: float
+) -> None:
     freqs = start + step * np.arange(n)
     drive, _ = stepped_sine(FS, amplitude, freqs, dwell_s)
     kind = recognise(drive, FS, PARAMS)
@@ -101,8 +118,11 @@ def test_any_stepped_sine_is_recognised_with_its_frequencies(
 
 
 @settings(max_examples=25, deadline=None)
-@given(frequency=st.floats(30.0, 300.0), amplitude=st.floats(5.0, 150.0),
-       duration_s=st.floats(0.3, 2.0))
+@given(
+    frequency=st.floats(30.0, 300.0),
+    amplitude=st.floats(5.0, 150.0),
+    duration_s=st.floats(0.3, 2.0),
+)
 def test_any_sine_is_one_frequency(frequency: float, amplitude: float, duration_s: float) -> None:
     t = np.arange(int(duration_s * FS)) / FS
     kind = recognise(amplitude * np.sin(2 * np.pi * frequency * t + 0.3), FS, PARAMS)

@@ -1,4 +1,5 @@
 """Calibration against ground truth: closed-form recoveries on simulated runs."""
+
 from __future__ import annotations
 
 import json
@@ -79,13 +80,15 @@ def test_nominal_gains_equal_model_gains(model, nominal_cal):
 
 @pytest.mark.parametrize("efficiency", [0.5, 0.8])
 def test_strain_transfer_loss_scales_pitch_gain(model, drive, nominal_cal, efficiency):
-    lossy = (with_effects(model, {
-        "strain_transfer_loss": {"efficiency": efficiency, "channel": "pitch"}}))
+    lossy = with_effects(
+        model, {"strain_transfer_loss": {"efficiency": efficiency, "channel": "pitch"}}
+    )
     cal = calibrate(_run(lossy, drive), model.sensors.reference_voltage_v, **BAND)
     ratio = cal["pitch"]["gain_deg_per_v"] / nominal_cal["pitch"]["gain_deg_per_v"]
     assert ratio == pytest.approx(1.0 / efficiency, rel=0.01)
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(
-        nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-3)
+        nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-3
+    )
 
 
 def test_sensor_delay_effect_recovered_as_lag(model, drive):
@@ -95,7 +98,8 @@ def test_sensor_delay_effect_recovered_as_lag(model, drive):
     for ch in ("stroke", "pitch"):
         assert cal[ch]["lag_s"] == pytest.approx(delay, rel=0.05)
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(
-            getattr(model, f"{ch}_gain_deg_per_v"), rel=0.01)
+            getattr(model, f"{ch}_gain_deg_per_v"), rel=0.01
+        )
         # Uncorrected, a pure delay shows as a phase error of 360 f tau (23 deg at 200 Hz).
         assert cal[ch]["phase_rmse_deg"] > 5.0
 
@@ -105,8 +109,9 @@ def test_fractional_delay_and_array_shift_recovered(model, drive, nominal):
     cal = calibrate(_run(delayed, drive), model.sensors.reference_voltage_v, **BAND)
     assert cal["pitch"]["lag_s"] == pytest.approx(2.23e-4, rel=0.05)
     assert abs(cal["stroke"]["lag_s"]) < 1e-6
-    shifted = calibrate(_run(model, drive, shift_samples=7), model.sensors.reference_voltage_v,
-                        **BAND)
+    shifted = calibrate(
+        _run(model, drive, shift_samples=7), model.sensors.reference_voltage_v, **BAND
+    )
     assert shifted["stroke"]["lag_s"] == pytest.approx(7 / FS, rel=0.05)
     assert shifted["pitch"]["lag_s"] == pytest.approx(7 / FS, rel=0.05)
 
@@ -123,7 +128,8 @@ def test_truth_gaps_and_low_frame_rate(model, nominal, nominal_cal):
     cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
     for ch in ("stroke", "pitch"):
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(
-            nominal_cal[ch]["gain_deg_per_v"], rel=1e-4)
+            nominal_cal[ch]["gain_deg_per_v"], rel=1e-4
+        )
         assert abs(cal[ch]["lag_s"]) < 1e-6
     assert cal["pitch"]["n_valid_truth"] == int(np.isfinite(y).sum())
 
@@ -134,7 +140,8 @@ def test_offset_and_drift_do_not_bias_gain(model, nominal, nominal_cal):
     run["stroke_sensor_v"] = run["stroke_sensor_v"] + 0.03 + 0.02 * t  # V_HREF error + slow drift
     cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
     assert cal["stroke"]["gain_deg_per_v"] == pytest.approx(
-        nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-4)
+        nominal_cal["stroke"]["gain_deg_per_v"], rel=1e-4
+    )
     assert cal["stroke"]["offset_v"] == pytest.approx(0.03 + 0.02 * t.mean(), abs=1e-4)
     assert cal["stroke"]["drift_v_per_s"] == pytest.approx(0.02, rel=1e-3)
 
@@ -145,7 +152,8 @@ def test_charge_amp_highpass_does_not_bias_gain(model, drive, nominal_cal):
     cal = calibrate(_run(hp, drive), model.sensors.reference_voltage_v, **BAND)
     for ch in ("stroke", "pitch"):
         assert cal[ch]["gain_deg_per_v"] == pytest.approx(
-            nominal_cal[ch]["gain_deg_per_v"], rel=1e-3)
+            nominal_cal[ch]["gain_deg_per_v"], rel=1e-3
+        )
         # Its phase lead shows as a small negative lag (tens of microseconds), not as gain.
         assert -1e-4 < cal[ch]["lag_s"] < 0.0
 
@@ -166,8 +174,9 @@ def test_calibration_feeds_front_end(model, drive):
     p = fe.params_from_calibration(cal, FS, **FRONTEND_TUNING)
     assert p.stroke_volts_per_rad == pytest.approx(model.stroke_volts_per_rad, rel=0.01)
     est = fe.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], p)
-    raw = fe.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"],
-                      fe.with_overrides(p, compensate_lag=False))
+    raw = fe.estimate(
+        run["stroke_sensor_v"], run["pitch_sensor_v"], fe.with_overrides(p, compensate_lag=False)
+    )
     band = slice(int(0.3 * FS), int(0.9 * FS))  # 74-182 Hz of the sweep
     truth = np.radians(run["stroke_deg"][band])
     err_comp = np.sqrt(np.mean((est.stroke_rad[band] - truth) ** 2))
@@ -185,8 +194,9 @@ def test_clear_errors(nominal):
     run = dict(nominal)
     few = run["stroke_deg"].copy()
     few[100:] = np.nan
-    assert ("stroke_deg" in _errors({**run, "stroke_deg": few})
-            and "too few" in _errors({**run, "stroke_deg": few}))
+    assert "stroke_deg" in _errors({**run, "stroke_deg": few}) and "too few" in _errors(
+        {**run, "stroke_deg": few}
+    )
     bad = run["pitch_sensor_v"].copy()
     bad[123] = np.nan
     msg = _errors({**run, "pitch_sensor_v": bad})

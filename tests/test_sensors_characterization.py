@@ -1,4 +1,5 @@
 """Characterization (paper Sensor Performance section): Bode data and figures vs closed forms."""
+
 from __future__ import annotations
 
 import math
@@ -73,25 +74,34 @@ def _describing_function(model, f_hz):
     """Harmonic-balance stroke and pitch phasors (rad) of the nominal plant at drive AMP_V."""
     p = model.plant
     w = 2 * np.pi * f_hz
-    i, k, g, ga = (p.stroke_inertia_kg_m2, p.stroke_stiffness_nm_per_rad, p.aero_damping_nm_s2,
-                   p.actuator_gain_nm_per_v)
+    i, k, g, ga = (
+        p.stroke_inertia_kg_m2,
+        p.stroke_stiffness_nm_per_rad,
+        p.aero_damping_nm_s2,
+        p.actuator_gain_nm_per_v,
+    )
     c = 8.0 / (3.0 * np.pi)  # fundamental of |x|x for a sine
     amp = brentq(lambda a: abs(k - i * w * w + 1j * c * g * w * w * a) * a - ga * AMP_V, 1e-9, 10.0)
     stroke = ga * AMP_V / (k - i * w * w + 1j * c * g * w * w * amp)
-    forcing = (p.inertial_coupling_kg_m2 * w * w - 1j * c * p.aero_coupling_nm_s2 * w * w
-               * abs(stroke)) * stroke
-    pitch = forcing / (p.hinge_stiffness_nm_per_rad - p.pitch_inertia_kg_m2 * w * w + 1j
-                       * p.hinge_damping_nm_s_per_rad * w)
+    forcing = (
+        p.inertial_coupling_kg_m2 * w * w - 1j * c * p.aero_coupling_nm_s2 * w * w * abs(stroke)
+    ) * stroke
+    pitch = forcing / (
+        p.hinge_stiffness_nm_per_rad
+        - p.pitch_inertia_kg_m2 * w * w
+        + 1j * p.hinge_damping_nm_s_per_rad * w
+    )
     return stroke, pitch
 
 
 def test_stepped_bode_recovers_simulated_amplitudes(model, stepped):
-    freqs, track, out, run, result = stepped
+    freqs, _track, _out, run, result = stepped
     b = result.bode
     np.testing.assert_allclose(b.stroke.frequency_hz, freqs)
     # Sensor curves equal the truth curves (nominal gains) within 1 %.
-    np.testing.assert_allclose(b.stroke.sensor_amplitude_deg, b.stroke.truth_amplitude_deg,
-                               rtol=0.01)
+    np.testing.assert_allclose(
+        b.stroke.sensor_amplitude_deg, b.stroke.truth_amplitude_deg, rtol=0.01
+    )
     np.testing.assert_allclose(b.pitch.sensor_amplitude_deg, b.pitch.truth_amplitude_deg, rtol=0.01)
     # Truth curve equals the steady state of a long simulation at the same frequency within 1 %.
     for f in (60.0, 140.0, 200.0):
@@ -106,7 +116,7 @@ def test_stepped_bode_recovers_simulated_amplitudes(model, stepped):
 
 
 def test_stepped_bode_matches_harmonic_balance(model, stepped):
-    freqs, track, out, run, result = stepped
+    freqs, _track, _out, run, result = stepped
     b = result.bode
     for i, f in enumerate(freqs):
         s, p = _describing_function(model, f)
@@ -156,35 +166,39 @@ def test_delay_shows_in_phase_and_time_figures(model, params):
     tau = 3e-4
     freqs = np.arange(60.0, 201.0, 20.0)
     drive, track = _stepped(freqs)
-    out, run = _run(with_effects(model, {"sensor_delay": {"delay_s": tau}}), drive)
+    _out, run = _run(with_effects(model, {"sensor_delay": {"delay_s": tau}}), drive)
     res = ch.characterize_run(run, params, "stepped", track, **BANDS)
     drift_lead = np.degrees(np.angle(fe.drift_removal_response(params, freqs)))
     expected = -360.0 * freqs * tau + drift_lead
     for cb in (res.bode.stroke, res.bode.pitch):
-        np.testing.assert_allclose(ch.wrap_deg(
-            cb.sensor_phase_deg - cb.truth_phase_deg), expected, atol=0.1)
+        np.testing.assert_allclose(
+            ch.wrap_deg(cb.sensor_phase_deg - cb.truth_phase_deg), expected, atol=0.1
+        )
     assert res.stroke.phase_rmse_deg == pytest.approx(
-        float(np.sqrt(np.mean(expected**2))), rel=0.01)
+        float(np.sqrt(np.mean(expected**2))), rel=0.01
+    )
     for m in (res.stroke, res.pitch):
         assert m.lag_s == pytest.approx(tau, rel=0.05)
         assert m.time_rmse_deg > 5 * m.time_rmse_lag_corrected_deg
     # Pitch phase relative to each curve's own stroke: equal delays cancel.
-    same = ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="sensor",
-                               **BANDS)
+    same = ch.characterize_run(
+        run, params, "stepped", track, pitch_phase_reference="sensor", **BANDS
+    )
     assert same.pitch.phase_rmse_deg < 0.5 < res.pitch.phase_rmse_deg
     assert same.stroke.phase_rmse_deg == pytest.approx(res.stroke.phase_rmse_deg)
 
 
 def test_truth_gaps_tolerated(stepped, params):
-    freqs, track, out, run, result = stepped
+    _freqs, track, _out, run, result = stepped
     gappy = dict(run)
     y = run["pitch_deg"].copy()
     y[np.arange(y.size) % 3 != 0] = np.nan
     y[20000:21000] = np.nan
     gappy["pitch_deg"] = y
     res = ch.characterize_run(gappy, params, "stepped", track, **BANDS)
-    np.testing.assert_allclose(res.bode.pitch.truth_amplitude_deg,
-                               result.bode.pitch.truth_amplitude_deg, rtol=1e-3)
+    np.testing.assert_allclose(
+        res.bode.pitch.truth_amplitude_deg, result.bode.pitch.truth_amplitude_deg, rtol=1e-3
+    )
     assert res.pitch.n_truth_samples == int(np.isfinite(y).sum())
 
 
@@ -207,14 +221,15 @@ def test_rmse_closed_form():
 
 
 def test_bad_inputs_raise(stepped, params):
-    freqs, track, out, run, _ = stepped
+    _freqs, track, _out, run, _ = stepped
     with pytest.raises(ValueError, match="method"):
         ch.characterize_run(run, params, "sweep", track, **BANDS)
     with pytest.raises(ValueError, match="frequency_hz_per_sample"):
         ch.characterize_run(run, params, "stepped", **BANDS)
     with pytest.raises(ValueError, match="stroke_deg"):
-        ch.characterize_run({k: v for k, v in run.items() if k != "stroke_deg"}, params, "stepped",
-                            track, **BANDS)
+        ch.characterize_run(
+            {k: v for k, v in run.items() if k != "stroke_deg"}, params, "stepped", track, **BANDS
+        )
     with pytest.raises(ValueError, match="pitch_phase_reference"):
         ch.characterize_run(run, params, "stepped", track, pitch_phase_reference="drive", **BANDS)
 
@@ -222,7 +237,8 @@ def test_bad_inputs_raise(stepped, params):
 def test_bode_figure_png(stepped, chirp, tmp_path):
     from flaair_sensors.figures import save_bode_figure
 
-    path = save_bode_figure(tmp_path / "bode.png", chirp[-1].bode, stepped[-1].bode,
-                            title="nominal model")
+    path = save_bode_figure(
+        tmp_path / "bode.png", chirp[-1].bode, stepped[-1].bode, title="nominal model"
+    )
     data = path.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10000

@@ -1,4 +1,5 @@
 """Front end (inverse sensor model): closed-form checks on synthetic sinusoids and the plant."""
+
 from __future__ import annotations
 
 import math
@@ -31,8 +32,11 @@ def _sine_volts(params, amp_rad, f_hz, n, lag_s=0.0, offset_v=0.0, channel="stro
     t = np.arange(n) / FS
     vpr = params.stroke_volts_per_rad if channel == "stroke" else params.pitch_volts_per_rad
     theta = amp_rad * np.sin(2 * np.pi * f_hz * t)
-    v = (params.reference_voltage_v + offset_v + vpr * amp_rad
-         * np.sin(2 * np.pi * f_hz * (t - lag_s)))
+    v = (
+        params.reference_voltage_v
+        + offset_v
+        + vpr * amp_rad * np.sin(2 * np.pi * f_hz * (t - lag_s))
+    )
     return t, theta, v
 
 
@@ -42,10 +46,12 @@ def _phasor(x, t, f_hz, sl):
 
 def test_params_from_model_matches_model_gains(model, params):
     # Spec values (shared/model-spec.md): 25.39 deg/V stroke, 24.87 deg/V pitch, polarity -1.
-    assert (math.degrees(1 / abs(params.stroke_volts_per_rad))
-            == pytest.approx(model.stroke_gain_deg_per_v, rel=1e-12))
-    assert (math.degrees(1 / abs(params.pitch_volts_per_rad))
-            == pytest.approx(model.pitch_gain_deg_per_v, rel=1e-12))
+    assert math.degrees(1 / abs(params.stroke_volts_per_rad)) == pytest.approx(
+        model.stroke_gain_deg_per_v, rel=1e-12
+    )
+    assert math.degrees(1 / abs(params.pitch_volts_per_rad)) == pytest.approx(
+        model.pitch_gain_deg_per_v, rel=1e-12
+    )
     assert math.degrees(1 / abs(params.stroke_volts_per_rad)) == pytest.approx(25.39, rel=1e-3)
     assert math.degrees(1 / abs(params.pitch_volts_per_rad)) == pytest.approx(24.87, rel=1e-3)
     assert params.stroke_volts_per_rad < 0 and params.pitch_volts_per_rad < 0
@@ -60,8 +66,9 @@ def test_plant_angles_recovered(model, params):
     t = np.arange(n) / FS
     drive = 100.0 * np.sin(2 * np.pi * 140.0 * t)
     out = simulate(drive, FS, model)
-    exact = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v,
-                        fe.with_overrides(params, drift_corner_hz=0.0))
+    exact = fe.estimate(
+        out.stroke_sensor_v, out.pitch_sensor_v, fe.with_overrides(params, drift_corner_hz=0.0)
+    )
     np.testing.assert_allclose(exact.stroke_rad, out.stroke_rad, atol=1e-12)
     np.testing.assert_allclose(exact.pitch_rad, out.pitch_rad, atol=1e-12)
     est = fe.estimate(out.stroke_sensor_v, out.pitch_sensor_v, params)
@@ -82,7 +89,8 @@ def test_drift_removal_phase_is_documented(params):
     # Docstring: 0.48 deg lead at 60 Hz for the 0.5 Hz default corner, gain error < 0.004 %.
     h60 = fe.drift_removal_response(params, 60.0)[0]
     assert math.degrees(np.angle(h60)) == pytest.approx(
-        math.degrees(math.atan(params.drift_corner_hz / 60.0)), abs=0.01)
+        math.degrees(math.atan(params.drift_corner_hz / 60.0)), abs=0.01
+    )
     assert abs(abs(fe.drift_removal_response(params, [20.0, 200.0])) - 1).max() < 4e-4
 
 
@@ -99,11 +107,12 @@ def test_drift_removal_tracks_offset_and_ramp(params):
 
 
 def test_initial_state_at_rest_voltage_removes_startup_offset(params):
-    t, theta, v = _sine_volts(params, 0.3, 140.0, 4000, offset_v=0.04)
+    _t, theta, v = _sine_volts(params, 0.3, 140.0, 4000, offset_v=0.04)
     v[:400] = params.reference_voltage_v + 0.04  # wing at rest first
     theta[:400] = 0.0
-    est = fe.estimate(v, v, params, fe.initial_state(
-        params, first_stroke_v=v[0], first_pitch_v=v[0]))
+    est = fe.estimate(
+        v, v, params, fe.initial_state(params, first_stroke_v=v[0], first_pitch_v=v[0])
+    )
     assert np.degrees(np.abs(est.stroke_rad - theta)).max() < 0.2
     cold = fe.estimate(v, v, params)
     assert np.degrees(np.abs(cold.stroke_rad - theta)).max() > 0.5
@@ -111,9 +120,15 @@ def test_initial_state_at_rest_voltage_removes_startup_offset(params):
 
 def test_block_stepping_equals_whole_record(params):
     rng = np.random.default_rng(3)
-    p = fe.with_overrides(params, stroke_lag_s=2e-4, pitch_lag_s=-1e-4, rail_low_v=0.0,
-                          rail_high_v=2.5, rail_margin_v=0.01)
-    t, _, sv = _sine_volts(p, 0.6, 130.0, 6003)
+    p = fe.with_overrides(
+        params,
+        stroke_lag_s=2e-4,
+        pitch_lag_s=-1e-4,
+        rail_low_v=0.0,
+        rail_high_v=2.5,
+        rail_margin_v=0.01,
+    )
+    _t, _, sv = _sine_volts(p, 0.6, 130.0, 6003)
     _, _, pv = _sine_volts(p, 0.4, 130.0, 6003, lag_s=1e-3, channel="pitch")
     sv = sv + 1e-3 * rng.standard_normal(sv.size)
     sv[rng.integers(0, sv.size, 30)] = np.nan
@@ -131,7 +146,8 @@ def test_block_stepping_equals_whole_record(params):
         parts.append(out)
         for i, name in enumerate(fe.WingEstimate._fields):
             np.testing.assert_array_equal(
-                np.concatenate([q[i] for q in parts]), whole[i], err_msg=name)
+                np.concatenate([q[i] for q in parts]), whole[i], err_msg=name
+            )
     np.testing.assert_array_equal(fe.estimate(sv, pv, p, state0).stroke_rad, whole.stroke_rad)
 
 
@@ -144,13 +160,13 @@ def test_block_stepping_equals_whole_record(params):
 def test_block_partition_property(params, sizes, bad, lag):
     """Any partition of any record (with unusable samples) gives the whole-record result."""
     p = fe.with_overrides(params, stroke_lag_s=lag, rail_low_v=0.2, rail_high_v=2.3)
-    t, _, sv = _sine_volts(p, 0.55, 150.0, 600)
+    _t, _, sv = _sine_volts(p, 0.55, 150.0, 600)
     pv = sv[::-1].copy()
     sv[bad] = np.nan
     state0 = fe.initial_state(p, first_stroke_v=1.25, first_pitch_v=1.25)
     whole = fe.estimate(sv, pv, p, state0)
     state, parts, start = state0, [], 0
-    for size in sizes + [sv.size]:
+    for size in [*sizes, sv.size]:
         stop = min(start + size, sv.size)
         state, out = fe.step(state, fe.FrontendInputs(sv[start:stop], pv[start:stop]), p)
         parts.append(out)
@@ -162,7 +178,7 @@ def test_block_partition_property(params, sizes, bad, lag):
 
 def test_nan_and_inf_never_valid_never_in_state(params):
     rng = np.random.default_rng(5)
-    t, theta, v = _sine_volts(params, 0.5, 140.0, 20000)
+    _t, _theta, v = _sine_volts(params, 0.5, 140.0, 20000)
     clean = fe.estimate(v, v, params)
     bad = v.copy()
     idx = rng.choice(np.arange(2000, 19000), 40, replace=False)
@@ -173,12 +189,19 @@ def test_nan_and_inf_never_valid_never_in_state(params):
     state, est = fe.step(fe.initial_state(params), fe.FrontendInputs(bad, bad), params)
     unusable = ~np.isfinite(bad)
     assert not est.stroke_valid[unusable].any() and not est.pitch_valid[unusable].any()
-    assert (np.isnan(est.stroke_rad[unusable]).all()
-            and np.isnan(est.stroke_velocity_rad_s[unusable]).all())
+    assert (
+        np.isnan(est.stroke_rad[unusable]).all()
+        and np.isnan(est.stroke_velocity_rad_s[unusable]).all()
+    )
     for arr in (est.stroke_rad, est.pitch_rad, est.stroke_velocity_rad_s):
         assert np.isfinite(arr[est.stroke_valid]).all()
-    for field in ("stroke_drift_zi", "pitch_drift_zi", "stroke_lead_zi", "pitch_lead_zi",
-                  "velocity_zi"):
+    for field in (
+        "stroke_drift_zi",
+        "pitch_drift_zi",
+        "stroke_lead_zi",
+        "pitch_lead_zi",
+        "velocity_zi",
+    ):
         assert np.isfinite(getattr(state, field)).all()
     # Hold-off: the samples right after each unusable one are invalid, later ones valid again.
     h = params.holdoff_samples
@@ -190,14 +213,16 @@ def test_nan_and_inf_never_valid_never_in_state(params):
     ok = est.stroke_valid
     assert np.abs(est.stroke_rad[ok] - clean.stroke_rad[ok]).max() < 0.01 * 0.5
     vel_amp = 2 * np.pi * 140.0 * 0.5
-    assert (np.abs(est.stroke_velocity_rad_s[ok] - clean.stroke_velocity_rad_s[ok]).max() < 0.02
-            * vel_amp)
+    assert (
+        np.abs(est.stroke_velocity_rad_s[ok] - clean.stroke_velocity_rad_s[ok]).max()
+        < 0.02 * vel_amp
+    )
 
 
 def test_saturation_marks_samples_invalid(params):
     p = fe.with_overrides(params, rail_low_v=0.0, rail_high_v=2.5, rail_margin_v=0.02)
     # 0.6 rad * 2.26 V/rad = 1.35 V: clips at both rails
-    t, theta, v = _sine_volts(p, 0.6, 140.0, 4000)
+    _t, theta, v = _sine_volts(p, 0.6, 140.0, 4000)
     v = np.clip(v, 0.0, 2.5)
     est = fe.estimate(v, v, p)
     near_rail = (v <= 0.02) | (v >= 2.48)
@@ -255,8 +280,9 @@ def test_lag_compensation_phase_lead(params):
     assert abs(r) - 1 == pytest.approx(0.008, abs=0.001)
     assert fe.lag_compensation_noise_gain(p) == pytest.approx(5.9, abs=0.1)
     assert abs(fe.estimate_delay_s(p, 140.0)["stroke_s"]) < 0.1 * lag
-    assert (fe.estimate_delay_s(fe.with_overrides(p, compensate_lag=False), 140.0)["stroke_s"]
-            == pytest.approx(lag, rel=0.05))
+    assert fe.estimate_delay_s(fe.with_overrides(p, compensate_lag=False), 140.0)[
+        "stroke_s"
+    ] == pytest.approx(lag, rel=0.05)
 
 
 def test_params_from_calibration_roundtrip(params):
@@ -266,18 +292,21 @@ def test_params_from_calibration_roundtrip(params):
         "pitch": {"gain_deg_per_v": 108.0, "polarity": 1, "offset_v": -0.02, "lag_s": 2e-4},
     }
     p = fe.params_from_calibration(
-        cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False})
+        cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False}
+    )
     v = np.array([1.25 + 0.01 + 0.1])
     est = fe.estimate(v, np.array([1.25 - 0.02 + 0.1]), p)
     assert math.degrees(est.stroke_rad[0]) == pytest.approx(-25.0 * 0.1)
     assert math.degrees(est.pitch_rad[0]) == pytest.approx(108.0 * 0.1)
     assert p.stroke_lag_s == 1e-4 and p.pitch_lag_s == 2e-4
     with pytest.raises(ValueError, match="polarity"):
-        fe.params_from_calibration({**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS,
-                                   **FRONTEND_TUNING)
+        fe.params_from_calibration(
+            {**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS, **FRONTEND_TUNING
+        )
     with pytest.raises(ValueError, match="gain_deg_per_v"):
-        fe.params_from_calibration({**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}},
-                                   FS, **FRONTEND_TUNING)
+        fe.params_from_calibration(
+            {**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}}, FS, **FRONTEND_TUNING
+        )
 
 
 def test_bad_parameters_and_inputs_raise(params):

@@ -1,4 +1,5 @@
 """flaair_model.settings: the typed accessors tools use for sections not their own."""
+
 from __future__ import annotations
 
 import shutil
@@ -15,26 +16,39 @@ def test_each_accessor_reads_its_section_with_types() -> None:
     document = yaml.safe_load((config_dir() / "flaair.yaml").read_text())
     shared = document["/**"]["ros__parameters"]
     assert settings.stream() == settings.StreamSettings(
-        float(shared["sample_rate_hz"]), shared["block_size"], float(shared["drive_limit_v"]))
+        float(shared["sample_rate_hz"]), shared["block_size"], float(shared["drive_limit_v"])
+    )
     live = document["live"]["ros__parameters"]
     assert settings.live().dds_batch_blocks == live["dds_batch_blocks"]
     assert isinstance(settings.live().first_packet_timeout_s, float)
-    assert (settings.bridge().lead_samples
-            == document["bridge_node"]["ros__parameters"]["lead_samples"])
+    assert (
+        settings.bridge().lead_samples == document["bridge_node"]["ros__parameters"]["lead_samples"]
+    )
     # from /** under its own section
     assert settings.controller().block_size == shared["block_size"]
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda d: d["live"]["ros__parameters"].pop("dds_batch_blocks"),
-     "live.dds_batch_blocks: missing"),
-    (lambda d: d["live"]["ros__parameters"].update(dds_batch_blocks="20"),
-     "live.dds_batch_blocks: must be int, got '20'"),
-    (lambda d: d["bridge_node"]["ros__parameters"].update(lead_samples=True),
-     "bridge_node.lead_samples: must be int"),
-    (lambda d: d["live"]["ros__parameters"].update(first_packet_timeout_s=None),
-     "first_packet_timeout_s: must be float"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda d: d["live"]["ros__parameters"].pop("dds_batch_blocks"),
+            "live.dds_batch_blocks: missing",
+        ),
+        (
+            lambda d: d["live"]["ros__parameters"].update(dds_batch_blocks="20"),
+            "live.dds_batch_blocks: must be int, got '20'",
+        ),
+        (
+            lambda d: d["bridge_node"]["ros__parameters"].update(lead_samples=True),
+            "bridge_node.lead_samples: must be int",
+        ),
+        (
+            lambda d: d["live"]["ros__parameters"].update(first_packet_timeout_s=None),
+            "first_packet_timeout_s: must be float",
+        ),
+    ],
+)
 def test_a_missing_or_mistyped_key_is_named(tmp_path: Path, monkeypatch, edit, message) -> None:
     shutil.copytree(config_dir(), tmp_path / "config")
     path = tmp_path / "config" / "flaair.yaml"
@@ -48,19 +62,30 @@ def test_a_missing_or_mistyped_key_is_named(tmp_path: Path, monkeypatch, edit, m
     assert str(path) in str(error.value)
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda s: s.pop("kr_target"), "dsa_controller_node.kr_target: missing"),
-    (lambda s: s.update(kr_target="fast"),
-     "dsa_controller_node.kr_target: must be float, got 'fast'"),
-    (lambda s: s.update(collision_response="panic"), "collision_response: 'panic' is not one of"),
-])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda s: s.pop("kr_target"), "dsa_controller_node.kr_target: missing"),
+        (
+            lambda s: s.update(kr_target="fast"),
+            "dsa_controller_node.kr_target: must be float, got 'fast'",
+        ),
+        (
+            lambda s: s.update(collision_response="panic"),
+            "collision_response: 'panic' is not one of",
+        ),
+    ],
+)
 def test_a_node_section_is_checked_against_the_node_schema(
-        tmp_path: Path, monkeypatch, edit, message) -> None:
+    tmp_path: Path, monkeypatch, edit, message
+) -> None:
     from flaair_control.control_io import DSA_CONTROLLER_PARAMS, dsa_controller_values
     from flaair_model.schema import ParameterError
 
-    assert dsa_controller_values()["kr_target"] == settings.node_section(
-        DSA_CONTROLLER_PARAMS, "dsa_controller_node")["kr_target"]
+    assert (
+        dsa_controller_values()["kr_target"]
+        == settings.node_section(DSA_CONTROLLER_PARAMS, "dsa_controller_node")["kr_target"]
+    )
     shutil.copytree(config_dir(), tmp_path / "config")
     path = tmp_path / "config" / "flaair.yaml"
     document = yaml.safe_load(path.read_text())

@@ -1,6 +1,7 @@
 """The plant's actuator driver core (flaair_sim.core.actuator), lockstep drive watchdog: exact, on a
 fake wall clock. Over DDS, the same ring-down after a kill -9 of the controller is test_faults'.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,8 +9,14 @@ import numpy as np
 from flaair_sim.core import actuator
 
 FS_HZ, BLOCK = 20000.0, 10
-PARAMS = actuator.ActuatorParams(sample_rate_hz=FS_HZ, block_size=BLOCK, mode="lockstep",
-                                 command_timeout_s=0.3, ring_down_s=0.1, arm_s=0.01)
+PARAMS = actuator.ActuatorParams(
+    sample_rate_hz=FS_HZ,
+    block_size=BLOCK,
+    mode="lockstep",
+    command_timeout_s=0.3,
+    ring_down_s=0.1,
+    arm_s=0.01,
+)
 
 
 def _command(t_wall: float, index: int, volts: float) -> actuator.Command:
@@ -31,8 +38,10 @@ def test_a_silent_driving_source_is_zeroed_and_the_wing_rings_down_for_ring_down
     # silent 310 ms: trip, ring-down starts
     state, out = actuator.step(state, actuator.Tick(0.31), PARAMS)
     assert out.drive_blocks == () and [n.level for n in out.notes] == ["error"]
-    assert ("DRIVE WATCHDOG: no command block for 310.0 ms (> command_timeout_s 0.3 s) after block "
-            "990" in out.notes[0].text)
+    assert (
+        "DRIVE WATCHDOG: no command block for 310.0 ms (> command_timeout_s 0.3 s) after block "
+        "990" in out.notes[0].text
+    )
     steps = []
     # a 10 ms timer, on the wall clock
     for t in np.arange(0.32, 0.45, 0.01):
@@ -40,16 +49,21 @@ def test_a_silent_driving_source_is_zeroed_and_the_wing_rings_down_for_ring_down
         steps.append((len(out.drive_blocks), [n.text for n in out.notes]))
     blocks_per_tick = [n for n, _ in steps]
     # 0.1 s of zero drive = 200 blocks at the real-time rate (20 per 10 ms), then nothing
-    assert (sum(blocks_per_tick) == 200 and blocks_per_tick[:10] == [20] * 10
-            and set(blocks_per_tick[10:]) == {0})
+    assert (
+        sum(blocks_per_tick) == 200
+        and blocks_per_tick[:10] == [20] * 10
+        and set(blocks_per_tick[10:]) == {0}
+    )
     assert steps[9][1] == [
-        "ring-down done at sample 3000: zero drive held until a command block comes"]
+        "ring-down done at sample 3000: zero drive held until a command block comes"
+    ]
     assert all(notes == [] for _, notes in steps[:9] + steps[10:])
     assert state.next_index == 1000 + 2000
     # a command for the next block is in order again, and re-arms the watchdog
     state, out = actuator.step(state, _command(0.5, 3000, 10.0), PARAMS)
-    assert (len(out.drive_blocks) == 1
-            and "drive commands resumed at block 3000" in out.notes[0].text)
+    assert (
+        len(out.drive_blocks) == 1 and "drive commands resumed at block 3000" in out.notes[0].text
+    )
 
 
 def test_a_zero_driving_source_that_falls_silent_is_left_alone() -> None:

@@ -1,4 +1,5 @@
 """`bin/flaair simulate`: a lab's recorded drive in, the measured-run format out."""
+
 from __future__ import annotations
 
 import csv
@@ -26,13 +27,21 @@ def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
 
     drive = _write_drive_csv(tmp_path / "in.csv", 20000.0, 4000)
     # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
-    result = run([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv")],
-                 isolated_env())
+    result = run(
+        [FLAAIR, "simulate", str(tmp_path / "in.csv"), "--out", str(tmp_path / "out.csv")],
+        isolated_env(),
+    )
     assert result.returncode == 0, result.stderr
     with open(tmp_path / "out.csv", newline="") as handle:  # independent reader: csv module
         rows = list(csv.DictReader(handle))
-    assert list(rows[0]) == ["time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg",
-                             "pitch_deg"]
+    assert list(rows[0]) == [
+        "time_s",
+        "drive_v",
+        "stroke_sensor_v",
+        "pitch_sensor_v",
+        "stroke_deg",
+        "pitch_deg",
+    ]
     stroke_deg = np.array([float(r["stroke_deg"]) for r in rows])
     expected = np.degrees(simulate(drive, 20000.0, load_model()).stroke_rad)
     assert np.allclose(stroke_deg, expected, rtol=1e-7, atol=1e-7)
@@ -41,8 +50,10 @@ def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
 
 def test_simulate_refuses_malformed_input_naming_line_and_column(tmp_path: Path) -> None:
     (tmp_path / "bad.csv").write_text("time_s,drive_v\n0,1.0\n5e-05,abc\n")
-    result = run_offline([FLAAIR, "simulate", str(tmp_path / "bad.csv"), "--out",
-                          str(tmp_path / "o.csv")], isolated_env())
+    result = run_offline(
+        [FLAAIR, "simulate", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "o.csv")],
+        isolated_env(),
+    )
     assert result.returncode == 2
     assert "bad.csv: line 3, column drive_v" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "o.csv").exists()
@@ -52,8 +63,18 @@ def test_simulate_refuses_unknown_effect_in_model(tmp_path: Path) -> None:
     _write_drive_csv(tmp_path / "in.csv", 20000.0, 10)
     model = Path(__file__).resolve().parents[1] / "config" / "model.yaml"
     (tmp_path / "m.yaml").write_text(
-        model.read_text().replace("effects: {}", "effects:\n  warp_drive: {factor: 2}"))
-    result = run_offline([FLAAIR, "simulate", str(tmp_path / "in.csv"), "--model",
-                          str(tmp_path / "m.yaml"), "--out", str(tmp_path / "o.csv")],
-                         isolated_env())
+        model.read_text().replace("effects: {}", "effects:\n  warp_drive: {factor: 2}")
+    )
+    result = run_offline(
+        [
+            FLAAIR,
+            "simulate",
+            str(tmp_path / "in.csv"),
+            "--model",
+            str(tmp_path / "m.yaml"),
+            "--out",
+            str(tmp_path / "o.csv"),
+        ],
+        isolated_env(),
+    )
     assert result.returncode == 2 and "warp_drive" in result.stderr, result.stderr

@@ -1,4 +1,5 @@
 """flaair_model.model and flaair_model.model_io: validation, effects, gains, YAML round trip."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -41,8 +42,9 @@ def test_default_path_is_repo_config(monkeypatch):
 
 
 def test_config_dir_env(monkeypatch, tmp_path, model):
-    save_model(with_effects(model, {"feedthrough": {"gain_v_per_v": 0.01}}),
-               tmp_path / "model.yaml")
+    save_model(
+        with_effects(model, {"feedthrough": {"gain_v_per_v": 0.01}}), tmp_path / "model.yaml"
+    )
     monkeypatch.setenv("FLAAIR_CONFIG_DIR", str(tmp_path))
     assert load_model().effect("feedthrough").gain_v_per_v == 0.01
 
@@ -53,8 +55,10 @@ def test_sensor_gains_closed_form(model):
     assert model.pitch_gain_deg_per_v == pytest.approx(24.87, abs=0.005)
     assert model.stroke_polarity == -1 and model.pitch_polarity == -1
     assert model.sensors.pitch_volts_per_rad() == model.pitch_volts_per_rad
-    assert model.sensors.stroke_volts_per_rad(
-        model.plant.transmission_ratio_rad_per_m) == model.stroke_volts_per_rad
+    assert (
+        model.sensors.stroke_volts_per_rad(model.plant.transmission_ratio_rad_per_m)
+        == model.stroke_volts_per_rad
+    )
 
 
 def test_stiffness_properties(model):
@@ -96,12 +100,16 @@ def test_round_trip_file_layout(model, tmp_path):
 
 
 @pytest.mark.parametrize(
-    "path, value, fragment", [
+    "path, value, fragment",
+    [
         (("plant", "stroke_inertia_kg_m2"), -1.0, "plant.stroke_inertia_kg_m2 must be > 0, got -1"),
         (("plant", "pitch_inertia_kg_m2"), 0.0, "plant.pitch_inertia_kg_m2 must be > 0"),
         (("plant", "aero_damping_nm_s2"), float("nan"), "plant.aero_damping_nm_s2 must be finite"),
-        (("plant", "transmission_ratio_rad_per_m"), "fast",
-         "plant.transmission_ratio_rad_per_m must be a number"),
+        (
+            ("plant", "transmission_ratio_rad_per_m"),
+            "fast",
+            "plant.transmission_ratio_rad_per_m must be a number",
+        ),
         (("sensors", "pvdf", "thickness_m"), 0.0, "sensors.pvdf.thickness_m must be > 0"),
         (("sensors", "pitch", "length_m"), float("inf"), "sensors.pitch.length_m must be finite"),
         (("noise", "sensor_noise_v_rms"), -0.1, "noise.sensor_noise_v_rms must be >= 0"),
@@ -134,8 +142,9 @@ def test_effect_validation(model):
     d["effects"] = {"sensor_lag": {"delay_s": 0.001}}
     with pytest.raises(ModelError, match="sensor_lag"):
         model_from_dict(d)
-    with pytest.raises(ModelError,
-                       match=r"effects.strain_transfer_loss.efficiency must be in \(0, 1\]"):
+    with pytest.raises(
+        ModelError, match=r"effects.strain_transfer_loss.efficiency must be in \(0, 1\]"
+    ):
         with_effects(model, {"strain_transfer_loss": {"efficiency": 1.5}})
     with pytest.raises(ModelError, match="effects.wing_damage.inertia_factor"):
         with_effects(model, {"wing_damage": {"inertia_factor": 0.0}})
@@ -155,19 +164,28 @@ def test_effect_validation(model):
 
 def test_with_and_without_effects(model):
     assert len(EFFECT_NAMES) == 9 and len(set(EFFECT_NAMES)) == 9
-    m = with_effects(model, {"collision": Collision(stroke_limit_deg=25.0),
-                             "strain_transfer_loss": {"efficiency": 0.5}})
+    m = with_effects(
+        model,
+        {
+            "collision": Collision(stroke_limit_deg=25.0),
+            "strain_transfer_loss": {"efficiency": 0.5},
+        },
+    )
     assert m.effect("collision") == Collision(25.0, 50.0, 0.2)
     assert m.effect("strain_transfer_loss") == StrainTransferLoss(0.5, "pitch")
     assert m.effect("sensor_delay") is None
     assert m.effect_names == ("strain_transfer_loss", "collision")
     # replacing keeps the others; order of insertion does not matter for equality
-    m2 = with_effects(with_effects(model, {"strain_transfer_loss": {"efficiency": 0.5}}),
-                      {"collision": {"stroke_limit_deg": 25.0}})
+    m2 = with_effects(
+        with_effects(model, {"strain_transfer_loss": {"efficiency": 0.5}}),
+        {"collision": {"stroke_limit_deg": 25.0}},
+    )
     assert m2 == m and hash(m2) == hash(m)
     m3 = with_effects(m, {"collision": {"stroke_limit_deg": 40.0}})
-    assert (m3.effect("collision").stroke_limit_deg == 40.0
-            and m3.effect("strain_transfer_loss") is not None)
+    assert (
+        m3.effect("collision").stroke_limit_deg == 40.0
+        and m3.effect("strain_transfer_loss") is not None
+    )
     assert without_effects(m) == model
     assert model.effects == ()
 

@@ -1,6 +1,7 @@
 """Plant and drive nodes over real DDS: lockstep
 equals the offline core; bad blocks are rejected.
 """
+
 from __future__ import annotations
 
 import json
@@ -17,13 +18,15 @@ BLOCK = 10
 
 def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path | None = None):
     ready = ("--ready-file", str(ready_file)) if ready_file else ()
-    return procs.flaair("topic", "echo", topic, type_name, "--count", str(count), "--timeout",
-                        "300", *ready)
+    return procs.flaair(
+        "topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300", *ready
+    )
 
 
 @pytest.mark.graph
 def test_lockstep_chirps_in_two_namespaces_each_equal_their_own_offline_simulation(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     """Two benches on one domain, each in its namespace (one with renamed nodes): each plant
     sees only its own drive, so each equals the offline simulation of that drive bit for bit.
     """
@@ -32,31 +35,57 @@ def test_lockstep_chirps_in_two_namespaces_each_equal_their_own_offline_simulati
     from flaair_sim.core.plant import simulate
 
     n_blocks = 200
-    benches = {"/bench_a": 100.0, "/bench_b": 40.0}   # namespace: drive amplitude (V)
+    benches = {"/bench_a": 100.0, "/bench_b": 40.0}  # namespace: drive amplitude (V)
     with ros_processes() as procs:
         echoes, ready = {}, []
         for ns in benches:
-            for name, topic, kind in (("truth", "flaair/wing_state/truth", "WingStateBlock"),
-                                      ("sensor", "flaair/sensor_v", "SensorVoltageBlock")):
+            for name, topic, kind in (
+                ("truth", "flaair/wing_state/truth", "WingStateBlock"),
+                ("sensor", "flaair/sensor_v", "SensorVoltageBlock"),
+            ):
                 ready.append(tmp_path / f"{ns[1:]}_{name}.ready")
-                echoes[ns, name] = _echo_blocks(procs, f"{ns}/{topic}", f"flaair_msgs/msg/{kind}",
-                                                n_blocks, ready[-1])
+                echoes[ns, name] = _echo_blocks(
+                    procs, f"{ns}/{topic}", f"flaair_msgs/msg/{kind}", n_blocks, ready[-1]
+                )
         for ns in benches:
             # the comparison starts at sample 0: the plant takes drive commands (and so the
             # lockstep drive starts) only once both its output streams have their listener,
             # writer side. bench_b's nodes are renamed: they still find their parameters.
             rename = ("-r", "__node:=plant_b") if ns == "/bench_b" else ()
-            procs.flaair("run", "flaair_sim", "plant_node", "--ros-args", "-r", f"__ns:={ns}",
-                         *rename, "-p", "min_sensor_subscribers:=1", "-p",
-                         "min_truth_subscribers:=1")
+            procs.flaair(
+                "run",
+                "flaair_sim",
+                "plant_node",
+                "--ros-args",
+                "-r",
+                f"__ns:={ns}",
+                *rename,
+                "-p",
+                "min_sensor_subscribers:=1",
+                "-p",
+                "min_truth_subscribers:=1",
+            )
         # the readers' side too
         assert wait_for(lambda: all(p.exists() for p in ready), timeout_s=120)
         for ns, amplitude_v in benches.items():
             rename = ("-r", "__node:=drive_b") if ns == "/bench_b" else ()
-            procs.flaair("run", "flaair_sim", "drive_node", "--ros-args", "-r", f"__ns:={ns}",
-                         *rename, "-p", "pacing:=lockstep", "-p", "waveform:=chirp", "-p",
-                         f"amplitude_v:={amplitude_v}", "-p",
-                         f"run_time_s:={n_blocks * BLOCK / FS_HZ}")
+            procs.flaair(
+                "run",
+                "flaair_sim",
+                "drive_node",
+                "--ros-args",
+                "-r",
+                f"__ns:={ns}",
+                *rename,
+                "-p",
+                "pacing:=lockstep",
+                "-p",
+                "waveform:=chirp",
+                "-p",
+                f"amplitude_v:={amplitude_v}",
+                "-p",
+                f"run_time_s:={n_blocks * BLOCK / FS_HZ}",
+            )
         outputs = {}
         for key, echo in echoes.items():
             out, err = echo.communicate(timeout=330)
@@ -68,8 +97,9 @@ def test_lockstep_chirps_in_two_namespaces_each_equal_their_own_offline_simulati
         stroke_deg = np.concatenate([b["stroke_deg"] for b in truth])
         pitch_deg = np.concatenate([b["pitch_deg"] for b in truth])
         stroke_v = np.concatenate([b["stroke_sensor_v"] for b in sensor_blocks])
-        params = DriveParams(kind="chirp", amplitude_v=amplitude_v, start_hz=20.0, stop_hz=200.0,
-                             duration_s=1.0)
+        params = DriveParams(
+            kind="chirp", amplitude_v=amplitude_v, start_hz=20.0, stop_hz=200.0, duration_s=1.0
+        )
         offline = simulate(drive_record(params, FS_HZ, n_blocks * BLOCK), FS_HZ, load_model())
         assert np.array_equal(stroke_deg, np.degrees(offline.stroke_rad)), ns
         assert np.array_equal(pitch_deg, np.degrees(offline.pitch_rad)), ns
@@ -81,8 +111,9 @@ def _command(index: int, values: list[float]) -> dict:
     return {"sample_rate_hz": FS_HZ, "first_sample_index": index, "drive_v": values}
 
 
-def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch, tmp_path,
-                                                                     capfd) -> None:
+def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(
+    monkeypatch, tmp_path, capfd
+) -> None:
     """The plant node in process: CDR bytes into its own DDS subscription callback, its sensor
     blocks read back from the bytes it publishes (no DDS delivery to wait for).
     """
@@ -97,20 +128,25 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
     good = [50.0] * BLOCK
     sequence = [
         _command(0, good),
-        _command(10, [float("nan")] + good[1:]),  # NaN: rejected, zero drive for this block
-        _command(10, good),                       # duplicate index: rejected, no step
-        _command(20, [1e9] * BLOCK),              # finite but huge: clamped to drive_limit_v
+        _command(10, [float("nan"), *good[1:]]),  # NaN: rejected, zero drive for this block
+        _command(10, good),  # duplicate index: rejected, no step
+        _command(20, [1e9] * BLOCK),  # finite but huge: clamped to drive_limit_v
         _command(30, good),
     ]
-    with composed(monkeypatch, [PlantNode], {"plant_node": {"command_timeout_s": 0.0}}, tmp_path,
-                  local_topics=()) as loop:
+    with composed(
+        monkeypatch,
+        [PlantNode],
+        {"plant_node": {"command_timeout_s": 0.0}},
+        tmp_path,
+        local_topics=(),
+    ) as loop:
         plant = loop.node("plant_node")
         published: list[bytes] = []
         monkeypatch.setattr(plant.sensor.publisher, "publish", published.append)
         (subscription,) = [s for s in plant.subscriptions if s.topic_name == "/flaair/drive"]
         for values in sequence:
             subscription.callback(serialize_message(from_dict(DriveCommandBlock, values)))
-        subscription.callback(b"\x00\x01garbage")   # not CDR: dropped, counted
+        subscription.callback(b"\x00\x01garbage")  # not CDR: dropped, counted
         subscription.callback(serialize_message(from_dict(DriveCommandBlock, _command(40, good))))
     log = capfd.readouterr().err
     blocks = [cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data) for data in published]
@@ -121,8 +157,9 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(monkeypatch
     assert "[1 undecodable so far]" in log and plant.undecodable == 1
 
 
-def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(monkeypatch,
-                                                                              tmp_path) -> None:
+def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
+    monkeypatch, tmp_path
+) -> None:
     """min_sensor_subscribers, min_truth_subscribers: the plant's drive subscription (what a
     lockstep source waits for) appears only once the sensor and truth streams have that many
     listeners.
@@ -131,14 +168,19 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(mo
     from flaair_common import topics
     from flaair_sim.plant_node import PlantNode
 
-    params = {"plant_node": {"min_sensor_subscribers": 2, "min_truth_subscribers": 2,
-                             "command_timeout_s": 0.0}}
+    params = {
+        "plant_node": {
+            "min_sensor_subscribers": 2,
+            "min_truth_subscribers": 2,
+            "command_timeout_s": 0.0,
+        }
+    }
     # the harness listens to sensor_v
     with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:
         loop.sink(topics.SENSOR_VOLTAGE)
         loop.sink(topics.WING_STATE_TRUTH)
         loop.run_for(1.0)
-        assert loop.bus.subscriber_count(topics.DRIVE) == 0              # truth has 1 listener of 2
+        assert loop.bus.subscriber_count(topics.DRIVE) == 0  # truth has 1 listener of 2
         loop.sink(topics.WING_STATE_TRUTH)
         loop.run_for(0.02)
         assert loop.bus.subscriber_count(topics.DRIVE) == 1

@@ -1,6 +1,7 @@
 """flaair_sim.core.plant: dynamics against closed forms
 and solve_ivp, sensor chain, effects, step/batch.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -74,25 +75,45 @@ def test_nominal_agrees_with_solve_ivp(model):
     drive = chirp(t_s(n), 100.0, 20.0, 200.0, 1.0)
     out = simulate(drive, FS_HZ, model)
     pl = model.plant
-    inertia, gamma, k, ga = (pl.stroke_inertia_kg_m2, pl.aero_damping_nm_s2,
-                             pl.stroke_stiffness_nm_per_rad, pl.actuator_gain_nm_per_v)
-    ip, cp, kh, jc, dp = (pl.pitch_inertia_kg_m2, pl.hinge_damping_nm_s_per_rad,
-                          pl.hinge_stiffness_nm_per_rad, pl.inertial_coupling_kg_m2,
-                          pl.aero_coupling_nm_s2)
+    inertia, gamma, k, ga = (
+        pl.stroke_inertia_kg_m2,
+        pl.aero_damping_nm_s2,
+        pl.stroke_stiffness_nm_per_rad,
+        pl.actuator_gain_nm_per_v,
+    )
+    ip, cp, kh, jc, dp = (
+        pl.pitch_inertia_kg_m2,
+        pl.hinge_damping_nm_s_per_rad,
+        pl.hinge_stiffness_nm_per_rad,
+        pl.inertial_coupling_kg_m2,
+        pl.aero_coupling_nm_s2,
+    )
 
     def rhs(_t, y, v):
         phi, dphi, psi, dpsi = y
         ddphi = (ga * v - gamma * abs(dphi) * dphi - k * phi) / inertia
-        return [dphi, ddphi, dpsi, (-cp * dpsi - kh * psi - jc * ddphi - dp * abs(dphi) * dphi)
-                / ip]
+        return [
+            dphi,
+            ddphi,
+            dpsi,
+            (-cp * dpsi - kh * psi - jc * ddphi - dp * abs(dphi) * dphi) / ip,
+        ]
 
     h = 1.0 / FS_HZ
     y = np.zeros(4)
     ref = np.empty((n, 4))
     for i in range(n):
         ref[i] = y
-        sol = solve_ivp(rhs, (0.0, h), y, method="DOP853", rtol=1e-10, atol=1e-13, args=(drive[i],),
-                        first_step=h)
+        sol = solve_ivp(
+            rhs,
+            (0.0, h),
+            y,
+            method="DOP853",
+            rtol=1e-10,
+            atol=1e-13,
+            args=(drive[i],),
+            first_step=h,
+        )
         y = sol.y[:, -1]
     assert np.degrees(np.max(np.abs(ref[:, 0]))) > 20  # the test exercises large strokes
     assert np.degrees(np.max(np.abs(out.stroke_rad - ref[:, 0]))) < 0.05
@@ -123,11 +144,22 @@ def test_linear_response_matches_transfer_function(model, frequency_hz, damage):
     # zero-order hold of a sampled sine: fundamental scaled by sinc and delayed half a sample
     zoh = np.sinc(w * h / (2 * np.pi)) * np.exp(-0.5j * w * h)
     # the drive A sin(w t) is Re(-j A exp(j w t))
-    stroke = -1j * amplitude_v * zoh * pl.actuator_gain_nm_per_v / (
-        k - factor * pl.stroke_inertia_kg_m2 * w**2 + 1j * w * c)
-    pitch = stroke * pl.inertial_coupling_kg_m2 * w**2 / (
-        pl.hinge_stiffness_nm_per_rad - factor * pl.pitch_inertia_kg_m2 * w**2 + 1j * w
-        * pl.hinge_damping_nm_s_per_rad
+    stroke = (
+        -1j
+        * amplitude_v
+        * zoh
+        * pl.actuator_gain_nm_per_v
+        / (k - factor * pl.stroke_inertia_kg_m2 * w**2 + 1j * w * c)
+    )
+    pitch = (
+        stroke
+        * pl.inertial_coupling_kg_m2
+        * w**2
+        / (
+            pl.hinge_stiffness_nm_per_rad
+            - factor * pl.pitch_inertia_kg_m2 * w**2
+            + 1j * w * pl.hinge_damping_nm_s_per_rad
+        )
     )
     window = int(0.1 * FS_HZ)
     got_stroke = fundamental(out.stroke_rad, frequency_hz, window)
@@ -135,8 +167,9 @@ def test_linear_response_matches_transfer_function(model, frequency_hz, damage):
     assert abs(got_stroke - stroke) < 1e-5 * abs(stroke)
     assert abs(got_pitch - pitch) < 1e-5 * abs(pitch)
     got_vs = fundamental(out.stroke_sensor_v, frequency_hz, window)
-    assert (abs(got_vs - m.stroke_volts_per_rad * stroke) < 1e-5
-            * abs(m.stroke_volts_per_rad * stroke))
+    assert abs(got_vs - m.stroke_volts_per_rad * stroke) < 1e-5 * abs(
+        m.stroke_volts_per_rad * stroke
+    )
 
 
 def test_stroke_resonance_peak_at_200_vpp(model):
@@ -144,7 +177,7 @@ def test_stroke_resonance_peak_at_200_vpp(model):
     dwell_s = 0.15
     drive, freq = stepped_sine(FS_HZ, 100.0, frequencies, dwell_s)
     out = simulate(drive, FS_HZ, model)
-    dwell = int(round(dwell_s * FS_HZ))
+    dwell = round(dwell_s * FS_HZ)
     stroke = np.degrees(out.stroke_rad).reshape(len(frequencies), dwell)[:, dwell // 2 :]
     amplitude = 0.5 * (stroke.max(axis=1) - stroke.min(axis=1))
     peak_hz = frequencies[np.argmax(amplitude)]
@@ -161,10 +194,12 @@ def test_rest_and_sample_convention(model):
     assert out.stroke_sensor_v[1] < model.sensors.reference_voltage_v
     # nominal sensors are the spec's linear maps of the angles
     vref = model.sensors.reference_voltage_v
-    np.testing.assert_allclose(out.stroke_sensor_v - vref,
-                               model.stroke_volts_per_rad * out.stroke_rad, rtol=1e-12, atol=0)
-    np.testing.assert_allclose(out.pitch_sensor_v - vref, model.pitch_volts_per_rad * out.pitch_rad,
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        out.stroke_sensor_v - vref, model.stroke_volts_per_rad * out.stroke_rad, rtol=1e-12, atol=0
+    )
+    np.testing.assert_allclose(
+        out.pitch_sensor_v - vref, model.pitch_volts_per_rad * out.pitch_rad, rtol=1e-12, atol=0
+    )
 
 
 # --------------------------------------------------------------------------- effects
@@ -196,23 +231,32 @@ def test_sensor_delay_integer_shift(model, drive, nominal):
     out = simulate(drive, FS_HZ, with_effects(model, {"sensor_delay": {"delay_s": shift / FS_HZ}}))
     assert_same_angles(out, nominal)
     vref = model.sensors.reference_voltage_v
-    for got, ref in ((out.stroke_sensor_v, nominal.stroke_sensor_v), (
-            out.pitch_sensor_v, nominal.pitch_sensor_v)):
+    for got, ref in (
+        (out.stroke_sensor_v, nominal.stroke_sensor_v),
+        (out.pitch_sensor_v, nominal.pitch_sensor_v),
+    ):
         assert np.array_equal(got[shift:], ref[:-shift])
         assert np.all(got[:shift] == vref)
-    only = simulate(drive, FS_HZ, with_effects(
-        model, {"sensor_delay": {"delay_s": shift / FS_HZ, "channel": "stroke"}}))
+    only = simulate(
+        drive,
+        FS_HZ,
+        with_effects(model, {"sensor_delay": {"delay_s": shift / FS_HZ, "channel": "stroke"}}),
+    )
     assert np.array_equal(only.pitch_sensor_v, nominal.pitch_sensor_v)
     assert np.array_equal(only.stroke_sensor_v[shift:], nominal.stroke_sensor_v[:-shift])
 
 
 def test_sensor_delay_fractional_is_linear_interpolation(model, drive, nominal):
     delay_s = 2.25 / FS_HZ
-    out = simulate(drive, FS_HZ, with_effects(
-        model, {"sensor_delay": {"delay_s": delay_s, "channel": "pitch"}}))
+    out = simulate(
+        drive,
+        FS_HZ,
+        with_effects(model, {"sensor_delay": {"delay_s": delay_s, "channel": "pitch"}}),
+    )
     t = t_s(DRIVE_N)
-    expected = np.interp(t - delay_s, t, nominal.pitch_sensor_v,
-                         left=model.sensors.reference_voltage_v)
+    expected = np.interp(
+        t - delay_s, t, nominal.pitch_sensor_v, left=model.sensors.reference_voltage_v
+    )
     np.testing.assert_allclose(out.pitch_sensor_v, expected, rtol=0, atol=1e-12)
     assert np.array_equal(out.stroke_sensor_v, nominal.stroke_sensor_v)
 
@@ -224,8 +268,11 @@ def test_charge_amp_highpass_corner(model):
     n = int(0.4 * FS_HZ)
     drive = sine(t_s(n), 50.0, corner_hz)
     ref = simulate(drive, FS_HZ, base)
-    out = simulate(drive, FS_HZ, with_effects(
-        base, {"charge_amp_highpass": {"corner_hz": corner_hz, "channel": "stroke"}}))
+    out = simulate(
+        drive,
+        FS_HZ,
+        with_effects(base, {"charge_amp_highpass": {"corner_hz": corner_hz, "channel": "stroke"}}),
+    )
     assert_same_angles(out, ref)
     assert np.array_equal(out.pitch_sensor_v, ref.pitch_sensor_v)
     window = int(0.1 * FS_HZ)
@@ -235,16 +282,18 @@ def test_charge_amp_highpass_corner(model):
     assert abs(ratio) == pytest.approx(1 / math.sqrt(2), rel=1e-6)
     assert np.angle(ratio) == pytest.approx(math.pi / 4, abs=1e-6)
     # DC is removed: a held drive decays back to V_HREF
-    held = simulate(np.full(n, 50.0), FS_HZ, with_effects(
-        base, {"charge_amp_highpass": {"corner_hz": 20.0}}))
+    held = simulate(
+        np.full(n, 50.0), FS_HZ, with_effects(base, {"charge_amp_highpass": {"corner_hz": 20.0}})
+    )
     assert abs(deviation(held.stroke_sensor_v, model)[-1]) < 1e-6
     assert abs(deviation(held.stroke_sensor_v, model)).max() > 0.05
 
 
 def test_charge_amp_highpass_above_nyquist_refused(model):
     with pytest.raises(ModelError, match="corner_hz"):
-        simulate(np.zeros(10), 100.0, with_effects(
-            model, {"charge_amp_highpass": {"corner_hz": 60.0}}))
+        simulate(
+            np.zeros(10), 100.0, with_effects(model, {"charge_amp_highpass": {"corner_hz": 60.0}})
+        )
 
 
 def test_feedthrough_adds_gain_times_drive(model, drive, nominal):
@@ -252,36 +301,51 @@ def test_feedthrough_adds_gain_times_drive(model, drive, nominal):
     out = simulate(drive, FS_HZ, with_effects(model, {"feedthrough": {"gain_v_per_v": gain}}))
     assert_same_angles(out, nominal)
     assert np.array_equal(out.pitch_sensor_v, nominal.pitch_sensor_v)
-    np.testing.assert_allclose(out.stroke_sensor_v - nominal.stroke_sensor_v, gain * drive, rtol=0,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        out.stroke_sensor_v - nominal.stroke_sensor_v, gain * drive, rtol=0, atol=1e-12
+    )
 
 
 def test_transmission_nonlinearity_changes_only_the_stroke_sensor(model, drive, nominal):
     cubic = 0.4
-    out = simulate(drive, FS_HZ, with_effects(
-        model, {"transmission_nonlinearity": {"cubic_per_rad2": cubic}}))
+    out = simulate(
+        drive, FS_HZ, with_effects(model, {"transmission_nonlinearity": {"cubic_per_rad2": cubic}})
+    )
     assert_same_angles(out, nominal)
     assert np.array_equal(out.pitch_sensor_v, nominal.pitch_sensor_v)
     phi = nominal.stroke_rad
-    np.testing.assert_allclose(deviation(out.stroke_sensor_v, model),
-                               model.stroke_volts_per_rad * (phi + cubic * phi**3), rtol=1e-12,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        deviation(out.stroke_sensor_v, model),
+        model.stroke_volts_per_rad * (phi + cubic * phi**3),
+        rtol=1e-12,
+        atol=1e-15,
+    )
     assert np.max(np.abs(out.stroke_sensor_v - nominal.stroke_sensor_v)) > 0.01
 
 
 def test_strain_transfer_loss_scales_deviation(model, drive, nominal):
-    out = simulate(drive, FS_HZ, with_effects(
-        model, {"strain_transfer_loss": {"efficiency": 0.23}}))
+    out = simulate(
+        drive, FS_HZ, with_effects(model, {"strain_transfer_loss": {"efficiency": 0.23}})
+    )
     assert_same_angles(out, nominal)
     assert np.array_equal(out.stroke_sensor_v, nominal.stroke_sensor_v)
-    np.testing.assert_allclose(deviation(out.pitch_sensor_v, model),
-                               0.23 * deviation(nominal.pitch_sensor_v, model), rtol=1e-12,
-                               atol=1e-15)
-    both = simulate(drive, FS_HZ, with_effects(
-        model, {"strain_transfer_loss": {"efficiency": 0.5, "channel": "both"}}))
-    np.testing.assert_allclose(deviation(both.stroke_sensor_v, model),
-                               0.5 * deviation(nominal.stroke_sensor_v, model), rtol=1e-12,
-                               atol=1e-15)
+    np.testing.assert_allclose(
+        deviation(out.pitch_sensor_v, model),
+        0.23 * deviation(nominal.pitch_sensor_v, model),
+        rtol=1e-12,
+        atol=1e-15,
+    )
+    both = simulate(
+        drive,
+        FS_HZ,
+        with_effects(model, {"strain_transfer_loss": {"efficiency": 0.5, "channel": "both"}}),
+    )
+    np.testing.assert_allclose(
+        deviation(both.stroke_sensor_v, model),
+        0.5 * deviation(nominal.stroke_sensor_v, model),
+        rtol=1e-12,
+        atol=1e-15,
+    )
 
 
 def test_hinge_stiffening_changes_only_pitch(model, drive, nominal):
@@ -296,8 +360,9 @@ def test_hinge_stiffening_changes_only_pitch(model, drive, nominal):
     a = simulate(small, FS_HZ, model)
     b = simulate(small, FS_HZ, with_effects(model, {"hinge_stiffening": {"cubic_per_rad2": 2.0}}))
     # relative change ~ c psi^2 with psi ~ 5 mrad here
-    np.testing.assert_allclose(b.pitch_rad, a.pitch_rad, rtol=0,
-                               atol=1e-3 * np.max(np.abs(a.pitch_rad)))
+    np.testing.assert_allclose(
+        b.pitch_rad, a.pitch_rad, rtol=0, atol=1e-3 * np.max(np.abs(a.pitch_rad))
+    )
 
 
 def test_structural_damping_lowers_the_resonant_stroke(model):
@@ -360,10 +425,12 @@ def test_effects_compose(model, drive, nominal):
     assert_same_angles(out, nominal)
     expected_s = efficiency * deviation(nominal.stroke_sensor_v, model) + gain * drive
     expected_p = efficiency * deviation(nominal.pitch_sensor_v, model)
-    np.testing.assert_allclose(deviation(out.stroke_sensor_v, model)[shift:], expected_s[:-shift],
-                               rtol=0, atol=1e-12)
-    np.testing.assert_allclose(deviation(out.pitch_sensor_v, model)[shift:], expected_p[:-shift],
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        deviation(out.stroke_sensor_v, model)[shift:], expected_s[:-shift], rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        deviation(out.pitch_sensor_v, model)[shift:], expected_p[:-shift], rtol=0, atol=1e-12
+    )
     everything = simulate(drive, FS_HZ, with_effects(model, ALL_EFFECTS))
     assert all(np.all(np.isfinite(a)) for a in everything)
 
@@ -381,8 +448,9 @@ def test_block_stepping_equals_whole_record(model, drive):
     start = 0
     while start < DRIVE_N:
         size = int(rng_blocks.choice([0, 1, 2, 17, 100, 333]))
-        state, out = step(state, PlantInputs(drive[start : start + size], noise_rng),
-                          PlantStepParams(m, FS_HZ))
+        state, out = step(
+            state, PlantInputs(drive[start : start + size], noise_rng), PlantStepParams(m, FS_HZ)
+        )
         parts.append(out)
         start += size
     assert state.sample_index == DRIVE_N
@@ -405,8 +473,11 @@ def test_state_is_immutable_and_checked(model):
 
 def test_model_may_change_between_blocks(model, drive):
     delayed = with_effects(model, {"sensor_delay": {"delay_s": 4 / FS_HZ}})
-    state, first = step(initial_state(PlantStepParams(model, FS_HZ)), PlantInputs(drive[:1000]),
-                        PlantStepParams(model, FS_HZ))
+    state, _first = step(
+        initial_state(PlantStepParams(model, FS_HZ)),
+        PlantInputs(drive[:1000]),
+        PlantStepParams(model, FS_HZ),
+    )
     state, second = step(state, PlantInputs(drive[1000:2000]), PlantStepParams(delayed, FS_HZ))
     whole = simulate(drive[:2000], FS_HZ, model)
     assert np.array_equal(second.stroke_rad, whole.stroke_rad[1000:])
@@ -418,10 +489,16 @@ def test_batch_equals_single(model, drive):
     models = [
         model,
         with_effects(model, ALL_EFFECTS),
-        with_effects(model, {"collision": {"stroke_limit_deg": 20.0},
-                             "sensor_delay": {"delay_s": 1.7e-4}}),
-        with_effects(model, {"wing_damage": {"inertia_factor": 0.5},
-                             "charge_amp_highpass": {"corner_hz": 10.0, "channel": "pitch"}}),
+        with_effects(
+            model, {"collision": {"stroke_limit_deg": 20.0}, "sensor_delay": {"delay_s": 1.7e-4}}
+        ),
+        with_effects(
+            model,
+            {
+                "wing_damage": {"inertia_factor": 0.5},
+                "charge_amp_highpass": {"corner_hz": 10.0, "channel": "pitch"},
+            },
+        ),
     ]
     batch = simulate_batch(drive, FS_HZ, models)
     assert batch.stroke_rad.shape == (len(models), DRIVE_N)
@@ -432,8 +509,9 @@ def test_batch_equals_single(model, drive):
     drives = np.stack([drive, 0.5 * drive, -drive, drive[::-1]])
     per_model = simulate_batch(drives, FS_HZ, models)
     for i, m in enumerate(models):
-        assert np.array_equal(per_model.pitch_sensor_v[i],
-                              simulate(drives[i], FS_HZ, m).pitch_sensor_v)
+        assert np.array_equal(
+            per_model.pitch_sensor_v[i], simulate(drives[i], FS_HZ, m).pitch_sensor_v
+        )
     with pytest.raises(ValueError, match="drive_v"):
         simulate_batch(drives[:2], FS_HZ, models)
 
@@ -444,24 +522,34 @@ def test_noise_level_and_reproducibility(model, drive, nominal):
     assert np.array_equal(a.stroke_sensor_v, b.stroke_sensor_v)
     assert_same_angles(a, nominal)
     sigma = model.noise.sensor_noise_v_rms
-    for got, ref in ((a.stroke_sensor_v, nominal.stroke_sensor_v), (
-            a.pitch_sensor_v, nominal.pitch_sensor_v)):
+    for got, ref in (
+        (a.stroke_sensor_v, nominal.stroke_sensor_v),
+        (a.pitch_sensor_v, nominal.pitch_sensor_v),
+    ):
         assert np.std(got - ref) == pytest.approx(sigma, rel=0.05)
-    assert not np.allclose(a.stroke_sensor_v - nominal.stroke_sensor_v,
-                           a.pitch_sensor_v - nominal.pitch_sensor_v)
+    assert not np.allclose(
+        a.stroke_sensor_v - nominal.stroke_sensor_v, a.pitch_sensor_v - nominal.pitch_sensor_v
+    )
 
 
 def test_synthesize_measured_run_columns_and_units(model, drive, nominal):
     run = synthesize_measured_run(drive, FS_HZ, model, np.random.default_rng(5))
-    assert list(run) == ["time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg",
-                         "pitch_deg"]
+    assert list(run) == [
+        "time_s",
+        "drive_v",
+        "stroke_sensor_v",
+        "pitch_sensor_v",
+        "stroke_deg",
+        "pitch_deg",
+    ]
     assert all(len(col) == DRIVE_N for col in run.values())
     assert run["time_s"][1] == pytest.approx(1 / FS_HZ)
     assert np.array_equal(run["drive_v"], drive)
     tracking = run["stroke_deg"] - np.degrees(nominal.stroke_rad)
     assert np.std(tracking) == pytest.approx(model.noise.tracking_noise_deg_rms, rel=0.05)
     assert np.std(run["pitch_sensor_v"] - nominal.pitch_sensor_v) == pytest.approx(
-        model.noise.sensor_noise_v_rms, rel=0.05)
+        model.noise.sensor_noise_v_rms, rel=0.05
+    )
 
 
 def test_collision_matches_refined_step(model):
@@ -484,8 +572,9 @@ def test_batch_into_preallocated_output(model, drive):
     fresh = simulate_batch(drive, FS_HZ, models)
     assert all(np.array_equal(g, f) for g, f in zip(got, fresh))
     with pytest.raises(ValueError, match="out.stroke_rad"):
-        simulate_batch(drive, FS_HZ, models, out=SimOutput(
-            *(np.empty((3, DRIVE_N)) for _ in range(4))))
+        simulate_batch(
+            drive, FS_HZ, models, out=SimOutput(*(np.empty((3, DRIVE_N)) for _ in range(4)))
+        )
 
 
 def test_batch_of_one_and_of_none(model, drive):

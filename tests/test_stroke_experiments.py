@@ -1,4 +1,5 @@
 """Stroke experiments: lockstep loop of the cores -> rosbag2 MCAP bag -> analysis from the bag."""
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,14 @@ from flaair_model.model_io import load_model
 from flaair_tools.analysis import wingbeat
 from flaair_tools.sweeps import stroke_experiments as se
 
-TOPICS = {"/flaair/drive", "/flaair/sensor_v", "/flaair/wing_state", "/flaair/wing_state/truth",
-          "/flaair/controller/state", "/flaair/run_marker"}
+TOPICS = {
+    "/flaair/drive",
+    "/flaair/sensor_v",
+    "/flaair/wing_state",
+    "/flaair/wing_state/truth",
+    "/flaair/controller/state",
+    "/flaair/run_marker",
+}
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +32,12 @@ def runs(tmp_path_factory):
     values = node_parameters("flaair.yaml", "stroke_controller_node")
     frontend = node_parameters("flaair.yaml", "frontend_node")
     model = load_model()
-    beats = wingbeat.WingbeatParams(20000.0, values["crossing_hysteresis_deg"],
-                                    values["min_wingbeat_hz"], values["max_wingbeat_hz"])
+    beats = wingbeat.WingbeatParams(
+        20000.0,
+        values["crossing_hysteresis_deg"],
+        values["min_wingbeat_hz"],
+        values["max_wingbeat_hz"],
+    )
     out = {}
     for exp in se.experiments_from_config(section):
         if exp.name not in ("setpoint_step_dsa", "wing_damage_sync", "obstacle_dsa"):
@@ -34,35 +45,44 @@ def runs(tmp_path_factory):
         bag = tmp_path_factory.mktemp("bags") / exp.name
         run = se.run_closed_loop(exp, model, values, frontend)
         se.write_bag(bag, exp, run)
-        out[exp.name] = (exp, run, bag, se.analyse_bag(
-            bag, section["settle_band_deg"], section["steady_wingbeats"], beats))
+        out[exp.name] = (
+            exp,
+            run,
+            bag,
+            se.analyse_bag(bag, section["settle_band_deg"], section["steady_wingbeats"], beats),
+        )
     return out
 
 
 def test_bags_hold_the_recorder_topics_and_the_run_as_an_independent_reader_sees_it(runs) -> None:
-    exp, run, bag, _ = runs["setpoint_step_dsa"]
+    _exp, run, bag, _ = runs["setpoint_step_dsa"]
     with open(next(Path(bag).glob("*.mcap")), "rb") as handle:
         summary = make_reader(handle).get_summary()
     assert {c.topic for c in summary.channels.values()} == TOPICS
     blocks = run["drive_v"].size // 10
-    counts = {summary.channels[k].topic: v for k,
-              v in summary.statistics.channel_message_counts.items()}
+    counts = {
+        summary.channels[k].topic: v for k, v in summary.statistics.channel_message_counts.items()
+    }
     assert counts["/flaair/wing_state"] == counts["/flaair/drive"] == blocks
     with AnyReader([Path(bag)]) as reader:
         conns = [c for c in reader.connections if c.topic == "/flaair/wing_state"]
-        stroke = np.concatenate([reader.deserialize(raw, c.msgtype).stroke_deg for c, _,
-                                 raw in reader.messages(conns)])
+        stroke = np.concatenate(
+            [reader.deserialize(raw, c.msgtype).stroke_deg for c, _, raw in reader.messages(conns)]
+        )
     assert np.array_equal(stroke, run["stroke_deg"])
-    metadata = yaml.safe_load((Path(bag)
-                               / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    metadata = yaml.safe_load((Path(bag) / "metadata.yaml").read_text())[
+        "rosbag2_bagfile_information"
+    ]
     assert json.loads(metadata["custom_data"][se.CUSTOM_KEY])["setpoint_after_deg"] == 20.0
 
 
 def test_each_experiment_settles_within_20_wingbeats_to_half_a_degree(runs) -> None:
     for name, (exp, run, bag, result) in runs.items():
         for key in ("estimate", "truth"):
-            assert (result[key]["settling_wingbeats"] is not None
-                    and result[key]["settling_wingbeats"] <= 20), (name, key)
+            assert (
+                result[key]["settling_wingbeats"] is not None
+                and result[key]["settling_wingbeats"] <= 20
+            ), (name, key)
             assert abs(result[key]["steady_error_deg"]) <= 0.5, (name, key)
         assert result["max_abs_drive_v"] <= 150.0
 

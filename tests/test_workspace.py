@@ -1,4 +1,5 @@
 """The workspace works the ROS way too: `source install/setup.bash` alone gives a working shell."""
+
 from __future__ import annotations
 
 import os
@@ -14,15 +15,21 @@ def test_source_install_setup_bash_gives_rclpy_and_flaair_packages() -> None:
         "source install/setup.bash && python -c 'import rclpy, flaair_msgs.msg, "
         "flaair_sim.core.plant, flaair_model.pvdf, flaair_common.params;print(rclpy.__file__)'"
     )
-    result = subprocess.run(["bash", "-c", script], cwd=REPO_ROOT, env=env, capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run(
+        ["bash", "-c", script], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 0, result.stderr
     assert str(REPO_ROOT / ".venv") in result.stdout
 
 
 def test_setup_is_idempotent_and_quick_when_nothing_changed() -> None:
-    result = subprocess.run([str(REPO_ROOT / "scripts" / "setup_env.sh")], cwd=REPO_ROOT,
-                            capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [str(REPO_ROOT / "scripts" / "setup_env.sh")],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stderr
     assert "installing" not in result.stdout and "building" not in result.stdout, result.stdout
 
@@ -31,8 +38,13 @@ def test_the_numba_warm_up_reaches_every_kernel_it_names() -> None:
     # best effort by design, so a renamed kernel would only print "skipped": that is a failure here
     import sys
 
-    result = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "warm_numba.py")],
-                            cwd=REPO_ROOT, capture_output=True, text=True, timeout=280)
+    result = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "scripts" / "warm_numba.py")],
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=280,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
     assert "skipped" not in result.stdout + result.stderr, result.stdout + result.stderr
 
@@ -51,5 +63,6 @@ def test_flaair_model_installs_every_config_file_to_its_share(monkeypatch) -> No
     runpy.run_path("setup.py")
     installed = dict(captured["data_files"])["share/flaair_model/config"]
     assert sorted(os.path.basename(p) for p in installed) == sorted(
-        p.name for p in (REPO_ROOT / "config").iterdir() if p.suffix in (".yaml", ".json"))
+        p.name for p in (REPO_ROOT / "config").iterdir() if p.suffix in (".yaml", ".json")
+    )
     assert all(os.path.isfile(p) for p in installed)

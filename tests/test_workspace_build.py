@@ -5,6 +5,7 @@ configuration and the launch files through the ament index.
 About 1.5 minutes (flaair_msgs through rosidl): marked `workspace`, run by `make bench`
 (bench/bench_workspace.py), not by `make test`.
 """
+
 from __future__ import annotations
 
 import os
@@ -32,9 +33,15 @@ def clean_env(**extra: str) -> dict[str, str]:
 
 
 def in_workspace(script: str, workspace: Path, **env: str) -> subprocess.Popen:
-    return subprocess.Popen(["bash", "-c", f"set -e; . '{VENV}/local_setup.sh'; {script}"],
-                            cwd=workspace, env=clean_env(**env), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    return subprocess.Popen(
+        ["bash", "-c", f"set -e; . '{VENV}/local_setup.sh'; {script}"],
+        cwd=workspace,
+        env=clean_env(**env),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +51,9 @@ def workspace(tmp_path_factory: pytest.TempPathFactory) -> Path:
         f"export CMAKE_PREFIX_PATH='{VENV}' COLCON_PREFIX_PATH='{VENV}' COLCON_HOME=$PWD/.colcon; "
         f"colcon --log-base log build --base-paths '{REPO_ROOT / 'src'}' --build-base build "
         f"--install-base install --cmake-args -DPython3_EXECUTABLE='{VENV}/bin/python' "
-        "-DBUILD_TESTING=OFF", root)
+        "-DBUILD_TESTING=OFF",
+        root,
+    )
     out, _ = build.communicate(timeout=840)
     assert build.returncode == 0, out[-3000:]
     assert f"Summary: {len(PACKAGES)} packages finished" in out, out[-2000:]
@@ -55,22 +64,29 @@ def test_the_install_tree_holds_config_launch_files_and_every_node(workspace: Pa
     install = workspace / "install"
     config = install / "flaair_model" / "share" / "flaair_model" / "config"
     assert sorted(p.name for p in config.iterdir()) == sorted(
-        p.name for p in (REPO_ROOT / "config").iterdir() if p.suffix in (".yaml", ".json"))
-    assert not any(p.is_symlink() for p in config.iterdir())   # copied, not linked
+        p.name for p in (REPO_ROOT / "config").iterdir() if p.suffix in (".yaml", ".json")
+    )
+    assert not any(p.is_symlink() for p in config.iterdir())  # copied, not linked
     launch = install / "flaair_tools" / "share" / "flaair_tools" / "launch"
     assert sorted(p.name for p in launch.glob("*.launch.xml")) == sorted(
-        p.name for p in (REPO_ROOT / "src" / "flaair_tools" / "launch").glob("*.launch.xml"))
+        p.name for p in (REPO_ROOT / "src" / "flaair_tools" / "launch").glob("*.launch.xml")
+    )
 
 
-def test_a_node_starts_from_the_install_tree_outside_the_source_tree(workspace: Path,
-                                                                      tmp_path: Path) -> None:
+def test_a_node_starts_from_the_install_tree_outside_the_source_tree(
+    workspace: Path, tmp_path: Path
+) -> None:
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    lease = lease_domain()   # a domain of its own, though it exchanges nothing
-    node = in_workspace(f". '{workspace}/install/setup.sh'; cd '{elsewhere}'; exec python "
-                        f"'{workspace}/install/flaair_sim/lib/flaair_sim/plant_node' --ros-args "
-                        "-r __node:=plant_ws", workspace, ROS_DOMAIN_ID=str(lease.domain_id),
-                        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    lease = lease_domain()  # a domain of its own, though it exchanges nothing
+    node = in_workspace(
+        f". '{workspace}/install/setup.sh'; cd '{elsewhere}'; exec python "
+        f"'{workspace}/install/flaair_sim/lib/flaair_sim/plant_node' --ros-args "
+        "-r __node:=plant_ws",
+        workspace,
+        ROS_DOMAIN_ID=str(lease.domain_id),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+    )
     deadline, lines = time.monotonic() + 120, []
     try:
         while time.monotonic() < deadline:
@@ -87,14 +103,18 @@ def test_a_node_starts_from_the_install_tree_outside_the_source_tree(workspace: 
         lease.release()
     assert node.returncode == 0, "".join(lines) + rest
     # the module came from the install tree, and the launch files from its share
-    where = in_workspace(f". '{workspace}/install/setup.sh'; cd '{elsewhere}'; python -c "
-                         "'import flaair_model, flaair_model.config as c; "
-                         "print(flaair_model.__file__); print(c.config_dir())'; "
-                         f"{workspace}/install/flaair_tools/lib/flaair_tools/flaair launch "
-                         "flaair_tools lockstep_loop.launch.xml --print", workspace)
+    where = in_workspace(
+        f". '{workspace}/install/setup.sh'; cd '{elsewhere}'; python -c "
+        "'import flaair_model, flaair_model.config as c; "
+        "print(flaair_model.__file__); print(c.config_dir())'; "
+        f"{workspace}/install/flaair_tools/lib/flaair_tools/flaair launch "
+        "flaair_tools lockstep_loop.launch.xml --print",
+        workspace,
+    )
     out, _ = where.communicate(timeout=120)
     assert where.returncode == 0, out
     module, config, *commands = out.splitlines()
     assert module.startswith(str(workspace / "install")) and config == str(
-        workspace / "install" / "flaair_model" / "share" / "flaair_model" / "config")
+        workspace / "install" / "flaair_model" / "share" / "flaair_model" / "config"
+    )
     assert len(commands) == 3 and str(workspace / "install") in commands[0]

@@ -15,10 +15,12 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR real-time target bridge: the UDP protocol, the bridge node and an emulated "
-                "target around the plant model.",
+    "target around the plant model.",
     license="Apache-2.0",
-    entry_points={"console_scripts": [
-        "bridge_node = flaair_bridge.bridge_node:main",
-        "emulated_target = flaair_bridge.emulated_target:main",
-    ]},
+    entry_points={
+        "console_scripts": [
+            "bridge_node = flaair_bridge.bridge_node:main",
+            "emulated_target = flaair_bridge.emulated_target:main",
+        ]
+    },
 )

@@ -15,7 +15,7 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR node plumbing: parameters from schemas, block message conversion, QoS, "
-                "measured-run CSV I/O.",
+    "measured-run CSV I/O.",
     license="Apache-2.0",
     entry_points={"console_scripts": ["container = flaair_common.container:main"]},
 )

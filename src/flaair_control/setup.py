@@ -15,10 +15,13 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR control: per-wingbeat collision monitor and the delayed-stretch-activation "
-                "(dSA) asynchronous controller.",
+    "(dSA) asynchronous controller.",
     license="Apache-2.0",
-    entry_points={"console_scripts": [
-    'collision_monitor_node = flaair_control.collision_monitor_node:main',
-    'dsa_controller_node = flaair_control.dsa_controller_node:main',
-    'stroke_controller_node = flaair_control.stroke_controller_node:main']},
+    entry_points={
+        "console_scripts": [
+            "collision_monitor_node = flaair_control.collision_monitor_node:main",
+            "dsa_controller_node = flaair_control.dsa_controller_node:main",
+            "stroke_controller_node = flaair_control.stroke_controller_node:main",
+        ]
+    },
 )

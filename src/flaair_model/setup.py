@@ -21,7 +21,7 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR model: PVDF charge model, plant/sensor parameter dataclasses, effect "
-                "registry, model files, config lookup.",
+    "registry, model files, config lookup.",
     license="Apache-2.0",
     entry_points={"console_scripts": []},
 )

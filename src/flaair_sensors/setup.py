@@ -15,7 +15,7 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR sensor front end: PVDF charge model, voltage-to-angle estimation, "
-                "calibration and characterization.",
+    "calibration and characterization.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ['frontend_node = flaair_sensors.frontend_node:main']},
+    entry_points={"console_scripts": ["frontend_node = flaair_sensors.frontend_node:main"]},
 )

@@ -15,8 +15,12 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR plant simulation: flapping-wing stroke/pitch dynamics, PVDF sensors, "
-                "missing effects; plant and drive nodes.",
+    "missing effects; plant and drive nodes.",
     license="Apache-2.0",
-    entry_points={"console_scripts": [
-    'plant_node = flaair_sim.plant_node:main', 'drive_node = flaair_sim.drive_node:main']},
+    entry_points={
+        "console_scripts": [
+            "plant_node = flaair_sim.plant_node:main",
+            "drive_node = flaair_sim.drive_node:main",
+        ]
+    },
 )

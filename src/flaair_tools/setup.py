@@ -20,10 +20,14 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR tools: bag recorder/player/import, paper experiments, analysis report, "
-                "model-vs-measurement discrepancy workflow, the flaair command line.",
+    "model-vs-measurement discrepancy workflow, the flaair command line.",
     license="Apache-2.0",
-    entry_points={"console_scripts": [
-    'recorder_node = flaair_tools.recorder.recorder_node:main',
-    'player = flaair_tools.recorder.player:main', 'flaair = flaair_tools.cli:main',
-    'foxglove_node = flaair_tools.liveview.foxglove_node:main']},
+    entry_points={
+        "console_scripts": [
+            "recorder_node = flaair_tools.recorder.recorder_node:main",
+            "player = flaair_tools.recorder.player:main",
+            "flaair = flaair_tools.cli:main",
+            "foxglove_node = flaair_tools.liveview.foxglove_node:main",
+        ]
+    },
 )

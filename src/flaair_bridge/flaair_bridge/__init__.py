@@ -8,4 +8,4 @@
 - ``emulated_target``: a stand-in for the lab's target, for tests and `live`
 """
 
-__all__ = ["core", "bridge_node", "bridge_io", "udp", "emulated_target"]
+__all__ = ["bridge_io", "bridge_node", "core", "emulated_target", "udp"]

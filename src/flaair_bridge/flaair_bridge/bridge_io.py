@@ -1,9 +1,11 @@
 """The bridge node's parameters (their values: config/flaair.yaml, section bridge_node) and its
 mapping between the core's blocks and settings and the node's messages and log lines.
 """
+
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from flaair_bridge import udp
 from flaair_bridge.core import bridge, bridge_params
@@ -11,43 +13,127 @@ from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
 from flaair_common.params import ParameterError, ParamSpec
 
 PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of the target and every block stream [Hz]",
-              1000.0, 1.0e6, read_only=True),
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of the target and every block stream [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
     ParamSpec("block_size", int, "Samples per published block", 1, 1000, read_only=True),
-    ParamSpec("drive_limit_v", float, "Drive clamped to +-this before it is sent [V]", 0.0, 300.0,
-              read_only=True),
+    ParamSpec(
+        "drive_limit_v",
+        float,
+        "Drive clamped to +-this before it is sent [V]",
+        0.0,
+        300.0,
+        read_only=True,
+    ),
     ParamSpec("listen_host", str, "Address the target's sensor packets arrive at", read_only=True),
-    ParamSpec("listen_port", int, "UDP port the target's sensor packets arrive at", 1, 65535,
-              read_only=True),
-    ParamSpec("target_host", str,
-              "Where drive packets go (empty: the sender of the sensor packets)", read_only=True),
-    ParamSpec("target_port", int, "UDP port drive packets go to (0: the sender's port)", 0, 65535,
-              read_only=True),
-    ParamSpec("lead_samples", int, "Drive sent this many samples ahead of the target's clock", 0,
-              100000, read_only=True),
-    ParamSpec("max_ahead_samples", int, "Drive never sent more than this beyond clock + lead", 0,
-              1000000, read_only=True),
-    ParamSpec("max_fill_samples", int,
-              "Lost samples up to this many are published as NaN; longer gaps jump", 0, 10000000,
-              read_only=True),
-    ParamSpec("resync_packets", int, "Stale packets in a row that mean the target restarted", 1,
-              1000000, read_only=True),
-    ParamSpec("drive_timeout_s", float, "Non-zero drive stream silent this long: stop packet [s]",
-              1e-4, 60.0, read_only=True),
-    ParamSpec("sensor_timeout_s", float,
-              "Target silent this long: stop packet, samples published as lost [s]", 1e-4, 60.0,
-              read_only=True),
-    ParamSpec("tick_period_s", float, "Wall-clock period of the timeout checks [s]", 1e-4, 1.0,
-              read_only=True),
-    ParamSpec("receive_buffer_bytes", int, "UDP receive buffer (absorbs the bridge's stalls)",
-              65536, 1 << 30, read_only=True),
-    ParamSpec("realtime_priority", int,
-              "SCHED_FIFO priority of the UDP reader thread (0: normal scheduling)", 0, 99,
-              read_only=True),
-    ParamSpec("publish_applied", bool, "Publish the applied drive on /flaair/drive/applied",
-              read_only=True),
-    ParamSpec("timing_file", str, "Event times (.npz) at exit for benchmarks (empty: off)",
-              read_only=True),
+    ParamSpec(
+        "listen_port",
+        int,
+        "UDP port the target's sensor packets arrive at",
+        1,
+        65535,
+        read_only=True,
+    ),
+    ParamSpec(
+        "target_host",
+        str,
+        "Where drive packets go (empty: the sender of the sensor packets)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "target_port",
+        int,
+        "UDP port drive packets go to (0: the sender's port)",
+        0,
+        65535,
+        read_only=True,
+    ),
+    ParamSpec(
+        "lead_samples",
+        int,
+        "Drive sent this many samples ahead of the target's clock",
+        0,
+        100000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_ahead_samples",
+        int,
+        "Drive never sent more than this beyond clock + lead",
+        0,
+        1000000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_fill_samples",
+        int,
+        "Lost samples up to this many are published as NaN; longer gaps jump",
+        0,
+        10000000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "resync_packets",
+        int,
+        "Stale packets in a row that mean the target restarted",
+        1,
+        1000000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "drive_timeout_s",
+        float,
+        "Non-zero drive stream silent this long: stop packet [s]",
+        1e-4,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "sensor_timeout_s",
+        float,
+        "Target silent this long: stop packet, samples published as lost [s]",
+        1e-4,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "tick_period_s",
+        float,
+        "Wall-clock period of the timeout checks [s]",
+        1e-4,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "receive_buffer_bytes",
+        int,
+        "UDP receive buffer (absorbs the bridge's stalls)",
+        65536,
+        1 << 30,
+        read_only=True,
+    ),
+    ParamSpec(
+        "realtime_priority",
+        int,
+        "SCHED_FIFO priority of the UDP reader thread (0: normal scheduling)",
+        0,
+        99,
+        read_only=True,
+    ),
+    ParamSpec(
+        "publish_applied",
+        bool,
+        "Publish the applied drive on /flaair/drive/applied",
+        read_only=True,
+    ),
+    ParamSpec(
+        "timing_file", str, "Event times (.npz) at exit for benchmarks (empty: off)", read_only=True
+    ),
 ]
 
 
@@ -55,31 +141,42 @@ def params_from_values(values: Mapping[str, Any]) -> bridge_params.BridgeParams:
     """The core's parameters from the node's values; a refused one is a ParameterError naming it."""
     try:
         return bridge_params.BridgeParams(
-            **{name: values[name] for name in bridge_params.BridgeParams.__dataclass_fields__})
+            **{name: values[name] for name in bridge_params.BridgeParams.__dataclass_fields__}
+        )
     except bridge_params.BridgeParameterError as exc:
         raise ParameterError(str(exc)) from exc
 
 
 def configured_target(values: Mapping[str, Any]) -> tuple[str, int] | None:
     """Where drive and stop packets go when configured; None: learnt when the target speaks."""
-    return ((values["target_host"], values["target_port"]) if values["target_host"]
-            and values["target_port"] else None)
+    return (
+        (values["target_host"], values["target_port"])
+        if values["target_host"] and values["target_port"]
+        else None
+    )
 
 
-def open_endpoint(values: Mapping[str, Any], on_datagram: Callable[..., None],
-                  logger: Any) -> udp.DatagramEndpoint:
+def open_endpoint(
+    values: Mapping[str, Any], on_datagram: Callable[..., None], logger: Any
+) -> udp.DatagramEndpoint:
     """The UDP endpoint on listen_host:listen_port with its reader thread (a taken or invalid
     address is a parameter error; a real-time priority refused, a warning: the bridge still runs).
     """
     try:
-        endpoint = udp.DatagramEndpoint(values["listen_host"], values["listen_port"],
-                                        values["receive_buffer_bytes"], on_datagram,
-                                        values["realtime_priority"])
+        endpoint = udp.DatagramEndpoint(
+            values["listen_host"],
+            values["listen_port"],
+            values["receive_buffer_bytes"],
+            on_datagram,
+            values["realtime_priority"],
+        )
     except OSError as exc:
-        raise ParameterError("parameters 'listen_host'/'listen_port' = "
-                             f"{values['listen_host']}:{values['listen_port']}: {exc}") from exc
+        raise ParameterError(
+            "parameters 'listen_host'/'listen_port' = "
+            f"{values['listen_host']}:{values['listen_port']}: {exc}"
+        ) from exc
     endpoint.priority_set.wait(1.0)
-    if error := endpoint.priority_error:   # not root, no CAP_SYS_NICE
+    if error := endpoint.priority_error:  # not root, no CAP_SYS_NICE
         logger.warning(f"UDP reader runs WITHOUT its real-time priority ({error})")
     return endpoint
 
@@ -87,23 +184,32 @@ def open_endpoint(values: Mapping[str, Any], on_datagram: Callable[..., None],
 def ready_text(values: Mapping[str, Any]) -> str:
     """The node's start-up log line: where it listens, where it sends, lead and limit."""
     lead = values["lead_samples"]
-    return (f"bridge ready: sensor packets on udp {values['listen_host']}:{values['listen_port']}, "
-            "drive to "
-            f"{values['target_host'] or '<sender>'}:{values['target_port'] or '<sender port>'}, "
-            f"lead {lead} samples ({1e3 * lead / values['sample_rate_hz']:g} ms), limit "
-            f"+-{values['drive_limit_v']:g} V")
+    return (
+        f"bridge ready: sensor packets on udp {values['listen_host']}:{values['listen_port']}, "
+        "drive to "
+        f"{values['target_host'] or '<sender>'}:{values['target_port'] or '<sender port>'}, "
+        f"lead {lead} samples ({1e3 * lead / values['sample_rate_hz']:g} ms), limit "
+        f"+-{values['drive_limit_v']:g} V"
+    )
 
 
 def sensor_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
     """A published SensorVoltageBlock's fields (for `intra.BlockPublisher.publish`)."""
-    return {"sample_rate_hz": fs_hz, "first_sample_index": block.first_sample_index,
-            "stroke_sensor_v": block.stroke_sensor_v, "pitch_sensor_v": block.pitch_sensor_v}
+    return {
+        "sample_rate_hz": fs_hz,
+        "first_sample_index": block.first_sample_index,
+        "stroke_sensor_v": block.stroke_sensor_v,
+        "pitch_sensor_v": block.pitch_sensor_v,
+    }
 
 
 def applied_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
     """The DriveCommandBlock of the drive the target applied over `block`."""
-    return {"sample_rate_hz": fs_hz, "first_sample_index": block.first_sample_index,
-            "drive_v": block.drive_v}
+    return {
+        "sample_rate_hz": fs_hz,
+        "first_sample_index": block.first_sample_index,
+        "drive_v": block.drive_v,
+    }
 
 
 def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) -> Health:
@@ -114,20 +220,40 @@ def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) ->
     packets, lost = c.sensor_packets - b.sensor_packets, c.lost_packets - b.lost_packets
     problems = [(ERROR, "target silent: no sensor packet") if now.silent else (OK, "")]
     if lost:
-        problems.append((WARN, f"{lost} sensor packet(s) lost "
-                               f"({loss_percent(lost, lost + packets):.2f} % of the period)"))
+        problems.append(
+            (
+                WARN,
+                f"{lost} sensor packet(s) lost "
+                f"({loss_percent(lost, lost + packets):.2f} % of the period)",
+            )
+        )
     if c.drive_late_blocks > b.drive_late_blocks:
-        problems.append((WARN, f"{c.drive_late_blocks - b.drive_late_blocks} drive block(s) "
-                               "late for the target: dropped"))
+        problems.append(
+            (
+                WARN,
+                f"{c.drive_late_blocks - b.drive_late_blocks} drive block(s) "
+                "late for the target: dropped",
+            )
+        )
     if c.target_watchdog_packets > b.target_watchdog_packets:
         problems.append((ERROR, "the target's watchdog is tripped"))
     if c.watchdog_stops > b.watchdog_stops:
         problems.append((ERROR, "the drive stream fell silent: stop packet sent"))
     ok = "streaming" if c.sensor_packets else "waiting for the target's first packet"
-    return health("UDP bridge", problems, ok, {
-        "sensor_packets": c.sensor_packets, "lost_packets": c.lost_packets,
-        "loss_percent": loss_percent(c.lost_packets, c.lost_packets + c.sensor_packets),
-        "malformed_packets": c.malformed, "drive_packets": c.drive_packets,
-        "drive_late_blocks": c.drive_late_blocks, "clamped_samples": c.clamped_samples,
-        "target_watchdog_packets": c.target_watchdog_packets,
-        "watchdog_stops": c.watchdog_stops, "target_silent": now.silent})
+    return health(
+        "UDP bridge",
+        problems,
+        ok,
+        {
+            "sensor_packets": c.sensor_packets,
+            "lost_packets": c.lost_packets,
+            "loss_percent": loss_percent(c.lost_packets, c.lost_packets + c.sensor_packets),
+            "malformed_packets": c.malformed,
+            "drive_packets": c.drive_packets,
+            "drive_late_blocks": c.drive_late_blocks,
+            "clamped_samples": c.clamped_samples,
+            "target_watchdog_packets": c.target_watchdog_packets,
+            "watchdog_stops": c.watchdog_stops,
+            "target_silent": now.silent,
+        },
+    )

@@ -11,6 +11,7 @@ realtime_priority) shares the node with the executor under one lock.
 
 Usage: bin/flaair run flaair_bridge bridge_node --ros-args -p listen_port:=25000 -p lead_samples:=20
 """
+
 from __future__ import annotations
 
 import sys
@@ -53,13 +54,20 @@ class BridgeNode(FlaairNode):
         self.events = bridge_report.EventLog() if p["timing_file"] else None
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.sensor = intra.block_publisher(
-            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
-        self.applied = (intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size,
-                                              BLOCK_STREAM) if p["publish_applied"] else None)
-        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_drive, BLOCK_STREAM,
-                               self.on_undecodable)
-        self.create_timer(p["tick_period_s"], lambda: self.process(
-            bridge.Tick(time.time(), self.endpoint.pending())))
+            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM
+        )
+        self.applied = (
+            intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size, BLOCK_STREAM)
+            if p["publish_applied"]
+            else None
+        )
+        intra.subscribe_stream(
+            self, topics.DRIVE, self.block_size, self.on_drive, BLOCK_STREAM, self.on_undecodable
+        )
+        self.create_timer(
+            p["tick_period_s"],
+            lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())),
+        )
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         self.publish_health(lambda: self.state, io.bridge_health)
         # the socket last: its reader thread delivers at once, into a fully built node
@@ -68,10 +76,11 @@ class BridgeNode(FlaairNode):
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
-        if target != self.target:   # the first packet, or a target that restarted elsewhere
+        if target != self.target:  # the first packet, or a target that restarted elsewhere
             self.target = target
             self.get_logger().info(
-                f"target at {target[0]}:{target[1]}: drive and stop packets go there")
+                f"target at {target[0]}:{target[1]}: drive and stop packets go there"
+            )
         answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
         # the loop has answered: a gap until the next block
@@ -85,8 +94,11 @@ class BridgeNode(FlaairNode):
     def on_drive(self, message) -> None:
         # composed, the controller's closing zero block follows the stop packet
         if not self.closed:
-            self.process(bridge.DriveBlock(
-                int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()))
+            self.process(
+                bridge.DriveBlock(
+                    int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()
+                )
+            )
 
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
@@ -95,19 +107,23 @@ class BridgeNode(FlaairNode):
             # composed, the drive this packet's blocks produce
             # comes back nested: its cause is this packet
             outer_cause_s, self.cause_s = (
-                self.cause_s, inputs.now_s if isinstance(inputs, bridge.SensorDatagram)
-                else self.cause_s)
+                self.cause_s,
+                inputs.now_s if isinstance(inputs, bridge.SensorDatagram) else self.cause_s,
+            )
             self.state, out = bridge.step(self.state, inputs, self.params)
             for packet in [packet for packet in out.packets for _ in range(copies)]:
-                if error := (self.endpoint.send(packet, self.target) if self.target is not None
-                             else ""):
-                    self.get_logger().warning(f"drive packet not sent to {self.target}: {error}",
-                                              throttle_duration_sec=1.0)
+                if error := (
+                    self.endpoint.send(packet, self.target) if self.target is not None else ""
+                ):
+                    self.get_logger().warning(
+                        f"drive packet not sent to {self.target}: {error}",
+                        throttle_duration_sec=1.0,
+                    )
             self.timing.extend(out.timing)
             counters = self.state.counters
             if self.events is not None:
                 self.events.record(inputs, out, counters, time.time(), self.cause_s)
-            for block in out.blocks:   # stamps: the target's sample clock, anchored to ROS time
+            for block in out.blocks:  # stamps: the target's sample clock, anchored to ROS time
                 if self.sample_clock_offset_ns is None:
                     self.anchor_sample_clock(block.first_sample_index, self.fs_hz, "target")
                 stamp_ns = self.stamp_ns_of(block.first_sample_index, self.fs_hz)
@@ -126,11 +142,16 @@ class BridgeNode(FlaairNode):
         self.endpoint.stop_reading()
         self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
-        self.get_logger().info("bridge closed, stop packet sent: "
-                               f"{bridge_report.summary(self.state.counters, self.timing)}")
+        self.get_logger().info(
+            "bridge closed, stop packet sent: "
+            f"{bridge_report.summary(self.state.counters, self.timing)}"
+        )
         if self.p["timing_file"]:
-            np.savez(self.p["timing_file"], timing=np.array(self.timing).reshape(-1, 3),
-                     **self.events.arrays())
+            np.savez(
+                self.p["timing_file"],
+                timing=np.array(self.timing).reshape(-1, 3),
+                **self.events.arrays(),
+            )
 
     def destroy_node(self) -> None:
         # whoever owns the node (run_node, a shared executor): the run ends with a stop packet

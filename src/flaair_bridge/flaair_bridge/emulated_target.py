@@ -24,6 +24,7 @@ flaair_bridge.core.protocol, so the two implementations check each other.
 
 Usage: bin/flaair run flaair_bridge emulated_target --duration 10 --counters out/target.json
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,10 +46,10 @@ from flaair_common.realtime import take_realtime_priority
 
 # magic, sequence, first_sample_index, sample_rate_hz, n, flags
 SENSOR_HEAD = struct.Struct("<4sIQfHH")
-DRIVE_HEAD = struct.Struct("<4sIQHH")     # magic, sequence, first_sample_index, m, flags
+DRIVE_HEAD = struct.Struct("<4sIQHH")  # magic, sequence, first_sample_index, m, flags
 WATCHDOG_FLAG = 1
 STOP_FLAG = 1
-RING = 1 << 16                            # drive samples buffered ahead (3.3 s at 20 kHz)
+RING = 1 << 16  # drive samples buffered ahead (3.3 s at 20 kHz)
 
 
 @dataclass
@@ -59,17 +60,32 @@ class TargetCore:
     drive_limit_v: float
     values: np.ndarray = field(default_factory=lambda: np.zeros(RING))
     tags: np.ndarray = field(default_factory=lambda: np.full(RING, -1, dtype=np.int64))
-    next_index: int = 0        # first index not yet decided
+    next_index: int = 0  # first index not yet decided
     last_v: float = 0.0
     missing_run: int = 0
-    armed: bool = False        # fresh drive seen since start / the last stop
+    armed: bool = False  # fresh drive seen since start / the last stop
     tripped: bool = False
-    stop_index: int = 0        # drive for indices below this (sent before a stop) is ignored
-    applied_v: float = 0.0     # the drive applied at the last sample
-    counts: dict = field(default_factory=lambda: dict.fromkeys(
-        ("drive_packets", "dropped_packets", "late_samples", "ignored_after_stop_samples",
-         "too_far_ahead_samples", "fresh_samples", "missing_samples", "held_samples",
-         "zeroed_samples", "clamped_samples", "watchdog_trips", "stop_packets"), 0))
+    stop_index: int = 0  # drive for indices below this (sent before a stop) is ignored
+    applied_v: float = 0.0  # the drive applied at the last sample
+    counts: dict = field(
+        default_factory=lambda: dict.fromkeys(
+            (
+                "drive_packets",
+                "dropped_packets",
+                "late_samples",
+                "ignored_after_stop_samples",
+                "too_far_ahead_samples",
+                "fresh_samples",
+                "missing_samples",
+                "held_samples",
+                "zeroed_samples",
+                "clamped_samples",
+                "watchdog_trips",
+                "stop_packets",
+            ),
+            0,
+        )
+    )
 
     def receive(self, data: bytes) -> None:
         """One datagram from FLAAIR: validate, then buffer its drive (or honour a stop)."""
@@ -109,9 +125,19 @@ class TargetCore:
         """Drive applied at the next n samples (clamped) and the packet's flags."""
         out = np.empty(n)
         tally = np.zeros(6, dtype=np.int64)
-        self.last_v, self.missing_run, self.armed, self.tripped = (
-            _decide(self.values, self.tags, self.next_index, self.hold_samples, self.drive_limit_v,
-                    self.last_v, self.missing_run, self.armed, self.tripped, out, tally))
+        self.last_v, self.missing_run, self.armed, self.tripped = _decide(
+            self.values,
+            self.tags,
+            self.next_index,
+            self.hold_samples,
+            self.drive_limit_v,
+            self.last_v,
+            self.missing_run,
+            self.armed,
+            self.tripped,
+            out,
+            tally,
+        )
         for name, count in zip(_TALLY, tally):
             self.counts[name] += int(count)
         self.applied_v = float(out[-1])
@@ -119,13 +145,20 @@ class TargetCore:
         return out, WATCHDOG_FLAG if self.tripped else 0
 
 
-_TALLY = ("fresh_samples", "clamped_samples", "missing_samples", "held_samples", "zeroed_samples",
-          "watchdog_trips")
+_TALLY = (
+    "fresh_samples",
+    "clamped_samples",
+    "missing_samples",
+    "held_samples",
+    "zeroed_samples",
+    "watchdog_trips",
+)
 
 
 @njit(cache=True)
-def _decide(values, tags, first, hold_samples, limit, last_v, missing_run, armed, tripped, out,
-            tally):
+def _decide(
+    values, tags, first, hold_samples, limit, last_v, missing_run, armed, tripped, out, tally
+):
     """Per sample: the fresh drive sample (clamped),
     else hold the last for hold_samples, then zero.
     """
@@ -154,8 +187,9 @@ def _decide(values, tags, first, hold_samples, limit, last_v, missing_run, armed
     return last_v, missing_run, armed, tripped
 
 
-def sensor_packet(sequence: int, first: int, rate_hz: float, flags: int, drive_v, stroke_v,
-                  pitch_v) -> bytes:
+def sensor_packet(
+    sequence: int, first: int, rate_hz: float, flags: int, drive_v, stroke_v, pitch_v
+) -> bytes:
     """One sensor packet, packed with struct (independent of flaair_bridge.core.protocol)."""
     n = len(drive_v)
     samples = np.column_stack([drive_v, stroke_v, pitch_v]).astype("<f4")
@@ -178,44 +212,86 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     except ConfigError as exc:
         print(f"emulated_target: {exc}", file=sys.stderr)
         raise SystemExit(2)
-    parser = argparse.ArgumentParser(prog="emulated_target", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--bridge", default=shared["bridge"],
-                        help="HOST:PORT the sensor packets go to [%(default)s]")
-    parser.add_argument("--listen", default=shared["listen"],
-                        help="HOST:PORT drive packets arrive at [%(default)s]")
-    parser.add_argument("--duration", type=float, default=0.0,
-                        help="stop after this much signal time, s (0: until Ctrl-C)")
-    parser.add_argument("--packet-samples", type=int, default=shared["packet_samples"],
-                        help="samples per sensor packet n [%(default)s]")
-    parser.add_argument("--sample-rate", type=float, default=shared["sample_rate_hz"],
-                        help="Hz [%(default)s]")
-    parser.add_argument("--hold-samples", type=int, default=shared["hold_samples"],
-                        help="watchdog hold before zero [%(default)s]")
-    parser.add_argument("--drive-limit-v", type=float, default=shared["target_drive_limit_v"],
-                        help="own clamp, V [%(default)s]")
-    parser.add_argument("--model", default=shared["model_file"] or None,
-                        help="plant model YAML [config/model.yaml]")
-    parser.add_argument("--noise", action=argparse.BooleanOptionalAction, default=shared["noise"],
-                        help="sensor noise")
-    parser.add_argument("--seed", type=int, default=shared["noise_seed"],
-                        help="noise seed [%(default)s]")
-    parser.add_argument("--counters", help="also write the counters (strict JSON) to this file: "
-                                           "once a second of signal while running (\"final\": "
-                                           "false), and at exit")
-    parser.add_argument("--realtime-priority", type=int, default=shared["realtime_priority"],
-                        help="SCHED_FIFO priority of the target's loop, 0: normal scheduling (a "
-                             "real target is hardware of its own; on a shared machine this keeps "
-                             "its clock) [%(default)s]")
+    parser = argparse.ArgumentParser(
+        prog="emulated_target",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--bridge",
+        default=shared["bridge"],
+        help="HOST:PORT the sensor packets go to [%(default)s]",
+    )
+    parser.add_argument(
+        "--listen", default=shared["listen"], help="HOST:PORT drive packets arrive at [%(default)s]"
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=0.0,
+        help="stop after this much signal time, s (0: until Ctrl-C)",
+    )
+    parser.add_argument(
+        "--packet-samples",
+        type=int,
+        default=shared["packet_samples"],
+        help="samples per sensor packet n [%(default)s]",
+    )
+    parser.add_argument(
+        "--sample-rate", type=float, default=shared["sample_rate_hz"], help="Hz [%(default)s]"
+    )
+    parser.add_argument(
+        "--hold-samples",
+        type=int,
+        default=shared["hold_samples"],
+        help="watchdog hold before zero [%(default)s]",
+    )
+    parser.add_argument(
+        "--drive-limit-v",
+        type=float,
+        default=shared["target_drive_limit_v"],
+        help="own clamp, V [%(default)s]",
+    )
+    parser.add_argument(
+        "--model", default=shared["model_file"] or None, help="plant model YAML [config/model.yaml]"
+    )
+    parser.add_argument(
+        "--noise",
+        action=argparse.BooleanOptionalAction,
+        default=shared["noise"],
+        help="sensor noise",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=shared["noise_seed"], help="noise seed [%(default)s]"
+    )
+    parser.add_argument(
+        "--counters",
+        help="also write the counters (strict JSON) to this file: "
+        'once a second of signal while running ("final": '
+        "false), and at exit",
+    )
+    parser.add_argument(
+        "--realtime-priority",
+        type=int,
+        default=shared["realtime_priority"],
+        help="SCHED_FIFO priority of the target's loop, 0: normal scheduling (a "
+        "real target is hardware of its own; on a shared machine this keeps "
+        "its clock) [%(default)s]",
+    )
     args = parser.parse_args(argv)
     if not 1 <= args.packet_samples <= 1000:
         parser.error(f"--packet-samples {args.packet_samples}: must be 1..1000")
     if not 0 <= args.realtime_priority <= 99:
         parser.error(f"--realtime-priority {args.realtime_priority}: must be 0..99")
-    if (args.hold_samples < 0 or not args.drive_limit_v >= 0 or not args.sample_rate > 0
-        or args.duration < 0):
-        parser.error("--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate > "
-                     "0")
+    if (
+        args.hold_samples < 0
+        or not args.drive_limit_v >= 0
+        or not args.sample_rate > 0
+        or args.duration < 0
+    ):
+        parser.error(
+            "--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate > 0"
+        )
     return args
 
 
@@ -272,31 +348,54 @@ def main(argv: list[str] | None = None) -> int:
             core.receive(data)
             # said once each (stderr): a script or test can wait on them instead of guessing a time
             if before[0] == 0 and core.counts["drive_packets"] > 0:
-                print(f"emulated_target: first drive packet from {sender[0]}:{sender[1]}",
-                      file=sys.stderr, flush=True)
+                print(
+                    f"emulated_target: first drive packet from {sender[0]}:{sender[1]}",
+                    file=sys.stderr,
+                    flush=True,
+                )
             if core.counts["stop_packets"] > before[1]:
-                print(f"emulated_target: stop packet {core.counts['stop_packets']} received: drive "
-                      "zeroed, disarmed", file=sys.stderr, flush=True)
+                print(
+                    f"emulated_target: stop packet {core.counts['stop_packets']} received: drive "
+                    "zeroed, disarmed",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
     if error := take_realtime_priority(args.realtime_priority):
-        print(f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} "
-              f"({error})", file=sys.stderr, flush=True)
+        print(
+            f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} "
+            f"({error})",
+            file=sys.stderr,
+            flush=True,
+        )
     held: bytes | None = None
-    print(f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, "
-          f"drive packets on {sock.getsockname()[0]}:{sock.getsockname()[1]}, hold "
-          f"{args.hold_samples} samples, limit +-{args.drive_limit_v:g} V", file=sys.stderr,
-          flush=True)
+    print(
+        f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, "
+        f"drive packets on {sock.getsockname()[0]}:{sock.getsockname()[1]}, hold "
+        f"{args.hold_samples} samples, limit +-{args.drive_limit_v:g} V",
+        file=sys.stderr,
+        flush=True,
+    )
     t0 = time.monotonic()
     j = 0
     snapshot_every = max(1, round(fs / n))
 
     def counters(final: bool) -> dict:
         """What the target counted so far; `final` once it has stopped."""
-        return {**core.counts, **stats, "samples": core.next_index, "sample_rate_hz": fs,
-                "packet_samples": n, "wall_s": time.monotonic() - t0, "stopped": not core.armed
-                and core.counts["stop_packets"] > 0, "watchdog_tripped_now": core.tripped,
-                "final": final, "watchdog_tripped_at_exit": core.tripped if final else None,
-                "applied_v_at_exit": core.applied_v if final else None}
+        return {
+            **core.counts,
+            **stats,
+            "samples": core.next_index,
+            "sample_rate_hz": fs,
+            "packet_samples": n,
+            "wall_s": time.monotonic() - t0,
+            "stopped": not core.armed and core.counts["stop_packets"] > 0,
+            "watchdog_tripped_now": core.tripped,
+            "final": final,
+            "watchdog_tripped_at_exit": core.tripped if final else None,
+            "applied_v_at_exit": core.applied_v if final else None,
+        }
+
     while not stop_requested and (total is None or j <= total):
         due = t0 + j * n / fs
         while (remaining := due - time.monotonic()) > 0 and not stop_requested:
@@ -318,10 +417,13 @@ def main(argv: list[str] | None = None) -> int:
         drive, flags = core.decide(n)
         # said at each change: a script can wait on the state, not guess a time
         if core.tripped != was_tripped:
-            print(f"emulated_target: drive watchdog {'tripped' if core.tripped else 'cleared'} at "
-                  f"sample {core.next_index}: "
-                  f"{'holding zero drive' if core.tripped else 'fresh drive again'}",
-                  file=sys.stderr, flush=True)
+            print(
+                f"emulated_target: drive watchdog {'tripped' if core.tripped else 'cleared'} at "
+                f"sample {core.next_index}: "
+                f"{'holding zero drive' if core.tripped else 'fresh drive again'}",
+                file=sys.stderr,
+                flush=True,
+            )
         state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
         j += 1
@@ -351,8 +453,12 @@ def _progress(total: int | None, period_s: float):
         return lambda _k: None
     from tqdm import tqdm
 
-    bar = tqdm(total=round(total * period_s, 3), unit="s", desc="emulated target",
-               bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s")
+    bar = tqdm(
+        total=round(total * period_s, 3),
+        unit="s",
+        desc="emulated target",
+        bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} s",
+    )
     return lambda k: bar.update(k * period_s)
 
 

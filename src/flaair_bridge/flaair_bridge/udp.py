@@ -6,6 +6,7 @@ idle and releases the GIL. Each datagram carries the kernel's receive time (SO_T
 wall clock, `time.time()` seconds): when the reader falls behind, a datagram's arrival is still
 known, so the bridge knows how far the target's clock has moved on.
 """
+
 from __future__ import annotations
 
 import select
@@ -13,11 +14,11 @@ import socket
 import struct
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from flaair_common.realtime import take_realtime_priority
 
-SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)   # Linux; Python does not name it
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; Python does not name it
 _TIMESPEC = struct.Struct("@qq")
 
 
@@ -26,9 +27,14 @@ class DatagramEndpoint:
     the reader thread (arrival_s: kernel receive time on the `time.time()` clock).
     """
 
-    def __init__(self, host: str, port: int, receive_buffer_bytes: int,
-                 on_datagram: Callable[[bytes, tuple[str, int], float], None],
-                 realtime_priority: int = 0) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        receive_buffer_bytes: int,
+        on_datagram: Callable[[bytes, tuple[str, int], float], None],
+        realtime_priority: int = 0,
+    ) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer_bytes)
@@ -54,9 +60,10 @@ class DatagramEndpoint:
         self.priority_set.set()
         while self.running:
             try:
-                data, ancillary, _flags, sender = (
-                    self.sock.recvmsg(65536, socket.CMSG_SPACE(_TIMESPEC.size)))
-            except socket.timeout:
+                data, ancillary, _flags, sender = self.sock.recvmsg(
+                    65536, socket.CMSG_SPACE(_TIMESPEC.size)
+                )
+            except TimeoutError:
                 continue
             except OSError:
                 if not self.running:
@@ -64,8 +71,11 @@ class DatagramEndpoint:
                 continue  # e.g. ICMP port unreachable from an earlier send: keep reading
             arrival_s = time.time()
             for level, kind, value in ancillary:
-                if (level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS
-                    and len(value) >= _TIMESPEC.size):
+                if (
+                    level == socket.SOL_SOCKET
+                    and kind == SO_TIMESTAMPNS
+                    and len(value) >= _TIMESPEC.size
+                ):
                     seconds, nanoseconds = _TIMESPEC.unpack_from(value)
                     arrival_s = seconds + 1e-9 * nanoseconds
             self.on_datagram(data, sender, arrival_s)

@@ -14,5 +14,20 @@ Load no rclpy on import:
 - `runcsv`: measured-run CSV; `strictjson`: strict JSON out.
 """
 
-__all__ = ["params", "runtime", "qos", "container", "intra", "blocks", "msgdict", "graph", "cdr",
-           "msgdefs", "stream", "topics", "realtime", "runcsv", "strictjson"]
+__all__ = [
+    "blocks",
+    "cdr",
+    "container",
+    "graph",
+    "intra",
+    "msgdefs",
+    "msgdict",
+    "params",
+    "qos",
+    "realtime",
+    "runcsv",
+    "runtime",
+    "stream",
+    "strictjson",
+    "topics",
+]

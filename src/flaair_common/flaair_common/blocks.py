@@ -4,6 +4,7 @@
 Array fields of rclpy messages are array.array('d'); moving through the buffer protocol
 avoids a per-sample Python loop in both directions.
 """
+
 from __future__ import annotations
 
 import array
@@ -33,12 +34,12 @@ def bools_to_field(values: np.ndarray) -> list[bool]:
 
 def stamp_ns_of_sample(index: int, sample_rate_hz: float) -> int:
     """Header stamp (ns) of the block starting at sample `index`: its first sample's time."""
-    return int(round(index / sample_rate_hz * 1e9))
+    return round(index / sample_rate_hz * 1e9)
 
 
 def stamp_from_time_s(time_s: float) -> Time:
     """builtin_interfaces/Time for a time in seconds (sim or wall time)."""
-    nanoseconds = int(round(time_s * 1e9))
+    nanoseconds = round(time_s * 1e9)
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 

@@ -16,6 +16,7 @@ An empty sequence is not padded to its element's alignment. Padding bytes are wr
 zeros here; Fast DDS leaves them uninitialised and, for messages with empty sequences, appends
 a few unused bytes (its size estimate pads them), so equal messages need not be equal bytes.
 """
+
 from __future__ import annotations
 
 import struct
@@ -85,8 +86,10 @@ def encode(layout: Layout, stamp_ns: int, frame_id: str, values: dict) -> bytes:
             if array.size:
                 out += b"\x00" * _pad(len(out) - 4, dtype.itemsize) + array.tobytes()
         else:
-            out += b"\x00" * _pad(body, dtype.itemsize) + np.array(
-                0 if value is None else value, dtype=dtype).tobytes()
+            out += (
+                b"\x00" * _pad(body, dtype.itemsize)
+                + np.array(0 if value is None else value, dtype=dtype).tobytes()
+            )
     return bytes(out)
 
 
@@ -103,20 +106,25 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
     buffer = memoryview(data)
     if bytes(buffer[:4]) != ENCAPSULATION:
         raise CdrError(
-            f"{layout.type_name}: not little-endian CDR (encapsulation {bytes(buffer[:4]).hex()})")
+            f"{layout.type_name}: not little-endian CDR (encapsulation {bytes(buffer[:4]).hex()})"
+        )
     try:
         sec, nanosec, frame_len = struct.unpack_from("<iII", buffer, 4)
         offset = 16
-        frame_id = bytes(buffer[offset:offset + frame_len - 1]).decode()
+        frame_id = bytes(buffer[offset : offset + frame_len - 1]).decode()
         offset += frame_len
-        out: dict = {"stamp_ns": sec * 1_000_000_000 + nanosec, "sec": sec, "nanosec": nanosec,
-                     "frame_id": frame_id}
+        out: dict = {
+            "stamp_ns": sec * 1_000_000_000 + nanosec,
+            "sec": sec,
+            "nanosec": nanosec,
+            "frame_id": frame_id,
+        }
         for name, kind in layout.fields:
             if kind == "string":
                 offset += _pad(offset - 4, 4)
                 (length,) = struct.unpack_from("<I", buffer, offset)
                 offset += 4
-                out[name] = bytes(buffer[offset:offset + length - 1]).decode()
+                out[name] = bytes(buffer[offset : offset + length - 1]).decode()
                 offset += length
                 continue
             dtype, sequence = _KINDS[kind]
@@ -128,8 +136,10 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
                     offset += _pad(offset - 4, dtype.itemsize)
                 end = offset + count * dtype.itemsize
                 if end > len(buffer):
-                    raise CdrError(f"{layout.type_name}.{name}: {count} elements run past the end "
-                                   f"({len(buffer)} bytes)")
+                    raise CdrError(
+                        f"{layout.type_name}.{name}: {count} elements run past the end "
+                        f"({len(buffer)} bytes)"
+                    )
                 out[name] = np.frombuffer(buffer, dtype=dtype, count=count, offset=offset)
                 offset = end
             else:
@@ -184,8 +194,9 @@ class FixedCodec:
                 offset += _pad(offset - 4, dtype.itemsize)
                 names.append(name), formats.append(dtype), offsets.append(offset)
                 offset += dtype.itemsize
-        self.dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets,
-                               "itemsize": offset})
+        self.dtype = np.dtype(
+            {"names": names, "formats": formats, "offsets": offsets, "itemsize": offset}
+        )
         # A record over zeroed bytes holding the constant parts (encapsulation, frame, counts):
         # encode() fills the rest in place. (A structured array's copy() would leave the padding
         # uninitialised, hence a view on a bytearray.)
@@ -213,8 +224,11 @@ class FixedCodec:
         """
         if len(data) >= self.dtype.itemsize:
             record = np.frombuffer(data, dtype=self.dtype, count=1)[0]
-            if record["frame_len"] == self._frame_len and data[:4] == ENCAPSULATION and all(
-                    record[count] == self.block_size for count in self.counts):
+            if (
+                record["frame_len"] == self._frame_len
+                and data[:4] == ENCAPSULATION
+                and all(record[count] == self.block_size for count in self.counts)
+            ):
                 return record
         return decode(self.layout, data)
 
@@ -262,11 +276,13 @@ def layout_of(type_name: str) -> Layout:
     types = project_types()
     if type_name not in types:
         raise MsgDefinitionError(
-            f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})")
+            f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})"
+        )
     _, fields = types[type_name]
     if not fields or fields[0][1] != (Nodetype.NAME, "std_msgs/msg/Header"):
         raise MsgDefinitionError(
-            f"{type_name}: the CDR codec needs a std_msgs/Header as the first field")
+            f"{type_name}: the CDR codec needs a std_msgs/Header as the first field"
+        )
     kinds: list[tuple[str, str]] = []
     for name, (node, detail) in fields[1:]:
         if node == Nodetype.BASE:
@@ -275,7 +291,8 @@ def layout_of(type_name: str) -> Layout:
             kinds.append((name, f"{detail[0][1][0]}[]"))
         else:
             raise MsgDefinitionError(
-                f"{type_name}.{name}: unsupported field type for the CDR codec")
+                f"{type_name}.{name}: unsupported field type for the CDR codec"
+            )
     return Layout(type_name, tuple(kinds))
 
 
@@ -298,9 +315,9 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def decode_batch(layout: Layout, datas,
-                 codecs: dict | None = None) -> tuple[list[tuple[np.ndarray, np.ndarray]],
-                                                      list[int]]:
+def decode_batch(
+    layout: Layout, datas, codecs: dict | None = None
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[int]]:
     """Many messages of one block layout decoded at
     once: one structured-array view per message size.
 
@@ -313,7 +330,7 @@ def decode_batch(layout: Layout, datas,
     sizes = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
     groups, unfit = [], []
     unique, first_seen = np.unique(sizes, return_index=True)
-    for size in unique[np.argsort(first_seen)].tolist():   # the sizes in order of arrival
+    for size in unique[np.argsort(first_seen)].tolist():  # the sizes in order of arrival
         numbers = np.flatnonzero(sizes == size)
         if size not in codecs:
             codecs[size] = _sized_dtype(layout, datas[numbers[0]])
@@ -342,6 +359,11 @@ def _sized_dtype(layout: Layout, data: bytes) -> tuple[FixedCodec, np.dtype] | N
     if codec.dtype.itemsize > len(data):
         return None
     names = codec.dtype.names
-    return codec, np.dtype({"names": names, "formats": [codec.dtype.fields[n][0] for n in names],
-                            "offsets": [codec.dtype.fields[n][1] for n in names],
-                            "itemsize": len(data)})
+    return codec, np.dtype(
+        {
+            "names": names,
+            "formats": [codec.dtype.fields[n][0] for n in names],
+            "offsets": [codec.dtype.fields[n][1] for n in names],
+            "itemsize": len(data),
+        }
+    )

@@ -16,6 +16,7 @@ through `Graph`:
 
 No rclpy here: readiness is checked by the caller (a predicate for `wait_for`).
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -28,8 +29,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Callable, Sequence
+from typing import IO
 
 DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / "flaair-ros-domains"
 # 1-101: the domain IDs the ROS 2 docs call safe on Linux (above 101 a domain's ports can reach
@@ -77,12 +79,15 @@ def lease_domain() -> DomainLease:
             handle.close()
             continue
         return DomainLease(domain_id, handle)
-    raise GraphError(f"every ROS domain in {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} is leased by "
-                     f"another FLAAIR graph on this machine (locks in {DOMAIN_LOCK_DIR})")
+    raise GraphError(
+        f"every ROS domain in {DOMAIN_IDS.start}..{DOMAIN_IDS.stop - 1} is leased by "
+        f"another FLAAIR graph on this machine (locks in {DOMAIN_LOCK_DIR})"
+    )
 
 
-def graph_env(domain_id: int, *, localhost: bool = True,
-              base: dict[str, str] | None = None) -> dict[str, str]:
+def graph_env(
+    domain_id: int, *, localhost: bool = True, base: dict[str, str] | None = None
+) -> dict[str, str]:
     """Environment for a graph's processes: its domain, localhost discovery, unbuffered output."""
     env = dict(os.environ if base is None else base)
     env["ROS_DOMAIN_ID"] = str(domain_id)
@@ -124,7 +129,8 @@ def is_node_executable(path: str | os.PathLike) -> bool:
     """
     path = Path(path)
     return path.parent.parent.name == "lib" and (
-        path.name.endswith("_node") or path.name == "container")
+        path.name.endswith("_node") or path.name == "container"
+    )
 
 
 def with_deferred_signals(argv: Sequence[str]) -> list[str]:
@@ -137,20 +143,38 @@ def with_deferred_signals(argv: Sequence[str]) -> list[str]:
     Any other argv is returned unchanged.
     """
     argv = list(argv)
-    program = (argv[1] if len(argv) > 1 and Path(argv[0]).name.startswith("python") else argv[0]
-               if argv else "")
+    program = (
+        argv[1]
+        if len(argv) > 1 and Path(argv[0]).name.startswith("python")
+        else argv[0]
+        if argv
+        else ""
+    )
     if not argv or not is_node_executable(program) or not _env_blocks_signals():
         return argv
-    return [_ENV, "--default-signal=INT", "--default-signal=TERM", "--block-signal=INT",
-            "--block-signal=TERM", "--", *argv]
+    return [
+        _ENV,
+        "--default-signal=INT",
+        "--default-signal=TERM",
+        "--block-signal=INT",
+        "--block-signal=TERM",
+        "--",
+        *argv,
+    ]
 
 
 def _env_blocks_signals() -> bool:
     """Whether this machine's `env` has --block-signal (checked once)."""
     if not _ENV_BLOCKS:
-        _ENV_BLOCKS.append(_ENV is not None and subprocess.run(
-            [_ENV, "--block-signal=INT", "true"], stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL).returncode == 0)
+        _ENV_BLOCKS.append(
+            _ENV is not None
+            and subprocess.run(
+                [_ENV, "--block-signal=INT", "true"],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            ).returncode
+            == 0
+        )
     return _ENV_BLOCKS[0]
 
 
@@ -185,8 +209,9 @@ def node_argv(package: str, executable: str, ros_args: Sequence[str] = ()) -> li
 class Graph:
     """Child processes of one graph on one private domain (a context manager: stops them all)."""
 
-    def __init__(self, *, domain_id: int | None = None, localhost: bool = True,
-                 log_dir: Path | None = None) -> None:
+    def __init__(
+        self, *, domain_id: int | None = None, localhost: bool = True, log_dir: Path | None = None
+    ) -> None:
         self.lease = lease_domain() if domain_id is None else None
         self.domain_id = self.lease.domain_id if self.lease is not None else int(domain_id)
         self.localhost = localhost
@@ -200,8 +225,16 @@ class Graph:
         scope = "localhost" if self.localhost else "subnet"
         return f"ROS domain {self.domain_id}, {scope} discovery"
 
-    def start(self, name: str, argv: Sequence[str], *, stdout=None, stderr=None,
-              stdin=subprocess.DEVNULL, text: bool = True) -> subprocess.Popen:
+    def start(
+        self,
+        name: str,
+        argv: Sequence[str],
+        *,
+        stdout=None,
+        stderr=None,
+        stdin=subprocess.DEVNULL,
+        text: bool = True,
+    ) -> subprocess.Popen:
         """Start a child; output goes to LOG_DIR/NAME.log unless stdout/stderr say otherwise."""
         log = None
         if self.log_dir is not None and (stdout is None or stderr is None):
@@ -209,14 +242,26 @@ class Graph:
             log = open(self.log_dir / f"{name}.log", "w")
         argv, preexec = with_parent_death_signal(with_deferred_signals(argv))
         process = subprocess.Popen(
-            argv, env=self.env, cwd=repo_root(), text=text, stdin=stdin, stdout=stdout
-            if stdout is not None else (log or subprocess.DEVNULL), stderr=stderr
-            if stderr is not None else (
-            log if log and stdout is not None else subprocess.STDOUT if log
-            else subprocess.DEVNULL), start_new_session=True, preexec_fn=preexec,
+            argv,
+            env=self.env,
+            cwd=repo_root(),
+            text=text,
+            stdin=stdin,
+            stdout=stdout if stdout is not None else (log or subprocess.DEVNULL),
+            stderr=stderr
+            if stderr is not None
+            else (
+                log
+                if log and stdout is not None
+                else subprocess.STDOUT
+                if log
+                else subprocess.DEVNULL
+            ),
+            start_new_session=True,
+            preexec_fn=preexec,
         )
         if log is not None:
-            log.close()   # the child holds its own descriptor
+            log.close()  # the child holds its own descriptor
         self.children.append((name, process))
         return process
 
@@ -232,11 +277,13 @@ class Graph:
         for name, process in self.children:
             if process.poll() is not None and process.returncode not in ok_codes:
                 tail = self.log_tail(name)
-                raise GraphError(f"{name} exited with code {process.returncode}"
-                                 + (f":\n{tail}" if tail else ""))
+                raise GraphError(
+                    f"{name} exited with code {process.returncode}" + (f":\n{tail}" if tail else "")
+                )
 
-    def stop(self, process: subprocess.Popen, sig: int = signal.SIGINT,
-             timeout_s: float = STOP_TIMEOUT_S) -> int:
+    def stop(
+        self, process: subprocess.Popen, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S
+    ) -> int:
         """Signal a child's process group, wait, then kill it; returns its exit code."""
         if process.poll() is None:
             try:
@@ -262,7 +309,7 @@ class Graph:
         if self.lease is not None:
             self.lease.release()
 
-    def __enter__(self) -> "Graph":
+    def __enter__(self) -> Graph:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -296,6 +343,7 @@ def terminate_raises() -> None:
     SIGINT and SIGTERM are unblocked too: a CLI that handles them must see them even when it was
     started with them blocked (a launcher's signal mask is inherited across exec).
     """
+
     def handler(signum: int, frame: object) -> None:
         global _terminate_requested
         _terminate_requested = True

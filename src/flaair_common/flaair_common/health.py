@@ -5,15 +5,16 @@ Levels are diagnostic_msgs' (OK 0, WARN 1, ERROR 2, STALE 3); `values` are its k
 `FlaairNode.publish_health` turns a `Health` into a DiagnosticArray once a second (the rate of
 ROS's diagnostic_updater), under the node's fully qualified name as hardware id.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
-__all__ = ["OK", "WARN", "ERROR", "STALE", "Health", "health", "loss_percent"]
+__all__ = ["ERROR", "OK", "STALE", "WARN", "Health", "health", "loss_percent"]
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
-DIAGNOSTICS_PERIOD_S = 1.0   # diagnostic_updater's default rate: 1 Hz
+DIAGNOSTICS_PERIOD_S = 1.0  # diagnostic_updater's default rate: 1 Hz
 
 
 @dataclass(frozen=True)
@@ -26,17 +27,24 @@ class Health:
     values: tuple[tuple[str, str], ...]
 
 
-def health(name: str, problems: list[tuple[int, str]], ok_message: str,
-           values: Mapping[str, object]) -> Health:
+def health(
+    name: str, problems: list[tuple[int, str]], ok_message: str, values: Mapping[str, object]
+) -> Health:
     """The worst of `problems` (level, text) with every text joined, or OK with `ok_message`.
 
     Values are formatted as text (floats with 4 significant digits), in the given order.
     """
     level = max((lv for lv, _ in problems), default=OK)
     message = "; ".join(text for lv, text in problems if lv > OK) or ok_message
-    return Health(name, level, message, tuple(
-        (key, f"{value:.4g}" if isinstance(value, float) else str(value))
-        for key, value in values.items()))
+    return Health(
+        name,
+        level,
+        message,
+        tuple(
+            (key, f"{value:.4g}" if isinstance(value, float) else str(value))
+            for key, value in values.items()
+        ),
+    )
 
 
 def loss_percent(lost: int, total: int) -> float:

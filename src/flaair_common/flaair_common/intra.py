@@ -15,31 +15,39 @@ thread when the hot one is empty and `background_batch` blocks wait: a per-wingb
 never delays a drive packet, and a background core runs on longer blocks. Outside a container
 (`current()` is None) both helpers fall back to plain rclpy publishers and raw subscriptions.
 """
+
 from __future__ import annotations
 
 import collections
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from flaair_common import cdr, topics
 
-_current: "Bus | None" = None
+_current: Bus | None = None
 
 
 class Bus:
     """The composed nodes' in-process block streams (only `local_topics` travel here)."""
 
-    def __init__(self, local_topics: set[str], budget: int = 64, profile: bool = False,
-                 background_batch: int = 100, dds_batch: int = 1) -> None:
+    def __init__(
+        self,
+        local_topics: set[str],
+        budget: int = 64,
+        profile: bool = False,
+        background_batch: int = 100,
+        dds_batch: int = 1,
+    ) -> None:
         self.local_topics = set(local_topics)
         self.budget = budget
         # DDS copies of the local block streams go out joined, this many blocks to a message:
         # one rclpy publish costs tens of us, 2000 blocks/s per stream are most of a core
         self.dds_batch = dds_batch
-        self.publishers: list["BlockPublisher"] = []
+        self.publishers: list[BlockPublisher] = []
         # (queued at, task)
         self.deferred: collections.deque[tuple[float, Callable[[], None]]] = collections.deque()
         # one thread at a time runs them: each stream stays in order
@@ -49,21 +57,28 @@ class Bus:
         self.background_batch = background_batch
         # FLAAIR_PROFILE: time every composed callback
         self.profile = CallbackProfile() if profile else None
-        self.subscribers: dict[str, list[tuple[Callable[[dict], None],
-                                               bool]]] = (collections.defaultdict(list))
+        self.subscribers: dict[str, list[tuple[Callable[[dict], None], bool]]] = (
+            collections.defaultdict(list)
+        )
         self.queue: collections.deque[tuple[Callable[[dict], None], dict]] = collections.deque()
-        self.background_queue: collections.deque[tuple[Callable[[dict], None],
-                                                       dict]] = (collections.deque())
+        self.background_queue: collections.deque[tuple[Callable[[dict], None], dict]] = (
+            collections.deque()
+        )
         self._draining = threading.Lock()
         self._draining_background = threading.Lock()
-        self.building_background = False   # set by the container while it builds a background node
+        self.building_background = False  # set by the container while it builds a background node
         # background callbacks that take every block whole
         self.unjoined: set[Callable[[dict], None]] = set()
         self.delivered = 0
-        self.threaded = False   # some thread other than the main one has delivered blocks
+        self.threaded = False  # some thread other than the main one has delivered blocks
 
-    def subscribe(self, topic: str, callback: Callable[[dict], None], background: bool = False,
-                  join: bool = True) -> None:
+    def subscribe(
+        self,
+        topic: str,
+        callback: Callable[[dict], None],
+        background: bool = False,
+        join: bool = True,
+    ) -> None:
         """`callback(fields)` for every block of `topic`; `background`: off the hot
         path (see the module), its queued contiguous blocks joined into one call
         unless `join` is False (a recorder keeps every message as it was published).
@@ -83,8 +98,9 @@ class Bus:
         """
         self.deferred.append((time.monotonic(), task))
 
-    def run_deferred(self, older_than_s: float = 0.0, limit: int = 1 << 30,
-                     wait: bool = True) -> int:
+    def run_deferred(
+        self, older_than_s: float = 0.0, limit: int = 1 << 30, wait: bool = True
+    ) -> int:
         """Run up to `limit` deferred tasks queued at
         least `older_than_s` ago; returns how many ran.
         """
@@ -101,8 +117,9 @@ class Bus:
 
     def has_background(self) -> bool:
         """Some subscriber is off the hot path (its blocks wait for the main thread)."""
-        return any(background for subscribers in self.subscribers.values() for _,
-                   background in subscribers)
+        return any(
+            background for subscribers in self.subscribers.values() for _, background in subscribers
+        )
 
     def subscriber_count(self, topic: str) -> int:
         return len(self.subscribers.get(topic, ()))
@@ -124,8 +141,12 @@ class Bus:
             # a reader thread delivers: the main thread leaves its blocks to it
             self.threaded = True
         done = _drain(self.queue, self._draining, budget)
-        if (not self.queue and done < budget and len(self.background_queue) >= self.background_batch
-                and threading.current_thread() is threading.main_thread()):
+        if (
+            not self.queue
+            and done < budget
+            and len(self.background_queue) >= self.background_batch
+            and threading.current_thread() is threading.main_thread()
+        ):
             done += self._drain_background(budget - done)
         self.delivered += done
         return done
@@ -155,7 +176,7 @@ class Bus:
                 callback, fields = self.background_queue.popleft()
                 taken.setdefault(callback, []).append(fields)
             for callback, blocks in taken.items():
-                for fields in (blocks if callback in self.unjoined else join_contiguous(blocks)):
+                for fields in blocks if callback in self.unjoined else join_contiguous(blocks):
                     callback(fields)
             return sum(map(len, taken.values()))
         finally:
@@ -197,16 +218,23 @@ def join_contiguous(blocks: list[dict]) -> list[dict]:
             out.append(run[0])
         elif run:
             first = run[0]
-            out.append({key: np.concatenate([b[key] for b in run])
-                        if isinstance(value, np.ndarray) else value for key,
-                        value in first.items()})
+            out.append(
+                {
+                    key: np.concatenate([b[key] for b in run])
+                    if isinstance(value, np.ndarray)
+                    else value
+                    for key, value in first.items()
+                }
+            )
         run.clear()
 
     for fields in blocks:
         if run and fields["first_sample_index"] != run[-1]["first_sample_index"] + _length(run[-1]):
             flush()
-        if run and any(isinstance(v, np.ndarray) and not isinstance(fields.get(k), np.ndarray)
-                       for k, v in run[0].items()):
+        if run and any(
+            isinstance(v, np.ndarray) and not isinstance(fields.get(k), np.ndarray)
+            for k, v in run[0].items()
+        ):
             flush()
         run.append(fields)
     flush()
@@ -226,14 +254,20 @@ class CallbackProfile:
     """
 
     def __init__(self) -> None:
-        self.entries: dict[str, list[float]] = {}   # name -> [calls, cpu_s, wall_s]
+        self.entries: dict[str, list[float]] = {}  # name -> [calls, cpu_s, wall_s]
 
     def wrap(self, callback: Callable[[dict], None]) -> Callable[[dict], None]:
         owner = getattr(callback, "__self__", None)
-        node = (owner.get_name() if hasattr(owner, "get_name") else type(owner).__name__
-                if owner else "")
+        node = (
+            owner.get_name()
+            if hasattr(owner, "get_name")
+            else type(owner).__name__
+            if owner
+            else ""
+        )
         entry = self.entries.setdefault(
-            f"{node}.{callback.__name__}" if node else callback.__qualname__, [0, 0.0, 0.0])
+            f"{node}.{callback.__name__}" if node else callback.__qualname__, [0, 0.0, 0.0]
+        )
         cpu, wall = time.thread_time, time.perf_counter
 
         def timed(fields: dict) -> None:
@@ -249,9 +283,11 @@ class CallbackProfile:
 
     def report(self) -> list[str]:
         """One line per callback: `profile: NAME: N calls, X us CPU, Y us wall per call`."""
-        return [f"profile: {name}: {int(n)} calls, {1e6 * cpu / max(n, 1):.1f} us CPU, "
-                f"{1e6 * wall / max(n, 1):.1f} us wall per call" for name,
-                (n, cpu, wall) in self.entries.items()]
+        return [
+            f"profile: {name}: {int(n)} calls, {1e6 * cpu / max(n, 1):.1f} us CPU, "
+            f"{1e6 * wall / max(n, 1):.1f} us wall per call"
+            for name, (n, cpu, wall) in self.entries.items()
+        ]
 
 
 def current() -> Bus | None:
@@ -282,18 +318,20 @@ class BlockPublisher:
     get every block at once. Messages without samples (ControllerState) go out one by one.
     """
 
-    def __init__(self, node: Any, msg_type: type, topic: str, codec: cdr.FixedCodec,
-                 qos: Any) -> None:
+    def __init__(
+        self, node: Any, msg_type: type, topic: str, codec: cdr.FixedCodec, qos: Any
+    ) -> None:
         self.topic, self.codec = topic, codec
         self.publisher = node.create_publisher(msg_type, topic, qos)
         bus = current()
         self.bus = bus if bus is not None and topic in bus.local_topics else None
         fields = dict(codec.layout.fields)
         sampled = "first_sample_index" in fields and any(
-            kind.endswith("[]") for kind in fields.values())
+            kind.endswith("[]") for kind in fields.values()
+        )
         self.batch = self.bus.dds_batch if self.bus is not None and sampled else 1
-        self.held: list[tuple[int, dict]] = []   # blocks not yet on DDS (batching)
-        self.held_end = 0                         # sample index after the last held block
+        self.held: list[tuple[int, dict]] = []  # blocks not yet on DDS (batching)
+        self.held_end = 0  # sample index after the last held block
         # per-sample fields
         self.arrays = [name for name, kind in codec.layout.fields if kind.endswith("[]")]
         self.sized: dict[int, cdr.FixedCodec] = {}
@@ -311,7 +349,7 @@ class BlockPublisher:
         # outside listener must still see this stream in order.
         if self.batch > 1:
             self._hold(stamp_ns, fields)
-        elif self.bus is not None and self.bus.dds_batch > 1:   # off the hot path, as the batches
+        elif self.bus is not None and self.bus.dds_batch > 1:  # off the hot path, as the batches
             self.bus.defer(lambda: self._publish_now(stamp_ns, fields))
         elif self.bus is None or self.publisher.get_subscription_count() > 0:
             self.publisher.publish(self.codec.encode(stamp_ns, fields))
@@ -320,7 +358,6 @@ class BlockPublisher:
             message["sec"], message["nanosec"] = divmod(int(stamp_ns), 1_000_000_000)
             message["frame_id"] = self.codec.frame_id
             self.bus.deliver(self.topic, message)
-
 
     def _hold(self, stamp_ns: int, fields: dict) -> None:
         first = fields["first_sample_index"]
@@ -345,14 +382,19 @@ class BlockPublisher:
         """Publish held (contiguous: `_hold` sees to it) blocks joined into one message, the first
         block's stamp and scalars, every sample in order (if anyone listens on DDS).
         """
-        if self.publisher.get_subscription_count() == 0:   # volatile: no listener, nothing lost
+        if self.publisher.get_subscription_count() == 0:  # volatile: no listener, nothing lost
             return
-        joined = {**held[0][1], **{name: np.concatenate([fields[name] for _, fields in held])
-                                   for name in self.arrays}}
+        joined = {
+            **held[0][1],
+            **{name: np.concatenate([fields[name] for _, fields in held]) for name in self.arrays},
+        }
         n = len(joined[self.arrays[0]])
-        codec = (self.codec if n == self.codec.block_size else self.sized.get(n)
-                 or self.sized.setdefault(
-            n, cdr.FixedCodec(self.codec.layout, n, self.codec.frame_id)))
+        codec = (
+            self.codec
+            if n == self.codec.block_size
+            else self.sized.get(n)
+            or self.sized.setdefault(n, cdr.FixedCodec(self.codec.layout, n, self.codec.frame_id))
+        )
         self.publisher.publish(codec.encode(held[0][0], joined))
 
 
@@ -361,14 +403,24 @@ def dds_listeners() -> int:
     another process listens to all of them); a large number outside such a container.
     """
     bus = current()
-    counts = ([p.publisher.get_subscription_count() for p in bus.publishers if p.batch > 1]
-              if bus is not None else [])
+    counts = (
+        [p.publisher.get_subscription_count() for p in bus.publishers if p.batch > 1]
+        if bus is not None
+        else []
+    )
     return min(counts) if counts else 1 << 30
 
 
-def subscribe_blocks(node: Any, msg_type: type, topic: str, codec: cdr.FixedCodec,
-                     callback: Callable[[Any], None], qos: Any,
-                     on_error: Callable[[Exception], None], background: bool = False) -> None:
+def subscribe_blocks(
+    node: Any,
+    msg_type: type,
+    topic: str,
+    codec: cdr.FixedCodec,
+    callback: Callable[[Any], None],
+    qos: Any,
+    on_error: Callable[[Exception], None],
+    background: bool = False,
+) -> None:
     """Call `callback(fields)` for every block of `topic`: in-process when composed, else from DDS.
 
     ``fields`` is indexable by the message's field names and ``sec``/``nanosec`` either way (a
@@ -403,15 +455,20 @@ _SAMPLE_STREAMS = {
 def stream_codec(topic: str, block_size: int) -> cdr.FixedCodec:
     """The fixed-size CDR codec of the sample-block stream `topic` at `block_size` samples."""
     layout, frame_id = _SAMPLE_STREAMS[topic]
-    return (cdr.FixedCodec(layout, block_size, frame_id) if frame_id
-            else cdr.FixedCodec(layout, block_size))
+    return (
+        cdr.FixedCodec(layout, block_size, frame_id)
+        if frame_id
+        else cdr.FixedCodec(layout, block_size)
+    )
 
 
 def _message_class(topic: str) -> type:
     import importlib
 
-    return getattr(importlib.import_module("flaair_msgs.msg"),
-                   topics.BLOCK_STREAM_TYPES[topic].rsplit("/", 1)[1])
+    return getattr(
+        importlib.import_module("flaair_msgs.msg"),
+        topics.BLOCK_STREAM_TYPES[topic].rsplit("/", 1)[1],
+    )
 
 
 def block_publisher(node: Any, topic: str, block_size: int, qos: Any) -> BlockPublisher:
@@ -421,11 +478,25 @@ def block_publisher(node: Any, topic: str, block_size: int, qos: Any) -> BlockPu
     return BlockPublisher(node, _message_class(topic), topic, stream_codec(topic, block_size), qos)
 
 
-def subscribe_stream(node: Any, topic: str, block_size: int, callback: Callable[[Any], None],
-                     qos: Any, on_error: Callable[[Exception], None],
-                     background: bool = False) -> None:
+def subscribe_stream(
+    node: Any,
+    topic: str,
+    block_size: int,
+    callback: Callable[[Any], None],
+    qos: Any,
+    on_error: Callable[[Exception], None],
+    background: bool = False,
+) -> None:
     """`subscribe_blocks` to the sample-block stream
     `topic` (message type and codec from the topic).
     """
-    subscribe_blocks(node, _message_class(topic), topic, stream_codec(topic, block_size), callback,
-                     qos, on_error, background)
+    subscribe_blocks(
+        node,
+        _message_class(topic),
+        topic,
+        stream_codec(topic, block_size),
+        callback,
+        qos,
+        on_error,
+        background,
+    )

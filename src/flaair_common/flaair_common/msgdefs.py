@@ -4,6 +4,7 @@ The one place that finds the `.msg` files (the source tree, then every install p
 parses them with rosbags' parser. bagio registers them in its typestore (and embeds them in
 bags); `flaair_common.cdr` derives its CDR layouts from the same field definitions.
 """
+
 from __future__ import annotations
 
 import functools
@@ -44,15 +45,19 @@ def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
     """`.msg` texts of flaair_msgs by full type name ('flaair_msgs/msg/Name')."""
     directories = [directory] if directory is not None else msg_dirs()
     for candidate in directories:
-        texts = {f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8")
-                 for p in sorted(candidate.glob("*.msg"))}
+        texts = {
+            f"{MSG_PACKAGE}/msg/{p.stem}": p.read_text(encoding="utf-8")
+            for p in sorted(candidate.glob("*.msg"))
+        }
         if texts:
             return texts
-    raise MsgDefinitionError(f"no {MSG_PACKAGE} .msg files found (looked in: "
-                             f"{', '.join(map(str, directories)) or 'nowhere'})")
+    raise MsgDefinitionError(
+        f"no {MSG_PACKAGE} .msg files found (looked in: "
+        f"{', '.join(map(str, directories)) or 'nowhere'})"
+    )
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def project_types() -> dict[str, Any]:
     """Rosbags field definitions of every flaair_msgs type: name -> (constants, fields)."""
     from rosbags.typesys import get_types_from_msg  # parsing is only needed once, here

@@ -1,6 +1,7 @@
 """Convert any rosidl Python message to and from plain
 dicts (rosidl_runtime_py is not installable here).
 """
+
 from __future__ import annotations
 
 import array
@@ -25,9 +26,10 @@ def message_class(type_name: str) -> type:
 def to_dict(message: Any) -> Any:
     """A message as nested dicts, lists and numbers (JSON-ready)."""
     if hasattr(message, "get_fields_and_field_types"):
-        return {name: to_dict(getattr(message, name))
-                for name in message.get_fields_and_field_types()}
-    if isinstance(message, (bytes, bytearray)):   # a rosidl `byte` (one) or raw bytes: numbers
+        return {
+            name: to_dict(getattr(message, name)) for name in message.get_fields_and_field_types()
+        }
+    if isinstance(message, (bytes, bytearray)):  # a rosidl `byte` (one) or raw bytes: numbers
         return message[0] if len(message) == 1 else list(message)
     if isinstance(message, (array.array, list, tuple)):
         return [to_dict(item) for item in message]

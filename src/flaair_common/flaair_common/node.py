@@ -15,9 +15,11 @@ a lab's workspace expects kept in one place.
   flaair/time_anchor) and that the nodes downstream take from their input (`follow_sample_clock`).
   In simulation the offset is 0: sample time is the plant's /clock.
 """
+
 from __future__ import annotations
 
-from typing import Any, Callable, TypeVar
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -43,20 +45,21 @@ class FlaairNode(Node):
     def __init__(self, default_name: str, **kwargs: Any) -> None:
         super().__init__(default_name, **kwargs)
         self.default_name = default_name
-        self.sample_clock_offset_ns: int | None = None   # ROS time - sample time, once known
+        self.sample_clock_offset_ns: int | None = None  # ROS time - sample time, once known
 
-    def create_publisher(self, msg_type: Any, topic: str, qos_profile: Any,
-                         **kwargs: Any) -> Any:
+    def create_publisher(self, msg_type: Any, topic: str, qos_profile: Any, **kwargs: Any) -> Any:
         if topics.is_flaair(topic):
             kwargs.setdefault("qos_overriding_options", _QOS_OVERRIDES)
         return super().create_publisher(msg_type, topics.relative(topic), qos_profile, **kwargs)
 
-    def create_subscription(self, msg_type: Any, topic: str, callback: Any, qos_profile: Any,
-                            **kwargs: Any) -> Any:
+    def create_subscription(
+        self, msg_type: Any, topic: str, callback: Any, qos_profile: Any, **kwargs: Any
+    ) -> Any:
         if topics.is_flaair(topic):
             kwargs.setdefault("qos_overriding_options", _QOS_OVERRIDES)
-        return super().create_subscription(msg_type, topics.relative(topic), callback,
-                                           qos_profile, **kwargs)
+        return super().create_subscription(
+            msg_type, topics.relative(topic), callback, qos_profile, **kwargs
+        )
 
     def count_publishers(self, topic_name: str) -> int:
         return super().count_publishers(topics.relative(topic_name))
@@ -64,8 +67,9 @@ class FlaairNode(Node):
     def count_subscribers(self, topic_name: str) -> int:
         return super().count_subscribers(topics.relative(topic_name))
 
-    def publish_health(self, snapshot: Callable[[], T],
-                       judge: Callable[[T, T | None], Health]) -> None:
+    def publish_health(
+        self, snapshot: Callable[[], T], judge: Callable[[T, T | None], Health]
+    ) -> None:
         """Every DIAGNOSTICS_PERIOD_S, publish `judge(snapshot(), previous snapshot)` on
         /diagnostics (hardware id: this node's fully qualified name). The judge is a pure function
         (flaair_common.health); the previous snapshot lets it speak of the last period.
@@ -79,10 +83,15 @@ class FlaairNode(Node):
             previous[0] = now
             message = DiagnosticArray()
             message.header.stamp = self.get_clock().now().to_msg()
-            message.status = [DiagnosticStatus(
-                level=bytes([found.level]), name=f"{self.get_name()}: {found.name}",
-                message=found.message, hardware_id=self.get_fully_qualified_name(),
-                values=[KeyValue(key=k, value=v) for k, v in found.values])]
+            message.status = [
+                DiagnosticStatus(
+                    level=bytes([found.level]),
+                    name=f"{self.get_name()}: {found.name}",
+                    message=found.message,
+                    hardware_id=self.get_fully_qualified_name(),
+                    values=[KeyValue(key=k, value=v) for k, v in found.values],
+                )
+            ]
             publisher.publish(message)
 
         self.create_timer(DIAGNOSTICS_PERIOD_S, tick)
@@ -92,14 +101,18 @@ class FlaairNode(Node):
         time. The anchoring is published once, latched, on flaair/time_anchor, and logged.
         """
         now = self.get_clock().now()
-        self.sample_clock_offset_ns = now.nanoseconds - stamp_ns_of_sample(sample_index,
-                                                                           sample_rate_hz)
-        anchor = TimeAnchor(sample_index=sample_index, sample_rate_hz=sample_rate_hz,
-                            sample_clock=clock)
+        self.sample_clock_offset_ns = now.nanoseconds - stamp_ns_of_sample(
+            sample_index, sample_rate_hz
+        )
+        anchor = TimeAnchor(
+            sample_index=sample_index, sample_rate_hz=sample_rate_hz, sample_clock=clock
+        )
         anchor.header.stamp = now.to_msg()
         self.create_publisher(TimeAnchor, topics.TIME_ANCHOR, EVENTS).publish(anchor)
-        self.get_logger().info(f"{clock} sample {sample_index} anchored at ROS time "
-                               f"{now.nanoseconds * 1e-9:.6f} s (block stamps follow from it)")
+        self.get_logger().info(
+            f"{clock} sample {sample_index} anchored at ROS time "
+            f"{now.nanoseconds * 1e-9:.6f} s (block stamps follow from it)"
+        )
 
     def follow_sample_clock(self, fields: dict, sample_rate_hz: float) -> None:
         """Take the stamp offset from an input block's header (once), so what this node publishes
@@ -107,9 +120,9 @@ class FlaairNode(Node):
         """
         if self.sample_clock_offset_ns is None:
             self.sample_clock_offset_ns = cdr.stamp_ns(fields) - stamp_ns_of_sample(
-                int(fields["first_sample_index"]), sample_rate_hz)
+                int(fields["first_sample_index"]), sample_rate_hz
+            )
 
     def stamp_ns_of(self, sample_index: int, sample_rate_hz: float) -> int:
         """Header stamp (ns) of the block starting at `sample_index`: its acquisition time."""
-        return (self.sample_clock_offset_ns or 0) + stamp_ns_of_sample(sample_index,
-                                                                       sample_rate_hz)
+        return (self.sample_clock_offset_ns or 0) + stamp_ns_of_sample(sample_index, sample_rate_hz)

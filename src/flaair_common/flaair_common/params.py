@@ -4,6 +4,7 @@ Each node lists its parameters once (name, type, unit, range, description); defa
 come from its file in config/, so no number is written twice. rclpy enforces the ranges
 and types both at start (overrides from --ros-args or --params-file) and at run time.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -12,7 +13,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from flaair_model.config import ConfigError, node_parameters, shared_parameter_names
-from flaair_model.schema import ParameterError, ParamSpec  # noqa: F401 - re-exported for the nodes
+from flaair_model.schema import ParameterError, ParamSpec
 
 _TYPES = {
     float: ParameterType.PARAMETER_DOUBLE,
@@ -55,7 +56,6 @@ def descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return out
 
 
-
 def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> dict[str, Any]:
     """Declare every parameter of `specs` on `node`, defaults from config/`config_file`.
 
@@ -63,8 +63,9 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
     when a value is of the wrong type, out of range, or not one of the allowed choices.
     """
     try:
-        defaults = node_parameters(config_file, getattr(node, "default_name", node.get_name()),
-                                   renamed=node.get_name())
+        defaults = node_parameters(
+            config_file, getattr(node, "default_name", node.get_name()), renamed=node.get_name()
+        )
     except ConfigError as exc:
         raise ParameterError(str(exc)) from exc
     values: dict[str, Any] = {}
@@ -90,9 +91,14 @@ def declare_parameters(node: Node, specs: list[ParamSpec], config_file: str) -> 
         values[spec.name] = value
     overrides = getattr(node, "_parameter_overrides", {}) or {}
     # Shared `/**` values reach every node given the whole file as --params-file; not an error.
-    unknown = sorted(name for name in set(overrides) - {s.name for s in specs}
-                     - shared_parameter_names(config_file) - {"use_sim_time"}
-                     if not name.startswith("qos_overrides."))   # rclpy's own, per topic
+    unknown = sorted(
+        name
+        for name in set(overrides)
+        - {s.name for s in specs}
+        - shared_parameter_names(config_file)
+        - {"use_sim_time"}
+        if not name.startswith("qos_overrides.")
+    )  # rclpy's own, per topic
     if unknown:
         known = ", ".join(s.name for s in specs)
         raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; this node takes: {known}")

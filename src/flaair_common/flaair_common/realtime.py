@@ -1,4 +1,5 @@
 """Real-time scheduling for the threads that keep a 20 kHz loop (no ROS)."""
+
 from __future__ import annotations
 
 import os

@@ -4,6 +4,7 @@ One file per bench run, one row per sample. Columns may come in any order; groun
 columns may be empty or NaN (video lost the wing); sensor columns never may. A file that
 breaks the rules is refused with a message naming file, line and column.
 """
+
 from __future__ import annotations
 
 import csv
@@ -49,11 +50,11 @@ def _floats(cells: list[str], path: Path, first_line: int, name: str) -> np.ndar
                 np.array([cell], dtype=np.float64)
             except (ValueError, OverflowError):
                 raise RunFileError(
-                    f"{path}: line {first_line + offset}, column {name}: not a number: "
-                    f"{cell!r}") from None
+                    f"{path}: line {first_line + offset}, column {name}: not a number: {cell!r}"
+                ) from None
         raise RunFileError(
-            f"{path}: lines {first_line}-{first_line + len(cells) - 1}, column {name}: not "
-            "numbers") from None
+            f"{path}: lines {first_line}-{first_line + len(cells) - 1}, column {name}: not numbers"
+        ) from None
 
 
 def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
@@ -64,13 +65,16 @@ def _header(path: Path, line: str, required: tuple[str, ...]) -> list[str]:
     seen: dict[str, int] = {}
     for number, name in enumerate(header, start=1):
         if name in seen:
-            raise RunFileError(f"{path}: line 1, column {number}: duplicate column {name!r} "
-                               f"(also column {seen[name]}); keep one")
+            raise RunFileError(
+                f"{path}: line 1, column {number}: duplicate column {name!r} "
+                f"(also column {seen[name]}); keep one"
+            )
         seen[name] = number
     missing = [name for name in required if name not in header]
     if missing:
         raise RunFileError(
-            f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})")
+            f"{path}: line 1: missing column(s) {', '.join(missing)} (header: {','.join(header)})"
+        )
     return header
 
 
@@ -143,25 +147,34 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
         raise RunFileError(f"{path}: cannot read: {exc.strerror}") from exc
     except UnicodeDecodeError as exc:
         raise RunFileError(
-            f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}") from exc
+            f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}"
+        ) from exc
     if not columns or rows == 0:
         raise RunFileError(f"{path}: no data rows after the header")
     # fewer rows than room for them (a pipe, a file that shrank): keep only the rows read
     if rows < capacity:
         columns = {name: values[:rows].copy() for name, values in columns.items()}
-    return MeasuredRun(name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns),
-                       columns=columns)
+    return MeasuredRun(
+        name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns
+    )
 
 
 def _grown(values: np.ndarray, length: int) -> np.ndarray:
     """`values` in a longer array (its first len(values) entries kept)."""
     grown = np.empty(length, dtype=values.dtype)
-    grown[:len(values)] = values
+    grown[: len(values)] = values
     return grown
 
 
-def _parse_rows(path: Path, lines: list[str], first_line: int, width: int,
-                wanted: list[tuple[int, str]], columns: dict[str, np.ndarray], start: int) -> None:
+def _parse_rows(
+    path: Path,
+    lines: list[str],
+    first_line: int,
+    width: int,
+    wanted: list[tuple[int, str]],
+    columns: dict[str, np.ndarray],
+    start: int,
+) -> None:
     """Parse one block of lines into `columns[name][start:start
     + len(lines)]` (checks as `read_run`).
     """
@@ -170,14 +183,17 @@ def _parse_rows(path: Path, lines: list[str], first_line: int, width: int,
     except csv.Error as exc:
         last_line = first_line + len(lines) - 1
         raise RunFileError(
-            f"{path}: lines {first_line}-{last_line}: not a CSV file: {exc}") from None
+            f"{path}: lines {first_line}-{last_line}: not a CSV file: {exc}"
+        ) from None
     if len(rows) != len(lines):  # a quoted cell spanning lines: the line numbers below would drift
         raise RunFileError(
-            f"{path}: lines {first_line}-{first_line + len(lines) - 1}: a quoted cell spans lines")
+            f"{path}: lines {first_line}-{first_line + len(lines) - 1}: a quoted cell spans lines"
+        )
     for offset, row in enumerate(rows):
         if len(row) != width:
             raise RunFileError(
-                f"{path}: line {first_line + offset}: {len(row)} cells, header has {width}")
+                f"{path}: line {first_line + offset}: {len(row)} cells, header has {width}"
+            )
     for index, name in wanted:
         is_truth = name in TRUTH_COLUMNS
         cells = [row[index].strip() or ("nan" if is_truth else "") for row in rows]
@@ -186,9 +202,11 @@ def _parse_rows(path: Path, lines: list[str], first_line: int, width: int,
             bad = ~np.isfinite(values)
             if bad.any():
                 offset = int(np.argmax(bad))
-                raise RunFileError(f"{path}: line {first_line + offset}, column {name}: "
-                                   f"{values[offset]} (sensor columns must be finite)")
-        columns[name][start:start + len(values)] = values
+                raise RunFileError(
+                    f"{path}: line {first_line + offset}, column {name}: "
+                    f"{values[offset]} (sensor columns must be finite)"
+                )
+        columns[name][start : start + len(values)] = values
 
 
 def _sample_rate_hz(path: Path, columns: dict[str, np.ndarray]) -> float:
@@ -205,12 +223,13 @@ def _sample_rate_hz(path: Path, columns: dict[str, np.ndarray]) -> float:
     if steps.min() <= 0:
         line_no = int(np.argmax(steps <= 0)) + 3
         raise RunFileError(
-            f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})")
+            f"{path}: line {line_no}, column time_s: time not increasing ({time_s[line_no - 2]})"
+        )
     shortest, longest = steps.min(), steps.max()
     period_s = float(np.median(steps, overwrite_input=True))
     # max |step - period|
     if max(longest - period_s, period_s - shortest) > 1e-3 * period_s + 1e-9:
-        steps = np.diff(time_s)   # unpartitioned again, to name the line
+        steps = np.diff(time_s)  # unpartitioned again, to name the line
         line_no = int(np.argmax(np.abs(steps - period_s))) + 3
         raise RunFileError(f"{path}: line {line_no}, column time_s: sampling is not uniform")
     return 1.0 / period_s

@@ -1,6 +1,7 @@
 """Run a FLAAIR node: parameter errors become one
 clear line, Ctrl-C and SIGTERM shut down cleanly.
 """
+
 from __future__ import annotations
 
 import faulthandler
@@ -11,8 +12,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterable
-from typing import Callable
+from collections.abc import Callable, Iterable
 
 # A node takes a second or more to import (rclpy, numba) and build (JIT compilation): a Ctrl-C or
 # SIGTERM in that time is remembered here, before the slow imports below, and makes run_node
@@ -43,21 +43,21 @@ if _is_node_process() and threading.current_thread() is threading.main_thread():
     if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, _remember_early_signal)
     _blocked = _DEFERRED_SIGNALS & signal.pthread_sigmask(signal.SIG_BLOCK, [])
-    if _blocked:   # started by a launcher that deferred them: a pending one is delivered now
+    if _blocked:  # started by a launcher that deferred them: a pending one is delivered now
         signal.pthread_sigmask(signal.SIG_UNBLOCK, _blocked)
     # `kill -USR1 PID` writes every thread's stack to the node's log (where is it stuck?)
     faulthandler.register(signal.SIGUSR1, all_threads=True)
 
-import rclpy  # noqa: E402 - after the early signal handlers on purpose
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor  # noqa: E402
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl  # noqa: E402
-from rclpy.impl.logging_severity import LoggingSeverity  # noqa: E402
-from rclpy.node import Node  # noqa: E402
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.impl.logging_severity import LoggingSeverity
+from rclpy.node import Node
 
 from flaair_common import intra
-from flaair_common.params import ParameterError, ParamSpec  # noqa: E402
-from flaair_model.config import node_parameters  # noqa: E402
-from flaair_model.notes import ERROR as ERROR_LEVEL  # noqa: E402
+from flaair_common.params import ParameterError, ParamSpec
+from flaair_model.config import node_parameters
+from flaair_model.notes import ERROR as ERROR_LEVEL
 from flaair_model.notes import Note
 
 # at exit, a node's reliable readers get this long (in all) to acknowledge its last messages: a
@@ -84,17 +84,20 @@ def help_text(doc: str, specs: list[ParamSpec], config_file: str, node_name: str
         defaults = node_parameters(config_file, node_name)
     except ValueError:
         defaults = {}
-    lines = [doc.strip(), "",
-             f"Parameters (defaults from config/{config_file}; set with --ros-args -p "
-             "NAME:=VALUE):"]
+    lines = [
+        doc.strip(),
+        "",
+        f"Parameters (defaults from config/{config_file}; set with --ros-args -p NAME:=VALUE):",
+    ]
     for spec in specs:
         allowed = ""
         if spec.choices:
             allowed = " {" + "|".join(spec.choices) + "}"
         elif spec.min_value is not None or spec.max_value is not None:
             allowed = f" [{spec.min_value}, {spec.max_value}]"
-        lines.append(f"  {spec.name} ({spec.type.__name__}, default "
-                     f"{defaults.get(spec.name)!r}){allowed}")
+        lines.append(
+            f"  {spec.name} ({spec.type.__name__}, default {defaults.get(spec.name)!r}){allowed}"
+        )
         lines.append(f"      {spec.description}")
     return "\n".join(lines)
 
@@ -138,8 +141,11 @@ def run_node(
     """
     args = sys.argv if args is None else args
     if any(a in ("-h", "--help") for a in args[1:]) and "--ros-args" not in args:
-        print(help_text(sys.modules[make_node.__module__].__doc__ or "", specs, config_file,
-                        node_name))
+        print(
+            help_text(
+                sys.modules[make_node.__module__].__doc__ or "", specs, config_file, node_name
+            )
+        )
         return 0
     return run_nodes([make_node], args, executor_kind)
 
@@ -188,9 +194,13 @@ def _watch_for_stop_signals(deadline_s: float | None) -> None:
     threading.Thread(target=watch, name="exit-deadline", daemon=True).start()
 
 
-def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
-              executor_kind: str = "events", bus: "intra.Bus | None" = None,
-              exit_deadline_s: float | None = None) -> int:
+def run_nodes(
+    makers: list[Callable[[], Node]],
+    args: list[str] | None = None,
+    executor_kind: str = "events",
+    bus: intra.Bus | None = None,
+    exit_deadline_s: float | None = None,
+) -> int:
     """Build several nodes in one process and spin them in one executor (a container).
 
     With a `bus`, block streams between them travel in-process (`flaair_common.intra`): the
@@ -207,7 +217,7 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
     intra.install(bus)
     try:
         rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    except _rclpy_impl.RCLError as exc:   # a malformed --ros-args word (`-p name:=`, ...)
+    except _rclpy_impl.RCLError as exc:  # a malformed --ros-args word (`-p name:=`, ...)
         why = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
         print(f"{sys.argv[0].rsplit('/', 1)[-1]}: bad --ros-args: {why}", file=sys.stderr)
         return 2
@@ -223,8 +233,8 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
 
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
-    _watch_for_stop_signals(exit_deadline_s)   # arms the deadline the moment either arrives
-    program = sys.argv[0].rsplit('/', 1)[-1]
+    _watch_for_stop_signals(exit_deadline_s)  # arms the deadline the moment either arrives
+    program = sys.argv[0].rsplit("/", 1)[-1]
     nodes: list[Node] = []
     try:
         for make_node in makers:
@@ -249,16 +259,21 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
             # when it has delivered nothing since the last look: it takes its own, at its own
             # priority, and a drain here would take the loop's blocks (and the interpreter lock)
             # from it. Elsewhere (lockstep) this thread's own callbacks leave them: drain at once.
-            if (bus is not None and bus.pending() and (not bus.threaded or bus.delivered == seen)
-                    and bus.drain() > 0):
+            if (
+                bus is not None
+                and bus.pending()
+                and (not bus.threaded or bus.delivered == seen)
+                and bus.drain() > 0
+            ):
                 executor.spin_once(timeout_sec=0)
             else:
                 seen = bus.delivered if bus is not None else -1
                 # a reader thread sends the DDS copies in its gaps (intra.use_gap)
                 if bus is not None:
                     bus.run_deferred(older_than_s=DEFERRED_BACKSTOP_S if bus.threaded else 0.0)
-                executor.spin_once(timeout_sec=0.002 if bus is not None and bus.pending()
-                                   else idle_s)
+                executor.spin_once(
+                    timeout_sec=0.002 if bus is not None and bus.pending() else idle_s
+                )
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
@@ -267,11 +282,12 @@ def run_nodes(makers: list[Callable[[], Node]], args: list[str] | None = None,
             why = signal.Signals(stop_signals[0]).name if stop_signals else "shutdown"
             nodes[0].get_logger().info(
                 f"stopping ({why}): closing, then up to {ACK_WAIT_S:g} s for readers' acks"
-                + (f"; ends within {exit_deadline_s:g} s" if exit_deadline_s is not None else ""))
+                + (f"; ends within {exit_deadline_s:g} s" if exit_deadline_s is not None else "")
+            )
         for node in reversed(nodes):
             _close(node)
             if bus is not None:
-                bus.flush()   # the closing zero block reaches its in-process consumers
+                bus.flush()  # the closing zero block reaches its in-process consumers
         _wait_for_acks(nodes)
         for node in nodes:
             executor.remove_node(node)
@@ -295,12 +311,13 @@ def _wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
             try:
                 if not publisher.wait_for_all_acked(Duration(nanoseconds=int(left_s * 1e9))):
                     late.append(publisher.topic_name)
-            except Exception:   # noqa: BLE001 - a context already shut down: nothing left to wait for
+            except Exception:
                 return
         if late:
             node.get_logger().warning(
                 f"not acknowledged by every reader within {timeout_s:g} s, may be lost: "
-                f"the last messages on {', '.join(late)}")
+                f"the last messages on {', '.join(late)}"
+            )
 
 
 def _close(node: Node) -> None:
@@ -310,7 +327,7 @@ def _close(node: Node) -> None:
 
 
 INFO, WARN, ERROR = LoggingSeverity.INFO, LoggingSeverity.WARN, LoggingSeverity.ERROR
-SEVERITY = {"info": INFO, "warning": WARN, "error": ERROR}   # the pure cores' note levels
+SEVERITY = {"info": INFO, "warning": WARN, "error": ERROR}  # the pure cores' note levels
 
 
 def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
@@ -324,15 +341,22 @@ def log(logger, severity: LoggingSeverity, text: str, depth: int = 1) -> None:
     """
     if logger.is_enabled_for(severity):
         caller = sys._getframe(depth)
-        _rclpy_impl.rclpy_logging_rcutils_log(severity, logger.name, text, caller.f_code.co_name,
-                                              caller.f_code.co_filename, caller.f_lineno)
+        _rclpy_impl.rclpy_logging_rcutils_log(
+            severity,
+            logger.name,
+            text,
+            caller.f_code.co_name,
+            caller.f_code.co_filename,
+            caller.f_lineno,
+        )
 
 
 _last_warned: dict[tuple, float] = {}
 
 
-def warn_counted(logger, count: int, text: str, every_up_to: int = 10, key: object = None,
-                 depth: int = 1) -> None:
+def warn_counted(
+    logger, count: int, text: str, every_up_to: int = 10, key: object = None, depth: int = 1
+) -> None:
     """Log a warning every time for the first `every_up_to` occurrences, then at most once a second.
 
     The throttle is kept here, per `key` (default: the calling line): rclpy's own throttle looks up
@@ -349,8 +373,9 @@ def warn_counted(logger, count: int, text: str, every_up_to: int = 10, key: obje
     log(logger, WARN, text, depth=depth + 1)
 
 
-def log_notes(logger, notes: Iterable[Note],
-              count_of: Callable[[str], int] = lambda _counter: 0) -> None:
+def log_notes(
+    logger, notes: Iterable[Note], count_of: Callable[[str], int] = lambda _counter: 0
+) -> None:
     """Log a core's notes, the same way in every node.
 
     Errors and uncounted notes are logged at their level; a counted warning (`Note.counter`) is

@@ -3,6 +3,7 @@
 Cores that judge their input stream (the loop supervisor, the collision monitor's replay) and
 the nodes share this one check.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -51,8 +52,12 @@ def check_block(
         `ok` False with a reason naming the field, index or rate that is wrong.
     """
     if expected_index is not None and first_sample_index < expected_index:
-        return BlockCheck(False, "duplicate or out of order: first_sample_index "
-                                 f"{first_sample_index}, expected {expected_index}", "stale")
+        return BlockCheck(
+            False,
+            "duplicate or out of order: first_sample_index "
+            f"{first_sample_index}, expected {expected_index}",
+            "stale",
+        )
     lengths = {name: len(values) for name, values in arrays.items()}
     if len(set(lengths.values())) > 1:
         return BlockCheck(False, f"array lengths differ: {lengths}", "content")
@@ -60,23 +65,27 @@ def check_block(
     if length == 0:
         return BlockCheck(False, "empty block", "content")
     if expected_length is not None and length != expected_length:
-        return BlockCheck(False, f"block has {length} samples, expected {expected_length}",
-                          "content")
+        return BlockCheck(
+            False, f"block has {length} samples, expected {expected_length}", "content"
+        )
     # np.isclose's rule (atol 1e-8, rtol 1e-9) in plain
     # floats: it runs 2,000 times a second per stream
     if not abs(sample_rate_hz - expected_rate_hz) <= 1e-8 + 1e-9 * abs(expected_rate_hz):
-        return BlockCheck(False, f"sample_rate_hz {sample_rate_hz} != {expected_rate_hz}",
-                          "content")
+        return BlockCheck(
+            False, f"sample_rate_hz {sample_rate_hz} != {expected_rate_hz}", "content"
+        )
     for name, values in arrays.items():
         if np.isfinite(values).all():
             continue
         bad = ~np.isfinite(values)
         if bad.any():
-            return BlockCheck(False,
-                              f"{name} has {int(bad.sum())} non-finite sample(s), first at "
-                              f"{int(np.argmax(bad))}", "content")
+            return BlockCheck(
+                False,
+                f"{name} has {int(bad.sum())} non-finite sample(s), first at {int(np.argmax(bad))}",
+                "content",
+            )
     if expected_index is not None and first_sample_index > expected_index:
         return BlockCheck(
-            False, f"gap: first_sample_index {first_sample_index}, expected {expected_index}",
-            "gap")
+            False, f"gap: first_sample_index {first_sample_index}, expected {expected_index}", "gap"
+        )
     return BlockCheck(True)

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["json_safe", "dumps"]
+__all__ = ["dumps", "json_safe"]
 
 
 def json_safe(value: Any) -> Any:

@@ -1,16 +1,16 @@
 """Topic names of the FLAAIR graph (remap with --ros-args -r old:=new)."""
 
-DRIVE = "/flaair/drive"                      # DriveCommandBlock: drive voltage to the actuator
+DRIVE = "/flaair/drive"  # DriveCommandBlock: drive voltage to the actuator
 # DriveCommandBlock: the drive a real-time target applied
 DRIVE_APPLIED = "/flaair/drive/applied"
-SENSOR_VOLTAGE = "/flaair/sensor_v"          # SensorVoltageBlock: raw charge-amplifier outputs
-WING_STATE = "/flaair/wing_state"            # WingStateBlock: estimated from the sensors
+SENSOR_VOLTAGE = "/flaair/sensor_v"  # SensorVoltageBlock: raw charge-amplifier outputs
+WING_STATE = "/flaair/wing_state"  # WingStateBlock: estimated from the sensors
 WING_STATE_TRUTH = "/flaair/wing_state/truth"  # WingStateBlock: simulator ground truth
 COLLISION_STATUS = "/flaair/collision/status"  # CollisionStatus, one per wingbeat
 COLLISION_EVENTS = "/flaair/collision/events"  # CollisionEvent at onset and clearance
 CONTROLLER_STATE = "/flaair/controller/state"  # ControllerState, one per command block
 CLOCK = "/clock"
-TIME_ANCHOR = "/flaair/time_anchor"              # TimeAnchor: a stream's sample clock in ROS time
+TIME_ANCHOR = "/flaair/time_anchor"  # TimeAnchor: a stream's sample clock in ROS time
 
 # The 20 kHz streams and their types (what a composed recorder records in-process)
 BLOCK_STREAM_TYPES = {

@@ -7,5 +7,12 @@
   parameters and message <-> core mappings (no rclpy)
 """
 
-__all__ = ["core", "dsa_controller_node", "collision_monitor_node", "stroke_controller_node",
-           "control_io", "stroke_io", "transition_io"]
+__all__ = [
+    "collision_monitor_node",
+    "control_io",
+    "core",
+    "dsa_controller_node",
+    "stroke_controller_node",
+    "stroke_io",
+    "transition_io",
+]

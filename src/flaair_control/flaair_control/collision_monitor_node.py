@@ -16,6 +16,7 @@ against a pure sine, 1 deg threshold).
 Usage: bin/flaair run flaair_control collision_monitor_node
 [--ros-args -p drive_frequency_hz:=100.0]
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -55,31 +56,37 @@ class CollisionMonitorNode(FlaairNode):
         self.drive_expected: int | None = None
         self.wing_expected: int | None = None
         self.rejected = self.undecodable = 0
-        self.status_pub = self.create_publisher(CollisionStatus, topics.COLLISION_STATUS,
-                                                BLOCK_STREAM)   # one per wingbeat: a stream
+        self.status_pub = self.create_publisher(
+            CollisionStatus, topics.COLLISION_STATUS, BLOCK_STREAM
+        )  # one per wingbeat: a stream
         self.event_pub = self.create_publisher(CollisionEvent, topics.COLLISION_EVENTS, EVENTS)
         # Block streams as CDR bytes, or in-process when
         # composed beside the loop (flaair_common.intra)
         block = p["block_size"]
-        intra.subscribe_stream(self, topics.WING_STATE, block, self.on_wing_state, BLOCK_STREAM,
-                               self.on_undecodable)
+        intra.subscribe_stream(
+            self, topics.WING_STATE, block, self.on_wing_state, BLOCK_STREAM, self.on_undecodable
+        )
         if self.params.estimates_frequency:
-            intra.subscribe_stream(self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM,
-                                   self.on_undecodable)
-        self.publish_health(lambda: (self.state, self.rejected, self.undecodable),
-                            monitor_health)
+            intra.subscribe_stream(
+                self, topics.DRIVE, block, self.on_drive, BLOCK_STREAM, self.on_undecodable
+            )
+        self.publish_health(lambda: (self.state, self.rejected, self.undecodable), monitor_health)
         self.get_logger().info(describe_monitor(p, self.params.estimates_frequency))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable,
-                     f"block dropped: {exc} [{self.undecodable} undecodable so far]")
+        warn_counted(
+            self.get_logger(),
+            self.undecodable,
+            f"block dropped: {exc} [{self.undecodable} undecodable so far]",
+        )
 
     def on_drive(self, m) -> None:
         drive_v = np.asarray(m["drive_v"], dtype=np.float64)
         first = int(m["first_sample_index"])
-        check = check_block({"drive_v": drive_v}, float(m["sample_rate_hz"]), self.fs_hz, first,
-                            self.drive_expected)
+        check = check_block(
+            {"drive_v": drive_v}, float(m["sample_rate_hz"]), self.fs_hz, first, self.drive_expected
+        )
         if not check.ok and check.kind != "gap":
             return
         self.drive_expected = first + len(drive_v)
@@ -87,16 +94,23 @@ class CollisionMonitorNode(FlaairNode):
 
     def on_wing_state(self, m) -> None:
         n, first = len(m["stroke_deg"]), int(m["first_sample_index"])
-        check = check_block({"stroke_deg": np.zeros(n), "pitch_deg": np.zeros(len(m["pitch_deg"]))},
-                            float(m["sample_rate_hz"]), self.fs_hz, first, self.wing_expected)
+        check = check_block(
+            {"stroke_deg": np.zeros(n), "pitch_deg": np.zeros(len(m["pitch_deg"]))},
+            float(m["sample_rate_hz"]),
+            self.fs_hz,
+            first,
+            self.wing_expected,
+        )
         if not check.ok and check.kind != "gap":
             self.rejected += 1
-            warn_counted(self.get_logger(), self.rejected, f"wing-state block {first}: "
-                                                           f"{check.reason} [{self.rejected} "
-                                                           "rejected so far]")
+            warn_counted(
+                self.get_logger(),
+                self.rejected,
+                f"wing-state block {first}: {check.reason} [{self.rejected} rejected so far]",
+            )
             return
         self.wing_expected = first + n
-        self.follow_sample_clock(m, self.fs_hz)   # verdict stamps: the wing state's clock
+        self.follow_sample_clock(m, self.fs_hz)  # verdict stamps: the wing state's clock
         self.advance(monitor_wing_input(m))
 
     def advance(self, inputs: monitor.DriveBlock | monitor.WingBlock) -> None:
@@ -109,18 +123,31 @@ class CollisionMonitorNode(FlaairNode):
     def publish(self, v: monitor.Verdict) -> None:
         stamp = stamp_from_ns(self.stamp_ns_of(v.end_index, self.fs_hz))
         if v.event is not None:
-            event = CollisionEvent(kind=EVENT_KINDS[v.event], wingbeat_index=v.wingbeat_index,
-                                   spectrum_rmse_deg=v.spectrum_rmse_deg)
+            event = CollisionEvent(
+                kind=EVENT_KINDS[v.event],
+                wingbeat_index=v.wingbeat_index,
+                spectrum_rmse_deg=v.spectrum_rmse_deg,
+            )
             event.header.stamp = stamp
             self.event_pub.publish(event)
-            text = (f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, "
-                    f"{v.frequency_hz:.1f} Hz): pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg "
-                    f"(threshold {self.p['threshold_deg']:g} deg), distortion score {v.score:.2f}")
-            log(self.get_logger(), WARN if v.colliding else INFO,
-                f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}")
-        out = CollisionStatus(wingbeat_index=v.wingbeat_index, wingbeat_frequency_hz=v.frequency_hz,
-                              colliding=v.colliding, spectrum_rmse_deg=v.spectrum_rmse_deg,
-                              time_rmse_deg=v.time_rmse_deg, threshold_deg=self.p["threshold_deg"])
+            text = (
+                f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, "
+                f"{v.frequency_hz:.1f} Hz): pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg "
+                f"(threshold {self.p['threshold_deg']:g} deg), distortion score {v.score:.2f}"
+            )
+            log(
+                self.get_logger(),
+                WARN if v.colliding else INFO,
+                f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}",
+            )
+        out = CollisionStatus(
+            wingbeat_index=v.wingbeat_index,
+            wingbeat_frequency_hz=v.frequency_hz,
+            colliding=v.colliding,
+            spectrum_rmse_deg=v.spectrum_rmse_deg,
+            time_rmse_deg=v.time_rmse_deg,
+            threshold_deg=self.p["threshold_deg"],
+        )
         out.header.stamp = stamp
         self.status_pub.publish(out)
 

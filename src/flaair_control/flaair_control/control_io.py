@@ -5,11 +5,13 @@ unit in the name and description, range); the values live in config/flaair.yaml.
 `*_params_from_config` functions build the pure cores' parameters from those values, for the
 nodes and for offline tools (bag replay, analysis) alike.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -29,159 +31,442 @@ from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_del
 CONFIG_FILE = "flaair.yaml"
 
 COLLISION_MONITOR_PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of the wing-state blocks [Hz]", 1000.0, 1.0e6,
-              read_only=True),
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of the wing-state blocks [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
     ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec("window_source", str,
-              "Wingbeat windows locked to the drive or to the measured stroke",
-              choices=("drive", "stroke"), read_only=True),
-    ParamSpec("drive_frequency_hz", float,
-              "drive windows: drive frequency (0: estimate from /flaair/drive) [Hz]", 0.0, 2500.0,
-              read_only=True),
-    ParamSpec("drive_phase_rad", float, "drive windows with a known frequency: window starts where "
-                                        "2 pi f t + phase = 2 pi k [rad]", -10.0, 10.0,
-              read_only=True),
-    ParamSpec("drive_hysteresis_v", float,
-              "Drive-frequency estimate: Schmitt hysteresis on the drive [V]", 0.0, 100.0,
-              read_only=True),
-    ParamSpec("frequency_average_wingbeats", int, "Drive-frequency estimate: wingbeats averaged", 1,
-              1000, read_only=True),
-    ParamSpec("relock_tolerance", float,
-              "Re-lock the drive windows when the estimate moves by this fraction [-]", 1e-6, 1.0,
-              read_only=True),
-    ParamSpec("decision", str, "Which metric decides onset/clearance",
-              choices=("paper", "distortion"), read_only=True),
-    ParamSpec("threshold_deg", float, "paper: spectral RMSE threshold [deg]", 1e-6, 90.0,
-              read_only=True),
-    ParamSpec("metric_wingbeats", int, "paper: wingbeats in the FFT record", 1, 1000,
-              read_only=True),
+    ParamSpec(
+        "window_source",
+        str,
+        "Wingbeat windows locked to the drive or to the measured stroke",
+        choices=("drive", "stroke"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "drive_frequency_hz",
+        float,
+        "drive windows: drive frequency (0: estimate from /flaair/drive) [Hz]",
+        0.0,
+        2500.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "drive_phase_rad",
+        float,
+        "drive windows with a known frequency: window starts where 2 pi f t + phase = 2 pi k [rad]",
+        -10.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "drive_hysteresis_v",
+        float,
+        "Drive-frequency estimate: Schmitt hysteresis on the drive [V]",
+        0.0,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "frequency_average_wingbeats",
+        int,
+        "Drive-frequency estimate: wingbeats averaged",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "relock_tolerance",
+        float,
+        "Re-lock the drive windows when the estimate moves by this fraction [-]",
+        1e-6,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "decision",
+        str,
+        "Which metric decides onset/clearance",
+        choices=("paper", "distortion"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "threshold_deg", float, "paper: spectral RMSE threshold [deg]", 1e-6, 90.0, read_only=True
+    ),
+    ParamSpec(
+        "metric_wingbeats", int, "paper: wingbeats in the FFT record", 1, 1000, read_only=True
+    ),
     ParamSpec("metric_band_hz", float, "paper: RMSE over 0..this [Hz]", 1.0, 1e5, read_only=True),
-    ParamSpec("stroke_threshold", float, "distortion: stroke distortion ratio scored 1 [-]", 1e-6,
-              10.0, read_only=True),
-    ParamSpec("pitch_threshold", float, "distortion: pitch distortion ratio scored 1 [-]", 1e-6,
-              10.0, read_only=True),
-    ParamSpec("off_level", float, "Clearance level as a fraction of the onset threshold [-]", 1e-6,
-              1.0, read_only=True),
-    ParamSpec("n_on", int, "Consecutive wingbeats above the threshold for an onset", 1, 1000,
-              read_only=True),
-    ParamSpec("n_off", int, "Consecutive wingbeats below off_level for a clearance", 1, 1000,
-              read_only=True),
-    ParamSpec("arm_wingbeats", int, "Wingbeats ignored after start or re-lock (start-up transient)",
-              0, 100000, read_only=True),
-    ParamSpec("min_amplitude_deg", float,
-              "Stroke amplitude below which a wingbeat is IDLE (not flapping) [deg]", 0.0, 90.0,
-              read_only=True),
-    ParamSpec("crossing_hysteresis_deg", float, "stroke windows: Schmitt hysteresis [deg]", 0.0,
-              90.0, read_only=True),
-    ParamSpec("min_wingbeat_hz", float, "Slowest wingbeat (longer windows are IDLE) [Hz]", 1.0,
-              1000.0, read_only=True),
-    ParamSpec("max_wingbeat_hz", float, "Fastest accepted wingbeat (stroke windows) [Hz]", 1.0,
-              5000.0, read_only=True),
-    ParamSpec("stroke_noise_rms_deg", float,
-              "distortion: stroke sensor noise removed in quadrature [deg]", 0.0, 10.0,
-              read_only=True),
-    ParamSpec("pitch_noise_rms_deg", float,
-              "distortion: pitch sensor noise removed in quadrature [deg]", 0.0, 10.0,
-              read_only=True),
+    ParamSpec(
+        "stroke_threshold",
+        float,
+        "distortion: stroke distortion ratio scored 1 [-]",
+        1e-6,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "pitch_threshold",
+        float,
+        "distortion: pitch distortion ratio scored 1 [-]",
+        1e-6,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "off_level",
+        float,
+        "Clearance level as a fraction of the onset threshold [-]",
+        1e-6,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "n_on",
+        int,
+        "Consecutive wingbeats above the threshold for an onset",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "n_off",
+        int,
+        "Consecutive wingbeats below off_level for a clearance",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "arm_wingbeats",
+        int,
+        "Wingbeats ignored after start or re-lock (start-up transient)",
+        0,
+        100000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_amplitude_deg",
+        float,
+        "Stroke amplitude below which a wingbeat is IDLE (not flapping) [deg]",
+        0.0,
+        90.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "crossing_hysteresis_deg",
+        float,
+        "stroke windows: Schmitt hysteresis [deg]",
+        0.0,
+        90.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_wingbeat_hz",
+        float,
+        "Slowest wingbeat (longer windows are IDLE) [Hz]",
+        1.0,
+        1000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_wingbeat_hz",
+        float,
+        "Fastest accepted wingbeat (stroke windows) [Hz]",
+        1.0,
+        5000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "stroke_noise_rms_deg",
+        float,
+        "distortion: stroke sensor noise removed in quadrature [deg]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "pitch_noise_rms_deg",
+        float,
+        "distortion: pitch sensor noise removed in quadrature [deg]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
 ]
 
 DSA_CONTROLLER_PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6,
-              read_only=True),
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of every block stream [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
     ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec("drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0,
-              300.0, read_only=True),
-    ParamSpec("model_file", str, "Model YAML for the actuator gain G_a (empty: config/model.yaml)",
-              read_only=True),
-    ParamSpec("r3_rad_s", float, "dSA coefficient r3 (force delay) [rad/s]", 1e-3, 1e6,
-              read_only=True),
+    ParamSpec(
+        "drive_limit_v",
+        float,
+        "Actuator safe range: drive clamped to +-this [V]",
+        0.0,
+        300.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "model_file",
+        str,
+        "Model YAML for the actuator gain G_a (empty: config/model.yaml)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "r3_rad_s", float, "dSA coefficient r3 (force delay) [rad/s]", 1e-3, 1e6, read_only=True
+    ),
     ParamSpec("kappa", float, "dSA coefficient kappa (force decay) [-]", 1e-6, 1e3, read_only=True),
-    ParamSpec("mu_nm_s_per_rad", float, "dSA gain mu (DC: tau = -mu phi') [N m s/rad]", 0.0, 1.0,
-              read_only=True),
-    ParamSpec("sync_amplitude_v", float, "Synchronous sine amplitude [V]", 0.0, 300.0,
-              read_only=True),
-    ParamSpec("sync_frequency_hz", float, "Synchronous sine frequency [Hz]", 0.0, 5000.0,
-              read_only=True),
-    ParamSpec("sync_phase_rad", float, "Synchronous sine phase at t = 0 [rad]", -10.0, 10.0,
-              read_only=True),
-    ParamSpec("kr_initial", float, "K_r before the ramp (1 synchronous, 0 asynchronous) [-]", 0.0,
-              1.0, read_only=True),
-    ParamSpec("kr_target", float,
-              "K_r after the ramp; set while running: new ramp from the current K_r [-]", 0.0, 1.0),
-    ParamSpec("kr_ramp_start_s", float, "Signal time at which the first K_r ramp starts [s]", 0.0,
-              1e6, read_only=True),
-    ParamSpec("kr_ramp_duration_s", float, "K_r ramp duration; set while running: new ramp [s]",
-              0.0, 1e6),
-    ParamSpec("compensate_delay", bool, "Phase-advance compensation of the loop delay (dsa core)",
-              read_only=True),
-    ParamSpec("compensation_frequency_hz", float,
-              "Frequency w_c/2pi at which the delay is cancelled exactly [Hz]", 1.0, 5000.0,
-              read_only=True),
-    ParamSpec("velocity_delay_s", float,
-              "Front-end velocity delay to compensate (< 0: from the front end's config) [s]", -1.0,
-              0.1, read_only=True),
-    ParamSpec("blocks_in_flight", int,
-              "Command blocks kept in the lockstep loop (loop delay = this many blocks)", 1, 64,
-              read_only=True),
-    ParamSpec("slew_limit_v_per_s", float, "Drive slew-rate limit (0: off) [V/s]", 0.0, 1e9,
-              read_only=True),
-    ParamSpec("watchdog_timeout_s", float,
-              "Trip when no wing-state block arrives for this long (wall-clock time) [s]", 1e-3,
-              60.0, read_only=True),
-    ParamSpec("invalid_timeout_s", float,
-              "Trip when no valid wing-state block arrives for this long (signal time) [s]", 1e-4,
-              60.0, read_only=True),
-    ParamSpec("ramp_down_s", float, "Drive ramp to zero after a trip (signal time) [s]", 0.0, 10.0,
-              read_only=True),
-    ParamSpec("zero_hold_s", float, "Zero drive published at the real-time rate after the ramp [s]",
-              0.0, 10.0, read_only=True),
-    ParamSpec("keepalive_period_s", float,
-              "Tripped and ramped down: one zero block per this period (wall clock) [s]", 1e-3,
-              60.0, read_only=True),
-    ParamSpec("collision_response", str, "Reaction to a collision onset",
-              choices=("none", "stop", "reduce_amplitude"), read_only=True),
-    ParamSpec("collision_reduction_factor", float,
-              "reduce_amplitude: drive scale while colliding [-]", 0.0, 1.0, read_only=True),
-    ParamSpec("collision_restore_on_clearance", bool,
-              "reduce_amplitude: back to full drive at the clearance", read_only=True),
-    ParamSpec("state_every_blocks", int,
-              "ControllerState with every n-th drive block (and at every watchdog or fault change)",
-              1, 100000, read_only=True),
-    ParamSpec("collision_ramp_guard_s", float,
-              "Collision onsets during a K_r ramp and this long after it are not acted on [s]", 0.0,
-              10.0, read_only=True),
-    ParamSpec("min_stream_listeners", int, "Composed: start once every batched block stream has "
-                                           "this many DDS subscribers (live: the recorder)", 0, 100,
-              read_only=True),
-    ParamSpec("min_state_subscribers", int, "Start once /flaair/controller/state has this many "
-                                            "subscribers (a listener that must see the whole run)",
-              0, 100, read_only=True),
-    ParamSpec("min_drive_subscribers", int,
-              "Start once /flaair/drive has this many subscribers (plant, + recorder, + monitor)",
-              1, 100, read_only=True),
-    ParamSpec("wait_for_peers", bool, "Start only once /flaair/drive has a subscriber and "
-                                      "/flaair/sensor_v and /flaair/wing_state publishers",
-              read_only=True),
-    ParamSpec("start_delay_s", float,
-              "Wall time between seeing the peers and sending the first blocks [s]", 0.0, 60.0,
-              read_only=True),
-    ParamSpec("start_retry_s", float,
-              "No answer to the first blocks for this long: send one more (wall clock) [s]", 0.01,
-              60.0, read_only=True),
-    ParamSpec("run_time_s", float,
-              "Stop after this much signal time: zero block, then idle (0: never) [s]", 0.0, 1e6,
-              read_only=True),
-    ParamSpec("frequency_hysteresis_deg", float,
-              "Stroke-frequency estimate: Schmitt hysteresis about 0 [deg]", 0.0, 90.0,
-              read_only=True),
-    ParamSpec("timing_file", str,
-              "Write per-block receive/publish monotonic times here at exit (.npz; empty: off)",
-              read_only=True),
+    ParamSpec(
+        "mu_nm_s_per_rad",
+        float,
+        "dSA gain mu (DC: tau = -mu phi') [N m s/rad]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "sync_amplitude_v", float, "Synchronous sine amplitude [V]", 0.0, 300.0, read_only=True
+    ),
+    ParamSpec(
+        "sync_frequency_hz", float, "Synchronous sine frequency [Hz]", 0.0, 5000.0, read_only=True
+    ),
+    ParamSpec(
+        "sync_phase_rad",
+        float,
+        "Synchronous sine phase at t = 0 [rad]",
+        -10.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "kr_initial",
+        float,
+        "K_r before the ramp (1 synchronous, 0 asynchronous) [-]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "kr_target",
+        float,
+        "K_r after the ramp; set while running: new ramp from the current K_r [-]",
+        0.0,
+        1.0,
+    ),
+    ParamSpec(
+        "kr_ramp_start_s",
+        float,
+        "Signal time at which the first K_r ramp starts [s]",
+        0.0,
+        1e6,
+        read_only=True,
+    ),
+    ParamSpec(
+        "kr_ramp_duration_s", float, "K_r ramp duration; set while running: new ramp [s]", 0.0, 1e6
+    ),
+    ParamSpec(
+        "compensate_delay",
+        bool,
+        "Phase-advance compensation of the loop delay (dsa core)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "compensation_frequency_hz",
+        float,
+        "Frequency w_c/2pi at which the delay is cancelled exactly [Hz]",
+        1.0,
+        5000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "velocity_delay_s",
+        float,
+        "Front-end velocity delay to compensate (< 0: from the front end's config) [s]",
+        -1.0,
+        0.1,
+        read_only=True,
+    ),
+    ParamSpec(
+        "blocks_in_flight",
+        int,
+        "Command blocks kept in the lockstep loop (loop delay = this many blocks)",
+        1,
+        64,
+        read_only=True,
+    ),
+    ParamSpec(
+        "slew_limit_v_per_s",
+        float,
+        "Drive slew-rate limit (0: off) [V/s]",
+        0.0,
+        1e9,
+        read_only=True,
+    ),
+    ParamSpec(
+        "watchdog_timeout_s",
+        float,
+        "Trip when no wing-state block arrives for this long (wall-clock time) [s]",
+        1e-3,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "invalid_timeout_s",
+        float,
+        "Trip when no valid wing-state block arrives for this long (signal time) [s]",
+        1e-4,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "ramp_down_s",
+        float,
+        "Drive ramp to zero after a trip (signal time) [s]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "zero_hold_s",
+        float,
+        "Zero drive published at the real-time rate after the ramp [s]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "keepalive_period_s",
+        float,
+        "Tripped and ramped down: one zero block per this period (wall clock) [s]",
+        1e-3,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "collision_response",
+        str,
+        "Reaction to a collision onset",
+        choices=("none", "stop", "reduce_amplitude"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "collision_reduction_factor",
+        float,
+        "reduce_amplitude: drive scale while colliding [-]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "collision_restore_on_clearance",
+        bool,
+        "reduce_amplitude: back to full drive at the clearance",
+        read_only=True,
+    ),
+    ParamSpec(
+        "state_every_blocks",
+        int,
+        "ControllerState with every n-th drive block (and at every watchdog or fault change)",
+        1,
+        100000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "collision_ramp_guard_s",
+        float,
+        "Collision onsets during a K_r ramp and this long after it are not acted on [s]",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_stream_listeners",
+        int,
+        "Composed: start once every batched block stream has "
+        "this many DDS subscribers (live: the recorder)",
+        0,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_state_subscribers",
+        int,
+        "Start once /flaair/controller/state has this many "
+        "subscribers (a listener that must see the whole run)",
+        0,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_drive_subscribers",
+        int,
+        "Start once /flaair/drive has this many subscribers (plant, + recorder, + monitor)",
+        1,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "wait_for_peers",
+        bool,
+        "Start only once /flaair/drive has a subscriber and "
+        "/flaair/sensor_v and /flaair/wing_state publishers",
+        read_only=True,
+    ),
+    ParamSpec(
+        "start_delay_s",
+        float,
+        "Wall time between seeing the peers and sending the first blocks [s]",
+        0.0,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "start_retry_s",
+        float,
+        "No answer to the first blocks for this long: send one more (wall clock) [s]",
+        0.01,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "run_time_s",
+        float,
+        "Stop after this much signal time: zero block, then idle (0: never) [s]",
+        0.0,
+        1e6,
+        read_only=True,
+    ),
+    ParamSpec(
+        "frequency_hysteresis_deg",
+        float,
+        "Stroke-frequency estimate: Schmitt hysteresis about 0 [deg]",
+        0.0,
+        90.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "timing_file",
+        str,
+        "Write per-block receive/publish monotonic times here at exit (.npz; empty: off)",
+        read_only=True,
+    ),
 ]
 
 
-def _fields(values: Mapping[str, Any], specs: list[ParamSpec],
-            skip: tuple[str, ...] = ()) -> dict[str, Any]:
+def _fields(
+    values: Mapping[str, Any], specs: list[ParamSpec], skip: tuple[str, ...] = ()
+) -> dict[str, Any]:
     missing = [s.name for s in specs if s.name not in values and s.name not in skip]
     if missing:
         raise ParameterError(f"missing parameter(s): {', '.join(missing)}")
@@ -203,8 +488,9 @@ def stroke_controller_values() -> dict[str, Any]:
     return node_section(stroke.NODE_PARAMS, "stroke_controller_node", CONFIG_FILE)
 
 
-def collision_monitor_params_from_config(values: Mapping[str, Any]
-                                         | None = None) -> CollisionMonitorParams:
+def collision_monitor_params_from_config(
+    values: Mapping[str, Any] | None = None,
+) -> CollisionMonitorParams:
     """The monitor core's parameters from collision_monitor_node
     values (default: config/flaair.yaml).
     """
@@ -215,8 +501,9 @@ def collision_monitor_params_from_config(values: Mapping[str, Any]
         raise ParameterError(str(exc)) from exc
 
 
-def monitor_windows_from_config(frequency_hz: float | None, phase_rad: float = 0.0,
-                                values: Mapping[str, Any] | None = None) -> col.MonitorParams:
+def monitor_windows_from_config(
+    frequency_hz: float | None, phase_rad: float = 0.0, values: Mapping[str, Any] | None = None
+) -> col.MonitorParams:
     """The per-wingbeat window monitor as configured,
     at a drive frequency (None: stroke windows).
     """
@@ -226,8 +513,9 @@ def monitor_windows_from_config(frequency_hz: float | None, phase_rad: float = 0
     return window_params(p, frequency_hz, phase_rad)
 
 
-def spectral_metric_params_from_config(values: Mapping[str, Any]
-                                       | None = None) -> spectral.SpectralMetricParams:
+def spectral_metric_params_from_config(
+    values: Mapping[str, Any] | None = None,
+) -> spectral.SpectralMetricParams:
     """The paper collision metric as configured (threshold, band, wingbeats)."""
     return metric_params(collision_monitor_params_from_config(values))
 
@@ -244,16 +532,25 @@ def loop_delay_s(values: Mapping[str, Any]) -> tuple[float, float]:
     settles where the delay-free Hopf theory puts it (144.2 Hz, 20.5 deg).
     """
     fs = values["sample_rate_hz"]
-    velocity = (values["velocity_delay_s"] if values["velocity_delay_s"] >= 0
-                else frontend_velocity_delay_s(values["compensation_frequency_hz"]))
-    return (dsa.loop_delay_s(values["block_size"] * values["blocks_in_flight"], fs, velocity * fs),
-            velocity)
+    velocity = (
+        values["velocity_delay_s"]
+        if values["velocity_delay_s"] >= 0
+        else frontend_velocity_delay_s(values["compensation_frequency_hz"])
+    )
+    return (
+        dsa.loop_delay_s(values["block_size"] * values["blocks_in_flight"], fs, velocity * fs),
+        velocity,
+    )
 
 
 def kr_schedule(values: Mapping[str, Any]) -> dsa.KrSchedule:
     """The configured K_r schedule (also what `flaair live` runs)."""
-    return dsa.KrSchedule(values["kr_initial"], values["kr_target"], values["kr_ramp_start_s"],
-                          values["kr_ramp_duration_s"])
+    return dsa.KrSchedule(
+        values["kr_initial"],
+        values["kr_target"],
+        values["kr_ramp_start_s"],
+        values["kr_ramp_duration_s"],
+    )
 
 
 def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> SupervisorParams:
@@ -263,37 +560,53 @@ def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> Su
     try:
         delay, _ = loop_delay_s(v)
         dsa_params = dsa.DsaParams(
-            r3_rad_s=v["r3_rad_s"], kappa=v["kappa"], mu_nm_s_per_rad=v["mu_nm_s_per_rad"],
-            actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v, sample_rate_hz=fs,
-            drive_limit_v=v["drive_limit_v"], sync_amplitude_v=v["sync_amplitude_v"],
-            sync_frequency_hz=v["sync_frequency_hz"], sync_phase_rad=v["sync_phase_rad"],
-            kr_schedule=kr_schedule(v), loop_delay_s=delay if v["compensate_delay"] else 0.0,
+            r3_rad_s=v["r3_rad_s"],
+            kappa=v["kappa"],
+            mu_nm_s_per_rad=v["mu_nm_s_per_rad"],
+            actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
+            sample_rate_hz=fs,
+            drive_limit_v=v["drive_limit_v"],
+            sync_amplitude_v=v["sync_amplitude_v"],
+            sync_frequency_hz=v["sync_frequency_hz"],
+            sync_phase_rad=v["sync_phase_rad"],
+            kr_schedule=kr_schedule(v),
+            loop_delay_s=delay if v["compensate_delay"] else 0.0,
             compensation_frequency_hz=v["compensation_frequency_hz"],
         )
         safety_params = safety.SafetyParams(
-            drive_limit_v=v["drive_limit_v"], slew_limit_v_per_s=v["slew_limit_v_per_s"]
-            if v["slew_limit_v_per_s"] > 0 else math.inf, invalid_timeout_s=v["invalid_timeout_s"],
-            ramp_down_s=v["ramp_down_s"], sample_rate_hz=fs,
+            drive_limit_v=v["drive_limit_v"],
+            slew_limit_v_per_s=v["slew_limit_v_per_s"] if v["slew_limit_v_per_s"] > 0 else math.inf,
+            invalid_timeout_s=v["invalid_timeout_s"],
+            ramp_down_s=v["ramp_down_s"],
+            sample_rate_hz=fs,
         )
         frequency = crossing_params(fs, v["frequency_hysteresis_deg"])
     except (dsa.DsaParameterError, safety.SafetyParameterError, TransitionError) as exc:
         raise ParameterError(str(exc)) from exc
     return SupervisorParams(
-        sample_rate_hz=fs, block_size=v["block_size"], blocks_in_flight=v["blocks_in_flight"],
-        drive_limit_v=v["drive_limit_v"], watchdog_timeout_s=v["watchdog_timeout_s"],
-                            ramp_down_s=v["ramp_down_s"],
-        zero_hold_s=v["zero_hold_s"], keepalive_period_s=v["keepalive_period_s"],
-                            wait_for_peers=v["wait_for_peers"],
-        min_drive_subscribers=v["min_drive_subscribers"], start_delay_s=v["start_delay_s"],
-        start_retry_s=v["start_retry_s"], run_time_s=v["run_time_s"],
-                            collision_response=v["collision_response"],
+        sample_rate_hz=fs,
+        block_size=v["block_size"],
+        blocks_in_flight=v["blocks_in_flight"],
+        drive_limit_v=v["drive_limit_v"],
+        watchdog_timeout_s=v["watchdog_timeout_s"],
+        ramp_down_s=v["ramp_down_s"],
+        zero_hold_s=v["zero_hold_s"],
+        keepalive_period_s=v["keepalive_period_s"],
+        wait_for_peers=v["wait_for_peers"],
+        min_drive_subscribers=v["min_drive_subscribers"],
+        start_delay_s=v["start_delay_s"],
+        start_retry_s=v["start_retry_s"],
+        run_time_s=v["run_time_s"],
+        collision_response=v["collision_response"],
         collision_reduction_factor=v["collision_reduction_factor"],
         collision_restore_on_clearance=v["collision_restore_on_clearance"],
         collision_ramp_guard_s=v["collision_ramp_guard_s"],
         state_every_blocks=v["state_every_blocks"],
         # Every timer wake-up costs a spin of the executor: no faster than needed.
         timer_period_s=min(0.01, v["watchdog_timeout_s"] / 4),
-        dsa=dsa_params, safety=safety_params, frequency=frequency,
+        dsa=dsa_params,
+        safety=safety_params,
+        frequency=frequency,
     )
 
 
@@ -301,42 +614,57 @@ def describe_loop(params: SupervisorParams, values: Mapping[str, Any]) -> str:
     """One line on the configured loop, for the controller's start-up log."""
     d = params.dsa
     f_c = values["compensation_frequency_hz"]
-    return (f"r3 {d.r3_rad_s:g} rad/s, kappa {d.kappa:g}, mu {d.mu_nm_s_per_rad:g} N m s/rad, G_a "
-            f"{d.actuator_gain_nm_per_v:g} N m/V; sync {d.sync_amplitude_v:g} V at "
-            f"{d.sync_frequency_hz:g} Hz; K_r {values['kr_initial']:g} -> {values['kr_target']:g} "
-            f"from {values['kr_ramp_start_s']:g} s over {values['kr_ramp_duration_s']:g} s; loop "
-            f"delay {1e3 * loop_delay_s(values)[0]:.3f} ms = "
-            f"{360 * f_c * loop_delay_s(values)[0]:.1f} deg at {f_c:g} Hz "
-            f"{'compensated' if values['compensate_delay'] else '(NOT compensated)'}; limit "
-            f"+-{d.drive_limit_v:g} V; collision response {values['collision_response']}")
+    return (
+        f"r3 {d.r3_rad_s:g} rad/s, kappa {d.kappa:g}, mu {d.mu_nm_s_per_rad:g} N m s/rad, G_a "
+        f"{d.actuator_gain_nm_per_v:g} N m/V; sync {d.sync_amplitude_v:g} V at "
+        f"{d.sync_frequency_hz:g} Hz; K_r {values['kr_initial']:g} -> {values['kr_target']:g} "
+        f"from {values['kr_ramp_start_s']:g} s over {values['kr_ramp_duration_s']:g} s; loop "
+        f"delay {1e3 * loop_delay_s(values)[0]:.3f} ms = "
+        f"{360 * f_c * loop_delay_s(values)[0]:.1f} deg at {f_c:g} Hz "
+        f"{'compensated' if values['compensate_delay'] else '(NOT compensated)'}; limit "
+        f"+-{d.drive_limit_v:g} V; collision response {values['collision_response']}"
+    )
 
 
 # One adapter between the block messages (their fields, as the nodes and `replay` decode them)
 # and the cores' inputs: the live nodes and the offline replay feed the cores the same values.
 
+
 def monitor_drive_input(fields: Mapping[str, Any]) -> monitor.DriveBlock:
     """A /flaair/drive block's fields as the collision monitor's input."""
-    return monitor.DriveBlock(int(fields["first_sample_index"]),
-                              np.asarray(fields["drive_v"], dtype=np.float64))
+    return monitor.DriveBlock(
+        int(fields["first_sample_index"]), np.asarray(fields["drive_v"], dtype=np.float64)
+    )
 
 
 def monitor_wing_input(fields: Mapping[str, Any]) -> monitor.WingBlock:
     """A /flaair/wing_state block's fields as the
     collision monitor's input (rad, NaN where invalid).
     """
-    return monitor.wing_block(fields["first_sample_index"], fields["stroke_deg"],
-                              fields["pitch_deg"], fields["stroke_valid"], fields["pitch_valid"])
+    return monitor.wing_block(
+        fields["first_sample_index"],
+        fields["stroke_deg"],
+        fields["pitch_deg"],
+        fields["stroke_valid"],
+        fields["pitch_valid"],
+    )
 
 
-def supervisor_wing_input(fields: Mapping[str, Any], t_wall: float,
-                          drive_subscribers: int) -> sv.WingBlock:
+def supervisor_wing_input(
+    fields: Mapping[str, Any], t_wall: float, drive_subscribers: int
+) -> sv.WingBlock:
     """A /flaair/wing_state block's fields as the dSA
     loop supervisor's input, received at `t_wall`.
     """
-    return sv.WingBlock(t_wall, int(fields["first_sample_index"]), float(fields["sample_rate_hz"]),
-                        fields["stroke_velocity_deg_s"], fields["stroke_deg"],
-                        fields["stroke_valid"], drive_subscribers)
-
+    return sv.WingBlock(
+        t_wall,
+        int(fields["first_sample_index"]),
+        float(fields["sample_rate_hz"]),
+        fields["stroke_velocity_deg_s"],
+        fields["stroke_deg"],
+        fields["stroke_valid"],
+        drive_subscribers,
+    )
 
 
 def supervisor_params_from_values(values: Mapping[str, Any]) -> SupervisorParams:
@@ -352,23 +680,35 @@ def supervisor_params_from_values(values: Mapping[str, Any]) -> SupervisorParams
 
 def drive_fields(block: sv.DriveOut, sample_rate_hz: float) -> dict[str, Any]:
     """A DriveCommandBlock's fields (for `intra.BlockPublisher.publish`)."""
-    return {"sample_rate_hz": sample_rate_hz, "first_sample_index": block.first_sample_index,
-            "drive_v": block.drive_v}
+    return {
+        "sample_rate_hz": sample_rate_hz,
+        "first_sample_index": block.first_sample_index,
+        "drive_v": block.drive_v,
+    }
 
 
 def controller_state_fields(block: sv.DriveOut, watchdog_code: int) -> dict[str, Any]:
     """A ControllerState's fields for the drive block
     `block` (`watchdog_code`: the message's constant).
     """
-    return {"k_r": block.k_r, "async_drive_v": block.async_drive_v,
-            "sync_drive_v": block.sync_drive_v, "drive_v": block.drive_v[-1],
-            "drive_clamped": block.drive_clamped, "watchdog": watchdog_code, "fault": block.fault,
-            "amplitude_scale": block.amplitude_scale,
-            "stroke_frequency_hz": block.stroke_frequency_hz}
+    return {
+        "k_r": block.k_r,
+        "async_drive_v": block.async_drive_v,
+        "sync_drive_v": block.sync_drive_v,
+        "drive_v": block.drive_v[-1],
+        "drive_clamped": block.drive_clamped,
+        "watchdog": watchdog_code,
+        "fault": block.fault,
+        "amplitude_scale": block.amplitude_scale,
+        "stroke_frequency_hz": block.stroke_frequency_hz,
+    }
 
 
-_MODE_TEXT = {sv.WAITING: "waiting for the loop to start", sv.LOOP: "closing the loop",
-              sv.DONE: "run complete"}
+_MODE_TEXT = {
+    sv.WAITING: "waiting for the loop to start",
+    sv.LOOP: "closing the loop",
+    sv.DONE: "run complete",
+}
 
 
 def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None) -> Health:
@@ -384,12 +724,24 @@ def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None
     bad = c.invalid + c.rejected + c.stale - b.invalid - b.rejected - b.stale
     if bad:
         problems.append((WARN, f"{bad} wing-state block(s) invalid, rejected or stale"))
-    return health("dSA controller", problems, _MODE_TEXT.get(now.mode, now.mode), {
-        "mode": now.mode, "watchdog": "tripped" if now.mode == sv.TRIPPED else "ok",
-        "fault": now.fault, "trips": c.trips, "clamped_blocks": c.clamped,
-        "wing_state_blocks": c.blocks, "invalid_blocks": c.invalid,
-        "rejected_blocks": c.rejected, "stale_blocks": c.stale, "gaps": c.gaps,
-        "amplitude_scale": now.amplitude_scale})
+    return health(
+        "dSA controller",
+        problems,
+        _MODE_TEXT.get(now.mode, now.mode),
+        {
+            "mode": now.mode,
+            "watchdog": "tripped" if now.mode == sv.TRIPPED else "ok",
+            "fault": now.fault,
+            "trips": c.trips,
+            "clamped_blocks": c.clamped,
+            "wing_state_blocks": c.blocks,
+            "invalid_blocks": c.invalid,
+            "rejected_blocks": c.rejected,
+            "stale_blocks": c.stale,
+            "gaps": c.gaps,
+            "amplitude_scale": now.amplitude_scale,
+        },
+    )
 
 
 def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
@@ -397,32 +749,54 @@ def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
     return mode == sv.LOOP, "; ".join(note.text for note in notes) or mode
 
 
-def monitor_health(now: tuple[monitor.CollisionMonitorState, int, int],
-                   before: tuple[monitor.CollisionMonitorState, int, int] | None) -> Health:
+def monitor_health(
+    now: tuple[monitor.CollisionMonitorState, int, int],
+    before: tuple[monitor.CollisionMonitorState, int, int] | None,
+) -> Health:
     """/diagnostics of the collision monitor: collision state, wingbeats, dropped blocks."""
     state, rejected, undecodable = now
     dropped = rejected + undecodable - (before[1] + before[2] if before is not None else 0)
-    problems = [(WARN, "COLLISION: the pitch spectrum left the free-flapping one")
-                if state.colliding else (OK, "")]
+    problems = [
+        (WARN, "COLLISION: the pitch spectrum left the free-flapping one")
+        if state.colliding
+        else (OK, "")
+    ]
     if dropped:
         problems.append((WARN, f"{dropped} wing-state block(s) dropped"))
     frequency_hz = state.lock.locked_hz or (
-        state.windows.drive_frequency_hz or 0.0 if state.windows else 0.0)
-    return health("collision monitor", problems,
-                  "no collision" if state.wingbeats else "waiting for the first wingbeat", {
-                      "colliding": state.colliding, "wingbeats": state.wingbeats,
-                      "wingbeat_frequency_hz": float(frequency_hz),
-                      "rejected_blocks": rejected, "undecodable_blocks": undecodable})
+        state.windows.drive_frequency_hz or 0.0 if state.windows else 0.0
+    )
+    return health(
+        "collision monitor",
+        problems,
+        "no collision" if state.wingbeats else "waiting for the first wingbeat",
+        {
+            "colliding": state.colliding,
+            "wingbeats": state.wingbeats,
+            "wingbeat_frequency_hz": float(frequency_hz),
+            "rejected_blocks": rejected,
+            "undecodable_blocks": undecodable,
+        },
+    )
 
 
 def describe_monitor(p: Mapping[str, Any], estimates_frequency: bool) -> str:
     """The collision monitor's ready line: its windows and its decision."""
-    where = ("stroke windows" if p["window_source"] == "stroke"
-             else "drive windows, frequency estimated from /flaair/drive" if estimates_frequency
-             else f"drive windows at {p['drive_frequency_hz']:g} Hz")
-    how = (f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
-           f"Hz, threshold {p['threshold_deg']:g} deg" if p["decision"] == "paper"
-           else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
-                f"{p['pitch_threshold']:g}")
-    return (f"collision monitor ready: {where}; decision {p['decision']} ({how}); onset after "
-            f"{p['n_on']}, clearance after {p['n_off']} wingbeats")
+    where = (
+        "stroke windows"
+        if p["window_source"] == "stroke"
+        else "drive windows, frequency estimated from /flaair/drive"
+        if estimates_frequency
+        else f"drive windows at {p['drive_frequency_hz']:g} Hz"
+    )
+    how = (
+        f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
+        f"Hz, threshold {p['threshold_deg']:g} deg"
+        if p["decision"] == "paper"
+        else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
+        f"{p['pitch_threshold']:g}"
+    )
+    return (
+        f"collision monitor ready: {where}; decision {p['decision']} ({how}); onset after "
+        f"{p['n_on']}, clearance after {p['n_off']} wingbeats"
+    )

@@ -12,6 +12,7 @@ trips, clamping) on /diagnostics. G_a comes from the model file. The dsa core's 
 compensates the loop delay. Safety: clamp, slew, watchdogs, a zero block at exit.
 Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
+
 from __future__ import annotations
 
 import threading
@@ -49,19 +50,31 @@ class DsaControllerNode(FlaairNode):
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.params = io.supervisor_params_from_values(p)
         self.state = sv.initial_state(self.params)
-        sv.warm_up(self.params)   # the kernels load now, not on the first live block
+        sv.warm_up(self.params)  # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
         # index, in, out
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None
         # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
         self.lock = threading.RLock()
         self.drive = intra.block_publisher(self, topics.DRIVE, self.block_size, BLOCK_STREAM)
-        self.state_pub = intra.BlockPublisher(self, ControllerState, topics.CONTROLLER_STATE,
-                                              cdr.GeneralCodec(cdr.CONTROLLER_STATE), BLOCK_STREAM)
-        intra.subscribe_stream(self, topics.WING_STATE, self.block_size, self.on_wing_state,
-                               BLOCK_STREAM, self.on_undecodable)
-        self.create_subscription(CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event,
-                                 STATUS)  # volatile
+        self.state_pub = intra.BlockPublisher(
+            self,
+            ControllerState,
+            topics.CONTROLLER_STATE,
+            cdr.GeneralCodec(cdr.CONTROLLER_STATE),
+            BLOCK_STREAM,
+        )
+        intra.subscribe_stream(
+            self,
+            topics.WING_STATE,
+            self.block_size,
+            self.on_wing_state,
+            BLOCK_STREAM,
+            self.on_undecodable,
+        )
+        self.create_subscription(
+            CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS
+        )  # volatile
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.create_timer(self.params.timer_period_s, self.on_timer)
         self.create_service(Trigger, "~/reset_watchdog", self.on_reset_watchdog)
@@ -88,12 +101,15 @@ class DsaControllerNode(FlaairNode):
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable,
-                     f"wing-state block dropped: {exc} [{self.undecodable} so far]")
+        warn_counted(
+            self.get_logger(),
+            self.undecodable,
+            f"wing-state block dropped: {exc} [{self.undecodable} so far]",
+        )
 
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
-        self.follow_sample_clock(m, self.params.sample_rate_hz)   # stamps: the wing state's clock
+        self.follow_sample_clock(m, self.params.sample_rate_hz)  # stamps: the wing state's clock
         if self.state.mode == sv.DONE:
             return
         # only the start reads them (rclpy: ~20 us)
@@ -101,16 +117,27 @@ class DsaControllerNode(FlaairNode):
         self.advance(supervisor_wing_input(m, t_receive, peers), t_receive)
 
     def on_collision_event(self, message: CollisionEvent) -> None:
-        self.advance(sv.Collision(time.monotonic(), message.kind == CollisionEvent.ONSET,
-                                  message.wingbeat_index, message.spectrum_rmse_deg))
+        self.advance(
+            sv.Collision(
+                time.monotonic(),
+                message.kind == CollisionEvent.ONSET,
+                message.wingbeat_index,
+                message.spectrum_rmse_deg,
+            )
+        )
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
         """kr_target / kr_ramp_duration_s: a new ramp from the current K_r."""
         changes = {param.name: param.value for param in parameters}
         if "kr_target" in changes or "kr_ramp_duration_s" in changes:
-            out = self.advance(sv.SetRamp(
-                changes.get("kr_target", self.get_parameter("kr_target").value),
-                changes.get("kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value)))
+            out = self.advance(
+                sv.SetRamp(
+                    changes.get("kr_target", self.get_parameter("kr_target").value),
+                    changes.get(
+                        "kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value
+                    ),
+                )
+            )
             if out.refused:
                 return SetParametersResult(successful=False, reason=out.refused)
         return SetParametersResult(successful=True)
@@ -122,15 +149,23 @@ class DsaControllerNode(FlaairNode):
 
     def on_timer(self) -> None:
         count = self.count_publishers
-        self.advance(sv.Tick(time.monotonic(), self.peers(), count(topics.SENSOR_VOLTAGE),
-                             count(topics.WING_STATE)))
+        self.advance(
+            sv.Tick(
+                time.monotonic(),
+                self.peers(),
+                count(topics.SENSOR_VOLTAGE),
+                count(topics.WING_STATE),
+            )
+        )
 
     def peers(self) -> int:
         """/flaair/drive's subscribers; 0 until
         min_stream_listeners and min_state_subscribers listen.
         """
-        ready = (intra.dds_listeners() >= self.p["min_stream_listeners"]
-                 and self.state_pub.subscription_count() >= self.p["min_state_subscribers"])
+        ready = (
+            intra.dds_listeners() >= self.p["min_stream_listeners"]
+            and self.state_pub.subscription_count() >= self.p["min_state_subscribers"]
+        )
         return self.drive.subscription_count() if ready else 0
 
     def close(self) -> None:

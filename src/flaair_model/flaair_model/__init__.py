@@ -14,5 +14,4 @@ it depends on nothing of FLAAIR's.
 - `settings`: typed accessors of the config sections a tool reads that are not its own.
 """
 
-__all__ = ["pvdf", "model", "model_io", "config", "schema", "lfilter", "notes", "settings",
-           "terms"]
+__all__ = ["config", "lfilter", "model", "model_io", "notes", "pvdf", "schema", "settings", "terms"]

@@ -5,6 +5,7 @@ Installed packages find it through FLAAIR_CONFIG_DIR (set by bin/flaair and
 scripts/in_env.sh), then through the source tree (symlink install), then through
 share/flaair_model/config (a plain `colcon build` on a stock ROS install).
 """
+
 from __future__ import annotations
 
 import copy
@@ -35,7 +36,7 @@ def config_dir() -> Path:
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("flaair_model")) / "config"
-    except Exception as exc:  # noqa: BLE001 - any lookup failure means "not found"
+    except Exception as exc:
         raise ConfigError("cannot find FLAAIR's config directory; set FLAAIR_CONFIG_DIR") from exc
 
 
@@ -58,8 +59,7 @@ def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
         out[prefix] = value
 
 
-def node_parameters(file_name: str, node_name: str, renamed: str | None = None
-                    ) -> dict[str, Any]:
+def node_parameters(file_name: str, node_name: str, renamed: str | None = None) -> dict[str, Any]:
     """Return the flattened `ros__parameters` of `node_name` in config/`file_name`.
 
     The `/**` section (shared by every node) is read first, the node's own section over it, then
@@ -82,7 +82,7 @@ def node_parameters(file_name: str, node_name: str, renamed: str | None = None
             found = found or key != "/**"
     if not found:
         raise ConfigError(f"{path}: no '{node_name}: ros__parameters:' section")
-    return copy.deepcopy(out)   # the parsed document is cached: callers get their own values
+    return copy.deepcopy(out)  # the parsed document is cached: callers get their own values
 
 
 _PARSED: dict[str, tuple[tuple[int, int], Any]] = {}
@@ -95,7 +95,7 @@ def _parameter_document(path: Path) -> Any:
     try:
         status = path.stat()
     except OSError:
-        return load_yaml(path)   # the named error
+        return load_yaml(path)  # the named error
     stamp = (status.st_mtime_ns, status.st_size)
     cached = _PARSED.get(str(path))
     if cached is None or cached[0] != stamp:

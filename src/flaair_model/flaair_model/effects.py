@@ -18,61 +18,77 @@ tests/test_effect_table.py checks that every entry reaches all three and that it
 channels it names and no others. The order of `EFFECTS` is the order effects are stored in a
 model and searched in.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Union
+from typing import Any, Union
 
 import numpy as np
 
 from flaair_model.validation import ModelError, check_channel, check_fields
 
 __all__ = [
-    "MEASURED_CHANNELS",
-    "TRUTH_CHANNELS",
-    "SENSOR_CHANNELS",
-    "SensorDelay",
-    "ChargeAmpHighpass",
-    "Feedthrough",
-    "TransmissionNonlinearity",
-    "HingeStiffening",
-    "StructuralDamping",
-    "StrainTransferLoss",
-    "Collision",
-    "WingDamage",
-    "Effect",
-    "SensorEffect",
-    "FitParam",
-    "DrawRange",
-    "TermContext",
-    "EffectEntry",
     "EFFECTS",
-    "ENTRIES",
-    "EFFECT_TYPES",
     "EFFECT_NAMES",
+    "EFFECT_TYPES",
+    "ENTRIES",
+    "MEASURED_CHANNELS",
     "PER_CHANNEL_EFFECTS",
     "PLANT_TERMS",
     "SCALE_TERMS",
+    "SENSOR_CHANNELS",
     "SENSOR_TERMS",
+    "TRUTH_CHANNELS",
+    "ChargeAmpHighpass",
+    "Collision",
+    "DrawRange",
+    "Effect",
+    "EffectEntry",
+    "Feedthrough",
+    "FitParam",
+    "HingeStiffening",
+    "SensorDelay",
+    "SensorEffect",
+    "StrainTransferLoss",
+    "StructuralDamping",
+    "TermContext",
+    "TransmissionNonlinearity",
+    "WingDamage",
 ]
 
 # The measured channels an effect can change (truth from video, voltages from the films).
 MEASURED_CHANNELS: tuple[str, ...] = (
-    "stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
+    "stroke_deg",
+    "pitch_deg",
+    "stroke_sensor_v",
+    "pitch_sensor_v",
+)
 TRUTH_CHANNELS: tuple[str, ...] = ("stroke_deg", "pitch_deg")
 SENSOR_CHANNELS: tuple[str, ...] = ("stroke_sensor_v", "pitch_sensor_v")
 
 # The kernel coefficients an entry's `terms` may name. Plant terms are set; scale terms multiply
 # the nominal value; sensor terms are per sensor chain (the entry has a `channel`).
 PLANT_TERMS: tuple[str, ...] = (
-    "structural_damping_nm_s_per_rad", "hinge_cubic_per_rad2", "contact_on", "stroke_limit_rad",
-    "contact_stiffness_nm_per_rad", "contact_damping_nm_s_per_rad", "transmission_cubic_per_rad2",
+    "structural_damping_nm_s_per_rad",
+    "hinge_cubic_per_rad2",
+    "contact_on",
+    "stroke_limit_rad",
+    "contact_stiffness_nm_per_rad",
+    "contact_damping_nm_s_per_rad",
+    "transmission_cubic_per_rad2",
     "feedthrough_v_per_v",
 )
 SCALE_TERMS: tuple[str, ...] = ("inertia_factor",)
 SENSOR_TERMS: tuple[str, ...] = (
-    "delay_samples", "highpass_b0", "highpass_b1", "highpass_a1", "gain_factor")
+    "delay_samples",
+    "highpass_b0",
+    "highpass_b1",
+    "highpass_a1",
+    "gain_factor",
+)
 
 
 # --------------------------------------------------------------------------- parameters
@@ -170,8 +186,11 @@ class Collision:
         check_fields(
             self,
             "effects.collision",
-            {"stroke_limit_deg": "finite", "contact_stiffness_ratio": "pos",
-             "contact_damping_ratio": "nonneg"},
+            {
+                "stroke_limit_deg": "finite",
+                "contact_stiffness_ratio": "pos",
+                "contact_damping_ratio": "nonneg",
+            },
         )
 
 
@@ -283,8 +302,10 @@ class EffectEntry:
 
 def _highpass_terms(e: ChargeAmpHighpass, c: TermContext) -> dict[str, float]:
     if not e.corner_hz < c.fs_hz / 2:
-        raise ModelError("effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = "
-                         f"{c.fs_hz / 2:g}, got {e.corner_hz:g}")
+        raise ModelError(
+            "effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = "
+            f"{c.fs_hz / 2:g}, got {e.corner_hz:g}"
+        )
     # imported here: scipy.signal costs a process ~1 s of CPU to import, and a model without
     # this effect (the plant node's, most commands') never needs it
     from scipy.signal import butter
@@ -296,78 +317,155 @@ def _highpass_terms(e: ChargeAmpHighpass, c: TermContext) -> dict[str, float]:
 
 def _collision_terms(e: Collision, c: TermContext) -> dict[str, float]:
     stiffness = e.contact_stiffness_ratio * c.stroke_stiffness_nm_per_rad
-    return {"contact_on": 1.0, "stroke_limit_rad": math.radians(e.stroke_limit_deg),
-            "contact_stiffness_nm_per_rad": stiffness,
-            "contact_damping_nm_s_per_rad": 2.0 * e.contact_damping_ratio
-            * math.sqrt(stiffness * c.stroke_inertia_kg_m2)}
+    return {
+        "contact_on": 1.0,
+        "stroke_limit_rad": math.radians(e.stroke_limit_deg),
+        "contact_stiffness_nm_per_rad": stiffness,
+        "contact_damping_nm_s_per_rad": 2.0
+        * e.contact_damping_ratio
+        * math.sqrt(stiffness * c.stroke_inertia_kg_m2),
+    }
 
 
-_HINGE_PLANT = ("pitch_natural_frequency_hz", "hinge_damping_nm_s_per_rad",
-                "inertial_coupling_kg_m2", "aero_coupling_nm_s2")
+_HINGE_PLANT = (
+    "pitch_natural_frequency_hz",
+    "hinge_damping_nm_s_per_rad",
+    "inertial_coupling_kg_m2",
+    "aero_coupling_nm_s2",
+)
 _STROKE_PLANT = ("aero_damping_nm_s2", "actuator_gain_nm_per_v", "stroke_natural_frequency_hz")
 
 EFFECTS: tuple[EffectEntry, ...] = (
-    EffectEntry("sensor_delay", SensorDelay, ("delay_samples",), lambda e,
-                c: {"delay_samples": e.delay_s * c.fs_hz}, SENSOR_CHANNELS, SENSOR_CHANNELS, (
-    FitParam("delay_s", 0.0, 0.0, 2e-3, (0.0, 1e-4, 3e-4, 1e-3), 2e-7),),
-                (DrawRange("delay_s", 30e-6, 300e-6),)),
-    EffectEntry("charge_amp_highpass", ChargeAmpHighpass,
-                ("highpass_b0", "highpass_b1", "highpass_a1"), _highpass_terms, SENSOR_CHANNELS,
-                SENSOR_CHANNELS,
-                (FitParam("corner_hz", 0.0, 0.05, 100.0, tuple(np.geomspace(0.3, 100.0, 6)), 1e-3,
-                          log=True),), (DrawRange("corner_hz", 2.0, 15.0),)),
-    EffectEntry("feedthrough", Feedthrough, ("feedthrough_v_per_v",), lambda e,
-                c: {"feedthrough_v_per_v": e.gain_v_per_v}, ("stroke_sensor_v",),
-                ("stroke_sensor_v",), (FitParam("gain_v_per_v", 0.0, -0.05, 0.05, (), 1e-5),),
-                (DrawRange("gain_v_per_v", 0.002, 0.008, signed=True),)),
-    EffectEntry("transmission_nonlinearity", TransmissionNonlinearity,
-                ("transmission_cubic_per_rad2",), lambda e,
-                c: {"transmission_cubic_per_rad2": e.cubic_per_rad2}, ("stroke_sensor_v",),
-                ("stroke_sensor_v",), (FitParam("cubic_per_rad2", 0.0, -3.0, 3.0, (), 1e-3),),
-                (DrawRange("cubic_per_rad2", 0.2, 0.6, signed=True),)),
-    EffectEntry("strain_transfer_loss", StrainTransferLoss, ("gain_factor",), lambda e,
-                c: {"gain_factor": e.efficiency}, SENSOR_CHANNELS, SENSOR_CHANNELS,
-                (FitParam("efficiency", 1.0, 0.01, 1.0, (), 1e-4),),
-                (DrawRange("efficiency", 0.2, 0.8),)),
-    EffectEntry("hinge_stiffening", HingeStiffening, ("hinge_cubic_per_rad2",), lambda e,
-                c: {"hinge_cubic_per_rad2": e.cubic_per_rad2}, ("pitch_deg", "pitch_sensor_v"),
-                ("pitch_deg",),
-                (FitParam("cubic_per_rad2", 0.0, -1.0, 50.0, (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0),
-                          1e-3),), (DrawRange("cubic_per_rad2", 0.5, 4.0),),
-                trades_off=_HINGE_PLANT),
-    EffectEntry("structural_damping", StructuralDamping, ("structural_damping_nm_s_per_rad",),
-                lambda e, c: {"structural_damping_nm_s_per_rad": 2.0 * e.damping_ratio
-                              * math.sqrt(c.stroke_stiffness_nm_per_rad * c.stroke_inertia_kg_m2)},
-                MEASURED_CHANNELS, TRUTH_CHANNELS,
-                (FitParam("damping_ratio", 0.0, 0.0, 1.0, (0.0, 0.01, 0.03, 0.1, 0.3), 1e-4),),
-                (DrawRange("damping_ratio", 0.02, 0.08),), trades_off=_STROKE_PLANT),
-    EffectEntry("collision", Collision,
-                ("contact_on", "stroke_limit_rad", "contact_stiffness_nm_per_rad",
-                 "contact_damping_nm_s_per_rad"), _collision_terms, MEASURED_CHANNELS,
-                TRUTH_CHANNELS,
-                (FitParam("stroke_limit_deg", math.inf, 1.0, 90.0, tuple(np.arange(6.0, 62.0, 4.0)),
-                          0.02),
-                 FitParam("contact_stiffness_ratio", 50.0, 2.0, 2000.0, (), 1e-3, log=True),
-                 FitParam("contact_damping_ratio", 0.2, 0.01, 2.0, (), 1e-3, log=True)),
-                (DrawRange("stroke_limit_deg", 25.0, 40.0),
-                 DrawRange("contact_stiffness_ratio", 20.0, 200.0, log=True),
-                 DrawRange("contact_damping_ratio", 0.1, 0.5)), trades_off=_STROKE_PLANT),
-    EffectEntry("wing_damage", WingDamage, ("inertia_factor",), lambda e,
-                c: {"inertia_factor": e.inertia_factor}, MEASURED_CHANNELS, TRUTH_CHANNELS,
-                (FitParam("inertia_factor", 1.0, 0.3, 1.0, (0.5, 0.7, 0.85, 0.95, 1.0), 1e-4),),
-                (DrawRange("inertia_factor", 0.75, 0.95),), separable=False, note="scaling the "
-                                                                                  "wing inertia "
-                                                                                  "equals raising "
-                                                                                  "both natural "
-                                                                                  "frequencies and "
-                                                                                  "scaling the "
-                                                                                  "damping, gain "
-                                                                                  "and coupling "
-                                                                                  "coefficients, "
-                                                                                  "all of which "
-                                                                                  "are fitted "
-                                                                                  "plant "
-                                                                                  "parameters"),
+    EffectEntry(
+        "sensor_delay",
+        SensorDelay,
+        ("delay_samples",),
+        lambda e, c: {"delay_samples": e.delay_s * c.fs_hz},
+        SENSOR_CHANNELS,
+        SENSOR_CHANNELS,
+        (FitParam("delay_s", 0.0, 0.0, 2e-3, (0.0, 1e-4, 3e-4, 1e-3), 2e-7),),
+        (DrawRange("delay_s", 30e-6, 300e-6),),
+    ),
+    EffectEntry(
+        "charge_amp_highpass",
+        ChargeAmpHighpass,
+        ("highpass_b0", "highpass_b1", "highpass_a1"),
+        _highpass_terms,
+        SENSOR_CHANNELS,
+        SENSOR_CHANNELS,
+        (
+            FitParam(
+                "corner_hz", 0.0, 0.05, 100.0, tuple(np.geomspace(0.3, 100.0, 6)), 1e-3, log=True
+            ),
+        ),
+        (DrawRange("corner_hz", 2.0, 15.0),),
+    ),
+    EffectEntry(
+        "feedthrough",
+        Feedthrough,
+        ("feedthrough_v_per_v",),
+        lambda e, c: {"feedthrough_v_per_v": e.gain_v_per_v},
+        ("stroke_sensor_v",),
+        ("stroke_sensor_v",),
+        (FitParam("gain_v_per_v", 0.0, -0.05, 0.05, (), 1e-5),),
+        (DrawRange("gain_v_per_v", 0.002, 0.008, signed=True),),
+    ),
+    EffectEntry(
+        "transmission_nonlinearity",
+        TransmissionNonlinearity,
+        ("transmission_cubic_per_rad2",),
+        lambda e, c: {"transmission_cubic_per_rad2": e.cubic_per_rad2},
+        ("stroke_sensor_v",),
+        ("stroke_sensor_v",),
+        (FitParam("cubic_per_rad2", 0.0, -3.0, 3.0, (), 1e-3),),
+        (DrawRange("cubic_per_rad2", 0.2, 0.6, signed=True),),
+    ),
+    EffectEntry(
+        "strain_transfer_loss",
+        StrainTransferLoss,
+        ("gain_factor",),
+        lambda e, c: {"gain_factor": e.efficiency},
+        SENSOR_CHANNELS,
+        SENSOR_CHANNELS,
+        (FitParam("efficiency", 1.0, 0.01, 1.0, (), 1e-4),),
+        (DrawRange("efficiency", 0.2, 0.8),),
+    ),
+    EffectEntry(
+        "hinge_stiffening",
+        HingeStiffening,
+        ("hinge_cubic_per_rad2",),
+        lambda e, c: {"hinge_cubic_per_rad2": e.cubic_per_rad2},
+        ("pitch_deg", "pitch_sensor_v"),
+        ("pitch_deg",),
+        (FitParam("cubic_per_rad2", 0.0, -1.0, 50.0, (-0.5, 0.0, 0.5, 2.0, 8.0, 32.0), 1e-3),),
+        (DrawRange("cubic_per_rad2", 0.5, 4.0),),
+        trades_off=_HINGE_PLANT,
+    ),
+    EffectEntry(
+        "structural_damping",
+        StructuralDamping,
+        ("structural_damping_nm_s_per_rad",),
+        lambda e, c: {
+            "structural_damping_nm_s_per_rad": 2.0
+            * e.damping_ratio
+            * math.sqrt(c.stroke_stiffness_nm_per_rad * c.stroke_inertia_kg_m2)
+        },
+        MEASURED_CHANNELS,
+        TRUTH_CHANNELS,
+        (FitParam("damping_ratio", 0.0, 0.0, 1.0, (0.0, 0.01, 0.03, 0.1, 0.3), 1e-4),),
+        (DrawRange("damping_ratio", 0.02, 0.08),),
+        trades_off=_STROKE_PLANT,
+    ),
+    EffectEntry(
+        "collision",
+        Collision,
+        (
+            "contact_on",
+            "stroke_limit_rad",
+            "contact_stiffness_nm_per_rad",
+            "contact_damping_nm_s_per_rad",
+        ),
+        _collision_terms,
+        MEASURED_CHANNELS,
+        TRUTH_CHANNELS,
+        (
+            FitParam(
+                "stroke_limit_deg", math.inf, 1.0, 90.0, tuple(np.arange(6.0, 62.0, 4.0)), 0.02
+            ),
+            FitParam("contact_stiffness_ratio", 50.0, 2.0, 2000.0, (), 1e-3, log=True),
+            FitParam("contact_damping_ratio", 0.2, 0.01, 2.0, (), 1e-3, log=True),
+        ),
+        (
+            DrawRange("stroke_limit_deg", 25.0, 40.0),
+            DrawRange("contact_stiffness_ratio", 20.0, 200.0, log=True),
+            DrawRange("contact_damping_ratio", 0.1, 0.5),
+        ),
+        trades_off=_STROKE_PLANT,
+    ),
+    EffectEntry(
+        "wing_damage",
+        WingDamage,
+        ("inertia_factor",),
+        lambda e, c: {"inertia_factor": e.inertia_factor},
+        MEASURED_CHANNELS,
+        TRUTH_CHANNELS,
+        (FitParam("inertia_factor", 1.0, 0.3, 1.0, (0.5, 0.7, 0.85, 0.95, 1.0), 1e-4),),
+        (DrawRange("inertia_factor", 0.75, 0.95),),
+        separable=False,
+        note="scaling the "
+        "wing inertia "
+        "equals raising "
+        "both natural "
+        "frequencies and "
+        "scaling the "
+        "damping, gain "
+        "and coupling "
+        "coefficients, "
+        "all of which "
+        "are fitted "
+        "plant "
+        "parameters",
+    ),
 )
 ENTRIES: dict[str, EffectEntry] = {e.name: e for e in EFFECTS}
 EFFECT_TYPES: dict[str, type] = {e.name: e.kind for e in EFFECTS}

@@ -16,6 +16,7 @@ tests/test_lfilter_kernels.py).
 Note: numba's on-disk cache of a kernel that calls ``lfilter_sample`` is keyed on the calling
 module's source; change this file and touch (or re-warm) the callers.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,8 +47,9 @@ def lfilter_sample(b: np.ndarray, a: np.ndarray, z: np.ndarray, x: float) -> flo
 
 
 @njit(cache=True)
-def lfilter(b: np.ndarray, a: np.ndarray, x: np.ndarray,
-            zi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def lfilter(
+    b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """``scipy.signal.lfilter(b, a, x, zi=zi)`` for normalized (b, a) of one length: (y, zf)."""
     z = zi.copy()
     y = np.empty(x.size)

@@ -5,11 +5,13 @@ Frozen dataclasses, SI units, validated on construction (numpy only, no file I/O
 effects themselves (their parameters, kernel terms, channels, fit and draw ranges) are
 declared once in `flaair_model.effects`; this module builds and combines them in a `Model`.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, is_dataclass, replace
-from typing import Any, Mapping, Union, cast
+from typing import Any, cast
 
 from flaair_model.effects import (
     EFFECT_NAMES,
@@ -32,35 +34,34 @@ from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm, term_from_dic
 from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
 
 __all__ = [
+    "CHANNELS",
     "EFFECT_NAMES",
     "EFFECT_TYPES",
-    "CHANNELS",
-    "ModelError",
-    "PlantParams",
-    "SensorParams",
-    "NoiseParams",
-    "SensorDelay",
-    "ChargeAmpHighpass",
-    "Feedthrough",
-    "TransmissionNonlinearity",
-    "HingeStiffening",
-    "StructuralDamping",
-    "StrainTransferLoss",
-    "Collision",
-    "WingDamage",
-    "PerChannel",
     "PER_CHANNEL_EFFECTS",
     "SIDES",
+    "ChargeAmpHighpass",
+    "Collision",
     "Effect",
+    "Feedthrough",
+    "HingeStiffening",
     "Model",
+    "ModelError",
+    "NoiseParams",
+    "PerChannel",
+    "PlantParams",
+    "SensorDelay",
+    "SensorParams",
+    "StrainTransferLoss",
+    "StructuralDamping",
+    "TransmissionNonlinearity",
+    "WingDamage",
     "effect_from_params",
     "effect_params",
     "with_effect_on",
-    "without_effect_on",
     "with_effects",
+    "without_effect_on",
     "without_effects",
 ]
-
 
 
 # --------------------------------------------------------------------------- nominal model
@@ -133,10 +134,13 @@ class SensorParams:
         for section, obj, kind, rules in sections:
             if not isinstance(obj, kind):
                 raise ModelError(
-                    f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}")
+                    f"sensors.{section} must be a {kind.__name__}, got {type(obj).__name__}"
+                )
             # PvdfMaterial/SensorBeam are frozen dataclasses owned by pvdf.py: check, don't coerce
-            values = {name: check_number(f"sensors.{section}.{name}", getattr(obj, name))
-                      for name in rules}
+            values = {
+                name: check_number(f"sensors.{section}.{name}", getattr(obj, name))
+                for name in rules
+            }
             for name, value in values.items():
                 if not value > 0:
                     raise ModelError(f"sensors.{section}.{name} must be > 0, got {value:g}")
@@ -165,8 +169,9 @@ class NoiseParams:
     tracking_noise_deg_rms: float
 
     def __post_init__(self) -> None:
-        check_fields(self, "noise", {"sensor_noise_v_rms": "nonneg",
-                                     "tracking_noise_deg_rms": "nonneg"})
+        check_fields(
+            self, "noise", {"sensor_noise_v_rms": "nonneg", "tracking_noise_deg_rms": "nonneg"}
+        )
 
 
 @dataclass(frozen=True)
@@ -188,16 +193,20 @@ class PerChannel:
         kind = type(self.stroke)
         name = next((n for n, k in EFFECT_TYPES.items() if k is kind), "")
         if name not in PER_CHANNEL_EFFECTS:
-            raise ModelError("effects: per-channel values exist only for "
-                             f"{', '.join(PER_CHANNEL_EFFECTS)}, got {kind.__name__}")
+            raise ModelError(
+                "effects: per-channel values exist only for "
+                f"{', '.join(PER_CHANNEL_EFFECTS)}, got {kind.__name__}"
+            )
         for side in SIDES:
             e: Any = getattr(self, side)
             if type(e) is not kind:
                 raise ModelError(
-                    f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}")
+                    f"effects.{name}.{side} must be a {kind.__name__}, got {type(e).__name__}"
+                )
             if e.channel != side:
                 raise ModelError(
-                    f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}")
+                    f"effects.{name}.{side}.channel must be {side!r}, got {e.channel!r}"
+                )
 
     def on(self, side: str) -> SensorEffect:
         """The effect on sensor chain `side`."""
@@ -213,10 +222,12 @@ def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | P
             continue
         if not isinstance(sub, Mapping):
             raise ModelError(
-                f"effects.{name}.{side} must be a mapping of parameters, got {type(sub).__name__}")
+                f"effects.{name}.{side} must be a mapping of parameters, got {type(sub).__name__}"
+            )
         if sub.get("channel", side) != side:
             raise ModelError(
-                f"effects.{name}.{side}.channel must be {side!r}, got {sub['channel']!r}")
+                f"effects.{name}.{side}.channel must be {side!r}, got {sub['channel']!r}"
+            )
         built[side] = effect_from_params(name, {**sub, "channel": side})
     if set(built) == set(SIDES):
         return PerChannel(built["stroke"], built["pitch"])
@@ -239,28 +250,35 @@ def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
     kind = EFFECT_TYPES[name]
     if isinstance(params, PerChannel):
         if not isinstance(params.stroke, kind):
-            raise ModelError(f"effects.{name} must hold {kind.__name__} entries, got "
-                             f"{type(params.stroke).__name__}")
+            raise ModelError(
+                f"effects.{name} must hold {kind.__name__} entries, got "
+                f"{type(params.stroke).__name__}"
+            )
         return params
     if is_dataclass(params) and not isinstance(params, type):
         if not isinstance(params, kind):
             raise ModelError(
-                f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}")
+                f"effects.{name} must be a {kind.__name__}, got {type(params).__name__}"
+            )
         return cast(Effect, params)
     if params is None:
         params = {}
     if not isinstance(params, Mapping):
         raise ModelError(
-            f"effects.{name} must be a mapping of parameters, got {type(params).__name__}")
+            f"effects.{name} must be a mapping of parameters, got {type(params).__name__}"
+        )
     if name in PER_CHANNEL_EFFECTS and params and set(params) <= set(SIDES):
         return _per_channel_from_params(name, params)
     known = {f.name for f in fields(kind)}
     unknown = sorted(set(params) - known)
     if unknown:
-        side_hint = (" or per channel {stroke: {...}, pitch: {...}}"
-                     if name in PER_CHANNEL_EFFECTS else "")
-        raise ModelError(f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} "
-                         f"(known: {', '.join(sorted(known))}{side_hint})")
+        side_hint = (
+            " or per channel {stroke: {...}, pitch: {...}}" if name in PER_CHANNEL_EFFECTS else ""
+        )
+        raise ModelError(
+            f"effects.{name}: unknown parameter(s) {', '.join(map(str, unknown))} "
+            f"(known: {', '.join(sorted(known))}{side_hint})"
+        )
     try:
         return kind(**params)
     except TypeError as exc:
@@ -273,8 +291,14 @@ def effect_params(effect: Effect | PerChannel) -> dict[str, Any]:
     writes it (per channel: {stroke, pitch}).
     """
     if isinstance(effect, PerChannel):
-        return {side: {f.name: getattr(effect.on(side), f.name) for f in fields(effect.on(side))
-                       if f.name != "channel"} for side in SIDES}
+        return {
+            side: {
+                f.name: getattr(effect.on(side), f.name)
+                for f in fields(effect.on(side))
+                if f.name != "channel"
+            }
+            for side in SIDES
+        }
     return {f.name: getattr(effect, f.name) for f in fields(effect)}
 
 
@@ -296,11 +320,16 @@ class Model:
     discovered: tuple[DiscoveredTerm, ...] = ()
 
     def __post_init__(self) -> None:
-        for section, kind in (("plant", PlantParams), ("sensors", SensorParams),
-                              ("noise", NoiseParams)):
+        for section, kind in (
+            ("plant", PlantParams),
+            ("sensors", SensorParams),
+            ("noise", NoiseParams),
+        ):
             if not isinstance(getattr(self, section), kind):
-                raise ModelError(f"{section} must be a {kind.__name__}, got "
-                                 f"{type(getattr(self, section)).__name__}")
+                raise ModelError(
+                    f"{section} must be a {kind.__name__}, got "
+                    f"{type(getattr(self, section)).__name__}"
+                )
         raw = self.effects
         if isinstance(raw, Mapping):
             pairs = list(raw.items())
@@ -315,16 +344,20 @@ class Model:
             if name in built:
                 raise ModelError(f"effects.{name} given twice")
             built[name] = effect_from_params(name, params)
-        object.__setattr__(self, "effects", tuple(
-            (n, built[n]) for n in EFFECT_NAMES if n in built))
-        terms = tuple(t if isinstance(t, DiscoveredTerm) else term_from_dict(t, f"discovered[{i}]")
-                      for i, t in enumerate(self.discovered))
+        object.__setattr__(
+            self, "effects", tuple((n, built[n]) for n in EFFECT_NAMES if n in built)
+        )
+        terms = tuple(
+            t if isinstance(t, DiscoveredTerm) else term_from_dict(t, f"discovered[{i}]")
+            for i, t in enumerate(self.discovered)
+        )
         places = [(t.kind, t.acts_on) for t in terms]
         if len(set(places)) < len(places):
             raise ModelError("discovered: a term is given twice on the same site")
         if sum(t.is_dynamics for t in terms) > MAX_DYNAMICS_TERMS:
-            raise ModelError(f"discovered: at most {MAX_DYNAMICS_TERMS} terms may act on the "
-                             "dynamics")
+            raise ModelError(
+                f"discovered: at most {MAX_DYNAMICS_TERMS} terms may act on the dynamics"
+            )
         object.__setattr__(self, "discovered", terms)
 
     def effect(self, name: str) -> Effect | PerChannel | None:
@@ -392,8 +425,9 @@ class Model:
         return 1 if self.pitch_volts_per_rad > 0 else -1
 
 
-def with_effects(model: Model,
-                 effects: Mapping[str, Union[Mapping[str, Any], Effect, PerChannel]]) -> Model:
+def with_effects(
+    model: Model, effects: Mapping[str, Mapping[str, Any] | Effect | PerChannel]
+) -> Model:
     """Model with the given effects added (replacing any of the same name).
 
     Parameters
@@ -414,8 +448,7 @@ def without_effects(model: Model) -> Model:
     return replace(model, effects=())
 
 
-def with_effect_on(model: Model, name: str, side: str,
-                   params: Union[Mapping[str, Any], Effect]) -> Model:
+def with_effect_on(model: Model, name: str, side: str, params: Mapping[str, Any] | Effect) -> Model:
     """Model with sensor effect `name` set on chain `side` only; the other chain keeps its value.
 
     `params` are the effect's parameters without `channel`; the result holds one entry for
@@ -423,11 +456,13 @@ def with_effect_on(model: Model, name: str, side: str,
     """
     if name not in PER_CHANNEL_EFFECTS:
         raise ModelError(
-            f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})")
+            f"effects.{name} has no per-channel value (only {', '.join(PER_CHANNEL_EFFECTS)})"
+        )
     if side not in SIDES:
         raise ModelError(f"sensor chain must be one of {', '.join(SIDES)}, got {side!r}")
-    values: Any = (effect_params(params) if is_dataclass(params)
-                   and not isinstance(params, type) else params)
+    values: Any = (
+        effect_params(params) if is_dataclass(params) and not isinstance(params, type) else params
+    )
     new = effect_from_params(name, {**values, "channel": side})
     other = "pitch" if side == "stroke" else "stroke"
     kept: Any = model.effect_on(name, other)

@@ -3,11 +3,13 @@
 `model_to_dict` and `model_from_dict` round-trip exactly; unknown sections or keys are refused
 with a `ModelError` that names them.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import fields
 from pathlib import Path
-from typing import Any, Mapping, Union
+from typing import Any
 
 import yaml
 
@@ -27,8 +29,14 @@ from .model import (
     effect_params,
 )
 
-__all__ = ["CONFIG_DIR_ENV", "default_model_path", "load_model", "model_from_dict", "model_to_dict",
-           "save_model"]
+__all__ = [
+    "CONFIG_DIR_ENV",
+    "default_model_path",
+    "load_model",
+    "model_from_dict",
+    "model_to_dict",
+    "save_model",
+]
 
 _MODEL_FILE = "model.yaml"
 _SECTIONS = ("plant", "sensors", "noise", "effects", "discovered")
@@ -105,16 +113,22 @@ def model_from_dict(d: Mapping[str, Any]) -> Model:
     effects = []
     for name, params in effects_raw.items():
         if name in EFFECT_TYPES:
-            params = {k: ({kk: coerce_number(vv) for kk, vv in v.items()} if isinstance(v, Mapping)
-                          else coerce_number(v)) for k,
-                      v in _mapping(f"effects.{name}", params or {}).items()}
+            params = {
+                k: (
+                    {kk: coerce_number(vv) for kk, vv in v.items()}
+                    if isinstance(v, Mapping)
+                    else coerce_number(v)
+                )
+                for k, v in _mapping(f"effects.{name}", params or {}).items()
+            }
         effects.append((name, effect_from_params(name, params)))
     terms_raw = d.get("discovered") or []
     if not isinstance(terms_raw, list):
         raise ModelError(f"discovered must be a list of terms, got {type(terms_raw).__name__}")
     terms = tuple(term_from_dict(t, f"discovered[{i}]") for i, t in enumerate(terms_raw))
-    return Model(plant=plant, sensors=sensors, noise=noise, effects=tuple(effects),
-                 discovered=terms)
+    return Model(
+        plant=plant, sensors=sensors, noise=noise, effects=tuple(effects), discovered=terms
+    )
 
 
 def _as_dict(obj: Any) -> dict[str, Any]:
@@ -139,7 +153,7 @@ def model_to_dict(m: Model) -> dict[str, Any]:
     }
 
 
-def load_model(path: Union[str, Path, None] = None) -> Model:
+def load_model(path: str | Path | None = None) -> Model:
     """Read a model YAML file (None: the default config, see `default_model_path`).
 
     Raises
@@ -160,7 +174,8 @@ def load_model(path: Union[str, Path, None] = None) -> Model:
         raise ModelError(f"{path}: {where}not valid YAML ({problem})") from None
     except UnicodeDecodeError as exc:
         raise ModelError(
-            f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})") from None
+            f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})"
+        ) from None
     if data is None:
         raise ModelError(f"{path}: empty model file")
     try:
@@ -169,10 +184,12 @@ def load_model(path: Union[str, Path, None] = None) -> Model:
         raise ModelError(f"{path}: {exc}") from None
 
 
-def save_model(m: Model, path: Union[str, Path]) -> None:
+def save_model(m: Model, path: str | Path) -> None:
     """Write a model in the config/model.yaml layout (loads back equal)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = yaml.safe_dump(model_to_dict(m), sort_keys=False, default_flow_style=False)
-    path.write_text("# FLAAIR plant and sensor model (flaair_model.model_io.save_model)\n" + text,
-                    encoding="utf-8")
+    path.write_text(
+        "# FLAAIR plant and sensor model (flaair_model.model_io.save_model)\n" + text,
+        encoding="utf-8",
+    )

@@ -4,11 +4,12 @@ A core never logs; its `step` returns notes in its outputs, and the ROS shell lo
 (`flaair_common.runtime.log_notes`), the same way in every node. Offline (replay, tests) the notes
 are plain data to read or ignore.
 """
+
 from __future__ import annotations
 
 from typing import NamedTuple
 
-__all__ = ["INFO", "WARNING", "ERROR", "LEVELS", "Note"]
+__all__ = ["ERROR", "INFO", "LEVELS", "WARNING", "Note"]
 
 INFO, WARNING, ERROR = "info", "warning", "error"
 LEVELS = (INFO, WARNING, ERROR)

@@ -2,6 +2,7 @@
 
 Pure functions over frozen dataclasses; numpy only. SI units throughout.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -63,8 +64,9 @@ def volts_per_tip_displacement_v_per_m(material: PvdfMaterial, beam: SensorBeam)
     return -beam.charge_amp_gain_per_f * charge_per_tip_displacement_c_per_m(material, beam)
 
 
-def stroke_volts_per_rad(material: PvdfMaterial, beam: SensorBeam,
-                         transmission_ratio_rad_per_m: float) -> float:
+def stroke_volts_per_rad(
+    material: PvdfMaterial, beam: SensorBeam, transmission_ratio_rad_per_m: float
+) -> float:
     """Actuator-sensor output per radian of stroke, with delta_a = phi / T_r."""
     return volts_per_tip_displacement_v_per_m(material, beam) / transmission_ratio_rad_per_m
 

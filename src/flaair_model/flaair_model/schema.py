@@ -4,6 +4,7 @@ Pure (no rclpy): I/O modules list their nodes' parameters here once; `flaair_com
 turns each into the ROS descriptor rclpy enforces, `flaair_common.runtime` into the --help
 table. Values come from config/ only.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

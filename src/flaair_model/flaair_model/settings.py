@@ -7,6 +7,7 @@ that needs another section's values (the shared stream settings, the bridge's le
 settings) reads them here, each section through one function returning a frozen dataclass: a
 missing key or a value of the wrong type is a `ConfigError` naming the file, section and key.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -17,9 +18,20 @@ from typing import Any, TypeVar
 from flaair_model.config import ConfigError, config_dir, node_parameters, shared_parameters
 from flaair_model.schema import ParameterError, ParamSpec
 
-__all__ = ["StreamSettings", "LiveSettings", "BridgeSettings", "MonitorSettings",
-           "ControllerSettings", "stream", "live", "bridge", "monitor", "controller",
-           "read_section", "node_section"]
+__all__ = [
+    "BridgeSettings",
+    "ControllerSettings",
+    "LiveSettings",
+    "MonitorSettings",
+    "StreamSettings",
+    "bridge",
+    "controller",
+    "live",
+    "monitor",
+    "node_section",
+    "read_section",
+    "stream",
+]
 
 CONFIG_FILE = "flaair.yaml"
 T = TypeVar("T")
@@ -78,9 +90,8 @@ def _convert(value: Any, kind: type, where: str) -> Any:
     elif kind is float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
-    elif kind is str:
-        if isinstance(value, str):
-            return value
+    elif kind is str and isinstance(value, str):
+        return value
     raise ConfigError(f"{where}: must be {kind.__name__}, got {value!r}")
 
 
@@ -88,8 +99,9 @@ def read_section(section: str, cls: type[T], file_name: str = CONFIG_FILE) -> T:
     """`cls` (a frozen dataclass) filled from `section`
     of config/`file_name`, each field checked.
     """
-    values = (shared_parameters(file_name) if section == "/**"
-              else node_parameters(file_name, section))
+    values = (
+        shared_parameters(file_name) if section == "/**" else node_parameters(file_name, section)
+    )
     hints = typing.get_type_hints(cls)
     out = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
@@ -121,8 +133,9 @@ def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
 
 
-def node_section(specs: list[ParamSpec], section: str,
-                 file_name: str = CONFIG_FILE) -> dict[str, Any]:
+def node_section(
+    specs: list[ParamSpec], section: str, file_name: str = CONFIG_FILE
+) -> dict[str, Any]:
     """A node's values from `section` of config/`file_name`, checked against its `specs` as the node
     checks them (type, range, choices), plus the shared `/**` values it inherits.
 
@@ -150,10 +163,12 @@ def node_section(specs: list[ParamSpec], section: str,
         except ConfigError as exc:
             raise ParameterError(str(exc)) from exc
         if spec.type in (int, float) and (
-                (spec.min_value is not None and value < spec.min_value)
-                or (spec.max_value is not None and value > spec.max_value)):
+            (spec.min_value is not None and value < spec.min_value)
+            or (spec.max_value is not None and value > spec.max_value)
+        ):
             raise ParameterError(
-                f"{where}: {value!r} is outside [{spec.min_value}, {spec.max_value}]")
+                f"{where}: {value!r} is outside [{spec.min_value}, {spec.max_value}]"
+            )
         if spec.choices and value not in spec.choices:
             raise ParameterError(f"{where}: {value!r} is not one of {', '.join(spec.choices)}")
         values[spec.name] = value

@@ -28,28 +28,57 @@ backward difference of the held drive); ``t`` (s from the start of the simulatio
 ``psi`` (rad, sensor sites only); the two sensor deviations (sensor sites only); and
 ``lowpass(x, corner_hz)`` (first-order, bilinear, one per term, its state carried across blocks).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Optional
+from typing import Any
 
 import numpy as np
 from scipy import signal
 
 from flaair_model.validation import ModelError, check_number, coerce_number
 
-__all__ = ["SITES", "DYNAMICS_SITES", "SENSOR_SITES", "PRIMITIVES", "ShapeParam", "TermSignals",
-           "TermKind", "TERM_KINDS", "KINDS", "DiscoveredTerm", "MAX_DYNAMICS_TERMS",
-           "term_from_dict", "term_to_dict", "lowpass_ba", "kinds_for"]
+__all__ = [
+    "DYNAMICS_SITES",
+    "KINDS",
+    "MAX_DYNAMICS_TERMS",
+    "PRIMITIVES",
+    "SENSOR_SITES",
+    "SITES",
+    "TERM_KINDS",
+    "DiscoveredTerm",
+    "ShapeParam",
+    "TermKind",
+    "TermSignals",
+    "kinds_for",
+    "lowpass_ba",
+    "term_from_dict",
+    "term_to_dict",
+]
 
 SITES: tuple[str, ...] = (
-    "stroke_dynamics", "pitch_dynamics", "drive", "stroke_sensor_v", "pitch_sensor_v")
+    "stroke_dynamics",
+    "pitch_dynamics",
+    "drive",
+    "stroke_sensor_v",
+    "pitch_sensor_v",
+)
 DYNAMICS_SITES: tuple[str, ...] = SITES[:2]
 SENSOR_SITES: tuple[str, ...] = SITES[3:]
 # The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order.
 PRIMITIVES: tuple[str, ...] = (
-    "phi", "dphi", "psi", "dpsi", "sign(dphi)", "sign(dpsi)", "abs(dphi)", "abs(dpsi)")
+    "phi",
+    "dphi",
+    "psi",
+    "dpsi",
+    "sign(dphi)",
+    "sign(dpsi)",
+    "abs(dphi)",
+    "abs(dpsi)",
+)
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
 MAX_DYNAMICS_TERMS = 2
 
@@ -77,10 +106,18 @@ class TermSignals:
     `zf` (a feature may use one low-pass).
     """
 
-    def __init__(self, fs_hz: float, drive_v: np.ndarray, ddrive_v: np.ndarray, t: np.ndarray,
-                 phi: Optional[np.ndarray] = None, psi: Optional[np.ndarray] = None,
-                 stroke_sensor_v: Optional[np.ndarray] = None,
-                 pitch_sensor_v: Optional[np.ndarray] = None, zi: float = 0.0) -> None:
+    def __init__(
+        self,
+        fs_hz: float,
+        drive_v: np.ndarray,
+        ddrive_v: np.ndarray,
+        t: np.ndarray,
+        phi: np.ndarray | None = None,
+        psi: np.ndarray | None = None,
+        stroke_sensor_v: np.ndarray | None = None,
+        pitch_sensor_v: np.ndarray | None = None,
+        zi: float = 0.0,
+    ) -> None:
         self.fs_hz = fs_hz
         self.drive_v, self.ddrive_v, self.t = drive_v, ddrive_v, t
         self.phi, self.psi = phi, psi
@@ -88,9 +125,15 @@ class TermSignals:
         self.zi = self.zf = float(zi)
 
     @classmethod
-    def of_block(cls, fs_hz: float, drive_v: np.ndarray, first_index: int = 0,
-                 last_drive_v: float = 0.0, zi: float = 0.0,
-                 **sensors: np.ndarray) -> "TermSignals":
+    def of_block(
+        cls,
+        fs_hz: float,
+        drive_v: np.ndarray,
+        first_index: int = 0,
+        last_drive_v: float = 0.0,
+        zi: float = 0.0,
+        **sensors: np.ndarray,
+    ) -> TermSignals:
         """The signals of a block of commanded drive starting at sample `first_index`:
         ``ddrive_v`` the backward difference from `last_drive_v`, ``t`` from the sample index.
         """
@@ -138,17 +181,22 @@ class TermKind:
     sites: tuple[str, ...]
     form: str
     monomial: tuple[int, ...] = ()
-    feature: Optional[Feature] = None
+    feature: Feature | None = None
     shape: tuple[ShapeParam, ...] = ()
     same_as: Mapping[str, str] = field(default_factory=dict)
     examples: str = ""
 
     def __post_init__(self) -> None:
         dynamic = set(self.sites) & set(DYNAMICS_SITES)
-        if dynamic and (len(self.monomial) != len(PRIMITIVES) or self.feature is not None
-                        or set(self.sites) - dynamic):
-            raise ModelError(f"term {self.name}: a dynamics term is a monomial over "
-                             f"{len(PRIMITIVES)} primitives and acts on the dynamics only")
+        if dynamic and (
+            len(self.monomial) != len(PRIMITIVES)
+            or self.feature is not None
+            or set(self.sites) - dynamic
+        ):
+            raise ModelError(
+                f"term {self.name}: a dynamics term is a monomial over "
+                f"{len(PRIMITIVES)} primitives and acts on the dynamics only"
+            )
         if not dynamic and self.feature is None:
             raise ModelError(f"term {self.name}: a drive or sensor term needs a feature")
         unknown = set(self.sites) - set(SITES)
@@ -161,8 +209,16 @@ def _other(site: str) -> str:
 
 
 def _mono(**exponents: int) -> tuple[int, ...]:
-    names = {"phi": 0, "dphi": 1, "psi": 2, "dpsi": 3, "sign_dphi": 4, "sign_dpsi": 5,
-             "abs_dphi": 6, "abs_dpsi": 7}
+    names = {
+        "phi": 0,
+        "dphi": 1,
+        "psi": 2,
+        "dpsi": 3,
+        "sign_dphi": 4,
+        "sign_dpsi": 5,
+        "abs_dphi": 6,
+        "abs_dpsi": 7,
+    }
     e = [0] * len(PRIMITIVES)
     for k, v in exponents.items():
         e[names[k]] = v
@@ -176,68 +232,192 @@ _CORNER = (ShapeParam("corner_hz", 20.0, 5000.0, (150.0, 400.0, 1200.0)),)
 
 TERM_KINDS: tuple[TermKind, ...] = (
     # ---- dynamics: torques, monomials of the mechanical state
-    TermKind("constant", "a constant torque", _SP, "1", _mono(),
-             examples="a hinge or flexure that does not rest at zero; a bias in the actuator"),
-    TermKind("cross_angle", "a torque proportional to the other angle", _SP, "{y}",
-             _mono(), examples="stroke-pitch stiffness coupling"),
-    TermKind("square_angle", "a torque in the square of the angle", _SP, "{x}**2", _mono(),
-             examples="an asymmetric flexure"),
-    TermKind("cube_angle", "a torque in the cube of the angle", _SP, "{x}**3", _mono(),
-             same_as={"pitch_dynamics": "hinge_stiffening"},
-             examples="a stiffening flexure"),
-    TermKind("sign_velocity", "a torque of constant size against the velocity's sign", _SP,
-             "sign({v})", _mono(), examples="dry (Coulomb) friction"),
-    TermKind("abs_velocity", "a torque in the velocity's magnitude", _SP, "abs({v})", _mono(),
-             examples="an even (one-sided) drag"),
-    TermKind("linear_velocity", "a viscous torque", _S, "dphi", _mono(dphi=1),
-             same_as={"stroke_dynamics": "structural_damping"},
-             examples="structural damping"),
-    TermKind("cube_velocity", "a torque in the cube of the velocity", _SP, "{v}**3", _mono(),
-             examples="a cubic damper"),
-    TermKind("cross_product", "a torque in the product of the two angles", _SP, "phi*psi",
-             _mono(phi=1, psi=1), examples="a geometric coupling"),
-    TermKind("cross_rates", "a torque in the product of the two rates", _SP, "dphi*dpsi",
-             _mono(dphi=1, dpsi=1), examples="a rotational (Coriolis-like) coupling"),
+    TermKind(
+        "constant",
+        "a constant torque",
+        _SP,
+        "1",
+        _mono(),
+        examples="a hinge or flexure that does not rest at zero; a bias in the actuator",
+    ),
+    TermKind(
+        "cross_angle",
+        "a torque proportional to the other angle",
+        _SP,
+        "{y}",
+        _mono(),
+        examples="stroke-pitch stiffness coupling",
+    ),
+    TermKind(
+        "square_angle",
+        "a torque in the square of the angle",
+        _SP,
+        "{x}**2",
+        _mono(),
+        examples="an asymmetric flexure",
+    ),
+    TermKind(
+        "cube_angle",
+        "a torque in the cube of the angle",
+        _SP,
+        "{x}**3",
+        _mono(),
+        same_as={"pitch_dynamics": "hinge_stiffening"},
+        examples="a stiffening flexure",
+    ),
+    TermKind(
+        "sign_velocity",
+        "a torque of constant size against the velocity's sign",
+        _SP,
+        "sign({v})",
+        _mono(),
+        examples="dry (Coulomb) friction",
+    ),
+    TermKind(
+        "abs_velocity",
+        "a torque in the velocity's magnitude",
+        _SP,
+        "abs({v})",
+        _mono(),
+        examples="an even (one-sided) drag",
+    ),
+    TermKind(
+        "linear_velocity",
+        "a viscous torque",
+        _S,
+        "dphi",
+        _mono(dphi=1),
+        same_as={"stroke_dynamics": "structural_damping"},
+        examples="structural damping",
+    ),
+    TermKind(
+        "cube_velocity",
+        "a torque in the cube of the velocity",
+        _SP,
+        "{v}**3",
+        _mono(),
+        examples="a cubic damper",
+    ),
+    TermKind(
+        "cross_product",
+        "a torque in the product of the two angles",
+        _SP,
+        "phi*psi",
+        _mono(phi=1, psi=1),
+        examples="a geometric coupling",
+    ),
+    TermKind(
+        "cross_rates",
+        "a torque in the product of the two rates",
+        _SP,
+        "dphi*dpsi",
+        _mono(dphi=1, dpsi=1),
+        examples="a rotational (Coriolis-like) coupling",
+    ),
     # ---- drive before the actuator
-    TermKind("drive_rate", "the drive's rate of change", ("drive",), "ddrive_v",
-             feature=lambda s, p: s.ddrive_v, examples="a differentiating amplifier stage"),
-    TermKind("drive_lag", "a first-order lag of the drive", ("drive",),
-             "(lowpass(drive_v, {corner_hz}) - drive_v)",
-             feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]) - s.drive_v,
-             shape=_CORNER, examples="an amplifier with a finite bandwidth (coefficient 1)"),
-    TermKind("drive_square", "the square of the drive", ("drive",), "drive_v**2",
-             feature=lambda s, p: s.drive_v**2, examples="an asymmetric actuator"),
-    TermKind("drive_cube", "the cube of the drive", ("drive",), "drive_v**3",
-             feature=lambda s, p: s.drive_v**3, examples="an amplifier or piezo saturating"),
-    TermKind("drive_drift", "a drive gain changing with time", ("drive",), "t*drive_v",
-             feature=lambda s, p: s.t * s.drive_v, examples="an actuator warming up"),
+    TermKind(
+        "drive_rate",
+        "the drive's rate of change",
+        ("drive",),
+        "ddrive_v",
+        feature=lambda s, p: s.ddrive_v,
+        examples="a differentiating amplifier stage",
+    ),
+    TermKind(
+        "drive_lag",
+        "a first-order lag of the drive",
+        ("drive",),
+        "(lowpass(drive_v, {corner_hz}) - drive_v)",
+        feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]) - s.drive_v,
+        shape=_CORNER,
+        examples="an amplifier with a finite bandwidth (coefficient 1)",
+    ),
+    TermKind(
+        "drive_square",
+        "the square of the drive",
+        ("drive",),
+        "drive_v**2",
+        feature=lambda s, p: s.drive_v**2,
+        examples="an asymmetric actuator",
+    ),
+    TermKind(
+        "drive_cube",
+        "the cube of the drive",
+        ("drive",),
+        "drive_v**3",
+        feature=lambda s, p: s.drive_v**3,
+        examples="an amplifier or piezo saturating",
+    ),
+    TermKind(
+        "drive_drift",
+        "a drive gain changing with time",
+        ("drive",),
+        "t*drive_v",
+        feature=lambda s, p: s.t * s.drive_v,
+        examples="an actuator warming up",
+    ),
     # ---- each sensor chain's output
-    TermKind("drive_leak", "the drive leaking into the film", _SENS, "drive_v",
-             feature=lambda s, p: s.drive_v, same_as={"stroke_sensor_v": "feedthrough"},
-             examples="capacitive or resistive pickup of the drive"),
-    TermKind("drive_rate_leak", "the drive's rate leaking into the film", _SENS, "ddrive_v",
-             feature=lambda s, p: s.ddrive_v, examples="capacitive pickup through the substrate"),
-    TermKind("drive_lowpass_leak", "a low-passed drive leaking into the film", _SENS,
-             "lowpass(drive_v, {corner_hz})",
-             feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]), shape=_CORNER,
-             examples="pickup through a filtering path"),
-    TermKind("crosstalk", "the other sensor's voltage", _SENS, "{other}",
-             feature=lambda s, p: s.need("pitch_sensor_v" if p["_site"] == 0
-                                         else "stroke_sensor_v"),
-             examples="crosstalk between the two charge amplifiers"),
-    TermKind("gain_drift", "a sensor gain changing with time", _SENS, "t*{own}",
-             feature=lambda s, p: s.t * (s.need("stroke_sensor_v") if p["_site"] == 0
-                                         else s.need("pitch_sensor_v")),
-             examples="a film debonding or warming over the session"),
-    TermKind("square_angle_sensor", "the square of the chain's angle", _SENS, "{x}**2",
-             feature=lambda s, p: (s.need("phi") if p["_site"] == 0 else s.need("psi")) ** 2,
-             examples="an even-order transduction"),
+    TermKind(
+        "drive_leak",
+        "the drive leaking into the film",
+        _SENS,
+        "drive_v",
+        feature=lambda s, p: s.drive_v,
+        same_as={"stroke_sensor_v": "feedthrough"},
+        examples="capacitive or resistive pickup of the drive",
+    ),
+    TermKind(
+        "drive_rate_leak",
+        "the drive's rate leaking into the film",
+        _SENS,
+        "ddrive_v",
+        feature=lambda s, p: s.ddrive_v,
+        examples="capacitive pickup through the substrate",
+    ),
+    TermKind(
+        "drive_lowpass_leak",
+        "a low-passed drive leaking into the film",
+        _SENS,
+        "lowpass(drive_v, {corner_hz})",
+        feature=lambda s, p: s.lowpass(s.drive_v, p["corner_hz"]),
+        shape=_CORNER,
+        examples="pickup through a filtering path",
+    ),
+    TermKind(
+        "crosstalk",
+        "the other sensor's voltage",
+        _SENS,
+        "{other}",
+        feature=lambda s, p: s.need("pitch_sensor_v" if p["_site"] == 0 else "stroke_sensor_v"),
+        examples="crosstalk between the two charge amplifiers",
+    ),
+    TermKind(
+        "gain_drift",
+        "a sensor gain changing with time",
+        _SENS,
+        "t*{own}",
+        feature=lambda s, p: (
+            s.t * (s.need("stroke_sensor_v") if p["_site"] == 0 else s.need("pitch_sensor_v"))
+        ),
+        examples="a film debonding or warming over the session",
+    ),
+    TermKind(
+        "square_angle_sensor",
+        "the square of the chain's angle",
+        _SENS,
+        "{x}**2",
+        feature=lambda s, p: (s.need("phi") if p["_site"] == 0 else s.need("psi")) ** 2,
+        examples="an even-order transduction",
+    ),
 )
 
 # The dynamics rows with an angle or velocity placeholder take the site's own variables.
-_SITE_VARS = {"stroke_dynamics": {"x": "phi", "v": "dphi", "y": "psi"},
-              "pitch_dynamics": {"x": "psi", "v": "dpsi", "y": "phi"},
-              "stroke_sensor_v": {"x": "phi"}, "pitch_sensor_v": {"x": "psi"}}
+_SITE_VARS = {
+    "stroke_dynamics": {"x": "phi", "v": "dphi", "y": "psi"},
+    "pitch_dynamics": {"x": "psi", "v": "dpsi", "y": "phi"},
+    "stroke_sensor_v": {"x": "phi"},
+    "pitch_sensor_v": {"x": "psi"},
+}
 _SITE_MONOMIALS = {
     "cross_angle": {"stroke_dynamics": _mono(psi=1), "pitch_dynamics": _mono(phi=1)},
     "square_angle": {"stroke_dynamics": _mono(phi=2), "pitch_dynamics": _mono(psi=2)},
@@ -274,26 +454,31 @@ class DiscoveredTerm:
     def __post_init__(self) -> None:
         where = f"discovered.{self.kind}"
         if self.kind not in KINDS:
-            raise ModelError(f"discovered: unknown term {self.kind!r} (the library: "
-                             f"{', '.join(KINDS)})")
+            raise ModelError(
+                f"discovered: unknown term {self.kind!r} (the library: {', '.join(KINDS)})"
+            )
         row = KINDS[self.kind]
         if self.acts_on not in row.sites:
-            raise ModelError(f"{where}.acts_on must be one of {', '.join(row.sites)}, got "
-                             f"{self.acts_on!r}")
-        object.__setattr__(self, "coefficient", check_number(f"{where}.coefficient",
-                                                             self.coefficient))
+            raise ModelError(
+                f"{where}.acts_on must be one of {', '.join(row.sites)}, got {self.acts_on!r}"
+            )
+        object.__setattr__(
+            self, "coefficient", check_number(f"{where}.coefficient", self.coefficient)
+        )
         shape = dict(self.shape)
         keys = [s.key for s in row.shape]
         if sorted(shape) != sorted(keys):
-            raise ModelError(f"{where}: shape parameters must be {keys or 'none'}, got "
-                             f"{sorted(shape) or 'none'}")
+            raise ModelError(
+                f"{where}: shape parameters must be {keys or 'none'}, got {sorted(shape) or 'none'}"
+            )
         for s in row.shape:
             value = check_number(f"{where}.{s.key}", shape[s.key])
             if s.lower * (1 - 1e-9) <= value <= s.upper * (1 + 1e-9):  # exp(log(bound)) rounds
                 value = min(max(value, s.lower), s.upper)
             if not s.lower <= value <= s.upper:
-                raise ModelError(f"{where}.{s.key} must be in [{s.lower:g}, {s.upper:g}], got "
-                                 f"{value:g}")
+                raise ModelError(
+                    f"{where}.{s.key} must be in [{s.lower:g}, {s.upper:g}], got {value:g}"
+                )
             shape[s.key] = value
         object.__setattr__(self, "shape", tuple((k, shape[k]) for k in keys))
 
@@ -306,8 +491,12 @@ class DiscoveredTerm:
     def feature_expression(self) -> str:
         """The feature in the model's variables, e.g. 'sign(dphi)'."""
         names = _SITE_VARS.get(self.acts_on, {})
-        form = self.row.form.format(**names, **{k: "{" + k + "}" for k, _ in self.shape},
-                                    own=self.acts_on, other=_other(self.acts_on))
+        form = self.row.form.format(
+            **names,
+            **{k: "{" + k + "}" for k, _ in self.shape},
+            own=self.acts_on,
+            other=_other(self.acts_on),
+        )
         return form.format(**{k: f"{v:.6g}" for k, v in self.shape})
 
     @property
@@ -320,8 +509,9 @@ class DiscoveredTerm:
         """Exponents over `PRIMITIVES` (a dynamics term)."""
         return _SITE_MONOMIALS.get(self.kind, {}).get(self.acts_on, self.row.monomial)
 
-    def monomial_value(self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray,
-                       dpsi: np.ndarray) -> np.ndarray:
+    def monomial_value(
+        self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
+    ) -> np.ndarray:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
         factors = (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
         out = np.ones(np.shape(phi))
@@ -344,15 +534,20 @@ class DiscoveredTerm:
 
 def term_to_dict(term: DiscoveredTerm) -> dict[str, Any]:
     """The model-file entry: kind, acts_on, expression (for the reader), parameters."""
-    return {"kind": term.kind, "acts_on": term.acts_on, "expression": term.expression,
-            "parameters": {"coefficient": term.coefficient, **dict(term.shape)}}
+    return {
+        "kind": term.kind,
+        "acts_on": term.acts_on,
+        "expression": term.expression,
+        "parameters": {"coefficient": term.coefficient, **dict(term.shape)},
+    }
 
 
 def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
     """A `DiscoveredTerm` from its model-file entry (`expression` is derived, not read)."""
     if not isinstance(raw, Mapping):
-        raise ModelError(f"{where} must be a mapping with kind, acts_on and parameters, got "
-                         f"{type(raw).__name__}")
+        raise ModelError(
+            f"{where} must be a mapping with kind, acts_on and parameters, got {type(raw).__name__}"
+        )
     unknown = sorted(set(raw) - {"kind", "acts_on", "expression", "parameters"})
     if unknown:
         raise ModelError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}")
@@ -363,6 +558,9 @@ def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
     if not isinstance(params, Mapping) or "coefficient" not in params:
         raise ModelError(f"{where}.parameters must be a mapping with a coefficient")
     shape = {str(k): coerce_number(v) for k, v in params.items() if k != "coefficient"}
-    return DiscoveredTerm(str(raw["kind"]), str(raw["acts_on"]),
-                          coerce_number(params["coefficient"]), tuple(shape.items()))
-
+    return DiscoveredTerm(
+        str(raw["kind"]),
+        str(raw["acts_on"]),
+        coerce_number(params["coefficient"]),
+        tuple(shape.items()),
+    )

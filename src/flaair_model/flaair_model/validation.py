@@ -3,14 +3,23 @@
 Pure and at the bottom of `flaair_model`: `model` (the nominal plant and sensors) and `effects`
 (the effect table) both build on it, so neither imports the other's internals.
 """
+
 from __future__ import annotations
 
 import math
 import numbers
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
-__all__ = ["CHANNELS", "SIDES", "ModelError", "check_number", "check_fields", "check_channel",
-           "coerce_number"]
+__all__ = [
+    "CHANNELS",
+    "SIDES",
+    "ModelError",
+    "check_channel",
+    "check_fields",
+    "check_number",
+    "coerce_number",
+]
 
 CHANNELS = ("stroke", "pitch", "both")
 SIDES = ("stroke", "pitch")  # the two sensor chains
@@ -61,6 +70,6 @@ def check_fields(obj: object, prefix: str, rules: Mapping[str, str]) -> None:
 
 def check_channel(obj: object, prefix: str) -> None:
     """The effect's `channel` is one of `CHANNELS`."""
-    channel = getattr(obj, "channel")
+    channel = getattr(obj, "channel")  # noqa: B009 (any effect object carries it)
     if channel not in CHANNELS:
         raise ModelError(f"{prefix}.channel must be one of {', '.join(CHANNELS)}, got {channel!r}")

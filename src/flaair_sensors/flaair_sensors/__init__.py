@@ -9,4 +9,4 @@ wing stroke and pitch, calibration, characterization.
 - ``figures``: the Bode figure (matplotlib)
 """
 
-__all__ = ["core", "frontend_node", "frontend_io", "analysis_io", "figures"]
+__all__ = ["analysis_io", "core", "figures", "frontend_io", "frontend_node"]

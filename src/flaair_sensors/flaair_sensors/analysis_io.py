@@ -5,11 +5,13 @@ amplitude RMSE (the stroke-to-pitch resonance band, 110-190 Hz in the paper) and
 the lag-corrected time RMSE from here; the cores (`calibration.calibrate`,
 `characterization.characterize*`) take them as required arguments.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 from flaair_model.config import ConfigError, node_parameters
 from flaair_model.schema import ParameterError
@@ -37,8 +39,11 @@ def band_from_config(values: Mapping[str, Any], name: str) -> tuple[float, float
     if name not in values:
         raise ParameterError(f"{where}: missing")
     band = values[name]
-    if not (isinstance(band, (list, tuple)) and len(band) == 2
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in band)):
+    if not (
+        isinstance(band, (list, tuple))
+        and len(band) == 2
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in band)
+    ):
         raise ParameterError(f"{where}: must be [low, high] in Hz, got {band!r}")
     low, high = float(band[0]), float(band[1])
     if not (math.isfinite(low) and math.isfinite(high) and 0 <= low < high):
@@ -57,5 +62,6 @@ def analysis_values() -> dict[str, Any]:
 def analysis_bands_from_config(values: Mapping[str, Any] | None = None) -> AnalysisBands:
     """The bands from the `analyze` section's values (default: config/flaair.yaml)."""
     values = analysis_values() if values is None else values
-    return AnalysisBands(band_from_config(values, "amplitude_band_hz"),
-                         band_from_config(values, "time_band_hz"))
+    return AnalysisBands(
+        band_from_config(values, "amplitude_band_hz"), band_from_config(values, "time_band_hz")
+    )

@@ -4,6 +4,7 @@ Two columns: (a) stroke, (b) pitch. Top row: amplitude (deg); bottom row: phase 
 stroke relative to the drive, pitch relative to stroke). Sensor-derived curve (blue) against
 ground truth (orange). Kept apart from the numpy/scipy cores.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -12,10 +13,15 @@ from typing import Any
 import matplotlib
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
-from .core.characterization import Bode, ChannelBode  # noqa: E402
+from .core.characterization import Bode, ChannelBode
 
-__all__ = ["bode_figure", "save_bode_figure", "save_figure", "overlaid_bode_figure",
-           "collision_fft_figure"]
+__all__ = [
+    "bode_figure",
+    "collision_fft_figure",
+    "overlaid_bode_figure",
+    "save_bode_figure",
+    "save_figure",
+]
 
 SENSOR_COLOR = "tab:blue"
 TRUTH_COLOR = "tab:orange"
@@ -58,19 +64,35 @@ def bode_figure(stroke_bode: Bode, pitch_bode: Bode | None = None, title: str | 
     # constrained layout at half the drawing time, which measures every tick label first.
     fig = Figure(figsize=(9.0, 5.5))
     axes = fig.subplots(2, 2, sharex="col")
-    fig.subplots_adjust(left=0.085, right=0.985, bottom=0.09, top=0.88 if title else 0.93,
-                        wspace=0.28, hspace=0.08)
-    _column(axes[0, 0], axes[1, 0], stroke_bode.stroke, f"(a) stroke ({stroke_bode.method})",
-            "phase vs drive (deg)")
-    _column(axes[0, 1], axes[1, 1], pitch_bode.pitch, f"(b) pitch ({pitch_bode.method})",
-            "phase vs stroke (deg)")
+    fig.subplots_adjust(
+        left=0.085, right=0.985, bottom=0.09, top=0.88 if title else 0.93, wspace=0.28, hspace=0.08
+    )
+    _column(
+        axes[0, 0],
+        axes[1, 0],
+        stroke_bode.stroke,
+        f"(a) stroke ({stroke_bode.method})",
+        "phase vs drive (deg)",
+    )
+    _column(
+        axes[0, 1],
+        axes[1, 1],
+        pitch_bode.pitch,
+        f"(b) pitch ({pitch_bode.method})",
+        "phase vs stroke (deg)",
+    )
     if title:
         fig.suptitle(title)
     return fig
 
 
-def save_bode_figure(path: str | Path, stroke_bode: Bode, pitch_bode: Bode | None = None,
-                     title: str | None = None, dpi: int = 150) -> Path:
+def save_bode_figure(
+    path: str | Path,
+    stroke_bode: Bode,
+    pitch_bode: Bode | None = None,
+    title: str | None = None,
+    dpi: int = 150,
+) -> Path:
     """Build the Bode figure and save it as PNG; returns the path."""
     return save_figure(bode_figure(stroke_bode, pitch_bode, title), path, dpi)
 
@@ -91,33 +113,46 @@ def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> An
     """
     fig = Figure(figsize=(12.0, 6.5), layout="constrained")
     axes = fig.subplots(2, 2, sharex="col")
-    colors = matplotlib.colormaps['viridis'](
-        [i / max(1, len(bodes) - 1) for i in range(len(bodes))])
+    colors = matplotlib.colormaps["viridis"](
+        [i / max(1, len(bodes) - 1) for i in range(len(bodes))]
+    )
     for color, (label, bode) in zip(colors, bodes.items()):
         for column, cb in enumerate((bode.stroke, bode.pitch)):
-            axes[0, column].plot(cb.frequency_hz, cb.sensor_amplitude_deg, "-", color=color, lw=1.4,
-                                 label=label)
+            axes[0, column].plot(
+                cb.frequency_hz, cb.sensor_amplitude_deg, "-", color=color, lw=1.4, label=label
+            )
             axes[0, column].plot(cb.frequency_hz, cb.truth_amplitude_deg, "--", color=color, lw=0.9)
             axes[1, column].plot(cb.frequency_hz, cb.sensor_phase_deg, "-", color=color, lw=1.4)
             axes[1, column].plot(cb.frequency_hz, cb.truth_phase_deg, "--", color=color, lw=0.9)
     for column, name in enumerate(("(a) stroke", "(b) pitch")):
         axes[0, column].set_title(f"{name}: sensor solid, ground truth dashed")
         axes[0, column].set_ylabel("amplitude (deg)")
-        axes[1, column].set_ylabel("phase vs drive (deg)" if column == 0
-                                   else "phase vs stroke (deg)")
+        axes[1, column].set_ylabel(
+            "phase vs drive (deg)" if column == 0 else "phase vs stroke (deg)"
+        )
         axes[1, column].set_xlabel("frequency (Hz)")
         for row in range(2):
             axes[row, column].grid(True, alpha=0.3)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside right upper", fontsize=8,
-               title="run (drive)", title_fontsize=8)
+    fig.legend(
+        *axes[0, 0].get_legend_handles_labels(),
+        loc="outside right upper",
+        fontsize=8,
+        title="run (drive)",
+        title_fontsize=8,
+    )
     if title:
         fig.suptitle(title)
     return fig
 
 
-def collision_fft_figure(frequency_hz: Any, spectra_deg: dict[str, Any], reference_deg: Any,
-                         drive_frequency_hz: float, insets: dict[str, tuple[Any, Any]],
-                         band_hz: float = 500.0) -> Any:
+def collision_fft_figure(
+    frequency_hz: Any,
+    spectra_deg: dict[str, Any],
+    reference_deg: Any,
+    drive_frequency_hz: float,
+    insets: dict[str, tuple[Any, Any]],
+    band_hz: float = 500.0,
+) -> Any:
     """The paper's collision figure (b): FFT of sensor
     pitch per run against a pure sine, with time insets.
 
@@ -133,12 +168,24 @@ def collision_fft_figure(frequency_hz: Any, spectra_deg: dict[str, Any], referen
     colors = {"collision": "tab:blue", "no collision": "tab:green"}
     fig = Figure(figsize=(9.0, 5.0))
     ax = fig.subplots()
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.1, top=0.93)   # fixed: see bode_figure
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.1, top=0.93)  # fixed: see bode_figure
     for label, spectrum in spectra_deg.items():
-        ax.plot(frequency_hz, spectrum, "-", lw=1.5, color=colors.get(label),
-                label=f"sensor pitch, {label}")
-    ax.plot(frequency_hz, reference_deg, "--", lw=1.2, color="tab:red",
-            label=f"pure {drive_frequency_hz:g} Hz sine")
+        ax.plot(
+            frequency_hz,
+            spectrum,
+            "-",
+            lw=1.5,
+            color=colors.get(label),
+            label=f"sensor pitch, {label}",
+        )
+    ax.plot(
+        frequency_hz,
+        reference_deg,
+        "--",
+        lw=1.2,
+        color="tab:red",
+        label=f"pure {drive_frequency_hz:g} Hz sine",
+    )
     ax.set_xlim(0, band_hz)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("pitch amplitude (deg)")

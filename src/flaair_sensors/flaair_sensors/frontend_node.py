@@ -13,6 +13,7 @@ a low-pass differentiator (its phase at 140 Hz is logged at start).
 Usage: bin/flaair run flaair_sensors frontend_node --ros-args -p gains_from:=calibration \
          -p calibration_file:=out/cal/calibration.yaml
 """
+
 from __future__ import annotations
 
 import time
@@ -61,23 +62,36 @@ class FrontendNode(FlaairNode):
         # CDR bytes in and out through flaair_common.cdr (rclpy's message conversion costs about
         # as much CPU as the transport at 2000 blocks/s), or in-process when composed (intra).
         self.publisher = intra.block_publisher(
-            self, topics.WING_STATE, self.block_size, BLOCK_STREAM)
-        intra.subscribe_stream(self, topics.SENSOR_VOLTAGE, self.block_size, self.on_sensor,
-                               BLOCK_STREAM, self.on_undecodable)
+            self, topics.WING_STATE, self.block_size, BLOCK_STREAM
+        )
+        intra.subscribe_stream(
+            self,
+            topics.SENSOR_VOLTAGE,
+            self.block_size,
+            self.on_sensor,
+            BLOCK_STREAM,
+            self.on_undecodable,
+        )
         delay = frontend.estimate_delay_s(self.params)
         self.get_logger().info(
             f"front end ready: gains from {values['gains_from']}, stroke "
             f"{abs(np.degrees(1 / self.params.stroke_volts_per_rad)):.2f} deg/V, pitch "
             f"{abs(np.degrees(1 / self.params.pitch_volts_per_rad)):.2f} deg/V, velocity phase lag "
             f"at 140 Hz {frontend.velocity_phase_lag_deg(self.params):.1f} deg, remaining delay at "
-            "140 Hz " + ", ".join(f"{name[:-2].replace('_', ' ')} {1e6 * delay_s:.1f} us" for name,
-                                  delay_s in delay.items())
+            "140 Hz "
+            + ", ".join(
+                f"{name[:-2].replace('_', ' ')} {1e6 * delay_s:.1f} us"
+                for name, delay_s in delay.items()
+            )
         )
 
     def on_undecodable(self, exc: Exception) -> None:
         self.rejected_blocks += 1
-        warn_counted(self.get_logger(), self.rejected_blocks,
-                     f"sensor block dropped: {exc} [{self.rejected_blocks} so far]")
+        warn_counted(
+            self.get_logger(),
+            self.rejected_blocks,
+            f"sensor block dropped: {exc} [{self.rejected_blocks} so far]",
+        )
 
     def on_sensor(self, message) -> None:
         start = time.perf_counter()
@@ -85,32 +99,49 @@ class FrontendNode(FlaairNode):
         rate_hz = float(message["sample_rate_hz"])
         stroke_v, pitch_v = message["stroke_sensor_v"], message["pitch_sensor_v"]
         # Non-finite samples are the core's job (marked invalid); here only order, length and rate.
-        if not (first == self.expected_index and rate_hz == self.fs_hz
-                and len(stroke_v) == len(pitch_v)):
-            check = check_block({"stroke_sensor_v": np.nan_to_num(stroke_v),
-                                 "pitch_sensor_v": np.nan_to_num(pitch_v)}, rate_hz, self.fs_hz,
-                                first, self.expected_index)
+        if not (
+            first == self.expected_index and rate_hz == self.fs_hz and len(stroke_v) == len(pitch_v)
+        ):
+            check = check_block(
+                {
+                    "stroke_sensor_v": np.nan_to_num(stroke_v),
+                    "pitch_sensor_v": np.nan_to_num(pitch_v),
+                },
+                rate_hz,
+                self.fs_hz,
+                first,
+                self.expected_index,
+            )
             if not check.ok:
                 self.rejected_blocks += 1
-                warn_counted(self.get_logger(), self.rejected_blocks,
-                             f"sensor block {first}: {check.reason} [{self.rejected_blocks} so "
-                             "far]")
+                warn_counted(
+                    self.get_logger(),
+                    self.rejected_blocks,
+                    f"sensor block {first}: {check.reason} [{self.rejected_blocks} so far]",
+                )
                 if check.kind != "gap":
                     return
         self.expected_index = first + len(stroke_v)
         self.state, estimate = frontend.step(
-            self.state, frontend.FrontendInputs(stroke_v, pitch_v), self.params)
-        out = {"sample_rate_hz": rate_hz, "first_sample_index": first, "source": SENSOR_ESTIMATE,
-               "stroke_deg": np.degrees(estimate.stroke_rad),
-               "pitch_deg": np.degrees(estimate.pitch_rad),
-               "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),
-               "stroke_valid": estimate.stroke_valid, "pitch_valid": estimate.pitch_valid}
+            self.state, frontend.FrontendInputs(stroke_v, pitch_v), self.params
+        )
+        out = {
+            "sample_rate_hz": rate_hz,
+            "first_sample_index": first,
+            "source": SENSOR_ESTIMATE,
+            "stroke_deg": np.degrees(estimate.stroke_rad),
+            "pitch_deg": np.degrees(estimate.pitch_rad),
+            "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),
+            "stroke_valid": estimate.stroke_valid,
+            "pitch_valid": estimate.pitch_valid,
+        }
         stamp_ns = cdr.stamp_ns(message)
         if len(stroke_v) == self.block_size:
             self.publisher.publish(stamp_ns, out)
         else:  # another block size: the general encoder, header carried over
             self.publisher.publisher.publish(
-                cdr.encode(cdr.WING_STATE_BLOCK, stamp_ns, topics.FRAME_ID, out))
+                cdr.encode(cdr.WING_STATE_BLOCK, stamp_ns, topics.FRAME_ID, out)
+            )
         self.latencies_s[self.n_timed % TIMED_BLOCKS] = time.perf_counter() - start
         self.n_timed += 1
 
@@ -120,9 +151,13 @@ class FrontendNode(FlaairNode):
             return
         n = min(self.n_timed - self.n_reported, TIMED_BLOCKS)
         p50, p99 = 1e3 * np.percentile(
-            self.latencies_s[(self.n_timed - 1 - np.arange(n)) % TIMED_BLOCKS], [50, 99])
-        log(self.get_logger(), INFO,
-            f"block processing over the last {n} blocks: p50 {p50:.3f} ms, p99 {p99:.3f} ms")
+            self.latencies_s[(self.n_timed - 1 - np.arange(n)) % TIMED_BLOCKS], [50, 99]
+        )
+        log(
+            self.get_logger(),
+            INFO,
+            f"block processing over the last {n} blocks: p50 {p50:.3f} ms, p99 {p99:.3f} ms",
+        )
         self.n_reported = self.n_timed
 
 
@@ -132,4 +167,3 @@ def main(args: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     raise SystemExit(main())
-

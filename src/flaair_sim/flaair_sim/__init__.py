@@ -7,4 +7,4 @@
 - ``cli_simulate``: `bin/flaair simulate`
 """
 
-__all__ = ["core", "plant_node", "drive_node", "plant_io", "drive_io", "cli_simulate"]
+__all__ = ["cli_simulate", "core", "drive_io", "drive_node", "plant_io", "plant_node"]

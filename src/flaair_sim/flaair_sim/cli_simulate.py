@@ -10,6 +10,7 @@ as the plant node does, with a warning. Bad input gets a one-line error and exit
 Example:
   bin/flaair simulate bench/run01.csv --model out/discrepancy/model.yaml --out sim/run01.csv
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,19 +40,28 @@ def clamp_drive(drive_v: np.ndarray, limit_v: float) -> tuple[np.ndarray, int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair simulate", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair simulate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("input", type=Path, help="measured-run CSV with time_s and drive_v")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="model YAML (default: config/model.yaml)")
-    parser.add_argument("--noise", action="store_true",
-                        help="add sensor and tracking noise (model's noise section)")
+    parser.add_argument(
+        "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"
+    )
+    parser.add_argument(
+        "--noise", action="store_true", help="add sensor and tracking noise (model's noise section)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
     parser.add_argument("--out", type=Path, required=True, help="output CSV")
-    parser.add_argument("--drive-limit-v", type=float, default=None,
-                        help="actuator safe range: drive clamped to +-this [V] (default: "
-                             f"{LIMIT_SECTION}.drive_limit_v "
-                             f"in config/{CONFIG_FILE})")
+    parser.add_argument(
+        "--drive-limit-v",
+        type=float,
+        default=None,
+        help="actuator safe range: drive clamped to +-this [V] (default: "
+        f"{LIMIT_SECTION}.drive_limit_v "
+        f"in config/{CONFIG_FILE})",
+    )
     args = parser.parse_args(argv)
     try:
         limit_v = args.drive_limit_v
@@ -67,32 +77,42 @@ def main(argv: list[str] | None = None) -> int:
     drive_v, over = clamp_drive(run["drive_v"], limit_v)
     fs_hz = run.sample_rate_hz
     if over:
-        print(f"flaair simulate: warning: {args.input}: {over} drive_v sample(s) beyond the "
-              f"actuator's safe range, up to {np.abs(run['drive_v']).max():.4g} V; clamped to "
-              f"+-{limit_v:g} V (drive_limit_v)", file=sys.stderr)
+        print(
+            f"flaair simulate: warning: {args.input}: {over} drive_v sample(s) beyond the "
+            f"actuator's safe range, up to {np.abs(run['drive_v']).max():.4g} V; clamped to "
+            f"+-{limit_v:g} V (drive_limit_v)",
+            file=sys.stderr,
+        )
     try:
         if args.noise:
             columns = synthesize_measured_run(
-                drive_v, fs_hz, model, np.random.default_rng(args.seed))
+                drive_v, fs_hz, model, np.random.default_rng(args.seed)
+            )
         else:
             out = simulate(drive_v, fs_hz, model)
             columns = {
-                "drive_v": drive_v, "stroke_sensor_v": out.stroke_sensor_v,
-                "pitch_sensor_v": out.pitch_sensor_v, "stroke_deg": np.degrees(out.stroke_rad),
+                "drive_v": drive_v,
+                "stroke_sensor_v": out.stroke_sensor_v,
+                "pitch_sensor_v": out.pitch_sensor_v,
+                "stroke_deg": np.degrees(out.stroke_rad),
                 "pitch_deg": np.degrees(out.pitch_rad),
             }
     except (ModelError, ValueError) as exc:
         where = args.model or "config/model.yaml"
         # the plant's own text blames the drive
         detail = f": {exc}" if isinstance(exc, ModelError) else ""
-        print(f"flaair simulate: {where}: the model makes the plant diverge with a drive within "
-              f"+-{limit_v:g} V (the model's parameters are at fault, not the drive){detail}",
-              file=sys.stderr)
+        print(
+            f"flaair simulate: {where}: the model makes the plant diverge with a drive within "
+            f"+-{limit_v:g} V (the model's parameters are at fault, not the drive){detail}",
+            file=sys.stderr,
+        )
         return 2
     if not all(np.isfinite(values).all() for values in columns.values()):
-        print(f"flaair simulate: {args.model or 'config/model.yaml'}: the simulation produced "
-              f"non-finite values with a drive within +-{limit_v:g} V: the model is at fault",
-              file=sys.stderr)
+        print(
+            f"flaair simulate: {args.model or 'config/model.yaml'}: the simulation produced "
+            f"non-finite values with a drive within +-{limit_v:g} V: the model is at fault",
+            file=sys.stderr,
+        )
         return 2
     columns["time_s"] = run["time_s"]
     write_run(args.out, columns)

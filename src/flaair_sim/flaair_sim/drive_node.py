@@ -17,6 +17,7 @@ parameters are declared in flaair_sim.drive_io.
 
 Usage: bin/flaair run flaair_sim drive_node --ros-args -p waveform:=chirp -p amplitude_v:=100.0
 """
+
 from __future__ import annotations
 
 import time
@@ -47,29 +48,36 @@ class DriveNode(FlaairNode):
         if self.params.pacing == pacing.LOCKSTEP:
             if self.p["pace_on_wing_state"]:
                 self.ack = self.create_subscription(
-                    WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM)
+                    WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM
+                )
             else:
                 self.ack = self.create_subscription(
-                    SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM)
+                    SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM
+                )
         # lockstep: starts the stream once the plant subscribes; realtime: the wall-clock pace
         self.create_timer(0.002 if self.ack else 0.005, self.on_tick)
-        self.get_logger().info(f"drive: {self.params.drive.kind}, amplitude "
-                               f"{self.params.drive.amplitude_v:g} V, pacing {self.params.pacing}")
+        self.get_logger().info(
+            f"drive: {self.params.drive.kind}, amplitude "
+            f"{self.params.drive.amplitude_v:g} V, pacing {self.params.pacing}"
+        )
 
     def limit_v(self) -> float:
         return self.get_parameter("drive_limit_v").value
 
     def peers(self) -> tuple[int, int]:
-        return (self.publisher.get_subscription_count(), self.ack.get_publisher_count()
-                if self.ack else 0)
+        return (
+            self.publisher.get_subscription_count(),
+            self.ack.get_publisher_count() if self.ack else 0,
+        )
 
     def apply(self, inputs: pacing.Inputs) -> int:
         """Step the pacing core; publish its blocks and log its lines; return the block count."""
         self.state, out = pacing.step(self.state, inputs, self.params)
         fs = self.params.sample_rate_hz
         for block in out.blocks:
-            message = DriveCommandBlock(sample_rate_hz=fs,
-                                        first_sample_index=block.first_sample_index)
+            message = DriveCommandBlock(
+                sample_rate_hz=fs, first_sample_index=block.first_sample_index
+            )
             message.header.stamp = stamp_from_time_s(block.first_sample_index / fs)
             message.drive_v = from_array(block.drive_v)
             self.publisher.publish(message)

@@ -5,10 +5,12 @@ and config values -> the model and the driver.
 the robot's model (and its obstacle variant), `actuator_params_from_config` the pacing and
 watchdog of `flaair_sim.core.actuator`, for the node and offline tools alike.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from functools import lru_cache
-from typing import Any, Mapping, Optional
+from typing import Any
 
 import numpy as np
 
@@ -22,39 +24,91 @@ NODE_NAME = "plant_node"
 CLOCK_DEPTH = 1000  # /clock publisher history (KEEP_LAST, reliable): 0.5 s of blocks
 ARM_S = 0.05  # drive watchdog: armed after this much commanded signal time
 PLANT_PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6,
-              read_only=True),
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of every block stream [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
     ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec("drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0,
-              300.0),
+    ParamSpec(
+        "drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0, 300.0
+    ),
     ParamSpec("model_file", str, "Model YAML (empty: config/model.yaml)", read_only=True),
-    ParamSpec("mode", str, "lockstep: one block per command block; realtime: wall clock",
-              choices=("lockstep", "realtime"), read_only=True),
+    ParamSpec(
+        "mode",
+        str,
+        "lockstep: one block per command block; realtime: wall clock",
+        choices=("lockstep", "realtime"),
+        read_only=True,
+    ),
     ParamSpec("noise", bool, "Add the model's sensor-voltage noise", read_only=True),
-    ParamSpec("noise_seed", int, "Seed of the sensor-noise generator", 0, 2**31 - 1,
-              read_only=True),
+    ParamSpec(
+        "noise_seed", int, "Seed of the sensor-noise generator", 0, 2**31 - 1, read_only=True
+    ),
     ParamSpec("publish_clock", bool, "Publish /clock with the simulation time", read_only=True),
-    ParamSpec("obstacle_windows_s", list,
-              "Obstacle in place over these [start, end) sim-time pairs [s]", read_only=True),
-    ParamSpec("command_timeout_s", float, "lockstep: no command for this long (wall clock) while "
-                                          "driven: zero drive, ring down (0: off) [s]", 0.0, 60.0,
-              read_only=True),
-    ParamSpec("ring_down_s", float,
-              "Signal time stepped with zero drive after a drive-watchdog trip [s]", 0.0, 60.0,
-              read_only=True),
-    ParamSpec("min_sensor_subscribers", int, "Subscribe to the drive only once the sensor stream "
-                                             "has this many matched listeners (the front end, a "
-                                             "recorder: a lockstep source then starts no earlier) "
-                                             "[0: at once]", 0, 100, read_only=True),
-    ParamSpec("min_truth_subscribers", int, "... and the ground-truth stream this many (a "
-                                            "recorder) [0: at once]", 0, 100, read_only=True),
-    ParamSpec("truth_frame_every", int, "Ground truth as a camera sees it: one valid frame every "
-                                        "this many samples (with the model's tracking noise when "
-                                        "noise is on) [1: every sample]", 1, 1000,
-              read_only=True),
-    ParamSpec("obstacle_stroke_limit_deg", float,
-              "Stroke angle at which the wing strikes the obstacle [deg]", 0.0, 90.0,
-              read_only=True),
+    ParamSpec(
+        "obstacle_windows_s",
+        list,
+        "Obstacle in place over these [start, end) sim-time pairs [s]",
+        read_only=True,
+    ),
+    ParamSpec(
+        "command_timeout_s",
+        float,
+        "lockstep: no command for this long (wall clock) while "
+        "driven: zero drive, ring down (0: off) [s]",
+        0.0,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "ring_down_s",
+        float,
+        "Signal time stepped with zero drive after a drive-watchdog trip [s]",
+        0.0,
+        60.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_sensor_subscribers",
+        int,
+        "Subscribe to the drive only once the sensor stream "
+        "has this many matched listeners (the front end, a "
+        "recorder: a lockstep source then starts no earlier) "
+        "[0: at once]",
+        0,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_truth_subscribers",
+        int,
+        "... and the ground-truth stream this many (a recorder) [0: at once]",
+        0,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
+        "truth_frame_every",
+        int,
+        "Ground truth as a camera sees it: one valid frame every "
+        "this many samples (with the model's tracking noise when "
+        "noise is on) [1: every sample]",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "obstacle_stroke_limit_deg",
+        float,
+        "Stroke angle at which the wing strikes the obstacle [deg]",
+        0.0,
+        90.0,
+        read_only=True,
+    ),
 ]
 
 
@@ -62,9 +116,9 @@ def obstacle_windows(flat_s: list[float]) -> list[tuple[float, float]]:
     """[start, end) pairs from a flat list; empty pairs (end <= start) are dropped."""
     if len(flat_s) % 2:
         raise ParameterError(
-            f"parameter 'obstacle_windows_s' needs start/end pairs, got {len(flat_s)} values")
+            f"parameter 'obstacle_windows_s' needs start/end pairs, got {len(flat_s)} values"
+        )
     return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2]) if b > a]
-
 
 
 def plant_models(values: Mapping[str, Any]) -> tuple[Model, Model, list[tuple[float, float]]]:
@@ -75,8 +129,9 @@ def plant_models(values: Mapping[str, Any]) -> tuple[Model, Model, list[tuple[fl
         raise ParameterError(f"parameter 'model_file': {exc}") from exc
     windows = obstacle_windows(values["obstacle_windows_s"])
     try:
-        obstacle = with_effects(model, {
-            "collision": {"stroke_limit_deg": values["obstacle_stroke_limit_deg"]}})
+        obstacle = with_effects(
+            model, {"collision": {"stroke_limit_deg": values["obstacle_stroke_limit_deg"]}}
+        )
     except ModelError as exc:
         raise ParameterError(f"parameter 'obstacle_stroke_limit_deg': {exc}") from exc
     return model, obstacle, windows
@@ -84,35 +139,58 @@ def plant_models(values: Mapping[str, Any]) -> tuple[Model, Model, list[tuple[fl
 
 def actuator_params_from_config(values: Mapping[str, Any]) -> ActuatorParams:
     """The simulated driver's pacing and watchdog from plant_node values."""
-    return ActuatorParams(values["sample_rate_hz"], values["block_size"], values["mode"],
-                          values["command_timeout_s"], values["ring_down_s"], ARM_S)
+    return ActuatorParams(
+        values["sample_rate_hz"],
+        values["block_size"],
+        values["mode"],
+        values["command_timeout_s"],
+        values["ring_down_s"],
+        ARM_S,
+    )
 
 
-def ready_text(values: Mapping[str, Any], model: Model,
-               windows_s: list[tuple[float, float]]) -> str:
+def ready_text(
+    values: Mapping[str, Any], model: Model, windows_s: list[tuple[float, float]]
+) -> str:
     """The plant node's start-up log line: mode, rate, block size, effects, obstacle windows."""
-    obstacle = (f", obstacle at {values['obstacle_stroke_limit_deg']:g} deg over {windows_s} s"
-                if windows_s else "")
-    return (f"plant ready: {values['mode']}, {values['sample_rate_hz']:g} Hz, "
-            f"{values['block_size']}-sample blocks, effects: "
-            f"{', '.join(name for name, _ in model.effects) or 'none'}{obstacle}")
+    obstacle = (
+        f", obstacle at {values['obstacle_stroke_limit_deg']:g} deg over {windows_s} s"
+        if windows_s
+        else ""
+    )
+    return (
+        f"plant ready: {values['mode']}, {values['sample_rate_hz']:g} Hz, "
+        f"{values['block_size']}-sample blocks, effects: "
+        f"{', '.join(name for name, _ in model.effects) or 'none'}{obstacle}"
+    )
 
 
-def model_at(start_s: float, model: Model, obstacle_model: Model,
-             windows_s: list[tuple[float, float]]) -> Model:
+def model_at(
+    start_s: float, model: Model, obstacle_model: Model, windows_s: list[tuple[float, float]]
+) -> Model:
     """The model a block starting at `start_s` runs on: the obstacle's inside its windows."""
     return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
 
 
 def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
     """A SensorVoltageBlock's fields for the plant's output `out` from sample `index`."""
-    return {"sample_rate_hz": fs_hz, "first_sample_index": index,
-            "stroke_sensor_v": out.stroke_sensor_v, "pitch_sensor_v": out.pitch_sensor_v}
+    return {
+        "sample_rate_hz": fs_hz,
+        "first_sample_index": index,
+        "stroke_sensor_v": out.stroke_sensor_v,
+        "pitch_sensor_v": out.pitch_sensor_v,
+    }
 
 
-def truth_fields(index: int, fs_hz: float, out: Any, source: int, frame_every: int = 1,
-                 tracking_rng: Optional[np.random.Generator] = None,
-                 tracking_deg_rms: float = 0.0) -> dict[str, Any]:
+def truth_fields(
+    index: int,
+    fs_hz: float,
+    out: Any,
+    source: int,
+    frame_every: int = 1,
+    tracking_rng: np.random.Generator | None = None,
+    tracking_deg_rms: float = 0.0,
+) -> dict[str, Any]:
     """A ground-truth WingStateBlock's fields (degrees, no velocity): every sample valid, or one
     frame every `frame_every` samples (sample index a multiple of it), with tracking noise
     drawn from `tracking_rng` ((n, 2) per block, so the draw does not depend on the split).
@@ -125,9 +203,16 @@ def truth_fields(index: int, fs_hz: float, out: Any, source: int, frame_every: i
         stroke, pitch = stroke + noise[:, 0], pitch + noise[:, 1]
     if frame_every > 1:
         valid = (index + np.arange(n)) % frame_every == 0
-    return {"sample_rate_hz": fs_hz, "first_sample_index": index, "source": source,
-            "stroke_deg": stroke, "pitch_deg": pitch,
-            "stroke_velocity_deg_s": no_velocity, "stroke_valid": valid, "pitch_valid": valid}
+    return {
+        "sample_rate_hz": fs_hz,
+        "first_sample_index": index,
+        "source": source,
+        "stroke_deg": stroke,
+        "pitch_deg": pitch,
+        "stroke_velocity_deg_s": no_velocity,
+        "stroke_valid": valid,
+        "pitch_valid": valid,
+    }
 
 
 @lru_cache(maxsize=8)

@@ -14,6 +14,7 @@ obstacle_windows_s (pairs of start/end seconds) at obstacle_stroke_limit_deg.
 
 Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p model_file:=my.yaml]
 """
+
 from __future__ import annotations
 
 import time
@@ -54,16 +55,24 @@ class PlantNode(FlaairNode):
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
-        self.tracking_rng = (np.random.default_rng([self.p["noise_seed"], 1])
-                             if self.p["noise"] and self.p["truth_frame_every"] > 1 else None)
+        self.tracking_rng = (
+            np.random.default_rng([self.p["noise_seed"], 1])
+            if self.p["noise"] and self.p["truth_frame_every"] > 1
+            else None
+        )
         self.sensor = intra.block_publisher(
-            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM)
+            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM
+        )
         self.truth = intra.block_publisher(
-            self, topics.WING_STATE_TRUTH, self.block_size, BLOCK_STREAM)
+            self, topics.WING_STATE_TRUTH, self.block_size, BLOCK_STREAM
+        )
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
-        self.clock_pub = (self.create_publisher(Clock, topics.CLOCK, CLOCK_DEPTH)
-                          if self.p["publish_clock"] else None)
+        self.clock_pub = (
+            self.create_publisher(Clock, topics.CLOCK, CLOCK_DEPTH)
+            if self.p["publish_clock"]
+            else None
+        )
         # next_index: first sample of the next stepped block
         self.undecodable, self.next_index = 0, 0
         # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
@@ -71,8 +80,11 @@ class PlantNode(FlaairNode):
         self.listeners_timer = self.create_timer(0.01, self.subscribe_when_listened)
         self.subscribe_when_listened()
         if self.p["mode"] == "realtime" or self.p["command_timeout_s"] > 0:
-            period = (0.005 if self.p["mode"] == "realtime"
-                      else min(0.01, self.p["command_timeout_s"] / 4))
+            period = (
+                0.005
+                if self.p["mode"] == "realtime"
+                else min(0.01, self.p["command_timeout_s"] / 4)
+            )
             self.create_timer(period, self.on_tick)
         self.get_logger().info(io.ready_text(self.p, self.model, self.windows_s))
 
@@ -81,25 +93,35 @@ class PlantNode(FlaairNode):
         min_truth_subscribers matched listeners (counted on the writer's side).
         """
         sensors, truths = self.p["min_sensor_subscribers"], self.p["min_truth_subscribers"]
-        if (self.sensor.subscription_count() < sensors
-                or self.truth.subscription_count() < truths):
+        if self.sensor.subscription_count() < sensors or self.truth.subscription_count() < truths:
             return
         self.destroy_timer(self.listeners_timer)
-        intra.subscribe_stream(self, topics.DRIVE, self.block_size, self.on_command, BLOCK_STREAM,
-                               self.on_undecodable)
+        intra.subscribe_stream(
+            self, topics.DRIVE, self.block_size, self.on_command, BLOCK_STREAM, self.on_undecodable
+        )
         if sensors or truths:
-            self.get_logger().info(f"outputs matched (sensor {sensors}, truth {truths} "
-                                   "listener(s)): taking drive commands")
+            self.get_logger().info(
+                f"outputs matched (sensor {sensors}, truth {truths} "
+                "listener(s)): taking drive commands"
+            )
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(self.get_logger(), self.undecodable, f"rejected command block ({exc}); "
-                                                          f"ignored [{self.undecodable} "
-                                                          "undecodable so far]")
+        warn_counted(
+            self.get_logger(),
+            self.undecodable,
+            f"rejected command block ({exc}); ignored [{self.undecodable} undecodable so far]",
+        )
 
     def on_command(self, m) -> None:
-        self.drive(actuator.Command(time.monotonic(), int(m["first_sample_index"]),
-                                    float(m["sample_rate_hz"]), m["drive_v"]))
+        self.drive(
+            actuator.Command(
+                time.monotonic(),
+                int(m["first_sample_index"]),
+                float(m["sample_rate_hz"]),
+                m["drive_v"],
+            )
+        )
 
     def on_tick(self) -> None:
         # realtime: the due blocks one at a time, at most 20 ms of them per tick (a plant behind
@@ -124,20 +146,32 @@ class PlantNode(FlaairNode):
         index = self.next_index
         self.next_index += drive_v.size
         model = io.model_at(index / self.fs_hz, self.model, self.obstacle_model, self.windows_s)
-        self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng),
-                                     plant.PlantStepParams(model, self.fs_hz))
+        self.state, out = plant.step(
+            self.state,
+            plant.PlantInputs(drive_v, self.noise_rng),
+            plant.PlantStepParams(model, self.fs_hz),
+        )
         stamp_ns = stamp_ns_of_sample(index, self.fs_hz)
         self.sensor.publish(stamp_ns, io.sensor_fields(index, self.fs_hz, out))
         # Truth and /clock only when someone listens (volatile: a subscriber gets what follows its
         # match either way); the composed loop alone spends no encoding or DDS write on them.
         if self.truth.subscription_count():
-            self.truth.publish(stamp_ns, io.truth_fields(
-                index, self.fs_hz, out, WingStateBlock.SOURCE_GROUND_TRUTH,
-                self.p["truth_frame_every"], self.tracking_rng,
-                self.model.noise.tracking_noise_deg_rms))
+            self.truth.publish(
+                stamp_ns,
+                io.truth_fields(
+                    index,
+                    self.fs_hz,
+                    out,
+                    WingStateBlock.SOURCE_GROUND_TRUTH,
+                    self.p["truth_frame_every"],
+                    self.tracking_rng,
+                    self.model.noise.tracking_noise_deg_rms,
+                ),
+            )
         if self.clock_pub is not None and self.clock_pub.get_subscription_count():
-            self.clock_pub.publish(Clock(clock=stamp_from_time_s((index + drive_v.size)
-                                                                 / self.fs_hz)))
+            self.clock_pub.publish(
+                Clock(clock=stamp_from_time_s((index + drive_v.size) / self.fs_hz))
+            )
 
 
 def main(args: list[str] | None = None) -> int:

@@ -15,5 +15,14 @@ Arrows point down that list's layers (tests/test_layout_rules.py): `bagio` impor
 subpackage, `orchestration` and `cli` sit on top.
 """
 
-__all__ = ["bagio", "recorder", "roscli", "analysis", "discrepancy", "sweeps", "liveview",
-           "orchestration", "cli"]
+__all__ = [
+    "analysis",
+    "bagio",
+    "cli",
+    "discrepancy",
+    "liveview",
+    "orchestration",
+    "recorder",
+    "roscli",
+    "sweeps",
+]

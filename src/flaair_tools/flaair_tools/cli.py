@@ -1,6 +1,7 @@
 """The `flaair` command line (bin/flaair). Each
 subcommand lives in its own module with main(argv).
 """
+
 from __future__ import annotations
 
 import faulthandler
@@ -10,44 +11,77 @@ import sys
 
 # name -> (module, one-line help). `run` is handled by bin/flaair itself (it execs the node).
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "topic": ("flaair_tools.roscli.topic",
-              "list, echo and publish topics (stands in for `ros2 topic`)"),
-    "param": ("flaair_tools.roscli.param",
-              "read and set a running node's parameters (stands in for `ros2 param`)"),
+    "topic": (
+        "flaair_tools.roscli.topic",
+        "list, echo and publish topics (stands in for `ros2 topic`)",
+    ),
+    "param": (
+        "flaair_tools.roscli.param",
+        "read and set a running node's parameters (stands in for `ros2 param`)",
+    ),
     "node": ("flaair_tools.roscli.node_cli", "list the running nodes (stands in for `ros2 node`)"),
-    "service": ("flaair_tools.roscli.service",
-                "list services and call one (stands in for `ros2 service`)"),
-    "foxglove": ("flaair_tools.liveview.foxglove_cli",
-                 "serve the live graph to Foxglove / Lichtblick over WebSocket"),
-    "simulate": ("flaair_sim.cli_simulate",
-                 "replay a measured run's drive through the model: CSV in, CSV out"),
-    "calibrate": ("flaair_tools.analysis.calibrate",
-                  "fit sensor gain and lag against ground truth in bags"),
-    "import": ("flaair_tools.bagio.import_cli",
-               "turn a lab's runs (CSV exports, or MAT logs with DLTdv8 tracks) into a bag"),
-    "record": ("flaair_tools.recorder.recorder_node",
-               "record flaair topics to a rosbag2 (MCAP) bag"),
+    "service": (
+        "flaair_tools.roscli.service",
+        "list services and call one (stands in for `ros2 service`)",
+    ),
+    "foxglove": (
+        "flaair_tools.liveview.foxglove_cli",
+        "serve the live graph to Foxglove / Lichtblick over WebSocket",
+    ),
+    "simulate": (
+        "flaair_sim.cli_simulate",
+        "replay a measured run's drive through the model: CSV in, CSV out",
+    ),
+    "calibrate": (
+        "flaair_tools.analysis.calibrate",
+        "fit sensor gain and lag against ground truth in bags",
+    ),
+    "import": (
+        "flaair_tools.bagio.import_cli",
+        "turn a lab's runs (CSV exports, or MAT logs with DLTdv8 tracks) into a bag",
+    ),
+    "record": (
+        "flaair_tools.recorder.recorder_node",
+        "record flaair topics to a rosbag2 (MCAP) bag",
+    ),
     "play": ("flaair_tools.recorder.player", "replay a bag onto its topics"),
-    "bag": ("flaair_tools.roscli.bag_cli",
-            "bag info (checks every chunk), or reindex (recover) a damaged or unfinished bag"),
-    "launch": ("flaair_tools.orchestration.launch_cli",
-               "run a ROS 2 XML launch file, e.g. flaair_tools lockstep_loop.launch.xml (stands in "
-               "for `ros2 launch`)"),
-    "live": ("flaair_tools.orchestration.live",
-             "run the live graph on a real-time target (or --sim) and record it"),
-    "experiment": ("flaair_tools.orchestration.experiment",
-                   "run a paper experiment on the simulated robot and record it"),
-    "analyze": ("flaair_tools.analysis.analyze",
-                "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report"),
-    "discrepancy": ("flaair_tools.discrepancy",
-                    "find where model and measurement disagree and fix the model"),
-    "identify": ("flaair_tools.discrepancy.identify",
-                 "fit this robot's plant parameters (frequencies, damping, gain, couplings) from "
-                 "its runs"),
-    "sweep": ("flaair_tools.sweeps.sweep_cli", "simulation studies on Dask (wing damage, dSA map) "
-                                               "and the stroke-controller experiments"),
-    "demo": ("flaair_tools.orchestration.demo",
-             "run every experiment, record bags, write the report"),
+    "bag": (
+        "flaair_tools.roscli.bag_cli",
+        "bag info (checks every chunk), or reindex (recover) a damaged or unfinished bag",
+    ),
+    "launch": (
+        "flaair_tools.orchestration.launch_cli",
+        "run a ROS 2 XML launch file, e.g. flaair_tools lockstep_loop.launch.xml (stands in "
+        "for `ros2 launch`)",
+    ),
+    "live": (
+        "flaair_tools.orchestration.live",
+        "run the live graph on a real-time target (or --sim) and record it",
+    ),
+    "experiment": (
+        "flaair_tools.orchestration.experiment",
+        "run a paper experiment on the simulated robot and record it",
+    ),
+    "analyze": (
+        "flaair_tools.analysis.analyze",
+        "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report",
+    ),
+    "discrepancy": (
+        "flaair_tools.discrepancy",
+        "find where model and measurement disagree and fix the model",
+    ),
+    "identify": (
+        "flaair_tools.discrepancy.identify",
+        "fit this robot's plant parameters (frequencies, damping, gain, couplings) from its runs",
+    ),
+    "sweep": (
+        "flaair_tools.sweeps.sweep_cli",
+        "simulation studies on Dask (wing damage, dSA map) and the stroke-controller experiments",
+    ),
+    "demo": (
+        "flaair_tools.orchestration.demo",
+        "run every experiment, record bags, write the report",
+    ),
 }
 
 USAGE = """usage: bin/flaair <command> [args...]
@@ -62,8 +96,11 @@ commands:
 
 def _usage() -> str:
     # the commands whose package is installed (found without importing it: --help stays quick)
-    available = [f"  {name:44s} {text}" for name, (module, text) in SUBCOMMANDS.items()
-                 if importlib.util.find_spec(module.split(".", 1)[0]) is not None]
+    available = [
+        f"  {name:44s} {text}"
+        for name, (module, text) in SUBCOMMANDS.items()
+        if importlib.util.find_spec(module.split(".", 1)[0]) is not None
+    ]
     return USAGE.format(commands="\n".join(available))
 
 

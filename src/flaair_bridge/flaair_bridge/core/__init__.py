@@ -6,4 +6,4 @@
 - ``bridge_report``: the run's one-line summary and raw event times for benchmarks
 """
 
-__all__ = ["protocol", "bridge_params", "bridge", "bridge_report"]
+__all__ = ["bridge", "bridge_params", "bridge_report", "protocol"]

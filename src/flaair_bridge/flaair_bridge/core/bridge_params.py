@@ -1,6 +1,7 @@
 """The bridge core's parameters: frozen, validated,
 no defaults (config/flaair.yaml, bridge_node).
 """
+
 from __future__ import annotations
 
 import math
@@ -44,4 +45,5 @@ class BridgeParams:
         for name, ok in checks.items():
             if not ok:
                 raise BridgeParameterError(
-                    f"parameter '{name}' = {getattr(self, name)!r} is out of range")
+                    f"parameter '{name}' = {getattr(self, name)!r} is out of range"
+                )

@@ -1,6 +1,7 @@
 """What the bridge reports of a run: the one-line summary of its counters, and raw event times
 for benchmarks (`EventLog`).
 """
+
 from __future__ import annotations
 
 import math
@@ -9,7 +10,7 @@ import numpy as np
 
 from flaair_bridge.core.bridge import Counters, DriveBlock, Input, Outputs, SensorDatagram
 
-__all__ = ["summary", "EventLog"]
+__all__ = ["EventLog", "summary"]
 
 
 def summary(counters: Counters, timing: list) -> str:
@@ -17,8 +18,10 @@ def summary(counters: Counters, timing: list) -> str:
     text = ", ".join(f"{name} {value}" for name, value in counters._asdict().items())
     if timing:
         latency_ms = 1e3 * np.array([send - arrival for _, arrival, send in timing])
-        text += (f"; sensor arrival -> drive packet p50 {np.percentile(latency_ms, 50):.3f} ms, "
-                 f"p99 {np.percentile(latency_ms, 99):.3f} ms over {len(latency_ms)} packets")
+        text += (
+            f"; sensor arrival -> drive packet p50 {np.percentile(latency_ms, 50):.3f} ms, "
+            f"p99 {np.percentile(latency_ms, 99):.3f} ms over {len(latency_ms)} packets"
+        )
     return text
 
 
@@ -33,14 +36,28 @@ class EventLog:
         self.sensor: list[tuple[int, float]] = []
         self.drive: list[tuple[int, float, float, float]] = []
 
-    def record(self, inputs: Input, out: Outputs, counters: Counters, now_s: float,
-               cause_s: float = math.nan) -> None:
+    def record(
+        self,
+        inputs: Input,
+        out: Outputs,
+        counters: Counters,
+        now_s: float,
+        cause_s: float = math.nan,
+    ) -> None:
         if isinstance(inputs, DriveBlock):
-            self.drive.append((inputs.first_sample_index, inputs.now_s, now_s if out.packets
-                               else math.nan, cause_s))
+            self.drive.append(
+                (
+                    inputs.first_sample_index,
+                    inputs.now_s,
+                    now_s if out.packets else math.nan,
+                    cause_s,
+                )
+            )
         elif isinstance(inputs, SensorDatagram):
             self.sensor.append((counters.sensor_packets, inputs.now_s))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {"sensor": np.array(self.sensor).reshape(-1, 2),
-                "drive": np.array(self.drive).reshape(-1, 4)}
+        return {
+            "sensor": np.array(self.sensor).reshape(-1, 2),
+            "drive": np.array(self.drive).reshape(-1, 4),
+        }

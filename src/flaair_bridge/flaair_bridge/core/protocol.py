@@ -12,6 +12,7 @@ followed by float32 samples; one UDP datagram carries one packet.
 Every unpacked packet has been validated (magic, exact length, sample count in range, every
 value finite, a positive sample rate); anything else raises `ProtocolError`, and only that.
 """
+
 from __future__ import annotations
 
 import struct
@@ -24,15 +25,30 @@ DRIVE_MAGIC = b"FLD1"
 MAX_SAMPLES = 1000
 # sensor packet: the target's drive watchdog has tripped (drive held at 0)
 FLAG_TARGET_WATCHDOG = 0x1
-FLAG_STOP = 0x1              # drive packet: zero the drive now and hold it at zero
+FLAG_STOP = 0x1  # drive packet: zero the drive now and hold it at zero
 SEQUENCE_MODULUS = 2**32
 
-SENSOR_HEADER = np.dtype([("magic", "S4"), ("sequence", "<u4"), ("first_sample_index", "<u8"),
-                          ("sample_rate_hz", "<f4"), ("n", "<u2"), ("flags", "<u2")])
+SENSOR_HEADER = np.dtype(
+    [
+        ("magic", "S4"),
+        ("sequence", "<u4"),
+        ("first_sample_index", "<u8"),
+        ("sample_rate_hz", "<f4"),
+        ("n", "<u2"),
+        ("flags", "<u2"),
+    ]
+)
 SENSOR_FIELDS: tuple[str, ...] = ("drive_v", "stroke_sensor_v", "pitch_sensor_v")
 SENSOR_SAMPLE = np.dtype([(name, "<f4") for name in SENSOR_FIELDS])
-DRIVE_HEADER = np.dtype([("magic", "S4"), ("sequence", "<u4"), ("first_sample_index", "<u8"),
-                         ("m", "<u2"), ("flags", "<u2")])
+DRIVE_HEADER = np.dtype(
+    [
+        ("magic", "S4"),
+        ("sequence", "<u4"),
+        ("first_sample_index", "<u8"),
+        ("m", "<u2"),
+        ("flags", "<u2"),
+    ]
+)
 DRIVE_SAMPLE = np.dtype("<f4")
 assert SENSOR_HEADER.itemsize == 24 and SENSOR_SAMPLE.itemsize == 12 and DRIVE_HEADER.itemsize == 20
 # The same headers as struct formats: one C call to pack or unpack them (2000 packets/s each way)
@@ -104,7 +120,7 @@ _F32_MAX = float(np.finfo(np.float32).max)
 
 def _finite_f32(values, name: str) -> np.ndarray:
     wide = np.asarray(values, dtype=np.float64)
-    if not np.abs(wide).max(initial=0.0) <= _F32_MAX:   # NaN compares False, inf is over
+    if not np.abs(wide).max(initial=0.0) <= _F32_MAX:  # NaN compares False, inf is over
         bad = int(np.argmax(~(np.abs(wide) <= _F32_MAX)))
         raise ProtocolError(f"{name}[{bad}] is not a finite float32")
     return wide.astype(DRIVE_SAMPLE)
@@ -121,8 +137,10 @@ def pack_sensor(packet: SensorPacket) -> bytes:
     rate = _finite_f32([packet.sample_rate_hz], "sample_rate_hz")[0]
     if not rate > 0:
         raise ProtocolError(f"sample_rate_hz {packet.sample_rate_hz} must be > 0")
-    header = np.array((SENSOR_MAGIC, packet.sequence, packet.first_sample_index, rate, n,
-                       packet.flags), SENSOR_HEADER)
+    header = np.array(
+        (SENSOR_MAGIC, packet.sequence, packet.first_sample_index, rate, n, packet.flags),
+        SENSOR_HEADER,
+    )
     return header.tobytes() + np.column_stack(list(columns.values())).tobytes()
 
 
@@ -137,8 +155,11 @@ def unpack_sensor(data: bytes | memoryview) -> SensorPacket:
         raise ProtocolError(f"sample_rate_hz {rate} is not a finite positive number")
     # the samples as an (n, 3) float32 view (SENSOR_SAMPLE
     # is three packed float32), one transposed copy
-    columns = np.frombuffer(data, "<f4", count=3 * n, offset=SENSOR_HEADER.itemsize).reshape(n,
-                                                                                             3).T.copy()
+    columns = (
+        np.frombuffer(data, "<f4", count=3 * n, offset=SENSOR_HEADER.itemsize)
+        .reshape(n, 3)
+        .T.copy()
+    )
     if not np.isfinite(columns).all():
         row, column = np.argwhere(~np.isfinite(columns))[0]
         raise ProtocolError(f"{SENSOR_FIELDS[row]}[{column}] is not finite")
@@ -152,8 +173,12 @@ def pack_drive(packet: DrivePacket) -> bytes:
     _check_count(m, "m")
     _check_header_fields(packet.sequence, packet.first_sample_index, packet.flags)
     drive = _finite_f32(packet.drive_v, "drive_v")
-    return _STRUCTS[DRIVE_HEADER].pack(DRIVE_MAGIC, packet.sequence, packet.first_sample_index, m,
-                                       packet.flags) + drive.tobytes()
+    return (
+        _STRUCTS[DRIVE_HEADER].pack(
+            DRIVE_MAGIC, packet.sequence, packet.first_sample_index, m, packet.flags
+        )
+        + drive.tobytes()
+    )
 
 
 def unpack_drive(data: bytes | memoryview) -> DrivePacket:
@@ -176,7 +201,8 @@ def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) 
         raise ProtocolError(f"{kind} packet: expected bytes, got {type(data).__name__}")
     if len(data) < dtype.itemsize:
         raise ProtocolError(
-            f"{kind} packet: {len(data)} bytes, shorter than its {dtype.itemsize}-byte header")
+            f"{kind} packet: {len(data)} bytes, shorter than its {dtype.itemsize}-byte header"
+        )
     if bytes(data[:4]) != magic:
         raise ProtocolError(f"{kind} packet: magic {bytes(data[:4])!r}, expected {magic!r}")
     return _STRUCTS[dtype].unpack_from(data)

@@ -13,5 +13,14 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``transition``: sync -> async transition analysis
 """
 
-__all__ = ["spectral", "collision", "monitor", "dsa", "hopf", "safety", "stroke", "supervisor",
-           "transition"]
+__all__ = [
+    "collision",
+    "dsa",
+    "hopf",
+    "monitor",
+    "safety",
+    "spectral",
+    "stroke",
+    "supervisor",
+    "transition",
+]

@@ -34,6 +34,7 @@ above the nominal worst case and ~3-6 below the collision.
 
 ``step`` is exact under block splitting: ``run`` is ``step`` on the whole record.
 """
+
 from __future__ import annotations
 
 import math
@@ -60,7 +61,6 @@ ONSET = 1
 CLEARANCE = 2
 
 
-
 # --------------------------------------------------------------------------- per-wingbeat monitor
 
 
@@ -69,11 +69,11 @@ class MonitorParams:
     """Per-wingbeat collision monitor parameters (see module docstring)."""
 
     sample_rate_hz: float
-    window_source: str                          # "drive" or "stroke"
-    drive_frequency_hz: float | None            # required for "drive"
-    drive_phase_rad: float                      # window starts where 2 pi f t + phase = 2 pi k
-    stroke_threshold: float                     # stroke distortion ratio counted as score 1
-    pitch_threshold: float                      # pitch distortion ratio counted as score 1
+    window_source: str  # "drive" or "stroke"
+    drive_frequency_hz: float | None  # required for "drive"
+    drive_phase_rad: float  # window starts where 2 pi f t + phase = 2 pi k
+    stroke_threshold: float  # stroke distortion ratio counted as score 1
+    pitch_threshold: float  # pitch distortion ratio counted as score 1
     use_pitch: bool
     off_level: float
     n_on: int
@@ -83,9 +83,9 @@ class MonitorParams:
     stroke_noise_rms_rad: float
     pitch_noise_rms_rad: float
     crossing_hysteresis_rad: float
-    min_period_s: float                         # stroke mode: shortest accepted wingbeat
-    max_period_s: float                         # stroke mode: longer = IDLE window
-    on_level: float = 1.0                       # scores are normalised: 1 = threshold
+    min_period_s: float  # stroke mode: shortest accepted wingbeat
+    max_period_s: float  # stroke mode: longer = IDLE window
+    on_level: float = 1.0  # scores are normalised: 1 = threshold
 
     def __post_init__(self) -> None:
         fs = self.sample_rate_hz
@@ -93,7 +93,8 @@ class MonitorParams:
             raise CollisionParameterError(f"sample_rate_hz must be finite and > 0, got {fs}")
         if self.window_source not in ("drive", "stroke"):
             raise CollisionParameterError(
-                f"window_source must be 'drive' or 'stroke', got {self.window_source!r}")
+                f"window_source must be 'drive' or 'stroke', got {self.window_source!r}"
+            )
         if self.window_source == "drive":
             f = self.drive_frequency_hz
             if f is None or not (math.isfinite(f) and 0 < f < fs / 8):
@@ -107,14 +108,19 @@ class MonitorParams:
                 raise CollisionParameterError(f"{name} must be finite and > 0, got {v}")
         if not self.off_level <= self.on_level:
             raise CollisionParameterError(
-                f"off_level ({self.off_level}) must be <= on_level ({self.on_level})")
+                f"off_level ({self.off_level}) must be <= on_level ({self.on_level})"
+            )
         for name in ("n_on", "n_off"):
             if getattr(self, name) < 1:
                 raise CollisionParameterError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.arm_wingbeats < 0:
             raise CollisionParameterError(f"arm_wingbeats must be >= 0, got {self.arm_wingbeats}")
-        for name in ("min_amplitude_rad", "stroke_noise_rms_rad", "pitch_noise_rms_rad",
-                     "crossing_hysteresis_rad"):
+        for name in (
+            "min_amplitude_rad",
+            "stroke_noise_rms_rad",
+            "pitch_noise_rms_rad",
+            "crossing_hysteresis_rad",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise CollisionParameterError(f"{name} must be finite and >= 0, got {v}")
@@ -127,17 +133,17 @@ class MonitorParams:
 class MonitorState(NamedTuple):
     """Monitor state: samples of the open window, window counter and decision memory."""
 
-    tail_stroke_rad: np.ndarray       # samples of the current (open) window
+    tail_stroke_rad: np.ndarray  # samples of the current (open) window
     tail_pitch_rad: np.ndarray
-    tail_start_index: int             # absolute index of tail[0]
-    window_index: int                 # drive mode: drive-cycle index k of the open window
-    wingbeats_seen: int               # closed windows since (re)arming
+    tail_start_index: int  # absolute index of tail[0]
+    window_index: int  # drive mode: drive-cycle index k of the open window
+    wingbeats_seen: int  # closed windows since (re)arming
     in_collision: bool
     above_count: int
     below_count: int
-    schmitt_high: bool                # stroke mode: trigger state at the tail's end
-    center_rad: float                 # stroke mode: crossing centre (last window mean)
-    scan_index: int                   # stroke mode: samples of the tail already scanned
+    schmitt_high: bool  # stroke mode: trigger state at the tail's end
+    center_rad: float  # stroke mode: crossing centre (last window mean)
+    scan_index: int  # stroke mode: samples of the tail already scanned
     # False until the first window boundary (partial window dropped)
     synced: bool
 
@@ -145,25 +151,25 @@ class MonitorState(NamedTuple):
 class WingbeatReport(NamedTuple):
     """One entry per wingbeat closed in this step (arrays of equal length)."""
 
-    wingbeat: np.ndarray              # running index
-    start_index: np.ndarray           # first sample (absolute)
-    end_index: np.ndarray             # one past the last sample
-    end_time_s: np.ndarray            # time of the last sample + 1/fs (decision time)
+    wingbeat: np.ndarray  # running index
+    start_index: np.ndarray  # first sample (absolute)
+    end_index: np.ndarray  # one past the last sample
+    end_time_s: np.ndarray  # time of the last sample + 1/fs (decision time)
     frequency_hz: np.ndarray
     stroke_amplitude_rad: np.ndarray
     pitch_amplitude_rad: np.ndarray
     stroke_distortion: np.ndarray
     pitch_distortion: np.ndarray
     score: np.ndarray
-    status: np.ndarray                # ARMING / CLEAR / COLLISION / IDLE / INVALID
+    status: np.ndarray  # ARMING / CLEAR / COLLISION / IDLE / INVALID
 
 
 class MonitorEvent(NamedTuple):
     """Onset or clearance of a collision."""
 
-    kind: int                         # ONSET or CLEARANCE
+    kind: int  # ONSET or CLEARANCE
     wingbeat: int
-    sample_index: int                 # end of the deciding window
+    sample_index: int  # end of the deciding window
     time_s: float
     score: float
 
@@ -175,8 +181,9 @@ def initial_state(params: MonitorParams, *, start_index: int = 0) -> MonitorStat
         synced = _cycle_start(k, params) == start_index
     else:
         k, synced = 0, False
-    return MonitorState(np.zeros(0), np.zeros(0), int(start_index), k, 0, False, 0, 0, False, 0.0,
-                        0, synced)
+    return MonitorState(
+        np.zeros(0), np.zeros(0), int(start_index), k, 0, False, 0, 0, False, 0.0, 0, synced
+    )
 
 
 def rearm(state: MonitorState) -> MonitorState:
@@ -193,14 +200,16 @@ def _drive_hz(p: MonitorParams) -> float:
 
 
 def _cycle_of(index: int, p: MonitorParams) -> int:
-    return int(math.floor(index * _drive_hz(p) / p.sample_rate_hz + p.drive_phase_rad
-                          / (2 * math.pi) + 1e-12))
+    return math.floor(
+        index * _drive_hz(p) / p.sample_rate_hz + p.drive_phase_rad / (2 * math.pi) + 1e-12
+    )
 
 
 def _cycle_start(k: int, p: MonitorParams) -> int:
     # first sample n with f n / fs + phase / 2pi >= k
-    return int(math.ceil((k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / _drive_hz(p)
-                         - 1e-9))
+    return math.ceil(
+        (k - p.drive_phase_rad / (2 * math.pi)) * p.sample_rate_hz / _drive_hz(p) - 1e-9
+    )
 
 
 @lru_cache(maxsize=256)
@@ -321,15 +330,27 @@ def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
     dropped.
     """
     fs = p.sample_rate_hz
-    min_len = max(int(round(p.min_period_s * fs)), 4)
-    max_len = int(round(p.max_period_s * fs))
+    min_len = max(round(p.min_period_s * fs), 4)
+    max_len = round(p.max_period_s * fs)
     starts, ends, idles, pos, high, center, synced = _schmitt_scan(
-        np.ascontiguousarray(xs, dtype=np.float64), int(st.scan_index), bool(st.schmitt_high),
-        float(st.center_rad), bool(st.synced), min_len, max_len, float(p.crossing_hysteresis_rad))
-    wins = [(int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b,
-            c in zip(starts, ends, idles)]
-    new = st._replace(schmitt_high=bool(high), center_rad=float(center), synced=bool(synced),
-                      scan_index=int(xs.size - pos))
+        np.ascontiguousarray(xs, dtype=np.float64),
+        int(st.scan_index),
+        bool(st.schmitt_high),
+        float(st.center_rad),
+        bool(st.synced),
+        min_len,
+        max_len,
+        float(p.crossing_hysteresis_rad),
+    )
+    wins = [
+        (int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b, c in zip(starts, ends, idles)
+    ]
+    new = st._replace(
+        schmitt_high=bool(high),
+        center_rad=float(center),
+        synced=bool(synced),
+        scan_index=int(xs.size - pos),
+    )
     return wins, int(pos), new
 
 
@@ -347,8 +368,9 @@ class MonitorOutputs(NamedTuple):
     events: list[MonitorEvent]
 
 
-def step(state: MonitorState, inputs: MonitorInputs,
-         params: MonitorParams) -> tuple[MonitorState, MonitorOutputs]:
+def step(
+    state: MonitorState, inputs: MonitorInputs, params: MonitorParams
+) -> tuple[MonitorState, MonitorOutputs]:
     """Feed one block of sensor-derived angles.
 
     Returns the new state and the report of every wingbeat closed by this block with the
@@ -373,12 +395,14 @@ def step(state: MonitorState, inputs: MonitorInputs,
     rows: list[tuple] = []
     events: list[MonitorEvent] = []
     for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats):
-        st, row, ev = _decide(st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p,
-                              score, params)
+        st, row, ev = _decide(
+            st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p, score, params
+        )
         rows.append(row)
         events.extend(ev)
-    st = st._replace(tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(),
-                     tail_start_index=base + pos)
+    st = st._replace(
+        tail_stroke_rad=xs[pos:].copy(), tail_pitch_rad=xp[pos:].copy(), tail_start_index=base + pos
+    )
     return st, MonitorOutputs(_report(rows), events)
 
 
@@ -393,8 +417,8 @@ def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> l
             continue
         groups.setdefault((n, omega), []).append(w)
     for (n, omega), members in groups.items():
-        seg_s = np.stack([xs[wins[w][0]:wins[w][1]] for w in members])
-        seg_p = np.stack([xp[wins[w][0]:wins[w][1]] for w in members])
+        seg_s = np.stack([xs[wins[w][0] : wins[w][1]] for w in members])
+        seg_p = np.stack([xp[wins[w][0] : wins[w][1]] for w in members])
         a_s, r_s = _fit_many(seg_s, omega)
         d_s = _distortion(a_s, r_s, p.stroke_noise_rms_rad)
         if p.use_pitch:
@@ -406,14 +430,31 @@ def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> l
             d_p = np.zeros(len(members))
             score = d_s / p.stroke_threshold
         for j, w in enumerate(members):
-            out[w] = (float(a_s[j]), float(a_p[j]), float(d_s[j]), float(d_p[j]), float(score[j]),
-                      True)
+            out[w] = (
+                float(a_s[j]),
+                float(a_p[j]),
+                float(d_s[j]),
+                float(d_p[j]),
+                float(score[j]),
+                True,
+            )
     return out
 
 
-def _decide(st: MonitorState, start: int, end: int, omega: float, idle: bool, ok: bool,
-            a_s: float, a_p: float, d_s: float, d_p: float, score: float,
-            p: MonitorParams) -> tuple[MonitorState, tuple, list[MonitorEvent]]:
+def _decide(
+    st: MonitorState,
+    start: int,
+    end: int,
+    omega: float,
+    idle: bool,
+    ok: bool,
+    a_s: float,
+    a_p: float,
+    d_s: float,
+    d_p: float,
+    score: float,
+    p: MonitorParams,
+) -> tuple[MonitorState, tuple, list[MonitorEvent]]:
     """Hysteresis decision for one closed wingbeat."""
     fs = p.sample_rate_hz
     freq = omega * fs / (2 * math.pi)
@@ -445,20 +486,37 @@ def _decide(st: MonitorState, start: int, end: int, omega: float, idle: bool, ok
         if status == CLEAR and in_coll:
             status = COLLISION
     row = (wingbeat, start, end, end / fs, freq, a_s, a_p, d_s, d_p, score, status)
-    return st._replace(wingbeats_seen=wingbeat + 1, in_collision=in_coll, above_count=above,
-                       below_count=below), row, events
+    return (
+        st._replace(
+            wingbeats_seen=wingbeat + 1, in_collision=in_coll, above_count=above, below_count=below
+        ),
+        row,
+        events,
+    )
 
 
 def _report(rows: list[tuple]) -> WingbeatReport:
     if not rows:
         empty_i = np.zeros(0, dtype=np.int64)
         empty_f = np.zeros(0)
-        return WingbeatReport(empty_i, empty_i, empty_i, empty_f, empty_f, empty_f, empty_f,
-                              empty_f, empty_f, empty_f, empty_i)
+        return WingbeatReport(
+            empty_i,
+            empty_i,
+            empty_i,
+            empty_f,
+            empty_f,
+            empty_f,
+            empty_f,
+            empty_f,
+            empty_f,
+            empty_f,
+            empty_i,
+        )
     cols = list(zip(*rows))
     ints = {0, 1, 2, 10}
-    return WingbeatReport(*[np.asarray(
-        c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)])
+    return WingbeatReport(
+        *[np.asarray(c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)]
+    )
 
 
 def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
@@ -469,8 +527,10 @@ def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
 
 
 def run(
-    stroke_rad: np.ndarray, pitch_rad: np.ndarray, params: MonitorParams,
-    state: MonitorState | None = None
+    stroke_rad: np.ndarray,
+    pitch_rad: np.ndarray,
+    params: MonitorParams,
+    state: MonitorState | None = None,
 ) -> tuple[MonitorState, WingbeatReport, list[MonitorEvent]]:
     """Whole record: ``step`` applied once from ``state`` (default ``initial_state``)."""
     if state is None:

@@ -56,6 +56,7 @@ compensated loop has the undelayed onset (mu*, w*) -- exactly when the plant is 
 w_c = sqrt(kappa) r3, and to first order in the frequency mismatch otherwise. (Shifting r3
 instead would fix the onset frequency but not mu*, since the filter gain changes too.)
 """
+
 from __future__ import annotations
 
 import math
@@ -92,7 +93,8 @@ class KrSchedule:
                 raise DsaParameterError(f"KrSchedule.{name} must be in [0, 1], got {v}")
         if not math.isfinite(self.start_time_s):
             raise DsaParameterError(
-                f"KrSchedule.start_time_s must be finite, got {self.start_time_s}")
+                f"KrSchedule.start_time_s must be finite, got {self.start_time_s}"
+            )
         if not (math.isfinite(self.duration_s) and self.duration_s >= 0):
             raise DsaParameterError(f"KrSchedule.duration_s must be >= 0, got {self.duration_s}")
 
@@ -119,12 +121,17 @@ class DsaParams:
     sync_frequency_hz: float
     sync_phase_rad: float
     kr_schedule: KrSchedule
-    loop_delay_s: float                         # 0: no phase advance
-    compensation_frequency_hz: float | None     # None: at the filter's design frequency
+    loop_delay_s: float  # 0: no phase advance
+    compensation_frequency_hz: float | None  # None: at the filter's design frequency
 
     def __post_init__(self) -> None:
-        positive = ("r3_rad_s", "kappa", "actuator_gain_nm_per_v", "sample_rate_hz",
-                    "drive_limit_v")
+        positive = (
+            "r3_rad_s",
+            "kappa",
+            "actuator_gain_nm_per_v",
+            "sample_rate_hz",
+            "drive_limit_v",
+        )
         for name in positive:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -176,16 +183,25 @@ class DsaParams:
         a cache, or a dozen attribute reads a block, cost more than a block).
         """
         kr = self.kr_schedule
-        return (float(self.sample_rate_hz), *normalized_ba(*_tf_coefficients(self, True)),
-                *normalized_ba(*_tf_coefficients(self, False)), float(kr.start_value),
-                float(kr.end_value), float(kr.start_time_s), float(kr.duration_s),
-                float(self.sync_amplitude_v), 2.0 * np.pi * self.sync_frequency_hz,
-                float(self.sync_phase_rad), float(self.actuator_gain_nm_per_v),
-                float(self.drive_limit_v))
+        return (
+            float(self.sample_rate_hz),
+            *normalized_ba(*_tf_coefficients(self, True)),
+            *normalized_ba(*_tf_coefficients(self, False)),
+            float(kr.start_value),
+            float(kr.end_value),
+            float(kr.start_time_s),
+            float(kr.duration_s),
+            float(self.sync_amplitude_v),
+            2.0 * np.pi * self.sync_frequency_hz,
+            float(self.sync_phase_rad),
+            float(self.actuator_gain_nm_per_v),
+            float(self.drive_limit_v),
+        )
 
 
-def loop_delay_s(block_size: int, sample_rate_hz: float,
-                 velocity_delay_samples: float = 0.5) -> float:
+def loop_delay_s(
+    block_size: int, sample_rate_hz: float, velocity_delay_samples: float = 0.5
+) -> float:
     """Total loop delay to compensate: block transport + ZOH (T_s/2) + velocity estimator.
 
     ``velocity_delay_samples`` is the estimator's group delay in samples (0.5 for a backward
@@ -226,13 +242,13 @@ class DsaState(NamedTuple):
 class DsaSignals(NamedTuple):
     """Internal signals of one block (all the length of the block)."""
 
-    torque_raw_nm: np.ndarray       # tau: dSA filter output without phase advance
-    torque_nm: np.ndarray           # commanded asynchronous torque (phase-advanced tau)
-    async_v: np.ndarray             # torque_nm / G_a
-    sync_v: np.ndarray              # synchronous sine
-    kr: np.ndarray                  # K_r(t)
-    drive_unclipped_v: np.ndarray   # K_r sync + (1 - K_r) async, before the limit
-    velocity_valid: np.ndarray      # False where the input was non-finite (replaced by 0)
+    torque_raw_nm: np.ndarray  # tau: dSA filter output without phase advance
+    torque_nm: np.ndarray  # commanded asynchronous torque (phase-advanced tau)
+    async_v: np.ndarray  # torque_nm / G_a
+    sync_v: np.ndarray  # synchronous sine
+    kr: np.ndarray  # K_r(t)
+    drive_unclipped_v: np.ndarray  # K_r sync + (1 - K_r) async, before the limit
+    velocity_valid: np.ndarray  # False where the input was non-finite (replaced by 0)
 
 
 def initial_state(params: DsaParams) -> DsaState:
@@ -263,12 +279,30 @@ class DsaOutputs(NamedTuple):
     signals: DsaSignals
 
 
-_TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)   # rows of _block's output
+_TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)  # rows of _block's output
 
 
 @njit(cache=True)
-def _block(v_in, t_start_s, zi_adv, zi_raw, fs, b_adv, a_adv, b_raw, a_raw, kr_start, kr_end, kr_t0,
-           kr_duration, sync_amplitude_v, sync_omega, sync_phase_rad, gain, limit_v):
+def _block(
+    v_in,
+    t_start_s,
+    zi_adv,
+    zi_raw,
+    fs,
+    b_adv,
+    a_adv,
+    b_raw,
+    a_raw,
+    kr_start,
+    kr_end,
+    kr_t0,
+    kr_duration,
+    sync_amplitude_v,
+    sync_omega,
+    sync_phase_rad,
+    gain,
+    limit_v,
+):
     """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
 
     Returns the signals as rows of one array (one allocation, one object to hand back) and the
@@ -305,22 +339,32 @@ def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaStat
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
     out, z = _block(v, t_start_s, state.zi_advanced, state.zi_raw, *params.kernel_args)
-    signals = DsaSignals(out[_TORQUE_RAW], out[_TORQUE], out[_ASYNC], out[_SYNC], out[_KR],
-                         out[_UNCLIPPED], np.isfinite(v))
+    signals = DsaSignals(
+        out[_TORQUE_RAW],
+        out[_TORQUE],
+        out[_ASYNC],
+        out[_SYNC],
+        out[_KR],
+        out[_UNCLIPPED],
+        np.isfinite(v),
+    )
     return DsaState(z[0], z[1]), DsaOutputs(out[_DRIVE], signals)
 
 
-def frequency_response(params: DsaParams, frequency_hz: np.ndarray,
-                       advanced: bool = True) -> np.ndarray:
+def frequency_response(
+    params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True
+) -> np.ndarray:
     """Discrete filter response torque/velocity (N m s / rad) at ``frequency_hz``."""
     bz, az = _tf_coefficients(params, advanced)
-    _, h = signal.freqz(bz, az, worN=np.asarray(frequency_hz, dtype=float),
-                        fs=params.sample_rate_hz)
+    _, h = signal.freqz(
+        bz, az, worN=np.asarray(frequency_hz, dtype=float), fs=params.sample_rate_hz
+    )
     return h
 
 
-def continuous_response(params: DsaParams, frequency_hz: np.ndarray,
-                        advanced: bool = True) -> np.ndarray:
+def continuous_response(
+    params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True
+) -> np.ndarray:
     """Continuous-time H(j w) (times the phase-advance term if ``advanced``)."""
     s = 2j * np.pi * np.asarray(frequency_hz, dtype=float)
     h = -params.c / (s * s + params.a * s + params.b)

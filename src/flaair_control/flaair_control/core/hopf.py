@@ -82,6 +82,7 @@ Checked against the simulator (tests/test_control_hopf.py): with the compensated
 simulated onset is within 0.1 % of mu* and at 150.0 Hz for a 150 Hz design; uncompensated, a
 300 Hz design starts at the delayed prediction (161 Hz, mu* ten times lower).
 """
+
 from __future__ import annotations
 
 import math
@@ -108,10 +109,12 @@ class LinearStrokePlant:
             raise HopfParameterError(f"inertia_kg_m2 must be > 0, got {self.inertia_kg_m2}")
         if not self.stiffness_nm_per_rad > 0:
             raise HopfParameterError(
-                f"stiffness_nm_per_rad must be > 0, got {self.stiffness_nm_per_rad}")
+                f"stiffness_nm_per_rad must be > 0, got {self.stiffness_nm_per_rad}"
+            )
         if not self.damping_nm_s_per_rad >= 0:
             raise HopfParameterError(
-                f"damping_nm_s_per_rad must be >= 0, got {self.damping_nm_s_per_rad}")
+                f"damping_nm_s_per_rad must be >= 0, got {self.damping_nm_s_per_rad}"
+            )
 
     @property
     def natural_frequency_rad_s(self) -> float:
@@ -121,7 +124,7 @@ class LinearStrokePlant:
     @classmethod
     def from_natural_frequency(
         cls, inertia_kg_m2: float, natural_frequency_hz: float, damping_nm_s_per_rad: float = 0.0
-    ) -> "LinearStrokePlant":
+    ) -> LinearStrokePlant:
         """Plant with K = I (2 pi f_n)^2."""
         k = inertia_kg_m2 * (2.0 * math.pi * natural_frequency_hz) ** 2
         return cls(inertia_kg_m2, k, damping_nm_s_per_rad)
@@ -147,8 +150,9 @@ def _check_filter(r3_rad_s: float, kappa: float) -> None:
         raise HopfParameterError(f"kappa must be finite and > 0, got {kappa}")
 
 
-def filter_coefficients(r3_rad_s: float, kappa: float,
-                        mu_nm_s_per_rad: float) -> tuple[float, float, float]:
+def filter_coefficients(
+    r3_rad_s: float, kappa: float, mu_nm_s_per_rad: float
+) -> tuple[float, float, float]:
     """(a, b, c) of tau'' + a tau' + b tau = -c phi' (paper eq. dsaconst)."""
     _check_filter(r3_rad_s, kappa)
     a = r3_rad_s * (1.0 + kappa)
@@ -298,8 +302,9 @@ def limit_cycle(
         raise HopfParameterError(f"aero_damping_nm_s2 must be > 0, got {aero_damping_nm_s2}")
 
     def onset(extra: float) -> HopfOnset:
-        p = LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad,
-                              plant.damping_nm_s_per_rad + extra)
+        p = LinearStrokePlant(
+            plant.inertia_kg_m2, plant.stiffness_nm_per_rad, plant.damping_nm_s_per_rad + extra
+        )
         if delay_s == 0.0 and advance_s == 0.0:
             return hopf_onset(p, r3_rad_s, kappa)
         return onset_with_delay(p, r3_rad_s, kappa, delay_s, advance_s, design_omega_rad_s)
@@ -312,7 +317,8 @@ def limit_cycle(
         hi *= 2.0
         if hi > 1e6 * plant.inertia_kg_m2 * plant.natural_frequency_rad_s:
             raise HopfParameterError("no limit cycle found (mu too large)")
-    c_eq = brentq(lambda x: onset(x).mu_nm_s_per_rad - mu_nm_s_per_rad, 0.0, hi, xtol=1e-15,
-                  rtol=1e-10)
+    c_eq = brentq(
+        lambda x: onset(x).mu_nm_s_per_rad - mu_nm_s_per_rad, 0.0, hi, xtol=1e-15, rtol=1e-10
+    )
     w = onset(c_eq).omega_rad_s
     return LimitCycle(3.0 * math.pi * c_eq / (8.0 * aero_damping_nm_s2 * w), w, c_eq)

@@ -18,6 +18,7 @@ at ``initial_state(t_s)``: the first sensor block is due within the timeout of t
 Stages 1-4 run sample by sample in one compiled kernel (``_guard``): a block costs a few
 microseconds, not the ~40 us of a dozen numpy calls on 10 samples.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,46 +47,51 @@ class SafetyParams:
     """Actuator safe range and watchdog timing (SI; units in names)."""
 
     drive_limit_v: float
-    slew_limit_v_per_s: float          # inf: no slew limit
-    invalid_timeout_s: float           # signal time without a valid sensor block before the trip
+    slew_limit_v_per_s: float  # inf: no slew limit
+    invalid_timeout_s: float  # signal time without a valid sensor block before the trip
     ramp_down_s: float
     sample_rate_hz: float
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.drive_limit_v) and self.drive_limit_v >= 0):
             raise SafetyParameterError(
-                f"drive_limit_v must be finite and >= 0, got {self.drive_limit_v}")
+                f"drive_limit_v must be finite and >= 0, got {self.drive_limit_v}"
+            )
         if not (self.slew_limit_v_per_s > 0):  # inf allowed: no slew limit
             raise SafetyParameterError(
-                f"slew_limit_v_per_s must be > 0, got {self.slew_limit_v_per_s}")
+                f"slew_limit_v_per_s must be > 0, got {self.slew_limit_v_per_s}"
+            )
         if not (math.isfinite(self.invalid_timeout_s) and self.invalid_timeout_s > 0):
             raise SafetyParameterError(
-                f"invalid_timeout_s must be finite and > 0, got {self.invalid_timeout_s}")
+                f"invalid_timeout_s must be finite and > 0, got {self.invalid_timeout_s}"
+            )
         if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
             raise SafetyParameterError(
-                f"sample_rate_hz must be finite and > 0, got {self.sample_rate_hz}")
+                f"sample_rate_hz must be finite and > 0, got {self.sample_rate_hz}"
+            )
         if not (math.isfinite(self.ramp_down_s) and self.ramp_down_s >= 0):
             raise SafetyParameterError(
-                f"ramp_down_s must be finite and >= 0, got {self.ramp_down_s}")
+                f"ramp_down_s must be finite and >= 0, got {self.ramp_down_s}"
+            )
 
 
 class SafetyState(NamedTuple):
     """Watchdog and limiter state."""
 
-    status: int                  # OK or TRIPPED
-    last_valid_time_s: float     # arrival time of the last valid sensor block (or start time)
-    trip_time_s: float           # NaN while OK
-    trip_reason: int             # REASON_*
-    last_drive_v: float          # last output sample (slew-limiter memory)
+    status: int  # OK or TRIPPED
+    last_valid_time_s: float  # arrival time of the last valid sensor block (or start time)
+    trip_time_s: float  # NaN while OK
+    trip_reason: int  # REASON_*
+    last_drive_v: float  # last output sample (slew-limiter memory)
 
 
 class SafetyOutput(NamedTuple):
     """Guarded drive block and what the guard did."""
 
-    drive_v: np.ndarray          # safe drive, |drive_v| <= drive_limit_v, all finite
-    envelope: np.ndarray         # watchdog ramp factor per sample (1 = untouched)
-    nonfinite_count: int         # input samples replaced by 0
-    tripped: bool                # watchdog status at the end of the block
+    drive_v: np.ndarray  # safe drive, |drive_v| <= drive_limit_v, all finite
+    envelope: np.ndarray  # watchdog ramp factor per sample (1 = untouched)
+    nonfinite_count: int  # input samples replaced by 0
+    tripped: bool  # watchdog status at the end of the block
 
 
 def initial_state(params: SafetyParams, *, t_s: float = 0.0) -> SafetyState:
@@ -108,8 +114,9 @@ def _trip(state: SafetyState, t_s: float, reason: int) -> SafetyState:
     return SafetyState(TRIPPED, state.last_valid_time_s, float(t_s), reason, state.last_drive_v)
 
 
-def note_sensor_block(state: SafetyState, t_s: float, valid: bool,
-                      params: SafetyParams) -> SafetyState:
+def note_sensor_block(
+    state: SafetyState, t_s: float, valid: bool, params: SafetyParams
+) -> SafetyState:
     """Record the arrival of a sensor block at ``t_s`` (valid or not).
 
     A late valid block does not un-trip: if the timeout elapsed before ``t_s`` the watchdog
@@ -141,8 +148,17 @@ def clamp(drive_v: np.ndarray, drive_limit_v: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _guard(x_in: np.ndarray, t_start_s: float, fs: float, tripped: bool, trip_time_s: float,
-           ramp_down_s: float, y0: float, max_step: float, limit: float) -> tuple[np.ndarray, int]:
+def _guard(
+    x_in: np.ndarray,
+    t_start_s: float,
+    fs: float,
+    tripped: bool,
+    trip_time_s: float,
+    ramp_down_s: float,
+    y0: float,
+    max_step: float,
+    limit: float,
+) -> tuple[np.ndarray, int]:
     """Stages 1-4 over one block, sample by sample: rows (drive, envelope), non-finite count."""
     n = x_in.size
     out = np.empty((2, n))
@@ -193,8 +209,9 @@ class SafetyInputs(NamedTuple):
     sensor_block_valid: bool | None = None
 
 
-def step(state: SafetyState, inputs: SafetyInputs,
-         params: SafetyParams) -> tuple[SafetyState, SafetyOutput]:
+def step(
+    state: SafetyState, inputs: SafetyInputs, params: SafetyParams
+) -> tuple[SafetyState, SafetyOutput]:
     """Guard one drive block (see the module docstring for the stages)."""
     drive_v, t_start_s, sensor_block_valid = inputs
     sample_rate_hz = params.sample_rate_hz
@@ -206,11 +223,17 @@ def step(state: SafetyState, inputs: SafetyInputs,
     n = x.size
     # Timeout inside this block: trips at the deadline.
     state = check_timeout(state, t_start_s + (n - 1) / sample_rate_hz if n else t_start_s, params)
-    out, nonfinite = _guard(x, float(t_start_s), float(sample_rate_hz), state.status == TRIPPED,
-                            float(state.trip_time_s), float(params.ramp_down_s), min(
-        max(float(state.last_drive_v), -params.drive_limit_v), params.drive_limit_v),
-                            float(params.slew_limit_v_per_s / sample_rate_hz),
-                            float(params.drive_limit_v))
+    out, nonfinite = _guard(
+        x,
+        float(t_start_s),
+        float(sample_rate_hz),
+        state.status == TRIPPED,
+        float(state.trip_time_s),
+        float(params.ramp_down_s),
+        min(max(float(state.last_drive_v), -params.drive_limit_v), params.drive_limit_v),
+        float(params.slew_limit_v_per_s / sample_rate_hz),
+        float(params.drive_limit_v),
+    )
     y = out[0]
     last = float(y[-1]) if n else state.last_drive_v
     state = state._replace(last_drive_v=last)

@@ -28,6 +28,7 @@ It does not say how the sine's amplitude and phase were chosen. Decisions (all p
   default here is 10 wingbeats (``n_wingbeats``), 50 bins in 0-500 Hz at 100 Hz, for which the
   simulated collision/no-collision figures straddle 1 deg as the paper's do.
 """
+
 from __future__ import annotations
 
 import math
@@ -36,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["CollisionParameterError", "SpectralMetricParams", "SpectralMetric", "spectral_metric"]
+__all__ = ["CollisionParameterError", "SpectralMetric", "SpectralMetricParams", "spectral_metric"]
 
 
 class CollisionParameterError(ValueError):
@@ -49,22 +50,25 @@ class SpectralMetricParams:
 
     band_hz: float
     threshold_deg: float
-    n_wingbeats: int | None            # use the last n whole drive periods (None: all)
-    remove_mean: bool = True           # definition of the metric, not a tuning knob
-    reference: str = "energy"          # "energy" (the paper's) or "fundamental"
+    n_wingbeats: int | None  # use the last n whole drive periods (None: all)
+    remove_mean: bool = True  # definition of the metric, not a tuning knob
+    reference: str = "energy"  # "energy" (the paper's) or "fundamental"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.band_hz) and self.band_hz > 0):
             raise CollisionParameterError(f"band_hz must be finite and > 0, got {self.band_hz}")
         if not (math.isfinite(self.threshold_deg) and self.threshold_deg > 0):
             raise CollisionParameterError(
-                f"threshold_deg must be finite and > 0, got {self.threshold_deg}")
+                f"threshold_deg must be finite and > 0, got {self.threshold_deg}"
+            )
         if self.reference not in ("energy", "fundamental"):
             raise CollisionParameterError(
-                f"reference must be 'energy' or 'fundamental', got {self.reference!r}")
+                f"reference must be 'energy' or 'fundamental', got {self.reference!r}"
+            )
         if self.n_wingbeats is not None and self.n_wingbeats < 1:
             raise CollisionParameterError(
-                f"n_wingbeats must be >= 1 or None, got {self.n_wingbeats}")
+                f"n_wingbeats must be >= 1 or None, got {self.n_wingbeats}"
+            )
 
 
 class SpectralMetric(NamedTuple):
@@ -74,11 +78,11 @@ class SpectralMetric(NamedTuple):
     time_rmse_rad: float
     reference_amplitude_rad: float
     fundamental_amplitude_rad: float
-    frequency_hz: np.ndarray          # bins 0..band
-    signal_spectrum_rad: np.ndarray   # single-sided amplitude spectrum of the signal
+    frequency_hz: np.ndarray  # bins 0..band
+    signal_spectrum_rad: np.ndarray  # single-sided amplitude spectrum of the signal
     reference_spectrum_rad: np.ndarray
     n_samples: int
-    collision: bool                   # spectral RMSE above threshold
+    collision: bool  # spectral RMSE above threshold
 
     @property
     def spectral_rmse_deg(self) -> float:
@@ -99,7 +103,9 @@ def _amplitude_spectrum(x: np.ndarray) -> np.ndarray:
 
 
 def spectral_metric(
-    angle_rad: np.ndarray, sample_rate_hz: float, drive_frequency_hz: float,
+    angle_rad: np.ndarray,
+    sample_rate_hz: float,
+    drive_frequency_hz: float,
     params: SpectralMetricParams,
 ) -> SpectralMetric:
     """Paper collision metric of one angle record (sensor-derived pitch or stroke, rad).
@@ -111,21 +117,27 @@ def spectral_metric(
     fs, f = float(sample_rate_hz), float(drive_frequency_hz)
     if not (math.isfinite(fs) and fs > 0):
         raise CollisionParameterError(
-            f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
+            f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}"
+        )
     if not (math.isfinite(f) and 0 < f < fs / 2):
         raise CollisionParameterError(
-            f"drive_frequency_hz must be in (0, fs/2), got {drive_frequency_hz}")
+            f"drive_frequency_hz must be in (0, fs/2), got {drive_frequency_hz}"
+        )
     if not np.all(np.isfinite(x)):
         raise CollisionParameterError("angle_rad must be finite")
     periods_available = math.floor(x.size * f / fs + 1e-9)
-    periods = (periods_available if params.n_wingbeats is None
-               else min(params.n_wingbeats, periods_available))
+    periods = (
+        periods_available
+        if params.n_wingbeats is None
+        else min(params.n_wingbeats, periods_available)
+    )
     if periods < 1:
         raise CollisionParameterError(
-            f"angle_rad holds less than one drive period ({x.size} samples)")
-    n = int(round(periods * fs / f))
+            f"angle_rad holds less than one drive period ({x.size} samples)"
+        )
+    n = round(periods * fs / f)
     n = min(n, x.size)
-    x = x[x.size - n:]
+    x = x[x.size - n :]
     if params.remove_mean:
         x = x - x.mean()
     t = np.arange(n) / fs
@@ -134,10 +146,7 @@ def spectral_metric(
     coef, *_ = np.linalg.lstsq(basis, x, rcond=None)
     fundamental = float(np.hypot(coef[1], coef[2]))
     phase = math.atan2(-coef[2], coef[1])  # x ~ A cos(w t + phase)
-    if params.reference == "energy":
-        amp = math.sqrt(2.0) * float(np.std(x))
-    else:
-        amp = fundamental
+    amp = math.sqrt(2.0) * float(np.std(x)) if params.reference == "energy" else fundamental
     ref = amp * np.cos(2 * np.pi * f * t + phase)
     freq = np.fft.rfftfreq(n, 1.0 / fs)
     keep = freq <= params.band_hz + 1e-9

@@ -51,6 +51,7 @@ Design from the plant's amplitude response (``design``; nominal plant, config/mo
   2.4 deg overshoot) and 7 (sync); 30 % inertia loss in 14 / 11; an obstacle at 13 deg in
   16 / 19; steady error < 0.01 deg in all six.
 """
+
 from __future__ import annotations
 
 import math
@@ -102,27 +103,39 @@ class StrokeParams:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise StrokeParameterError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        for name in ("setpoint_deg", "sample_rate_hz", "command_nominal", "elasticity",
-                     "min_wingbeat_hz", "max_wingbeat_hz", "sync_frequency_hz"):
+        for name in (
+            "setpoint_deg",
+            "sample_rate_hz",
+            "command_nominal",
+            "elasticity",
+            "min_wingbeat_hz",
+            "max_wingbeat_hz",
+            "sync_frequency_hz",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise StrokeParameterError(f"{name} must be finite and > 0, got {v}")
         if not (0 < self.command_min <= self.command_nominal <= self.command_max < math.inf):
             raise StrokeParameterError(
                 f"need 0 < command_min <= command_nominal <= command_max, got {self.command_min}, "
-                f"{self.command_nominal}, {self.command_max}")
+                f"{self.command_nominal}, {self.command_max}"
+            )
         if not (0 < self.error_fraction_per_wingbeat <= 1):
-            raise StrokeParameterError("error_fraction_per_wingbeat must be in (0, 1], got "
-                                       f"{self.error_fraction_per_wingbeat}")
+            raise StrokeParameterError(
+                "error_fraction_per_wingbeat must be in (0, 1], got "
+                f"{self.error_fraction_per_wingbeat}"
+            )
         if not (math.isfinite(self.crossing_hysteresis_deg) and self.crossing_hysteresis_deg >= 0):
             raise StrokeParameterError(
-                f"crossing_hysteresis_deg must be >= 0, got {self.crossing_hysteresis_deg}")
+                f"crossing_hysteresis_deg must be >= 0, got {self.crossing_hysteresis_deg}"
+            )
         if not self.min_wingbeat_hz < self.max_wingbeat_hz:
             raise StrokeParameterError("min_wingbeat_hz must be below max_wingbeat_hz")
         if self.mode == "dsa":
             if self.dsa_params is None:
                 raise StrokeParameterError(
-                    "dsa mode needs dsa_params (the dSA filter at a reference gain mu_ref)")
+                    "dsa mode needs dsa_params (the dSA filter at a reference gain mu_ref)"
+                )
             if self.dsa_params.sample_rate_hz != self.sample_rate_hz:
                 raise StrokeParameterError("dsa_params.sample_rate_hz differs from sample_rate_hz")
 
@@ -215,15 +228,18 @@ class StrokeState(NamedTuple):
 class StrokeSignals(NamedTuple):
     """Internal signals of one block."""
 
-    command: np.ndarray            # u per drive sample (V or N m s/rad)
+    command: np.ndarray  # u per drive sample (V or N m s/rad)
     wingbeat_amplitude_deg: np.ndarray  # amplitude at the sample a wingbeat ended, NaN elsewhere
     drive_unclipped_v: np.ndarray  # drive before the safety chain
 
 
 def initial_state(params: StrokeParams) -> StrokeState:
     """Controller at rest."""
-    dsa_state = (dsa.initial_state(params.dsa_params) if params.dsa_params is not None
-                 else dsa.DsaState(np.zeros(2), np.zeros(2)))
+    dsa_state = (
+        dsa.initial_state(params.dsa_params)
+        if params.dsa_params is not None
+        else dsa.DsaState(np.zeros(2), np.zeros(2))
+    )
     return StrokeState(tracker_initial_state(), dsa_state)
 
 
@@ -265,8 +281,9 @@ class StrokeOutputs(NamedTuple):
     signals: StrokeSignals
 
 
-def step(state: StrokeState, inputs: StrokeInputs,
-         params: StrokeParams) -> tuple[StrokeState, StrokeOutputs]:
+def step(
+    state: StrokeState, inputs: StrokeInputs, params: StrokeParams
+) -> tuple[StrokeState, StrokeOutputs]:
     """Advance over one wing-state block; return the next drive block (before the safety chain)."""
     stroke_rad, stroke_velocity_rad_s, valid, first_drive_index = inputs
     x = np.ascontiguousarray(stroke_rad, dtype=float).ravel()
@@ -283,27 +300,33 @@ def step(state: StrokeState, inputs: StrokeInputs,
     if params.mode == "sync":
         drive = u * np.sin(2.0 * np.pi * params.sync_frequency_hz * t)
     else:
-        assert params.dsa_params is not None   # StrokeParams requires it for mode 'dsa'
+        assert params.dsa_params is not None  # StrokeParams requires it for mode 'dsa'
         v = np.where(ok, np.asarray(stroke_velocity_rad_s, dtype=float).ravel(), np.nan)
         dsa_state, dsa_out = dsa.step(
-            dsa_state, dsa.DsaInputs(v, t[0] if x.size else 0.0), params.dsa_params)
+            dsa_state, dsa.DsaInputs(v, t[0] if x.size else 0.0), params.dsa_params
+        )
         sig = dsa_out.signals
-        drive = (sig.kr * sig.sync_v + (1.0 - sig.kr) * (u / params.dsa_params.mu_nm_s_per_rad)
-                 * sig.async_v)
+        drive = (
+            sig.kr * sig.sync_v
+            + (1.0 - sig.kr) * (u / params.dsa_params.mu_nm_s_per_rad) * sig.async_v
+        )
     return StrokeState(tracker, dsa_state), StrokeOutputs(
-        drive, StrokeSignals(u, np.degrees(amp), drive))
+        drive, StrokeSignals(u, np.degrees(amp), drive)
+    )
 
 
-def retarget(params: StrokeParams, setpoint_deg: float, command_nominal: float,
-             elasticity: float) -> StrokeParams:
+def retarget(
+    params: StrokeParams, setpoint_deg: float, command_nominal: float, elasticity: float
+) -> StrokeParams:
     """Parameters for a new setpoint at run time (u_ff and epsilon from ``design``).
 
     Keep the state: z, the learned correction u / u_ff, carries over, so u jumps by the ratio
     of the feed-forwards and the integrator only removes what the model got wrong.
     """
     command_nominal = min(max(command_nominal, params.command_min), params.command_max)
-    return replace(params, setpoint_deg=setpoint_deg, command_nominal=command_nominal,
-                   elasticity=elasticity)
+    return replace(
+        params, setpoint_deg=setpoint_deg, command_nominal=command_nominal, elasticity=elasticity
+    )
 
 
 # --------------------------------------------------------------------------- design
@@ -321,37 +344,50 @@ class StrokePlant:
     actuator_gain_nm_per_v: float
 
     @classmethod
-    def from_model(cls, model) -> "StrokePlant":
+    def from_model(cls, model) -> StrokePlant:
         """From a flaair_model Model (nominal plant; wing_damage scales the inertia)."""
         pl = model.plant
         damage = model.effect("wing_damage")
         factor = damage.inertia_factor if damage is not None else 1.0
-        return cls(pl.stroke_inertia_kg_m2 * factor, pl.stroke_stiffness_nm_per_rad,
-                   pl.aero_damping_nm_s2, pl.actuator_gain_nm_per_v)
+        return cls(
+            pl.stroke_inertia_kg_m2 * factor,
+            pl.stroke_stiffness_nm_per_rad,
+            pl.aero_damping_nm_s2,
+            pl.actuator_gain_nm_per_v,
+        )
 
 
-def sync_drive_for_amplitude(plant: StrokePlant, amplitude_deg: float,
-                             frequency_hz: float) -> float:
+def sync_drive_for_amplitude(
+    plant: StrokePlant, amplitude_deg: float, frequency_hz: float
+) -> float:
     """Drive amplitude (V) for stroke amplitude
     ``amplitude_deg`` at ``frequency_hz`` (first harmonic).
     """
     a = math.radians(amplitude_deg)
     w = 2.0 * math.pi * frequency_hz
     c_eq = 8.0 / (3.0 * math.pi) * plant.aero_damping_nm_s2 * w * a
-    return (a * abs(complex(plant.stiffness_nm_per_rad - plant.inertia_kg_m2 * w * w, w * c_eq))
-            / plant.actuator_gain_nm_per_v)
+    return (
+        a
+        * abs(complex(plant.stiffness_nm_per_rad - plant.inertia_kg_m2 * w * w, w * c_eq))
+        / plant.actuator_gain_nm_per_v
+    )
 
 
-def dsa_amplitude_deg(plant: StrokePlant, mu_nm_s_per_rad: float, r3_rad_s: float,
-                      kappa: float) -> float:
+def dsa_amplitude_deg(
+    plant: StrokePlant, mu_nm_s_per_rad: float, r3_rad_s: float, kappa: float
+) -> float:
     """Limit-cycle stroke amplitude (deg) of the dSA loop at gain mu (``hopf.limit_cycle``)."""
     linear = hopf.LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad)
-    return math.degrees(hopf.limit_cycle(
-        linear, plant.aero_damping_nm_s2, r3_rad_s, kappa, mu_nm_s_per_rad).amplitude_rad)
+    return math.degrees(
+        hopf.limit_cycle(
+            linear, plant.aero_damping_nm_s2, r3_rad_s, kappa, mu_nm_s_per_rad
+        ).amplitude_rad
+    )
 
 
-def dsa_gain_for_amplitude(plant: StrokePlant, amplitude_deg: float, r3_rad_s: float,
-                           kappa: float) -> float:
+def dsa_gain_for_amplitude(
+    plant: StrokePlant, amplitude_deg: float, r3_rad_s: float, kappa: float
+) -> float:
     """Mu (N m s/rad) whose limit cycle has ``amplitude_deg`` (inverse of ``dsa_amplitude_deg``)."""
     linear = hopf.LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad)
     onset = hopf.hopf_onset(linear, r3_rad_s, kappa).mu_nm_s_per_rad
@@ -361,12 +397,20 @@ def dsa_gain_for_amplitude(plant: StrokePlant, amplitude_deg: float, r3_rad_s: f
         hi *= 2.0
         if hi > 1.0:
             raise StrokeParameterError(f"no dSA gain gives {amplitude_deg} deg")
-    return brentq(lambda mu: dsa_amplitude_deg(plant, mu, r3_rad_s, kappa) - amplitude_deg, lo, hi,
-                  rtol=1e-10)
+    return brentq(
+        lambda mu: dsa_amplitude_deg(plant, mu, r3_rad_s, kappa) - amplitude_deg, lo, hi, rtol=1e-10
+    )
 
 
-def design(plant: StrokePlant, mode: str, setpoint_deg: float, *, sync_frequency_hz: float = 0.0,
-           r3_rad_s: float = 0.0, kappa: float = 0.0) -> tuple[float, float]:
+def design(
+    plant: StrokePlant,
+    mode: str,
+    setpoint_deg: float,
+    *,
+    sync_frequency_hz: float = 0.0,
+    r3_rad_s: float = 0.0,
+    kappa: float = 0.0,
+) -> tuple[float, float]:
     """Feed-forward command u_ff and response slope epsilon = d ln A / d ln u at the setpoint.
 
     sync: from ``sync_drive_for_amplitude`` at ``sync_frequency_hz``; dsa: from
@@ -376,22 +420,26 @@ def design(plant: StrokePlant, mode: str, setpoint_deg: float, *, sync_frequency
     if not (math.isfinite(setpoint_deg) and setpoint_deg > 0):
         raise StrokeParameterError(f"setpoint_deg must be finite and > 0, got {setpoint_deg}")
     if mode == "sync":
+
         def inverse(a: float) -> float:
             return sync_drive_for_amplitude(plant, a, sync_frequency_hz)
     elif mode == "dsa":
+
         def inverse(a: float) -> float:
             return dsa_gain_for_amplitude(plant, a, r3_rad_s, kappa)
     else:
         raise StrokeParameterError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     u = inverse(setpoint_deg)
     h = 0.01
-    slope_inverse = (math.log(inverse(setpoint_deg * (1 + h)))
-                     - math.log(inverse(setpoint_deg * (1 - h)))) / (math.log1p(h) - math.log1p(-h))
+    slope_inverse = (
+        math.log(inverse(setpoint_deg * (1 + h))) - math.log(inverse(setpoint_deg * (1 - h)))
+    ) / (math.log1p(h) - math.log1p(-h))
     return u, 1.0 / slope_inverse
 
 
-def params_from_values(values: dict, plant: StrokePlant, sample_rate_hz: float,
-                       loop_delay_s: float) -> StrokeParams:
+def params_from_values(
+    values: dict, plant: StrokePlant, sample_rate_hz: float, loop_delay_s: float
+) -> StrokeParams:
     """StrokeParams from the ``stroke_controller_node``
     section of config/flaair.yaml (pure mapping).
 
@@ -401,65 +449,87 @@ def params_from_values(values: dict, plant: StrokePlant, sample_rate_hz: float,
     mode = values["mode"]
     if mode not in MODES:
         raise StrokeParameterError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
-    u_ff, epsilon = design(plant, mode, values["setpoint_deg"],
-                           sync_frequency_hz=values["sync_frequency_hz"],
-                           r3_rad_s=values["r3_rad_s"], kappa=values["kappa"])
+    u_ff, epsilon = design(
+        plant,
+        mode,
+        values["setpoint_deg"],
+        sync_frequency_hz=values["sync_frequency_hz"],
+        r3_rad_s=values["r3_rad_s"],
+        kappa=values["kappa"],
+    )
     dsa_params = None
     if mode == "dsa":
         kick = dsa.KrSchedule(1.0, 0.0, values["kick_s"], values["kick_ramp_s"])
         dsa_params = dsa.DsaParams(
-            r3_rad_s=values["r3_rad_s"], kappa=values["kappa"], mu_nm_s_per_rad=u_ff,
-            actuator_gain_nm_per_v=plant.actuator_gain_nm_per_v, sample_rate_hz=sample_rate_hz,
-            drive_limit_v=values["drive_limit_v"], sync_amplitude_v=values["kick_amplitude_v"],
-            sync_frequency_hz=values["sync_frequency_hz"], sync_phase_rad=0.0, kr_schedule=kick,
+            r3_rad_s=values["r3_rad_s"],
+            kappa=values["kappa"],
+            mu_nm_s_per_rad=u_ff,
+            actuator_gain_nm_per_v=plant.actuator_gain_nm_per_v,
+            sample_rate_hz=sample_rate_hz,
+            drive_limit_v=values["drive_limit_v"],
+            sync_amplitude_v=values["kick_amplitude_v"],
+            sync_frequency_hz=values["sync_frequency_hz"],
+            sync_phase_rad=0.0,
+            kr_schedule=kick,
             loop_delay_s=loop_delay_s if values["compensate_delay"] else 0.0,
-            compensation_frequency_hz=values["compensation_frequency_hz"])
+            compensation_frequency_hz=values["compensation_frequency_hz"],
+        )
         low, high = values["mu_min_nm_s_per_rad"], values["mu_max_nm_s_per_rad"]
     else:
         low, high = values["drive_amplitude_min_v"], values["drive_amplitude_max_v"]
-    return StrokeParams(mode=mode, setpoint_deg=values["setpoint_deg"],
-                        sample_rate_hz=sample_rate_hz, command_nominal=min(max(u_ff, low), high),
-                        command_min=low, command_max=high, elasticity=epsilon,
-                        error_fraction_per_wingbeat=values["error_fraction_per_wingbeat"],
-                        crossing_hysteresis_deg=values["crossing_hysteresis_deg"],
-                        min_wingbeat_hz=values["min_wingbeat_hz"],
-                        max_wingbeat_hz=values["max_wingbeat_hz"],
-                        sync_frequency_hz=values["sync_frequency_hz"], dsa_params=dsa_params)
+    return StrokeParams(
+        mode=mode,
+        setpoint_deg=values["setpoint_deg"],
+        sample_rate_hz=sample_rate_hz,
+        command_nominal=min(max(u_ff, low), high),
+        command_min=low,
+        command_max=high,
+        elasticity=epsilon,
+        error_fraction_per_wingbeat=values["error_fraction_per_wingbeat"],
+        crossing_hysteresis_deg=values["crossing_hysteresis_deg"],
+        min_wingbeat_hz=values["min_wingbeat_hz"],
+        max_wingbeat_hz=values["max_wingbeat_hz"],
+        sync_frequency_hz=values["sync_frequency_hz"],
+        dsa_params=dsa_params,
+    )
 
 
 # The stroke_controller_node parameters (values:
 # config/flaair.yaml); `params_from_values` maps them.
 _F, _I, _S, _B = float, int, str, bool
-NODE_PARAMS = [ParamSpec(name, kind, text, *rng, read_only=name not in ("setpoint_deg",
-                                                                        ))  # type: ignore[misc]
-               for name, kind, text, *rng in (  # rng: (min, max[, choices]) or none
-    ("sample_rate_hz", _F, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6),
-    ("block_size", _I, "Samples per block", 1, 100000), ("drive_limit_v", _F, "Drive clamp [V]",
-                                                         0.0, 300.0),
-    ("model_file", _S, "Model YAML for the design (empty: config/model.yaml)"),
-    ("mode", _S, "sync (drive amplitude) | dsa (loop gain mu)", None, None, MODES),
-    ("setpoint_deg", _F, "Stroke amplitude to hold; settable while running [deg]", 0.1, 80.0),
-    ("sync_frequency_hz", _F, "sync: drive frequency; dsa: kick frequency [Hz]", 1.0, 5000.0),
-    ("error_fraction_per_wingbeat", _F, "lambda: log error removed per wingbeat", 0.01, 1.0),
-    ("crossing_hysteresis_deg", _F, "Wingbeat detector hysteresis [deg]", 0.0, 20.0),
-    ("min_wingbeat_hz", _F, "Longest wingbeat [Hz]", 1.0, 1000.0), ("max_wingbeat_hz", _F,
-            "Shortest wingbeat [Hz]", 2.0, 5000.0),
-    ("drive_amplitude_min_v", _F, "sync: command floor [V]", 0.0, 300.0), ("drive_amplitude_max_v",
-            _F, "sync: command ceiling [V]", 0.0, 300.0),
-    ("mu_min_nm_s_per_rad", _F, "dsa: command floor [N m s/rad]", 0.0, 1.0), ("mu_max_nm_s_per_rad",
-            _F, "dsa: command ceiling", 0.0, 1.0),
-    ("r3_rad_s", _F, "dSA r3 [rad/s]", 1e-3, 1e6), ("kappa", _F, "dSA kappa", 1e-6, 1e3),
-    ("kick_amplitude_v", _F, "dsa: start kick amplitude [V]", 0.0, 300.0), ("kick_s", _F,
-            "dsa: kick length [s]", 0.0, 10.0),
-    ("kick_ramp_s", _F, "dsa: kick hand-over [s]", 0.0, 10.0), ("compensate_delay", _B,
-            "dSA phase advance for the loop delay"),
-    ("compensation_frequency_hz", _F, "Delay cancelled exactly here [Hz]", 1.0, 5000.0),
-    ("velocity_delay_s", _F, "Front-end velocity delay (< 0: from its config) [s]", -1.0, 0.1),
-    ("blocks_in_flight", _I, "Command blocks in the loop", 1, 100),
-    ("slew_limit_v_per_s", _F, "Slew limit [V/s]", 1.0, 1e9), ("watchdog_timeout_s", _F,
-            "Wall-clock silence to trip [s]", 1e-3, 100.0),
-    ("invalid_timeout_s", _F, "Signal time without a valid block to trip [s]", 1e-4, 10.0),
-    ("ramp_down_s", _F, "Drive ramp to zero after a trip [s]", 0.0, 10.0),
-    ("start_delay_s", _F, "Wait after the peers appear [s]", 0.0, 60.0), ("start_retry_s", _F,
-            "Resend a start block after [s]", 0.1, 60.0),
-    ("run_time_s", _F, "Stop after this much signal time (0: never) [s]", 0.0, 1e6))]
+NODE_PARAMS = [
+    ParamSpec(name, kind, text, *rng, read_only=name not in ("setpoint_deg",))  # type: ignore[misc]
+    for name, kind, text, *rng in (  # rng: (min, max[, choices]) or none
+        ("sample_rate_hz", _F, "Sample rate of every block stream [Hz]", 1000.0, 1.0e6),
+        ("block_size", _I, "Samples per block", 1, 100000),
+        ("drive_limit_v", _F, "Drive clamp [V]", 0.0, 300.0),
+        ("model_file", _S, "Model YAML for the design (empty: config/model.yaml)"),
+        ("mode", _S, "sync (drive amplitude) | dsa (loop gain mu)", None, None, MODES),
+        ("setpoint_deg", _F, "Stroke amplitude to hold; settable while running [deg]", 0.1, 80.0),
+        ("sync_frequency_hz", _F, "sync: drive frequency; dsa: kick frequency [Hz]", 1.0, 5000.0),
+        ("error_fraction_per_wingbeat", _F, "lambda: log error removed per wingbeat", 0.01, 1.0),
+        ("crossing_hysteresis_deg", _F, "Wingbeat detector hysteresis [deg]", 0.0, 20.0),
+        ("min_wingbeat_hz", _F, "Longest wingbeat [Hz]", 1.0, 1000.0),
+        ("max_wingbeat_hz", _F, "Shortest wingbeat [Hz]", 2.0, 5000.0),
+        ("drive_amplitude_min_v", _F, "sync: command floor [V]", 0.0, 300.0),
+        ("drive_amplitude_max_v", _F, "sync: command ceiling [V]", 0.0, 300.0),
+        ("mu_min_nm_s_per_rad", _F, "dsa: command floor [N m s/rad]", 0.0, 1.0),
+        ("mu_max_nm_s_per_rad", _F, "dsa: command ceiling", 0.0, 1.0),
+        ("r3_rad_s", _F, "dSA r3 [rad/s]", 1e-3, 1e6),
+        ("kappa", _F, "dSA kappa", 1e-6, 1e3),
+        ("kick_amplitude_v", _F, "dsa: start kick amplitude [V]", 0.0, 300.0),
+        ("kick_s", _F, "dsa: kick length [s]", 0.0, 10.0),
+        ("kick_ramp_s", _F, "dsa: kick hand-over [s]", 0.0, 10.0),
+        ("compensate_delay", _B, "dSA phase advance for the loop delay"),
+        ("compensation_frequency_hz", _F, "Delay cancelled exactly here [Hz]", 1.0, 5000.0),
+        ("velocity_delay_s", _F, "Front-end velocity delay (< 0: from its config) [s]", -1.0, 0.1),
+        ("blocks_in_flight", _I, "Command blocks in the loop", 1, 100),
+        ("slew_limit_v_per_s", _F, "Slew limit [V/s]", 1.0, 1e9),
+        ("watchdog_timeout_s", _F, "Wall-clock silence to trip [s]", 1e-3, 100.0),
+        ("invalid_timeout_s", _F, "Signal time without a valid block to trip [s]", 1e-4, 10.0),
+        ("ramp_down_s", _F, "Drive ramp to zero after a trip [s]", 0.0, 10.0),
+        ("start_delay_s", _F, "Wait after the peers appear [s]", 0.0, 60.0),
+        ("start_retry_s", _F, "Resend a start block after [s]", 0.1, 60.0),
+        ("run_time_s", _F, "Stop after this much signal time (0: never) [s]", 0.0, 1e6),
+    )
+]

@@ -18,11 +18,13 @@ Watchdogs (latched until `ResetWatchdog`):
   * a collision onset with collision_response stop.
 Every block passes the safety core (non-finite -> 0, slew limit, clamp to +-drive_limit_v).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable, NamedTuple, Union
+from typing import NamedTuple, Union
 
 import numpy as np
 
@@ -51,7 +53,7 @@ class SupervisorParams:
     block_size: int
     blocks_in_flight: int
     drive_limit_v: float
-    watchdog_timeout_s: float          # wall clock without any wing-state block
+    watchdog_timeout_s: float  # wall clock without any wing-state block
     ramp_down_s: float
     zero_hold_s: float
     keepalive_period_s: float
@@ -59,8 +61,8 @@ class SupervisorParams:
     min_drive_subscribers: int
     start_delay_s: float
     start_retry_s: float
-    run_time_s: float                  # 0: never
-    collision_response: str            # none | stop | reduce_amplitude
+    run_time_s: float  # 0: never
+    collision_response: str  # none | stop | reduce_amplitude
     collision_reduction_factor: float
     collision_restore_on_clearance: bool
     # onsets during a K_r ramp and this long after it are not acted on
@@ -70,7 +72,7 @@ class SupervisorParams:
     timer_period_s: float
     dsa: dsa.DsaParams
     safety: safety.SafetyParams
-    frequency: CrossingParams          # stroke-frequency estimate for ControllerState (deg)
+    frequency: CrossingParams  # stroke-frequency estimate for ControllerState (deg)
 
 
 class Counts(NamedTuple):
@@ -82,8 +84,8 @@ class Counts(NamedTuple):
     stale: int = 0
     gaps: int = 0
     kicks: int = 0
-    trips: int = 0       # watchdog trips (each latched until a reset)
-    clamped: int = 0     # drive blocks the limiter clamped
+    trips: int = 0  # watchdog trips (each latched until a reset)
+    clamped: int = 0  # drive blocks the limiter clamped
 
 
 class SupervisorState(NamedTuple):
@@ -94,9 +96,9 @@ class SupervisorState(NamedTuple):
     mode: str
     fault: str
     amplitude_scale: float
-    next_index: int                    # first sample index of the next drive block
-    expected_index: int | None         # first sample index of the next wing-state block
-    dsa_params: dsa.DsaParams          # current (a K_r ramp request replaces the schedule)
+    next_index: int  # first sample index of the next drive block
+    expected_index: int | None  # first sample index of the next wing-state block
+    dsa_params: dsa.DsaParams  # current (a K_r ramp request replaces the schedule)
     ctrl: dsa.DsaState
     safety: safety.SafetyState
     frequency: CrossingState
@@ -108,10 +110,10 @@ class SupervisorState(NamedTuple):
     last_sent_wall: float
     trip_pace_wall: float
     trip_pace_index: int
-    start_blocks: tuple["DriveOut", ...]   # the loop's first blocks, retransmitted until answered
-    blocks_since_state: int = 0        # drive blocks sent since the last one with a ControllerState
+    start_blocks: tuple[DriveOut, ...]  # the loop's first blocks, retransmitted until answered
+    blocks_since_state: int = 0  # drive blocks sent since the last one with a ControllerState
     clamped_since_state: bool = False  # one of them was clamped (the next state says so)
-    state_key: tuple = (False, "")     # (tripped, fault) of the last ControllerState
+    state_key: tuple = (False, "")  # (tripped, fault) of the last ControllerState
 
 
 # --------------------------------------------------------------------------- inputs
@@ -183,7 +185,7 @@ class DriveOut(NamedTuple):
     fault: str
     amplitude_scale: float
     stroke_frequency_hz: float
-    answers_wing_block: bool           # True: the reply to a wing-state block (loop timing)
+    answers_wing_block: bool  # True: the reply to a wing-state block (loop timing)
     # False: a bare zero block (run end, shutdown), no ControllerState
     with_state: bool
 
@@ -193,14 +195,31 @@ class Outputs(NamedTuple):
 
     blocks: tuple[DriveOut, ...] = ()
     notes: tuple[Note, ...] = ()
-    refused: str = ""                  # SetRamp refused: why
+    refused: str = ""  # SetRamp refused: why
 
 
 def initial_state(params: SupervisorParams) -> SupervisorState:
     """Not started; nothing seen."""
-    return SupervisorState(WAITING, "", 1.0, 0, None, params.dsa, dsa.initial_state(params.dsa),
-                           safety.initial_state(params.safety), CROSSING_START, Counts(), None, 0.0,
-                           None, 0, 0.0, 0.0, 0, ())
+    return SupervisorState(
+        WAITING,
+        "",
+        1.0,
+        0,
+        None,
+        params.dsa,
+        dsa.initial_state(params.dsa),
+        safety.initial_state(params.safety),
+        CROSSING_START,
+        Counts(),
+        None,
+        0.0,
+        None,
+        0,
+        0.0,
+        0.0,
+        0,
+        (),
+    )
 
 
 def warm_up(params: SupervisorParams) -> None:
@@ -213,8 +232,9 @@ def warm_up(params: SupervisorParams) -> None:
         state, _ = step(state, Tick(t_wall, 1, 1, 1), params)
 
 
-def step(state: SupervisorState, inputs: Input,
-         params: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def step(
+    state: SupervisorState, inputs: Input, params: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     """Advance the supervisor by one event (see the module docstring)."""
     handler = _HANDLERS[type(inputs)]
     return handler(state, inputs, params)
@@ -223,8 +243,13 @@ def step(state: SupervisorState, inputs: Input,
 # --------------------------------------------------------------------------- handlers
 
 
-def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_wall: float,
-          p: SupervisorParams) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
+def _send(
+    state: SupervisorState,
+    velocity_rad_s: np.ndarray,
+    answers: bool,
+    t_wall: float,
+    p: SupervisorParams,
+) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
     """Run the dSA and safety cores on one velocity block: the next drive block."""
     index = state.next_index
     t_start = index / p.sample_rate_hz
@@ -235,20 +260,36 @@ def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_w
     # the safety core tripped: trip at this block
     if guard.status == safety.TRIPPED and state.mode == LOOP:
         state, notes = _check_core_trip(
-            state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p)
+            state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p
+        )
         state = state._replace(next_index=index + p.block_size)
-    else:   # every block of a healthy loop: one _replace
-        state, notes = state._replace(
-            ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size), []
+    else:  # every block of a healthy loop: one _replace
+        state, notes = (
+            state._replace(
+                ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size
+            ),
+            [],
+        )
     clamped = bool(np.abs(sig.drive_unclipped_v).max() * state.amplitude_scale > p.drive_limit_v)
     if clamped:
         state = _count(state, "clamped")
     state, with_state, clamped = _state_due(state, clamped, bool(guarded.tripped), p)
-    block = DriveOut(index, guarded.drive_v, float(sig.kr[-1]), float(sig.async_v[-1]),
-                     float(sig.sync_v[-1]), clamped, bool(guarded.tripped), state.fault,
-                     state.amplitude_scale, _frequency_hz(state, p), answers, with_state)
+    block = DriveOut(
+        index,
+        guarded.drive_v,
+        float(sig.kr[-1]),
+        float(sig.async_v[-1]),
+        float(sig.sync_v[-1]),
+        clamped,
+        bool(guarded.tripped),
+        state.fault,
+        state.amplitude_scale,
+        _frequency_hz(state, p),
+        answers,
+        with_state,
+    )
     blocks = [block]
-    end_index = int(round(p.run_time_s * p.sample_rate_hz))
+    end_index = round(p.run_time_s * p.sample_rate_hz)
     if end_index and state.next_index >= end_index and state.mode != DONE:
         state = state._replace(mode=DONE)
         state, zero = _zero_block(state, p)
@@ -257,8 +298,9 @@ def _send(state: SupervisorState, velocity_rad_s: np.ndarray, answers: bool, t_w
     return state, blocks, notes
 
 
-def _state_due(state: SupervisorState, clamped: bool, tripped: bool,
-               p: SupervisorParams) -> tuple[SupervisorState, bool, bool]:
+def _state_due(
+    state: SupervisorState, clamped: bool, tripped: bool, p: SupervisorParams
+) -> tuple[SupervisorState, bool, bool]:
     """Does this drive block carry a ControllerState (every state_every_blocks-th, and at once when
     the watchdog or the fault changes)? Returns the state, that, and whether any block since the
     last ControllerState was clamped.
@@ -266,10 +308,18 @@ def _state_due(state: SupervisorState, clamped: bool, tripped: bool,
     clamped = clamped or state.clamped_since_state
     key = (tripped, state.fault)
     if state.blocks_since_state + 1 >= p.state_every_blocks or key != state.state_key:
-        return (state._replace(blocks_since_state=0, clamped_since_state=False, state_key=key),
-                True, clamped)
-    return state._replace(blocks_since_state=state.blocks_since_state + 1,
-                          clamped_since_state=clamped), False, clamped
+        return (
+            state._replace(blocks_since_state=0, clamped_since_state=False, state_key=key),
+            True,
+            clamped,
+        )
+    return (
+        state._replace(
+            blocks_since_state=state.blocks_since_state + 1, clamped_since_state=clamped
+        ),
+        False,
+        clamped,
+    )
 
 
 def _frequency_hz(state: SupervisorState, p: SupervisorParams) -> float:
@@ -277,33 +327,55 @@ def _frequency_hz(state: SupervisorState, p: SupervisorParams) -> float:
 
 
 def _zero_block(state: SupervisorState, p: SupervisorParams) -> tuple[SupervisorState, DriveOut]:
-    block = DriveOut(state.next_index, np.zeros(p.block_size), math.nan, math.nan, math.nan, False,
-                     state.mode == TRIPPED, state.fault, state.amplitude_scale,
-                     _frequency_hz(state, p), False, False)
+    block = DriveOut(
+        state.next_index,
+        np.zeros(p.block_size),
+        math.nan,
+        math.nan,
+        math.nan,
+        False,
+        state.mode == TRIPPED,
+        state.fault,
+        state.amplitude_scale,
+        _frequency_hz(state, p),
+        False,
+        False,
+    )
     return state._replace(next_index=state.next_index + p.block_size), block
 
 
-def _check_core_trip(state: SupervisorState, t_wall: float,
-                     p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
+def _check_core_trip(
+    state: SupervisorState, t_wall: float, p: SupervisorParams
+) -> tuple[SupervisorState, list[Note]]:
     """The safety core tripped by itself (signal-time timeout without a valid block)."""
     if state.safety.status == safety.TRIPPED and state.mode == LOOP:
-        fault = (f"no valid wing-state block after t = {state.safety.last_valid_time_s:.4f} s for "
-                 f"more than invalid_timeout_s = {p.safety.invalid_timeout_s:g} s of signal time")
+        fault = (
+            f"no valid wing-state block after t = {state.safety.last_valid_time_s:.4f} s for "
+            f"more than invalid_timeout_s = {p.safety.invalid_timeout_s:g} s of signal time"
+        )
         return _enter_tripped(state._replace(fault=fault), t_wall, p)
     return state, []
 
 
-def _enter_tripped(state: SupervisorState, t_wall: float,
-                   p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
-    state = _count(state, "trips")._replace(mode=TRIPPED, trip_pace_wall=t_wall,
-                                            trip_pace_index=state.next_index)
-    return state, [Note(ERROR, f"WATCHDOG TRIPPED at t = {state.safety.trip_time_s:.4f} s: "
-                               f"{state.fault}; ramping the drive to zero over {p.ramp_down_s:g} "
-                               "s")]
+def _enter_tripped(
+    state: SupervisorState, t_wall: float, p: SupervisorParams
+) -> tuple[SupervisorState, list[Note]]:
+    state = _count(state, "trips")._replace(
+        mode=TRIPPED, trip_pace_wall=t_wall, trip_pace_index=state.next_index
+    )
+    return state, [
+        Note(
+            ERROR,
+            f"WATCHDOG TRIPPED at t = {state.safety.trip_time_s:.4f} s: "
+            f"{state.fault}; ramping the drive to zero over {p.ramp_down_s:g} "
+            "s",
+        )
+    ]
 
 
-def _trip(state: SupervisorState, fault: str, t_wall: float,
-          p: SupervisorParams) -> tuple[SupervisorState, list[Note]]:
+def _trip(
+    state: SupervisorState, fault: str, t_wall: float, p: SupervisorParams
+) -> tuple[SupervisorState, list[Note]]:
     """Trip now (at the next unpublished sample) with a fault text."""
     if state.mode in (TRIPPED, DONE):
         return state, []
@@ -318,8 +390,9 @@ def _count(state: SupervisorState, name: str) -> SupervisorState:
     return state._replace(counts=counts._replace(**{name: getattr(counts, name) + 1}))
 
 
-def _on_wing(state: SupervisorState, block: WingBlock,
-             p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_wing(
+    state: SupervisorState, block: WingBlock, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     if state.mode == DONE:
         return state, Outputs()
     notes: list[Note] = []
@@ -335,35 +408,64 @@ def _on_wing(state: SupervisorState, block: WingBlock,
         # The drive counts from 0 at the controller's start; a loop that was already flowing (a
         # target, a real-time plant) counts its samples from its own start. The safety watchdog
         # runs on the drive's timeline: wing block `first` maps to time (first - this index) / fs.
-        state = state._replace(first_arrival_wall=block.t_wall, first_arrival_index=first,
-                               safety=safety.initial_state(p.safety))
+        state = state._replace(
+            first_arrival_wall=block.t_wall,
+            first_arrival_index=first,
+            safety=safety.initial_state(p.safety),
+        )
         notes.append(Note(INFO, f"loop closed: first wing-state block {first}"))
     n = p.block_size
     field = np.asarray(block.stroke_velocity_deg_s, dtype=float)
     kind = "ok"
-    counts = state.counts   # the block's updates are gathered and applied in one _replace below
+    counts = state.counts  # the block's updates are gathered and applied in one _replace below
     # Fast path (every block in a healthy loop): in order, right length and rate.
-    if not (first == state.expected_index and field.size == n
-            and block.sample_rate_hz == p.sample_rate_hz):
-        check = check_block({"stroke_velocity_deg_s": np.zeros(field.size)}, block.sample_rate_hz,
-                            p.sample_rate_hz, first, state.expected_index, n)
+    if not (
+        first == state.expected_index
+        and field.size == n
+        and block.sample_rate_hz == p.sample_rate_hz
+    ):
+        check = check_block(
+            {"stroke_velocity_deg_s": np.zeros(field.size)},
+            block.sample_rate_hz,
+            p.sample_rate_hz,
+            first,
+            state.expected_index,
+            n,
+        )
         kind = check.kind
         if kind == "stale":
-            state = state._replace(last_arrival_wall=block.t_wall,
-                                   counts=counts._replace(stale=counts.stale + 1))
-            notes.append(Note(WARNING, f"wing-state block {first} ignored: {check.reason} "
-                                       f"[{state.counts.stale} stale so far]", "stale"))
+            state = state._replace(
+                last_arrival_wall=block.t_wall, counts=counts._replace(stale=counts.stale + 1)
+            )
+            notes.append(
+                Note(
+                    WARNING,
+                    f"wing-state block {first} ignored: {check.reason} "
+                    f"[{state.counts.stale} stale so far]",
+                    "stale",
+                )
+            )
             return state, Outputs((), tuple(notes))
         if kind == "gap":
             counts = counts._replace(gaps=counts.gaps + 1)
-            notes.append(Note(
-                WARNING, f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]",
-                "gaps"))
+            notes.append(
+                Note(
+                    WARNING,
+                    f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]",
+                    "gaps",
+                )
+            )
         elif kind == "content":
             counts = counts._replace(rejected=counts.rejected + 1)
-            notes.append(Note(WARNING, f"wing-state block {first} rejected: {check.reason}; its "
-                                       f"samples drive the filter as 0 [{counts.rejected} rejected "
-                                       "so far]", "rejected"))
+            notes.append(
+                Note(
+                    WARNING,
+                    f"wing-state block {first} rejected: {check.reason}; its "
+                    f"samples drive the filter as 0 [{counts.rejected} rejected "
+                    "so far]",
+                    "rejected",
+                )
+            )
     counts = counts._replace(blocks=counts.blocks + 1)
     frequency, guard = state.frequency, state.safety
     if kind == "content":
@@ -373,24 +475,42 @@ def _on_wing(state: SupervisorState, block: WingBlock,
         flags = np.asarray(block.stroke_valid, dtype=bool)
         # a finite sum proves every sample finite (the fast path);
         # an overflowing one is checked sample by sample
-        valid = (flags.size == n and bool(flags.all())
-                 and (math.isfinite(np.add.reduce(velocity_rad_s))
-                      or bool(np.isfinite(velocity_rad_s).all())))
+        valid = (
+            flags.size == n
+            and bool(flags.all())
+            and (
+                math.isfinite(np.add.reduce(velocity_rad_s))
+                or bool(np.isfinite(velocity_rad_s).all())
+            )
+        )
         if not valid:
             counts = counts._replace(invalid=counts.invalid + 1)
-            notes.append(Note(WARNING, f"wing-state block {first} invalid (stroke_valid false or "
-                                       "non-finite velocity); its invalid samples drive the "
-                                       f"filter as 0 [{counts.invalid} invalid so far]", "invalid"))
+            notes.append(
+                Note(
+                    WARNING,
+                    f"wing-state block {first} invalid (stroke_valid false or "
+                    "non-finite velocity); its invalid samples drive the "
+                    f"filter as 0 [{counts.invalid} invalid so far]",
+                    "invalid",
+                )
+            )
             if flags.size == n:
                 velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)
-        frequency, _ = (crossing_step(
-            frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency))
+        frequency, _ = crossing_step(
+            frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency
+        )
     if valid:
         guard = safety.note_sensor_block(
-            guard, (first + n - state.first_arrival_index) / p.sample_rate_hz, True, p.safety)
-    state = state._replace(last_arrival_wall=block.t_wall, expected_index=first + n, counts=counts,
-                           frequency=frequency, safety=guard)
+            guard, (first + n - state.first_arrival_index) / p.sample_rate_hz, True, p.safety
+        )
+    state = state._replace(
+        last_arrival_wall=block.t_wall,
+        expected_index=first + n,
+        counts=counts,
+        frequency=frequency,
+        safety=guard,
+    )
     if valid:
         state, more = _check_core_trip(state, block.t_wall, p)
         notes.extend(more)
@@ -400,8 +520,9 @@ def _on_wing(state: SupervisorState, block: WingBlock,
     return state, Outputs(tuple(blocks), tuple(notes + more))
 
 
-def _on_tick(state: SupervisorState, tick: Tick,
-             p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_tick(
+    state: SupervisorState, tick: Tick, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     now = tick.t_wall
     nan_block = np.full(p.block_size, np.nan)
     blocks: list[DriveOut] = []
@@ -409,8 +530,11 @@ def _on_tick(state: SupervisorState, tick: Tick,
     if state.mode == WAITING:
         # A /flaair/drive subscriber alone may be a monitor or a recorder: also wait for the
         # sensor stream's source (the plant, or the DAQ) and the wing-state source (front end).
-        if p.wait_for_peers and (tick.drive_subscribers < p.min_drive_subscribers
-                                 or tick.sensor_publishers == 0 or tick.wing_state_publishers == 0):
+        if p.wait_for_peers and (
+            tick.drive_subscribers < p.min_drive_subscribers
+            or tick.sensor_publishers == 0
+            or tick.wing_state_publishers == 0
+        ):
             return state, Outputs()
         seen_wall = state.peers_seen_wall
         if seen_wall is None:
@@ -432,16 +556,26 @@ def _on_tick(state: SupervisorState, tick: Tick,
                 # the first answer is only late, new blocks would stay in
                 # the loop as extra delay (the plant ignores duplicates).
                 state = _count(state, "kicks")._replace(last_sent_wall=now)
-                notes.append(Note(WARNING, f"no wing-state block {p.start_retry_s:g} s after "
-                                           "starting; sending the first block(s) again "
-                                           f"({state.counts.kicks}) - is the front end running?"))
+                notes.append(
+                    Note(
+                        WARNING,
+                        f"no wing-state block {p.start_retry_s:g} s after "
+                        "starting; sending the first block(s) again "
+                        f"({state.counts.kicks}) - is the front end running?",
+                    )
+                )
                 blocks += [b._replace(with_state=False) for b in state.start_blocks]
         elif now - state.last_arrival_wall > p.watchdog_timeout_s:
             last = (state.expected_index or p.block_size) - p.block_size
-            state, more = _trip(state, "no wing-state block for "
-                                       f"{1e3 * (now - state.last_arrival_wall):.0f} ms of "
-                                       "wall-clock time (> watchdog_timeout_s "
-                                       f"{p.watchdog_timeout_s:g} s) after block {last}", now, p)
+            state, more = _trip(
+                state,
+                "no wing-state block for "
+                f"{1e3 * (now - state.last_arrival_wall):.0f} ms of "
+                "wall-clock time (> watchdog_timeout_s "
+                f"{p.watchdog_timeout_s:g} s) after block {last}",
+                now,
+                p,
+            )
             notes += more
     elif state.mode == TRIPPED:
         t_quiet = state.safety.trip_time_s + p.ramp_down_s + p.zero_hold_s
@@ -460,20 +594,31 @@ def _on_tick(state: SupervisorState, tick: Tick,
     return state, Outputs(tuple(blocks), tuple(notes))
 
 
-def _on_collision(state: SupervisorState, event: Collision,
-                  p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_collision(
+    state: SupervisorState, event: Collision, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     response = p.collision_response
     notes: list[Note] = []
     if event.onset:
-        text = (f"collision onset at wingbeat {event.wingbeat_index} "
-                f"(spectrum RMSE {event.spectrum_rmse_deg:.2f} deg)")
+        text = (
+            f"collision onset at wingbeat {event.wingbeat_index} "
+            f"(spectrum RMSE {event.spectrum_rmse_deg:.2f} deg)"
+        )
         if response != "none" and _in_ramp_guard(state, p):
             # the stroke turns from the sync sine into the self-excited one by design:
             # a per-wingbeat distortion score reads that change as a collision
-            return state, Outputs((), (Note(INFO, f"{text} during the K_r ramp (or within "
-                                                  "collision_ramp_guard_s = "
-                                                  f"{p.collision_ramp_guard_s:g} s of its end): "
-                                                  "not acted on"),))
+            return state, Outputs(
+                (),
+                (
+                    Note(
+                        INFO,
+                        f"{text} during the K_r ramp (or within "
+                        "collision_ramp_guard_s = "
+                        f"{p.collision_ramp_guard_s:g} s of its end): "
+                        "not acted on",
+                    ),
+                ),
+            )
         if response == "stop":
             state, notes = _trip(state, f"{text}: stop", event.t_wall, p)
         elif response == "reduce_amplitude":
@@ -481,11 +626,15 @@ def _on_collision(state: SupervisorState, event: Collision,
             notes.append(Note(WARNING, f"{text}: drive scaled by {p.collision_reduction_factor:g}"))
         else:
             notes.append(Note(WARNING, f"{text}: no response configured"))
-    elif (response == "reduce_amplitude" and p.collision_restore_on_clearance
-          and state.amplitude_scale != 1.0):
+    elif (
+        response == "reduce_amplitude"
+        and p.collision_restore_on_clearance
+        and state.amplitude_scale != 1.0
+    ):
         state = state._replace(amplitude_scale=1.0)
-        notes.append(Note(
-            INFO, f"collision cleared at wingbeat {event.wingbeat_index}: full drive again"))
+        notes.append(
+            Note(INFO, f"collision cleared at wingbeat {event.wingbeat_index}: full drive again")
+        )
     else:
         notes.append(Note(INFO, f"collision cleared at wingbeat {event.wingbeat_index}"))
     return state, Outputs((), tuple(notes))
@@ -495,34 +644,50 @@ def _in_ramp_guard(state: SupervisorState, p: SupervisorParams) -> bool:
     """K_r is ramping now (signal time), or stopped ramping less than collision_ramp_guard_s ago."""
     kr = state.dsa_params.kr_schedule
     t_s = state.next_index / p.sample_rate_hz
-    return (kr.start_value != kr.end_value
-            and kr.start_time_s <= t_s < kr.start_time_s + kr.duration_s + p.collision_ramp_guard_s)
+    return (
+        kr.start_value != kr.end_value
+        and kr.start_time_s <= t_s < kr.start_time_s + kr.duration_s + p.collision_ramp_guard_s
+    )
 
 
-def _on_set_ramp(state: SupervisorState, request: SetRamp,
-                 p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_set_ramp(
+    state: SupervisorState, request: SetRamp, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     t_now = state.next_index / p.sample_rate_hz
     current = float(state.dsa_params.kr_schedule.value(np.array([t_now]))[0])
     try:
-        schedule = dsa.KrSchedule(current, float(request.kr_target), t_now,
-                                  float(request.kr_ramp_duration_s))
+        schedule = dsa.KrSchedule(
+            current, float(request.kr_target), t_now, float(request.kr_ramp_duration_s)
+        )
         params = replace(state.dsa_params, kr_schedule=schedule)
     except dsa.DsaParameterError as exc:
         return state, Outputs(refused=str(exc))
-    return state._replace(dsa_params=params), Outputs((), (Note(
-        INFO, f"K_r ramp {current:.3f} -> {request.kr_target:g} over "
-              f"{request.kr_ramp_duration_s:g} s from t = {t_now:.4f} s"
-    ),))
+    return state._replace(dsa_params=params), Outputs(
+        (),
+        (
+            Note(
+                INFO,
+                f"K_r ramp {current:.3f} -> {request.kr_target:g} over "
+                f"{request.kr_ramp_duration_s:g} s from t = {t_now:.4f} s",
+            ),
+        ),
+    )
 
 
-def _on_reset(state: SupervisorState, request: ResetWatchdog,
-              p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_reset(
+    state: SupervisorState, request: ResetWatchdog, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     if state.mode != TRIPPED:
-        return state, Outputs((), (Note(
-            INFO, "reset_watchdog: watchdog not tripped, nothing to do"),))
+        return state, Outputs(
+            (), (Note(INFO, "reset_watchdog: watchdog not tripped, nothing to do"),)
+        )
     t_now = state.next_index / p.sample_rate_hz
-    state = state._replace(safety=safety.reset(state.safety, t_now), fault="", mode=LOOP,
-                    last_arrival_wall=request.t_wall)
+    state = state._replace(
+        safety=safety.reset(state.safety, t_now),
+        fault="",
+        mode=LOOP,
+        last_arrival_wall=request.t_wall,
+    )
     notes = [Note(WARNING, "watchdog reset by request; restarting the loop")]
     blocks: list[DriveOut] = []
     for _ in range(p.blocks_in_flight):
@@ -532,26 +697,38 @@ def _on_reset(state: SupervisorState, request: ResetWatchdog,
     return state, Outputs(tuple(blocks), tuple(notes))
 
 
-def _on_close(state: SupervisorState, request: Close,
-              p: SupervisorParams) -> tuple[SupervisorState, Outputs]:
+def _on_close(
+    state: SupervisorState, request: Close, p: SupervisorParams
+) -> tuple[SupervisorState, Outputs]:
     state, zero = _zero_block(state, p)
-    return state, Outputs((zero,), (
-        Note(INFO, summary(state, p, "shutting down, zero drive sent")),))
+    return state, Outputs(
+        (zero,), (Note(INFO, summary(state, p, "shutting down, zero drive sent")),)
+    )
 
 
 _HANDLERS: dict[type, Callable[..., tuple[SupervisorState, Outputs]]] = {
-    WingBlock: _on_wing, Tick: _on_tick, Collision: _on_collision, SetRamp: _on_set_ramp,
-    ResetWatchdog: _on_reset, Close: _on_close}
+    WingBlock: _on_wing,
+    Tick: _on_tick,
+    Collision: _on_collision,
+    SetRamp: _on_set_ramp,
+    ResetWatchdog: _on_reset,
+    Close: _on_close,
+}
 
 
 def summary(state: SupervisorState, p: SupervisorParams, what: str) -> str:
     """One line: blocks by outcome, signal vs wall time, watchdog."""
     wall = (state.last_arrival_wall - state.first_arrival_wall) if state.first_arrival_wall else 0.0
-    sim = ((state.expected_index - state.first_arrival_index) / p.sample_rate_hz
-           if state.expected_index else 0.0)
+    sim = (
+        (state.expected_index - state.first_arrival_index) / p.sample_rate_hz
+        if state.expected_index
+        else 0.0
+    )
     rtf = f"{sim / wall:.3f}" if wall > 0 else "n/a"
     c = state.counts
-    return (f"{what}: {c.blocks} wing-state blocks ({c.invalid} invalid, {c.rejected} rejected, "
-            f"{c.stale} stale, {c.gaps} gaps), {sim:.4f} s signal in {wall:.3f} s wall (RTF "
-            f"{rtf}), watchdog "
-            f"{'TRIPPED: ' + state.fault if state.safety.status == safety.TRIPPED else 'ok'}")
+    return (
+        f"{what}: {c.blocks} wing-state blocks ({c.invalid} invalid, {c.rejected} rejected, "
+        f"{c.stale} stale, {c.gaps} gaps), {sim:.4f} s signal in {wall:.3f} s wall (RTF "
+        f"{rtf}), watchdog "
+        f"{'TRIPPED: ' + state.fault if state.safety.status == safety.TRIPPED else 'ok'}"
+    )

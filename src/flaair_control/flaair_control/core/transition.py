@@ -33,11 +33,13 @@ periods over the time spanned by the last ``average`` + 1 crossings. 0 until two
 seen or when none has occurred for ``max_period_s``. NaN samples are skipped (the trigger
 holds its state; an interpolation never spans a NaN).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Mapping, NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from scipy import signal
@@ -80,10 +82,10 @@ class HilbertResult(NamedTuple):
     """Smoothed instantaneous frequency and amplitude (same length as the input)."""
 
     time_s: np.ndarray
-    frequency_hz: np.ndarray       # NaN within edge_s of the ends
-    amplitude: np.ndarray          # in the unit of the input angle; NaN at the edges
-    band_passed: np.ndarray        # the band-passed angle (unit of the input)
-    filled_samples: int            # NaN input samples filled by interpolation
+    frequency_hz: np.ndarray  # NaN within edge_s of the ends
+    amplitude: np.ndarray  # in the unit of the input angle; NaN at the edges
+    band_passed: np.ndarray  # the band-passed angle (unit of the input)
+    filled_samples: int  # NaN input samples filled by interpolation
 
 
 def _fill_nan(x: np.ndarray) -> tuple[np.ndarray, int]:
@@ -99,17 +101,19 @@ def _fill_nan(x: np.ndarray) -> tuple[np.ndarray, int]:
     return out, n_bad
 
 
-def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertParams,
-                     start_time_s: float = 0.0) -> HilbertResult:
+def hilbert_analysis(
+    angle: np.ndarray, sample_rate_hz: float, params: HilbertParams, start_time_s: float = 0.0
+) -> HilbertResult:
     """Frequency and amplitude of ``angle`` (one uniformly sampled record; NaN = invalid)."""
     fs = float(sample_rate_hz)
     if not (math.isfinite(fs) and fs > 0):
         raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
     if params.band_hz[1] >= fs / 2:
         raise TransitionError(
-            f"band_hz upper edge {params.band_hz[1]} must lie below fs/2 = {fs / 2}")
+            f"band_hz upper edge {params.band_hz[1]} must lie below fs/2 = {fs / 2}"
+        )
     x = np.asarray(angle, dtype=float).ravel()
-    window = int(round(params.savgol_window_s * fs)) | 1
+    window = round(params.savgol_window_s * fs) | 1
     if window <= params.savgol_order:
         raise TransitionError("savgol_window_s is shorter than savgol_order + 1 samples")
     sos = signal.butter(params.band_order, params.band_hz, btype="bandpass", fs=fs, output="sos")
@@ -124,11 +128,11 @@ def hilbert_analysis(angle: np.ndarray, sample_rate_hz: float, params: HilbertPa
     frequency = np.gradient(phase) * fs / (2 * np.pi)
     frequency = signal.savgol_filter(frequency, window, params.savgol_order)
     amplitude = signal.savgol_filter(amplitude, window, params.savgol_order)
-    edge = min(int(round(params.edge_s * fs)), x.size // 2)
+    edge = min(round(params.edge_s * fs), x.size // 2)
     if edge > 0:
         for arr in (frequency, amplitude):
             arr[:edge] = np.nan
-            arr[x.size - edge:] = np.nan
+            arr[x.size - edge :] = np.nan
     t = start_time_s + np.arange(x.size) / fs
     return HilbertResult(t, frequency, amplitude, xb, filled)
 
@@ -160,21 +164,22 @@ class CrossingParams(NamedTuple):
 
     sample_rate_hz: float
     hysteresis: float
-    average: int                       # crossings averaged (periods)
-    max_period_s: float                # no crossing for this long: frequency 0
+    average: int  # crossings averaged (periods)
+    max_period_s: float  # no crossing for this long: frequency 0
 
 
 class CrossingState(NamedTuple):
     """Crossing estimator state."""
 
-    next_index: int                    # absolute index of the next sample
+    next_index: int  # absolute index of the next sample
     high: bool
-    prev: float | None                 # previous finite sample (None after a NaN)
-    crossings: tuple[float, ...]       # fractional sample indices, the last average + 1
+    prev: float | None  # previous finite sample (None after a NaN)
+    crossings: tuple[float, ...]  # fractional sample indices, the last average + 1
 
 
-def crossing_params(sample_rate_hz: float, hysteresis: float, average: int = 4,
-                    max_period_s: float = 0.05) -> CrossingParams:
+def crossing_params(
+    sample_rate_hz: float, hysteresis: float, average: int = 4, max_period_s: float = 0.05
+) -> CrossingParams:
     """Checked `CrossingParams`."""
     if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
         raise TransitionError(f"sample_rate_hz must be finite and > 0, got {sample_rate_hz}")
@@ -182,21 +187,23 @@ def crossing_params(sample_rate_hz: float, hysteresis: float, average: int = 4,
         raise TransitionError(f"hysteresis must be finite and >= 0, got {hysteresis}")
     if average < 1:
         raise TransitionError(f"average must be >= 1, got {average}")
-    return CrossingParams(float(sample_rate_hz), float(hysteresis), int(average),
-                          float(max_period_s))
+    return CrossingParams(
+        float(sample_rate_hz), float(hysteresis), int(average), float(max_period_s)
+    )
 
 
 CROSSING_START = CrossingState(0, False, None, ())
 
 
-def crossing_step(state: CrossingState, x: Iterable[float],
-                  params: CrossingParams) -> tuple[CrossingState, float]:
+def crossing_step(
+    state: CrossingState, x: Iterable[float], params: CrossingParams
+) -> tuple[CrossingState, float]:
     """Feed samples (one block); return the new state and the frequency estimate (Hz)."""
     h = params.hysteresis
     high, prev, i = state.high, state.prev, state.next_index
     crossings = list(state.crossings)
     keep = params.average + 1
-    for v in (x.tolist() if isinstance(x, np.ndarray) else x):
+    for v in x.tolist() if isinstance(x, np.ndarray) else x:
         if v != v or v in (math.inf, -math.inf):
             prev = None
         else:
@@ -228,8 +235,9 @@ class CrossingFrequency:
     crossings (`crossing_step` with its state).
     """
 
-    def __init__(self, sample_rate_hz: float, hysteresis: float, average: int = 4,
-                 max_period_s: float = 0.05) -> None:
+    def __init__(
+        self, sample_rate_hz: float, hysteresis: float, average: int = 4, max_period_s: float = 0.05
+    ) -> None:
         self.params = crossing_params(sample_rate_hz, hysteresis, average, max_period_s)
         self.fs = self.params.sample_rate_hz
         self.state = CROSSING_START
@@ -268,8 +276,12 @@ class BlockRecord(NamedTuple):
     missing_blocks: int
 
 
-def join_blocks(blocks: Sequence[Mapping], fields: Sequence[str], sample_rate_hz: float,
-                valid_field: str | None = None) -> BlockRecord:
+def join_blocks(
+    blocks: Sequence[Mapping],
+    fields: Sequence[str],
+    sample_rate_hz: float,
+    valid_field: str | None = None,
+) -> BlockRecord:
     """Join block messages (as dicts, e.g. from ``flaair topic echo``) into continuous arrays.
 
     Samples whose ``valid_field`` flag is false become NaN; duplicate blocks keep the first.
@@ -285,15 +297,15 @@ def join_blocks(blocks: Sequence[Mapping], fields: Sequence[str], sample_rate_hz
     for b in blocks:
         i = int(b["first_sample_index"]) - start
         n = len(b[fields[0]])
-        if filled[i:i + n].any():
+        if filled[i : i + n].any():
             continue
         n_blocks += 1
-        filled[i:i + n] = True
+        filled[i : i + n] = True
         ok = np.asarray(b[valid_field], dtype=bool) if valid_field else np.ones(n, dtype=bool)
         for f in fields:
-            out[f][i:i + n] = np.where(ok, np.asarray(b[f], dtype=float), np.nan)
+            out[f][i : i + n] = np.where(ok, np.asarray(b[f], dtype=float), np.nan)
     length = max(len(b[fields[0]]) for b in blocks)
-    missing = int(round((~filled).sum() / max(length, 1)))
+    missing = round((~filled).sum() / max(length, 1))
     t = (start + np.arange(end - start)) / sample_rate_hz
     return BlockRecord(start, t, out, missing)
 

@@ -10,4 +10,4 @@ offline tools call the same functions.
 - ``bode``: the stepped-sine and chirp frequency-response estimates it uses
 """
 
-__all__ = ["frontend", "frontend_params", "calibration", "characterization", "bode"]
+__all__ = ["bode", "calibration", "characterization", "frontend", "frontend_params"]

@@ -1,18 +1,33 @@
 """Frequency responses from drive and sensor records: the stepped-sine and chirp Bode
 estimates, and their shared helpers (phasors, frequency track, signal checks).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import signal
 
-__all__ = ["SIGNALS", "CharacterizationError", "ChannelBode", "Bode", "wrap_deg", "as_1d", "rms",
-           "frequency_track_from_drive", "stepped_segments", "sine_phasor", "run_signals",
-           "bode_from_chirp", "bode_from_stepped", "amplitude_phase_rmse"]
+__all__ = [
+    "SIGNALS",
+    "Bode",
+    "ChannelBode",
+    "CharacterizationError",
+    "amplitude_phase_rmse",
+    "as_1d",
+    "bode_from_chirp",
+    "bode_from_stepped",
+    "frequency_track_from_drive",
+    "rms",
+    "run_signals",
+    "sine_phasor",
+    "stepped_segments",
+    "wrap_deg",
+]
 
 
 SIGNALS = ("drive", "stroke_sensor", "stroke_truth", "pitch_sensor", "pitch_truth")
@@ -35,8 +50,9 @@ class ChannelBode:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain lists, ready for JSON."""
-        return {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k,
-                v in asdict(self).items()}
+        return {
+            k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in asdict(self).items()
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,8 +65,11 @@ class Bode:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict, ready for JSON."""
-        return {"method": self.method, "stroke": self.stroke.as_dict(),
-                "pitch": self.pitch.as_dict()}
+        return {
+            "method": self.method,
+            "stroke": self.stroke.as_dict(),
+            "pitch": self.pitch.as_dict(),
+        }
 
 
 def wrap_deg(x: np.ndarray | float) -> np.ndarray:
@@ -70,8 +89,9 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if x.size else math.nan
 
 
-def frequency_track_from_drive(drive_v: np.ndarray, fs_hz: float,
-                               smooth_s: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+def frequency_track_from_drive(
+    drive_v: np.ndarray, fs_hz: float, smooth_s: float = 0.005
+) -> tuple[np.ndarray, np.ndarray]:
     """Instantaneous phase (rad) and frequency (Hz) of the drive from its analytic signal.
 
     The frequency is smoothed with a moving average of ``smooth_s``; the phase is the unwrapped
@@ -82,10 +102,11 @@ def frequency_track_from_drive(drive_v: np.ndarray, fs_hz: float,
         raise CharacterizationError("drive_v contains non-finite samples")
     phase = np.unwrap(np.angle(signal.hilbert(d - d.mean())))
     f = np.gradient(phase) * fs_hz / (2 * np.pi)
-    k = max(1, int(round(smooth_s * fs_hz)))
+    k = max(1, round(smooth_s * fs_hz))
     if k > 1:
-        f = np.convolve(np.pad(f, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k,
-                        mode="valid")
+        f = np.convolve(
+            np.pad(f, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid"
+        )
     return phase, f
 
 
@@ -101,12 +122,16 @@ def stepped_segments(frequency_hz_per_sample: np.ndarray) -> list[tuple[int, int
     edges = np.flatnonzero(np.diff(f) != 0) + 1
     starts = np.r_[0, edges]
     stops = np.r_[edges, f.size]
-    return [(int(a), int(b), float(f[a])) for a, b in zip(starts, stops) if f[a] > 0
-            and np.isfinite(f[a])]
+    return [
+        (int(a), int(b), float(f[a]))
+        for a, b in zip(starts, stops)
+        if f[a] > 0 and np.isfinite(f[a])
+    ]
 
 
-def sine_phasor(x: np.ndarray, phase_rad: np.ndarray, weights: np.ndarray | None = None,
-                min_samples: int = 8) -> complex:
+def sine_phasor(
+    x: np.ndarray, phase_rad: np.ndarray, weights: np.ndarray | None = None, min_samples: int = 8
+) -> complex:
     """Least-squares phasor P of ``x ~ Re(P exp(j phase)) + c`` over the finite samples.
 
     Returns NaN when fewer than ``min_samples`` finite samples (or a degenerate fit).
@@ -125,11 +150,13 @@ def sine_phasor(x: np.ndarray, phase_rad: np.ndarray, weights: np.ndarray | None
     return complex(coef[0], -coef[1])
 
 
-def _bode_from_phasors(method: str, freqs: np.ndarray, ph: Mapping[str, np.ndarray],
-                       pitch_phase_reference: str) -> Bode:
+def _bode_from_phasors(
+    method: str, freqs: np.ndarray, ph: Mapping[str, np.ndarray], pitch_phase_reference: str
+) -> Bode:
     if pitch_phase_reference not in ("truth", "sensor"):
         raise CharacterizationError(
-            f"pitch_phase_reference must be 'truth' or 'sensor', got {pitch_phase_reference!r}")
+            f"pitch_phase_reference must be 'truth' or 'sensor', got {pitch_phase_reference!r}"
+        )
     order = np.argsort(freqs)
     freqs = freqs[order]
     ph = {k: v[order] for k, v in ph.items()}
@@ -158,14 +185,16 @@ def _bode_from_phasors(method: str, freqs: np.ndarray, ph: Mapping[str, np.ndarr
 
     st_s = phase_curve(ph["stroke_sensor"], ph["drive"])
     st_t = phase_curve(ph["stroke_truth"], ph["drive"])
-    stroke = ChannelBode(freqs, amp(ph["stroke_sensor"]), amp(ph["stroke_truth"]),
-                         align(st_s, st_t), st_t, "drive")
+    stroke = ChannelBode(
+        freqs, amp(ph["stroke_sensor"]), amp(ph["stroke_truth"]), align(st_s, st_t), st_t, "drive"
+    )
     ref_s = ph["stroke_truth"] if pitch_phase_reference == "truth" else ph["stroke_sensor"]
     pi_s = phase_curve(ph["pitch_sensor"], ref_s)
     pi_t = phase_curve(ph["pitch_truth"], ph["stroke_truth"])
     ref_name = "stroke_truth" if pitch_phase_reference == "truth" else "stroke (same source)"
-    pitch = ChannelBode(freqs, amp(ph["pitch_sensor"]), amp(ph["pitch_truth"]), align(pi_s, pi_t),
-                        pi_t, ref_name)
+    pitch = ChannelBode(
+        freqs, amp(ph["pitch_sensor"]), amp(ph["pitch_truth"]), align(pi_s, pi_t), pi_t, ref_name
+    )
     return Bode(method, stroke, pitch)
 
 
@@ -217,8 +246,9 @@ def bode_from_chirp(
     pitch_phase_reference
         "truth" or "sensor" (see module docstring).
     """
-    sig = run_signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad,
-                      pitch_truth_rad)
+    sig = run_signals(
+        drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad
+    )
     n = sig["drive"].size
     if frequency_hz_per_sample is not None:
         track = as_1d(frequency_hz_per_sample, "frequency_hz_per_sample", n)
@@ -231,7 +261,7 @@ def bode_from_chirp(
         freqs = np.arange(math.ceil(lo / 5.0) * 5.0, hi + 1e-9, 5.0)
     else:
         freqs = np.asarray(frequencies_hz, float)
-    half = max(4, int(round(window_s * fs_hz / 2)))
+    half = max(4, round(window_s * fs_hz / 2))
     out_f: list[float] = []
     out: dict[str, list] = {k: [] for k in SIGNALS}
     for f in freqs:
@@ -239,12 +269,16 @@ def bode_from_chirp(
         if c >= n:
             continue
         a, b = max(0, c - half), min(n, c + half)
-        w = np.hanning(2 * half + 2)[1:-1][a - (c - half): b - (c - half)]
+        w = np.hanning(2 * half + 2)[1:-1][a - (c - half) : b - (c - half)]
         out_f.append(f)
         for k in SIGNALS:
             out[k].append(sine_phasor(sig[k][a:b], phase[a:b], w))
-    return _bode_from_phasors("chirp", np.asarray(out_f), {
-        k: np.asarray(v, complex) for k, v in out.items()}, pitch_phase_reference)
+    return _bode_from_phasors(
+        "chirp",
+        np.asarray(out_f),
+        {k: np.asarray(v, complex) for k, v in out.items()},
+        pitch_phase_reference,
+    )
 
 
 def bode_from_stepped(
@@ -268,8 +302,9 @@ def bode_from_stepped(
     settle_fraction
         Fraction of each dwell, at its end, used for the fit.
     """
-    sig = run_signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad,
-                      pitch_truth_rad)
+    sig = run_signals(
+        drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad
+    )
     n = sig["drive"].size
     track = as_1d(frequency_hz_per_sample, "frequency_hz_per_sample", n)
     if not 0 < settle_fraction <= 1:
@@ -277,23 +312,29 @@ def bode_from_stepped(
     segs = stepped_segments(track)
     if not segs:
         raise CharacterizationError(
-            "frequency_hz_per_sample has no dwell with a positive frequency")
+            "frequency_hz_per_sample has no dwell with a positive frequency"
+        )
     t = np.arange(n) / fs_hz
     out_f: list[float] = []
     out: dict[str, list] = {k: [] for k in SIGNALS}
     for a, b, f in segs:
-        a2 = b - max(8, int(round(settle_fraction * (b - a))))
+        a2 = b - max(8, round(settle_fraction * (b - a)))
         a2 = max(a, a2)
         ph = 2 * np.pi * f * t[a2:b]
         out_f.append(f)
         for k in SIGNALS:
             out[k].append(sine_phasor(sig[k][a2:b], ph))
-    return _bode_from_phasors("stepped", np.asarray(out_f), {
-        k: np.asarray(v, complex) for k, v in out.items()}, pitch_phase_reference)
+    return _bode_from_phasors(
+        "stepped",
+        np.asarray(out_f),
+        {k: np.asarray(v, complex) for k, v in out.items()},
+        pitch_phase_reference,
+    )
 
 
-def amplitude_phase_rmse(bode: ChannelBode,
-                         band_hz: tuple[float, float] | None = None) -> tuple[float, float]:
+def amplitude_phase_rmse(
+    bode: ChannelBode, band_hz: tuple[float, float] | None = None
+) -> tuple[float, float]:
     """RMSE of sensor vs truth amplitude (deg) and of the wrapped phase difference (deg).
 
     Over all frequency points, or over those within ``band_hz`` (inclusive).

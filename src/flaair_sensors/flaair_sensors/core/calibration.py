@@ -22,10 +22,12 @@ Figures (as ``characterization``)
     ``amplitude_rmse_band_deg`` over the windows within ``amplitude_band_hz``. Phase error is the
     sensor's phase minus its own truth's phase (pitch: relative to ground-truth stroke).
 """
+
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +39,7 @@ from .characterization import (
     wrap_deg,
 )
 
-__all__ = ["CalibrationError", "calibrate", "calibrate_channel", "CHANNELS"]
+__all__ = ["CHANNELS", "CalibrationError", "calibrate", "calibrate_channel"]
 
 CHANNELS = {"stroke": ("stroke_sensor_v", "stroke_deg"), "pitch": ("pitch_sensor_v", "pitch_deg")}
 
@@ -77,8 +79,9 @@ def _sample_rate(run: Mapping[str, Any], sample_rate_hz: float | None) -> tuple[
     return 1.0 / step, t.size
 
 
-def _check_sensor(v: np.ndarray, name: str, rails_v: tuple[float, float] | None,
-                  flat_fraction: float) -> None:
+def _check_sensor(
+    v: np.ndarray, name: str, rails_v: tuple[float, float] | None, flat_fraction: float
+) -> None:
     bad = ~np.isfinite(v)
     if bad.any():
         raise CalibrationError(
@@ -118,7 +121,7 @@ def _window_errors(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per tiled window: frequency, amplitude error (deg), wrapped phase error (deg)."""
     n = angle_deg.size
-    w = max(8, int(round(window_s * fs)))
+    w = max(8, round(window_s * fs))
     hann = np.hanning(w + 2)[1:-1]
     # Truth sampled at a video rate below fs (a finite value every k-th sample) counts as
     # complete at 1/k: min_valid_fraction is relative to the truth's own sampling.
@@ -198,7 +201,8 @@ def calibrate_channel(
         raise CalibrationError(f"columns '{sensor_name}'/'{truth_name}': {exc}") from None
     if not (math.isfinite(fit.gain) and fit.gain != 0):
         raise CalibrationError(
-            f"column '{sensor_name}' does not follow '{truth_name}': gain fit failed")
+            f"column '{sensor_name}' does not follow '{truth_name}': gain fit failed"
+        )
     g = fit.gain
     zero_v = -float(fit.trend[0]) / g if fit.trend.size else 0.0
     drift = -float(fit.trend[1]) / g * 2.0 / (v.size / fs_hz) if fit.trend.size > 1 else 0.0
@@ -274,24 +278,35 @@ def calibrate(
         track = np.asarray(frequency_hz_per_sample, float).reshape(-1)
         if track.size != n:
             raise CalibrationError(
-                f"frequency_hz_per_sample has {track.size} samples, expected {n}")
+                f"frequency_hz_per_sample has {track.size} samples, expected {n}"
+            )
         phase = 2 * np.pi * np.cumsum(track) / fs
     else:
         phase, track = frequency_track_from_drive(drive, fs)
 
-    result: dict[str, Any] = {"reference_voltage_v": float(reference_voltage_v),
-                              "sample_rate_hz": fs}
+    result: dict[str, Any] = {
+        "reference_voltage_v": float(reference_voltage_v),
+        "sample_rate_hz": fs,
+    }
     for ch, (vcol, tcol) in CHANNELS.items():
         v = _column(run, vcol, n)
         _check_sensor(v, vcol, rails_v, flat_fraction)
         y = _column(run, tcol, n)
         y = np.where(np.isfinite(y), y, np.nan)
         cal = calibrate_channel(
-            v, y, fs, reference_voltage_v, sensor_name=vcol, truth_name=tcol,
-            max_lag_s=max_lag_s, trend_order=trend_order, min_valid_truth=min_valid_truth,
+            v,
+            y,
+            fs,
+            reference_voltage_v,
+            sensor_name=vcol,
+            truth_name=tcol,
+            max_lag_s=max_lag_s,
+            trend_order=trend_order,
+            min_valid_truth=min_valid_truth,
         )
-        angle = cal["polarity"] * cal["gain_deg_per_v"] * (
-            v - reference_voltage_v - cal["offset_v"])
+        angle = (
+            cal["polarity"] * cal["gain_deg_per_v"] * (v - reference_voltage_v - cal["offset_v"])
+        )
         freqs, damp, dph = _window_errors(angle, y, phase, track, fs, window_s, min_valid_fraction)
         band = (freqs >= amplitude_band_hz[0]) & (freqs <= amplitude_band_hz[1])
         cal.update(

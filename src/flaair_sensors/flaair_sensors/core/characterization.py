@@ -29,11 +29,13 @@ Figures (``ChannelMetrics``)
 
 Ground truth may hold NaN (video lost the wing): every fit uses the finite samples only.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import interpolate, optimize
@@ -55,22 +57,22 @@ from flaair_sensors.core.bode import (  # re-exported: characterization's whole 
 )
 
 __all__ = [
-    "CharacterizationError",
-    "ChannelBode",
     "Bode",
+    "ChannelBode",
     "ChannelMetrics",
     "Characterization",
+    "CharacterizationError",
     "DelayFit",
-    "frequency_track_from_drive",
-    "stepped_segments",
-    "sine_phasor",
+    "amplitude_phase_rmse",
     "bode_from_chirp",
     "bode_from_stepped",
-    "amplitude_phase_rmse",
-    "fit_delay",
-    "time_metrics",
     "characterize",
     "characterize_run",
+    "fit_delay",
+    "frequency_track_from_drive",
+    "sine_phasor",
+    "stepped_segments",
+    "time_metrics",
     "wrap_deg",
 ]
 
@@ -105,8 +107,11 @@ class Characterization:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict, ready for JSON."""
-        return {"bode": self.bode.as_dict(), "stroke": asdict(self.stroke),
-                "pitch": asdict(self.pitch)}
+        return {
+            "bode": self.bode.as_dict(),
+            "stroke": asdict(self.stroke),
+            "pitch": asdict(self.pitch),
+        }
 
 
 class DelayFit(NamedTuple):
@@ -163,12 +168,13 @@ def fit_delay(
     ok = np.isfinite(y)
     if ok.sum() < min_samples:
         raise CharacterizationError(
-            f"too few finite truth samples ({int(ok.sum())} < {min_samples})")
+            f"too few finite truth samples ({int(ok.sum())} < {min_samples})"
+        )
     t = np.arange(n, dtype=float)
     idx = np.flatnonzero(ok)
     tc = (t - 0.5 * (n - 1)) / max(1.0, 0.5 * (n - 1))
     trend_cols = [tc**k for k in range(trend_order + 1)] if trend_order >= 0 else []
-    max_lag = max(1, int(math.ceil(max_lag_s * fs_hz)))
+    max_lag = max(1, math.ceil(max_lag_s * fs_hz))
 
     def solve(xs: np.ndarray, sel: np.ndarray) -> tuple[float, np.ndarray, float]:
         cols = ([xs] if fit_gain else []) + [c[sel] for c in trend_cols]
@@ -188,7 +194,8 @@ def fit_delay(
     sel = idx[(idx >= max_lag) & (idx < n - max_lag)]
     if sel.size < min_samples:
         raise CharacterizationError(
-            f"too few finite truth samples away from the record ends ({sel.size})")
+            f"too few finite truth samples away from the record ends ({sel.size})"
+        )
     costs = np.array([solve(x[sel + m], sel)[2] for m in range(-max_lag, max_lag + 1)])
     m0 = int(np.argmin(costs)) - max_lag
     spline = interpolate.CubicSpline(t, x)
@@ -279,8 +286,9 @@ def characterize(
     ``frequency_hz_per_sample`` selects the in-band samples for the band time RMSE (estimated
     from the drive when omitted).
     """
-    sig = run_signals(drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad,
-                      pitch_truth_rad)
+    sig = run_signals(
+        drive_v, stroke_sensor_rad, pitch_sensor_rad, stroke_truth_rad, pitch_truth_rad
+    )
     if frequency_hz_per_sample is None:
         _, frequency_hz_per_sample = frequency_track_from_drive(sig["drive"], fs_hz)
     metrics = {}
@@ -288,8 +296,12 @@ def characterize(
         amp_all, ph_all = amplitude_phase_rmse(cb)
         amp_band, _ = amplitude_phase_rmse(cb, amplitude_band_hz)
         t_rmse, lag, t_lag, t_band, n_truth = time_metrics(
-            sig[f"{ch}_sensor"], sig[f"{ch}_truth"], fs_hz, frequency_hz_per_sample,
-            band_hz=time_band_hz, max_lag_s=max_lag_s,
+            sig[f"{ch}_sensor"],
+            sig[f"{ch}_truth"],
+            fs_hz,
+            frequency_hz_per_sample,
+            band_hz=time_band_hz,
+            max_lag_s=max_lag_s,
         )
         metrics[ch] = ChannelMetrics(
             amplitude_rmse_deg=amp_all,
@@ -353,22 +365,45 @@ def characterize_run(
     drive = np.asarray(run["drive_v"], float)
     if method == "chirp":
         bode = bode_from_chirp(
-            drive, stroke_s, pitch_s, stroke_t, pitch_t, fs,
-            frequency_hz_per_sample=frequency_hz_per_sample, frequencies_hz=frequencies_hz,
-            window_s=window_s, pitch_phase_reference=pitch_phase_reference,
+            drive,
+            stroke_s,
+            pitch_s,
+            stroke_t,
+            pitch_t,
+            fs,
+            frequency_hz_per_sample=frequency_hz_per_sample,
+            frequencies_hz=frequencies_hz,
+            window_s=window_s,
+            pitch_phase_reference=pitch_phase_reference,
         )
     elif method == "stepped":
         if frequency_hz_per_sample is None:
             raise CharacterizationError("method 'stepped' needs frequency_hz_per_sample")
         bode = bode_from_stepped(
-            drive, stroke_s, pitch_s, stroke_t, pitch_t, fs, frequency_hz_per_sample,
-            settle_fraction=settle_fraction, pitch_phase_reference=pitch_phase_reference,
+            drive,
+            stroke_s,
+            pitch_s,
+            stroke_t,
+            pitch_t,
+            fs,
+            frequency_hz_per_sample,
+            settle_fraction=settle_fraction,
+            pitch_phase_reference=pitch_phase_reference,
         )
     else:
         raise CharacterizationError(f"method must be 'chirp' or 'stepped', got {method!r}")
     return characterize(
-        bode, drive, stroke_s, pitch_s, stroke_t, pitch_t, fs, frequency_hz_per_sample,
-        amplitude_band_hz=amplitude_band_hz, time_band_hz=time_band_hz, max_lag_s=max_lag_s,
+        bode,
+        drive,
+        stroke_s,
+        pitch_s,
+        stroke_t,
+        pitch_t,
+        fs,
+        frequency_hz_per_sample,
+        amplitude_band_hz=amplitude_band_hz,
+        time_band_hz=time_band_hz,
+        max_lag_s=max_lag_s,
     )
 
 
@@ -419,7 +454,7 @@ def tiled_transfer(
     """
     d = as_1d(drive_v, "drive_v")
     phase, freq = track if track is not None else frequency_track_from_drive(d, fs_hz)
-    win = max(8, int(round(window_s * fs_hz)))
+    win = max(8, round(window_s * fs_hz))
     k = d.size // win
     f_out = np.full(k, np.nan)
     out = {name: np.full(k, complex(math.nan, math.nan)) for name in signals}

@@ -54,6 +54,7 @@ sample in one compiled kernel (``_block``, scipy.signal.lfilter's arithmetic fro
 ``flaair_model.lfilter``): a 10-sample block costs a few microseconds instead of a dozen numpy
 and scipy calls.
 """
+
 from __future__ import annotations
 
 import math
@@ -78,23 +79,23 @@ from flaair_sensors.core.frontend_params import (
 )
 
 __all__ = [
+    "TUNING_FIELDS",
     "FrontendError",
     "FrontendParams",
     "FrontendState",
     "WingEstimate",
-    "params_from_model",
-    "params_from_calibration",
-    "initial_state",
-    "step",
-    "estimate",
     "drift_removal_response",
-    "lag_compensation_response",
-    "lag_compensation_noise_gain",
-    "velocity_response",
-    "velocity_phase_lag_deg",
+    "estimate",
     "estimate_delay_s",
+    "initial_state",
+    "lag_compensation_noise_gain",
+    "lag_compensation_response",
+    "params_from_calibration",
+    "params_from_model",
+    "step",
+    "velocity_phase_lag_deg",
+    "velocity_response",
     "with_overrides",
-    "TUNING_FIELDS",
 ]
 
 
@@ -161,10 +162,16 @@ def _filters(p: FrontendParams) -> _Filters:
         db, da = signal.butter(1, p.drift_corner_hz, btype="low", fs=fs)
     else:
         db, da = np.array([0.0, 0.0]), np.array([1.0, 0.0])
-    sl = _lead_ba(p.stroke_lag_s, p.lead_rolloff_hz, fs) if (
-        p.compensate_lag and p.stroke_lag_s != 0.0) else None
-    pl = _lead_ba(p.pitch_lag_s, p.lead_rolloff_hz, fs) if (
-        p.compensate_lag and p.pitch_lag_s != 0.0) else None
+    sl = (
+        _lead_ba(p.stroke_lag_s, p.lead_rolloff_hz, fs)
+        if (p.compensate_lag and p.stroke_lag_s != 0.0)
+        else None
+    )
+    pl = (
+        _lead_ba(p.pitch_lag_s, p.lead_rolloff_hz, fs)
+        if (p.compensate_lag and p.pitch_lag_s != 0.0)
+        else None
+    )
     vb, va = _velocity_ba(p.velocity_cutoff_hz, fs)
     return _Filters(np.asarray(db, float), np.asarray(da, float), sl, pl, vb, va)
 
@@ -182,8 +189,9 @@ def drift_removal_response(params: FrontendParams, frequency_hz: np.ndarray | fl
     return 1.0 - h
 
 
-def lag_compensation_response(params: FrontendParams, frequency_hz: np.ndarray | float,
-                              channel: str = "stroke") -> np.ndarray:
+def lag_compensation_response(
+    params: FrontendParams, frequency_hz: np.ndarray | float, channel: str = "stroke"
+) -> np.ndarray:
     """Residual of lag compensation: LEAD(f) * exp(-j 2 pi f lag) (1 = perfect; identity if off)."""
     f = np.atleast_1d(np.asarray(frequency_hz, float))
     lag = _channel_lag(params, channel)
@@ -218,8 +226,11 @@ def velocity_response(params: FrontendParams, frequency_hz: float) -> tuple[floa
     _, h = signal.freqz(flt.vel_b, flt.vel_a, worN=[f], fs=params.sample_rate_hz)
     ratio = h[0] / (2j * np.pi * f)
     _, gd = signal.group_delay((flt.vel_b, flt.vel_a), w=[f], fs=params.sample_rate_hz)
-    return (float(abs(ratio)), float(-np.degrees(np.angle(ratio))),
-            float(gd[0] / params.sample_rate_hz))
+    return (
+        float(abs(ratio)),
+        float(-np.degrees(np.angle(ratio))),
+        float(gd[0] / params.sample_rate_hz),
+    )
 
 
 def velocity_phase_lag_deg(params: FrontendParams, frequency_hz: float = 140.0) -> float:
@@ -238,8 +249,9 @@ def estimate_delay_s(params: FrontendParams, frequency_hz: float = 140.0) -> dic
     out = {}
     for ch in ("stroke", "pitch"):
         out[f"{ch}_s"] = -float(np.angle(lag_compensation_response(params, f, ch)[0])) / w + drift
-    out["stroke_velocity_s"] = out["stroke_s"] + float(
-        np.radians(velocity_phase_lag_deg(params, f))) / w
+    out["stroke_velocity_s"] = (
+        out["stroke_s"] + float(np.radians(velocity_phase_lag_deg(params, f))) / w
+    )
     return out
 
 
@@ -273,8 +285,9 @@ def initial_state(
         transient from a V_HREF error). ``None`` trusts the calibrated offset (tracker at zero).
     """
     flt = _filters(params)
-    zi_drift_unit = (signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0
-                     else np.zeros(1))
+    zi_drift_unit = (
+        signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0 else np.zeros(1)
+    )
 
     def drift_zi(first_v: float | None, offset: float, name: str) -> np.ndarray:
         if first_v is None or params.drift_corner_hz <= 0:
@@ -320,18 +333,51 @@ def _kernel_constants(p: FrontendParams) -> tuple:
     rails = bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf)
     stroke_lead = normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER)
     pitch_lead = normalized_ba(*flt.pitch_lead) if flt.pitch_lead else (_NO_FILTER, _NO_FILTER)
-    return (p.reference_voltage_v + p.stroke_offset_v, p.reference_voltage_v + p.pitch_offset_v,
-            float(p.stroke_volts_per_rad), float(p.pitch_volts_per_rad), rails,
-            p.rail_low_v + p.rail_margin_v, p.rail_high_v - p.rail_margin_v, p.holdoff_samples,
-            p.drift_corner_hz > 0, *normalized_ba(flt.drift_b, flt.drift_a),
-            flt.stroke_lead is not None, *stroke_lead, flt.pitch_lead is not None, *pitch_lead,
-            *normalized_ba(flt.vel_b, flt.vel_a))
+    return (
+        p.reference_voltage_v + p.stroke_offset_v,
+        p.reference_voltage_v + p.pitch_offset_v,
+        float(p.stroke_volts_per_rad),
+        float(p.pitch_volts_per_rad),
+        rails,
+        p.rail_low_v + p.rail_margin_v,
+        p.rail_high_v - p.rail_margin_v,
+        p.holdoff_samples,
+        p.drift_corner_hz > 0,
+        *normalized_ba(flt.drift_b, flt.drift_a),
+        flt.stroke_lead is not None,
+        *stroke_lead,
+        flt.pitch_lead is not None,
+        *pitch_lead,
+        *normalized_ba(flt.vel_b, flt.vel_a),
+    )
 
 
 @njit(cache=True)
-def _channel(v, angle, valid, zero_v, volts_per_rad, rails, above_v, below_v, holdoff, since_bad,
-             drift, drift_b, drift_a, drift_z, lead, lead_b, lead_a, lead_z,
-             velocity, velocity_b, velocity_a, velocity_z, velocity_out):
+def _channel(
+    v,
+    angle,
+    valid,
+    zero_v,
+    volts_per_rad,
+    rails,
+    above_v,
+    below_v,
+    holdoff,
+    since_bad,
+    drift,
+    drift_b,
+    drift_a,
+    drift_z,
+    lead,
+    lead_b,
+    lead_a,
+    lead_z,
+    velocity,
+    velocity_b,
+    velocity_a,
+    velocity_z,
+    velocity_out,
+):
     """One channel, sample by sample; filter states
     (``*_z``) advance in place on usable samples only.
 
@@ -363,25 +409,99 @@ def _channel(v, angle, valid, zero_v, volts_per_rad, rails, above_v, below_v, ho
 
 
 @njit(cache=True)
-def _block(sv, pv, stroke_drift_zi, pitch_drift_zi, stroke_lead_zi, pitch_lead_zi, velocity_zi,
-           stroke_since_bad, pitch_since_bad, stroke_zero_v, pitch_zero_v, stroke_vpr, pitch_vpr,
-           rails, above_v, below_v, holdoff, drift, drift_b, drift_a, stroke_lead, stroke_lead_b,
-           stroke_lead_a, pitch_lead, pitch_lead_b, pitch_lead_a, velocity_b, velocity_a):
+def _block(
+    sv,
+    pv,
+    stroke_drift_zi,
+    pitch_drift_zi,
+    stroke_lead_zi,
+    pitch_lead_zi,
+    velocity_zi,
+    stroke_since_bad,
+    pitch_since_bad,
+    stroke_zero_v,
+    pitch_zero_v,
+    stroke_vpr,
+    pitch_vpr,
+    rails,
+    above_v,
+    below_v,
+    holdoff,
+    drift,
+    drift_b,
+    drift_a,
+    stroke_lead,
+    stroke_lead_b,
+    stroke_lead_a,
+    pitch_lead,
+    pitch_lead_b,
+    pitch_lead_a,
+    velocity_b,
+    velocity_a,
+):
     """Both channels of one block: rows (stroke, pitch, stroke velocity), rows
     (stroke, pitch) valid, the five new filter states and the two hold-off counters.
     """
     n = sv.size
     out = np.empty((3, n))
     valid = np.empty((2, n), np.bool_)
-    s_dz, p_dz, s_lz, p_lz, v_z = (stroke_drift_zi.copy(), pitch_drift_zi.copy(),
-                                   stroke_lead_zi.copy(), pitch_lead_zi.copy(), velocity_zi.copy())
-    s_since = _channel(sv, out[0], valid[0], stroke_zero_v, stroke_vpr, rails, above_v, below_v,
-                       holdoff, stroke_since_bad, drift, drift_b, drift_a, s_dz, stroke_lead,
-                       stroke_lead_b, stroke_lead_a, s_lz, True, velocity_b, velocity_a, v_z,
-                       out[2])
-    p_since = _channel(pv, out[1], valid[1], pitch_zero_v, pitch_vpr, rails, above_v, below_v,
-                       holdoff, pitch_since_bad, drift, drift_b, drift_a, p_dz, pitch_lead,
-                       pitch_lead_b, pitch_lead_a, p_lz, False, velocity_b, velocity_a, v_z, out[2])
+    s_dz, p_dz, s_lz, p_lz, v_z = (
+        stroke_drift_zi.copy(),
+        pitch_drift_zi.copy(),
+        stroke_lead_zi.copy(),
+        pitch_lead_zi.copy(),
+        velocity_zi.copy(),
+    )
+    s_since = _channel(
+        sv,
+        out[0],
+        valid[0],
+        stroke_zero_v,
+        stroke_vpr,
+        rails,
+        above_v,
+        below_v,
+        holdoff,
+        stroke_since_bad,
+        drift,
+        drift_b,
+        drift_a,
+        s_dz,
+        stroke_lead,
+        stroke_lead_b,
+        stroke_lead_a,
+        s_lz,
+        True,
+        velocity_b,
+        velocity_a,
+        v_z,
+        out[2],
+    )
+    p_since = _channel(
+        pv,
+        out[1],
+        valid[1],
+        pitch_zero_v,
+        pitch_vpr,
+        rails,
+        above_v,
+        below_v,
+        holdoff,
+        pitch_since_bad,
+        drift,
+        drift_b,
+        drift_a,
+        p_dz,
+        pitch_lead,
+        pitch_lead_b,
+        pitch_lead_a,
+        p_lz,
+        False,
+        velocity_b,
+        velocity_a,
+        v_z,
+        out[2],
+    )
     return out, valid, s_dz, p_dz, s_lz, p_lz, v_z, s_since, p_since
 
 
@@ -399,8 +519,9 @@ def warm_up(params: FrontendParams, n: int = 10) -> None:
     step(initial_state(params), FrontendInputs(np.zeros(n), np.zeros(n)), params)
 
 
-def step(state: FrontendState, inputs: FrontendInputs,
-         params: FrontendParams) -> tuple[FrontendState, WingEstimate]:
+def step(
+    state: FrontendState, inputs: FrontendInputs, params: FrontendParams
+) -> tuple[FrontendState, WingEstimate]:
     """Advance the front end by one block of samples.
 
     Parameters
@@ -425,10 +546,18 @@ def step(state: FrontendState, inputs: FrontendInputs,
             f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and "
             f"{pv.size}"
         )
-    out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = (
-        _block(sv, pv, state.stroke_drift_zi, state.pitch_drift_zi, state.stroke_lead_zi,
-               state.pitch_lead_zi, state.velocity_zi, state.stroke_since_bad,
-               state.pitch_since_bad, *_kernel_constants(params)))
+    out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = _block(
+        sv,
+        pv,
+        state.stroke_drift_zi,
+        state.pitch_drift_zi,
+        state.stroke_lead_zi,
+        state.pitch_lead_zi,
+        state.velocity_zi,
+        state.stroke_since_bad,
+        state.pitch_since_bad,
+        *_kernel_constants(params),
+    )
     new_state = FrontendState(
         stroke_drift_zi=s_dzi,
         pitch_drift_zi=p_dzi,

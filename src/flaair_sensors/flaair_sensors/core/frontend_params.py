@@ -1,14 +1,22 @@
 """The front end's parameters: the frozen, validated
 `FrontendParams`, and how a model or a calibration gives them.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any
 
-__all__ = ["FrontendError", "FrontendParams", "params_from_model", "TUNING_FIELDS",
-           "params_from_calibration", "with_overrides"]
+__all__ = [
+    "TUNING_FIELDS",
+    "FrontendError",
+    "FrontendParams",
+    "params_from_calibration",
+    "params_from_model",
+    "with_overrides",
+]
 
 
 class FrontendError(ValueError):
@@ -72,29 +80,38 @@ class FrontendParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v != 0.0):
                 raise FrontendError(f"{name} must be finite and non-zero, got {v!r}")
-        for name in ("reference_voltage_v", "stroke_offset_v", "pitch_offset_v", "stroke_lag_s",
-                     "pitch_lag_s"):
+        for name in (
+            "reference_voltage_v",
+            "stroke_offset_v",
+            "pitch_offset_v",
+            "stroke_lag_s",
+            "pitch_lag_s",
+        ):
             if not math.isfinite(getattr(self, name)):
                 raise FrontendError(f"{name} must be finite, got {getattr(self, name)!r}")
         if not (0.0 <= self.drift_corner_hz < fs / 2):
             raise FrontendError(
-                f"drift_corner_hz must be in [0, fs/2), got {self.drift_corner_hz!r}")
+                f"drift_corner_hz must be in [0, fs/2), got {self.drift_corner_hz!r}"
+            )
         if not (0.0 < self.velocity_cutoff_hz < fs / 2):
             raise FrontendError(
-                f"velocity_cutoff_hz must be in (0, fs/2), got {self.velocity_cutoff_hz!r}")
+                f"velocity_cutoff_hz must be in (0, fs/2), got {self.velocity_cutoff_hz!r}"
+            )
         if not (0.0 < self.lead_rolloff_hz < fs / 2):
             raise FrontendError(
-                f"lead_rolloff_hz must be in (0, fs/2), got {self.lead_rolloff_hz!r}")
+                f"lead_rolloff_hz must be in (0, fs/2), got {self.lead_rolloff_hz!r}"
+            )
         if not self.rail_low_v < self.rail_high_v:
             raise FrontendError(
-                f"rail_low_v ({self.rail_low_v}) must be below rail_high_v ({self.rail_high_v})")
+                f"rail_low_v ({self.rail_low_v}) must be below rail_high_v ({self.rail_high_v})"
+            )
         if not (self.rail_margin_v >= 0.0 and self.holdoff_s >= 0.0):
             raise FrontendError("rail_margin_v and holdoff_s must be >= 0")
 
     @property
     def holdoff_samples(self) -> int:
         """Hold-off after an unusable sample, in samples."""
-        return int(math.ceil(self.holdoff_s * self.sample_rate_hz - 1e-9))
+        return math.ceil(self.holdoff_s * self.sample_rate_hz - 1e-9)
 
 
 def params_from_model(model: Any, fs_hz: float, **overrides: Any) -> FrontendParams:
@@ -122,15 +139,24 @@ def params_from_model(model: Any, fs_hz: float, **overrides: Any) -> FrontendPar
     return _params(fields)
 
 
-TUNING_FIELDS = ("drift_corner_hz", "compensate_lag", "lead_rolloff_hz", "rail_low_v",
-                 "rail_high_v", "rail_margin_v", "holdoff_s", "velocity_cutoff_hz")
+TUNING_FIELDS = (
+    "drift_corner_hz",
+    "compensate_lag",
+    "lead_rolloff_hz",
+    "rail_low_v",
+    "rail_high_v",
+    "rail_margin_v",
+    "holdoff_s",
+    "velocity_cutoff_hz",
+)
 
 
 def _params(fields: dict[str, Any]) -> FrontendParams:
     missing = [name for name in TUNING_FIELDS if name not in fields]
     if missing:
         raise FrontendError(
-            f"front-end tuning missing: {', '.join(missing)} (config/flaair.yaml frontend_node)")
+            f"front-end tuning missing: {', '.join(missing)} (config/flaair.yaml frontend_node)"
+        )
     return FrontendParams(**fields)
 
 
@@ -144,8 +170,9 @@ def _model_gain(model: Any, name: str) -> float:
     return float(value)
 
 
-def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float,
-                            **overrides: Any) -> FrontendParams:
+def params_from_calibration(
+    calibration: Mapping[str, Any], fs_hz: float, **overrides: Any
+) -> FrontendParams:
     """Front-end parameters from a ``calibration.calibrate`` result (or its JSON).
 
     angle_deg = polarity * gain_deg_per_v * (V - reference_voltage_v - offset_v), delayed by lag_s.
@@ -166,8 +193,10 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float,
     except KeyError:
         raise FrontendError("calibration has no 'reference_voltage_v'") from None
     except (TypeError, ValueError):
-        raise FrontendError(f"calibration['reference_voltage_v'] must be a number, "
-                            f"got {calibration['reference_voltage_v']!r}") from None
+        raise FrontendError(
+            f"calibration['reference_voltage_v'] must be a number, "
+            f"got {calibration['reference_voltage_v']!r}"
+        ) from None
     for channel in ("stroke", "pitch"):
         if channel not in calibration:
             raise FrontendError(f"calibration has no '{channel}' section")
@@ -180,15 +209,18 @@ def params_from_calibration(calibration: Mapping[str, Any], fs_hz: float,
                 float(c[key])
             except (TypeError, ValueError):
                 raise FrontendError(
-                    f"calibration['{channel}']['{key}'] must be a number, got {c[key]!r}") from None
+                    f"calibration['{channel}']['{key}'] must be a number, got {c[key]!r}"
+                ) from None
         gain = float(c["gain_deg_per_v"])
         polarity = float(c["polarity"])
         if not (math.isfinite(gain) and gain > 0):
             raise FrontendError(
-                f"calibration['{channel}']['gain_deg_per_v'] must be > 0, got {gain!r}")
+                f"calibration['{channel}']['gain_deg_per_v'] must be > 0, got {gain!r}"
+            )
         if polarity not in (1.0, -1.0):
             raise FrontendError(
-                f"calibration['{channel}']['polarity'] must be +1 or -1, got {polarity!r}")
+                f"calibration['{channel}']['polarity'] must be +1 or -1, got {polarity!r}"
+            )
         fields[f"{channel}_volts_per_rad"] = polarity / math.radians(gain)
         fields[f"{channel}_offset_v"] = float(c["offset_v"])
         fields[f"{channel}_lag_s"] = float(c["lag_s"])

@@ -11,5 +11,14 @@
 - ``drive_pacing``: when the open-loop drive generator sends which block
 """
 
-__all__ = ["plant", "plant_params", "plant_terms", "term_kernel", "sensor_kernel", "measured_run",
-           "actuator", "drive", "drive_pacing"]
+__all__ = [
+    "actuator",
+    "drive",
+    "drive_pacing",
+    "measured_run",
+    "plant",
+    "plant_params",
+    "plant_terms",
+    "sensor_kernel",
+    "term_kernel",
+]

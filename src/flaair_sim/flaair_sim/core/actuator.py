@@ -19,18 +19,19 @@ not all zeros (a source that stops cleanly sends a zero block first), the drive 
 the wing rings down with zero drive at the real-time rate for ring_down_s of signal time; a
 command that continues the sample count re-arms it.
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple, Union
+from typing import NamedTuple
 
 import numpy as np
 
 from flaair_common.stream import check_block
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
-MAX_PENDING = 1000   # realtime: queued command blocks kept (0.5 s at 20 kHz in 10-sample blocks)
+MAX_PENDING = 1000  # realtime: queued command blocks kept (0.5 s at 20 kHz in 10-sample blocks)
 
 
 @dataclass(frozen=True)
@@ -39,8 +40,8 @@ class ActuatorParams:
 
     sample_rate_hz: float
     block_size: int
-    mode: str                    # lockstep | realtime
-    command_timeout_s: float     # 0: no watchdog
+    mode: str  # lockstep | realtime
+    command_timeout_s: float  # 0: no watchdog
     ring_down_s: float
     arm_s: float
 
@@ -60,7 +61,6 @@ class Tick(NamedTuple):
     t_wall: float
 
 
-
 class Outputs(NamedTuple):
     """Drive blocks to step now (in order) and what to log."""
 
@@ -73,14 +73,14 @@ class ActuatorState(NamedTuple):
     and a command block takes several).
     """
 
-    next_index: int                                  # first sample index of the next stepped block
+    next_index: int  # first sample index of the next stepped block
     expected_command_index: int | None
     last_command_wall: float
-    driven: bool                                     # last applied block not all zeros
+    driven: bool  # last applied block not all zeros
     commanded_samples: int
-    ring_down: tuple[float, int, int] | None         # (wall start, first index, end index)
-    pending: tuple[np.ndarray, ...]                  # realtime: queued commands
-    wall_start_s: float                              # realtime: wall time of sample 0
+    ring_down: tuple[float, int, int] | None  # (wall start, first index, end index)
+    pending: tuple[np.ndarray, ...]  # realtime: queued commands
+    wall_start_s: float  # realtime: wall time of sample 0
     rejected: int
 
 
@@ -89,8 +89,9 @@ def initial_state(params: ActuatorParams, *, t_wall: float) -> ActuatorState:
     return ActuatorState(0, None, t_wall, False, 0, None, (), t_wall, 0)
 
 
-def step(state: ActuatorState, inputs: Union[Command, Tick],
-         p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
+def step(
+    state: ActuatorState, inputs: Command | Tick, p: ActuatorParams
+) -> tuple[ActuatorState, Outputs]:
     """Advance the driver by one command block or one wall-clock tick."""
     if isinstance(inputs, Command):
         return _on_command(state, inputs, p)
@@ -102,23 +103,43 @@ def _emit(state: ActuatorState, blocks: list[np.ndarray], drive_v: np.ndarray) -
     return state._replace(next_index=state.next_index + drive_v.size)
 
 
-def _on_command(state: ActuatorState, c: Command,
-                p: ActuatorParams) -> tuple[ActuatorState, Outputs]:
+def _on_command(
+    state: ActuatorState, c: Command, p: ActuatorParams
+) -> tuple[ActuatorState, Outputs]:
     first = int(c.first_sample_index)
     drive_v = np.array(c.drive_v, dtype=np.float64)
     notes: list[Note] = []
     # Fast path (every block of a healthy stream; a finite sum proves every sample finite, an
     # overflowing one goes the slow way); check_block names what is wrong otherwise.
-    if not (first == state.expected_command_index and drive_v.size == p.block_size
-            and c.sample_rate_hz == p.sample_rate_hz and math.isfinite(np.add.reduce(drive_v))):
-        check = check_block({"drive_v": drive_v}, c.sample_rate_hz, p.sample_rate_hz, first,
-                            state.expected_command_index, p.block_size)
+    if not (
+        first == state.expected_command_index
+        and drive_v.size == p.block_size
+        and c.sample_rate_hz == p.sample_rate_hz
+        and math.isfinite(np.add.reduce(drive_v))
+    ):
+        check = check_block(
+            {"drive_v": drive_v},
+            c.sample_rate_hz,
+            p.sample_rate_hz,
+            first,
+            state.expected_command_index,
+            p.block_size,
+        )
         if not check.ok:
             state = state._replace(rejected=state.rejected + 1)
-            action = {"stale": "ignored", "gap": "accepted after the gap",
-                      "content": "holding zero drive"}[check.kind]
-            notes.append(Note(WARNING, f"rejected command block {first} ({check.reason}); {action} "
-                                       f"[{state.rejected} rejected so far]", "rejected"))
+            action = {
+                "stale": "ignored",
+                "gap": "accepted after the gap",
+                "content": "holding zero drive",
+            }[check.kind]
+            notes.append(
+                Note(
+                    WARNING,
+                    f"rejected command block {first} ({check.reason}); {action} "
+                    f"[{state.rejected} rejected so far]",
+                    "rejected",
+                )
+            )
             if check.kind == "stale":
                 # a duplicate must not advance the plant again
                 return state, Outputs((), tuple(notes))
@@ -126,13 +147,19 @@ def _on_command(state: ActuatorState, c: Command,
                 drive_v = np.zeros(p.block_size)
     state = state._replace(expected_command_index=first + p.block_size, last_command_wall=c.t_wall)
     if p.mode != "lockstep":
-        return (state._replace(pending=(state.pending + (drive_v,))[-MAX_PENDING:]),
-                Outputs((), tuple(notes)))
+        return (
+            state._replace(pending=((*state.pending, drive_v))[-MAX_PENDING:]),
+            Outputs((), tuple(notes)),
+        )
     if state.ring_down is not None:
-        notes.append(Note(
-            INFO, f"drive commands resumed at block {first}; drive watchdog re-armed"))
-    state = state._replace(ring_down=None, driven=bool(drive_v.any()),
-                           commanded_samples=state.commanded_samples + drive_v.size)
+        notes.append(
+            Note(INFO, f"drive commands resumed at block {first}; drive watchdog re-armed")
+        )
+    state = state._replace(
+        ring_down=None,
+        driven=bool(drive_v.any()),
+        commanded_samples=state.commanded_samples + drive_v.size,
+    )
     blocks: list[np.ndarray] = []
     state = _emit(state, blocks, drive_v)
     return state, Outputs(tuple(blocks), tuple(notes))
@@ -162,21 +189,32 @@ def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[Actua
         armed = state.commanded_samples >= p.arm_s * p.sample_rate_hz
         if not (armed and state.driven and silent_s > p.command_timeout_s):
             return state, Outputs()
-        n_ring = int(round(p.ring_down_s * p.sample_rate_hz / p.block_size)) * p.block_size
-        state = state._replace(ring_down=(
-            now, state.next_index, state.next_index + n_ring), driven=False)
-        notes.append(Note(ERROR, f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> "
-                                 f"command_timeout_s {p.command_timeout_s:g} s) after block "
-                                 f"{state.next_index - p.block_size}, last drive not zero: drive "
-                                 f"zeroed, ringing down for {p.ring_down_s:g} s"))
-    assert state.ring_down is not None   # set just above when the watchdog trips
+        n_ring = round(p.ring_down_s * p.sample_rate_hz / p.block_size) * p.block_size
+        state = state._replace(
+            ring_down=(now, state.next_index, state.next_index + n_ring), driven=False
+        )
+        notes.append(
+            Note(
+                ERROR,
+                f"DRIVE WATCHDOG: no command block for {1e3 * silent_s:.1f} ms (> "
+                f"command_timeout_s {p.command_timeout_s:g} s) after block "
+                f"{state.next_index - p.block_size}, last drive not zero: drive "
+                f"zeroed, ringing down for {p.ring_down_s:g} s",
+            )
+        )
+    assert state.ring_down is not None  # set just above when the watchdog trips
     wall_start, first, end = state.ring_down
     due = min(end, first + int((now - wall_start) * p.sample_rate_hz))
     while state.next_index + p.block_size <= due:
         state = _emit(state, blocks, zero)
     if blocks and state.next_index == end:
-        notes.append(Note(
-            INFO, f"ring-down done at sample {end}: zero drive held until a command block comes"))
+        notes.append(
+            Note(
+                INFO, f"ring-down done at sample {end}: zero drive held until a command block comes"
+            )
+        )
     # the stream continues from here: a command for the next block is in order
-    return (state._replace(expected_command_index=state.next_index),
-            Outputs(tuple(blocks), tuple(notes)))
+    return (
+        state._replace(expected_command_index=state.next_index),
+        Outputs(tuple(blocks), tuple(notes)),
+    )

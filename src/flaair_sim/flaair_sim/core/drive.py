@@ -9,11 +9,12 @@ index), so the block form `drive_step` gives bit-identical samples to the whole 
 - stepped_sine: each frequency held dwell_s (rounded to whole samples), phase-continuous
   across steps; after the last step it continues at the last frequency.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -22,12 +23,12 @@ __all__ = [
     "DriveError",
     "DriveParams",
     "DriveState",
-    "sine",
     "chirp",
-    "stepped_sine",
-    "stepped_sine_frequencies_hz",
     "drive_record",
     "drive_step",
+    "sine",
+    "stepped_sine",
+    "stepped_sine_frequencies_hz",
 ]
 
 DRIVE_KINDS = ("sine", "chirp", "stepped_sine")
@@ -57,16 +58,20 @@ def _positive(name: str, value: float) -> float:
 
 
 def sine(
-    t_s: np.ndarray, amplitude_v: float, frequency_hz: float, bias_v: float = 0.0,
-    phase_rad: float = 0.0
+    t_s: np.ndarray,
+    amplitude_v: float,
+    frequency_hz: float,
+    bias_v: float = 0.0,
+    phase_rad: float = 0.0,
 ) -> np.ndarray:
     """bias_v + amplitude_v * sin(2 pi frequency_hz t + phase_rad)."""
     t = np.asarray(t_s, dtype=np.float64)
     return bias_v + amplitude_v * np.sin(2.0 * np.pi * frequency_hz * t + phase_rad)
 
 
-def chirp(t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float,
-          duration_s: float) -> np.ndarray:
+def chirp(
+    t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float, duration_s: float
+) -> np.ndarray:
     """Linear, phase-continuous chirp from start_hz (t = 0) to stop_hz (t = duration_s).
 
     Past duration_s the frequency stays at stop_hz (phase-continuous); before 0 at start_hz.
@@ -75,8 +80,9 @@ def chirp(t_s: np.ndarray, amplitude_v: float, start_hz: float, stop_hz: float,
     t = np.asarray(t_s, dtype=np.float64)
     rate = (stop_hz - start_hz) / duration_s
     inside = np.clip(t, 0.0, duration_s)
-    cycles = (start_hz * inside + 0.5 * rate * inside * inside + stop_hz
-              * np.maximum(t - duration_s, 0.0))
+    cycles = (
+        start_hz * inside + 0.5 * rate * inside * inside + stop_hz * np.maximum(t - duration_s, 0.0)
+    )
     cycles = cycles + start_hz * np.minimum(t, 0.0)
     return amplitude_v * np.sin(2.0 * np.pi * cycles)
 
@@ -95,7 +101,7 @@ def _stepped_sine_at(
 
 
 def _dwell_samples(fs_hz: float, dwell_s: float) -> int:
-    n = int(round(_positive("dwell_s", dwell_s) * _positive("fs_hz", fs_hz)))
+    n = round(_positive("dwell_s", dwell_s) * _positive("fs_hz", fs_hz))
     if n < 1:
         raise DriveError(f"dwell_s {dwell_s:g} is shorter than one sample at fs_hz {fs_hz:g}")
     return n
@@ -124,7 +130,7 @@ def stepped_sine(
 
 def stepped_sine_frequencies_hz(start_hz: float, stop_hz: float, step_hz: float) -> np.ndarray:
     """start_hz, start_hz + step_hz, ... up to stop_hz inclusive (within half a step)."""
-    count = int(math.floor((stop_hz - start_hz) / step_hz + 0.5)) + 1
+    count = math.floor((stop_hz - start_hz) / step_hz + 0.5) + 1
     return start_hz + step_hz * np.arange(max(count, 1))
 
 
@@ -152,8 +158,17 @@ class DriveParams:
     def __post_init__(self) -> None:
         if self.kind not in DRIVE_KINDS:
             raise DriveError(f"kind must be one of {', '.join(DRIVE_KINDS)}, got {self.kind!r}")
-        for name in ("amplitude_v", "bias_v", "frequency_hz", "start_hz", "stop_hz", "duration_s",
-                     "step_hz", "dwell_s", "lead_in_s"):
+        for name in (
+            "amplitude_v",
+            "bias_v",
+            "frequency_hz",
+            "start_hz",
+            "stop_hz",
+            "duration_s",
+            "step_hz",
+            "dwell_s",
+            "lead_in_s",
+        ):
             object.__setattr__(self, name, _finite(name, getattr(self, name)))
         if self.lead_in_s < 0:
             raise DriveError(f"lead_in_s must be >= 0, got {self.lead_in_s:g}")
@@ -166,7 +181,8 @@ class DriveParams:
             _positive(name, getattr(self, name))
         if self.kind == "stepped_sine" and self.stop_hz < self.start_hz:
             raise DriveError(
-                f"stop_hz {self.stop_hz:g} must be >= start_hz {self.start_hz:g} for stepped_sine")
+                f"stop_hz {self.stop_hz:g} must be >= start_hz {self.start_hz:g} for stepped_sine"
+            )
 
 
 @dataclass(frozen=True)
@@ -177,7 +193,7 @@ class DriveState:
 
 
 def _samples(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
-    lead = int(round(params.lead_in_s * fs_hz))
+    lead = round(params.lead_in_s * fs_hz)
     if lead:
         out = np.zeros(k.shape)
         running = k >= lead
@@ -191,8 +207,9 @@ def _waveform(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
     if params.kind == "sine":
         return sine(t, params.amplitude_v, params.frequency_hz, params.bias_v)
     if params.kind == "chirp":
-        return (params.bias_v + chirp(
-            t, params.amplitude_v, params.start_hz, params.stop_hz, params.duration_s))
+        return params.bias_v + chirp(
+            t, params.amplitude_v, params.start_hz, params.stop_hz, params.duration_s
+        )
     freqs = stepped_sine_frequencies_hz(params.start_hz, params.stop_hz, params.step_hz)
     dwell = _dwell_samples(fs_hz, params.dwell_s)
     return params.bias_v + _stepped_sine_at(k, fs_hz, params.amplitude_v, freqs, dwell)[0]
@@ -203,8 +220,9 @@ def drive_record(params: DriveParams, fs_hz: float, n_samples: int) -> np.ndarra
     return _samples(np.arange(int(n_samples)), _positive("fs_hz", fs_hz), params)
 
 
-def drive_step(state: DriveState, n_samples: int, fs_hz: float,
-               params: DriveParams) -> tuple[DriveState, np.ndarray]:
+def drive_step(
+    state: DriveState, n_samples: int, fs_hz: float, params: DriveParams
+) -> tuple[DriveState, np.ndarray]:
     """Next `n_samples` of the drive.
 
     Parameters

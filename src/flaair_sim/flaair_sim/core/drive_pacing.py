@@ -19,6 +19,7 @@ Ending: after `run_time_s` of signal (lead-in included), and at `Close` if the l
 not zero, one block of zero drive follows, so the actuator is never left holding a voltage.
 Every block is clamped to +-drive_limit_v (an input: the node's parameter may change live).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -40,11 +41,11 @@ class PacingParams:
 
     sample_rate_hz: float
     block_size: int
-    pacing: str                   # realtime | lockstep
+    pacing: str  # realtime | lockstep
     lockstep_window_blocks: int
     min_subscribers: int
     first_sample_index: int
-    run_time_s: float             # signal time, lead-in included (0: never)
+    run_time_s: float  # signal time, lead-in included (0: never)
     # lockstep: wall time without acknowledgement before one more block
     ack_retry_s: float
     drive: DriveParams
@@ -52,17 +53,19 @@ class PacingParams:
     def __post_init__(self) -> None:
         if self.pacing not in PACINGS:
             raise DriveError(f"pacing must be one of {', '.join(PACINGS)}, got {self.pacing!r}")
-        if not (self.sample_rate_hz > 0 and self.block_size >= 1
-                and self.lockstep_window_blocks >= 1):
+        if not (
+            self.sample_rate_hz > 0 and self.block_size >= 1 and self.lockstep_window_blocks >= 1
+        ):
             raise DriveError(
-                "sample_rate_hz must be > 0, block_size and lockstep_window_blocks >= 1")
+                "sample_rate_hz must be > 0, block_size and lockstep_window_blocks >= 1"
+            )
         if not self.ack_retry_s > 0:
             raise DriveError(f"ack_retry_s must be > 0, got {self.ack_retry_s:g}")
 
     @property
     def total_samples(self) -> int | None:
         """Index one past the last sample of the run (None: runs until closed)."""
-        run_samples = int(round(self.run_time_s * self.sample_rate_hz))
+        run_samples = round(self.run_time_s * self.sample_rate_hz)
         return self.first_sample_index + run_samples if run_samples else None
 
 
@@ -71,13 +74,13 @@ class PacingState:
     """Everything the drive node remembers between events."""
 
     drive: DriveState
-    next_index: int               # first sample index of the next block
-    acknowledged_index: int       # one past the last sample the plant (or front end) answered
+    next_index: int  # first sample index of the next block
+    acknowledged_index: int  # one past the last sample the plant (or front end) answered
     last_ack_index: int
     last_ack_wall: float
     retries: int
     last_block_zero: bool
-    wall_start: float | None      # realtime: wall time of the stream's sample 0
+    wall_start: float | None  # realtime: wall time of the stream's sample 0
 
 
 class Tick(NamedTuple):
@@ -85,7 +88,7 @@ class Tick(NamedTuple):
 
     t_wall: float
     drive_subscribers: int
-    ack_publishers: int           # lockstep: publishers of the acknowledging stream
+    ack_publishers: int  # lockstep: publishers of the acknowledging stream
     drive_limit_v: float
 
 
@@ -125,9 +128,16 @@ class Outputs(NamedTuple):
 def initial_state(params: PacingParams, *, t_wall: float) -> PacingState:
     """Nothing sent, nothing acknowledged; the acknowledgement clock starts at `t_wall`."""
     first = params.first_sample_index
-    return PacingState(drive=DriveState(), next_index=first, acknowledged_index=first,
-                       last_ack_index=-1, last_ack_wall=t_wall, retries=0, last_block_zero=True,
-                       wall_start=None)
+    return PacingState(
+        drive=DriveState(),
+        next_index=first,
+        acknowledged_index=first,
+        last_ack_index=-1,
+        last_ack_wall=t_wall,
+        retries=0,
+        last_block_zero=True,
+        wall_start=None,
+    )
 
 
 def finished(state: PacingState, params: PacingParams) -> bool:
@@ -136,28 +146,43 @@ def finished(state: PacingState, params: PacingParams) -> bool:
     return total is not None and state.next_index >= total
 
 
-def _send(state: PacingState, params: PacingParams, limit_v: float, blocks: list, logs: list,
-          zero: bool = False) -> PacingState:
+def _send(
+    state: PacingState,
+    params: PacingParams,
+    limit_v: float,
+    blocks: list,
+    logs: list,
+    zero: bool = False,
+) -> PacingState:
     """One block (the waveform's next, or zeros); the end-of-run zero block follows it."""
     drive_state = state.drive
     if zero:
         drive_v = np.zeros(params.block_size)
     else:
         drive_state, drive_v = drive_step(
-            state.drive, params.block_size, params.sample_rate_hz, params.drive)
+            state.drive, params.block_size, params.sample_rate_hz, params.drive
+        )
     blocks.append(Block(state.next_index, np.clip(drive_v, -limit_v, limit_v)))
-    state = replace(state, drive=drive_state, next_index=state.next_index + params.block_size,
-                    last_block_zero=not np.any(drive_v))
+    state = replace(
+        state,
+        drive=drive_state,
+        next_index=state.next_index + params.block_size,
+        last_block_zero=not np.any(drive_v),
+    )
     if finished(state, params) and not state.last_block_zero:
         state = _send(state, params, limit_v, blocks, logs, zero=True)
-        logs.append(Note(
-            INFO,
-            f"run complete at sample {state.next_index - params.block_size}; zero drive sent"))
+        logs.append(
+            Note(
+                INFO,
+                f"run complete at sample {state.next_index - params.block_size}; zero drive sent",
+            )
+        )
     return state
 
 
-def _realtime(state: PacingState, tick: Tick, params: PacingParams, blocks: list,
-              logs: list) -> PacingState:
+def _realtime(
+    state: PacingState, tick: Tick, params: PacingParams, blocks: list, logs: list
+) -> PacingState:
     wall_start = state.wall_start
     if wall_start is None:
         if tick.drive_subscribers < params.min_subscribers:
@@ -170,8 +195,9 @@ def _realtime(state: PacingState, tick: Tick, params: PacingParams, blocks: list
     return state
 
 
-def _lockstep(state: PacingState, event: Tick | Ack, params: PacingParams, blocks: list,
-              logs: list) -> PacingState:
+def _lockstep(
+    state: PacingState, event: Tick | Ack, params: PacingParams, blocks: list, logs: list
+) -> PacingState:
     # Both ends matched before the first window: the command subscribers, and the
     # acknowledgement stream (missed acknowledgements would stall the run forever).
     if event.drive_subscribers < params.min_subscribers or event.ack_publishers == 0:
@@ -183,8 +209,13 @@ def _lockstep(state: PacingState, event: Tick | Ack, params: PacingParams, block
         state = _send(state, params, event.drive_limit_v, blocks, logs)
     if not finished(state, params) and event.t_wall - state.last_ack_wall > params.ack_retry_s:
         state = replace(state, retries=state.retries + 1, last_ack_wall=event.t_wall)
-        logs.append(Note(WARNING, f"no acknowledgement for {params.ack_retry_s:g} s at block "
-                                  f"{state.next_index}; sending one more block ({state.retries})"))
+        logs.append(
+            Note(
+                WARNING,
+                f"no acknowledgement for {params.ack_retry_s:g} s at block "
+                f"{state.next_index}; sending one more block ({state.retries})",
+            )
+        )
         state = _send(state, params, event.drive_limit_v, blocks, logs)
     return state
 

@@ -1,4 +1,5 @@
 """A synthetic measured run: the simulated robot's signals in the measured-run CSV's columns."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,7 +23,7 @@ def synthesize_measured_run(
     dict
         time_s, drive_v, stroke_sensor_v, pitch_sensor_v, stroke_deg, pitch_deg.
     """
-    out = simulate(drive_v, fs_hz, model, noise=True, rng=rng)   # checks the drive
+    out = simulate(drive_v, fs_hz, model, noise=True, rng=rng)  # checks the drive
     drive = np.asarray(drive_v, dtype=np.float64)
     tracking = rng.standard_normal((drive.shape[0], 2)) * model.noise.tracking_noise_deg_rms
     return {

@@ -25,11 +25,13 @@ interpolation between the two neighbouring samples for the fractional part), + V
 
 Each effect's coefficients come from its entry in the effect table (`flaair_model.effects`).
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Optional, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -52,14 +54,26 @@ from flaair_sim.core.term_kernel import (
     mechanical_constants,
 )
 
-__all__ = ["SimOutput", "PlantState", "initial_state", "step", "simulate", "simulate_batch",
-           "n_substeps",
-           "simulate_batch_from", "sensor_chain",
-           # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
-           "Prepared", "prepare", "mechanical_constants", "rk4_step"]
+__all__ = [
+    "SimOutput",
+    "PlantState",
+    "initial_state",
+    "step",
+    "simulate",
+    "simulate_batch",
+    "n_substeps",
+    "simulate_batch_from",
+    "sensor_chain",
+    # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
+    "Prepared",
+    "prepare",
+    "mechanical_constants",
+    "rk4_step",
+]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
+
 
 class SimOutput(NamedTuple):
     """Simulated signals, one value per sample (rad, rad, V, V)."""
@@ -91,7 +105,7 @@ class PlantState:
     delay_pitch_v: np.ndarray
     fs_hz: float
     sample_index: int = 0
-    terms: Optional[np.ndarray] = None
+    terms: np.ndarray | None = None
 
 
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
@@ -113,7 +127,19 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     2: stop acts (just after an impact, where phi may be a rounding error below the limit).
     """
     ga, gamma, k, cstruct, kh, hcubic, cp, jc, dp, limit, kc, cc = (
-        c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8], c[9], c[10], c[11])
+        c[0],
+        c[1],
+        c[2],
+        c[3],
+        c[4],
+        c[5],
+        c[6],
+        c[7],
+        c[8],
+        c[9],
+        c[10],
+        c[11],
+    )
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
@@ -163,8 +189,12 @@ def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
         s = 0.5 * (lo + hi)
         s2 = s * s
         s3 = s2 * s
-        value = ((2 * s3 - 3 * s2 + 1) * phi0 + (s3 - 2 * s2 + s) * hs * dphi0
-                 + (-2 * s3 + 3 * s2) * phi1 + (s3 - s2) * hs * dphi1)
+        value = (
+            (2 * s3 - 3 * s2 + 1) * phi0
+            + (s3 - 2 * s2 + s) * hs * dphi0
+            + (-2 * s3 + 3 * s2) * phi1
+            + (s3 - s2) * hs * dphi1
+        )
         if value > limit:
             hi = s
         else:
@@ -199,16 +229,37 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
 def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out):
     """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
     if p[pp.P_NTERMS] > 0.0:
-        _mechanics_with(x, drive, h, nsub, nsub_contact, p, constants_with_terms(p), phi_out,
-                        psi_out, dev_s_out, dev_p_out)
+        _mechanics_with(
+            x,
+            drive,
+            h,
+            nsub,
+            nsub_contact,
+            p,
+            constants_with_terms(p),
+            phi_out,
+            psi_out,
+            dev_s_out,
+            dev_p_out,
+        )
     else:
-        _mechanics_with(x, drive, h, nsub, nsub_contact, p, mechanical_constants(p), phi_out,
-                        psi_out, dev_s_out, dev_p_out)
+        _mechanics_with(
+            x,
+            drive,
+            h,
+            nsub,
+            nsub_contact,
+            p,
+            mechanical_constants(p),
+            phi_out,
+            psi_out,
+            dev_s_out,
+            dev_p_out,
+        )
 
 
 @njit(cache=True, fastmath=_FMA)
-def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out,
-                    dev_p_out):
+def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out, dev_p_out):
     """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time.
 
     x (the state after the block) is updated in place. The transduction is computed here
@@ -249,16 +300,49 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
 
 
 @njit(cache=True)
-def _run(x, zi, hist_s, hist_p, drive, h, nsub, nsub_contact, p, delay_s, delay_p,
-         phi_out, psi_out, vs_out, vp_out):
+def _run(
+    x,
+    zi,
+    hist_s,
+    hist_p,
+    drive,
+    h,
+    nsub,
+    nsub_contact,
+    p,
+    delay_s,
+    delay_p,
+    phi_out,
+    psi_out,
+    vs_out,
+    vp_out,
+):
     """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
     _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
-    zi[0] = sensor_channel_kernel(vs_out, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1],
-                                  p[pp.P_HPS_A1], zi[0], hist_s, delay_s, p[pp.P_DS_FRAC],
-                                  p[pp.P_VREF])
-    zi[1] = sensor_channel_kernel(vp_out, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1],
-                                  p[pp.P_HPP_A1], zi[1], hist_p, delay_p, p[pp.P_DP_FRAC],
-                                  p[pp.P_VREF])
+    zi[0] = sensor_channel_kernel(
+        vs_out,
+        p[pp.P_HPS_ON],
+        p[pp.P_HPS_B0],
+        p[pp.P_HPS_B1],
+        p[pp.P_HPS_A1],
+        zi[0],
+        hist_s,
+        delay_s,
+        p[pp.P_DS_FRAC],
+        p[pp.P_VREF],
+    )
+    zi[1] = sensor_channel_kernel(
+        vp_out,
+        p[pp.P_HPP_ON],
+        p[pp.P_HPP_B0],
+        p[pp.P_HPP_B1],
+        p[pp.P_HPP_A1],
+        zi[1],
+        hist_p,
+        delay_p,
+        p[pp.P_DP_FRAC],
+        p[pp.P_VREF],
+    )
 
 
 @njit(cache=True, parallel=True)
@@ -271,8 +355,23 @@ def _run_batch(drive, h, nsubs, params, delays, hist_len, phi_out, psi_out, vs_o
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
-        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i],
-             delays[i, 0], delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+        _run(
+            x,
+            zi,
+            hist_s,
+            hist_p,
+            drive[row],
+            h,
+            nsubs[i, 0],
+            nsubs[i, 1],
+            params[i],
+            delays[i, 0],
+            delays[i, 1],
+            phi_out[i],
+            psi_out[i],
+            vs_out[i],
+            vp_out[i],
+        )
 
 
 # --------------------------------------------------------------------------- public API
@@ -289,8 +388,8 @@ def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarra
     drive = np.ascontiguousarray(drive_v, dtype=np.float64)
     if drive.ndim not in ndim:
         raise ValueError(
-            f"drive_v must have {' or '.join(map(str, ndim))} dimension(s), got shape "
-            f"{drive.shape}")
+            f"drive_v must have {' or '.join(map(str, ndim))} dimension(s), got shape {drive.shape}"
+        )
     # a finite sum proves every sample finite (fast path); otherwise check sample by sample
     if not math.isfinite(float(np.add.reduce(drive, axis=None))) and not np.all(np.isfinite(drive)):
         raise ValueError("drive_v must be finite")
@@ -334,7 +433,7 @@ class PlantInputs(NamedTuple):
     """
 
     drive_v: np.ndarray
-    noise_rng: Optional[np.random.Generator] = None
+    noise_rng: np.random.Generator | None = None
 
 
 class PlantStepParams(NamedTuple):
@@ -344,8 +443,9 @@ class PlantStepParams(NamedTuple):
     sample_rate_hz: float
 
 
-def step(state: PlantState, inputs: PlantInputs,
-         params: PlantStepParams) -> tuple[PlantState, SimOutput]:
+def step(
+    state: PlantState, inputs: PlantInputs, params: PlantStepParams
+) -> tuple[PlantState, SimOutput]:
     """Advance the plant over one block of drive samples.
 
     Parameters
@@ -378,15 +478,32 @@ def step(state: PlantState, inputs: PlantInputs,
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
     phi, psi, vs, vp = (np.empty(n) for _ in range(4))
-    _run(x, zi, hist_s, hist_p, seen, 1.0 / fs, prep.n_substeps, prep.n_substeps_contact,
-         prep.params, prep.delay_stroke_samples, prep.delay_pitch_samples, phi, psi, vs, vp)
+    _run(
+        x,
+        zi,
+        hist_s,
+        hist_p,
+        seen,
+        1.0 / fs,
+        prep.n_substeps,
+        prep.n_substeps_contact,
+        prep.params,
+        prep.delay_stroke_samples,
+        prep.delay_pitch_samples,
+        phi,
+        psi,
+        vs,
+        vp,
+    )
     add_sensor_terms(model, fs, drive, state.sample_index, phi, psi, vs, vp, terms)
     if not math.isfinite(float(np.add.reduce(x))):
         # Only a drive far outside any actuator's range (kV and up) gets here: the nodes clamp
         # to drive_limit_v before the model, so this is a caller's error, never a silent NaN.
-        raise ValueError(f"drive_v up to {np.abs(drive).max():.3g} V drove the plant model out of "
-                         "its range (the simulation diverged); clamp the drive to the actuator's "
-                         "limit")
+        raise ValueError(
+            f"drive_v up to {np.abs(drive).max():.3g} V drove the plant model out of "
+            "its range (the simulation diverged); clamp the drive to the actuator's "
+            "limit"
+        )
     if rng is not None:
         noise = rng.standard_normal((n, 2)) * model.noise.sensor_noise_v_rms
         vs += noise[:, 0]
@@ -409,7 +526,7 @@ def simulate(
     model: Model,
     *,
     noise: bool = False,
-    rng: Optional[np.random.Generator] = None,
+    rng: np.random.Generator | None = None,
 ) -> SimOutput:
     """Whole record from rest: `step` applied once to the whole drive.
 
@@ -429,27 +546,31 @@ def simulate(
     state = initial_state(PlantStepParams(model, fs_hz))
     if noise and rng is None:
         rng = np.random.default_rng()
-    _, out = step(state, PlantInputs(drive_v, rng if noise else None),
-                  PlantStepParams(model, fs_hz))
+    _, out = step(
+        state, PlantInputs(drive_v, rng if noise else None), PlantStepParams(model, fs_hz)
+    )
     return out
 
 
-def _batch_tables(models: list[Model],
-                  fs: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _batch_tables(
+    models: list[Model], fs: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-model parameter, substep, delay and history-length tables of a batch."""
     m = len(models)
     preps = [prepare(model, fs) for model in models]
     params = np.array([prep.params for prep in preps]).reshape(m, pp.N_KERNEL_PARAMS)
-    nsubs = np.array([(prep.n_substeps, prep.n_substeps_contact) for prep in preps],
-                     dtype=np.int64).reshape(m, 2)
-    delays = np.array([(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps],
-                      dtype=np.int64).reshape(m, 2)
+    nsubs = np.array(
+        [(prep.n_substeps, prep.n_substeps_contact) for prep in preps], dtype=np.int64
+    ).reshape(m, 2)
+    delays = np.array(
+        [(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps], dtype=np.int64
+    ).reshape(m, 2)
     hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
     return params, nsubs, delays, hist_len
 
 
 def simulate_batch(
-    drive_v: np.ndarray, fs_hz: float, models: Sequence[Model], *, out: Optional[SimOutput] = None
+    drive_v: np.ndarray, fs_hz: float, models: Sequence[Model], *, out: SimOutput | None = None
 ) -> SimOutput:
     """Many models over one drive, in parallel (no noise); equals `simulate` model by model.
 
@@ -486,16 +607,35 @@ def simulate_batch(
         phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     else:
         for name, array in zip(SimOutput._fields, out):
-            if not (isinstance(array, np.ndarray) and array.shape == (m, n)
-                    and array.dtype == np.float64 and array.flags.c_contiguous
-                    and array.flags.writeable):
+            if not (
+                isinstance(array, np.ndarray)
+                and array.shape == (m, n)
+                and array.dtype == np.float64
+                and array.flags.c_contiguous
+                and array.flags.writeable
+            ):
                 raise ValueError(
-                    f"out.{name} must be a writeable C-contiguous float64 array of shape {(m, n)}")
+                    f"out.{name} must be a writeable C-contiguous float64 array of shape {(m, n)}"
+                )
         phi, psi, vs, vp = out
     if m == 1:  # skip the thread pool
-        _run(np.zeros(4), np.zeros(2), np.zeros(hist_len[0, 0]), np.zeros(hist_len[0, 1]), drive[0],
-             1.0 / fs, nsubs[0, 0], nsubs[0, 1], params[0], delays[0, 0], delays[0, 1], phi[0],
-             psi[0], vs[0], vp[0])
+        _run(
+            np.zeros(4),
+            np.zeros(2),
+            np.zeros(hist_len[0, 0]),
+            np.zeros(hist_len[0, 1]),
+            drive[0],
+            1.0 / fs,
+            nsubs[0, 0],
+            nsubs[0, 1],
+            params[0],
+            delays[0, 0],
+            delays[0, 1],
+            phi[0],
+            psi[0],
+            vs[0],
+            vp[0],
+        )
     elif m:
         _run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
     add_batch_sensor_terms(models, fs, commanded, states, phi, psi, vs, vp)
@@ -506,8 +646,9 @@ def simulate_batch(
 
 
 @njit(cache=True, parallel=True)
-def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out,
-                    vp_out):
+def _run_batch_from(
+    drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out
+):
     """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared (1, n)
     or per-model (m, n) drive.
     """
@@ -518,8 +659,23 @@ def _run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
-        _run(x, zi, hist_s, hist_p, drive[row], h, nsubs[i, 0], nsubs[i, 1], params[i],
-             delays[i, 0], delays[i, 1], phi_out[i], psi_out[i], vs_out[i], vp_out[i])
+        _run(
+            x,
+            zi,
+            hist_s,
+            hist_p,
+            drive[row],
+            h,
+            nsubs[i, 0],
+            nsubs[i, 1],
+            params[i],
+            delays[i, 0],
+            delays[i, 1],
+            phi_out[i],
+            psi_out[i],
+            vs_out[i],
+            vp_out[i],
+        )
 
 
 def simulate_batch_from(
@@ -576,13 +732,34 @@ def sensor_chain(
     phi = np.asarray(stroke_rad, dtype=np.float64)
     psi = np.asarray(pitch_rad, dtype=np.float64)
     drive = np.asarray(drive_v, dtype=np.float64)
-    vs = np.ascontiguousarray(p[pp.P_GS] * (phi + p[pp.P_TCUBIC] * phi * phi * phi) + p[pp.P_FT]
-                              * drive)
+    vs = np.ascontiguousarray(
+        p[pp.P_GS] * (phi + p[pp.P_TCUBIC] * phi * phi * phi) + p[pp.P_FT] * drive
+    )
     vp = np.ascontiguousarray(p[pp.P_GP] * psi)
     len_s, len_p = prep.delay_lengths
-    sensor_channel_kernel(vs, p[pp.P_HPS_ON], p[pp.P_HPS_B0], p[pp.P_HPS_B1], p[pp.P_HPS_A1], 0.0,
-                    np.zeros(len_s), prep.delay_stroke_samples, p[pp.P_DS_FRAC], p[pp.P_VREF])
-    sensor_channel_kernel(vp, p[pp.P_HPP_ON], p[pp.P_HPP_B0], p[pp.P_HPP_B1], p[pp.P_HPP_A1], 0.0,
-                    np.zeros(len_p), prep.delay_pitch_samples, p[pp.P_DP_FRAC], p[pp.P_VREF])
+    sensor_channel_kernel(
+        vs,
+        p[pp.P_HPS_ON],
+        p[pp.P_HPS_B0],
+        p[pp.P_HPS_B1],
+        p[pp.P_HPS_A1],
+        0.0,
+        np.zeros(len_s),
+        prep.delay_stroke_samples,
+        p[pp.P_DS_FRAC],
+        p[pp.P_VREF],
+    )
+    sensor_channel_kernel(
+        vp,
+        p[pp.P_HPP_ON],
+        p[pp.P_HPP_B0],
+        p[pp.P_HPP_B1],
+        p[pp.P_HPP_A1],
+        0.0,
+        np.zeros(len_p),
+        prep.delay_pitch_samples,
+        p[pp.P_DP_FRAC],
+        p[pp.P_VREF],
+    )
     add_sensor_terms(model, fs, drive, 0, phi, psi, vs, vp, terms_state(model))
     return vs, vp

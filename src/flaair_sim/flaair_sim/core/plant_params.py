@@ -8,6 +8,7 @@ this module only says where each term lands in the vector.
 the `P_*` indices) plus the RK4 substep counts and the sensor delays; the numba kernels in
 `flaair_sim.core.plant` read only that vector, so a batch of robots is a matrix of such rows.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,43 +22,43 @@ from flaair_model.model import SIDES, Model, ModelError
 from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES
 
 __all__ = [
+    "CONTACT_ON_INDEX",
+    "GA_INDEX",
+    "MAX_DYNAMICS_TERMS",
     "MAX_OMEGA_H",
     "MAX_OMEGA_H_CONTACT",
-    "GA_INDEX",
-    "CONTACT_ON_INDEX",
     "N_KERNEL_PARAMS",
-    "P_I",
-    "P_GAMMA",
-    "P_K",
-    "P_IP",
-    "P_CP",
-    "P_KH",
-    "P_JC",
-    "P_DP",
-    "P_CSTRUCT",
-    "P_HCUBIC",
-    "P_PHI_LIM",
-    "P_KC",
     "P_CC",
-    "P_GS",
-    "P_GP",
-    "P_TCUBIC",
+    "P_CP",
+    "P_CSTRUCT",
+    "P_DP",
+    "P_DP_FRAC",
+    "P_DS_FRAC",
     "P_FT",
-    "P_VREF",
-    "P_HPS_ON",
-    "P_HPS_B0",
-    "P_HPS_B1",
-    "P_HPS_A1",
-    "P_HPP_ON",
+    "P_GAMMA",
+    "P_GP",
+    "P_GS",
+    "P_HCUBIC",
+    "P_HPP_A1",
     "P_HPP_B0",
     "P_HPP_B1",
-    "P_HPP_A1",
-    "P_DS_FRAC",
-    "P_DP_FRAC",
+    "P_HPP_ON",
+    "P_HPS_A1",
+    "P_HPS_B0",
+    "P_HPS_B1",
+    "P_HPS_ON",
+    "P_I",
+    "P_IP",
+    "P_JC",
+    "P_K",
+    "P_KC",
+    "P_KH",
     "P_NTERMS",
+    "P_PHI_LIM",
+    "P_TCUBIC",
     "P_TERMS",
+    "P_VREF",
     "TERM_SLOT",
-    "MAX_DYNAMICS_TERMS",
     "Prepared",
     "prepare",
 ]
@@ -70,13 +71,38 @@ MAX_OMEGA_H_CONTACT = 0.05
 # Layout of the per-model parameter vector handed to the numba kernels (read by the kernels in
 # flaair_sim.core.plant and by batch engines).
 (
-    P_I, P_GAMMA, P_K, GA_INDEX, P_IP, P_CP, P_KH, P_JC, P_DP, P_CSTRUCT, P_HCUBIC,
-    CONTACT_ON_INDEX, P_PHI_LIM, P_KC, P_CC,
-    P_GS, P_GP, P_TCUBIC, P_FT, P_VREF,
-    P_HPS_ON, P_HPS_B0, P_HPS_B1, P_HPS_A1,
-    P_HPP_ON, P_HPP_B0, P_HPP_B1, P_HPP_A1,
-    P_DS_FRAC, P_DP_FRAC,
-    P_NTERMS, P_TERMS,
+    P_I,
+    P_GAMMA,
+    P_K,
+    GA_INDEX,
+    P_IP,
+    P_CP,
+    P_KH,
+    P_JC,
+    P_DP,
+    P_CSTRUCT,
+    P_HCUBIC,
+    CONTACT_ON_INDEX,
+    P_PHI_LIM,
+    P_KC,
+    P_CC,
+    P_GS,
+    P_GP,
+    P_TCUBIC,
+    P_FT,
+    P_VREF,
+    P_HPS_ON,
+    P_HPS_B0,
+    P_HPS_B1,
+    P_HPS_A1,
+    P_HPP_ON,
+    P_HPP_B0,
+    P_HPP_B1,
+    P_HPP_A1,
+    P_DS_FRAC,
+    P_DP_FRAC,
+    P_NTERMS,
+    P_TERMS,
 ) = range(32)
 # Each dynamics slot of the discovered terms: [equation (1 stroke, 2 pitch; 0 empty),
 # coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES].
@@ -107,15 +133,20 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
 
 # Where each kernel term of the effect table (flaair_model.effects) lands in the vector.
 _PLANT_INDEX = {
-    "structural_damping_nm_s_per_rad": P_CSTRUCT, "hinge_cubic_per_rad2": P_HCUBIC,
-    "contact_on": CONTACT_ON_INDEX, "stroke_limit_rad": P_PHI_LIM,
-    "contact_stiffness_nm_per_rad": P_KC, "contact_damping_nm_s_per_rad": P_CC,
-    "transmission_cubic_per_rad2": P_TCUBIC, "feedthrough_v_per_v": P_FT,
+    "structural_damping_nm_s_per_rad": P_CSTRUCT,
+    "hinge_cubic_per_rad2": P_HCUBIC,
+    "contact_on": CONTACT_ON_INDEX,
+    "stroke_limit_rad": P_PHI_LIM,
+    "contact_stiffness_nm_per_rad": P_KC,
+    "contact_damping_nm_s_per_rad": P_CC,
+    "transmission_cubic_per_rad2": P_TCUBIC,
+    "feedthrough_v_per_v": P_FT,
 }
 _SCALE_INDEX = {"inertia_factor": (P_I, P_IP)}
-_SENSOR_INDEX = {   # per chain: (stroke, pitch)
-    "highpass_b0": (P_HPS_B0, P_HPP_B0), "highpass_b1": (P_HPS_B1, P_HPP_B1),
-                 "highpass_a1": (P_HPS_A1, P_HPP_A1),
+_SENSOR_INDEX = {  # per chain: (stroke, pitch)
+    "highpass_b0": (P_HPS_B0, P_HPP_B0),
+    "highpass_b1": (P_HPS_B1, P_HPP_B1),
+    "highpass_a1": (P_HPS_A1, P_HPP_A1),
     "gain_factor": (P_GS, P_GP),
 }
 _HIGHPASS_ON = (P_HPS_ON, P_HPP_ON)
@@ -151,8 +182,11 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     for entry in EFFECTS:
         if model.effect(entry.name) is None:
             continue
-        sides = ([(i, model.effect_on(entry.name, side)) for i, side in enumerate(SIDES)]
-                 if entry.per_sensor else [(None, model.effect(entry.name))])
+        sides = (
+            [(i, model.effect_on(entry.name, side)) for i, side in enumerate(SIDES)]
+            if entry.per_sensor
+            else [(None, model.effect(entry.name))]
+        )
         for i, effect in sides:
             if effect is None:
                 continue
@@ -170,9 +204,11 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
                     if term.startswith("highpass_"):
                         p[_HIGHPASS_ON[i]] = 1.0
                 else:
-                    raise ModelError(f"effects.{entry.name}: kernel term {term!r} is not one the "
-                                     "plant knows "
-                                     f"({'per sensor chain' if i is not None else 'plant-wide'})")
+                    raise ModelError(
+                        f"effects.{entry.name}: kernel term {term!r} is not one the "
+                        "plant knows "
+                        f"({'per sensor chain' if i is not None else 'plant-wide'})"
+                    )
 
     dynamics = [t for t in model.discovered if t.is_dynamics]
     p[P_NTERMS] = len(dynamics)
@@ -181,7 +217,7 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
         stroke = dterm.acts_on == "stroke_dynamics"
         p[base] = 1.0 if stroke else 2.0
         p[base + 1] = dterm.coefficient / (p[P_I] if stroke else p[P_IP])
-        p[base + 2:base + TERM_SLOT] = dterm.monomial
+        p[base + 2 : base + TERM_SLOT] = dterm.monomial
 
     rates = [
         math.sqrt(stiffness / p[P_I]),

@@ -1,4 +1,5 @@
 """The sensor chain's numba kernel: high-pass, delay and reference voltage of one channel."""
+
 from __future__ import annotations
 
 from numba import njit

@@ -10,14 +10,21 @@ equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`) and
 `plant.mechanical_constants` copies the slots into the constants tuple `c` from index
 `C_TERMS` on (c[C_TERMS - 1] is the number of terms).
 """
+
 from __future__ import annotations
 
 from numba import njit
 
 from flaair_sim.core import plant_params as pp
 
-__all__ = ["C_TERMS", "N_CONSTANTS", "primitive", "dynamics_terms", "mechanical_constants",
-           "constants_with_terms"]
+__all__ = [
+    "C_TERMS",
+    "N_CONSTANTS",
+    "constants_with_terms",
+    "dynamics_terms",
+    "mechanical_constants",
+    "primitive",
+]
 
 _FMA = {"contract"}
 # length of the nominal constants tuple (`mechanical_constants`); a longer one carries terms:
@@ -58,10 +65,20 @@ def mechanical_constants(p):
     # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
     inv_i = 1.0 / p[pp.P_I]
     inv_ip = 1.0 / p[pp.P_IP]
-    return (p[pp.GA_INDEX] * inv_i, p[pp.P_GAMMA] * inv_i, p[pp.P_K] * inv_i,
-            p[pp.P_CSTRUCT] * inv_i, p[pp.P_KH] * inv_ip, p[pp.P_HCUBIC], p[pp.P_CP] * inv_ip,
-            p[pp.P_JC] * inv_ip, p[pp.P_DP] * inv_ip, p[pp.P_PHI_LIM], p[pp.P_KC] * inv_i,
-            p[pp.P_CC] * inv_i)
+    return (
+        p[pp.GA_INDEX] * inv_i,
+        p[pp.P_GAMMA] * inv_i,
+        p[pp.P_K] * inv_i,
+        p[pp.P_CSTRUCT] * inv_i,
+        p[pp.P_KH] * inv_ip,
+        p[pp.P_HCUBIC],
+        p[pp.P_CP] * inv_ip,
+        p[pp.P_JC] * inv_ip,
+        p[pp.P_DP] * inv_ip,
+        p[pp.P_PHI_LIM],
+        p[pp.P_KC] * inv_i,
+        p[pp.P_CC] * inv_i,
+    )
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -70,7 +87,27 @@ def constants_with_terms(p):
     longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
     """
     t = pp.P_TERMS
-    return mechanical_constants(p) + (
-        p[pp.P_NTERMS], p[t], p[t + 1], p[t + 2], p[t + 3], p[t + 4], p[t + 5], p[t + 6],
-        p[t + 7], p[t + 8], p[t + 9], p[t + 10], p[t + 11], p[t + 12], p[t + 13], p[t + 14],
-        p[t + 15], p[t + 16], p[t + 17], p[t + 18], p[t + 19])
+    return (
+        *mechanical_constants(p),
+        p[pp.P_NTERMS],
+        p[t],
+        p[t + 1],
+        p[t + 2],
+        p[t + 3],
+        p[t + 4],
+        p[t + 5],
+        p[t + 6],
+        p[t + 7],
+        p[t + 8],
+        p[t + 9],
+        p[t + 10],
+        p[t + 11],
+        p[t + 12],
+        p[t + 13],
+        p[t + 14],
+        p[t + 15],
+        p[t + 16],
+        p[t + 17],
+        p[t + 18],
+        p[t + 19],
+    )

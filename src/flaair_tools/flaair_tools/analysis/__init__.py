@@ -11,4 +11,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `calibrate`: `bin/flaair calibrate`: sensor gain and lag
 """
 
-__all__ = ["analyze", "report", "runkind", "wingbeat", "replay", "transition", "calibrate"]
+__all__ = ["analyze", "calibrate", "replay", "report", "runkind", "transition", "wingbeat"]

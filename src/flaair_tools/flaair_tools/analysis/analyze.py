@@ -35,6 +35,7 @@ Example:
   bin/flaair analyze out/demo/bags/* --out out/demo/report \
       --calibration out/demo/calibration/calibration.yaml
 """
+
 from __future__ import annotations
 
 import argparse
@@ -71,18 +72,30 @@ from flaair_tools.bagio.runs import RUN_TOPICS, Run, runs_of_bag
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
 # Every topic the analysis reads (each bag is read once).
-BAG_TOPICS = (*RUN_TOPICS, EXPERIMENT_TOPIC, topics.WING_STATE, topics.COLLISION_EVENTS,
-              topics.CONTROLLER_STATE)
+BAG_TOPICS = (
+    *RUN_TOPICS,
+    EXPERIMENT_TOPIC,
+    topics.WING_STATE,
+    topics.COLLISION_EVENTS,
+    topics.CONTROLLER_STATE,
+)
 EXIT_BAD_INPUT = 2
 EXIT_PARTIAL = 3
 # The paper's published figures, for the side-by-side table (deg, deg/V).
 PAPER = {
-    "stroke_gain_deg_per_v": 25.5, "pitch_gain_deg_per_v": 108.0, "stroke_amplitude_rmse_deg": 0.44,
-    "pitch_amplitude_rmse_deg": 4.04, "pitch_amplitude_rmse_band_deg": 2.44,
-    "pitch_time_rmse_deg": 8.20, "pitch_time_rmse_lag_corrected_deg": 4.44,
-    "pitch_time_rmse_lag_corrected_band_deg": 3.93, "stroke_phase_rmse_deg": 9.69,
-    "pitch_phase_rmse_deg": 14.41, "collision_spectrum_rmse_deg": 3.23,
-    "no_collision_spectrum_rmse_deg": 0.53, "collision_time_rmse_deg": 15.81,
+    "stroke_gain_deg_per_v": 25.5,
+    "pitch_gain_deg_per_v": 108.0,
+    "stroke_amplitude_rmse_deg": 0.44,
+    "pitch_amplitude_rmse_deg": 4.04,
+    "pitch_amplitude_rmse_band_deg": 2.44,
+    "pitch_time_rmse_deg": 8.20,
+    "pitch_time_rmse_lag_corrected_deg": 4.44,
+    "pitch_time_rmse_lag_corrected_band_deg": 3.93,
+    "stroke_phase_rmse_deg": 9.69,
+    "pitch_phase_rmse_deg": 14.41,
+    "collision_spectrum_rmse_deg": 3.23,
+    "no_collision_spectrum_rmse_deg": 0.53,
+    "collision_time_rmse_deg": 15.81,
     "no_collision_time_rmse_deg": 3.34,
 }
 # Human label and unit of every headline figure ({band} fields: the configured analysis bands).
@@ -95,11 +108,15 @@ LABELS = {
     "pitch_time_rmse_deg": ("Pitch error in time, RMSE", "deg"),
     "pitch_time_rmse_lag_corrected_deg": ("Pitch error in time, lag corrected", "deg"),
     "pitch_time_rmse_lag_corrected_band_deg": (
-    "Pitch error in time, lag corrected, {time_band_hz}", "deg"),
+        "Pitch error in time, lag corrected, {time_band_hz}",
+        "deg",
+    ),
     "stroke_phase_rmse_deg": ("Stroke phase error, RMSE over the Bode", "deg"),
     "pitch_phase_rmse_deg": ("Pitch phase error, RMSE over the Bode", "deg"),
-    "collision_spectrum_rmse_deg": ("Collision metric with the obstacle (pitch FFT vs sine)",
-                                    "deg"),
+    "collision_spectrum_rmse_deg": (
+        "Collision metric with the obstacle (pitch FFT vs sine)",
+        "deg",
+    ),
     "no_collision_spectrum_rmse_deg": ("Collision metric without the obstacle", "deg"),
     "collision_time_rmse_deg": ("Pitch vs sine in time, with the obstacle", "deg"),
     "no_collision_time_rmse_deg": ("Pitch vs sine in time, without the obstacle", "deg"),
@@ -114,8 +131,12 @@ MODEL_GAINS_WARNING = (
     "calibrate`)."
 )
 # The kind an experiment (config/experiments.yaml) gives each of its runs.
-EXPERIMENT_RUN_KIND = {"chirp": "chirp", "stepped_sine": "stepped_sine", "collision": "sine",
-                       "transition": "transition"}
+EXPERIMENT_RUN_KIND = {
+    "chirp": "chirp",
+    "stepped_sine": "stepped_sine",
+    "collision": "sine",
+    "transition": "transition",
+}
 
 
 def settings() -> tuple[RecognitionParams, dict[str, Any]]:
@@ -154,23 +175,33 @@ def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> fronten
     return frontend.params_from_model(load_model(), fs_hz, **tuning)
 
 
-def _aligned_estimate(blocks: bagio.Blocks,
-                      sample_index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    position = np.clip(np.searchsorted(blocks.sample_index, sample_index), 0,
-                       len(blocks.sample_index) - 1)
+def _aligned_estimate(
+    blocks: bagio.Blocks, sample_index: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    position = np.clip(
+        np.searchsorted(blocks.sample_index, sample_index), 0, len(blocks.sample_index) - 1
+    )
     found = blocks.sample_index[position] == sample_index
-    stroke = np.where(found & blocks["stroke_valid"][position].astype(bool),
-                      np.radians(blocks["stroke_deg"][position]), np.nan)
-    pitch = np.where(found & blocks["pitch_valid"][position].astype(bool),
-                     np.radians(blocks["pitch_deg"][position]), np.nan)
+    stroke = np.where(
+        found & blocks["stroke_valid"][position].astype(bool),
+        np.radians(blocks["stroke_deg"][position]),
+        np.nan,
+    )
+    pitch = np.where(
+        found & blocks["pitch_valid"][position].astype(bool),
+        np.radians(blocks["pitch_deg"][position]),
+        np.nan,
+    )
     return stroke, pitch
 
 
-def run_sample_index(markers: dict[str, bagio.RunMarker], run: Run,
-                     blocks: bagio.Blocks) -> np.ndarray:
+def run_sample_index(
+    markers: dict[str, bagio.RunMarker], run: Run, blocks: bagio.Blocks
+) -> np.ndarray:
     """Absolute sample indices of a run's samples (its marker's first index + time)."""
-    first = (markers[run.name].first_sample_index if run.name in markers
-             else int(blocks.sample_index[0]))
+    first = (
+        markers[run.name].first_sample_index if run.name in markers else int(blocks.sample_index[0])
+    )
     return first + np.round(run["time_s"] * run.sample_rate_hz).astype(np.int64)
 
 
@@ -183,26 +214,40 @@ def live_runs_on_model_gains(live_pitch: np.ndarray, model_pitch: np.ndarray) ->
     return abs(ratio - 1.0) < 0.1
 
 
-def estimates(contents: bagio.BagContents, runs: list[Run], calibration: dict[str, Any] | None,
-              calibration_file: Path
-              | None) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
+def estimates(
+    contents: bagio.BagContents,
+    runs: list[Run],
+    calibration: dict[str, Any] | None,
+    calibration_file: Path | None,
+) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], str, bool]:
     """Front-end estimate of every run, where it came from, and whether it runs on model gains."""
     if calibration is not None:
-        return ({run.name: offline_estimate(run,
-                                            frontend_params(calibration, run.sample_rate_hz))
-                 for run in runs}, "front-end core run offline on the recorded voltages with the "
-                                   f"calibration {calibration_file}", False)
-    model_est = {run.name: offline_estimate(
-        run, frontend_params(None, run.sample_rate_hz)) for run in runs}
+        return (
+            {
+                run.name: offline_estimate(run, frontend_params(calibration, run.sample_rate_hz))
+                for run in runs
+            },
+            "front-end core run offline on the recorded voltages with the "
+            f"calibration {calibration_file}",
+            False,
+        )
+    model_est = {
+        run.name: offline_estimate(run, frontend_params(None, run.sample_rate_hz)) for run in runs
+    }
     if not contents.has(topics.WING_STATE):
         return model_est, "front-end core run offline on the recorded voltages (model gains)", True
     blocks = contents.blocks(topics.WING_STATE)
     markers = {m.run: m for m in contents.run_markers()}
-    live = {run.name: _aligned_estimate(
-        blocks, run_sample_index(markers, run, blocks)) for run in runs}
+    live = {
+        run.name: _aligned_estimate(blocks, run_sample_index(markers, run, blocks)) for run in runs
+    }
     on_model = all(live_runs_on_model_gains(live[r.name][1], model_est[r.name][1]) for r in runs)
-    return live, "live front end (/flaair/wing_state)" + (
-        ", model gains" if on_model else ", calibrated gains"), on_model
+    return (
+        live,
+        "live front end (/flaair/wing_state)"
+        + (", model gains" if on_model else ", calibrated gains"),
+        on_model,
+    )
 
 
 # ----------------------------------------------------------------------------- per-run analyses
@@ -211,9 +256,14 @@ def estimates(contents: bagio.BagContents, runs: list[Run], calibration: dict[st
 # ----------------------------------------------------------------------------- completeness
 
 
-def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
-                 kinds: dict[str, DriveKind], min_fraction: float,
-                 tolerance_hz: float) -> list[str]:
+def completeness(
+    info: dict[str, Any],
+    runs: list[Run],
+    missing_runs: list[str],
+    kinds: dict[str, DriveKind],
+    min_fraction: float,
+    tolerance_hz: float,
+) -> list[str]:
     """What a cut-short bag lacks: one sentence per missing
     run, short run, step frequency or sweep range.
     """
@@ -223,33 +273,45 @@ def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
         for part in spec.get("markers") or [[spec["name"]]]:
             expected_parts[part[0]] = spec.get("drive", {})
     present = {run.name for run in runs} | set(missing_runs)
-    notes += [f"run '{name}' of the experiment is not in the bag at all"
-              for name in expected_parts if name not in present]
+    notes += [
+        f"run '{name}' of the experiment is not in the bag at all"
+        for name in expected_parts
+        if name not in present
+    ]
     for run in runs:
         if run.fraction_present >= min_fraction:
             continue
         kind = kinds[run.name]
-        note = (f"run '{run.name}' holds {run.fraction_present:.0%} of its marked samples "
-                f"({run.n_samples / run.sample_rate_hz:.3g} of "
-                f"{run.expected_n_samples / run.sample_rate_hz:.3g} s)")
+        note = (
+            f"run '{run.name}' holds {run.fraction_present:.0%} of its marked samples "
+            f"({run.n_samples / run.sample_rate_hz:.3g} of "
+            f"{run.expected_n_samples / run.sample_rate_hz:.3g} s)"
+        )
         drive = expected_parts.get(run.name, {})
         found = [s.frequency_hz for s in kind.steps]
         if drive.get("waveform") == "stepped_sine":
             from flaair_sim.core.drive import stepped_sine_frequencies_hz
 
             wanted = stepped_sine_frequencies_hz(
-                drive["start_hz"], drive["stop_hz"], drive["step_hz"])
+                drive["start_hz"], drive["stop_hz"], drive["step_hz"]
+            )
             lost = [f for f in wanted if not any(abs(f - g) <= tolerance_hz for g in found)]
             note += f"; steps missing: {', '.join(f'{f:g}' for f in lost)} Hz" if lost else ""
         elif drive.get("waveform") == "chirp" and kind.sweep_hz:
-            note += (f"; sweep covered {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz "
-                     f"of {drive['start_hz']:g}-{drive['stop_hz']:g} Hz")
+            note += (
+                f"; sweep covered {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz "
+                f"of {drive['start_hz']:g}-{drive['stop_hz']:g} Hz"
+            )
         elif kind.kind == "stepped_sine":
-            note += (f"; steps found: {', '.join(f'{f:.4g}' for f in found)} Hz, "
-                     "the steps after them are missing")
+            note += (
+                f"; steps found: {', '.join(f'{f:.4g}' for f in found)} Hz, "
+                "the steps after them are missing"
+            )
         elif kind.sweep_hz:
-            note += (f"; drive seen {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz, "
-                     "the rest of the run is missing")
+            note += (
+                f"; drive seen {kind.sweep_hz[0]:.0f}-{kind.sweep_hz[1]:.0f} Hz, "
+                "the rest of the run is missing"
+            )
         notes.append(note)
     return notes
 
@@ -257,9 +319,13 @@ def completeness(info: dict[str, Any], runs: list[Run], missing_runs: list[str],
 # ----------------------------------------------------------------------------- one bag
 
 
-def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any],
-              explicit: dict[str, str],
-              recognition: RecognitionParams) -> tuple[dict[str, DriveKind], list[str]]:
+def run_kinds(
+    contents: bagio.BagContents,
+    runs: list[Run],
+    info: dict[str, Any],
+    explicit: dict[str, str],
+    recognition: RecognitionParams,
+) -> tuple[dict[str, DriveKind], list[str]]:
     """Every run's drive, recognised; an explicit kind (experiment
     or import --kind) wins, with a warning if they differ.
     """
@@ -267,17 +333,27 @@ def run_kinds(contents: bagio.BagContents, runs: list[Run], info: dict[str, Any]
     kinds, warnings = {}, []
     for run in runs:
         drive = run["drive_v"] if "drive_v" in run else np.zeros(run.n_samples)
-        found = recognise(drive, run.sample_rate_hz, recognition,
-                          has_controller_state=has_controller)
+        found = recognise(
+            drive, run.sample_rate_hz, recognition, has_controller_state=has_controller
+        )
         wanted = explicit.get(run.name) or EXPERIMENT_RUN_KIND.get(info.get("kind", ""))
         if wanted and wanted != found.kind:
-            warnings.append(f"{bag}: run '{run.name}' is marked '{wanted}' but its drive looks "
-                            f"like '{found.kind}' ({found.reason}); analysed as '{wanted}'")
-            if wanted == "stepped_sine" and not found.steps or wanted == "sine" and not found.steps:
+            warnings.append(
+                f"{bag}: run '{run.name}' is marked '{wanted}' but its drive looks "
+                f"like '{found.kind}' ({found.reason}); analysed as '{wanted}'"
+            )
+            if (wanted == "stepped_sine" and not found.steps) or (
+                wanted == "sine" and not found.steps
+            ):
                 warnings[-1] += " without steps found: analysed as a sweep"
                 wanted = "chirp"
-            found = DriveKind(wanted, f"marked '{wanted}' in the bag; {found.reason}", found.steps,
-                              found.sweep_hz, found.drive_amplitude_v)
+            found = DriveKind(
+                wanted,
+                f"marked '{wanted}' in the bag; {found.reason}",
+                found.steps,
+                found.sweep_hz,
+                found.drive_amplitude_v,
+            )
         kinds[run.name] = found
     return kinds, warnings
 
@@ -286,34 +362,59 @@ def marker_values(contents: bagio.BagContents) -> dict[str, dict[str, Any]]:
     """Every run marker's JSON by run name: an explicit kind (`flaair import --kind`), and for a
     lab run its files, rig, sync and video (`flaair import RUN.mat`).
     """
-    return {str(values["run"]): values for values in (
-        json.loads(message.data) for message in contents.messages(bagio.RUN_MARKER_TOPIC))}
+    return {
+        str(values["run"]): values
+        for values in (
+            json.loads(message.data) for message in contents.messages(bagio.RUN_MARKER_TOPIC)
+        )
+    }
 
 
-def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | None = None,
-                calibration_file: Path | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+def analyze_bag(
+    bag: Path,
+    reference_v: float,
+    calibration: dict[str, Any] | None = None,
+    calibration_file: Path | None = None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
     """Every number of one bag (see module docstring), and the data its figures are drawn from."""
     recognition, config = settings()
-    contents = bagio.read_bag(bag, BAG_TOPICS)   # the bag is read once
+    contents = bagio.read_bag(bag, BAG_TOPICS)  # the bag is read once
     info = experiment_info(contents)
     missing_runs: list[tuple[str, str]] = []
     runs = runs_of_bag(contents, missing=missing_runs)
     markers = marker_values(contents)
-    kinds, warnings = run_kinds(contents, runs, info, {
-        name: str(m["kind"]) for name, m in markers.items() if m.get("kind")}, recognition)
+    kinds, warnings = run_kinds(
+        contents,
+        runs,
+        info,
+        {name: str(m["kind"]) for name, m in markers.items() if m.get("kind")},
+        recognition,
+    )
     est, source, on_model = estimates(contents, runs, calibration, calibration_file)
     name = info.get("name", bag.name)
-    result: dict[str, Any] = {"bag": str(bag), "experiment": name,
-                              "kind": info.get("kind", "lab runs"), "description": info.get(
-        "description", "runs imported from the lab"), "runs": {}, "estimate_source": source,
-                              "model_gains": on_model, "warnings": warnings}
+    result: dict[str, Any] = {
+        "bag": str(bag),
+        "experiment": name,
+        "kind": info.get("kind", "lab runs"),
+        "description": info.get("description", "runs imported from the lab"),
+        "runs": {},
+        "estimate_source": source,
+        "model_gains": on_model,
+        "warnings": warnings,
+    }
     result["missing"] = completeness(
-        info, runs, [r for _, r in missing_runs], kinds, float(config["min_run_fraction"]),
-        float(config["tolerance_hz"]))
+        info,
+        runs,
+        [r for _, r in missing_runs],
+        kinds,
+        float(config["min_run_fraction"]),
+        float(config["tolerance_hz"]),
+    )
     plots: dict[str, Any] = {"bode": {}, "runs": {}}
     if info.get("kind") == "collision":
-        result["collision"], plots["collision"] = (
-            analyze_collision(runs, est, info, contents, kinds))
+        result["collision"], plots["collision"] = analyze_collision(
+            runs, est, info, contents, kinds
+        )
         return result, plots
     if any(k.kind == "transition" for k in kinds.values()):
         result["transition"], plots["transition"] = analyze_transition(contents)
@@ -323,12 +424,18 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
         entry: dict[str, Any]
         try:
             if kind.kind in ("chirp", "unrecognised"):
-                entry, plots["bode"][run.name] = (
-                    analyze_sweep(run, stroke_est, pitch_est, "chirp", None, reference_v))
+                entry, plots["bode"][run.name] = analyze_sweep(
+                    run, stroke_est, pitch_est, "chirp", None, reference_v
+                )
             elif kind.kind == "stepped_sine":
-                entry, plots["bode"][run.name] = (
-                    analyze_sweep(run, stroke_est, pitch_est, "stepped",
-                                  kind.frequency_track(run.n_samples), reference_v))
+                entry, plots["bode"][run.name] = analyze_sweep(
+                    run,
+                    stroke_est,
+                    pitch_est,
+                    "stepped",
+                    kind.frequency_track(run.n_samples),
+                    reference_v,
+                )
             elif kind.kind == "sine":
                 entry = analyze_sine(run, stroke_est, pitch_est, kind, reference_v)
             elif kind.kind == "free":
@@ -341,7 +448,7 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
         entry["drive"] = kind.as_dict()
         entry["fraction_present"] = run.fraction_present
         entry["drive_amplitude_v"] = kind.drive_amplitude_v
-        if "video" in markers.get(run.name, {}):   # a lab run: the video's rate and coverage
+        if "video" in markers.get(run.name, {}):  # a lab run: the video's rate and coverage
             entry["video"] = markers[run.name]["video"]
         result["runs"][run.name] = entry
     return result, plots
@@ -350,16 +457,20 @@ def analyze_bag(bag: Path, reference_v: float, calibration: dict[str, Any] | Non
 # ----------------------------------------------------------------------------- headline
 
 
-def _pick(bags: list[dict[str, Any]],
-          methods: tuple[str, ...]) -> tuple[str, dict[str, Any]] | None:
+def _pick(
+    bags: list[dict[str, Any]], methods: tuple[str, ...]
+) -> tuple[str, dict[str, Any]] | None:
     """The run of one of `methods` with the strongest drive
     (the paper's 200 Vpp), with its 'bag/run' name.
     """
     best = None
     for bag in bags:
         for name, run in bag["runs"].items():
-            if run.get("method") in methods and "stroke" in run and (
-                    best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"]):
+            if (
+                run.get("method") in methods
+                and "stroke" in run
+                and (best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"])
+            ):
                 best = (f"{bag['experiment']}/{name}", run)
     return best
 
@@ -377,44 +488,68 @@ def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             ours[f"stroke_{key}"] = (run["stroke"].get(key), source)
     if stepped:
         source, run = stepped
-        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "amplitude_rmse_band_deg",
-                    "time_rmse_deg", "time_rmse_lag_corrected_deg",
-                    "time_rmse_lag_corrected_band_deg", "phase_rmse_deg"):
+        for key in (
+            "gain_deg_per_v",
+            "amplitude_rmse_deg",
+            "amplitude_rmse_band_deg",
+            "time_rmse_deg",
+            "time_rmse_lag_corrected_deg",
+            "time_rmse_lag_corrected_band_deg",
+            "phase_rmse_deg",
+        ):
             ours[f"pitch_{key}"] = (run["pitch"].get(key), source)
     for bag in bags:
         runs = bag.get("collision", {}).get("runs", {})
-        if ("spectrum_rmse_deg" in runs.get("collision", {})
-            and "spectrum_rmse_deg" in runs.get("no_collision", {})):
+        if "spectrum_rmse_deg" in runs.get("collision", {}) and "spectrum_rmse_deg" in runs.get(
+            "no_collision", {}
+        ):
             source = f"{bag['experiment']}/collision, no_collision"
             for prefix, part in (("", "collision"), ("no_", "no_collision")):
-                ours[f"{prefix}collision_spectrum_rmse_deg"] = (runs[part]["spectrum_rmse_deg"],
-                                                                source)
+                ours[f"{prefix}collision_spectrum_rmse_deg"] = (
+                    runs[part]["spectrum_rmse_deg"],
+                    source,
+                )
                 ours[f"{prefix}collision_time_rmse_deg"] = (runs[part]["time_rmse_deg"], source)
     table = {}
     bands = analysis_bands_from_config()
     for key, paper in PAPER.items():
         value, source = ours.get(key, (None, ""))
-        label = LABELS[key][0].format(amplitude_band_hz=bands.label("amplitude_band_hz"),
-                                      time_band_hz=bands.label("time_band_hz"))
-        table[key] = {"flaair": finite_or_none(value), "paper": paper, "label": label,
-                      "unit": LABELS[key][1], "source": source}
+        label = LABELS[key][0].format(
+            amplitude_band_hz=bands.label("amplitude_band_hz"),
+            time_band_hz=bands.label("time_band_hz"),
+        )
+        table[key] = {
+            "flaair": finite_or_none(value),
+            "paper": paper,
+            "label": label,
+            "unit": LABELS[key][1],
+            "source": source,
+        }
     for bag in bags:
         if "transition" in bag:
             t = bag["transition"]
             note = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"
-            for key, value in (("transition_final_frequency_hz", t["final_frequency_hz"]), (
-                    "transition_final_amplitude_deg", t["final_amplitude_deg"])):
-                table[key] = {"flaair": value, "paper": None, "label": LABELS[key][0],
-                              "unit": LABELS[key][1], "source": bag["experiment"], "note": note
-                              if key.endswith("hz") else ""}
+            for key, value in (
+                ("transition_final_frequency_hz", t["final_frequency_hz"]),
+                ("transition_final_amplitude_deg", t["final_amplitude_deg"]),
+            ):
+                table[key] = {
+                    "flaair": value,
+                    "paper": None,
+                    "label": LABELS[key][0],
+                    "unit": LABELS[key][1],
+                    "source": bag["experiment"],
+                    "note": note if key.endswith("hz") else "",
+                }
     return table
 
 
 # ----------------------------------------------------------------------------- top level
 
 
-def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True,
-            calibration_file: Path | None = None) -> dict[str, Any]:
+def analyze(
+    bags: list[Path], out_dir: Path, *, progress: bool = True, calibration_file: Path | None = None
+) -> dict[str, Any]:
     """Analyse `bags` into out_dir (report.html, report.json, PNG figures); return the report.
 
     Parameters
@@ -446,13 +581,17 @@ def analyze(bags: list[Path], out_dir: Path, *, progress: bool = True,
             raise AnalysisError(str(exc) if str(bag) in str(exc) else f"{bag}: {exc}") from None
         results.append(result)
         plots.append(plot)
-    report: dict[str, Any] = {"created": time.strftime("%Y-%m-%d %H:%M:%S"), "bags": results,
-                              "calibration_file": str(calibration_file) if calibration_file
-                              else None}
+    report: dict[str, Any] = {
+        "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "bags": results,
+        "calibration_file": str(calibration_file) if calibration_file else None,
+    }
     report["model_gains_warning"] = (
-        MODEL_GAINS_WARNING if any(r["model_gains"] for r in results) else None)
-    report["partial"] = [note for r in results for note in (
-        f"{r['bag']}: {m}" for m in r["missing"])]
+        MODEL_GAINS_WARNING if any(r["model_gains"] for r in results) else None
+    )
+    report["partial"] = [
+        note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])
+    ]
     report["headline"] = headline(results)
     report["figures"] = html_report.write_figures(results, plots, out_dir)
     report = json_safe(report)
@@ -471,23 +610,43 @@ def print_headline(report: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair analyze", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("bags", nargs="+", type=Path,
-                        help="bags recorded by `flaair experiment` or made by `flaair import`")
-    parser.add_argument("--out", type=Path, required=True,
-                        help="report directory (report.html, report.json, figures)")
-    parser.add_argument("--calibration", type=Path, default=None, metavar="FILE",
-                        help="calibration.yaml from `flaair calibrate`: the front end runs on "
-                             "these gains (default: the live front end's gains, else the model's, "
-                             "with a warning)")
-    parser.add_argument("--allow-partial", action="store_true", help="exit 0 even when runs, steps "
-                                                                     "or parts of a sweep are "
-                                                                     "missing (recovered or "
-                                                                     "cut-short bags); without it "
-                                                                     "such a bag gives exit code 3 "
-                                                                     "(the report is still "
-                                                                     "written)")
+    parser = argparse.ArgumentParser(
+        prog="flaair analyze",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "bags",
+        nargs="+",
+        type=Path,
+        help="bags recorded by `flaair experiment` or made by `flaair import`",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="report directory (report.html, report.json, figures)",
+    )
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="calibration.yaml from `flaair calibrate`: the front end runs on "
+        "these gains (default: the live front end's gains, else the model's, "
+        "with a warning)",
+    )
+    parser.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="exit 0 even when runs, steps "
+        "or parts of a sweep are "
+        "missing (recovered or "
+        "cut-short bags); without it "
+        "such a bag gives exit code 3 "
+        "(the report is still "
+        "written)",
+    )
     args = parser.parse_args(argv)
     os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
     try:
@@ -509,9 +668,12 @@ def main(argv: list[str] | None = None) -> int:
         for note in report["partial"]:
             print(f"flaair analyze: incomplete: {note}", file=sys.stderr)
         if not args.allow_partial:
-            print(f"flaair analyze: {len(report['partial'])} part(s) of the data are missing "
-                  "(listed above); the figures cover only what is there. Pass --allow-partial to "
-                  "accept that (exit 0).", file=sys.stderr)
+            print(
+                f"flaair analyze: {len(report['partial'])} part(s) of the data are missing "
+                "(listed above); the figures cover only what is there. Pass --allow-partial to "
+                "accept that (exit 0).",
+                file=sys.stderr,
+            )
             return EXIT_PARTIAL
         print("flaair analyze: --allow-partial: reporting on the data present", file=sys.stderr)
     return 0

@@ -11,6 +11,7 @@ With several runs, gains and lags are fitted per run and combined (median); the 
 Example:
   bin/flaair calibrate out/demo/bags/characterization_chirp --out out/cal
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,21 +29,29 @@ from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
 from flaair_tools.bagio.runs import load_runs
 
-COMBINED_KEYS = ("gain_deg_per_v", "offset_v", "lag_s", "amplitude_rmse_deg", "phase_rmse_deg",
-                 "amplitude_rmse_band_deg")
+COMBINED_KEYS = (
+    "gain_deg_per_v",
+    "offset_v",
+    "lag_s",
+    "amplitude_rmse_deg",
+    "phase_rmse_deg",
+    "amplitude_rmse_band_deg",
+)
 
 
 def combine(per_run: list[dict]) -> dict:
     """One calibration from per-run fits: medians, the run-to-run spread, the per-run fits."""
-    out: dict = {"reference_voltage_v": per_run[0]["reference_voltage_v"],
-                 "sample_rate_hz": per_run[0]["sample_rate_hz"]}
+    out: dict = {
+        "reference_voltage_v": per_run[0]["reference_voltage_v"],
+        "sample_rate_hz": per_run[0]["sample_rate_hz"],
+    }
     for channel in ("stroke", "pitch"):
         fits = [r[channel] for r in per_run]
         polarities = {f["polarity"] for f in fits}
         if len(polarities) > 1:
             raise CalibrationError(
-                f"{channel}: polarity differs between runs ({sorted(polarities)}): check the "
-                "wiring")
+                f"{channel}: polarity differs between runs ({sorted(polarities)}): check the wiring"
+            )
         merged = dict(fits[0])
         for key in COMBINED_KEYS:
             values = np.array([f[key] for f in fits], float)
@@ -59,59 +68,94 @@ def _figure(value: float | None, fmt: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair calibrate", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("bags", nargs="+", type=Path,
-                        help="bags with /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth")
+    parser = argparse.ArgumentParser(
+        prog="flaair calibrate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "bags",
+        nargs="+",
+        type=Path,
+        help="bags with /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="model YAML for V_HREF (default: config/model.yaml)")
-    parser.add_argument("--band-hz", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-                        help="band of the band-limited amplitude RMSE (default: config/flaair.yaml "
-                             "analyze.amplitude_band_hz, the stroke-to-pitch resonance band)")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="model YAML for V_HREF (default: config/model.yaml)",
+    )
+    parser.add_argument(
+        "--band-hz",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LOW", "HIGH"),
+        help="band of the band-limited amplitude RMSE (default: config/flaair.yaml "
+        "analyze.amplitude_band_hz, the stroke-to-pitch resonance band)",
+    )
     args = parser.parse_args(argv)
     try:
-        band_hz = (tuple(args.band_hz) if args.band_hz
-                   else analysis_bands_from_config().amplitude_band_hz)
+        band_hz = (
+            tuple(args.band_hz) if args.band_hz else analysis_bands_from_config().amplitude_band_hz
+        )
         reference_v = load_model(args.model).sensors.reference_voltage_v
         runs = load_runs(args.bags)
         per_run = []
         for run in runs:
             try:
-                per_run.append(calibrate(run.columns, reference_v,
-                                         sample_rate_hz=run.sample_rate_hz,
-                                         amplitude_band_hz=band_hz))
+                per_run.append(
+                    calibrate(
+                        run.columns,
+                        reference_v,
+                        sample_rate_hz=run.sample_rate_hz,
+                        amplitude_band_hz=band_hz,
+                    )
+                )
             except CalibrationError as exc:
                 raise CalibrationError(f"{run.bag}, run '{run.name}': {exc}") from None
         result = combine(per_run)
     except (bagio.BagError, CalibrationError, ValueError, OSError) as exc:
         print(f"flaair calibrate: {exc}", file=sys.stderr)
         return 2
-    result["runs"] = [{"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}}
-                      for r, fit in zip(runs, per_run)]
+    result["runs"] = [
+        {"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}}
+        for r, fit in zip(runs, per_run)
+    ]
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "calibration.json").write_text(
-        json.dumps(json_safe(result), indent=2, allow_nan=False))
+        json.dumps(json_safe(result), indent=2, allow_nan=False)
+    )
     loadable = {"reference_voltage_v": result["reference_voltage_v"]}
     for channel in ("stroke", "pitch"):
-        loadable[channel] = {k: result[channel][k] for k in (
-            "gain_deg_per_v", "polarity", "offset_v", "lag_s")}
-    (args.out / "calibration.yaml").write_text("# FLAAIR sensor calibration (bin/flaair "
-                                               "calibrate); load with the front end's\n# -p "
-                                               "gains_from:=calibration -p calibration_file:=<this "
-                                               "file>\n"
-                                               + yaml.safe_dump(loadable, sort_keys=False))
+        loadable[channel] = {
+            k: result[channel][k] for k in ("gain_deg_per_v", "polarity", "offset_v", "lag_s")
+        }
+    (args.out / "calibration.yaml").write_text(
+        "# FLAAIR sensor calibration (bin/flaair "
+        "calibrate); load with the front end's\n# -p "
+        "gains_from:=calibration -p calibration_file:=<this "
+        "file>\n" + yaml.safe_dump(loadable, sort_keys=False)
+    )
     for channel in ("stroke", "pitch"):
         c = result[channel]
-        print(f"{channel:6s} gain {c['gain_deg_per_v']:8.3f} deg/V  polarity {c['polarity']:+d}  "
-              f"lag {c['lag_s'] * 1e3:7.4f} ms  amplitude RMSE "
-              f"{_figure(c['amplitude_rmse_deg'], '.3f')} deg  phase RMSE "
-              f"{_figure(c['phase_rmse_deg'], '.2f')} deg")
+        print(
+            f"{channel:6s} gain {c['gain_deg_per_v']:8.3f} deg/V  polarity {c['polarity']:+d}  "
+            f"lag {c['lag_s'] * 1e3:7.4f} ms  amplitude RMSE "
+            f"{_figure(c['amplitude_rmse_deg'], '.3f')} deg  phase RMSE "
+            f"{_figure(c['phase_rmse_deg'], '.2f')} deg"
+        )
         if c["amplitude_rmse_deg"] is None:
-            print(f"flaair calibrate: warning: {channel}: no window had enough ground truth for "
-                  "the RMSE figures", file=sys.stderr)
-    print(f"wrote {args.out / 'calibration.yaml'} and {args.out / 'calibration.json'} ({len(runs)} "
-          "run(s))")
+            print(
+                f"flaair calibrate: warning: {channel}: no window had enough ground truth for "
+                "the RMSE figures",
+                file=sys.stderr,
+            )
+    print(
+        f"wrote {args.out / 'calibration.yaml'} and {args.out / 'calibration.json'} ({len(runs)} "
+        "run(s))"
+    )
     return 0
 
 

@@ -8,11 +8,13 @@ k), decoded and mapped to the cores' inputs exactly as the nodes do it (`cdr.dec
 statuses and events, drive blocks and controller states. `analyze` uses it to show what
 the monitor decided; the tests use it to prove the live and offline paths identical.
 """
+
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from flaair_common import cdr, topics
 from flaair_control.control_io import (
@@ -31,8 +33,9 @@ from flaair_tools import bagio
 LAYOUTS = {topics.DRIVE: cdr.DRIVE_COMMAND_BLOCK, topics.WING_STATE: cdr.WING_STATE_BLOCK}
 
 
-def _blocks_in_loop_order(bag: Path,
-                          wanted: tuple[str, ...]) -> Iterator[tuple[str, dict[str, Any]]]:
+def _blocks_in_loop_order(
+    bag: Path, wanted: tuple[str, ...]
+) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, message fields) of the block topics, decoded as the nodes decode them, ordered by
     sample index; at one index drive first.
     """
@@ -44,7 +47,7 @@ def _blocks_in_loop_order(bag: Path,
     messages.sort(key=lambda item: item[:3])
     seen: set[tuple[str, int]] = set()
     for index, _, _, topic, fields in messages:
-        if (topic, index) in seen:     # a retransmitted block: the node ignored it as stale
+        if (topic, index) in seen:  # a retransmitted block: the node ignored it as stale
             continue
         seen.add((topic, index))
         yield topic, fields
@@ -54,34 +57,39 @@ def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[moni
     """The collision monitor's verdicts on a bag (``values``: collision_monitor_node parameters)."""
     params = collision_monitor_params_from_config(values)
     state = monitor.initial_state(params)
-    wanted = ((topics.DRIVE, topics.WING_STATE) if params.estimates_frequency
-              else (topics.WING_STATE,))
+    wanted = (
+        (topics.DRIVE, topics.WING_STATE) if params.estimates_frequency else (topics.WING_STATE,)
+    )
     verdicts: list[monitor.Verdict] = []
     for topic, fields in _blocks_in_loop_order(bag, wanted):
-        inputs = (monitor_drive_input(fields) if topic == topics.DRIVE
-                  else monitor_wing_input(fields))
+        inputs = (
+            monitor_drive_input(fields) if topic == topics.DRIVE else monitor_wing_input(fields)
+        )
         state, out = monitor.step(state, inputs, params)
         verdicts.extend(out.verdicts)
     return verdicts
 
 
-def replay_controller(bag: Path, model: Model,
-                      values: dict[str, Any] | None = None) -> list[sv.DriveOut]:
+def replay_controller(
+    bag: Path, model: Model, values: dict[str, Any] | None = None
+) -> list[sv.DriveOut]:
     """The dSA controller's drive blocks on a bag of a closed loop it ran (lockstep plant).
 
     The start (peers seen, start delay passed) is replayed as two ticks; then every recorded
     wing-state block in order. Wall-clock watchdogs do not trip offline.
     """
     values = dict(dsa_controller_values() if values is None else values)
-    params = replace(supervisor_params_from_config(values, model), run_time_s=0.0,
-                     watchdog_timeout_s=1e9)
+    params = replace(
+        supervisor_params_from_config(values, model), run_time_s=0.0, watchdog_timeout_s=1e9
+    )
     state = sv.initial_state(params)
     out: list[sv.DriveOut] = []
     for t_wall in (0.0, params.start_delay_s + 1.0):
         state, result = sv.step(state, sv.Tick(t_wall, 99, 1, 1), params)
         out.extend(result.blocks)
     for _, fields in _blocks_in_loop_order(bag, (topics.WING_STATE,)):
-        state, result = sv.step(state, supervisor_wing_input(fields, params.start_delay_s + 1.0, 1),
-                                params)
+        state, result = sv.step(
+            state, supervisor_wing_input(fields, params.start_delay_s + 1.0, 1), params
+        )
         out.extend(result.blocks)
     return out

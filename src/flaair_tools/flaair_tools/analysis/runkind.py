@@ -19,10 +19,12 @@ the plateau's mean so far form a plateau; a plateau held at least ``min_dwell_s`
 level); otherwise a monotone block frequency is a chirp. Each dwell's frequency is the slope
 of the unwrapped drive phase, refined by a least-squares sine fit to the dwell's drive.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 from scipy import optimize, signal
@@ -40,24 +42,26 @@ class RunKindError(ValueError):
 class RecognitionParams:
     """Thresholds of drive recognition (config/flaair.yaml, section analyze)."""
 
-    block_s: float                 # length of one frequency-estimate block [s]
-    free_run_drive_v: float        # drive envelope below this counts as no drive [V]
-    tolerance_hz: float            # a dwell's frequency stays within max(tolerance_hz, ...
-    tolerance_fraction: float      # ... tolerance_fraction * frequency) of its start [-]
-    min_dwell_s: float             # shortest dwell [s]
-    min_dwell_cycles: float        # ... and at least this many drive cycles [-]
-    dwell_coverage: float          # dwells cover at least this fraction of driven time [-]
+    block_s: float  # length of one frequency-estimate block [s]
+    free_run_drive_v: float  # drive envelope below this counts as no drive [V]
+    tolerance_hz: float  # a dwell's frequency stays within max(tolerance_hz, ...
+    tolerance_fraction: float  # ... tolerance_fraction * frequency) of its start [-]
+    min_dwell_s: float  # shortest dwell [s]
+    min_dwell_cycles: float  # ... and at least this many drive cycles [-]
+    dwell_coverage: float  # dwells cover at least this fraction of driven time [-]
     sweep_monotone_fraction: float  # chirp: this fraction of block-to-block changes go one way [-]
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise RunKindError(
-                    f"recognition parameter '{name}' must be a finite number > 0, got {value!r}")
+                    f"recognition parameter '{name}' must be a finite number > 0, got {value!r}"
+                )
         for name in ("dwell_coverage", "sweep_monotone_fraction", "tolerance_fraction"):
             if getattr(self, name) > 1:
                 raise RunKindError(
-                    f"recognition parameter '{name}' must be <= 1, got {getattr(self, name)!r}")
+                    f"recognition parameter '{name}' must be <= 1, got {getattr(self, name)!r}"
+                )
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> RecognitionParams:
@@ -82,10 +86,10 @@ class DriveKind:
     """The recognised drive of a run."""
 
     kind: str
-    reason: str                          # one human sentence: why this kind
-    steps: tuple[Step, ...] = ()         # dwells (stepped_sine: each step; sine: the one dwell)
+    reason: str  # one human sentence: why this kind
+    steps: tuple[Step, ...] = ()  # dwells (stepped_sine: each step; sine: the one dwell)
     sweep_hz: tuple[float, float] | None = None  # lowest and highest drive frequency seen
-    drive_amplitude_v: float = 0.0       # median drive envelope over driven time [V]
+    drive_amplitude_v: float = 0.0  # median drive envelope over driven time [V]
 
     @property
     def frequency_hz(self) -> float | None:
@@ -96,19 +100,26 @@ class DriveKind:
         """Drive frequency of every sample: each dwell's frequency, 0 outside the dwells."""
         track = np.zeros(n_samples)
         for step in self.steps:
-            track[step.start:min(step.stop, n_samples)] = step.frequency_hz
+            track[step.start : min(step.stop, n_samples)] = step.frequency_hz
         return track
 
     def as_dict(self) -> dict[str, Any]:
         """Plain JSON-ready form."""
-        return {"kind": self.kind, "reason": self.reason,
-                "drive_amplitude_v": self.drive_amplitude_v, "sweep_hz": list(self.sweep_hz)
-                if self.sweep_hz else None, "steps": [
-            {"start": s.start, "stop": s.stop, "frequency_hz": s.frequency_hz} for s in self.steps]}
+        return {
+            "kind": self.kind,
+            "reason": self.reason,
+            "drive_amplitude_v": self.drive_amplitude_v,
+            "sweep_hz": list(self.sweep_hz) if self.sweep_hz else None,
+            "steps": [
+                {"start": s.start, "stop": s.stop, "frequency_hz": s.frequency_hz}
+                for s in self.steps
+            ],
+        }
 
 
-def _block_frequency(drive_v: np.ndarray, fs_hz: float, block: int,
-                     floor_v: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _block_frequency(
+    drive_v: np.ndarray, fs_hz: float, block: int, floor_v: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unwrapped phase per sample, and median frequency
     and envelope per block (NaN when undriven).
     """
@@ -117,8 +128,8 @@ def _block_frequency(drive_v: np.ndarray, fs_hz: float, block: int,
     frequency = np.gradient(phase) * fs_hz / (2 * np.pi)
     n_blocks = drive_v.size // block
     shape = (n_blocks, block)
-    rough_f = np.median(frequency[:n_blocks * block].reshape(shape), axis=1)
-    block_env = np.median(np.abs(analytic[:n_blocks * block]).reshape(shape), axis=1)
+    rough_f = np.median(frequency[: n_blocks * block].reshape(shape), axis=1)
+    block_env = np.median(np.abs(analytic[: n_blocks * block]).reshape(shape), axis=1)
     # The analytic signal of a gated sine ripples at twice its frequency; the mean frequency
     # over one whole cycle (the phase advance across it) cancels the ripple. At the record's
     # ends the window slides inwards rather than shrinking.
@@ -157,8 +168,9 @@ def _tolerance(frequency_hz: float, p: RecognitionParams) -> float:
     return max(p.tolerance_hz, p.tolerance_fraction * frequency_hz)
 
 
-def _dwell_frequency(drive_v: np.ndarray, phase: np.ndarray, start: int, stop: int, fs_hz: float,
-                     tolerance_hz: float) -> float:
+def _dwell_frequency(
+    drive_v: np.ndarray, phase: np.ndarray, start: int, stop: int, fs_hz: float, tolerance_hz: float
+) -> float:
     """A dwell's frequency: the phase slope over its
     middle 80 %, refined by a least-squares sine fit.
     """
@@ -169,18 +181,28 @@ def _dwell_frequency(drive_v: np.ndarray, phase: np.ndarray, start: int, stop: i
     x = drive_v[start:stop]
 
     def residual(f: float) -> float:
-        basis = np.column_stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t),
-                                 np.ones(t.size)])
+        basis = np.column_stack(
+            [np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t), np.ones(t.size)]
+        )
         coef = np.linalg.lstsq(basis, x, rcond=None)[0]
         return float(np.sum((x - basis @ coef) ** 2))
 
-    best = optimize.minimize_scalar(residual, bounds=(rough - tolerance_hz, rough + tolerance_hz),
-                                    method="bounded", options={"xatol": 1e-5})
+    best = optimize.minimize_scalar(
+        residual,
+        bounds=(rough - tolerance_hz, rough + tolerance_hz),
+        method="bounded",
+        options={"xatol": 1e-5},
+    )
     return float(best.x) if best.success and best.fun <= residual(rough) else rough
 
 
-def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *,
-              has_controller_state: bool = False) -> DriveKind:
+def recognise(
+    drive_v: np.ndarray,
+    fs_hz: float,
+    params: RecognitionParams,
+    *,
+    has_controller_state: bool = False,
+) -> DriveKind:
     """Recognise a run's drive (see module docstring).
 
     Parameters
@@ -199,12 +221,17 @@ def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *,
         raise RunKindError(f"sample rate must be a finite number > 0, got {fs_hz!r}")
     drive = np.where(np.isfinite(drive), drive, 0.0)
     if has_controller_state:
-        return DriveKind("transition", "the drive was made by the dSA controller from stroke "
-                                       "feedback (controller state recorded)",
-                         drive_amplitude_v=float(np.sqrt(2) * np.std(drive)) if drive.size else 0.0)
-    block = max(8, int(round(params.block_s * fs_hz)))
-    if drive.size < 4 * block or np.max(
-            np.abs(drive - np.median(drive)), initial=0.0) < params.free_run_drive_v:
+        return DriveKind(
+            "transition",
+            "the drive was made by the dSA controller from stroke "
+            "feedback (controller state recorded)",
+            drive_amplitude_v=float(np.sqrt(2) * np.std(drive)) if drive.size else 0.0,
+        )
+    block = max(8, round(params.block_s * fs_hz))
+    if (
+        drive.size < 4 * block
+        or np.max(np.abs(drive - np.median(drive)), initial=0.0) < params.free_run_drive_v
+    ):
         return DriveKind("free", f"no drive above {params.free_run_drive_v:g} V")
     phase, block_f, block_env = _block_frequency(drive, fs_hz, block, params.free_run_drive_v)
     driven = np.isfinite(block_f)
@@ -216,38 +243,70 @@ def recognise(drive_v: np.ndarray, fs_hz: float, params: RecognitionParams, *,
     for a, b in _plateaus(block_f, params):
         f0 = float(np.median(block_f[a:b]))
         long_enough = (b - a) * block >= max(
-            params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0)
+            params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0
+        )
         # A slow chirp also stays within tolerance for a while, but it drifts across it.
         drift = abs(np.polyfit(np.arange(a, b), block_f[a:b], 1)[0]) * (b - a) if b - a > 2 else 0.0
         if long_enough and drift < 0.5 * _tolerance(f0, params):
-            dwells.append(Step(a * block, b * block, _dwell_frequency(
-                drive, phase, a * block, b * block, fs_hz, _tolerance(f0, params))))
+            dwells.append(
+                Step(
+                    a * block,
+                    b * block,
+                    _dwell_frequency(
+                        drive, phase, a * block, b * block, fs_hz, _tolerance(f0, params)
+                    ),
+                )
+            )
     covered = sum(s.stop - s.start for s in dwells) / (driven.sum() * block)
     levels = _levels([s.frequency_hz for s in dwells], params)
     if dwells and covered >= params.dwell_coverage:
         if len(levels) == 1:
             start, stop = dwells[0].start, dwells[-1].stop
-            step = Step(start, stop, _dwell_frequency(
-                drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)))
-            return DriveKind("sine",
-                             f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of "
-                             "the driven time", (step,), sweep, amplitude_v)
-        return DriveKind("stepped_sine", f"{len(dwells)} dwells at {len(levels)} frequencies "
-                                         f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover "
-                                         f"{covered:.0%} of the driven time", tuple(dwells), sweep,
-                         amplitude_v)
+            step = Step(
+                start,
+                stop,
+                _dwell_frequency(drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)),
+            )
+            return DriveKind(
+                "sine",
+                f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of the driven time",
+                (step,),
+                sweep,
+                amplitude_v,
+            )
+        return DriveKind(
+            "stepped_sine",
+            f"{len(dwells)} dwells at {len(levels)} frequencies "
+            f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover "
+            f"{covered:.0%} of the driven time",
+            tuple(dwells),
+            sweep,
+            amplitude_v,
+        )
     changes = np.diff(block_f[driven])
     changes = changes[np.abs(changes) > 1e-9]
     rising = float(np.mean(changes > 0)) if changes.size else 0.5
-    if (sweep[1] - sweep[0] > 3 * _tolerance(sweep[1], params)
-        and max(rising, 1 - rising) >= params.sweep_monotone_fraction):
-        return DriveKind("chirp", f"the frequency sweeps {'up' if rising >= 0.5 else 'down'} from "
-                                  f"{sweep[0]:.4g} to {sweep[1]:.4g} Hz "
-                                  f"({max(rising, 1 - rising):.0%} of changes one way)", (), sweep,
-                         amplitude_v)
-    return DriveKind("unrecognised", f"neither steady dwells ({covered:.0%} of the driven time) "
-                                     f"nor a monotone sweep ({sweep[0]:.4g}-{sweep[1]:.4g} Hz)", (),
-                     sweep, amplitude_v)
+    if (
+        sweep[1] - sweep[0] > 3 * _tolerance(sweep[1], params)
+        and max(rising, 1 - rising) >= params.sweep_monotone_fraction
+    ):
+        return DriveKind(
+            "chirp",
+            f"the frequency sweeps {'up' if rising >= 0.5 else 'down'} from "
+            f"{sweep[0]:.4g} to {sweep[1]:.4g} Hz "
+            f"({max(rising, 1 - rising):.0%} of changes one way)",
+            (),
+            sweep,
+            amplitude_v,
+        )
+    return DriveKind(
+        "unrecognised",
+        f"neither steady dwells ({covered:.0%} of the driven time) "
+        f"nor a monotone sweep ({sweep[0]:.4g}-{sweep[1]:.4g} Hz)",
+        (),
+        sweep,
+        amplitude_v,
+    )
 
 
 def _levels(frequencies_hz: list[float], params: RecognitionParams) -> list[float]:

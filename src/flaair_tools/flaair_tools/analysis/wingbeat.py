@@ -17,6 +17,7 @@ A wingbeat holding an invalid sample, or longer than ``1 / min_frequency_hz``, o
 ``step(state, inputs, params) -> (state, outputs)`` runs block by block; ``summarize`` is the
 same step over a whole record, so the live view and an offline bag give identical summaries.
 """
+
 from __future__ import annotations
 
 import math
@@ -43,28 +44,31 @@ class WingbeatParams:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.sample_rate_hz) and self.sample_rate_hz > 0):
             raise WingbeatParameterError(
-                f"sample_rate_hz must be finite and > 0, got {self.sample_rate_hz}")
+                f"sample_rate_hz must be finite and > 0, got {self.sample_rate_hz}"
+            )
         if not (math.isfinite(self.hysteresis_deg) and self.hysteresis_deg >= 0):
             raise WingbeatParameterError(
-                f"hysteresis_deg must be finite and >= 0, got {self.hysteresis_deg}")
+                f"hysteresis_deg must be finite and >= 0, got {self.hysteresis_deg}"
+            )
         if not (0 < self.min_frequency_hz < self.max_frequency_hz <= self.sample_rate_hz / 2):
             raise WingbeatParameterError(
                 f"need 0 < min_frequency_hz < max_frequency_hz <= sample_rate_hz / 2, got "
-                f"{self.min_frequency_hz}, {self.max_frequency_hz}, {self.sample_rate_hz}")
+                f"{self.min_frequency_hz}, {self.max_frequency_hz}, {self.sample_rate_hz}"
+            )
 
 
 class WingbeatState(NamedTuple):
     """Trigger and running extrema of the wingbeat in progress."""
 
-    next_index: int            # sample index the next block must start at
-    armed: bool                # stroke has been below -hysteresis since the last crossing
-    last_crossing: float       # fractional sample index of the last crossing (NaN: none yet)
-    previous_deg: float        # last stroke sample (NaN: none)
+    next_index: int  # sample index the next block must start at
+    armed: bool  # stroke has been below -hysteresis since the last crossing
+    last_crossing: float  # fractional sample index of the last crossing (NaN: none yet)
+    previous_deg: float  # last stroke sample (NaN: none)
     stroke_max_deg: float
     stroke_min_deg: float
     pitch_max_deg: float
     pitch_min_deg: float
-    beat_valid: bool           # every sample since the last crossing was valid
+    beat_valid: bool  # every sample since the last crossing was valid
 
 
 class WingbeatInputs(NamedTuple):
@@ -73,17 +77,17 @@ class WingbeatInputs(NamedTuple):
     first_sample_index: int
     stroke_deg: np.ndarray
     pitch_deg: np.ndarray
-    valid: np.ndarray          # stroke_valid & pitch_valid
+    valid: np.ndarray  # stroke_valid & pitch_valid
     # latest CollisionStatus spectrum_rmse_deg / threshold_deg (NaN: none)
     collision_score: float
-    k_r: float                 # latest ControllerState k_r (NaN: none)
+    k_r: float  # latest ControllerState k_r (NaN: none)
 
 
 class Wingbeats(NamedTuple):
     """Wingbeats completed within one block (arrays of equal length, possibly empty)."""
 
-    start_sample: np.ndarray   # fractional sample index of the wingbeat's start
-    end_sample: np.ndarray     # ... and of its end
+    start_sample: np.ndarray  # fractional sample index of the wingbeat's start
+    end_sample: np.ndarray  # ... and of its end
     amplitude_deg: np.ndarray
     frequency_hz: np.ndarray
     pitch_amplitude_deg: np.ndarray
@@ -93,8 +97,9 @@ class Wingbeats(NamedTuple):
 
 def initial_state(params: WingbeatParams) -> WingbeatState:
     """State before any sample: nothing armed, no crossing seen."""
-    return WingbeatState(0, False, math.nan, math.nan, -math.inf, math.inf, -math.inf, math.inf,
-                         False)
+    return WingbeatState(
+        0, False, math.nan, math.nan, -math.inf, math.inf, -math.inf, math.inf, False
+    )
 
 
 def collision_score(spectrum_rmse_deg: float, threshold_deg: float) -> float:
@@ -103,9 +108,23 @@ def collision_score(spectrum_rmse_deg: float, threshold_deg: float) -> float:
 
 
 @numba.njit(cache=True)
-def _scan(first, stroke, pitch, valid, armed, last_crossing, previous, s_max, s_min, p_max, p_min,
-          beat_valid,
-          hysteresis, min_len, max_len):  # pragma: no cover - compiled
+def _scan(
+    first,
+    stroke,
+    pitch,
+    valid,
+    armed,
+    last_crossing,
+    previous,
+    s_max,
+    s_min,
+    p_max,
+    p_min,
+    beat_valid,
+    hysteresis,
+    min_len,
+    max_len,
+):  # pragma: no cover - compiled
     n = stroke.shape[0]
     out = np.empty((n, 5))
     count = 0
@@ -141,8 +160,9 @@ def _scan(first, stroke, pitch, valid, armed, last_crossing, previous, s_max, s_
     return out[:count], armed, last_crossing, previous, s_max, s_min, p_max, p_min, beat_valid
 
 
-def step(state: WingbeatState, inputs: WingbeatInputs,
-         params: WingbeatParams) -> tuple[WingbeatState, Wingbeats]:
+def step(
+    state: WingbeatState, inputs: WingbeatInputs, params: WingbeatParams
+) -> tuple[WingbeatState, Wingbeats]:
     """Advance the summary by one wing-state block.
 
     A block that does not continue the stream (a gap or a restart) drops the wingbeat in
@@ -152,30 +172,59 @@ def step(state: WingbeatState, inputs: WingbeatInputs,
     pitch = np.ascontiguousarray(inputs.pitch_deg, dtype=np.float64)
     valid = np.ascontiguousarray(inputs.valid, dtype=np.bool_)
     if not (stroke.shape == pitch.shape == valid.shape) or stroke.ndim != 1:
-        raise WingbeatParameterError("stroke_deg, pitch_deg and valid must be 1-D of one length, "
-                                     f"got {stroke.shape}, {pitch.shape}, {valid.shape}")
+        raise WingbeatParameterError(
+            "stroke_deg, pitch_deg and valid must be 1-D of one length, "
+            f"got {stroke.shape}, {pitch.shape}, {valid.shape}"
+        )
     if inputs.first_sample_index != state.next_index:
         state = initial_state(params)
     fs = params.sample_rate_hz
-    rows, *rest = _scan(int(inputs.first_sample_index), stroke, pitch, valid, state.armed,
-                        state.last_crossing, state.previous_deg, state.stroke_max_deg,
-                        state.stroke_min_deg, state.pitch_max_deg, state.pitch_min_deg,
-                        state.beat_valid, params.hysteresis_deg, fs / params.max_frequency_hz,
-                        fs / params.min_frequency_hz)
-    new_state = WingbeatState(int(inputs.first_sample_index) + stroke.size,
-                              *(type(v)(v) for v in rest))
+    rows, *rest = _scan(
+        int(inputs.first_sample_index),
+        stroke,
+        pitch,
+        valid,
+        state.armed,
+        state.last_crossing,
+        state.previous_deg,
+        state.stroke_max_deg,
+        state.stroke_min_deg,
+        state.pitch_max_deg,
+        state.pitch_min_deg,
+        state.beat_valid,
+        params.hysteresis_deg,
+        fs / params.max_frequency_hz,
+        fs / params.min_frequency_hz,
+    )
+    new_state = WingbeatState(
+        int(inputs.first_sample_index) + stroke.size, *(type(v)(v) for v in rest)
+    )
     count = rows.shape[0]
     return new_state, Wingbeats(
-        rows[:, 0], rows[:, 1], rows[:, 2], fs / rows[:, 3], rows[:, 4],
-        np.full(count, inputs.collision_score), np.full(count, inputs.k_r))
+        rows[:, 0],
+        rows[:, 1],
+        rows[:, 2],
+        fs / rows[:, 3],
+        rows[:, 4],
+        np.full(count, inputs.collision_score),
+        np.full(count, inputs.k_r),
+    )
 
 
-def summarize(stroke_deg: np.ndarray, pitch_deg: np.ndarray, valid: np.ndarray,
-              params: WingbeatParams, first_sample_index: int = 0) -> Wingbeats:
+def summarize(
+    stroke_deg: np.ndarray,
+    pitch_deg: np.ndarray,
+    valid: np.ndarray,
+    params: WingbeatParams,
+    first_sample_index: int = 0,
+) -> Wingbeats:
     """The wingbeats of a whole record: `step` once over it from the initial state."""
     state = initial_state(params)._replace(next_index=first_sample_index)
-    return step(state, WingbeatInputs(
-        first_sample_index, stroke_deg, pitch_deg, valid, math.nan, math.nan), params)[1]
+    return step(
+        state,
+        WingbeatInputs(first_sample_index, stroke_deg, pitch_deg, valid, math.nan, math.nan),
+        params,
+    )[1]
 
 
 def concatenate(parts: list[Wingbeats]) -> Wingbeats:

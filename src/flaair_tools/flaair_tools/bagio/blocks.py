@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -24,7 +25,7 @@ from flaair_tools.bagio.messages import (
     typestore,
 )
 
-__all__ = ["Blocks", "block_array_fields", "assemble_blocks", "blocks_from_cdr", "select_samples"]
+__all__ = ["Blocks", "assemble_blocks", "block_array_fields", "blocks_from_cdr", "select_samples"]
 
 
 @dataclass(frozen=True)
@@ -74,8 +75,10 @@ def block_array_fields(msgtype: str, store: Typestore | None = None) -> tuple[li
             scalars.append(name)
     names = {name for name, _ in fields}
     if not arrays or not {"header", "sample_rate_hz", "first_sample_index"} <= names:
-        raise BagTopicError(f"{msgtype} is not a block message (needs header, sample_rate_hz, "
-                            "first_sample_index and arrays)")
+        raise BagTopicError(
+            f"{msgtype} is not a block message (needs header, sample_rate_hz, "
+            "first_sample_index and arrays)"
+        )
     return arrays, scalars
 
 
@@ -93,8 +96,9 @@ class _BlockColumns:
     bad_lengths: tuple[int, dict[str, int]] | None = None
 
 
-def _columns_from_messages(messages: Sequence[Any], arrays: list[str],
-                           scalars: list[str]) -> _BlockColumns:
+def _columns_from_messages(
+    messages: Sequence[Any], arrays: list[str], scalars: list[str]
+) -> _BlockColumns:
     """Deserialized block messages in columns (a message
     whose arrays differ in length contributes none).
     """
@@ -107,26 +111,30 @@ def _columns_from_messages(messages: Sequence[Any], arrays: list[str],
             bad = bad or (number, sizes)
             row = {name: v[:0] for name, v in row.items()}
         rows.append(row)
-    return _BlockColumns(rate_hz=np.array([float(m.sample_rate_hz) for m in messages], dtype=float),
-                         first=np.array(
-        [int(m.first_sample_index) for m in messages], dtype=np.int64),
-                         stamp_ns=np.array(
-        [m.header.stamp.sec * NS_PER_S + m.header.stamp.nanosec for m in messages], dtype=np.int64),
-                         lengths=np.array([next(iter(row.values())).size for row in rows],
-                                          dtype=np.int64),
-                         arrays={name: np.concatenate([row[name] for row in rows]) if rows
-                                 else np.zeros(0) for name in arrays},
-                         scalars={name: np.asarray([getattr(m, name) for m in messages])
-                                  for name in scalars},
-                         bad_lengths=bad)
+    return _BlockColumns(
+        rate_hz=np.array([float(m.sample_rate_hz) for m in messages], dtype=float),
+        first=np.array([int(m.first_sample_index) for m in messages], dtype=np.int64),
+        stamp_ns=np.array(
+            [m.header.stamp.sec * NS_PER_S + m.header.stamp.nanosec for m in messages],
+            dtype=np.int64,
+        ),
+        lengths=np.array([next(iter(row.values())).size for row in rows], dtype=np.int64),
+        arrays={
+            name: np.concatenate([row[name] for row in rows]) if rows else np.zeros(0)
+            for name in arrays
+        },
+        scalars={name: np.asarray([getattr(m, name) for m in messages]) for name in scalars},
+        bad_lengths=bad,
+    )
 
 
 def _damaged(bag: str | Path, msgtype: str, exc: Exception) -> BagError:
     return BagError(f"{bag}: damaged {msgtype} message: {type(exc).__name__}: {exc}")
 
 
-def _decode_by_size(layout: cdr.Layout, datas: Sequence[bytes],
-                    bag: str | Path) -> list[tuple[np.ndarray, Any]]:
+def _decode_by_size(
+    layout: cdr.Layout, datas: Sequence[bytes], bag: str | Path
+) -> list[tuple[np.ndarray, Any]]:
     """(message numbers, records) per message size (`cdr.decode_batch`), each message that fits no
     fixed layout decoded alone (a dict); a message that is no CDR of its type is a damaged bag.
     """
@@ -136,8 +144,12 @@ def _decode_by_size(layout: cdr.Layout, datas: Sequence[bytes],
             message = cdr.decode(layout, datas[number])
         except cdr.CdrError as exc:
             raise _damaged(bag, layout.type_name, exc) from None
-        groups.append((np.array([number]), {
-            k: np.asarray(v)[None] for k, v in message.items() if k != "frame_id"}))
+        groups.append(
+            (
+                np.array([number]),
+                {k: np.asarray(v)[None] for k, v in message.items() if k != "frame_id"},
+            )
+        )
     return groups
 
 
@@ -146,28 +158,39 @@ def _columns_from_cdr(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Pat
     decoded with numpy (no per-message objects).
     """
     sequences = [name for name, kind in layout.fields if kind.endswith("[]")]
-    scalars = [(name, kind) for name, kind in layout.fields if not kind.endswith("[]")
-               and name not in ("sample_rate_hz", "first_sample_index")]
+    scalars = [
+        (name, kind)
+        for name, kind in layout.fields
+        if not kind.endswith("[]") and name not in ("sample_rate_hz", "first_sample_index")
+    ]
     n = len(datas)
     groups = _decode_by_size(layout, datas, bag)
     lengths, bad = np.zeros(n, dtype=np.int64), None
     for numbers, records in groups:
         found = {name: records[name].shape[1] for name in sequences}
-        if len(set(found.values())) != 1:     # only a message decoded alone can disagree
+        if len(set(found.values())) != 1:  # only a message decoded alone can disagree
             bad = min(bad or (n, found), (int(numbers[0]), found), key=lambda b: b[0])
         else:
             lengths[numbers] = found[sequences[0]]
     starts = np.cumsum(lengths) - lengths
     rate, first, stamp = np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
-    scalar_out = {name: np.zeros(n, dtype=bool if kind == "bool" else float
-                                 if kind == "float64" else np.int64) for name, kind in scalars}
-    array_out = {name: np.zeros(int(lengths.sum()), dtype=cdr._KINDS[kind][0].newbyteorder("="))
-                 for name, kind in layout.fields if kind.endswith("[]")}
+    scalar_out = {
+        name: np.zeros(
+            n, dtype=bool if kind == "bool" else float if kind == "float64" else np.int64
+        )
+        for name, kind in scalars
+    }
+    array_out = {
+        name: np.zeros(int(lengths.sum()), dtype=cdr._KINDS[kind][0].newbyteorder("="))
+        for name, kind in layout.fields
+        if kind.endswith("[]")
+    }
     for numbers, records in groups:
         rate[numbers] = records["sample_rate_hz"]
         first[numbers] = records["first_sample_index"].astype(np.int64)
-        stamp[numbers] = (records["sec"].astype(np.int64) * NS_PER_S
-                          + records["nanosec"].astype(np.int64))
+        stamp[numbers] = records["sec"].astype(np.int64) * NS_PER_S + records["nanosec"].astype(
+            np.int64
+        )
         for name in scalar_out:
             scalar_out[name][numbers] = records[name]
         width = int(lengths[numbers[0]])
@@ -178,8 +201,9 @@ def _columns_from_cdr(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Pat
     return _BlockColumns(rate, first, stamp, lengths, array_out, scalar_out, bad)
 
 
-def _assemble(topic: str, msgtype: str, columns: _BlockColumns, allow_gaps: bool,
-              bag: str | Path) -> Blocks:
+def _assemble(
+    topic: str, msgtype: str, columns: _BlockColumns, allow_gaps: bool, bag: str | Path
+) -> Blocks:
     """Blocks from columns: same sample rate throughout,
     retransmitted blocks dropped, continuity checked.
     """
@@ -193,90 +217,144 @@ def _assemble(topic: str, msgtype: str, columns: _BlockColumns, allow_gaps: bool
     errors: list[tuple[int, int, type, str]] = []
     differs = np.flatnonzero(columns.rate_hz != rate_hz)
     if differs.size:
-        errors.append((int(differs[0]), 0, BagError,
-                       f"sample_rate_hz {float(columns.rate_hz[differs[0]])} differs from "
-                       f"{rate_hz}"))
+        errors.append(
+            (
+                int(differs[0]),
+                0,
+                BagError,
+                f"sample_rate_hz {float(columns.rate_hz[differs[0]])} differs from {rate_hz}",
+            )
+        )
     if columns.bad_lengths is not None:
-        errors.append((columns.bad_lengths[0], 1, BagError,
-                       f"array lengths differ: {columns.bad_lengths[1]}"))
+        errors.append(
+            (columns.bad_lengths[0], 1, BagError, f"array lengths differ: {columns.bad_lengths[1]}")
+        )
     first, lengths = columns.first, columns.lengths
     starts = np.cumsum(lengths) - lengths
     keep = np.ones(first.size, dtype=bool)
     for number in np.flatnonzero((first[1:] == first[:-1]) & (lengths[1:] == lengths[:-1])) + 1:
-        now, before = slice(starts[number], starts[number] + lengths[number]), slice(
-            starts[number - 1], starts[number - 1] + lengths[number - 1])
+        now, before = (
+            slice(starts[number], starts[number] + lengths[number]),
+            slice(starts[number - 1], starts[number - 1] + lengths[number - 1]),
+        )
         keep[number] = not all(np.array_equal(v[now], v[before]) for v in columns.arrays.values())
     # a retransmission (a controller's start-up retry) is the same block again: dropped
     kept = np.flatnonzero(keep)
     expected = first[kept[:-1]] + lengths[kept[:-1]]
     jumps = np.flatnonzero(first[kept[1:]] != expected)
     if jumps.size and not allow_gaps:
-        number, want, got = (int(kept[jumps[0] + 1]), int(expected[jumps[0]]),
-                             int(first[kept[jumps[0] + 1]]))
+        number, want, got = (
+            int(kept[jumps[0] + 1]),
+            int(expected[jumps[0]]),
+            int(first[kept[jumps[0] + 1]]),
+        )
         kind = f"{got - want} samples missing" if got > want else f"{want - got} samples repeated"
-        errors.append((number, 2, BagContinuityError,
-                       f"block {number} has first_sample_index {got}, expected {want} ({kind})"))
+        errors.append(
+            (
+                number,
+                2,
+                BagContinuityError,
+                f"block {number} has first_sample_index {got}, expected {want} ({kind})",
+            )
+        )
     if errors:
         number, _, error, text = min(errors)
-        raise error(f"{where}: {text}" if error is BagContinuityError
-                    else f"{where}: block {number}: {text}")
+        raise error(
+            f"{where}: {text}"
+            if error is BagContinuityError
+            else f"{where}: block {number}: {text}"
+        )
     gaps = tuple((int(e), int(f)) for e, f in zip(expected[jumps], first[kept[jumps + 1]]))
     sample_keep = np.repeat(keep, lengths)
     lengths_arr, firsts_arr, stamps_arr = lengths[kept], first[kept], columns.stamp_ns[kept]
     offsets = np.arange(int(lengths_arr.sum()), dtype=np.int64) - np.repeat(
-        np.cumsum(lengths_arr) - lengths_arr, lengths_arr)
+        np.cumsum(lengths_arr) - lengths_arr, lengths_arr
+    )
     sample_index = np.repeat(firsts_arr, lengths_arr) + offsets
-    time_ns = (np.repeat(stamps_arr, lengths_arr)
-               + np.round(offsets * (NS_PER_S / rate_hz)).astype(np.int64))
+    time_ns = np.repeat(stamps_arr, lengths_arr) + np.round(offsets * (NS_PER_S / rate_hz)).astype(
+        np.int64
+    )
     return Blocks(
-        topic=topic, msgtype=msgtype, sample_rate_hz=rate_hz, first_sample_index=int(firsts_arr[0]),
-        fields={name: values if keep.all() else values[sample_keep] for name,
-                values in columns.arrays.items()}, sample_index=sample_index, time_ns=time_ns,
-        block_stamps_ns=stamps_arr, block_first_index=firsts_arr, scalars={
-        name: values[kept] for name, values in columns.scalars.items()}, gaps=gaps,
+        topic=topic,
+        msgtype=msgtype,
+        sample_rate_hz=rate_hz,
+        first_sample_index=int(firsts_arr[0]),
+        fields={
+            name: values if keep.all() else values[sample_keep]
+            for name, values in columns.arrays.items()
+        },
+        sample_index=sample_index,
+        time_ns=time_ns,
+        block_stamps_ns=stamps_arr,
+        block_first_index=firsts_arr,
+        scalars={name: values[kept] for name, values in columns.scalars.items()},
+        gaps=gaps,
     )
 
 
-def assemble_blocks(topic: str, msgtype: str, messages: Sequence[Any], *, allow_gaps: bool = False,
-                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
+def assemble_blocks(
+    topic: str,
+    msgtype: str,
+    messages: Sequence[Any],
+    *,
+    allow_gaps: bool = False,
+    bag: str | Path = "",
+    store: Typestore | None = None,
+) -> Blocks:
     """Concatenate deserialized block messages (pure: no file access); see `read_blocks`."""
     arrays, scalars = block_array_fields(msgtype, store)
-    return _assemble(topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps,
-                     bag)
+    return _assemble(
+        topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps, bag
+    )
 
 
-def blocks_from_cdr(topic: str, msgtype: str, datas: Sequence[bytes], *, allow_gaps: bool = False,
-                    bag: str | Path = "", store: Typestore | None = None) -> Blocks:
+def blocks_from_cdr(
+    topic: str,
+    msgtype: str,
+    datas: Sequence[bytes],
+    *,
+    allow_gaps: bool = False,
+    bag: str | Path = "",
+    store: Typestore | None = None,
+) -> Blocks:
     """`assemble_blocks` of CDR bytes: the project's block types
     decoded with numpy (flaair_common.cdr), thousands of messages
     at once; any other block type through the typestore.
     """
     arrays, scalars = block_array_fields(msgtype, store)
     layout = cdr.LAYOUTS.get(msgtype)
-    if (layout is not None and datas and {
-            name for name, kind in layout.fields if kind.endswith("[]")} == set(arrays)
-        and {name for name, kind in layout.fields if not kind.endswith("[]")} >= set(scalars)):
+    if (
+        layout is not None
+        and datas
+        and {name for name, kind in layout.fields if kind.endswith("[]")} == set(arrays)
+        and {name for name, kind in layout.fields if not kind.endswith("[]")} >= set(scalars)
+    ):
         return _assemble(topic, msgtype, _columns_from_cdr(layout, datas, bag), allow_gaps, bag)
     store = store or typestore()
     messages = [deserialize(bag, store, data, msgtype) for data in datas]
-    return _assemble(topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps,
-                     bag)
+    return _assemble(
+        topic, msgtype, _columns_from_messages(messages, arrays, scalars), allow_gaps, bag
+    )
 
 
 def select_samples(blocks: Blocks, first_sample_index: int, n_samples: int) -> Blocks:
     """The samples of `blocks` with first_sample_index <= index < first_sample_index + n_samples."""
     keep = (blocks.sample_index >= first_sample_index) & (
-        blocks.sample_index < first_sample_index + n_samples)
+        blocks.sample_index < first_sample_index + n_samples
+    )
     block_keep = (blocks.block_first_index >= first_sample_index) & (
-        blocks.block_first_index < first_sample_index + n_samples)
+        blocks.block_first_index < first_sample_index + n_samples
+    )
     return dataclasses.replace(
-        blocks, first_sample_index=int(blocks.sample_index[keep][0]) if keep.any()
-        else first_sample_index, fields={
-        name: values[keep] for name, values in blocks.fields.items()},
-        sample_index=blocks.sample_index[keep], time_ns=blocks.time_ns[keep],
+        blocks,
+        first_sample_index=int(blocks.sample_index[keep][0]) if keep.any() else first_sample_index,
+        fields={name: values[keep] for name, values in blocks.fields.items()},
+        sample_index=blocks.sample_index[keep],
+        time_ns=blocks.time_ns[keep],
         block_stamps_ns=blocks.block_stamps_ns[block_keep],
         block_first_index=blocks.block_first_index[block_keep],
         scalars={name: values[block_keep] for name, values in blocks.scalars.items()},
-        gaps=tuple(g for g in blocks.gaps
-                   if first_sample_index <= g[1] < first_sample_index + n_samples),
+        gaps=tuple(
+            g for g in blocks.gaps if first_sample_index <= g[1] < first_sample_index + n_samples
+        ),
     )

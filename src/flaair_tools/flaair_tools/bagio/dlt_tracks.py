@@ -6,6 +6,7 @@ points asked for are parsed. Every refusal is a `LabFileError` naming the file a
 (columns that are not DLTdv8's, a point the rig names that the file lacks or never tracks, a
 cell that is not a number with its line).
 """
+
 from __future__ import annotations
 
 import io
@@ -16,7 +17,7 @@ import numpy as np
 
 from flaair_tools.bagio.target_log import LabFileError
 
-__all__ = ["read_xyz_points", "read_xy_point", "XYZ_COLUMN", "XY_COLUMN"]
+__all__ = ["XYZ_COLUMN", "XY_COLUMN", "read_xy_point", "read_xyz_points"]
 
 XYZ_COLUMN = re.compile(r"pt(\d+)_([XYZ])")
 XY_COLUMN = re.compile(r"pt(\d+)_cam(\d+)_([XY])")
@@ -38,7 +39,8 @@ def _read_text(path: Path) -> tuple[list[str], bytes]:
         header_text = head.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise LabFileError(
-            f"{path}: not a DLTdv8 track file: line 1 is not text (byte {exc.start})") from None
+            f"{path}: not a DLTdv8 track file: line 1 is not text (byte {exc.start})"
+        ) from None
     header = [cell.strip().strip('"') for cell in header_text.split(",")]
     return header, body.rstrip(b"\n")
 
@@ -48,9 +50,11 @@ def _columns(path: Path, header: list[str], pattern: re.Pattern, kind: str) -> d
     for number, name in enumerate(header):
         match = pattern.fullmatch(name)
         if match is None:
-            raise LabFileError(f"{path}: column {number + 1} {name!r} is not a DLTdv8 {kind} "
-                               f"column (expected names like "
-                               f"{'pt1_X,pt1_Y,pt1_Z' if kind == 'xyzpts' else 'pt1_cam1_X'})")
+            raise LabFileError(
+                f"{path}: column {number + 1} {name!r} is not a DLTdv8 {kind} "
+                f"column (expected names like "
+                f"{'pt1_X,pt1_Y,pt1_Z' if kind == 'xyzpts' else 'pt1_cam1_X'})"
+            )
         key = tuple(int(g) if g.isdigit() else g for g in match.groups())
         if key in columns:
             raise LabFileError(f"{path}: column {number + 1} {name!r} appears twice")
@@ -65,8 +69,15 @@ def _load(path: Path, body: bytes, usecols: list[int], n_columns: int) -> np.nda
     filled = _EMPTY_CELL.sub(b"nan", body)
     del body
     try:
-        return np.loadtxt(io.BytesIO(filled), delimiter=",", usecols=usecols, ndmin=2,
-                          dtype=np.float64, comments=None, encoding="latin-1")
+        return np.loadtxt(
+            io.BytesIO(filled),
+            delimiter=",",
+            usecols=usecols,
+            ndmin=2,
+            dtype=np.float64,
+            comments=None,
+            encoding="latin-1",
+        )
     except ValueError as exc:
         text = str(exc)
         row = re.search(r"at row (\d+)", text)
@@ -74,15 +85,17 @@ def _load(path: Path, body: bytes, usecols: list[int], n_columns: int) -> np.nda
         if "invalid column index" in text or "number of columns changed" in text:
             # numpy counts this row from 1 (a bad cell's row from 0)
             line = f"line {int(row.group(1)) + 1}: " if row else ""
-            raise LabFileError(f"{path}: {line}a row without the header's {n_columns} "
-                               "columns") from None
+            raise LabFileError(
+                f"{path}: {line}a row without the header's {n_columns} columns"
+            ) from None
         cell = re.search(r"could not convert string '([^']*)'", text)
         what = f"not a number: {cell.group(1)!r}" if cell else text
         raise LabFileError(f"{path}: {line}{what}") from None
 
 
-def read_xyz_points(path: Path | str, points: dict[str, int],
-                    length_unit_m: float) -> dict[str, np.ndarray]:
+def read_xyz_points(
+    path: Path | str, points: dict[str, int], length_unit_m: float
+) -> dict[str, np.ndarray]:
     """Each named point's (frames, 3) positions in metres, NaN where untracked.
 
     `points` maps a name (for messages: the rig's key) to a DLTdv8 point number (1-based).
@@ -95,13 +108,15 @@ def read_xyz_points(path: Path | str, points: dict[str, int],
     for name, point in points.items():
         keys = [(point, axis) for axis in "XYZ"]
         if not all(key in columns for key in keys):
-            raise LabFileError(f"{path}: no point {point} ({name}); the file has point(s) "
-                               f"{', '.join(map(str, available)) or 'none'}")
+            raise LabFileError(
+                f"{path}: no point {point} ({name}); the file has point(s) "
+                f"{', '.join(map(str, available)) or 'none'}"
+            )
         usecols += [columns[key] for key in keys]
     data = _load(path, body, usecols, len(header)) * length_unit_m
     out = {}
     for k, (name, point) in enumerate(points.items()):
-        xyz = data[:, 3 * k:3 * k + 3]
+        xyz = data[:, 3 * k : 3 * k + 3]
         xyz[~np.isfinite(xyz).all(axis=1)] = np.nan
         if np.isnan(xyz).all():
             raise LabFileError(f"{path}: point {point} ({name}) is never tracked")
@@ -117,8 +132,10 @@ def read_xy_point(path: Path | str, point: int, camera: int, name: str) -> np.nd
     keys = [(point, camera, axis) for axis in "XY"]
     if not all(key in columns for key in keys):
         have = ", ".join(f"point {p} camera {c}" for p, c in sorted({k[:2] for k in columns}))
-        raise LabFileError(f"{path}: no point {point} in camera {camera} ({name}); the file has "
-                           f"{have or 'no points'}")
+        raise LabFileError(
+            f"{path}: no point {point} in camera {camera} ({name}); the file has "
+            f"{have or 'no points'}"
+        )
     xy = _load(path, body, [columns[key] for key in keys], len(header))
     xy[~np.isfinite(xy).all(axis=1)] = np.nan
     if np.isnan(xy).all():

@@ -20,6 +20,7 @@ estimate by cross-correlation; over one frame is warned). Every file is checked 
 is written; a bad file is named with what is wrong (exit 2), and a failed or interrupted import
 leaves no bag behind.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,43 +46,66 @@ def _interrupted(signum: int, _frame: object) -> None:
 
 
 def _parser(defaults: dict) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="flaair import", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="*", type=Path,
-                        help="measured-run CSV files, or one MAT log (with --rig and --tracks)")
+    parser = argparse.ArgumentParser(
+        prog="flaair import",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "runs",
+        nargs="*",
+        type=Path,
+        help="measured-run CSV files, or one MAT log (with --rig and --tracks)",
+    )
     parser.add_argument("-o", "--out", type=Path, required=True, help="bag directory to create")
-    parser.add_argument("--gap-s", type=float, default=float(defaults["gap_s"]),
-                        help=f"time between runs [s] (default {defaults['gap_s']})")
-    parser.add_argument("--kind", choices=[k for k in KINDS if k != "unrecognised"], default=None,
-                        help="the drive of every run given (default: `flaair analyze` recognises "
-                             "it from the drive)")
+    parser.add_argument(
+        "--gap-s",
+        type=float,
+        default=float(defaults["gap_s"]),
+        help=f"time between runs [s] (default {defaults['gap_s']})",
+    )
+    parser.add_argument(
+        "--kind",
+        choices=[k for k in KINDS if k != "unrecognised"],
+        default=None,
+        help="the drive of every run given (default: `flaair analyze` recognises "
+        "it from the drive)",
+    )
     lab = parser.add_argument_group("a lab's MAT log and video tracks (docs/LAB_FILES.md)")
     lab.add_argument("--rig", type=Path, help="the bench's rig file (YAML)")
     lab.add_argument("--tracks", type=Path, help="DLTdv8 3D points of the run (*_xyzpts.csv)")
-    lab.add_argument("--tip-track", type=Path,
-                     help="DLTdv8 2D points (*_xypts.csv) holding the actuator tip, for "
-                          "stroke_from: actuator_tip")
-    lab.add_argument("--manifest", type=Path,
-                     help="a session's runs (YAML; see above) instead of RUN arguments")
+    lab.add_argument(
+        "--tip-track",
+        type=Path,
+        help="DLTdv8 2D points (*_xypts.csv) holding the actuator tip, for "
+        "stroke_from: actuator_tip",
+    )
+    lab.add_argument(
+        "--manifest", type=Path, help="a session's runs (YAML; see above) instead of RUN arguments"
+    )
     return parser
 
 
-def _lab_files(args: argparse.Namespace,
-               parser: argparse.ArgumentParser) -> list[lab_import.LabRunFiles] | None:
+def _lab_files(
+    args: argparse.Namespace, parser: argparse.ArgumentParser
+) -> list[lab_import.LabRunFiles] | None:
     """The lab runs asked for, None for CSV runs; usage mistakes exit through the parser."""
     lab_options = [name for name in ("rig", "tracks", "tip_track") if getattr(args, name)]
     mats = [path for path in args.runs if path.suffix.lower() == ".mat"]
     if args.manifest is not None:
         if args.runs or lab_options:
-            parser.error("--manifest lists the runs and their files: give no RUN, --rig, "
-                         "--tracks or --tip-track with it")
+            parser.error(
+                "--manifest lists the runs and their files: give no RUN, --rig, "
+                "--tracks or --tip-track with it"
+            )
         return lab_import.read_manifest(args.manifest)
     if not args.runs:
         parser.error("give RUN.csv files, a RUN.mat with --rig and --tracks, or --manifest")
     if not mats:
         if lab_options:
-            parser.error(f"--{lab_options[0].replace('_', '-')} goes with a MAT log, not with "
-                         "CSV runs")
+            parser.error(
+                f"--{lab_options[0].replace('_', '-')} goes with a MAT log, not with CSV runs"
+            )
         return None
     if len(args.runs) != 1:
         parser.error("one MAT log per call (a session of several: --manifest)")
@@ -91,18 +115,24 @@ def _lab_files(args: argparse.Namespace,
 
 
 def _summary(marker: bagio.RunMarker, extras: dict) -> str:
-    line = (f"{marker.run}: {marker.n_samples} samples at {marker.sample_rate_hz:g} Hz "
-            f"(first_sample_index {marker.first_sample_index}) from {marker.source_file}")
+    line = (
+        f"{marker.run}: {marker.n_samples} samples at {marker.sample_rate_hz:g} Hz "
+        f"(first_sample_index {marker.first_sample_index}) from {marker.source_file}"
+    )
     if "video" in extras:
         video, sync = extras["video"], extras["sync"]
-        line += (f"; video {video['fps']:g} fps, {video['frames']} frames "
-                 f"({100 * video['tracked_share']:.1f} % tracked), {sync['frames_placed']} "
-                 f"placed, {sync['frames_dropped']} outside the log")
+        line += (
+            f"; video {video['fps']:g} fps, {video['frames']} frames "
+            f"({100 * video['tracked_share']:.1f} % tracked), {sync['frames_placed']} "
+            f"placed, {sync['frames_dropped']} outside the log"
+        )
         if sync["trigger_time_s"] is not None:
             line += f"; trigger at {sync['trigger_time_s']:.6f} s"
         if sync["offset_s"] is not None:
-            line += (f"; video vs stroke sensor {1e3 * sync['offset_s']:+.3f} ms "
-                     f"(correlation {sync['correlation']:+.3f})")
+            line += (
+                f"; video vs stroke sensor {1e3 * sync['offset_s']:+.3f} ms "
+                f"(correlation {sync['correlation']:+.3f})"
+            )
     return line
 
 
@@ -117,21 +147,37 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser(defaults)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.out.exists():
-        print(f"flaair import: {args.out}: exists already; choose a new bag directory",
-              file=sys.stderr)
+        print(
+            f"flaair import: {args.out}: exists already; choose a new bag directory",
+            file=sys.stderr,
+        )
         return 2
     signal.signal(signal.SIGTERM, _interrupted)
-    settings = {"gap_s": args.gap_s, "block_size": int(defaults["block_size"]),
-                "frame_id": str(defaults["frame_id"])}
+    settings = {
+        "gap_s": args.gap_s,
+        "block_size": int(defaults["block_size"]),
+        "frame_id": str(defaults["frame_id"]),
+    }
     try:
         csv_import.check_settings(args.gap_s, settings["block_size"])
         lab_files = _lab_files(args, parser)
         extras: list[dict] = []
-        with tqdm(total=None, unit=" samples", unit_scale=True, desc="import", file=sys.stderr,
-                  disable=not sys.stderr.isatty()) as bar:
+        with tqdm(
+            total=None,
+            unit=" samples",
+            unit_scale=True,
+            desc="import",
+            file=sys.stderr,
+            disable=not sys.stderr.isatty(),
+        ) as bar:
             if lab_files is None:
-                markers = csv_import.import_runs(args.runs, args.out, **settings, kind=args.kind,
-                                                 progress=lambda n: bar.update(n - bar.n))
+                markers = csv_import.import_runs(
+                    args.runs,
+                    args.out,
+                    **settings,
+                    kind=args.kind,
+                    progress=lambda n: bar.update(n - bar.n),
+                )
                 extras = [{} for _ in markers]
             else:
                 runs = [lab_import.read_lab_run(files, max_lag_s) for files in lab_files]
@@ -140,8 +186,12 @@ def main(argv: list[str] | None = None) -> int:
                     for warning in lab_run.warnings:
                         print(f"flaair import: warning: {warning}", file=sys.stderr)
                 markers = csv_import.write_runs(
-                    [(str(f.mat), r.run, r.extras) for f, r in zip(lab_files, runs)], args.out,
-                    **settings, kind=args.kind, progress=lambda n: bar.update(n - bar.n))
+                    [(str(f.mat), r.run, r.extras) for f, r in zip(lab_files, runs)],
+                    args.out,
+                    **settings,
+                    kind=args.kind,
+                    progress=lambda n: bar.update(n - bar.n),
+                )
                 extras = [r.extras for r in runs]
     except (RunFileError, csv_import.RunSetError, LabFileError, bagio.BagError) as exc:
         print(f"flaair import: {exc}", file=sys.stderr)

@@ -18,6 +18,7 @@ Every file is checked before anything is written; a bad file is named with its l
 Usage: bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S] [--kind KIND]
 (flaair_tools.bagio.import_cli). Columns and units of RUN.csv: docs/LAB_CSV_FORMAT.md.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,19 +58,32 @@ def run_rate_hz(run: MeasuredRun) -> float:
 def run_span_ns(run: MeasuredRun) -> int:
     """Duration of a run including its last sample period [ns]."""
     time_s = run["time_s"]
-    return int(round((time_s[-1] - time_s[0] + 1.0 / run_rate_hz(run)) * _NS_PER_S))
+    return round((time_s[-1] - time_s[0] + 1.0 / run_rate_hz(run)) * _NS_PER_S)
 
 
-def run_marker(run: MeasuredRun, *, source_file: str, start_ns: int,
-               first_sample_index: int) -> bagio.RunMarker:
+def run_marker(
+    run: MeasuredRun, *, source_file: str, start_ns: int, first_sample_index: int
+) -> bagio.RunMarker:
     """The marker of a run starting at `start_ns` and `first_sample_index`."""
-    return bagio.RunMarker(run=run.name, first_sample_index=first_sample_index,
-                           n_samples=len(run["time_s"]), source_file=source_file,
-                           sample_rate_hz=run_rate_hz(run), start_ns=start_ns)
+    return bagio.RunMarker(
+        run=run.name,
+        first_sample_index=first_sample_index,
+        n_samples=len(run["time_s"]),
+        source_file=source_file,
+        sample_rate_hz=run_rate_hz(run),
+        start_ns=start_ns,
+    )
 
 
-def encode_run(run: MeasuredRun, *, start_ns: int, first_sample_index: int, block_size: int,
-               frame_id: str, truth_source: int) -> Iterator[tuple[str, int, bytes]]:
+def encode_run(
+    run: MeasuredRun,
+    *,
+    start_ns: int,
+    first_sample_index: int,
+    block_size: int,
+    frame_id: str,
+    truth_source: int,
+) -> Iterator[tuple[str, int, bytes]]:
     """A run's block messages as (topic, stamp ns, CDR bytes) in time order, made one block at
     a time (pure): per block drive, sensor and ground truth (the run marker is the caller's).
 
@@ -88,20 +102,54 @@ def encode_run(run: MeasuredRun, *, start_ns: int, first_sample_index: int, bloc
         part = slice(k0, min(k0 + block_size, n_samples))
         stamp_ns = start_ns + int(block_start_ns[k0 // block_size])
         sec, nanosec = divmod(stamp_ns, _NS_PER_S)
-        head = {"sec": sec, "nanosec": nanosec, "sample_rate_hz": rate_hz,
-                "first_sample_index": first_sample_index + k0}
+        head = {
+            "sec": sec,
+            "nanosec": nanosec,
+            "sample_rate_hz": rate_hz,
+            "first_sample_index": first_sample_index + k0,
+        }
         stroke_deg, pitch_deg = run["stroke_deg"][part], run["pitch_deg"][part]
-        yield topics.DRIVE, stamp_ns, cdr.encode_fields(
-            cdr.DRIVE_COMMAND_BLOCK, {**head, "frame_id": "", "drive_v": run["drive_v"][part]},
-            codecs.setdefault(DRIVE_TYPE, {}))[1]
-        yield topics.SENSOR_VOLTAGE, stamp_ns, cdr.encode_fields(cdr.SENSOR_VOLTAGE_BLOCK, {
-            **head, "frame_id": frame_id, "stroke_sensor_v": run["stroke_sensor_v"][part],
-            "pitch_sensor_v": run["pitch_sensor_v"][part]}, codecs.setdefault(SENSOR_TYPE, {}))[1]
-        yield topics.WING_STATE_TRUTH, stamp_ns, cdr.encode_fields(cdr.WING_STATE_BLOCK, {
-            **head, "frame_id": frame_id, "source": truth_source, "stroke_deg": stroke_deg,
-            "pitch_deg": pitch_deg, "stroke_velocity_deg_s": np.full(stroke_deg.size, np.nan),
-            "stroke_valid": np.isfinite(stroke_deg), "pitch_valid": np.isfinite(pitch_deg)},
-            codecs.setdefault(WING_TYPE, {}))[1]
+        yield (
+            topics.DRIVE,
+            stamp_ns,
+            cdr.encode_fields(
+                cdr.DRIVE_COMMAND_BLOCK,
+                {**head, "frame_id": "", "drive_v": run["drive_v"][part]},
+                codecs.setdefault(DRIVE_TYPE, {}),
+            )[1],
+        )
+        yield (
+            topics.SENSOR_VOLTAGE,
+            stamp_ns,
+            cdr.encode_fields(
+                cdr.SENSOR_VOLTAGE_BLOCK,
+                {
+                    **head,
+                    "frame_id": frame_id,
+                    "stroke_sensor_v": run["stroke_sensor_v"][part],
+                    "pitch_sensor_v": run["pitch_sensor_v"][part],
+                },
+                codecs.setdefault(SENSOR_TYPE, {}),
+            )[1],
+        )
+        yield (
+            topics.WING_STATE_TRUTH,
+            stamp_ns,
+            cdr.encode_fields(
+                cdr.WING_STATE_BLOCK,
+                {
+                    **head,
+                    "frame_id": frame_id,
+                    "source": truth_source,
+                    "stroke_deg": stroke_deg,
+                    "pitch_deg": pitch_deg,
+                    "stroke_velocity_deg_s": np.full(stroke_deg.size, np.nan),
+                    "stroke_valid": np.isfinite(stroke_deg),
+                    "pitch_valid": np.isfinite(pitch_deg),
+                },
+                codecs.setdefault(WING_TYPE, {}),
+            )[1],
+        )
 
 
 def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
@@ -110,24 +158,40 @@ def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
     for path, run in runs:
         if run.name in names:
             raise RunSetError(
-                f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file")
+                f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file"
+            )
         names[run.name] = path
     rates = {run_rate_hz(run): path for path, run in runs}
     if len(rates) > 1:
         listing = ", ".join(f"{path} {rate:g} Hz" for rate, path in rates.items())
         raise RunSetError(
-            f"runs have different sample rates ({listing}); import them into separate bags")
+            f"runs have different sample rates ({listing}); import them into separate bags"
+        )
 
 
-def import_runs(paths: list[Path], out: Path, *, gap_s: float, block_size: int, frame_id: str,
-                progress: Callable[[int], None] | None = None,
-                kind: str | None = None) -> list[bagio.RunMarker]:
+def import_runs(
+    paths: list[Path],
+    out: Path,
+    *,
+    gap_s: float,
+    block_size: int,
+    frame_id: str,
+    progress: Callable[[int], None] | None = None,
+    kind: str | None = None,
+) -> list[bagio.RunMarker]:
     """Read and check every CSV, then write the bag (`write_runs`); returns the run markers."""
     check_settings(gap_s, block_size)
     runs = [(path, read_run(path)) for path in paths]
     check_runs(runs)
-    return write_runs([(str(path), run, {}) for path, run in runs], out, gap_s=gap_s,
-                      block_size=block_size, frame_id=frame_id, progress=progress, kind=kind)
+    return write_runs(
+        [(str(path), run, {}) for path, run in runs],
+        out,
+        gap_s=gap_s,
+        block_size=block_size,
+        frame_id=frame_id,
+        progress=progress,
+        kind=kind,
+    )
 
 
 def check_settings(gap_s: float, block_size: int) -> None:
@@ -136,12 +200,20 @@ def check_settings(gap_s: float, block_size: int) -> None:
         raise RunSetError(f"--gap-s must be a finite time >= 0 s, got {gap_s}")
     if block_size < 1:
         raise RunSetError(
-            f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}")
+            f"config/{CONFIG_FILE}: {SECTION}.block_size must be >= 1, got {block_size}"
+        )
 
 
-def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *, gap_s: float,
-               block_size: int, frame_id: str, progress: Callable[[int], None] | None = None,
-               kind: str | None = None) -> list[bagio.RunMarker]:
+def write_runs(
+    runs: list[tuple[str, MeasuredRun, dict[str, Any]]],
+    out: Path,
+    *,
+    gap_s: float,
+    block_size: int,
+    frame_id: str,
+    progress: Callable[[int], None] | None = None,
+    kind: str | None = None,
+) -> list[bagio.RunMarker]:
     """Write runs already read and checked, (source, run, marker extras) each, into a new bag.
 
     Messages are made and written one block at a time. If anything fails (or the user
@@ -157,14 +229,21 @@ def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *
     writer = bagio.BagWriter(out, store=bagio.typestore())
     try:
         for source, run, extras in runs:
-            values = write_run(writer, run, source_file=source, start_ns=start_ns,
-                               first_sample_index=first_index, block_size=block_size,
-                               frame_id=frame_id, extras={**extras, **(
-                                   {"kind": kind} if kind else {})}, progress=progress)
+            values = write_run(
+                writer,
+                run,
+                source_file=source,
+                start_ns=start_ns,
+                first_sample_index=first_index,
+                block_size=block_size,
+                frame_id=frame_id,
+                extras={**extras, **({"kind": kind} if kind else {})},
+                progress=progress,
+            )
             markers.append(bagio.RunMarker.from_json(json.dumps(values)))
             marker_values.append(values)
             first_index += markers[-1].n_samples
-            start_ns += run_span_ns(run) + int(round(gap_s * _NS_PER_S))
+            start_ns += run_span_ns(run) + round(gap_s * _NS_PER_S)
         writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps(marker_values))
         writer.close()
     except BaseException:
@@ -173,29 +252,52 @@ def write_runs(runs: list[tuple[str, MeasuredRun, dict[str, Any]]], out: Path, *
     return markers
 
 
-def write_run(writer: bagio.BagWriter, run: MeasuredRun, *, source_file: str, start_ns: int,
-              first_sample_index: int, block_size: int, frame_id: str,
-              extras: dict[str, Any] | None = None,
-              progress: Callable[[int], None] | None = None) -> dict[str, Any]:
+def write_run(
+    writer: bagio.BagWriter,
+    run: MeasuredRun,
+    *,
+    source_file: str,
+    start_ns: int,
+    first_sample_index: int,
+    block_size: int,
+    frame_id: str,
+    extras: dict[str, Any] | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
     """Write one run into an open bag: its marker (with `extras`), then its blocks
     (`encode_run`); returns the marker's JSON values.
     """
-    offered = {topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
-               topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
-               topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)]}
-    for topic, msgtype in ((topics.DRIVE, DRIVE_TYPE), (topics.SENSOR_VOLTAGE, SENSOR_TYPE),
-                           (topics.WING_STATE_TRUTH, WING_TYPE)):
+    offered = {
+        topics.DRIVE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+        topics.SENSOR_VOLTAGE: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+        topics.WING_STATE_TRUTH: [bagio.qos_from_rclpy(BLOCK_STREAM)],
+    }
+    for topic, msgtype in (
+        (topics.DRIVE, DRIVE_TYPE),
+        (topics.SENSOR_VOLTAGE, SENSOR_TYPE),
+        (topics.WING_STATE_TRUTH, WING_TYPE),
+    ):
         writer.add_topic(topic, msgtype, offered[topic])
-    marker = run_marker(run, source_file=source_file, start_ns=start_ns,
-                        first_sample_index=first_sample_index)
+    marker = run_marker(
+        run, source_file=source_file, start_ns=start_ns, first_sample_index=first_sample_index
+    )
     values = {**json.loads(marker.to_json()), **(extras or {})}
-    writer.write_message(bagio.RUN_MARKER_TOPIC, start_ns, bagio.new_message(
-        bagio.RUN_MARKER_TYPE, writer.store, data=json.dumps(values)),
-        [bagio.qos_from_rclpy(EVENTS)])
-    for k, (topic, stamp_ns, data) in enumerate(encode_run(
-            run, start_ns=start_ns, first_sample_index=first_sample_index, block_size=block_size,
+    writer.write_message(
+        bagio.RUN_MARKER_TOPIC,
+        start_ns,
+        bagio.new_message(bagio.RUN_MARKER_TYPE, writer.store, data=json.dumps(values)),
+        [bagio.qos_from_rclpy(EVENTS)],
+    )
+    for k, (topic, stamp_ns, data) in enumerate(
+        encode_run(
+            run,
+            start_ns=start_ns,
+            first_sample_index=first_sample_index,
+            block_size=block_size,
             frame_id=frame_id,
-            truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH)):
+            truth_source=writer.store.types[WING_TYPE].SOURCE_GROUND_TRUTH,
+        )
+    ):
         writer.write(topic, stamp_ns, data)
         if progress is not None and k % (3 * PROGRESS_BLOCKS) == 0:
             progress(first_sample_index + min(k // 3 * block_size, marker.n_samples))

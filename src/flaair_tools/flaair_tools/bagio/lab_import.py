@@ -15,6 +15,7 @@ many runs is a manifest (`read_manifest`):
 
 Paths are relative to the manifest's folder. Every refusal is a LabFileError naming the file.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,8 +34,14 @@ from flaair_tools.bagio.rig import Rig, read_rig
 from flaair_tools.bagio.target_log import LabFileError, read_target_log
 from flaair_tools.bagio.video_angles import VideoGeometryError
 
-__all__ = ["LabRunFiles", "LabRun", "read_lab_run", "read_manifest", "sensor_stroke_deg",
-           "check_max_lag"]
+__all__ = [
+    "LabRun",
+    "LabRunFiles",
+    "check_max_lag",
+    "read_lab_run",
+    "read_manifest",
+    "sensor_stroke_deg",
+]
 
 
 @dataclass(frozen=True)
@@ -56,15 +63,17 @@ class LabRun:
     warnings: list[str]
 
 
-def sensor_stroke_deg(stroke_sensor_v: np.ndarray, pitch_sensor_v: np.ndarray,
-                      fs_hz: float) -> np.ndarray:
+def sensor_stroke_deg(
+    stroke_sensor_v: np.ndarray, pitch_sensor_v: np.ndarray, fs_hz: float
+) -> np.ndarray:
     """The stroke the front end estimates from the sensor voltages on the nominal model."""
     # imported here: a CSV import never needs the front end (nor scipy.signal, ~1 s to import)
     from flaair_sensors import frontend_io
     from flaair_sensors.core import frontend
 
-    params = frontend.params_from_model(load_model(), fs_hz,
-                                        **frontend_io.frontend_tuning_from_config())
+    params = frontend.params_from_model(
+        load_model(), fs_hz, **frontend_io.frontend_tuning_from_config()
+    )
     return np.degrees(frontend.estimate(stroke_sensor_v, pitch_sensor_v, params).stroke_rad)
 
 
@@ -77,51 +86,76 @@ def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = No
     tip = None
     if rig.stroke_from == "actuator_tip":
         if files.tip_track is None:
-            raise LabFileError(f"{files.rig}: stroke_from: actuator_tip needs the 2D track "
-                               "(--tip-track RUN_xypts.csv)")
+            raise LabFileError(
+                f"{files.rig}: stroke_from: actuator_tip needs the 2D track "
+                "(--tip-track RUN_xypts.csv)"
+            )
         assert rig.tip is not None
-        tip = read_xy_point(files.tip_track, rig.tip.point, rig.tip.camera,
-                            "points.actuator_tip")
+        tip = read_xy_point(files.tip_track, rig.tip.point, rig.tip.camera, "points.actuator_tip")
     try:
         stroke_frames, pitch_frames = lab_run.video_angles_deg(rig, wing, tip)
     except VideoGeometryError as exc:
         raise LabFileError(f"{files.tracks}: {exc}") from None
-    placement = lab_run.place_frames(stroke_frames.size, rig, log.time_s,
-                                     signal.get("camera_trigger"), str(files.mat))
+    placement = lab_run.place_frames(
+        stroke_frames.size, rig, log.time_s, signal.get("camera_trigger"), str(files.mat)
+    )
     n, fs_hz = log.time_s.size, log.sample_rate_hz
     stroke_deg, pitch_deg = lab_run.truth_columns(n, placement, stroke_frames, pitch_frames)
-    columns = {"time_s": log.time_s - log.time_s[0],
-               "drive_v": lab_run.drive_v(signal["drive"], rig),
-               "stroke_sensor_v": signal["stroke_sensor"], "pitch_sensor_v": signal["pitch_sensor"],
-               "stroke_deg": stroke_deg, "pitch_deg": pitch_deg}
-    check = lab_run.sync_check(stroke_deg, sensor_stroke_deg(
-        columns["stroke_sensor_v"], columns["pitch_sensor_v"], fs_hz), fs_hz, rig.fps,
-        sync_max_lag_s)
+    columns = {
+        "time_s": log.time_s - log.time_s[0],
+        "drive_v": lab_run.drive_v(signal["drive"], rig),
+        "stroke_sensor_v": signal["stroke_sensor"],
+        "pitch_sensor_v": signal["pitch_sensor"],
+        "stroke_deg": stroke_deg,
+        "pitch_deg": pitch_deg,
+    }
+    check = lab_run.sync_check(
+        stroke_deg,
+        sensor_stroke_deg(columns["stroke_sensor_v"], columns["pitch_sensor_v"], fs_hz),
+        fs_hz,
+        rig.fps,
+        sync_max_lag_s,
+    )
     tracked = np.isfinite(stroke_frames) & np.isfinite(pitch_frames)
     warnings = []
     if placement.placed == 0:
-        raise LabFileError(f"{files.mat}: none of the video's {stroke_frames.size} frames falls "
-                           "inside the log: check the sync (trigger frame or frame0_time_s)")
+        raise LabFileError(
+            f"{files.mat}: none of the video's {stroke_frames.size} frames falls "
+            "inside the log: check the sync (trigger frame or frame0_time_s)"
+        )
     if check is not None and check.suspicious:
         warnings.append(
             f"{files.mat}: the video's stroke lines up with the stroke sensor's estimate "
             f"{1e3 * check.offset_s:+.3f} ms off, more than one frame "
             f"({1e3 * check.frame_period_s:.3f} ms): check the sync (trigger frame, threshold "
-            "or frame0_time_s)")
+            "or frame0_time_s)"
+        )
     extras = {
-        "lab_files": {"mat": str(files.mat), "variable": log.variable,
-                      "tracks": str(files.tracks),
-                      "tip_track": None if files.tip_track is None else str(files.tip_track),
-                      "rig_file": str(files.rig)},
+        "lab_files": {
+            "mat": str(files.mat),
+            "variable": log.variable,
+            "tracks": str(files.tracks),
+            "tip_track": None if files.tip_track is None else str(files.tip_track),
+            "rig_file": str(files.rig),
+        },
         "rig": rig.source,
-        "sync": {"method": "trigger" if rig.trigger_frame is not None else "frame0_time_s",
-                 "trigger_time_s": placement.trigger_time_s,
-                 "trigger_frame": rig.trigger_frame, "frame0_time_s": rig.frame0_time_s,
-                 "frames_placed": placement.placed, "frames_dropped": placement.dropped,
-                 "offset_s": None if check is None else check.offset_s,
-                 "correlation": None if check is None else check.correlation},
-        "video": {"fps": rig.fps, "frames": int(stroke_frames.size),
-                  "tracked_share": float(tracked.mean()), "stroke_from": rig.stroke_from}}
+        "sync": {
+            "method": "trigger" if rig.trigger_frame is not None else "frame0_time_s",
+            "trigger_time_s": placement.trigger_time_s,
+            "trigger_frame": rig.trigger_frame,
+            "frame0_time_s": rig.frame0_time_s,
+            "frames_placed": placement.placed,
+            "frames_dropped": placement.dropped,
+            "offset_s": None if check is None else check.offset_s,
+            "correlation": None if check is None else check.correlation,
+        },
+        "video": {
+            "fps": rig.fps,
+            "frames": int(stroke_frames.size),
+            "tracked_share": float(tracked.mean()),
+            "stroke_from": rig.stroke_from,
+        },
+    }
     return LabRun(MeasuredRun(files.mat.stem, fs_hz, columns), extras, warnings)
 
 
@@ -141,8 +175,9 @@ def read_manifest(path: Path | str) -> list[LabRunFiles]:
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise LabFileError(f"{path}: not a YAML manifest ({exc})") from None
     if not isinstance(data, dict) or set(data) - {"rig", "runs"} or "runs" not in data:
-        raise LabFileError(f"{path}: a manifest is a mapping with 'runs' (a list) and optionally "
-                           "'rig'")
+        raise LabFileError(
+            f"{path}: a manifest is a mapping with 'runs' (a list) and optionally 'rig'"
+        )
     runs = data["runs"]
     if not isinstance(runs, list) or not runs:
         raise LabFileError(f"{path}: runs: must be a non-empty list")
@@ -151,25 +186,34 @@ def read_manifest(path: Path | str) -> list[LabRunFiles]:
     for k, entry in enumerate(runs, start=1):
         where = f"{path}: runs[{k}]"
         if not isinstance(entry, dict) or set(entry) - {"mat", "tracks", "tip_track", "rig"}:
-            raise LabFileError(f"{where}: must be a mapping of mat, tracks and optionally "
-                               f"tip_track and rig; got {entry!r}")
+            raise LabFileError(
+                f"{where}: must be a mapping of mat, tracks and optionally "
+                f"tip_track and rig; got {entry!r}"
+            )
         if "rig" not in entry and "rig" not in data:
             raise LabFileError(f"{where}: no rig (give 'rig' for the session or for this run)")
         for key in ("mat", "tracks"):
             if key not in entry:
                 raise LabFileError(f"{where}: missing '{key}'")
-        out.append(LabRunFiles(
-            mat=_path(base, entry["mat"], f"{where}.mat"),
-            rig=_path(base, entry.get("rig", data.get("rig")), f"{where}.rig"),
-            tracks=_path(base, entry["tracks"], f"{where}.tracks"),
-            tip_track=(_path(base, entry["tip_track"], f"{where}.tip_track")
-                       if entry.get("tip_track") is not None else None)))
+        out.append(
+            LabRunFiles(
+                mat=_path(base, entry["mat"], f"{where}.mat"),
+                rig=_path(base, entry.get("rig", data.get("rig")), f"{where}.rig"),
+                tracks=_path(base, entry["tracks"], f"{where}.tracks"),
+                tip_track=(
+                    _path(base, entry["tip_track"], f"{where}.tip_track")
+                    if entry.get("tip_track") is not None
+                    else None
+                ),
+            )
+        )
     return out
 
 
 def check_max_lag(value: float) -> float:
     """The sync check's lag range [s] from config (import_runs.sync_check_max_lag_s)."""
     if not (math.isfinite(value) and value > 0):
-        raise LabFileError(f"config/flaair.yaml: import_runs.sync_check_max_lag_s must be > 0 s, "
-                           f"got {value}")
+        raise LabFileError(
+            f"config/flaair.yaml: import_runs.sync_check_max_lag_s must be > 0 s, got {value}"
+        )
     return value

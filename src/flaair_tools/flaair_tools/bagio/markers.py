@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -36,10 +37,13 @@ class RunMarker:
         """Parse a marker's JSON text; the message names a missing or bad key."""
         try:
             values = json.loads(text)
-            return cls(run=str(values["run"]), first_sample_index=int(values["first_sample_index"]),
-                       n_samples=int(values["n_samples"]),
-                       source_file=str(values.get("source_file", "")),
-                       sample_rate_hz=float(values.get("sample_rate_hz", "nan")),
-                       start_ns=int(values.get("start_ns", 0)))
+            return cls(
+                run=str(values["run"]),
+                first_sample_index=int(values["first_sample_index"]),
+                n_samples=int(values["n_samples"]),
+                source_file=str(values.get("source_file", "")),
+                sample_rate_hz=float(values.get("sample_rate_hz", "nan")),
+                start_ns=int(values.get("start_ns", 0)),
+            )
         except (ValueError, KeyError, TypeError) as exc:
             raise BagError(f"bad run marker {text!r}: {exc!r}") from None

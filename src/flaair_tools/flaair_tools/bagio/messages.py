@@ -3,6 +3,7 @@ new messages, stamps, bag errors and conventions.
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import functools
@@ -18,11 +19,30 @@ from rosbags.typesys.store import Typestore
 
 from flaair_common.msgdefs import MSG_PACKAGE, MsgDefinitionError, project_types
 
-__all__ = ["BAG_VERSION", "ROS_DISTRO", "RUN_MARKER_TOPIC", "RUN_MARKER_TYPE", "RUNS_CUSTOM_KEY",
-           "STORAGE_SECTION", "CONFIG_FILE", "HEADER_TYPE", "TIME_TYPE", "NS_PER_S",
-           "WRITER_LIBRARY", "BagError", "BagTopicError", "BagContinuityError",
-           "BagUnfinishedError", "typestore", "message_definition", "new_message", "time_msg",
-           "has_leading_stamp", "leading_stamp_ns", "deserialize"]
+__all__ = [
+    "BAG_VERSION",
+    "CONFIG_FILE",
+    "HEADER_TYPE",
+    "NS_PER_S",
+    "ROS_DISTRO",
+    "RUNS_CUSTOM_KEY",
+    "RUN_MARKER_TOPIC",
+    "RUN_MARKER_TYPE",
+    "STORAGE_SECTION",
+    "TIME_TYPE",
+    "WRITER_LIBRARY",
+    "BagContinuityError",
+    "BagError",
+    "BagTopicError",
+    "BagUnfinishedError",
+    "deserialize",
+    "has_leading_stamp",
+    "leading_stamp_ns",
+    "message_definition",
+    "new_message",
+    "time_msg",
+    "typestore",
+]
 
 BAG_VERSION = 9  # rosbag2 metadata version written by ROS 2 Jazzy
 ROS_DISTRO = "jazzy"
@@ -35,8 +55,9 @@ CONFIG_FILE = "flaair.yaml"
 HEADER_TYPE = "std_msgs/msg/Header"
 TIME_TYPE = "builtin_interfaces/msg/Time"
 NS_PER_S = 1_000_000_000
-WRITER_LIBRARY = (f"flaair bagio (mcap {package_version('mcap')}, "
-                  f"rosbags {package_version('rosbags')})")
+WRITER_LIBRARY = (
+    f"flaair bagio (mcap {package_version('mcap')}, rosbags {package_version('rosbags')})"
+)
 
 
 class BagError(ValueError):
@@ -57,7 +78,7 @@ class BagUnfinishedError(BagError):
     """
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def typestore() -> Typestore:
     """Rosbags' ROS 2 Jazzy typestore with flaair_msgs registered from its `.msg` files."""
     store = get_typestore(Stores.ROS2_JAZZY)
@@ -73,7 +94,8 @@ def message_definition(msgtype: str, store: Typestore | None = None) -> tuple[st
     store = store or typestore()
     if msgtype not in store.fielddefs:
         raise BagTopicError(
-            f"message type '{msgtype}' is unknown to the typestore (Jazzy + {MSG_PACKAGE})")
+            f"message type '{msgtype}' is unknown to the typestore (Jazzy + {MSG_PACKAGE})"
+        )
     text, _ = store.generate_msgdef(msgtype, ros_version=2)
     return text, store.hash_rihs01(msgtype)
 
@@ -91,8 +113,11 @@ def new_message(msgtype: str, store: Typestore | None = None, **values: Any) -> 
             kwargs[name] = new_message(detail, store)
         elif node == Nodetype.BASE:
             kwargs[name] = "" if detail[0] == "string" else (False if detail[0] == "bool" else 0)
-        elif (node == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE
-              and detail[0][1][0] != "string"):
+        elif (
+            node == Nodetype.SEQUENCE
+            and detail[0][0] == Nodetype.BASE
+            and detail[0][1][0] != "string"
+        ):
             kwargs[name] = np.zeros(0, dtype=_numpy_dtype(detail[0][1][0]))
         else:
             kwargs[name] = []
@@ -103,9 +128,21 @@ def new_message(msgtype: str, store: Typestore | None = None, **values: Any) -> 
 
 
 def _numpy_dtype(base: str) -> np.dtype:
-    names = {"float64": "f8", "float32": "f4", "bool": "bool", "byte": "u1", "char": "u1",
-             "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4",
-             "uint32": "u4", "int64": "i8", "uint64": "u8"}
+    names = {
+        "float64": "f8",
+        "float32": "f4",
+        "bool": "bool",
+        "byte": "u1",
+        "char": "u1",
+        "int8": "i1",
+        "uint8": "u1",
+        "int16": "i2",
+        "uint16": "u2",
+        "int32": "i4",
+        "uint32": "u4",
+        "int64": "i8",
+        "uint64": "u8",
+    }
     return np.dtype(names[base])
 
 
@@ -119,8 +156,11 @@ def has_leading_stamp(msgtype: str, store: Typestore | None = None) -> bool:
     """True if the first field of `msgtype` is a std_msgs/Header or a builtin_interfaces/Time."""
     store = store or typestore()
     _, fields = store.fielddefs[msgtype]
-    return (bool(fields) and fields[0][1][0] == Nodetype.NAME
-            and fields[0][1][1] in (HEADER_TYPE, TIME_TYPE))
+    return (
+        bool(fields)
+        and fields[0][1][0] == Nodetype.NAME
+        and fields[0][1][1] in (HEADER_TYPE, TIME_TYPE)
+    )
 
 
 def leading_stamp_ns(data: bytes | memoryview) -> int:
@@ -140,5 +180,5 @@ def deserialize(bag: str | Path, store: Typestore, data: bytes, msgtype: str) ->
     """One CDR message, a damaged one reported as a BagError naming the bag."""
     try:
         return store.deserialize_cdr(data, msgtype)
-    except Exception as exc:  # noqa: BLE001 - truncated or scrambled CDR bytes
+    except Exception as exc:
         raise BagError(f"{bag}: damaged {msgtype} message: {type(exc).__name__}: {exc}") from None

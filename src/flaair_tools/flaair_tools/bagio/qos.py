@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -20,7 +21,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9, parse_qos
 
 from flaair_tools.bagio.messages import NS_PER_S
 
-__all__ = ["qos_from_rclpy", "qos_to_yaml", "qos_from_yaml"]
+__all__ = ["qos_from_rclpy", "qos_from_yaml", "qos_to_yaml"]
 
 
 def _qos_time(duration: Any) -> QosTime:
@@ -48,8 +49,9 @@ def qos_to_yaml(profiles: Sequence[Qos]) -> str:
     """Offered QoS profiles as the YAML text rosbag2 (Jazzy, v9) stores in MCAP channel metadata."""
     if not profiles:
         return ""
-    return yaml.safe_dump(dump_qos_v9(list(profiles)), default_flow_style=False,
-                          sort_keys=False).strip()
+    return yaml.safe_dump(
+        dump_qos_v9(list(profiles)), default_flow_style=False, sort_keys=False
+    ).strip()
 
 
 def qos_from_yaml(text: str) -> list[Qos]:

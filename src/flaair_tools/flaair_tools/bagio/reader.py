@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
@@ -25,8 +26,18 @@ from flaair_tools.bagio.messages import (
     typestore,
 )
 
-__all__ = ["TopicInfo", "BagInfo", "bag_info", "message_counts", "iter_raw", "iter_messages",
-           "BagContents", "read_bag", "read_blocks", "read_run_markers"]
+__all__ = [
+    "BagContents",
+    "BagInfo",
+    "TopicInfo",
+    "bag_info",
+    "iter_messages",
+    "iter_raw",
+    "message_counts",
+    "read_bag",
+    "read_blocks",
+    "read_run_markers",
+]
 
 
 @dataclass(frozen=True)
@@ -56,8 +67,10 @@ def _open(bag: str | Path) -> Reader:
         raise BagError(f"{path}: no such bag")
     if path.is_dir() and not (path / "metadata.yaml").exists():
         if any(path.glob("*.mcap")):
-            raise BagUnfinishedError(f"{path}: no metadata.yaml (the recorder did not close the "
-                                     f"bag); recover it with: bin/flaair bag reindex {path}")
+            raise BagUnfinishedError(
+                f"{path}: no metadata.yaml (the recorder did not close the "
+                f"bag); recover it with: bin/flaair bag reindex {path}"
+            )
         raise BagError(f"{path}: not a rosbag2 bag (no metadata.yaml, no .mcap file)")
     try:
         reader = Reader(path)
@@ -65,24 +78,30 @@ def _open(bag: str | Path) -> Reader:
     except FileNotFoundError as exc:
         raise BagError(f"{path}: cannot open bag: {exc}") from None
     except ReaderError as exc:
-        raise BagError(f"{path}: cannot open bag: {exc}; if it is damaged, recover what is left "
-                       f"with: bin/flaair bag reindex {path}") from None
-    except Exception as exc:  # noqa: BLE001 - metadata or summary bytes that do not parse: a damaged bag
-        raise BagError(f"{path}: damaged bag, cannot open it: {type(exc).__name__}: {exc}; "
-                       f"recover what is left with: bin/flaair bag reindex {path}") from None
+        raise BagError(
+            f"{path}: cannot open bag: {exc}; if it is damaged, recover what is left "
+            f"with: bin/flaair bag reindex {path}"
+        ) from None
+    except Exception as exc:
+        raise BagError(
+            f"{path}: damaged bag, cannot open it: {type(exc).__name__}: {exc}; "
+            f"recover what is left with: bin/flaair bag reindex {path}"
+        ) from None
     return reader
 
 
-def _messages(bag: str | Path, reader: Reader,
-              connections: Sequence[Any]) -> Iterator[tuple[Any, int, bytes]]:
+def _messages(
+    bag: str | Path, reader: Reader, connections: Sequence[Any]
+) -> Iterator[tuple[Any, int, bytes]]:
     """reader.messages, with any failure to decode the file reported as a damaged bag."""
     try:
         yield from reader.messages(connections=connections)
     except BagError:
         raise
-    except Exception as exc:  # noqa: BLE001 - zstd, MCAP framing, struct: the file's content is damaged
+    except Exception as exc:
         raise BagError(
-            f"{bag}: damaged bag, cannot read its messages: {type(exc).__name__}: {exc}") from None
+            f"{bag}: damaged bag, cannot read its messages: {type(exc).__name__}: {exc}"
+        ) from None
 
 
 def bag_info(bag: str | Path) -> BagInfo:
@@ -99,10 +118,12 @@ def _info(bag: str | Path, reader: Reader) -> BagInfo:
     for name, info in reader.topics.items():
         qos = info.connections[0].ext.offered_qos_profiles if info.connections else []
         topics[name] = TopicInfo(info.msgtype or "", info.msgcount, tuple(qos))
-    custom = (dict(reader.storage.metadata.custom or {}) if hasattr(reader.storage, "metadata")
-              else {})
-    return BagInfo(Path(bag), topics, reader.start_time, reader.end_time, reader.message_count,
-                   custom)
+    custom = (
+        dict(reader.storage.metadata.custom or {}) if hasattr(reader.storage, "metadata") else {}
+    )
+    return BagInfo(
+        Path(bag), topics, reader.start_time, reader.end_time, reader.message_count, custom
+    )
 
 
 def message_counts(bag: str | Path) -> dict[str, int]:
@@ -113,8 +134,9 @@ def message_counts(bag: str | Path) -> dict[str, int]:
     return counts
 
 
-def iter_raw(bag: str | Path, topics: Sequence[str]
-             | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+def iter_raw(
+    bag: str | Path, topics: Sequence[str] | None = None
+) -> Iterator[tuple[str, str, int, bytes]]:
     """(topic, msgtype, log time ns, CDR bytes) of every message (of `topics`) in log-time order."""
     reader = _open(bag)
     try:
@@ -130,8 +152,9 @@ def iter_raw(bag: str | Path, topics: Sequence[str]
         reader.close()
 
 
-def iter_messages(bag: str | Path, topics: Sequence[str] | None = None,
-                  store: Typestore | None = None) -> Iterator[tuple[str, int, Any]]:
+def iter_messages(
+    bag: str | Path, topics: Sequence[str] | None = None, store: Typestore | None = None
+) -> Iterator[tuple[str, int, Any]]:
     """(topic, log time ns, deserialized message) of
     every message (of `topics`) in log-time order.
     """
@@ -146,7 +169,8 @@ def _require_topics(bag: str | Path, reader: Reader, topics: Sequence[str]) -> N
     if missing:
         raise BagTopicError(
             f"{bag}: no topic {', '.join(repr(t) for t in missing)} in the bag "
-            f"(it has: {', '.join(sorted(present)) or 'no topics'})")
+            f"(it has: {', '.join(sorted(present)) or 'no topics'})"
+        )
 
 
 @dataclass(frozen=True)
@@ -164,11 +188,14 @@ class BagContents:
 
     def _data(self, topic: str) -> list[bytes]:
         if topic not in self.info.topics:
-            raise BagTopicError(f"{self.info.path}: no topic '{topic}' in the bag "
-                                f"(it has: {', '.join(sorted(self.info.topics)) or 'no topics'})")
+            raise BagTopicError(
+                f"{self.info.path}: no topic '{topic}' in the bag "
+                f"(it has: {', '.join(sorted(self.info.topics)) or 'no topics'})"
+            )
         if topic not in self.raw:
             raise BagError(
-                f"{self.info.path}: topic '{topic}' was not read (read_bag(..., topics))")
+                f"{self.info.path}: topic '{topic}' was not read (read_bag(..., topics))"
+            )
         return self.raw[topic]
 
     def messages(self, topic: str, store: Typestore | None = None) -> list[Any]:
@@ -183,7 +210,8 @@ class BagContents:
         data, msgtype = self._data(topic), self.info.topics[topic].msgtype
         if msgtype not in typestore().fielddefs:
             raise BagTopicError(
-                f"{self.info.path}: topic '{topic}' has type {msgtype}, unknown to the typestore")
+                f"{self.info.path}: topic '{topic}' has type {msgtype}, unknown to the typestore"
+            )
         return blocks_from_cdr(topic, msgtype, data, allow_gaps=allow_gaps, bag=self.info.path)
 
     def run_markers(self) -> list[RunMarker]:
@@ -212,8 +240,9 @@ def read_bag(bag: str | Path, topics: Sequence[str] | None = None) -> BagContent
         reader.close()
 
 
-def read_blocks(bag: str | Path, topic: str, *, run: str | None = None,
-                allow_gaps: bool = False) -> Blocks:
+def read_blocks(
+    bag: str | Path, topic: str, *, run: str | None = None, allow_gaps: bool = False
+) -> Blocks:
     """Read every block message of `topic`, concatenated per field.
 
     Parameters

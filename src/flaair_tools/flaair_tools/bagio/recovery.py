@@ -3,6 +3,7 @@ it (verified first), `check_bag` reports damage.
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -28,8 +29,14 @@ from flaair_tools.bagio.qos import qos_from_yaml
 from flaair_tools.bagio.scan import RECOVERED_CUSTOM_KEY, ScanLog, ScannedMessage, scan_mcap
 from flaair_tools.bagio.writer import BagWriter, storage_settings
 
-__all__ = ["TopicRecovery", "ReindexReport", "single_mcap_file", "reindex", "damage_lines",
-           "check_bag"]
+__all__ = [
+    "ReindexReport",
+    "TopicRecovery",
+    "check_bag",
+    "damage_lines",
+    "reindex",
+    "single_mcap_file",
+]
 
 
 @dataclass(frozen=True)
@@ -80,8 +87,11 @@ class ReindexReport:
         """How the scan ended, in words."""
         if self.was_complete:
             return "footer (complete file)"
-        return ("a chunk cut off by the end of the file" if self.partial_tail
-                else "end of file without a footer")
+        return (
+            "a chunk cut off by the end of the file"
+            if self.partial_tail
+            else "end of file without a footer"
+        )
 
 
 def single_mcap_file(path: Path) -> Path:
@@ -98,8 +108,10 @@ def _metadata_counts(path: Path) -> tuple[dict[str, int] | None, dict[str, str]]
     try:
         document = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))
         info = document["rosbag2_bagfile_information"]
-        counts = {str(t["topic_metadata"]["name"]): int(t["message_count"])
-                  for t in info["topics_with_message_count"]}
+        counts = {
+            str(t["topic_metadata"]["name"]): int(t["message_count"])
+            for t in info["topics_with_message_count"]
+        }
         custom = {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
         return counts, custom
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
@@ -111,7 +123,7 @@ def _decodable(store: Typestore, msgtype: str, data: bytes) -> bool:
         return True  # a foreign type: nothing to check it against
     try:
         store.deserialize_cdr(data, msgtype)
-    except Exception:  # noqa: BLE001 - garbage decoded past a corruption
+    except Exception:
         return False
     return True
 
@@ -129,8 +141,10 @@ def _verify_copy(bag: Path, expected: dict[str, int]) -> None:
             mcap_seen[channel.topic] = mcap_seen.get(channel.topic, 0) + 1
     wanted = {t: n for t, n in expected.items() if n}
     if seen != wanted or mcap_seen != wanted:
-        raise BagError(f"{bag}: the recovered copy does not read back as written (wrote {wanted}, "
-                       f"rosbags reads {seen}, mcap reads {mcap_seen}); the original is unchanged")
+        raise BagError(
+            f"{bag}: the recovered copy does not read back as written (wrote {wanted}, "
+            f"rosbags reads {seen}, mcap reads {mcap_seen}); the original is unchanged"
+        )
 
 
 def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
@@ -167,8 +181,13 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
     unverified_dropped = 0
     try:
         compression, chunk_size = storage_settings()
-        writer = BagWriter(temporary, compression=compression, chunk_size_bytes=chunk_size,
-                           file_name=source.name, store=store)
+        writer = BagWriter(
+            temporary,
+            compression=compression,
+            chunk_size_bytes=chunk_size,
+            file_name=source.name,
+            store=store,
+        )
         with _mapped(source) as data:
             for record in scan_mcap(data, log):
                 if progress is not None:
@@ -179,7 +198,8 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
                         unverified_dropped += 1
                         continue
                     if not record.verified and not _decodable(
-                            store, schemas[channel.schema_id].name, record.data):
+                        store, schemas[channel.schema_id].name, record.data
+                    ):
                         unverified_dropped += 1
                         continue
                     writer.write(channel.topic, record.log_time, record.data, record.publish_time)
@@ -189,16 +209,21 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
                     channels[record.id] = record
                     schema = schemas.get(record.schema_id)
                     if schema is not None and not writer.has_topic(record.topic):
-                        writer.add_topic(record.topic, schema.name, qos_from_yaml(
-                            record.metadata.get("offered_qos_profiles", "")),
-                                         msgdef=schema.data.decode(),
-                                         type_hash=record.metadata.get("topic_type_hash", ""))
+                        writer.add_topic(
+                            record.topic,
+                            schema.name,
+                            qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
+                            msgdef=schema.data.decode(),
+                            type_hash=record.metadata.get("topic_type_hash", ""),
+                        )
                 elif isinstance(record, McapMetadata) and record.name == "rosbag2":
                     try:
-                        previous = yaml.safe_load(record.metadata.get("serialized_metadata",
-                                                                      "")) or {}
-                        custom.update({str(k): str(v) for k,
-                                       v in (previous.get("custom_data") or {}).items()})
+                        previous = (
+                            yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
+                        )
+                        custom.update(
+                            {str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()}
+                        )
                     except (yaml.YAMLError, AttributeError):
                         pass
         kept = writer.counts
@@ -209,11 +234,20 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
             if key != RECOVERED_CUSTOM_KEY:
                 writer.set_custom_data(key, value)
         if lost_any:
-            writer.set_custom_data(RECOVERED_CUSTOM_KEY, json.dumps({
-                "source_file": source.name, "damage": list(damage), "topics": {
-                t: {"kept": r.kept, "expected": r.expected, "lost": r.lost} for t,
-                r in sorted(topics.items())},
-            }, allow_nan=False))
+            writer.set_custom_data(
+                RECOVERED_CUSTOM_KEY,
+                json.dumps(
+                    {
+                        "source_file": source.name,
+                        "damage": list(damage),
+                        "topics": {
+                            t: {"kept": r.kept, "expected": r.expected, "lost": r.lost}
+                            for t, r in sorted(topics.items())
+                        },
+                    },
+                    allow_nan=False,
+                ),
+            )
         writer.close()
         _verify_copy(temporary, kept)
         backup = None
@@ -228,12 +262,17 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
     finally:
         if temporary.exists():
             shutil.rmtree(temporary, ignore_errors=True)
-    return ReindexReport(path, topics, log.complete, damage, log.partial_tail, backup,
-                         unverified_dropped)
+    return ReindexReport(
+        path, topics, log.complete, damage, log.partial_tail, backup, unverified_dropped
+    )
 
 
-def _recovery_counts(kept: dict[str, int], channels: dict[int, McapChannel], log: ScanLog,
-                     from_metadata: dict[str, int] | None) -> dict[str, TopicRecovery]:
+def _recovery_counts(
+    kept: dict[str, int],
+    channels: dict[int, McapChannel],
+    log: ScanLog,
+    from_metadata: dict[str, int] | None,
+) -> dict[str, TopicRecovery]:
     """Kept and expected messages per topic: from the summary's statistics, else metadata.yaml,
     else the message indexes (unknown when a chunk without an index was cut off).
     """

@@ -5,6 +5,7 @@ unknown or ill-typed key is refused with the file and the key's path, so a typo 
 fall back to anything. `drive_gain_v_per_v` (1) and `drive_bias_v` (0) are the only keys that
 may be left out; the trigger, actuator-tip and transmission keys are required where used.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,13 +17,20 @@ import yaml
 
 from flaair_tools.bagio.target_log import LabFileError
 
-__all__ = ["Rig", "TipPoint", "read_rig", "rig_from_mapping", "ROLES", "WING_POINTS"]
+__all__ = ["ROLES", "WING_POINTS", "Rig", "TipPoint", "read_rig", "rig_from_mapping"]
 
 ROLES = ("drive", "stroke_sensor", "pitch_sensor", "camera_trigger")
 WING_POINTS = ("wing_leading_edge_1", "wing_trailing_edge_1", "wing_leading_edge_2")
 STROKE_SOURCES = ("actuator_tip", "wing_span")
-_TOP = {"signals", "drive_gain_v_per_v", "drive_bias_v", "video", "points", "geometry",
-        "stroke_from"}
+_TOP = {
+    "signals",
+    "drive_gain_v_per_v",
+    "drive_bias_v",
+    "video",
+    "points",
+    "geometry",
+    "stroke_from",
+}
 _VIDEO = {"fps", "sync", "length_unit_m"}
 _SYNC = {"trigger_frame", "trigger_threshold_v", "frame0_time_s"}
 _POINTS = set(WING_POINTS) | {"actuator_tip"}
@@ -41,16 +49,16 @@ class TipPoint:
 class Rig:
     """A rig file's content, checked (SI units; angles and positions as the file gives them)."""
 
-    source: str                      # the file's text, recorded in every bag imported with it
-    signals: dict[str, str]          # role -> MAT signal label
+    source: str  # the file's text, recorded in every bag imported with it
+    signals: dict[str, str]  # role -> MAT signal label
     drive_gain_v_per_v: float
     drive_bias_v: float
     fps: float
-    trigger_frame: int | None        # trigger sync; None: frame0_time_s sync
+    trigger_frame: int | None  # trigger sync; None: frame0_time_s sync
     trigger_threshold_v: float | None
     frame0_time_s: float | None
     length_unit_m: float
-    wing_points: dict[str, int]      # WING_POINTS -> DLTdv8 point number
+    wing_points: dict[str, int]  # WING_POINTS -> DLTdv8 point number
     tip: TipPoint | None
     up: tuple[float, float, float]
     rest_span: tuple[float, float, float]
@@ -77,16 +85,20 @@ class _Checker:
             raise self.fail(key, f"must be a mapping, got {type(value).__name__}")
         unknown = sorted(str(k) for k in value if k not in allowed)
         if unknown:
-            raise self.fail(key, f"unknown key(s) {', '.join(unknown)} (allowed: "
-                                 f"{', '.join(sorted(allowed))})")
+            raise self.fail(
+                key, f"unknown key(s) {', '.join(unknown)} (allowed: {', '.join(sorted(allowed))})"
+            )
         missing = sorted(required - set(value))
         if missing:
             raise self.fail(key, f"missing key(s) {', '.join(missing)}")
         return value
 
     def number(self, value: Any, key: str, positive: bool = False) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                or not math.isfinite(value):
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+        ):
             raise self.fail(key, f"must be a finite number, got {value!r}")
         if positive and not value > 0:
             raise self.fail(key, f"must be > 0, got {value!r}")
@@ -112,60 +124,97 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
     top = c.mapping(data, "rig", _TOP, {"signals", "video", "points", "geometry", "stroke_from"})
     stroke_from = top["stroke_from"]
     if stroke_from not in STROKE_SOURCES:
-        raise c.fail("stroke_from", f"must be one of {', '.join(STROKE_SOURCES)}, got "
-                                    f"{stroke_from!r}")
+        raise c.fail(
+            "stroke_from", f"must be one of {', '.join(STROKE_SOURCES)}, got {stroke_from!r}"
+        )
     video = c.mapping(top["video"], "video", _VIDEO, _VIDEO)
     sync = c.mapping(video["sync"], "video.sync", _SYNC, set())
     by_trigger = "trigger_frame" in sync or "trigger_threshold_v" in sync
     if by_trigger == ("frame0_time_s" in sync):
-        raise c.fail("video.sync", "give either trigger_frame and trigger_threshold_v (trigger "
-                                   "sync) or frame0_time_s, not both and not neither")
+        raise c.fail(
+            "video.sync",
+            "give either trigger_frame and trigger_threshold_v (trigger "
+            "sync) or frame0_time_s, not both and not neither",
+        )
     if by_trigger:
         c.mapping(sync, "video.sync", _SYNC, {"trigger_frame", "trigger_threshold_v"})
-    signals = c.mapping(top["signals"], "signals", set(ROLES),
-                        {"drive", "stroke_sensor", "pitch_sensor"}
-                        | ({"camera_trigger"} if by_trigger else set()))
+    signals = c.mapping(
+        top["signals"],
+        "signals",
+        set(ROLES),
+        {"drive", "stroke_sensor", "pitch_sensor"} | ({"camera_trigger"} if by_trigger else set()),
+    )
     for role, label in signals.items():
         if not isinstance(label, str) or not label:
             raise c.fail(f"signals.{role}", f"must be a signal label (text), got {label!r}")
     tip_used = stroke_from == "actuator_tip"
-    points = c.mapping(top["points"], "points", _POINTS,
-                       set(WING_POINTS) | ({"actuator_tip"} if tip_used else set()))
+    points = c.mapping(
+        top["points"],
+        "points",
+        _POINTS,
+        set(WING_POINTS) | ({"actuator_tip"} if tip_used else set()),
+    )
     wing_points = {name: c.integer(points[name], f"points.{name}", 1) for name in WING_POINTS}
     if len(set(wing_points.values())) != len(wing_points):
         raise c.fail("points", f"the wing points must be different points, got {wing_points}")
     tip = None
     if "actuator_tip" in points:
-        tip_map = c.mapping(points["actuator_tip"], "points.actuator_tip", {"point", "camera"},
-                            {"point", "camera"})
-        tip = TipPoint(c.integer(tip_map["point"], "points.actuator_tip.point", 1),
-                       c.integer(tip_map["camera"], "points.actuator_tip.camera", 1))
-    geometry = c.mapping(top["geometry"], "geometry", _GEOMETRY, {"up", "rest_span"} | (
-        {"m_per_px", "tip_axis_px", "transmission_ratio_rad_per_m"} if tip_used else set()))
+        tip_map = c.mapping(
+            points["actuator_tip"], "points.actuator_tip", {"point", "camera"}, {"point", "camera"}
+        )
+        tip = TipPoint(
+            c.integer(tip_map["point"], "points.actuator_tip.point", 1),
+            c.integer(tip_map["camera"], "points.actuator_tip.camera", 1),
+        )
+    geometry = c.mapping(
+        top["geometry"],
+        "geometry",
+        _GEOMETRY,
+        {"up", "rest_span"}
+        | ({"m_per_px", "tip_axis_px", "transmission_ratio_rad_per_m"} if tip_used else set()),
+    )
     fps = c.number(video["fps"], "video.fps", positive=True)
     return Rig(
-        source=source, signals=dict(signals),
+        source=source,
+        signals=dict(signals),
         drive_gain_v_per_v=c.number(top.get("drive_gain_v_per_v", 1.0), "drive_gain_v_per_v"),
-        drive_bias_v=c.number(top.get("drive_bias_v", 0.0), "drive_bias_v"), fps=fps,
-        trigger_frame=(c.integer(sync["trigger_frame"], "video.sync.trigger_frame", 0)
-                       if by_trigger else None),
-        trigger_threshold_v=(c.number(sync["trigger_threshold_v"],
-                                      "video.sync.trigger_threshold_v") if by_trigger else None),
-        frame0_time_s=(None if by_trigger
-                       else c.number(sync["frame0_time_s"], "video.sync.frame0_time_s")),
+        drive_bias_v=c.number(top.get("drive_bias_v", 0.0), "drive_bias_v"),
+        fps=fps,
+        trigger_frame=(
+            c.integer(sync["trigger_frame"], "video.sync.trigger_frame", 0) if by_trigger else None
+        ),
+        trigger_threshold_v=(
+            c.number(sync["trigger_threshold_v"], "video.sync.trigger_threshold_v")
+            if by_trigger
+            else None
+        ),
+        frame0_time_s=(
+            None if by_trigger else c.number(sync["frame0_time_s"], "video.sync.frame0_time_s")
+        ),
         length_unit_m=c.number(video["length_unit_m"], "video.length_unit_m", positive=True),
-        wing_points=wing_points, tip=tip,
+        wing_points=wing_points,
+        tip=tip,
         up=c.vector(geometry["up"], "geometry.up", 3),
         rest_span=c.vector(geometry["rest_span"], "geometry.rest_span", 3),
-        m_per_px=(c.number(geometry["m_per_px"], "geometry.m_per_px", positive=True)
-                  if "m_per_px" in geometry else None),
-        tip_axis_px=(c.vector(geometry["tip_axis_px"], "geometry.tip_axis_px", 2)
-                     if "tip_axis_px" in geometry else None),
+        m_per_px=(
+            c.number(geometry["m_per_px"], "geometry.m_per_px", positive=True)
+            if "m_per_px" in geometry
+            else None
+        ),
+        tip_axis_px=(
+            c.vector(geometry["tip_axis_px"], "geometry.tip_axis_px", 2)
+            if "tip_axis_px" in geometry
+            else None
+        ),
         transmission_ratio_rad_per_m=(
-            c.number(geometry["transmission_ratio_rad_per_m"],
-                     "geometry.transmission_ratio_rad_per_m")
-            if "transmission_ratio_rad_per_m" in geometry else None),
-        stroke_from=stroke_from)
+            c.number(
+                geometry["transmission_ratio_rad_per_m"], "geometry.transmission_ratio_rad_per_m"
+            )
+            if "transmission_ratio_rad_per_m" in geometry
+            else None
+        ),
+        stroke_from=stroke_from,
+    )
 
 
 def read_rig(path: Path | str) -> Rig:
@@ -182,6 +231,7 @@ def read_rig(path: Path | str) -> Rig:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""
-        raise LabFileError(f"{path}: {where}not valid YAML "
-                           f"({getattr(exc, 'problem', None) or exc})") from None
+        raise LabFileError(
+            f"{path}: {where}not valid YAML ({getattr(exc, 'problem', None) or exc})"
+        ) from None
     return rig_from_mapping(data, str(path), text)

@@ -4,11 +4,12 @@ A run is what a lab exports as one CSV (docs/LAB_CSV_FORMAT.md): drive, both sen
 voltages and ground-truth angles (NaN where the truth is missing or invalid). Bags mark their
 runs on /flaair/run_marker; a bag without markers is one run named after the bag.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -45,8 +46,9 @@ class Run:
         return 1.0 if not self.expected_n_samples else self.n_samples / self.expected_n_samples
 
 
-def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None,
-             truth: bagio.Blocks | None) -> dict[str, np.ndarray]:
+def _columns(
+    sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Blocks | None
+) -> dict[str, np.ndarray]:
     first = int(sensor.sample_index[0])
     n = len(sensor.sample_index)
     fs = float(sensor.sample_rate_hz)
@@ -74,8 +76,13 @@ def _columns(sensor: bagio.Blocks, drive: bagio.Blocks | None,
     return columns
 
 
-def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive: bool = True,
-              missing: list[tuple[str, str]] | None = None) -> list[Run]:
+def load_runs(
+    bags: Sequence[str | Path],
+    *,
+    need_truth: bool = True,
+    need_drive: bool = True,
+    missing: list[tuple[str, str]] | None = None,
+) -> list[Run]:
     """Every run of every bag, as measured-run columns.
 
     Parameters
@@ -100,35 +107,56 @@ def load_runs(bags: Sequence[str | Path], *, need_truth: bool = True, need_drive
     return runs
 
 
-def runs_of_bag(contents: bagio.BagContents, *, need_truth: bool = True, need_drive: bool = True,
-                missing: list[tuple[str, str]] | None = None) -> list[Run]:
+def runs_of_bag(
+    contents: bagio.BagContents,
+    *,
+    need_truth: bool = True,
+    need_drive: bool = True,
+    missing: list[tuple[str, str]] | None = None,
+) -> list[Run]:
     """Every run of one bag already read (`bagio.read_bag(bag,
     RUN_TOPICS + ...)`); see `load_runs`.
     """
     bag = contents.info.path
     present = set(contents.info.topics)
-    needed = [topics.SENSOR_VOLTAGE] + (
-        [topics.WING_STATE_TRUTH] if need_truth else []) + ([topics.DRIVE] if need_drive else [])
+    needed = (
+        [topics.SENSOR_VOLTAGE]
+        + ([topics.WING_STATE_TRUTH] if need_truth else [])
+        + ([topics.DRIVE] if need_drive else [])
+    )
     absent = [t for t in needed if t not in present]
     if absent:
-        raise bagio.BagTopicError(f"{bag}: needed topic(s) {', '.join(absent)} not in the bag "
-                                  f"(it has: {', '.join(sorted(present)) or 'nothing'})")
+        raise bagio.BagTopicError(
+            f"{bag}: needed topic(s) {', '.join(absent)} not in the bag "
+            f"(it has: {', '.join(sorted(present)) or 'nothing'})"
+        )
     sensor = contents.blocks(topics.SENSOR_VOLTAGE)
     drive = contents.blocks(topics.DRIVE) if topics.DRIVE in present else None
     truth = contents.blocks(topics.WING_STATE_TRUTH) if topics.WING_STATE_TRUTH in present else None
     markers = contents.run_markers()
     if not markers:
-        return [Run(bag.name, str(bag), float(sensor.sample_rate_hz),
-                    _columns(sensor, drive, truth))]
+        return [
+            Run(bag.name, str(bag), float(sensor.sample_rate_hz), _columns(sensor, drive, truth))
+        ]
     runs: list[Run] = []
     for marker in markers:
-        pick = lambda b: None if b is None else bagio.select_samples(b, marker.first_sample_index,
-                                                                     marker.n_samples)  # noqa: E731
+        pick = lambda b: (
+            None
+            if b is None
+            else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)
+        )
         part = pick(sensor)
         if len(part.sample_index) == 0:
             if missing is not None:
                 missing.append((str(bag), marker.run))
             continue
-        runs.append(Run(marker.run, str(bag), float(sensor.sample_rate_hz),
-                        _columns(part, pick(drive), pick(truth)), marker.n_samples))
+        runs.append(
+            Run(
+                marker.run,
+                str(bag),
+                float(sensor.sample_rate_hz),
+                _columns(part, pick(drive), pick(truth)),
+                marker.n_samples,
+            )
+        )
     return runs

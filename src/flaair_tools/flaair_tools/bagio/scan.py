@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import struct
@@ -24,10 +25,10 @@ __all__ = ["MCAP_MAGIC", "RECOVERED_CUSTOM_KEY", "ScanLog", "ScannedMessage", "s
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 RECOVERED_CUSTOM_KEY = "flaair.recovered"  # custom_data of a reindexed bag that lost messages
-_RECORD_HEAD = 9          # opcode (1) + record length (8)
+_RECORD_HEAD = 9  # opcode (1) + record length (8)
 _CHUNK_FIXED = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, CRC, compression-string length
 _COMPRESSIONS = ("", "zstd", "lz4")
-_ZSTD_PIECE = 1 << 16     # compressed bytes fed to the streaming decompressor at a time
+_ZSTD_PIECE = 1 << 16  # compressed bytes fed to the streaming decompressor at a time
 _FOOTER_SIZE = _RECORD_HEAD + 20
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 
@@ -71,9 +72,13 @@ class ScannedMessage:
 
 def _read_record(opcode: int, body: bytes | memoryview) -> Any:
     """One non-chunk record through the mcap library's own parsers (None: not needed here)."""
-    readers = {Opcode.SCHEMA: McapSchema.read, Opcode.CHANNEL: McapChannel.read,
-               Opcode.METADATA: McapMetadata.read, Opcode.STATISTICS: Statistics.read,
-               Opcode.MESSAGE_INDEX: MessageIndex.read}
+    readers = {
+        Opcode.SCHEMA: McapSchema.read,
+        Opcode.CHANNEL: McapChannel.read,
+        Opcode.METADATA: McapMetadata.read,
+        Opcode.STATISTICS: Statistics.read,
+        Opcode.MESSAGE_INDEX: MessageIndex.read,
+    }
     reader = readers.get(opcode)
     return None if reader is None else reader(ReadDataStream(BytesIO(bytes(body))))
 
@@ -98,7 +103,7 @@ def _decompress_prefix(compression: str, data: memoryview, size: int) -> tuple[b
             return b"", "lz4 compression (python lz4 not installed)"
         try:
             return lz4frame.decompress(bytes(data)), ""
-        except Exception as exc:  # noqa: BLE001 - any lz4 failure: the chunk is damaged
+        except Exception as exc:
             return b"", f"lz4: {exc}"
     import zstandard
 
@@ -107,7 +112,7 @@ def _decompress_prefix(compression: str, data: memoryview, size: int) -> tuple[b
     produced = 0
     for start in range(0, len(data), _ZSTD_PIECE):
         try:
-            part = decompressor.decompress(bytes(data[start:start + _ZSTD_PIECE]))
+            part = decompressor.decompress(bytes(data[start : start + _ZSTD_PIECE]))
         except zstandard.ZstdError as exc:
             return b"".join(parts), f"zstd: {exc}"
         parts.append(part)
@@ -128,7 +133,7 @@ def _chunk_records(raw: bytes, verified: bool, start_ns: int, end_ns: int) -> It
         end = position + _RECORD_HEAD + length
         if opcode not in _KNOWN_OPCODES or end > len(view):
             return
-        body = view[position + _RECORD_HEAD:end]
+        body = view[position + _RECORD_HEAD : end]
         try:
             if opcode == Opcode.MESSAGE:
                 message = _parse_message(body, verified)
@@ -139,7 +144,7 @@ def _chunk_records(raw: bytes, verified: bool, start_ns: int, end_ns: int) -> It
                 record = _read_record(opcode, body)
                 if record is not None:
                     yield record
-        except Exception:  # noqa: BLE001 - a record that does not parse ends the readable part
+        except Exception:
             return
         position = end
 
@@ -153,10 +158,12 @@ def _plausible_chunk(data: Any, position: int, size: int) -> bool:
     if comp_len > 8 or position + _RECORD_HEAD + _CHUNK_FIXED + comp_len + 8 > size:
         return False
     body = position + _RECORD_HEAD + _CHUNK_FIXED
-    compression = bytes(data[body:body + comp_len])
+    compression = bytes(data[body : body + comp_len])
     (data_len,) = struct.unpack_from("<Q", data, body + comp_len)
-    return (compression.decode("ascii", "replace") in _COMPRESSIONS
-            and length == _CHUNK_FIXED + comp_len + 8 + data_len)
+    return (
+        compression.decode("ascii", "replace") in _COMPRESSIONS
+        and length == _CHUNK_FIXED + comp_len + 8 + data_len
+    )
 
 
 def _resync(data: Any, position: int, size: int) -> int:
@@ -172,7 +179,7 @@ def _resync(data: Any, position: int, size: int) -> int:
 
 def _summary_statistics(data: Any, size: int, log: ScanLog) -> Iterator[Any]:
     """Schemas and channels of an intact summary section; sets log.statistics."""
-    if size < len(MCAP_MAGIC) * 2 + _FOOTER_SIZE or bytes(data[size - 8:size]) != MCAP_MAGIC:
+    if size < len(MCAP_MAGIC) * 2 + _FOOTER_SIZE or bytes(data[size - 8 : size]) != MCAP_MAGIC:
         return
     footer = size - 8 - _FOOTER_SIZE
     if data[footer] != Opcode.FOOTER:
@@ -189,8 +196,8 @@ def _summary_statistics(data: Any, size: int, log: ScanLog) -> Iterator[Any]:
         if opcode not in _KNOWN_OPCODES or end > footer:
             return  # a damaged summary: trust none of it
         try:
-            record = _read_record(opcode, data[position + _RECORD_HEAD:end])
-        except Exception:  # noqa: BLE001
+            record = _read_record(opcode, data[position + _RECORD_HEAD : end])
+        except Exception:
             return
         if record is not None:
             found.append(record)
@@ -219,7 +226,7 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
     log = log if log is not None else ScanLog()
     size = len(data)
     log.size = size
-    if size < len(MCAP_MAGIC) or bytes(data[:len(MCAP_MAGIC)]) != MCAP_MAGIC:
+    if size < len(MCAP_MAGIC) or bytes(data[: len(MCAP_MAGIC)]) != MCAP_MAGIC:
         raise BagError("not an MCAP file (no MCAP magic at its start)")
     yield from _summary_statistics(data, size, log)
     position = len(MCAP_MAGIC)
@@ -236,31 +243,38 @@ def scan_mcap(data: bytes | memoryview | Any, log: ScanLog | None = None) -> Ite
             yield from _chunk(data, position, end, log)
             log.partial_tail = True
             break
-        if opcode not in _KNOWN_OPCODES or end > size or (
-                opcode == Opcode.CHUNK and not _plausible_chunk(data, position, size)):
+        if (
+            opcode not in _KNOWN_OPCODES
+            or end > size
+            or (opcode == Opcode.CHUNK and not _plausible_chunk(data, position, size))
+        ):
             following = _resync(data, position, size)
             log.skipped_bytes.append((position, following - position))
             position = following
             damaged_chunk = False
             continue
-        body = data[position + _RECORD_HEAD:end]
+        body = data[position + _RECORD_HEAD : end]
         if opcode == Opcode.CHUNK:
             damaged_chunk = yield from _chunk(data, position, end, log)
         elif opcode == Opcode.MESSAGE_INDEX and damaged_chunk:
             try:
                 index = _read_record(opcode, body)
-                log.index_counts[index.channel_id] = (
-                    log.index_counts.get(index.channel_id, 0) + len(index.records))
-            except Exception:  # noqa: BLE001 - a damaged index counts nothing
+                log.index_counts[index.channel_id] = log.index_counts.get(
+                    index.channel_id, 0
+                ) + len(index.records)
+            except Exception:
                 pass
         elif opcode == Opcode.FOOTER:
             log.complete = True
             break
         elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.MESSAGE):
             try:
-                yield _parse_message(body, True) if opcode == Opcode.MESSAGE else _read_record(
-                    opcode, body)
-            except Exception:  # noqa: BLE001 - a damaged record outside chunks
+                yield (
+                    _parse_message(body, True)
+                    if opcode == Opcode.MESSAGE
+                    else _read_record(opcode, body)
+                )
+            except Exception:
                 log.skipped_bytes.append((position, end - position))
         if opcode != Opcode.MESSAGE_INDEX:
             damaged_chunk = damaged_chunk and opcode == Opcode.CHUNK
@@ -273,7 +287,7 @@ def _chunk_head(data: Any, body: int) -> tuple[int, int, int, int, str, int]:
     compression, offset of the compressed data).
     """
     start_ns, end_ns, usize, crc, comp_len = struct.unpack_from("<QQQII", data, body)
-    compression = bytes(data[body + _CHUNK_FIXED:body + _CHUNK_FIXED + comp_len]).decode("ascii")
+    compression = bytes(data[body + _CHUNK_FIXED : body + _CHUNK_FIXED + comp_len]).decode("ascii")
     return start_ns, end_ns, usize, crc, compression, body + _CHUNK_FIXED + comp_len + 8
 
 
@@ -290,7 +304,7 @@ def _chunk(data: Any, position: int, end: int, log: ScanLog) -> Generator[Any, N
     returns True if it was damaged.
     """
     start_ns, end_ns, usize, crc, compression, offset = _chunk_head(data, position + _RECORD_HEAD)
-    available = memoryview(data[offset:min(end, len(data))])
+    available = memoryview(data[offset : min(end, len(data))])
     raw, why = _decompress_prefix(compression, available, usize)
     if end > len(data):
         why = f"cut off by the end of the file ({why or 'incomplete'})"

@@ -12,19 +12,21 @@ import that asked loses nothing. The variable holds ``time`` (N x 1, seconds, un
 
 Every refusal is a `LabFileError` whose message names the file and what is wrong.
 """
+
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-__all__ = ["LabFileError", "TargetLog", "read_target_log", "UNIFORM_TOLERANCE"]
+__all__ = ["UNIFORM_TOLERANCE", "LabFileError", "TargetLog", "read_target_log"]
 
 # Relative spread of the time steps still called uniform (float rounding of k / fs).
 UNIFORM_TOLERANCE = 1e-6
@@ -87,13 +89,21 @@ def read_target_log(path: Path | str, labels: Sequence[str]) -> TargetLog:
     return _checked(path, variable, time_s, found, raw, labels)
 
 
-def _checked(path: Path, variable: str, time_s: np.ndarray, all_labels: tuple[str, ...],
-             values: dict[str, np.ndarray], wanted: Sequence[str]) -> TargetLog:
+def _checked(
+    path: Path,
+    variable: str,
+    time_s: np.ndarray,
+    all_labels: tuple[str, ...],
+    values: dict[str, np.ndarray],
+    wanted: Sequence[str],
+) -> TargetLog:
     where = f"{path}: variable '{variable}'"
     missing = [label for label in wanted if label not in values]
     if missing:
-        raise LabFileError(f"{where}: no signal labelled {', '.join(map(repr, missing))} "
-                           f"(the log holds: {', '.join(map(repr, all_labels)) or 'no labels'})")
+        raise LabFileError(
+            f"{where}: no signal labelled {', '.join(map(repr, missing))} "
+            f"(the log holds: {', '.join(map(repr, all_labels)) or 'no labels'})"
+        )
     time_s = np.asarray(time_s, dtype=float).reshape(-1)
     if time_s.size < 2 or not np.isfinite(time_s).all():
         raise LabFileError(f"{where}: time must hold at least 2 finite samples, has {time_s.size}")
@@ -101,47 +111,63 @@ def _checked(path: Path, variable: str, time_s: np.ndarray, all_labels: tuple[st
     step = float(np.median(steps))
     if not step > 0 or np.max(np.abs(steps - step)) > UNIFORM_TOLERANCE * step:
         raise LabFileError(
-            f"{where}: time is not uniform (steps from {steps.min():.6g} to {steps.max():.6g} s)")
+            f"{where}: time is not uniform (steps from {steps.min():.6g} to {steps.max():.6g} s)"
+        )
     for label, v in values.items():
         if v.size != time_s.size:
             raise LabFileError(
-                f"{where}: signal '{label}' has {v.size} values, time has {time_s.size}")
+                f"{where}: signal '{label}' has {v.size} values, time has {time_s.size}"
+            )
     return TargetLog(path, variable, time_s, {label: values[label] for label in wanted}, all_labels)
 
 
-def _read_v5(path: Path, wanted: Sequence[str]) -> tuple[str, np.ndarray, tuple[str, ...],
-                                                         dict[str, np.ndarray]]:
+def _read_v5(
+    path: Path, wanted: Sequence[str]
+) -> tuple[str, np.ndarray, tuple[str, ...], dict[str, np.ndarray]]:
     import scipy.io
 
     try:
         variables = scipy.io.whosmat(str(path))
-    except Exception as exc:  # noqa: BLE001 - scipy raises many kinds on a damaged file
+    except Exception as exc:
         raise LabFileError(
-            f"{path}: not a readable MAT v5 file ({type(exc).__name__}: {exc})") from None
+            f"{path}: not a readable MAT v5 file ({type(exc).__name__}: {exc})"
+        ) from None
     for name, _shape, kind in variables:
         if kind != "struct":
             continue
         try:
-            data = scipy.io.loadmat(str(path), variable_names=[name], squeeze_me=False,
-                                    struct_as_record=False, chars_as_strings=True)
-        except Exception as exc:  # noqa: BLE001 - cut short, corrupt compressed data, ...
+            data = scipy.io.loadmat(
+                str(path),
+                variable_names=[name],
+                squeeze_me=False,
+                struct_as_record=False,
+                chars_as_strings=True,
+            )
+        except Exception as exc:
             raise LabFileError(
-                f"{path}: variable '{name}' cannot be read ({type(exc).__name__}: {exc})") from None
+                f"{path}: variable '{name}' cannot be read ({type(exc).__name__}: {exc})"
+            ) from None
         log = data[name].reshape(-1)[0]
         fields = set(getattr(log, "_fieldnames", ()))
         if not {"time", "signals"} <= fields:
             continue
         signals = np.asarray(log.signals).reshape(-1)
-        if (not signals.size or not {"values", "label"}
-            <= set(getattr(signals[0], "_fieldnames", ()))):
+        if not signals.size or not {"values", "label"} <= set(
+            getattr(signals[0], "_fieldnames", ())
+        ):
             continue
         labels = tuple(_v5_text(s.label) for s in signals)
-        values = {label: np.asarray(s.values, dtype=float).reshape(-1)
-                  for label, s in zip(labels, signals) if label in wanted}
+        values = {
+            label: np.asarray(s.values, dtype=float).reshape(-1)
+            for label, s in zip(labels, signals)
+            if label in wanted
+        }
         return name, np.asarray(log.time, dtype=float), labels, values
-    raise LabFileError(f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
-                       "'signals' whose elements have 'values' and 'label'); variables: "
-                       f"{', '.join(name for name, _, _ in variables) or 'none'}")
+    raise LabFileError(
+        f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
+        "'signals' whose elements have 'values' and 'label'); variables: "
+        f"{', '.join(name for name, _, _ in variables) or 'none'}"
+    )
 
 
 def _v5_text(value: Any) -> str:
@@ -163,33 +189,40 @@ def _is_hdf5(path: Path) -> bool:
             offset *= 2
 
 
-def _read_v73_in_child(path: Path, wanted: Sequence[str]) -> tuple[str, np.ndarray,
-                                                                   tuple[str, ...],
-                                                                   dict[str, np.ndarray]]:
+def _read_v73_in_child(
+    path: Path, wanted: Sequence[str]
+) -> tuple[str, np.ndarray, tuple[str, ...], dict[str, np.ndarray]]:
     """`_read_v73` in a child process; its refusal, crash or hang becomes a LabFileError."""
     with tempfile.TemporaryDirectory(prefix="flaair-mat-") as tmp:
         out = Path(tmp) / "log.npz"
         try:
-            done = subprocess.run([sys.executable, __file__, str(path), str(out), *wanted],
-                                  capture_output=True, text=True, timeout=V73_READ_TIMEOUT_S)
+            done = subprocess.run(
+                [sys.executable, __file__, str(path), str(out), *wanted],
+                capture_output=True,
+                text=True,
+                timeout=V73_READ_TIMEOUT_S,
+            )
         except subprocess.TimeoutExpired:
-            raise LabFileError(f"{path}: reading the MAT v7.3 file took over "
-                               f"{V73_READ_TIMEOUT_S:g} s; is it damaged?") from None
+            raise LabFileError(
+                f"{path}: reading the MAT v7.3 file took over "
+                f"{V73_READ_TIMEOUT_S:g} s; is it damaged?"
+            ) from None
         if done.returncode == 2 and done.stderr.strip():
             raise LabFileError(done.stderr.strip().splitlines()[-1])
         if done.returncode != 0:
-            how = (f"signal {-done.returncode}" if done.returncode < 0
-                   else f"exit {done.returncode}")
-            raise LabFileError(f"{path}: not a readable MAT v7.3 file (the HDF5 reader died: "
-                               f"{how})")
+            how = f"signal {-done.returncode}" if done.returncode < 0 else f"exit {done.returncode}"
+            raise LabFileError(
+                f"{path}: not a readable MAT v7.3 file (the HDF5 reader died: {how})"
+            )
         head = json.loads(done.stdout)
         with np.load(out) as arrays:
             values = {label: arrays[f"value_{k}"] for k, label in enumerate(head["found"])}
             return head["variable"], arrays["time"], tuple(head["labels"]), values
 
 
-def _read_v73(path: Path, wanted: Sequence[str]) -> tuple[str, np.ndarray, tuple[str, ...],
-                                                          dict[str, np.ndarray]]:
+def _read_v73(
+    path: Path, wanted: Sequence[str]
+) -> tuple[str, np.ndarray, tuple[str, ...], dict[str, np.ndarray]]:
     import h5py
 
     try:
@@ -197,25 +230,36 @@ def _read_v73(path: Path, wanted: Sequence[str]) -> tuple[str, np.ndarray, tuple
             names = [name for name in f if not name.startswith("#")]
             for name in names:
                 group = f[name]
-                if not (isinstance(group, h5py.Group) and _matlab_class(group) == "struct"
-                        and "time" in group and "signals" in group):
+                if not (
+                    isinstance(group, h5py.Group)
+                    and _matlab_class(group) == "struct"
+                    and "time" in group
+                    and "signals" in group
+                ):
                     continue
                 signals = group["signals"]
-                if not (isinstance(signals, h5py.Group) and "values" in signals
-                        and "label" in signals):
+                if not (
+                    isinstance(signals, h5py.Group) and "values" in signals and "label" in signals
+                ):
                     continue
                 labels = tuple(_h5_text(f, item) for item in _elements(signals["label"]))
-                values = {label: np.asarray(_h5_deref(f, item), dtype=float).reshape(-1) for label,
-                          item in zip(labels, _elements(signals["values"])) if label in wanted}
+                values = {
+                    label: np.asarray(_h5_deref(f, item), dtype=float).reshape(-1)
+                    for label, item in zip(labels, _elements(signals["values"]))
+                    if label in wanted
+                }
                 return name, np.asarray(group["time"][()], dtype=float), labels, values
     except LabFileError:
         raise
-    except Exception as exc:  # noqa: BLE001 - h5py raises OSError, KeyError, ValueError, ... on damage
+    except Exception as exc:
         raise LabFileError(
-            f"{path}: not a readable MAT v7.3 file ({type(exc).__name__}: {exc})") from None
-    raise LabFileError(f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
-                       "'signals' whose elements have 'values' and 'label'); variables: "
-                       f"{', '.join(names) or 'none'}")
+            f"{path}: not a readable MAT v7.3 file ({type(exc).__name__}: {exc})"
+        ) from None
+    raise LabFileError(
+        f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
+        "'signals' whose elements have 'values' and 'label'); variables: "
+        f"{', '.join(names) or 'none'}"
+    )
 
 
 def _matlab_class(obj: Any) -> str:
@@ -248,7 +292,8 @@ def _h5_text(f: Any, item: Any) -> str:
     dataset = _dataset(f, item)
     if _matlab_class(dataset) != "char":
         raise LabFileError(
-            f"{f.filename}: a signal label is not text (MATLAB class {_matlab_class(dataset)!r})")
+            f"{f.filename}: a signal label is not text (MATLAB class {_matlab_class(dataset)!r})"
+        )
     if dataset.attrs.get("MATLAB_empty", 0):
         return ""
     return "".join(chr(int(c)) for c in np.asarray(dataset[()]).reshape(-1))

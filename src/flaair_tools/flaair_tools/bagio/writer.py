@@ -2,6 +2,7 @@
 
 Part of `flaair_tools.bagio` (its `__init__` lists the public names).
 """
+
 from __future__ import annotations
 
 import shutil
@@ -31,7 +32,7 @@ from flaair_tools.bagio.messages import (
 )
 from flaair_tools.bagio.qos import qos_to_yaml
 
-__all__ = ["storage_settings", "BagWriter", "bag_metadata"]
+__all__ = ["BagWriter", "bag_metadata", "storage_settings"]
 
 
 def storage_settings() -> tuple[bool, int]:
@@ -43,7 +44,8 @@ def storage_settings() -> tuple[bool, int]:
         return bool(values["compression"]), int(values["chunk_size_bytes"])
     except (ConfigError, KeyError) as exc:
         raise BagError(
-            f"config/{CONFIG_FILE}: {STORAGE_SECTION}: storage settings missing: {exc}") from exc
+            f"config/{CONFIG_FILE}: {STORAGE_SECTION}: storage settings missing: {exc}"
+        ) from exc
 
 
 @dataclass
@@ -72,9 +74,15 @@ class BagWriter:
         MCAP file name inside the bag (default `<bag name>_0.mcap`, as rosbag2 names it).
     """
 
-    def __init__(self, path: str | Path, *, compression: bool | None = None,
-                 chunk_size_bytes: int | None = None, store: Typestore | None = None,
-                 file_name: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        compression: bool | None = None,
+        chunk_size_bytes: int | None = None,
+        store: Typestore | None = None,
+        file_name: str | None = None,
+    ) -> None:
         self.path = Path(path)
         if compression is None or chunk_size_bytes is None:
             default_compression, default_chunk = storage_settings()
@@ -88,11 +96,13 @@ class BagWriter:
             raise BagError(f"{self.path}: exists already; choose a new bag directory") from None
         except OSError as exc:
             raise BagError(
-                f"{self.path}: cannot create the bag directory: {exc.strerror}") from None
+                f"{self.path}: cannot create the bag directory: {exc.strerror}"
+            ) from None
         self.file_path = self.path / (file_name or f"{self.path.name}_0.mcap")
         self._stream = open(self.file_path, "xb")
         self._mcap = McapWriter(
-            self._stream, chunk_size=int(chunk_size_bytes),
+            self._stream,
+            chunk_size=int(chunk_size_bytes),
             compression=CompressionType.ZSTD if self.compression else CompressionType.NONE,
         )
         self._mcap.start(profile="ros2", library=WRITER_LIBRARY)
@@ -101,16 +111,25 @@ class BagWriter:
         self.custom_data: dict[str, str] = {}
         self.closed = False
 
-    def add_topic(self, topic: str, msgtype: str, offered_qos: Sequence[Qos] = (), *,
-                  msgdef: str | None = None, type_hash: str | None = None) -> None:
+    def add_topic(
+        self,
+        topic: str,
+        msgtype: str,
+        offered_qos: Sequence[Qos] = (),
+        *,
+        msgdef: str | None = None,
+        type_hash: str | None = None,
+    ) -> None:
         """Register `topic` of `msgtype`; its schema comes
         from the typestore unless `msgdef` is given.
         """
         known = self._topics.get(topic)
         if known is not None:
             if known.msgtype != msgtype:
-                raise BagTopicError(f"{self.path}: topic '{topic}' is already recorded as "
-                                    f"{known.msgtype}, not {msgtype}")
+                raise BagTopicError(
+                    f"{self.path}: topic '{topic}' is already recorded as "
+                    f"{known.msgtype}, not {msgtype}"
+                )
             return
         if msgdef is None or type_hash is None:
             generated, generated_hash = message_definition(msgtype, self.store)
@@ -122,23 +141,34 @@ class BagWriter:
         channel_id = self._mcap.register_channel(topic, "cdr", self._schemas[msgtype], metadata)
         self._topics[topic] = _Topic(channel_id, msgtype, type_hash, list(offered_qos))
 
-    def write(self, topic: str, timestamp_ns: int, data: bytes | memoryview,
-              publish_time_ns: int | None = None) -> None:
+    def write(
+        self,
+        topic: str,
+        timestamp_ns: int,
+        data: bytes | memoryview,
+        publish_time_ns: int | None = None,
+    ) -> None:
         """Append one CDR-serialized message of a registered topic."""
         entry = self._topics.get(topic)
         if entry is None:
             raise BagTopicError(f"{self.path}: topic '{topic}' was not added before writing")
         timestamp_ns = int(timestamp_ns)
-        self._mcap.add_message(entry.channel_id, timestamp_ns, bytes(data),
-                               timestamp_ns if publish_time_ns is None else int(publish_time_ns),
-                               entry.count & 0xFFFFFFFF)  # MCAP sequence is uint32
+        self._mcap.add_message(
+            entry.channel_id,
+            timestamp_ns,
+            bytes(data),
+            timestamp_ns if publish_time_ns is None else int(publish_time_ns),
+            entry.count & 0xFFFFFFFF,
+        )  # MCAP sequence is uint32
         entry.count += 1
-        entry.first_ns = (timestamp_ns if entry.first_ns is None
-                          else min(entry.first_ns, timestamp_ns))
+        entry.first_ns = (
+            timestamp_ns if entry.first_ns is None else min(entry.first_ns, timestamp_ns)
+        )
         entry.last_ns = timestamp_ns if entry.last_ns is None else max(entry.last_ns, timestamp_ns)
 
-    def write_message(self, topic: str, timestamp_ns: int, message: Any,
-                      offered_qos: Sequence[Qos] = ()) -> None:
+    def write_message(
+        self, topic: str, timestamp_ns: int, message: Any, offered_qos: Sequence[Qos] = ()
+    ) -> None:
         """Serialize a typestore message and append it (registering the topic on first use)."""
         msgtype = message.__msgtype__
         if topic not in self._topics:
@@ -174,14 +204,16 @@ class BagWriter:
             return
         self.closed = True
         info = self.metadata()
-        text = yaml.safe_dump(info["rosbag2_bagfile_information"], default_flow_style=False,
-                              sort_keys=False)
+        text = yaml.safe_dump(
+            info["rosbag2_bagfile_information"], default_flow_style=False, sort_keys=False
+        )
         self._mcap.add_metadata("rosbag2", {"serialized_metadata": text, "ROS_DISTRO": ROS_DISTRO})
         self._mcap.finish()
         self._stream.close()
         temporary = self.path / "metadata.yaml.tmp"
-        temporary.write_text(yaml.safe_dump(
-            info, default_flow_style=False, sort_keys=False), encoding="utf-8")
+        temporary.write_text(
+            yaml.safe_dump(info, default_flow_style=False, sort_keys=False), encoding="utf-8"
+        )
         temporary.replace(self.path / "metadata.yaml")
 
     def abandon(self) -> None:
@@ -201,32 +233,47 @@ class BagWriter:
         self.close()
 
 
-def bag_metadata(file_name: str, topics: dict[str, _Topic],
-                 custom_data: dict[str, str]) -> dict[str, Any]:
+def bag_metadata(
+    file_name: str, topics: dict[str, _Topic], custom_data: dict[str, str]
+) -> dict[str, Any]:
     """rosbag2 (version 9) metadata.yaml document for one MCAP file with `topics`."""
     firsts = [t.first_ns for t in topics.values() if t.first_ns is not None]
     lasts = [t.last_ns for t in topics.values() if t.last_ns is not None]
     start = min(firsts) if firsts else 0
     duration = (max(lasts) - start) if lasts else 0
     count = sum(t.count for t in topics.values())
-    return {"rosbag2_bagfile_information": {
-        "version": BAG_VERSION,
-        "storage_identifier": "mcap",
-        "duration": {"nanoseconds": duration},
-        "starting_time": {"nanoseconds_since_epoch": start},
-        "message_count": count,
-        "topics_with_message_count": [
-            {"topic_metadata": {"name": name, "type": t.msgtype, "serialization_format": "cdr",
-                                "offered_qos_profiles": dump_qos_v9(t.offered_qos),
-                                "type_description_hash": t.type_hash},
-             "message_count": t.count}
-            for name, t in topics.items()
-        ],
-        "compression_format": "",
-        "compression_mode": "",
-        "relative_file_paths": [file_name],
-        "files": [{"path": file_name, "starting_time": {"nanoseconds_since_epoch": start},
-                   "duration": {"nanoseconds": duration}, "message_count": count}],
-        "custom_data": dict(custom_data) or None,
-        "ros_distro": ROS_DISTRO,
-    }}
+    return {
+        "rosbag2_bagfile_information": {
+            "version": BAG_VERSION,
+            "storage_identifier": "mcap",
+            "duration": {"nanoseconds": duration},
+            "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": count,
+            "topics_with_message_count": [
+                {
+                    "topic_metadata": {
+                        "name": name,
+                        "type": t.msgtype,
+                        "serialization_format": "cdr",
+                        "offered_qos_profiles": dump_qos_v9(t.offered_qos),
+                        "type_description_hash": t.type_hash,
+                    },
+                    "message_count": t.count,
+                }
+                for name, t in topics.items()
+            ],
+            "compression_format": "",
+            "compression_mode": "",
+            "relative_file_paths": [file_name],
+            "files": [
+                {
+                    "path": file_name,
+                    "starting_time": {"nanoseconds_since_epoch": start},
+                    "duration": {"nanoseconds": duration},
+                    "message_count": count,
+                }
+            ],
+            "custom_data": dict(custom_data) or None,
+            "ros_distro": ROS_DISTRO,
+        }
+    }

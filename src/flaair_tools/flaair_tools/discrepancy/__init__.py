@@ -106,34 +106,35 @@ re-fitted without the run they predict).
 
 Effects already in the input model are kept as they are and are not offered as candidates.
 """
+
 from __future__ import annotations
 
 from .cli import main
 from .diagnosis import (
-                   ChannelGap,
-                   Diagnosis,
-                   bode_points,
-                   diagnose,
-                   noise_estimates,
-                   nrmse_by_channel,
+    ChannelGap,
+    Diagnosis,
+    bode_points,
+    diagnose,
+    noise_estimates,
+    nrmse_by_channel,
 )
 from .discovery import Discovered, DiscoveryOutcome, discover
 from .evidence import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
 from .runs import (
-                   CHANNELS,
-                   EFFECT_CHANNELS,
-                   SENSOR_CHANNELS,
-                   STATUSES,
-                   TRUTH_CHANNELS,
-                   DiscrepancyInputError,
-                   Run,
-                   check_runs,
-                   initial_mechanical_state,
-                   measured_motion,
-                   mechanics_model,
-                   sensor_voltage,
-                   simulate_runs,
+    CHANNELS,
+    EFFECT_CHANNELS,
+    SENSOR_CHANNELS,
+    STATUSES,
+    TRUTH_CHANNELS,
+    DiscrepancyInputError,
+    Run,
+    check_runs,
+    initial_mechanical_state,
+    measured_motion,
+    mechanics_model,
+    sensor_voltage,
+    simulate_runs,
 )
 from .search import ChannelSearch, find_effects
 from .settings import Settings
@@ -141,11 +142,41 @@ from .vocabulary import SENSOR_EFFECTS, VOCABULARY, EffectSpec, candidate_groups
 from .workflow import DiscrepancyResult, analyse
 
 __all__ = [
-    "main", "ChannelGap", "Diagnosis", "bode_points", "diagnose", "noise_estimates",
-    "nrmse_by_channel", "CandidateEvidence", "FoundEffect", "PlantFit", "identify_plant",
-    "CHANNELS", "EFFECT_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "TRUTH_CHANNELS",
-    "DiscrepancyInputError", "Run", "check_runs", "initial_mechanical_state", "measured_motion",
-    "mechanics_model", "sensor_voltage", "simulate_runs", "ChannelSearch", "find_effects",
-    "Settings", "SENSOR_EFFECTS", "VOCABULARY", "EffectSpec", "candidate_groups", "candidate_specs",
-    "DiscrepancyResult", "analyse", "Discovered", "DiscoveryOutcome", "discover",
+    "CHANNELS",
+    "EFFECT_CHANNELS",
+    "SENSOR_CHANNELS",
+    "SENSOR_EFFECTS",
+    "STATUSES",
+    "TRUTH_CHANNELS",
+    "VOCABULARY",
+    "CandidateEvidence",
+    "ChannelGap",
+    "ChannelSearch",
+    "Diagnosis",
+    "Discovered",
+    "DiscoveryOutcome",
+    "DiscrepancyInputError",
+    "DiscrepancyResult",
+    "EffectSpec",
+    "FoundEffect",
+    "PlantFit",
+    "Run",
+    "Settings",
+    "analyse",
+    "bode_points",
+    "candidate_groups",
+    "candidate_specs",
+    "check_runs",
+    "diagnose",
+    "discover",
+    "find_effects",
+    "identify_plant",
+    "initial_mechanical_state",
+    "main",
+    "measured_motion",
+    "mechanics_model",
+    "noise_estimates",
+    "nrmse_by_channel",
+    "sensor_voltage",
+    "simulate_runs",
 ]

@@ -1,6 +1,7 @@
 """One hidden-effect case of the discrepancy datasets:
 the true robot, its runs, what must be found.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -71,15 +72,19 @@ class DatasetCase:
     @property
     def expected_gap_channel(self) -> str:
         """Channel where an outside case must leave its gap ('' otherwise)."""
-        return {"aero_damping": "stroke_deg", "sensor_gain_drift": "pitch_sensor_v",
-                "second_resonance": "stroke_deg"}.get(self.outside, "")
+        return {
+            "aero_damping": "stroke_deg",
+            "sensor_gain_drift": "pitch_sensor_v",
+            "second_resonance": "stroke_deg",
+        }.get(self.outside, "")
 
     @property
     def true_label(self) -> str:
         """Row label of the confusion table ('plant:' marks a hidden, not separable effect)."""
         below = "below:" if self.below_limit else ""
         parts = [below + n for n in self.effect_names] + [
-            f"plant:{n}" for n in sorted(n for n, _ in self.hidden)]
+            f"plant:{n}" for n in sorted(n for n, _ in self.hidden)
+        ]
         if self.outside:
             parts.append(f"outside:{self.outside}")
         parts += [f"term:{t.kind}@{t.acts_on}" for t in self.terms]

@@ -28,14 +28,15 @@ Examples
   bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
   bin/flaair discrepancy --validate --out out/discrepancy-validation
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence
 
 import yaml
 
@@ -63,9 +64,15 @@ def runs_from_csv(path: Path) -> Run:
     """One measured-run CSV as a core Run."""
     mr = read_run(path)
     c = mr.columns
-    return Run(name=mr.name, fs_hz=mr.sample_rate_hz, drive_v=c["drive_v"],
-               stroke_sensor_v=c["stroke_sensor_v"], pitch_sensor_v=c["pitch_sensor_v"],
-               stroke_deg=c["stroke_deg"], pitch_deg=c["pitch_deg"])
+    return Run(
+        name=mr.name,
+        fs_hz=mr.sample_rate_hz,
+        drive_v=c["drive_v"],
+        stroke_sensor_v=c["stroke_sensor_v"],
+        pitch_sensor_v=c["pitch_sensor_v"],
+        stroke_deg=c["stroke_deg"],
+        pitch_deg=c["pitch_deg"],
+    )
 
 
 def runs_from_bag(path: Path) -> list[Run]:
@@ -79,9 +86,17 @@ def runs_from_bag(path: Path) -> list[Run]:
     for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True):
         c = r.columns
         name = r.name if r.name != bag.name else bag.name
-        out.append(Run(name=name, fs_hz=r.sample_rate_hz, drive_v=c["drive_v"],
-                       stroke_sensor_v=c["stroke_sensor_v"], pitch_sensor_v=c["pitch_sensor_v"],
-                       stroke_deg=c["stroke_deg"], pitch_deg=c["pitch_deg"]))
+        out.append(
+            Run(
+                name=name,
+                fs_hz=r.sample_rate_hz,
+                drive_v=c["drive_v"],
+                stroke_sensor_v=c["stroke_sensor_v"],
+                pitch_sensor_v=c["pitch_sensor_v"],
+                stroke_deg=c["stroke_deg"],
+                pitch_deg=c["pitch_deg"],
+            )
+        )
     return out
 
 
@@ -107,8 +122,14 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
 
 
 def bad_input_errors() -> tuple[type, ...]:
-    errors: list[type] = [InputError, RunFileError, ModelError, DiscrepancyInputError, OSError,
-                          yaml.YAMLError]
+    errors: list[type] = [
+        InputError,
+        RunFileError,
+        ModelError,
+        DiscrepancyInputError,
+        OSError,
+        yaml.YAMLError,
+    ]
     try:
         from flaair_tools.bagio import BagError
 
@@ -127,7 +148,7 @@ def _progress_bar(total: int, desc: str):
         return None
 
 
-def run_validation(model: Model, names: Optional[Sequence[str]], settings: Settings) -> dict:
+def run_validation(model: Model, names: Sequence[str] | None, settings: Settings) -> dict:
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
     from tqdm import tqdm
 
@@ -145,25 +166,34 @@ def run_validation(model: Model, names: Optional[Sequence[str]], settings: Setti
         result = analyse(runs, model, settings)
         outcomes.append(score_case(case, result, time.perf_counter() - t0))
     table = confusion_table(outcomes)
-    return {"confusion": table, "cases": [o.as_dict() for o in outcomes],
-            "total_s": time.perf_counter() - start}
+    return {
+        "confusion": table,
+        "cases": [o.as_dict() for o in outcomes],
+        "total_s": time.perf_counter() - start,
+    }
 
 
-def main(argv: Optional[list[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("inputs", nargs="*", type=Path,
-                        help="measured-run CSV files and/or bag directories")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="model YAML (default: config/model.yaml)")
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "inputs", nargs="*", type=Path, help="measured-run CSV files and/or bag directories"
+    )
+    parser.add_argument(
+        "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--validate", action="store_true",
-                        help="also run the hidden-effect dataset cases")
-    parser.add_argument("--cases", nargs="+", default=None,
-                        help="with --validate: only these case names")
-    parser.add_argument("--validation", type=Path, default=None,
-                        help="embed a saved validation.json in report.html")
+    parser.add_argument(
+        "--validate", action="store_true", help="also run the hidden-effect dataset cases"
+    )
+    parser.add_argument(
+        "--cases", nargs="+", default=None, help="with --validate: only these case names"
+    )
+    parser.add_argument(
+        "--validation", type=Path, default=None, help="embed a saved validation.json in report.html"
+    )
     args = parser.parse_args(argv)
     if not args.inputs and not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
@@ -182,11 +212,14 @@ def main(argv: Optional[list[str]] = None) -> int:
             raise InputError("the inputs hold no runs")
         if args.validate:
             validation = run_validation(model, args.cases, settings)
-            doc = write_validation(args.out, validation["cases"], validation["confusion"],
-                                   validation["total_s"])
+            doc = write_validation(
+                args.out, validation["cases"], validation["confusion"], validation["total_s"]
+            )
             table = doc["confusion"]
-            print(f"{PROG}: validation {table['correct']}/{table['total']} cases right in "
-                  f"{doc['total_s']:.0f} s -> {args.out / 'validation.html'}")
+            print(
+                f"{PROG}: validation {table['correct']}/{table['total']} cases right in "
+                f"{doc['total_s']:.0f} s -> {args.out / 'validation.html'}"
+            )
         if not runs:
             return 0
         bar = _progress_bar(7, "discrepancy")
@@ -214,8 +247,10 @@ def main(argv: Optional[list[str]] = None) -> int:
     write_report(args.out, runs, result, str(model_path), settings, validation)
     print(f"{PROG}: {len(runs)} run(s) analysed in {elapsed:.1f} s: status {result.status}")
     for k, p in result.plant_parameters.items():
-        print(f"  plant {k:28s} {p['value']:.5g} (model {p['nominal']:.5g}, "
-              f"{p['value'] / p['nominal'] - 1.0:+.2%}, SE {p['stderr']:.2g})")
+        print(
+            f"  plant {k:28s} {p['value']:.5g} (model {p['nominal']:.5g}, "
+            f"{p['value'] / p['nominal'] - 1.0:+.2%}, SE {p['stderr']:.2g})"
+        )
     for e in result.effects:
         print(f"  + {e.name} on {e.channel}: {format_parameters(e.parameters)}")
     for d in result.discovered:
@@ -223,8 +258,10 @@ def main(argv: Optional[list[str]] = None) -> int:
     for c in result.gap_before:
         print(f"  {c:16s} NRMSE {result.gap_before[c]:.4f} -> {result.gap_after[c]:.4f} (held-out)")
     for r in result.remaining:
-        print(f"  gap left on {r['channel']}: band {r['band_hz']} Hz, full/low drive ratio "
-              f"{r['drive_level_ratio']:.3g}")
+        print(
+            f"  gap left on {r['channel']}: band {r['band_hz']} Hz, full/low drive ratio "
+            f"{r['drive_level_ratio']:.3g}"
+        )
     print(f"  -> {model_path}, {args.out / 'discrepancy.json'}, {args.out / 'report.html'}")
     return 0
 

@@ -1,11 +1,13 @@
 """Residual diagnosis: noise, whiteness, drive
 correlation, bands, levels, harmonics, worst stretch.
 """
+
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from scipy import stats
@@ -27,8 +29,13 @@ def _demean(r: np.ndarray) -> np.ndarray:
     return r
 
 
-def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str,
-                     model: Optional[Model] = None, truth_referenced: bool = False) -> np.ndarray:
+def channel_residual(
+    run: Run,
+    sim: Mapping[str, np.ndarray],
+    channel: str,
+    model: Model | None = None,
+    truth_referenced: bool = False,
+) -> np.ndarray:
     """Measured minus simulated record (mean removed); NaN where the measurement is missing.
 
     truth_referenced (sensor channels): the sensor is simulated with the *measured* angle as its
@@ -38,9 +45,11 @@ def channel_residual(run: Run, sim: Mapping[str, np.ndarray], channel: str,
     if truth_referenced and channel in SENSOR_CHANNELS:
         side = SENSOR_SIDE[channel]
         stroke, pitch = measured_motion(
-            run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side)
+            run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side
+        )
         r = run.channel(channel) - sensor_voltage(
-            model, run.fs_hz, stroke, pitch, run.drive_v, side)
+            model, run.fs_hz, stroke, pitch, run.drive_v, side
+        )
         r = np.where(np.isfinite(run.channel(UPSTREAM_TRUTH[channel])), r, np.nan)
     else:
         r = run.channel(channel) - sim[channel]
@@ -53,8 +62,9 @@ def _signal_ss(run: Run, channel: str) -> tuple[float, int]:
     return float(np.sum((x - x.mean()) ** 2)), int(x.size)
 
 
-def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]],
-                    model: Model) -> dict[str, float]:
+def noise_estimates(
+    runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]], model: Model
+) -> dict[str, float]:
     """Noise RMS of each channel from the residual's second differences (MAD, robust).
 
     A smooth model error hardly changes second differences at the sample rate (a 200 Hz error
@@ -62,10 +72,12 @@ def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]
     differences of RMS s sqrt(6). Where fewer than 64 triples of consecutive finite samples
     exist (ground truth at a low frame rate), the model's noise section is used instead.
     """
-    spec = {"stroke_deg": model.noise.tracking_noise_deg_rms,
-            "pitch_deg": model.noise.tracking_noise_deg_rms,
-            "stroke_sensor_v": model.noise.sensor_noise_v_rms,
-            "pitch_sensor_v": model.noise.sensor_noise_v_rms}
+    spec = {
+        "stroke_deg": model.noise.tracking_noise_deg_rms,
+        "pitch_deg": model.noise.tracking_noise_deg_rms,
+        "stroke_sensor_v": model.noise.sensor_noise_v_rms,
+        "pitch_sensor_v": model.noise.sensor_noise_v_rms,
+    }
     out = {}
     for c in CHANNELS:
         parts = []
@@ -86,7 +98,7 @@ def noise_estimates(runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]
 def _autocorr_sums(x: np.ndarray, lags: int) -> np.ndarray:
     """sum_t x[t] x[t+k] for k = 0..lags (FFT)."""
     n = x.size
-    size = 1 << int(math.ceil(math.log2(max(2 * n, 2))))
+    size = 1 << math.ceil(math.log2(max(2 * n, 2)))
     f = np.fft.rfft(x, size)
     return np.fft.irfft(f * np.conj(f), size)[: lags + 1]
 
@@ -126,9 +138,11 @@ def _xcorr_with_drive(r: np.ndarray, drive: np.ndarray, max_lag: int) -> tuple[f
     den = math.sqrt(float(np.dot(x, x)) * float(np.dot(d, d)))
     if den <= 0:
         return 0.0, 0, n
-    size = 1 << int(math.ceil(math.log2(2 * x.size)))
-    cc = (np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(d, size)), size)[: max_lag + 1]
-          / den)
+    size = 1 << math.ceil(math.log2(2 * x.size))
+    cc = (
+        np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(d, size)), size)[: max_lag + 1]
+        / den
+    )
     lag = int(np.argmax(np.abs(cc)))
     return float(cc[lag]), lag, n
 
@@ -244,7 +258,7 @@ def diagnose(
     model: Model,
     noise: Mapping[str, float],
     settings: Settings = Settings(),
-    tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None,
+    tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Diagnosis:
     """Localise the disagreement of `sims` (one per run) with the runs, channel by channel.
 
@@ -264,7 +278,7 @@ def diagnose(
     tracks = list(tracks) if tracks is not None else drive_tracks(runs)
     levels = _level_groups(runs)
     edges = settings.band_edges_hz
-    win = max(8, int(round(settings.window_s * runs[0].fs_hz)))
+    win = max(8, round(settings.window_s * runs[0].fs_hz))
     out = {}
     for c in CHANNELS:
         sigma = float(noise[c])
@@ -278,18 +292,19 @@ def diagnose(
         excess = _excess(rss, n, sigma, ss)
         has_gap, ratio, q, p = gap_test(res, sigma, settings)
         # cross-correlation with the drive (strongest run)
-        max_lag = max(1, int(round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate)))
+        max_lag = max(1, round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate))
         best = (0.0, 0, 0)
         for run, r in zip(runs, res):
             rho, lag, m = _xcorr_with_drive(
-                r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag)
+                r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag
+            )
             if abs(rho) * math.sqrt(max(m, 1)) > abs(best[0]) * math.sqrt(max(best[2], 1)):
                 best = (rho, lag, m)
         xsig = abs(best[0]) * math.sqrt(max(best[2], 1)) > settings.xcorr_z
         # frequency bands (drive instantaneous frequency)
         band = {}
         worst_band, worst_val = "", -1.0
-        for lo, hi in zip(edges[:-1], edges[1:]):
+        for lo, hi in itertools.pairwise(edges):
             rss_b = n_b = 0
             ss_b = 0.0
             for run, r, (_, f) in zip(runs, res, tracks):
@@ -350,24 +365,45 @@ def diagnose(
             if ex[j] > worst[3]:
                 worst = (run.name, j * win / run.fs_hz, (j + 1) * win / run.fs_hz, float(ex[j]))
         out[c] = ChannelGap(
-            channel=c, nrmse=nrmse, noise_nrmse=noise_nrmse, noise_ratio=ratio,
-            model_error_nrmse=excess, ljung_box_q=q, ljung_box_p=p, xcorr_drive=best[0],
-            xcorr_lag_s=best[1] * settings.decimate / runs[0].fs_hz, xcorr_significant=bool(xsig),
-            band_nrmse=band, worst_band_hz=worst_band, level_nrmse=level_vals,
-            level_ratio=level_ratio, harmonic_fraction=harmonics, worst_stretch=worst,
-            has_gap=has_gap, interpretation=interpret(
-            ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
+            channel=c,
+            nrmse=nrmse,
+            noise_nrmse=noise_nrmse,
+            noise_ratio=ratio,
+            model_error_nrmse=excess,
+            ljung_box_q=q,
+            ljung_box_p=p,
+            xcorr_drive=best[0],
+            xcorr_lag_s=best[1] * settings.decimate / runs[0].fs_hz,
+            xcorr_significant=bool(xsig),
+            band_nrmse=band,
+            worst_band_hz=worst_band,
+            level_nrmse=level_vals,
+            level_ratio=level_ratio,
+            harmonic_fraction=harmonics,
+            worst_stretch=worst,
+            has_gap=has_gap,
+            interpretation=interpret(ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
         )
     return Diagnosis(channels=out, noise=dict(noise))
 
 
-def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float],
-              level_ratio: float, has_gap: bool, settings: Settings) -> str:
+def interpret(
+    ratio: float,
+    p: float,
+    xsig: bool,
+    harmonics: Mapping[str, float],
+    level_ratio: float,
+    has_gap: bool,
+    settings: Settings,
+) -> str:
     if not has_gap:
         return "residual at noise level and white: the model explains this channel"
     parts = [f"residual {ratio:.2f}x noise, not white (Ljung-Box p={p:.1e})"]
-    parts.append("correlated with the drive: a linear path from the drive is mis-modelled" if xsig
-                 else "not linearly correlated with the drive: a nonlinear or time-varying path")
+    parts.append(
+        "correlated with the drive: a linear path from the drive is mis-modelled"
+        if xsig
+        else "not linearly correlated with the drive: a nonlinear or time-varying path"
+    )
     if harmonics:
         higher = sum(v for k, v in harmonics.items() if k != "1")
         if higher > 0.05:
@@ -378,57 +414,73 @@ def interpret(ratio: float, p: float, xsig: bool, harmonics: Mapping[str, float]
         parts.append("only at the lower drive levels (none at full drive)")
     elif math.isfinite(level_ratio):
         if level_ratio > 1.5:
-            parts.append(f"relative error {level_ratio:.2f}x larger at full drive (grows with "
-                         "amplitude)")
+            parts.append(
+                f"relative error {level_ratio:.2f}x larger at full drive (grows with amplitude)"
+            )
         elif level_ratio < 1 / 1.5:
-            parts.append(f"relative error {1 / level_ratio:.2f}x larger at low drive (shrinks with "
-                         "amplitude)")
+            parts.append(
+                f"relative error {1 / level_ratio:.2f}x larger at low drive (shrinks with "
+                "amplitude)"
+            )
         else:
-            parts.append("relative error about the same at every drive level (amplitude "
-                         "independent)")
+            parts.append(
+                "relative error about the same at every drive level (amplitude independent)"
+            )
     return "; ".join(parts)
 
 
-def nrmse_by_channel(runs: Sequence[Run],
-                     sims: Sequence[Mapping[str, np.ndarray]]) -> dict[str, float]:
+def nrmse_by_channel(
+    runs: Sequence[Run], sims: Sequence[Mapping[str, np.ndarray]]
+) -> dict[str, float]:
     """Residual RMS / measured RMS per channel, pooled over runs (means removed per run)."""
     out = {}
     for c in CHANNELS:
-        rss = sum(float(np.nansum(channel_residual(run, sim, c) ** 2)) for run,
-                  sim in zip(runs, sims))
+        rss = sum(
+            float(np.nansum(channel_residual(run, sim, c) ** 2)) for run, sim in zip(runs, sims)
+        )
         ss = sum(_signal_ss(run, c)[0] for run in runs)
         out[c] = math.sqrt(rss / ss) if ss > 0 else math.nan
     return out
 
 
-def gap_test(res: Sequence[np.ndarray], sigma: float,
-             settings: Settings) -> tuple[bool, float, float, float]:
+def gap_test(
+    res: Sequence[np.ndarray], sigma: float, settings: Settings
+) -> tuple[bool, float, float, float]:
     """(has_gap, noise ratio, Ljung-Box Q, p) of residual records."""
     rss = sum(float(np.nansum(r**2)) for r in res)
     n = sum(int(np.isfinite(r).sum()) for r in res)
     ratio = math.sqrt(rss / n) / sigma if n and sigma > 0 else math.inf
     dec = settings.whiteness_decimate
-    joined = np.concatenate([np.r_[r[::dec], np.full(settings.ljung_box_lags, np.nan)]
-                             for r in res])
+    joined = np.concatenate(
+        [np.r_[r[::dec], np.full(settings.ljung_box_lags, np.nan)] for r in res]
+    )
     q, p = _ljung_box(joined, settings.ljung_box_lags)
-    has_gap = bool(ratio > settings.gap_noise_ratio and (
-        not math.isfinite(p) or p < settings.whiteness_alpha))
+    has_gap = bool(
+        ratio > settings.gap_noise_ratio and (not math.isfinite(p) or p < settings.whiteness_alpha)
+    )
     return has_gap, ratio, q, p
 
 
 # ----------------------------------------------------------------------------------- Bode
 
 
-def bode_points(run: Run, sim: Mapping[str, np.ndarray], window_s: float = 0.025,
-                track: Optional[tuple[np.ndarray, np.ndarray]] = None) -> dict:
+def bode_points(
+    run: Run,
+    sim: Mapping[str, np.ndarray],
+    window_s: float = 0.025,
+    track: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict:
     """Amplitude and phase (relative to the drive) of measured and simulated channels per window.
 
     `flaair_sensors.core.characterization.tiled_transfer` on every channel, measured and model.
     Returns {"frequency_hz": (k,), channel: {"measured": complex (k,), "model": complex (k,)}}
     with phasors per volt of drive.
     """
-    signals = {(c, src): (run.channel(c) if src == "measured" else sim[c]) for c in CHANNELS
-               for src in ("measured", "model")}
+    signals = {
+        (c, src): (run.channel(c) if src == "measured" else sim[c])
+        for c in CHANNELS
+        for src in ("measured", "model")
+    }
     freq, tf = tiled_transfer(signals, run.drive_v, run.fs_hz, window_s, track)
     out: dict = {"frequency_hz": freq}
     for c in CHANNELS:

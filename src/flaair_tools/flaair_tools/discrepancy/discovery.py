@@ -22,11 +22,12 @@ with fewer parameters. A winner that is a vocabulary effect under another name
 (`TermKind.same_as`) is reported as that effect, fitted as the vocabulary fits it. A gap no term
 closes stays.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -60,8 +61,11 @@ from .vocabulary import (
 __all__ = ["SITES_FOR_GAP", "Discovered", "DiscoveryOutcome", "discover"]
 
 SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
-    "stroke_deg": ("stroke_dynamics", "drive"), "pitch_deg": ("pitch_dynamics",),
-    "stroke_sensor_v": ("stroke_sensor_v",), "pitch_sensor_v": ("pitch_sensor_v",)}
+    "stroke_deg": ("stroke_dynamics", "drive"),
+    "pitch_deg": ("pitch_dynamics",),
+    "stroke_sensor_v": ("stroke_sensor_v",),
+    "pitch_sensor_v": ("pitch_sensor_v",),
+}
 # A coefficient may reach this many times the size of its feature's whole share of the channel.
 COEFFICIENT_RANGE = 3.0
 # Held-out errors within this fraction of the best are a tie, won by the term with fewer
@@ -98,11 +102,20 @@ class Discovered:
         t = self.term
         params = {"coefficient": {"value": t.coefficient, "stderr": self.stderr["coefficient"]}}
         params |= {k: {"value": v, "stderr": self.stderr[k]} for k, v in t.shape}
-        return {"kind": t.kind, "acts_on": t.acts_on, "expression": t.expression,
-                "feature": t.feature_expression, "words": t.row.words,
-                "examples": t.row.examples, "judged_on": self.channel, "parameters": params,
-                "gap_before": dict(self.gap_before), "gap_after": dict(self.gap_after),
-                "candidates_beaten": list(self.beaten), "evidence": dict(self.evidence)}
+        return {
+            "kind": t.kind,
+            "acts_on": t.acts_on,
+            "expression": t.expression,
+            "feature": t.feature_expression,
+            "words": t.row.words,
+            "examples": t.row.examples,
+            "judged_on": self.channel,
+            "parameters": params,
+            "gap_before": dict(self.gap_before),
+            "gap_after": dict(self.gap_after),
+            "candidates_beaten": list(self.beaten),
+            "evidence": dict(self.evidence),
+        }
 
 
 @dataclass(frozen=True)
@@ -127,10 +140,16 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
     out = []
     for run, sim in zip(ctx.runs, sims):
         phi, psi = np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"])
-        out.append({"phi": phi, "dphi": np.gradient(phi) * run.fs_hz, "psi": psi,
-                    "dpsi": np.gradient(psi) * run.fs_hz,
-                    "stroke_sensor_v": sim["stroke_sensor_v"] - vref,
-                    "pitch_sensor_v": sim["pitch_sensor_v"] - vref})
+        out.append(
+            {
+                "phi": phi,
+                "dphi": np.gradient(phi) * run.fs_hz,
+                "psi": psi,
+                "dpsi": np.gradient(psi) * run.fs_hz,
+                "stroke_sensor_v": sim["stroke_sensor_v"] - vref,
+                "pitch_sensor_v": sim["pitch_sensor_v"] - vref,
+            }
+        )
     return out
 
 
@@ -143,9 +162,16 @@ def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[d
         if site in DYNAMICS_SITES:
             f = term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"])
         else:
-            f = term.feature(TermSignals.of_block(
-                run.fs_hz, run.drive_v, phi=m["phi"], psi=m["psi"],
-                stroke_sensor_v=m["stroke_sensor_v"], pitch_sensor_v=m["pitch_sensor_v"]))
+            f = term.feature(
+                TermSignals.of_block(
+                    run.fs_hz,
+                    run.drive_v,
+                    phi=m["phi"],
+                    psi=m["psi"],
+                    stroke_sensor_v=m["stroke_sensor_v"],
+                    pitch_sensor_v=m["pitch_sensor_v"],
+                )
+            )
         total += float(np.dot(f, f))
         count += f.size
     return math.sqrt(total / max(count, 1))
@@ -153,9 +179,11 @@ def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[d
 
 def _share_rms(site: str, ctx: AnalysisContext, model: Model, motion: list[dict]) -> float:
     """Size of the signal the term adds to: spring torque, drive or sensor deviation (RMS)."""
+
     def rms(key: str) -> float:
         x = np.concatenate([m[key] for m in motion])
         return float(np.sqrt(np.mean(x * x)))
+
     if site == "stroke_dynamics":
         return model.plant.stroke_stiffness_nm_per_rad * rms("phi")
     if site == "pitch_dynamics":
@@ -174,7 +202,9 @@ def _sensor_effect_specs(site: str, model: Model) -> list[EffectSpec]:
     specs = []
     for group in candidate_groups(site):
         if model.effect_on(group[0].name, side) is not None and group[0].channel_param in (
-                None, side):
+            None,
+            side,
+        ):
             specs += [replace(s, tested=False) for s in group]
     return specs
 
@@ -191,8 +221,7 @@ def _fitted_along(site: str, model: Model, channel: str, identify: bool) -> list
     return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
 
 
-def _candidates(ctx: AnalysisContext, current: Model, channel: str,
-                truth_ref: bool) -> list[tuple]:
+def _candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bool) -> list[tuple]:
     """(rss, kind, site, specs, x) of every library term that may close `channel`'s gap."""
     motion = _motion(ctx, current)
     problem = ctx.problem(channel, ctx.folds, truth_ref, current)
@@ -202,7 +231,8 @@ def _candidates(ctx: AnalysisContext, current: Model, channel: str,
     for site in SITES_FOR_GAP[channel]:
         for kind in kinds_for(site):
             if (kind.name, site) in placed or (
-                    site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS):
+                site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS
+            ):
                 continue
             rms = _feature_rms(kind, site, ctx, motion)
             if not (math.isfinite(rms) and rms > 0):
@@ -225,12 +255,14 @@ def _candidates(ctx: AnalysisContext, current: Model, channel: str,
 
 
 def _truth_ref(ctx: AnalysisContext, model: Model, channel: str) -> bool:
-    return channel in SENSOR_CHANNELS and channel_has_gap(ctx, model, UPSTREAM_TRUTH[channel],
-                                                          False)
+    return channel in SENSOR_CHANNELS and channel_has_gap(
+        ctx, model, UPSTREAM_TRUTH[channel], False
+    )
 
 
-def _as_vocabulary(ctx: AnalysisContext, current: Model, name: str,
-                   channel: str) -> Optional[tuple[CandidateEvidence, Model]]:
+def _as_vocabulary(
+    ctx: AnalysisContext, current: Model, name: str, channel: str
+) -> tuple[CandidateEvidence, Model] | None:
     """The vocabulary effect `name` fitted on `channel` as the vocabulary fits it, if accepted."""
     if current.effect(name) is not None:
         return None
@@ -246,40 +278,72 @@ def _beaten(winner: CandidateEvidence, judged: Sequence[tuple], rest: Sequence[t
     for ev, kind, site, specs in judged:
         if ev is winner:
             continue
-        term = DiscoveredTerm(kind.name, site, ev.values[0], tuple(
-            (s.key, v) for s, v in zip(specs[1:], ev.values[1:])))
-        rows.append({"term": kind.name, "acts_on": site, "expression": term.expression,
-                     "accepted": ev.accepted, "heldout_nrmse_after": ev.heldout_nrmse_after,
-                     "heldout_gap_drop": ev.heldout_gap_drop,
-                     "nrmse_margin": ev.heldout_nrmse_after - winner.heldout_nrmse_after,
-                     "failed_rules": [k for k, v in ev.rules.items() if not v]})
+        term = DiscoveredTerm(
+            kind.name,
+            site,
+            ev.values[0],
+            tuple((s.key, v) for s, v in zip(specs[1:], ev.values[1:])),
+        )
+        rows.append(
+            {
+                "term": kind.name,
+                "acts_on": site,
+                "expression": term.expression,
+                "accepted": ev.accepted,
+                "heldout_nrmse_after": ev.heldout_nrmse_after,
+                "heldout_gap_drop": ev.heldout_gap_drop,
+                "nrmse_margin": ev.heldout_nrmse_after - winner.heldout_nrmse_after,
+                "failed_rules": [k for k, v in ev.rules.items() if not v],
+            }
+        )
     for _rss, kind, site, _specs, _x in rest:  # not shortlisted: their fits left more residual
-        rows.append({"term": kind.name, "acts_on": site, "expression": None, "accepted": False,
-                     "heldout_nrmse_after": None, "heldout_gap_drop": None,
-                     "nrmse_margin": None, "failed_rules": ["not shortlisted"]})
+        rows.append(
+            {
+                "term": kind.name,
+                "acts_on": site,
+                "expression": None,
+                "accepted": False,
+                "heldout_nrmse_after": None,
+                "heldout_gap_drop": None,
+                "nrmse_margin": None,
+                "failed_rules": ["not shortlisted"],
+            }
+        )
     return tuple(rows)
 
 
-def _against(ctx: AnalysisContext, ev: CandidateEvidence, current: Model, base: Model,
-             channel: str, truth_ref: bool) -> CandidateEvidence:
+def _against(
+    ctx: AnalysisContext,
+    ev: CandidateEvidence,
+    current: Model,
+    base: Model,
+    channel: str,
+    truth_ref: bool,
+) -> CandidateEvidence:
     """R1 judged against the model before the step (the plant as it was, without the term)."""
     problem = ctx.problem(channel, ctx.folds, truth_ref, base)
     ss, n = problem.signal_ss(), sum(problem.n_per_fold())
     rss_now = sum(float(np.dot(r, r)) for r in problem.residuals([current])[0])
-    drop = gap_drop(rss_now, ev.heldout_nrmse_after ** 2 * ss, n)
+    drop = gap_drop(rss_now, ev.heldout_nrmse_after**2 * ss, n)
     rules = dict(ev.rules) | {"R1_heldout_gap_drop": bool(drop > ctx.settings.min_heldout_drop)}
-    return replace(ev, rules=rules, accepted=all(rules.values()), heldout_gap_drop=drop,
-                   heldout_nrmse_before=math.sqrt(rss_now / ss) if ss > 0 else math.nan)
+    return replace(
+        ev,
+        rules=rules,
+        accepted=all(rules.values()),
+        heldout_gap_drop=drop,
+        heldout_nrmse_before=math.sqrt(rss_now / ss) if ss > 0 else math.nan,
+    )
 
 
-def _step(ctx: AnalysisContext, current: Model, channel: str,
-          start_plant: Optional[PlantParams] = None) -> tuple[list[tuple], list]:
+def _step(
+    ctx: AnalysisContext, current: Model, channel: str, start_plant: PlantParams | None = None
+) -> tuple[list[tuple], list]:
     """One discovery step on `channel`: the accepted candidates, best first, each (evidence,
     kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
     """
     truth_ref = _truth_ref(ctx, current, channel)
     cands = _candidates(ctx, current, channel, truth_ref)
-    shortlist = cands[:ctx.settings.discovery_shortlist]
+    shortlist = cands[: ctx.settings.discovery_shortlist]
     judged = []
     st = ctx.settings
     for _rss, kind, site, specs, x in shortlist:
@@ -293,31 +357,47 @@ def _step(ctx: AnalysisContext, current: Model, channel: str,
                 joint = list(specs) + plant
                 start = replace(current, plant=start_plant) if start_plant is not None else current
                 x0 = np.concatenate([x, [s.to_fit(spec_value(start, s)) for s in plant]])
-                fit = fit_specs(current, joint, ctx.problem(channel, ctx.folds, truth_ref, current),
-                                x0, replace(st, max_nfev=st.discovery_max_nfev), grid=False)
-                x = fit.x[:len(specs)]
-                base = models_for(current, plant, fit.x[None, len(specs):])[0]
+                fit = fit_specs(
+                    current,
+                    joint,
+                    ctx.problem(channel, ctx.folds, truth_ref, current),
+                    x0,
+                    replace(st, max_nfev=st.discovery_max_nfev),
+                    grid=False,
+                )
+                x = fit.x[: len(specs)]
+                base = models_for(current, plant, fit.x[None, len(specs) :])[0]
             ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
-        judged.append((_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs,
-                       model))
+        judged.append(
+            (_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs, model)
+        )
     tried = [{"term": k.name, "acts_on": s, "fit_rss": r} for r, k, s, _sp, _x in cands]
     rows = {(row["term"], row["acts_on"]): row for row in tried}
     for ev, kind, site, *_rest in judged:
         rows[(kind.name, site)] |= {
-            "rules": dict(ev.rules), "heldout_nrmse_after": ev.heldout_nrmse_after,
-            "heldout_gap_drop": ev.heldout_gap_drop, "values": list(ev.values), "z": list(ev.z),
-            "consistency_p": list(ev.consistency_p)}
+            "rules": dict(ev.rules),
+            "heldout_nrmse_after": ev.heldout_nrmse_after,
+            "heldout_gap_drop": ev.heldout_gap_drop,
+            "values": list(ev.values),
+            "z": list(ev.z),
+            "consistency_p": list(ev.consistency_p),
+        }
     # each candidate's plant is its own: rank on the held-out error, which all share; a term
     # with fewer parameters within PARSIMONY of the best error comes first (a leak through a
     # low-pass at its 5 kHz bound is the plain leak)
     passing = sorted((j for j in judged if j[0].accepted), key=lambda j: j[0].heldout_nrmse_after)
     if passing:
         best = passing[0][0].heldout_nrmse_after
-        passing.sort(key=lambda j: (j[0].heldout_nrmse_after > best * (1.0 + PARSIMONY),
-                                    len(j[3]), j[0].heldout_nrmse_after))
-    return passing, [judged, cands[len(shortlist):], tried]
+        passing.sort(
+            key=lambda j: (
+                j[0].heldout_nrmse_after > best * (1.0 + PARSIMONY),
+                len(j[3]),
+                j[0].heldout_nrmse_after,
+            )
+        )
+    return passing, [judged, cands[len(shortlist) :], tried]
 
 
 def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
@@ -330,8 +410,14 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
     specs = _fitted_along("pitch_dynamics", model, "pitch_deg", True)
     problem = ctx.problem("pitch_deg", ctx.folds, False, model)
     x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
-    fit = fit_specs(model, specs, problem, x0,
-                    replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev), grid=False)
+    fit = fit_specs(
+        model,
+        specs,
+        problem,
+        x0,
+        replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev),
+        grid=False,
+    )
     refit = models_for(model, specs, fit.x[None, :])[0]
     before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
     return refit if fit.rss < before else model
@@ -343,13 +429,16 @@ def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
     per-run fits, the in-sample optimum lies beside it.
     """
     st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
-    for truth, sites in (("stroke_deg", ("stroke_dynamics", "drive")),
-                         ("pitch_deg", ("pitch_dynamics",))):
+    for truth, sites in (
+        ("stroke_deg", ("stroke_dynamics", "drive")),
+        ("pitch_deg", ("pitch_dynamics",)),
+    ):
         specs: list[EffectSpec] = []
         for t in model.discovered:
             if t.acts_on in sites:
-                specs += term_specs(t.row, t.acts_on, truth, max(3.0 * abs(t.coefficient), 1e-30),
-                                    dict(t.shape))
+                specs += term_specs(
+                    t.row, t.acts_on, truth, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
+                )
         if not specs and truth == "stroke_deg":
             continue
         specs += _fitted_along(sites[0], model, truth, st.identify)
@@ -362,39 +451,58 @@ def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
         if fit.rss < before:
             model = models_for(model, specs, fit.x[None, :])[0]
     if st.identify:
-        ctx.runs = identify_plant(ctx.runs, model, ctx.noise, keys=(),
-                                  state_channels=("stroke_deg", "pitch_deg")).runs
+        ctx.runs = identify_plant(
+            ctx.runs, model, ctx.noise, keys=(), state_channels=("stroke_deg", "pitch_deg")
+        ).runs
         ctx.motion = MotionCache()
     return model
 
 
-def _replacing(ctx: AnalysisContext, current: Model, channel: str,
-               replaceable: Sequence[FoundEffect], start_plant: Optional[PlantParams] = None,
-               ) -> tuple[Optional[tuple], list, list, list]:
+def _replacing(
+    ctx: AnalysisContext,
+    current: Model,
+    channel: str,
+    replaceable: Sequence[FoundEffect],
+    start_plant: PlantParams | None = None,
+) -> tuple[tuple | None, list, list, list]:
     """A discovery step on `channel`, first in place of the vocabulary effects found there that
     leave its gap (the winner must then predict the held-out runs better than they did), else on
     top of them: (winner, step record, effects replaced, the step's base model).
     """
     # on a sensor the chain's effects are fitted along with the term instead
-    here = [e for e in replaceable if channel not in SENSOR_CHANNELS
-            and e.channel.split("+")[0] == channel and current.effect(e.name) is not None]
+    here = [
+        e
+        for e in replaceable
+        if channel not in SENSOR_CHANNELS
+        and e.channel.split("+")[0] == channel
+        and current.effect(e.name) is not None
+    ]
     tried = []
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
         passing, record = _step(ctx, base, channel, start_plant)
-        tried.append({"channel": channel, "in_place_of": [e.name for e in dropped],
-                      "candidates": record[2]})
+        tried.append(
+            {"channel": channel, "in_place_of": [e.name for e in dropped], "candidates": record[2]}
+        )
         if dropped:
-            passing = [w for w in passing if w[0].heldout_nrmse_after < min(
-                e.evidence.get("heldout_nrmse_after", math.inf) for e in dropped)]
+            passing = [
+                w
+                for w in passing
+                if w[0].heldout_nrmse_after
+                < min(e.evidence.get("heldout_nrmse_after", math.inf) for e in dropped)
+            ]
         if passing:
             return passing, record, dropped, tried
     return [], record, [], tried
 
 
-def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
-             progress: Optional[Callable[[str], None]] = None,
-             replaceable: Sequence[FoundEffect] = (),
-             start_plant: Optional[PlantParams] = None) -> DiscoveryOutcome:
+def discover(
+    ctx: AnalysisContext,
+    model: Model,
+    gap_channels: Sequence[str],
+    progress: Callable[[str], None] | None = None,
+    replaceable: Sequence[FoundEffect] = (),
+    start_plant: PlantParams | None = None,
+) -> DiscoveryOutcome:
     """Search the term library for what closes the located gaps (see the module docstring).
 
     replaceable: vocabulary effects found where a gap is left (named, but fitting only
@@ -416,13 +524,19 @@ def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
             if not channel_has_gap(ctx, current, channel, _truth_ref(ctx, current, channel)):
                 break
             if channel == "pitch_deg" and channel_has_gap(ctx, current, "stroke_deg", False):
-                tried.append({"channel": channel, "skipped": "below the stroke_deg gap (possibly "
-                              "propagated from it)", "candidates": []})
+                tried.append(
+                    {
+                        "channel": channel,
+                        "skipped": "below the stroke_deg gap (possibly propagated from it)",
+                        "candidates": [],
+                    }
+                )
                 break
             if progress:
                 progress(f"discover on {channel}")
             passing, (judged, rest, _tried), dropped, step_tried = _replacing(
-                ctx, current, channel, [e for e in replaceable if e not in replaced], start_plant)
+                ctx, current, channel, [e for e in replaceable if e not in replaced], start_plant
+            )
             tried += step_tried
             win, named_fit = None, None
             for candidate in passing:  # a term that is a vocabulary effect must pass as that
@@ -441,11 +555,18 @@ def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
             ev, kind, site, specs, new_model = win
             if named_fit is not None:
                 vev, current = named_fit
-                named.append(FoundEffect(vocabulary, channel, {
-                    p.key: float(v) for p, v in zip(ENTRIES[vocabulary].params, vev.values)},
-                    {**vev.as_dict(), "found_by": "discovery (a library term that is this "
-                                                  "vocabulary effect)"},
-                    ENTRIES[vocabulary].acts_on))
+                named.append(
+                    FoundEffect(
+                        vocabulary,
+                        channel,
+                        {p.key: float(v) for p, v in zip(ENTRIES[vocabulary].params, vev.values)},
+                        {
+                            **vev.as_dict(),
+                            "found_by": "discovery (a library term that is this vocabulary effect)",
+                        },
+                        ENTRIES[vocabulary].acts_on,
+                    )
+                )
                 continue
             before_models = [current] * len(ctx.folds)
             gap_before = fold_nrmse(ctx.runs, ctx.folds, before_models)
@@ -454,18 +575,31 @@ def discover(ctx: AnalysisContext, model: Model, gap_channels: Sequence[str],
                 # the pitch plant was identified under the stroke's error: fit it again under
                 # the corrected stroke (its parameters are the plant's, not the term's)
                 new_model = _refit_pitch_plant(ctx, new_model)
-                pitch = {k: getattr(new_model.plant, k) for k, c in PLANT_PARAMETERS.items()
-                         if c == "pitch_deg"}
+                pitch = {
+                    k: getattr(new_model.plant, k)
+                    for k, c in PLANT_PARAMETERS.items()
+                    if c == "pitch_deg"
+                }
                 after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
             gap_after = fold_nrmse(ctx.runs, ctx.folds, after_models)
             term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
             stderr = {s.key: e for s, e in zip(specs, ev.se) if s.is_term}
-            found.append(Discovered(term, channel, stderr, gap_before, gap_after, ev.as_dict(),
-                                    _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest)))
+            found.append(
+                Discovered(
+                    term,
+                    channel,
+                    stderr,
+                    gap_before,
+                    gap_after,
+                    ev.as_dict(),
+                    _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest),
+                )
+            )
             current = new_model
     if found:
         current = _polish_truth(ctx, current)
         final = {(t.kind, t.acts_on): t for t in current.discovered}
         found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
-    return DiscoveryOutcome(current, tuple(found), tuple(named), tuple(replaced), tuple(tried),
-                            ctx.runs)
+    return DiscoveryOutcome(
+        current, tuple(found), tuple(named), tuple(replaced), tuple(tried), ctx.runs
+    )

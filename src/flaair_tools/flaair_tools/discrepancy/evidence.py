@@ -1,11 +1,12 @@
 """Evidence rules R1-R6 for a candidate effect: per-run
 fits, held-out prediction, BIC, consistency.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from scipy import stats
@@ -62,22 +63,28 @@ class CandidateEvidence:
     delta_bic_fit: float
     rules: dict
     accepted: bool
-    same_on_both: Optional[bool] = None
+    same_on_both: bool | None = None
     heldout_models: tuple = ()  # fold k's prediction: fitted on the other folds
 
     def as_dict(self) -> dict:
         """JSON-ready evidence."""
         return {
-            "candidate": "+".join(self.labels), "judged_on": self.channel,
-            "values": list(self.values), "standard_errors": list(self.se),
-            "z_from_null": list(self.z), "per_run": [
-            [{"run": n, "value": v, "se": s} for n, v, s in pr] for pr in self.per_run],
+            "candidate": "+".join(self.labels),
+            "judged_on": self.channel,
+            "values": list(self.values),
+            "standard_errors": list(self.se),
+            "z_from_null": list(self.z),
+            "per_run": [[{"run": n, "value": v, "se": s} for n, v, s in pr] for pr in self.per_run],
             "consistency_p": list(self.consistency_p),
             "heldout_nrmse_before": self.heldout_nrmse_before,
-            "heldout_nrmse_after": self.heldout_nrmse_after, "heldout_drop": self.heldout_drop,
-            "heldout_gap_drop": self.heldout_gap_drop, "delta_bic_heldout": self.delta_bic_heldout,
-            "delta_bic_fit": self.delta_bic_fit, "rules": dict(self.rules),
-            "accepted": self.accepted, "same_on_both_sensors": self.same_on_both,
+            "heldout_nrmse_after": self.heldout_nrmse_after,
+            "heldout_drop": self.heldout_drop,
+            "heldout_gap_drop": self.heldout_gap_drop,
+            "delta_bic_heldout": self.delta_bic_heldout,
+            "delta_bic_fit": self.delta_bic_fit,
+            "rules": dict(self.rules),
+            "accepted": self.accepted,
+            "same_on_both_sensors": self.same_on_both,
         }
 
 
@@ -140,8 +147,13 @@ def _pooled(est: Sequence[tuple[float, float]], fallback: float) -> float:
 class AnalysisContext:
     """Data shared by the candidate evaluations of one analysis."""
 
-    def __init__(self, runs: Sequence[Run], noise: Mapping[str, float], settings: Settings,
-                 tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None) -> None:
+    def __init__(
+        self,
+        runs: Sequence[Run],
+        noise: Mapping[str, float],
+        settings: Settings,
+        tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> None:
         self.runs = tuple(runs)
         self.noise = dict(noise)
         self.settings = settings
@@ -149,12 +161,22 @@ class AnalysisContext:
         self.tracks = list(tracks) if tracks is not None else drive_tracks(self.runs)
         self.motion = MotionCache()
 
-    def problem(self, channel: str, folds: Sequence[Fold], truth_referenced: bool,
-                weight_model: Model) -> ResidualProblem:
+    def problem(
+        self, channel: str, folds: Sequence[Fold], truth_referenced: bool, weight_model: Model
+    ) -> ResidualProblem:
         """Residual problem of `channel` on `folds`."""
         truth_sigma = self.noise[UPSTREAM_TRUTH[channel]] if channel in SENSOR_CHANNELS else 0.0
-        return ResidualProblem(self.runs, folds, channel, self.noise[channel], truth_referenced,
-                        self.settings.decimate, truth_sigma, weight_model, self.motion)
+        return ResidualProblem(
+            self.runs,
+            folds,
+            channel,
+            self.noise[channel],
+            truth_referenced,
+            self.settings.decimate,
+            truth_sigma,
+            weight_model,
+            self.motion,
+        )
 
 
 def _reach_deg(ctx: AnalysisContext, model: Model) -> float:
@@ -176,8 +198,9 @@ def _null_fit_value(spec: EffectSpec) -> float:
     return spec.to_fit(spec.lower)
 
 
-def same_on_both(spec: EffectSpec, v_old: float, se_old: float, v_new: float, se_new: float,
-                 settings: Settings) -> Optional[float]:
+def same_on_both(
+    spec: EffectSpec, v_old: float, se_old: float, v_new: float, se_new: float, settings: Settings
+) -> float | None:
     """R5: one sensor effect's values on the two chains agree within 3 combined standard errors plus
     `consistency_rel_tol` of its size: their inverse-variance mean, else None (one value per chain).
     """
@@ -189,9 +212,15 @@ def same_on_both(spec: EffectSpec, v_old: float, se_old: float, v_new: float, se
     return (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
 
 
-def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], channel: str,
-             truth_referenced: bool, x_start: Optional[np.ndarray] = None,
-             merge_with: Optional[tuple[float, float]] = None) -> tuple[CandidateEvidence, Model]:
+def evaluate(
+    ctx: AnalysisContext,
+    base: Model,
+    specs: Sequence[EffectSpec],
+    channel: str,
+    truth_referenced: bool,
+    x_start: np.ndarray | None = None,
+    merge_with: tuple[float, float] | None = None,
+) -> tuple[CandidateEvidence, Model]:
     """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
 
     merge_with: (value, se) of the same effect already found on the other sensor channel; the
@@ -204,24 +233,39 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
     null_x = np.array([_null_fit_value(s) for s in specs])
     x0 = null_x if x_start is None else np.asarray(x_start, float)
     folds = ctx.folds
-    per_fold = [fit_specs(base, specs, ctx.problem(channel, [f], truth_referenced, base), x0, st,
-                     grid=(x_start is None)) for f in folds]
+    per_fold = [
+        fit_specs(
+            base,
+            specs,
+            ctx.problem(channel, [f], truth_referenced, base),
+            x0,
+            st,
+            grid=(x_start is None),
+        )
+        for f in folds
+    ]
     all_prob = ctx.problem(channel, folds, truth_referenced, base)
     # all-run estimate: inverse-variance pooling of the per-run fits (equivalent to one fit on all
     # runs for independent runs); if no run identifies the effect, the best run's value
     identified = [pf for pf in per_fold if np.all(np.isfinite(pf.se)) and np.all(pf.se > 0)]
     if identified:
-        x_all = np.array([_pooled([(pf.x[j], pf.se[j]) for pf in identified], x0[j])
-                          for j in range(p)])
-        se_all = np.array([1.0 / math.sqrt(
-            sum(1.0 / pf.se[j] ** 2 for pf in identified)) for j in range(p)])
+        x_all = np.array(
+            [_pooled([(pf.x[j], pf.se[j]) for pf in identified], x0[j]) for j in range(p)]
+        )
+        se_all = np.array(
+            [1.0 / math.sqrt(sum(1.0 / pf.se[j] ** 2 for pf in identified)) for j in range(p)]
+        )
     else:
         x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
         se_all = np.full(p, math.inf)
     res_all = all_prob.residuals(models_for(base, specs, x_all[None, :]))[0]
-    fit_all = FitResult(x=x_all, se=se_all, rss=sum(float(np.dot(r, r)) for r in res_all),
-                        n=sum(r.size for r in res_all),
-                        rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all))
+    fit_all = FitResult(
+        x=x_all,
+        se=se_all,
+        rss=sum(float(np.dot(r, r)) for r in res_all),
+        n=sum(r.size for r in res_all),
+        rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all),
+    )
     values = [s.from_fit(u) for s, u in zip(specs, fit_all.x)]
     se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se)]
     res_null = all_prob.residuals([base])[0]
@@ -269,8 +313,10 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
         "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
         "R3_significance": bool(all(z[j] > st.min_z and inside[j] for j in tested)),
-        "R4_consistency": bool(all(n_ident[j] >= 2 for j in tested) and all(
-        cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))),
+        "R4_consistency": bool(
+            all(n_ident[j] >= 2 for j in tested)
+            and all(cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))
+        ),
     }
     model = models_for(base, specs, fit_all.x[None, :])[0]
     same = None
@@ -281,24 +327,44 @@ def evaluate(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], cha
             values = [merged]
             model = with_effects(base, {specs[0].name: specs[0].params(merged, channel="both")})
     ev = CandidateEvidence(
-        labels=tuple(s.label for s in specs), channel=channel, values=tuple(values),
-        se=tuple(se_phys), z=tuple(z), per_run=tuple(per_run), consistency_p=tuple(cons),
-        heldout_nrmse_before=before, heldout_nrmse_after=after, heldout_drop=drop,
-        heldout_gap_drop=drop_above_noise, delta_bic_heldout=dbic_ho, delta_bic_fit=dbic_fit,
+        labels=tuple(s.label for s in specs),
+        channel=channel,
+        values=tuple(values),
+        se=tuple(se_phys),
+        z=tuple(z),
+        per_run=tuple(per_run),
+        consistency_p=tuple(cons),
+        heldout_nrmse_before=before,
+        heldout_nrmse_after=after,
+        heldout_drop=drop,
+        heldout_gap_drop=drop_above_noise,
+        delta_bic_heldout=dbic_ho,
+        delta_bic_fit=dbic_fit,
         rules=rules,
-        accepted=all(rules.values()), same_on_both=same, heldout_models=tuple(models_ho),
+        accepted=all(rules.values()),
+        same_on_both=same,
+        heldout_models=tuple(models_ho),
     )
     return ev, model
 
 
-def evaluate_shared(ctx: AnalysisContext, current: Model, specs: Sequence[EffectSpec], channel: str,
-                     truth_ref: bool) -> tuple[CandidateEvidence, Model]:
+def evaluate_shared(
+    ctx: AnalysisContext, current: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool
+) -> tuple[CandidateEvidence, Model]:
     """Zero-parameter test: the other sensor's effects `specs`, at their values, on both sensors."""
     st = ctx.settings
-    values = tuple(float(getattr(current.effect_on(
-        s.name, "pitch" if s.channel_param == "stroke" else "stroke"), s.key)) for s in specs)
-    model = with_effects(current, {
-        s.name: s.params(v, channel="both") for s, v in zip(specs, values)})
+    values = tuple(
+        float(
+            getattr(
+                current.effect_on(s.name, "pitch" if s.channel_param == "stroke" else "stroke"),
+                s.key,
+            )
+        )
+        for s in specs
+    )
+    model = with_effects(
+        current, {s.name: s.params(v, channel="both") for s, v in zip(specs, values)}
+    )
     prob = ctx.problem(channel, ctx.folds, truth_ref, current)
     res_old, res_new = prob.residuals([current, model])
     rss_old = [float(np.dot(r, r)) for r in res_old]
@@ -309,14 +375,25 @@ def evaluate_shared(ctx: AnalysisContext, current: Model, specs: Sequence[Effect
     drop = 1.0 - after / before if before > 0 else 0.0
     drop_above_noise = gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
     dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
-    rules = {"R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
-             "R2_delta_bic": bool(dbic < st.max_delta_bic)}
-    ev = CandidateEvidence(labels=tuple(f"{s.name}[both]" for s in specs), channel=channel,
-                           values=values, se=tuple(math.nan for _ in specs),
-                           z=tuple(math.nan for _ in specs), per_run=tuple(() for _ in specs),
-                           consistency_p=tuple(math.nan for _ in specs),
-                           heldout_nrmse_before=before, heldout_nrmse_after=after,
-                           heldout_drop=drop, heldout_gap_drop=drop_above_noise,
-                           delta_bic_heldout=dbic, delta_bic_fit=dbic, rules=rules,
-                           accepted=all(rules.values()))
+    rules = {
+        "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
+        "R2_delta_bic": bool(dbic < st.max_delta_bic),
+    }
+    ev = CandidateEvidence(
+        labels=tuple(f"{s.name}[both]" for s in specs),
+        channel=channel,
+        values=values,
+        se=tuple(math.nan for _ in specs),
+        z=tuple(math.nan for _ in specs),
+        per_run=tuple(() for _ in specs),
+        consistency_p=tuple(math.nan for _ in specs),
+        heldout_nrmse_before=before,
+        heldout_nrmse_after=after,
+        heldout_drop=drop,
+        heldout_gap_drop=drop_above_noise,
+        delta_bic_heldout=dbic,
+        delta_bic_fit=dbic,
+        rules=rules,
+        accepted=all(rules.values()),
+    )
     return ev, model

@@ -1,9 +1,10 @@
 """Least-squares fitting of effect (and plant) parameters on folds of the runs."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -48,8 +49,8 @@ def fold_nrmse(runs: Sequence[Run], folds: Sequence[Fold], per_fold: Sequence[Mo
         run = runs[f.run]
         sim = simulate_runs([model], [run])[0][0]
         for c in CHANNELS:
-            r = (run.channel(c) - sim[c])[f.start:f.stop]
-            x = run.channel(c)[f.start:f.stop]
+            r = (run.channel(c) - sim[c])[f.start : f.stop]
+            x = run.channel(c)[f.start : f.stop]
             ok = np.isfinite(r)
             r, x = r[ok] - r[ok].mean(), x[ok] - x[ok].mean()
             rss[c] += float(np.dot(r, r))
@@ -72,10 +73,18 @@ class ResidualProblem:
     of `weight_model`) is fixed per problem so that costs of different models compare.
     """
 
-    def __init__(self, runs: Sequence[Run], folds: Sequence[Fold], channel: str, sigma: float,
-                 truth_referenced: bool, decimate: int, truth_sigma: float = 0.0,
-                 weight_model: Optional[Model] = None,
-                 motion: Optional[MotionCache] = None) -> None:
+    def __init__(
+        self,
+        runs: Sequence[Run],
+        folds: Sequence[Fold],
+        channel: str,
+        sigma: float,
+        truth_referenced: bool,
+        decimate: int,
+        truth_sigma: float = 0.0,
+        weight_model: Model | None = None,
+        motion: MotionCache | None = None,
+    ) -> None:
         self.runs = runs
         self.motion = motion if motion is not None else MotionCache()
         self._measured: dict = {}
@@ -110,11 +119,17 @@ class ResidualProblem:
     def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
         models = list(models)
-        motion = (self.motion.get(models, self.runs, self.run_ids)
-                  if self.channel in SENSOR_CHANNELS else None)
+        motion = (
+            self.motion.get(models, self.runs, self.run_ids)
+            if self.channel in SENSOR_CHANNELS
+            else None
+        )
         # truth channels: the motion of every model on every run (degrees only where judged)
-        sims = None if motion is not None else {
-            j: simulate_motion(models, self.runs[j]) for j in self.run_ids}
+        sims = (
+            None
+            if motion is not None
+            else {j: simulate_motion(models, self.runs[j]) for j in self.run_ids}
+        )
         angle = "stroke_rad" if self.channel == "stroke_deg" else "pitch_rad"
         out = []
         side = SENSOR_SIDE.get(self.channel)
@@ -135,8 +150,9 @@ class ResidualProblem:
                     v = sensor_voltage(m, run.fs_hz, stroke, pitch, run.drive_v, side)
                     r = run.channel(self.channel)[idx] - v[idx]
                 else:
-                    r = (run.channel(self.channel)[idx]
-                         - np.degrees(getattr(sims[f.run], angle)[i, idx]))
+                    r = run.channel(self.channel)[idx] - np.degrees(
+                        getattr(sims[f.run], angle)[i, idx]
+                    )
                 if not np.all(np.isfinite(r)):
                     r = np.where(np.isfinite(r), r, 1e6 * self.weight)
                 row.append((r - r.mean()) / self.weight)
@@ -144,8 +160,12 @@ class ResidualProblem:
         return out
 
 
-def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[float],
-                 channels: Optional[Mapping[str, Optional[str]]] = None) -> Model:
+def apply_values(
+    base: Model,
+    specs: Sequence[EffectSpec],
+    values: Sequence[float],
+    channels: Mapping[str, str | None] | None = None,
+) -> Model:
     """`base` with the specs' parameters at physical `values`: plant parameters replaced, effects
     added (the parameters of one effect merged into one entry). A sensor effect is set on its
     spec's chain only (the other chain keeps its own value); channels: effect -> 'both' sets it
@@ -162,18 +182,25 @@ def apply_values(base: Model, specs: Sequence[EffectSpec], values: Sequence[floa
     model = replace(base, plant=replace(base.plant, **plant)) if plant else base
     if terms:
         places = {s.name: s.term_place for s in specs if s.is_term}
-        model = with_terms(model, [DiscoveredTerm(*places[name], p.pop("coefficient"),
-                                                  tuple(p.items())) for name, p in terms.items()])
+        model = with_terms(
+            model,
+            [
+                DiscoveredTerm(*places[name], p.pop("coefficient"), tuple(p.items()))
+                for name, p in terms.items()
+            ],
+        )
     for s in specs:
         if s.is_plant or s.is_term or s.name not in effects:
             continue
         params = effects.pop(s.name)
         if s.channel_param is None or (channels or {}).get(s.name) == "both":
-            model = (with_effects(model, {
-                s.name: {**params, **({"channel": "both"} if s.channel_param else {})}}))
+            model = with_effects(
+                model, {s.name: {**params, **({"channel": "both"} if s.channel_param else {})}}
+            )
         else:
-            model = with_effect_on(model, s.name, s.channel_param, {
-                k: v for k, v in params.items() if k != "channel"})
+            model = with_effect_on(
+                model, s.name, s.channel_param, {k: v for k, v in params.items() if k != "channel"}
+            )
     return model
 
 
@@ -186,8 +213,10 @@ def with_terms(model: Model, terms: Sequence[DiscoveredTerm]) -> Model:
 
 def models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
     """Models with the parameters of `specs` at the fit-space rows `xs`."""
-    return [apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x)])
-            for x in np.atleast_2d(xs)]
+    return [
+        apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x)])
+        for x in np.atleast_2d(xs)
+    ]
 
 
 def spec_value(model: Model, spec: EffectSpec) -> float:
@@ -213,8 +242,14 @@ class FitResult:
     rss_per_fold: tuple
 
 
-def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem, x0: np.ndarray,
-              settings: Settings, grid: bool = True) -> FitResult:
+def fit_specs(
+    base: Model,
+    specs: Sequence[EffectSpec],
+    problem: ResidualProblem,
+    x0: np.ndarray,
+    settings: Settings,
+    grid: bool = True,
+) -> FitResult:
     """Least-squares fit of the specs' parameters on `problem` (grid start, then TRF)."""
     specs = list(specs)
     lo = np.array([s.to_fit(s.lower) for s in specs])
@@ -223,8 +258,9 @@ def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem
     x0 = np.clip(np.asarray(x0, float), lo, hi)
     if grid and specs[0].grid:
         s = specs[0]
-        xs = np.array([[s.to_fit(v), *x0[1:]] for v in s.grid if s.lower <= v <= s.upper]
-                      + [list(x0)])
+        xs = np.array(
+            [[s.to_fit(v), *x0[1:]] for v in s.grid if s.lower <= v <= s.upper] + [list(x0)]
+        )
         res = problem.residuals(models_for(base, specs, xs))
         with np.errstate(over="ignore"):  # a start that drives the model wild costs inf
             costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
@@ -251,9 +287,18 @@ def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem
 
     x_scale = np.maximum(np.abs(steps) * 100.0, 1e-12)
     try:
-        sol = (optimize.least_squares(
-            fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale=x_scale,
-            max_nfev=settings.max_nfev, xtol=1e-6, ftol=1e-9, gtol=1e-9))
+        sol = optimize.least_squares(
+            fun,
+            x0,
+            jac=jac,
+            bounds=(lo, hi),
+            method="trf",
+            x_scale=x_scale,
+            max_nfev=settings.max_nfev,
+            xtol=1e-6,
+            ftol=1e-9,
+            gtol=1e-9,
+        )
         x = sol.x
     except (ValueError, ModelError):
         x = x0
@@ -278,9 +323,8 @@ def fit_specs(base: Model, specs: Sequence[EffectSpec], problem: ResidualProblem
     sizes = problem.n_per_fold()
     per_fold, k = [], 0
     for m in sizes:
-        per_fold.append(float(np.dot(f[k:k + m], f[k:k + m])))
+        per_fold.append(float(np.dot(f[k : k + m], f[k : k + m])))
         k += m
-    return FitResult(x=np.asarray(x, float), se=np.asarray(se, float), rss=rss, n=n,
-                     rss_per_fold=tuple(per_fold))
-
-
+    return FitResult(
+        x=np.asarray(x, float), se=np.asarray(se, float), rss=rss, n=n, rss_per_fold=tuple(per_fold)
+    )

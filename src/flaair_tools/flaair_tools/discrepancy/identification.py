@@ -30,11 +30,12 @@ model values (only the ratios to them are observable from motion); the sensor co
    with |correlation| above `INSEPARABLE_CORRELATION` and parameters whose relative standard
    error exceeds `UNDETERMINED_REL_SE` are reported as what the data cannot separate.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Mapping, Optional, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -46,8 +47,14 @@ from flaair_sim.core.plant import simulate_batch_from
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
 
-__all__ = ["PlantFit", "frequency_domain_start", "identify_plant", "fit_initial_states",
-           "INSEPARABLE_CORRELATION", "UNDETERMINED_REL_SE"]
+__all__ = [
+    "INSEPARABLE_CORRELATION",
+    "UNDETERMINED_REL_SE",
+    "PlantFit",
+    "fit_initial_states",
+    "frequency_domain_start",
+    "identify_plant",
+]
 
 # |correlation| above which two parameters are reported as not separated
 INSEPARABLE_CORRELATION = 0.95
@@ -99,19 +106,27 @@ class PlantFit:
     def as_dict(self) -> dict:
         """JSON-ready: per parameter value, nominal, start, stderr; correlations; inseparable."""
         return {
-            "parameters": {k: {"value": self.values[k], "nominal": self.nominal[k],
-                               "start": self.start[k], "stderr": self.stderr[k],
-                               "relative_change": self.values[k] / self.nominal[k] - 1.0}
-                           for k in self.keys},
-            "correlation": {"order": list(self.keys), "matrix": [
-            [_finite(x) for x in row] for row in self.correlation]},
+            "parameters": {
+                k: {
+                    "value": self.values[k],
+                    "nominal": self.nominal[k],
+                    "start": self.start[k],
+                    "stderr": self.stderr[k],
+                    "relative_change": self.values[k] / self.nominal[k] - 1.0,
+                }
+                for k in self.keys
+            },
+            "correlation": {
+                "order": list(self.keys),
+                "matrix": [[_finite(x) for x in row] for row in self.correlation],
+            },
             "inseparable": list(self.inseparable),
             "chi2_per_sample_before": self.cost_before / max(self.n, 1),
             "chi2_per_sample_after": self.cost_after / max(self.n, 1),
         }
 
 
-def _finite(x: float) -> Optional[float]:
+def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
@@ -132,10 +147,15 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         phi = np.radians(run.stroke_deg)
         psi = np.radians(run.pitch_deg)
         freq, tf = tiled_transfer({"phi": phi, "psi": psi}, run.drive_v, run.fs_hz, window_s)
-        win = max(8, int(round(window_s * run.fs_hz)))
+        win = max(8, round(window_s * run.fs_hz))
         amp = _window_amplitude(phi, win, freq.size)
-        ok = (np.isfinite(freq) & np.isfinite(tf["phi"]) & np.isfinite(tf["psi"]) & (freq > 10.0)
-              & (amp > 0))
+        ok = (
+            np.isfinite(freq)
+            & np.isfinite(tf["phi"])
+            & np.isfinite(tf["psi"])
+            & (freq > 10.0)
+            & (amp > 0)
+        )
         w = 2.0 * math.pi * freq[ok]
         f_phi, f_psi, a = tf["phi"][ok], tf["psi"][ok], amp[ok]
         # stroke: K Phi + Gamma (j w^2 c A Phi) - G_a = I w^2 Phi
@@ -143,13 +163,14 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         rows_s.append(cols)
         rhs_s.append(pl.stroke_inertia_kg_m2 * w * w * f_phi)
         # pitch: k_h Psi + c_p j w Psi - J_c w^2 Phi + D_p j w^2 c A Phi = I_p w^2 Psi
-        cols = np.column_stack([f_psi, 1j * w * f_psi, -w * w * f_phi,
-                                1j * w * w * _DESCRIBING * a * f_phi])
+        cols = np.column_stack(
+            [f_psi, 1j * w * f_psi, -w * w * f_phi, 1j * w * w * _DESCRIBING * a * f_phi]
+        )
         rows_p.append(cols)
         rhs_p.append(pl.pitch_inertia_kg_m2 * w * w * f_psi)
     start = {k: float(getattr(pl, k)) for k in PLANT_PARAMETERS}
 
-    def solve(rows: list, rhs: list) -> Optional[np.ndarray]:
+    def solve(rows: list, rhs: list) -> np.ndarray | None:
         a = np.concatenate(rows) if rows else np.zeros((0, 1))
         b = np.concatenate(rhs) if rhs else np.zeros(0)
         if a.shape[0] < 2 * a.shape[1]:
@@ -163,8 +184,9 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
     if s is not None:
         k, gamma, ga = s
         if k > 0:
-            start["stroke_natural_frequency_hz"] = (
-                math.sqrt(k / pl.stroke_inertia_kg_m2) / (2.0 * math.pi))
+            start["stroke_natural_frequency_hz"] = math.sqrt(k / pl.stroke_inertia_kg_m2) / (
+                2.0 * math.pi
+            )
         if gamma > 0:
             start["aero_damping_nm_s2"] = float(gamma)
         if ga > 0:
@@ -173,10 +195,14 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
     if p is not None:
         kh, cp, jc, dp = p
         if kh > 0:
-            start["pitch_natural_frequency_hz"] = (
-                math.sqrt(kh / pl.pitch_inertia_kg_m2) / (2.0 * math.pi))
-        for key, v in (("hinge_damping_nm_s_per_rad", cp), ("inertial_coupling_kg_m2", jc),
-                       ("aero_coupling_nm_s2", dp)):
+            start["pitch_natural_frequency_hz"] = math.sqrt(kh / pl.pitch_inertia_kg_m2) / (
+                2.0 * math.pi
+            )
+        for key, v in (
+            ("hinge_damping_nm_s_per_rad", cp),
+            ("inertial_coupling_kg_m2", jc),
+            ("aero_coupling_nm_s2", dp),
+        ):
             if v > 0:
                 start[key] = float(v)
     # a start far outside the fit range is a failed estimate (e.g. effects the plant lacks)
@@ -206,8 +232,13 @@ class _TruthResiduals:
     told otherwise) for a batch of models.
     """
 
-    def __init__(self, runs: Sequence[Run], noise_deg: Mapping[str, float], decimate: int,
-                 channels: Sequence[str] = TRUTH_CHANNELS) -> None:
+    def __init__(
+        self,
+        runs: Sequence[Run],
+        noise_deg: Mapping[str, float],
+        decimate: int,
+        channels: Sequence[str] = TRUTH_CHANNELS,
+    ) -> None:
         self.runs = list(runs)
         self.channels = tuple(channels)
         self.parts = []
@@ -234,21 +265,31 @@ class _TruthResiduals:
         return np.array([np.concatenate(r) if r else np.zeros(0) for r in rows])
 
 
-def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], keys: Sequence[str],
-               start: Mapping[str, float], channel: str, max_nfev: int, decimate: int,
-               centre: Optional[Mapping[str, float]] = None) -> dict:
+def _fit_stage(
+    runs: Sequence[Run],
+    model: Model,
+    noise: Mapping[str, float],
+    keys: Sequence[str],
+    start: Mapping[str, float],
+    channel: str,
+    max_nfev: int,
+    decimate: int,
+    centre: Mapping[str, float] | None = None,
+) -> dict:
     """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
     channel; returns values, log-space covariance of the plant parameters, states, costs.
     """
     resid = _TruthResiduals(runs, noise, decimate, (channel,))
     p = len(keys)
     comp = [0, 1] if channel == "stroke_deg" else [2, 3]
-    key_f = ("stroke_natural_frequency_hz" if channel == "stroke_deg"
-             else "pitch_natural_frequency_hz")
+    key_f = (
+        "stroke_natural_frequency_hz" if channel == "stroke_deg" else "pitch_natural_frequency_hz"
+    )
     # rate scaled to an angle: (x, x'/omega)
     omega = 2.0 * math.pi * float(getattr(model.plant, key_f))
-    base_states = [np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float)
-                   for r in runs]
+    base_states = [
+        np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs
+    ]
     u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
     u_centre = np.log([float(centre[k]) for k in keys]) if centre is not None else u_nominal
     lo = np.r_[u_centre - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
@@ -278,11 +319,16 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
             for j, run in enumerate(runs):
                 sub = _TruthResiduals.__new__(_TruthResiduals)
                 sub.runs, sub.parts, sub.sigma, sub.channels = (
-                    [run], [resid.parts[j]], resid.sigma, resid.channels)
-                cols = list(range(p)) + [p + 2 * j, p + 2 * j + 1]
-                ms = models + [models[0], models[0]]
-                x0 = np.array([state_of(u, j)] * (p + 1) + [
-                    state_of(us[1 + c], j) for c in cols[p:]])
+                    [run],
+                    [resid.parts[j]],
+                    resid.sigma,
+                    resid.channels,
+                )
+                cols = [*list(range(p)), p + 2 * j, p + 2 * j + 1]
+                ms = [*models, models[0], models[0]]
+                x0 = np.array(
+                    [state_of(u, j)] * (p + 1) + [state_of(us[1 + c], j) for c in cols[p:]]
+                )
                 rows = sub(ms, [x0])
                 f_parts.append(rows[0])
                 jac = np.zeros((rows.shape[1], u.size))
@@ -298,21 +344,41 @@ def _fit_stage(runs: Sequence[Run], model: Model, noise: Mapping[str, float], ke
     costs = [float(np.dot(fun_and_jac(u)[0], fun_and_jac(u)[0])) for u in (u_nom, u_start)]
     # the better of the frequency-domain and the model's values starts the fit
     u0 = u_start if costs[1] <= costs[0] else u_nom
-    sol = optimize.least_squares(lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1],
-                                 bounds=(lo, hi), method="trf", max_nfev=max_nfev, x_scale=1.0,
-                                 xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    sol = optimize.least_squares(
+        lambda u: fun_and_jac(u)[0],
+        u0,
+        jac=lambda u: fun_and_jac(u)[1],
+        bounds=(lo, hi),
+        method="trf",
+        max_nfev=max_nfev,
+        x_scale=1.0,
+        xtol=1e-10,
+        ftol=1e-10,
+        gtol=1e-10,
+    )
     f, jac = fun_and_jac(sol.x)
     cost = float(np.dot(f, f))
     cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - sol.x.size, 1)
-    return {"values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])))), "cov": cov[:p, :p],
-            "states": [state_of(sol.x, j) for j in range(len(runs))],
-            "cost_before": float(costs[0]), "cost_after": cost, "n": int(f.size)}
+    return {
+        "values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])))),
+        "cov": cov[:p, :p],
+        "states": [state_of(sol.x, j) for j in range(len(runs))],
+        "cost_before": float(costs[0]),
+        "cost_after": cost,
+        "n": int(f.size),
+    }
 
 
-def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
-                   keys: Sequence[str] = tuple(PLANT_PARAMETERS), max_nfev: int = MAX_NFEV,
-                   decimate: int = DECIMATE, state_channels: Sequence[str] = (),
-                   centre: Optional[Mapping[str, float]] = None) -> PlantFit:
+def identify_plant(
+    runs: Sequence[Run],
+    model: Model,
+    noise: Mapping[str, float],
+    keys: Sequence[str] = tuple(PLANT_PARAMETERS),
+    max_nfev: int = MAX_NFEV,
+    decimate: int = DECIMATE,
+    state_channels: Sequence[str] = (),
+    centre: Mapping[str, float] | None = None,
+) -> PlantFit:
     """Fit this robot's plant parameters to the truth angles of its runs (module docstring).
 
     Upstream first: the stroke parameters on stroke_deg, then, with them fixed, the pitch
@@ -371,20 +437,39 @@ def identify_plant(runs: Sequence[Run], model: Model, noise: Mapping[str, float]
     for i in range(len(keys)):
         for j in range(i + 1, len(keys)):
             if abs(corr[i, j]) > INSEPARABLE_CORRELATION:
-                inseparable.append(f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the "
-                                   "runs fix only a combination of the two")
+                inseparable.append(
+                    f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the "
+                    "runs fix only a combination of the two"
+                )
     for i, k in enumerate(keys):
         if not sd[i] < UNDETERMINED_REL_SE:
             inseparable.append(
-                f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs")
-    return PlantFit(model=current, keys=keys, values=values, nominal=nominal, start=start,
-                    stderr=stderr, correlation=corr, inseparable=tuple(inseparable),
-                    cost_before=cost_before, cost_after=cost_after, n=n, runs=tuple(runs))
+                f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs"
+            )
+    return PlantFit(
+        model=current,
+        keys=keys,
+        values=values,
+        nominal=nominal,
+        start=start,
+        stderr=stderr,
+        correlation=corr,
+        inseparable=tuple(inseparable),
+        cost_before=cost_before,
+        cost_after=cost_after,
+        n=n,
+        runs=tuple(runs),
+    )
 
 
-def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, float],
-                       channels: Sequence[str], max_nfev: int = STATE_MAX_NFEV,
-                       decimate: int = DECIMATE) -> tuple[tuple[Run, ...], float, float]:
+def fit_initial_states(
+    runs: Sequence[Run],
+    model: Model,
+    noise: Mapping[str, float],
+    channels: Sequence[str],
+    max_nfev: int = STATE_MAX_NFEV,
+    decimate: int = DECIMATE,
+) -> tuple[tuple[Run, ...], float, float]:
     """Each run's initial state [phi, phi', psi, psi'] fitted on `channels` with `model` fixed.
 
     A sensor resolves the motion far better than a video-rate truth: once the sensor chain is
@@ -393,9 +478,18 @@ def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, fl
     noise-weighted residuals of `channels`, from the run's current state; rates scaled by the
     natural frequencies. Returns (runs with the fitted states, cost before, cost after).
     """
-    w = (2.0 * math.pi * np.array(
-        [model.plant.stroke_natural_frequency_hz, model.plant.stroke_natural_frequency_hz,
-         model.plant.pitch_natural_frequency_hz, model.plant.pitch_natural_frequency_hz]))
+    w = (
+        2.0
+        * math.pi
+        * np.array(
+            [
+                model.plant.stroke_natural_frequency_hz,
+                model.plant.stroke_natural_frequency_hz,
+                model.plant.pitch_natural_frequency_hz,
+                model.plant.pitch_natural_frequency_hz,
+            ]
+        )
+    )
     scale = np.where(np.arange(4) % 2 == 1, w, 1.0)  # state = u * scale: (x, x'/omega) in fit space
     out, before, after = [], 0.0, 0.0
     for run in runs:
@@ -414,9 +508,17 @@ def fit_initial_states(runs: Sequence[Run], model: Model, noise: Mapping[str, fl
 
         u0 = x_run / scale
         f0 = fun_and_jac(u0)[0]
-        sol = (optimize.least_squares(
-            lambda u: fun_and_jac(u)[0], u0, jac=lambda u: fun_and_jac(u)[1], method="trf",
-            max_nfev=max_nfev, x_scale=1.0, xtol=1e-8, ftol=1e-8, gtol=1e-10))
+        sol = optimize.least_squares(
+            lambda u: fun_and_jac(u)[0],
+            u0,
+            jac=lambda u: fun_and_jac(u)[1],
+            method="trf",
+            max_nfev=max_nfev,
+            x_scale=1.0,
+            xtol=1e-8,
+            ftol=1e-8,
+            gtol=1e-10,
+        )
         f1 = fun_and_jac(sol.x)[0]
         c0, c1 = float(np.dot(f0, f0)), float(np.dot(f1, f1))
         keep = c1 < c0

@@ -19,6 +19,7 @@ Examples
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,7 +28,6 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Optional
 
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
@@ -43,14 +43,20 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def main(argv: Optional[list[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("inputs", nargs="+", type=Path,
-                        help="measured-run CSV files and/or bag directories")
-    parser.add_argument("--model", type=Path, default=None,
-                        help="model YAML to start from (default: config/model.yaml)")
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "inputs", nargs="+", type=Path, help="measured-run CSV files and/or bag directories"
+    )
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="model YAML to start from (default: config/model.yaml)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     args = parser.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate)
@@ -80,11 +86,17 @@ def main(argv: Optional[list[str]] = None) -> int:
         signal.signal(signal.SIGTERM, previous)
     args.out.mkdir(parents=True, exist_ok=True)
     save_model(fit.model, args.out / "model.yaml")
-    doc = json_safe({"runs": [r.name for r in runs],
-                     "model_in": str(args.model or "config/model.yaml"),
-                     "model_out": str(args.out / "model.yaml"), **fit.as_dict()})
+    doc = json_safe(
+        {
+            "runs": [r.name for r in runs],
+            "model_in": str(args.model or "config/model.yaml"),
+            "model_out": str(args.out / "model.yaml"),
+            **fit.as_dict(),
+        }
+    )
     (args.out / "identification.json").write_text(
-        json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+        json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
+    )
     print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
     for k in fit.keys:

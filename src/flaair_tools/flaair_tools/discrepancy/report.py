@@ -4,33 +4,42 @@
 of the hidden-effect datasets (validation.json, validation.html), which `write_report` can also
 embed in report.html.
 """
+
 from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, fields, replace
 from pathlib import Path
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any
 
-import numpy as np  # noqa: E402
+import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
 from flaair_common.strictjson import json_safe
 
-from .diagnosis import bode_points  # noqa: E402
-from .runs import CHANNELS, Run, simulate_runs  # noqa: E402
-from .settings import Settings  # noqa: E402
-from .workflow import DiscrepancyResult, format_parameters  # noqa: E402
+from .diagnosis import bode_points
+from .runs import CHANNELS, Run, simulate_runs
+from .settings import Settings
+from .workflow import DiscrepancyResult, format_parameters
 
-__all__ = ["result_to_dict", "write_json", "write_figures", "write_report", "write_validation",
-           "confusion_html"]
+__all__ = [
+    "confusion_html",
+    "result_to_dict",
+    "write_figures",
+    "write_json",
+    "write_report",
+    "write_validation",
+]
 
 _UNITS = {"stroke_deg": "deg", "pitch_deg": "deg", "stroke_sensor_v": "V", "pitch_sensor_v": "V"}
 
 
-def result_to_dict(result: DiscrepancyResult, model_out: str,
-                   settings: Settings = Settings()) -> dict:
+def result_to_dict(
+    result: DiscrepancyResult, model_out: str, settings: Settings = Settings()
+) -> dict:
     """The discrepancy.json document.
 
     Keys: status, effects [{name, channel, parameters, evidence, explains}], gap_before,
@@ -42,18 +51,32 @@ def result_to_dict(result: DiscrepancyResult, model_out: str,
     parameters {value, stderr}, gap_before, gap_after, candidates_beaten, evidence}] (terms from
     the library, hypotheses), discovery_candidates (every term tried, per step).
     """
+
     def diag(d: Any) -> dict:
         return {c: asdict(g) for c, g in d.channels.items()}
 
     searches = []
     for s in result.searches:
-        searches.append({"channel": s.channel, "truth_referenced": s.truth_referenced,
-                         "skipped": s.skipped, "steps": [
-            [ev.as_dict() for ev in step] for step in s.steps]})
+        searches.append(
+            {
+                "channel": s.channel,
+                "truth_referenced": s.truth_referenced,
+                "skipped": s.skipped,
+                "steps": [[ev.as_dict() for ev in step] for step in s.steps],
+            }
+        )
     doc = {
         "status": result.status,
-        "effects": [{"name": e.name, "channel": e.channel, "parameters": e.parameters,
-                     "evidence": e.evidence, "explains": list(e.explains)} for e in result.effects],
+        "effects": [
+            {
+                "name": e.name,
+                "channel": e.channel,
+                "parameters": e.parameters,
+                "evidence": e.evidence,
+                "explains": list(e.explains),
+            }
+            for e in result.effects
+        ],
         "gap_before": result.gap_before,
         "gap_after": result.gap_after,
         "model_out": model_out,
@@ -146,15 +169,42 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
             meas = before[c]["measured"][order]
             mb = before[c]["model"][order]
             ma = after[c]["model"][order]
-            lab = (lambda s: f"{s} ({run.name})")
-            axes[0, k].plot(f, np.abs(meas), markers[j % len(markers)], ms=3, mfc="none", color="k",
-                            label=lab("measured"))
-            axes[0, k].plot(f, np.abs(mb), "-", lw=1, color="C0", alpha=0.8,
-                            label=lab("input model") if j == 0 else None)
-            axes[0, k].plot(f, np.abs(ma), "--", lw=1, color="C1", alpha=0.9,
-                            label=lab("output model") if j == 0 else None)
-            axes[1, k].plot(f, np.degrees(np.angle(meas)), markers[j % len(markers)], ms=3,
-                            mfc="none", color="k")
+            lab = lambda s: f"{s} ({run.name})"
+            axes[0, k].plot(
+                f,
+                np.abs(meas),
+                markers[j % len(markers)],
+                ms=3,
+                mfc="none",
+                color="k",
+                label=lab("measured"),
+            )
+            axes[0, k].plot(
+                f,
+                np.abs(mb),
+                "-",
+                lw=1,
+                color="C0",
+                alpha=0.8,
+                label=lab("input model") if j == 0 else None,
+            )
+            axes[0, k].plot(
+                f,
+                np.abs(ma),
+                "--",
+                lw=1,
+                color="C1",
+                alpha=0.9,
+                label=lab("output model") if j == 0 else None,
+            )
+            axes[1, k].plot(
+                f,
+                np.degrees(np.angle(meas)),
+                markers[j % len(markers)],
+                ms=3,
+                mfc="none",
+                color="k",
+            )
             axes[1, k].plot(f, np.degrees(np.angle(mb)), "-", lw=1, color="C0", alpha=0.8)
             axes[1, k].plot(f, np.degrees(np.angle(ma)), "--", lw=1, color="C1", alpha=0.9)
     for k, c in enumerate(CHANNELS):
@@ -187,31 +237,47 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
         ax.grid(True, axis="y", alpha=0.3)
         shown = np.concatenate([before, after])
         shown = shown[np.isfinite(shown) & (shown > 0)]
-        if shown.size:   # log: the output model's error is often 100x below the input model's
+        if shown.size:  # log: the output model's error is often 100x below the input model's
             ax.set_yscale("log")
             ax.set_ylim(shown.min() / 2, shown.max() * 4)
             if np.any(np.concatenate([before, after]) == 0):
-                ax.text(0.98, 0.97, "no bar: error at the noise", ha="right", va="top", fontsize=7,
-                        color="0.35", transform=ax.transAxes)
+                ax.text(
+                    0.98,
+                    0.97,
+                    "no bar: error at the noise",
+                    ha="right",
+                    va="top",
+                    fontsize=7,
+                    color="0.35",
+                    transform=ax.transAxes,
+                )
         else:
             ax.set_yticks([])
-            ax.text(0.5, 0.5, "no model error above the noise\nin any band",
-                    ha="center", va="center", fontsize=8, color="0.4", transform=ax.transAxes)
+            ax.text(
+                0.5,
+                0.5,
+                "no model error above the noise\nin any band",
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="0.4",
+                transform=ax.transAxes,
+            )
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
     fig.savefig(path, dpi=100)
 
 
-def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int,
-                    path: Path) -> None:
+def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int, path: Path) -> None:
     """Residual of the channel a discovered term closes, on the first three runs: without and with
     it.
     """
     d = result.discovered[index]
     c = d.channel
-    without = replace(result.model_out, discovered=tuple(
-        t for t in result.model_out.discovered if t != d.term))
+    without = replace(
+        result.model_out, discovered=tuple(t for t in result.model_out.discovered if t != d.term)
+    )
     runs = list(runs)[:3]
     before = simulate_runs([without], runs)[0]
     fig = Figure(figsize=(9, 2.2 * len(runs)))
@@ -231,26 +297,46 @@ def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict
     out = []
     for i, d in enumerate(result.discovered):
         t = d.term
-        where = {"stroke_dynamics": "a torque (N m) in the stroke equation of motion",
-                 "pitch_dynamics": "a torque (N m) in the pitch equation of motion",
-                 "drive": "volts added to the drive before the actuator"}.get(
-            t.acts_on, f"volts added to {t.acts_on} (voltages measured from V_HREF)")
-        params = ", ".join(f"{k} = {_f(v)} (SE {_f(d.stderr.get(k))})"
-                           for k, v in [("coefficient", t.coefficient), *t.shape])
-        beaten = [[b["term"], b["acts_on"], b["expression"] or "-", b["heldout_nrmse_after"],
-                   b["nrmse_margin"], ", ".join(b["failed_rules"]) or "passed, lost on error"]
-                  for b in d.beaten]
-        out.append({
-            "title": f"{t.row.words.capitalize()} on {t.acts_on}",
-            "equation": f"{t.acts_on} += {t.expression}",
-            "words": f"{t.row.words.capitalize()}, acting as {where}; such a term stands for "
-                     f"{t.row.examples or 'physics the vocabulary does not name'}.",
-            "parameters": params,
-            "gap": _table(["channel", "held-out NRMSE without", "held-out NRMSE with"],
-                          [[c, d.gap_before[c], d.gap_after[c]] for c in CHANNELS]),
-            "beaten": _table(["candidate", "acts on", "fitted", "held-out NRMSE", "margin",
-                              "failed rules"], beaten) if beaten else None,
-            "fig": figs.get(f"discovered_{i}")})
+        where = {
+            "stroke_dynamics": "a torque (N m) in the stroke equation of motion",
+            "pitch_dynamics": "a torque (N m) in the pitch equation of motion",
+            "drive": "volts added to the drive before the actuator",
+        }.get(t.acts_on, f"volts added to {t.acts_on} (voltages measured from V_HREF)")
+        params = ", ".join(
+            f"{k} = {_f(v)} (SE {_f(d.stderr.get(k))})"
+            for k, v in [("coefficient", t.coefficient), *t.shape]
+        )
+        beaten = [
+            [
+                b["term"],
+                b["acts_on"],
+                b["expression"] or "-",
+                b["heldout_nrmse_after"],
+                b["nrmse_margin"],
+                ", ".join(b["failed_rules"]) or "passed, lost on error",
+            ]
+            for b in d.beaten
+        ]
+        out.append(
+            {
+                "title": f"{t.row.words.capitalize()} on {t.acts_on}",
+                "equation": f"{t.acts_on} += {t.expression}",
+                "words": f"{t.row.words.capitalize()}, acting as {where}; such a term stands for "
+                f"{t.row.examples or 'physics the vocabulary does not name'}.",
+                "parameters": params,
+                "gap": _table(
+                    ["channel", "held-out NRMSE without", "held-out NRMSE with"],
+                    [[c, d.gap_before[c], d.gap_after[c]] for c in CHANNELS],
+                ),
+                "beaten": _table(
+                    ["candidate", "acts on", "fitted", "held-out NRMSE", "margin", "failed rules"],
+                    beaten,
+                )
+                if beaten
+                else None,
+                "fig": figs.get(f"discovered_{i}"),
+            }
+        )
     return out
 
 
@@ -278,9 +364,12 @@ TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
 
 
 def _environment() -> Environment:
-    return Environment(loader=FileSystemLoader(TEMPLATES),
-                       autoescape=select_autoescape(["html", "j2"]), trim_blocks=True,
-                       lstrip_blocks=True)
+    return Environment(
+        loader=FileSystemLoader(TEMPLATES),
+        autoescape=select_autoescape(["html", "j2"]),
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
 
 
 def _f(v: Any, digits: int = 4) -> str:
@@ -303,18 +392,56 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> dict:
 
 def _confusion(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] = ()) -> dict:
     """A confusion table (true vs found), cells marked right or wrong, and the per-case outcomes."""
-    rows = [{"label": r, "cells": [
-        {"text": n or "", "cls": ("ok" if _label_match(r, col) else "bad") if n else ""} for col,
-        n in zip(table["columns"], counts)]} for r, counts in zip(table["rows"], table["counts"])]
-    cases = (_table(["case", "true", "found", "status", "correct", "parameter errors",
-                     "gap reduction", "problems", "time s"], [
-        [o["case"], o["true"], o["found"], o["status"], o["correct"],
-         ", ".join(f"{k}: {v:.1%}" for k, v in (o.get("parameter_errors") or {}).items()),
-         ", ".join(f"{k}: {v:.0%}" for k, v in (o.get("gap_reduction") or {}).items()),
-         "; ".join(o.get("problems") or []), o.get("elapsed_s")] for o in outcomes])
-             if outcomes else None)
-    return {"correct": table["correct"], "total": table["total"], "columns": list(table["columns"]),
-            "rows": rows, "cases": cases}
+    rows = [
+        {
+            "label": r,
+            "cells": [
+                {"text": n or "", "cls": ("ok" if _label_match(r, col) else "bad") if n else ""}
+                for col, n in zip(table["columns"], counts)
+            ],
+        }
+        for r, counts in zip(table["rows"], table["counts"])
+    ]
+    cases = (
+        _table(
+            [
+                "case",
+                "true",
+                "found",
+                "status",
+                "correct",
+                "parameter errors",
+                "gap reduction",
+                "problems",
+                "time s",
+            ],
+            [
+                [
+                    o["case"],
+                    o["true"],
+                    o["found"],
+                    o["status"],
+                    o["correct"],
+                    ", ".join(
+                        f"{k}: {v:.1%}" for k, v in (o.get("parameter_errors") or {}).items()
+                    ),
+                    ", ".join(f"{k}: {v:.0%}" for k, v in (o.get("gap_reduction") or {}).items()),
+                    "; ".join(o.get("problems") or []),
+                    o.get("elapsed_s"),
+                ]
+                for o in outcomes
+            ],
+        )
+        if outcomes
+        else None
+    )
+    return {
+        "correct": table["correct"],
+        "total": table["total"],
+        "columns": list(table["columns"]),
+        "rows": rows,
+        "cases": cases,
+    }
 
 
 def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] = ()) -> str:
@@ -331,95 +458,241 @@ def _label_match(true: str, found: str) -> bool:
 
 def _rules(s: Settings) -> dict[str, str]:
     """The decision rules' numbers, as the report states them."""
-    return {"gap_noise_ratio": f"{s.gap_noise_ratio:g}",
-            "whiteness_decimate": f"{s.whiteness_decimate}",
-            "ljung_box_lags": f"{s.ljung_box_lags}", "whiteness_alpha": f"{s.whiteness_alpha:g}",
-            "min_heldout_drop": f"{s.min_heldout_drop:.0%}",
-            "max_delta_bic": f"{s.max_delta_bic:g}", "min_z": f"{s.min_z:g}",
-            "consistency_alpha": f"{s.consistency_alpha:g}",
-            "consistency_rel_tol": f"{s.consistency_rel_tol:.0%}",
-            "max_effects_per_channel": f"{s.max_effects_per_channel}"}
+    return {
+        "gap_noise_ratio": f"{s.gap_noise_ratio:g}",
+        "whiteness_decimate": f"{s.whiteness_decimate}",
+        "ljung_box_lags": f"{s.ljung_box_lags}",
+        "whiteness_alpha": f"{s.whiteness_alpha:g}",
+        "min_heldout_drop": f"{s.min_heldout_drop:.0%}",
+        "max_delta_bic": f"{s.max_delta_bic:g}",
+        "min_z": f"{s.min_z:g}",
+        "consistency_alpha": f"{s.consistency_alpha:g}",
+        "consistency_rel_tol": f"{s.consistency_rel_tol:.0%}",
+        "max_effects_per_channel": f"{s.max_effects_per_channel}",
+    }
 
 
-def _context(runs: Sequence[Run], result: DiscrepancyResult, doc: Mapping[str, Any],
-             figs: Mapping[str, str], settings: Settings,
-             validation: Optional[Mapping[str, Any]]) -> dict:
+def _context(
+    runs: Sequence[Run],
+    result: DiscrepancyResult,
+    doc: Mapping[str, Any],
+    figs: Mapping[str, str],
+    settings: Settings,
+    validation: Mapping[str, Any] | None,
+) -> dict:
     """Everything report.html shows, as plain values for the template."""
     plant = None
     if result.plant_parameters:
         notes = list(result.plant_fit.inseparable) if result.plant_fit is not None else []
         notes += [f"{d['effect']} is not searched for: {d['reason']}" for d in result.not_separable]
-        plant = {"table": _table(["parameter", "fitted", "model", "change",
-                                  "standard error (identification)"], [
-            [k, p["value"], p["nominal"], f"{p['value'] / p['nominal'] - 1.0:+.2%}",
-             p["stderr"]] for k, p in result.plant_parameters.items()]), "notes": notes}
+        plant = {
+            "table": _table(
+                ["parameter", "fitted", "model", "change", "standard error (identification)"],
+                [
+                    [
+                        k,
+                        p["value"],
+                        p["nominal"],
+                        f"{p['value'] / p['nominal'] - 1.0:+.2%}",
+                        p["stderr"],
+                    ]
+                    for k, p in result.plant_parameters.items()
+                ],
+            ),
+            "notes": notes,
+        }
     effects = None
     if result.effects:
         rows = []
         for e in result.effects:
             ev = e.evidence
             rules = ev.get("rules") or {}
-            rows.append([e.name, e.channel, format_parameters(e.parameters),
-                         ", ".join(ev.get("candidate", "").split("+")), ev.get("heldout_gap_drop"),
-                         ev.get("delta_bic_heldout"), ", ".join(
-                _f(z) for z in ev.get("z_from_null") or []),
-                         ", ".join(_f(p) for p in ev.get("consistency_p") or []),
-                         ", ".join(k for k, v in rules.items() if v), ", ".join(e.explains)])
-        effects = _table(["effect", "found on", "parameters", "candidate", "held-out gap drop",
-                          "held-out dBIC", "z from null", "consistency p", "rules passed",
-                          "can change"], rows)
-    remaining = _table(["channel", "worst band Hz", "full/low drive error ratio", "worst stretch",
-                        "model-error NRMSE", "reading"], [
-        [r["channel"], r["band_hz"], r["drive_level_ratio"],
-         f"{r['stretch'][0]} {r['stretch'][1]:.3f}-{r['stretch'][2]:.3f} s", r["model_error_nrmse"],
-         r["note"]] for r in result.remaining]) if result.remaining else None
+            rows.append(
+                [
+                    e.name,
+                    e.channel,
+                    format_parameters(e.parameters),
+                    ", ".join(ev.get("candidate", "").split("+")),
+                    ev.get("heldout_gap_drop"),
+                    ev.get("delta_bic_heldout"),
+                    ", ".join(_f(z) for z in ev.get("z_from_null") or []),
+                    ", ".join(_f(p) for p in ev.get("consistency_p") or []),
+                    ", ".join(k for k, v in rules.items() if v),
+                    ", ".join(e.explains),
+                ]
+            )
+        effects = _table(
+            [
+                "effect",
+                "found on",
+                "parameters",
+                "candidate",
+                "held-out gap drop",
+                "held-out dBIC",
+                "z from null",
+                "consistency p",
+                "rules passed",
+                "can change",
+            ],
+            rows,
+        )
+    remaining = (
+        _table(
+            [
+                "channel",
+                "worst band Hz",
+                "full/low drive error ratio",
+                "worst stretch",
+                "model-error NRMSE",
+                "reading",
+            ],
+            [
+                [
+                    r["channel"],
+                    r["band_hz"],
+                    r["drive_level_ratio"],
+                    f"{r['stretch'][0]} {r['stretch'][1]:.3f}-{r['stretch'][2]:.3f} s",
+                    r["model_error_nrmse"],
+                    r["note"],
+                ]
+                for r in result.remaining
+            ],
+        )
+        if result.remaining
+        else None
+    )
     diagnosis = []
-    for label, d in (("input model", result.diagnosis_before),
-                     ("output model", result.diagnosis_after)):
+    for label, d in (
+        ("input model", result.diagnosis_before),
+        ("output model", result.diagnosis_after),
+    ):
         rows = []
         for c in CHANNELS:
             g = d.channels[c]
-            rows.append([c, g.has_gap, g.noise_ratio, g.ljung_box_p, g.xcorr_drive, g.worst_band_hz,
-                         g.level_ratio, ", ".join(
-                f"h{k}: {v:.0%}" for k, v in g.harmonic_fraction.items()),
-                         f"{g.worst_stretch[0]} {g.worst_stretch[1]:.3f}-{g.worst_stretch[2]:.3f} "
-                         "s",
-                         g.interpretation])
-        diagnosis.append((label, _table(
-            ["channel", "gap", "residual/noise", "Ljung-Box p", "xcorr with drive", "worst band Hz",
-             "full/low drive ratio", "harmonics of residual", "worst stretch", "reading"], rows)))
+            rows.append(
+                [
+                    c,
+                    g.has_gap,
+                    g.noise_ratio,
+                    g.ljung_box_p,
+                    g.xcorr_drive,
+                    g.worst_band_hz,
+                    g.level_ratio,
+                    ", ".join(f"h{k}: {v:.0%}" for k, v in g.harmonic_fraction.items()),
+                    f"{g.worst_stretch[0]} {g.worst_stretch[1]:.3f}-{g.worst_stretch[2]:.3f} s",
+                    g.interpretation,
+                ]
+            )
+        diagnosis.append(
+            (
+                label,
+                _table(
+                    [
+                        "channel",
+                        "gap",
+                        "residual/noise",
+                        "Ljung-Box p",
+                        "xcorr with drive",
+                        "worst band Hz",
+                        "full/low drive ratio",
+                        "harmonics of residual",
+                        "worst stretch",
+                        "reading",
+                    ],
+                    rows,
+                ),
+            )
+        )
     searches = []
     for s in result.searches:
-        rows = [[i, "+".join(ev.labels), ", ".join(_f(v) for v in ev.values), ev.heldout_gap_drop,
-                 ev.delta_bic_heldout, ", ".join(_f(z) for z in ev.z),
-                 ", ".join(_f(p) for p in ev.consistency_p), "; ".join(
-            " / ".join(f"{n}: {_f(v)}" for n, v, _ in pr) for pr in ev.per_run),
-                 ", ".join(k for k, v in ev.rules.items() if not v) or "-", "accepted"
-                 if ev.accepted else "refused"] for i, step in enumerate(s.steps) for ev in step]
-        searches.append({"title": s.channel + (" (truth-referenced)" if s.truth_referenced else ""),
-                         "skipped": s.skipped,
-                         "table": _table(
-            ["step", "candidate", "value", "held-out gap drop", "held-out dBIC", "z",
-             "consistency p", "per-run estimates", "failed rules", "verdict"], rows)})
+        rows = [
+            [
+                i,
+                "+".join(ev.labels),
+                ", ".join(_f(v) for v in ev.values),
+                ev.heldout_gap_drop,
+                ev.delta_bic_heldout,
+                ", ".join(_f(z) for z in ev.z),
+                ", ".join(_f(p) for p in ev.consistency_p),
+                "; ".join(" / ".join(f"{n}: {_f(v)}" for n, v, _ in pr) for pr in ev.per_run),
+                ", ".join(k for k, v in ev.rules.items() if not v) or "-",
+                "accepted" if ev.accepted else "refused",
+            ]
+            for i, step in enumerate(s.steps)
+            for ev in step
+        ]
+        searches.append(
+            {
+                "title": s.channel + (" (truth-referenced)" if s.truth_referenced else ""),
+                "skipped": s.skipped,
+                "table": _table(
+                    [
+                        "step",
+                        "candidate",
+                        "value",
+                        "held-out gap drop",
+                        "held-out dBIC",
+                        "z",
+                        "consistency p",
+                        "per-run estimates",
+                        "failed rules",
+                        "verdict",
+                    ],
+                    rows,
+                ),
+            }
+        )
     return {
-        "status": result.status, "summary": result.summary, "model_out": str(doc.get("model_out")),
-        "runs": [f"{r.name} ({r.n / r.fs_hz:.2f} s at {r.fs_hz:g} Hz, drive {r.drive_level_v:.0f} "
-                 "V)" for r in runs],
-        "gap": _table(["channel", "input model", "output model", "output model, in-sample",
-                       "noise floor", "noise RMS"],
-                      [[c, result.gap_before[c], result.gap_after[c], result.gap_in_sample_after[c],
-                        result.diagnosis_before.channels[c].noise_nrmse, result.noise[c]]
-                       for c in CHANNELS]), "figs": figs, "plant": plant, "effects": effects,
-        "remaining": remaining, "diagnosis": diagnosis, "searches": searches, "r": _rules(settings),
+        "status": result.status,
+        "summary": result.summary,
+        "model_out": str(doc.get("model_out")),
+        "runs": [
+            f"{r.name} ({r.n / r.fs_hz:.2f} s at {r.fs_hz:g} Hz, drive {r.drive_level_v:.0f} V)"
+            for r in runs
+        ],
+        "gap": _table(
+            [
+                "channel",
+                "input model",
+                "output model",
+                "output model, in-sample",
+                "noise floor",
+                "noise RMS",
+            ],
+            [
+                [
+                    c,
+                    result.gap_before[c],
+                    result.gap_after[c],
+                    result.gap_in_sample_after[c],
+                    result.diagnosis_before.channels[c].noise_nrmse,
+                    result.noise[c],
+                ]
+                for c in CHANNELS
+            ],
+        ),
+        "figs": figs,
+        "plant": plant,
+        "effects": effects,
+        "remaining": remaining,
+        "diagnosis": diagnosis,
+        "searches": searches,
+        "r": _rules(settings),
         "discovered": _discovered(result, figs),
         "validation": _confusion(validation["confusion"], validation.get("cases", ()))
-        if validation else None,
+        if validation
+        else None,
     }
 
 
-def write_report(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult, model_out: str,
-                 settings: Settings = Settings(),
-                 validation: Optional[Mapping[str, Any]] = None) -> dict:
+def write_report(
+    out_dir: Path,
+    runs: Sequence[Run],
+    result: DiscrepancyResult,
+    model_out: str,
+    settings: Settings = Settings(),
+    validation: Mapping[str, Any] | None = None,
+) -> dict:
     """Write discrepancy.json, the figures and report.html
     into `out_dir`; returns the JSON document.
     """
@@ -428,20 +701,34 @@ def write_report(out_dir: Path, runs: Sequence[Run], result: DiscrepancyResult, 
     doc = result_to_dict(result, model_out, settings)
     write_json(out_dir / "discrepancy.json", doc)
     figs = write_figures(out_dir, runs, result)
-    page = _environment().get_template("discrepancy_report.html.j2").render(
-        _context(runs, result, doc, figs, settings, validation))
+    page = (
+        _environment()
+        .get_template("discrepancy_report.html.j2")
+        .render(_context(runs, result, doc, figs, settings, validation))
+    )
     (out_dir / "report.html").write_text(page, encoding="utf-8")
     return doc
 
 
-def write_validation(out_dir: Path, outcomes: Sequence[Mapping[str, Any]],
-                     confusion: Mapping[str, Any], total_s: float) -> dict:
+def write_validation(
+    out_dir: Path,
+    outcomes: Sequence[Mapping[str, Any]],
+    confusion: Mapping[str, Any],
+    total_s: float,
+) -> dict:
     """Write validation.json and validation.html (confusion table of the dataset cases)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = {"confusion": confusion, "cases": list(outcomes), "total_s": total_s}
     write_json(out_dir / "validation.json", doc)
-    page = _environment().get_template("discrepancy_validation.html.j2").render(
-        n_cases=len(outcomes), total_s=f"{total_s:.0f}", confusion=_confusion(confusion, outcomes))
+    page = (
+        _environment()
+        .get_template("discrepancy_validation.html.j2")
+        .render(
+            n_cases=len(outcomes),
+            total_s=f"{total_s:.0f}",
+            confusion=_confusion(confusion, outcomes),
+        )
+    )
     (out_dir / "validation.html").write_text(page, encoding="utf-8")
     return json_safe(doc)

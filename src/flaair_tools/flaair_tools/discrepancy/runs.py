@@ -1,9 +1,10 @@
 """Measured runs, their validation and their simulation (channels, initial state, sensor chain)."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Optional, Sequence
 
 import numpy as np
 
@@ -20,10 +21,22 @@ from .vocabulary import (
     TRUTH_CHANNELS,
 )
 
-__all__ = ["CHANNELS", "TRUTH_CHANNELS", "SENSOR_CHANNELS", "STATUSES", "EFFECT_CHANNELS",
-           "DiscrepancyInputError", "Run", "check_runs", "initial_mechanical_state",
-           "simulate_runs", "simulate_motion", "mechanics_model", "sensor_voltage",
-           "measured_motion"]
+__all__ = [
+    "CHANNELS",
+    "EFFECT_CHANNELS",
+    "SENSOR_CHANNELS",
+    "STATUSES",
+    "TRUTH_CHANNELS",
+    "DiscrepancyInputError",
+    "Run",
+    "check_runs",
+    "initial_mechanical_state",
+    "measured_motion",
+    "mechanics_model",
+    "sensor_voltage",
+    "simulate_motion",
+    "simulate_runs",
+]
 
 # Initial state from the truth: a cubic fitted to the first INITIAL_WINDOW_S of each angle (at
 # least INITIAL_MIN_FRAMES finite samples, the window widened up to INITIAL_MAX_WINDOW_S for a
@@ -32,8 +45,11 @@ INITIAL_WINDOW_S = 1.0e-3
 INITIAL_MAX_WINDOW_S = 2.5e-3
 INITIAL_MIN_FRAMES = 8
 INITIAL_MIN_Z = 5.0  # standard errors from rest before a measured initial state is used
+
+
 class DiscrepancyInputError(ValueError):
     """Input the workflow cannot use; the message names the run and what is wrong."""
+
 
 # --------------------------------------------------------------------------------------- runs
 
@@ -59,7 +75,7 @@ class Run:
     pitch_sensor_v: np.ndarray
     stroke_deg: np.ndarray
     pitch_deg: np.ndarray
-    mechanical0: Optional[np.ndarray] = None
+    mechanical0: np.ndarray | None = None
 
     def channel(self, name: str) -> np.ndarray:
         """Measured record of one of `CHANNELS`."""
@@ -98,34 +114,41 @@ def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:
     if len(rates) > 1:
         detail = ", ".join(f"{r.name}: {float(r.fs_hz):g} Hz" for r in runs)
         raise DiscrepancyInputError(
-            f"runs have different sample rates ({detail}); resample them to one rate first")
+            f"runs have different sample rates ({detail}); resample them to one rate first"
+        )
     out = []
     for r in runs:
         fs = float(r.fs_hz)
         if not (math.isfinite(fs) and fs > 0):
             raise DiscrepancyInputError(
-                f"run {r.name}: sample rate {r.fs_hz!r} is not a positive number")
+                f"run {r.name}: sample rate {r.fs_hz!r} is not a positive number"
+            )
         arrays = {}
         n = None
-        for name in ("drive_v",) + CHANNELS:
+        for name in ("drive_v", *CHANNELS):
             a = np.asarray(getattr(r, name), dtype=np.float64)
             if a.ndim != 1:
                 raise DiscrepancyInputError(
-                    f"run {r.name}: column {name} must be one-dimensional, got shape {a.shape}")
+                    f"run {r.name}: column {name} must be one-dimensional, got shape {a.shape}"
+                )
             if n is None:
                 n = a.shape[0]
             elif a.shape[0] != n:
                 raise DiscrepancyInputError(
-                    f"run {r.name}: column {name} has {a.shape[0]} samples, drive_v has {n}")
+                    f"run {r.name}: column {name} has {a.shape[0]} samples, drive_v has {n}"
+                )
             arrays[name] = a
         if n < int(0.05 * fs):
             raise DiscrepancyInputError(
-                f"run {r.name}: only {n} samples ({n / fs:.3f} s); at least 0.05 s is needed")
-        for name in ("drive_v",) + SENSOR_CHANNELS:
+                f"run {r.name}: only {n} samples ({n / fs:.3f} s); at least 0.05 s is needed"
+            )
+        for name in ("drive_v", *SENSOR_CHANNELS):
             bad = ~np.isfinite(arrays[name])
             if bad.any():
-                raise DiscrepancyInputError(f"run {r.name}: column {name} has non-finite samples "
-                                            f"(first at sample {int(np.argmax(bad))})")
+                raise DiscrepancyInputError(
+                    f"run {r.name}: column {name} has non-finite samples "
+                    f"(first at sample {int(np.argmax(bad))})"
+                )
         for name in TRUTH_CHANNELS:
             finite = int(np.isfinite(arrays[name]).sum())
             if finite < max(16, n // 100):
@@ -136,7 +159,8 @@ def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:
                 )
         if not np.any(arrays["drive_v"] != 0):
             raise DiscrepancyInputError(
-                f"run {r.name}: drive_v is zero throughout; nothing excites the model")
+                f"run {r.name}: drive_v is zero throughout; nothing excites the model"
+            )
         x0 = initial_mechanical_state(arrays["stroke_deg"], arrays["pitch_deg"], fs)
         out.append(Run(str(r.name), fs, **arrays, mechanical0=x0))
     return tuple(out)
@@ -154,8 +178,9 @@ def _as_channels(out: SimOutput) -> dict[str, np.ndarray]:
     }
 
 
-def initial_mechanical_state(stroke_deg: np.ndarray, pitch_deg: np.ndarray,
-                             fs_hz: float) -> np.ndarray:
+def initial_mechanical_state(
+    stroke_deg: np.ndarray, pitch_deg: np.ndarray, fs_hz: float
+) -> np.ndarray:
     """[phi, phi', psi, psi'] at sample 0 (rad, rad/s) from the first ground-truth samples.
 
     A cubic in time is fitted (least squares) to each angle's finite samples in the first
@@ -168,7 +193,7 @@ def initial_mechanical_state(stroke_deg: np.ndarray, pitch_deg: np.ndarray,
     for k, angle in enumerate((stroke_deg, pitch_deg)):
         window = INITIAL_WINDOW_S
         while True:
-            n = max(4, int(round(window * fs_hz)))
+            n = max(4, round(window * fs_hz))
             seg = np.asarray(angle[:n], float)
             ok = np.isfinite(seg)
             if ok.sum() >= INITIAL_MIN_FRAMES or window >= INITIAL_MAX_WINDOW_S or n >= len(angle):
@@ -197,8 +222,9 @@ def simulate_motion(models: Sequence[Model], run: Run) -> SimOutput:
     return simulate_batch_from(run.drive_v, run.fs_hz, list(models), _x0(run))
 
 
-def simulate_runs(models: Sequence[Model],
-                  runs: Sequence[Run]) -> list[list[dict[str, np.ndarray]]]:
+def simulate_runs(
+    models: Sequence[Model], runs: Sequence[Run]
+) -> list[list[dict[str, np.ndarray]]]:
     """Simulate each model with each run's drive from the run's initial state (no noise).
 
     Returns
@@ -208,8 +234,10 @@ def simulate_runs(models: Sequence[Model],
     """
     models = list(models)
     per_run = [_as_channels(simulate_motion(models, run)) for run in runs]
-    return [[{c: per_run[j][c][i] for c in CHANNELS} for j in range(len(runs))]
-            for i in range(len(models))]
+    return [
+        [{c: per_run[j][c][i] for c in CHANNELS} for j in range(len(runs))]
+        for i in range(len(models))
+    ]
 
 
 def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
@@ -224,13 +252,21 @@ def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
 
 def mechanics_model(model: Model) -> Model:
     """`model` without its sensor effects and sensor terms: the part that sets the motion."""
-    return replace(model, effects=tuple(
-        (n, e) for n, e in model.effects if n not in SENSOR_EFFECTS), discovered=tuple(
-        t for t in model.discovered if t.acts_on not in SENSOR_CHANNELS))
+    return replace(
+        model,
+        effects=tuple((n, e) for n, e in model.effects if n not in SENSOR_EFFECTS),
+        discovered=tuple(t for t in model.discovered if t.acts_on not in SENSOR_CHANNELS),
+    )
 
 
-def sensor_voltage(model: Model, fs_hz: float, stroke_rad: np.ndarray, pitch_rad: np.ndarray,
-                   drive_v: np.ndarray, side: str) -> np.ndarray:
+def sensor_voltage(
+    model: Model,
+    fs_hz: float,
+    stroke_rad: np.ndarray,
+    pitch_rad: np.ndarray,
+    drive_v: np.ndarray,
+    side: str,
+) -> np.ndarray:
     """Charge-amplifier output of one sensor ('stroke' or 'pitch') for a given motion.
 
     The plant's own sensor chain (`flaair_sim.core.plant.sensor_chain`): used to try sensor effects
@@ -268,8 +304,9 @@ class MotionCache:
         return out
 
 
-def measured_motion(run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray,
-                    side: str) -> tuple[np.ndarray, np.ndarray]:
+def measured_motion(
+    run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray, side: str
+) -> tuple[np.ndarray, np.ndarray]:
     """Model motion with one angle replaced by the
     measured one (gaps: model + interpolated error).
     """
@@ -280,5 +317,3 @@ def measured_motion(run: Run, stroke_rad: np.ndarray, pitch_rad: np.ndarray,
     if not ok.all():
         err = np.interp(np.arange(err.size), np.flatnonzero(ok), err[ok])
     return (sim + err, pitch_rad) if side == "stroke" else (stroke_rad, sim + err)
-
-

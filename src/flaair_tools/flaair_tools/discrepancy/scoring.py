@@ -5,18 +5,27 @@ A case passes when the workflow names exactly the effects it must (none below th
 limit), finds their parameters within `PARAMETER_TOLERANCE`, and reduces the model error on every
 channel with a gap by at least `MIN_GAP_REDUCTION`.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 from .case import DatasetCase
 from .runs import CHANNELS
 from .workflow import DiscrepancyResult
 
-__all__ = ["PARAMETER_TOLERANCE", "MIN_GAP_REDUCTION", "CaseOutcome", "score_case",
-           "confusion_table", "expected_column", "found_label", "per_chain"]
+__all__ = [
+    "MIN_GAP_REDUCTION",
+    "PARAMETER_TOLERANCE",
+    "CaseOutcome",
+    "confusion_table",
+    "expected_column",
+    "found_label",
+    "per_chain",
+    "score_case",
+]
 
 PARAMETER_TOLERANCE = 0.15  # found parameters within 15 % of the truth
 MIN_GAP_REDUCTION = 0.5  # model-error NRMSE reduced by at least half on every channel with a gap
@@ -55,11 +64,19 @@ class CaseOutcome:
 
     def as_dict(self) -> dict:
         """JSON-ready outcome."""
-        return {"case": self.case, "true": self.true_label, "found": self.found_label,
-                "status": self.status, "expected_status": self.expected_status,
-                "found_effects": list(self.found), "parameter_errors": self.parameter_errors,
-                "gap_reduction": self.gap_reduction, "correct": self.correct,
-                "problems": list(self.problems), "elapsed_s": self.elapsed_s}
+        return {
+            "case": self.case,
+            "true": self.true_label,
+            "found": self.found_label,
+            "status": self.status,
+            "expected_status": self.expected_status,
+            "found_effects": list(self.found),
+            "parameter_errors": self.parameter_errors,
+            "gap_reduction": self.gap_reduction,
+            "correct": self.correct,
+            "problems": list(self.problems),
+            "elapsed_s": self.elapsed_s,
+        }
 
 
 def expected_column(true_label: str) -> str:
@@ -68,8 +85,9 @@ def expected_column(true_label: str) -> str:
     -> 'a'; 'below:a' -> 'none (gap left)').
     """
     parts = true_label.split("+")
-    names = "+".join(p for p in parts if p != "none"
-                     and not p.startswith(("outside:", "plant:", "below:")))
+    names = "+".join(
+        p for p in parts if p != "none" and not p.startswith(("outside:", "plant:", "below:"))
+    )
     gap = any(p.startswith(("outside:", "below:")) for p in parts)
     return (names or "none") + (" (gap left)" if gap else "")
 
@@ -93,18 +111,22 @@ def per_chain(params: dict) -> dict:
     a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain.
     """
     if _split(params):
-        return {side: {k: float(v) for k, v in p.items() if not isinstance(v, str)} for side,
-                p in params.items()}
+        return {
+            side: {k: float(v) for k, v in p.items() if not isinstance(v, str)}
+            for side, p in params.items()
+        }
     values = {k: float(v) for k, v in params.items() if not isinstance(v, str)}
     channel = params.get("channel")
     if channel is None:
         return {"": values}
-    return {side: dict(values) for side in (
-        ("stroke", "pitch") if channel == "both" else (channel,))}
+    return {
+        side: dict(values) for side in (("stroke", "pitch") if channel == "both" else (channel,))
+    }
 
 
-def score_case(case: DatasetCase, result: DiscrepancyResult,
-               elapsed_s: float = math.nan) -> CaseOutcome:
+def score_case(
+    case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan
+) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""
     problems = []
     found = tuple(sorted(e.name for e in result.effects))
@@ -115,7 +137,8 @@ def score_case(case: DatasetCase, result: DiscrepancyResult,
     if found != case.expected_names:
         problems.append(
             f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
-            + (f" + outside:{case.outside}" if case.outside else ""))
+            + (f" + outside:{case.outside}" if case.outside else "")
+        )
     by_name = {e.name: e for e in result.effects}
     for name, params in case.effects:
         if name not in by_name:
@@ -128,8 +151,9 @@ def score_case(case: DatasetCase, result: DiscrepancyResult,
             for key, value in values.items():
                 got = float(got_sides[side][key])
                 rel = abs(got - value) / abs(value) if value else abs(got)
-                label = f"{name}.{key}" + (f"[{side}]" if len(hidden) > 1 and _split(params)
-                                           else "")
+                label = f"{name}.{key}" + (
+                    f"[{side}]" if len(hidden) > 1 and _split(params) else ""
+                )
                 errors[label] = max(rel, errors.get(label, 0.0))
                 if rel > PARAMETER_TOLERANCE:
                     problems.append(f"{label} = {got:.4g}, hidden {value:.4g} ({rel:.0%} off)")
@@ -137,7 +161,8 @@ def score_case(case: DatasetCase, result: DiscrepancyResult,
         gap_channels = {r["channel"] for r in result.remaining}
         if case.expected_gap_channel not in gap_channels:
             problems.append(
-                f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})")
+                f"no gap reported on {case.expected_gap_channel} (gaps: {sorted(gap_channels)})"
+            )
     elif case.below_limit:
         if not result.remaining:
             problems.append("no gap reported")
@@ -151,10 +176,19 @@ def score_case(case: DatasetCase, result: DiscrepancyResult,
             reduction[c] = 1.0 - after / before if before > 0 else 0.0
             if reduction[c] < MIN_GAP_REDUCTION:
                 problems.append(f"{c}: gap reduced by {reduction[c]:.0%} only")
-    return CaseOutcome(case=case.name, true_label=case.true_label, found_label=found_label(result),
-                       status=result.status, expected_status=case.expected_status, found=found,
-                       parameter_errors=errors, gap_reduction=reduction, correct=not problems,
-                       problems=tuple(problems), elapsed_s=elapsed_s)
+    return CaseOutcome(
+        case=case.name,
+        true_label=case.true_label,
+        found_label=found_label(result),
+        status=result.status,
+        expected_status=case.expected_status,
+        found=found,
+        parameter_errors=errors,
+        gap_reduction=reduction,
+        correct=not problems,
+        problems=tuple(problems),
+        elapsed_s=elapsed_s,
+    )
 
 
 def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
@@ -163,10 +197,17 @@ def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
     """
     rows = sorted({o.true_label for o in outcomes})
     cols = sorted({o.found_label for o in outcomes})
-    counts = [[sum(1 for o in outcomes if o.true_label == r and o.found_label == c)
-               for c in cols] for r in rows]
-    return {"rows": rows, "columns": cols, "counts": counts,
-            "correct": sum(o.correct for o in outcomes), "total": len(outcomes)}
+    counts = [
+        [sum(1 for o in outcomes if o.true_label == r and o.found_label == c) for c in cols]
+        for r in rows
+    ]
+    return {
+        "rows": rows,
+        "columns": cols,
+        "counts": counts,
+        "correct": sum(o.correct for o in outcomes),
+        "total": len(outcomes),
+    }
 
 
 # ------------------------------------------------------------------ randomized off-nominal robots

@@ -1,9 +1,10 @@
 """Greedy, channel-by-channel search for the missing effects."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -61,8 +62,10 @@ CHANNEL_ORDER = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
 def channel_has_gap(ctx: AnalysisContext, model: Model, channel: str, truth_ref: bool) -> bool:
     """The gap test of one channel (noise ratio and whiteness only)."""
     sims = simulate_runs([model], ctx.runs)[0]
-    res = [channel_residual(run, sim, channel, model, truth_referenced=truth_ref) for run,
-           sim in zip(ctx.runs, sims)]
+    res = [
+        channel_residual(run, sim, channel, model, truth_referenced=truth_ref)
+        for run, sim in zip(ctx.runs, sims)
+    ]
     sigma = ctx.noise[channel]
     if truth_ref:
         g = sensor_gain_v_per_deg(model, channel)
@@ -74,8 +77,13 @@ def _other_side(side: str) -> str:
     return "pitch" if side == "stroke" else "stroke"
 
 
-def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequence[EffectSpec],
-           reopen: Sequence[str] = ()) -> Optional[str]:
+def _offer(
+    model_in: Model,
+    current: Model,
+    spec: EffectSpec,
+    found_here: Sequence[EffectSpec],
+    reopen: Sequence[str] = (),
+) -> str | None:
     """'new', 'merge' (the other sensor has the effect: fit this chain's own value, then merge to
     'both' or keep one value per chain, rule R5) or None (not offered). `reopen`: effects taken
     over from the other sensor at its value (shared test) whose own value on this chain is fitted.
@@ -92,14 +100,16 @@ def _offer(model_in: Model, current: Model, spec: EffectSpec, found_here: Sequen
     return "merge" if here is None or spec.name in reopen else None
 
 
-def _other_chain(model: Model, spec: EffectSpec,
-                 found: Sequence[FoundEffect]) -> tuple[float, float]:
+def _other_chain(
+    model: Model, spec: EffectSpec, found: Sequence[FoundEffect]
+) -> tuple[float, float]:
     """(value, standard error) of sensor effect `spec`
     on the other chain (found on the other sensor).
     """
     prev = next((f for f in found if f.name == spec.name), None)
-    se_prev = ((prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None
-               else math.inf)
+    se_prev = (
+        (prev.evidence.get("standard_errors") or [math.inf])[0] if prev is not None else math.inf
+    )
     other = model.effect_on(spec.name, _other_side(spec.channel_param))
     return float(getattr(other, spec.key)), float(se_prev)
 
@@ -114,8 +124,15 @@ def _own(model: Model, spec: EffectSpec) -> bool:
     return e is not None and e.channel == spec.channel_param
 
 
-def polish(ctx: AnalysisContext, base: Model, specs: Sequence[EffectSpec], current: Model,
-           channel: str, truth_ref: bool, folds: Optional[Sequence[Fold]] = None) -> Model:
+def polish(
+    ctx: AnalysisContext,
+    base: Model,
+    specs: Sequence[EffectSpec],
+    current: Model,
+    channel: str,
+    truth_ref: bool,
+    folds: Sequence[Fold] | None = None,
+) -> Model:
     """Joint least-squares re-fit of `specs` (effects of one channel and the plant parameters
     fitted along with them), from their values in `current`; `base` lacks those effects.
     """
@@ -151,21 +168,30 @@ class _ChannelState:
     model: Model
     specs: list
     evidence: dict  # effect name -> CandidateEvidence that added it
-    last: Optional[CandidateEvidence] = None
+    last: CandidateEvidence | None = None
     reopen: tuple = ()  # effects taken over from the other sensor at its value (shared test)
 
 
-def _greedy(ctx: AnalysisContext, model_in: Model, state: _ChannelState, channel: str,
-            truth_ref: bool, found: Sequence[FoundEffect], steps: list,
-            max_steps: int) -> tuple[_ChannelState, bool, list]:
+def _greedy(
+    ctx: AnalysisContext,
+    model_in: Model,
+    state: _ChannelState,
+    channel: str,
+    truth_ref: bool,
+    found: Sequence[FoundEffect],
+    steps: list,
+    max_steps: int,
+) -> tuple[_ChannelState, bool, list]:
     """Forward selection on one channel; returns (state, has_gap, first-step single evaluations)."""
     has_gap = channel_has_gap(ctx, state.model, channel, truth_ref)
     first = []
     for step in range(max_steps):
         if not has_gap:
             break
-        offers = [(g, _offer(model_in, state.model, g[0], state.specs, state.reopen))
-                  for g in _groups(ctx, channel, state.model)]
+        offers = [
+            (g, _offer(model_in, state.model, g[0], state.specs, state.reopen))
+            for g in _groups(ctx, channel, state.model)
+        ]
         offers = [(g, kind) for g, kind in offers if kind is not None]
         if not offers:
             break
@@ -179,9 +205,11 @@ def _greedy(ctx: AnalysisContext, model_in: Model, state: _ChannelState, channel
                 base = strip_effects(state.model, [s])
             ev, m = evaluate(ctx, base, list(group), channel, truth_ref, merge_with=merge)
             if kind == "merge":  # one value on both chains when they agree (R5), else one per chain
-                m = (with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
-                     if ev.same_on_both else with_effect_on(
-                    state.model, s.name, s.channel_param, {s.key: ev.values[0]}))
+                m = (
+                    with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
+                    if ev.same_on_both
+                    else with_effect_on(state.model, s.name, s.channel_param, {s.key: ev.values[0]})
+                )
             ev = _check_upstream_truth(ctx, ev, m, channel, s)
             evals.append((ev, m, tuple(group), kind))
         if step == 0:
@@ -192,24 +220,34 @@ def _greedy(ctx: AnalysisContext, model_in: Model, state: _ChannelState, channel
             break
         ev, m, chosen, _ = min(passing, key=lambda e: e[0].delta_bic_heldout)
         reopen = tuple(n for n in state.reopen if n not in {s.name for s in chosen})
-        state = _ChannelState(m, _join(
-            [s for s in state.specs if s.name not in state.reopen or s.name in reopen], chosen),
-                              {**state.evidence, **{s.name: ev for s in chosen}}, ev, reopen)
+        state = _ChannelState(
+            m,
+            _join(
+                [s for s in state.specs if s.name not in state.reopen or s.name in reopen], chosen
+            ),
+            {**state.evidence, **{s.name: ev for s in chosen}},
+            ev,
+            reopen,
+        )
         own = [s for s in state.specs if _own(state.model, s)]
         # Re-fit this channel's own effects whenever anything joined them, a shared (merged)
         # effect included: an efficiency fitted before a delay was found is biased by cos(w tau).
         # Likewise whenever parameters were fitted along (plant, shape): their per-run estimates
         # are correlated, so the pooled values are not the joint optimum on all runs.
-        if own and (len({s.name for s in state.specs if not s.is_plant}) >= 2
-                    or any(not s.tested for s in own)):
-            state.model = polish(ctx, strip_effects(state.model, own), own, state.model, channel,
-                                 truth_ref)
+        if own and (
+            len({s.name for s in state.specs if not s.is_plant}) >= 2
+            or any(not s.tested for s in own)
+        ):
+            state.model = polish(
+                ctx, strip_effects(state.model, own), own, state.model, channel, truth_ref
+            )
         has_gap = _refit_states_and_polish(ctx, state, channel, truth_ref)
     return state, has_gap, first
 
 
-def _refit_states_and_polish(ctx: AnalysisContext, state: _ChannelState, channel: str,
-                             truth_ref: bool) -> bool:
+def _refit_states_and_polish(
+    ctx: AnalysisContext, state: _ChannelState, channel: str, truth_ref: bool
+) -> bool:
     """After an effect joined `state` (modified in place): the runs' initial states fitted again
     (on a truth channel), then, while a gap is left, further joint re-fits of this channel's own
     parameters (`_polish_rounds`) and the states once more. Returns whether a gap is left.
@@ -232,12 +270,15 @@ def _refit_states(ctx: AnalysisContext, model: Model, channel: str) -> None:
     with the plant alone, or with the effects as they were).
     """
     if channel in TRUTH_CHANNELS and ctx.settings.identify:
-        _use_runs(ctx, identify_plant(
-            ctx.runs, model, ctx.noise, keys=(), state_channels=TRUTH_CHANNELS).runs)
+        _use_runs(
+            ctx,
+            identify_plant(ctx.runs, model, ctx.noise, keys=(), state_channels=TRUTH_CHANNELS).runs,
+        )
 
 
-def _polish_rounds(ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str,
-                   truth_ref: bool) -> Model:
+def _polish_rounds(
+    ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool
+) -> Model:
     """Joint re-fits of `specs` from `model` while a gap is left and each still lowers the cost
     by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times (`model` itself
     if none lowers it).
@@ -253,21 +294,24 @@ def _polish_rounds(ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpe
             break
         gain = 1.0 - trial_cost / cost
         model, cost = trial, trial_cost
-        if (gain < ctx.settings.polish_min_gain
-            or not channel_has_gap(ctx, model, channel, truth_ref)):
+        if gain < ctx.settings.polish_min_gain or not channel_has_gap(
+            ctx, model, channel, truth_ref
+        ):
             break
     return model
 
 
-def _channel_cost(ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str,
-                  truth_ref: bool) -> float:
+def _channel_cost(
+    ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool
+) -> float:
     """Weighted residual sum of squares of `model` on `channel` (the fit's own cost)."""
     problem = ctx.problem(channel, ctx.folds, truth_ref, strip_effects(model, specs))
     return sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
 
 
-def _check_upstream_truth(ctx: AnalysisContext, ev: CandidateEvidence, model: Model, channel: str,
-                          spec: EffectSpec) -> CandidateEvidence:
+def _check_upstream_truth(
+    ctx: AnalysisContext, ev: CandidateEvidence, model: Model, channel: str, spec: EffectSpec
+) -> CandidateEvidence:
     """R6: a stroke-physics effect judged on pitch_deg must leave stroke_deg without a gap."""
     if channel != "pitch_deg" or "stroke_deg" not in EFFECT_CHANNELS[spec.name] or not ev.accepted:
         return ev
@@ -276,8 +320,9 @@ def _check_upstream_truth(ctx: AnalysisContext, ev: CandidateEvidence, model: Mo
     return replace(ev, rules=rules, accepted=all(rules.values()))
 
 
-def _states_on_sensor(ctx: AnalysisContext, model: Model, channel: str,
-                      sensors_done: Sequence[str]) -> bool:
+def _states_on_sensor(
+    ctx: AnalysisContext, model: Model, channel: str, sensors_done: Sequence[str]
+) -> bool:
     """Fit the runs' initial states on the truth and on the sensors modelled so far (`sensors_done`,
     `channel`); keep them (True) only if that leaves
     `channel` without a gap and no gap anywhere else.
@@ -296,9 +341,15 @@ def _states_on_sensor(ctx: AnalysisContext, model: Model, channel: str,
     return True
 
 
-def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel: str,
-                    truth_ref: bool, found: Sequence[FoundEffect],
-                    sensors_done: Sequence[str] = ()) -> tuple[_ChannelState, bool, list]:
+def _search_channel(
+    ctx: AnalysisContext,
+    model_in: Model,
+    start: Model,
+    channel: str,
+    truth_ref: bool,
+    found: Sequence[FoundEffect],
+    sensors_done: Sequence[str] = (),
+) -> tuple[_ChannelState, bool, list]:
     """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left; on a
     sensor, a gap left is then tried against the runs' initial states fitted on the sensor, and
     last against the upstream plant refitted on it.
@@ -313,13 +364,16 @@ def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel
             ev, m = evaluate_shared(ctx, start, group, channel, truth_ref)
             steps.append((ev,))
             if ev.accepted:
-                state = _ChannelState(m, list(group), {s.name: ev for s in group}, ev,
-                                      tuple(s.name for s in group))
+                state = _ChannelState(
+                    m, list(group), {s.name: ev for s in group}, ev, tuple(s.name for s in group)
+                )
                 break
-    base_state = _ChannelState(state.model, list(state.specs), dict(state.evidence), state.last,
-                               state.reopen)
+    base_state = _ChannelState(
+        state.model, list(state.specs), dict(state.evidence), state.last, state.reopen
+    )
     state, has_gap, first = _greedy(
-        ctx, model_in, state, channel, truth_ref, found, steps, st.max_effects_per_channel)
+        ctx, model_in, state, channel, truth_ref, found, steps, st.max_effects_per_channel
+    )
     if has_gap and st.pair_fallback:
         singles = [e for e in first if e[3] in ("new", "merge")]
         best = None
@@ -327,8 +381,10 @@ def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel
             for j in range(i + 1, len(singles)):
                 a, b = singles[i], singles[j]
                 specs = _join(a[2], b[2])
-                start = {(s.name, s.key): v for s, v in zip(
-                    list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))}
+                start = {
+                    (s.name, s.key): v
+                    for s, v in zip(list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))
+                }
                 x_start = np.array([s.to_fit(start[(s.name, s.key)]) for s in specs])
                 ev, m = evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
                 for s in (a[2][0], b[2][0]):
@@ -337,23 +393,41 @@ def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel
                     # the other chain's effect: one value on both when they agree (R5)
                     if kind == "merge":
                         k = specs.index(s)
-                        merged = same_on_both(s, *_other_chain(base_state.model, s, found),
-                                              ev.values[k], ev.se[k], st)
+                        merged = same_on_both(
+                            s, *_other_chain(base_state.model, s, found), ev.values[k], ev.se[k], st
+                        )
                         if merged is not None:
                             m = with_effects(m, {s.name: s.params(merged, channel="both")})
                 steps.append((ev,))
-                if ev.accepted and (best is None
-                                    or ev.delta_bic_heldout < best[0].delta_bic_heldout):
+                if ev.accepted and (
+                    best is None or ev.delta_bic_heldout < best[0].delta_bic_heldout
+                ):
                     best = (ev, m, specs)
-        greedy_after = (state.last.heldout_nrmse_after if state.last is not None
-                        and state.specs != base_state.specs else math.inf)
+        greedy_after = (
+            state.last.heldout_nrmse_after
+            if state.last is not None and state.specs != base_state.specs
+            else math.inf
+        )
         if best is not None and best[0].heldout_nrmse_after < greedy_after:
             ev, m, specs = best
-            pair_state = _ChannelState(m, _join(base_state.specs, specs), {
-                **base_state.evidence, **{s.name: ev for s in specs}}, ev, base_state.reopen)
+            pair_state = _ChannelState(
+                m,
+                _join(base_state.specs, specs),
+                {**base_state.evidence, **{s.name: ev for s in specs}},
+                ev,
+                base_state.reopen,
+            )
             _refit_states_and_polish(ctx, pair_state, channel, truth_ref)
-            state, has_gap, _ = _greedy(ctx, model_in, pair_state, channel, truth_ref, found, steps,
-                                        max(st.max_effects_per_channel - 2, 0))
+            state, has_gap, _ = _greedy(
+                ctx,
+                model_in,
+                pair_state,
+                channel,
+                truth_ref,
+                found,
+                steps,
+                max(st.max_effects_per_channel - 2, 0),
+            )
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref and state.specs:
         has_gap = not _states_on_sensor(ctx, state.model, channel, sensors_done)
     if has_gap and channel in SENSOR_CHANNELS and st.identify and not truth_ref:
@@ -361,18 +435,23 @@ def _search_channel(ctx: AnalysisContext, model_in: Model, start: Model, channel
     return state, has_gap, steps
 
 
-def _refine_plant_on_sensor(ctx: AnalysisContext, state: _ChannelState,
-                            channel: str) -> tuple[_ChannelState, bool]:
+def _refine_plant_on_sensor(
+    ctx: AnalysisContext, state: _ChannelState, channel: str
+) -> tuple[_ChannelState, bool]:
     """The sensor resolves the motion far better than a video truth: a gap left on a sensor channel
     may be the fitted plant's own imprecision. Re-fit the upstream plant parameters on the sensor,
     jointly with the effects found on this sensor alone; keep them only if that closes the gap and
     the truth stays at noise.
     """
     truth = UPSTREAM_TRUTH[channel]
-    own = [s for s in state.specs if not s.is_plant and s.judged_on == channel
-           and _own(state.model, s)]
-    specs = own + [plant_spec(k, state.model, channel, rel_range=0.1) for k,
-                   c in PLANT_PARAMETERS.items() if c == truth]
+    own = [
+        s for s in state.specs if not s.is_plant and s.judged_on == channel and _own(state.model, s)
+    ]
+    specs = own + [
+        plant_spec(k, state.model, channel, rel_range=0.1)
+        for k, c in PLANT_PARAMETERS.items()
+        if c == truth
+    ]
     refined = polish(ctx, strip_effects(state.model, own), specs, state.model, channel, False)
     if channel_has_gap(ctx, refined, channel, False) or channel_has_gap(ctx, refined, truth, False):
         return state, True
@@ -384,9 +463,9 @@ def find_effects(
     model: Model,
     noise: Mapping[str, float],
     settings: Settings = Settings(),
-    progress: Optional[Callable[[str], None]] = None,
-    tracks: Optional[Sequence[tuple[np.ndarray, np.ndarray]]] = None,
-    nominal: Optional[Mapping[str, float]] = None,
+    progress: Callable[[str], None] | None = None,
+    tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
+    nominal: Mapping[str, float] | None = None,
 ) -> tuple[Model, tuple[FoundEffect, ...], tuple[ChannelSearch, ...], tuple[Run, ...]]:
     """Greedy, channel-by-channel search for the missing effects (rules in the module docstring).
 
@@ -412,40 +491,64 @@ def find_effects(
         if channel == "pitch_deg" and "stroke_deg" in unexplained_truth:
             if channel_has_gap(ctx, current, channel, False):
                 unexplained_truth.add(channel)
-            searches.append(ChannelSearch(
-                channel, False, "downstream of an unexplained stroke_deg gap", ()))
+            searches.append(
+                ChannelSearch(channel, False, "downstream of an unexplained stroke_deg gap", ())
+            )
             continue
         truth_ref = channel in SENSOR_CHANNELS and UPSTREAM_TRUTH[channel] in unexplained_truth
         if not channel_has_gap(ctx, current, channel, truth_ref):
             searches.append(ChannelSearch(channel, truth_ref, "no gap", ()))
             sensors_done += [channel] if channel in SENSOR_CHANNELS and not truth_ref else []
             continue
-        if (channel in SENSOR_CHANNELS and not truth_ref and settings.identify
-                and _states_on_sensor(ctx, current, channel, sensors_done)):
-            searches.append(ChannelSearch(channel, truth_ref, "no gap once the runs' initial "
-                                                              "states are fitted on this sensor "
-                                                              "too (a video-rate truth leaves them "
-                                                              "loose)", ()))
+        if (
+            channel in SENSOR_CHANNELS
+            and not truth_ref
+            and settings.identify
+            and _states_on_sensor(ctx, current, channel, sensors_done)
+        ):
+            searches.append(
+                ChannelSearch(
+                    channel,
+                    truth_ref,
+                    "no gap once the runs' initial "
+                    "states are fitted on this sensor "
+                    "too (a video-rate truth leaves them "
+                    "loose)",
+                    (),
+                )
+            )
             sensors_done.append(channel)
             continue
         state, has_gap, steps = _search_channel(
-            ctx, model, current, channel, truth_ref, found, sensors_done)
+            ctx, model, current, channel, truth_ref, found, sensors_done
+        )
         current = state.model
         for s in state.specs:
             if not s.tested:
                 continue
             ev = state.evidence.get(s.name)
-            found.append(FoundEffect(name=s.name, channel=channel, parameters={},
-                                     evidence=ev.as_dict() if ev is not None else {},
-                                     explains=EFFECT_CHANNELS[s.name]))
+            found.append(
+                FoundEffect(
+                    name=s.name,
+                    channel=channel,
+                    parameters={},
+                    evidence=ev.as_dict() if ev is not None else {},
+                    explains=EFFECT_CHANNELS[s.name],
+                )
+            )
         if has_gap and channel in TRUTH_CHANNELS:
             unexplained_truth.add(channel)
         if not has_gap and channel in SENSOR_CHANNELS and not truth_ref:
             sensors_done.append(channel)
         if channel == "stroke_deg" and state.specs and settings.identify and not has_gap:
             # the pitch parameters were identified under the old stroke motion: identify them again
-            fit = identify_plant(ctx.runs, current, noise, keys=[
-                k for k, c in PLANT_PARAMETERS.items() if c == "pitch_deg"], centre=nominal)
+            fit = identify_plant(
+                ctx.runs,
+                current,
+                noise,
+                keys=[k for k, c in PLANT_PARAMETERS.items() if c == "pitch_deg"],
+                centre=nominal,
+            )
             current = fit.model
             _use_runs(ctx, fit.runs)
         searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))
@@ -468,8 +571,11 @@ def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
 
 def _effect_params_dict(model: Model, name: str) -> dict:
     def clean(d: dict) -> dict:
-        return {k: clean(v) if isinstance(v, dict) else (v if isinstance(v, str) else float(v))
-                for k, v in d.items()}
+        return {
+            k: clean(v) if isinstance(v, dict) else (v if isinstance(v, str) else float(v))
+            for k, v in d.items()
+        }
+
     return clean(effect_params(model.effect(name)))
 
 
@@ -481,12 +587,13 @@ def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[Found
         params = _effect_params_dict(model, f.name)
         if f.name in by_name:
             prev = by_name[f.name]
-            by_name[f.name] = replace(prev, channel=f"{prev.channel}+{f.channel}",
-                                      parameters=params, evidence={
-                **prev.evidence, "merged_from": f.evidence})
+            by_name[f.name] = replace(
+                prev,
+                channel=f"{prev.channel}+{f.channel}",
+                parameters=params,
+                evidence={**prev.evidence, "merged_from": f.evidence},
+            )
         else:
             by_name[f.name] = replace(f, parameters=params)
             order.append(f.name)
     return [by_name[n] for n in order]
-
-

@@ -1,4 +1,5 @@
 """Decision rules and numerical settings of the discrepancy workflow."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -58,7 +59,18 @@ class Settings:
     max_polish_rounds: int = 3
     polish_min_gain: float = 0.005
     band_edges_hz: tuple[float, ...] = (
-        0.0, 40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 180.0, 200.0, 1e9)
+        0.0,
+        40.0,
+        60.0,
+        80.0,
+        100.0,
+        120.0,
+        140.0,
+        160.0,
+        180.0,
+        200.0,
+        1e9,
+    )
     window_s: float = 0.05
     xcorr_max_lag_s: float = 0.005
     xcorr_z: float = 5.0
@@ -66,5 +78,3 @@ class Settings:
     max_discovered_terms: int = 2
     discovery_shortlist: int = 3
     discovery_max_nfev: int = 100
-
-

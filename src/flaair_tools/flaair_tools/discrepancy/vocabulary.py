@@ -7,11 +7,11 @@ contact damping), the fitted plant parameters it trades off against (fitted join
 whether it can be told apart from a change of those plant parameters at all.
 `candidate_groups` turns it into the parameter sets the search fits.
 """
+
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Optional
 
 from flaair_model.effects import (
     EFFECTS,
@@ -71,7 +71,7 @@ class EffectSpec:
     grid: tuple[float, ...]
     step: float
     log: bool = False
-    channel_param: Optional[str] = None
+    channel_param: str | None = None
     tested: bool = True
 
     @property
@@ -97,7 +97,7 @@ class EffectSpec:
     @property
     def term_place(self) -> tuple[str, str]:
         """(kind, site) of a library term's spec."""
-        kind, site = self.name[len(TERM_PREFIX):].split("@")
+        kind, site = self.name[len(TERM_PREFIX) :].split("@")
         return kind, site
 
     def to_fit(self, value: float) -> float:
@@ -108,7 +108,7 @@ class EffectSpec:
         """Fit-space value -> physical parameter."""
         return math.exp(u) if self.log else float(u)
 
-    def params(self, value: float, channel: Optional[str] = None) -> dict:
+    def params(self, value: float, channel: str | None = None) -> dict:
         """Effect parameter dict for the model."""
         p: dict = {self.key: float(value)}
         if self.channel_param is not None:
@@ -123,8 +123,13 @@ class EffectSpec:
 TERM_PREFIX = "term:"
 
 
-def term_specs(kind: TermKind, site: str, channel: str, coefficient_scale: float,
-               shape_start: Optional[dict] = None) -> tuple[EffectSpec, ...]:
+def term_specs(
+    kind: TermKind,
+    site: str,
+    channel: str,
+    coefficient_scale: float,
+    shape_start: dict | None = None,
+) -> tuple[EffectSpec, ...]:
     """The fittable parameters of library term `kind` at `site`, judged on `channel`.
 
     The coefficient (null 0, tested) within +-`coefficient_scale` (the size of the feature's
@@ -132,11 +137,33 @@ def term_specs(kind: TermKind, site: str, channel: str, coefficient_scale: float
     """
     name = f"{TERM_PREFIX}{kind.name}@{site}"
     scale = float(coefficient_scale)
-    specs = [EffectSpec(name, "coefficient", channel, 0.0, -scale, scale,
-                        (-0.1 * scale, 0.1 * scale), 1e-4 * scale)]
+    specs = [
+        EffectSpec(
+            name,
+            "coefficient",
+            channel,
+            0.0,
+            -scale,
+            scale,
+            (-0.1 * scale, 0.1 * scale),
+            1e-4 * scale,
+        )
+    ]
     for sh in kind.shape:
-        specs.append(EffectSpec(name, sh.key, channel, (shape_start or {}).get(sh.key, sh.grid[0]),
-                                sh.lower, sh.upper, (), 1e-3, log=True, tested=False))
+        specs.append(
+            EffectSpec(
+                name,
+                sh.key,
+                channel,
+                (shape_start or {}).get(sh.key, sh.grid[0]),
+                sh.lower,
+                sh.upper,
+                (),
+                1e-3,
+                log=True,
+                tested=False,
+            )
+        )
     return tuple(specs)
 
 
@@ -170,21 +197,36 @@ class VocabularyEntry:
     note: str = ""
 
 
-VOCABULARY: tuple[VocabularyEntry, ...] = (
-    tuple(VocabularyEntry(e.name, e.acts_on, e.searched_on, e.fit, e.per_sensor, e.trades_off,
-                          e.separable, e.note) for e in EFFECTS))
+VOCABULARY: tuple[VocabularyEntry, ...] = tuple(
+    VocabularyEntry(
+        e.name, e.acts_on, e.searched_on, e.fit, e.per_sensor, e.trades_off, e.separable, e.note
+    )
+    for e in EFFECTS
+)
 ENTRIES: dict[str, VocabularyEntry] = {e.name: e for e in VOCABULARY}
 # Which measured channels each effect can possibly change (the model's structure).
 EFFECT_CHANNELS: dict[str, tuple[str, ...]] = {e.name: e.acts_on for e in VOCABULARY}
-SENSOR_EFFECTS: tuple[str, ...] = (
-    tuple(e.name for e in VOCABULARY if set(e.acts_on) <= set(SENSOR_CHANNELS)))
+SENSOR_EFFECTS: tuple[str, ...] = tuple(
+    e.name for e in VOCABULARY if set(e.acts_on) <= set(SENSOR_CHANNELS)
+)
 NOT_SEPARABLE: tuple[str, ...] = tuple(e.name for e in VOCABULARY if not e.separable)
 
 
 def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> EffectSpec:
     side = SENSOR_SIDE.get(channel) if entry.per_sensor else None
-    return EffectSpec(entry.name, p.key, channel, p.null, p.lower, p.upper, p.grid, p.step, p.log,
-                      channel_param=side, tested=first)
+    return EffectSpec(
+        entry.name,
+        p.key,
+        channel,
+        p.null,
+        p.lower,
+        p.upper,
+        p.grid,
+        p.step,
+        p.log,
+        channel_param=side,
+        tested=first,
+    )
 
 
 def _order(channel: str) -> list[VocabularyEntry]:
@@ -206,12 +248,23 @@ def plant_spec(key: str, model: Model, channel: str, rel_range: float = 0.5) -> 
     within x(1 -+ rel_range) of its value in `model`).
     """
     v = float(getattr(model.plant, key))
-    return EffectSpec("plant", key, channel, v, v * (1.0 - rel_range), v * (1.0 + rel_range), (),
-                      1e-4, log=True, tested=False)
+    return EffectSpec(
+        "plant",
+        key,
+        channel,
+        v,
+        v * (1.0 - rel_range),
+        v * (1.0 + rel_range),
+        (),
+        1e-4,
+        log=True,
+        tested=False,
+    )
 
 
-def candidate_groups(channel: str,
-                     plant: Optional[Model] = None) -> tuple[tuple[EffectSpec, ...], ...]:
+def candidate_groups(
+    channel: str, plant: Model | None = None
+) -> tuple[tuple[EffectSpec, ...], ...]:
     """The parameter sets the search fits on `channel`: every separable effect whole, with the
     fitted plant parameters it trades off against (when `plant` is given; those that the channel
     sees: the stroke parameters on either truth channel, the pitch ones on pitch_deg).
@@ -222,8 +275,11 @@ def candidate_groups(channel: str,
             continue
         specs = [_spec(e, p, channel, i == 0) for i, p in enumerate(e.params)]
         if plant is not None and channel in TRUTH_CHANNELS:
-            specs += [plant_spec(k, plant, channel) for k in e.trades_off
-                      if channel == "pitch_deg" or PLANT_PARAMETERS[k] == channel]
+            specs += [
+                plant_spec(k, plant, channel)
+                for k in e.trades_off
+                if channel == "pitch_deg" or PLANT_PARAMETERS[k] == channel
+            ]
         groups.append(tuple(specs))
     return tuple(groups)
 

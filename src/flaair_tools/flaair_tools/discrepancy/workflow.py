@@ -1,9 +1,10 @@
 """The whole workflow: identify the plant, compare, localise, name, refit, decide the status."""
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Callable, Mapping, Optional, Sequence
 
 from flaair_model.model import Model, ModelError, effect_params
 from flaair_sim.core.plant import simulate
@@ -80,7 +81,7 @@ class DiscrepancyResult:
     sims_after: tuple
     summary: str
     run_names: tuple = ()
-    plant_fit: Optional[PlantFit] = None
+    plant_fit: PlantFit | None = None
     plant_parameters: dict = field(default_factory=dict)
     not_separable: tuple = ()
     approximate: tuple = ()
@@ -91,31 +92,47 @@ class DiscrepancyResult:
 # ------------------------------------------------------------------------- held-out gap after
 
 
-def _refit_on(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model,
-              folds: Sequence[Fold]) -> Model:
+def _refit_on(
+    ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model, folds: Sequence[Fold]
+) -> Model:
     """Re-fit the found effects' parameters on `folds`, channel by channel (upstream first)."""
     current = model_out
     for channel in CHANNEL_ORDER:
         side = SENSOR_SIDE.get(channel)
         # an effect is re-fitted where it was found; one with its own value per sensor chain on each
-        names = [f.name for f in effects if f.channel.split("+")[0] == channel
-                 or (side is not None and channel in f.channel.split("+")
-                     and getattr(current.effect_on(f.name, side), "channel", None) == side)]
+        names = [
+            f.name
+            for f in effects
+            if f.channel.split("+")[0] == channel
+            or (
+                side is not None
+                and channel in f.channel.split("+")
+                and getattr(current.effect_on(f.name, side), "channel", None) == side
+            )
+        ]
         specs: list = []
         for g in candidate_groups(channel, current if ctx.settings.identify else None):
             if g[0].name in names:
-                specs += [s for s in g if not (
-                    s.is_plant and any(t.is_plant and t.key == s.key for t in specs))]
+                specs += [
+                    s
+                    for s in g
+                    if not (s.is_plant and any(t.is_plant and t.key == s.key for t in specs))
+                ]
         if specs:
-            current = polish(ctx, strip_effects(current, specs), specs, current, channel, False,
-                             folds)
+            current = polish(
+                ctx, strip_effects(current, specs), specs, current, channel, False, folds
+            )
     return current
 
 
 def _heldout_nrmse(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model) -> dict:
     """Per-channel NRMSE of held-out predictions: each fold predicted by a re-fit on the others."""
-    per_fold = [_refit_on(ctx, effects, model_out, [g for i, g in enumerate(ctx.folds) if i != k])
-                if effects else model_out for k in range(len(ctx.folds))]
+    per_fold = [
+        _refit_on(ctx, effects, model_out, [g for i, g in enumerate(ctx.folds) if i != k])
+        if effects
+        else model_out
+        for k in range(len(ctx.folds))
+    ]
     return fold_nrmse(ctx.runs, ctx.folds, per_fold)
 
 
@@ -126,7 +143,7 @@ def analyse(
     runs: Sequence[Run],
     model: Model,
     settings: Settings = Settings(),
-    progress: Optional[Callable[[str], None]] = None,
+    progress: Callable[[str], None] | None = None,
 ) -> DiscrepancyResult:
     """The whole workflow: compare, localise, name, add, show the gap shrink, decide the status.
 
@@ -152,7 +169,8 @@ def analyse(
             simulate(r.drive_v[:8], r.fs_hz, model)
         except ModelError as exc:
             raise DiscrepancyInputError(
-                f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}") from None
+                f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}"
+            ) from None
     if progress:
         progress("compare")
     sims_before = simulate_runs([model], runs)[0]
@@ -169,48 +187,83 @@ def analyse(
         runs = plant_fit.runs  # with their initial states fitted along with the plant
         sims_fit = simulate_runs([base], runs)[0]
         diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
-    common = dict(model_in=model, gap_before=gap_before, noise=noise, diagnosis_before=diag_before,
-                  sims_before=tuple(sims_before), run_names=tuple(r.name for r in runs),
-                  plant_fit=plant_fit, not_separable=tuple(
-        {"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE) if settings.identify
-                  else ())
+    common = dict(
+        model_in=model,
+        gap_before=gap_before,
+        noise=noise,
+        diagnosis_before=diag_before,
+        sims_before=tuple(sims_before),
+        run_names=tuple(r.name for r in runs),
+        plant_fit=plant_fit,
+        not_separable=tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
+        if settings.identify
+        else (),
+    )
     if not diag_fit.gaps:
         gap_fit = nrmse_by_channel(runs, sims_fit)
-        return DiscrepancyResult(status="no_discrepancy", effects=(), model_out=base,
-                                 gap_after=gap_fit, gap_in_sample_after=dict(gap_fit),
-                                 diagnosis_after=diag_fit, searches=(), remaining=(),
-                                 sims_after=tuple(sims_fit), summary=_summary(
-            "no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)),
-                                 plant_parameters=_plant_parameters(model, base, plant_fit),
-                                 **common)
-    model_out, effects, searches, runs = (
-        find_effects(runs, base, noise, settings, progress, tracks,
-                     nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS}))
+        return DiscrepancyResult(
+            status="no_discrepancy",
+            effects=(),
+            model_out=base,
+            gap_after=gap_fit,
+            gap_in_sample_after=dict(gap_fit),
+            diagnosis_after=diag_fit,
+            searches=(),
+            remaining=(),
+            sims_after=tuple(sims_fit),
+            summary=_summary(
+                "no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)
+            ),
+            plant_parameters=_plant_parameters(model, base, plant_fit),
+            **common,
+        )
+    model_out, effects, searches, runs = find_effects(
+        runs,
+        base,
+        noise,
+        settings,
+        progress,
+        tracks,
+        nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS},
+    )
     ctx = AnalysisContext(runs, noise, settings, tracks)
     diag_after, remaining = _where_left(ctx, model_out, searches)
     discovery = None
     if remaining and settings.discover:
         gaps = {r["channel"] for r in remaining}
-        found_ctx = ctx if plant_fit is None else AnalysisContext(plant_fit.runs, noise, settings,
-                                                                   tracks)
-        discovery = discover(found_ctx, model_out, sorted(gaps), progress,
-                             [e for e in effects if gaps & set(e.explains)],
-                             plant_fit.model.plant if plant_fit is not None else None)
+        found_ctx = (
+            ctx if plant_fit is None else AnalysisContext(plant_fit.runs, noise, settings, tracks)
+        )
+        discovery = discover(
+            found_ctx,
+            model_out,
+            sorted(gaps),
+            progress,
+            [e for e in effects if gaps & set(e.explains)],
+            plant_fit.model.plant if plant_fit is not None else None,
+        )
         if discovery.discovered or discovery.named:
             model_out = discovery.model
             runs = discovery.runs
             ctx = found_ctx
             effects = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
             # the discovery re-fits effects along with its terms: report the values of the model
-            effects = [replace(e, parameters=effect_params(model_out.effect(e.name)))
-                       if model_out.effect(e.name) is not None else e for e in effects]
+            effects = [
+                replace(e, parameters=effect_params(model_out.effect(e.name)))
+                if model_out.effect(e.name) is not None
+                else e
+                for e in effects
+            ]
             diag_after, remaining = _where_left(ctx, model_out, searches)
     discovered = discovery.discovered if discovery is not None else ()
     if progress:
         progress("held-out gap")
     sims_after = simulate_runs([model_out], runs)[0]
-    gap_after = (_heldout_nrmse(ctx, effects, model_out) if effects or discovered
-                 else nrmse_by_channel(runs, sims_fit))
+    gap_after = (
+        _heldout_nrmse(ctx, effects, model_out)
+        if effects or discovered
+        else nrmse_by_channel(runs, sims_fit)
+    )
     in_sample = nrmse_by_channel(runs, sims_after)
     if remaining:
         status = "unexplained"
@@ -218,40 +271,66 @@ def analyse(
         status = "explained" if effects or discovered else "no_discrepancy"
     gap_channels = {r["channel"] for r in remaining}
     approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
-    return DiscrepancyResult(status=status, effects=tuple(effects), model_out=model_out,
-                             gap_after=gap_after, gap_in_sample_after=in_sample,
-                             diagnosis_after=diag_after, searches=searches, remaining=remaining,
-                             sims_after=tuple(sims_after), summary=_summary(
-        status, effects, diag_after, remaining, _plant_parameters(model, model_out, plant_fit),
-        approximate, discovered), plant_parameters=_plant_parameters(model, model_out, plant_fit),
-                             approximate=approximate, discovered=tuple(discovered),
-                             discovery_tried=discovery.tried if discovery is not None else (),
-                             **common)
+    return DiscrepancyResult(
+        status=status,
+        effects=tuple(effects),
+        model_out=model_out,
+        gap_after=gap_after,
+        gap_in_sample_after=in_sample,
+        diagnosis_after=diag_after,
+        searches=searches,
+        remaining=remaining,
+        sims_after=tuple(sims_after),
+        summary=_summary(
+            status,
+            effects,
+            diag_after,
+            remaining,
+            _plant_parameters(model, model_out, plant_fit),
+            approximate,
+            discovered,
+        ),
+        plant_parameters=_plant_parameters(model, model_out, plant_fit),
+        approximate=approximate,
+        discovered=tuple(discovered),
+        discovery_tried=discovery.tried if discovery is not None else (),
+        **common,
+    )
 
 
-def _where_left(ctx: AnalysisContext, model_out: Model,
-                searches: Sequence[ChannelSearch]) -> tuple[Diagnosis, tuple]:
+def _where_left(
+    ctx: AnalysisContext, model_out: Model, searches: Sequence[ChannelSearch]
+) -> tuple[Diagnosis, tuple]:
     """The diagnosis of `model_out` and where gaps remain."""
     sims = simulate_runs([model_out], ctx.runs)[0]
     diag = diagnose(ctx.runs, sims, model_out, ctx.noise, ctx.settings, tracks=ctx.tracks)
-    sensor_ok = {c: not channel_has_gap(ctx, model_out, c, True) for c in SENSOR_CHANNELS
-                 if any(s.channel == c and s.truth_referenced for s in searches)}
+    sensor_ok = {
+        c: not channel_has_gap(ctx, model_out, c, True)
+        for c in SENSOR_CHANNELS
+        if any(s.channel == c and s.truth_referenced for s in searches)
+    }
     return diag, _remaining(diag, searches, sensor_ok)
 
 
-def _plant_parameters(model_in: Model, model_out: Model, fit: Optional[PlantFit]) -> dict:
+def _plant_parameters(model_in: Model, model_out: Model, fit: PlantFit | None) -> dict:
     """{key: {value, nominal, stderr}} of the fitted
     plant parameters ({} without identification).
     """
     if fit is None:
         return {}
-    return {k: {"value": float(getattr(model_out.plant, k)),
-                "nominal": float(getattr(model_in.plant, k)),
-                "stderr": fit.stderr.get(k, math.nan)} for k in PLANT_PARAMETERS}
+    return {
+        k: {
+            "value": float(getattr(model_out.plant, k)),
+            "nominal": float(getattr(model_in.plant, k)),
+            "stderr": fit.stderr.get(k, math.nan),
+        }
+        for k in PLANT_PARAMETERS
+    }
 
 
-def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch],
-               sensor_ok: Mapping[str, bool]) -> tuple:
+def _remaining(
+    diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Mapping[str, bool]
+) -> tuple:
     """Where gaps remain; sensor_ok: sensor channel explained when driven by the measured angle."""
     skipped = {s.channel: s.skipped for s in searches}
     out = []
@@ -261,19 +340,28 @@ def _remaining(diag: Diagnosis, searches: Sequence[ChannelSearch],
         if skipped.get(c, "").startswith("downstream"):
             note = "possibly propagated from the unexplained stroke_deg gap; " + note
         if c in sensor_ok:
-            note = ("the sensor itself is explained when driven by the measured angle: this gap is "
-                    "the "
-                    f"{UPSTREAM_TRUTH[c]} gap propagated; " if sensor_ok[c] else
-                    "a sensor gap beyond the propagated physics error (judged against the measured "
-                    "angle); ") + note
+            note = (
+                "the sensor itself is explained when driven by the measured angle: this gap is "
+                "the "
+                f"{UPSTREAM_TRUTH[c]} gap propagated; "
+                if sensor_ok[c]
+                else "a sensor gap beyond the propagated physics error (judged against the measured "
+                "angle); "
+            ) + note
         near = _near_misses(searches, c)
         if near:
             note = note + "; " + near
-        out.append({
-            "channel": c, "band_hz": g.worst_band_hz, "drive_level_ratio": g.level_ratio,
-            "level_nrmse": g.level_nrmse, "stretch": list(g.worst_stretch),
-            "model_error_nrmse": g.model_error_nrmse, "note": note,
-        })
+        out.append(
+            {
+                "channel": c,
+                "band_hz": g.worst_band_hz,
+                "drive_level_ratio": g.level_ratio,
+                "level_nrmse": g.level_nrmse,
+                "stretch": list(g.worst_stretch),
+                "model_error_nrmse": g.model_error_nrmse,
+                "note": note,
+            }
+        )
     return tuple(out)
 
 
@@ -287,49 +375,80 @@ def _near_misses(searches: Sequence[ChannelSearch], channel: str) -> str:
             for ev in step:
                 failed = [k for k, v in ev.rules.items() if not v]
                 if failed == ["R4_consistency"]:
-                    runs = "; ".join(", ".join(f"{n} {v:.4g}" for n, v, _ in pr)
-                                     for pr in ev.per_run)
-                    notes.append(f"{'+'.join(ev.labels)} would fit each run alone but its "
-                                 f"parameter differs between runs ({runs})")
+                    runs = "; ".join(
+                        ", ".join(f"{n} {v:.4g}" for n, v, _ in pr) for pr in ev.per_run
+                    )
+                    notes.append(
+                        f"{'+'.join(ev.labels)} would fit each run alone but its "
+                        f"parameter differs between runs ({runs})"
+                    )
     return "nearest vocabulary effect refused: " + "; ".join(dict.fromkeys(notes)) if notes else ""
 
 
-def _summary(status: str, effects: Sequence[FoundEffect], diag: Diagnosis,
-             remaining: Sequence[dict], plant: Optional[Mapping[str, dict]] = None,
-             approximate: Sequence[str] = (), discovered: Sequence = ()) -> str:
+def _summary(
+    status: str,
+    effects: Sequence[FoundEffect],
+    diag: Diagnosis,
+    remaining: Sequence[dict],
+    plant: Mapping[str, dict] | None = None,
+    approximate: Sequence[str] = (),
+    discovered: Sequence = (),
+) -> str:
     parts = []
     if plant:
         change = {k: p["value"] / p["nominal"] - 1.0 for k, p in plant.items()}
         moved = sorted(change, key=lambda k: -abs(change[k]))[:3]
-        parts.append("This robot's plant was fitted first (largest changes from the model: "
-                     + ", ".join(f"{k} {change[k]:+.1%}" for k in moved) + ").")
-        edge = [k for k, p in plant.items()
-                if abs(math.log(p["value"] / p["nominal"])) >= 0.999 * math.log1p(FIT_RANGE)]
+        parts.append(
+            "This robot's plant was fitted first (largest changes from the model: "
+            + ", ".join(f"{k} {change[k]:+.1%}" for k in moved)
+            + ")."
+        )
+        edge = [
+            k
+            for k, p in plant.items()
+            if abs(math.log(p["value"] / p["nominal"])) >= 0.999 * math.log1p(FIT_RANGE)
+        ]
         if edge:
-            parts.append(f"At the edge of the plant fit's range (x{1 + FIT_RANGE:g} of the model): "
-                         f"{', '.join(edge)}; this robot may lie beyond it.")
+            parts.append(
+                f"At the edge of the plant fit's range (x{1 + FIT_RANGE:g} of the model): "
+                f"{', '.join(edge)}; this robot may lie beyond it."
+            )
     if status == "no_discrepancy":
-        parts.append("With its own plant parameters the model explains every channel to noise "
-                     "level: residuals are white and at the noise RMS; no physics is missing.")
+        parts.append(
+            "With its own plant parameters the model explains every channel to noise "
+            "level: residuals are white and at the noise RMS; no physics is missing."
+        )
         return " ".join(parts)
     if effects:
-        parts.append("Found: " + ", ".join(
-            f"{e.name} on {e.channel} ({format_parameters(e.parameters)})" for e in effects) + ".")
+        parts.append(
+            "Found: "
+            + ", ".join(
+                f"{e.name} on {e.channel} ({format_parameters(e.parameters)})" for e in effects
+            )
+            + "."
+        )
     if discovered:
-        parts.append("Outside the vocabulary, discovered from the term library (a hypothesis "
-                     "for the lab to test, not a named effect): " + ", ".join(
-                         f"{d.term.expression} on {d.term.acts_on}" for d in discovered) + ".")
+        parts.append(
+            "Outside the vocabulary, discovered from the term library (a hypothesis "
+            "for the lab to test, not a named effect): "
+            + ", ".join(f"{d.term.expression} on {d.term.acts_on}" for d in discovered)
+            + "."
+        )
     if status == "explained":
         parts.append("With them every channel is explained to noise level.")
     else:
         if approximate:
-            parts.append("Named but fitting only approximately (a gap remains where they act): "
-                         f"{', '.join(approximate)}.")
+            parts.append(
+                "Named but fitting only approximately (a gap remains where they act): "
+                f"{', '.join(approximate)}."
+            )
         for r in remaining:
-            parts.append(f"A gap remains on {r['channel']} (worst band {r['band_hz']} Hz, full/low "
-                         f"drive error ratio {r['drive_level_ratio']:.2g}, worst stretch "
-                         f"{r['stretch'][0]} {r['stretch'][1]:.2f}-{r['stretch'][2]:.2f} s) that "
-                         f"no vocabulary effect removes: {r['note']}.")
+            parts.append(
+                f"A gap remains on {r['channel']} (worst band {r['band_hz']} Hz, full/low "
+                f"drive error ratio {r['drive_level_ratio']:.2g}, worst stretch "
+                f"{r['stretch'][0]} {r['stretch'][1]:.2f}-{r['stretch'][2]:.2f} s) that "
+                f"no vocabulary effect removes: {r['note']}."
+            )
     return " ".join(parts)
 
 
@@ -339,7 +458,6 @@ def format_parameters(params: Mapping) -> str:
     """
     if params and all(isinstance(v, Mapping) for v in params.values()):
         return "; ".join(f"{side}: {format_parameters(p)}" for side, p in params.items())
-    return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k,
-                     v in params.items())
-
-
+    return ", ".join(
+        f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items()
+    )

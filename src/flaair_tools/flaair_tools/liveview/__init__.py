@@ -8,4 +8,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `foxglove_client`: a minimal protocol client for tests and benchmarks
 """
 
-__all__ = ["live_view", "foxglove_io", "foxglove_node", "foxglove_cli", "foxglove_client"]
+__all__ = ["foxglove_cli", "foxglove_client", "foxglove_io", "foxglove_node", "live_view"]

@@ -7,6 +7,7 @@ the server sends ``serverInfo`` and ``advertise`` (JSON text frames); the client
 ``subscribe`` with its own subscription ids; the server then sends binary frames: opcode 1
 MessageData (uint32 subscription id, uint64 log time ns, payload) and opcode 2 Time (uint64 ns).
 """
+
 from __future__ import annotations
 
 import json
@@ -35,7 +36,8 @@ class FoxgloveClient:
 
     def __init__(self, url: str, open_timeout_s: float = 10.0) -> None:
         self.connection: ClientConnection = connect(
-            url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s, max_size=None, legacy=True)
+            url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s, max_size=None, legacy=True
+        )
         self.channels: dict[str, dict] = {}
         self.by_subscription: dict[int, str] = {}
         self.received = Received()
@@ -71,8 +73,9 @@ class FoxgloveClient:
             return
         if frame[0] == MESSAGE_DATA:
             subscription, log_time_ns = struct.unpack_from("<IQ", frame, 1)
-            self.received.messages[self.by_subscription[subscription]].append((log_time_ns,
-                                                                               bytes(frame[13:])))
+            self.received.messages[self.by_subscription[subscription]].append(
+                (log_time_ns, bytes(frame[13:]))
+            )
         elif frame[0] == TIME:
             self.received.times_ns.append(struct.unpack_from("<Q", frame, 1)[0])
 

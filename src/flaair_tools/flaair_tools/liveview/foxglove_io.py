@@ -1,83 +1,192 @@
 """foxglove_node's parameters (declared once) and the `bin/flaair` argv that starts it."""
+
 from __future__ import annotations
 
 import json
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from flaair_model.schema import ParamSpec
 from flaair_tools.analysis import wingbeat
 from flaair_tools.liveview import live_view
 
-__all__ = ["NODE_NAME", "CONFIG_FILE", "PARAMS", "foxglove_node_args", "wingbeat_params",
-           "open_channels", "DIAGNOSTICS_TOPIC", "open_diagnostics_channel"]
+__all__ = [
+    "CONFIG_FILE",
+    "DIAGNOSTICS_TOPIC",
+    "NODE_NAME",
+    "PARAMS",
+    "foxglove_node_args",
+    "open_channels",
+    "open_diagnostics_channel",
+    "wingbeat_params",
+]
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"
 PARAMS = [
-    ParamSpec("sample_rate_hz", float, "Sample rate of the block streams [Hz]", 1000.0, 1.0e6,
-              read_only=True),
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of the block streams [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
     ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
     ParamSpec("host", str, "Address the WebSocket server listens on", read_only=True),
-    ParamSpec("port", int, "TCP port of the WebSocket server (0: any free port, logged)", 0, 65535,
-              read_only=True),
-    ParamSpec("sample_decimation", int, "Serve every Nth sample of each stream (1: every sample)",
-              1, 10000, read_only=True),
-    ParamSpec("message_backlog", int, "Messages queued per client; the oldest drop when full", 16,
-              10**7, read_only=True),
-    ParamSpec("reliable", bool, "Subscribe to block streams reliably (false: best effort)",
-              read_only=True),
-    ParamSpec("serve_period_s", float,
-              "Serve the blocks received this often, one batch per stream [s]", 0.001, 1.0,
-              read_only=True),
-    ParamSpec("time_broadcast_period_s", float, "Broadcast the latest signal time this often [s]",
-              0.001, 10.0, read_only=True),
-    ParamSpec("wingbeat_hysteresis_deg", float,
-              "Stroke below -this arms the wingbeat trigger [deg]", 0.0, 90.0, read_only=True),
-    ParamSpec("wingbeat_min_frequency_hz", float, "Longer wingbeats are dropped (idle) [Hz]", 0.1,
-              10000.0, read_only=True),
-    ParamSpec("wingbeat_max_frequency_hz", float, "Shorter wingbeats are dropped [Hz]", 0.1,
-              10000.0, read_only=True),
+    ParamSpec(
+        "port",
+        int,
+        "TCP port of the WebSocket server (0: any free port, logged)",
+        0,
+        65535,
+        read_only=True,
+    ),
+    ParamSpec(
+        "sample_decimation",
+        int,
+        "Serve every Nth sample of each stream (1: every sample)",
+        1,
+        10000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "message_backlog",
+        int,
+        "Messages queued per client; the oldest drop when full",
+        16,
+        10**7,
+        read_only=True,
+    ),
+    ParamSpec(
+        "reliable", bool, "Subscribe to block streams reliably (false: best effort)", read_only=True
+    ),
+    ParamSpec(
+        "serve_period_s",
+        float,
+        "Serve the blocks received this often, one batch per stream [s]",
+        0.001,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "time_broadcast_period_s",
+        float,
+        "Broadcast the latest signal time this often [s]",
+        0.001,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "wingbeat_hysteresis_deg",
+        float,
+        "Stroke below -this arms the wingbeat trigger [deg]",
+        0.0,
+        90.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "wingbeat_min_frequency_hz",
+        float,
+        "Longer wingbeats are dropped (idle) [Hz]",
+        0.1,
+        10000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "wingbeat_max_frequency_hz",
+        float,
+        "Shorter wingbeats are dropped [Hz]",
+        0.1,
+        10000.0,
+        read_only=True,
+    ),
 ]
 
 
 def foxglove_node_args(host_port: str) -> list[str]:
     """`bin/flaair` argv starting the live view on HOST:PORT (ValueError naming a bad HOST:PORT)."""
     host, port = live_view.parse_host_port(host_port)
-    return ["run", "flaair_tools", NODE_NAME, "--ros-args", "-p", f"host:={host}", "-p",
-            f"port:={port}"]
+    return [
+        "run",
+        "flaair_tools",
+        NODE_NAME,
+        "--ros-args",
+        "-p",
+        f"host:={host}",
+        "-p",
+        f"port:={port}",
+    ]
 
 
 def wingbeat_params(values: Mapping[str, Any]) -> wingbeat.WingbeatParams:
     """The wingbeat detector's parameters from foxglove_node's values."""
     return wingbeat.WingbeatParams(
-        values["sample_rate_hz"], values["wingbeat_hysteresis_deg"],
-        values["wingbeat_min_frequency_hz"], values["wingbeat_max_frequency_hz"])
+        values["sample_rate_hz"],
+        values["wingbeat_hysteresis_deg"],
+        values["wingbeat_min_frequency_hz"],
+        values["wingbeat_max_frequency_hz"],
+    )
 
 
 DIAGNOSTICS_TOPIC = "/diagnostics"
 # ROS's DiagnosticArray as JSON, under its ROS type name: Foxglove's Diagnostics panels read it
-_DIAGNOSTICS_SCHEMA = {"type": "object", "properties": {
-    "header": {"type": "object"}, "status": {"type": "array", "items": {
-        "type": "object", "properties": {
-            "level": {"type": "integer"}, "name": {"type": "string"},
-            "message": {"type": "string"}, "hardware_id": {"type": "string"},
-            "values": {"type": "array", "items": {"type": "object", "properties": {
-                "key": {"type": "string"}, "value": {"type": "string"}}}}}}}}}
+_DIAGNOSTICS_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "header": {"type": "object"},
+        "status": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "level": {"type": "integer"},
+                    "name": {"type": "string"},
+                    "message": {"type": "string"},
+                    "hardware_id": {"type": "string"},
+                    "values": {
+                        "type": "array",
+                        "items": {
+                            "type": "object",
+                            "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                        },
+                    },
+                },
+            },
+        },
+    },
+}
 
 
 def open_diagnostics_channel(foxglove: Any) -> Any:
     """The /diagnostics channel (JSON, schema named diagnostic_msgs/msg/DiagnosticArray)."""
-    return foxglove.Channel(DIAGNOSTICS_TOPIC, message_encoding="json", schema=foxglove.Schema(
-        name="diagnostic_msgs/msg/DiagnosticArray", encoding="jsonschema",
-        data=json.dumps(_DIAGNOSTICS_SCHEMA).encode()))
+    return foxglove.Channel(
+        DIAGNOSTICS_TOPIC,
+        message_encoding="json",
+        schema=foxglove.Schema(
+            name="diagnostic_msgs/msg/DiagnosticArray",
+            encoding="jsonschema",
+            data=json.dumps(_DIAGNOSTICS_SCHEMA).encode(),
+        ),
+    )
 
 
 def open_channels(foxglove: Any) -> tuple[dict[str, Any], Any, Any]:
     """The server's channels (`foxglove`: the SDK module): one per block stream (CDR,
     ros2msg schema), the wingbeat summaries and the collision status (JSON).
     """
-    streams = {key: foxglove.Channel(stream.topic, message_encoding="cdr", schema=foxglove.Schema(
-        name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode()))
-        for key, stream in live_view.STREAMS.items()}
-    return (streams, foxglove.Channel(live_view.WINGBEAT_TOPIC, schema=live_view.WINGBEAT_SCHEMA),
-            foxglove.Channel(live_view.COLLISION_TOPIC, schema=live_view.COLLISION_SCHEMA))
+    streams = {
+        key: foxglove.Channel(
+            stream.topic,
+            message_encoding="cdr",
+            schema=foxglove.Schema(
+                name=stream.schema_name, encoding="ros2msg", data=stream.definition.encode()
+            ),
+        )
+        for key, stream in live_view.STREAMS.items()
+    }
+    return (
+        streams,
+        foxglove.Channel(live_view.WINGBEAT_TOPIC, schema=live_view.WINGBEAT_SCHEMA),
+        foxglove.Channel(live_view.COLLISION_TOPIC, schema=live_view.COLLISION_SCHEMA),
+    )

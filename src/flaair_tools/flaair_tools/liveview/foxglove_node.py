@@ -10,6 +10,7 @@ Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove
 Usage: bin/flaair foxglove 127.0.0.1:8765, or
   bin/flaair run flaair_tools foxglove_node --ros-args -p port:=8765 -p sample_decimation:=4
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -51,42 +52,70 @@ class FoxgloveNode(FlaairNode):
         try:
             self.wingbeat_params = io.wingbeat_params(p)
             self.server = foxglove.start_server(
-                name="flaair", host=p["host"], port=p["port"], capabilities=[Capability.Time],
-                message_backlog_size=p["message_backlog"])
+                name="flaair",
+                host=p["host"],
+                port=p["port"],
+                capabilities=[Capability.Time],
+                message_backlog_size=p["message_backlog"],
+            )
         except (ValueError, RuntimeError) as exc:
             raise ParameterError(f"parameters 'host'/'port'/'wingbeat_*': {exc}") from exc
         self.decimation = p["sample_decimation"]
         self.channels, self.wingbeat_channel, self.collision_channel = io.open_channels(foxglove)
         self.state, self.beats, self.score, self.k_r, self.colliding = (
-            wingbeat.initial_state(self.wingbeat_params), 0, float("nan"), float("nan"), None)
+            wingbeat.initial_state(self.wingbeat_params),
+            0,
+            float("nan"),
+            float("nan"),
+            None,
+        )
         self.latest_ns = self.broadcast_ns = 0
-        self.create_timer(p["time_broadcast_period_s"], self.broadcast_time, clock=(
-            steady := Clock(clock_type=ClockType.STEADY_TIME)))
+        self.create_timer(
+            p["time_broadcast_period_s"],
+            self.broadcast_time,
+            clock=(steady := Clock(clock_type=ClockType.STEADY_TIME)),
+        )
         self.create_timer(p["serve_period_s"], self.serve, clock=steady)  # a stream that stopped
-        self.pending, self.codecs = {key: [] for key in STREAM_SOURCES}, {key: {}
-                for key in STREAM_SOURCES}  # codecs by size
-        qos = QoSProfile(depth=BLOCK_STREAM.depth, reliability=ReliabilityPolicy.RELIABLE
-                         if p["reliable"] else ReliabilityPolicy.BEST_EFFORT)
-        self.batch_blocks = max(1, round(
-            p["serve_period_s"] * p["sample_rate_hz"] / p["block_size"]))
+        self.pending, self.codecs = (
+            {key: [] for key in STREAM_SOURCES},
+            {key: {} for key in STREAM_SOURCES},
+        )  # codecs by size
+        qos = QoSProfile(
+            depth=BLOCK_STREAM.depth,
+            reliability=ReliabilityPolicy.RELIABLE
+            if p["reliable"]
+            else ReliabilityPolicy.BEST_EFFORT,
+        )
+        self.batch_blocks = max(
+            1, round(p["serve_period_s"] * p["sample_rate_hz"] / p["block_size"])
+        )
         for key, (topic, cls, _) in STREAM_SOURCES.items():
             self.create_subscription(cls, topic, self.block_callback(key), qos, raw=True)
-        self.create_subscription(msgs.CollisionStatus, topics.COLLISION_STATUS, self.on_status,
-                                 STATUS)
-        self.create_subscription(msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller,
-                                 qos, raw=True)
-        diagnostics = io.open_diagnostics_channel(foxglove)   # every node's health, as it is
-        self.create_subscription(DiagnosticArray, io.DIAGNOSTICS_TOPIC, lambda m: diagnostics.log(
-            json.dumps(to_dict(m), allow_nan=False)), 10)
-        self.get_logger().info(f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
-                               f"(every {self.decimation} sample(s); layout "
-                               "config/foxglove_layout.json)")
+        self.create_subscription(
+            msgs.CollisionStatus, topics.COLLISION_STATUS, self.on_status, STATUS
+        )
+        self.create_subscription(
+            msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True
+        )
+        diagnostics = io.open_diagnostics_channel(foxglove)  # every node's health, as it is
+        self.create_subscription(
+            DiagnosticArray,
+            io.DIAGNOSTICS_TOPIC,
+            lambda m: diagnostics.log(json.dumps(to_dict(m), allow_nan=False)),
+            10,
+        )
+        self.get_logger().info(
+            f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
+            f"(every {self.decimation} sample(s); layout "
+            "config/foxglove_layout.json)"
+        )
 
     def block_callback(self, key: str):  # keeps a block; a serve period's worth is served at once
         def on_block(data: bytes) -> None:
             self.pending[key].append(data)
             if len(self.pending[key]) >= self.batch_blocks:
                 self.serve_stream(key)
+
         return on_block
 
     def serve(self) -> None:
@@ -96,26 +125,39 @@ class FoxgloveNode(FlaairNode):
 
     def serve_stream(self, key: str) -> None:
         """A stream's kept blocks: wingbeats, then all their samples in one numpy batch."""
-        datas, stream, channel = (self.pending[key].copy(), live_view.STREAMS[key],
-                                  self.channels[key])
+        datas, stream, channel = (
+            self.pending[key].copy(),
+            live_view.STREAMS[key],
+            self.channels[key],
+        )
         self.pending[key].clear()
         batches, bad = live_view.fixed_blocks(STREAM_SOURCES[key][2], datas, self.codecs[key])
         if bad:
-            self.get_logger().warning(f"{STREAM_SOURCES[key][0]}: {bad} block(s) dropped: bad CDR",
-                                      throttle_duration_sec=1.0)
+            self.get_logger().warning(
+                f"{STREAM_SOURCES[key][0]}: {bad} block(s) dropped: bad CDR",
+                throttle_duration_sec=1.0,
+            )
         for blocks in batches:
-            self.latest_ns = max(self.latest_ns,
-                                 live_view.blocks_end_ns(blocks, stream.fields[0][0]))
+            self.latest_ns = max(
+                self.latest_ns, live_view.blocks_end_ns(blocks, stream.fields[0][0])
+            )
             if key == "wing_state":
                 self.state, beats = live_view.wingbeat_batch(
-                    self.state, blocks, self.beats, self.score, self.k_r, self.colliding,
-                    self.wingbeat_params)
+                    self.state,
+                    blocks,
+                    self.beats,
+                    self.score,
+                    self.k_r,
+                    self.colliding,
+                    self.wingbeat_params,
+                )
                 for log_time, payload in beats:
                     self.wingbeat_channel.log(payload, log_time=log_time)
                 self.beats += len(beats)
             if channel.has_sinks():
-                for log_time, payload in zip(*live_view.blocks_samples(stream, blocks,
-                                                                       self.decimation)):
+                for log_time, payload in zip(
+                    *live_view.blocks_samples(stream, blocks, self.decimation)
+                ):
                     channel.base.log(payload, log_time)
 
     def broadcast_time(self) -> None:
@@ -128,9 +170,16 @@ class FoxgloveNode(FlaairNode):
         self.score = wingbeat.collision_score(status.spectrum_rmse_deg, status.threshold_deg)
         self.colliding = bool(status.colliding)
         stamp_ns = status.header.stamp.sec * 1_000_000_000 + status.header.stamp.nanosec
-        self.collision_channel.log(live_view.collision_message(
-            status.wingbeat_index, self.colliding, status.spectrum_rmse_deg, status.threshold_deg,
-            stamp_ns), log_time=stamp_ns)
+        self.collision_channel.log(
+            live_view.collision_message(
+                status.wingbeat_index,
+                self.colliding,
+                status.spectrum_rmse_deg,
+                status.threshold_deg,
+                stamp_ns,
+            ),
+            log_time=stamp_ns,
+        )
 
     def on_controller(self, data: bytes) -> None:
         # not worth a warning at 2000/s: K_r stays the last good one

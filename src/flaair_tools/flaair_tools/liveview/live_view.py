@@ -15,8 +15,10 @@ wingbeat summary and the collision status are JSON (a few messages per wingbeat)
 
 Pure module: numpy and the SDK's layout types, no rclpy.
 """
+
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import dataclass
@@ -33,8 +35,7 @@ from flaair_tools.analysis.wingbeat import (
 )
 
 LIVE_PREFIX = "/flaair/live"
-TIME_DEFINITION = ("=" * 80 + "\n"
-                   "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n")
+TIME_DEFINITION = "=" * 80 + "\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
 
 
 @dataclass(frozen=True)
@@ -54,56 +55,94 @@ class SampleStream:
     @property
     def dtype(self) -> np.dtype:
         """Structured dtype of one encoded sample: encapsulation, stamp, fields (CDR alignment)."""
-        names, formats, offsets = (["encapsulation", "sec", "nanosec"], [("u1", 4), "<i4", "<u4"],
-                                   [0, 4, 8])
+        names, formats, offsets = (
+            ["encapsulation", "sec", "nanosec"],
+            [("u1", 4), "<i4", "<u4"],
+            [0, 4, 8],
+        )
         offset = 12
         for name, kind in self.fields:
             size = 8 if kind == "float64" else 1
             offset += (-(offset - 4)) % size
-            names.append(name), formats.append("<f8" if kind == "float64"
-                                               else "?"), offsets.append(offset)
+            (
+                names.append(name),
+                formats.append("<f8" if kind == "float64" else "?"),
+                offsets.append(offset),
+            )
             offset += size
-        return np.dtype({"names": names, "formats": formats, "offsets": offsets,
-                         "itemsize": offset})
+        return np.dtype(
+            {"names": names, "formats": formats, "offsets": offsets, "itemsize": offset}
+        )
 
 
-WING_SAMPLE = ("flaair_live/msg/WingSample", (
-    ("stroke_deg", "float64"), ("pitch_deg", "float64"), ("stroke_velocity_deg_s", "float64"),
-    ("stroke_valid", "bool"), ("pitch_valid", "bool")))
+WING_SAMPLE = (
+    "flaair_live/msg/WingSample",
+    (
+        ("stroke_deg", "float64"),
+        ("pitch_deg", "float64"),
+        ("stroke_velocity_deg_s", "float64"),
+        ("stroke_valid", "bool"),
+        ("pitch_valid", "bool"),
+    ),
+)
 STREAMS = {
     "wing_state": SampleStream(f"{LIVE_PREFIX}/wing_state", *WING_SAMPLE),
     "wing_state_truth": SampleStream(f"{LIVE_PREFIX}/wing_state/truth", *WING_SAMPLE),
-    "sensor_v": SampleStream(f"{LIVE_PREFIX}/sensor_v", "flaair_live/msg/SensorSample", (
-    ("stroke_sensor_v", "float64"), ("pitch_sensor_v", "float64"))),
-    "drive": SampleStream(f"{LIVE_PREFIX}/drive", "flaair_live/msg/DriveSample",
-                          (("drive_v", "float64"),)),
+    "sensor_v": SampleStream(
+        f"{LIVE_PREFIX}/sensor_v",
+        "flaair_live/msg/SensorSample",
+        (("stroke_sensor_v", "float64"), ("pitch_sensor_v", "float64")),
+    ),
+    "drive": SampleStream(
+        f"{LIVE_PREFIX}/drive", "flaair_live/msg/DriveSample", (("drive_v", "float64"),)
+    ),
 }
 WINGBEAT_TOPIC = f"{LIVE_PREFIX}/wingbeat"
 COLLISION_TOPIC = f"{LIVE_PREFIX}/collision_status"
 WINGBEAT_SCHEMA = {
-    "title": "flaair_live.Wingbeat", "type": "object", "properties": {
-        "stamp": {"type": "object", "properties": {
-    "sec": {"type": "integer"}, "nsec": {"type": "integer"}},
-                  "description": "signal time of the wingbeat's end"},
-        "wingbeat_index": {"type": "integer",
-                           "description": "wingbeats summarised since the live view started"},
+    "title": "flaair_live.Wingbeat",
+    "type": "object",
+    "properties": {
+        "stamp": {
+            "type": "object",
+            "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}},
+            "description": "signal time of the wingbeat's end",
+        },
+        "wingbeat_index": {
+            "type": "integer",
+            "description": "wingbeats summarised since the live view started",
+        },
         "duration_s": {"type": "number"},
         "frequency_hz": {"type": "number"},
         "amplitude_deg": {"type": "number", "description": "stroke amplitude, half peak-to-peak"},
-        "pitch_amplitude_deg": {"type": "number",
-                                "description": "pitch amplitude, half peak-to-peak"},
-        "collision_score": {"type": ["number", "null"],
-                            "description": "spectral RMSE / threshold: >= 1 colliding"},
+        "pitch_amplitude_deg": {
+            "type": "number",
+            "description": "pitch amplitude, half peak-to-peak",
+        },
+        "collision_score": {
+            "type": ["number", "null"],
+            "description": "spectral RMSE / threshold: >= 1 colliding",
+        },
         "colliding": {"type": ["boolean", "null"]},
-        "k_r": {"type": ["number", "null"],
-                "description": "dSA blend: 1 synchronous, 0 asynchronous"},
+        "k_r": {
+            "type": ["number", "null"],
+            "description": "dSA blend: 1 synchronous, 0 asynchronous",
+        },
     },
 }
 
-COLLISION_SCHEMA = {"title": "flaair_live.CollisionStatus", "type": "object", "properties": {
-    "stamp": {"type": "object"}, "wingbeat_index": {"type": "integer"},
-    "colliding": {"type": "boolean"}, "spectrum_rmse_deg": {"type": ["number", "null"]},
-    "threshold_deg": {"type": ["number", "null"]}, "collision_score": {"type": ["number", "null"]}}}
+COLLISION_SCHEMA = {
+    "title": "flaair_live.CollisionStatus",
+    "type": "object",
+    "properties": {
+        "stamp": {"type": "object"},
+        "wingbeat_index": {"type": "integer"},
+        "colliding": {"type": "boolean"},
+        "spectrum_rmse_deg": {"type": ["number", "null"]},
+        "threshold_deg": {"type": ["number", "null"]},
+        "collision_score": {"type": ["number", "null"]},
+    },
+}
 
 
 def sample_indices(first_sample_index: int, length: int, decimation: int) -> np.ndarray:
@@ -118,8 +157,9 @@ def sample_times_ns(stamp_ns: int, positions: np.ndarray, sample_rate_hz: float)
     return stamp_ns + np.round(positions * (1e9 / sample_rate_hz)).astype(np.int64)
 
 
-def encode_samples(stream: SampleStream, times_ns: np.ndarray,
-                   values: dict[str, np.ndarray]) -> bytes:
+def encode_samples(
+    stream: SampleStream, times_ns: np.ndarray, values: dict[str, np.ndarray]
+) -> bytes:
     """All chosen samples of a block as consecutive CDR
     messages (each ``stream.dtype.itemsize`` bytes).
     """
@@ -131,18 +171,25 @@ def encode_samples(stream: SampleStream, times_ns: np.ndarray,
     return records.tobytes()
 
 
-def block_samples(stream: SampleStream, message, stamp_ns: int,
-                  decimation: int) -> tuple[list[int], list[bytes]]:
+def block_samples(
+    stream: SampleStream, message, stamp_ns: int, decimation: int
+) -> tuple[list[int], list[bytes]]:
     """(log times ns, one CDR message each) of the chosen samples of a decoded block message."""
     first, rate = int(message["first_sample_index"]), float(message["sample_rate_hz"])
     positions = sample_indices(first, len(message[stream.fields[0][0]]), decimation)
     times = sample_times_ns(stamp_ns, positions, rate)
-    return _split(stream, times, encode_samples(
-        stream, times, {name: message[name][positions] for name, _ in stream.fields}))
+    return _split(
+        stream,
+        times,
+        encode_samples(
+            stream, times, {name: message[name][positions] for name, _ in stream.fields}
+        ),
+    )
 
 
-def blocks_samples(stream: SampleStream, blocks: np.ndarray,
-                   decimation: int) -> tuple[list[int], list[bytes]]:
+def blocks_samples(
+    stream: SampleStream, blocks: np.ndarray, decimation: int
+) -> tuple[list[int], list[bytes]]:
     """`block_samples` of many blocks at once, in their order: `blocks` are the records of a
     `flaair_common.cdr.FixedCodec` (``sec``, ``nanosec``, ``first_sample_index``,
     ``sample_rate_hz``, the stream's fields as (blocks, block size) arrays); one numpy pass
@@ -152,14 +199,20 @@ def blocks_samples(stream: SampleStream, blocks: np.ndarray,
     position = np.arange(blocks[stream.fields[0][0]].shape[1])
     chosen = (first + position) % decimation == 0
     stamp_ns = blocks["sec"].astype(np.int64) * 1_000_000_000 + blocks["nanosec"].astype(np.int64)
-    times = (stamp_ns[:, None] + np.round(
-        position * (1e9 / blocks["sample_rate_hz"][:, None])).astype(np.int64))[chosen]
-    return _split(stream, times, encode_samples(
-        stream, times, {name: blocks[name][chosen] for name, _ in stream.fields}))
+    times = (
+        stamp_ns[:, None]
+        + np.round(position * (1e9 / blocks["sample_rate_hz"][:, None])).astype(np.int64)
+    )[chosen]
+    return _split(
+        stream,
+        times,
+        encode_samples(stream, times, {name: blocks[name][chosen] for name, _ in stream.fields}),
+    )
 
 
-def fixed_blocks(layout: cdr.Layout, datas: list[bytes],
-                 codecs: dict) -> tuple[list[np.ndarray], int]:
+def fixed_blocks(
+    layout: cdr.Layout, datas: list[bytes], codecs: dict
+) -> tuple[list[np.ndarray], int]:
     """Block messages as records of a `flaair_common.cdr.FixedCodec`, one array per message size
     (in arrival order within each), decoded in one call each (`cdr.decode_batch`, `codecs` its
     cache); and how many are no CDR of the layout's fixed size.
@@ -173,8 +226,12 @@ def blocks_end_ns(blocks: np.ndarray, field: str) -> int:
     latest of `blocks` (records with `field` samples).
     """
     stamp_ns = blocks["sec"].astype(np.int64) * 1_000_000_000 + blocks["nanosec"].astype(np.int64)
-    return int(np.max(stamp_ns + np.round(
-        blocks[field].shape[1] * 1e9 / blocks["sample_rate_hz"]).astype(np.int64)))
+    return int(
+        np.max(
+            stamp_ns
+            + np.round(blocks[field].shape[1] * 1e9 / blocks["sample_rate_hz"]).astype(np.int64)
+        )
+    )
 
 
 def contiguous_runs(blocks: np.ndarray, field: str) -> list[slice]:
@@ -184,20 +241,22 @@ def contiguous_runs(blocks: np.ndarray, field: str) -> list[slice]:
     first = blocks["first_sample_index"].astype(np.int64)
     breaks = np.flatnonzero(first[1:] != first[:-1] + blocks[field].shape[1]) + 1
     edges = [0, *breaks.tolist(), len(blocks)]
-    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(a, b) for a, b in itertools.pairwise(edges)]
 
 
-def _split(stream: SampleStream, times_ns: np.ndarray,
-           payload: bytes) -> tuple[list[int], list[bytes]]:
+def _split(
+    stream: SampleStream, times_ns: np.ndarray, payload: bytes
+) -> tuple[list[int], list[bytes]]:
     size = stream.dtype.itemsize
-    return times_ns.tolist(), [payload[i:i + size] for i in range(0, len(payload), size)]
+    return times_ns.tolist(), [payload[i : i + size] for i in range(0, len(payload), size)]
 
 
 def decode_sample(stream: SampleStream, data: bytes) -> dict[str, float | bool | int]:
     """One per-sample message back to a dict with ``stamp_ns`` (for tests and tools)."""
     record = np.frombuffer(data, dtype=stream.dtype, count=1)[0]
     out: dict[str, float | bool | int] = {
-        "stamp_ns": int(record["sec"]) * 1_000_000_000 + int(record["nanosec"])}
+        "stamp_ns": int(record["sec"]) * 1_000_000_000 + int(record["nanosec"])
+    }
     out.update({name: record[name].item() for name, _ in stream.fields})
     return out
 
@@ -206,8 +265,14 @@ def _number(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def wingbeat_messages(beats: Wingbeats, first_index: int, stamp0_ns: int, first_sample0: int,
-                      sample_rate_hz: float, colliding: bool | None) -> list[tuple[int, bytes]]:
+def wingbeat_messages(
+    beats: Wingbeats,
+    first_index: int,
+    stamp0_ns: int,
+    first_sample0: int,
+    sample_rate_hz: float,
+    colliding: bool | None,
+) -> list[tuple[int, bytes]]:
     """(log time ns, strict JSON bytes) per completed wingbeat; its time is the wingbeat's end.
 
     stamp0_ns / first_sample0: a block's header stamp and first sample index (signal time of
@@ -215,8 +280,7 @@ def wingbeat_messages(beats: Wingbeats, first_index: int, stamp0_ns: int, first_
     """
     out = []
     for k in range(beats.end_sample.size):
-        end_ns = stamp0_ns + int(round(
-            (beats.end_sample[k] - first_sample0) * 1e9 / sample_rate_hz))
+        end_ns = stamp0_ns + round((beats.end_sample[k] - first_sample0) * 1e9 / sample_rate_hz)
         message = {
             "stamp": {"sec": end_ns // 1_000_000_000, "nsec": end_ns % 1_000_000_000},
             "wingbeat_index": first_index + k,
@@ -232,9 +296,15 @@ def wingbeat_messages(beats: Wingbeats, first_index: int, stamp0_ns: int, first_
     return out
 
 
-def wingbeat_batch(state: WingbeatState, blocks: np.ndarray, first_index: int,
-                   collision_score: float, k_r: float, colliding: bool | None,
-                   params: WingbeatParams) -> tuple[WingbeatState, list[tuple[int, bytes]]]:
+def wingbeat_batch(
+    state: WingbeatState,
+    blocks: np.ndarray,
+    first_index: int,
+    collision_score: float,
+    k_r: float,
+    colliding: bool | None,
+    params: WingbeatParams,
+) -> tuple[WingbeatState, list[tuple[int, bytes]]]:
     """`wingbeat.step` over wing-state block records (one step per run of contiguous blocks, so the
     same wingbeats as block by block) and their `wingbeat_messages`, numbered from `first_index`.
     """
@@ -244,23 +314,42 @@ def wingbeat_batch(state: WingbeatState, blocks: np.ndarray, first_index: int,
         first, rate = int(part["first_sample_index"][0]), float(part["sample_rate_hz"][0])
         stamp_ns = int(part["sec"][0]) * 1_000_000_000 + int(part["nanosec"][0])
         valid = np.logical_and(part["stroke_valid"], part["pitch_valid"]).ravel()
-        state, beats = step(state, WingbeatInputs(
-            first, part["stroke_deg"].ravel(), part["pitch_deg"].ravel(), valid, collision_score,
-            k_r), params)
+        state, beats = step(
+            state,
+            WingbeatInputs(
+                first,
+                part["stroke_deg"].ravel(),
+                part["pitch_deg"].ravel(),
+                valid,
+                collision_score,
+                k_r,
+            ),
+            params,
+        )
         out += wingbeat_messages(beats, first_index + len(out), stamp_ns, first, rate, colliding)
     return state, out
 
 
-def collision_message(wingbeat_index: int, colliding: bool, spectrum_rmse_deg: float,
-                      threshold_deg: float, stamp_ns: int) -> bytes:
+def collision_message(
+    wingbeat_index: int,
+    colliding: bool,
+    spectrum_rmse_deg: float,
+    threshold_deg: float,
+    stamp_ns: int,
+) -> bytes:
     """A CollisionStatus as strict JSON for /flaair/live/collision_status."""
     score = spectrum_rmse_deg / threshold_deg if threshold_deg > 0 else math.nan
-    return (json.dumps({"stamp": {
-        "sec": stamp_ns // 1_000_000_000, "nsec": stamp_ns % 1_000_000_000},
-                        "wingbeat_index": int(wingbeat_index), "colliding": bool(colliding),
-                        "spectrum_rmse_deg": _number(spectrum_rmse_deg),
-                        "threshold_deg": _number(threshold_deg), "collision_score": _number(score)},
-                       allow_nan=False).encode())
+    return json.dumps(
+        {
+            "stamp": {"sec": stamp_ns // 1_000_000_000, "nsec": stamp_ns % 1_000_000_000},
+            "wingbeat_index": int(wingbeat_index),
+            "colliding": bool(colliding),
+            "spectrum_rmse_deg": _number(spectrum_rmse_deg),
+            "threshold_deg": _number(threshold_deg),
+            "collision_score": _number(score),
+        },
+        allow_nan=False,
+    ).encode()
 
 
 def parse_host_port(text: str) -> tuple[str, int]:
@@ -282,45 +371,105 @@ def layout_json() -> str:
     """The Foxglove app layout of config/foxglove_layout.json (import it with Layout > Import)."""
     import foxglove.layouts as fl
 
-    def plot(title: str, series: list[tuple[str, str]], y_label: str,
-             window_s: float) -> fl.PlotPanel:
-        return fl.PlotPanel(title=title, config=fl.PlotConfig(
-            paths=[fl.PlotSeries(value=value, label=label, timestamp_method="receiveTime",
-                                 line_style="dashed" if "truth" in label else "solid")
-                   for value, label in series],
-            x_axis_val="timestamp", time_window_mode="sliding", following_view_width=window_s,
-            y_axis_label=y_label, show_legend=True, legend_display="top"))
+    def plot(
+        title: str, series: list[tuple[str, str]], y_label: str, window_s: float
+    ) -> fl.PlotPanel:
+        return fl.PlotPanel(
+            title=title,
+            config=fl.PlotConfig(
+                paths=[
+                    fl.PlotSeries(
+                        value=value,
+                        label=label,
+                        timestamp_method="receiveTime",
+                        line_style="dashed" if "truth" in label else "solid",
+                    )
+                    for value, label in series
+                ],
+                x_axis_val="timestamp",
+                time_window_mode="sliding",
+                following_view_width=window_s,
+                y_axis_label=y_label,
+                show_legend=True,
+                legend_display="top",
+            ),
+        )
 
-    ws, truth, sensor = (STREAMS["wing_state"].topic, STREAMS["wing_state_truth"].topic,
-                         STREAMS["sensor_v"].topic)
-    wing = plot("Wing angles (front end; dashed: simulator truth)", [
-        (f"{ws}.stroke_deg", "stroke [deg]"), (f"{ws}.pitch_deg", "pitch [deg]"),
-        (f"{truth}.stroke_deg", "stroke truth [deg]"), (f"{truth}.pitch_deg", "pitch truth [deg]")],
-                "angle [deg]", 0.1)
-    volts = plot("PVDF charge-amplifier outputs", [
-        (f"{sensor}.stroke_sensor_v", "stroke sensor [V]"),
-        (f"{sensor}.pitch_sensor_v", "pitch sensor [V]")], "voltage [V]", 0.1)
-    drive = plot("Actuator drive", [
-        (f"{STREAMS['drive'].topic}.drive_v", "drive [V]")], "drive [V]", 0.1)
-    beat = plot("Per wingbeat", [(f"{WINGBEAT_TOPIC}.{name}", label) for name, label in (
-        ("amplitude_deg", "stroke amplitude [deg]"),
-        ("pitch_amplitude_deg", "pitch amplitude [deg]"),
-        ("collision_score", "collision score (>= 1: colliding)"), ("k_r", "K_r (1 sync, 0 dSA)"))],
-                "", 5.0)
-    frequency = plot("Wingbeat frequency", [
-        (f"{WINGBEAT_TOPIC}.frequency_hz", "frequency [Hz]")], "[Hz]", 5.0)
-    states = fl.StateTransitionsPanel(title="Collision monitor", config=fl.StateTransitionsConfig(
-        paths=[fl.StateTransitionsSeries(value=f"{COLLISION_TOPIC}.colliding", label="colliding",
-                                         timestamp_method="receiveTime")],
-        time_window_mode="sliding", x_axis_range=5.0, show_points=True))
-    last = fl.RawMessagesPanel(title="Last wingbeat", config=fl.RawMessagesConfig(
-        topic_path=WINGBEAT_TOPIC, expansion="all"))
+    ws, truth, sensor = (
+        STREAMS["wing_state"].topic,
+        STREAMS["wing_state_truth"].topic,
+        STREAMS["sensor_v"].topic,
+    )
+    wing = plot(
+        "Wing angles (front end; dashed: simulator truth)",
+        [
+            (f"{ws}.stroke_deg", "stroke [deg]"),
+            (f"{ws}.pitch_deg", "pitch [deg]"),
+            (f"{truth}.stroke_deg", "stroke truth [deg]"),
+            (f"{truth}.pitch_deg", "pitch truth [deg]"),
+        ],
+        "angle [deg]",
+        0.1,
+    )
+    volts = plot(
+        "PVDF charge-amplifier outputs",
+        [
+            (f"{sensor}.stroke_sensor_v", "stroke sensor [V]"),
+            (f"{sensor}.pitch_sensor_v", "pitch sensor [V]"),
+        ],
+        "voltage [V]",
+        0.1,
+    )
+    drive = plot(
+        "Actuator drive", [(f"{STREAMS['drive'].topic}.drive_v", "drive [V]")], "drive [V]", 0.1
+    )
+    beat = plot(
+        "Per wingbeat",
+        [
+            (f"{WINGBEAT_TOPIC}.{name}", label)
+            for name, label in (
+                ("amplitude_deg", "stroke amplitude [deg]"),
+                ("pitch_amplitude_deg", "pitch amplitude [deg]"),
+                ("collision_score", "collision score (>= 1: colliding)"),
+                ("k_r", "K_r (1 sync, 0 dSA)"),
+            )
+        ],
+        "",
+        5.0,
+    )
+    frequency = plot(
+        "Wingbeat frequency", [(f"{WINGBEAT_TOPIC}.frequency_hz", "frequency [Hz]")], "[Hz]", 5.0
+    )
+    states = fl.StateTransitionsPanel(
+        title="Collision monitor",
+        config=fl.StateTransitionsConfig(
+            paths=[
+                fl.StateTransitionsSeries(
+                    value=f"{COLLISION_TOPIC}.colliding",
+                    label="colliding",
+                    timestamp_method="receiveTime",
+                )
+            ],
+            time_window_mode="sliding",
+            x_axis_range=5.0,
+            show_points=True,
+        ),
+    )
+    last = fl.RawMessagesPanel(
+        title="Last wingbeat",
+        config=fl.RawMessagesConfig(topic_path=WINGBEAT_TOPIC, expansion="all"),
+    )
 
     def split(direction: str, *items: tuple[float, object]) -> fl.SplitContainer:
-        return fl.SplitContainer(direction=direction, items=[
-            fl.SplitItem(proportion=p, content=c) for p, c in items])
+        return fl.SplitContainer(
+            direction=direction, items=[fl.SplitItem(proportion=p, content=c) for p, c in items]
+        )
 
-    layout = fl.Layout(content=split(
-        "row", (3, split("column", (3, wing), (2, volts), (1, drive))),
-        (2, split("column", (3, beat), (2, frequency), (1, states), (2, last)))))
+    layout = fl.Layout(
+        content=split(
+            "row",
+            (3, split("column", (3, wing), (2, volts), (1, drive))),
+            (2, split("column", (3, beat), (2, frequency), (1, states), (2, last))),
+        )
+    )
     return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"

@@ -7,4 +7,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `transition_figure`: the sync -> async transition figure
 """
 
-__all__ = ["experiment", "live", "demo", "transition_figure"]
+__all__ = ["demo", "experiment", "live", "transition_figure"]

@@ -10,6 +10,7 @@ built is skipped and said so.
 Example:
   bin/flaair demo --out out/demo
 """
+
 from __future__ import annotations
 
 import argparse
@@ -52,10 +53,14 @@ def missing_nodes(spec: ExperimentSpec) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair demo", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/demo"),
-                        help="output directory (default out/demo)")
+    parser = argparse.ArgumentParser(
+        prog="flaair demo",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)"
+    )
     parser.add_argument("--only", nargs="*", help="run only these experiments")
     args = parser.parse_args(argv)
     experiments = load_experiments()
@@ -66,8 +71,10 @@ def main(argv: list[str] | None = None) -> int:
     calibration: Path | None = None
     # The sweeps first: they calibrate the front end for the live experiments after them
     # (with the model's gains the bench robot's pitch reads 4.3x small and hides collisions).
-    names = sorted(names, key=lambda n: experiments[n].kind not in ("chirp", "stepped_sine")
-                   or n == "drive_levels")
+    names = sorted(
+        names,
+        key=lambda n: experiments[n].kind not in ("chirp", "stepped_sine") or n == "drive_levels",
+    )
     for name in names:
         spec = experiments[name]
         missing = missing_nodes(spec)
@@ -105,8 +112,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print()
     print_headline(report)
-    sweeps = [b for b in bags if b.name in (
-        "characterization_chirp", "stepped_sine", "drive_levels")]
+    sweeps = [
+        b for b in bags if b.name in ("characterization_chirp", "stepped_sine", "drive_levels")
+    ]
     if sweeps:
         print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
         from flaair_tools import discrepancy
@@ -121,8 +129,13 @@ def main(argv: list[str] | None = None) -> int:
         print("[demo] hidden in the simulated bench robot (config/experiments.yaml):")
         print(f"[demo]   plant off nominal: {plant}")
         print(f"[demo]   vocabulary effects: {hidden}")
-        outside = ", ".join(term_from_dict(t).expression + " on " + t["acts_on"]
-                            for t in robot.get("discovered") or []) or "none"
+        outside = (
+            ", ".join(
+                term_from_dict(t).expression + " on " + t["acts_on"]
+                for t in robot.get("discovered") or []
+            )
+            or "none"
+        )
         print(f"[demo]   outside the vocabulary: {outside}")
     print(f"\n[demo] done in {time.monotonic() - start:.0f} s.")
     print(f"[demo] report: {args.out / 'report' / 'report.html'}")

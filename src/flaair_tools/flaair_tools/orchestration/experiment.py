@@ -14,6 +14,7 @@ Examples
   bin/flaair experiment characterization_chirp --out out/bags/chirp
   bin/flaair experiment --list
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,8 +59,10 @@ def experiment_nodes(name: str) -> tuple[str, ...]:
     """
     graph = GRAPHS.get(f"experiment_{name}")
     if graph is None:
-        raise ExperimentError(f"experiment '{name}' has no launch file experiment_{name}.launch.xml"
-                              " in src/flaair_tools/launch")
+        raise ExperimentError(
+            f"experiment '{name}' has no launch file experiment_{name}.launch.xml"
+            " in src/flaair_tools/launch"
+        )
     return tuple(role for role in graph.roles if role not in GRAPH.roles)
 
 
@@ -91,7 +94,7 @@ class ExperimentSpec:
     kind: str
     runs: tuple[RunSpec, ...]
     nodes: tuple[str, ...] = ()
-    rest_s: float = 0.0   # zero drive before each driven run (recorded, outside the run markers)
+    rest_s: float = 0.0  # zero drive before each driven run (recorded, outside the run markers)
     plant: dict[str, Any] = field(default_factory=dict)
     controller: bool = False
 
@@ -122,10 +125,16 @@ def robot_model() -> Any:
     section = robot_section()
     model = with_effects(load_model(), robot_effects())
     factors = dict(section.get("plant") or {})
-    model = replace(model, plant=replace(model.plant, **{
-        k: getattr(model.plant, k) * float(f) for k, f in factors.items()}))
-    terms = tuple(term_from_dict(t, f"robot.discovered[{i}]")
-                  for i, t in enumerate(section.get("discovered") or []))
+    model = replace(
+        model,
+        plant=replace(
+            model.plant, **{k: getattr(model.plant, k) * float(f) for k, f in factors.items()}
+        ),
+    )
+    terms = tuple(
+        term_from_dict(t, f"robot.discovered[{i}]")
+        for i, t in enumerate(section.get("discovered") or [])
+    )
     return replace(model, discovered=terms)
 
 
@@ -147,21 +156,31 @@ def load_experiments() -> dict[str, ExperimentSpec]:
             continue
         try:
             runs = tuple(
-                RunSpec(name=str(r["name"]), run_time_s=float(r["run_time_s"]),
-                        drive=dict(r.get("drive", {})), markers=tuple(
-                (str(m[0]), float(m[1]), float(m[2])) for m in r.get("markers", [])))
+                RunSpec(
+                    name=str(r["name"]),
+                    run_time_s=float(r["run_time_s"]),
+                    drive=dict(r.get("drive", {})),
+                    markers=tuple(
+                        (str(m[0]), float(m[1]), float(m[2])) for m in r.get("markers", [])
+                    ),
+                )
                 for r in entry["runs"]
             )
-            out[name] = ExperimentSpec(name=name, description=str(entry.get("description", "")),
-                                       kind=str(entry["kind"]), runs=runs,
-                                       nodes=experiment_nodes(name),
-                                       plant=dict(entry.get("plant", {})),
-                                       controller=bool(entry.get("controller", False)),
-                                       rest_s=float(entry.get("rest_s", 0.0)))
+            out[name] = ExperimentSpec(
+                name=name,
+                description=str(entry.get("description", "")),
+                kind=str(entry["kind"]),
+                runs=runs,
+                nodes=experiment_nodes(name),
+                plant=dict(entry.get("plant", {})),
+                controller=bool(entry.get("controller", False)),
+                rest_s=float(entry.get("rest_s", 0.0)),
+            )
             rest_s = out[name].rest_s
             if not rest_s >= 0 or (out[name].controller and rest_s):
                 raise ValueError(
-                    f"rest_s must be >= 0 (and 0 for a controller experiment), got {rest_s}")
+                    f"rest_s must be >= 0 (and 0 for a controller experiment), got {rest_s}"
+                )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise ConfigError(f"{path}: experiment '{name}' is malformed: {exc!r}") from None
     return out
@@ -173,8 +192,9 @@ def _ros_value(value: Any) -> str:
     if isinstance(value, float):
         return repr(value)
     if isinstance(value, list):
-        return ("[" + ",".join(_ros_value(float(v) if isinstance(v, int) else v) for v in value)
-                + "]")
+        return (
+            "[" + ",".join(_ros_value(float(v) if isinstance(v, int) else v) for v in value) + "]"
+        )
     return str(value)
 
 
@@ -204,10 +224,12 @@ class Runner(Node):
         self.sensor_end_index = 0
         # signal time of the last wingbeat the collision monitor judged
         self.monitor_end_s = 0.0
-        self.create_subscription(SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor,
-                                 BLOCK_STREAM)
-        self.create_subscription(CollisionStatus, topics.COLLISION_STATUS, self.on_status,
-                                 BLOCK_STREAM)
+        self.create_subscription(
+            SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM
+        )
+        self.create_subscription(
+            CollisionStatus, topics.COLLISION_STATUS, self.on_status, BLOCK_STREAM
+        )
         self.marker_pub = self.create_publisher(String, bagio.RUN_MARKER_TOPIC, EVENTS)
         self.experiment_pub = self.create_publisher(String, EXPERIMENT_TOPIC, EVENTS)
         # Advertise the drive topic before any drive node exists so the recorder subscribes to
@@ -215,19 +237,22 @@ class Runner(Node):
         self.drive_advert = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
 
     def on_sensor(self, message: SensorVoltageBlock) -> None:
-        self.sensor_end_index = max(self.sensor_end_index,
-                                    message.first_sample_index + len(message.stroke_sensor_v))
+        self.sensor_end_index = max(
+            self.sensor_end_index, message.first_sample_index + len(message.stroke_sensor_v)
+        )
 
     def on_status(self, message: CollisionStatus) -> None:
-        self.monitor_end_s = max(self.monitor_end_s,
-                                 message.header.stamp.sec + message.header.stamp.nanosec * 1e-9)
+        self.monitor_end_s = max(
+            self.monitor_end_s, message.header.stamp.sec + message.header.stamp.nanosec * 1e-9
+        )
 
     def subscribed(self, node_name: str, topic: str) -> bool:
         """True once `node_name` has a subscription on
         `topic` (as this node's discovery sees it).
         """
-        return any(info.node_name == node_name
-                   for info in self.get_subscriptions_info_by_topic(topic))
+        return any(
+            info.node_name == node_name for info in self.get_subscriptions_info_by_topic(topic)
+        )
 
 
 def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str) -> None:
@@ -242,8 +267,15 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
             raise ExperimentError(str(exc)) from exc
 
 
-def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progress: bool = True,
-                   nominal: bool = False, calibration_file: Path | None = None) -> dict[str, Any]:
+def run_experiment(
+    spec: ExperimentSpec,
+    out: Path,
+    *,
+    noise: bool = True,
+    progress: bool = True,
+    nominal: bool = False,
+    calibration_file: Path | None = None,
+) -> dict[str, Any]:
     """Run `spec` on the simulated graph and record it to the bag `out`; return a summary.
 
     The plant is the bench robot (nominal model + config/experiments.yaml `robot:` effects)
@@ -259,13 +291,18 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
     # This process joins the graph's private domain too (rcl reads the environment at init).
     os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
     if progress:
-        print(f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}",
-              file=sys.stderr)
+        print(
+            f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}",
+            file=sys.stderr,
+        )
         if calibration_file is None:
-            print("flaair experiment: WARNING: no --calibration: the front end runs on the model's "
-                  "gains, so the sensor-derived pitch reads about 4x small (the model "
-                  "over-predicts the hinge sensor) and pitch figures, the collision metric among "
-                  "them, are off; run `bin/flaair calibrate` first", file=sys.stderr)
+            print(
+                "flaair experiment: WARNING: no --calibration: the front end runs on the model's "
+                "gains, so the sensor-derived pitch reads about 4x small (the model "
+                "over-predicts the hinge sensor) and pitch figures, the collision metric among "
+                "them, are off; run `bin/flaair calibrate` first",
+                file=sys.stderr,
+            )
     # Ctrl-C/SIGTERM are ours
     rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     runner = Runner()
@@ -276,74 +313,140 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
             plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
         run_parameters: dict[str, dict[str, Any]] = {
-            "recorder": {"output_path": str(out)}, "plant": plant,
+            "recorder": {"output_path": str(out)},
+            "plant": plant,
             "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
-            if calibration_file is not None else {}}
-        started = {role: start_node(graph, role, {
-            **GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})})
-                   for role in GRAPH.roles}
+            if calibration_file is not None
+            else {},
+        }
+        started = {
+            role: start_node(
+                graph, role, {**GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})}
+            )
+            for role in GRAPH.roles
+        }
         for role in spec.nodes:
             start_node(graph, role, {})
         # Nothing may flow before every consumer listens: a reliable volatile publisher drops
         # what it sent before a subscription matched (the front end once lost 211 blocks so).
-        recorded = [topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE,
-                    bagio.RUN_MARKER_TOPIC, EXPERIMENT_TOPIC]
+        recorded = [
+            topics.SENSOR_VOLTAGE,
+            topics.WING_STATE_TRUTH,
+            topics.WING_STATE,
+            topics.DRIVE,
+            bagio.RUN_MARKER_TOPIC,
+            EXPERIMENT_TOPIC,
+        ]
         node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
-        consumers = [(node_name["plant"], topics.DRIVE),
-                     (node_name["frontend"], topics.SENSOR_VOLTAGE)]
+        consumers = [
+            (node_name["plant"], topics.DRIVE),
+            (node_name["frontend"], topics.SENSOR_VOLTAGE),
+        ]
         if "collision_monitor" in spec.nodes:
             recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
             consumers += [(node_name["collision_monitor"], topics.WING_STATE)]
         if spec.controller:
             consumers += [(node_name["controller"], topics.WING_STATE)]
         needed = [(node_name["recorder"], t) for t in recorded] + consumers
-        _spin_until(runner, graph, lambda: all(
-            runner.subscribed(n, t) for n, t in needed if n != node_name.get("controller")), 90.0,
-                    "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed))
+        _spin_until(
+            runner,
+            graph,
+            lambda: all(
+                runner.subscribed(n, t) for n, t in needed if n != node_name.get("controller")
+            ),
+            90.0,
+            "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed),
+        )
         # discovery is seen here a moment before the publishers see it
         settle_until = time.monotonic() + 0.5
-        _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0,
-                    "discovery to settle")
+        _spin_until(
+            runner, graph, lambda: time.monotonic() > settle_until, 5.0, "discovery to settle"
+        )
         runner.experiment_pub.publish(
-            String(data=json.dumps({"name": spec.name, "kind": spec.kind,
-                                    "description": spec.description, "sample_rate_hz": fs_hz,
-                                    "plant": spec.plant,
-                                    "runs": [
-            {"name": r.name, "run_time_s": r.run_time_s, "drive": r.drive, "markers": r.markers}
-            for r in spec.runs]})))
+            String(
+                data=json.dumps(
+                    {
+                        "name": spec.name,
+                        "kind": spec.kind,
+                        "description": spec.description,
+                        "sample_rate_hz": fs_hz,
+                        "plant": spec.plant,
+                        "runs": [
+                            {
+                                "name": r.name,
+                                "run_time_s": r.run_time_s,
+                                "drive": r.drive,
+                                "markers": r.markers,
+                            }
+                            for r in spec.runs
+                        ],
+                    }
+                )
+            )
+        )
         for run in spec.runs:
             # The rest (zero drive, whole blocks) lets the wing settle after the previous run;
             # the run's markers start after it.
-            rest = int(round(spec.rest_s * fs_hz / block_size)) * block_size
+            rest = round(spec.rest_s * fs_hz / block_size) * block_size
             first = runner.sensor_end_index
-            n_samples = rest + int(round(run.run_time_s * fs_hz / block_size)) * block_size
+            n_samples = rest + round(run.run_time_s * fs_hz / block_size) * block_size
             parts = run.markers or ((run.name, 0.0, run.run_time_s),)
             for part, start_s, end_s in parts:
-                a, b = (first + rest + int(round(start_s * fs_hz)),
-                        first + rest + int(round(end_s * fs_hz)))
-                marker = bagio.RunMarker(run=part, first_sample_index=a, n_samples=b - a,
-                                         source_file=spec.name, sample_rate_hz=fs_hz,
-                                         start_ns=int(a / fs_hz * 1e9))
+                a, b = (
+                    first + rest + round(start_s * fs_hz),
+                    first + rest + round(end_s * fs_hz),
+                )
+                marker = bagio.RunMarker(
+                    run=part,
+                    first_sample_index=a,
+                    n_samples=b - a,
+                    source_file=spec.name,
+                    sample_rate_hz=fs_hz,
+                    start_ns=int(a / fs_hz * 1e9),
+                )
                 runner.marker_pub.publish(String(data=marker.to_json()))
             if spec.controller:
                 if first != 0:
                     raise ExperimentError(
-                        f"{spec.name}: a controller run must be the experiment's first run")
+                        f"{spec.name}: a controller run must be the experiment's first run"
+                    )
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
                 # the recorder subscribes to the controller's state topic only once it appears
-                driver = start_node(graph, "controller", {
-                    "run_time_s": n_samples / fs_hz, "min_drive_subscribers": max(listeners, 2),
-                    "min_state_subscribers": 1})
+                driver = start_node(
+                    graph,
+                    "controller",
+                    {
+                        "run_time_s": n_samples / fs_hz,
+                        "min_drive_subscribers": max(listeners, 2),
+                        "min_state_subscribers": 1,
+                    },
+                )
             else:
                 # Every subscriber of the drive (plant, recorder, monitor) must match before the
                 # first block: a lockstep plant that misses the opening window waits forever.
                 listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                driver = start_node(graph, "drive", {
-                    "pacing": "lockstep", "run_time_s": n_samples / fs_hz,
-                    "first_sample_index": first, "min_subscribers": max(listeners, 2),
-                    "pace_on_wing_state": True, "lead_in_s": rest / fs_hz, **run.drive})
-            bar = tqdm(total=n_samples, desc=f"{spec.name}/{run.name}", unit="sample",
-                       unit_scale=True, disable=not progress, leave=False, mininterval=1.0)
+                driver = start_node(
+                    graph,
+                    "drive",
+                    {
+                        "pacing": "lockstep",
+                        "run_time_s": n_samples / fs_hz,
+                        "first_sample_index": first,
+                        "min_subscribers": max(listeners, 2),
+                        "pace_on_wing_state": True,
+                        "lead_in_s": rest / fs_hz,
+                        **run.drive,
+                    },
+                )
+            bar = tqdm(
+                total=n_samples,
+                desc=f"{spec.name}/{run.name}",
+                unit="sample",
+                unit_scale=True,
+                disable=not progress,
+                leave=False,
+                mininterval=1.0,
+            )
             done = 0
 
             def finished() -> bool:
@@ -354,24 +457,36 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
                 return done >= n_samples
 
             try:
-                _spin_until(runner, graph, finished, 120.0 + 60.0 * run.run_time_s,
-                            f"run {run.name} to finish")
+                _spin_until(
+                    runner,
+                    graph,
+                    finished,
+                    120.0 + 60.0 * run.run_time_s,
+                    f"run {run.name} to finish",
+                )
             finally:
                 bar.close()
             if "collision_monitor" in spec.nodes:
                 # On a loaded machine the monitor can lag the plant by seconds: let it judge the
                 # whole run (to within two of the slowest wingbeats) before anything stops.
                 run_end_s = (first + n_samples) / fs_hz - 2.0 / settings.monitor().min_wingbeat_hz
-                _spin_until(runner, graph, lambda: runner.monitor_end_s >= run_end_s, 300.0,
-                            f"the collision monitor to judge the run up to {run_end_s:.2f} s")
+                _spin_until(
+                    runner,
+                    graph,
+                    lambda: runner.monitor_end_s >= run_end_s,
+                    300.0,
+                    f"the collision monitor to judge the run up to {run_end_s:.2f} s",
+                )
             # A stopped publisher takes with it what a lagging recorder has not fetched yet
             # (a loaded fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
             drain_until = time.monotonic() + 2.0
-            _spin_until(runner, graph, lambda: time.monotonic() > drain_until, 10.0,
-                        "the recorder to drain")
+            _spin_until(
+                runner, graph, lambda: time.monotonic() > drain_until, 10.0, "the recorder to drain"
+            )
             graph.stop(driver)
-            summary["runs"].append({"run": run.name, "first_sample_index": first + rest,
-                                    "n_samples": n_samples - rest})
+            summary["runs"].append(
+                {"run": run.name, "first_sample_index": first + rest, "n_samples": n_samples - rest}
+            )
         # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
         settle_until = time.monotonic() + 1.0
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
@@ -389,8 +504,10 @@ def run_experiment(spec: ExperimentSpec, out: Path, *, noise: bool = True, progr
             # a controller's start-up retry sends its first block again: the plant ignores the copy
             recorded = bagio.read_blocks(out, topic, allow_gaps=True).block_first_index.size
         if recorded != total_blocks:
-            raise ExperimentError(f"{out}: {recorded} blocks on {topic} recorded, the plant "
-                                  f"stepped {total_blocks} (logs in {log_dir})")
+            raise ExperimentError(
+                f"{out}: {recorded} blocks on {topic} recorded, the plant "
+                f"stepped {total_blocks} (logs in {log_dir})"
+            )
     return summary
 
 
@@ -400,52 +517,77 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 2
-    parser = argparse.ArgumentParser(prog="flaair experiment",
-                                     description=__doc__.format(names=", ".join(experiments)),
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair experiment",
+        description=__doc__.format(names=", ".join(experiments)),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("name", nargs="?", help="experiment name (see --list)")
     parser.add_argument("--out", type=Path, help="bag directory to create")
     parser.add_argument("--list", action="store_true", help="list the experiments and exit")
     parser.add_argument("--no-noise", action="store_true", help="simulate without sensor noise")
-    parser.add_argument("--calibration", type=Path, default=None, help="front end uses this "
-                                                                       "calibration.yaml (from "
-                                                                       "`flaair calibrate`) "
-                                                                       "instead of the model's "
-                                                                       "gains")
-    parser.add_argument("--nominal", action="store_true", help="simulate the nominal model, not "
-                                                               "the bench robot (nominal + "
-                                                               "config/experiments.yaml robot: "
-                                                               "effects)")
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="front end uses this "
+        "calibration.yaml (from "
+        "`flaair calibrate`) "
+        "instead of the model's "
+        "gains",
+    )
+    parser.add_argument(
+        "--nominal",
+        action="store_true",
+        help="simulate the nominal model, not "
+        "the bench robot (nominal + "
+        "config/experiments.yaml robot: "
+        "effects)",
+    )
     args = parser.parse_args(argv)
     if args.list or not args.name:
         for name, spec in experiments.items():
             print(f"{name:24s} {spec.description}")
         return 0 if args.list else 2
     if args.name not in experiments:
-        print(f"flaair experiment: unknown experiment '{args.name}' (known: "
-              f"{', '.join(experiments)})", file=sys.stderr)
+        print(
+            f"flaair experiment: unknown experiment '{args.name}' (known: "
+            f"{', '.join(experiments)})",
+            file=sys.stderr,
+        )
         return 2
     if args.out is None:
         parser.error("--out BAG is required")
     terminate_raises()
     try:
-        summary = run_experiment(experiments[args.name], args.out, noise=not args.no_noise,
-                                 nominal=args.nominal, calibration_file=args.calibration)
+        summary = run_experiment(
+            experiments[args.name],
+            args.out,
+            noise=not args.no_noise,
+            nominal=args.nominal,
+            calibration_file=args.calibration,
+        )
     except (ExperimentError, ConfigError, bagio.BagError) as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print(f"flaair experiment: interrupted; every node stopped and the bag {args.out} closed",
-              file=sys.stderr)
+        print(
+            f"flaair experiment: interrupted; every node stopped and the bag {args.out} closed",
+            file=sys.stderr,
+        )
         return 130
     except (Terminated, RuntimeError) as exc:
         if not is_termination(exc):
             raise
-        print(f"flaair experiment: terminated; every node stopped and the bag {args.out} closed",
-              file=sys.stderr)
+        print(
+            f"flaair experiment: terminated; every node stopped and the bag {args.out} closed",
+            file=sys.stderr,
+        )
         return 143
-    print(f"recorded {args.name} to {args.out}: " + ", ".join(
-        f"{t} {c}" for t, c in sorted(summary["message_counts"].items())))
+    print(
+        f"recorded {args.name} to {args.out}: "
+        + ", ".join(f"{t} {c}" for t, c in sorted(summary["message_counts"].items()))
+    )
     return 0
 
 

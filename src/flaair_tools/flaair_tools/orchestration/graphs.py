@@ -8,19 +8,30 @@ they are, and `experiment`, `live`, the transition figure, the demo's build chec
 read them instead of writing node lists of their own. No rclpy here:
 `flaair_common.graph.Graph` starts the processes.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import yaml
 
 from flaair_common import topics
 from flaair_tools.orchestration import launch_file
 
-__all__ = ["NodeDecl", "GraphDecl", "NODES", "GRAPHS", "node_of", "component_modules",
-           "launch_dir", "graph_from_launch", "LAUNCH_PACKAGE"]
+__all__ = [
+    "GRAPHS",
+    "LAUNCH_PACKAGE",
+    "NODES",
+    "GraphDecl",
+    "NodeDecl",
+    "component_modules",
+    "graph_from_launch",
+    "launch_dir",
+    "node_of",
+]
 
 
 @dataclass(frozen=True)
@@ -65,25 +76,50 @@ class GraphDecl:
         return tuple(NODES[role] for role in self.roles)
 
 
-NODES: dict[str, NodeDecl] = {n.role: n for n in (
-    NodeDecl("plant", "flaair_sim", "plant_node", "flaair_sim.plant_node:PlantNode"),
-    NodeDecl("drive", "flaair_sim", "drive_node", "flaair_sim.drive_node:DriveNode"),
-    NodeDecl("frontend", "flaair_sensors", "frontend_node",
-             "flaair_sensors.frontend_node:FrontendNode"),
-    NodeDecl("controller", "flaair_control", "dsa_controller_node",
-             "flaair_control.dsa_controller_node:DsaControllerNode"),
-    NodeDecl("stroke_controller", "flaair_control", "stroke_controller_node",
-             "flaair_control.stroke_controller_node:StrokeControllerNode"),
-    NodeDecl("collision_monitor", "flaair_control", "collision_monitor_node",
-             "flaair_control.collision_monitor_node:CollisionMonitorNode"),
-    NodeDecl("bridge", "flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
-    NodeDecl("recorder", "flaair_tools", "recorder_node"),
-    NodeDecl("foxglove", "flaair_tools", "foxglove_node"),
-)}
+NODES: dict[str, NodeDecl] = {
+    n.role: n
+    for n in (
+        NodeDecl("plant", "flaair_sim", "plant_node", "flaair_sim.plant_node:PlantNode"),
+        NodeDecl("drive", "flaair_sim", "drive_node", "flaair_sim.drive_node:DriveNode"),
+        NodeDecl(
+            "frontend",
+            "flaair_sensors",
+            "frontend_node",
+            "flaair_sensors.frontend_node:FrontendNode",
+        ),
+        NodeDecl(
+            "controller",
+            "flaair_control",
+            "dsa_controller_node",
+            "flaair_control.dsa_controller_node:DsaControllerNode",
+        ),
+        NodeDecl(
+            "stroke_controller",
+            "flaair_control",
+            "stroke_controller_node",
+            "flaair_control.stroke_controller_node:StrokeControllerNode",
+        ),
+        NodeDecl(
+            "collision_monitor",
+            "flaair_control",
+            "collision_monitor_node",
+            "flaair_control.collision_monitor_node:CollisionMonitorNode",
+        ),
+        NodeDecl("bridge", "flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
+        NodeDecl("recorder", "flaair_tools", "recorder_node"),
+        NodeDecl("foxglove", "flaair_tools", "foxglove_node"),
+    )
+}
 
 # The streams the composed loop hands from node to node in-process (what `live` composes).
-_LOOP_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE, topics.DRIVE_APPLIED,
-                topics.WING_STATE_TRUTH, topics.CONTROLLER_STATE)
+_LOOP_TOPICS = (
+    topics.DRIVE,
+    topics.SENSOR_VOLTAGE,
+    topics.WING_STATE,
+    topics.DRIVE_APPLIED,
+    topics.WING_STATE_TRUTH,
+    topics.CONTROLLER_STATE,
+)
 
 LAUNCH_PACKAGE = "flaair_tools"
 
@@ -119,20 +155,27 @@ def graph_from_launch(path: Path) -> GraphDecl:
         role = by_executable.get((node.package, node.executable))
         if role is None:
             raise launch_file.LaunchFileError(
-                f"{path}: node {node.package}/{node.executable} is not one of FLAAIR's")
+                f"{path}: node {node.package}/{node.executable} is not one of FLAAIR's"
+            )
         roles.append(role)
         if node.parameters:
             parameters[role] = {k: yaml.safe_load(v) for k, v in node.parameters}
     hot = tuple(r for r, n in zip(roles, described.nodes) if (n.name or n.executable) in loop)
-    return GraphDecl(path.name.removesuffix(".launch.xml"),
-                     described.configurations.get("graph_description", ""), hot=hot,
-                     side=tuple(r for r in roles if r not in hot), parameters=parameters,
-                     local_topics=_LOOP_TOPICS if hot else ())
+    return GraphDecl(
+        path.name.removesuffix(".launch.xml"),
+        described.configurations.get("graph_description", ""),
+        hot=hot,
+        side=tuple(r for r in roles if r not in hot),
+        parameters=parameters,
+        local_topics=_LOOP_TOPICS if hot else (),
+    )
 
 
 # Every graph, one per launch file (src/flaair_tools/launch/NAME.launch.xml): the one declaration
-GRAPHS: dict[str, GraphDecl] = {g.name: g for g in (
-    graph_from_launch(path) for path in sorted(launch_dir().glob("*.launch.xml")))}
+GRAPHS: dict[str, GraphDecl] = {
+    g.name: g
+    for g in (graph_from_launch(path) for path in sorted(launch_dir().glob("*.launch.xml")))
+}
 
 
 def node_of(role: str) -> NodeDecl:

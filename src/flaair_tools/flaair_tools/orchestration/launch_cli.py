@@ -15,6 +15,7 @@ Examples
   bin/flaair launch flaair_tools live_sim.launch.xml --print     # what it would start
   bin/flaair launch flaair_tools lockstep_loop.launch.xml --show-args
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,7 +35,7 @@ from flaair_common.graph import (
 from flaair_tools.orchestration import launch_file
 from flaair_tools.orchestration.graphs import LAUNCH_PACKAGE, launch_dir
 
-POLL_S = 0.2   # how often the launch looks for a node that died
+POLL_S = 0.2  # how often the launch looks for a node that died
 
 
 def find_launch_file(package: str, name: str) -> Path:
@@ -52,35 +53,56 @@ def find_launch_file(package: str, name: str) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair launch", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair launch",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("package", help="package holding the launch file, e.g. flaair_tools")
     parser.add_argument("file", help="launch file name in its share/PACKAGE/launch, or a path")
-    parser.add_argument("arguments", nargs="*", metavar="name:=value",
-                        help="launch arguments (--show-args lists them)")
-    parser.add_argument("--print", action="store_true", dest="print_only",
-                        help="print each node's command line and exit")
+    parser.add_argument(
+        "arguments",
+        nargs="*",
+        metavar="name:=value",
+        help="launch arguments (--show-args lists them)",
+    )
+    parser.add_argument(
+        "--print",
+        action="store_true",
+        dest="print_only",
+        help="print each node's command line and exit",
+    )
     parser.add_argument("--show-args", action="store_true", help="list the launch arguments")
-    parser.add_argument("--domain-id", type=int, help="ROS domain to run on (default: a private "
-                                                      "one no other FLAAIR graph holds)")
-    parser.add_argument("--subnet", action="store_true",
-                        help="discover the whole subnet (default: localhost only)")
+    parser.add_argument(
+        "--domain-id",
+        type=int,
+        help="ROS domain to run on (default: a private one no other FLAAIR graph holds)",
+    )
+    parser.add_argument(
+        "--subnet", action="store_true", help="discover the whole subnet (default: localhost only)"
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.domain_id is not None and not 0 <= args.domain_id <= 232:
-        parser.error(f"--domain-id {args.domain_id}: a ROS domain is 0-232 (1-101 are safe "
-                     "on Linux)")
+        parser.error(
+            f"--domain-id {args.domain_id}: a ROS domain is 0-232 (1-101 are safe on Linux)"
+        )
     try:
         path = find_launch_file(args.package, args.file)
         if args.show_args:
             described = launch_file.load(path, find_share=None, allow_missing_arguments=True)
             for argument in described.arguments:
-                default = (f" (default {argument.default!r})" if argument.default is not None
-                           else " (required)")
+                default = (
+                    f" (default {argument.default!r})"
+                    if argument.default is not None
+                    else " (required)"
+                )
                 print(f"{argument.name}{default}: {argument.description}")
             return 0
         described = launch_file.load(path, launch_file.parse_launch_arguments(args.arguments))
-        commands = [(node, node_argv(node.package, node.executable, node.ros_args()))
-                    for node in described.nodes]
+        commands = [
+            (node, node_argv(node.package, node.executable, node.ros_args()))
+            for node in described.nodes
+        ]
     except (launch_file.LaunchFileError, GraphError) as exc:
         print(f"flaair launch: {exc}", file=sys.stderr)
         return 2
@@ -96,8 +118,11 @@ def _run(commands: list, args: argparse.Namespace) -> int:
     log_dir = Path(tempfile.mkdtemp(prefix="flaair-launch-"))
     try:
         with Graph(domain_id=args.domain_id, localhost=not args.subnet, log_dir=log_dir) as graph:
-            print(f"flaair launch: {len(commands)} node(s) on {graph.describe()}; logs in "
-                  f"{log_dir}; Ctrl-C stops", file=sys.stderr)
+            print(
+                f"flaair launch: {len(commands)} node(s) on {graph.describe()}; logs in "
+                f"{log_dir}; Ctrl-C stops",
+                file=sys.stderr,
+            )
             for node, command in commands:
                 where = node.namespace.strip("/").replace("/", "_")
                 graph.start(f"{where}_{node.name or node.executable}".lstrip("_"), command)

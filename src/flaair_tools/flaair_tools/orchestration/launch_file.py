@@ -16,17 +16,24 @@ format's schema). The subset:
 $(find-pkg-share PACKAGE) and $(dirname) (the launch file's directory). Anything else is refused
 by name (`LaunchFileError`), as is a launch argument the files do not declare.
 """
+
 from __future__ import annotations
 
 import os
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
 
-__all__ = ["LaunchFileError", "LaunchArgument", "LaunchNode", "LaunchDescription", "load",
-           "parse_launch_arguments"]
+__all__ = [
+    "LaunchArgument",
+    "LaunchDescription",
+    "LaunchFileError",
+    "LaunchNode",
+    "load",
+    "parse_launch_arguments",
+]
 
 
 class LaunchFileError(ValueError):
@@ -48,9 +55,9 @@ class LaunchNode:
 
     package: str
     executable: str
-    name: str | None            # None: the node's own default name
-    namespace: str              # absolute ("/" for the root namespace)
-    parameters: tuple[tuple[str, str], ...]   # (name, value as written: YAML, as `-p` reads it)
+    name: str | None  # None: the node's own default name
+    namespace: str  # absolute ("/" for the root namespace)
+    parameters: tuple[tuple[str, str], ...]  # (name, value as written: YAML, as `-p` reads it)
     parameter_files: tuple[str, ...]
     remaps: tuple[tuple[str, str], ...]
 
@@ -91,7 +98,7 @@ def parse_launch_arguments(words: list[str]) -> dict[str, str]:
     return out
 
 
-_ATTRIBUTES = {   # tag -> the attributes it may carry
+_ATTRIBUTES = {  # tag -> the attributes it may carry
     "launch": {"version"},
     "arg": {"name", "default", "value", "description"},
     "let": {"var", "value"},
@@ -113,13 +120,14 @@ class _Scope:
     def __init__(self, configurations: dict[str, str], namespace: str) -> None:
         self.configurations, self.namespace = configurations, namespace
 
-    def child(self) -> "_Scope":
+    def child(self) -> _Scope:
         return _Scope(dict(self.configurations), self.namespace)
 
 
 class _Reader:
-    def __init__(self, path: Path, find_share: Callable[[str], Path],
-                 allow_missing: bool = False) -> None:
+    def __init__(
+        self, path: Path, find_share: Callable[[str], Path], allow_missing: bool = False
+    ) -> None:
         self.path, self.find_share, self.allow_missing = path, find_share, allow_missing
         self.nodes: list[LaunchNode] = []
 
@@ -131,9 +139,12 @@ class _Reader:
             kind, words = match.group(1), match.group(2).split()
             if kind == "var" and len(words) == 1:
                 if words[0] not in scope.configurations:
-                    raise self.fail(where, f"$(var {words[0]}): no launch configuration "
-                                           f"'{words[0]}' (known: "
-                                           f"{', '.join(sorted(scope.configurations)) or 'none'})")
+                    raise self.fail(
+                        where,
+                        f"$(var {words[0]}): no launch configuration "
+                        f"'{words[0]}' (known: "
+                        f"{', '.join(sorted(scope.configurations)) or 'none'})",
+                    )
                 return scope.configurations[words[0]]
             if kind == "dirname" and not words:
                 return str(self.path.parent)
@@ -147,18 +158,25 @@ class _Reader:
                     return str(self.find_share(words[0]))
                 except LookupError as exc:
                     raise self.fail(where, f"$(find-pkg-share {words[0]}): {exc}") from None
-            raise self.fail(where, f"substitution $({kind} ...) is not supported here (supported: "
-                                   "$(var NAME), $(env NAME [DEFAULT]), $(find-pkg-share PKG), "
-                                   "$(dirname))")
+            raise self.fail(
+                where,
+                f"substitution $({kind} ...) is not supported here (supported: "
+                "$(var NAME), $(env NAME [DEFAULT]), $(find-pkg-share PKG), "
+                "$(dirname))",
+            )
 
         return _SUBSTITUTION.sub(one, text)
 
-    def attributes(self, element: ET.Element, scope: _Scope, where: str,
-                   required: tuple[str, ...] = ()) -> dict[str, str]:
+    def attributes(
+        self, element: ET.Element, scope: _Scope, where: str, required: tuple[str, ...] = ()
+    ) -> dict[str, str]:
         unknown = sorted(set(element.attrib) - _ATTRIBUTES[element.tag])
         if unknown:
-            raise self.fail(where, f"<{element.tag}> has no attribute {', '.join(unknown)} "
-                                   f"(it takes: {', '.join(sorted(_ATTRIBUTES[element.tag]))})")
+            raise self.fail(
+                where,
+                f"<{element.tag}> has no attribute {', '.join(unknown)} "
+                f"(it takes: {', '.join(sorted(_ATTRIBUTES[element.tag]))})",
+            )
         missing = [name for name in required if name not in element.attrib]
         if missing:
             raise self.fail(where, f"<{element.tag}> needs {', '.join(missing)}")
@@ -174,15 +192,25 @@ class _Reader:
                     return False
         return True
 
-    def actions(self, parent: ET.Element, scope: _Scope, where: str,
-                arguments: list[LaunchArgument], given: dict[str, str]) -> None:
+    def actions(
+        self,
+        parent: ET.Element,
+        scope: _Scope,
+        where: str,
+        arguments: list[LaunchArgument],
+        given: dict[str, str],
+    ) -> None:
         for index, element in enumerate(parent):
             at = f"{where}/{element.tag}[{index}]"
             if element.tag not in _ATTRIBUTES or element.tag in ("launch", "param", "remap"):
-                raise self.fail(at, f"unknown or misplaced tag <{element.tag}> (this reader "
-                                    "takes arg, let, node, group, push-ros-namespace, include)")
-            getattr(self, "on_" + element.tag.replace("-", "_"))(element, scope, at, arguments,
-                                                                  given)
+                raise self.fail(
+                    at,
+                    f"unknown or misplaced tag <{element.tag}> (this reader "
+                    "takes arg, let, node, group, push-ros-namespace, include)",
+                )
+            getattr(self, "on_" + element.tag.replace("-", "_"))(
+                element, scope, at, arguments, given
+            )
 
     def on_arg(self, element, scope, at, arguments, given) -> None:
         attrs = self.attributes(element, scope, at, ("name",))
@@ -206,8 +234,9 @@ class _Reader:
         scope.configurations[attrs["var"]] = attrs["value"]
 
     def on_push_ros_namespace(self, element, scope, at, arguments, given) -> None:
-        scope.namespace = _join(scope.namespace,
-                                self.attributes(element, scope, at, ("namespace",))["namespace"])
+        scope.namespace = _join(
+            scope.namespace, self.attributes(element, scope, at, ("namespace",))["namespace"]
+        )
 
     def on_group(self, element, scope, at, arguments, given) -> None:
         attrs = self.attributes(element, scope, at)
@@ -234,12 +263,20 @@ class _Reader:
                 values = self.attributes(child, scope, where, ("from", "to"))
                 remaps.append((values["from"], values["to"]))
             else:
-                raise self.fail(where, f"unknown tag <{child.tag}> in <node> (it takes param, "
-                                       "remap)")
-        self.nodes.append(LaunchNode(
-            attrs["pkg"], attrs["exec"], attrs.get("name"),
-            _join(scope.namespace, attrs.get("namespace", "")), tuple(parameters), tuple(files),
-            tuple(remaps)))
+                raise self.fail(
+                    where, f"unknown tag <{child.tag}> in <node> (it takes param, remap)"
+                )
+        self.nodes.append(
+            LaunchNode(
+                attrs["pkg"],
+                attrs["exec"],
+                attrs.get("name"),
+                _join(scope.namespace, attrs.get("namespace", "")),
+                tuple(parameters),
+                tuple(files),
+                tuple(remaps),
+            )
+        )
 
     def on_include(self, element, scope, at, arguments, given) -> None:
         attrs = self.attributes(element, scope, at, ("file",))
@@ -267,8 +304,13 @@ def _join(namespace: str, more: str) -> str:
     return "/" + "/".join(parts)
 
 
-def _read(path: Path, given: Mapping[str, str], find_share: Callable[[str], Path],
-          scope: _Scope, allow_missing: bool = False) -> LaunchDescription:
+def _read(
+    path: Path,
+    given: Mapping[str, str],
+    find_share: Callable[[str], Path],
+    scope: _Scope,
+    allow_missing: bool = False,
+) -> LaunchDescription:
     try:
         root = ET.parse(path).getroot()
     except FileNotFoundError:
@@ -283,22 +325,35 @@ def _read(path: Path, given: Mapping[str, str], find_share: Callable[[str], Path
     reader.actions(root, scope, "launch", arguments, dict(given))
     unknown = sorted(set(given) - {a.name for a in arguments})
     if unknown:
-        raise reader.fail("launch", f"no launch argument {', '.join(unknown)} (it takes: "
-                                    f"{', '.join(a.name for a in arguments) or 'none'})")
-    return LaunchDescription(path, tuple(arguments), tuple(reader.nodes),
-                             dict(scope.configurations))
+        raise reader.fail(
+            "launch",
+            f"no launch argument {', '.join(unknown)} (it takes: "
+            f"{', '.join(a.name for a in arguments) or 'none'})",
+        )
+    return LaunchDescription(
+        path, tuple(arguments), tuple(reader.nodes), dict(scope.configurations)
+    )
 
 
-def load(path: str | Path, arguments: Mapping[str, str] | None = None,
-         find_share: Callable[[str], Path] | None = None, namespace: str = "/",
-         allow_missing_arguments: bool = False) -> LaunchDescription:
+def load(
+    path: str | Path,
+    arguments: Mapping[str, str] | None = None,
+    find_share: Callable[[str], Path] | None = None,
+    namespace: str = "/",
+    allow_missing_arguments: bool = False,
+) -> LaunchDescription:
     """Read the launch file at `path` with launch `arguments` (name -> value), inside
     `namespace`. `find_share(package)` resolves $(find-pkg-share) (default: the ament index);
     it raises LookupError for an unknown package. `allow_missing_arguments`: a required argument
     left out reads as "" (to list a file's arguments) instead of an error.
     """
-    return _read(Path(path), dict(arguments or {}), find_share or _ament_share,
-                 _Scope({}, _join("/", namespace)), allow_missing_arguments)
+    return _read(
+        Path(path),
+        dict(arguments or {}),
+        find_share or _ament_share,
+        _Scope({}, _join("/", namespace)),
+        allow_missing_arguments,
+    )
 
 
 def _ament_share(package: str) -> Path:

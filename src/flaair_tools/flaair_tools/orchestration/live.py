@@ -32,6 +32,7 @@ The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the e
   bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 \
       --out out/bags/bench
 """
+
 from __future__ import annotations
 
 import argparse
@@ -67,7 +68,7 @@ def _argv(role: str, ros_args: list[str]) -> list[str]:
     return node_argv(node.package, node.executable, ros_args)
 
 
-LISTEN_AGAIN_S = 1.0   # the watcher listens to the signal again this long before the duration is up
+LISTEN_AGAIN_S = 1.0  # the watcher listens to the signal again this long before the duration is up
 # Once the sensor blocks cover --duration, the drive's own samples get this much longer (wall clock)
 # to: they lead the sensor by the loop's delay while the controller loops, but a tripped controller
 # sends one zero block per keepalive period, a drive clock at a hundredth of the signal's rate
@@ -106,7 +107,8 @@ def port_free(address: tuple[str, int], what: str) -> None:
             probe.bind(address)
         except OSError as exc:
             raise LiveError(
-                f"{what} {address[0]}:{address[1]}: port in use ({exc.strerror})") from None
+                f"{what} {address[0]}:{address[1]}: port in use ({exc.strerror})"
+            ) from None
 
 
 def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
@@ -115,13 +117,16 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
     block = settings.controller().block_size if args.sim else live.target_block_size
     sections: dict[str, dict[str, Any]] = {
         "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)}
-                                           if args.calibration else {},
+        if args.calibration
+        else {},
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
         "collision_monitor_node": {"window_source": "stroke", "decision": "distortion"},
         # the controller starts once the actuator's node and the recorder listen; live stops it
-        "dsa_controller_node": {"run_time_s": 0.0, "min_drive_subscribers": 2
-                                if args.out is not None else 1,
-                                "min_state_subscribers": 1 if args.out is not None else 0},
+        "dsa_controller_node": {
+            "run_time_s": 0.0,
+            "min_drive_subscribers": 2 if args.out is not None else 1,
+            "min_state_subscribers": 1 if args.out is not None else 0,
+        },
     }
     # ControllerState travels on DDS one message per batch of blocks, as the block streams
     if not args.processes:
@@ -134,11 +139,16 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         sections.setdefault(node_of(role).node_name, {}).update(overrides)
     if not args.sim:
         (target_host, target_port), (listen_host, listen_port) = args.target, args.listen
-        lead = (args.lead_samples if args.lead_samples is not None
-                else settings.bridge().lead_samples)
-        sections["bridge_node"] = {"listen_host": listen_host, "listen_port": listen_port,
-                                   "target_host": target_host, "target_port": target_port,
-                                   "lead_samples": lead}
+        lead = (
+            args.lead_samples if args.lead_samples is not None else settings.bridge().lead_samples
+        )
+        sections["bridge_node"] = {
+            "listen_host": listen_host,
+            "listen_port": listen_port,
+            "target_host": target_host,
+            "target_port": target_port,
+            "lead_samples": lead,
+        }
         # the bridge re-blocks the target's packets to this
         sections["/**"] = {"block_size": block}
         # the lead is loop delay too: the controller's phase advance covers it
@@ -172,43 +182,66 @@ class Watcher:
         rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
         self.node = Node("flaair_live")
         self.end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
-        self.topics = {topics.SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
-                       topics.WING_STATE: "flaair_msgs/msg/WingStateBlock",
-                       topics.DRIVE: "flaair_msgs/msg/DriveCommandBlock"}
+        self.topics = {
+            topics.SENSOR_VOLTAGE: "flaair_msgs/msg/SensorVoltageBlock",
+            topics.WING_STATE: "flaair_msgs/msg/WingStateBlock",
+            topics.DRIVE: "flaair_msgs/msg/DriveCommandBlock",
+        }
         if args.controller == "dsa":
             self.topics[topics.CONTROLLER_STATE] = "flaair_msgs/msg/ControllerState"
         self.topics[topics.COLLISION_STATUS] = "flaair_msgs/msg/CollisionStatus"
         if args.sim:
             self.topics[topics.WING_STATE_TRUTH] = "flaair_msgs/msg/WingStateBlock"
         # Advertised before the loop exists, so the recorder subscribes before the first block.
-        self.adverts = [self.node.create_publisher(message_class(kind), topic, BLOCK_STREAM)
-                        for topic, kind in self.topics.items()]
+        self.adverts = [
+            self.node.create_publisher(message_class(kind), topic, BLOCK_STREAM)
+            for topic, kind in self.topics.items()
+        ]
         self.listen_to_sensor = lambda: self.node.create_subscription(
-            message_class(self.topics[topics.SENSOR_VOLTAGE]), topics.SENSOR_VOLTAGE,
-            self.on_sensor, BLOCK_STREAM, raw=True)
+            message_class(self.topics[topics.SENSOR_VOLTAGE]),
+            topics.SENSOR_VOLTAGE,
+            self.on_sensor,
+            BLOCK_STREAM,
+            raw=True,
+        )
         # the controller's first drive sample: the loop runs
         self.first_drive_index: int | None = None
         self.drive_end = {"index": -1, "rate": 0.0, "wall": time.monotonic()}
         self.listen_to_drive = lambda: self.node.create_subscription(
-            message_class(self.topics[topics.DRIVE]), topics.DRIVE, self.on_drive, BLOCK_STREAM,
-            raw=True)
+            message_class(self.topics[topics.DRIVE]),
+            topics.DRIVE,
+            self.on_drive,
+            BLOCK_STREAM,
+            raw=True,
+        )
         self.listening = [self.listen_to_sensor(), self.listen_to_drive()]
         # Every other batched stream of the loop too, until it starts: the controller waits for
         # two listeners on each (this process and the recorder), so a recorder matched late on one
         # of them cannot lose that stream's first blocks (a soak run lost 179 drive blocks so).
-        for topic, kind in ((topics.WING_STATE, "WingStateBlock"), (
-                topics.WING_STATE_TRUTH, "WingStateBlock"),
-                            (topics.DRIVE_APPLIED, "DriveCommandBlock")):
-            self.listening.append(self.node.create_subscription(
-                message_class(f"flaair_msgs/msg/{kind}"), topic, lambda _data: None, BLOCK_STREAM,
-                raw=True))
+        for topic, kind in (
+            (topics.WING_STATE, "WingStateBlock"),
+            (topics.WING_STATE_TRUTH, "WingStateBlock"),
+            (topics.DRIVE_APPLIED, "DriveCommandBlock"),
+        ):
+            self.listening.append(
+                self.node.create_subscription(
+                    message_class(f"flaair_msgs/msg/{kind}"),
+                    topic,
+                    lambda _data: None,
+                    BLOCK_STREAM,
+                    raw=True,
+                )
+            )
 
     def on_sensor(self, data: bytes) -> None:
         from flaair_common import cdr
 
         m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
-        self.end.update(index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]),
-                        rate=float(m["sample_rate_hz"]), wall=time.monotonic())
+        self.end.update(
+            index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]),
+            rate=float(m["sample_rate_hz"]),
+            wall=time.monotonic(),
+        )
 
     def on_drive(self, data: bytes) -> None:
         from flaair_common import cdr
@@ -216,8 +249,11 @@ class Watcher:
         m = cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)
         if self.first_drive_index is None:
             self.first_drive_index = int(m["first_sample_index"])
-        self.drive_end.update(index=int(m["first_sample_index"]) + len(m["drive_v"]),
-                              rate=float(m["sample_rate_hz"]), wall=time.monotonic())
+        self.drive_end.update(
+            index=int(m["first_sample_index"]) + len(m["drive_v"]),
+            rate=float(m["sample_rate_hz"]),
+            wall=time.monotonic(),
+        )
 
     def spin_until(self, predicate, timeout_s: float, what: str) -> None:
         deadline = time.monotonic() + timeout_s
@@ -226,39 +262,57 @@ class Watcher:
             self.graph.check_alive()
             if time.monotonic() > deadline:
                 raise LiveError(
-                    f"timed out after {timeout_s:g} s waiting for {what} (see the logs)")
+                    f"timed out after {timeout_s:g} s waiting for {what} (see the logs)"
+                )
 
     def wait_for_the_target(self) -> None:
         """Once the bridge listens: say where packets are awaited, and give up (SilentTarget) if the
         target's first sensor packet has not come within --first-packet-timeout.
         """
         # the bridge's own publisher (this node advertises the topic too, for the recorder)
-        self.spin_until(lambda: any(info.node_name != self.node.get_name() for info in
-                                    self.node.get_publishers_info_by_topic(topics.SENSOR_VOLTAGE)),
-                        120.0, "the bridge to start")
+        self.spin_until(
+            lambda: any(
+                info.node_name != self.node.get_name()
+                for info in self.node.get_publishers_info_by_topic(topics.SENSOR_VOLTAGE)
+            ),
+            120.0,
+            "the bridge to start",
+        )
         (target_host, target_port), (listen_host, listen_port) = self.args.target, self.args.listen
         timeout_s = self.args.first_packet_timeout
-        print("flaair live: waiting for the target's first sensor packet on "
-              f"{listen_host}:{listen_port} (drive goes to {target_host}:{target_port}); giving up "
-              f"after {timeout_s:g} s", file=sys.stderr, flush=True)
+        print(
+            "flaair live: waiting for the target's first sensor packet on "
+            f"{listen_host}:{listen_port} (drive goes to {target_host}:{target_port}); giving up "
+            f"after {timeout_s:g} s",
+            file=sys.stderr,
+            flush=True,
+        )
         deadline = time.monotonic() + timeout_s
         while self.end["index"] < 0:
             self.rclpy.spin_once(self.node, timeout_sec=0.05)
             self.graph.check_alive()
             if time.monotonic() > deadline:
-                raise SilentTarget("no sensor packet from the target on "
-                                   f"{listen_host}:{listen_port} in {timeout_s:g} s (drive was "
-                                   f"addressed to {target_host}:{target_port}): is the target "
-                                   "running, and sending to this address and port?")
+                raise SilentTarget(
+                    "no sensor packet from the target on "
+                    f"{listen_host}:{listen_port} in {timeout_s:g} s (drive was "
+                    f"addressed to {target_host}:{target_port}): is the target "
+                    "running, and sending to this address and port?"
+                )
 
     def recorder_listens(self) -> bool:
         return self.args.out is None or all(
-            any(i.node_name == node_of("recorder").node_name
-                for i in self.node.get_subscriptions_info_by_topic(t)) for t in self.topics)
+            any(
+                i.node_name == node_of("recorder").node_name
+                for i in self.node.get_subscriptions_info_by_topic(t)
+            )
+            for t in self.topics
+        )
 
     def monitor_listens(self) -> bool:
-        return any(i.node_name == node_of("collision_monitor").node_name
-                   for i in self.node.get_subscriptions_info_by_topic(topics.WING_STATE))
+        return any(
+            i.node_name == node_of("collision_monitor").node_name
+            for i in self.node.get_subscriptions_info_by_topic(topics.WING_STATE)
+        )
 
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
@@ -266,14 +320,21 @@ class Watcher:
         """
         if not self.args.sim:
             self.wait_for_the_target()
-        self.spin_until(lambda: self.end["index"] >= 0 and (
-            self.first_drive_index is not None or self.args.controller == "none"), 120.0,
-                        "the loop to start")
+        self.spin_until(
+            lambda: (
+                self.end["index"] >= 0
+                and (self.first_drive_index is not None or self.args.controller == "none")
+            ),
+            120.0,
+            "the loop to start",
+        )
         # from the controller's first drive sample: the sensor
         # blocks seen so far may lag it (batched, loaded)
         start = max(self.end["index"], self.first_drive_index or 0)
-        print(f"flaair live: running from sample {start} for {self.args.duration:g} s of signal",
-              file=sys.stderr)
+        print(
+            f"flaair live: running from sample {start} for {self.args.duration:g} s of signal",
+            file=sys.stderr,
+        )
         # The run ends once both the sensor blocks and, with a controller, the drive's own samples
         # cover --duration: the sensor blocks this process has taken when the first drive block
         # comes may lag the plant by a loaded executor's backlog (a soak run timed on them alone
@@ -295,12 +356,19 @@ class Watcher:
             clock["wall"] = time.monotonic()
         sensor_done_wall: float | None = None
         while True:
-            left_s = [self.args.duration - (clock["index"] - first) / clock["rate"]
-                      if clock["rate"] > 0 else math.inf for clock, first, _ in clocks]
+            left_s = [
+                self.args.duration - (clock["index"] - first) / clock["rate"]
+                if clock["rate"] > 0
+                else math.inf
+                for clock, first, _ in clocks
+            ]
             if left_s[0] <= 0.0 and sensor_done_wall is None:
                 sensor_done_wall = time.monotonic()
-            why = run_end(left_s[0], left_s[1] if len(left_s) > 1 else None,
-                          0.0 if sensor_done_wall is None else time.monotonic() - sensor_done_wall)
+            why = run_end(
+                left_s[0],
+                left_s[1] if len(left_s) > 1 else None,
+                0.0 if sensor_done_wall is None else time.monotonic() - sensor_done_wall,
+            )
             if why is not None:
                 if why != "covered":
                     print(f"flaair live: {why}", file=sys.stderr)
@@ -312,15 +380,20 @@ class Watcher:
                     stream = "drive" if clock is self.drive_end else "sensor"
                     raise LiveError(
                         f"no {stream} block for 10 s after sample {clock['index']}: the "
-                        f"{'plant' if self.args.sim else 'target'} stopped (see the logs)")
+                        f"{'plant' if self.args.sim else 'target'} stopped (see the logs)"
+                    )
 
     def close(self) -> None:
         self.node.destroy_node()
         self.rclpy.try_shutdown()
 
 
-def run_end(sensor_left_s: float, drive_left_s: float | None, sensor_done_for_s: float,
-            grace_s: float = DRIVE_GRACE_S) -> str | None:
+def run_end(
+    sensor_left_s: float,
+    drive_left_s: float | None,
+    sensor_done_for_s: float,
+    grace_s: float = DRIVE_GRACE_S,
+) -> str | None:
     """Whether a run of --duration is over: None (not yet), "covered" (both clocks reached it), or
     why it ends on the sensor clock alone.
 
@@ -333,15 +406,20 @@ def run_end(sensor_left_s: float, drive_left_s: float | None, sensor_done_for_s:
         return "covered"
     if sensor_done_for_s < grace_s:
         return None
-    return (f"ending on the sensor clock: the drive is still {drive_left_s:.2f} s of signal "
-            f"short of the duration {sensor_done_for_s:.1f} s after the sensor reached it (the "
-            "controller tripped or stopped: see the loop's log)")
+    return (
+        f"ending on the sensor clock: the drive is still {drive_left_s:.2f} s of signal "
+        f"short of the duration {sensor_done_for_s:.1f} s after the sensor reached it (the "
+        "controller tripped or stopped: see the loop's log)"
+    )
 
 
 def run_live(args: argparse.Namespace) -> int:
     """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
-    log_dir = (args.out.parent / f"{args.out.name}.logs") if args.out is not None else Path(
-        "out/live") / time.strftime("%Y%m%d_%H%M%S")
+    log_dir = (
+        (args.out.parent / f"{args.out.name}.logs")
+        if args.out is not None
+        else Path("out/live") / time.strftime("%Y%m%d_%H%M%S")
+    )
     graph = Graph(localhost=not args.subnet, log_dir=log_dir)
     params_file = log_dir / "params.yaml"
     params_file.parent.mkdir(parents=True, exist_ok=True)
@@ -353,15 +431,23 @@ def run_live(args: argparse.Namespace) -> int:
     # kernels (the target's packets would queue up meanwhile), and its stop packet zeroes the target
     # when it closes.
     hot = [role for role in declared.hot if role != "controller" or args.controller == "dsa"]
-    robot = ("simulated robot (real-time plant)" if args.sim
-             else f"target {args.target[0]}:{args.target[1]}")
+    robot = (
+        "simulated robot (real-time plant)"
+        if args.sim
+        else f"target {args.target[0]}:{args.target[1]}"
+    )
     loop = "one process per node" if args.processes else "composed in one process"
-    print(f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}",
-          file=sys.stderr)
+    print(
+        f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}",
+        file=sys.stderr,
+    )
     if args.calibration is None:
-        print("flaair live: WARNING: no --calibration: the front end runs on the model's gains, so "
-              "the sensor-derived pitch reads about 4x small (the model over-predicts the hinge "
-              "sensor); run `bin/flaair calibrate`", file=sys.stderr)
+        print(
+            "flaair live: WARNING: no --calibration: the front end runs on the model's gains, so "
+            "the sensor-derived pitch reads about 4x small (the model over-predicts the hinge "
+            "sensor); run `bin/flaair calibrate`",
+            file=sys.stderr,
+        )
     loop: list = []
     recorder_process = None
     watcher: Watcher | None = None
@@ -373,8 +459,11 @@ def run_live(args: argparse.Namespace) -> int:
         graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
         if args.foxglove is not None:
             graph.start("foxglove", _argv("foxglove", ros_args[1:]))
-            print(f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
-                  "(layout: config/foxglove_layout.json)", file=sys.stderr)
+            print(
+                f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
+                "(layout: config/foxglove_layout.json)",
+                file=sys.stderr,
+            )
         watcher = Watcher(graph, args)
         watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
         # the monitor subscribes before the loop starts too
@@ -384,10 +473,22 @@ def run_live(args: argparse.Namespace) -> int:
         else:
             batch = settings.live().dds_batch_blocks
             priority = 0 if args.sim else settings.bridge().realtime_priority
-            loop.append(graph.start("loop", [
-                *node_argv("flaair_common", "container"), "--local-topics",
-                ",".join(declared.local_topics), "--dds-batch", str(batch), "--realtime-priority",
-                str(priority), *(node_of(role).component for role in hot), *ros_args]))
+            loop.append(
+                graph.start(
+                    "loop",
+                    [
+                        *node_argv("flaair_common", "container"),
+                        "--local-topics",
+                        ",".join(declared.local_topics),
+                        "--dds-batch",
+                        str(batch),
+                        "--realtime-priority",
+                        str(priority),
+                        *(node_of(role).component for role in hot),
+                        *ros_args,
+                    ],
+                )
+            )
         watcher.run_for_duration()
         status, silent = "duration reached", None
     except KeyboardInterrupt:
@@ -395,7 +496,7 @@ def run_live(args: argparse.Namespace) -> int:
     # ended the same way as a run: stop packet, bag closed; then the error
     except SilentTarget as exc:
         status, silent = "no target", exc
-    except (GraphError, LiveError) as exc:   # before RuntimeError: both are RuntimeErrors
+    except (GraphError, LiveError) as exc:  # before RuntimeError: both are RuntimeErrors
         for process in reversed(loop):
             graph.stop(process, timeout_s=LOOP_CLOSE_S)
         if watcher is not None:
@@ -416,8 +517,11 @@ def run_live(args: argparse.Namespace) -> int:
     if watcher is not None:
         watcher.close()
     graph.close()
-    print(f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node "
-          "stopped" + (f", bag {args.out} closed" if args.out is not None else ""), file=sys.stderr)
+    print(
+        f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node "
+        "stopped" + (f", bag {args.out} closed" if args.out is not None else ""),
+        file=sys.stderr,
+    )
     if silent is not None:
         print(f"flaair live: error: {silent}", file=sys.stderr)
         return EXIT_SILENT_TARGET
@@ -425,37 +529,62 @@ def run_live(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="flaair live", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair live",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--sim", action="store_true", help="the simulated robot, paced in real time")
-    where.add_argument("--target", metavar="HOST:PORT",
-                       help="the real-time target's drive receiver")
-    parser.add_argument("--listen", metavar="HOST:PORT",
-                        help="where the target's sensor packets arrive (with --target)")
-    parser.add_argument("--controller", choices=("dsa", "none"), default="dsa",
-                        help="close the loop with the dSA controller")
-    parser.add_argument("--duration", type=float, default=5.0, metavar="S",
-                        help="run this long of signal time (default 5 s): until the sensor "
-                             "and drive streams both cover it; a tripped controller's drive, "
-                             f"which no longer keeps pace, is waited for {DRIVE_GRACE_S:g} s "
-                             "more at most")
+    where.add_argument(
+        "--target", metavar="HOST:PORT", help="the real-time target's drive receiver"
+    )
+    parser.add_argument(
+        "--listen",
+        metavar="HOST:PORT",
+        help="where the target's sensor packets arrive (with --target)",
+    )
+    parser.add_argument(
+        "--controller",
+        choices=("dsa", "none"),
+        default="dsa",
+        help="close the loop with the dSA controller",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=5.0,
+        metavar="S",
+        help="run this long of signal time (default 5 s): until the sensor "
+        "and drive streams both cover it; a tripped controller's drive, "
+        f"which no longer keeps pace, is waited for {DRIVE_GRACE_S:g} s "
+        "more at most",
+    )
     parser.add_argument("--out", type=Path, help="record every /flaair topic to this bag directory")
-    parser.add_argument("--foxglove", metavar="HOST:PORT",
-                        help="serve the live graph to Foxglove / Lichtblick here")
-    parser.add_argument("--calibration", type=Path,
-                        help="front end gains from this calibration.yaml")
-    parser.add_argument("--lead-samples", type=int,
-                        help="bridge: drive sent this far ahead (default: config)")
-    parser.add_argument("--first-packet-timeout", type=float, metavar="S",
-                        help="--target: give up (exit 3) if the target's first sensor packet has "
-                             "not come this long "
-                             "after the bridge listens (default: config/flaair.yaml "
-                             "live.first_packet_timeout_s)")
-    parser.add_argument("--processes", action="store_true",
-                        help="one process per node instead of the composed loop")
-    parser.add_argument("--subnet", action="store_true",
-                        help="discover the whole subnet, not only this machine")
+    parser.add_argument(
+        "--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here"
+    )
+    parser.add_argument(
+        "--calibration", type=Path, help="front end gains from this calibration.yaml"
+    )
+    parser.add_argument(
+        "--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)"
+    )
+    parser.add_argument(
+        "--first-packet-timeout",
+        type=float,
+        metavar="S",
+        help="--target: give up (exit 3) if the target's first sensor packet has "
+        "not come this long "
+        "after the bridge listens (default: config/flaair.yaml "
+        "live.first_packet_timeout_s)",
+    )
+    parser.add_argument(
+        "--processes", action="store_true", help="one process per node instead of the composed loop"
+    )
+    parser.add_argument(
+        "--subnet", action="store_true", help="discover the whole subnet, not only this machine"
+    )
     # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
     parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -464,9 +593,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.sim:
             if args.listen is None:
                 raise LiveError(
-                    "--target needs --listen HOST:PORT (where the target's sensor packets arrive)")
-            args.target, args.listen = (host_port(args.target, "--target"),
-                                        host_port(args.listen, "--listen"))
+                    "--target needs --listen HOST:PORT (where the target's sensor packets arrive)"
+                )
+            args.target, args.listen = (
+                host_port(args.target, "--target"),
+                host_port(args.listen, "--listen"),
+            )
         if args.foxglove is not None:
             args.foxglove = host_port(args.foxglove, "--foxglove")
             port_free(args.foxglove, "--foxglove")

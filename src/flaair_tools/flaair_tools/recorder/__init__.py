@@ -7,4 +7,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `player`: the player node (`bin/flaair play`)
 """
 
-__all__ = ["recording", "recorder_io", "recorder_node", "player"]
+__all__ = ["player", "recorder_io", "recorder_node", "recording"]

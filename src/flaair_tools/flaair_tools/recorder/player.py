@@ -14,6 +14,7 @@ Usage:
   bin/flaair play BAG [--rate N | --fast] [--topics /flaair/sensor_v ...] [--clock]
                       [--wait-subscribers]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,22 +75,40 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         defaults = node_parameters(CONFIG_FILE, SECTION)
     except ConfigError as exc:
         raise SystemExit(f"flaair play: {exc}") from None
-    parser = argparse.ArgumentParser(prog="flaair play", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair play",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("bag", help="bag directory")
     pace = parser.add_mutually_exclusive_group()
-    pace.add_argument("--rate", type=float, default=float(defaults["rate"]),
-                      help=f"playback speed, 1 = real time (default {defaults['rate']})")
+    pace.add_argument(
+        "--rate",
+        type=float,
+        default=float(defaults["rate"]),
+        help=f"playback speed, 1 = real time (default {defaults['rate']})",
+    )
     pace.add_argument("--fast", action="store_true", help="publish as fast as possible")
     parser.add_argument("--topics", nargs="+", default=None, help="replay only these topics")
-    parser.add_argument("--clock", action="store_true", default=bool(defaults["publish_clock"]),
-                        help="publish /clock with the bag's time")
-    parser.add_argument("--start-delay", type=float, default=float(defaults["start_delay_s"]),
-                        help="seconds between creating publishers and the first message (default "
-                             f"{defaults['start_delay_s']})")
-    parser.add_argument("--wait-subscribers", action="store_true",
-                        help="start only once every topic has a subscriber "
-                             f"(give up after {defaults['wait_subscribers_timeout_s']} s)")
+    parser.add_argument(
+        "--clock",
+        action="store_true",
+        default=bool(defaults["publish_clock"]),
+        help="publish /clock with the bag's time",
+    )
+    parser.add_argument(
+        "--start-delay",
+        type=float,
+        default=float(defaults["start_delay_s"]),
+        help="seconds between creating publishers and the first message (default "
+        f"{defaults['start_delay_s']})",
+    )
+    parser.add_argument(
+        "--wait-subscribers",
+        action="store_true",
+        help="start only once every topic has a subscriber "
+        f"(give up after {defaults['wait_subscribers_timeout_s']} s)",
+    )
     args = parser.parse_args(argv)
     args.wait_timeout_s = float(defaults["wait_subscribers_timeout_s"])
     if not args.fast and not args.rate > 0:
@@ -106,13 +125,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.topics:
             missing = [t for t in args.topics if t not in info.topics]
             if missing:
-                raise bagio.BagTopicError(f"{args.bag}: no topic {', '.join(missing)} in the bag "
-                                          f"(it has: {', '.join(sorted(info.topics))})")
+                raise bagio.BagTopicError(
+                    f"{args.bag}: no topic {', '.join(missing)} in the bag "
+                    f"(it has: {', '.join(sorted(info.topics))})"
+                )
     except bagio.BagError as exc:
         print(f"flaair play: {exc}", file=sys.stderr)
         return 1
-    chosen = [t for t in (args.topics or sorted(info.topics))
-              if not (args.clock and t == topic_names.CLOCK)]
+    chosen = [
+        t
+        for t in (args.topics or sorted(info.topics))
+        if not (args.clock and t == topic_names.CLOCK)
+    ]
 
     stop = False
 
@@ -129,20 +153,29 @@ def main(argv: list[str] | None = None) -> int:
         for topic in chosen:
             qos = offer_qos(info.topics[topic].offered_qos)
             profile = QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=qos.depth,
-                reliability=ReliabilityPolicy.RELIABLE if qos.reliable
-                else ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.TRANSIENT_LOCAL
-                if qos.transient_local else DurabilityPolicy.VOLATILE,
+                history=HistoryPolicy.KEEP_LAST,
+                depth=qos.depth,
+                reliability=ReliabilityPolicy.RELIABLE
+                if qos.reliable
+                else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL
+                if qos.transient_local
+                else DurabilityPolicy.VOLATILE,
             )
             publishers[topic] = node.create_publisher(
-                message_class(info.topics[topic].msgtype), topic, profile)
-        clock_pub = node.create_publisher(
-            Clock, topic_names.CLOCK, CLOCK_QOS_DEPTH) if args.clock else None
+                message_class(info.topics[topic].msgtype), topic, profile
+            )
+        clock_pub = (
+            node.create_publisher(Clock, topic_names.CLOCK, CLOCK_QOS_DEPTH) if args.clock else None
+        )
         if args.wait_subscribers:
             deadline = time.monotonic() + args.wait_timeout_s
             waiting = list(publishers.values()) + ([clock_pub] if clock_pub is not None else [])
-            while not stop and time.monotonic() < deadline and any(
-                    p.get_subscription_count() == 0 for p in waiting):
+            while (
+                not stop
+                and time.monotonic() < deadline
+                and any(p.get_subscription_count() == 0 for p in waiting)
+            ):
                 time.sleep(0.05)
         deadline = time.monotonic() + args.start_delay
         while not stop and time.monotonic() < deadline:

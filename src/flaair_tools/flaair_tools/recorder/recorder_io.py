@@ -1,10 +1,12 @@
 """The recorder's parameters: their one declaration, and `bin/flaair record` options -> ROS args."""
+
 from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -48,22 +50,52 @@ CONFIG_FILE = "flaair.yaml"
 # At most one block stream's QoS depth per callback, so other topics get their turn.
 RECORDING = RecordingParams(drain_limit=BLOCK_STREAM.depth)
 RECORDER_PARAMS = [
-    ParamSpec("output_path", str, "Bag directory to create (empty: out/bags/flaair_<date>_<time>)",
-              read_only=True),
-    ParamSpec("topics", str, "Comma-separated topics to record (empty: every /flaair/* topic)",
-              read_only=True),
+    ParamSpec(
+        "output_path",
+        str,
+        "Bag directory to create (empty: out/bags/flaair_<date>_<time>)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "topics",
+        str,
+        "Comma-separated topics to record (empty: every /flaair/* topic)",
+        read_only=True,
+    ),
     ParamSpec("record_clock", bool, "Also record /clock", read_only=True),
     ParamSpec("compression", bool, "zstd-compress each MCAP chunk", read_only=True),
-    ParamSpec("chunk_size_bytes", int, "Close an MCAP chunk at this size [bytes]", 1024, 2**31 - 1,
-              read_only=True),
-    ParamSpec("flush_period_s", float,
-              "Close the open chunk and flush this often; older data survives kill -9 [s]", 0.01,
-              3600.0, read_only=True),
-    ParamSpec("discovery_period_s", float, "Look for new topics this often [s]", 0.01, 3600.0,
-              read_only=True),
-    ParamSpec("queue_depth", int,
-              "Subscription queue per topic (KEEP_LAST): slack while the recorder is starved", 1,
-              10**7, read_only=True),
+    ParamSpec(
+        "chunk_size_bytes",
+        int,
+        "Close an MCAP chunk at this size [bytes]",
+        1024,
+        2**31 - 1,
+        read_only=True,
+    ),
+    ParamSpec(
+        "flush_period_s",
+        float,
+        "Close the open chunk and flush this often; older data survives kill -9 [s]",
+        0.01,
+        3600.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "discovery_period_s",
+        float,
+        "Look for new topics this often [s]",
+        0.01,
+        3600.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "queue_depth",
+        int,
+        "Subscription queue per topic (KEEP_LAST): slack while the recorder is starved",
+        1,
+        10**7,
+        read_only=True,
+    ),
 ]
 
 
@@ -72,20 +104,26 @@ def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair recor
     (anything after --ros-args passes through).
     """
     parser = argparse.ArgumentParser(
-        prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME))
+        prog=prog,
+        description=description,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME),
+    )
     parser.add_argument("-o", "--output", help="bag directory to create")
-    parser.add_argument("--topics", nargs="+", default=None,
-                        help="topics to record (default: every /flaair topic)")
+    parser.add_argument(
+        "--topics", nargs="+", default=None, help="topics to record (default: every /flaair topic)"
+    )
     parser.add_argument("--clock", action="store_true", help="also record /clock")
     parser.add_argument("--no-compression", action="store_true", help="store chunks uncompressed")
-    parser.add_argument("--use-sim-time", action="store_true",
-                        help="run the node on sim time (log times are signal times with or without "
-                             "it)")
+    parser.add_argument(
+        "--use-sim-time",
+        action="store_true",
+        help="run the node on sim time (log times are signal times with or without it)",
+    )
     ros_args: list[str] = []
     if "--ros-args" in argv:
         cut = argv.index("--ros-args")
-        argv, ros_args = argv[:cut], argv[cut + 1:]
+        argv, ros_args = argv[:cut], argv[cut + 1 :]
     args = parser.parse_args(argv)
 
     def param(name: str, value: str) -> list[str]:
@@ -112,8 +150,9 @@ class SkipTopic(ValueError):
     """A discovered topic the recorder cannot record (the message says why)."""
 
 
-def topic_to_record(topic: str, types: list[str], publishers: list[Any],
-                    writer: bagio.BagWriter, depth: int) -> tuple[str, type, QoSProfile] | None:
+def topic_to_record(
+    topic: str, types: list[str], publishers: list[Any], writer: bagio.BagWriter, depth: int
+) -> tuple[str, type, QoSProfile] | None:
     """(type, message class, subscription QoS) of a discovered topic, its offered QoS added to the
     bag; None while it has no publisher (whose QoS
     decides ours); SkipTopic if it cannot be recorded.
@@ -130,25 +169,40 @@ def topic_to_record(topic: str, types: list[str], publishers: list[Any],
     except (ValueError, bagio.BagError) as exc:
         raise SkipTopic(str(exc)) from None
     qos = recording.adapt_qos(offered)
-    return msgtype, cls, QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=depth, reliability=ReliabilityPolicy.RELIABLE
-        if qos.reliable else ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if qos.transient_local
-        else DurabilityPolicy.VOLATILE)
+    return (
+        msgtype,
+        cls,
+        QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=depth,
+            reliability=ReliabilityPolicy.RELIABLE
+            if qos.reliable
+            else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL
+            if qos.transient_local
+            else DurabilityPolicy.VOLATILE,
+        ),
+    )
 
 
 def open_writer(values: dict[str, Any], store: Any) -> bagio.BagWriter:
     """The bag writer the recorder's parameters ask
     for (`output_path` empty: a timestamped name).
     """
-    path = (Path(values["output_path"]) if values["output_path"]
-            else recording.default_output_path(time.time()))
+    path = (
+        Path(values["output_path"])
+        if values["output_path"]
+        else recording.default_output_path(time.time())
+    )
     try:
-        return bagio.BagWriter(path, compression=values["compression"],
-                               chunk_size_bytes=values["chunk_size_bytes"], store=store)
+        return bagio.BagWriter(
+            path,
+            compression=values["compression"],
+            chunk_size_bytes=values["chunk_size_bytes"],
+            store=store,
+        )
     except bagio.BagError as exc:
         raise ParameterError(f"parameter 'output_path': {exc}") from exc
-
 
 
 def take_all(takers: dict[str, tuple], warn: Callable[[str], None]) -> int:
@@ -163,7 +217,7 @@ def take_all(takers: dict[str, tuple], warn: Callable[[str], None]) -> int:
             while (item := take()) is not None:
                 on_message(*item)
                 taken += 1
-        except Exception as exc:   # noqa: BLE001 - whatever the middleware raises while it dies
+        except Exception as exc:
             warn(f"{topic}: could not take the last messages ({exc})")
     return taken
 

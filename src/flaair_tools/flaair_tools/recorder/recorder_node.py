@@ -3,6 +3,7 @@
 What it records, when, and how it survives a kill: flaair_tools.recorder.recorder_io.RECORDER_HELP
 (also the --help of `bin/flaair record`).
 """
+
 from __future__ import annotations
 
 import sys
@@ -34,16 +35,19 @@ class RecorderNode(Node):
         self.store = bagio.typestore()
         self.writer = rio.open_writer(self.p, self.store)
         self.subscribed: dict[str, Any] = {}
-        self.takers: dict[str, tuple] = {}   # topic -> (take, on_message) of its DDS subscription
+        self.takers: dict[str, tuple] = {}  # topic -> (take, on_message) of its DDS subscription
         self.skipped, self.received = set(), {}
         # composed (an EventsExecutor): no take() in a callback; the block streams come in-process
-        self.recording = (rio.RECORDING if intra.current() is None
-                          else replace(rio.RECORDING, drain_limit=1))
+        self.recording = (
+            rio.RECORDING if intra.current() is None else replace(rio.RECORDING, drain_limit=1)
+        )
         # wall-clock (steady) timers: with use_sim_time, a ROS-time timer stops when /clock does
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         for topic in sorted(intra.current().local_topics if intra.current() is not None else ()):
-            if (recording.wanted(topic, self.chosen, self.p["record_clock"])
-                and topic in BLOCK_STREAM_TYPES):
+            if (
+                recording.wanted(topic, self.chosen, self.p["record_clock"])
+                and topic in BLOCK_STREAM_TYPES
+            ):
                 self.record_in_process(intra.current(), topic, BLOCK_STREAM_TYPES[topic])
         self.create_timer(self.p["discovery_period_s"], self.discover, clock=steady)
         self.create_timer(self.p["flush_period_s"], self.writer.flush, clock=steady)
@@ -54,21 +58,32 @@ class RecorderNode(Node):
     def discover(self) -> None:
         """Subscribe to every wanted topic not subscribed yet."""
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.subscribed or topic in self.skipped or not recording.wanted(
-                    topic, self.chosen, self.p["record_clock"], self.get_namespace()):
+            if (
+                topic in self.subscribed
+                or topic in self.skipped
+                or not recording.wanted(
+                    topic, self.chosen, self.p["record_clock"], self.get_namespace()
+                )
+            ):
                 continue
             try:
-                found = rio.topic_to_record(topic, types, self.get_publishers_info_by_topic(topic),
-                                            self.writer, self.p["queue_depth"])
+                found = rio.topic_to_record(
+                    topic,
+                    types,
+                    self.get_publishers_info_by_topic(topic),
+                    self.writer,
+                    self.p["queue_depth"],
+                )
             except rio.SkipTopic as exc:
                 self.skip(topic, str(exc))
                 continue
-            if found is None:   # seen through a subscriber only: the next round, with a publisher
+            if found is None:  # seen through a subscriber only: the next round, with a publisher
                 continue
             msgtype, cls, profile = found
             self.received[topic], stamped = 0, bagio.has_leading_stamp(msgtype, self.store)
             self.subscribed[topic] = self.create_subscription(
-                cls, topic, self.make_callback(topic, stamped, cls), profile, raw=True)
+                cls, topic, self.make_callback(topic, stamped, cls), profile, raw=True
+            )
             self.get_logger().info(f"subscribed to {topic} [{msgtype}]")
 
     def record_in_process(self, bus: intra.Bus, topic: str, msgtype: str) -> None:
@@ -97,6 +112,7 @@ class RecorderNode(Node):
 
     def make_callback(self, topic: str, stamped: bool, cls: type):
         """Callback writing `topic`'s raw message, then those queued behind it (recording.drain)."""
+
         def take() -> Any:
             handle = self.subscribed[topic].handle
             with handle:
@@ -106,8 +122,9 @@ class RecorderNode(Node):
             queued = recording.drain(take, self.recording)
             for data, info in [(data, info), *queued]:
                 stamp = bagio.leading_stamp_ns(data) if stamped else None
-                self.apply(recording.Received(
-                    topic, data, stamp, info.get("source_timestamp") or None))
+                self.apply(
+                    recording.Received(topic, data, stamp, info.get("source_timestamp") or None)
+                )
             self.received[topic] += 1 + len(queued)
 
         self.takers[topic] = (take, on_message)
@@ -136,8 +153,14 @@ def main(argv: list[str] | None = None) -> int:
     args = None if argv is None else rio.cli_to_ros_args(argv, rio.RECORDER_HELP)
     if args is not None:
         sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
-    return run_node(RecorderNode, rio.RECORDER_PARAMS, rio.CONFIG_FILE, rio.NODE_NAME, args,
-                    executor_kind="single")
+    return run_node(
+        RecorderNode,
+        rio.RECORDER_PARAMS,
+        rio.CONFIG_FILE,
+        rio.NODE_NAME,
+        args,
+        executor_kind="single",
+    )
 
 
 if __name__ == "__main__":

@@ -12,13 +12,14 @@ Drain: the executor hands a callback one message per wake-up, too few for 20 kHz
 10-sample blocks; `drain` takes the messages already queued behind it, at most
 `RecordingParams.drain_limit` per callback so that other topics get their turn.
 """
+
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple, TypeVar, Union
+from typing import Any, NamedTuple, TypeVar
 
 from rosbags.interfaces import QosDurability, QosReliability
 
@@ -40,7 +41,7 @@ class LogTimeState(NamedTuple):
     """Signal time of the latest stamped message, and the header-less messages before it."""
 
     signal_ns: int | None = None
-    pending: tuple["Write", ...] = ()
+    pending: tuple[Write, ...] = ()
 
 
 class Received(NamedTuple):
@@ -49,7 +50,7 @@ class Received(NamedTuple):
     topic: str
     data: bytes | memoryview
     stamp_ns: int | None
-    publish_ns: int | None      # the publisher's send time, if the middleware gave it
+    publish_ns: int | None  # the publisher's send time, if the middleware gave it
 
 
 class Finish(NamedTuple):
@@ -67,20 +68,22 @@ class Write(NamedTuple):
     publish_ns: int | None
 
 
-def step(state: LogTimeState, inputs: Union[Received, Finish],
-         params: RecordingParams | None = None) -> tuple[LogTimeState, tuple[Write, ...]]:
+def step(
+    state: LogTimeState, inputs: Received | Finish, params: RecordingParams | None = None
+) -> tuple[LogTimeState, tuple[Write, ...]]:
     """The writes one message (or the finish) releases, in order."""
     if isinstance(inputs, Finish):  # no stamped message ever came: publish (else receive) times
         return LogTimeState(state.signal_ns), tuple(
-            w._replace(log_ns=w.publish_ns or inputs.now_ns) for w in state.pending)
+            w._replace(log_ns=w.publish_ns or inputs.now_ns) for w in state.pending
+        )
     topic, data, stamp_ns, publish_ns = inputs
     if stamp_ns is not None:
         write = (Write(topic, stamp_ns, data, publish_ns),)
         if state.pending:
             write = tuple(w._replace(log_ns=stamp_ns) for w in state.pending) + write
         return LogTimeState(stamp_ns), write
-    if state.signal_ns is None:   # keep a copy: the middleware may reuse the buffer
-        return LogTimeState(None, state.pending + (Write(topic, 0, bytes(data), publish_ns),)), ()
+    if state.signal_ns is None:  # keep a copy: the middleware may reuse the buffer
+        return LogTimeState(None, (*state.pending, Write(topic, 0, bytes(data), publish_ns))), ()
     return state, (Write(topic, state.signal_ns, data, publish_ns),)
 
 
@@ -101,12 +104,12 @@ def parse_topic_list(text: str) -> tuple[str, ...]:
     bad = [name for name in names if not name.startswith("/")]
     if bad:
         raise ParameterError(
-            f"parameter 'topics': topic names must start with '/': {', '.join(bad)}")
+            f"parameter 'topics': topic names must start with '/': {', '.join(bad)}"
+        )
     return names
 
 
-def wanted(topic: str, chosen: tuple[str, ...], record_clock: bool,
-           namespace: str = "/") -> bool:
+def wanted(topic: str, chosen: tuple[str, ...], record_clock: bool, namespace: str = "/") -> bool:
     """Whether to record `topic`: the chosen ones, else every /flaair topic of the recorder's
     `namespace` (a recorder started in /bench2 records /bench2/flaair/...); /clock if asked.
     """

@@ -7,4 +7,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `bag_cli`: bag info and recovery
 """
 
-__all__ = ["topic", "param", "node_cli", "bag_cli"]
+__all__ = ["bag_cli", "node_cli", "param", "topic"]

@@ -12,6 +12,7 @@ Exit codes: 0 nothing lost (for a killed recorder: every message that reached th
 1 the bag is damaged (info) or messages were lost (reindex: counts per topic are printed);
 2 not a bag, or it cannot be read or rebuilt (nothing was changed); 130/143 interrupted.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,8 +35,14 @@ def _reindex(bag: Path) -> int:
 
     source = bagio.single_mcap_file(bag)
     start = time.perf_counter()
-    with tqdm(total=source.stat().st_size, unit="B", unit_scale=True, desc="reindex",
-              file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
+    with tqdm(
+        total=source.stat().st_size,
+        unit="B",
+        unit_scale=True,
+        desc="reindex",
+        file=sys.stderr,
+        disable=not sys.stderr.isatty(),
+    ) as bar:
         report = bagio.reindex(bag, progress=lambda offset: bar.update(offset - bar.n))
     print(f"{report.path}: read up to {report.stopped_at} in {time.perf_counter() - start:.2f} s")
     for line in report.damage:
@@ -45,15 +52,20 @@ def _reindex(bag: Path) -> int:
         lost = "unknown" if counts.lost is None else str(counts.lost)
         print(f"  {topic:{width}s}  kept {counts.kept:8d}  lost {lost:>8s}")
     if report.unverified_dropped:
-        print(f"  {report.unverified_dropped} undecodable message record(s) from damaged chunks "
-              "dropped")
+        print(
+            f"  {report.unverified_dropped} undecodable message record(s) from damaged chunks "
+            "dropped"
+        )
     if report.partial_tail:
         print("  the file ends inside a chunk: what it held past the cut never reached the disk")
     if report.backup is not None:
         print(f"  the damaged original is kept as {report.backup}")
     if report.lost or report.backup is not None:
-        print(f"flaair bag reindex: {report.path}: {report.lost} message(s) lost; the bag now "
-              f"holds {sum(report.counts.values())}", file=sys.stderr)
+        print(
+            f"flaair bag reindex: {report.path}: {report.lost} message(s) lost; the bag now "
+            f"holds {sum(report.counts.values())}",
+            file=sys.stderr,
+        )
         return 1
     return 0
 
@@ -73,25 +85,32 @@ def _info(bag: Path, quick: bool) -> int:
         return 0
     for line in bagio.damage_lines(log):
         print(f"  damaged: {line}")
-    unreadable = {t: info.topics[t].count - readable.get(t, 0) for t in info.topics
-                  if info.topics[t].count > readable.get(t, 0)}
+    unreadable = {
+        t: info.topics[t].count - readable.get(t, 0)
+        for t in info.topics
+        if info.topics[t].count > readable.get(t, 0)
+    }
     listing = ", ".join(f"{t} {n}" for t, n in sorted(unreadable.items())) or "count unknown"
-    print(f"flaair bag info: {bag}: DAMAGED, messages listed but unreadable: {listing}; "
-          f"recover what is left with: bin/flaair bag reindex {bag}", file=sys.stderr)
+    print(
+        f"flaair bag info: {bag}: DAMAGED, messages listed but unreadable: {listing}; "
+        f"recover what is left with: bin/flaair bag reindex {bag}",
+        file=sys.stderr,
+    )
     return 1
 
 
 def main(argv: list[str] | None = None) -> int:
     """`flaair bag info BAG` / `flaair bag reindex BAG`; see the module docstring for exit codes."""
-    parser = argparse.ArgumentParser(prog="flaair bag", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair bag", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="verb", required=True)
     info = sub.add_parser("info", help="topics, types, counts, time span; checks every chunk")
     info.add_argument("bag", type=Path)
     info.add_argument("--quick", action="store_true", help="do not read the chunks to check them")
     sub.add_parser(
-        "reindex", help="recover a damaged bag or one whose recorder was killed").add_argument(
-        "bag", type=Path)
+        "reindex", help="recover a damaged bag or one whose recorder was killed"
+    ).add_argument("bag", type=Path)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     signal.signal(signal.SIGTERM, _interrupted)
     try:

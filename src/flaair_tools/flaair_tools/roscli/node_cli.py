@@ -6,12 +6,14 @@ Examples
   bin/flaair node list --discovery-s 3
   bin/flaair node list --wait-for /dsa_controller_node --timeout 60
 """
+
 from __future__ import annotations
 
 import argparse
 import sys
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -53,22 +55,38 @@ def full_name(name: str, namespace: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     defaults = cli_defaults("flaair node")
-    parser = argparse.ArgumentParser(prog="flaair node", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair node",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = parser.add_subparsers(dest="verb", required=True)
     listing = sub.add_parser("list", help="names of the running nodes, one a line")
-    listing.add_argument("--discovery-s", type=float, default=float(defaults["discovery_s"]),
-                         help="listen this long for nodes to announce themselves (default "
-                              f"{defaults['discovery_s']} s)")
-    listing.add_argument("--wait-for", metavar="NODE", action="append", default=[],
-                         help="keep listening until NODE (a full name, e.g. /dsa_controller_node) "
-                              "is seen, up to --timeout; repeatable. Exit 1 if one never appears")
-    listing.add_argument("--timeout", type=float, default=float(defaults["wait_for_timeout_s"]),
-                         help="longest wait for the --wait-for nodes (default "
-                              f"{defaults['wait_for_timeout_s']} s)")
+    listing.add_argument(
+        "--discovery-s",
+        type=float,
+        default=float(defaults["discovery_s"]),
+        help="listen this long for nodes to announce themselves (default "
+        f"{defaults['discovery_s']} s)",
+    )
+    listing.add_argument(
+        "--wait-for",
+        metavar="NODE",
+        action="append",
+        default=[],
+        help="keep listening until NODE (a full name, e.g. /dsa_controller_node) "
+        "is seen, up to --timeout; repeatable. Exit 1 if one never appears",
+    )
+    listing.add_argument(
+        "--timeout",
+        type=float,
+        default=float(defaults["wait_for_timeout_s"]),
+        help=f"longest wait for the --wait-for nodes (default {defaults['wait_for_timeout_s']} s)",
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.discovery_s < 0 or args.timeout <= 0:
         parser.error("--discovery-s must be >= 0 and --timeout > 0")
+
     def body(node) -> int:
         me = full_name(node.get_name(), node.get_namespace())
         wanted = set(args.wait_for)
@@ -84,12 +102,18 @@ def main(argv: list[str] | None = None) -> int:
             print(name)
         domain = node.context.get_domain_id()
         if wanted - names:
-            print(f"flaair node list: {', '.join(sorted(wanted - names))} not seen in "
-                  f"{args.timeout:g} s on ROS_DOMAIN_ID {domain}", file=sys.stderr)
+            print(
+                f"flaair node list: {', '.join(sorted(wanted - names))} not seen in "
+                f"{args.timeout:g} s on ROS_DOMAIN_ID {domain}",
+                file=sys.stderr,
+            )
             return 1
         if not names:
-            print(f"flaair node list: no nodes seen in {args.discovery_s:g} s on ROS_DOMAIN_ID "
-                  f"{domain}", file=sys.stderr)
+            print(
+                f"flaair node list: no nodes seen in {args.discovery_s:g} s on ROS_DOMAIN_ID "
+                f"{domain}",
+                file=sys.stderr,
+            )
         return 0
 
     return run_with_node("flaair_node_cli", body)

@@ -9,6 +9,7 @@ Examples
   bin/flaair service list
   bin/flaair service call /dsa_controller_node/reset_watchdog std_srvs/srv/Trigger
 """
+
 from __future__ import annotations
 
 import argparse
@@ -34,16 +35,24 @@ def parse_request(service_class: type, text: str) -> object:
 
 def main(argv: list[str] | None = None) -> int:
     defaults = cli_defaults("flaair service")
-    parser = argparse.ArgumentParser(prog="flaair service", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="flaair service",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("verb", choices=("list", "call"))
-    parser.add_argument("service", nargs="?", help="service name (call), e.g. "
-                                                   "/dsa_controller_node/reset_watchdog")
+    parser.add_argument(
+        "service", nargs="?", help="service name (call), e.g. /dsa_controller_node/reset_watchdog"
+    )
     parser.add_argument("type", nargs="?", help="service type (call), e.g. std_srvs/srv/Trigger")
     parser.add_argument("request", nargs="?", default="", help="request fields as YAML (call)")
-    parser.add_argument("--timeout", type=float, default=float(defaults["service_timeout_s"]),
-                        help="seconds to wait for the service and for its answer (default "
-                             f"{defaults['service_timeout_s']})")
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=float(defaults["service_timeout_s"]),
+        help="seconds to wait for the service and for its answer (default "
+        f"{defaults['service_timeout_s']})",
+    )
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if args.verb == "call" and not (args.service and args.type):
         parser.error("call needs a service name and type: bin/flaair service call NAME TYPE")
@@ -61,21 +70,25 @@ def main(argv: list[str] | None = None) -> int:
 
     def body(node) -> int:
         if args.verb == "list":
-            wait_s = min(args.timeout, 2.0)   # discovery: what answers within a moment
+            wait_s = min(args.timeout, 2.0)  # discovery: what answers within a moment
             rclpy.spin_once(node, timeout_sec=wait_s)
             for name, types in sorted(node.get_service_names_and_types()):
                 print(f"{name} [{', '.join(types)}]")
             return 0
         client = node.create_client(service_class, args.service)
         if not client.wait_for_service(timeout_sec=args.timeout):
-            print(f"flaair service call: no service '{args.service}' within {args.timeout:g} s",
-                  file=sys.stderr)
+            print(
+                f"flaair service call: no service '{args.service}' within {args.timeout:g} s",
+                file=sys.stderr,
+            )
             return 1
         future = client.call_async(request)
         rclpy.spin_until_future_complete(node, future, timeout_sec=args.timeout)
         if not future.done() or future.result() is None:
-            print(f"flaair service call: '{args.service}' did not answer within "
-                  f"{args.timeout:g} s", file=sys.stderr)
+            print(
+                f"flaair service call: '{args.service}' did not answer within {args.timeout:g} s",
+                file=sys.stderr,
+            )
             return 1
         print(json.dumps(to_dict(future.result()), allow_nan=False))
         return 0

@@ -9,4 +9,4 @@ Modules (import them by name; this package imports none of them eagerly):
 - `sweep_cli`: `bin/flaair sweep`
 """
 
-__all__ = ["sweep", "sweep_batch", "sweep_report", "stroke_experiments", "sweep_cli"]
+__all__ = ["stroke_experiments", "sweep", "sweep_batch", "sweep_cli", "sweep_report"]

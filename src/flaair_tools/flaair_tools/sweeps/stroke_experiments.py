@@ -14,6 +14,7 @@ steady error in degrees.
 Experiments (config/sweeps.yaml, stroke_experiments): a setpoint step, a wing that loses 30 % of
 its inertia mid-run, an obstacle that clips the stroke.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,8 +58,9 @@ class Experiment:
     obstacle_stroke_limit_deg: float | None = None
 
 
-def experiments_from_config(section: dict[str, Any],
-                            modes: list[str] | None = None) -> list[Experiment]:
+def experiments_from_config(
+    section: dict[str, Any], modes: list[str] | None = None
+) -> list[Experiment]:
     """The experiments of config/sweeps.yaml
     ``stroke_experiments`` (one per experiment and mode).
     """
@@ -66,10 +68,19 @@ def experiments_from_config(section: dict[str, Any],
     for mode in modes or section["modes"]:
         for name, spec in section["experiments"].items():
             before, after = spec["setpoint_deg"]
-            out.append(Experiment(f"{name}_{mode}", spec["description"], mode,
-                                  float(section["duration_s"]), float(section["event_s"]),
-                                  float(before), float(after), spec.get("inertia_factor"),
-                                  spec.get("obstacle_stroke_limit_deg")))
+            out.append(
+                Experiment(
+                    f"{name}_{mode}",
+                    spec["description"],
+                    mode,
+                    float(section["duration_s"]),
+                    float(section["event_s"]),
+                    float(before),
+                    float(after),
+                    spec.get("inertia_factor"),
+                    spec.get("obstacle_stroke_limit_deg"),
+                )
+            )
     return out
 
 
@@ -82,8 +93,9 @@ def _robot_after(model: Model, exp: Experiment) -> Model:
     return replace(model, effects=effects)
 
 
-def run_closed_loop(exp: Experiment, model: Model, values: dict[str, Any],
-                    frontend_values: dict[str, Any]) -> dict[str, np.ndarray]:
+def run_closed_loop(
+    exp: Experiment, model: Model, values: dict[str, Any], frontend_values: dict[str, Any]
+) -> dict[str, np.ndarray]:
     """Run one experiment in lockstep; per-sample signals and per-block controller state (pure).
 
     ``values``: the stroke_controller_node parameters (config/flaair.yaml, with the shared
@@ -92,72 +104,135 @@ def run_closed_loop(exp: Experiment, model: Model, values: dict[str, Any],
     fs, n = float(values["sample_rate_hz"]), int(values["block_size"])
     fp = frontend_params(frontend_values, fs)
     design_plant = stroke.StrokePlant.from_model(model)
-    velocity_delay = frontend.estimate_delay_s(fp,
-                                               values["compensation_frequency_hz"])["stroke_velocity_s"]
+    velocity_delay = frontend.estimate_delay_s(fp, values["compensation_frequency_hz"])[
+        "stroke_velocity_s"
+    ]
     delay = loop_delay_s(n * int(values["blocks_in_flight"]), fs, velocity_delay * fs)
     params = stroke.params_from_values(
-        {**values, "mode": exp.mode, "setpoint_deg": exp.setpoint_before_deg}, design_plant, fs,
-        delay)
-    guard = safety.SafetyParams(values["drive_limit_v"], values["slew_limit_v_per_s"],
-                                values["invalid_timeout_s"], values["ramp_down_s"], fs)
-    blocks = int(round(exp.duration_s * fs / n))
-    event_block = int(round(exp.event_s * fs / n))
+        {**values, "mode": exp.mode, "setpoint_deg": exp.setpoint_before_deg},
+        design_plant,
+        fs,
+        delay,
+    )
+    guard = safety.SafetyParams(
+        values["drive_limit_v"],
+        values["slew_limit_v_per_s"],
+        values["invalid_timeout_s"],
+        values["ramp_down_s"],
+        fs,
+    )
+    blocks = round(exp.duration_s * fs / n)
+    event_block = round(exp.event_s * fs / n)
     after = _robot_after(model, exp)
     p_state = plant.initial_state(plant.PlantStepParams(model, fs))
     f_state = frontend.initial_state(fp)
     c_state = stroke.initial_state(params)
     g_state = safety.initial_state(guard)
     frequency = CrossingFrequency(fs, values["crossing_hysteresis_deg"])
-    keys = ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg",
-            "stroke_velocity_deg_s", "stroke_valid", "pitch_valid", "true_stroke_deg",
-            "true_pitch_deg")
+    keys = (
+        "drive_v",
+        "stroke_sensor_v",
+        "pitch_sensor_v",
+        "stroke_deg",
+        "pitch_deg",
+        "stroke_velocity_deg_s",
+        "stroke_valid",
+        "pitch_valid",
+        "true_stroke_deg",
+        "true_pitch_deg",
+    )
     out = {k: np.empty(blocks * n, dtype=bool if k.endswith("valid") else float) for k in keys}
-    per_block = {k: np.empty(blocks) for k in (
-        "command", "setpoint_deg", "drive_last_v", "frequency_hz", "kr", "tripped", "clamped")}
+    per_block = {
+        k: np.empty(blocks)
+        for k in (
+            "command",
+            "setpoint_deg",
+            "drive_last_v",
+            "frequency_hz",
+            "kr",
+            "tripped",
+            "clamped",
+        )
+    }
     drive = np.zeros(n)
     for k in range(blocks):
         robot = after if k >= event_block else model
         if k == event_block and exp.setpoint_after_deg != exp.setpoint_before_deg:
-            u_ff, epsilon = stroke.design(design_plant, exp.mode, exp.setpoint_after_deg,
-                                          sync_frequency_hz=values["sync_frequency_hz"],
-                                          r3_rad_s=values["r3_rad_s"], kappa=values["kappa"])
+            u_ff, epsilon = stroke.design(
+                design_plant,
+                exp.mode,
+                exp.setpoint_after_deg,
+                sync_frequency_hz=values["sync_frequency_hz"],
+                r3_rad_s=values["r3_rad_s"],
+                kappa=values["kappa"],
+            )
             params = stroke.retarget(params, exp.setpoint_after_deg, u_ff, epsilon)
-        p_state, sim = plant.step(p_state, plant.PlantInputs(drive),
-                                  plant.PlantStepParams(robot, fs))
-        f_state, est = (frontend.step(
-            f_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fp))
+        p_state, sim = plant.step(
+            p_state, plant.PlantInputs(drive), plant.PlantStepParams(robot, fs)
+        )
+        f_state, est = frontend.step(
+            f_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fp
+        )
         part = slice(k * n, (k + 1) * n)
         out["drive_v"][part] = drive
-        out["stroke_sensor_v"][part], out["pitch_sensor_v"][part] = (sim.stroke_sensor_v,
-                                                                     sim.pitch_sensor_v)
+        out["stroke_sensor_v"][part], out["pitch_sensor_v"][part] = (
+            sim.stroke_sensor_v,
+            sim.pitch_sensor_v,
+        )
         out["true_stroke_deg"][part], out["true_pitch_deg"][part] = (
-            np.degrees(sim.stroke_rad), np.degrees(sim.pitch_rad))
+            np.degrees(sim.stroke_rad),
+            np.degrees(sim.pitch_rad),
+        )
         out["stroke_deg"][part], out["pitch_deg"][part] = (
-            np.degrees(est.stroke_rad), np.degrees(est.pitch_rad))
+            np.degrees(est.stroke_rad),
+            np.degrees(est.pitch_rad),
+        )
         out["stroke_velocity_deg_s"][part] = np.degrees(est.stroke_velocity_rad_s)
         out["stroke_valid"][part], out["pitch_valid"][part] = est.stroke_valid, est.pitch_valid
-        c_state, c_out = stroke.step(c_state, stroke.StrokeInputs(
-            est.stroke_rad, est.stroke_velocity_rad_s, est.stroke_valid, (k + 1) * n), params)
+        c_state, c_out = stroke.step(
+            c_state,
+            stroke.StrokeInputs(
+                est.stroke_rad, est.stroke_velocity_rad_s, est.stroke_valid, (k + 1) * n
+            ),
+            params,
+        )
         raw = c_out.drive_v
         g_state, guarded = safety.step(
-            g_state, safety.SafetyInputs(raw, (k + 1) * n / fs, bool(est.stroke_valid.all())),
-            guard)
+            g_state, safety.SafetyInputs(raw, (k + 1) * n / fs, bool(est.stroke_valid.all())), guard
+        )
         drive = guarded.drive_v
         t_next = (k + 1) * n / fs
-        kr = 1.0 if exp.mode == "sync" else float(
-            params.dsa_params.kr_schedule.value(np.array([t_next]))[0])
-        for name, value in (("command", stroke.command(c_state, params)),
-                            ("setpoint_deg", params.setpoint_deg), ("drive_last_v", drive[-1]), (
-                "frequency_hz", frequency.update(out["stroke_deg"][part])), ("kr", kr),
-                            ("tripped", float(guarded.tripped)),
-                            ("clamped", float(np.abs(raw).max() > guard.drive_limit_v))):
+        kr = (
+            1.0
+            if exp.mode == "sync"
+            else float(params.dsa_params.kr_schedule.value(np.array([t_next]))[0])
+        )
+        for name, value in (
+            ("command", stroke.command(c_state, params)),
+            ("setpoint_deg", params.setpoint_deg),
+            ("drive_last_v", drive[-1]),
+            ("frequency_hz", frequency.update(out["stroke_deg"][part])),
+            ("kr", kr),
+            ("tripped", float(guarded.tripped)),
+            ("clamped", float(np.abs(raw).max() > guard.drive_limit_v)),
+        ):
             per_block[name][k] = value
-    return {**out, **{f"block_{k}": v for k, v in per_block.items()},
-            "sample_rate_hz": np.array(fs), "block_size": np.array(n),
-            "command_nominal_before": np.array(
-        stroke.design(design_plant, exp.mode, exp.setpoint_before_deg,
-                      sync_frequency_hz=values["sync_frequency_hz"], r3_rad_s=values["r3_rad_s"],
-                      kappa=values["kappa"])[0])}
+    return {
+        **out,
+        **{f"block_{k}": v for k, v in per_block.items()},
+        "sample_rate_hz": np.array(fs),
+        "block_size": np.array(n),
+        "command_nominal_before": np.array(
+            stroke.design(
+                design_plant,
+                exp.mode,
+                exp.setpoint_before_deg,
+                sync_frequency_hz=values["sync_frequency_hz"],
+                r3_rad_s=values["r3_rad_s"],
+                kappa=values["kappa"],
+            )[0]
+        ),
+    }
 
 
 def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
@@ -170,58 +245,127 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
     blocks = run["drive_v"].size // n
     stream = [bagio.qos_from_rclpy(BLOCK_STREAM)]
     status = [bagio.qos_from_rclpy(STATUS)]
-    marker = bagio.RunMarker(run=exp.name, first_sample_index=0, n_samples=blocks * n,
-                             source_file="", sample_rate_hz=fs, start_ns=0)
+    marker = bagio.RunMarker(
+        run=exp.name,
+        first_sample_index=0,
+        n_samples=blocks * n,
+        source_file="",
+        sample_rate_hz=fs,
+        start_ns=0,
+    )
     with bagio.BagWriter(path, store=store) as writer:
-        writer.set_custom_data(CUSTOM_KEY, json.dumps(
-            {"experiment": exp.name, "description": exp.description, "mode": exp.mode,
-             "event_s": exp.event_s, "setpoint_before_deg": exp.setpoint_before_deg,
-             "setpoint_after_deg": exp.setpoint_after_deg, "inertia_factor": exp.inertia_factor,
-             "obstacle_stroke_limit_deg": exp.obstacle_stroke_limit_deg}, allow_nan=False))
+        writer.set_custom_data(
+            CUSTOM_KEY,
+            json.dumps(
+                {
+                    "experiment": exp.name,
+                    "description": exp.description,
+                    "mode": exp.mode,
+                    "event_s": exp.event_s,
+                    "setpoint_before_deg": exp.setpoint_before_deg,
+                    "setpoint_after_deg": exp.setpoint_after_deg,
+                    "inertia_factor": exp.inertia_factor,
+                    "obstacle_stroke_limit_deg": exp.obstacle_stroke_limit_deg,
+                },
+                allow_nan=False,
+            ),
+        )
         writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps([json.loads(marker.to_json())]))
-        writer.write_message(bagio.RUN_MARKER_TOPIC, 0, bagio.new_message(
-            bagio.RUN_MARKER_TYPE, store, data=marker.to_json()))
+        writer.write_message(
+            bagio.RUN_MARKER_TOPIC,
+            0,
+            bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json()),
+        )
         for k in range(blocks):
             part = slice(k * n, (k + 1) * n)
-            stamp = int(round(k * n * 1e9 / fs))
+            stamp = round(k * n * 1e9 / fs)
 
             def header(frame: str) -> Any:
-                return bagio.new_message("std_msgs/msg/Header", store,
-                                         stamp=bagio.time_msg(stamp, store), frame_id=frame)
+                return bagio.new_message(
+                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp, store), frame_id=frame
+                )
 
             common = dict(sample_rate_hz=fs, first_sample_index=k * n)
-            writer.write_message(topics.DRIVE, stamp, bagio.new_message(
-                DRIVE_TYPE, store, header=header(""), drive_v=run["drive_v"][part].copy(),
-                **common), stream)
-            writer.write_message(topics.SENSOR_VOLTAGE, stamp, bagio.new_message(
-                SENSOR_TYPE, store, header=header(topics.FRAME_ID),
-                stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
-                pitch_sensor_v=run["pitch_sensor_v"][part].copy(), **common), stream)
+            writer.write_message(
+                topics.DRIVE,
+                stamp,
+                bagio.new_message(
+                    DRIVE_TYPE,
+                    store,
+                    header=header(""),
+                    drive_v=run["drive_v"][part].copy(),
+                    **common,
+                ),
+                stream,
+            )
+            writer.write_message(
+                topics.SENSOR_VOLTAGE,
+                stamp,
+                bagio.new_message(
+                    SENSOR_TYPE,
+                    store,
+                    header=header(topics.FRAME_ID),
+                    stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
+                    pitch_sensor_v=run["pitch_sensor_v"][part].copy(),
+                    **common,
+                ),
+                stream,
+            )
             for topic, source, prefix in (
-                    (topics.WING_STATE, wing.SOURCE_SENSOR_ESTIMATE, ""),
-                    (topics.WING_STATE_TRUTH, wing.SOURCE_GROUND_TRUTH, "true_")):
+                (topics.WING_STATE, wing.SOURCE_SENSOR_ESTIMATE, ""),
+                (topics.WING_STATE_TRUTH, wing.SOURCE_GROUND_TRUTH, "true_"),
+            ):
                 stroke_deg = run[f"{prefix}stroke_deg"][part].copy()
-                writer.write_message(topic, stamp, bagio.new_message(
-                    WING_TYPE, store, header=header(topics.FRAME_ID), source=source,
-                    stroke_deg=stroke_deg, pitch_deg=run[f"{prefix}pitch_deg"][part].copy(),
-                    stroke_velocity_deg_s=(run["stroke_velocity_deg_s"][part].copy()
-                                           if not prefix else np.full(n, np.nan)),
-                    stroke_valid=(run["stroke_valid"][part].copy() if not prefix
-                                  else np.ones(n, bool)),
-                    pitch_valid=(run["pitch_valid"][part].copy() if not prefix
-                                 else np.ones(n, bool)), **common), stream)
-            writer.write_message(topics.CONTROLLER_STATE, stamp, bagio.new_message(
-                STATE_TYPE, store, header=header(""), k_r=float(run["block_kr"][k]),
-                async_drive_v=0.0, sync_drive_v=0.0, drive_v=float(run["block_drive_last_v"][k]),
-                drive_clamped=bool(run["block_clamped"][k]), watchdog=int(run["block_tripped"][k]),
-                fault="", amplitude_scale=float(run["block_command"][k]
-                                                / run["command_nominal_before"]),
-                stroke_frequency_hz=float(run["block_frequency_hz"][k])), status)
+                writer.write_message(
+                    topic,
+                    stamp,
+                    bagio.new_message(
+                        WING_TYPE,
+                        store,
+                        header=header(topics.FRAME_ID),
+                        source=source,
+                        stroke_deg=stroke_deg,
+                        pitch_deg=run[f"{prefix}pitch_deg"][part].copy(),
+                        stroke_velocity_deg_s=(
+                            run["stroke_velocity_deg_s"][part].copy()
+                            if not prefix
+                            else np.full(n, np.nan)
+                        ),
+                        stroke_valid=(
+                            run["stroke_valid"][part].copy() if not prefix else np.ones(n, bool)
+                        ),
+                        pitch_valid=(
+                            run["pitch_valid"][part].copy() if not prefix else np.ones(n, bool)
+                        ),
+                        **common,
+                    ),
+                    stream,
+                )
+            writer.write_message(
+                topics.CONTROLLER_STATE,
+                stamp,
+                bagio.new_message(
+                    STATE_TYPE,
+                    store,
+                    header=header(""),
+                    k_r=float(run["block_kr"][k]),
+                    async_drive_v=0.0,
+                    sync_drive_v=0.0,
+                    drive_v=float(run["block_drive_last_v"][k]),
+                    drive_clamped=bool(run["block_clamped"][k]),
+                    watchdog=int(run["block_tripped"][k]),
+                    fault="",
+                    amplitude_scale=float(run["block_command"][k] / run["command_nominal_before"]),
+                    stroke_frequency_hz=float(run["block_frequency_hz"][k]),
+                ),
+                status,
+            )
     return path
 
 
-def analyse_bag(bag: Path, band_deg: float, steady_wingbeats: int,
-                beats: wingbeat.WingbeatParams) -> dict[str, Any]:
+def analyse_bag(
+    bag: Path, band_deg: float, steady_wingbeats: int, beats: wingbeat.WingbeatParams
+) -> dict[str, Any]:
     """Settling time (wingbeats after the event until every later amplitude stays within
     ``band_deg`` of the setpoint) and steady error (mean amplitude - setpoint over the last
     ``steady_wingbeats``), for the estimate (what the controller holds) and the truth.
@@ -232,8 +376,9 @@ def analyse_bag(bag: Path, band_deg: float, steady_wingbeats: int,
     for key, topic in (("estimate", topics.WING_STATE), ("truth", topics.WING_STATE_TRUTH)):
         blocks = bagio.read_blocks(bag, topic)
         valid = blocks["stroke_valid"] & blocks["pitch_valid"]
-        summary = (wingbeat.summarize(
-            blocks["stroke_deg"], blocks["pitch_deg"], valid, beats, blocks.first_sample_index))
+        summary = wingbeat.summarize(
+            blocks["stroke_deg"], blocks["pitch_deg"], valid, beats, blocks.first_sample_index
+        )
         t_end = summary.end_sample / blocks.sample_rate_hz
         amp, freq = summary.amplitude_deg, summary.frequency_hz
         after = t_end > spec["event_s"]
@@ -248,10 +393,12 @@ def analyse_bag(bag: Path, band_deg: float, steady_wingbeats: int,
             "steady_error_deg": float(np.mean(err[tail])),
             "steady_amplitude_deg": float(np.mean(amp[tail])),
             "steady_frequency_hz": float(np.mean(freq[tail])),
-            "wingbeat_time_s": t_end.tolist(), "wingbeat_amplitude_deg": amp.tolist(),
+            "wingbeat_time_s": t_end.tolist(),
+            "wingbeat_amplitude_deg": amp.tolist(),
         }
-    clamped = sum(bool(m.drive_clamped) for _, _,
-                  m in bagio.iter_messages(bag, [topics.CONTROLLER_STATE]))
+    clamped = sum(
+        bool(m.drive_clamped) for _, _, m in bagio.iter_messages(bag, [topics.CONTROLLER_STATE])
+    )
     drive = bagio.read_blocks(bag, topics.DRIVE)["drive_v"]
     result["max_abs_drive_v"] = float(np.abs(drive).max())
     result["clamped_blocks"] = int(clamped)

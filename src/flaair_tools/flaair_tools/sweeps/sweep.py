@@ -2,6 +2,7 @@
 process through the compiled batch (`sweep_batch`), relative and theory columns, strict JSON and
 CSV out. The command is `sweep_cli`; figures and readings are `sweep_report`.
 """
+
 from __future__ import annotations
 
 import csv
@@ -11,9 +12,10 @@ import os
 import sys
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -53,25 +55,33 @@ def load_section(path: Path, name: str) -> dict[str, Any]:
 
 
 def _common_row(values: dict[str, Any], section: dict[str, Any]) -> dict[str, Any]:
-    return {"sample_rate_hz": float(values["sample_rate_hz"]),
-            "duration_s": float(section["duration_s"]), "steady_s": float(section["steady_s"]),
-            "start_stroke_deg": float(section["start_stroke_deg"]),
-            "drive_limit_v": float(values["drive_limit_v"]),
-            "hysteresis_deg": float(values["crossing_hysteresis_deg"]),
-            "min_wingbeat_hz": float(values["min_wingbeat_hz"]),
-            "max_wingbeat_hz": float(values["max_wingbeat_hz"]),
-            "r3_rad_s": float(values["r3_rad_s"]), "kappa": float(values["kappa"]),
-            "drive_amplitude_v": 0.0, "frequency_hz": 0.0, "mu_nm_s_per_rad": 0.0,
-            "track": [0.0] * 8}
+    return {
+        "sample_rate_hz": float(values["sample_rate_hz"]),
+        "duration_s": float(section["duration_s"]),
+        "steady_s": float(section["steady_s"]),
+        "start_stroke_deg": float(section["start_stroke_deg"]),
+        "drive_limit_v": float(values["drive_limit_v"]),
+        "hysteresis_deg": float(values["crossing_hysteresis_deg"]),
+        "min_wingbeat_hz": float(values["min_wingbeat_hz"]),
+        "max_wingbeat_hz": float(values["max_wingbeat_hz"]),
+        "r3_rad_s": float(values["r3_rad_s"]),
+        "kappa": float(values["kappa"]),
+        "drive_amplitude_v": 0.0,
+        "frequency_hz": 0.0,
+        "mu_nm_s_per_rad": 0.0,
+        "track": [0.0] * 8,
+    }
 
 
-def wing_damage_rows(section: dict[str, Any], values: dict[str, Any],
-                     model) -> list[dict[str, Any]]:
+def wing_damage_rows(
+    section: dict[str, Any], values: dict[str, Any], model
+) -> list[dict[str, Any]]:
     """One row per (aero damping exponent, inertia
     factor, drive); drives set for the undamaged wing.
     """
     from flaair_control.core import stroke
     from flaair_tools.sweeps.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
+
     try:
         factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
         exponents = _grid(section["aero_damping_exponent"], "wing_damage.aero_damping_exponent")
@@ -84,16 +94,25 @@ def wing_damage_rows(section: dict[str, Any], values: dict[str, Any],
     resonance_hz = model.plant.stroke_natural_frequency_hz
     drive_v, _ = stroke.design(design_plant, "sync", setpoint, sync_frequency_hz=resonance_hz)
     ctrl = stroke.params_from_values(
-        {**values, "mode": "dsa", "setpoint_deg": setpoint}, design_plant,
-        float(values["sample_rate_hz"]), 0.5 / float(values["sample_rate_hz"]))
+        {**values, "mode": "dsa", "setpoint_deg": setpoint},
+        design_plant,
+        float(values["sample_rate_hz"]),
+        0.5 / float(values["sample_rate_hz"]),
+    )
     base = _common_row(values, section)
     rows = []
     for exponent in exponents:
         for factor in sorted(set(factors)):
             for mode in (SYNC, DSA, DSA_STROKE):
-                row = {**base, "sweep": "wing-damage", "mode": mode, "drive": MODE_NAMES[mode],
-                       "inertia_factor": factor, "aero_damping_exponent": exponent,
-                       "aero_damping_factor": factor ** exponent}
+                row = {
+                    **base,
+                    "sweep": "wing-damage",
+                    "mode": mode,
+                    "drive": MODE_NAMES[mode],
+                    "inertia_factor": factor,
+                    "aero_damping_exponent": exponent,
+                    "aero_damping_factor": factor**exponent,
+                }
                 if mode == SYNC:
                     row.update(drive_amplitude_v=drive_v, frequency_hz=resonance_hz)
                 else:
@@ -107,6 +126,7 @@ def wing_damage_rows(section: dict[str, Any], values: dict[str, Any],
 def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per (r3, kappa, mu): the free dSA loop on the undamaged wing."""
     from flaair_tools.sweeps.sweep_batch import DSA, MODE_NAMES
+
     try:
         mus = _grid(section["mu_nm_s_per_rad"], "dsa_map.mu_nm_s_per_rad")
         kappas = _grid(section["kappa"], "dsa_map.kappa")
@@ -114,16 +134,29 @@ def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[s
     except KeyError as exc:
         raise SweepError(f"config/sweeps.yaml: dsa_map: missing key {exc}") from None
     base = _common_row(values, section)
-    return [{**base, "sweep": "dsa-map", "mode": DSA, "drive": MODE_NAMES[DSA],
-             "inertia_factor": 1.0, "aero_damping_factor": 1.0, "r3_rad_s": r3, "kappa": kappa,
-             "mu_nm_s_per_rad": mu} for r3 in r3s for kappa in kappas for mu in mus]
+    return [
+        {
+            **base,
+            "sweep": "dsa-map",
+            "mode": DSA,
+            "drive": MODE_NAMES[DSA],
+            "inertia_factor": 1.0,
+            "aero_damping_factor": 1.0,
+            "r3_rad_s": r3,
+            "kappa": kappa,
+            "mu_nm_s_per_rad": mu,
+        }
+        for r3 in r3s
+        for kappa in kappas
+        for mu in mus
+    ]
 
 
 def chunks(rows: list[dict[str, Any]], size: int) -> list[list[dict[str, Any]]]:
     """Fixed-size chunks in row order (a row's result does not depend on its chunk)."""
     if size < 1:
         raise SweepError(f"chunk_size must be >= 1, got {size}")
-    return [rows[i:i + size] for i in range(0, len(rows), size)]
+    return [rows[i : i + size] for i in range(0, len(rows), size)]
 
 
 @dataclass(frozen=True)
@@ -135,22 +168,26 @@ class TaskSizing:
     worker instead, so every worker gets work and the last task leaves little idle time.
     """
 
-    task_s: float                 # target compute per task [s]
-    tasks_per_worker: int         # a small sweep: this many tasks per worker [-]
-    core_robot_s_per_s: float     # robot-seconds one core simulates per second (measured) [-]
+    task_s: float  # target compute per task [s]
+    tasks_per_worker: int  # a small sweep: this many tasks per worker [-]
+    core_robot_s_per_s: float  # robot-seconds one core simulates per second (measured) [-]
 
     def __post_init__(self) -> None:
         for name in ("task_s", "tasks_per_worker", "core_robot_s_per_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise SweepError(
-                    f"config/sweeps.yaml: tasks.{name} must be a finite number > 0, got {value!r}")
+                    f"config/sweeps.yaml: tasks.{name} must be a finite number > 0, got {value!r}"
+                )
 
     @classmethod
-    def from_mapping(cls, section: dict[str, Any]) -> "TaskSizing":
+    def from_mapping(cls, section: dict[str, Any]) -> TaskSizing:
         try:
-            return cls(float(section["task_s"]), int(section["tasks_per_worker"]),
-                       float(section["core_robot_s_per_s"]))
+            return cls(
+                float(section["task_s"]),
+                int(section["tasks_per_worker"]),
+                float(section["core_robot_s_per_s"]),
+            )
         except KeyError as exc:
             raise SweepError(f"config/sweeps.yaml: tasks: missing key {exc}") from None
         except (TypeError, ValueError) as exc:
@@ -169,11 +206,15 @@ class TaskSizing:
 # --------------------------------------------------------------------------- execution
 
 
-def run_in_process(parts: list[list[dict[str, Any]]], model,
-                   progress: Callable[[int], None] = lambda n: None,
-                   parallel: bool = False) -> list[list[dict[str, Any]]]:
+def run_in_process(
+    parts: list[list[dict[str, Any]]],
+    model,
+    progress: Callable[[int], None] = lambda n: None,
+    parallel: bool = False,
+) -> list[list[dict[str, Any]]]:
     """Every chunk here, one after the other (``parallel``: numba threads over each chunk)."""
     from flaair_tools.sweeps.sweep_batch import run_rows
+
     out = []
     for part in parts:
         out.append(run_rows(part, model, parallel))
@@ -182,8 +223,12 @@ def run_in_process(parts: list[list[dict[str, Any]]], model,
 
 
 # One compute thread per worker process (one worker per core): numba, OpenMP and BLAS pools off.
-WORKER_ENV = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-              "MKL_NUM_THREADS": "1"}
+WORKER_ENV = {
+    "NUMBA_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
 
 
 def local_cluster(workers: int | None = None):
@@ -193,10 +238,17 @@ def local_cluster(workers: int | None = None):
     import logging
 
     from dask.distributed import LocalCluster
-    return LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                        processes=True, host="127.0.0.1", dashboard_address=None,
-                        silence_logs=logging.ERROR, worker_dashboard_address=None,
-                        env=dict(WORKER_ENV))
+
+    return LocalCluster(
+        n_workers=workers or os.cpu_count() or 1,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+        worker_dashboard_address=None,
+        env=dict(WORKER_ENV),
+    )
 
 
 def prepare_workers(client, model, row: dict[str, Any]) -> None:
@@ -205,13 +257,29 @@ def prepare_workers(client, model, row: dict[str, Any]) -> None:
     than the next).
     """
     from flaair_tools.sweeps.sweep_batch import warm_up
-    client.gather([client.submit(warm_up, model, row, workers=[address], allow_other_workers=False,
-                                 pure=False, key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}")
-                   for i, address in enumerate(client.scheduler_info()["workers"])])
+
+    client.gather(
+        [
+            client.submit(
+                warm_up,
+                model,
+                row,
+                workers=[address],
+                allow_other_workers=False,
+                pure=False,
+                key=f"sweep-warm-up-{uuid.uuid4().hex[:8]}-{i}",
+            )
+            for i, address in enumerate(client.scheduler_info()["workers"])
+        ]
+    )
 
 
-def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
-                progress: Callable[[int], None] = lambda n: None) -> list[list[dict[str, Any]]]:
+def run_on_dask(
+    client,
+    parts: list[list[dict[str, Any]]],
+    model,
+    progress: Callable[[int], None] = lambda n: None,
+) -> list[list[dict[str, Any]]]:
     """Every chunk as one Dask task; results in chunk order.
 
     The model travels inside each task (about 1 kB pickled). Scattered once instead, it made
@@ -221,10 +289,13 @@ def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
     from dask.distributed import as_completed
 
     from flaair_tools.sweeps.sweep_batch import run_rows
+
     # keys of this run's tasks: a later run on the same client never meets them
     run = uuid.uuid4().hex[:8]
-    futures = [client.submit(run_rows, part, model, key=f"sweep-chunk-{run}-{i}", pure=False)
-               for i, part in enumerate(parts)]
+    futures = [
+        client.submit(run_rows, part, model, key=f"sweep-chunk-{run}-{i}", pure=False)
+        for i, part in enumerate(parts)
+    ]
     index = {f.key: i for i, f in enumerate(futures)}
     out: list[Any] = [None] * len(parts)
     try:
@@ -236,9 +307,16 @@ def run_on_dask(client, parts: list[list[dict[str, Any]]], model,
     return out
 
 
-def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *,
-            scheduler: str | None = None, workers: int | None = None, in_process: bool = False,
-            show_progress: bool = True) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+def execute(
+    rows: list[dict[str, Any]],
+    chunk_size: int | TaskSizing,
+    model,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    in_process: bool = False,
+    show_progress: bool = True,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Run the rows; (rows with their results, timing).
     The cluster (if started here) is closed on return.
 
@@ -251,8 +329,11 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
     from flaair_tools.sweeps.sweep_batch import warm_up
 
     def sized(n_workers: int) -> list[list[dict[str, Any]]]:
-        size = (chunk_size.chunk_size(rows, n_workers) if isinstance(chunk_size, TaskSizing)
-                else int(chunk_size))
+        size = (
+            chunk_size.chunk_size(rows, n_workers)
+            if isinstance(chunk_size, TaskSizing)
+            else int(chunk_size)
+        )
         timing["chunk_size"] = size
         parts = chunks(rows, size)
         timing["tasks"] = len(parts)
@@ -260,8 +341,10 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
         bar.refresh()
         return parts
 
-    timing: dict[str, Any] = {"simulations": len(rows),
-                              "robot_seconds": float(sum(r["duration_s"] for r in rows))}
+    timing: dict[str, Any] = {
+        "simulations": len(rows),
+        "robot_seconds": float(sum(r["duration_s"] for r in rows)),
+    }
     bar = tqdm(total=None, desc="sweep", unit="task", file=sys.stderr, disable=not show_progress)
     t0 = time.perf_counter()
     try:
@@ -273,6 +356,7 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
             results = run_in_process(parts, model, bar.update)
         else:
             from dask.distributed import Client
+
             cluster = None if scheduler else local_cluster(workers)
             try:
                 with Client(scheduler or cluster, timeout="30s") as client:
@@ -291,7 +375,7 @@ def execute(rows: list[dict[str, Any]], chunk_size: "int | TaskSizing", model, *
     timing["wall_s"] = time.perf_counter() - t0
     timing["robot_seconds_per_s"] = timing["robot_seconds"] / timing["wall_s"]
     merged = []
-    for part, result in zip(parts, results):  # noqa: B007
+    for part, result in zip(parts, results):
         for row, figures in zip(part, result):
             merged.append({**{k: v for k, v in row.items() if k != "track"}, **figures})
     return merged, timing
@@ -310,54 +394,89 @@ def add_relative(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         base = ref[(r["drive"], r["aero_damping_exponent"])]
         lift = (r["stroke_amplitude_deg"] * r["stroke_frequency_hz"]) ** 2
         lift0 = (base["stroke_amplitude_deg"] * base["stroke_frequency_hz"]) ** 2
-        out.append({**r, "lift_proxy": lift,
-                    "frequency_rel": r["stroke_frequency_hz"] / base["stroke_frequency_hz"],
-                    "amplitude_rel": r["stroke_amplitude_deg"] / base["stroke_amplitude_deg"],
-                    "pitch_amplitude_rel": r["pitch_amplitude_deg"] / base["pitch_amplitude_deg"],
-                    "lift_rel": lift / lift0})
+        out.append(
+            {
+                **r,
+                "lift_proxy": lift,
+                "frequency_rel": r["stroke_frequency_hz"] / base["stroke_frequency_hz"],
+                "amplitude_rel": r["stroke_amplitude_deg"] / base["stroke_amplitude_deg"],
+                "pitch_amplitude_rel": r["pitch_amplitude_deg"] / base["pitch_amplitude_deg"],
+                "lift_rel": lift / lift0,
+            }
+        )
     return out
 
 
-def add_theory(rows: list[dict[str, Any]], model,
-               oscillating_deg: float) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+def add_theory(
+    rows: list[dict[str, Any]], model, oscillating_deg: float
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """dsa-map rows with the Hopf/describing-function
     prediction; per (r3, kappa) the onset check.
     """
     from flaair_control.core import hopf
+
     pl = model.plant
     linear = hopf.LinearStrokePlant(pl.stroke_inertia_kg_m2, pl.stroke_stiffness_nm_per_rad)
     out, onsets = [], []
     for r in rows:
-        cycle = hopf.limit_cycle(linear, pl.aero_damping_nm_s2, r["r3_rad_s"], r["kappa"],
-                                 r["mu_nm_s_per_rad"])
+        cycle = hopf.limit_cycle(
+            linear, pl.aero_damping_nm_s2, r["r3_rad_s"], r["kappa"], r["mu_nm_s_per_rad"]
+        )
         oscillating = r["stroke_amplitude_deg"] > oscillating_deg and r["stroke_frequency_hz"] > 0
         theory_amp = math.degrees(cycle.amplitude_rad)
         # the theory has no drive clamp
         applies = oscillating and theory_amp > 0 and not r["drive_clamped"]
-        out.append({**r, "oscillating": oscillating, "theory_amplitude_deg": theory_amp,
-                    "theory_frequency_hz": cycle.frequency_hz if theory_amp > 0 else None,
-                    "amplitude_error_rel": (
-            r["stroke_amplitude_deg"] / theory_amp - 1) if applies else None,
-                    "frequency_error_rel": (r["stroke_frequency_hz"] / cycle.frequency_hz - 1)
-                    if applies else None})
+        out.append(
+            {
+                **r,
+                "oscillating": oscillating,
+                "theory_amplitude_deg": theory_amp,
+                "theory_frequency_hz": cycle.frequency_hz if theory_amp > 0 else None,
+                "amplitude_error_rel": (r["stroke_amplitude_deg"] / theory_amp - 1)
+                if applies
+                else None,
+                "frequency_error_rel": (r["stroke_frequency_hz"] / cycle.frequency_hz - 1)
+                if applies
+                else None,
+            }
+        )
     for key in sorted({(r["r3_rad_s"], r["kappa"]) for r in out}):
-        group = sorted((r for r in out if (r["r3_rad_s"], r["kappa"]) == key),
-                       key=lambda r: r["mu_nm_s_per_rad"])
+        group = sorted(
+            (r for r in out if (r["r3_rad_s"], r["kappa"]) == key),
+            key=lambda r: r["mu_nm_s_per_rad"],
+        )
         onset = hopf.hopf_onset(linear, key[0], key[1])
         first = next((r["mu_nm_s_per_rad"] for r in group if r["oscillating"]), None)
-        last_quiet = max((r["mu_nm_s_per_rad"] for r in group if not r["oscillating"] and (
-            first is None or r["mu_nm_s_per_rad"] < first)), default=None)
+        last_quiet = max(
+            (
+                r["mu_nm_s_per_rad"]
+                for r in group
+                if not r["oscillating"] and (first is None or r["mu_nm_s_per_rad"] < first)
+            ),
+            default=None,
+        )
         degenerate = math.sqrt(key[1]) * key[0] <= linear.natural_frequency_rad_s
         # degenerate (mu* = 0): small gains oscillate with small amplitudes that grow slowly;
         # the onset check applies where the Hopf threshold is positive
-        consistent = None if degenerate else (
-            (first is None or onset.mu_nm_s_per_rad <= first)
-            and (last_quiet is None or onset.mu_nm_s_per_rad >= last_quiet))
-        onsets.append({"r3_rad_s": key[0], "kappa": key[1],
-                       "theory_onset_mu_nm_s_per_rad": onset.mu_nm_s_per_rad,
-                       "theory_onset_frequency_hz": onset.frequency_hz, "degenerate": degenerate,
-                       "simulated_onset_between": [last_quiet, first],
-                       "onset_consistent": consistent})
+        consistent = (
+            None
+            if degenerate
+            else (
+                (first is None or onset.mu_nm_s_per_rad <= first)
+                and (last_quiet is None or onset.mu_nm_s_per_rad >= last_quiet)
+            )
+        )
+        onsets.append(
+            {
+                "r3_rad_s": key[0],
+                "kappa": key[1],
+                "theory_onset_mu_nm_s_per_rad": onset.mu_nm_s_per_rad,
+                "theory_onset_frequency_hz": onset.frequency_hz,
+                "degenerate": degenerate,
+                "simulated_onset_between": [last_quiet, first],
+                "onset_consistent": consistent,
+            }
+        )
     return out, onsets
 
 

@@ -14,6 +14,7 @@ The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through
 and summarises each with ``flaair_tools.analysis.wingbeat`` over the steady window: the result of
 a row depends on that row alone, so any chunking or cluster gives the same numbers bit for bit.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,8 +36,24 @@ _FMA = {"contract"}
 
 
 @njit(cache=True, fastmath=_FMA)
-def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_ff, phi0, limit_v,
-         phi_out, psi_out):
+def _one(
+    p,
+    nsub,
+    mode,
+    n,
+    h,
+    amplitude_v,
+    omega,
+    b,
+    a,
+    gain_scale,
+    track_c,
+    u_ff,
+    phi0,
+    limit_v,
+    phi_out,
+    psi_out,
+):
     """One robot over n samples; the last phi_out.size samples of stroke and pitch (rad) are kept.
 
     Returns the final command (drive amplitude V for SYNC, mu for the dSA modes) and the
@@ -45,7 +62,7 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
     c = mechanical_constants(p)
     inv_ga = 1.0 / p[GA_INDEX]
     phi, dphi, psi, dpsi = phi0, 0.0, 0.0, 0.0
-    z1, z2 = 0.0, 0.0   # dSA filter state (direct form II transposed, as scipy lfilter)
+    z1, z2 = 0.0, 0.0  # dSA filter state (direct form II transposed, as scipy lfilter)
     s = np.zeros(9)
     s[1], s[2], s[5] = -np.inf, np.inf, np.nan
     keep0 = n - phi_out.shape[0]
@@ -79,21 +96,85 @@ def _one(p, nsub, mode, n, h, amplitude_v, omega, b, a, gain_scale, track_c, u_f
 
 
 @njit(cache=True)
-def _batch(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs, phi0s,
-           limit_v, phi_out, psi_out, u_out):
+def _batch(
+    params,
+    nsubs,
+    modes,
+    n,
+    h,
+    amps,
+    omegas,
+    bs,
+    as_,
+    scales,
+    track_cs,
+    u_ffs,
+    phi0s,
+    limit_v,
+    phi_out,
+    psi_out,
+    u_out,
+):
     for i in range(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
-            params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
-            track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+            params[i],
+            nsubs[i],
+            modes[i],
+            n,
+            h,
+            amps[i],
+            omegas[i],
+            bs[i],
+            as_[i],
+            scales[i],
+            track_cs[i],
+            u_ffs[i],
+            phi0s[i],
+            limit_v,
+            phi_out[i],
+            psi_out[i],
+        )
 
 
 @njit(cache=True, parallel=True)
-def _batch_parallel(params, nsubs, modes, n, h, amps, omegas, bs, as_, scales, track_cs, u_ffs,
-                    phi0s, limit_v, phi_out, psi_out, u_out):
+def _batch_parallel(
+    params,
+    nsubs,
+    modes,
+    n,
+    h,
+    amps,
+    omegas,
+    bs,
+    as_,
+    scales,
+    track_cs,
+    u_ffs,
+    phi0s,
+    limit_v,
+    phi_out,
+    psi_out,
+    u_out,
+):
     for i in prange(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
-            params[i], nsubs[i], modes[i], n, h, amps[i], omegas[i], bs[i], as_[i], scales[i],
-            track_cs[i], u_ffs[i], phi0s[i], limit_v, phi_out[i], psi_out[i])
+            params[i],
+            nsubs[i],
+            modes[i],
+            n,
+            h,
+            amps[i],
+            omegas[i],
+            bs[i],
+            as_[i],
+            scales[i],
+            track_cs[i],
+            u_ffs[i],
+            phi0s[i],
+            limit_v,
+            phi_out[i],
+            psi_out[i],
+        )
 
 
 def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: float) -> Model:
@@ -101,25 +182,37 @@ def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: floa
     effects = dict(model.effects)
     if inertia_factor != 1.0:
         effects["wing_damage"] = {"inertia_factor": inertia_factor}
-    pl = replace(model.plant, aero_damping_nm_s2=model.plant.aero_damping_nm_s2
-                 * aero_damping_factor,
-                 aero_coupling_nm_s2=model.plant.aero_coupling_nm_s2 * aero_damping_factor)
+    pl = replace(
+        model.plant,
+        aero_damping_nm_s2=model.plant.aero_damping_nm_s2 * aero_damping_factor,
+        aero_coupling_nm_s2=model.plant.aero_coupling_nm_s2 * aero_damping_factor,
+    )
     return replace(model, plant=pl, effects=effects)
 
 
-def _filter(row: dict[str, Any], model: Model, fs: float,
-            mu: float) -> tuple[np.ndarray, np.ndarray]:
-    params = dsa.DsaParams(r3_rad_s=row["r3_rad_s"], kappa=row["kappa"], mu_nm_s_per_rad=mu,
-                           actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
-                           sample_rate_hz=fs, drive_limit_v=row["drive_limit_v"],
-                           sync_amplitude_v=0.0, sync_frequency_hz=1.0, sync_phase_rad=0.0,
-                           kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0), loop_delay_s=0.5 / fs,
-                           compensation_frequency_hz=None)
+def _filter(
+    row: dict[str, Any], model: Model, fs: float, mu: float
+) -> tuple[np.ndarray, np.ndarray]:
+    params = dsa.DsaParams(
+        r3_rad_s=row["r3_rad_s"],
+        kappa=row["kappa"],
+        mu_nm_s_per_rad=mu,
+        actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
+        sample_rate_hz=fs,
+        drive_limit_v=row["drive_limit_v"],
+        sync_amplitude_v=0.0,
+        sync_frequency_hz=1.0,
+        sync_phase_rad=0.0,
+        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0),
+        loop_delay_s=0.5 / fs,
+        compensation_frequency_hz=None,
+    )
     return dsa._tf_coefficients(params, True)  # the controller core's own discretization
 
 
-def run_rows(rows: list[dict[str, Any]], model: Model,
-             parallel: bool = False) -> list[dict[str, Any]]:
+def run_rows(
+    rows: list[dict[str, Any]], model: Model, parallel: bool = False
+) -> list[dict[str, Any]]:
     """Simulate a chunk of rows (one compiled call) and summarise each over its steady window.
 
     A row holds: mode (SYNC/DSA/DSA_STROKE), inertia_factor, aero_damping_factor, sample_rate_hz,
@@ -131,23 +224,25 @@ def run_rows(rows: list[dict[str, Any]], model: Model,
     """
     m = len(rows)
     fs = float(rows[0]["sample_rate_hz"])
-    n = int(round(rows[0]["duration_s"] * fs))
-    keep = int(round(rows[0]["steady_s"] * fs))
+    n = round(rows[0]["duration_s"] * fs)
+    keep = round(rows[0]["steady_s"] * fs)
     params = np.empty((m, N_KERNEL_PARAMS))
     nsubs, modes = np.empty(m, np.int64), np.empty(m, np.int64)
     amps, omegas, scales, u_ffs, phi0s = (np.zeros(m) for _ in range(5))
     bs, as_ = np.zeros((m, 3)), np.zeros((m, 3))
     track = np.zeros((m, len(rows[0]["track"])))
     for i, row in enumerate(rows):
-        if float(row["sample_rate_hz"]) != fs or int(round(row["duration_s"] * fs)) != n:
+        if float(row["sample_rate_hz"]) != fs or round(row["duration_s"] * fs) != n:
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
         prep = prepare(robot, fs)
         if prep.params[CONTACT_ON_INDEX]:
             raise ValueError("the sweep batch has no collision stop")
         if robot.discovered:
-            raise ValueError("the sweep batch runs the model without discovered terms; run the "
-                             "sweep on a model without them")
+            raise ValueError(
+                "the sweep batch runs the model without discovered terms; run the "
+                "sweep on a model without them"
+            )
         params[i], nsubs[i], modes[i] = prep.params, prep.n_substeps, row["mode"]
         phi0s[i] = math.radians(row["start_stroke_deg"]) if row["mode"] != SYNC else 0.0
         if row["mode"] == SYNC:
@@ -162,24 +257,50 @@ def run_rows(rows: list[dict[str, Any]], model: Model,
     phi, psi = np.empty((m, keep)), np.empty((m, keep))
     u_out = np.empty((m, 2))
     kernel = _batch_parallel if parallel else _batch
-    kernel(params, nsubs, modes, n, 1.0 / fs, amps, omegas, bs, as_, scales, track, u_ffs, phi0s,
-           float(rows[0]["drive_limit_v"]), phi, psi, u_out)
+    kernel(
+        params,
+        nsubs,
+        modes,
+        n,
+        1.0 / fs,
+        amps,
+        omegas,
+        bs,
+        as_,
+        scales,
+        track,
+        u_ffs,
+        phi0s,
+        float(rows[0]["drive_limit_v"]),
+        phi,
+        psi,
+        u_out,
+    )
     out = []
     for i, row in enumerate(rows):
-        beats = wingbeat.summarize(np.degrees(phi[i]), np.degrees(psi[i]), np.ones(keep, bool),
-                                   wingbeat.WingbeatParams(
-            fs, row["hysteresis_deg"], row["min_wingbeat_hz"], row["max_wingbeat_hz"]))
+        beats = wingbeat.summarize(
+            np.degrees(phi[i]),
+            np.degrees(psi[i]),
+            np.ones(keep, bool),
+            wingbeat.WingbeatParams(
+                fs, row["hysteresis_deg"], row["min_wingbeat_hz"], row["max_wingbeat_hz"]
+            ),
+        )
         ok = beats.amplitude_deg.size > 0
-        out.append({
-            "stroke_frequency_hz": float(np.mean(beats.frequency_hz)) if ok else 0.0,
-            "stroke_amplitude_deg": float(np.mean(beats.amplitude_deg)) if ok
-            else float(np.degrees(np.ptp(phi[i])) / 2),
-            "pitch_amplitude_deg": float(np.mean(beats.pitch_amplitude_deg)) if ok
-            else float(np.degrees(np.ptp(psi[i])) / 2),
-            "final_command": float(u_out[i, 0]),
-            "peak_drive_v": float(u_out[i, 1]),
-            "drive_clamped": bool(u_out[i, 1] >= row["drive_limit_v"]),
-        })
+        out.append(
+            {
+                "stroke_frequency_hz": float(np.mean(beats.frequency_hz)) if ok else 0.0,
+                "stroke_amplitude_deg": float(np.mean(beats.amplitude_deg))
+                if ok
+                else float(np.degrees(np.ptp(phi[i])) / 2),
+                "pitch_amplitude_deg": float(np.mean(beats.pitch_amplitude_deg))
+                if ok
+                else float(np.degrees(np.ptp(psi[i])) / 2),
+                "final_command": float(u_out[i, 0]),
+                "peak_drive_v": float(u_out[i, 1]),
+                "drive_clamped": bool(u_out[i, 1] >= row["drive_limit_v"]),
+            }
+        )
     return out
 
 
@@ -188,6 +309,7 @@ def warm_up(model: Model, row: dict[str, Any]) -> float:
     kernels once on a 20 ms copy of ``row``; seconds taken.
     """
     import time
+
     t0 = time.perf_counter()
     tiny = {**row, "duration_s": 0.02, "steady_s": 0.01}
     run_rows([{**tiny, "mode": mode} for mode in (SYNC, DSA, DSA_STROKE)], model)

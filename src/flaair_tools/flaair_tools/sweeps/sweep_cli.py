@@ -27,6 +27,7 @@ each in DIR/bags, analysed from the bags: DIR/stroke.json, DIR/stroke_*.png, DIR
 
 Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,23 +43,38 @@ __all__ = ["main"]
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bin/flaair sweep", description=__doc__.split("\n\n")[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n\n".join(__doc__.split("\n\n")[2:]))
+    parser = argparse.ArgumentParser(
+        prog="bin/flaair sweep",
+        description=__doc__.split("\n\n")[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n\n".join(__doc__.split("\n\n")[2:]),
+    )
     parser.add_argument("study", choices=SUBCOMMANDS, help="which study")
-    parser.add_argument("--out", required=True, type=Path,
-                        help="output directory (created; files inside are replaced)")
-    parser.add_argument("--scheduler",
-                        help="address of an existing Dask scheduler, tcp://HOST:PORT (default: a "
-                             "local cluster)")
-    parser.add_argument("--workers", type=int,
-                        help="local cluster: worker processes (default: one per core)")
-    parser.add_argument("--in-process", action="store_true",
-                        help="run the chunks in this process, no Dask")
-    parser.add_argument("--config", type=Path, default=None,
-                        help="sweeps file (default: config/sweeps.yaml)")
-    parser.add_argument("--mode", choices=("dsa", "sync"), action="append",
-                        help="stroke: controller mode(s) (default: config)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        help="output directory (created; files inside are replaced)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        help="address of an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)",
+    )
+    parser.add_argument(
+        "--workers", type=int, help="local cluster: worker processes (default: one per core)"
+    )
+    parser.add_argument(
+        "--in-process", action="store_true", help="run the chunks in this process, no Dask"
+    )
+    parser.add_argument(
+        "--config", type=Path, default=None, help="sweeps file (default: config/sweeps.yaml)"
+    )
+    parser.add_argument(
+        "--mode",
+        choices=("dsa", "sync"),
+        action="append",
+        help="stroke: controller mode(s) (default: config)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
 
@@ -68,11 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         from flaair_tools.sweeps import sweep_report  # matplotlib: not for --help
+
         config = args.config or config_dir() / "sweeps.yaml"
         if args.workers is not None and args.workers < 1:
             raise SweepError(f"--workers must be >= 1, got {args.workers}")
         if args.scheduler and not args.scheduler.startswith(
-                ("tcp://", "tls://", "inproc://", "ucx://")):
+            ("tcp://", "tls://", "inproc://", "ucx://")
+        ):
             raise SweepError(f"--scheduler must look like tcp://HOST:PORT, got {args.scheduler!r}")
         args.out.mkdir(parents=True, exist_ok=True)
         return sweep_report.run_study(args, config)
