@@ -49,10 +49,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
-from flaair_model.model_io import load_model
-from flaair_sim.core.plant import simulate
-from flaair_tools.discrepancy import Settings, analyse
-from flaair_tools.discrepancy.datasets import (
+from flaair_analysis.discrepancy import Settings, analyse
+from flaair_analysis.discrepancy.datasets import (
     FAMILIES,
     confusion_table,
     dataset_cases,
@@ -61,6 +59,8 @@ from flaair_tools.discrepancy.datasets import (
     score_case,
     true_plant,
 )
+from flaair_model.model_io import load_model
+from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import json_safe, write_validation
 
 TIME_TARGET_S = 60.0

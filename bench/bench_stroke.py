@@ -20,7 +20,7 @@ from pathlib import Path
 from benchlib import REPO_ROOT, Figure, print_table, write_json
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools.analysis import wingbeat
+from flaair_analysis import wingbeat
 from flaair_tools.sweeps import stroke_experiments as se
 
 

@@ -53,8 +53,8 @@ def main() -> None:
     # costliest kernel to compile, 10-30 s, and every test worker would otherwise compile it)
     simulate_batch_from(drive, fs_hz, [model, model], np.zeros((2, 4)))
     try:  # the offline analysis kernels
+        from flaair_analysis import wingbeat
         from flaair_model import lfilter
-        from flaair_tools.analysis import wingbeat
 
         lfilter.lfilter(np.array([1.0, 0.0]), np.array([1.0, 0.0]), np.zeros(10), np.zeros(1))
         wingbeat.summarize(
@@ -103,16 +103,17 @@ def main() -> None:
     except Exception as exc:
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     try:  # the wing-damage sweep's batch kernels (the stroke tracker among them)
+        from flaair_analysis import closed_loop
         from flaair_control.control_io import stroke_controller_values
         from flaair_model.config import config_dir
-        from flaair_tools.sweeps import sweep, sweep_batch
+        from flaair_tools.sweeps import sweep
 
         rows = sweep.wing_damage_rows(
             sweep.load_section(config_dir() / "sweeps.yaml", "wing_damage"),
             stroke_controller_values(),
             model,
         )
-        sweep_batch.warm_up(model, rows[0])
+        closed_loop.warm_up(model, rows[0])
     except Exception as exc:
         print(f"[setup] numba warm-up of the sweep kernels skipped: {exc}")
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")

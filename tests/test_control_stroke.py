@@ -202,7 +202,7 @@ def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path
         loop.run_until(lambda: len(wing) >= n_before + 1600)
     assert [b["first_sample_index"] for b in wing] == list(range(0, len(wing) * 10, 10))
     stroke_deg = np.concatenate([b["stroke_deg"] for b in wing])
-    from flaair_tools.analysis import wingbeat
+    from flaair_analysis import wingbeat
 
     beats = wingbeat.summarize(
         stroke_deg,

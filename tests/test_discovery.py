@@ -19,6 +19,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from flaair_analysis.discrepancy import analyse
+from flaair_analysis.discrepancy.datasets import DISCOVER_KINDS, make_runs, random_robot
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
 from flaair_model.terms import KINDS, TERM_KINDS, DiscoveredTerm, kinds_for, lowpass_ba
@@ -31,8 +33,6 @@ from flaair_sim.core.plant import (
     step,
 )
 from flaair_tools import discrepancy
-from flaair_tools.discrepancy import analyse
-from flaair_tools.discrepancy.datasets import DISCOVER_KINDS, make_runs, random_robot
 from test_discrepancy import write_case_csvs
 
 FS = 20_000.0
@@ -290,7 +290,7 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     assert not np.allclose(stroke, np.degrees(simulate(drive, FS, model).stroke_rad), atol=0.05)
     # identify applies it too: on this robot's data it finds the model's own stroke frequency,
     # which it could not with the term left out
-    from flaair_tools.discrepancy import Run, check_runs, identify_plant
+    from flaair_analysis.discrepancy import Run, check_runs, identify_plant
 
     with open(tmp_path / "out.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))

@@ -25,13 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from flaair_common.runcsv import write_run
-from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
-from flaair_model.model_io import load_model, save_model
-from flaair_sim.core.drive import chirp
-from flaair_sim.core.plant import simulate
-from flaair_tools import discrepancy
-from flaair_tools.discrepancy import (
+from flaair_analysis.discrepancy import (
     diagnosis,
     evidence,
     fitting,
@@ -40,8 +34,8 @@ from flaair_tools.discrepancy import (
     vocabulary,
     workflow,
 )
-from flaair_tools.discrepancy import runs as run_module
-from flaair_tools.discrepancy.datasets import (
+from flaair_analysis.discrepancy import runs as run_module
+from flaair_analysis.discrepancy.datasets import (
     FS_HZ,
     DatasetCase,
     confusion_table,
@@ -52,9 +46,15 @@ from flaair_tools.discrepancy.datasets import (
     run_set_drives,
     score_case,
 )
-from flaair_tools.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
+from flaair_analysis.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
+from flaair_analysis.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
+from flaair_common.runcsv import write_run
+from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
+from flaair_model.model_io import load_model, save_model
+from flaair_sim.core.drive import chirp
+from flaair_sim.core.plant import simulate
+from flaair_tools import discrepancy
 from flaair_tools.discrepancy.report import write_validation
-from flaair_tools.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
 # the former discrepancy_core, now the discrepancy package's modules
@@ -694,8 +694,8 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
     ],
 )
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
-    from flaair_tools.discrepancy.diagnosis import interpret
-    from flaair_tools.discrepancy.settings import Settings
+    from flaair_analysis.discrepancy.diagnosis import interpret
+    from flaair_analysis.discrepancy.settings import Settings
 
     text = interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
     assert words in text

@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from flaair_analysis.discrepancy import datasets, vocabulary
 from flaair_model.effects import (
     EFFECTS,
     ENTRIES,
@@ -25,7 +26,6 @@ from flaair_model.effects import (
 from flaair_model.model import EFFECT_NAMES, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.core import plant, plant_params
-from flaair_tools.discrepancy import datasets, vocabulary
 
 FS_HZ = 20000.0
 NAMES = [e.name for e in EFFECTS]

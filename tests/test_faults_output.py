@@ -9,9 +9,9 @@ import sys
 import textwrap
 from pathlib import Path
 
+from flaair_analysis.discrepancy.datasets import DatasetCase
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
-from flaair_tools.discrepancy.datasets import DatasetCase
 from flaair_tools.discrepancy.report import write_validation
 from test_discrepancy import write_case_csvs
 

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from flaair_tools.analysis import wingbeat
+from flaair_analysis import wingbeat
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_client import FoxgloveClient
 from flaair_tools.liveview.foxglove_io import foxglove_node_args

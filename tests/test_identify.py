@@ -16,18 +16,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flaair_common.runcsv import write_run
-from flaair_model.model_io import load_model
-from flaair_sim.core.plant import simulate, simulate_batch_from
-from flaair_tools.discrepancy import (
+from flaair_analysis.discrepancy import (
     analyse,
     check_runs,
     initial_mechanical_state,
     noise_estimates,
     simulate_runs,
 )
-from flaair_tools.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
-from flaair_tools.discrepancy.identification import frequency_domain_start, identify_plant
+from flaair_analysis.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
+from flaair_analysis.discrepancy.identification import frequency_domain_start, identify_plant
+from flaair_common.runcsv import write_run
+from flaair_model.model_io import load_model
+from flaair_sim.core.plant import simulate, simulate_batch_from
 from rosproc import FLAAIR, isolated_env, run, run_offline
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
@@ -131,7 +131,7 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
     )
     # the state measured from the first frames is near the robot's true state at the split (a
     # start), and the state fitted with the plant is on it
-    from flaair_tools.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy.datasets import true_model
 
     robot = replace(true_model(case, model), effects=())
     sim = simulate(drive, whole.fs_hz, robot)

@@ -23,7 +23,8 @@ LAYERS = {
     "flaair_sensors": 2,
     "flaair_control": 3,
     "flaair_bridge": 3,
-    "flaair_tools": 4,
+    "flaair_analysis": 4,
+    "flaair_tools": 5,
 }
 
 
@@ -37,7 +38,7 @@ def _source_files(*dirs: Path) -> list[Path]:
 
 
 def _module_name(path: Path) -> str:
-    """`flaair_tools.discrepancy.fitting` for
+    """`flaair_analysis.discrepancy.fitting` for
     src/flaair_tools/flaair_tools/discrepancy/fitting.py.
     """
     parts = list(path.relative_to(SRC).parts[1:])

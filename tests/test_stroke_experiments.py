@@ -11,9 +11,9 @@ import yaml
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
+from flaair_analysis import wingbeat
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
-from flaair_tools.analysis import wingbeat
 from flaair_tools.sweeps import stroke_experiments as se
 
 TOPICS = {

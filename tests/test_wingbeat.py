@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from flaair_tools.analysis import wingbeat
+from flaair_analysis import wingbeat
 
 FS = 20000.0
 PARAMS = wingbeat.WingbeatParams(

@@ -185,8 +185,8 @@ class DsaParams:
         kr = self.kr_schedule
         return (
             float(self.sample_rate_hz),
-            *normalized_ba(*_tf_coefficients(self, True)),
-            *normalized_ba(*_tf_coefficients(self, False)),
+            *normalized_ba(*tf_coefficients(self, True)),
+            *normalized_ba(*tf_coefficients(self, False)),
             float(kr.start_value),
             float(kr.end_value),
             float(kr.start_time_s),
@@ -213,7 +213,7 @@ def loop_delay_s(
 
 
 @lru_cache(maxsize=64)
-def _tf_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
+def tf_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (b, a) of the dSA filter (velocity -> torque), optionally phase-advanced."""
     wc = params.design_omega_rad_s
     if advanced and params.loop_delay_s > 0:
@@ -355,7 +355,7 @@ def frequency_response(
     params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True
 ) -> np.ndarray:
     """Discrete filter response torque/velocity (N m s / rad) at ``frequency_hz``."""
-    bz, az = _tf_coefficients(params, advanced)
+    bz, az = tf_coefficients(params, advanced)
     _, h = signal.freqz(
         bz, az, worN=np.asarray(frequency_hz, dtype=float), fs=params.sample_rate_hz
     )

@@ -40,14 +40,14 @@ from pathlib import Path
 
 import yaml
 
+from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
+from flaair_analysis.discrepancy.settings import Settings
+from flaair_analysis.discrepancy.workflow import analyse, format_parameters
 from flaair_common.runcsv import RunFileError, read_run
 from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model, save_model
 
 from .report import write_report, write_validation
-from .runs import DiscrepancyInputError, Run
-from .settings import Settings
-from .workflow import analyse, format_parameters
 
 PROG = "flaair discrepancy"
 
@@ -152,7 +152,12 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
     from tqdm import tqdm
 
-    from .datasets import confusion_table, dataset_cases, make_runs, score_case
+    from flaair_analysis.discrepancy.datasets import (
+        confusion_table,
+        dataset_cases,
+        make_runs,
+        score_case,
+    )
 
     cases = [c for c in dataset_cases() if not names or c.name in names]
     unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})

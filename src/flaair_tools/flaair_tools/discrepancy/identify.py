@@ -29,12 +29,12 @@ import sys
 import time
 from pathlib import Path
 
+from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.identification import identify_plant
+from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
-from flaair_tools.discrepancy.diagnosis import noise_estimates
-from flaair_tools.discrepancy.identification import identify_plant
 from flaair_tools.discrepancy.report import json_safe
-from flaair_tools.discrepancy.runs import check_runs, simulate_runs
 
 PROG = "flaair identify"
 

@@ -18,12 +18,11 @@ import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
+from flaair_analysis.discrepancy.diagnosis import bode_points
+from flaair_analysis.discrepancy.runs import CHANNELS, Run, simulate_runs
+from flaair_analysis.discrepancy.settings import Settings
+from flaair_analysis.discrepancy.workflow import DiscrepancyResult, format_parameters
 from flaair_common.strictjson import json_safe
-
-from .diagnosis import bode_points
-from .runs import CHANNELS, Run, simulate_runs
-from .settings import Settings
-from .workflow import DiscrepancyResult, format_parameters
 
 __all__ = [
     "confusion_html",
@@ -451,7 +450,7 @@ def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any
 
 
 def _label_match(true: str, found: str) -> bool:
-    from .datasets import expected_column
+    from flaair_analysis.discrepancy.datasets import expected_column
 
     return found == expected_column(true)
 

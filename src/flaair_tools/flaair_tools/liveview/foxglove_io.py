@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from flaair_model.schema import ParamSpec
-from flaair_tools.analysis import wingbeat
+from flaair_analysis import wingbeat
 from flaair_tools.liveview import live_view
 
 __all__ = [

@@ -3,7 +3,7 @@
 Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_state/truth, /sensor_v
 and /drive (on /flaair/live/..., flaair_tools.liveview.live_view) at the sample's own signal time,
 so the Plot panel draws time series; /flaair/live/wingbeat summarises each wingbeat
-(flaair_tools.analysis.wingbeat); /flaair/live/collision_status relays the monitor, /diagnostics
+(flaair_analysis.wingbeat); /flaair/live/collision_status relays the monitor, /diagnostics
 every node's health; the latest signal time is broadcast. Block streams are best effort (a viewer
 never holds the graph), served in batches of serve_period_s (one numpy call each).
 Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
@@ -30,7 +30,7 @@ from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_msgs import msg as msgs
-from flaair_tools.analysis import wingbeat
+from flaair_analysis import wingbeat
 from flaair_tools.liveview import foxglove_io as io
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flaair_common import cdr
-from flaair_tools.analysis.wingbeat import (
+from flaair_analysis.wingbeat import (
     WingbeatInputs,
     WingbeatParams,
     Wingbeats,

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from flaair_analysis import wingbeat
 from flaair_common import topics
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_control.core import safety, stroke
@@ -34,7 +35,6 @@ from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_params_from_config as frontend_params
 from flaair_sim.core import plant
 from flaair_tools import bagio
-from flaair_tools.analysis import wingbeat
 
 CUSTOM_KEY = "flaair.stroke_experiment"
 DRIVE_TYPE = "flaair_msgs/msg/DriveCommandBlock"

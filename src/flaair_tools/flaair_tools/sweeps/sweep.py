@@ -1,6 +1,6 @@
 """The Dask sweeps' engine: grids from config/sweeps.yaml, chunked rows run on a cluster or in
-process through the compiled batch (`sweep_batch`), relative and theory columns, strict JSON and
-CSV out. The command is `sweep_cli`; figures and readings are `sweep_report`.
+process through the compiled batch (`flaair_analysis.closed_loop`), relative and theory columns,
+strict JSON and CSV out. The command is `sweep_cli`; figures and readings are `sweep_report`.
 """
 
 from __future__ import annotations
@@ -79,8 +79,8 @@ def wing_damage_rows(
     """One row per (aero damping exponent, inertia
     factor, drive); drives set for the undamaged wing.
     """
+    from flaair_analysis.closed_loop import DSA, DSA_STROKE, MODE_NAMES, SYNC
     from flaair_control.core import stroke
-    from flaair_tools.sweeps.sweep_batch import DSA, DSA_STROKE, MODE_NAMES, SYNC
 
     try:
         factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
@@ -125,7 +125,7 @@ def wing_damage_rows(
 
 def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per (r3, kappa, mu): the free dSA loop on the undamaged wing."""
-    from flaair_tools.sweeps.sweep_batch import DSA, MODE_NAMES
+    from flaair_analysis.closed_loop import DSA, MODE_NAMES
 
     try:
         mus = _grid(section["mu_nm_s_per_rad"], "dsa_map.mu_nm_s_per_rad")
@@ -213,7 +213,7 @@ def run_in_process(
     parallel: bool = False,
 ) -> list[list[dict[str, Any]]]:
     """Every chunk here, one after the other (``parallel``: numba threads over each chunk)."""
-    from flaair_tools.sweeps.sweep_batch import run_rows
+    from flaair_analysis.closed_loop import run_rows
 
     out = []
     for part in parts:
@@ -256,7 +256,7 @@ def prepare_workers(client, model, row: dict[str, Any]) -> None:
     from numba's cache, task machinery warmed: a worker's first task costs about a second more
     than the next).
     """
-    from flaair_tools.sweeps.sweep_batch import warm_up
+    from flaair_analysis.closed_loop import warm_up
 
     client.gather(
         [
@@ -288,7 +288,7 @@ def run_on_dask(
     """
     from dask.distributed import as_completed
 
-    from flaair_tools.sweeps.sweep_batch import run_rows
+    from flaair_analysis.closed_loop import run_rows
 
     # keys of this run's tasks: a later run on the same client never meets them
     run = uuid.uuid4().hex[:8]
@@ -326,7 +326,7 @@ def execute(
     """
     from tqdm import tqdm
 
-    from flaair_tools.sweeps.sweep_batch import warm_up
+    from flaair_analysis.closed_loop import warm_up
 
     def sized(n_workers: int) -> list[list[dict[str, Any]]]:
         size = (

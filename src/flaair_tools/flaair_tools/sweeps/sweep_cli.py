@@ -14,7 +14,7 @@ DIR/sweep.json (strict JSON, one row per point), DIR/sweep.csv, DIR/*.png and DI
 
 The grid comes from config/sweeps.yaml, the controller numbers from config/flaair.yaml. Each
 task carries a chunk of simulations through one compiled batch
-(flaair_tools.sweeps.sweep_batch), sized for the workers found (`TaskSizing`,
+(flaair_analysis.closed_loop), sized for the workers found (`TaskSizing`,
 config/sweeps.yaml `tasks:`: ~0.3 s of compute, or an even spread of a small sweep); a row's
 result depends on that row alone, so any number of workers and any chunking give the same
 numbers. By default a LocalCluster sized to the machine (one single-threaded worker process

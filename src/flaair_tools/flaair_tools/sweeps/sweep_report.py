@@ -336,7 +336,7 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
     """Run the three stroke experiments per mode, one bag each, analysed from the bags."""
     from tqdm import tqdm
 
-    from flaair_tools.analysis import wingbeat
+    from flaair_analysis import wingbeat
     from flaair_tools.sweeps import stroke_experiments as se
 
     section = sweep.load_section(config, "stroke_experiments")

@@ -1,4 +1,9 @@
-"""Compiled closed-loop batch for the sweeps: many robots, each flapping under its own drive (pure).
+"""The one compiled closed-loop batch engine: many robots, each flapping under its own drive (pure).
+
+The sweeps (`flaair_tools.sweeps`) run it; it reads the plant and the controller only through
+their public names: `flaair_sim.core.plant` (`prepare`, `mechanical_constants`, `rk4_step`: the
+compiled kernel published for batch engines), `flaair_control.core.dsa` (`DsaParams`, `KrSchedule`,
+`tf_coefficients`) and `flaair_control.core.stroke` (`track_sample`).
 
 One simulation is the plant's numba RK4 (``flaair_sim.core.plant``: the same kernels and parameter
 vector, so a point equals the plant model) closed sample by sample through the drive:
@@ -11,7 +16,7 @@ vector, so a point equals the plant model) closed sample by sample through the d
 
 Ideal proprioception (the sweep asks about the wing, not the sensor): the loop sees the true stroke.
 The drive is clamped to drive_limit_v. ``run_rows`` runs a chunk of rows through one compiled call
-and summarises each with ``flaair_tools.analysis.wingbeat`` over the steady window: the result of
+and summarises each with ``flaair_analysis.wingbeat`` over the steady window: the result of
 a row depends on that row alone, so any chunking or cluster gives the same numbers bit for bit.
 """
 
@@ -24,11 +29,10 @@ from typing import Any
 import numpy as np
 from numba import njit, prange
 
+from flaair_analysis import wingbeat
 from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
-from flaair_sim.core.plant import mechanical_constants, rk4_step  # the plant's own kernels
-from flaair_sim.core.plant_params import CONTACT_ON_INDEX, GA_INDEX, N_KERNEL_PARAMS, prepare
-from flaair_tools.analysis import wingbeat
+from flaair_sim.core.plant import mechanical_constants, prepare, rk4_step  # the plant's own kernels
 
 SYNC, DSA, DSA_STROKE = 0, 1, 2
 MODE_NAMES = {SYNC: "sync_open_loop", DSA: "dsa", DSA_STROKE: "dsa_stroke_control"}
@@ -38,6 +42,7 @@ _FMA = {"contract"}
 @njit(cache=True, fastmath=_FMA)
 def _one(
     p,
+    inv_ga,
     nsub,
     mode,
     n,
@@ -56,11 +61,11 @@ def _one(
 ):
     """One robot over n samples; the last phi_out.size samples of stroke and pitch (rad) are kept.
 
-    Returns the final command (drive amplitude V for SYNC, mu for the dSA modes) and the
-    largest |drive| over the kept window (V; = limit_v when the clamp acts).
+    ``inv_ga`` is 1 / G_a (V / N m), the actuator gain's inverse. Returns the final command
+    (drive amplitude V for SYNC, mu for the dSA modes) and the largest |drive| over the kept
+    window (V; = limit_v when the clamp acts).
     """
     c = mechanical_constants(p)
-    inv_ga = 1.0 / p[GA_INDEX]
     phi, dphi, psi, dpsi = phi0, 0.0, 0.0, 0.0
     z1, z2 = 0.0, 0.0  # dSA filter state (direct form II transposed, as scipy lfilter)
     s = np.zeros(9)
@@ -98,6 +103,7 @@ def _one(
 @njit(cache=True)
 def _batch(
     params,
+    inv_gas,
     nsubs,
     modes,
     n,
@@ -118,6 +124,7 @@ def _batch(
     for i in range(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
             params[i],
+            inv_gas[i],
             nsubs[i],
             modes[i],
             n,
@@ -139,6 +146,7 @@ def _batch(
 @njit(cache=True, parallel=True)
 def _batch_parallel(
     params,
+    inv_gas,
     nsubs,
     modes,
     n,
@@ -159,6 +167,7 @@ def _batch_parallel(
     for i in prange(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
             params[i],
+            inv_gas[i],
             nsubs[i],
             modes[i],
             n,
@@ -207,7 +216,7 @@ def _filter(
         loop_delay_s=0.5 / fs,
         compensation_frequency_hz=None,
     )
-    return dsa._tf_coefficients(params, True)  # the controller core's own discretization
+    return dsa.tf_coefficients(params, True)  # the controller core's own discretization
 
 
 def run_rows(
@@ -226,7 +235,7 @@ def run_rows(
     fs = float(rows[0]["sample_rate_hz"])
     n = round(rows[0]["duration_s"] * fs)
     keep = round(rows[0]["steady_s"] * fs)
-    params = np.empty((m, N_KERNEL_PARAMS))
+    kernel_rows, inv_gas = [], np.empty(m)
     nsubs, modes = np.empty(m, np.int64), np.empty(m, np.int64)
     amps, omegas, scales, u_ffs, phi0s = (np.zeros(m) for _ in range(5))
     bs, as_ = np.zeros((m, 3)), np.zeros((m, 3))
@@ -236,14 +245,16 @@ def run_rows(
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
         prep = prepare(robot, fs)
-        if prep.params[CONTACT_ON_INDEX]:
+        if "collision" in robot.effects:
             raise ValueError("the sweep batch has no collision stop")
         if robot.discovered:
             raise ValueError(
                 "the sweep batch runs the model without discovered terms; run the "
                 "sweep on a model without them"
             )
-        params[i], nsubs[i], modes[i] = prep.params, prep.n_substeps, row["mode"]
+        kernel_rows.append(prep.params)
+        inv_gas[i] = 1.0 / robot.plant.actuator_gain_nm_per_v  # G_a, as prepare writes it
+        nsubs[i], modes[i] = prep.n_substeps, row["mode"]
         phi0s[i] = math.radians(row["start_stroke_deg"]) if row["mode"] != SYNC else 0.0
         if row["mode"] == SYNC:
             amps[i], omegas[i] = row["drive_amplitude_v"], 2.0 * math.pi * row["frequency_hz"]
@@ -258,7 +269,8 @@ def run_rows(
     u_out = np.empty((m, 2))
     kernel = _batch_parallel if parallel else _batch
     kernel(
-        params,
+        np.array(kernel_rows),
+        inv_gas,
         nsubs,
         modes,
         n,

@@ -1,0 +1,14 @@
+"""FLAAIR science, pure: no rclpy, no ROS messages, no matplotlib, no Jinja2, no file I/O.
+
+It sits above the domain packages (model, sim, sensors, control) and below `flaair_tools`,
+which keeps the command lines, reports, bags and orchestration around it.
+
+Modules (import them by name; this package imports none of them eagerly):
+- `discrepancy`: the model-vs-measurement workflow (diagnosis, the effect search, grey-box
+  identification, term discovery, hidden-effect datasets and their scoring);
+- `wingbeat`: per-wingbeat summary of a stroke and pitch record (numba);
+- `closed_loop`: the compiled closed-loop batch engine the sweeps run (many robots, each under
+  its own sync or dSA drive, on the plant's own kernels).
+"""
+
+__all__ = ["closed_loop", "discrepancy", "wingbeat"]
