@@ -7,8 +7,9 @@ Modules (import them by name; this package imports none of them eagerly):
 - `discrepancy`: the model-vs-measurement workflow (diagnosis, the effect search, grey-box
   identification, term discovery, hidden-effect datasets and their scoring);
 - `wingbeat`: per-wingbeat summary of a stroke and pitch record (numba);
+- `headline`: the paper's headline figures beside the measured ones (`flaair analyze`'s table);
 - `closed_loop`: the compiled closed-loop batch engine the sweeps run (many robots, each under
   its own sync or dSA drive, on the plant's own kernels).
 """
 
-__all__ = ["closed_loop", "discrepancy", "wingbeat"]
+__all__ = ["closed_loop", "discrepancy", "headline", "wingbeat"]

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from flaair_analysis.headline import headline
 from flaair_common import topics
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
@@ -64,7 +65,6 @@ from flaair_tools.analysis.per_run import (
     analyze_sine,
     analyze_sweep,
     analyze_transition,
-    finite_or_none,
     offline_estimate,
 )
 from flaair_tools.analysis.runkind import DriveKind, RecognitionParams, RunKindError, recognise
@@ -81,48 +81,6 @@ BAG_TOPICS = (
 )
 EXIT_BAD_INPUT = 2
 EXIT_PARTIAL = 3
-# The paper's published figures, for the side-by-side table (deg, deg/V).
-PAPER = {
-    "stroke_gain_deg_per_v": 25.5,
-    "pitch_gain_deg_per_v": 108.0,
-    "stroke_amplitude_rmse_deg": 0.44,
-    "pitch_amplitude_rmse_deg": 4.04,
-    "pitch_amplitude_rmse_band_deg": 2.44,
-    "pitch_time_rmse_deg": 8.20,
-    "pitch_time_rmse_lag_corrected_deg": 4.44,
-    "pitch_time_rmse_lag_corrected_band_deg": 3.93,
-    "stroke_phase_rmse_deg": 9.69,
-    "pitch_phase_rmse_deg": 14.41,
-    "collision_spectrum_rmse_deg": 3.23,
-    "no_collision_spectrum_rmse_deg": 0.53,
-    "collision_time_rmse_deg": 15.81,
-    "no_collision_time_rmse_deg": 3.34,
-}
-# Human label and unit of every headline figure ({band} fields: the configured analysis bands).
-LABELS = {
-    "stroke_gain_deg_per_v": ("Stroke sensor gain", "deg/V"),
-    "pitch_gain_deg_per_v": ("Pitch (hinge) sensor gain", "deg/V"),
-    "stroke_amplitude_rmse_deg": ("Stroke amplitude error, RMSE over the Bode", "deg"),
-    "pitch_amplitude_rmse_deg": ("Pitch amplitude error, RMSE over the Bode", "deg"),
-    "pitch_amplitude_rmse_band_deg": ("Pitch amplitude error, RMSE {amplitude_band_hz}", "deg"),
-    "pitch_time_rmse_deg": ("Pitch error in time, RMSE", "deg"),
-    "pitch_time_rmse_lag_corrected_deg": ("Pitch error in time, lag corrected", "deg"),
-    "pitch_time_rmse_lag_corrected_band_deg": (
-        "Pitch error in time, lag corrected, {time_band_hz}",
-        "deg",
-    ),
-    "stroke_phase_rmse_deg": ("Stroke phase error, RMSE over the Bode", "deg"),
-    "pitch_phase_rmse_deg": ("Pitch phase error, RMSE over the Bode", "deg"),
-    "collision_spectrum_rmse_deg": (
-        "Collision metric with the obstacle (pitch FFT vs sine)",
-        "deg",
-    ),
-    "no_collision_spectrum_rmse_deg": ("Collision metric without the obstacle", "deg"),
-    "collision_time_rmse_deg": ("Pitch vs sine in time, with the obstacle", "deg"),
-    "no_collision_time_rmse_deg": ("Pitch vs sine in time, without the obstacle", "deg"),
-    "transition_final_frequency_hz": ("dSA transition: final flapping frequency", "Hz"),
-    "transition_final_amplitude_deg": ("dSA transition: final stroke amplitude", "deg"),
-}
 MODEL_GAINS_WARNING = (
     "the front end runs on the model's gains (no --calibration): the model over-predicts the hinge "
     "sensor ~4.3x on a real robot, so pitch reads ~4x small - the live pitch figures and the "
@@ -454,96 +412,6 @@ def analyze_bag(
     return result, plots
 
 
-# ----------------------------------------------------------------------------- headline
-
-
-def _pick(
-    bags: list[dict[str, Any]], methods: tuple[str, ...]
-) -> tuple[str, dict[str, Any]] | None:
-    """The run of one of `methods` with the strongest drive
-    (the paper's 200 Vpp), with its 'bag/run' name.
-    """
-    best = None
-    for bag in bags:
-        for name, run in bag["runs"].items():
-            if (
-                run.get("method") in methods
-                and "stroke" in run
-                and (best is None or run["drive_amplitude_v"] > best[1]["drive_amplitude_v"])
-            ):
-                best = (f"{bag['experiment']}/{name}", run)
-    return best
-
-
-def headline(bags: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
-    """The paper's headline figures as measured here,
-    beside the paper's, with label, unit and source.
-    """
-    ours: dict[str, tuple[float | None, str]] = {}
-    chirp = _pick(bags, ("chirp",))
-    stepped = _pick(bags, ("stepped",)) or chirp
-    if chirp:
-        source, run = chirp
-        for key in ("gain_deg_per_v", "amplitude_rmse_deg", "phase_rmse_deg"):
-            ours[f"stroke_{key}"] = (run["stroke"].get(key), source)
-    if stepped:
-        source, run = stepped
-        for key in (
-            "gain_deg_per_v",
-            "amplitude_rmse_deg",
-            "amplitude_rmse_band_deg",
-            "time_rmse_deg",
-            "time_rmse_lag_corrected_deg",
-            "time_rmse_lag_corrected_band_deg",
-            "phase_rmse_deg",
-        ):
-            ours[f"pitch_{key}"] = (run["pitch"].get(key), source)
-    for bag in bags:
-        runs = bag.get("collision", {}).get("runs", {})
-        if "spectrum_rmse_deg" in runs.get("collision", {}) and "spectrum_rmse_deg" in runs.get(
-            "no_collision", {}
-        ):
-            source = f"{bag['experiment']}/collision, no_collision"
-            for prefix, part in (("", "collision"), ("no_", "no_collision")):
-                ours[f"{prefix}collision_spectrum_rmse_deg"] = (
-                    runs[part]["spectrum_rmse_deg"],
-                    source,
-                )
-                ours[f"{prefix}collision_time_rmse_deg"] = (runs[part]["time_rmse_deg"], source)
-    table = {}
-    bands = analysis_bands_from_config()
-    for key, paper in PAPER.items():
-        value, source = ours.get(key, (None, ""))
-        label = LABELS[key][0].format(
-            amplitude_band_hz=bands.label("amplitude_band_hz"),
-            time_band_hz=bands.label("time_band_hz"),
-        )
-        table[key] = {
-            "flaair": finite_or_none(value),
-            "paper": paper,
-            "label": label,
-            "unit": LABELS[key][1],
-            "source": source,
-        }
-    for bag in bags:
-        if "transition" in bag:
-            t = bag["transition"]
-            note = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"
-            for key, value in (
-                ("transition_final_frequency_hz", t["final_frequency_hz"]),
-                ("transition_final_amplitude_deg", t["final_amplitude_deg"]),
-            ):
-                table[key] = {
-                    "flaair": value,
-                    "paper": None,
-                    "label": LABELS[key][0],
-                    "unit": LABELS[key][1],
-                    "source": bag["experiment"],
-                    "note": note if key.endswith("hz") else "",
-                }
-    return table
-
-
 # ----------------------------------------------------------------------------- top level
 
 
@@ -592,7 +460,7 @@ def analyze(
     report["partial"] = [
         note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])
     ]
-    report["headline"] = headline(results)
+    report["headline"] = headline(results, analysis_bands_from_config())
     report["figures"] = html_report.write_figures(results, plots, out_dir)
     report = json_safe(report)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False))

@@ -4,11 +4,11 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 
+from flaair_analysis.headline import finite_or_none
 from flaair_common import topics
 from flaair_common.strictjson import json_safe
 from flaair_sensors.analysis_io import analysis_bands_from_config
@@ -38,10 +38,6 @@ __all__ = [
 
 class AnalysisError(ValueError):
     """A bag cannot be analysed; the message names the bag, run or topic."""
-
-
-def finite_or_none(value: Any) -> float | None:
-    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def offline_estimate(run: Run, params: frontend.FrontendParams) -> tuple[np.ndarray, np.ndarray]:
