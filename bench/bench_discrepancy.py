@@ -3,7 +3,7 @@
 Run: python bench/bench_discrepancy.py [--json out.json]
 [--draws 30] [--baseline-draws 5] [--jobs 2] [--sweep]
 
-Robots come from the project's randomized generator (`discrepancy.datasets.random_robot`): every
+Robots come from the project's randomized generator (`discrepancy.offnominal.random_robot`): every
 fitted plant parameter off nominal (natural frequencies within +-3 %, damping, gain and couplings
 within +-15 %), noise 1-2x the model's, truth at 20 kHz or at a 2 kHz video rate (NaN between
 frames), the standard run set (chirp 20-200 Hz at 100 V and 50 V, stepped sine 60-200 Hz).
@@ -51,14 +51,12 @@ from tqdm import tqdm
 from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
 from flaair_analysis.discrepancy import Settings, analyse
 from flaair_analysis.discrepancy.datasets import (
-    FAMILIES,
     confusion_table,
     dataset_cases,
     make_runs,
-    random_robot,
     score_case,
-    true_plant,
 )
+from flaair_analysis.discrepancy.offnominal import FAMILIES, random_robot, true_plant
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import json_safe, write_validation

@@ -40,13 +40,13 @@ from flaair_analysis.discrepancy.datasets import (
     DatasetCase,
     confusion_table,
     dataset_cases,
-    effective_plant,
     expected_column,
     make_runs,
     run_set_drives,
     score_case,
 )
 from flaair_analysis.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
+from flaair_analysis.discrepancy.offnominal import effective_plant
 from flaair_analysis.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from flaair_common.runcsv import write_run
 from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects

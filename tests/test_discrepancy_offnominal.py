@@ -16,12 +16,8 @@ from pathlib import Path
 import pytest
 
 from flaair_analysis.discrepancy import Settings, analyse
-from flaair_analysis.discrepancy.datasets import (
-    effective_plant,
-    make_runs,
-    random_robot,
-    true_plant,
-)
+from flaair_analysis.discrepancy.datasets import make_runs
+from flaair_analysis.discrepancy.offnominal import effective_plant, random_robot, true_plant
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from flaair_analysis.discrepancy import datasets, vocabulary
+from flaair_analysis.discrepancy import offnominal, vocabulary
 from flaair_model.effects import (
     EFFECTS,
     ENTRIES,
@@ -50,7 +50,7 @@ def test_the_model_vocabulary_and_generator_list_the_table_in_its_order() -> Non
     assert (
         tuple(n for n in NAMES if ENTRIES[n].separable)
         + tuple(n for n in NAMES if not ENTRIES[n].separable)
-        == datasets.EFFECT_NAMES_ORDER
+        == offnominal.EFFECT_NAMES_ORDER
     )
 
 
@@ -69,7 +69,7 @@ def test_each_parameter_has_a_fit_and_a_draw_range_inside_the_fit_bounds(name: s
 def test_the_generator_draws_each_effect_inside_its_ranges(name: str) -> None:
     entry = ENTRIES[name]
     for seed in range(20):
-        params = datasets.random_effect(name, np.random.default_rng(seed))
+        params = offnominal.random_effect(name, np.random.default_rng(seed))
         with_effects(load_model(), {name: params})  # a valid effect
         for r in entry.draw:
             assert r.low <= abs(params[r.key]) <= r.high, (r, params)

@@ -23,8 +23,9 @@ from flaair_analysis.discrepancy import (
     noise_estimates,
     simulate_runs,
 )
-from flaair_analysis.discrepancy.datasets import make_runs, random_robot, run_set_drives, true_plant
+from flaair_analysis.discrepancy.datasets import make_runs, run_set_drives
 from flaair_analysis.discrepancy.identification import frequency_domain_start, identify_plant
+from flaair_analysis.discrepancy.offnominal import random_robot, true_plant
 from flaair_common.runcsv import write_run
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate, simulate_batch_from

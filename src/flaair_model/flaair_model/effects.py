@@ -12,7 +12,7 @@ One `EffectEntry` per effect holds all that the rest of FLAAIR knows of it:
 
 `flaair_sim.core.plant_params.prepare` writes `terms` into the kernels' parameter vector,
 `flaair_analysis.discrepancy.vocabulary` builds its search vocabulary from `fit`, and
-`flaair_analysis.discrepancy.datasets` draws random robots from `draw`. Adding an effect is one
+`flaair_analysis.discrepancy.offnominal` draws random robots from `draw`. Adding an effect is one
 entry here plus its term in the numba kernel (`flaair_sim.core.plant`);
 tests/test_effect_table.py checks that every entry reaches all three and that it changes the
 channels it names and no others. The order of `EFFECTS` is the order effects are stored in a

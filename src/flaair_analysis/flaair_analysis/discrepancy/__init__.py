@@ -7,8 +7,9 @@ once), `identification` (grey-box fit of the plant), `diagnosis` (where a residu
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
 search), `discovery` (terms from the library `flaair_model.terms` where the vocabulary leaves
 a gap), `workflow` (`analyse`: identify, search on top of the fitted plant, discover),
-`datasets` (hidden-effect cases and the randomized off-nominal robot generator; `case` holds one
-case, `scoring` scores the workflow on them), `settings` (the decision rules' constants).
+`datasets` (the fixed hidden-effect cases and their runs), `offnominal` (the randomized
+off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases),
+`settings` (the decision rules' constants).
 
 Given measured runs (drive, both sensor voltages, ground-truth angles) and a model, the core
 
