@@ -90,7 +90,7 @@ def main() -> None:
     step_rate = 2000 * BLOCK / t_blocks
 
     # Baseline: the five bare lfilter calls per block (drift x2, lead x2, velocity).
-    flt = fe._filters(params)
+    flt = fe.filters(params)
     zd = np.zeros(1)
     zl = np.zeros(2)
 

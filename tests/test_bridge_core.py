@@ -405,8 +405,8 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
         item = SensorDatagram(packet(k, k * N, flags=flags), now, now + 1e-4)
         decoded = protocol.unpack_sensor(item.data)
         if bridge.in_order(state, decoded, p):
-            fast = bridge._in_order_packet(state, decoded, item.now_s, item.read_s, p)
-            general = bridge._any_packet(state, decoded, item, p)
+            fast = bridge.in_order_packet(state, decoded, item.now_s, item.read_s, p)
+            general = bridge.any_packet(state, decoded, item, p)
             assert _same(fast, general), k
             compared, flagged = compared + 1, flagged + bool(flags)
         state, _ = bridge.step(state, item, p)

@@ -57,7 +57,7 @@ def test_a_slow_first_reader_leaves_the_other_topics_their_wait(clock) -> None:
     sensor = FakePublisher("/flaair/sensor_v", 3.0, clock)  # a recorder 3 s behind
     drive = FakePublisher("/flaair/drive", 1.5, clock)
     node = FakeNode([sensor, drive])
-    runtime._wait_for_acks([node])
+    runtime.wait_for_acks([node])
     assert drive.offered_s == pytest.approx(runtime.ACK_WAIT_S - 3.0)
     assert node.warnings == []
 
@@ -66,7 +66,7 @@ def test_topics_still_unacknowledged_are_named(clock) -> None:
     stuck = FakePublisher("/flaair/drive", None, clock)
     fine = FakePublisher("/flaair/controller/state", 0.0, clock)
     node = FakeNode([stuck, fine])
-    runtime._wait_for_acks([node], timeout_s=4.0)
+    runtime.wait_for_acks([node], timeout_s=4.0)
     assert clock.now_s == pytest.approx(104.0)
     assert node.warnings == [
         "not acknowledged by every reader within 4 s, may be lost: the last "

@@ -174,7 +174,7 @@ def _frontend_reference(v: np.ndarray, p: fe.FrontendParams, channel: str) -> np
     db, da = signal.butter(1, p.drift_corner_hz, btype="low", fs=p.sample_rate_hz)
     e = e - signal.lfilter(db, da, e, zi=np.zeros(1))[0]
     theta = e / getattr(p, f"{channel}_volts_per_rad")
-    lead = fe._filters(p).stroke_lead if channel == "stroke" else fe._filters(p).pitch_lead
+    lead = fe.filters(p).stroke_lead if channel == "stroke" else fe.filters(p).pitch_lead
     if lead is not None:
         theta = signal.lfilter(*lead, theta, zi=np.zeros(2))[0]
     out = np.full(v.size, np.nan)
@@ -217,7 +217,7 @@ def test_frontend_step_matches_the_scipy_chain_bit_for_bit() -> None:
     velocity = np.full(t.size, np.nan)
     ok = np.isfinite(stroke)
     velocity[ok] = signal.lfilter(
-        *fe._velocity_ba(p.velocity_cutoff_hz, FS), stroke[ok], zi=np.zeros(2)
+        *fe.velocity_ba(p.velocity_cutoff_hz, FS), stroke[ok], zi=np.zeros(2)
     )[0]
     np.testing.assert_array_equal(
         np.concatenate([e.stroke_velocity_rad_s for e in parts]), velocity

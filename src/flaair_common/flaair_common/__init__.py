@@ -3,7 +3,9 @@
 Load rclpy on import (ROS shells only):
 - `params`: declare a node's parameters from its schema (descriptors, units, ranges);
 - `runtime`: run a node with clean Ctrl-C/SIGTERM and one-line parameter errors;
-- `qos`: the QoS profiles of FLAAIR topics.
+- `qos`: the QoS profiles of FLAAIR topics;
+- `node`: `FlaairNode`, the Node every FLAAIR node derives from (relative topics, QoS overrides,
+  /diagnostics).
 
 Load no rclpy on import:
 - `container`: several nodes in one process and executor; `intra`: their in-process streams;
@@ -11,7 +13,8 @@ Load no rclpy on import:
 - `graph`: the one launcher (private ROS domain, localhost discovery, parent-death signal);
 - `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
 - `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
-- `runcsv`: measured-run CSV; `strictjson`: strict JSON out.
+- `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
+- `health`: a node's health as data (what /diagnostics carries), decided by pure functions.
 """
 
 __all__ = [
@@ -19,9 +22,11 @@ __all__ = [
     "cdr",
     "container",
     "graph",
+    "health",
     "intra",
     "msgdefs",
     "msgdict",
+    "node",
     "params",
     "qos",
     "realtime",

@@ -27,7 +27,7 @@ import numpy as np
 ENCAPSULATION = b"\x00\x01\x00\x00"
 
 # Field kinds: name -> (numpy dtype of one element, is a sequence)
-_KINDS: dict[str, tuple[np.dtype, bool]] = {
+KINDS: dict[str, tuple[np.dtype, bool]] = {
     "float64": (np.dtype("<f8"), False),
     "uint64": (np.dtype("<u8"), False),
     "uint8": (np.dtype("u1"), False),
@@ -54,7 +54,7 @@ class Layout:
 
     def __post_init__(self) -> None:
         for name, kind in self.fields:
-            if kind not in _KINDS and kind != "string":
+            if kind not in KINDS and kind != "string":
                 raise ValueError(f"{self.type_name}.{name}: unsupported CDR kind {kind!r}")
 
 
@@ -79,7 +79,7 @@ def encode(layout: Layout, stamp_ns: int, frame_id: str, values: dict) -> bytes:
             text = ("" if value is None else str(value)).encode() + b"\x00"
             out += b"\x00" * _pad(body, 4) + struct.pack("<I", len(text)) + text
             continue
-        dtype, sequence = _KINDS[kind]
+        dtype, sequence = KINDS[kind]
         if sequence:
             array = np.ascontiguousarray(() if value is None else value, dtype=dtype)
             out += b"\x00" * _pad(body, 4) + struct.pack("<I", array.size)
@@ -127,7 +127,7 @@ def decode(layout: Layout, data: bytes | memoryview) -> dict:
                 out[name] = bytes(buffer[offset : offset + length - 1]).decode()
                 offset += length
                 continue
-            dtype, sequence = _KINDS[kind]
+            dtype, sequence = KINDS[kind]
             if sequence:
                 offset += _pad(offset - 4, 4)
                 (count,) = struct.unpack_from("<I", buffer, offset)
@@ -180,7 +180,7 @@ class FixedCodec:
         for name, kind in layout.fields:
             if kind == "string":
                 raise ValueError(f"{layout.type_name}.{name}: a string field has no fixed size")
-            dtype, sequence = _KINDS[kind]
+            dtype, sequence = KINDS[kind]
             if sequence:
                 offset += _pad(offset - 4, 4)
                 names.append(f"{name}__count"), formats.append("<u4"), offsets.append(offset)

@@ -288,7 +288,7 @@ def run_nodes(
             _close(node)
             if bus is not None:
                 bus.flush()  # the closing zero block reaches its in-process consumers
-        _wait_for_acks(nodes)
+        wait_for_acks(nodes)
         for node in nodes:
             executor.remove_node(node)
             node.destroy_node()
@@ -296,7 +296,7 @@ def run_nodes(
     return 0
 
 
-def _wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
+def wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
     """Every reliable reader has what the nodes published (their last blocks, the zero drive)
     before the process goes: a writer that exits first takes the undelivered messages with it.
     Topics still unacknowledged when `timeout_s` is up are named in the log.

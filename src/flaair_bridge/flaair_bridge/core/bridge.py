@@ -205,11 +205,11 @@ def _on_sensor(
             )
         )
     if in_order(state, packet, params):
-        return _in_order_packet(state, packet, inputs.now_s, _read_s(inputs), params)
-    return _any_packet(state, packet, inputs, params)
+        return in_order_packet(state, packet, inputs.now_s, _read_s(inputs), params)
+    return any_packet(state, packet, inputs, params)
 
 
-def _any_packet(
+def any_packet(
     state: BridgeState, packet: protocol.SensorPacket, inputs: SensorDatagram, params: BridgeParams
 ) -> tuple[BridgeState, Outputs]:
     """Any well-formed sensor packet: lost, stale, overlapping, partial blocks, a target restart."""
@@ -357,7 +357,7 @@ def in_order(state: BridgeState, packet: protocol.SensorPacket, params: BridgePa
     )
 
 
-def _in_order_packet(
+def in_order_packet(
     state: BridgeState,
     packet: protocol.SensorPacket,
     now_s: float,
@@ -365,7 +365,7 @@ def _in_order_packet(
     params: BridgeParams,
 ) -> tuple[BridgeState, Outputs]:
     """An `in_order` packet: same result as the general
-    path (`_any_packet`), a third of its cost.
+    path (`any_packet`), a third of its cost.
     """
     end = packet.first_sample_index + packet.n
     held = state.pending.shape[1]

@@ -87,12 +87,14 @@ __all__ = [
     "drift_removal_response",
     "estimate",
     "estimate_delay_s",
+    "filters",
     "initial_state",
     "lag_compensation_noise_gain",
     "lag_compensation_response",
     "params_from_calibration",
     "params_from_model",
     "step",
+    "velocity_ba",
     "velocity_phase_lag_deg",
     "velocity_response",
     "with_overrides",
@@ -149,14 +151,20 @@ def _lead_ba(lag_s: float, rolloff_hz: float, fs: float) -> tuple[np.ndarray, np
     return np.asarray(b, float), np.asarray(a, float)
 
 
-def _velocity_ba(cutoff_hz: float, fs: float) -> tuple[np.ndarray, np.ndarray]:
+def velocity_ba(cutoff_hz: float, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (b, a) of the velocity estimator: a differentiator behind a second-order
+    Butterworth low-pass at ``cutoff_hz`` (bilinear at ``fs``).
+    """
     wc = 2.0 * math.pi * cutoff_hz
     b, a = signal.bilinear([wc**2, 0.0], [1.0, math.sqrt(2.0) * wc, wc**2], fs)
     return np.asarray(b, float), np.asarray(a, float)
 
 
 @lru_cache(maxsize=64)
-def _filters(p: FrontendParams) -> _Filters:
+def filters(p: FrontendParams) -> _Filters:
+    """Every filter of the chain at ``p``'s rate (drift removal, lag leads, velocity), once per
+    parameter set.
+    """
     fs = p.sample_rate_hz
     if p.drift_corner_hz > 0:
         db, da = signal.butter(1, p.drift_corner_hz, btype="low", fs=fs)
@@ -172,7 +180,7 @@ def _filters(p: FrontendParams) -> _Filters:
         if (p.compensate_lag and p.pitch_lag_s != 0.0)
         else None
     )
-    vb, va = _velocity_ba(p.velocity_cutoff_hz, fs)
+    vb, va = velocity_ba(p.velocity_cutoff_hz, fs)
     return _Filters(np.asarray(db, float), np.asarray(da, float), sl, pl, vb, va)
 
 
@@ -184,7 +192,7 @@ def drift_removal_response(params: FrontendParams, frequency_hz: np.ndarray | fl
     f = np.atleast_1d(np.asarray(frequency_hz, float))
     if params.drift_corner_hz <= 0:
         return np.ones(f.shape, complex)
-    flt = _filters(params)
+    flt = filters(params)
     _, h = signal.freqz(flt.drift_b, flt.drift_a, worN=f, fs=params.sample_rate_hz)
     return 1.0 - h
 
@@ -195,7 +203,7 @@ def lag_compensation_response(
     """Residual of lag compensation: LEAD(f) * exp(-j 2 pi f lag) (1 = perfect; identity if off)."""
     f = np.atleast_1d(np.asarray(frequency_hz, float))
     lag = _channel_lag(params, channel)
-    ba = _filters(params).stroke_lead if channel == "stroke" else _filters(params).pitch_lead
+    ba = filters(params).stroke_lead if channel == "stroke" else filters(params).pitch_lead
     if ba is None:
         return np.exp(-2j * np.pi * f * lag)
     _, h = signal.freqz(ba[0], ba[1], worN=f, fs=params.sample_rate_hz)
@@ -205,7 +213,7 @@ def lag_compensation_response(
 def lag_compensation_noise_gain(params: FrontendParams, channel: str = "stroke") -> float:
     """RMS gain of the lag compensator for white noise (1 when off)."""
     _channel_lag(params, channel)
-    ba = _filters(params).stroke_lead if channel == "stroke" else _filters(params).pitch_lead
+    ba = filters(params).stroke_lead if channel == "stroke" else filters(params).pitch_lead
     if ba is None:
         return 1.0
     n = int(20 * params.sample_rate_hz / params.lead_rolloff_hz) + 64
@@ -221,7 +229,7 @@ def velocity_response(params: FrontendParams, frequency_hz: float) -> tuple[floa
     gain_ratio, phase_lag_deg, group_delay_s
         |H| / (2 pi f); phase lag behind the ideal derivative (positive = late); group delay.
     """
-    flt = _filters(params)
+    flt = filters(params)
     f = float(frequency_hz)
     _, h = signal.freqz(flt.vel_b, flt.vel_a, worN=[f], fs=params.sample_rate_hz)
     ratio = h[0] / (2j * np.pi * f)
@@ -284,7 +292,7 @@ def initial_state(
         Optional voltages of the wing *at rest*: the drift tracker starts there (no start-up
         transient from a V_HREF error). ``None`` trusts the calibrated offset (tracker at zero).
     """
-    flt = _filters(params)
+    flt = filters(params)
     zi_drift_unit = (
         signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0 else np.zeros(1)
     )
@@ -329,7 +337,7 @@ def _kernel_constants(p: FrontendParams) -> tuple:
     """``_block``'s arguments after the block and the state
     (normalized filters, thresholds), once per params.
     """
-    flt = _filters(p)
+    flt = filters(p)
     rails = bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf)
     stroke_lead = normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER)
     pitch_lead = normalized_ba(*flt.pitch_lead) if flt.pitch_lead else (_NO_FILTER, _NO_FILTER)

@@ -181,7 +181,7 @@ def _columns_from_cdr(layout: cdr.Layout, datas: Sequence[bytes], bag: str | Pat
         for name, kind in scalars
     }
     array_out = {
-        name: np.zeros(int(lengths.sum()), dtype=cdr._KINDS[kind][0].newbyteorder("="))
+        name: np.zeros(int(lengths.sum()), dtype=cdr.KINDS[kind][0].newbyteorder("="))
         for name, kind in layout.fields
         if kind.endswith("[]")
     }

@@ -2,9 +2,22 @@
 
 Modules (import them by name; this package imports none of them eagerly):
 - `experiment`: `bin/flaair experiment`: one paper experiment on the simulated robot, recorded
+- `graphs`: the declared nodes and graphs, read from the launch files
+- `launch_file`: the ROS 2 XML launch-file reader (no ROS)
+- `launch_cli`: `bin/flaair launch`: run a launch file
 - `live`: `bin/flaair live`: the live graph around a target (or --sim)
+- `live_args`: live's arguments turned into the graph's inputs (addresses, node parameters)
 - `demo`: `bin/flaair demo`: every experiment, then the report
 - `transition_figure`: the sync -> async transition figure
 """
 
-__all__ = ["demo", "experiment", "live", "transition_figure"]
+__all__ = [
+    "demo",
+    "experiment",
+    "graphs",
+    "launch_cli",
+    "launch_file",
+    "live",
+    "live_args",
+    "transition_figure",
+]
