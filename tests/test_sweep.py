@@ -204,3 +204,18 @@ def test_cli_writes_strict_json_csv_figure_and_reading_and_names_bad_input(tmp_p
         and bad.stderr.count("\n") == 1
         and "no 'dsa_map:' section" in bad.stderr
     )
+
+
+def test_the_batch_engine_refuses_a_model_with_a_collision_stop(setup) -> None:
+    """The compiled batch has no contact model: a robot with the collision effect is refused by
+    name, not simulated without its stop.
+    """
+    from flaair_analysis import closed_loop
+    from flaair_model.model import with_effects
+
+    model, values = setup
+    row = {**sweep.wing_damage_rows(WING, values, model)[0], "duration_s": 0.02, "steady_s": 0.01}
+    stopped = with_effects(model, {"collision": {"stroke_limit_deg": 20.0}})
+    with pytest.raises(ValueError, match="the sweep batch has no collision stop"):
+        closed_loop.run_rows([row], stopped)
+    assert len(closed_loop.run_rows([row], model)) == 1

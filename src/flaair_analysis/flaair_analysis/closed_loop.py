@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numba import njit, prange
@@ -41,24 +41,24 @@ _FMA = {"contract"}
 
 @njit(cache=True, fastmath=_FMA)
 def _one(
-    p,
-    inv_ga,
-    nsub,
-    mode,
-    n,
-    h,
-    amplitude_v,
-    omega,
-    b,
-    a,
-    gain_scale,
-    track_c,
-    u_ff,
-    phi0,
-    limit_v,
-    phi_out,
-    psi_out,
-):
+    p: np.ndarray,
+    inv_ga: float,
+    nsub: int,
+    mode: int,
+    n: int,
+    h: float,
+    amplitude_v: float,
+    omega: float,
+    b: np.ndarray,
+    a: np.ndarray,
+    gain_scale: float,
+    track_c: np.ndarray,
+    u_ff: float,
+    phi0: float,
+    limit_v: float,
+    phi_out: np.ndarray,
+    psi_out: np.ndarray,
+) -> tuple[float, float]:
     """One robot over n samples; the last phi_out.size samples of stroke and pitch (rad) are kept.
 
     ``inv_ga`` is 1 / G_a (V / N m), the actuator gain's inverse. Returns the final command
@@ -102,25 +102,25 @@ def _one(
 
 @njit(cache=True)
 def _batch(
-    params,
-    inv_gas,
-    nsubs,
-    modes,
-    n,
-    h,
-    amps,
-    omegas,
-    bs,
-    as_,
-    scales,
-    track_cs,
-    u_ffs,
-    phi0s,
-    limit_v,
-    phi_out,
-    psi_out,
-    u_out,
-):
+    params: np.ndarray,
+    inv_gas: np.ndarray,
+    nsubs: np.ndarray,
+    modes: np.ndarray,
+    n: int,
+    h: float,
+    amps: np.ndarray,
+    omegas: np.ndarray,
+    bs: np.ndarray,
+    as_: np.ndarray,
+    scales: np.ndarray,
+    track_cs: np.ndarray,
+    u_ffs: np.ndarray,
+    phi0s: np.ndarray,
+    limit_v: float,
+    phi_out: np.ndarray,
+    psi_out: np.ndarray,
+    u_out: np.ndarray,
+) -> None:
     for i in range(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
             params[i],
@@ -145,25 +145,25 @@ def _batch(
 
 @njit(cache=True, parallel=True)
 def _batch_parallel(
-    params,
-    inv_gas,
-    nsubs,
-    modes,
-    n,
-    h,
-    amps,
-    omegas,
-    bs,
-    as_,
-    scales,
-    track_cs,
-    u_ffs,
-    phi0s,
-    limit_v,
-    phi_out,
-    psi_out,
-    u_out,
-):
+    params: np.ndarray,
+    inv_gas: np.ndarray,
+    nsubs: np.ndarray,
+    modes: np.ndarray,
+    n: int,
+    h: float,
+    amps: np.ndarray,
+    omegas: np.ndarray,
+    bs: np.ndarray,
+    as_: np.ndarray,
+    scales: np.ndarray,
+    track_cs: np.ndarray,
+    u_ffs: np.ndarray,
+    phi0s: np.ndarray,
+    limit_v: float,
+    phi_out: np.ndarray,
+    psi_out: np.ndarray,
+    u_out: np.ndarray,
+) -> None:
     for i in prange(params.shape[0]):
         u_out[i, 0], u_out[i, 1] = _one(
             params[i],
@@ -188,7 +188,7 @@ def _batch_parallel(
 
 def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: float) -> Model:
     """The model with wing_damage and its aerodynamic damping (Gamma, D_p) scaled."""
-    effects = dict(model.effects)
+    effects: dict[str, Any] = dict(model.effects)
     if inertia_factor != 1.0:
         effects["wing_damage"] = {"inertia_factor": inertia_factor}
     pl = replace(
@@ -196,7 +196,7 @@ def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: floa
         aero_damping_nm_s2=model.plant.aero_damping_nm_s2 * aero_damping_factor,
         aero_coupling_nm_s2=model.plant.aero_coupling_nm_s2 * aero_damping_factor,
     )
-    return replace(model, plant=pl, effects=effects)
+    return replace(model, plant=pl, effects=cast(Any, effects))  # a mapping: Model converts it
 
 
 def _filter(
@@ -245,7 +245,7 @@ def run_rows(
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
         prep = prepare(robot, fs)
-        if "collision" in robot.effects:
+        if robot.effect("collision") is not None:
             raise ValueError("the sweep batch has no collision stop")
         if robot.discovered:
             raise ValueError(

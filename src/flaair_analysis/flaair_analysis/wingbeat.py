@@ -109,22 +109,22 @@ def collision_score(spectrum_rmse_deg: float, threshold_deg: float) -> float:
 
 @numba.njit(cache=True)
 def _scan(
-    first,
-    stroke,
-    pitch,
-    valid,
-    armed,
-    last_crossing,
-    previous,
-    s_max,
-    s_min,
-    p_max,
-    p_min,
-    beat_valid,
-    hysteresis,
-    min_len,
-    max_len,
-):  # pragma: no cover - compiled
+    first: int,
+    stroke: np.ndarray,
+    pitch: np.ndarray,
+    valid: np.ndarray,
+    armed: bool,
+    last_crossing: float,
+    previous: float,
+    s_max: float,
+    s_min: float,
+    p_max: float,
+    p_min: float,
+    beat_valid: bool,
+    hysteresis: float,
+    min_len: float,
+    max_len: float,
+) -> tuple[np.ndarray, bool, float, float, float, float, float, float, bool]:  # pragma: no cover
     n = stroke.shape[0]
     out = np.empty((n, 5))
     count = 0
@@ -179,7 +179,7 @@ def step(
     if inputs.first_sample_index != state.next_index:
         state = initial_state(params)
     fs = params.sample_rate_hz
-    rows, *rest = _scan(
+    rows, armed, last, previous, s_max, s_min, p_max, p_min, beat_valid = _scan(
         int(inputs.first_sample_index),
         stroke,
         pitch,
@@ -197,7 +197,15 @@ def step(
         fs / params.min_frequency_hz,
     )
     new_state = WingbeatState(
-        int(inputs.first_sample_index) + stroke.size, *(type(v)(v) for v in rest)
+        int(inputs.first_sample_index) + stroke.size,
+        bool(armed),
+        float(last),
+        float(previous),
+        float(s_max),
+        float(s_min),
+        float(p_max),
+        float(p_min),
+        bool(beat_valid),
     )
     count = rows.shape[0]
     return new_state, Wingbeats(

@@ -5,6 +5,7 @@ the true robot, its runs, what must be found.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 __all__ = ["DatasetCase"]
 
@@ -40,17 +41,17 @@ class DatasetCase:
 
     name: str
     group: str
-    effects: tuple = ()
+    effects: tuple[Any, ...] = ()
     outside: str = ""
     outside_strength: float = 0.0
     noise_scale: float = 1.0
     seed: int = 0
     note: str = ""
-    plant_scale: tuple = ()
-    hidden: tuple = ()
+    plant_scale: tuple[Any, ...] = ()
+    hidden: tuple[Any, ...] = ()
     video_every: int = 1
     below_limit: bool = False
-    terms: tuple = ()
+    terms: tuple[Any, ...] = ()
 
     @property
     def effect_names(self) -> tuple[str, ...]:

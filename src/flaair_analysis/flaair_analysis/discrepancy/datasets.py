@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any, cast
 
 import numpy as np
 from scipy import signal
@@ -86,7 +87,7 @@ def run_set_drives(
     full = chirp(t, amplitude_v, 20.0, 200.0, 1.0)
     half = chirp(t, 0.5 * amplitude_v, 20.0, 200.0, 1.0)
     stepped, _ = stepped_sine(
-        fs_hz, amplitude_v, stepped_sine_frequencies_hz(60.0, 200.0, 10.0), 0.2
+        fs_hz, amplitude_v, stepped_sine_frequencies_hz(60.0, 200.0, 10.0).tolist(), 0.2
     )
     return (("chirp_full", full), ("chirp_half", half), ("stepped", np.asarray(stepped)))
 
@@ -132,7 +133,7 @@ def _second_mode_deg(
     w = 2.0 * math.pi * f_hz
     static = model.plant.actuator_gain_nm_per_v / model.plant.stroke_stiffness_nm_per_rad
     b, a = signal.bilinear([strength * static * w * w], [1.0, 2.0 * zeta * w, w * w], fs=fs_hz)
-    return np.degrees(signal.lfilter(b, a, drive_v))
+    return cast(np.ndarray, np.degrees(signal.lfilter(b, a, drive_v)))
 
 
 def make_runs(case: DatasetCase, model: Model, fs_hz: float = FS_HZ) -> tuple[Run, ...]:
@@ -179,7 +180,7 @@ def make_runs(case: DatasetCase, model: Model, fs_hz: float = FS_HZ) -> tuple[Ru
     return tuple(runs)
 
 
-def _e(name: str, **params: object) -> tuple[str, dict]:
+def _e(name: str, **params: object) -> tuple[str, dict[str, Any]]:
     return (name, dict(params))
 
 

@@ -8,6 +8,7 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 from scipy import stats
@@ -25,7 +26,7 @@ from .vocabulary import CHANNELS, SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH
 def _demean(r: np.ndarray) -> np.ndarray:
     ok = np.isfinite(r)
     if ok.any():
-        return r - np.mean(r[ok])
+        return cast(np.ndarray, r - np.mean(r[ok]))
     return r
 
 
@@ -48,7 +49,12 @@ def channel_residual(
             run, np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"]), side
         )
         r = run.channel(channel) - sensor_voltage(
-            model, run.fs_hz, stroke, pitch, run.drive_v, side
+            cast(Model, model),
+            run.fs_hz,
+            stroke,
+            pitch,
+            run.drive_v,
+            side,  # given with the ref
         )
         r = np.where(np.isfinite(run.channel(UPSTREAM_TRUTH[channel])), r, np.nan)
     else:
@@ -186,12 +192,12 @@ class ChannelGap:
     xcorr_drive: float
     xcorr_lag_s: float
     xcorr_significant: bool
-    band_nrmse: dict
+    band_nrmse: dict[str, Any]
     worst_band_hz: str
-    level_nrmse: dict
+    level_nrmse: dict[str, Any]
     level_ratio: float
-    harmonic_fraction: dict
-    worst_stretch: tuple
+    harmonic_fraction: dict[str, Any]
+    worst_stretch: tuple[Any, ...]
     has_gap: bool
     interpretation: str
 
@@ -200,8 +206,8 @@ class ChannelGap:
 class Diagnosis:
     """Gap of every channel for one model on a set of runs."""
 
-    channels: dict  # channel -> ChannelGap
-    noise: dict  # channel -> noise RMS
+    channels: dict[str, Any]  # channel -> ChannelGap
+    noise: dict[str, Any]  # channel -> noise RMS
 
     @property
     def gaps(self) -> tuple[str, ...]:
@@ -215,7 +221,9 @@ def _excess(rss: float, n: int, sigma: float, ss: float) -> float:
     return math.sqrt(max(rss / n - sigma**2, 0.0)) / math.sqrt(ss / n)
 
 
-def _harmonic_fractions(r: np.ndarray, phase: np.ndarray, win: int, orders: int = 4) -> dict:
+def _harmonic_fractions(
+    r: np.ndarray, phase: np.ndarray, win: int, orders: int = 4
+) -> dict[str, Any]:
     """Residual power at drive harmonics 1..orders over tiled windows (fractions of total)."""
     k = r.size // win
     if k == 0:
@@ -305,7 +313,7 @@ def diagnose(
         band = {}
         worst_band, worst_val = "", -1.0
         for lo, hi in itertools.pairwise(edges):
-            rss_b = n_b = 0
+            rss_b, n_b = 0.0, 0
             ss_b = 0.0
             for run, r, (_, f) in zip(runs, res, tracks):
                 sel = (f >= lo) & (f < hi) & np.isfinite(r)
@@ -469,7 +477,7 @@ def bode_points(
     sim: Mapping[str, np.ndarray],
     window_s: float = 0.025,
     track: tuple[np.ndarray, np.ndarray] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Amplitude and phase (relative to the drive) of measured and simulated channels per window.
 
     `flaair_sensors.core.characterization.tiled_transfer` on every channel, measured and model.
@@ -477,12 +485,12 @@ def bode_points(
     with phasors per volt of drive.
     """
     signals = {
-        (c, src): (run.channel(c) if src == "measured" else sim[c])
+        f"{c}/{src}": (run.channel(c) if src == "measured" else sim[c])
         for c in CHANNELS
         for src in ("measured", "model")
     }
     freq, tf = tiled_transfer(signals, run.drive_v, run.fs_hz, window_s, track)
-    out: dict = {"frequency_hz": freq}
+    out: dict[str, Any] = {"frequency_hz": freq}
     for c in CHANNELS:
-        out[c] = {src: tf[(c, src)] for src in ("measured", "model")}
+        out[c] = {src: tf[f"{c}/{src}"] for src in ("measured", "model")}
     return out

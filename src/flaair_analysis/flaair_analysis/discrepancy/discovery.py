@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -77,13 +78,13 @@ class Discovered:
 
     term: DiscoveredTerm
     channel: str
-    stderr: dict
-    gap_before: dict
-    gap_after: dict
-    evidence: dict
-    beaten: tuple
+    stderr: dict[str, Any]
+    gap_before: dict[str, Any]
+    gap_after: dict[str, Any]
+    evidence: dict[str, Any]
+    beaten: tuple[Any, ...]
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """The discrepancy.json entry."""
         t = self.term
         params = {"coefficient": {"value": t.coefficient, "stderr": self.stderr["coefficient"]}}
@@ -115,8 +116,8 @@ class DiscoveryOutcome:
     discovered: tuple[Discovered, ...]
     named: tuple[FoundEffect, ...]
     replaced: tuple[FoundEffect, ...]
-    tried: tuple
-    runs: tuple
+    tried: tuple[Any, ...]
+    runs: tuple[Any, ...]
 
 
 def _truth_ref(ctx: AnalysisContext, model: Model, channel: str) -> bool:
@@ -138,7 +139,9 @@ def _as_vocabulary(
     return None
 
 
-def _beaten(winner: CandidateEvidence, judged: Sequence[tuple], rest: Sequence[tuple]) -> tuple:
+def _beaten(
+    winner: CandidateEvidence, judged: Sequence[tuple[Any, ...]], rest: Sequence[tuple[Any, ...]]
+) -> tuple[Any, ...]:
     rows = []
     for ev, kind, site, specs in judged:
         if ev is winner:
@@ -202,7 +205,7 @@ def _against(
 
 def _step(
     ctx: AnalysisContext, current: Model, channel: str, start_plant: PlantParams | None = None
-) -> tuple[list[tuple], list]:
+) -> tuple[list[tuple[Any, ...]], list[Any]]:
     """One discovery step on `channel`: the accepted candidates, best first, each (evidence,
     kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
     """
@@ -329,10 +332,11 @@ def _replacing(
     channel: str,
     replaceable: Sequence[FoundEffect],
     start_plant: PlantParams | None = None,
-) -> tuple[tuple | None, list, list, list]:
+) -> tuple[list[tuple[Any, ...]], list[Any], list[FoundEffect], list[dict[str, Any]]]:
     """A discovery step on `channel`, first in place of the vocabulary effects found there that
     leave its gap (the winner must then predict the held-out runs better than they did), else on
-    top of them: (winner, step record, effects replaced, the step's base model).
+    top of them: (the passing candidates, best first; the step record; the effects replaced; what
+    was tried).
     """
     # on a sensor the chain's effects are fitted along with the term instead
     here = [

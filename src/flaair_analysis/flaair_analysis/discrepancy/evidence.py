@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -48,25 +49,25 @@ class CandidateEvidence:
         so one value acts on both; False: each chain keeps its own; None: not such a candidate.
     """
 
-    labels: tuple
+    labels: tuple[Any, ...]
     channel: str
-    values: tuple
-    se: tuple
-    z: tuple
-    per_run: tuple
-    consistency_p: tuple
+    values: tuple[Any, ...]
+    se: tuple[Any, ...]
+    z: tuple[Any, ...]
+    per_run: tuple[Any, ...]
+    consistency_p: tuple[Any, ...]
     heldout_nrmse_before: float
     heldout_nrmse_after: float
     heldout_drop: float
     heldout_gap_drop: float
     delta_bic_heldout: float
     delta_bic_fit: float
-    rules: dict
+    rules: dict[str, Any]
     accepted: bool
     same_on_both: bool | None = None
-    heldout_models: tuple = ()  # fold k's prediction: fitted on the other folds
+    heldout_models: tuple[Any, ...] = ()  # fold k's prediction: fitted on the other folds
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """JSON-ready evidence."""
         return {
             "candidate": "+".join(self.labels),
@@ -103,9 +104,9 @@ class FoundEffect:
 
     name: str
     channel: str
-    parameters: dict
-    evidence: dict
-    explains: tuple
+    parameters: dict[str, Any]
+    evidence: dict[str, Any]
+    explains: tuple[Any, ...]
 
 
 def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
@@ -323,7 +324,7 @@ def evaluate(
     if merge_with is not None:
         merged = same_on_both(specs[0], *merge_with, values[0], se_phys[0], st)
         same = merged is not None
-        if same:
+        if merged is not None:
             values = [merged]
             model = with_effects(base, {specs[0].name: specs[0].params(merged, channel="both")})
     ev = CandidateEvidence(

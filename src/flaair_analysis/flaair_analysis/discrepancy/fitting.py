@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any, cast
 
 import numpy as np
 from scipy import optimize
@@ -39,7 +40,9 @@ class Fold:
     name: str
 
 
-def fold_nrmse(runs: Sequence[Run], folds: Sequence[Fold], per_fold: Sequence[Model]) -> dict:
+def fold_nrmse(
+    runs: Sequence[Run], folds: Sequence[Fold], per_fold: Sequence[Model]
+) -> dict[str, Any]:
     """NRMSE per channel of fold k predicted by per_fold[k], pooled over the folds (fold means
     removed, missing truth skipped).
     """
@@ -87,13 +90,13 @@ class ResidualProblem:
     ) -> None:
         self.runs = runs
         self.motion = motion if motion is not None else MotionCache()
-        self._measured: dict = {}
+        self._measured: dict[tuple[Model, int], Any] = {}
         self.folds = list(folds)
         self.channel = channel
         self.truth_referenced = truth_referenced and channel in SENSOR_CHANNELS
         self.weight = sigma
         if self.truth_referenced:
-            g = sensor_gain_v_per_deg(weight_model, channel)
+            g = sensor_gain_v_per_deg(cast(Model, weight_model), channel)  # given with a truth ref
             self.weight = math.sqrt(sigma**2 + (g * truth_sigma) ** 2)
         self.run_ids = sorted({f.run for f in self.folds})
         self.idx = []
@@ -126,16 +129,16 @@ class ResidualProblem:
         )
         # truth channels: the motion of every model on every run (degrees only where judged)
         sims = (
-            None
+            {}
             if motion is not None
             else {j: simulate_motion(models, self.runs[j]) for j in self.run_ids}
         )
         angle = "stroke_rad" if self.channel == "stroke_deg" else "pitch_rad"
         out = []
-        side = SENSOR_SIDE.get(self.channel)
+        side = SENSOR_SIDE.get(self.channel, "")  # a sensor channel's (motion is for them)
         for i, m in enumerate(models):
             row = []
-            mech = mechanics_model(m) if motion is not None else None
+            mech = mechanics_model(m) if motion is not None else m  # m: unused without motion
             for f, idx in zip(self.folds, self.idx):
                 run = self.runs[f.run]
                 if motion is not None:
@@ -172,8 +175,8 @@ def apply_values(
     on both chains.
     """
     plant = {}
-    effects: dict = {}
-    terms: dict = {}
+    effects: dict[str, Any] = {}
+    terms: dict[str, Any] = {}
     for s, v in zip(specs, values):
         if s.is_plant:
             plant[s.key] = float(v)
@@ -239,7 +242,7 @@ class FitResult:
     se: np.ndarray  # fit-space standard errors (inf: not identifiable)
     rss: float  # weighted RSS
     n: int
-    rss_per_fold: tuple
+    rss_per_fold: tuple[Any, ...]
 
 
 def fit_specs(
@@ -266,7 +269,7 @@ def fit_specs(
             costs = [sum(float(np.dot(r, r)) for r in row) for row in res]
         x0 = xs[int(np.argmin(costs))]
 
-    cache: dict = {}
+    cache: dict[tuple[Any, ...], Any] = {}
 
     def stack(rows: list[np.ndarray]) -> np.ndarray:
         return np.concatenate(rows) if rows else np.zeros(0)
@@ -276,7 +279,7 @@ def fit_specs(
         if key not in cache:
             cache.clear()
             cache[key] = stack(problem.residuals(models_for(base, specs, x[None, :]))[0])
-        return cache[key]
+        return cast(np.ndarray, cache[key])
 
     def jac(x: np.ndarray) -> np.ndarray:
         f0 = fun(x)

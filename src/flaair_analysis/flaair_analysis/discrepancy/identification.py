@@ -36,13 +36,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any, cast
 
 import numpy as np
 from scipy import optimize
 
 from flaair_model.model import Model
 from flaair_sensors.core.characterization import tiled_transfer
-from flaair_sim.core.plant import simulate_batch_from
+from flaair_sim.core.plant import SimOutput, simulate_batch_from
 
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
@@ -91,19 +92,19 @@ class PlantFit:
     """
 
     model: Model
-    keys: tuple
-    values: dict
-    nominal: dict
-    start: dict
-    stderr: dict
+    keys: tuple[Any, ...]
+    values: dict[str, Any]
+    nominal: dict[str, Any]
+    start: dict[str, Any]
+    stderr: dict[str, Any]
     correlation: np.ndarray
-    inseparable: tuple
+    inseparable: tuple[Any, ...]
     cost_before: float
     cost_after: float
     n: int
-    runs: tuple = ()
+    runs: tuple[Any, ...] = ()
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """JSON-ready: per parameter value, nominal, start, stderr; correlations; inseparable."""
         return {
             "parameters": {
@@ -133,10 +134,12 @@ def _finite(x: float) -> float | None:
 def _window_amplitude(x: np.ndarray, win: int, k: int) -> np.ndarray:
     blocks = x[: k * win].reshape(k, win)
     with np.errstate(invalid="ignore"):
-        return math.sqrt(2.0) * np.nanstd(blocks, axis=1)
+        return cast(np.ndarray, math.sqrt(2.0) * np.nanstd(blocks, axis=1))
 
 
-def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 0.025) -> dict:
+def frequency_domain_start(
+    runs: Sequence[Run], model: Model, window_s: float = 0.025
+) -> dict[str, Any]:
     """Plant parameters from the runs' transfer functions (module docstring, step 1).
 
     A parameter the linear solution leaves non-positive (or no usable window) keeps its model value.
@@ -170,7 +173,7 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         rhs_p.append(pl.pitch_inertia_kg_m2 * w * w * f_psi)
     start = {k: float(getattr(pl, k)) for k in PLANT_PARAMETERS}
 
-    def solve(rows: list, rhs: list) -> np.ndarray | None:
+    def solve(rows: list[Any], rhs: list[Any]) -> np.ndarray | None:
         a = np.concatenate(rows) if rows else np.zeros((0, 1))
         b = np.concatenate(rhs) if rhs else np.zeros(0)
         if a.shape[0] < 2 * a.shape[1]:
@@ -178,7 +181,7 @@ def frequency_domain_start(runs: Sequence[Run], model: Model, window_s: float = 
         scale = np.maximum(np.abs(a).max(axis=0), 1e-300)
         a_ri = np.vstack([a.real, a.imag]) / scale
         sol, *_ = np.linalg.lstsq(a_ri, np.concatenate([b.real, b.imag]), rcond=None)
-        return sol / scale
+        return cast(np.ndarray | None, sol / scale)
 
     s = solve(rows_s, rhs_s)
     if s is not None:
@@ -218,13 +221,13 @@ def with_plant(model: Model, values: Mapping[str, float]) -> Model:
     return replace(model, plant=replace(model.plant, **{k: float(v) for k, v in values.items()}))
 
 
-def _sim_channel(sim, c: str) -> np.ndarray:
+def _sim_channel(sim: SimOutput, c: str) -> np.ndarray:
     """(m, n) record of channel `c` (degrees or volts) of a batch simulation."""
     if c == "stroke_deg":
-        return np.degrees(sim.stroke_rad)
+        return cast(np.ndarray, np.degrees(sim.stroke_rad))
     if c == "pitch_deg":
-        return np.degrees(sim.pitch_rad)
-    return getattr(sim, c)
+        return cast(np.ndarray, np.degrees(sim.pitch_rad))
+    return cast(np.ndarray, getattr(sim, c))
 
 
 class _TruthResiduals:
@@ -250,7 +253,7 @@ class _TruthResiduals:
 
     def __call__(self, models: Sequence[Model], states: Sequence[np.ndarray]) -> np.ndarray:
         """(m, n) residual rows; states[j]: (m, 4) initial state of each model on run j."""
-        rows = [[] for _ in models]
+        rows: list[list[np.ndarray]] = [[] for _ in models]
         for run, idx, x0 in zip(self.runs, self.parts, states):
             sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
             for c in self.channels:
@@ -275,7 +278,7 @@ def _fit_stage(
     max_nfev: int,
     decimate: int,
     centre: Mapping[str, float] | None = None,
-) -> dict:
+) -> dict[str, Any]:
     """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
     channel; returns values, log-space covariance of the plant parameters, states, costs.
     """
@@ -305,7 +308,7 @@ def _fit_stage(
         x[comp[1]] = u[p + 2 * j + 1] * omega
         return x
 
-    cache: dict = {}
+    cache: dict[tuple[Any, ...], Any] = {}
 
     def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = tuple(np.round(u, 14))
@@ -336,7 +339,7 @@ def _fit_stage(
                     jac[:, c] = (rows[1 + r_i] - rows[0]) / h[c]
                 j_parts.append(jac)
             cache[key] = (np.concatenate(f_parts), np.vstack(j_parts))
-        return cache[key]
+        return cast(tuple[np.ndarray, np.ndarray], cache[key])
 
     x_start = np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base_states])
     u_start = np.r_[np.clip(np.log([start[k] for k in keys]), lo[:p], hi[:p]), x_start]
@@ -409,7 +412,7 @@ def identify_plant(
     start = {k: float(getattr(model.plant, k)) for k in keys}
     if keys:
         start.update({k: v for k, v in frequency_domain_start(runs, model).items() if k in keys})
-    values: dict = {}
+    values: dict[str, Any] = {}
     sd = np.full(len(keys), np.nan)
     corr = np.full((len(keys), len(keys)), np.nan)
     cost_before = cost_after = 0.0
@@ -495,7 +498,7 @@ def fit_initial_states(
     for run in runs:
         resid = _TruthResiduals([run], noise, decimate, channels)
         x_run = np.zeros(4) if run.mechanical0 is None else np.asarray(run.mechanical0, float)
-        cache: dict = {}
+        cache: dict[tuple[Any, ...], Any] = {}
 
         def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             key = tuple(np.round(u, 14))
@@ -504,7 +507,7 @@ def fit_initial_states(
                 us = np.vstack([u, u[None, :] + STATE_STEP_RAD * np.eye(4)])
                 rows = resid([model] * 5, [us * scale])
                 cache[key] = (rows[0], ((rows[1:] - rows[0]) / STATE_STEP_RAD).T)
-            return cache[key]
+            return cast(tuple[np.ndarray, np.ndarray], cache[key])
 
         u0 = x_run / scale
         f0 = fun_and_jac(u0)[0]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -62,7 +63,7 @@ class DiscoverKind:
     high: float
     sign: float  # +1 or -1; 0: a random sign
     scale: str
-    shape: tuple = ()  # ((key, low, high), ...)
+    shape: tuple[Any, ...] = ()  # ((key, low, high), ...)
     note: str = ""
 
     def draw(self, rng: np.random.Generator, model: Model) -> DiscoveredTerm:
@@ -156,14 +157,14 @@ _COEFFICIENTS = (
 _SEPARABLE = tuple(e.name for e in EFFECTS if e.separable)
 
 
-def random_effect(name: str, rng: np.random.Generator) -> dict:
+def random_effect(name: str, rng: np.random.Generator) -> dict[str, Any]:
     """One effect at a random strength, from its draw ranges in the effect table (inside the range
     the run set can resolve).
     """
     entry = ENTRIES[name]
     side = str(rng.choice(["stroke", "pitch", "both"]))
     sign = float(rng.choice([-1.0, 1.0]))
-    params: dict = {}
+    params: dict[str, Any] = {}
     for r in entry.draw:
         value = (
             float(np.exp(rng.uniform(np.log(r.low), np.log(r.high))))
@@ -199,9 +200,9 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     )
     noise = float(rng.uniform(1.0, 2.0))
     video = int(rng.choice([1, 10]))
-    effects: tuple = ()
-    hidden: tuple = ()
-    terms: tuple = ()
+    effects: tuple[Any, ...] = ()
+    hidden: tuple[Any, ...] = ()
+    terms: tuple[Any, ...] = ()
     outside, strength = "", 0.0
     names = list(EFFECT_NAMES_ORDER)
     if family == "offnominal_single":
@@ -247,12 +248,12 @@ def _nominal() -> Model:
 EFFECT_NAMES_ORDER = (*_SEPARABLE, "wing_damage")
 
 
-def true_plant(case: DatasetCase, model: Model) -> dict:
+def true_plant(case: DatasetCase, model: Model) -> dict[str, Any]:
     """{plant key: true value} of the case's robot."""
     return {k: float(getattr(true_model(case, model).plant, k)) for k, _ in case.plant_scale}
 
 
-def effective_plant(case: DatasetCase, model: Model) -> dict:
+def effective_plant(case: DatasetCase, model: Model) -> dict[str, Any]:
     """{fitted plant key: value} the identification must find for the case's robot.
 
     The true plant, with a hidden wing_damage (inertias x f) folded in: dividing both equations of

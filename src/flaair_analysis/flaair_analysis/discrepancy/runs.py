@@ -5,9 +5,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 
+from flaair_model.effects import StrainTransferLoss
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
 
@@ -81,7 +83,7 @@ class Run:
         """Measured record of one of `CHANNELS`."""
         if name not in CHANNELS:
             raise KeyError(f"unknown channel {name!r} (known: {', '.join(CHANNELS)})")
-        return getattr(self, name)
+        return cast(np.ndarray, getattr(self, name))
 
     @property
     def n(self) -> int:
@@ -124,14 +126,14 @@ def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:
                 f"run {r.name}: sample rate {r.fs_hz!r} is not a positive number"
             )
         arrays = {}
-        n = None
+        n = -1  # the first column's length
         for name in ("drive_v", *CHANNELS):
             a = np.asarray(getattr(r, name), dtype=np.float64)
             if a.ndim != 1:
                 raise DiscrepancyInputError(
                     f"run {r.name}: column {name} must be one-dimensional, got shape {a.shape}"
                 )
-            if n is None:
+            if n < 0:
                 n = a.shape[0]
             elif a.shape[0] != n:
                 raise DiscrepancyInputError(
@@ -246,7 +248,7 @@ def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
     gain = model.stroke_volts_per_rad if side == "stroke" else model.pitch_volts_per_rad
     loss = model.effect_on("strain_transfer_loss", side)
     if loss is not None:
-        gain *= loss.efficiency
+        gain *= cast(StrainTransferLoss, loss).efficiency
     return math.radians(1.0) * gain
 
 
@@ -283,12 +285,14 @@ class MotionCache:
 
     def __init__(self, size: int = 24) -> None:
         self.size = size
-        self.data: dict = {}
+        self.data: dict[tuple[Model, int], tuple[np.ndarray, np.ndarray]] = {}
 
-    def get(self, models: Sequence[Model], runs: Sequence[Run], run_ids: Sequence[int]) -> dict:
+    def get(
+        self, models: Sequence[Model], runs: Sequence[Run], run_ids: Sequence[int]
+    ) -> dict[tuple[Model, int], tuple[np.ndarray, np.ndarray]]:
         """{(mechanics model, run id): (stroke_rad, pitch_rad)} for every model and run."""
         mechs = list(dict.fromkeys(mechanics_model(m) for m in models))
-        out = {}
+        out: dict[tuple[Model, int], tuple[np.ndarray, np.ndarray]] = {}
         for j in run_ids:
             missing = [m for m in mechs if (m, j) not in self.data]
             if missing:

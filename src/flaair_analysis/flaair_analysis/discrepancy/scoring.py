@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from .case import DatasetCase
 from .runs import CHANNELS
@@ -55,14 +56,14 @@ class CaseOutcome:
     found_label: str
     status: str
     expected_status: str
-    found: tuple
-    parameter_errors: dict
-    gap_reduction: dict
+    found: tuple[Any, ...]
+    parameter_errors: dict[str, Any]
+    gap_reduction: dict[str, Any]
     correct: bool
-    problems: tuple
+    problems: tuple[Any, ...]
     elapsed_s: float = math.nan
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """JSON-ready outcome."""
         return {
             "case": self.case,
@@ -102,11 +103,11 @@ def _excess(nrmse: float, floor: float) -> float:
     return math.sqrt(max(nrmse**2 - floor**2, 0.0))
 
 
-def _split(params: dict) -> bool:
+def _split(params: dict[str, Any]) -> bool:
     return bool(params) and all(isinstance(v, dict) for v in params.values())
 
 
-def per_chain(params: dict) -> dict:
+def per_chain(params: dict[str, Any]) -> dict[str, Any]:
     """An effect's numeric parameters per sensor chain it acts on: {'': {...}} for an effect without
     a chain; {'stroke': {...}, 'pitch': {...}} for one value on both chains or one per chain.
     """
@@ -132,8 +133,8 @@ def score_case(
     found = tuple(sorted(e.name for e in result.effects))
     if result.status != case.expected_status:
         problems.append(f"status {result.status}, expected {case.expected_status}")
-    errors: dict = {}
-    reduction: dict = {}
+    errors: dict[str, Any] = {}
+    reduction: dict[str, Any] = {}
     if found != case.expected_names:
         problems.append(
             f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
@@ -191,7 +192,7 @@ def score_case(
     )
 
 
-def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict:
+def confusion_table(outcomes: Sequence[CaseOutcome]) -> dict[str, Any]:
     """{"rows": true labels, "columns": found labels,
     "counts": [[...]], "correct": k, "total": n}.
     """

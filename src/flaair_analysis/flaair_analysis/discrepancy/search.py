@@ -5,10 +5,19 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any, cast
 
 import numpy as np
 
-from flaair_model.model import Model, effect_params, with_effect_on, with_effects, without_effect_on
+from flaair_model.model import (
+    Effect,
+    Model,
+    PerChannel,
+    effect_params,
+    with_effect_on,
+    with_effects,
+    without_effect_on,
+)
 
 from .diagnosis import channel_residual, gap_test
 from .evidence import (
@@ -53,7 +62,7 @@ class ChannelSearch:
     channel: str
     truth_referenced: bool
     skipped: str
-    steps: tuple
+    steps: tuple[Any, ...]
 
 
 CHANNEL_ORDER = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
@@ -73,7 +82,7 @@ def channel_has_gap(ctx: AnalysisContext, model: Model, channel: str, truth_ref:
     return gap_test(res, sigma, ctx.settings)[0]
 
 
-def _other_side(side: str) -> str:
+def _other_side(side: str | None) -> str:
     return "pitch" if side == "stroke" else "stroke"
 
 
@@ -121,7 +130,7 @@ def _own(model: Model, spec: EffectSpec) -> bool:
     if spec.is_plant or spec.channel_param is None:
         return True
     e = model.effect_on(spec.name, spec.channel_param)
-    return e is not None and e.channel == spec.channel_param
+    return e is not None and getattr(e, "channel", None) == spec.channel_param
 
 
 def polish(
@@ -166,10 +175,12 @@ def _join(a: Sequence[EffectSpec], b: Sequence[EffectSpec]) -> list[EffectSpec]:
 @dataclass
 class _ChannelState:
     model: Model
-    specs: list
-    evidence: dict  # effect name -> CandidateEvidence that added it
+    specs: list[Any]
+    evidence: dict[str, Any]  # effect name -> CandidateEvidence that added it
     last: CandidateEvidence | None = None
-    reopen: tuple = ()  # effects taken over from the other sensor at its value (shared test)
+    reopen: tuple[
+        Any, ...
+    ] = ()  # effects taken over from the other sensor at its value (shared test)
 
 
 def _greedy(
@@ -179,9 +190,9 @@ def _greedy(
     channel: str,
     truth_ref: bool,
     found: Sequence[FoundEffect],
-    steps: list,
+    steps: list[Any],
     max_steps: int,
-) -> tuple[_ChannelState, bool, list]:
+) -> tuple[_ChannelState, bool, list[Any]]:
     """Forward selection on one channel; returns (state, has_gap, first-step single evaluations)."""
     has_gap = channel_has_gap(ctx, state.model, channel, truth_ref)
     first = []
@@ -208,7 +219,9 @@ def _greedy(
                 m = (
                     with_effects(state.model, {s.name: s.params(ev.values[0], channel="both")})
                     if ev.same_on_both
-                    else with_effect_on(state.model, s.name, s.channel_param, {s.key: ev.values[0]})
+                    else with_effect_on(
+                        state.model, s.name, cast(str, s.channel_param), {s.key: ev.values[0]}
+                    )
                 )
             ev = _check_upstream_truth(ctx, ev, m, channel, s)
             evals.append((ev, m, tuple(group), kind))
@@ -349,13 +362,13 @@ def _search_channel(
     truth_ref: bool,
     found: Sequence[FoundEffect],
     sensors_done: Sequence[str] = (),
-) -> tuple[_ChannelState, bool, list]:
+) -> tuple[_ChannelState, bool, list[Any]]:
     """Shared-sensor test, greedy forward selection, then pair backtracking if a gap is left; on a
     sensor, a gap left is then tried against the runs' initial states fitted on the sensor, and
     last against the upstream plant refitted on it.
     """
     st = ctx.settings
-    steps: list = []
+    steps: list[Any] = []
     state = _ChannelState(start, [], {})
     if channel in SENSOR_CHANNELS:
         shared = [s for s in candidate_specs(channel) if _offer(model_in, start, s, []) == "merge"]
@@ -381,11 +394,11 @@ def _search_channel(
             for j in range(i + 1, len(singles)):
                 a, b = singles[i], singles[j]
                 specs = _join(a[2], b[2])
-                start = {
+                starts = {
                     (s.name, s.key): v
                     for s, v in zip(list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))
                 }
-                x_start = np.array([s.to_fit(start[(s.name, s.key)]) for s in specs])
+                x_start = np.array([s.to_fit(starts[(s.name, s.key)]) for s in specs])
                 ev, m = evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)
                 for s in (a[2][0], b[2][0]):
                     ev = _check_upstream_truth(ctx, ev, m, channel, s)
@@ -569,14 +582,14 @@ def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
     return model
 
 
-def _effect_params_dict(model: Model, name: str) -> dict:
-    def clean(d: dict) -> dict:
+def _effect_params_dict(model: Model, name: str) -> dict[str, Any]:
+    def clean(d: dict[str, Any]) -> dict[str, Any]:
         return {
             k: clean(v) if isinstance(v, dict) else (v if isinstance(v, str) else float(v))
             for k, v in d.items()
         }
 
-    return clean(effect_params(model.effect(name)))
+    return clean(effect_params(cast(Effect | PerChannel, model.effect(name))))  # an effect on
 
 
 def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[FoundEffect]:

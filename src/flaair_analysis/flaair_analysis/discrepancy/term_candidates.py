@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +70,9 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
     return out
 
 
-def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[dict]) -> float:
+def _feature_rms(
+    kind: TermKind, site: str, ctx: AnalysisContext, motion: list[dict[str, Any]]
+) -> float:
     """RMS of the term's feature over the runs, along the current model's motion."""
     total, count = 0.0, 0
     shape = tuple((s.key, s.grid[-1]) for s in kind.shape)
@@ -93,7 +96,9 @@ def _feature_rms(kind: TermKind, site: str, ctx: AnalysisContext, motion: list[d
     return math.sqrt(total / max(count, 1))
 
 
-def _share_rms(site: str, ctx: AnalysisContext, model: Model, motion: list[dict]) -> float:
+def _share_rms(
+    site: str, ctx: AnalysisContext, model: Model, motion: list[dict[str, Any]]
+) -> float:
     """Size of the signal the term adds to: spring torque, drive or sensor deviation (RMS)."""
 
     def rms(key: str) -> float:
@@ -137,7 +142,9 @@ def fitted_along(site: str, model: Model, channel: str, identify: bool) -> list[
     return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
 
 
-def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bool) -> list[tuple]:
+def candidates(
+    ctx: AnalysisContext, current: Model, channel: str, truth_ref: bool
+) -> list[tuple[Any, ...]]:
     """(rss, kind, site, specs, x) of every library term that may close `channel`'s gap."""
     motion = _motion(ctx, current)
     problem = ctx.problem(channel, ctx.folds, truth_ref, current)
@@ -164,7 +171,7 @@ def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bo
                     continue
                 out.append((fit.rss, kind, site, specs, fit.x))
     out.sort(key=lambda c: c[0])
-    best: dict = {}
+    best: dict[tuple[str, str], tuple[Any, ...]] = {}
     for c in out:  # one entry per term (its best shape start)
         best.setdefault((c[1].name, c[2]), c)
     return list(best.values())

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any, TypeAlias
 
 from flaair_model.effects import (
     EFFECTS,
@@ -22,6 +23,30 @@ from flaair_model.effects import (
 )
 from flaair_model.model import Model
 from flaair_model.terms import TermKind
+
+__all__ = [
+    "CHANNELS",
+    "EFFECT_CHANNELS",
+    "ENTRIES",
+    "NOT_SEPARABLE",
+    "PLANT_PARAMETERS",
+    "SENSOR_CHANNELS",
+    "SENSOR_EFFECTS",
+    "SENSOR_SIDE",
+    "STATUSES",
+    "TERM_PREFIX",
+    "TRUTH_CHANNELS",
+    "UPSTREAM_TRUTH",
+    "VOCABULARY",
+    "EffectSpec",
+    "Param",
+    "VocabularyEntry",
+    "candidate_groups",
+    "candidate_specs",
+    "plant_spec",
+    "term_specs",
+    "with_judged_on",
+]
 
 CHANNELS: tuple[str, ...] = MEASURED_CHANNELS
 STATUSES: tuple[str, ...] = ("no_discrepancy", "explained", "unexplained")
@@ -108,9 +133,9 @@ class EffectSpec:
         """Fit-space value -> physical parameter."""
         return math.exp(u) if self.log else float(u)
 
-    def params(self, value: float, channel: str | None = None) -> dict:
+    def params(self, value: float, channel: str | None = None) -> dict[str, Any]:
         """Effect parameter dict for the model."""
-        p: dict = {self.key: float(value)}
+        p: dict[str, Any] = {self.key: float(value)}
         if self.channel_param is not None:
             p["channel"] = channel or self.channel_param
         return p
@@ -128,7 +153,7 @@ def term_specs(
     site: str,
     channel: str,
     coefficient_scale: float,
-    shape_start: dict | None = None,
+    shape_start: dict[str, Any] | None = None,
 ) -> tuple[EffectSpec, ...]:
     """The fittable parameters of library term `kind` at `site`, judged on `channel`.
 
@@ -168,7 +193,7 @@ def term_specs(
 
 
 # One fittable parameter of an effect: the effect table's fit specification.
-Param = FitParam
+Param: TypeAlias = FitParam
 
 
 @dataclass(frozen=True)

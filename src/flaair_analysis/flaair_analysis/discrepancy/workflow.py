@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from flaair_model.model import Model, ModelError, effect_params
 from flaair_sim.core.plant import simulate
@@ -66,27 +67,27 @@ class DiscrepancyResult:
     """
 
     status: str
-    effects: tuple
+    effects: tuple[Any, ...]
     model_in: Model
     model_out: Model
-    gap_before: dict
-    gap_after: dict
-    gap_in_sample_after: dict
-    noise: dict
+    gap_before: dict[str, Any]
+    gap_after: dict[str, Any]
+    gap_in_sample_after: dict[str, Any]
+    noise: dict[str, Any]
     diagnosis_before: Diagnosis
     diagnosis_after: Diagnosis
-    searches: tuple
-    remaining: tuple
-    sims_before: tuple
-    sims_after: tuple
+    searches: tuple[Any, ...]
+    remaining: tuple[Any, ...]
+    sims_before: tuple[Any, ...]
+    sims_after: tuple[Any, ...]
     summary: str
-    run_names: tuple = ()
+    run_names: tuple[Any, ...] = ()
     plant_fit: PlantFit | None = None
-    plant_parameters: dict = field(default_factory=dict)
-    not_separable: tuple = ()
-    approximate: tuple = ()
-    discovered: tuple = ()
-    discovery_tried: tuple = ()
+    plant_parameters: dict[str, Any] = field(default_factory=dict[str, Any])
+    not_separable: tuple[Any, ...] = ()
+    approximate: tuple[Any, ...] = ()
+    discovered: tuple[Any, ...] = ()
+    discovery_tried: tuple[Any, ...] = ()
 
 
 # ------------------------------------------------------------------------- held-out gap after
@@ -110,7 +111,7 @@ def _refit_on(
                 and getattr(current.effect_on(f.name, side), "channel", None) == side
             )
         ]
-        specs: list = []
+        specs: list[Any] = []
         for g in candidate_groups(channel, current if ctx.settings.identify else None):
             if g[0].name in names:
                 specs += [
@@ -125,7 +126,9 @@ def _refit_on(
     return current
 
 
-def _heldout_nrmse(ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model) -> dict:
+def _heldout_nrmse(
+    ctx: AnalysisContext, effects: Sequence[FoundEffect], model_out: Model
+) -> dict[str, Any]:
     """Per-channel NRMSE of held-out predictions: each fold predicted by a re-fit on the others."""
     per_fold = [
         _refit_on(ctx, effects, model_out, [g for i, g in enumerate(ctx.folds) if i != k])
@@ -187,7 +190,7 @@ def analyse(
         runs = plant_fit.runs  # with their initial states fitted along with the plant
         sims_fit = simulate_runs([base], runs)[0]
         diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
-    common = dict(
+    common: dict[str, Any] = dict(
         model_in=model,
         gap_before=gap_before,
         noise=noise,
@@ -217,6 +220,7 @@ def analyse(
             plant_parameters=_plant_parameters(model, base, plant_fit),
             **common,
         )
+    effects: Sequence[FoundEffect]
     model_out, effects, searches, runs = find_effects(
         runs,
         base,
@@ -249,8 +253,8 @@ def analyse(
             effects = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
             # the discovery re-fits effects along with its terms: report the values of the model
             effects = [
-                replace(e, parameters=effect_params(model_out.effect(e.name)))
-                if model_out.effect(e.name) is not None
+                replace(e, parameters=effect_params(on))
+                if (on := model_out.effect(e.name)) is not None
                 else e
                 for e in effects
             ]
@@ -300,7 +304,7 @@ def analyse(
 
 def _where_left(
     ctx: AnalysisContext, model_out: Model, searches: Sequence[ChannelSearch]
-) -> tuple[Diagnosis, tuple]:
+) -> tuple[Diagnosis, tuple[Any, ...]]:
     """The diagnosis of `model_out` and where gaps remain."""
     sims = simulate_runs([model_out], ctx.runs)[0]
     diag = diagnose(ctx.runs, sims, model_out, ctx.noise, ctx.settings, tracks=ctx.tracks)
@@ -312,7 +316,7 @@ def _where_left(
     return diag, _remaining(diag, searches, sensor_ok)
 
 
-def _plant_parameters(model_in: Model, model_out: Model, fit: PlantFit | None) -> dict:
+def _plant_parameters(model_in: Model, model_out: Model, fit: PlantFit | None) -> dict[str, Any]:
     """{key: {value, nominal, stderr}} of the fitted
     plant parameters ({} without identification).
     """
@@ -330,7 +334,7 @@ def _plant_parameters(model_in: Model, model_out: Model, fit: PlantFit | None) -
 
 def _remaining(
     diag: Diagnosis, searches: Sequence[ChannelSearch], sensor_ok: Mapping[str, bool]
-) -> tuple:
+) -> tuple[Any, ...]:
     """Where gaps remain; sensor_ok: sensor channel explained when driven by the measured angle."""
     skipped = {s.channel: s.skipped for s in searches}
     out = []
@@ -345,8 +349,8 @@ def _remaining(
                 "the "
                 f"{UPSTREAM_TRUTH[c]} gap propagated; "
                 if sensor_ok[c]
-                else "a sensor gap beyond the propagated physics error (judged against the measured "
-                "angle); "
+                else "a sensor gap beyond the propagated physics error (judged against the "
+                "measured angle); "
             ) + note
         near = _near_misses(searches, c)
         if near:
@@ -389,10 +393,10 @@ def _summary(
     status: str,
     effects: Sequence[FoundEffect],
     diag: Diagnosis,
-    remaining: Sequence[dict],
-    plant: Mapping[str, dict] | None = None,
+    remaining: Sequence[dict[str, Any]],
+    plant: Mapping[str, dict[str, Any]] | None = None,
     approximate: Sequence[str] = (),
-    discovered: Sequence = (),
+    discovered: Sequence[Any] = (),
 ) -> str:
     parts = []
     if plant:
@@ -452,7 +456,7 @@ def _summary(
     return " ".join(parts)
 
 
-def format_parameters(params: Mapping) -> str:
+def format_parameters(params: Mapping[str, Any]) -> str:
     """'delay_s=0.00015, channel=stroke'; one value per
     sensor chain: 'stroke: delay_s=0.00015; pitch: ...'.
     """
