@@ -239,4 +239,4 @@ def concatenate(parts: list[Wingbeats]) -> Wingbeats:
     """Wingbeats of several blocks as one."""
     if not parts:
         return Wingbeats(*(np.empty(0) for _ in Wingbeats._fields))
-    return Wingbeats(*(np.concatenate(column) for column in zip(*parts)))
+    return Wingbeats(*(np.concatenate(column) for column in zip(*parts, strict=True)))

@@ -87,7 +87,7 @@ def noise_estimates(
     out = {}
     for c in CHANNELS:
         parts = []
-        for run, sim in zip(runs, sims):
+        for run, sim in zip(runs, sims, strict=True):
             r = run.channel(c) - sim[c]
             d2 = r[2:] - 2.0 * r[1:-1] + r[:-2]
             parts.append(d2[np.isfinite(d2)])
@@ -260,7 +260,7 @@ def _level_groups(runs: Sequence[Run]) -> list[float]:
     return [round(lv / top * 20.0) / 20.0 * top for lv in levels]
 
 
-def diagnose(
+def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the residuals
     runs: Sequence[Run],
     sims: Sequence[Mapping[str, np.ndarray]],
     model: Model,
@@ -290,7 +290,7 @@ def diagnose(
     out = {}
     for c in CHANNELS:
         sigma = float(noise[c])
-        res = [channel_residual(run, sim, c) for run, sim in zip(runs, sims)]
+        res = [channel_residual(run, sim, c) for run, sim in zip(runs, sims, strict=True)]
         ss_n = [_signal_ss(run, c) for run in runs]
         rss = sum(float(np.nansum(r**2)) for r in res)
         n = sum(int(np.isfinite(r).sum()) for r in res)
@@ -302,7 +302,7 @@ def diagnose(
         # cross-correlation with the drive (strongest run)
         max_lag = max(1, round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate))
         best = (0.0, 0, 0)
-        for run, r in zip(runs, res):
+        for run, r in zip(runs, res, strict=True):
             rho, lag, m = _xcorr_with_drive(
                 r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag
             )
@@ -315,7 +315,7 @@ def diagnose(
         for lo, hi in itertools.pairwise(edges):
             rss_b, n_b = 0.0, 0
             ss_b = 0.0
-            for run, r, (_, f) in zip(runs, res, tracks):
+            for run, r, (_, f) in zip(runs, res, tracks, strict=True):
                 sel = (f >= lo) & (f < hi) & np.isfinite(r)
                 if sel.sum() < win:
                     continue
@@ -345,7 +345,7 @@ def diagnose(
         # harmonics (all runs pooled, power-weighted)
         hp = np.zeros(4)
         total = 0.0
-        for r, (phase, _) in zip(res, tracks):
+        for r, (phase, _) in zip(res, tracks, strict=True):
             fr = _harmonic_fractions(r, phase, win)
             tot = float(np.nansum(r**2))
             for h in range(4):
@@ -354,7 +354,7 @@ def diagnose(
         harmonics = {str(h + 1): float(hp[h] / total) if total > 0 else 0.0 for h in range(4)}
         # worst stretch
         worst = ("", math.nan, math.nan, -1.0)
-        for run, r in zip(runs, res):
+        for run, r in zip(runs, res, strict=True):
             k = r.size // win
             if k == 0:
                 continue
@@ -444,7 +444,8 @@ def nrmse_by_channel(
     out = {}
     for c in CHANNELS:
         rss = sum(
-            float(np.nansum(channel_residual(run, sim, c) ** 2)) for run, sim in zip(runs, sims)
+            float(np.nansum(channel_residual(run, sim, c) ** 2))
+            for run, sim in zip(runs, sims, strict=True)
         )
         ss = sum(_signal_ss(run, c)[0] for run in runs)
         out[c] = math.sqrt(rss / ss) if ss > 0 else math.nan

@@ -150,7 +150,7 @@ def _beaten(
             kind.name,
             site,
             ev.values[0],
-            tuple((s.key, v) for s, v in zip(specs[1:], ev.values[1:])),
+            tuple((s.key, v) for s, v in zip(specs[1:], ev.values[1:], strict=True)),
         )
         rows.append(
             {
@@ -428,7 +428,10 @@ def discover(
                     FoundEffect(
                         vocabulary,
                         channel,
-                        {p.key: float(v) for p, v in zip(ENTRIES[vocabulary].params, vev.values)},
+                        {  # the values go on to the plant parameters the effect trades off against
+                            p.key: float(v)
+                            for p, v in zip(ENTRIES[vocabulary].params, vev.values, strict=False)
+                        },
                         {
                             **vev.as_dict(),
                             "found_by": "discovery (a library term that is this vocabulary effect)",
@@ -452,7 +455,7 @@ def discover(
                 after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
             gap_after = fold_nrmse(ctx.runs, ctx.folds, after_models)
             term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
-            stderr = {s.key: e for s, e in zip(specs, ev.se) if s.is_term}
+            stderr = {s.key: e for s, e in zip(specs, ev.se, strict=True) if s.is_term}
             found.append(
                 Discovered(
                     term,

@@ -111,7 +111,9 @@ class FoundEffect:
 
 def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
     n_tot = sum(n_list)
-    val = sum(n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list) if n > 0)
+    val = sum(
+        n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list, strict=True) if n > 0
+    )
     return val + k * math.log(max(n_tot, 2))
 
 
@@ -267,8 +269,8 @@ def evaluate(
         n=sum(r.size for r in res_all),
         rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all),
     )
-    values = [s.from_fit(u) for s, u in zip(specs, fit_all.x)]
-    se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se)]
+    values = [s.from_fit(u) for s, u in zip(specs, fit_all.x, strict=True)]
+    se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se, strict=True)]
     res_null = all_prob.residuals([base])[0]
     rss_null = [float(np.dot(r, r)) for r in res_null]
     n_f = all_prob.n_per_fold()
@@ -307,7 +309,7 @@ def evaluate(
         else:
             z.append(abs(v - s.null) / e if 0 < e < math.inf else 0.0)
         est = [(s.from_fit(pf.x[j]), _phys_se(s, pf.x[j], pf.se[j])) for pf in per_fold]
-        per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(folds, est)))
+        per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(folds, est, strict=True)))
         cons.append(_consistency(est, s.effect_size(v), st))
         n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
     rules = {
@@ -364,7 +366,7 @@ def evaluate_shared(
         for s in specs
     )
     model = with_effects(
-        current, {s.name: s.params(v, channel="both") for s, v in zip(specs, values)}
+        current, {s.name: s.params(v, channel="both") for s, v in zip(specs, values, strict=True)}
     )
     prob = ctx.problem(channel, ctx.folds, truth_ref, current)
     res_old, res_new = prob.residuals([current, model])

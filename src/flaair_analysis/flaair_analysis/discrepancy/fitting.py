@@ -48,7 +48,7 @@ def fold_nrmse(
     """
     rss = {c: 0.0 for c in CHANNELS}
     ss = {c: 0.0 for c in CHANNELS}
-    for f, model in zip(folds, per_fold):
+    for f, model in zip(folds, per_fold, strict=True):
         run = runs[f.run]
         sim = simulate_runs([model], [run])[0][0]
         for c in CHANNELS:
@@ -114,7 +114,7 @@ class ResidualProblem:
     def signal_ss(self) -> float:
         """Weighted sum of squares of the measured channel about its fold means."""
         total = 0.0
-        for f, idx in zip(self.folds, self.idx):
+        for f, idx in zip(self.folds, self.idx, strict=True):
             x = self.runs[f.run].channel(self.channel)[idx]
             total += float(np.sum(((x - x.mean()) / self.weight) ** 2))
         return total
@@ -139,7 +139,7 @@ class ResidualProblem:
         for i, m in enumerate(models):
             row = []
             mech = mechanics_model(m) if motion is not None else m  # m: unused without motion
-            for f, idx in zip(self.folds, self.idx):
+            for f, idx in zip(self.folds, self.idx, strict=True):
                 run = self.runs[f.run]
                 if motion is not None:
                     stroke, pitch = motion[(mech, f.run)]
@@ -177,7 +177,7 @@ def apply_values(
     plant = {}
     effects: dict[str, Any] = {}
     terms: dict[str, Any] = {}
-    for s, v in zip(specs, values):
+    for s, v in zip(specs, values, strict=True):
         if s.is_plant:
             plant[s.key] = float(v)
             continue
@@ -217,7 +217,7 @@ def with_terms(model: Model, terms: Sequence[DiscoveredTerm]) -> Model:
 def models_for(base: Model, specs: Sequence[EffectSpec], xs: np.ndarray) -> list[Model]:
     """Models with the parameters of `specs` at the fit-space rows `xs`."""
     return [
-        apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x)])
+        apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, x, strict=True)])
         for x in np.atleast_2d(xs)
     ]
 

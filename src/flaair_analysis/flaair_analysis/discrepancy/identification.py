@@ -34,7 +34,7 @@ model values (only the ratios to them are observable from motion); the sensor co
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, cast
 
@@ -254,7 +254,7 @@ class _TruthResiduals:
     def __call__(self, models: Sequence[Model], states: Sequence[np.ndarray]) -> np.ndarray:
         """(m, n) residual rows; states[j]: (m, 4) initial state of each model on run j."""
         rows: list[list[np.ndarray]] = [[] for _ in models]
-        for run, idx, x0 in zip(self.runs, self.parts, states):
+        for run, idx, x0 in zip(self.runs, self.parts, states, strict=True):
             sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
             for c in self.channels:
                 i = idx[c]
@@ -300,7 +300,7 @@ def _fit_stage(
     steps = np.r_[np.full(p, FD_STEP), np.full(2 * len(runs), STATE_STEP_RAD)]
 
     def plant_of(u: np.ndarray) -> Model:
-        return with_plant(model, dict(zip(keys, np.exp(u[:p]))))
+        return with_plant(model, dict(zip(keys, np.exp(u[:p]), strict=True)))
 
     def state_of(u: np.ndarray, j: int) -> np.ndarray:
         x = base_states[j].copy()
@@ -363,7 +363,7 @@ def _fit_stage(
     cost = float(np.dot(f, f))
     cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - sol.x.size, 1)
     return {
-        "values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])))),
+        "values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])), strict=True)),
         "cov": cov[:p, :p],
         "states": [state_of(sol.x, j) for j in range(len(runs))],
         "cost_before": float(costs[0]),
@@ -425,7 +425,7 @@ def identify_plant(
             continue
         out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate, centre)
         current = with_plant(current, out["values"])
-        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"])]
+        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"], strict=True)]
         values.update(out["values"])
         idx = [keys.index(k) for k in stage]
         s = np.sqrt(np.abs(np.diag(out["cov"])))
@@ -465,6 +465,26 @@ def identify_plant(
     )
 
 
+def _state_residuals_and_jacobian(
+    resid: _TruthResiduals, model: Model, scale: np.ndarray
+) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+    """The residual and the Jacobian of one run's initial state u in fit space (state = u * scale),
+    both from one batch simulation (forward differences); the last point's pair is kept.
+    """
+    cache: dict[tuple[Any, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = tuple(np.round(u, 14))
+        if key not in cache:
+            cache.clear()
+            us = np.vstack([u, u[None, :] + STATE_STEP_RAD * np.eye(4)])
+            rows = resid([model] * 5, [us * scale])
+            cache[key] = (rows[0], ((rows[1:] - rows[0]) / STATE_STEP_RAD).T)
+        return cache[key]
+
+    return (lambda u: fun_and_jac(u)[0]), (lambda u: fun_and_jac(u)[1])
+
+
 def fit_initial_states(
     runs: Sequence[Run],
     model: Model,
@@ -498,23 +518,13 @@ def fit_initial_states(
     for run in runs:
         resid = _TruthResiduals([run], noise, decimate, channels)
         x_run = np.zeros(4) if run.mechanical0 is None else np.asarray(run.mechanical0, float)
-        cache: dict[tuple[Any, ...], Any] = {}
-
-        def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            key = tuple(np.round(u, 14))
-            if key not in cache:
-                cache.clear()
-                us = np.vstack([u, u[None, :] + STATE_STEP_RAD * np.eye(4)])
-                rows = resid([model] * 5, [us * scale])
-                cache[key] = (rows[0], ((rows[1:] - rows[0]) / STATE_STEP_RAD).T)
-            return cast(tuple[np.ndarray, np.ndarray], cache[key])
-
+        residual, jacobian = _state_residuals_and_jacobian(resid, model, scale)
         u0 = x_run / scale
-        f0 = fun_and_jac(u0)[0]
+        f0 = residual(u0)
         sol = optimize.least_squares(
-            lambda u: fun_and_jac(u)[0],
+            residual,
             u0,
-            jac=lambda u: fun_and_jac(u)[1],
+            jac=jacobian,
             method="trf",
             max_nfev=max_nfev,
             x_scale=1.0,
@@ -522,7 +532,7 @@ def fit_initial_states(
             ftol=1e-8,
             gtol=1e-10,
         )
-        f1 = fun_and_jac(sol.x)[0]
+        f1 = residual(sol.x)
         c0, c1 = float(np.dot(f0, f0)), float(np.dot(f1, f1))
         keep = c1 < c0
         out.append(replace(run, mechanical0=sol.x * scale) if keep else run)

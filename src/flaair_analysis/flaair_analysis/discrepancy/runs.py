@@ -96,7 +96,7 @@ class Run:
         return float(np.percentile(np.abs(self.drive_v), 99.5))
 
 
-def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:
+def check_runs(runs: Sequence[Run]) -> tuple[Run, ...]:  # noqa: C901  a check per way to be unusable
     """Validate runs for the workflow and return them with float64 arrays.
 
     Raises
@@ -298,7 +298,7 @@ class MotionCache:
             if missing:
                 sim = simulate_motion(missing, runs[j])
                 rows = [(sim.stroke_rad[i], sim.pitch_rad[i]) for i in range(len(missing))]
-                for m, row in zip(missing, rows):
+                for m, row in zip(missing, rows, strict=True):
                     self.data[(m, j)] = row
             for m in mechs:
                 out[(m, j)] = self.data.pop((m, j))

@@ -125,7 +125,7 @@ def per_chain(params: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def score_case(
+def score_case(  # noqa: C901  one branch per way an outcome is right or wrong
     case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan
 ) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""

@@ -73,7 +73,7 @@ def channel_has_gap(ctx: AnalysisContext, model: Model, channel: str, truth_ref:
     sims = simulate_runs([model], ctx.runs)[0]
     res = [
         channel_residual(run, sim, channel, model, truth_referenced=truth_ref)
-        for run, sim in zip(ctx.runs, sims)
+        for run, sim in zip(ctx.runs, sims, strict=True)
     ]
     sigma = ctx.noise[channel]
     if truth_ref:
@@ -150,7 +150,9 @@ def polish(
     prob = ctx.problem(channel, folds, truth_ref, base)
     fit = fit_specs(base, specs, prob, x0, ctx.settings, grid=False)
     channels = {s.name: None if _own(current, s) else "both" for s in specs if not s.is_plant}
-    return apply_values(base, specs, [s.from_fit(u) for s, u in zip(specs, fit.x)], channels)
+    return apply_values(
+        base, specs, [s.from_fit(u) for s, u in zip(specs, fit.x, strict=True)], channels
+    )
 
 
 def _groups(ctx: AnalysisContext, channel: str, model: Model) -> tuple[tuple[EffectSpec, ...], ...]:
@@ -396,7 +398,9 @@ def _search_channel(
                 specs = _join(a[2], b[2])
                 starts = {
                     (s.name, s.key): v
-                    for s, v in zip(list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values))
+                    for s, v in zip(
+                        list(b[2]) + list(a[2]), list(b[0].values) + list(a[0].values), strict=True
+                    )
                 }
                 x_start = np.array([s.to_fit(starts[(s.name, s.key)]) for s in specs])
                 ev, m = evaluate(ctx, base_state.model, specs, channel, truth_ref, x_start)

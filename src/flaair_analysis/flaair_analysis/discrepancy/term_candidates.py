@@ -55,7 +55,7 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
     sims = simulate_runs([model], ctx.runs)[0]
     vref = model.sensors.reference_voltage_v
     out = []
-    for run, sim in zip(ctx.runs, sims):
+    for run, sim in zip(ctx.runs, sims, strict=True):
         phi, psi = np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"])
         out.append(
             {
@@ -77,7 +77,7 @@ def _feature_rms(
     total, count = 0.0, 0
     shape = tuple((s.key, s.grid[-1]) for s in kind.shape)
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
-    for run, m in zip(ctx.runs, motion):
+    for run, m in zip(ctx.runs, motion, strict=True):
         if site in DYNAMICS_SITES:
             f = term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"])
         else:

@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     result["runs"] = [
         {"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}}
-        for r, fit in zip(runs, per_run)
+        for r, fit in zip(runs, per_run, strict=True)
     ]
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "calibration.json").write_text(

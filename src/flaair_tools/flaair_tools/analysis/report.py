@@ -69,7 +69,7 @@ def write_figures(
 
     out: list[dict[str, Any]] = []
     sweeps: dict[str, Any] = {}
-    for result, plot in zip(results, plots):
+    for result, plot in zip(results, plots, strict=True):
         experiment = result["experiment"]
         for run_name, bode in plot.get("bode", {}).items():
             entry = result["runs"][run_name]
@@ -168,7 +168,7 @@ def _collision_figure(data: dict[str, Any], draw: Any) -> Any:
         tail = pitch_deg[-n:]
         insets[label] = (np.arange(tail.size) / fs * 1e3, tail)
     if axis is None:  # lab data without the two named parts: every run
-        for run_name, (metric, pitch_deg, fs) in data["runs"].items():
+        for run_name, (metric, _pitch_deg, _fs) in data["runs"].items():
             axis, reference = metric.frequency_hz, np.degrees(metric.reference_spectrum_rad)
             spectra[run_name] = np.degrees(metric.signal_spectrum_rad)
     return draw(axis, spectra, reference, drive_hz, insets)

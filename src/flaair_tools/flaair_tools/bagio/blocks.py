@@ -264,7 +264,9 @@ def _assemble(
             if error is BagContinuityError
             else f"{where}: block {number}: {text}"
         )
-    gaps = tuple((int(e), int(f)) for e, f in zip(expected[jumps], first[kept[jumps + 1]]))
+    gaps = tuple(
+        (int(e), int(f)) for e, f in zip(expected[jumps], first[kept[jumps + 1]], strict=True)
+    )
     sample_keep = np.repeat(keep, lengths)
     lengths_arr, firsts_arr, stamps_arr = lengths[kept], first[kept], columns.stamp_ns[kept]
     offsets = np.arange(int(lengths_arr.sum()), dtype=np.int64) - np.repeat(

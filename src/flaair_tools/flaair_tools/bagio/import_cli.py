@@ -181,12 +181,14 @@ def main(argv: list[str] | None = None) -> int:
                 extras = [{} for _ in markers]
             else:
                 runs = [lab_import.read_lab_run(files, max_lag_s) for files in lab_files]
-                csv_import.check_runs([(f.mat, r.run) for f, r in zip(lab_files, runs)])
+                csv_import.check_runs(
+                    [(f.mat, r.run) for f, r in zip(lab_files, runs, strict=True)]
+                )
                 for lab_run in runs:
                     for warning in lab_run.warnings:
                         print(f"flaair import: warning: {warning}", file=sys.stderr)
                 markers = csv_import.write_runs(
-                    [(str(f.mat), r.run, r.extras) for f, r in zip(lab_files, runs)],
+                    [(str(f.mat), r.run, r.extras) for f, r in zip(lab_files, runs, strict=True)],
                     args.out,
                     **settings,
                     kind=args.kind,
@@ -200,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
         signum = int(exc.args[0]) if exc.args else int(signal.SIGINT)
         print(f"flaair import: interrupted; no bag written at {args.out}", file=sys.stderr)
         return 128 + signum
-    for marker, extra in zip(markers, extras):
+    for marker, extra in zip(markers, extras, strict=True):
         print(_summary(marker, extra))
     print(f"wrote {args.out}")
     return 0

@@ -147,7 +147,7 @@ def _verify_copy(bag: Path, expected: dict[str, int]) -> None:
         )
 
 
-def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
+def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:  # noqa: C901  steps in order
     """Rebuild a bag's MCAP summary and metadata.yaml from whatever its MCAP file still holds.
 
     Every message that can be decoded is kept: complete chunks, the readable part of a chunk

@@ -46,6 +46,13 @@ class Run:
         return 1.0 if not self.expected_n_samples else self.n_samples / self.expected_n_samples
 
 
+def _marked(blocks: bagio.Blocks | None, marker: bagio.RunMarker) -> bagio.Blocks | None:
+    """The samples of `blocks` that `marker` names (None stays None: a stream the bag lacks)."""
+    if blocks is None:
+        return None
+    return bagio.select_samples(blocks, marker.first_sample_index, marker.n_samples)
+
+
 def _columns(
     sensor: bagio.Blocks, drive: bagio.Blocks | None, truth: bagio.Blocks | None
 ) -> dict[str, np.ndarray]:
@@ -140,12 +147,7 @@ def runs_of_bag(
         ]
     runs: list[Run] = []
     for marker in markers:
-        pick = lambda b: (
-            None
-            if b is None
-            else bagio.select_samples(b, marker.first_sample_index, marker.n_samples)
-        )
-        part = pick(sensor)
+        part = _marked(sensor, marker)
         if len(part.sample_index) == 0:
             if missing is not None:
                 missing.append((str(bag), marker.run))
@@ -155,7 +157,7 @@ def runs_of_bag(
                 marker.run,
                 str(bag),
                 float(sensor.sample_rate_hz),
-                _columns(part, pick(drive), pick(truth)),
+                _columns(part, _marked(drive, marker), _marked(truth, marker)),
                 marker.n_samples,
             )
         )

@@ -159,7 +159,7 @@ def _read_v5(
         labels = tuple(_v5_text(s.label) for s in signals)
         values = {
             label: np.asarray(s.values, dtype=float).reshape(-1)
-            for label, s in zip(labels, signals)
+            for label, s in zip(labels, signals, strict=True)
             if label in wanted
         }
         return name, np.asarray(log.time, dtype=float), labels, values
@@ -243,9 +243,9 @@ def _read_v73(
                 ):
                     continue
                 labels = tuple(_h5_text(f, item) for item in _elements(signals["label"]))
-                values = {
+                values = {  # a file's label and value lists are its own: the shorter decides
                     label: np.asarray(_h5_deref(f, item), dtype=float).reshape(-1)
-                    for label, item in zip(labels, _elements(signals["values"]))
+                    for label, item in zip(labels, _elements(signals["values"]), strict=False)
                     if label in wanted
                 }
                 return name, np.asarray(group["time"][()], dtype=float), labels, values

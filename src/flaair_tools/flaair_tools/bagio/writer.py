@@ -99,7 +99,7 @@ class BagWriter:
                 f"{self.path}: cannot create the bag directory: {exc.strerror}"
             ) from None
         self.file_path = self.path / (file_name or f"{self.path.name}_0.mcap")
-        self._stream = open(self.file_path, "xb")
+        self._stream = open(self.file_path, "xb")  # noqa: SIM115  open until close(): the bag's life
         self._mcap = McapWriter(
             self._stream,
             chunk_size=int(chunk_size_bytes),

@@ -178,7 +178,7 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: C901  input checks in order, each its exit
     """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter

@@ -190,10 +190,10 @@ def _confusion(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] =
             "label": r,
             "cells": [
                 {"text": n or "", "cls": ("ok" if _label_match(r, col) else "bad") if n else ""}
-                for col, n in zip(table["columns"], counts)
+                for col, n in zip(table["columns"], counts, strict=True)
             ],
         }
-        for r, counts in zip(table["rows"], table["counts"])
+        for r, counts in zip(table["rows"], table["counts"], strict=True)
     ]
     cases = (
         _table(

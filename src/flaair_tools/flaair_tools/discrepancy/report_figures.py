@@ -53,7 +53,7 @@ def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> 
     fig = Figure(figsize=(9, 10))
     axes = fig.subplots(len(CHANNELS), 1)
     names = [r.name for r in runs]
-    for ax, c in zip(axes, CHANNELS):
+    for ax, c in zip(axes, CHANNELS, strict=True):
         run_name, t0, t1, _ = result.diagnosis_before.channels[c].worst_stretch
         j = names.index(run_name) if run_name in names else 0
         run = runs[j]
@@ -84,7 +84,6 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
             meas = before[c]["measured"][order]
             mb = before[c]["model"][order]
             ma = after[c]["model"][order]
-            lab = lambda s: f"{s} ({run.name})"
             axes[0, k].plot(
                 f,
                 np.abs(meas),
@@ -92,7 +91,7 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
                 ms=3,
                 mfc="none",
                 color="k",
-                label=lab("measured"),
+                label=f"measured ({run.name})",
             )
             axes[0, k].plot(
                 f,
@@ -101,7 +100,7 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
                 lw=1,
                 color="C0",
                 alpha=0.8,
-                label=lab("input model") if j == 0 else None,
+                label=f"input model ({run.name})" if j == 0 else None,
             )
             axes[0, k].plot(
                 f,
@@ -110,7 +109,7 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
                 lw=1,
                 color="C1",
                 alpha=0.9,
-                label=lab("output model") if j == 0 else None,
+                label=f"output model ({run.name})" if j == 0 else None,
             )
             axes[1, k].plot(
                 f,
@@ -137,7 +136,7 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
 def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
     fig = Figure(figsize=(14, 3.2))
     axes = fig.subplots(1, len(CHANNELS))
-    for ax, c in zip(axes, CHANNELS):
+    for ax, c in zip(axes, CHANNELS, strict=True):
         b = result.diagnosis_before.channels[c].band_nrmse
         a = result.diagnosis_after.channels[c].band_nrmse
         labels = list(b)
@@ -197,7 +196,7 @@ def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int, 
     before = simulate_runs([without], runs)[0]
     fig = Figure(figsize=(9, 2.2 * len(runs)))
     axes = np.atleast_1d(fig.subplots(len(runs), 1))
-    for ax, run, b, a in zip(axes, runs, before, result.sims_after):
+    for ax, run, b, a in zip(axes, runs, before, result.sims_after, strict=True):
         t = np.arange(run.n) / run.fs_hz
         ax.plot(t, run.channel(c) - b[c], lw=0.6, label=f"without {d.term.feature_expression}")
         ax.plot(t, run.channel(c) - a[c], lw=0.6, label="with it")

@@ -6,8 +6,8 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from flaair_model.schema import ParamSpec
 from flaair_analysis import wingbeat
+from flaair_model.schema import ParamSpec
 from flaair_tools.liveview import live_view
 
 __all__ = [

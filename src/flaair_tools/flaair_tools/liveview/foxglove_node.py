@@ -23,6 +23,7 @@ from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from flaair_analysis import wingbeat
 from flaair_common import cdr, topics
 from flaair_common.msgdict import to_dict
 from flaair_common.node import FlaairNode
@@ -30,7 +31,6 @@ from flaair_common.params import ParameterError, declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_msgs import msg as msgs
-from flaair_analysis import wingbeat
 from flaair_tools.liveview import foxglove_io as io
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS

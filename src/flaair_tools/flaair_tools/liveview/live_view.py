@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flaair_common import cdr
 from flaair_analysis.wingbeat import (
     WingbeatInputs,
     WingbeatParams,
@@ -33,6 +32,7 @@ from flaair_analysis.wingbeat import (
     WingbeatState,
     step,
 )
+from flaair_common import cdr
 
 LIVE_PREFIX = "/flaair/live"
 TIME_DEFINITION = "=" * 80 + "\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"

@@ -267,7 +267,7 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
             raise ExperimentError(str(exc)) from exc
 
 
-def run_experiment(
+def run_experiment(  # noqa: C901  a graph's life in order: start it, run each part, stop it
     spec: ExperimentSpec,
     out: Path,
     *,
@@ -451,10 +451,10 @@ def run_experiment(
 
             def finished() -> bool:
                 nonlocal done
-                now = min(runner.sensor_end_index - first, n_samples)
-                bar.update(now - done)
+                now = min(runner.sensor_end_index - first, n_samples)  # noqa: B023  run here
+                bar.update(now - done)  # noqa: B023  run within this iteration (_spin_until)
                 done = now
-                return done >= n_samples
+                return done >= n_samples  # noqa: B023  run within this iteration (_spin_until)
 
             try:
                 _spin_until(
@@ -473,7 +473,7 @@ def run_experiment(
                 _spin_until(
                     runner,
                     graph,
-                    lambda: runner.monitor_end_s >= run_end_s,
+                    lambda: runner.monitor_end_s >= run_end_s,  # noqa: B023  run right here
                     300.0,
                     f"the collision monitor to judge the run up to {run_end_s:.2f} s",
                 )
@@ -481,7 +481,11 @@ def run_experiment(
             # (a loaded fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
             drain_until = time.monotonic() + 2.0
             _spin_until(
-                runner, graph, lambda: time.monotonic() > drain_until, 10.0, "the recorder to drain"
+                runner,
+                graph,
+                lambda: time.monotonic() > drain_until,  # noqa: B023  run right here
+                10.0,
+                "the recorder to drain",
             )
             graph.stop(driver)
             summary["runs"].append(

@@ -160,7 +160,9 @@ def graph_from_launch(path: Path) -> GraphDecl:
         roles.append(role)
         if node.parameters:
             parameters[role] = {k: yaml.safe_load(v) for k, v in node.parameters}
-    hot = tuple(r for r, n in zip(roles, described.nodes) if (n.name or n.executable) in loop)
+    hot = tuple(
+        r for r, n in zip(roles, described.nodes, strict=True) if (n.name or n.executable) in loop
+    )
     return GraphDecl(
         path.name.removesuffix(".launch.xml"),
         described.configurations.get("graph_description", ""),

@@ -336,7 +336,7 @@ def run_end(
     )
 
 
-def run_live(args: argparse.Namespace) -> int:
+def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: start, run, stop
     """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
     log_dir = (
         (args.out.parent / f"{args.out.name}.logs")

@@ -117,7 +117,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 # ---- ROS shell ------------------------------------------------------------------------------
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None) -> int:  # noqa: C901  options in order, then the playback
     """Play a bag; returns 0 when done or stopped by SIGINT/SIGTERM, 1 on a bag error."""
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:

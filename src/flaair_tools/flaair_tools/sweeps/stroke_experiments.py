@@ -280,7 +280,7 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
             part = slice(k * n, (k + 1) * n)
             stamp = round(k * n * 1e9 / fs)
 
-            def header(frame: str) -> Any:
+            def header(frame: str, stamp: int = stamp) -> Any:  # this block's stamp, bound here
                 return bagio.new_message(
                     "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp, store), frame_id=frame
                 )

@@ -375,8 +375,8 @@ def execute(
     timing["wall_s"] = time.perf_counter() - t0
     timing["robot_seconds_per_s"] = timing["robot_seconds"] / timing["wall_s"]
     merged = []
-    for part, result in zip(parts, results):
-        for row, figures in zip(part, result):
+    for part, result in zip(parts, results, strict=True):
+        for row, figures in zip(part, result, strict=True):
             merged.append({**{k: v for k, v in row.items() if k != "track"}, **figures})
     return merged, timing
 

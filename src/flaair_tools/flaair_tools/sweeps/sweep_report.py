@@ -103,9 +103,9 @@ def wing_damage_figure(rows: list[dict[str, Any]], path: Path) -> None:
     colors = {"sync_open_loop": "tab:gray", "dsa": "tab:blue", "dsa_stroke_control": "tab:red"}
     exponents = sorted({r["aero_damping_exponent"] for r in rows})
     styles = ["-", "--", ":", "-."]
-    for ax, (key, title) in zip(axes.flat, _FIGURES):
+    for ax, (key, title) in zip(axes.flat, _FIGURES, strict=True):
         for drive, color in colors.items():
-            for exponent, style in zip(exponents, styles):
+            for exponent, style in zip(exponents, styles, strict=False):  # styles to spare
                 sel = sorted(
                     (
                         r
@@ -236,8 +236,10 @@ def dsa_map_figure(rows: list[dict[str, Any]], path: Path) -> None:
     fig = Figure(figsize=(6 * len(r3s), 8))
     axes = fig.subplots(2, len(r3s), squeeze=False)
     for j, r3 in enumerate(r3s):
-        for kappa, color in zip(
-            sorted({r["kappa"] for r in rows}), ("tab:blue", "tab:orange", "tab:green", "tab:red")
+        for kappa, color in zip(  # colours to spare
+            sorted({r["kappa"] for r in rows}),
+            ("tab:blue", "tab:orange", "tab:green", "tab:red"),
+            strict=False,
         ):
             sel = sorted(
                 (r for r in rows if r["r3_rad_s"] == r3 and r["kappa"] == kappa),
@@ -407,7 +409,7 @@ def stroke_figure(results: list[dict[str, Any]], path: Path) -> None:
     names = sorted({r["experiment"].rsplit("_", 1)[0] for r in results})
     fig = Figure(figsize=(5 * len(names), 4))
     axes = fig.subplots(1, len(names), squeeze=False)
-    for ax, name in zip(axes[0], names):
+    for ax, name in zip(axes[0], names, strict=True):
         for r in (r for r in results if r["experiment"].rsplit("_", 1)[0] == name):
             for key, style in (("estimate", "-"), ("truth", ":")):
                 ax.plot(
