@@ -39,7 +39,7 @@ def _source_files(*dirs: Path) -> list[Path]:
 
 def _module_name(path: Path) -> str:
     """`flaair_analysis.discrepancy.fitting` for
-    src/flaair_tools/flaair_tools/discrepancy/fitting.py.
+    src/flaair_analysis/flaair_analysis/discrepancy/fitting.py.
     """
     parts = list(path.relative_to(SRC).parts[1:])
     parts[-1] = parts[-1][:-3]
