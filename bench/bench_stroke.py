@@ -18,9 +18,9 @@ import tempfile
 from pathlib import Path
 
 from benchlib import REPO_ROOT, Figure, print_table, write_json
+from flaair_analysis import wingbeat
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
-from flaair_analysis import wingbeat
 from flaair_tools.sweeps import stroke_experiments as se
 
 

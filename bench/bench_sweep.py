@@ -29,10 +29,10 @@ import time
 from pathlib import Path
 
 from benchlib import REPO_ROOT, Figure, print_table, write_json
+from flaair_analysis.closed_loop import run_rows, warm_up
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
 from flaair_tools.sweeps import sweep
-from flaair_analysis.closed_loop import run_rows, warm_up
 
 
 def _noop(x: int) -> int:
