@@ -20,7 +20,8 @@ setup(
     maintainer="FLAAIR developers",
     maintainer_email="dev@flaair.dev",
     description="FLAAIR tools: bag recorder/player/import, paper experiments, analysis report, "
-    "model-vs-measurement discrepancy workflow, the flaair command line.",
+    "the discrepancy and identify commands and reports (their science is flaair_analysis), the "
+    "flaair command line.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -5,7 +5,8 @@
 - `recorder`: the recorder and the player;
 - `roscli`: the ros2cli stand-ins (`bin/flaair topic|param|node|bag`);
 - `analysis`: analysis of recorded runs and the report;
-- `discrepancy`: the model-vs-measurement workflow and grey-box identification;
+- `discrepancy`: the `discrepancy` and `identify` commands and their reports (the workflow itself
+  is the pure `flaair_analysis.discrepancy`);
 - `sweeps`: simulation studies on Dask;
 - `liveview`: the Foxglove live view;
 - `orchestration`: graphs brought up and run (experiments, `live`, the demo);
