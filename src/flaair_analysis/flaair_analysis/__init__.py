@@ -1,4 +1,5 @@
-"""FLAAIR science, pure: no rclpy, no ROS messages, no matplotlib, no Jinja2, no file I/O.
+"""FLAAIR science, pure: no rclpy, no ROS messages, no matplotlib, no Jinja2, no file I/O (but the
+nominal model the off-nominal generator reads).
 
 It sits above the domain packages (model, sim, sensors, control) and below `flaair_tools`,
 which keeps the command lines, reports, bags and orchestration around it.

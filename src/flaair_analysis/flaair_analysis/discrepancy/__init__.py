@@ -1,6 +1,7 @@
 """Model-vs-measurement discrepancy workflow, pure (numpy, scipy, numba via flaair_sim; no ROS,
-no file I/O, no plots): the core of `bin/flaair discrepancy` and `bin/flaair identify`, whose
-command lines and reports are `flaair_tools.discrepancy`.
+no plots, no file I/O but the nominal model `offnominal` scales its terms by): the core of
+`bin/flaair discrepancy` and `bin/flaair identify`, whose command lines and reports are
+`flaair_tools.discrepancy`.
 
 Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect registered
 once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
