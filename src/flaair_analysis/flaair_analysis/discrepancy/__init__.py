@@ -6,9 +6,9 @@ no plots, no file I/O but the nominal model `offnominal` scales its terms by): t
 Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect registered
 once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
-search), `discovery` (terms from the library `flaair_model.terms` where the vocabulary leaves
-a gap; `term_candidates` ranks the library's terms for it), `workflow` (`analyse`: identify,
-search on top of the fitted plant, discover),
+search; `found` lists what it found, one entry per effect), `discovery` (terms from the library
+`flaair_model.terms` where the vocabulary leaves a gap; `term_candidates` ranks the library's
+terms for it), `workflow` (`analyse`: identify, search on top of the fitted plant, discover),
 `datasets` (the fixed hidden-effect cases and their runs), `offnominal` (the randomized
 off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases),
 `settings` (the decision rules' constants).

@@ -10,10 +10,7 @@ from typing import Any, cast
 import numpy as np
 
 from flaair_model.model import (
-    Effect,
     Model,
-    PerChannel,
-    effect_params,
     with_effect_on,
     with_effects,
     without_effect_on,
@@ -29,6 +26,7 @@ from .evidence import (
     same_on_both,
 )
 from .fitting import Fold, apply_values, fit_specs, spec_value
+from .found import merge_sensor_channels
 from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache, Run, sensor_gain_v_per_deg, simulate_runs
 from .settings import Settings
@@ -569,7 +567,7 @@ def find_effects(
             current = fit.model
             _use_runs(ctx, fit.runs)
         searches.append(ChannelSearch(channel, truth_ref, "", tuple(steps)))
-    return current, tuple(_merge_sensor_channels(found, current)), tuple(searches), ctx.runs
+    return current, tuple(merge_sensor_channels(found, current)), tuple(searches), ctx.runs
 
 
 def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
@@ -584,33 +582,3 @@ def strip_effects(model: Model, specs: Sequence[EffectSpec]) -> Model:
         elif s.channel_param is None or model.effect_on(s.name, s.channel_param) is not None:
             model = replace(model, effects=tuple((n, e) for n, e in model.effects if n != s.name))
     return model
-
-
-def _effect_params_dict(model: Model, name: str) -> dict[str, Any]:
-    def clean(d: dict[str, Any]) -> dict[str, Any]:
-        return {
-            k: clean(v) if isinstance(v, dict) else (v if isinstance(v, str) else float(v))
-            for k, v in d.items()
-        }
-
-    return clean(effect_params(cast(Effect | PerChannel, model.effect(name))))  # an effect on
-
-
-def _merge_sensor_channels(found: list[FoundEffect], model: Model) -> list[FoundEffect]:
-    """One entry per effect name (a sensor effect on both sensors once, channel 'a+b')."""
-    by_name: dict[str, FoundEffect] = {}
-    order = []
-    for f in found:
-        params = _effect_params_dict(model, f.name)
-        if f.name in by_name:
-            prev = by_name[f.name]
-            by_name[f.name] = replace(
-                prev,
-                channel=f"{prev.channel}+{f.channel}",
-                parameters=params,
-                evidence={**prev.evidence, "merged_from": f.evidence},
-            )
-        else:
-            by_name[f.name] = replace(f, parameters=params)
-            order.append(f.name)
-    return [by_name[n] for n in order]
