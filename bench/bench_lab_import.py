@@ -105,7 +105,7 @@ def write_files(root: Path) -> dict[str, Path]:
                 "drive_gain_v_per_v": 100.0,
                 "video": {
                     "fps": FPS,
-                    "sync": {"trigger_frame": 0, "trigger_threshold_v": 2.5},
+                    "sync": {"trigger_frame": 1, "trigger_threshold_v": 2.5},
                     "length_unit_m": 0.001,
                 },
                 "points": {

@@ -21,7 +21,9 @@ FPS = 10000.0
 GAIN_V_PER_V = 100.0
 BIAS_V = 0.0
 TRIGGER_S = 0.0123  # the camera trigger's rising edge
-TRIGGER_FRAME = 150  # the frame taken at that edge: frames 0-26 precede the log
+# DLTdv's number (the first row is frame 1) of the frame taken at that edge: frames 1-27
+# precede the log
+TRIGGER_FRAME = 151
 UP = np.array([0.2, -0.3, 0.93])
 REST_SPAN = np.array([1.0, 0.4, 0.1])
 ORIGIN_MM = np.array([12.0, -4.0, 30.0])
@@ -111,7 +113,7 @@ def rig_mapping(
         "sync": (
             {"trigger_frame": trigger_frame, "trigger_threshold_v": 2.5}
             if sync == "trigger"
-            else {"frame0_time_s": TRIGGER_S - TRIGGER_FRAME / FPS}
+            else {"frame0_time_s": TRIGGER_S - (TRIGGER_FRAME - 1) / FPS}
         ),
     }
     return {
@@ -197,7 +199,7 @@ def write_lab_run(
     )
     mat = write_mat(directory / f"{name}.mat", log, version)
     # frames from before the log starts to past its end: those are dropped
-    frames = np.arange(int((time_s[-1] + 0.002 - TRIGGER_S) * FPS) + TRIGGER_FRAME)
+    frames = np.arange(1, int((time_s[-1] + 0.002 - TRIGGER_S) * FPS) + TRIGGER_FRAME)
     frame_t = TRIGGER_S + (frames - TRIGGER_FRAME) / FPS
     sample = np.rint(frame_t * FS_HZ).astype(int)
     inside = (sample >= 0) & (sample < n)
