@@ -155,7 +155,8 @@ class _Reader:
         return kind, data
 
     def text(self, s: _File | _Zlib, what: str) -> str:
-        return self.element(s, (_MI_INT8, 2), what)[1].decode("latin-1")
+        kind, raw = self.element(s, (_MI_INT8, 2, 16), what)
+        return raw.decode("utf-8" if kind == 16 else "latin-1", errors="replace")
 
     def numbers(self, kind: int, data: bytes) -> np.ndarray:
         code = _NUMERIC.get(kind)
@@ -171,7 +172,7 @@ class _Reader:
         mclass = int(flags[0]) & 0xFF
         if mclass == MX_OPAQUE:
             return mclass, int(flags[0]), (), self.text(s, "object name")
-        kind, raw = self.element(s, (_MI_INT32,), "dimensions")
+        kind, raw = self.element(s, (_MI_INT32, _MI_UINT32), "dimensions")
         dims = tuple(int(d) for d in self.numbers(kind, raw))
         if len(dims) < 2 or min(dims) < 0:
             raise MatV5Error(f"dimensions {dims}")
@@ -257,8 +258,22 @@ def _open_element(
     return None, end + (-nbytes % 8)
 
 
+def _as_mat_error(exc: Exception) -> MatV5Error:
+    return exc if isinstance(exc, MatV5Error) else MatV5Error(f"{type(exc).__name__}: {exc}")
+
+
+_DAMAGE = (ValueError, struct.error, OverflowError, IndexError, MemoryError)
+
+
 def list_variables(handle: BinaryIO) -> list[V5Variable]:
     """Every top-level variable of the open MAT v5 file (objects too; subsystem data not)."""
+    try:
+        return _list_variables(handle)
+    except _DAMAGE as exc:
+        raise _as_mat_error(exc) from None
+
+
+def _list_variables(handle: BinaryIO) -> list[V5Variable]:
     handle.seek(0, 2)
     size = handle.tell()
     handle.seek(0)
@@ -295,6 +310,13 @@ def read_variable(handle: BinaryIO, variable: V5Variable, hook: StructHook | Non
     char as str, structs as lists of field dicts (column-major), anything else `Skipped`.
     `hook` sees each struct element as soon as it is read.
     """
+    try:
+        return _read_variable(handle, variable, hook)
+    except _DAMAGE as exc:
+        raise _as_mat_error(exc) from None
+
+
+def _read_variable(handle: BinaryIO, variable: V5Variable, hook: StructHook | None) -> Any:
     handle.seek(0, 2)
     size = handle.tell()
     handle.seek(0)
