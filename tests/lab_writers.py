@@ -95,6 +95,18 @@ def subsystem(class_names: list[str]) -> bytes:
     return _numeric("", MX_UINT8, MI_UINT8, stream.reshape(1, -1))
 
 
+def fixed_header(path: Path, version: str = "5.0") -> None:
+    """Replace the header text's creation time (bytes 0-115) by a fixed one, as MATLAB words
+    it, so that a file written twice is the same bytes.
+    """
+    data = bytearray(path.read_bytes())
+    text = f"MATLAB {version} MAT-file, Platform: GLNXA64, Created on: Thu Nov 26 10:00:00 2026" + (
+        " HDF5 schema 1.00 ." if version == "7.3" else ""
+    )
+    data[:116] = text.encode().ljust(116, b" ")
+    path.write_bytes(bytes(data))
+
+
 def _compressed(element: bytes) -> bytes:
     data = zlib.compress(element)
     return struct.pack("<II", MI_COMPRESSED, len(data)) + data
