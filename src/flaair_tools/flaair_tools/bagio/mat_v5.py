@@ -73,11 +73,11 @@ class _File:
     def __init__(self, handle: BinaryIO, end: int) -> None:
         self.handle, self.end, self.pos = handle, end, 0
 
-    def read(self, n: int) -> bytes:
+    def read(self, n: int) -> bytearray:
         if n > self.end - self.handle.tell():
             raise MatV5Error(f"an element claims {n} bytes past the end of its variable")
-        data = self.handle.read(n)
-        if len(data) != n:
+        data = bytearray(n)
+        if self.handle.readinto(data) != n:
             raise MatV5Error("the file ends inside an element (cut short)")
         self.pos += n
         return data
@@ -116,14 +116,15 @@ class _Zlib:
             if self.inflate.eof:
                 raise MatV5Error("a compressed variable ends before its elements do")
 
-    def read(self, n: int) -> bytes:
-        parts, have = [], 0
+    def read(self, n: int) -> bytearray:
+        data, have = bytearray(n), 0  # filled in place: no second copy of a long signal
+        view = memoryview(data)
         while have < n:
             part = self._more(n - have)
-            parts.append(part)
+            view[have : have + len(part)] = part
             have += len(part)
         self.pos += n
-        return b"".join(parts)
+        return data
 
     def skip(self, n: int) -> None:
         self.pos += n
@@ -136,6 +137,7 @@ class _Reader:
         self.endian, self.hook = endian, hook
 
     def tag(self, s: _File | _Zlib) -> tuple[int, int, bytes | None]:
+        """(data type, size, the data of a small element or None) of the next element."""
         first, second = struct.unpack(self.endian + "II", s.read(8))
         if first >> 16:  # small data element: type, size and up to 4 bytes in 8
             size = first >> 16
@@ -144,7 +146,9 @@ class _Reader:
             return first & 0xFFFF, size, struct.pack(self.endian + "I", second)[:size]
         return first, second, None
 
-    def element(self, s: _File | _Zlib, kinds: tuple[int, ...], what: str) -> tuple[int, bytes]:
+    def element(
+        self, s: _File | _Zlib, kinds: tuple[int, ...], what: str
+    ) -> tuple[int, bytes | bytearray]:
         kind, size, small = self.tag(s)
         if kind not in kinds:
             raise MatV5Error(f"{what}: data type {kind}, expected one of {kinds}")
@@ -158,7 +162,7 @@ class _Reader:
         kind, raw = self.element(s, (_MI_INT8, 2, 16), what)
         return raw.decode("utf-8" if kind == 16 else "latin-1", errors="replace")
 
-    def numbers(self, kind: int, data: bytes) -> np.ndarray:
+    def numbers(self, kind: int, data: bytes | bytearray) -> np.ndarray:
         code = _NUMERIC.get(kind)
         if code is None or len(data) % np.dtype(code).itemsize:
             raise MatV5Error(f"numeric data of type {kind} and {len(data)} bytes")
@@ -203,7 +207,8 @@ class _Reader:
             real = self.numbers(*self.element(s, tuple(_NUMERIC), "real part"))
             if real.size != count:
                 raise MatV5Error(f"{real.size} numbers for dimensions {dims}")
-            value: Any = real.astype(np.float64).reshape(dims, order="F")
+            # doubles in a (mutable) buffer of their own: no copy
+            value: Any = real.astype(np.float64, copy=False).reshape(dims, order="F")
         elif mclass == MX_CHAR:
             codes = self.numbers(*self.element(s, tuple(_NUMERIC), "characters"))
             value = "".join(map(chr, codes.reshape(dims, order="F").ravel().tolist()))
