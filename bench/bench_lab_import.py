@@ -4,8 +4,10 @@ The lab files are made here: the target's log as a Structure-with-time MAT file 
 scipy.io, and v7.3 through hdf5storage), the wing's three points as a DLTdv8 xyzpts CSV of
 100,000 frames and the actuator tip as an xypts CSV. Each import runs in a fresh interpreter
 (`import_cli.main`, everything a lab's call does: read, angles, sync check, bag), timed from
-its first line; its peak RSS is taken against the same interpreter's RSS once its imports are
-loaded (the same-run baseline: what the data costs, not the interpreter and its libraries).
+its first line; its peak RSS (sampled every 2 ms from /proc/self/statm) is taken against the
+same interpreter's RSS once its imports are loaded (the same-run baseline: what the data
+costs, not the interpreter and its libraries; ru_maxrss would keep the imports' own transient
+peak, which hid the data's cost).
 A v7.3 log is read in a child process of its own (docs/LAB_FILES.md); its peak is reported.
 A third import reads the same run from a MAT v5 log that holds 40 unused signals beside the
 four it needs (only the log's used signals are kept while reading: its peak should stay that
@@ -32,18 +34,32 @@ from benchlib import REPO_ROOT, Figure, print_table, write_json
 
 FS_HZ, FPS, DURATION_S = 20000.0, 10000.0, 10.0
 CHILD = """
-import json, resource, sys, time
+import json, os, resource, sys, threading, time
 from pathlib import Path
 t0 = time.perf_counter()
 from flaair_tools.bagio import import_cli
 from flaair_tools.bagio.lab_import import sensor_stroke_deg
 import numpy as np
 sensor_stroke_deg(np.full(100, 1.25), np.full(100, 1.25), 20000.0)   # numba kernels loaded
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+PAGE = os.sysconf("SC_PAGE_SIZE")
+def rss():
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * PAGE
+# the peak is sampled (every 2 ms): ru_maxrss keeps the imports' own transient peak, which
+# can hide what the data costs
+base, peak, done = rss(), [0], threading.Event()
+def watch():
+    while not done.is_set():
+        peak[0] = max(peak[0], rss())
+        done.wait(0.002)
+watcher = threading.Thread(target=watch, daemon=True)
+watcher.start()
 start = time.perf_counter()
 code = import_cli.main(sys.argv[1:])
 wall = time.perf_counter() - start
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+done.set()
+watcher.join()
+peak = max(peak[0], rss())
 child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
 print(json.dumps({"code": code, "wall_s": wall, "startup_s": start - t0, "base": base,
                   "peak": peak, "child_peak": child}))
@@ -93,7 +109,7 @@ def write_files(root: Path) -> dict[str, Path]:
     chord = np.column_stack(
         [np.sin(pitch) * -np.sin(stroke), np.sin(pitch) * np.cos(stroke), -np.cos(pitch)]
     )
-    le1 = [*np.zeros((frames, 3)), 10.0, 5.0, 20.0]
+    le1 = np.zeros((frames, 3)) + np.array([10.0, 5.0, 20.0])
     table = np.column_stack([le1 + 9 * span, le1, le1 + 4 * chord])
     files["tracks"] = root / "run_xyzpts.csv"
     with open(files["tracks"], "w") as handle:
