@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import lab_files as lf
 import lab_writers as lw
@@ -128,4 +130,41 @@ def test_a_point_the_file_lacks_is_named_with_at_most_ten_of_the_files(tmp_path,
 def test_a_2d_track_given_for_the_3d_points_is_named(tmp_path: Path) -> None:
     path = lw.write_track(tmp_path / "run_xypts.csv", lw.xy_header(["pt1"], 1), tip_table(1))
     with pytest.raises(LabFileError, match=r"column 1 'pt1_cam1_U' is not a DLTdv8 xyzpts column"):
+        read_xyz_points(path, BY_NUMBER, 0.001)
+
+
+@pytest.fixture(scope="module")
+def sparse_bytes(table, tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("sparse") / "good_xyzpts.csv"
+    return lw.write_sparse_track(path, table[:60], 3).read_bytes()
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    cut=st.floats(0.0, 0.999),
+    flips=st.lists(st.tuples(st.floats(0.0, 0.999), st.integers(0, 255)), max_size=6),
+)
+def test_cut_or_damaged_sparse_tracks_give_a_lab_file_error_or_points(
+    tmp_path_factory, sparse_bytes, cut, flips
+) -> None:
+    data = bytearray(sparse_bytes)
+    for where, byte in flips:
+        data[int(where * len(data))] = byte
+    data = data[: max(1, int(len(data) * (1 - cut)))] if cut > 0.001 else data
+    path = tmp_path_factory.mktemp("tracks") / "damaged_xyzpts.csv"
+    path.write_bytes(bytes(data))
+    try:
+        got = read_xyz_points(path, BY_NUMBER, 0.001)
+    except LabFileError as exc:
+        assert "damaged_xyzpts.csv" in str(exc) and "\n" not in str(exc)
+    else:
+        assert all(v.ndim == 2 and np.isfinite(v).any() for v in got.values())
+
+
+def test_a_sparse_file_announcing_more_rows_than_a_track_holds_is_refused(tmp_path) -> None:
+    path = tmp_path / "huge_xyzpts.csv"
+    path.write_text("Sparse format 3D coordinates file\n900000000000 9 1\n1 1 0.5\n")
+    with pytest.raises(LabFileError, match="announces 900000000000 rows and 9 columns, more"):
         read_xyz_points(path, BY_NUMBER, 0.001)

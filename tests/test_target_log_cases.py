@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import lab_writers as lw
 from flaair_tools.bagio.target_log import LabFileError, read_target_log
@@ -179,3 +181,34 @@ def test_only_the_signals_asked_for_are_kept_while_reading(tmp_path: Path) -> No
     assert len(seen) == 9 and seen[-3] == "amp_in"
     kept = [s["label"] for s in log[0]["signals"] if s["values"] is not None]
     assert kept == ["pvdf_act"]
+
+
+@pytest.fixture(scope="module")
+def object_file_bytes(tmp_path_factory) -> bytes:
+    path = tmp_path_factory.mktemp("mat") / "saved.mat"
+    variables = {"rt_log": scope_log(20000.0, FOUR), "gain": 2.0}
+    return write(path, "v5", variables, {"tg": "slrealtime.Target"}).read_bytes()
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    cut=st.floats(0.0, 0.999),
+    flips=st.lists(st.tuples(st.floats(0.0, 0.999), st.integers(0, 255)), max_size=8),
+)
+def test_a_damaged_save_with_an_object_gives_a_lab_file_error_or_the_log(
+    tmp_path_factory, object_file_bytes, cut, flips
+) -> None:
+    data = bytearray(object_file_bytes)
+    for where, byte in flips:
+        data[int(where * len(data))] = byte
+    data = data[: max(1, int(len(data) * (1 - cut)))] if cut > 0.001 else data
+    path = tmp_path_factory.mktemp("damaged") / "damaged.mat"
+    path.write_bytes(bytes(data))
+    try:
+        got = read_target_log(path, ["amp_in"])
+    except LabFileError as exc:
+        assert "damaged.mat" in str(exc) and "\n" not in str(exc)
+    else:
+        assert got.signals["amp_in"].size == got.time_s.size

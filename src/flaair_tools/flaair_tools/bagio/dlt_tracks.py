@@ -35,6 +35,8 @@ XY_COLUMN = re.compile(r"(.+)_cam(\d+)_([XYUV])")
 SPARSE_FIRST_LINE = re.compile(r"sparse format ([23])d coordinates file", re.IGNORECASE)
 _NUMBERED = re.compile(r"pt(\d+)")
 _EMPTY_CELL = re.compile(rb"(?m)(?:^|(?<=,))[ \t]*(?=,|$)")
+# a sparse file's announced size, bounded before anything is allocated for it
+MAX_SPARSE_ROWS, MAX_SPARSE_COLUMNS = 10_000_000, 30_000  # 1,000 s at 10,000 fps
 _AXIS = {"X": "X", "Y": "Y", "Z": "Z", "U": "X", "V": "Y"}
 
 
@@ -115,6 +117,11 @@ def _sparse_layout(path: Path, dimensions: int, body: bytes) -> tuple[_Layout, n
             f"number of entries, got {counts_line[:60].decode('latin-1')!r}"
         ) from None
     per_point = 3 if dimensions == 3 else 2
+    if rows > MAX_SPARSE_ROWS or width > MAX_SPARSE_COLUMNS:
+        raise LabFileError(
+            f"{path}: line 2 announces {rows} rows and {width} columns, more than a track holds "
+            f"(at most {MAX_SPARSE_ROWS} frames and {MAX_SPARSE_COLUMNS} columns read)"
+        )
     if rows < 1 or width < per_point or width % per_point or n_entries < 0:
         raise LabFileError(
             f"{path}: line 2: {rows} rows and {width} columns is not a {dimensions}D track "

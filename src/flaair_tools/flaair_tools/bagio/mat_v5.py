@@ -39,6 +39,7 @@ _CLASS_NAMES = {MX_CELL: "cell", MX_STRUCT: "struct", MX_OBJECT: "object", MX_CH
 _CLASS_NAMES.update({MX_SPARSE: "sparse", 16: "function_handle", MX_OPAQUE: "opaque"})
 _HEADER_BYTES = 128
 _CHUNK = 1 << 18
+_PREALLOCATE = 1 << 26  # bytes of a compressed element allocated before they are seen
 
 # called with each struct element's fields once read; returns them (possibly lightened)
 StructHook = Callable[[dict[str, Any]], dict[str, Any]]
@@ -117,6 +118,12 @@ class _Zlib:
                 raise MatV5Error("a compressed variable ends before its elements do")
 
     def read(self, n: int) -> bytearray:
+        if n > _PREALLOCATE:  # a size the stream may not hold (damage): grown as data comes
+            grown = bytearray()
+            while len(grown) < n:
+                grown += self._more(min(n - len(grown), _CHUNK))
+            self.pos += n
+            return grown
         data, have = bytearray(n), 0  # filled in place: no second copy of a long signal
         view = memoryview(data)
         while have < n:
@@ -186,6 +193,8 @@ class _Reader:
         kind, raw = self.element(s, (_MI_INT32,), "field name length")
         length = int(self.numbers(kind, raw)[0])
         names = self.element(s, (_MI_INT8,), "field names")[1]
+        if not names:
+            return ()
         if length <= 0 or len(names) % length:
             raise MatV5Error(f"field names of {len(names)} bytes in slots of {length}")
         return tuple(
@@ -226,8 +235,11 @@ class _Reader:
 
     def struct_array(self, s: _File | _Zlib, dims: tuple[int, ...]) -> list[dict[str, Any]]:
         names = self.field_names(s)
+        count = int(np.prod(dims))
+        if not names:  # a struct without fields: nothing to read, however many elements
+            return [{} for _ in range(min(count, 1))]
         elements = []
-        for _ in range(int(np.prod(dims))):
+        for _ in range(count):
             fields = {name: self.matrix(s) for name in names}
             elements.append(self.hook(fields) if self.hook is not None else fields)
         return elements

@@ -156,8 +156,7 @@ def _choose(path: Path, candidates: list[str], names: list[str], variable: str |
     if not candidates:
         raise LabFileError(
             f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
-            f"'signals' whose elements have 'values' and 'label'); variables: "
-            f"{', '.join(names) or 'none'}"
+            f"'signals' whose elements have 'values' and 'label'); variables: {_listed(names)}"
         )
     return candidates[0]
 
