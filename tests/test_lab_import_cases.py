@@ -182,3 +182,8 @@ def test_bad_logs_exit_2_with_one_line_and_leave_no_bag(bench, tmp_path: Path) -
     rig.write_text(yaml.safe_dump(mapping))
     code, _, stderr = cli(argv(s, tmp_path / "bag_rig", rig=rig))
     assert code == 2 and "signals.drive: 'amp_in[0]': a column is named as 'label[j]'" in stderr
+    # a rig written when frames were counted from 0
+    rig.write_text(yaml.safe_dump(lf.rig_mapping(trigger_frame=0)))
+    code, _, stderr = cli(argv(s, tmp_path / "bag_rig0", rig=rig))
+    assert code == 2 and "video.sync.trigger_frame: 0: DLTdv numbers frames from 1" in stderr
+    assert len(stderr.strip().splitlines()) == 1 and not (tmp_path / "bag_rig0").exists()

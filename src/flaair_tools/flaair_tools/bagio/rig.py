@@ -151,6 +151,12 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
         )
     if by_trigger:
         c.mapping(sync, "video.sync", _SYNC, {"trigger_frame", "trigger_threshold_v"})
+        if sync["trigger_frame"] == 0 and not isinstance(sync["trigger_frame"], bool):
+            raise c.fail(
+                "video.sync.trigger_frame",
+                "0: DLTdv numbers frames from 1 (the first row is frame 1); give the number "
+                "DLTdv's frame slider shows for the frame taken at the trigger's edge",
+            )
     signals = c.mapping(
         top["signals"],
         "signals",
