@@ -21,7 +21,9 @@ FPS = 10000.0
 GAIN_V_PER_V = 100.0
 BIAS_V = 0.0
 TRIGGER_S = 0.0123  # the camera trigger's rising edge
-TRIGGER_FRAME = 150  # the frame taken at that edge: frames 0-26 precede the log
+# DLTdv's number (the first row is frame 1) of the frame taken at that edge: frames 1-27
+# precede the log
+TRIGGER_FRAME = 151
 UP = np.array([0.2, -0.3, 0.93])
 REST_SPAN = np.array([1.0, 0.4, 0.1])
 ORIGIN_MM = np.array([12.0, -4.0, 30.0])
@@ -102,16 +104,19 @@ def wing_points_mm(stroke_rad: np.ndarray, pitch_rad: np.ndarray) -> dict[str, n
 
 
 def rig_mapping(
-    sync: str = "trigger", stroke_from: str = "wing_span", trigger_frame: int = TRIGGER_FRAME
+    sync: str = "trigger",
+    stroke_from: str = "wing_span",
+    trigger_frame: int = TRIGGER_FRAME,
+    fps: float = FPS,
 ) -> dict:
     """The rig file's content for these files."""
     video = {
-        "fps": FPS,
+        "fps": fps,
         "length_unit_m": 0.001,
         "sync": (
             {"trigger_frame": trigger_frame, "trigger_threshold_v": 2.5}
             if sync == "trigger"
-            else {"frame0_time_s": TRIGGER_S - TRIGGER_FRAME / FPS}
+            else {"frame0_time_s": TRIGGER_S - (TRIGGER_FRAME - 1) / FPS}
         ),
     }
     return {
@@ -180,12 +185,22 @@ def write_lab_run(
     run: dict[str, np.ndarray],
     version: str = "v5",
     untracked_every: int = 50,
+    log_hz: float = FS_HZ,
+    never_together: bool = False,
     **rig_options,
 ) -> LabSession:
-    """The run's MAT log (`version`), tracks and rig file in `directory`."""
-    n = run["drive_v"].size
-    time_s = np.arange(n) / FS_HZ
+    """The run's MAT log (`version`), tracks and rig file in `directory`.
+
+    The target logs every (FS_HZ / `log_hz`)-th sample of the simulation; the video runs at
+    the rig's fps. `never_together`: each frame lacks one of the wing's three points in turn.
+    """
+    fps = rig_options.get("fps", FPS)
+    keep = np.arange(0, run["drive_v"].size, round(FS_HZ / log_hz))
+    run = {key: values[keep] for key, values in run.items()}
+    n = keep.size
+    time_s = np.arange(n) / log_hz
     trigger = np.where(time_s >= TRIGGER_S - 1e-12, 5.0, 0.0)
+    t_trig = time_s[np.argmax(trigger > 0)]  # the first logged sample of the edge
     log = structure_with_time(
         time_s,
         {
@@ -196,10 +211,10 @@ def write_lab_run(
         },
     )
     mat = write_mat(directory / f"{name}.mat", log, version)
-    # frames from before the log starts to past its end: those are dropped
-    frames = np.arange(int((time_s[-1] + 0.002 - TRIGGER_S) * FPS) + TRIGGER_FRAME)
-    frame_t = TRIGGER_S + (frames - TRIGGER_FRAME) / FPS
-    sample = np.rint(frame_t * FS_HZ).astype(int)
+    # frames (DLTdv's numbers, from 1) from before the log starts to past its end: dropped
+    frames = np.arange(1, int((time_s[-1] + 0.002 - t_trig) * fps) + TRIGGER_FRAME)
+    frame_t = t_trig + (frames - TRIGGER_FRAME) / fps
+    sample = np.rint(frame_t * log_hz).astype(int)
     inside = (sample >= 0) & (sample < n)
     stroke = np.where(inside, run["stroke_rad"][np.clip(sample, 0, n - 1)], 0.0)
     pitch = np.where(inside, run["pitch_rad"][np.clip(sample, 0, n - 1)], 0.0)
@@ -207,6 +222,9 @@ def write_lab_run(
     points = wing_points_mm(stroke, pitch)
     for xyz in points.values():
         xyz[~tracked] = np.nan
+    if never_together:
+        for k, name_ in enumerate(sorted(points)):
+            points[name_][frames % 3 == k] = np.nan
     tracks = directory / f"{name}_xyzpts.csv"
     write_xyzpts(tracks, points, POINTS)
     tip_px = np.array([640.0, 360.0]) + (stroke / TRANSMISSION_RAD_PER_M / M_PER_PX)[
@@ -223,7 +241,7 @@ def write_lab_run(
     rig = directory / f"{name}_rig.yaml"
     rig.write_text(yaml.safe_dump(rig_mapping(**rig_options), sort_keys=False))
     truth_stroke = np.where(inside & tracked, np.degrees(stroke), np.nan)
-    truth_pitch = np.where(inside & tracked, np.degrees(pitch), np.nan)
+    truth_pitch = np.where(inside & tracked & ~never_together, np.degrees(pitch), np.nan)
     return LabSession(
         mat, rig, tracks, tip_track, np.where(inside, sample, -1), truth_stroke, truth_pitch
     )

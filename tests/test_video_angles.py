@@ -124,11 +124,12 @@ def test_tip_motion_across_the_axis_does_not_count() -> None:
 @pytest.mark.parametrize(
     "points, message",
     [
-        ("le2=le1", "span (LE1, LE2): the points coincide in frame 0"),
-        ("te1=le1", "chord (LE1, TE1): the points coincide in frame 0"),
+        ("le2=le1", "span (LE1, LE2): the points coincide in frame 1"),
+        ("te1=le1", "chord (LE1, TE1): the points coincide in frame 1"),
     ],
 )
 def test_coinciding_points_are_refused_naming_the_frame(points, message) -> None:
+    # the first row is frame 1, as DLTdv numbers frames
     up, rest = np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])
     le1, te1, le2 = (
         np.vstack([a, a]) for a in wing(up, rest, 0.3, 0.2, np.zeros(3), 10.0, 3.0, 0.0, 0.0)

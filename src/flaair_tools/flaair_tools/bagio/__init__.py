@@ -31,9 +31,10 @@ Modules
 - `import_runs`: measured-run CSV files (or runs already read) into a bag (imported on use)
 - `import_cli`: `bin/flaair import`, CSV exports or a lab's MAT logs and tracks (imported on use)
 - `target_log`: a real-time target's MAT log (Structure with time, v5 and v7.3) (imported on use)
+- `mat_v5`: MAT v5 files read element by element, one variable at a time (imported on use)
 - `rig`: a lab's rig file, checked key by key (imported on use)
-- `dlt_tracks`: DLTdv8 point tracks, xyzpts and xypts (imported on use)
-- `video_angles`: stroke and pitch from tracked video points (DLTdv8), pure (imported on use)
+- `dlt_tracks`: DLTdv point tracks, xyzpts and xypts, flat or sparse (imported on use)
+- `video_angles`: stroke and pitch from tracked video points (DLTdv), pure (imported on use)
 - `lab_run`: a lab run's drive, frame placement, truth columns and sync check, pure (on use)
 - `lab_import`: a lab run (MAT + tracks + rig) or a session manifest read and checked (on use)
 - `reader`: info, messages, read_bag, read_blocks

@@ -77,10 +77,53 @@ def sensor_stroke_deg(
     return np.degrees(frontend.estimate(stroke_sensor_v, pitch_sensor_v, params).stroke_rad)
 
 
+def _sync_check(
+    mat: Path, columns: dict[str, np.ndarray], fs_hz: float, fps: float, max_lag_s: float
+) -> tuple[lab_run.SyncCheck | None, list[str]]:
+    """The sync check, or why the log's rate cannot make it (one warning, never a refusal)."""
+    # imported here: a CSV import never needs the front end
+    from flaair_sensors.core.frontend import FrontendError
+
+    problem = lab_run.sync_check_rate_problem(fs_hz, max_lag_s)
+    if problem is None:
+        try:
+            estimate = sensor_stroke_deg(
+                columns["stroke_sensor_v"], columns["pitch_sensor_v"], fs_hz
+            )
+        except FrontendError as exc:
+            problem = f"the front end does not run at {fs_hz:g} Hz ({exc})"
+        else:
+            check = lab_run.sync_check(columns["stroke_deg"], estimate, fs_hz, fps, max_lag_s)
+            return check, []
+    return None, [
+        f"{mat}: the sync check cannot be made at the log's rate: {problem}; the video's "
+        "sync is not checked"
+    ]
+
+
+def _untracked(
+    tracks: Path, rig: Rig, stroke_frames: np.ndarray, pitch_frames: np.ndarray
+) -> list[str]:
+    """A warning for an angle no frame gives (its points never tracked together)."""
+    points = ", ".join(f"{name} = {rig.wing_points[name]!r}" for name in rig.wing_points)
+    out = []
+    if not np.isfinite(pitch_frames).any():
+        out.append(
+            f"{tracks}: the wing's points ({points}) are never tracked in the same frame: "
+            "the run's pitch truth is all NaN"
+        )
+    if not np.isfinite(stroke_frames).any() and rig.stroke_from == "wing_span":
+        out.append(
+            f"{tracks}: wing_leading_edge_1 and wing_leading_edge_2 are never tracked in the "
+            "same frame: the run's stroke truth is all NaN"
+        )
+    return out
+
+
 def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = None) -> LabRun:
     """Read and check one run's files (see module docstring)."""
     rig = read_rig(files.rig) if rig is None else rig
-    log = read_target_log(files.mat, rig.labels)
+    log = read_target_log(files.mat, rig.labels, rig.log_variable)
     signal = {role: log.signals[label] for role, label in rig.signals.items()}
     wing = read_xyz_points(files.tracks, rig.wing_points, rig.length_unit_m)
     tip = None
@@ -109,15 +152,9 @@ def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = No
         "stroke_deg": stroke_deg,
         "pitch_deg": pitch_deg,
     }
-    check = lab_run.sync_check(
-        stroke_deg,
-        sensor_stroke_deg(columns["stroke_sensor_v"], columns["pitch_sensor_v"], fs_hz),
-        fs_hz,
-        rig.fps,
-        sync_max_lag_s,
-    )
+    check, warnings = _sync_check(files.mat, columns, fs_hz, rig.fps, sync_max_lag_s)
     tracked = np.isfinite(stroke_frames) & np.isfinite(pitch_frames)
-    warnings = []
+    warnings += _untracked(files.tracks, rig, stroke_frames, pitch_frames)
     if placement.placed == 0:
         raise LabFileError(
             f"{files.mat}: none of the video's {stroke_frames.size} frames falls "

@@ -23,6 +23,7 @@ __all__ = [
     "drive_v",
     "place_frames",
     "sync_check",
+    "sync_check_rate_problem",
     "trigger_time_s",
     "truth_columns",
     "video_angles_deg",
@@ -72,14 +73,18 @@ def trigger_time_s(
 def place_frames(
     n_frames: int, rig: Rig, time_s: np.ndarray, trigger_v: np.ndarray | None, where: str
 ) -> FramePlacement:
-    """Each frame's DAQ time and nearest sample (section 5); frames outside the log dropped."""
+    """Each frame's DAQ time and nearest sample (section 5); frames outside the log dropped.
+
+    Frames are numbered as DLTdv numbers them, the first row being frame 1: frame k is at
+    t_trig + (k - trigger_frame) / fps, or at frame0_time_s + (k - 1) / fps.
+    """
     fs_hz = (time_s.size - 1) / (time_s[-1] - time_s[0])
     if rig.fps > fs_hz * (1 + 1e-9):
         raise LabFileError(
             f"{where}: the video's frame rate {rig.fps:g} fps is above the DAQ "
             f"rate {fs_hz:g} Hz: frames would share samples"
         )
-    frames = np.arange(n_frames)
+    frames = np.arange(1, n_frames + 1)  # DLTdv's numbers: the first row is frame 1
     if rig.trigger_frame is not None:
         assert trigger_v is not None and rig.trigger_threshold_v is not None
         t_trig = trigger_time_s(time_s, trigger_v, rig.trigger_threshold_v, where)
@@ -87,7 +92,7 @@ def place_frames(
     else:
         assert rig.frame0_time_s is not None
         t_trig = None
-        frame_time_s = rig.frame0_time_s + frames / rig.fps
+        frame_time_s = rig.frame0_time_s + (frames - 1) / rig.fps
     index = np.rint((frame_time_s - time_s[0]) * fs_hz).astype(np.int64)
     inside = (index >= 0) & (index < time_s.size)
     return FramePlacement(
@@ -137,13 +142,26 @@ def truth_columns(
     return stroke, pitch
 
 
+def sync_check_rate_problem(fs_hz: float, max_lag_s: float) -> str | None:
+    """Why a log at `fs_hz` cannot make the sync check over lags up to `max_lag_s` (None: it
+    can): one sample longer than the whole lag range leaves no lag to find.
+    """
+    if 1.0 / fs_hz > max_lag_s:
+        return (
+            f"one sample at {fs_hz:g} Hz ({1e3 / fs_hz:.3g} ms) is longer than the check's lag "
+            f"range ({1e3 * max_lag_s:.3g} ms)"
+        )
+    return None
+
+
 def sync_check(
     stroke_deg: np.ndarray, estimate_deg: np.ndarray, fs_hz: float, fps: float, max_lag_s: float
 ) -> SyncCheck | None:
     """Cross-correlate the video's stroke (DAQ rate, NaN off frames) with the sensor's estimate.
 
     Lags up to `max_lag_s` either way, refined to a fraction of a sample by a parabola through
-    the peak; None when too few frames are tracked to say.
+    the peak; None when too few frames are tracked to say. The caller checks first that the
+    log's rate can make the check (`sync_check_rate_problem`).
     """
     frames = np.flatnonzero(np.isfinite(stroke_deg) & np.isfinite(estimate_deg))
     max_lag = max(1, math.ceil(max_lag_s * fs_hz))

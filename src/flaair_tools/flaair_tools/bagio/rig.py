@@ -2,8 +2,10 @@
 
 The contract is docs/LAB_FILES.md (section "The rig file"). Every key is checked: a missing,
 unknown or ill-typed key is refused with the file and the key's path, so a typo cannot silently
-fall back to anything. `drive_gain_v_per_v` (1) and `drive_bias_v` (0) are the only keys that
-may be left out; the trigger, actuator-tip and transmission keys are required where used.
+fall back to anything. `drive_gain_v_per_v` (1), `drive_bias_v` (0) and `log_variable` are the only
+keys that may be left out; the trigger, actuator-tip and transmission keys are required where
+used. Points are DLTdv's numbers (from 1) or the names DLTdv8a 8.4 writes; `trigger_frame` is
+DLTdv's frame number (the first row is frame 1).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from flaair_tools.bagio.target_log import LabFileError
+from flaair_tools.bagio.target_log import LabFileError, split_label
 
 __all__ = ["ROLES", "WING_POINTS", "Rig", "TipPoint", "read_rig", "rig_from_mapping"]
 
@@ -23,6 +25,7 @@ ROLES = ("drive", "stroke_sensor", "pitch_sensor", "camera_trigger")
 WING_POINTS = ("wing_leading_edge_1", "wing_trailing_edge_1", "wing_leading_edge_2")
 STROKE_SOURCES = ("actuator_tip", "wing_span")
 _TOP = {
+    "log_variable",
     "signals",
     "drive_gain_v_per_v",
     "drive_bias_v",
@@ -39,9 +42,9 @@ _GEOMETRY = {"up", "rest_span", "m_per_px", "tip_axis_px", "transmission_ratio_r
 
 @dataclass(frozen=True)
 class TipPoint:
-    """The actuator tip in the 2D track: DLTdv8 point and camera numbers (1-based)."""
+    """The actuator tip in the 2D track: its DLTdv point (number from 1, or name) and camera."""
 
-    point: int
+    point: int | str
     camera: int
 
 
@@ -50,15 +53,15 @@ class Rig:
     """A rig file's content, checked (SI units; angles and positions as the file gives them)."""
 
     source: str  # the file's text, recorded in every bag imported with it
-    signals: dict[str, str]  # role -> MAT signal label
+    signals: dict[str, str]  # role -> MAT signal label, or "label[j]": column j (from 1)
     drive_gain_v_per_v: float
     drive_bias_v: float
     fps: float
-    trigger_frame: int | None  # trigger sync; None: frame0_time_s sync
+    trigger_frame: int | None  # DLTdv's frame number (from 1) at the trigger; None: frame0
     trigger_threshold_v: float | None
     frame0_time_s: float | None
     length_unit_m: float
-    wing_points: dict[str, int]  # WING_POINTS -> DLTdv8 point number
+    wing_points: dict[str, int | str]  # WING_POINTS -> DLTdv point number (from 1) or name
     tip: TipPoint | None
     up: tuple[float, float, float]
     rest_span: tuple[float, float, float]
@@ -66,6 +69,7 @@ class Rig:
     tip_axis_px: tuple[float, float] | None
     transmission_ratio_rad_per_m: float | None
     stroke_from: str
+    log_variable: str | None = None  # the MAT variable holding the log; None: the only one
 
     @property
     def labels(self) -> list[str]:
@@ -104,6 +108,15 @@ class _Checker:
             raise self.fail(key, f"must be > 0, got {value!r}")
         return float(value)
 
+    def point(self, value: Any, key: str) -> int | str:
+        if isinstance(value, str) and value.strip():
+            return value.strip()
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise self.fail(
+                key, f"must be a DLTdv point number (from 1) or a point's name, got {value!r}"
+            )
+        return int(value)
+
     def integer(self, value: Any, key: str, minimum: int) -> int:
         if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
             raise self.fail(key, f"must be an integer >= {minimum}, got {value!r}")
@@ -138,6 +151,12 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
         )
     if by_trigger:
         c.mapping(sync, "video.sync", _SYNC, {"trigger_frame", "trigger_threshold_v"})
+        if sync["trigger_frame"] == 0 and not isinstance(sync["trigger_frame"], bool):
+            raise c.fail(
+                "video.sync.trigger_frame",
+                "0: DLTdv numbers frames from 1 (the first row is frame 1); give the number "
+                "DLTdv's frame slider shows for the frame taken at the trigger's edge",
+            )
     signals = c.mapping(
         top["signals"],
         "signals",
@@ -147,6 +166,14 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
     for role, label in signals.items():
         if not isinstance(label, str) or not label:
             raise c.fail(f"signals.{role}", f"must be a signal label (text), got {label!r}")
+        if label.endswith("]") and split_label(label)[1] is None:
+            raise c.fail(
+                f"signals.{role}",
+                f"{label!r}: a column is named as 'label[j]', j a whole number from 1",
+            )
+    log_variable = top.get("log_variable")
+    if log_variable is not None and (not isinstance(log_variable, str) or not log_variable):
+        raise c.fail("log_variable", f"must be a MAT variable's name, got {log_variable!r}")
     tip_used = stroke_from == "actuator_tip"
     points = c.mapping(
         top["points"],
@@ -154,7 +181,7 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
         _POINTS,
         set(WING_POINTS) | ({"actuator_tip"} if tip_used else set()),
     )
-    wing_points = {name: c.integer(points[name], f"points.{name}", 1) for name in WING_POINTS}
+    wing_points = {name: c.point(points[name], f"points.{name}") for name in WING_POINTS}
     if len(set(wing_points.values())) != len(wing_points):
         raise c.fail("points", f"the wing points must be different points, got {wing_points}")
     tip = None
@@ -163,7 +190,7 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
             points["actuator_tip"], "points.actuator_tip", {"point", "camera"}, {"point", "camera"}
         )
         tip = TipPoint(
-            c.integer(tip_map["point"], "points.actuator_tip.point", 1),
+            c.point(tip_map["point"], "points.actuator_tip.point"),
             c.integer(tip_map["camera"], "points.actuator_tip.camera", 1),
         )
     geometry = c.mapping(
@@ -181,7 +208,7 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
         drive_bias_v=c.number(top.get("drive_bias_v", 0.0), "drive_bias_v"),
         fps=fps,
         trigger_frame=(
-            c.integer(sync["trigger_frame"], "video.sync.trigger_frame", 0) if by_trigger else None
+            c.integer(sync["trigger_frame"], "video.sync.trigger_frame", 1) if by_trigger else None
         ),
         trigger_threshold_v=(
             c.number(sync["trigger_threshold_v"], "video.sync.trigger_threshold_v")
@@ -214,6 +241,7 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
             else None
         ),
         stroke_from=stroke_from,
+        log_variable=log_variable,
     )
 
 

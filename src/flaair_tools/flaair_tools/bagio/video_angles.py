@@ -50,7 +50,9 @@ def _perpendicular(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
 
 
 def _normalise(v: np.ndarray, what: str) -> np.ndarray:
-    """Unit rows; a row of (near) zero length among tracked frames is refused, naming its frame."""
+    """Unit rows; a row of (near) zero length among tracked frames is refused, naming its frame
+    as DLTdv numbers it (row k is frame k + 1).
+    """
     length = np.linalg.norm(v, axis=-1)
     tracked = np.isfinite(length)
     if tracked.any():
@@ -59,7 +61,7 @@ def _normalise(v: np.ndarray, what: str) -> np.ndarray:
         if short.any():
             raise VideoGeometryError(
                 f"{what}: the points coincide in frame "
-                f"{int(np.flatnonzero(short)[0])} ({int(short.sum())} "
+                f"{int(np.flatnonzero(short)[0]) + 1} ({int(short.sum())} "
                 "frame(s)): no direction"
             )
     with np.errstate(invalid="ignore", divide="ignore"):
