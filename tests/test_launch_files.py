@@ -106,7 +106,7 @@ def test_args_lets_groups_namespaces_includes_remaps_and_conditions(tmp_path: Pa
         """<launch version="0.1.1">
       <arg name="bench" default="bench1" description="where"/>
       <arg name="with_monitor" default="false"/>
-      <let var="rate" value="140"/>
+      <let name="rate" value="140"/>
       <group>
         <push-ros-namespace namespace="$(var bench)"/>
         <node pkg="flaair_sim" exec="plant_node"/>
@@ -161,9 +161,11 @@ def test_args_lets_groups_namespaces_includes_remaps_and_conditions(tmp_path: Pa
             {"y": "2"},
             "no launch argument y (it takes: x)",
         ),
-        ('<launch><let var="a" value="$(var b)"/></launch>', {}, "no launch configuration 'b'"),
+        ('<launch><let name="a" value="$(var b)"/></launch>', {}, "no launch configuration 'b'"),
+        # upstream launch_xml's <let> takes name=, and refuses var= (InvalidLaunchFileError)
+        ('<launch><let var="a" value="1"/></launch>', {}, "<let> has no attribute var"),
         (
-            '<launch><let var="a" value="$(command ls)"/></launch>',
+            '<launch><let name="a" value="$(command ls)"/></launch>',
             {},
             "substitution $(command ...) is not supported",
         ),
