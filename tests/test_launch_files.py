@@ -258,9 +258,10 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
             "echo",
             "/bench2/flaair/controller/state",
             "flaair_msgs/msg/ControllerState",
+            "--json",
             "--count",
             "3",
-            "--timeout",
+            "--silence",
             "120",
         )
         out, err = echo.communicate(timeout=180)
@@ -280,7 +281,13 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
         assert (
             procs.stop(launcher, signal.SIGINT, timeout_s=len(children) * STOP_TIMEOUT_S + 5.0) == 0
         ), launcher.stderr.read()
-        assert "stopped (Ctrl-C)" in launcher.stderr.read()
+        said = launcher.stderr.read()
+        assert "stopped (Ctrl-C)" in said
+        # what a second terminal types to reach the graph (the conformance test uses it too)
+        assert (
+            f"export ROS_DOMAIN_ID={domain} ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; "
+            "unset ROS_LOCALHOST_ONLY"
+        ) in said
         assert not [
             p
             for p in children

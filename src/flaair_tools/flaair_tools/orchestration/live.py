@@ -55,6 +55,7 @@ from flaair_common.graph import (
 )
 from flaair_model import settings
 from flaair_model.config import ConfigError
+from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.graphs import GRAPHS, GraphDecl, node_of
 
 
@@ -438,7 +439,8 @@ def run_live(args: argparse.Namespace) -> int:
     )
     loop = "one process per node" if args.processes else "composed in one process"
     print(
-        f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}",
+        f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}\n"
+        f"{second_terminal.hint(graph.env)}",
         file=sys.stderr,
     )
     if args.calibration is None:
