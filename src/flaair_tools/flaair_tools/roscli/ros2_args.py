@@ -78,7 +78,10 @@ def parse_or_refuse(
     line naming it and the real `ros2 COMMAND ...` line to use on a full install.
     """
     words = list(sys.argv[1:] if argv is None else argv)
-    args, extra = parser.parse_known_args(words)
+    try:  # flags among the positionals (`call --json NAME TYPE`), as ros2cli takes them
+        args, extra = parser.parse_known_intermixed_args(words)
+    except TypeError:  # a parser with sub-commands: argparse cannot intermix those
+        args, extra = parser.parse_known_args(words)
     if extra:
         print(
             f"flaair {command}: {extra[0]} is not covered by this stand-in (see --help); on a "
