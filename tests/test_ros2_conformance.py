@@ -121,6 +121,19 @@ def _until(env: dict, command: list[str], complete, tries: list[str], most: int 
             return result
 
 
+def _daemons(domain: str) -> list[int]:
+    """ros2cli daemons serving `domain` (a command without --no-daemon would spawn one)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            words = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"ros2cli.daemon" in b" ".join(words) and domain.encode() in words:
+            found.append(int(entry.name))
+    return found
+
+
 def _shape(value: object) -> object:
     """A YAML value's structure: mapping keys in order, a list's length and its items' types."""
     if isinstance(value, dict):
@@ -146,7 +159,15 @@ def test_ros2_launch_runs_the_namespaced_loop_and_each_stand_in_answers_as_ros2_
         # readiness: the real echo waits for the loop's first wing state (the type given, it
         # does not need the topic discovered first)
         echo = run(
-            ["ros2", "topic", "echo", "--once", WING_STATE, "flaair_msgs/msg/WingStateBlock"],
+            [
+                "ros2",
+                "topic",
+                "echo",
+                "--no-daemon",
+                "--once",
+                WING_STATE,
+                "flaair_msgs/msg/WingStateBlock",
+            ],
             env,
             240,
         )
@@ -163,7 +184,7 @@ def test_ros2_launch_runs_the_namespaced_loop_and_each_stand_in_answers_as_ros2_
         for field in ("header.frame_id", "sample_rate_hz"):
             real, stand_in = _both(
                 env,
-                ["ros2", "topic", "echo", "--once", WING_STATE, "--field", field],
+                ["ros2", "topic", "echo", "--no-daemon", "--once", WING_STATE, "--field", field],
                 ["topic", "echo", "--once", WING_STATE, "--field", field],
             )
             answers[f"topic echo --once --field {field}"] = (real.stdout, stand_in.stdout)
@@ -223,6 +244,8 @@ def test_ros2_launch_runs_the_namespaced_loop_and_each_stand_in_answers_as_ros2_
         answers["service call"] = tuple(
             r.stdout[r.stdout.index("requester:") :] for r in (real, stand_in)
         )
+        for key, (real_text, ours_text) in answers.items():  # shown with -s (make bench)
+            print(f"{'same' if real_text == ours_text else 'DIFFERENT'}: {key}: {real_text!r}")
         differ = {k: v for k, v in answers.items() if v[0] != v[1]}
         assert not differ, "\n".join(
             f"{k}:\n  ros2:   {v[0]!r}\n  flaair: {v[1]!r}" for k, v in differ.items()
@@ -244,6 +267,8 @@ def test_ros2_launch_runs_the_namespaced_loop_and_each_stand_in_answers_as_ros2_
             "flaair topic: --csv is not covered by this stand-in (see --help); on a full ROS 2 "
             f"install: ros2 topic echo {WING_STATE} --csv"
         ]
+        # every real command ran without a daemon: none was left behind on the domain
+        assert not _daemons(env["ROS_DOMAIN_ID"])
         # Ctrl-C, as from the terminal: ros2 launch stops its nodes and exits 0
         assert procs.stop(launch, signal.SIGINT, timeout_s=3 * STOP_TIMEOUT_S + 5.0) == 0
         said = launch.stdout.read() + launch.stderr.read()

@@ -2,8 +2,9 @@
 
 Takes ros2cli's flags: `-a/--all` (hidden nodes too: names starting with '_', such as ros2cli's
 own `_ros2cli_PID` and this command's `_flaair_node_PID`), `-c/--count-nodes`, `--spin-time S`,
-`--no-daemon`. Listens at least --spin-time, then as long again once no new node appeared (at most
-5 s; ros2cli reads the graph once after its spin time, and misses nodes under load).
+`--no-daemon`. Listens at least --spin-time, then as long again once no new node appeared and
+every topic endpoint's node is listed (at most 5 s; ros2cli reads the graph once after its spin
+time, and misses nodes under load).
 Beyond ros2cli: `--wait-for NODE` (keep listening until NODE is seen, up to `--timeout`; exit 1
 if it never appears). Not covered: `ros2 node info`; any other flag ends with one line naming
 the real command (exit 2).
@@ -111,10 +112,21 @@ def main(argv: list[str] | None = None) -> int:
             found = {full_name(n, ns) for n, ns in node.get_node_names_and_namespaces() if n}
             return found if args.all else {n for n in found if not is_hidden(n)}
 
+        def unlisted() -> bool:  # an endpoint whose node has not announced itself yet
+            listed = {full_name(n, ns) for n, ns in node.get_node_names_and_namespaces()}
+            for topic, _ in node.get_topic_names_and_types():
+                for end in [
+                    *node.get_publishers_info_by_topic(topic),
+                    *node.get_subscriptions_info_by_topic(topic),
+                ]:
+                    if full_name(end.node_name, end.node_namespace) not in listed:
+                        return True
+            return False
+
         wanted = set(args.wait_for)
         start = time.monotonic()
         seen = listen_until_settled(
-            lambda s: rclpy.spin_once(node, timeout_sec=s), names, args.spin_time
+            lambda s: rclpy.spin_once(node, timeout_sec=s), names, args.spin_time, unlisted
         )
         while wanted - seen and time.monotonic() - start < args.timeout:
             rclpy.spin_once(node, timeout_sec=0.05)

@@ -3,9 +3,10 @@ flag they do not cover.
 
 ros2cli without its daemon (`--no-daemon`) creates a hidden node (`_ros2cli_PID`), spins it for
 `--spin-time` (0.5 s) so discovery can fill the graph, then reads the graph once. The stand-ins
-do the same with a hidden node of their own (`_flaair_cli_PID`, so neither lists the other), and
+do the same with a hidden node of their own (`_flaair_VERB_PID`, so neither lists the other), and
 for `node list` / `topic list` keep listening while names still appear (at most `MAX_SETTLE_S`):
-under load the graph arrives over seconds, and a fixed window misses part of it. There is no
+under load the graph arrives over seconds, and a fixed window misses part of it. `node list` also
+waits while a topic endpoint belongs to a node not listed yet (its name still unknown). There is no
 daemon here: `--no-daemon` is accepted and changes nothing.
 """
 
@@ -51,10 +52,13 @@ def add_discovery_arguments(parser: argparse.ArgumentParser, spin_time_s: float)
 
 
 def listen_until_settled(
-    spin: Callable[[float], None], names: Callable[[], set[str]], spin_time_s: float
+    spin: Callable[[float], None],
+    names: Callable[[], set[str]],
+    spin_time_s: float,
+    pending: Callable[[], bool] = lambda: False,
 ) -> set[str]:
-    """Names seen after `spin_time_s` of spinning, and after as long again with none new
-    (at most MAX_SETTLE_S in all).
+    """Names seen after `spin_time_s` of spinning, and after as long again with none new and
+    nothing `pending` (at most MAX_SETTLE_S in all).
     """
     start = time.monotonic()
     seen: set[str] = set()
@@ -66,7 +70,7 @@ def listen_until_settled(
             last_new = now
         seen = current
         if now - start >= MAX_SETTLE_S or (
-            now - start >= spin_time_s and now - last_new >= spin_time_s
+            now - start >= spin_time_s and now - last_new >= spin_time_s and not pending()
         ):
             return seen
 
