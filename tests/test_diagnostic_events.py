@@ -61,13 +61,16 @@ def test_events_are_read_from_a_bags_diagnostics(tmp_path: Path) -> None:
         for k, (level, text) in enumerate(
             [(0, "flapping"), (2, "drive watchdog tripped"), (2, "drive watchdog tripped")]
         ):
-            data = serialize_message(_array("dSA controller", CONTROLLER, level, text))
+            array = _array("dSA controller", CONTROLLER, level, text)
+            array.header.stamp.sec = 1_700_000_000 + k  # the node's wall clock
+            data = serialize_message(array)
             writer.write(de.DIAGNOSTICS, 11_000_000_000 + k * 1_000_000_000, data)
     (event,) = de.from_bag(bag)
-    assert (event["time_s"], event["level"], event["message"]) == (
+    assert (event["time_s"], event["level"], event["message"], event["stamp_ns"]) == (
         pytest.approx(2.0),
         "ERROR",
         "drive watchdog tripped",
+        1_700_000_001_000_000_000,
     )
     # a bag without /diagnostics (recorded before the recorder kept it): no events, no error
     older = tmp_path / "older"

@@ -56,12 +56,11 @@ def test_header_less_messages_wait_for_the_first_stamp_then_take_the_latest():
     assert state == rec.LogTimeState(7_000, ())
 
 
-def test_diagnostics_keep_their_own_stamp_and_set_no_signal_time():
-    # a node's health is stamped by its clock, not the signal's: a run marker after it takes
-    # the latest block's signal time, and a marker waiting for the first stamp keeps waiting
+def test_diagnostics_are_logged_on_the_signals_timeline_not_at_their_stamp():
+    # a node's health is stamped by its wall clock, not the signal's (in simulation they differ):
+    # it takes the latest signal time, as a run marker does, and sets none
     state, writes = run(
         [
-            rec.Received("/flaair/run_marker", b"run 1", None, None),
             rec.Received("/diagnostics", b"d", 9_000_000, None),
             rec.Received("/flaair/sensor_v", b"s", 5_000, None),
             rec.Received("/diagnostics", b"e", 9_500_000, None),
@@ -69,10 +68,9 @@ def test_diagnostics_keep_their_own_stamp_and_set_no_signal_time():
         ]
     )
     assert [(w.topic, w.log_ns) for w in writes] == [
-        ("/diagnostics", 9_000_000),
-        ("/flaair/run_marker", 5_000),
+        ("/diagnostics", 5_000),
         ("/flaair/sensor_v", 5_000),
-        ("/diagnostics", 9_500_000),
+        ("/diagnostics", 5_000),
         ("/flaair/run_marker", 5_000),
     ]
     assert state == rec.LogTimeState(5_000, ())

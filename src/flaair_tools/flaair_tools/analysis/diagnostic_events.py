@@ -20,13 +20,16 @@ LEVEL_NAMES = ("OK", "WARN", "ERROR", "STALE")
 
 
 class Status(NamedTuple):
-    """One DiagnosticStatus as logged: its log time [ns], name, node, level and message."""
+    """One DiagnosticStatus as logged: its log time [ns] (the bag's signal timeline), name,
+    node, level, message, and the array's own stamp [ns] (the publishing node's clock).
+    """
 
     time_ns: int
     name: str
     hardware_id: str
     level: int
     message: str
+    stamp_ns: int = 0
 
 
 def level_name(level: int) -> str:
@@ -47,8 +50,9 @@ def level_changes(statuses: Iterable[Status], start_ns: int) -> list[dict[str, A
     Returns
     -------
     list of dict
-        One per change: `time_s` (from the bag's start), `time_ns` (log time), `node`
-        (hardware id), `name`, `level` and `previous` (level names), `message`.
+        One per change: `time_s` (from the bag's start), `time_ns` (log time: the signal's
+        timeline), `stamp_ns` (the node's clock), `node` (hardware id), `name`, `level` and
+        `previous` (level names), `message`.
     """
     last: dict[str, int] = {}
     events = []
@@ -61,6 +65,7 @@ def level_changes(statuses: Iterable[Status], start_ns: int) -> list[dict[str, A
             {
                 "time_s": (status.time_ns - start_ns) * 1e-9,
                 "time_ns": status.time_ns,
+                "stamp_ns": status.stamp_ns,
                 "node": status.hardware_id,
                 "name": status.name,
                 "level": level_name(status.level),
@@ -73,10 +78,11 @@ def level_changes(statuses: Iterable[Status], start_ns: int) -> list[dict[str, A
 
 def _statuses(messages: Iterable[tuple[str, int, Any]]) -> Iterable[Status]:
     for _, time_ns, array in messages:
+        stamp_ns = array.header.stamp.sec * 1_000_000_000 + array.header.stamp.nanosec
         for status in array.status:
             level = status.level
             level = level[0] if isinstance(level, (bytes, bytearray)) else int(level)
-            yield Status(time_ns, status.name, status.hardware_id, level, status.message)
+            yield Status(time_ns, status.name, status.hardware_id, level, status.message, stamp_ns)
 
 
 def from_bag(bag: str | Path) -> list[dict[str, Any]]:

@@ -5,7 +5,8 @@ own (3 s of simulated signal span 3 s of log time). A message with a leading hea
 /clock) carries that time; a header-less message (a run marker) takes the signal time of the
 latest stamped message, and waits for the first one; at the end of a bag with no stamped
 message at all the waiting ones keep their publish time (else the receive time). /diagnostics
-is logged at its own stamp but sets no signal time (its stamp is the publishing node's clock).
+is logged as a header-less message is: its stamp is the publishing node's wall clock, which in
+simulation is not the signal's (the array keeps its stamp inside).
 ``step(state, inputs, params) -> (state, writes)`` applies that rule to one received message
 (`Received`) or to the end of recording (`Finish`).
 
@@ -79,8 +80,8 @@ def step(
             w._replace(log_ns=w.publish_ns or inputs.now_ns) for w in state.pending
         )
     topic, data, stamp_ns, publish_ns = inputs
-    if stamp_ns is not None and topic == DIAGNOSTICS:
-        return state, (Write(topic, stamp_ns, data, publish_ns),)
+    if topic == DIAGNOSTICS:
+        stamp_ns = None
     if stamp_ns is not None:
         write = (Write(topic, stamp_ns, data, publish_ns),)
         if state.pending:
