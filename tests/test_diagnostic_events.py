@@ -84,3 +84,18 @@ def _ok_string():
     from std_msgs.msg import String
 
     return String(data="x")
+
+
+def test_the_report_lists_the_events_with_their_times(tmp_path: Path) -> None:
+    from flaair_tools.analysis import report
+
+    event = de.level_changes(
+        [de.Status(2_500_000_000, "dSA controller", CONTROLLER, 2, "watchdog tripped: silence")],
+        start_ns=0,
+    )
+    bag = {"experiment": "live", "description": "a run", "bag": "b", "estimate_source": "live"}
+    bag |= {"warnings": [], "missing": [], "runs": {}, "diagnostic_events": event}
+    summary = {"created": "now", "bags": [bag], "headline": {}, "figures": [], "partial": []}
+    summary |= {"model_gains_warning": None, "calibration_file": None}
+    html = report.write_html(summary, tmp_path).read_text()
+    assert "<li>2.5 s: /dsa_controller_node OK &rarr; ERROR: watchdog tripped: silence</li>" in html
