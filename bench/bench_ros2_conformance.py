@@ -59,6 +59,9 @@ def main() -> None:
     if result.returncode != 0 or built.returncode != 0:
         print(built.stderr[-2000:], result.stdout[-4000:], result.stderr[-2000:], sep="\n")
     tries = m.group(1) if (m := re.search(r"tries: (\[.*\])", result.stdout)) else "?"
+    # each stand-in's answer against the real command's (the test prints one line each)
+    for found in re.finditer(r"(?:same|DIFFERENT): .*", result.stdout):
+        print(f"[bench] {found.group(0)[:160]}")
     figures = [
         Figure(
             "real ROS 2 tools vs FLAAIR: tests passed",

@@ -48,7 +48,12 @@ from flaair_tools.roscli.ros2_args import (
     listen_until_settled,
     parse_or_refuse,
 )
-from flaair_tools.roscli.yaml_out import DEFAULT_TRUNCATE_LENGTH, field_of, message_to_yaml
+from flaair_tools.roscli.yaml_out import (
+    DEFAULT_TRUNCATE_LENGTH,
+    field_of,
+    message_to_yaml,
+    to_plain,
+)
 
 
 def rate_report(arrivals_s: list[float]) -> str:
@@ -68,7 +73,8 @@ def echo_text(message: object, args: argparse.Namespace) -> str:
     if args.field:
         message = field_of(message, args.field)
     if args.json:
-        return json.dumps(to_dict(message) if hasattr(message, "__slots__") else message)
+        plain = to_dict(message) if hasattr(message, "__slots__") else to_plain(message, None)
+        return json.dumps(plain)
     if not hasattr(message, "__slots__"):  # a plain field: printed as Python prints it
         return f"{message}\n---"
     limit = None if args.full_length else args.truncate_length
