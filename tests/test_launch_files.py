@@ -39,6 +39,14 @@ def test_the_schema_refuses_what_the_format_does_not_have(tmp_path: Path) -> Non
         schema.validate(bad)
 
 
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=[p.name for p in LAUNCH_FILES])
+def test_ros2_launch_gives_each_node_the_stop_time_flaair_graphs_give(path: Path) -> None:
+    # ros2 launch escalates to SIGTERM sigterm_timeout after Ctrl-C (default 5 s): a node that
+    # waits up to 5 s for its readers' acks was killed mid-way on a loaded machine
+    configurations = load(path, {}, find_share=lambda package: LAUNCH_DIR.parent).configurations
+    assert configurations["sigterm_timeout"] == f"{STOP_TIMEOUT_S:g}"
+
+
 def test_the_graphs_are_those_of_the_launch_files_and_as_the_tools_had_them() -> None:
     by_name = graphs.GRAPHS
     assert sorted(by_name) == sorted(p.name.removesuffix(".launch.xml") for p in LAUNCH_FILES)
