@@ -33,6 +33,7 @@ BENCHES = [
     "bench_foxglove",
     "bench_stock_numpy",
     "bench_workspace",
+    "bench_ros2_conformance",
 ]
 # Extra arguments per benchmark: the discrepancy benchmark also runs the whole fixed hidden-effect
 # dataset (45 cases; `make test` runs one case of each kind, tests/test_discrepancy.py).

@@ -88,11 +88,12 @@ def start_graph(procs, tmp_path: Path, port: int, *bridge_args: str, echo_count:
         procs.flaair(
             "topic",
             "echo",
+            "--json",
             topic,
             f"flaair_msgs/msg/{kind}",
             "--count",
             str(echo_count),
-            "--timeout",
+            "--silence",
             "240",
             stdout=open(tmp_path / f"{kind}.jsonl", "w"),
         )

@@ -36,6 +36,9 @@ def test_experiment_records_every_block(chirp_bag: Path) -> None:
         "/flaair/wing_state/truth",
     ):
         assert counts[topic] == 2001, (topic, counts)
+    # the plant's sim time is in the bag too, one /clock per block (no node of this graph
+    # publishes /diagnostics: tests/test_live.py reads a bag's health back)
+    assert counts["/clock"] == 2001, counts
     drive = bagio.read_blocks(chirp_bag, "/flaair/drive")
     assert np.all(drive["drive_v"][-10:] == 0.0) and np.abs(drive["drive_v"][-20:-10]).max() > 1.0
     markers = bagio.read_run_markers(chirp_bag)
@@ -57,6 +60,7 @@ def test_analyze_reports_paper_figures_from_the_bag(chirp_bag: Path, tmp_path: P
     ]
     assert 120.0 <= peak_hz <= 150.0
     assert (tmp_path / "report.html").read_text().count("<img") >= 1
+    assert report["bags"][0]["diagnostic_events"] == []  # no health published, none listed
     assert (tmp_path / chirp["figure"]).stat().st_size > 10_000
 
 

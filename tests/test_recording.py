@@ -20,8 +20,8 @@ from flaair_tools.recorder import recording as rec
 PARAMS = rec.RecordingParams(drain_limit=4)
 
 
-def run(events, state=rec.LogTimeState()):
-    writes = []
+def run(events, state=None):
+    state, writes = state or rec.LogTimeState(), []
     for event in events:
         state, out = rec.step(state, event, PARAMS)
         writes += out
@@ -56,6 +56,26 @@ def test_header_less_messages_wait_for_the_first_stamp_then_take_the_latest():
     assert state == rec.LogTimeState(7_000, ())
 
 
+def test_diagnostics_are_logged_on_the_signals_timeline_not_at_their_stamp():
+    # a node's health is stamped by its wall clock, not the signal's (in simulation they differ):
+    # it takes the latest signal time, as a run marker does, and sets none
+    state, writes = run(
+        [
+            rec.Received("/diagnostics", b"d", 9_000_000, None),
+            rec.Received("/flaair/sensor_v", b"s", 5_000, None),
+            rec.Received("/diagnostics", b"e", 9_500_000, None),
+            rec.Received("/flaair/run_marker", b"run 2", None, None),
+        ]
+    )
+    assert [(w.topic, w.log_ns) for w in writes] == [
+        ("/diagnostics", 5_000),
+        ("/flaair/sensor_v", 5_000),
+        ("/diagnostics", 5_000),
+        ("/flaair/run_marker", 5_000),
+    ]
+    assert state == rec.LogTimeState(5_000, ())
+
+
 def test_finish_without_any_stamp_keeps_publish_or_receive_times():
     state, _ = run([rec.Received("/a", b"1", None, 40), rec.Received("/b", b"2", None, None)])
     state, writes = rec.step(state, rec.Finish(now_ns=99), PARAMS)
@@ -78,7 +98,7 @@ def test_drain_takes_queued_messages_up_to_the_limit():
 
 def test_topic_choice_and_qos_adaptation():
     assert rec.parse_topic_list("/a, /b /c") == ("/a", "/b", "/c")
-    with pytest.raises(ParameterError, match="'topics'.*flaair/x"):
+    with pytest.raises(ParameterError, match=r"'topics'.*flaair/x"):
         rec.parse_topic_list("/a,flaair/x")
     assert rec.wanted("/flaair/drive", (), False) and not rec.wanted("/rosout", (), False)
     assert (
@@ -92,6 +112,11 @@ def test_topic_choice_and_qos_adaptation():
     assert not rec.wanted("/flaair/drive", (), False, "/bench2")
     assert not rec.wanted("/bench1/flaair/drive", (), False, "/bench2")
     assert not rec.wanted("/bench2/flaair/drive", (), False)
+    # a run's health and its sample clocks' anchoring are in every bag, topics chosen or not
+    assert rec.wanted("/diagnostics", (), False) and rec.wanted("/diagnostics", ("/a",), False)
+    assert rec.wanted("/flaair/time_anchor", ("/a",), False)
+    assert rec.wanted("/bench2/flaair/time_anchor", ("/a",), False, "/bench2")
+    assert not rec.wanted("/bench1/flaair/time_anchor", ("/a",), False, "/bench2")
 
     def qos(reliability, durability):
         return Qos(

@@ -12,7 +12,7 @@ import time
 import pytest
 from rcl_interfaces.msg import ParameterType
 
-from flaair_tools.roscli.param import ValueTypeError, convert
+from flaair_tools.roscli.param import get_text
 from flaair_tools.roscli.topic import rate_report
 from rosproc import FLAAIR, ros_processes, run
 
@@ -22,7 +22,11 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
     with ros_processes() as procs:
         controller = procs.flaair("run", "flaair_control", "dsa_controller_node")
         got = run(
-            [FLAAIR, "param", "get", "/dsa_controller_node", "kr_target", "--timeout", "120"],
+            [
+                FLAAIR,
+                *("param", "get", "/dsa_controller_node", "kr_target", "--hide-type"),
+                *("--timeout", "120"),
+            ],
             procs.env,
             180,
         )
@@ -30,32 +34,41 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
             got.stderr + controller.stderr.read() if controller.poll() is not None else got.stderr
         )
         assert float(got.stdout) == 0.0  # config/flaair.yaml
-        changed = run(
+        # "1" is an integer, as ros2cli reads it: the node refuses it for a double parameter
+        integer = run(
             [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1"], procs.env, 120
         )
-        assert changed.returncode == 0, changed.stderr
-        assert "kr_target = 1.0" in changed.stdout  # "1" became the double 1.0 (read back below)
+        assert integer.returncode == 1 and integer.stderr == (
+            "Setting parameter failed: Wrong parameter type, expected 'Type.DOUBLE' got "
+            "'Type.INTEGER'\n"
+        ), integer.stderr
+        changed = run(
+            [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1.0"], procs.env, 120
+        )
+        assert changed.returncode == 0 and changed.stdout == "Set parameter successful\n", (
+            changed.stderr
+        )
         # out of the declared range [0, 1]: the node refuses and says why; the value stays
         refused = run(
             [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "1.5"], procs.env, 120
         )
-        assert refused.returncode == 1 and "refused kr_target = 1.5" in refused.stderr, (
-            refused.stderr
-        )
+        assert refused.returncode == 1 and refused.stderr.startswith(
+            "Setting parameter failed: "
+        ), refused.stderr
         assert (
             float(
                 run(
                     [FLAAIR, "param", "get", "/dsa_controller_node", "kr_target"], procs.env, 120
-                ).stdout
+                ).stdout.removeprefix("Double value is: ")
             )
             == 1.0
         )
         wrong_type = run(
             [FLAAIR, "param", "set", "/dsa_controller_node", "kr_target", "fast"], procs.env, 120
         )
-        assert (
-            wrong_type.returncode == 2
-            and "parameter 'kr_target' takes a number, got 'fast'" in wrong_type.stderr
+        assert wrong_type.returncode == 1 and wrong_type.stderr == (
+            "Setting parameter failed: Wrong parameter type, expected 'Type.DOUBLE' got "
+            "'Type.STRING'\n"
         )
         missing = run(
             [FLAAIR, "param", "set", "/dsa_controller_node", "no_such", "1"], procs.env, 120
@@ -75,11 +88,12 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
                 FLAAIR,
                 "topic",
                 "echo",
+                "--json",
                 "/diagnostics",
                 "diagnostic_msgs/msg/DiagnosticArray",
                 "--count",
                 "1",
-                "--timeout",
+                "--silence",
                 "60",
             ],
             procs.env,
@@ -108,6 +122,19 @@ def test_param_set_changes_the_dsa_kr_target_at_run_time_and_node_list_shows_it(
             120,
         )
         assert reset.returncode == 0, reset.stderr
+        assert reset.stdout.endswith(
+            "response:\nstd_srvs.srv.Trigger_Response(success=False, message='reset_watchdog: "
+            "watchdog not tripped, nothing to do')\n\n"
+        )
+        reset = run(
+            [
+                FLAAIR,
+                *("service", "call", "--json"),
+                *("/dsa_controller_node/reset_watchdog", "std_srvs/srv/Trigger"),
+            ],
+            procs.env,
+            120,
+        )
         assert json.loads(reset.stdout) == {
             "success": False,
             "message": "reset_watchdog: watchdog not tripped, nothing to do",
@@ -130,12 +157,12 @@ def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publis
             "50",
         )
         hz = run(
-            [FLAAIR, "topic", "hz", "/flaair/hz_probe", "--count", "2", "--timeout", "120"],
+            [FLAAIR, "topic", "hz", "/flaair/hz_probe", "--count", "2", "--silence", "120"],
             procs.env,
             240,
         )
         assert hz.returncode == 0, hz.stderr
-        reports = re.findall(r"average rate: ([0-9.]+) Hz .* window: (\d+)", hz.stdout)
+        reports = re.findall(r"average rate: ([0-9.]+)\n\tmin: .* window: (\d+)", hz.stdout)
         assert len(reports) == 2 and all(
             float(rate) > 0 and int(window) >= 2 for rate, window in reports
         ), hz.stdout
@@ -143,7 +170,7 @@ def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publis
         # nobody publishes: the timeout ends it (its default, 10 s, is config/flaair.yaml's: below)
         start = time.monotonic()
         silent = run(
-            [FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "2"],
+            [FLAAIR, "topic", "echo", "/flaair/nobody", "std_msgs/msg/String", "--silence", "2"],
             procs.env,
             120,
         )
@@ -154,7 +181,7 @@ def test_topic_hz_reports_a_rate_and_echo_ends_with_a_message_when_nobody_publis
         )
         assert time.monotonic() - start >= 2.0
         short = run(
-            [FLAAIR, "topic", "hz", "/flaair/nobody", "std_msgs/msg/String", "--timeout", "1"],
+            [FLAAIR, "topic", "hz", "/flaair/nobody", "std_msgs/msg/String", "--silence", "1"],
             procs.env,
             120,
         )
@@ -166,23 +193,21 @@ def test_echo_takes_its_default_timeout_from_the_config() -> None:
 
     default_s = node_parameters("flaair.yaml", "flaair_cli")["echo_timeout_s"]
     result = run([FLAAIR, "topic", "echo", "--help"], dict(os.environ), 60)
-    assert result.returncode == 0 and f"(default {default_s:g}; 0: wait forever)" in re.sub(
+    assert result.returncode == 0 and f"(default {default_s:g}; 0: wait forever" in re.sub(
         r"\s+", " ", result.stdout
     )
 
 
-def test_values_convert_to_the_parameters_type_and_rates_are_reported() -> None:
-    assert convert("0", ParameterType.PARAMETER_DOUBLE, "kr_target") == 0.0
-    assert convert("true", ParameterType.PARAMETER_BOOL, "reset_watchdog") is True
-    assert convert("[0.5, 1]", ParameterType.PARAMETER_DOUBLE_ARRAY, "obstacle_windows_s") == [
-        0.5,
-        1.0,
-    ]
-    assert convert("0.5", ParameterType.PARAMETER_STRING, "mode") == "0.5"
-    with pytest.raises(ValueTypeError, match="'n_on' takes an integer, got 'true'"):
-        convert("true", ParameterType.PARAMETER_INTEGER, "n_on")
-    with pytest.raises(ValueTypeError, match="'noise' takes true or false, got '1'"):
-        convert("1", ParameterType.PARAMETER_BOOL, "noise")
-    assert rate_report([0.0, 0.5, 1.0]).startswith(
-        "average rate: 2.0 Hz  min: 500.000 ms  max: 500.000 ms"
+def test_values_print_as_ros2_param_get_and_rates_as_ros2_topic_hz() -> None:
+    from rcl_interfaces.msg import ParameterValue
+
+    double = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.5)
+    assert get_text(double) == "Double value is: 0.5" and get_text(double, True) == "0.5"
+    array = ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY, double_array_value=[0.5, 1.0])
+    assert get_text(array) == "Double values are: [0.5, 1.0]"
+    flag = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=True)
+    assert get_text(flag) == "Boolean value is: True"
+    assert get_text(ParameterValue()) == "Parameter not set."
+    assert rate_report([0.0, 0.5, 1.0, 2.0]) == (
+        "average rate: 1.500\n\tmin: 0.500s max: 1.000s std dev: 0.23570s window: 3"
     )

@@ -76,11 +76,12 @@ def test_every_message_type_crosses_processes_intact(tmp_path) -> None:
             name: procs.flaair(
                 "topic",
                 "echo",
+                "--json",
                 topics[name],
                 name,
                 "--count",
                 "1",
-                "--timeout",
+                "--silence",
                 "120",
                 stdout=open(outs[name], "w"),
                 stderr=open(f"{outs[name]}.err", "w"),

@@ -19,7 +19,16 @@ BLOCK = 10
 def _echo_blocks(procs, topic: str, type_name: str, count: int, ready_file: Path | None = None):
     ready = ("--ready-file", str(ready_file)) if ready_file else ()
     return procs.flaair(
-        "topic", "echo", topic, type_name, "--count", str(count), "--timeout", "300", *ready
+        "topic",
+        "echo",
+        "--json",
+        topic,
+        type_name,
+        "--count",
+        str(count),
+        "--silence",
+        "300",
+        *ready,
     )
 
 

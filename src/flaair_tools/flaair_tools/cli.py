@@ -13,7 +13,7 @@ import sys
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "topic": (
         "flaair_tools.roscli.topic",
-        "list, echo and publish topics (stands in for `ros2 topic`)",
+        "list, echo, hz, info and publish topics (stands in for `ros2 topic`: its flags, output)",
     ),
     "param": (
         "flaair_tools.roscli.param",

@@ -10,6 +10,16 @@ Modules (import them by name; this package imports none of them eagerly):
 - `replay`: a bag through the live nodes' cores
 - `transition`: the sync -> async transition record, limit cycle and figure
 - `calibrate`: `bin/flaair calibrate`: sensor gain and lag
+- `diagnostic_events`: a run's health level changes, read from its bag's /diagnostics
 """
 
-__all__ = ["analyze", "calibrate", "per_run", "replay", "report", "runkind", "transition"]
+__all__ = [
+    "analyze",
+    "calibrate",
+    "diagnostic_events",
+    "per_run",
+    "replay",
+    "report",
+    "runkind",
+    "transition",
+]

@@ -58,6 +58,7 @@ from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_tools import bagio
+from flaair_tools.analysis import diagnostic_events
 from flaair_tools.analysis.per_run import (
     AnalysisError,
     analyze_collision,
@@ -359,6 +360,7 @@ def analyze_bag(
         "estimate_source": source,
         "model_gains": on_model,
         "warnings": warnings,
+        "diagnostic_events": diagnostic_events.from_bag(bag),
     }
     result["missing"] = completeness(
         info,

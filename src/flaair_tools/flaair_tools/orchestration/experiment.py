@@ -46,6 +46,7 @@ from flaair_model import settings
 from flaair_model.config import ConfigError, config_dir, load_yaml
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
+from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.graphs import GRAPHS, node_of
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
@@ -292,7 +293,8 @@ def run_experiment(  # noqa: C901  a graph's life in order: start it, run each p
     os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
     if progress:
         print(
-            f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}",
+            f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}\n"
+            f"{second_terminal.hint(graph.env)}",
             file=sys.stderr,
         )
         if calibration_file is None:

@@ -32,7 +32,7 @@ from flaair_common.graph import (
     node_argv,
     terminate_raises,
 )
-from flaair_tools.orchestration import launch_file
+from flaair_tools.orchestration import launch_file, second_terminal
 from flaair_tools.orchestration.graphs import LAUNCH_PACKAGE, launch_dir
 
 POLL_S = 0.2  # how often the launch looks for a node that died
@@ -120,7 +120,7 @@ def _run(commands: list, args: argparse.Namespace) -> int:
         with Graph(domain_id=args.domain_id, localhost=not args.subnet, log_dir=log_dir) as graph:
             print(
                 f"flaair launch: {len(commands)} node(s) on {graph.describe()}; logs in "
-                f"{log_dir}; Ctrl-C stops",
+                f"{log_dir}; Ctrl-C stops\n{second_terminal.hint(graph.env)}",
                 file=sys.stderr,
             )
             for node, command in commands:

@@ -6,7 +6,7 @@ format's schema). The subset:
 
   <launch>                       root (optional version="...")
   <arg name default|value description/>   a launch argument (value: fixed, not overridable)
-  <let var value/>               a launch configuration
+  <let name value/>              a launch configuration
   <node pkg exec name namespace> a node, with <param name value/>, <param from="FILE"/> and
                                  <remap from to/> inside
   <group scoped>                 a scope; <push-ros-namespace namespace/> first inside it
@@ -101,7 +101,7 @@ def parse_launch_arguments(words: list[str]) -> dict[str, str]:
 _ATTRIBUTES = {  # tag -> the attributes it may carry
     "launch": {"version"},
     "arg": {"name", "default", "value", "description"},
-    "let": {"var", "value"},
+    "let": {"name", "value"},
     "node": {"pkg", "exec", "name", "namespace", "output", "if", "unless"},
     "param": {"name", "value", "from"},
     "remap": {"from", "to"},
@@ -230,8 +230,8 @@ class _Reader:
             raise self.fail(at, f"launch argument '{name}' is required: add {name}:=VALUE")
 
     def on_let(self, element, scope, at, arguments, given) -> None:
-        attrs = self.attributes(element, scope, at, ("var", "value"))
-        scope.configurations[attrs["var"]] = attrs["value"]
+        attrs = self.attributes(element, scope, at, ("name", "value"))
+        scope.configurations[attrs["name"]] = attrs["value"]
 
     def on_push_ros_namespace(self, element, scope, at, arguments, given) -> None:
         scope.namespace = _join(

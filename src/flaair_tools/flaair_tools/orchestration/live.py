@@ -54,6 +54,7 @@ from flaair_common.graph import (
 )
 from flaair_model import settings
 from flaair_model.config import ConfigError
+from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.graphs import node_of
 from flaair_tools.orchestration.live_args import (
     LiveError,
@@ -361,7 +362,8 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
     )
     loop = "one process per node" if args.processes else "composed in one process"
     print(
-        f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}",
+        f"flaair live: {robot}, loop {loop}, on {graph.describe()}; logs in {log_dir}\n"
+        f"{second_terminal.hint(graph.env)}",
         file=sys.stderr,
     )
     if args.calibration is None:

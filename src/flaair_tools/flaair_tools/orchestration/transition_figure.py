@@ -68,22 +68,24 @@ def run_closed_loop(
             echo_ws = start(
                 "topic",
                 "echo",
+                "--json",
                 "/flaair/wing_state",
                 "flaair_msgs/msg/WingStateBlock",
                 "--count",
                 str(n_blocks),
-                "--timeout",
+                "--silence",
                 str(timeout_s),
                 stdout=ws_file,
             )
             echo_cs = start(
                 "topic",
                 "echo",
+                "--json",
                 "/flaair/controller/state",
                 "flaair_msgs/msg/ControllerState",
                 "--count",
                 str(n_blocks),
-                "--timeout",
+                "--silence",
                 str(timeout_s),
                 stdout=cs_file,
             )

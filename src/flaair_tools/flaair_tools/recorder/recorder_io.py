@@ -22,7 +22,8 @@ from flaair_tools.recorder.recording import RecordingParams
 RECORDER_HELP = """\
 recorder_node: record FLAAIR topics into a rosbag2 (MCAP) bag, like `ros2 bag record`.
 
-Subscribes to every /flaair topic (or the `topics` chosen) as raw serialized messages, looks
+Subscribes to every /flaair topic (or the `topics` chosen), /diagnostics and /clock (where the
+graph publishes them: a run's health and sim time stay in its bag) as raw serialized messages, looks
 for new topics every `discovery_period_s`, and writes each message straight into the bag
 without deserializing it, at its signal time (the leading header's stamp, the
 /clock value, or for a header-less run marker the latest stamp: flaair_tools.recorder.recording
@@ -111,9 +112,15 @@ def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair recor
     )
     parser.add_argument("-o", "--output", help="bag directory to create")
     parser.add_argument(
-        "--topics", nargs="+", default=None, help="topics to record (default: every /flaair topic)"
+        "--topics",
+        nargs="+",
+        default=None,
+        help="topics to record (default: every /flaair topic); /diagnostics and "
+        "/flaair/time_anchor are always kept",
     )
-    parser.add_argument("--clock", action="store_true", help="also record /clock")
+    parser.add_argument(
+        "--clock", action="store_true", help="record /clock (config/flaair.yaml's default)"
+    )
     parser.add_argument("--no-compression", action="store_true", help="store chunks uncompressed")
     parser.add_argument(
         "--use-sim-time",

@@ -4,7 +4,9 @@ Log time: every message is logged at its signal time, so a bag's timeline is the
 own (3 s of simulated signal span 3 s of log time). A message with a leading header (or a
 /clock) carries that time; a header-less message (a run marker) takes the signal time of the
 latest stamped message, and waits for the first one; at the end of a bag with no stamped
-message at all the waiting ones keep their publish time (else the receive time).
+message at all the waiting ones keep their publish time (else the receive time). /diagnostics
+is logged as a header-less message is: its stamp is the publishing node's wall clock, which in
+simulation is not the signal's (the array keeps its stamp inside).
 ``step(state, inputs, params) -> (state, writes)`` applies that rule to one received message
 (`Received`) or to the end of recording (`Finish`).
 
@@ -23,10 +25,11 @@ from typing import Any, NamedTuple, TypeVar
 
 from rosbags.interfaces import QosDurability, QosReliability
 
-from flaair_common.topics import CLOCK
+from flaair_common.topics import CLOCK, TIME_ANCHOR
 from flaair_model.schema import ParameterError
 
 NAMESPACE = "/flaair/"
+DIAGNOSTICS = "/diagnostics"  # every node's health (diagnostic_msgs/DiagnosticArray), 1 Hz
 T = TypeVar("T")
 
 
@@ -77,6 +80,8 @@ def step(
             w._replace(log_ns=w.publish_ns or inputs.now_ns) for w in state.pending
         )
     topic, data, stamp_ns, publish_ns = inputs
+    if topic == DIAGNOSTICS:
+        stamp_ns = None
     if stamp_ns is not None:
         write = (Write(topic, stamp_ns, data, publish_ns),)
         if state.pending:
@@ -111,10 +116,14 @@ def parse_topic_list(text: str) -> tuple[str, ...]:
 
 def wanted(topic: str, chosen: tuple[str, ...], record_clock: bool, namespace: str = "/") -> bool:
     """Whether to record `topic`: the chosen ones, else every /flaair topic of the recorder's
-    `namespace` (a recorder started in /bench2 records /bench2/flaair/...); /clock if asked.
+    `namespace` (a recorder started in /bench2 records /bench2/flaair/...); /clock if asked;
+    /diagnostics and the namespace's /flaair/time_anchor always (a bag keeps a run's health
+    and how its sample clocks map to ROS time).
     """
     if topic == CLOCK:
         return record_clock or topic in chosen
+    if topic == DIAGNOSTICS or topic == namespace.rstrip("/") + TIME_ANCHOR:
+        return True
     if chosen:
         return topic in chosen
     return topic.startswith(namespace.rstrip("/") + NAMESPACE)

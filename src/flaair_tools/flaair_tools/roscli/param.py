@@ -1,7 +1,16 @@
-"""`flaair param`: read and set a running node's parameters (stands in for `ros2 param`).
+"""`flaair param`: read and set a running node's parameters, as `ros2 param` does.
 
-`set` converts VALUE to the parameter's current type (a double takes "0" as 0.0; bools take
-true/false; arrays take JSON or YAML lists) and prints the node's reason when it refuses.
+  get NODE NAME [--hide-type]   "Double value is: 0.0" (--hide-type: the value alone)
+  set NODE NAME VALUE           VALUE read as YAML, as ros2cli reads it: "1" is an integer, "1.0"
+                                a double, "true" a bool, "[1.0, 2.0]" a double array. The node
+                                decides: an integer for a double parameter is refused ("Setting
+                                parameter failed: Wrong parameter type, expected 'Type.DOUBLE'
+                                got 'Type.INTEGER'"), as is a value out of its declared range
+  list NODE                     its parameter names, two spaces in, as ros2cli prints them
+`--timeout S` waits for the node (ros2cli: whole seconds, default 1; here config/flaair.yaml's).
+Differences: a refused `set` exits 1 here (ros2cli exits 0 after printing the reason); not
+covered (one line naming the real command, exit 2): `describe`, `dump`, `load`, `delete`,
+`list` without a node, `--filter`, `--param-type`, `--include-hidden-nodes`.
 
 Examples
 --------
@@ -16,54 +25,39 @@ import argparse
 import sys
 
 import rclpy
-import yaml
+from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType
-from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter import get_parameter_value
 from rclpy.parameter_client import AsyncParameterClient
 
 from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
+from flaair_tools.roscli.ros2_args import hidden_node_name, parse_or_refuse
+
+LABELS = {  # ParameterType -> (ros2 param get's label, the value's field)
+    ParameterType.PARAMETER_BOOL: ("Boolean value is:", "bool_value"),
+    ParameterType.PARAMETER_INTEGER: ("Integer value is:", "integer_value"),
+    ParameterType.PARAMETER_DOUBLE: ("Double value is:", "double_value"),
+    ParameterType.PARAMETER_STRING: ("String value is:", "string_value"),
+    ParameterType.PARAMETER_BYTE_ARRAY: ("Byte values are:", "byte_array_value"),
+    ParameterType.PARAMETER_BOOL_ARRAY: ("Boolean values are:", "bool_array_value"),
+    ParameterType.PARAMETER_INTEGER_ARRAY: ("Integer values are:", "integer_array_value"),
+    ParameterType.PARAMETER_DOUBLE_ARRAY: ("Double values are:", "double_array_value"),
+    ParameterType.PARAMETER_STRING_ARRAY: ("String values are:", "string_array_value"),
+}
 
 
-class ValueTypeError(ValueError):
-    """VALUE does not read as the parameter's type."""
-
-
-def convert(text: str, type_id: int, name: str):
-    """`text` as a value of ParameterType `type_id` (ValueTypeError naming the parameter)."""
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError:
-        value = text
-    kinds = {
-        ParameterType.PARAMETER_BOOL: (bool,),
-        ParameterType.PARAMETER_INTEGER: (int,),
-        ParameterType.PARAMETER_DOUBLE: (int, float),
-        ParameterType.PARAMETER_STRING: None,
-    }
-    if type_id == ParameterType.PARAMETER_STRING:
-        return text
-    if (
-        type_id == ParameterType.PARAMETER_DOUBLE_ARRAY
-        and isinstance(value, list)
-        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+def get_text(value, hide_type: bool = False) -> str:
+    """A ParameterValue as `ros2 param get` prints it."""
+    if value.type == ParameterType.PARAMETER_NOT_SET:
+        return "None" if hide_type else "Parameter not set."
+    label, field = LABELS[value.type]
+    shown = getattr(value, field)
+    if value.type in (
+        ParameterType.PARAMETER_INTEGER_ARRAY,
+        ParameterType.PARAMETER_DOUBLE_ARRAY,
     ):
-        return [float(v) for v in value]
-    allowed = kinds.get(type_id)
-    if (
-        allowed
-        and isinstance(value, allowed)
-        and not (isinstance(value, bool) and bool not in allowed)
-    ):
-        return float(value) if type_id == ParameterType.PARAMETER_DOUBLE else value
-    wanted = {
-        ParameterType.PARAMETER_BOOL: "true or false",
-        ParameterType.PARAMETER_INTEGER: "an integer",
-        ParameterType.PARAMETER_DOUBLE: "a number",
-        ParameterType.PARAMETER_DOUBLE_ARRAY: "a list of numbers",
-    }
-    raise ValueTypeError(
-        f"parameter '{name}' takes {wanted.get(type_id, f'type {type_id}')}, got {text!r}"
-    )
+        shown = shown.tolist()
+    return str(shown) if hide_type else f"{label} {shown}"
 
 
 def _spin(node, future, timeout_s: float, what: str):
@@ -83,14 +77,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("verb", choices=("get", "list", "set"))
     parser.add_argument("node", help="node name, e.g. /plant_node")
     parser.add_argument("name", nargs="?", help="parameter name (get, set)")
-    parser.add_argument("value", nargs="?", help="new value (set)")
+    parser.add_argument("value", nargs="?", help="new value (set), read as YAML")
+    parser.add_argument("--hide-type", action="store_true", help="get: the value alone")
     parser.add_argument(
         "--timeout",
         type=float,
         default=float(defaults["param_timeout_s"]),
         help=f"seconds to wait for the node (default {defaults['param_timeout_s']})",
     )
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    parser.add_argument(
+        "--no-daemon", action="store_true", help="accepted for ros2cli's sake (no daemon)"
+    )
+    words = sys.argv[1:] if argv is None else list(argv)
+    if words and words[0] in ("describe", "dump", "load", "delete"):
+        print(
+            f"flaair param: {words[0]} is not covered by this stand-in (see --help); on a full "
+            f"ROS 2 install: ros2 param {' '.join(words)}",
+            file=sys.stderr,
+        )
+        return 2
+    args = parse_or_refuse(parser, words, "param")
     if args.verb in ("get", "set") and not args.name:
         parser.error(f"{args.verb} needs a parameter name")
     if args.verb == "set" and args.value is None:
@@ -101,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
             client = AsyncParameterClient(node, args.node)
             if not client.wait_for_services(timeout_sec=args.timeout):
                 print(
-                    f"flaair param: node '{args.node}' not found within {args.timeout:g} s",
+                    f"Node not found: no parameter services of '{args.node}' within "
+                    f"{args.timeout:g} s",
                     file=sys.stderr,
                 )
                 return 1
@@ -111,45 +118,38 @@ def main(argv: list[str] | None = None) -> int:
                         node, client.list_parameters(), args.timeout, "list_parameters"
                     ).result.names
                 ):
-                    print(name)
+                    print(f"  {name}")
                 return 0
             values = _spin(
                 node, client.get_parameters([args.name]), args.timeout, "get_parameters"
             ).values
+            if args.verb == "get":
+                if not values:
+                    print("Parameter not set", file=sys.stderr)
+                    return 1
+                print(get_text(values[0], args.hide_type))
+                return 0
             if not values or values[0].type == ParameterType.PARAMETER_NOT_SET:
                 print(
                     f"flaair param: node '{args.node}' has no parameter '{args.name}'",
                     file=sys.stderr,
                 )
                 return 1
-            if args.verb == "get":
-                print(parameter_value_to_python(values[0]))
-                return 0
-            try:
-                value = convert(args.value, values[0].type, args.name)
-            except ValueTypeError as exc:
-                print(f"flaair param set: {exc}", file=sys.stderr)
-                return 2
+            message = ParameterMsg(name=args.name, value=get_parameter_value(args.value))
             (result,) = _spin(
-                node,
-                client.set_parameters([Parameter(args.name, value=value)]),
-                args.timeout,
-                "set_parameters",
+                node, client.set_parameters([message]), args.timeout, "set_parameters"
             ).results
+            reason = f": {result.reason}" if result.reason else ""
             if not result.successful:
-                print(
-                    f"flaair param set: {args.node} refused {args.name} = {value!r}: "
-                    f"{result.reason}",
-                    file=sys.stderr,
-                )
+                print(f"Setting parameter failed{reason}", file=sys.stderr)
                 return 1
-            print(f"set {args.name} = {value!r} on {args.node}")
+            print(f"Set parameter successful{reason}")
             return 0
         except TimeoutError as exc:
             print(f"flaair param: {exc}", file=sys.stderr)
             return 1
 
-    return run_with_node("flaair_param", body)
+    return run_with_node(hidden_node_name("param"), body)
 
 
 if __name__ == "__main__":

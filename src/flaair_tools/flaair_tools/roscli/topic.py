@@ -1,11 +1,26 @@
-"""`flaair topic`: list, echo and publish topics (ros2cli's `ros2 topic` is not installable here).
+r"""`flaair topic`: list, echo, hz, info and publish topics, as `ros2 topic` does them.
+
+What ros2cli's `ros2 topic` takes, these take, with its output:
+  list  [-t] [-c] [-v] [--include-hidden-topics] [--spin-time S] [--no-daemon]
+  echo  TOPIC [TYPE] [--once] [--field a.b] [--timeout S] [-f] [-l N]   YAML, '---' after each
+  hz    TOPIC [TYPE] [-w/--window N]                                     ros2's rate lines
+  info  TOPIC [-v]                                                       the endpoints and QoS
+Beyond ros2cli: `echo --json` (one JSON line a message), `echo --count N`, `echo|hz --silence S`
+(end, exit 1, after S seconds without a message: config/flaair.yaml's default; 0: never; ros2cli
+waits forever), `echo --ready-file`, `hz --period/--count`, `wait`, and `pub` with JSON values
+and `--wait-subscribers`. `echo --timeout S` ends after S seconds as ros2cli's does (exit 1 here
+if nothing came). Not covered (one line naming the real command, exit 2): QoS overrides, --csv,
+--raw, --filter, --no-arr/--no-str, --flow-style, -i, `hz --filter/--wall-time`, `ros2 topic
+bw|delay|find|type` and ros2cli's YAML `pub` syntax.
 
 Examples
 --------
-  bin/flaair topic list
-  bin/flaair topic echo /flaair/wing_state --count 5
-  bin/flaair topic echo /flaair/collision/events --timeout 0   # wait forever
-  bin/flaair topic hz /flaair/sensor_v                         # per second, like `ros2 topic hz`
+  bin/flaair topic list -t
+  bin/flaair topic echo /flaair/wing_state --once
+  bin/flaair topic echo /flaair/controller/state --field k_r
+  bin/flaair topic echo /flaair/collision/events --silence 0   # wait forever
+  bin/flaair topic hz /flaair/sensor_v
+  bin/flaair topic info -v /flaair/wing_state
   bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
   bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock \
       '{"drive_v": [1.0, 2.0]}' --count 3
@@ -22,23 +37,48 @@ from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
+from rclpy.topic_or_service_is_hidden import topic_or_service_is_hidden
 
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
 from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
+from flaair_tools.roscli.ros2_args import (
+    add_discovery_arguments,
+    hidden_node_name,
+    listen_until_settled,
+    parse_or_refuse,
+)
+from flaair_tools.roscli.yaml_out import (
+    DEFAULT_TRUNCATE_LENGTH,
+    field_of,
+    message_to_yaml,
+    to_plain,
+)
 
 
 def rate_report(arrivals_s: list[float]) -> str:
-    """`ros2 topic hz`-style line from arrival times
-    [s]: mean rate and the spread of the periods.
-    """
+    """`ros2 topic hz`'s report from arrival times [s]: mean rate, then the periods' spread."""
     periods = [b - a for a, b in itertools.pairwise(arrivals_s)]
     mean = sum(periods) / len(periods)
     std = (sum((p - mean) ** 2 for p in periods) / len(periods)) ** 0.5
+    rate = 1.0 / mean if mean > 0 else 0.0
     return (
-        f"average rate: {1.0 / mean:.1f} Hz  min: {min(periods) * 1e3:.3f} ms  max: "
-        f"{max(periods) * 1e3:.3f} ms  std dev: {std * 1e3:.3f} ms  window: {len(arrivals_s)}"
+        f"average rate: {rate:.3f}\n\tmin: {min(periods):.3f}s max: {max(periods):.3f}s "
+        f"std dev: {std:.5f}s window: {len(periods)}"
     )
+
+
+def echo_text(message: object, args: argparse.Namespace) -> str:
+    """One message as `ros2 topic echo` prints it (or as a JSON line with --json)."""
+    if args.field:
+        message = field_of(message, args.field)
+    if args.json:
+        plain = to_dict(message) if hasattr(message, "__slots__") else to_plain(message, None)
+        return json.dumps(plain)
+    if not hasattr(message, "__slots__"):  # a plain field: printed as Python prints it
+        return f"{message}\n---"
+    limit = None if args.full_length else args.truncate_length
+    return message_to_yaml(message, limit) + "---"
 
 
 def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
@@ -55,37 +95,52 @@ def _wait_for_type(node: Node, topic: str, timeout_s: float) -> str:
 
 
 def _listen(node: Node, args: argparse.Namespace) -> int:
-    """Echo (JSON lines) or hz (rate reports) until --count, Ctrl-C, or --timeout of silence."""
-    type_name = args.type or _wait_for_type(node, args.topic, args.timeout or 10.0)
-    received, arrivals, reports = 0, [], 0
+    """Echo or hz until --count (--once), --timeout, Ctrl-C, or --silence without a message."""
+    type_name = args.type or _wait_for_type(node, args.topic, args.silence or 10.0)
+    cls = message_class(type_name)
     echo = args.verb == "echo"
+    if echo and args.field:
+        try:
+            field_of(cls(), args.field)
+        except ValueError as exc:
+            print(f"flaair topic echo: {exc}", file=sys.stderr)
+            return 2
+    received, arrivals, reports = 0, [], 0
+    count = 1 if getattr(args, "once", False) else args.count
 
     def on_message(message: object) -> None:
         nonlocal received
         received += 1
         if echo:
-            print(json.dumps(to_dict(message)), flush=True)
+            print(echo_text(message, args), flush=True)
         else:
             arrivals.append(time.monotonic())
-            del arrivals[: -args.window]
+            del arrivals[: -args.window - 1]
 
     # hz takes the serialized bytes: no conversion cost, so the rate is the topic's, not ours
-    subscription = node.create_subscription(
-        message_class(type_name), args.topic, on_message, BLOCK_STREAM, raw=not echo
-    )
-    last = time.monotonic()
+    subscription = node.create_subscription(cls, args.topic, on_message, BLOCK_STREAM, raw=not echo)
+    start = last = time.monotonic()
     next_report, seen = last + getattr(args, "period", 0.0), 0
     ready = getattr(args, "ready_file", None) is None
-    while args.count == 0 or (received if echo else reports) < args.count:
+    while count == 0 or (received if echo else reports) < count:
         rclpy.spin_once(node, timeout_sec=0.05)
         now = time.monotonic()
+        if getattr(args, "timeout", None) and now - start >= args.timeout:
+            if received:
+                return 0
+            print(
+                f"flaair topic {args.verb}: no message on '{args.topic}' in {args.timeout:g} s "
+                f"(--timeout)",
+                file=sys.stderr,
+            )
+            return 1
         if received != seen:
             seen, last = received, now
-        elif args.timeout and now - last > args.timeout:
+        elif args.silence and now - last > args.silence:
             publishers = node.count_publishers(args.topic)
             print(
-                f"flaair topic {args.verb}: no message on '{args.topic}' for {args.timeout:g} s "
-                f"({received} received, {publishers} publisher(s) now); --timeout 0 waits "
+                f"flaair topic {args.verb}: no message on '{args.topic}' for {args.silence:g} s "
+                f"({received} received, {publishers} publisher(s) now); --silence 0 waits "
                 "forever",
                 file=sys.stderr,
             )
@@ -101,6 +156,60 @@ def _listen(node: Node, args: argparse.Namespace) -> int:
     return 0
 
 
+def _list(node: Node, args: argparse.Namespace) -> int:
+    """`ros2 topic list` [-t] [-c] [-v] [--include-hidden-topics]."""
+
+    def topics() -> dict[str, list[str]]:
+        return {
+            name: types
+            for name, types in node.get_topic_names_and_types()
+            if args.include_hidden_topics or not topic_or_service_is_hidden(name)
+        }
+
+    names = listen_until_settled(
+        lambda s: rclpy.spin_once(node, timeout_sec=s), lambda: set(topics()), args.spin_time
+    )
+    found = {name: types for name, types in topics().items() if name in names}
+    if args.count_topics:
+        print(len(found))
+        return 0
+    if args.verbose:
+        for publishers in (True, False):
+            text = ("Published" if publishers else "Subscribed") + " topics:\n"
+            for name, types in sorted(found.items()):
+                n = node.count_publishers(name) if publishers else node.count_subscribers(name)
+                what = "publisher" if publishers else "subscriber"
+                if n:
+                    text += f" * {name} [{', '.join(types)}] {n} {what}{'s' if n > 1 else ''}\n"
+            print(text)
+        return 0
+    for name, types in sorted(found.items()):
+        print(f"{name} [{', '.join(types)}]" if args.show_types else name)
+    return 0
+
+
+def _info(node: Node, args: argparse.Namespace) -> int:
+    """`ros2 topic info [-v] TOPIC`: type, counts, and with -v every endpoint with its QoS."""
+    listen_until_settled(
+        lambda s: rclpy.spin_once(node, timeout_sec=s),
+        lambda: {n for n, _ in node.get_topic_names_and_types()},
+        args.spin_time,
+    )
+    types = dict(node.get_topic_names_and_types()).get(args.topic)
+    if not types:
+        print(f"Unknown topic '{args.topic}'", file=sys.stderr)
+        return 1
+    end = "\n\n" if args.verbose else "\n"
+    print(f"Type: {types[0] if len(types) == 1 else types}", end=end)
+    print(f"Publisher count: {node.count_publishers(args.topic)}", end=end)
+    for info in node.get_publishers_info_by_topic(args.topic) if args.verbose else ():
+        print(info, end=end)
+    print(f"Subscription count: {node.count_subscribers(args.topic)}", end=end)
+    for info in node.get_subscriptions_info_by_topic(args.topic) if args.verbose else ():
+        print(info, end=end)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     defaults = cli_defaults("flaair topic")
     silence = float(defaults["echo_timeout_s"])
@@ -110,29 +219,58 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="verb", required=True)
-    sub.add_parser("list", help="topics and their types")
-    echo = sub.add_parser("echo", help="print messages as JSON lines")
-    echo.add_argument("topic")
-    echo.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
+    spin_s = float(defaults["discovery_s"])
+    listing = sub.add_parser("list", help="the topics, as `ros2 topic list`")
+    add_discovery_arguments(listing, spin_s)
+    listing.add_argument("-t", "--show-types", action="store_true", help="with their types")
+    listing.add_argument("-c", "--count-topics", action="store_true", help="only their number")
+    listing.add_argument("-v", "--verbose", action="store_true", help="publishers, subscribers")
+    listing.add_argument("--include-hidden-topics", action="store_true", help="hidden ones too")
+    info = sub.add_parser("info", help="a topic's type and endpoints, as `ros2 topic info`")
+    info.add_argument("topic")
+    info.add_argument("-v", "--verbose", action="store_true", help="every endpoint and its QoS")
+    add_discovery_arguments(info, spin_s)
+    echo = sub.add_parser("echo", help="print messages as YAML, as `ros2 topic echo`")
+    hz = sub.add_parser("hz", help="print the message rate, as `ros2 topic hz`")
+    for verb in (echo, hz):
+        verb.add_argument("topic")
+        verb.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
+        verb.add_argument(
+            "--silence",
+            type=float,
+            default=silence,
+            metavar="S",
+            help=f"end (exit 1) after S seconds without a message (default {silence:g}; "
+            "0: wait forever, as ros2cli does)",
+        )
+        verb.add_argument(
+            "--no-daemon", action="store_true", help="accepted for ros2cli's sake (no daemon)"
+        )
+    echo.add_argument("--once", action="store_true", help="print the first message and end")
     echo.add_argument("--count", type=int, default=0, help="stop after N messages (0: forever)")
+    echo.add_argument("--field", help="print this field only, e.g. header.stamp")
+    echo.add_argument("--json", action="store_true", help="one JSON line a message, no YAML")
     echo.add_argument(
-        "--timeout",
-        type=float,
-        default=silence,
-        help=f"end (exit 1) after S seconds without a message (default {silence:g}; "
-        "0: wait forever)",
+        "--timeout", type=float, metavar="S", help="end after S seconds (exit 1 if none came)"
+    )
+    echo.add_argument(
+        "-f", "--full-length", action="store_true", help="arrays and strings not truncated"
+    )
+    echo.add_argument(
+        "-l",
+        "--truncate-length",
+        type=int,
+        default=DEFAULT_TRUNCATE_LENGTH,
+        help=f"cut arrays and strings after N (default {DEFAULT_TRUNCATE_LENGTH})",
     )
     echo.add_argument(
         "--ready-file",
         type=Path,
-        help="create this file once a publisher is "
-        "matched (for scripts that must not start "
+        help="create this file once a publisher is matched (for scripts that must not start "
         "the source before the echo listens)",
     )
-    hz = sub.add_parser("hz", help="print the message rate, like `ros2 topic hz`")
-    hz.add_argument("topic")
-    hz.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
     hz.add_argument(
+        "-w",
         "--window",
         type=int,
         default=int(defaults["hz_window"]),
@@ -142,13 +280,6 @@ def main(argv: list[str] | None = None) -> int:
         "--period", type=float, default=float(defaults["hz_period_s"]), help="print this often [s]"
     )
     hz.add_argument("--count", type=int, default=0, help="stop after N reports (0: until Ctrl-C)")
-    hz.add_argument(
-        "--timeout",
-        type=float,
-        default=silence,
-        help=f"end (exit 1) after S seconds without a message (default {silence:g}; 0: "
-        "wait forever)",
-    )
     wait = sub.add_parser(
         "wait", help="wait until a topic has enough publishers and subscribers (exit 1 on timeout)"
     )
@@ -188,16 +319,13 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="how long --wait-subscribers waits (default 30 s)",
     )
-    args = parser.parse_args(argv)
+    args = parse_or_refuse(parser, argv, "topic")
 
     def body(node) -> int:
         if args.verb == "list":
-            deadline = time.monotonic() + 1.0
-            while time.monotonic() < deadline:
-                rclpy.spin_once(node, timeout_sec=0.1)
-            for name, types in sorted(node.get_topic_names_and_types()):
-                print(f"{name} [{', '.join(types)}]")
-            return 0
+            return _list(node, args)
+        if args.verb == "info":
+            return _info(node, args)
         if args.verb == "wait":
             deadline = time.monotonic() + args.timeout
             while time.monotonic() < deadline:
@@ -255,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         return 0
 
-    return run_with_node("flaair_topic", body)
+    return run_with_node(hidden_node_name("topic"), body)
 
 
 if __name__ == "__main__":
