@@ -55,6 +55,7 @@ __all__ = [
     "TermSignals",
     "kinds_for",
     "lowpass_ba",
+    "primitive_values",
     "term_from_dict",
     "term_to_dict",
 ]
@@ -79,6 +80,15 @@ PRIMITIVES: tuple[str, ...] = (
     "abs(dphi)",
     "abs(dpsi)",
 )
+
+
+def primitive_values(
+    phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`)."""
+    return (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
+
+
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
 MAX_DYNAMICS_TERMS = 2
 
@@ -513,9 +523,8 @@ class DiscoveredTerm:
         self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
     ) -> np.ndarray:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
-        factors = (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
         out = np.ones(np.shape(phi))
-        for x, e in zip(factors, self.monomial):
+        for x, e in zip(primitive_values(phi, dphi, psi, dpsi), self.monomial, strict=True):
             out = out * x**e
         return out
 

@@ -118,7 +118,7 @@ def obstacle_windows(flat_s: list[float]) -> list[tuple[float, float]]:
         raise ParameterError(
             f"parameter 'obstacle_windows_s' needs start/end pairs, got {len(flat_s)} values"
         )
-    return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2]) if b > a]
+    return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2], strict=True) if b > a]
 
 
 def plant_models(values: Mapping[str, Any]) -> tuple[Model, Model, list[tuple[float, float]]]:

@@ -23,7 +23,7 @@ Every block is clamped to +-drive_limit_v (an input: the node's parameter may ch
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Union
+from typing import NamedTuple
 
 import numpy as np
 
@@ -108,7 +108,7 @@ class Close(NamedTuple):
     drive_limit_v: float
 
 
-Inputs = Union[Tick, Ack, Close]
+Inputs = Tick | Ack | Close
 
 
 class Block(NamedTuple):

@@ -54,21 +54,22 @@ from flaair_sim.core.term_kernel import (
     mechanical_constants,
 )
 
+# Also the compiled kernel (`Prepared`, `prepare`, `mechanical_constants`, `rk4_step`), for
+# batch engines that step many robots at once (sweep_batch).
 __all__ = [
-    "SimOutput",
     "PlantState",
+    "Prepared",
+    "SimOutput",
     "initial_state",
-    "step",
+    "mechanical_constants",
+    "n_substeps",
+    "prepare",
+    "rk4_step",
+    "sensor_chain",
     "simulate",
     "simulate_batch",
-    "n_substeps",
     "simulate_batch_from",
-    "sensor_chain",
-    # the compiled kernel, for batch engines that step many robots at once (sweep_batch)
-    "Prepared",
-    "prepare",
-    "mechanical_constants",
-    "rk4_step",
+    "step",
 ]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
@@ -126,20 +127,9 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
     2: stop acts (just after an impact, where phi may be a rounding error below the limit).
     """
-    ga, gamma, k, cstruct, kh, hcubic, cp, jc, dp, limit, kc, cc = (
-        c[0],
-        c[1],
-        c[2],
-        c[3],
-        c[4],
-        c[5],
-        c[6],
-        c[7],
-        c[8],
-        c[9],
-        c[10],
-        c[11],
-    )
+    ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
+    kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
+    limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
@@ -170,7 +160,7 @@ def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact):
     dphi4 = dphi + hs * a3
     dpsi4 = dpsi + hs * b3
     a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact)
-    limit = c[9]
+    limit = c[pp.C_PHI_LIM]
     touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
     return (
         phi + hs / 6.0 * (dphi + 2.0 * dphi2 + 2.0 * dphi3 + dphi4),
@@ -210,7 +200,7 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
     a substep that enters the contact is split at the impact time (Hermite interpolation).
     """
     hs = h / nsub
-    limit = c[9]
+    limit = c[pp.C_PHI_LIM]
     for _ in range(nsub):
         if phi <= limit:
             f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
@@ -268,7 +258,7 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
     `_contact_sample`, so before the first contact the trajectory is bit-identical to the
     model without the collision effect.
     """
-    contact = 1 if p[pp.CONTACT_ON_INDEX] != 0.0 else 0
+    contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
     gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
     hs = h / nsub
@@ -294,7 +284,7 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
         for _ in range(nsub):
             phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact)
             touched = touched or hit
-        if contact == 1 and (touched or phi > c[9]):
+        if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
             phi, dphi, psi, dpsi = _contact_sample(phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact)
     x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
 
@@ -606,7 +596,7 @@ def simulate_batch(
     if out is None:
         phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     else:
-        for name, array in zip(SimOutput._fields, out):
+        for name, array in zip(SimOutput._fields, out, strict=True):
             if not (
                 isinstance(array, np.ndarray)
                 and array.shape == (m, n)
