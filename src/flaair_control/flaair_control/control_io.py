@@ -559,19 +559,12 @@ def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> Su
     fs = v["sample_rate_hz"]
     try:
         delay, _ = loop_delay_s(v)
-        dsa_params = dsa.DsaParams(
-            r3_rad_s=v["r3_rad_s"],
-            kappa=v["kappa"],
-            mu_nm_s_per_rad=v["mu_nm_s_per_rad"],
+        dsa_params = dsa.dsa_params(
+            v,
             actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
             sample_rate_hz=fs,
-            drive_limit_v=v["drive_limit_v"],
-            sync_amplitude_v=v["sync_amplitude_v"],
-            sync_frequency_hz=v["sync_frequency_hz"],
-            sync_phase_rad=v["sync_phase_rad"],
+            loop_delay_s=delay,
             kr_schedule=kr_schedule(v),
-            loop_delay_s=delay if v["compensate_delay"] else 0.0,
-            compensation_frequency_hz=v["compensation_frequency_hz"],
         )
         safety_params = safety.SafetyParams(
             drive_limit_v=v["drive_limit_v"],

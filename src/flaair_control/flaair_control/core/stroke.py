@@ -460,19 +460,17 @@ def params_from_values(
     dsa_params = None
     if mode == "dsa":
         kick = dsa.KrSchedule(1.0, 0.0, values["kick_s"], values["kick_ramp_s"])
-        dsa_params = dsa.DsaParams(
-            r3_rad_s=values["r3_rad_s"],
-            kappa=values["kappa"],
-            mu_nm_s_per_rad=u_ff,
+        dsa_params = dsa.dsa_params(
+            {
+                **values,
+                "mu_nm_s_per_rad": u_ff,
+                "sync_amplitude_v": values["kick_amplitude_v"],
+                "sync_phase_rad": 0.0,
+            },
             actuator_gain_nm_per_v=plant.actuator_gain_nm_per_v,
             sample_rate_hz=sample_rate_hz,
-            drive_limit_v=values["drive_limit_v"],
-            sync_amplitude_v=values["kick_amplitude_v"],
-            sync_frequency_hz=values["sync_frequency_hz"],
-            sync_phase_rad=0.0,
+            loop_delay_s=loop_delay_s,
             kr_schedule=kick,
-            loop_delay_s=loop_delay_s if values["compensate_delay"] else 0.0,
-            compensation_frequency_hz=values["compensation_frequency_hz"],
         )
         low, high = values["mu_min_nm_s_per_rad"], values["mu_max_nm_s_per_rad"]
     else:
