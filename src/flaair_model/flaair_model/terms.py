@@ -46,6 +46,7 @@ __all__ = [
     "KINDS",
     "MAX_DYNAMICS_TERMS",
     "PRIMITIVES",
+    "REPORT_KEYS",
     "SENSOR_SITES",
     "SITES",
     "TERM_KINDS",
@@ -551,25 +552,49 @@ def term_to_dict(term: DiscoveredTerm) -> dict[str, Any]:
     }
 
 
+# What a discrepancy.json `discovered` entry says beyond the model-file entry: the discovery's
+# account of the term, shown to the reader and not read back (a model file may carry it).
+REPORT_KEYS: tuple[str, ...] = (
+    "feature",
+    "words",
+    "examples",
+    "judged_on",
+    "gap_before",
+    "gap_after",
+    "candidates_beaten",
+    "evidence",
+)
+
+
+def _parameter(where: str, raw: Any) -> Any:
+    """A parameter's value: a number, or discrepancy.json's {value, stderr}."""
+    if isinstance(raw, Mapping):
+        if "value" not in raw or set(raw) - {"value", "stderr"}:
+            raise ModelError(f"{where} must be a number or a mapping {{value, stderr}}")
+        raw = raw["value"]
+    return coerce_number(raw)
+
+
 def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
-    """A `DiscoveredTerm` from its model-file entry (`expression` is derived, not read)."""
+    """A `DiscoveredTerm` from its model-file entry or its discrepancy.json entry.
+
+    `expression` and the discovery's account (`REPORT_KEYS`) are derived or reported, not
+    read; each parameter is a number or a {value, stderr} mapping (its value is taken).
+    """
     if not isinstance(raw, Mapping):
         raise ModelError(
             f"{where} must be a mapping with kind, acts_on and parameters, got {type(raw).__name__}"
         )
-    unknown = sorted(set(raw) - {"kind", "acts_on", "expression", "parameters"})
+    known = {"kind", "acts_on", "expression", "parameters", *REPORT_KEYS}
+    unknown = sorted(set(map(str, raw)) - known)
     if unknown:
-        raise ModelError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}")
+        raise ModelError(f"{where}: unknown key(s) {', '.join(unknown)}")
     missing = [k for k in ("kind", "acts_on", "parameters") if k not in raw]
     if missing:
         raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
     params = raw["parameters"]
     if not isinstance(params, Mapping) or "coefficient" not in params:
         raise ModelError(f"{where}.parameters must be a mapping with a coefficient")
-    shape = {str(k): coerce_number(v) for k, v in params.items() if k != "coefficient"}
-    return DiscoveredTerm(
-        str(raw["kind"]),
-        str(raw["acts_on"]),
-        coerce_number(params["coefficient"]),
-        tuple(shape.items()),
-    )
+    values = {str(k): _parameter(f"{where}.parameters.{k}", v) for k, v in params.items()}
+    coefficient = values.pop("coefficient")
+    return DiscoveredTerm(str(raw["kind"]), str(raw["acts_on"]), coefficient, tuple(values.items()))
