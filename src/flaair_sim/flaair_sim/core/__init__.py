@@ -9,6 +9,7 @@
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
 - ``drive``: drive-voltage generators, whole-record and sample-exact blocks
 - ``drive_pacing``: when the open-loop drive generator sends which block
+- ``scene``: the obstacle schedule and the ground truth as a camera sees it
 """
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "plant",
     "plant_params",
     "plant_terms",
+    "scene",
     "sensor_kernel",
     "term_kernel",
 ]
