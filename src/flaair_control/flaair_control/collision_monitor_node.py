@@ -27,7 +27,8 @@ from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import INFO, WARN, log, log_notes, run_node, warn_counted
-from flaair_control.control_io import (
+from flaair_control.core import monitor
+from flaair_control.monitor_io import (
     COLLISION_MONITOR_PARAMS,
     CONFIG_FILE,
     collision_monitor_params_from_config,
@@ -36,7 +37,6 @@ from flaair_control.control_io import (
     monitor_health,
     monitor_wing_input,
 )
-from flaair_control.core import monitor
 from flaair_msgs.msg import CollisionEvent, CollisionStatus
 
 NODE_NAME = "collision_monitor_node"

@@ -10,6 +10,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``safety``: drive clamp, slew limit and sensor watchdog
 - ``stroke``: the per-wingbeat stroke-amplitude controller
 - ``supervisor``: the dSA controller's start / loop / trip / keepalive state machine
+- ``loop_state``: its parameters, state, events and outputs (re-exported by ``supervisor``)
 - ``transition``: sync -> async transition analysis
 """
 
@@ -17,6 +18,7 @@ __all__ = [
     "collision",
     "dsa",
     "hopf",
+    "loop_state",
     "monitor",
     "safety",
     "spectral",
