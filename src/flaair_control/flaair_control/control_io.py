@@ -11,7 +11,7 @@ monitor's counterpart is `flaair_control.monitor_io`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from flaair_common.health import ERROR, WARN, Health, health
@@ -501,3 +501,20 @@ def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None
 def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
     """std_srvs/Trigger's answer to ~/reset_watchdog: success once the loop runs again."""
     return mode == sv.LOOP, "; ".join(note.text for note in notes) or mode
+
+
+def dropped_text(exc: Exception, count: int) -> str:
+    """The warning for an undecodable wing-state block (`count` so far)."""
+    return f"wing-state block dropped: {exc} [{count} so far]"
+
+
+def ramp_request(changes: Mapping[str, Any], current: Callable[[str], Any]) -> sv.SetRamp | None:
+    """The K_r ramp a parameter change asks for: kr_target or kr_ramp_duration_s changed (the
+    other at its `current` value); None: no ramp asked for.
+    """
+    if "kr_target" not in changes and "kr_ramp_duration_s" not in changes:
+        return None
+    return sv.SetRamp(
+        changes.get("kr_target", current("kr_target")),
+        changes.get("kr_ramp_duration_s", current("kr_ramp_duration_s")),
+    )

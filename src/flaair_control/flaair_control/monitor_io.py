@@ -28,11 +28,15 @@ __all__ = [
     "collision_monitor_params_from_config",
     "collision_monitor_values",
     "describe_monitor",
+    "dropped_text",
+    "event_fields",
     "monitor_drive_input",
     "monitor_health",
     "monitor_windows_from_config",
     "monitor_wing_input",
     "spectral_metric_params_from_config",
+    "status_fields",
+    "verdict_text",
 ]
 
 CONFIG_FILE = "flaair.yaml"
@@ -315,3 +319,35 @@ def describe_monitor(p: Mapping[str, Any], estimates_frequency: bool) -> str:
         f"collision monitor ready: {where}; decision {p['decision']} ({how}); onset after "
         f"{p['n_on']}, clearance after {p['n_off']} wingbeats"
     )
+
+
+def dropped_text(exc: Exception, count: int) -> str:
+    """The warning for an undecodable block (`count` so far)."""
+    return f"block dropped: {exc} [{count} undecodable so far]"
+
+
+def verdict_text(v: monitor.Verdict, fs_hz: float, threshold_deg: float) -> str:
+    """The log line of a collision onset or clearance (`fs_hz`: the wing state's rate)."""
+    return (
+        f"collision {'ONSET' if v.colliding else 'CLEARANCE'} at wingbeat {v.wingbeat_index} "
+        f"(t = {v.end_index / fs_hz:.4f} s, {v.frequency_hz:.1f} Hz): pitch spectrum "
+        f"RMSE {v.spectrum_rmse_deg:.3f} deg (threshold {threshold_deg:g} deg), distortion "
+        f"score {v.score:.2f}"
+    )
+
+
+def event_fields(v: monitor.Verdict) -> dict[str, Any]:
+    """A CollisionEvent's fields but its kind (the message's constant)."""
+    return {"wingbeat_index": v.wingbeat_index, "spectrum_rmse_deg": v.spectrum_rmse_deg}
+
+
+def status_fields(v: monitor.Verdict, threshold_deg: float) -> dict[str, Any]:
+    """A CollisionStatus's fields for verdict `v`."""
+    return {
+        "wingbeat_index": v.wingbeat_index,
+        "wingbeat_frequency_hz": v.frequency_hz,
+        "colliding": v.colliding,
+        "spectrum_rmse_deg": v.spectrum_rmse_deg,
+        "time_rmse_deg": v.time_rmse_deg,
+        "threshold_deg": threshold_deg,
+    }
