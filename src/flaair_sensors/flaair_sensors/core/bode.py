@@ -124,7 +124,7 @@ def stepped_segments(frequency_hz_per_sample: np.ndarray) -> list[tuple[int, int
     stops = np.r_[edges, f.size]
     return [
         (int(a), int(b), float(f[a]))
-        for a, b in zip(starts, stops)
+        for a, b in zip(starts, stops, strict=True)
         if f[a] > 0 and np.isfinite(f[a])
     ]
 
