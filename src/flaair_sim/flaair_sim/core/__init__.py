@@ -1,6 +1,7 @@
 """Pure cores of the simulation package: no rclpy, no files, no plots.
 
 - ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
+- ``plant_kernel``: its numba kernels (RK4 with the collision stop, one model or a batch)
 - ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
 - ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
@@ -18,6 +19,7 @@ __all__ = [
     "drive_pacing",
     "measured_run",
     "plant",
+    "plant_kernel",
     "plant_params",
     "plant_terms",
     "scene",
