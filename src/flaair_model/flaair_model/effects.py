@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -204,19 +204,19 @@ class WingDamage:
         check_fields(self, "effects.wing_damage", {"inertia_factor": "unit"})
 
 
-Effect = Union[
-    SensorDelay,
-    ChargeAmpHighpass,
-    Feedthrough,
-    TransmissionNonlinearity,
-    HingeStiffening,
-    StructuralDamping,
-    StrainTransferLoss,
-    Collision,
-    WingDamage,
-]
+Effect = (
+    SensorDelay
+    | ChargeAmpHighpass
+    | Feedthrough
+    | TransmissionNonlinearity
+    | HingeStiffening
+    | StructuralDamping
+    | StrainTransferLoss
+    | Collision
+    | WingDamage
+)
 # The effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
-SensorEffect = Union[SensorDelay, ChargeAmpHighpass, StrainTransferLoss]
+SensorEffect = SensorDelay | ChargeAmpHighpass | StrainTransferLoss
 
 
 # --------------------------------------------------------------------------- the table

@@ -343,7 +343,8 @@ def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
         float(p.crossing_hysteresis_rad),
     )
     wins = [
-        (int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b, c in zip(starts, ends, idles)
+        (int(a), int(b), 2 * math.pi / (b - a), bool(c))
+        for a, b, c in zip(starts, ends, idles, strict=True)
     ]
     new = st._replace(
         schmitt_high=bool(high),
@@ -394,7 +395,7 @@ def step(
     feats = _features(xs, xp, wins, params)
     rows: list[tuple] = []
     events: list[MonitorEvent] = []
-    for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats):
+    for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats, strict=True):
         st, row, ev = _decide(
             st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p, score, params
         )
@@ -416,7 +417,7 @@ def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> l
             out[w] = (math.nan,) * 5 + (False,)
             continue
         groups.setdefault((n, omega), []).append(w)
-    for (n, omega), members in groups.items():
+    for (_, omega), members in groups.items():
         seg_s = np.stack([xs[wins[w][0] : wins[w][1]] for w in members])
         seg_p = np.stack([xp[wins[w][0] : wins[w][1]] for w in members])
         a_s, r_s = _fit_many(seg_s, omega)
@@ -512,7 +513,7 @@ def _report(rows: list[tuple]) -> WingbeatReport:
             empty_f,
             empty_i,
         )
-    cols = list(zip(*rows))
+    cols = list(zip(*rows, strict=True))
     ints = {0, 1, 2, 10}
     return WingbeatReport(
         *[np.asarray(c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)]
@@ -523,7 +524,7 @@ def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
     """Join the reports of consecutive steps."""
     if not reports:
         return _report([])
-    return WingbeatReport(*[np.concatenate(parts) for parts in zip(*reports)])
+    return WingbeatReport(*[np.concatenate(parts) for parts in zip(*reports, strict=True)])
 
 
 def run(

@@ -191,7 +191,9 @@ def lock_step(
         finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)), drive_lock_params(p)
     )
     kept = list(crossings)
-    for start, status in zip(out.report.start_index.tolist(), out.report.status.tolist()):
+    for start, status in zip(
+        out.report.start_index.tolist(), out.report.status.tolist(), strict=True
+    ):
         if status == col.IDLE:
             kept.clear()  # not driven: no frequency
         else:
