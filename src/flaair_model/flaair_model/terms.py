@@ -157,11 +157,12 @@ class TermSignals:
         b, a = lowpass_ba(corner_hz, self.fs_hz)
         y, zf = signal.lfilter(b, a, x, zi=np.array([self.zi]))
         self.zf = float(zf[0])
-        return y
+        out: np.ndarray = y
+        return out
 
     def need(self, name: str) -> np.ndarray:
         """A sensor-site signal; a term that reads it elsewhere is a table error."""
-        value = getattr(self, name)
+        value: np.ndarray | None = getattr(self, name)
         if value is None:
             raise ModelError(f"term signal {name!r} exists at the sensor sites only")
         return value

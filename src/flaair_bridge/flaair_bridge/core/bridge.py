@@ -335,7 +335,7 @@ def _target_watchdog_notice(packet: protocol.SensorPacket, counters: Counters) -
 def _published_end(state: BridgeState) -> int | None:
     if state.pending_first is None:
         return None
-    return state.pending_first + state.pending.shape[1]
+    return state.pending_first + int(state.pending.shape[1])
 
 
 def _blocks(

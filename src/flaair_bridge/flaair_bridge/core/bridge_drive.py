@@ -187,7 +187,7 @@ def _in_order_drive(
 
 def release(
     state: BridgeState, params: BridgeParams, now_s: float
-) -> tuple[BridgeState, tuple, tuple]:
+) -> tuple[BridgeState, tuple[bytes, ...], tuple[tuple[int, float, float], ...]]:
     """Send queued drive up to target clock + lead +
     max_ahead_samples, in packets of <= 1000 samples.
     """
@@ -199,8 +199,8 @@ def release(
         + params.max_ahead_samples
     )
     packets: list[bytes] = []
-    timing: list = []
-    queue: list = []
+    timing: list[tuple[int, float, float]] = []
+    queue: list[tuple[int, np.ndarray]] = []
     sequence, counters, driving = state.drive_sequence, state.counters, state.driving
     for position, (target_first, drive) in enumerate(state.queue):
         count = max(0, min(len(drive), limit - target_first))

@@ -87,7 +87,7 @@ class BridgeState(NamedTuple):
     silent: bool = False
     drive_expected: int | None = None  # next index of FLAAIR's drive stream
     drive_offset: int | None = None  # target index = drive-stream index + drive_offset
-    queue: tuple = ()  # (target first index, drive_v) not yet sent
+    queue: tuple[tuple[int, np.ndarray], ...] = ()  # (target first index, drive_v) not yet sent
     drive_sequence: int = 0
     last_drive_s: float | None = None
     driving: bool = False  # non-zero drive sent since the last stop
@@ -135,10 +135,11 @@ def counted_note(counter: str, text: str, error: bool = False) -> Note:
 
 
 class Outputs(NamedTuple):
-    blocks: tuple = ()  # SensorBlock
-    packets: tuple = ()  # bytes to send to the target
-    timing: tuple = ()  # (target index of the drive packet, sensor arrival s, send s)
-    notes: tuple = ()  # Note
+    blocks: tuple[SensorBlock, ...] = ()
+    packets: tuple[bytes, ...] = ()  # to send to the target
+    # (target index of the drive packet, sensor arrival s, send s)
+    timing: tuple[tuple[int, float, float], ...] = ()
+    notes: tuple[Note, ...] = ()
 
 
 def add_counts(counters: Counters, **increments: int) -> Counters:

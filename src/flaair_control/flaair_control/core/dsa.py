@@ -196,7 +196,7 @@ class DsaParams:
         return math.sqrt(self.kappa) * self.r3_rad_s
 
     @cached_property
-    def kernel_args(self) -> tuple:
+    def kernel_args(self) -> tuple[Any, ...]:
         """``step``'s kernel arguments after the block and the state: the rate, the
         normalized (b, a) of the advanced and the raw filter, K_r, the sine,
         G_a and the limit (once per parameter set: hashing the dataclass for
@@ -354,25 +354,25 @@ _TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)  # rows 
 
 @njit(cache=True)
 def _block(
-    v_in,
-    t_start_s,
-    zi_adv,
-    zi_raw,
-    fs,
-    b_adv,
-    a_adv,
-    b_raw,
-    a_raw,
-    kr_start,
-    kr_end,
-    kr_t0,
-    kr_duration,
-    sync_amplitude_v,
-    sync_omega,
-    sync_phase_rad,
-    gain,
-    limit_v,
-):
+    v_in: np.ndarray,
+    t_start_s: float,
+    zi_adv: np.ndarray,
+    zi_raw: np.ndarray,
+    fs: float,
+    b_adv: np.ndarray,
+    a_adv: np.ndarray,
+    b_raw: np.ndarray,
+    a_raw: np.ndarray,
+    kr_start: float,
+    kr_end: float,
+    kr_t0: float,
+    kr_duration: float,
+    sync_amplitude_v: float,
+    sync_omega: float,
+    sync_phase_rad: float,
+    gain: float,
+    limit_v: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
 
     Returns the signals as rows of one array (one allocation, one object to hand back) and the
@@ -429,7 +429,7 @@ def frequency_response(
     _, h = signal.freqz(
         bz, az, worN=np.asarray(frequency_hz, dtype=float), fs=params.sample_rate_hz
     )
-    return h
+    return np.asarray(h)
 
 
 def continuous_response(

@@ -110,7 +110,7 @@ class SupervisorState(NamedTuple):
     start_blocks: tuple[DriveOut, ...]  # the loop's first blocks, retransmitted until answered
     blocks_since_state: int = 0  # drive blocks sent since the last one with a ControllerState
     clamped_since_state: bool = False  # one of them was clamped (the next state says so)
-    state_key: tuple = (False, "")  # (tripped, fault) of the last ControllerState
+    state_key: tuple[bool, str] = (False, "")  # (tripped, fault) of the last ControllerState
 
 
 # --------------------------------------------------------------------------- inputs

@@ -144,7 +144,7 @@ def clamp(drive_v: np.ndarray, drive_limit_v: float) -> np.ndarray:
     """Non-finite -> 0, then clip to +-drive_limit_v (stateless)."""
     x = np.asarray(drive_v, dtype=float)
     x = np.where(np.isfinite(x), x, 0.0)
-    return np.clip(x, -drive_limit_v, drive_limit_v)
+    return np.asarray(np.clip(x, -drive_limit_v, drive_limit_v))
 
 
 @numba.njit(cache=True)

@@ -150,8 +150,8 @@ def _send(
     state: PacingState,
     params: PacingParams,
     limit_v: float,
-    blocks: list,
-    logs: list,
+    blocks: list[Block],
+    logs: list[Note],
     zero: bool = False,
 ) -> PacingState:
     """One block (the waveform's next, or zeros); the end-of-run zero block follows it."""
@@ -181,7 +181,7 @@ def _send(
 
 
 def _realtime(
-    state: PacingState, tick: Tick, params: PacingParams, blocks: list, logs: list
+    state: PacingState, tick: Tick, params: PacingParams, blocks: list[Block], logs: list[Note]
 ) -> PacingState:
     wall_start = state.wall_start
     if wall_start is None:
@@ -196,7 +196,11 @@ def _realtime(
 
 
 def _lockstep(
-    state: PacingState, event: Tick | Ack, params: PacingParams, blocks: list, logs: list
+    state: PacingState,
+    event: Tick | Ack,
+    params: PacingParams,
+    blocks: list[Block],
+    logs: list[Note],
 ) -> PacingState:
     # Both ends matched before the first window: the command subscribers, and the
     # acknowledgement stream (missed acknowledgements would stall the run forever).

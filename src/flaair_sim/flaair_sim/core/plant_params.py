@@ -113,7 +113,8 @@ class KernelSlot(NamedTuple):
     constant: Literal["", "as_is", "over_stroke_inertia", "over_pitch_inertia"]
 
 
-_S, _P = "over_stroke_inertia", "over_pitch_inertia"
+_S: Literal["over_stroke_inertia"] = "over_stroke_inertia"
+_P: Literal["over_pitch_inertia"] = "over_pitch_inertia"
 # The vector, in order; the discovered dynamics terms' slots follow it (from P_TERMS on).
 KERNEL_LAYOUT: tuple[KernelSlot, ...] = (
     KernelSlot("I", "inertia_factor", None, ""),  # stroke inertia, kg m^2
@@ -192,7 +193,7 @@ def _check_layout() -> None:
     """The table covers the effect table's kernel terms and ends on the term count."""
     if len(_C_INDEX) != N_CONSTANTS or len(_INDEX) != P_TERMS or P_NTERMS != P_TERMS - 1:
         raise ImportError("KERNEL_LAYOUT: names must be unique and NTERMS its last row")
-    named = {slot.term for slot in KERNEL_LAYOUT} - {None}
+    named = {slot.term for slot in KERNEL_LAYOUT if slot.term is not None}
     if named != set(PLANT_TERMS + SCALE_TERMS + SENSOR_TERMS):
         raise ImportError(
             "KERNEL_LAYOUT and the effect table's kernel terms differ: "

@@ -80,7 +80,8 @@ def _constants(p, length):
 @njit(cache=True, fastmath=_FMA)
 def mechanical_constants(p):
     """The nominal constants tuple `c` of parameter vector `p` (order: `plant_params.C_*`)."""
-    return to_fixed_tuple(_constants(p, N_CONSTANTS), N_CONSTANTS)
+    # an intrinsic: numba passes its typing context, so mypy sees one argument short
+    return to_fixed_tuple(_constants(p, N_CONSTANTS), N_CONSTANTS)  # type: ignore[call-arg]
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -88,4 +89,5 @@ def constants_with_terms(p):
     """`mechanical_constants` followed by the term count and the discovered terms' slots: a
     longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
     """
-    return to_fixed_tuple(_constants(p, N_CONSTANTS_WITH_TERMS), N_CONSTANTS_WITH_TERMS)
+    c = _constants(p, N_CONSTANTS_WITH_TERMS)
+    return to_fixed_tuple(c, N_CONSTANTS_WITH_TERMS)  # type: ignore[call-arg]  # as above
