@@ -13,7 +13,8 @@ One `EffectEntry` per effect holds all that the rest of FLAAIR knows of it:
 `flaair_sim.core.plant_params.prepare` writes `terms` into the kernels' parameter vector,
 `flaair_tools.discrepancy.vocabulary` builds its search vocabulary from `fit`, and
 `flaair_tools.discrepancy.datasets` draws random robots from `draw`. Adding an effect is one
-entry here plus its term in the numba kernel (`flaair_sim.core.plant`);
+entry here; a new kernel number also a `KernelSlot` row in `flaair_sim.core.plant_params` and
+its force in `flaair_sim.core.plant_kernel` (docs/CONTRIBUTING.md);
 tests/test_effect_table.py checks that every entry reaches all three and that it changes the
 channels it names and no others. The order of `EFFECTS` is the order effects are stored in a
 model and searched in.
