@@ -37,7 +37,7 @@ import numpy as np
 
 from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_kernel import rk4_step, run_batch, run_batch_from, run_model
+from flaair_sim.core.plant_kernel import rk4_step, run_batch, run_model
 from flaair_sim.core.plant_params import Prepared, prepare
 from flaair_sim.core.plant_terms import (
     add_batch_sensor_terms,
@@ -372,7 +372,8 @@ def simulate_batch(
             vp[0],
         )
     elif m:
-        run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, phi, psi, vs, vp)
+        x0 = np.zeros((m, 4))
+        run_batch(drive, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
     add_batch_sensor_terms(models, fs, commanded, states, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
 
@@ -414,7 +415,7 @@ def simulate_batch_from(
     phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
     seen, states = batch_drives(models, fs, drive[None, :])
     if m:
-        run_batch_from(seen, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
+        run_batch(seen, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
     add_batch_sensor_terms(models, fs, drive[None, :], states, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
 

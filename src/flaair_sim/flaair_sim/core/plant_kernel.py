@@ -21,7 +21,7 @@ from flaair_sim.core.term_kernel import (
     mechanical_constants,
 )
 
-__all__ = ["rk4_step", "run_batch", "run_batch_from", "run_model"]
+__all__ = ["rk4_step", "run_batch", "run_model"]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
@@ -245,38 +245,9 @@ def run_model(
 
 
 @njit(cache=True, parallel=True)
-def run_batch(drive, h, nsubs, params, delays, hist_len, phi_out, psi_out, vs_out, vp_out):
-    """Each model from rest over a shared (1, n) or per-model (m, n) drive."""
-    shared = drive.shape[0] == 1
-    for i in prange(params.shape[0]):
-        row = np.int64(0) if shared else np.int64(i)
-        x = np.zeros(4)
-        zi = np.zeros(2)
-        hist_s = np.zeros(hist_len[i, 0])
-        hist_p = np.zeros(hist_len[i, 1])
-        run_model(
-            x,
-            zi,
-            hist_s,
-            hist_p,
-            drive[row],
-            h,
-            nsubs[i, 0],
-            nsubs[i, 1],
-            params[i],
-            delays[i, 0],
-            delays[i, 1],
-            phi_out[i],
-            psi_out[i],
-            vs_out[i],
-            vp_out[i],
-        )
-
-
-@njit(cache=True, parallel=True)
-def run_batch_from(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
-    """Each model from its own mechanical state x0[i] (sensor chain at rest) over a shared (1, n)
-    or per-model (m, n) drive.
+def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
+    """Each model from its own mechanical state x0[i] (zeros: from rest; the sensor chain at rest)
+    over a shared (1, n) or per-model (m, n) drive.
     """
     shared = drive.shape[0] == 1
     for i in prange(params.shape[0]):
