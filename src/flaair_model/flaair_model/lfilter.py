@@ -22,6 +22,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+__all__ = [
+    "float_block",
+    "lfilter",
+    "lfilter_sample",
+    "normalized_ba",
+]
+
 
 def normalized_ba(b: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(b, a) as float64 arrays of one length, divided by a[0] (what lfilter does first)."""

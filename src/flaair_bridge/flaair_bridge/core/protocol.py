@@ -22,6 +22,29 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+__all__ = [
+    "DRIVE_HEADER",
+    "DRIVE_MAGIC",
+    "DRIVE_SAMPLE",
+    "FLAG_STOP",
+    "FLAG_TARGET_WATCHDOG",
+    "MAX_SAMPLES",
+    "SENSOR_FIELDS",
+    "SENSOR_HEADER",
+    "SENSOR_MAGIC",
+    "SENSOR_SAMPLE",
+    "SEQUENCE_MODULUS",
+    "DrivePacket",
+    "ProtocolError",
+    "SensorPacket",
+    "pack_drive",
+    "pack_sensor",
+    "sequence_delta",
+    "unpack_drive",
+    "unpack_sensor",
+]
+
+
 SENSOR_MAGIC = b"FLS1"
 DRIVE_MAGIC = b"FLD1"
 MAX_SAMPLES = 1000

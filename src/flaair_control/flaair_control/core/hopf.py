@@ -92,6 +92,21 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 
+__all__ = [
+    "HopfOnset",
+    "HopfParameterError",
+    "LimitCycle",
+    "LinearStrokePlant",
+    "characteristic_polynomial",
+    "closed_loop_poles",
+    "filter_coefficients",
+    "hopf_onset",
+    "limit_cycle",
+    "onset_with_delay",
+    "phase_advance",
+    "r3_for_onset_frequency",
+]
+
 
 class HopfParameterError(ValueError):
     """A plant or filter parameter is out of range; the message names it."""

@@ -34,6 +34,27 @@ from flaair_control.core import collision as col
 from flaair_control.core import spectral
 from flaair_model.notes import INFO, Note
 
+__all__ = [
+    "CLEARANCE",
+    "ONSET",
+    "CollisionMonitorParams",
+    "CollisionMonitorState",
+    "DriveBlock",
+    "DriveLockState",
+    "Lock",
+    "MonitorOutputs",
+    "Verdict",
+    "WingBlock",
+    "drive_lock_params",
+    "initial_state",
+    "lock_step",
+    "metric_params",
+    "step",
+    "window_params",
+    "wing_block",
+]
+
+
 ONSET = "onset"
 CLEARANCE = "clearance"
 

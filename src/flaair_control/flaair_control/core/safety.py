@@ -30,6 +30,26 @@ import numpy as np
 
 from flaair_model.lfilter import float_block
 
+__all__ = [
+    "OK",
+    "REASON_INVALID_BLOCK",
+    "REASON_NONE",
+    "REASON_TIMEOUT",
+    "TRIPPED",
+    "SafetyInputs",
+    "SafetyOutput",
+    "SafetyParameterError",
+    "SafetyParams",
+    "SafetyState",
+    "check_timeout",
+    "clamp",
+    "initial_state",
+    "note_sensor_block",
+    "reset",
+    "step",
+]
+
+
 OK = 0
 TRIPPED = 1
 

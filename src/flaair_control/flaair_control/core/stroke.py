@@ -68,6 +68,33 @@ from flaair_model.effects import WingDamage
 from flaair_model.model import Model
 from flaair_model.schema import ParamSpec
 
+__all__ = [
+    "MODES",
+    "NODE_PARAMS",
+    "StrokeInputs",
+    "StrokeOutputs",
+    "StrokeParameterError",
+    "StrokeParams",
+    "StrokePlant",
+    "StrokeSignals",
+    "StrokeState",
+    "command",
+    "design",
+    "dsa_amplitude_deg",
+    "dsa_gain_for_amplitude",
+    "initial_state",
+    "last_amplitude_deg",
+    "params_from_values",
+    "retarget",
+    "step",
+    "sync_drive_for_amplitude",
+    "track_sample",
+    "tracker_constants",
+    "tracker_initial_state",
+    "wingbeats",
+]
+
+
 MODES = ("sync", "dsa")
 
 # tracker state layout (float64 vector, updated in place by the numba kernel)

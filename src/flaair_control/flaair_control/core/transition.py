@@ -44,6 +44,26 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import signal
 
+__all__ = [
+    "CROSSING_START",
+    "BlockRecord",
+    "CrossingFrequency",
+    "CrossingParams",
+    "CrossingState",
+    "HilbertParams",
+    "HilbertResult",
+    "TransitionError",
+    "WindowStats",
+    "crossing_frequency_hz",
+    "crossing_params",
+    "crossing_step",
+    "crossing_times",
+    "hilbert_analysis",
+    "join_blocks",
+    "stamp_s",
+    "window_stats",
+]
+
 
 class TransitionError(ValueError):
     """A parameter or record is invalid; the message names it."""

@@ -30,6 +30,24 @@ import numpy as np
 from flaair_model.notes import INFO, WARNING, Note
 from flaair_sim.core.drive import DriveError, DriveParams, DriveState, drive_step
 
+__all__ = [
+    "LOCKSTEP",
+    "PACINGS",
+    "REALTIME",
+    "Ack",
+    "Block",
+    "Close",
+    "Inputs",
+    "Outputs",
+    "PacingParams",
+    "PacingState",
+    "Tick",
+    "finished",
+    "initial_state",
+    "step",
+]
+
+
 REALTIME = "realtime"
 LOCKSTEP = "lockstep"
 PACINGS = (REALTIME, LOCKSTEP)
