@@ -30,7 +30,8 @@ from flaair_model.effects import (
     WingDamage,
 )
 from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
-from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm, term_from_dict
+from flaair_model.term_entry import term_from_dict
+from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm
 from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
 
 __all__ = [
