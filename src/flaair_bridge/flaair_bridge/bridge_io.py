@@ -14,6 +14,19 @@ from flaair_bridge.core import bridge, bridge_params
 from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
 from flaair_common.params import ParameterError, ParamSpec
 
+__all__ = [
+    "PARAMS",
+    "applied_fields",
+    "bridge_health",
+    "drive_input",
+    "open_endpoint",
+    "params_from_values",
+    "ready_text",
+    "save_timing",
+    "sensor_fields",
+]
+
+
 PARAMS = [
     ParamSpec(
         "sample_rate_hz",

@@ -25,6 +25,26 @@ from flaair_model.schema import ParameterError, ParamSpec, declared_values
 from flaair_model.settings import node_section
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
 
+__all__ = [
+    "CONFIG_FILE",
+    "DSA_CONTROLLER_PARAMS",
+    "controller_health",
+    "controller_state_fields",
+    "describe_loop",
+    "drive_fields",
+    "dropped_text",
+    "dsa_controller_values",
+    "kr_schedule",
+    "loop_delay_s",
+    "ramp_request",
+    "reset_reply",
+    "stroke_controller_values",
+    "supervisor_params_from_config",
+    "supervisor_params_from_values",
+    "supervisor_wing_input",
+]
+
+
 CONFIG_FILE = "flaair.yaml"
 
 DSA_CONTROLLER_PARAMS = [

@@ -25,6 +25,20 @@ __all__ = [
     "retargeted",
     "setup_from_values",
     "state_fields",
+    "timing_params",
+    "wing_fields",
+    "wing_input",
+]
+
+
+__all__ = [
+    "StrokeSetup",
+    "complete_text",
+    "empty_input",
+    "ready_text",
+    "retargeted",
+    "setup_from_values",
+    "state_fields",
     "wing_input",
 ]
 

@@ -21,6 +21,20 @@ from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
 from flaair_sensors.core import frontend
 
+__all__ = [
+    "CONFIG_FILE",
+    "FRONTEND_PARAMS",
+    "NODE_NAME",
+    "frontend_params_from_config",
+    "frontend_tuning_from_config",
+    "frontend_values",
+    "latency_text",
+    "ready_text",
+    "velocity_delay_s",
+    "wing_state_fields",
+]
+
+
 NODE_NAME = "frontend_node"
 CONFIG_FILE = "flaair.yaml"
 FRONTEND_PARAMS = [

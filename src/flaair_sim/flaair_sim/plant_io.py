@@ -20,6 +20,26 @@ from flaair_model.schema import ParameterError, ParamSpec
 from flaair_sim.core.actuator import ActuatorParams, Command
 from flaair_sim.core.scene import CameraParams, tracked_angles, tracking_generator
 
+__all__ = [
+    "ARM_S",
+    "CLOCK_DEPTH",
+    "CONFIG_FILE",
+    "NODE_NAME",
+    "PLANT_PARAMS",
+    "actuator_params_from_config",
+    "camera_from_config",
+    "command_of",
+    "generators_from_config",
+    "matched_text",
+    "obstacle_windows",
+    "plant_models",
+    "ready_text",
+    "rejected_text",
+    "sensor_fields",
+    "truth_fields",
+]
+
+
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "plant_node"
 CLOCK_DEPTH = 1000  # /clock publisher history (KEEP_LAST, reliable): 0.5 s of blocks
