@@ -31,18 +31,6 @@ __all__ = [
 ]
 
 
-__all__ = [
-    "StrokeSetup",
-    "complete_text",
-    "empty_input",
-    "ready_text",
-    "retargeted",
-    "setup_from_values",
-    "state_fields",
-    "wing_input",
-]
-
-
 class StrokeSetup(NamedTuple):
     """What the node runs: the design plant, the controller's and the guard's parameters."""
 
