@@ -30,12 +30,12 @@ for _pkg in ("flaair_control", "flaair_sim", "flaair_sensors"):
     if str(REPO_ROOT / "src" / _pkg) not in sys.path:
         sys.path.insert(0, str(REPO_ROOT / "src" / _pkg))
 
-from flaair_control.control_io import (
+from flaair_control.core import collision as col
+from flaair_control.core import spectral
+from flaair_control.monitor_io import (
     monitor_windows_from_config,
     spectral_metric_params_from_config,
 )
-from flaair_control.core import collision as col
-from flaair_control.core import spectral
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.core import plant

@@ -66,11 +66,11 @@ def main() -> None:
     except Exception as exc:
         print(f"[setup] numba warm-up of the analysis kernels skipped: {exc}")
     try:
-        from flaair_control.control_io import (
+        from flaair_control.core import collision, spectral
+        from flaair_control.monitor_io import (
             monitor_windows_from_config,
             spectral_metric_params_from_config,
         )
-        from flaair_control.core import collision, spectral
 
         spectral.spectral_metric(
             np.sin(np.arange(2000) / 20.0), fs_hz, 100.0, spectral_metric_params_from_config()

@@ -8,12 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_control.control_io import (
+from flaair_control.core import collision as col
+from flaair_control.core import spectral
+from flaair_control.monitor_io import (
     monitor_windows_from_config,
     spectral_metric_params_from_config,
 )
-from flaair_control.core import collision as col
-from flaair_control.core import spectral
 
 FS = 20000.0
 BLOCK = 10

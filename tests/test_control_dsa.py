@@ -238,3 +238,36 @@ def test_sync_to_async_transition_on_the_simulated_robot():
     amp_async = np.ptp(x[int(1.2 * FS) : int(1.6 * FS)]) / 2
     assert amp_async == pytest.approx(math.degrees(lc.amplitude_rad), rel=0.1)
     assert amp_sync > 0.5 and amp_async > 1.0
+
+
+def test_dsa_params_builds_from_values_and_applies_the_delay_only_when_compensating() -> None:
+    values = {
+        "r3_rad_s": R3,
+        "kappa": KAPPA,
+        "mu_nm_s_per_rad": MU,
+        "drive_limit_v": 100.0,
+        "sync_amplitude_v": 0.0,
+        "sync_frequency_hz": 100.0,
+        "sync_phase_rad": 0.0,
+        "compensate_delay": True,
+        "compensation_frequency_hz": None,
+        "unrelated_key": "ignored",
+    }
+    kr = dsa.KrSchedule(0.0, 0.0, 0.0, 0.0)
+    built = dsa.dsa_params(
+        values, actuator_gain_nm_per_v=G_A, sample_rate_hz=FS, loop_delay_s=5.5e-4, kr_schedule=kr
+    )
+    assert built == make(loop_delay_s=5.5e-4)
+    off = dsa.dsa_params(
+        {**values, "compensate_delay": False},
+        actuator_gain_nm_per_v=G_A,
+        sample_rate_hz=FS,
+        loop_delay_s=5.5e-4,
+        kr_schedule=kr,
+    )
+    assert off.loop_delay_s == 0.0
+    del values["kappa"]
+    with pytest.raises(dsa.DsaParameterError, match="lack kappa"):
+        dsa.dsa_params(
+            values, actuator_gain_nm_per_v=G_A, sample_rate_hz=FS, loop_delay_s=0.0, kr_schedule=kr
+        )

@@ -219,3 +219,33 @@ def test_node_holds_the_setpoint_and_retargets_at_run_time(monkeypatch, tmp_path
     assert len(states) == len(wing) + 1 and all(
         s.watchdog == 0 and abs(s.drive_v) <= 150.0 for s in states
     )
+
+
+def test_the_stroke_loop_starts_after_the_delay_retries_and_trips_on_the_wall_clock() -> None:
+    from flaair_control.core import stroke_loop as sl
+
+    p = sl.TimingParams(start_delay_s=0.5, start_retry_s=0.2, watchdog_timeout_s=1.0)
+    t = sl.initial_state(p, t_wall=0.0)
+    t, action = sl.on_timer(t, 1.0, True, p)
+    assert (t.mode, t.peers_wall, action) == (sl.WAITING, 1.0, sl.NOTHING)
+    t, action = sl.on_timer(t, 1.2, False, p)  # a peer left: the delay starts again
+    assert (t.peers_wall, action) == (None, sl.NOTHING)
+    t, _ = sl.on_timer(t, 2.0, True, p)
+    t, action = sl.on_timer(t, 2.5, True, p)
+    assert (t.mode, t.last_wall, action) == (sl.LOOP, 2.5, sl.START)
+    t, action = sl.on_timer(t, 2.6, True, p)
+    assert action == sl.NOTHING
+    t, action = sl.on_timer(t, 2.75, True, p)
+    assert (t.last_wall, action) == (2.75, sl.RETRY)
+    t, answer = sl.on_wing_state(t, 2.8, True)
+    assert answer and t.answered and t.last_wall == 2.8
+    t, action = sl.on_timer(t, 3.7, True, p)
+    assert action == sl.NOTHING  # answered: no retry; 0.9 s silent: no trip yet
+    t, action = sl.on_timer(t, 3.85, True, p)
+    assert (t.mode, action) == (sl.TRIPPED, sl.TRIP)
+    t, answer = sl.on_wing_state(t, 3.9, True)
+    assert not answer and t.mode == sl.TRIPPED
+    waiting = sl.initial_state(p, t_wall=0.0)
+    started, answer = sl.on_wing_state(waiting, 0.1, True)
+    assert answer and started.mode == sl.LOOP
+    assert sl.on_wing_state(waiting, 0.1, False) == (waiting, False)

@@ -16,8 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from flaair_control.control_io import monitor_windows_from_config
 from flaair_control.core import collision, dsa
+from flaair_control.monitor_io import monitor_windows_from_config
 from flaair_model.model_io import load_model
 from flaair_sim.core import drive, plant
 

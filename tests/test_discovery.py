@@ -158,6 +158,41 @@ def test_a_model_with_a_discovered_term_round_trips_exactly(tmp_path: Path, mode
     np.testing.assert_array_equal(simulate(d, FS, back).stroke_rad, simulate(d, FS, m).stroke_rad)
 
 
+def test_a_term_from_discrepancy_json_pasted_into_a_model_file_gives_the_same_plant(
+    tmp_path: Path, model
+) -> None:
+    terms = (
+        DiscoveredTerm("drive_lag", "drive", 1.0173, (("corner_hz", 512.25),)),
+        DiscoveredTerm("cube_angle", "stroke_dynamics", -3.3e-5),
+    )
+    entries = [
+        discrepancy.Discovered(
+            term=t,
+            channel="stroke_sensor_v",
+            stderr={"coefficient": 0.01, "corner_hz": 3.5},
+            gap_before={"stroke_sensor_v": 0.2},
+            gap_after={"stroke_sensor_v": 0.05},
+            evidence={"delta_bic_heldout": -40.0},
+            beaten=({"term": "constant", "acts_on": "drive", "accepted": False},),
+        ).as_dict()
+        for t in terms
+    ]
+    pasted = json.loads(json.dumps(entries))  # as read back from discrepancy.json
+    assert pasted[0]["parameters"]["corner_hz"] == {"value": 512.25, "stderr": 3.5}
+    path = tmp_path / "model.yaml"
+    save_model(model, path)
+    text = path.read_text() + "discovered:\n" + "".join(f"  - {json.dumps(e)}\n" for e in pasted)
+    path.write_text(text)
+    back = load_model(path)
+    assert back.discovered == terms
+    d = _drive(3000)
+    expected = simulate(d, FS, replace(model, discovered=terms))
+    np.testing.assert_array_equal(simulate(d, FS, back).stroke_sensor_v, expected.stroke_sensor_v)
+    bad = dict(pasted[0], parameters={"coefficient": {"value": 1.0, "sigma": 0.1}})
+    with pytest.raises(ModelError, match="coefficient must be a number or a mapping"):
+        model_from_dict(model_to_dict(model) | {"discovered": [bad]})
+
+
 @pytest.mark.parametrize(
     "entry,message",
     [

@@ -48,12 +48,12 @@ def test_bridge_health_speaks_of_the_last_period_and_of_both_watchdogs() -> None
 
 
 def test_monitor_health_warns_while_colliding() -> None:
-    from flaair_control.control_io import (
+    from flaair_control.core import monitor
+    from flaair_control.monitor_io import (
         collision_monitor_params_from_config,
         collision_monitor_values,
         monitor_health,
     )
-    from flaair_control.core import monitor
 
     state = monitor.initial_state(collision_monitor_params_from_config(collision_monitor_values()))
     assert monitor_health((state, 0, 0), None).message == "waiting for the first wingbeat"

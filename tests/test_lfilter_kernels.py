@@ -58,8 +58,8 @@ def _dsa_reference(state: dsa.DsaState, v: np.ndarray, t_start_s: float, p: dsa.
     """The dSA block as plain numpy/scipy: two lfilter calls, K_r, sine, blend, clip."""
     valid = np.isfinite(v)
     v = np.where(valid, v, 0.0)
-    torque, zi_adv = signal.lfilter(*dsa.tf_coefficients(p, True), v, zi=state.zi_advanced)
-    torque_raw, zi_raw = signal.lfilter(*dsa.tf_coefficients(p, False), v, zi=state.zi_raw)
+    torque, zi_adv = signal.lfilter(*dsa.filter_coefficients(p, True), v, zi=state.zi_advanced)
+    torque_raw, zi_raw = signal.lfilter(*dsa.filter_coefficients(p, False), v, zi=state.zi_raw)
     t = t_start_s + np.arange(v.size) / p.sample_rate_hz
     kr = p.kr_schedule.value(t)
     sync = p.sync_amplitude_v * np.sin(2.0 * np.pi * p.sync_frequency_hz * t + p.sync_phase_rad)

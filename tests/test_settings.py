@@ -97,7 +97,7 @@ def test_a_node_section_is_checked_against_the_node_schema(
 
 
 def test_a_value_outside_its_range_is_refused_with_the_range(tmp_path: Path, monkeypatch) -> None:
-    from flaair_control.control_io import COLLISION_MONITOR_PARAMS, collision_monitor_values
+    from flaair_control.monitor_io import COLLISION_MONITOR_PARAMS, collision_monitor_values
     from flaair_model.schema import ParameterError
 
     spec = next(s for s in COLLISION_MONITOR_PARAMS if s.type is float and s.max_value is not None)

@@ -4,9 +4,11 @@ fake wall clock. Over DDS, the same ring-down after a kill -9 of the controller 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from flaair_sim.core import actuator
+from flaair_sim.core import actuator, scene
 
 FS_HZ, BLOCK = 20000.0, 10
 PARAMS = actuator.ActuatorParams(
@@ -24,7 +26,7 @@ def _command(t_wall: float, index: int, volts: float) -> actuator.Command:
 
 
 def _drive(state: actuator.ActuatorState, t_wall: float, n_blocks: int, volts: float = 50.0):
-    for k in range(n_blocks):
+    for _ in range(n_blocks):
         state, out = actuator.step(state, _command(t_wall, state.next_index, volts), PARAMS)
         assert len(out.drive_blocks) == 1
     return state
@@ -78,3 +80,35 @@ def test_the_watchdog_waits_until_commands_have_flowed_for_arm_s() -> None:
     # 5 ms of commands < arm_s 10 ms
     state = _drive(actuator.initial_state(PARAMS, t_wall=0.0), 0.0, 10)
     assert actuator.step(state, actuator.Tick(5.0), PARAMS)[1] == actuator.Outputs()
+
+
+def test_the_drive_clamp_and_the_tick_rules_live_in_the_core() -> None:
+    drive = np.array([-300.0, -12.5, 0.0, 99.0, 101.0, np.inf])
+    np.testing.assert_array_equal(
+        actuator.clamp_drive(drive, 100.0), [-100.0, -12.5, 0.0, 99.0, 100.0, 100.0]
+    )
+    base = actuator.ActuatorParams(20000.0, 10, "lockstep", 0.0, 0.1, 0.05)
+    assert actuator.tick_period_s(base) is None
+    assert actuator.tick_period_s(dataclasses.replace(base, command_timeout_s=0.02)) == 0.005
+    assert actuator.tick_period_s(dataclasses.replace(base, command_timeout_s=1.0)) == 0.01
+    assert actuator.tick_period_s(dataclasses.replace(base, mode="realtime")) == 0.005
+    assert actuator.blocks_per_tick(base) == 40
+
+
+def test_the_camera_sees_one_frame_in_n_with_tracking_noise_split_independent() -> None:
+    stroke, pitch = np.radians(np.arange(12.0)), np.radians(-np.arange(12.0))
+    camera = scene.CameraParams(frame_every=4, tracking_noise_deg_rms=0.5)
+    whole = scene.tracked_angles(0, stroke, pitch, camera, scene.tracking_generator(True, 7, 4))
+    rng = scene.tracking_generator(True, 7, 4)
+    parts = [
+        scene.tracked_angles(i, stroke[i : i + 6], pitch[i : i + 6], camera, rng) for i in (0, 6)
+    ]
+    for k in range(3):
+        np.testing.assert_array_equal(whole[k], np.concatenate([p[k] for p in parts]))
+    assert whole[2].tolist() == [i % 4 == 0 for i in range(12)]
+    assert 0.0 < np.std(whole[0] - np.arange(12.0)) < 2.0
+    assert scene.tracking_generator(True, 7, 1) is None
+    assert scene.tracking_generator(False, 7, 4) is None
+    clean = scene.tracked_angles(3, stroke, pitch, scene.CameraParams(1, 0.5), None)
+    np.testing.assert_allclose(clean[0], np.arange(12.0))
+    assert clean[2] is None

@@ -3,7 +3,7 @@
 The sweeps (`flaair_tools.sweeps`) run it; it reads the plant and the controller only through
 their public names: `flaair_sim.core.plant` (`prepare`, `mechanical_constants`, `rk4_step`: the
 compiled kernel published for batch engines), `flaair_control.core.dsa` (`DsaParams`, `KrSchedule`,
-`tf_coefficients`) and `flaair_control.core.stroke` (`track_sample`).
+`filter_coefficients`) and `flaair_control.core.stroke` (`track_sample`).
 
 One simulation is the plant's numba RK4 (``flaair_sim.core.plant``: the same kernels and parameter
 vector, so a point equals the plant model) closed sample by sample through the drive:
@@ -202,21 +202,23 @@ def damaged_model(model: Model, inertia_factor: float, aero_damping_factor: floa
 def _filter(
     row: dict[str, Any], model: Model, fs: float, mu: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    params = dsa.DsaParams(
-        r3_rad_s=row["r3_rad_s"],
-        kappa=row["kappa"],
-        mu_nm_s_per_rad=mu,
+    values = {
+        **row,
+        "mu_nm_s_per_rad": mu,
+        "sync_amplitude_v": 0.0,
+        "sync_frequency_hz": 1.0,
+        "sync_phase_rad": 0.0,
+        "compensate_delay": True,
+        "compensation_frequency_hz": None,
+    }
+    params = dsa.dsa_params(
+        values,
         actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
         sample_rate_hz=fs,
-        drive_limit_v=row["drive_limit_v"],
-        sync_amplitude_v=0.0,
-        sync_frequency_hz=1.0,
-        sync_phase_rad=0.0,
-        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0),
         loop_delay_s=0.5 / fs,
-        compensation_frequency_hz=None,
+        kr_schedule=dsa.KrSchedule(0.0, 0.0, 0.0, 0.0),
     )
-    return dsa.tf_coefficients(params, True)  # the controller core's own discretization
+    return dsa.filter_coefficients(params, True)  # the controller core's own discretization
 
 
 def run_rows(

@@ -7,10 +7,25 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import numpy as np
+
 from flaair_bridge import udp
 from flaair_bridge.core import bridge, bridge_params
 from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
 from flaair_common.params import ParameterError, ParamSpec
+
+__all__ = [
+    "PARAMS",
+    "applied_fields",
+    "bridge_health",
+    "drive_input",
+    "open_endpoint",
+    "params_from_values",
+    "ready_text",
+    "save_timing",
+    "sensor_fields",
+]
+
 
 PARAMS = [
     ParamSpec(
@@ -147,15 +162,6 @@ def params_from_values(values: Mapping[str, Any]) -> bridge_params.BridgeParams:
         raise ParameterError(str(exc)) from exc
 
 
-def configured_target(values: Mapping[str, Any]) -> tuple[str, int] | None:
-    """Where drive and stop packets go when configured; None: learnt when the target speaks."""
-    return (
-        (values["target_host"], values["target_port"])
-        if values["target_host"] and values["target_port"]
-        else None
-    )
-
-
 def open_endpoint(
     values: Mapping[str, Any], on_datagram: Callable[..., None], logger: Any
 ) -> udp.DatagramEndpoint:
@@ -257,3 +263,13 @@ def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) ->
             "target_silent": now.silent,
         },
     )
+
+
+def drive_input(fields: Mapping[str, Any], now_s: float) -> bridge.DriveBlock:
+    """A /flaair/drive block's fields as the bridge core's input, received at `now_s`."""
+    return bridge.DriveBlock(int(fields["first_sample_index"]), np.array(fields["drive_v"]), now_s)
+
+
+def save_timing(path: str, timing: list[tuple[int, float, float]], events: Any) -> None:
+    """The run's latency pairs and raw event times (`bridge_report.EventLog`) as .npz."""
+    np.savez(path, timing=np.array(timing).reshape(-1, 3), **events.arrays())

@@ -3,11 +3,9 @@
 Sensor packets (listen_host:listen_port) become SensorVoltageBlock on /flaair/sensor_v (lost
 samples NaN: the front end marks them invalid), the drive the target applied DriveCommandBlock
 on /flaair/drive/applied. /flaair/drive goes to the target (target_host:target_port; empty /
-0: the sender) lead_samples ahead, clamped to +-drive_limit_v. A drive stream silent for
-drive_timeout_s, a target silent for sensor_timeout_s, and every end of a run send a stop
-packet. Malformed datagrams are counted and logged. A thin shell over
-flaair_bridge.core.bridge.step; a reader thread (flaair_bridge.udp, SCHED_FIFO at
-realtime_priority) shares the node with the executor under one lock.
+0: the sender, `core.target`) lead_samples ahead, clamped to +-drive_limit_v; watchdogs and
+stop packets: `flaair_bridge.core.bridge`, of which this is a thin shell. A reader thread
+(flaair_bridge.udp, SCHED_FIFO at realtime_priority) shares the node with the executor.
 
 Usage: bin/flaair run flaair_bridge bridge_node --ros-args -p listen_port:=25000 -p lead_samples:=20
 """
@@ -18,11 +16,9 @@ import sys
 import threading
 import time
 
-import numpy as np
-
 from flaair_bridge import bridge_io as io
 from flaair_bridge.bridge_io import PARAMS
-from flaair_bridge.core import bridge, bridge_report
+from flaair_bridge.core import bridge, bridge_report, target
 from flaair_common import intra, topics
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
@@ -45,7 +41,7 @@ class BridgeNode(FlaairNode):
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.params = io.params_from_values(p)
         # a configured target that never speaks still gets the stop packet at the end
-        self.target = io.configured_target(p)
+        self.target = target.configured(p["target_host"], p["target_port"])
         # re-entered when composed: the loop answers in-process
         self.state, self.lock = bridge.initial_state(self.params), threading.RLock()
         self.timing: list[tuple[int, float, float]] = []
@@ -75,12 +71,9 @@ class BridgeNode(FlaairNode):
         self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
-        target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
-        if target != self.target:  # the first packet, or a target that restarted elsewhere
-            self.target = target
-            self.get_logger().info(
-                f"target at {target[0]}:{target[1]}: drive and stop packets go there"
-            )
+        host, port = self.p["target_host"], self.p["target_port"]
+        self.target, notes = target.follow(host, port, sender, self.target)
+        log_notes(self.get_logger(), notes)
         answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
         # the loop has answered: a gap until the next block
@@ -94,11 +87,7 @@ class BridgeNode(FlaairNode):
     def on_drive(self, message) -> None:
         # composed, the controller's closing zero block follows the stop packet
         if not self.closed:
-            self.process(
-                bridge.DriveBlock(
-                    int(message["first_sample_index"]), np.array(message["drive_v"]), time.time()
-                )
-            )
+            self.process(io.drive_input(message, time.time()))
 
     def process(self, inputs: bridge.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
@@ -106,19 +95,14 @@ class BridgeNode(FlaairNode):
         with self.lock:
             # composed, the drive this packet's blocks produce
             # comes back nested: its cause is this packet
-            outer_cause_s, self.cause_s = (
-                self.cause_s,
-                inputs.now_s if isinstance(inputs, bridge.SensorDatagram) else self.cause_s,
-            )
+            outer_cause_s = self.cause_s
+            if isinstance(inputs, bridge.SensorDatagram):
+                self.cause_s = inputs.now_s
             self.state, out = bridge.step(self.state, inputs, self.params)
             for packet in [packet for packet in out.packets for _ in range(copies)]:
-                if error := (
-                    self.endpoint.send(packet, self.target) if self.target is not None else ""
-                ):
-                    self.get_logger().warning(
-                        f"drive packet not sent to {self.target}: {error}",
-                        throttle_duration_sec=1.0,
-                    )
+                if error := self.send(packet):
+                    text = f"drive packet not sent to {self.target}: {error}"
+                    self.get_logger().warning(text, throttle_duration_sec=1.0)
             self.timing.extend(out.timing)
             counters = self.state.counters
             if self.events is not None:
@@ -142,16 +126,14 @@ class BridgeNode(FlaairNode):
         self.endpoint.stop_reading()
         self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
-        self.get_logger().info(
-            "bridge closed, stop packet sent: "
-            f"{bridge_report.summary(self.state.counters, self.timing)}"
-        )
+        summary = bridge_report.summary(self.state.counters, self.timing)
+        self.get_logger().info(f"bridge closed, stop packet sent: {summary}")
         if self.p["timing_file"]:
-            np.savez(
-                self.p["timing_file"],
-                timing=np.array(self.timing).reshape(-1, 3),
-                **self.events.arrays(),
-            )
+            io.save_timing(self.p["timing_file"], self.timing, self.events)
+
+    def send(self, packet: bytes) -> str:
+        """Send `packet` to the target (if known); an error's text, or empty."""
+        return self.endpoint.send(packet, self.target) if self.target is not None else ""
 
     def destroy_node(self) -> None:
         # whoever owns the node (run_node, a shared executor): the run ends with a stop packet

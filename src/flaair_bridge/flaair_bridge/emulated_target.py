@@ -138,7 +138,7 @@ class TargetCore:
             out,
             tally,
         )
-        for name, count in zip(_TALLY, tally):
+        for name, count in zip(_TALLY, tally, strict=True):
             self.counts[name] += int(count)
         self.applied_v = float(out[-1])
         self.next_index += n
@@ -211,7 +211,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         shared = node_parameters("flaair.yaml", "emulated_target")
     except ConfigError as exc:
         print(f"emulated_target: {exc}", file=sys.stderr)
-        raise SystemExit(2)
+        raise SystemExit(2) from None
     parser = argparse.ArgumentParser(
         prog="emulated_target",
         description=__doc__,
@@ -337,29 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     stats = {"packets_sent": 0, "send_errors": 0, "overruns": 0, "max_lag_ms": 0.0}
 
     def drain() -> None:
-        while True:
-            try:
-                data, sender = sock.recvfrom(65536)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:  # e.g. ICMP port unreachable reported on the socket
-                continue
-            before = core.counts["drive_packets"], core.counts["stop_packets"]
-            core.receive(data)
-            # said once each (stderr): a script or test can wait on them instead of guessing a time
-            if before[0] == 0 and core.counts["drive_packets"] > 0:
-                print(
-                    f"emulated_target: first drive packet from {sender[0]}:{sender[1]}",
-                    file=sys.stderr,
-                    flush=True,
-                )
-            if core.counts["stop_packets"] > before[1]:
-                print(
-                    f"emulated_target: stop packet {core.counts['stop_packets']} received: drive "
-                    "zeroed, disarmed",
-                    file=sys.stderr,
-                    flush=True,
-                )
+        _drain(sock, core)
 
     if error := take_realtime_priority(args.realtime_priority):
         print(
@@ -406,24 +384,13 @@ def main(argv: list[str] | None = None) -> int:
         stats["max_lag_ms"] = max(stats["max_lag_ms"], 1e3 * lag)
         stats["overruns"] += lag > n / fs
         if held is not None:  # the packet whose last sample was taken just before `due`
-            try:
-                sock.sendto(held, bridge)
-                stats["packets_sent"] += 1
-            except OSError:
-                stats["send_errors"] += 1
+            _send(sock, held, bridge, stats)
         if total is not None and j == total:
             break
         was_tripped = core.tripped
         drive, flags = core.decide(n)
-        # said at each change: a script can wait on the state, not guess a time
         if core.tripped != was_tripped:
-            print(
-                f"emulated_target: drive watchdog {'tripped' if core.tripped else 'cleared'} at "
-                f"sample {core.next_index}: "
-                f"{'holding zero drive' if core.tripped else 'fresh drive again'}",
-                file=sys.stderr,
-                flush=True,
-            )
+            _say_watchdog(core)
         state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
         j += 1
@@ -437,6 +404,53 @@ def main(argv: list[str] | None = None) -> int:
     if args.counters:
         _write_atomically(args.counters, text)
     return 0
+
+
+def _drain(sock: socket.socket, core: TargetCore) -> None:
+    """Take every datagram waiting on `sock` into the core."""
+    while True:
+        try:
+            data, sender = sock.recvfrom(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # e.g. ICMP port unreachable reported on the socket
+            continue
+        before = core.counts["drive_packets"], core.counts["stop_packets"]
+        core.receive(data)
+        # said once each (stderr): a script or test can wait on them instead of guessing a time
+        if before[0] == 0 and core.counts["drive_packets"] > 0:
+            print(
+                f"emulated_target: first drive packet from {sender[0]}:{sender[1]}",
+                file=sys.stderr,
+                flush=True,
+            )
+        if core.counts["stop_packets"] > before[1]:
+            print(
+                f"emulated_target: stop packet {core.counts['stop_packets']} received: drive "
+                "zeroed, disarmed",
+                file=sys.stderr,
+                flush=True,
+            )
+
+
+def _send(sock: socket.socket, packet: bytes, bridge: tuple[str, int], stats: dict) -> None:
+    """Send a sensor packet to the bridge, counting it or its error."""
+    try:
+        sock.sendto(packet, bridge)
+        stats["packets_sent"] += 1
+    except OSError:
+        stats["send_errors"] += 1
+
+
+def _say_watchdog(core: TargetCore) -> None:
+    """Said at each change: a script can wait on the state, not guess a time."""
+    print(
+        f"emulated_target: drive watchdog {'tripped' if core.tripped else 'cleared'} at "
+        f"sample {core.next_index}: "
+        f"{'holding zero drive' if core.tripped else 'fresh drive again'}",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def _write_atomically(path: str, text: str) -> None:

@@ -19,6 +19,7 @@ No rclpy here: readiness is checked by the caller (a predicate for `wait_for`).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import fcntl
 import os
@@ -72,7 +73,8 @@ def lease_domain() -> DomainLease:
     candidates = list(DOMAIN_IDS)
     random.Random(os.getpid() ^ time.monotonic_ns()).shuffle(candidates)
     for domain_id in candidates:
-        handle = open(DOMAIN_LOCK_DIR / f"domain{domain_id}.lock", "w")
+        # kept open while the lease lasts (the flock lives as long as the file is open)
+        handle = open(DOMAIN_LOCK_DIR / f"domain{domain_id}.lock", "w")  # noqa: SIM115
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -239,7 +241,8 @@ class Graph:
         log = None
         if self.log_dir is not None and (stdout is None or stderr is None):
             self.log_dir.mkdir(parents=True, exist_ok=True)
-            log = open(self.log_dir / f"{name}.log", "w")
+            # only when logging: closed below, once Popen has handed the child its own descriptor
+            log = open(self.log_dir / f"{name}.log", "w")  # noqa: SIM115
         argv, preexec = with_parent_death_signal(with_deferred_signals(argv))
         process = subprocess.Popen(
             argv,
@@ -286,17 +289,13 @@ class Graph:
     ) -> int:
         """Signal a child's process group, wait, then kill it; returns its exit code."""
         if process.poll() is None:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(process.pid, sig)
-            except ProcessLookupError:
-                pass
         try:
             return process.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(process.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
             return process.wait()
 
     def stop_all(self, timeout_s: float = STOP_TIMEOUT_S) -> None:

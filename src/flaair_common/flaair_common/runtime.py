@@ -194,6 +194,35 @@ def _watch_for_stop_signals(deadline_s: float | None) -> None:
     threading.Thread(target=watch, name="exit-deadline", daemon=True).start()
 
 
+def _init_ros(args: list[str]) -> bool:
+    """Initialise rclpy with `args`; False (said on stderr) for a malformed --ros-args word."""
+    try:
+        rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    except _rclpy_impl.RCLError as exc:  # a malformed --ros-args word (`-p name:=`, ...)
+        why = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
+        print(f"{sys.argv[0].rsplit('/', 1)[-1]}: bad --ros-args: {why}", file=sys.stderr)
+        return False
+    return True
+
+
+def _build_nodes(makers: list[Callable[[], Node]], program: str) -> list[Node] | None:
+    """The nodes, built in order; None (said on stderr, those built closed, rclpy shut down) when
+    one refuses a parameter or meets a bad value while building (ModelError, ...).
+    """
+    nodes: list[Node] = []
+    try:
+        for make_node in makers:
+            nodes.append(make_node())
+    except ValueError as exc:
+        text = str(exc) if isinstance(exc, ParameterError) else f"{type(exc).__name__}: {exc}"
+        print(f"{program}: {text}", file=sys.stderr)
+        for node in reversed(nodes):
+            _close(node)
+        rclpy.try_shutdown()
+        return None
+    return nodes
+
+
 def run_nodes(
     makers: list[Callable[[], Node]],
     args: list[str] | None = None,
@@ -215,11 +244,7 @@ def run_nodes(
     if _early_signals:
         return 0
     intra.install(bus)
-    try:
-        rclpy.init(args=args, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
-    except _rclpy_impl.RCLError as exc:  # a malformed --ros-args word (`-p name:=`, ...)
-        why = str(exc).split(", at ")[0].removeprefix("failed to initialize rcl: ")
-        print(f"{sys.argv[0].rsplit('/', 1)[-1]}: bad --ros-args: {why}", file=sys.stderr)
+    if not _init_ros(args):
         return 2
     executor = make_executor(executor_kind)
     stop_requested = bool(_early_signals)
@@ -235,17 +260,8 @@ def run_nodes(
     signal.signal(signal.SIGTERM, _stop)
     _watch_for_stop_signals(exit_deadline_s)  # arms the deadline the moment either arrives
     program = sys.argv[0].rsplit("/", 1)[-1]
-    nodes: list[Node] = []
-    try:
-        for make_node in makers:
-            nodes.append(make_node())
-    # a refused parameter, a bad value met while building (ModelError, ...)
-    except ValueError as exc:
-        text = str(exc) if isinstance(exc, ParameterError) else f"{type(exc).__name__}: {exc}"
-        print(f"{program}: {text}", file=sys.stderr)
-        for node in reversed(nodes):
-            _close(node)
-        rclpy.try_shutdown()
+    nodes = _build_nodes(makers, program)
+    if nodes is None:
         return 2
     for node in nodes:
         executor.add_node(node)

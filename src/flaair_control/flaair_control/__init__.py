@@ -3,8 +3,8 @@
 ``core/`` holds the pure decisions (no rclpy); beside it the ROS shells and their adapters:
 
 - ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``: the nodes (rclpy)
-- ``control_io``, ``stroke_io``, ``transition_io``: their
-  parameters and message <-> core mappings (no rclpy)
+- ``control_io`` (the dSA controller), ``monitor_io`` (the collision monitor), ``stroke_io``,
+  ``transition_io``: their parameters and message <-> core mappings (no rclpy)
 """
 
 __all__ = [
@@ -12,6 +12,7 @@ __all__ = [
     "control_io",
     "core",
     "dsa_controller_node",
+    "monitor_io",
     "stroke_controller_node",
     "stroke_io",
     "transition_io",

@@ -27,7 +27,9 @@ from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import INFO, WARN, log, log_notes, run_node, warn_counted
-from flaair_control.control_io import (
+from flaair_control import monitor_io as io
+from flaair_control.core import monitor
+from flaair_control.monitor_io import (
     COLLISION_MONITOR_PARAMS,
     CONFIG_FILE,
     collision_monitor_params_from_config,
@@ -36,7 +38,6 @@ from flaair_control.control_io import (
     monitor_health,
     monitor_wing_input,
 )
-from flaair_control.core import monitor
 from flaair_msgs.msg import CollisionEvent, CollisionStatus
 
 NODE_NAME = "collision_monitor_node"
@@ -75,11 +76,7 @@ class CollisionMonitorNode(FlaairNode):
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(
-            self.get_logger(),
-            self.undecodable,
-            f"block dropped: {exc} [{self.undecodable} undecodable so far]",
-        )
+        warn_counted(self.get_logger(), self.undecodable, io.dropped_text(exc, self.undecodable))
 
     def on_drive(self, m) -> None:
         drive_v = np.asarray(m["drive_v"], dtype=np.float64)
@@ -103,11 +100,8 @@ class CollisionMonitorNode(FlaairNode):
         )
         if not check.ok and check.kind != "gap":
             self.rejected += 1
-            warn_counted(
-                self.get_logger(),
-                self.rejected,
-                f"wing-state block {first}: {check.reason} [{self.rejected} rejected so far]",
-            )
+            text = f"wing-state block {first}: {check.reason} [{self.rejected} rejected so far]"
+            warn_counted(self.get_logger(), self.rejected, text)
             return
         self.wing_expected = first + n
         self.follow_sample_clock(m, self.fs_hz)  # verdict stamps: the wing state's clock
@@ -122,32 +116,17 @@ class CollisionMonitorNode(FlaairNode):
 
     def publish(self, v: monitor.Verdict) -> None:
         stamp = stamp_from_ns(self.stamp_ns_of(v.end_index, self.fs_hz))
+        threshold = self.p["threshold_deg"]
         if v.event is not None:
-            event = CollisionEvent(
-                kind=EVENT_KINDS[v.event],
-                wingbeat_index=v.wingbeat_index,
-                spectrum_rmse_deg=v.spectrum_rmse_deg,
-            )
+            event = CollisionEvent(kind=EVENT_KINDS[v.event], **io.event_fields(v))
             event.header.stamp = stamp
             self.event_pub.publish(event)
-            text = (
-                f"at wingbeat {v.wingbeat_index} (t = {v.end_index / self.fs_hz:.4f} s, "
-                f"{v.frequency_hz:.1f} Hz): pitch spectrum RMSE {v.spectrum_rmse_deg:.3f} deg "
-                f"(threshold {self.p['threshold_deg']:g} deg), distortion score {v.score:.2f}"
-            )
             log(
                 self.get_logger(),
                 WARN if v.colliding else INFO,
-                f"collision {'ONSET' if v.colliding else 'CLEARANCE'} {text}",
+                io.verdict_text(v, self.fs_hz, threshold),
             )
-        out = CollisionStatus(
-            wingbeat_index=v.wingbeat_index,
-            wingbeat_frequency_hz=v.frequency_hz,
-            colliding=v.colliding,
-            spectrum_rmse_deg=v.spectrum_rmse_deg,
-            time_rmse_deg=v.time_rmse_deg,
-            threshold_deg=self.p["threshold_deg"],
-        )
+        out = CollisionStatus(**io.status_fields(v, threshold))
         out.header.stamp = stamp
         self.status_pub.publish(out)
 

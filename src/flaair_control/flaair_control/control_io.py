@@ -1,203 +1,51 @@
-"""The control nodes' parameters: their one declaration, and config values -> core params.
+"""The dSA controller node's parameters: their one declaration, config values -> core params,
+and its messages <-> the loop supervisor's inputs and outputs.
 
-`COLLISION_MONITOR_PARAMS` and `DSA_CONTROLLER_PARAMS` declare each parameter once (type,
-unit in the name and description, range); the values live in config/flaair.yaml. The
-`*_params_from_config` functions build the pure cores' parameters from those values, for the
-nodes and for offline tools (bag replay, analysis) alike.
+`DSA_CONTROLLER_PARAMS` declares each parameter once (type, unit in the name and description,
+range); the values live in config/flaair.yaml. `supervisor_params_from_config` builds the pure
+core's parameters from those values, for the node and for offline tools (bag replay, analysis)
+alike; `stroke_controller_values` reads the stroke controller's section. The collision
+monitor's counterpart is `flaair_control.monitor_io`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import replace
+from collections.abc import Callable, Mapping
 from typing import Any
 
-import numpy as np
-
-from flaair_common.health import ERROR, OK, WARN, Health, health
-from flaair_control.core import collision as col
-from flaair_control.core import dsa, monitor, safety, spectral, stroke
+from flaair_common.health import ERROR, WARN, Health, health
+from flaair_control.core import dsa, safety, stroke
 from flaair_control.core import supervisor as sv
-from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
 from flaair_control.core.supervisor import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
 from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import ParameterError, ParamSpec, declared_values
 from flaair_model.settings import node_section
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
 
-CONFIG_FILE = "flaair.yaml"
-
-COLLISION_MONITOR_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the wing-state blocks [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
-    ParamSpec(
-        "window_source",
-        str,
-        "Wingbeat windows locked to the drive or to the measured stroke",
-        choices=("drive", "stroke"),
-        read_only=True,
-    ),
-    ParamSpec(
-        "drive_frequency_hz",
-        float,
-        "drive windows: drive frequency (0: estimate from /flaair/drive) [Hz]",
-        0.0,
-        2500.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "drive_phase_rad",
-        float,
-        "drive windows with a known frequency: window starts where 2 pi f t + phase = 2 pi k [rad]",
-        -10.0,
-        10.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "drive_hysteresis_v",
-        float,
-        "Drive-frequency estimate: Schmitt hysteresis on the drive [V]",
-        0.0,
-        100.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "frequency_average_wingbeats",
-        int,
-        "Drive-frequency estimate: wingbeats averaged",
-        1,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        "relock_tolerance",
-        float,
-        "Re-lock the drive windows when the estimate moves by this fraction [-]",
-        1e-6,
-        1.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "decision",
-        str,
-        "Which metric decides onset/clearance",
-        choices=("paper", "distortion"),
-        read_only=True,
-    ),
-    ParamSpec(
-        "threshold_deg", float, "paper: spectral RMSE threshold [deg]", 1e-6, 90.0, read_only=True
-    ),
-    ParamSpec(
-        "metric_wingbeats", int, "paper: wingbeats in the FFT record", 1, 1000, read_only=True
-    ),
-    ParamSpec("metric_band_hz", float, "paper: RMSE over 0..this [Hz]", 1.0, 1e5, read_only=True),
-    ParamSpec(
-        "stroke_threshold",
-        float,
-        "distortion: stroke distortion ratio scored 1 [-]",
-        1e-6,
-        10.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "pitch_threshold",
-        float,
-        "distortion: pitch distortion ratio scored 1 [-]",
-        1e-6,
-        10.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "off_level",
-        float,
-        "Clearance level as a fraction of the onset threshold [-]",
-        1e-6,
-        1.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "n_on",
-        int,
-        "Consecutive wingbeats above the threshold for an onset",
-        1,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        "n_off",
-        int,
-        "Consecutive wingbeats below off_level for a clearance",
-        1,
-        1000,
-        read_only=True,
-    ),
-    ParamSpec(
-        "arm_wingbeats",
-        int,
-        "Wingbeats ignored after start or re-lock (start-up transient)",
-        0,
-        100000,
-        read_only=True,
-    ),
-    ParamSpec(
-        "min_amplitude_deg",
-        float,
-        "Stroke amplitude below which a wingbeat is IDLE (not flapping) [deg]",
-        0.0,
-        90.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "crossing_hysteresis_deg",
-        float,
-        "stroke windows: Schmitt hysteresis [deg]",
-        0.0,
-        90.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "min_wingbeat_hz",
-        float,
-        "Slowest wingbeat (longer windows are IDLE) [Hz]",
-        1.0,
-        1000.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "max_wingbeat_hz",
-        float,
-        "Fastest accepted wingbeat (stroke windows) [Hz]",
-        1.0,
-        5000.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "stroke_noise_rms_deg",
-        float,
-        "distortion: stroke sensor noise removed in quadrature [deg]",
-        0.0,
-        10.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "pitch_noise_rms_deg",
-        float,
-        "distortion: pitch sensor noise removed in quadrature [deg]",
-        0.0,
-        10.0,
-        read_only=True,
-    ),
+__all__ = [
+    "CONFIG_FILE",
+    "DSA_CONTROLLER_PARAMS",
+    "controller_health",
+    "controller_state_fields",
+    "describe_loop",
+    "drive_fields",
+    "dropped_text",
+    "dsa_controller_values",
+    "kr_schedule",
+    "loop_delay_s",
+    "ramp_request",
+    "reset_reply",
+    "stroke_controller_values",
+    "supervisor_params_from_config",
+    "supervisor_params_from_values",
+    "supervisor_wing_input",
 ]
+
+
+CONFIG_FILE = "flaair.yaml"
 
 DSA_CONTROLLER_PARAMS = [
     ParamSpec(
@@ -464,20 +312,6 @@ DSA_CONTROLLER_PARAMS = [
 ]
 
 
-def _fields(
-    values: Mapping[str, Any], specs: list[ParamSpec], skip: tuple[str, ...] = ()
-) -> dict[str, Any]:
-    missing = [s.name for s in specs if s.name not in values and s.name not in skip]
-    if missing:
-        raise ParameterError(f"missing parameter(s): {', '.join(missing)}")
-    return {s.name: values[s.name] for s in specs if s.name not in skip}
-
-
-def collision_monitor_values() -> dict[str, Any]:
-    """collision_monitor_node's values in config/flaair.yaml, checked against its schema."""
-    return node_section(COLLISION_MONITOR_PARAMS, "collision_monitor_node", CONFIG_FILE)
-
-
 def dsa_controller_values() -> dict[str, Any]:
     """dsa_controller_node's values in config/flaair.yaml, checked against its schema."""
     return node_section(DSA_CONTROLLER_PARAMS, "dsa_controller_node", CONFIG_FILE)
@@ -486,38 +320,6 @@ def dsa_controller_values() -> dict[str, Any]:
 def stroke_controller_values() -> dict[str, Any]:
     """stroke_controller_node's values in config/flaair.yaml, checked against its schema."""
     return node_section(stroke.NODE_PARAMS, "stroke_controller_node", CONFIG_FILE)
-
-
-def collision_monitor_params_from_config(
-    values: Mapping[str, Any] | None = None,
-) -> CollisionMonitorParams:
-    """The monitor core's parameters from collision_monitor_node
-    values (default: config/flaair.yaml).
-    """
-    values = collision_monitor_values() if values is None else values
-    try:
-        return CollisionMonitorParams(**_fields(values, COLLISION_MONITOR_PARAMS))
-    except col.CollisionParameterError as exc:
-        raise ParameterError(str(exc)) from exc
-
-
-def monitor_windows_from_config(
-    frequency_hz: float | None, phase_rad: float = 0.0, values: Mapping[str, Any] | None = None
-) -> col.MonitorParams:
-    """The per-wingbeat window monitor as configured,
-    at a drive frequency (None: stroke windows).
-    """
-    p = collision_monitor_params_from_config(values)
-    if frequency_hz is None:
-        p = replace(p, window_source="stroke")
-    return window_params(p, frequency_hz, phase_rad)
-
-
-def spectral_metric_params_from_config(
-    values: Mapping[str, Any] | None = None,
-) -> spectral.SpectralMetricParams:
-    """The paper collision metric as configured (threshold, band, wingbeats)."""
-    return metric_params(collision_monitor_params_from_config(values))
 
 
 def loop_delay_s(values: Mapping[str, Any]) -> tuple[float, float]:
@@ -555,23 +357,16 @@ def kr_schedule(values: Mapping[str, Any]) -> dsa.KrSchedule:
 
 def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> SupervisorParams:
     """The dSA loop's parameters from dsa_controller_node values and the model (for G_a)."""
-    v = _fields(values, DSA_CONTROLLER_PARAMS, skip=("model_file", "timing_file"))
+    v = declared_values(values, DSA_CONTROLLER_PARAMS, skip=("model_file", "timing_file"))
     fs = v["sample_rate_hz"]
     try:
         delay, _ = loop_delay_s(v)
-        dsa_params = dsa.DsaParams(
-            r3_rad_s=v["r3_rad_s"],
-            kappa=v["kappa"],
-            mu_nm_s_per_rad=v["mu_nm_s_per_rad"],
+        dsa_params = dsa.dsa_params(
+            v,
             actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
             sample_rate_hz=fs,
-            drive_limit_v=v["drive_limit_v"],
-            sync_amplitude_v=v["sync_amplitude_v"],
-            sync_frequency_hz=v["sync_frequency_hz"],
-            sync_phase_rad=v["sync_phase_rad"],
+            loop_delay_s=delay,
             kr_schedule=kr_schedule(v),
-            loop_delay_s=delay if v["compensate_delay"] else 0.0,
-            compensation_frequency_hz=v["compensation_frequency_hz"],
         )
         safety_params = safety.SafetyParams(
             drive_limit_v=v["drive_limit_v"],
@@ -602,8 +397,7 @@ def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> Su
         collision_restore_on_clearance=v["collision_restore_on_clearance"],
         collision_ramp_guard_s=v["collision_ramp_guard_s"],
         state_every_blocks=v["state_every_blocks"],
-        # Every timer wake-up costs a spin of the executor: no faster than needed.
-        timer_period_s=min(0.01, v["watchdog_timeout_s"] / 4),
+        timer_period_s=sv.timer_period_s(v["watchdog_timeout_s"]),
         dsa=dsa_params,
         safety=safety_params,
         frequency=frequency,
@@ -628,26 +422,6 @@ def describe_loop(params: SupervisorParams, values: Mapping[str, Any]) -> str:
 
 # One adapter between the block messages (their fields, as the nodes and `replay` decode them)
 # and the cores' inputs: the live nodes and the offline replay feed the cores the same values.
-
-
-def monitor_drive_input(fields: Mapping[str, Any]) -> monitor.DriveBlock:
-    """A /flaair/drive block's fields as the collision monitor's input."""
-    return monitor.DriveBlock(
-        int(fields["first_sample_index"]), np.asarray(fields["drive_v"], dtype=np.float64)
-    )
-
-
-def monitor_wing_input(fields: Mapping[str, Any]) -> monitor.WingBlock:
-    """A /flaair/wing_state block's fields as the
-    collision monitor's input (rad, NaN where invalid).
-    """
-    return monitor.wing_block(
-        fields["first_sample_index"],
-        fields["stroke_deg"],
-        fields["pitch_deg"],
-        fields["stroke_valid"],
-        fields["pitch_valid"],
-    )
 
 
 def supervisor_wing_input(
@@ -749,54 +523,18 @@ def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
     return mode == sv.LOOP, "; ".join(note.text for note in notes) or mode
 
 
-def monitor_health(
-    now: tuple[monitor.CollisionMonitorState, int, int],
-    before: tuple[monitor.CollisionMonitorState, int, int] | None,
-) -> Health:
-    """/diagnostics of the collision monitor: collision state, wingbeats, dropped blocks."""
-    state, rejected, undecodable = now
-    dropped = rejected + undecodable - (before[1] + before[2] if before is not None else 0)
-    problems = [
-        (WARN, "COLLISION: the pitch spectrum left the free-flapping one")
-        if state.colliding
-        else (OK, "")
-    ]
-    if dropped:
-        problems.append((WARN, f"{dropped} wing-state block(s) dropped"))
-    frequency_hz = state.lock.locked_hz or (
-        state.windows.drive_frequency_hz or 0.0 if state.windows else 0.0
-    )
-    return health(
-        "collision monitor",
-        problems,
-        "no collision" if state.wingbeats else "waiting for the first wingbeat",
-        {
-            "colliding": state.colliding,
-            "wingbeats": state.wingbeats,
-            "wingbeat_frequency_hz": float(frequency_hz),
-            "rejected_blocks": rejected,
-            "undecodable_blocks": undecodable,
-        },
-    )
+def dropped_text(exc: Exception, count: int) -> str:
+    """The warning for an undecodable wing-state block (`count` so far)."""
+    return f"wing-state block dropped: {exc} [{count} so far]"
 
 
-def describe_monitor(p: Mapping[str, Any], estimates_frequency: bool) -> str:
-    """The collision monitor's ready line: its windows and its decision."""
-    where = (
-        "stroke windows"
-        if p["window_source"] == "stroke"
-        else "drive windows, frequency estimated from /flaair/drive"
-        if estimates_frequency
-        else f"drive windows at {p['drive_frequency_hz']:g} Hz"
-    )
-    how = (
-        f"pitch FFT RMSE over {p['metric_wingbeats']} wingbeats, 0-{p['metric_band_hz']:g} "
-        f"Hz, threshold {p['threshold_deg']:g} deg"
-        if p["decision"] == "paper"
-        else f"per-wingbeat distortion: stroke {p['stroke_threshold']:g}, pitch "
-        f"{p['pitch_threshold']:g}"
-    )
-    return (
-        f"collision monitor ready: {where}; decision {p['decision']} ({how}); onset after "
-        f"{p['n_on']}, clearance after {p['n_off']} wingbeats"
+def ramp_request(changes: Mapping[str, Any], current: Callable[[str], Any]) -> sv.SetRamp | None:
+    """The K_r ramp a parameter change asks for: kr_target or kr_ramp_duration_s changed (the
+    other at its `current` value); None: no ramp asked for.
+    """
+    if "kr_target" not in changes and "kr_ramp_duration_s" not in changes:
+        return None
+    return sv.SetRamp(
+        changes.get("kr_target", current("kr_target")),
+        changes.get("kr_ramp_duration_s", current("kr_ramp_duration_s")),
     )

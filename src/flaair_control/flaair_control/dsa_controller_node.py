@@ -2,14 +2,10 @@
 
 One drive block (/flaair/drive) per wing-state block (/flaair/wing_state), a ControllerState
 (/flaair/controller/state) with every state_every_blocks-th. A thin shell over the pure loop
-supervisor `flaair_control.core.supervisor` (the dSA core `dsa`, the safety core `safety`).
-Drive (paper eqs. dsa/dsaconst): the dSA filter tau'' + a tau' + b tau = -c phi' runs on the
-measured stroke velocity; drive = K_r sync + (1 - K_r) tau / G_a, K_r ramped from kr_initial
-to kr_target over kr_ramp_duration_s from kr_ramp_start_s (signal time). Setting kr_target or
-kr_ramp_duration_s while running (`bin/flaair param set`) starts a new ramp from the current
-K_r; the std_srvs/Trigger service ~/reset_watchdog re-arms a tripped watchdog. Health (watchdog,
-trips, clamping) on /diagnostics. G_a comes from the model file. The dsa core's phase advance
-compensates the loop delay. Safety: clamp, slew, watchdogs, a zero block at exit.
+supervisor `flaair_control.core.supervisor` (drive law, K_r ramp, delay compensation, safety
+and watchdogs: read its docstring and `core.dsa`'s). Setting kr_target or kr_ramp_duration_s
+while running starts a new ramp from the current K_r; the std_srvs/Trigger service
+~/reset_watchdog re-arms a tripped watchdog; health on /diagnostics; G_a from the model file.
 Usage: bin/flaair run flaair_control dsa_controller_node [--ros-args -p kr_ramp_start_s:=0.3 ...]
 """
 
@@ -28,12 +24,7 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_control import control_io as io
-from flaair_control.control_io import (
-    CONFIG_FILE,
-    DSA_CONTROLLER_PARAMS,
-    describe_loop,
-    supervisor_wing_input,
-)
+from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS
 from flaair_control.core import supervisor as sv
 from flaair_msgs.msg import CollisionEvent, ControllerState
 
@@ -52,25 +43,17 @@ class DsaControllerNode(FlaairNode):
         self.state = sv.initial_state(self.params)
         sv.warm_up(self.params)  # the kernels load now, not on the first live block
         self.block_size, self.undecodable = p["block_size"], 0
-        # index, in, out
         self.timing: list[tuple[int, float, float]] | None = [] if p["timing_file"] else None
         # CDR bytes or in-process (intra); a UDP thread may deliver the wing state
         self.lock = threading.RLock()
         self.drive = intra.block_publisher(self, topics.DRIVE, self.block_size, BLOCK_STREAM)
+        codec = cdr.GeneralCodec(cdr.CONTROLLER_STATE)
         self.state_pub = intra.BlockPublisher(
-            self,
-            ControllerState,
-            topics.CONTROLLER_STATE,
-            cdr.GeneralCodec(cdr.CONTROLLER_STATE),
-            BLOCK_STREAM,
+            self, ControllerState, topics.CONTROLLER_STATE, codec, BLOCK_STREAM
         )
+        on_wing, on_bad = self.on_wing_state, self.on_undecodable
         intra.subscribe_stream(
-            self,
-            topics.WING_STATE,
-            self.block_size,
-            self.on_wing_state,
-            BLOCK_STREAM,
-            self.on_undecodable,
+            self, topics.WING_STATE, self.block_size, on_wing, BLOCK_STREAM, on_bad
         )
         self.create_subscription(
             CollisionEvent, topics.COLLISION_EVENTS, self.on_collision_event, STATUS
@@ -79,7 +62,7 @@ class DsaControllerNode(FlaairNode):
         self.create_timer(self.params.timer_period_s, self.on_timer)
         self.create_service(Trigger, "~/reset_watchdog", self.on_reset_watchdog)
         self.publish_health(lambda: self.state, io.controller_health)
-        self.get_logger().info("dSA controller ready: " + describe_loop(self.params, p))
+        self.get_logger().info("dSA controller ready: " + io.describe_loop(self.params, p))
 
     def advance(self, inputs: sv.Input, t_receive: float | None = None) -> sv.Outputs:
         """Run the supervisor on one event; publish its blocks, log its notes."""
@@ -101,11 +84,7 @@ class DsaControllerNode(FlaairNode):
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(
-            self.get_logger(),
-            self.undecodable,
-            f"wing-state block dropped: {exc} [{self.undecodable} so far]",
-        )
+        warn_counted(self.get_logger(), self.undecodable, io.dropped_text(exc, self.undecodable))
 
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
@@ -114,32 +93,19 @@ class DsaControllerNode(FlaairNode):
             return
         # only the start reads them (rclpy: ~20 us)
         peers = self.peers() if self.state.mode == sv.WAITING else 0
-        self.advance(supervisor_wing_input(m, t_receive, peers), t_receive)
+        self.advance(io.supervisor_wing_input(m, t_receive, peers), t_receive)
 
-    def on_collision_event(self, message: CollisionEvent) -> None:
-        self.advance(
-            sv.Collision(
-                time.monotonic(),
-                message.kind == CollisionEvent.ONSET,
-                message.wingbeat_index,
-                message.spectrum_rmse_deg,
-            )
-        )
+    def on_collision_event(self, m: CollisionEvent) -> None:
+        onset = m.kind == CollisionEvent.ONSET
+        self.advance(sv.Collision(time.monotonic(), onset, m.wingbeat_index, m.spectrum_rmse_deg))
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
         """kr_target / kr_ramp_duration_s: a new ramp from the current K_r."""
         changes = {param.name: param.value for param in parameters}
-        if "kr_target" in changes or "kr_ramp_duration_s" in changes:
-            out = self.advance(
-                sv.SetRamp(
-                    changes.get("kr_target", self.get_parameter("kr_target").value),
-                    changes.get(
-                        "kr_ramp_duration_s", self.get_parameter("kr_ramp_duration_s").value
-                    ),
-                )
-            )
-            if out.refused:
-                return SetParametersResult(successful=False, reason=out.refused)
+        request = io.ramp_request(changes, lambda name: self.get_parameter(name).value)
+        out = self.advance(request) if request is not None else None
+        if out is not None and out.refused:
+            return SetParametersResult(successful=False, reason=out.refused)
         return SetParametersResult(successful=True)
 
     def on_reset_watchdog(self, request: Trigger.Request, response: Trigger.Response):
@@ -149,14 +115,8 @@ class DsaControllerNode(FlaairNode):
 
     def on_timer(self) -> None:
         count = self.count_publishers
-        self.advance(
-            sv.Tick(
-                time.monotonic(),
-                self.peers(),
-                count(topics.SENSOR_VOLTAGE),
-                count(topics.WING_STATE),
-            )
-        )
+        sensors, wings = count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE)
+        self.advance(sv.Tick(time.monotonic(), self.peers(), sensors, wings))
 
     def peers(self) -> int:
         """/flaair/drive's subscribers; 0 until

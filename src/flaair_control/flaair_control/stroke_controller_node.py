@@ -8,11 +8,9 @@ law, sync sine or dSA filter) and flaair_control.core.safety (non-finite -> 0, s
 sync_frequency_hz; mode dsa adjusts the dSA gain mu, the frequency stays free.
 
 Run time: `bin/flaair param set /stroke_controller_node setpoint_deg 18` retargets (feed-forward
-from the plant's amplitude response, the learned correction kept). The watchdog trips when no
-wing-state block arrives for watchdog_timeout_s of wall-clock time or no valid one for
-invalid_timeout_s of signal time: the drive ramps to zero over ramp_down_s, then zero blocks.
-Start: once the plant and front end are up (start_delay_s), blocks_in_flight blocks are sent.
-close() (Ctrl-C, SIGTERM) publishes a zero block.
+from the plant's amplitude response, the learned correction kept). Start, start retry and the
+wall-clock watchdog: `flaair_control.core.stroke_loop`; after a trip the drive ramps to zero
+over ramp_down_s, then zero blocks. close() (Ctrl-C, SIGTERM) publishes a zero block.
 
 Usage:
   bin/flaair run flaair_control stroke_controller_node --ros-args -p mode:=sync -p setpoint_deg:=12
@@ -32,7 +30,7 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_control import stroke_io as io
-from flaair_control.core import safety, stroke
+from flaair_control.core import safety, stroke, stroke_loop
 from flaair_msgs.msg import ControllerState, DriveCommandBlock, WingStateBlock
 
 NODE_NAME = "stroke_controller_node"
@@ -44,24 +42,15 @@ class StrokeControllerNode(FlaairNode):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         self.p = p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        self.fs, self.n, self.in_flight = (
-            p["sample_rate_hz"],
-            p["block_size"],
-            p["blocks_in_flight"],
-        )
+        self.fs, self.n = p["sample_rate_hz"], p["block_size"]
+        self.in_flight = p["blocks_in_flight"]
         self.setup = io.setup_from_values(p)
         self.params, self.guard = self.setup.params, self.setup.guard
-        self.state, self.safety = (
-            stroke.initial_state(self.params),
-            safety.initial_state(self.guard),
-        )
-        self.next_index, self.mode, self.last_wall, self.peers_wall, self.answered = (
-            0,
-            "waiting",
-            time.monotonic(),
-            None,
-            False,
-        )
+        self.state = stroke.initial_state(self.params)
+        self.safety = safety.initial_state(self.guard)
+        self.timing_params = io.timing_params(p)
+        self.loop = stroke_loop.initial_state(self.timing_params, t_wall=time.monotonic())
+        self.next_index = 0
         self.drive_pub = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.state_pub = self.create_publisher(ControllerState, topics.CONTROLLER_STATE, STATUS)
         self.create_subscription(
@@ -84,21 +73,10 @@ class StrokeControllerNode(FlaairNode):
         return SetParametersResult(successful=True)
 
     def on_wing_state(self, msg: WingStateBlock) -> None:
-        if self.mode == "waiting" and self.drive_pub.get_subscription_count() > 0:
-            self.mode = "loop"
-        if self.mode != "loop":
-            return
-        self.last_wall, self.answered = time.monotonic(), True
-        self.send(
-            *io.wing_input(
-                {
-                    "stroke_deg": msg.stroke_deg,
-                    "stroke_valid": msg.stroke_valid,
-                    "stroke_velocity_deg_s": msg.stroke_velocity_deg_s,
-                },
-                self.n,
-            )
-        )
+        subscribed = self.drive_pub.get_subscription_count() > 0
+        self.loop, answer = stroke_loop.on_wing_state(self.loop, time.monotonic(), subscribed)
+        if answer:
+            self.send(*io.wing_input(io.wing_fields(msg), self.n))
 
     def send(
         self, stroke_rad: np.ndarray, velocity: np.ndarray, valid: np.ndarray, ok: bool | None
@@ -107,21 +85,14 @@ class StrokeControllerNode(FlaairNode):
         t = self.next_index / self.fs
         if stroke_rad.size != self.n:
             stroke_rad, velocity, valid, _ = io.empty_input(self.n)
-        self.state, out = stroke.step(
-            self.state,
-            stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index),
-            self.params,
-        )
-        self.safety, guarded = safety.step(
-            self.safety, safety.SafetyInputs(out.drive_v, t, ok), self.guard
-        )
-        self.publish(
-            guarded.drive_v,
-            guarded.tripped,
-            bool(np.abs(out.drive_v).max() > self.guard.drive_limit_v),
-        )
+        inputs = stroke.StrokeInputs(stroke_rad, velocity, valid, self.next_index)
+        self.state, out = stroke.step(self.state, inputs, self.params)
+        guard = safety.SafetyInputs(out.drive_v, t, ok)
+        self.safety, guarded = safety.step(self.safety, guard, self.guard)
+        clamped = bool(np.abs(out.drive_v).max() > self.guard.drive_limit_v)
+        self.publish(guarded.drive_v, guarded.tripped, clamped)
         if self.p["run_time_s"] > 0 and self.next_index / self.fs >= self.p["run_time_s"]:
-            self.mode = "done"
+            self.loop = self.loop._replace(mode=stroke_loop.DONE)
             self.publish(np.zeros(self.n), guarded.tripped, False)
             self.get_logger().info(io.complete_text(self.state))
 
@@ -144,36 +115,22 @@ class StrokeControllerNode(FlaairNode):
 
     def on_timer(self) -> None:
         now = time.monotonic()
-        if self.mode == "waiting":
-            ready = (
-                self.drive_pub.get_subscription_count() > 0
-                and self.count_publishers(topics.WING_STATE) > 0
-            )
-            self.peers_wall = (self.peers_wall or now) if ready else None
-            if ready and now - self.peers_wall >= self.p["start_delay_s"]:
-                self.mode, self.last_wall = "loop", now
-                for _ in range(self.in_flight):
-                    self.send(*io.empty_input(self.n))
-        elif (
-            self.mode == "loop"
-            and not self.answered
-            and now - self.last_wall > self.p["start_retry_s"]
-        ):
-            self.last_wall = now  # no answer to the start yet (a lost first block): one more
-            self.send(*io.empty_input(self.n))
-        elif self.mode == "loop" and now - self.last_wall > self.p["watchdog_timeout_s"]:
-            self.mode = "tripped"
+        up = self.drive_pub.get_subscription_count() > 0 and self.count_publishers(
+            topics.WING_STATE
+        )
+        self.loop, action = stroke_loop.on_timer(self.loop, now, bool(up), self.timing_params)
+        if action in (stroke_loop.START, stroke_loop.RETRY):
+            for _ in range(self.in_flight if action == stroke_loop.START else 1):
+                self.send(*io.empty_input(self.n))
+        elif action == stroke_loop.TRIP:
+            silent = now - self.loop.last_wall
             self.get_logger().error(
-                "WATCHDOG TRIPPED: no wing-state block for "
-                f"{now - self.last_wall:.2f} s; ramping to zero"
+                f"WATCHDOG TRIPPED: no wing-state block for {silent:.2f} s; ramping to zero"
             )
-            self.safety = safety.note_sensor_block(
-                self.safety, self.next_index / self.fs, False, self.guard
-            )
-            while (
-                self.next_index / self.fs
-                < self.safety.trip_time_s + self.p["ramp_down_s"] + self.n / self.fs
-            ):
+            t_s = self.next_index / self.fs
+            self.safety = safety.note_sensor_block(self.safety, t_s, False, self.guard)
+            end_s = self.safety.trip_time_s + self.p["ramp_down_s"] + self.n / self.fs
+            while self.next_index / self.fs < end_s:
                 self.send(*io.empty_input(self.n))
 
     def close(self) -> None:

@@ -11,7 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from flaair_control.core import safety, stroke
+from flaair_control.core import safety, stroke, stroke_loop
 from flaair_control.core.dsa import loop_delay_s
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError
@@ -25,6 +25,8 @@ __all__ = [
     "retargeted",
     "setup_from_values",
     "state_fields",
+    "timing_params",
+    "wing_fields",
     "wing_input",
 ]
 
@@ -128,3 +130,17 @@ def complete_text(state: stroke.StrokeState) -> str:
         f"run complete after {stroke.wingbeats(state)} wingbeats, "
         f"last amplitude {stroke.last_amplitude_deg(state):.2f} deg"
     )
+
+
+def timing_params(p: Mapping[str, Any]) -> stroke_loop.TimingParams:
+    """The loop timing's wall-clock settings from stroke_controller_node values."""
+    return stroke_loop.TimingParams(p["start_delay_s"], p["start_retry_s"], p["watchdog_timeout_s"])
+
+
+def wing_fields(msg: Any) -> dict[str, Any]:
+    """The WingStateBlock fields `wing_input` reads."""
+    return {
+        "stroke_deg": msg.stroke_deg,
+        "stroke_valid": msg.stroke_valid,
+        "stroke_velocity_deg_s": msg.stroke_velocity_deg_s,
+    }

@@ -1,22 +1,24 @@
 """FLAAIR's bottom package: the nominal plant and sensor model, its effects, and its files.
 
 Pure Python (numpy, scipy, numba, PyYAML). Everything else (sim, sensors, control, analysis,
-tools) depends on it; it depends on nothing of FLAAIR's.
+tools)
+depends on it; it depends on nothing of FLAAIR's.
 
-- `pvdf`: the composite-beam PVDF charge model (paper eqs. charge, strain, chargeamp).
-- `validation`: the checks every model dataclass runs on construction (numbers, rules, channels).
-- `effects`: the effect table (`EFFECTS`, `EFFECT_TYPES`): each effect's parameters, kernel
-  terms, channels, fit and draw ranges, declared once.
-- `model`: the frozen parameter dataclasses (`PlantParams`, `SensorParams`, `NoiseParams`) and
-  `Model`, which combines them with effects and discovered terms.
+- `effects`: the effect table (`EFFECTS`): each effect's parameters, kernel terms, channels,
+  fit and draw ranges, declared once.
+- `model`: the frozen parameter dataclasses of a model (plant, sensors, noise, its effects and
+  discovered terms).
 - `model_io`: config/model.yaml <-> `Model`.
 - `terms`: the term library the discrepancy workflow discovers missing physics from, and a
-  model's discovered terms.
+  model's discovered terms (`DiscoveredTerm`).
+- `term_entry`: a discovered term as a model-file or discrepancy.json entry (one shape).
+- `validation`: the checks of model numbers and channels (`ModelError`).
+- `pvdf`: the composite-beam PVDF charge model (paper eqs. charge, strain, chargeamp).
 - `config`: the one locator of config/ and the ROS parameter-file reader.
-- `schema`: `ParamSpec`, each node parameter declared once.
+- `schema`: `ParamSpec`, each node parameter declared once, and `declared_values`.
+- `settings`: typed accessors of the config sections a tool reads that are not its own.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
 - `notes`: `Note`, the one type of a core's log lines.
-- `settings`: typed accessors of the config sections a tool reads that are not its own.
 """
 
 __all__ = [
@@ -29,6 +31,7 @@ __all__ = [
     "pvdf",
     "schema",
     "settings",
+    "term_entry",
     "terms",
     "validation",
 ]

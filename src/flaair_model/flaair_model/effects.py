@@ -13,7 +13,8 @@ One `EffectEntry` per effect holds all that the rest of FLAAIR knows of it:
 `flaair_sim.core.plant_params.prepare` writes `terms` into the kernels' parameter vector,
 `flaair_analysis.discrepancy.vocabulary` builds its search vocabulary from `fit`, and
 `flaair_analysis.discrepancy.offnominal` draws random robots from `draw`. Adding an effect is one
-entry here plus its term in the numba kernel (`flaair_sim.core.plant`);
+entry here; a new kernel number also a `KernelSlot` row in `flaair_sim.core.plant_params` and
+its force in `flaair_sim.core.plant_kernel` (docs/CONTRIBUTING.md);
 tests/test_effect_table.py checks that every entry reaches all three and that it changes the
 channels it names and no others. The order of `EFFECTS` is the order effects are stored in a
 model and searched in.
@@ -24,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
@@ -204,19 +205,19 @@ class WingDamage:
         check_fields(self, "effects.wing_damage", {"inertia_factor": "unit"})
 
 
-Effect = Union[
-    SensorDelay,
-    ChargeAmpHighpass,
-    Feedthrough,
-    TransmissionNonlinearity,
-    HingeStiffening,
-    StructuralDamping,
-    StrainTransferLoss,
-    Collision,
-    WingDamage,
-]
+Effect = (
+    SensorDelay
+    | ChargeAmpHighpass
+    | Feedthrough
+    | TransmissionNonlinearity
+    | HingeStiffening
+    | StructuralDamping
+    | StrainTransferLoss
+    | Collision
+    | WingDamage
+)
 # The effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
-SensorEffect = Union[SensorDelay, ChargeAmpHighpass, StrainTransferLoss]
+SensorEffect = SensorDelay | ChargeAmpHighpass | StrainTransferLoss
 
 
 # --------------------------------------------------------------------------- the table

@@ -22,6 +22,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+__all__ = [
+    "float_block",
+    "lfilter",
+    "lfilter_sample",
+    "normalized_ba",
+]
+
 
 def normalized_ba(b: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(b, a) as float64 arrays of one length, divided by a[0] (what lfilter does first)."""
@@ -38,12 +45,14 @@ def lfilter_sample(b: np.ndarray, a: np.ndarray, z: np.ndarray, x: float) -> flo
     """One sample through the filter; ``z`` (length len(b) - 1) is updated in place."""
     m = b.size
     if m == 1:
-        return x * b[0]
+        only: float = x * b[0]
+        return only
     y = z[0] + b[0] * x
     for k in range(m - 2):
         z[k] = z[k + 1] + x * b[k + 1] - y * a[k + 1]
     z[m - 2] = x * b[m - 1] - y * a[m - 1]
-    return y
+    out: float = y
+    return out
 
 
 @njit(cache=True)

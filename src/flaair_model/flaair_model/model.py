@@ -30,7 +30,8 @@ from flaair_model.effects import (
     WingDamage,
 )
 from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
-from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm, term_from_dict
+from flaair_model.term_entry import term_from_dict
+from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm
 from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
 
 __all__ = [
@@ -210,7 +211,8 @@ class PerChannel:
 
     def on(self, side: str) -> SensorEffect:
         """The effect on sensor chain `side`."""
-        return getattr(self, side)
+        effect: SensorEffect = getattr(self, side)
+        return effect
 
 
 def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | PerChannel:
@@ -231,7 +233,8 @@ def _per_channel_from_params(name: str, params: Mapping[str, Any]) -> Effect | P
         built[side] = effect_from_params(name, {**sub, "channel": side})
     if set(built) == set(SIDES):
         return PerChannel(built["stroke"], built["pitch"])
-    return next(iter(built.values()))
+    only: Effect | PerChannel = next(iter(built.values()))
+    return only
 
 
 def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
@@ -280,7 +283,8 @@ def effect_from_params(name: str, params: Any) -> Effect | PerChannel:
             f"(known: {', '.join(sorted(known))}{side_hint})"
         )
     try:
-        return kind(**params)
+        effect: Effect = kind(**params)
+        return effect
     except TypeError as exc:
         required = [f.name for f in fields(kind) if f.name not in params]
         raise ModelError(f"effects.{name}: missing parameter(s) {', '.join(required)}") from exc

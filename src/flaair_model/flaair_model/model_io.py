@@ -15,7 +15,7 @@ import yaml
 
 from flaair_model.config import CONFIG_DIR_ENV, ConfigError, config_dir
 from flaair_model.pvdf import PvdfMaterial, SensorBeam
-from flaair_model.terms import term_from_dict, term_to_dict
+from flaair_model.term_entry import term_from_dict, term_to_dict
 from flaair_model.validation import coerce_number
 
 from .model import (

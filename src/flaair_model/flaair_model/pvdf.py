@@ -7,6 +7,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+__all__ = [
+    "VACUUM_PERMITTIVITY_F_PER_M",
+    "PvdfMaterial",
+    "SensorBeam",
+    "charge_per_tip_displacement_c_per_m",
+    "pitch_volts_per_rad",
+    "stroke_volts_per_rad",
+    "volts_per_tip_displacement_v_per_m",
+]
+
+
 VACUUM_PERMITTIVITY_F_PER_M = 8.854187817e-12
 
 

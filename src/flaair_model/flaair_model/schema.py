@@ -7,7 +7,11 @@ table. Values come from config/ only.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["ParamSpec", "ParameterError", "declared_values"]
 
 
 @dataclass(frozen=True)
@@ -25,3 +29,15 @@ class ParamSpec:
 
 class ParameterError(ValueError):
     """A parameter value was refused; the message names the parameter."""
+
+
+def declared_values(
+    values: Mapping[str, Any], specs: Sequence[ParamSpec], skip: tuple[str, ...] = ()
+) -> dict[str, Any]:
+    """The values of the parameters `specs` declares (but `skip`); ParameterError names any
+    missing.
+    """
+    missing = [s.name for s in specs if s.name not in values and s.name not in skip]
+    if missing:
+        raise ParameterError(f"missing parameter(s): {', '.join(missing)}")
+    return {s.name: values[s.name] for s in specs if s.name not in skip}

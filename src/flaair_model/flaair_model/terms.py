@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from flaair_model.validation import ModelError, check_number, coerce_number
+from flaair_model.validation import ModelError, check_number
 
 __all__ = [
     "DYNAMICS_SITES",
@@ -55,8 +55,7 @@ __all__ = [
     "TermSignals",
     "kinds_for",
     "lowpass_ba",
-    "term_from_dict",
-    "term_to_dict",
+    "primitive_values",
 ]
 
 SITES: tuple[str, ...] = (
@@ -79,6 +78,15 @@ PRIMITIVES: tuple[str, ...] = (
     "abs(dphi)",
     "abs(dpsi)",
 )
+
+
+def primitive_values(
+    phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`)."""
+    return (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
+
+
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
 MAX_DYNAMICS_TERMS = 2
 
@@ -146,11 +154,12 @@ class TermSignals:
         b, a = lowpass_ba(corner_hz, self.fs_hz)
         y, zf = signal.lfilter(b, a, x, zi=np.array([self.zi]))
         self.zf = float(zf[0])
-        return y
+        out: np.ndarray = y
+        return out
 
     def need(self, name: str) -> np.ndarray:
         """A sensor-site signal; a term that reads it elsewhere is a table error."""
-        value = getattr(self, name)
+        value: np.ndarray | None = getattr(self, name)
         if value is None:
             raise ModelError(f"term signal {name!r} exists at the sensor sites only")
         return value
@@ -513,9 +522,8 @@ class DiscoveredTerm:
         self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
     ) -> np.ndarray:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
-        factors = (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
         out = np.ones(np.shape(phi))
-        for x, e in zip(factors, self.monomial):
+        for x, e in zip(primitive_values(phi, dphi, psi, dpsi), self.monomial, strict=True):
             out = out * x**e
         return out
 
@@ -530,37 +538,3 @@ class DiscoveredTerm:
         values["_site"] = SENSOR_SITES.index(self.acts_on) if self.acts_on in SENSOR_SITES else -1
         assert self.row.feature is not None
         return np.asarray(self.row.feature(sig, values), dtype=np.float64)
-
-
-def term_to_dict(term: DiscoveredTerm) -> dict[str, Any]:
-    """The model-file entry: kind, acts_on, expression (for the reader), parameters."""
-    return {
-        "kind": term.kind,
-        "acts_on": term.acts_on,
-        "expression": term.expression,
-        "parameters": {"coefficient": term.coefficient, **dict(term.shape)},
-    }
-
-
-def term_from_dict(raw: Any, where: str = "discovered") -> DiscoveredTerm:
-    """A `DiscoveredTerm` from its model-file entry (`expression` is derived, not read)."""
-    if not isinstance(raw, Mapping):
-        raise ModelError(
-            f"{where} must be a mapping with kind, acts_on and parameters, got {type(raw).__name__}"
-        )
-    unknown = sorted(set(raw) - {"kind", "acts_on", "expression", "parameters"})
-    if unknown:
-        raise ModelError(f"{where}: unknown key(s) {', '.join(map(str, unknown))}")
-    missing = [k for k in ("kind", "acts_on", "parameters") if k not in raw]
-    if missing:
-        raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
-    params = raw["parameters"]
-    if not isinstance(params, Mapping) or "coefficient" not in params:
-        raise ModelError(f"{where}.parameters must be a mapping with a coefficient")
-    shape = {str(k): coerce_number(v) for k, v in params.items() if k != "coefficient"}
-    return DiscoveredTerm(
-        str(raw["kind"]),
-        str(raw["acts_on"]),
-        coerce_number(params["coefficient"]),
-        tuple(shape.items()),
-    )

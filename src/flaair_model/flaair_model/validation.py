@@ -43,10 +43,10 @@ def check_number(where: str, value: Any) -> float:
     """`value` as a finite float, else a `ModelError` naming `where`."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ModelError(f"{where} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ModelError(f"{where} must be finite, got {value}")
-    return value
+    number = float(value)
+    if not math.isfinite(number):
+        raise ModelError(f"{where} must be finite, got {number}")
+    return number
 
 
 def check_fields(obj: object, prefix: str, rules: Mapping[str, str]) -> None:

@@ -116,7 +116,7 @@ def overlaid_bode_figure(bodes: dict[str, Bode], title: str | None = None) -> An
     colors = matplotlib.colormaps["viridis"](
         [i / max(1, len(bodes) - 1) for i in range(len(bodes))]
     )
-    for color, (label, bode) in zip(colors, bodes.items()):
+    for color, (label, bode) in zip(colors, bodes.items(), strict=True):
         for column, cb in enumerate((bode.stroke, bode.pitch)):
             axes[0, column].plot(
                 cb.frequency_hz, cb.sensor_amplitude_deg, "-", color=color, lw=1.4, label=label

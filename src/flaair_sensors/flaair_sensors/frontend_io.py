@@ -3,12 +3,16 @@
 `FRONTEND_PARAMS` declares the frontend_node parameters (type, unit, range); values come from
 config/flaair.yaml. `frontend_params_from_config` turns those values into the core's
 `FrontendParams`, for the node and for offline tools (a controller learning the velocity
-delay, analysis of a bag) alike.
+delay, analysis of a bag) alike; the rest maps the core's estimate and figures to the node's
+message fields and log lines.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
 
 from flaair_model.config import ConfigError, load_yaml
 from flaair_model.model import ModelError
@@ -16,6 +20,20 @@ from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
 from flaair_sensors.core import frontend
+
+__all__ = [
+    "CONFIG_FILE",
+    "FRONTEND_PARAMS",
+    "NODE_NAME",
+    "frontend_params_from_config",
+    "frontend_tuning_from_config",
+    "frontend_values",
+    "latency_text",
+    "ready_text",
+    "velocity_delay_s",
+    "wing_state_fields",
+]
+
 
 NODE_NAME = "frontend_node"
 CONFIG_FILE = "flaair.yaml"
@@ -124,3 +142,44 @@ def velocity_delay_s(frequency_hz: float, values: Mapping | None = None) -> floa
         ) from exc
     params = frontend_params_from_config(values, values["sample_rate_hz"])
     return float(frontend.estimate_delay_s(params, frequency_hz)["stroke_velocity_s"])
+
+
+def ready_text(gains_from: str, params: frontend.FrontendParams) -> str:
+    """The front end's start-up line: gains, velocity phase lag and remaining delay at 140 Hz."""
+    delay = frontend.estimate_delay_s(params)
+    return (
+        f"front end ready: gains from {gains_from}, stroke "
+        f"{abs(np.degrees(1 / params.stroke_volts_per_rad)):.2f} deg/V, pitch "
+        f"{abs(np.degrees(1 / params.pitch_volts_per_rad)):.2f} deg/V, velocity phase lag "
+        f"at 140 Hz {frontend.velocity_phase_lag_deg(params):.1f} deg, remaining delay at "
+        "140 Hz "
+        + ", ".join(
+            f"{name[:-2].replace('_', ' ')} {1e6 * delay_s:.1f} us"
+            for name, delay_s in delay.items()
+        )
+    )
+
+
+def wing_state_fields(
+    first: int, rate_hz: float, source: int, estimate: frontend.WingEstimate
+) -> dict[str, Any]:
+    """A WingStateBlock's fields for the front end's estimate of a block from sample `first`."""
+    return {
+        "sample_rate_hz": rate_hz,
+        "first_sample_index": first,
+        "source": source,
+        "stroke_deg": np.degrees(estimate.stroke_rad),
+        "pitch_deg": np.degrees(estimate.pitch_rad),
+        "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),
+        "stroke_valid": estimate.stroke_valid,
+        "pitch_valid": estimate.pitch_valid,
+    }
+
+
+def latency_text(latencies_s: np.ndarray) -> str:
+    """The block processing time's median and 99th percentile over `latencies_s`."""
+    p50, p99 = 1e3 * np.percentile(latencies_s, [50, 99])
+    return (
+        f"block processing over the last {latencies_s.size} blocks: "
+        f"p50 {p50:.3f} ms, p99 {p99:.3f} ms"
+    )

@@ -27,6 +27,7 @@ from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
 from flaair_msgs.msg import WingStateBlock
+from flaair_sensors import frontend_io as io
 from flaair_sensors.core import frontend
 from flaair_sensors.frontend_io import (
     CONFIG_FILE,
@@ -64,34 +65,16 @@ class FrontendNode(FlaairNode):
         self.publisher = intra.block_publisher(
             self, topics.WING_STATE, self.block_size, BLOCK_STREAM
         )
+        on_sensor, on_bad = self.on_sensor, self.on_undecodable
         intra.subscribe_stream(
-            self,
-            topics.SENSOR_VOLTAGE,
-            self.block_size,
-            self.on_sensor,
-            BLOCK_STREAM,
-            self.on_undecodable,
+            self, topics.SENSOR_VOLTAGE, self.block_size, on_sensor, BLOCK_STREAM, on_bad
         )
-        delay = frontend.estimate_delay_s(self.params)
-        self.get_logger().info(
-            f"front end ready: gains from {values['gains_from']}, stroke "
-            f"{abs(np.degrees(1 / self.params.stroke_volts_per_rad)):.2f} deg/V, pitch "
-            f"{abs(np.degrees(1 / self.params.pitch_volts_per_rad)):.2f} deg/V, velocity phase lag "
-            f"at 140 Hz {frontend.velocity_phase_lag_deg(self.params):.1f} deg, remaining delay at "
-            "140 Hz "
-            + ", ".join(
-                f"{name[:-2].replace('_', ' ')} {1e6 * delay_s:.1f} us"
-                for name, delay_s in delay.items()
-            )
-        )
+        self.get_logger().info(io.ready_text(values["gains_from"], self.params))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.rejected_blocks += 1
-        warn_counted(
-            self.get_logger(),
-            self.rejected_blocks,
-            f"sensor block dropped: {exc} [{self.rejected_blocks} so far]",
-        )
+        text = f"sensor block dropped: {exc} [{self.rejected_blocks} so far]"
+        warn_counted(self.get_logger(), self.rejected_blocks, text)
 
     def on_sensor(self, message) -> None:
         start = time.perf_counter()
@@ -114,27 +97,15 @@ class FrontendNode(FlaairNode):
             )
             if not check.ok:
                 self.rejected_blocks += 1
-                warn_counted(
-                    self.get_logger(),
-                    self.rejected_blocks,
-                    f"sensor block {first}: {check.reason} [{self.rejected_blocks} so far]",
-                )
+                text = f"sensor block {first}: {check.reason} [{self.rejected_blocks} so far]"
+                warn_counted(self.get_logger(), self.rejected_blocks, text)
                 if check.kind != "gap":
                     return
         self.expected_index = first + len(stroke_v)
         self.state, estimate = frontend.step(
             self.state, frontend.FrontendInputs(stroke_v, pitch_v), self.params
         )
-        out = {
-            "sample_rate_hz": rate_hz,
-            "first_sample_index": first,
-            "source": SENSOR_ESTIMATE,
-            "stroke_deg": np.degrees(estimate.stroke_rad),
-            "pitch_deg": np.degrees(estimate.pitch_rad),
-            "stroke_velocity_deg_s": np.degrees(estimate.stroke_velocity_rad_s),
-            "stroke_valid": estimate.stroke_valid,
-            "pitch_valid": estimate.pitch_valid,
-        }
+        out = io.wing_state_fields(first, rate_hz, SENSOR_ESTIMATE, estimate)
         stamp_ns = cdr.stamp_ns(message)
         if len(stroke_v) == self.block_size:
             self.publisher.publish(stamp_ns, out)
@@ -150,14 +121,8 @@ class FrontendNode(FlaairNode):
         if self.n_timed == self.n_reported:
             return
         n = min(self.n_timed - self.n_reported, TIMED_BLOCKS)
-        p50, p99 = 1e3 * np.percentile(
-            self.latencies_s[(self.n_timed - 1 - np.arange(n)) % TIMED_BLOCKS], [50, 99]
-        )
-        log(
-            self.get_logger(),
-            INFO,
-            f"block processing over the last {n} blocks: p50 {p50:.3f} ms, p99 {p99:.3f} ms",
-        )
+        recent = self.latencies_s[(self.n_timed - 1 - np.arange(n)) % TIMED_BLOCKS]
+        log(self.get_logger(), INFO, io.latency_text(recent))
         self.n_reported = self.n_timed
 
 

@@ -15,6 +15,14 @@ from flaair_model.settings import node_section
 from flaair_sim.core import drive
 from flaair_sim.core.drive_pacing import PACINGS, PacingParams
 
+__all__ = [
+    "CONFIG_FILE",
+    "DRIVE_NODE_PARAMS",
+    "NODE_NAME",
+    "pacing_params_from_config",
+]
+
+
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "drive_node"
 

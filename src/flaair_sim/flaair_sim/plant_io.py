@@ -17,7 +17,28 @@ import numpy as np
 from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
-from flaair_sim.core.actuator import ActuatorParams
+from flaair_sim.core.actuator import ActuatorParams, Command
+from flaair_sim.core.scene import CameraParams, tracked_angles, tracking_generator
+
+__all__ = [
+    "ARM_S",
+    "CLOCK_DEPTH",
+    "CONFIG_FILE",
+    "NODE_NAME",
+    "PLANT_PARAMS",
+    "actuator_params_from_config",
+    "camera_from_config",
+    "command_of",
+    "generators_from_config",
+    "matched_text",
+    "obstacle_windows",
+    "plant_models",
+    "ready_text",
+    "rejected_text",
+    "sensor_fields",
+    "truth_fields",
+]
+
 
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "plant_node"
@@ -118,7 +139,7 @@ def obstacle_windows(flat_s: list[float]) -> list[tuple[float, float]]:
         raise ParameterError(
             f"parameter 'obstacle_windows_s' needs start/end pairs, got {len(flat_s)} values"
         )
-    return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2]) if b > a]
+    return [(a, b) for a, b in zip(flat_s[0::2], flat_s[1::2], strict=True) if b > a]
 
 
 def plant_models(values: Mapping[str, Any]) -> tuple[Model, Model, list[tuple[float, float]]]:
@@ -165,11 +186,19 @@ def ready_text(
     )
 
 
-def model_at(
-    start_s: float, model: Model, obstacle_model: Model, windows_s: list[tuple[float, float]]
-) -> Model:
-    """The model a block starting at `start_s` runs on: the obstacle's inside its windows."""
-    return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
+def command_of(m: Any, t_wall: float) -> Command:
+    """A /flaair/drive block's fields as the driver core's `Command`, arrived at `t_wall`."""
+    return Command(t_wall, int(m["first_sample_index"]), float(m["sample_rate_hz"]), m["drive_v"])
+
+
+def rejected_text(exc: Exception, count: int) -> str:
+    """The warning for an undecodable command block (`count` so far)."""
+    return f"rejected command block ({exc}); ignored [{count} undecodable so far]"
+
+
+def matched_text(sensors: int, truths: int) -> str:
+    """The log line once the outputs' listeners are matched and the drive is subscribed."""
+    return f"outputs matched (sensor {sensors}, truth {truths} listener(s)): taking drive commands"
 
 
 def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
@@ -187,22 +216,17 @@ def truth_fields(
     fs_hz: float,
     out: Any,
     source: int,
-    frame_every: int = 1,
-    tracking_rng: np.random.Generator | None = None,
-    tracking_deg_rms: float = 0.0,
+    camera: CameraParams,
+    tracking_rng: np.random.Generator | None,
 ) -> dict[str, Any]:
-    """A ground-truth WingStateBlock's fields (degrees, no velocity): every sample valid, or one
-    frame every `frame_every` samples (sample index a multiple of it), with tracking noise
-    drawn from `tracking_rng` ((n, 2) per block, so the draw does not depend on the split).
+    """A ground-truth WingStateBlock's fields (degrees, no velocity) of the plant's output `out`
+    from sample `index`, as `camera` sees them (`flaair_sim.core.scene.tracked_angles`).
     """
-    n = out.stroke_rad.size
-    valid, no_velocity = _truth_constants(n)
-    stroke, pitch = np.degrees(out.stroke_rad), np.degrees(out.pitch_rad)
-    if tracking_rng is not None:
-        noise = tracking_rng.standard_normal((n, 2)) * tracking_deg_rms
-        stroke, pitch = stroke + noise[:, 0], pitch + noise[:, 1]
-    if frame_every > 1:
-        valid = (index + np.arange(n)) % frame_every == 0
+    every, no_velocity = _truth_constants(out.stroke_rad.size)
+    stroke, pitch, valid = tracked_angles(
+        index, out.stroke_rad, out.pitch_rad, camera, tracking_rng
+    )
+    valid = every if valid is None else valid
     return {
         "sample_rate_hz": fs_hz,
         "first_sample_index": index,
@@ -213,6 +237,20 @@ def truth_fields(
         "stroke_valid": valid,
         "pitch_valid": valid,
     }
+
+
+def camera_from_config(values: Mapping[str, Any], model: Model) -> CameraParams:
+    """How the plant node's ground truth is seen, from plant_node values and the model."""
+    return CameraParams(values["truth_frame_every"], model.noise.tracking_noise_deg_rms)
+
+
+def generators_from_config(
+    values: Mapping[str, Any],
+) -> tuple[np.random.Generator | None, np.random.Generator | None]:
+    """(sensor noise, tracking noise) generators of plant_node values (None: no such noise)."""
+    seed = values["noise_seed"]
+    sensor = np.random.default_rng(seed) if values["noise"] else None
+    return sensor, tracking_generator(values["noise"], seed, values["truth_frame_every"])
 
 
 @lru_cache(maxsize=8)

@@ -3,14 +3,9 @@
 Subscribes to drive-command blocks (/flaair/drive) and publishes raw sensor-voltage blocks
 (/flaair/sensor_v), ground-truth wing-state blocks (/flaair/wing_state/truth) and /clock.
 
-Pacing (lockstep: one block per command block; realtime: the wall clock), command checks
-and the lockstep drive watchdog (zero drive and ring-down when a driving source falls silent)
-are the pure core `flaair_sim.core.actuator`; drive is clamped to +-drive_limit_v before the model.
-When composed with the front end and a controller (`flaair_common.container`), the block
-streams travel in-process.
-
-An obstacle (the paper's collision experiment) can be scheduled in sim time with
-obstacle_windows_s (pairs of start/end seconds) at obstacle_stroke_limit_deg.
+Pacing, command checks, the drive clamp and the lockstep drive watchdog are the pure core
+`flaair_sim.core.actuator`; the obstacle schedule (obstacle_windows_s, the paper's collision
+experiment) and the camera's view of the truth are `flaair_sim.core.scene`.
 
 Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p model_file:=my.yaml]
 """
@@ -30,7 +25,7 @@ from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_msgs.msg import WingStateBlock
 from flaair_sim import plant_io as io
-from flaair_sim.core import actuator, plant
+from flaair_sim.core import actuator, plant, scene
 from flaair_sim.plant_io import (
     CLOCK_DEPTH,
     CONFIG_FILE,
@@ -41,6 +36,7 @@ from flaair_sim.plant_io import (
 )
 
 PARAMS = PLANT_PARAMS
+TRUTH = WingStateBlock.SOURCE_GROUND_TRUTH
 
 
 class PlantNode(FlaairNode):
@@ -54,12 +50,8 @@ class PlantNode(FlaairNode):
         self.params = actuator_params_from_config(self.p)
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
-        self.noise_rng = np.random.default_rng(self.p["noise_seed"]) if self.p["noise"] else None
-        self.tracking_rng = (
-            np.random.default_rng([self.p["noise_seed"], 1])
-            if self.p["noise"] and self.p["truth_frame_every"] > 1
-            else None
-        )
+        self.noise_rng, self.tracking_rng = io.generators_from_config(self.p)
+        self.camera = io.camera_from_config(self.p, self.model)
         self.sensor = intra.block_publisher(
             self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM
         )
@@ -79,12 +71,7 @@ class PlantNode(FlaairNode):
         # the plant subscribes only once its outputs' listeners are matched (none misses block 0).
         self.listeners_timer = self.create_timer(0.01, self.subscribe_when_listened)
         self.subscribe_when_listened()
-        if self.p["mode"] == "realtime" or self.p["command_timeout_s"] > 0:
-            period = (
-                0.005
-                if self.p["mode"] == "realtime"
-                else min(0.01, self.p["command_timeout_s"] / 4)
-            )
+        if (period := actuator.tick_period_s(self.params)) is not None:
             self.create_timer(period, self.on_tick)
         self.get_logger().info(io.ready_text(self.p, self.model, self.windows_s))
 
@@ -100,33 +87,17 @@ class PlantNode(FlaairNode):
             self, topics.DRIVE, self.block_size, self.on_command, BLOCK_STREAM, self.on_undecodable
         )
         if sensors or truths:
-            self.get_logger().info(
-                f"outputs matched (sensor {sensors}, truth {truths} "
-                "listener(s)): taking drive commands"
-            )
+            self.get_logger().info(io.matched_text(sensors, truths))
 
     def on_undecodable(self, exc: Exception) -> None:
         self.undecodable += 1
-        warn_counted(
-            self.get_logger(),
-            self.undecodable,
-            f"rejected command block ({exc}); ignored [{self.undecodable} undecodable so far]",
-        )
+        warn_counted(self.get_logger(), self.undecodable, io.rejected_text(exc, self.undecodable))
 
     def on_command(self, m) -> None:
-        self.drive(
-            actuator.Command(
-                time.monotonic(),
-                int(m["first_sample_index"]),
-                float(m["sample_rate_hz"]),
-                m["drive_v"],
-            )
-        )
+        self.drive(io.command_of(m, time.monotonic()))
 
     def on_tick(self) -> None:
-        # realtime: the due blocks one at a time, at most 20 ms of them per tick (a plant behind
-        # the wall clock must not starve the executor: timers, shutdown)
-        for _ in range(int(0.02 * self.fs_hz / self.block_size)):
+        for _ in range(actuator.blocks_per_tick(self.params)):  # realtime: the due blocks
             if not self.drive(actuator.Tick(time.monotonic())):
                 break
 
@@ -140,12 +111,10 @@ class PlantNode(FlaairNode):
 
     def advance(self, drive_v: np.ndarray) -> None:
         """Step the model one block and publish its outputs."""
-        limit = self.get_parameter("drive_limit_v").value
-        # np.clip, at a third of its call overhead
-        drive_v = np.minimum(np.maximum(drive_v, -limit), limit)
+        drive_v = actuator.clamp_drive(drive_v, self.get_parameter("drive_limit_v").value)
         index = self.next_index
         self.next_index += drive_v.size
-        model = io.model_at(index / self.fs_hz, self.model, self.obstacle_model, self.windows_s)
+        model = scene.model_at(index / self.fs_hz, self.model, self.obstacle_model, self.windows_s)
         self.state, out = plant.step(
             self.state,
             plant.PlantInputs(drive_v, self.noise_rng),
@@ -158,15 +127,7 @@ class PlantNode(FlaairNode):
         if self.truth.subscription_count():
             self.truth.publish(
                 stamp_ns,
-                io.truth_fields(
-                    index,
-                    self.fs_hz,
-                    out,
-                    WingStateBlock.SOURCE_GROUND_TRUTH,
-                    self.p["truth_frame_every"],
-                    self.tracking_rng,
-                    self.model.noise.tracking_noise_deg_rms,
-                ),
+                io.truth_fields(index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng),
             )
         if self.clock_pub is not None and self.clock_pub.get_subscription_count():
             self.clock_pub.publish(

@@ -13,7 +13,7 @@ from flaair_bridge.core.bridge import Counters, DriveBlock, Input, Outputs, Sens
 __all__ = ["EventLog", "summary"]
 
 
-def summary(counters: Counters, timing: list) -> str:
+def summary(counters: Counters, timing: list[tuple[int, float, float]]) -> str:
     """One line of every counter and, from `Outputs.timing` records, the sensor-to-drive latency."""
     text = ", ".join(f"{name} {value}" for name, value in counters._asdict().items())
     if timing:

@@ -17,8 +17,33 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = [
+    "DRIVE_HEADER",
+    "DRIVE_MAGIC",
+    "DRIVE_SAMPLE",
+    "FLAG_STOP",
+    "FLAG_TARGET_WATCHDOG",
+    "MAX_SAMPLES",
+    "SENSOR_FIELDS",
+    "SENSOR_HEADER",
+    "SENSOR_MAGIC",
+    "SENSOR_SAMPLE",
+    "SEQUENCE_MODULUS",
+    "DrivePacket",
+    "ProtocolError",
+    "SensorPacket",
+    "pack_drive",
+    "pack_sensor",
+    "sequence_delta",
+    "unpack_drive",
+    "unpack_sensor",
+]
+
 
 SENSOR_MAGIC = b"FLS1"
 DRIVE_MAGIC = b"FLD1"
@@ -118,7 +143,7 @@ def _check_count(count: int, name: str) -> None:
 _F32_MAX = float(np.finfo(np.float32).max)
 
 
-def _finite_f32(values, name: str) -> np.ndarray:
+def _finite_f32(values: ArrayLike, name: str) -> np.ndarray:
     wide = np.asarray(values, dtype=np.float64)
     if not np.abs(wide).max(initial=0.0) <= _F32_MAX:  # NaN compares False, inf is over
         bad = int(np.argmax(~(np.abs(wide) <= _F32_MAX)))
@@ -195,7 +220,7 @@ def unpack_drive(data: bytes | memoryview) -> DrivePacket:
     return DrivePacket(sequence, first, flags, drive)
 
 
-def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) -> tuple:
+def _header(data: bytes | memoryview, dtype: np.dtype, magic: bytes, kind: str) -> tuple[Any, ...]:
     """The header's fields as Python values, after the length and magic checks."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise ProtocolError(f"{kind} packet: expected bytes, got {type(data).__name__}")

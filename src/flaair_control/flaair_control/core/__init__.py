@@ -9,7 +9,9 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset, limit cycle)
 - ``safety``: drive clamp, slew limit and sensor watchdog
 - ``stroke``: the per-wingbeat stroke-amplitude controller
+- ``stroke_loop``: the stroke controller's start, start retry and watchdog timing
 - ``supervisor``: the dSA controller's start / loop / trip / keepalive state machine
+- ``loop_state``: its parameters, state, events and outputs (re-exported by ``supervisor``)
 - ``transition``: sync -> async transition analysis
 """
 
@@ -17,10 +19,12 @@ __all__ = [
     "collision",
     "dsa",
     "hopf",
+    "loop_state",
     "monitor",
     "safety",
     "spectral",
     "stroke",
+    "stroke_loop",
     "supervisor",
     "transition",
 ]

@@ -45,9 +45,36 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from flaair_control.core.spectral import (
-    CollisionParameterError,
-)
+from flaair_control.core.spectral import CollisionParameterError
+
+# A closed window (start, end, omega rad/sample, idle); its features (A_stroke, A_pitch, d_stroke,
+# d_pitch, score, usable); a report row (wingbeat, start, end, end time s, frequency Hz, A_stroke,
+# A_pitch, d_stroke, d_pitch, score, status).
+Window = tuple[int, int, float, bool]
+Features = tuple[float, float, float, float, float, bool]
+ReportRow = tuple[int, int, int, float, float, float, float, float, float, float, int]
+
+__all__ = [
+    "ARMING",
+    "CLEAR",
+    "CLEARANCE",
+    "COLLISION",
+    "IDLE",
+    "INVALID",
+    "ONSET",
+    "CollisionParameterError",
+    "MonitorEvent",
+    "MonitorInputs",
+    "MonitorOutputs",
+    "MonitorParams",
+    "MonitorState",
+    "WingbeatReport",
+    "concat_reports",
+    "initial_state",
+    "rearm",
+    "run",
+    "step",
+]
 
 # Wingbeat status codes.
 ARMING = -1
@@ -223,7 +250,9 @@ def _projector(n: int, omega_per_sample: float) -> tuple[np.ndarray, np.ndarray]
 
 
 @numba.njit(cache=True)
-def _fit_rows(segments, basis, pinv):  # pragma: no cover - numba
+def _fit_rows(  # pragma: no cover - numba
+    segments: np.ndarray, basis: np.ndarray, pinv: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Per row: fundamental amplitude and residual rms (fixed summation order, so the result of
     a window never depends on which other windows share the batch).
     """
@@ -253,7 +282,8 @@ def _fit_rows(segments, basis, pinv):  # pragma: no cover - numba
 def _fit_many(segments: np.ndarray, omega_per_sample: float) -> tuple[np.ndarray, np.ndarray]:
     """(fundamental amplitude, residual rms) of each row of ``segments`` (m, n)."""
     basis, pinv = _projector(segments.shape[1], float(omega_per_sample))
-    return _fit_rows(np.ascontiguousarray(segments), basis, pinv)
+    amp, rms = _fit_rows(np.ascontiguousarray(segments), basis, pinv)
+    return amp, rms
 
 
 def _distortion(amp: np.ndarray, resid_rms: np.ndarray, noise_rms: float) -> np.ndarray:
@@ -262,9 +292,11 @@ def _distortion(amp: np.ndarray, resid_rms: np.ndarray, noise_rms: float) -> np.
     return np.where(amp > 0, np.sqrt(np.maximum(d2, 0.0)), np.inf)
 
 
-def _drive_windows(st: MonitorState, n_avail: int, base: int, p: MonitorParams):
+def _drive_windows(
+    st: MonitorState, n_avail: int, base: int, p: MonitorParams
+) -> tuple[list[Window], int, MonitorState]:
     """Closed drive-locked windows [(start, end, omega, idle)] (relative to base) and new state."""
-    wins = []
+    wins: list[Window] = []
     k = st.window_index
     pos = 0
     synced = st.synced
@@ -282,7 +314,16 @@ def _drive_windows(st: MonitorState, n_avail: int, base: int, p: MonitorParams):
 
 
 @numba.njit(cache=True)
-def _schmitt_scan(xs, i0, high, center, synced, min_len, max_len, h):  # pragma: no cover - numba
+def _schmitt_scan(  # pragma: no cover - numba
+    xs: np.ndarray,
+    i0: int,
+    high: bool,
+    center: float,
+    synced: bool,
+    min_len: int,
+    max_len: int,
+    h: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, bool, float, bool]:
     """Sample-by-sample Schmitt-trigger window finder (see ``_stroke_windows``)."""
     n = xs.shape[0]
     cap = n // 4 + 2
@@ -320,7 +361,9 @@ def _schmitt_scan(xs, i0, high, center, synced, min_len, max_len, h):  # pragma:
     return starts[:m], ends[:m], idles[:m], pos, high, center, synced
 
 
-def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
+def _stroke_windows(
+    st: MonitorState, xs: np.ndarray, p: MonitorParams
+) -> tuple[list[Window], int, MonitorState]:
     """Closed stroke-locked windows [(start, end, omega, idle)] (relative to xs) and new state.
 
     Sample by sample: the trigger goes low below centre - h and high above centre + h; an upward
@@ -343,7 +386,8 @@ def _stroke_windows(st: MonitorState, xs: np.ndarray, p: MonitorParams):
         float(p.crossing_hysteresis_rad),
     )
     wins = [
-        (int(a), int(b), 2 * math.pi / (b - a), bool(c)) for a, b, c in zip(starts, ends, idles)
+        (int(a), int(b), 2 * math.pi / (b - a), bool(c))
+        for a, b, c in zip(starts, ends, idles, strict=True)
     ]
     new = st._replace(
         schmitt_high=bool(high),
@@ -392,9 +436,9 @@ def step(
     else:
         wins, pos, st = _stroke_windows(state, xs, params)
     feats = _features(xs, xp, wins, params)
-    rows: list[tuple] = []
+    rows: list[ReportRow] = []
     events: list[MonitorEvent] = []
-    for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats):
+    for (start, end, omega, idle), (a_s, a_p, d_s, d_p, score, ok) in zip(wins, feats, strict=True):
         st, row, ev = _decide(
             st, base + start, base + end, omega, idle, ok, a_s, a_p, d_s, d_p, score, params
         )
@@ -406,9 +450,11 @@ def step(
     return st, MonitorOutputs(_report(rows), events)
 
 
-def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> list[tuple]:
+def _features(
+    xs: np.ndarray, xp: np.ndarray, wins: list[Window], p: MonitorParams
+) -> list[Features]:
     """Per window: (A_stroke, A_pitch, d_stroke, d_pitch, score, usable); fits batched by length."""
-    out: list[tuple] = [None] * len(wins)  # type: ignore[list-item]
+    out: list[Features] = [(math.nan,) * 5 + (False,)] * len(wins)
     groups: dict[tuple[int, float], list[int]] = {}
     for w, (start, end, omega, _) in enumerate(wins):
         n = end - start
@@ -416,7 +462,7 @@ def _features(xs: np.ndarray, xp: np.ndarray, wins: list, p: MonitorParams) -> l
             out[w] = (math.nan,) * 5 + (False,)
             continue
         groups.setdefault((n, omega), []).append(w)
-    for (n, omega), members in groups.items():
+    for (_, omega), members in groups.items():
         seg_s = np.stack([xs[wins[w][0] : wins[w][1]] for w in members])
         seg_p = np.stack([xp[wins[w][0] : wins[w][1]] for w in members])
         a_s, r_s = _fit_many(seg_s, omega)
@@ -454,7 +500,7 @@ def _decide(
     d_p: float,
     score: float,
     p: MonitorParams,
-) -> tuple[MonitorState, tuple, list[MonitorEvent]]:
+) -> tuple[MonitorState, ReportRow, list[MonitorEvent]]:
     """Hysteresis decision for one closed wingbeat."""
     fs = p.sample_rate_hz
     freq = omega * fs / (2 * math.pi)
@@ -495,7 +541,7 @@ def _decide(
     )
 
 
-def _report(rows: list[tuple]) -> WingbeatReport:
+def _report(rows: list[ReportRow]) -> WingbeatReport:
     if not rows:
         empty_i = np.zeros(0, dtype=np.int64)
         empty_f = np.zeros(0)
@@ -512,7 +558,7 @@ def _report(rows: list[tuple]) -> WingbeatReport:
             empty_f,
             empty_i,
         )
-    cols = list(zip(*rows))
+    cols = list(zip(*rows, strict=True))
     ints = {0, 1, 2, 10}
     return WingbeatReport(
         *[np.asarray(c, dtype=np.int64 if i in ints else float) for i, c in enumerate(cols)]
@@ -523,7 +569,7 @@ def concat_reports(reports: list[WingbeatReport]) -> WingbeatReport:
     """Join the reports of consecutive steps."""
     if not reports:
         return _report([])
-    return WingbeatReport(*[np.concatenate(parts) for parts in zip(*reports)])
+    return WingbeatReport(*[np.concatenate(parts) for parts in zip(*reports, strict=True)])
 
 
 def run(

@@ -60,15 +60,35 @@ instead would fix the onset frequency but not mu*, since the filter gain changes
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 from scipy import signal
 
 from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
+
+__all__ = [
+    "DSA_VALUE_KEYS",
+    "DsaInputs",
+    "DsaOutputs",
+    "DsaParameterError",
+    "DsaParams",
+    "DsaSignals",
+    "DsaState",
+    "KrSchedule",
+    "continuous_response",
+    "dsa_params",
+    "filter_coefficients",
+    "frequency_response",
+    "initial_state",
+    "kr_at",
+    "loop_delay_s",
+    "step",
+]
 
 
 class DsaParameterError(ValueError):
@@ -176,7 +196,7 @@ class DsaParams:
         return math.sqrt(self.kappa) * self.r3_rad_s
 
     @cached_property
-    def kernel_args(self) -> tuple:
+    def kernel_args(self) -> tuple[Any, ...]:
         """``step``'s kernel arguments after the block and the state: the rate, the
         normalized (b, a) of the advanced and the raw filter, K_r, the sine,
         G_a and the limit (once per parameter set: hashing the dataclass for
@@ -185,8 +205,8 @@ class DsaParams:
         kr = self.kr_schedule
         return (
             float(self.sample_rate_hz),
-            *normalized_ba(*tf_coefficients(self, True)),
-            *normalized_ba(*tf_coefficients(self, False)),
+            *normalized_ba(*filter_coefficients(self, True)),
+            *normalized_ba(*filter_coefficients(self, False)),
             float(kr.start_value),
             float(kr.end_value),
             float(kr.start_time_s),
@@ -212,8 +232,54 @@ def loop_delay_s(
     return (block_size + 0.5 + velocity_delay_samples) / sample_rate_hz
 
 
+# The values `dsa_params` reads from a controller's section (or a sweep's row).
+DSA_VALUE_KEYS: tuple[str, ...] = (
+    "r3_rad_s",
+    "kappa",
+    "mu_nm_s_per_rad",
+    "drive_limit_v",
+    "sync_amplitude_v",
+    "sync_frequency_hz",
+    "sync_phase_rad",
+    "compensate_delay",
+    "compensation_frequency_hz",
+)
+
+
+def dsa_params(
+    values: Mapping[str, Any],
+    *,
+    actuator_gain_nm_per_v: float,
+    sample_rate_hz: float,
+    loop_delay_s: float,
+    kr_schedule: KrSchedule,
+) -> DsaParams:
+    """The one way to build `DsaParams` from configured values (keys: `DSA_VALUE_KEYS`).
+
+    `loop_delay_s` is the delay the phase advance would cancel; it applies only when
+    ``values["compensate_delay"]`` is true (0: no phase advance).
+    """
+    missing = [key for key in DSA_VALUE_KEYS if key not in values]
+    if missing:
+        raise DsaParameterError(f"dSA values lack {', '.join(missing)}")
+    return DsaParams(
+        r3_rad_s=values["r3_rad_s"],
+        kappa=values["kappa"],
+        mu_nm_s_per_rad=values["mu_nm_s_per_rad"],
+        actuator_gain_nm_per_v=actuator_gain_nm_per_v,
+        sample_rate_hz=sample_rate_hz,
+        drive_limit_v=values["drive_limit_v"],
+        sync_amplitude_v=values["sync_amplitude_v"],
+        sync_frequency_hz=values["sync_frequency_hz"],
+        sync_phase_rad=values["sync_phase_rad"],
+        kr_schedule=kr_schedule,
+        loop_delay_s=loop_delay_s if values["compensate_delay"] else 0.0,
+        compensation_frequency_hz=values["compensation_frequency_hz"],
+    )
+
+
 @lru_cache(maxsize=64)
-def tf_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
+def filter_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (b, a) of the dSA filter (velocity -> torque), optionally phase-advanced."""
     wc = params.design_omega_rad_s
     if advanced and params.loop_delay_s > 0:
@@ -230,6 +296,9 @@ def tf_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, np.n
     if bz.size < 3:
         bz = np.concatenate([np.zeros(3 - bz.size), bz])
     return bz, az
+
+
+# The former name, read by flaair_tools.sweeps.sweep_batch until it calls filter_coefficients.
 
 
 class DsaState(NamedTuple):
@@ -284,25 +353,25 @@ _TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)  # rows 
 
 @njit(cache=True)
 def _block(
-    v_in,
-    t_start_s,
-    zi_adv,
-    zi_raw,
-    fs,
-    b_adv,
-    a_adv,
-    b_raw,
-    a_raw,
-    kr_start,
-    kr_end,
-    kr_t0,
-    kr_duration,
-    sync_amplitude_v,
-    sync_omega,
-    sync_phase_rad,
-    gain,
-    limit_v,
-):
+    v_in: np.ndarray,
+    t_start_s: float,
+    zi_adv: np.ndarray,
+    zi_raw: np.ndarray,
+    fs: float,
+    b_adv: np.ndarray,
+    a_adv: np.ndarray,
+    b_raw: np.ndarray,
+    a_raw: np.ndarray,
+    kr_start: float,
+    kr_end: float,
+    kr_t0: float,
+    kr_duration: float,
+    sync_amplitude_v: float,
+    sync_omega: float,
+    sync_phase_rad: float,
+    gain: float,
+    limit_v: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
 
     Returns the signals as rows of one array (one allocation, one object to hand back) and the
@@ -355,11 +424,11 @@ def frequency_response(
     params: DsaParams, frequency_hz: np.ndarray, advanced: bool = True
 ) -> np.ndarray:
     """Discrete filter response torque/velocity (N m s / rad) at ``frequency_hz``."""
-    bz, az = tf_coefficients(params, advanced)
+    bz, az = filter_coefficients(params, advanced)
     _, h = signal.freqz(
         bz, az, worN=np.asarray(frequency_hz, dtype=float), fs=params.sample_rate_hz
     )
-    return h
+    return np.asarray(h)
 
 
 def continuous_response(

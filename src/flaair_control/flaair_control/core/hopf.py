@@ -89,7 +89,23 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
+
+__all__ = [
+    "HopfOnset",
+    "HopfParameterError",
+    "LimitCycle",
+    "LinearStrokePlant",
+    "characteristic_polynomial",
+    "closed_loop_poles",
+    "filter_coefficients",
+    "hopf_onset",
+    "limit_cycle",
+    "onset_with_delay",
+    "phase_advance",
+    "r3_for_onset_frequency",
+]
 
 
 class HopfParameterError(ValueError):
@@ -237,7 +253,7 @@ def onset_with_delay(
     wn = plant.natural_frequency_rad_s
     w_hi = omega_max_rad_s if omega_max_rad_s is not None else 6.0 * max(wn, math.sqrt(b))
 
-    def c_of(w):
+    def c_of(w: ArrayLike) -> np.ndarray:
         s = 1j * np.asarray(w, dtype=float)
         p = i * s * s + cs * s + k
         q = s * s + a * s + b

@@ -28,10 +28,32 @@ from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from flaair_control.core import collision as col
 from flaair_control.core import spectral
 from flaair_model.notes import INFO, Note
+
+__all__ = [
+    "CLEARANCE",
+    "ONSET",
+    "CollisionMonitorParams",
+    "CollisionMonitorState",
+    "DriveBlock",
+    "DriveLockState",
+    "Lock",
+    "MonitorOutputs",
+    "Verdict",
+    "WingBlock",
+    "drive_lock_params",
+    "initial_state",
+    "lock_step",
+    "metric_params",
+    "step",
+    "window_params",
+    "wing_block",
+]
+
 
 ONSET = "onset"
 CLEARANCE = "clearance"
@@ -191,7 +213,9 @@ def lock_step(
         finder, col.MonitorInputs(drive_v, np.zeros_like(drive_v)), drive_lock_params(p)
     )
     kept = list(crossings)
-    for start, status in zip(out.report.start_index.tolist(), out.report.status.tolist()):
+    for start, status in zip(
+        out.report.start_index.tolist(), out.report.status.tolist(), strict=True
+    ):
         if status == col.IDLE:
             kept.clear()  # not driven: no frequency
         else:
@@ -229,7 +253,11 @@ class WingBlock(NamedTuple):
 
 
 def wing_block(
-    first_sample_index: int, stroke_deg, pitch_deg, stroke_valid, pitch_valid
+    first_sample_index: int,
+    stroke_deg: ArrayLike,
+    pitch_deg: ArrayLike,
+    stroke_valid: ArrayLike,
+    pitch_valid: ArrayLike,
 ) -> WingBlock:
     """A wing-state block's fields as the core's input: rad, NaN where a sample is not valid
     (validity flags of the wrong length mark the whole channel invalid).
@@ -238,16 +266,9 @@ def wing_block(
         np.asarray(stroke_deg, dtype=np.float64),
         np.asarray(pitch_deg, dtype=np.float64),
     )
-    s_ok = (
-        np.asarray(stroke_valid, dtype=bool)
-        if len(stroke_valid) == len(stroke)
-        else np.zeros(len(stroke), bool)
-    )
-    p_ok = (
-        np.asarray(pitch_valid, dtype=bool)
-        if len(pitch_valid) == len(pitch)
-        else np.zeros(len(pitch), bool)
-    )
+    s_valid, p_valid = np.asarray(stroke_valid, dtype=bool), np.asarray(pitch_valid, dtype=bool)
+    s_ok = s_valid if len(s_valid) == len(stroke) else np.zeros(len(stroke), bool)
+    p_ok = p_valid if len(p_valid) == len(pitch) else np.zeros(len(pitch), bool)
     return WingBlock(
         int(first_sample_index),
         np.where(s_ok, np.radians(stroke), np.nan),

@@ -30,6 +30,26 @@ import numpy as np
 
 from flaair_model.lfilter import float_block
 
+__all__ = [
+    "OK",
+    "REASON_INVALID_BLOCK",
+    "REASON_NONE",
+    "REASON_TIMEOUT",
+    "TRIPPED",
+    "SafetyInputs",
+    "SafetyOutput",
+    "SafetyParameterError",
+    "SafetyParams",
+    "SafetyState",
+    "check_timeout",
+    "clamp",
+    "initial_state",
+    "note_sensor_block",
+    "reset",
+    "step",
+]
+
+
 OK = 0
 TRIPPED = 1
 
@@ -144,7 +164,7 @@ def clamp(drive_v: np.ndarray, drive_limit_v: float) -> np.ndarray:
     """Non-finite -> 0, then clip to +-drive_limit_v (stateless)."""
     x = np.asarray(drive_v, dtype=float)
     x = np.where(np.isfinite(x), x, 0.0)
-    return np.clip(x, -drive_limit_v, drive_limit_v)
+    return np.asarray(np.clip(x, -drive_limit_v, drive_limit_v))
 
 
 @numba.njit(cache=True)

@@ -55,15 +55,45 @@ Design from the plant's amplitude response (``design``; nominal plant, config/mo
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
 from scipy.optimize import brentq
 
 from flaair_control.core import dsa, hopf
+from flaair_model.effects import WingDamage
+from flaair_model.model import Model
 from flaair_model.schema import ParamSpec
+
+__all__ = [
+    "MODES",
+    "NODE_PARAMS",
+    "StrokeInputs",
+    "StrokeOutputs",
+    "StrokeParameterError",
+    "StrokeParams",
+    "StrokePlant",
+    "StrokeSignals",
+    "StrokeState",
+    "command",
+    "design",
+    "dsa_amplitude_deg",
+    "dsa_gain_for_amplitude",
+    "initial_state",
+    "last_amplitude_deg",
+    "params_from_values",
+    "retarget",
+    "step",
+    "sync_drive_for_amplitude",
+    "track_sample",
+    "tracker_constants",
+    "tracker_initial_state",
+    "wingbeats",
+]
+
 
 MODES = ("sync", "dsa")
 
@@ -204,7 +234,14 @@ def track_sample(stroke_rad: float, valid: bool, s: np.ndarray, c: np.ndarray) -
 
 
 @njit(cache=True)
-def _track_block(stroke_rad, valid, s, c, z_out, amp_out):
+def _track_block(
+    stroke_rad: np.ndarray,
+    valid: np.ndarray,
+    s: np.ndarray,
+    c: np.ndarray,
+    z_out: np.ndarray,
+    amp_out: np.ndarray,
+) -> None:
     """Tracker over a block; per-sample z (after the sample)
     and the amplitude at wingbeat ends (else NaN).
     """
@@ -344,11 +381,11 @@ class StrokePlant:
     actuator_gain_nm_per_v: float
 
     @classmethod
-    def from_model(cls, model) -> StrokePlant:
+    def from_model(cls, model: Model) -> StrokePlant:
         """From a flaair_model Model (nominal plant; wing_damage scales the inertia)."""
         pl = model.plant
         damage = model.effect("wing_damage")
-        factor = damage.inertia_factor if damage is not None else 1.0
+        factor = damage.inertia_factor if isinstance(damage, WingDamage) else 1.0
         return cls(
             pl.stroke_inertia_kg_m2 * factor,
             pl.stroke_stiffness_nm_per_rad,
@@ -397,8 +434,13 @@ def dsa_gain_for_amplitude(
         hi *= 2.0
         if hi > 1.0:
             raise StrokeParameterError(f"no dSA gain gives {amplitude_deg} deg")
-    return brentq(
-        lambda mu: dsa_amplitude_deg(plant, mu, r3_rad_s, kappa) - amplitude_deg, lo, hi, rtol=1e-10
+    return float(
+        brentq(
+            lambda mu: dsa_amplitude_deg(plant, mu, r3_rad_s, kappa) - amplitude_deg,
+            lo,
+            hi,
+            rtol=1e-10,
+        )
     )
 
 
@@ -438,7 +480,7 @@ def design(
 
 
 def params_from_values(
-    values: dict, plant: StrokePlant, sample_rate_hz: float, loop_delay_s: float
+    values: Mapping[str, Any], plant: StrokePlant, sample_rate_hz: float, loop_delay_s: float
 ) -> StrokeParams:
     """StrokeParams from the ``stroke_controller_node``
     section of config/flaair.yaml (pure mapping).
@@ -460,19 +502,17 @@ def params_from_values(
     dsa_params = None
     if mode == "dsa":
         kick = dsa.KrSchedule(1.0, 0.0, values["kick_s"], values["kick_ramp_s"])
-        dsa_params = dsa.DsaParams(
-            r3_rad_s=values["r3_rad_s"],
-            kappa=values["kappa"],
-            mu_nm_s_per_rad=u_ff,
+        dsa_params = dsa.dsa_params(
+            {
+                **values,
+                "mu_nm_s_per_rad": u_ff,
+                "sync_amplitude_v": values["kick_amplitude_v"],
+                "sync_phase_rad": 0.0,
+            },
             actuator_gain_nm_per_v=plant.actuator_gain_nm_per_v,
             sample_rate_hz=sample_rate_hz,
-            drive_limit_v=values["drive_limit_v"],
-            sync_amplitude_v=values["kick_amplitude_v"],
-            sync_frequency_hz=values["sync_frequency_hz"],
-            sync_phase_rad=0.0,
+            loop_delay_s=loop_delay_s,
             kr_schedule=kick,
-            loop_delay_s=loop_delay_s if values["compensate_delay"] else 0.0,
-            compensation_frequency_hz=values["compensation_frequency_hz"],
         )
         low, high = values["mu_min_nm_s_per_rad"], values["mu_max_nm_s_per_rad"]
     else:

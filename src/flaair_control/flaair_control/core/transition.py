@@ -39,10 +39,30 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy import signal
+
+__all__ = [
+    "CROSSING_START",
+    "BlockRecord",
+    "CrossingFrequency",
+    "CrossingParams",
+    "CrossingState",
+    "HilbertParams",
+    "HilbertResult",
+    "TransitionError",
+    "WindowStats",
+    "crossing_frequency_hz",
+    "crossing_params",
+    "crossing_step",
+    "crossing_times",
+    "hilbert_analysis",
+    "join_blocks",
+    "stamp_s",
+    "window_stats",
+]
 
 
 class TransitionError(ValueError):
@@ -277,7 +297,7 @@ class BlockRecord(NamedTuple):
 
 
 def join_blocks(
-    blocks: Sequence[Mapping],
+    blocks: Sequence[Mapping[str, Any]],
     fields: Sequence[str],
     sample_rate_hz: float,
     valid_field: str | None = None,
@@ -310,7 +330,7 @@ def join_blocks(
     return BlockRecord(start, t, out, missing)
 
 
-def stamp_s(message: Mapping) -> float:
+def stamp_s(message: Mapping[str, Any]) -> float:
     """Header stamp (s) of a message dict."""
     stamp = message["header"]["stamp"]
-    return stamp["sec"] + 1e-9 * stamp["nanosec"]
+    return float(stamp["sec"] + 1e-9 * stamp["nanosec"])

@@ -124,7 +124,7 @@ def stepped_segments(frequency_hz_per_sample: np.ndarray) -> list[tuple[int, int
     stops = np.r_[edges, f.size]
     return [
         (int(a), int(b), float(f[a]))
-        for a, b in zip(starts, stops)
+        for a, b in zip(starts, stops, strict=True)
         if f[a] > 0 and np.isfinite(f[a])
     ]
 
@@ -181,7 +181,7 @@ def _bode_from_phasors(
         return sensor_deg
 
     def amp(x: np.ndarray) -> np.ndarray:
-        return np.degrees(np.abs(x))
+        return np.asarray(np.degrees(np.abs(x)))
 
     st_s = phase_curve(ph["stroke_sensor"], ph["drive"])
     st_t = phase_curve(ph["stroke_truth"], ph["drive"])
@@ -263,7 +263,7 @@ def bode_from_chirp(
         freqs = np.asarray(frequencies_hz, float)
     half = max(4, round(window_s * fs_hz / 2))
     out_f: list[float] = []
-    out: dict[str, list] = {k: [] for k in SIGNALS}
+    out: dict[str, list[complex]] = {k: [] for k in SIGNALS}
     for f in freqs:
         c = int(np.searchsorted(rising, f))
         if c >= n:
@@ -316,7 +316,7 @@ def bode_from_stepped(
         )
     t = np.arange(n) / fs_hz
     out_f: list[float] = []
-    out: dict[str, list] = {k: [] for k in SIGNALS}
+    out: dict[str, list[complex]] = {k: [] for k in SIGNALS}
     for a, b, f in segs:
         a2 = b - max(8, round(settle_fraction * (b - a)))
         a2 = max(a, a2)

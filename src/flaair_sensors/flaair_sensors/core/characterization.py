@@ -213,7 +213,7 @@ def fit_delay(
 def _shift(x: np.ndarray, lag_samples: float) -> np.ndarray:
     """x(t + lag) by cubic-spline interpolation; NaN outside the record."""
     t = np.arange(x.size, dtype=float)
-    out = interpolate.CubicSpline(t, x)(t + lag_samples)
+    out: np.ndarray = interpolate.CubicSpline(t, x)(t + lag_samples)
     out[(t + lag_samples < 0) | (t + lag_samples > x.size - 1)] = np.nan
     return out
 

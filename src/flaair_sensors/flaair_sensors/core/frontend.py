@@ -60,7 +60,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -194,7 +194,8 @@ def drift_removal_response(params: FrontendParams, frequency_hz: np.ndarray | fl
         return np.ones(f.shape, complex)
     flt = filters(params)
     _, h = signal.freqz(flt.drift_b, flt.drift_a, worN=f, fs=params.sample_rate_hz)
-    return 1.0 - h
+    residual: np.ndarray = 1.0 - h
+    return residual
 
 
 def lag_compensation_response(
@@ -207,7 +208,8 @@ def lag_compensation_response(
     if ba is None:
         return np.exp(-2j * np.pi * f * lag)
     _, h = signal.freqz(ba[0], ba[1], worN=f, fs=params.sample_rate_hz)
-    return h * np.exp(-2j * np.pi * f * lag)
+    residual: np.ndarray = h * np.exp(-2j * np.pi * f * lag)
+    return residual
 
 
 def lag_compensation_noise_gain(params: FrontendParams, channel: str = "stroke") -> float:
@@ -307,7 +309,8 @@ def initial_state(
     def lead_zi(ba: tuple[np.ndarray, np.ndarray] | None, angle0: float) -> np.ndarray:
         if ba is None:
             return np.zeros(2)
-        return signal.lfilter_zi(*ba) * angle0
+        zi: np.ndarray = signal.lfilter_zi(*ba) * angle0
+        return zi
 
     # With drift removal the first angle is 0 by construction; without it, start settled there.
     def angle0(first_v: float | None, offset: float, vpr: float) -> float:
@@ -333,7 +336,7 @@ _NO_FILTER = np.zeros(1)
 
 
 @lru_cache(maxsize=64)
-def _kernel_constants(p: FrontendParams) -> tuple:
+def _kernel_constants(p: FrontendParams) -> tuple[Any, ...]:
     """``_block``'s arguments after the block and the state
     (normalized filters, thresholds), once per params.
     """
@@ -362,30 +365,30 @@ def _kernel_constants(p: FrontendParams) -> tuple:
 
 @njit(cache=True)
 def _channel(
-    v,
-    angle,
-    valid,
-    zero_v,
-    volts_per_rad,
-    rails,
-    above_v,
-    below_v,
-    holdoff,
-    since_bad,
-    drift,
-    drift_b,
-    drift_a,
-    drift_z,
-    lead,
-    lead_b,
-    lead_a,
-    lead_z,
-    velocity,
-    velocity_b,
-    velocity_a,
-    velocity_z,
-    velocity_out,
-):
+    v: np.ndarray,
+    angle: np.ndarray,
+    valid: np.ndarray,
+    zero_v: float,
+    volts_per_rad: float,
+    rails: bool,
+    above_v: float,
+    below_v: float,
+    holdoff: int,
+    since_bad: int,
+    drift: bool,
+    drift_b: np.ndarray,
+    drift_a: np.ndarray,
+    drift_z: np.ndarray,
+    lead: bool,
+    lead_b: np.ndarray,
+    lead_a: np.ndarray,
+    lead_z: np.ndarray,
+    velocity: bool,
+    velocity_b: np.ndarray,
+    velocity_a: np.ndarray,
+    velocity_z: np.ndarray,
+    velocity_out: np.ndarray,
+) -> int:
     """One channel, sample by sample; filter states
     (``*_z``) advance in place on usable samples only.
 
@@ -418,35 +421,37 @@ def _channel(
 
 @njit(cache=True)
 def _block(
-    sv,
-    pv,
-    stroke_drift_zi,
-    pitch_drift_zi,
-    stroke_lead_zi,
-    pitch_lead_zi,
-    velocity_zi,
-    stroke_since_bad,
-    pitch_since_bad,
-    stroke_zero_v,
-    pitch_zero_v,
-    stroke_vpr,
-    pitch_vpr,
-    rails,
-    above_v,
-    below_v,
-    holdoff,
-    drift,
-    drift_b,
-    drift_a,
-    stroke_lead,
-    stroke_lead_b,
-    stroke_lead_a,
-    pitch_lead,
-    pitch_lead_b,
-    pitch_lead_a,
-    velocity_b,
-    velocity_a,
-):
+    sv: np.ndarray,
+    pv: np.ndarray,
+    stroke_drift_zi: np.ndarray,
+    pitch_drift_zi: np.ndarray,
+    stroke_lead_zi: np.ndarray,
+    pitch_lead_zi: np.ndarray,
+    velocity_zi: np.ndarray,
+    stroke_since_bad: int,
+    pitch_since_bad: int,
+    stroke_zero_v: float,
+    pitch_zero_v: float,
+    stroke_vpr: float,
+    pitch_vpr: float,
+    rails: bool,
+    above_v: float,
+    below_v: float,
+    holdoff: int,
+    drift: bool,
+    drift_b: np.ndarray,
+    drift_a: np.ndarray,
+    stroke_lead: bool,
+    stroke_lead_b: np.ndarray,
+    stroke_lead_a: np.ndarray,
+    pitch_lead: bool,
+    pitch_lead_b: np.ndarray,
+    pitch_lead_a: np.ndarray,
+    velocity_b: np.ndarray,
+    velocity_a: np.ndarray,
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int
+]:
     """Both channels of one block: rows (stroke, pitch, stroke velocity), rows
     (stroke, pitch) valid, the five new filter states and the two hold-off counters.
     """

@@ -1,6 +1,7 @@
 """Pure cores of the simulation package: no rclpy, no files, no plots.
 
 - ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
+- ``plant_kernel``: its numba kernels (RK4 with the collision stop, one model or a batch)
 - ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
 - ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
@@ -9,6 +10,7 @@
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
 - ``drive``: drive-voltage generators, whole-record and sample-exact blocks
 - ``drive_pacing``: when the open-loop drive generator sends which block
+- ``scene``: the obstacle schedule and the ground truth as a camera sees it
 """
 
 __all__ = [
@@ -17,8 +19,10 @@ __all__ = [
     "drive_pacing",
     "measured_run",
     "plant",
+    "plant_kernel",
     "plant_params",
     "plant_terms",
+    "scene",
     "sensor_kernel",
     "term_kernel",
 ]

@@ -31,6 +31,20 @@ import numpy as np
 from flaair_common.stream import check_block
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
+__all__ = [
+    "MAX_PENDING",
+    "ActuatorParams",
+    "ActuatorState",
+    "Command",
+    "Outputs",
+    "Tick",
+    "blocks_per_tick",
+    "clamp_drive",
+    "initial_state",
+    "step",
+    "tick_period_s",
+]
+
 MAX_PENDING = 1000  # realtime: queued command blocks kept (0.5 s at 20 kHz in 10-sample blocks)
 
 
@@ -96,6 +110,30 @@ def step(
     if isinstance(inputs, Command):
         return _on_command(state, inputs, p)
     return _on_tick(state, inputs, p)
+
+
+def clamp_drive(drive_v: np.ndarray, limit_v: float) -> np.ndarray:
+    """The drive the actuator takes: clamped to +-`limit_v` (the driver's safe range)."""
+    clamped: np.ndarray = np.minimum(np.maximum(drive_v, -limit_v), limit_v)  # np.clip's third
+    return clamped
+
+
+def tick_period_s(params: ActuatorParams) -> float | None:
+    """The wall-clock tick's period: 5 ms in realtime, a quarter of the drive watchdog's timeout
+    (at most 10 ms) in lockstep with the watchdog on; None: no tick needed.
+    """
+    if params.mode == "realtime":
+        return 0.005
+    if params.command_timeout_s > 0:
+        return min(0.01, params.command_timeout_s / 4)
+    return None
+
+
+def blocks_per_tick(params: ActuatorParams) -> int:
+    """Realtime: at most this many due blocks (20 ms) are stepped per tick, so a plant behind
+    the wall clock does not starve its executor (timers, shutdown).
+    """
+    return int(0.02 * params.sample_rate_hz / params.block_size)
 
 
 def _emit(state: ActuatorState, blocks: list[np.ndarray], drive_v: np.ndarray) -> ActuatorState:

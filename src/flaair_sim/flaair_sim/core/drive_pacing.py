@@ -23,12 +23,30 @@ Every block is clamped to +-drive_limit_v (an input: the node's parameter may ch
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import NamedTuple, Union
+from typing import NamedTuple
 
 import numpy as np
 
 from flaair_model.notes import INFO, WARNING, Note
 from flaair_sim.core.drive import DriveError, DriveParams, DriveState, drive_step
+
+__all__ = [
+    "LOCKSTEP",
+    "PACINGS",
+    "REALTIME",
+    "Ack",
+    "Block",
+    "Close",
+    "Inputs",
+    "Outputs",
+    "PacingParams",
+    "PacingState",
+    "Tick",
+    "finished",
+    "initial_state",
+    "step",
+]
+
 
 REALTIME = "realtime"
 LOCKSTEP = "lockstep"
@@ -108,7 +126,7 @@ class Close(NamedTuple):
     drive_limit_v: float
 
 
-Inputs = Union[Tick, Ack, Close]
+Inputs = Tick | Ack | Close
 
 
 class Block(NamedTuple):
@@ -150,8 +168,8 @@ def _send(
     state: PacingState,
     params: PacingParams,
     limit_v: float,
-    blocks: list,
-    logs: list,
+    blocks: list[Block],
+    logs: list[Note],
     zero: bool = False,
 ) -> PacingState:
     """One block (the waveform's next, or zeros); the end-of-run zero block follows it."""
@@ -181,7 +199,7 @@ def _send(
 
 
 def _realtime(
-    state: PacingState, tick: Tick, params: PacingParams, blocks: list, logs: list
+    state: PacingState, tick: Tick, params: PacingParams, blocks: list[Block], logs: list[Note]
 ) -> PacingState:
     wall_start = state.wall_start
     if wall_start is None:
@@ -196,7 +214,11 @@ def _realtime(
 
 
 def _lockstep(
-    state: PacingState, event: Tick | Ack, params: PacingParams, blocks: list, logs: list
+    state: PacingState,
+    event: Tick | Ack,
+    params: PacingParams,
+    blocks: list[Block],
+    logs: list[Note],
 ) -> PacingState:
     # Both ends matched before the first window: the command subscribers, and the
     # acknowledgement stream (missed acknowledgements would stall the run forever).

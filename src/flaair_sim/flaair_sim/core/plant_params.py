@@ -1,40 +1,64 @@
 """The plant's parameter vector: how a `Model` (with
 its effects) becomes the numbers the kernels read.
 
-Each effect's kernel terms come from its entry in the effect table (`flaair_model.effects`);
-this module only says where each term lands in the vector.
+`KERNEL_LAYOUT` is the one declaration of that vector: one `KernelSlot` per number, in vector
+order, saying which effect-table kernel term (`flaair_model.effects`) lands there and whether
+(and over which inertia) the RK4 kernel's constants tuple carries it. The `P_*` indices, the
+effect terms' places, the constants tuple's order and length (`C_*`, `N_CONSTANTS`) and the
+discovered terms' slots (`P_TERMS`, `TERM_SLOT`) all derive from it; tests/test_effect_table.py
+checks that the kernels read exactly this layout.
 
-`prepare(model, fs_hz)` maps the model's parameters and effects to one float vector (layout:
-the `P_*` indices) plus the RK4 substep counts and the sensor delays; the numba kernels in
-`flaair_sim.core.plant` read only that vector, so a batch of robots is a matrix of such rows.
+`prepare(model, fs_hz)` maps the model's parameters and effects to one float vector plus the
+RK4 substep counts and the sensor delays; the numba kernels in `flaair_sim.core.plant` read only
+that vector, so a batch of robots is a matrix of such rows.
 """
 
 from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 
-from flaair_model.effects import EFFECTS, TermContext
+from flaair_model.effects import EFFECTS, PLANT_TERMS, SCALE_TERMS, SENSOR_TERMS, TermContext
 from flaair_model.model import SIDES, Model, ModelError
 from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES
 
 __all__ = [
+    "CONSTANT_DIVISOR",
+    "CONSTANT_SOURCE",
     "CONTACT_ON_INDEX",
+    "C_CC",
+    "C_CP",
+    "C_CSTRUCT",
+    "C_DP",
+    "C_GA",
+    "C_GAMMA",
+    "C_HCUBIC",
+    "C_JC",
+    "C_K",
+    "C_KC",
+    "C_KH",
+    "C_PHI_LIM",
+    "C_TERMS",
     "GA_INDEX",
+    "KERNEL_LAYOUT",
     "MAX_DYNAMICS_TERMS",
     "MAX_OMEGA_H",
     "MAX_OMEGA_H_CONTACT",
+    "N_CONSTANTS",
+    "N_CONSTANTS_WITH_TERMS",
     "N_KERNEL_PARAMS",
     "P_CC",
+    "P_CONTACT_ON",
     "P_CP",
     "P_CSTRUCT",
     "P_DP",
     "P_DP_FRAC",
     "P_DS_FRAC",
     "P_FT",
+    "P_GA",
     "P_GAMMA",
     "P_GP",
     "P_GS",
@@ -59,6 +83,7 @@ __all__ = [
     "P_TERMS",
     "P_VREF",
     "TERM_SLOT",
+    "KernelSlot",
     "Prepared",
     "prepare",
 ]
@@ -68,46 +93,115 @@ __all__ = [
 MAX_OMEGA_H = 0.1
 # Finer in the (rare) sample periods touching the collision stop, where the force has kinks.
 MAX_OMEGA_H_CONTACT = 0.05
-# Layout of the per-model parameter vector handed to the numba kernels (read by the kernels in
-# flaair_sim.core.plant and by batch engines).
-(
-    P_I,
-    P_GAMMA,
-    P_K,
-    GA_INDEX,
-    P_IP,
-    P_CP,
-    P_KH,
-    P_JC,
-    P_DP,
-    P_CSTRUCT,
-    P_HCUBIC,
-    CONTACT_ON_INDEX,
-    P_PHI_LIM,
-    P_KC,
-    P_CC,
-    P_GS,
-    P_GP,
-    P_TCUBIC,
-    P_FT,
-    P_VREF,
-    P_HPS_ON,
-    P_HPS_B0,
-    P_HPS_B1,
-    P_HPS_A1,
-    P_HPP_ON,
-    P_HPP_B0,
-    P_HPP_B1,
-    P_HPP_A1,
-    P_DS_FRAC,
-    P_DP_FRAC,
-    P_NTERMS,
-    P_TERMS,
-) = range(32)
+
+
+class KernelSlot(NamedTuple):
+    """One number of the kernels' parameter vector.
+
+    Attributes
+    ----------
+    name : the index's name without its prefix (`P_<name>`, `C_<name>` in the constants).
+    term : the effect-table kernel term written here (`flaair_model.effects`), or None.
+    chain : for a per-sensor-chain term, its chain (0 stroke, 1 pitch); None: plant-wide.
+    constant : how the RK4 constants tuple carries it: "" not at all, "as_is", or divided by
+        the inertia of its equation ("over_stroke_inertia", "over_pitch_inertia").
+    """
+
+    name: str
+    term: str | None
+    chain: int | None
+    constant: Literal["", "as_is", "over_stroke_inertia", "over_pitch_inertia"]
+
+
+_S: Literal["over_stroke_inertia"] = "over_stroke_inertia"
+_P: Literal["over_pitch_inertia"] = "over_pitch_inertia"
+# The vector, in order; the discovered dynamics terms' slots follow it (from P_TERMS on).
+KERNEL_LAYOUT: tuple[KernelSlot, ...] = (
+    KernelSlot("I", "inertia_factor", None, ""),  # stroke inertia, kg m^2
+    KernelSlot("GAMMA", None, None, _S),  # aerodynamic damping, N m s^2
+    KernelSlot("K", None, None, _S),  # stroke stiffness, N m/rad
+    KernelSlot("GA", None, None, _S),  # actuator gain, N m/V
+    KernelSlot("IP", "inertia_factor", None, ""),  # pitch inertia, kg m^2
+    KernelSlot("CP", None, None, _P),  # hinge damping, N m s/rad
+    KernelSlot("KH", None, None, _P),  # hinge stiffness, N m/rad
+    KernelSlot("JC", None, None, _P),  # inertial coupling, kg m^2
+    KernelSlot("DP", None, None, _P),  # aerodynamic coupling, N m s^2
+    KernelSlot("CSTRUCT", "structural_damping_nm_s_per_rad", None, _S),
+    KernelSlot("HCUBIC", "hinge_cubic_per_rad2", None, "as_is"),
+    KernelSlot("CONTACT_ON", "contact_on", None, ""),
+    KernelSlot("PHI_LIM", "stroke_limit_rad", None, "as_is"),
+    KernelSlot("KC", "contact_stiffness_nm_per_rad", None, _S),
+    KernelSlot("CC", "contact_damping_nm_s_per_rad", None, _S),
+    KernelSlot("GS", "gain_factor", 0, ""),  # stroke sensor, V/rad
+    KernelSlot("GP", "gain_factor", 1, ""),  # pitch sensor, V/rad
+    KernelSlot("TCUBIC", "transmission_cubic_per_rad2", None, ""),
+    KernelSlot("FT", "feedthrough_v_per_v", None, ""),
+    KernelSlot("VREF", None, None, ""),  # charge amplifiers' reference, V
+    KernelSlot("HPS_ON", None, None, ""),  # stroke chain's high-pass on (1.0)
+    KernelSlot("HPS_B0", "highpass_b0", 0, ""),
+    KernelSlot("HPS_B1", "highpass_b1", 0, ""),
+    KernelSlot("HPS_A1", "highpass_a1", 0, ""),
+    KernelSlot("HPP_ON", None, None, ""),  # pitch chain's high-pass on (1.0)
+    KernelSlot("HPP_B0", "highpass_b0", 1, ""),
+    KernelSlot("HPP_B1", "highpass_b1", 1, ""),
+    KernelSlot("HPP_A1", "highpass_a1", 1, ""),
+    KernelSlot("DS_FRAC", "delay_samples", 0, ""),  # fractional part of the stroke delay
+    KernelSlot("DP_FRAC", "delay_samples", 1, ""),
+    KernelSlot("NTERMS", None, None, ""),  # number of discovered dynamics terms (last row)
+)
+_INDEX = {slot.name: i for i, slot in enumerate(KERNEL_LAYOUT)}
+
+
+def _at(names: str, index: dict[str, int]) -> tuple[int, ...]:
+    """The places of the space-separated `names` (a name the table lacks is a KeyError)."""
+    return tuple(index[name] for name in names.split())
+
+
+P_I, P_GAMMA, P_K, P_GA, P_IP, P_CP, P_KH, P_JC, P_DP = _at("I GAMMA K GA IP CP KH JC DP", _INDEX)
+P_CSTRUCT, P_HCUBIC, P_CONTACT_ON, P_PHI_LIM, P_KC, P_CC = _at(
+    "CSTRUCT HCUBIC CONTACT_ON PHI_LIM KC CC", _INDEX
+)
+P_GS, P_GP, P_TCUBIC, P_FT, P_VREF = _at("GS GP TCUBIC FT VREF", _INDEX)
+P_HPS_ON, P_HPS_B0, P_HPS_B1, P_HPS_A1 = _at("HPS_ON HPS_B0 HPS_B1 HPS_A1", _INDEX)
+P_HPP_ON, P_HPP_B0, P_HPP_B1, P_HPP_A1 = _at("HPP_ON HPP_B0 HPP_B1 HPP_A1", _INDEX)
+(P_DS_FRAC, P_DP_FRAC, P_NTERMS) = _at("DS_FRAC DP_FRAC NTERMS", _INDEX)
+GA_INDEX, CONTACT_ON_INDEX = P_GA, P_CONTACT_ON  # the names batch engines read
 # Each dynamics slot of the discovered terms: [equation (1 stroke, 2 pitch; 0 empty),
 # coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES].
+P_TERMS = len(KERNEL_LAYOUT)
 TERM_SLOT = 2 + len(PRIMITIVES)
 N_KERNEL_PARAMS = P_TERMS + MAX_DYNAMICS_TERMS * TERM_SLOT
+
+# The RK4 kernel's constants tuple `c`: the slots with a `constant`, in layout order, each
+# p[CONSTANT_SOURCE[j]] times (1, 1 / stroke inertia, 1 / pitch inertia)[CONSTANT_DIVISOR[j]].
+_CONSTANTS = tuple(i for i, slot in enumerate(KERNEL_LAYOUT) if slot.constant)
+CONSTANT_SOURCE: tuple[int, ...] = _CONSTANTS
+CONSTANT_DIVISOR: tuple[int, ...] = tuple(
+    ("as_is", _S, _P).index(KERNEL_LAYOUT[i].constant) for i in _CONSTANTS
+)
+N_CONSTANTS = len(_CONSTANTS)
+_C_INDEX = {KERNEL_LAYOUT[i].name: j for j, i in enumerate(_CONSTANTS)}
+C_GAMMA, C_K, C_GA, C_CP, C_KH, C_JC, C_DP = _at("GAMMA K GA CP KH JC DP", _C_INDEX)
+C_CSTRUCT, C_HCUBIC, C_PHI_LIM, C_KC, C_CC = _at("CSTRUCT HCUBIC PHI_LIM KC CC", _C_INDEX)
+# A model with discovered dynamics terms gets the longer tuple: the constants, then the vector
+# from P_NTERMS to its end (the term count, then the slots), so c[C_TERMS] is the first slot.
+C_TERMS = N_CONSTANTS + 1
+N_CONSTANTS_WITH_TERMS = N_CONSTANTS + (N_KERNEL_PARAMS - P_NTERMS)
+
+
+def _check_layout() -> None:
+    """The table covers the effect table's kernel terms and ends on the term count."""
+    if len(_C_INDEX) != N_CONSTANTS or len(_INDEX) != P_TERMS or P_NTERMS != P_TERMS - 1:
+        raise ImportError("KERNEL_LAYOUT: names must be unique and NTERMS its last row")
+    named = {slot.term for slot in KERNEL_LAYOUT if slot.term is not None}
+    if named != set(PLANT_TERMS + SCALE_TERMS + SENSOR_TERMS):
+        raise ImportError(
+            "KERNEL_LAYOUT and the effect table's kernel terms differ: "
+            f"{sorted(named ^ set(PLANT_TERMS + SCALE_TERMS + SENSOR_TERMS))}"
+        )
+
+
+_check_layout()
 
 
 class Prepared(NamedTuple):
@@ -132,25 +226,19 @@ def _split_delay(delay_samples: float) -> tuple[int, float]:
 
 
 # Where each kernel term of the effect table (flaair_model.effects) lands in the vector.
-_PLANT_INDEX = {
-    "structural_damping_nm_s_per_rad": P_CSTRUCT,
-    "hinge_cubic_per_rad2": P_HCUBIC,
-    "contact_on": CONTACT_ON_INDEX,
-    "stroke_limit_rad": P_PHI_LIM,
-    "contact_stiffness_nm_per_rad": P_KC,
-    "contact_damping_nm_s_per_rad": P_CC,
-    "transmission_cubic_per_rad2": P_TCUBIC,
-    "feedthrough_v_per_v": P_FT,
+_PLANT_INDEX = {s.term: i for i, s in enumerate(KERNEL_LAYOUT) if s.term in PLANT_TERMS}
+_SCALE_INDEX = {
+    term: tuple(i for i, s in enumerate(KERNEL_LAYOUT) if s.term == term) for term in SCALE_TERMS
 }
-_SCALE_INDEX = {"inertia_factor": (P_I, P_IP)}
 _SENSOR_INDEX = {  # per chain: (stroke, pitch)
-    "highpass_b0": (P_HPS_B0, P_HPP_B0),
-    "highpass_b1": (P_HPS_B1, P_HPP_B1),
-    "highpass_a1": (P_HPS_A1, P_HPP_A1),
-    "gain_factor": (P_GS, P_GP),
+    term: tuple(
+        next(i for i, s in enumerate(KERNEL_LAYOUT) if s.term == term and s.chain == chain)
+        for chain in (0, 1)
+    )
+    for term in SENSOR_TERMS
 }
 _HIGHPASS_ON = (P_HPS_ON, P_HPP_ON)
-_DELAY_FRACTION = (P_DS_FRAC, P_DP_FRAC)
+_DELAY_FRACTION = _SENSOR_INDEX.pop("delay_samples")
 
 
 @lru_cache(maxsize=4096)  # a 1000-model batch fits
@@ -169,7 +257,7 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     p[P_IP] = pl.pitch_inertia_kg_m2
     p[P_GAMMA] = pl.aero_damping_nm_s2
     p[P_K] = stiffness
-    p[GA_INDEX] = pl.actuator_gain_nm_per_v
+    p[P_GA] = pl.actuator_gain_nm_per_v
     p[P_CP] = pl.hinge_damping_nm_s_per_rad
     p[P_KH] = hinge_stiffness
     p[P_JC] = pl.inertial_coupling_kg_m2
@@ -227,7 +315,7 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
     ]
     substeps = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H))
     substeps_contact = substeps
-    if p[CONTACT_ON_INDEX] > 0:
+    if p[P_CONTACT_ON] > 0:
         rates += [math.sqrt((stiffness + p[P_KC]) / p[P_I]), p[P_CC] / p[P_I]]
         substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
     p.setflags(write=False)

@@ -1,25 +1,30 @@
 """The RK4 kernel's constants tuple and the discovered dynamics terms (`flaair_model.terms`).
 
-`mechanical_constants` is the nominal tuple `c` (coefficients over inertia); a model with
-discovered dynamics terms gets `constants_with_terms`, the same tuple followed by the terms'
-slots, so only kernels compiled for that longer tuple evaluate terms.
+`mechanical_constants` is the nominal tuple `c` (coefficients over inertia), its order and
+length derived from `plant_params.KERNEL_LAYOUT` (`C_*`, `N_CONSTANTS`); a model with
+discovered dynamics terms gets `constants_with_terms`, the same tuple followed by the term count
+and the terms' slots (`N_CONSTANTS_WITH_TERMS` in all), so only kernels compiled for that longer
+tuple evaluate terms.
 
 A dynamics term is a torque, coefficient x monomial of the mechanical state; `plant_params`
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
-equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`) and
-`plant.mechanical_constants` copies the slots into the constants tuple `c` from index
-`C_TERMS` on (c[C_TERMS - 1] is the number of terms).
+equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the constants tuple
+carries the slots from index `C_TERMS` on (c[C_TERMS - 1] is the number of terms).
 """
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
+from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from flaair_sim.core import plant_params as pp
+from flaair_sim.core.plant_params import C_TERMS, N_CONSTANTS, N_CONSTANTS_WITH_TERMS
 
 __all__ = [
     "C_TERMS",
     "N_CONSTANTS",
+    "N_CONSTANTS_WITH_TERMS",
     "constants_with_terms",
     "dynamics_terms",
     "mechanical_constants",
@@ -27,10 +32,8 @@ __all__ = [
 ]
 
 _FMA = {"contract"}
-# length of the nominal constants tuple (`mechanical_constants`); a longer one carries terms:
-# their count, then their slots from C_TERMS on
-N_CONSTANTS = 12
-C_TERMS = N_CONSTANTS + 1
+_SOURCE = pp.CONSTANT_SOURCE
+_DIVISOR = pp.CONSTANT_DIVISOR
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -61,24 +64,24 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
 
 
 @njit(cache=True, fastmath=_FMA)
+def _constants(p, length):
+    """The constants (coefficients pre-divided by the inertia of their equation: shortens the
+    dependency chain) as an array of `length`, the vector from P_NTERMS on after them.
+    """
+    over = (1.0, 1.0 / p[pp.P_I], 1.0 / p[pp.P_IP])
+    c = np.empty(length)
+    for j in range(N_CONSTANTS):
+        c[j] = p[_SOURCE[j]] * over[_DIVISOR[j]]
+    for j in range(N_CONSTANTS, length):
+        c[j] = p[pp.P_NTERMS + j - N_CONSTANTS]
+    return c
+
+
+@njit(cache=True, fastmath=_FMA)
 def mechanical_constants(p):
-    # coefficients pre-divided by the inertia of their equation: shortens the dependency chain
-    inv_i = 1.0 / p[pp.P_I]
-    inv_ip = 1.0 / p[pp.P_IP]
-    return (
-        p[pp.GA_INDEX] * inv_i,
-        p[pp.P_GAMMA] * inv_i,
-        p[pp.P_K] * inv_i,
-        p[pp.P_CSTRUCT] * inv_i,
-        p[pp.P_KH] * inv_ip,
-        p[pp.P_HCUBIC],
-        p[pp.P_CP] * inv_ip,
-        p[pp.P_JC] * inv_ip,
-        p[pp.P_DP] * inv_ip,
-        p[pp.P_PHI_LIM],
-        p[pp.P_KC] * inv_i,
-        p[pp.P_CC] * inv_i,
-    )
+    """The nominal constants tuple `c` of parameter vector `p` (order: `plant_params.C_*`)."""
+    # an intrinsic: numba passes its typing context, so mypy sees one argument short
+    return to_fixed_tuple(_constants(p, N_CONSTANTS), N_CONSTANTS)  # type: ignore[call-arg]
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -86,28 +89,5 @@ def constants_with_terms(p):
     """`mechanical_constants` followed by the term count and the discovered terms' slots: a
     longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
     """
-    t = pp.P_TERMS
-    return (
-        *mechanical_constants(p),
-        p[pp.P_NTERMS],
-        p[t],
-        p[t + 1],
-        p[t + 2],
-        p[t + 3],
-        p[t + 4],
-        p[t + 5],
-        p[t + 6],
-        p[t + 7],
-        p[t + 8],
-        p[t + 9],
-        p[t + 10],
-        p[t + 11],
-        p[t + 12],
-        p[t + 13],
-        p[t + 14],
-        p[t + 15],
-        p[t + 16],
-        p[t + 17],
-        p[t + 18],
-        p[t + 19],
-    )
+    c = _constants(p, N_CONSTANTS_WITH_TERMS)
+    return to_fixed_tuple(c, N_CONSTANTS_WITH_TERMS)  # type: ignore[call-arg]  # as above

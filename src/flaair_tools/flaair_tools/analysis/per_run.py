@@ -130,7 +130,7 @@ def analyze_sweep(
 
 def metric_params() -> Any:
     """The collision monitor's paper-metric settings (config/flaair.yaml collision_monitor_node)."""
-    from flaair_control.control_io import spectral_metric_params_from_config
+    from flaair_control.monitor_io import spectral_metric_params_from_config
 
     return spectral_metric_params_from_config()
 

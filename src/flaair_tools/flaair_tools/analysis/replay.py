@@ -18,15 +18,17 @@ from typing import Any
 
 from flaair_common import cdr, topics
 from flaair_control.control_io import (
-    collision_monitor_params_from_config,
     dsa_controller_values,
-    monitor_drive_input,
-    monitor_wing_input,
     supervisor_params_from_config,
     supervisor_wing_input,
 )
 from flaair_control.core import monitor
 from flaair_control.core import supervisor as sv
+from flaair_control.monitor_io import (
+    collision_monitor_params_from_config,
+    monitor_drive_input,
+    monitor_wing_input,
+)
 from flaair_model.model import Model
 from flaair_tools import bagio
 

@@ -1,13 +1,18 @@
-"""foxglove_node's parameters (declared once) and the `bin/flaair` argv that starts it."""
+"""foxglove_node's parameters (declared once), the `bin/flaair` argv that starts it, its server
+and channels from those values, and its log lines.
+"""
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from flaair_analysis import wingbeat
-from flaair_model.schema import ParamSpec
+from flaair_common import cdr, topics
+from flaair_common.msgdict import to_dict
+from flaair_model.schema import ParameterError, ParamSpec
+from flaair_msgs import msg as msgs
 from flaair_tools.liveview import live_view
 
 __all__ = [
@@ -15,11 +20,24 @@ __all__ = [
     "DIAGNOSTICS_TOPIC",
     "NODE_NAME",
     "PARAMS",
+    "STREAM_SOURCES",
+    "batch_blocks",
+    "diagnostics_relay",
     "foxglove_node_args",
     "open_channels",
     "open_diagnostics_channel",
+    "ready_text",
+    "start_server",
     "wingbeat_params",
 ]
+
+# live_view stream -> (ROS topic, message class, CDR layout)
+STREAM_SOURCES: dict[str, tuple[str, Any, Any]] = {
+    "wing_state": (topics.WING_STATE, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
+    "wing_state_truth": (topics.WING_STATE_TRUTH, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
+    "sensor_v": (topics.SENSOR_VOLTAGE, msgs.SensorVoltageBlock, cdr.SENSOR_VOLTAGE_BLOCK),
+    "drive": (topics.DRIVE, msgs.DriveCommandBlock, cdr.DRIVE_COMMAND_BLOCK),
+}
 
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"
@@ -129,6 +147,37 @@ def wingbeat_params(values: Mapping[str, Any]) -> wingbeat.WingbeatParams:
     )
 
 
+def start_server(foxglove: Any, time_capability: Any, values: Mapping[str, Any]) -> tuple[Any, Any]:
+    """(wingbeat parameters, the WebSocket server) from foxglove_node's values; a ParameterError
+    names the parameters a bad host, port or wingbeat setting came from.
+    """
+    try:
+        params = wingbeat_params(values)
+        server = foxglove.start_server(
+            name="flaair",
+            host=values["host"],
+            port=values["port"],
+            capabilities=[time_capability],
+            message_backlog_size=values["message_backlog"],
+        )
+    except (ValueError, RuntimeError) as exc:
+        raise ParameterError(f"parameters 'host'/'port'/'wingbeat_*': {exc}") from exc
+    return params, server
+
+
+def batch_blocks(values: Mapping[str, Any]) -> int:
+    """Blocks of a stream served at once: a serve period's worth (at least one)."""
+    return max(1, round(values["serve_period_s"] * values["sample_rate_hz"] / values["block_size"]))
+
+
+def ready_text(host: str, port: int, decimation: int) -> str:
+    """The node's start-up line."""
+    return (
+        f"Foxglove WebSocket server on ws://{host}:{port} (every {decimation} sample(s); layout "
+        "config/foxglove_layout.json)"
+    )
+
+
 DIAGNOSTICS_TOPIC = "/diagnostics"
 # ROS's DiagnosticArray as JSON, under its ROS type name: Foxglove's Diagnostics panels read it
 _DIAGNOSTICS_SCHEMA = {
@@ -190,3 +239,9 @@ def open_channels(foxglove: Any) -> tuple[dict[str, Any], Any, Any]:
         foxglove.Channel(live_view.WINGBEAT_TOPIC, schema=live_view.WINGBEAT_SCHEMA),
         foxglove.Channel(live_view.COLLISION_TOPIC, schema=live_view.COLLISION_SCHEMA),
     )
+
+
+def diagnostics_relay(foxglove: Any) -> Callable[[Any], None]:
+    """The /diagnostics callback: each DiagnosticArray onto the diagnostics channel, as JSON."""
+    channel = open_diagnostics_channel(foxglove)
+    return lambda message: channel.log(json.dumps(to_dict(message), allow_nan=False))

@@ -14,7 +14,7 @@ Usage: bin/flaair foxglove 127.0.0.1:8765, or
 from __future__ import annotations
 
 import contextlib
-import json
+import math
 import sys
 
 import foxglove
@@ -25,9 +25,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from flaair_analysis import wingbeat
 from flaair_common import cdr, topics
-from flaair_common.msgdict import to_dict
 from flaair_common.node import FlaairNode
-from flaair_common.params import ParameterError, declare_parameters
+from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import run_node
 from flaair_msgs import msg as msgs
@@ -35,12 +34,7 @@ from flaair_tools.liveview import foxglove_io as io
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS
 
-STREAM_SOURCES = {  # live_view stream -> (ROS topic, message class, CDR layout)
-    "wing_state": (topics.WING_STATE, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
-    "wing_state_truth": (topics.WING_STATE_TRUTH, msgs.WingStateBlock, cdr.WING_STATE_BLOCK),
-    "sensor_v": (topics.SENSOR_VOLTAGE, msgs.SensorVoltageBlock, cdr.SENSOR_VOLTAGE_BLOCK),
-    "drive": (topics.DRIVE, msgs.DriveCommandBlock, cdr.DRIVE_COMMAND_BLOCK),
-}
+STREAM_SOURCES = io.STREAM_SOURCES
 
 
 class FoxgloveNode(FlaairNode):
@@ -49,26 +43,11 @@ class FoxgloveNode(FlaairNode):
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
         p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        try:
-            self.wingbeat_params = io.wingbeat_params(p)
-            self.server = foxglove.start_server(
-                name="flaair",
-                host=p["host"],
-                port=p["port"],
-                capabilities=[Capability.Time],
-                message_backlog_size=p["message_backlog"],
-            )
-        except (ValueError, RuntimeError) as exc:
-            raise ParameterError(f"parameters 'host'/'port'/'wingbeat_*': {exc}") from exc
+        self.wingbeat_params, self.server = io.start_server(foxglove, Capability.Time, p)
         self.decimation = p["sample_decimation"]
         self.channels, self.wingbeat_channel, self.collision_channel = io.open_channels(foxglove)
-        self.state, self.beats, self.score, self.k_r, self.colliding = (
-            wingbeat.initial_state(self.wingbeat_params),
-            0,
-            float("nan"),
-            float("nan"),
-            None,
-        )
+        self.state = wingbeat.initial_state(self.wingbeat_params)
+        self.beats, self.score, self.k_r, self.colliding = 0, math.nan, math.nan, None
         self.latest_ns = self.broadcast_ns = 0
         self.create_timer(
             p["time_broadcast_period_s"],
@@ -76,19 +55,11 @@ class FoxgloveNode(FlaairNode):
             clock=(steady := Clock(clock_type=ClockType.STEADY_TIME)),
         )
         self.create_timer(p["serve_period_s"], self.serve, clock=steady)  # a stream that stopped
-        self.pending, self.codecs = (
-            {key: [] for key in STREAM_SOURCES},
-            {key: {} for key in STREAM_SOURCES},
-        )  # codecs by size
-        qos = QoSProfile(
-            depth=BLOCK_STREAM.depth,
-            reliability=ReliabilityPolicy.RELIABLE
-            if p["reliable"]
-            else ReliabilityPolicy.BEST_EFFORT,
-        )
-        self.batch_blocks = max(
-            1, round(p["serve_period_s"] * p["sample_rate_hz"] / p["block_size"])
-        )
+        self.pending: dict[str, list[bytes]] = {key: [] for key in STREAM_SOURCES}
+        self.codecs: dict[str, dict] = {key: {} for key in STREAM_SOURCES}  # codecs by size
+        reliability = ReliabilityPolicy.RELIABLE if p["reliable"] else ReliabilityPolicy.BEST_EFFORT
+        qos = QoSProfile(depth=BLOCK_STREAM.depth, reliability=reliability)
+        self.batch_blocks = io.batch_blocks(p)
         for key, (topic, cls, _) in STREAM_SOURCES.items():
             self.create_subscription(cls, topic, self.block_callback(key), qos, raw=True)
         self.create_subscription(
@@ -97,18 +68,9 @@ class FoxgloveNode(FlaairNode):
         self.create_subscription(
             msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True
         )
-        diagnostics = io.open_diagnostics_channel(foxglove)  # every node's health, as it is
-        self.create_subscription(
-            DiagnosticArray,
-            io.DIAGNOSTICS_TOPIC,
-            lambda m: diagnostics.log(json.dumps(to_dict(m), allow_nan=False)),
-            10,
-        )
-        self.get_logger().info(
-            f"Foxglove WebSocket server on ws://{p['host']}:{self.server.port} "
-            f"(every {self.decimation} sample(s); layout "
-            "config/foxglove_layout.json)"
-        )
+        on_diagnostics = io.diagnostics_relay(foxglove)  # every node's health, as it is
+        self.create_subscription(DiagnosticArray, io.DIAGNOSTICS_TOPIC, on_diagnostics, 10)
+        self.get_logger().info(io.ready_text(p["host"], self.server.port, self.decimation))
 
     def block_callback(self, key: str):  # keeps a block; a serve period's worth is served at once
         def on_block(data: bytes) -> None:
@@ -133,31 +95,20 @@ class FoxgloveNode(FlaairNode):
         self.pending[key].clear()
         batches, bad = live_view.fixed_blocks(STREAM_SOURCES[key][2], datas, self.codecs[key])
         if bad:
-            self.get_logger().warning(
-                f"{STREAM_SOURCES[key][0]}: {bad} block(s) dropped: bad CDR",
-                throttle_duration_sec=1.0,
-            )
+            text = f"{STREAM_SOURCES[key][0]}: {bad} block(s) dropped: bad CDR"
+            self.get_logger().warning(text, throttle_duration_sec=1.0)
         for blocks in batches:
-            self.latest_ns = max(
-                self.latest_ns, live_view.blocks_end_ns(blocks, stream.fields[0][0])
-            )
+            end_ns = live_view.blocks_end_ns(blocks, stream.fields[0][0])
+            self.latest_ns = max(self.latest_ns, end_ns)
             if key == "wing_state":
-                self.state, beats = live_view.wingbeat_batch(
-                    self.state,
-                    blocks,
-                    self.beats,
-                    self.score,
-                    self.k_r,
-                    self.colliding,
-                    self.wingbeat_params,
-                )
+                context = (self.beats, self.score, self.k_r, self.colliding, self.wingbeat_params)
+                self.state, beats = live_view.wingbeat_batch(self.state, blocks, *context)
                 for log_time, payload in beats:
                     self.wingbeat_channel.log(payload, log_time=log_time)
                 self.beats += len(beats)
             if channel.has_sinks():
-                for log_time, payload in zip(
-                    *live_view.blocks_samples(stream, blocks, self.decimation)
-                ):
+                times, payloads = live_view.blocks_samples(stream, blocks, self.decimation)
+                for log_time, payload in zip(times, payloads, strict=True):
                     channel.base.log(payload, log_time)
 
     def broadcast_time(self) -> None:
@@ -170,16 +121,14 @@ class FoxgloveNode(FlaairNode):
         self.score = wingbeat.collision_score(status.spectrum_rmse_deg, status.threshold_deg)
         self.colliding = bool(status.colliding)
         stamp_ns = status.header.stamp.sec * 1_000_000_000 + status.header.stamp.nanosec
-        self.collision_channel.log(
-            live_view.collision_message(
-                status.wingbeat_index,
-                self.colliding,
-                status.spectrum_rmse_deg,
-                status.threshold_deg,
-                stamp_ns,
-            ),
-            log_time=stamp_ns,
+        payload = live_view.collision_message(
+            status.wingbeat_index,
+            self.colliding,
+            status.spectrum_rmse_deg,
+            status.threshold_deg,
+            stamp_ns,
         )
+        self.collision_channel.log(payload, log_time=stamp_ns)
 
     def on_controller(self, data: bytes) -> None:
         # not worth a warning at 2000/s: K_r stays the last good one

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
-from flaair_model.terms import term_from_dict
+from flaair_model.term_entry import term_from_dict
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
 from flaair_tools.orchestration.experiment import (
     ExperimentError,

@@ -121,7 +121,7 @@ def robot_model() -> Any:
 
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
-    from flaair_model.terms import term_from_dict
+    from flaair_model.term_entry import term_from_dict
 
     section = robot_section()
     model = with_effects(load_model(), robot_effects())

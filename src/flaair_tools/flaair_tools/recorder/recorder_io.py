@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ from flaair_common.msgdict import message_class
 from flaair_common.params import ParameterError
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import help_text
+from flaair_common.topics import BLOCK_STREAM_TYPES
 from flaair_model.schema import ParamSpec
 from flaair_tools import bagio
 from flaair_tools.recorder import recording
@@ -233,3 +235,24 @@ def closed_text(path: object, counts: dict[str, int]) -> str:
     """The recorder's last log line: the bag and how many messages of each topic it holds."""
     listed = ", ".join(f"{topic} {count}" for topic, count in sorted(counts.items())) or "nothing"
     return f"closed {path}: {listed}"
+
+
+def recording_settings(composed: bool) -> RecordingParams:
+    """The recording settings: composed (an EventsExecutor), no take() in a callback, so no
+    draining beyond the message itself; the block streams come in-process there.
+    """
+    return replace(RECORDING, drain_limit=1) if composed else RECORDING
+
+
+def in_process_streams(
+    bus: Any, chosen: Sequence[str], record_clock: bool
+) -> list[tuple[str, str]]:
+    """(topic, message type) of the wanted block streams on the composed nodes' bus (None: not
+    composed, none), in topic order.
+    """
+    local = sorted(bus.local_topics) if bus is not None else []
+    return [
+        (topic, BLOCK_STREAM_TYPES[topic])
+        for topic in local
+        if recording.wanted(topic, chosen, record_clock) and topic in BLOCK_STREAM_TYPES
+    ]

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
 from typing import Any
 
 from rclpy.clock import Clock, ClockType
@@ -18,7 +17,6 @@ from flaair_common import cdr, intra
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import run_node
-from flaair_common.topics import BLOCK_STREAM_TYPES
 from flaair_tools import bagio
 from flaair_tools.recorder import recorder_io as rio
 from flaair_tools.recorder import recording
@@ -38,17 +36,12 @@ class RecorderNode(Node):
         self.takers: dict[str, tuple] = {}  # topic -> (take, on_message) of its DDS subscription
         self.skipped, self.received = set(), {}
         # composed (an EventsExecutor): no take() in a callback; the block streams come in-process
-        self.recording = (
-            rio.RECORDING if intra.current() is None else replace(rio.RECORDING, drain_limit=1)
-        )
+        self.recording = rio.recording_settings(composed=intra.current() is not None)
         # wall-clock (steady) timers: with use_sim_time, a ROS-time timer stops when /clock does
         steady = Clock(clock_type=ClockType.STEADY_TIME)
-        for topic in sorted(intra.current().local_topics if intra.current() is not None else ()):
-            if (
-                recording.wanted(topic, self.chosen, self.p["record_clock"])
-                and topic in BLOCK_STREAM_TYPES
-            ):
-                self.record_in_process(intra.current(), topic, BLOCK_STREAM_TYPES[topic])
+        bus = intra.current()
+        for topic, msgtype in rio.in_process_streams(bus, self.chosen, self.p["record_clock"]):
+            self.record_in_process(bus, topic, msgtype)
         self.create_timer(self.p["discovery_period_s"], self.discover, clock=steady)
         self.create_timer(self.p["flush_period_s"], self.writer.flush, clock=steady)
         self.discover()
@@ -58,21 +51,14 @@ class RecorderNode(Node):
     def discover(self) -> None:
         """Subscribe to every wanted topic not subscribed yet."""
         for topic, types in self.get_topic_names_and_types():
-            if (
-                topic in self.subscribed
-                or topic in self.skipped
-                or not recording.wanted(
-                    topic, self.chosen, self.p["record_clock"], self.get_namespace()
-                )
-            ):
+            known = topic in self.subscribed or topic in self.skipped
+            ns, record_clock = self.get_namespace(), self.p["record_clock"]
+            if known or not recording.wanted(topic, self.chosen, record_clock, ns):
                 continue
+            publishers = self.get_publishers_info_by_topic(topic)
             try:
                 found = rio.topic_to_record(
-                    topic,
-                    types,
-                    self.get_publishers_info_by_topic(topic),
-                    self.writer,
-                    self.p["queue_depth"],
+                    topic, types, publishers, self.writer, self.p["queue_depth"]
                 )
             except rio.SkipTopic as exc:
                 self.skip(topic, str(exc))
@@ -120,11 +106,10 @@ class RecorderNode(Node):
 
         def on_message(data: bytes, info: dict) -> None:
             queued = recording.drain(take, self.recording)
-            for data, info in [(data, info), *queued]:
-                stamp = bagio.leading_stamp_ns(data) if stamped else None
-                self.apply(
-                    recording.Received(topic, data, stamp, info.get("source_timestamp") or None)
-                )
+            for raw, meta in [(data, info), *queued]:
+                stamp = bagio.leading_stamp_ns(raw) if stamped else None
+                sent = meta.get("source_timestamp") or None
+                self.apply(recording.Received(topic, raw, stamp, sent))
             self.received[topic] += 1 + len(queued)
 
         self.takers[topic] = (take, on_message)
@@ -153,14 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     args = None if argv is None else rio.cli_to_ros_args(argv, rio.RECORDER_HELP)
     if args is not None:
         sys.argv[0] = args[0]  # errors read "flaair record: ...", not "cli.py: ..."
-    return run_node(
-        RecorderNode,
-        rio.RECORDER_PARAMS,
-        rio.CONFIG_FILE,
-        rio.NODE_NAME,
-        args,
-        executor_kind="single",
-    )
+    params, config, name = rio.RECORDER_PARAMS, rio.CONFIG_FILE, rio.NODE_NAME
+    return run_node(RecorderNode, params, config, name, args, executor_kind="single")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,275 @@
+"""The plant's numba kernels: RK4 with the collision stop, the sensor deviations, one model or a
+batch (the dynamics and sample convention: `flaair_sim.core.plant`'s docstring).
+
+Kernels are compiled with fused multiply-add allowed but no reassociation, so results are
+deterministic: block stepping, whole records and batches agree bit for bit. The mechanical
+constants travel as a tuple `c` (`term_kernel.mechanical_constants`, order
+`plant_params.C_*`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from flaair_sim.core import plant_params as pp
+from flaair_sim.core.sensor_kernel import sensor_channel_kernel
+from flaair_sim.core.term_kernel import (
+    N_CONSTANTS,
+    constants_with_terms,
+    dynamics_terms,
+    mechanical_constants,
+)
+
+__all__ = ["rk4_step", "run_batch", "run_model"]
+
+# Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
+_FMA = {"contract"}
+
+
+# The mechanical constants travel as a tuple `c` (immutable, so the compiler can keep them in
+# registers across the stores to the output arrays); see mechanical_constants for the order.
+
+
+@njit(cache=True, fastmath=_FMA)
+def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
+    """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
+    2: stop acts (just after an impact, where phi may be a rounding error below the limit).
+    """
+    ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
+    kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
+    limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
+    drag = abs(dphi) * dphi
+    ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
+    if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi)
+    if contact == 2 or (contact == 1 and phi > limit):
+        push = kc * (phi - limit) + cc * dphi
+        if push > 0.0:  # a contact only pushes
+            ddphi -= push
+    ddpsi = -cp * dpsi - kh * (psi + hcubic * psi * psi * psi) - dp * drag - jc * ddphi
+    if len(c) > N_CONSTANTS:
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
+    return ddphi, ddpsi
+
+
+@njit(cache=True, fastmath=_FMA)
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact):
+    """One RK4 step of length hs; also reports whether any stage was past the stop."""
+    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact)
+    phi2 = phi + 0.5 * hs * dphi
+    dphi2 = dphi + 0.5 * hs * a1
+    dpsi2 = dpsi + 0.5 * hs * b1
+    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact)
+    phi3 = phi + 0.5 * hs * dphi2
+    dphi3 = dphi + 0.5 * hs * a2
+    dpsi3 = dpsi + 0.5 * hs * b2
+    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact)
+    phi4 = phi + hs * dphi3
+    dphi4 = dphi + hs * a3
+    dpsi4 = dpsi + hs * b3
+    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact)
+    limit = c[pp.C_PHI_LIM]
+    touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
+    return (
+        phi + hs / 6.0 * (dphi + 2.0 * dphi2 + 2.0 * dphi3 + dphi4),
+        dphi + hs / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4),
+        psi + hs / 6.0 * (dpsi + 2.0 * dpsi2 + 2.0 * dpsi3 + dpsi4),
+        dpsi + hs / 6.0 * (b1 + 2.0 * b2 + 2.0 * b3 + b4),
+        touched,
+    )
+
+
+@njit(cache=True)
+def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
+    """Fraction of a step at which the cubic Hermite interpolant of phi reaches `limit`."""
+    lo, hi = 0.0, 1.0
+    for _ in range(40):
+        s = 0.5 * (lo + hi)
+        s2 = s * s
+        s3 = s2 * s
+        value = (
+            (2 * s3 - 3 * s2 + 1) * phi0
+            + (s3 - 2 * s2 + s) * hs * dphi0
+            + (-2 * s3 + 3 * s2) * phi1
+            + (s3 - s2) * hs * dphi1
+        )
+        if value > limit:
+            hi = s
+        else:
+            lo = s
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
+    """One sample period touching the stop, `nsub` substeps.
+
+    The damper makes the contact force jump at impact, which would cut RK4 to first order;
+    a substep that enters the contact is split at the impact time (Hermite interpolation).
+    """
+    hs = h / nsub
+    limit = c[pp.C_PHI_LIM]
+    for _ in range(nsub):
+        if phi <= limit:
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
+            if f_phi <= limit:
+                phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
+                continue
+            theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2)
+        else:
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1)
+    return phi, dphi, psi, dpsi
+
+
+@njit(cache=True, fastmath=_FMA)
+def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out):
+    """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
+    if p[pp.P_NTERMS] > 0.0:
+        _mechanics_with(
+            x,
+            drive,
+            h,
+            nsub,
+            nsub_contact,
+            p,
+            constants_with_terms(p),
+            phi_out,
+            psi_out,
+            dev_s_out,
+            dev_p_out,
+        )
+    else:
+        _mechanics_with(
+            x,
+            drive,
+            h,
+            nsub,
+            nsub_contact,
+            p,
+            mechanical_constants(p),
+            phi_out,
+            psi_out,
+            dev_s_out,
+            dev_p_out,
+        )
+
+
+@njit(cache=True, fastmath=_FMA)
+def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out, dev_p_out):
+    """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time.
+
+    x (the state after the block) is updated in place. The transduction is computed here
+    because the RK4 recursion is latency-bound: the extra arithmetic comes almost free.
+    A sample period in which the collision stop is touched is integrated again by
+    `_contact_sample`, so before the first contact the trajectory is bit-identical to the
+    model without the collision effect.
+    """
+    contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
+    gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
+    phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
+    hs = h / nsub
+    if contact == 0 and nsub == 1:
+        # the common case, kept free of branches (the same arithmetic as the general loop)
+        for k in range(drive.shape[0]):
+            v = drive[k]
+            phi_out[k] = phi
+            psi_out[k] = psi
+            dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
+            dev_p_out[k] = gp * psi
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
+        x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
+        return
+    for k in range(drive.shape[0]):
+        v = drive[k]
+        phi_out[k] = phi
+        psi_out[k] = psi
+        dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
+        dev_p_out[k] = gp * psi
+        phi0, dphi0, psi0, dpsi0 = phi, dphi, psi, dpsi
+        touched = False
+        for _ in range(nsub):
+            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact)
+            touched = touched or hit
+        if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
+            phi, dphi, psi, dpsi = _contact_sample(phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact)
+    x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
+
+
+@njit(cache=True)
+def run_model(
+    x,
+    zi,
+    hist_s,
+    hist_p,
+    drive,
+    h,
+    nsub,
+    nsub_contact,
+    p,
+    delay_s,
+    delay_p,
+    phi_out,
+    psi_out,
+    vs_out,
+    vp_out,
+):
+    """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
+    _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+    zi[0] = sensor_channel_kernel(
+        vs_out,
+        p[pp.P_HPS_ON],
+        p[pp.P_HPS_B0],
+        p[pp.P_HPS_B1],
+        p[pp.P_HPS_A1],
+        zi[0],
+        hist_s,
+        delay_s,
+        p[pp.P_DS_FRAC],
+        p[pp.P_VREF],
+    )
+    zi[1] = sensor_channel_kernel(
+        vp_out,
+        p[pp.P_HPP_ON],
+        p[pp.P_HPP_B0],
+        p[pp.P_HPP_B1],
+        p[pp.P_HPP_A1],
+        zi[1],
+        hist_p,
+        delay_p,
+        p[pp.P_DP_FRAC],
+        p[pp.P_VREF],
+    )
+
+
+@njit(cache=True, parallel=True)
+def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
+    """Each model from its own mechanical state x0[i] (zeros: from rest; the sensor chain at rest)
+    over a shared (1, n) or per-model (m, n) drive.
+    """
+    shared = drive.shape[0] == 1
+    for i in prange(params.shape[0]):
+        row = np.int64(0) if shared else np.int64(i)
+        x = x0[i].copy()
+        zi = np.zeros(2)
+        hist_s = np.zeros(hist_len[i, 0])
+        hist_p = np.zeros(hist_len[i, 1])
+        run_model(
+            x,
+            zi,
+            hist_s,
+            hist_p,
+            drive[row],
+            h,
+            nsubs[i, 0],
+            nsubs[i, 1],
+            params[i],
+            delays[i, 0],
+            delays[i, 1],
+            phi_out[i],
+            psi_out[i],
+            vs_out[i],
+            vp_out[i],
+        )

@@ -1,0 +1,97 @@
+"""The plant kernel's parameter vector is declared once (`plant_params.KERNEL_LAYOUT`).
+
+The kernels read exactly that layout: the constants tuple carries every slot the table marks,
+divided by the inertia the table names, in the table's order; the longer tuple of a model with
+discovered terms carries every number of every term slot (a wider monomial, from a new
+primitive, widens the slots and the tuple with it); the kernel's factors are the numpy ones
+of `flaair_model.terms.primitive_values`, primitive by primitive; and every effect-table kernel
+term has its place in the table.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from flaair_model.effects import PLANT_TERMS, SCALE_TERMS, SENSOR_TERMS
+from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES, primitive_values
+from flaair_sim.core import plant_params as pp
+from flaair_sim.core import term_kernel
+
+RNG_SEED = 35
+
+
+def _vector() -> np.ndarray:
+    """A parameter vector with a distinct number in every place (inertias away from zero)."""
+    return np.random.default_rng(RNG_SEED).uniform(0.5, 2.0, pp.N_KERNEL_PARAMS)
+
+
+def test_the_vector_is_the_table_then_the_term_slots() -> None:
+    assert len(pp.KERNEL_LAYOUT) == pp.P_TERMS
+    assert pp.P_NTERMS == pp.P_TERMS - 1
+    assert 2 + len(PRIMITIVES) == pp.TERM_SLOT
+    assert pp.N_KERNEL_PARAMS == pp.P_TERMS + MAX_DYNAMICS_TERMS * pp.TERM_SLOT
+    for slot in pp.KERNEL_LAYOUT:
+        assert getattr(pp, f"P_{slot.name}") == pp.KERNEL_LAYOUT.index(slot)
+    assert (pp.GA_INDEX, pp.CONTACT_ON_INDEX) == (pp.P_GA, pp.P_CONTACT_ON)
+
+
+def test_every_effect_kernel_term_has_its_place_and_no_other_term_does() -> None:
+    named = {slot.term for slot in pp.KERNEL_LAYOUT} - {None}
+    assert named == set(PLANT_TERMS + SCALE_TERMS + SENSOR_TERMS)
+    for term in SENSOR_TERMS:
+        chains = sorted(s.chain for s in pp.KERNEL_LAYOUT if s.term == term)
+        assert chains == [0, 1], term
+
+
+@pytest.mark.timeout(120)
+def test_the_constants_tuple_is_the_marked_slots_over_their_inertia() -> None:
+    p = _vector()
+    c = term_kernel.mechanical_constants(p)
+    marked = [(i, s) for i, s in enumerate(pp.KERNEL_LAYOUT) if s.constant]
+    assert len(c) == pp.N_CONSTANTS == len(marked) == 12
+    over = {"as_is": 1.0, "over_stroke_inertia": p[pp.P_I], "over_pitch_inertia": p[pp.P_IP]}
+    for j, (i, slot) in enumerate(marked):
+        assert c[j] == pytest.approx(p[i] / over[slot.constant], rel=1e-15), slot.name
+        assert getattr(pp, f"C_{slot.name}") == j
+
+
+@pytest.mark.timeout(120)
+def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
+    p = _vector()
+    c = term_kernel.constants_with_terms(p)
+    assert len(c) == pp.N_CONSTANTS_WITH_TERMS
+    assert len(c) == pp.N_CONSTANTS + 1 + MAX_DYNAMICS_TERMS * pp.TERM_SLOT
+    assert c[: pp.N_CONSTANTS] == term_kernel.mechanical_constants(p)
+    assert c[pp.C_TERMS - 1] == p[pp.P_NTERMS]
+    np.testing.assert_array_equal(c[pp.C_TERMS :], p[pp.P_TERMS :])
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("j", range(len(PRIMITIVES)))
+def test_each_kernel_factor_is_the_numpy_one(j: int) -> None:
+    grid = np.array(list(itertools.product((-0.3, 0.0, 0.7), repeat=4))).T
+    numpy_factors = primitive_values(*grid)
+    assert len(numpy_factors) == len(PRIMITIVES)
+    kernel = [term_kernel.primitive(j, *state) for state in grid.T]
+    np.testing.assert_array_equal(kernel, numpy_factors[j], err_msg=PRIMITIVES[j])
+
+
+@pytest.mark.timeout(120)
+def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel() -> None:
+    p = np.zeros(pp.N_KERNEL_PARAMS)
+    exponents = np.arange(len(PRIMITIVES)) % 3  # every primitive with an exponent 0..2
+    base = pp.P_TERMS
+    p[pp.P_I] = p[pp.P_IP] = 1.0
+    p[pp.P_NTERMS] = 1.0
+    p[base], p[base + 1] = 1.0, 0.25
+    p[base + 2 : base + pp.TERM_SLOT] = exponents
+    state = (0.3, -0.7, 0.4, 1.3)
+    c = term_kernel.constants_with_terms(p)
+    factors = [term_kernel.primitive(j, *state) for j in range(len(PRIMITIVES))]
+    expected = 0.25 * float(np.prod(np.power(factors, exponents)))
+    assert term_kernel.dynamics_terms(c, 1.0, *state) == pytest.approx(expected, rel=1e-14)
+    assert expected != 0.0
+    assert term_kernel.dynamics_terms(c, 2.0, *state) == 0.0
