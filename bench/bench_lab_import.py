@@ -81,7 +81,7 @@ def write_files(root: Path) -> dict[str, Path]:
     chord = np.column_stack(
         [np.sin(pitch) * -np.sin(stroke), np.sin(pitch) * np.cos(stroke), -np.cos(pitch)]
     )
-    le1 = [*np.zeros((frames, 3)), 10.0, 5.0, 20.0]
+    le1 = np.zeros((frames, 3)) + np.array([10.0, 5.0, 20.0])
     table = np.column_stack([le1 + 9 * span, le1, le1 + 4 * chord])
     files["tracks"] = root / "run_xyzpts.csv"
     with open(files["tracks"], "w") as handle:
