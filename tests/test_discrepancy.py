@@ -9,8 +9,9 @@ change reproduces) is parameter drift, not a missing effect, and names nothing.
 
 Cases here: a representative set for `make test-quick` (DEFAULT_CASES), and in `make test` the
 cases that complete its coverage of the effects and decision branches (FULL_CASES, marked
-slow). The whole fixed dataset (45 cases) is the benchmark's sweep (`make bench`:
-bench_discrepancy --sweep, target "all right"), not a test: each case is 3-15 s of model fitting.
+slow). The whole fixed dataset (45 cases) is the benchmark's sweep (`make bench-full`:
+bench_discrepancy --sweep, target "all right"; `make bench` runs 6 of the cases not here), not a
+test: each case is 3-15 s of model fitting.
 """
 
 from __future__ import annotations
