@@ -172,7 +172,7 @@ def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
     assert {name.split(".")[0] for name in cores} == set(CORE_PACKAGES)
     offences = []
     for name, path in cores.items():
-        for target, names, line in _imports(path, name):
+        for target, _names, line in _imports(path, name):
             top, _, rest = target.partition(".")
             shell_of_domain = top in CORE_PACKAGES and not (
                 rest == "core" or rest.startswith("core.")

@@ -18,9 +18,10 @@ from flaair_model.schema import ParameterError
 from flaair_tools.recorder import recording as rec
 
 PARAMS = rec.RecordingParams(drain_limit=4)
+START = rec.LogTimeState()
 
 
-def run(events, state=rec.LogTimeState()):
+def run(events, state=START):
     writes = []
     for event in events:
         state, out = rec.step(state, event, PARAMS)
@@ -78,7 +79,7 @@ def test_drain_takes_queued_messages_up_to_the_limit():
 
 def test_topic_choice_and_qos_adaptation():
     assert rec.parse_topic_list("/a, /b /c") == ("/a", "/b", "/c")
-    with pytest.raises(ParameterError, match="'topics'.*flaair/x"):
+    with pytest.raises(ParameterError, match=r"'topics'.*flaair/x"):
         rec.parse_topic_list("/a,flaair/x")
     assert rec.wanted("/flaair/drive", (), False) and not rec.wanted("/rosout", (), False)
     assert (

@@ -24,7 +24,7 @@ def _command(t_wall: float, index: int, volts: float) -> actuator.Command:
 
 
 def _drive(state: actuator.ActuatorState, t_wall: float, n_blocks: int, volts: float = 50.0):
-    for k in range(n_blocks):
+    for _ in range(n_blocks):
         state, out = actuator.step(state, _command(t_wall, state.next_index, volts), PARAMS)
         assert len(out.drive_blocks) == 1
     return state
