@@ -56,8 +56,8 @@ PARTS = (
     Part("bench_recorder", 55, 55),  # 2 scenarios x 10 s recorded, the 2 s player bag
     Part("bench_closed_loop", 75, 75),  # 5 loops of 2 s and 2 composed of 4 s, at RTF 0.3-2.7
     # the fixed hidden-effect dataset too (`make test` runs 14 of its 45 cases,
-    # tests/test_discrepancy.py); `make bench` the fixed subset of robots and cases: ~440 CPU-s
-    # of analysis, ~230 s on 2 cores; make bench-full ~2800 CPU-s, ~25 min
+    # tests/test_discrepancy.py); `make bench` the fixed subset of robots and cases: ~430 CPU-s
+    # of analysis, ~225 s on 2 cores; make bench-full ~2800 CPU-s, ~25 min
     Part("bench_discrepancy", 260, 1800, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 20, 20),
     Part("bench_sweep", 40, 40),

@@ -66,7 +66,7 @@ def _documented_subset() -> tuple[dict[str, tuple[int, ...]], tuple[str, ...], i
     text = TESTING_MD.read_text()
     rows = re.findall(r"^\| `(offnominal_\w+)` \| ([\d, ]+) \|", text, flags=re.M)
     cases = re.search(r"Hidden-effect cases in `make bench`: (.+?) \(", text, flags=re.S)
-    baseline = re.search(r"baseline runs on the first (\d+) robots of each family's subset", text)
+    baseline = re.search(r"baseline runs on each family's first subset robot \((\d+) per", text)
     assert rows and cases and baseline, "docs/TESTING.md no longer lists the subset"
     return (
         {family: tuple(int(d) for d in draws.split(",")) for family, draws in rows},
