@@ -4,13 +4,16 @@ SHELL := /bin/bash
 .DEFAULT_GOAL := help
 IN_ENV := scripts/in_env.sh
 
-.PHONY: help setup demo test test-quick test-graph-soak bench lock clean
+.PHONY: help setup demo test test-quick test-graph-soak bench bench-full lock clean
 
 help:
 	@echo "make demo   set up, run every paper experiment on the simulated robot, write the report"
 	@echo "make test   set up, run all tests (pure cores, nodes over real DDS, bags, faults)"
 	@echo "make test-quick  the edit-test loop: no graph and no slow tests, in parallel (< 2 min)"
-	@echo "make bench  set up, run every benchmark and print figures beside their targets"
+	@echo "make test-graph-soak RUNS=20  the graph tests RUNS times in a row with every core loaded"
+	@echo "make bench  set up, run every benchmark and print figures beside their targets; the"
+	@echo "            discrepancy families on a fixed subset of robots (<= 15 min on 2 cores)"
+	@echo "make bench-full  the same with every discrepancy family and draw (about 45 min)"
 
 setup:
 	@scripts/setup_env.sh
@@ -29,8 +32,12 @@ test-quick: setup
 test-graph-soak: setup
 	@$(IN_ENV) scripts/soak_graph_tests.sh $(or $(RUNS),20)
 
+# Every benchmark; the discrepancy benchmark on its fixed subset (docs/TESTING.md: which to run when).
 bench: setup
 	@$(IN_ENV) python bench/run_all.py --json out/bench/bench.json
+
+bench-full: setup
+	@$(IN_ENV) python bench/run_all.py --full --json out/bench/bench-full.json
 
 # Regenerate requirements.lock from requirements.in in a throwaway venv.
 lock:

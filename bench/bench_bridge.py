@@ -229,7 +229,7 @@ def sensor_blocks(bag: Path) -> dict:
         return {"blocks": 0, "nan_blocks": 0, "missing": 0, "messages": 0}
     firsts, lengths = np.array(firsts), np.array(lengths)
     covered = np.zeros(int((firsts + lengths).max() - firsts.min()), bool)
-    for first, n in zip(firsts - firsts.min(), lengths):
+    for first, n in zip(firsts - firsts.min(), lengths, strict=True):
         covered[first : first + n] = True
     return {
         "blocks": int(covered.sum()) // BLOCK,

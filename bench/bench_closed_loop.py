@@ -237,11 +237,11 @@ def pct(x: np.ndarray) -> tuple[float, float]:
 def hops(timing: np.ndarray, probe: dict, in_flight: int) -> dict[str, np.ndarray]:
     """Per-hop latencies (s), matched by sample index."""
     drive_index, ctrl_rx, ctrl_tx = timing[:, 0].astype(np.int64), timing[:, 1], timing[:, 2]
-    tx_of = dict(zip(drive_index.tolist(), ctrl_tx.tolist()))
+    tx_of = dict(zip(drive_index.tolist(), ctrl_tx.tolist(), strict=True))
     # wing state i -> drive i + W N
-    rx_of_ws = dict(zip((drive_index - in_flight * BLOCK).tolist(), ctrl_rx.tolist()))
-    sensor = dict(zip(probe["sensor_index"].tolist(), probe["sensor_t"].tolist()))
-    ws = dict(zip(probe["ws_index"].tolist(), probe["ws_t"].tolist()))
+    rx_of_ws = dict(zip((drive_index - in_flight * BLOCK).tolist(), ctrl_rx.tolist(), strict=True))
+    sensor = dict(zip(probe["sensor_index"].tolist(), probe["sensor_t"].tolist(), strict=True))
+    ws = dict(zip(probe["ws_index"].tolist(), probe["ws_t"].tolist(), strict=True))
     out: dict[str, list[float]] = {
         "plant": [],
         "frontend": [],

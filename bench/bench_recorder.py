@@ -268,7 +268,7 @@ def analyse(bag: Path, block_size: int, rate_hz: float) -> dict[str, dict[str, f
         start = stop = 0
     in_window = {
         topic: int(((r >= start) & (r <= stop)).sum())
-        for topic, r in zip((*BLOCK_TOPICS, "/clock"), streams)
+        for topic, r in zip((*BLOCK_TOPICS, "/clock"), streams, strict=True)
     }
     window_s = max(stop - start, 1) * 1e-9
     out["_span"] = {

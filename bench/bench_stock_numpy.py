@@ -4,7 +4,8 @@ A lab that builds FLAAIR in its own Jazzy workspace runs it on the distribution'
 scipy 1.11 and numba 0.59, not on requirements.lock's. This builds a throwaway environment with
 those versions (bench/stock_jazzy.txt) layered over the project's .venv for everything else,
 runs the in-process tests of the cores, files and tools on it, and, as the same-run baseline,
-the same tests on the locked stack. Target: every test passes on both.
+the same tests on the locked stack, both at once (one pytest process each, a core each on the
+2-core machine). Target: every test passes on both.
 
 Run: scripts/in_env.sh python bench/bench_stock_numpy.py [--json out.json]
 """
@@ -17,6 +18,7 @@ import re
 import subprocess
 import sys
 import sysconfig
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from benchlib import REPO_ROOT, Figure, print_table, write_json
@@ -148,8 +150,11 @@ def main() -> None:
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
     caches = REPO_ROOT / "out" / "bench" / "numba-cache"
-    stock = run_tests(stock_python(), caches / "stock")
-    locked = run_tests(Path(sys.executable), caches / "locked")
+    stock_stack = stock_python()
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        stock_run = pool.submit(run_tests, stock_stack, caches / "stock")
+        locked_run = pool.submit(run_tests, Path(sys.executable), caches / "locked")
+        stock, locked = stock_run.result(), locked_run.result()
     figures = [
         Figure(
             f"in-process tests on a stock Jazzy stack ({stock[2]})",

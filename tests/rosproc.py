@@ -45,7 +45,8 @@ def graph_pids(domain_id: int | None = None, launcher_pid: int | None = None) ->
         for item in environ:
             if item.startswith(b"FLAAIR_GRAPH="):
                 mark = tuple(item.removeprefix(b"FLAAIR_GRAPH=").split(b":", 1))
-                if all(w is None or w == m for w, m in zip(wanted, mark)):
+                # a launcher's mark is domain:pid; a mark without a pid matches on its domain
+                if all(w is None or w == m for w, m in zip(wanted, mark, strict=False)):
                     found.append(int(entry.name))
                 break
     return found
@@ -104,8 +105,9 @@ class Processes:
                 stdout=stdout or out_file,
                 stderr=err_file if stderr is None else stderr,
             )
-        process.stdout = open(out_path) if stdout is None else None
-        process.stderr = open(err_path) if stderr is None else None
+        # the logs, read back as Popen's pipes are (`.stderr.read()`) for the process's life
+        process.stdout = open(out_path) if stdout is None else None  # noqa: SIM115  Popen's pipe
+        process.stderr = open(err_path) if stderr is None else None  # noqa: SIM115  Popen's pipe
 
         def communicate(input: str | None = None, timeout: float | None = None) -> tuple[str, str]:
             process.wait(timeout=timeout)

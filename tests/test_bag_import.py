@@ -109,7 +109,7 @@ def test_import_round_trips_exactly_and_keeps_truth_gaps(tmp_path: Path) -> None
         bagio.RUN_MARKER_TOPIC: 2,
     }
 
-    for marker, columns in zip(markers, (a, b)):
+    for marker, columns in zip(markers, (a, b), strict=True):
         sensor = bagio.read_blocks(bag, "/flaair/sensor_v", run=marker.run)
         drive = bagio.read_blocks(bag, "/flaair/drive", run=marker.run)
         truth = bagio.read_blocks(bag, "/flaair/wing_state/truth", run=marker.run)

@@ -144,7 +144,7 @@ def test_rosbags_reads_every_type_back_equal(all_types_bag: tuple[Path, dict]) -
         assert {c.topic: c.msgtype for c in reader.connections} == {
             t: v[0] for t, v in messages.items()
         }
-        for connection, timestamp, data in reader.messages():
+        for connection, _timestamp, data in reader.messages():
             decoded = store.deserialize_cdr(data, connection.msgtype)
             assert _same(messages[connection.topic][1], decoded), connection.topic
             seen[connection.topic] = seen.get(connection.topic, 0) + 1
@@ -297,7 +297,8 @@ def test_unflushed_data_lost_flushed_chunks_recovered_by_reindex(tmp_path: Path)
         bagio.read_blocks(killed, "/flaair/chatter")
     with open(mcap_file, "rb") as stream:  # the mcap library reads it without a summary
         records = []
-        with pytest.raises(Exception):
+        # what the library raises at the cut depends on where it falls (struct.error, EndOfFile)
+        with pytest.raises(Exception):  # noqa: B017  any error: the cut is not the library's format
             for record in StreamReader(stream).records:
                 records.append(record)
     assert sum(type(r).__name__ == "Message" for r in records) == 50

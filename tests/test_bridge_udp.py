@@ -95,7 +95,7 @@ def start_graph(procs, tmp_path: Path, port: int, *bridge_args: str, echo_count:
             str(echo_count),
             "--silence",
             "240",
-            stdout=open(tmp_path / f"{kind}.jsonl", "w"),
+            stdout=open(tmp_path / f"{kind}.jsonl", "w"),  # noqa: SIM115  the child's log
         )
         assert (
             procs.flaair(
@@ -148,7 +148,7 @@ def target(procs, tmp_path: Path, port: int, *args: str):
         "--counters",
         str(tmp_path / "target.json"),
         *args,
-        stderr=open(log, "w"),
+        stderr=open(log, "w"),  # noqa: SIM115  the child's log
     )
     assert wait_for(
         lambda: "emulated target running" in log.read_text() or process.poll() is not None, 120

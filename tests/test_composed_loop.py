@@ -68,8 +68,8 @@ def test_composed_loop_profiles_its_nodes_and_a_listener_gets_every_truth_and_st
         json.dumps(
             {
                 "plant_node": {"ros__parameters": {"mode": "lockstep"}},
-                # The loop starts start_delay_s after the controller sees its peers: time for the two
-                # listeners (started first) to match the container's truth and state writers.
+                # The loop starts start_delay_s after the controller sees its peers: time for the
+                # two listeners (started first) to match the container's truth and state writers.
                 "dsa_controller_node": {
                     "ros__parameters": {
                         "run_time_s": n_blocks * BLOCK / FS_HZ,

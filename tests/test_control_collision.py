@@ -107,7 +107,7 @@ def test_block_split_equals_whole_record_in_both_window_modes():
             evs.extend(ev)
             i += size
         joined = col.concat_reports(reps)
-        for a, b in zip(joined, whole):
+        for a, b in zip(joined, whole, strict=True):
             np.testing.assert_array_equal(a, b)
         assert evs == ev_whole
         assert [e.kind for e in ev_whole] == [col.ONSET]

@@ -51,7 +51,7 @@ def test_every_nth_block_carries_the_state_and_the_drive_is_unchanged() -> None:
     assert all(b.with_state for b in every_block)
     with_state = [k for k, b in enumerate(thinned) if b.with_state]
     assert with_state == list(range(4, 40, 5))
-    for a, b in zip(every_block, thinned):
+    for a, b in zip(every_block, thinned, strict=True):
         np.testing.assert_array_equal(a.drive_v, b.drive_v)
         assert (a.k_r, a.first_sample_index) == (b.k_r, b.first_sample_index)
 

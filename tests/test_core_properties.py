@@ -106,7 +106,7 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
     params = replace(monitor_windows_from_config(100.0), window_source=source, arm_wingbeats=0)
     state = collision.initial_state(params)
     n = min(len(stroke), len(pitch))
-    for s, p in zip(stroke[:n], pitch[:n]):
+    for s, p in zip(stroke[:n], pitch[:n], strict=True):
         state, (report, events) = collision.step(state, collision.MonitorInputs(s, p), params)
         for field in report._fields:
             values = np.asarray(getattr(report, field))

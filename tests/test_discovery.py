@@ -245,7 +245,7 @@ def _check_found(case, result) -> None:
     assert (truth.kind, truth.acts_on) in found, result.summary
     term = found[(truth.kind, truth.acts_on)].term
     assert term.coefficient == pytest.approx(truth.coefficient, rel=0.10)
-    for (key, value), (key2, fitted) in zip(truth.shape, term.shape):
+    for (key, value), (key2, fitted) in zip(truth.shape, term.shape, strict=True):
         assert key == key2 and fitted == pytest.approx(value, rel=0.10)
     assert result.status == "explained", result.summary
     assert not result.effects  # no vocabulary name for what the vocabulary lacks

@@ -9,8 +9,9 @@ change reproduces) is parameter drift, not a missing effect, and names nothing.
 
 Cases here: a representative set for `make test-quick` (DEFAULT_CASES), and in `make test` the
 cases that complete its coverage of the effects and decision branches (FULL_CASES, marked
-slow). The whole fixed dataset (45 cases) is the benchmark's sweep (`make bench`:
-bench_discrepancy --sweep, target "all right"), not a test: each case is 3-15 s of model fitting.
+slow). The whole fixed dataset (45 cases) is the benchmark's sweep (`make bench-full`:
+bench_discrepancy --sweep, target "all right"; `make bench` runs 6 of the cases not here), not a
+test: each case is 3-15 s of model fitting.
 """
 
 from __future__ import annotations
@@ -196,9 +197,9 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
     assert table["total"] == len(outcomes)
     wrong = [(o.case, o.problems) for o in outcomes if not o.correct]
     assert table["correct"] == table["total"], wrong
-    for row, counts in zip(table["rows"], table["counts"]):
+    for row, counts in zip(table["rows"], table["counts"], strict=True):
         expected = expected_column(row)
-        for col, n in zip(table["columns"], counts):
+        for col, n in zip(table["columns"], counts, strict=True):
             assert n == 0 or col == expected, (row, col)
     doc = write_validation(tmp_path, [o.as_dict() for o in outcomes], table, 0.0)
     assert (
@@ -442,7 +443,7 @@ def _run(name: str, n: int = 4000, fs: float = FS_HZ, **over) -> dc.Run:
 
 def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
     with pytest.raises(
-        dc.DiscrepancyInputError, match="different sample rates.*a: 20000 Hz.*b: 10000 Hz"
+        dc.DiscrepancyInputError, match=r"different sample rates.*a: 20000 Hz.*b: 10000 Hz"
     ):
         dc.check_runs([_run("a"), _run("b", fs=10000.0)])
     with pytest.raises(dc.DiscrepancyInputError, match="run a: ground truth pitch_deg is missing"):
@@ -455,7 +456,7 @@ def test_core_refuses_unusable_runs_naming_what_is_wrong() -> None:
         dc.check_runs([_run("a", pitch_deg=np.zeros(3))])
     with pytest.raises(dc.DiscrepancyInputError, match="no runs"):
         dc.check_runs([])
-    with pytest.raises(dc.DiscrepancyInputError, match="unique.*a"):
+    with pytest.raises(dc.DiscrepancyInputError, match=r"unique.*a"):
         dc.check_runs([_run("a"), _run("a")])
 
 

@@ -141,7 +141,7 @@ def test_params_from_config_match_the_node_declaration_and_name_bad_values():
     )
     with pytest.raises(ParameterError, match="duration_s"):
         pacing_params_from_config(values)
-    with pytest.raises(ParameterError, match="missing parameter.*ack_retry_s"):
+    with pytest.raises(ParameterError, match=r"missing parameter.*ack_retry_s"):
         pacing_params_from_config({k: v for k, v in values.items() if k != "ack_retry_s"})
     with pytest.raises(DriveError, match="pacing"):
         params(pacing="fast")

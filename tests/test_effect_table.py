@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def test_each_parameter_has_a_fit_and_a_draw_range_inside_the_fit_bounds(name: s
     entry = ENTRIES[name]
     keys = [f.name for f in dataclasses.fields(entry.kind) if f.name != "channel"]
     assert [p.key for p in entry.fit] == keys and [r.key for r in entry.draw] == keys
-    for p, r in zip(entry.fit, entry.draw):
+    for p, r in zip(entry.fit, entry.draw, strict=True):
         assert p.lower <= r.low < r.high <= p.upper, (p, r)
     assert set(entry.searched_on) <= set(entry.acts_on)
     assert set(entry.kernel_terms) <= set(PLANT_TERMS + SCALE_TERMS + SENSOR_TERMS)
@@ -159,7 +160,9 @@ def test_an_entry_with_a_term_the_plant_does_not_know_is_refused_by_name(
     try:
         with pytest.raises(
             ModelError,
-            match="effects.feedthrough: kernel term 'feedthrough_gain' is not one the plant",
+            match=re.escape(
+                "effects.feedthrough: kernel term 'feedthrough_gain' is not one the plant"
+            ),
         ):
             plant_params.prepare(
                 with_effects(nominal, {"feedthrough": {"gain_v_per_v": 0.01}}), FS_HZ

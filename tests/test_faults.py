@@ -311,7 +311,7 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
             "min_sensor_subscribers:=2",
             "-p",
             "min_truth_subscribers:=1",
-            stderr=open(logs["plant"], "w"),
+            stderr=open(logs["plant"], "w"),  # noqa: SIM115  the child's log
         )
         procs.flaair("run", "flaair_sensors", "frontend_node")
         # 400 wing-state blocks (0.2 s of flapping) seen by an echo: the loop is mid-run
@@ -336,7 +336,7 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
             "min_drive_subscribers:=2",
             "-p",
             "watchdog_timeout_s:=30.0",
-            stderr=open(logs["controller"], "w"),
+            stderr=open(logs["controller"], "w"),  # noqa: SIM115  the child's log
         )
         assert flapping.wait(timeout=150) == 0, logs["controller"].read_text()[-2000:]
         killed_at_s = time.time()

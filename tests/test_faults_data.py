@@ -578,7 +578,8 @@ def test_a_node_that_hangs_past_its_interpreter_cleanup_is_ended_by_sigalrm() ->
         _HANGING_NODE.format(
             hang_in_close=False,
             deadline_s=1.0,
-            after="import faulthandler; faulthandler.cancel_dump_traceback_later(); time.sleep(600)",
+            after="import faulthandler; faulthandler.cancel_dump_traceback_later(); "
+            "time.sleep(600)",
         ),
         timeout_s=20.0 + EXIT_ALARM_MARGIN_S,
     )

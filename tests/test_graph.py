@@ -200,4 +200,4 @@ def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
     texts = {log.name: log.read_text(errors="replace") for log in logs.glob("*.log")}
     hung = {name: text[-4000:] for name, text in texts.items() if "Timeout (0:" in text}
     if hung:  # ended by the deadline: say where the stop hung (once seen in CI, not here)
-        warnings.warn(f"a node's stop hung until its exit deadline: {hung}")
+        warnings.warn(f"a node's stop hung until its exit deadline: {hung}", stacklevel=1)

@@ -98,7 +98,7 @@ def test_dsa_step_matches_the_scipy_chain(ramp_s: float) -> None:
         state, out = dsa.step(state, dsa.DsaInputs(v, k * 10 / FS), p)
         ref, drive, signals = _dsa_reference(ref, v, k * 10 / FS, p)
         np.testing.assert_allclose(out.drive_v, drive, rtol=1e-12, atol=1e-12 * p.drive_limit_v)
-        for got, want in zip(out.signals, signals):
+        for got, want in zip(out.signals, signals, strict=True):
             np.testing.assert_allclose(
                 np.asarray(got, float), np.asarray(want, float), rtol=1e-12, atol=1e-18
             )

@@ -4,6 +4,7 @@ recorded; ends cleanly on time or on a signal.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -190,7 +191,8 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
         [m.first_sample_index for m in messages],
         [len(m.stroke_sensor_v) for m in messages],
     )
-    gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:]) if b != a + n]
+    # each block with the next one's first sample (firsts[1:] is one shorter)
+    gaps = [(a + n, b) for a, n, b in zip(firsts, lengths, firsts[1:], strict=False) if b != a + n]
     assert firsts[0] <= start and firsts[-1] + lengths[-1] >= start + 80000 and not gaps, (
         firsts[:3],
         start,
@@ -217,7 +219,7 @@ def test_live_against_the_emulated_target_self_excites_where_the_hopf_analysis_p
     }
     assert all(
         wing_stamps[first] == m.header.stamp
-        for first, m in zip(firsts, messages)
+        for first, m in zip(firsts, messages, strict=True)
         if first in wing_stamps
     )
     # the controller's drive follows the wing state's clock from its first wing-state block on
@@ -281,7 +283,7 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
             str(counters),
         ],
         stdout=subprocess.DEVNULL,
-        stderr=open(tmp_path / "target.err", "w"),
+        stderr=open(tmp_path / "target.err", "w"),  # noqa: SIM115  the child's log
         cwd=REPO_ROOT,
     )
     bag, log = tmp_path / "bench", tmp_path / "live.err"
@@ -299,7 +301,7 @@ def _start_live_against_target(tmp_path: Path, duration_s: float):
             str(bag),
         ],
         stdout=subprocess.DEVNULL,
-        stderr=open(log, "w"),
+        stderr=open(log, "w"),  # noqa: SIM115  the child's log
         cwd=REPO_ROOT,
     )
     assert wait_for(
@@ -319,10 +321,8 @@ def _exit_code(live: subprocess.Popen, tmp_path: Path, timeout_s: float = 120.0)
     except subprocess.TimeoutExpired:
         # live and its nodes write every thread's stack to their logs on SIGUSR1
         for pid in [live.pid, *graph_pids(launcher_pid=live.pid)]:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGUSR1)
-            except ProcessLookupError:
-                pass
         wait_for(lambda: "most recent call first" in (tmp_path / "live.err").read_text(), 10.0)
         logs = [tmp_path / "live.err", *sorted((tmp_path / "bench.logs").glob("*.log"))]
         raise AssertionError(

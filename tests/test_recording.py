@@ -18,10 +18,11 @@ from flaair_model.schema import ParameterError
 from flaair_tools.recorder import recording as rec
 
 PARAMS = rec.RecordingParams(drain_limit=4)
+START = rec.LogTimeState()
 
 
-def run(events, state=None):
-    state, writes = state or rec.LogTimeState(), []
+def run(events, state=START):
+    writes = []
     for event in events:
         state, out = rec.step(state, event, PARAMS)
         writes += out

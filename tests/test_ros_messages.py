@@ -83,8 +83,8 @@ def test_every_message_type_crosses_processes_intact(tmp_path) -> None:
                 "1",
                 "--silence",
                 "120",
-                stdout=open(outs[name], "w"),
-                stderr=open(f"{outs[name]}.err", "w"),
+                stdout=open(outs[name], "w"),  # noqa: SIM115  the child's log
+                stderr=open(f"{outs[name]}.err", "w"),  # noqa: SIM115  the child's log
             )
             for name in MESSAGES
         }
@@ -102,7 +102,7 @@ def test_every_message_type_crosses_processes_intact(tmp_path) -> None:
                 "1",
                 "--wait-timeout",
                 "120",
-                stdout=open(f"{outs[name]}.pub", "w"),
+                stdout=open(f"{outs[name]}.pub", "w"),  # noqa: SIM115  the child's log
                 stderr=subprocess.STDOUT,
             )
             for name, values in MESSAGES.items()

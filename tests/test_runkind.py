@@ -26,7 +26,7 @@ def test_paper_stepped_sine_steps_are_found_from_the_drive() -> None:
     kind = recognise(drive + np.random.default_rng(0).normal(0, 0.2, drive.size), FS, PARAMS)
     assert kind.kind == "stepped_sine", kind.reason
     assert [round(s.frequency_hz, 2) for s in kind.steps] == pytest.approx(list(freqs), abs=0.02)
-    for step, f in zip(kind.steps, freqs):
+    for step, f in zip(kind.steps, freqs, strict=True):
         # every dwell lies inside its true 0.2 s step and holds most of it
         true_start = int(np.flatnonzero(track == f)[0])
         assert true_start <= step.start < step.stop <= true_start + 4000

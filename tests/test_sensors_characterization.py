@@ -95,7 +95,7 @@ def _describing_function(model, f_hz):
 
 
 def test_stepped_bode_recovers_simulated_amplitudes(model, stepped):
-    freqs, _track, _out, run, result = stepped
+    freqs, _track, _out, _run, result = stepped
     b = result.bode
     np.testing.assert_allclose(b.stroke.frequency_hz, freqs)
     # Sensor curves equal the truth curves (nominal gains) within 1 %.
@@ -116,7 +116,7 @@ def test_stepped_bode_recovers_simulated_amplitudes(model, stepped):
 
 
 def test_stepped_bode_matches_harmonic_balance(model, stepped):
-    freqs, _track, _out, run, result = stepped
+    freqs, _track, _out, _run, result = stepped
     b = result.bode
     for i, f in enumerate(freqs):
         s, p = _describing_function(model, f)

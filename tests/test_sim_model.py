@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -146,17 +147,17 @@ def test_effect_validation(model):
         ModelError, match=r"effects.strain_transfer_loss.efficiency must be in \(0, 1\]"
     ):
         with_effects(model, {"strain_transfer_loss": {"efficiency": 1.5}})
-    with pytest.raises(ModelError, match="effects.wing_damage.inertia_factor"):
+    with pytest.raises(ModelError, match=re.escape("effects.wing_damage.inertia_factor")):
         with_effects(model, {"wing_damage": {"inertia_factor": 0.0}})
-    with pytest.raises(ModelError, match="effects.sensor_delay.channel"):
+    with pytest.raises(ModelError, match=re.escape("effects.sensor_delay.channel")):
         with_effects(model, {"sensor_delay": {"delay_s": 0.001, "channel": "left"}})
-    with pytest.raises(ModelError, match="effects.sensor_delay.delay_s must be >= 0"):
+    with pytest.raises(ModelError, match=re.escape("effects.sensor_delay.delay_s must be >= 0")):
         with_effects(model, {"sensor_delay": {"delay_s": -1e-3}})
-    with pytest.raises(ModelError, match="effects.collision: unknown parameter"):
+    with pytest.raises(ModelError, match=re.escape("effects.collision: unknown parameter")):
         with_effects(model, {"collision": {"stroke_limit_deg": 10, "hardness": 3}})
-    with pytest.raises(ModelError, match="effects.collision: missing parameter.*stroke_limit_deg"):
+    with pytest.raises(ModelError, match=r"effects.collision: missing parameter.*stroke_limit_deg"):
         with_effects(model, {"collision": {}})
-    with pytest.raises(ModelError, match="effects.collision must be a Collision"):
+    with pytest.raises(ModelError, match=re.escape("effects.collision must be a Collision")):
         with_effects(model, {"collision": SensorDelay(1e-3)})
     with pytest.raises(ModelError, match="unknown effect"):
         model.effect("gremlins")

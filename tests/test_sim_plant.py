@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -568,10 +569,10 @@ def test_batch_into_preallocated_output(model, drive):
     models = [model, with_effects(model, {"feedthrough": {"gain_v_per_v": 1e-3}})]
     out = SimOutput(*(np.full((2, DRIVE_N), np.nan) for _ in range(4)))
     got = simulate_batch(drive, FS_HZ, models, out=out)
-    assert all(g is o for g, o in zip(got, out))
+    assert all(g is o for g, o in zip(got, out, strict=True))
     fresh = simulate_batch(drive, FS_HZ, models)
-    assert all(np.array_equal(g, f) for g, f in zip(got, fresh))
-    with pytest.raises(ValueError, match="out.stroke_rad"):
+    assert all(np.array_equal(g, f) for g, f in zip(got, fresh, strict=True))
+    with pytest.raises(ValueError, match=re.escape("out.stroke_rad")):
         simulate_batch(
             drive, FS_HZ, models, out=SimOutput(*(np.empty((3, DRIVE_N)) for _ in range(4)))
         )

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 import subprocess
 
 import pytest
@@ -40,7 +41,9 @@ def test_task_sizing_gives_about_task_s_of_compute_or_an_even_spread() -> None:
     assert SIZING.chunk_size(rows, 2) == 160  # 0.3 s x 800 robot-s/s / 1.5 robot-s
     assert SIZING.chunk_size(rows[:186], 2) == 47  # a small sweep: 2 tasks per worker
     assert SIZING.chunk_size(rows[:186], 1) == 93 and SIZING.chunk_size(rows[:3], 8) == 1
-    with pytest.raises(sweep.SweepError, match="tasks.task_s must be a finite number > 0"):
+    with pytest.raises(
+        sweep.SweepError, match=re.escape("tasks.task_s must be a finite number > 0")
+    ):
         sweep.TaskSizing(task_s=0.0, tasks_per_worker=2, core_robot_s_per_s=800.0)
     with pytest.raises(sweep.SweepError, match="tasks: missing key 'core_robot_s_per_s'"):
         sweep.TaskSizing.from_mapping({"task_s": 0.3, "tasks_per_worker": 2})

@@ -5,6 +5,7 @@ Every damaged or wrong file is one LabFileError naming the file, never another e
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -108,7 +109,9 @@ def test_a_file_without_a_structure_with_time_variable_is_refused(
         scipy.io.savemat(str(path), data)
     else:
         hdf5storage.savemat(str(path), data, format="7.3", matlab_compatible=True)
-    with pytest.raises(LabFileError, match=r"other\.mat: no variable in Structure-with-time form"):
+    with pytest.raises(
+        LabFileError, match=re.escape("other.mat: no variable in Structure-with-time form")
+    ):
         read_target_log(path, ["amp_in"])
 
 
@@ -117,7 +120,7 @@ def test_a_file_that_is_not_a_mat_file_is_named(tmp_path: Path) -> None:
     path.write_text("time,drive_v\n0,1\n")
     with pytest.raises(LabFileError, match=r"run.mat: not a MATLAB MAT file \(version 5 or 7.3\)"):
         read_target_log(path, ["amp_in"])
-    with pytest.raises(LabFileError, match=r"missing\.mat: cannot read"):
+    with pytest.raises(LabFileError, match=re.escape("missing.mat: cannot read")):
         read_target_log(tmp_path / "missing.mat", ["amp_in"])
 
 
@@ -164,5 +167,5 @@ def test_cut_or_damaged_files_give_a_lab_file_error_or_the_right_values(
 def test_random_bytes_give_a_lab_file_error(tmp_path_factory, data: bytes, prefix: bytes) -> None:
     path = tmp_path_factory.mktemp("bytes") / "random.mat"
     path.write_bytes(prefix + data)
-    with pytest.raises(LabFileError, match=r"random\.mat"):
+    with pytest.raises(LabFileError, match=re.escape("random.mat")):
         read_target_log(path, ["amp_in"])

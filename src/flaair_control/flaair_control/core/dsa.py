@@ -298,9 +298,6 @@ def filter_coefficients(params: DsaParams, advanced: bool) -> tuple[np.ndarray, 
     return bz, az
 
 
-# The former name, read by flaair_tools.sweeps.sweep_batch until it calls filter_coefficients.
-
-
 class DsaState(NamedTuple):
     """Filter state (lfilter ``zi``) of the commanded (advanced) and raw torque filters."""
 

@@ -50,7 +50,7 @@ from flaair_sim.core.sensor_kernel import sensor_channel_kernel
 from flaair_sim.core.term_kernel import mechanical_constants
 
 # Also the compiled kernel (`Prepared`, `prepare`, `mechanical_constants`, `rk4_step`), for
-# batch engines that step many robots at once (sweep_batch).
+# batch engines that step many robots at once (flaair_analysis.closed_loop).
 __all__ = [
     "PlantState",
     "Prepared",

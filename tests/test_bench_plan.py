@@ -1,0 +1,169 @@
+"""The benchmark's plan: `make bench` and `make bench-full` run every part with a budget, the
+discrepancy subset is the one docs/TESTING.md names, and no figure of the full run is missing
+from the subset run (bench/run_all.py, bench/bench_discrepancy.py). Nothing is analysed here.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+import bench_discrepancy as bd  # bench/ is not a package: on the path above
+import run_all
+from flaair_analysis.discrepancy.datasets import dataset_cases
+from flaair_analysis.discrepancy.offnominal import (
+    DISCOVER_KINDS,
+    EFFECT_NAMES_ORDER,
+    FAMILIES,
+    random_robot,
+)
+from flaair_analysis.discrepancy.scoring import CaseOutcome
+
+TESTING_MD = ROOT / "docs" / "TESTING.md"
+# The discrepancy figures `make bench` printed before it had a subset (names without counts).
+DISCREPANCY_FIGURES = {
+    "exact-set accuracy, offnominal_null",
+    "exact-set accuracy, offnominal_single",
+    "exact-set accuracy, offnominal_pair",
+    "exact-set accuracy, offnominal_outside",
+    "discovery: right acts_on and form",
+    "discovery: ending explained",
+    "discovery: time per robot",
+    "false discoveries of terms on no-effect robots",
+    "false discoveries on no-effect robots",
+    "out-of-vocabulary robots flagged unexplained",
+    "named effects with parameters within 10 %",
+    "stroke_natural_frequency_hz within 0.5 %",
+    "pitch_natural_frequency_hz within 0.5 %",
+    "time per robot data set",
+    "hidden-effect dataset cases right",
+}
+
+
+def test_every_benchmark_is_a_part_with_a_budget_in_both_modes() -> None:
+    scripts = sorted(p.stem for p in (ROOT / "bench").glob("bench_*.py"))
+    names = [p.name for p in run_all.PARTS]
+    assert sorted(names) == scripts
+    assert len(set(names)) == len(names)
+    assert all(p.budget_s > 0 and p.full_budget_s >= p.budget_s for p in run_all.PARTS)
+    assert sum(p.budget_s for p in run_all.PARTS) <= run_all.BENCH_BUDGET_S == 15 * 60
+
+
+def test_only_the_discrepancy_part_differs_between_the_modes() -> None:
+    """Every other part prints the same figures in both modes because it runs the same."""
+    differ = {p.name: (p.args, p.full_args) for p in run_all.PARTS if p.args != p.full_args}
+    assert differ == {"bench_discrepancy": (("--subset", "--sweep"), ("--sweep",))}
+
+
+def _documented_subset() -> tuple[dict[str, tuple[int, ...]], tuple[str, ...], int]:
+    text = TESTING_MD.read_text()
+    rows = re.findall(r"^\| `(offnominal_\w+)` \| ([\d, ]+) \|", text, flags=re.M)
+    cases = re.search(r"Hidden-effect cases in `make bench`: (.+?) \(", text, flags=re.S)
+    baseline = re.search(r"baseline runs on each family's first subset robot \((\d+) per", text)
+    assert rows and cases and baseline, "docs/TESTING.md no longer lists the subset"
+    return (
+        {family: tuple(int(d) for d in draws.split(",")) for family, draws in rows},
+        tuple(re.findall(r"`(\w+)`", cases.group(1))),
+        int(baseline.group(1)),
+    )
+
+
+def test_the_subset_is_the_one_the_docs_name() -> None:
+    draws, cases, baseline = _documented_subset()
+    assert draws == bd.SUBSET
+    assert cases == bd.SWEEP_SUBSET
+    assert baseline == bd.SUBSET_BASELINE
+
+
+def test_the_subset_covers_every_family_and_kind() -> None:
+    assert set(bd.SUBSET) == set(FAMILIES)
+    robots = {f: [random_robot(f, d) for d in draws] for f, draws in bd.SUBSET.items()}
+    single = [
+        (c.effect_names + tuple(n for n, _ in c.hidden))[0] for c in robots["offnominal_single"]
+    ]
+    assert sorted(single) == sorted(EFFECT_NAMES_ORDER)
+    assert {c.outside for c in robots["offnominal_outside"]} == {
+        "sensor_gain_drift",
+        "second_resonance",
+    }
+    kinds = [(c.terms[0].kind, c.terms[0].acts_on) for c in robots["offnominal_discover"]]
+    assert sorted(kinds) == sorted((k.kind, k.acts_on) for k in DISCOVER_KINDS)
+    for family, cs in robots.items():  # both truth rates in every family
+        assert {c.video_every > 1 for c in cs} == {True, False}, family
+    # the known misses of the full families stay in make bench-full
+    assert 8 not in bd.SUBSET["offnominal_pair"] and 24 not in bd.SUBSET["offnominal_single"]
+    groups = {c.name: c.group for c in dataset_cases()}
+    assert {groups[name] for name in bd.SWEEP_SUBSET} == set(groups.values())
+
+
+def test_the_subset_cases_are_ones_make_test_does_not_run() -> None:
+    tree = ast.parse((ROOT / "tests" / "test_discrepancy.py").read_text())
+    in_make_test = set()
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and node.targets[0].id in ("DEFAULT_CASES", "FULL_CASES"):
+            in_make_test |= ast.literal_eval(node.value)
+    assert in_make_test and not in_make_test & set(bd.SWEEP_SUBSET)
+
+
+def test_the_jobs_of_each_mode() -> None:
+    families = list(FAMILIES)
+    subset = bd.select_jobs(families, 30, 60, 5, subset=True)
+    assert [(f, d) for f, d, _ in subset] == [(f, d) for f in FAMILIES for d in bd.SUBSET[f]]
+    assert sum(b for *_, b in subset) == bd.SUBSET_BASELINE * (len(FAMILIES) - 1)
+    full = bd.select_jobs(families, 30, 60, 5, subset=False)
+    assert len(full) == 4 * 30 + 60 and sum(b for *_, b in full) == 4 * 5
+    assert bd.select_cases(subset=True) == bd.SWEEP_SUBSET
+    assert len(bd.select_cases(subset=False)) == len(dataset_cases()) == 45
+
+
+def _outcome(family: str, draw: int) -> dict:
+    """A robot's outcome as `analyse_robot` returns it, every answer right."""
+    case = random_robot(family, draw)
+    terms = [f"{t.kind}@{t.acts_on}" for t in case.terms]
+    return {
+        "family": family,
+        "case": case.name,
+        "exact": True,
+        "found": sorted(case.effect_names),
+        "status": case.expected_status,
+        "outside": case.outside,
+        "true_terms": terms,
+        "discovered": terms,
+        "term_errors": {f"{t.kind}.coefficient": 0.01 for t in case.terms},
+        "effect_parameters_ok": dict.fromkeys(case.effect_names, True),
+        "parameter_errors": {f"{n}.x": 0.01 for n in case.effect_names},
+        "frequency_errors": dict.fromkeys(bd.FREQUENCIES, 0.001),
+        "elapsed_s": 1.0,
+    }
+
+
+def _case_outcome(name: str) -> CaseOutcome:
+    return CaseOutcome(name, "x", "x", "explained", "explained", (), {}, {}, True, (), 1.0)
+
+
+@pytest.mark.parametrize("subset", [True, False], ids=["make bench", "make bench-full"])
+def test_every_figure_of_today_is_printed_in_both_modes(subset: bool) -> None:
+    jobs = bd.select_jobs(list(FAMILIES), 30, 60, 5, subset)
+    figures = bd.build_figures(
+        [_outcome(f, d) for f, d, _ in jobs],
+        [{"family": f, "exact": False} for f, _, b in jobs if b],
+        [_case_outcome(name) for name in bd.select_cases(subset)],
+        families=list(FAMILIES),
+        jobs=2,
+        wall_s=60.0,
+        t_sim_s=0.003,
+        subset=subset,
+    )
+    assert {bd.figure_stem(f.name) for f in figures} == DISCREPANCY_FIGURES
+    # every percentage says how many it is of, and a subset says so
+    for f in figures:
+        if f.unit.startswith("%"):
+            assert re.search(r"\(\d+/\d+[ ,)]", f.name), f.name
+        assert f.name.endswith(", subset)") == subset, f.name
