@@ -58,7 +58,7 @@ PARTS = (
     # the fixed hidden-effect dataset too (`make test` runs 14 of its 45 cases,
     # tests/test_discrepancy.py); `make bench` the fixed subset of robots and cases: ~430 CPU-s
     # of analysis, ~225 s on 2 cores; make bench-full ~2800 CPU-s, ~25 min
-    Part("bench_discrepancy", 235, 1800, ("--subset", "--sweep"), ("--sweep",)),
+    Part("bench_discrepancy", 225, 1800, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 15, 20),
     Part("bench_sweep", 35, 40),
     Part("bench_bridge", 95, 105),  # 20 s UDP echo, 60 s live, their start and stop
@@ -67,7 +67,7 @@ PARTS = (
     Part("bench_foxglove", 30, 40),  # 2 x 10 s streamed
     # 405 tests per stack, the two stacks at once (the first run also installs the stock stack
     # and compiles its kernels: about 2 min more, reported as over the budget)
-    Part("bench_stock_numpy", 60, 70),
+    Part("bench_stock_numpy", 55, 70),
     Part("bench_workspace", 95, 110),  # a plain colcon build (~1.5 min)
     # the real ROS 2 tools against FLAAIR: 10 launch files parsed, the namespaced loop under
     # `ros2 launch`, 13 stand-in answers (163-195 s at load average 6-13; the first run on a
