@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from flaair_analysis.discrepancy import analyse
+from flaair_analysis.discrepancy import Discovered, analyse
 from flaair_analysis.discrepancy.datasets import make_runs
 from flaair_analysis.discrepancy.offnominal import DISCOVER_KINDS, random_robot
 from flaair_model.model import ModelError
@@ -166,7 +166,7 @@ def test_a_term_from_discrepancy_json_pasted_into_a_model_file_gives_the_same_pl
         DiscoveredTerm("cube_angle", "stroke_dynamics", -3.3e-5),
     )
     entries = [
-        discrepancy.Discovered(
+        Discovered(
             term=t,
             channel="stroke_sensor_v",
             stderr={"coefficient": 0.01, "corner_hz": 3.5},

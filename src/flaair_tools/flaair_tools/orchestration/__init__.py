@@ -8,6 +8,7 @@ Modules (import them by name; this package imports none of them eagerly):
 - `live`: `bin/flaair live`: the live graph around a target (or --sim)
 - `live_args`: live's arguments turned into the graph's inputs (addresses, node parameters)
 - `demo`: `bin/flaair demo`: every experiment, then the report
+- `second_terminal`: the lines a second terminal needs to join a graph's private domain
 - `transition_figure`: the sync -> async transition figure
 """
 
@@ -19,5 +20,6 @@ __all__ = [
     "launch_file",
     "live",
     "live_args",
+    "second_terminal",
     "transition_figure",
 ]

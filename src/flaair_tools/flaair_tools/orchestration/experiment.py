@@ -482,13 +482,11 @@ def run_experiment(  # noqa: C901  a graph's life in order: start it, run each p
             # A stopped publisher takes with it what a lagging recorder has not fetched yet
             # (a loaded fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
             drain_until = time.monotonic() + 2.0
-            _spin_until(
-                runner,
-                graph,
-                lambda: time.monotonic() > drain_until,  # noqa: B023  run right here
-                10.0,
-                "the recorder to drain",
-            )
+
+            def drained(end_s: float = drain_until) -> bool:
+                return time.monotonic() > end_s
+
+            _spin_until(runner, graph, drained, 10.0, "the recorder to drain")
             graph.stop(driver)
             summary["runs"].append(
                 {"run": run.name, "first_sample_index": first + rest, "n_samples": n_samples - rest}
