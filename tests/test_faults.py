@@ -322,7 +322,7 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
             "flaair_msgs/msg/WingStateBlock",
             "--count",
             "400",
-            "--timeout",
+            "--silence",
             "120",
             stdout=subprocess.DEVNULL,
         )
