@@ -22,7 +22,7 @@ import numpy as np
 
 from flaair_bridge import bridge_io as io
 from flaair_bridge.bridge_io import PARAMS
-from flaair_bridge.core import bridge, bridge_report
+from flaair_bridge.core import bridge, bridge_report, protocol
 from flaair_common import intra, topics
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
@@ -75,7 +75,7 @@ class BridgeNode(FlaairNode):
         self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
-        target = (self.p["target_host"] or sender[0], self.p["target_port"] or sender[1])
+        target = protocol.target_address(self.target, self.p, data, sender)
         if target != self.target:  # the first packet, or a target that restarted elsewhere
             self.target = target
             self.get_logger().info(
