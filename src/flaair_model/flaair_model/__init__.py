@@ -7,6 +7,7 @@ it depends on nothing of FLAAIR's.
 - `model`: frozen parameter dataclasses and the effect registry (`EFFECT_TYPES`).
 - `model_io`: config/model.yaml <-> `Model`.
 - `terms`: the term library the discrepancy workflow discovers missing physics from.
+- `checked_files`: the one way a given file is opened (regular, bounded, YAML aliases bounded).
 - `config`: the one locator of config/ and the ROS parameter-file reader.
 - `schema`: `ParamSpec`, each node parameter declared once.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
@@ -14,4 +15,15 @@ it depends on nothing of FLAAIR's.
 - `settings`: typed accessors of the config sections a tool reads that are not its own.
 """
 
-__all__ = ["config", "lfilter", "model", "model_io", "notes", "pvdf", "schema", "settings", "terms"]
+__all__ = [
+    "checked_files",
+    "config",
+    "lfilter",
+    "model",
+    "model_io",
+    "notes",
+    "pvdf",
+    "schema",
+    "settings",
+    "terms",
+]

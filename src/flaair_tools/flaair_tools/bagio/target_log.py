@@ -26,6 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from flaair_model.checked_files import CheckedFileError, check_file
+from flaair_tools.bagio import mat_bounds
+
 __all__ = ["UNIFORM_TOLERANCE", "LabFileError", "TargetLog", "read_target_log"]
 
 # Relative spread of the time steps still called uniform (float rounding of k / fs).
@@ -75,11 +78,15 @@ def read_target_log(path: Path | str, labels: Sequence[str]) -> TargetLog:
         label the rig names but the log lacks, values not as long as time, non-uniform time.
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as handle:
+    try:  # a regular file, bounded; compressed data bounded before it is read
+        with open(check_file(path, "mat"), "rb") as handle:
             head = handle.read(128)
+        if head.startswith(_V5_HEADER):
+            mat_bounds.check_v5(path)
     except OSError as exc:
         raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except (CheckedFileError, mat_bounds.MatBoundsError) as exc:
+        raise LabFileError(str(exc)) from None
     if head.startswith(_V5_HEADER):
         variable, time_s, found, raw = _read_v5(path, labels)
     elif head.startswith(_HDF5_SIGNATURE) or _is_hdf5(path):
@@ -117,6 +124,10 @@ def _checked(
         if v.size != time_s.size:
             raise LabFileError(
                 f"{where}: signal '{label}' has {v.size} values, time has {time_s.size}"
+            )
+        if not np.isfinite(v).all():  # as the CSV import refuses them
+            raise LabFileError(
+                f"{where}: signal '{label}' value {int(np.argmin(np.isfinite(v)))} is not finite"
             )
     return TargetLog(path, variable, time_s, {label: values[label] for label in wanted}, all_labels)
 
@@ -157,12 +168,17 @@ def _read_v5(
         ):
             continue
         labels = tuple(_v5_text(s.label) for s in signals)
-        values = {
-            label: np.asarray(s.values, dtype=float).reshape(-1)
-            for label, s in zip(labels, signals)
-            if label in wanted
-        }
-        return name, np.asarray(log.time, dtype=float), labels, values
+        try:  # a char or struct field is no signal
+            values = {
+                label: np.asarray(s.values, dtype=float).reshape(-1)
+                for label, s in zip(labels, signals, strict=True)
+                if label in wanted
+            }
+            return name, np.asarray(log.time, dtype=float), labels, values
+        except (TypeError, ValueError):
+            raise LabFileError(
+                f"{path}: variable '{name}': time or a signal's values are not numbers"
+            ) from None
     raise LabFileError(
         f"{path}: no variable in Structure-with-time form (a struct with 'time' and "
         "'signals' whose elements have 'values' and 'label'); variables: "
@@ -245,10 +261,10 @@ def _read_v73(
                 labels = tuple(_h5_text(f, item) for item in _elements(signals["label"]))
                 values = {
                     label: np.asarray(_h5_deref(f, item), dtype=float).reshape(-1)
-                    for label, item in zip(labels, _elements(signals["values"]))
+                    for label, item in zip(labels, _elements(signals["values"]), strict=False)
                     if label in wanted
                 }
-                return name, np.asarray(group["time"][()], dtype=float), labels, values
+                return name, np.asarray(_h5_deref(f, group["time"]), dtype=float), labels, values
     except LabFileError:
         raise
     except Exception as exc:
@@ -285,7 +301,12 @@ def _dataset(f: Any, item: Any) -> Any:
 
 
 def _h5_deref(f: Any, item: Any) -> np.ndarray:
-    return np.asarray(_dataset(f, item)[()])
+    dataset = _dataset(f, item)
+    try:
+        mat_bounds.check_dataset(Path(f.filename), dataset)
+    except mat_bounds.MatBoundsError as exc:
+        raise LabFileError(str(exc)) from None
+    return np.asarray(dataset[()])
 
 
 def _h5_text(f: Any, item: Any) -> str:
