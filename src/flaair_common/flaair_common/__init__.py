@@ -11,7 +11,8 @@ Load no rclpy on import:
 - `graph`: the one launcher (private ROS domain, localhost discovery, parent-death signal);
 - `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
 - `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
-- `runcsv`: measured-run CSV; `strictjson`: strict JSON out.
+- `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
+- `outputs`: a command's `--out` checked first (never an input, `--force` to replace).
 """
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "intra",
     "msgdefs",
     "msgdict",
+    "outputs",
     "params",
     "qos",
     "realtime",
