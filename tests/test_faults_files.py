@@ -334,3 +334,31 @@ def test_an_outlier_in_a_tip_track_is_dropped_and_counted(session, tmp_path) -> 
     both = np.isfinite(stroke) & np.isfinite(clean.run["stroke_deg"])
     # the tip's rest position is its mean over one frame fewer
     np.testing.assert_allclose(stroke[both], clean.run["stroke_deg"][both], atol=0.01)
+
+
+def test_a_launch_file_that_includes_itself_is_one_error(tmp_path) -> None:
+    from flaair_tools.orchestration.launch_file import LaunchFileError, load
+
+    own = tmp_path / "own.launch.xml"
+    own.write_text('<launch><include file="own.launch.xml"/></launch>')
+    with pytest.raises(LaunchFileError, match="which includes it back"):
+        load(own)
+    first, second = tmp_path / "a.launch.xml", tmp_path / "b.launch.xml"
+    first.write_text('<launch><include file="b.launch.xml"/></launch>')
+    second.write_text('<launch><include file="$(dirname)/a.launch.xml"/></launch>')
+    with pytest.raises(LaunchFileError, match="which includes it back"):
+        load(first)
+
+
+@pytest.mark.parametrize("special", ["directory", "fifo", "/dev/zero"])
+def test_a_directory_or_device_as_a_launch_file_is_one_error(special, tmp_path) -> None:
+    path = tmp_path
+    if special == "fifo":
+        path = tmp_path / "fifo.launch.xml"
+        os.mkfifo(path)
+    elif special == "/dev/zero":
+        path = Path(special)
+    imports = "from flaair_tools.orchestration.launch_file import load"
+    result = bounded(imports + "\n" + _refusal(f"load({str(path)!r})"), timeout_s=30.0)
+    assert result["error"] == "LaunchFileError", result
+    assert "directory" in result["message"] or "regular file" in result["message"], result
