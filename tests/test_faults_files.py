@@ -362,3 +362,35 @@ def test_a_directory_or_device_as_a_launch_file_is_one_error(special, tmp_path) 
     result = bounded(imports + "\n" + _refusal(f"load({str(path)!r})"), timeout_s=30.0)
     assert result["error"] == "LaunchFileError", result
     assert "directory" in result["message"] or "regular file" in result["message"], result
+
+
+@pytest.mark.parametrize("source", ["csv", "mat"])
+def test_an_implausible_signal_is_refused_on_every_import_path(source, tmp_path) -> None:
+    from flaair_common.runcsv import write_run
+    from rosproc import FLAAIR, run_offline
+
+    run = lf.chirp_run(duration_s=0.3)
+    run["pitch_sensor_v"] = run["pitch_sensor_v"].copy()
+    run["pitch_sensor_v"][100] = 5000.0  # a log in millivolts read as volts, one sample
+    if source == "csv":
+        path = tmp_path / "run.csv"
+        n = run["drive_v"].size
+        write_run(
+            path,
+            {
+                "time_s": np.arange(n) / lf.FS_HZ,
+                **{k: run[k] for k in ("drive_v", "stroke_sensor_v", "pitch_sensor_v")},
+                "stroke_deg": np.degrees(run["stroke_rad"]),
+                "pitch_deg": np.degrees(run["pitch_rad"]),
+            },
+        )
+        args = [str(path)]
+    else:
+        s = lf.write_lab_run(tmp_path, "run", run, "v5")
+        args = [str(s.mat), "--rig", str(s.rig), "--tracks", str(s.tracks)]
+    bag = tmp_path / "bag"
+    result = run_offline([FLAAIR, "import", *args, "--out", str(bag)], isolated_env(), 120)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert len(lines) == 1 and "pitch_sensor_v[100] = 5000 is beyond" in lines[0], lines
+    assert not bag.exists()

@@ -12,6 +12,7 @@ Load no rclpy on import:
 - `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
 - `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
 - `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
+- `signal_ranges`: the plausible range of each measured-run column;
 - `outputs`: a command's `--out` checked first (never an input, `--force` to replace).
 """
 
@@ -29,6 +30,7 @@ __all__ = [
     "realtime",
     "runcsv",
     "runtime",
+    "signal_ranges",
     "stream",
     "strictjson",
     "topics",
