@@ -55,7 +55,10 @@ def check_v5(path: Path) -> None:
             while left > 0 and (data := handle.read(min(_CHUNK_BYTES, left))):
                 left -= len(data)
                 while data:
-                    total += len(inflate.decompress(data, _CHUNK_BYTES))
+                    try:
+                        total += len(inflate.decompress(data, _CHUNK_BYTES))
+                    except zlib.error as exc:
+                        raise MatBoundsError(f"{path}: damaged compressed data ({exc})") from None
                     data = inflate.unconsumed_tail
                     if total > limit:
                         raise MatBoundsError(_text(path, size, limit))

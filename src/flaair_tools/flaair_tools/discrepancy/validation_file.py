@@ -92,6 +92,9 @@ def _check(path: Path, doc: Any) -> None:
         )
     ):
         raise _fail(path, "confusion.counts", "must be one row of counts per row, per column")
+    for key in ("correct", "total"):
+        if not (isinstance(table.get(key), int) and _count(table[key])):
+            raise _fail(path, f"confusion.{key}", "must be a count")
     cases = doc.get("cases", [])
     if not isinstance(cases, list):
         raise _fail(path, "cases", "must be a list")
