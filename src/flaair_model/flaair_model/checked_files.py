@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,7 @@ __all__ = [
     "MAX_YAML_NODES",
     "QUOTE_CHARS",
     "CheckedFileError",
+    "bracket_depth",
     "check_file",
     "check_numbers",
     "load_yaml_text",
@@ -38,13 +40,13 @@ __all__ = [
 MIB = 1 << 20
 # the largest file of each kind FLAAIR reads (a 20 kHz run of an hour is ~1.6 GB of CSV)
 LIMIT_BYTES: dict[str, int] = {
-    "model": 4 * MIB,
-    "config": 4 * MIB,
+    "model": MIB,
+    "config": MIB,
     "rig": MIB,
     "manifest": MIB,
     "calibration": MIB,
     "validation": 64 * MIB,
-    "launch": 4 * MIB,
+    "launch": MIB,
     "track": 512 * MIB,
     "mat": 2048 * MIB,
     "csv": 4096 * MIB,
@@ -53,6 +55,7 @@ MAX_YAML_NODES = 100_000  # nodes of a document with every alias expanded
 MAX_YAML_DEPTH = 64
 MAX_INT_DIGITS = 30
 QUOTE_CHARS = 40
+_UNPRINTABLE = re.compile("[\x00-\x08\x0a-\x1f\x7f-\x9f\u2028\u2029]")
 
 
 class CheckedFileError(ValueError):
@@ -61,7 +64,7 @@ class CheckedFileError(ValueError):
 
 def quote(value: Any, limit: int = QUOTE_CHARS) -> str:
     """`value` as text on one line, cut to `limit` characters (an ellipsis marks the cut)."""
-    text = (value if isinstance(value, str) else repr(value)).replace("\n", "\\n")
+    text = _UNPRINTABLE.sub("?", value if isinstance(value, str) else repr(value))
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
@@ -70,7 +73,7 @@ def printable(text: str) -> str:
     that were not UTF-8 (surrogate escapes) become U+FFFD, a control character '?'.
     """
     clean = text.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
-    return "".join("?" if ord(c) < 32 or 127 <= ord(c) < 160 else c for c in clean)
+    return _UNPRINTABLE.sub("?", clean)
 
 
 def check_file(path: str | Path, kind: str, pipe: bool = False) -> Path:
@@ -192,13 +195,19 @@ class _BoundedLoader(yaml.SafeLoader):
 
 
 def check_numbers(data: Any, where: str, key: str = "") -> None:
-    """Refuse an integer of more than `MAX_INT_DIGITS` digits anywhere in `data`, by its key."""
+    """Refuse an integer of more than `MAX_INT_DIGITS` digits anywhere in `data`, by its key,
+    and a key or text holding a control character or a line break (one-line messages name them).
+    """
     if isinstance(data, dict):
         for name, value in data.items():
+            if isinstance(name, str) and _UNPRINTABLE.search(name):
+                raise CheckedFileError(f"{where}: a key with a control character: {quote(name)}")
             check_numbers(value, where, f"{key}.{quote(name, 24)}" if key else quote(name, 24))
     elif isinstance(data, list):
         for index, value in enumerate(data):
             check_numbers(value, where, f"{key}[{index}]")
+    elif isinstance(data, str) and _UNPRINTABLE.search(data):
+        raise CheckedFileError(f"{where}: {key or 'value'}: a control character in {quote(data)}")
     elif isinstance(data, int) and abs(data) >= 10**MAX_INT_DIGITS:
         digits = int(math.log10(abs(data))) + 1
         raise CheckedFileError(
@@ -206,8 +215,25 @@ def check_numbers(data: Any, where: str, key: str = "") -> None:
         )
 
 
+def bracket_depth(text: str) -> int:
+    """How deep `[` and `{` nest in `text`, counted without parsing (PyYAML and json take
+    seconds and then a RecursionError on thousands of levels). Brackets inside strings count
+    too: a bound of dozens of levels is never reached by a real file that way.
+    """
+    depth = deepest = 0
+    for char in text:
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth = max(0, depth - 1)
+    return deepest
+
+
 def load_yaml_text(text: str, where: str) -> Any:
     """The YAML document in `text`, bounded and checked; errors name `where` (file) and line."""
+    if bracket_depth(text) > MAX_YAML_DEPTH:
+        raise CheckedFileError(f"{where}: nested deeper than {MAX_YAML_DEPTH} levels")
     try:
         data = yaml.load(text, Loader=_BoundedLoader)  # a SafeLoader subclass
     except CheckedFileError as exc:

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from flaair_model.checked_files import CheckedFileError, quote, read_text
+from flaair_model.checked_files import CheckedFileError, bracket_depth, quote, read_text
 
 __all__ = ["MAX_DEPTH", "ValidationFileError", "read_validation"]
 
@@ -24,28 +24,6 @@ _CASE_TEXT = ("case", "true", "found", "status")
 
 class ValidationFileError(ValueError):
     """A --validation file that is not a validation.json; one line naming file and key."""
-
-
-def _depth(text: str) -> int:
-    """How deep the brackets of a JSON text nest (outside strings), without parsing it."""
-    depth = deepest = 0
-    in_string = escaped = False
-    for char in text:
-        if in_string:
-            if escaped:
-                escaped = False
-            elif char == "\\":
-                escaped = True
-            elif char == '"':
-                in_string = False
-        elif char == '"':
-            in_string = True
-        elif char in "[{":
-            depth += 1
-            deepest = max(deepest, depth)
-        elif char in "]}":
-            depth -= 1
-    return deepest
 
 
 def _reject_constant(name: str) -> float:
@@ -58,7 +36,7 @@ def read_validation(path: Path) -> dict[str, Any]:
         text = read_text(path, "validation")
     except CheckedFileError as exc:
         raise ValidationFileError(f"--validation {exc}") from None
-    if _depth(text) > MAX_DEPTH:
+    if bracket_depth(text) > MAX_DEPTH:
         raise ValidationFileError(f"--validation {path}: nested deeper than {MAX_DEPTH} levels")
     try:
         doc = json.loads(text, parse_constant=_reject_constant)
@@ -105,8 +83,8 @@ def _check(path: Path, doc: Any) -> None:
 def _check_case(path: Path, where: str, case: Any) -> None:
     if not isinstance(case, dict):
         raise _fail(path, where, "must be a mapping")
-    for key in _CASE_TEXT:
-        if not isinstance(case.get(key), (str, int, float, type(None))):
+    for key in (*_CASE_TEXT, "correct"):
+        if key not in case or not isinstance(case[key], (str, int, float, type(None))):
             raise _fail(path, f"{where}.{key}", "must be a text or a number")
     for key in ("parameter_errors", "gap_reduction"):
         value = case.get(key)
