@@ -164,7 +164,8 @@ def test_a_full_disk_leaves_no_partial_output(csv_run, tmp_path, monkeypatch) ->
         '{"confusion": {"columns": ["a"], "rows": ["b"], "counts": [[1, 2]]}}',
         '{"confusion": 3}',
         "[]",
-        '{"confusion": {"columns": ["a"], "rows": ["a"], "counts": [[1]], "correct": 1, "total": 1}, "cases": [5]}',
+        '{"confusion": {"columns": ["a"], "rows": ["a"], "counts": [[1]], "correct": 1, '
+        '"total": 1}, "cases": [5]}',
     ],
     ids=["deep", "ragged", "not a table", "a list", "a case not a mapping"],
 )
