@@ -249,3 +249,19 @@ def test_run_names_from_files_are_drawn_literally(name, tmp_path) -> None:
     ax.legend()
     path = save_figure(fig, tmp_path / "f.png")
     assert path.stat().st_size > 1000
+
+
+def test_analyze_draws_runs_named_like_mathtext_or_not_utf8(csv_run, tmp_path) -> None:
+    from flaair_tools.bagio.import_runs import import_runs
+
+    bags = []
+    for k, name in enumerate(["$\\frac{a}{$", os.fsdecode(b"run_\xff")]):
+        path = tmp_path / f"{name}.csv"
+        shutil.copy(csv_run, path)
+        bags.append(tmp_path / f"bag{k}")
+        import_runs([path], bags[-1], gap_s=0.1, block_size=10, frame_id="robot")
+    out = tmp_path / "report"
+    args = ["analyze", *map(str, bags), "--out", str(out), "--allow-partial"]
+    code, _, stderr = _offline(args)
+    assert code == 0 and "Traceback" not in stderr, stderr[-3000:]
+    assert (out / "report.html").exists() and len(list(out.glob("*.png"))) >= 2
