@@ -72,7 +72,7 @@ class BridgeNode(FlaairNode):
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
         host, port = self.p["target_host"], self.p["target_port"]
-        self.target, notes = target.follow(host, port, sender, self.target)
+        self.target, notes = target.follow(host, port, sender, self.target, data)
         log_notes(self.get_logger(), notes)
         answered = self.state.counters.drive_packets
         self.process(bridge.SensorDatagram(data, arrival_s, time.time()))

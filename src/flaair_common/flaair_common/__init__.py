@@ -14,7 +14,9 @@ Load no rclpy on import:
 - `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
 - `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
 - `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
-- `health`: a node's health as data (what /diagnostics carries), decided by pure functions.
+- `health`: a node's health as data (what /diagnostics carries), decided by pure functions;
+- `signal_ranges`: the plausible range of each measured-run column;
+- `outputs`: a command's `--out` checked first (never an input, `--force` to replace).
 """
 
 __all__ = [
@@ -27,11 +29,13 @@ __all__ = [
     "msgdefs",
     "msgdict",
     "node",
+    "outputs",
     "params",
     "qos",
     "realtime",
     "runcsv",
     "runtime",
+    "signal_ranges",
     "stream",
     "strictjson",
     "topics",

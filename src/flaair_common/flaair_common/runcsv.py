@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flaair_model.checked_files import CheckedFileError, check_file, printable
+
 SENSOR_COLUMNS = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v")
 TRUTH_COLUMNS = ("stroke_deg", "pitch_deg")
 COLUMNS = SENSOR_COLUMNS + TRUTH_COLUMNS
@@ -125,6 +127,7 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
     columns: dict[str, np.ndarray] = {}
     rows = 0
     try:
+        check_file(path, "csv", pipe=True)  # no directory, no device (/dev/zero), bounded
         # a pipe (`<(...)`) is read once: its arrays grow as rows come instead
         capacity = max(count_lines(path) - 1, 0) if path.is_file() else 0
         with open(path, newline="", encoding="utf-8-sig") as handle:
@@ -145,6 +148,8 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
                 rows += len(lines)
     except OSError as exc:
         raise RunFileError(f"{path}: cannot read: {exc.strerror}") from exc
+    except CheckedFileError as exc:
+        raise RunFileError(str(exc)) from None
     except UnicodeDecodeError as exc:
         raise RunFileError(
             f"{path}: not a UTF-8 text CSV file: {exc.reason} at byte {exc.start}"
@@ -155,7 +160,7 @@ def read_run(path: str | Path, required: tuple[str, ...] = COLUMNS) -> MeasuredR
     if rows < capacity:
         columns = {name: values[:rows].copy() for name, values in columns.items()}
     return MeasuredRun(
-        name=path.stem, sample_rate_hz=_sample_rate_hz(path, columns), columns=columns
+        name=printable(path.stem), sample_rate_hz=_sample_rate_hz(path, columns), columns=columns
     )
 
 

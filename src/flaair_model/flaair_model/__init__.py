@@ -14,6 +14,7 @@ depends on it; it depends on nothing of FLAAIR's.
 - `term_entry`: a discovered term as a model-file or discrepancy.json entry (one shape).
 - `validation`: the checks of model numbers and channels (`ModelError`).
 - `pvdf`: the composite-beam PVDF charge model (paper eqs. charge, strain, chargeamp).
+- `checked_files`: the one way a given file is opened (regular, bounded, YAML aliases bounded).
 - `config`: the one locator of config/ and the ROS parameter-file reader.
 - `schema`: `ParamSpec`, each node parameter declared once, and `declared_values`.
 - `settings`: typed accessors of the config sections a tool reads that are not its own.
@@ -22,6 +23,7 @@ depends on it; it depends on nothing of FLAAIR's.
 """
 
 __all__ = [
+    "checked_files",
     "config",
     "effects",
     "lfilter",

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-import yaml
+from flaair_model.checked_files import CheckedFileError, read_yaml
 
 
 class ConfigError(ValueError):
@@ -40,15 +40,12 @@ def config_dir() -> Path:
         raise ConfigError("cannot find FLAAIR's config directory; set FLAAIR_CONFIG_DIR") from exc
 
 
-def load_yaml(path: Path) -> Any:
-    """Load a YAML file, naming the file in any error."""
+def load_yaml(path: Path, kind: str = "config") -> Any:
+    """Load a YAML file through `checked_files.read_yaml`, naming the file in any error."""
     try:
-        with open(path, encoding="utf-8") as handle:
-            return yaml.safe_load(handle)
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{path}: file not found") from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        return read_yaml(path, kind)
+    except CheckedFileError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:

@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from flaair_model.checked_files import CheckedFileError, read_yaml
 from flaair_model.config import CONFIG_DIR_ENV, ConfigError, config_dir
 from flaair_model.pvdf import PvdfMaterial, SensorBeam
 from flaair_model.term_entry import term_from_dict, term_to_dict
@@ -165,17 +166,9 @@ def load_model(path: str | Path | None = None) -> Model:
     """
     path = default_model_path() if path is None else Path(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ModelError(f"{path}: {where}not valid YAML ({problem})") from None
-    except UnicodeDecodeError as exc:
-        raise ModelError(
-            f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start})"
-        ) from None
+        data = read_yaml(path, "model")
+    except CheckedFileError as exc:
+        raise ModelError(str(exc)) from None
     if data is None:
         raise ModelError(f"{path}: empty model file")
     try:

@@ -13,11 +13,14 @@ from typing import Any
 import matplotlib
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
+from flaair_model.checked_files import printable
+
 from .core.characterization import Bode, ChannelBode
 
 __all__ = [
     "bode_figure",
     "collision_fft_figure",
+    "literal_texts",
     "overlaid_bode_figure",
     "save_bode_figure",
     "save_figure",
@@ -97,11 +100,32 @@ def save_bode_figure(
     return save_figure(bode_figure(stroke_bode, pitch_bode, title), path, dpi)
 
 
+def literal_texts(fig: Any) -> Any:
+    """Every title, label, legend entry and note of `fig` drawn as the literal text it holds
+    (run names come from files: a `$` is no mathtext, bytes that are not UTF-8 are replaced);
+    tick labels keep their own formatting. Returns `fig`.
+    """
+    from matplotlib.text import Text
+
+    ticks = {
+        id(text)
+        for ax in fig.axes
+        for axis in (ax.xaxis, ax.yaxis)
+        for text in axis.findobj(Text)
+        if text is not axis.label
+    }
+    for text in fig.findobj(Text):
+        if id(text) not in ticks:
+            text.set_text(printable(text.get_text()))
+            text.set_parse_math(False)
+    return fig
+
+
 def save_figure(fig: Any, path: str | Path, dpi: int = 110) -> Path:
-    """Save a figure as PNG; returns the path."""
+    """Save a figure as PNG, its texts literal (`literal_texts`); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, format="png")
+    literal_texts(fig).savefig(path, dpi=dpi, format="png")
     return path
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.runcsv import RunFileError, read_run, write_run
 from flaair_model.config import ConfigError
 from flaair_model.model import ModelError
@@ -53,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         "--noise", action="store_true", help="add sensor and tracking noise (model's noise section)"
     )
     parser.add_argument("--seed", type=int, default=0, help="noise seed")
-    parser.add_argument("--out", type=Path, required=True, help="output CSV")
+    parser.add_argument("--out", type=Path, required=True, help="output CSV (never an input)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out")
     parser.add_argument(
         "--drive-limit-v",
         type=float,
@@ -64,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
+        written = check_output(args.out, [args.input, args.model], args.force)
         limit_v = args.drive_limit_v
         if limit_v is None:
             limit_v = float(node_section(PLANT_PARAMS, LIMIT_SECTION, CONFIG_FILE)["drive_limit_v"])
@@ -71,7 +74,15 @@ def main(argv: list[str] | None = None) -> int:
             raise ModelError(f"drive_limit_v must be a finite voltage > 0, got {limit_v}")
         run = read_run(args.input, required=("time_s", "drive_v"))
         model = load_model(args.model)
-    except (RunFileError, ModelError, ConfigError, ParameterError, OSError, KeyError) as exc:
+    except (
+        RunFileError,
+        ModelError,
+        ConfigError,
+        ParameterError,
+        OutputError,
+        OSError,
+        KeyError,
+    ) as exc:
         print(f"flaair simulate: {exc}", file=sys.stderr)
         return 2
     drive_v, over = clamp_drive(run["drive_v"], limit_v)
@@ -115,7 +126,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     columns["time_s"] = run["time_s"]
-    write_run(args.out, columns)
+    try:
+        with writing_outputs(args.out, written):
+            write_run(args.out, columns)
+    except OutputError as exc:
+        print(f"flaair simulate: {exc}", file=sys.stderr)
+        return 2
     print(f"flaair simulate: {len(drive_v)} samples at {fs_hz:g} Hz -> {args.out}")
     return 0
 

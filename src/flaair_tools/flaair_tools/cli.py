@@ -114,14 +114,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"flaair: unknown command '{name}'\n\n{_usage()}", file=sys.stderr)
         return 2
     module_name = SUBCOMMANDS[name][0]
-    try:
+    try:  # a Ctrl-C while numpy, scipy... load (an import's first seconds) is one line too
         module = importlib.import_module(module_name)
+        return int(module.main(rest) or 0)
     except ModuleNotFoundError as exc:
         if exc.name and module_name.startswith(exc.name):
             print(f"flaair: command '{name}' is not built yet", file=sys.stderr)
             return 2
         raise
-    return int(module.main(rest) or 0)
+    except KeyboardInterrupt:
+        print(f"flaair {name}: interrupted; nothing written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

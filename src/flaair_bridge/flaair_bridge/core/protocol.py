@@ -16,6 +16,7 @@ value finite, a positive sample rate); anything else raises `ProtocolError`, and
 from __future__ import annotations
 
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -239,3 +240,40 @@ def sequence_delta(sequence: int, expected: int) -> int:
     """
     delta = (sequence - expected) % SEQUENCE_MODULUS
     return delta - SEQUENCE_MODULUS if delta >= SEQUENCE_MODULUS // 2 else delta
+
+
+def target_address(
+    current: tuple[str, int] | None,
+    configured: Mapping[str, Any],
+    data: bytes | memoryview,
+    sender: tuple[str, int],
+) -> tuple[str, int] | None:
+    """Where drive and stop packets go after a datagram from `sender` arrived.
+
+    Parameters
+    ----------
+    current : tuple of (str, int) or None
+        Where they go now (None: nowhere yet).
+    configured : Mapping
+        The bridge's ``target_host`` and ``target_port`` (empty / 0: learnt from the sender).
+    data : bytes or memoryview
+        The datagram.
+    sender : tuple of (str, int)
+        Its source address.
+
+    Returns
+    -------
+    tuple of (str, int) or None
+        The configured host is never replaced; an unconfigured host or port is learnt only from
+        a valid sensor packet of the protocol, so a stray or malformed datagram cannot redirect
+        the drive.
+    """
+    host, port = configured["target_host"], configured["target_port"]
+    learned = (host or sender[0], port or sender[1])
+    if learned == current or (host and port):
+        return current if current is not None else learned
+    try:
+        unpack_sensor(data)
+    except ProtocolError:
+        return current
+    return learned

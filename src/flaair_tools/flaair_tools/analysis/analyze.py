@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import signal as os_signal
 import sys
 import time
@@ -51,6 +52,7 @@ from tqdm import tqdm
 
 from flaair_analysis.headline import headline
 from flaair_common import topics
+from flaair_common.outputs import check_output
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
 from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
@@ -82,6 +84,7 @@ BAG_TOPICS = (
 )
 EXIT_BAD_INPUT = 2
 EXIT_PARTIAL = 3
+OUT_FILES = ("report.html", "report.json")
 MODEL_GAINS_WARNING = (
     "the front end runs on the model's gains (no --calibration): the model over-predicts the hinge "
     "sensor ~4.3x on a real robot, so pitch reads ~4x small - the live pitch figures and the "
@@ -497,6 +500,7 @@ def main(argv: list[str] | None = None) -> int:
         required=True,
         help="report directory (report.html, report.json, figures)",
     )
+    parser.add_argument("--force", action="store_true", help="replace an existing report in --out")
     parser.add_argument(
         "--calibration",
         type=Path,
@@ -519,14 +523,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
-    try:
+    new_dir = not args.out.exists()
+    try:  # the output checked before anything is computed; a failed run leaves no new --out
+        check_output(args.out, [*args.bags, args.calibration], args.force, OUT_FILES)
         report = analyze(args.bags, args.out, calibration_file=args.calibration)
-    except (AnalysisError, bagio.BagError, ValueError, OSError) as exc:
-        print(f"flaair analyze: {exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("flaair analyze: interrupted", file=sys.stderr)
-        return 130
+    except (AnalysisError, bagio.BagError, ValueError, OSError, KeyboardInterrupt) as exc:
+        if new_dir:
+            shutil.rmtree(args.out, ignore_errors=True)
+        interrupted = isinstance(exc, KeyboardInterrupt)
+        print(f"flaair analyze: {'interrupted' if interrupted else exc}", file=sys.stderr)
+        return 130 if interrupted else EXIT_BAD_INPUT
     for bag in report["bags"]:
         for warning in bag["warnings"]:
             print(f"flaair analyze: warning: {warning}", file=sys.stderr)

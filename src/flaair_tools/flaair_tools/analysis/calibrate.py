@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model
 from flaair_sensors.analysis_io import analysis_bands_from_config
@@ -29,6 +30,7 @@ from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_tools import bagio
 from flaair_tools.bagio.runs import load_runs
 
+OUT_FILES = ("calibration.json", "calibration.yaml")
 COMBINED_KEYS = (
     "gain_deg_per_v",
     "offset_v",
@@ -80,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         help="bags with /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth",
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     parser.add_argument(
         "--model",
         type=Path,
@@ -97,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
+        written = check_output(args.out, [*args.bags, args.model], args.force, OUT_FILES)
         band_hz = (
             tuple(args.band_hz) if args.band_hz else analysis_bands_from_config().amplitude_band_hz
         )
@@ -123,21 +127,26 @@ def main(argv: list[str] | None = None) -> int:
         {"bag": r.bag, "run": r.name, **{c: fit[c] for c in ("stroke", "pitch")}}
         for r, fit in zip(runs, per_run, strict=True)
     ]
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "calibration.json").write_text(
-        json.dumps(json_safe(result), indent=2, allow_nan=False)
-    )
     loadable = {"reference_voltage_v": result["reference_voltage_v"]}
     for channel in ("stroke", "pitch"):
         loadable[channel] = {
             k: result[channel][k] for k in ("gain_deg_per_v", "polarity", "offset_v", "lag_s")
         }
-    (args.out / "calibration.yaml").write_text(
-        "# FLAAIR sensor calibration (bin/flaair "
-        "calibrate); load with the front end's\n# -p "
-        "gains_from:=calibration -p calibration_file:=<this "
-        "file>\n" + yaml.safe_dump(loadable, sort_keys=False)
-    )
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            (args.out / "calibration.json").write_text(
+                json.dumps(json_safe(result), indent=2, allow_nan=False)
+            )
+            (args.out / "calibration.yaml").write_text(
+                "# FLAAIR sensor calibration (bin/flaair "
+                "calibrate); load with the front end's\n# -p "
+                "gains_from:=calibration -p calibration_file:=<this "
+                "file>\n" + yaml.safe_dump(loadable, sort_keys=False)
+            )
+    except OutputError as exc:
+        print(f"flaair calibrate: {exc}", file=sys.stderr)
+        return 2
     for channel in ("stroke", "pitch"):
         c = result[channel]
         print(

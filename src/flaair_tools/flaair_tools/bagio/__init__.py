@@ -34,6 +34,8 @@ Modules
 - `mat_v5`: MAT v5 files read element by element, one variable at a time (imported on use)
 - `rig`: a lab's rig file, checked key by key (imported on use)
 - `dlt_tracks`: DLTdv point tracks, xyzpts and xypts, flat or sparse (imported on use)
+- `track_outliers`: a track's outlying frames dropped and counted, pure (imported on use)
+- `mat_bounds`: how far a MAT file's compressed data may expand (imported on use)
 - `video_angles`: stroke and pitch from tracked video points (DLTdv), pure (imported on use)
 - `lab_run`: a lab run's drive, frame placement, truth columns and sync check, pure (on use)
 - `lab_import`: a lab run (MAT + tracks + rig) or a session manifest read and checked (on use)

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from flaair_model.checked_files import CheckedFileError, read_bytes
 from flaair_tools.bagio.target_log import LabFileError
 
 __all__ = ["SPARSE_FIRST_LINE", "XYZ_COLUMN", "XY_COLUMN", "read_xy_point", "read_xyz_points"]
@@ -60,10 +61,10 @@ def _read_text(path: Path) -> tuple[list[str], bytes]:
     """The header's column names and the body's bytes (kept as bytes: a str copy of a long
     track would cost several times the file in memory).
     """
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:  # a regular file of a bounded size
+        raw = read_bytes(path, "track")
+    except CheckedFileError as exc:
+        raise LabFileError(str(exc)) from None
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     head, _, body = raw.partition(b"\n")

@@ -32,6 +32,7 @@ import numpy as np
 from flaair_common import cdr, topics
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runcsv import MeasuredRun, read_run
+from flaair_common.signal_ranges import implausible
 from flaair_tools import bagio
 
 CONFIG_FILE = "flaair.yaml"
@@ -153,9 +154,13 @@ def encode_run(
 
 
 def check_runs(runs: list[tuple[Path, MeasuredRun]]) -> None:
-    """Runs must have distinct names and one sample rate (a block topic has one rate)."""
+    """Runs must have plausible values, distinct names and one sample rate (a block topic
+    has one rate).
+    """
     names: dict[str, Path] = {}
     for path, run in runs:
+        if problem := implausible(run):  # CSV and lab files alike
+            raise RunSetError(f"{path}: {problem}")
         if run.name in names:
             raise RunSetError(
                 f"{path}: run name '{run.name}' already used by {names[run.name]}; rename one file"

@@ -24,14 +24,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from flaair_common.runcsv import MeasuredRun
+from flaair_model.checked_files import CheckedFileError, read_yaml
 from flaair_model.model_io import load_model
 from flaair_tools.bagio import lab_run
 from flaair_tools.bagio.dlt_tracks import read_xy_point, read_xyz_points
 from flaair_tools.bagio.rig import Rig, read_rig
 from flaair_tools.bagio.target_log import LabFileError, read_target_log
+from flaair_tools.bagio.track_outliers import drop_track_outliers
 from flaair_tools.bagio.video_angles import VideoGeometryError
 
 __all__ = [
@@ -135,6 +136,7 @@ def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = No
             )
         assert rig.tip is not None
         tip = read_xy_point(files.tip_track, rig.tip.point, rig.tip.camera, "points.actuator_tip")
+    wing, tip, outliers = drop_track_outliers(wing, tip)
     try:
         stroke_frames, pitch_frames = lab_run.video_angles_deg(rig, wing, tip)
     except VideoGeometryError as exc:
@@ -155,6 +157,8 @@ def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = No
     check, warnings = _sync_check(files.mat, columns, fs_hz, rig.fps, sync_max_lag_s)
     tracked = np.isfinite(stroke_frames) & np.isfinite(pitch_frames)
     warnings += _untracked(files.tracks, rig, stroke_frames, pitch_frames)
+    if outliers:
+        warnings.append(f"{files.tracks}: {outliers} outlying frame(s) dropped")
     if placement.placed == 0:
         raise LabFileError(
             f"{files.mat}: none of the video's {stroke_frames.size} frames falls "
@@ -190,6 +194,7 @@ def read_lab_run(files: LabRunFiles, sync_max_lag_s: float, rig: Rig | None = No
             "fps": rig.fps,
             "frames": int(stroke_frames.size),
             "tracked_share": float(tracked.mean()),
+            "outliers_dropped": outliers,
             "stroke_from": rig.stroke_from,
         },
     }
@@ -206,11 +211,9 @@ def read_manifest(path: Path | str) -> list[LabRunFiles]:
     """A session's runs from its manifest (see module docstring)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise LabFileError(f"{path}: not a YAML manifest ({exc})") from None
+        data = read_yaml(path, "manifest")
+    except CheckedFileError as exc:
+        raise LabFileError(str(exc)) from None
     if not isinstance(data, dict) or set(data) - {"rig", "runs"} or "runs" not in data:
         raise LabFileError(
             f"{path}: a manifest is a mapping with 'runs' (a list) and optionally 'rig'"

@@ -15,8 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from flaair_model.checked_files import CheckedFileError, load_yaml_text, read_text
 from flaair_tools.bagio.target_log import LabFileError, split_label
 
 __all__ = ["ROLES", "WING_POINTS", "Rig", "TipPoint", "read_rig", "rig_from_mapping"]
@@ -248,18 +247,9 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
 def read_rig(path: Path | str) -> Rig:
     """The rig file at `path`, checked; a LabFileError names the file and the key."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise LabFileError(f"{path}: not a UTF-8 text file (at byte {exc.start})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}: " if mark is not None else ""
-        raise LabFileError(
-            f"{path}: {where}not valid YAML ({getattr(exc, 'problem', None) or exc})"
-        ) from None
+    try:  # regular, bounded, aliases bounded, a key written twice refused
+        text = read_text(path, "rig")
+        data = load_yaml_text(text, str(path))
+    except CheckedFileError as exc:
+        raise LabFileError(str(exc)) from None
     return rig_from_mapping(data, str(path), text)

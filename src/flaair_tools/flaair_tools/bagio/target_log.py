@@ -30,6 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from flaair_model.checked_files import CheckedFileError, check_file
+from flaair_tools.bagio import mat_bounds
+
 __all__ = [
     "COLUMN_LABEL",
     "UNIFORM_TOLERANCE",
@@ -114,11 +117,15 @@ def read_target_log(
         non-uniform time.
     """
     path = Path(path)
-    try:
-        with open(path, "rb") as handle:
+    try:  # a regular file, bounded; compressed data bounded before it is read
+        with open(check_file(path, "mat"), "rb") as handle:
             head = handle.read(128)
+        if head.startswith(_V5_HEADER):
+            mat_bounds.check_v5(path)
     except OSError as exc:
         raise LabFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except (CheckedFileError, mat_bounds.MatBoundsError) as exc:
+        raise LabFileError(str(exc)) from None
     bases = sorted({split_label(label)[0] for label in labels})
     if head.startswith(_V5_HEADER):
         name, time_s, signals = _read_v5(path, bases, variable)
@@ -229,7 +236,11 @@ def _checked(
             raise LabFileError(
                 f"{where}: {text!r}: signal '{label}' has {columns} column(s), counted from 1"
             )
-        out[text] = np.ascontiguousarray(values[:, (column or 1) - 1])
+        chosen = np.ascontiguousarray(values[:, (column or 1) - 1])
+        if not np.isfinite(chosen).all():  # as the CSV import refuses them
+            first = int(np.argmin(np.isfinite(chosen)))
+            raise LabFileError(f"{where}: signal {text!r} value {first} is not finite")
+        out[text] = chosen
     return TargetLog(path, variable, time_s, out, all_labels)
 
 
@@ -377,7 +388,7 @@ def _read_v73(
                 )
                 for label, origin, item in zip(labels, origins, values, strict=True)
             ]
-            return name, np.asarray(group["time"][()], dtype=float), out
+            return name, np.asarray(_h5_deref(f, group["time"]), dtype=float), out
     except LabFileError:
         raise
     except Exception as exc:
@@ -410,7 +421,12 @@ def _dataset(f: Any, item: Any) -> Any:
 
 
 def _h5_deref(f: Any, item: Any) -> np.ndarray:
-    return np.asarray(_dataset(f, item)[()])
+    dataset = _dataset(f, item)
+    try:
+        mat_bounds.check_dataset(Path(f.filename), dataset)
+    except mat_bounds.MatBoundsError as exc:
+        raise LabFileError(str(exc)) from None
+    return np.asarray(dataset[()])
 
 
 def _h5_text(f: Any, item: Any) -> str:

@@ -32,24 +32,28 @@ Examples
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.runcsv import RunFileError, read_run
 from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model, save_model
 
 from .report import write_report, write_validation
+from .validation_file import ValidationFileError, read_validation
 
 PROG = "flaair discrepancy"
+VALIDATION_FILES = ("validation.json", "validation.html")
+REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
 
 
 class InputError(ValueError):
@@ -124,6 +128,8 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
 def bad_input_errors() -> tuple[type, ...]:
     errors: list[type] = [
         InputError,
+        OutputError,
+        ValidationFileError,
         RunFileError,
         ModelError,
         DiscrepancyInputError,
@@ -178,7 +184,7 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
     }
 
 
-def main(argv: list[str] | None = None) -> int:  # noqa: C901  input checks in order, each its exit
+def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -190,6 +196,7 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901  input checks in o
         "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     parser.add_argument(
         "--validate", action="store_true", help="also run the hidden-effect dataset cases"
     )
@@ -204,52 +211,75 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901  input checks in o
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
         return 2
     settings = Settings()
-    try:
+    names = (VALIDATION_FILES if args.validate else ()) + (REPORT_FILES if args.inputs else ())
+    try:  # everything checked before anything is computed
+        written = check_output(
+            args.out, [*args.inputs, args.model, args.validation], args.force, names
+        )
         model = load_model(args.model)
-        validation = None
-        if args.validation is not None:
-            try:
-                validation = json.loads(args.validation.read_text(encoding="utf-8"))
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{args.validation}: not a validation JSON file ({exc})") from None
+        validation = read_validation(args.validation) if args.validation else None
         runs = load_inputs(args.inputs) if args.inputs else []
         if args.inputs and not runs:
             raise InputError("the inputs hold no runs")
         if args.validate:
             validation = run_validation(model, args.cases, settings)
-            doc = write_validation(
-                args.out, validation["cases"], validation["confusion"], validation["total_s"]
-            )
-            table = doc["confusion"]
-            print(
-                f"{PROG}: validation {table['correct']}/{table['total']} cases right in "
-                f"{doc['total_s']:.0f} s -> {args.out / 'validation.html'}"
-            )
-        if not runs:
-            return 0
-        bar = _progress_bar(7, "discrepancy")
-        t0 = time.perf_counter()
-        started: list[str] = []
-
-        def progress(label: str) -> None:
-            if bar is not None:
-                if started:
-                    bar.update(1)
-                started.append(label)
-                bar.set_postfix_str(label)
-
-        result = analyse(runs, model, settings, progress=progress)
-        if bar is not None:
-            bar.update(bar.total - bar.n)
-            bar.close()
-        elapsed = time.perf_counter() - t0
+        result, elapsed = _analyse(runs, model, settings) if runs else (None, 0.0)
     except bad_input_errors() as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
-    args.out.mkdir(parents=True, exist_ok=True)
-    model_path = args.out / "model.yaml"
-    save_model(result.model_out, model_path)
-    write_report(args.out, runs, result, str(model_path), settings, validation)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            if args.validate and validation is not None:
+                _write_validation(args.out, validation)
+            if result is not None:
+                model_path = args.out / "model.yaml"
+                save_model(result.model_out, model_path)
+                write_report(args.out, runs, result, str(model_path), settings, validation)
+    except OutputError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    if result is not None:
+        _print_result(runs, result, elapsed, args.out)
+    return 0
+
+
+def _write_validation(out: Path, validation: dict) -> None:
+    doc = write_validation(out, validation["cases"], validation["confusion"], validation["total_s"])
+    table = doc["confusion"]
+    print(
+        f"{PROG}: validation {table['correct']}/{table['total']} cases right in "
+        f"{doc['total_s']:.0f} s -> {out / 'validation.html'}"
+    )
+
+
+def _analyse(runs: list[Run], model: Model, settings: Settings) -> tuple[Any, float]:
+    """The workflow on `runs` with a progress bar; the result and the seconds it took."""
+    bar = _progress_bar(7, "discrepancy")
+    t0 = time.perf_counter()
+    started: list[str] = []
+
+    def progress(label: str) -> None:
+        if bar is not None:
+            if started:
+                bar.update(1)
+            started.append(label)
+            bar.set_postfix_str(label)
+
+    result = analyse(runs, model, settings, progress=progress)
+    if bar is not None:
+        bar.update(bar.total - bar.n)
+        bar.close()
+    return result, time.perf_counter() - t0
+
+
+def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> None:
+    model_path = out / "model.yaml"
     print(f"{PROG}: {len(runs)} run(s) analysed in {elapsed:.1f} s: status {result.status}")
     for k, p in result.plant_parameters.items():
         print(
@@ -267,8 +297,7 @@ def main(argv: list[str] | None = None) -> int:  # noqa: C901  input checks in o
             f"  gap left on {r['channel']}: band {r['band_hz']} Hz, full/low drive ratio "
             f"{r['drive_level_ratio']:.3g}"
         )
-    print(f"  -> {model_path}, {args.out / 'discrepancy.json'}, {args.out / 'report.html'}")
-    return 0
+    print(f"  -> {model_path}, {out / 'discrepancy.json'}, {out / 'report.html'}")
 
 
 if __name__ == "__main__":

@@ -32,11 +32,13 @@ from pathlib import Path
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
 from flaair_tools.discrepancy.report import json_safe
 
 PROG = "flaair identify"
+OUT_FILES = ("model.yaml", "identification.json")
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -58,9 +60,11 @@ def main(argv: list[str] | None = None) -> int:
         help="model YAML to start from (default: config/model.yaml)",
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     args = parser.parse_args(argv)
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
+        written = check_output(args.out, [*args.inputs, args.model], args.force, OUT_FILES)
         from tqdm import tqdm
 
         with tqdm(total=3, desc="identify", unit="step", file=sys.stderr, leave=False) as bar:
@@ -84,8 +88,6 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
-    args.out.mkdir(parents=True, exist_ok=True)
-    save_model(fit.model, args.out / "model.yaml")
     doc = json_safe(
         {
             "runs": [r.name for r in runs],
@@ -94,9 +96,19 @@ def main(argv: list[str] | None = None) -> int:
             **fit.as_dict(),
         }
     )
-    (args.out / "identification.json").write_text(
-        json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
-    )
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            save_model(fit.model, args.out / "model.yaml")
+            (args.out / "identification.json").write_text(
+                json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
+            )
+    except OutputError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
     print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
     for k in fit.keys:

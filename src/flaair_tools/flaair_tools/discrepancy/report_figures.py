@@ -17,6 +17,7 @@ from matplotlib.figure import Figure
 from flaair_analysis.discrepancy.diagnosis import bode_points
 from flaair_analysis.discrepancy.runs import CHANNELS, Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult
+from flaair_sensors.figures import literal_texts
 
 __all__ = ["write_figures"]
 
@@ -38,7 +39,7 @@ def _fig_gap(result: DiscrepancyResult, path: Path) -> None:
     ax.legend(fontsize=8)
     ax.grid(True, axis="y", which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    literal_texts(fig).savefig(path, dpi=110)
 
 
 def _save_stacked(fig: Figure, axes: Sequence[Any], path: Path) -> None:
@@ -46,7 +47,7 @@ def _save_stacked(fig: Figure, axes: Sequence[Any], path: Path) -> None:
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    literal_texts(fig).savefig(path, dpi=100)
 
 
 def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
@@ -130,7 +131,7 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
             ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    literal_texts(fig).savefig(path, dpi=100)
 
 
 def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
@@ -180,7 +181,7 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0, 1, 0.93))
-    fig.savefig(path, dpi=100)
+    literal_texts(fig).savefig(path, dpi=100)
 
 
 def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int, path: Path) -> None:

@@ -98,7 +98,12 @@ def main(argv: list[str] | None = None) -> int:
             from flaair_tools.analysis import calibrate
 
             print("[demo] calibrating the front end from the chirp and stepped-sine bags")
-            if calibrate.main([*map(str, sweeps), "--out", str(args.out / "calibration")]) != 0:
+            if (
+                calibrate.main(
+                    [*map(str, sweeps), "--force", "--out", str(args.out / "calibration")]
+                )
+                != 0
+            ):
                 print("flaair demo: calibration failed", file=sys.stderr)
                 return 1
             calibration = args.out / "calibration" / "calibration.yaml"
@@ -119,7 +124,9 @@ def main(argv: list[str] | None = None) -> int:
         print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
         from flaair_tools import discrepancy
 
-        code = discrepancy.main([*map(str, sweeps), "--out", str(args.out / "discrepancy")])
+        code = discrepancy.main(
+            [*map(str, sweeps), "--force", "--out", str(args.out / "discrepancy")]
+        )
         if code != 0:
             print("flaair demo: the discrepancy workflow failed", file=sys.stderr)
             return 1

@@ -562,6 +562,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.out is None:
         parser.error("--out BAG is required")
+    try:  # the model files checked before any node starts
+        robot_model()
+    except (ConfigError, ValueError) as exc:
+        print(f"flaair experiment: {exc}", file=sys.stderr)
+        return 2
     terminate_raises()
     try:
         summary = run_experiment(

@@ -26,6 +26,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from flaair_model.checked_files import CheckedFileError, read_bytes
+
 __all__ = [
     "LaunchArgument",
     "LaunchDescription",
@@ -34,6 +36,9 @@ __all__ = [
     "load",
     "parse_launch_arguments",
 ]
+
+
+MAX_INCLUDE_DEPTH = 16
 
 
 class LaunchFileError(ValueError):
@@ -130,6 +135,7 @@ class _Reader:
     ) -> None:
         self.path, self.find_share, self.allow_missing = path, find_share, allow_missing
         self.nodes: list[LaunchNode] = []
+        self.chain: tuple[Path, ...] = ()  # the files that include this one, and it
 
     def fail(self, where: str, why: str) -> LaunchFileError:
         return LaunchFileError(f"{self.path}: {where}: {why}")
@@ -292,7 +298,9 @@ class _Reader:
         path = Path(attrs["file"])
         if not path.is_absolute():
             path = self.path.parent / path
-        included = _read(path, passed, self.find_share, scope.child(), self.allow_missing)
+        included = _read(
+            path, passed, self.find_share, scope.child(), self.allow_missing, self.chain
+        )
         self.nodes.extend(included.nodes)
 
 
@@ -310,14 +318,24 @@ def _read(
     find_share: Callable[[str], Path],
     scope: _Scope,
     allow_missing: bool = False,
+    chain: tuple[Path, ...] = (),
 ) -> LaunchDescription:
-    try:
-        root = ET.parse(path).getroot()
-    except FileNotFoundError:
-        raise LaunchFileError(f"{path}: no such launch file") from None
+    resolved = Path(os.path.realpath(path))
+    if resolved in chain or len(chain) >= MAX_INCLUDE_DEPTH:
+        raise LaunchFileError(
+            f"{chain[-1]}: includes {path}, which includes it back"
+            if resolved in chain
+            else f"{path}: launch files included more than {MAX_INCLUDE_DEPTH} deep"
+        )
+    try:  # a regular file of a bounded size (a directory or a FIFO is no launch file)
+        root = ET.fromstring(read_bytes(path, "launch"))
+    except CheckedFileError as exc:
+        text = str(exc) if os.path.lexists(path) else f"{path}: no such launch file"
+        raise LaunchFileError(text) from None
     except ET.ParseError as exc:
         raise LaunchFileError(f"{path}: not well-formed XML: {exc}") from None
     reader = _Reader(path, find_share, allow_missing)
+    reader.chain = (*chain, resolved)
     if root.tag != "launch":
         raise reader.fail(root.tag, "the root element must be <launch>")
     reader.attributes(root, scope, "launch")
