@@ -1,0 +1,122 @@
+"""Health monitor core (flaair_control.core.health): per-wingbeat estimates of the wing's
+inertia and the films' gains from the films and the drive, and the change detection on them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import health_sim as hs
+from flaair_control.core import health as H
+from flaair_control.health_io import health_params_from_config
+from flaair_model.model import with_effect_on, with_effects
+from flaair_model.model_io import load_model
+
+DAMAGE_S = 2.0
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+@pytest.fixture(scope="module")
+def params(model):
+    return health_params_from_config(model=model)
+
+
+def _run(params, vs, vp, dv):
+    return H.step(H.initial_state(params), H.HealthInputs(vs, vp, dv), params)
+
+
+def _mean_after(out, t0):
+    e = np.array([b.estimate for b in out.wingbeats if b.valid and b.time_s > t0])
+    return e.mean(axis=0)
+
+
+@pytest.mark.parametrize("freq", [80.0, 140.0, 200.0])
+def test_sine_drive_estimates_the_nominal_robot(model, params, freq):
+    vs, vp, dv = hs.run(model, 0.6, sine=(40.0, freq))
+    _, out = _run(params, vs, vp, dv)
+    np.testing.assert_allclose(_mean_after(out, 0.4), 1.0, atol=0.01)
+    assert out.events == []
+
+
+@pytest.fixture(scope="module")
+def nominal_run(model):
+    return hs.run(model, 4.0)
+
+
+def test_unchanged_robot_under_the_dsa_loop_raises_no_event(params, nominal_run):
+    _, out = _run(params, *nominal_run)
+    assert out.events == []
+    np.testing.assert_allclose(_mean_after(out, 1.5), 1.0, atol=0.01)
+    assert any("baseline" in n.text for n in out.notes)
+
+
+@pytest.mark.parametrize(
+    ("damage", "parameter", "truth"),
+    [
+        ({"wing_damage": {"inertia_factor": 0.8}}, "wing_inertia", 0.8),
+        (("stroke", {"efficiency": 0.85}), "stroke_film_gain", 0.85),
+        (("pitch", {"efficiency": 0.85}), "pitch_film_gain", 0.85),
+    ],
+)
+def test_damage_under_the_dsa_loop_is_named_measured_and_timed(
+    model, params, damage, parameter, truth
+):
+    if isinstance(damage, dict):
+        damaged = with_effects(model, damage)
+    else:
+        damaged = with_effect_on(model, "strain_transfer_loss", damage[0], damage[1])
+    vs, vp, dv = hs.run(model, 3.0, damaged, DAMAGE_S)
+    _, out = _run(params, vs, vp, dv)
+    assert [e.parameter for e in out.events] == [parameter]
+    ev = out.events[0]
+    assert ev.ratio == pytest.approx(truth, abs=0.04)
+    assert 0 < ev.stderr < 0.05
+    beat_at_damage = next(b.wingbeat for b in out.wingbeats if b.time_s >= DAMAGE_S)
+    assert 0 < ev.wingbeat - beat_at_damage <= 20
+    assert ev.time_s == ev.sample_index / hs.FS
+
+
+def test_block_by_block_equals_the_whole_record(params, nominal_run):
+    vs, vp, dv = (a[: int(2.5 * hs.FS)] for a in nominal_run)
+    _, whole = _run(params, vs, vp, dv)
+    state = H.initial_state(params)
+    beats = []
+    for i in range(0, vs.size, 37):
+        state, out = H.step(
+            state, H.HealthInputs(vs[i : i + 37], vp[i : i + 37], dv[i : i + 37]), params
+        )
+        beats.extend(out.wingbeats)
+    assert len(beats) == len(whole.wingbeats) > 250
+    for a, b in zip(beats, whole.wingbeats, strict=True):
+        assert a.sample_index == b.sample_index
+        np.testing.assert_allclose(a.estimate, b.estimate, rtol=1e-9, equal_nan=True)
+
+
+def test_drive_off_or_stalled_gives_no_estimate(model, params):
+    n = int(0.5 * hs.FS)
+    vref = model.sensors.reference_voltage_v
+    rng = np.random.default_rng(1)
+    still = vref + 0.002 * rng.standard_normal(n)
+    _, out = _run(params, still, still.copy(), np.zeros(n))
+    assert out.wingbeats == [] and out.events == []
+    assert any("stalled" in n.text for n in out.notes)
+    vs, vp, _ = hs.run(model, 0.5, sine=(40.0, 140.0))
+    _, out = _run(params, vs, vp, np.zeros(vs.size))  # films move, the drive reads 0
+    assert out.wingbeats and not any(b.valid for b in out.wingbeats)
+    assert any("too quiet" in n.text for n in out.notes)
+
+
+def test_bad_parameters_and_inputs_are_named(params):
+    with pytest.raises(ValueError, match="min_frequency_hz"):
+        dataclasses.replace(params, min_frequency_hz=500.0)
+    with pytest.raises(ValueError, match="baseline_wingbeats"):
+        dataclasses.replace(params, baseline_wingbeats=0)
+    with pytest.raises(ValueError, match="drive_v"):
+        _run(params, np.zeros(10), np.zeros(10), np.zeros(9))
