@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -18,6 +18,7 @@ from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_sim.core.actuator import ActuatorParams
+from flaair_sim.core.damage import DamageParams, damaged
 
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "plant_node"
@@ -102,6 +103,46 @@ PLANT_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "damage_time_s",
+        float,
+        "Sim time from which the robot is damaged (the damage_* factors) [s] (< 0: never)",
+        -1.0,
+        1.0e6,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_inertia_factor",
+        float,
+        "Wing inertia after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_stiffness_factor",
+        float,
+        "Stroke stiffness after the damage [x]",
+        0.01,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_stroke_film_gain",
+        float,
+        "Stroke film's V/rad after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_pitch_film_gain",
+        float,
+        "Pitch film's V/rad after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "obstacle_stroke_limit_deg",
         float,
         "Stroke angle at which the wing strikes the obstacle [deg]",
@@ -165,11 +206,43 @@ def ready_text(
     )
 
 
+class PlantDamage(NamedTuple):
+    """The scheduled damage and the two models it turns into (without and with the obstacle)."""
+
+    params: DamageParams
+    model: Model
+    obstacle_model: Model
+
+
+def plant_damage(values: Mapping[str, Any], model: Model, obstacle_model: Model) -> PlantDamage:
+    """The damage schedule of plant_node values (damage_*), its models built once."""
+    try:
+        params = DamageParams(
+            values["damage_time_s"],
+            values["damage_inertia_factor"],
+            values["damage_stiffness_factor"],
+            values["damage_stroke_film_gain"],
+            values["damage_pitch_film_gain"],
+        )
+    except ValueError as exc:
+        raise ParameterError(str(exc).replace("damage parameter '", "parameter 'damage_")) from exc
+    return PlantDamage(params, damaged(model, params), damaged(obstacle_model, params))
+
+
 def model_at(
-    start_s: float, model: Model, obstacle_model: Model, windows_s: list[tuple[float, float]]
+    start_s: float,
+    model: Model,
+    obstacle_model: Model,
+    windows_s: list[tuple[float, float]],
+    damage: PlantDamage | None = None,
 ) -> Model:
-    """The model a block starting at `start_s` runs on: the obstacle's inside its windows."""
-    return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
+    """The model a block starting at `start_s` runs on: the obstacle's inside its windows,
+    damaged from the damage time on.
+    """
+    blocked = any(a <= start_s < b for a, b in windows_s)
+    if damage is not None and damage.params.active and start_s >= damage.params.time_s:
+        return damage.obstacle_model if blocked else damage.model
+    return obstacle_model if blocked else model
 
 
 def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:
