@@ -9,6 +9,16 @@ Modules (import them by name; this package imports none of them eagerly):
 - `replay`: a bag through the live nodes' cores
 - `transition`: the sync -> async transition record, limit cycle and figure
 - `calibrate`: `bin/flaair calibrate`: sensor gain and lag
+- `health_cli`: `bin/flaair health`: the health monitor on bags (events, per-wingbeat series)
 """
 
-__all__ = ["analyze", "calibrate", "replay", "report", "runkind", "transition", "wingbeat"]
+__all__ = [
+    "analyze",
+    "calibrate",
+    "health_cli",
+    "replay",
+    "report",
+    "runkind",
+    "transition",
+    "wingbeat",
+]
