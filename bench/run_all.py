@@ -21,6 +21,7 @@ BENCHES = [
     "bench_sim",
     "bench_frontend_core",
     "bench_collision",
+    "bench_health",
     "bench_analysis",
     "bench_recorder",
     "bench_closed_loop",
