@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
+import numpy as np
+
+from flaair_common.health import OK, WARN, Health, health
+from flaair_control.core import health as hcore
 from flaair_control.core.health import HealthParams
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
@@ -21,6 +25,14 @@ HEALTH_PARAMS = [
         "Sample rate of the film blocks [Hz]",
         1000.0,
         1.0e6,
+        read_only=True,
+    ),
+    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    ParamSpec(
+        "drive_topic",
+        str,
+        "The drive the films are compared with",
+        choices=("/flaair/drive", "/flaair/drive/applied"),
         read_only=True,
     ),
     ParamSpec(
@@ -170,4 +182,79 @@ def health_params_from_config(
                 "max_amplitude_change",
             )
         },
+    )
+
+
+class JoinState(NamedTuple):
+    """Film and drive samples not yet handed to the core, each from its first sample index."""
+
+    films: np.ndarray  # (2, m) stroke, pitch volts
+    films_start: int
+    drive: np.ndarray  # (k,) volts
+    drive_start: int
+
+
+def initial_join() -> JoinState:
+    """Nothing received."""
+    return JoinState(np.zeros((2, 0)), -1, np.zeros(0), -1)
+
+
+def join_block(
+    state: JoinState, first_index: int, films: np.ndarray | None, drive_v: np.ndarray | None
+) -> tuple[JoinState, int, hcore.HealthInputs | None]:
+    """Add a film block ((2, n) volts) or a drive block at `first_index`; return the samples both
+    streams now hold (their first index and the core's inputs), as `bin/flaair health` joins a
+    bag's streams by sample index. A block that does not continue its stream restarts it there.
+    """
+    if films is not None:
+        if state.films_start < 0 or first_index != state.films_start + state.films.shape[1]:
+            state = state._replace(films=films, films_start=first_index)
+        else:
+            state = state._replace(films=np.concatenate([state.films, films], axis=1))
+    if drive_v is not None:
+        if state.drive_start < 0 or first_index != state.drive_start + state.drive.size:
+            state = state._replace(drive=drive_v, drive_start=first_index)
+        else:
+            state = state._replace(drive=np.concatenate([state.drive, drive_v]))
+    if state.films_start < 0 or state.drive_start < 0:
+        return state, -1, None
+    start = max(state.films_start, state.drive_start)
+    end = min(state.films_start + state.films.shape[1], state.drive_start + state.drive.size)
+    if end <= start:
+        # drop what the other stream has passed already
+        f0 = max(0, min(state.drive_start - state.films_start, state.films.shape[1]))
+        d0 = max(0, min(state.films_start - state.drive_start, state.drive.size))
+        state = JoinState(
+            state.films[:, f0:], state.films_start + f0, state.drive[d0:], state.drive_start + d0
+        )
+        return state, -1, None
+    f = state.films[:, start - state.films_start : end - state.films_start]
+    d = state.drive[start - state.drive_start : end - state.drive_start]
+    out = JoinState(
+        state.films[:, end - state.films_start :], end, state.drive[end - state.drive_start :], end
+    )
+    return out, start, hcore.HealthInputs(f[0], f[1], d)
+
+
+def health_diagnostics(
+    now: tuple[int, int, list[str], bool], before: tuple[int, int, list[str], bool] | None
+) -> Health:
+    """/diagnostics of the health monitor: WARN once a change was detected (naming it)."""
+    wingbeats, estimated, events, quiet = now
+    problems = [(WARN, f"changed: {'; '.join(events)}") if events else (OK, "")]
+    if quiet and wingbeats:
+        problems.append((WARN, "no estimate: drive off, wing stalled or transient"))
+    return health(
+        "health monitor",
+        problems,
+        "unchanged" if estimated else "waiting for the first estimate",
+        {"wingbeats": wingbeats, "estimated_wingbeats": estimated, "events": len(events)},
+    )
+
+
+def event_text(e: hcore.HealthEvent) -> str:
+    """One event in a line (its diagnostics entry and log)."""
+    return (
+        f"{e.parameter} x{e.ratio:.3f} (+-{e.stderr:.3f}) at {e.time_s:.3f} s, "
+        f"wingbeat {e.wingbeat}"
     )

@@ -329,17 +329,18 @@ def _crossings(
     above = stroke > h
     out: list[float] = []
     idx = np.flatnonzero(below[first_new:] | above[first_new:]) + first_new
-    for i in idx:  # only the samples outside the band: few per wingbeat change state
-        if below[i]:
-            armed = True
-        elif armed:
-            armed = False
-            k = i - 1
-            while k > 0 and stroke[k] > 0:
-                k -= 1
-            a, b = stroke[k], stroke[k + 1]
-            frac = k + (-a / (b - a) if b != a and a <= 0 < b else 0.0)
-            out.append(start + frac)
+    if idx.size == 0:
+        return out, armed
+    side = np.where(below[idx], -1, 1)  # the trigger's state only changes outside the band
+    before = np.concatenate([[-1 if armed else 1], side[:-1]])
+    for i in idx[(side == 1) & (before == -1)]:
+        k = i - 1
+        while k > 0 and stroke[k] > 0:
+            k -= 1
+        a, b = stroke[k], stroke[k + 1]
+        frac = -a / (b - a) if b != a and a <= 0 < b else 0.0
+        out.append(float(start + k) + frac)  # exact integer first: the same for any block split
+    armed = bool(side[-1] == -1)
     return out, armed
 
 
