@@ -120,3 +120,23 @@ def test_bad_parameters_and_inputs_are_named(params):
         dataclasses.replace(params, baseline_wingbeats=0)
     with pytest.raises(ValueError, match="drive_v"):
         _run(params, np.zeros(10), np.zeros(10), np.zeros(9))
+
+
+def test_film_lag_from_the_calibration_keeps_a_delayed_robot_right(model, params):
+    """The bench robot's films lag 0.25 ms: given that lag (calibration's lag_s) the estimates
+    read the pitch film's 0.23 strain transfer, and an inertia loss is named as such.
+    """
+    robot = with_effects(
+        model,
+        {
+            "sensor_delay": {"delay_s": 0.00025, "channel": "both"},
+            "strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"},
+        },
+    )
+    p = dataclasses.replace(params, stroke_film_delay_s=0.00025, pitch_film_delay_s=0.00025)
+    damaged = with_effects(robot, {"wing_damage": {"inertia_factor": 0.8}})
+    _, out = _run(p, *hs.run(robot, 3.0, damaged, DAMAGE_S))
+    before = np.array([b.estimate for b in out.wingbeats if b.valid and 1.5 < b.time_s < 2.0])
+    np.testing.assert_allclose(before.mean(axis=0), [1.0, 1.0, 0.23, 0.23], atol=0.01)
+    assert [e.parameter for e in out.events] == ["wing_inertia"]
+    assert out.events[0].ratio == pytest.approx(0.8, abs=0.04)

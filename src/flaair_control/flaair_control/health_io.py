@@ -36,6 +36,22 @@ HEALTH_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "stroke_film_delay_s",
+        float,
+        "The stroke film's lag behind the motion (calibration's lag_s) [s]",
+        0.0,
+        0.01,
+        read_only=True,
+    ),
+    ParamSpec(
+        "pitch_film_delay_s",
+        float,
+        "The pitch film's lag behind the motion (calibration's lag_s) [s]",
+        0.0,
+        0.01,
+        read_only=True,
+    ),
+    ParamSpec(
         "model_file",
         str,
         "Model the estimates are relative to ('' = config/model.yaml)",
@@ -180,6 +196,8 @@ def health_params_from_config(
                 "confirm_wingbeats",
                 "agree_tolerance",
                 "max_amplitude_change",
+                "stroke_film_delay_s",
+                "pitch_film_delay_s",
             )
         },
     )

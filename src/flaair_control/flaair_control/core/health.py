@@ -26,7 +26,8 @@ Change detection: for each of wing_inertia, stroke_film_gain, pitch_film_gain a 
 CUSUM on z = (x / mu0 - 1) / sigma, mu0 and sigma (at least sigma_floor) learned over
 baseline_wingbeats after warmup_wingbeats. Its alarm (g > threshold, drift k) is confirmed once
 confirm_wingbeats estimates follow the change point; the event's ratio is their median over mu0,
-its stderr their scatter over sqrt(n). Both films moving by the same ratio (within
+its stderr their scatter over sqrt(n); an alarm whose ratio is back within drift x sigma of
+1 (a transient) is dropped without an event. Both films moving by the same ratio (within
 agree_tolerance) name `actuator_gain` (ratio the product). After an event every baseline is
 learned again. With i.i.d. normal z, drift 1 and threshold 12 the in-control run length is
 about exp(2 k (h + 1.166)) / (2 k^2) = 1e11 wingbeats per series (Siegmund): a false alarm comes
@@ -84,6 +85,8 @@ class HealthParams:
     confirm_wingbeats: int
     agree_tolerance: float
     max_amplitude_change: float
+    stroke_film_delay_s: float  # the films' lag behind the motion (calibration's lag_s)
+    pitch_film_delay_s: float
 
     def __post_init__(self) -> None:
         for name in ("sample_rate_hz", "stroke_inertia_kg_m2", "stroke_stiffness_nm_per_rad"):
@@ -234,6 +237,8 @@ def wingbeat_estimate(
     x = np.vstack([stroke_rad, pitch_rad, drive_v])
     x = x - x.mean(axis=1, keepdims=True)
     s, p, d = (2.0 / n) * (x @ basis)
+    s = s * np.exp(1j * w * params.stroke_film_delay_s)  # the motion leads its film reading
+    p = p * np.exp(1j * w * params.pitch_film_delay_s)
     d = d * np.exp(-1j * w * _ZOH_S / params.sample_rate_hz)
     amps = np.array([abs(s), abs(d)])
     if abs(d) < params.min_drive_v or abs(s) < params.min_stroke_rad:
@@ -304,8 +309,20 @@ def _detect(
     post = history / det.mu  # the last confirm_wingbeats estimates over the baseline
     ratio = np.median(post, axis=0)  # robust to the change's own transient wingbeats
     err = post.std(axis=0, ddof=1) / math.sqrt(post.shape[0]) if post.shape[0] > 1 else 0 * ratio
+    moved = np.abs(ratio - 1.0) > params.cusum_drift * det.sigma
+    if not (confirmed & moved).any():  # a transient that came back: no event, test on
+        gone = confirmed & ~moved
+        keep = ~gone
+        det = det._replace(
+            g_up=det.g_up * keep,
+            g_down=det.g_down * keep,
+            since=det.since * keep,
+            alarm=det.alarm & keep,
+        )
+        return det, [], []
+    confirmed = confirmed & moved
     found: list[tuple[str, float, float]] = []
-    films_moved = np.abs(ratio[1:] - 1.0) > params.cusum_drift * det.sigma[1:]
+    films_moved = moved[1:]
     if (
         confirmed[1:].any()
         and films_moved.all()
