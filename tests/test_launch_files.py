@@ -78,6 +78,7 @@ def test_the_experiments_take_their_extra_nodes_from_their_launch_files() -> Non
         "collision": ("collision_monitor",),
         "drive_levels": (),
         "transition": (),
+        "wing_damage": (),
     }
 
 

@@ -61,6 +61,17 @@ def bag_inputs(bag: Path) -> tuple[float, np.ndarray, health.HealthInputs]:
     return films.sample_rate_hz, common, inputs
 
 
+def film_lags_s(calibration: Path) -> dict[str, float]:
+    """The films' lags (health_node's *_film_delay_s) from a `bin/flaair calibrate` file."""
+    import yaml
+
+    try:
+        doc = yaml.safe_load(calibration.read_text())
+        return {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
+    except (KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+        raise HealthInputError(f"{calibration}: no stroke and pitch lag_s in it ({exc})") from None
+
+
 def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[str, Any]:
     """The monitor on one bag: its events and per-wingbeat series, JSON-ready."""
     fs, index, inputs = bag_inputs(bag)
@@ -146,9 +157,18 @@ def main(argv: list[str] | None = None) -> int:
         help="model the estimates are ratios to "
         "(default: health_node's model_file, config/model.yaml)",
     )
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        help="a `bin/flaair calibrate` calibration.yaml: the films' lags (lag_s) are turned back "
+        "before the estimate (default: health_node's stroke/pitch_film_delay_s)",
+    )
     args = parser.parse_args(argv)
     try:
         values = health_values()
+        if args.calibration is not None:
+            values.update(film_lags_s(args.calibration))
         results = [run_bag(bag, values, args.model) for bag in args.bags]
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
