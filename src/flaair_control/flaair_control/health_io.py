@@ -36,6 +36,14 @@ HEALTH_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "max_baseline_scatter",
+        float,
+        "A baseline scattered more than this (relative) is learned again",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "stroke_film_delay_s",
         float,
         "The stroke film's lag behind the motion (calibration's lag_s) [s]",
@@ -196,6 +204,7 @@ def health_params_from_config(
                 "confirm_wingbeats",
                 "agree_tolerance",
                 "max_amplitude_change",
+                "max_baseline_scatter",
                 "stroke_film_delay_s",
                 "pitch_film_delay_s",
             )

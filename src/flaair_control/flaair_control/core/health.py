@@ -24,11 +24,13 @@ change (K / r is what the resonance shows).
 
 Change detection: for each of wing_inertia, stroke_film_gain, pitch_film_gain a two-sided
 CUSUM on z = (x / mu0 - 1) / sigma, mu0 and sigma (at least sigma_floor) learned over
-baseline_wingbeats after warmup_wingbeats. Its alarm (g > threshold, drift k) is confirmed once
-confirm_wingbeats estimates follow the change point; the event's ratio is their median over mu0,
-its stderr their scatter over sqrt(n); an alarm whose ratio is back within drift x sigma of
-1 (a transient) is dropped without an event. Both films moving by the same ratio (within
-agree_tolerance) name `actuator_gain` (ratio the product). After an event every baseline is
+the first baseline_wingbeats consecutive estimates after warmup_wingbeats whose relative
+scatter is at most max_baseline_scatter (a transient, the sync start or the K_r ramp, is not).
+Its alarm (g > threshold, drift k) is confirmed once confirm_wingbeats estimates follow the change
+point; the event's ratio is their median over mu0, its stderr their scatter over sqrt(n); an
+alarm whose ratio is back within drift x sigma of 1 (a transient) is dropped without an event.
+Both films moving by the same ratio (within agree_tolerance) name `actuator_gain` (ratio the
+product). After an event every baseline is
 learned again. With i.i.d. normal z, drift 1 and threshold 12 the in-control run length is
 about exp(2 k (h + 1.166)) / (2 k^2) = 1e11 wingbeats per series (Siegmund): a false alarm comes
 from the model's misfit (transients), not from noise, which is what sigma_floor bounds.
@@ -85,6 +87,7 @@ class HealthParams:
     confirm_wingbeats: int
     agree_tolerance: float
     max_amplitude_change: float
+    max_baseline_scatter: float
     stroke_film_delay_s: float  # the films' lag behind the motion (calibration's lag_s)
     pitch_film_delay_s: float
 
@@ -129,10 +132,9 @@ class HealthState(NamedTuple):
 class DetectorState(NamedTuple):
     """Per watched series: baseline sums, CUSUMs, change point, post-change estimates."""
 
-    learned: int  # estimates in the baseline so far (after the warm-up)
+    learned: int  # estimates in the baseline window so far (after the warm-up)
     skip: int  # estimates still to skip (warm-up)
-    base_sum: np.ndarray  # (3,)
-    base_sq: np.ndarray  # (3,)
+    window: np.ndarray  # (baseline_wingbeats, 3) the last estimates while learning, newest last
     mu: np.ndarray  # (3,) nan until learned
     sigma: np.ndarray  # (3,)
     g_up: np.ndarray
@@ -178,8 +180,7 @@ def _detector_initial(params: HealthParams) -> DetectorState:
     return DetectorState(
         0,
         params.warmup_wingbeats,
-        z.copy(),
-        z.copy(),
+        np.full((params.baseline_wingbeats, 3), np.nan),
         np.full(3, np.nan),
         np.full(3, np.nan),
         z.copy(),
@@ -281,15 +282,17 @@ def _detect(
     history = np.vstack([det.history[1:], x[None, :]])
     if det.skip > 0:
         return det._replace(skip=det.skip - 1, history=history), [], []
-    if det.learned < params.baseline_wingbeats:
-        learned = det.learned + 1
-        bs, bq = det.base_sum + x, det.base_sq + x * x
-        det = det._replace(learned=learned, base_sum=bs, base_sq=bq, history=history)
+    if not np.isfinite(det.mu).all():
+        window = np.vstack([det.window[1:], x[None, :]])
+        learned = min(det.learned + 1, params.baseline_wingbeats)
+        det = det._replace(learned=learned, window=window, history=history)
         if learned < params.baseline_wingbeats:
             return det, [], []
-        mu = bs / learned
-        var = np.maximum(bq / learned - mu * mu, 0.0)
-        sigma = np.maximum(np.sqrt(var) / np.abs(mu), params.sigma_floor)
+        mu = window.mean(axis=0)
+        scatter = window.std(axis=0) / np.abs(mu)
+        if not np.all(scatter <= params.max_baseline_scatter):  # not steady yet: slide on
+            return det, [], []
+        sigma = np.maximum(scatter, params.sigma_floor)
         text = "health baseline: " + ", ".join(
             f"{n} {m:.3f}" for n, m in zip(DETECTED, mu, strict=True)
         )
