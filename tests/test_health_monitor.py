@@ -14,6 +14,8 @@ from flaair_control.core import health as H
 from flaair_control.health_io import health_params_from_config
 from flaair_model.model import with_effect_on, with_effects
 from flaair_model.model_io import load_model
+from flaair_sim.core.damage import DamageParams
+from flaair_sim.core.damage import damaged as damage_model
 
 DAMAGE_S = 2.0
 
@@ -63,12 +65,16 @@ def test_unchanged_robot_under_the_dsa_loop_raises_no_event(params, nominal_run)
         ({"wing_damage": {"inertia_factor": 0.8}}, "wing_inertia", 0.8),
         (("stroke", {"efficiency": 0.85}), "stroke_film_gain", 0.85),
         (("pitch", {"efficiency": 0.85}), "pitch_film_gain", 0.85),
+        (0.8, "actuator_gain", 0.8),
+        (1.2, "actuator_gain", 1.2),
     ],
 )
 def test_damage_under_the_dsa_loop_is_named_measured_and_timed(
     model, params, damage, parameter, truth
 ):
-    if isinstance(damage, dict):
+    if isinstance(damage, float):
+        damaged = damage_model(model, DamageParams(0.0, 1.0, 1.0, 1.0, 1.0, damage))
+    elif isinstance(damage, dict):
         damaged = with_effects(model, damage)
     else:
         damaged = with_effect_on(model, "strain_transfer_loss", damage[0], damage[1])

@@ -23,17 +23,18 @@ def _values(**kw):
 
 def test_damaged_model_changes_exactly_what_it_names():
     model = load_model()
-    d = damaged(model, DamageParams(1.0, 0.8, 1.21, 0.85, 0.9))
+    d = damaged(model, DamageParams(1.0, 0.8, 1.21, 0.85, 0.9, 0.7))
     assert d.effect("wing_damage").inertia_factor == 0.8
     assert d.effect_on("strain_transfer_loss", "stroke").efficiency == 0.85
     assert d.effect_on("strain_transfer_loss", "pitch").efficiency == 0.9
     assert d.plant.stroke_stiffness_nm_per_rad == pytest.approx(
         1.21 * model.plant.stroke_stiffness_nm_per_rad, rel=1e-12
     )
-    assert damaged(model, DamageParams(-1.0, 0.8, 1.0, 1.0, 1.0)) is model
+    assert d.plant.actuator_gain_nm_per_v == pytest.approx(0.7 * model.plant.actuator_gain_nm_per_v)
+    assert damaged(model, DamageParams(-1.0, 0.8, 1.0, 1.0, 1.0, 1.0)) is model
     # the stroke film reads 0.85 of the angle the undamaged one reads, same motion
     drive = 40.0 * np.sin(2 * math.pi * 140.0 * np.arange(4000) / 20000.0)
-    film = damaged(model, DamageParams(0.0, 1.0, 1.0, 0.85, 1.0))
+    film = damaged(model, DamageParams(0.0, 1.0, 1.0, 0.85, 1.0, 1.0))
     a, b = plant.simulate(drive, 20000.0, model), plant.simulate(drive, 20000.0, film)
     vref = model.sensors.reference_voltage_v
     np.testing.assert_allclose(a.stroke_rad, b.stroke_rad)

@@ -143,6 +143,14 @@ PLANT_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "damage_actuator_gain",
+        float,
+        "Actuator torque per volt after the damage [x]",
+        0.01,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "obstacle_stroke_limit_deg",
         float,
         "Stroke angle at which the wing strikes the obstacle [deg]",
@@ -223,6 +231,7 @@ def plant_damage(values: Mapping[str, Any], model: Model, obstacle_model: Model)
             values["damage_stiffness_factor"],
             values["damage_stroke_film_gain"],
             values["damage_pitch_film_gain"],
+            values["damage_actuator_gain"],
         )
     except ValueError as exc:
         raise ParameterError(str(exc).replace("damage parameter '", "parameter 'damage_")) from exc

@@ -4,6 +4,7 @@ The plant runs on `damaged(model, params)` from the first block whose first samp
 after `time_s` (`model_at`), so the change lands between blocks, never inside the kernel:
   * ``inertia_factor``: wing (stroke and pitch) inertia scaled (the `wing_damage` effect);
   * ``stiffness_factor``: stroke stiffness K scaled (the stroke natural frequency by its root);
+  * ``actuator_gain``: the actuator's torque per volt scaled;
   * ``stroke_film_gain``, ``pitch_film_gain``: a film's volts per radian scaled, a debonding
     film (the `strain_transfer_loss` effect on that chain, on top of any already there).
 """
@@ -25,13 +26,15 @@ class DamageParams:
     stiffness_factor: float
     stroke_film_gain: float
     pitch_film_gain: float
+    actuator_gain: float
 
     def __post_init__(self) -> None:
         for name in ("inertia_factor", "stroke_film_gain", "pitch_film_gain"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"damage parameter '{name}' must be in (0, 1]")
-        if not self.stiffness_factor > 0.0:
-            raise ValueError("damage parameter 'stiffness_factor' must be > 0")
+        for name in ("stiffness_factor", "actuator_gain"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"damage parameter '{name}' must be > 0")
 
     @property
     def active(self) -> bool:
@@ -41,6 +44,7 @@ class DamageParams:
             self.stiffness_factor,
             self.stroke_film_gain,
             self.pitch_film_gain,
+            self.actuator_gain,
         )
         return self.time_s >= 0.0 and any(v != 1.0 for v in changes)
 
@@ -65,6 +69,9 @@ def damaged(model: Model, params: DamageParams) -> Model:
     if params.stiffness_factor != 1.0:
         f = out.plant.stroke_natural_frequency_hz * math.sqrt(params.stiffness_factor)
         out = replace(out, plant=replace(out.plant, stroke_natural_frequency_hz=f))
+    if params.actuator_gain != 1.0:
+        gain = out.plant.actuator_gain_nm_per_v * params.actuator_gain
+        out = replace(out, plant=replace(out.plant, actuator_gain_nm_per_v=gain))
     out = _film(out, "stroke", params.stroke_film_gain)
     return _film(out, "pitch", params.pitch_film_gain)
 
