@@ -146,3 +146,22 @@ def test_film_lag_from_the_calibration_keeps_a_delayed_robot_right(model, params
     np.testing.assert_allclose(before.mean(axis=0), [1.0, 1.0, 0.23, 0.23], atol=0.01)
     assert [e.parameter for e in out.events] == ["wing_inertia"]
     assert out.events[0].ratio == pytest.approx(0.8, abs=0.04)
+
+
+def test_stream_join_hands_the_core_the_samples_both_streams_hold():
+    from flaair_control.health_io import initial_join, join_block
+
+    films = np.vstack([np.arange(40.0), -np.arange(40.0)])
+    drive = np.arange(40.0) * 10
+    j = initial_join()
+    j, start, got = join_block(j, 0, None, drive[:20])  # the drive first: nothing yet
+    assert got is None and start == -1
+    j, start, got = join_block(j, 0, films[:, :10], None)
+    assert start == 0 and list(got.drive_v) == list(drive[:10])
+    np.testing.assert_array_equal(got.pitch_sensor_v, -np.arange(10.0))
+    j, start, got = join_block(j, 10, films[:, 10:30], None)  # 10 more than the drive has
+    assert start == 10 and list(got.stroke_sensor_v) == list(range(10, 20))
+    j, start, got = join_block(j, 20, None, drive[20:40])
+    assert start == 20 and list(got.drive_v) == list(drive[20:30])
+    j, start, got = join_block(j, 35, films[:, 35:40], None)  # a gap: the films restart at 35
+    assert start == 35 and list(got.drive_v) == list(drive[35:40])
