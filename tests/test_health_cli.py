@@ -84,3 +84,32 @@ def test_bag_without_the_films_or_the_drive_is_refused_by_name(tmp_path: Path) -
     assert result.returncode == 2
     assert "/flaair/sensor_v" in result.stderr and "/flaair/drive" in result.stderr
     assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_film_gains_are_ratios_to_a_given_calibration(bags, tmp_path: Path) -> None:
+    from flaair_model.model_io import load_model
+
+    model = load_model()
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(
+        f"stroke: {{gain_deg_per_v: {model.stroke_gain_deg_per_v}, polarity: "
+        f"{model.stroke_polarity}, lag_s: 0.0}}\n"
+        f"pitch: {{gain_deg_per_v: {2 * model.pitch_gain_deg_per_v}, polarity: "
+        f"{model.pitch_polarity}, lag_s: 0.0}}\n"
+    )
+    out = tmp_path / "out"
+    args = [FLAAIR, "health", str(bags[0]), "--out", str(out), "--calibration", str(cal)]
+    result = run_offline(args, isolated_env())
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((out / "health.json").read_text())
+    series = doc["bags"][0]["wingbeats"]
+    t = np.array(series["time_s"])
+    pitch = np.array([np.nan if v is None else v for v in series["pitch_film_gain"]])
+    stroke = np.array([np.nan if v is None else v for v in series["stroke_film_gain"]])
+    # the calibration says the pitch film gives half the volts per radian the model's does
+    assert np.nanmean(pitch[(t > 1.5) & (t < 2.0)]) == pytest.approx(2.0, abs=0.02)
+    assert np.nanmean(stroke[(t > 1.5) & (t < 2.0)]) == pytest.approx(1.0, abs=0.01)
+    assert [e["parameter"] for e in doc["events"]] == ["wing_inertia"]
+    cal.write_text("stroke: {gain_deg_per_v: 25.0}\n")
+    bad = run_offline([*args[:-1], str(cal)], isolated_env())
+    assert bad.returncode == 2 and "lag_s" in bad.stderr

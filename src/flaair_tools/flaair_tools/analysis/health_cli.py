@@ -12,6 +12,7 @@ no estimate); DIR/health.png shows each estimate against time with the events ma
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -61,14 +62,24 @@ def bag_inputs(bag: Path) -> tuple[float, np.ndarray, health.HealthInputs]:
     return films.sample_rate_hz, common, inputs
 
 
-def film_lags_s(calibration: Path) -> dict[str, float]:
-    """The films' lags (health_node's *_film_delay_s) from a `bin/flaair calibrate` file."""
+def film_calibration(calibration: Path) -> dict[str, float]:
+    """From a `bin/flaair calibrate` file: the films' lags (health_node's *_film_delay_s) and,
+    where it has them, their gains as volts per radian (the film gains are then ratios to the
+    calibration rather than to the model's films).
+    """
+    import math
+
     import yaml
 
     try:
         doc = yaml.safe_load(calibration.read_text())
-        return {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
-    except (KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+        out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
+        for c in ("stroke", "pitch"):
+            if "gain_deg_per_v" in doc[c]:
+                polarity = float(doc[c].get("polarity", 1))
+                out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
+        return out
+    except (KeyError, TypeError, ValueError, ZeroDivisionError, yaml.YAMLError) as exc:
         raise HealthInputError(f"{calibration}: no stroke and pitch lag_s in it ({exc})") from None
 
 
@@ -79,6 +90,8 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     params = health_params_from_config(
         values, load_model(model_file or values["model_file"] or None)
     )
+    gains = {k: values[k] for k in ("stroke_volts_per_rad", "pitch_volts_per_rad") if k in values}
+    params = dataclasses.replace(params, **gains)
     _, out = health.step(health.initial_state(params), inputs, params)
     offset = int(index[0])
     beats = out.wingbeats
@@ -162,13 +175,14 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         default=None,
         help="a `bin/flaair calibrate` calibration.yaml: the films' lags (lag_s) are turned back "
-        "before the estimate (default: health_node's stroke/pitch_film_delay_s)",
+        "before the estimate and the film gains are ratios to its gains (default: "
+        "health_node's stroke/pitch_film_delay_s, the model's films)",
     )
     args = parser.parse_args(argv)
     try:
         values = health_values()
         if args.calibration is not None:
-            values.update(film_lags_s(args.calibration))
+            values.update(film_calibration(args.calibration))
         results = [run_bag(bag, values, args.model) for bag in args.bags]
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
