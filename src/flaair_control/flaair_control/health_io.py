@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import yaml
 
 from flaair_common.health import OK, WARN, Health, health
 from flaair_control.core import health as hcore
 from flaair_control.core.health import HealthParams
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParamSpec
+from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
 
 CONFIG_FILE = "flaair.yaml"
@@ -57,6 +60,13 @@ HEALTH_PARAMS = [
         "The pitch film's lag behind the motion (calibration's lag_s) [s]",
         0.0,
         0.01,
+        read_only=True,
+    ),
+    ParamSpec(
+        "calibration_file",
+        str,
+        "A bin/flaair calibrate calibration.yaml: film lags and gains from it ('' = the "
+        "*_film_delay_s and the model's films)",
         read_only=True,
     ),
     ParamSpec(
@@ -159,6 +169,25 @@ def health_values() -> dict[str, Any]:
     return node_section(HEALTH_PARAMS, NODE_NAME, CONFIG_FILE)
 
 
+def film_calibration(calibration: str | Path) -> dict[str, float]:
+    """From a `bin/flaair calibrate` file: the films' lags (as *_film_delay_s) and, where it has
+    them, their gains as volts per radian (the film gains are then ratios to the calibration's).
+    """
+    path = Path(calibration)
+    try:
+        doc = yaml.safe_load(path.read_text())
+        out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
+        for c in ("stroke", "pitch"):
+            if "gain_deg_per_v" in doc[c]:
+                polarity = float(doc[c].get("polarity", 1))
+                out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
+        return out
+    except (OSError, KeyError, TypeError, ValueError, ZeroDivisionError, yaml.YAMLError) as exc:
+        raise ParameterError(
+            f"parameter 'calibration_file': {path}: no stroke and pitch lag_s in it ({exc})"
+        ) from None
+
+
 def health_params_from_config(
     values: Mapping[str, Any] | None = None, model: Model | None = None
 ) -> HealthParams:
@@ -168,6 +197,8 @@ def health_params_from_config(
     values = health_values() if values is None else values
     if model is None:
         model = load_model(values["model_file"] or None)
+    if values.get("calibration_file"):
+        values = {**values, **film_calibration(values["calibration_file"])}
     p = model.plant
     damping = model.effect("structural_damping")
     zeta = float(getattr(damping, "damping_ratio", 0.0) or 0.0)
@@ -184,8 +215,8 @@ def health_params_from_config(
         hinge_damping_nm_s_per_rad=p.hinge_damping_nm_s_per_rad,
         inertial_coupling_kg_m2=p.inertial_coupling_kg_m2,
         aero_coupling_nm_s2=p.aero_coupling_nm_s2,
-        stroke_volts_per_rad=model.stroke_volts_per_rad,
-        pitch_volts_per_rad=model.pitch_volts_per_rad,
+        stroke_volts_per_rad=values.get("stroke_volts_per_rad", model.stroke_volts_per_rad),
+        pitch_volts_per_rad=values.get("pitch_volts_per_rad", model.pitch_volts_per_rad),
         reference_voltage_v=model.sensors.reference_voltage_v,
         **{
             name: values[name]

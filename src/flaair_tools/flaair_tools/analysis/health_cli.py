@@ -12,7 +12,6 @@ no estimate); DIR/health.png shows each estimate against time with the events ma
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -62,27 +61,6 @@ def bag_inputs(bag: Path) -> tuple[float, np.ndarray, health.HealthInputs]:
     return films.sample_rate_hz, common, inputs
 
 
-def film_calibration(calibration: Path) -> dict[str, float]:
-    """From a `bin/flaair calibrate` file: the films' lags (health_node's *_film_delay_s) and,
-    where it has them, their gains as volts per radian (the film gains are then ratios to the
-    calibration rather than to the model's films).
-    """
-    import math
-
-    import yaml
-
-    try:
-        doc = yaml.safe_load(calibration.read_text())
-        out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
-        for c in ("stroke", "pitch"):
-            if "gain_deg_per_v" in doc[c]:
-                polarity = float(doc[c].get("polarity", 1))
-                out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
-        return out
-    except (KeyError, TypeError, ValueError, ZeroDivisionError, yaml.YAMLError) as exc:
-        raise HealthInputError(f"{calibration}: no stroke and pitch lag_s in it ({exc})") from None
-
-
 def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[str, Any]:
     """The monitor on one bag: its events and per-wingbeat series, JSON-ready."""
     fs, index, inputs = bag_inputs(bag)
@@ -90,8 +68,6 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     params = health_params_from_config(
         values, load_model(model_file or values["model_file"] or None)
     )
-    gains = {k: values[k] for k in ("stroke_volts_per_rad", "pitch_volts_per_rad") if k in values}
-    params = dataclasses.replace(params, **gains)
     _, out = health.step(health.initial_state(params), inputs, params)
     offset = int(index[0])
     beats = out.wingbeats
@@ -182,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         values = health_values()
         if args.calibration is not None:
-            values.update(film_calibration(args.calibration))
+            values["calibration_file"] = str(args.calibration)
         results = [run_bag(bag, values, args.model) for bag in args.bags]
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)

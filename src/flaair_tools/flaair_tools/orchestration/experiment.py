@@ -318,6 +318,9 @@ def run_experiment(
             "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
             if calibration_file is not None
             else {},
+            "health": {"calibration_file": str(calibration_file)}
+            if calibration_file is not None
+            else {},
         }
         started = {
             role: start_node(
