@@ -8,11 +8,11 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-import yaml
 
 from flaair_common.health import OK, WARN, Health, health
 from flaair_control.core import health as hcore
 from flaair_control.core.health import HealthParams
+from flaair_model.config import ConfigError, load_yaml
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
@@ -175,14 +175,14 @@ def film_calibration(calibration: str | Path) -> dict[str, float]:
     """
     path = Path(calibration)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = load_yaml(path)
         out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
         for c in ("stroke", "pitch"):
             if "gain_deg_per_v" in doc[c]:
                 polarity = float(doc[c].get("polarity", 1))
                 out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
         return out
-    except (OSError, KeyError, TypeError, ValueError, ZeroDivisionError, yaml.YAMLError) as exc:
+    except (ConfigError, OSError, KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
         raise ParameterError(
             f"parameter 'calibration_file': {path}: no stroke and pitch lag_s in it ({exc})"
         ) from None
