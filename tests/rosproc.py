@@ -157,7 +157,16 @@ def run(
 
 
 # `flaair` commands that only read and write files: run_offline runs them in the test's process
-OFFLINE_COMMANDS = {"simulate", "calibrate", "import", "analyze", "discrepancy", "identify", "bag"}
+OFFLINE_COMMANDS = {
+    "simulate",
+    "calibrate",
+    "import",
+    "analyze",
+    "discrepancy",
+    "identify",
+    "bag",
+    "health",
+}
 
 
 def run_offline(

@@ -58,19 +58,19 @@ def test_the_graphs_are_those_of_the_launch_files_and_as_the_tools_had_them() ->
     )
     experiment = by_name["experiment"]
     assert (experiment.roles, dict(experiment.parameters)) == (
-        ("recorder", "plant", "frontend"),
+        ("recorder", "health", "plant", "frontend"),
         {"plant": {"mode": "lockstep", "min_sensor_subscribers": 2, "min_truth_subscribers": 1}},
     )
     assert by_name["experiment_collision"].roles == (*experiment.roles, "collision_monitor")
     live_sim, live_target = by_name["live_sim"], by_name["live_target"]
     assert (live_sim.hot, live_sim.side, dict(live_sim.parameters)) == (
         ("plant", "frontend", "controller"),
-        ("recorder", "collision_monitor", "foxglove"),
+        ("recorder", "health", "collision_monitor", "foxglove"),
         {"plant": {"mode": "realtime", "noise": True}},
     )
     assert (live_target.hot, live_target.side, dict(live_target.parameters)) == (
         ("frontend", "controller", "bridge"),
-        ("recorder", "collision_monitor", "foxglove"),
+        ("recorder", "health", "collision_monitor", "foxglove"),
         {},
     )
     assert live_sim.local_topics == loop.local_topics and not experiment.local_topics
@@ -86,6 +86,7 @@ def test_the_experiments_take_their_extra_nodes_from_their_launch_files() -> Non
         "collision": ("collision_monitor",),
         "drive_levels": (),
         "transition": (),
+        "wing_damage": (),
     }
 
 

@@ -20,6 +20,7 @@ setup(
     entry_points={
         "console_scripts": [
             "collision_monitor_node = flaair_control.collision_monitor_node:main",
+            "health_node = flaair_control.health_node:main",
             "dsa_controller_node = flaair_control.dsa_controller_node:main",
             "stroke_controller_node = flaair_control.stroke_controller_node:main",
         ]

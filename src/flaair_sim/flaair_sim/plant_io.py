@@ -18,6 +18,7 @@ from flaair_model.model import Model, ModelError, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_sim.core.actuator import ActuatorParams, Command
+from flaair_sim.core.damage import DamagedModels, DamageParams, damaged_models
 from flaair_sim.core.scene import CameraParams, tracked_angles, tracking_generator
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "generators_from_config",
     "matched_text",
     "obstacle_windows",
+    "plant_damage",
     "plant_models",
     "ready_text",
     "rejected_text",
@@ -123,6 +125,54 @@ PLANT_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "damage_time_s",
+        float,
+        "Sim time from which the robot is damaged (the damage_* factors) [s] (< 0: never)",
+        -1.0,
+        1.0e6,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_inertia_factor",
+        float,
+        "Wing inertia after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_stiffness_factor",
+        float,
+        "Stroke stiffness after the damage [x]",
+        0.01,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_stroke_film_gain",
+        float,
+        "Stroke film's V/rad after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_pitch_film_gain",
+        float,
+        "Pitch film's V/rad after the damage [x]",
+        0.01,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "damage_actuator_gain",
+        float,
+        "Actuator torque per volt after the damage [x]",
+        0.01,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "obstacle_stroke_limit_deg",
         float,
         "Stroke angle at which the wing strikes the obstacle [deg]",
@@ -199,6 +249,22 @@ def rejected_text(exc: Exception, count: int) -> str:
 def matched_text(sensors: int, truths: int) -> str:
     """The log line once the outputs' listeners are matched and the drive is subscribed."""
     return f"outputs matched (sensor {sensors}, truth {truths} listener(s)): taking drive commands"
+
+
+def plant_damage(values: Mapping[str, Any], model: Model, obstacle_model: Model) -> DamagedModels:
+    """The damage schedule of plant_node values (damage_*), its models built once."""
+    try:
+        params = DamageParams(
+            values["damage_time_s"],
+            values["damage_inertia_factor"],
+            values["damage_stiffness_factor"],
+            values["damage_stroke_film_gain"],
+            values["damage_pitch_film_gain"],
+            values["damage_actuator_gain"],
+        )
+    except ValueError as exc:
+        raise ParameterError(str(exc).replace("damage parameter '", "parameter 'damage_")) from exc
+    return damaged_models(params, model, obstacle_model)
 
 
 def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:

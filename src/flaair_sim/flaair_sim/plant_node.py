@@ -46,6 +46,7 @@ class PlantNode(FlaairNode):
         super().__init__(NODE_NAME)
         self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.model, self.obstacle_model, self.windows_s = plant_models(self.p)
+        self.damage = io.plant_damage(self.p, self.model, self.obstacle_model)
         self.fs_hz, self.block_size = self.p["sample_rate_hz"], self.p["block_size"]
         self.params = actuator_params_from_config(self.p)
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
@@ -114,7 +115,9 @@ class PlantNode(FlaairNode):
         drive_v = actuator.clamp_drive(drive_v, self.get_parameter("drive_limit_v").value)
         index = self.next_index
         self.next_index += drive_v.size
-        model = scene.model_at(index / self.fs_hz, self.model, self.obstacle_model, self.windows_s)
+        model = scene.model_at(
+            index / self.fs_hz, self.model, self.obstacle_model, self.windows_s, self.damage
+        )
         self.state, out = plant.step(
             self.state,
             plant.PlantInputs(drive_v, self.noise_rng),

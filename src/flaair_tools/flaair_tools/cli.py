@@ -36,6 +36,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "flaair_tools.analysis.calibrate",
         "fit sensor gain and lag against ground truth in bags",
     ),
+    "health": (
+        "flaair_tools.analysis.health_cli",
+        "the health monitor on bags: wing inertia and film gains per wingbeat, change events",
+    ),
     "import": (
         "flaair_tools.bagio.import_cli",
         "turn a lab's runs (CSV exports, or MAT logs with DLTdv8 tracks) into a bag",

@@ -6,6 +6,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``collision``: the per-wingbeat collision monitor (windows, distortion, decision)
 - ``monitor``: the collision monitor node's decisions as a step function
 - ``dsa``: delayed-stretch-activation controller (filter, sync/async blend, delay compensation)
+- ``health``: proprioceptive health (wing inertia, film gains per wingbeat; change events)
 - ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset, limit cycle)
 - ``safety``: drive clamp, slew limit and sensor watchdog
 - ``stroke``: the per-wingbeat stroke-amplitude controller
@@ -18,6 +19,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 __all__ = [
     "collision",
     "dsa",
+    "health",
     "hopf",
     "loop_state",
     "monitor",

@@ -7,6 +7,7 @@
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
 - ``sensor_kernel``: the sensor chain's kernel (high-pass, delay)
 - ``measured_run``: a simulated run in the measured-run CSV's columns
+- ``damage``: the robot damaged mid-run (inertia, stiffness, a film's gain from a time on)
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
 - ``drive``: drive-voltage generators, whole-record and sample-exact blocks
 - ``drive_pacing``: when the open-loop drive generator sends which block
@@ -15,6 +16,7 @@
 
 __all__ = [
     "actuator",
+    "damage",
     "drive",
     "drive_pacing",
     "measured_run",

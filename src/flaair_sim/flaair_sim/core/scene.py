@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flaair_model.model import Model
+from flaair_sim.core.damage import DamagedModels
 
 __all__ = ["CameraParams", "model_at", "tracked_angles", "tracking_generator"]
 
@@ -34,9 +35,17 @@ class CameraParams:
 
 
 def model_at(
-    start_s: float, model: Model, obstacle_model: Model, windows_s: Sequence[tuple[float, float]]
+    start_s: float,
+    model: Model,
+    obstacle_model: Model,
+    windows_s: Sequence[tuple[float, float]],
+    damage: DamagedModels | None = None,
 ) -> Model:
-    """The model a block starting at `start_s` runs on: the obstacle's inside its windows."""
+    """The model a block starting at `start_s` runs on: the obstacle's inside its windows,
+    the damaged ones from the damage time on.
+    """
+    if damage is not None and damage.params.active and start_s >= damage.params.time_s:
+        model, obstacle_model = damage.model, damage.obstacle_model
     return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
 
 

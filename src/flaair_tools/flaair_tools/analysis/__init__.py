@@ -11,12 +11,14 @@ Modules (import them by name; this package imports none of them eagerly):
 - `transition`: the sync -> async transition record, limit cycle and figure
 - `calibrate`: `bin/flaair calibrate`: sensor gain and lag
 - `diagnostic_events`: a run's health level changes, read from its bag's /diagnostics
+- `health_cli`: `bin/flaair health`: the health monitor on bags (events, per-wingbeat series)
 """
 
 __all__ = [
     "analyze",
     "calibrate",
     "diagnostic_events",
+    "health_cli",
     "per_run",
     "replay",
     "report",

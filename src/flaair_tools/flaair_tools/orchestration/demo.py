@@ -144,6 +144,15 @@ def main(argv: list[str] | None = None) -> int:
             or "none"
         )
         print(f"[demo]   outside the vocabulary: {outside}")
+    damaged = [b for b in bags if b.name == "wing_damage"]
+    if damaged:
+        from flaair_tools.analysis import health_cli
+
+        print("\n[demo] the health monitor on the damaged-wing run (the plant lost 20 % inertia):")
+        lags = ["--calibration", str(calibration)] if calibration is not None else []
+        if health_cli.main([str(damaged[0]), "--out", str(args.out / "health"), *lags]) != 0:
+            print("flaair demo: the health monitor failed", file=sys.stderr)
+            return 1
     print(f"\n[demo] done in {time.monotonic() - start:.0f} s.")
     print(f"[demo] report: {args.out / 'report' / 'report.html'}")
     if sweeps:

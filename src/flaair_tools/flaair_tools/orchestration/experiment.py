@@ -320,6 +320,9 @@ def run_experiment(  # noqa: C901  a graph's life in order: start it, run each p
             "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
             if calibration_file is not None
             else {},
+            "health": {"calibration_file": str(calibration_file)}
+            if calibration_file is not None
+            else {},
         }
         started = {
             role: start_node(

@@ -105,6 +105,9 @@ NODES: dict[str, NodeDecl] = {
             "collision_monitor_node",
             "flaair_control.collision_monitor_node:CollisionMonitorNode",
         ),
+        NodeDecl(
+            "health", "flaair_control", "health_node", "flaair_control.health_node:HealthNode"
+        ),
         NodeDecl("bridge", "flaair_bridge", "bridge_node", "flaair_bridge.bridge_node:BridgeNode"),
         NodeDecl("recorder", "flaair_tools", "recorder_node"),
         NodeDecl("foxglove", "flaair_tools", "foxglove_node"),

@@ -1,0 +1,496 @@
+"""Proprioceptive health: per-wingbeat estimates of the robot and its films, and change detection.
+
+One ``step(state, inputs, params) -> (state, outputs)`` takes a block of the two film voltages
+and the drive applied to the same samples and returns the wingbeats it closes, each with its
+estimates, and the change events the sequential test raises. Live (the health node, block by
+block) and offline (`bin/flaair health` on a bag, one call on the whole record) run the same
+function and get the same numbers.
+
+Estimator (per wingbeat, between upward crossings of the stroke film's angle, Schmitt trigger
+at +-hysteresis_rad, crossing times interpolated): the fundamental (complex amplitude at the
+wingbeat's own frequency w) of the drive D, the stroke angle S and the pitch angle P, the
+angles read through the model's film gains. The model (shared/model-spec.md), its quadratic
+damping replaced by its describing function c = 8/(3 pi) Gamma w A, gives with the stroke film's
+gain a_s, the pitch film's a_p and the wing inertia ratio r (actuator gain as modelled):
+
+    G_a a_s D / S = K - r I w^2 + j w c(A),   A = |S| / a_s
+    a_p = |P| / |H_p(w, r, A) A|,  H_p = (J_c w^2 - j w c_d(A)) / (k_h - r I_p w^2 + j w c_p)
+
+The imaginary part (the power the drive puts in, which the aerodynamic damping takes out) gives
+a_s, the real part r, the pitch film's reading against the pitch the hinge makes of that stroke
+a_p. A changed actuator gain g moves both film gains by sqrt(g) and the product a_s a_p by g:
+the `actuator_gain` series is that product. A changed stroke stiffness reads as an inertia
+change (K / r is what the resonance shows).
+
+Change detection: for each of wing_inertia, stroke_film_gain, pitch_film_gain a two-sided
+CUSUM on z = (x / mu0 - 1) / sigma, mu0 and sigma (at least sigma_floor) learned over
+the first baseline_wingbeats consecutive estimates after warmup_wingbeats whose relative
+scatter is at most max_baseline_scatter (a transient, the sync start or the K_r ramp, is not).
+Its alarm (g > threshold, drift k) is confirmed once confirm_wingbeats estimates follow the change
+point; the event's ratio is their median over mu0, its stderr their scatter over sqrt(n); an
+alarm whose ratio is back within drift x sigma of 1 (a transient) is dropped without an event.
+Both films moving by the same ratio (within agree_tolerance) name `actuator_gain` (ratio the
+product). After an event every baseline is
+learned again. With i.i.d. normal z, drift 1 and threshold 12 the in-control run length is
+about exp(2 k (h + 1.166)) / (2 k^2) = 1e11 wingbeats per series (Siegmund): a false alarm comes
+from the model's misfit (transients), not from noise, which is what sigma_floor bounds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from flaair_model.notes import INFO, WARNING, Note
+
+PARAMETERS = ("wing_inertia", "stroke_film_gain", "pitch_film_gain", "actuator_gain")
+DETECTED = PARAMETERS[:3]  # the series the sequential test watches
+_ZOH_S = 0.5  # the drive is held over each sample: its effect lags it by half a sample
+_DF = 8.0 / (3.0 * math.pi)  # describing function of |x'| x' at the fundamental
+
+
+@dataclass(frozen=True)
+class HealthParams:
+    """Every setting of the health monitor (config/flaair.yaml `health_node`; units in names).
+
+    The plant and film constants are the model's (config/model.yaml); the rest are tunables.
+    """
+
+    sample_rate_hz: float
+    stroke_inertia_kg_m2: float
+    stroke_stiffness_nm_per_rad: float
+    aero_damping_nm_s2: float
+    structural_damping_nm_s_per_rad: float
+    actuator_gain_nm_per_v: float
+    pitch_inertia_kg_m2: float
+    hinge_stiffness_nm_per_rad: float
+    hinge_damping_nm_s_per_rad: float
+    inertial_coupling_kg_m2: float
+    aero_coupling_nm_s2: float
+    stroke_volts_per_rad: float
+    pitch_volts_per_rad: float
+    reference_voltage_v: float
+    hysteresis_rad: float
+    min_frequency_hz: float
+    max_frequency_hz: float
+    min_drive_v: float
+    min_stroke_rad: float
+    average_wingbeats: int
+    warmup_wingbeats: int
+    baseline_wingbeats: int
+    cusum_drift: float
+    cusum_threshold: float
+    sigma_floor: float
+    confirm_wingbeats: int
+    agree_tolerance: float
+    max_amplitude_change: float
+    max_baseline_scatter: float
+    stroke_film_delay_s: float  # the films' lag behind the motion (calibration's lag_s)
+    pitch_film_delay_s: float
+
+    def __post_init__(self) -> None:
+        for name in ("sample_rate_hz", "stroke_inertia_kg_m2", "stroke_stiffness_nm_per_rad"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"health parameter '{name}' must be > 0")
+        if not 0 < self.min_frequency_hz < self.max_frequency_hz < self.sample_rate_hz / 4:
+            raise ValueError(
+                "health parameters 'min_frequency_hz' < 'max_frequency_hz' < fs/4 needed"
+            )
+        for name in ("average_wingbeats", "baseline_wingbeats", "confirm_wingbeats"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"health parameter '{name}' must be >= 1")
+        if self.stroke_volts_per_rad == 0 or self.pitch_volts_per_rad == 0:
+            raise ValueError("health parameter 'stroke_volts_per_rad' must be non-zero")
+
+
+class HealthInputs(NamedTuple):
+    """One block: film voltages (V) and the drive (V) applied to the same samples."""
+
+    stroke_sensor_v: np.ndarray
+    pitch_sensor_v: np.ndarray
+    drive_v: np.ndarray
+
+
+class HealthState(NamedTuple):
+    """Samples since the last crossing, the trigger, recent estimates and the tests' state."""
+
+    sample_index: int
+    pending: np.ndarray  # (3, m): stroke rad, pitch rad, drive V since `last_cross`'s sample
+    pending_start: int  # sample index of pending[:, 0]
+    last_cross: float  # fractional sample index of the last upward crossing (nan: none yet)
+    armed: bool  # the stroke went below -hysteresis since the last crossing
+    wingbeat: int  # wingbeats closed so far
+    recent: np.ndarray  # (average_wingbeats, 4) last raw estimates (nan: none)
+    detector: DetectorState
+    quiet: bool  # the last wingbeat (or silence) gave no estimate
+    last_amplitudes: np.ndarray  # (2,) |S| rad and |D| V of the last wingbeat (nan: none)
+
+
+class DetectorState(NamedTuple):
+    """Per watched series: baseline sums, CUSUMs, change point, post-change estimates."""
+
+    learned: int  # estimates in the baseline window so far (after the warm-up)
+    skip: int  # estimates still to skip (warm-up)
+    window: np.ndarray  # (baseline_wingbeats, 3) the last estimates while learning, newest last
+    mu: np.ndarray  # (3,) nan until learned
+    sigma: np.ndarray  # (3,)
+    g_up: np.ndarray
+    g_down: np.ndarray
+    since: np.ndarray  # (3,) estimates since each CUSUM last left zero (0: at zero)
+    alarm: np.ndarray  # (3,) bool
+    history: np.ndarray  # (confirm, 3) last estimates, newest last
+
+
+class Wingbeat(NamedTuple):
+    """One closed wingbeat: index, end sample, frequency, estimates and standard errors."""
+
+    wingbeat: int
+    sample_index: int
+    time_s: float
+    frequency_hz: float
+    estimate: np.ndarray  # (4,) PARAMETERS, ratio to the model; nan: no estimate
+    stderr: np.ndarray  # (4,)
+    valid: bool
+
+
+class HealthEvent(NamedTuple):
+    """A detected change: parameter, ratio to the value before, its stderr, where and when."""
+
+    parameter: str
+    ratio: float
+    stderr: float
+    sample_index: int
+    time_s: float
+    wingbeat: int
+
+
+class HealthOutputs(NamedTuple):
+    """What one step closed: wingbeats, events and log notes."""
+
+    wingbeats: list[Wingbeat]
+    events: list[HealthEvent]
+    notes: list[Note]
+
+
+def _detector_initial(params: HealthParams) -> DetectorState:
+    z = np.zeros(3)
+    return DetectorState(
+        0,
+        params.warmup_wingbeats,
+        np.full((params.baseline_wingbeats, 3), np.nan),
+        np.full(3, np.nan),
+        np.full(3, np.nan),
+        z.copy(),
+        z.copy(),
+        np.zeros(3, dtype=np.int64),
+        np.zeros(3, dtype=bool),
+        np.full((params.confirm_wingbeats, 3), np.nan),
+    )
+
+
+def initial_state(params: HealthParams) -> HealthState:
+    """Nothing seen yet: no crossing, no estimate, baselines to learn."""
+    return HealthState(
+        0,
+        np.zeros((3, 0)),
+        0,
+        math.nan,
+        False,
+        0,
+        np.full((params.average_wingbeats, 4), np.nan),
+        _detector_initial(params),
+        False,
+        np.full(2, np.nan),
+    )
+
+
+def wingbeat_estimate(
+    stroke_rad: np.ndarray,
+    pitch_rad: np.ndarray,
+    drive_v: np.ndarray,
+    phase0_rad: float,
+    omega_rad_s: float,
+    log_rate_per_s: float,
+    params: HealthParams,
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """Raw estimates (PARAMETERS, ratios to the model) of one wingbeat (None if not estimable)
+    and the fundamentals' amplitudes (|S| rad, |D| V).
+
+    Parameters
+    ----------
+    stroke_rad, pitch_rad, drive_v
+        The wingbeat's samples (film angles through the model's gains, drive).
+    phase0_rad
+        Phase of the first sample against the wingbeat's start (-w * fraction / fs).
+    omega_rad_s
+        The wingbeat's angular frequency.
+    log_rate_per_s
+        The stroke amplitude's logarithmic rate (its growth per second, from the last wingbeat).
+    params
+        Model constants and limits.
+    """
+    n = stroke_rad.size
+    w = omega_rad_s
+    basis = np.exp(-1j * (phase0_rad + w * np.arange(n) / params.sample_rate_hz))
+    x = np.vstack([stroke_rad, pitch_rad, drive_v])
+    x = x - x.mean(axis=1, keepdims=True)
+    s, p, d = (2.0 / n) * (x @ basis)
+    s = s * np.exp(1j * w * params.stroke_film_delay_s)  # the motion leads its film reading
+    p = p * np.exp(1j * w * params.pitch_film_delay_s)
+    d = d * np.exp(-1j * w * _ZOH_S / params.sample_rate_hz)
+    amps = np.array([abs(s), abs(d)])
+    if abs(d) < params.min_drive_v or abs(s) < params.min_stroke_rad:
+        return None, amps
+    ratio = d / s
+    lam = log_rate_per_s
+    sc = complex(lam, w)  # the wingbeat as exp(s t): a growing or decaying stroke too
+    g0 = params.actuator_gain_nm_per_v
+    inertia, cl = params.stroke_inertia_kg_m2, params.structural_damping_nm_s_per_rad
+    q = g0 * ratio.imag  # drive's power in, per unit amplitude
+    if q <= 0:
+        return None, amps
+    b = _DF * params.aero_damping_nm_s2 * w * w * abs(s)
+    r, a_s = 1.0, 1.0
+    for _ in range(3):  # r and a_s are coupled only through the amplitude's rate
+        big_b = 2.0 * r * inertia * lam * w + w * cl
+        a_s = (big_b + math.sqrt(max(big_b * big_b + 4.0 * q * b, 0.0))) / (2.0 * q)
+        c_eq = cl + _DF * params.aero_damping_nm_s2 * w * abs(s) / a_s
+        r = (params.stroke_stiffness_nm_per_rad + lam * c_eq - g0 * a_s * ratio.real) / (
+            inertia * (w * w - lam * lam)
+        )
+    if not a_s > 0:
+        return None, amps
+    amp = abs(s) / a_s
+    c_d = _DF * params.aero_coupling_nm_s2 * w * amp
+    num = -(params.inertial_coupling_kg_m2 * sc * sc + c_d * sc)
+    den = (
+        params.hinge_stiffness_nm_per_rad
+        + r * params.pitch_inertia_kg_m2 * sc * sc
+        + params.hinge_damping_nm_s_per_rad * sc
+    )
+    a_p = abs(p) / (abs(num / den) * amp)
+    return np.array([r, a_s, a_p, a_s * a_p]), amps
+
+
+def _detect(
+    det: DetectorState, x: np.ndarray, params: HealthParams
+) -> tuple[DetectorState, list[tuple[str, float, float]], list[Note]]:
+    """One estimate (3 watched series) through the baselines and the CUSUMs."""
+    history = np.vstack([det.history[1:], x[None, :]])
+    if det.skip > 0:
+        return det._replace(skip=det.skip - 1, history=history), [], []
+    if not np.isfinite(det.mu).all():
+        window = np.vstack([det.window[1:], x[None, :]])
+        learned = min(det.learned + 1, params.baseline_wingbeats)
+        det = det._replace(learned=learned, window=window, history=history)
+        if learned < params.baseline_wingbeats:
+            return det, [], []
+        mu = window.mean(axis=0)
+        scatter = window.std(axis=0) / np.abs(mu)
+        if not np.all(scatter <= params.max_baseline_scatter):  # not steady yet: slide on
+            return det, [], []
+        sigma = np.maximum(scatter, params.sigma_floor)
+        text = "health baseline: " + ", ".join(
+            f"{n} {m:.3f}" for n, m in zip(DETECTED, mu, strict=True)
+        )
+        return det._replace(mu=mu, sigma=sigma), [], [Note(INFO, text, "")]
+    z = (x / det.mu - 1.0) / det.sigma
+    g_up = np.maximum(0.0, det.g_up + z - params.cusum_drift)
+    g_down = np.maximum(0.0, det.g_down - z - params.cusum_drift)
+    at_zero = (g_up == 0) & (g_down == 0)
+    since = np.where(at_zero, 0, det.since + 1)
+    alarm = det.alarm | (np.maximum(g_up, g_down) > params.cusum_threshold)
+    det = det._replace(
+        g_up=g_up, g_down=g_down, since=since, alarm=alarm & ~at_zero, history=history
+    )
+    confirmed = det.alarm & (since >= params.confirm_wingbeats)
+    if not confirmed.any():
+        return det, [], []
+    post = history / det.mu  # the last confirm_wingbeats estimates over the baseline
+    ratio = np.median(post, axis=0)  # robust to the change's own transient wingbeats
+    err = post.std(axis=0, ddof=1) / math.sqrt(post.shape[0]) if post.shape[0] > 1 else 0 * ratio
+    moved = np.abs(ratio - 1.0) > params.cusum_drift * det.sigma
+    if not (confirmed & moved).any():  # a transient that came back: no event, test on
+        gone = confirmed & ~moved
+        keep = ~gone
+        det = det._replace(
+            g_up=det.g_up * keep,
+            g_down=det.g_down * keep,
+            since=det.since * keep,
+            alarm=det.alarm & keep,
+        )
+        return det, [], []
+    confirmed = confirmed & moved
+    found: list[tuple[str, float, float]] = []
+    films_moved = moved[1:]
+    if (
+        confirmed[1:].any()
+        and films_moved.all()
+        and abs(ratio[1] - ratio[2]) < params.agree_tolerance
+    ):
+        g = ratio[1] * ratio[2]
+        found.append(("actuator_gain", float(g), float(math.hypot(err[1], err[2]) * g)))
+    else:
+        for i in np.flatnonzero(confirmed):
+            found.append((DETECTED[i], float(ratio[i]), float(err[i])))
+    return _detector_initial(params)._replace(skip=0), found, []
+
+
+def _crossings(
+    stroke: np.ndarray, first_new: int, start: int, armed: bool, h: float
+) -> tuple[list[float], bool]:
+    """Upward crossings (fractional sample indices) of a Schmitt trigger at +-h among the
+    samples from `first_new` on (the earlier ones only locate the zero crossing).
+    """
+    below = stroke < -h
+    above = stroke > h
+    out: list[float] = []
+    idx = np.flatnonzero(below[first_new:] | above[first_new:]) + first_new
+    if idx.size == 0:
+        return out, armed
+    side = np.where(below[idx], -1, 1)  # the trigger's state only changes outside the band
+    before = np.concatenate([[-1 if armed else 1], side[:-1]])
+    for i in idx[(side == 1) & (before == -1)]:
+        k = i - 1
+        while k > 0 and stroke[k] > 0:
+            k -= 1
+        a, b = stroke[k], stroke[k + 1]
+        frac = -a / (b - a) if b != a and a <= 0 < b else 0.0
+        out.append(float(start + k) + frac)  # exact integer first: the same for any block split
+    armed = bool(side[-1] == -1)
+    return out, armed
+
+
+def step(
+    state: HealthState, inputs: HealthInputs, params: HealthParams
+) -> tuple[HealthState, HealthOutputs]:
+    """Advance the monitor over one block; see the module docstring.
+
+    Parameters
+    ----------
+    state
+        From `initial_state` or a previous `step`.
+    inputs
+        Film voltages and the drive of the same samples (equal lengths).
+    params
+        Model constants and tunables.
+
+    Returns
+    -------
+    (HealthState, HealthOutputs)
+    """
+    vs, vp, dv = (np.asarray(a, dtype=float).ravel() for a in inputs)
+    if not vs.size == vp.size == dv.size:
+        raise ValueError("health inputs 'stroke_sensor_v', 'pitch_sensor_v', 'drive_v' differ")
+    fs = params.sample_rate_hz
+    block = np.vstack(
+        [
+            (vs - params.reference_voltage_v) / params.stroke_volts_per_rad,
+            (vp - params.reference_voltage_v) / params.pitch_volts_per_rad,
+            np.where(np.isfinite(dv), dv, 0.0),
+        ]
+    )
+    buf = np.concatenate([state.pending, block], axis=1)
+    start = state.pending_start
+    crossings, armed = _crossings(
+        buf[0], state.pending.shape[1], start, state.armed, params.hysteresis_rad
+    )
+    beats: list[Wingbeat] = []
+    events: list[HealthEvent] = []
+    notes: list[Note] = []
+    last, wb, recent, det, quiet, amps_before = (
+        state.last_cross,
+        state.wingbeat,
+        state.recent,
+        state.detector,
+        state.quiet,
+        state.last_amplitudes,
+    )
+    for c in crossings:
+        if math.isfinite(last):
+            period = (c - last) / fs
+            i0 = math.ceil(last) - start
+            i1 = math.ceil(c) - start
+            est, amps = None, np.full(2, np.nan)
+            if 1.0 / params.max_frequency_hz <= period <= 1.0 / params.min_frequency_hz:
+                w = 2.0 * math.pi / period
+                seg = buf[:, i0:i1]
+                lam = _log_rate(seg[0], w, amps_before[0], period, fs, last)
+                est, amps = wingbeat_estimate(
+                    seg[0], seg[1], seg[2], w * (math.ceil(last) - last) / fs, w, lam, params
+                )
+            wb += 1
+            steady = bool(
+                np.all(np.abs(amps - amps_before) <= params.max_amplitude_change * amps_before)
+            )
+            amps_before = amps
+            if est is not None and not steady:  # transient: no quasi-steady estimate
+                beats.append(_beat(wb, math.ceil(c), fs, 1.0 / period, None, recent))
+            elif est is None:
+                if not quiet:
+                    notes.append(Note(WARNING, _quiet_text(wb), "health_quiet"))
+                quiet = True
+                beats.append(_beat(wb, math.ceil(c), fs, 1.0 / period, None, recent))
+            else:
+                quiet = False
+                recent = np.vstack([recent[1:], est[None, :]])
+                beats.append(_beat(wb, math.ceil(c), fs, 1.0 / period, est, recent))
+                det, found, det_notes = _detect(det, est[:3], params)
+                notes.extend(det_notes)
+                for name, ratio, err in found:
+                    idx = math.ceil(c)
+                    events.append(HealthEvent(name, ratio, err, idx, idx / fs, wb))
+                    notes.append(Note(WARNING, _event_text(name, ratio, err, idx / fs, wb), ""))
+        last = c
+    end = state.sample_index + vs.size
+    keep_from = math.ceil(last) if math.isfinite(last) else start
+    longest = int(fs / params.min_frequency_hz) + 2
+    if end - keep_from > longest:  # no wingbeat for longer than the slowest: keep only a tail
+        if not quiet:
+            notes.append(Note(WARNING, "health: no wingbeat (wing stalled or drive off)", ""))
+        quiet, keep_from = True, end - longest
+    pending = buf[:, keep_from - start :]
+    new_state = HealthState(
+        end, pending, keep_from, last, armed, wb, recent, det, quiet, amps_before
+    )
+    return new_state, HealthOutputs(beats, events, notes)
+
+
+def _log_rate(
+    stroke: np.ndarray, w: float, amp_before: float, period: float, fs: float, last: float
+) -> float:
+    """The stroke amplitude's log rate over the last wingbeat (0 without one before)."""
+    n = stroke.size
+    basis = np.exp(-1j * (w * (math.ceil(last) - last) / fs + w * np.arange(n) / fs))
+    amp = abs((2.0 / n) * ((stroke - stroke.mean()) @ basis))
+    if not (math.isfinite(amp_before) and amp_before > 0 and amp > 0):
+        return 0.0
+    return math.log(amp / amp_before) / period
+
+
+def _beat(
+    wb: int, idx: int, fs: float, f: float, est: np.ndarray | None, recent: np.ndarray
+) -> Wingbeat:
+    """A Wingbeat record: the mean of the recent estimates and its standard error."""
+    if est is None:
+        nan = np.full(4, np.nan)
+        return Wingbeat(wb, idx, idx / fs, f, nan, nan.copy(), False)
+    good = recent[np.isfinite(recent[:, 0])]
+    mean = good.mean(axis=0)
+    err = (
+        good.std(axis=0, ddof=1) / math.sqrt(good.shape[0])
+        if good.shape[0] > 1
+        else np.full(4, np.nan)
+    )
+    return Wingbeat(wb, idx, idx / fs, f, mean, err, True)
+
+
+def _quiet_text(wb: int) -> str:
+    return f"health: wingbeat {wb} too quiet to estimate (drive off or wing stalled)"
+
+
+def _event_text(name: str, ratio: float, err: float, t: float, wb: int) -> str:
+    return f"health event: {name} x{ratio:.3f} (+-{err:.3f}) at {t:.3f} s, wingbeat {wb}"

@@ -1,0 +1,318 @@
+"""The health monitor's parameters (ParamSpec list, config section) and its core's params."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from flaair_common.health import OK, WARN, Health, health
+from flaair_control.core import health as hcore
+from flaair_control.core.health import HealthParams
+from flaair_model.config import ConfigError, load_yaml
+from flaair_model.model import Model
+from flaair_model.model_io import load_model
+from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.settings import node_section
+
+CONFIG_FILE = "flaair.yaml"
+NODE_NAME = "health_node"
+
+HEALTH_PARAMS = [
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of the film blocks [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
+    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    ParamSpec(
+        "drive_topic",
+        str,
+        "The drive the films are compared with",
+        choices=("/flaair/drive", "/flaair/drive/applied"),
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_baseline_scatter",
+        float,
+        "A baseline scattered more than this (relative) is learned again",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "stroke_film_delay_s",
+        float,
+        "The stroke film's lag behind the motion (calibration's lag_s) [s]",
+        0.0,
+        0.01,
+        read_only=True,
+    ),
+    ParamSpec(
+        "pitch_film_delay_s",
+        float,
+        "The pitch film's lag behind the motion (calibration's lag_s) [s]",
+        0.0,
+        0.01,
+        read_only=True,
+    ),
+    ParamSpec(
+        "calibration_file",
+        str,
+        "A bin/flaair calibrate calibration.yaml: film lags and gains from it ('' = the "
+        "*_film_delay_s and the model's films)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "model_file",
+        str,
+        "Model the estimates are relative to ('' = config/model.yaml)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "hysteresis_rad",
+        float,
+        "Wingbeat trigger: Schmitt band on the stroke [rad]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_frequency_hz", float, "Slowest wingbeat estimated [Hz]", 1.0, 1000.0, read_only=True
+    ),
+    ParamSpec(
+        "max_frequency_hz", float, "Fastest wingbeat estimated [Hz]", 1.0, 5000.0, read_only=True
+    ),
+    ParamSpec(
+        "min_drive_v",
+        float,
+        "Quieter drive (fundamental amplitude) gives no estimate [V]",
+        0.0,
+        1000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "min_stroke_rad",
+        float,
+        "Smaller stroke (fundamental) gives no estimate [rad]",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "average_wingbeats",
+        int,
+        "Published estimate: mean of this many wingbeats",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "warmup_wingbeats",
+        int,
+        "Wingbeats skipped before (and after each event) the baseline is learned",
+        0,
+        100000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "baseline_wingbeats",
+        int,
+        "Wingbeats the baseline is learned over",
+        2,
+        100000,
+        read_only=True,
+    ),
+    ParamSpec("cusum_drift", float, "CUSUM drift k [baseline sigmas]", 0.0, 100.0, read_only=True),
+    ParamSpec(
+        "cusum_threshold", float, "CUSUM threshold h [baseline sigmas]", 0.1, 1000.0, read_only=True
+    ),
+    ParamSpec(
+        "sigma_floor", float, "Least relative scatter a baseline is given", 0.0, 1.0, read_only=True
+    ),
+    ParamSpec(
+        "confirm_wingbeats",
+        int,
+        "Estimates after the change point an event averages",
+        1,
+        1000,
+        read_only=True,
+    ),
+    ParamSpec(
+        "max_amplitude_change",
+        float,
+        "Wingbeat whose stroke or drive amplitude moved "
+        "more than this fraction: transient, no estimate",
+        0.0,
+        10.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "agree_tolerance",
+        float,
+        "Both films moved by ratios this close: actuator gain",
+        0.0,
+        1.0,
+        read_only=True,
+    ),
+]
+
+
+def health_values() -> dict[str, Any]:
+    """health_node's values in config/flaair.yaml, checked against its schema."""
+    return node_section(HEALTH_PARAMS, NODE_NAME, CONFIG_FILE)
+
+
+def film_calibration(calibration: str | Path) -> dict[str, float]:
+    """From a `bin/flaair calibrate` file: the films' lags (as *_film_delay_s) and, where it has
+    them, their gains as volts per radian (the film gains are then ratios to the calibration's).
+    """
+    path = Path(calibration)
+    try:
+        doc = load_yaml(path)
+        out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
+        for c in ("stroke", "pitch"):
+            if "gain_deg_per_v" in doc[c]:
+                polarity = float(doc[c].get("polarity", 1))
+                out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
+        return out
+    except (ConfigError, OSError, KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
+        raise ParameterError(
+            f"parameter 'calibration_file': {path}: no stroke and pitch lag_s in it ({exc})"
+        ) from None
+
+
+def health_params_from_config(
+    values: Mapping[str, Any] | None = None, model: Model | None = None
+) -> HealthParams:
+    """The health core's parameters: tunables from health_node values (default: config),
+    plant and film constants from `model` (default: the values' model_file).
+    """
+    values = health_values() if values is None else values
+    if model is None:
+        model = load_model(values["model_file"] or None)
+    if values.get("calibration_file"):
+        values = {**values, **film_calibration(values["calibration_file"])}
+    p = model.plant
+    damping = model.effect("structural_damping")
+    zeta = float(getattr(damping, "damping_ratio", 0.0) or 0.0)
+    k = p.stroke_stiffness_nm_per_rad
+    return HealthParams(
+        sample_rate_hz=values["sample_rate_hz"],
+        stroke_inertia_kg_m2=p.stroke_inertia_kg_m2,
+        stroke_stiffness_nm_per_rad=k,
+        aero_damping_nm_s2=p.aero_damping_nm_s2,
+        structural_damping_nm_s_per_rad=2.0 * zeta * (k * p.stroke_inertia_kg_m2) ** 0.5,
+        actuator_gain_nm_per_v=p.actuator_gain_nm_per_v,
+        pitch_inertia_kg_m2=p.pitch_inertia_kg_m2,
+        hinge_stiffness_nm_per_rad=p.hinge_stiffness_nm_per_rad,
+        hinge_damping_nm_s_per_rad=p.hinge_damping_nm_s_per_rad,
+        inertial_coupling_kg_m2=p.inertial_coupling_kg_m2,
+        aero_coupling_nm_s2=p.aero_coupling_nm_s2,
+        stroke_volts_per_rad=values.get("stroke_volts_per_rad", model.stroke_volts_per_rad),
+        pitch_volts_per_rad=values.get("pitch_volts_per_rad", model.pitch_volts_per_rad),
+        reference_voltage_v=model.sensors.reference_voltage_v,
+        **{
+            name: values[name]
+            for name in (
+                "hysteresis_rad",
+                "min_frequency_hz",
+                "max_frequency_hz",
+                "min_drive_v",
+                "min_stroke_rad",
+                "average_wingbeats",
+                "warmup_wingbeats",
+                "baseline_wingbeats",
+                "cusum_drift",
+                "cusum_threshold",
+                "sigma_floor",
+                "confirm_wingbeats",
+                "agree_tolerance",
+                "max_amplitude_change",
+                "max_baseline_scatter",
+                "stroke_film_delay_s",
+                "pitch_film_delay_s",
+            )
+        },
+    )
+
+
+class JoinState(NamedTuple):
+    """Film and drive samples not yet handed to the core, each from its first sample index."""
+
+    films: np.ndarray  # (2, m) stroke, pitch volts
+    films_start: int
+    drive: np.ndarray  # (k,) volts
+    drive_start: int
+
+
+def initial_join() -> JoinState:
+    """Nothing received."""
+    return JoinState(np.zeros((2, 0)), -1, np.zeros(0), -1)
+
+
+def join_block(
+    state: JoinState, first_index: int, films: np.ndarray | None, drive_v: np.ndarray | None
+) -> tuple[JoinState, int, hcore.HealthInputs | None]:
+    """Add a film block ((2, n) volts) or a drive block at `first_index`; return the samples both
+    streams now hold (their first index and the core's inputs), as `bin/flaair health` joins a
+    bag's streams by sample index. A block that does not continue its stream restarts it there.
+    """
+    if films is not None:
+        if state.films_start < 0 or first_index != state.films_start + state.films.shape[1]:
+            state = state._replace(films=films, films_start=first_index)
+        else:
+            state = state._replace(films=np.concatenate([state.films, films], axis=1))
+    if drive_v is not None:
+        if state.drive_start < 0 or first_index != state.drive_start + state.drive.size:
+            state = state._replace(drive=drive_v, drive_start=first_index)
+        else:
+            state = state._replace(drive=np.concatenate([state.drive, drive_v]))
+    if state.films_start < 0 or state.drive_start < 0:
+        return state, -1, None
+    start = max(state.films_start, state.drive_start)
+    end = min(state.films_start + state.films.shape[1], state.drive_start + state.drive.size)
+    if end <= start:
+        # drop what the other stream has passed already
+        f0 = max(0, min(state.drive_start - state.films_start, state.films.shape[1]))
+        d0 = max(0, min(state.films_start - state.drive_start, state.drive.size))
+        state = JoinState(
+            state.films[:, f0:], state.films_start + f0, state.drive[d0:], state.drive_start + d0
+        )
+        return state, -1, None
+    f = state.films[:, start - state.films_start : end - state.films_start]
+    d = state.drive[start - state.drive_start : end - state.drive_start]
+    out = JoinState(
+        state.films[:, end - state.films_start :], end, state.drive[end - state.drive_start :], end
+    )
+    return out, start, hcore.HealthInputs(f[0], f[1], d)
+
+
+def health_diagnostics(
+    now: tuple[int, int, list[str], bool], before: tuple[int, int, list[str], bool] | None
+) -> Health:
+    """/diagnostics of the health monitor: WARN once a change was detected (naming it)."""
+    wingbeats, estimated, events, quiet = now
+    problems = [(WARN, f"changed: {'; '.join(events)}") if events else (OK, "")]
+    if quiet and wingbeats:
+        problems.append((WARN, "no estimate: drive off, wing stalled or transient"))
+    return health(
+        "health monitor",
+        problems,
+        "unchanged" if estimated else "waiting for the first estimate",
+        {"wingbeats": wingbeats, "estimated_wingbeats": estimated, "events": len(events)},
+    )
+
+
+def event_text(e: hcore.HealthEvent) -> str:
+    """One event in a line (its diagnostics entry and log)."""
+    return (
+        f"{e.parameter} x{e.ratio:.3f} (+-{e.stderr:.3f}) at {e.time_s:.3f} s, "
+        f"wingbeat {e.wingbeat}"
+    )

@@ -1,0 +1,76 @@
+"""Simulated runs for the health monitor's tests and benchmark: the dSA loop (or a sync sine)
+on the simulated robot, a damage applied at a given time (model changed between blocks).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flaair_control.core import dsa, hopf
+from flaair_model.model import Model
+from flaair_sim.core import plant
+
+FS = 20000.0
+BLOCK = 10
+KAPPA = 0.5
+
+
+def dsa_params(model: Model, sync_v: float = 20.0, kr=(1.0, 0.0, 0.3, 0.3)) -> dsa.DsaParams:
+    """The paper's sync -> self-excited transition (tests/test_control_dsa.py's loop)."""
+    lin = hopf.LinearStrokePlant(
+        model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad
+    )
+    r3 = hopf.r3_for_onset_frequency(KAPPA, 142.0)
+    mu = 10.0 * hopf.hopf_onset(lin, r3, KAPPA).mu_nm_s_per_rad
+    return dsa.DsaParams(
+        r3_rad_s=r3,
+        kappa=KAPPA,
+        mu_nm_s_per_rad=mu,
+        actuator_gain_nm_per_v=model.plant.actuator_gain_nm_per_v,
+        sample_rate_hz=FS,
+        drive_limit_v=100.0,
+        sync_amplitude_v=sync_v,
+        sync_frequency_hz=60.0,
+        kr_schedule=dsa.KrSchedule(*kr),
+        loop_delay_s=dsa.loop_delay_s(BLOCK, FS),
+        sync_phase_rad=0.0,
+        compensation_frequency_hz=None,
+    )
+
+
+def run(
+    model: Model,
+    duration_s: float,
+    damaged: Model | None = None,
+    damage_s: float = np.inf,
+    seed: int = 7,
+    sine: tuple[float, float] | None = None,
+    kr=(1.0, 0.0, 0.3, 0.3),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(stroke film V, pitch film V, applied drive V) of a noisy run; the model becomes
+    `damaged` from the first block at or after `damage_s`. `sine` = (amplitude V, frequency Hz)
+    drives open loop instead of the dSA loop.
+    """
+    p = dsa_params(model, kr=kr)
+    rng = np.random.default_rng(seed)
+    state = plant.initial_state(plant.PlantStepParams(model, FS))
+    ctrl = dsa.initial_state(p)
+    vpr, vref = model.stroke_volts_per_rad, model.sensors.reference_voltage_v
+    drive = np.zeros(BLOCK)
+    prev = 0.0
+    n_blocks = int(duration_s * FS / BLOCK)
+    vs, vp, dv = (np.empty(n_blocks * BLOCK) for _ in range(3))
+    for k in range(n_blocks):
+        t = k * BLOCK / FS
+        if sine is not None:
+            drive = sine[0] * np.sin(2 * np.pi * sine[1] * (k * BLOCK + np.arange(BLOCK)) / FS)
+        m = damaged if damaged is not None and t >= damage_s else model
+        state, out = plant.step(state, plant.PlantInputs(drive, rng), plant.PlantStepParams(m, FS))
+        sl = slice(k * BLOCK, (k + 1) * BLOCK)
+        vs[sl], vp[sl], dv[sl] = out.stroke_sensor_v, out.pitch_sensor_v, drive
+        phi = (out.stroke_sensor_v - vref) / vpr  # the controller reads the (damaged) film
+        vel = np.diff(np.concatenate([[prev], phi])) * FS
+        prev = phi[-1]
+        if sine is None:
+            ctrl, (drive, _) = dsa.step(ctrl, dsa.DsaInputs(vel, (k + 1) * BLOCK / FS), p)
+    return vs, vp, dv

@@ -1,0 +1,115 @@
+"""`bin/flaair health` on bags imported from simulated runs: events, series, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import health_sim as hs
+from rosproc import FLAAIR, isolated_env, run, run_offline
+
+
+def _csv(path: Path, vs, vp, dv) -> None:
+    from flaair_common.runcsv import write_run
+
+    n = vs.size
+    nan = np.full(n, np.nan)
+    write_run(
+        path,
+        {
+            "time_s": np.arange(n) / hs.FS,
+            "drive_v": dv,
+            "stroke_sensor_v": vs,
+            "pitch_sensor_v": vp,
+            "stroke_deg": nan,
+            "pitch_deg": nan.copy(),
+        },
+    )
+
+
+def _import(tmp: Path, csv: Path, name: str) -> Path:
+    result = run_offline([FLAAIR, "import", str(csv), "--out", str(tmp / name)], isolated_env())
+    assert result.returncode == 0, result.stderr
+    return tmp / name
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> tuple[Path, Path]:
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
+
+    tmp = tmp_path_factory.mktemp("health")
+    model = load_model()
+    damaged = with_effects(model, {"wing_damage": {"inertia_factor": 0.8}})
+    _csv(tmp / "damaged.csv", *hs.run(model, 3.0, damaged, 2.0))
+    n = int(0.3 * hs.FS)
+    vref = model.sensors.reference_voltage_v
+    quiet = vref + 0.002 * np.random.default_rng(3).standard_normal(n)
+    _csv(tmp / "quiet.csv", quiet, quiet.copy(), np.zeros(n))
+    return _import(tmp, tmp / "damaged.csv", "damaged"), _import(tmp, tmp / "quiet.csv", "quiet")
+
+
+def test_health_reports_the_damage_with_its_series(bags, tmp_path: Path) -> None:
+    damaged, quiet = bags
+    out = tmp_path / "out"
+    result = run_offline(
+        [FLAAIR, "health", str(damaged), str(quiet), "--out", str(out)], isolated_env()
+    )
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((out / "health.json").read_text())  # strict: no NaN
+    assert [e["parameter"] for e in doc["events"]] == ["wing_inertia"]
+    ev = doc["events"][0]
+    assert ev["ratio"] == pytest.approx(0.8, abs=0.04)
+    assert 2.0 < ev["time_s"] < 2.0 + 20 / 170.0
+    assert ev["sample_index"] == round(ev["time_s"] * hs.FS)
+    series = doc["bags"][0]["wingbeats"]
+    assert len(series["wing_inertia"]) == len(series["time_s"]) > 300
+    assert doc["bags"][1]["estimated"] == 0 and "too quiet" in doc["bags"][1]["note"]
+    assert "too quiet" in result.stderr
+    assert (out / "health.png").stat().st_size > 10000
+
+
+def test_bag_without_the_films_or_the_drive_is_refused_by_name(tmp_path: Path) -> None:
+    from flaair_tools import bagio
+
+    with bagio.BagWriter(tmp_path / "empty"):
+        pass
+    # through bin/flaair in a new process, as a person runs it (the other test: run_offline)
+    result = run(
+        [FLAAIR, "health", str(tmp_path / "empty"), "--out", str(tmp_path / "o")], isolated_env()
+    )
+    assert result.returncode == 2
+    assert "/flaair/sensor_v" in result.stderr and "/flaair/drive" in result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1
+
+
+def test_film_gains_are_ratios_to_a_given_calibration(bags, tmp_path: Path) -> None:
+    from flaair_model.model_io import load_model
+
+    model = load_model()
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(
+        f"stroke: {{gain_deg_per_v: {model.stroke_gain_deg_per_v}, polarity: "
+        f"{model.stroke_polarity}, lag_s: 0.0}}\n"
+        f"pitch: {{gain_deg_per_v: {2 * model.pitch_gain_deg_per_v}, polarity: "
+        f"{model.pitch_polarity}, lag_s: 0.0}}\n"
+    )
+    out = tmp_path / "out"
+    args = [FLAAIR, "health", str(bags[0]), "--out", str(out), "--calibration", str(cal)]
+    result = run_offline(args, isolated_env())
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((out / "health.json").read_text())
+    series = doc["bags"][0]["wingbeats"]
+    t = np.array(series["time_s"])
+    pitch = np.array([np.nan if v is None else v for v in series["pitch_film_gain"]])
+    stroke = np.array([np.nan if v is None else v for v in series["stroke_film_gain"]])
+    # the calibration says the pitch film gives half the volts per radian the model's does
+    assert np.nanmean(pitch[(t > 1.5) & (t < 2.0)]) == pytest.approx(2.0, abs=0.02)
+    assert np.nanmean(stroke[(t > 1.5) & (t < 2.0)]) == pytest.approx(1.0, abs=0.01)
+    assert [e["parameter"] for e in doc["events"]] == ["wing_inertia"]
+    cal.write_text("stroke: {gain_deg_per_v: 25.0}\n")
+    bad = run_offline([*args[:-1], str(cal)], isolated_env())
+    assert bad.returncode == 2 and "lag_s" in bad.stderr

@@ -1,0 +1,167 @@
+"""Health monitor core (flaair_control.core.health): per-wingbeat estimates of the wing's
+inertia and the films' gains from the films and the drive, and the change detection on them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import health_sim as hs
+from flaair_control.core import health as H
+from flaair_control.health_io import health_params_from_config
+from flaair_model.model import with_effect_on, with_effects
+from flaair_model.model_io import load_model
+from flaair_sim.core.damage import DamageParams
+from flaair_sim.core.damage import damaged as damage_model
+
+DAMAGE_S = 2.0
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+@pytest.fixture(scope="module")
+def params(model):
+    return health_params_from_config(model=model)
+
+
+def _run(params, vs, vp, dv):
+    return H.step(H.initial_state(params), H.HealthInputs(vs, vp, dv), params)
+
+
+def _mean_after(out, t0):
+    e = np.array([b.estimate for b in out.wingbeats if b.valid and b.time_s > t0])
+    return e.mean(axis=0)
+
+
+@pytest.mark.parametrize("freq", [80.0, 140.0, 200.0])
+def test_sine_drive_estimates_the_nominal_robot(model, params, freq):
+    vs, vp, dv = hs.run(model, 0.6, sine=(40.0, freq))
+    _, out = _run(params, vs, vp, dv)
+    np.testing.assert_allclose(_mean_after(out, 0.4), 1.0, atol=0.01)
+    assert out.events == []
+
+
+@pytest.fixture(scope="module")
+def nominal_run(model):
+    return hs.run(model, 4.0)
+
+
+def test_unchanged_robot_under_the_dsa_loop_raises_no_event(params, nominal_run):
+    _, out = _run(params, *nominal_run)
+    assert out.events == []
+    np.testing.assert_allclose(_mean_after(out, 1.5), 1.0, atol=0.01)
+    assert any("baseline" in n.text for n in out.notes)
+
+
+@pytest.mark.parametrize(
+    ("damage", "parameter", "truth"),
+    [
+        ({"wing_damage": {"inertia_factor": 0.8}}, "wing_inertia", 0.8),
+        (("stroke", {"efficiency": 0.85}), "stroke_film_gain", 0.85),
+        (("pitch", {"efficiency": 0.85}), "pitch_film_gain", 0.85),
+        (0.8, "actuator_gain", 0.8),
+        (1.2, "actuator_gain", 1.2),
+    ],
+)
+def test_damage_under_the_dsa_loop_is_named_measured_and_timed(
+    model, params, damage, parameter, truth
+):
+    if isinstance(damage, float):
+        damaged = damage_model(model, DamageParams(0.0, 1.0, 1.0, 1.0, 1.0, damage))
+    elif isinstance(damage, dict):
+        damaged = with_effects(model, damage)
+    else:
+        damaged = with_effect_on(model, "strain_transfer_loss", damage[0], damage[1])
+    vs, vp, dv = hs.run(model, 3.0, damaged, DAMAGE_S)
+    _, out = _run(params, vs, vp, dv)
+    assert [e.parameter for e in out.events] == [parameter]
+    ev = out.events[0]
+    assert ev.ratio == pytest.approx(truth, abs=0.04)
+    assert 0 < ev.stderr < 0.05
+    beat_at_damage = next(b.wingbeat for b in out.wingbeats if b.time_s >= DAMAGE_S)
+    assert 0 < ev.wingbeat - beat_at_damage <= 20
+    assert ev.time_s == ev.sample_index / hs.FS
+
+
+def test_block_by_block_equals_the_whole_record(params, nominal_run):
+    vs, vp, dv = (a[: int(2.5 * hs.FS)] for a in nominal_run)
+    _, whole = _run(params, vs, vp, dv)
+    state = H.initial_state(params)
+    beats = []
+    for i in range(0, vs.size, 37):
+        state, out = H.step(
+            state, H.HealthInputs(vs[i : i + 37], vp[i : i + 37], dv[i : i + 37]), params
+        )
+        beats.extend(out.wingbeats)
+    assert len(beats) == len(whole.wingbeats) > 250
+    for a, b in zip(beats, whole.wingbeats, strict=True):
+        assert a.sample_index == b.sample_index
+        np.testing.assert_array_equal(a.estimate, b.estimate)
+
+
+def test_drive_off_or_stalled_gives_no_estimate(model, params):
+    n = int(0.5 * hs.FS)
+    vref = model.sensors.reference_voltage_v
+    rng = np.random.default_rng(1)
+    still = vref + 0.002 * rng.standard_normal(n)
+    _, out = _run(params, still, still.copy(), np.zeros(n))
+    assert out.wingbeats == [] and out.events == []
+    assert any("stalled" in n.text for n in out.notes)
+    vs, vp, _ = hs.run(model, 0.5, sine=(40.0, 140.0))
+    _, out = _run(params, vs, vp, np.zeros(vs.size))  # films move, the drive reads 0
+    assert out.wingbeats and not any(b.valid for b in out.wingbeats)
+    assert any("too quiet" in n.text for n in out.notes)
+
+
+def test_bad_parameters_and_inputs_are_named(params):
+    with pytest.raises(ValueError, match="min_frequency_hz"):
+        dataclasses.replace(params, min_frequency_hz=500.0)
+    with pytest.raises(ValueError, match="baseline_wingbeats"):
+        dataclasses.replace(params, baseline_wingbeats=0)
+    with pytest.raises(ValueError, match="drive_v"):
+        _run(params, np.zeros(10), np.zeros(10), np.zeros(9))
+
+
+def test_film_lag_from_the_calibration_keeps_a_delayed_robot_right(model, params):
+    """The bench robot's films lag 0.25 ms: given that lag (calibration's lag_s) the estimates
+    read the pitch film's 0.23 strain transfer, and an inertia loss is named as such.
+    """
+    robot = with_effects(
+        model,
+        {
+            "sensor_delay": {"delay_s": 0.00025, "channel": "both"},
+            "strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"},
+        },
+    )
+    p = dataclasses.replace(params, stroke_film_delay_s=0.00025, pitch_film_delay_s=0.00025)
+    damaged = with_effects(robot, {"wing_damage": {"inertia_factor": 0.8}})
+    _, out = _run(p, *hs.run(robot, 3.0, damaged, DAMAGE_S))
+    before = np.array([b.estimate for b in out.wingbeats if b.valid and 1.5 < b.time_s < 2.0])
+    np.testing.assert_allclose(before.mean(axis=0), [1.0, 1.0, 0.23, 0.23], atol=0.01)
+    assert [e.parameter for e in out.events] == ["wing_inertia"]
+    assert out.events[0].ratio == pytest.approx(0.8, abs=0.04)
+
+
+def test_stream_join_hands_the_core_the_samples_both_streams_hold():
+    from flaair_control.health_io import initial_join, join_block
+
+    films = np.vstack([np.arange(40.0), -np.arange(40.0)])
+    drive = np.arange(40.0) * 10
+    j = initial_join()
+    j, start, got = join_block(j, 0, None, drive[:20])  # the drive first: nothing yet
+    assert got is None and start == -1
+    j, start, got = join_block(j, 0, films[:, :10], None)
+    assert start == 0 and list(got.drive_v) == list(drive[:10])
+    np.testing.assert_array_equal(got.pitch_sensor_v, -np.arange(10.0))
+    j, start, got = join_block(j, 10, films[:, 10:30], None)  # 10 more than the drive has
+    assert start == 10 and list(got.stroke_sensor_v) == list(range(10, 20))
+    j, start, got = join_block(j, 20, None, drive[20:40])
+    assert start == 20 and list(got.drive_v) == list(drive[20:30])
+    j, start, got = join_block(j, 35, films[:, 35:40], None)  # a gap: the films restart at 35
+    assert start == 35 and list(got.drive_v) == list(drive[35:40])
