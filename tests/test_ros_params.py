@@ -28,8 +28,8 @@ def test_run_applies_ros_args_parameter() -> None:
             [FLAAIR, "param", "get", "/plant_node", "drive_limit_v", "--timeout", "30"], env
         )
         assert mode.returncode == 0, mode.stderr
-        assert mode.stdout.strip() == "realtime"
-        assert float(limit.stdout.strip()) == 42.5
+        assert mode.stdout.strip() == "String value is: realtime"  # as ros2 param get prints
+        assert limit.stdout.strip() == "Double value is: 42.5"
         assert procs.stop(node) == 0, node.stderr.read()
 
 
