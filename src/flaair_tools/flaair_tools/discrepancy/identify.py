@@ -45,6 +45,10 @@ def _terminate(signum: int, frame: object) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
+    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from flaair_tools.tables.identify_cli import main as table_main  # docs/TABLES.md
+
+        return table_main(argv)
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
