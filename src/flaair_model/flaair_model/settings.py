@@ -87,7 +87,6 @@ class TableSettings:
     """Frequency-response tables (`tables` section): steady state, noise, hold-out rules."""
 
     sample_rate_hz: float
-    ramp_wingbeats: float
     settle_s: float
     measure_wingbeats: int
     min_frequency_hz: float

@@ -1,8 +1,9 @@
 """The model on a table: each point's steady-state response, through the simulator's own core. Pure.
 
-Every (drive level, frequency) point is one row of a `flaair_sim.core.plant.simulate_batch` call:
-the sine fades in over `ramp_wingbeats` (a raised cosine, so the start transient is small), runs
-for `settle_s`, and the response is read over the last `measure_wingbeats` whole wingbeats:
+Every (drive level, frequency) point is one row of a `flaair_sim.core.plant.simulate_batch_from`
+call: it starts from the plant's harmonic-balance steady state (the quadratic dampings by their
+describing function), so only what that start misses (effects, terms, harmonics) has to settle,
+runs for `settle_s`, and the response is read over the last `measure_wingbeats` whole wingbeats:
 peak to peak (max - min, as a video reading gives it) and the fundamental's phase (a least-squares
 fit of mean, cosine and sine; the drive's zero-order hold, half a sample, is taken out of the
 stroke's phase). Because the same numba RK4 plant runs every point, whatever the
@@ -19,33 +20,74 @@ import numpy as np
 
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
-from flaair_sim.core.plant import simulate_batch
+from flaair_sim.core.plant import simulate_batch_from
 
-__all__ = ["MAX_BATCH_ROWS", "point_drives", "steady_response", "unsettled_fraction"]
+__all__ = [
+    "MAX_BATCH_ROWS",
+    "harmonic_balance_start",
+    "point_drives",
+    "steady_response",
+    "unsettled_fraction",
+]
 
+_DESCRIBING = 8.0 / (3.0 * math.pi)
 MAX_BATCH_ROWS = 240  # rows per simulate_batch call (bounds the (rows, samples) arrays' memory)
 
 
 def point_drives(
     frequency_hz: np.ndarray, amplitude_v: np.ndarray, bias_v: np.ndarray, s: TableSettings
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(P, n) drive of each point and (P,) samples of its measuring window.
+    """(P, n) drive of each point (bias + sine from t = 0) and (P,) samples of its window.
 
-    The record is `settle_s` plus the slowest point's measuring window; each sine (and its bias)
-    fades in over `ramp_wingbeats` of its own period.
+    The record is `settle_s` plus the slowest point's measuring window.
     """
     f = np.asarray(frequency_hz, dtype=float)
     fs = s.sample_rate_hz
     window = np.round(s.measure_wingbeats * fs / f).astype(np.int64)
-    n = math.ceil(s.settle_s * fs) + int(window.max())
+    n = max(math.ceil(s.settle_s * fs), int(window.max())) + int(window.max())
     t = np.arange(n) / fs
-    ramp_s = s.ramp_wingbeats / f[:, None]
-    env = np.where(t < ramp_s, 0.5 - 0.5 * np.cos(np.pi * np.minimum(t / ramp_s, 1.0)), 1.0)
-    drive = env * (
-        np.asarray(bias_v, dtype=float)[:, None]
-        + np.asarray(amplitude_v, dtype=float)[:, None] * np.sin(2.0 * np.pi * f[:, None] * t)
-    )
+    drive = np.asarray(bias_v, dtype=float)[:, None] + np.asarray(amplitude_v, dtype=float)[
+        :, None
+    ] * np.sin(2.0 * np.pi * f[:, None] * t)
     return drive, window
+
+
+def harmonic_balance_start(
+    model: Model,
+    frequency_hz: np.ndarray,
+    amplitude_v: np.ndarray,
+    bias_v: np.ndarray,
+    fs_hz: float,
+) -> np.ndarray:
+    """(P, 4) the plant's steady state at t = 0 by harmonic balance (the start of each point).
+
+    Structural damping as it is, the quadratic dampings by their describing function
+    (|x'| x' ~ (8 / 3 pi) w A x'), solved for the stroke amplitude by fixed-point iteration; other
+    effects and terms are left to the simulation, which starts here and settles the rest.
+    """
+    pl = model.plant
+    w = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float)
+    v = np.asarray(amplitude_v, dtype=float)
+    inertia = pl.stroke_inertia_kg_m2
+    k = inertia * (2.0 * np.pi * pl.stroke_natural_frequency_hz) ** 2
+    amp = pl.actuator_gain_nm_per_v * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
+    sd = model.effect("structural_damping")
+    zeta = float(getattr(sd, "damping_ratio", 0.0))
+    viscous = 2.0 * zeta * math.sqrt(k * inertia)
+    for _ in range(30):
+        c = np.maximum(viscous + pl.aero_damping_nm_s2 * _DESCRIBING * w * amp, 1e-3 * k / w)
+        h = pl.actuator_gain_nm_per_v / (k - inertia * w**2 + 1j * c * w)
+        amp = 0.5 * amp + 0.5 * np.abs(h) * v
+    # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
+    phi = h * (-1j * v) * np.exp(-0.5j * w / fs_hz)
+    ip = pl.pitch_inertia_kg_m2
+    kh = ip * (2.0 * np.pi * pl.pitch_natural_frequency_hz) ** 2
+    force = (
+        pl.inertial_coupling_kg_m2 * w**2 - 1j * w * pl.aero_coupling_nm_s2 * _DESCRIBING * w * amp
+    )
+    psi = force * phi / (kh - ip * w**2 + 1j * pl.hinge_damping_nm_s_per_rad * w)
+    static = pl.actuator_gain_nm_per_v * np.asarray(bias_v, dtype=float) / k
+    return np.stack([phi.real + static, (1j * w * phi).real, psi.real, (1j * w * psi).real], axis=1)
 
 
 def _read(
@@ -53,6 +95,7 @@ def _read(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Peak to peak and fundamental phase (rad, against sin(2 pi f t)) over each row's window."""
     n = x.shape[1]
+    tail = min(tail, n)
     seg = x[:, n - tail :]
     k = np.arange(n - tail, n)
     inside = k[None, :] >= (n - window)[:, None]
@@ -101,13 +144,16 @@ def steady_response(
     m, p = len(models), f.size
     tail = 2 * int(window.max())
     rows = [(i, j) for i in range(m) for j in range(p)]
+    a, b = np.asarray(amplitude_v, dtype=float), np.asarray(bias_v, dtype=float)
+    starts = [harmonic_balance_start(model, f, a, b, s.sample_rate_hz) for model in models]
     keys = ("pp_s", "ph_s", "pp_p", "ph_p", "pp_s_before")
     out = {key: np.empty(m * p) for key in keys}
     fs = s.sample_rate_hz
     for start in range(0, len(rows), MAX_BATCH_ROWS):
         chunk = rows[start : start + MAX_BATCH_ROWS]
         pts = np.array([j for _, j in chunk])
-        sim = simulate_batch(drive[pts], fs, [models[i] for i, _ in chunk])
+        x0 = np.array([starts[i][j] for i, j in chunk])
+        sim = simulate_batch_from(drive[pts], fs, [models[i] for i, _ in chunk], x0)
         sl = slice(start, start + len(chunk))
         out["pp_s"][sl], out["ph_s"][sl] = _read(sim.stroke_rad, window[pts], f[pts], fs, tail)
         out["pp_p"][sl], out["ph_p"][sl] = _read(sim.pitch_rad, window[pts], f[pts], fs, tail)
