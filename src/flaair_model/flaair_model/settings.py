@@ -96,6 +96,9 @@ class TableSettings:
     phase_noise_deg: float
     fit_range: float
     max_nfev: int
+    heldout_max_nfev: int
+    shortlist: int
+    max_effects_per_side: int
     near_resonance: float
     gap_ratio: float
     min_heldout_drop: float

@@ -266,5 +266,17 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _table_or_runs(argv: list[str] | None = None) -> int:
+    """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
+    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from flaair_tools.tables.discrepancy_cli import main as table_main
+
+        return table_main(argv)
+    return _main_runs(argv)
+
+
+_main_runs, main = main, _table_or_runs
+
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -42,6 +42,7 @@ __all__ = [
     "identify_table",
     "normalised_residuals",
     "plant_params",
+    "stack_cells",
 ]
 
 STROKE_KEYS: tuple[str, ...] = (
@@ -149,10 +150,10 @@ def normalised_residuals(
     return out
 
 
-def _stack(res: dict[str, np.ndarray]) -> np.ndarray:
-    """(M, cells) of the measured cells of every column."""
-    parts = [r[:, np.isfinite(r[0])] for r in res.values()]
-    return np.concatenate(parts, axis=1)
+def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
+    """(M, cells) of the measured cells of every column (a diverged model's NaN as 1e6)."""
+    parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
+    return np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6, posinf=1e6, neginf=-1e6)
 
 
 def _evaluator(
@@ -165,7 +166,7 @@ def _evaluator(
         resp = steady_response(
             models, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
         )
-        return np.nan_to_num(_stack(normalised_residuals(table, resp, s, cols)), nan=1e6)
+        return stack_cells(table, normalised_residuals(table, resp, s, cols))
 
     return evaluate
 
@@ -288,7 +289,7 @@ def _pitch_grid_start(
         for g in _PITCH_GRID
     ]
     resp = steady_response(grid, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s)
-    r = np.nan_to_num(_stack(normalised_residuals(table, resp, s, cols)), nan=1e6)
+    r = stack_cells(table, normalised_residuals(table, resp, s, cols))
     best = int(np.argmin((r**2).sum(axis=1)))
     return {"pitch_natural_frequency_hz": f0 * _PITCH_GRID[best]}
 

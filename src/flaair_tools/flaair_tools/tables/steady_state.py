@@ -17,6 +17,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from numba import njit
 
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -90,22 +91,41 @@ def harmonic_balance_start(
     return np.stack([phi.real + static, (1j * w * phi).real, psi.real, (1j * w * psi).real], axis=1)
 
 
+@njit(cache=True)
+def _read_rows(x, window, f, fs, end, pp, phase):  # pragma: no cover - numba
+    """Peak to peak and fundamental phase (rad, against sin(2 pi f t)) of each row's samples
+    [end - window, end): max - min, and least squares of mean, cosine and sine.
+    """
+    for r in range(x.shape[0]):
+        hi, lo = -np.inf, np.inf
+        g = np.zeros((3, 3))
+        rhs = np.zeros(3)
+        basis = np.empty(3)
+        finite = True
+        for k in range(end - window[r], end):
+            v = x[r, k]
+            finite = finite and np.isfinite(v)
+            hi, lo = max(hi, v), min(lo, v)
+            wt = 2.0 * np.pi * f[r] * k / fs
+            basis[0], basis[1], basis[2] = 1.0, np.cos(wt), np.sin(wt)
+            for i in range(3):
+                rhs[i] += basis[i] * v
+                for j in range(3):
+                    g[i, j] += basis[i] * basis[j]
+        if not (finite and np.isfinite(hi) and np.isfinite(lo)):  # a model that diverged
+            pp[r] = phase[r] = np.nan
+            continue
+        coef = np.linalg.solve(g, rhs)
+        pp[r] = hi - lo
+        phase[r] = np.arctan2(coef[1], coef[2])
+
+
 def _read(
-    x: np.ndarray, window: np.ndarray, f: np.ndarray, fs: float, tail: int
+    x: np.ndarray, window: np.ndarray, f: np.ndarray, fs: float, end: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Peak to peak and fundamental phase (rad, against sin(2 pi f t)) over each row's window."""
-    n = x.shape[1]
-    tail = min(tail, n)
-    seg = x[:, n - tail :]
-    k = np.arange(n - tail, n)
-    inside = k[None, :] >= (n - window)[:, None]
-    pp = np.where(inside, seg, -np.inf).max(axis=1) - np.where(inside, seg, np.inf).min(axis=1)
-    wt = 2.0 * np.pi * f[:, None] * (k[None, :] / fs)
-    basis = np.stack([np.ones_like(wt), np.cos(wt), np.sin(wt)], axis=-1) * inside[..., None]
-    gram = np.einsum("pki,pkj->pij", basis, basis)
-    rhs = np.einsum("pki,pk->pi", basis, np.where(inside, seg, 0.0))
-    coef = np.linalg.solve(gram, rhs[..., None])[..., 0]
-    return pp, np.arctan2(coef[:, 1], coef[:, 2])
+    pp, phase = np.empty(x.shape[0]), np.empty(x.shape[0])
+    _read_rows(x, window, f, fs, end, pp, phase)
+    return pp, phase
 
 
 def _wrap_deg(x: np.ndarray) -> np.ndarray:
@@ -142,7 +162,6 @@ def steady_response(
     f = np.asarray(frequency_hz, dtype=float)
     drive, window = point_drives(f, amplitude_v, bias_v, s)
     m, p = len(models), f.size
-    tail = 2 * int(window.max())
     rows = [(i, j) for i in range(m) for j in range(p)]
     a, b = np.asarray(amplitude_v, dtype=float), np.asarray(bias_v, dtype=float)
     starts = [harmonic_balance_start(model, f, a, b, s.sample_rate_hz) for model in models]
@@ -155,10 +174,10 @@ def steady_response(
         x0 = np.array([starts[i][j] for i, j in chunk])
         sim = simulate_batch_from(drive[pts], fs, [models[i] for i, _ in chunk], x0)
         sl = slice(start, start + len(chunk))
-        out["pp_s"][sl], out["ph_s"][sl] = _read(sim.stroke_rad, window[pts], f[pts], fs, tail)
-        out["pp_p"][sl], out["ph_p"][sl] = _read(sim.pitch_rad, window[pts], f[pts], fs, tail)
-        before = sim.stroke_rad[:, : sim.stroke_rad.shape[1] - int(window.max())]
-        out["pp_s_before"][sl] = _read(before, window[pts], f[pts], fs, tail)[0]
+        n, w = drive.shape[1], window[pts]
+        out["pp_s"][sl], out["ph_s"][sl] = _read(sim.stroke_rad, w, f[pts], fs, n)
+        out["pp_p"][sl], out["ph_p"][sl] = _read(sim.pitch_rad, w, f[pts], fs, n)
+        out["pp_s_before"][sl] = _read(sim.stroke_rad, w, f[pts], fs, n - int(window.max()))[0]
     shaped = {k: v.reshape(m, p) for k, v in out.items()}
     stroke_pp = np.degrees(shaped["pp_s"])
     pitch_pp = np.degrees(shaped["pp_p"])
