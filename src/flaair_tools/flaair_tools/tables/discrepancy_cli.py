@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     save_model(result.model_out, args.out / "model.yaml")
     doc = write_report(result, table, s, args.out)
     print(f"{PROG}: table {table.name}, {table.n_points} points, {elapsed:.1f} s")
-    print(f"  {doc['status']}: {doc['summary']}")
+    print(f"  {doc['summary']}")
     for c, v in doc["gap_before"].items():
         gi, ga = doc["gap_identified"][c], doc["gap_after"][c]
         fmt = lambda x: "-" if x is None else f"{x:.3f}"

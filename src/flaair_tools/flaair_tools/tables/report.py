@@ -192,11 +192,11 @@ def summary_line(result: TableDiscrepancy) -> str:
     """One sentence: the status and what was found."""
     names = [j.candidate.name for j in result.accepted]
     if result.status == "no_discrepancy":
-        return "no missing physics: the fitted plant predicts the held-out drive levels to noise"
+        return "no_discrepancy: the fitted plant predicts the held-out drive levels to noise"
     if result.status == "explained":
         return f"explained by {', '.join(names)} (judged on held-out drive levels)"
     if not result.searched:
-        return "a gap is left; the effects search needs two or more drive levels"
+        return "unexplained: a gap is left; the effects search needs two or more drive levels"
     found = f" after {', '.join(names)}" if names else ""
     return f"unexplained: a gap is left on held-out drive levels{found}"
 
@@ -258,7 +258,7 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding
 text-align:right}th{background:#eee}td:first-child{text-align:left}.st{font-size:1.3em}
 .note{color:#a40}</style></head><body>
 <h1>{{ title }}</h1>
-<p class="st"><b>{{ doc.status }}</b>: {{ doc.summary }}</p>
+<p class="st"><b>{{ doc.status }}</b> ({{ doc.summary }})</p>
 <img src="table_response.png" style="width:100%">
 <h2>Gap per response (NRMSE on held-out drive levels)</h2>
 <table><tr><th>column</th><th>model before</th><th>fitted plant</th><th>final model</th></tr>
@@ -276,7 +276,7 @@ held-out error above noise {{ "%.0f"|format(100 * e.heldout_drop) }} % lower.</p
 </td><td>{{ "%.5g"|format(p.nominal) }}</td>
 <td>{{ "%+.1f"|format(100 * (p.value / p.nominal - 1)) }} %</td></tr>{% endfor %}</table>
 <h2>Candidates judged</h2><table><tr><th>candidate</th><th>held-out drop</th><th>z</th>
-<th>refused because</th></tr>{% for c in doc.candidates %}<tr><td>{{ c.name }}</td>
+<th>rules</th></tr>{% for c in doc.candidates %}<tr><td>{{ c.name }}</td>
 <td>{{ "%.0f"|format(100 * c.heldout_drop) }} %</td><td>{{ "%.1f"|format(c.z) }}</td>
 <td style="text-align:left">{{ c.failed|join("; ") if c.failed else "passed every rule" }}</td>
 </tr>{% endfor %}</table>

@@ -30,7 +30,7 @@ import numpy as np
 from flaair_model.effects import EFFECTS
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
-from flaair_model.terms import TERM_KINDS, DiscoveredTerm, TermSignals
+from flaair_model.terms import MAX_DYNAMICS_TERMS, TERM_KINDS, DiscoveredTerm, TermSignals
 
 from .fit import (
     PITCH_KEYS,
@@ -175,8 +175,12 @@ def candidates(table: Table, model: Model) -> list[Candidate]:
                 tuple(e.trades_off),
             )
         )
+    present = {(t.kind, t.acts_on) for t in model.discovered}
+    full = sum(t.is_dynamics for t in model.discovered) >= MAX_DYNAMICS_TERMS  # kernel slots
     for row in TERM_KINDS:
         for site in _TERM_SITES:
+            if (row.name, site) in present or (full and site != "drive"):
+                continue
             side = "pitch" if site == "pitch_dynamics" else "stroke"
             if (
                 site not in row.sites
