@@ -701,12 +701,11 @@ def simulate_batch_from(
         Arrays of shape (n_models, n_samples).
     """
     fs = _check_fs(fs_hz)
-    drive = _check_drive(drive_v, (1, 2))
+    rows = np.atleast_2d(_check_drive(drive_v, (1, 2)))
     models = list(models)
     m = len(models)
-    if drive.ndim == 2 and drive.shape[0] != m:
-        raise ValueError(f"drive_v has {drive.shape[0]} rows for {m} models")
-    rows = drive if drive.ndim == 2 else drive[None, :]
+    if rows.shape[0] not in (1, m):
+        raise ValueError(f"drive_v has {rows.shape[0]} rows for {m} models")
     x0 = np.broadcast_to(np.asarray(mechanical0, dtype=np.float64), (m, 4)).copy()
     if not np.all(np.isfinite(x0)):
         raise ValueError("mechanical0 must be finite")
