@@ -27,6 +27,8 @@ Examples
   bin/flaair discrepancy lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/discrepancy
   bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
   bin/flaair discrepancy --validate --out out/discrepancy-validation
+  bin/flaair discrepancy --table lab/robot3_sweep.csv --out out/robot3  (a lab's table,
+                     docs/TABLES.md)
 """
 
 from __future__ import annotations
