@@ -151,9 +151,9 @@ def normalised_residuals(
 
 
 def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
-    """(M, cells) of the measured cells of every column (a diverged model's NaN as 1e6)."""
+    """(M, cells) of the measured cells of every column (a diverged model's as +-1e6)."""
     parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
-    return np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6, posinf=1e6, neginf=-1e6)
+    return np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6), -1e6, 1e6)
 
 
 def _evaluator(
