@@ -289,7 +289,10 @@ def _rank(table: Table, model: Model, cand: Candidate, s: TableSettings) -> tupl
     cols = _side_cols(table, cand.side)
     first = _grid_best(table, model, cand, s, cols)
     params = (first, *cand.params[1:])
-    fit = fit_table(table, model, params, replace(s, max_nfev=s.heldout_max_nfev), cols)
+    try:
+        fit = fit_table(table, model, params, replace(s, max_nfev=s.heldout_max_nfev), cols)
+    except (ValueError, np.linalg.LinAlgError):  # the candidate drives the model unstable
+        return math.inf, cand
     moved = tuple(replace(p, start=fit.values[p.key]) for p in params)
     return fit.chi2, replace(cand, params=moved)
 
@@ -371,7 +374,11 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
                     (_rank(table, current, c, s) for c in pool if c.is_term == group),
                     key=lambda rc: rc[0],
                 )
-                judged = [_judge(table, current, c, s, before) for _, c in ranked[: s.shortlist]]
+                judged = [
+                    _judge(table, current, c, s, before)
+                    for cost, c in ranked[: s.shortlist]
+                    if math.isfinite(cost)
+                ]
                 tried.extend(judged)
                 passed = [j for j in judged if not j.failed]
                 if passed:
