@@ -334,6 +334,7 @@ TOOLS_LAYERS = {
     "recorder": 1,
     "roscli": 1,
     "analysis": 1,
+    "tables": 1,
     "discrepancy": 2,
     "sweeps": 2,
     "liveview": 2,

@@ -24,6 +24,7 @@ __all__ = [
     "LiveSettings",
     "MonitorSettings",
     "StreamSettings",
+    "TableSettings",
     "bridge",
     "controller",
     "live",
@@ -31,6 +32,7 @@ __all__ = [
     "node_section",
     "read_section",
     "stream",
+    "tables",
 ]
 
 CONFIG_FILE = "flaair.yaml"
@@ -78,6 +80,29 @@ class ControllerSettings:
 
     sample_rate_hz: float
     block_size: int
+
+
+@dataclass(frozen=True)
+class TableSettings:
+    """Frequency-response tables (`tables` section): steady state, noise, hold-out rules."""
+
+    sample_rate_hz: float
+    settle_s: float
+    measure_wingbeats: int
+    min_frequency_hz: float
+    max_frequency_hz: float
+    reading_noise_deg: float
+    reading_noise_rel: float
+    phase_noise_deg: float
+    fit_range: float
+    max_nfev: int
+    heldout_max_nfev: int
+    shortlist: int
+    max_effects_per_side: int
+    near_resonance: float
+    gap_ratio: float
+    min_heldout_drop: float
+    min_z: float
 
 
 def _convert(value: Any, kind: type, where: str) -> Any:
@@ -131,6 +156,11 @@ def monitor() -> MonitorSettings:
 
 def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
+
+
+def tables() -> TableSettings:
+    """`identify --table`, `discrepancy --table`, `import-table`."""
+    return read_section("tables", TableSettings)
 
 
 def node_section(

@@ -70,6 +70,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "flaair_tools.analysis.analyze",
         "analyse bags: Bode, RMSE, collision FFT, Hilbert; HTML report",
     ),
+    "import-table": (
+        "flaair_tools.tables.import_cli",
+        "check a lab's frequency-response table (drive levels x frequencies) and summarise it",
+    ),
     "discrepancy": (
         "flaair_tools.discrepancy",
         "find where model and measurement disagree and fix the model",

@@ -389,7 +389,7 @@ def simulate_batch_from(
     Parameters
     ----------
     drive_v
-        (n_samples,) shared drive (V).
+        (n_samples,) shared drive, or (n_models, n_samples) one drive per model (V).
     fs_hz
         Sample rate.
     models
@@ -404,19 +404,21 @@ def simulate_batch_from(
         Arrays of shape (n_models, n_samples).
     """
     fs = _check_fs(fs_hz)
-    drive = _check_drive(drive_v)
+    rows = np.atleast_2d(_check_drive(drive_v, (1, 2)))
     models = list(models)
     m = len(models)
+    if rows.shape[0] not in (1, m):
+        raise ValueError(f"drive_v has {rows.shape[0]} rows for {m} models")
     x0 = np.broadcast_to(np.asarray(mechanical0, dtype=np.float64), (m, 4)).copy()
     if not np.all(np.isfinite(x0)):
         raise ValueError("mechanical0 must be finite")
     params, nsubs, delays, hist_len = _batch_tables(models, fs)
-    n = drive.shape[0]
+    n = rows.shape[1]
     phi, psi, vs, vp = (np.empty((m, n)) for _ in range(4))
-    seen, states = batch_drives(models, fs, drive[None, :])
+    seen, states = batch_drives(models, fs, rows)
     if m:
         run_batch(seen, 1.0 / fs, nsubs, params, delays, hist_len, x0, phi, psi, vs, vp)
-    add_batch_sensor_terms(models, fs, drive[None, :], states, phi, psi, vs, vp)
+    add_batch_sensor_terms(models, fs, rows, states, phi, psi, vs, vp)
     return SimOutput(phi, psi, vs, vp)
 
 

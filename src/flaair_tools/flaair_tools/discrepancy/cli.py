@@ -27,6 +27,8 @@ Examples
   bin/flaair discrepancy lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/discrepancy
   bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
   bin/flaair discrepancy --validate --out out/discrepancy-validation
+  bin/flaair discrepancy --table lab/robot3_sweep.csv --out out/robot3  (a lab's table,
+                     docs/TABLES.md)
 """
 
 from __future__ import annotations
@@ -298,6 +300,18 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
             f"{r['drive_level_ratio']:.3g}"
         )
     print(f"  -> {model_path}, {out / 'discrepancy.json'}, {out / 'report.html'}")
+
+
+def _table_or_runs(argv: list[str] | None = None) -> int:
+    """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
+    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from flaair_tools.tables.discrepancy_cli import main as table_main
+
+        return table_main(argv)
+    return _main_runs(argv)
+
+
+_main_runs, main = main, _table_or_runs
 
 
 if __name__ == "__main__":

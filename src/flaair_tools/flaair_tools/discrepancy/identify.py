@@ -14,8 +14,11 @@ Writes into --out DIR:
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
 
+A lab's frequency-response table instead of runs: --table TABLE.csv (docs/TABLES.md).
+
 Examples
 --------
+  bin/flaair identify --table lab/robot3_sweep.csv --out out/robot3
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
 """
@@ -47,6 +50,10 @@ def _terminate(signum: int, frame: object) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
+    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from flaair_tools.tables.identify_cli import main as table_main  # docs/TABLES.md
+
+        return table_main(argv)
     parser = argparse.ArgumentParser(
         prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

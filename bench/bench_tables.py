@@ -1,0 +1,162 @@
+"""Frequency-response tables: identify and discrepancy on simulated 60-point tables.
+
+Robots: the configured plant with the stroke natural frequency, aerodynamic damping and actuator
+gain drawn within +-10 % / +-15 % / +-15 % (and one robot resonant at 190 Hz for `identify`),
+tables of 3 drive levels (20, 40, 60 V) x 20 frequencies (0.6-1.6 x resonance) with reading
+noise and 30 % of pitch cells missing. Families: no effect; one amplitude-dependent effect
+(structural damping, hinge stiffening, collision, actuator saturation as a drive_cube term).
+Every figure names its robot count. Baselines (same run): identify started from the configured
+robot instead of the table's peaks; the steady state of one table (one batch).
+
+  nice -n 10 python bench/bench_tables.py --draws 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from benchlib import Figure, print_table, write_json
+from flaair_model import settings
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
+from flaair_model.terms import DiscoveredTerm
+from flaair_tools.tables.datasets import simulated_table
+from flaair_tools.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
+from flaair_tools.tables.steady_state import steady_response
+from flaair_tools.tables.workflow import analyse_table
+
+FAMILIES = ("none", "structural_damping", "hinge_stiffening", "collision", "drive_cube@drive")
+
+
+def robot(rng: np.random.Generator, family: str):
+    m = load_model()
+    pl = m.plant
+    plant = replace(
+        pl,
+        stroke_natural_frequency_hz=pl.stroke_natural_frequency_hz * rng.uniform(0.9, 1.1),
+        aero_damping_nm_s2=pl.aero_damping_nm_s2 * rng.uniform(0.85, 1.15),
+        actuator_gain_nm_per_v=pl.actuator_gain_nm_per_v * rng.uniform(0.85, 1.15),
+    )
+    true = replace(m, plant=plant)
+    if family == "structural_damping":
+        true = with_effects(true, {family: {"damping_ratio": rng.uniform(0.03, 0.08)}})
+    elif family == "hinge_stiffening":
+        true = with_effects(true, {family: {"cubic_per_rad2": rng.uniform(2.0, 4.0)}})
+    elif family == "collision":
+        true = with_effects(true, {family: {"stroke_limit_deg": rng.uniform(22.0, 28.0)}})
+    elif family == "drive_cube@drive":
+        term = DiscoveredTerm("drive_cube", "drive", -rng.uniform(4e-5, 8e-5))
+        true = replace(true, discovered=(term,))
+    return m, true
+
+
+def table_of(true, rng, s):
+    fn = true.plant.stroke_natural_frequency_hz
+    return simulated_table(
+        true, (20.0, 40.0, 60.0), np.linspace(0.6 * fn, 1.6 * fn, 20), s, rng, missing_pitch=0.3
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, help="write the figures as JSON here")
+    parser.add_argument("--draws", type=int, default=1, help="robots per family (default 1)")
+    args = parser.parse_args()
+    s = settings.tables()
+    figures: list[Figure] = []
+    nominal, _ = robot(np.random.default_rng(0), "none")
+    far = replace(
+        nominal,
+        plant=replace(
+            nominal.plant, stroke_natural_frequency_hz=190.0, actuator_gain_nm_per_v=2.4e-7
+        ),
+    )
+    table = table_of(far, np.random.default_rng(1), s)
+    t0 = time.perf_counter()
+    steady_response([nominal], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s)
+    one = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fitted, *_ = identify_table(table, nominal, s)
+    t_id = time.perf_counter() - t0
+    err = abs(fitted.plant.stroke_natural_frequency_hz / 190.0 - 1)
+    naive = fit_table(
+        table, nominal, plant_params(nominal, STROKE_KEYS, {}, s.fit_range), s, ["stroke_pp_deg"]
+    )
+    naive_err = abs(naive.model.plant.stroke_natural_frequency_hz / 190.0 - 1)
+    figures.append(
+        Figure(
+            "identify, 60-point table, robot at 190 Hz",
+            t_id,
+            "s",
+            "< 30 s",
+            t_id < 30,
+            f"one steady state of the table {one:.2f} s",
+        )
+    )
+    figures.append(
+        Figure(
+            "identify: stroke frequency error (1 robot)",
+            100 * err,
+            "%",
+            "< 1 %",
+            err < 0.01,
+            f"started from the configured robot: {100 * naive_err:.1f} %",
+        )
+    )
+    rng = np.random.default_rng(2026)
+    right, effect_robots, false, none_robots, times = 0, 0, 0, 0, []
+    for family in FAMILIES:
+        for _ in range(args.draws):
+            model, true = robot(rng, family)
+            table = table_of(true, rng, s)
+            t0 = time.perf_counter()
+            r = analyse_table(table, model, s)
+            times.append(time.perf_counter() - t0)
+            names = [j.candidate.name for j in r.accepted]
+            print(f"  {family:20s} {r.status:15s} {names} {times[-1]:.0f} s", flush=True)
+            if family == "none":
+                none_robots += 1
+                false += bool(names)
+            else:
+                effect_robots += 1
+                right += family in names
+    figures.append(
+        Figure(
+            f"right effect named or discovered ({effect_robots} robots)",
+            100 * right / max(effect_robots, 1),
+            "%",
+            ">= 80 %",
+            right >= 0.8 * effect_robots,
+        )
+    )
+    figures.append(
+        Figure(
+            f"false discoveries, no-effect robots ({none_robots})",
+            100 * false / max(none_robots, 1),
+            "%",
+            "0 %",
+            false == 0,
+        )
+    )
+    figures.append(
+        Figure(
+            f"discrepancy time per robot, max of {len(times)}",
+            max(times),
+            "s",
+            "< 120 s",
+            max(times) < 120,
+            f"median {np.median(times):.0f} s",
+        )
+    )
+    print_table(figures)
+    if args.json:
+        write_json(figures, args.json)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,346 @@
+"""The model fitted to a table: plant parameters (and any effect or term), started from the data.
+Pure.
+
+Residuals are the table's measured cells against the model's steady state (`steady_response`),
+each weighted by its reading noise: an amplitude by hypot(`reading_noise_deg`,
+`reading_noise_rel` x value), a phase by `phase_noise_deg` (wrapped). The fit is
+`scipy.optimize.least_squares` (trust-region reflective), plant parameters in log space within
+x/÷ `fit_range` of their start; its Jacobian is one batch of the plant core (every parameter's
+step and every point at once).
+
+The start comes from the table, not from the configured robot: the stroke natural frequency is
+the stroke's peak frequency, the actuator gain the quasi-static amplitude per volt of the points
+well below the peak (K A / V), the aerodynamic damping the peak's height (a sine of amplitude A at
+resonance: G V = Gamma (8 / 3 pi) w^2 A^2). The pitch natural frequency starts from the best
+of a grid (one batch), so a robot resonant far from nominal still fits.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from flaair_model.model import Model, effect_params, with_effects
+from flaair_model.settings import TableSettings
+from flaair_model.terms import DiscoveredTerm
+
+from .reader import AMPLITUDE_COLUMNS, PHASE_COLUMNS, Table
+from .steady_state import steady_response
+
+__all__ = [
+    "PITCH_KEYS",
+    "STROKE_KEYS",
+    "FreeParam",
+    "TableFit",
+    "apply_values",
+    "data_start",
+    "fit_table",
+    "identify_table",
+    "normalised_residuals",
+    "plant_params",
+    "stack_cells",
+]
+
+STROKE_KEYS: tuple[str, ...] = (
+    "stroke_natural_frequency_hz",
+    "aero_damping_nm_s2",
+    "actuator_gain_nm_per_v",
+)
+PITCH_KEYS: tuple[str, ...] = (
+    "pitch_natural_frequency_hz",
+    "hinge_damping_nm_s_per_rad",
+    "inertial_coupling_kg_m2",
+    "aero_coupling_nm_s2",
+)
+_DESCRIBING = 8.0 / (3.0 * math.pi)
+_PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
+_FD_STEP = 1e-4
+
+
+@dataclass(frozen=True)
+class FreeParam:
+    """One fitted parameter.
+
+    Attributes
+    ----------
+    key : `plant.<model.yaml plant key>`, `effect.<name>.<parameter>` or `term.<kind>@<site>`.
+    start, lower, upper : start and bounds (in the parameter's unit).
+    log : fitted as log(value) (positive parameters).
+    step : forward-difference step in the fitted space.
+    """
+
+    key: str
+    start: float
+    lower: float
+    upper: float
+    log: bool
+    step: float = _FD_STEP
+
+
+@dataclass(frozen=True)
+class TableFit:
+    """A fit's outcome: the model, each parameter's value and standard error, the residuals."""
+
+    model: Model
+    params: tuple[FreeParam, ...]
+    values: dict[str, float]
+    stderr: dict[str, float]
+    correlation: np.ndarray
+    chi2: float
+    n_cells: int
+    nfev: int
+
+
+def plant_params(model: Model, keys: Sequence[str], start: dict[str, float], r: float) -> list:
+    """Log-space `FreeParam`s for plant keys, within x/÷ `r` of `start` (or the model's value)."""
+    out = []
+    for k in keys:
+        v = float(start.get(k, getattr(model.plant, k)))
+        v = v if v > 0 else 1e-3 * float(getattr(model.plant, k) or 1.0)
+        out.append(FreeParam(f"plant.{k}", v, v / r, v * r, True))
+    return out
+
+
+def apply_values(model: Model, values: dict[str, float]) -> Model:
+    """`model` with every fitted parameter set (plant keys, effect parameters, terms)."""
+    plant = {k[6:]: v for k, v in values.items() if k.startswith("plant.")}
+    if plant:
+        model = replace(model, plant=replace(model.plant, **plant))
+    effects: dict[str, dict[str, float]] = {}
+    for k, v in values.items():
+        if k.startswith("effect."):
+            _, name, param = k.split(".")
+            effects.setdefault(name, {})[param] = v
+    if effects:
+        merged = {}
+        for name, params in effects.items():
+            old = model.effect(name)
+            merged[name] = {**(effect_params(old) if old is not None else {}), **params}
+        model = with_effects(model, merged)
+    terms = {k[5:]: v for k, v in values.items() if k.startswith("term.")}
+    if terms:
+        kept = [t for t in model.discovered if f"{t.kind}@{t.acts_on}" not in terms]
+        new = [DiscoveredTerm(*key.split("@"), coefficient=v) for key, v in terms.items()]
+        model = replace(model, discovered=tuple(kept + new))
+    return model
+
+
+def _sigma(column: str, measured: np.ndarray, s: TableSettings) -> np.ndarray:
+    if column in PHASE_COLUMNS:
+        return np.full(measured.shape, s.phase_noise_deg)
+    floor = s.reading_noise_deg / (2.0 if "amplitude" in column else 1.0)
+    return np.hypot(floor, s.reading_noise_rel * measured)
+
+
+def normalised_residuals(
+    table: Table, response: dict[str, np.ndarray], s: TableSettings, columns: Sequence[str]
+) -> dict[str, np.ndarray]:
+    """Per column, (M, P) (model - measured) / reading noise; NaN where not measured."""
+    out = {}
+    for c in columns:
+        meas = table.responses[c]
+        diff = response[c] - meas
+        if c in PHASE_COLUMNS:
+            diff = (diff + 180.0) % 360.0 - 180.0
+        out[c] = diff / _sigma(c, meas, s)
+    return out
+
+
+def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
+    """(M, cells) of the measured cells of every column (a diverged model's as +-1e6)."""
+    parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
+    return np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6), -1e6, 1e6)
+
+
+def _evaluator(
+    table: Table, model: Model, params: Sequence[FreeParam], s: TableSettings, cols: Sequence[str]
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Residuals (K, cells) of K points (K, p) of the fitted space, in one batch."""
+
+    def evaluate(xs: np.ndarray) -> np.ndarray:
+        models = [apply_values(model, _values(params, x)) for x in xs]
+        resp = steady_response(
+            models, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+        )
+        return stack_cells(table, normalised_residuals(table, resp, s, cols))
+
+    return evaluate
+
+
+def _values(params: Sequence[FreeParam], x: np.ndarray) -> dict[str, float]:
+    return {p.key: float(np.exp(v) if p.log else v) for p, v in zip(params, x, strict=True)}
+
+
+def _space(p: FreeParam, v: float) -> float:
+    return math.log(v) if p.log else v
+
+
+def fit_table(
+    table: Table,
+    model: Model,
+    params: Sequence[FreeParam],
+    s: TableSettings,
+    columns: Sequence[str],
+) -> TableFit:
+    """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
+    evaluate = _evaluator(table, model, params, s, columns)
+    lo = np.array([_space(p, p.lower) for p in params])
+    hi = np.array([_space(p, p.upper) for p in params])
+    x0 = np.clip([_space(p, p.start) for p in params], lo, hi)
+    steps = np.array([p.step for p in params])
+    cache: dict[bytes, np.ndarray] = {}
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        if x.tobytes() not in cache:
+            cache.clear()
+            cache[x.tobytes()] = evaluate(x[None, :])[0]
+        return cache[x.tobytes()]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        h = np.where(x + steps > hi, -steps, steps)
+        rows = evaluate(x[None, :] + np.diag(h))
+        return ((rows - fun(x)[None, :]) / h[:, None]).T
+
+    sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", max_nfev=s.max_nfev)
+    r = fun(sol.x)
+    jmat = jac(sol.x)
+    n, k = r.size, len(params)
+    chi2 = float(r @ r)
+    try:
+        cov = np.linalg.inv(jmat.T @ jmat) * max(1.0, chi2 / max(n - k, 1))
+    except np.linalg.LinAlgError:
+        cov = np.full((k, k), np.inf)
+    se = np.sqrt(np.abs(np.diag(cov)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(se, se)
+    values = _values(params, sol.x)
+    stderr = {
+        p.key: float(values[p.key] * e if p.log else e) for p, e in zip(params, se, strict=True)
+    }
+    return TableFit(
+        apply_values(model, values), tuple(params), values, stderr, corr, chi2, n, int(sol.nfev)
+    )
+
+
+def _stroke_pp_rad(table: Table) -> np.ndarray | None:
+    if "stroke_pp_deg" in table.responses:
+        return np.radians(table.responses["stroke_pp_deg"])
+    if "stroke_amplitude_deg" in table.responses:
+        return np.radians(2.0 * table.responses["stroke_amplitude_deg"])
+    return None
+
+
+def data_start(table: Table, model: Model) -> tuple[dict[str, float], list[str]]:
+    """Stroke plant parameters from the table's peaks and low-frequency gain, and notes.
+
+    Returns the start values (model.yaml plant keys) and what the table could not give.
+    """
+    notes: list[str] = []
+    pp = _stroke_pp_rad(table)
+    if pp is None or not np.isfinite(pp).any():
+        return {}, ["no stroke amplitude: the stroke plant starts from the model"]
+    idx, f = table.level_index, table.frequency_hz
+    peaks = []
+    for i in range(table.levels_v.size):
+        sel = (idx == i) & np.isfinite(pp)
+        if sel.any():
+            k = np.flatnonzero(sel)[np.argmax(pp[sel])]
+            edge = f[k] in (f[sel].min(), f[sel].max())
+            peaks.append((f[k], pp[k] / 2.0, table.drive_amplitude_v[k], edge))
+    inner = [p for p in peaks if not p[3]]
+    if not inner:
+        notes.append(
+            "no drive level peaks inside its frequency range: the resonance is outside the "
+            "table, the start is the configured robot's"
+        )
+        return {}, notes
+    fn = float(np.median([p[0] for p in inner]))
+    inertia = model.plant.stroke_inertia_kg_m2
+    k_stiff = inertia * (2.0 * math.pi * fn) ** 2
+    low = np.isfinite(pp) & (f < 0.6 * fn)
+    if low.any():
+        amp = pp[low] / 2.0 * np.abs(1.0 - (f[low] / fn) ** 2)
+        gain = float(np.median(k_stiff * amp / table.drive_amplitude_v[low]))
+    else:
+        gain = (
+            model.plant.actuator_gain_nm_per_v * (fn / model.plant.stroke_natural_frequency_hz) ** 2
+        )
+        notes.append("no point below 0.6 x the peak frequency: the gain starts from the model's")
+    w = 2.0 * math.pi * fn
+    gamma = float(np.median([gain * v / (_DESCRIBING * w**2 * a**2) for _, a, v, _ in inner]))
+    return {
+        "stroke_natural_frequency_hz": fn,
+        "actuator_gain_nm_per_v": gain,
+        "aero_damping_nm_s2": gamma,
+    }, notes
+
+
+def _pitch_grid_start(
+    table: Table, model: Model, s: TableSettings, cols: Sequence[str]
+) -> dict[str, float]:
+    """The pitch natural frequency of a grid around the model's with the lowest cost."""
+    f0 = model.plant.pitch_natural_frequency_hz
+    grid = [
+        replace(model, plant=replace(model.plant, pitch_natural_frequency_hz=f0 * g))
+        for g in _PITCH_GRID
+    ]
+    resp = steady_response(grid, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s)
+    r = stack_cells(table, normalised_residuals(table, resp, s, cols))
+    best = int(np.argmin((r**2).sum(axis=1)))
+    return {"pitch_natural_frequency_hz": f0 * _PITCH_GRID[best]}
+
+
+def _columns(table: Table, side: str) -> list[str]:
+    return [
+        c
+        for c in (*AMPLITUDE_COLUMNS, *PHASE_COLUMNS)
+        if c.startswith(side) and c in table.responses
+    ]
+
+
+def identify_table(
+    table: Table, model: Model, s: TableSettings
+) -> tuple[Model, list[TableFit], dict[str, float], list[str]]:
+    """The stroke plant fitted on the stroke columns, then the pitch plant on the pitch columns.
+
+    Returns
+    -------
+    model, fits, start, notes
+        The fitted model, each stage's `TableFit`, the start from the data (plant keys) and
+        what the table cannot tell (no resonance inside it, no pitch column, ...).
+    """
+    start, notes = data_start(table, model)
+    fits = []
+    stroke_cols = _columns(table, "stroke")
+    if stroke_cols:
+        fit = fit_table(
+            table, model, plant_params(model, STROKE_KEYS, start, s.fit_range), s, stroke_cols
+        )
+        model = fit.model
+        fits.append(fit)
+    else:
+        notes.append("no stroke column: the stroke plant stays the model's")
+    pitch_cols = _columns(table, "pitch")
+    if pitch_cols:
+        pstart = _pitch_grid_start(table, model, s, pitch_cols)
+        start.update(pstart)
+        fit = fit_table(
+            table, model, plant_params(model, PITCH_KEYS, pstart, s.fit_range), s, pitch_cols
+        )
+        model = fit.model
+        fits.append(fit)
+    else:
+        notes.append("no pitch column: the pitch plant stays the model's")
+    fn = model.plant.stroke_natural_frequency_hz
+    near = np.abs(table.frequency_hz / fn - 1.0) <= s.near_resonance
+    if stroke_cols and not near.any():
+        nearest = table.frequency_hz[np.argmin(np.abs(table.frequency_hz - fn))]
+        notes.append(
+            f"no point near the resonance (fitted {fn:.1f} Hz, nearest point {nearest:g} Hz): "
+            "damping and gain are poorly separated"
+        )
+    return model, fits, start, notes

@@ -1,0 +1,99 @@
+"""`flaair identify --table TABLE.csv --out DIR`: fit the plant to a frequency-response table.
+
+The stroke natural frequency, aerodynamic damping and actuator gain are fitted to the stroke
+columns, then the pitch natural frequency, hinge damping and couplings to the pitch columns,
+each point simulated to steady state with the simulator's plant core, started from the table's
+own peaks (docs/TABLES.md). Writes DIR/model.yaml and DIR/identification.json (parameters with
+value, nominal, start, stderr; correlations; what the table cannot separate; notes).
+
+Exit status: 0 when fitted, 2 on bad input (one line naming the line and column; nothing
+written), 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+from flaair_model import settings
+from flaair_model.config import ConfigError
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model, save_model
+
+from .fit import identify_table
+from .reader import TableInputError
+from .report import identification_doc, json_ready
+from .table_io import load_tables
+
+PROG = "flaair identify"
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def bad_input() -> tuple[type[Exception], ...]:
+    """The errors a command reports in one line with exit 2."""
+    import yaml
+
+    return (TableInputError, ConfigError, ModelError, OSError, yaml.YAMLError)
+
+
+def one_table(paths: list[Path]):
+    """The one robot's table in `paths` (several robots are refused by name)."""
+    tables = load_tables(paths)
+    if len(tables) > 1:
+        names = ", ".join(t.name for t in tables)
+        raise TableInputError(f"{paths[0]}: several robots ({names}); give one robot's table")
+    return tables[0]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`flaair identify --table TABLE [--model FILE] --out DIR`; returns the exit status."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
+    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    args = parser.parse_args(argv)
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        s = settings.tables()
+        model = load_model(args.model)
+        table = one_table(args.table)
+        t0 = time.perf_counter()
+        fitted, fits, start, notes = identify_table(table, model, s)
+        elapsed = time.perf_counter() - t0
+    except bad_input() as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    doc = identification_doc(table, model, fitted, fits, start, notes)
+    doc.update(model_in=str(args.model or "config/model.yaml"), seconds=elapsed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    save_model(fitted, args.out / "model.yaml")
+    (args.out / "identification.json").write_text(
+        json.dumps(json_ready(doc), indent=2, allow_nan=False), encoding="utf-8"
+    )
+    print(f"{PROG}: table {table.name}, {table.n_points} points, plant fitted in {elapsed:.1f} s")
+    print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
+    for k, p in doc["parameters"].items():
+        v, nom, se = p["value"], p["nominal"], p["stderr"]
+        print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
+    for note in [*doc["inseparable"], *notes]:
+        print(f"  note: {note}")
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,199 @@
+"""The model on a table: each point's steady-state response, through the simulator's own core. Pure.
+
+Every (drive level, frequency) point is one row of a `flaair_sim.core.plant.simulate_batch_from`
+call: it starts from the plant's harmonic-balance steady state (the quadratic dampings by their
+describing function), so only what that start misses (effects, terms, harmonics) has to settle,
+runs for `settle_s`, and the response is read over the last `measure_wingbeats` whole wingbeats:
+peak to peak (max - min, as a video reading gives it) and the fundamental's phase (a least-squares
+fit of mean, cosine and sine; the drive's zero-order hold, half a sample, is taken out of the
+stroke's phase). Because the same numba RK4 plant runs every point, whatever the
+model carries (vocabulary effects, discovered terms on the dynamics or the drive) is in the
+response; nothing is linearised. Several models at once (a fit's Jacobian) are one batch too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numba import njit
+
+from flaair_model.model import Model
+from flaair_model.settings import TableSettings
+from flaair_sim.core.plant import simulate_batch_from
+
+__all__ = [
+    "MAX_BATCH_ROWS",
+    "harmonic_balance_start",
+    "point_drives",
+    "steady_response",
+    "unsettled_fraction",
+]
+
+_DESCRIBING = 8.0 / (3.0 * math.pi)
+MAX_BATCH_ROWS = 240  # rows per simulate_batch call (bounds the (rows, samples) arrays' memory)
+
+
+def point_drives(
+    frequency_hz: np.ndarray, amplitude_v: np.ndarray, bias_v: np.ndarray, s: TableSettings
+) -> tuple[np.ndarray, np.ndarray]:
+    """(P, n) drive of each point (bias + sine from t = 0) and (P,) samples of its window.
+
+    The record is `settle_s` plus the slowest point's measuring window.
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    fs = s.sample_rate_hz
+    window = np.round(s.measure_wingbeats * fs / f).astype(np.int64)
+    n = max(math.ceil(s.settle_s * fs), int(window.max())) + int(window.max())
+    t = np.arange(n) / fs
+    drive = np.asarray(bias_v, dtype=float)[:, None] + np.asarray(amplitude_v, dtype=float)[
+        :, None
+    ] * np.sin(2.0 * np.pi * f[:, None] * t)
+    return drive, window
+
+
+def harmonic_balance_start(
+    model: Model,
+    frequency_hz: np.ndarray,
+    amplitude_v: np.ndarray,
+    bias_v: np.ndarray,
+    fs_hz: float,
+) -> np.ndarray:
+    """(P, 4) the plant's steady state at t = 0 by harmonic balance (the start of each point).
+
+    Structural damping as it is, the quadratic dampings by their describing function
+    (|x'| x' ~ (8 / 3 pi) w A x'), solved for the stroke amplitude by fixed-point iteration; other
+    effects and terms are left to the simulation, which starts here and settles the rest.
+    """
+    pl = model.plant
+    w = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float)
+    v = np.asarray(amplitude_v, dtype=float)
+    inertia = pl.stroke_inertia_kg_m2
+    k = inertia * (2.0 * np.pi * pl.stroke_natural_frequency_hz) ** 2
+    amp = pl.actuator_gain_nm_per_v * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
+    sd = model.effect("structural_damping")
+    zeta = float(getattr(sd, "damping_ratio", 0.0))
+    viscous = 2.0 * zeta * math.sqrt(k * inertia)
+    for _ in range(30):
+        c = np.maximum(viscous + pl.aero_damping_nm_s2 * _DESCRIBING * w * amp, 1e-3 * k / w)
+        h = pl.actuator_gain_nm_per_v / (k - inertia * w**2 + 1j * c * w)
+        amp = 0.5 * amp + 0.5 * np.abs(h) * v
+    # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
+    phi = h * (-1j * v) * np.exp(-0.5j * w / fs_hz)
+    ip = pl.pitch_inertia_kg_m2
+    kh = ip * (2.0 * np.pi * pl.pitch_natural_frequency_hz) ** 2
+    force = (
+        pl.inertial_coupling_kg_m2 * w**2 - 1j * w * pl.aero_coupling_nm_s2 * _DESCRIBING * w * amp
+    )
+    psi = force * phi / (kh - ip * w**2 + 1j * pl.hinge_damping_nm_s_per_rad * w)
+    static = pl.actuator_gain_nm_per_v * np.asarray(bias_v, dtype=float) / k
+    return np.stack([phi.real + static, (1j * w * phi).real, psi.real, (1j * w * psi).real], axis=1)
+
+
+@njit(cache=True)
+def _read_rows(x, window, f, fs, end, pp, phase):  # pragma: no cover - numba
+    """Peak to peak and fundamental phase (rad, against sin(2 pi f t)) of each row's samples
+    [end - window, end): max - min, and least squares of mean, cosine and sine.
+    """
+    for r in range(x.shape[0]):
+        hi, lo = -np.inf, np.inf
+        g = np.zeros((3, 3))
+        rhs = np.zeros(3)
+        basis = np.empty(3)
+        finite = True
+        for k in range(end - window[r], end):
+            v = x[r, k]
+            finite = finite and np.isfinite(v)
+            hi, lo = max(hi, v), min(lo, v)
+            wt = 2.0 * np.pi * f[r] * k / fs
+            basis[0], basis[1], basis[2] = 1.0, np.cos(wt), np.sin(wt)
+            for i in range(3):
+                rhs[i] += basis[i] * v
+                for j in range(3):
+                    g[i, j] += basis[i] * basis[j]
+        if not (finite and np.isfinite(hi) and np.isfinite(lo)):  # a model that diverged
+            pp[r] = phase[r] = np.nan
+            continue
+        coef = np.linalg.solve(g, rhs)
+        pp[r] = hi - lo
+        phase[r] = np.arctan2(coef[1], coef[2])
+
+
+def _read(
+    x: np.ndarray, window: np.ndarray, f: np.ndarray, fs: float, end: int
+) -> tuple[np.ndarray, np.ndarray]:
+    pp, phase = np.empty(x.shape[0]), np.empty(x.shape[0])
+    _read_rows(x, window, f, fs, end, pp, phase)
+    return pp, phase
+
+
+def _wrap_deg(x: np.ndarray) -> np.ndarray:
+    return (np.asarray(x) + 180.0) % 360.0 - 180.0
+
+
+def steady_response(
+    models: Sequence[Model],
+    frequency_hz: np.ndarray,
+    amplitude_v: np.ndarray,
+    bias_v: np.ndarray,
+    s: TableSettings,
+) -> dict[str, np.ndarray]:
+    """Every model's steady-state response at every point.
+
+    Parameters
+    ----------
+    models
+        M models (each simulated at every point).
+    frequency_hz, amplitude_v, bias_v
+        (P,) the points: drive frequency, sine amplitude and bias at the actuator.
+    s
+        The tables' settings (sample rate, ramp, settling time, measuring window).
+
+    Returns
+    -------
+    dict
+        (M, P) arrays: `stroke_pp_deg`, `stroke_amplitude_deg` (half of it), `pitch_pp_deg`,
+        `pitch_amplitude_deg`, `stroke_phase_deg` (stroke against the drive, negative = lag),
+        `pitch_phase_deg` (pitch against stroke), each wrapped to [-180, 180); `settle_change`
+        (the stroke's relative change of peak to peak over the window before: not settled if
+        large).
+    """
+    f = np.asarray(frequency_hz, dtype=float)
+    drive, window = point_drives(f, amplitude_v, bias_v, s)
+    m, p = len(models), f.size
+    rows = [(i, j) for i in range(m) for j in range(p)]
+    a, b = np.asarray(amplitude_v, dtype=float), np.asarray(bias_v, dtype=float)
+    starts = [harmonic_balance_start(model, f, a, b, s.sample_rate_hz) for model in models]
+    keys = ("pp_s", "ph_s", "pp_p", "ph_p", "pp_s_before")
+    out = {key: np.empty(m * p) for key in keys}
+    fs = s.sample_rate_hz
+    for start in range(0, len(rows), MAX_BATCH_ROWS):
+        chunk = rows[start : start + MAX_BATCH_ROWS]
+        pts = np.array([j for _, j in chunk])
+        x0 = np.array([starts[i][j] for i, j in chunk])
+        sim = simulate_batch_from(drive[pts], fs, [models[i] for i, _ in chunk], x0)
+        sl = slice(start, start + len(chunk))
+        n, w = drive.shape[1], window[pts]
+        out["pp_s"][sl], out["ph_s"][sl] = _read(sim.stroke_rad, w, f[pts], fs, n)
+        out["pp_p"][sl], out["ph_p"][sl] = _read(sim.pitch_rad, w, f[pts], fs, n)
+        out["pp_s_before"][sl] = _read(sim.stroke_rad, w, f[pts], fs, n - int(window.max()))[0]
+    shaped = {k: v.reshape(m, p) for k, v in out.items()}
+    stroke_pp = np.degrees(shaped["pp_s"])
+    pitch_pp = np.degrees(shaped["pp_p"])
+    return {
+        "stroke_pp_deg": stroke_pp,
+        "stroke_amplitude_deg": stroke_pp / 2.0,
+        "pitch_pp_deg": pitch_pp,
+        "pitch_amplitude_deg": pitch_pp / 2.0,
+        # the plant holds each drive sample over its period: a half-sample lag not in the lab's
+        "stroke_phase_deg": _wrap_deg(np.degrees(shaped["ph_s"] + np.pi * f / fs)),
+        "pitch_phase_deg": _wrap_deg(np.degrees(shaped["ph_p"] - shaped["ph_s"])),
+        "settle_change": np.abs(shaped["pp_s"] - shaped["pp_s_before"])
+        / np.maximum(shaped["pp_s"], 1e-12),
+    }
+
+
+def unsettled_fraction(response: dict[str, np.ndarray]) -> float:
+    """The largest relative change of the stroke's peak to peak between the last two windows."""
+    return float(np.max(response["settle_change"]))

@@ -1,0 +1,96 @@
+"""`discrepancy --table` on tables the simulated robot makes (reading noise, missing pitch cells):
+a robot with no missing effect ends `no_discrepancy`, an amplitude-dependent effect is named
+and the held-out gap shrinks, a one-level table is fitted but not searched.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flaair_model import settings
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
+from flaair_tools.discrepancy.cli import main as discrepancy_main
+from flaair_tools.tables.datasets import simulated_table
+from flaair_tools.tables.table_io import write_table
+from flaair_tools.tables.workflow import NOT_SEARCHED, analyse_table
+
+FREQS = np.linspace(90.0, 240.0, 14)
+LEVELS = (20.0, 40.0, 60.0)
+
+
+def robot():
+    m = load_model()
+    plant = replace(
+        m.plant,
+        stroke_natural_frequency_hz=150.0,
+        aero_damping_nm_s2=4.4e-11,
+        actuator_gain_nm_per_v=1.8e-7,
+    )
+    return m, replace(m, plant=plant)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_a_robot_without_a_missing_effect_ends_no_discrepancy() -> None:
+    s = settings.tables()
+    nominal, true = robot()
+    table = simulated_table(true, LEVELS, FREQS, s, np.random.default_rng(11), missing_pitch=0.3)
+    r = analyse_table(table, nominal, s)
+    assert r.status == "no_discrepancy" and r.accepted == []
+    assert r.model_out.plant.stroke_natural_frequency_hz == pytest.approx(150.0, rel=0.005)
+    for c in ("stroke_pp_deg", "pitch_pp_deg"):
+        assert r.gaps["gap_before"][c] > 0.1  # the configured robot is 7 % off in frequency
+        assert r.noise_ratio["gap_identified"][c] < s.gap_ratio
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_hinge_stiffening_is_named_and_the_heldout_gap_shrinks(tmp_path: Path) -> None:
+    s = settings.tables()
+    _, true = robot()
+    true = with_effects(true, {"hinge_stiffening": {"cubic_per_rad2": 3.0}})
+    table = simulated_table(true, LEVELS, FREQS, s, np.random.default_rng(12), missing_pitch=0.3)
+    path = tmp_path / "hinge.csv"
+    write_table(table, path)
+    out = tmp_path / "out"
+    assert discrepancy_main(["--table", str(path), "--out", str(out)]) == 0
+    doc = json.loads((out / "discrepancy.json").read_text())
+    assert doc["status"] in ("explained", "unexplained")  # 14 frequencies: a pitch gap may stay
+    assert [e["name"] for e in doc["effects"]] == ["hinge_stiffening"]
+    assert doc["discovered"] == []
+    value = doc["effects"][0]["parameters"]["cubic_per_rad2"]["value"]
+    assert value == pytest.approx(3.0, rel=0.25)
+    gaps = [doc[k]["pitch_pp_deg"] for k in ("gap_before", "gap_identified", "gap_after")]
+    assert gaps[0] > gaps[1] > 2 * gaps[2]
+    assert set(doc["not_searched"]) >= {"sensor_delay", "charge_amp_highpass", "wing_damage"}
+    assert "no time axis" in doc["not_searched"]["sensor_delay"]
+    assert load_model(out / "model.yaml").effect("hinge_stiffening") is not None
+    html = (out / "report.html").read_text()
+    assert "table_response.png" in html and (out / "table_response.png").stat().st_size > 10_000
+
+
+@pytest.mark.timeout(200)
+def test_one_level_is_fitted_not_searched_and_bad_input_writes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    s = settings.tables()
+    nominal, true = robot()
+    table = simulated_table(true, (40.0,), FREQS, s, np.random.default_rng(13))
+    r = analyse_table(table, nominal, s)
+    assert not r.searched and r.accepted == []
+    assert any("needs two or more" in n for n in r.notes)
+    assert r.model_out.plant.stroke_natural_frequency_hz == pytest.approx(150.0, rel=0.01)
+    assert "sensor_delay" in NOT_SEARCHED and "structural_damping" not in NOT_SEARCHED
+    bad = tmp_path / "bad.csv"
+    bad.write_text("drive_pp_v,frequency_hz,stroke_pp_deg\n80,150,3\n400,160,4\n")
+    out = tmp_path / "out"
+    assert discrepancy_main(["--table", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "line 3, column 'drive_pp_v'" in err and err.count("\n") == 1
+    assert not out.exists()
