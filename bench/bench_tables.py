@@ -21,14 +21,14 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import Figure, print_table, write_json
+from flaair_analysis.tables.datasets import simulated_table
+from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
+from flaair_analysis.tables.steady_state import steady_response
+from flaair_analysis.tables.workflow import analyse_table
 from flaair_model import settings
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_model.terms import DiscoveredTerm
-from flaair_tools.tables.datasets import simulated_table
-from flaair_tools.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
-from flaair_tools.tables.steady_state import steady_response
-from flaair_tools.tables.workflow import analyse_table
 
 FAMILIES = ("none", "structural_damping", "hinge_stiffening", "collision", "drive_cube@drive")
 

@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flaair_analysis.tables.datasets import simulated_table
+from flaair_analysis.tables.workflow import NOT_SEARCHED, analyse_table
 from flaair_model import settings
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_tools.discrepancy.cli import main as discrepancy_main
-from flaair_tools.tables.datasets import simulated_table
 from flaair_tools.tables.table_io import write_table
-from flaair_tools.tables.workflow import NOT_SEARCHED, analyse_table
 
 FREQS = np.linspace(90.0, 240.0, 14)
 LEVELS = (20.0, 40.0, 60.0)

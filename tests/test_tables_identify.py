@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flaair_analysis.tables.datasets import simulated_table
+from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, identify_table
 from flaair_model import settings
 from flaair_model.model_io import load_model
 from flaair_tools.discrepancy.identify import main as identify_main
-from flaair_tools.tables.datasets import simulated_table
-from flaair_tools.tables.fit import PITCH_KEYS, STROKE_KEYS, identify_table
 from flaair_tools.tables.table_io import write_table
 
 pytestmark = pytest.mark.timeout(240)

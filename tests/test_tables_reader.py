@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flaair_tools.tables import TableInputError, TableLimits, read_table, summarise
+from flaair_analysis.tables import TableInputError, TableLimits, read_table, summarise
 from flaair_tools.tables.import_cli import main as import_main
 
 pytestmark = pytest.mark.timeout(60)

@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_model import settings
-from flaair_model.model import with_effects
-from flaair_model.model_io import load_model
-from flaair_sim.core.plant import simulate, simulate_batch_from
-from flaair_tools.tables.steady_state import (
+from flaair_analysis.tables.steady_state import (
     harmonic_balance_start,
     point_drives,
     steady_response,
 )
+from flaair_model import settings
+from flaair_model.model import with_effects
+from flaair_model.model_io import load_model
+from flaair_sim.core.plant import simulate, simulate_batch_from
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -10,7 +10,9 @@ Modules (import them by name; this package imports none of them eagerly):
 - `wingbeat`: per-wingbeat summary of a stroke and pitch record (numba);
 - `headline`: the paper's headline figures beside the measured ones (`flaair analyze`'s table);
 - `closed_loop`: the compiled closed-loop batch engine the sweeps run (many robots, each under
-  its own sync or dSA drive, on the plant's own kernels).
+  its own sync or dSA drive, on the plant's own kernels);
+- `tables`: a lab's frequency-response tables: reading, the model's steady state per point,
+  the plant fitted to a table, the discrepancy workflow on held-out drive levels.
 """
 
-__all__ = ["closed_loop", "discrepancy", "headline", "wingbeat"]
+__all__ = ["closed_loop", "discrepancy", "headline", "tables", "wingbeat"]

@@ -171,7 +171,7 @@ def _children(node: yaml.Node) -> Iterator[yaml.Node]:
             yield value
 
 
-class _BoundedLoader(yaml.SafeLoader):
+class _BoundedLoader(yaml.SafeLoader):  # type: ignore[misc]  # PyYAML ships no type stubs
     """SafeLoader that sizes a document, aliases expanded, before constructing anything, and
     refuses a key written twice in one mapping (YAML would keep the last, silently).
     """
@@ -182,7 +182,7 @@ class _BoundedLoader(yaml.SafeLoader):
             _expanded_nodes(node)
         return node
 
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[tuple[str, str]] = set()
         for key, _ in node.value:
             if isinstance(key, yaml.ScalarNode) and key.value != "<<":
@@ -191,7 +191,8 @@ class _BoundedLoader(yaml.SafeLoader):
                         None, None, f"key {quote(key.value, 30)} written twice", key.start_mark
                     )
                 seen.add((key.tag, key.value))
-        return super().construct_mapping(node, deep)
+        mapping: dict[Any, Any] = super().construct_mapping(node, deep)
+        return mapping
 
 
 def check_numbers(data: Any, where: str, key: str = "") -> None:

@@ -1,34 +1,12 @@
-"""Frequency-response tables (docs/TABLES.md): a lab's steady-sine sweeps, read from video.
+"""Frequency-response tables (docs/TABLES.md): the commands, files and report around the pure
+`flaair_analysis.tables`.
 
-Modules: `reader` (the CSV format, checked by line and column; pure), `steady_state` (the plant's
-steady-state response at each drive level and frequency, batched through the simulator's own
-core; pure), `fit` (the plant fitted to a table, started from the data; pure), `workflow` (the
-discrepancy workflow on a table, held-out drive levels; pure), `table_io` (files and config),
-`report` (discrepancy.json, figures, report.html), `import_cli` (`flaair import-table`).
+Modules (import them by name; this package imports none of them eagerly):
+- `table_io`: table files and the tables section of the config
+- `report`: discrepancy.json, figures and report.html of a table
+- `import_cli`: `bin/flaair import-table`
+- `identify_cli`: `bin/flaair identify --table`
+- `discrepancy_cli`: `bin/flaair discrepancy --table`
 """
 
-from __future__ import annotations
-
-from .reader import (
-    AMPLITUDE_COLUMNS,
-    PHASE_COLUMNS,
-    RESPONSE_COLUMNS,
-    LevelSummary,
-    Table,
-    TableInputError,
-    TableLimits,
-    read_table,
-    summarise,
-)
-
-__all__ = [
-    "AMPLITUDE_COLUMNS",
-    "PHASE_COLUMNS",
-    "RESPONSE_COLUMNS",
-    "LevelSummary",
-    "Table",
-    "TableInputError",
-    "TableLimits",
-    "read_table",
-    "summarise",
-]
+__all__ = ["discrepancy_cli", "identify_cli", "import_cli", "report", "table_io"]

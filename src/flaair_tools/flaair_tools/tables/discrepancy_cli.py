@@ -21,12 +21,12 @@ import sys
 import time
 from pathlib import Path
 
+from flaair_analysis.tables.workflow import analyse_table
 from flaair_model import settings
 from flaair_model.model_io import load_model, save_model
 
 from .identify_cli import bad_input, one_table
 from .report import write_report
-from .workflow import analyse_table
 
 PROG = "flaair discrepancy"
 

@@ -19,13 +19,13 @@ import sys
 import time
 from pathlib import Path
 
+from flaair_analysis.tables.fit import identify_table
+from flaair_analysis.tables.reader import TableInputError
 from flaair_model import settings
 from flaair_model.config import ConfigError
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model, save_model
 
-from .fit import identify_table
-from .reader import TableInputError
 from .report import identification_doc, json_ready
 from .table_io import load_tables
 

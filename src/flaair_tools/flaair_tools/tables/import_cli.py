@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from flaair_analysis.tables.reader import Table, TableInputError, summarise
 from flaair_model.config import ConfigError
 
-from .reader import Table, TableInputError, summarise
 from .table_io import load_tables
 
 PROG = "flaair import-table"

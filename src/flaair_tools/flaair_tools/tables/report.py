@@ -11,14 +11,13 @@ from typing import Any
 
 import numpy as np
 
+from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, TableFit
+from flaair_analysis.tables.reader import Table, summarise
+from flaair_analysis.tables.steady_state import steady_response
+from flaair_analysis.tables.workflow import NOT_SEARCHED, Judged, TableDiscrepancy
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
-
-from .fit import PITCH_KEYS, STROKE_KEYS, TableFit
-from .reader import Table, summarise
-from .steady_state import steady_response
-from .workflow import NOT_SEARCHED, Judged, TableDiscrepancy
 
 __all__ = [
     "discrepancy_doc",

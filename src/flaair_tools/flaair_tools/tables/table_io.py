@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flaair_analysis.tables.reader import Table, TableInputError, TableLimits, read_table
 from flaair_model import settings
-
-from .reader import Table, TableInputError, TableLimits, read_table
 
 __all__ = ["load_tables", "table_limits", "write_table"]
 

@@ -95,7 +95,9 @@ class TableFit:
     nfev: int
 
 
-def plant_params(model: Model, keys: Sequence[str], start: dict[str, float], r: float) -> list:
+def plant_params(
+    model: Model, keys: Sequence[str], start: dict[str, float], r: float
+) -> list[FreeParam]:
     """Log-space `FreeParam`s for plant keys, within x/÷ `r` of `start` (or the model's value)."""
     out = []
     for k in keys:
@@ -124,7 +126,10 @@ def apply_values(model: Model, values: dict[str, float]) -> Model:
     terms = {k[5:]: v for k, v in values.items() if k.startswith("term.")}
     if terms:
         kept = [t for t in model.discovered if f"{t.kind}@{t.acts_on}" not in terms]
-        new = [DiscoveredTerm(*key.split("@"), coefficient=v) for key, v in terms.items()]
+        new = [
+            DiscoveredTerm(key.split("@")[0], key.split("@")[1], coefficient=v)
+            for key, v in terms.items()
+        ]
         model = replace(model, discovered=tuple(kept + new))
     return model
 
@@ -153,7 +158,8 @@ def normalised_residuals(
 def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
     """(M, cells) of the measured cells of every column (a diverged model's as +-1e6)."""
     parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
-    return np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6), -1e6, 1e6)
+    stacked: np.ndarray = np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6), -1e6, 1e6)
+    return stacked
 
 
 def _evaluator(
@@ -203,7 +209,8 @@ def fit_table(
     def jac(x: np.ndarray) -> np.ndarray:
         h = np.where(x + steps > hi, -steps, steps)
         rows = evaluate(x[None, :] + np.diag(h))
-        return ((rows - fun(x)[None, :]) / h[:, None]).T
+        jacobian: np.ndarray = ((rows - fun(x)[None, :]) / h[:, None]).T
+        return jacobian
 
     sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", max_nfev=s.max_nfev)
     r = fun(sol.x)
@@ -228,7 +235,8 @@ def fit_table(
 
 def _stroke_pp_rad(table: Table) -> np.ndarray | None:
     if "stroke_pp_deg" in table.responses:
-        return np.radians(table.responses["stroke_pp_deg"])
+        pp_rad: np.ndarray = np.radians(table.responses["stroke_pp_deg"])
+        return pp_rad
     if "stroke_amplitude_deg" in table.responses:
         return np.radians(2.0 * table.responses["stroke_amplitude_deg"])
     return None

@@ -92,7 +92,7 @@ def harmonic_balance_start(
 
 
 @njit(cache=True)
-def _read_rows(x, window, f, fs, end, pp, phase):  # pragma: no cover - numba
+def _read_rows(x, window, f, fs, end, pp, phase):  # type: ignore[no-untyped-def]  # numba
     """Peak to peak and fundamental phase (rad, against sin(2 pi f t)) of each row's samples
     [end - window, end): max - min, and least squares of mean, cosine and sine.
     """

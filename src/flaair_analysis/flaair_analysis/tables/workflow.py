@@ -263,7 +263,7 @@ def _scores(
 
 def _excess(ratio: dict[str, float | None], cols: Sequence[str]) -> float:
     """The side's mean-square error above noise (in noise units squared)."""
-    vals = [ratio[c] for c in cols if ratio.get(c) is not None]
+    vals = [v for c in cols if (v := ratio.get(c)) is not None]
     return float(np.mean([max(v * v - 1.0, 0.0) for v in vals])) if vals else 0.0
 
 

@@ -1,0 +1,34 @@
+"""Frequency-response tables (docs/TABLES.md): a lab's steady-sine sweeps, read from video.
+
+Modules: `reader` (the CSV format, checked by line and column), `steady_state` (the plant's
+steady-state response at each drive level and frequency, batched through the simulator's own
+core), `fit` (the plant fitted to a table, started from the data), `workflow` (the discrepancy
+workflow on a table, held-out drive levels), `datasets` (tables the simulated robot makes). The
+files, the report and the commands are in `flaair_tools.tables`.
+"""
+
+from __future__ import annotations
+
+from .reader import (
+    AMPLITUDE_COLUMNS,
+    PHASE_COLUMNS,
+    RESPONSE_COLUMNS,
+    LevelSummary,
+    Table,
+    TableInputError,
+    TableLimits,
+    read_table,
+    summarise,
+)
+
+__all__ = [
+    "AMPLITUDE_COLUMNS",
+    "PHASE_COLUMNS",
+    "RESPONSE_COLUMNS",
+    "LevelSummary",
+    "Table",
+    "TableInputError",
+    "TableLimits",
+    "read_table",
+    "summarise",
+]
