@@ -26,7 +26,7 @@ def make_bag(directory: Path) -> Path:
     from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.measured_run import synthesize_measured_run
     from flaair_tools.bagio.import_runs import import_runs
-    from flaair_tools.orchestration.experiment import robot_model
+    from flaair_tools.orchestration.bench_robot import robot_model
 
     model = robot_model()
     drive = drive_record(

@@ -2,9 +2,11 @@
 
 ``core/`` holds the pure decisions (no rclpy); beside it the ROS shells and their adapters:
 
-- ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``: the nodes (rclpy)
+- ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``,
+  ``health_node``: the nodes (rclpy)
 - ``control_io`` (the dSA controller), ``monitor_io`` (the collision monitor), ``stroke_io``,
-  ``transition_io``: their parameters and message <-> core mappings (no rclpy)
+  ``transition_io``, ``health_io`` (the health monitor): their parameters and message <-> core
+  mappings (no rclpy)
 """
 
 __all__ = [
@@ -12,6 +14,8 @@ __all__ = [
     "control_io",
     "core",
     "dsa_controller_node",
+    "health_io",
+    "health_node",
     "monitor_io",
     "stroke_controller_node",
     "stroke_io",

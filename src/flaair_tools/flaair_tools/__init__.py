@@ -7,6 +7,8 @@
 - `analysis`: analysis of recorded runs and the report;
 - `discrepancy`: the `discrepancy` and `identify` commands and their reports (the workflow itself
   is the pure `flaair_analysis.discrepancy`);
+- `tables`: a lab's frequency-response tables (files, report, commands around the pure
+  `flaair_analysis.tables`);
 - `sweeps`: simulation studies on Dask;
 - `liveview`: the Foxglove live view;
 - `orchestration`: graphs brought up and run (experiments, `live`, the demo);
@@ -26,4 +28,5 @@ __all__ = [
     "recorder",
     "roscli",
     "sweeps",
+    "tables",
 ]

@@ -6,6 +6,7 @@ Modules:
 - `identify`: `bin/flaair identify` (the grey-box plant fit alone)
 - `report`: the report's JSON, Markdown and HTML pages and the validation table
 - `report_figures`: the report's figures (matplotlib, no pyplot)
+- `validation_file`: a `--validation` file read and checked before the analysis
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """Graphs brought up and run: the paper experiments, `live`, the demo, the transition figure.
 
 Modules (import them by name; this package imports none of them eagerly):
+- `bench_robot`: the simulated bench robot (its plant, hidden effects and discovered terms)
 - `experiment`: `bin/flaair experiment`: one paper experiment on the simulated robot, recorded
 - `graphs`: the declared nodes and graphs, read from the launch files
 - `launch_file`: the ROS 2 XML launch-file reader (no ROS)
@@ -13,6 +14,7 @@ Modules (import them by name; this package imports none of them eagerly):
 """
 
 __all__ = [
+    "bench_robot",
     "demo",
     "experiment",
     "graphs",

@@ -23,13 +23,12 @@ from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_model.term_entry import term_from_dict
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
+from flaair_tools.orchestration.bench_robot import robot_effects, robot_section
 from flaair_tools.orchestration.experiment import (
     ExperimentError,
     ExperimentSpec,
     experiment_roles,
     load_experiments,
-    robot_effects,
-    robot_section,
     run_experiment,
 )
 from flaair_tools.orchestration.graphs import node_of
