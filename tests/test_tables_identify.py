@@ -86,3 +86,12 @@ def test_the_command_writes_model_and_identification_and_refuses_without_writing
     err = capsys.readouterr().err
     assert "line 3, column 'frequency_hz'" in err and err.count("\n") == 1
     assert not nothing.exists()
+    # outputs are never inputs, and an existing output is replaced only with --force
+    before = (out / "model.yaml").read_bytes()
+    assert identify_main(["--table", str(path), "--out", str(out)]) == 2
+    assert "model.yaml exists (--force replaces it)" in capsys.readouterr().err
+    assert (out / "model.yaml").read_bytes() == before
+    model_in = ["--model", str(out / "model.yaml")]
+    assert identify_main(["--table", str(path), *model_in, "--out", str(out), "--force"]) == 2
+    assert "would overwrite the input" in capsys.readouterr().err
+    assert (out / "model.yaml").read_bytes() == before

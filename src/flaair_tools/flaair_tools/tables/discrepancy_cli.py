@@ -9,60 +9,44 @@ Writes into --out DIR: discrepancy.json (status, effects, discovered, identifica
 response column before / identified / after on held-out levels), model.yaml, report.html and
 its figure table_response.png.
 
-Exit status: 0 when analysed, 2 on bad input (one line naming the line and column; nothing
-written), 130 when interrupted.
+Exit status: 0 when analysed, 2 on bad input (one line naming the line and column, or an --out
+that would overwrite an input or an existing output without --force; nothing written), 130
+when interrupted.
 """
 
 from __future__ import annotations
 
-import argparse
-import signal
 import sys
-import time
-from pathlib import Path
 
 from flaair_analysis.tables.workflow import analyse_table
-from flaair_model import settings
-from flaair_model.model_io import load_model, save_model
+from flaair_common.outputs import OutputError, writing_outputs
+from flaair_model.model_io import save_model
 
-from .identify_cli import bad_input, one_table
+from .identify_cli import computed, table_command
 from .report import write_report
 
 PROG = "flaair discrepancy"
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+OUT_FILES = ("model.yaml", "discrepancy.json", "report.html", "table_response.png")
 
 
 def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy --table TABLE [--model FILE] --out DIR`; returns the exit status."""
-    parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
-    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
-    args = parser.parse_args(argv)
-    previous = signal.signal(signal.SIGTERM, _terminate)
+    parsed = table_command(PROG, __doc__, argv, OUT_FILES)
+    if isinstance(parsed, int):
+        return parsed
+    args, written = parsed
+    done = computed(PROG, args, analyse_table)
+    if isinstance(done, int):
+        return done
+    table, _, s, result, elapsed = done
     try:
-        s = settings.tables()
-        model = load_model(args.model)
-        table = one_table(args.table)
-        t0 = time.perf_counter()
-        result = analyse_table(table, model, s)
-        elapsed = time.perf_counter() - t0
-    except bad_input() as exc:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            save_model(result.model_out, args.out / "model.yaml")
+            doc = write_report(result, table, s, args.out)
+    except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    args.out.mkdir(parents=True, exist_ok=True)
-    save_model(result.model_out, args.out / "model.yaml")
-    doc = write_report(result, table, s, args.out)
     print(f"{PROG}: table {table.name}, {table.n_points} points, {elapsed:.1f} s")
     print(f"  {doc['summary']}")
     for c, v in doc["gap_before"].items():

@@ -6,8 +6,9 @@ each point simulated to steady state with the simulator's plant core, started fr
 own peaks (docs/TABLES.md). Writes DIR/model.yaml and DIR/identification.json (parameters with
 value, nominal, start, stderr; correlations; what the table cannot separate; notes).
 
-Exit status: 0 when fitted, 2 on bad input (one line naming the line and column; nothing
-written), 130 when interrupted.
+Exit status: 0 when fitted, 2 on bad input (one line naming the line and column, or an --out
+that would overwrite an input or an existing output without --force; nothing written), 130
+when interrupted.
 """
 
 from __future__ import annotations
@@ -17,19 +18,24 @@ import json
 import signal
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 from flaair_analysis.tables.fit import identify_table
-from flaair_analysis.tables.reader import TableInputError
+from flaair_analysis.tables.reader import Table, TableInputError
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model import settings
 from flaair_model.config import ConfigError
-from flaair_model.model import ModelError
+from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model, save_model
 
 from .report import identification_doc, json_ready
 from .table_io import load_tables
 
 PROG = "flaair identify"
+OUT_FILES = ("model.yaml", "identification.json")
+T = TypeVar("T")
 
 
 def _terminate(signum: int, frame: object) -> None:
@@ -52,36 +58,78 @@ def one_table(paths: list[Path]):
     return tables[0]
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`flaair identify --table TABLE [--model FILE] --out DIR`; returns the exit status."""
+def table_command(
+    prog: str, doc: str | None, argv: list[str] | None, out_files: tuple[str, ...]
+) -> tuple[argparse.Namespace, list[Path]] | int:
+    """A table command's arguments and the outputs it may write, or the exit status of a
+    refusal (the outputs checked before anything is computed: never an input, never the
+    project's config, an existing one replaced only with --force).
+    """
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
     parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     args = parser.parse_args(argv)
+    inputs = [*args.table, *([args.model] if args.model else [])]
+    try:
+        return args, check_output(args.out, inputs, args.force, out_files)
+    except OutputError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+
+
+def computed(
+    prog: str, args: argparse.Namespace, compute: Callable[[Table, Model, Any], T]
+) -> tuple[Table, Model, Any, T, float] | int:
+    """`compute(table, model, settings)` on the command's one table, timed, with SIGTERM taken
+    as Ctrl-C; or the exit status of bad input (2) or an interruption (130), nothing written.
+    """
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         s = settings.tables()
         model = load_model(args.model)
         table = one_table(args.table)
         t0 = time.perf_counter()
-        fitted, fits, start, notes = identify_table(table, model, s)
-        elapsed = time.perf_counter() - t0
+        result = compute(table, model, s)
+        return table, model, s, result, time.perf_counter() - t0
     except bad_input() as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`flaair identify --table TABLE [--model FILE] --out DIR`; returns the exit status."""
+    parsed = table_command(PROG, __doc__, argv, OUT_FILES)
+    if isinstance(parsed, int):
+        return parsed
+    args, written = parsed
+    done = computed(PROG, args, identify_table)
+    if isinstance(done, int):
+        return done
+    table, model, _, (fitted, fits, start, notes), elapsed = done
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            _write(args.out, table, model, fitted, fits, start, notes, elapsed, args.model)
+    except OutputError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _write(out, table, model, fitted, fits, start, notes, elapsed, model_in) -> None:
     doc = identification_doc(table, model, fitted, fits, start, notes)
-    doc.update(model_in=str(args.model or "config/model.yaml"), seconds=elapsed)
-    args.out.mkdir(parents=True, exist_ok=True)
-    save_model(fitted, args.out / "model.yaml")
-    (args.out / "identification.json").write_text(
+    doc.update(model_in=str(model_in or "config/model.yaml"), seconds=elapsed)
+    out.mkdir(parents=True, exist_ok=True)
+    save_model(fitted, out / "model.yaml")
+    (out / "identification.json").write_text(
         json.dumps(json_ready(doc), indent=2, allow_nan=False), encoding="utf-8"
     )
     print(f"{PROG}: table {table.name}, {table.n_points} points, plant fitted in {elapsed:.1f} s")
@@ -91,8 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
     for note in [*doc["inseparable"], *notes]:
         print(f"  note: {note}")
-    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
-    return 0
+    print(f"  -> {out / 'model.yaml'}, {out / 'identification.json'}")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from flaair_analysis.tables.workflow import NOT_SEARCHED, Judged, TableDiscrepan
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
+from flaair_sensors.figures import literal_texts
 
 __all__ = [
     "discrepancy_doc",
@@ -248,7 +249,7 @@ def response_figure(result: TableDiscrepancy, table: Table, s: TableSettings, pa
         ax.legend(fontsize=8, ncol=2)
         ax.set_title(f"{c}: every drive level held out in turn")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    literal_texts(fig).savefig(path, dpi=90)  # a table or robot name drawn as written
 
 
 _PAGE = """<!doctype html><html><head><meta charset="utf-8"><title>{{ title }}</title>
