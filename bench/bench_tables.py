@@ -66,6 +66,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures as JSON here")
     parser.add_argument("--draws", type=int, default=1, help="robots per family (default 1)")
+    parser.add_argument(
+        "--families",
+        nargs="+",
+        choices=FAMILIES,
+        default=list(FAMILIES),
+        help="families to draw robots from (make bench: none and structural_damping)",
+    )
     args = parser.parse_args()
     s = settings.tables()
     figures: list[Figure] = []
@@ -114,6 +121,8 @@ def main() -> None:
         for _ in range(args.draws):
             model, true = robot(rng, family)
             table = table_of(true, rng, s)
+            if family not in args.families:  # drawn all the same: each robot as in the full run
+                continue
             t0 = time.perf_counter()
             r = analyse_table(table, model, s)
             times.append(time.perf_counter() - t0)

@@ -49,31 +49,40 @@ class Part:
 # start of their processes for the real-time ones (recorder, closed loop, bridge, live view),
 # from the robots' and cases' times (docs/DISCREPANCY.md) on two cores for the discrepancy.
 PARTS = (
-    Part("bench_sim", 20, 25),  # a cold numba compile in a fresh process: ~18 s
+    Part("bench_sim", 15, 25),  # a cold numba compile in a fresh process: ~18 s
     Part("bench_frontend_core", 10, 10),
     Part("bench_collision", 10, 10),
-    Part("bench_health", 40, 40),  # three damaged robots and 60 s of an unchanged one, dSA loop
+    Part("bench_health", 35, 40),  # three damaged robots and 60 s of an unchanged one, dSA loop
     Part("bench_analysis", 10, 10),
-    Part("bench_recorder", 45, 55),  # 2 scenarios x 10 s recorded, the 2 s player bag
-    Part("bench_closed_loop", 65, 75),  # 5 loops of 2 s and 2 composed of 4 s, at RTF 0.3-2.7
+    Part("bench_recorder", 40, 55),  # 2 scenarios x 10 s recorded, the 2 s player bag
+    Part("bench_closed_loop", 60, 75),  # 5 loops of 2 s and 2 composed of 4 s, at RTF 0.3-2.7
     # the fixed hidden-effect dataset too (`make test` runs 14 of its 45 cases,
     # tests/test_discrepancy.py); `make bench` the fixed subset of robots and cases: ~430 CPU-s
     # of analysis, ~225 s on 2 cores; make bench-full ~2800 CPU-s, ~25 min
-    Part("bench_discrepancy", 210, 1800, ("--subset", "--sweep"), ("--sweep",)),
+    Part("bench_discrepancy", 190, 1800, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 15, 20),
     Part("bench_sweep", 35, 40),
-    Part("bench_bridge", 95, 105),  # 20 s UDP echo, 60 s live, their start and stop
-    Part("bench_import", 45, 55),  # a 200 MB CSV written, imported, read whole
+    Part("bench_bridge", 90, 105),  # 20 s UDP echo, 60 s live, their start and stop
+    Part("bench_import", 40, 55),  # a 200 MB CSV written, imported, read whole
     Part("bench_lab_import", 15, 15),
-    Part("bench_foxglove", 30, 40),  # 2 x 10 s streamed
+    Part("bench_foxglove", 25, 40),  # 2 x 10 s streamed
     # 405 tests per stack, the two stacks at once (the first run also installs the stock stack
     # and compiles its kernels: about 2 min more, reported as over the budget)
-    Part("bench_stock_numpy", 55, 70),
-    Part("bench_workspace", 85, 110),  # a plain colcon build (~1.5 min)
+    Part("bench_stock_numpy", 50, 70),
+    Part("bench_workspace", 80, 110),  # a plain colcon build (~1.5 min)
     # the real ROS 2 tools against FLAAIR: 10 launch files parsed, the namespaced loop under
     # `ros2 launch`, 13 stand-in answers (163-195 s at load average 6-13; the first run on a
     # machine also builds the tools, about 4 min more, reported as over the budget)
-    Part("bench_ros2_conformance", 115, 200),
+    Part("bench_ros2_conformance", 100, 200),
+    # frequency-response tables: identify on a 60-point table; make bench analyses the no-effect
+    # and the structural-damping robots (~7 s and ~64 s), make bench-full all five families
+    Part(
+        "bench_tables",
+        80,
+        600,
+        ("--families", "none", "structural_damping"),
+        (),
+    ),
 )
 BENCH_BUDGET_S = 15 * 60.0
 

@@ -228,7 +228,7 @@ def test_char_or_struct_mat_fields_are_one_line_errors(field, tmp_path) -> None:
     else:
         log["time"] = {"a": np.zeros(3)}
     path = lf.write_mat(tmp_path / "log.mat", log, "v5")
-    with pytest.raises(LabFileError, match="not numbers"):
+    with pytest.raises(LabFileError, match=r"'rt_log' is not in Structure-with-time form"):
         read_target_log(path, ["pvdf_act"])
 
 

@@ -7,12 +7,10 @@ decompression bombs. Each test fails on the code before the fix.
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
-from flaair_bridge.core import protocol
+from flaair_bridge.core import protocol, target
 from flaair_bridge.core.protocol import SensorPacket
 
 pytestmark = pytest.mark.timeout(120)
@@ -26,20 +24,13 @@ def _valid_packet() -> bytes:
 
 
 def _bridge_after(datagrams, host: str = "", port: int = 0):
-    """The bridge node's target after its `on_datagram` saw `datagrams` (no ROS, no socket)."""
-    from flaair_bridge.bridge_node import BridgeNode
-
-    logger = SimpleNamespace(info=lambda *_: None)
-    node = SimpleNamespace(
-        p={"target_host": host, "target_port": port},
-        target=(host, port) if host and port else None,
-        state=SimpleNamespace(counters=SimpleNamespace(drive_packets=0)),
-        process=lambda _inputs: None,
-        get_logger=lambda: logger,
-    )
+    """The bridge's target after `datagrams` arrived: the decision its node takes for every
+    datagram (`target.follow`, bridge_node.on_datagram), with no ROS and no socket.
+    """
+    current = target.configured(host, port)
     for data, sender in datagrams:
-        BridgeNode.on_datagram(node, data, sender, 0.0)
-    return node.target
+        current, _notes = target.follow(host, port, sender, current, data)
+    return current
 
 
 def test_a_stray_datagram_never_redirects_the_drive() -> None:
