@@ -10,6 +10,7 @@ tools) depends on it; it depends on nothing of FLAAIR's.
 - `model`: the frozen parameter dataclasses (`PlantParams`, `SensorParams`, `NoiseParams`) and
   `Model`, which combines them with effects and discovered terms.
 - `model_io`: config/model.yaml <-> `Model`.
+- `term_forms`: dynamics term forms composed from primitives (parsed, canonical, generated).
 - `terms`: the term library the discrepancy workflow discovers missing physics from, and a
   model's discovered terms.
 - `config`: the one locator of config/ and the ROS parameter-file reader.
@@ -29,6 +30,7 @@ __all__ = [
     "pvdf",
     "schema",
     "settings",
+    "term_forms",
     "terms",
     "validation",
 ]

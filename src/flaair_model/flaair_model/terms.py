@@ -21,7 +21,9 @@ Each `TermKind` is one row: its name, the sites it may act on, its form in the m
 names (`form`; ``{corner_hz}`` stands for a shape parameter), how it is evaluated (a monomial
 for the dynamics, a numpy feature for the drive and the sensors), its shape parameters and the
 vocabulary effect it duplicates at a site (`same_as`: the search reports that effect instead).
-Adding a term is one row in `TERM_KINDS`; the search and the plant read the table.
+Adding a term is one row in `TERM_KINDS`; the search and the plant read the table. Besides the
+rows, a dynamics term may be any form composed from the primitives (`flaair_model.term_forms`;
+`row_of`, `composed_kinds`): its kind is its expression, e.g. ``phi*abs(dphi)``.
 
 Signals a drive or sensor feature may use (`TermSignals`): ``drive_v``; ``ddrive_v`` (V/s, the
 backward difference of the held drive); ``t`` (s from the start of the simulation); ``phi`` and
@@ -39,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from flaair_model.term_forms import PRIMITIVES, canonical, composed_forms, form_key, parse_form
 from flaair_model.validation import ModelError, check_number, coerce_number
 
 __all__ = [
@@ -53,8 +56,10 @@ __all__ = [
     "ShapeParam",
     "TermKind",
     "TermSignals",
+    "composed_kinds",
     "kinds_for",
     "lowpass_ba",
+    "row_of",
     "term_from_dict",
     "term_to_dict",
 ]
@@ -68,17 +73,6 @@ SITES: tuple[str, ...] = (
 )
 DYNAMICS_SITES: tuple[str, ...] = SITES[:2]
 SENSOR_SITES: tuple[str, ...] = SITES[3:]
-# The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order.
-PRIMITIVES: tuple[str, ...] = (
-    "phi",
-    "dphi",
-    "psi",
-    "dpsi",
-    "sign(dphi)",
-    "sign(dpsi)",
-    "abs(dphi)",
-    "abs(dpsi)",
-)
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
 MAX_DYNAMICS_TERMS = 2
 
@@ -174,6 +168,8 @@ class TermKind:
     shape : its shape parameters.
     same_as : {site: vocabulary effect} where the term is that effect under another name.
     examples : physics it stands for, for the report.
+    composed : a form composed from the primitives (`row_of`), not a row of the table; its name
+        is its expression.
     """
 
     name: str
@@ -185,6 +181,7 @@ class TermKind:
     shape: tuple[ShapeParam, ...] = ()
     same_as: Mapping[str, str] = field(default_factory=dict)
     examples: str = ""
+    composed: bool = False
 
     def __post_init__(self) -> None:
         dynamic = set(self.sites) & set(DYNAMICS_SITES)
@@ -209,16 +206,8 @@ def _other(site: str) -> str:
 
 
 def _mono(**exponents: int) -> tuple[int, ...]:
-    names = {
-        "phi": 0,
-        "dphi": 1,
-        "psi": 2,
-        "dpsi": 3,
-        "sign_dphi": 4,
-        "sign_dpsi": 5,
-        "abs_dphi": 6,
-        "abs_dpsi": 7,
-    }
+    keys = ("phi", "dphi", "psi", "dpsi", "sign_dphi", "sign_dpsi", "abs_dphi", "abs_dpsi")
+    names = {k: j for j, k in enumerate(keys)}
     e = [0] * len(PRIMITIVES)
     for k, v in exponents.items():
         e[names[k]] = v
@@ -427,6 +416,51 @@ _SITE_MONOMIALS = {
     "cube_velocity": {"stroke_dynamics": _mono(dphi=3), "pitch_dynamics": _mono(dpsi=3)},
 }
 KINDS: dict[str, TermKind] = {k.name: k for k in TERM_KINDS}
+_COMPOSED: dict[str, TermKind] = {}
+
+
+def _composed(expression: str) -> TermKind:
+    """The dynamics form `expression` composed from the primitives, named canonically."""
+    name = canonical(parse_form(expression))  # ValueError: not built from the primitives
+    monomial = parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
+    if name not in _COMPOSED:
+        _COMPOSED[name] = TermKind(
+            name,
+            f"a torque in {name}",
+            DYNAMICS_SITES,
+            name,
+            monomial,
+            examples="a form composed from the primitives, no row of the library",
+            composed=True,
+        )
+    return _COMPOSED[name]
+
+
+def row_of(kind: str) -> TermKind:
+    """The library row `kind`, or the dynamics form its expression composes (e.g.
+    'phi*abs(dphi)'); an expression not built from the primitives is refused by name.
+    """
+    if kind in KINDS:
+        return KINDS[kind]
+    try:
+        return _composed(kind)
+    except ValueError as exc:
+        raise ModelError(
+            f"discovered: unknown term {kind!r}: no row of the library ({', '.join(KINDS)}) and "
+            f"cannot be built from the primitives ({', '.join(PRIMITIVES)}): {exc}"
+        ) from None
+
+
+def composed_kinds(site: str) -> tuple[TermKind, ...]:
+    """The composed forms at dynamics site `site` that no row of the table computes there
+    (`term_forms.composed_forms`, simplest first); none elsewhere.
+    """
+    if site not in DYNAMICS_SITES:
+        return ()
+    declared = {form_key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
+    return tuple(
+        _composed(name) for name, mono in composed_forms() if form_key(mono) not in declared
+    )
 
 
 def kinds_for(site: str) -> tuple[TermKind, ...]:
@@ -453,11 +487,8 @@ class DiscoveredTerm:
 
     def __post_init__(self) -> None:
         where = f"discovered.{self.kind}"
-        if self.kind not in KINDS:
-            raise ModelError(
-                f"discovered: unknown term {self.kind!r} (the library: {', '.join(KINDS)})"
-            )
-        row = KINDS[self.kind]
+        row = row_of(self.kind)
+        object.__setattr__(self, "kind", row.name)  # a composed form by its canonical name
         if self.acts_on not in row.sites:
             raise ModelError(
                 f"{where}.acts_on must be one of {', '.join(row.sites)}, got {self.acts_on!r}"
@@ -484,8 +515,8 @@ class DiscoveredTerm:
 
     @property
     def row(self) -> TermKind:
-        """Its library row."""
-        return KINDS[self.kind]
+        """Its library row (or composed form)."""
+        return row_of(self.kind)
 
     @property
     def feature_expression(self) -> str:
@@ -515,7 +546,7 @@ class DiscoveredTerm:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
         factors = (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
         out = np.ones(np.shape(phi))
-        for x, e in zip(factors, self.monomial):
+        for x, e in zip(factors, self.monomial, strict=True):
             out = out * x**e
         return out
 

@@ -91,6 +91,7 @@ class Discovered:
         params |= {k: {"value": v, "stderr": self.stderr[k]} for k, v in t.shape}
         return {
             "kind": t.kind,
+            "composed": t.row.composed,
             "acts_on": t.acts_on,
             "expression": t.expression,
             "feature": t.feature_expression,
@@ -155,6 +156,7 @@ def _beaten(
         rows.append(
             {
                 "term": kind.name,
+                "composed": kind.composed,
                 "acts_on": site,
                 "expression": term.expression,
                 "accepted": ev.accepted,
@@ -210,7 +212,8 @@ def _step(
     kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
     """
     truth_ref = _truth_ref(ctx, current, channel)
-    cands = candidates(ctx, current, channel, truth_ref)
+    found = candidates(ctx, current, channel, truth_ref)
+    cands = found.fitted
     shortlist = cands[: ctx.settings.discovery_shortlist]
     judged = []
     st = ctx.settings
@@ -241,8 +244,21 @@ def _step(
         judged.append(
             (_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs, model)
         )
-    tried = [{"term": k.name, "acts_on": s, "fit_rss": r} for r, k, s, _sp, _x in cands]
+    tried: list[dict[str, Any]] = [
+        {"term": k.name, "acts_on": s, "composed": k.composed, "fit_rss": r}
+        for r, k, s, _sp, _x in cands
+    ]
     rows = {(row["term"], row["acts_on"]): row for row in tried}
+    fitted = set(rows)
+    tried += [
+        {"term": name, "acts_on": site, "composed": True, "linearized_rss": rss}
+        for name, site, rss in found.composed_ranked
+        if (name, site) not in fitted
+    ]
+    tried += [
+        {"term": name, "acts_on": site, "composed": True, "skipped": "degenerate on the runs"}
+        for name, site in found.degenerate
+    ]
     for ev, kind, site, *_rest in judged:
         rows[(kind.name, site)] |= {
             "rules": dict(ev.rules),
@@ -350,7 +366,14 @@ def _replacing(
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
         passing, record = _step(ctx, base, channel, start_plant)
         tried.append(
-            {"channel": channel, "in_place_of": [e.name for e in dropped], "candidates": record[2]}
+            {
+                "channel": channel,
+                "in_place_of": [e.name for e in dropped],
+                "candidates": record[2],
+                "composed_degenerate_skipped": sum(
+                    1 for c in record[2] if c.get("skipped") == "degenerate on the runs"
+                ),
+            }
         )
         if dropped:
             passing = [

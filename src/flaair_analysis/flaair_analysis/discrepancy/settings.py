@@ -40,6 +40,8 @@ class Settings:
     discovery_shortlist : candidate terms per step judged on held-out runs (the best fits first).
     discovery_max_nfev : function evaluations of a shortlisted term's joint fit with the plant
         (the plant must move back from where the identification put it to mimic the term).
+    discovery_composed_fits : composed forms per dynamics site fitted through the simulator
+        after all of them are ranked by one linearized step (`term_candidates`).
     """
 
     identify: bool = True
@@ -78,3 +80,4 @@ class Settings:
     max_discovered_terms: int = 2
     discovery_shortlist: int = 3
     discovery_max_nfev: int = 100
+    discovery_composed_fits: int = 2
