@@ -56,7 +56,13 @@ from flaair_analysis.discrepancy.datasets import (
     make_runs,
     score_case,
 )
-from flaair_analysis.discrepancy.offnominal import FAMILIES, random_robot, true_plant
+from flaair_analysis.discrepancy.offnominal import (
+    COMPOSED_DISCOVER_KINDS,
+    DISCOVER_KINDS,
+    FAMILIES,
+    random_robot,
+    true_plant,
+)
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import json_safe, write_validation
@@ -182,8 +188,9 @@ def main() -> None:
     parser.add_argument(
         "--discover-draws",
         type=int,
-        default=60,
-        help="robots of the discovery family (default 60: each of its six kinds 10 times)",
+        default=10 * len(DISCOVER_KINDS),
+        help="robots of the discovery family (default: each of its kinds 10 times; "
+        f"{len(DISCOVER_KINDS)} kinds, {len(COMPOSED_DISCOVER_KINDS)} of them composed forms)",
     )
     parser.add_argument(
         "--sweep", action="store_true", help="also run the fixed hidden-effect cases"
@@ -285,6 +292,25 @@ def main() -> None:
                 )[:160],
             )
         )
+        for k, v in of_kind.items():  # per kind: right form, explained, parameter error, time
+            rows = [o for o in discover if o["true_terms"][0] == k]
+            k_errs = [
+                e for o in rows for key, e in o["term_errors"].items() if "coefficient" in key
+            ]
+            figures.append(
+                Figure(
+                    f"discovery, kind {k} ({len(rows)} robots"
+                    + (", composed form)" if "*" in k.split("@")[0] else ")"),
+                    100 * share(v),
+                    "% right",
+                    "reported",
+                    True,
+                    f"explained {sum(o['status'] == 'explained' for o in rows)}/{len(rows)}; "
+                    f"coefficient error median "
+                    + (f"{100 * statistics.median(k_errs):.1f} %" if k_errs else "n/a")
+                    + f"; time max {max(o['elapsed_s'] for o in rows):.0f} s",
+                )
+            )
         d_times = [o["elapsed_s"] for o in discover]
         figures.append(
             Figure(

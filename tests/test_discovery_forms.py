@@ -65,7 +65,10 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     assert "dphi" not in stroke and "dphi" in pitch  # linear_velocity is a stroke row only
     assert {"phi*psi", "dphi*dpsi", "sign(dphi)", "abs(dphi)"}.isdisjoint(stroke)
     assert "phi*abs(dphi)" in stroke and "dpsi*abs(dpsi)" in pitch
-    assert len(stroke) == 75 and len(pitch) == 76
+    # nor what the plant carries: the stiffnesses, the hinge damping, the aerodynamic drag
+    assert {"phi", "dphi*abs(dphi)"}.isdisjoint(stroke)
+    assert {"psi", "dpsi", "dphi*abs(dphi)"}.isdisjoint(pitch)
+    assert len(stroke) == 73 and len(pitch) == 73
     assert composed_kinds("drive") == ()
     assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
 
@@ -132,3 +135,24 @@ def test_the_kernel_evaluates_a_composed_form_as_the_row_with_the_same_monomial(
     np.testing.assert_array_equal(
         drag, run(DiscoveredTerm("abs(dphi)*phi", "stroke_dynamics", -5e-9))
     )
+
+
+# ------------------------------------------------------------------ the suggested experiment
+
+
+def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
+    """Two stroke resonances 4 % apart differ most near them and at full drive (a linear plant:
+    the difference scales with the level); identical models do not differ at all.
+    """
+    from dataclasses import replace
+
+    from flaair_analysis.discrepancy.discovery_uncertainty import suggest_experiment
+
+    other = replace(model, plant=replace(model.plant, stroke_natural_frequency_hz=145.6))
+    freqs = [50.0, 90.0, 130.0, 150.0, 190.0]
+    s = suggest_experiment([model, other], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
+    assert s["level"] == 1.0 and s["drive_amplitude_v"] == 80.0
+    assert s["frequency_hz"] in (130.0, 150.0)
+    assert s["over_noise"] == pytest.approx(s["rms_difference"] / 0.05) and s["over_noise"] > 20
+    same = suggest_experiment([model, model], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
+    assert same["rms_difference"] == 0.0

@@ -20,6 +20,7 @@ from itertools import combinations
 
 __all__ = [
     "MAX_POWER",
+    "PLANT_FORMS",
     "PRIMITIVES",
     "canonical",
     "composed_forms",
@@ -38,6 +39,11 @@ PRIMITIVES: tuple[str, ...] = (
     "abs(dphi)",
     "abs(dpsi)",
 )
+# Forms the plant's equations already carry (stiffness, damping, aerodynamic drag and coupling).
+PLANT_FORMS = {
+    "stroke_dynamics": ("phi", "dphi*abs(dphi)"),
+    "pitch_dynamics": ("psi", "dpsi", "dphi*abs(dphi)"),
+}
 # A factor's power, and a composed form's total degree (sign() counts 0), at most this.
 MAX_POWER = 3
 _ANGLES = ("phi", "psi")

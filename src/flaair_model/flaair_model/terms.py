@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
-from flaair_model.term_forms import PRIMITIVES, canonical, composed_forms, form_key, parse_form
+from flaair_model import term_forms
 from flaair_model.validation import ModelError, check_number, coerce_number
 
 __all__ = [
@@ -73,6 +73,8 @@ SITES: tuple[str, ...] = (
 )
 DYNAMICS_SITES: tuple[str, ...] = SITES[:2]
 SENSOR_SITES: tuple[str, ...] = SITES[3:]
+# The factors a dynamics monomial multiplies (`term_forms.PRIMITIVES`, in kernel order).
+PRIMITIVES = term_forms.PRIMITIVES
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
 MAX_DYNAMICS_TERMS = 2
 
@@ -421,8 +423,10 @@ _COMPOSED: dict[str, TermKind] = {}
 
 def _composed(expression: str) -> TermKind:
     """The dynamics form `expression` composed from the primitives, named canonically."""
-    name = canonical(parse_form(expression))  # ValueError: not built from the primitives
-    monomial = parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
+    name = term_forms.canonical(
+        term_forms.parse_form(expression)
+    )  # ValueError: not built from the primitives
+    monomial = term_forms.parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
     if name not in _COMPOSED:
         _COMPOSED[name] = TermKind(
             name,
@@ -452,15 +456,15 @@ def row_of(kind: str) -> TermKind:
 
 
 def composed_kinds(site: str) -> tuple[TermKind, ...]:
-    """The composed forms at dynamics site `site` that no row of the table computes there
-    (`term_forms.composed_forms`, simplest first); none elsewhere.
+    """The composed forms at dynamics site `site` that neither a row of the table nor the plant
+    (`term_forms.PLANT_FORMS`) computes there, simplest first; none elsewhere.
     """
     if site not in DYNAMICS_SITES:
         return ()
-    declared = {form_key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
-    return tuple(
-        _composed(name) for name, mono in composed_forms() if form_key(mono) not in declared
-    )
+    key, parse = term_forms.form_key, term_forms.parse_form
+    known = {key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
+    known |= {key(parse(f)) for f in term_forms.PLANT_FORMS[site]}
+    return tuple(_composed(n) for n, m in term_forms.composed_forms() if key(m) not in known)
 
 
 def kinds_for(site: str) -> tuple[TermKind, ...]:
@@ -488,7 +492,7 @@ class DiscoveredTerm:
     def __post_init__(self) -> None:
         where = f"discovered.{self.kind}"
         row = row_of(self.kind)
-        object.__setattr__(self, "kind", row.name)  # a composed form by its canonical name
+        object.__setattr__(self, "kind", row.name)  # a composed form: its canonical name
         if self.acts_on not in row.sites:
             raise ModelError(
                 f"{where}.acts_on must be one of {', '.join(row.sites)}, got {self.acts_on!r}"

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from flaair_model.terms import (
     DiscoveredTerm,
 )
 
+from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
 from .fitting import fit_specs, fold_nrmse, models_for, spec_value
 from .identification import identify_plant
@@ -74,6 +76,8 @@ class Discovered:
     evidence : `CandidateEvidence.as_dict` of the accepted fit.
     beaten : the other candidates of its step, best first: {term, acts_on, expression,
         accepted, delta_bic_heldout, heldout_gap_drop, bic_margin}.
+    uncertainty : `discovery_uncertainty.form_uncertainty`: the next best form's held-out
+        error, whether the runs tell the two apart, the experiment that would.
     """
 
     term: DiscoveredTerm
@@ -83,6 +87,7 @@ class Discovered:
     gap_after: dict[str, Any]
     evidence: dict[str, Any]
     beaten: tuple[Any, ...]
+    uncertainty: dict[str, Any]
 
     def as_dict(self) -> dict[str, Any]:
         """The discrepancy.json entry."""
@@ -102,6 +107,7 @@ class Discovered:
             "gap_before": dict(self.gap_before),
             "gap_after": dict(self.gap_after),
             "candidates_beaten": list(self.beaten),
+            "uncertainty": dict(self.uncertainty),
             "evidence": dict(self.evidence),
         }
 
@@ -214,7 +220,14 @@ def _step(
     truth_ref = _truth_ref(ctx, current, channel)
     found = candidates(ctx, current, channel, truth_ref)
     cands = found.fitted
-    shortlist = cands[: ctx.settings.discovery_shortlist]
+    # the best rows, and the best composed form where it fits better than every row: the rows'
+    # shortlist stays what it was without the composed forms
+    table = [c for c in cands if not c[1].composed]
+    shortlist = table[: ctx.settings.discovery_shortlist]
+    composed = [c for c in cands if c[1].composed]
+    if composed and (not table or composed[0][0] < table[0][0]):
+        shortlist.append(composed[0])
+    cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
     for _rss, kind, site, specs, x in shortlist:
@@ -282,6 +295,22 @@ def _step(
             )
         )
     return passing, [judged, cands[len(shortlist) :], tried]
+
+
+def _uncertainty(
+    ctx: AnalysisContext, win: tuple[Any, ...], judged: Sequence[tuple[Any, ...]], channel: str
+) -> dict[str, Any]:
+    """The winner against the next best form of its step, and the sine that tells them apart."""
+    edges = [e for e in ctx.settings.band_edges_hz if 0.0 < e < 1e8]
+    return form_uncertainty(
+        win,
+        judged,
+        channel,
+        ctx.runs[0].fs_hz,
+        max(float(np.max(np.abs(r.drive_v))) for r in ctx.runs),
+        [0.5 * (a + b) for a, b in pairwise(edges)],
+        ctx.noise[channel],
+    )
 
 
 def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
@@ -488,6 +517,7 @@ def discover(
                     gap_after,
                     ev.as_dict(),
                     _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest),
+                    _uncertainty(ctx, win, judged, channel),
                 )
             )
             current = new_model
