@@ -40,7 +40,7 @@ from flaair_model.terms import (
 
 from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
-from .fitting import fit_specs, fold_nrmse, models_for, spec_value
+from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
 from .identification import identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
@@ -244,7 +244,7 @@ def _step(
                 fit = fit_specs(
                     current,
                     joint,
-                    ctx.problem(channel, ctx.folds, truth_ref, current),
+                    ctx.problem(channel, _fit_window(ctx), truth_ref, current),
                     x0,
                     replace(st, max_nfev=st.discovery_max_nfev),
                     grid=False,
@@ -336,11 +336,28 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
     return refit if fit.rss < before else model
 
 
+def _fit_window(ctx: AnalysisContext) -> tuple[Fold, ...]:
+    """`ctx.folds` without the first `discovery_skip_s` of each run."""
+    skip = ctx.settings.discovery_skip_s
+    return tuple(
+        replace(f, start=min(f.stop, max(f.start, round(skip * ctx.runs[f.run].fs_hz))))
+        for f in ctx.folds
+    )
+
+
 def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
-    """The discovered dynamics and drive terms with the plant, fitted again on the truth channels,
-    then the runs' initial states (`ctx.runs` replaced): the accepted coefficient is the mean of
-    per-run fits, the in-sample optimum lies beside it.
+    """`discovery_polish_rounds` of: the discovered dynamics and drive terms with the plant,
+    fitted again on the truth channels (without the runs' first wingbeats), then the runs'
+    initial states (`ctx.runs` replaced). The accepted coefficient is the mean of per-run fits,
+    the in-sample optimum lies beside it; the two fits alternate towards their joint optimum.
     """
+    for _round in range(ctx.settings.discovery_polish_rounds):
+        model = _polish_round(ctx, model)
+    return model
+
+
+def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
+    """One round of `_polish_truth`."""
     st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
     for truth, sites in (
         ("stroke_deg", ("stroke_dynamics", "drive")),
@@ -357,7 +374,7 @@ def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
         specs += fitted_along(sites[0], model, truth, st.identify)
         if not specs:
             continue
-        problem = ctx.problem(truth, ctx.folds, False, model)
+        problem = ctx.problem(truth, _fit_window(ctx), False, model)
         x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
         fit = fit_specs(model, specs, problem, x0, st, grid=False)
         before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
@@ -439,9 +456,11 @@ def discover(
     for channel in CHANNEL_ORDER:
         if channel not in gap_channels:
             continue
-        # one term per channel: a second on the same channel would fit what the first left, and
-        # the first's error is mostly its plant's, which the joint fit already moved
-        for _once in range(1 if len(found) < ctx.settings.max_discovered_terms else 0):
+        # up to discovery_terms_per_channel terms: a second is searched with the first in place
+        # (and its plant) while the channel keeps a located gap, under the same held-out rules
+        for _step_no in range(ctx.settings.discovery_terms_per_channel):
+            if len(found) >= ctx.settings.max_discovered_terms:
+                break
             if not channel_has_gap(ctx, current, channel, _truth_ref(ctx, current, channel)):
                 break
             if channel == "pitch_deg" and channel_has_gap(ctx, current, "stroke_deg", False):
@@ -491,7 +510,7 @@ def discover(
                         ENTRIES[vocabulary].acts_on,
                     )
                 )
-                continue
+                break  # as before: a vocabulary effect ends the channel's search
             before_models = [current] * len(ctx.folds)
             gap_before = fold_nrmse(ctx.runs, ctx.folds, before_models)
             after_models = list(ev.heldout_models)
