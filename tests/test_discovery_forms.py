@@ -156,3 +156,27 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     assert s["over_noise"] == pytest.approx(s["rms_difference"] / 0.05) and s["over_noise"] > 20
     same = suggest_experiment([model, model], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
     assert same["rms_difference"] == 0.0
+
+
+def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
+    """A locked hinge (psi = dpsi = 0) makes every pitch form zero; a stroke rate that never
+    changes sign makes sign(dphi) constant; the same forms on a full motion are not degenerate.
+    """
+    from flaair_analysis.discrepancy.term_candidates import is_degenerate
+
+    t = np.arange(4000) / 20_000.0
+    phi = 0.4 * np.sin(2 * np.pi * 120.0 * t)
+    zero = np.zeros_like(t)
+    locked = [{"phi": phi, "dphi": np.gradient(phi) * 20_000.0, "psi": zero, "dpsi": zero}]
+    one_way = [{"phi": t, "dphi": np.ones_like(t), "psi": phi, "dpsi": phi}]
+    full = [dict(locked[0], psi=0.3 * np.cos(2 * np.pi * 120.0 * t), dpsi=locked[0]["dphi"])]
+    site = "stroke_dynamics"
+    for name, motion, expected in [
+        ("psi*abs(dphi)", locked, True),
+        ("dphi*sign(dpsi)", locked, True),
+        ("phi*abs(dphi)", locked, False),
+        ("sign(dphi)*sign(dpsi)", one_way, False),
+        ("abs(dphi)**3", one_way, True),  # 1 everywhere
+        ("psi*abs(dphi)", full, False),
+    ]:
+        assert is_degenerate(row_of(name), site, motion) is expected, name

@@ -55,6 +55,7 @@ __all__ = [
     "Candidates",
     "candidates",
     "fitted_along",
+    "is_degenerate",
 ]
 
 SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
@@ -137,6 +138,14 @@ def _feature_stats(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> t
     return float(np.sqrt(np.mean(f * f))), float(np.std(f))
 
 
+def is_degenerate(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> bool:
+    """The dynamics feature is zero, not finite or constant along `motion` (per run: phi, dphi,
+    psi, dpsi in rad and rad/s): it cannot be told from the constant or from nothing.
+    """
+    rms, std = _feature_stats(kind, site, motion)
+    return not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
+
+
 def _rank_composed(
     ctx: AnalysisContext,
     current: Model,
@@ -150,8 +159,8 @@ def _rank_composed(
     share = _share_rms(site, ctx, current, motion)
     kinds, scales, degenerate = [], [], []
     for kind in composed_kinds(site):
-        rms, std = _feature_stats(kind, site, motion)
-        if not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms):
+        rms, _std = _feature_stats(kind, site, motion)
+        if is_degenerate(kind, site, motion):
             degenerate.append(kind.name)
             continue
         kinds.append(kind)
