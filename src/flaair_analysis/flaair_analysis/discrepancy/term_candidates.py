@@ -35,7 +35,7 @@ from flaair_model.terms import (
 )
 
 from .evidence import AnalysisContext
-from .fitting import ResidualProblem, fit_specs, with_terms
+from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
 from .runs import simulate_runs
 from .vocabulary import (
     PLANT_PARAMETERS,
@@ -50,6 +50,7 @@ from .vocabulary import (
 __all__ = [
     "COEFFICIENT_RANGE",
     "DEGENERATE_REL_STD",
+    "PLANT_STEP",
     "PROBE_FRACTION",
     "SITES_FOR_GAP",
     "Candidates",
@@ -68,6 +69,8 @@ SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
 COEFFICIENT_RANGE = 3.0
 # A composed form's sensitivity is probed with a torque this fraction of the spring torque.
 PROBE_FRACTION = 0.01
+# Fit-space step of a plant parameter's probe in the composed forms' ranking.
+PLANT_STEP = 1e-3
 # A composed feature whose standard deviation is below this fraction of its RMS is constant.
 DEGENERATE_REL_STD = 1e-6
 
@@ -153,8 +156,10 @@ def _rank_composed(
     problem: ResidualProblem,
     motion: list[dict[str, Any]],
 ) -> tuple[list[tuple[float, TermKind, float]], list[str]]:
-    """Every composed form at `site` ranked by one linearized least-squares step:
-    [(rss after the step, kind, coefficient scale)] best first, and the degenerate forms.
+    """Every composed form at `site` ranked by one linearized least-squares step, jointly with
+    the plant parameters it is fitted along with (`fitted_along`: a form the plant can mimic
+    closes little): [(rss after the step, kind, coefficient scale)] best first, and the
+    degenerate forms.
     """
     share = _share_rms(site, ctx, current, motion)
     kinds, scales, degenerate = [], [], []
@@ -171,14 +176,22 @@ def _rank_composed(
         with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc)])
         for k, sc in zip(kinds, scales, strict=True)
     ]
-    res = problem.residuals([current, *probes])
+    plant = fitted_along(site, current, problem.channel, ctx.settings.identify)
+    plant = [p for p in plant if p.is_plant]
+    x0 = np.array([[p.to_fit(spec_value(current, p)) for p in plant]])
+    plant_probes = [
+        models_for(current, plant, x0 + PLANT_STEP * np.eye(len(plant))[i])[0]
+        for i in range(len(plant))
+    ]
+    res = problem.residuals([current, *probes, *plant_probes])
     r0 = np.concatenate(res[0])
+    along = [np.concatenate(r) - r0 for r in res[1 + len(probes) :]]
     ranked = []
-    for k, sc, r in zip(kinds, scales, res[1:], strict=True):
-        j = np.concatenate(r) - r0
-        jj = float(np.dot(j, j))
-        rss = float(np.dot(r0, r0)) - (float(np.dot(j, r0)) ** 2 / jj if jj > 0 else 0.0)
-        ranked.append((rss, k, COEFFICIENT_RANGE * sc))
+    for k, sc, r in zip(kinds, scales, res[1 : 1 + len(probes)], strict=True):
+        a = np.column_stack([np.concatenate(r) - r0, *along])
+        step = np.linalg.lstsq(a, -r0, rcond=None)[0]
+        left = r0 + a @ step
+        ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
     ranked.sort(key=lambda c: c[0])
     return ranked, degenerate
 
