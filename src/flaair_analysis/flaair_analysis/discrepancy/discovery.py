@@ -220,13 +220,12 @@ def _step(
     truth_ref = _truth_ref(ctx, current, channel)
     found = candidates(ctx, current, channel, truth_ref)
     cands = found.fitted
-    # the best rows, and the best composed form where it fits better than every row: the rows'
-    # shortlist stays what it was without the composed forms
+    # the best rows, and the best composed form (alone on the current plant a form the plant
+    # mimics in part fits worse than it will with the plant): the rows' shortlist stays what it
+    # was without the composed forms
     table = [c for c in cands if not c[1].composed]
     shortlist = table[: ctx.settings.discovery_shortlist]
-    composed = [c for c in cands if c[1].composed]
-    if composed and (not table or composed[0][0] < table[0][0]):
-        shortlist.append(composed[0])
+    shortlist += [c for c in cands if c[1].composed][:1]
     cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
