@@ -225,7 +225,7 @@ def _step(
     # was without the composed forms
     table = [c for c in cands if not c[1].composed]
     shortlist = table[: ctx.settings.discovery_shortlist]
-    shortlist += [c for c in cands if c[1].composed][:1]
+    shortlist += [c for c in cands if c[1].composed][: ctx.settings.discovery_composed_fits]
     cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
