@@ -423,9 +423,7 @@ _COMPOSED: dict[str, TermKind] = {}
 
 def _composed(expression: str) -> TermKind:
     """The dynamics form `expression` composed from the primitives, named canonically."""
-    name = term_forms.canonical(
-        term_forms.parse_form(expression)
-    )  # ValueError: not built from the primitives
+    name = term_forms.canonical(term_forms.parse_form(expression))  # ValueError: not a product
     monomial = term_forms.parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
     if name not in _COMPOSED:
         _COMPOSED[name] = TermKind(
