@@ -1,14 +1,14 @@
 """FLAAIR's bottom package: the nominal plant and sensor model, its effects, and its files.
 
 Pure Python (numpy, scipy, numba, PyYAML). Everything else (sim, sensors, control, analysis,
-tools)
-depends on it; it depends on nothing of FLAAIR's.
+tools) depends on it; it depends on nothing of FLAAIR's.
 
 - `effects`: the effect table (`EFFECTS`): each effect's parameters, kernel terms, channels,
   fit and draw ranges, declared once.
 - `model`: the frozen parameter dataclasses of a model (plant, sensors, noise, its effects and
   discovered terms).
 - `model_io`: config/model.yaml <-> `Model`.
+- `term_forms`: dynamics term forms composed from primitives (parsed, canonical, generated).
 - `terms`: the term library the discrepancy workflow discovers missing physics from, and a
   model's discovered terms (`DiscoveredTerm`).
 - `term_entry`: a discovered term as a model-file or discrepancy.json entry (one shape).
@@ -34,6 +34,7 @@ __all__ = [
     "schema",
     "settings",
     "term_entry",
+    "term_forms",
     "terms",
     "validation",
 ]

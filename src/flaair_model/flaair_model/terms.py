@@ -21,7 +21,9 @@ Each `TermKind` is one row: its name, the sites it may act on, its form in the m
 names (`form`; ``{corner_hz}`` stands for a shape parameter), how it is evaluated (a monomial
 for the dynamics, a numpy feature for the drive and the sensors), its shape parameters and the
 vocabulary effect it duplicates at a site (`same_as`: the search reports that effect instead).
-Adding a term is one row in `TERM_KINDS`; the search and the plant read the table.
+Adding a term is one row in `TERM_KINDS`; the search and the plant read the table. Besides the
+rows, a dynamics term may be any form composed from the primitives (`flaair_model.term_forms`;
+`row_of`, `composed_kinds`): its kind is its expression, e.g. ``phi*abs(dphi)``.
 
 Signals a drive or sensor feature may use (`TermSignals`): ``drive_v``; ``ddrive_v`` (V/s, the
 backward difference of the held drive); ``t`` (s from the start of the simulation); ``phi`` and
@@ -39,6 +41,7 @@ from typing import Any
 import numpy as np
 from scipy import signal
 
+from flaair_model import term_forms
 from flaair_model.validation import ModelError, check_number
 
 __all__ = [
@@ -53,9 +56,11 @@ __all__ = [
     "ShapeParam",
     "TermKind",
     "TermSignals",
+    "composed_kinds",
     "kinds_for",
     "lowpass_ba",
     "primitive_values",
+    "row_of",
 ]
 
 SITES: tuple[str, ...] = (
@@ -67,17 +72,9 @@ SITES: tuple[str, ...] = (
 )
 DYNAMICS_SITES: tuple[str, ...] = SITES[:2]
 SENSOR_SITES: tuple[str, ...] = SITES[3:]
-# The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order.
-PRIMITIVES: tuple[str, ...] = (
-    "phi",
-    "dphi",
-    "psi",
-    "dpsi",
-    "sign(dphi)",
-    "sign(dpsi)",
-    "abs(dphi)",
-    "abs(dpsi)",
-)
+# The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order: declared
+# once, in `term_forms`, where the composed forms are built from them.
+PRIMITIVES: tuple[str, ...] = term_forms.PRIMITIVES
 
 
 def primitive_values(
@@ -183,6 +180,8 @@ class TermKind:
     shape : its shape parameters.
     same_as : {site: vocabulary effect} where the term is that effect under another name.
     examples : physics it stands for, for the report.
+    composed : a form composed from the primitives (`row_of`), not a row of the table; its name
+        is its expression.
     """
 
     name: str
@@ -194,6 +193,7 @@ class TermKind:
     shape: tuple[ShapeParam, ...] = ()
     same_as: Mapping[str, str] = field(default_factory=dict)
     examples: str = ""
+    composed: bool = False
 
     def __post_init__(self) -> None:
         dynamic = set(self.sites) & set(DYNAMICS_SITES)
@@ -218,16 +218,8 @@ def _other(site: str) -> str:
 
 
 def _mono(**exponents: int) -> tuple[int, ...]:
-    names = {
-        "phi": 0,
-        "dphi": 1,
-        "psi": 2,
-        "dpsi": 3,
-        "sign_dphi": 4,
-        "sign_dpsi": 5,
-        "abs_dphi": 6,
-        "abs_dpsi": 7,
-    }
+    keys = ("phi", "dphi", "psi", "dpsi", "sign_dphi", "sign_dpsi", "abs_dphi", "abs_dpsi")
+    names = {k: j for j, k in enumerate(keys)}
     e = [0] * len(PRIMITIVES)
     for k, v in exponents.items():
         e[names[k]] = v
@@ -436,6 +428,51 @@ _SITE_MONOMIALS = {
     "cube_velocity": {"stroke_dynamics": _mono(dphi=3), "pitch_dynamics": _mono(dpsi=3)},
 }
 KINDS: dict[str, TermKind] = {k.name: k for k in TERM_KINDS}
+_COMPOSED: dict[str, TermKind] = {}
+
+
+def _composed(expression: str) -> TermKind:
+    """The dynamics form `expression` composed from the primitives, named canonically."""
+    name = term_forms.canonical(term_forms.parse_form(expression))  # ValueError: not a product
+    monomial = term_forms.parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
+    if name not in _COMPOSED:
+        _COMPOSED[name] = TermKind(
+            name,
+            f"a torque in {name}",
+            DYNAMICS_SITES,
+            name,
+            monomial,
+            examples="a form composed from the primitives, no row of the library",
+            composed=True,
+        )
+    return _COMPOSED[name]
+
+
+def row_of(kind: str) -> TermKind:
+    """The library row `kind`, or the dynamics form its expression composes (e.g.
+    'phi*abs(dphi)'); an expression not built from the primitives is refused by name.
+    """
+    if kind in KINDS:
+        return KINDS[kind]
+    try:
+        return _composed(kind)
+    except ValueError as exc:
+        raise ModelError(
+            f"discovered: unknown term {kind!r}: no row of the library ({', '.join(KINDS)}) and "
+            f"cannot be built from the primitives ({', '.join(PRIMITIVES)}): {exc}"
+        ) from None
+
+
+def composed_kinds(site: str) -> tuple[TermKind, ...]:
+    """The composed forms at dynamics site `site` that neither a row of the table nor the plant
+    (`term_forms.PLANT_FORMS`) computes there, simplest first; none elsewhere.
+    """
+    if site not in DYNAMICS_SITES:
+        return ()
+    key, parse = term_forms.form_key, term_forms.parse_form
+    known = {key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
+    known |= {key(parse(f)) for f in term_forms.PLANT_FORMS[site]}
+    return tuple(_composed(n) for n, m in term_forms.composed_forms() if key(m) not in known)
 
 
 def kinds_for(site: str) -> tuple[TermKind, ...]:
@@ -462,11 +499,8 @@ class DiscoveredTerm:
 
     def __post_init__(self) -> None:
         where = f"discovered.{self.kind}"
-        if self.kind not in KINDS:
-            raise ModelError(
-                f"discovered: unknown term {self.kind!r} (the library: {', '.join(KINDS)})"
-            )
-        row = KINDS[self.kind]
+        row = row_of(self.kind)
+        object.__setattr__(self, "kind", row.name)  # a composed form: its canonical name
         if self.acts_on not in row.sites:
             raise ModelError(
                 f"{where}.acts_on must be one of {', '.join(row.sites)}, got {self.acts_on!r}"
@@ -493,8 +527,8 @@ class DiscoveredTerm:
 
     @property
     def row(self) -> TermKind:
-        """Its library row."""
-        return KINDS[self.kind]
+        """Its library row (or composed form)."""
+        return row_of(self.kind)
 
     @property
     def feature_expression(self) -> str:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -37,8 +38,9 @@ from flaair_model.terms import (
     DiscoveredTerm,
 )
 
+from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
-from .fitting import fit_specs, fold_nrmse, models_for, spec_value
+from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
 from .identification import identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
@@ -74,6 +76,8 @@ class Discovered:
     evidence : `CandidateEvidence.as_dict` of the accepted fit.
     beaten : the other candidates of its step, best first: {term, acts_on, expression,
         accepted, delta_bic_heldout, heldout_gap_drop, bic_margin}.
+    uncertainty : `discovery_uncertainty.form_uncertainty`: the next best form's held-out
+        error, whether the runs tell the two apart, the experiment that would.
     """
 
     term: DiscoveredTerm
@@ -83,6 +87,7 @@ class Discovered:
     gap_after: dict[str, Any]
     evidence: dict[str, Any]
     beaten: tuple[Any, ...]
+    uncertainty: dict[str, Any]
 
     def as_dict(self) -> dict[str, Any]:
         """The discrepancy.json entry."""
@@ -91,6 +96,7 @@ class Discovered:
         params |= {k: {"value": v, "stderr": self.stderr[k]} for k, v in t.shape}
         return {
             "kind": t.kind,
+            "composed": t.row.composed,
             "acts_on": t.acts_on,
             "expression": t.expression,
             "feature": t.feature_expression,
@@ -101,6 +107,7 @@ class Discovered:
             "gap_before": dict(self.gap_before),
             "gap_after": dict(self.gap_after),
             "candidates_beaten": list(self.beaten),
+            "uncertainty": dict(self.uncertainty),
             "evidence": dict(self.evidence),
         }
 
@@ -155,6 +162,7 @@ def _beaten(
         rows.append(
             {
                 "term": kind.name,
+                "composed": kind.composed,
                 "acts_on": site,
                 "expression": term.expression,
                 "accepted": ev.accepted,
@@ -210,8 +218,15 @@ def _step(
     kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
     """
     truth_ref = _truth_ref(ctx, current, channel)
-    cands = candidates(ctx, current, channel, truth_ref)
-    shortlist = cands[: ctx.settings.discovery_shortlist]
+    found = candidates(ctx, current, channel, truth_ref)
+    cands = found.fitted
+    # the best rows, and the best composed form (alone on the current plant a form the plant
+    # mimics in part fits worse than it will with the plant): the rows' shortlist stays what it
+    # was without the composed forms
+    table = [c for c in cands if not c[1].composed]
+    shortlist = table[: ctx.settings.discovery_shortlist]
+    shortlist += [c for c in cands if c[1].composed][: ctx.settings.discovery_composed_fits]
+    cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
     for _rss, kind, site, specs, x in shortlist:
@@ -228,7 +243,7 @@ def _step(
                 fit = fit_specs(
                     current,
                     joint,
-                    ctx.problem(channel, ctx.folds, truth_ref, current),
+                    ctx.problem(channel, _fit_window(ctx), truth_ref, current),
                     x0,
                     replace(st, max_nfev=st.discovery_max_nfev),
                     grid=False,
@@ -241,8 +256,21 @@ def _step(
         judged.append(
             (_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs, model)
         )
-    tried = [{"term": k.name, "acts_on": s, "fit_rss": r} for r, k, s, _sp, _x in cands]
+    tried: list[dict[str, Any]] = [
+        {"term": k.name, "acts_on": s, "composed": k.composed, "fit_rss": r}
+        for r, k, s, _sp, _x in cands
+    ]
     rows = {(row["term"], row["acts_on"]): row for row in tried}
+    fitted = set(rows)
+    tried += [
+        {"term": name, "acts_on": site, "composed": True, "linearized_rss": rss}
+        for name, site, rss in found.composed_ranked
+        if (name, site) not in fitted
+    ]
+    tried += [
+        {"term": name, "acts_on": site, "composed": True, "skipped": "degenerate on the runs"}
+        for name, site in found.degenerate
+    ]
     for ev, kind, site, *_rest in judged:
         rows[(kind.name, site)] |= {
             "rules": dict(ev.rules),
@@ -268,6 +296,22 @@ def _step(
     return passing, [judged, cands[len(shortlist) :], tried]
 
 
+def _uncertainty(
+    ctx: AnalysisContext, win: tuple[Any, ...], judged: Sequence[tuple[Any, ...]], channel: str
+) -> dict[str, Any]:
+    """The winner against the next best form of its step, and the sine that tells them apart."""
+    edges = [e for e in ctx.settings.band_edges_hz if 0.0 < e < 1e8]
+    return form_uncertainty(
+        win,
+        judged,
+        channel,
+        ctx.runs[0].fs_hz,
+        max(float(np.max(np.abs(r.drive_v))) for r in ctx.runs),
+        [0.5 * (a + b) for a, b in pairwise(edges)],
+        ctx.noise[channel],
+    )
+
+
 def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
     names = {e.name for e in effects}
     return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in names))
@@ -291,11 +335,28 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
     return refit if fit.rss < before else model
 
 
+def _fit_window(ctx: AnalysisContext) -> tuple[Fold, ...]:
+    """`ctx.folds` without the first `discovery_skip_s` of each run."""
+    skip = ctx.settings.discovery_skip_s
+    return tuple(
+        replace(f, start=min(f.stop, max(f.start, round(skip * ctx.runs[f.run].fs_hz))))
+        for f in ctx.folds
+    )
+
+
 def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
-    """The discovered dynamics and drive terms with the plant, fitted again on the truth channels,
-    then the runs' initial states (`ctx.runs` replaced): the accepted coefficient is the mean of
-    per-run fits, the in-sample optimum lies beside it.
+    """`discovery_polish_rounds` of: the discovered dynamics and drive terms with the plant,
+    fitted again on the truth channels (without the runs' first wingbeats), then the runs'
+    initial states (`ctx.runs` replaced). The accepted coefficient is the mean of per-run fits,
+    the in-sample optimum lies beside it; the two fits alternate towards their joint optimum.
     """
+    for _round in range(ctx.settings.discovery_polish_rounds):
+        model = _polish_round(ctx, model)
+    return model
+
+
+def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
+    """One round of `_polish_truth`."""
     st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
     for truth, sites in (
         ("stroke_deg", ("stroke_dynamics", "drive")),
@@ -312,7 +373,7 @@ def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
         specs += fitted_along(sites[0], model, truth, st.identify)
         if not specs:
             continue
-        problem = ctx.problem(truth, ctx.folds, False, model)
+        problem = ctx.problem(truth, _fit_window(ctx), False, model)
         x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
         fit = fit_specs(model, specs, problem, x0, st, grid=False)
         before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
@@ -350,7 +411,14 @@ def _replacing(
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
         passing, record = _step(ctx, base, channel, start_plant)
         tried.append(
-            {"channel": channel, "in_place_of": [e.name for e in dropped], "candidates": record[2]}
+            {
+                "channel": channel,
+                "in_place_of": [e.name for e in dropped],
+                "candidates": record[2],
+                "composed_degenerate_skipped": sum(
+                    1 for c in record[2] if c.get("skipped") == "degenerate on the runs"
+                ),
+            }
         )
         if dropped:
             passing = [
@@ -387,9 +455,11 @@ def discover(
     for channel in CHANNEL_ORDER:
         if channel not in gap_channels:
             continue
-        # one term per channel: a second on the same channel would fit what the first left, and
-        # the first's error is mostly its plant's, which the joint fit already moved
-        for _once in range(1 if len(found) < ctx.settings.max_discovered_terms else 0):
+        # up to discovery_terms_per_channel terms: a second is searched with the first in place
+        # (and its plant) while the channel keeps a located gap, under the same held-out rules
+        for _step_no in range(ctx.settings.discovery_terms_per_channel):
+            if len(found) >= ctx.settings.max_discovered_terms:
+                break
             if not channel_has_gap(ctx, current, channel, _truth_ref(ctx, current, channel)):
                 break
             if channel == "pitch_deg" and channel_has_gap(ctx, current, "stroke_deg", False):
@@ -439,7 +509,7 @@ def discover(
                         ENTRIES[vocabulary].acts_on,
                     )
                 )
-                continue
+                break  # as before: a vocabulary effect ends the channel's search
             before_models = [current] * len(ctx.folds)
             gap_before = fold_nrmse(ctx.runs, ctx.folds, before_models)
             after_models = list(ev.heldout_models)
@@ -465,6 +535,7 @@ def discover(
                     gap_after,
                     ev.as_dict(),
                     _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest),
+                    _uncertainty(ctx, win, judged, channel),
                 )
             )
             current = new_model

@@ -28,6 +28,7 @@ from .vocabulary import PLANT_PARAMETERS
 
 __all__ = [
     "COEFFICIENT_SPREAD",
+    "COMPOSED_DISCOVER_KINDS",
     "DISCOVER_KINDS",
     "EFFECT_NAMES_ORDER",
     "FAMILIES",
@@ -141,7 +142,40 @@ DISCOVER_KINDS: tuple[DiscoverKind, ...] = (
         "k_h",
         note="dry friction in the wing hinge: k_h x 0.01-0.03 rad",
     ),
+    # composed forms: products of primitives that no row of the term library lists
+    DiscoverKind(
+        "stroke_position_drag",
+        "phi*abs(dphi)",
+        "stroke_dynamics",
+        2e-4,
+        5e-4,
+        -1.0,
+        "K",
+        note="a stroke flexure whose stiffness grows with the rate: K x 2-5e-4 s/rad x |dphi|",
+    ),
+    DiscoverKind(
+        "hinge_stroke_friction",
+        "psi*sign(dphi)",
+        "pitch_dynamics",
+        0.05,
+        0.15,
+        -1.0,
+        "k_h",
+        note="a hinge stiffness switching with the stroke's direction: k_h x 5-15 %",
+    ),
+    DiscoverKind(
+        "hinge_quadratic_drag",
+        "dpsi*abs(dpsi)",
+        "pitch_dynamics",
+        3.5e-7,
+        9.5e-7,
+        -1.0,
+        "k_h",
+        note="quadratic air drag on the wing's own pitch rate: k_h x 3.5-9.5e-7 s^2",
+    ),
 )
+# The kinds whose form is composed from the primitives (no row of the library lists it).
+COMPOSED_DISCOVER_KINDS = tuple(k.name for k in DISCOVER_KINDS if "*" in k.kind)
 # Fabrication spread of the plant: natural frequencies within +-3 %, damping, gain and
 # couplings within +-15 % of nominal.
 FREQUENCY_SPREAD = 0.03

@@ -40,6 +40,15 @@ class Settings:
     discovery_shortlist : candidate terms per step judged on held-out runs (the best fits first).
     discovery_max_nfev : function evaluations of a shortlisted term's joint fit with the plant
         (the plant must move back from where the identification put it to mimic the term).
+    discovery_composed_fits : composed forms per dynamics site fitted through the simulator
+        after all of them are ranked by one linearized step (`term_candidates`).
+    discovery_terms_per_channel : terms a channel may take (the second searched with the first
+        in place, while the channel keeps a gap).
+    discovery_skip_s : the first seconds of each run left out of a term's fits with the plant
+        (a few wingbeats: the runs' initial states, fitted before the term was known, do not
+        pull the coefficient there).
+    discovery_polish_rounds : rounds of the final refit (the terms with the plant on the truth,
+        then the runs' initial states), alternating towards their joint optimum.
     """
 
     identify: bool = True
@@ -78,3 +87,7 @@ class Settings:
     max_discovered_terms: int = 2
     discovery_shortlist: int = 3
     discovery_max_nfev: int = 100
+    discovery_composed_fits: int = 2
+    discovery_terms_per_channel: int = 2
+    discovery_skip_s: float = 0.03
+    discovery_polish_rounds: int = 1

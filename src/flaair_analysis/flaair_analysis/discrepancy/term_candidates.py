@@ -5,12 +5,20 @@ jointly with (`fitted_along`: its equation's plant parameters, or the sensor cha
 The coefficient's search range is `COEFFICIENT_RANGE` times the size of the signal the term adds
 to (spring torque, drive or sensor deviation) over the RMS of its feature along the current
 model's motion. `discovery` judges the shortlist.
+
+Besides the table's rows, a dynamics site may take any form composed from the primitives
+(`flaair_model.terms.composed_kinds`, named by its expression). They are ranked all at once and
+cheaply: one simulation each at a small coefficient gives the residual's sensitivity to it, and
+one linearized least-squares step the residual it would leave; only the best
+`discovery_composed_fits` per site are then fitted through the simulator like a row. A composed
+form that is numerically degenerate on the runs (zero or constant along the motion) is skipped
+and counted (`Candidates.degenerate`), never fitted.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -22,11 +30,12 @@ from flaair_model.terms import (
     DiscoveredTerm,
     TermKind,
     TermSignals,
+    composed_kinds,
     kinds_for,
 )
 
 from .evidence import AnalysisContext
-from .fitting import fit_specs
+from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
 from .runs import simulate_runs
 from .vocabulary import (
     PLANT_PARAMETERS,
@@ -38,7 +47,17 @@ from .vocabulary import (
     term_specs,
 )
 
-__all__ = ["COEFFICIENT_RANGE", "SITES_FOR_GAP", "candidates", "fitted_along"]
+__all__ = [
+    "COEFFICIENT_RANGE",
+    "DEGENERATE_REL_STD",
+    "PLANT_STEP",
+    "PROBE_FRACTION",
+    "SITES_FOR_GAP",
+    "Candidates",
+    "candidates",
+    "fitted_along",
+    "is_degenerate",
+]
 
 SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
     "stroke_deg": ("stroke_dynamics", "drive"),
@@ -48,6 +67,23 @@ SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
 }
 # A coefficient may reach this many times the size of its feature's whole share of the channel.
 COEFFICIENT_RANGE = 3.0
+# A composed form's sensitivity is probed with a torque this fraction of the spring torque.
+PROBE_FRACTION = 0.01
+# Fit-space step of a plant parameter's probe in the composed forms' ranking.
+PLANT_STEP = 1e-3
+# A composed feature whose standard deviation is below this fraction of its RMS is constant.
+DEGENERATE_REL_STD = 1e-6
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """A step's candidates, best fit first: (rss, kind, site, specs, x) each; the composed forms
+    ranked (each with its linearized rss, best first) and the degenerate ones skipped.
+    """
+
+    fitted: list[tuple[Any, ...]]
+    composed_ranked: tuple[tuple[str, str, float], ...]
+    degenerate: tuple[tuple[str, str], ...]
 
 
 def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
@@ -96,6 +132,70 @@ def _feature_rms(
     return math.sqrt(total / max(count, 1))
 
 
+def _feature_stats(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> tuple[float, float]:
+    """(RMS, standard deviation) of a dynamics feature over the runs along `motion`."""
+    term = DiscoveredTerm(kind.name, site, 1.0)
+    f = np.concatenate(
+        [term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"]) for m in motion]
+    )
+    return float(np.sqrt(np.mean(f * f))), float(np.std(f))
+
+
+def is_degenerate(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> bool:
+    """The dynamics feature is zero, not finite or constant along `motion` (per run: phi, dphi,
+    psi, dpsi in rad and rad/s): it cannot be told from the constant or from nothing.
+    """
+    rms, std = _feature_stats(kind, site, motion)
+    return not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
+
+
+def _rank_composed(
+    ctx: AnalysisContext,
+    current: Model,
+    site: str,
+    problem: ResidualProblem,
+    motion: list[dict[str, Any]],
+) -> tuple[list[tuple[float, TermKind, float]], list[str]]:
+    """Every composed form at `site` ranked by one linearized least-squares step, jointly with
+    the plant parameters it is fitted along with (`fitted_along`: a form the plant can mimic
+    closes little): [(rss after the step, kind, coefficient scale)] best first, and the
+    degenerate forms.
+    """
+    share = _share_rms(site, ctx, current, motion)
+    kinds, scales, degenerate = [], [], []
+    for kind in composed_kinds(site):
+        rms, _std = _feature_stats(kind, site, motion)
+        if is_degenerate(kind, site, motion):
+            degenerate.append(kind.name)
+            continue
+        kinds.append(kind)
+        scales.append(share / rms)
+    if not kinds:
+        return [], degenerate
+    probes = [
+        with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc)])
+        for k, sc in zip(kinds, scales, strict=True)
+    ]
+    plant = fitted_along(site, current, problem.channel, ctx.settings.identify)
+    plant = [p for p in plant if p.is_plant]
+    x0 = np.array([[p.to_fit(spec_value(current, p)) for p in plant]])
+    plant_probes = [
+        models_for(current, plant, x0 + PLANT_STEP * np.eye(len(plant))[i])[0]
+        for i in range(len(plant))
+    ]
+    res = problem.residuals([current, *probes, *plant_probes])
+    r0 = np.concatenate(res[0])
+    along = [np.concatenate(r) - r0 for r in res[1 + len(probes) :]]
+    ranked = []
+    for k, sc, r in zip(kinds, scales, res[1 : 1 + len(probes)], strict=True):
+        a = np.column_stack([np.concatenate(r) - r0, *along])
+        step = np.linalg.lstsq(a, -r0, rcond=None)[0]
+        left = r0 + a @ step
+        ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
+    ranked.sort(key=lambda c: c[0])
+    return ranked, degenerate
+
+
 def _share_rms(
     site: str, ctx: AnalysisContext, model: Model, motion: list[dict[str, Any]]
 ) -> float:
@@ -142,36 +242,58 @@ def fitted_along(site: str, model: Model, channel: str, identify: bool) -> list[
     return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
 
 
-def candidates(
-    ctx: AnalysisContext, current: Model, channel: str, truth_ref: bool
+def _fit_alone(
+    ctx: AnalysisContext,
+    current: Model,
+    kind: TermKind,
+    site: str,
+    channel: str,
+    scale: float,
+    problem: ResidualProblem,
 ) -> list[tuple[Any, ...]]:
-    """(rss, kind, site, specs, x) of every library term that may close `channel`'s gap."""
+    """The term alone on the current plant, from each start of its shape grid: a quick ranking."""
+    out = []
+    for start in [{s.key: g} for s in kind.shape for g in s.grid] or [{}]:
+        specs = term_specs(kind, site, channel, scale, start)
+        x0 = np.array([s.to_fit(s.null) for s in specs])
+        try:
+            fit = fit_specs(current, specs, problem, x0, ctx.settings)
+        except (ModelError, ValueError):  # a start that leaves the term's own range
+            continue
+        out.append((fit.rss, kind, site, specs, fit.x))
+    return out
+
+
+def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bool) -> Candidates:
+    """Every library term that may close `channel`'s gap, and the best composed forms (see the
+    module docstring), each fitted alone: best fit first.
+    """
     motion = _motion(ctx, current)
     problem = ctx.problem(channel, ctx.folds, truth_ref, current)
     out = []
+    ranked_all: list[tuple[str, str, float]] = []
+    degenerate: list[tuple[str, str]] = []
     n_dynamics = sum(t.is_dynamics for t in current.discovered)
     placed = {(t.kind, t.acts_on) for t in current.discovered}
     for site in SITES_FOR_GAP[channel]:
+        if site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS:
+            continue
         for kind in kinds_for(site):
-            if (kind.name, site) in placed or (
-                site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS
-            ):
+            if (kind.name, site) in placed:
                 continue
             rms = _feature_rms(kind, site, ctx, motion)
             if not (math.isfinite(rms) and rms > 0):
                 continue
             scale = COEFFICIENT_RANGE * _share_rms(site, ctx, current, motion) / rms
-            starts = [{s.key: g} for s in kind.shape for g in s.grid] or [{}]
-            for start in starts:  # the term alone on the current plant: a quick ranking
-                specs = term_specs(kind, site, channel, scale, start)
-                x0 = np.array([s.to_fit(s.null) for s in specs])
-                try:
-                    fit = fit_specs(current, specs, problem, x0, ctx.settings)
-                except (ModelError, ValueError):  # a start that leaves the term's own range
-                    continue
-                out.append((fit.rss, kind, site, specs, fit.x))
+            out += _fit_alone(ctx, current, kind, site, channel, scale, problem)
+        ranked, skipped = _rank_composed(ctx, current, site, problem, motion)
+        degenerate += [(name, site) for name in skipped]
+        ranked = [c for c in ranked if (c[1].name, site) not in placed]
+        ranked_all += [(k.name, site, rss) for rss, k, _sc in ranked]
+        for _rss, kind, scale in ranked[: ctx.settings.discovery_composed_fits]:
+            out += _fit_alone(ctx, current, kind, site, channel, scale, problem)
     out.sort(key=lambda c: c[0])
     best: dict[tuple[str, str], tuple[Any, ...]] = {}
     for c in out:  # one entry per term (its best shape start)
         best.setdefault((c[1].name, c[2]), c)
-    return list(best.values())
+    return Candidates(list(best.values()), tuple(ranked_all), tuple(degenerate))

@@ -1,0 +1,182 @@
+"""Composed dynamics forms: parsed, named canonically, generated without the table's rows, carried
+by a model file, evaluated by the kernel's generic monomial, and refused by name when an
+expression is not built from the primitives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from flaair_model.model import ModelError
+from flaair_model.model_io import load_model, model_from_dict, model_to_dict
+from flaair_model.term_forms import canonical, composed_forms, form_key, parse_form
+from flaair_model.terms import DiscoveredTerm, composed_kinds, row_of
+from flaair_sim.core.plant import simulate
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model()
+
+
+@pytest.mark.parametrize(
+    "expression,name",
+    [
+        ("phi*abs(dphi)", "phi*abs(dphi)"),
+        ("abs(dphi)*phi", "phi*abs(dphi)"),
+        ("dphi**2*sign(dphi)", "dphi*abs(dphi)"),  # v^2 sgn v = v |v|
+        ("dphi*sign(dphi)", "abs(dphi)"),
+        ("abs(dpsi)**2", "dpsi**2"),
+        ("sign(dpsi)*psi**2", "psi**2*sign(dpsi)"),
+        ("sign(dphi)**2", "1"),
+    ],
+)
+def test_a_form_is_named_by_what_it_computes(expression: str, name: str) -> None:
+    assert canonical(parse_form(expression)) == name
+
+
+def test_equal_forms_compute_equal_values() -> None:
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(4, 200))
+    for expression in ("dphi**2*sign(dphi)", "abs(dpsi)**3", "psi*dphi*sign(dphi)"):
+        a = DiscoveredTerm(expression, "stroke_dynamics", 1.0).monomial_value(*x)
+        mono = parse_form(expression)
+        f = (x[0], x[1], x[2], x[3], np.sign(x[1]), np.sign(x[3]), np.abs(x[1]), np.abs(x[3]))
+        b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
+        np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
+    forms = composed_forms()
+    keys = [form_key(m) for _n, m in forms]
+    assert len(forms) == 84 and len(set(keys)) == 84
+    assert [n for n, _m in forms][:2] == ["sign(dphi)", "sign(dpsi)"]  # simplest first
+    for name, mono in forms:
+        assert parse_form(name) == mono and max(mono) <= 3
+
+
+def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None:
+    stroke = {k.name for k in composed_kinds("stroke_dynamics")}
+    pitch = {k.name for k in composed_kinds("pitch_dynamics")}
+    # phi**3 is cube_angle on stroke; on pitch the rows' own angle is psi, so phi**3 is composed
+    assert "phi**3" not in stroke and "phi**3" in pitch
+    assert "psi**3" in stroke and "psi**3" not in pitch
+    assert "dphi" not in stroke and "dphi" in pitch  # linear_velocity is a stroke row only
+    assert {"phi*psi", "dphi*dpsi", "sign(dphi)", "abs(dphi)"}.isdisjoint(stroke)
+    assert "phi*abs(dphi)" in stroke and "dpsi*abs(dpsi)" in pitch
+    # nor what the plant carries: the stiffnesses, the hinge damping, the aerodynamic drag
+    assert {"phi", "dphi*abs(dphi)"}.isdisjoint(stroke)
+    assert {"psi", "dpsi", "dphi*abs(dphi)"}.isdisjoint(pitch)
+    assert len(stroke) == 73 and len(pitch) == 73
+    assert composed_kinds("drive") == ()
+    assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
+
+
+def test_a_composed_term_round_trips_through_the_model_file(model) -> None:
+    term = DiscoveredTerm("abs(dphi)*phi", "stroke_dynamics", -5e-9)
+    assert term.kind == "phi*abs(dphi)" and term.expression == "-5e-09 * phi*abs(dphi)"
+    doc = model_to_dict(model) | {
+        "discovered": [
+            {
+                "kind": "phi*abs(dphi)",
+                "acts_on": "stroke_dynamics",
+                "parameters": {"coefficient": -5e-9},
+            }
+        ]
+    }
+    assert model_from_dict(doc).discovered == (term,)
+
+
+@pytest.mark.parametrize(
+    "kind,why",
+    [
+        ("exp(phi)", "'exp(phi)' is not a primitive"),
+        ("phi*psi*dphi", "more than two states"),
+        ("phi**4", "powers are 1 to 3"),
+        ("sqrt(abs(dphi))", "not a primitive"),
+    ],
+)
+def test_a_model_file_term_not_built_from_the_primitives_is_refused_by_name(
+    model, kind: str, why: str
+) -> None:
+    doc = model_to_dict(model) | {
+        "discovered": [
+            {"kind": kind, "acts_on": "stroke_dynamics", "parameters": {"coefficient": 1}}
+        ]
+    }
+    with pytest.raises(ModelError) as err:
+        model_from_dict(doc)
+    message = str(err.value)
+    assert f"unknown term {kind!r}" in message and why in message
+    assert "cannot be built from the primitives" in message
+    assert row_of("phi*abs(dphi)").composed
+
+
+def test_the_kernel_evaluates_a_composed_form_as_the_row_with_the_same_monomial(model) -> None:
+    """psi**3 composed equals the cube_angle row on the pitch (bit for bit); phi*abs(dphi) acts."""
+    from dataclasses import replace
+
+    fs = 20_000.0
+    t = np.arange(6000) / fs
+    drive = 60.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.05, 1.0)
+
+    def run(*terms: DiscoveredTerm) -> np.ndarray:
+        out = simulate(drive, fs, replace(model, discovered=terms))
+        return np.degrees(np.stack([out.stroke_rad, out.pitch_rad]))
+
+    row = run(DiscoveredTerm("cube_angle", "pitch_dynamics", 2e-6))
+    composed = run(DiscoveredTerm("psi**3", "pitch_dynamics", 2e-6))
+    np.testing.assert_array_equal(row, composed)
+    base = run()
+    assert np.max(np.abs(row - base)) > 0.05
+    drag = run(DiscoveredTerm("phi*abs(dphi)", "stroke_dynamics", -5e-9))
+    assert np.max(np.abs(drag[0] - base[0])) > 0.5
+    np.testing.assert_array_equal(
+        drag, run(DiscoveredTerm("abs(dphi)*phi", "stroke_dynamics", -5e-9))
+    )
+
+
+# ------------------------------------------------------------------ the suggested experiment
+
+
+def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
+    """Two stroke resonances 4 % apart differ most near them and at full drive (a linear plant:
+    the difference scales with the level); identical models do not differ at all.
+    """
+    from dataclasses import replace
+
+    from flaair_analysis.discrepancy.discovery_uncertainty import suggest_experiment
+
+    other = replace(model, plant=replace(model.plant, stroke_natural_frequency_hz=145.6))
+    freqs = [50.0, 90.0, 130.0, 150.0, 190.0]
+    s = suggest_experiment([model, other], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
+    assert s["level"] == 1.0 and s["drive_amplitude_v"] == 80.0
+    assert s["frequency_hz"] in (130.0, 150.0)
+    assert s["over_noise"] == pytest.approx(s["rms_difference"] / 0.05) and s["over_noise"] > 20
+    same = suggest_experiment([model, model], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
+    assert same["rms_difference"] == 0.0
+
+
+def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
+    """A locked hinge (psi = dpsi = 0) makes every pitch form zero; a stroke rate that never
+    changes sign makes sign(dphi) constant; the same forms on a full motion are not degenerate.
+    """
+    from flaair_analysis.discrepancy.term_candidates import is_degenerate
+
+    t = np.arange(4000) / 20_000.0
+    phi = 0.4 * np.sin(2 * np.pi * 120.0 * t)
+    zero = np.zeros_like(t)
+    locked = [{"phi": phi, "dphi": np.gradient(phi) * 20_000.0, "psi": zero, "dpsi": zero}]
+    one_way = [{"phi": t, "dphi": np.ones_like(t), "psi": phi, "dpsi": phi}]
+    full = [dict(locked[0], psi=0.3 * np.cos(2 * np.pi * 120.0 * t), dpsi=locked[0]["dphi"])]
+    site = "stroke_dynamics"
+    for name, motion, expected in [
+        ("psi*abs(dphi)", locked, True),
+        ("dphi*sign(dpsi)", locked, True),
+        ("phi*abs(dphi)", locked, False),
+        ("sign(dphi)*sign(dpsi)", one_way, False),
+        ("abs(dphi)**3", one_way, True),  # 1 everywhere
+        ("psi*abs(dphi)", full, False),
+    ]:
+        assert is_degenerate(row_of(name), site, motion) is expected, name
