@@ -371,8 +371,8 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
         k_errs = [e for o in rows for key, e in o["term_errors"].items() if "coefficient" in key]
         per_kind_figures.append(
             Figure(
-                f"discovery, kind {k} ({len(rows)} robots"
-                + (", composed form)" if "*" in k.split("@")[0] else ")"),
+                f"discovery, kind {k} "
+                + _count(sum(v), len(rows), subset, "robots, composed" if "*" in k else "robots"),
                 100 * share(v),
                 "% right",
                 "reported",

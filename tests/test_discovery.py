@@ -174,6 +174,7 @@ def test_a_term_from_discrepancy_json_pasted_into_a_model_file_gives_the_same_pl
             gap_after={"stroke_sensor_v": 0.05},
             evidence={"delta_bic_heldout": -40.0},
             beaten=({"term": "constant", "acts_on": "drive", "accepted": False},),
+            uncertainty={"next_best": "constant@drive", "told_apart": True},
         ).as_dict()
         for t in terms
     ]

@@ -29,6 +29,7 @@ def term_to_dict(term: DiscoveredTerm) -> dict[str, Any]:
 # What a discrepancy.json `discovered` entry says beyond the model-file entry: the discovery's
 # account of the term, shown to the reader and not read back (a model file may carry it).
 REPORT_KEYS: tuple[str, ...] = (
+    "composed",
     "feature",
     "words",
     "examples",
@@ -36,6 +37,7 @@ REPORT_KEYS: tuple[str, ...] = (
     "gap_before",
     "gap_after",
     "candidates_beaten",
+    "uncertainty",
     "evidence",
 )
 
