@@ -1,9 +1,11 @@
-"""ruff (ruff.toml) finds nothing in the project's
-Python files; mypy (mypy.ini) nothing in the cores.
+"""ruff (ruff.toml) finds nothing in the project's Python files and `ruff format` would change
+none; mypy --strict (mypy.ini) finds nothing in the pure code.
 
 The ruff rules (ruff.toml): pyflakes (unused imports and names, undefined names), syntax errors,
-and the import order (standard library, third party, FLAAIR). `ruff check --fix` repairs most.
-mypy checks the pure cores (flaair_model and every package's core/) with their type hints.
+the import order (standard library, third party, FLAAIR), docstrings, likely bugs (bugbear),
+modern syntax, simpler forms, ruff's own rules and McCabe complexity 15. `ruff check --fix`
+repairs most. mypy checks the pure code (flaair_model, every package's core/, flaair_analysis and
+flaair_common's pure modules) with every --strict flag.
 """
 
 from __future__ import annotations
@@ -16,12 +18,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 RUFF = [sys.executable, "-m", "ruff", "check", "--no-cache", "--output-format", "concise"]
+LINTED = ["src", "tests", "bench", "scripts"]
 
 
 @pytest.mark.timeout(120)
 def test_ruff_finds_nothing() -> None:
     done = subprocess.run(
-        [*RUFF, "src", "tests", "bench", "scripts"],
+        [*RUFF, *LINTED],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -30,6 +33,19 @@ def test_ruff_finds_nothing() -> None:
     assert done.returncode == 0, (
         f"ruff check (fix with: .venv/bin/ruff check --fix):\n{done.stdout}{done.stderr}"
     )
+
+
+@pytest.mark.timeout(120)
+def test_ruff_format_changes_nothing() -> None:
+    """Formatting is ruff's, not a script's: `ruff format` would leave every file as it is."""
+    done = subprocess.run(
+        [sys.executable, "-m", "ruff", "format", "--check", "--no-cache", *LINTED],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=110,
+    )
+    assert done.returncode == 0, f"ruff format (fix with: .venv/bin/ruff format):\n{done.stdout}"
 
 
 @pytest.mark.timeout(120)
