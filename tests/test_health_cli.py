@@ -70,6 +70,13 @@ def test_health_reports_the_damage_with_its_series(bags, tmp_path: Path) -> None
     assert doc["bags"][1]["estimated"] == 0 and "too quiet" in doc["bags"][1]["note"]
     assert "too quiet" in result.stderr
     assert (out / "health.png").stat().st_size > 10000
+    # an existing output is replaced only with --force, and a bag is never an output
+    before = (out / "health.json").read_bytes()
+    again = run_offline([FLAAIR, "health", str(damaged), "--out", str(out)], isolated_env())
+    assert again.returncode == 2 and "health.json exists (--force replaces it)" in again.stderr
+    assert (out / "health.json").read_bytes() == before
+    into = run_offline([FLAAIR, "health", str(damaged), "--out", str(damaged)], isolated_env())
+    assert into.returncode == 2 and "--out" in into.stderr and "Traceback" not in into.stderr
 
 
 def test_bag_without_the_films_or_the_drive_is_refused_by_name(tmp_path: Path) -> None:

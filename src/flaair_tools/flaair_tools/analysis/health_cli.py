@@ -20,14 +20,18 @@ from typing import Any
 import numpy as np
 
 from flaair_common import topics
+from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_control.core import health
 from flaair_control.health_io import health_params_from_config, health_values
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
+from flaair_sensors.figures import literal_texts
 from flaair_tools import bagio
 
 DRIVE_TOPICS = (topics.DRIVE_APPLIED, topics.DRIVE)
+
+OUT_FILES = ("health.json", "health.png")
 
 
 class HealthInputError(ValueError):
@@ -126,7 +130,7 @@ def write_figure(results: list[dict[str, Any]], path: Path) -> None:
                 ax.set_title(Path(res["bag"]).name, fontsize=9)
         axes[-1, col].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    literal_texts(fig).savefig(path, dpi=100)  # a bag's name drawn as written
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -139,6 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         "bags", nargs="+", type=Path, help="bags with /flaair/sensor_v and /flaair/drive[/applied]"
     )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     parser.add_argument(
         "--model",
         type=Path,
@@ -155,7 +160,9 @@ def main(argv: list[str] | None = None) -> int:
         "health_node's stroke/pitch_film_delay_s, the model's films)",
     )
     args = parser.parse_args(argv)
-    try:
+    inputs = [*args.bags, *(p for p in (args.model, args.calibration) if p is not None)]
+    try:  # the outputs checked before anything is computed
+        written = check_output(args.out, inputs, args.force, OUT_FILES)
         values = health_values()
         if args.calibration is not None:
             values["calibration_file"] = str(args.calibration)
@@ -163,13 +170,19 @@ def main(argv: list[str] | None = None) -> int:
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
         return 2
-    args.out.mkdir(parents=True, exist_ok=True)
     doc = {
         "events": [dict(ev, bag=r["bag"]) for r in results for ev in r["events"]],
         "bags": results,
     }
-    (args.out / "health.json").write_text(json.dumps(json_safe(doc), indent=1, allow_nan=False))
-    write_figure(results, args.out / "health.png")
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            text = json.dumps(json_safe(doc), indent=1, allow_nan=False)
+            (args.out / "health.json").write_text(text)
+            write_figure(results, args.out / "health.png")
+    except OutputError as exc:
+        print(f"flaair health: {exc}", file=sys.stderr)
+        return 2
     for r in results:
         if r["note"]:
             print(f"flaair health: {r['bag']}: {r['note']}", file=sys.stderr)
