@@ -24,6 +24,7 @@ leaves no bag behind.
 from __future__ import annotations
 
 import argparse
+import shutil
 import signal
 import sys
 from pathlib import Path
@@ -196,9 +197,12 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 extras = [r.extras for r in runs]
     except (RunFileError, csv_import.RunSetError, LabFileError, bagio.BagError) as exc:
+        shutil.rmtree(args.out, ignore_errors=True)  # it did not exist: nothing of anyone's lost
         print(f"flaair import: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
+        # the bag writer may have made the directory before its own clean-up could run
+        shutil.rmtree(args.out, ignore_errors=True)  # it did not exist when the import began
         signum = int(exc.args[0]) if exc.args else int(signal.SIGINT)
         print(f"flaair import: interrupted; no bag written at {args.out}", file=sys.stderr)
         return 128 + signum
