@@ -118,5 +118,6 @@ def test_film_gains_are_ratios_to_a_given_calibration(bags, tmp_path: Path) -> N
     assert np.nanmean(stroke[(t > 1.5) & (t < 2.0)]) == pytest.approx(1.0, abs=0.01)
     assert [e["parameter"] for e in doc["events"]] == ["wing_inertia"]
     cal.write_text("stroke: {gain_deg_per_v: 25.0}\n")
-    bad = run_offline([*args[:-1], str(cal)], isolated_env())
+    bad_args = [FLAAIR, "health", str(bags[0]), "--out", str(tmp_path / "o2"), "--calibration"]
+    bad = run_offline([*bad_args, str(cal)], isolated_env())
     assert bad.returncode == 2 and "lag_s" in bad.stderr
