@@ -119,6 +119,42 @@ def test_drive_off_or_stalled_gives_no_estimate(model, params):
     assert any("too quiet" in n.text for n in out.notes)
 
 
+def test_runs_with_the_drive_off_between_them_go_on_block_by_block(model, params):
+    """As in the demo's drive levels: a run, the drive off for longer than the slowest wingbeat,
+    the next run, fed in the node's blocks: the second run is estimated as the first.
+    """
+    vs, vp, dv = hs.run(model, 0.4, sine=(40.0, 140.0))
+    off = int(0.3 * hs.FS)
+    vref = model.sensors.reference_voltage_v
+    still = np.full(off, vref)
+    vs = np.concatenate([vs, still, vs])
+    vp = np.concatenate([vp, still, vp])
+    dv = np.concatenate([dv, np.zeros(off), dv])
+    state, beats = H.initial_state(params), []
+    for i in range(0, vs.size, 200):
+        state, out = H.step(
+            state, H.HealthInputs(vs[i : i + 200], vp[i : i + 200], dv[i : i + 200]), params
+        )
+        beats.extend(out.wingbeats)
+    second = [b for b in beats if b.valid and b.time_s > (vs.size - 0.1 * hs.FS) / hs.FS]
+    assert second, "no estimate in the second run"
+    np.testing.assert_allclose(np.mean([b.estimate for b in second], axis=0), 1.0, atol=0.02)
+
+
+def test_a_wingbeat_whose_first_samples_are_gone_has_no_estimate(model, params):
+    """A previous crossing whose samples the state no longer holds (the demo's drive-levels
+    experiment met one: the window came out empty and the node died of a ZeroDivisionError).
+    """
+    vs, vp, dv = hs.run(model, 0.3, sine=(40.0, 140.0))
+    half = vs.size // 2
+    state, _ = H.step(
+        H.initial_state(params), H.HealthInputs(vs[:half], vp[:half], dv[:half]), params
+    )
+    state = state._replace(last_cross=state.pending_start - 5.5)  # 5 samples before what it holds
+    state, out = H.step(state, H.HealthInputs(vs[half:], vp[half:], dv[half:]), params)
+    assert out.wingbeats and out.wingbeats[0].valid is False
+
+
 def test_bad_parameters_and_inputs_are_named(params):
     with pytest.raises(ValueError, match="min_frequency_hz"):
         dataclasses.replace(params, min_frequency_hz=500.0)

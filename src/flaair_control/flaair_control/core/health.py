@@ -415,7 +415,10 @@ def step(
             i0 = math.ceil(last) - start
             i1 = math.ceil(c) - start
             est, amps = None, np.full(2, np.nan)
-            if 1.0 / params.max_frequency_hz <= period <= 1.0 / params.min_frequency_hz:
+            # a wingbeat longer than the slowest has no estimate; its first samples may even
+            # be gone with a quiet stretch (i0 < 0: the drive off between runs)
+            in_range = 1.0 / params.max_frequency_hz <= period <= 1.0 / params.min_frequency_hz
+            if in_range and i0 >= 0 and i1 > i0:
                 w = 2.0 * math.pi / period
                 seg = buf[:, i0:i1]
                 lam = _log_rate(seg[0], w, amps_before[0], period, fs, last)
@@ -464,6 +467,8 @@ def _log_rate(
 ) -> float:
     """The stroke amplitude's log rate over the last wingbeat (0 without one before)."""
     n = stroke.size
+    if n == 0:
+        return 0.0
     basis = np.exp(-1j * (w * (math.ceil(last) - last) / fs + w * np.arange(n) / fs))
     amp = abs((2.0 / n) * ((stroke - stroke.mean()) @ basis))
     if not (math.isfinite(amp_before) and amp_before > 0 and amp > 0):
