@@ -197,7 +197,7 @@ def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int, 
     before = simulate_runs([without], runs)[0]
     fig = Figure(figsize=(9, 2.2 * len(runs)))
     axes = np.atleast_1d(fig.subplots(len(runs), 1))
-    for ax, run, b, a in zip(axes, runs, before, result.sims_after, strict=True):
+    for ax, run, b, a in zip(axes, runs, before, result.sims_after[: len(runs)], strict=True):
         t = np.arange(run.n) / run.fs_hz
         ax.plot(t, run.channel(c) - b[c], lw=0.6, label=f"without {d.term.feature_expression}")
         ax.plot(t, run.channel(c) - a[c], lw=0.6, label="with it")
