@@ -6,6 +6,7 @@ from the subset run (bench/run_all.py, bench/bench_discrepancy.py). Nothing is a
 from __future__ import annotations
 
 import ast
+import json
 import re
 import sys
 from pathlib import Path
@@ -176,3 +177,44 @@ def test_every_figure_of_today_is_printed_in_both_modes(subset: bool) -> None:
         if f.unit.startswith("%"):
             assert re.search(r"\(\d+/\d+[ ,)]", f.name), f.name
         assert f.name.endswith(", subset)") == subset, f.name
+
+
+@pytest.mark.timeout(30)
+def test_compare_runs_meets_the_same_figure_in_both_modes(tmp_path: Path, capsys) -> None:
+    import compare_runs
+
+    quick = [
+        {
+            "name": "exact-set accuracy, offnominal_single (9/9 robots, subset)",
+            "value": 100.0,
+            "unit": "%",
+            "target": ">= 90 %",
+            "met": True,
+        },
+        {
+            "name": "discovery: time per robot (max of 9, subset)",
+            "value": 100.0,
+            "unit": "s",
+            "target": "<= 120 s",
+            "met": True,
+        },
+        {"name": "sim step", "value": 1.0, "unit": "ms", "target": "< 2", "met": True},
+    ]
+    full = [
+        {**quick[0], "name": "exact-set accuracy, offnominal_single (29/30 robots)", "value": 96.7},
+        {**quick[1], "name": "discovery: time per robot (max of 60)", "value": 130.0, "met": False},
+        {"name": "only full", "value": 1.0, "unit": "", "target": "", "met": True},
+    ]
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(quick))
+    b.write_text(json.dumps(full))
+    assert compare_runs.main([str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("2 figures in both; 3 moved")
+    assert "discovery: time per robot: 100.0 s (met;" in out and "-> 130.0 s (NOT met;" in out
+    assert "only in the first: sim step" in out and "only in the second: only full" in out
+    # within 5 %: not reported
+    assert "exact-set accuracy, offnominal_single:" not in out
+    a.write_text("{not json")
+    assert compare_runs.main([str(a), str(b)]) == 2
+    assert "a.json: not a readable benchmark table" in capsys.readouterr().err
