@@ -94,3 +94,32 @@ def test_one_level_is_fitted_not_searched_and_bad_input_writes_nothing(
     err = capsys.readouterr().err
     assert "line 3, column 'drive_pp_v'" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_hinge_stiffening_is_found_where_the_effectless_pitch_fit_runs_far() -> None:
+    # Without the effect, this robot's pitch plant fits at ~350 Hz (true 190 Hz) with its
+    # couplings on their bounds; the joint fit of the effect must be free to bring them back
+    # (before: boxed within x/÷ 1.5 of that fit, it ended at 1.5 +- 0.6, refused)
+    s = settings.tables()
+    nominal = load_model()
+    plant = replace(
+        nominal.plant,
+        stroke_natural_frequency_hz=134.5,
+        aero_damping_nm_s2=3.7e-11,
+        actuator_gain_nm_per_v=1.89e-7,
+    )
+    true = with_effects(
+        replace(nominal, plant=plant), {"hinge_stiffening": {"cubic_per_rad2": 3.2}}
+    )
+    freqs = np.linspace(0.6 * 134.5, 1.6 * 134.5, 20)
+    table = simulated_table(true, LEVELS, freqs, s, np.random.default_rng(1), missing_pitch=0.3)
+    r = analyse_table(table, nominal, s)
+    assert r.identified.plant.pitch_natural_frequency_hz > 300.0  # the effect-less fit ran far
+    assert [j.candidate.name for j in r.accepted] == ["hinge_stiffening"]
+    j = r.accepted[0]
+    assert j.fit.values["effect.hinge_stiffening.cubic_per_rad2"] == pytest.approx(3.2, rel=0.15)
+    assert j.z > s.min_z
+    assert j.fit.values["plant.pitch_natural_frequency_hz"] == pytest.approx(190.0, rel=0.05)
+    assert r.status == "explained"

@@ -299,7 +299,10 @@ def _rank(table: Table, model: Model, cand: Candidate, s: TableSettings) -> tupl
 
 def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before: float) -> Judged:
     cols = _side_cols(table, cand.side)
-    params = [*cand.params, *plant_params(model, cand.trades_off, {}, 1.5)]
+    # the plant it trades off against within the fit's whole range: fitted without the effect,
+    # the plant may have run far to mimic it (a hinge stiffening's pitch fit at 1.9 x the
+    # robot's pitch frequency, the couplings at 4 x), and a narrow box would hold it there
+    params = [*cand.params, *plant_params(model, cand.trades_off, {}, s.fit_range)]
     fit = fit_table(table, model, params, s, cols)
     quick = replace(s, max_nfev=s.heldout_max_nfev)
     held = heldout_predictions(table, model, _at(params, fit.values, 1.5), quick, cols)
