@@ -4,6 +4,7 @@ workflow in `flaair_analysis.discrepancy`.
 Modules:
 - `cli`: `bin/flaair discrepancy` (runs from CSV files or bags, the workflow, the report)
 - `identify`: `bin/flaair identify` (the grey-box plant fit alone)
+- `joint_cli`: `identify` and `discrepancy` on runs and a table of the same robot together
 - `report`: the report's JSON, Markdown and HTML pages and the validation table
 - `report_figures`: the report's figures (matplotlib, no pyplot)
 - `validation_file`: a `--validation` file read and checked before the analysis

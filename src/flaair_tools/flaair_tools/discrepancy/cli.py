@@ -29,6 +29,8 @@ Examples
   bin/flaair discrepancy --validate --out out/discrepancy-validation
   bin/flaair discrepancy --table lab/robot3_sweep.csv --out out/robot3  (a lab's table,
                      docs/TABLES.md)
+  bin/flaair discrepancy lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/joint
+                     (runs and a table of the same robot together, docs/TABLES.md)
 """
 
 from __future__ import annotations
@@ -305,6 +307,10 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
 def _table_or_runs(argv: list[str] | None = None) -> int:
     """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
     if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from .joint_cli import discrepancy_main, has_runs
+
+        if has_runs(argv):  # runs and a table together (docs/TABLES.md)
+            return discrepancy_main(argv)
         from flaair_tools.tables.discrepancy_cli import main as table_main
 
         return table_main(argv)
