@@ -22,8 +22,10 @@ from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
 from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS
 from flaair_analysis.tables.joint import identify_joint
+from flaair_analysis.tables.joint_workflow import analyse_joint
 from flaair_common.runcsv import write_run
 from flaair_model import settings
+from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.measured_run import synthesize_measured_run
@@ -152,6 +154,49 @@ def test_a_table_of_another_robot_is_named_as_disagreeing_not_averaged() -> None
     assert table_fn == pytest.approx(1.15 * fn, rel=0.01)  # what the table alone says
     assert f"table alone {table_fn:.1f} Hz" in warning
     assert fit.as_dict()["agree"] is False
+
+
+@pytest.mark.timeout(300)
+def test_a_missing_effect_found_on_the_runs_is_kept_when_the_table_confirms_it() -> None:
+    """Structural damping 0.05 in the robot: the runs' search names it, the table's held-out
+    levels improve with it (chi-square per cell 2.11 -> 1.02 measured), the plant is refitted
+    on both with it and both sets end at noise.
+    """
+    nominal, true = robot()
+    true = with_effects(true, {"structural_damping": {"damping_ratio": 0.05}})
+    fn = true.plant.stroke_natural_frequency_hz
+    runs = make_runs(true, FULL, 5)
+    s = settings.tables()
+    res = analyse_joint(runs, make_table(true, fn, seed=6), nominal, _noise(runs, nominal), s)
+    assert res.status == "explained" and res.kept
+    assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
+    assert res.model_out.effect("structural_damping") is not None
+    assert res.table_after.chi2 < res.table_before.chi2 - 2.0 * np.sqrt(2.0 * res.table_before.n)
+    assert res.table_after.chi2 / res.table_after.n < 1.3
+    assert res.final is not None and res.final.warnings == ()
+    assert res.model_out.plant.stroke_natural_frequency_hz == pytest.approx(fn, rel=0.005)
+
+
+@pytest.mark.timeout(300)
+def test_a_finding_that_worsens_the_table_beyond_noise_is_refused() -> None:
+    """The runs' robot has structural damping, the table's (same plant) has none: the runs'
+    search names it, the table's held-out chi-square rises far beyond noise with it (534 over 61
+    cells measured, noise allows 22): refused, the model is the joint plant alone.
+    """
+    nominal, plain = robot()
+    damped = with_effects(plain, {"structural_damping": {"damping_ratio": 0.05}})
+    fn = plain.plant.stroke_natural_frequency_hz
+    runs = make_runs(damped, FULL, 5)
+    s = settings.tables()
+    res = analyse_joint(runs, make_table(plain, fn, seed=6), nominal, _noise(runs, nominal), s)
+    assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
+    assert res.status == "unexplained" and not res.kept and res.final is None
+    assert res.model_out.effect("structural_damping") is None
+    assert res.model_out.plant == res.joint.model.plant
+    assert res.table_after.chi2 - res.table_before.chi2 > 2.0 * np.sqrt(2.0 * res.table_before.n)
+    (note,) = res.notes
+    assert note.startswith("the table refused the runs' findings (structural_damping)")
+    assert res.joint.warnings  # and the joint fit already said neither set reaches its noise
 
 
 def _write_runs(runs, directory: Path) -> list[Path]:
