@@ -204,8 +204,10 @@ class _RunResiduals:
         sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
         rad = sim.stroke_rad if self.channel == "stroke_deg" else sim.pitch_rad
         r = run.channel(self.channel)[i][None, :] - np.degrees(rad[:, i])
-        out: np.ndarray = (r - r.mean(axis=1, keepdims=True)) / self.sigma
-        return np.clip(np.nan_to_num(out, nan=1e6), -1e6, 1e6)
+        out: np.ndarray = np.clip(
+            np.nan_to_num((r - r.mean(axis=1, keepdims=True)) / self.sigma, nan=1e6), -1e6, 1e6
+        )
+        return out
 
 
 def _with(model: Model, keys: Sequence[str], u: np.ndarray) -> Model:
@@ -284,7 +286,8 @@ def _stage(
 
     def weighted(u: np.ndarray) -> np.ndarray:
         fr, ft, _ = evaluate(u)
-        return np.r_[math.sqrt(weights["runs"]) * fr, math.sqrt(weights["table"]) * ft]
+        out: np.ndarray = np.r_[math.sqrt(weights["runs"]) * fr, math.sqrt(weights["table"]) * ft]
+        return out
 
     def jacobian(u: np.ndarray) -> np.ndarray:
         fr, _, jac = evaluate(u)
@@ -294,7 +297,9 @@ def _stage(
         out: np.ndarray = jac * np.sqrt(w)[:, None]
         return out
 
-    x_start = np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base]) if nr else []
+    x_start: np.ndarray = (
+        np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base]) if nr else np.zeros(0)
+    )
     u = np.r_[np.clip([math.log(f.start) for f in free], lo[:p], hi[:p]), x_start]
     nfev = 0
     for attempt in range(2):
