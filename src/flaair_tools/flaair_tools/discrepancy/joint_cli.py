@@ -35,8 +35,8 @@ from flaair_model.model_io import load_model, save_model
 from flaair_tools.tables.identify_cli import bad_input, one_table
 from flaair_tools.tables.report import json_ready
 
-from .cli import bad_input_errors, load_inputs
 from .report import write_report
+from .run_inputs import bad_input_errors, load_inputs
 
 IDENTIFY_FILES = ("model.yaml", "identification.json")
 DISCREPANCY_FILES = ("model.yaml", "discrepancy.json", "report.html")
