@@ -55,7 +55,7 @@ from .fit import (
 from .reader import Table
 from .steady_state import steady_response
 
-__all__ = ["JointFit", "SetAgreement", "identify_joint", "table_scores"]
+__all__ = ["JointFit", "SetAgreement", "identify_joint", "run_scores", "table_scores"]
 
 _SIDES = (("stroke", "stroke_deg", STROKE_KEYS), ("pitch", "pitch_deg", PITCH_KEYS))
 _BIRGE_REFIT = 1.2  # a set's chi-square per residual above which the stage is refitted weighted
@@ -330,9 +330,12 @@ def _stage(
     }
 
 
-def _run_scores(
+def run_scores(
     runs: Sequence[Run], model: Model, noise: Mapping[str, float], decimate: int
 ) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """The runs' truth against `model` from each run's state: per channel noise ratio and NRMSE,
+    residuals and chi-square (as the joint fit weighs them).
+    """
     ratio, nrmse, n, chi2 = {}, {}, 0, 0.0
     for _, channel, _ in _SIDES:
         rr = _RunResiduals(runs, channel, float(noise[channel]), decimate)
@@ -415,7 +418,7 @@ def identify_joint(
             weights[name][side] = out["weights"][name]
         nfev += out["nfev"]
     t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, current, s)
-    r_ratio, r_nrmse, r_n, r_chi2 = _run_scores(runs, current, noise, decimate)
+    r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, current, noise, decimate)
     agreement = {
         "runs": SetAgreement("runs", r_n, r_chi2, r_ratio, r_nrmse, weights["runs"]),
         "table": SetAgreement(

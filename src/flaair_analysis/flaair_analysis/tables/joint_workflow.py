@@ -3,22 +3,24 @@
 What is joint and what is not:
 
 1. The plant is fitted on both (`joint.identify_joint`): joint.
-2. The search is the runs' workflow (`discrepancy.workflow.analyse`), started from the joint
-   plant, judged on held-out runs: runs only. A table shows only what acts on the wing's
-   motion and needs no time axis; the runs show that and the sensor chain.
-3. What the runs' workflow found (effects, discovered terms) is judged on the table's held-out
-   drive levels: each level predicted by the model with its plant refitted (table only, from the
-   final model) on the other levels, effects as found. Kept when the table's held-out
-   chi-square does not rise beyond its noise: by more than 2 sqrt(2 N) (two standard deviations
-   of a chi-square of N cells: what noise alone moves it by). The runs have already shown the
-   finding improves their held-out prediction, so this is "improves one, without worsening the
-   other beyond noise". Refused otherwise: the model written is the joint plant alone, the
-   status `unexplained`, and a note names what the table refused.
-4. With a finding kept, the plant is refitted on both again with it in place (the effects' and
-   terms' values stay as the runs' search fitted them).
+2. The runs' search (`discrepancy.workflow.analyse`, started from the joint plant, judged on
+   held-out runs), its findings (effects, discovered terms) then judged on the table's held-out
+   drive levels: each level predicted by the joint plant with the findings, its plant refitted
+   on the other levels. Kept when the table's held-out chi-square does not rise beyond its
+   noise: by more than 2 sqrt(2 N) over N cells (two standard deviations of a chi-square: what
+   noise alone moves it by). The runs have already required a better held-out prediction of
+   the runs, so the rule reads "improves one set without worsening the other beyond noise".
+   Refused: none of them is in the model, the status is `unexplained` and a note says why.
+3. Where the table's held-out levels still keep a gap (a column above `gap_ratio` x noise), the
+   table's own search (`workflow.analyse_table`, from the model so far, judged on held-out
+   levels); its findings judged on the runs: kept when the runs' chi-square (from their fitted
+   states) does not rise by more than 2 sqrt(2 N) over their N samples. An effect only a table
+   shows (a stop the runs' quieter drive never reaches) is found this way.
+4. With anything kept, the plant is refitted on both with it in place (the findings' values as
+   their own search fitted them).
 
-Not joint: a candidate is not searched on the table, and the table's held-out levels do not
-rank candidates; the table's own search (`tables.workflow`) is not run.
+Not joint: a candidate is fitted and ranked on one set (its own search's) and only checked on
+the other; the findings' values are not refitted on both.
 """
 
 from __future__ import annotations
@@ -36,10 +38,17 @@ from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
-from .fit import PITCH_KEYS, STROKE_KEYS, normalised_residuals, plant_params, stack_cells
-from .joint import JointFit, identify_joint
+from .fit import (
+    PITCH_KEYS,
+    STROKE_KEYS,
+    apply_values,
+    normalised_residuals,
+    plant_params,
+    stack_cells,
+)
+from .joint import JointFit, identify_joint, run_scores
 from .reader import Table
-from .workflow import heldout_predictions
+from .workflow import analyse_table, heldout_predictions
 
 __all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "table_heldout"]
 
@@ -75,13 +84,14 @@ class JointDiscrepancy:
 
     Attributes
     ----------
-    status : the runs' workflow's, or `unexplained` when the table refused its findings.
+    status : `unexplained` when the table refused the runs' findings or keeps a gap, `explained`
+        when the table's search explained its gap, else the runs' workflow's.
     joint : the plant fitted on both before the search.
     runs_result : the runs' workflow started from the joint plant.
     final : the plant refitted on both with the findings in place (None: nothing kept).
     model_out : what to write: `final`'s model, or the joint plant alone.
+    kept : the runs' findings passed the table's check (True when there were none).
     table_before, table_after : the table's held-out levels, joint plant and model_out.
-    kept : the findings passed the table's check (True when there was nothing to check).
     notes : what the table check decided, in words.
     """
 
@@ -106,8 +116,9 @@ class JointDiscrepancy:
             "table_chi2_allowance": _allowance(self.table_before.n),
             "findings_kept": self.kept,
             "notes": list(self.notes),
-            "what_is_joint": "plant fitted on runs and table; search on the runs (held-out runs); "
-            "findings checked on the table's held-out drive levels",
+            "what_is_joint": "plant fitted on runs and table; the runs' search (held-out runs) "
+            "checked on the table's held-out drive levels; where the table keeps a gap, the "
+            "table's search (held-out levels) checked on the runs; plant refitted on both",
         }
 
 
@@ -159,7 +170,7 @@ def analyse_joint(
     settings: Settings = Settings(),
     progress: Callable[[str], None] | None = None,
 ) -> JointDiscrepancy:
-    """Plant on both, the runs' search from it, its findings checked on the table (docstring)."""
+    """Plant on both, each set's search checked on the other, plant on both again (docstring)."""
     if progress:
         progress("joint plant")
     joint = identify_joint(runs, table, model, noise, s, settings.decimate)
@@ -167,36 +178,90 @@ def analyse_joint(
     if progress:
         progress("table check")
     before = table_heldout(table, joint.model, s)
-    found = bool(result.effects or result.discovered)
-    notes: list[str] = []
-    if not found:
-        notes.append("the runs' search added nothing: the model is the joint plant")
-        return JointDiscrepancy(
-            result.status, joint, result, None, joint.model, before, before, True, tuple(notes)
-        )
-    findings = replace(result.model_out, plant=joint.model.plant)
-    after = table_heldout(table, findings, s)
-    rise = after.chi2 - before.chi2
+    current, after, kept, notes = joint.model, before, True, []
     names = [e.name for e in result.effects] + [
         f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered
     ]
-    if rise > _allowance(before.n):
-        notes.append(
-            f"the table refused the runs' findings ({', '.join(names)}): its held-out chi-square "
-            f"rose by {rise:.1f} over {before.n} cells (noise allows {_allowance(before.n):.1f}); "
-            "the model is the joint plant alone"
-        )
-        return JointDiscrepancy(
-            "unexplained", joint, result, None, joint.model, before, after, False, tuple(notes)
-        )
-    change = "fell" if rise < 0 else "rose"
-    notes.append(
-        f"the table's held-out chi-square {change} by {abs(rise):.1f} over {before.n} cells with "
-        f"the runs' findings ({', '.join(names)}; noise allows a rise of "
-        f"{_allowance(before.n):.1f}): kept, the plant refitted on both with them"
-    )
-    final = identify_joint(runs, table, findings, noise, s, settings.decimate)
-    after = table_heldout(table, final.model, s)
+    if names:
+        findings = replace(result.model_out, plant=joint.model.plant)
+        after = table_heldout(table, findings, s)
+        rise = after.chi2 - before.chi2
+        if rise > _allowance(before.n):
+            kept = False
+            notes.append(
+                f"the table refused the runs' findings ({', '.join(names)}): its held-out "
+                f"chi-square rose by {rise:.1f} over {before.n} cells (noise allows "
+                f"{_allowance(before.n):.1f}); they are not in the model"
+            )
+            after = before
+        else:
+            current = findings
+            notes.append(
+                f"the table's held-out chi-square {'fell' if rise < 0 else 'rose'} by "
+                f"{abs(rise):.1f} over {before.n} cells with the runs' findings "
+                f"({', '.join(names)}; noise allows a rise of {_allowance(before.n):.1f}): kept"
+            )
+    else:
+        notes.append("the runs' search added nothing")
+    table_found = _table_search(table, current, after, joint, noise, s, settings, notes)
+    if table_found is not None:
+        current = table_found
+    final = None
+    if current is not joint.model:
+        if progress:
+            progress("joint plant again")
+        final = identify_joint(runs, table, current, noise, s, settings.decimate)
+        current = final.model
+        after = table_heldout(table, current, s)
+        notes.append("the plant refitted on both with what was kept")
+    gap = any(v > s.gap_ratio for v in after.noise_ratio.values())
+    if not kept or gap:
+        status = "unexplained"
+        if gap:
+            notes.append("the table's held-out levels keep a gap above noise")
+    elif table_found is not None:
+        status = "explained"
+    else:
+        status = result.status
     return JointDiscrepancy(
-        result.status, joint, result, final, final.model, before, after, True, tuple(notes)
+        status, joint, result, final, current, before, after, kept, tuple(notes)
     )
+
+
+def _table_search(
+    table: Table,
+    model: Model,
+    check: TableCheck,
+    joint: JointFit,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    settings: Settings,
+    notes: list[str],
+) -> Model | None:
+    """Where the table's held-out levels keep a gap, the table's own search from `model`; its
+    findings added to `model` unless they worsen the runs beyond noise (None: nothing added).
+    """
+    if table.levels_v.size < 2 or all(v <= s.gap_ratio for v in check.noise_ratio.values()):
+        return None
+    found = analyse_table(table, model, s)
+    values = {p.key: j.fit.values[p.key] for j in found.accepted for p in j.candidate.params}
+    names = [j.candidate.name for j in found.accepted]
+    if not values:
+        notes.append("the table's own search found nothing for its held-out gap")
+        return None
+    with_found = apply_values(model, values)
+    _, _, n, chi2_before = run_scores(joint.runs, model, noise, settings.decimate)
+    _, _, _, chi2_after = run_scores(joint.runs, with_found, noise, settings.decimate)
+    rise = chi2_after - chi2_before
+    if rise > _allowance(n):
+        notes.append(
+            f"the runs refused the table's findings ({', '.join(names)}): their chi-square rose "
+            f"by {rise:.1f} over {n} samples (noise allows {_allowance(n):.1f})"
+        )
+        return None
+    notes.append(
+        f"the table's own search found {', '.join(names)}; the runs' chi-square "
+        f"{'fell' if rise < 0 else 'rose'} by {abs(rise):.1f} over {n} samples with them (noise "
+        f"allows a rise of {_allowance(n):.1f}): kept"
+    )
+    return with_found
