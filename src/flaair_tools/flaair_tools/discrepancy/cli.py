@@ -29,6 +29,8 @@ Examples
   bin/flaair discrepancy --validate --out out/discrepancy-validation
   bin/flaair discrepancy --table lab/robot3_sweep.csv --out out/robot3  (a lab's table,
                      docs/TABLES.md)
+  bin/flaair discrepancy lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/joint
+                     (runs and a table of the same robot together, docs/TABLES.md)
 """
 
 from __future__ import annotations
@@ -40,111 +42,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
+from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
 from flaair_common.outputs import OutputError, check_output, writing_outputs
-from flaair_common.runcsv import RunFileError, read_run
-from flaair_model.model import Model, ModelError
+from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
 
 from .report import write_report, write_validation
-from .validation_file import ValidationFileError, read_validation
+from .run_inputs import InputError, bad_input_errors, load_inputs
+from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
-
-
-class InputError(ValueError):
-    """Bad command-line input (file missing, wrong kind)."""
-
-
-def _is_bag(path: Path) -> bool:
-    return path.is_dir() or path.suffix == ".mcap"
-
-
-def runs_from_csv(path: Path) -> Run:
-    """One measured-run CSV as a core Run."""
-    mr = read_run(path)
-    c = mr.columns
-    return Run(
-        name=mr.name,
-        fs_hz=mr.sample_rate_hz,
-        drive_v=c["drive_v"],
-        stroke_sensor_v=c["stroke_sensor_v"],
-        pitch_sensor_v=c["pitch_sensor_v"],
-        stroke_deg=c["stroke_deg"],
-        pitch_deg=c["pitch_deg"],
-    )
-
-
-def runs_from_bag(path: Path) -> list[Run]:
-    """Every run of a bag as core Runs (ground truth NaN where invalid)."""
-    from flaair_tools.bagio import (
-        runs as bag_runs,  # bag support (rosbags, mcap) only when a bag is given
-    )
-
-    bag = path.parent if path.suffix == ".mcap" else path
-    out = []
-    for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True):
-        c = r.columns
-        name = r.name if r.name != bag.name else bag.name
-        out.append(
-            Run(
-                name=name,
-                fs_hz=r.sample_rate_hz,
-                drive_v=c["drive_v"],
-                stroke_sensor_v=c["stroke_sensor_v"],
-                pitch_sensor_v=c["pitch_sensor_v"],
-                stroke_deg=c["stroke_deg"],
-                pitch_deg=c["pitch_deg"],
-            )
-        )
-    return out
-
-
-def load_inputs(paths: Sequence[Path]) -> list[Run]:
-    """Runs from CSV files and bags, in the order given.
-
-    Raises
-    ------
-    InputError, RunFileError, bagio.BagError
-        Missing path, unreadable file, bag without the needed topics.
-    """
-    runs: list[Run] = []
-    for p in paths:
-        if not p.exists():
-            raise InputError(f"{p}: no such file or bag directory")
-        if _is_bag(p):
-            runs.extend(runs_from_bag(p))
-        elif p.suffix.lower() == ".csv":
-            runs.append(runs_from_csv(p))
-        else:
-            raise InputError(f"{p}: not a measured-run CSV (.csv) or a bag (directory or .mcap)")
-    return runs
-
-
-def bad_input_errors() -> tuple[type, ...]:
-    errors: list[type] = [
-        InputError,
-        OutputError,
-        ValidationFileError,
-        RunFileError,
-        ModelError,
-        DiscrepancyInputError,
-        OSError,
-        yaml.YAMLError,
-    ]
-    try:
-        from flaair_tools.bagio import BagError
-
-        errors.append(BagError)
-    except ImportError:  # pragma: no cover - bag support not installed
-        pass
-    return tuple(errors)
 
 
 def _progress_bar(total: int, desc: str):
@@ -305,6 +216,10 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
 def _table_or_runs(argv: list[str] | None = None) -> int:
     """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
     if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from .joint_cli import discrepancy_main, has_runs
+
+        if has_runs(argv):  # runs and a table together (docs/TABLES.md)
+            return discrepancy_main(argv)
         from flaair_tools.tables.discrepancy_cli import main as table_main
 
         return table_main(argv)

@@ -14,11 +14,13 @@ Writes into --out DIR:
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
 
-A lab's frequency-response table instead of runs: --table TABLE.csv (docs/TABLES.md).
+A lab's frequency-response table instead of runs: --table TABLE.csv; runs and a table of the
+same robot in one fit: RUN... --table TABLE.csv (docs/TABLES.md).
 
 Examples
 --------
   bin/flaair identify --table lab/robot3_sweep.csv --out out/robot3
+  bin/flaair identify lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/robot3-joint
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
 """
@@ -51,6 +53,10 @@ def _terminate(signum: int, frame: object) -> None:
 def main(argv: list[str] | None = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
     if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
+        from .joint_cli import has_runs, identify_main
+
+        if has_runs(argv):  # runs and a table in one fit (docs/TABLES.md)
+            return identify_main(argv)
         from flaair_tools.tables.identify_cli import main as table_main  # docs/TABLES.md
 
         return table_main(argv)

@@ -1,0 +1,497 @@
+"""The plant fitted to a table and to runs of the same robot at once (docs/TABLES.md). Pure.
+
+One least-squares fit of the plant parameters over both data sets: the runs' residuals (the
+ground-truth angle minus its simulation, demeaned per run, decimated, divided by the channel's
+noise RMS: as `identify` on runs) and the table's (each measured cell against the steady state,
+divided by its reading noise: as `identify --table`) stacked in one residual vector. Stages as
+both fits do: the stroke parameters on stroke_deg and the table's stroke columns, then the pitch
+parameters on pitch_deg and the pitch columns. Each run's initial state (angle, rate) is fitted
+along with the plant on the runs alone (a table has no time axis).
+
+Weighting: the sum of the two chi-squares (maximum likelihood when each set's noise model is
+right): a run sample and a table cell each count by their information, so the runs' thousands of
+samples do not outvote the table where they say nothing (short or quiet runs leave the
+resonance to the table), and the table's sixty cells decide there. A set whose residuals after
+that fit are above its noise (chi-square per residual r > 1: a noise model too optimistic, or
+physics the model misses) would outvote the other by its sample count alone, so each set's
+block is then divided by sqrt(max(1, r)) (the Birge ratio: the set's noise taken as its actual
+scatter) and the stage refitted once from there.
+
+Agreement: after the fit, each set's residual RMS over its noise (`noise_ratio`) per channel or
+column. Above `gap_ratio` (the tables' setting, 1.5) is a gap: with the table alone at noise it
+is the two sets disagreeing (different robots, or a table read under other conditions), and a
+warning names each set's gap and the stroke frequency each set alone points to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from flaair_analysis.discrepancy.identification import (
+    DECIMATE,
+    FD_STEP,
+    STATE_STEP_RAD,
+    frequency_domain_start,
+)
+from flaair_analysis.discrepancy.runs import Run
+from flaair_model.model import Model
+from flaair_model.settings import TableSettings
+from flaair_sim.core.plant import simulate_batch_from
+
+from .fit import (
+    PITCH_KEYS,
+    STROKE_KEYS,
+    identify_table,
+    normalised_residuals,
+    plant_params,
+    stack_cells,
+)
+from .reader import Table
+from .steady_state import steady_response
+
+__all__ = ["JointFit", "SetAgreement", "identify_joint", "run_scores", "table_scores"]
+
+_SIDES = (("stroke", "stroke_deg", STROKE_KEYS), ("pitch", "pitch_deg", PITCH_KEYS))
+_BIRGE_REFIT = 1.2  # a set's chi-square per residual above which the stage is refitted weighted
+
+
+@dataclass(frozen=True)
+class SetAgreement:
+    """One data set's agreement with the jointly fitted model.
+
+    Attributes
+    ----------
+    name : "runs" or "table".
+    n : residuals (decimated samples or measured cells).
+    chi2 : sum of squares of its noise-weighted residuals (unweighted by the block weight).
+    noise_ratio : {channel or column: RMS of residual / noise}.
+    nrmse : {channel or column: RMS residual / RMS measured}.
+    weight : {stage: the block's weight in that stage's fit (1, or 1 / Birge ratio)}.
+    alone : {column: noise_ratio} of the set fitted alone (the table's fit; {} for the runs).
+    """
+
+    name: str
+    n: int
+    chi2: float
+    noise_ratio: dict[str, float]
+    nrmse: dict[str, float]
+    weight: dict[str, float]
+    alone: dict[str, float] = field(default_factory=dict)
+
+    def gaps(self, ratio: float) -> list[str]:
+        """The channels or columns whose residual is above `ratio` x noise."""
+        return [c for c, v in self.noise_ratio.items() if v > ratio]
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """The plant fitted to runs and a table together.
+
+    Attributes
+    ----------
+    model : the input model with the jointly fitted plant.
+    keys : fitted plant keys; values, nominal, start, stderr: {key: value}.
+    table_alone, runs_start : {key: value} of the table fitted alone (the start) and of the runs'
+        frequency-domain estimate (what each set alone points to).
+    correlation : (p, p) within each stage (NaN across stages).
+    runs : the runs with their initial states fitted along with the plant.
+    agreement : {"runs": SetAgreement, "table": SetAgreement}.
+    warnings : sets that disagree (one sentence each); notes: what the data cannot tell.
+    """
+
+    model: Model
+    keys: tuple[str, ...]
+    values: dict[str, float]
+    nominal: dict[str, float]
+    start: dict[str, float]
+    stderr: dict[str, float]
+    table_alone: dict[str, float]
+    runs_start: dict[str, float]
+    correlation: np.ndarray
+    runs: tuple[Run, ...]
+    agreement: dict[str, SetAgreement]
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+    nfev: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready (NaN and inf as None)."""
+
+        def fin(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        return {
+            "parameters": {
+                k: {
+                    "value": self.values[k],
+                    "nominal": self.nominal[k],
+                    "start": self.start[k],
+                    "stderr": fin(self.stderr[k]),
+                    "relative_change": self.values[k] / self.nominal[k] - 1.0,
+                    "table_alone": fin(self.table_alone.get(k, math.nan)),
+                    "runs_frequency_domain": fin(self.runs_start.get(k, math.nan)),
+                }
+                for k in self.keys
+            },
+            "correlation": {
+                "order": list(self.keys),
+                "matrix": [[fin(x) for x in row] for row in self.correlation],
+            },
+            "data_sets": {
+                name: {
+                    "residuals": a.n,
+                    "chi2_per_residual": a.chi2 / max(a.n, 1),
+                    "noise_ratio": {c: fin(v) for c, v in a.noise_ratio.items()},
+                    "nrmse": {c: fin(v) for c, v in a.nrmse.items()},
+                    "weight": a.weight,
+                    "noise_ratio_fitted_alone": {c: fin(v) for c, v in a.alone.items()},
+                }
+                for name, a in self.agreement.items()
+            },
+            "agree": not self.warnings,
+            "warnings": list(self.warnings),
+            "notes": list(self.notes),
+            "weighting": "sum of chi-squares; a set above its noise divided by its Birge ratio",
+        }
+
+
+def table_scores(
+    table: Table, model: Model, s: TableSettings
+) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """The table against `model`: per column noise ratio and NRMSE, cells and chi-square."""
+    cols = list(table.responses)
+    resp = steady_response(
+        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+    )
+    res = normalised_residuals(table, resp, s, cols)
+    ratio, nrmse = {}, {}
+    for c in cols:
+        ok = np.isfinite(table.responses[c])
+        if not ok.any():
+            continue
+        r = np.nan_to_num(res[c][0][ok], nan=1e6)
+        ratio[c] = float(np.sqrt(np.mean(r**2)))
+        meas = table.responses[c][ok]
+        diff = resp[c][0][ok] - meas
+        if "phase" in c:
+            diff = (diff + 180.0) % 360.0 - 180.0
+        nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
+    cells = stack_cells(table, res)[0]
+    return ratio, nrmse, int(cells.size), float(cells @ cells)
+
+
+class _RunResiduals:
+    """Noise-weighted, per-run demeaned residuals of one truth channel, batched over models."""
+
+    def __init__(self, runs: Sequence[Run], channel: str, sigma: float, decimate: int) -> None:
+        self.runs, self.channel, self.sigma = list(runs), channel, max(sigma, 1e-12)
+        self.idx = []
+        for run in self.runs:
+            sl = np.arange(0, run.n, decimate)
+            self.idx.append(sl[np.isfinite(run.channel(channel)[sl])])
+
+    def run_rows(self, j: int, models: Sequence[Model], x0: np.ndarray) -> np.ndarray:
+        """(m, n_j) residual rows of run j; x0: (m, 4) initial states."""
+        run, i = self.runs[j], self.idx[j]
+        if i.size == 0:
+            return np.zeros((len(models), 0))
+        sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
+        rad = sim.stroke_rad if self.channel == "stroke_deg" else sim.pitch_rad
+        r = run.channel(self.channel)[i][None, :] - np.degrees(rad[:, i])
+        out: np.ndarray = np.clip(
+            np.nan_to_num((r - r.mean(axis=1, keepdims=True)) / self.sigma, nan=1e6), -1e6, 1e6
+        )
+        return out
+
+
+def _with(model: Model, keys: Sequence[str], u: np.ndarray) -> Model:
+    plant = dict(zip(keys, (float(v) for v in np.exp(u)), strict=True))
+    return replace(model, plant=replace(model.plant, **plant))
+
+
+def _stage(
+    runs: list[Run],
+    table: Table,
+    model: Model,
+    keys: Sequence[str],
+    start: Mapping[str, float],
+    side: str,
+    channel: str,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    decimate: int,
+) -> dict[str, Any]:
+    """One stage: `keys` and each run's (angle, rate) on `channel` plus the table's `side`."""
+    cols = [c for c in table.responses if c.startswith(side)]
+    rr = _RunResiduals(runs, channel, float(noise[channel]), decimate)
+    p, nr = len(keys), len(runs)
+    comp = (0, 1) if side == "stroke" else (2, 3)
+    omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
+    base = [
+        np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs
+    ]
+    free = plant_params(model, keys, dict(start), s.fit_range)
+    lo = np.r_[[math.log(f.lower) for f in free], np.full(2 * nr, -np.inf)]
+    hi = np.r_[[math.log(f.upper) for f in free], np.full(2 * nr, np.inf)]
+    steps = np.r_[np.full(p, FD_STEP), np.full(2 * nr, STATE_STEP_RAD)]
+
+    def state(u: np.ndarray, j: int) -> np.ndarray:
+        x = base[j].copy()
+        x[comp[0]], x[comp[1]] = u[p + 2 * j], u[p + 2 * j + 1] * omega
+        return x
+
+    def table_rows(models: Sequence[Model]) -> np.ndarray:
+        if not cols:
+            return np.zeros((len(models), 0))
+        f, a, b = table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v
+        resp = steady_response(list(models), f, a, b, s)
+        return stack_cells(table, normalised_residuals(table, resp, s, cols))
+
+    weights = {"runs": 1.0, "table": 1.0}
+    cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def evaluate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(run residuals, table residuals, full weighted Jacobian) at u."""
+        key = u.tobytes()
+        if key not in cache:
+            cache.clear()
+            h = np.where(u + steps <= hi, steps, -steps)
+            us = u[None, :] + np.vstack([np.zeros(u.size), np.diag(h)])
+            models = [_with(model, keys, v[:p]) for v in us[: p + 1]]
+            f_runs, j_runs = [], []
+            for j in range(nr):
+                sc = [p + 2 * j, p + 2 * j + 1]
+                ms = [*models, models[0], models[0]]
+                x0 = np.array([state(u, j)] * (p + 1) + [state(us[1 + c], j) for c in sc])
+                rows = rr.run_rows(j, ms, x0)
+                jac = np.zeros((rows.shape[1], u.size))
+                for k, c in enumerate([*range(p), *sc]):
+                    jac[:, c] = (rows[1 + k] - rows[0]) / h[c]
+                f_runs.append(rows[0])
+                j_runs.append(jac)
+            trows = table_rows(models)
+            j_tab = np.zeros((trows.shape[1], u.size))
+            j_tab[:, :p] = ((trows[1:] - trows[0]) / h[:p, None]).T
+            fr = np.concatenate(f_runs) if f_runs else np.zeros(0)
+            jr = np.vstack(j_runs) if j_runs else np.zeros((0, u.size))
+            jac_all = np.vstack([jr, j_tab])
+            cache[key] = (fr, trows[0], jac_all)
+        return cache[key]
+
+    def weighted(u: np.ndarray) -> np.ndarray:
+        fr, ft, _ = evaluate(u)
+        out: np.ndarray = np.r_[math.sqrt(weights["runs"]) * fr, math.sqrt(weights["table"]) * ft]
+        return out
+
+    def jacobian(u: np.ndarray) -> np.ndarray:
+        fr, _, jac = evaluate(u)
+        w = np.r_[
+            np.full(fr.size, weights["runs"]), np.full(jac.shape[0] - fr.size, weights["table"])
+        ]
+        out: np.ndarray = jac * np.sqrt(w)[:, None]
+        return out
+
+    x_start: np.ndarray = (
+        np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base]) if nr else np.zeros(0)
+    )
+    u = np.r_[np.clip([math.log(f.start) for f in free], lo[:p], hi[:p]), x_start]
+    nfev = 0
+    for attempt in range(2):
+        sol = least_squares(
+            weighted, u, jac=jacobian, bounds=(lo, hi), method="trf", max_nfev=s.max_nfev,
+            xtol=1e-10, ftol=1e-10, gtol=1e-10,
+        )  # fmt: skip
+        u, nfev = sol.x, nfev + int(sol.nfev)
+        fr, ft, _ = evaluate(u)
+        birge = {
+            "runs": float(fr @ fr) / max(fr.size, 1),
+            "table": float(ft @ ft) / max(ft.size, 1),
+        }
+        new = {k: 1.0 / max(1.0, v) for k, v in birge.items()}
+        if attempt or max(birge.values()) <= _BIRGE_REFIT:
+            break
+        weights.update(new)
+    f_all = weighted(u)
+    jac = jacobian(u)
+    dof = max(f_all.size - u.size, 1)
+    cov = np.linalg.pinv(jac.T @ jac) * max(1.0, float(f_all @ f_all) / dof)
+    return {
+        "values": dict(zip(keys, (float(v) for v in np.exp(u[:p])), strict=True)),
+        "cov": cov[:p, :p],
+        "states": [state(u, j) for j in range(nr)],
+        "weights": dict(weights),
+        "nfev": nfev,
+    }
+
+
+def run_scores(
+    runs: Sequence[Run], model: Model, noise: Mapping[str, float], decimate: int
+) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """The runs' truth against `model` from each run's state: per channel noise ratio and NRMSE,
+    residuals and chi-square (as the joint fit weighs them).
+    """
+    ratio, nrmse, n, chi2 = {}, {}, 0, 0.0
+    for _, channel, _ in _SIDES:
+        rr = _RunResiduals(runs, channel, float(noise[channel]), decimate)
+        rows = [
+            rr.run_rows(
+                j,
+                [model],
+                np.asarray([r.mechanical0 if r.mechanical0 is not None else np.zeros(4)]),
+            )[0]
+            for j, r in enumerate(runs)
+        ]
+        r = np.concatenate(rows)
+        meas = np.concatenate(
+            [run.channel(channel)[i] for run, i in zip(runs, rr.idx, strict=True)]
+        )
+        if r.size == 0:
+            continue
+        ratio[channel] = float(np.sqrt(np.mean(r**2)))
+        nrmse[channel] = ratio[channel] * rr.sigma / max(float(np.std(meas)), 1e-300)
+        n, chi2 = n + r.size, chi2 + float(r @ r)
+    return ratio, nrmse, n, chi2
+
+
+def identify_joint(
+    runs: Sequence[Run],
+    table: Table,
+    model: Model,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    decimate: int = DECIMATE,
+) -> JointFit:
+    """Fit the plant to `runs` (checked, with measured initial states) and `table` together.
+
+    Parameters
+    ----------
+    runs
+        The robot's runs (`check_runs`), ground truth present.
+    table
+        The same robot's frequency-response table.
+    model
+        Model to start from (its effects are kept; inertias and sensors stay).
+    noise
+        Noise RMS per run channel (`noise_estimates`), the runs' residual weights.
+    s
+        Table settings: reading noise, fit range, iterations, `gap_ratio` (agreement).
+    decimate
+        Keep every k-th run sample.
+    """
+    runs = list(runs)
+    keys = STROKE_KEYS + PITCH_KEYS
+    nominal = {k: float(getattr(model.plant, k)) for k in keys}
+    table_model, _, _, table_notes = identify_table(table, model, s)
+    alone = {k: float(getattr(table_model.plant, k)) for k in keys}
+    runs_start = {k: float(v) for k, v in frequency_domain_start(runs, model).items() if k in keys}
+    table_ratio_alone, _, _, _ = table_scores(table, table_model, s)
+    # the start: the table fitted alone (itself started from its peaks), or the runs' estimate
+    # for a side the table does not measure
+    start = dict(alone)
+    notes = list(table_notes)
+    for side, _, side_keys in _SIDES:
+        if not any(c.startswith(side) for c in table.responses):
+            start.update({k: runs_start.get(k, nominal[k]) for k in side_keys})
+            notes.append(f"the table has no {side} column: the {side} plant is the runs'")
+    values: dict[str, float] = {}
+    sd = np.full(len(keys), np.nan)
+    corr = np.full((len(keys), len(keys)), np.nan)
+    weights: dict[str, dict[str, float]] = {"runs": {}, "table": {}}
+    current, nfev = model, 0
+    for side, channel, side_keys in _SIDES:
+        out = _stage(runs, table, current, side_keys, start, side, channel, noise, s, decimate)
+        current = replace(current, plant=replace(current.plant, **out["values"]))
+        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"], strict=True)]
+        values.update(out["values"])
+        idx = [keys.index(k) for k in side_keys]
+        e = np.sqrt(np.abs(np.diag(out["cov"])))
+        sd[idx] = e
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr[np.ix_(idx, idx)] = out["cov"] / np.outer(e, e)
+        for name in weights:
+            weights[name][side] = out["weights"][name]
+        nfev += out["nfev"]
+    t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, current, s)
+    r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, current, noise, decimate)
+    agreement = {
+        "runs": SetAgreement("runs", r_n, r_chi2, r_ratio, r_nrmse, weights["runs"]),
+        "table": SetAgreement(
+            "table", t_n, t_chi2, t_ratio, t_nrmse, weights["table"], table_ratio_alone
+        ),
+    }
+    warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
+    return JointFit(
+        model=current,
+        keys=tuple(keys),
+        values=values,
+        nominal=nominal,
+        start={k: start[k] for k in keys},
+        stderr={k: float(values[k] * sd[i]) for i, k in enumerate(keys)},
+        table_alone=alone,
+        runs_start=runs_start,
+        correlation=corr,
+        runs=tuple(runs),
+        agreement=agreement,
+        warnings=tuple(warnings),
+        notes=tuple(notes),
+        nfev=nfev,
+    )
+
+
+def _disagreement(
+    agreement: Mapping[str, SetAgreement],
+    gap_ratio: float,
+    alone: Mapping[str, float],
+    runs_start: Mapping[str, float],
+    joint: Mapping[str, float],
+) -> list[str]:
+    """One sentence naming each set's gap, when a set is above `gap_ratio` x its noise."""
+    gaps = {name: a.gaps(gap_ratio) for name, a in agreement.items()}
+    if not any(gaps.values()):
+        return []
+    table_alone_ok = all(v <= gap_ratio for v in agreement["table"].alone.values())
+    per_set = "; ".join(
+        f"{name}: "
+        + (
+            ", ".join(f"{c} {agreement[name].noise_ratio[c]:.1f}x noise" for c in g)
+            if g
+            else "at noise"
+        )
+        for name, g in gaps.items()
+    )
+    fn = "stroke_natural_frequency_hz"
+    where = (
+        f" (stroke natural frequency: table alone {alone[fn]:.1f} Hz, runs' frequency-domain "
+        f"estimate {runs_start.get(fn, math.nan):.1f} Hz, joint {joint[fn]:.1f} Hz)"
+    )
+    if table_alone_ok and gaps["table"] and not gaps["runs"]:
+        head = "the table and the runs disagree: after the joint fit " + per_set + where
+        return [head + "; are they the same robot under the same conditions?"]
+    if table_alone_ok and gaps["table"]:
+        return [
+            "neither set reaches its noise with one plant (after the joint fit "
+            + per_set
+            + where
+            + "): the sets disagree (another robot, other conditions), or the model misses "
+            "physics that shows differently in each (`discrepancy` with both looks for it)"
+        ]
+    if table_alone_ok:
+        return [
+            "the runs keep a gap above noise after the joint fit ("
+            + per_set
+            + where
+            + "): the sets disagree, or the runs show physics the model misses (`discrepancy` "
+            "on the runs alone tells which)"
+        ]
+    return [
+        "after the joint fit a gap above noise remains ("
+        + per_set
+        + where
+        + "); the table alone does not reach its noise either: physics the model misses"
+    ]

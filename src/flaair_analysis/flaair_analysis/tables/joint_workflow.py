@@ -1,0 +1,267 @@
+"""The discrepancy workflow on runs and a table of the same robot (docs/TABLES.md). Pure.
+
+What is joint and what is not:
+
+1. The plant is fitted on both (`joint.identify_joint`): joint.
+2. The runs' search (`discrepancy.workflow.analyse`, started from the joint plant, judged on
+   held-out runs), its findings (effects, discovered terms) then judged on the table's held-out
+   drive levels: each level predicted by the joint plant with the findings, its plant refitted
+   on the other levels. Kept when the table's held-out chi-square does not rise beyond its
+   noise: by more than 2 sqrt(2 N) over N cells (two standard deviations of a chi-square: what
+   noise alone moves it by). The runs have already required a better held-out prediction of
+   the runs, so the rule reads "improves one set without worsening the other beyond noise".
+   Refused: none of them is in the model, the status is `unexplained` and a note says why.
+3. Where the table's held-out levels still keep a gap (a column above `gap_ratio` x noise), the
+   table's own search (`workflow.analyse_table`, from the model so far, judged on held-out
+   levels); its findings judged on the runs: kept when the runs' chi-square (from their fitted
+   states) does not rise by more than 2 sqrt(2 N) over their N samples. An effect only a table
+   shows (a stop the runs' quieter drive never reaches) is found this way.
+4. With anything kept, the plant is refitted on both with it in place (the findings' values as
+   their own search fitted them).
+
+Not joint: a candidate is fitted and ranked on one set (its own search's) and only checked on
+the other; the findings' values are not refitted on both.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from flaair_analysis.discrepancy.runs import Run
+from flaair_analysis.discrepancy.settings import Settings
+from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
+from flaair_model.model import Model
+from flaair_model.settings import TableSettings
+
+from .fit import (
+    PITCH_KEYS,
+    STROKE_KEYS,
+    apply_values,
+    normalised_residuals,
+    plant_params,
+    stack_cells,
+)
+from .joint import JointFit, identify_joint, run_scores
+from .reader import Table
+from .workflow import analyse_table, heldout_predictions
+
+__all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "table_heldout"]
+
+
+@dataclass(frozen=True)
+class TableCheck:
+    """The table's held-out drive levels predicted by a model (plant refitted on the others).
+
+    Attributes
+    ----------
+    noise_ratio, nrmse : {column: RMS residual / noise, RMS residual / RMS measured}.
+    chi2, n : sum of squares of the noise-weighted held-out residuals, and the cells.
+    """
+
+    noise_ratio: dict[str, float]
+    nrmse: dict[str, float]
+    chi2: float
+    n: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return {
+            "noise_ratio": self.noise_ratio,
+            "nrmse": self.nrmse,
+            "chi2_per_cell": self.chi2 / max(self.n, 1),
+            "cells": self.n,
+        }
+
+
+@dataclass(frozen=True)
+class JointDiscrepancy:
+    """Outcome of `analyse_joint`.
+
+    Attributes
+    ----------
+    status : `unexplained` when the table refused the runs' findings or keeps a gap, `explained`
+        when the table's search explained its gap, else the runs' workflow's.
+    joint : the plant fitted on both before the search.
+    runs_result : the runs' workflow started from the joint plant.
+    final : the plant refitted on both with the findings in place (None: nothing kept).
+    model_out : what to write: `final`'s model, or the joint plant alone.
+    kept : the runs' findings passed the table's check (True when there were none).
+    table_before, table_after : the table's held-out levels, joint plant and model_out.
+    notes : what the table check decided, in words.
+    """
+
+    status: str
+    joint: JointFit
+    runs_result: DiscrepancyResult
+    final: JointFit | None
+    model_out: Model
+    table_before: TableCheck
+    table_after: TableCheck
+    kept: bool
+    notes: tuple[str, ...]
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready summary of the joint parts (the runs' part is the runs' report)."""
+        return {
+            "status": self.status,
+            "joint_identification": self.joint.as_dict(),
+            "final_identification": self.final.as_dict() if self.final is not None else None,
+            "table_heldout_before": self.table_before.as_dict(),
+            "table_heldout_after": self.table_after.as_dict(),
+            "table_chi2_allowance": _allowance(self.table_before.n),
+            "findings_kept": self.kept,
+            "notes": list(self.notes),
+            "what_is_joint": "plant fitted on runs and table; the runs' search (held-out runs) "
+            "checked on the table's held-out drive levels; where the table keeps a gap, the "
+            "table's search (held-out levels) checked on the runs; plant refitted on both",
+        }
+
+
+def _allowance(n: int) -> float:
+    """What noise alone moves a chi-square of n cells by (two standard deviations)."""
+    return 2.0 * math.sqrt(2.0 * n)
+
+
+def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
+    """Each level of `table` predicted by `model` with its plant refitted on the other levels."""
+    cols = list(table.responses)
+    keys = [
+        *(STROKE_KEYS if any(c.startswith("stroke") for c in cols) else ()),
+        *(PITCH_KEYS if any(c.startswith("pitch") for c in cols) else ()),
+    ]
+    if table.levels_v.size < 2:  # nothing to hold out: the model as it is
+        from .steady_state import steady_response
+
+        resp = steady_response(
+            [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+        )
+        pred = {c: resp[c][0] for c in cols}
+    else:
+        quick = replace(s, max_nfev=s.heldout_max_nfev)
+        pred = heldout_predictions(table, model, plant_params(model, keys, {}, 1.5), quick, cols)
+    res = normalised_residuals(table, {c: v[None, :] for c, v in pred.items()}, s, cols)
+    ratio, nrmse = {}, {}
+    for c in cols:
+        ok = np.isfinite(table.responses[c])
+        if not ok.any():
+            continue
+        r = np.nan_to_num(res[c][0][ok], nan=1e6)
+        ratio[c] = float(np.sqrt(np.mean(r**2)))
+        meas = table.responses[c][ok]
+        diff = pred[c][ok] - meas
+        if "phase" in c:
+            diff = (diff + 180.0) % 360.0 - 180.0
+        nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
+    cells = stack_cells(table, res)[0]
+    return TableCheck(ratio, nrmse, float(cells @ cells), int(cells.size))
+
+
+def analyse_joint(
+    runs: Sequence[Run],
+    table: Table,
+    model: Model,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    settings: Settings = Settings(),
+    progress: Callable[[str], None] | None = None,
+) -> JointDiscrepancy:
+    """Plant on both, each set's search checked on the other, plant on both again (docstring)."""
+    if progress:
+        progress("joint plant")
+    joint = identify_joint(runs, table, model, noise, s, settings.decimate)
+    result = analyse(joint.runs, joint.model, settings, progress=progress)
+    if progress:
+        progress("table check")
+    before = table_heldout(table, joint.model, s)
+    current, after, kept, notes = joint.model, before, True, []
+    names = [e.name for e in result.effects] + [
+        f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered
+    ]
+    if names:
+        findings = replace(result.model_out, plant=joint.model.plant)
+        after = table_heldout(table, findings, s)
+        rise = after.chi2 - before.chi2
+        if rise > _allowance(before.n):
+            kept = False
+            notes.append(
+                f"the table refused the runs' findings ({', '.join(names)}): its held-out "
+                f"chi-square rose by {rise:.1f} over {before.n} cells (noise allows "
+                f"{_allowance(before.n):.1f}); they are not in the model"
+            )
+            after = before
+        else:
+            current = findings
+            notes.append(
+                f"the table's held-out chi-square {'fell' if rise < 0 else 'rose'} by "
+                f"{abs(rise):.1f} over {before.n} cells with the runs' findings "
+                f"({', '.join(names)}; noise allows a rise of {_allowance(before.n):.1f}): kept"
+            )
+    else:
+        notes.append("the runs' search added nothing")
+    table_found = _table_search(table, current, after, joint, noise, s, settings, notes)
+    if table_found is not None:
+        current = table_found
+    final = None
+    if current is not joint.model:
+        if progress:
+            progress("joint plant again")
+        final = identify_joint(runs, table, current, noise, s, settings.decimate)
+        current = final.model
+        after = table_heldout(table, current, s)
+        notes.append("the plant refitted on both with what was kept")
+    gap = any(v > s.gap_ratio for v in after.noise_ratio.values())
+    if not kept or gap:
+        status = "unexplained"
+        if gap:
+            notes.append("the table's held-out levels keep a gap above noise")
+    elif table_found is not None:
+        status = "explained"
+    else:
+        status = result.status
+    return JointDiscrepancy(
+        status, joint, result, final, current, before, after, kept, tuple(notes)
+    )
+
+
+def _table_search(
+    table: Table,
+    model: Model,
+    check: TableCheck,
+    joint: JointFit,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    settings: Settings,
+    notes: list[str],
+) -> Model | None:
+    """Where the table's held-out levels keep a gap, the table's own search from `model`; its
+    findings added to `model` unless they worsen the runs beyond noise (None: nothing added).
+    """
+    if table.levels_v.size < 2 or all(v <= s.gap_ratio for v in check.noise_ratio.values()):
+        return None
+    found = analyse_table(table, model, s)
+    values = {p.key: j.fit.values[p.key] for j in found.accepted for p in j.candidate.params}
+    names = [j.candidate.name for j in found.accepted]
+    if not values:
+        notes.append("the table's own search found nothing for its held-out gap")
+        return None
+    with_found = apply_values(model, values)
+    _, _, n, chi2_before = run_scores(joint.runs, model, noise, settings.decimate)
+    _, _, _, chi2_after = run_scores(joint.runs, with_found, noise, settings.decimate)
+    rise = chi2_after - chi2_before
+    if rise > _allowance(n):
+        notes.append(
+            f"the runs refused the table's findings ({', '.join(names)}): their chi-square rose "
+            f"by {rise:.1f} over {n} samples (noise allows {_allowance(n):.1f})"
+        )
+        return None
+    notes.append(
+        f"the table's own search found {', '.join(names)}; the runs' chi-square "
+        f"{'fell' if rise < 0 else 'rose'} by {abs(rise):.1f} over {n} samples with them (noise "
+        f"allows a rise of {_allowance(n):.1f}): kept"
+    )
+    return with_found

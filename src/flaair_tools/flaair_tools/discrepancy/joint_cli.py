@@ -1,0 +1,202 @@
+"""`flaair identify RUN... --table TABLE.csv --out DIR` and `flaair discrepancy RUN... --table
+TABLE.csv --out DIR`: a robot's runs and its frequency-response table in one fit (docs/TABLES.md,
+"Tables and runs together").
+
+identify writes model.yaml (the plant fitted on both) and identification.json (each parameter's
+value, nominal, start, standard error, the table's fit alone and the runs' frequency-domain
+estimate; per data set its residual over its noise, its NRMSE and its weight; warnings when the
+sets disagree). discrepancy writes model.yaml, discrepancy.json (the runs' workflow document
+plus a `joint` section: the joint plant, the table's held-out drive levels before and after the
+runs' findings, whether the table kept them) and report.html (the runs' workflow report).
+
+Exit status: 0 when fitted (a disagreement between the sets is a warning on stderr and in the
+JSON, not a failure), 2 on bad input (one line naming the file, line and column; nothing
+written), 130 when interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
+from flaair_analysis.discrepancy.settings import Settings
+from flaair_analysis.tables.joint import JointFit, identify_joint
+from flaair_analysis.tables.joint_workflow import analyse_joint
+from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_model import settings as config
+from flaair_model.model_io import load_model, save_model
+from flaair_tools.tables.identify_cli import bad_input, one_table
+from flaair_tools.tables.report import json_ready
+
+from .report import write_report
+from .run_inputs import bad_input_errors, load_inputs
+
+IDENTIFY_FILES = ("model.yaml", "identification.json")
+DISCREPANCY_FILES = ("model.yaml", "discrepancy.json", "report.html")
+
+
+def has_runs(argv: list[str] | None) -> bool:
+    """Whether a command line with --table also names runs (positional inputs)."""
+    parser = argparse.ArgumentParser(add_help=False)
+    parser.add_argument("inputs", nargs="*")
+    for flag in ("--table", "--model", "--out", "--cases", "--validation"):
+        parser.add_argument(flag, action="append")
+    ns, _ = parser.parse_known_args(argv)
+    return bool(ns.inputs)
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _parse(prog: str, argv: list[str] | None, files: tuple[str, ...]):
+    parser = argparse.ArgumentParser(
+        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bags")
+    parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
+    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
+    args = parser.parse_args(argv)
+    inputs = [*args.inputs, *args.table, *([args.model] if args.model else [])]
+    return args, check_output(args.out, inputs, args.force, files)
+
+
+def _load(args: argparse.Namespace):
+    """Model, table (checked first: a bad table is refused before the runs are read), runs and
+    their noise.
+    """
+    model = load_model(args.model)
+    s = config.tables()
+    table = one_table(args.table)
+    runs = check_runs(load_inputs(args.inputs))
+    noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)
+    return model, s, table, runs, noise
+
+
+def _run(prog: str, argv: list[str] | None, files: tuple[str, ...], compute) -> Any:
+    """Parse, load and compute with one-line refusals; the exit status or the results."""
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        args, written = _parse(prog, argv, files)
+        model, s, table, runs, noise = _load(args)
+        t0 = time.perf_counter()
+        result = compute(runs, table, model, noise, s)
+        return args, written, model, table, runs, result, time.perf_counter() - t0
+    except (*bad_input_errors(), *bad_input()) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _agreement_line(fit: JointFit) -> str:
+    parts = []
+    for name, a in fit.agreement.items():
+        worst = max(a.noise_ratio.values(), default=float("nan"))
+        parts.append(f"{name} {worst:.2f}x noise")
+    return ", ".join(parts)
+
+
+def _print_fit(prog: str, fit: JointFit) -> None:
+    print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
+    for k in fit.keys:
+        v, nom, se = fit.values[k], fit.nominal[k], fit.stderr[k]
+        print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
+    for name, a in fit.agreement.items():
+        cols = ", ".join(
+            f"{c} {v:.2f}x noise (NRMSE {a.nrmse[c]:.4f})" for c, v in a.noise_ratio.items()
+        )
+        print(f"  {name}: {cols}")
+    for note in fit.notes:
+        print(f"  note: {note}")
+    for w in fit.warnings:
+        print(f"{prog}: warning: {w}", file=sys.stderr)
+
+
+def identify_main(argv: list[str] | None = None) -> int:
+    """`flaair identify RUN... --table TABLE --out DIR`; returns the exit status."""
+    prog = "flaair identify"
+    done = _run(prog, argv, IDENTIFY_FILES, identify_joint)
+    if isinstance(done, int):
+        return done
+    args, written, _, table, runs, fit, elapsed = done
+    doc = {
+        "runs": [r.name for r in runs],
+        "table": table.name,
+        "table_points": table.n_points,
+        "model_in": str(args.model or "config/model.yaml"),
+        "model_out": str(args.out / "model.yaml"),
+        "seconds": elapsed,
+        **fit.as_dict(),
+    }
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            save_model(fit.model, args.out / "model.yaml")
+            text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
+            (args.out / "identification.json").write_text(text, encoding="utf-8")
+    except OutputError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
+    print(
+        f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points), plant "
+        f"fitted on both in {elapsed:.1f} s: {_agreement_line(fit)}; {verdict}"
+    )
+    _print_fit(prog, fit)
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
+    return 0
+
+
+def discrepancy_main(argv: list[str] | None = None) -> int:
+    """`flaair discrepancy RUN... --table TABLE --out DIR`; returns the exit status."""
+    prog = "flaair discrepancy"
+    workflow = Settings()
+
+    def compute(runs, table, model, noise, s):
+        return analyse_joint(runs, table, model, noise, s, workflow)
+
+    done = _run(prog, argv, DISCREPANCY_FILES, compute)
+    if isinstance(done, int):
+        return done
+    args, written, _, table, runs, result, elapsed = done
+    try:
+        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+            args.out.mkdir(parents=True, exist_ok=True)
+            model_path = args.out / "model.yaml"
+            save_model(result.model_out, model_path)
+            doc = write_report(args.out, result.joint.runs, result.runs_result, str(model_path))
+            doc["status"] = result.status
+            doc["joint"] = json_ready(result.as_dict())
+            text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
+            (args.out / "discrepancy.json").write_text(text, encoding="utf-8")
+    except OutputError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    before, after = result.table_before, result.table_after
+    print(
+        f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points) in "
+        f"{elapsed:.1f} s: status {result.status}; table held-out chi2/cell "
+        f"{before.chi2 / max(before.n, 1):.2f} -> {after.chi2 / max(after.n, 1):.2f}"
+    )
+    _print_fit(prog, result.final or result.joint)
+    for c, g in result.runs_result.gap_before.items():
+        print(f"  {c:16s} NRMSE {g:.4f} -> {result.runs_result.gap_after[c]:.4f} (held-out runs)")
+    for c, v in before.nrmse.items():
+        print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} (held-out drive levels)")
+    for note in result.notes:
+        print(f"  note: {note}")
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'discrepancy.json'}, report.html")
+    return 0
