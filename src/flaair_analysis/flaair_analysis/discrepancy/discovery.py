@@ -247,10 +247,13 @@ def _step(
                     x0,
                     replace(st, max_nfev=st.discovery_max_nfev),
                     grid=False,
+                    step_scale=st.discovery_fd_step,
                 )
                 x = fit.x[: len(specs)]
                 base = models_for(current, plant, fit.x[None, len(specs) :])[0]
-            ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+            ev, model = evaluate(
+                ctx, base, specs, channel, truth_ref, x_start=x, step_scale=st.discovery_fd_step
+            )
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
         judged.append(
@@ -329,6 +332,7 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
         x0,
         replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev),
         grid=False,
+        step_scale=ctx.settings.discovery_fd_step,
     )
     refit = models_for(model, specs, fit.x[None, :])[0]
     before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
@@ -375,7 +379,7 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
             continue
         problem = ctx.problem(truth, _fit_window(ctx), False, model)
         x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
-        fit = fit_specs(model, specs, problem, x0, st, grid=False)
+        fit = fit_specs(model, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step)
         before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
         if fit.rss < before:
             model = models_for(model, specs, fit.x[None, :])[0]
