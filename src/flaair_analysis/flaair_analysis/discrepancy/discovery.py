@@ -41,7 +41,7 @@ from flaair_model.terms import (
 from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
 from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
-from .identification import identify_plant
+from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
 from .term_candidates import SITES_FOR_GAP, candidates, fitted_along
@@ -388,7 +388,26 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
             ctx.runs, model, ctx.noise, keys=(), state_channels=("stroke_deg", "pitch_deg")
         ).runs
         ctx.motion = MotionCache()
+        _states_on_sensors(ctx, model)
     return model
+
+
+def _states_on_sensors(ctx: AnalysisContext, model: Model) -> None:
+    """The runs' initial states fitted again on the truth and both sensors, kept (`ctx.runs`) if
+    the cost drops and no channel is left with a gap it did not have: a video-rate truth leaves
+    the states loose, and a wrong state's transient shows on the far more precise sensors.
+    """
+    channels = ("stroke_deg", "pitch_deg", *SENSOR_CHANNELS)
+    runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
+    if not after < before:
+        return
+    trial = AnalysisContext(runs, ctx.noise, ctx.settings, ctx.tracks)
+    if any(
+        channel_has_gap(trial, model, c, False) and not channel_has_gap(ctx, model, c, False)
+        for c in channels
+    ):
+        return
+    ctx.runs, ctx.motion = trial.runs, MotionCache()
 
 
 def _replacing(
@@ -542,9 +561,10 @@ def discover(
                     _uncertainty(ctx, win, judged, channel),
                 )
             )
-            current = new_model
+            # the term with the plant, then the runs' initial states, before the channel is
+            # judged for a second term (the first term's fit stopped where the states were)
+            current = _polish_truth(ctx, new_model)
     if found:
-        current = _polish_truth(ctx, current)
         final = {(t.kind, t.acts_on): t for t in current.discovered}
         found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
     return DiscoveryOutcome(
