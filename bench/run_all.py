@@ -62,7 +62,8 @@ PARTS = (
     Part("bench_discrepancy", 190, 1800, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 15, 20),
     Part("bench_sweep", 35, 40),
-    Part("bench_bridge", 90, 105),  # 20 s UDP echo, 60 s live, their start and stop
+    # 10 s UDP echo, 25 s live with the health monitor and 25 s without, their starts and stops
+    Part("bench_bridge", 90, 105),
     Part("bench_import", 40, 55),  # a 200 MB CSV written, imported, read whole
     Part("bench_lab_import", 15, 15),
     Part("bench_foxglove", 25, 40),  # 2 x 10 s streamed
