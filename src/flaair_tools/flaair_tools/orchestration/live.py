@@ -502,7 +502,10 @@ def main(argv: list[str] | None = None) -> int:
         "--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here"
     )
     parser.add_argument(
-        "--calibration", type=Path, help="front end gains from this calibration.yaml"
+        "--calibration",
+        type=Path,
+        help="front end gains, and the health monitor's film lags and gains, from this "
+        "calibration.yaml",
     )
     parser.add_argument(
         "--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)"
