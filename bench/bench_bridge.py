@@ -13,18 +13,25 @@ ROS domain. Figures, each beside its target:
 - latency from a sensor packet's arrival at the bridge (kernel timestamp) to the drive packet
   the loop produced while handling it leaving the bridge, p99 over every such block; a block
   not sent at once (late, queued) counts as infinitely late (target < 1 ms);
-- CPU per packet of the loop process, the monitor, the recorder and the emulated target.
+- CPU per packet of the loop process, the collision monitor, the health monitor, the recorder
+  and the emulated target; the health monitor's also as % of one core (target < 15 %);
+- drive samples late or missing with the health monitor beside the loop (`live`'s default
+  graph) against a second live run of the same length without it (`live --no-health`), the
+  difference within its noise: the runs' 2.5 s windows' scatter (standard error of each run's
+  mean, the two combined, doubled).
 
-Same-run baseline: the emulated target against a bare UDP echo (one Python process answering
-each sensor packet with a drive packet, no ROS): what the machine allows without FLAAIR.
+Same-run baselines: the live run without the health monitor; the emulated target against a bare
+UDP echo (one Python process answering each sensor packet with a drive packet, no ROS): what
+the machine allows without FLAAIR.
 
-Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 60]
+Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 25]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import socket
@@ -108,14 +115,20 @@ def echo_main(port: int, out_file: str) -> int:
 
 
 # ------------------------------------------------------------------------------ runs
-def live_run(duration_s: float, tmp: Path) -> dict:
-    """`flaair live --target` (the composed loop: bridge, front end, dSA controller, collision
-    monitor; the recorder beside it) against the emulated target for `duration_s` of signal.
+WINDOW_S = 2.5  # the late-sample figure's noise: its scatter over windows of this much signal
+
+
+def live_run(duration_s: float, tmp: Path, health: bool = True) -> dict:
+    """`flaair live --target` (the composed loop: bridge, front end, dSA controller; the
+    collision monitor, the health monitor unless not `health`, the recorder beside it) against
+    the emulated target for `duration_s` of signal.
     """
     import psutil
 
+    tmp.mkdir(parents=True, exist_ok=True)
     listen, target_port = _free_port(), _free_port()
     timing, bag = tmp / "timing.npz", tmp / "bag"
+    counters: list[tuple[float, int, int]] = []  # the target's (samples, fresh, missing) so far
     cpu: dict[str, dict[int, float]] = {}  # role -> pid -> CPU seconds at the last look
     cpu_start: dict[int, float] = {}
     with Graph(log_dir=tmp) as graph:
@@ -138,6 +151,7 @@ def live_run(duration_s: float, tmp: Path) -> dict:
                 # now and then, a real target does not
                 "--bridge-param",
                 "sensor_timeout_s=1.0",
+                *(() if health else ("--no-health",)),
             ],
         )
         target = graph.start(
@@ -172,6 +186,8 @@ def live_run(duration_s: float, tmp: Path) -> dict:
                         if "recorder_node" in line
                         else "monitor"
                         if "collision_monitor_node" in line
+                        else "health"
+                        if "health_node" in line
                         else None
                     )
                     if role:
@@ -184,6 +200,8 @@ def live_run(duration_s: float, tmp: Path) -> dict:
                             cpu_start[proc.pid] = times.user + times.system
             except psutil.Error:
                 pass
+            if running_at is not None:
+                counters.append(_counters_now(tmp / "target.json"))
             time.sleep(0.5)
         ended_at = time.monotonic()
         graph.stop(target)
@@ -201,6 +219,13 @@ def live_run(duration_s: float, tmp: Path) -> dict:
         "drive_events": np.load(timing)["drive"],
         "sensor": sensor_blocks(bag),
         "cpu_us": cpu_us,
+        "cpu_pct": {
+            role: 100.0
+            * sum(t - cpu_start.get(pid, t) for pid, t in by_pid.items())
+            / (ended_at - running_at)
+            for role, by_pid in cpu.items()
+        },
+        "window_pct": window_pct(counters, WINDOW_S * FS),
         "summary": next(
             (
                 line
@@ -210,6 +235,39 @@ def live_run(duration_s: float, tmp: Path) -> dict:
             "",
         ),
     }
+
+
+def _counters_now(path: Path) -> tuple[int, int, int]:
+    """The emulated target's counters so far (it rewrites them once a second of signal)."""
+    try:
+        c = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return (-1, 0, 0)
+    return (int(c["samples"]), int(c["fresh_samples"]), int(c["missing_samples"]))
+
+
+def window_pct(counters: list[tuple[int, int, int]], window_samples: float) -> np.ndarray:
+    """Late or missing drive samples (%) in each window of `window_samples` of the target's
+    signal, from its counters read while the loop ran (the first and last window cut off).
+    """
+    seen = np.array([c for c in counters if c[0] >= 0], dtype=float).reshape(-1, 3)
+    if seen.shape[0] < 2:
+        return np.zeros(0)
+    seen = seen[np.concatenate([[True], np.diff(seen[:, 0]) > 0])]  # one row per snapshot
+    edges = np.arange(seen[0, 0], seen[-1, 0] + 1, window_samples)
+    rows = np.searchsorted(seen[:, 0], edges)
+    rows = np.unique(np.minimum(rows, seen.shape[0] - 1))
+    fresh, missing = np.diff(seen[rows, 1]), np.diff(seen[rows, 2])
+    driven = fresh + missing
+    return 100.0 * missing[driven > 0] / driven[driven > 0]
+
+
+def difference_noise_pct(a: np.ndarray, b: np.ndarray) -> float:
+    """Twice the standard error of the difference of two runs' means over their windows."""
+    if a.size < 2 or b.size < 2:
+        return float("nan")
+    se2 = a.var(ddof=1) / a.size + b.var(ddof=1) / b.size
+    return 2.0 * float(np.sqrt(se2))
 
 
 def sensor_blocks(bag: Path) -> dict:
@@ -240,6 +298,7 @@ def sensor_blocks(bag: Path) -> dict:
 
 
 def echo_run(duration_s: float, tmp: Path) -> dict:
+    tmp.mkdir(parents=True, exist_ok=True)
     port = _free_port()
     with Graph() as graph:
         graph.start("echo", [sys.executable, __file__, "--echo", str(port), str(tmp / "echo.npy")])
@@ -288,17 +347,53 @@ def late_or_missing_pct(counters: dict) -> float:
     return 100.0 * counters["missing_samples"] / driven if driven else 100.0
 
 
+def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load: str) -> list:
+    """Late or missing drive samples with the health monitor beside the loop, against the same
+    benchmark's run without it (and the UDP echo), the difference against its noise.
+    """
+    t, b = run["target"], bare["target"]
+    pct, bare_pct = late_or_missing_pct(t), late_or_missing_pct(b)
+    noise = difference_noise_pct(run["window_pct"], bare["window_pct"])
+    # no window scatter at all (both runs clean throughout): any late sample is a change
+    allowed = bare_pct + (noise if math.isfinite(noise) else 0.0)
+    return [
+        Figure(
+            f"live: drive samples late or missing with the health monitor, {duration_s:g} s",
+            pct,
+            "%",
+            "<= 0.1, <= without + noise",
+            pct <= 0.1 and pct <= allowed,
+            f"without it (--no-health, same length) {bare_pct:.4f} %, difference "
+            f"{pct - bare_pct:+.4f} % (noise +-{noise:.4f} % over {WINDOW_S:g} s windows); "
+            f"late {t['late_samples']}, missing {t['missing_samples']} of "
+            f"{t['fresh_samples'] + t['missing_samples']}; UDP echo {echo_pct:.3f} %; {load}",
+        ),
+        Figure(
+            f"live: drive samples late or missing without the health monitor, {duration_s:g} s",
+            bare_pct,
+            "%",
+            "<= 0.1",
+            bare_pct <= 0.1,
+            f"late {b['late_samples']}, missing {b['missing_samples']} of "
+            f"{b['fresh_samples'] + b['missing_samples']}; the baseline of the figure above",
+        ),
+    ]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--duration", type=float, default=60.0, help="signal time of the bridge run [s]"
+        "--duration",
+        type=float,
+        default=25.0,
+        help="signal time of each live run (with and without the health monitor) [s]",
     )
     parser.add_argument(
         "--baseline-duration",
         type=float,
-        default=20.0,
+        default=10.0,
         help="signal time of the UDP-echo baseline [s]",
     )
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_bridge.json")
@@ -313,25 +408,14 @@ def main() -> int:
         tmp = Path(tmpdir) if args.keep is None else args.keep
         tmp.mkdir(parents=True, exist_ok=True)
         load0 = os.getloadavg()[0]
-        echo = echo_run(args.baseline_duration, tmp)
-        run = live_run(args.duration, tmp)
+        echo = echo_run(args.baseline_duration, tmp / "echo")
+        # with the health monitor first: a cold start (caches, page cache) counts against it
+        run = live_run(args.duration, tmp / "health", health=True)
+        bare = live_run(args.duration, tmp / "no_health", health=False)
         load1 = os.getloadavg()[0]
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     t, e = run["target"], echo["target"]
-    figures = []
-    pct, pct_echo = late_or_missing_pct(t), late_or_missing_pct(e)
-    figures.append(
-        Figure(
-            f"live: drive samples late or missing at the target, {args.duration:g} s",
-            pct,
-            "%",
-            "<= 0.1",
-            pct <= 0.1,
-            f"UDP echo {pct_echo:.3f} %; late {t['late_samples']}, missing "
-            f"{t['missing_samples']} of {t['fresh_samples'] + t['missing_samples']}; "
-            f"{load}",
-        )
-    )
+    figures = late_figures(run, bare, late_or_missing_pct(e), args.duration, load)
     sensor = run["sensor"]
     lost = sensor["nan_blocks"] + sensor["missing"]
     figures.append(
@@ -365,6 +449,7 @@ def main() -> int:
     for name, label in (
         ("loop", "loop process (bridge, front end, controller)"),
         ("monitor", "collision monitor process"),
+        ("health", "health monitor process"),
         ("recorder", "recorder process"),
         ("target", "emulated target"),
     ):
@@ -380,6 +465,18 @@ def main() -> int:
                 else "plant + UDP + pacing",
             )
         )
+    health_pct = run["cpu_pct"].get("health", float("nan"))
+    figures.append(
+        Figure(
+            "live: health monitor process CPU, % of one core",
+            health_pct,
+            "%",
+            "< 15",
+            health_pct < 15.0,
+            f"{run['cpu_us'].get('health', float('nan')):.0f} us per 0.5 ms packet (20 kHz, "
+            "10-sample packets, 10 ms DDS batches); whole process incl. rclpy/DDS",
+        )
+    )
     figures.append(
         Figure(
             "emulated target overruns (its own deadline missed)",

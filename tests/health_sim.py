@@ -15,7 +15,9 @@ BLOCK = 10
 KAPPA = 0.5
 
 
-def dsa_params(model: Model, sync_v: float = 20.0, kr=(1.0, 0.0, 0.3, 0.3)) -> dsa.DsaParams:
+def dsa_params(
+    model: Model, sync_v: float = 20.0, kr=(1.0, 0.0, 0.3, 0.3), sync_hz: float = 60.0
+) -> dsa.DsaParams:
     """The paper's sync -> self-excited transition (tests/test_control_dsa.py's loop)."""
     lin = hopf.LinearStrokePlant(
         model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad
@@ -30,7 +32,7 @@ def dsa_params(model: Model, sync_v: float = 20.0, kr=(1.0, 0.0, 0.3, 0.3)) -> d
         sample_rate_hz=FS,
         drive_limit_v=100.0,
         sync_amplitude_v=sync_v,
-        sync_frequency_hz=60.0,
+        sync_frequency_hz=sync_hz,
         kr_schedule=dsa.KrSchedule(*kr),
         loop_delay_s=dsa.loop_delay_s(BLOCK, FS),
         sync_phase_rad=0.0,
@@ -46,12 +48,14 @@ def run(
     seed: int = 7,
     sine: tuple[float, float] | None = None,
     kr=(1.0, 0.0, 0.3, 0.3),
+    sync_hz: float = 60.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(stroke film V, pitch film V, applied drive V) of a noisy run; the model becomes
     `damaged` from the first block at or after `damage_s`. `sine` = (amplitude V, frequency Hz)
-    drives open loop instead of the dSA loop.
+    drives open loop instead of the dSA loop; `kr` the K_r schedule (start, end, ramp start s,
+    ramp duration s), `sync_hz` the synchronous drive's frequency.
     """
-    p = dsa_params(model, kr=kr)
+    p = dsa_params(model, kr=kr, sync_hz=sync_hz)
     rng = np.random.default_rng(seed)
     state = plant.initial_state(plant.PlantStepParams(model, FS))
     ctrl = dsa.initial_state(p)

@@ -15,7 +15,7 @@ from flaair_analysis import wingbeat
 from flaair_tools.liveview import live_view
 from flaair_tools.liveview.foxglove_client import FoxgloveClient
 from flaair_tools.liveview.foxglove_io import foxglove_node_args
-from rosproc import ros_processes, wait_for
+from rosproc import REPO_ROOT, ros_processes, wait_for
 
 FS, BLOCK, BLOCKS, START_S = 20000.0, 10, 400, 3.0
 # Publishes CollisionStatus (colliding, 3 deg vs 1 deg) and ControllerState (K_r 0.25) first, then
@@ -26,8 +26,9 @@ import sys, time
 import numpy as np
 import rclpy
 from flaair_common import cdr
-from flaair_common.qos import BLOCK_STREAM, STATUS
+from flaair_common.qos import BLOCK_STREAM, EVENTS, STATUS
 from flaair_msgs.msg import CollisionStatus, ControllerState, SensorVoltageBlock, WingStateBlock
+from flaair_msgs.msg import HealthEvent, HealthStatus
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 fs, block, blocks, start_s = 20000.0, 10, int(sys.argv[1]), float(sys.argv[2])
 rclpy.init()
@@ -37,8 +38,10 @@ sensor = node.create_publisher(SensorVoltageBlock, "/flaair/sensor_v", BLOCK_STR
 status = node.create_publisher(CollisionStatus, "/flaair/collision/status", STATUS)
 controller = node.create_publisher(ControllerState, "/flaair/controller/state", BLOCK_STREAM)
 diagnostics = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+health = node.create_publisher(HealthStatus, "/flaair/health", BLOCK_STREAM)
+health_events = node.create_publisher(HealthEvent, "/flaair/health/events", EVENTS)
 deadline = time.monotonic() + 60.0
-readers = (wing, sensor, status, controller, diagnostics)
+readers = (wing, sensor, status, controller, diagnostics, health, health_events)
 while time.monotonic() < deadline and min(p.get_subscription_count() for p in readers) == 0:
     time.sleep(0.05)
 time.sleep(0.5)
@@ -50,6 +53,15 @@ controller.publish(ControllerState(k_r=0.25))
 diagnostics.publish(DiagnosticArray(status=[DiagnosticStatus(
     level=b"\x02", name="bridge_node: UDP bridge", message="target silent: no sensor packet",
     hardware_id="/bridge_node", values=[KeyValue(key="lost_packets", value="3")])]))
+estimate = HealthStatus(wingbeat_index=12, sample_index=62400, wingbeat_frequency_hz=140.0,
+                        valid=True, wing_inertia_ratio=0.8, wing_inertia_stderr=0.01,
+                        stroke_film_gain_ratio=1.0, pitch_film_gain_ratio=1.01)
+estimate.header.stamp.sec, estimate.header.stamp.nanosec = 3, 120_000_000
+health.publish(estimate)
+change = HealthEvent(parameter="wing_inertia", ratio=0.8, stderr=0.02, sample_index=62400,
+                     time_s=3.12, wingbeat_index=12)
+change.header.stamp.sec, change.header.stamp.nanosec = 3, 120_000_000
+health_events.publish(change)
 time.sleep(1.0)
 wing_codec = cdr.FixedCodec(cdr.WING_STATE_BLOCK, block, "robot")
 sensor_codec = cdr.FixedCodec(cdr.SENSOR_VOLTAGE_BLOCK, block, "robot")
@@ -88,6 +100,8 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
         live_view.WINGBEAT_TOPIC,
         live_view.COLLISION_TOPIC,
         "/diagnostics",
+        "/flaair/health",
+        "/flaair/health/events",
     ]
     with ros_processes() as procs:
         node = procs.flaair(*foxglove_node_args(f"127.0.0.1:{port}"), "-p", "reliable:=true")
@@ -187,8 +201,82 @@ def test_websocket_client_gets_every_sample_at_its_signal_time_and_wingbeats() -
             "values": [{"key": "lost_packets", "value": "3"}],
         }
     ]
+    # the health monitor's estimates and events as they are (CDR, their ros2msg definitions),
+    # at their header stamps
+    from flaair_tools.bagio.messages import typestore
+
+    for topic, msgtype in live_view.RELAYED.items():
+        channel = client.channels[topic]
+        assert (channel["encoding"], channel["schemaName"], channel["schemaEncoding"]) == (
+            "cdr",
+            msgtype,
+            "ros2msg",
+        )
+    ((log_ns, data),) = received.messages["/flaair/health"]
+    estimate = typestore().deserialize_cdr(data, "flaair_msgs/msg/HealthStatus")
+    assert log_ns == 3_120_000_000 and estimate.wingbeat_index == 12
+    assert (estimate.wing_inertia_ratio, estimate.pitch_film_gain_ratio) == (0.8, 1.01)
+    ((log_ns, data),) = received.messages["/flaair/health/events"]
+    change = typestore().deserialize_cdr(data, "flaair_msgs/msg/HealthEvent")
+    assert log_ns == 3_120_000_000
+    assert (change.parameter, change.ratio, change.time_s) == ("wing_inertia", 0.8, 3.12)
     # the server told the client the latest signal time
     assert received.times_ns and max(received.times_ns) == sample_ns[-1] + int(1e9 / FS)
+
+
+def _msg_fields(msgtype: str) -> set[str]:
+    """The field names of a flaair_msgs message, read from its .msg file."""
+    path = REPO_ROOT / "src" / "flaair_msgs" / "msg" / f"{msgtype.rsplit('/', 1)[1]}.msg"
+    lines = (line.split("#", 1)[0].split() for line in path.read_text().splitlines())
+    return {words[1] for words in lines if len(words) >= 2 and "=" not in words[1]}
+
+
+@pytest.mark.timeout(60)
+def test_the_shipped_layout_plots_fields_the_live_view_serves() -> None:
+    """config/foxglove_layout.json is the layout live_view builds, valid JSON; every plotted path
+    is TOPIC.FIELD of a channel the live view serves and a field its messages have (the health
+    panel's in the HealthStatus / HealthEvent definitions).
+    """
+    shipped = (REPO_ROOT / "config" / "foxglove_layout.json").read_text()
+    assert shipped == live_view.layout_json()
+    layout = json.loads(shipped)
+
+    def panels(node):
+        if isinstance(node, dict):
+            if node.get("type") == "panel":
+                yield node
+            for value in node.values():
+                yield from panels(value)
+        elif isinstance(node, list):
+            for value in node:
+                yield from panels(value)
+
+    fields = {stream.topic: {n for n, _ in stream.fields} for stream in live_view.STREAMS.values()}
+    fields[live_view.WINGBEAT_TOPIC] = set(live_view.WINGBEAT_SCHEMA["properties"])
+    fields[live_view.COLLISION_TOPIC] = set(live_view.COLLISION_SCHEMA["properties"])
+    fields.update({topic: _msg_fields(kind) for topic, kind in live_view.RELAYED.items()})
+    served = live_view.served_topics()
+    assert {"/flaair/health", "/flaair/health/events"} <= set(served)
+    plotted = [
+        series["value"]
+        for panel in panels(layout)
+        if panel["panelType"] in ("Plot", "StateTransitions")
+        for series in panel["config"]["paths"]
+    ]
+    for path in plotted:
+        topic, _, field = path.rpartition(".")
+        assert topic in served and field in fields[topic], path
+    health = {p for p in plotted if p.startswith("/flaair/health")}
+    assert health == {
+        "/flaair/health.wing_inertia_ratio",
+        "/flaair/health.stroke_film_gain_ratio",
+        "/flaair/health.pitch_film_gain_ratio",
+        "/flaair/health/events.ratio",
+    }
+    raw = {
+        panel["config"]["topicPath"] for panel in panels(layout) if "topicPath" in panel["config"]
+    }
+    assert raw == {live_view.WINGBEAT_TOPIC, "/flaair/health/events"}
 
 
 def _wing_blocks(firsts: list[int], block: int = BLOCK, frame: str = "robot") -> list[bytes]:

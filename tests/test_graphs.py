@@ -47,6 +47,13 @@ def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
         graphs.GRAPHS["live_sim"].parameters["plant"]
     )
     assert live.live_graph(sim).hot == ("plant", "frontend", "controller")
+    # a calibration reaches the health monitor as it does the front end
+    calibrated = live.node_parameters_for(
+        argparse.Namespace(**{**vars(sim), "calibration": "c.yaml"})
+    )
+    assert calibrated["health_node"]["ros__parameters"] == {"calibration_file": "c.yaml"}
+    assert calibrated["frontend_node"]["ros__parameters"]["calibration_file"] == "c.yaml"
+    assert sections["health_node"]["ros__parameters"] == {}
     spec = next(iter(experiment.load_experiments().values()))
     roles = experiment.experiment_roles(spec)
     common = graphs.GRAPHS["experiment"].roles

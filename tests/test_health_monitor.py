@@ -201,3 +201,71 @@ def test_stream_join_hands_the_core_the_samples_both_streams_hold():
     assert start == 20 and list(got.drive_v) == list(drive[20:30])
     j, start, got = join_block(j, 35, films[:, 35:40], None)  # a gap: the films restart at 35
     assert start == 35 and list(got.drive_v) == list(drive[35:40])
+
+
+def _bench_calibration(model, path, lag_s=0.00025, pitch_transfer=0.23):
+    """A calibration.yaml as `bin/flaair calibrate` writes it for the bench robot: both films lag
+    lag_s, the pitch film gives pitch_transfer of the model's volts per radian.
+    """
+    path.write_text(
+        f"stroke: {{gain_deg_per_v: {model.stroke_gain_deg_per_v}, polarity: "
+        f"{model.stroke_polarity}, lag_s: {lag_s}}}\n"
+        f"pitch: {{gain_deg_per_v: {model.pitch_gain_deg_per_v / pitch_transfer}, polarity: "
+        f"{model.pitch_polarity}, lag_s: {lag_s}}}\n"
+    )
+    return path
+
+
+@pytest.mark.timeout(120)
+def test_a_calibration_file_gives_the_films_lags_and_gains(model, params, tmp_path):
+    """health_params_from_config with a calibration_file (what the health node is given, and
+    what `bin/flaair health --calibration` computes with): the films' lags are turned back and
+    their gains are ratios to the calibration's, so the bench robot (0.25 ms lag, pitch film at
+    0.23) reads 1.0 on every series and its inertia loss is named wing_inertia.
+    """
+    from flaair_control.health_io import health_values
+
+    cal = _bench_calibration(model, tmp_path / "calibration.yaml")
+    p = health_params_from_config({**health_values(), "calibration_file": str(cal)}, model)
+    assert (p.stroke_film_delay_s, p.pitch_film_delay_s) == (0.00025, 0.00025)
+    assert p.stroke_volts_per_rad == pytest.approx(params.stroke_volts_per_rad, rel=1e-12)
+    assert p.pitch_volts_per_rad == pytest.approx(0.23 * params.pitch_volts_per_rad, rel=1e-12)
+    robot = with_effects(
+        model,
+        {
+            "sensor_delay": {"delay_s": 0.00025, "channel": "both"},
+            "strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"},
+        },
+    )
+    damaged = with_effects(robot, {"wing_damage": {"inertia_factor": 0.8}})
+    _, out = _run(p, *hs.run(robot, 3.0, damaged, DAMAGE_S))
+    before = np.array([b.estimate for b in out.wingbeats if b.valid and 1.5 < b.time_s < 2.0])
+    np.testing.assert_allclose(before.mean(axis=0), 1.0, atol=0.01)
+    assert [e.parameter for e in out.events] == ["wing_inertia"]
+    assert out.events[0].ratio == pytest.approx(0.8, abs=0.04)
+
+
+# K_r 1 -> 0 over the experiments' 0.5 s, after a synchronous lead (20 V at the configured 90 Hz)
+# long enough for a baseline: warm-up and baseline wingbeats take 0.78 s at 90 Hz
+RAMP = (1.0, 0.0, 1.0, 0.5)
+RAMP_END_S = 1.5
+
+
+@pytest.mark.timeout(120)
+def test_a_damage_during_the_kr_ramp_is_reported_once_the_ramp_ends(model, params):
+    """The wing loses 20 % of its inertia halfway through the K_r ramp: the ramp's wingbeats
+    (a 90 Hz sync sine giving way to the ~150 Hz self-excited mode) are no steady estimate, their
+    alarms scatter about no change and make no event; once the ramp is over the self-excited
+    wing reads 0.8 of the baseline learned in the synchronous lead. The same ramp undamaged: no
+    event.
+    """
+    damaged = with_effects(model, {"wing_damage": {"inertia_factor": 0.8}})
+    _, out = _run(params, *hs.run(model, 3.0, damaged, 1.25, kr=RAMP, sync_hz=90.0))
+    assert [e.parameter for e in out.events] == ["wing_inertia"]
+    event = out.events[0]
+    assert event.ratio == pytest.approx(0.8, abs=0.04)
+    assert RAMP_END_S < event.time_s < RAMP_END_S + 0.15  # ~20 wingbeats after the ramp's end
+    _, calm = _run(params, *hs.run(model, 3.0, kr=RAMP, sync_hz=90.0))
+    assert calm.events == []
+    after = np.array([b.estimate for b in calm.wingbeats if b.valid and b.time_s > 2.0])
+    np.testing.assert_allclose(after.mean(axis=0), 1.0, atol=0.01)

@@ -65,3 +65,35 @@ def test_health_node_reports_a_damaged_wing_as_the_offline_core_does(monkeypatch
         [s.wing_inertia_ratio for s in status], [b.estimate[0] for b in out.wingbeats]
     )
     assert [e.sample_index for e in events] == [e.sample_index for e in out.events]
+
+
+@pytest.mark.timeout(120)
+def test_health_node_takes_the_films_lags_and_gains_from_its_calibration_file(
+    monkeypatch, tmp_path
+):
+    """The node's parameters from a calibration_file are those `bin/flaair health --calibration`
+    computes (one function, health_io.health_params_from_config): lags and film gains from it.
+    """
+    from flaair_control import health_io
+    from flaair_control.health_node import HealthNode
+    from flaair_model.model_io import load_model
+
+    model = load_model()
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(
+        f"stroke: {{gain_deg_per_v: {2 * model.stroke_gain_deg_per_v}, polarity: "
+        f"{model.stroke_polarity}, lag_s: 0.0002}}\n"
+        f"pitch: {{gain_deg_per_v: {model.pitch_gain_deg_per_v}, polarity: "
+        f"{model.pitch_polarity}, lag_s: 0.0003}}\n"
+    )
+    params = {"health_node": {"calibration_file": str(cal)}}
+    with composed(monkeypatch, [HealthNode], params, tmp_path) as loop:
+        got = loop.node("health_node").params
+    offline = health_io.health_params_from_config(
+        {**health_io.health_values(), "calibration_file": str(cal)}
+    )
+    assert got == offline
+    assert (got.stroke_film_delay_s, got.pitch_film_delay_s) == (0.0002, 0.0003)
+    nominal = health_io.health_params_from_config()
+    assert got.stroke_volts_per_rad == pytest.approx(nominal.stroke_volts_per_rad / 2, rel=1e-12)
+    assert got.pitch_volts_per_rad == pytest.approx(nominal.pitch_volts_per_rad, rel=1e-12)

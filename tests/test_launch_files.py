@@ -71,7 +71,7 @@ def test_the_graphs_are_those_of_the_launch_files_and_as_the_tools_had_them() ->
     assert (live_target.hot, live_target.side, dict(live_target.parameters)) == (
         ("frontend", "controller", "bridge"),
         ("recorder", "health", "collision_monitor", "foxglove"),
-        {},
+        {"health": {"drive_topic": "/flaair/drive/applied"}},
     )
     assert live_sim.local_topics == loop.local_topics and not experiment.local_topics
 

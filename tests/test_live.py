@@ -55,6 +55,7 @@ def test_live_sim_self_excites_where_the_hopf_analysis_predicts_and_records_ever
         "/flaair/controller/state",
         "/flaair/wing_state/truth",
         "/flaair/collision/status",
+        "/flaair/health",  # the health monitor runs beside the loop by default
     ):
         assert counts.get(topic, 0) > 0, (topic, counts)
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
@@ -93,7 +94,7 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     bag = tmp_path / "live"
     # Ctrl-C at its default action, as from a terminal (conftest sees to it)
     process = subprocess.Popen(
-        [FLAAIR, "live", "--sim", "--duration", "60", "--out", str(bag)],
+        [FLAAIR, "live", "--sim", "--duration", "60", "--out", str(bag), "--no-health"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -113,6 +114,7 @@ def test_ctrl_c_ends_live_the_same_way(tmp_path):
     assert "interrupted" in stderr and "Traceback" not in stderr, stderr.splitlines()[-3:]
     drive = bagio.read_blocks(bag, "/flaair/drive", allow_gaps=True)
     assert drive.n_samples > 0 and np.all(drive["drive_v"][-10:] == 0.0)
+    assert "/flaair/health" not in bagio.message_counts(bag)  # --no-health left it out
 
 
 @pytest.mark.parametrize(

@@ -154,6 +154,14 @@ HEALTH_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "event_significance",
+        float,
+        "An event's ratio must differ from 1 by more than this many of its standard errors",
+        0.0,
+        100.0,
+        read_only=True,
+    ),
+    ParamSpec(
         "agree_tolerance",
         float,
         "Both films moved by ratios this close: actuator gain",
@@ -234,6 +242,7 @@ def health_params_from_config(
                 "sigma_floor",
                 "confirm_wingbeats",
                 "agree_tolerance",
+                "event_significance",
                 "max_amplitude_change",
                 "max_baseline_scatter",
                 "stroke_film_delay_s",

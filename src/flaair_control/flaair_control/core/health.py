@@ -28,7 +28,9 @@ the first baseline_wingbeats consecutive estimates after warmup_wingbeats whose 
 scatter is at most max_baseline_scatter (a transient, the sync start or the K_r ramp, is not).
 Its alarm (g > threshold, drift k) is confirmed once confirm_wingbeats estimates follow the change
 point; the event's ratio is their median over mu0, its stderr their scatter over sqrt(n); an
-alarm whose ratio is back within drift x sigma of 1 (a transient) is dropped without an event.
+alarm whose ratio is back within drift x sigma of 1, or within event_significance stderrs of 1
+(a transient: the K_r ramp's estimates scatter widely about no change), is dropped without an
+event.
 Both films moving by the same ratio (within agree_tolerance) name `actuator_gain` (ratio the
 product). After an event every baseline is
 learned again. With i.i.d. normal z, drift 1 and threshold 12 the in-control run length is
@@ -86,6 +88,7 @@ class HealthParams:
     sigma_floor: float
     confirm_wingbeats: int
     agree_tolerance: float
+    event_significance: float  # an event's shift from 1 must exceed this many of its stderrs
     max_amplitude_change: float
     max_baseline_scatter: float
     stroke_film_delay_s: float  # the films' lag behind the motion (calibration's lag_s)
@@ -312,7 +315,11 @@ def _detect(
     post = history / det.mu  # the last confirm_wingbeats estimates over the baseline
     ratio = np.median(post, axis=0)  # robust to the change's own transient wingbeats
     err = post.std(axis=0, ddof=1) / math.sqrt(post.shape[0]) if post.shape[0] > 1 else 0 * ratio
-    moved = np.abs(ratio - 1.0) > params.cusum_drift * det.sigma
+    # moved by more than the drift, and by more than its own scatter allows: a transient's
+    # estimates (the K_r ramp's) scatter widely, and their median is no change
+    moved = np.abs(ratio - 1.0) > np.maximum(
+        params.cusum_drift * det.sigma, params.event_significance * err
+    )
     if not (confirmed & moved).any():  # a transient that came back: no event, test on
         gone = confirmed & ~moved
         keep = ~gone

@@ -11,6 +11,7 @@ from typing import Any
 from flaair_analysis import wingbeat
 from flaair_common import cdr, topics
 from flaair_common.msgdict import to_dict
+from flaair_common.qos import EVENTS, STATUS
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_msgs import msg as msgs
 from flaair_tools.liveview import live_view
@@ -27,7 +28,9 @@ __all__ = [
     "open_channels",
     "open_diagnostics_channel",
     "ready_text",
+    "relay_channel",
     "start_server",
+    "subscriptions",
     "wingbeat_params",
 ]
 
@@ -178,7 +181,7 @@ def ready_text(host: str, port: int, decimation: int) -> str:
     )
 
 
-DIAGNOSTICS_TOPIC = "/diagnostics"
+DIAGNOSTICS_TOPIC = live_view.DIAGNOSTICS_TOPIC
 # ROS's DiagnosticArray as JSON, under its ROS type name: Foxglove's Diagnostics panels read it
 _DIAGNOSTICS_SCHEMA = {
     "type": "object",
@@ -245,3 +248,38 @@ def diagnostics_relay(foxglove: Any) -> Callable[[Any], None]:
     """The /diagnostics callback: each DiagnosticArray onto the diagnostics channel, as JSON."""
     channel = open_diagnostics_channel(foxglove)
     return lambda message: channel.log(json.dumps(to_dict(message), allow_nan=False))
+
+
+def relay_channel(foxglove: Any, topic: str) -> Callable[[bytes], None]:
+    """A callback serving each CDR message of `topic` (live_view.RELAYED) as it is, on a channel
+    of the same name with its type's ros2msg definition, at its header stamp.
+    """
+    from flaair_tools.bagio.messages import leading_stamp_ns, message_definition
+
+    msgtype = live_view.RELAYED[topic]
+    text, _ = message_definition(msgtype)
+    channel = foxglove.Channel(
+        topic,
+        message_encoding="cdr",
+        schema=foxglove.Schema(name=msgtype, encoding="ros2msg", data=text.encode()),
+    )
+    return lambda data: channel.log(data, log_time=leading_stamp_ns(data))
+
+
+def subscriptions(foxglove: Any) -> list[tuple[Any, str, Callable[[Any], None], Any, bool]]:
+    """What the node relays besides the block streams: (message class, topic, callback, QoS,
+    raw) for /diagnostics (as JSON) and each live_view.RELAYED topic (as it is).
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    relayed = [
+        (getattr(msgs, msgtype.rsplit("/", 1)[1]), topic, relay_channel(foxglove, topic))
+        for topic, msgtype in live_view.RELAYED.items()
+    ]
+    return [
+        (DiagnosticArray, DIAGNOSTICS_TOPIC, diagnostics_relay(foxglove), 10, False),
+        *(
+            (cls, topic, callback, EVENTS if "events" in topic else STATUS, True)
+            for cls, topic, callback in relayed
+        ),
+    ]

@@ -4,8 +4,9 @@ Serves on ws://HOST:PORT one message per sample of /flaair/wing_state, /wing_sta
 and /drive (on /flaair/live/..., flaair_tools.liveview.live_view) at the sample's own signal time,
 so the Plot panel draws time series; /flaair/live/wingbeat summarises each wingbeat
 (flaair_analysis.wingbeat); /flaair/live/collision_status relays the monitor, /diagnostics
-every node's health; the latest signal time is broadcast. Block streams are best effort (a viewer
-never holds the graph), served in batches of serve_period_s (one numpy call each).
+every node's health, /flaair/health and /flaair/health/events the health monitor's estimates
+and changes (as they are); the latest signal time is broadcast. Block streams are best effort
+(a viewer never holds the graph), served in batches of serve_period_s (one numpy call each).
 Foxglove: Open connection > ws://127.0.0.1:8765; Layout > Import config/foxglove_layout.json.
 Usage: bin/flaair foxglove 127.0.0.1:8765, or
   bin/flaair run flaair_tools foxglove_node --ros-args -p port:=8765 -p sample_decimation:=4
@@ -18,7 +19,6 @@ import math
 import sys
 
 import foxglove
-from diagnostic_msgs.msg import DiagnosticArray
 from foxglove.websocket import Capability
 from rclpy.clock import Clock, ClockType
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -68,8 +68,9 @@ class FoxgloveNode(FlaairNode):
         self.create_subscription(
             msgs.ControllerState, topics.CONTROLLER_STATE, self.on_controller, qos, raw=True
         )
-        on_diagnostics = io.diagnostics_relay(foxglove)  # every node's health, as it is
-        self.create_subscription(DiagnosticArray, io.DIAGNOSTICS_TOPIC, on_diagnostics, 10)
+        # every node's /diagnostics (JSON), the health monitor's /flaair/health[/events] as they are
+        for cls, topic, callback, qos_profile, raw in io.subscriptions(foxglove):
+            self.create_subscription(cls, topic, callback, qos_profile, raw=raw)
         self.get_logger().info(io.ready_text(p["host"], self.server.port, self.decimation))
 
     def block_callback(self, key: str):  # keeps a block; a serve period's worth is served at once

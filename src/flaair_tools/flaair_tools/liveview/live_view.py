@@ -32,7 +32,7 @@ from flaair_analysis.wingbeat import (
     WingbeatState,
     step,
 )
-from flaair_common import cdr
+from flaair_common import cdr, topics
 
 LIVE_PREFIX = "/flaair/live"
 TIME_DEFINITION = "=" * 80 + "\nMSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"
@@ -99,6 +99,13 @@ STREAMS = {
 }
 WINGBEAT_TOPIC = f"{LIVE_PREFIX}/wingbeat"
 COLLISION_TOPIC = f"{LIVE_PREFIX}/collision_status"
+# ROS topics served as they are, under their own names: each message's CDR bytes with its
+# type's ros2msg definition (Foxglove decodes them natively), at its header stamp
+RELAYED = {
+    topics.HEALTH_STATUS: "flaair_msgs/msg/HealthStatus",  # one per wingbeat
+    topics.HEALTH_EVENTS: "flaair_msgs/msg/HealthEvent",  # each change the monitor detected
+}
+DIAGNOSTICS_TOPIC = "/diagnostics"
 WINGBEAT_SCHEMA = {
     "title": "flaair_live.Wingbeat",
     "type": "object",
@@ -143,6 +150,12 @@ COLLISION_SCHEMA = {
         "collision_score": {"type": ["number", "null"]},
     },
 }
+
+
+def served_topics() -> list[str]:
+    """Every channel the live view serves."""
+    per_sample = [stream.topic for stream in STREAMS.values()]
+    return [*per_sample, WINGBEAT_TOPIC, COLLISION_TOPIC, *RELAYED, DIAGNOSTICS_TOPIC]
 
 
 def sample_indices(first_sample_index: int, length: int, decimation: int) -> np.ndarray:
@@ -459,6 +472,26 @@ def layout_json() -> str:
         title="Last wingbeat",
         config=fl.RawMessagesConfig(topic_path=WINGBEAT_TOPIC, expansion="all"),
     )
+    status, events = topics.HEALTH_STATUS, topics.HEALTH_EVENTS
+    health = plot(
+        "Health monitor: estimates (x model) and detected changes",
+        [
+            (f"{status}.{name}_ratio", label)
+            for name, label in (
+                ("wing_inertia", "wing inertia"),
+                ("stroke_film_gain", "stroke film gain"),
+                ("pitch_film_gain", "pitch film gain"),
+            )
+        ]
+        + [(f"{events}.ratio", "change detected (its ratio)")],
+        "ratio to the model",
+        30.0,
+    )
+    health.config.paths[-1].show_line = False  # an event is a point, not a line
+    changes = fl.RawMessagesPanel(
+        title="Last health event (parameter, ratio, time)",
+        config=fl.RawMessagesConfig(topic_path=events, expansion="all"),
+    )
 
     def split(direction: str, *items: tuple[float, object]) -> fl.SplitContainer:
         return fl.SplitContainer(
@@ -468,8 +501,8 @@ def layout_json() -> str:
     layout = fl.Layout(
         content=split(
             "row",
-            (3, split("column", (3, wing), (2, volts), (1, drive))),
-            (2, split("column", (3, beat), (2, frequency), (1, states), (2, last))),
+            (3, split("column", (3, wing), (2, volts), (1, drive), (2, health))),
+            (2, split("column", (3, beat), (2, frequency), (1, states), (2, last), (1, changes))),
         )
     )
     return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"

@@ -2,6 +2,7 @@
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
+                  [--no-health]
 
 The hot loop (the real-time target's bridge, or with --sim the simulated plant paced in real
 time; the front end; the dSA controller) runs composed in one process, its block streams
@@ -10,6 +11,7 @@ instead). The collision monitor (per-wingbeat decision, stroke-locked windows: t
 frequency is free) and the recorder (--out) run in processes of their own, off the hot path:
 the loop's block streams reach them over DDS joined into 10 ms messages (config/flaair.yaml
 live.dds_batch_blocks), so the loop's interpreter spends its core on the loop. Beside them: the
+health monitor (/flaair/health, /flaair/health/events; --no-health leaves it out) and the
 Foxglove live view (--foxglove).
 The controller runs the configured K_r schedule (config/flaair.yaml dsa_controller_node: the
 transition experiment's), synchronous first, then self-excited.
@@ -238,6 +240,12 @@ class Watcher:
             for i in self.node.get_subscriptions_info_by_topic(topics.WING_STATE)
         )
 
+    def health_listens(self) -> bool:
+        return any(
+            i.node_name == node_of("health").node_name
+            for i in self.node.get_subscriptions_info_by_topic(topics.SENSOR_VOLTAGE)
+        )
+
     def run_for_duration(self) -> None:
         """Wait for the loop to run (the first drive block; without a controller the first sensor
         block), then for --duration seconds of signal time.
@@ -382,6 +390,8 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
         if args.out is not None:
             recorder_process = graph.start("recorder", _argv("recorder", ros_args[1:]))
         graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
+        if not args.no_health:
+            graph.start("health", _argv("health", ros_args[1:]))
         if args.foxglove is not None:
             graph.start("foxglove", _argv("foxglove", ros_args[1:]))
             print(
@@ -391,8 +401,10 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
             )
         watcher = Watcher(graph, args)
         watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
-        # the monitor subscribes before the loop starts too
+        # the monitors subscribe before the loop starts too
         watcher.spin_until(watcher.monitor_listens, 120.0, "the collision monitor to subscribe")
+        if not args.no_health:
+            watcher.spin_until(watcher.health_listens, 120.0, "the health monitor to subscribe")
         if args.processes:
             loop += [graph.start(role, _argv(role, ros_args[1:])) for role in hot]
         else:
@@ -490,7 +502,10 @@ def main(argv: list[str] | None = None) -> int:
         "--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here"
     )
     parser.add_argument(
-        "--calibration", type=Path, help="front end gains from this calibration.yaml"
+        "--calibration",
+        type=Path,
+        help="front end gains, and the health monitor's film lags and gains, from this "
+        "calibration.yaml",
     )
     parser.add_argument(
         "--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)"
@@ -503,6 +518,12 @@ def main(argv: list[str] | None = None) -> int:
         "not come this long "
         "after the bridge listens (default: config/flaair.yaml "
         "live.first_packet_timeout_s)",
+    )
+    parser.add_argument(
+        "--no-health",
+        action="store_true",
+        help="leave the health monitor (health_node: /flaair/health, /flaair/health/events) out "
+        "of the graph; by default it runs beside the loop in a process of its own",
     )
     parser.add_argument(
         "--processes", action="store_true", help="one process per node instead of the composed loop"

@@ -56,6 +56,9 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         "frontend_node": {"gains_from": "calibration", "calibration_file": str(args.calibration)}
         if args.calibration
         else {},
+        # the films' lags turned back and their gains as ratios to the calibration's, as
+        # `flaair health --calibration` reruns it
+        "health_node": {"calibration_file": str(args.calibration)} if args.calibration else {},
         # free flapping: wingbeats between stroke crossings, decided one wingbeat at a time
         "collision_monitor_node": {"window_source": "stroke", "decision": "distortion"},
         # the controller starts once the actuator's node and the recorder listen; live stops it
