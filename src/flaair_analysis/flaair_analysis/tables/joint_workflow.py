@@ -32,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from flaair_analysis.discrepancy.runs import Run
+from flaair_analysis.discrepancy.diagnosis import diagnose
+from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_model.model import Model
@@ -84,8 +85,9 @@ class JointDiscrepancy:
 
     Attributes
     ----------
-    status : `unexplained` when the table refused the runs' findings or keeps a gap, `explained`
-        when the table's search explained its gap, else the runs' workflow's.
+    status : `unexplained` when the table refused the runs' findings, or with the model written
+        the runs (their diagnosis) or the table's held-out levels keep a gap; else `explained`
+        when something was kept, `no_discrepancy` when nothing was needed.
     joint : the plant fitted on both before the search.
     runs_result : the runs' workflow started from the joint plant.
     final : the plant refitted on both with the findings in place (None: nothing kept).
@@ -214,15 +216,18 @@ def analyse_joint(
         current = final.model
         after = table_heldout(table, current, s)
         notes.append("the plant refitted on both with what was kept")
-    gap = any(v > s.gap_ratio for v in after.noise_ratio.values())
-    if not kept or gap:
+    runs_now = final.runs if final is not None else joint.runs
+    sims = simulate_runs([current], runs_now)[0]
+    runs_gaps = diagnose(runs_now, sims, current, noise, settings).gaps
+    table_gaps = [c for c, v in after.noise_ratio.items() if v > s.gap_ratio]
+    if runs_gaps:
+        notes.append(f"with the model written the runs keep a gap on {', '.join(runs_gaps)}")
+    if table_gaps:
+        notes.append(f"the table's held-out levels keep a gap on {', '.join(table_gaps)}")
+    if not kept or runs_gaps or table_gaps:
         status = "unexplained"
-        if gap:
-            notes.append("the table's held-out levels keep a gap above noise")
-    elif table_found is not None:
-        status = "explained"
     else:
-        status = result.status
+        status = "explained" if final is not None else "no_discrepancy"
     return JointDiscrepancy(
         status, joint, result, final, current, before, after, kept, tuple(notes)
     )
