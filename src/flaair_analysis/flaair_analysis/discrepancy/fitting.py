@@ -282,8 +282,8 @@ def fit_specs(
         return np.concatenate(rows) if rows else np.zeros(0)
 
     def fun(x: np.ndarray) -> np.ndarray:
-        # the exact point: a term's coefficient is fitted in its own units (a hinge drag's
-        # 1e-12 N m s^2), where a key rounded to 1e-15 served one point's residuals for another
+        # the exact point: a key rounded to 1e-15 served one point's residuals for another
+        # wherever a fit-space value is that small (a hinge drag's 1e-12 N m s^2 in its own units)
         key = tuple(np.asarray(x, float).tolist())
         if key not in cache:
             cache.clear()
