@@ -13,7 +13,7 @@ help:
 	@echo "make test-graph-soak RUNS=20  the graph tests RUNS times in a row with every core loaded"
 	@echo "make bench  set up, run every benchmark and print figures beside their targets; the"
 	@echo "            discrepancy families on a fixed subset of robots (<= 15 min on 2 cores)"
-	@echo "make bench-full  the same with every discrepancy family and draw (about 45 min)"
+	@echo "make bench-full  the same with every discrepancy family and draw (about 75 min)"
 
 setup:
 	@scripts/setup_env.sh
