@@ -299,11 +299,23 @@ def _rank(table: Table, model: Model, cand: Candidate, s: TableSettings) -> tupl
 
 def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before: float) -> Judged:
     cols = _side_cols(table, cand.side)
-    # the plant it trades off against within the fit's whole range: fitted without the effect,
-    # the plant may have run far to mimic it (a hinge stiffening's pitch fit at 1.9 x the
-    # robot's pitch frequency, the couplings at 4 x), and a narrow box would hold it there
-    params = [*cand.params, *plant_params(model, cand.trades_off, {}, s.fit_range)]
+    params = [*cand.params, *plant_params(model, cand.trades_off, {}, 1.5)]
     fit = fit_table(table, model, params, s, cols)
+    # fitted without the effect, the plant may have run far to mimic it (a hinge stiffening's
+    # pitch fit at 1.9 x the robot's pitch frequency, the couplings at 4 x): a plant parameter
+    # ending on the narrow box's edge is freed over the fit's whole range, from where it ended
+    # (a wide box from the start sends a collision's joint fit to another minimum)
+    if any(
+        p.key.startswith("plant.") and not (p.lower * 1.01 < fit.values[p.key] < p.upper / 1.01)
+        for p in params
+    ):
+        wide = [
+            replace(p, start=fit.values[p.key])
+            for p in [*cand.params, *plant_params(model, cand.trades_off, {}, s.fit_range)]
+        ]
+        refit = fit_table(table, model, wide, s, cols)
+        if refit.chi2 < fit.chi2:
+            params, fit = wide, refit
     quick = replace(s, max_nfev=s.heldout_max_nfev)
     held = heldout_predictions(table, model, _at(params, fit.values, 1.5), quick, cols)
     _, ratio = _scores(table, held, s)
