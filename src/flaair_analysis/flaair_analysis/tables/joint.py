@@ -55,7 +55,14 @@ from .fit import (
 from .reader import Table
 from .steady_state import steady_response
 
-__all__ = ["JointFit", "SetAgreement", "identify_joint", "run_scores", "table_scores"]
+__all__ = [
+    "JointFit",
+    "SetAgreement",
+    "identify_joint",
+    "prediction_scores",
+    "run_scores",
+    "table_scores",
+]
 
 _SIDES = (("stroke", "stroke_deg", STROKE_KEYS), ("pitch", "pitch_deg", PITCH_KEYS))
 _BIRGE_REFIT = 1.2  # a set's chi-square per residual above which the stage is refitted weighted
@@ -161,15 +168,14 @@ class JointFit:
         }
 
 
-def table_scores(
-    table: Table, model: Model, s: TableSettings
+def prediction_scores(
+    table: Table, pred: Mapping[str, np.ndarray], s: TableSettings
 ) -> tuple[dict[str, float], dict[str, float], int, float]:
-    """The table against `model`: per column noise ratio and NRMSE, cells and chi-square."""
+    """`pred` ({column: one value per point}) against the table: per column noise ratio and
+    NRMSE (phases wrapped), the cells and their chi-square.
+    """
     cols = list(table.responses)
-    resp = steady_response(
-        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
-    )
-    res = normalised_residuals(table, resp, s, cols)
+    res = normalised_residuals(table, {c: pred[c][None, :] for c in cols}, s, cols)
     ratio, nrmse = {}, {}
     for c in cols:
         ok = np.isfinite(table.responses[c])
@@ -178,12 +184,22 @@ def table_scores(
         r = np.nan_to_num(res[c][0][ok], nan=1e6)
         ratio[c] = float(np.sqrt(np.mean(r**2)))
         meas = table.responses[c][ok]
-        diff = resp[c][0][ok] - meas
+        diff = pred[c][ok] - meas
         if "phase" in c:
             diff = (diff + 180.0) % 360.0 - 180.0
         nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
     cells = stack_cells(table, res)[0]
     return ratio, nrmse, int(cells.size), float(cells @ cells)
+
+
+def table_scores(
+    table: Table, model: Model, s: TableSettings
+) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """The table against `model`: per column noise ratio and NRMSE, cells and chi-square."""
+    resp = steady_response(
+        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+    )
+    return prediction_scores(table, {c: resp[c][0] for c in table.responses}, s)
 
 
 class _RunResiduals:

@@ -30,8 +30,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numpy as np
-
 from flaair_analysis.discrepancy.diagnosis import diagnose
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
@@ -43,11 +41,9 @@ from .fit import (
     PITCH_KEYS,
     STROKE_KEYS,
     apply_values,
-    normalised_residuals,
     plant_params,
-    stack_cells,
 )
-from .joint import JointFit, identify_joint, run_scores
+from .joint import JointFit, identify_joint, prediction_scores, run_scores
 from .reader import Table
 from .workflow import analyse_table, heldout_predictions
 
@@ -146,21 +142,8 @@ def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
     else:
         quick = replace(s, max_nfev=s.heldout_max_nfev)
         pred = heldout_predictions(table, model, plant_params(model, keys, {}, 1.5), quick, cols)
-    res = normalised_residuals(table, {c: v[None, :] for c, v in pred.items()}, s, cols)
-    ratio, nrmse = {}, {}
-    for c in cols:
-        ok = np.isfinite(table.responses[c])
-        if not ok.any():
-            continue
-        r = np.nan_to_num(res[c][0][ok], nan=1e6)
-        ratio[c] = float(np.sqrt(np.mean(r**2)))
-        meas = table.responses[c][ok]
-        diff = pred[c][ok] - meas
-        if "phase" in c:
-            diff = (diff + 180.0) % 360.0 - 180.0
-        nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
-    cells = stack_cells(table, res)[0]
-    return TableCheck(ratio, nrmse, float(cells @ cells), int(cells.size))
+    ratio, nrmse, n_cells, chi2 = prediction_scores(table, pred, s)
+    return TableCheck(ratio, nrmse, chi2, n_cells)
 
 
 def analyse_joint(
