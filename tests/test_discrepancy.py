@@ -556,8 +556,13 @@ def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_pa
 
 
 def write_case_csvs(case: DatasetCase, model, directory: Path) -> list[Path]:
+    return write_run_csvs(make_runs(case, model), directory)
+
+
+def write_run_csvs(runs, directory: Path) -> list[Path]:
+    """Each run as a measured-run CSV file in `directory`."""
     paths = []
-    for r in make_runs(case, model):
+    for r in runs:
         path = directory / f"{r.name}.csv"
         write_run(
             path,

@@ -25,7 +25,6 @@ from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS
 from flaair_analysis.tables.joint import identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
-from flaair_common.runcsv import write_run
 from flaair_model import settings
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
@@ -34,6 +33,7 @@ from flaair_sim.core.measured_run import synthesize_measured_run
 from flaair_tools.discrepancy.cli import main as discrepancy_main
 from flaair_tools.discrepancy.identify import main as identify_main
 from flaair_tools.tables.table_io import write_table
+from test_discrepancy import write_run_csvs  # the runs as measured-run CSV files
 
 FS_HZ = 20_000.0
 KEYS = STROKE_KEYS + PITCH_KEYS
@@ -233,25 +233,6 @@ def test_an_effect_only_the_table_shows_is_found_by_the_tables_search_and_kept()
     assert res.status == "explained"
 
 
-def _write_runs(runs, directory: Path) -> list[Path]:
-    paths = []
-    for r in runs:
-        path = directory / f"{r.name}.csv"
-        write_run(
-            path,
-            {
-                "time_s": np.arange(r.n) / r.fs_hz,
-                "drive_v": r.drive_v,
-                "stroke_sensor_v": r.stroke_sensor_v,
-                "pitch_sensor_v": r.pitch_sensor_v,
-                "stroke_deg": r.stroke_deg,
-                "pitch_deg": r.pitch_deg,
-            },
-        )
-        paths.append(path)
-    return paths
-
-
 def _strict(text: str):
     def refuse(name: str):
         raise ValueError(f"non-strict JSON constant {name}")
@@ -265,7 +246,7 @@ def test_identify_with_runs_and_a_table_prints_one_summary_line_and_writes_stric
 ) -> None:
     _, true = robot()
     fn = true.plant.stroke_natural_frequency_hz
-    runs = _write_runs(make_runs(true, FULL[:1], 1), tmp_path)
+    runs = write_run_csvs(make_runs(true, FULL[:1], 1), tmp_path)
     table = tmp_path / "robot.csv"
     write_table(make_table(true, fn), table)
     out = tmp_path / "out"
@@ -299,7 +280,7 @@ def test_discrepancy_with_runs_and_a_table_of_a_robot_missing_nothing(
 ) -> None:
     _, true = robot()
     fn = true.plant.stroke_natural_frequency_hz
-    runs = _write_runs(make_runs(true, FULL, 5), tmp_path)
+    runs = write_run_csvs(make_runs(true, FULL, 5), tmp_path)
     table = tmp_path / "robot.csv"
     write_table(make_table(true, fn, seed=6), table)
     out = tmp_path / "out"
