@@ -4,9 +4,10 @@ reports in one line (the shell around `flaair_analysis.discrepancy.runs`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
@@ -27,19 +28,23 @@ def _is_bag(path: Path) -> bool:
     return path.is_dir() or path.suffix == ".mcap"
 
 
-def runs_from_csv(path: Path) -> Run:
-    """One measured-run CSV as a core Run."""
-    mr = read_run(path)
-    c = mr.columns
+def _run(name: str, fs_hz: float, c: Mapping[str, np.ndarray]) -> Run:
+    """A core Run from a measured run's columns."""
     return Run(
-        name=mr.name,
-        fs_hz=mr.sample_rate_hz,
+        name=name,
+        fs_hz=fs_hz,
         drive_v=c["drive_v"],
         stroke_sensor_v=c["stroke_sensor_v"],
         pitch_sensor_v=c["pitch_sensor_v"],
         stroke_deg=c["stroke_deg"],
         pitch_deg=c["pitch_deg"],
     )
+
+
+def runs_from_csv(path: Path) -> Run:
+    """One measured-run CSV as a core Run."""
+    mr = read_run(path)
+    return _run(mr.name, mr.sample_rate_hz, mr.columns)
 
 
 def runs_from_bag(path: Path) -> list[Run]:
@@ -49,22 +54,10 @@ def runs_from_bag(path: Path) -> list[Run]:
     )
 
     bag = path.parent if path.suffix == ".mcap" else path
-    out = []
-    for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True):
-        c = r.columns
-        name = r.name if r.name != bag.name else bag.name
-        out.append(
-            Run(
-                name=name,
-                fs_hz=r.sample_rate_hz,
-                drive_v=c["drive_v"],
-                stroke_sensor_v=c["stroke_sensor_v"],
-                pitch_sensor_v=c["pitch_sensor_v"],
-                stroke_deg=c["stroke_deg"],
-                pitch_deg=c["pitch_deg"],
-            )
-        )
-    return out
+    return [
+        _run(r.name, r.sample_rate_hz, r.columns)
+        for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True)
+    ]
 
 
 def load_inputs(paths: Sequence[Path]) -> list[Run]:
