@@ -11,7 +11,7 @@ import pytest
 
 from flaair_bridge.core import bridge, bridge_params, protocol
 from flaair_bridge.core.bridge import DriveBlock, SensorDatagram, Stop, Tick
-from flaair_bridge.emulated_target import TargetCore, sensor_packet
+from flaair_bridge.emulated_target import TargetCore, count_lag, decide_counting, sensor_packet
 
 FS = 20000.0
 N = 10
@@ -376,6 +376,24 @@ def test_emulated_target_holds_then_zeroes_clamps_discards_late_and_honours_stop
     core.receive(b"FLD1" + bytes(3))  # malformed: dropped
     core.receive(drive_datagram(30, [float("nan")]))
     assert core.counts["dropped_packets"] == 2
+
+
+def test_emulated_target_counts_the_machine_stalls_and_the_samples_missed_in_them() -> None:
+    """A packet sent more than stall_s late is a stall; samples missing until as long again
+    after it count as the stall's, later ones do not.
+    """
+    stats = {"overruns": 0, "stalls": 0, "stall_missing_samples": 0, "max_lag_ms": 0.0}
+    until = count_lag(stats, 0.0003, 10.0, 0.0005, 0.001, -np.inf)  # on time: no stall
+    assert until == -np.inf and stats["overruns"] == 0 and stats["stalls"] == 0
+    until = count_lag(stats, 0.004, 10.1, 0.0005, 0.001, until)  # held 4 ms
+    assert until == pytest.approx(10.104) and stats["stalls"] == 1 and stats["overruns"] == 1
+    assert stats["max_lag_ms"] == pytest.approx(4.0)
+    core = TargetCore(hold_samples=3, drive_limit_v=150.0)
+    core.receive(drive_datagram(0, [1.0] * 10))
+    decide_counting(core, 10, stats, in_stall=False)  # armed, all fresh
+    decide_counting(core, 10, stats, in_stall=True)  # nothing came: 10 missing, the stall's
+    decide_counting(core, 10, stats, in_stall=False)  # 10 more missing, FLAAIR's
+    assert core.counts["missing_samples"] == 20 and stats["stall_missing_samples"] == 10
 
 
 def _same(a, b) -> bool:

@@ -18,7 +18,10 @@ plant model, flaair_sim.core.plant) to the bridge, and it applies the drive pack
 
 At exit (--duration reached, Ctrl-C or SIGTERM) it prints its counters as one line of strict
 JSON (and writes them to --counters): samples late, missing (applied without a fresh drive
-sample while being driven), fresh, dropped packets, stops, watchdog trips, its own overruns.
+sample while being driven), fresh, dropped packets, stops, watchdog trips, its own overruns and
+stalls (a packet sent more than --stall-ms late: the machine held the target's own clock, which
+a real target's does not) with the samples missing during a stall or as long after it as it
+lasted (`stall_missing_samples`: the loop, held too, catching up).
 Written from docs/REALTIME_PROTOCOL.md alone, with its own packing (struct): it does not use
 flaair_bridge.core.protocol, so the two implementations check each other.
 
@@ -271,6 +274,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "false), and at exit",
     )
     parser.add_argument(
+        "--stall-ms",
+        type=float,
+        default=shared["stall_ms"],
+        help="count a packet sent more than this late as a stall (counter `stalls`): the "
+        "machine held the target's own clock, which a real target's does not [%(default)s]",
+    )
+    parser.add_argument(
         "--realtime-priority",
         type=int,
         default=shared["realtime_priority"],
@@ -288,11 +298,39 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         or not args.drive_limit_v >= 0
         or not args.sample_rate > 0
         or args.duration < 0
+        or not args.stall_ms > 0
     ):
         parser.error(
-            "--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate > 0"
+            "--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate, "
+            "--stall-ms > 0"
         )
     return args
+
+
+def count_lag(
+    stats: dict, lag_s: float, now_s: float, packet_s: float, stall_s: float, stalled_until: float
+) -> float:
+    """Count a packet sent `lag_s` late at `now_s` (an overrun past one packet, a stall past
+    `stall_s`); returns until when (s, the same clock) missing drive samples count as a stall's.
+    """
+    stats["max_lag_ms"] = max(stats["max_lag_ms"], 1e3 * lag_s)
+    stats["overruns"] += lag_s > packet_s
+    if lag_s <= stall_s:
+        return stalled_until
+    stats["stalls"] += 1
+    # held this long, the loop needs as long again to catch up on the sensor packets
+    return max(stalled_until, now_s + lag_s)
+
+
+def decide_counting(
+    core: TargetCore, n: int, stats: dict, in_stall: bool
+) -> tuple[np.ndarray, int]:
+    """core.decide(n), its missing samples also counted as the stall's when `in_stall`."""
+    missing = core.counts["missing_samples"]
+    drive, flags = core.decide(n)
+    if in_stall:
+        stats["stall_missing_samples"] += core.counts["missing_samples"] - missing
+    return drive, flags
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -334,7 +372,15 @@ def main(argv: list[str] | None = None) -> int:
     state = plant.initial_state(plant.PlantStepParams(model, fs))
     total = math.ceil(args.duration * fs / n) if args.duration else None
     progress = _progress(total, n / fs)
-    stats = {"packets_sent": 0, "send_errors": 0, "overruns": 0, "max_lag_ms": 0.0}
+    stats = {
+        "packets_sent": 0,
+        "send_errors": 0,
+        "overruns": 0,
+        "stalls": 0,
+        "stall_missing_samples": 0,
+        "max_lag_ms": 0.0,
+    }
+    stall_s, stalled_until = 1e-3 * args.stall_ms, -math.inf
 
     def drain() -> None:
         _drain(sock, core)
@@ -366,6 +412,7 @@ def main(argv: list[str] | None = None) -> int:
             "samples": core.next_index,
             "sample_rate_hz": fs,
             "packet_samples": n,
+            "stall_ms": args.stall_ms,
             "wall_s": time.monotonic() - t0,
             "stopped": not core.armed and core.counts["stop_packets"] > 0,
             "watchdog_tripped_now": core.tripped,
@@ -380,15 +427,14 @@ def main(argv: list[str] | None = None) -> int:
             if select.select([sock], [], [], remaining)[0]:
                 drain()
         drain()
-        lag = time.monotonic() - due
-        stats["max_lag_ms"] = max(stats["max_lag_ms"], 1e3 * lag)
-        stats["overruns"] += lag > n / fs
+        now = time.monotonic()
+        stalled_until = count_lag(stats, now - due, now, n / fs, stall_s, stalled_until)
         if held is not None:  # the packet whose last sample was taken just before `due`
             _send(sock, held, bridge, stats)
         if total is not None and j == total:
             break
         was_tripped = core.tripped
-        drive, flags = core.decide(n)
+        drive, flags = decide_counting(core, n, stats, due <= stalled_until)
         if core.tripped != was_tripped:
             _say_watchdog(core)
         state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
