@@ -2,8 +2,7 @@
 drive levels. Pure (numpy, scipy, the plant core through `steady_state`).
 
 1. The plant is fitted on every level (`fit.identify_table`); the gap of each response column is
-   measured on held-out levels: each level predicted by the plant fitted on the other levels
-   (as `identify_table` fits: the stroke side on the stroke columns, then the pitch side).
+   measured on held-out levels: each level predicted by the plant fitted on the other levels.
 2. Candidates a table can show: the vocabulary effects that act on the wing's motion (searched on
    a truth channel and separable from the plant), then the library's terms on the stroke and
    pitch dynamics and on the drive (no shape parameter, not a vocabulary effect under another
@@ -223,45 +222,17 @@ def heldout_predictions(
     params: Sequence[FreeParam],
     s: TableSettings,
     columns: Sequence[str],
-    *,
-    by_side: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Each level predicted by `params` fitted (from `model`) on the other levels.
-
-    With `by_side`, fitted as `identify_table` fits: the stroke side's parameters on the stroke
-    columns, then the pitch side's on the pitch columns (one least squares over both lets a pitch
-    plant that is off pull the stroke parameters away from the stroke columns).
-    """
+    """Each level predicted by `params` fitted (from `model`) on the other levels."""
     out = {c: np.full(table.n_points, np.nan) for c in table.responses}
     idx = table.level_index
-    stages: list[tuple[list[FreeParam], list[str]]] = [(list(params), list(columns))]
-    if by_side:
-        stages = [
-            ([p for p in params if _param_side(p.key) == side], _side_cols(table, side))
-            for side in ("stroke", "pitch")
-        ]
-        stages = [(ps, [c for c in cs if c in columns]) for ps, cs in stages]
-        stages = [(ps, cs) for ps, cs in stages if ps and cs]
     for level in range(table.levels_v.size):
         held = idx == level
-        fitted = model
-        for ps, cs in stages:
-            fitted = fit_table(table.subset(~held), fitted, ps, s, cs).model
-        pred = _predict(table.subset(held), fitted, s)
+        fit = fit_table(table.subset(~held), model, params, s, columns)
+        pred = _predict(table.subset(held), fit.model, s)
         for c in out:
             out[c][held] = pred[c]
     return out
-
-
-def _param_side(key: str) -> str:
-    """The side ("stroke" or "pitch") whose columns a parameter is fitted on."""
-    kind, _, name = key.partition(".")
-    if kind == "plant":
-        return "pitch" if name in PITCH_KEYS else "stroke"
-    if kind == "term":
-        return "pitch" if name.endswith("@pitch_dynamics") else "stroke"
-    effect = next(e for e in EFFECTS if e.name == name.split(".")[0])
-    return "stroke" if "stroke_deg" in effect.searched_on else "pitch"
 
 
 def _at(params: Sequence[FreeParam], model_values: dict[str, float], r: float) -> list[FreeParam]:
@@ -402,9 +373,7 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
         *plant_params(identified, PITCH_KEYS if _side_cols(table, "pitch") else (), {}, 1.5),
     ]
     quick = replace(s, max_nfev=s.heldout_max_nfev)
-    held = heldout_predictions(
-        table, identified, plant_free, quick, list(table.responses), by_side=True
-    )
+    held = heldout_predictions(table, identified, plant_free, quick, list(table.responses))
     preds["identified"] = held
     gaps["gap_identified"], ratios["gap_identified"] = _scores(table, held, s)
     current, current_ratio, current_pred = identified, ratios["gap_identified"], held
@@ -452,7 +421,6 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
                 _at(free, _values_of(current, accepted), 1.5),
                 s,
                 list(table.responses),
-                by_side=True,
             )
             _, current_ratio = _scores(table, current_pred, s)
     preds["final"] = current_pred
