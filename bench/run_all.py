@@ -80,9 +80,9 @@ PARTS = (
     # frequency-response tables: identify on a 60-point table, then one robot of each of the six
     # families in both modes (no effect, structural damping, hinge stiffening, collision,
     # actuator saturation, dry friction). Measured 2026-11-28 at nice 19 on the shared machine
-    # (1-min load 5.5-6.4): 269 s wall, 163 s CPU (the robots 3-52 s CPU each). The budget is
+    # (1-min load 6.2-10.2): 336 s wall, 126 s CPU (the robots 2-46 s CPU each). The budget is
     # held at the 18 s the 15-minute total leaves until the parts are rebalanced: the part
-    # needs about 180 s on the quiet machine, and reports itself over its budget until then
+    # needs about 150 s on the quiet machine, and reports itself over its budget until then
     Part("bench_tables", 18, 600),
 )
 BENCH_BUDGET_S = 15 * 60.0
