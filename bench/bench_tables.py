@@ -4,7 +4,8 @@ Robots: the configured plant with the stroke natural frequency, aerodynamic damp
 gain drawn within +-10 % / +-15 % / +-15 % (and one robot resonant at 190 Hz for `identify`),
 tables of 3 drive levels (20, 40, 60 V) x 20 frequencies (0.6-1.6 x resonance) with reading
 noise and 30 % of pitch cells missing. Families: no effect; one amplitude-dependent effect
-(structural damping, hinge stiffening, collision, actuator saturation as a drive_cube term).
+(structural damping, hinge stiffening, collision, actuator saturation as a drive_cube term, dry
+friction on the stroke as a sign_velocity term).
 Every figure names its robot count. Baselines (same run): identify started from the configured
 robot instead of the table's peaks; the steady state of one table (one batch).
 
@@ -31,7 +32,14 @@ from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_model.terms import DiscoveredTerm
 
-FAMILIES = ("none", "structural_damping", "hinge_stiffening", "collision", "drive_cube@drive")
+FAMILIES = (
+    "none",
+    "structural_damping",
+    "hinge_stiffening",
+    "collision",
+    "drive_cube@drive",
+    "sign_velocity@stroke_dynamics",
+)
 
 
 def robot(rng: np.random.Generator, family: str):
@@ -53,6 +61,9 @@ def robot(rng: np.random.Generator, family: str):
     elif family == "drive_cube@drive":
         term = DiscoveredTerm("drive_cube", "drive", -rng.uniform(4e-5, 8e-5))
         true = replace(true, discovered=(term,))
+    elif family == "sign_velocity@stroke_dynamics":  # dry friction on the stroke
+        term = DiscoveredTerm("sign_velocity", "stroke_dynamics", -rng.uniform(1.0e-6, 2.0e-6))
+        true = replace(true, discovered=(term,))
     return m, true
 
 
@@ -72,7 +83,7 @@ def main() -> None:
         nargs="+",
         choices=FAMILIES,
         default=list(FAMILIES),
-        help="families to draw robots from (make bench: none and structural_damping)",
+        help="families to draw robots from (default: every family)",
     )
     args = parser.parse_args()
     s = settings.tables()

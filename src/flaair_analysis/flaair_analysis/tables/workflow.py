@@ -12,8 +12,10 @@ drive levels. Pure (numpy, scipy, the plant core through `steady_state`).
    (a grid start, one batch), the best `shortlist` jointly with the plant parameters they trade
    off against, and judged on held-out levels. One is kept when the side's held-out error above
    noise drops by more than `min_heldout_drop` and its parameter is `min_z` standard errors from
-   doing nothing; the lowest held-out error wins, vocabulary effects first (a term only where no
-   effect passes).
+   doing nothing; the lowest held-out error wins. Vocabulary effects are judged first; the terms
+   are judged too where no effect passes or where the best effect that passes still leaves the
+   side a held-out gap (a column above `gap_ratio` x noise), and then every candidate that
+   passes competes (a structural damping takes most of a dry friction's gap, not all of it).
 Statuses: `no_discrepancy` (the fitted plant predicts held-out levels to the reading noise),
 `explained`, `unexplained`. A one-level table is fitted, not searched (nothing to hold out).
 """
@@ -95,6 +97,7 @@ class Judged:
     drop: float
     z: float
     failed: list[str] = field(default_factory=list)
+    heldout_ratio: dict[str, float | None] = field(default_factory=dict)  # column -> noise ratio
 
 
 @dataclass
@@ -337,7 +340,7 @@ def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before
         )
     if not z > s.min_z:
         failed.append(f"{z:.1f} standard errors from doing nothing (needs > {s.min_z:g})")
-    return Judged(cand, fit, err, drop, z, failed)
+    return Judged(cand, fit, err, drop, z, failed, {c: ratio.get(c) for c in cols})
 
 
 def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepancy:
@@ -385,6 +388,8 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
             pool = [c for c in candidates(table, current) if c.side == side]
             passed: list[Judged] = []
             for group in (False, True):  # vocabulary effects first, then terms
+                if passed and not _leaves_gap(min(passed, key=_error), s):
+                    break
                 ranked = sorted(
                     (_rank(table, current, c, s) for c in pool if c.is_term == group),
                     key=lambda rc: rc[0],
@@ -395,12 +400,10 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
                     if math.isfinite(cost)
                 ]
                 tried.extend(judged)
-                passed = [j for j in judged if not j.failed]
-                if passed:
-                    break
+                passed += [j for j in judged if not j.failed]
             if not passed:
                 break
-            best = min(passed, key=lambda j: j.heldout_error)
+            best = min(passed, key=_error)
             accepted.append(best)
             current = best.fit.model
             if side == "stroke" and _side_cols(table, "pitch"):
@@ -435,6 +438,15 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
     return TableDiscrepancy(
         status, model, identified, current, ident, accepted, tried, gaps, ratios, preds, notes, True
     )
+
+
+def _error(j: Judged) -> float:
+    return j.heldout_error
+
+
+def _leaves_gap(j: Judged, s: TableSettings) -> bool:
+    """Whether the side keeps a gap on held-out levels with the candidate in the model."""
+    return any((v or 0.0) > s.gap_ratio for v in j.heldout_ratio.values())
 
 
 def _values_of(model: Model, accepted: Sequence[Judged]) -> dict[str, float]:
