@@ -193,9 +193,11 @@ def main() -> None:
             f"discrepancy CPU time per robot (all threads), max of {len(cpu)}",
             max(cpu),
             "s",
-            "(< 120 s wall)",
-            max(cpu) < 120,
-            f"median {np.median(cpu):.0f} s: on 2 idle cores the wall time is about this or less",
+            "",
+            True,
+            f"median {np.median(cpu):.0f} s; the cost, not the target (the target is the wall "
+            "time above): the plant batches run on both cores, so on 2 idle cores the wall time "
+            "is about half of this",
         )
     )
     print_table(figures)
