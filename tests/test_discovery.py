@@ -353,3 +353,51 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     assert fit.model.plant.stroke_natural_frequency_hz == pytest.approx(f_n, rel=1e-4)
     blind = identify_plant(runs, model, noise, keys=keys).model.plant.stroke_natural_frequency_hz
     assert abs(blind / f_n - 1) > 1e-3
+
+
+@pytest.mark.timeout(200)
+def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_at_wider_ones(
+    model,
+) -> None:
+    """sign(dphi) makes the simulated motion jump each time a zero crossing passes an integration
+    stage, so the cost is rough at the specs' own finite-difference steps: the joint fit of the
+    friction and the stroke plant stalls where it starts. At `discovery_fd_step` times those steps
+    it reaches the truth's cost with the coefficient within a few per cent.
+    """
+    from flaair_analysis.discrepancy import Settings
+    from flaair_analysis.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy.diagnosis import noise_estimates
+    from flaair_analysis.discrepancy.evidence import AnalysisContext
+    from flaair_analysis.discrepancy.fitting import fit_specs, spec_value
+    from flaair_analysis.discrepancy.runs import simulate_runs
+    from flaair_analysis.discrepancy.term_candidates import fitted_along
+    from flaair_analysis.discrepancy.vocabulary import term_specs
+
+    case = random_robot("offnominal_discover", 0)
+    (true_term,) = case.terms
+    assert (true_term.kind, true_term.acts_on) == ("sign_velocity", "stroke_dynamics")
+    truth = replace(true_model(case, model), noise=model.noise)
+    runs = make_runs(case, model)
+    noise = noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+    settings = replace(Settings(), max_nfev=100)
+    ctx = AnalysisContext(runs, noise, settings)
+    # where the workflow's fit had stalled: the friction 15 % strong, the air damping 6 % weak
+    start = replace(
+        truth,
+        discovered=(replace(true_term, coefficient=1.15 * true_term.coefficient),),
+        plant=replace(truth.plant, aero_damping_nm_s2=0.94 * truth.plant.aero_damping_nm_s2),
+    )
+    specs = [
+        *term_specs(true_term.row, "stroke_dynamics", "stroke_deg", 3 * abs(true_term.coefficient)),
+        *fitted_along("stroke_dynamics", start, "stroke_deg", True),
+    ]
+    problem = ctx.problem("stroke_deg", ctx.folds, False, start)
+    x0 = np.array([s.to_fit(spec_value(start, s)) for s in specs])
+    truth_rss = sum(float(np.dot(r, r)) for r in problem.residuals([truth])[0])
+    found = {}
+    for scale in (1.0, Settings().discovery_fd_step):
+        fit = fit_specs(start, specs, problem, x0, settings, grid=False, step_scale=scale)
+        found[scale] = (specs[0].from_fit(fit.x[0]) / true_term.coefficient - 1.0, fit.rss)
+    stalled, fitted = found[1.0], found[Settings().discovery_fd_step]
+    assert stalled[0] > 0.10 and stalled[1] > 1.2 * truth_rss
+    assert abs(fitted[0]) < 0.03 and fitted[1] < 1.001 * truth_rss

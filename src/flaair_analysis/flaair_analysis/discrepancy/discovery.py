@@ -41,7 +41,7 @@ from flaair_model.terms import (
 from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
 from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
-from .identification import identify_plant
+from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
 from .term_candidates import SITES_FOR_GAP, candidates, fitted_along
@@ -247,10 +247,13 @@ def _step(
                     x0,
                     replace(st, max_nfev=st.discovery_max_nfev),
                     grid=False,
+                    step_scale=st.discovery_fd_step,
                 )
                 x = fit.x[: len(specs)]
                 base = models_for(current, plant, fit.x[None, len(specs) :])[0]
-            ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+            ev, model = evaluate(
+                ctx, base, specs, channel, truth_ref, x_start=x, step_scale=st.discovery_fd_step
+            )
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
         judged.append(
@@ -329,6 +332,7 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
         x0,
         replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev),
         grid=False,
+        step_scale=ctx.settings.discovery_fd_step,
     )
     refit = models_for(model, specs, fit.x[None, :])[0]
     before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
@@ -375,7 +379,7 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
             continue
         problem = ctx.problem(truth, _fit_window(ctx), False, model)
         x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
-        fit = fit_specs(model, specs, problem, x0, st, grid=False)
+        fit = fit_specs(model, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step)
         before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
         if fit.rss < before:
             model = models_for(model, specs, fit.x[None, :])[0]
@@ -384,7 +388,26 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
             ctx.runs, model, ctx.noise, keys=(), state_channels=("stroke_deg", "pitch_deg")
         ).runs
         ctx.motion = MotionCache()
+        _states_on_sensors(ctx, model)
     return model
+
+
+def _states_on_sensors(ctx: AnalysisContext, model: Model) -> None:
+    """The runs' initial states fitted again on the truth and both sensors, kept (`ctx.runs`) if
+    the cost drops and no channel is left with a gap it did not have: a video-rate truth leaves
+    the states loose, and a wrong state's transient shows on the far more precise sensors.
+    """
+    channels = ("stroke_deg", "pitch_deg", *SENSOR_CHANNELS)
+    runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
+    if not after < before:
+        return
+    trial = AnalysisContext(runs, ctx.noise, ctx.settings, ctx.tracks)
+    if any(
+        channel_has_gap(trial, model, c, False) and not channel_has_gap(ctx, model, c, False)
+        for c in channels
+    ):
+        return
+    ctx.runs, ctx.motion = trial.runs, MotionCache()
 
 
 def _replacing(
@@ -538,9 +561,10 @@ def discover(
                     _uncertainty(ctx, win, judged, channel),
                 )
             )
-            current = new_model
+            # the term with the plant, then the runs' initial states, before the channel is
+            # judged for a second term (the first term's fit stopped where the states were)
+            current = _polish_truth(ctx, new_model)
     if found:
-        current = _polish_truth(ctx, current)
         final = {(t.kind, t.acts_on): t for t in current.discovered}
         found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
     return DiscoveryOutcome(

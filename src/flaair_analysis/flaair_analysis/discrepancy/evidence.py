@@ -190,7 +190,7 @@ def _reach_deg(ctx: AnalysisContext, model: Model) -> float:
 def _phys_se(spec: EffectSpec, u: float, se_u: float) -> float:
     if not math.isfinite(se_u):
         return math.inf
-    return spec.from_fit(u) * se_u if spec.log else se_u
+    return spec.from_fit(u) * se_u if spec.log else se_u * spec.unit
 
 
 def _null_fit_value(spec: EffectSpec) -> float:
@@ -223,8 +223,11 @@ def evaluate(
     truth_referenced: bool,
     x_start: np.ndarray | None = None,
     merge_with: tuple[float, float] | None = None,
+    step_scale: float = 1.0,
 ) -> tuple[CandidateEvidence, Model]:
     """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
+
+    step_scale: of the fits' finite-difference steps (`fitting.fit_specs`).
 
     merge_with: (value, se) of the same effect already found on the other sensor channel; the
     two become one value on channel 'both' (their weighted mean) when they agree (rule R5),
@@ -244,6 +247,7 @@ def evaluate(
             x0,
             st,
             grid=(x_start is None),
+            step_scale=step_scale,
         )
         for f in folds
     ]

@@ -257,7 +257,9 @@ def _fit_alone(
         specs = term_specs(kind, site, channel, scale, start)
         x0 = np.array([s.to_fit(s.null) for s in specs])
         try:
-            fit = fit_specs(current, specs, problem, x0, ctx.settings)
+            fit = fit_specs(
+                current, specs, problem, x0, ctx.settings, step_scale=ctx.settings.discovery_fd_step
+            )
         except (ModelError, ValueError):  # a start that leaves the term's own range
             continue
         out.append((fit.rss, kind, site, specs, fit.x))
