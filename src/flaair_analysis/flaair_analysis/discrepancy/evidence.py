@@ -109,7 +109,10 @@ class FoundEffect:
     explains: tuple[Any, ...]
 
 
-def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
+def bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
+    """BIC of per-fold residual sums of squares `rss_list` (of `n_list` samples) with `k`
+    parameters.
+    """
     n_tot = sum(n_list)
     val = sum(
         n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list, strict=True) if n > 0
@@ -293,8 +296,8 @@ def evaluate(
     after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
     drop = 1.0 - after / before if before > 0 else 0.0
     drop_above_noise = gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
-    dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
-    dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
+    dbic_ho = bic(rss_ho, n_f, p) - bic(rss_null, n_f, 0)
+    dbic_fit = bic(list(fit_all.rss_per_fold), n_f, p) - bic(rss_null, n_f, 0)
     z, cons, per_run, n_ident, inside = [], [], [], [], []
     # shape and plant parameters are fitted along
     tested = [j for j, s in enumerate(specs) if s.tested]
@@ -381,7 +384,7 @@ def evaluate_shared(
     before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
     drop = 1.0 - after / before if before > 0 else 0.0
     drop_above_noise = gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
-    dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
+    dbic = bic(rss_new, n_f, 0) - bic(rss_old, n_f, 0)
     rules = {
         "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic < st.max_delta_bic),
