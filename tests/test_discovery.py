@@ -488,3 +488,35 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     assert gammas["identification's"] <= 1.5 * (1 + 1e-9)
     _, fair, share = judged["identification's"]
     assert not fair.accepted and not fair.rules["R4_consistency"]
+
+
+@pytest.mark.timeout(200)
+def test_a_start_state_under_a_hinge_friction_is_fitted_at_the_discoverys_wider_steps(
+    model,
+) -> None:
+    """With sign(dpsi) in the model the motion jumps as the start moves a zero crossing across an
+    integration stage: at the plain finite-difference step the state fit stalls where it starts
+    and leaves a start transient on the pitch sensor; at `discovery_fd_step` times the step it
+    reaches the cost of the true start (rest).
+    """
+    from flaair_analysis.discrepancy import Settings, noise_estimates
+    from flaair_analysis.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy.identification import fit_initial_states
+    from flaair_analysis.discrepancy.runs import simulate_runs
+
+    case = random_robot("offnominal_discover", 5)
+    (true_term,) = case.terms
+    assert (true_term.kind, true_term.acts_on) == ("sign_velocity", "pitch_dynamics")
+    truth = replace(true_model(case, model), noise=model.noise)
+    runs = make_runs(case, model)
+    noise = noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+    channels = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
+    # the start the workflow had left (chirp_full: the hinge rate 6 rad/s off rest)
+    (run,) = [replace(r, mechanical0=np.array([-3.8e-4, 1.38, -1.9e-2, 6.12])) for r in runs[:1]]
+    rest = replace(run, mechanical0=np.zeros(4))
+    _, rest_cost, _ = fit_initial_states([rest], truth, noise, channels, max_nfev=1)
+    costs = {}
+    for scale in (1.0, Settings().discovery_fd_step):
+        _, _, costs[scale] = fit_initial_states([run], truth, noise, channels, step_scale=scale)
+    assert costs[1.0] > 1.2 * rest_cost  # measured 1.28x
+    assert costs[Settings().discovery_fd_step] < 1.01 * rest_cost  # measured 1.0015x

@@ -398,7 +398,9 @@ def _states_on_sensors(ctx: AnalysisContext, model: Model) -> None:
     the states loose, and a wrong state's transient shows on the far more precise sensors.
     """
     channels = ("stroke_deg", "pitch_deg", *SENSOR_CHANNELS)
-    runs, before, after = fit_initial_states(ctx.runs, model, ctx.noise, channels)
+    runs, before, after = fit_initial_states(
+        ctx.runs, model, ctx.noise, channels, step_scale=ctx.settings.discovery_fd_step
+    )
     if not after < before:
         return
     trial = AnalysisContext(runs, ctx.noise, ctx.settings, ctx.tracks)

@@ -50,7 +50,8 @@ class Settings:
     discovery_polish_rounds : rounds of the final refit (the terms with the plant on the truth,
         then the runs' initial states), alternating towards their joint optimum.
     discovery_fd_step : multiplier of the finite-difference steps of the discovery's fits (the
-        terms, the plant fitted along with them, the pitch plant refitted under a stroke term). A
+        terms, the plant fitted along with them, the pitch plant refitted under a stroke term, the
+        runs' initial states fitted on the sensors after a term). A
         term with sign() makes the simulated motion jump each time a zero crossing passes an
         integration stage: at the specs' own steps (1e-4 of the range, 1e-4 in log) the cost is
         rough and a fit stalls where it starts (stroke friction, draw 0: 15 % off, its cost 55 %
