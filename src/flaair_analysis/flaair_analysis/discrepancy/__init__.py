@@ -8,8 +8,9 @@ once), `identification` (grey-box fit of the plant), `diagnosis` (where a residu
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
 search; `found` lists what it found, one entry per effect), `discovery` (terms from the library
 `flaair_model.terms` where the vocabulary leaves a gap; `term_candidates` ranks the library's
-terms and composed forms for it, `discovery_uncertainty` the next best form and the experiment
-that tells them apart), `workflow` (`analyse`: identify, search on top of the fitted plant,
+terms and composed forms for it, `term_judging` judges a term against the plant refitted without
+it in the same box, `discovery_uncertainty` the next best form and the experiment that tells them
+apart), `workflow` (`analyse`: identify, search on top of the fitted plant,
 discover),
 `datasets` (the fixed hidden-effect cases and their runs), `offnominal` (the randomized
 off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases),

@@ -26,7 +26,7 @@ closes stays.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
 from typing import Any
@@ -39,12 +39,13 @@ from flaair_model.terms import (
 )
 
 from .discovery_uncertainty import form_uncertainty
-from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate, gap_drop
+from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate
 from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
-from .identification import identify_plant
+from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
 from .term_candidates import SITES_FOR_GAP, candidates, fitted_along
+from .term_judging import judged_against, refit_without
 from .vocabulary import (
     ENTRIES,
     PLANT_PARAMETERS,
@@ -188,34 +189,16 @@ def _beaten(
     return tuple(rows)
 
 
-def _against(
-    ctx: AnalysisContext,
-    ev: CandidateEvidence,
-    current: Model,
-    base: Model,
-    channel: str,
-    truth_ref: bool,
-) -> CandidateEvidence:
-    """R1 judged against the model before the step (the plant as it was, without the term)."""
-    problem = ctx.problem(channel, ctx.folds, truth_ref, base)
-    ss, n = problem.signal_ss(), sum(problem.n_per_fold())
-    rss_now = sum(float(np.dot(r, r)) for r in problem.residuals([current])[0])
-    drop = gap_drop(rss_now, ev.heldout_nrmse_after**2 * ss, n)
-    rules = dict(ev.rules) | {"R1_heldout_gap_drop": bool(drop > ctx.settings.min_heldout_drop)}
-    return replace(
-        ev,
-        rules=rules,
-        accepted=all(rules.values()),
-        heldout_gap_drop=drop,
-        heldout_nrmse_before=math.sqrt(rss_now / ss) if ss > 0 else math.nan,
-    )
-
-
 def _step(
-    ctx: AnalysisContext, current: Model, channel: str, start_plant: PlantParams | None = None
+    ctx: AnalysisContext,
+    current: Model,
+    channel: str,
+    start_plant: PlantParams | None,
+    centre: Mapping[str, float],
 ) -> tuple[list[tuple[Any, ...]], list[Any]]:
     """One discovery step on `channel`: the accepted candidates, best first, each (evidence,
-    kind, site, specs, model); and the step's record [judged, not shortlisted, tried].
+    kind, site, specs, model); and the step's record [judged, not shortlisted, tried]. Each
+    term is judged against the plant refitted without it in the same box (`term_judging`).
     """
     truth_ref = _truth_ref(ctx, current, channel)
     found = candidates(ctx, current, channel, truth_ref)
@@ -229,33 +212,51 @@ def _step(
     cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
+    alone: dict[tuple[str, ...], Model] = {}  # the parameters fitted along, refitted without a term
     for _rss, kind, site, specs, x in shortlist:
         # the term and the plant parameters it trades off against, fitted on all runs; then the
         # term run by run on that plant (the rules judge the term, as the identification fits
         # the plant on every run)
-        plant = fitted_along(site, current, channel, st.identify)
-        base = current
+        plant = fitted_along(site, current, channel, st.identify, centre)
+        base, baselines = current, [current]
+        fit_st = replace(st, max_nfev=st.discovery_max_nfev)
         try:
             if plant:
                 joint = list(specs) + plant
                 start = replace(current, plant=start_plant) if start_plant is not None else current
-                x0 = np.concatenate([x, [s.to_fit(spec_value(start, s)) for s in plant]])
+                x_plant = np.array([s.to_fit(spec_value(start, s)) for s in plant])
                 fit = fit_specs(
                     current,
                     joint,
                     ctx.problem(channel, _fit_window(ctx), truth_ref, current),
-                    x0,
-                    replace(st, max_nfev=st.discovery_max_nfev),
+                    np.concatenate([x, x_plant]),
+                    fit_st,
                     grid=False,
+                    step_scale=st.discovery_fd_step,
                 )
                 x = fit.x[: len(specs)]
                 base = models_for(current, plant, fit.x[None, len(specs) :])[0]
-            ev, model = evaluate(ctx, base, specs, channel, truth_ref, x_start=x)
+                key = tuple(s.label for s in plant)
+                if key not in alone:
+                    alone[key] = refit_without(
+                        ctx,
+                        current,
+                        plant,
+                        _fit_window(ctx),
+                        channel,
+                        truth_ref,
+                        x_plant,
+                        fit_st,
+                        st.discovery_fd_step,
+                    )
+                baselines.append(alone[key])
+            ev, model = evaluate(
+                ctx, base, specs, channel, truth_ref, x_start=x, step_scale=st.discovery_fd_step
+            )
+            ev = judged_against(ctx, ev, model, base, baselines, channel, truth_ref, len(specs))
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
-        judged.append(
-            (_against(ctx, ev, current, base, channel, truth_ref), kind, site, specs, model)
-        )
+        judged.append((ev, kind, site, specs, model))
     tried: list[dict[str, Any]] = [
         {"term": k.name, "acts_on": s, "composed": k.composed, "fit_rss": r}
         for r, k, s, _sp, _x in cands
@@ -317,9 +318,11 @@ def _without(model: Model, effects: Sequence[FoundEffect]) -> Model:
     return replace(model, effects=tuple((n, e) for n, e in model.effects if n not in names))
 
 
-def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
-    """`model` with its pitch plant parameters fitted again on pitch_deg (kept if better)."""
-    specs = fitted_along("pitch_dynamics", model, "pitch_deg", True)
+def _refit_pitch_plant(ctx: AnalysisContext, model: Model, centre: Mapping[str, float]) -> Model:
+    """`model` with its pitch plant parameters fitted again on pitch_deg (kept if better), in
+    the identification's box about `centre`.
+    """
+    specs = fitted_along("pitch_dynamics", model, "pitch_deg", True, centre)
     problem = ctx.problem("pitch_deg", ctx.folds, False, model)
     x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
     fit = fit_specs(
@@ -329,6 +332,7 @@ def _refit_pitch_plant(ctx: AnalysisContext, model: Model) -> Model:
         x0,
         replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev),
         grid=False,
+        step_scale=ctx.settings.discovery_fd_step,
     )
     refit = models_for(model, specs, fit.x[None, :])[0]
     before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
@@ -344,19 +348,19 @@ def _fit_window(ctx: AnalysisContext) -> tuple[Fold, ...]:
     )
 
 
-def _polish_truth(ctx: AnalysisContext, model: Model) -> Model:
+def _polish_truth(ctx: AnalysisContext, model: Model, centre: Mapping[str, float]) -> Model:
     """`discovery_polish_rounds` of: the discovered dynamics and drive terms with the plant,
     fitted again on the truth channels (without the runs' first wingbeats), then the runs'
     initial states (`ctx.runs` replaced). The accepted coefficient is the mean of per-run fits,
     the in-sample optimum lies beside it; the two fits alternate towards their joint optimum.
     """
     for _round in range(ctx.settings.discovery_polish_rounds):
-        model = _polish_round(ctx, model)
+        model = _polish_round(ctx, model, centre)
     return model
 
 
-def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
-    """One round of `_polish_truth`."""
+def _polish_round(ctx: AnalysisContext, model: Model, centre: Mapping[str, float]) -> Model:
+    """One round of `_polish_truth` (the plant within the identification's box about `centre`)."""
     st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
     for truth, sites in (
         ("stroke_deg", ("stroke_dynamics", "drive")),
@@ -370,12 +374,12 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
                 )
         if not specs and truth == "stroke_deg":
             continue
-        specs += fitted_along(sites[0], model, truth, st.identify)
+        specs += fitted_along(sites[0], model, truth, st.identify, centre)
         if not specs:
             continue
         problem = ctx.problem(truth, _fit_window(ctx), False, model)
         x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
-        fit = fit_specs(model, specs, problem, x0, st, grid=False)
+        fit = fit_specs(model, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step)
         before = sum(float(np.dot(r, r)) for r in problem.residuals([model])[0])
         if fit.rss < before:
             model = models_for(model, specs, fit.x[None, :])[0]
@@ -384,7 +388,28 @@ def _polish_round(ctx: AnalysisContext, model: Model) -> Model:
             ctx.runs, model, ctx.noise, keys=(), state_channels=("stroke_deg", "pitch_deg")
         ).runs
         ctx.motion = MotionCache()
+        _states_on_sensors(ctx, model)
     return model
+
+
+def _states_on_sensors(ctx: AnalysisContext, model: Model) -> None:
+    """The runs' initial states fitted again on the truth and both sensors, kept (`ctx.runs`) if
+    the cost drops and no channel is left with a gap it did not have: a video-rate truth leaves
+    the states loose, and a wrong state's transient shows on the far more precise sensors.
+    """
+    channels = ("stroke_deg", "pitch_deg", *SENSOR_CHANNELS)
+    runs, before, after = fit_initial_states(
+        ctx.runs, model, ctx.noise, channels, step_scale=ctx.settings.discovery_fd_step
+    )
+    if not after < before:
+        return
+    trial = AnalysisContext(runs, ctx.noise, ctx.settings, ctx.tracks)
+    if any(
+        channel_has_gap(trial, model, c, False) and not channel_has_gap(ctx, model, c, False)
+        for c in channels
+    ):
+        return
+    ctx.runs, ctx.motion = trial.runs, MotionCache()
 
 
 def _replacing(
@@ -392,7 +417,8 @@ def _replacing(
     current: Model,
     channel: str,
     replaceable: Sequence[FoundEffect],
-    start_plant: PlantParams | None = None,
+    start_plant: PlantParams | None,
+    centre: Mapping[str, float],
 ) -> tuple[list[tuple[Any, ...]], list[Any], list[FoundEffect], list[dict[str, Any]]]:
     """A discovery step on `channel`, first in place of the vocabulary effects found there that
     leave its gap (the winner must then predict the held-out runs better than they did), else on
@@ -409,7 +435,7 @@ def _replacing(
     ]
     tried = []
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
-        passing, record = _step(ctx, base, channel, start_plant)
+        passing, record = _step(ctx, base, channel, start_plant, centre)
         tried.append(
             {
                 "channel": channel,
@@ -439,14 +465,22 @@ def discover(
     progress: Callable[[str], None] | None = None,
     replaceable: Sequence[FoundEffect] = (),
     start_plant: PlantParams | None = None,
+    nominal: Mapping[str, float] | None = None,
 ) -> DiscoveryOutcome:
     """Search the term library for what closes the located gaps (see the module docstring).
 
     replaceable: vocabulary effects found where a gap is left (named, but fitting only
     approximately); a term may replace them. start_plant: where a term's joint fit starts the
     plant parameters (the identification's plant: the vocabulary search may have moved them to
-    mimic what it could not name).
+    mimic what it could not name). nominal: {plant key: value} the identification's box is
+    centred on (the input model's; default `model`'s): every plant fit of the discovery stays in
+    that box, the freedom the plant had without a term.
     """
+    centre = (
+        dict(nominal)
+        if nominal is not None
+        else {k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS}
+    )
     current = model
     found: list[Discovered] = []
     named: list[FoundEffect] = []
@@ -474,7 +508,12 @@ def discover(
             if progress:
                 progress(f"discover on {channel}")
             passing, (judged, rest, _tried), dropped, step_tried = _replacing(
-                ctx, current, channel, [e for e in replaceable if e not in replaced], start_plant
+                ctx,
+                current,
+                channel,
+                [e for e in replaceable if e not in replaced],
+                start_plant,
+                centre,
             )
             tried += step_tried
             win, named_fit = None, None
@@ -516,7 +555,7 @@ def discover(
             if channel == "stroke_deg" and ctx.settings.identify:
                 # the pitch plant was identified under the stroke's error: fit it again under
                 # the corrected stroke (its parameters are the plant's, not the term's)
-                new_model = _refit_pitch_plant(ctx, new_model)
+                new_model = _refit_pitch_plant(ctx, new_model, centre)
                 pitch = {
                     k: getattr(new_model.plant, k)
                     for k, c in PLANT_PARAMETERS.items()
@@ -538,9 +577,10 @@ def discover(
                     _uncertainty(ctx, win, judged, channel),
                 )
             )
-            current = new_model
+            # the term with the plant, then the runs' initial states, before the channel is
+            # judged for a second term (the first term's fit stopped where the states were)
+            current = _polish_truth(ctx, new_model, centre)
     if found:
-        current = _polish_truth(ctx, current)
         final = {(t.kind, t.acts_on): t for t in current.discovered}
         found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
     return DiscoveryOutcome(

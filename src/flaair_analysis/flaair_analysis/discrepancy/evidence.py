@@ -109,7 +109,10 @@ class FoundEffect:
     explains: tuple[Any, ...]
 
 
-def _bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
+def bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
+    """BIC of per-fold residual sums of squares `rss_list` (of `n_list` samples) with `k`
+    parameters.
+    """
     n_tot = sum(n_list)
     val = sum(
         n * math.log(max(r, 1e-300) / n) for r, n in zip(rss_list, n_list, strict=True) if n > 0
@@ -190,7 +193,7 @@ def _reach_deg(ctx: AnalysisContext, model: Model) -> float:
 def _phys_se(spec: EffectSpec, u: float, se_u: float) -> float:
     if not math.isfinite(se_u):
         return math.inf
-    return spec.from_fit(u) * se_u if spec.log else se_u
+    return spec.from_fit(u) * se_u if spec.log else se_u * spec.unit
 
 
 def _null_fit_value(spec: EffectSpec) -> float:
@@ -223,8 +226,11 @@ def evaluate(
     truth_referenced: bool,
     x_start: np.ndarray | None = None,
     merge_with: tuple[float, float] | None = None,
+    step_scale: float = 1.0,
 ) -> tuple[CandidateEvidence, Model]:
     """Fit `specs` on top of `base` per fold and on all folds, judge on held-out folds (R1-R4).
+
+    step_scale: of the fits' finite-difference steps (`fitting.fit_specs`).
 
     merge_with: (value, se) of the same effect already found on the other sensor channel; the
     two become one value on channel 'both' (their weighted mean) when they agree (rule R5),
@@ -244,6 +250,7 @@ def evaluate(
             x0,
             st,
             grid=(x_start is None),
+            step_scale=step_scale,
         )
         for f in folds
     ]
@@ -289,8 +296,8 @@ def evaluate(
     after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
     drop = 1.0 - after / before if before > 0 else 0.0
     drop_above_noise = gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
-    dbic_ho = _bic(rss_ho, n_f, p) - _bic(rss_null, n_f, 0)
-    dbic_fit = _bic(list(fit_all.rss_per_fold), n_f, p) - _bic(rss_null, n_f, 0)
+    dbic_ho = bic(rss_ho, n_f, p) - bic(rss_null, n_f, 0)
+    dbic_fit = bic(list(fit_all.rss_per_fold), n_f, p) - bic(rss_null, n_f, 0)
     z, cons, per_run, n_ident, inside = [], [], [], [], []
     # shape and plant parameters are fitted along
     tested = [j for j, s in enumerate(specs) if s.tested]
@@ -377,7 +384,7 @@ def evaluate_shared(
     before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
     drop = 1.0 - after / before if before > 0 else 0.0
     drop_above_noise = gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
-    dbic = _bic(rss_new, n_f, 0) - _bic(rss_old, n_f, 0)
+    dbic = bic(rss_new, n_f, 0) - bic(rss_old, n_f, 0)
     rules = {
         "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic < st.max_delta_bic),

@@ -252,12 +252,19 @@ def fit_specs(
     x0: np.ndarray,
     settings: Settings,
     grid: bool = True,
+    step_scale: float = 1.0,
 ) -> FitResult:
-    """Least-squares fit of the specs' parameters on `problem` (grid start, then TRF)."""
+    """Least-squares fit of the specs' parameters on `problem` (grid start, then TRF).
+
+    step_scale multiplies the specs' finite-difference steps of the Jacobian (not the trust
+    region's scaling): a model whose simulated motion is not smooth in its parameters (a term
+    with sign(): each zero crossing that passes an integration stage moves the motion by a jump)
+    has a cost that is rough at the specs' own steps, and a fit stalls where it starts.
+    """
     specs = list(specs)
     lo = np.array([s.to_fit(s.lower) for s in specs])
     hi = np.array([s.to_fit(s.upper) for s in specs])
-    steps = np.array([s.step for s in specs])
+    steps = np.array([s.step for s in specs]) * step_scale
     x0 = np.clip(np.asarray(x0, float), lo, hi)
     if grid and specs[0].grid:
         s = specs[0]
@@ -275,7 +282,9 @@ def fit_specs(
         return np.concatenate(rows) if rows else np.zeros(0)
 
     def fun(x: np.ndarray) -> np.ndarray:
-        key = tuple(np.round(x, 15))
+        # the exact point: a key rounded to 1e-15 served one point's residuals for another
+        # wherever a fit-space value is that small (a hinge drag's 1e-12 N m s^2 in its own units)
+        key = tuple(np.asarray(x, float).tolist())
         if key not in cache:
             cache.clear()
             cache[key] = stack(problem.residuals(models_for(base, specs, x[None, :]))[0])
@@ -288,7 +297,7 @@ def fit_specs(
         rows = problem.residuals(models_for(base, specs, xs))
         return np.column_stack([(stack(rows[i]) - f0) / h[i] for i in range(len(specs))])
 
-    x_scale = np.maximum(np.abs(steps) * 100.0, 1e-12)
+    x_scale = np.maximum(np.abs(steps) / step_scale * 100.0, 1e-12)
     try:
         sol = optimize.least_squares(
             fun,

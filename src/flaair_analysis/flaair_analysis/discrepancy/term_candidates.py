@@ -18,6 +18,7 @@ and counted (`Candidates.degenerate`), never fitted.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -36,6 +37,7 @@ from flaair_model.terms import (
 
 from .evidence import AnalysisContext
 from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
+from .identification import FIT_RANGE
 from .runs import simulate_runs
 from .vocabulary import (
     PLANT_PARAMETERS,
@@ -57,6 +59,7 @@ __all__ = [
     "candidates",
     "fitted_along",
     "is_degenerate",
+    "plant_box_spec",
 ]
 
 SITES_FOR_GAP: dict[str, tuple[str, ...]] = {
@@ -230,16 +233,37 @@ def _sensor_effect_specs(site: str, model: Model) -> list[EffectSpec]:
     return specs
 
 
-def fitted_along(site: str, model: Model, channel: str, identify: bool) -> list[EffectSpec]:
+def fitted_along(
+    site: str,
+    model: Model,
+    channel: str,
+    identify: bool,
+    centre: Mapping[str, float] | None = None,
+) -> list[EffectSpec]:
     """What a term at `site` is fitted jointly with: the plant parameters of its equation (a
     drive term: the stroke's), or the sensor chain's vocabulary effects.
+
+    centre: {plant key: value} the plant identification's box is centred on; given, each plant
+    parameter is fitted in that very box (x(1 -+ FIT_RANGE) in log, `identification`), the
+    freedom the plant had without the term; else within x(1 -+ 0.5) of its value in `model`.
     """
     if site in SENSOR_CHANNELS:
         return _sensor_effect_specs(site, model)
     if not identify or site not in ("stroke_dynamics", "pitch_dynamics", "drive"):
         return []
     truth = "pitch_deg" if site == "pitch_dynamics" else "stroke_deg"
-    return [plant_spec(k, model, channel) for k, c in PLANT_PARAMETERS.items() if c == truth]
+    keys = [k for k, c in PLANT_PARAMETERS.items() if c == truth]
+    if centre is None:
+        return [plant_spec(k, model, channel) for k in keys]
+    return [plant_box_spec(k, model, channel, float(centre[k])) for k in keys]
+
+
+def plant_box_spec(key: str, model: Model, channel: str, centre: float) -> EffectSpec:
+    """Plant parameter `key` as a fittable spec starting at its value in `model`, bounded by the
+    identification's box about `centre`: [centre / (1 + FIT_RANGE), centre * (1 + FIT_RANGE)].
+    """
+    box = 1.0 + FIT_RANGE
+    return replace(plant_spec(key, model, channel), lower=centre / box, upper=centre * box)
 
 
 def _fit_alone(
@@ -257,7 +281,9 @@ def _fit_alone(
         specs = term_specs(kind, site, channel, scale, start)
         x0 = np.array([s.to_fit(s.null) for s in specs])
         try:
-            fit = fit_specs(current, specs, problem, x0, ctx.settings)
+            fit = fit_specs(
+                current, specs, problem, x0, ctx.settings, step_scale=ctx.settings.discovery_fd_step
+            )
         except (ModelError, ValueError):  # a start that leaves the term's own range
             continue
         out.append((fit.rss, kind, site, specs, fit.x))

@@ -85,6 +85,10 @@ class EffectSpec:
     channel_param : value of the effect's `channel` parameter, if it has one.
     tested : the significance rule (R3) applies to it (False: a shape parameter of a
         multi-parameter effect, or a plant parameter fitted along).
+    unit : (not log) the fit space's unit: the fit sees value / unit. A library term's
+        coefficient is fitted in units of its range (a hinge drag's coefficient is 1e-12 N m s^2:
+        in its own units a least-squares step below the solver's absolute tolerance, 1e-12,
+        ends the fit where it starts).
     """
 
     name: str
@@ -98,6 +102,7 @@ class EffectSpec:
     log: bool = False
     channel_param: str | None = None
     tested: bool = True
+    unit: float = 1.0
 
     @property
     def label(self) -> str:
@@ -127,11 +132,11 @@ class EffectSpec:
 
     def to_fit(self, value: float) -> float:
         """Physical parameter -> fit-space value."""
-        return math.log(value) if self.log else float(value)
+        return math.log(value) if self.log else float(value) / self.unit
 
     def from_fit(self, u: float) -> float:
         """Fit-space value -> physical parameter."""
-        return math.exp(u) if self.log else float(u)
+        return math.exp(u) if self.log else float(u) * self.unit
 
     def params(self, value: float, channel: str | None = None) -> dict[str, Any]:
         """Effect parameter dict for the model."""
@@ -171,7 +176,8 @@ def term_specs(
             -scale,
             scale,
             (-0.1 * scale, 0.1 * scale),
-            1e-4 * scale,
+            1e-4,
+            unit=scale,
         )
     ]
     for sh in kind.shape:

@@ -245,6 +245,7 @@ def analyse(
             progress,
             [e for e in effects if gaps & set(e.explains)],
             plant_fit.model.plant if plant_fit is not None else None,
+            nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS},
         )
         if discovery.discovered or discovery.named:
             model_out = discovery.model
