@@ -44,6 +44,22 @@ def model():
     return load_model()
 
 
+def _discover_robot(draw: int, kind_site: tuple[str, str], model):
+    """A discovery-family robot's one true term (checked against `kind_site`), its true model
+    with the model's noise, its runs and their noise estimates.
+    """
+    from flaair_analysis.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy.diagnosis import noise_estimates
+    from flaair_analysis.discrepancy.runs import simulate_runs
+
+    case = random_robot("offnominal_discover", draw)
+    (true_term,) = case.terms
+    assert (true_term.kind, true_term.acts_on) == kind_site
+    truth = replace(true_model(case, model), noise=model.noise)
+    runs = make_runs(case, model)
+    return true_term, truth, runs, noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+
+
 def _drive(n: int = 8000) -> np.ndarray:
     t = np.arange(n) / FS
     return 60.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.05, 1.0)
@@ -365,20 +381,12 @@ def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_
     it reaches the truth's cost with the coefficient within a few per cent.
     """
     from flaair_analysis.discrepancy import Settings
-    from flaair_analysis.discrepancy.datasets import true_model
-    from flaair_analysis.discrepancy.diagnosis import noise_estimates
     from flaair_analysis.discrepancy.evidence import AnalysisContext
     from flaair_analysis.discrepancy.fitting import fit_specs, spec_value
-    from flaair_analysis.discrepancy.runs import simulate_runs
     from flaair_analysis.discrepancy.term_candidates import fitted_along
     from flaair_analysis.discrepancy.vocabulary import term_specs
 
-    case = random_robot("offnominal_discover", 0)
-    (true_term,) = case.terms
-    assert (true_term.kind, true_term.acts_on) == ("sign_velocity", "stroke_dynamics")
-    truth = replace(true_model(case, model), noise=model.noise)
-    runs = make_runs(case, model)
-    noise = noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+    true_term, truth, runs, noise = _discover_robot(0, ("sign_velocity", "stroke_dynamics"), model)
     settings = replace(Settings(), max_nfev=100)
     ctx = AnalysisContext(runs, noise, settings)
     # where the workflow's fit had stalled: the friction 15 % strong, the air damping 6 % weak
@@ -499,17 +507,10 @@ def test_a_start_state_under_a_hinge_friction_is_fitted_at_the_discoverys_wider_
     and leaves a start transient on the pitch sensor; at `discovery_fd_step` times the step it
     reaches the cost of the true start (rest).
     """
-    from flaair_analysis.discrepancy import Settings, noise_estimates
-    from flaair_analysis.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy import Settings
     from flaair_analysis.discrepancy.identification import fit_initial_states
-    from flaair_analysis.discrepancy.runs import simulate_runs
 
-    case = random_robot("offnominal_discover", 5)
-    (true_term,) = case.terms
-    assert (true_term.kind, true_term.acts_on) == ("sign_velocity", "pitch_dynamics")
-    truth = replace(true_model(case, model), noise=model.noise)
-    runs = make_runs(case, model)
-    noise = noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+    _, truth, runs, noise = _discover_robot(5, ("sign_velocity", "pitch_dynamics"), model)
     channels = ("stroke_deg", "pitch_deg", "stroke_sensor_v", "pitch_sensor_v")
     # the start the workflow had left (chirp_full: the hinge rate 6 rad/s off rest)
     (run,) = [replace(r, mechanical0=np.array([-3.8e-4, 1.38, -1.9e-2, 6.12])) for r in runs[:1]]
