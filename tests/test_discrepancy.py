@@ -47,6 +47,7 @@ from flaair_analysis.discrepancy.datasets import (
     score_case,
 )
 from flaair_analysis.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
+from flaair_analysis.discrepancy.scoring import score_result
 from flaair_analysis.discrepancy.offnominal import effective_plant
 from flaair_analysis.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from flaair_common.runcsv import write_run
@@ -124,6 +125,9 @@ def test_hidden_effect_case_is_found_without_the_answer(name: str, model) -> Non
     _OUTCOMES[name] = outcome
     assert result.status == case.expected_status, outcome.problems
     assert tuple(sorted(e.name for e in result.effects)) == case.expected_names, outcome.problems
+    # exactly right: nothing discovered beside the vocabulary's names (no case here has a term)
+    assert not case.terms and not result.discovered, [d.term for d in result.discovered]
+    assert score_result(case, result).right, outcome.problems
     _assert_plant_parameters(case, result, model)
     if case.outside or case.below_limit:
         gaps = {r["channel"] for r in result.remaining}

@@ -52,6 +52,7 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
     result = analyse(make_runs(case, model), model)
     assert result.status == case.expected_status, result.summary
     assert tuple(sorted(e.name for e in result.effects)) == case.effect_names, result.summary
+    assert not result.discovered and not case.terms, [d.term for d in result.discovered]
     found = {e.name: e for e in result.effects}
     for name, params in case.effects:
         for key, value in params.items():

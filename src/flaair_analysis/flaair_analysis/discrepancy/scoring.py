@@ -1,9 +1,10 @@
 """Scoring the discrepancy workflow on the hidden-effect datasets: one outcome per case, the
 confusion table over cases.
 
-A case passes when the workflow names exactly the effects it must (none below the resolution
-limit), finds their parameters within `PARAMETER_TOLERANCE`, and reduces the model error on every
-channel with a gap by at least `MIN_GAP_REDUCTION`.
+A case passes when its outcome is exactly right (`flaair_analysis.exact_score`: the status, the
+named effects and the discovered terms all equal the truth's, none below the resolution limit
+named), the named effects' parameters are within `PARAMETER_TOLERANCE`, and the model error on
+every channel with a gap drops by at least `MIN_GAP_REDUCTION`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ..exact_score import ExactScore, score_exact, term_label
 from .case import DatasetCase
 from .runs import CHANNELS
 from .workflow import DiscrepancyResult
@@ -26,6 +28,7 @@ __all__ = [
     "found_label",
     "per_chain",
     "score_case",
+    "score_result",
 ]
 
 PARAMETER_TOLERANCE = 0.15  # found parameters within 15 % of the truth
@@ -44,9 +47,10 @@ class CaseOutcome:
     found : names of the found effects, sorted.
     parameter_errors : {effect.key: relative error} of the hidden effects' parameters.
     gap_reduction : {channel: 1 - model-error NRMSE after / before} on channels with a gap before.
-    correct : name(s) and status right, parameters within 15 %, gap reduced by >= 50 % on every
-        channel that had one (outside cases: status unexplained, exactly the hidden vocabulary
-        effects found (usually none), the gap on the expected channel).
+    correct : exactly right (`score_result`: status, names and terms), parameters within 15 %,
+        gap reduced by >= 50 % on every channel that had one (outside cases: status unexplained,
+        exactly the hidden vocabulary effects found (usually none), no term, the gap on the
+        expected channel).
     problems : why it is not correct.
     elapsed_s : analysis time.
     """
@@ -125,21 +129,26 @@ def per_chain(params: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def score_result(case: DatasetCase, result: DiscrepancyResult) -> ExactScore:
+    """The exact score of a workflow result against a case's truth (status, names, terms)."""
+    return score_exact(
+        status=result.status,
+        names=(e.name for e in result.effects),
+        terms=(term_label(d.term.kind, d.term.acts_on) for d in result.discovered),
+        expected_status=case.expected_status,
+        expected_names=case.expected_names,
+        expected_terms=(term_label(t.kind, t.acts_on) for t in case.terms),
+    )
+
+
 def score_case(  # noqa: C901  one branch per way an outcome is right or wrong
     case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan
 ) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""
-    problems = []
     found = tuple(sorted(e.name for e in result.effects))
-    if result.status != case.expected_status:
-        problems.append(f"status {result.status}, expected {case.expected_status}")
+    problems = list(score_result(case, result).problems())
     errors: dict[str, Any] = {}
     reduction: dict[str, Any] = {}
-    if found != case.expected_names:
-        problems.append(
-            f"found {list(found) or 'nothing'}, expected {list(case.expected_names) or 'nothing'}"
-            + (f" + outside:{case.outside}" if case.outside else "")
-        )
     by_name = {e.name: e for e in result.effects}
     for name, params in case.effects:
         if name not in by_name:
