@@ -34,10 +34,10 @@ out/bench/discrepancy_validation/validation.html).
 
 --subset (`make bench`) analyses a subset drawn by a fixed seed (`SUBSET_SEED`) instead of every
 draw: `SUBSET`'s robots, the no-identification baseline on the first `SUBSET_BASELINE` of each
-family's, and with --sweep the hidden-effect cases of `SWEEP_SUBSET`. Every figure is still printed, each count beside it
-and marked "subset" (`make bench-full` runs every draw and case). Robots and hidden-effect cases
-share one process pool, the costliest kinds submitted first so that none is left running alone
-at the end.
+family's, and with --sweep the hidden-effect cases of `SWEEP_SUBSET`. Every figure is still
+printed, each count beside it and marked "subset" (`make bench-full` runs every draw and case).
+Robots and hidden-effect cases share one process pool, the costliest kinds submitted first so
+that none is left running alone at the end.
 """
 
 from __future__ import annotations
@@ -64,7 +64,6 @@ from flaair_analysis.discrepancy.datasets import (
     make_runs,
     score_case,
 )
-from flaair_analysis.discrepancy.scoring import score_result
 from flaair_analysis.discrepancy.offnominal import (
     COMPOSED_DISCOVER_KINDS,
     DISCOVER_KINDS,
@@ -72,6 +71,7 @@ from flaair_analysis.discrepancy.offnominal import (
     random_robot,
     true_plant,
 )
+from flaair_analysis.discrepancy.scoring import score_result
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import json_safe, write_validation
@@ -376,6 +376,8 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
     for k in kinds:  # per kind: exactly right, the form among others, explained, error, time
         rows = [o for o in discover if o["true_terms"][0] == k]
         k_errs = [e for o in rows for key, e in o["term_errors"].items() if "coefficient" in key]
+        k_among = sum(set(o["true_terms"]) <= set(o["discovered"]) for o in rows)
+        k_explained = sum(o["status"] == "explained" for o in rows)
         noun = "robots, composed" if "*" in k else "robots"
         per_kind_figures.append(
             info(
@@ -383,9 +385,8 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
                 + _count(sum(o["exact"] for o in rows), len(rows), subset, noun),
                 100 * share([o["exact"] for o in rows]),
                 "%",
-                f"form among others {sum(set(o['true_terms']) <= set(o['discovered']) for o in rows)}"
-                f"/{len(rows)}; explained {sum(o['status'] == 'explained' for o in rows)}/"
-                f"{len(rows)}; coefficient error median "
+                f"form among others {k_among}/{len(rows)}; explained {k_explained}/{len(rows)}; "
+                "coefficient error median "
                 + (f"{100 * statistics.median(k_errs):.1f} %" if k_errs else "n/a")
                 + f"; time max {max(o['elapsed_s'] for o in rows):.0f} s",
             )

@@ -140,8 +140,7 @@ def figure_rows(figures: list[Figure]) -> list[dict]:
         return value
 
     return [
-        {key: plain(value) for key, value in asdict(f).items()}
-        | {"target": f.target, "met": f.met}
+        {key: plain(value) for key, value in asdict(f).items()} | {"target": f.target, "met": f.met}
         for f in figures
     ]
 

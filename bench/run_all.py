@@ -11,20 +11,32 @@ Two modes, the same parts and the same figures:
   marked "subset"); at most `BENCH_BUDGET_S` of wall time on the 2-core machine;
 - `make bench-full` (--full): every family, every draw, all 45 hidden-effect cases.
 Each part prints its wall time beside its budget in that mode (`PARTS`, declared once) and says
-when it ran over; the run ends with its total time.
+when it ran over; the run ends with its total time and "N of M comparisons met" (an `info`
+figure is printed, never counted).
+
+Every run that ran every part also writes its results file, `docs/results/<date>-<commit>.json`
+(`-subset` before `.json` for `make bench`): the mode, commit, date, machine (cores, CPU model)
+and wall time beside every figure. `bench/results_table.py` renders the README's and the guides'
+figures tables from the newest one; nothing published is typed by hand.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
+import os
+import platform
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, Figure, figure_from_row, figure_rows, print_table, write_json
+
+RESULTS_DIR = REPO_ROOT / "docs" / "results"
+RESULTS_SCHEMA = "flaair-bench-results/1"
 
 
 @dataclass(frozen=True)
@@ -115,8 +127,80 @@ def run_part(part: Part, full: bool, out_dir: Path) -> tuple[list[Figure], float
         return [], took, False
     loaded = json.loads(json_path.read_text())
     entries = loaded if isinstance(loaded, list) else loaded.get("figures", [])
-    keys = ("name", "value", "unit", "target", "met", "baseline")
-    return [Figure(**{k: e[k] for k in keys if k in e}) for e in entries], took, True
+    return [figure_from_row(e) for e in entries], took, True
+
+
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), or the platform's word for it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def git_commit() -> str:
+    """The checked-out commit (short), with '-dirty' when the tree has changes to tracked files."""
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], cwd=REPO_ROOT, capture_output=True, text=True, check=False
+        ).stdout.strip()
+
+    commit = git("rev-parse", "--short=10", "HEAD") or "unknown"
+    return commit + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def results_document(
+    mode: str,
+    figures_by_part: list[tuple[str, list[Figure]]],
+    times: list[tuple[Part, float, bool]],
+    wall_s: float,
+    full: bool,
+) -> dict:
+    """The results file's content: where and when it ran, every part's time, every figure."""
+    now = dt.datetime.now(dt.UTC)
+    return {
+        "schema": RESULTS_SCHEMA,
+        "mode": mode,
+        "commit": git_commit(),
+        "date": now.date().isoformat(),
+        "finished_utc": now.isoformat(timespec="seconds"),
+        "machine": {
+            "cores": os.cpu_count(),
+            "cpu_model": cpu_model(),
+            "python": platform.python_version(),
+        },
+        "wall_s": round(wall_s, 1),
+        "parts": [
+            {
+                "name": p.name,
+                "wall_s": round(t, 1),
+                "budget_s": p.full_budget_s if full else p.budget_s,
+                "ran": ran,
+            }
+            for p, t, ran in times
+        ],
+        "figures": [
+            row | {"part": part}
+            for part, figures in figures_by_part
+            for row in figure_rows(figures)
+        ],
+    }
+
+
+def results_path(document: dict, directory: Path = RESULTS_DIR) -> Path:
+    """docs/results/<date>-<commit>.json (`-subset` for `make bench`)."""
+    suffix = "" if document["mode"] == "make bench-full" else "-subset"
+    return directory / f"{document['date']}-{document['commit']}{suffix}.json"
+
+
+def comparisons_met(figures: list[Figure]) -> tuple[int, int]:
+    """(comparisons met, comparisons): `info` figures are not counted."""
+    verdicts = [f.met for f in figures if f.is_comparison]
+    return sum(bool(v) for v in verdicts), len(verdicts)
 
 
 def main() -> int:
@@ -132,24 +216,35 @@ def main() -> int:
         parser.error(f"unknown benchmark {', '.join(unknown)} (known: {', '.join(known)})")
     mode = "make bench-full" if args.full else "make bench"
     figures: list[Figure] = []
+    by_part: list[tuple[str, list[Figure]]] = []
     failures: list[str] = []
-    times: list[tuple[Part, float]] = []
+    times: list[tuple[Part, float, bool]] = []
     start = time.monotonic()
     for part in [known[n] for n in args.only] if args.only else PARTS:
         got, took, ran = run_part(part, args.full, args.json.parent)
         figures += got
-        times.append((part, took))
+        by_part.append((part.name, got))
+        times.append((part, took, ran))
         if not ran:
             failures.append(part.name)
     total = time.monotonic() - start
     print()
     print_table(figures)
     write_json(figures, args.json)
-    met = sum(f.met for f in figures)
-    print(f"\n{met} of {len(figures)} figures meet their targets; table in {args.json}")
+    met, compared = comparisons_met(figures)
+    print(
+        f"\n{met} of {compared} comparisons met ({len(figures) - compared} info figures, not "
+        f"counted); table in {args.json}"
+    )
+    if not args.only and not failures:
+        document = results_document(mode, by_part, times, total, args.full)
+        path = results_path(document)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n")
+        print(f"results file {path.relative_to(REPO_ROOT)} (README: python bench/results_table.py)")
     over = [
         f"{p.name} {t:.0f} s > {p.full_budget_s if args.full else p.budget_s:.0f} s"
-        for p, t in times
+        for p, t, _ in times
         if t > (p.full_budget_s if args.full else p.budget_s)
     ]
     if over:

@@ -118,15 +118,20 @@ def test_lab_runs_get_the_paper_headline_figures(uncalibrated: dict) -> None:
     assert h["stroke_gain_deg_per_v"]["source"].endswith("/chirp_full")
     assert h["pitch_gain_deg_per_v"]["flaair"] == pytest.approx(24.87 / HINGE_EFFICIENCY, rel=0.02)
     assert h["pitch_gain_deg_per_v"]["source"].endswith("/stepped")
-    for key in (
-        "stroke_amplitude_rmse_deg",
-        "stroke_phase_rmse_deg",
-        "pitch_amplitude_rmse_deg",
-        "pitch_amplitude_rmse_band_deg",
-        "pitch_phase_rmse_deg",
-        "pitch_time_rmse_lag_corrected_band_deg",
-    ):
-        assert h[key]["flaair"] is not None, key
+    # The session's robot is the model's plant read through its sensors and a tracked camera, so
+    # the sensor-vs-truth errors are noise-level: measured 0.013-0.021 deg in amplitude, 0.26-0.28
+    # deg in phase, 0.37 deg in time; the bounds are about 3x those, each far below the paper's.
+    bounds = {
+        "stroke_amplitude_rmse_deg": 0.06,
+        "stroke_phase_rmse_deg": 0.8,
+        "pitch_amplitude_rmse_deg": 0.06,
+        "pitch_amplitude_rmse_band_deg": 0.06,
+        "pitch_phase_rmse_deg": 0.8,
+        "pitch_time_rmse_lag_corrected_band_deg": 1.0,
+    }
+    for key, bound in bounds.items():
+        assert 0.0 < h[key]["flaair"] < bound, (key, h[key])
+        assert h[key]["flaair"] < h[key]["paper"] / 3, (key, h[key])
     # fitted gain: the hidden 0.23 is absorbed
     assert h["pitch_amplitude_rmse_band_deg"]["flaair"] < 1.0
     assert (

@@ -5,7 +5,6 @@ from the subset run (bench/run_all.py, bench/bench_discrepancy.py). Nothing is a
 
 from __future__ import annotations
 
-import ast
 import json
 import re
 import sys
@@ -95,14 +94,14 @@ def test_the_subset_is_drawn_by_its_seed_from_every_family() -> None:
     """Not chosen around a known miss: each family's robots and the hidden-effect cases are the
     seed's draw from the full run's, and another seed draws others.
     """
-    assert bd.SUBSET == bd.draw_subset(bd.SUBSET_SEED)
+    assert bd.draw_subset(bd.SUBSET_SEED) == bd.SUBSET
     assert set(bd.SUBSET) == set(FAMILIES) == set(bd.FULL_DRAWS)
     for family, draws in bd.SUBSET.items():
         assert len(draws) == bd.SUBSET_SIZES[family] == len(set(draws))
         assert all(0 <= d < bd.FULL_DRAWS[family] for d in draws)
     assert bd.FULL_DRAWS["offnominal_discover"] == 10 * len(DISCOVER_KINDS)
     all_cases = tuple(c.name for c in dataset_cases())
-    assert bd.SWEEP_SUBSET == bd.draw_sweep_subset(all_cases, bd.SUBSET_SEED)
+    assert bd.draw_sweep_subset(all_cases, bd.SUBSET_SEED) == bd.SWEEP_SUBSET
     assert len(bd.SWEEP_SUBSET) == bd.SWEEP_SUBSET_SIZE and set(bd.SWEEP_SUBSET) <= set(all_cases)
     assert bd.draw_subset(bd.SUBSET_SEED + 1) != bd.SUBSET
 
@@ -169,8 +168,13 @@ def test_every_figure_of_today_is_printed_in_both_modes(subset: bool) -> None:
         for t in random_robot(f, d).terms
     }
     assert len(kinds) == (
-        len({(t.kind, t.acts_on) for d in bd.SUBSET["offnominal_discover"]
-             for t in random_robot("offnominal_discover", d).terms})
+        len(
+            {
+                (t.kind, t.acts_on)
+                for d in bd.SUBSET["offnominal_discover"]
+                for t in random_robot("offnominal_discover", d).terms
+            }
+        )
         if subset
         else len(DISCOVER_KINDS)
     )

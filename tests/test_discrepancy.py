@@ -47,8 +47,8 @@ from flaair_analysis.discrepancy.datasets import (
     score_case,
 )
 from flaair_analysis.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
-from flaair_analysis.discrepancy.scoring import score_result
 from flaair_analysis.discrepancy.offnominal import effective_plant
+from flaair_analysis.discrepancy.scoring import score_result
 from flaair_analysis.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from flaair_common.runcsv import write_run
 from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
@@ -424,7 +424,7 @@ def test_gappy_truth_and_a_single_run_still_work(model) -> None:
     result = dc.analyse([one], model)
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["strain_transfer_loss"]
-    assert result.effects[0].parameters["efficiency"] == pytest.approx(0.23, rel=0.15)
+    assert result.effects[0].parameters["efficiency"] == pytest.approx(0.23, rel=0.01)
     # truth noise falls back to the model's noise section (no consecutive truth samples)
     assert result.noise["pitch_deg"] == pytest.approx(model.noise.tracking_noise_deg_rms)
 
@@ -620,10 +620,11 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
     for e in doc["effects"]:
         assert {"name", "channel", "parameters", "evidence"} <= set(e)
         assert e["evidence"]["accepted"] and all(e["evidence"]["rules"].values())
-    assert effects["sensor_delay"]["parameters"]["delay_s"] == pytest.approx(1e-4, rel=0.15)
+    # measured 0.14 % and 0.01 % off: within 2 % and 1 %
+    assert effects["sensor_delay"]["parameters"]["delay_s"] == pytest.approx(1e-4, rel=0.02)
     assert effects["sensor_delay"]["parameters"]["channel"] == "both"
     assert effects["strain_transfer_loss"]["parameters"]["efficiency"] == pytest.approx(
-        0.23, rel=0.15
+        0.23, rel=0.01
     )
     for c in dc.CHANNELS:
         assert doc["gap_after"][c] <= doc["gap_before"][c] * 1.01

@@ -21,6 +21,7 @@ from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
+from flaair_analysis.exact_score import score_exact, term_label
 from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS
 from flaair_analysis.tables.joint import identify_joint
@@ -171,6 +172,7 @@ def test_a_missing_effect_found_on_the_runs_is_kept_when_the_table_confirms_it()
     s = settings.tables()
     res = analyse_joint(runs, make_table(true, fn, seed=6), nominal, _noise(runs, nominal), s)
     assert res.status == "explained" and res.kept
+    assert _exact(res, "explained", ["structural_damping"]).right
     assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
     assert res.model_out.effect("structural_damping") is not None
     assert res.table_after.chi2 < res.table_before.chi2 - 2.0 * np.sqrt(2.0 * res.table_before.n)
@@ -193,6 +195,7 @@ def test_a_finding_that_worsens_the_table_beyond_noise_is_refused() -> None:
     res = analyse_joint(runs, make_table(plain, fn, seed=6), nominal, _noise(runs, nominal), s)
     assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
     assert res.status == "unexplained" and not res.kept and res.final is None
+    assert _exact(res, "unexplained", []).right  # nothing named, nothing discovered
     assert res.model_out.effect("structural_damping") is None
     assert res.model_out.plant == res.joint.model.plant
     assert res.notes[0].startswith("the table refused the runs' findings (structural_damping)")
@@ -231,6 +234,19 @@ def test_an_effect_only_the_table_shows_is_found_by_the_tables_search_and_kept()
     assert max(res.table_after.noise_ratio.values()) < 1.5  # measured 1.01
     assert res.final is not None and res.final.warnings == ()
     assert res.status == "explained"
+    assert _exact(res, "explained", ["collision"]).right
+
+
+def _exact(res, status: str, names: list[str]):
+    """The joint outcome scored by the one exact rule: status, the model's effects and terms."""
+    return score_exact(
+        status=res.status,
+        names=res.model_out.effect_names,
+        terms=[term_label(t.kind, t.acts_on) for t in res.model_out.discovered],
+        expected_status=status,
+        expected_names=names,
+        expected_terms=[],
+    )
 
 
 def _strict(text: str):

@@ -5,6 +5,8 @@ It sits above the domain packages (model, sim, sensors, control) and below `flaa
 which keeps the command lines, reports, bags and orchestration around it.
 
 Modules (import them by name; this package imports none of them eagerly):
+- `exact_score`: the one rule that says whether a discrepancy outcome is right (status, named
+  effects and discovered terms all the truth's), used by the benchmarks, tests and case scoring;
 - `discrepancy`: the model-vs-measurement workflow (diagnosis, the effect search, grey-box
   identification, term discovery, hidden-effect datasets and their scoring);
 - `wingbeat`: per-wingbeat summary of a stroke and pitch record (numba);
@@ -15,4 +17,4 @@ Modules (import them by name; this package imports none of them eagerly):
   the plant fitted to a table, the discrepancy workflow on held-out drive levels.
 """
 
-__all__ = ["closed_loop", "discrepancy", "headline", "tables", "wingbeat"]
+__all__ = ["closed_loop", "discrepancy", "exact_score", "headline", "tables", "wingbeat"]

@@ -141,7 +141,7 @@ def score_result(case: DatasetCase, result: DiscrepancyResult) -> ExactScore:
     )
 
 
-def score_case(  # noqa: C901  one branch per way an outcome is right or wrong
+def score_case(
     case: DatasetCase, result: DiscrepancyResult, elapsed_s: float = math.nan
 ) -> CaseOutcome:
     """Judge a workflow result against the case's hidden truth."""
