@@ -127,7 +127,8 @@ def render_block(block: Block, results: dict | None, source: str) -> str:
     machine = results["machine"]
     head = (
         f"From [`{source}`]({source}): `{results['mode']}` at commit `{results['commit']}` on "
-        f"{results['date']}, {machine.get('cores')} cores ({machine.get('cpu_model')}), "
+        f"{results['date']}, {machine.get('cores')} cores ({machine.get('cpu_model')}, load "
+        f"average {machine.get('load_average_end')} at the end), "
         f"{results['wall_s'] / 60:.1f} min wall. {sum(bool(f.met) for f in compared)} of "
         f"{len(compared)} comparisons shown here met."
     )

@@ -172,6 +172,8 @@ def results_document(
             "cores": os.cpu_count(),
             "cpu_model": cpu_model(),
             "python": platform.python_version(),
+            # other work on the machine while it ran (1-minute load average at the end)
+            "load_average_end": round(os.getloadavg()[0], 2),
         },
         "wall_s": round(wall_s, 1),
         "parts": [

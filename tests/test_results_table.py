@@ -60,7 +60,7 @@ def test_a_failing_comparison_renders_as_not_met_and_info_is_not_counted(tmp_pat
     assert "| exactly right, offnominal_pair (26/30 robots) | 86.7 % | >= 90 % | NO |" in readme
     assert "| exactly right, offnominal_single (27/30 robots) | 90 % | >= 90 % | yes |" in readme
     assert "1 of 2 comparisons shown here met" in readme and "old typed numbers" not in readme
-    assert f"commit `abc1234567` on 2026-11-29, {os.cpu_count()} cores" in readme
+    assert f"commit `abc1234567` on 2026-11-29, {os.cpu_count()} cores (" in readme
     guide = docs[tmp_path / "docs" / "DISCREPANCY.md"][1]
     assert "| 97.8 % | info | info | y |" in guide
     assert guide.endswith("text after\n") and "text before" in guide

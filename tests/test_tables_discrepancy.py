@@ -62,11 +62,14 @@ def test_hinge_stiffening_is_named_and_the_heldout_gap_shrinks(tmp_path: Path) -
     out = tmp_path / "out"
     assert discrepancy_main(["--table", str(path), "--out", str(out)]) == 0
     doc = json.loads((out / "discrepancy.json").read_text())
-    assert doc["status"] in ("explained", "unexplained")  # 14 frequencies: a pitch gap may stay
+    # The right effect at 2.90 (3.3 % off), but on 14 frequencies the pitch's held-out levels keep
+    # 1.58x their noise (the gap rule's limit is 1.5x), so the honest status is `unexplained`
+    # (the 20-frequency tables of the benchmark end `explained`)
+    assert doc["status"] == "unexplained"
     assert [e["name"] for e in doc["effects"]] == ["hinge_stiffening"]
     assert doc["discovered"] == []
     value = doc["effects"][0]["parameters"]["cubic_per_rad2"]["value"]
-    assert value == pytest.approx(3.0, rel=0.25)
+    assert value == pytest.approx(3.0, rel=0.05)
     gaps = [doc[k]["pitch_pp_deg"] for k in ("gap_before", "gap_identified", "gap_after")]
     assert gaps[0] > gaps[1] > 2 * gaps[2]
     assert set(doc["not_searched"]) >= {"sensor_delay", "charge_amp_highpass", "wing_damage"}
@@ -120,7 +123,8 @@ def test_hinge_stiffening_is_found_where_the_effectless_pitch_fit_runs_far() -> 
     assert r.identified.plant.pitch_natural_frequency_hz > 300.0  # the effect-less fit ran far
     assert [j.candidate.name for j in r.accepted] == ["hinge_stiffening"]
     j = r.accepted[0]
-    assert j.fit.values["effect.hinge_stiffening.cubic_per_rad2"] == pytest.approx(3.2, rel=0.15)
+    # measured 3.256 (1.8 % off)
+    assert j.fit.values["effect.hinge_stiffening.cubic_per_rad2"] == pytest.approx(3.2, rel=0.05)
     assert j.z > s.min_z
     assert j.fit.values["plant.pitch_natural_frequency_hz"] == pytest.approx(190.0, rel=0.05)
     assert r.status == "explained"
