@@ -75,7 +75,7 @@ def main() -> int:
                     "deg",
                     "<=",
                     0.5,
-                    f"error {loop['steady_error_deg']:+.3f} deg at "
+                    f"error {loop['steady_error_deg']:+.3g} deg at "
                     f"{loop['steady_frequency_hz']:.1f} Hz",
                 )
             )

@@ -11,8 +11,8 @@ on every worker before any timing; the external cluster's start-up is not timed)
   in-process with numba threads over each chunk (all cores, no Dask), a LocalCluster with one
   single-threaded worker process per core, and an external `dask scheduler` + 2 `dask worker`
   processes started from the project's environment on 127.0.0.1 (--scheduler path);
-- target: the Dask runs within 20 % of the in-process batch on this machine (>= 0.8 x the
-  better in-process figure, one core or all cores);
+- target: the Dask runs within 20 % of the in-process batch on this machine (each one's rate
+  over the better in-process figure, one core or all cores, >= 0.8);
 - overhead per task: 400 empty tasks through the local cluster (submit -> result), and the
   compute time of one sized chunk it is compared with.
 Each engine runs the sweep --repeats times and its best time counts (other jobs share the

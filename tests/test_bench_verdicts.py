@@ -12,6 +12,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -245,3 +246,83 @@ def test_passed_share_fails_a_run_that_did_not_pass_every_test() -> None:
     assert met(0, 0) is False  # nothing ran
     assert met(12, 0, clean=False) is False  # pytest stopped with no failure counted
     assert benchlib.passed_pct(3, 1, clean_exit=False) == 75.0
+
+
+def _target_counters(missing: int, stalled: int = 0) -> dict:
+    return {
+        "fresh_samples": 300_000 - missing,
+        "missing_samples": missing,
+        "late_samples": 0,
+        "stall_missing_samples": stalled,
+        "stall_ms": 1.0,
+        "stalls": 1 if stalled else 0,
+        "max_lag_ms": 2.0,
+    }
+
+
+@pytest.mark.timeout(60)
+def test_the_bridge_judges_the_monitors_late_samples_against_a_fixed_bound() -> None:
+    """0.15 % late with the health monitor against 0 % without it, in runs whose windows
+    scatter by +-0.35 %: 'within the noise' passed it; the fixed 0.1-point bound does not.
+    """
+    import bench_bridge as bb
+
+    scattered = np.array([0.0, 0.6, 0.0, 0.6])
+    with_monitor = {"target": _target_counters(450), "window_pct": scattered, "steal_s": 0.0}
+    without = {"target": _target_counters(0), "window_pct": np.zeros(4), "steal_s": 0.0}
+    assert bb.difference_noise_pct(scattered, np.zeros(4)) > 0.3  # the old rule's allowance
+    figures = {
+        f.name.split(", with")[0]: f
+        for f in bb.late_figures(with_monitor, without, 0.0, 15.0, "load")
+    }
+    difference = next(f for f in figures.values() if "minus without" in f.name)
+    assert (difference.value, difference.target, difference.met) == (
+        pytest.approx(0.15),
+        "<= 0.1 % points",
+        False,
+    )
+    assert [f.met for f in figures.values() if "stalls left out" in f.name] == [False, True]
+    within = {**with_monitor, "target": _target_counters(240)}  # 0.08 points more
+    assert (
+        next(
+            f
+            for f in bb.late_figures(within, without, 0.0, 15.0, "load")
+            if "minus without" in f.name
+        ).met
+        is True
+    )
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    ("published", "lost", "met"), [(20_000, 0, True), (20_000, 3, False), (0, 0, False)]
+)
+def test_the_recorder_fails_a_lost_message_and_a_scenario_that_measured_nothing(
+    monkeypatch: pytest.MonkeyPatch, published: int, lost: int, met: bool
+) -> None:
+    """Throughput is reported (no rate target: the target is nothing lost); a lost block or
+    /clock message fails, and so does a scenario in which nothing was published to count.
+    """
+    import bench_recorder as br
+
+    def analysed(*_args) -> dict:
+        topic = {
+            "published": float(published),
+            "recorded": float(published - lost),
+            "lost": float(lost),
+            "duplicates": 0.0,
+            "first_index": 0.0,
+        }
+        stats = {t: dict(topic) for t in (*br.BLOCK_TOPICS, "/clock")}
+        rates = {f"rate {t}": 2000.0 for t in stats}
+        return stats | {"_span": {"messages": 8e4, "samples": 6e5, "span_s": 10.0, **rates}}
+
+    monkeypatch.setattr(br, "analyse", analysed)
+    run = {"crashed": {}, "reported": None, "recorder_cores": 0.4}
+    figures = {f.name: f for f in br.report("graph", Path("bag"), run, 10, 20000.0, 3e4)}
+    throughput = figures["[graph] recorder throughput (3 block topics + /clock)"]
+    assert (throughput.met, throughput.value) == (None, 8000.0)
+    for name in ("block", "/clock"):
+        lost_figure = figures[f"[graph] {name} messages lost or duplicated"]
+        assert (lost_figure.target, lost_figure.met) == ("== 0 messages", met)
+    assert figures["[graph] recorder CPU"].met is True
