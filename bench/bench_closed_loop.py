@@ -53,7 +53,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, Figure, compare, info, print_table, write_json
 from flaair_common.graph import Graph
 
 FS = 20000.0
@@ -381,12 +381,12 @@ def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) 
     """
     r_composed, r_separate = rtf(composed["timing"]), rtf(separate["timing"])
     figures = [
-        Figure(
+        compare(
             "composed loop RTF (lockstep, 1 process)",
             r_composed,
             "x",
-            ">= 2.0",
-            r_composed >= 2.0,
+            ">=",
+            2.0,
             f"separate processes {r_separate:.3f} x ({r_composed / r_separate:.2f}x); {load}",
         )
     ]
@@ -394,35 +394,31 @@ def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) 
     nodes = profiled["node_cpu_us"]
     for node in ("plant_node", "frontend_node", "dsa_controller_node"):
         figures.append(
-            Figure(
+            info(
                 f"composed CPU per block: {node}",
                 nodes[node],
                 "us",
-                "",
-                True,
                 f"wall {profiled['node_wall_us'][node]:.0f} us; its callback: core + "
                 "shell + publishes",
             )
         )
     rest = total - sum(nodes.values())
     figures.append(
-        Figure(
+        info(
             "composed CPU per block: rest (executor, DDS threads)",
             rest,
             "us",
-            "",
-            True,
             "process CPU minus the three callbacks",
         )
     )
     figures.append(
-        Figure(
+        compare(
             "composed CPU per block: whole process",
             total,
             "us",
-            "<= 250 (2x RT)",
-            total <= 250.0,
-            "separate processes: "
+            "<=",
+            250.0,
+            "half the 0.5 ms block: 2x real time; separate processes: "
             f"{sum(separate['cpu_per_block_us'].values()):.0f} us "
             f"summed; profiled run RTF {rtf(profiled['timing']):.3f} "
             "x",
@@ -483,23 +479,23 @@ def main() -> int:
     r_single = rtf(single["timing"])
     r = {k: rtf(run["timing"]) for k, run in runs.items()}
     figures.append(
-        Figure(
+        compare(
             "closed loop real-time factor, 1 block in flight",
             r[1],
             "x",
-            ">= 1.0",
-            r[1] >= 1.0,
+            ">=",
+            1.0,
             f"SingleThreadedExecutor {r_single:.3f} x ({r[1] / r_single:.2f}x); {load}",
         )
     )
     for k in (2, 4):
         figures.append(
-            Figure(
+            compare(
                 f"closed loop real-time factor, {k} blocks in flight",
                 r[k],
                 "x",
-                ">= 1.0",
-                r[k] >= 1.0,
+                ">=",
+                1.0,
                 f"pipelined; {r[k] / r[1]:.2f}x the 1-block loop",
             )
         )
@@ -507,12 +503,10 @@ def main() -> int:
     cpu_sum = sum(cpu.values())
     for name in ("plant", "frontend", "controller"):
         figures.append(
-            Figure(
+            info(
                 f"CPU per block: {name} process",
                 cpu[name],
                 "us",
-                "",
-                True,
                 f"SingleThreadedExecutor {single['cpu_per_block_us'][name]:.0f} us; "
                 "whole process incl. rclpy/DDS",
             )
@@ -522,34 +516,31 @@ def main() -> int:
         ("events", "EventsExecutor"),
     ):
         figures.append(
-            Figure(
+            info(
                 f"rclpy ping-pong, {label}: CPU per message",
                 ping[kind]["cpu_us"],
                 "us",
-                "",
-                True,
                 f"round trip {ping[kind]['wall_us']:.0f} us wall; no work in the callback",
             )
         )
     bound1 = 500.0 / cpu_sum
     figures.append(
-        Figure(
+        compare(
             "RTF bound from CPU, 1 in flight (0.5 ms / sum)",
             bound1,
             "x",
-            ">= 1.0",
-            bound1 >= 1.0,
+            ">=",
+            1.0,
             f"sum {cpu_sum:.0f} us per block",
         )
     )
     figures.append(
-        Figure(
+        compare(
             "RTF bound from CPU, pipelined on 2 cores",
             2 * bound1,
             "x",
-            ">= 1.0",
-            2 * bound1 >= 1.0,
-            "",
+            ">=",
+            1.0,
         )
     )
     t = runs[1]["timing"]
@@ -558,19 +549,17 @@ def main() -> int:
     ctrl = (t[k:, 2] - t[k:, 1]) * 1e6
     p50, p99 = pct(loop_out)
     figures.append(
-        Figure(
+        compare(
             "loop outside the controller p50 (drive pub -> wing state)",
             p50,
             "us",
-            "< 500",
-            p50 < 500,
+            "<",
+            500.0,
             f"p99 {p99:.0f} us",
         )
     )
     p50, p99 = pct(ctrl)
-    figures.append(
-        Figure("controller callback -> drive publish p50", p50, "us", "", True, f"p99 {p99:.0f} us")
-    )
+    figures.append(info("controller callback -> drive publish p50", p50, "us", f"p99 {p99:.0f} us"))
     h = hops(probed["timing"], probe, 1)
     for name, label in (
         ("plant", "hop controller -> plant -> sensor_v"),
@@ -582,22 +571,18 @@ def main() -> int:
         if h[name].size:
             p50, p99 = pct(h[name] * 1e6)
             figures.append(
-                Figure(
+                info(
                     f"{label} p50 (probe run)",
                     p50,
                     "us",
-                    "",
-                    True,
                     f"p99 {p99:.0f} us, n={h[name].size}",
                 )
             )
     figures.append(
-        Figure(
+        info(
             "real-time factor of the probe run",
             rtf(probed["timing"]),
             "x",
-            "",
-            True,
             "probe subscribed to 2 streams",
         )
     )

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import psutil
 
-from benchlib import Figure, print_table, write_json
+from benchlib import Figure, compare, info, print_table, write_json
 from flaair_common.graph import Graph, node_argv, wait_for
 from flaair_tools.liveview import live_view
 
@@ -266,28 +266,24 @@ def main() -> int:
         live = run(args.duration, decimation, logs / f"live{decimation}")
         rate, fraction = live["delivered"] / live["wall_s"], live["delivered"] / live["streamed"]
         figures += [
-            Figure(
+            info(
                 f"live view 1/{decimation}: messages/s delivered to a WS client",
                 rate,
                 "msg/s",
-                "reported",
-                True,
                 f"streamed {live['streamed'] / live['wall_s']:,.0f} samples/s to serve",
             ),
-            Figure(
+            compare(
                 f"live view 1/{decimation}: delivered / streamed",
                 fraction,
                 "fraction",
-                ">= 0.95",
-                fraction >= 0.95,
+                ">=",
+                0.95,
                 f"{live['delivered']:,} of {live['streamed']:,.0f}",
             ),
-            Figure(
+            info(
                 f"live view 1/{decimation}: CPU added per signal second",
                 live["fox_cpu_s"] / live["signal_s"],
                 "cpu-s/s",
-                "reported",
-                True,
                 "the source publishing the 4 streams: "
                 f"{live['source_cpu_s'] / live['signal_s']:.2f} cpu-s/s",
             ),

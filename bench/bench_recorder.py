@@ -21,7 +21,10 @@ and the recorder's share of the loss separated from the graph's (a starved realt
 drive catches up in bursts).
 
 Baseline (same run): BagWriter alone writing the recorded serialized blocks (no DDS, no callbacks).
-Throughput is counted over the window in which all four streams were flowing.
+Throughput is counted over the window in which all four streams were flowing, and reported.
+Targets: no block or /clock message lost or duplicated (a scenario that measured nothing fails),
+the recorder under one core; the player's 2 s bag played at --rate 2 ends no earlier than its
+schedule's span and less than 20 ms after it.
 
 Reading the graph scenario: on a loaded machine the realtime plant and drive
 fall behind and catch up in bursts; the plant then rejects gapped command blocks
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -44,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from benchlib import REPO_ROOT, Figure, best_time_s, print_table, write_json
+from benchlib import REPO_ROOT, Figure, best_time_s, compare, info, print_table, write_json
 from flaair_common.graph import Graph as LaunchGraph
 from flaair_model.config import node_parameters
 from flaair_tools import bagio
@@ -338,54 +342,54 @@ def report(
     lost_blocks = sum(stats[t]["lost"] + stats[t]["duplicates"] for t in BLOCK_TOPICS)
     published_blocks = sum(stats[t]["published"] for t in BLOCK_TOPICS)
     lost_clock = stats["/clock"]["lost"] + stats["/clock"]["duplicates"]
-    target_msg_s = (len(BLOCK_TOPICS) + 1) * rate_hz / block_size
-    target_samples_s = len(BLOCK_TOPICS) * rate_hz
+    # what the publishers send: the throughput is reported beside it (`info`); the target is
+    # that nothing is lost (README: "0 lost"), which the two loss counts below enforce
+    nominal_msg_s = (len(BLOCK_TOPICS) + 1) * rate_hz / block_size
+    nominal_samples_s = len(BLOCK_TOPICS) * rate_hz
     msg_s, samples_s, cores = (
         span["messages"] / span["span_s"],
         span["samples"] / span["span_s"],
         run["recorder_cores"],
     )
     return [
-        Figure(
+        info(
             f"[{name}] recorder throughput (3 block topics + /clock)",
             msg_s,
             "msg/s",
-            f">= {target_msg_s:g}",
-            msg_s >= 0.95 * target_msg_s,
-            f"publishers ~{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone "
+            f"published at {nominal_msg_s:g}/s; publishers ~"
+            f"{msg_s * published / max(recorded, 1):,.0f}/s; BagWriter alone "
             f"{baseline_msg_s:,.0f}/s",
         ),
-        Figure(
+        info(
             f"[{name}] recorder throughput, samples (3 x 20 kHz)",
             samples_s,
             "samples/s",
-            f">= {target_samples_s:g}",
-            samples_s >= 0.95 * target_samples_s,
-            f"{int(span['samples'])} samples in {span['span_s']:.2f} s",
+            f"published at {nominal_samples_s:g}/s; {int(span['samples'])} samples in "
+            f"{span['span_s']:.2f} s",
         ),
-        Figure(
+        compare(
             f"[{name}] block messages lost or duplicated",
-            lost_blocks,
+            lost_blocks if published_blocks > 0 else math.nan,  # nothing measured: not "0 lost"
             "messages",
-            "0",
-            lost_blocks == 0,
+            "==",
+            0,
             f"of {int(published_blocks)} published (queues 1000 deep)",
         ),
-        Figure(
+        compare(
             f"[{name}] /clock messages lost or duplicated",
-            lost_clock,
+            lost_clock if stats["/clock"]["published"] > 0 else math.nan,
             "messages",
-            "0",
-            lost_clock == 0,
+            "==",
+            0,
             f"of {int(stats['/clock']['published'])} published (publisher queue {CLOCK_DEPTH} "
             "deep)",
         ),
-        Figure(
+        compare(
             f"[{name}] recorder CPU",
             cores,
             "cores",
-            "< 1",
-            cores < 1.0,
+            "<",
+            1.0,
             "2-core machine shared with other work",
         ),
     ]
@@ -436,15 +440,25 @@ def player_pacing(
             time.sleep(min(wait, 0.1))
     slept_s = time.monotonic() - start
     late_ms = (played_s - span_s) * 1e3
+    # two bounds, each its own comparison: the play never ends before the schedule's span
+    # (never runs ahead) and at most 20 ms after it
     return [
-        Figure(
+        compare(
             "player --rate 2: play time beyond the schedule's span (2 s bag)",
             round(late_ms, 2),
             "ms",
-            "< 20",
-            bool(0 <= late_ms < 20.0),
+            "<",
+            20.0,
             f"wait loop alone: {(slept_s - span_s) * 1e3:.2f} ms",
-        )
+        ),
+        compare(
+            "player --rate 2: play time not short of the schedule's span (2 s bag)",
+            round(late_ms, 2),
+            "ms",
+            ">=",
+            0.0,
+            f"played {played_s:.3f} s against a span of {span_s:.3f} s",
+        ),
     ]
 
 

@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, compare, info, passed_pct, print_table, pytest_counts, write_json
 
 INSTALL = REPO_ROOT.parent / "shared" / "ros2-upstream" / "install.sh"
 PREFIX = REPO_ROOT / ".cache" / "ros2-upstream"
@@ -54,8 +54,7 @@ def main() -> None:
         text=True,
     )
     took_s = time.monotonic() - start
-    passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
-    failed = int(m.group(1)) if (m := re.search(r"(\d+) (failed|error)", result.stdout)) else 0
+    passed, failed = pytest_counts(result.stdout)
     if result.returncode != 0 or built.returncode != 0:
         print(built.stderr[-2000:], result.stdout[-4000:], result.stderr[-2000:], sep="\n")
     tries = m.group(1) if (m := re.search(r"tries: (\[.*\])", result.stdout)) else "?"
@@ -63,23 +62,31 @@ def main() -> None:
     for found in re.finditer(r"(?:same|DIFFERENT): .*", result.stdout):
         print(f"[bench] {found.group(0)[:160]}")
     figures = [
-        Figure(
+        compare(
             "real ROS 2 tools vs FLAAIR: tests passed",
-            passed,
-            "tests",
-            "all, none failed",
-            passed > 0 and failed == 0 and result.returncode == 0,
-            f"{failed} failed; real lists' tries until the whole graph was seen: {tries}",
+            passed_pct(passed, failed, result.returncode == 0),
+            "% of tests",
+            ">=",
+            100.0,
+            f"{passed} passed, {failed} failed (pytest exit code {result.returncode}); real "
+            f"lists' tries until the whole graph was seen: {tries}",
         ),
-        Figure(
+        compare(
+            "upstream tools install (install.sh): exit code",
+            built.returncode,
+            "",
+            "==",
+            0,
+            ("already in .cache/ros2-upstream" if cached else "built from ../shared sources")
+            + f" in {install_s:.1f} s",
+        ),
+        info(
             "upstream tools install (install.sh)",
             round(install_s, 1),
             "s",
-            "(reported)",
-            built.returncode == 0,
             "already in .cache/ros2-upstream" if cached else "built from ../shared sources",
         ),
-        Figure("conformance tests: wall time", round(took_s, 1), "s", "(reported)", True, ""),
+        info("conformance tests: wall time", round(took_s, 1), "s"),
     ]
     print_table(figures)
     if args.json:

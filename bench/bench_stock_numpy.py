@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import subprocess
 import sys
 import sysconfig
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, compare, passed_pct, print_table, pytest_counts, write_json
 
 PINS = REPO_ROOT / "bench" / "stock_jazzy.txt"
 VENV = REPO_ROOT / "out" / "bench" / "stock-jazzy-venv"
@@ -92,8 +91,8 @@ def stock_python() -> Path:
     return python
 
 
-def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str]:
-    """(passed, failed, versions line) of TESTS under `python`."""
+def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str, int]:
+    """(passed, failed, versions line, pytest's exit code) of TESTS under `python`."""
     env = dict(
         os.environ,
         NUMBA_CACHE_DIR=str(numba_cache),
@@ -139,10 +138,10 @@ def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str]:
         text=True,
         timeout=3600,
     )
-    counts = {k: int(n) for n, k in re.findall(r"(\d+) (passed|failed|error)", done.stdout)}
+    passed, failed = pytest_counts(done.stdout)
     if done.returncode not in (0, 1):
         print(done.stdout[-3000:], done.stderr[-3000:], sep="\n")
-    return counts.get("passed", 0), counts.get("failed", 0) + counts.get("error", 0), versions
+    return passed, failed, versions, done.returncode
 
 
 def main() -> None:
@@ -156,13 +155,14 @@ def main() -> None:
         locked_run = pool.submit(run_tests, Path(sys.executable), caches / "locked")
         stock, locked = stock_run.result(), locked_run.result()
     figures = [
-        Figure(
+        compare(
             f"in-process tests on a stock Jazzy stack ({stock[2]})",
-            stock[0],
-            "passed",
-            f"all {stock[0] + stock[1]}",
-            stock[1] == 0 and stock[0] > 0,
-            f"locked stack ({locked[2]}): {locked[0]} passed, {locked[1]} failed",
+            passed_pct(stock[0], stock[1], stock[3] == 0),
+            "% passed",
+            ">=",
+            100.0,
+            f"{stock[0]} passed, {stock[1]} failed (exit code {stock[3]}); locked stack "
+            f"({locked[2]}): {locked[0]} passed, {locked[1]} failed",
         )
     ]
     print_table(figures)

@@ -17,7 +17,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, compare, print_table, write_json
 from flaair_analysis import wingbeat
 from flaair_model.config import config_dir, load_yaml, node_parameters
 from flaair_model.model_io import load_model
@@ -59,23 +59,24 @@ def main() -> int:
                 f"settles {ff['settling_wingbeats']}"
             )
             figures.append(
-                Figure(
+                compare(
                     f"{exp.name}: settling",
                     float("nan") if settle is None else settle,
                     "wingbeats",
-                    "<= 20",
-                    settle is not None and settle <= 20,
+                    "<=",
+                    20,
                     ff_text,
                 )
             )
             figures.append(
-                Figure(
+                compare(
                     f"{exp.name}: steady error",
-                    loop["steady_error_deg"],
+                    abs(loop["steady_error_deg"]),
                     "deg",
-                    "|e| <= 0.5",
-                    abs(loop["steady_error_deg"]) <= 0.5,
-                    f"at {loop['steady_frequency_hz']:.1f} Hz",
+                    "<=",
+                    0.5,
+                    f"error {loop['steady_error_deg']:+.3g} deg at "
+                    f"{loop['steady_frequency_hz']:.1f} Hz",
                 )
             )
     print_table(figures)

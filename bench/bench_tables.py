@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchlib import Figure, print_table, write_json
+from benchlib import Figure, compare, info, print_table, write_json
 from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
 from flaair_analysis.tables.steady_state import steady_response
@@ -108,22 +108,22 @@ def main() -> None:
     )
     naive_err = abs(naive.model.plant.stroke_natural_frequency_hz / 190.0 - 1)
     figures.append(
-        Figure(
+        compare(
             "identify, 60-point table, robot at 190 Hz",
             t_id,
             "s",
-            "< 30 s",
-            t_id < 30,
+            "<",
+            30.0,
             f"one steady state of the table {one:.2f} s",
         )
     )
     figures.append(
-        Figure(
+        compare(
             "identify: stroke frequency error (1 robot)",
             100 * err,
             "%",
-            "< 1 %",
-            err < 0.01,
+            "<",
+            1.0,
             f"started from the configured robot: {100 * naive_err:.1f} %",
         )
     )
@@ -157,49 +157,51 @@ def main() -> None:
                 effect_robots += 1
                 right += family in names
                 tally[0] += family in names
-    figures.append(
-        Figure(
-            f"right effect named or discovered ({effect_robots} robots)",
-            100 * right / max(effect_robots, 1),
-            "%",
-            ">= 80 %",
-            right >= 0.8 * effect_robots,
-            ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in per_family.items() if k != "none"),
+    if effect_robots:  # a run of the no-effect family alone has no effect to name
+        figures.append(
+            compare(
+                f"right effect named or discovered ({effect_robots} robots)",
+                100 * right / effect_robots,
+                "%",
+                ">=",
+                80.0,
+                ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in per_family.items() if k != "none"),
+            )
         )
-    )
-    figures.append(
-        Figure(
-            f"false discoveries, no-effect robots ({none_robots})",
-            100 * false / max(none_robots, 1),
-            "%",
-            "0 %",
-            false == 0,
-            f"{false} of {none_robots} robots named something",
+    if none_robots:
+        figures.append(
+            compare(
+                f"false discoveries, no-effect robots ({none_robots})",
+                100 * false / none_robots,
+                "%",
+                "<=",
+                0.0,
+                f"{false} of {none_robots} robots named something",
+            )
         )
-    )
-    figures.append(
-        Figure(
-            f"discrepancy time per robot, max of {len(times)}",
-            max(times),
-            "s",
-            "< 120 s",
-            max(times) < 120,
-            f"median {np.median(times):.0f} s; 1-min load {load_before:.1f} at the start, "
-            f"{os.getloadavg()[0]:.1f} at the end",
+    if times:
+        figures.append(
+            compare(
+                f"discrepancy time per robot, max of {len(times)}",
+                max(times),
+                "s",
+                "<",
+                120.0,
+                f"median {np.median(times):.0f} s; 1-min load {load_before:.1f} at the start, "
+                f"{os.getloadavg()[0]:.1f} at the end",
+            )
         )
-    )
-    figures.append(
-        Figure(
-            f"discrepancy CPU time per robot (all threads), max of {len(cpu)}",
-            max(cpu),
-            "s",
-            "",
-            True,
-            f"median {np.median(cpu):.0f} s; the cost, not the target (the target is the wall "
-            "time above): the plant batches run on both cores, so on 2 idle cores the wall time "
-            "is about half of this",
+        # the cost, not a target: the wall time above is (the CPU time was held to < 120 s once
+        # and missed it, 145 s on both cores for a dry-friction robot; that bound is not kept)
+        figures.append(
+            info(
+                f"discrepancy CPU time per robot (all threads), max of {len(cpu)}",
+                max(cpu),
+                "s",
+                f"median {np.median(cpu):.0f} s; the plant batches run on both cores, so on 2 "
+                "idle cores the wall time is about half of this",
+            )
         )
-    )
     print_table(figures)
     if args.json:
         write_json(figures, args.json)

@@ -9,13 +9,12 @@ Run: scripts/in_env.sh python bench/bench_workspace.py [--json out.json]
 from __future__ import annotations
 
 import argparse
-import re
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, print_table, write_json
+from benchlib import REPO_ROOT, compare, info, passed_pct, print_table, pytest_counts, write_json
 
 
 def main() -> None:
@@ -40,28 +39,25 @@ def main() -> None:
         text=True,
     )
     took_s = time.monotonic() - start
-    passed = int(m.group(1)) if (m := re.search(r"(\d+) passed", result.stdout)) else 0
-    failed = int(m.group(1)) if (m := re.search(r"(\d+) (failed|error)", result.stdout)) else 0
+    passed, failed = pytest_counts(result.stdout)
     if result.returncode != 0:
         print(result.stdout[-3000:], result.stderr[-2000:], sep="\n")
     start = time.monotonic()
     subprocess.run([str(REPO_ROOT / "scripts" / "setup_env.sh")], capture_output=True)
     setup_s = time.monotonic() - start
     figures = [
-        Figure(
+        compare(
             "plain colcon build + a node from its install tree: tests passed",
-            passed,
-            "tests",
-            "all, none failed",
-            passed > 0 and failed == 0 and result.returncode == 0,
-            f"{failed} failed",
+            passed_pct(passed, failed, result.returncode == 0),
+            "% of tests",
+            ">=",
+            100.0,
+            f"{passed} passed, {failed} failed (pytest exit code {result.returncode})",
         ),
-        Figure(
+        info(
             "plain colcon build + node start: wall time",
             round(took_s, 1),
             "s",
-            "(reported)",
-            True,
             f"setup check with nothing to rebuild: {setup_s:.1f} s",
         ),
     ]

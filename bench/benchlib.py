@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import operator
+import re
 import sys
 import time
 from collections.abc import Callable
@@ -90,10 +91,17 @@ def target_text(op: str | None, bound: float | None, unit: str) -> str:
 def compare(
     name: str, value: float, unit: str, op: str, bound: float, baseline: str = ""
 ) -> Figure:
-    """A figure with a verdict: met iff `value op bound`."""
+    """A figure with a verdict: met iff `value op bound`.
+
+    The bound is kept as printed (`bound:g`, six significant digits), so the target a reader sees
+    is the one enforced to the last digit; a bound that is not a finite number is refused (a
+    `<= inf` could never fail).
+    """
     if op not in OPERATORS:
         raise ValueError(f"unknown comparison {op!r} (known: {', '.join(OPERATORS)})")
-    return Figure(name, _number(value), unit, op, float(bound), baseline)
+    if not math.isfinite(float(bound)):
+        raise ValueError(f"{name}: the bound of a comparison must be a finite number, got {bound}")
+    return Figure(name, _number(value), unit, op, float(f"{float(bound):g}"), baseline)
 
 
 def info(name: str, value: float, unit: str, baseline: str = "") -> Figure:
@@ -104,6 +112,35 @@ def info(name: str, value: float, unit: str, baseline: str = "") -> Figure:
 def _number(value: object) -> float:
     value = value.item() if hasattr(value, "item") else value
     return float(value) if value is not None else math.nan  # type: ignore[arg-type]
+
+
+def pytest_counts(output: str) -> tuple[int, int]:
+    """(passed, failed or errored) from pytest's summary line (the last of `output` that reads
+    'N passed, M failed ... in T s'); (0, 0) without one.
+    """
+    summary = next(
+        (
+            line
+            for line in reversed(output.splitlines())
+            if re.search(r"\d+ (passed|failed|errors?|skipped|deselected)\b", line)
+            and re.search(r"\bin [\d.]+s\b", line)
+        ),
+        "",
+    )
+    counts = {k: int(n) for n, k in re.findall(r"(\d+) (passed|failed|errors?)\b", summary)}
+    return counts.get("passed", 0), sum(counts.get(k, 0) for k in ("failed", "error", "errors"))
+
+
+def passed_pct(passed: int, failed: int, clean_exit: bool = True) -> float:
+    """Share of the tests run that passed (%), for a `>= 100 %` comparison.
+
+    NaN (which fails every comparison) when no test ran, or when the run did not end cleanly
+    (`clean_exit` False: pytest's exit code not 0) with no failure counted, so an interrupted or
+    unparsed run never reads as all passed.
+    """
+    if passed + failed == 0 or (not clean_exit and failed == 0):
+        return math.nan
+    return 100.0 * passed / (passed + failed)
 
 
 def best_time_s(fn: Callable[[], object], repeats: int = 3) -> float:
