@@ -23,7 +23,6 @@ import benchlib  # bench/ is not a package: on the path above
 
 # bench/run_all.py reads the parts' JSON back into figures and is being moved to
 # `benchlib.figure_from_row` on its own branch; until that lands it still builds them by hand
-CONVERTING_ELSEWHERE = {"run_all.py"}
 
 # for each operator: (bound, values that pass, values just past the bound that fail)
 NEXT_UP, NEXT_DOWN = math.nextafter(1.0, 2.0), math.nextafter(1.0, 0.0)
@@ -76,9 +75,8 @@ def test_figures_are_made_by_compare_or_info_only(path: Path) -> None:
     """
     tree = ast.parse(path.read_text(), filename=str(path))
     calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)]
-    if path.name not in CONVERTING_ELSEWHERE:
-        by_hand = [n.lineno for n in calls if _called(n) == "Figure"]
-        assert by_hand == [], f"{path.name}: Figure(...) called by hand at lines {by_hand}"
+    by_hand = [n.lineno for n in calls if _called(n) == "Figure"]
+    assert by_hand == [], f"{path.name}: Figure(...) called by hand at lines {by_hand}"
     met = [n.lineno for n in calls for k in n.keywords if k.arg == "met"]
     assert met == [], f"{path.name}: a verdict passed by hand (met=) at lines {met}"
     compares = _benchlib_names(tree, "compare")
