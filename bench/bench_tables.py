@@ -6,7 +6,9 @@ tables of 3 drive levels (20, 40, 60 V) x 20 frequencies (0.6-1.6 x resonance) w
 noise and 30 % of pitch cells missing. Families: no effect; one amplitude-dependent effect
 (structural damping, hinge stiffening, collision, actuator saturation as a drive_cube term, dry
 friction on the stroke as a sign_velocity term).
-Every figure names its robot count. Baselines (same run): identify started from the configured
+Each robot is scored by the one exact rule (`flaair_analysis.exact_score`): right iff its status,
+its named effects and its discovered terms all equal the truth's; the right effect among the
+names found is printed beside it as `info`. Every figure names its robot count. Baselines (same run): identify started from the configured
 robot instead of the table's peaks; the steady state of one table (one batch).
 
   nice -n 10 python bench/bench_tables.py --draws 1
@@ -23,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import Figure, compare, info, print_table, write_json
+from flaair_analysis.exact_score import score_exact
 from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
 from flaair_analysis.tables.steady_state import steady_response
@@ -65,6 +68,18 @@ def robot(rng: np.random.Generator, family: str):
         term = DiscoveredTerm("sign_velocity", "stroke_dynamics", -rng.uniform(1.0e-6, 2.0e-6))
         true = replace(true, discovered=(term,))
     return m, true
+
+
+def truth_of(family: str) -> dict:
+    """The exact truth a family's robot must be scored against (`score_exact`'s expected_*)."""
+    if family == "none":
+        return {"expected_status": "no_discrepancy", "expected_names": (), "expected_terms": ()}
+    is_term = "@" in family
+    return {
+        "expected_status": "explained",
+        "expected_names": () if is_term else (family,),
+        "expected_terms": (family,) if is_term else (),
+    }
 
 
 def table_of(true, rng, s):
@@ -128,8 +143,9 @@ def main() -> None:
         )
     )
     rng = np.random.default_rng(2026)
-    right, effect_robots, false, none_robots, times, cpu = 0, 0, 0, 0, [], []
-    per_family: dict[str, list[int]] = {}  # family -> [right, robots]
+    exact, among, effect_robots, false, none_robots, times, cpu = 0, 0, 0, 0, 0, [], []
+    per_family: dict[str, list[int]] = {}  # family -> [exactly right, robots]
+    wrong: list[str] = []
     load_before = os.getloadavg()[0]
     for family in FAMILIES:
         for _ in range(args.draws):
@@ -142,36 +158,58 @@ def main() -> None:
             times.append(time.perf_counter() - t0)
             cpu.append(time.process_time() - c0)
             names = [j.candidate.name for j in r.accepted]
+            score = score_exact(
+                status=r.status,
+                names=[j.candidate.name for j in r.accepted if not j.candidate.is_term],
+                terms=[j.candidate.name for j in r.accepted if j.candidate.is_term],
+                **truth_of(family),
+            )
             print(
                 f"  {family:20s} {r.status:15s} {names} {times[-1]:.0f} s "
-                f"(CPU {cpu[-1]:.0f} s, load {os.getloadavg()[0]:.1f})",
+                f"(CPU {cpu[-1]:.0f} s, load {os.getloadavg()[0]:.1f})"
+                + ("" if score.right else f" NOT RIGHT: {'; '.join(score.problems())}"),
                 flush=True,
             )
             tally = per_family.setdefault(family, [0, 0])
             tally[1] += 1
+            tally[0] += score.right
+            if not score.right:
+                wrong.append(f"{family}: {'; '.join(score.problems())}")
             if family == "none":
                 none_robots += 1
                 false += bool(names)
-                tally[0] += not names
             else:
                 effect_robots += 1
-                right += family in names
-                tally[0] += family in names
+                exact += score.right
+                among += family in names
     if effect_robots:  # a run of the no-effect family alone has no effect to name
         figures.append(
             compare(
-                f"right effect named or discovered ({effect_robots} robots)",
-                100 * right / effect_robots,
+                f"exactly right, effect tables ({exact}/{effect_robots} robots)",
+                100 * exact / effect_robots,
                 "%",
                 ">=",
                 80.0,
-                ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in per_family.items() if k != "none"),
+                ", ".join(f"{k} {v[0]}/{v[1]}" for k, v in per_family.items() if k != "none")
+                + (
+                    f"; wrong: {' | '.join(w for w in wrong if not w.startswith('none'))}"
+                    if exact < effect_robots
+                    else ""
+                ),
+            )
+        )
+        figures.append(
+            info(
+                f"right effect among the names found ({among}/{effect_robots} robots)",
+                100 * among / effect_robots,
+                "%",
+                "secondary to exactly right: extra names and the status not judged",
             )
         )
     if none_robots:
         figures.append(
             compare(
-                f"false discoveries, no-effect robots ({none_robots})",
+                f"false discoveries, no-effect robots ({false}/{none_robots})",
                 100 * false / none_robots,
                 "%",
                 "<=",

@@ -59,7 +59,6 @@ BLOCKS = (
             r"^composed closed loop",
             r"^live .*late or missing",
             r"^health .*detected",
-            r"^right effect named or discovered",
             r"^multisine",
         ),
         with_baseline=False,
