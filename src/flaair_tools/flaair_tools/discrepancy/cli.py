@@ -45,6 +45,7 @@ from typing import Any
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
@@ -54,6 +55,11 @@ from .run_inputs import InputError, bad_input_errors, load_inputs
 from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
+USAGE = (
+    "flaair discrepancy [RUN ...] [--table TABLE.csv] --out DIR [--model FILE] [--force]\n"
+    "       [--validate [--cases NAME ...]] [--validation FILE]\n"
+    "       (runs, a table, or both; or --validate alone)"
+)
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
 
@@ -100,10 +106,21 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
 def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
     parser.add_argument(
-        "inputs", nargs="*", type=Path, help="measured-run CSV files and/or bag directories"
+        "inputs",
+        nargs="*",
+        type=Path,
+        metavar="RUN",
+        help="measured-run CSV files and/or bag directories (optional with --table or --validate)",
+    )
+    parser.add_argument(
+        "--table",
+        type=Path,
+        metavar="TABLE.csv",
+        help="a lab's frequency-response table of the robot: alone, or with the runs "
+        "(docs/TABLES.md) (default: none)",
     )
     parser.add_argument(
         "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"

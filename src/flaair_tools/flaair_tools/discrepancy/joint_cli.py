@@ -29,6 +29,7 @@ from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.tables.joint import JointFit, identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model import settings as config
 from flaair_model.model_io import load_model, save_model
@@ -57,9 +58,7 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def _parse(prog: str, argv: list[str] | None, files: tuple[str, ...]):
-    parser = argparse.ArgumentParser(
-        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=HelpFormatter)
     parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bags")
     parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
     parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")

@@ -33,6 +33,7 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -481,7 +482,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair experiment",
         description=__doc__.format(names=", ".join(experiments)),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("name", nargs="?", help="experiment name (see --list)")
     parser.add_argument("--out", type=Path, help="bag directory to create")

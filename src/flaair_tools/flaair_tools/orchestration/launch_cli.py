@@ -24,6 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -56,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair launch",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("package", help="package holding the launch file, e.g. flaair_tools")
     parser.add_argument("file", help="launch file name in its share/PACKAGE/launch, or a path")

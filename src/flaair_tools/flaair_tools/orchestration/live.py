@@ -1,4 +1,4 @@
-"""`flaair live`: bring up the live graph around a real bench (or the simulated robot), record it.
+r"""`flaair live`: bring up the live graph around a real bench (or the simulated robot), record it.
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
@@ -46,6 +46,7 @@ from pathlib import Path
 import yaml
 
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -469,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair live",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--sim", action="store_true", help="the simulated robot, paced in real time")
