@@ -272,3 +272,18 @@ def test_epilog_example_lines_fit_a_terminal_and_are_not_rewrapped() -> None:
             if "bin/flaair" in text:
                 assert all(line in parser.format_help() for line in text.split("\n") if line), label
     assert not long_lines, "\n".join(long_lines)
+
+
+TERMS = ("dSA", "K_r", "lockstep", "vocabulary", "discovered", "held-out", "Hopf", "V_HREF")
+
+
+@pytest.mark.timeout(60)
+def test_a_help_that_uses_a_glossary_term_points_to_the_glossary() -> None:
+    unexplained = []
+    for label, parser in command_parsers():
+        text = parser.format_help()
+        used = [t for t in TERMS if re.search(rf"(?<![\w-]){re.escape(t)}(?![\w-])", text)]
+        subcommand = "--help " in label  # `topic --help echo`: the verb's own help
+        if used and "docs/GLOSSARY.md" not in text and not subcommand:
+            unexplained.append(f"{label}: {used}")
+    assert not unexplained, "helps using terms without docs/GLOSSARY.md:\n" + "\n".join(unexplained)

@@ -10,6 +10,8 @@ With several runs, gains and lags are fitted per run and combined (median); the 
 
 Example:
   bin/flaair calibrate out/demo/bags/characterization_chirp --out out/cal
+
+Terms (V_HREF): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

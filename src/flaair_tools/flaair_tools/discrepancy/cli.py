@@ -1,6 +1,6 @@
 """`flaair discrepancy`: find where the model and the measurement disagree, and fix the model.
 
-Inputs are measured-run CSV files (docs/LAB_CSV_FORMAT.md) and/or bags (runs marked on
+Inputs are measured-run CSV files (docs/formats/MEASURED_RUN_CSV.md) and/or bags (runs marked on
 /flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). First
 this robot's own plant parameters are fitted (as `flaair identify` does: natural frequencies,
 damping, actuator gain, couplings); then every run is simulated with its recorded drive from
@@ -31,6 +31,8 @@ Examples
                      docs/TABLES.md)
   bin/flaair discrepancy lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/joint
                      (runs and a table of the same robot together, docs/TABLES.md)
+
+Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

@@ -23,6 +23,8 @@ Examples
   bin/flaair identify lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/robot3-joint
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
+
+Terms (identification, held-out): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

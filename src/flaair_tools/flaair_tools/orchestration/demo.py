@@ -61,7 +61,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)"
     )
-    parser.add_argument("--only", nargs="*", help="run only these experiments")
+    parser.add_argument(
+        "--only", nargs="*", help="run only these experiments (default: all of them)"
+    )
     args = parser.parse_args(argv)
     experiments = load_experiments()
     names = args.only or list(experiments)

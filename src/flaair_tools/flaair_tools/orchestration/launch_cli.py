@@ -14,6 +14,8 @@ Examples
   bin/flaair launch flaair_tools record.launch.xml output_path:=out/bags/run1 --domain-id 7
   bin/flaair launch flaair_tools live_sim.launch.xml --print     # what it would start
   bin/flaair launch flaair_tools lockstep_loop.launch.xml --show-args
+
+Terms (lockstep): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

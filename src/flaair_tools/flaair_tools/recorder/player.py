@@ -90,7 +90,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help=f"playback speed, 1 = real time (default {defaults['rate']})",
     )
     pace.add_argument("--fast", action="store_true", help="publish as fast as possible")
-    parser.add_argument("--topics", nargs="+", default=None, help="replay only these topics")
+    parser.add_argument(
+        "--topics", nargs="+", default=None, help="replay only these topics (default: every topic)"
+    )
     parser.add_argument(
         "--clock",
         action="store_true",

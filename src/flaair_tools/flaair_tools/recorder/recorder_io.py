@@ -113,7 +113,12 @@ def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair recor
         formatter_class=HelpFormatter,
         epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME),
     )
-    parser.add_argument("-o", "--output", help="bag directory to create")
+    parser.add_argument(
+        "-o",
+        "--output",
+        help="bag directory to create (default: out/bags/flaair_<date>_<time>, "
+        "config/flaair.yaml recorder_node.output_path)",
+    )
     parser.add_argument(
         "--topics",
         nargs="+",

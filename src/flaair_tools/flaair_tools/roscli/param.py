@@ -17,6 +17,8 @@ Examples
   bin/flaair param list /plant_node
   bin/flaair param get /plant_node mode
   bin/flaair param set /dsa_controller_node kr_target 0.0     # K_r ramps to asynchronous from now
+
+Terms (K_r): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

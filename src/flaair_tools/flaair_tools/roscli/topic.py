@@ -24,6 +24,8 @@ Examples
   bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
   bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock \
       '{"drive_v": [1.0, 2.0]}' --count 3
+
+Terms (K_r): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

@@ -26,6 +26,8 @@ stroke: the stroke controller's three experiments (flaair_tools.sweeps.stroke_ex
 each in DIR/bags, analysed from the bags: DIR/stroke.json, DIR/stroke_*.png, DIR/reading.md.
 
 Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted.
+
+Terms (dSA, Hopf): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

@@ -9,6 +9,8 @@ value, nominal, start, stderr; correlations; what the table cannot separate; not
 Exit status: 0 when fitted, 2 on bad input (one line naming the line and column, or an --out
 that would overwrite an input or an existing output without --force; nothing written), 130
 when interrupted.
+
+Terms (held-out): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
