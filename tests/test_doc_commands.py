@@ -305,3 +305,39 @@ def test_every_relative_link_in_the_docs_names_a_file_that_exists() -> None:
             if not (path.parent / target).exists() and Path(target).name not in PENDING:
                 broken.append(f"{path.relative_to(ROOT)}: {target}")
     assert not broken, "links to nothing:\n" + "\n".join(broken)
+
+
+@pytest.mark.timeout(30)
+def test_the_readme_quickstart_is_the_tested_walk_through() -> None:
+    """README's four commands are docs/LAB_FILES.md's walk-through (run as written by
+    tests/test_lab_example.py), in order, writing apart; the output shown is theirs."""
+    from test_lab_example import walk_through
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    quick = text.split("## Quickstart", 1)[1].split("\n## ", 1)[0]
+    commands = [words for _, words in command_lines_of(quick)]
+    assert [c[1] for c in commands] == ["import", "calibrate", "analyze", "discrepancy"]
+    tested = walk_through()
+    assert all(c in tested for c in commands), "README's quickstart left the walk-through"
+    assert [tested.index(c) for c in commands] == sorted(tested.index(c) for c in commands)
+    outs = [c[c.index("--out") + 1] for c in commands]
+    assert len(set(outs)) == 4 and outs[0] in commands[1] and outs[1] in " ".join(commands[2])
+    shown = " ".join(quick.split())
+    assert (
+        "run01: 10000 samples at 5000 Hz (first_sample_index 0) from "
+        "examples/lab_session/run01.mat; video 2000 fps, 800 frames (99.0 % tracked), 800 "
+        "placed, 0 outside the log; trigger at 0.800000 s; video vs stroke sensor +0.016 ms "
+        "(correlation +0.999)"
+    ) in shown
+    assert "efficiency=0.23" in shown  # the strain transfer the walk-through test checks
+
+
+def command_lines_of(text: str) -> Iterator[tuple[int, list[str]]]:
+    """(line number, words) of each one-line `bin/flaair` command in the text's code blocks."""
+    lines = text.split("\n")
+    fenced = False
+    for number, line in enumerate(lines, 1):
+        if line.startswith("```"):
+            fenced = not fenced
+        elif fenced and line.startswith("bin/flaair "):
+            yield number, shlex.split(line, comments=True)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flaair_common.runcsv import read_run
-from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
+from rosproc import FLAAIR, OFFLINE_COMMANDS, REPO_ROOT, isolated_env, run, run_offline
 
 FORMATS = REPO_ROOT / "docs" / "formats"
 RUNS = [REPO_ROOT / "examples" / "runs" / f"run0{k}.csv" for k in (1, 2)]
@@ -75,13 +75,14 @@ def test_every_guide_command_names_files_that_exist_and_writes_apart() -> None:
     assert len(set(outs)) == len(outs), outs
 
 
-@pytest.mark.slow  # runs the commands as processes (imports, a bag, a fit): about a minute
+@pytest.mark.slow  # runs five commands (a bag, a simulation, two fits): about half a minute
 @pytest.mark.timeout(600)
 def test_the_quick_commands_of_the_csv_and_table_guides_run(tmp_path: Path) -> None:
     for doc in ("MEASURED_RUN_CSV.md", "SWEEP_TABLE.md"):
         for command in try_it(FORMATS / doc):
             args = [str(tmp_path / a) if a.startswith("out/") else a for a in command[1:]]
-            result = run_offline([FLAAIR, *args], isolated_env(), 300)
+            runner = run_offline if args[0] in OFFLINE_COMMANDS else run
+            result = runner([FLAAIR, *args], isolated_env(), 300)
             assert result.returncode == 0, (command, result.stderr[-2000:])
     assert (tmp_path / "out/bags/runs/metadata.yaml").is_file()
     assert read_run(tmp_path / "out/sim/run01.csv").sample_rate_hz == pytest.approx(10000.0)
