@@ -310,7 +310,8 @@ def test_every_relative_link_in_the_docs_names_a_file_that_exists() -> None:
 @pytest.mark.timeout(30)
 def test_the_readme_quickstart_is_the_tested_walk_through() -> None:
     """README's four commands are docs/LAB_FILES.md's walk-through (run as written by
-    tests/test_lab_example.py), in order, writing apart; the output shown is theirs."""
+    tests/test_lab_example.py), in order, writing apart; the output shown is theirs.
+    """
     from test_lab_example import walk_through
 
     text = (ROOT / "README.md").read_text(encoding="utf-8")
