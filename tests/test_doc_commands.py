@@ -25,6 +25,7 @@ import pytest
 
 from flaair_common.cli_help import shows_default
 from flaair_tools import cli
+from test_lab_example import walk_through
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
@@ -312,8 +313,6 @@ def test_the_readme_quickstart_is_the_tested_walk_through() -> None:
     """README's four commands are docs/LAB_FILES.md's walk-through (run as written by
     tests/test_lab_example.py), in order, writing apart; the output shown is theirs.
     """
-    from test_lab_example import walk_through
-
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     quick = text.split("## Quickstart", 1)[1].split("\n## ", 1)[0]
     commands = [words for _, words in command_lines_of(quick)]

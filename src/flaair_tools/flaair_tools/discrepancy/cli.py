@@ -125,9 +125,13 @@ def main(argv: list[str] | None = None) -> int:
         "(docs/TABLES.md) (default: none)",
     )
     parser.add_argument(
-        "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"
+        "--model",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="model YAML (default: config/model.yaml)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     parser.add_argument(
         "--validate", action="store_true", help="also run the hidden-effect dataset cases"

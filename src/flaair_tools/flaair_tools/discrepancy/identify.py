@@ -88,9 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         "--model",
         type=Path,
         default=None,
+        metavar="FILE",
         help="model YAML to start from (default: config/model.yaml)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     args = parser.parse_args(argv)
     if not args.inputs:
