@@ -5,6 +5,7 @@ scripts/make_format_examples.py writes.
 
 from __future__ import annotations
 
+import json
 import math
 import shlex
 import sys
@@ -106,3 +107,21 @@ def test_the_shipped_examples_are_what_the_script_writes(tmp_path: Path) -> None
         # another CPU's last bits: the same numbers to the digits written
         a, b = (np.genfromtxt(p, delimiter=",", skip_header=1) for p in (fresh, shipped))
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6, err_msg=shipped.name)
+
+
+@pytest.mark.slow  # the discrepancy workflow on two runs: about 10 s
+@pytest.mark.timeout(300)
+def test_discrepancy_md_example_finds_the_hinge_films_strain_transfer(tmp_path: Path) -> None:
+    """docs/DISCREPANCY.md's example: the two example runs end `explained` with the bench
+    robot's strain transfer (0.23) named, as the guide shows.
+    """
+    command = [FLAAIR, "discrepancy", *map(str, RUNS), "--out", str(tmp_path / "disc")]
+    result = run_offline(command, isolated_env(), 300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "status explained" in result.stdout
+    found = json.loads((tmp_path / "disc" / "discrepancy.json").read_text())
+    assert found["status"] == "explained"
+    assert [e["name"] for e in found["effects"]] == ["strain_transfer_loss"]
+    assert found["effects"][0]["parameters"]["efficiency"] == pytest.approx(0.23, abs=0.005)
+    assert not found["discovered"]
+    assert "status explained" in (REPO_ROOT / "docs" / "DISCREPANCY.md").read_text()
