@@ -1,5 +1,6 @@
 """Each package.xml declares what its code imports, so `rosdep install` can set a ROS 2 workspace
-up; what rosdep has no key for is the README's one pip step, pinned as in requirements.lock.
+up; what rosdep has no key for is the one pip step of docs/ROS2_WORKSPACE.md, pinned as in
+requirements.lock.
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ ROSDEP_KEYS = {
         )
     },
 }
-# Imported, but with no rosdep key: installed by the README's pip step (PyPI distribution names).
+# Imported, but with no rosdep key: installed by docs/ROS2_WORKSPACE.md's pip step (PyPI
+# distribution names).
 PIP_ONLY = {
     "dask": "dask",
     "distributed": "distributed",
@@ -86,12 +88,12 @@ def test_the_pip_step_installs_what_rosdep_cannot_at_the_locked_versions() -> No
         re.findall(r"^([A-Za-z0-9_.-]+)==(\S+)", (ROOT / "requirements.lock").read_text(), re.M)
     )
     lock = {name.lower(): version for name, version in lock.items()}
-    readme = (ROOT / "README.md").read_text()
-    step = re.search(r"^pip install (.+)$", readme, re.M)
-    assert step, "README: no `pip install` line for the packages rosdep has no key for"
+    guide = (ROOT / "docs" / "ROS2_WORKSPACE.md").read_text()
+    step = re.search(r"^pip install (.+)$", guide, re.M)
+    assert step, "docs/ROS2_WORKSPACE.md: no `pip install` line for what rosdep has no key for"
     used = set().union(*(imported_modules(p) for p in PACKAGES)) & set(PIP_ONLY)
     for module in sorted(used):
         distribution = PIP_ONLY[module]
         assert f"{distribution}=={lock[distribution]}" in step.group(1).split(), (
-            f"README's pip step lacks {distribution}=={lock[distribution]}"
+            f"docs/ROS2_WORKSPACE.md's pip step lacks {distribution}=={lock[distribution]}"
         )

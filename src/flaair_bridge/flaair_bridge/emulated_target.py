@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.realtime import take_realtime_priority
 
 # magic, sequence, first_sample_index, sample_rate_hz, n, flags
@@ -218,7 +219,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="emulated_target",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "--bridge",

@@ -16,12 +16,14 @@ Load no rclpy on import:
 - `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
 - `health`: a node's health as data (what /diagnostics carries), decided by pure functions;
 - `signal_ranges`: the plausible range of each measured-run column;
-- `outputs`: a command's `--out` checked first (never an input, `--force` to replace).
+- `outputs`: a command's `--out` checked first (never an input, `--force` to replace);
+- `cli_help`: the help formatter of every command line (each option's default shown).
 """
 
 __all__ = [
     "blocks",
     "cdr",
+    "cli_help",
     "container",
     "graph",
     "health",

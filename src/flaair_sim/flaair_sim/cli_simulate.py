@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.runcsv import RunFileError, read_run, write_run
 from flaair_model.config import ConfigError
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair simulate",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("input", type=Path, help="measured-run CSV with time_s and drive_v")
     parser.add_argument(

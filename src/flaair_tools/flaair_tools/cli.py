@@ -42,7 +42,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "import": (
         "flaair_tools.bagio.import_cli",
-        "turn a lab's runs (CSV exports, or MAT logs with DLTdv8 tracks) into a bag",
+        "turn a lab's runs (CSV exports, or MAT logs with DLTdv5-8a tracks) into a bag",
     ),
     "record": (
         "flaair_tools.recorder.recorder_node",
@@ -76,15 +76,15 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "discrepancy": (
         "flaair_tools.discrepancy",
-        "find where model and measurement disagree and fix the model",
+        "find where the model is wrong: name the missing effect (runs and/or a table)",
     ),
     "identify": (
         "flaair_tools.discrepancy.identify",
-        "fit this robot's plant parameters (frequencies, damping, gain, couplings) from its runs",
+        "fit this robot's plant (frequencies, damping, gain, couplings) to its runs or table",
     ),
     "sweep": (
         "flaair_tools.sweeps.sweep_cli",
-        "simulation studies on Dask (wing damage, dSA map) and the stroke-controller experiments",
+        "simulation studies on Dask (wing damage, dSA map) and the stroke-control experiments",
     ),
     "demo": (
         "flaair_tools.orchestration.demo",
@@ -92,24 +92,45 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
 }
 
-USAGE = """usage: bin/flaair <command> [args...]
+# The top-level help's groups, by job, in this order; a command in no group is listed last.
+GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    (
+        "run a bench (the simulated robot, or a real-time target)",
+        ("demo", "experiment", "live", "foxglove", "sweep", "multisine"),
+    ),
+    ("bring a lab's data", ("import", "import-table")),
+    ("analyse", ("calibrate", "analyze", "identify", "discrepancy", "health", "simulate")),
+    (
+        "ROS tools (stand-ins for ros2 run, launch, node, topic, param, service, bag)",
+        ("run", "launch", "node", "topic", "param", "service", "record", "play", "bag"),
+    ),
+)
+RUN_HELP = "start a node, like `ros2 run`: run <package> <executable> [--ros-args ...]"
 
-commands:
-  run <package> <executable> [--ros-args ...]   start a node, like `ros2 run`
+USAGE = """usage: bin/flaair <command> [args...]
 {commands}
 
-`bin/flaair <command> --help` explains each command. A command or node that seems stuck:
+`bin/flaair <command> --help` explains each command, every option with its default.
+Guides: README.md and docs/ (terms: docs/GLOSSARY.md). A command or node that seems stuck:
 `kill -USR1 PID` writes where each of its threads is to its stderr (a node's: its log)."""
 
 
 def _usage() -> str:
     # the commands whose package is installed (found without importing it: --help stays quick)
-    available = [
-        f"  {name:44s} {text}"
+    available = {
+        name: text
         for name, (module, text) in SUBCOMMANDS.items()
         if importlib.util.find_spec(module.split(".", 1)[0]) is not None
-    ]
-    return USAGE.format(commands="\n".join(available))
+    }
+    available["run"] = RUN_HELP
+    grouped = [name for _, names in GROUPS for name in names]
+    groups = [*GROUPS, ("other", tuple(n for n in available if n not in grouped))]
+    lines = []
+    for title, names in groups:
+        shown = [n for n in names if n in available]
+        if shown:
+            lines += ["", f"{title}:", *(f"  {n:14s} {available[n]}" for n in shown)]
+    return USAGE.format(commands="\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,4 +1,4 @@
-"""`flaair analyze BAG... --out DIR`: the paper's analysis of experiments and lab runs, from bags.
+r"""`flaair analyze BAG... --out DIR`: the paper's analysis of experiments and lab runs, from bags.
 
 Every run's drive is recognised from the drive signal itself (chirp, stepped sine, single sine,
 dSA transition, free run; flaair_tools.analysis.runkind) unless the bag says what it is (a FLAAIR
@@ -27,7 +27,7 @@ Partial bags: a run holding less than its marker announced (a recovered bag, a r
 or a recorded run missing altogether is reported with what is missing (runs, step
 frequencies, sweep range). The exit code is then 3, unless --allow-partial is given (0).
 
-Run CSV columns and units: docs/LAB_CSV_FORMAT.md.
+Run CSV columns and units: docs/formats/MEASURED_RUN_CSV.md. Terms: docs/GLOSSARY.md.
 
 Exit codes: 0 done; 2 bad input (bag, calibration file); 3 partial data without --allow-partial.
 
@@ -52,6 +52,7 @@ from tqdm import tqdm
 
 from flaair_analysis.headline import headline
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
@@ -486,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair analyze",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "bags",

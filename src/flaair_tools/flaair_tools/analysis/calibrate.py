@@ -10,6 +10,8 @@ With several runs, gains and lags are fitted per run and combined (median); the 
 
 Example:
   bin/flaair calibrate out/demo/bags/characterization_chirp --out out/cal
+
+Terms (V_HREF): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model
@@ -73,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair calibrate",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "bags",

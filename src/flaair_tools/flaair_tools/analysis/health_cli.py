@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_control.core import health
@@ -137,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair health",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "bags", nargs="+", type=Path, help="bags with /flaair/sensor_v and /flaair/drive[/applied]"

@@ -3,10 +3,11 @@
 Two kinds of input, each giving the same bag (drive and sensor blocks on the DAQ clock, ground
 truth where the video saw the wing, NaN between, one run marker per run):
 
-  measured-run CSV exports (docs/LAB_CSV_FORMAT.md), any number per call:
-    bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--gap-s S] [--kind KIND]
+  measured-run CSV exports (docs/formats/MEASURED_RUN_CSV.md), any number per call:
+    bin/flaair import RUN.csv [RUN.csv ...] --out BAG [--rest-s S] [--kind KIND]
 
-  a real-time target's MAT log with its DLTdv8 video tracks and the bench's rig file
+  a real-time target's MAT log with its DLTdv video tracks (DLTdv5 to DLTdv8a) and the
+  bench's rig file
   (docs/LAB_FILES.md), one run:
     bin/flaair import RUN.mat --rig RIG.yaml --tracks RUN_xyzpts.csv
                       [--tip-track RUN_xypts.csv] --out BAG
@@ -31,6 +32,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.runcsv import RunFileError
 from flaair_model.config import ConfigError, node_parameters
 from flaair_tools import bagio
@@ -50,7 +52,7 @@ def _parser(defaults: dict) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="flaair import",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "runs",
@@ -60,10 +62,15 @@ def _parser(defaults: dict) -> argparse.ArgumentParser:
     )
     parser.add_argument("-o", "--out", type=Path, required=True, help="bag directory to create")
     parser.add_argument(
+        "--rest-s",
         "--gap-s",
+        dest="gap_s",
         type=float,
         default=float(defaults["gap_s"]),
-        help=f"time between runs [s] (default {defaults['gap_s']})",
+        metavar="S",
+        help="CSV runs: the rest between one run's end and the next run's start on the bag's "
+        "timeline [s] (--gap-s is the old name) (default: %(default)s, "
+        "config/flaair.yaml import_runs.gap_s)",
     )
     parser.add_argument(
         "--kind",
@@ -74,11 +81,13 @@ def _parser(defaults: dict) -> argparse.ArgumentParser:
     )
     lab = parser.add_argument_group("a lab's MAT log and video tracks (docs/LAB_FILES.md)")
     lab.add_argument("--rig", type=Path, help="the bench's rig file (YAML)")
-    lab.add_argument("--tracks", type=Path, help="DLTdv8 3D points of the run (*_xyzpts.csv)")
+    lab.add_argument(
+        "--tracks", type=Path, help="DLTdv (5 to 8a) 3D points of the run (*_xyzpts.csv)"
+    )
     lab.add_argument(
         "--tip-track",
         type=Path,
-        help="DLTdv8 2D points (*_xypts.csv) holding the actuator tip, for "
+        help="DLTdv (5 to 8a) 2D points (*_xypts.csv) holding the actuator tip, for "
         "stroke_from: actuator_tip",
     )
     lab.add_argument(

@@ -1,6 +1,6 @@
 """`flaair discrepancy`: find where the model and the measurement disagree, and fix the model.
 
-Inputs are measured-run CSV files (docs/LAB_CSV_FORMAT.md) and/or bags (runs marked on
+Inputs are measured-run CSV files (docs/formats/MEASURED_RUN_CSV.md) and/or bags (runs marked on
 /flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). First
 this robot's own plant parameters are fitted (as `flaair identify` does: natural frequencies,
 damping, actuator gain, couplings); then every run is simulated with its recorded drive from
@@ -31,6 +31,8 @@ Examples
                      docs/TABLES.md)
   bin/flaair discrepancy lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/joint
                      (runs and a table of the same robot together, docs/TABLES.md)
+
+Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from typing import Any
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
@@ -54,6 +57,11 @@ from .run_inputs import InputError, bad_input_errors, load_inputs
 from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
+USAGE = (
+    "flaair discrepancy [RUN ...] [--table TABLE.csv] --out DIR [--model FILE] [--force]\n"
+    "       [--validate [--cases NAME ...]] [--validation FILE]\n"
+    "       (runs, a table, or both; or --validate alone)"
+)
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
 
@@ -100,15 +108,30 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
 def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
     parser.add_argument(
-        "inputs", nargs="*", type=Path, help="measured-run CSV files and/or bag directories"
+        "inputs",
+        nargs="*",
+        type=Path,
+        metavar="RUN",
+        help="measured-run CSV files and/or bag directories (optional with --table or --validate)",
     )
     parser.add_argument(
-        "--model", type=Path, default=None, help="model YAML (default: config/model.yaml)"
+        "--table",
+        type=Path,
+        metavar="TABLE.csv",
+        help="a lab's frequency-response table of the robot: alone, or with the runs "
+        "(docs/TABLES.md) (default: none)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="model YAML (default: config/model.yaml)",
+    )
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     parser.add_argument(
         "--validate", action="store_true", help="also run the hidden-effect dataset cases"

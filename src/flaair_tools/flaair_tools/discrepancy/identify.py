@@ -23,6 +23,8 @@ Examples
   bin/flaair identify lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/robot3-joint
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
+
+Terms (identification, held-out): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -37,12 +39,17 @@ from pathlib import Path
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
 from flaair_tools.discrepancy.report import json_safe
 
 PROG = "flaair identify"
+USAGE = (
+    "flaair identify [RUN ...] [--table TABLE.csv] --out DIR [--model FILE] [--force]\n"
+    "       (runs, a table, or both: at least one)"
+)
 OUT_FILES = ("model.yaml", "identification.json")
 
 
@@ -61,20 +68,34 @@ def main(argv: list[str] | None = None) -> int:
 
         return table_main(argv)
     parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
     parser.add_argument(
-        "inputs", nargs="+", type=Path, help="measured-run CSV files and/or bag directories"
+        "inputs",
+        nargs="*",
+        type=Path,
+        metavar="RUN",
+        help="measured-run CSV files and/or bag directories (optional with --table)",
+    )
+    parser.add_argument(
+        "--table",
+        type=Path,
+        metavar="TABLE.csv",
+        help="a lab's frequency-response table of the robot: alone, or with the runs in one fit "
+        "(docs/TABLES.md) (default: none)",
     )
     parser.add_argument(
         "--model",
         type=Path,
         default=None,
+        metavar="FILE",
         help="model YAML to start from (default: config/model.yaml)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     args = parser.parse_args(argv)
+    if not args.inputs:
+        parser.error("give measured-run CSV files or bags, or --table TABLE.csv")
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         written = check_output(args.out, [*args.inputs, args.model], args.force, OUT_FILES)

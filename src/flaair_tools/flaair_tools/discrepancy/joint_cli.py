@@ -12,6 +12,8 @@ runs' findings, whether the table kept them) and report.html (the runs' workflow
 Exit status: 0 when fitted (a disagreement between the sets is a warning on stderr and in the
 JSON, not a failure), 2 on bad input (one line naming the file, line and column; nothing
 written), 130 when interrupted.
+
+Terms (held-out, gap, discovered): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.tables.joint import JointFit, identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model import settings as config
 from flaair_model.model_io import load_model, save_model
@@ -57,12 +60,15 @@ def _terminate(signum: int, frame: object) -> None:
 
 
 def _parse(prog: str, argv: list[str] | None, files: tuple[str, ...]):
-    parser = argparse.ArgumentParser(
-        prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=HelpFormatter)
     parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bags")
     parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
-    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        help="model YAML to start from (default: config/model.yaml)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
     args = parser.parse_args(argv)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.runtime import help_text, run_node
 from flaair_tools.liveview import foxglove_node
 from flaair_tools.liveview.foxglove_io import CONFIG_FILE, NODE_NAME, PARAMS, foxglove_node_args
@@ -18,7 +19,7 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair foxglove",
         description=foxglove_node.__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
         epilog=help_text("", PARAMS, CONFIG_FILE, NODE_NAME),
     )
     parser.add_argument(

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_model.term_entry import term_from_dict
 from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
 from flaair_tools.orchestration.bench_robot import robot_effects, robot_section
@@ -55,12 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair demo",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument(
         "--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)"
     )
-    parser.add_argument("--only", nargs="*", help="run only these experiments")
+    parser.add_argument(
+        "--only", nargs="*", help="run only these experiments (default: all of them)"
+    )
     args = parser.parse_args(argv)
     experiments = load_experiments()
     names = args.only or list(experiments)

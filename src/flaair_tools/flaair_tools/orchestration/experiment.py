@@ -13,6 +13,8 @@ Examples
 --------
   bin/flaair experiment characterization_chirp --out out/bags/chirp
   bin/flaair experiment --list
+
+Terms (dSA, lockstep): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from std_msgs.msg import String
 from tqdm import tqdm
 
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -481,10 +484,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair experiment",
         description=__doc__.format(names=", ".join(experiments)),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("name", nargs="?", help="experiment name (see --list)")
-    parser.add_argument("--out", type=Path, help="bag directory to create")
+    parser.add_argument(
+        "--out", type=Path, help="bag directory to create (required to run an experiment)"
+    )
     parser.add_argument("--list", action="store_true", help="list the experiments and exit")
     parser.add_argument("--no-noise", action="store_true", help="simulate without sensor noise")
     parser.add_argument(

@@ -14,6 +14,8 @@ Examples
   bin/flaair launch flaair_tools record.launch.xml output_path:=out/bags/run1 --domain-id 7
   bin/flaair launch flaair_tools live_sim.launch.xml --print     # what it would start
   bin/flaair launch flaair_tools lockstep_loop.launch.xml --show-args
+
+Terms (lockstep): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -56,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair launch",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("package", help="package holding the launch file, e.g. flaair_tools")
     parser.add_argument("file", help="launch file name in its share/PACKAGE/launch, or a path")

@@ -1,4 +1,4 @@
-"""`flaair live`: bring up the live graph around a real bench (or the simulated robot), record it.
+r"""`flaair live`: bring up the live graph around a real bench (or the simulated robot), record it.
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
@@ -29,7 +29,9 @@ Exit status: 0 the run ended (duration, Ctrl-C, SIGTERM); 2 bad arguments, or th
 run (a port in use, a node that failed); 3 no sensor packet from the target in time (the stop
 packet sent, the bag closed).
 
-The protocol: docs/REALTIME_PROTOCOL.md. Rehearse without hardware against the emulated target:
+The protocol: docs/formats/REALTIME_PROTOCOL.md; a first session on hardware (safety limits,
+watchdogs, what to look at first): docs/HARDWARE_SESSION.md; terms (dSA, K_r): docs/GLOSSARY.md.
+Rehearse without hardware against the emulated target:
   bin/flaair run flaair_bridge emulated_target --bridge 127.0.0.1:25000 --listen 127.0.0.1:25001 &
   bin/flaair live --target 127.0.0.1:25001 --listen 127.0.0.1:25000 --duration 5 \
       --out out/bags/bench
@@ -46,6 +48,7 @@ from pathlib import Path
 import yaml
 
 from flaair_common import topics
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
     GraphError,
@@ -469,23 +472,35 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair live",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     where = parser.add_mutually_exclusive_group(required=True)
-    where.add_argument("--sim", action="store_true", help="the simulated robot, paced in real time")
     where.add_argument(
-        "--target", metavar="HOST:PORT", help="the real-time target's drive receiver"
+        "--sim",
+        action="store_true",
+        help="the simulated robot, paced in real time (default: off; --sim or --target is "
+        "required)",
+    )
+    where.add_argument(
+        "--target",
+        metavar="HOST:PORT",
+        help="the real-time target's drive receiver: its UDP Receive address (default: none; "
+        "--sim or --target is required)",
     )
     parser.add_argument(
         "--listen",
         metavar="HOST:PORT",
-        help="where the target's sensor packets arrive (with --target)",
+        help="where the target's sensor packets arrive: the address its UDP Send points at "
+        "(default: none; required with --target)",
     )
     parser.add_argument(
         "--controller",
         choices=("dsa", "none"),
         default="dsa",
-        help="close the loop with the dSA controller",
+        help="dsa: close the loop with the dSA controller (the configured K_r schedule: a "
+        "synchronous sine, then self-excited flapping); none: no controller, no drive sent "
+        "(a target holds its last sample, then zeroes; the front end, monitors and recorder "
+        "run on what it sends) (default: %(default)s)",
     )
     parser.add_argument(
         "--duration",
@@ -497,7 +512,11 @@ def main(argv: list[str] | None = None) -> int:
         f"which no longer keeps pace, is waited for {DRIVE_GRACE_S:g} s "
         "more at most",
     )
-    parser.add_argument("--out", type=Path, help="record every /flaair topic to this bag directory")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="record every /flaair topic to this bag directory (default: none: not recorded)",
+    )
     parser.add_argument(
         "--foxglove", metavar="HOST:PORT", help="serve the live graph to Foxglove / Lichtblick here"
     )
@@ -505,10 +524,15 @@ def main(argv: list[str] | None = None) -> int:
         "--calibration",
         type=Path,
         help="front end gains, and the health monitor's film lags and gains, from this "
-        "calibration.yaml",
+        "calibration.yaml (default: none: the model's gains; pitch reads about 4x small on a "
+        "real robot)",
     )
     parser.add_argument(
-        "--lead-samples", type=int, help="bridge: drive sent this far ahead (default: config)"
+        "--lead-samples",
+        type=int,
+        metavar="N",
+        help="bridge: drive sent N samples ahead of the target's clock (default: "
+        "config/flaair.yaml bridge_node.lead_samples, 40 = 2 ms)",
     )
     parser.add_argument(
         "--first-packet-timeout",

@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import Graph, flaair_argv
 from flaair_control.core import transition as tr
 from flaair_control.transition_io import hilbert_params_from_config
@@ -125,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="transition_figure",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--run", action="store_true", help="run the closed loop over DDS first")
     parser.add_argument("--duration", type=float, default=2.0, help="--run: signal time [s]")

@@ -30,6 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 
 from flaair_common import topics as topic_names
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM
 from flaair_model.config import ConfigError, node_parameters
@@ -78,7 +79,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="flaair play",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("bag", help="bag directory")
     pace = parser.add_mutually_exclusive_group()
@@ -89,7 +90,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help=f"playback speed, 1 = real time (default {defaults['rate']})",
     )
     pace.add_argument("--fast", action="store_true", help="publish as fast as possible")
-    parser.add_argument("--topics", nargs="+", default=None, help="replay only these topics")
+    parser.add_argument(
+        "--topics", nargs="+", default=None, help="replay only these topics (default: every topic)"
+    )
     parser.add_argument(
         "--clock",
         action="store_true",

@@ -11,6 +11,7 @@ from typing import Any
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import message_class
 from flaair_common.params import ParameterError
 from flaair_common.qos import BLOCK_STREAM
@@ -109,10 +110,15 @@ def cli_to_ros_args(argv: list[str], description: str, prog: str = "flaair recor
     parser = argparse.ArgumentParser(
         prog=prog,
         description=description,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
         epilog=help_text("", RECORDER_PARAMS, CONFIG_FILE, NODE_NAME),
     )
-    parser.add_argument("-o", "--output", help="bag directory to create")
+    parser.add_argument(
+        "-o",
+        "--output",
+        help="bag directory to create (default: out/bags/flaair_<date>_<time>, "
+        "config/flaair.yaml recorder_node.output_path)",
+    )
     parser.add_argument(
         "--topics",
         nargs="+",

@@ -21,6 +21,7 @@ import sys
 import time
 from pathlib import Path
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_tools import bagio
 
 _NS_PER_S = 1_000_000_000
@@ -102,14 +103,20 @@ def _info(bag: Path, quick: bool) -> int:
 def main(argv: list[str] | None = None) -> int:
     """`flaair bag info BAG` / `flaair bag reindex BAG`; see the module docstring for exit codes."""
     parser = argparse.ArgumentParser(
-        prog="flaair bag", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        prog="flaair bag", description=__doc__, formatter_class=HelpFormatter
     )
     sub = parser.add_subparsers(dest="verb", required=True)
-    info = sub.add_parser("info", help="topics, types, counts, time span; checks every chunk")
+    info = sub.add_parser(
+        "info",
+        formatter_class=HelpFormatter,
+        help="topics, types, counts, time span; checks every chunk",
+    )
     info.add_argument("bag", type=Path)
     info.add_argument("--quick", action="store_true", help="do not read the chunks to check them")
     sub.add_parser(
-        "reindex", help="recover a damaged bag or one whose recorder was killed"
+        "reindex",
+        formatter_class=HelpFormatter,
+        help="recover a damaged bag or one whose recorder was killed",
     ).add_argument("bag", type=Path)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     signal.signal(signal.SIGTERM, _interrupted)

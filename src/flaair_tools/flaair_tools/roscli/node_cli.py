@@ -27,6 +27,7 @@ from typing import Any
 import rclpy
 from rclpy.executors import ExternalShutdownException
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_model.config import ConfigError, node_parameters
 from flaair_tools.roscli.ros2_args import (
     add_discovery_arguments,
@@ -80,10 +81,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair node",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     sub = parser.add_subparsers(dest="verb", required=True)
-    listing = sub.add_parser("list", help="names of the running nodes, one a line")
+    listing = sub.add_parser(
+        "list", formatter_class=HelpFormatter, help="names of the running nodes, one a line"
+    )
     add_discovery_arguments(listing, float(defaults["discovery_s"]))
     listing.add_argument("-a", "--all", action="store_true", help="hidden nodes too")
     listing.add_argument(

@@ -17,6 +17,8 @@ Examples
   bin/flaair param list /plant_node
   bin/flaair param get /plant_node mode
   bin/flaair param set /dsa_controller_node kr_target 0.0     # K_r ramps to asynchronous from now
+
+Terms (K_r): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import get_parameter_value
 from rclpy.parameter_client import AsyncParameterClient
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
 from flaair_tools.roscli.ros2_args import hidden_node_name, parse_or_refuse
 
@@ -72,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair param",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("verb", choices=("get", "list", "set"))
     parser.add_argument("node", help="node name, e.g. /plant_node")

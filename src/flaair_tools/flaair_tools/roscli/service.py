@@ -21,6 +21,7 @@ import sys
 
 import yaml
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
 from flaair_tools.roscli.ros2_args import (
@@ -47,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair service",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("verb", choices=("list", "call"))
     parser.add_argument(

@@ -24,6 +24,8 @@ Examples
   bin/flaair topic wait /flaair/sensor_v --publishers 1 --subscribers 2 --timeout 30
   bin/flaair topic pub /flaair/drive flaair_msgs/msg/DriveCommandBlock \
       '{"drive_v": [1.0, 2.0]}' --count 3
+
+Terms (K_r): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.topic_or_service_is_hidden import topic_or_service_is_hidden
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import from_dict, message_class, to_dict
 from flaair_common.qos import BLOCK_STREAM
 from flaair_tools.roscli.node_cli import cli_defaults, run_with_node
@@ -216,22 +219,32 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="flaair topic",
         description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
     )
     sub = parser.add_subparsers(dest="verb", required=True)
     spin_s = float(defaults["discovery_s"])
-    listing = sub.add_parser("list", help="the topics, as `ros2 topic list`")
+    listing = sub.add_parser(
+        "list", formatter_class=HelpFormatter, help="the topics, as `ros2 topic list`"
+    )
     add_discovery_arguments(listing, spin_s)
     listing.add_argument("-t", "--show-types", action="store_true", help="with their types")
     listing.add_argument("-c", "--count-topics", action="store_true", help="only their number")
     listing.add_argument("-v", "--verbose", action="store_true", help="publishers, subscribers")
     listing.add_argument("--include-hidden-topics", action="store_true", help="hidden ones too")
-    info = sub.add_parser("info", help="a topic's type and endpoints, as `ros2 topic info`")
+    info = sub.add_parser(
+        "info",
+        formatter_class=HelpFormatter,
+        help="a topic's type and endpoints, as `ros2 topic info`",
+    )
     info.add_argument("topic")
     info.add_argument("-v", "--verbose", action="store_true", help="every endpoint and its QoS")
     add_discovery_arguments(info, spin_s)
-    echo = sub.add_parser("echo", help="print messages as YAML, as `ros2 topic echo`")
-    hz = sub.add_parser("hz", help="print the message rate, as `ros2 topic hz`")
+    echo = sub.add_parser(
+        "echo", formatter_class=HelpFormatter, help="print messages as YAML, as `ros2 topic echo`"
+    )
+    hz = sub.add_parser(
+        "hz", formatter_class=HelpFormatter, help="print the message rate, as `ros2 topic hz`"
+    )
     for verb in (echo, hz):
         verb.add_argument("topic")
         verb.add_argument("type", nargs="?", help="pkg/msg/Name (default: discovered)")
@@ -281,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     hz.add_argument("--count", type=int, default=0, help="stop after N reports (0: until Ctrl-C)")
     wait = sub.add_parser(
-        "wait", help="wait until a topic has enough publishers and subscribers (exit 1 on timeout)"
+        "wait",
+        formatter_class=HelpFormatter,
+        help="wait until a topic has enough publishers and subscribers (exit 1 on timeout)",
     )
     wait.add_argument("topic")
     wait.add_argument("--publishers", type=int, default=0, help="at least this many publishers")
@@ -294,7 +309,9 @@ def main(argv: list[str] | None = None) -> int:
         help="then wait this long more: the graph is seen a moment before every "
         "endpoint has matched [s]",
     )
-    pub = sub.add_parser("pub", help="publish a message given as JSON")
+    pub = sub.add_parser(
+        "pub", formatter_class=HelpFormatter, help="publish a message given as JSON"
+    )
     pub.add_argument("topic")
     pub.add_argument("type")
     pub.add_argument(

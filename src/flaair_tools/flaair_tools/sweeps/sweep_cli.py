@@ -26,6 +26,8 @@ stroke: the stroke controller's three experiments (flaair_tools.sweeps.stroke_ex
 each in DIR/bags, analysed from the bags: DIR/stroke.json, DIR/stroke_*.png, DIR/reading.md.
 
 Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted.
+
+Terms (dSA, Hopf): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import signal
 import sys
 from pathlib import Path
 
+from flaair_common.cli_help import HelpFormatter
 from flaair_model.config import ConfigError, config_dir
 from flaair_model.model import ModelError
 from flaair_tools.sweeps.sweep import SUBCOMMANDS, SweepError
@@ -46,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="bin/flaair sweep",
         description=__doc__.split("\n\n")[1],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=HelpFormatter,
         epilog="\n\n".join(__doc__.split("\n\n")[2:]),
     )
     parser.add_argument("study", choices=SUBCOMMANDS, help="which study")

@@ -12,6 +12,8 @@ its figure table_response.png.
 Exit status: 0 when analysed, 2 on bad input (one line naming the line and column, or an --out
 that would overwrite an input or an existing output without --force; nothing written), 130
 when interrupted.
+
+Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations

@@ -9,6 +9,8 @@ value, nominal, start, stderr; correlations; what the table cannot separate; not
 Exit status: 0 when fitted, 2 on bad input (one line naming the line and column, or an --out
 that would overwrite an input or an existing output without --force; nothing written), 130
 when interrupted.
+
+Terms (held-out): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from typing import Any, TypeVar
 
 from flaair_analysis.tables.fit import identify_table
 from flaair_analysis.tables.reader import Table, TableInputError
+from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_model import settings
 from flaair_model.config import ConfigError
@@ -65,9 +68,7 @@ def table_command(
     refusal (the outputs checked before anything is computed: never an input, never the
     project's config, an existing one replaced only with --force).
     """
-    parser = argparse.ArgumentParser(
-        prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=HelpFormatter)
     parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
     parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
     parser.add_argument("--out", type=Path, required=True, help="output directory")

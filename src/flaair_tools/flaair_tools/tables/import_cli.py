@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from flaair_analysis.tables.reader import Table, TableInputError, summarise
+from flaair_common.cli_help import HelpFormatter
 from flaair_model.config import ConfigError
 
 from .table_io import load_tables
@@ -55,9 +56,7 @@ def describe(table: Table) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """`flaair import-table TABLE...`; returns the exit status."""
-    parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=HelpFormatter)
     parser.add_argument("tables", nargs="+", type=Path, help="frequency-response CSV tables")
     args = parser.parse_args(argv)
     try:
