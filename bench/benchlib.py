@@ -1,9 +1,19 @@
-"""Tiny benchmark reporting: each figure beside its target and its same-run baseline."""
+"""Benchmark figures: each one a comparison that can fail, or `info`.
+
+A figure is made by one of two functions, never by hand:
+- `compare(name, value, unit, op, bound)`: a verdict. The target printed is rendered from `op`
+  and `bound` by `target_text`, and the verdict is `verdict(value, op, bound)`, so the target a
+  reader sees is exactly the one enforced (no slack, no second rule). A value that is not a
+  finite number fails every comparison;
+- `info(name, value, unit)`: printed, never counted as met or not.
+`run_all.py` counts comparisons only ("N of M comparisons met").
+"""
 
 from __future__ import annotations
 
 import json
 import math
+import operator
 import sys
 import time
 from collections.abc import Callable
@@ -15,17 +25,85 @@ for _package_dir in sorted((REPO_ROOT / "src").iterdir()):
     if (_package_dir / "setup.py").exists() and str(_package_dir) not in sys.path:
         sys.path.insert(0, str(_package_dir))
 
+# The comparisons a target may make: value OP bound.
+OPERATORS: dict[str, Callable[[float, float], bool]] = {
+    "<=": operator.le,
+    "<": operator.lt,
+    ">=": operator.ge,
+    ">": operator.gt,
+    "==": operator.eq,
+}
 
-@dataclass
+
+@dataclass(frozen=True)
 class Figure:
-    """One benchmark figure."""
+    """One benchmark figure (made by `compare` or `info`).
+
+    Attributes
+    ----------
+    name, value, unit : what was measured.
+    op, bound : the comparison enforced (`value op bound`); both None for an `info` figure.
+    baseline : the same-run baseline or context, printed beside.
+    """
 
     name: str
     value: float
     unit: str
-    target: str
-    met: bool
+    op: str | None = None
+    bound: float | None = None
     baseline: str = ""
+
+    @property
+    def is_comparison(self) -> bool:
+        """Whether the figure carries a verdict."""
+        return self.op is not None
+
+    @property
+    def target(self) -> str:
+        """The target as printed: rendered from the comparison enforced."""
+        return target_text(self.op, self.bound, self.unit) if self.op is not None else "info"
+
+    @property
+    def met(self) -> bool | None:
+        """The verdict (None for `info`)."""
+        if self.op is None or self.bound is None:
+            return None
+        return verdict(self.value, self.op, self.bound)
+
+
+def verdict(value: float, op: str, bound: float) -> bool:
+    """`value op bound`; a NaN, infinite or missing value never meets a target."""
+    if op not in OPERATORS:
+        raise ValueError(f"unknown comparison {op!r} (known: {', '.join(OPERATORS)})")
+    if value is None or not math.isfinite(float(value)):
+        return False
+    return bool(OPERATORS[op](float(value), float(bound)))
+
+
+def target_text(op: str | None, bound: float | None, unit: str) -> str:
+    """The printed target of a comparison: '<= 60 s', '>= 90 %', '== 0 cases'."""
+    if op is None or bound is None:
+        return "info"
+    return f"{op} {bound:g} {unit}".strip()
+
+
+def compare(
+    name: str, value: float, unit: str, op: str, bound: float, baseline: str = ""
+) -> Figure:
+    """A figure with a verdict: met iff `value op bound`."""
+    if op not in OPERATORS:
+        raise ValueError(f"unknown comparison {op!r} (known: {', '.join(OPERATORS)})")
+    return Figure(name, _number(value), unit, op, float(bound), baseline)
+
+
+def info(name: str, value: float, unit: str, baseline: str = "") -> Figure:
+    """A figure without a verdict: printed, never counted."""
+    return Figure(name, _number(value), unit, None, None, baseline)
+
+
+def _number(value: object) -> float:
+    value = value.item() if hasattr(value, "item") else value
+    return float(value) if value is not None else math.nan  # type: ignore[arg-type]
 
 
 def best_time_s(fn: Callable[[], object], repeats: int = 3) -> float:
@@ -38,27 +116,49 @@ def best_time_s(fn: Callable[[], object], repeats: int = 3) -> float:
     return best
 
 
+def met_text(figure: Figure) -> str:
+    """'yes', 'NO' or 'info'."""
+    return "info" if figure.met is None else ("yes" if figure.met else "NO")
+
+
 def print_table(figures: list[Figure]) -> None:
     """Print figures as an aligned table."""
     print(f"{'benchmark':52s} {'value':>14s} {'unit':10s} {'target':18s} {'met':4s} baseline")
     for f in figures:
         print(
             f"{f.name:52s} {f.value:14.4g} {f.unit:10s} {f.target:18s} "
-            f"{'yes' if f.met else 'NO':4s} {f.baseline}"
+            f"{met_text(f):4s} {f.baseline}"
         )
 
 
-def write_json(figures: list[Figure], path: Path) -> None:
-    """Write figures as JSON (a list of objects)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def figure_rows(figures: list[Figure]) -> list[dict]:
+    """Figures as strict-JSON rows: the stored fields and the rendered target and verdict."""
 
-    # numpy scalars (np.bool_ from a comparison, np.float64) are written as plain numbers; strict
-    # JSON: a NaN or infinite figure (not measured, never answered) is null
     def plain(value):
-        value = value.item() if hasattr(value, "item") else value
         if isinstance(value, float) and not math.isfinite(value):
             return None
-        return value if isinstance(value, (str, int, float, bool, type(None))) else str(value)
+        return value
 
-    rows = [{key: plain(value) for key, value in asdict(f).items()} for f in figures]
-    path.write_text(json.dumps(rows, indent=2, allow_nan=False))
+    return [
+        {key: plain(value) for key, value in asdict(f).items()} | {"target": f.target, "met": f.met}
+        for f in figures
+    ]
+
+
+def figure_from_row(row: dict) -> Figure:
+    """A figure read back from `figure_rows` (a null value is a figure never measured)."""
+    value = row.get("value")
+    return Figure(
+        str(row["name"]),
+        math.nan if value is None else float(value),
+        str(row.get("unit", "")),
+        row.get("op"),
+        None if row.get("bound") is None else float(row["bound"]),
+        str(row.get("baseline", "")),
+    )
+
+
+def write_json(figures: list[Figure], path: Path) -> None:
+    """Write figures as strict JSON (a list of objects; a NaN figure is null)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(figure_rows(figures), indent=2, allow_nan=False))

@@ -156,9 +156,7 @@ def find_design(runs: Sequence[RunInput], design: MultisineDesign | None) -> Fou
             first_n, first_lines = n, lines
         elif n != first_n or lines != first_lines:
             what = (
-                f"period {n} samples, not {first_n}"
-                if n != first_n
-                else "its excited lines differ"
+                f"period {n} samples, not {first_n}" if n != first_n else "its excited lines differ"
             )
             raise MultisineInputError(f"{run.name}: another design than {against} ({what})")
         head = np.fft.rfft(d[:n])
@@ -253,9 +251,7 @@ def _grid(
     top_hz = max(found.excited_lines) * found.fs_hz / found.period_samples
     rate = found.fs_hz / step
     if rate < 4.0 * top_hz:
-        return (
-            f"video at {rate:g} Hz is below 4 x the highest excited line ({top_hz:g} Hz)"
-        )
+        return f"video at {rate:g} Hz is below 4 x the highest excited line ({top_hz:g} Hz)"
     if len({g.offset for g in grids}) > 1:
         return "the video frames sit at different samples in different runs"
     return grids[0]

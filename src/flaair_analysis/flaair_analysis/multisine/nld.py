@@ -91,7 +91,9 @@ def _mean_over(values: np.ndarray, lines: np.ndarray) -> float | None:
 
 
 def levels_db(figs: ChannelFigures, sets: LineSets) -> dict[str, float | None]:
-    """signal (over E), noise (sigma2 over B), odd (over O, None if O is empty), even (over V)."""
+    """The levels: signal (over E), noise (sigma2 over B), odd (over O; None if O is empty),
+    even (over V).
+    """
     p = np.abs(figs.ybar) ** 2
     odd = _mean_over(p, sets.odd)
     even = _mean_over(p, sets.even)
@@ -149,7 +151,11 @@ def bla(
 
 
 def model_figures(
-    measured: ChannelFigures, model_ybar: np.ndarray, sets: LineSets, noise_db: float, margin_db: float
+    measured: ChannelFigures,
+    model_ybar: np.ndarray,
+    sets: LineSets,
+    noise_db: float,
+    margin_db: float,
 ) -> dict[str, Any]:
     """The model's levels (noise None), its class against the measured noise, and the distortion
     the model does not predict: <|Ybar - Yhat|^2> over O and over V.
@@ -176,7 +182,9 @@ def model_figures(
     }
 
 
-def disagreements(unexplained: dict[str, float | None], noise_db: float, margin_db: float) -> list[str]:
+def disagreements(
+    unexplained: dict[str, float | None], noise_db: float, margin_db: float
+) -> list[str]:
     """Those of odd, even (in that order) whose unexplained level is >= noise + margin."""
     return [
         name

@@ -87,9 +87,7 @@ class VideoGrid:
     step: int
 
 
-def video_grid(
-    values: np.ndarray, first: int, count: int, period_samples: int
-) -> VideoGrid | str:
+def video_grid(values: np.ndarray, first: int, count: int, period_samples: int) -> VideoGrid | str:
     """The regular frame grid of samples first .. first + count - 1, or why there is none."""
     seg = np.asarray(values[first : first + count], dtype=np.float64)
     frames = np.flatnonzero(np.isfinite(seg))

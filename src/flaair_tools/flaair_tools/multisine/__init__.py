@@ -6,7 +6,8 @@ Modules (import them by name; this package imports none of them eagerly):
 - `design_cli`: `flaair multisine design`
 - `analyze_cli`: `flaair multisine analyze`
 - `design_file`: multisine.yaml written and read back
+- `drives`: a design's realizations as drive_node runs (`flaair experiment multisine`)
 - `report`: the figures and report.html of an analysis
 """
 
-__all__ = ["analyze_cli", "cli", "design_cli", "design_file", "report"]
+__all__ = ["analyze_cli", "cli", "design_cli", "design_file", "drives", "report"]

@@ -18,8 +18,7 @@ written (DIR not made).
 Examples
 --------
   bin/flaair multisine analyze examples/multisine/runs/realization_*.csv --out out/ms
-  bin/flaair multisine analyze bags/multisine --design examples/multisine/design/multisine.yaml \\
-      --model config/model.yaml --out out/ms_bag
+  bin/flaair multisine analyze bags/multisine --model config/model.yaml --out out/ms_bag
 """
 
 from __future__ import annotations

@@ -74,13 +74,13 @@ def channel_figure(
     is_exc = np.isin(k, excited)
     is_odd = (k % 2 == 1) & ~is_exc
     is_even = k % 2 == 0
-    ax_b.plot(k * f0, sigma2, ".", color="0.6", ms=3, label="noise sigma2")
+    if shown.model_power is not None:  # beneath the measured lines, open and larger
+        model = _db(shown.model_power[1 : top + 1])
+        ax_b.plot(k * f0, model, "o", mfc="none", color="tab:orange", ms=7, mew=0.8, label="model")
+    ax_b.plot(k * f0, sigma2, "-", color="0.55", lw=0.8, label="noise sigma2")
     ax_b.plot(k[is_even] * f0, power[is_even], "b.", ms=4, label="even lines")
     ax_b.plot(k[is_odd] * f0, power[is_odd], "r.", ms=4, label="odd lines not excited")
     ax_b.plot(k[is_exc] * f0, power[is_exc], "k.", ms=5, label="excited lines")
-    if shown.model_power is not None:
-        model = _db(shown.model_power[1 : top + 1])
-        ax_b.plot(k * f0, model, "o", mfc="none", color="tab:orange", ms=4, label="model")
     band = (excited.min() * f0, excited.max() * f0)
     styles = {"signal": "k", "noise": "0.5", "odd": "r", "even": "b"}
     for key, colour in styles.items():
@@ -124,7 +124,8 @@ the runs, dB re 1 unit&sup2;; odd and even include the noise.</p>
 {% for name in doc.channels %}<h2>{{ name }}</h2><img src="{{ figure(name) }}" alt="{{ name }}">
 {% endfor %}
 {% if doc.skipped %}<h2>Skipped channels</h2><table>{% for name, why in doc.skipped.items() %}
-<tr><td>{{ name }}</td><td style="text-align:left">{{ why }}</td></tr>{% endfor %}</table>{% endif %}
+<tr><td>{{ name }}</td><td style="text-align:left">{{ why }}</td></tr>{% endfor %}</table>
+{% endif %}
 <h2>Design ({{ doc.design.source }})</h2>
 <p>fs {{ doc.design.fs_hz }} Hz, period {{ doc.design.period_samples }} samples
 (f0 {{ doc.design.base_frequency_hz }} Hz), band {{ doc.design.band_hz|join("-") }} Hz;
