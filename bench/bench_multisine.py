@@ -248,12 +248,19 @@ def timing_and_refusals(tmp: Path) -> list:
         ),
         info("  of which the analysis itself (no files, no figures)", core, "s"),
     ]
-    one = {
-        k: np.asarray(v)
-        for k, v in synthesize_measured_run(
-            realization_drive(design, 0), design.fs_hz, model, np.random.default_rng(4)
-        ).items()
-    }
+    # the refusals on a short design (N = 5000, T = 1, P = 2, M = 2): files of 15 000 rows
+    short = design_multisine(
+        band_hz=(100.0, 250.0), base_hz=4.0, lines_per_group=3, rms_v=25.0, periods=2,
+        transient_periods=1, realizations=2, fs_hz=20000.0, max_v=100.0, seed=52,
+    )  # fmt: skip
+    pair = [
+        synthesize_measured_run(realization_drive(short, m), short.fs_hz, model, rng)
+        for m in range(2)
+    ]
+    one = pair[0]
+    small = [str(tmp / "small_1.csv"), str(tmp / "small_2.csv")]
+    for path, cols in zip(small, pair, strict=True):
+        write_run(Path(path), cols)
     t = one["time_s"]
 
     def variant(name: str, **cols: np.ndarray) -> str:
@@ -261,7 +268,7 @@ def timing_and_refusals(tmp: Path) -> list:
         return str(tmp / name)
 
     stuck = one["stroke_sensor_v"].copy()
-    stuck[20000:20006] = stuck[10000:].max()
+    stuck[8000:8006] = stuck[5000:].max()
     (tmp / "bad.csv").write_text(
         "time_s,drive_v,stroke_sensor_v,pitch_sensor_v\n0,1,1,1\n5e-05,1,x,1\n"
     )
@@ -275,21 +282,21 @@ def timing_and_refusals(tmp: Path) -> list:
             "chirp.csv: no periodic",
         ),
         "fewer than 2 periods": (
-            [runs[1], variant("short.csv", **{k: v[:25000] for k, v in one.items()})],
+            [small[1], variant("short.csv", **{k: v[:12500] for k, v in one.items()})],
             "short.csv: holds fewer",
         ),
         "an even line": (
-            [variant("even.csv", drive_v=one["drive_v"] + 5 * np.cos(2 * np.pi * 100 * t))],
+            [variant("even.csv", drive_v=one["drive_v"] + 5 * np.cos(2 * np.pi * 200 * t))],
             "even.csv: not an odd multisine",
         ),
         "another design": (
             [
-                runs[0],
-                variant("other.csv", drive_v=one["drive_v"] + 5 * np.cos(2 * np.pi * 42 * t)),
+                small[0],
+                variant("other.csv", drive_v=one["drive_v"] + 5 * np.cos(2 * np.pi * 44 * t)),
             ],
             "other.csv: another design",
         ),
-        "a repeated realization": ([runs[0], runs[0]], "repeats the realization"),
+        "a repeated realization": ([small[0], small[0]], "repeats the realization"),
         "a saturated sensor": (
             [variant("sat.csv", stroke_sensor_v=stuck)],
             "sat.csv: stroke_sensor_v saturated",

@@ -127,4 +127,4 @@ def line_spectra(
     if offset:
         k = np.arange(spec.shape[-1])
         spec = spec * np.exp(-2j * np.pi * k * offset / period_samples)
-    return spec
+    return np.asarray(spec)

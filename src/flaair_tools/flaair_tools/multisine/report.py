@@ -94,7 +94,7 @@ def channel_figure(
     ax_b.set_title(f"{name}: output line powers")
     ax_b.grid(alpha=0.3)
     ax_b.legend(fontsize=8, loc="upper right", ncol=2)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.08, right=0.98, top=0.96, bottom=0.07, hspace=0.32)
     literal_texts(fig).savefig(path, dpi=80)
 
 
