@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 import yaml
 
+from flaair_analysis.multisine.design import realization_drive
 from flaair_common.runcsv import read_run, write_run
 from flaair_model.model_io import load_model
 from flaair_sim.core.measured_run import synthesize_measured_run
+from flaair_tools.multisine.drives import design_of
+from flaair_tools.orchestration.bench_robot import robot_section, write_robot_model
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -199,3 +202,54 @@ def test_the_contracts_bad_inputs_are_refused_in_one_line_with_nothing_written(
     (full / "keep.txt").write_text("mine")
     assert "exists and is not empty" in _refused(runs, full)
     assert [p.name for p in full.iterdir()] == ["keep.txt"]
+
+
+@pytest.mark.graph  # ROS 2 processes exchanging data in lockstep: run alone
+@pytest.mark.timeout(900)
+def test_experiment_multisine_recorded_as_a_bag_analyses_like_the_csvs(tmp_path: Path) -> None:
+    """`flaair experiment multisine` on the simulated bench robot, then `multisine analyze` on
+    the bag: the same design found and the same classes and levels as CSVs of the same
+    realizations simulated offline through the same robot model.
+    """
+    bag = tmp_path / "bag"
+    result = run([FLAAIR, "experiment", "multisine", "--out", str(bag)], isolated_env(), 850)
+    assert result.returncode == 0, result.stderr[-3000:]
+    from_bag = run_offline(
+        [FLAAIR, "multisine", "analyze", str(bag), "--out", str(tmp_path / "bag_ms")],
+        isolated_env(),
+    )
+    assert from_bag.returncode == 0, from_bag.stderr
+    bag_doc = json.loads((tmp_path / "bag_ms" / "nonlinearity.json").read_text())
+    experiments = yaml.safe_load((ROOT / "config" / "experiments.yaml").read_text())
+    design = design_of(experiments["multisine"]["multisine"], 20000.0)
+    model = load_model(write_robot_model(tmp_path / "robot.yaml"))
+    every = int(robot_section()["video_frame_every"])
+    rng = np.random.default_rng(1)
+    csvs = []
+    for m in range(design.realizations):
+        cols = synthesize_measured_run(realization_drive(design, m), 20000.0, model, rng)
+        for name in ("stroke_deg", "pitch_deg"):
+            cols[name][np.arange(cols[name].size) % every != 0] = np.nan
+        csvs.append(tmp_path / f"realization_{m + 1}.csv")
+        write_run(csvs[-1], cols)
+    from_csv = run_offline(
+        [FLAAIR, "multisine", "analyze", *map(str, csvs), "--out", str(tmp_path / "csv_ms")],
+        isolated_env(),
+    )
+    assert from_csv.returncode == 0, from_csv.stderr
+    csv_doc = json.loads((tmp_path / "csv_ms" / "nonlinearity.json").read_text())
+    assert bag_doc["runs"] == [f"{bag}:realization_{m}" for m in (1, 2, 3, 4)]
+    assert {k: v for k, v in bag_doc["design"].items() if k != "transient_periods"} == {
+        k: v for k, v in csv_doc["design"].items() if k != "transient_periods"
+    }
+    assert bag_doc["design"]["excited_lines"] == list(design.excited_lines)
+    assert set(bag_doc["channels"]) == set(csv_doc["channels"]) == {
+        "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg"
+    }  # fmt: skip
+    for name, entry in bag_doc["channels"].items():
+        other = csv_doc["channels"][name]
+        assert entry["class"] == other["class"] == "odd", name
+        for level in ("signal", "noise", "odd"):
+            assert entry["levels_db"][level] == pytest.approx(other["levels_db"][level], abs=1.5)
+        mags = np.array([b["mag"] for b in entry["bla"]])
+        np.testing.assert_allclose(mags, [b["mag"] for b in other["bla"]], rtol=0.03)
