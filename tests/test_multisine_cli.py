@@ -205,6 +205,7 @@ def test_the_contracts_bad_inputs_are_refused_in_one_line_with_nothing_written(
 
 
 @pytest.mark.graph  # ROS 2 processes exchanging data in lockstep: run alone
+@pytest.mark.slow  # 4 realizations of 2.75 s through the lockstep graph: minutes
 @pytest.mark.timeout(900)
 def test_experiment_multisine_recorded_as_a_bag_analyses_like_the_csvs(tmp_path: Path) -> None:
     """`flaair experiment multisine` on the simulated bench robot, then `multisine analyze` on
@@ -239,9 +240,9 @@ def test_experiment_multisine_recorded_as_a_bag_analyses_like_the_csvs(tmp_path:
     assert from_csv.returncode == 0, from_csv.stderr
     csv_doc = json.loads((tmp_path / "csv_ms" / "nonlinearity.json").read_text())
     assert bag_doc["runs"] == [f"{bag}:realization_{m}" for m in (1, 2, 3, 4)]
-    assert {k: v for k, v in bag_doc["design"].items() if k != "transient_periods"} == {
-        k: v for k, v in csv_doc["design"].items() if k != "transient_periods"
-    }
+    for key, value in bag_doc["design"].items():  # a CSV's rate: from times written to 9 digits
+        if key not in ("transient_periods", "source"):
+            assert csv_doc["design"][key] == pytest.approx(value, rel=1e-9), key
     assert bag_doc["design"]["excited_lines"] == list(design.excited_lines)
     assert set(bag_doc["channels"]) == set(csv_doc["channels"]) == {
         "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg"
