@@ -34,9 +34,9 @@ from multisine_systems import (
 pytestmark = pytest.mark.timeout(60)
 
 
-def _runs(design, outputs, pitch=None):
+def _runs(design, outputs, pitch=None, drive=None):
     fs = design.fs_hz
-    u = drives(design)
+    u = drives(design) if drive is None else drive
     runs = []
     for m in range(design.realizations):
         cols = {
@@ -244,11 +244,33 @@ def test_the_localisation_reading() -> None:
             "distortion": "even",
             "channels": ["pitch_sensor_v"],
             "points_to": "the hinge film (the pitch video does not show it)",
+            "sites": ["pitch_sensor_v"],
         }
     ]
     hinge = localise(chans(pitch_sensor_v=["even"], pitch_deg=["even"]), {}, True)
     assert hinge["findings"][0]["points_to"] == "the hinge"
+    assert hinge["findings"][0]["sites"] == ["pitch_dynamics"]
     stroke = localise(chans(stroke_sensor_v=["even"], pitch_sensor_v=["even"]), {}, True)
     assert stroke["findings"][0]["points_to"].startswith("the stroke or the drive")
     odd = localise(chans(stroke_sensor_v=["odd"], pitch_sensor_v=["odd"]), {}, True)
     assert "stiffening, saturation" in odd["findings"][0]["points_to"]
+
+
+def test_odd_distortion_growing_with_the_drive_level_points_to_stiffening_or_saturation() -> None:
+    d = static_design()
+    u = drives(d)
+    u[2:] *= 2.0  # realizations 3 and 4 at twice the drive: 6 dB up
+    rng = np.random.default_rng(8)
+    cubic = u + 0.002 * u**3 + 1e-5 * rng.standard_normal(u.shape)
+    runs = _runs(d, cubic, pitch=0.5 * u + 1e-5 * rng.standard_normal(u.shape), drive=u)
+    doc = analyse(runs).doc
+    trend = doc["localisation"]["level_trend"]["stroke_sensor_v"]
+    assert [round(t["rms_v"], 6) for t in trend] == [1.0, 2.0]
+    rise = (trend[1]["odd_db"] - trend[1]["signal_db"]) - (
+        trend[0]["odd_db"] - trend[0]["signal_db"]
+    )
+    assert rise == pytest.approx(12.0, abs=1.0)  # a cubic: odd / signal power goes as A^4
+    (odd,) = doc["localisation"]["findings"]
+    assert odd["grows_with_level"] == ["stroke_sensor_v"]
+    assert odd["points_to"].startswith("stiffening or saturation")
+    assert doc["channels"]["pitch_sensor_v"]["class"] == "linear"

@@ -138,8 +138,8 @@ def test_the_model_comparison_points_to_the_hinge_film(lab: dict, tmp_path: Path
         "pitch_deg": [],
     }
     findings = doc["localisation"]["findings"]
-    assert [(f["distortion"], f["points_to"]) for f in findings] == [
-        ("even", "the hinge film (the pitch video does not show it)")
+    assert [(f["distortion"], f["points_to"], f["sites"]) for f in findings] == [
+        ("even", "the hinge film (the pitch video does not show it)", ["pitch_sensor_v"])
     ]
     stroke = doc["channels"]["stroke_sensor_v"]["model"]
     assert stroke["levels_db"]["noise"] is None and stroke["class"] == "odd"

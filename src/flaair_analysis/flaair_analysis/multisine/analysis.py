@@ -275,6 +275,9 @@ def analyse(
     f0 = found.fs_hz / n
     drive = np.stack([_drive(r)[: first + count] for r in runs])
     ubar = spectra.line_spectra(drive, first, p, n).mean(axis=1)
+    seg = drive[:, first : first + count]
+    drive_rms = np.sqrt(np.mean(seg * seg, axis=1))
+    trends: dict[str, list[dict[str, float]]] = {}
     channels: dict[str, Any] = {}
     skipped: dict[str, str] = {}
     shown: dict[str, ChannelSpectra] = {}
@@ -296,6 +299,9 @@ def analyse(
             "levels_db": levels,
             "class": nld.classify(levels, noise, margin_db),
         }
+        trend = nld.level_trend(figs, sets, drive_rms)
+        if trend is not None:
+            trends[name] = trend
         model_power = None
         if model_runs is not None:
             sim = np.stack([np.asarray(c[name][: first + count]) for c in model_runs])
@@ -312,6 +318,6 @@ def analyse(
         "margin_db": margin_db,
         "channels": channels,
         "skipped": skipped,
-        "localisation": localise(channels, skipped, model_runs is not None),
+        "localisation": localise(channels, skipped, model_runs is not None, trends),
     }
     return Analysis(found, doc, shown)

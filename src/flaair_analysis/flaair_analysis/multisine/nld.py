@@ -19,6 +19,7 @@ import numpy as np
 __all__ = [
     "CLASSES",
     "DB_FLOOR",
+    "LEVEL_STEP_DB",
     "MARGIN_DB",
     "ChannelFigures",
     "LineSets",
@@ -26,12 +27,14 @@ __all__ = [
     "classify",
     "db",
     "disagreements",
+    "level_trend",
     "levels_db",
     "line_sets",
     "model_figures",
 ]
 
 MARGIN_DB = 6.0  # a distortion counts at noise + this
+LEVEL_STEP_DB = 1.0  # runs whose drive RMS differ by this much are at two drive levels
 DB_FLOOR = 1e-30  # dB = 10 log10(max(x, this))
 CLASSES = ("linear", "odd", "even", "odd+even")
 
@@ -190,4 +193,33 @@ def disagreements(
         name
         for name in ("odd", "even")
         if (level := unexplained.get(name)) is not None and level >= noise_db + margin_db
+    ]
+
+
+def level_trend(
+    figs: ChannelFigures, sets: LineSets, drive_rms_v: np.ndarray
+) -> list[dict[str, float]] | None:
+    """Signal and odd level per drive level (runs grouped by their drive RMS, to 1 dB), from the
+    lowest level up; None when every run is at one level or there is no odd detection line.
+    """
+    if sets.odd.size == 0:
+        return None
+    level_db = 20.0 * np.log10(np.asarray(drive_rms_v, dtype=np.float64))
+    order = np.argsort(level_db)
+    groups: list[list[int]] = []
+    for m in order.tolist():
+        if groups and level_db[m] - level_db[groups[-1][0]] < LEVEL_STEP_DB:
+            groups[-1].append(m)
+        else:
+            groups.append([m])
+    if len(groups) < 2:
+        return None
+    p = np.abs(figs.ybar) ** 2
+    return [
+        {
+            "rms_v": float(np.mean(np.asarray(drive_rms_v)[g])),
+            "signal_db": db(float(np.mean(p[np.ix_(g, sets.excited)]))),
+            "odd_db": db(float(np.mean(p[np.ix_(g, sets.odd)]))),
+        }
+        for g in groups
     ]

@@ -121,7 +121,12 @@ the runs, dB re 1 unit&sup2;; odd and even include the noise.</p>
 {% if doc.localisation.findings %}<ul>{% for f in doc.localisation.findings %}
 <li><b>{{ f.distortion }}</b> on {{ f.channels|join(", ") }}: {{ f.points_to }}</li>{% endfor %}
 </ul>{% else %}<p>No distortion to localise.</p>{% endif %}
-{% for name in doc.channels %}<h2>{{ name }}</h2><img src="{{ figure(name) }}" alt="{{ name }}">
+{% for name, e in doc.channels.items() %}<h2>{{ name }}</h2>
+<img src="{{ figure(name) }}" alt="{{ name }}">
+<p>Class <b>{{ e["class"] }}</b> (signal {{ fmt(e.levels_db.signal) }}, noise
+{{ fmt(e.levels_db.noise) }}, odd {{ fmt(e.levels_db.odd) }}, even {{ fmt(e.levels_db.even) }}
+dB){% if doc.model %}; the model's class {{ e.model["class"] }}; disagrees:
+<span class="dis">{{ e.disagrees|join(", ") or "nothing" }}</span>{% endif %}.</p>
 {% endfor %}
 {% if doc.skipped %}<h2>Skipped channels</h2><table>{% for name, why in doc.skipped.items() %}
 <tr><td>{{ name }}</td><td style="text-align:left">{{ why }}</td></tr>{% endfor %}</table>
