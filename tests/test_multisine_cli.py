@@ -118,6 +118,7 @@ def test_analyze_the_nominal_robot_writes_the_contracts_document(lab: dict, tmp_
     assert "stroke_sensor_v" in html
 
 
+@pytest.mark.slow  # two analyses each simulating the model on 2 runs: 11 s on the loaded machine
 @pytest.mark.timeout(200)
 def test_the_model_comparison_points_to_the_hinge_film(lab: dict, tmp_path: Path) -> None:
     design = lab["design"] / "multisine.yaml"

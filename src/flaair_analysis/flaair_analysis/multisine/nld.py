@@ -218,8 +218,8 @@ def level_trend(
     return [
         {
             "rms_v": float(np.mean(np.asarray(drive_rms_v)[g])),
-            "signal_db": db(float(np.mean(p[np.ix_(g, sets.excited)]))),
-            "odd_db": db(float(np.mean(p[np.ix_(g, sets.odd)]))),
+            "signal_db": db(float(np.mean(p[np.ix_(np.array(g), sets.excited)]))),
+            "odd_db": db(float(np.mean(p[np.ix_(np.array(g), sets.odd)]))),
         }
         for g in groups
     ]
