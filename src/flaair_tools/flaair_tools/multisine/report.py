@@ -126,7 +126,8 @@ the runs, dB re 1 unit&sup2;; odd and even include the noise.</p>
 <p>Class <b>{{ e["class"] }}</b> (signal {{ fmt(e.levels_db.signal) }}, noise
 {{ fmt(e.levels_db.noise) }}, odd {{ fmt(e.levels_db.odd) }}, even {{ fmt(e.levels_db.even) }}
 dB){% if doc.model %}; the model's class {{ e.model["class"] }}; disagrees:
-<span class="dis">{{ e.disagrees|join(", ") or "nothing" }}</span>{% endif %}.</p>
+{% if e.disagrees %}<span class="dis">{{ e.disagrees|join(", ") }}</span>{% else %}nothing
+{%- endif %}{% endif %}.</p>
 {% endfor %}
 {% if doc.skipped %}<h2>Skipped channels</h2><table>{% for name, why in doc.skipped.items() %}
 <tr><td>{{ name }}</td><td style="text-align:left">{{ why }}</td></tr>{% endfor %}</table>
