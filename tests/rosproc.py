@@ -158,6 +158,7 @@ def run(
 
 # `flaair` commands that only read and write files: run_offline runs them in the test's process
 OFFLINE_COMMANDS = {
+    "multisine",
     "simulate",
     "calibrate",
     "import",

@@ -138,6 +138,8 @@ def test_params_from_config_match_the_node_declaration_and_name_bad_values():
         lead_in_s=0.0,
         drive_limit_v=150.0,
         pace_on_wing_state=False,
+        multisine_lines=[1.0],
+        multisine_phases_rad=[0.0],
     )
     with pytest.raises(ParameterError, match="duration_s"):
         pacing_params_from_config(values)

@@ -85,6 +85,7 @@ def test_the_experiments_take_their_extra_nodes_from_their_launch_files() -> Non
         "stepped_sine": (),
         "collision": ("collision_monitor",),
         "drive_levels": (),
+        "multisine": (),
         "transition": (),
         "wing_damage": (),
     }

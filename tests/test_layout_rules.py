@@ -335,6 +335,7 @@ TOOLS_LAYERS = {
     "roscli": 1,
     "analysis": 1,
     "tables": 1,
+    "multisine": 1,
     "discrepancy": 2,
     "sweeps": 2,
     "liveview": 2,

@@ -180,3 +180,33 @@ def test_drive_params_validation_names_parameter(kwargs, name):
     with pytest.raises(DriveError, match=name):
         DriveParams(**kwargs)
     assert issubclass(DriveError, ValueError)
+
+
+def test_multisine_blocks_equal_the_designed_realization_from_any_start():
+    from flaair_analysis.multisine.design import design_multisine, realization_drive
+    from flaair_sim.core.drive import DriveParams, DriveState, drive_record, drive_step
+
+    d = design_multisine(
+        band_hz=(100.0, 250.0), base_hz=2.0, lines_per_group=3, rms_v=25.0, periods=2,
+        transient_periods=1, realizations=2, fs_hz=20000.0, max_v=100.0, seed=3,
+    )  # fmt: skip
+    params = DriveParams(
+        kind="multisine",
+        amplitude_v=d.amplitude_v,
+        frequency_hz=d.base_frequency_hz,
+        lines=tuple(float(k) for k in d.excited_lines),
+        phases_rad=d.phases_rad[1],
+        lead_in_s=0.01,
+    )
+    whole = drive_record(params, 20000.0, 200 + d.n_samples)
+    np.testing.assert_array_equal(whole[:200], 0.0)
+    np.testing.assert_allclose(whole[200:], realization_drive(d, 1), rtol=0, atol=1e-9)
+    state, blocks = DriveState(), []
+    for _ in range(len(whole) // 10):
+        state, block = drive_step(state, 10, 20000.0, params)
+        blocks.append(block)
+    np.testing.assert_array_equal(np.concatenate(blocks), whole)
+    with pytest.raises(DriveError, match="whole number of samples"):
+        drive_record(DriveParams(**{**params.__dict__, "frequency_hz": 3.0}), 20000.0, 10)
+    with pytest.raises(DriveError, match="lines and phases_rad"):
+        DriveParams(kind="multisine", amplitude_v=1.0, frequency_hz=2.0, lines=(51.0,))

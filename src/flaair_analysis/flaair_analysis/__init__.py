@@ -13,8 +13,18 @@ Modules (import them by name; this package imports none of them eagerly):
 - `headline`: the paper's headline figures beside the measured ones (`flaair analyze`'s table);
 - `closed_loop`: the compiled closed-loop batch engine the sweeps run (many robots, each under
   its own sync or dSA drive, on the plant's own kernels);
+- `multisine`: odd random-phase multisines: the design, the best linear approximation with its
+  noise and odd and even nonlinear distortion per channel, the model's distortion beside it;
 - `tables`: a lab's frequency-response tables: reading, the model's steady state per point,
   the plant fitted to a table, the discrepancy workflow on held-out drive levels.
 """
 
-__all__ = ["closed_loop", "discrepancy", "exact_score", "headline", "tables", "wingbeat"]
+__all__ = [
+    "closed_loop",
+    "discrepancy",
+    "exact_score",
+    "headline",
+    "multisine",
+    "tables",
+    "wingbeat",
+]

@@ -39,7 +39,26 @@ DRIVE_NODE_PARAMS = [
         "amplitude_v", float, "Waveform amplitude (half of Vpp) [V]", 0.0, 300.0, read_only=True
     ),
     ParamSpec("bias_v", float, "Offset added to the waveform [V]", -300.0, 300.0, read_only=True),
-    ParamSpec("frequency_hz", float, "Sine frequency [Hz]", 0.0, 5000.0, read_only=True),
+    ParamSpec(
+        "frequency_hz",
+        float,
+        "Sine frequency; multisine: its base frequency f0 = fs / N [Hz]",
+        0.0,
+        5000.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "multisine_lines",
+        list,
+        "Multisine: its excited lines k, each at k x frequency_hz (whole numbers)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "multisine_phases_rad",
+        list,
+        "Multisine: the phase of each excited line (amplitude_v is each line's) [rad]",
+        read_only=True,
+    ),
     ParamSpec(
         "start_hz",
         float,
@@ -145,6 +164,8 @@ def pacing_params_from_config(values: Mapping[str, Any] | None = None) -> Pacing
             step_hz=values["step_hz"],
             dwell_s=values["dwell_s"],
             lead_in_s=values["lead_in_s"],
+            lines=tuple(values["multisine_lines"]),
+            phases_rad=tuple(values["multisine_phases_rad"]),
         )
         return PacingParams(
             sample_rate_hz=values["sample_rate_hz"],

@@ -1,7 +1,8 @@
 """drive_node: the synchronous (open-loop) drive generator, the paper's drive.
 
-Publishes drive-command blocks (/flaair/drive): a sine, a linear chirp or a stepped sine,
-with amplitude, bias and frequency parameters, clamped to +-drive_limit_v.
+Publishes drive-command blocks (/flaair/drive): a sine, a linear chirp, a stepped sine or a
+multisine (lines and phases from `flaair multisine design`), with amplitude, bias and frequency
+parameters, clamped to +-drive_limit_v.
 
 Pacing:
   realtime  blocks leave at the wall-clock rate of the signal.

@@ -9,6 +9,8 @@
   is the pure `flaair_analysis.discrepancy`);
 - `tables`: a lab's frequency-response tables (files, report, commands around the pure
   `flaair_analysis.tables`);
+- `multisine`: odd random-phase multisines (`flaair multisine design|analyze`, the design file,
+  the report around the pure `flaair_analysis.multisine`);
 - `sweeps`: simulation studies on Dask;
 - `liveview`: the Foxglove live view;
 - `orchestration`: graphs brought up and run (experiments, `live`, the demo);
@@ -24,6 +26,7 @@ __all__ = [
     "cli",
     "discrepancy",
     "liveview",
+    "multisine",
     "orchestration",
     "recorder",
     "roscli",

@@ -74,6 +74,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "flaair_tools.tables.import_cli",
         "check a lab's frequency-response table (drive levels x frequencies) and summarise it",
     ),
+    "multisine": (
+        "flaair_tools.multisine.cli",
+        "design an odd random-phase multisine, or analyse its runs: BLA, noise, odd and even "
+        "distortion per channel, and what the model does not predict",
+    ),
     "discrepancy": (
         "flaair_tools.discrepancy",
         "find where the model is wrong: name the missing effect (runs and/or a table)",

@@ -8,6 +8,9 @@ index), so the block form `drive_step` gives bit-identical samples to the whole 
   duration_s it continues at stop_hz (phase-continuous).
 - stepped_sine: each frequency held dwell_s (rounded to whole samples), phase-continuous
   across steps; after the last step it continues at the last frequency.
+- multisine: bias + A sum_k cos(2 pi k n / N + phase_k) over integer lines k of f0 = fs / N
+  (a whole number of samples per period; the phase from the integer k n mod N, exact over any
+  run length): the odd random-phase multisine of `flaair multisine design`.
 """
 
 from __future__ import annotations
@@ -26,12 +29,14 @@ __all__ = [
     "chirp",
     "drive_record",
     "drive_step",
+    "multisine",
+    "multisine_period_samples",
     "sine",
     "stepped_sine",
     "stepped_sine_frequencies_hz",
 ]
 
-DRIVE_KINDS = ("sine", "chirp", "stepped_sine")
+DRIVE_KINDS = ("sine", "chirp", "stepped_sine", "multisine")
 
 
 class DriveError(ValueError):
@@ -128,6 +133,43 @@ def stepped_sine(
     return _stepped_sine_at(k, float(fs_hz), amplitude_v, freqs, dwell)
 
 
+def multisine(
+    n: np.ndarray,
+    period_samples: int,
+    lines: Sequence[int],
+    phases_rad: Sequence[float],
+    amplitude_v: float,
+) -> np.ndarray:
+    """amplitude_v * sum_k cos(2 pi k n / period_samples + phase_k) at integer sample indices n.
+
+    The phase of each line is taken from the integer (k n) mod N, so a sample is the same
+    whatever block it is computed in.
+    """
+    idx = np.asarray(n, dtype=np.int64)
+    ks = np.asarray(lines, dtype=np.int64)
+    phases = np.asarray(phases_rad, dtype=np.float64)
+    if ks.shape != phases.shape or ks.ndim != 1 or ks.size == 0:
+        raise DriveError("multisine lines and phases_rad must be two lists of one length (>= 1)")
+    if period_samples < 1 or np.any(ks < 0) or np.any(ks >= period_samples):
+        raise DriveError(f"multisine lines must lie in [0, {period_samples}) (the period)")
+    out = np.zeros(idx.shape, dtype=np.float64)
+    step = 2.0 * np.pi / period_samples
+    for k, phase in zip(ks.tolist(), phases.tolist(), strict=True):
+        out += np.cos(step * ((k * idx) % period_samples) + phase)
+    return amplitude_v * out
+
+
+def multisine_period_samples(fs_hz: float, base_hz: float) -> int:
+    """N = fs / f0, which must be a whole number of samples."""
+    ratio = _positive("fs_hz", fs_hz) / _positive("frequency_hz", base_hz)
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-9 * ratio:
+        raise DriveError(
+            f"multisine: fs_hz / frequency_hz = {ratio:.6g} is not a whole number of samples"
+        )
+    return int(n)
+
+
 def stepped_sine_frequencies_hz(start_hz: float, stop_hz: float, step_hz: float) -> np.ndarray:
     """start_hz, start_hz + step_hz, ... up to stop_hz inclusive (within half a step)."""
     count = math.floor((stop_hz - start_hz) / step_hz + 0.5) + 1
@@ -140,6 +182,8 @@ class DriveParams:
 
     sine: amplitude_v, bias_v, frequency_hz. chirp: amplitude_v, bias_v, start_hz, stop_hz,
     duration_s. stepped_sine: amplitude_v, bias_v, start_hz, stop_hz, step_hz, dwell_s.
+    multisine: amplitude_v (each line's), bias_v, frequency_hz (f0 = fs / N), lines (integer
+    line numbers k, each at k f0), phases_rad (one per line).
     lead_in_s (any kind): zero drive first, then the waveform from its own t = 0 (a rest that
     lets the wing settle between back-to-back runs).
     """
@@ -154,6 +198,8 @@ class DriveParams:
     step_hz: float = 0.0
     dwell_s: float = 0.0
     lead_in_s: float = 0.0
+    lines: tuple[float, ...] = ()
+    phases_rad: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in DRIVE_KINDS:
@@ -176,6 +222,7 @@ class DriveParams:
             "sine": ("frequency_hz",),
             "chirp": ("start_hz", "stop_hz", "duration_s"),
             "stepped_sine": ("start_hz", "stop_hz", "step_hz", "dwell_s"),
+            "multisine": ("frequency_hz",),
         }[self.kind]
         for name in required:
             _positive(name, getattr(self, name))
@@ -183,6 +230,18 @@ class DriveParams:
             raise DriveError(
                 f"stop_hz {self.stop_hz:g} must be >= start_hz {self.start_hz:g} for stepped_sine"
             )
+        lines = tuple(_finite("lines", v) for v in self.lines)
+        phases = tuple(_finite("phases_rad", v) for v in self.phases_rad)
+        object.__setattr__(self, "lines", lines)
+        object.__setattr__(self, "phases_rad", phases)
+        if self.kind == "multisine":
+            if not lines or len(lines) != len(phases):
+                raise DriveError(
+                    f"multisine needs lines and phases_rad of one length >= 1, got "
+                    f"{len(lines)} and {len(phases)}"
+                )
+            if any(v != round(v) or v < 0 for v in lines):
+                raise DriveError("multisine lines must be whole numbers >= 0")
 
 
 @dataclass(frozen=True)
@@ -210,6 +269,10 @@ def _waveform(k: np.ndarray, fs_hz: float, params: DriveParams) -> np.ndarray:
         return params.bias_v + chirp(
             t, params.amplitude_v, params.start_hz, params.stop_hz, params.duration_s
         )
+    if params.kind == "multisine":
+        n = multisine_period_samples(fs_hz, params.frequency_hz)
+        lines = [round(v) for v in params.lines]
+        return params.bias_v + multisine(k, n, lines, params.phases_rad, params.amplitude_v)
     freqs = stepped_sine_frequencies_hz(params.start_hz, params.stop_hz, params.step_hz)
     dwell = _dwell_samples(fs_hz, params.dwell_s)
     return params.bias_v + _stepped_sine_at(k, fs_hz, params.amplitude_v, freqs, dwell)[0]

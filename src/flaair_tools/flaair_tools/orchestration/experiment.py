@@ -49,6 +49,7 @@ from flaair_model import settings
 from flaair_model.config import ConfigError, config_dir, load_yaml
 from flaair_msgs.msg import CollisionStatus, DriveCommandBlock, SensorVoltageBlock
 from flaair_tools import bagio
+from flaair_tools.multisine.drives import design_of, realization_runs
 from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.bench_robot import robot_model, robot_section, write_robot_model
 from flaair_tools.orchestration.graphs import GRAPHS, node_of
@@ -113,6 +114,9 @@ def load_experiments() -> dict[str, ExperimentSpec]:
         if name == "robot":
             continue
         try:
+            if "multisine" in entry:  # one run per realization of the design it names
+                design = design_of(entry["multisine"], settings.stream().sample_rate_hz)
+                entry = {**entry, "runs": realization_runs(design)}
             runs = tuple(
                 RunSpec(
                     name=str(r["name"]),
