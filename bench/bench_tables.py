@@ -8,8 +8,9 @@ noise and 30 % of pitch cells missing. Families: no effect; one amplitude-depend
 friction on the stroke as a sign_velocity term).
 Each robot is scored by the one exact rule (`flaair_analysis.exact_score`): right iff its status,
 its named effects and its discovered terms all equal the truth's; the right effect among the
-names found is printed beside it as `info`. Every figure names its robot count. Baselines (same run): identify started from the configured
-robot instead of the table's peaks; the steady state of one table (one batch).
+names found is printed beside it as `info`. Every figure names its robot count. Baselines (same
+run): identify started from the configured robot instead of the table's peaks; the steady state
+of one table (one batch).
 
   nice -n 10 python bench/bench_tables.py --draws 1
 """
