@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import signal as os_signal
 import sys
 import time
@@ -52,7 +51,7 @@ from tqdm import tqdm
 
 from flaair_analysis.headline import headline
 from flaair_common import topics
-from flaair_common.outputs import check_output
+from flaair_common.outputs import check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
 from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
@@ -523,13 +522,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
-    new_dir = not args.out.exists()
     try:  # the output checked before anything is computed; a failed run leaves no new --out
-        check_output(args.out, [*args.bags, args.calibration], args.force, OUT_FILES)
-        report = analyze(args.bags, args.out, calibration_file=args.calibration)
+        written = check_output(args.out, [*args.bags, args.calibration], args.force, OUT_FILES)
+        with writing_outputs(args.out, written) as stage:  # the report renamed in when whole
+            report = analyze(args.bags, stage, calibration_file=args.calibration)
     except (AnalysisError, bagio.BagError, ValueError, OSError, KeyboardInterrupt) as exc:
-        if new_dir:
-            shutil.rmtree(args.out, ignore_errors=True)
         interrupted = isinstance(exc, KeyboardInterrupt)
         print(f"flaair analyze: {'interrupted' if interrupted else exc}", file=sys.stderr)
         return 130 if interrupted else EXIT_BAD_INPUT

