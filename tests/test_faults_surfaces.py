@@ -159,3 +159,116 @@ def test_an_output_that_is_a_symlink_is_never_written_through(
     _one_line(*_offline(["health", str(bag), "--out", str(out), "--force"]), 2, "symbolic link")
     assert victim.read_text() == "precious" if not dangling else not victim.exists()
     assert (out / "health.json").is_symlink() and not (out / "health.png").exists()
+
+
+# ----------------------------------------------------------------- 3: the ros2cli stand-ins
+
+
+def _no_node(name, body):
+    raise AssertionError("a node came up before the input was checked")
+
+
+@pytest.mark.parametrize(
+    ("argv", "text"),
+    [
+        (["topic", "echo", "/x", "not/a/Type", "--once"], "unknown message type 'not/a/Type'"),
+        (["topic", "pub", "--count", "1", "/x", "not/a/Type", "{}"], "unknown message type"),
+        (["topic", "pub", "/x", "std_msgs/msg/String", '{"data": 5}'], "String.data"),
+        (["param", "set", "/plant_node", "kr_target", "{a: 1}"], "is a mapping"),
+        (
+            ["param", "set", "/plant_node", "mode", "!!python/object/apply:os.system ['true']"],
+            "not a plain YAML value",
+        ),
+        (["param", "set", "/plant_node", "block_size", "99999999999999999999"], "64-bit"),
+        (["param", "set", "/plant_node", "block_size", "[1, 99999999999999999999]"], "64-bit"),
+        (
+            [
+                "service",
+                "call",
+                "/n/get_parameters",
+                "rcl_interfaces/srv/GetParameters",
+                "{names: 5}",
+            ],
+            "GetParameters_Request.names",
+        ),
+        (
+            [
+                *("service", "call", "/n/set_parameters", "rcl_interfaces/srv/SetParameters"),
+                "{parameters: [{name: 5}]}",
+            ],
+            "Parameter.name",
+        ),
+    ],
+    ids=[
+        "echo type",
+        "pub type",
+        "pub value",
+        "mapping",
+        "yaml tag",
+        "int64",
+        "int64 array",
+        "names: 5",
+        "nested",
+    ],
+)
+def test_ros2_stand_ins_refuse_bad_input_in_one_line(argv, text, monkeypatch, capsys) -> None:
+    from flaair_tools import cli
+    from flaair_tools.roscli import param, service, topic
+
+    for module in (param, service, topic):
+        monkeypatch.setattr(module, "run_with_node", _no_node)
+    code = cli.main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and text in err[0], err
+
+
+def test_a_service_request_takes_nested_messages() -> None:
+    from rcl_interfaces.msg import ParameterType
+    from rcl_interfaces.srv import SetParameters
+
+    from flaair_tools.roscli.service import parse_request
+
+    request = parse_request(
+        SetParameters, "{parameters: [{name: kr_target, value: {type: 3, double_value: 0.5}}]}"
+    )
+    (parameter,) = request.parameters
+    assert parameter.name == "kr_target"
+    assert parameter.value.type == ParameterType.PARAMETER_DOUBLE
+    assert parameter.value.double_value == 0.5
+
+
+def test_param_set_reads_values_as_ros2_does() -> None:
+    from rcl_interfaces.msg import ParameterType
+
+    from flaair_tools.roscli.param import parameter_value
+
+    assert parameter_value("0.25").double_value == 0.25
+    assert parameter_value(str(2**63 - 1)).integer_value == 2**63 - 1
+    assert parameter_value("[1, a]").type == ParameterType.PARAMETER_STRING  # as rclpy
+    assert parameter_value("{a").string_value == "{a"  # unparsable YAML: a string, as rclpy
+
+
+def test_param_list_into_a_closed_pipe_ends_quietly(monkeypatch, capsys) -> None:
+    """`param list NODE | head`: the pipe's reader has gone when the names are printed."""
+    import io
+    from types import SimpleNamespace
+
+    from flaair_tools import cli
+    from flaair_tools.roscli import param
+
+    class ClosedPipe(io.TextIOBase):
+        def write(self, text: str) -> int:
+            raise BrokenPipeError(32, "Broken pipe")
+
+    names = SimpleNamespace(result=SimpleNamespace(names=[f"p{k}" for k in range(50)]))
+    answered = SimpleNamespace(done=lambda: True, result=lambda: names)
+    client = SimpleNamespace(wait_for_services=lambda timeout_sec: True)
+    client.list_parameters = lambda: answered
+    monkeypatch.setattr(param, "AsyncParameterClient", lambda node, name: client)
+    monkeypatch.setattr(
+        param, "rclpy", SimpleNamespace(spin_until_future_complete=lambda *a, **k: None)
+    )
+    monkeypatch.setattr(param, "run_with_node", lambda name, body: body(None))
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert cli.main(["param", "list", "/plant_node"]) == 141
+    assert capsys.readouterr().err == ""
