@@ -11,6 +11,7 @@ says which run its headline comes from. Each test fails on the code before the f
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -272,3 +273,47 @@ def test_param_list_into_a_closed_pipe_ends_quietly(monkeypatch, capsys) -> None
     monkeypatch.setattr(sys, "stdout", ClosedPipe())
     assert cli.main(["param", "list", "/plant_node"]) == 141
     assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------- 7: import, SIGTERM at the end
+
+
+def test_sigterm_as_the_import_completes_keeps_the_whole_bag_and_says_so(
+    tmp_path, monkeypatch
+) -> None:
+    import numpy as np
+
+    from flaair_common.runcsv import write_run
+    from flaair_tools.bagio import import_runs
+
+    t = np.arange(2000) / 20000.0
+    drive = 100.0 * np.sin(2 * np.pi * 150.0 * t)
+    columns = {
+        "time_s": t,
+        "drive_v": drive,
+        "stroke_sensor_v": 1.6 + 0.01 * drive,
+        "pitch_sensor_v": 1.6 + 0.002 * drive,
+        "stroke_deg": 0.3 * drive,
+        "pitch_deg": 0.1 * drive,
+    }
+    run = write_run(tmp_path / "run.csv", columns) or tmp_path / "run.csv"
+    real = import_runs.import_runs
+
+    class SignalledAtTheEnd(list):
+        looks = 0
+
+        def __iter__(self):  # its second reader, the summary: the bag is closed, SIGTERM comes
+            self.looks += 1
+            if self.looks == 2:
+                signal.raise_signal(signal.SIGTERM)
+            return super().__iter__()
+
+    monkeypatch.setattr(
+        import_runs, "import_runs", lambda *a, **k: SignalledAtTheEnd(real(*a, **k))
+    )
+    bag = tmp_path / "bag"
+    result = run_offline([FLAAIR, "import", str(run), "--out", str(bag)], isolated_env())
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {bag}" in result.stdout and "Traceback" not in result.stderr
+    assert "SIGTERM came after the bag was complete: kept" in result.stderr
+    assert (bag / "metadata.yaml").is_file()
