@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -273,6 +274,104 @@ def test_param_list_into_a_closed_pipe_ends_quietly(monkeypatch, capsys) -> None
     monkeypatch.setattr(sys, "stdout", ClosedPipe())
     assert cli.main(["param", "list", "/plant_node"]) == 141
     assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------- 8, 17: live and experiment
+
+
+class _FakeGraph:
+    """live's Graph without processes: what it was asked to start, in order."""
+
+    started: ClassVar[list[tuple[str, list[str]]]] = []
+    log_dirs: ClassVar[list[Path]] = []
+
+    def __init__(self, localhost: bool = True, log_dir: Path | None = None) -> None:
+        self.env = {"ROS_DOMAIN_ID": "7", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+        _FakeGraph.log_dirs.append(log_dir)
+
+    def describe(self) -> str:
+        return "ROS domain 7"
+
+    def start(self, role: str, argv: list[str]) -> str:
+        _FakeGraph.started.append((role, argv))
+        return role
+
+    def stop(self, process: str, timeout_s: float) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class _CtrlCAtHealth:
+    """live's Watcher, Ctrl-C pressed while it waits for the health monitor."""
+
+    def __init__(self, graph, args) -> None:
+        pass
+
+    recorder_listens = monitor_listens = health_listens = None
+
+    def spin_until(self, predicate, timeout_s: float, what: str) -> None:
+        if "health" in what:
+            raise KeyboardInterrupt
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.fixture
+def fake_live(monkeypatch, tmp_path):
+    from flaair_tools.orchestration import live
+
+    monkeypatch.setattr(live, "Graph", _FakeGraph)
+    monkeypatch.setattr(live, "Watcher", _CtrlCAtHealth)
+    monkeypatch.setattr(_FakeGraph, "started", [])
+    monkeypatch.setattr(_FakeGraph, "log_dirs", [])
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # not the repository's root
+    handler = signal.getsignal(signal.SIGTERM)
+    yield live
+    signal.signal(signal.SIGTERM, handler)
+
+
+def test_ctrl_c_before_the_loop_starts_claims_no_bag(fake_live, capsys) -> None:
+    assert fake_live.main(["--sim", "--out", "bag"]) == 0
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "interrupted" in last and "closed" not in last and "no bag written" in last, last
+    assert "zero drive sent" not in last  # the loop never ran
+
+
+def test_live_from_another_directory_hands_its_children_absolute_paths(fake_live) -> None:
+    import yaml
+
+    fake_live.main(["--sim", "--out", "bag"])
+    roles = dict(_FakeGraph.started)
+    argv = roles["recorder"]
+    params = Path(argv[argv.index("--params-file") + 1])
+    assert params.is_absolute() and params.is_file(), argv
+    recorder = yaml.safe_load(params.read_text())["recorder_node"]["ros__parameters"]
+    assert recorder["output_path"] == str(Path.cwd() / "bag")
+
+
+def test_experiment_from_another_directory_uses_absolute_paths(monkeypatch, tmp_path) -> None:
+    from flaair_tools.orchestration import experiment
+
+    class Stop(Exception):
+        pass
+
+    def graph(log_dir: Path, **_kwargs):
+        _FakeGraph.log_dirs.append(log_dir)
+        raise Stop
+
+    monkeypatch.setattr(_FakeGraph, "log_dirs", [])
+    monkeypatch.setattr(experiment, "Graph", graph)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(Stop):
+        experiment.run_experiment(
+            experiment.load_experiments()["characterization_chirp"], Path("bag"), progress=False
+        )
+    assert _FakeGraph.log_dirs == [tmp_path / "bag.logs"]
 
 
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
