@@ -374,6 +374,31 @@ def test_experiment_from_another_directory_uses_absolute_paths(monkeypatch, tmp_
     assert _FakeGraph.log_dirs == [tmp_path / "bag.logs"]
 
 
+# ----------------------------------------------------------------- 18: launch --print
+
+
+def test_launch_refuses_a_namespace_that_is_not_a_ros_name_before_printing(capsys) -> None:
+    from flaair_tools.orchestration import launch_cli
+
+    argv = ["flaair_tools", "lockstep_loop.launch.xml", "namespace:=$(touch PWNED);x", "--print"]
+    assert launch_cli.main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1, err
+    assert "namespace '/$(touch PWNED);x' is not a valid ROS name" in err
+
+
+def test_launch_print_quotes_each_word_for_a_shell(capsys) -> None:
+    import shlex
+
+    from flaair_tools.orchestration import launch_cli
+
+    value = "out/bags/a b;touch PWNED"
+    argv = ["flaair_tools", "record.launch.xml", f"output_path:={value}", "--print"]
+    assert launch_cli.main(argv) == 0
+    (line,) = capsys.readouterr().out.strip().splitlines()
+    assert f"output_path:={value}" in shlex.split(line)  # one word, as it was given
+
+
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
 
 
