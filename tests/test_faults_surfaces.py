@@ -399,6 +399,31 @@ def test_launch_print_quotes_each_word_for_a_shell(capsys) -> None:
     assert f"output_path:={value}" in shlex.split(line)  # one word, as it was given
 
 
+# ----------------------------------------------------------------- 19: DLTdv sparse exports
+
+
+@pytest.mark.parametrize(
+    "title",
+    [
+        "Sparse format 2D camera coordinates file",
+        "Sparse format camera coordinates file",
+        "sparse format 2D coordinates file,,",
+    ],
+)
+def test_a_sparse_2d_export_is_recognised_by_its_layout(title, tmp_path) -> None:
+    import numpy as np
+
+    import lab_writers as lw
+    from flaair_tools.bagio.dlt_tracks import read_xy_point
+
+    t = np.arange(50) / 50.0
+    tip = np.column_stack([320 + 40 * np.sin(2 * np.pi * t), 240 + 10 * np.cos(2 * np.pi * t)])
+    tip[7] = np.nan  # a frame not tracked
+    path = lw.write_sparse_track(tmp_path / "tip_xypts.csv", tip, 2, title=title)
+    got = read_xy_point(path, 1, 1, "points.actuator_tip")
+    np.testing.assert_allclose(got, tip, rtol=1e-14)
+
+
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
 
 
