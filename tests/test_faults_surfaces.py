@@ -424,6 +424,55 @@ def test_a_sparse_2d_export_is_recognised_by_its_layout(title, tmp_path) -> None
     np.testing.assert_allclose(got, tip, rtol=1e-14)
 
 
+# ----------------------------------------------------------------- 20: file text in figures
+
+TEX_NAME = "$\\frac{a}{$"  # a run name that is broken mathtext
+
+
+def test_discrepancy_figures_draw_a_run_named_like_tex_literally(tmp_path) -> None:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from flaair_analysis.discrepancy.runs import CHANNELS, Run
+    from flaair_tools.discrepancy.report_figures import write_figures
+
+    fs, n = 20000.0, 2000
+    t = np.arange(n) / fs
+    drive = 100.0 * np.sin(2 * np.pi * 150.0 * t)
+    run = Run(
+        TEX_NAME, fs, drive, 1.6 + 0.01 * drive, 1.6 + 0.002 * drive, 0.3 * drive, 0.1 * drive
+    )
+    sims = [{c: run.channel(c) * 1.1 for c in CHANNELS}]
+    channel = SimpleNamespace(
+        noise_nrmse=0.01, worst_stretch=(TEX_NAME, 0.02, 0.08, 0.0), band_nrmse={"100-200 Hz": 0.1}
+    )
+    diagnosis = SimpleNamespace(channels=dict.fromkeys(CHANNELS, channel))
+    result = SimpleNamespace(
+        diagnosis_before=diagnosis,
+        diagnosis_after=diagnosis,
+        gap_before=dict.fromkeys(CHANNELS, 0.2),
+        gap_after=dict.fromkeys(CHANNELS, 0.05),
+        status="explained",
+        sims_before=sims,
+        sims_after=sims,
+        discovered=(),
+    )
+    figures = write_figures(tmp_path, [run], result)
+    assert all((tmp_path / name).stat().st_size > 1000 for name in figures.values())
+
+
+def test_health_figure_draws_a_bag_named_like_tex_literally(tmp_path) -> None:
+    from flaair_tools.analysis.health_cli import write_figure
+
+    series = {"time_s": [0.0, 0.1]}
+    for name in ("wing_inertia", "stroke_film_gain", "pitch_film_gain", "actuator_gain"):
+        series[name], series[f"{name}_stderr"] = [1.0, 1.01], [0.01, 0.01]
+    result = {"bag": f"/data/{TEX_NAME}", "wingbeats": series, "events": []}
+    write_figure([result], tmp_path / "health.png")
+    assert (tmp_path / "health.png").stat().st_size > 1000
+
+
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
 
 

@@ -129,8 +129,8 @@ def write_figure(results: list[dict[str, Any]], path: Path) -> None:
             if row == 0:
                 ax.set_title(Path(res["bag"]).name, fontsize=9)
         axes[-1, col].set_xlabel("time [s]")
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=100)  # a bag's name drawn as written
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=100)  # a bag's name drawn as written
 
 
 def main(argv: list[str] | None = None) -> int:
