@@ -473,6 +473,45 @@ def test_health_figure_draws_a_bag_named_like_tex_literally(tmp_path) -> None:
     assert (tmp_path / "health.png").stat().st_size > 1000
 
 
+# ----------------------------------------------------------------- 21: analyze's headline
+
+
+def _transition_bag(path: str, experiment: str, frequency_hz: float) -> dict:
+    return {
+        "bag": path,
+        "experiment": experiment,
+        "runs": {"kr_ramp": {"method": "transition"}},
+        "transition": {
+            "final_frequency_hz": frequency_hz,
+            "final_amplitude_deg": 30.0,
+            "resonance_hz": 180.0,
+        },
+    }
+
+
+class _Bands:
+    def label(self, name: str) -> str:
+        return "110-190 Hz"
+
+
+def test_the_headline_names_its_transition_run_and_the_lab_chooses() -> None:
+    from flaair_analysis.headline import HeadlineChoiceError, headline
+
+    bags = [
+        _transition_bag("bags/paper", "transition", 190.0),
+        _transition_bag("bags/damaged", "damaged_wing", 150.0),
+    ]
+    first = headline(bags, _Bands())["transition_final_frequency_hz"]
+    assert first["flaair"] == 190.0
+    assert "bags/paper" in first["source"] and "kr_ramp" in first["source"]
+    assert "first of 2" in first["note"] and "bags/damaged" in first["note"]
+    for name in ("damaged", "bags/damaged", "damaged_wing"):
+        chosen = headline(bags, _Bands(), name)["transition_final_frequency_hz"]
+        assert chosen["flaair"] == 150.0 and "bags/damaged" in chosen["source"], name
+    with pytest.raises(HeadlineChoiceError, match=r"--headline-transition nowhere: .*bags/paper"):
+        headline(bags, _Bands(), "nowhere")
+
+
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
 
 
