@@ -512,6 +512,94 @@ def test_the_headline_names_its_transition_run_and_the_lab_chooses() -> None:
         headline(bags, _Bands(), "nowhere")
 
 
+# ----------------------------------------------------------------- 16: live --target, strangers
+
+
+def _bridge_params(**overrides):
+    from flaair_bridge.core import bridge_params
+
+    values = dict(
+        sample_rate_hz=20000.0,
+        block_size=10,
+        lead_samples=20,
+        drive_limit_v=150.0,
+        max_ahead_samples=400,
+        max_fill_samples=20000,
+        resync_packets=5,
+        drive_timeout_s=0.02,
+        sensor_timeout_s=0.02,
+        target_host="127.0.0.1",
+        target_port=25001,
+    )
+    values.update(overrides)
+    return bridge_params.BridgeParams(**values)
+
+
+def _sensor(sequence: int, first: int) -> bytes:
+    import numpy as np
+
+    from flaair_bridge.emulated_target import sensor_packet
+
+    i = np.arange(first, first + 10)
+    return sensor_packet(sequence, first, 20000.0, 0, i / 10, 1 + i / 1000, 2 - i / 1000)
+
+
+def _feed(datagrams, p):
+    import numpy as np
+
+    from flaair_bridge.core import bridge
+
+    state, published = bridge.initial_state(p), []
+    for k, (data, sender) in enumerate(datagrams):
+        state, out = bridge.step(state, bridge.SensorDatagram(data, 1e-3 * k, None, sender), p)
+        published += [int(b.first_sample_index) for b in out.blocks]
+    return state, np.array(published)
+
+
+TARGET = ("127.0.0.1", 40000)  # the target sends from its own port (a Speedgoat's UDP Send)
+
+
+@pytest.mark.parametrize(
+    "stranger", [("127.0.0.1", 50000), ("10.0.0.9", 25001)], ids=["same host", "another host"]
+)
+def test_a_strangers_far_ahead_packets_neither_move_nor_stop_the_stream(stranger) -> None:
+    datagrams = []
+    for k in range(100):
+        datagrams.append((_sensor(k, 10 * k), TARGET))
+        if k >= 10:  # 49.9 M samples ahead, in the target's stream
+            datagrams.append((_sensor(4_990_000 + k, 49_900_000 + 10 * k), stranger))
+    state, published = _feed(datagrams, _bridge_params())
+    assert list(published) == list(range(0, 1000, 10))  # every target packet, in place
+    c = state.counters
+    assert (c.foreign_packets, c.stale_packets, c.lost_packets, c.lost_samples) == (90, 0, 0, 0)
+    assert state.source == TARGET
+
+
+def test_the_configured_address_is_the_target_even_after_a_stranger_spoke_first() -> None:
+    stranger, configured = ("127.0.0.1", 50000), ("127.0.0.1", 25001)
+    datagrams = [(_sensor(7_000_000, 70_000_000), stranger)]
+    datagrams += [(_sensor(k, 10 * k), configured) for k in range(20)]
+    datagrams += [(_sensor(7_000_001 + k, 70_000_010 + 10 * k), stranger) for k in range(20)]
+    state, published = _feed(datagrams, _bridge_params())
+    c = state.counters
+    assert state.source == configured and (c.foreign_packets, c.stale_packets) == (20, 0)
+    assert list(published) == list(range(70_000_000, 70_000_210, 10))  # no step back, no gap
+
+
+def test_a_sequence_jump_is_bounded_unless_it_persists() -> None:
+    """Sender unknown (or spoofed): a far jump moves the stream only after resync_packets."""
+    p = _bridge_params(target_host="", target_port=0)
+    far = [(_sensor(5_000_000 + k, 50_000_000 + 10 * k), None) for k in range(3)]
+    datagrams = [(_sensor(k, 10 * k), None) for k in range(10)] + far
+    datagrams += [(_sensor(k, 10 * k), None) for k in range(10, 20)]
+    state, published = _feed(datagrams, p)
+    assert list(published) == list(range(0, 200, 10)) and state.counters.jump_packets == 3
+    persisting = [(_sensor(6_000_000 + k, 60_000_000 + 10 * k), None) for k in range(6)]
+    state, published = _feed(datagrams + persisting, p)
+    assert state.counters.jump_packets == 3 + 4  # the fifth in a row is followed
+    assert published[-1] == 60_000_050 and state.counters.lost_packets == 6_000_000 - 20 + 4
+
+
 # ----------------------------------------------------------------- 7: import, SIGTERM at the end
 
 
