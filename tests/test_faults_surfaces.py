@@ -70,6 +70,8 @@ sys.exit(m.main(["--table", str(BAG), "--out", str(OUT)]))
 }
 
 
+# slow: a new interpreter imports numpy, scipy and matplotlib (7-9 s at load average 8)
+@pytest.mark.slow
 @pytest.mark.parametrize("command", sorted(SIGTERM_SCRIPTS))
 def test_sigterm_while_writing_leaves_no_partial_output(command, tmp_path) -> None:
     """In a new process: SIGTERM's default action cannot be shown in the test's own."""
@@ -429,6 +431,7 @@ def test_a_sparse_2d_export_is_recognised_by_its_layout(title, tmp_path) -> None
 TEX_NAME = "$\\frac{a}{$"  # a run name that is broken mathtext
 
 
+@pytest.mark.slow  # the four discrepancy figures drawn (8-11 s at load average 8, imports included)
 def test_discrepancy_figures_draw_a_run_named_like_tex_literally(tmp_path) -> None:
     from types import SimpleNamespace
 
