@@ -4,8 +4,8 @@ FLAAIR blocks out; FLAAIR drive in, drive packets out.
 ``step(state, inputs, params) -> (state, outputs)`` with four kinds of input (numpy only, no
 sockets, no ROS, time passed in):
 
-- `SensorDatagram`: a datagram from the target. One from another sender is foreign, counted
-  and dropped before it is read: from a host other than the configured ``target_host``, or,
+- `SensorDatagram`: a datagram from the target. A valid sensor packet from another sender is
+  foreign, counted and dropped: from a host other than the configured ``target_host``, or,
   while the stream's source (the sender of the first valid packet; the configured
   ``target_host:target_port`` itself whenever it sends) is not silent, from any other host and
   port. Malformed ones (protocol.ProtocolError, or a
@@ -120,9 +120,7 @@ def _on_sensor(
                 f"sample_rate_hz {packet.sample_rate_hz:g}, the bridge "
                 f"runs at {params.sample_rate_hz:g}"
             )
-    except protocol.ProtocolError as exc:
-        if foreign_sender(state, inputs.sender, params):
-            return _foreign_packet(state, inputs, params)
+    except protocol.ProtocolError as exc:  # whoever sent it: counted as what it is
         counters = add_counts(state.counters, malformed=1)
         return state._replace(counters=counters), Outputs(
             notes=(
