@@ -94,8 +94,7 @@ class BridgeNode(FlaairNode):
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
         # publishing inside: blocks from the thread and from the timer stay in order
         with self.lock:
-            # composed, the drive this packet's blocks produce
-            # comes back nested: its cause is this packet
+            # composed, the drive this packet's blocks produce comes back nested, caused by it
             outer_cause_s = self.cause_s
             if isinstance(inputs, bridge.SensorDatagram):
                 self.cause_s = inputs.now_s
