@@ -175,12 +175,16 @@ def write_track(
     return path
 
 
-def write_sparse_track(path: Path, table: np.ndarray, dimensions: int = 3) -> Path:
-    """DLTdv8a's sparse export of `table` (frames x columns): tracked cells only, from 1."""
+def write_sparse_track(
+    path: Path, table: np.ndarray, dimensions: int = 3, title: str | None = None
+) -> Path:
+    """DLTdv8a's sparse export of `table` (frames x columns): tracked cells only, from 1;
+    `title` in place of its first line ``Sparse format 3D coordinates file`` (or 2D).
+    """
     rows, columns = np.nonzero(np.isfinite(table))
     order = np.lexsort((columns, rows))
     lines = [
-        f"Sparse format {dimensions}D coordinates file",
+        title or f"Sparse format {dimensions}D coordinates file",
         f"{table.shape[0]} {table.shape[1]} {rows.size}",
         *(
             f"{r + 1} {c + 1} {table[r, c]:.15g}"

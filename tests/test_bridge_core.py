@@ -29,6 +29,8 @@ def params(**overrides) -> bridge_params.BridgeParams:
         resync_packets=5,
         drive_timeout_s=0.02,
         sensor_timeout_s=0.02,
+        target_host="",
+        target_port=0,
     )
     values.update(overrides)
     return bridge_params.BridgeParams(**values)

@@ -7,7 +7,19 @@ from __future__ import annotations
 import math
 from typing import Any, Protocol
 
-__all__ = ["LABELS", "PAPER", "BandLabels", "finite_or_none", "headline"]
+__all__ = [
+    "LABELS",
+    "PAPER",
+    "BandLabels",
+    "HeadlineChoiceError",
+    "finite_or_none",
+    "headline",
+    "transition_source",
+]
+
+
+class HeadlineChoiceError(ValueError):
+    """The run named for the headline is not among the bags' (the message names those there)."""
 
 
 class BandLabels(Protocol):
@@ -85,7 +97,45 @@ def _pick(
     return best
 
 
-def headline(bags: list[dict[str, Any]], bands: BandLabels) -> dict[str, dict[str, Any]]:
+def transition_source(bag: dict[str, Any]) -> str:
+    """Where a transition headline comes from: the bag, its experiment and its transition runs."""
+    runs = [name for name, run in bag["runs"].items() if run.get("method") == "transition"]
+    shown = f"{bag['experiment']}/{', '.join(runs)}" if runs else bag["experiment"]
+    return f"{shown} ({bag['bag']})"
+
+
+def _transition_bag(
+    bags: list[dict[str, Any]], chosen: str | None
+) -> tuple[dict[str, Any] | None, str]:
+    """The bag the transition figures come from, and how it was chosen (for the note).
+
+    `chosen` names a bag (its path or directory name), its experiment, or one of its transition
+    runs; None: the first bag with a transition, and the note says so when there are several.
+    """
+    candidates = [bag for bag in bags if "transition" in bag]
+    if chosen is None:
+        if len(candidates) > 1:
+            others = "; ".join(transition_source(b) for b in candidates[1:])
+            return candidates[0], (
+                f"the first of {len(candidates)} transition bags (also: {others}); "
+                "--headline-transition chooses"
+            )
+        return (candidates[0] if candidates else None), ""
+    for bag in candidates:
+        runs = [name for name, run in bag["runs"].items() if run.get("method") == "transition"]
+        names = {bag["bag"], bag["bag"].rstrip("/").rsplit("/", 1)[-1], bag["experiment"], *runs}
+        if chosen in names:
+            return bag, "chosen by --headline-transition"
+    there = "; ".join(transition_source(b) for b in candidates) or "none"
+    raise HeadlineChoiceError(
+        f"--headline-transition {chosen}: no bag with a transition run is named so (bags with "
+        f"one: {there})"
+    )
+
+
+def headline(
+    bags: list[dict[str, Any]], bands: BandLabels, transition: str | None = None
+) -> dict[str, dict[str, Any]]:
     """The paper's headline figures as measured here,
     beside the paper's, with label, unit and source.
 
@@ -96,7 +146,16 @@ def headline(bags: list[dict[str, Any]], bands: BandLabels) -> dict[str, dict[st
     bands
         The configured analysis bands (`flaair_sensors.analysis_io.AnalysisBands`), which some
         labels name.
+    transition
+        The bag (path or name), experiment or run the transition figures come from; None: the
+        first bag holding a transition, the note naming the others.
+
+    Raises
+    ------
+    HeadlineChoiceError
+        `transition` names no bag with a transition run.
     """
+    chosen, how = _transition_bag(bags, transition)
     ours: dict[str, tuple[float | None, str]] = {}
     chirp = _pick(bags, ("chirp",))
     stepped = _pick(bags, ("stepped",)) or chirp
@@ -142,20 +201,21 @@ def headline(bags: list[dict[str, Any]], bands: BandLabels) -> dict[str, dict[st
             "unit": LABELS[key][1],
             "source": source,
         }
-    for bag in bags:
-        if "transition" in bag:
-            t = bag["transition"]
-            note = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it"
-            for key, value in (
-                ("transition_final_frequency_hz", t["final_frequency_hz"]),
-                ("transition_final_amplitude_deg", t["final_amplitude_deg"]),
-            ):
-                table[key] = {
-                    "flaair": value,
-                    "paper": None,
-                    "label": LABELS[key][0],
-                    "unit": LABELS[key][1],
-                    "source": bag["experiment"],
-                    "note": note if key.endswith("hz") else "",
-                }
+    if chosen is not None:
+        t = chosen["transition"]
+        source = transition_source(chosen)
+        where = f"from {source}" + (f", {how}" if how else "")
+        for key, value in (
+            ("transition_final_frequency_hz", t["final_frequency_hz"]),
+            ("transition_final_amplitude_deg", t["final_amplitude_deg"]),
+        ):
+            resonance = f"stroke resonance {t['resonance_hz']:g} Hz; paper: slightly above it; "
+            table[key] = {
+                "flaair": value,
+                "paper": None,
+                "label": LABELS[key][0],
+                "unit": LABELS[key][1],
+                "source": source,
+                "note": (resonance if key.endswith("hz") else "") + where,
+            }
     return table

@@ -4,6 +4,7 @@ mapping between the core's blocks and settings and the node's messages and log l
 
 from __future__ import annotations
 
+import socket
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -154,6 +155,14 @@ PARAMS = [
 
 def params_from_values(values: Mapping[str, Any]) -> bridge_params.BridgeParams:
     """The core's parameters from the node's values; a refused one is a ParameterError naming it."""
+    values = dict(values)
+    if values["target_host"]:  # as the sender of its packets reads: an address
+        try:
+            values["target_host"] = socket.gethostbyname(values["target_host"])
+        except OSError as exc:
+            raise ParameterError(
+                f"parameter 'target_host' = {values['target_host']!r}: not an address ({exc})"
+            ) from exc
     try:
         return bridge_params.BridgeParams(
             **{name: values[name] for name in bridge_params.BridgeParams.__dataclass_fields__}
@@ -255,6 +264,8 @@ def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) ->
             "lost_packets": c.lost_packets,
             "loss_percent": loss_percent(c.lost_packets, c.lost_packets + c.sensor_packets),
             "malformed_packets": c.malformed,
+            "foreign_packets": c.foreign_packets,
+            "jump_packets": c.jump_packets,
             "drive_packets": c.drive_packets,
             "drive_late_blocks": c.drive_late_blocks,
             "clamped_samples": c.clamped_samples,

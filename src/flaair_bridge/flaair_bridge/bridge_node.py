@@ -71,11 +71,12 @@ class BridgeNode(FlaairNode):
         self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:
-        host, port = self.p["target_host"], self.p["target_port"]
-        self.target, notes = target.follow(host, port, sender, self.target, data)
-        log_notes(self.get_logger(), notes)
+        host, port, sender = self.p["target_host"], self.p["target_port"], tuple(sender[:2])
+        if not bridge.foreign_sender(self.state, sender, self.params):  # a stranger: not followed
+            self.target, notes = target.follow(host, port, sender, self.target, data)
+            log_notes(self.get_logger(), notes)
         answered = self.state.counters.drive_packets
-        self.process(bridge.SensorDatagram(data, arrival_s, time.time()))
+        self.process(bridge.SensorDatagram(data, arrival_s, time.time(), sender))
         # the loop has answered: a gap until the next block
         if self.state.counters.drive_packets != answered:
             intra.use_gap()
@@ -93,8 +94,7 @@ class BridgeNode(FlaairNode):
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
         # publishing inside: blocks from the thread and from the timer stay in order
         with self.lock:
-            # composed, the drive this packet's blocks produce
-            # comes back nested: its cause is this packet
+            # composed, the drive this packet's blocks produce comes back nested, caused by it
             outer_cause_s = self.cause_s
             if isinstance(inputs, bridge.SensorDatagram):
                 self.cause_s = inputs.now_s

@@ -3,9 +3,14 @@
 `check_output` refuses, in one line naming `--out`, an output that would overwrite one of the
 command's inputs or the project's config (config/, the model every tool reads), an existing
 output without `--force`, a directory where a file is wanted and the other way round, and a
-place the command cannot write. `writing_outputs` turns a failed write (disk full, a file
-system turned read-only) into an `OutputError` and removes what was partly written, so a
-command leaves either its whole output or none.
+place the command cannot write, and an output file that is a symbolic link (an output is never
+written through a link).
+
+`writing_outputs` stages the outputs: the command writes into a temporary sibling (a hidden
+directory beside or inside `--out`, or a hidden file beside the output file) and only a whole
+result is renamed into place, the earlier result (`--force`) staying until then. A failed write
+(disk full, a file system turned read-only), a Ctrl-C or a SIGTERM removes the stage alone, so
+a command leaves either its whole new output or what was there before.
 """
 
 from __future__ import annotations
@@ -13,9 +18,13 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
-from collections.abc import Iterator, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from types import FrameType
+from typing import Any
 
 from flaair_model.config import ConfigError, config_dir
 
@@ -71,6 +80,12 @@ def check_output(
         raise OutputError(f"--out {out}: is a file, not a directory")
     if not directory and out.is_dir():
         raise OutputError(f"--out {out}: is a directory, not a file")
+    for path in written:
+        if path.is_symlink():
+            raise OutputError(
+                f"--out {out}: {path} is a symbolic link (an output is never written through a "
+                "link; remove it first)"
+            )
     if any(path.exists() and not path.is_file() for path in written):
         raise OutputError(f"--out {out}: not a regular file (a device, FIFO or socket)")
     sources = [_resolved(p) for p in inputs if p is not None]
@@ -105,22 +120,114 @@ def _check_writable(folder: Path, out: Path) -> None:
         raise OutputError(f"--out {out}: cannot write in {probe} ({exc.strerror or exc})") from None
 
 
+def _interrupt(_signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
 @contextlib.contextmanager
-def writing_outputs(out: Path, written: Sequence[Path], new_dir: bool = False) -> Iterator[None]:
-    """Write a command's outputs; a failed write (or a Ctrl-C) removes them, and the directory
-    `out` when `new_dir` (the command created it), then raises one-line OutputError (or the
-    KeyboardInterrupt).
-    """
+def _signals_as(
+    handler: Callable[[int, FrameType | None], Any], signals: Sequence[int]
+) -> Iterator[None]:
+    """`signals` handled by `handler` inside the block (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, handler) for sig in signals}
     try:
         yield
-    except (OSError, KeyboardInterrupt) as exc:
-        for path in written:
-            if path.is_file() and not path.is_symlink():
-                with contextlib.suppress(OSError):
-                    path.unlink()
-        if new_dir:
-            shutil.rmtree(out, ignore_errors=True)
-        if isinstance(exc, KeyboardInterrupt):
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _made_parents(folder: Path) -> Path | None:
+    """Create `folder` and its missing parents; returns the topmost one created (None: none)."""
+    top = None
+    probe = folder.absolute()
+    while not probe.exists():
+        top = probe
+        probe = probe.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return top
+
+
+def _commit(stage: Path, out: Path, file_mode: bool, into_existing: bool, done: list[bool]) -> None:
+    """Rename the whole staged result into place (an output that is a link is replaced, never
+    followed); a Ctrl-C or SIGTERM meanwhile is held off: the result is whole by then.
+    """
+    with _signals_as(lambda *_: None, (signal.SIGINT, signal.SIGTERM)):
+        if file_mode or not into_existing:
+            os.replace(stage, out)
+        else:
+            for entry in sorted(stage.iterdir()):
+                target = out / entry.name
+                if target.is_dir() and not target.is_symlink():
+                    shutil.rmtree(target)
+                os.replace(entry, target)
+            stage.rmdir()
+        done.append(True)
+
+
+@contextlib.contextmanager
+def writing_outputs(out: Path, written: Sequence[Path]) -> Iterator[Path]:
+    """Stage a command's outputs; yields where to write them, renamed into `out` when whole.
+
+    Parameters
+    ----------
+    out : Path
+        The command's ``--out`` (a directory, or the output file when `written` is ``[out]``).
+    written : sequence of Path
+        The outputs, from `check_output`.
+
+    Yields
+    ------
+    Path
+        The stage: the directory to write the files into (in place of `out`), or the file to
+        write (in place of the output file).
+
+    Raises
+    ------
+    OutputError
+        A write failed (one line; nothing new left, the earlier output kept).
+    KeyboardInterrupt
+        Ctrl-C or SIGTERM while writing (nothing new left, the earlier output kept).
+    """
+    file_mode = list(written) == [out]
+    into_existing = not file_mode and out.is_dir()
+    parent = out if into_existing else out.absolute().parent
+    created: Path | None = None
+    stage: Path | None = None
+    done: list[bool] = []
+    try:
+        with _signals_as(_interrupt, (signal.SIGTERM,)):
+            created = None if into_existing else _made_parents(parent)
+            prefix = ".flaair-partial-" if into_existing else f".{out.name}.partial-"
+            if file_mode:
+                handle, name = tempfile.mkstemp(dir=parent, prefix=prefix)
+                os.close(handle)
+                stage = Path(name)
+            else:
+                stage = Path(tempfile.mkdtemp(dir=parent, prefix=prefix))
+            stage.chmod((0o666 if file_mode else 0o777) & ~_umask())
+            yield stage
+            _commit(stage, out, file_mode, into_existing, done)
+    except BaseException as exc:  # whatever ends the writing, the stage goes
+        if done and isinstance(exc, KeyboardInterrupt):  # after the whole result was in place
+            return
+        if stage is not None and stage.is_dir() and not stage.is_symlink():
+            shutil.rmtree(stage, ignore_errors=True)
+        elif stage is not None:
+            with contextlib.suppress(OSError):
+                stage.unlink()
+        if created is not None:
+            shutil.rmtree(created, ignore_errors=True)
+        if not isinstance(exc, OSError):
             raise
         raise OutputError(
             f"--out {out}: cannot write ({exc.strerror or exc}); no partial output left"

@@ -128,11 +128,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     columns["time_s"] = run["time_s"]
     try:
-        with writing_outputs(args.out, written):
-            write_run(args.out, columns)
+        with writing_outputs(args.out, written) as stage:
+            write_run(stage, columns)
     except OutputError as exc:
         print(f"flaair simulate: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("flaair simulate: interrupted; nothing written", file=sys.stderr)
+        return 130
     print(f"flaair simulate: {len(drive_v)} samples at {fs_hz:g} Hz -> {args.out}")
     return 0
 

@@ -4,12 +4,20 @@ FLAAIR blocks out; FLAAIR drive in, drive packets out.
 ``step(state, inputs, params) -> (state, outputs)`` with four kinds of input (numpy only, no
 sockets, no ROS, time passed in):
 
-- `SensorDatagram`: a datagram from the target. Malformed ones (protocol.ProtocolError, or a
+- `SensorDatagram`: a datagram from the target. A valid sensor packet from another sender is
+  foreign, counted and dropped: from a host other than the configured ``target_host``, or,
+  while the stream's source (the sender of the first valid packet; the configured
+  ``target_host:target_port`` itself whenever it sends) is not silent, from any other host and
+  port. Malformed ones (protocol.ProtocolError, or a
   sample rate other than the bridge's) are counted and dropped. Sequence numbers are tracked
   modulo 2^32: a gap counts the packets lost and their samples are published as NaN (the front
   end marks non-finite samples invalid: loss is marked, never filled in); a duplicate or older
   sequence is stale and dropped. ``resync_packets`` stale packets in a row mean the target
-  restarted: the bridge follows the new stream and keeps its own published index running.
+  restarted: the bridge follows the new stream and keeps its own published index running. A
+  packet that jumps further ahead (in sequence or in samples) than ``max_fill_samples`` is
+  dropped and counted too, unless ``resync_packets`` such packets come in a row (a target
+  back after a long outage): a stranger's far-ahead packets among the target's never move the
+  stream.
   Samples are re-blocked to ``block_size`` (the lab's n = 10 passes straight through).
 - `DriveBlock`: a block of FLAAIR's drive stream (its own sample count). The first block, or
   the first after a jump in the stream, is anchored as the protocol says: computed from samples
@@ -72,6 +80,7 @@ __all__ = [
     "SensorDatagram",
     "Stop",
     "Tick",
+    "foreign_sender",
     "in_order",
     "initial_state",
     "step",
@@ -111,7 +120,7 @@ def _on_sensor(
                 f"sample_rate_hz {packet.sample_rate_hz:g}, the bridge "
                 f"runs at {params.sample_rate_hz:g}"
             )
-    except protocol.ProtocolError as exc:
+    except protocol.ProtocolError as exc:  # whoever sent it: counted as what it is
         counters = add_counts(state.counters, malformed=1)
         return state._replace(counters=counters), Outputs(
             notes=(
@@ -122,9 +131,72 @@ def _on_sensor(
                 ),
             )
         )
+    notes: tuple[Note, ...] = ()
+    if inputs.sender is not None and inputs.sender != state.source:
+        if foreign_sender(state, inputs.sender, params):
+            return _foreign_packet(state, inputs, params)
+        state, notes = _new_source(state, packet, inputs.sender)
     if in_order(state, packet, params):
         return in_order_packet(state, packet, inputs.now_s, _read_s(inputs), params)
-    return any_packet(state, packet, inputs, params)
+    state, out = any_packet(state, packet, inputs, params)
+    return state, out._replace(notes=notes + out.notes) if notes else out
+
+
+def _new_source(
+    state: BridgeState, packet: protocol.SensorPacket, sender: tuple[str, int]
+) -> tuple[BridgeState, tuple[Note, ...]]:
+    """The stream's source from now on: the first sender, or another one (the configured
+    address, or a target back from a new port after a silence), whose stream is followed at
+    once as a restarted target's, the published index running on.
+    """
+    if state.source is None:
+        return state._replace(source=sender), ()
+    end = _published_end(state)
+    state = state._replace(
+        source=sender,
+        sequence=None,
+        stale_run=0,
+        jump_run=0,
+        index_offset=state.index_offset if end is None else end - packet.first_sample_index,
+        target_end=None,
+        drive_offset=None,
+        drive_expected=None,
+        queue=(),
+        arrivals=np.full((ARRIVAL_RING, 2), -1.0),
+        counters=add_counts(state.counters, resyncs=1),
+    )
+    text = f"sensor packets now from {sender[0]}:{sender[1]}; following its stream"
+    return state, (counted_note("resyncs", text, True),)
+
+
+def foreign_sender(
+    state: BridgeState, sender: tuple[str, int] | None, params: BridgeParams
+) -> bool:
+    """A datagram from anyone but the target: a host other than the configured one, or, while
+    the stream's source is not silent, another sender than it (None: not known, not foreign).
+    """
+    if sender is None or sender == (params.target_host, params.target_port):
+        return False
+    if params.target_host and sender[0] != params.target_host:
+        return True
+    return state.source is not None and sender != state.source and not state.silent
+
+
+def _foreign_packet(
+    state: BridgeState, inputs: SensorDatagram, params: BridgeParams
+) -> tuple[BridgeState, Outputs]:
+    counters = add_counts(state.counters, foreign_packets=1)
+    host, port = inputs.sender or ("?", 0)
+    target = f"{state.source[0]}:{state.source[1]}" if state.source else params.target_host or "?"
+    return state._replace(counters=counters), Outputs(
+        notes=(
+            counted_note(
+                "foreign_packets",
+                f"datagram from {host}:{port} dropped: not the target ({target}) "
+                f"[{counters.foreign_packets} foreign so far]",
+            ),
+        )
+    )
 
 
 def any_packet(
@@ -174,7 +246,25 @@ def any_packet(
                 queue=(),
                 arrivals=np.full((ARRIVAL_RING, 2), -1.0),
             )
-        elif delta > 0:
+        else:
+            end = _published_end(state)
+            index_gap = 0 if end is None else packet.first_sample_index + index_offset - end
+            jump = max(delta * packet.n, index_gap)
+            if jump > params.max_fill_samples and state.jump_run + 1 < params.resync_packets:
+                counters = add_counts(counters, jump_packets=1)
+                return state._replace(jump_run=state.jump_run + 1, counters=counters), Outputs(
+                    notes=(
+                        counted_note(
+                            "jump_packets",
+                            f"sensor packet {packet.sequence} (index "
+                            f"{packet.first_sample_index}) jumps {jump} samples ahead, beyond "
+                            f"max_fill_samples {params.max_fill_samples}: dropped unless "
+                            f"{params.resync_packets} such packets come in a row "
+                            f"[{counters.jump_packets} so far]",
+                        ),
+                    )
+                )
+        if delta > 0:
             counters = add_counts(counters, lost_packets=delta)
             notes.append(
                 counted_note(
@@ -239,6 +329,7 @@ def any_packet(
         pending_first=pending_first,
         pending=pending,
         stale_run=stale_run,
+        jump_run=0,
         last_sensor_s=inputs.now_s,
         last_read_s=_read_s(inputs),
         silent=False,
@@ -312,6 +403,7 @@ def in_order_packet(
         pending_first=pending_first,
         pending=pending,
         stale_run=0,
+        jump_run=0,
         last_sensor_s=now_s,
         last_read_s=read_s,
         arrivals=arrivals,

@@ -29,6 +29,8 @@ class BridgeParams:
     resync_packets: int
     drive_timeout_s: float
     sensor_timeout_s: float
+    target_host: str  # the target's address ("": learnt); sensor packets from another: foreign
+    target_port: int  # its drive port (0: learnt); a packet from target_host:target_port is its
 
     def __post_init__(self) -> None:
         checks = {

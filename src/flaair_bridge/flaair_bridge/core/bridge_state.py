@@ -43,6 +43,9 @@ class Counters(NamedTuple):
     # samples already published (as NaN, while the target was silent): dropped
     overlap_samples: int = 0
     malformed: int = 0  # not a valid sensor packet (or the wrong sample rate): dropped
+    foreign_packets: int = 0  # from another sender than the target's: dropped
+    jump_packets: int = 0  # a sequence or index jump beyond max_fill_samples: dropped until
+    # resync_packets such packets come in a row
     resyncs: int = 0  # target restarts followed
     target_watchdog_packets: int = 0  # packets with the target's watchdog flag set
     silences: int = 0  # times the target fell silent
@@ -80,6 +83,8 @@ class BridgeState(NamedTuple):
     pending_first: int | None = None  # published index of pending[:, 0]
     pending: np.ndarray = np.empty((3, 0))  # drive, stroke, pitch samples not yet in a full block
     stale_run: int = 0
+    jump_run: int = 0  # far-ahead packets in a row
+    source: tuple[str, int] | None = None  # the sender the sensor stream comes from
     # arrival of the last packet (the target's clock is extrapolated from it)
     last_sensor_s: float | None = None
     # when the bridge last took a packet from its socket (silence)
@@ -99,6 +104,7 @@ class SensorDatagram(NamedTuple):
     data: bytes
     now_s: float  # arrival (the kernel's receive time)
     read_s: float | None = None  # when the bridge took it from the socket (default: now_s)
+    sender: tuple[str, int] | None = None  # its source address (None: not known, not checked)
 
 
 class DriveBlock(NamedTuple):

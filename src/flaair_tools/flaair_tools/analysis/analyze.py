@@ -17,6 +17,11 @@ Writes DIR/report.html (one self-contained file: summary first, figures embedded
 DIR/report.json (every number; strict JSON, null where a figure is undefined), and the figures
 as PNG files beside them.
 
+Headline: each figure names the run it comes from. Of several bags holding a transition (the
+paper's robot beside a damaged or altered one), the first given is the headline's, its note
+naming the others; --headline-transition RUN chooses (a bag's path or directory name, its
+experiment, or its transition run).
+
 Gains: the sweep figures are "for this gain" (fitted against ground truth, as in the paper).
 The estimate everything else uses comes from --calibration FILE (calibration.yaml written by
 `flaair calibrate`), else from the live front end recorded in the bag, else from the model's
@@ -40,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import signal as os_signal
 import sys
 import time
@@ -53,7 +57,7 @@ from tqdm import tqdm
 from flaair_analysis.headline import headline
 from flaair_common import topics
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import check_output
+from flaair_common.outputs import check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
 from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
@@ -422,7 +426,12 @@ def analyze_bag(
 
 
 def analyze(
-    bags: list[Path], out_dir: Path, *, progress: bool = True, calibration_file: Path | None = None
+    bags: list[Path],
+    out_dir: Path,
+    *,
+    progress: bool = True,
+    calibration_file: Path | None = None,
+    headline_transition: str | None = None,
 ) -> dict[str, Any]:
     """Analyse `bags` into out_dir (report.html, report.json, PNG figures); return the report.
 
@@ -436,6 +445,9 @@ def analyze(
         Show a progress bar.
     calibration_file
         calibration.yaml from `flaair calibrate`; None: the live front end's or the model's gains.
+    headline_transition
+        The bag, experiment or run the transition headline comes from (None: the first bag
+        holding a transition; the headline's note names it and the others).
     """
     from flaair_model.model_io import load_model
     from flaair_tools.analysis import report as html_report
@@ -466,7 +478,7 @@ def analyze(
     report["partial"] = [
         note for r in results for note in (f"{r['bag']}: {m}" for m in r["missing"])
     ]
-    report["headline"] = headline(results, analysis_bands_from_config())
+    report["headline"] = headline(results, analysis_bands_from_config(), headline_transition)
     report["figures"] = html_report.write_figures(results, plots, out_dir)
     report = json_safe(report)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1, allow_nan=False))
@@ -522,15 +534,25 @@ def main(argv: list[str] | None = None) -> int:
         "(the report is still "
         "written)",
     )
+    parser.add_argument(
+        "--headline-transition",
+        metavar="RUN",
+        help="the bag (path or directory name), experiment or run the headline's transition "
+        "figures come from (default: the first bag holding a transition; the headline names it "
+        "and any others)",
+    )
     args = parser.parse_args(argv)
     os_signal.signal(os_signal.SIGTERM, lambda *_: sys.exit(130))
-    new_dir = not args.out.exists()
     try:  # the output checked before anything is computed; a failed run leaves no new --out
-        check_output(args.out, [*args.bags, args.calibration], args.force, OUT_FILES)
-        report = analyze(args.bags, args.out, calibration_file=args.calibration)
+        written = check_output(args.out, [*args.bags, args.calibration], args.force, OUT_FILES)
+        with writing_outputs(args.out, written) as stage:  # the report renamed in when whole
+            report = analyze(
+                args.bags,
+                stage,
+                calibration_file=args.calibration,
+                headline_transition=args.headline_transition,
+            )
     except (AnalysisError, bagio.BagError, ValueError, OSError, KeyboardInterrupt) as exc:
-        if new_dir:
-            shutil.rmtree(args.out, ignore_errors=True)
         interrupted = isinstance(exc, KeyboardInterrupt)
         print(f"flaair analyze: {'interrupted' if interrupted else exc}", file=sys.stderr)
         return 130 if interrupted else EXIT_BAD_INPUT

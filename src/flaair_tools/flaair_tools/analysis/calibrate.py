@@ -136,12 +136,11 @@ def main(argv: list[str] | None = None) -> int:
             k: result[channel][k] for k in ("gain_deg_per_v", "polarity", "offset_v", "lag_s")
         }
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / "calibration.json").write_text(
+        with writing_outputs(args.out, written) as stage:
+            (stage / "calibration.json").write_text(
                 json.dumps(json_safe(result), indent=2, allow_nan=False)
             )
-            (args.out / "calibration.yaml").write_text(
+            (stage / "calibration.yaml").write_text(
                 "# FLAAIR sensor calibration (bin/flaair "
                 "calibrate); load with the front end's\n# -p "
                 "gains_from:=calibration -p calibration_file:=<this "
@@ -150,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     except OutputError as exc:
         print(f"flaair calibrate: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("flaair calibrate: interrupted; nothing written", file=sys.stderr)
+        return 130
     for channel in ("stroke", "pitch"):
         c = result[channel]
         print(

@@ -130,8 +130,8 @@ def write_figure(results: list[dict[str, Any]], path: Path) -> None:
             if row == 0:
                 ax.set_title(Path(res["bag"]).name, fontsize=9)
         axes[-1, col].set_xlabel("time [s]")
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=100)  # a bag's name drawn as written
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=100)  # a bag's name drawn as written
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -176,14 +176,16 @@ def main(argv: list[str] | None = None) -> int:
         "bags": results,
     }
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
+        with writing_outputs(args.out, written) as stage:
             text = json.dumps(json_safe(doc), indent=1, allow_nan=False)
-            (args.out / "health.json").write_text(text)
-            write_figure(results, args.out / "health.png")
+            (stage / "health.json").write_text(text)
+            write_figure(results, stage / "health.png")
     except OutputError as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("flaair health: interrupted; nothing written", file=sys.stderr)
+        return 130
     for r in results:
         if r["note"]:
             print(f"flaair health: {r['bag']}: {r['note']}", file=sys.stderr)

@@ -7,9 +7,12 @@ or an empty cell where the point was not tracked. Every version's header is read
 ``pt1_cam1_U,pt1_cam1_V`` (DLTdv8a 8.4 and later), and a point the user named as
 ``NAME_X,NAME_Y,NAME_Z`` or ``NAME_cam1_U,NAME_cam1_V``. A point is its position among the
 file's points (from 1) whichever header names it; the rig gives that number or the name.
-Sparse (DLTdv8a): a first line ``Sparse format 3D coordinates file`` (or 2D), then the row and
-column counts and the number of entries, then one ``row column value`` line per tracked value
-(from 1), every other cell NaN: read as the flat file it stands for (a 2D one as one camera's).
+Sparse (DLTdv8a): recognised by its layout: a first line beginning ``Sparse format`` (``Sparse
+format 3D coordinates file``, a 2D export's naming camera coordinates), then the row and column
+counts and the number of entries, then one ``row column value`` line per tracked value (from
+1), every other cell NaN: read as the flat file it stands for (a 2D one as one camera's). The
+title says 3D or 2D (or cameras: 2D); a title saying neither is read as the kind of file asked
+for.
 
 Only the points asked for are parsed. Every refusal is a `LabFileError` naming the file and what
 is wrong (columns that are not DLTdv's, a point the rig names that the file lacks, with the
@@ -33,7 +36,11 @@ __all__ = ["SPARSE_FIRST_LINE", "XYZ_COLUMN", "XY_COLUMN", "read_xy_point", "rea
 
 XYZ_COLUMN = re.compile(r"(.+)_([XYZ])")
 XY_COLUMN = re.compile(r"(.+)_cam(\d+)_([XYUV])")
-SPARSE_FIRST_LINE = re.compile(r"sparse format ([23])d coordinates file", re.IGNORECASE)
+SPARSE_FIRST_LINE = re.compile(r"\s*sparse format\b.*", re.IGNORECASE)
+_SPARSE_3D, _SPARSE_2D = (
+    re.compile(r"\b3d\b", re.IGNORECASE),
+    re.compile(r"\b2d\b|camera|pixel", re.IGNORECASE),
+)
 _NUMBERED = re.compile(r"pt(\d+)")
 _EMPTY_CELL = re.compile(rb"(?m)(?:^|(?<=,))[ \t]*(?=,|$)")
 # a sparse file's announced size, bounded before anything is allocated for it
@@ -172,11 +179,13 @@ def _sparse_columns(table: np.ndarray, rows: int, usecols: list[int]) -> np.ndar
 def _layout_and_rows(path: Path, kind: str) -> tuple[_Layout, Any]:
     """The file's layout and a loader of its columns."""
     header, body = _read_text(path)
-    sparse = SPARSE_FIRST_LINE.fullmatch(",".join(header).strip().strip(","))
-    if sparse is None:
+    title = ",".join(header).strip().strip(",")
+    if SPARSE_FIRST_LINE.fullmatch(title) is None:
         layout = _flat_layout(path, header, kind)
         return layout, lambda usecols: _load(path, body, usecols, layout.width)
-    dimensions = int(sparse.group(1))
+    wanted = 3 if kind == "xyzpts" else 2
+    says_3d, says_2d = bool(_SPARSE_3D.search(title)), bool(_SPARSE_2D.search(title))
+    dimensions = wanted if says_3d == says_2d else (3 if says_3d else 2)
     if dimensions != (3 if kind == "xyzpts" else 2):
         raise LabFileError(
             f"{path}: a sparse {dimensions}D track where {kind} ("

@@ -19,7 +19,9 @@ A lab run's marker records its files, the rig file's text and the sync used (tri
 frames placed and dropped, and the offset between the video's stroke and the stroke sensor's
 estimate by cross-correlation; over one frame is warned). Every file is checked before anything
 is written; a bad file is named with what is wrong (exit 2), and a failed or interrupted import
-leaves no bag behind.
+leaves no bag behind (exit 130, 143 for SIGTERM). Once the bag is whole, a Ctrl-C or SIGTERM
+changes nothing: the import ends as a completed one ("wrote BAG", exit 0), saying that it came
+late, and no exit handler is interrupted.
 """
 
 from __future__ import annotations
@@ -46,6 +48,19 @@ __all__ = ["main"]
 
 def _interrupted(signum: int, _frame: object) -> None:
     raise KeyboardInterrupt(signum)
+
+
+LATE_SIGNALS: list[int] = []  # signals that came once the bag was whole
+
+
+def _bag_complete() -> None:
+    """From now on Ctrl-C and SIGTERM are noted, not raised: the bag is whole and stays."""
+
+    def late(signum: int, _frame: object) -> None:
+        LATE_SIGNALS.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, late)
 
 
 def _parser(defaults: dict) -> argparse.ArgumentParser:
@@ -205,6 +220,8 @@ def main(argv: list[str] | None = None) -> int:
                     progress=lambda n: bar.update(n - bar.n),
                 )
                 extras = [r.extras for r in runs]
+        LATE_SIGNALS.clear()
+        _bag_complete()  # inside the try: an interruption before this leaves no bag
     except (RunFileError, csv_import.RunSetError, LabFileError, bagio.BagError) as exc:
         shutil.rmtree(args.out, ignore_errors=True)  # it did not exist: nothing of anyone's lost
         print(f"flaair import: {exc}", file=sys.stderr)
@@ -218,6 +235,9 @@ def main(argv: list[str] | None = None) -> int:
     for marker, extra in zip(markers, extras, strict=True):
         print(_summary(marker, extra))
     print(f"wrote {args.out}")
+    if LATE_SIGNALS:
+        name = signal.Signals(LATE_SIGNALS[0]).name
+        print(f"flaair import: {name} came after the bag was complete: kept", file=sys.stderr)
     return 0
 
 

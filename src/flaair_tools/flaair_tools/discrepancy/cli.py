@@ -167,13 +167,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
         return 130
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
+        with writing_outputs(args.out, written) as stage:
             if args.validate and validation is not None:
-                _write_validation(args.out, validation)
+                _write_validation(stage, validation)
             if result is not None:
                 model_path = args.out / "model.yaml"
-                save_model(result.model_out, model_path)
-                write_report(args.out, runs, result, str(model_path), settings, validation)
+                save_model(result.model_out, stage / "model.yaml")
+                write_report(stage, runs, result, str(model_path), settings, validation)
     except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2

@@ -131,10 +131,9 @@ def main(argv: list[str] | None = None) -> int:
         }
     )
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
-            save_model(fit.model, args.out / "model.yaml")
-            (args.out / "identification.json").write_text(
+        with writing_outputs(args.out, written) as stage:
+            save_model(fit.model, stage / "model.yaml")
+            (stage / "identification.json").write_text(
                 json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
             )
     except OutputError as exc:

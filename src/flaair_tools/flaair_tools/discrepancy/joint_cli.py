@@ -148,14 +148,16 @@ def identify_main(argv: list[str] | None = None) -> int:
         **fit.as_dict(),
     }
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
-            save_model(fit.model, args.out / "model.yaml")
+        with writing_outputs(args.out, written) as stage:
+            save_model(fit.model, stage / "model.yaml")
             text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
-            (args.out / "identification.json").write_text(text, encoding="utf-8")
+            (stage / "identification.json").write_text(text, encoding="utf-8")
     except OutputError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
     verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
     print(
         f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points), plant "
@@ -179,18 +181,20 @@ def discrepancy_main(argv: list[str] | None = None) -> int:
         return done
     args, written, _, table, runs, result, elapsed = done
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
+        with writing_outputs(args.out, written) as stage:
             model_path = args.out / "model.yaml"
-            save_model(result.model_out, model_path)
-            doc = write_report(args.out, result.joint.runs, result.runs_result, str(model_path))
+            save_model(result.model_out, stage / "model.yaml")
+            doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path))
             doc["status"] = result.status
             doc["joint"] = json_ready(result.as_dict())
             text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
-            (args.out / "discrepancy.json").write_text(text, encoding="utf-8")
+            (stage / "discrepancy.json").write_text(text, encoding="utf-8")
     except OutputError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
     before, after = result.table_before, result.table_after
     print(
         f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points) in "

@@ -38,16 +38,16 @@ def _fig_gap(result: DiscrepancyResult, path: Path) -> None:
     ax.set_title(f"Gap per channel - status: {result.status}")
     ax.legend(fontsize=8)
     ax.grid(True, axis="y", which="both", alpha=0.3)
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=110)
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=110)
 
 
 def _save_stacked(fig: Figure, axes: Sequence[Any], path: Path) -> None:
     """Legend on the top axes, time axis on the bottom one, saved."""
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=100)
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=100)
 
 
 def _fig_overlay(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> None:
@@ -130,8 +130,8 @@ def _fig_bode(runs: Sequence[Run], result: DiscrepancyResult, path: Path) -> Non
         for ax in axes[:, k]:
             ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=6)
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=100)
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=100)
 
 
 def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
@@ -180,8 +180,8 @@ def _fig_bands(result: DiscrepancyResult, path: Path) -> None:
             )
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0, 1, 0.93))
-    literal_texts(fig).savefig(path, dpi=100)
+    literal_texts(fig).tight_layout(rect=(0, 0, 1, 0.93))  # literal, then laid out
+    fig.savefig(path, dpi=100)
 
 
 def _fig_discovered(runs: Sequence[Run], result: DiscrepancyResult, index: int, path: Path) -> None:

@@ -245,6 +245,9 @@ def run_experiment(  # noqa: C901  a graph's life in order: start it, run each p
     """
     if out.exists():
         raise ExperimentError(f"{out} exists; choose another --out or remove it")
+    # absolute: the graph's processes run in the repository's root, not in this directory
+    out = out.absolute()
+    calibration_file = None if calibration_file is None else calibration_file.absolute()
     shared = settings.stream()
     fs_hz, block_size = shared.sample_rate_hz, shared.block_size
     log_dir = out.parent / f"{out.name}.logs"

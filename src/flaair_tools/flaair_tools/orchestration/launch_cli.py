@@ -7,6 +7,9 @@ push-ros-namespace, include; flaair_tools.orchestration.launch_file) and starts 
 (--subnet: the whole subnet; --domain-id: a fixed one, to share it with other programs), every
 child dying with this process. Runs until Ctrl-C or SIGTERM, then stops the nodes in reverse
 start order and exits 0; a node that dies ends the launch with its log's last lines, exit 1.
+Every node's name, namespace, parameter names and remaps (launch arguments reach them through
+$(var ...)) are checked against the ROS name rules before anything is printed or started (one
+line naming the value, exit 2); --print quotes each command line for a shell (shlex).
 
 Examples
 --------
@@ -21,6 +24,7 @@ Terms (lockstep): docs/GLOSSARY.md.
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import tempfile
 import time
@@ -111,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.print_only:
         for _, command in commands:
-            print(" ".join(command))
+            print(shlex.join(command))  # quoted: pasted into a shell, a value stays a value
         return 0
     return _run(commands, args)
 

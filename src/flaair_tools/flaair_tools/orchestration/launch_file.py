@@ -117,6 +117,24 @@ _ATTRIBUTES = {  # tag -> the attributes it may carry
 }
 _SUBSTITUTION = re.compile(r"\$\(([a-z-]+)((?:\s+[^)\s]+)*)\s*\)")
 _TRUE, _FALSE = {"true", "1"}, {"false", "0"}
+# ROS 2 name rules (rcl's validators): a token is a letter or '_' then letters, digits, '_'
+_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
+_NAME_RULES = {  # what a node's name, namespace, parameter and remap may be
+    "node name": re.compile(_TOKEN),
+    "namespace": re.compile(rf"/|(/{_TOKEN})+"),
+    "parameter name": re.compile(rf"{_TOKEN}(\.{_TOKEN})*"),
+    "remap": re.compile(rf"~?/?({_TOKEN}|\{{{_TOKEN}\}})(/({_TOKEN}|\{{{_TOKEN}\}}))*|~"),
+}
+
+
+def _check_name(kind: str, value: str) -> str | None:
+    """Why `value` is not a valid ROS `kind` (None: it is)."""
+    if _NAME_RULES[kind].fullmatch(value):
+        return None
+    return (
+        f"{kind} {value!r} is not a valid ROS name (letters, digits and '_', not first a "
+        "digit, in '/'-separated parts)"
+    )
 
 
 class _Scope:
@@ -272,12 +290,20 @@ class _Reader:
                 raise self.fail(
                     where, f"unknown tag <{child.tag}> in <node> (it takes param, remap)"
                 )
+        namespace = _join(scope.namespace, attrs.get("namespace", ""))
+        checked = [("namespace", namespace), ("node name", attrs.get("name") or "node")]
+        checked += [("parameter name", name) for name, _ in parameters]
+        checked += [("remap", name) for pair in remaps for name in pair]
+        for kind, value in checked:  # before any command line is printed or run
+            why = _check_name(kind, value)
+            if why is not None:
+                raise self.fail(at, why)
         self.nodes.append(
             LaunchNode(
                 attrs["pkg"],
                 attrs["exec"],
                 attrs.get("name"),
-                _join(scope.namespace, attrs.get("namespace", "")),
+                namespace,
                 tuple(parameters),
                 tuple(files),
                 tuple(remaps),

@@ -348,13 +348,31 @@ def run_end(
     )
 
 
+def bag_written(out: Path | None) -> bool:
+    """The recorder left a bag at `out` (its directory holds a file)."""
+    return out is not None and out.is_dir() and any(out.iterdir())
+
+
+def end_line(
+    status: str, stop_packet: bool, loop_started: bool, out: Path | None, bag: bool
+) -> str:
+    """Live's last line: how the run ended, what was sent, and the bag only where there is one."""
+    if loop_started:
+        sent = f"{'stop packet' if stop_packet else 'zero drive'} sent, every node stopped"
+    else:
+        sent = "the loop had not started (no drive sent), every node stopped"
+    if out is not None:
+        sent += f", bag {out} closed" if bag else f", no bag written ({out} not created)"
+    return f"flaair live: {status}; {sent}"
+
+
 def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: start, run, stop
     """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
-    log_dir = (
+    log_dir = (  # absolute: the graph's processes run in the repository's root
         (args.out.parent / f"{args.out.name}.logs")
         if args.out is not None
         else Path("out/live") / time.strftime("%Y%m%d_%H%M%S")
-    )
+    ).absolute()
     graph = Graph(localhost=not args.subnet, log_dir=log_dir)
     params_file = log_dir / "params.yaml"
     params_file.parent.mkdir(parents=True, exist_ok=True)
@@ -458,8 +476,7 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
         watcher.close()
     graph.close()
     print(
-        f"flaair live: {status}; {'stop packet' if silent else 'zero drive'} sent, every node "
-        "stopped" + (f", bag {args.out} closed" if args.out is not None else ""),
+        end_line(status, silent is not None, bool(loop), args.out, bag_written(args.out)),
         file=sys.stderr,
     )
     if silent is not None:
@@ -558,6 +575,9 @@ def main(argv: list[str] | None = None) -> int:
     # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
     parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    # absolute: the graph's processes run in the repository's root, not in this directory
+    args.out = None if args.out is None else args.out.absolute()
+    args.calibration = None if args.calibration is None else args.calibration.absolute()
     terminate_raises()
     try:
         if not args.sim:

@@ -5,7 +5,9 @@
                                 a double, "true" a bool, "[1.0, 2.0]" a double array. The node
                                 decides: an integer for a double parameter is refused ("Setting
                                 parameter failed: Wrong parameter type, expected 'Type.DOUBLE'
-                                got 'Type.INTEGER'"), as is a value out of its declared range
+                                got 'Type.INTEGER'"), as is a value out of its declared range.
+                                A value no parameter can hold (a mapping, a YAML tag such as
+                                !!python/..., an integer beyond 64 bits): one line, exit 2
   list NODE                     its parameter names, two spaces in, as ros2cli prints them
 `--timeout S` waits for the node (ros2cli: whole seconds, default 1; here config/flaair.yaml's).
 Differences: a refused `set` exits 1 here (ros2cli exits 0 after printing the reason); not
@@ -27,8 +29,9 @@ import argparse
 import sys
 
 import rclpy
+import yaml
 from rcl_interfaces.msg import Parameter as ParameterMsg
-from rcl_interfaces.msg import ParameterType
+from rcl_interfaces.msg import ParameterType, ParameterValue
 from rclpy.parameter import get_parameter_value
 from rclpy.parameter_client import AsyncParameterClient
 
@@ -61,6 +64,33 @@ def get_text(value, hide_type: bool = False) -> str:
     ):
         shown = shown.tolist()
     return str(shown) if hide_type else f"{label} {shown}"
+
+
+INT64 = (-(2**63), 2**63 - 1)
+
+
+def parameter_value(text: str) -> ParameterValue:
+    """VALUE of `param set` as `ros2 param set` reads it (rclpy's `get_parameter_value`: YAML, a
+    mixed list a string), refused (ValueError, one line) where rclpy would raise: a mapping, a
+    YAML tag or construct that is not a plain value, an integer outside 64 bits.
+    """
+    try:
+        loaded = yaml.safe_load(text)
+    except yaml.parser.ParserError:  # as rclpy: text YAML cannot parse is a string
+        loaded = text
+    except yaml.YAMLError as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise ValueError(f"value {text!r} is not a plain YAML value ({first})") from None
+    if isinstance(loaded, dict):
+        raise ValueError(
+            f"value {text!r} is a mapping: a parameter is a bool, an integer, a double, a string "
+            "or a list of one of them"
+        )
+    numbers = loaded if isinstance(loaded, list) else [loaded]
+    for v in numbers:
+        if isinstance(v, int) and not isinstance(v, bool) and not INT64[0] <= v <= INT64[1]:
+            raise ValueError(f"value {text!r}: {v} is outside the 64-bit integer range")
+    return get_parameter_value(text)
 
 
 def _spin(node, future, timeout_s: float, what: str):
@@ -104,6 +134,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"{args.verb} needs a parameter name")
     if args.verb == "set" and args.value is None:
         parser.error("set needs a value: bin/flaair param set NODE NAME VALUE")
+    value = None
+    if args.verb == "set":
+        try:  # the value checked before any node comes up
+            value = parameter_value(args.value)
+        except ValueError as exc:
+            print(f"flaair param set: {exc}", file=sys.stderr)
+            return 2
 
     def body(node) -> int:
         try:
@@ -138,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                     file=sys.stderr,
                 )
                 return 1
-            message = ParameterMsg(name=args.name, value=get_parameter_value(args.value))
+            message = ParameterMsg(name=args.name, value=value)
             (result,) = _spin(
                 node, client.set_parameters([message]), args.timeout, "set_parameters"
             ).results

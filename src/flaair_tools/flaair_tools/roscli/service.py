@@ -1,6 +1,8 @@
 """`flaair service`: list services and call one, as `ros2 service` does.
 
-`call NAME TYPE [REQUEST]`: the request is a YAML mapping of its fields (empty: all defaults);
+`call NAME TYPE [REQUEST]`: the request is a YAML mapping of its fields (empty: all defaults; a
+nested message a mapping, a sequence of messages a list of mappings; a value of the wrong type:
+one line naming the field, exit 2);
 the output is ros2cli's ("requester: making request: ...", then "response:" and the answer's
 repr); `--json` prints the answer alone as one JSON line. `list [-t] [-c]
 [--include-hidden-services]`. Exit 0 when answered, 1 when no service answered in --timeout
@@ -37,7 +39,8 @@ def parse_request(service_class: type, text: str) -> object:
     try:
         values = yaml.safe_load(text) if text.strip() else {}
     except yaml.YAMLError as exc:
-        raise ValueError(f"request is not YAML or JSON: {exc}") from None
+        first = str(exc).strip().splitlines()[0]
+        raise ValueError(f"request is not plain YAML or JSON ({first})") from None
     if not isinstance(values, dict):
         raise ValueError(f"request must be a mapping of field names to values, got {text!r}")
     return from_dict(service_class.Request, values)

@@ -213,6 +213,25 @@ def _info(node: Node, args: argparse.Namespace) -> int:
     return 0
 
 
+def _checked_type_and_values(args: argparse.Namespace) -> tuple[type | None, list[object]] | int:
+    """The message class (echo, hz, pub with a type) and the messages of `pub`, checked before
+    any node comes up; or 2 after one line naming what is wrong (the real tool's one line).
+    """
+    cls, messages = None, []
+    try:
+        if args.verb in ("echo", "hz", "pub") and args.type:
+            cls = message_class(args.type)
+        if args.verb == "pub":
+            values = json.loads(args.values)
+            messages = [
+                from_dict(cls, v) for v in (values if isinstance(values, list) else [values])
+            ]
+    except ValueError as exc:
+        print(f"flaair topic {args.verb}: {exc}", file=sys.stderr)
+        return 2
+    return cls, messages
+
+
 def main(argv: list[str] | None = None) -> int:
     defaults = cli_defaults("flaair topic")
     silence = float(defaults["echo_timeout_s"])
@@ -337,6 +356,10 @@ def main(argv: list[str] | None = None) -> int:
         help="how long --wait-subscribers waits (default 30 s)",
     )
     args = parse_or_refuse(parser, argv, "topic")
+    checked = _checked_type_and_values(args)
+    if isinstance(checked, int):
+        return checked
+    cls, messages = checked
 
     def body(node) -> int:
         if args.verb == "list":
@@ -363,15 +386,6 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         if args.verb in ("echo", "hz"):
             return _listen(node, args)
-        cls = message_class(args.type)
-        try:
-            values = json.loads(args.values)
-            messages = [
-                from_dict(cls, v) for v in (values if isinstance(values, list) else [values])
-            ]
-        except (ValueError, TypeError, AssertionError) as exc:
-            print(f"flaair topic pub: {exc}", file=sys.stderr)
-            return 2
         publisher = node.create_publisher(cls, args.topic, BLOCK_STREAM)
         deadline = time.monotonic() + args.wait_timeout
         while publisher.get_subscription_count() < args.wait_subscribers:

@@ -42,13 +42,15 @@ def main(argv: list[str] | None = None) -> int:
         return done
     table, _, s, result, elapsed = done
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            args.out.mkdir(parents=True, exist_ok=True)
-            save_model(result.model_out, args.out / "model.yaml")
-            doc = write_report(result, table, s, args.out)
+        with writing_outputs(args.out, written) as stage:
+            save_model(result.model_out, stage / "model.yaml")
+            doc = write_report(result, table, s, stage)
     except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
     print(f"{PROG}: table {table.name}, {table.n_points} points, {elapsed:.1f} s")
     print(f"  {doc['summary']}")
     for c, v in doc["gap_before"].items():

@@ -117,20 +117,22 @@ def main(argv: list[str] | None = None) -> int:
         return done
     table, model, _, (fitted, fits, start, notes), elapsed = done
     try:
-        with writing_outputs(args.out, written, new_dir=not args.out.exists()):
-            _write(args.out, table, model, fitted, fits, start, notes, elapsed, args.model)
+        with writing_outputs(args.out, written) as stage:
+            _write(stage, args.out, table, model, fitted, fits, start, notes, elapsed, args.model)
     except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
     return 0
 
 
-def _write(out, table, model, fitted, fits, start, notes, elapsed, model_in) -> None:
+def _write(stage, out, table, model, fitted, fits, start, notes, elapsed, model_in) -> None:
     doc = identification_doc(table, model, fitted, fits, start, notes)
     doc.update(model_in=str(model_in or "config/model.yaml"), seconds=elapsed)
-    out.mkdir(parents=True, exist_ok=True)
-    save_model(fitted, out / "model.yaml")
-    (out / "identification.json").write_text(
+    save_model(fitted, stage / "model.yaml")
+    (stage / "identification.json").write_text(
         json.dumps(json_ready(doc), indent=2, allow_nan=False), encoding="utf-8"
     )
     print(f"{PROG}: table {table.name}, {table.n_points} points, plant fitted in {elapsed:.1f} s")

@@ -248,8 +248,8 @@ def response_figure(result: TableDiscrepancy, table: Table, s: TableSettings, pa
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, ncol=2)
         ax.set_title(f"{c}: every drive level held out in turn")
-    fig.tight_layout()
-    literal_texts(fig).savefig(path, dpi=90)  # a table or robot name drawn as written
+    literal_texts(fig).tight_layout()  # literal before the layout draws a text
+    fig.savefig(path, dpi=90)  # a table or robot name drawn as written
 
 
 _PAGE = """<!doctype html><html><head><meta charset="utf-8"><title>{{ title }}</title>
