@@ -70,21 +70,23 @@ def read_runs(paths: Sequence[Path]) -> list[RunInput]:
     return runs
 
 
+def parser() -> argparse.ArgumentParser:
+    """The command's options."""
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=HelpFormatter)
+    p.add_argument("runs", nargs="+", type=Path, help="one CSV (or bag) per realization")
+    p.add_argument("--design", type=Path, default=None, help="multisine.yaml of the runs")
+    p.add_argument("--model", type=Path, default=None, help="model YAML to compare against")
+    p.add_argument("--out", type=Path, required=True, help="directory to create")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty DIR")
+    return p
+
+
 def main(argv: list[str] | None = None) -> int:
     """`flaair multisine analyze`; returns the exit status."""
-    parser = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=HelpFormatter
-    )
-    parser.add_argument("runs", nargs="+", type=Path, help="one CSV (or bag) per realization")
-    parser.add_argument("--design", type=Path, default=None, help="multisine.yaml of the runs")
-    parser.add_argument("--model", type=Path, default=None, help="model YAML to compare against")
-    parser.add_argument("--out", type=Path, required=True, help="directory to create")
-    parser.add_argument("--force", action="store_true", help="write into an existing non-empty DIR")
-    args = parser.parse_args(argv)
+    args = parser().parse_args(argv)
     try:
         if args.out.is_dir() and any(args.out.iterdir()) and not args.force:
             raise OutputError(f"--out {args.out}: exists and is not empty (--force writes in it)")
-        new_dir = not args.out.exists()
         written = check_output(
             args.out, [*args.runs, args.design, args.model], args.force, OUTPUT_FILES
         )
@@ -120,15 +122,17 @@ def main(argv: list[str] | None = None) -> int:
     }
     doc = json_ready(doc)
     try:
-        with writing_outputs(args.out, written, new_dir=new_dir):
-            args.out.mkdir(parents=True, exist_ok=True)
-            (args.out / "nonlinearity.json").write_text(
+        with writing_outputs(args.out, written) as stage:
+            (stage / "nonlinearity.json").write_text(
                 json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8"
             )
-            write_report(doc, result.spectra, args.out)
+            write_report(doc, result.spectra, stage)
     except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
     classes = ", ".join(f"{c} {e['class']}" for c, e in doc["channels"].items())
     print(f"{PROG}: {len(runs)} run(s), {classes} -> {args.out}")
     return 0

@@ -9,29 +9,45 @@
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
 
-__all__ = ["ACTIONS", "main"]
+from flaair_common.cli_help import HelpFormatter
+
+__all__ = ["ACTIONS", "main", "parser"]
 
 ACTIONS = {
     "design": "flaair_tools.multisine.design_cli",
     "analyze": "flaair_tools.multisine.analyze_cli",
 }
-USAGE = "usage: flaair multisine {design,analyze} [options]"
+HELP = {"design": "write the excitation and its design file", "analyze": "BLA and distortion"}
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command and each action's options (the actions' own parsers as parents)."""
+    p = argparse.ArgumentParser(
+        prog="flaair multisine", description=__doc__, formatter_class=HelpFormatter
+    )
+    actions = p.add_subparsers(dest="action", required=True, metavar="{design,analyze}")
+    for name, module_name in ACTIONS.items():
+        module = importlib.import_module(module_name)
+        actions.add_parser(
+            name,
+            parents=[module.parser()],
+            add_help=False,
+            help=HELP[name],
+            description=module.__doc__,
+            formatter_class=HelpFormatter,
+        )
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Dispatch to the action's own main."""
+    """Check the whole command line, then run the action's own main."""
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] in ("-h", "--help"):
-        print(f"{USAGE}\n\n{__doc__}")
-        return 0 if argv else 2
-    if argv[0] not in ACTIONS:
-        print(f"flaair multisine: unknown action {argv[0]!r}\n{USAGE}", file=sys.stderr)
-        return 2
-    module = importlib.import_module(ACTIONS[argv[0]])
-    return int(module.main(argv[1:]) or 0)
+    parser().parse_args(argv)  # a bad action or option: usage and exit 2 here
+    return int(importlib.import_module(ACTIONS[argv[0]]).main(argv[1:]) or 0)
 
 
 if __name__ == "__main__":

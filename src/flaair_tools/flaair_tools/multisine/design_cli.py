@@ -43,9 +43,7 @@ def parse_band(text: str) -> tuple[float, float]:
 
 def parser() -> argparse.ArgumentParser:
     """The command's options (defaults: the contract's)."""
-    p = argparse.ArgumentParser(
-        prog=PROG, description=__doc__, formatter_class=HelpFormatter
-    )
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__, formatter_class=HelpFormatter)
     p.add_argument("--out", type=Path, required=True, help="directory to create")
     p.add_argument("--band", type=parse_band, default=(100.0, 250.0), help="F1:F2 excited [Hz]")
     p.add_argument("--base-hz", type=float, default=2.0, help="f0; fs/f0 whole [Hz]")
@@ -81,24 +79,25 @@ def main(argv: list[str] | None = None) -> int:
         files = [realization_file(m) for m in range(design.realizations)] + [DESIGN_FILE]
         if args.out.is_dir() and any(args.out.iterdir()) and not args.force:
             raise OutputError(f"--out {args.out}: exists and is not empty (--force writes in it)")
-        new_dir = not args.out.exists()
         written = check_output(args.out, [], True, files)
     except (DesignError, OutputError) as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     time_s = np.arange(design.n_samples) / design.fs_hz
     try:
-        with writing_outputs(args.out, written, new_dir=new_dir):
-            args.out.mkdir(parents=True, exist_ok=True)
+        with writing_outputs(args.out, written) as stage:
             for m in range(design.realizations):
                 table = np.column_stack([time_s, realization_drive(design, m)])
-                with open(args.out / realization_file(m), "w", encoding="utf-8") as handle:
+                with open(stage / realization_file(m), "w", encoding="utf-8") as handle:
                     handle.write("time_s,drive_v\n")
                     np.savetxt(handle, table, delimiter=",", fmt="%.10g")
-            (args.out / DESIGN_FILE).write_text(dump_design(design), encoding="utf-8")
+            (stage / DESIGN_FILE).write_text(dump_design(design), encoding="utf-8")
     except OutputError as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
+        return 130
     print(
         f"{PROG}: {design.realizations} realization(s) of {len(design.excited_lines)} excited "
         f"lines ({len(design.odd_detection_lines)} odd detection lines), N = "
