@@ -15,21 +15,9 @@ from builtin_interfaces.msg import Time
 from flaair_common.stream import BlockCheck, check_block  # noqa: F401 - re-exported for the nodes
 
 
-def to_array(field: object) -> np.ndarray:
-    """Copy a float64[] message field to a float64 numpy array."""
-    if isinstance(field, array.array):
-        return np.frombuffer(field, dtype=np.float64).copy()
-    return np.asarray(field, dtype=np.float64)
-
-
 def from_array(values: np.ndarray) -> array.array:
     """A float64[] message field holding `values`."""
     return array.array("d", np.ascontiguousarray(values, dtype=np.float64).tobytes())
-
-
-def bools_to_field(values: np.ndarray) -> list[bool]:
-    """A bool[] message field holding `values`."""
-    return np.asarray(values, dtype=bool).tolist()
 
 
 def stamp_ns_of_sample(index: int, sample_rate_hz: float) -> int:
@@ -47,8 +35,3 @@ def stamp_from_ns(stamp_ns: int) -> Time:
     """builtin_interfaces/Time for a time in integer nanoseconds (exact)."""
     sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
     return Time(sec=sec, nanosec=nanosec)
-
-
-def time_s_from_stamp(stamp: Time) -> float:
-    """Seconds of a builtin_interfaces/Time."""
-    return stamp.sec + stamp.nanosec * 1e-9

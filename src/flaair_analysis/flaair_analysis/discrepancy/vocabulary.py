@@ -11,7 +11,7 @@ whether it can be told apart from a change of those plant parameters at all.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, TypeAlias
 
 from flaair_model.effects import (
@@ -45,7 +45,6 @@ __all__ = [
     "candidate_specs",
     "plant_spec",
     "term_specs",
-    "with_judged_on",
 ]
 
 CHANNELS: tuple[str, ...] = MEASURED_CHANNELS
@@ -313,8 +312,3 @@ def candidate_groups(
             ]
         groups.append(tuple(specs))
     return tuple(groups)
-
-
-def with_judged_on(spec: EffectSpec, channel: str) -> EffectSpec:
-    """The same spec judged on another channel."""
-    return replace(spec, judged_on=channel)

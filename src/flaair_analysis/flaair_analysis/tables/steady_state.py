@@ -28,7 +28,6 @@ __all__ = [
     "harmonic_balance_start",
     "point_drives",
     "steady_response",
-    "unsettled_fraction",
 ]
 
 _DESCRIBING = 8.0 / (3.0 * math.pi)
@@ -235,8 +234,3 @@ def steady_response(
         "settle_change": np.abs(shaped["pp_s"] - shaped["pp_s_before"])
         / np.maximum(shaped["pp_s"], 1e-12),
     }
-
-
-def unsettled_fraction(response: dict[str, np.ndarray]) -> float:
-    """The largest relative change of the stroke's peak to peak between the last two windows."""
-    return float(np.max(response["settle_change"]))

@@ -85,7 +85,6 @@ __all__ = [
     "filter_coefficients",
     "frequency_response",
     "initial_state",
-    "kr_at",
     "loop_delay_s",
     "step",
 ]
@@ -320,11 +319,6 @@ class DsaSignals(NamedTuple):
 def initial_state(params: DsaParams) -> DsaState:
     """Filter at rest."""
     return DsaState(np.zeros(2), np.zeros(2))
-
-
-def kr_at(t_s: np.ndarray, params: DsaParams) -> np.ndarray:
-    """K_r(t) of the schedule."""
-    return params.kr_schedule.value(t_s)
 
 
 class DsaInputs(NamedTuple):

@@ -25,7 +25,6 @@ from flaair_common.strictjson import json_safe
 from .report_figures import write_figures
 
 __all__ = [
-    "confusion_html",
     "result_to_dict",
     "write_json",
     "write_report",
@@ -235,12 +234,6 @@ def _confusion(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] =
         "rows": rows,
         "cases": cases,
     }
-
-
-def confusion_html(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] = ()) -> str:
-    """HTML of a confusion table (true vs found) and, if given, the per-case outcomes."""
-    parts = _environment().get_template("discrepancy_parts.html.j2").module
-    return str(parts.confusion(_confusion(table, outcomes)))
 
 
 def _label_match(true: str, found: str) -> bool:
