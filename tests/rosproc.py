@@ -161,6 +161,7 @@ OFFLINE_COMMANDS = {
     "simulate",
     "calibrate",
     "import",
+    "import-table",
     "analyze",
     "discrepancy",
     "identify",
