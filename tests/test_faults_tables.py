@@ -15,8 +15,15 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, plant_params
+from flaair_analysis.tables.joint import identify_joint
+from flaair_analysis.tables.reader import TableInputError, TableLimits, read_table
+from flaair_model import settings
+from flaair_model.model_io import load_model
+from flaair_tools.tables.table_io import load_tables
 from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
 
 pytestmark = pytest.mark.timeout(120)
@@ -163,3 +170,103 @@ def test_an_implausible_cell_is_refused_by_line_and_column(column, value, tmp_pa
         result = flaair(*COMMANDS[command](table, tmp_path / "out"))
         one_line_refusal(result, "line 4", repr(column), value, "plausible")
     assert not (tmp_path / "out").exists()
+
+
+def _scaled(factor: float) -> str:
+    """GOOD with every amplitude multiplied by `factor` (the shape kept: peaks inside)."""
+    lines = GOOD.splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        c = line.split(",")
+        c[3], c[4] = (f"{float(v) * factor:.4e}" for v in c[3:5])
+        out.append(",".join(c))
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("command", ["identify", "discrepancy"])
+def test_amplitudes_near_1e_minus_199_deg_are_refused_in_one_line(command, tmp_path) -> None:
+    table = tmp_path / "tiny.csv"
+    table.write_text(_scaled(1e-200), encoding="utf-8")
+    assert "7.6084e-199" in table.read_text()  # the 65 V peak, 76.08 deg x 1e-200
+    result = flaair(*COMMANDS[command](table, tmp_path / "out"))
+    one_line_refusal(result, "below the reading noise", "7.61e-199 deg", "no stroke motion")
+    assert "lower bound" not in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_joint_fit_refuses_a_table_of_amplitudes_near_1e_minus_199_deg(tmp_path) -> None:
+
+    table = tmp_path / "tiny.csv"
+    table.write_text(_scaled(1e-200), encoding="utf-8")
+    (tab,) = load_tables([table])
+    # the joint fit starts from the table fitted alone: the refusal comes before any run is used
+    with pytest.raises(TableInputError, match="below the reading noise"):
+        identify_joint([], tab, load_model(), {}, settings.tables())
+
+
+def test_one_drive_level_does_not_claim_held_out_levels(tmp_path) -> None:
+    table = tmp_path / "one.csv"
+    table.write_text("\n".join(GOOD.splitlines()[:9]) + "\n", encoding="utf-8")  # 25 V only
+    out = tmp_path / "out"
+    result = flaair(*COMMANDS["discrepancy"](table, out))
+    assert result.returncode == 0, result.stderr
+    assert "held-out drive levels to noise" not in result.stdout
+    assert "no level could be held out" in result.stdout
+    assert "search did not run" in result.stdout
+    doc = json.loads((out / "discrepancy.json").read_text())
+    assert doc["searched"] is False
+    assert "no level could be held out" in doc["summary"]
+
+
+def test_fewer_cells_than_parameters_are_refused(tmp_path) -> None:
+    table = tmp_path / "two.csv"
+    table.write_text("drive_amplitude_v,frequency_hz,stroke_pp_deg\n25,130,40\n25,150,35\n")
+    result = flaair(*COMMANDS["identify"](table, tmp_path / "out"))
+    one_line_refusal(result, "2 measured stroke cell(s) for the 3 stroke parameters")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_singular_fit_is_flagged_not_given_a_made_up_correlation() -> None:
+
+    (table,) = read_table(
+        "drive_amplitude_v,frequency_hz,stroke_pp_deg\n25,130,40\n25,150,35\n",
+        "two.csv",
+        TableLimits(20.0, 1000.0, 150.0),
+    )
+    model, s = load_model(), settings.tables()
+    fit = fit_table(table, model, plant_params(model, STROKE_KEYS, {}, 3.0), s, ["stroke_pp_deg"])
+    assert fit.singular  # 2 cells, 3 parameters
+    assert all(v == np.inf for v in fit.stderr.values())
+    assert not np.isfinite(fit.correlation).any()  # before: diagonal -1.0, entries +1.543
+
+
+@pytest.mark.slow  # three fits (identify twice, discrepancy once): ~10 s on a quiet machine
+def test_phases_of_the_opposite_sign_are_warned_and_named(tmp_path) -> None:
+    # the configured robot's stroke phases (negative = lag), written with the opposite sign
+    rows = [
+        (25, 100, 18.9559, -8.1251),
+        (25, 120, 32.2061, -17.9682),
+        (25, 140, 45.4787, -89.9327),
+        (25, 160, 27.6314, -157.2472),
+        (25, 180, 14.8330, -170.8472),
+        (25, 200, 9.1437, -178.8373),
+        (65, 100, 48.7625, -15.0855),
+        (65, 120, 69.2695, -43.3869),
+        (65, 140, 74.9436, -92.9959),
+        (65, 160, 56.8267, -131.8033),
+        (65, 180, 35.2415, -158.2460),
+        (65, 200, 22.5550, -170.0456),
+    ]
+    header = "drive_amplitude_v,frequency_hz,stroke_pp_deg,stroke_phase_deg\n"
+    right, flipped = tmp_path / "right.csv", tmp_path / "flipped.csv"
+    right.write_text(header + "".join(f"{a},{f},{p},{ph}\n" for a, f, p, ph in rows))
+    flipped.write_text(header + "".join(f"{a},{f},{p},{-ph}\n" for a, f, p, ph in rows))
+    result = flaair(*COMMANDS["identify"](right, tmp_path / "right"))
+    assert result.returncode == 0 and "warning" not in result.stderr, result.stderr
+    for command in ("identify", "discrepancy"):
+        result = flaair(*COMMANDS[command](flipped, tmp_path / command))
+        assert result.returncode == 0, result.stderr
+        warned = [ln for ln in result.stderr.splitlines() if "stroke_phase_deg" in ln]
+        assert warned and "warning" in warned[0], result.stderr
+        assert "x the reading noise" in warned[0]
+        assert "lags with the opposite sign" in warned[0]
