@@ -339,7 +339,9 @@ def _columns(table: Table, side: str) -> list[str]:
     ]
 
 
-def _side_problem(table: Table, side: str, cols: Sequence[str], n_keys: int, s: TableSettings):
+def _side_problem(
+    table: Table, side: str, cols: Sequence[str], n_keys: int, s: TableSettings
+) -> str | None:
     """Why the table's `side` columns cannot be fitted (None when they can)."""
     cells = sum(int(np.isfinite(table.responses[c]).sum()) for c in cols)
     if cells < n_keys:

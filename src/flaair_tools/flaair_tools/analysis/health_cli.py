@@ -99,6 +99,8 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     note = None
     if estimated == 0:
         note = "no estimate: the run is too short or too quiet (drive off or wing stalled)"
+    elif not any(n.text.startswith(health.BASELINE_TEXT) for n in out.notes):
+        note = health.no_baseline_text(beats, params)
     return {
         "bag": str(bag),
         "events": events,
