@@ -54,6 +54,9 @@ COMMANDS = {
     "identify": lambda t, out: ["identify", "--table", str(t), "--out", str(out)],
     "discrepancy": lambda t, out: ["discrepancy", "--table", str(t), "--out", str(out)],
     "joint identify": lambda t, out: ["identify", "run.csv", "--table", str(t), "--out", str(out)],
+    "joint discrepancy": lambda t, out: [
+        *("discrepancy", "run.csv", "--table", str(t), "--out", str(out)),
+    ],
 }
 
 
