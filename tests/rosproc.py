@@ -162,6 +162,7 @@ OFFLINE_COMMANDS = {
     "simulate",
     "calibrate",
     "import",
+    "import-table",
     "analyze",
     "discrepancy",
     "identify",

@@ -177,23 +177,65 @@ def health_values() -> dict[str, Any]:
     return node_section(HEALTH_PARAMS, NODE_NAME, CONFIG_FILE)
 
 
+MAX_FILM_LAG_S = 0.01  # the range of *_film_delay_s (HEALTH_PARAMS)
+MIN_GAIN_DEG_PER_V, MAX_GAIN_DEG_PER_V = 1e-6, 1e6  # a film gain beyond is a unit error
+
+
+def _calibration_number(doc: Any, channel: str, key: str, where: str) -> float:
+    """doc[channel][key] as a finite float, else a ParameterError naming the field."""
+    try:
+        section = doc[channel]
+        value = section[key]
+    except (KeyError, TypeError, IndexError):
+        raise ParameterError(f"{where}: no {channel}.{key} in it") from None
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{where}: {channel}.{key} is not a number ({value!r})") from None
+    if isinstance(value, bool) or not math.isfinite(number):
+        raise ParameterError(f"{where}: {channel}.{key} must be a finite number, got {value!r}")
+    return number
+
+
 def film_calibration(calibration: str | Path) -> dict[str, float]:
     """From a `bin/flaair calibrate` file: the films' lags (as *_film_delay_s) and, where it has
     them, their gains as volts per radian (the film gains are then ratios to the calibration's).
+
+    Refused in one line naming the field (ParameterError): a lag that is not a finite number of
+    at most `MAX_FILM_LAG_S` (a small negative lag is taken as 0), a gain outside
+    `MIN_GAIN_DEG_PER_V` .. `MAX_GAIN_DEG_PER_V` (NaN and 0 among them), a polarity other than +1
+    or -1.
     """
     path = Path(calibration)
+    where = f"parameter 'calibration_file': {path}"
     try:
         doc = load_yaml(path)
-        out = {f"{c}_film_delay_s": max(0.0, float(doc[c]["lag_s"])) for c in ("stroke", "pitch")}
-        for c in ("stroke", "pitch"):
-            if "gain_deg_per_v" in doc[c]:
-                polarity = float(doc[c].get("polarity", 1))
-                out[f"{c}_volts_per_rad"] = polarity / math.radians(float(doc[c]["gain_deg_per_v"]))
-        return out
-    except (ConfigError, OSError, KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
-        raise ParameterError(
-            f"parameter 'calibration_file': {path}: no stroke and pitch lag_s in it ({exc})"
-        ) from None
+    except (ConfigError, OSError) as exc:
+        raise ParameterError(f"{where}: {exc}") from None
+    if not isinstance(doc, Mapping):
+        raise ParameterError(f"{where}: no stroke and pitch lag_s in it")
+    out = {}
+    for c in ("stroke", "pitch"):
+        lag = _calibration_number(doc, c, "lag_s", where)
+        if not -MAX_FILM_LAG_S <= lag <= MAX_FILM_LAG_S:
+            raise ParameterError(
+                f"{where}: {c}.lag_s = {lag:g} s is not a film lag (at most {MAX_FILM_LAG_S:g} s)"
+            )
+        out[f"{c}_film_delay_s"] = max(0.0, lag)
+        if isinstance(doc[c], Mapping) and "gain_deg_per_v" in doc[c]:
+            gain = _calibration_number(doc, c, "gain_deg_per_v", where)
+            if not MIN_GAIN_DEG_PER_V <= gain <= MAX_GAIN_DEG_PER_V:
+                raise ParameterError(
+                    f"{where}: {c}.gain_deg_per_v must be a positive gain of "
+                    f"{MIN_GAIN_DEG_PER_V:g} to {MAX_GAIN_DEG_PER_V:g} deg/V, got {gain:g}"
+                )
+            polarity = _calibration_number(doc, c, "polarity", where) if "polarity" in doc[c] else 1
+            if polarity not in (1.0, -1.0):
+                raise ParameterError(
+                    f"{where}: {c}.polarity must be +1 or -1, got {doc[c]['polarity']!r}"
+                )
+            out[f"{c}_volts_per_rad"] = polarity / math.radians(gain)
+    return out
 
 
 def health_params_from_config(

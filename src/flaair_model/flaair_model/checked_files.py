@@ -46,6 +46,7 @@ LIMIT_BYTES: dict[str, int] = {
     "manifest": MIB,
     "calibration": MIB,
     "validation": 64 * MIB,
+    "table": 4 * MIB,  # a lab's sweep table is a few hundred rows (~10 kB); 4 MiB is ~100k
     "launch": MIB,
     "track": 512 * MIB,
     "mat": 2048 * MIB,

@@ -15,6 +15,7 @@ from __future__ import annotations
 from .reader import (
     AMPLITUDE_COLUMNS,
     PHASE_COLUMNS,
+    PLAUSIBLE_DEG,
     RESPONSE_COLUMNS,
     LevelSummary,
     Table,
@@ -27,6 +28,7 @@ from .reader import (
 __all__ = [
     "AMPLITUDE_COLUMNS",
     "PHASE_COLUMNS",
+    "PLAUSIBLE_DEG",
     "RESPONSE_COLUMNS",
     "LevelSummary",
     "Table",

@@ -28,7 +28,7 @@ from flaair_model.model import Model, effect_params, with_effects
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
 
-from .reader import AMPLITUDE_COLUMNS, PHASE_COLUMNS, Table
+from .reader import AMPLITUDE_COLUMNS, PHASE_COLUMNS, Table, TableInputError
 from .steady_state import steady_response
 
 __all__ = [
@@ -40,6 +40,7 @@ __all__ = [
     "data_start",
     "fit_table",
     "identify_table",
+    "misfit_warnings",
     "normalised_residuals",
     "plant_params",
     "stack_cells",
@@ -59,6 +60,7 @@ PITCH_KEYS: tuple[str, ...] = (
 _DESCRIBING = 8.0 / (3.0 * math.pi)
 _PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
 _FD_STEP = 1e-4
+_RANK_TOL = 1e-9  # a Jacobian singular value below this x the largest: a direction not seen
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,11 @@ class FreeParam:
 
 @dataclass(frozen=True)
 class TableFit:
-    """A fit's outcome: the model, each parameter's value and standard error, the residuals."""
+    """A fit's outcome: the model, each parameter's value and standard error, the residuals.
+
+    `singular`: the cells cannot determine the parameters apart (the Jacobian's rank is below
+    their number): standard errors are infinite and correlations NaN, never a made-up matrix.
+    """
 
     model: Model
     params: tuple[FreeParam, ...]
@@ -93,6 +99,7 @@ class TableFit:
     chi2: float
     n_cells: int
     nfev: int
+    singular: bool = False
 
 
 def plant_params(
@@ -102,7 +109,7 @@ def plant_params(
     out = []
     for k in keys:
         v = float(start.get(k, getattr(model.plant, k)))
-        v = v if v > 0 else 1e-3 * float(getattr(model.plant, k) or 1.0)
+        v = v if math.isfinite(v) and v > 0 else 1e-3 * float(getattr(model.plant, k) or 1.0)
         out.append(FreeParam(f"plant.{k}", v, v / r, v * r, True))
     return out
 
@@ -217,11 +224,8 @@ def fit_table(
     jmat = jac(sol.x)
     n, k = r.size, len(params)
     chi2 = float(r @ r)
-    try:
-        cov = np.linalg.inv(jmat.T @ jmat) * max(1.0, chi2 / max(n - k, 1))
-    except np.linalg.LinAlgError:
-        cov = np.full((k, k), np.inf)
-    se = np.sqrt(np.abs(np.diag(cov)))
+    cov, singular = _covariance(jmat, max(1.0, chi2 / max(n - k, 1)))
+    se = np.sqrt(np.diag(cov))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(se, se)
     values = _values(params, sol.x)
@@ -229,8 +233,32 @@ def fit_table(
         p.key: float(values[p.key] * e if p.log else e) for p, e in zip(params, se, strict=True)
     }
     return TableFit(
-        apply_values(model, values), tuple(params), values, stderr, corr, chi2, n, int(sol.nfev)
+        apply_values(model, values),
+        tuple(params),
+        values,
+        stderr,
+        corr,
+        chi2,
+        n,
+        int(sol.nfev),
+        singular,
     )
+
+
+def _covariance(jmat: np.ndarray, scale: float) -> tuple[np.ndarray, bool]:
+    """The parameters' covariance from the Jacobian (by its SVD), and whether it is singular
+    (fewer cells than parameters, or directions the cells do not see): then every variance is
+    infinite and every correlation NaN.
+    """
+    k = jmat.shape[1]
+    if jmat.shape[0] >= k and np.isfinite(jmat).all():
+        _, sv, vt = np.linalg.svd(jmat, full_matrices=False)
+        if sv[-1] > _RANK_TOL * sv[0]:
+            cov: np.ndarray = (vt.T / sv**2) @ vt * scale
+            return cov, False
+    cov = np.full((k, k), np.nan)
+    np.fill_diagonal(cov, np.inf)
+    return cov, True
 
 
 def _stroke_pp_rad(table: Table) -> np.ndarray | None:
@@ -279,7 +307,8 @@ def data_start(table: Table, model: Model) -> tuple[dict[str, float], list[str]]
         )
         notes.append("no point below 0.6 x the peak frequency: the gain starts from the model's")
     w = 2.0 * math.pi * fn
-    gamma = float(np.median([gain * v / (_DESCRIBING * w**2 * a**2) for _, a, v, _ in inner]))
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):  # checked by the caller
+        gamma = float(np.median([gain * v / (_DESCRIBING * w**2 * a**2) for _, a, v, _ in inner]))
     return {
         "stroke_natural_frequency_hz": fn,
         "actuator_gain_nm_per_v": gain,
@@ -310,6 +339,77 @@ def _columns(table: Table, side: str) -> list[str]:
     ]
 
 
+def _side_problem(
+    table: Table, side: str, cols: Sequence[str], n_keys: int, s: TableSettings
+) -> str | None:
+    """Why the table's `side` columns cannot be fitted (None when they can)."""
+    cells = sum(int(np.isfinite(table.responses[c]).sum()) for c in cols)
+    if cells < n_keys:
+        return (
+            f"{cells} measured {side} cell(s) for the {n_keys} {side} parameters (a fit needs at "
+            "least as many cells as parameters)"
+        )
+    amps = [c for c in cols if c in AMPLITUDE_COLUMNS]
+    values = np.concatenate([table.responses[c] for c in amps]) if amps else np.zeros(0)
+    values = values[np.isfinite(values)]
+    floor = s.reading_noise_deg / 2.0
+    if values.size and values.max() < floor:
+        return (
+            f"every {side} amplitude is below the reading noise ({floor:g} deg; the largest is "
+            f"{values.max():.3g} deg): the table shows no {side} motion (check the unit)"
+        )
+    return None
+
+
+def _plausible_start(start: dict[str, float], model: Model, notes: list[str]) -> dict[str, float]:
+    """`start` without the values that are not finite or lie beyond x/÷ 1e6 of the model's."""
+    out = {}
+    for k, v in start.items():
+        nominal = float(getattr(model.plant, k))
+        if math.isfinite(v) and v > 0 and (nominal <= 0 or 1e-6 < v / nominal < 1e6):
+            out[k] = v
+        else:
+            notes.append(
+                f"the table's peaks give {k} = {v:.3g}: implausible, started from the model"
+            )
+    return out
+
+
+def misfit_warnings(table: Table, model: Model, s: TableSettings) -> list[str]:
+    """Warnings where `model` misses a column by more than `gap_ratio` x the reading noise
+    (as the joint fit warns), and what a phase column's miss suggests: a column that fits far
+    better negated uses the opposite sign convention (lags written as positive numbers).
+    """
+    cols = list(table.responses)
+    resp = steady_response(
+        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+    )
+    res = normalised_residuals(table, resp, s, cols)
+    out = []
+    for c in cols:
+        ok = np.isfinite(table.responses[c])
+        if not ok.any():
+            continue
+        ratio = float(np.sqrt(np.mean(np.nan_to_num(res[c][0][ok], nan=1e6) ** 2)))
+        if not ratio > s.gap_ratio:
+            continue
+        line = (
+            f"warning: the fitted plant misses {c} by {ratio:.1f}x the reading noise (more than "
+            f"{s.gap_ratio:g}x): the table and the model disagree"
+        )
+        if c in PHASE_COLUMNS:
+            flipped = replace(table, responses={**table.responses, c: -table.responses[c]})
+            alt = normalised_residuals(flipped, resp, s, [c])[c][0][ok]
+            alt_ratio = float(np.sqrt(np.mean(np.nan_to_num(alt, nan=1e6) ** 2)))
+            if alt_ratio < 0.5 * ratio:
+                line += (
+                    f"; its phases look like lags with the opposite sign (negated, they miss by "
+                    f"{alt_ratio:.1f}x): the table's convention is negative = lag"
+                )
+        out.append(line)
+    return out
+
+
 def identify_table(
     table: Table, model: Model, s: TableSettings
 ) -> tuple[Model, list[TableFit], dict[str, float], list[str]]:
@@ -322,17 +422,33 @@ def identify_table(
         what the table cannot tell (no resonance inside it, no pitch column, ...).
     """
     start, notes = data_start(table, model)
+    start = _plausible_start(start, model, notes)
     fits = []
     stroke_cols = _columns(table, "stroke")
+    pitch_cols = _columns(table, "pitch")
+    problems = {}
+    for side, cols, keys in (
+        ("stroke", stroke_cols, STROKE_KEYS),
+        ("pitch", pitch_cols, PITCH_KEYS),
+    ):
+        if cols and (problem := _side_problem(table, side, cols, len(keys), s)):
+            problems[side] = problem
+    if len(problems) == len([c for c in (stroke_cols, pitch_cols) if c]):
+        raise TableInputError(f"{table.source}: nothing to fit: {'; '.join(problems.values())}")
+    for side, problem in problems.items():
+        notes.append(f"{problem}: the {side} plant stays the model's")
+    if "stroke" in problems:
+        stroke_cols = []
+    if "pitch" in problems:
+        pitch_cols = []
     if stroke_cols:
         fit = fit_table(
             table, model, plant_params(model, STROKE_KEYS, start, s.fit_range), s, stroke_cols
         )
         model = fit.model
         fits.append(fit)
-    else:
+    elif "stroke" not in problems:
         notes.append("no stroke column: the stroke plant stays the model's")
-    pitch_cols = _columns(table, "pitch")
     if pitch_cols:
         pstart = _pitch_grid_start(table, model, s, pitch_cols)
         start.update(pstart)
@@ -341,8 +457,15 @@ def identify_table(
         )
         model = fit.model
         fits.append(fit)
-    else:
+    elif "pitch" not in problems:
         notes.append("no pitch column: the pitch plant stays the model's")
+    for fit in fits:
+        if fit.singular:
+            names = ", ".join(p.key.removeprefix("plant.") for p in fit.params)
+            notes.append(
+                f"the fit of {names} is singular: the table's {fit.n_cells} cells cannot tell "
+                "them apart (standard errors unbounded); measure more frequencies or levels"
+            )
     fn = model.plant.stroke_natural_frequency_hz
     near = np.abs(table.frequency_hz / fn - 1.0) <= s.near_resonance
     if stroke_cols and not near.any():
@@ -351,4 +474,5 @@ def identify_table(
             f"no point near the resonance (fitted {fn:.1f} Hz, nearest point {nearest:g} Hz): "
             "damping and gain are poorly separated"
         )
+    notes.extend(misfit_warnings(table, model, s))
     return model, fits, start, notes

@@ -18,6 +18,7 @@ import numpy as np
 __all__ = [
     "AMPLITUDE_COLUMNS",
     "PHASE_COLUMNS",
+    "PLAUSIBLE_DEG",
     "RESPONSE_COLUMNS",
     "LevelSummary",
     "Table",
@@ -38,6 +39,17 @@ RESPONSE_COLUMNS: tuple[str, ...] = AMPLITUDE_COLUMNS + PHASE_COLUMNS
 _DRIVE_COLUMNS = ("drive_amplitude_v", "drive_pp_v")
 _KNOWN = ("frequency_hz", *_DRIVE_COLUMNS, "drive_bias_v", "robot", *RESPONSE_COLUMNS)
 _LEVEL_DECIMALS = 9  # drive levels equal to 1 nV are one level
+# the largest magnitude a cell may hold (deg): a wing angle past a full turn, a phase past two
+# turns, is a typing or unit error (3081 for 30.81), as for a run's samples (signal_ranges)
+PLAUSIBLE_DEG: dict[str, float] = {
+    "stroke_pp_deg": 360.0,
+    "stroke_amplitude_deg": 180.0,
+    "pitch_pp_deg": 360.0,
+    "pitch_amplitude_deg": 180.0,
+    "stroke_phase_deg": 720.0,
+    "pitch_phase_deg": 720.0,
+}
+_OTHER_SEPARATORS = {";": "semicolons (';')", "\t": "tabs", "|": "bars ('|')"}
 
 
 class TableInputError(ValueError):
@@ -140,6 +152,12 @@ def _number(text: str, where: str, *, positive: bool = False) -> float:
 def _header(row: list[str], where: str) -> list[str]:
     names = [c.strip() for c in row]
     for name in names:
+        sep = next((s for s in _OTHER_SEPARATORS if s in name), None)
+        if name not in _KNOWN and sep is not None:
+            raise TableInputError(
+                f"{where}: the cells are separated by {_OTHER_SEPARATORS[sep]}; a table's "
+                "cells are separated by commas (save it as comma-separated CSV)"
+            )
         if name not in _KNOWN:
             hint = (
                 " (a drive column is drive_amplitude_v or drive_pp_v, in volts)"
@@ -200,6 +218,11 @@ def _row(
             v = _number(text, f"{where}, column {name!r}")
             if name in AMPLITUDE_COLUMNS and v < 0.0:
                 raise TableInputError(f"{where}, column {name!r}: an amplitude cannot be {v:g}")
+            if abs(v) > PLAUSIBLE_DEG[name]:
+                raise TableInputError(
+                    f"{where}, column {name!r}: {text} deg is beyond the plausible "
+                    f"+-{PLAUSIBLE_DEG[name]:g} deg: check the cell's decimal point and unit"
+                )
             values[name] = v
     if not any(n in values for n in RESPONSE_COLUMNS):
         raise TableInputError(f"{where}: no response measured (every response cell is empty)")
@@ -233,7 +256,7 @@ def read_table(text: str, source: str, limits: TableLimits) -> list[Table]:
     comments: list[str] = []
     rows: dict[str | None, list[tuple[int, dict[str, float]]]] = {}
     seen: dict[tuple[str | None, float, float, float], int] = {}
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    for lineno, raw in enumerate(text.removeprefix("\ufeff").splitlines(), start=1):
         stripped = raw.strip()
         if not stripped:
             continue

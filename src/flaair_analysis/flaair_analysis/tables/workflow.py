@@ -353,7 +353,10 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
     preds: dict[str, dict[str, np.ndarray]] = {"before": before_pred}
     gaps["gap_before"], ratios["gap_before"] = _scores(table, before_pred, s)
     if table.levels_v.size < 2:
-        notes.append("one drive level: the plant is fitted, the effects search needs two or more")
+        notes.append(
+            "one drive level: no level could be held out; the plant is fitted and judged in "
+            "sample, and the effects search did not run (it needs two or more levels)"
+        )
         fit_pred = _predict(table, identified, s)
         _, in_sample = _scores(table, fit_pred, s)
         status = (

@@ -24,7 +24,7 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_control.core import health
-from flaair_control.health_io import health_params_from_config, health_values
+from flaair_control.health_io import film_calibration, health_params_from_config, health_values
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_sensors.figures import literal_texts
@@ -100,6 +100,8 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     note = None
     if estimated == 0:
         note = "no estimate: the run is too short or too quiet (drive off or wing stalled)"
+    elif not any(n.text.startswith(health.BASELINE_TEXT) for n in out.notes):
+        note = health.no_baseline_text(beats, params)
     return {
         "bag": str(bag),
         "events": events,
@@ -167,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
         values = health_values()
         if args.calibration is not None:
             values["calibration_file"] = str(args.calibration)
+            film_calibration(args.calibration)  # refused by its field before a bag is read
         results = [run_bag(bag, values, args.model) for bag in args.bags]
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)

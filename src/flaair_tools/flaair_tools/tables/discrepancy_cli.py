@@ -24,7 +24,7 @@ from flaair_analysis.tables.workflow import analyse_table
 from flaair_common.outputs import OutputError, writing_outputs
 from flaair_model.model_io import save_model
 
-from .identify_cli import computed, table_command
+from .identify_cli import computed, table_command, warn
 from .report import write_report
 
 PROG = "flaair discrepancy"
@@ -59,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {c:22s} gap before {fmt(v)}, plant fitted {fmt(gi)}, after {fmt(ga)}")
     for note in doc["notes"]:
         print(f"  note: {note}")
+    warn(PROG, doc["notes"])
     print(f"  -> {args.out / 'report.html'}")
     return 0
 

@@ -61,6 +61,13 @@ def one_table(paths: list[Path]):
     return tables[0]
 
 
+def warn(prog: str, notes: list[str]) -> None:
+    """Each note that is a warning (the plant misses a column beyond noise), on stderr too."""
+    for note in notes:
+        if note.startswith("warning: "):
+            print(f"{prog}: {note}", file=sys.stderr)
+
+
 def table_command(
     prog: str, doc: str | None, argv: list[str] | None, out_files: tuple[str, ...]
 ) -> tuple[argparse.Namespace, list[Path]] | int:
@@ -142,6 +149,7 @@ def _write(stage, out, table, model, fitted, fits, start, notes, elapsed, model_
         print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
     for note in [*doc["inseparable"], *notes]:
         print(f"  note: {note}")
+    warn(PROG, notes)
     print(f"  -> {out / 'model.yaml'}, {out / 'identification.json'}")
 
 

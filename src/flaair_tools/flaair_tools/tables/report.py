@@ -191,12 +191,20 @@ def discrepancy_doc(result: TableDiscrepancy, table: Table) -> dict[str, Any]:
 def summary_line(result: TableDiscrepancy) -> str:
     """One sentence: the status and what was found."""
     names = [j.candidate.name for j in result.accepted]
+    if not result.searched:
+        fits = (
+            "the fitted plant fits it to noise"
+            if result.status == "no_discrepancy"
+            else "a gap is left in sample"
+        )
+        return (
+            f"{result.status}: one drive level, so no level could be held out and the effects "
+            f"search did not run (it needs two or more); {fits}"
+        )
     if result.status == "no_discrepancy":
         return "no_discrepancy: the fitted plant predicts the held-out drive levels to noise"
     if result.status == "explained":
         return f"explained by {', '.join(names)} (judged on held-out drive levels)"
-    if not result.searched:
-        return "unexplained: a gap is left; the effects search needs two or more drive levels"
     found = f" after {', '.join(names)}" if names else ""
     return f"unexplained: a gap is left on held-out drive levels{found}"
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from flaair_analysis.tables.reader import Table, TableInputError, TableLimits, read_table
 from flaair_model import settings
+from flaair_model.checked_files import CheckedFileError, read_text
 
 __all__ = ["load_tables", "table_limits", "write_table"]
 
@@ -20,14 +21,19 @@ def table_limits() -> TableLimits:
 
 
 def load_tables(paths: Sequence[Path], limits: TableLimits | None = None) -> list[Table]:
-    """Every robot's table in the CSV files `paths` (a robot in two files is refused)."""
+    """Every robot's table in the CSV files `paths` (a robot in two files is refused).
+
+    Each file is read through `checked_files` (a regular file of at most the `table` limit,
+    UTF-8 with or without a byte-order mark): a FIFO, a device or a huge file is refused
+    before it is read.
+    """
     limits = limits or table_limits()
     out: list[Table] = []
     for path in paths:
         try:
-            text = Path(path).read_text(encoding="utf-8")
-        except UnicodeDecodeError as exc:
-            raise TableInputError(f"{path}: not a UTF-8 text table ({exc.reason})") from None
+            text = read_text(path, "table")
+        except CheckedFileError as exc:
+            raise TableInputError(str(exc)) from None
         for table in read_table(text, str(path), limits):
             if any(t.name == table.name for t in out):
                 raise TableInputError(f"{path}: robot {table.name!r} is already in another table")
