@@ -131,6 +131,20 @@ def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarra
     return drive
 
 
+# The last (model, rate) `step` prepared, by identity: a block loop passes the same immutable
+# Model every block, and `prepare`'s lru_cache hashes the whole nested model on each call.
+_last_prepared: list = [None, 0.0, None]
+
+
+def _prepare_same(model: Model, fs: float) -> Prepared:
+    last = _last_prepared
+    if last[0] is model and last[1] == fs:
+        return last[2]
+    prep = prepare(model, fs)
+    last[0], last[1], last[2] = model, fs, prep
+    return prep
+
+
 def _frozen(a: np.ndarray) -> np.ndarray:
     a.setflags(write=False)
     return a
@@ -203,7 +217,7 @@ def step(
     if fs != state.fs_hz:
         raise ValueError(f"fs_hz {fs:g} differs from the state's fs_hz {state.fs_hz:g}")
     drive = _check_drive(drive_v_block)
-    prep = prepare(model, fs)
+    prep = _prepare_same(model, fs)
     terms = terms_state(model, state.terms)
     seen = drive_seen(model, fs, drive, state.sample_index, terms)
     len_s, len_p = prep.delay_lengths
