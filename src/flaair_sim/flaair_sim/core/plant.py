@@ -142,15 +142,17 @@ def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarra
 
 # The last (model, rate) `step` prepared, by identity: a block loop passes the same immutable
 # Model every block, and `prepare`'s lru_cache hashes the whole nested model on each call.
-_last_prepared: list = [None, 0.0, None]
+# One (model, rate, prepared) tuple, swapped whole.
+_last_prepared: list[tuple[Model, float, Prepared]] = []
 
 
 def _prepare_same(model: Model, fs: float) -> Prepared:
-    last = _last_prepared
-    if last[0] is model and last[1] == fs:
-        return last[2]
+    if _last_prepared:
+        last_model, last_fs, prep = _last_prepared[0]
+        if last_model is model and last_fs == fs:
+            return prep
     prep = prepare(model, fs)
-    last[0], last[1], last[2] = model, fs, prep
+    _last_prepared[:] = [(model, fs, prep)]  # one tuple: a reader never sees a mixed entry
     return prep
 
 
