@@ -237,3 +237,28 @@ def test_a_reader_thread_sends_deferred_copies_one_per_gap_and_the_main_thread_o
     finally:
         intra.install(None)
     intra.use_gap()  # outside a container: nothing to do
+
+
+class _CountingPublisher:
+    """A publisher whose DDS subscription count the test sets; counts rclpy's queries."""
+
+    def __init__(self) -> None:
+        self.subscribers, self.queries = 0, 0
+
+    def get_subscription_count(self) -> int:
+        self.queries += 1
+        return self.subscribers
+
+
+@pytest.mark.timeout(10)
+def test_a_per_block_listener_check_queries_dds_once_every_refresh_blocks() -> None:
+    publisher = _CountingPublisher()
+    listeners = intra.ListenerCount(publisher)
+    n = intra.LISTENER_REFRESH_BLOCKS
+    assert [listeners() for _ in range(n)] == [0] * n  # no listener: nothing written
+    assert publisher.queries == 1  # one rclpy query for n blocks
+    publisher.subscribers = 2  # a listener matches: seen at the next refresh, not later
+    assert listeners() == 2
+    assert publisher.queries == 2
+    assert [listeners() for _ in range(n - 1)] == [2] * (n - 1)
+    assert publisher.queries == 2

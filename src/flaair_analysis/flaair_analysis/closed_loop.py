@@ -34,6 +34,9 @@ from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
 from flaair_sim.core.plant import mechanical_constants, prepare, rk4_step  # the plant's own kernels
 
+# rk4_step is inlined into the kernels below, and numba's cache of them is keyed on this file
+# alone: after a change to flaair_sim.core.plant_kernel, touch this file (or re-run setup).
+
 SYNC, DSA, DSA_STROKE = 0, 1, 2
 MODE_NAMES = {SYNC: "sync_open_loop", DSA: "dsa", DSA_STROKE: "dsa_stroke_control"}
 _FMA = {"contract"}

@@ -79,7 +79,7 @@ class DsaControllerNode(FlaairNode):
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
             self.timing.append((b.first_sample_index, t_receive, time.monotonic()))
         # volatile: no listener, nothing lost
-        if b.with_state and self.state_pub.subscription_count():
+        if b.with_state and self.state_pub.has_listeners():
             self.state_pub.publish(stamp_ns, io.controller_state_fields(b, WATCHDOG[b.tripped]))
 
     def on_undecodable(self, exc: Exception) -> None:

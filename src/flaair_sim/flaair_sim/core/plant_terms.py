@@ -43,7 +43,7 @@ def has_outside_terms(model: Model) -> bool:
 
 def terms_state(model: Model, state: np.ndarray | None = None) -> np.ndarray:
     """[last drive V, low-pass state per outside term] (at rest, or `state` fitted to `model`)."""
-    n = 1 + len(outside_terms(model))
+    n = 1 + len(outside_terms(model)) if model.discovered else 1
     if state is not None and state.shape == (n,):
         return state.copy()
     fresh = np.zeros(n)
@@ -59,6 +59,8 @@ def drive_seen(
 
     Does not update the last drive sample: `add_sensor_terms` reads it after, then stores it.
     """
+    if not model.discovered:  # the common case, without building the tuple below
+        return drive_v
     terms = outside_terms(model)
     if not any(t.acts_on == "drive" for t in terms):
         return drive_v
@@ -84,7 +86,7 @@ def add_sensor_terms(
     state: np.ndarray,
 ) -> None:
     """Add the sensor terms to both outputs in place; `state` updated in place (last drive too)."""
-    terms = outside_terms(model)
+    terms = outside_terms(model) if model.discovered else ()
     if any(t.acts_on in SENSOR_SITES for t in terms):
         vref = model.sensors.reference_voltage_v
         dev = {"stroke_sensor_v": stroke_sensor_v - vref, "pitch_sensor_v": pitch_sensor_v - vref}
