@@ -20,6 +20,7 @@ import pytest
 
 from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, plant_params
 from flaair_analysis.tables.joint import identify_joint
+from flaair_analysis.tables.joint_workflow import table_heldout
 from flaair_analysis.tables.reader import TableInputError, TableLimits, read_table
 from flaair_model import settings
 from flaair_model.model_io import load_model
@@ -219,6 +220,16 @@ def test_one_drive_level_does_not_claim_held_out_levels(tmp_path) -> None:
     doc = json.loads((out / "discrepancy.json").read_text())
     assert doc["searched"] is False
     assert "no level could be held out" in doc["summary"]
+
+
+def test_the_joint_forms_check_of_a_one_level_table_is_said_to_be_in_sample(tmp_path) -> None:
+    table = tmp_path / "one.csv"
+    table.write_text("\n".join(GOOD.splitlines()[:9]) + "\n", encoding="utf-8")  # 25 V only
+    (tab,) = load_tables([table])
+    check = table_heldout(tab, load_model(), settings.tables())
+    assert check.held_out is False and check.as_dict()["held_out"] is False
+    assert check.kind == "in sample: one drive level, nothing held out"
+    assert "held-out" not in check.kind
 
 
 def test_fewer_cells_than_parameters_are_refused(tmp_path) -> None:

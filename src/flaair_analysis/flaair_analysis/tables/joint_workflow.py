@@ -58,12 +58,22 @@ class TableCheck:
     ----------
     noise_ratio, nrmse : {column: RMS residual / noise, RMS residual / RMS measured}.
     chi2, n : sum of squares of the noise-weighted held-out residuals, and the cells.
+    held_out : whether levels were held out; a one-level table is predicted in sample (nothing
+        to hold out), and says so.
     """
 
     noise_ratio: dict[str, float]
     nrmse: dict[str, float]
     chi2: float
     n: int
+    held_out: bool = True
+
+    @property
+    def kind(self) -> str:
+        """How the levels were predicted, in words: 'held-out drive levels' or 'in sample ...'."""
+        if self.held_out:
+            return "held-out drive levels"
+        return "in sample: one drive level, nothing held out"
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -72,6 +82,7 @@ class TableCheck:
             "nrmse": self.nrmse,
             "chi2_per_cell": self.chi2 / max(self.n, 1),
             "cells": self.n,
+            "held_out": self.held_out,
         }
 
 
@@ -143,7 +154,7 @@ def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
         quick = replace(s, max_nfev=s.heldout_max_nfev)
         pred = heldout_predictions(table, model, plant_params(model, keys, {}, 1.5), quick, cols)
     ratio, nrmse, n_cells, chi2 = prediction_scores(table, pred, s)
-    return TableCheck(ratio, nrmse, chi2, n_cells)
+    return TableCheck(ratio, nrmse, chi2, n_cells, held_out=table.levels_v.size >= 2)
 
 
 def analyse_joint(

@@ -198,14 +198,15 @@ def discrepancy_main(argv: list[str] | None = None) -> int:
     before, after = result.table_before, result.table_after
     print(
         f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points) in "
-        f"{elapsed:.1f} s: status {result.status}; table held-out chi2/cell "
-        f"{before.chi2 / max(before.n, 1):.2f} -> {after.chi2 / max(after.n, 1):.2f}"
+        f"{elapsed:.1f} s: status {result.status}; table chi2/cell "
+        f"{before.chi2 / max(before.n, 1):.2f} -> {after.chi2 / max(after.n, 1):.2f} "
+        f"({before.kind})"
     )
     _print_fit(prog, result.final or result.joint)
     for c, g in result.runs_result.gap_before.items():
         print(f"  {c:16s} NRMSE {g:.4f} -> {result.runs_result.gap_after[c]:.4f} (held-out runs)")
     for c, v in before.nrmse.items():
-        print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} (held-out drive levels)")
+        print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} ({before.kind})")
     for note in result.notes:
         print(f"  note: {note}")
     print(f"  -> {args.out / 'model.yaml'}, {args.out / 'discrepancy.json'}, report.html")
