@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import importlib.util
 import io
 import os
 import signal
@@ -24,6 +25,15 @@ from flaair_common.graph import Graph, graph_env, lease_domain, wait_for  # noqa
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
+
+
+def import_script(name: str):
+    """A module of the repository's scripts/ (not a package), imported by its name."""
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / f"{name}.py")
+    assert spec is not None and spec.loader is not None, name
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def graph_pids(domain_id: int | None = None, launcher_pid: int | None = None) -> list[int]:

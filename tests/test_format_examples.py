@@ -8,14 +8,21 @@ from __future__ import annotations
 import json
 import math
 import shlex
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from flaair_common.runcsv import read_run
-from rosproc import FLAAIR, OFFLINE_COMMANDS, REPO_ROOT, isolated_env, run, run_offline
+from rosproc import (
+    FLAAIR,
+    OFFLINE_COMMANDS,
+    REPO_ROOT,
+    import_script,
+    isolated_env,
+    run,
+    run_offline,
+)
 
 FORMATS = REPO_ROOT / "docs" / "formats"
 RUNS = [REPO_ROOT / "examples" / "runs" / f"run0{k}.csv" for k in (1, 2)]
@@ -94,11 +101,7 @@ def test_the_quick_commands_of_the_csv_and_table_guides_run(tmp_path: Path) -> N
 @pytest.mark.slow  # simulates the two runs and 36 steady states: about half a minute
 @pytest.mark.timeout(300)
 def test_the_shipped_examples_are_what_the_script_writes(tmp_path: Path) -> None:
-    sys.path.insert(0, str(REPO_ROOT / "scripts"))
-    try:
-        import make_format_examples
-    finally:
-        sys.path.remove(str(REPO_ROOT / "scripts"))
+    make_format_examples = import_script("make_format_examples")
     assert make_format_examples.main(["--out", str(tmp_path)]) == 0
     for shipped in [*RUNS, TABLE]:
         fresh = tmp_path / shipped.parent.name / shipped.name

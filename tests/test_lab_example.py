@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import json
 import shlex
-import sys
 from pathlib import Path
 
 import pytest
 
-from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
+from rosproc import FLAAIR, REPO_ROOT, import_script, isolated_env, run_offline
 
 DOC = REPO_ROOT / "docs" / "LAB_FILES.md"
 EXAMPLE = REPO_ROOT / "examples" / "lab_session"
@@ -92,11 +91,7 @@ def same_numbers(fresh: Path, shipped: Path) -> None:
 
 @pytest.mark.timeout(120)
 def test_the_shipped_example_is_what_the_script_writes(tmp_path: Path) -> None:
-    sys.path.insert(0, str(REPO_ROOT / "scripts"))
-    try:
-        import make_lab_example
-    finally:
-        sys.path.remove(str(REPO_ROOT / "scripts"))
+    make_lab_example = import_script("make_lab_example")
     assert make_lab_example.main(["--out", str(tmp_path)]) == 0
     shipped = sorted(p.name for p in EXAMPLE.iterdir())
     assert shipped == sorted(p.name for p in tmp_path.iterdir())
