@@ -19,6 +19,7 @@ import contextlib
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -28,7 +29,7 @@ from typing import Any
 
 from flaair_model.config import ConfigError, config_dir
 
-__all__ = ["OutputError", "check_output", "writing_outputs"]
+__all__ = ["OutputError", "check_output", "write_outputs", "writing_outputs"]
 
 
 class OutputError(ValueError):
@@ -232,3 +233,23 @@ def writing_outputs(out: Path, written: Sequence[Path]) -> Iterator[Path]:
         raise OutputError(
             f"--out {out}: cannot write ({exc.strerror or exc}); no partial output left"
         ) from None
+
+
+def write_outputs(
+    prog: str, out: Path, written: Sequence[Path], write: Callable[[Path], object]
+) -> int | None:
+    """`write(stage)` inside `writing_outputs`, its failures said in one line on stderr.
+
+    Returns None when the outputs are in place, else the exit status: 2 when the write failed,
+    130 when Ctrl-C or SIGTERM came first (nothing new left, the earlier output kept either way).
+    """
+    try:
+        with writing_outputs(out, written) as stage:
+            write(stage)
+    except OutputError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    return None

@@ -48,7 +48,7 @@ from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import check_output, write_outputs
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
 
@@ -166,20 +166,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
         return 130
-    try:
-        with writing_outputs(args.out, written) as stage:
-            if args.validate and validation is not None:
-                _write_validation(stage, validation)
-            if result is not None:
-                model_path = args.out / "model.yaml"
-                save_model(result.model_out, stage / "model.yaml")
-                write_report(stage, runs, result, str(model_path), settings, validation)
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        if args.validate and validation is not None:
+            _write_validation(stage, validation)
+        if result is not None:
+            model_path = args.out / "model.yaml"
+            save_model(result.model_out, stage / "model.yaml")
+            write_report(stage, runs, result, str(model_path), settings, validation)
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
     if result is not None:
         _print_result(runs, result, elapsed, args.out)
     return 0

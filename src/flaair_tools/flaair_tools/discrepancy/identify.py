@@ -40,7 +40,7 @@ from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import check_output, write_outputs
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
 from flaair_tools.discrepancy.report import json_safe
@@ -130,18 +130,15 @@ def main(argv: list[str] | None = None) -> int:
             **fit.as_dict(),
         }
     )
-    try:
-        with writing_outputs(args.out, written) as stage:
-            save_model(fit.model, stage / "model.yaml")
-            (stage / "identification.json").write_text(
-                json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
-            )
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        save_model(fit.model, stage / "model.yaml")
+        (stage / "identification.json").write_text(
+            json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
+        )
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
     print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
     for k in fit.keys:

@@ -32,11 +32,11 @@ from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.tables.joint import JointFit, identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import check_output, write_outputs
+from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.tables.identify_cli import bad_input, one_table
-from flaair_tools.tables.report import json_ready
 
 from .report import write_report
 from .run_inputs import bad_input_errors, load_inputs
@@ -147,17 +147,14 @@ def identify_main(argv: list[str] | None = None) -> int:
         "seconds": elapsed,
         **fit.as_dict(),
     }
-    try:
-        with writing_outputs(args.out, written) as stage:
-            save_model(fit.model, stage / "model.yaml")
-            text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
-            (stage / "identification.json").write_text(text, encoding="utf-8")
-    except OutputError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        save_model(fit.model, stage / "model.yaml")
+        text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
+        (stage / "identification.json").write_text(text, encoding="utf-8")
+
+    if (failed := write_outputs(prog, args.out, written, write_files)) is not None:
+        return failed
     verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
     print(
         f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points), plant "
@@ -180,21 +177,18 @@ def discrepancy_main(argv: list[str] | None = None) -> int:
     if isinstance(done, int):
         return done
     args, written, _, table, runs, result, elapsed = done
-    try:
-        with writing_outputs(args.out, written) as stage:
-            model_path = args.out / "model.yaml"
-            save_model(result.model_out, stage / "model.yaml")
-            doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path))
-            doc["status"] = result.status
-            doc["joint"] = json_ready(result.as_dict())
-            text = json.dumps(json_ready(doc), indent=2, allow_nan=False)
-            (stage / "discrepancy.json").write_text(text, encoding="utf-8")
-    except OutputError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        model_path = args.out / "model.yaml"
+        save_model(result.model_out, stage / "model.yaml")
+        doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path))
+        doc["status"] = result.status
+        doc["joint"] = json_safe(result.as_dict())
+        text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
+        (stage / "discrepancy.json").write_text(text, encoding="utf-8")
+
+    if (failed := write_outputs(prog, args.out, written, write_files)) is not None:
+        return failed
     before, after = result.table_before, result.table_after
     print(
         f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points) in "

@@ -38,8 +38,9 @@ from flaair_analysis.multisine.analysis import (
 )
 from flaair_analysis.multisine.design import DesignError
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import OutputError, check_output, write_outputs
 from flaair_common.runcsv import RunFileError, read_run
+from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError
 from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
@@ -50,7 +51,7 @@ from flaair_tools import bagio
 from flaair_tools.bagio.runs import load_runs
 
 from .design_file import read_design
-from .report import figure_file, json_ready, write_report
+from .report import figure_file, write_report
 
 PROG = "flaair multisine analyze"
 REQUIRED = ("time_s", "drive_v", "stroke_sensor_v", "pitch_sensor_v")
@@ -120,19 +121,16 @@ def main(argv: list[str] | None = None) -> int:
         "model": None if args.model is None else str(args.model),
         **{k: v for k, v in result.doc.items() if k != "design"},
     }
-    doc = json_ready(doc)
-    try:
-        with writing_outputs(args.out, written) as stage:
-            (stage / "nonlinearity.json").write_text(
-                json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8"
-            )
-            write_report(doc, result.spectra, stage)
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+    doc = json_safe(doc)
+
+    def write_files(stage: Path) -> None:
+        (stage / "nonlinearity.json").write_text(
+            json.dumps(doc, indent=1, allow_nan=False), encoding="utf-8"
+        )
+        write_report(doc, result.spectra, stage)
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
     classes = ", ".join(f"{c} {e['class']}" for c, e in doc["channels"].items())
     print(f"{PROG}: {len(runs)} run(s), {classes} -> {args.out}")
     return 0

@@ -25,7 +25,7 @@ import numpy as np
 
 from flaair_analysis.multisine.design import DesignError, design_multisine, realization_drive
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import OutputError, check_output, write_outputs
 
 from .design_file import DESIGN_FILE, dump_design, realization_file
 
@@ -84,20 +84,17 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     time_s = np.arange(design.n_samples) / design.fs_hz
-    try:
-        with writing_outputs(args.out, written) as stage:
-            for m in range(design.realizations):
-                table = np.column_stack([time_s, realization_drive(design, m)])
-                with open(stage / realization_file(m), "w", encoding="utf-8") as handle:
-                    handle.write("time_s,drive_v\n")
-                    np.savetxt(handle, table, delimiter=",", fmt="%.10g")
-            (stage / DESIGN_FILE).write_text(dump_design(design), encoding="utf-8")
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        for m in range(design.realizations):
+            table = np.column_stack([time_s, realization_drive(design, m)])
+            with open(stage / realization_file(m), "w", encoding="utf-8") as handle:
+                handle.write("time_s,drive_v\n")
+                np.savetxt(handle, table, delimiter=",", fmt="%.10g")
+        (stage / DESIGN_FILE).write_text(dump_design(design), encoding="utf-8")
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
     print(
         f"{PROG}: {design.realizations} realization(s) of {len(design.excited_lines)} excited "
         f"lines ({len(design.odd_detection_lines)} odd detection lines), N = "

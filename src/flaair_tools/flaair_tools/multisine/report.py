@@ -6,7 +6,6 @@ disagreements and where they point. A shell module: matplotlib and Jinja2 are im
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -15,27 +14,12 @@ import numpy as np
 from flaair_analysis.multisine.analysis import ChannelSpectra
 from flaair_sensors.figures import literal_texts
 
-__all__ = ["channel_figure", "figure_file", "json_ready", "write_report"]
+__all__ = ["channel_figure", "figure_file", "write_report"]
 
 
 def figure_file(channel: str) -> str:
     """The PNG of one channel's figure."""
     return f"figure_{channel}.png"
-
-
-def json_ready(x: Any) -> Any:
-    """Numpy scalars and arrays as plain numbers and lists; non-finite numbers as null."""
-    if isinstance(x, dict):
-        return {str(k): json_ready(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [json_ready(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return json_ready(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def _db(x: np.ndarray) -> np.ndarray:

@@ -19,9 +19,10 @@ Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from flaair_analysis.tables.workflow import analyse_table
-from flaair_common.outputs import OutputError, writing_outputs
+from flaair_common.outputs import write_outputs
 from flaair_model.model_io import save_model
 
 from .identify_cli import computed, table_command, warn
@@ -41,16 +42,15 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(done, int):
         return done
     table, _, s, result, elapsed = done
-    try:
-        with writing_outputs(args.out, written) as stage:
-            save_model(result.model_out, stage / "model.yaml")
-            doc = write_report(result, table, s, stage)
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+    docs: list[dict] = []  # the report's document, for the summary printed after
+
+    def write_files(stage: Path) -> None:
+        save_model(result.model_out, stage / "model.yaml")
+        docs.append(write_report(result, table, s, stage))
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
+    doc = docs[0]
     print(f"{PROG}: table {table.name}, {table.n_points} points, {elapsed:.1f} s")
     print(f"  {doc['summary']}")
     for c, v in doc["gap_before"].items():

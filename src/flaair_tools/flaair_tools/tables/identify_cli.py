@@ -27,13 +27,14 @@ from typing import Any, TypeVar
 from flaair_analysis.tables.fit import identify_table
 from flaair_analysis.tables.reader import Table, TableInputError
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import OutputError, check_output, writing_outputs
+from flaair_common.outputs import OutputError, check_output, write_outputs
+from flaair_common.strictjson import json_safe
 from flaair_model import settings
 from flaair_model.config import ConfigError
 from flaair_model.model import Model, ModelError
 from flaair_model.model_io import load_model, save_model
 
-from .report import identification_doc, json_ready
+from .report import identification_doc
 from .table_io import load_tables
 
 PROG = "flaair identify"
@@ -123,15 +124,12 @@ def main(argv: list[str] | None = None) -> int:
     if isinstance(done, int):
         return done
     table, model, _, (fitted, fits, start, notes), elapsed = done
-    try:
-        with writing_outputs(args.out, written) as stage:
-            _write(stage, args.out, table, model, fitted, fits, start, notes, elapsed, args.model)
-    except OutputError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
+
+    def write_files(stage: Path) -> None:
+        _write(stage, args.out, table, model, fitted, fits, start, notes, elapsed, args.model)
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
     return 0
 
 
@@ -140,7 +138,7 @@ def _write(stage, out, table, model, fitted, fits, start, notes, elapsed, model_
     doc.update(model_in=str(model_in or "config/model.yaml"), seconds=elapsed)
     save_model(fitted, stage / "model.yaml")
     (stage / "identification.json").write_text(
-        json.dumps(json_ready(doc), indent=2, allow_nan=False), encoding="utf-8"
+        json.dumps(json_safe(doc), indent=2, allow_nan=False), encoding="utf-8"
     )
     print(f"{PROG}: table {table.name}, {table.n_points} points, plant fitted in {elapsed:.1f} s")
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")

@@ -4,7 +4,6 @@ report.html and its figures). A shell module: matplotlib and Jinja2 are imported
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, TableFit
 from flaair_analysis.tables.reader import Table, summarise
 from flaair_analysis.tables.steady_state import steady_response
 from flaair_analysis.tables.workflow import NOT_SEARCHED, Judged, TableDiscrepancy
+from flaair_common.strictjson import json_safe
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
@@ -23,7 +23,6 @@ from flaair_sensors.figures import literal_texts
 __all__ = [
     "discrepancy_doc",
     "identification_doc",
-    "json_ready",
     "response_figure",
     "summary_line",
     "table_doc",
@@ -32,21 +31,6 @@ __all__ = [
 
 INSEPARABLE_CORRELATION = 0.95
 UNDETERMINED_REL_SE = 0.10
-
-
-def json_ready(x: Any) -> Any:
-    """Numpy scalars and arrays as plain numbers and lists; non-finite numbers as null."""
-    if isinstance(x, dict):
-        return {str(k): json_ready(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [json_ready(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return json_ready(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def table_doc(table: Table) -> dict[str, Any]:
@@ -303,7 +287,7 @@ def write_report(result: TableDiscrepancy, table: Table, s: TableSettings, out: 
 
     from jinja2 import Template
 
-    doc = json_ready(discrepancy_doc(result, table))
+    doc = json_safe(discrepancy_doc(result, table))
     (out / "discrepancy.json").write_text(json.dumps(doc, indent=2, allow_nan=False), "utf-8")
     response_figure(result, table, s, out / "table_response.png")
 
