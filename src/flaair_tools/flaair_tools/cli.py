@@ -77,8 +77,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "multisine": (
         "flaair_tools.multisine.cli",
-        "design an odd random-phase multisine, or analyse its runs: BLA, noise, odd and even "
-        "distortion per channel, and what the model does not predict",
+        "design a multisine excitation, or analyse its runs: how nonlinear, and where",
     ),
     "discrepancy": (
         "flaair_tools.discrepancy",
@@ -102,10 +101,13 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 GROUPS: tuple[tuple[str, tuple[str, ...]], ...] = (
     (
         "run a bench (the simulated robot, or a real-time target)",
-        ("demo", "experiment", "live", "foxglove", "sweep", "multisine"),
+        ("demo", "experiment", "live", "foxglove", "sweep"),
     ),
     ("bring a lab's data", ("import", "import-table")),
-    ("analyse", ("calibrate", "analyze", "identify", "discrepancy", "health", "simulate")),
+    (
+        "analyse",
+        ("calibrate", "analyze", "identify", "discrepancy", "multisine", "health", "simulate"),
+    ),
     (
         "ROS tools (stand-ins for ros2 run, launch, node, topic, param, service, bag)",
         ("run", "launch", "node", "topic", "param", "service", "record", "play", "bag"),
