@@ -100,7 +100,9 @@ def _load_bounded(path: Path) -> dict:
             error, message = None, ""
         except Exception as exc:
             error, message = type(exc).__name__, str(exc)
-        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        # VmHWM: this process's own peak (ru_maxrss would carry the forking parent's)
+        status = open("/proc/self/status").read().split("VmHWM:")[1]
+        peak = int(status.split()[0])
         print(json.dumps(dict(error=error, message=message, peak_kib=peak)))
         """
     )

@@ -62,4 +62,4 @@ def test_node_help_lists_parameters_with_defaults_and_ranges() -> None:
     result = run([FLAAIR, "run", "flaair_sim", "drive_node", "--help"], isolated_env())
     assert result.returncode == 0
     assert "amplitude_v (float, default 100.0) [0.0, 300.0]" in result.stdout
-    assert "waveform (str, default 'sine') {sine|chirp|stepped_sine}" in result.stdout
+    assert "waveform (str, default 'sine') {sine|chirp|stepped_sine|multisine}" in result.stdout
