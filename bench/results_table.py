@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 from dataclasses import dataclass
@@ -111,8 +112,10 @@ def selected(block: Block, rows: list[dict]) -> list[dict]:
     ]
 
 
-def render_block(block: Block, results: dict | None, source: str) -> str:
-    """A block's Markdown (without its markers)."""
+def render_block(block: Block, results: dict | None, source: str, link: str = "") -> str:
+    """A block's Markdown (without its markers); `link`: the results file relative to the
+    block's document (default `source`).
+    """
     if results is None:
         return "No results file yet: `make bench-full` writes one in `docs/results/`."
     rows = selected(block, results["figures"])
@@ -120,7 +123,8 @@ def render_block(block: Block, results: dict | None, source: str) -> str:
     compared = [f for f in figures if f.is_comparison]
     machine = results["machine"]
     head = (
-        f"From [`{source}`]({source}): `{results['mode']}` at commit `{results['commit']}` on "
+        f"From [`{source}`]({link or source}): `{results['mode']}` at commit "
+        f"`{results['commit']}` on "
         f"{results['date']}, {machine.get('cores')} cores ({machine.get('cpu_model')}, load "
         f"average {machine.get('load_average_end')} at the end), "
         f"{results['wall_s'] / 60:.1f} min wall. {sum(bool(f.met) for f in compared)} of "
@@ -159,8 +163,9 @@ def render_all(results_path: Path | None, root: Path = REPO_ROOT) -> dict[Path, 
         if not path.exists():
             raise ResultsError(f"{block.document}: no such document")
         now = out[path][1] if path in out else path.read_text()
+        link = os.path.relpath(root / source, path.parent) if source else ""
         rendered = replace_block(
-            now, block.name, render_block(block, results, source), block.document
+            now, block.name, render_block(block, results, source, link), block.document
         )
         out[path] = (out[path][0] if path in out else now, rendered)
     return out
