@@ -20,6 +20,7 @@ from typing import ClassVar
 import pytest
 
 from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
+from test_bridge_core import params as bridge_test_params  # the core tests' parameters
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -519,23 +520,8 @@ def test_the_headline_names_its_transition_run_and_the_lab_chooses() -> None:
 
 
 def _bridge_params(**overrides):
-    from flaair_bridge.core import bridge_params
-
-    values = dict(
-        sample_rate_hz=20000.0,
-        block_size=10,
-        lead_samples=20,
-        drive_limit_v=150.0,
-        max_ahead_samples=400,
-        max_fill_samples=20000,
-        resync_packets=5,
-        drive_timeout_s=0.02,
-        sensor_timeout_s=0.02,
-        target_host="127.0.0.1",
-        target_port=25001,
-    )
-    values.update(overrides)
-    return bridge_params.BridgeParams(**values)
+    """test_bridge_core's parameters, with the target's address configured."""
+    return bridge_test_params(**({"target_host": "127.0.0.1", "target_port": 25001} | overrides))
 
 
 def _sensor(sequence: int, first: int) -> bytes:
