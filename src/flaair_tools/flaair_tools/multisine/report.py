@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from jinja2 import Template
 
 from flaair_analysis.multisine.analysis import ChannelSpectra
 from flaair_sensors.figures import literal_texts
@@ -32,6 +33,7 @@ def channel_figure(
     """(a) BLA magnitude, std_noise and std_nl in dB re 1 unit/V; (b) line powers and noise in
     dB re 1 unit^2 from 0 to 3 x the top excited line (where the channel's rate allows).
     """
+    # matplotlib on first figure only: `multisine design` imports this module and draws none
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -129,8 +131,6 @@ periods x {{ doc.design.realizations }} realization(s) analysed.</p>
 
 def write_report(doc: dict[str, Any], spectra: dict[str, ChannelSpectra], out: Path) -> None:
     """One figure per analysed channel and report.html into `out`."""
-    from jinja2 import Template
-
     for name, entry in doc["channels"].items():
         channel_figure(name, entry, doc["design"], spectra[name], out / figure_file(name))
 
