@@ -33,6 +33,7 @@ from flaair_analysis import wingbeat
 from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
 from flaair_sim.core.plant import mechanical_constants, prepare, rk4_step  # the plant's own kernels
+from flaair_sim.core.plant_params import P_CONTACT_ON
 
 # rk4_step is inlined into the kernels below, and numba's cache of them is keyed on this file
 # alone: after a change to flaair_sim.core.plant_kernel, touch this file (or re-run setup).
@@ -250,7 +251,7 @@ def run_rows(
             raise ValueError("rows of one chunk must share sample_rate_hz and duration_s")
         robot = damaged_model(model, row["inertia_factor"], row["aero_damping_factor"])
         prep = prepare(robot, fs)
-        if robot.effect("collision") is not None:
+        if prep.params[P_CONTACT_ON] > 0:
             raise ValueError("the sweep batch has no collision stop")
         if robot.discovered:
             raise ValueError(

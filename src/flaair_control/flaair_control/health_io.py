@@ -17,6 +17,7 @@ from flaair_model.model import Model
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
+from flaair_sim.core.plant_params import prepare
 
 CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "health_node"
@@ -249,22 +250,9 @@ def health_params_from_config(
         model = load_model(values["model_file"] or None)
     if values.get("calibration_file"):
         values = {**values, **film_calibration(values["calibration_file"])}
-    p = model.plant
-    damping = model.effect("structural_damping")
-    zeta = float(getattr(damping, "damping_ratio", 0.0) or 0.0)
-    k = p.stroke_stiffness_nm_per_rad
     return HealthParams(
         sample_rate_hz=values["sample_rate_hz"],
-        stroke_inertia_kg_m2=p.stroke_inertia_kg_m2,
-        stroke_stiffness_nm_per_rad=k,
-        aero_damping_nm_s2=p.aero_damping_nm_s2,
-        structural_damping_nm_s_per_rad=2.0 * zeta * (k * p.stroke_inertia_kg_m2) ** 0.5,
-        actuator_gain_nm_per_v=p.actuator_gain_nm_per_v,
-        pitch_inertia_kg_m2=p.pitch_inertia_kg_m2,
-        hinge_stiffness_nm_per_rad=p.hinge_stiffness_nm_per_rad,
-        hinge_damping_nm_s_per_rad=p.hinge_damping_nm_s_per_rad,
-        inertial_coupling_kg_m2=p.inertial_coupling_kg_m2,
-        aero_coupling_nm_s2=p.aero_coupling_nm_s2,
+        plant=prepare(model, values["sample_rate_hz"]).params,
         stroke_volts_per_rad=values.get("stroke_volts_per_rad", model.stroke_volts_per_rad),
         pitch_volts_per_rad=values.get("pitch_volts_per_rad", model.pitch_volts_per_rad),
         reference_voltage_v=model.sensors.reference_voltage_v,

@@ -9,9 +9,9 @@ from typing import cast
 
 import numpy as np
 
-from flaair_model.effects import StrainTransferLoss
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
+from flaair_sim.core.plant_params import P_GP, P_GS, coefficients
 
 from .vocabulary import (
     CHANNELS,
@@ -243,13 +243,11 @@ def simulate_runs(
 
 
 def sensor_gain_v_per_deg(model: Model, channel: str) -> float:
-    """Model's sensor voltage per degree of its truth angle (nominal gain x strain transfer)."""
-    side = SENSOR_SIDE[channel]
-    gain = model.stroke_volts_per_rad if side == "stroke" else model.pitch_volts_per_rad
-    loss = model.effect_on("strain_transfer_loss", side)
-    if loss is not None:
-        gain *= cast(StrainTransferLoss, loss).efficiency
-    return math.radians(1.0) * gain
+    """Model's sensor voltage per degree of its truth angle (nominal gain x strain transfer,
+    as the plant's parameter vector resolves it).
+    """
+    p = coefficients(model)
+    return math.radians(1.0) * float(p[P_GS] if SENSOR_SIDE[channel] == "stroke" else p[P_GP])
 
 
 def mechanics_model(model: Model) -> Model:

@@ -1,8 +1,9 @@
 """The model on a table: each point's steady-state response, through the simulator's own core. Pure.
 
 Every (drive level, frequency) point is one row of a `flaair_sim.core.plant.simulate_batch_from`
-call: it starts from the plant's harmonic-balance steady state (the quadratic dampings by their
-describing function), so only what that start misses (effects, terms, harmonics) has to settle,
+call: it starts from the plant's harmonic-balance steady state (the stroke's torques by their
+describing function, from the plant's own kernel), so only what that start misses (harmonics,
+sensor effects) has to settle,
 runs for `settle_s`, and the response is read over the last `measure_wingbeats` whole wingbeats:
 peak to peak (max - min, as a video reading gives it) and the fundamental's phase (a least-squares
 fit of mean, cosine and sine; the drive's zero-order hold, half a sample, is taken out of the
@@ -21,7 +22,9 @@ from numba import njit
 
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
+from flaair_sim.core.describing import stroke_dynamic_stiffness
 from flaair_sim.core.plant import simulate_batch_from
+from flaair_sim.core.plant_params import P_CP, P_DP, P_GA, P_I, P_IP, P_JC, P_K, P_KH, prepare
 
 __all__ = [
     "MAX_BATCH_ROWS",
@@ -81,32 +84,31 @@ def harmonic_balance_start(
 ) -> np.ndarray:
     """(P, 4) the plant's steady state at t = 0 by harmonic balance (the start of each point).
 
-    Structural damping as it is, the quadratic dampings by their describing function
-    (|x'| x' ~ (8 / 3 pi) w A x'), solved for the stroke amplitude by fixed-point iteration; other
-    effects and terms are left to the simulation, which starts here and settles the rest.
+    The stroke's torques by their describing function at the amplitude (from the plant's own
+    kernel, `flaair_sim.core.stroke_dynamic_stiffness`: nominal terms, effects and discovered
+    terms alike), solved for the stroke amplitude by fixed-point iteration; the pitch through
+    the hinge's linear response, its aerodynamic coupling by its describing function
+    (|x'| x' ~ (8 / 3 pi) w A x'). What the start misses (harmonics, sensor effects) the
+    simulation, which starts here, settles.
     """
-    pl = model.plant
+    p = prepare(model, fs_hz).params
     w = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float)
     v = np.asarray(amplitude_v, dtype=float)
-    inertia = pl.stroke_inertia_kg_m2
-    k = inertia * (2.0 * np.pi * pl.stroke_natural_frequency_hz) ** 2
-    amp = pl.actuator_gain_nm_per_v * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
-    sd = model.effect("structural_damping")
-    zeta = float(getattr(sd, "damping_ratio", 0.0))
-    viscous = 2.0 * zeta * math.sqrt(k * inertia)
+    inertia, gain, k = p[P_I], p[P_GA], p[P_K]
+    ip, kh, cp, jc, dp = p[P_IP], p[P_KH], p[P_CP], p[P_JC], p[P_DP]
+    amp = gain * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
+    pitch_per_stroke = np.zeros_like(w, dtype=complex)
     for _ in range(30):
-        c = np.maximum(viscous + pl.aero_damping_nm_s2 * _DESCRIBING * w * amp, 1e-3 * k / w)
-        h = pl.actuator_gain_nm_per_v / (k - inertia * w**2 + 1j * c * w)
+        n = stroke_dynamic_stiffness(p, w, amp, pitch_per_stroke * amp)
+        c = np.maximum(n.imag / w, 1e-3 * k / w)
+        h = gain / (n.real - inertia * w**2 + 1j * c * w)
         amp = 0.5 * amp + 0.5 * np.abs(h) * v
+        force = jc * w**2 - 1j * w * dp * _DESCRIBING * w * amp
+        pitch_per_stroke = force / (kh - ip * w**2 + 1j * cp * w)
     # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
     phi = h * (-1j * v) * np.exp(-0.5j * w / fs_hz)
-    ip = pl.pitch_inertia_kg_m2
-    kh = ip * (2.0 * np.pi * pl.pitch_natural_frequency_hz) ** 2
-    force = (
-        pl.inertial_coupling_kg_m2 * w**2 - 1j * w * pl.aero_coupling_nm_s2 * _DESCRIBING * w * amp
-    )
-    psi = force * phi / (kh - ip * w**2 + 1j * pl.hinge_damping_nm_s_per_rad * w)
-    static = pl.actuator_gain_nm_per_v * np.asarray(bias_v, dtype=float) / k
+    psi = pitch_per_stroke * phi
+    static = gain * np.asarray(bias_v, dtype=float) / k
     return np.stack([phi.real + static, (1j * w * phi).real, psi.real, (1j * w * psi).real], axis=1)
 
 

@@ -133,10 +133,9 @@ def _term_scale(term: DiscoveredTerm, model: Model, table: Table) -> float:
         x = np.array([phi]), np.array([w * phi]), np.array([psi]), np.array([w * psi])
         feature = abs(float(term.monomial_value(*x)[0]))
         if term.acts_on == "stroke_dynamics":
-            torque = pl.stroke_inertia_kg_m2 * w**2 * phi
+            torque = pl.stroke_stiffness_nm_per_rad * phi
         else:
-            torque = pl.pitch_inertia_kg_m2 * (2 * math.pi * pl.pitch_natural_frequency_hz) ** 2
-            torque *= psi
+            torque = pl.hinge_stiffness_nm_per_rad * psi
         return torque / max(feature, 1e-300)
     vmax = float(np.max(table.drive_amplitude_v))
     t = np.arange(400) / (400 * fn)

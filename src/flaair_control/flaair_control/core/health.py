@@ -9,11 +9,13 @@ function and get the same numbers.
 Estimator (per wingbeat, between upward crossings of the stroke film's angle, Schmitt trigger
 at +-hysteresis_rad, crossing times interpolated): the fundamental (complex amplitude at the
 wingbeat's own frequency w) of the drive D, the stroke angle S and the pitch angle P, the
-angles read through the model's film gains. The model (shared/model-spec.md), its quadratic
-damping replaced by its describing function c = 8/(3 pi) Gamma w A, gives with the stroke film's
-gain a_s, the pitch film's a_p and the wing inertia ratio r (actuator gain as modelled):
+angles read through the model's film gains. The model (shared/model-spec.md), its stroke torques
+replaced by their describing function K_eq + j w c(A) (`flaair_sim.core.stroke_dynamic_stiffness`,
+from the plant's own kernel: for the nominal plant K and c = c_struct + 8/(3 pi) Gamma w A),
+gives with the stroke film's gain a_s, the pitch film's a_p and the wing inertia ratio r
+(actuator gain as modelled):
 
-    G_a a_s D / S = K - r I w^2 + j w c(A),   A = |S| / a_s
+    G_a a_s D / S = K_eq - r I w^2 + j w c(A),   A = |S| / a_s
     a_p = |P| / |H_p(w, r, A) A|,  H_p = (J_c w^2 - j w c_d(A)) / (k_h - r I_p w^2 + j w c_p)
 
 The imaginary part (the power the drive puts in, which the aerodynamic damping takes out) gives
@@ -41,12 +43,14 @@ from the model's misfit (transients), not from noise, which is what sigma_floor 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
 from flaair_model.notes import INFO, WARNING, Note
+from flaair_sim.core.describing import stroke_dynamic_stiffness
+from flaair_sim.core.plant_params import P_CP, P_DP, P_GA, P_I, P_IP, P_JC, P_K, P_KH
 
 PARAMETERS = ("wing_inertia", "stroke_film_gain", "pitch_film_gain", "actuator_gain")
 DETECTED = PARAMETERS[:3]  # the series the sequential test watches
@@ -60,20 +64,14 @@ _HARMONICS = 3  # harmonics fitted beside the fundamental's mean (`fundamentals`
 class HealthParams:
     """Every setting of the health monitor (config/flaair.yaml `health_node`; units in names).
 
-    The plant and film constants are the model's (config/model.yaml); the rest are tunables.
+    The plant is the model's resolved parameter vector (`flaair_sim.core.plant_params.prepare`:
+    its nominal values with its effects and discovered terms), read only through the plant's own
+    kernel (`stroke_dynamic_stiffness`) and its indices; the film gains are the model's or a
+    calibration's; the rest are tunables.
     """
 
     sample_rate_hz: float
-    stroke_inertia_kg_m2: float
-    stroke_stiffness_nm_per_rad: float
-    aero_damping_nm_s2: float
-    structural_damping_nm_s_per_rad: float
-    actuator_gain_nm_per_v: float
-    pitch_inertia_kg_m2: float
-    hinge_stiffness_nm_per_rad: float
-    hinge_damping_nm_s_per_rad: float
-    inertial_coupling_kg_m2: float
-    aero_coupling_nm_s2: float
+    plant: np.ndarray = field(repr=False, compare=False)  # the model's `prepare` vector
     stroke_volts_per_rad: float
     pitch_volts_per_rad: float
     reference_voltage_v: float
@@ -97,9 +95,10 @@ class HealthParams:
     pitch_film_delay_s: float
 
     def __post_init__(self) -> None:
-        for name in ("sample_rate_hz", "stroke_inertia_kg_m2", "stroke_stiffness_nm_per_rad"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"health parameter '{name}' must be > 0")
+        if not self.sample_rate_hz > 0:
+            raise ValueError("health parameter 'sample_rate_hz' must be > 0")
+        if not (self.plant[P_I] > 0 and self.plant[P_K] > 0 and self.plant[P_GA] != 0):
+            raise ValueError("health parameter 'plant': the model's inertia and stiffness > 0")
         if not 0 < self.min_frequency_hz < self.max_frequency_hz < self.sample_rate_hz / 4:
             raise ValueError(
                 "health parameters 'min_frequency_hz' < 'max_frequency_hz' < fs/4 needed"
@@ -270,32 +269,42 @@ def wingbeat_estimate(
     ratio = d / s
     lam = log_rate_per_s
     sc = complex(lam, w)  # the wingbeat as exp(s t): a growing or decaying stroke too
-    g0 = params.actuator_gain_nm_per_v
-    inertia, cl = params.stroke_inertia_kg_m2, params.structural_damping_nm_s_per_rad
+    plant = params.plant
+    g0, inertia = plant[P_GA], plant[P_I]
     q = g0 * ratio.imag  # drive's power in, per unit amplitude
     if q <= 0:
         return None, amps
-    b = _DF * params.aero_damping_nm_s2 * w * w * abs(s)
+    # The stroke torques at the fundamental from the plant's kernel, N(A) = K_eq + j w c_eq(A),
+    # c_eq taken as c0 + c1 A about the amplitude at hand (exact for viscous and quadratic
+    # damping): the drive's power balance is then a quadratic in a_s.
+    pitch = p * s.conjugate() / abs(s)  # the pitch against a stroke of phase 0 (model gains)
+    k_eq, c0 = _stiffness_damping(plant, w, 0.0, pitch)
     r, a_s = 1.0, 1.0
     for _ in range(3):  # r and a_s are coupled only through the amplitude's rate
-        big_b = 2.0 * r * inertia * lam * w + w * cl
+        probe = abs(s) / a_s
+        k_eq, c_probe = _stiffness_damping(plant, w, probe, pitch)
+        c1 = (c_probe - c0) / probe
+        big_b = 2.0 * r * inertia * lam * w + w * c0
+        b = c1 * w * abs(s)
         a_s = (big_b + math.sqrt(max(big_b * big_b + 4.0 * q * b, 0.0))) / (2.0 * q)
-        c_eq = cl + _DF * params.aero_damping_nm_s2 * w * abs(s) / a_s
-        r = (params.stroke_stiffness_nm_per_rad + lam * c_eq - g0 * a_s * ratio.real) / (
-            inertia * (w * w - lam * lam)
-        )
+        c_eq = c0 + c1 * abs(s) / a_s
+        r = (k_eq + lam * c_eq - g0 * a_s * ratio.real) / (inertia * (w * w - lam * lam))
     if not a_s > 0:
         return None, amps
     amp = abs(s) / a_s
-    c_d = _DF * params.aero_coupling_nm_s2 * w * amp
-    num = -(params.inertial_coupling_kg_m2 * sc * sc + c_d * sc)
-    den = (
-        params.hinge_stiffness_nm_per_rad
-        + r * params.pitch_inertia_kg_m2 * sc * sc
-        + params.hinge_damping_nm_s_per_rad * sc
-    )
+    c_d = _DF * plant[P_DP] * w * amp
+    num = -(plant[P_JC] * sc * sc + c_d * sc)
+    den = plant[P_KH] + r * plant[P_IP] * sc * sc + plant[P_CP] * sc
     a_p = abs(p) / (abs(num / den) * amp)
     return np.array([r, a_s, a_p, a_s * a_p]), amps
+
+
+def _stiffness_damping(
+    plant: np.ndarray, omega: float, amplitude: float, pitch: complex
+) -> tuple[float, float]:
+    """K_eq (N m/rad) and c_eq (N m s/rad) of the stroke torques at amplitude `amplitude`."""
+    n = complex(stroke_dynamic_stiffness(plant, omega, amplitude, pitch))
+    return n.real, n.imag / omega
 
 
 def _detect(

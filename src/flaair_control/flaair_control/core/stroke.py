@@ -64,9 +64,9 @@ from numba import njit
 from scipy.optimize import brentq
 
 from flaair_control.core import dsa, hopf
-from flaair_model.effects import WingDamage
 from flaair_model.model import Model
 from flaair_model.schema import ParamSpec
+from flaair_sim.core.plant_params import P_GA, P_GAMMA, P_I, P_K, coefficients
 
 __all__ = [
     "MODES",
@@ -382,16 +382,9 @@ class StrokePlant:
 
     @classmethod
     def from_model(cls, model: Model) -> StrokePlant:
-        """From a flaair_model Model (nominal plant; wing_damage scales the inertia)."""
-        pl = model.plant
-        damage = model.effect("wing_damage")
-        factor = damage.inertia_factor if isinstance(damage, WingDamage) else 1.0
-        return cls(
-            pl.stroke_inertia_kg_m2 * factor,
-            pl.stroke_stiffness_nm_per_rad,
-            pl.aero_damping_nm_s2,
-            pl.actuator_gain_nm_per_v,
-        )
+        """From a flaair_model Model, as the plant resolves it (a damaged wing's inertia too)."""
+        p = coefficients(model)
+        return cls(float(p[P_I]), float(p[P_K]), float(p[P_GAMMA]), float(p[P_GA]))
 
 
 def sync_drive_for_amplitude(

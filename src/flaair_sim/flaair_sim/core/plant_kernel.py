@@ -21,7 +21,7 @@ from flaair_sim.core.term_kernel import (
     mechanical_constants,
 )
 
-__all__ = ["rk4_step", "run_batch", "run_model"]
+__all__ = ["rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
@@ -278,4 +278,41 @@ def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, v
             psi_out[i],
             vs_out[i],
             vp_out[i],
+        )
+
+
+@njit(cache=True, fastmath=_FMA)
+def _stroke_fundamentals_with(c, omega, amplitudes, pitch_re, pitch_im, n_points, out):
+    """`stroke_fundamentals` with the constants tuple `c`."""
+    step = 2.0 * np.pi / n_points
+    for i in range(amplitudes.shape[0]):
+        a = amplitudes[i]
+        w = omega[i]
+        acc_re, acc_im = 0.0, 0.0
+        for k in range(n_points):
+            theta = k * step
+            ct, st = np.cos(theta), np.sin(theta)
+            phi, dphi = a * ct, -a * w * st
+            psi = pitch_re[i] * ct - pitch_im[i] * st
+            dpsi = -w * (pitch_re[i] * st + pitch_im[i] * ct)
+            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0)
+            acc_re += ddphi * ct
+            acc_im -= ddphi * st
+        out[i] = complex(acc_re, acc_im) * (2.0 / n_points)
+
+
+@njit(cache=True)
+def stroke_fundamentals(p, omega, amplitudes, pitch_re, pitch_im, n_points, out):
+    """Fundamental (complex amplitude, rad/s^2) of the stroke acceleration the kernel's own
+    `_accelerations` gives, drive off and the stop ignored, along phi = a cos(w t) with the
+    pitch Re(P e^(j w t)); one per row of `omega`, `amplitudes`, `pitch_re`, `pitch_im` into
+    `out` (complex), from `n_points` samples of a period.
+    """
+    if p[pp.P_NTERMS] > 0.0:
+        _stroke_fundamentals_with(
+            constants_with_terms(p), omega, amplitudes, pitch_re, pitch_im, n_points, out
+        )
+    else:
+        _stroke_fundamentals_with(
+            mechanical_constants(p), omega, amplitudes, pitch_re, pitch_im, n_points, out
         )

@@ -85,6 +85,7 @@ __all__ = [
     "TERM_SLOT",
     "KernelSlot",
     "Prepared",
+    "coefficients",
     "prepare",
 ]
 
@@ -320,3 +321,16 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
         substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
     p.setflags(write=False)
     return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+
+
+# The rate `coefficients` prepares at: only the sensor delays' slots (in samples) depend on it.
+_COEFFICIENTS_RATE_HZ = 20000.0
+
+
+def coefficients(model: Model) -> np.ndarray:
+    """The model's resolved parameter vector for a reader with no sample rate: its nominal
+    values with every effect and discovered term applied (P_I with a wing's damage, P_GS with
+    a film's strain transfer, P_CONTACT_ON with a stop), read by index, never by effect name.
+    The sensor delays' slots (in samples) are at 20 kHz.
+    """
+    return prepare(model, _COEFFICIENTS_RATE_HZ).params
