@@ -58,12 +58,7 @@ from tqdm import tqdm
 
 from benchlib import REPO_ROOT, Figure, best_time_s, compare, info, print_table, write_json
 from flaair_analysis.discrepancy import Settings, analyse
-from flaair_analysis.discrepancy.datasets import (
-    confusion_table,
-    dataset_cases,
-    make_runs,
-    score_case,
-)
+from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.offnominal import (
     COMPOSED_DISCOVER_KINDS,
     DISCOVER_KINDS,
@@ -71,10 +66,11 @@ from flaair_analysis.discrepancy.offnominal import (
     random_robot,
     true_plant,
 )
-from flaair_analysis.discrepancy.scoring import score_result
+from flaair_analysis.discrepancy.scoring import confusion_table, score_case, score_result
+from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model
 from flaair_sim.core.plant import simulate
-from flaair_tools.discrepancy.report import json_safe, write_validation
+from flaair_tools.discrepancy.report import write_validation
 
 TIME_TARGET_S = 60.0
 ACCURACY_TARGET = 0.90

@@ -24,7 +24,7 @@ from scipy import signal
 from benchlib import best_time_s, compare, print_table, write_json
 from flaair_model.model_io import load_model
 from flaair_sensors.analysis_io import analysis_bands_from_config
-from flaair_sensors.core import calibration, characterization
+from flaair_sensors.core import calibration, characterization, frontend_params
 from flaair_sensors.core import frontend as fe
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_sim.core.drive import chirp
@@ -49,7 +49,7 @@ def main() -> None:
     model = load_model()
     # Realistic configuration: drift removal, lag compensation on both channels, rails.
     tuning = frontend_tuning_from_config()
-    params = fe.params_from_model(
+    params = frontend_params.params_from_model(
         model,
         FS,
         **{
@@ -134,7 +134,7 @@ def main() -> None:
         repeats=2,
     )
     track = 20.0 + 180.0 * run["time_s"]
-    p0 = fe.params_from_model(model, FS, **tuning)
+    p0 = frontend_params.params_from_model(model, FS, **tuning)
     t_char = best_time_s(
         lambda: characterization.characterize_run(
             run,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from flaair_bridge.core import bridge, bridge_params, protocol
-from flaair_bridge.core.bridge import DriveBlock, SensorDatagram, Stop, Tick
+from flaair_bridge.core.bridge_state import DriveBlock, SensorDatagram, Stop, Tick
 from flaair_bridge.emulated_target import TargetCore, count_lag, decide_counting, sensor_packet
 
 FS = 20000.0

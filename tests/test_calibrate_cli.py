@@ -85,7 +85,7 @@ def test_calibrate_recovers_hidden_gain_and_lag(imported_bag: Path, tmp_path: Pa
 
 def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path: Path) -> None:
     from flaair_model.config import load_yaml
-    from flaair_sensors.core.frontend import params_from_calibration
+    from flaair_sensors.core.frontend_params import params_from_calibration
 
     assert (
         run_offline(

@@ -272,7 +272,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     from flaair_control.collision_monitor_node import CollisionMonitorNode
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
-    from flaair_sensors.core import frontend
+    from flaair_sensors.core import frontend, frontend_params
     from flaair_sim.core.plant import simulate
 
     model = load_model()
@@ -286,7 +286,7 @@ def test_collision_monitor_locks_to_the_estimated_drive_frequency(monkeypatch, o
     est = frontend.estimate(
         out.stroke_sensor_v,
         out.pitch_sensor_v,
-        frontend.params_from_model(model, fs, **FRONTEND_TUNING),
+        frontend_params.params_from_model(model, fs, **FRONTEND_TUNING),
     )
     if rclpy.ok():
         rclpy.shutdown()
@@ -348,7 +348,7 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
     from flaair_common.blocks import from_array
     from flaair_common.health import ERROR, OK
     from flaair_control.control_io import controller_health
-    from flaair_control.core.supervisor import LOOP, TRIPPED
+    from flaair_control.core.loop_state import LOOP, TRIPPED
     from flaair_control.dsa_controller_node import DsaControllerNode
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 

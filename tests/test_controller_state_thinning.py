@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from flaair_control.control_io import supervisor_params_from_config
+from flaair_control.core import loop_state
 from flaair_control.core import supervisor as sv
 from flaair_model.config import node_parameters
 from flaair_model.model_io import load_model
@@ -16,7 +17,7 @@ from flaair_model.model_io import load_model
 FS = 20000.0
 
 
-def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[sv.DriveOut]:
+def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[loop_state.DriveOut]:
     """40 blocks of the controller answering a 140 Hz, 20 deg stroke (fixed wing-state input)."""
     params = supervisor_params_from_config(
         dict(node_parameters("flaair.yaml", "dsa_controller_node")), load_model()
@@ -25,8 +26,8 @@ def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[sv.Driv
     if drive_limit_v is not None:
         params = replace(params, drive_limit_v=drive_limit_v)
     state = sv.initial_state(params)
-    state, out = sv.step(state, sv.Tick(0.0, 1, 1, 1), params)
-    state, out = sv.step(state, sv.Tick(10.0, 1, 1, 1), params)
+    state, out = sv.step(state, loop_state.Tick(0.0, 1, 1, 1), params)
+    state, out = sv.step(state, loop_state.Tick(10.0, 1, 1, 1), params)
     blocks, queue = [], list(out.blocks)
     n = params.block_size
     while queue and len(blocks) < 40:
@@ -37,7 +38,7 @@ def drive_blocks(every: int, drive_limit_v: float | None = None) -> list[sv.Driv
         velocity_deg_s = 20.0 * 2 * np.pi * 140.0 * np.cos(2 * np.pi * 140.0 * t)
         state, out = sv.step(
             state,
-            sv.WingBlock(
+            loop_state.WingBlock(
                 10.0, b.first_sample_index, FS, velocity_deg_s, stroke_deg, np.ones(n, bool), 1
             ),
             params,

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from flaair_control.core import collision, dsa
+from flaair_control.core import collision, dsa, spectral
 from flaair_control.monitor_io import monitor_windows_from_config
 from flaair_model.model_io import load_model
 from flaair_sim.core import drive, plant
@@ -119,7 +119,7 @@ def test_collision_monitor_reports_finite_verdicts(stroke, pitch, source) -> Non
 
 def test_collision_monitor_refuses_mismatched_blocks_by_name() -> None:
     params = monitor_windows_from_config(100.0)
-    with pytest.raises(collision.CollisionParameterError, match="stroke_rad and pitch_rad"):
+    with pytest.raises(spectral.CollisionParameterError, match="stroke_rad and pitch_rad"):
         collision.step(
             collision.initial_state(params),
             collision.MonitorInputs(np.zeros(10), np.zeros(9)),

@@ -22,9 +22,9 @@ from scipy import signal
 from flaair_analysis.discrepancy import Discovered, analyse
 from flaair_analysis.discrepancy.datasets import make_runs
 from flaair_analysis.discrepancy.offnominal import DISCOVER_KINDS, random_robot
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
 from flaair_model.terms import KINDS, TERM_KINDS, DiscoveredTerm, kinds_for, lowpass_ba
+from flaair_model.validation import ModelError
 from flaair_sim.core.plant import (
     PlantInputs,
     PlantStepParams,

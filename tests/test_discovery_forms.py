@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict
 from flaair_model.term_forms import canonical, composed_forms, form_key, parse_form
 from flaair_model.terms import DiscoveredTerm, composed_kinds, row_of
+from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
 

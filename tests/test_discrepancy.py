@@ -36,22 +36,20 @@ from flaair_analysis.discrepancy import (
     workflow,
 )
 from flaair_analysis.discrepancy import runs as run_module
-from flaair_analysis.discrepancy.datasets import (
-    FS_HZ,
-    DatasetCase,
-    confusion_table,
-    dataset_cases,
-    expected_column,
-    make_runs,
-    run_set_drives,
-    score_case,
-)
+from flaair_analysis.discrepancy.case import DatasetCase
+from flaair_analysis.discrepancy.datasets import FS_HZ, dataset_cases, make_runs, run_set_drives
 from flaair_analysis.discrepancy.identification import FIT_RANGE, UNDETERMINED_REL_SE
 from flaair_analysis.discrepancy.offnominal import effective_plant
-from flaair_analysis.discrepancy.scoring import score_result
+from flaair_analysis.discrepancy.scoring import (
+    confusion_table,
+    expected_column,
+    score_case,
+    score_result,
+)
 from flaair_analysis.discrepancy.vocabulary import NOT_SEPARABLE, PLANT_PARAMETERS
 from flaair_common.runcsv import write_run
-from flaair_model.model import EFFECT_NAMES, EFFECT_TYPES, with_effects
+from flaair_model.effects import EFFECT_NAMES, EFFECT_TYPES
+from flaair_model.model import with_effects
 from flaair_model.model_io import load_model, save_model
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.plant import simulate

@@ -17,6 +17,7 @@ import pytest
 
 from flaair_analysis.discrepancy import offnominal, vocabulary
 from flaair_model.effects import (
+    EFFECT_NAMES,
     EFFECTS,
     ENTRIES,
     PLANT_TERMS,
@@ -24,8 +25,9 @@ from flaair_model.effects import (
     SENSOR_TERMS,
     TermContext,
 )
-from flaair_model.model import EFFECT_NAMES, ModelError, with_effects
+from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
+from flaair_model.validation import ModelError
 from flaair_sim.core import plant, plant_params
 
 FS_HZ = 20000.0

@@ -9,7 +9,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-from flaair_analysis.discrepancy.datasets import DatasetCase
+from flaair_analysis.discrepancy.case import DatasetCase
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
 from flaair_tools.discrepancy.report import write_validation

@@ -438,7 +438,8 @@ def test_discrepancy_figures_draw_a_run_named_like_tex_literally(tmp_path) -> No
 
     import numpy as np
 
-    from flaair_analysis.discrepancy.runs import CHANNELS, Run
+    from flaair_analysis.discrepancy.runs import Run
+    from flaair_analysis.discrepancy.vocabulary import CHANNELS
     from flaair_tools.discrepancy.report_figures import write_figures
 
     fs, n = 20000.0, 2000
@@ -536,11 +537,13 @@ def _sensor(sequence: int, first: int) -> bytes:
 def _feed(datagrams, p):
     import numpy as np
 
-    from flaair_bridge.core import bridge
+    from flaair_bridge.core import bridge, bridge_state
 
     state, published = bridge.initial_state(p), []
     for k, (data, sender) in enumerate(datagrams):
-        state, out = bridge.step(state, bridge.SensorDatagram(data, 1e-3 * k, None, sender), p)
+        state, out = bridge.step(
+            state, bridge_state.SensorDatagram(data, 1e-3 * k, None, sender), p
+        )
         published += [int(b.first_sample_index) for b in out.blocks]
     return state, np.array(published)
 

@@ -37,18 +37,18 @@ def test_every_graph_names_declared_roles_and_overrides_only_its_own_nodes() -> 
 
 
 def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
-    from flaair_tools.orchestration import experiment, live
+    from flaair_tools.orchestration import experiment, live_args
 
     sim = argparse.Namespace(
         sim=True, calibration=None, processes=False, out=None, controller="dsa", foxglove=None
     )
-    sections = live.node_parameters_for(sim)
+    sections = live_args.node_parameters_for(sim)
     assert sections["plant_node"]["ros__parameters"] == dict(
         graphs.GRAPHS["live_sim"].parameters["plant"]
     )
-    assert live.live_graph(sim).hot == ("plant", "frontend", "controller")
+    assert live_args.live_graph(sim).hot == ("plant", "frontend", "controller")
     # a calibration reaches the health monitor as it does the front end
-    calibrated = live.node_parameters_for(
+    calibrated = live_args.node_parameters_for(
         argparse.Namespace(**{**vars(sim), "calibration": "c.yaml"})
     )
     assert calibrated["health_node"]["ros__parameters"] == {"calibration_file": "c.yaml"}

@@ -17,10 +17,10 @@ def test_the_worst_problem_sets_the_level_and_every_problem_is_named() -> None:
 
 def test_bridge_health_speaks_of_the_last_period_and_of_both_watchdogs() -> None:
     from flaair_bridge.bridge_io import bridge_health
-    from flaair_bridge.core import bridge
+    from flaair_bridge.core import bridge_state
 
-    def state(silent: bool = False, **counts: int) -> bridge.BridgeState:
-        return bridge.BridgeState(silent=silent, counters=bridge.Counters(**counts))
+    def state(silent: bool = False, **counts: int) -> bridge_state.BridgeState:
+        return bridge_state.BridgeState(silent=silent, counters=bridge_state.Counters(**counts))
 
     waiting = bridge_health(state(), None)
     assert (waiting.level, waiting.message) == (OK, "waiting for the target's first packet")

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import ast
 from collections import defaultdict
+from collections.abc import Iterator
+from functools import cache
 from pathlib import Path
 
 import pytest
@@ -46,19 +48,27 @@ def _module_name(path: Path) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
+def _package_of(path: Path, module: str) -> str:
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _import_target(package: str, node: ast.ImportFrom) -> str:
+    """The absolute module a `from ... import` in `package` names."""
+    if not node.level:
+        return node.module or ""
+    base = package.split(".")[: len(package.split(".")) - node.level + 1]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def _imports(path: Path, module: str) -> list[tuple[str, list[str], int]]:
     """(absolute module, imported names, line) of each import statement in `path`."""
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    package = _package_of(path, module)
     found = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             found += [(alias.name, [], node.lineno) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - node.level + 1]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
+            target = _import_target(package, node)
             found.append((target, [alias.name for alias in node.names], node.lineno))
     return found
 
@@ -452,6 +462,223 @@ def test_the_table_of_contents_rule_catches_a_missing_module_and_name(tmp_path: 
         "pkg/__init__.py: __all__ lacks hidden",
         "pkg/__init__.py: __all__ names gone, which the package neither binds nor holds",
     ]
+
+
+# One address per public name: a name is defined in one module and re-exported only by the
+# `__init__` of a package that holds that module; every import names one of those addresses.
+
+
+def _module_level(body: list[ast.stmt]) -> Iterator[ast.stmt]:
+    """The statements that bind a module's names: its body and the branches of its `if`, `try`
+    and `with` statements (not what functions and classes bind).
+    """
+    for node in body:
+        yield node
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+            continue
+        for field in ("body", "orelse", "finalbody"):
+            yield from _module_level(getattr(node, field, []))
+        for handler in getattr(node, "handlers", []):
+            yield from _module_level(handler.body)
+
+
+@cache
+def _from_imports(path: Path, module: str) -> dict[str, tuple[str, str]]:
+    """{name `path` binds at module level by `from m import n [as name]`: (absolute m, n)}."""
+    package = _package_of(path, module)
+    return {
+        alias.asname or alias.name: (_import_target(package, node), alias.name)
+        for node in _module_level(ast.parse(path.read_text(), str(path)).body)
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__"
+        for alias in node.names
+    }
+
+
+def _re_exports(path: Path) -> list[str]:
+    """The names `path`'s `__all__` lists that the module binds by an import (of any module)."""
+    tree = ast.parse(path.read_text(), str(path))
+    imported: set[str] = set()
+    for node in _module_level(tree.body):
+        if isinstance(node, ast.ImportFrom) and node.module != "__future__":
+            imported |= {alias.asname or alias.name for alias in node.names}
+        elif isinstance(node, ast.Import):
+            imported |= {alias.asname or alias.name.split(".")[0] for alias in node.names}
+    return sorted(set(_declared_all(tree) or []) & imported)
+
+
+def test_no_module_re_exports_a_name_it_imports() -> None:
+    """A module's `__all__` lists only names the module defines: a name it imports has its
+    address where it is defined (and in that package's `__init__`), not a second one here.
+    """
+    offences = [
+        f"{path.relative_to(ROOT)}: {', '.join(names)}"
+        for path in _source_files(SRC)
+        if path.name != "__init__.py" and (names := _re_exports(path))
+    ]
+    assert offences == [], "__all__ lists names imported from elsewhere:\n" + "\n".join(offences)
+
+
+@pytest.mark.parametrize(
+    "source, offences",
+    [
+        (
+            "from .loop_state import Tick\n\n__all__ = ['Tick', 'step']\n\ndef step(): ...\n",
+            ["Tick"],
+        ),
+        ("import numpy as np\n\n__all__ = ['np']\n", ["np"]),
+        (
+            "try:\n    from tomllib import loads\nexcept ImportError:\n    pass\n"
+            "__all__ = ['loads']\n",
+            ["loads"],
+        ),
+        ("from .effects import EFFECTS\n\nNAMES = tuple(EFFECTS)\n__all__ = ['NAMES']\n", []),
+    ],
+)
+def test_the_one_address_rule_catches_a_re_export(
+    tmp_path: Path, source: str, offences: list[str]
+) -> None:
+    path = tmp_path / "module.py"
+    path.write_text(source)
+    assert _re_exports(path) == offences
+
+
+def _defining_module(modules: dict[str, Path], module: str, name: str) -> str:
+    """The module that defines `name` as `module` binds it, followed through each
+    `from m import name`; a module outside `modules` (a third party's) ends the chain.
+    """
+    seen = set()
+    while module in modules and (module, name) not in seen:
+        seen.add((module, name))
+        source = _from_imports(modules[module], module).get(name)
+        if source is None:
+            return module
+        module, name = source
+    return module
+
+
+def _exports(path: Path) -> set[str]:
+    return set(_declared_all(ast.parse(path.read_text(), str(path))) or [])
+
+
+def _init_offences(modules: dict[str, Path]) -> list[str]:
+    """Each project name a package's `__init__` exports: defined in a module of that package,
+    imported from that very module, and exported by no other `__init__`.
+    """
+    exporters: dict[tuple[str, str], list[str]] = defaultdict(list)
+    offences = []
+    for package, path in sorted(modules.items()):
+        if path.name != "__init__.py":
+            continue
+        imported = _from_imports(path, package)
+        for name in sorted(_exports(path)):
+            if f"{package}.{name}" in modules or name not in imported:
+                continue  # a module or subpackage of it, or a name the `__init__` defines
+            home = _defining_module(modules, package, name)
+            if home not in modules:
+                continue  # a third party's name (flaair_tools.bagio: rosbags' QoS enums)
+            if not home.startswith(f"{package}."):
+                offences.append(f"{package} exports {name} of {home}, outside the package")
+            elif imported[name][0] != home:
+                offences.append(f"{package} exports {name} of {home} through {imported[name][0]}")
+            exporters[(name, home)].append(package)
+    offences += [
+        f"{name} of {home} is exported by {' and '.join(packages)}"
+        for (name, home), packages in sorted(exporters.items())
+        if len(packages) > 1
+    ]
+    return offences
+
+
+def test_a_name_is_re_exported_only_by_its_own_package_init() -> None:
+    """A package's `__init__` re-exports only names of its own modules, imported from the module
+    that defines each, and no two `__init__`s export the same name. The one pair the rule could
+    allow, a parent package re-exporting its subpackage's names, does not occur (every parent
+    exports its subpackages as modules), so it is not allowed either.
+    """
+    modules = {_module_name(p): p for p in _source_files(SRC)}
+    offences = _init_offences(modules)
+    assert offences == [], "names with a second address:\n" + "\n".join(offences)
+
+
+def _second_address(modules: dict[str, Path], owner: str, name: str) -> bool:
+    """Whether `owner.name` is a name `owner` merely imports (and, an `__init__`, does not
+    export): not one of the name's addresses.
+    """
+    path = modules.get(owner)
+    if path is None or f"{owner}.{name}" in modules or name not in _from_imports(path, owner):
+        return False
+    return not (path.name == "__init__.py" and name in _exports(path))
+
+
+def _second_address_reads(
+    path: Path, module: str, modules: dict[str, Path], known: set[str]
+) -> list[tuple[str, int]]:
+    """(m.name, line) of each name `path` reads off a module that only imports it, by
+    `from m import name` or by attribute (`m.name` after `import m` / `from pkg import m`).
+    """
+    found = [
+        (f"{target}.{name}", line)
+        for target, names, line in _imports(path, module)
+        for name in names
+        if target != module and _second_address(modules, target, name)
+    ]
+    bound = _imported_modules(path, module, known)
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        parts = _dotted(node) if isinstance(node, ast.Attribute) else None
+        if not parts or parts[0] not in bound:
+            continue
+        path_parts = bound[parts[0]].split(".") + parts[1:]
+        for i in range(1, len(path_parts)):
+            owner = ".".join(path_parts[:i])
+            if owner in modules and f"{owner}.{path_parts[i]}" not in modules:
+                if _second_address(modules, owner, path_parts[i]):
+                    found.append((f"{owner}.{path_parts[i]}", node.lineno))
+                break
+    return sorted(set(found), key=lambda f: (f[1], f[0]))
+
+
+def test_every_import_names_an_address_of_the_name() -> None:
+    """`from m import name` and `m.name` name the module that defines `name` or a package
+    `__init__` that exports it, never a module that merely imports it (the name would keep a
+    second address there, unlisted).
+    """
+    modules = {_module_name(p): p for p in _source_files(SRC)}
+    everything = _all_modules()
+    known = set(everything.values())
+    known |= {".".join(m.split(".")[:i]) for m in known for i in range(1, m.count(".") + 1)}
+    offences = [
+        f"{path.relative_to(ROOT)}:{line}: {name}"
+        for path, module in everything.items()
+        for name, line in _second_address_reads(path, module, modules, known)
+    ]
+    assert offences == [], "import these from where they are defined:\n" + "\n".join(offences)
+
+
+def test_the_one_address_rules_catch_a_second_address(tmp_path: Path) -> None:
+    """`pkg.state` defines `Tick`; `pkg.loop` uses it; `other` re-exports it."""
+    files = {
+        "pkg/__init__.py": 'from .loop import Tick\n\n__all__ = ["Tick"]\n',
+        "pkg/state.py": "class Tick: ...\n",
+        "pkg/loop.py": "from .state import Tick\n\ndef step(t: Tick) -> None: ...\n",
+        "other/__init__.py": 'from pkg.state import Tick\n\n__all__ = ["Tick"]\n',
+        "user.py": (
+            "import pkg.loop as loop\nfrom pkg import Tick\nfrom pkg.state import Tick\n"
+            "from pkg.loop import Tick, step\n\nloop.step(loop.Tick())\n"
+        ),
+    }
+    modules = {}
+    for relative, text in files.items():
+        path = tmp_path / relative
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(text)
+        modules[relative[:-3].replace("/__init__", "").replace("/", ".")] = path
+    assert _init_offences(modules) == [
+        "other exports Tick of pkg.state, outside the package",
+        "pkg exports Tick of pkg.state through pkg.loop",
+        "Tick of pkg.state is exported by other and pkg",
+    ]
+    reads = _second_address_reads(tmp_path / "user.py", "user", modules, set(modules))
+    assert reads == [("pkg.loop.Tick", 4), ("pkg.loop.Tick", 6)]
 
 
 def test_cores_share_one_note_type() -> None:

@@ -18,6 +18,7 @@ from scipy import signal
 from flaair_control.core import dsa, safety
 from flaair_model.lfilter import float_block, lfilter, normalized_ba
 from flaair_sensors.core import frontend as fe
+from flaair_sensors.core import frontend_params
 
 FS = 20000.0
 
@@ -163,7 +164,9 @@ def test_safety_step_matches_the_numpy_stages(ramp_down_s: float) -> None:
     assert state.status == safety.TRIPPED and np.all(out.drive_v == 0.0)
 
 
-def _frontend_reference(v: np.ndarray, p: fe.FrontendParams, channel: str) -> np.ndarray:
+def _frontend_reference(
+    v: np.ndarray, p: frontend_params.FrontendParams, channel: str
+) -> np.ndarray:
     """One channel of the chain with scipy over the usable samples of a whole record."""
     usable = (
         np.isfinite(v)
@@ -183,7 +186,7 @@ def _frontend_reference(v: np.ndarray, p: fe.FrontendParams, channel: str) -> np
 
 
 def test_frontend_step_matches_the_scipy_chain_bit_for_bit() -> None:
-    p = fe.FrontendParams(
+    p = frontend_params.FrontendParams(
         stroke_volts_per_rad=-2.25,
         pitch_volts_per_rad=-2.3,
         reference_voltage_v=1.25,

@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 import yaml
 
+from flaair_model.effects import SensorDelay
 from flaair_model.model import (
-    ModelError,
     PerChannel,
-    SensorDelay,
     effect_params,
     with_effect_on,
     with_effects,
     without_effect_on,
 )
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
+from flaair_model.validation import ModelError
 from flaair_sim.core.plant import sensor_chain, simulate
 
 FS_HZ = 20_000.0

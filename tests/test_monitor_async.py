@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from flaair_control.control_io import supervisor_params_from_config
-from flaair_control.core import monitor
+from flaair_control.core import loop_state, monitor
 from flaair_control.core import supervisor as sv
 from flaair_control.monitor_io import collision_monitor_params_from_config
 from flaair_model.config import node_parameters
@@ -48,8 +48,8 @@ def closed_loop(duration_s: float, respond: bool = False):
         frontend.initial_state(fe_params),
     )
     mon = monitor.initial_state(mon_params)
-    ctrl, out = sv.step(ctrl, sv.Tick(0.0, 1, 1, 1), loop)
-    ctrl, out = sv.step(ctrl, sv.Tick(10.0, 1, 1, 1), loop)
+    ctrl, out = sv.step(ctrl, loop_state.Tick(0.0, 1, 1, 1), loop)
+    ctrl, out = sv.step(ctrl, loop_state.Tick(10.0, 1, 1, 1), loop)
     queue, strokes, verdicts, wing_blocks, scales = list(out.blocks), [], [], [], []
     while queue and len(strokes) * loop.block_size < duration_s * FS:
         block = queue.pop(0)
@@ -75,7 +75,7 @@ def closed_loop(duration_s: float, respond: bool = False):
             if v.event is not None:
                 ctrl, out = sv.step(
                     ctrl,
-                    sv.Collision(
+                    loop_state.Collision(
                         10.0, v.event == monitor.ONSET, v.wingbeat_index, v.spectrum_rmse_deg
                     ),
                     loop,
@@ -84,7 +84,7 @@ def closed_loop(duration_s: float, respond: bool = False):
         scales.append((block.first_sample_index, ctrl.amplitude_scale))
         ctrl, out = sv.step(
             ctrl,
-            sv.WingBlock(
+            loop_state.WingBlock(
                 10.0,
                 block.first_sample_index,
                 FS,

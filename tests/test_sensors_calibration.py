@@ -10,6 +10,7 @@ import pytest
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend as fe
+from flaair_sensors.core import frontend_params
 from flaair_sensors.core.calibration import CalibrationError, calibrate
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.measured_run import synthesize_measured_run
@@ -171,11 +172,13 @@ def test_calibration_feeds_front_end(model, drive):
     delay = 3e-4
     run = _run(with_effects(model, {"sensor_delay": {"delay_s": delay}}), drive)
     cal = calibrate(run, model.sensors.reference_voltage_v, **BAND)
-    p = fe.params_from_calibration(cal, FS, **FRONTEND_TUNING)
+    p = frontend_params.params_from_calibration(cal, FS, **FRONTEND_TUNING)
     assert p.stroke_volts_per_rad == pytest.approx(model.stroke_volts_per_rad, rel=0.01)
     est = fe.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], p)
     raw = fe.estimate(
-        run["stroke_sensor_v"], run["pitch_sensor_v"], fe.with_overrides(p, compensate_lag=False)
+        run["stroke_sensor_v"],
+        run["pitch_sensor_v"],
+        frontend_params.with_overrides(p, compensate_lag=False),
     )
     band = slice(int(0.3 * FS), int(0.9 * FS))  # 74-182 Hz of the sweep
     truth = np.radians(run["stroke_deg"][band])

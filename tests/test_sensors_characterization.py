@@ -10,6 +10,7 @@ from scipy.optimize import brentq
 
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
+from flaair_sensors.core import bode, frontend_params
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend as fe
 from flaair_sim.core.drive import chirp as chirp_drive
@@ -52,7 +53,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def params(model):
-    return fe.params_from_model(model, FS, **FRONTEND_TUNING)
+    return frontend_params.params_from_model(model, FS, **FRONTEND_TUNING)
 
 
 @pytest.fixture(scope="module")
@@ -108,8 +109,8 @@ def test_stepped_bode_recovers_simulated_amplitudes(model, stepped):
         t = np.arange(int(0.6 * FS)) / FS
         o = simulate(AMP_V * np.sin(2 * np.pi * f * t), FS, model)
         sl = slice(-4000, None)
-        ref_s = math.degrees(abs(ch.sine_phasor(o.stroke_rad[sl], 2 * np.pi * f * t[sl])))
-        ref_p = math.degrees(abs(ch.sine_phasor(o.pitch_rad[sl], 2 * np.pi * f * t[sl])))
+        ref_s = math.degrees(abs(bode.sine_phasor(o.stroke_rad[sl], 2 * np.pi * f * t[sl])))
+        ref_p = math.degrees(abs(bode.sine_phasor(o.pitch_rad[sl], 2 * np.pi * f * t[sl])))
         i = int(np.flatnonzero(freqs == f)[0])
         assert b.stroke.truth_amplitude_deg[i] == pytest.approx(ref_s, rel=0.01)
         assert b.pitch.truth_amplitude_deg[i] == pytest.approx(ref_p, rel=0.01)
@@ -172,7 +173,7 @@ def test_delay_shows_in_phase_and_time_figures(model, params):
     expected = -360.0 * freqs * tau + drift_lead
     for cb in (res.bode.stroke, res.bode.pitch):
         np.testing.assert_allclose(
-            ch.wrap_deg(cb.sensor_phase_deg - cb.truth_phase_deg), expected, atol=0.1
+            bode.wrap_deg(cb.sensor_phase_deg - cb.truth_phase_deg), expected, atol=0.1
         )
     assert res.stroke.phase_rmse_deg == pytest.approx(
         float(np.sqrt(np.mean(expected**2))), rel=0.01
@@ -204,7 +205,7 @@ def test_truth_gaps_tolerated(stepped, params):
 
 def test_rmse_closed_form():
     f = np.array([60.0, 110.0, 150.0, 190.0, 200.0])
-    cb = ch.ChannelBode(
+    cb = bode.ChannelBode(
         frequency_hz=f,
         sensor_amplitude_deg=np.array([10.0, 21.0, 29.0, 42.0, 50.0]),
         truth_amplitude_deg=np.array([10.0, 20.0, 30.0, 40.0, 53.0]),
@@ -212,11 +213,11 @@ def test_rmse_closed_form():
         truth_phase_deg=np.array([0.0, 0.0, -170.0, 0.0, 0.0]),
         phase_reference="drive",
     )
-    amp, ph = ch.amplitude_phase_rmse(cb)
+    amp, ph = bode.amplitude_phase_rmse(cb)
     assert amp == pytest.approx(math.sqrt((0 + 1 + 1 + 4 + 9) / 5))
     # 170 vs -170: 20 deg, wrapped
     assert ph == pytest.approx(math.sqrt((0 + 100 + 400 + 400 + 0) / 5))
-    amp_b, ph_b = ch.amplitude_phase_rmse(cb, (110.0, 190.0))
+    amp_b, ph_b = bode.amplitude_phase_rmse(cb, (110.0, 190.0))
     assert amp_b == pytest.approx(math.sqrt(6 / 3)) and ph_b == pytest.approx(math.sqrt(900 / 3))
 
 

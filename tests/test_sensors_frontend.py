@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from flaair_model.model_io import load_model
 from flaair_sensors.core import frontend as fe
-from flaair_sensors.core.characterization import sine_phasor
+from flaair_sensors.core import frontend_params
+from flaair_sensors.core.bode import sine_phasor
 from flaair_sim.core.plant import simulate
 from tuning import FRONTEND_TUNING
 
@@ -25,7 +26,7 @@ def model():
 
 @pytest.fixture(scope="module")
 def params(model):
-    return fe.params_from_model(model, FS, **FRONTEND_TUNING)
+    return frontend_params.params_from_model(model, FS, **FRONTEND_TUNING)
 
 
 def _sine_volts(params, amp_rad, f_hz, n, lag_s=0.0, offset_v=0.0, channel="stroke"):
@@ -67,7 +68,9 @@ def test_plant_angles_recovered(model, params):
     drive = 100.0 * np.sin(2 * np.pi * 140.0 * t)
     out = simulate(drive, FS, model)
     exact = fe.estimate(
-        out.stroke_sensor_v, out.pitch_sensor_v, fe.with_overrides(params, drift_corner_hz=0.0)
+        out.stroke_sensor_v,
+        out.pitch_sensor_v,
+        frontend_params.with_overrides(params, drift_corner_hz=0.0),
     )
     np.testing.assert_allclose(exact.stroke_rad, out.stroke_rad, atol=1e-12)
     np.testing.assert_allclose(exact.pitch_rad, out.pitch_rad, atol=1e-12)
@@ -102,7 +105,7 @@ def test_drift_removal_tracks_offset_and_ramp(params):
     late = slice(int(2 * FS), n)
     err_deg = np.degrees(np.abs(est.stroke_rad[late] - theta[late]))
     assert err_deg.max() < 0.25
-    no_drift = fe.estimate(v, v, fe.with_overrides(params, drift_corner_hz=0.0))
+    no_drift = fe.estimate(v, v, frontend_params.with_overrides(params, drift_corner_hz=0.0))
     assert np.degrees(np.abs(no_drift.stroke_rad[late] - theta[late])).max() > 1.0
 
 
@@ -120,7 +123,7 @@ def test_initial_state_at_rest_voltage_removes_startup_offset(params):
 
 def test_block_stepping_equals_whole_record(params):
     rng = np.random.default_rng(3)
-    p = fe.with_overrides(
+    p = frontend_params.with_overrides(
         params,
         stroke_lag_s=2e-4,
         pitch_lag_s=-1e-4,
@@ -159,7 +162,7 @@ def test_block_stepping_equals_whole_record(params):
 )
 def test_block_partition_property(params, sizes, bad, lag):
     """Any partition of any record (with unusable samples) gives the whole-record result."""
-    p = fe.with_overrides(params, stroke_lag_s=lag, rail_low_v=0.2, rail_high_v=2.3)
+    p = frontend_params.with_overrides(params, stroke_lag_s=lag, rail_low_v=0.2, rail_high_v=2.3)
     _t, _, sv = _sine_volts(p, 0.55, 150.0, 600)
     pv = sv[::-1].copy()
     sv[bad] = np.nan
@@ -220,7 +223,7 @@ def test_nan_and_inf_never_valid_never_in_state(params):
 
 
 def test_saturation_marks_samples_invalid(params):
-    p = fe.with_overrides(params, rail_low_v=0.0, rail_high_v=2.5, rail_margin_v=0.02)
+    p = frontend_params.with_overrides(params, rail_low_v=0.0, rail_high_v=2.5, rail_margin_v=0.02)
     # 0.6 rad * 2.26 V/rad = 1.35 V: clips at both rails
     _t, theta, v = _sine_volts(p, 0.6, 140.0, 4000)
     v = np.clip(v, 0.0, 2.5)
@@ -263,12 +266,12 @@ def test_velocity_of_pure_sine_at_140hz(params):
 
 def test_lag_compensation_phase_lead(params):
     lag = 3e-4
-    p = fe.with_overrides(params, stroke_lag_s=lag, pitch_lag_s=lag)
+    p = frontend_params.with_overrides(params, stroke_lag_s=lag, pitch_lag_s=lag)
     for f in (60.0, 140.0, 200.0):
         t, theta, v = _sine_volts(p, 0.5, f, 40000, lag_s=lag)
         sl = slice(30000, 40000)
         comp = fe.estimate(v, v, p)
-        raw = fe.estimate(v, v, fe.with_overrides(p, compensate_lag=False))
+        raw = fe.estimate(v, v, frontend_params.with_overrides(p, compensate_lag=False))
         r_comp = _phasor(comp.stroke_rad, t, f, sl) / _phasor(theta, t, f, sl)
         r_raw = _phasor(raw.stroke_rad, t, f, sl) / _phasor(theta, t, f, sl)
         expected = fe.lag_compensation_response(p, f)[0] * fe.drift_removal_response(p, f)[0]
@@ -280,7 +283,7 @@ def test_lag_compensation_phase_lead(params):
     assert abs(r) - 1 == pytest.approx(0.008, abs=0.001)
     assert fe.lag_compensation_noise_gain(p) == pytest.approx(5.9, abs=0.1)
     assert abs(fe.estimate_delay_s(p, 140.0)["stroke_s"]) < 0.1 * lag
-    assert fe.estimate_delay_s(fe.with_overrides(p, compensate_lag=False), 140.0)[
+    assert fe.estimate_delay_s(frontend_params.with_overrides(p, compensate_lag=False), 140.0)[
         "stroke_s"
     ] == pytest.approx(lag, rel=0.05)
 
@@ -291,7 +294,7 @@ def test_params_from_calibration_roundtrip(params):
         "stroke": {"gain_deg_per_v": 25.0, "polarity": -1, "offset_v": 0.01, "lag_s": 1e-4},
         "pitch": {"gain_deg_per_v": 108.0, "polarity": 1, "offset_v": -0.02, "lag_s": 2e-4},
     }
-    p = fe.params_from_calibration(
+    p = frontend_params.params_from_calibration(
         cal, FS, **{**FRONTEND_TUNING, "drift_corner_hz": 0.0, "compensate_lag": False}
     )
     v = np.array([1.25 + 0.01 + 0.1])
@@ -300,21 +303,21 @@ def test_params_from_calibration_roundtrip(params):
     assert math.degrees(est.pitch_rad[0]) == pytest.approx(108.0 * 0.1)
     assert p.stroke_lag_s == 1e-4 and p.pitch_lag_s == 2e-4
     with pytest.raises(ValueError, match="polarity"):
-        fe.params_from_calibration(
+        frontend_params.params_from_calibration(
             {**cal, "pitch": {**cal["pitch"], "polarity": 0}}, FS, **FRONTEND_TUNING
         )
     with pytest.raises(ValueError, match="gain_deg_per_v"):
-        fe.params_from_calibration(
+        frontend_params.params_from_calibration(
             {**cal, "stroke": {"polarity": 1, "offset_v": 0, "lag_s": 0}}, FS, **FRONTEND_TUNING
         )
 
 
 def test_bad_parameters_and_inputs_raise(params):
     with pytest.raises(ValueError, match="velocity_cutoff_hz"):
-        fe.with_overrides(params, velocity_cutoff_hz=20000.0)
+        frontend_params.with_overrides(params, velocity_cutoff_hz=20000.0)
     with pytest.raises(ValueError, match="stroke_volts_per_rad"):
-        fe.with_overrides(params, stroke_volts_per_rad=0.0)
+        frontend_params.with_overrides(params, stroke_volts_per_rad=0.0)
     with pytest.raises(ValueError, match="rail_low_v"):
-        fe.with_overrides(params, rail_low_v=3.0, rail_high_v=1.0)
+        frontend_params.with_overrides(params, rail_low_v=3.0, rail_high_v=1.0)
     with pytest.raises(ValueError, match="same length"):
         fe.step(fe.initial_state(params), fe.FrontendInputs(np.zeros(3), np.zeros(4)), params)

@@ -16,7 +16,7 @@ def test_frontend_node_matches_offline_core_and_tracks_truth(monkeypatch, tmp_pa
     from composed import composed, joined
     from flaair_common import topics
     from flaair_model.model_io import load_model
-    from flaair_sensors.core import frontend
+    from flaair_sensors.core import frontend, frontend_params
     from flaair_sensors.frontend_node import FrontendNode
     from flaair_sim.core.drive import DriveParams, drive_record
     from flaair_sim.core.plant import simulate
@@ -51,7 +51,7 @@ def test_frontend_node_matches_offline_core_and_tracks_truth(monkeypatch, tmp_pa
     offline = frontend.estimate(
         sim.stroke_sensor_v,
         sim.pitch_sensor_v,
-        frontend.params_from_model(model, FS_HZ, **FRONTEND_TUNING),
+        frontend_params.params_from_model(model, FS_HZ, **FRONTEND_TUNING),
     )
     assert np.array_equal(stroke_deg, np.degrees(offline.stroke_rad))  # bit for bit
     assert np.array_equal(velocity, np.degrees(offline.stroke_velocity_rad_s))

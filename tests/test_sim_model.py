@@ -10,16 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from flaair_model.model import (
-    EFFECT_NAMES,
-    Collision,
-    Model,
-    ModelError,
-    SensorDelay,
-    StrainTransferLoss,
-    with_effects,
-    without_effects,
-)
+from flaair_model.effects import EFFECT_NAMES, Collision, SensorDelay, StrainTransferLoss
+from flaair_model.model import Model, with_effects, without_effects
 from flaair_model.model_io import (
     default_model_path,
     load_model,
@@ -27,6 +19,7 @@ from flaair_model.model_io import (
     model_to_dict,
     save_model,
 )
+from flaair_model.validation import ModelError
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "model.yaml"

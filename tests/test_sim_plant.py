@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from flaair_model.model import Model, ModelError, with_effects
+from flaair_model.model import Model, with_effects
 from flaair_model.model_io import load_model
+from flaair_model.validation import ModelError
 from flaair_sim.core.drive import chirp, sine, stepped_sine
 from flaair_sim.core.measured_run import synthesize_measured_run
 from flaair_sim.core.plant import (

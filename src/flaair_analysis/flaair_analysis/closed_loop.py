@@ -32,8 +32,11 @@ from numba import njit, prange
 from flaair_analysis import wingbeat
 from flaair_control.core import dsa, stroke
 from flaair_model.model import Model
-from flaair_sim.core.plant import mechanical_constants, prepare, rk4_step  # the plant's own kernels
-from flaair_sim.core.plant_params import P_CONTACT_ON
+
+# the plant's own kernels
+from flaair_sim.core.plant_kernel import rk4_step
+from flaair_sim.core.plant_params import P_CONTACT_ON, prepare
+from flaair_sim.core.term_kernel import mechanical_constants
 
 # rk4_step is inlined into the kernels below, and numba's cache of them is keyed on this file
 # alone: after a change to flaair_sim.core.plant_kernel, touch this file (or re-run setup).

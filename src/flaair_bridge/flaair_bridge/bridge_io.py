@@ -11,9 +11,9 @@ from typing import Any
 import numpy as np
 
 from flaair_bridge import udp
-from flaair_bridge.core import bridge, bridge_params
+from flaair_bridge.core import bridge_params, bridge_state
 from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
-from flaair_common.params import ParameterError, ParamSpec
+from flaair_model.schema import ParameterError, ParamSpec
 
 __all__ = [
     "PARAMS",
@@ -208,7 +208,7 @@ def ready_text(values: Mapping[str, Any]) -> str:
     )
 
 
-def sensor_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
+def sensor_fields(block: bridge_state.SensorBlock, fs_hz: float) -> dict[str, Any]:
     """A published SensorVoltageBlock's fields (for `intra.BlockPublisher.publish`)."""
     return {
         "sample_rate_hz": fs_hz,
@@ -218,7 +218,7 @@ def sensor_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
     }
 
 
-def applied_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
+def applied_fields(block: bridge_state.SensorBlock, fs_hz: float) -> dict[str, Any]:
     """The DriveCommandBlock of the drive the target applied over `block`."""
     return {
         "sample_rate_hz": fs_hz,
@@ -227,11 +227,11 @@ def applied_fields(block: bridge.SensorBlock, fs_hz: float) -> dict[str, Any]:
     }
 
 
-def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) -> Health:
+def bridge_health(now: bridge_state.BridgeState, before: bridge_state.BridgeState | None) -> Health:
     """/diagnostics of the bridge: the target link (silence, packet loss), late drive and both
     watchdogs (the target's flag, the bridge's own stop). Losses: in the period since `before`.
     """
-    c, b = now.counters, (before.counters if before is not None else bridge.Counters())
+    c, b = now.counters, (before.counters if before is not None else bridge_state.Counters())
     packets, lost = c.sensor_packets - b.sensor_packets, c.lost_packets - b.lost_packets
     problems = [(ERROR, "target silent: no sensor packet") if now.silent else (OK, "")]
     if lost:
@@ -276,9 +276,11 @@ def bridge_health(now: bridge.BridgeState, before: bridge.BridgeState | None) ->
     )
 
 
-def drive_input(fields: Mapping[str, Any], now_s: float) -> bridge.DriveBlock:
+def drive_input(fields: Mapping[str, Any], now_s: float) -> bridge_state.DriveBlock:
     """A /flaair/drive block's fields as the bridge core's input, received at `now_s`."""
-    return bridge.DriveBlock(int(fields["first_sample_index"]), np.array(fields["drive_v"]), now_s)
+    return bridge_state.DriveBlock(
+        int(fields["first_sample_index"]), np.array(fields["drive_v"]), now_s
+    )
 
 
 def save_timing(path: str, timing: list[tuple[int, float, float]], events: Any) -> None:

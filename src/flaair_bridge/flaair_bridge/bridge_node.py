@@ -18,7 +18,7 @@ import time
 
 from flaair_bridge import bridge_io as io
 from flaair_bridge.bridge_io import PARAMS
-from flaair_bridge.core import bridge, bridge_report, target
+from flaair_bridge.core import bridge, bridge_report, bridge_state, target
 from flaair_common import intra, topics
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
@@ -62,7 +62,7 @@ class BridgeNode(FlaairNode):
         )
         self.create_timer(
             p["tick_period_s"],
-            lambda: self.process(bridge.Tick(time.time(), self.endpoint.pending())),
+            lambda: self.process(bridge_state.Tick(time.time(), self.endpoint.pending())),
         )
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         self.publish_health(lambda: self.state, io.bridge_health)
@@ -76,7 +76,7 @@ class BridgeNode(FlaairNode):
             self.target, notes = target.follow(host, port, sender, self.target, data)
             log_notes(self.get_logger(), notes)
         answered = self.state.counters.drive_packets
-        self.process(bridge.SensorDatagram(data, arrival_s, time.time(), sender))
+        self.process(bridge_state.SensorDatagram(data, arrival_s, time.time(), sender))
         # the loop has answered: a gap until the next block
         if self.state.counters.drive_packets != answered:
             intra.use_gap()
@@ -90,13 +90,13 @@ class BridgeNode(FlaairNode):
         if not self.closed:
             self.process(io.drive_input(message, time.time()))
 
-    def process(self, inputs: bridge.Input, copies: int = 1) -> None:
+    def process(self, inputs: bridge_state.Input, copies: int = 1) -> None:
         """Step the core with one input; publish its blocks, send its packets, log its notices."""
         # publishing inside: blocks from the thread and from the timer stay in order
         with self.lock:
             # composed, the drive this packet's blocks produce comes back nested, caused by it
             outer_cause_s = self.cause_s
-            if isinstance(inputs, bridge.SensorDatagram):
+            if isinstance(inputs, bridge_state.SensorDatagram):
                 self.cause_s = inputs.now_s
             self.state, out = bridge.step(self.state, inputs, self.params)
             for packet in [packet for packet in out.packets for _ in range(copies)]:
@@ -124,7 +124,7 @@ class BridgeNode(FlaairNode):
         self.closed = True
         # a reader behind its backlog would hold the lock against the stop packet
         self.endpoint.stop_reading()
-        self.process(bridge.Stop(time.time(), "end of run"), copies=STOP_COPIES)
+        self.process(bridge_state.Stop(time.time(), "end of run"), copies=STOP_COPIES)
         self.endpoint.close()
         summary = bridge_report.summary(self.state.counters, self.timing)
         self.get_logger().info(f"bridge closed, stop packet sent: {summary}")

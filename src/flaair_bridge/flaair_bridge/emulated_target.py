@@ -345,8 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    from flaair_model.model import ModelError
     from flaair_model.model_io import load_model
+    from flaair_model.validation import ModelError
     from flaair_sim.core import plant
 
     try:

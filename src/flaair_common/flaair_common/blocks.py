@@ -12,8 +12,6 @@ import array
 import numpy as np
 from builtin_interfaces.msg import Time
 
-from flaair_common.stream import BlockCheck, check_block  # noqa: F401 - re-exported for the nodes
-
 
 def from_array(values: np.ndarray) -> array.array:
     """A float64[] message field holding `values`."""

@@ -55,10 +55,10 @@ from rclpy.impl.logging_severity import LoggingSeverity
 from rclpy.node import Node
 
 from flaair_common import intra
-from flaair_common.params import ParameterError, ParamSpec
 from flaair_model.config import node_parameters
 from flaair_model.notes import ERROR as ERROR_LEVEL
 from flaair_model.notes import Note
+from flaair_model.schema import ParameterError, ParamSpec
 
 # at exit, a node's reliable readers get this long (in all) to acknowledge its last messages: a
 # recorder half a second of signal behind on an overloaded machine needed more than the 2 s this

@@ -22,11 +22,12 @@ from __future__ import annotations
 import numpy as np
 
 from flaair_common import intra, topics
-from flaair_common.blocks import check_block, stamp_from_ns
+from flaair_common.blocks import stamp_from_ns
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, EVENTS
 from flaair_common.runtime import INFO, WARN, log, log_notes, run_node, warn_counted
+from flaair_common.stream import check_block
 from flaair_control import monitor_io as io
 from flaair_control.core import monitor
 from flaair_control.monitor_io import (

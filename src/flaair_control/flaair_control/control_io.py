@@ -15,14 +15,14 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from flaair_common.health import ERROR, WARN, Health, health
-from flaair_control.core import dsa, safety, stroke
-from flaair_control.core import supervisor as sv
-from flaair_control.core.supervisor import SupervisorParams
+from flaair_control.core import dsa, loop_state, safety, stroke
+from flaair_control.core.loop_state import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
-from flaair_model.model import Model, ModelError
+from flaair_model.model import Model
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec, declared_values
 from flaair_model.settings import node_section
+from flaair_model.validation import ModelError
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
 
 __all__ = [
@@ -397,7 +397,7 @@ def supervisor_params_from_config(values: Mapping[str, Any], model: Model) -> Su
         collision_restore_on_clearance=v["collision_restore_on_clearance"],
         collision_ramp_guard_s=v["collision_ramp_guard_s"],
         state_every_blocks=v["state_every_blocks"],
-        timer_period_s=sv.timer_period_s(v["watchdog_timeout_s"]),
+        timer_period_s=loop_state.timer_period_s(v["watchdog_timeout_s"]),
         dsa=dsa_params,
         safety=safety_params,
         frequency=frequency,
@@ -426,11 +426,11 @@ def describe_loop(params: SupervisorParams, values: Mapping[str, Any]) -> str:
 
 def supervisor_wing_input(
     fields: Mapping[str, Any], t_wall: float, drive_subscribers: int
-) -> sv.WingBlock:
+) -> loop_state.WingBlock:
     """A /flaair/wing_state block's fields as the dSA
     loop supervisor's input, received at `t_wall`.
     """
-    return sv.WingBlock(
+    return loop_state.WingBlock(
         t_wall,
         int(fields["first_sample_index"]),
         float(fields["sample_rate_hz"]),
@@ -452,7 +452,7 @@ def supervisor_params_from_values(values: Mapping[str, Any]) -> SupervisorParams
     return supervisor_params_from_config(values, model)
 
 
-def drive_fields(block: sv.DriveOut, sample_rate_hz: float) -> dict[str, Any]:
+def drive_fields(block: loop_state.DriveOut, sample_rate_hz: float) -> dict[str, Any]:
     """A DriveCommandBlock's fields (for `intra.BlockPublisher.publish`)."""
     return {
         "sample_rate_hz": sample_rate_hz,
@@ -461,7 +461,7 @@ def drive_fields(block: sv.DriveOut, sample_rate_hz: float) -> dict[str, Any]:
     }
 
 
-def controller_state_fields(block: sv.DriveOut, watchdog_code: int) -> dict[str, Any]:
+def controller_state_fields(block: loop_state.DriveOut, watchdog_code: int) -> dict[str, Any]:
     """A ControllerState's fields for the drive block
     `block` (`watchdog_code`: the message's constant).
     """
@@ -479,19 +479,21 @@ def controller_state_fields(block: sv.DriveOut, watchdog_code: int) -> dict[str,
 
 
 _MODE_TEXT = {
-    sv.WAITING: "waiting for the loop to start",
-    sv.LOOP: "closing the loop",
-    sv.DONE: "run complete",
+    loop_state.WAITING: "waiting for the loop to start",
+    loop_state.LOOP: "closing the loop",
+    loop_state.DONE: "run complete",
 }
 
 
-def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None) -> Health:
+def controller_health(
+    now: loop_state.SupervisorState, before: loop_state.SupervisorState | None
+) -> Health:
     """/diagnostics of the dSA controller: watchdog, trips, clamping, bad wing-state blocks
     (clamping and bad blocks: in the period since `before`).
     """
-    c, b = now.counts, (before.counts if before is not None else sv.Counts())
+    c, b = now.counts, (before.counts if before is not None else loop_state.Counts())
     problems = []
-    if now.mode == sv.TRIPPED:
+    if now.mode == loop_state.TRIPPED:
         problems.append((ERROR, f"watchdog tripped: {now.fault} (re-arm: ~/reset_watchdog)"))
     if c.clamped > b.clamped:
         problems.append((WARN, f"drive clamped at the limit in {c.clamped - b.clamped} block(s)"))
@@ -504,7 +506,7 @@ def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None
         _MODE_TEXT.get(now.mode, now.mode),
         {
             "mode": now.mode,
-            "watchdog": "tripped" if now.mode == sv.TRIPPED else "ok",
+            "watchdog": "tripped" if now.mode == loop_state.TRIPPED else "ok",
             "fault": now.fault,
             "trips": c.trips,
             "clamped_blocks": c.clamped,
@@ -520,7 +522,7 @@ def controller_health(now: sv.SupervisorState, before: sv.SupervisorState | None
 
 def reset_reply(notes: tuple, mode: str) -> tuple[bool, str]:
     """std_srvs/Trigger's answer to ~/reset_watchdog: success once the loop runs again."""
-    return mode == sv.LOOP, "; ".join(note.text for note in notes) or mode
+    return mode == loop_state.LOOP, "; ".join(note.text for note in notes) or mode
 
 
 def dropped_text(exc: Exception, count: int) -> str:
@@ -528,13 +530,15 @@ def dropped_text(exc: Exception, count: int) -> str:
     return f"wing-state block dropped: {exc} [{count} so far]"
 
 
-def ramp_request(changes: Mapping[str, Any], current: Callable[[str], Any]) -> sv.SetRamp | None:
+def ramp_request(
+    changes: Mapping[str, Any], current: Callable[[str], Any]
+) -> loop_state.SetRamp | None:
     """The K_r ramp a parameter change asks for: kr_target or kr_ramp_duration_s changed (the
     other at its `current` value); None: no ramp asked for.
     """
     if "kr_target" not in changes and "kr_ramp_duration_s" not in changes:
         return None
-    return sv.SetRamp(
+    return loop_state.SetRamp(
         changes.get("kr_target", current("kr_target")),
         changes.get("kr_ramp_duration_s", current("kr_ramp_duration_s")),
     )

@@ -25,6 +25,7 @@ from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_control import control_io as io
 from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS
+from flaair_control.core import loop_state
 from flaair_control.core import supervisor as sv
 from flaair_msgs.msg import CollisionEvent, ControllerState
 
@@ -64,7 +65,9 @@ class DsaControllerNode(FlaairNode):
         self.publish_health(lambda: self.state, io.controller_health)
         self.get_logger().info("dSA controller ready: " + io.describe_loop(self.params, p))
 
-    def advance(self, inputs: sv.Input, t_receive: float | None = None) -> sv.Outputs:
+    def advance(
+        self, inputs: loop_state.Input, t_receive: float | None = None
+    ) -> loop_state.Outputs:
         """Run the supervisor on one event; publish its blocks, log its notes."""
         with self.lock:
             self.state, out = sv.step(self.state, inputs, self.params)
@@ -73,7 +76,7 @@ class DsaControllerNode(FlaairNode):
         log_notes(self.get_logger(), out.notes, lambda counter: getattr(self.state.counts, counter))
         return out
 
-    def publish(self, b: sv.DriveOut, t_receive: float | None) -> None:
+    def publish(self, b: loop_state.DriveOut, t_receive: float | None) -> None:
         stamp_ns = self.stamp_ns_of(b.first_sample_index, self.params.sample_rate_hz)
         self.drive.publish(stamp_ns, io.drive_fields(b, self.params.sample_rate_hz))
         if b.answers_wing_block and self.timing is not None and t_receive is not None:
@@ -89,15 +92,17 @@ class DsaControllerNode(FlaairNode):
     def on_wing_state(self, m) -> None:
         t_receive = time.monotonic()
         self.follow_sample_clock(m, self.params.sample_rate_hz)  # stamps: the wing state's clock
-        if self.state.mode == sv.DONE:
+        if self.state.mode == loop_state.DONE:
             return
         # only the start reads them (rclpy: ~20 us)
-        peers = self.peers() if self.state.mode == sv.WAITING else 0
+        peers = self.peers() if self.state.mode == loop_state.WAITING else 0
         self.advance(io.supervisor_wing_input(m, t_receive, peers), t_receive)
 
     def on_collision_event(self, m: CollisionEvent) -> None:
         onset = m.kind == CollisionEvent.ONSET
-        self.advance(sv.Collision(time.monotonic(), onset, m.wingbeat_index, m.spectrum_rmse_deg))
+        self.advance(
+            loop_state.Collision(time.monotonic(), onset, m.wingbeat_index, m.spectrum_rmse_deg)
+        )
 
     def on_set_parameters(self, parameters) -> SetParametersResult:
         """kr_target / kr_ramp_duration_s: a new ramp from the current K_r."""
@@ -109,14 +114,14 @@ class DsaControllerNode(FlaairNode):
         return SetParametersResult(successful=True)
 
     def on_reset_watchdog(self, request: Trigger.Request, response: Trigger.Response):
-        out = self.advance(sv.ResetWatchdog(time.monotonic()))
+        out = self.advance(loop_state.ResetWatchdog(time.monotonic()))
         response.success, response.message = io.reset_reply(out.notes, self.state.mode)
         return response
 
     def on_timer(self) -> None:
         count = self.count_publishers
         sensors, wings = count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE)
-        self.advance(sv.Tick(time.monotonic(), self.peers(), sensors, wings))
+        self.advance(loop_state.Tick(time.monotonic(), self.peers(), sensors, wings))
 
     def peers(self) -> int:
         """/flaair/drive's subscribers; 0 until
@@ -130,7 +135,7 @@ class DsaControllerNode(FlaairNode):
 
     def close(self) -> None:
         """Shutdown: a zero-drive block so the actuator does not hold the last command."""
-        self.advance(sv.Close())
+        self.advance(loop_state.Close())
         if self.timing:
             np.savez(self.p["timing_file"], timing=np.array(self.timing))
         time.sleep(0.1)  # let reliable delivery of the zero block finish

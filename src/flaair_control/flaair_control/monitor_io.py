@@ -225,7 +225,7 @@ def collision_monitor_params_from_config(
     values = collision_monitor_values() if values is None else values
     try:
         return CollisionMonitorParams(**declared_values(values, COLLISION_MONITOR_PARAMS))
-    except col.CollisionParameterError as exc:
+    except spectral.CollisionParameterError as exc:
         raise ParameterError(str(exc)) from exc
 
 

@@ -17,45 +17,20 @@ from flaair_model.effects import (
     EFFECT_NAMES,
     EFFECT_TYPES,
     PER_CHANNEL_EFFECTS,
-    ChargeAmpHighpass,
-    Collision,
     Effect,
-    Feedthrough,
-    HingeStiffening,
-    SensorDelay,
     SensorEffect,
-    StrainTransferLoss,
-    StructuralDamping,
-    TransmissionNonlinearity,
-    WingDamage,
 )
 from flaair_model.pvdf import PvdfMaterial, SensorBeam, pitch_volts_per_rad, stroke_volts_per_rad
 from flaair_model.term_entry import term_from_dict
 from flaair_model.terms import MAX_DYNAMICS_TERMS, DiscoveredTerm
-from flaair_model.validation import CHANNELS, SIDES, ModelError, check_fields, check_number
+from flaair_model.validation import SIDES, ModelError, check_fields, check_number
 
 __all__ = [
-    "CHANNELS",
-    "EFFECT_NAMES",
-    "EFFECT_TYPES",
-    "PER_CHANNEL_EFFECTS",
-    "SIDES",
-    "ChargeAmpHighpass",
-    "Collision",
-    "Effect",
-    "Feedthrough",
-    "HingeStiffening",
     "Model",
-    "ModelError",
     "NoiseParams",
     "PerChannel",
     "PlantParams",
-    "SensorDelay",
     "SensorParams",
-    "StrainTransferLoss",
-    "StructuralDamping",
-    "TransmissionNonlinearity",
-    "WingDamage",
     "effect_from_params",
     "effect_params",
     "with_effect_on",

@@ -19,25 +19,11 @@ from flaair_model.pvdf import PvdfMaterial, SensorBeam
 from flaair_model.term_entry import term_from_dict, term_to_dict
 from flaair_model.validation import coerce_number
 
-from .model import (
-    EFFECT_TYPES,
-    Model,
-    ModelError,
-    NoiseParams,
-    PlantParams,
-    SensorParams,
-    effect_from_params,
-    effect_params,
-)
+from .effects import EFFECT_TYPES
+from .model import Model, NoiseParams, PlantParams, SensorParams, effect_from_params, effect_params
+from .validation import ModelError
 
-__all__ = [
-    "CONFIG_DIR_ENV",
-    "default_model_path",
-    "load_model",
-    "model_from_dict",
-    "model_to_dict",
-    "save_model",
-]
+__all__ = ["default_model_path", "load_model", "model_from_dict", "model_to_dict", "save_model"]
 
 _MODEL_FILE = "model.yaml"
 _SECTIONS = ("plant", "sensors", "noise", "effects", "discovered")

@@ -14,8 +14,7 @@ import matplotlib
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
 from flaair_model.checked_files import printable
-
-from .core.characterization import Bode, ChannelBode
+from flaair_sensors.core.bode import Bode, ChannelBode
 
 __all__ = [
     "bode_figure",

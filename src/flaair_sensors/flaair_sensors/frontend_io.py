@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 
 from flaair_model.config import ConfigError, load_yaml
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_model.settings import node_section
-from flaair_sensors.core import frontend
+from flaair_model.validation import ModelError
+from flaair_sensors.core import frontend, frontend_params
 
 __all__ = [
     "CONFIG_FILE",
@@ -91,7 +91,7 @@ FRONTEND_PARAMS = [
         read_only=True,
     ),
 ]
-_TUNING = frontend.TUNING_FIELDS
+_TUNING = frontend_params.TUNING_FIELDS
 
 
 def frontend_values() -> dict:
@@ -110,7 +110,7 @@ def frontend_tuning_from_config(values: Mapping | None = None) -> dict:
     return {name: values[name] for name in _TUNING}
 
 
-def frontend_params_from_config(values: Mapping, fs_hz: float) -> frontend.FrontendParams:
+def frontend_params_from_config(values: Mapping, fs_hz: float) -> frontend_params.FrontendParams:
     """FrontendParams from the node's parameter values (model or calibration gains)."""
     tuning = frontend_tuning_from_config(values)
     try:
@@ -120,12 +120,14 @@ def frontend_params_from_config(values: Mapping, fs_hz: float) -> frontend.Front
                     "parameter 'calibration_file' is empty but gains_from is 'calibration'"
                 )
             calibration = load_yaml(values["calibration_file"])
-            return frontend.params_from_calibration(calibration, fs_hz, **tuning)
-        return frontend.params_from_model(load_model(values["model_file"] or None), fs_hz, **tuning)
+            return frontend_params.params_from_calibration(calibration, fs_hz, **tuning)
+        return frontend_params.params_from_model(
+            load_model(values["model_file"] or None), fs_hz, **tuning
+        )
     except (ConfigError, ModelError, OSError) as exc:
         source = "calibration_file" if values["gains_from"] == "calibration" else "model_file"
         raise ParameterError(f"parameter '{source}': {exc}") from exc
-    except frontend.FrontendError as exc:
+    except frontend_params.FrontendError as exc:
         raise ParameterError(str(exc)) from exc
 
 
@@ -144,7 +146,7 @@ def velocity_delay_s(frequency_hz: float, values: Mapping | None = None) -> floa
     return float(frontend.estimate_delay_s(params, frequency_hz)["stroke_velocity_s"])
 
 
-def ready_text(gains_from: str, params: frontend.FrontendParams) -> str:
+def ready_text(gains_from: str, params: frontend_params.FrontendParams) -> str:
     """The front end's start-up line: gains, velocity phase lag and remaining delay at 140 Hz."""
     delay = frontend.estimate_delay_s(params)
     return (

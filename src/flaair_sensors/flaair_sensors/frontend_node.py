@@ -21,11 +21,11 @@ import time
 import numpy as np
 
 from flaair_common import cdr, intra, topics
-from flaair_common.blocks import check_block
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import INFO, log, run_node, warn_counted
+from flaair_common.stream import check_block
 from flaair_msgs.msg import WingStateBlock
 from flaair_sensors import frontend_io as io
 from flaair_sensors.core import frontend

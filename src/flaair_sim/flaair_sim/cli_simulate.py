@@ -23,10 +23,10 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.runcsv import RunFileError, read_run, write_run
 from flaair_model.config import ConfigError
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError
 from flaair_model.settings import node_section
+from flaair_model.validation import ModelError
 from flaair_sim.core.measured_run import synthesize_measured_run
 from flaair_sim.core.plant import simulate
 from flaair_sim.plant_io import PLANT_PARAMS

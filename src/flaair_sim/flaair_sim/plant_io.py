@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from flaair_model.model import Model, ModelError, with_effects
+from flaair_model.model import Model, with_effects
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.validation import ModelError
 from flaair_sim.core.actuator import ActuatorParams, Command
 from flaair_sim.core.damage import DamagedModels, DamageParams, damaged_models
 from flaair_sim.core.scene import CameraParams, tracked_angles, tracking_generator

@@ -128,11 +128,6 @@ from .discovery import Discovered, DiscoveryOutcome, discover
 from .evidence import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
 from .runs import (
-    CHANNELS,
-    EFFECT_CHANNELS,
-    SENSOR_CHANNELS,
-    STATUSES,
-    TRUTH_CHANNELS,
     DiscrepancyInputError,
     Run,
     check_runs,
@@ -144,16 +139,23 @@ from .runs import (
 )
 from .search import ChannelSearch, find_effects
 from .settings import Settings
-from .vocabulary import SENSOR_EFFECTS, VOCABULARY, EffectSpec, candidate_groups, candidate_specs
+from .vocabulary import (
+    CHANNELS,
+    EFFECT_CHANNELS,
+    SENSOR_EFFECTS,
+    STATUSES,
+    VOCABULARY,
+    EffectSpec,
+    candidate_groups,
+    candidate_specs,
+)
 from .workflow import DiscrepancyResult, analyse
 
 __all__ = [
     "CHANNELS",
     "EFFECT_CHANNELS",
-    "SENSOR_CHANNELS",
     "SENSOR_EFFECTS",
     "STATUSES",
-    "TRUTH_CHANNELS",
     "VOCABULARY",
     "CandidateEvidence",
     "ChannelGap",

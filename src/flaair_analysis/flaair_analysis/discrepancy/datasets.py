@@ -60,22 +60,15 @@ from flaair_sim.core.measured_run import synthesize_measured_run
 
 from .case import DatasetCase
 from .runs import Run
-from .scoring import CaseOutcome, confusion_table, expected_column, found_label, score_case
 
 __all__ = [
     "CASES_FILE",
     "FS_HZ",
     "FULL_DRIVE_V",
     "OUTSIDE_KINDS",
-    "CaseOutcome",
-    "DatasetCase",
-    "confusion_table",
     "dataset_cases",
-    "expected_column",
-    "found_label",
     "make_runs",
     "run_set_drives",
-    "score_case",
     "true_model",
 ]
 

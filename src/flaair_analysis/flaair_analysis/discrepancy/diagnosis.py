@@ -13,12 +13,14 @@ from typing import Any, cast
 import numpy as np
 from scipy import stats
 
+from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model
-from flaair_sensors.core.characterization import frequency_track_from_drive, tiled_transfer
+from flaair_sensors.core.bode import frequency_track_from_drive
+from flaair_sensors.core.characterization import tiled_transfer
 
 from .runs import Run, measured_motion, sensor_voltage
 from .settings import Settings
-from .vocabulary import CHANNELS, SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH
+from .vocabulary import CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH
 
 # ---------------------------------------------------------------------------- residual stats
 

@@ -33,10 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from flaair_model.model import Model, ModelError, PlantParams
+from flaair_model.effects import SENSOR_CHANNELS
+from flaair_model.model import Model, PlantParams
 from flaair_model.terms import (
     DiscoveredTerm,
 )
+from flaair_model.validation import ModelError
 
 from .discovery_uncertainty import form_uncertainty
 from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate
@@ -44,19 +46,18 @@ from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
 from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache
 from .search import CHANNEL_ORDER, channel_has_gap
-from .term_candidates import SITES_FOR_GAP, candidates, fitted_along
+from .term_candidates import candidates, fitted_along
 from .term_judging import judged_against, refit_without
 from .vocabulary import (
     ENTRIES,
     PLANT_PARAMETERS,
-    SENSOR_CHANNELS,
     UPSTREAM_TRUTH,
     EffectSpec,
     candidate_groups,
     term_specs,
 )
 
-__all__ = ["SITES_FOR_GAP", "Discovered", "DiscoveryOutcome", "discover"]
+__all__ = ["Discovered", "DiscoveryOutcome", "discover"]
 
 # Held-out errors within this fraction of the best are a tie, won by the term with fewer
 # parameters.

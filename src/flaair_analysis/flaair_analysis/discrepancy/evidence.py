@@ -12,13 +12,14 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, with_effects
 
 from .diagnosis import drive_tracks
 from .fitting import FitResult, Fold, ResidualProblem, fit_specs, make_folds, models_for
 from .runs import MotionCache, Run, simulate_runs
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, UPSTREAM_TRUTH, EffectSpec
+from .vocabulary import UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------ evidence
 

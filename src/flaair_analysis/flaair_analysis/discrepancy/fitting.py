@@ -10,11 +10,12 @@ from typing import Any, cast
 import numpy as np
 from scipy import optimize
 
-from flaair_model.model import Model, ModelError, with_effect_on, with_effects
+from flaair_model.effects import SENSOR_CHANNELS
+from flaair_model.model import Model, with_effect_on, with_effects
 from flaair_model.terms import DiscoveredTerm
+from flaair_model.validation import ModelError
 
 from .runs import (
-    CHANNELS,
     MotionCache,
     Run,
     measured_motion,
@@ -25,7 +26,7 @@ from .runs import (
     simulate_runs,
 )
 from .settings import Settings
-from .vocabulary import SENSOR_CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH, EffectSpec
+from .vocabulary import CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------------ fitting
 

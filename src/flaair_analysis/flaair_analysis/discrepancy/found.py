@@ -7,7 +7,8 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, cast
 
-from flaair_model.model import Effect, Model, PerChannel, effect_params
+from flaair_model.effects import Effect
+from flaair_model.model import Model, PerChannel, effect_params
 
 from .evidence import FoundEffect
 

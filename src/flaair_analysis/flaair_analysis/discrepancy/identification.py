@@ -41,12 +41,13 @@ from typing import Any, cast
 import numpy as np
 from scipy import optimize
 
+from flaair_model.effects import TRUTH_CHANNELS
 from flaair_model.model import Model
 from flaair_sensors.core.characterization import tiled_transfer
 from flaair_sim.core.plant import SimOutput, simulate_batch_from
 
 from .runs import Run
-from .vocabulary import PLANT_PARAMETERS, TRUTH_CHANNELS
+from .vocabulary import PLANT_PARAMETERS
 
 __all__ = [
     "INSEPARABLE_CORRELATION",

@@ -9,26 +9,14 @@ from typing import cast
 
 import numpy as np
 
+from flaair_model.effects import SENSOR_CHANNELS, TRUTH_CHANNELS
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
 from flaair_sim.core.plant_params import P_GP, P_GS, coefficients
 
-from .vocabulary import (
-    CHANNELS,
-    EFFECT_CHANNELS,
-    SENSOR_CHANNELS,
-    SENSOR_EFFECTS,
-    SENSOR_SIDE,
-    STATUSES,
-    TRUTH_CHANNELS,
-)
+from .vocabulary import CHANNELS, SENSOR_EFFECTS, SENSOR_SIDE
 
 __all__ = [
-    "CHANNELS",
-    "EFFECT_CHANNELS",
-    "SENSOR_CHANNELS",
-    "STATUSES",
-    "TRUTH_CHANNELS",
     "DiscrepancyInputError",
     "Run",
     "check_runs",

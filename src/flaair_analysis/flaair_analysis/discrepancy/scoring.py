@@ -16,7 +16,7 @@ from typing import Any
 
 from ..exact_score import ExactScore, score_exact, term_label
 from .case import DatasetCase
-from .runs import CHANNELS
+from .vocabulary import CHANNELS
 from .workflow import DiscrepancyResult
 
 __all__ = [

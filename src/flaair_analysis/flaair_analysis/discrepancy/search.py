@@ -9,6 +9,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from flaair_model.effects import SENSOR_CHANNELS, TRUTH_CHANNELS
 from flaair_model.model import (
     Model,
     with_effect_on,
@@ -33,8 +34,6 @@ from .settings import Settings
 from .vocabulary import (
     EFFECT_CHANNELS,
     PLANT_PARAMETERS,
-    SENSOR_CHANNELS,
-    TRUTH_CHANNELS,
     UPSTREAM_TRUTH,
     EffectSpec,
     candidate_groups,

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from flaair_model.model import Model, ModelError
+from flaair_model.effects import SENSOR_CHANNELS
+from flaair_model.model import Model
 from flaair_model.terms import (
     DYNAMICS_SITES,
     MAX_DYNAMICS_TERMS,
@@ -34,6 +35,7 @@ from flaair_model.terms import (
     composed_kinds,
     kinds_for,
 )
+from flaair_model.validation import ModelError
 
 from .evidence import AnalysisContext
 from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
@@ -41,7 +43,6 @@ from .identification import FIT_RANGE
 from .runs import simulate_runs
 from .vocabulary import (
     PLANT_PARAMETERS,
-    SENSOR_CHANNELS,
     SENSOR_SIDE,
     EffectSpec,
     candidate_groups,

@@ -7,7 +7,9 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from flaair_model.model import Model, ModelError, effect_params
+from flaair_model.effects import SENSOR_CHANNELS
+from flaair_model.model import Model, effect_params
+from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
@@ -29,7 +31,6 @@ from .vocabulary import (
     ENTRIES,
     NOT_SEPARABLE,
     PLANT_PARAMETERS,
-    SENSOR_CHANNELS,
     SENSOR_SIDE,
     UPSTREAM_TRUTH,
     candidate_groups,

@@ -40,8 +40,8 @@ sockets, no ROS, time passed in):
 Latency: a drive packet whose first sample is k + 1 + lead answers the sensor packet that ended
 at sample k; `Outputs.timing` pairs that packet's arrival with the drive packet's send time.
 
-The state, inputs and outputs are declared in `flaair_bridge.core.bridge_state` and re-exported
-here; the drive side is `flaair_bridge.core.bridge_drive`.
+The state, inputs and outputs are declared in `flaair_bridge.core.bridge_state` (import them
+from there); the drive side is `flaair_bridge.core.bridge_drive`.
 """
 
 from __future__ import annotations
@@ -69,22 +69,7 @@ from flaair_bridge.core.bridge_state import (
 )
 from flaair_model.notes import Note
 
-__all__ = [
-    "ARRIVAL_RING",
-    "BridgeState",
-    "Counters",
-    "DriveBlock",
-    "Input",
-    "Outputs",
-    "SensorBlock",
-    "SensorDatagram",
-    "Stop",
-    "Tick",
-    "foreign_sender",
-    "in_order",
-    "initial_state",
-    "step",
-]
+__all__ = ["foreign_sender", "in_order", "initial_state", "step"]
 
 
 def initial_state(params: BridgeParams) -> BridgeState:

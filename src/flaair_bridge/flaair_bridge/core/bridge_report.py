@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from flaair_bridge.core.bridge import Counters, DriveBlock, Input, Outputs, SensorDatagram
+from flaair_bridge.core.bridge_state import Counters, DriveBlock, Input, Outputs, SensorDatagram
 
 __all__ = ["EventLog", "summary"]
 

@@ -1,8 +1,8 @@
 """The bridge core's vocabulary: its counters, state, inputs and outputs, and the helpers both
 of its sides use (`add_counts`, `counted_note`, `target_clock`).
 
-`flaair_bridge.core.bridge` (the sensor side, the wall clock and `step`) re-exports these;
-`flaair_bridge.core.bridge_drive` is the drive side.
+`flaair_bridge.core.bridge` (the sensor side, the wall clock and `step`) steps over these;
+`flaair_bridge.core.bridge_drive` is the drive side. Their one address is this module.
 """
 
 from __future__ import annotations

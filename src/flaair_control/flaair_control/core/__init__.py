@@ -12,7 +12,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``stroke``: the per-wingbeat stroke-amplitude controller
 - ``stroke_loop``: the stroke controller's start, start retry and watchdog timing
 - ``supervisor``: the dSA controller's start / loop / trip / keepalive state machine
-- ``loop_state``: its parameters, state, events and outputs (re-exported by ``supervisor``)
+- ``loop_state``: its parameters, state, events and outputs (``supervisor`` steps over them)
 - ``transition``: sync -> async transition analysis
 """
 

@@ -3,7 +3,7 @@ r"""Wing-collision metric (paper, section Applications) and a per-wingbeat colli
 Pure numpy; explicit state; SI inside (rad), degrees only in the reported figures (``*_deg``).
 
 The paper's metric itself (FFT RMSE against a drive-frequency sine) is
-``flaair_control.core.spectral``; its names are re-exported here.
+``flaair_control.core.spectral`` (import its names from there).
 
 2. Per-wingbeat monitor (``MonitorParams``, ``initial_state``, ``step``)
 -----------------------------------------------------------------------
@@ -62,7 +62,6 @@ __all__ = [
     "IDLE",
     "INVALID",
     "ONSET",
-    "CollisionParameterError",
     "MonitorEvent",
     "MonitorInputs",
     "MonitorOutputs",

@@ -1,6 +1,6 @@
 """The dSA loop supervisor's vocabulary: its modes, parameters, state, events and outputs.
 
-`flaair_control.core.supervisor` is the state machine over these (and re-exports them);
+`flaair_control.core.supervisor` is the state machine over these (import them from here);
 `timer_period_s` is the rule for its wall-clock tick, `summary` its one-line account.
 """
 

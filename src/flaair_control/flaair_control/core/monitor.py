@@ -92,11 +92,11 @@ class CollisionMonitorParams:
 
     def __post_init__(self) -> None:
         if self.decision not in ("distortion", "paper"):
-            raise col.CollisionParameterError(
+            raise spectral.CollisionParameterError(
                 f"decision must be 'distortion' or 'paper', got {self.decision!r}"
             )
         if self.min_wingbeat_hz >= self.max_wingbeat_hz:
-            raise col.CollisionParameterError("min_wingbeat_hz must be below max_wingbeat_hz")
+            raise spectral.CollisionParameterError("min_wingbeat_hz must be below max_wingbeat_hz")
         metric_params(self)
         if not self.estimates_frequency:
             window_params(self, self.drive_frequency_hz or None, self.drive_phase_rad)
@@ -358,7 +358,7 @@ def _on_drive(
         return state, MonitorOutputs((), ())
     try:
         windows = window_params(p, lock.frequency_hz, lock.phase_rad)
-    except col.CollisionParameterError as exc:
+    except spectral.CollisionParameterError as exc:
         return state, MonitorOutputs(
             (), (Note(INFO, f"drive frequency estimate {lock.frequency_hz:.2f} Hz refused: {exc}"),)
         )
@@ -419,7 +419,7 @@ def _paper_metric(
         return None
     try:
         return spectral.spectral_metric(x, p.sample_rate_hz, frequency_hz, metric_params(p))
-    except col.CollisionParameterError:
+    except spectral.CollisionParameterError:
         return None
 
 

@@ -19,7 +19,7 @@ Watchdogs (latched until `ResetWatchdog`):
 Every block passes the safety core (non-finite -> 0, slew limit, clamp to +-drive_limit_v).
 
 Its parameters, state, events and outputs are declared in `flaair_control.core.loop_state`
-and re-exported here.
+(import them from there).
 """
 
 from __future__ import annotations
@@ -50,7 +50,6 @@ from flaair_control.core.loop_state import (
     Tick,
     WingBlock,
     summary,
-    timer_period_s,
 )
 from flaair_control.core.transition import (
     CROSSING_START,
@@ -59,29 +58,7 @@ from flaair_control.core.transition import (
 )
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
-__all__ = [
-    "DONE",
-    "LOOP",
-    "TRIPPED",
-    "WAITING",
-    "Close",
-    "Collision",
-    "Counts",
-    "DriveOut",
-    "Input",
-    "Outputs",
-    "ResetWatchdog",
-    "SetRamp",
-    "SupervisorParams",
-    "SupervisorState",
-    "Tick",
-    "WingBlock",
-    "initial_state",
-    "step",
-    "summary",
-    "timer_period_s",
-    "warm_up",
-]
+__all__ = ["initial_state", "step", "warm_up"]
 
 
 def initial_state(params: SupervisorParams) -> SupervisorState:

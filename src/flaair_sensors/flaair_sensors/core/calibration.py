@@ -2,7 +2,7 @@
 
 Pure core: numpy and scipy only. Input is a measured-run record (columns of
 docs/LAB_CSV_FORMAT.md: voltages in V, truth in deg, NaN where the video lost the wing);
-output is a plain dict ready for JSON, read back by ``frontend.params_from_calibration``::
+output is a plain dict ready for JSON, read back by ``frontend_params.params_from_calibration``::
 
     angle_deg(t) = polarity * gain_deg_per_v * (V(t + lag_s) - reference_voltage_v - offset_v)
 
@@ -31,13 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from .characterization import (
-    CharacterizationError,
-    fit_delay,
-    frequency_track_from_drive,
-    sine_phasor,
-    wrap_deg,
-)
+from .bode import CharacterizationError, frequency_track_from_drive, sine_phasor, wrap_deg
+from .characterization import fit_delay
 
 __all__ = ["CHANNELS", "CalibrationError", "calibrate", "calibrate_channel"]
 

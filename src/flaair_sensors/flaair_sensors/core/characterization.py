@@ -40,9 +40,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy import interpolate, optimize
 
-from flaair_sensors.core.bode import (  # re-exported: characterization's whole API in one place
+from flaair_sensors.core.bode import (
     Bode,
-    ChannelBode,
     CharacterizationError,
     amplitude_phase_rmse,
     as_1d,
@@ -52,28 +51,16 @@ from flaair_sensors.core.bode import (  # re-exported: characterization's whole 
     rms,
     run_signals,
     sine_phasor,
-    stepped_segments,
-    wrap_deg,
 )
 
 __all__ = [
-    "Bode",
-    "ChannelBode",
     "ChannelMetrics",
     "Characterization",
-    "CharacterizationError",
     "DelayFit",
-    "amplitude_phase_rmse",
-    "bode_from_chirp",
-    "bode_from_stepped",
     "characterize",
     "characterize_run",
     "fit_delay",
-    "frequency_track_from_drive",
-    "sine_phasor",
-    "stepped_segments",
     "time_metrics",
-    "wrap_deg",
 ]
 
 
@@ -342,7 +329,8 @@ def characterize_run(
         Measured-run columns: ``drive_v``, ``stroke_sensor_v``, ``pitch_sensor_v``,
         ``stroke_deg``, ``pitch_deg`` and ``time_s`` (or give ``sample_rate_hz``).
     params
-        ``frontend.FrontendParams``; the sensor angles are ``frontend.estimate`` of the voltages.
+        ``frontend_params.FrontendParams``; the sensor angles are ``frontend.estimate`` of the
+        voltages.
     method
         "chirp" or "stepped" (stepped needs ``frequency_hz_per_sample``).
     """

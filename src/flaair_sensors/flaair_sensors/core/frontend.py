@@ -67,21 +67,9 @@ from numba import njit
 from scipy import signal
 
 from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
-
-# re-exported: the front end's whole API in one place
-from flaair_sensors.core.frontend_params import (
-    TUNING_FIELDS,
-    FrontendError,
-    FrontendParams,
-    params_from_calibration,
-    params_from_model,
-    with_overrides,
-)
+from flaair_sensors.core.frontend_params import FrontendError, FrontendParams
 
 __all__ = [
-    "TUNING_FIELDS",
-    "FrontendError",
-    "FrontendParams",
     "FrontendState",
     "WingEstimate",
     "drift_removal_response",
@@ -91,13 +79,10 @@ __all__ = [
     "initial_state",
     "lag_compensation_noise_gain",
     "lag_compensation_response",
-    "params_from_calibration",
-    "params_from_model",
     "step",
     "velocity_ba",
     "velocity_phase_lag_deg",
     "velocity_response",
-    "with_overrides",
 ]
 
 

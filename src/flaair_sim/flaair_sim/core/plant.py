@@ -37,7 +37,7 @@ import numpy as np
 
 from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_kernel import rk4_step, run_batch, run_model
+from flaair_sim.core.plant_kernel import run_batch, run_model
 from flaair_sim.core.plant_params import Prepared, prepare
 from flaair_sim.core.plant_terms import (
     add_batch_sensor_terms,
@@ -47,19 +47,14 @@ from flaair_sim.core.plant_terms import (
     terms_state,
 )
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
-from flaair_sim.core.term_kernel import mechanical_constants
 
 # Also the compiled kernel (`Prepared`, `prepare`, `mechanical_constants`, `rk4_step`), for
 # batch engines that step many robots at once (flaair_analysis.closed_loop).
 __all__ = [
     "PlantState",
-    "Prepared",
     "SimOutput",
     "initial_state",
-    "mechanical_constants",
     "n_substeps",
-    "prepare",
-    "rk4_step",
     "sensor_chain",
     "simulate",
     "simulate_batch",

@@ -13,13 +13,9 @@ import numpy as np
 from numba import njit, prange
 
 from flaair_sim.core import plant_params as pp
+from flaair_sim.core.plant_params import N_CONSTANTS
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
-from flaair_sim.core.term_kernel import (
-    N_CONSTANTS,
-    constants_with_terms,
-    dynamics_terms,
-    mechanical_constants,
-)
+from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
 
 __all__ = ["rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
 

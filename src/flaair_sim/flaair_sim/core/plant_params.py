@@ -22,8 +22,9 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from flaair_model.effects import EFFECTS, PLANT_TERMS, SCALE_TERMS, SENSOR_TERMS, TermContext
-from flaair_model.model import SIDES, Model, ModelError
+from flaair_model.model import Model
 from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES
+from flaair_model.validation import SIDES, ModelError
 
 __all__ = [
     "CONSTANT_DIVISOR",
@@ -44,7 +45,6 @@ __all__ = [
     "C_TERMS",
     "GA_INDEX",
     "KERNEL_LAYOUT",
-    "MAX_DYNAMICS_TERMS",
     "MAX_OMEGA_H",
     "MAX_OMEGA_H_CONTACT",
     "N_CONSTANTS",

@@ -18,18 +18,11 @@ import numpy as np
 from numba import njit
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
+from flaair_model.terms import MAX_DYNAMICS_TERMS
 from flaair_sim.core import plant_params as pp
 from flaair_sim.core.plant_params import C_TERMS, N_CONSTANTS, N_CONSTANTS_WITH_TERMS
 
-__all__ = [
-    "C_TERMS",
-    "N_CONSTANTS",
-    "N_CONSTANTS_WITH_TERMS",
-    "constants_with_terms",
-    "dynamics_terms",
-    "mechanical_constants",
-    "primitive",
-]
+__all__ = ["constants_with_terms", "dynamics_terms", "mechanical_constants", "primitive"]
 
 _FMA = {"contract"}
 _SOURCE = pp.CONSTANT_SOURCE
@@ -51,7 +44,7 @@ def primitive(j, phi, dphi, psi, dpsi):
 def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
     """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia."""
     total = 0.0
-    for slot in range(pp.MAX_DYNAMICS_TERMS):
+    for slot in range(MAX_DYNAMICS_TERMS):
         base = C_TERMS + slot * pp.TERM_SLOT
         if c[base] == equation:
             f = c[base + 1]

@@ -61,8 +61,13 @@ from flaair_common.outputs import check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
 from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
-from flaair_sensors.core import characterization as ch
-from flaair_sensors.core import frontend
+from flaair_sensors.core.bode import CharacterizationError
+from flaair_sensors.core.frontend_params import (
+    FrontendError,
+    FrontendParams,
+    params_from_calibration,
+    params_from_model,
+)
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_tools import bagio
 from flaair_tools.analysis import diagnostic_events
@@ -126,20 +131,20 @@ def load_calibration(path: Path) -> dict[str, Any]:
     """A calibration.yaml from `flaair calibrate`, checked; the error names the file and key."""
     try:
         calibration = load_yaml(path)
-        frontend.params_from_calibration(calibration, 20000.0, **frontend_tuning_from_config())
-    except (ConfigError, OSError, frontend.FrontendError, TypeError, ValueError) as exc:
+        params_from_calibration(calibration, 20000.0, **frontend_tuning_from_config())
+    except (ConfigError, OSError, FrontendError, TypeError, ValueError) as exc:
         raise AnalysisError(f"--calibration {path}: {exc}") from None
     return calibration
 
 
-def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> frontend.FrontendParams:
+def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> FrontendParams:
     """The front end's parameters as the node would run them (config/flaair.yaml frontend_node)."""
     from flaair_model.model_io import load_model
 
     tuning = frontend_tuning_from_config()
     if calibration is not None:
-        return frontend.params_from_calibration(calibration, fs_hz, **tuning)
-    return frontend.params_from_model(load_model(), fs_hz, **tuning)
+        return params_from_calibration(calibration, fs_hz, **tuning)
+    return params_from_model(load_model(), fs_hz, **tuning)
 
 
 def _aligned_estimate(
@@ -410,7 +415,7 @@ def analyze_bag(
                 entry = analyze_free(run, stroke_est)
             else:
                 entry = {"method": "transition"}
-        except ch.CharacterizationError as exc:
+        except CharacterizationError as exc:
             entry = {"method": kind.kind, "error": str(exc)}
             warnings.append(f"{bag}: run '{run.name}': {exc}")
         entry["drive"] = kind.as_dict()
@@ -463,7 +468,7 @@ def analyze(
     for bag in tqdm(bags, desc="analysing bags", unit="bag", disable=not progress):
         try:
             result, plot = analyze_bag(Path(bag), reference_v, calibration, calibration_file)
-        except (bagio.BagError, ch.CharacterizationError, KeyError) as exc:
+        except (bagio.BagError, CharacterizationError, KeyError) as exc:
             raise AnalysisError(str(exc) if str(bag) in str(exc) else f"{bag}: {exc}") from None
         results.append(result)
         plots.append(plot)

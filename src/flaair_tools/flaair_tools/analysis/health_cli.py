@@ -25,8 +25,8 @@ from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_control.core import health
 from flaair_control.health_io import film_calibration, health_params_from_config, health_values
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
+from flaair_model.validation import ModelError
 from flaair_sensors.figures import literal_texts
 from flaair_tools import bagio
 

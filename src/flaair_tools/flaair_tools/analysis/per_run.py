@@ -14,7 +14,9 @@ from flaair_common.strictjson import json_safe
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
+from flaair_sensors.core.bode import Bode, bode_from_chirp, bode_from_stepped, wrap_deg
 from flaair_sensors.core.calibration import CalibrationError, calibrate
+from flaair_sensors.core.frontend_params import FrontendParams, params_from_calibration
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_tools import bagio
 from flaair_tools.analysis.runkind import DriveKind
@@ -29,7 +31,6 @@ __all__ = [
     "analyze_transition",
     "collision_events",
     "collision_metric",
-    "finite_or_none",
     "first_strike_s",
     "metric_params",
     "offline_estimate",
@@ -40,7 +41,7 @@ class AnalysisError(ValueError):
     """A bag cannot be analysed; the message names the bag, run or topic."""
 
 
-def offline_estimate(run: Run, params: frontend.FrontendParams) -> tuple[np.ndarray, np.ndarray]:
+def offline_estimate(run: Run, params: FrontendParams) -> tuple[np.ndarray, np.ndarray]:
     """Stroke and pitch (rad, NaN where invalid) of the front-end core run on the run's voltages."""
     est = frontend.estimate(run["stroke_sensor_v"], run["pitch_sensor_v"], params)
     return (
@@ -51,15 +52,15 @@ def offline_estimate(run: Run, params: frontend.FrontendParams) -> tuple[np.ndar
 
 def _sweep_figures(
     run: Run, stroke_est: np.ndarray, pitch_est: np.ndarray, method: str, track: np.ndarray | None
-) -> tuple[ch.Bode, dict[str, Any]]:
+) -> tuple[Bode, dict[str, Any]]:
     fs, drive = run.sample_rate_hz, run["drive_v"]
     stroke_t, pitch_t = np.radians(run["stroke_deg"]), np.radians(run["pitch_deg"])
     if method == "chirp":
-        bode = ch.bode_from_chirp(
+        bode = bode_from_chirp(
             drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, frequency_hz_per_sample=track
         )
     else:
-        bode = ch.bode_from_stepped(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
+        bode = bode_from_stepped(drive, stroke_est, pitch_est, stroke_t, pitch_t, fs, track)
     bands = analysis_bands_from_config()
     result = ch.characterize(
         bode,
@@ -87,7 +88,7 @@ def analyze_sweep(
     method: str,
     track: np.ndarray | None,
     reference_v: float,
-) -> tuple[dict[str, Any], ch.Bode]:
+) -> tuple[dict[str, Any], Bode]:
     """Gains, Bode and the paper's RMSE figures of one chirp, stepped-sine or sine run.
 
     As the paper does, each sensor's gain is fitted against ground truth first and the RMSE
@@ -111,7 +112,7 @@ def analyze_sweep(
         bode = live_bode
     else:
         # Fitted gain and offset only: the lag stays in the estimate, as the paper reports it.
-        params = frontend.params_from_calibration(
+        params = params_from_calibration(
             gains, fs, **{**frontend_tuning_from_config(), "compensate_lag": False}
         )
         bode, fitted = _sweep_figures(run, *offline_estimate(run, params), method, track)
@@ -157,7 +158,7 @@ def analyze_sine(
             {
                 "sensor_amplitude_deg": cb.sensor_amplitude_deg[0],
                 "truth_amplitude_deg": cb.truth_amplitude_deg[0],
-                "phase_error_deg": ch.wrap_deg(cb.sensor_phase_deg[0] - cb.truth_phase_deg[0]),
+                "phase_error_deg": wrap_deg(cb.sensor_phase_deg[0] - cb.truth_phase_deg[0]),
             }
         )
     try:

@@ -22,7 +22,7 @@ from flaair_control.control_io import (
     supervisor_params_from_config,
     supervisor_wing_input,
 )
-from flaair_control.core import monitor
+from flaair_control.core import loop_state, monitor
 from flaair_control.core import supervisor as sv
 from flaair_control.monitor_io import (
     collision_monitor_params_from_config,
@@ -74,7 +74,7 @@ def replay_monitor(bag: Path, values: dict[str, Any] | None = None) -> list[moni
 
 def replay_controller(
     bag: Path, model: Model, values: dict[str, Any] | None = None
-) -> list[sv.DriveOut]:
+) -> list[loop_state.DriveOut]:
     """The dSA controller's drive blocks on a bag of a closed loop it ran (lockstep plant).
 
     The start (peers seen, start delay passed) is replayed as two ticks; then every recorded
@@ -85,9 +85,9 @@ def replay_controller(
         supervisor_params_from_config(values, model), run_time_s=0.0, watchdog_timeout_s=1e9
     )
     state = sv.initial_state(params)
-    out: list[sv.DriveOut] = []
+    out: list[loop_state.DriveOut] = []
     for t_wall in (0.0, params.start_delay_s + 1.0):
-        state, result = sv.step(state, sv.Tick(t_wall, 99, 1, 1), params)
+        state, result = sv.step(state, loop_state.Tick(t_wall, 99, 1, 1), params)
         out.extend(result.blocks)
     for _, fields in _blocks_in_loop_order(bag, (topics.WING_STATE,)):
         state, result = sv.step(

@@ -70,9 +70,9 @@ def sensor_stroke_deg(
     """The stroke the front end estimates from the sensor voltages on the nominal model."""
     # imported here: a CSV import never needs the front end (nor scipy.signal, ~1 s to import)
     from flaair_sensors import frontend_io
-    from flaair_sensors.core import frontend
+    from flaair_sensors.core import frontend, frontend_params
 
-    params = frontend.params_from_model(
+    params = frontend_params.params_from_model(
         load_model(), fs_hz, **frontend_io.frontend_tuning_from_config()
     )
     return np.degrees(frontend.estimate(stroke_sensor_v, pitch_sensor_v, params).stroke_rad)
@@ -83,7 +83,7 @@ def _sync_check(
 ) -> tuple[lab_run.SyncCheck | None, list[str]]:
     """The sync check, or why the log's rate cannot make it (one warning, never a refusal)."""
     # imported here: a CSV import never needs the front end
-    from flaair_sensors.core.frontend import FrontendError
+    from flaair_sensors.core.frontend_params import FrontendError
 
     problem = lab_run.sync_check_rate_problem(fs_hz, max_lag_s)
     if problem is None:

@@ -79,12 +79,8 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
     from tqdm import tqdm
 
-    from flaair_analysis.discrepancy.datasets import (
-        confusion_table,
-        dataset_cases,
-        make_runs,
-        score_case,
-    )
+    from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
+    from flaair_analysis.discrepancy.scoring import confusion_table, score_case
 
     cases = [c for c in dataset_cases() if not names or c.name in names]
     unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})

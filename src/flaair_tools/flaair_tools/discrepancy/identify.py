@@ -41,9 +41,9 @@ from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
+from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model, save_model
-from flaair_tools.discrepancy.cli import bad_input_errors, load_inputs
-from flaair_tools.discrepancy.report import json_safe
+from flaair_tools.discrepancy.run_inputs import bad_input_errors, load_inputs
 
 PROG = "flaair identify"
 USAGE = (

@@ -15,7 +15,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from flaair_analysis.discrepancy.diagnosis import bode_points
-from flaair_analysis.discrepancy.runs import CHANNELS, Run, simulate_runs
+from flaair_analysis.discrepancy.runs import Run, simulate_runs
+from flaair_analysis.discrepancy.vocabulary import CHANNELS
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult
 from flaair_sensors.figures import literal_texts
 

@@ -13,7 +13,7 @@ import yaml
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
 from flaair_common.outputs import OutputError
 from flaair_common.runcsv import RunFileError, read_run
-from flaair_model.model import ModelError
+from flaair_model.validation import ModelError
 
 from .validation_file import ValidationFileError
 

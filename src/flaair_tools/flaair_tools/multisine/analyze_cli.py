@@ -42,10 +42,10 @@ from flaair_common.outputs import OutputError, check_output, write_outputs
 from flaair_common.runcsv import RunFileError, read_run
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError
-from flaair_model.model import ModelError
 from flaair_model.model_io import load_model
 from flaair_model.schema import ParameterError
 from flaair_model.settings import node_section
+from flaair_model.validation import ModelError
 from flaair_sim.plant_io import PLANT_PARAMS
 from flaair_tools import bagio
 from flaair_tools.bagio.runs import load_runs

@@ -23,7 +23,8 @@ from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_model.term_entry import term_from_dict
-from flaair_tools.analysis.analyze import AnalysisError, analyze, print_headline
+from flaair_tools.analysis.analyze import analyze, print_headline
+from flaair_tools.analysis.per_run import AnalysisError
 from flaair_tools.orchestration.bench_robot import robot_effects, robot_section
 from flaair_tools.orchestration.experiment import (
     ExperimentError,

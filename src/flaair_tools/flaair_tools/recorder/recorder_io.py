@@ -13,11 +13,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import message_class
-from flaair_common.params import ParameterError
 from flaair_common.qos import BLOCK_STREAM
 from flaair_common.runtime import help_text
 from flaair_common.topics import BLOCK_STREAM_TYPES
-from flaair_model.schema import ParamSpec
+from flaair_model.schema import ParameterError, ParamSpec
 from flaair_tools import bagio
 from flaair_tools.recorder import recording
 from flaair_tools.recorder.recording import RecordingParams

@@ -39,7 +39,7 @@ from pathlib import Path
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_model.config import ConfigError, config_dir
-from flaair_model.model import ModelError
+from flaair_model.validation import ModelError
 from flaair_tools.sweeps.sweep import SUBCOMMANDS, SweepError
 
 __all__ = ["main"]

@@ -31,8 +31,9 @@ from flaair_common.outputs import OutputError, check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings
 from flaair_model.config import ConfigError
-from flaair_model.model import Model, ModelError
+from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
+from flaair_model.validation import ModelError
 
 from .report import identification_doc
 from .table_io import load_tables
