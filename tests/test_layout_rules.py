@@ -6,6 +6,8 @@ import cycle between modules, and every import between FLAAIR packages points do
 from __future__ import annotations
 
 import ast
+import io
+import tokenize
 from collections import defaultdict
 from collections.abc import Iterator
 from functools import cache
@@ -263,6 +265,82 @@ def test_the_underscore_rule_catches_a_read_by_attribute(
     path.write_text(source)
     known = {"flaair_common", "flaair_common.cdr", "flaair_control.core", "flaair_control.core.dsa"}
     assert [name for name, _line in _private_attributes(path, "pkg.module", known)] == [offence]
+
+
+def _unexplained_inner_imports(path: Path) -> list[int]:
+    """Lines of the imports inside a function of `path` that do not say why they are there: a
+    comment starting `# deferred` just above (a comment of several lines, above the first of
+    imports on consecutive lines) or at the end of one of the import's lines.
+    """
+    text = path.read_text()
+    why = set()  # lines holding a `# deferred...` comment
+    alone = set()  # lines holding nothing but a comment
+    for token in tokenize.generate_tokens(io.StringIO(text).readline):
+        if token.type == tokenize.COMMENT:
+            if token.string.lstrip("# ").startswith("deferred"):
+                why.add(token.start[0])
+            if not token.line[: token.start[1]].strip():
+                alone.add(token.start[0])
+    inner = {
+        (node.lineno, node.end_lineno or node.lineno): node
+        for function in ast.walk(ast.parse(text, str(path)))
+        if isinstance(function, ast.FunctionDef | ast.AsyncFunctionDef)
+        for node in ast.walk(function)
+        if isinstance(node, ast.Import | ast.ImportFrom)
+    }
+    explained: set[int] = set()  # last lines of the explained imports
+    unexplained = []
+    for first, last in sorted(inner):
+        above = first - 1
+        while above in alone and above not in why:
+            above -= 1
+        if above in (why & alone) | explained or why & set(range(first, last + 1)):
+            explained.add(last)
+        else:
+            unexplained.append(first)
+    return unexplained
+
+
+@pytest.mark.timeout(60)
+def test_every_import_inside_a_function_says_why() -> None:
+    """Imports sit at the top of the module; one kept inside a function (a heavy dependency on one
+    optional path, or an import cycle) carries `# deferred: why` (e.g. what it costs to load).
+    """
+    offences = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in _source_files(SRC)
+        for line in _unexplained_inner_imports(path)
+    ]
+    assert offences == [], (
+        "an import inside a function without a `# deferred: why` comment (move it to the top "
+        "of the module, or say why it waits):\n" + "\n".join(offences)
+    )
+
+
+@pytest.mark.parametrize(
+    "source, offences",
+    [
+        ("def f():\n    import json\n", [2]),
+        ("def f():\n    # parse it\n    import json\n", [3]),  # a comment that says no why
+        ("def f():\n    x = 1  # deferred: 1 s\n    import json\n", [3]),  # another line's
+        ("def f():\n    # deferred: 1 s, and\n    # more\n    import a\n    import b\n", []),
+        ("def f():\n    # deferred: 1 s\n    import a\n    import b\n\n    import c\n", [6]),
+        ("class C:\n    def f(self):\n        from a import (\n            b,\n        )\n", [3]),
+        (
+            "def f():\n    import a  # deferred: 1 s\n    from b import (  # deferred: 1 s\n"
+            "        c,\n    )\n",
+            [],
+        ),
+        ("import json\n\n\ndef f():\n    # deferred: 1 s\n    import a\n", []),
+    ],
+)
+@pytest.mark.timeout(10)
+def test_the_inner_import_rule_catches_an_offence(
+    tmp_path: Path, source: str, offences: list[int]
+) -> None:
+    path = tmp_path / "module.py"
+    path.write_text(source)
+    assert _unexplained_inner_imports(path) == offences
 
 
 CORE_PACKAGES = ("flaair_sensors", "flaair_control", "flaair_sim", "flaair_bridge")

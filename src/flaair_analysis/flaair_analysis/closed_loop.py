@@ -23,6 +23,7 @@ a row depends on that row alone, so any chunking or cluster gives the same numbe
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import replace
 from typing import Any, cast
 
@@ -329,8 +330,6 @@ def warm_up(model: Model, row: dict[str, Any]) -> float:
     """Compile (or load from numba's cache) and run the
     kernels once on a 20 ms copy of ``row``; seconds taken.
     """
-    import time
-
     t0 = time.perf_counter()
     tiny = {**row, "duration_s": 0.02, "steady_s": 0.01}
     run_rows([{**tiny, "mode": mode} for mode in (SYNC, DSA, DSA_STROKE)], model)

@@ -44,9 +44,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
+from tqdm import tqdm
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.realtime import take_realtime_priority
+from flaair_model.config import ConfigError, node_parameters
 
 # magic, sequence, first_sample_index, sample_rate_hz, n, flags
 SENSOR_HEAD = struct.Struct("<4sIQfHH")
@@ -209,8 +211,6 @@ def _address(text: str, option: str) -> tuple[str, int]:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    from flaair_model.config import ConfigError, node_parameters
-
     try:
         shared = node_parameters("flaair.yaml", "emulated_target")
     except ConfigError as exc:
@@ -345,6 +345,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, _stop)
     signal.signal(signal.SIGTERM, _stop)
     args = parse_args(sys.argv[1:] if argv is None else argv)
+    # deferred: these load scipy.signal (1.2-2 s), after the handlers above (a signal meanwhile
+    # still ends cleanly) and after the arguments (--help and a bad one answer at once)
     from flaair_model.model_io import load_model
     from flaair_model.validation import ModelError
     from flaair_sim.core import plant
@@ -512,8 +514,6 @@ def _progress(total: int | None, period_s: float):
     """Tqdm over signal time when a person watches (stderr a terminal), else nothing."""
     if total is None or not sys.stderr.isatty():
         return lambda _k: None
-    from tqdm import tqdm
-
     bar = tqdm(
         total=round(total * period_s, 3),
         unit="s",

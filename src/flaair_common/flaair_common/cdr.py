@@ -23,6 +23,10 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from rosbags.interfaces import Nodetype
+
+from flaair_common import msgdefs
+from flaair_common.msgdefs import MsgDefinitionError
 
 ENCAPSULATION = b"\x00\x01\x00\x00"
 
@@ -269,11 +273,7 @@ def layout_of(type_name: str) -> Layout:
     ValueError
         The type is unknown, does not start with a header, or has a field this codec lacks.
     """
-    from rosbags.interfaces import Nodetype
-
-    from flaair_common.msgdefs import MsgDefinitionError, project_types
-
-    types = project_types()
+    types = msgdefs.project_types()  # read through the module: a test swaps it
     if type_name not in types:
         raise MsgDefinitionError(
             f"{type_name}: not a flaair_msgs type (known: {', '.join(sorted(types))})"

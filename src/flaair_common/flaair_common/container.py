@@ -30,8 +30,9 @@ import os
 import sys
 from collections.abc import Callable
 
-from flaair_common import topics
+from flaair_common import intra, topics
 from flaair_common.realtime import take_realtime_priority
+from flaair_common.runtime import run_nodes
 
 HOT_TOPICS = (topics.DRIVE, topics.SENSOR_VOLTAGE, topics.WING_STATE)
 
@@ -127,8 +128,6 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"container: {exc}", file=sys.stderr)
         return 2
-    from flaair_common import intra
-    from flaair_common.runtime import run_nodes
 
     local = {t for t in args.local_topics.split(",") if t}
     if not 0 <= args.realtime_priority <= 99:

@@ -34,6 +34,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO
 
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
+from flaair_model.config import config_dir
+
 DOMAIN_LOCK_DIR = Path(tempfile.gettempdir()) / "flaair-ros-domains"
 # 1-101: the domain IDs the ROS 2 docs call safe on Linux (above 101 a domain's ports can reach
 # the ephemeral port range); 0 is left alone as every other ROS program's default.
@@ -185,8 +189,6 @@ def repo_root() -> Path:
     env = os.environ.get("FLAAIR_ROOT")
     if env:
         return Path(env)
-    from flaair_model.config import config_dir
-
     return config_dir().parent
 
 
@@ -197,8 +199,6 @@ def flaair_argv(*args: str) -> list[str]:
 
 def node_argv(package: str, executable: str, ros_args: Sequence[str] = ()) -> list[str]:
     """Argv of one node from the install space (like `ros2 run`), in this interpreter."""
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-
     try:
         path = Path(get_package_prefix(package)) / "lib" / package / executable
     except PackageNotFoundError as exc:

@@ -19,6 +19,7 @@ never delays a drive packet, and a background core runs on longer blocks. Outsid
 from __future__ import annotations
 
 import collections
+import importlib
 import threading
 import time
 from collections.abc import Callable
@@ -493,8 +494,6 @@ def stream_codec(topic: str, block_size: int) -> cdr.FixedCodec:
 
 
 def _message_class(topic: str) -> type:
-    import importlib
-
     return getattr(
         importlib.import_module("flaair_msgs.msg"),
         topics.BLOCK_STREAM_TYPES[topic].rsplit("/", 1)[1],

@@ -12,6 +12,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from rosbags.typesys import get_types_from_msg
+
 from flaair_model.config import ConfigError, config_dir
 
 MSG_PACKAGE = "flaair_msgs"
@@ -60,8 +62,6 @@ def project_msg_texts(directory: Path | None = None) -> dict[str, str]:
 @functools.cache
 def project_types() -> dict[str, Any]:
     """Rosbags field definitions of every flaair_msgs type: name -> (constants, fields)."""
-    from rosbags.typesys import get_types_from_msg  # parsing is only needed once, here
-
     types: dict[str, Any] = {}
     for name, text in project_msg_texts().items():
         types.update(get_types_from_msg(text, name))

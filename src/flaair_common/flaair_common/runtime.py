@@ -49,7 +49,9 @@ if _is_node_process() and threading.current_thread() is threading.main_thread():
     faulthandler.register(signal.SIGUSR1, all_threads=True)
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.impl.logging_severity import LoggingSeverity
 from rclpy.node import Node
@@ -114,8 +116,6 @@ def make_executor(default: str = "events"):
     if kind not in ("single", "events"):
         raise ValueError(f"FLAAIR_EXECUTOR must be 'single' or 'events', got {kind!r}")
     if kind == "events":
-        from rclpy.experimental import EventsExecutor
-
         return EventsExecutor()
     return SingleThreadedExecutor()
 
@@ -317,8 +317,6 @@ def wait_for_acks(nodes: list[Node], timeout_s: float = ACK_WAIT_S) -> None:
     before the process goes: a writer that exits first takes the undelivered messages with it.
     Topics still unacknowledged when `timeout_s` is up are named in the log.
     """
-    from rclpy.duration import Duration
-
     deadline = time.monotonic() + timeout_s
     for node in nodes:
         late = []

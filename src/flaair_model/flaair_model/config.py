@@ -33,6 +33,8 @@ def config_dir() -> Path:
         if (parent / "config" / "model.yaml").exists():
             return parent / "config"
     try:
+        # deferred: ament_index_python comes with ROS; flaair_model (under the science) must
+        # load without it, and its absence is the error below
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("flaair_model")) / "config"

@@ -12,6 +12,7 @@ from typing import Any
 
 import matplotlib
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
+from matplotlib.text import Text
 
 from flaair_model.checked_files import printable
 from flaair_sensors.core.bode import Bode, ChannelBode
@@ -104,8 +105,6 @@ def literal_texts(fig: Any) -> Any:
     (run names come from files: a `$` is no mathtext, bytes that are not UTF-8 are replaced);
     tick labels keep their own formatting. Returns `fig`.
     """
-    from matplotlib.text import Text
-
     ticks = {
         id(text)
         for ax in fig.axes

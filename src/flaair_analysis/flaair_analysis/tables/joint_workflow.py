@@ -45,6 +45,7 @@ from .fit import (
 )
 from .joint import JointFit, identify_joint, prediction_scores, run_scores
 from .reader import Table
+from .steady_state import steady_response
 from .workflow import analyse_table, heldout_predictions
 
 __all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "table_heldout"]
@@ -144,8 +145,6 @@ def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
         *(PITCH_KEYS if any(c.startswith("pitch") for c in cols) else ()),
     ]
     if table.levels_v.size < 2:  # nothing to hold out: the model as it is
-        from .steady_state import steady_response
-
         resp = steady_response(
             [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
         )

@@ -334,7 +334,9 @@ def characterize_run(
     method
         "chirp" or "stepped" (stepped needs ``frequency_hz_per_sample``).
     """
-    from .frontend import estimate, initial_state  # local: keeps this module usable alone
+    # deferred: the front end's numba kernels (0.3-0.5 s); `flaair calibrate` and `flaair health`
+    # import this module and never run it
+    from .frontend import estimate, initial_state
 
     for col in ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg"):
         if col not in run:

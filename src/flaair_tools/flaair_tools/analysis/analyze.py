@@ -60,6 +60,7 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.config import ConfigError, load_yaml
+from flaair_model.model_io import load_model
 from flaair_sensors.analysis_io import analysis_bands_from_config, analysis_values
 from flaair_sensors.core.bode import CharacterizationError
 from flaair_sensors.core.frontend_params import (
@@ -69,8 +70,10 @@ from flaair_sensors.core.frontend_params import (
     params_from_model,
 )
 from flaair_sensors.frontend_io import frontend_tuning_from_config
+from flaair_sim.core.drive import stepped_sine_frequencies_hz
 from flaair_tools import bagio
 from flaair_tools.analysis import diagnostic_events
+from flaair_tools.analysis import report as html_report
 from flaair_tools.analysis.per_run import (
     AnalysisError,
     analyze_collision,
@@ -139,8 +142,6 @@ def load_calibration(path: Path) -> dict[str, Any]:
 
 def frontend_params(calibration: dict[str, Any] | None, fs_hz: float) -> FrontendParams:
     """The front end's parameters as the node would run them (config/flaair.yaml frontend_node)."""
-    from flaair_model.model_io import load_model
-
     tuning = frontend_tuning_from_config()
     if calibration is not None:
         return params_from_calibration(calibration, fs_hz, **tuning)
@@ -262,8 +263,6 @@ def completeness(
         drive = expected_parts.get(run.name, {})
         found = [s.frequency_hz for s in kind.steps]
         if drive.get("waveform") == "stepped_sine":
-            from flaair_sim.core.drive import stepped_sine_frequencies_hz
-
             wanted = stepped_sine_frequencies_hz(
                 drive["start_hz"], drive["stop_hz"], drive["step_hz"]
             )
@@ -454,9 +453,6 @@ def analyze(
         The bag, experiment or run the transition headline comes from (None: the first bag
         holding a transition; the headline's note names it and the others).
     """
-    from flaair_model.model_io import load_model
-    from flaair_tools.analysis import report as html_report
-
     calibration = load_calibration(calibration_file) if calibration_file is not None else None
     try:
         settings()

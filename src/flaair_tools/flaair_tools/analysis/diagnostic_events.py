@@ -13,6 +13,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from flaair_tools import bagio
+
 __all__ = ["DIAGNOSTICS", "LEVEL_NAMES", "Status", "from_bag", "level_changes"]
 
 DIAGNOSTICS = "/diagnostics"
@@ -87,8 +89,6 @@ def _statuses(messages: Iterable[tuple[str, int, Any]]) -> Iterable[Status]:
 
 def from_bag(bag: str | Path) -> list[dict[str, Any]]:
     """The diagnostic events of `bag` (`level_changes`); none if it has no /diagnostics."""
-    from flaair_tools import bagio
-
     info = bagio.bag_info(bag)
     if DIAGNOSTICS not in info.topics:
         return []

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
 from flaair_common import topics
 from flaair_common.cli_help import HelpFormatter
@@ -113,8 +114,6 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
 
 def write_figure(results: list[dict[str, Any]], path: Path) -> None:
     """Each estimate against time, the events marked (one column of panels per bag)."""
-    from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
-
     fig = Figure(figsize=(6.0 * len(results), 8.0))
     axes = fig.subplots(len(health.PARAMETERS), len(results), squeeze=False, sharex="col")
     for col, res in enumerate(results):

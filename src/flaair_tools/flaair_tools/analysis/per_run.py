@@ -11,6 +11,11 @@ import numpy as np
 from flaair_analysis.headline import finite_or_none
 from flaair_common import topics
 from flaair_common.strictjson import json_safe
+from flaair_control.core import transition as tr
+from flaair_control.core.spectral import spectral_metric
+from flaair_control.monitor_io import spectral_metric_params_from_config
+from flaair_control.transition_io import hilbert_params_from_config
+from flaair_model.model_io import load_model
 from flaair_sensors.analysis_io import analysis_bands_from_config
 from flaair_sensors.core import characterization as ch
 from flaair_sensors.core import frontend
@@ -20,6 +25,7 @@ from flaair_sensors.core.frontend_params import FrontendParams, params_from_cali
 from flaair_sensors.frontend_io import frontend_tuning_from_config
 from flaair_tools import bagio
 from flaair_tools.analysis.runkind import DriveKind
+from flaair_tools.analysis.transition import TransitionRecord
 from flaair_tools.bagio.runs import Run
 
 __all__ = [
@@ -131,15 +137,11 @@ def analyze_sweep(
 
 def metric_params() -> Any:
     """The collision monitor's paper-metric settings (config/flaair.yaml collision_monitor_node)."""
-    from flaair_control.monitor_io import spectral_metric_params_from_config
-
     return spectral_metric_params_from_config()
 
 
 def collision_metric(pitch_rad: np.ndarray, fs_hz: float, frequency_hz: float) -> Any:
     """The paper's collision metric of a pitch record (its finite samples)."""
-    from flaair_control.core.spectral import spectral_metric
-
     valid = pitch_rad[np.isfinite(pitch_rad)]
     return spectral_metric(valid, fs_hz, frequency_hz, metric_params())
 
@@ -310,11 +312,6 @@ def analyze_transition(
     The recorded sensor-derived stroke is band-passed, Hilbert-transformed and smoothed by a
     Savitzky-Golay filter (paper); K_r comes from the recorded controller state.
     """
-    from flaair_control.core import transition as tr
-    from flaair_control.transition_io import hilbert_params_from_config
-    from flaair_model.model_io import load_model
-    from flaair_tools.analysis.transition import TransitionRecord
-
     bag = contents.info.path
     wing = contents.blocks(topics.WING_STATE)
     fs = float(wing.sample_rate_hz)

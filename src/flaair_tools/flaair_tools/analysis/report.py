@@ -17,6 +17,9 @@ from typing import Any
 import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 
+from flaair_sensors.analysis_io import analysis_values
+from flaair_tools.analysis.transition import plot_transition
+
 TEMPLATES = Path(__file__).resolve().parents[1] / "templates"
 TEMPLATE = "report.html.j2"
 INSET_WINGBEATS = 3
@@ -60,6 +63,7 @@ def write_figures(
     Each description: file, title, caption, experiment (the bag's experiment name). Per-run
     Bode figures are named in the run's entry ("figure").
     """
+    # deferred: matplotlib (0.7 s); `analyze` imports this module, and its --help draws nothing
     from flaair_sensors.figures import (
         collision_fft_figure,
         overlaid_bode_figure,
@@ -115,8 +119,6 @@ def write_figures(
                 }
             )
         if "transition" in plot:
-            from flaair_tools.analysis.transition import plot_transition
-
             record, hilbert, resonance_hz = plot["transition"]
             path = out_dir / f"{file_stem(experiment)}_transition.png"
             plot_transition(
@@ -276,8 +278,6 @@ def _verdict(bag: dict[str, Any], headline: dict[str, Any], factor: float) -> st
 
 def write_html(report: dict[str, Any], out_dir: Path, json_name: str = "report.json") -> Path:
     """DIR/report.html: one self-contained file (figures embedded), linking report.json."""
-    from flaair_sensors.analysis_io import analysis_values
-
     factor = float(analysis_values()["verdict_rmse_factor"])
     images = {
         f["file"]: base64.b64encode((out_dir / f["file"]).read_bytes()).decode("ascii")

@@ -16,7 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from flaair_control.core import dsa, hopf
 from flaair_control.core import transition as tr
+from flaair_model.model_io import load_model
+from flaair_sensors.frontend_io import velocity_delay_s
 
 __all__ = ["TransitionRecord", "plot_transition", "predicted_limit_cycle", "transition_record"]
 
@@ -66,6 +69,7 @@ def plot_transition(
     ``predicted`` = (frequency_hz, amplitude_deg) of
     the describing-function limit cycle, drawn dashed.
     """
+    # deferred: matplotlib (0.7 s); `analyze` imports this module, and its --help draws nothing
     from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
 
     path = Path(path)
@@ -119,10 +123,6 @@ def predicted_limit_cycle(
     """Describing-function limit cycle (Hz, deg) of
     the configured loop (flaair_control.core.hopf).
     """
-    from flaair_control.core import dsa, hopf
-    from flaair_model.model_io import load_model
-    from flaair_sensors.frontend_io import velocity_delay_s
-
     model = load_model(controller.get("model_file") or None)
     lin = hopf.LinearStrokePlant(
         model.plant.stroke_inertia_kg_m2, model.plant.stroke_stiffness_nm_per_rad

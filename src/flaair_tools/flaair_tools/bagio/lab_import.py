@@ -68,7 +68,7 @@ def sensor_stroke_deg(
     stroke_sensor_v: np.ndarray, pitch_sensor_v: np.ndarray, fs_hz: float
 ) -> np.ndarray:
     """The stroke the front end estimates from the sensor voltages on the nominal model."""
-    # imported here: a CSV import never needs the front end (nor scipy.signal, ~1 s to import)
+    # deferred: the front end loads its numba kernels (0.4 s); a CSV import never needs it
     from flaair_sensors import frontend_io
     from flaair_sensors.core import frontend, frontend_params
 
@@ -82,7 +82,7 @@ def _sync_check(
     mat: Path, columns: dict[str, np.ndarray], fs_hz: float, fps: float, max_lag_s: float
 ) -> tuple[lab_run.SyncCheck | None, list[str]]:
     """The sync check, or why the log's rate cannot make it (one warning, never a refusal)."""
-    # imported here: a CSV import never needs the front end
+    # deferred: the front end loads its numba kernels (0.4 s); a CSV import never needs it
     from flaair_sensors.core.frontend_params import FrontendError
 
     problem = lab_run.sync_check_rate_problem(fs_hz, max_lag_s)

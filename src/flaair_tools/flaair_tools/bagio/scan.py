@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from io import BytesIO
 from typing import Any
 
+import lz4.frame as lz4frame
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel as McapChannel
@@ -98,15 +100,9 @@ def _decompress_prefix(compression: str, data: memoryview, size: int) -> tuple[b
         return bytes(data[:size]), "" if len(data) >= size else "cut short"
     if compression == "lz4":
         try:
-            import lz4.frame as lz4frame
-        except ImportError:
-            return b"", "lz4 compression (python lz4 not installed)"
-        try:
             return lz4frame.decompress(bytes(data)), ""
         except Exception as exc:
             return b"", f"lz4: {exc}"
-    import zstandard
-
     decompressor = zstandard.ZstdDecompressor().decompressobj()
     parts: list[bytes] = []
     produced = 0

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from flaair_model.checked_files import CheckedFileError, check_file
-from flaair_tools.bagio import mat_bounds
+from flaair_tools.bagio import mat_bounds, mat_v5
 
 __all__ = [
     "COLUMN_LABEL",
@@ -254,9 +254,6 @@ def _origin(fields: dict[str, Any]) -> str:
 def _read_v5(
     path: Path, bases: Sequence[str], variable: str | None
 ) -> tuple[str, np.ndarray, list[_Signal]]:
-    # imported here: this file also runs as the v7.3 reader's child, numpy and h5py only
-    from flaair_tools.bagio import mat_v5
-
     def lighten(fields: dict[str, Any]) -> dict[str, Any]:
         # a signal not asked for: dropped as soon as its element is read
         if isinstance(fields.get("label"), str) and fields["label"] not in bases:
@@ -348,6 +345,7 @@ def _read_v73_in_child(
 def _read_v73(
     path: Path, bases: Sequence[str], variable: str | None
 ) -> tuple[str, np.ndarray, list[_Signal]]:
+    # deferred: h5py (60 ms, the HDF5 C library) is for v7.3 files, read in a child process
     import h5py
 
     try:
@@ -406,6 +404,7 @@ def _elements(dataset: Any) -> list[Any]:
     """The elements of a struct-array field: object
     references (k > 1), or the dataset itself (k = 1).
     """
+    # deferred: h5py is for v7.3 files, read in a child process (`_read_v73`)
     import h5py
 
     if h5py.check_dtype(ref=dataset.dtype) is not None:
@@ -415,6 +414,7 @@ def _elements(dataset: Any) -> list[Any]:
 
 def _dataset(f: Any, item: Any) -> Any:
     """`item` itself when a dataset, else the dataset its object reference points to."""
+    # deferred: h5py is for v7.3 files, read in a child process (`_read_v73`)
     import h5py
 
     return item if isinstance(item, h5py.Dataset) else f[item]

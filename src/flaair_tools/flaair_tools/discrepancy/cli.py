@@ -44,14 +44,20 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
+from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.runs import Run
+from flaair_analysis.discrepancy.scoring import confusion_table, score_case
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
+from flaair_tools.tables.discrepancy_cli import main as table_main
 
+from .joint_cli import discrepancy_main, has_runs
 from .report import write_report, write_validation
 from .run_inputs import InputError, bad_input_errors, load_inputs
 from .validation_file import read_validation
@@ -67,21 +73,11 @@ REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
 
 
 def _progress_bar(total: int, desc: str):
-    try:
-        from tqdm import tqdm
-
-        return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
-    except ImportError:  # pragma: no cover
-        return None
+    return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
 
 
 def run_validation(model: Model, names: Sequence[str] | None, settings: Settings) -> dict:
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
-    from tqdm import tqdm
-
-    from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
-    from flaair_analysis.discrepancy.scoring import confusion_table, score_case
-
     cases = [c for c in dataset_cases() if not names or c.name in names]
     unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})
     if unknown:
@@ -232,12 +228,8 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
 def _table_or_runs(argv: list[str] | None = None) -> int:
     """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
     if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
-        from .joint_cli import discrepancy_main, has_runs
-
         if has_runs(argv):  # runs and a table together (docs/TABLES.md)
             return discrepancy_main(argv)
-        from flaair_tools.tables.discrepancy_cli import main as table_main
-
         return table_main(argv)
     return _main_runs(argv)
 

@@ -36,6 +36,8 @@ import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
@@ -44,6 +46,9 @@ from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.discrepancy.run_inputs import bad_input_errors, load_inputs
+from flaair_tools.tables.identify_cli import main as table_main
+
+from .joint_cli import has_runs, identify_main
 
 PROG = "flaair identify"
 USAGE = (
@@ -60,13 +65,9 @@ def _terminate(signum: int, frame: object) -> None:
 def main(argv: list[str] | None = None) -> int:
     """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
     if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
-        from .joint_cli import has_runs, identify_main
-
         if has_runs(argv):  # runs and a table in one fit (docs/TABLES.md)
             return identify_main(argv)
-        from flaair_tools.tables.identify_cli import main as table_main  # docs/TABLES.md
-
-        return table_main(argv)
+        return table_main(argv)  # docs/TABLES.md
     parser = argparse.ArgumentParser(
         prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
@@ -99,8 +100,6 @@ def main(argv: list[str] | None = None) -> int:
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         written = check_output(args.out, [*args.inputs, args.model], args.force, OUT_FILES)
-        from tqdm import tqdm
-
         with tqdm(total=3, desc="identify", unit="step", file=sys.stderr, leave=False) as bar:
             bar.set_postfix_str("read runs")
             model = load_model(args.model)

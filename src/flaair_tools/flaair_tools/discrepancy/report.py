@@ -18,6 +18,7 @@ import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 
 from flaair_analysis.discrepancy.runs import Run
+from flaair_analysis.discrepancy.scoring import expected_column
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.vocabulary import CHANNELS
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, format_parameters
@@ -238,8 +239,6 @@ def _confusion(table: Mapping[str, Any], outcomes: Sequence[Mapping[str, Any]] =
 
 
 def _label_match(true: str, found: str) -> bool:
-    from flaair_analysis.discrepancy.scoring import expected_column
-
     return found == expected_column(true)
 
 

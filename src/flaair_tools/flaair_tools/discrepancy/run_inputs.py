@@ -49,9 +49,8 @@ def runs_from_csv(path: Path) -> Run:
 
 def runs_from_bag(path: Path) -> list[Run]:
     """Every run of a bag as core Runs (ground truth NaN where invalid)."""
-    from flaair_tools.bagio import (
-        runs as bag_runs,  # bag support (rosbags, mcap) only when a bag is given
-    )
+    # deferred: bag support (rosbags, mcap: 0.2 s) only when a bag is given
+    from flaair_tools.bagio import runs as bag_runs
 
     bag = path.parent if path.suffix == ".mcap" else path
     return [
@@ -93,6 +92,7 @@ def bad_input_errors() -> tuple[type, ...]:
         yaml.YAMLError,
     ]
     try:
+        # deferred: bag support (rosbags, mcap: 0.2 s) only when an error is being named
         from flaair_tools.bagio import BagError
 
         errors.append(BagError)

@@ -8,12 +8,15 @@ import json
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from diagnostic_msgs.msg import DiagnosticArray
+
 from flaair_analysis import wingbeat
 from flaair_common import cdr, topics
 from flaair_common.msgdict import to_dict
 from flaair_common.qos import EVENTS, STATUS
 from flaair_model.schema import ParameterError, ParamSpec
 from flaair_msgs import msg as msgs
+from flaair_tools.bagio.messages import leading_stamp_ns, message_definition
 from flaair_tools.liveview import live_view
 
 __all__ = [
@@ -254,8 +257,6 @@ def relay_channel(foxglove: Any, topic: str) -> Callable[[bytes], None]:
     """A callback serving each CDR message of `topic` (live_view.RELAYED) as it is, on a channel
     of the same name with its type's ros2msg definition, at its header stamp.
     """
-    from flaair_tools.bagio.messages import leading_stamp_ns, message_definition
-
     msgtype = live_view.RELAYED[topic]
     text, _ = message_definition(msgtype)
     channel = foxglove.Channel(
@@ -270,8 +271,6 @@ def subscriptions(foxglove: Any) -> list[tuple[Any, str, Callable[[Any], None], 
     """What the node relays besides the block streams: (message class, topic, callback, QoS,
     raw) for /diagnostics (as JSON) and each live_view.RELAYED topic (as it is).
     """
-    from diagnostic_msgs.msg import DiagnosticArray
-
     relayed = [
         (getattr(msgs, msgtype.rsplit("/", 1)[1]), topic, relay_channel(foxglove, topic))
         for topic, msgtype in live_view.RELAYED.items()

@@ -382,6 +382,7 @@ def parse_host_port(text: str) -> tuple[str, int]:
 
 def layout_json() -> str:
     """The Foxglove app layout of config/foxglove_layout.json (import it with Layout > Import)."""
+    # deferred: foxglove.layouts (0.13 s) only to write the app layout; the node never needs it
     import foxglove.layouts as fl
 
     def plot(

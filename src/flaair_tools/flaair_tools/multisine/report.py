@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 from jinja2 import Template
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from flaair_analysis.multisine.analysis import ChannelSpectra
 from flaair_sensors.figures import literal_texts
@@ -33,10 +35,6 @@ def channel_figure(
     """(a) BLA magnitude, std_noise and std_nl in dB re 1 unit/V; (b) line powers and noise in
     dB re 1 unit^2 from 0 to 3 x the top excited line (where the channel's rate allows).
     """
-    # matplotlib on first figure only: `multisine design` imports this module and draws none
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     unit = entry["unit"]
     f0 = design["base_frequency_hz"]
     fig = Figure(figsize=(10, 7.4))

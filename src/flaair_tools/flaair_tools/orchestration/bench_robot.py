@@ -4,6 +4,7 @@ its plant off nominal, its hidden vocabulary effects and its discovered terms.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +30,7 @@ def robot_model() -> Any:
     """The bench robot's model: config/model.yaml with its plant off nominal by the `plant:`
     factors, its `effects` and its `discovered` terms (physics outside the vocabulary).
     """
-    from dataclasses import replace
-
+    # deferred: the model loads scipy.signal (1.2-1.7 s); `flaair experiment --help` needs none
     from flaair_model.model import with_effects
     from flaair_model.model_io import load_model
     from flaair_model.term_entry import term_from_dict
@@ -53,6 +53,7 @@ def robot_model() -> Any:
 
 def write_robot_model(path: Path) -> Path:
     """The bench robot's model file (`robot_model`)."""
+    # deferred: the model loads scipy.signal (1.2-1.7 s); `flaair experiment --help` needs none
     from flaair_model.model_io import save_model
 
     save_model(robot_model(), path)

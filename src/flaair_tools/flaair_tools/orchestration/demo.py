@@ -23,6 +23,8 @@ from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_model.term_entry import term_from_dict
+from flaair_tools import discrepancy
+from flaair_tools.analysis import calibrate, health_cli
 from flaair_tools.analysis.analyze import analyze, print_headline
 from flaair_tools.analysis.per_run import AnalysisError
 from flaair_tools.orchestration.bench_robot import robot_effects, robot_section
@@ -99,8 +101,6 @@ def main(argv: list[str] | None = None) -> int:
         bags.append(bag)
         sweeps = [b for b in bags if b.name in ("characterization_chirp", "stepped_sine")]
         if calibration is None and len(sweeps) == 2:
-            from flaair_tools.analysis import calibrate
-
             print("[demo] calibrating the front end from the chirp and stepped-sine bags")
             if (
                 calibrate.main(
@@ -129,8 +129,6 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if sweeps:
         print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
-        from flaair_tools import discrepancy
-
         code = discrepancy.main(
             [*map(str, sweeps), "--force", "--out", str(args.out / "discrepancy")]
         )
@@ -153,8 +151,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[demo]   outside the vocabulary: {outside}")
     damaged = [b for b in bags if b.name == "wing_damage"]
     if damaged:
-        from flaair_tools.analysis import health_cli
-
         print("\n[demo] the health monitor on the damaged-wing run (the plant lost 20 % inertia):")
         lags = ["--calibration", str(calibration)] if calibration is not None else []
         if health_cli.main([str(damaged[0]), "--out", str(args.out / "health"), *lags]) != 0:

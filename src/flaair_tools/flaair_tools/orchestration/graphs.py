@@ -17,8 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from ament_index_python.packages import get_package_share_directory
 
 from flaair_common import topics
+from flaair_common.graph import repo_root
+from flaair_model.config import ConfigError
 from flaair_tools.orchestration import launch_file
 
 __all__ = [
@@ -131,17 +134,12 @@ def launch_dir() -> Path:
     """The directory of FLAAIR's launch files: the checkout's (src/flaair_tools/launch), else the
     installed package's share/flaair_tools/launch.
     """
-    from flaair_common.graph import repo_root
-    from flaair_model.config import ConfigError
-
     try:
         source = repo_root() / "src" / LAUNCH_PACKAGE / "launch"
     except ConfigError:
         source = Path("/nonexistent")
     if source.is_dir():
         return source
-    from ament_index_python.packages import get_package_share_directory
-
     return Path(get_package_share_directory(LAUNCH_PACKAGE)) / "launch"
 
 

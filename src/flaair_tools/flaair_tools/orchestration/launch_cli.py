@@ -30,6 +30,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
@@ -51,8 +53,6 @@ def find_launch_file(package: str, name: str) -> Path:
         return Path(name)
     if package == LAUNCH_PACKAGE:
         return launch_dir() / name
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
     try:
         return Path(get_package_share_directory(package)) / "launch" / name
     except PackageNotFoundError:

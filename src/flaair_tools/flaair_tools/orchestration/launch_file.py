@@ -26,6 +26,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
 from flaair_model.checked_files import CheckedFileError, read_bytes
 
 __all__ = [
@@ -401,8 +403,6 @@ def load(
 
 
 def _ament_share(package: str) -> Path:
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
     try:
         return Path(get_package_share_directory(package))
     except PackageNotFoundError:

@@ -41,13 +41,16 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
 
+import rclpy
 import yaml
+from rclpy.node import Node
 
-from flaair_common import topics
+from flaair_common import cdr, topics
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import (
     Graph,
@@ -57,6 +60,8 @@ from flaair_common.graph import (
     node_argv,
     terminate_raises,
 )
+from flaair_common.msgdict import message_class
+from flaair_common.qos import BLOCK_STREAM
 from flaair_model import settings
 from flaair_model.config import ConfigError
 from flaair_tools.orchestration import second_terminal
@@ -97,14 +102,6 @@ class Watcher:
     """
 
     def __init__(self, graph: Graph, args: argparse.Namespace) -> None:
-        import os
-
-        import rclpy
-        from rclpy.node import Node
-
-        from flaair_common.msgdict import message_class
-        from flaair_common.qos import BLOCK_STREAM
-
         os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
         self.rclpy, self.graph, self.args = rclpy, graph, args
         # Ctrl-C/SIGTERM are ours
@@ -163,8 +160,6 @@ class Watcher:
             )
 
     def on_sensor(self, data: bytes) -> None:
-        from flaair_common import cdr
-
         m = cdr.decode(cdr.SENSOR_VOLTAGE_BLOCK, data)
         self.end.update(
             index=int(m["first_sample_index"]) + len(m["stroke_sensor_v"]),
@@ -173,8 +168,6 @@ class Watcher:
         )
 
     def on_drive(self, data: bytes) -> None:
-        from flaair_common import cdr
-
         m = cdr.decode(cdr.DRIVE_COMMAND_BLOCK, data)
         if self.first_drive_index is None:
             self.first_drive_index = int(m["first_sample_index"])

@@ -6,6 +6,7 @@ overrides for the run (`node_parameters_for`, a ROS params file's sections).
 from __future__ import annotations
 
 import argparse
+import socket
 from typing import Any
 
 import yaml
@@ -35,8 +36,6 @@ def host_port(text: str, what: str) -> tuple[str, int]:
 
 def port_free(address: tuple[str, int], what: str) -> None:
     """Refuse, by name, a TCP address that another program already listens on."""
-    import socket
-
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
         # as a server binds: a port only in TIME_WAIT is free, one with a listener is not
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

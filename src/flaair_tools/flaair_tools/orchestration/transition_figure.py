@@ -37,6 +37,8 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.graph import Graph, flaair_argv
 from flaair_control.core import transition as tr
 from flaair_control.transition_io import hilbert_params_from_config
+from flaair_model import settings
+from flaair_model.model_io import load_model
 from flaair_tools.analysis.transition import (
     plot_transition,
     predicted_limit_cycle,
@@ -140,9 +142,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("-o", "--output", type=Path, default=Path("out/transition/transition.png"))
     args = parser.parse_args(argv)
-    from flaair_model import settings
-    from flaair_model.model_io import load_model
-
     shared = settings.controller()
     fs, block = shared.sample_rate_hz, shared.block_size
     if args.run:

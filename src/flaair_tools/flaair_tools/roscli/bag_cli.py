@@ -21,6 +21,8 @@ import sys
 import time
 from pathlib import Path
 
+from tqdm import tqdm
+
 from flaair_common.cli_help import HelpFormatter
 from flaair_tools import bagio
 
@@ -32,8 +34,6 @@ def _interrupted(signum: int, _frame: object) -> None:
 
 
 def _reindex(bag: Path) -> int:
-    from tqdm import tqdm
-
     source = bagio.single_mcap_file(bag)
     start = time.perf_counter()
     with tqdm(

@@ -21,7 +21,9 @@ import argparse
 import json
 import sys
 
+import rclpy
 import yaml
+from rclpy.topic_or_service_is_hidden import topic_or_service_is_hidden
 
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.msgdict import from_dict, message_class, to_dict
@@ -86,8 +88,6 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as exc:
             print(f"flaair service call: {exc}", file=sys.stderr)
             return 2
-    import rclpy
-    from rclpy.topic_or_service_is_hidden import topic_or_service_is_hidden
 
     def body(node) -> int:
         if args.verb == "list":

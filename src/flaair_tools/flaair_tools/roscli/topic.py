@@ -38,6 +38,7 @@ import time
 from pathlib import Path
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.topic_or_service_is_hidden import topic_or_service_is_hidden
 
@@ -403,8 +404,6 @@ def main(argv: list[str] | None = None) -> int:
                 publisher.publish(message)
                 time.sleep(1.0 / args.rate)
         # every matched reader has the messages before the participant goes away (reliable QoS)
-        from rclpy.duration import Duration
-
         if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout)):
             print(
                 f"flaair topic pub: '{args.topic}': not every subscriber acknowledged the "

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import os
 import sys
@@ -18,8 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
+from flaair_analysis.closed_loop import DSA, DSA_STROKE, MODE_NAMES, SYNC, run_rows, warm_up
 from flaair_common.strictjson import json_safe
+from flaair_control.core import hopf, stroke
 from flaair_model.config import ConfigError, load_yaml
 
 SUBCOMMANDS = ("wing-damage", "dsa-map", "stroke")
@@ -79,9 +83,6 @@ def wing_damage_rows(
     """One row per (aero damping exponent, inertia
     factor, drive); drives set for the undamaged wing.
     """
-    from flaair_analysis.closed_loop import DSA, DSA_STROKE, MODE_NAMES, SYNC
-    from flaair_control.core import stroke
-
     try:
         factors = _grid(section["inertia_factor"], "wing_damage.inertia_factor")
         exponents = _grid(section["aero_damping_exponent"], "wing_damage.aero_damping_exponent")
@@ -125,8 +126,6 @@ def wing_damage_rows(
 
 def dsa_map_rows(section: dict[str, Any], values: dict[str, Any]) -> list[dict[str, Any]]:
     """One row per (r3, kappa, mu): the free dSA loop on the undamaged wing."""
-    from flaair_analysis.closed_loop import DSA, MODE_NAMES
-
     try:
         mus = _grid(section["mu_nm_s_per_rad"], "dsa_map.mu_nm_s_per_rad")
         kappas = _grid(section["kappa"], "dsa_map.kappa")
@@ -213,8 +212,6 @@ def run_in_process(
     parallel: bool = False,
 ) -> list[list[dict[str, Any]]]:
     """Every chunk here, one after the other (``parallel``: numba threads over each chunk)."""
-    from flaair_analysis.closed_loop import run_rows
-
     out = []
     for part in parts:
         out.append(run_rows(part, model, parallel))
@@ -235,8 +232,7 @@ def local_cluster(workers: int | None = None):
     """A LocalCluster on 127.0.0.1: `workers` (default:
     the cores) single-threaded worker processes.
     """
-    import logging
-
+    # deferred: dask.distributed (0.7 s) only for a cluster; --in-process and stroke need none
     from dask.distributed import LocalCluster
 
     return LocalCluster(
@@ -256,8 +252,6 @@ def prepare_workers(client, model, row: dict[str, Any]) -> None:
     from numba's cache, task machinery warmed: a worker's first task costs about a second more
     than the next).
     """
-    from flaair_analysis.closed_loop import warm_up
-
     client.gather(
         [
             client.submit(
@@ -286,9 +280,8 @@ def run_on_dask(
     every task depend on one piece of data, whose extra copies Dask's active memory manager
     removes: the scheduler then sent the tasks to the one worker holding it.
     """
+    # deferred: dask.distributed (0.7 s) only for a cluster; --in-process and stroke need none
     from dask.distributed import as_completed
-
-    from flaair_analysis.closed_loop import run_rows
 
     # keys of this run's tasks: a later run on the same client never meets them
     run = uuid.uuid4().hex[:8]
@@ -324,9 +317,6 @@ def execute(
     (the results do not depend on it). Timing: `startup_s` (cluster, kernels, model to the
     workers) apart from `wall_s` (the tasks).
     """
-    from tqdm import tqdm
-
-    from flaair_analysis.closed_loop import warm_up
 
     def sized(n_workers: int) -> list[list[dict[str, Any]]]:
         size = (
@@ -355,6 +345,7 @@ def execute(
             t0 = time.perf_counter()
             results = run_in_process(parts, model, bar.update)
         else:
+            # deferred: dask.distributed (0.7 s) only for a cluster, not for --in-process
             from dask.distributed import Client
 
             cluster = None if scheduler else local_cluster(workers)
@@ -413,8 +404,6 @@ def add_theory(
     """dsa-map rows with the Hopf/describing-function
     prediction; per (r3, kappa) the onset check.
     """
-    from flaair_control.core import hopf
-
     pl = model.plant
     linear = hopf.LinearStrokePlant(pl.stroke_inertia_kg_m2, pl.stroke_stiffness_nm_per_rad)
     out, onsets = [], []

@@ -86,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
 
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        from flaair_tools.sweeps import sweep_report  # matplotlib: not for --help
+        # deferred: sweep_report loads matplotlib (0.75 s), which --help never needs
+        from flaair_tools.sweeps import sweep_report
 
         config = args.config or config_dir() / "sweeps.yaml"
         if args.workers is not None and args.workers < 1:

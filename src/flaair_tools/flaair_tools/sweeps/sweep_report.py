@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is left alone
+from tqdm import tqdm
 
+from flaair_analysis import wingbeat
 from flaair_control.control_io import stroke_controller_values
 from flaair_model.config import config_dir
 from flaair_model.model_io import load_model
@@ -336,9 +339,8 @@ def dsa_map_reading(
 
 def stroke_study(args: argparse.Namespace, config: Path) -> int:
     """Run the three stroke experiments per mode, one bag each, analysed from the bags."""
-    from tqdm import tqdm
-
-    from flaair_analysis import wingbeat
+    # deferred: the stroke study's ROS messages and bags (rclpy, rosbags: 0.3 s); the Dask
+    # studies need none
     from flaair_tools.sweeps import stroke_experiments as se
 
     section = sweep.load_section(config, "stroke_experiments")
@@ -362,8 +364,6 @@ def stroke_study(args: argparse.Namespace, config: Path) -> int:
     ):
         bag = bags / exp.name
         if bag.exists():
-            import shutil
-
             shutil.rmtree(bag)
         se.write_bag(bag, exp, se.run_closed_loop(exp, model, values, frontend_section))
         results.append(

@@ -24,6 +24,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import yaml
+
 from flaair_analysis.tables.fit import identify_table
 from flaair_analysis.tables.reader import Table, TableInputError
 from flaair_common.cli_help import HelpFormatter
@@ -49,8 +51,6 @@ def _terminate(signum: int, frame: object) -> None:
 
 def bad_input() -> tuple[type[Exception], ...]:
     """The errors a command reports in one line with exit 2."""
-    import yaml
-
     return (TableInputError, ConfigError, ModelError, OSError, yaml.YAMLError)
 
 

@@ -4,11 +4,15 @@ report.html and its figures). A shell module: matplotlib and Jinja2 are imported
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from jinja2 import Template
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, TableFit
 from flaair_analysis.tables.reader import Table, summarise
@@ -198,9 +202,6 @@ def response_figure(result: TableDiscrepancy, table: Table, s: TableSettings, pa
     (dotted), the fitted plant alone (dashed), the final model (solid), and each level's held-out
     prediction of the final model (crosses).
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     cols = [c for c in table.responses if "phase" not in c]
     fig = Figure(figsize=(11, 4.2 * len(cols)))
     FigureCanvasAgg(fig)
@@ -283,10 +284,6 @@ drive levels {{ doc.table.drive_levels_v|join(", ") }} V.</p></body></html>
 
 def write_report(result: TableDiscrepancy, table: Table, s: TableSettings, out: Path) -> dict:
     """discrepancy.json, table_response.png and report.html into `out`; returns the document."""
-    import json
-
-    from jinja2 import Template
-
     doc = json_safe(discrepancy_doc(result, table))
     (out / "discrepancy.json").write_text(json.dumps(doc, indent=2, allow_nan=False), "utf-8")
     response_figure(result, table, s, out / "table_response.png")
