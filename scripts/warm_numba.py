@@ -52,6 +52,17 @@ def main() -> None:
     # identification and the discrepancy search: many models from measured initial states (the
     # costliest kernel to compile, 10-30 s, and every test worker would otherwise compile it)
     simulate_batch_from(drive, fs_hz, [model, model], np.zeros((2, 4)))
+    # the plant's torques at the fundamental (the health regression, the harmonic-balance start),
+    # for the nominal constants tuple and the one with discovered terms
+    from dataclasses import replace
+
+    from flaair_model.terms import DiscoveredTerm
+    from flaair_sim.core.describing import stroke_dynamic_stiffness
+    from flaair_sim.core.plant_params import prepare
+
+    stiffened = replace(model, discovered=(DiscoveredTerm("cube_angle", "stroke_dynamics", -1e-5),))
+    for m in (model, stiffened):
+        stroke_dynamic_stiffness(prepare(m, fs_hz).params, 900.0, 0.5)
     try:  # the offline analysis kernels
         from flaair_analysis import wingbeat
         from flaair_model import lfilter
