@@ -53,7 +53,7 @@ TESTS = [
     "test_core_properties.py",
     "test_identify.py",
     "test_composed_loop.py",
-    "test_health.py",
+    "test_diagnostics.py",
 ]
 
 

@@ -94,8 +94,8 @@ def main() -> None:
     except Exception as exc:
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
     try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
-        from flaair_control.control_io import supervisor_params_from_config
         from flaair_control.core import dsa, safety
+        from flaair_control.dsa_io import supervisor_params_from_config
         from flaair_model.config import node_parameters
         from flaair_sensors.core import frontend
         from flaair_sensors.frontend_io import frontend_params_from_config
@@ -115,7 +115,7 @@ def main() -> None:
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     try:  # the wing-damage sweep's batch kernels (the stroke tracker among them)
         from flaair_analysis import closed_loop
-        from flaair_control.control_io import stroke_controller_values
+        from flaair_control.dsa_io import stroke_controller_values
         from flaair_model.config import config_dir
         from flaair_tools.sweeps import sweep
 

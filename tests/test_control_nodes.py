@@ -346,10 +346,10 @@ def test_controller_kr_ramp_service_collision_stop_and_watchdog_reset_in_process
 
     from flaair_common import cdr
     from flaair_common.blocks import from_array
-    from flaair_common.health import ERROR, OK
-    from flaair_control.control_io import controller_health
+    from flaair_common.diagnostics import ERROR, OK
     from flaair_control.core.loop_state import LOOP, TRIPPED
     from flaair_control.dsa_controller_node import DsaControllerNode
+    from flaair_control.dsa_io import controller_health
     from flaair_msgs.msg import CollisionEvent, ControllerState, DriveCommandBlock, WingStateBlock
 
     if rclpy.ok():

@@ -8,9 +8,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from flaair_control.control_io import supervisor_params_from_config
 from flaair_control.core import loop_state
 from flaair_control.core import supervisor as sv
+from flaair_control.dsa_io import supervisor_params_from_config
 from flaair_model.config import node_parameters
 from flaair_model.model_io import load_model
 

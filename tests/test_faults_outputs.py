@@ -145,13 +145,13 @@ def test_an_out_that_cannot_be_written_is_refused_before_the_analysis(
 
 
 def test_a_full_disk_leaves_no_partial_output(csv_run, tmp_path, monkeypatch) -> None:
-    from flaair_sim import cli_simulate
+    from flaair_sim import simulate_cli
 
     def full(path, columns):
         Path(path).write_text("time_s,drive_v\n0,")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
-    monkeypatch.setattr(cli_simulate, "write_run", full)
+    monkeypatch.setattr(simulate_cli, "write_run", full)
     out = tmp_path / "sim.csv"
     _one_line(*_offline(["simulate", str(csv_run), "--out", str(out)]), 2, "No space left")
     assert not out.exists()

@@ -12,7 +12,7 @@ from flaair_common import topics
 
 
 def test_health_node_reports_a_damaged_wing_as_the_offline_core_does(monkeypatch, tmp_path):
-    from flaair_common.health import WARN
+    from flaair_common.diagnostics import WARN
     from flaair_control import health_io
     from flaair_control.core import health
     from flaair_control.health_node import HealthNode

@@ -14,9 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from flaair_control.control_io import supervisor_params_from_config
 from flaair_control.core import loop_state, monitor
 from flaair_control.core import supervisor as sv
+from flaair_control.dsa_io import supervisor_params_from_config
 from flaair_control.monitor_io import collision_monitor_params_from_config
 from flaair_model.config import node_parameters
 from flaair_model.model import with_effects

@@ -79,7 +79,7 @@ def test_a_missing_or_mistyped_key_is_named(tmp_path: Path, monkeypatch, edit, m
 def test_a_node_section_is_checked_against_the_node_schema(
     tmp_path: Path, monkeypatch, edit, message
 ) -> None:
-    from flaair_control.control_io import DSA_CONTROLLER_PARAMS, dsa_controller_values
+    from flaair_control.dsa_io import DSA_CONTROLLER_PARAMS, dsa_controller_values
     from flaair_model.schema import ParameterError
 
     assert (

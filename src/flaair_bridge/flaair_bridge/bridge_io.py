@@ -12,7 +12,7 @@ import numpy as np
 
 from flaair_bridge import udp
 from flaair_bridge.core import bridge_params, bridge_state
-from flaair_common.health import ERROR, OK, WARN, Health, health, loss_percent
+from flaair_common.diagnostics import ERROR, OK, WARN, Health, health, loss_percent
 from flaair_model.schema import ParameterError, ParamSpec
 
 __all__ = [

@@ -14,7 +14,8 @@ Load no rclpy on import:
 - `cdr`: numpy CDR codec of the block messages; `msgdefs`: the `.msg` definitions;
 - `stream`: block continuity checks; `topics`: topic names; `realtime`: thread scheduling;
 - `runcsv`: measured-run CSV; `strictjson`: strict JSON out;
-- `health`: a node's health as data (what /diagnostics carries), decided by pure functions;
+- `diagnostics`: a node's /diagnostics status as data (level, message, values), decided by
+  pure functions;
 - `signal_ranges`: the plausible range of each measured-run column;
 - `outputs`: a command's `--out` checked first (never an input, `--force` to replace);
 - `cli_help`: the help formatter of every command line (each option's default shown).
@@ -25,8 +26,8 @@ __all__ = [
     "cdr",
     "cli_help",
     "container",
+    "diagnostics",
     "graph",
-    "health",
     "intra",
     "msgdefs",
     "msgdict",

@@ -27,7 +27,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from flaair_common import cdr, topics
 from flaair_common.blocks import stamp_ns_of_sample
-from flaair_common.health import DIAGNOSTICS_PERIOD_S, Health
+from flaair_common.diagnostics import DIAGNOSTICS_PERIOD_S, Health
 from flaair_common.qos import EVENTS
 from flaair_msgs.msg import TimeAnchor
 
@@ -72,7 +72,7 @@ class FlaairNode(Node):
     ) -> None:
         """Every DIAGNOSTICS_PERIOD_S, publish `judge(snapshot(), previous snapshot)` on
         /diagnostics (hardware id: this node's fully qualified name). The judge is a pure function
-        (flaair_common.health); the previous snapshot lets it speak of the last period.
+        (flaair_common.diagnostics); the previous snapshot lets it speak of the last period.
         """
         publisher = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         previous: list[Any] = [None]

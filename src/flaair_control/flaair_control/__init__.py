@@ -4,16 +4,16 @@
 
 - ``dsa_controller_node``, ``collision_monitor_node``, ``stroke_controller_node``,
   ``health_node``: the nodes (rclpy)
-- ``control_io`` (the dSA controller), ``monitor_io`` (the collision monitor), ``stroke_io``,
+- ``dsa_io`` (the dSA controller), ``monitor_io`` (the collision monitor), ``stroke_io``,
   ``transition_io``, ``health_io`` (the health monitor): their parameters and message <-> core
   mappings (no rclpy)
 """
 
 __all__ = [
     "collision_monitor_node",
-    "control_io",
     "core",
     "dsa_controller_node",
+    "dsa_io",
     "health_io",
     "health_node",
     "monitor_io",

@@ -23,10 +23,10 @@ from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM, STATUS
 from flaair_common.runtime import log_notes, run_node, warn_counted
-from flaair_control import control_io as io
-from flaair_control.control_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS
+from flaair_control import dsa_io as io
 from flaair_control.core import loop_state
 from flaair_control.core import supervisor as sv
+from flaair_control.dsa_io import CONFIG_FILE, DSA_CONTROLLER_PARAMS
 from flaair_msgs.msg import CollisionEvent, ControllerState
 
 NODE_NAME = "dsa_controller_node"

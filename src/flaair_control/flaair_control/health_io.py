@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from flaair_common.health import OK, WARN, Health, health
+from flaair_common.diagnostics import OK, WARN, Health, health
 from flaair_control.core import health as hcore
 from flaair_control.core.health import HealthParams
 from flaair_model.config import ConfigError, load_yaml

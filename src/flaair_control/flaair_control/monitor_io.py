@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from flaair_common.health import OK, WARN, Health, health
+from flaair_common.diagnostics import OK, WARN, Health, health
 from flaair_control.core import collision as col
 from flaair_control.core import monitor, spectral
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params

@@ -4,7 +4,7 @@
 
 - ``plant_node``, ``drive_node``: the nodes (rclpy)
 - ``plant_io``, ``drive_io``: their parameters and message <-> core mappings (no rclpy)
-- ``cli_simulate``: `bin/flaair simulate`
+- ``simulate_cli``: `bin/flaair simulate`
 """
 
-__all__ = ["cli_simulate", "core", "drive_io", "drive_node", "plant_io", "plant_node"]
+__all__ = ["core", "drive_io", "drive_node", "plant_io", "plant_node", "simulate_cli"]

@@ -30,7 +30,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "serve the live graph to Foxglove / Lichtblick over WebSocket",
     ),
     "simulate": (
-        "flaair_sim.cli_simulate",
+        "flaair_sim.simulate_cli",
         "replay a measured run's drive through the model: CSV in, CSV out",
     ),
     "calibrate": (

@@ -1,6 +1,6 @@
 """A run's diagnostic events from its bag: every change of a node's health level on /diagnostics.
 
-Each node publishes its health once a second (`flaair_common.health`: OK 0, WARN 1, ERROR 2,
+Each node publishes its health once a second (`flaair_common.diagnostics`: OK 0, WARN 1, ERROR 2,
 STALE 3). An event is a status whose level differs from the one before it under the same name
 (the first status counts as a change when it is not OK): a tripped watchdog (ERROR), packet
 loss (WARN), and their return to OK. `level_changes` decides, without files; `from_bag` reads

@@ -4,7 +4,7 @@ The collision monitor node and the dSA controller node are thin shells over
 `flaair_control.core.monitor` and `flaair_control.core.supervisor`; fed the recorded
 blocks in the order the nodes saw them (in lockstep: drive block k, then wing-state block
 k), decoded and mapped to the cores' inputs exactly as the nodes do it (`cdr.decode`, the
-`control_io` adapters), the cores give back what the live nodes published: collision
+`dsa_io` adapters), the cores give back what the live nodes published: collision
 statuses and events, drive blocks and controller states. `analyze` uses it to show what
 the monitor decided; the tests use it to prove the live and offline paths identical.
 """
@@ -17,13 +17,13 @@ from pathlib import Path
 from typing import Any
 
 from flaair_common import cdr, topics
-from flaair_control.control_io import (
+from flaair_control.core import loop_state, monitor
+from flaair_control.core import supervisor as sv
+from flaair_control.dsa_io import (
     dsa_controller_values,
     supervisor_params_from_config,
     supervisor_wing_input,
 )
-from flaair_control.core import loop_state, monitor
-from flaair_control.core import supervisor as sv
 from flaair_control.monitor_io import (
     collision_monitor_params_from_config,
     monitor_drive_input,

@@ -15,7 +15,7 @@ from matplotlib.figure import Figure  # no pyplot: a notebook user's backend is 
 from tqdm import tqdm
 
 from flaair_analysis import wingbeat
-from flaair_control.control_io import stroke_controller_values
+from flaair_control.dsa_io import stroke_controller_values
 from flaair_model.config import config_dir
 from flaair_model.model_io import load_model
 from flaair_sensors.frontend_io import frontend_values

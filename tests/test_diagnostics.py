@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from flaair_common.health import ERROR, OK, WARN, health, loss_percent
+from flaair_common.diagnostics import ERROR, OK, WARN, health, loss_percent
 
 
 def test_the_worst_problem_sets_the_level_and_every_problem_is_named() -> None:

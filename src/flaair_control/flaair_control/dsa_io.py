@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from flaair_common.health import ERROR, WARN, Health, health
+from flaair_common.diagnostics import ERROR, WARN, Health, health
 from flaair_control.core import dsa, loop_state, safety, stroke
 from flaair_control.core.loop_state import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
