@@ -318,6 +318,29 @@ def test_a_bridge_that_stalled_with_datagrams_unread_does_not_call_the_target_si
     assert state.counters.silences == 1
 
 
+def test_a_new_target_flooding_a_stalled_bridge_is_learnt_once_the_old_one_is_silent() -> None:
+    # The old target (port 1000) ends; a fresh one (port 2000) streams so fast that the bridge,
+    # behind on a loaded machine, always has datagrams unread. Those it reads are from the new
+    # sender and arrived after the old one's timeout: the old target is silent whatever waits.
+    old, new = ("127.0.0.1", 1000), ("127.0.0.1", 2000)
+    inputs = [SensorDatagram(packet(0, 0), 0.0, sender=old)]
+    inputs += [SensorDatagram(packet(k, k * N), 0.0301 + k * 5e-4, sender=new) for k in range(3)]
+    inputs += [Tick(0.0402, backlog=True)]
+    inputs += [SensorDatagram(packet(3, 3 * N), 0.0416, sender=new)]
+    state, _, _, _, notes = run(inputs)
+    assert state.counters.silences == 1 and state.source == new
+    assert any("now from 127.0.0.1:2000" in n.text for n in notes)
+    # datagrams unread with the old target's last one within its timeout: a stall, not a silence
+    state, *_ = run(
+        [
+            SensorDatagram(packet(0, 0), 0.0, sender=old),
+            SensorDatagram(packet(0, 0), 0.015, sender=new),
+            Tick(0.0402, backlog=True),
+        ]
+    )
+    assert state.counters.silences == 0 and state.source == old
+
+
 def test_target_restart_is_followed_after_resync_packets_stale_ones() -> None:
     inputs = [SensorDatagram(packet(s, 5000 + s * N), 0.0) for s in range(100, 103)]
     # the target restarted at 0

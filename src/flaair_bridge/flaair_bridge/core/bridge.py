@@ -173,7 +173,7 @@ def _foreign_packet(
     counters = add_counts(state.counters, foreign_packets=1)
     host, port = inputs.sender or ("?", 0)
     target = f"{state.source[0]}:{state.source[1]}" if state.source else params.target_host or "?"
-    return state._replace(counters=counters), Outputs(
+    return state._replace(counters=counters, last_foreign_s=inputs.now_s), Outputs(
         notes=(
             counted_note(
                 "foreign_packets",
@@ -452,10 +452,18 @@ def _on_tick(state: BridgeState, inputs: Tick, params: BridgeParams) -> tuple[Br
                 True,
             )
         )
+    # Datagrams waiting unread mean a stalled bridge, not a silent target, unless the reader has
+    # already taken another sender's datagram that arrived a timeout after the target's last one
+    # (a new target flooding a bridge that is behind would otherwise never be heard).
+    outlived = (
+        state.last_foreign_s is not None
+        and state.last_sensor_s is not None
+        and state.last_foreign_s - state.last_sensor_s > params.sensor_timeout_s
+    )
     if (
         state.last_read_s is not None
         and now - state.last_read_s > params.sensor_timeout_s
-        and not inputs.backlog
+        and (not inputs.backlog or outlived)
     ):
         if not state.silent:
             state = state._replace(silent=True, counters=add_counts(state.counters, silences=1))

@@ -89,6 +89,8 @@ class BridgeState(NamedTuple):
     last_sensor_s: float | None = None
     # when the bridge last took a packet from its socket (silence)
     last_read_s: float | None = None
+    # arrival of the last datagram read from another sender (proves the reader is not stalled)
+    last_foreign_s: float | None = None
     silent: bool = False
     drive_expected: int | None = None  # next index of FLAAIR's drive stream
     drive_offset: int | None = None  # target index = drive-stream index + drive_offset
