@@ -128,19 +128,25 @@ def _dotted(node: ast.AST) -> list[str] | None:
     return [node.id, *reversed(parts)]
 
 
-def _private_attributes(path: Path, module: str, known: set[str]) -> list[tuple[str, int]]:
-    """(module._name, line) of every underscore name read off another module by attribute."""
+def _attribute_chains(path: Path, module: str, known: set[str]) -> list[tuple[list[str], int]]:
+    """(absolute dotted parts, line) of every attribute chain read off an imported module."""
     bound = _imported_modules(path, module, known)
-    found = []
+    chains = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         parts = _dotted(node) if isinstance(node, ast.Attribute) else None
-        if not parts or parts[0] not in bound:
-            continue
-        path_parts = bound[parts[0]].split(".") + parts[1:]
+        if parts and parts[0] in bound:
+            chains.append((bound[parts[0]].split(".") + parts[1:], node.lineno))
+    return chains
+
+
+def _private_attributes(path: Path, module: str, known: set[str]) -> list[tuple[str, int]]:
+    """(module._name, line) of every underscore name read off another module by attribute."""
+    found = []
+    for path_parts, lineno in _attribute_chains(path, module, known):
         for i in range(1, len(path_parts)):
             owner = ".".join(path_parts[:i])
             if owner in known and _private(path_parts[i]) and owner != module:
-                found.append((f"{owner}.{path_parts[i]}", node.lineno))
+                found.append((f"{owner}.{path_parts[i]}", lineno))
                 break
     return sorted(set(found), key=lambda f: f[1])
 
@@ -700,17 +706,12 @@ def _second_address_reads(
         for name in names
         if target != module and _second_address(modules, target, name)
     ]
-    bound = _imported_modules(path, module, known)
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        parts = _dotted(node) if isinstance(node, ast.Attribute) else None
-        if not parts or parts[0] not in bound:
-            continue
-        path_parts = bound[parts[0]].split(".") + parts[1:]
+    for path_parts, lineno in _attribute_chains(path, module, known):
         for i in range(1, len(path_parts)):
             owner = ".".join(path_parts[:i])
             if owner in modules and f"{owner}.{path_parts[i]}" not in modules:
                 if _second_address(modules, owner, path_parts[i]):
-                    found.append((f"{owner}.{path_parts[i]}", node.lineno))
+                    found.append((f"{owner}.{path_parts[i]}", lineno))
                 break
     return sorted(set(found), key=lambda f: (f[1], f[0]))
 
