@@ -5,6 +5,9 @@ It sits above the domain packages (model, sim, sensors, control) and below `flaa
 which keeps the command lines, reports, bags and orchestration around it.
 
 Modules (import them by name; this package imports none of them eagerly):
+- `evidence`: the `Evidence` protocol every measured data set meets (residuals in units of its
+  own noise, its nuisance parameters, the sites it sees) and the one least-squares fit over any
+  list of evidence (`fit_evidence`);
 - `exact_score`: the one rule that says whether a discrepancy outcome is right (status, named
   effects and discovered terms all the truth's), used by the benchmarks, tests and case scoring;
 - `discrepancy`: the model-vs-measurement workflow (diagnosis, the effect search, grey-box
@@ -22,6 +25,7 @@ Modules (import them by name; this package imports none of them eagerly):
 __all__ = [
     "closed_loop",
     "discrepancy",
+    "evidence",
     "exact_score",
     "headline",
     "multisine",

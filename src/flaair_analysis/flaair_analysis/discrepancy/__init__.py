@@ -3,7 +3,9 @@ no plots, no file I/O but the nominal model `offnominal` scales its terms by): t
 `bin/flaair discrepancy` and `bin/flaair identify`, whose command lines and reports are
 `flaair_tools.discrepancy`.
 
-Modules: `runs` (runs, their initial state and simulation), `vocabulary` (each effect registered
+Modules: `runs` (runs, their initial state and simulation), `run_evidence` (runs as evidence
+for the one fit: residuals in units of each channel's noise, each run's state a nuisance),
+`vocabulary` (each effect registered
 once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
 `fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
 search; `found` lists what it found, one entry per effect), `discovery` (terms from the library
@@ -127,6 +129,7 @@ from .diagnosis import (
 from .discovery import Discovered, DiscoveryOutcome, discover
 from .evidence import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
+from .run_evidence import RunEvidence
 from .runs import (
     DiscrepancyInputError,
     Run,
@@ -169,6 +172,7 @@ __all__ = [
     "FoundEffect",
     "PlantFit",
     "Run",
+    "RunEvidence",
     "Settings",
     "analyse",
     "bode_points",

@@ -41,11 +41,12 @@ from typing import Any, cast
 import numpy as np
 from scipy import optimize
 
+from flaair_analysis.evidence import fit_evidence
 from flaair_model.effects import TRUTH_CHANNELS
 from flaair_model.model import Model
 from flaair_sensors.core.characterization import tiled_transfer
-from flaair_sim.core.plant import SimOutput, simulate_batch_from
 
+from .run_evidence import STATE_STEP_RAD, RunEvidence
 from .runs import Run
 from .vocabulary import PLANT_PARAMETERS
 
@@ -65,7 +66,6 @@ UNDETERMINED_REL_SE = 0.10
 FIT_RANGE = 0.5  # each parameter is fitted within x(1 -+ FIT_RANGE) of its start (log space)
 MAX_NFEV = 30  # least-squares iterations (each: one simulation of every run with every column)
 FD_STEP = 1e-4  # finite-difference step in log space
-STATE_STEP_RAD = 1e-4  # finite-difference step of the initial angle (and rate / omega)
 # least-squares iterations of an initial-state fit (nearly linear: a few suffice)
 STATE_MAX_NFEV = 8
 DECIMATE = 4  # keep every k-th truth sample in the fit (noise stays white)
@@ -222,53 +222,6 @@ def with_plant(model: Model, values: Mapping[str, float]) -> Model:
     return replace(model, plant=replace(model.plant, **{k: float(v) for k, v in values.items()}))
 
 
-def _sim_channel(sim: SimOutput, c: str) -> np.ndarray:
-    """(m, n) record of channel `c` (degrees or volts) of a batch simulation."""
-    if c == "stroke_deg":
-        return cast(np.ndarray, np.degrees(sim.stroke_rad))
-    if c == "pitch_deg":
-        return cast(np.ndarray, np.degrees(sim.pitch_rad))
-    return cast(np.ndarray, getattr(sim, c))
-
-
-class _TruthResiduals:
-    """Noise-weighted, per-run demeaned residuals of measured channels (the truth angles unless
-    told otherwise) for a batch of models.
-    """
-
-    def __init__(
-        self,
-        runs: Sequence[Run],
-        noise_deg: Mapping[str, float],
-        decimate: int,
-        channels: Sequence[str] = TRUTH_CHANNELS,
-    ) -> None:
-        self.runs = list(runs)
-        self.channels = tuple(channels)
-        self.parts = []
-        for run in self.runs:
-            sl = np.arange(0, run.n, decimate)
-            idx = {c: sl[np.isfinite(run.channel(c)[sl])] for c in self.channels}
-            self.parts.append(idx)
-        self.sigma = {c: max(float(noise_deg[c]), 1e-12) for c in self.channels}
-
-    def __call__(self, models: Sequence[Model], states: Sequence[np.ndarray]) -> np.ndarray:
-        """(m, n) residual rows; states[j]: (m, 4) initial state of each model on run j."""
-        rows: list[list[np.ndarray]] = [[] for _ in models]
-        for run, idx, x0 in zip(self.runs, self.parts, states, strict=True):
-            sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
-            for c in self.channels:
-                i = idx[c]
-                if i.size == 0:
-                    continue
-                meas = run.channel(c)[i]
-                r = meas[None, :] - _sim_channel(sim, c)[:, i]
-                r = (r - r.mean(axis=1, keepdims=True)) / self.sigma[c]
-                for k in range(len(models)):
-                    rows[k].append(r[k])
-        return np.array([np.concatenate(r) if r else np.zeros(0) for r in rows])
-
-
 def _fit_stage(
     runs: Sequence[Run],
     model: Model,
@@ -281,95 +234,32 @@ def _fit_stage(
     centre: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
     """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
-    channel; returns values, log-space covariance of the plant parameters, states, costs.
+    channel (`fit_evidence` over the runs); returns values, log-space covariance of the plant
+    parameters, states, costs.
     """
-    resid = _TruthResiduals(runs, noise, decimate, (channel,))
-    p = len(keys)
-    comp = [0, 1] if channel == "stroke_deg" else [2, 3]
-    key_f = (
-        "stroke_natural_frequency_hz" if channel == "stroke_deg" else "pitch_natural_frequency_hz"
-    )
-    # rate scaled to an angle: (x, x'/omega)
-    omega = 2.0 * math.pi * float(getattr(model.plant, key_f))
-    base_states = [
-        np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs
-    ]
+    side = "stroke" if channel == "stroke_deg" else "pitch"
+    omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
+    evidence = RunEvidence(runs, noise, decimate, (channel,), side, omega)
     u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
     u_centre = np.log([float(centre[k]) for k in keys]) if centre is not None else u_nominal
-    lo = np.r_[u_centre - math.log1p(FIT_RANGE), np.full(2 * len(runs), -np.inf)]
-    hi = np.r_[u_centre + math.log1p(FIT_RANGE), np.full(2 * len(runs), np.inf)]
-    steps = np.r_[np.full(p, FD_STEP), np.full(2 * len(runs), STATE_STEP_RAD)]
-
-    def plant_of(u: np.ndarray) -> Model:
-        return with_plant(model, dict(zip(keys, np.exp(u[:p]), strict=True)))
-
-    def state_of(u: np.ndarray, j: int) -> np.ndarray:
-        x = base_states[j].copy()
-        x[comp[0]] = u[p + 2 * j]
-        x[comp[1]] = u[p + 2 * j + 1] * omega
-        return x
-
-    cache: dict[tuple[Any, ...], Any] = {}
-
-    def fun_and_jac(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = tuple(np.round(u, 14))
-        if key not in cache:
-            cache.clear()
-            h = np.where(u + steps <= hi, steps, -steps)
-            us = np.vstack([u, u[None, :] + np.diag(h)])
-            models = [plant_of(v) for v in us[: p + 1]]
-            # plant columns: every run; state columns of run j: run j only (the base model)
-            f_parts, j_parts = [], []
-            for j, run in enumerate(runs):
-                sub = _TruthResiduals.__new__(_TruthResiduals)
-                sub.runs, sub.parts, sub.sigma, sub.channels = (
-                    [run],
-                    [resid.parts[j]],
-                    resid.sigma,
-                    resid.channels,
-                )
-                cols = [*list(range(p)), p + 2 * j, p + 2 * j + 1]
-                ms = [*models, models[0], models[0]]
-                x0 = np.array(
-                    [state_of(u, j)] * (p + 1) + [state_of(us[1 + c], j) for c in cols[p:]]
-                )
-                rows = sub(ms, [x0])
-                f_parts.append(rows[0])
-                jac = np.zeros((rows.shape[1], u.size))
-                for r_i, c in enumerate(cols):
-                    jac[:, c] = (rows[1 + r_i] - rows[0]) / h[c]
-                j_parts.append(jac)
-            cache[key] = (np.concatenate(f_parts), np.vstack(j_parts))
-        return cast(tuple[np.ndarray, np.ndarray], cache[key])
-
-    x_start = np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base_states])
-    u_start = np.r_[np.clip(np.log([start[k] for k in keys]), lo[:p], hi[:p]), x_start]
-    u_nom = np.r_[np.clip(u_nominal, lo[:p], hi[:p]), x_start]
-    costs = [float(np.dot(fun_and_jac(u)[0], fun_and_jac(u)[0])) for u in (u_nom, u_start)]
-    # the better of the frequency-domain and the model's values starts the fit
-    u0 = u_start if costs[1] <= costs[0] else u_nom
-    sol = optimize.least_squares(
-        lambda u: fun_and_jac(u)[0],
-        u0,
-        jac=lambda u: fun_and_jac(u)[1],
-        bounds=(lo, hi),
-        method="trf",
+    # the better of the model's and the frequency-domain values starts the fit
+    fit = fit_evidence(
+        [evidence],
+        lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
+        [u_nominal, np.log([start[k] for k in keys])],
+        u_centre - math.log1p(FIT_RANGE),
+        u_centre + math.log1p(FIT_RANGE),
+        np.full(len(keys), FD_STEP),
         max_nfev=max_nfev,
-        x_scale=1.0,
-        xtol=1e-10,
-        ftol=1e-10,
-        gtol=1e-10,
+        tol=1e-10,
     )
-    f, jac = fun_and_jac(sol.x)
-    cost = float(np.dot(f, f))
-    cov = np.linalg.pinv(jac.T @ jac) * cost / max(f.size - sol.x.size, 1)
     return {
-        "values": dict(zip(keys, (float(v) for v in np.exp(sol.x[:p])), strict=True)),
-        "cov": cov[:p, :p],
-        "states": [state_of(sol.x, j) for j in range(len(runs))],
-        "cost_before": float(costs[0]),
-        "cost_after": cost,
-        "n": int(f.size),
+        "values": dict(zip(keys, (float(v) for v in np.exp(fit.x)), strict=True)),
+        "cov": fit.covariance,
+        "states": [evidence.state(fit.nuisance[0], j) for j in range(len(runs))],
+        "cost_before": fit.start_costs[0],
+        "cost_after": fit.cost,
+        "n": fit.n[0],
     }
 
 
@@ -467,7 +357,7 @@ def identify_plant(
 
 
 def _state_residuals_and_jacobian(
-    resid: _TruthResiduals, model: Model, scale: np.ndarray, step: float = STATE_STEP_RAD
+    resid: RunEvidence, model: Model, scale: np.ndarray, step: float = STATE_STEP_RAD
 ) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
     """The residual and the Jacobian of one run's initial state u in fit space (state = u * scale),
     both from one batch simulation (forward differences of `step`); the last point's pair is kept.
@@ -479,7 +369,7 @@ def _state_residuals_and_jacobian(
         if key not in cache:
             cache.clear()
             us = np.vstack([u, u[None, :] + step * np.eye(4)])
-            rows = resid([model] * 5, [us * scale])
+            rows = resid.rows_from([model] * 5, [us * scale])
             cache[key] = (rows[0], ((rows[1:] - rows[0]) / step).T)
         return cache[key]
 
@@ -522,7 +412,7 @@ def fit_initial_states(
     scale = np.where(np.arange(4) % 2 == 1, w, 1.0)  # state = u * scale: (x, x'/omega) in fit space
     out, before, after = [], 0.0, 0.0
     for run in runs:
-        resid = _TruthResiduals([run], noise, decimate, channels)
+        resid = RunEvidence([run], noise, decimate, channels)
         x_run = np.zeros(4) if run.mechanical0 is None else np.asarray(run.mechanical0, float)
         residual, jacobian = _state_residuals_and_jacobian(
             resid, model, scale, STATE_STEP_RAD * step_scale

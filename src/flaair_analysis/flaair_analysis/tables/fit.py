@@ -3,10 +3,10 @@ Pure.
 
 Residuals are the table's measured cells against the model's steady state (`steady_response`),
 each weighted by its reading noise: an amplitude by hypot(`reading_noise_deg`,
-`reading_noise_rel` x value), a phase by `phase_noise_deg` (wrapped). The fit is
-`scipy.optimize.least_squares` (trust-region reflective), plant parameters in log space within
-x/÷ `fit_range` of their start; its Jacobian is one batch of the plant core (every parameter's
-step and every point at once).
+`reading_noise_rel` x value), a phase by `phase_noise_deg` (wrapped): the table is a
+`TableEvidence`, fitted by the one fit over evidence (`flaair_analysis.evidence.fit_evidence`),
+plant parameters in log space within x/÷ `fit_range` of their start; its Jacobian is one batch
+of the plant core (every parameter's step and every point at once).
 
 The start comes from the table, not from the configured robot: the stroke natural frequency is
 the stroke's peak frequency, the actuator gain the quasi-static amplitude per volt of the points
@@ -18,18 +18,19 @@ of a grid (one batch), so a robot resonant far from nominal still fits.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
+from flaair_analysis.evidence import fit_evidence
 from flaair_model.model import Model, effect_params, with_effects
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
 
 from .reader import AMPLITUDE_COLUMNS, PHASE_COLUMNS, Table, TableInputError
 from .steady_state import steady_response
+from .table_evidence import TableEvidence, normalised_residuals, stack_cells
 
 __all__ = [
     "PITCH_KEYS",
@@ -41,9 +42,7 @@ __all__ = [
     "fit_table",
     "identify_table",
     "misfit_warnings",
-    "normalised_residuals",
     "plant_params",
-    "stack_cells",
 ]
 
 STROKE_KEYS: tuple[str, ...] = (
@@ -60,7 +59,6 @@ PITCH_KEYS: tuple[str, ...] = (
 _DESCRIBING = 8.0 / (3.0 * math.pi)
 _PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
 _FD_STEP = 1e-4
-_RANK_TOL = 1e-9  # a Jacobian singular value below this x the largest: a direction not seen
 
 
 @dataclass(frozen=True)
@@ -141,49 +139,6 @@ def apply_values(model: Model, values: dict[str, float]) -> Model:
     return model
 
 
-def _sigma(column: str, measured: np.ndarray, s: TableSettings) -> np.ndarray:
-    if column in PHASE_COLUMNS:
-        return np.full(measured.shape, s.phase_noise_deg)
-    floor = s.reading_noise_deg / (2.0 if "amplitude" in column else 1.0)
-    return np.hypot(floor, s.reading_noise_rel * measured)
-
-
-def normalised_residuals(
-    table: Table, response: dict[str, np.ndarray], s: TableSettings, columns: Sequence[str]
-) -> dict[str, np.ndarray]:
-    """Per column, (M, P) (model - measured) / reading noise; NaN where not measured."""
-    out = {}
-    for c in columns:
-        meas = table.responses[c]
-        diff = response[c] - meas
-        if c in PHASE_COLUMNS:
-            diff = (diff + 180.0) % 360.0 - 180.0
-        out[c] = diff / _sigma(c, meas, s)
-    return out
-
-
-def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
-    """(M, cells) of the measured cells of every column (a diverged model's as +-1e6)."""
-    parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
-    stacked: np.ndarray = np.clip(np.nan_to_num(np.concatenate(parts, axis=1), nan=1e6), -1e6, 1e6)
-    return stacked
-
-
-def _evaluator(
-    table: Table, model: Model, params: Sequence[FreeParam], s: TableSettings, cols: Sequence[str]
-) -> Callable[[np.ndarray], np.ndarray]:
-    """Residuals (K, cells) of K points (K, p) of the fitted space, in one batch."""
-
-    def evaluate(xs: np.ndarray) -> np.ndarray:
-        models = [apply_values(model, _values(params, x)) for x in xs]
-        resp = steady_response(
-            models, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
-        )
-        return stack_cells(table, normalised_residuals(table, resp, s, cols))
-
-    return evaluate
-
-
 def _values(params: Sequence[FreeParam], x: np.ndarray) -> dict[str, float]:
     return {p.key: float(np.exp(v) if p.log else v) for p, v in zip(params, x, strict=True)}
 
@@ -200,35 +155,17 @@ def fit_table(
     columns: Sequence[str],
 ) -> TableFit:
     """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
-    evaluate = _evaluator(table, model, params, s, columns)
-    lo = np.array([_space(p, p.lower) for p in params])
-    hi = np.array([_space(p, p.upper) for p in params])
-    x0 = np.clip([_space(p, p.start) for p in params], lo, hi)
-    steps = np.array([p.step for p in params])
-    cache: dict[bytes, np.ndarray] = {}
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        if x.tobytes() not in cache:
-            cache.clear()
-            cache[x.tobytes()] = evaluate(x[None, :])[0]
-        return cache[x.tobytes()]
-
-    def jac(x: np.ndarray) -> np.ndarray:
-        h = np.where(x + steps > hi, -steps, steps)
-        rows = evaluate(x[None, :] + np.diag(h))
-        jacobian: np.ndarray = ((rows - fun(x)[None, :]) / h[:, None]).T
-        return jacobian
-
-    sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", max_nfev=s.max_nfev)
-    r = fun(sol.x)
-    jmat = jac(sol.x)
-    n, k = r.size, len(params)
-    chi2 = float(r @ r)
-    cov, singular = _covariance(jmat, max(1.0, chi2 / max(n - k, 1)))
-    se = np.sqrt(np.diag(cov))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(se, se)
-    values = _values(params, sol.x)
+    fit = fit_evidence(
+        [TableEvidence(table, s, columns)],
+        lambda x: apply_values(model, _values(params, x)),
+        [np.array([_space(p, p.start) for p in params])],
+        np.array([_space(p, p.lower) for p in params]),
+        np.array([_space(p, p.upper) for p in params]),
+        np.array([p.step for p in params]),
+        max_nfev=s.max_nfev,
+    )
+    values = _values(params, fit.x)
+    se = np.sqrt(np.diag(fit.covariance))
     stderr = {
         p.key: float(values[p.key] * e if p.log else e) for p, e in zip(params, se, strict=True)
     }
@@ -237,28 +174,12 @@ def fit_table(
         tuple(params),
         values,
         stderr,
-        corr,
-        chi2,
-        n,
-        int(sol.nfev),
-        singular,
+        fit.correlation,
+        fit.chi2[0],
+        fit.n[0],
+        fit.nfev,
+        fit.singular,
     )
-
-
-def _covariance(jmat: np.ndarray, scale: float) -> tuple[np.ndarray, bool]:
-    """The parameters' covariance from the Jacobian (by its SVD), and whether it is singular
-    (fewer cells than parameters, or directions the cells do not see): then every variance is
-    infinite and every correlation NaN.
-    """
-    k = jmat.shape[1]
-    if jmat.shape[0] >= k and np.isfinite(jmat).all():
-        _, sv, vt = np.linalg.svd(jmat, full_matrices=False)
-        if sv[-1] > _RANK_TOL * sv[0]:
-            cov: np.ndarray = (vt.T / sv**2) @ vt * scale
-            return cov, False
-    cov = np.full((k, k), np.nan)
-    np.fill_diagonal(cov, np.inf)
-    return cov, True
 
 
 def _stroke_pp_rad(table: Table) -> np.ndarray | None:

@@ -31,29 +31,23 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from flaair_analysis.discrepancy.identification import (
     DECIMATE,
     FD_STEP,
-    STATE_STEP_RAD,
     frequency_domain_start,
+    with_plant,
 )
+from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
+from flaair_analysis.evidence import fit_evidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
-from flaair_sim.core.plant import simulate_batch_from
 
-from .fit import (
-    PITCH_KEYS,
-    STROKE_KEYS,
-    identify_table,
-    normalised_residuals,
-    plant_params,
-    stack_cells,
-)
+from .fit import PITCH_KEYS, STROKE_KEYS, identify_table, plant_params
 from .reader import Table
 from .steady_state import steady_response
+from .table_evidence import TableEvidence, normalised_residuals, stack_cells
 
 __all__ = [
     "JointFit",
@@ -202,35 +196,6 @@ def table_scores(
     return prediction_scores(table, {c: resp[c][0] for c in table.responses}, s)
 
 
-class _RunResiduals:
-    """Noise-weighted, per-run demeaned residuals of one truth channel, batched over models."""
-
-    def __init__(self, runs: Sequence[Run], channel: str, sigma: float, decimate: int) -> None:
-        self.runs, self.channel, self.sigma = list(runs), channel, max(sigma, 1e-12)
-        self.idx = []
-        for run in self.runs:
-            sl = np.arange(0, run.n, decimate)
-            self.idx.append(sl[np.isfinite(run.channel(channel)[sl])])
-
-    def run_rows(self, j: int, models: Sequence[Model], x0: np.ndarray) -> np.ndarray:
-        """(m, n_j) residual rows of run j; x0: (m, 4) initial states."""
-        run, i = self.runs[j], self.idx[j]
-        if i.size == 0:
-            return np.zeros((len(models), 0))
-        sim = simulate_batch_from(run.drive_v, run.fs_hz, list(models), x0)
-        rad = sim.stroke_rad if self.channel == "stroke_deg" else sim.pitch_rad
-        r = run.channel(self.channel)[i][None, :] - np.degrees(rad[:, i])
-        out: np.ndarray = np.clip(
-            np.nan_to_num((r - r.mean(axis=1, keepdims=True)) / self.sigma, nan=1e6), -1e6, 1e6
-        )
-        return out
-
-
-def _with(model: Model, keys: Sequence[str], u: np.ndarray) -> Model:
-    plant = dict(zip(keys, (float(v) for v in np.exp(u)), strict=True))
-    return replace(model, plant=replace(model.plant, **plant))
-
-
 def _stage(
     runs: list[Run],
     table: Table,
@@ -243,106 +208,30 @@ def _stage(
     s: TableSettings,
     decimate: int,
 ) -> dict[str, Any]:
-    """One stage: `keys` and each run's (angle, rate) on `channel` plus the table's `side`."""
+    """One stage: `keys` and each run's (angle, rate) on `channel` plus the table's `side`
+    (`fit_evidence` over both, Birge-reweighted).
+    """
     cols = [c for c in table.responses if c.startswith(side)]
-    rr = _RunResiduals(runs, channel, float(noise[channel]), decimate)
-    p, nr = len(keys), len(runs)
-    comp = (0, 1) if side == "stroke" else (2, 3)
     omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
-    base = [
-        np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float) for r in runs
-    ]
+    run_evidence = RunEvidence(runs, noise, decimate, (channel,), side, omega)
     free = plant_params(model, keys, dict(start), s.fit_range)
-    lo = np.r_[[math.log(f.lower) for f in free], np.full(2 * nr, -np.inf)]
-    hi = np.r_[[math.log(f.upper) for f in free], np.full(2 * nr, np.inf)]
-    steps = np.r_[np.full(p, FD_STEP), np.full(2 * nr, STATE_STEP_RAD)]
-
-    def state(u: np.ndarray, j: int) -> np.ndarray:
-        x = base[j].copy()
-        x[comp[0]], x[comp[1]] = u[p + 2 * j], u[p + 2 * j + 1] * omega
-        return x
-
-    def table_rows(models: Sequence[Model]) -> np.ndarray:
-        if not cols:
-            return np.zeros((len(models), 0))
-        f, a, b = table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v
-        resp = steady_response(list(models), f, a, b, s)
-        return stack_cells(table, normalised_residuals(table, resp, s, cols))
-
-    weights = {"runs": 1.0, "table": 1.0}
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    def evaluate(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(run residuals, table residuals, full weighted Jacobian) at u."""
-        key = u.tobytes()
-        if key not in cache:
-            cache.clear()
-            h = np.where(u + steps <= hi, steps, -steps)
-            us = u[None, :] + np.vstack([np.zeros(u.size), np.diag(h)])
-            models = [_with(model, keys, v[:p]) for v in us[: p + 1]]
-            f_runs, j_runs = [], []
-            for j in range(nr):
-                sc = [p + 2 * j, p + 2 * j + 1]
-                ms = [*models, models[0], models[0]]
-                x0 = np.array([state(u, j)] * (p + 1) + [state(us[1 + c], j) for c in sc])
-                rows = rr.run_rows(j, ms, x0)
-                jac = np.zeros((rows.shape[1], u.size))
-                for k, c in enumerate([*range(p), *sc]):
-                    jac[:, c] = (rows[1 + k] - rows[0]) / h[c]
-                f_runs.append(rows[0])
-                j_runs.append(jac)
-            trows = table_rows(models)
-            j_tab = np.zeros((trows.shape[1], u.size))
-            j_tab[:, :p] = ((trows[1:] - trows[0]) / h[:p, None]).T
-            fr = np.concatenate(f_runs) if f_runs else np.zeros(0)
-            jr = np.vstack(j_runs) if j_runs else np.zeros((0, u.size))
-            jac_all = np.vstack([jr, j_tab])
-            cache[key] = (fr, trows[0], jac_all)
-        return cache[key]
-
-    def weighted(u: np.ndarray) -> np.ndarray:
-        fr, ft, _ = evaluate(u)
-        out: np.ndarray = np.r_[math.sqrt(weights["runs"]) * fr, math.sqrt(weights["table"]) * ft]
-        return out
-
-    def jacobian(u: np.ndarray) -> np.ndarray:
-        fr, _, jac = evaluate(u)
-        w = np.r_[
-            np.full(fr.size, weights["runs"]), np.full(jac.shape[0] - fr.size, weights["table"])
-        ]
-        out: np.ndarray = jac * np.sqrt(w)[:, None]
-        return out
-
-    x_start: np.ndarray = (
-        np.concatenate([[b[comp[0]], b[comp[1]] / omega] for b in base]) if nr else np.zeros(0)
+    fit = fit_evidence(
+        [run_evidence, TableEvidence(table, s, cols)],
+        lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
+        [np.array([math.log(f.start) for f in free])],
+        np.array([math.log(f.lower) for f in free]),
+        np.array([math.log(f.upper) for f in free]),
+        np.full(len(keys), FD_STEP),
+        max_nfev=s.max_nfev,
+        tol=1e-10,
+        birge_refit=_BIRGE_REFIT,
     )
-    u = np.r_[np.clip([math.log(f.start) for f in free], lo[:p], hi[:p]), x_start]
-    nfev = 0
-    for attempt in range(2):
-        sol = least_squares(
-            weighted, u, jac=jacobian, bounds=(lo, hi), method="trf", max_nfev=s.max_nfev,
-            xtol=1e-10, ftol=1e-10, gtol=1e-10,
-        )  # fmt: skip
-        u, nfev = sol.x, nfev + int(sol.nfev)
-        fr, ft, _ = evaluate(u)
-        birge = {
-            "runs": float(fr @ fr) / max(fr.size, 1),
-            "table": float(ft @ ft) / max(ft.size, 1),
-        }
-        new = {k: 1.0 / max(1.0, v) for k, v in birge.items()}
-        if attempt or max(birge.values()) <= _BIRGE_REFIT:
-            break
-        weights.update(new)
-    f_all = weighted(u)
-    jac = jacobian(u)
-    dof = max(f_all.size - u.size, 1)
-    cov = np.linalg.pinv(jac.T @ jac) * max(1.0, float(f_all @ f_all) / dof)
     return {
-        "values": dict(zip(keys, (float(v) for v in np.exp(u[:p])), strict=True)),
-        "cov": cov[:p, :p],
-        "states": [state(u, j) for j in range(nr)],
-        "weights": dict(weights),
-        "nfev": nfev,
+        "values": dict(zip(keys, (float(v) for v in np.exp(fit.x)), strict=True)),
+        "cov": fit.covariance,
+        "states": [run_evidence.state(fit.nuisance[0], j) for j in range(len(runs))],
+        "weights": dict(zip(("runs", "table"), fit.weights, strict=True)),
+        "nfev": fit.nfev,
     }
 
 
@@ -354,23 +243,16 @@ def run_scores(
     """
     ratio, nrmse, n, chi2 = {}, {}, 0, 0.0
     for _, channel, _ in _SIDES:
-        rr = _RunResiduals(runs, channel, float(noise[channel]), decimate)
-        rows = [
-            rr.run_rows(
-                j,
-                [model],
-                np.asarray([r.mechanical0 if r.mechanical0 is not None else np.zeros(4)]),
-            )[0]
-            for j, r in enumerate(runs)
-        ]
-        r = np.concatenate(rows)
+        evidence = RunEvidence(runs, noise, decimate, (channel,))
+        r = evidence.residuals([model], np.zeros(0))[0]
         meas = np.concatenate(
-            [run.channel(channel)[i] for run, i in zip(runs, rr.idx, strict=True)]
+            [run.channel(channel)[i[channel]] for run, i in zip(runs, evidence.idx, strict=True)]
+            or [np.zeros(0)]
         )
         if r.size == 0:
             continue
         ratio[channel] = float(np.sqrt(np.mean(r**2)))
-        nrmse[channel] = ratio[channel] * rr.sigma / max(float(np.std(meas)), 1e-300)
+        nrmse[channel] = ratio[channel] * evidence.sigma[channel] / max(float(np.std(meas)), 1e-300)
         n, chi2 = n + r.size, chi2 + float(r @ r)
     return ratio, nrmse, n, chi2
 

@@ -42,12 +42,11 @@ from .fit import (
     apply_values,
     fit_table,
     identify_table,
-    normalised_residuals,
     plant_params,
-    stack_cells,
 )
 from .reader import Table
 from .steady_state import steady_response
+from .table_evidence import normalised_residuals, stack_cells
 
 __all__ = [
     "NOT_SEARCHED",

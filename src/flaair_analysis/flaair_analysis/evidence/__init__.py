@@ -1,0 +1,16 @@
+"""Evidence for one fit (pure): the protocol every measured data set meets and the one
+least-squares fit over any list of them.
+
+Modules: `protocol` (`Evidence`: residuals in units of the data's own noise, its nuisance
+parameters, the sites it sees) and `fit` (`fit_evidence`: shared parameters and each piece's
+nuisance fitted over every piece at once, the Birge reweighting, the covariance). The kinds of
+evidence live with their data: `flaair_analysis.discrepancy.RunEvidence` (measured runs),
+`flaair_analysis.tables.TableEvidence` (frequency-response tables).
+"""
+
+from __future__ import annotations
+
+from .fit import RANK_TOL, EvidenceFit, covariance, fit_evidence
+from .protocol import Evidence
+
+__all__ = ["RANK_TOL", "Evidence", "EvidenceFit", "covariance", "fit_evidence"]

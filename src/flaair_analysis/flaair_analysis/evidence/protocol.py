@@ -1,0 +1,55 @@
+"""What a measurement tells the fit: the `Evidence` protocol. Pure.
+
+A run set, a frequency-response table (and a multisine spectrum) is evidence about a model. Given
+a batch of models and the evidence's own nuisance parameters (a run's initial state; a table has
+none) it returns residuals in units of its own noise, so that the sum of squares over every piece
+of evidence is one chi-square and one least-squares fit (`fit_evidence`) serves any mix of them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from flaair_model.model import Model
+
+__all__ = ["Evidence"]
+
+
+@runtime_checkable
+class Evidence(Protocol):
+    """Residuals of a batch of models against one measured data set, in units of its noise.
+
+    Attributes
+    ----------
+    name : what the evidence is ("runs", "table"), as the fit's reports name it.
+    sites : the channels or columns it sees (a residual row of each is in the output).
+    n_nuisance : fitted parameters of its own (each run's angle and rate; 0 for a table).
+    """
+
+    name: str
+    sites: tuple[str, ...]
+    n_nuisance: int
+
+    def nuisance_start(self) -> np.ndarray:
+        """(n_nuisance,) start of its own parameters (fit space)."""
+        ...
+
+    def nuisance_steps(self) -> np.ndarray:
+        """(n_nuisance,) forward-difference steps of its own parameters (fit space)."""
+        ...
+
+    def residuals(self, models: Sequence[Model], nuisance: np.ndarray) -> np.ndarray:
+        """(len(models), n) residual rows in units of the noise, at the nuisance `nuisance`."""
+        ...
+
+    def linearised(
+        self, models: Sequence[Model], nuisance: np.ndarray, h: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rows of `models` at `nuisance` ((len(models), n)) and the Jacobian of the first
+        model's row in the nuisance parameters ((n, n_nuisance), forward differences of `h`),
+        from one batch where the evidence can.
+        """
+        ...

@@ -1,0 +1,87 @@
+"""A frequency-response table as evidence (`TableEvidence`): each measured cell against the
+plant's steady state, in units of its reading noise. Pure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from flaair_model.model import Model
+from flaair_model.settings import TableSettings
+
+from .reader import PHASE_COLUMNS, Table
+from .steady_state import steady_response
+
+__all__ = ["TableEvidence", "normalised_residuals", "stack_cells"]
+
+_CLIP = 1e6  # a diverged model's cell
+
+
+def _sigma(column: str, measured: np.ndarray, s: TableSettings) -> np.ndarray:
+    if column in PHASE_COLUMNS:
+        return np.full(measured.shape, s.phase_noise_deg)
+    floor = s.reading_noise_deg / (2.0 if "amplitude" in column else 1.0)
+    return np.hypot(floor, s.reading_noise_rel * measured)
+
+
+def normalised_residuals(
+    table: Table, response: dict[str, np.ndarray], s: TableSettings, columns: Sequence[str]
+) -> dict[str, np.ndarray]:
+    """Per column, (M, P) (model - measured) / reading noise; NaN where not measured."""
+    out = {}
+    for c in columns:
+        meas = table.responses[c]
+        diff = response[c] - meas
+        if c in PHASE_COLUMNS:
+            diff = (diff + 180.0) % 360.0 - 180.0
+        out[c] = diff / _sigma(c, meas, s)
+    return out
+
+
+def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
+    """(M, cells) of the measured cells of every column (a diverged model's as +-1e6)."""
+    parts = [r[:, np.isfinite(table.responses[c])] for c, r in res.items()]
+    stacked: np.ndarray = np.clip(
+        np.nan_to_num(np.concatenate(parts, axis=1), nan=_CLIP), -_CLIP, _CLIP
+    )
+    return stacked
+
+
+class TableEvidence:
+    """A table's `columns` as `flaair_analysis.evidence.Evidence` (no nuisance parameters: a
+    table has no time axis and no initial state).
+    """
+
+    name = "table"
+    n_nuisance = 0
+
+    def __init__(self, table: Table, s: TableSettings, columns: Sequence[str]) -> None:
+        self.table, self.settings = table, s
+        self.sites = tuple(columns)
+
+    def nuisance_start(self) -> np.ndarray:
+        """No nuisance parameters."""
+        return np.zeros(0)
+
+    def nuisance_steps(self) -> np.ndarray:
+        """No nuisance parameters."""
+        return np.zeros(0)
+
+    def residuals(self, models: Sequence[Model], nuisance: np.ndarray) -> np.ndarray:
+        """(m, cells) of the measured cells of its columns, one steady-state batch."""
+        if not self.sites:
+            return np.zeros((len(models), 0))
+        t = self.table
+        resp = steady_response(
+            list(models), t.frequency_hz, t.drive_amplitude_v, t.drive_bias_v, self.settings
+        )
+        return stack_cells(t, normalised_residuals(t, resp, self.settings, self.sites))
+
+    def linearised(
+        self, models: Sequence[Model], nuisance: np.ndarray, h: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rows of `models` (one batch) and an empty nuisance Jacobian."""
+        rows = self.residuals(models, nuisance)
+        return rows, np.zeros((rows.shape[1], 0))
