@@ -59,6 +59,7 @@ sys.exit(m.main([str(BAG), "--out", str(OUT)]))
     "discrepancy --table": """
 from types import SimpleNamespace
 from flaair_model.model_io import load_model
+from flaair_tools.discrepancy.cli import main
 from flaair_tools.tables import discrepancy_cli as m
 m.computed = lambda prog, args, fn: (None, None, None, SimpleNamespace(model_out=load_model()), 0)
 def writer(result, table, s, out):
@@ -66,7 +67,7 @@ def writer(result, table, s, out):
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(10)
 m.write_report = writer
-sys.exit(m.main(["--table", str(BAG), "--out", str(OUT)]))
+sys.exit(main(["--table", str(BAG), "--out", str(OUT)]))
 """,
 }
 

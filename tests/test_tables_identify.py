@@ -16,6 +16,7 @@ from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, identify_table
 from flaair_model import settings
 from flaair_model.model_io import load_model
 from flaair_tools.discrepancy.identify import main as identify_main
+from flaair_tools.discrepancy.run_inputs import InputError, load_inputs, sort_inputs
 from flaair_tools.tables.table_io import write_table
 
 pytestmark = pytest.mark.timeout(240)
@@ -78,6 +79,11 @@ def test_the_command_writes_model_and_identification_and_refuses_without_writing
     fn = doc["parameters"]["stroke_natural_frequency_hz"]
     assert fn["nominal"] == 140.0 and fn["value"] == pytest.approx(190.0, rel=0.01)
     assert load_model(out / "model.yaml").plant.stroke_natural_frequency_hz == fn["value"]
+    # the table among the inputs is told from runs by its content: the same fit
+    by_content = tmp_path / "by_content"
+    assert identify_main([str(path), "--out", str(by_content)]) == 0
+    again = json.loads((by_content / "identification.json").read_text())
+    assert again["parameters"] == doc["parameters"]
     bad = tmp_path / "bad.csv"
     bad.write_text("drive_pp_v,frequency_hz,stroke_pp_deg\n120,150,3\n120,2000,4\n")
     nothing = tmp_path / "nothing"
@@ -95,3 +101,21 @@ def test_the_command_writes_model_and_identification_and_refuses_without_writing
     assert identify_main(["--table", str(path), *model_in, "--out", str(out), "--force"]) == 2
     assert "would overwrite the input" in capsys.readouterr().err
     assert (out / "model.yaml").read_bytes() == before
+
+
+def test_inputs_are_told_apart_by_their_content(tmp_path: Path) -> None:
+    run = tmp_path / "chirp.csv"
+    run.write_text(
+        "time_s,drive_v,stroke_sensor_v,pitch_sensor_v,stroke_deg,pitch_deg\n0,0,0,0,,\n"
+    )
+    table = tmp_path / "sweep.csv"
+    table.write_text("# robot: r3\n\ndrive_amplitude_v,frequency_hz,stroke_pp_deg\n30,100,20\n")
+    named = tmp_path / "named.csv"
+    named.write_text("anything\n")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    missing = tmp_path / "missing.csv"
+    runs, tables = sort_inputs([run, table, bag, missing], [named])
+    assert runs == [run, bag, missing] and tables == [table, named]
+    with pytest.raises(InputError, match=r"missing\.csv: no such file"):
+        load_inputs([missing])

@@ -266,7 +266,8 @@ def test_identify_with_runs_and_a_table_prints_one_summary_line_and_writes_stric
     table = tmp_path / "robot.csv"
     write_table(make_table(true, fn), table)
     out = tmp_path / "out"
-    assert identify_main([*map(str, runs), "--table", str(table), "--out", str(out)]) == 0
+    # the table among the runs is told apart by its content
+    assert identify_main([*map(str, runs), str(table), "--out", str(out)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("flaair identify: 1 run(s) + table ")
     assert "plant fitted on both" in lines[0] and "the sets agree" in lines[0]
@@ -300,7 +301,7 @@ def test_discrepancy_with_runs_and_a_table_of_a_robot_missing_nothing(
     table = tmp_path / "robot.csv"
     write_table(make_table(true, fn, seed=6), table)
     out = tmp_path / "out"
-    assert discrepancy_main([*map(str, runs), "--table", str(table), "--out", str(out)]) == 0
+    assert discrepancy_main([*map(str, runs), str(table), "--out", str(out)]) == 0
     first = capsys.readouterr().out.splitlines()[0]
     assert first.startswith("flaair discrepancy: 2 run(s) + table ")
     assert "status no_discrepancy" in first

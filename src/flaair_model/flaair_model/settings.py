@@ -159,7 +159,7 @@ def controller() -> ControllerSettings:
 
 
 def tables() -> TableSettings:
-    """`identify --table`, `discrepancy --table`, `import-table`."""
+    """`identify` and `discrepancy` on tables, `import-table`."""
     return read_section("tables", TableSettings)
 
 

@@ -11,7 +11,7 @@ import numpy as np
 from scipy import optimize
 
 from flaair_model.effects import SENSOR_CHANNELS
-from flaair_model.model import Model, with_effect_on, with_effects
+from flaair_model.model import Model, effect_params, with_effect_on, with_effects
 from flaair_model.terms import DiscoveredTerm
 from flaair_model.validation import ModelError
 
@@ -171,9 +171,10 @@ def apply_values(
     channels: Mapping[str, str | None] | None = None,
 ) -> Model:
     """`base` with the specs' parameters at physical `values`: plant parameters replaced, effects
-    added (the parameters of one effect merged into one entry). A sensor effect is set on its
-    spec's chain only (the other chain keeps its own value); channels: effect -> 'both' sets it
-    on both chains.
+    added (the parameters of one effect merged into one entry; an effect already in `base` keeps
+    the parameters not fitted), library terms set. A sensor effect is set on its spec's chain
+    only (the other chain keeps its own value); channels: effect -> 'both' sets it on both
+    chains. The one way a fit's parameters (`EffectSpec`: plant, effect, term) reach a model.
     """
     plant = {}
     effects: dict[str, Any] = {}
@@ -197,6 +198,8 @@ def apply_values(
         if s.is_plant or s.is_term or s.name not in effects:
             continue
         params = effects.pop(s.name)
+        if s.channel_param is None and (old := model.effect(s.name)) is not None:
+            params = {**effect_params(old), **params}
         if s.channel_param is None or (channels or {}).get(s.name) == "both":
             model = with_effects(
                 model, {s.name: {**params, **({"channel": "both"} if s.channel_param else {})}}

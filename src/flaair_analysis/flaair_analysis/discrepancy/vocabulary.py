@@ -112,6 +112,18 @@ class EffectSpec:
         return f"{self.name}[{self.channel_param}]" if self.channel_param else self.name
 
     @property
+    def address(self) -> str:
+        """The parameter's one address in a fit's values: `plant.<key>`, `effect.<name>.<key>`
+        or `term.<kind>@<site>` (a term's shape parameter: `term.<kind>@<site>.<key>`).
+        """
+        if self.is_plant:
+            return f"plant.{self.key}"
+        if self.is_term:
+            place = "@".join(self.term_place)
+            return f"term.{place}" if self.key == "coefficient" else f"term.{place}.{self.key}"
+        return f"effect.{self.name}.{self.key}"
+
+    @property
     def is_plant(self) -> bool:
         """A plant parameter fitted along with an effect."""
         return self.name == "plant"

@@ -18,15 +18,16 @@ of a grid (one batch), so a robot resonant far from nominal still fits.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from flaair_analysis.discrepancy.fitting import apply_values
+from flaair_analysis.discrepancy.vocabulary import PLANT_PARAMETERS, EffectSpec
 from flaair_analysis.evidence import fit_evidence
-from flaair_model.model import Model, effect_params, with_effects
+from flaair_model.model import Model
 from flaair_model.settings import TableSettings
-from flaair_model.terms import DiscoveredTerm
 
 from .reader import AMPLITUDE_COLUMNS, PHASE_COLUMNS, Table, TableInputError
 from .steady_state import steady_response
@@ -37,12 +38,12 @@ __all__ = [
     "STROKE_KEYS",
     "FreeParam",
     "TableFit",
-    "apply_values",
     "data_start",
     "fit_table",
     "identify_table",
     "misfit_warnings",
     "plant_params",
+    "with_values",
 ]
 
 STROKE_KEYS: tuple[str, ...] = (
@@ -63,22 +64,34 @@ _FD_STEP = 1e-4
 
 @dataclass(frozen=True)
 class FreeParam:
-    """One fitted parameter.
-
-    Attributes
-    ----------
-    key : `plant.<model.yaml plant key>`, `effect.<name>.<parameter>` or `term.<kind>@<site>`.
-    start, lower, upper : start and bounds (in the parameter's unit).
-    log : fitted as log(value) (positive parameters).
-    step : forward-difference step in the fitted space.
+    """A fitted parameter: the one parameter type (`EffectSpec`: a plant key, an effect's
+    parameter or a term's coefficient, its bounds, fit space and step) and the value a fit
+    starts it from.
     """
 
-    key: str
+    spec: EffectSpec
     start: float
-    lower: float
-    upper: float
-    log: bool
-    step: float = _FD_STEP
+
+    @property
+    def key(self) -> str:
+        """The parameter's address (`EffectSpec.address`): `plant.<key>`, `effect.<name>.<key>`,
+        `term.<kind>@<site>`.
+        """
+        return self.spec.address
+
+    @property
+    def lower(self) -> float:
+        """Lower bound (the parameter's unit)."""
+        return self.spec.lower
+
+    @property
+    def upper(self) -> float:
+        """Upper bound (the parameter's unit)."""
+        return self.spec.upper
+
+    def bounded(self, start: float, lower: float, upper: float) -> FreeParam:
+        """The parameter started at `start` within [lower, upper]."""
+        return FreeParam(replace(self.spec, lower=lower, upper=upper), start)
 
 
 @dataclass(frozen=True)
@@ -108,43 +121,20 @@ def plant_params(
     for k in keys:
         v = float(start.get(k, getattr(model.plant, k)))
         v = v if math.isfinite(v) and v > 0 else 1e-3 * float(getattr(model.plant, k) or 1.0)
-        out.append(FreeParam(f"plant.{k}", v, v / r, v * r, True))
+        spec = EffectSpec(
+            "plant", k, PLANT_PARAMETERS[k], v, v / r, v * r, (), _FD_STEP, log=True, tested=False
+        )
+        out.append(FreeParam(spec, v))
     return out
 
 
-def apply_values(model: Model, values: dict[str, float]) -> Model:
-    """`model` with every fitted parameter set (plant keys, effect parameters, terms)."""
-    plant = {k[6:]: v for k, v in values.items() if k.startswith("plant.")}
-    if plant:
-        model = replace(model, plant=replace(model.plant, **plant))
-    effects: dict[str, dict[str, float]] = {}
-    for k, v in values.items():
-        if k.startswith("effect."):
-            _, name, param = k.split(".")
-            effects.setdefault(name, {})[param] = v
-    if effects:
-        merged = {}
-        for name, params in effects.items():
-            old = model.effect(name)
-            merged[name] = {**(effect_params(old) if old is not None else {}), **params}
-        model = with_effects(model, merged)
-    terms = {k[5:]: v for k, v in values.items() if k.startswith("term.")}
-    if terms:
-        kept = [t for t in model.discovered if f"{t.kind}@{t.acts_on}" not in terms]
-        new = [
-            DiscoveredTerm(key.split("@")[0], key.split("@")[1], coefficient=v)
-            for key, v in terms.items()
-        ]
-        model = replace(model, discovered=tuple(kept + new))
-    return model
+def with_values(model: Model, params: Sequence[FreeParam], values: Mapping[str, float]) -> Model:
+    """`model` with each of `params` at `values[param.key]` (the one `apply_values`)."""
+    return apply_values(model, [p.spec for p in params], [values[p.key] for p in params])
 
 
 def _values(params: Sequence[FreeParam], x: np.ndarray) -> dict[str, float]:
-    return {p.key: float(np.exp(v) if p.log else v) for p, v in zip(params, x, strict=True)}
-
-
-def _space(p: FreeParam, v: float) -> float:
-    return math.log(v) if p.log else v
+    return {p.key: p.spec.from_fit(float(v)) for p, v in zip(params, x, strict=True)}
 
 
 def fit_table(
@@ -157,20 +147,21 @@ def fit_table(
     """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
     fit = fit_evidence(
         [TableEvidence(table, s, columns)],
-        lambda x: apply_values(model, _values(params, x)),
-        [np.array([_space(p, p.start) for p in params])],
-        np.array([_space(p, p.lower) for p in params]),
-        np.array([_space(p, p.upper) for p in params]),
-        np.array([p.step for p in params]),
+        lambda x: with_values(model, params, _values(params, x)),
+        [np.array([p.spec.to_fit(p.start) for p in params])],
+        np.array([p.spec.to_fit(p.lower) for p in params]),
+        np.array([p.spec.to_fit(p.upper) for p in params]),
+        np.array([p.spec.step for p in params]),
         max_nfev=s.max_nfev,
     )
     values = _values(params, fit.x)
     se = np.sqrt(np.diag(fit.covariance))
     stderr = {
-        p.key: float(values[p.key] * e if p.log else e) for p, e in zip(params, se, strict=True)
+        p.key: float(values[p.key] * e if p.spec.log else e * p.spec.unit)
+        for p, e in zip(params, se, strict=True)
     }
     return TableFit(
-        apply_values(model, values),
+        with_values(model, params, values),
         tuple(params),
         values,
         stderr,

@@ -3,7 +3,7 @@
 One least-squares fit of the plant parameters over both data sets: the runs' residuals (the
 ground-truth angle minus its simulation, demeaned per run, decimated, divided by the channel's
 noise RMS: as `identify` on runs) and the table's (each measured cell against the steady state,
-divided by its reading noise: as `identify --table`) stacked in one residual vector. Stages as
+divided by its reading noise: as `identify TABLE.csv`) stacked in one residual vector. Stages as
 both fits do: the stroke parameters on stroke_deg and the table's stroke columns, then the pitch
 parameters on pitch_deg and the pitch columns. Each run's initial state (angle, rate) is fitted
 along with the plant on the runs alone (a table has no time axis).
@@ -218,9 +218,9 @@ def _stage(
     fit = fit_evidence(
         [run_evidence, TableEvidence(table, s, cols)],
         lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
-        [np.array([math.log(f.start) for f in free])],
-        np.array([math.log(f.lower) for f in free]),
-        np.array([math.log(f.upper) for f in free]),
+        [np.array([f.spec.to_fit(f.start) for f in free])],
+        np.array([f.spec.to_fit(f.lower) for f in free]),
+        np.array([f.spec.to_fit(f.upper) for f in free]),
         np.full(len(keys), FD_STEP),
         max_nfev=s.max_nfev,
         tol=1e-10,

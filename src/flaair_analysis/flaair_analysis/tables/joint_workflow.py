@@ -37,12 +37,7 @@ from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
-from .fit import (
-    PITCH_KEYS,
-    STROKE_KEYS,
-    apply_values,
-    plant_params,
-)
+from .fit import PITCH_KEYS, STROKE_KEYS, plant_params, with_values
 from .joint import JointFit, identify_joint, prediction_scores, run_scores
 from .reader import Table
 from .steady_state import steady_response
@@ -242,12 +237,13 @@ def _table_search(
     if table.levels_v.size < 2 or all(v <= s.gap_ratio for v in check.noise_ratio.values()):
         return None
     found = analyse_table(table, model, s)
+    params = [p for j in found.accepted for p in j.candidate.params]
     values = {p.key: j.fit.values[p.key] for j in found.accepted for p in j.candidate.params}
     names = [j.candidate.name for j in found.accepted]
     if not values:
         notes.append("the table's own search found nothing for its held-out gap")
         return None
-    with_found = apply_values(model, values)
+    with_found = with_values(model, params, values)
     _, _, n, chi2_before = run_scores(joint.runs, model, noise, settings.decimate)
     _, _, _, chi2_after = run_scores(joint.runs, with_found, noise, settings.decimate)
     rise = chi2_after - chi2_before

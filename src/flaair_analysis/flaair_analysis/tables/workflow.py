@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from flaair_analysis.discrepancy.vocabulary import TERM_PREFIX, EffectSpec
 from flaair_model.effects import EFFECTS
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -39,10 +40,10 @@ from .fit import (
     STROKE_KEYS,
     FreeParam,
     TableFit,
-    apply_values,
     fit_table,
     identify_table,
     plant_params,
+    with_values,
 )
 from .reader import Table
 from .steady_state import steady_response
@@ -154,16 +155,24 @@ def candidates(table: Table, model: Model) -> list[Candidate]:
         if side not in sides:
             continue
         fps = e.fit[:2]  # collision: limit and contact stiffness (its damping stays)
+        channel = f"{side}_deg"
         params = tuple(
             FreeParam(
-                f"effect.{e.name}.{p.key}",
+                EffectSpec(
+                    e.name,
+                    p.key,
+                    channel,
+                    p.null,
+                    p.lower,
+                    p.upper,
+                    p.grid,
+                    p.step,
+                    p.log,
+                    tested=i == 0,
+                ),
                 p.grid[0] if p.grid else p.null,
-                p.lower,
-                p.upper,
-                p.log,
-                p.step,
             )
-            for p in fps
+            for i, p in enumerate(fps)
         )
         out.append(
             Candidate(
@@ -193,14 +202,17 @@ def candidates(table: Table, model: Model) -> list[Candidate]:
             ):
                 continue
             scale = _term_scale(DiscoveredTerm(row.name, site, 1.0), model, table)
-            key = f"term.{row.name}@{site}"
+            spec = EffectSpec(
+                f"{TERM_PREFIX}{row.name}@{site}", "coefficient", f"{side}_deg", 0.0,
+                -3.0 * scale, 3.0 * scale, (), 1e-3 * scale,
+            )  # fmt: skip
             trades = STROKE_KEYS if side == "stroke" else PITCH_KEYS
             out.append(
                 Candidate(
                     f"{row.name}@{site}",
                     True,
                     side,
-                    (FreeParam(key, 0.0, -3.0 * scale, 3.0 * scale, False, 1e-3 * scale),),
+                    (FreeParam(spec, 0.0),),
                     (0.0,),
                     tuple(scale * g for g in (-1.0, -0.3, -0.1, 0.1, 0.3, 1.0)),
                     trades,
@@ -238,8 +250,8 @@ def _at(params: Sequence[FreeParam], model_values: dict[str, float], r: float) -
     out = []
     for p in params:
         v = model_values.get(p.key, p.start)
-        if p.key.startswith("plant."):
-            out.append(replace(p, start=v, lower=v / r, upper=v * r))
+        if p.spec.is_plant:
+            out.append(p.bounded(v, v / r, v * r))
         else:
             out.append(replace(p, start=v))
     return out
@@ -274,7 +286,8 @@ def _grid_best(
     """The candidate's first parameter started at the best of its grid (one batch)."""
     starts = [replace(cand.params[0], start=g) for g in cand.grid] or [cand.params[0]]
     models = [
-        apply_values(model, {p.key: p.start for p in (p0, *cand.params[1:])}) for p0 in starts
+        with_values(model, params, {p.key: p.start for p in params})
+        for params in ((p0, *cand.params[1:]) for p0 in starts)
     ]
     resp = steady_response(
         models, table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
@@ -307,7 +320,7 @@ def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before
     # ending on the narrow box's edge is freed over the fit's whole range, from where it ended
     # (a wide box from the start sends a collision's joint fit to another minimum)
     if any(
-        p.key.startswith("plant.") and not (p.lower * 1.01 < fit.values[p.key] < p.upper / 1.01)
+        p.spec.is_plant and not (p.lower * 1.01 < fit.values[p.key] < p.upper / 1.01)
         for p in params
     ):
         wide = [

@@ -1,7 +1,9 @@
 """`flaair discrepancy`: find where the model and the measurement disagree, and fix the model.
 
-Inputs are measured-run CSV files (docs/formats/MEASURED_RUN_CSV.md) and/or bags (runs marked on
-/flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth). First
+Inputs are measured-run CSV files (docs/formats/MEASURED_RUN_CSV.md), bags (runs marked on
+/flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth) and
+frequency-response tables (docs/TABLES.md), in any mix, told apart by their content (a CSV whose
+header names frequency_hz and no time_s is a table; --table TABLE.csv names one). First
 this robot's own plant parameters are fitted (as `flaair identify` does: natural frequencies,
 damping, actuator gain, couplings); then every run is simulated with its recorded drive from
 its measured initial state and compared on stroke_deg, pitch_deg, stroke_sensor_v and
@@ -27,9 +29,9 @@ Examples
   bin/flaair discrepancy lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/discrepancy
   bin/flaair discrepancy bags/robot1 --model config/model.yaml --out out/discrepancy
   bin/flaair discrepancy --validate --out out/discrepancy-validation
-  bin/flaair discrepancy --table lab/robot3_sweep.csv --out out/robot3  (a lab's table,
+  bin/flaair discrepancy lab/robot3_sweep.csv --out out/robot3  (a lab's table,
                      docs/TABLES.md)
-  bin/flaair discrepancy lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/joint
+  bin/flaair discrepancy lab/chirp_full.csv lab/robot3_sweep.csv --out out/joint
                      (runs and a table of the same robot together, docs/TABLES.md)
 
 Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
@@ -55,18 +57,19 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
-from flaair_tools.tables.discrepancy_cli import main as table_main
+from flaair_tools.tables.discrepancy_cli import run as table_discrepancy
 
-from .joint_cli import discrepancy_main, has_runs
+from .joint_cli import discrepancy as joint_discrepancy
 from .report import write_report, write_validation
-from .run_inputs import InputError, bad_input_errors, load_inputs
+from .run_inputs import InputError, bad_input_errors, load_inputs, sort_inputs
 from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
 USAGE = (
-    "flaair discrepancy [RUN ...] [--table TABLE.csv] --out DIR [--model FILE] [--force]\n"
+    "flaair discrepancy [INPUT ...] --out DIR [--model FILE] [--force]\n"
     "       [--validate [--cases NAME ...]] [--validation FILE]\n"
-    "       (runs, a table, or both; or --validate alone)"
+    "       (INPUT: a measured-run CSV, a bag or a frequency-response table, any mix; or\n"
+    "       --validate alone)"
 )
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
@@ -97,8 +100,7 @@ def run_validation(model: Model, names: Sequence[str] | None, settings: Settings
     }
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`flaair discrepancy RUN... [--model FILE] --out DIR`; returns the exit status."""
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
@@ -106,15 +108,18 @@ def main(argv: list[str] | None = None) -> int:
         "inputs",
         nargs="*",
         type=Path,
-        metavar="RUN",
-        help="measured-run CSV files and/or bag directories (optional with --table or --validate)",
+        metavar="INPUT",
+        help="measured-run CSV files, bag directories and frequency-response tables (CSV), "
+        "told apart by their content (optional with --validate)",
     )
     parser.add_argument(
         "--table",
         type=Path,
+        action="append",
+        default=[],
         metavar="TABLE.csv",
-        help="a lab's frequency-response table of the robot: alone, or with the runs "
-        "(docs/TABLES.md) (default: none)",
+        help="a frequency-response table, named as one (a table among the inputs is found "
+        "without it) (default: none)",
     )
     parser.add_argument(
         "--model",
@@ -134,7 +139,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--validation", type=Path, default=None, help="embed a saved validation.json in report.html"
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`flaair discrepancy INPUT... [--model FILE] --out DIR`; returns the exit status."""
+    args = _parser().parse_args(argv)
+    args.inputs, args.table = sort_inputs(args.inputs, args.table)
+    if args.table:
+        if args.validate:
+            print(
+                f"{PROG}: --validate runs the hidden-effect cases on runs, not with a table",
+                file=sys.stderr,
+            )
+            return 2
+        return joint_discrepancy(args) if args.inputs else table_discrepancy(args)
+    return _discrepancy_runs(args)
+
+
+def _discrepancy_runs(args: argparse.Namespace) -> int:
+    """The workflow on runs alone (and the hidden-effect cases with --validate)."""
     if not args.inputs and not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
         return 2
@@ -223,18 +247,6 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
             f"{r['drive_level_ratio']:.3g}"
         )
     print(f"  -> {model_path}, {out / 'discrepancy.json'}, {out / 'report.html'}")
-
-
-def _table_or_runs(argv: list[str] | None = None) -> int:
-    """`flaair discrepancy`: a table (--table, docs/TABLES.md) or runs."""
-    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
-        if has_runs(argv):  # runs and a table together (docs/TABLES.md)
-            return discrepancy_main(argv)
-        return table_main(argv)
-    return _main_runs(argv)
-
-
-_main_runs, main = main, _table_or_runs
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
-"""`flaair identify`: fit this robot's plant parameters from its measured runs (grey-box).
+"""`flaair identify`: fit this robot's plant parameters to its runs, its tables, or both (grey-box).
 
-Inputs are measured-run CSV files and/or bags, as for `flaair discrepancy`. The stroke natural
+Inputs are measured-run CSV files, bags and frequency-response tables (docs/TABLES.md), in any
+mix, told apart by their content (a CSV whose header names frequency_hz and no time_s is a
+table); --table TABLE.csv names a table explicitly. Every input is evidence for one fit: each
+residual in units of its own noise, the sum of their chi-squares minimised. The stroke natural
 frequency, aerodynamic damping and actuator gain are fitted to the ground-truth stroke, then the
 pitch natural frequency, hinge damping and the stroke-to-pitch couplings to the ground-truth
 pitch (scipy least_squares on the simulated runs, each from its measured initial state, started
@@ -14,13 +17,14 @@ Writes into --out DIR:
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
 
-A lab's frequency-response table instead of runs: --table TABLE.csv; runs and a table of the
-same robot in one fit: RUN... --table TABLE.csv (docs/TABLES.md).
+With a table alone the plant is fitted to the table's cells (started from its peaks); with runs
+and a table, to both at once, and identification.json says whether the two sets agree
+(docs/TABLES.md).
 
 Examples
 --------
-  bin/flaair identify --table lab/robot3_sweep.csv --out out/robot3
-  bin/flaair identify lab/chirp_full.csv --table lab/robot3_sweep.csv --out out/robot3-joint
+  bin/flaair identify lab/robot3_sweep.csv --out out/robot3
+  bin/flaair identify lab/chirp_full.csv lab/robot3_sweep.csv --out out/robot3-joint
   bin/flaair identify lab/chirp_full.csv lab/chirp_half.csv lab/stepped.csv --out out/robot7
   bin/flaair identify bags/robot7 --model config/model.yaml --out out/robot7
 
@@ -45,15 +49,15 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model, save_model
-from flaair_tools.discrepancy.run_inputs import bad_input_errors, load_inputs
-from flaair_tools.tables.identify_cli import main as table_main
+from flaair_tools.discrepancy.run_inputs import bad_input_errors, load_inputs, sort_inputs
+from flaair_tools.tables.identify_cli import run as table_identify
 
-from .joint_cli import has_runs, identify_main
+from .joint_cli import identify as joint_identify
 
 PROG = "flaair identify"
 USAGE = (
-    "flaair identify [RUN ...] [--table TABLE.csv] --out DIR [--model FILE] [--force]\n"
-    "       (runs, a table, or both: at least one)"
+    "flaair identify INPUT ... --out DIR [--model FILE] [--force]\n"
+    "       (INPUT: a measured-run CSV, a bag or a frequency-response table; any mix)"
 )
 OUT_FILES = ("model.yaml", "identification.json")
 
@@ -62,12 +66,7 @@ def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`flaair identify RUN... [--model FILE] --out DIR`; returns the exit status."""
-    if any(a == "--table" or a.startswith("--table=") for a in (argv or sys.argv[1:])):
-        if has_runs(argv):  # runs and a table in one fit (docs/TABLES.md)
-            return identify_main(argv)
-        return table_main(argv)  # docs/TABLES.md
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
@@ -75,15 +74,18 @@ def main(argv: list[str] | None = None) -> int:
         "inputs",
         nargs="*",
         type=Path,
-        metavar="RUN",
-        help="measured-run CSV files and/or bag directories (optional with --table)",
+        metavar="INPUT",
+        help="measured-run CSV files, bag directories and frequency-response tables (CSV), "
+        "told apart by their content",
     )
     parser.add_argument(
         "--table",
         type=Path,
+        action="append",
+        default=[],
         metavar="TABLE.csv",
-        help="a lab's frequency-response table of the robot: alone, or with the runs in one fit "
-        "(docs/TABLES.md) (default: none)",
+        help="a frequency-response table, named as one (a table among the inputs is found "
+        "without it) (default: none)",
     )
     parser.add_argument(
         "--model",
@@ -94,9 +96,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
     parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`flaair identify INPUT... [--model FILE] --out DIR`; returns the exit status."""
+    parser = _parser()
     args = parser.parse_args(argv)
-    if not args.inputs:
-        parser.error("give measured-run CSV files or bags, or --table TABLE.csv")
+    args.inputs, args.table = sort_inputs(args.inputs, args.table)
+    if not args.inputs and not args.table:
+        parser.error("give measured-run CSV files, bags or a frequency-response table")
+    if args.table:
+        return joint_identify(args) if args.inputs else table_identify(args)
+    return _identify_runs(args)
+
+
+def _identify_runs(args: argparse.Namespace) -> int:
+    """The plant fitted to runs alone; the exit status."""
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         written = check_output(args.out, [*args.inputs, args.model], args.force, OUT_FILES)

@@ -1,5 +1,5 @@
-"""`flaair identify RUN... --table TABLE.csv --out DIR` and `flaair discrepancy RUN... --table
-TABLE.csv --out DIR`: a robot's runs and its frequency-response table in one fit (docs/TABLES.md,
+"""`flaair identify RUN... TABLE.csv --out DIR` and `flaair discrepancy RUN... TABLE.csv --out
+DIR`: a robot's runs and its frequency-response table in one fit (docs/TABLES.md,
 "Tables and runs together").
 
 identify writes model.yaml (the plant fitted on both) and identification.json (each parameter's
@@ -31,7 +31,6 @@ from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
 from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.tables.joint import JointFit, identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
-from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
@@ -45,35 +44,13 @@ IDENTIFY_FILES = ("model.yaml", "identification.json")
 DISCREPANCY_FILES = ("model.yaml", "discrepancy.json", "report.html")
 
 
-def has_runs(argv: list[str] | None) -> bool:
-    """Whether a command line with --table also names runs (positional inputs)."""
-    parser = argparse.ArgumentParser(add_help=False)
-    parser.add_argument("inputs", nargs="*")
-    for flag in ("--table", "--model", "--out", "--cases", "--validation"):
-        parser.add_argument(flag, action="append")
-    ns, _ = parser.parse_known_args(argv)
-    return bool(ns.inputs)
-
-
 def _terminate(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def _parse(prog: str, argv: list[str] | None, files: tuple[str, ...]):
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=HelpFormatter)
-    parser.add_argument("inputs", nargs="+", type=Path, help="measured-run CSV files and/or bags")
-    parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
-    parser.add_argument(
-        "--model",
-        type=Path,
-        default=None,
-        help="model YAML to start from (default: config/model.yaml)",
-    )
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
-    args = parser.parse_args(argv)
+def _outputs(args: argparse.Namespace, files: tuple[str, ...]) -> list[Path]:
     inputs = [*args.inputs, *args.table, *([args.model] if args.model else [])]
-    return args, check_output(args.out, inputs, args.force, files)
+    return check_output(args.out, inputs, args.force, files)
 
 
 def _load(args: argparse.Namespace):
@@ -88,15 +65,17 @@ def _load(args: argparse.Namespace):
     return model, s, table, runs, noise
 
 
-def _run(prog: str, argv: list[str] | None, files: tuple[str, ...], compute) -> Any:
-    """Parse, load and compute with one-line refusals; the exit status or the results."""
+def _run(prog: str, args: argparse.Namespace, files: tuple[str, ...], compute) -> Any:
+    """Check the outputs, load and compute with one-line refusals; the exit status or the
+    results.
+    """
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        args, written = _parse(prog, argv, files)
+        written = _outputs(args, files)
         model, s, table, runs, noise = _load(args)
         t0 = time.perf_counter()
         result = compute(runs, table, model, noise, s)
-        return args, written, model, table, runs, result, time.perf_counter() - t0
+        return written, model, table, runs, result, time.perf_counter() - t0
     except (*bad_input_errors(), *bad_input()) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -131,13 +110,15 @@ def _print_fit(prog: str, fit: JointFit) -> None:
         print(f"{prog}: warning: {w}", file=sys.stderr)
 
 
-def identify_main(argv: list[str] | None = None) -> int:
-    """`flaair identify RUN... --table TABLE --out DIR`; returns the exit status."""
+def identify(args: argparse.Namespace) -> int:
+    """`flaair identify RUN... TABLE.csv --out DIR` (parsed by `flaair identify`); returns the
+    exit status.
+    """
     prog = "flaair identify"
-    done = _run(prog, argv, IDENTIFY_FILES, identify_joint)
+    done = _run(prog, args, IDENTIFY_FILES, identify_joint)
     if isinstance(done, int):
         return done
-    args, written, _, table, runs, fit, elapsed = done
+    written, _, table, runs, fit, elapsed = done
     doc = {
         "runs": [r.name for r in runs],
         "table": table.name,
@@ -165,18 +146,20 @@ def identify_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def discrepancy_main(argv: list[str] | None = None) -> int:
-    """`flaair discrepancy RUN... --table TABLE --out DIR`; returns the exit status."""
+def discrepancy(args: argparse.Namespace) -> int:
+    """`flaair discrepancy RUN... TABLE.csv --out DIR` (parsed by `flaair discrepancy`); returns
+    the exit status.
+    """
     prog = "flaair discrepancy"
     workflow = Settings()
 
     def compute(runs, table, model, noise, s):
         return analyse_joint(runs, table, model, noise, s, workflow)
 
-    done = _run(prog, argv, DISCREPANCY_FILES, compute)
+    done = _run(prog, args, DISCREPANCY_FILES, compute)
     if isinstance(done, int):
         return done
-    args, written, _, table, runs, result, elapsed = done
+    written, _, table, runs, result, elapsed = done
 
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"

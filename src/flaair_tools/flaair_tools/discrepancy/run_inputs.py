@@ -1,5 +1,6 @@
-"""Measured runs from the command line's inputs (CSV files and bags) and the errors a command
-reports in one line (the shell around `flaair_analysis.discrepancy.runs`).
+"""The command line's inputs (measured-run CSV files, bags, frequency-response tables), told
+apart by their content, the runs read from them, and the errors a command reports in one line
+(the shell around `flaair_analysis.discrepancy.runs`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,16 @@ from flaair_model.validation import ModelError
 
 from .validation_file import ValidationFileError
 
-__all__ = ["InputError", "bad_input_errors", "load_inputs", "runs_from_bag", "runs_from_csv"]
+__all__ = [
+    "InputError",
+    "bad_input_errors",
+    "load_inputs",
+    "runs_from_bag",
+    "runs_from_csv",
+    "sort_inputs",
+]
+
+_HEADER_PEEK_BYTES = 65536  # a header sits in the first lines; a huge file is not read here
 
 
 class InputError(ValueError):
@@ -57,6 +67,42 @@ def runs_from_bag(path: Path) -> list[Run]:
         _run(r.name, r.sample_rate_hz, r.columns)
         for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True)
     ]
+
+
+def _csv_header(path: Path) -> list[str]:
+    """The column names of a CSV's first line that is neither empty nor a # comment ([] when
+    the file cannot be peeked at: its reader names the problem).
+    """
+    if not path.is_file():
+        return []
+    try:
+        with path.open("rb") as f:
+            head = f.read(_HEADER_PEEK_BYTES).decode("utf-8-sig", errors="replace")
+    except OSError:
+        return []
+    for line in head.splitlines():
+        text = line.strip()
+        if text and not text.startswith("#"):
+            return [c.strip() for c in text.split(",")]
+    return []
+
+
+def sort_inputs(
+    paths: Sequence[Path], tables: Sequence[Path] = ()
+) -> tuple[list[Path], list[Path]]:
+    """The inputs told apart by content: (runs: bags and measured-run CSVs, tables).
+
+    A CSV whose header names `frequency_hz` and no `time_s` is a frequency-response table
+    (docs/TABLES.md); any other CSV, a bag directory or an .mcap file holds runs, and so does a
+    path that is not there or cannot be read (the runs' reader names it, after any table is
+    checked). `tables`: paths given as tables (`--table`), taken as tables without looking.
+    """
+    runs, found = [], []
+    for p in paths:
+        header = [] if _is_bag(p) else _csv_header(p)
+        is_table = "frequency_hz" in header and "time_s" not in header
+        (found if is_table else runs).append(p)
+    return runs, [*found, *tables]
 
 
 def load_inputs(paths: Sequence[Path]) -> list[Run]:

@@ -1,6 +1,6 @@
-"""`flaair discrepancy --table TABLE.csv --out DIR`: the discrepancy workflow on a table.
+"""`flaair discrepancy TABLE.csv --out DIR`: the discrepancy workflow on a table.
 
-The plant is fitted first (as `identify --table`); then the vocabulary effects a table can show
+The plant is fitted first (as `identify TABLE.csv`); then the vocabulary effects a table can show
 and the library's terms are searched, each kept only if it predicts drive levels it was not
 fitted on better (docs/TABLES.md). Effects on sensor signals (delays, filters) are not searched:
 a table read from video has no sensor voltage and no time axis.
@@ -18,26 +18,27 @@ Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 
 from __future__ import annotations
 
-import sys
+import argparse
 from pathlib import Path
 
 from flaair_analysis.tables.workflow import analyse_table
 from flaair_common.outputs import write_outputs
 from flaair_model.model_io import save_model
 
-from .identify_cli import computed, table_command, warn
+from .identify_cli import computed, table_outputs, warn
 from .report import write_report
 
 PROG = "flaair discrepancy"
 OUT_FILES = ("model.yaml", "discrepancy.json", "report.html", "table_response.png")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`flaair discrepancy --table TABLE [--model FILE] --out DIR`; returns the exit status."""
-    parsed = table_command(PROG, __doc__, argv, OUT_FILES)
-    if isinstance(parsed, int):
-        return parsed
-    args, written = parsed
+def run(args: argparse.Namespace) -> int:
+    """`flaair discrepancy TABLE.csv [--model FILE] --out DIR` (parsed by `flaair discrepancy`,
+    which tells a table from runs); returns the exit status.
+    """
+    written = table_outputs(PROG, args, OUT_FILES)
+    if isinstance(written, int):
+        return written
     done = computed(PROG, args, analyse_table)
     if isinstance(done, int):
         return done
@@ -62,7 +63,3 @@ def main(argv: list[str] | None = None) -> int:
     warn(PROG, doc["notes"])
     print(f"  -> {args.out / 'report.html'}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""`flaair identify --table TABLE.csv --out DIR`: fit the plant to a frequency-response table.
+"""`flaair identify TABLE.csv --out DIR`: fit the plant to a frequency-response table.
 
 The stroke natural frequency, aerodynamic damping and actuator gain are fitted to the stroke
 columns, then the pitch natural frequency, hinge damping and couplings to the pitch columns,
@@ -28,7 +28,6 @@ import yaml
 
 from flaair_analysis.tables.fit import identify_table
 from flaair_analysis.tables.reader import Table, TableInputError
-from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings
@@ -70,22 +69,16 @@ def warn(prog: str, notes: list[str]) -> None:
             print(f"{prog}: {note}", file=sys.stderr)
 
 
-def table_command(
-    prog: str, doc: str | None, argv: list[str] | None, out_files: tuple[str, ...]
-) -> tuple[argparse.Namespace, list[Path]] | int:
-    """A table command's arguments and the outputs it may write, or the exit status of a
-    refusal (the outputs checked before anything is computed: never an input, never the
-    project's config, an existing one replaced only with --force).
+def table_outputs(
+    prog: str, args: argparse.Namespace, out_files: tuple[str, ...]
+) -> list[Path] | int:
+    """The outputs a table command may write (`args.table`, `args.model`, `args.out`,
+    `args.force`), or the exit status of a refusal (checked before anything is computed: never
+    an input, never the project's config, an existing one replaced only with --force).
     """
-    parser = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=HelpFormatter)
-    parser.add_argument("--table", type=Path, action="append", required=True, help="CSV table")
-    parser.add_argument("--model", type=Path, default=None, help="model YAML to start from")
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
-    args = parser.parse_args(argv)
     inputs = [*args.table, *([args.model] if args.model else [])]
     try:
-        return args, check_output(args.out, inputs, args.force, out_files)
+        return check_output(args.out, inputs, args.force, out_files)
     except OutputError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -115,12 +108,13 @@ def computed(
         signal.signal(signal.SIGTERM, previous)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`flaair identify --table TABLE [--model FILE] --out DIR`; returns the exit status."""
-    parsed = table_command(PROG, __doc__, argv, OUT_FILES)
-    if isinstance(parsed, int):
-        return parsed
-    args, written = parsed
+def run(args: argparse.Namespace) -> int:
+    """`flaair identify TABLE.csv [--model FILE] --out DIR` (parsed by `flaair identify`, which
+    tells a table from runs); returns the exit status.
+    """
+    written = table_outputs(PROG, args, OUT_FILES)
+    if isinstance(written, int):
+        return written
     done = computed(PROG, args, identify_table)
     if isinstance(done, int):
         return done
@@ -150,7 +144,3 @@ def _write(stage, out, table, model, fitted, fits, start, notes, elapsed, model_
         print(f"  note: {note}")
     warn(PROG, notes)
     print(f"  -> {out / 'model.yaml'}, {out / 'identification.json'}")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -3,7 +3,7 @@
 The format is docs/TABLES.md (steady sines over a grid of frequencies at a few drive levels,
 amplitudes read from video). Prints, per robot, the drive levels, the frequencies, the response
 columns (and how many points each has) and the peak of each level. A table that would be refused
-by `identify --table` or `discrepancy --table` is refused here, by line and column.
+by `identify` or `discrepancy` is refused here, by line and column.
 
 Exit status: 0 when every table reads, 2 on bad input (one line naming the line and column).
 
