@@ -16,8 +16,8 @@ Every robot is scored by one rule (`flaair_analysis.exact_score`): right iff its
 named effects and its discovered terms (site and form) all equal the truth's, nothing missing
 and nothing extra. Figures (each target printed is the one enforced; `info` has none):
 - exactly right per family, the discovery family included: >= 90 %; baseline: the workflow
-  without plant identification (Settings(identify=False)) on the first --baseline-draws robots
-  of each vocabulary family;
+  without plant identification (identify: false in the discrepancy settings) on the first
+  --baseline-draws robots of each vocabulary family;
 - false discoveries on no-effect robots: effects <= 5 %, terms 0 %; terms the truth lacks on any
   robot: info;
 - out-of-vocabulary robots flagged `unexplained`: >= 80 %;
@@ -51,13 +51,14 @@ import statistics
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
 from tqdm import tqdm
 
 from benchlib import REPO_ROOT, Figure, best_time_s, compare, info, print_table, write_json
-from flaair_analysis.discrepancy import Settings, analyse
+from flaair_analysis.discrepancy import analyse
 from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.offnominal import (
     COMPOSED_DISCOVER_KINDS,
@@ -69,6 +70,7 @@ from flaair_analysis.discrepancy.offnominal import (
 from flaair_analysis.discrepancy.scoring import confusion_table, score_case, score_result
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import write_validation
 
@@ -211,12 +213,12 @@ def analyse_robot(family: str, draw: int, baseline: bool) -> tuple[dict, dict | 
     case = random_robot(family, draw)
     runs = make_runs(case, model)
     t0 = time.perf_counter()
-    result = analyse(runs, model)
+    result = analyse(runs, model, discrepancy_settings())
     elapsed = time.perf_counter() - t0
     outcome = judge(case, result, model) | {"elapsed_s": elapsed}
     base = None
     if baseline:
-        old = analyse(runs, model, Settings(identify=False))
+        old = analyse(runs, model, replace(discrepancy_settings(), identify=False))
         base = {"family": family, "exact": score_result(case, old).right}
     return outcome, base
 
@@ -232,7 +234,7 @@ def analyse_case(name: str):
     case = _cases()[name]
     runs = make_runs(case, model)
     t0 = time.perf_counter()
-    result = analyse(runs, model)
+    result = analyse(runs, model, discrepancy_settings())
     return score_case(case, result, time.perf_counter() - t0)
 
 

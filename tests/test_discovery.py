@@ -23,6 +23,7 @@ from flaair_analysis.discrepancy import Discovered, analyse
 from flaair_analysis.discrepancy.datasets import make_runs
 from flaair_analysis.discrepancy.offnominal import DISCOVER_KINDS, random_robot
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict, save_model
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_model.terms import KINDS, TERM_KINDS, DiscoveredTerm, kinds_for, lowpass_ba
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import (
@@ -271,7 +272,7 @@ def _check_found(case, result) -> None:
 def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> None:
     case = random_robot("offnominal_discover", 1)
     assert case.terms[0].kind == "cube_angle" and case.video_every == 10  # video-rate truth
-    result = analyse(make_runs(case, model), model)
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
     _check_found(case, result)
     (d,) = result.discovered
     assert d.gap_after["stroke_deg"] < 0.3 * d.gap_before["stroke_deg"]
@@ -380,14 +381,13 @@ def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_
     friction and the stroke plant stalls where it starts. At `discovery_fd_step` times those steps
     it reaches the truth's cost with the coefficient within a few per cent.
     """
-    from flaair_analysis.discrepancy import Settings
     from flaair_analysis.discrepancy.evidence import AnalysisContext
     from flaair_analysis.discrepancy.fitting import fit_specs, spec_value
     from flaair_analysis.discrepancy.term_candidates import fitted_along
     from flaair_analysis.discrepancy.vocabulary import term_specs
 
     true_term, truth, runs, noise = _discover_robot(0, ("sign_velocity", "stroke_dynamics"), model)
-    settings = replace(Settings(), max_nfev=100)
+    settings = replace(discrepancy_settings(), max_nfev=100)
     ctx = AnalysisContext(runs, noise, settings)
     # where the workflow's fit had stalled: the friction 15 % strong, the air damping 6 % weak
     start = replace(
@@ -403,10 +403,10 @@ def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_
     x0 = np.array([s.to_fit(spec_value(start, s)) for s in specs])
     truth_rss = sum(float(np.dot(r, r)) for r in problem.residuals([truth])[0])
     found = {}
-    for scale in (1.0, Settings().discovery_fd_step):
+    for scale in (1.0, discrepancy_settings().discovery_fd_step):
         fit = fit_specs(start, specs, problem, x0, settings, grid=False, step_scale=scale)
         found[scale] = (specs[0].from_fit(fit.x[0]) / true_term.coefficient - 1.0, fit.rss)
-    stalled, fitted = found[1.0], found[Settings().discovery_fd_step]
+    stalled, fitted = found[1.0], found[discrepancy_settings().discovery_fd_step]
     assert stalled[0] > 0.10 and stalled[1] > 1.2 * truth_rss
     assert abs(fitted[0]) < 0.03 and fitted[1] < 1.001 * truth_rss
 
@@ -421,7 +421,7 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     contribution is far below the gap test (R0). In the identification's box the air damping
     stays inside.
     """
-    from flaair_analysis.discrepancy import Settings, identify_plant, noise_estimates
+    from flaair_analysis.discrepancy import identify_plant, noise_estimates
     from flaair_analysis.discrepancy.datasets import dataset_cases
     from flaair_analysis.discrepancy.evidence import AnalysisContext, evaluate, gap_drop
     from flaair_analysis.discrepancy.fitting import fit_specs, models_for, spec_value
@@ -443,7 +443,7 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     nominal = {k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS}
     gamma0 = nominal["aero_damping_nm_s2"]
     assert current.plant.aero_damping_nm_s2 == pytest.approx(1.5 * gamma0, rel=2e-3)  # the edge
-    st = replace(Settings(), max_nfev=Settings().discovery_max_nfev)
+    st = replace(discrepancy_settings(), max_nfev=discrepancy_settings().discovery_max_nfev)
     ctx = AnalysisContext(plant_fit.runs, noise, st)
     problem = ctx.problem("stroke_deg", ctx.folds, False, current)
     row = KINDS["cube_velocity"]
@@ -507,7 +507,6 @@ def test_a_start_state_under_a_hinge_friction_is_fitted_at_the_discoverys_wider_
     and leaves a start transient on the pitch sensor; at `discovery_fd_step` times the step it
     reaches the cost of the true start (rest).
     """
-    from flaair_analysis.discrepancy import Settings
     from flaair_analysis.discrepancy.identification import fit_initial_states
 
     _, truth, runs, noise = _discover_robot(5, ("sign_velocity", "pitch_dynamics"), model)
@@ -517,7 +516,7 @@ def test_a_start_state_under_a_hinge_friction_is_fitted_at_the_discoverys_wider_
     rest = replace(run, mechanical0=np.zeros(4))
     _, rest_cost, _ = fit_initial_states([rest], truth, noise, channels, max_nfev=1)
     costs = {}
-    for scale in (1.0, Settings().discovery_fd_step):
+    for scale in (1.0, discrepancy_settings().discovery_fd_step):
         _, _, costs[scale] = fit_initial_states([run], truth, noise, channels, step_scale=scale)
     assert costs[1.0] > 1.2 * rest_cost  # measured 1.28x
-    assert costs[Settings().discovery_fd_step] < 1.01 * rest_cost  # measured 1.0015x
+    assert costs[discrepancy_settings().discovery_fd_step] < 1.01 * rest_cost  # measured 1.0015x

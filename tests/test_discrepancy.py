@@ -51,6 +51,7 @@ from flaair_common.runcsv import write_run
 from flaair_model.effects import EFFECT_NAMES, EFFECT_TYPES
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model, save_model
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.plant import simulate
 from flaair_tools import discrepancy
@@ -118,7 +119,7 @@ def _params():
 def test_hidden_effect_case_is_found_without_the_answer(name: str, model) -> None:
     case = _case(name)
     runs = make_runs(case, model)
-    result = dc.analyse(runs, model)  # the workflow never sees `case`
+    result = dc.analyse(runs, model, discrepancy_settings())  # the workflow never sees `case`
     outcome = score_case(case, result)
     _OUTCOMES[name] = outcome
     assert result.status == case.expected_status, outcome.problems
@@ -193,7 +194,9 @@ def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
     if not _OUTCOMES:
         for name in sorted(DEFAULT_CASES):
             case = _case(name)
-            _OUTCOMES[name] = score_case(case, dc.analyse(make_runs(case, model), model))
+            _OUTCOMES[name] = score_case(
+                case, dc.analyse(make_runs(case, model), model, discrepancy_settings())
+            )
     outcomes = list(_OUTCOMES.values())
     table = confusion_table(outcomes)
     assert table["total"] == len(outcomes)
@@ -352,7 +355,9 @@ def test_residual_tests_separate_noise_from_a_modelled_path() -> None:
 def _diagnosis(name: str, model) -> dc.Diagnosis:
     runs = make_runs(_case(name), model)
     sims = dc.simulate_runs([model], runs)[0]
-    return dc.diagnose(runs, sims, model, dc.noise_estimates(runs, sims, model))
+    return dc.diagnose(
+        runs, sims, model, dc.noise_estimates(runs, sims, model), discrepancy_settings()
+    )
 
 
 def test_diagnosis_says_where_channel_band_drive_level_harmonics_and_time(model) -> None:
@@ -419,7 +424,7 @@ def test_gappy_truth_and_a_single_run_still_work(model) -> None:
         stroke_deg=np.where(mask, np.nan, runs[0].stroke_deg),
         pitch_deg=np.where(mask, np.nan, runs[0].pitch_deg),
     )
-    result = dc.analyse([one], model)
+    result = dc.analyse([one], model, discrepancy_settings())
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["strain_transfer_loss"]
     assert result.effects[0].parameters["efficiency"] == pytest.approx(0.23, rel=0.01)
@@ -684,7 +689,7 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
         ),
         seed=4,
     )
-    result = dc.analyse(make_runs(case, model), start)
+    result = dc.analyse(make_runs(case, model), start, discrepancy_settings())
     assert result.status == "explained"
     assert [e.name for e in result.effects] == ["feedthrough"]
     assert result.model_out.effect("strain_transfer_loss") == start.effect("strain_transfer_loss")
@@ -704,7 +709,6 @@ def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, m
 )
 def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, words: str) -> None:
     from flaair_analysis.discrepancy.diagnosis import interpret
-    from flaair_analysis.discrepancy.settings import Settings
 
-    text = interpret(4.0, 1e-6, True, {}, level_ratio, True, Settings())
+    text = interpret(4.0, 1e-6, True, {}, level_ratio, True, discrepancy_settings())
     assert words in text

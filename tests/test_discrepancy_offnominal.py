@@ -11,14 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from flaair_analysis.discrepancy import Settings, analyse
+from flaair_analysis.discrepancy import analyse
 from flaair_analysis.discrepancy.datasets import make_runs
 from flaair_analysis.discrepancy.offnominal import effective_plant, random_robot, true_plant
 from flaair_model.model_io import load_model
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_tools import discrepancy
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
@@ -49,7 +51,7 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
     family: str, draw: int, model
 ) -> None:
     case = random_robot(family, draw)
-    result = analyse(make_runs(case, model), model)
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
     assert result.status == case.expected_status, result.summary
     assert tuple(sorted(e.name for e in result.effects)) == case.effect_names, result.summary
     assert not result.discovered and not case.terms, [d.term for d in result.discovered]
@@ -84,7 +86,7 @@ def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
         group="single",
         effects=(("sensor_delay", {"stroke": {"delay_s": 1.5e-4}, "pitch": {"delay_s": 4.0e-4}}),),
     )
-    result = analyse(make_runs(case, model), model)
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
     assert result.status == "explained", result.summary
     assert [e.name for e in result.effects] == ["sensor_delay"], result.summary
     fitted = result.effects[0].parameters
@@ -101,14 +103,14 @@ def test_without_identification_parameter_drift_looks_like_missing_physics(model
     no-effect robot, searched against the nominal plant.
     """
     case = random_robot("offnominal_null", 1)
-    old = analyse(make_runs(case, model), model, Settings(identify=False))
+    old = analyse(make_runs(case, model), model, replace(discrepancy_settings(), identify=False))
     assert old.status == "unexplained"
 
 
 def test_outside_the_vocabulary_stays_unexplained_on_a_fitted_plant(model) -> None:
     case = random_robot("offnominal_outside", 1)  # a second stroke resonance
     assert case.outside == "second_resonance"
-    result = analyse(make_runs(case, model), model)
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
     assert result.status == "unexplained"
     assert "stroke_deg" in {r["channel"] for r in result.remaining}
 

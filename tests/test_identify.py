@@ -28,6 +28,7 @@ from flaair_analysis.discrepancy.identification import frequency_domain_start, i
 from flaair_analysis.discrepancy.offnominal import random_robot, true_plant
 from flaair_common.runcsv import write_run
 from flaair_model.model_io import load_model
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.plant import simulate, simulate_batch_from
 from rosproc import FLAAIR, isolated_env, run, run_offline
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
@@ -151,7 +152,7 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
     err_moving = np.nanstd(np.degrees(moving.stroke_rad[0]) - second.stroke_deg)
     err_rest = np.nanstd(np.degrees(rest.stroke_rad[0]) - second.stroke_deg)
     assert err_moving < 1.2 * case.noise_scale * model.noise.tracking_noise_deg_rms < err_rest
-    result = analyse([first, second], model)
+    result = analyse([first, second], model, discrepancy_settings())
     assert result.status == "no_discrepancy", result.summary
     assert result.effects == ()
 

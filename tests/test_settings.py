@@ -26,6 +26,31 @@ def test_each_accessor_reads_its_section_with_types() -> None:
     )
     # from /** under its own section
     assert settings.controller().block_size == shared["block_size"]
+    # the analysis' rules, as the tables': a list read as a tuple of floats
+    rules = document["discrepancy"]["ros__parameters"]
+    found = settings.discrepancy()
+    assert found.band_edges_hz == tuple(float(v) for v in rules["band_edges_hz"])
+    assert found.min_z == rules["min_z"] and found.identify is rules["identify"]
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (40.0, "discrepancy.band_edges_hz: must be a list of numbers, got 40.0"),
+        ([0.0, "forty"], "discrepancy.band_edges_hz: must be float, got 'forty'"),
+    ],
+)
+def test_a_list_setting_that_is_not_a_list_of_numbers_is_named(
+    tmp_path: Path, monkeypatch, value, message
+) -> None:
+    shutil.copytree(config_dir(), tmp_path / "config")
+    path = tmp_path / "config" / "flaair.yaml"
+    document = yaml.safe_load(path.read_text())
+    document["discrepancy"]["ros__parameters"]["band_edges_hz"] = value
+    path.write_text(yaml.safe_dump(document))
+    monkeypatch.setenv("FLAAIR_CONFIG_DIR", str(tmp_path / "config"))
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
+        settings.discrepancy()
 
 
 @pytest.mark.parametrize(

@@ -20,7 +20,6 @@ import pytest
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
 from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
-from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.exact_score import score_exact, term_label
 from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS
@@ -170,7 +169,14 @@ def test_a_missing_effect_found_on_the_runs_is_kept_when_the_table_confirms_it()
     fn = true.plant.stroke_natural_frequency_hz
     runs = make_runs(true, FULL, 5)
     s = settings.tables()
-    res = analyse_joint(runs, make_table(true, fn, seed=6), nominal, _noise(runs, nominal), s)
+    res = analyse_joint(
+        runs,
+        make_table(true, fn, seed=6),
+        nominal,
+        _noise(runs, nominal),
+        s,
+        settings.discrepancy(),
+    )
     assert res.status == "explained" and res.kept
     assert _exact(res, "explained", ["structural_damping"]).right
     assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
@@ -192,7 +198,14 @@ def test_a_finding_that_worsens_the_table_beyond_noise_is_refused() -> None:
     fn = plain.plant.stroke_natural_frequency_hz
     runs = make_runs(damped, FULL, 5)
     s = settings.tables()
-    res = analyse_joint(runs, make_table(plain, fn, seed=6), nominal, _noise(runs, nominal), s)
+    res = analyse_joint(
+        runs,
+        make_table(plain, fn, seed=6),
+        nominal,
+        _noise(runs, nominal),
+        s,
+        settings.discrepancy(),
+    )
     assert [e.name for e in res.runs_result.effects] == ["structural_damping"]
     assert res.status == "unexplained" and not res.kept and res.final is None
     assert _exact(res, "unexplained", []).right  # nothing named, nothing discovered
@@ -224,7 +237,7 @@ def test_an_effect_only_the_table_shows_is_found_by_the_tables_search_and_kept()
     s = settings.tables()
     table = make_table(true, fn, seed=6)
     # the runs' term discovery is off: it is what takes long here, and no term is missing
-    quick = Settings(discover=False)
+    quick = replace(settings.discrepancy(), discover=False)
     res = analyse_joint(runs, table, nominal, _noise(runs, nominal), s, quick)
     assert res.runs_result.effects == () and res.kept
     assert max(res.table_before.noise_ratio.values()) > 3.0  # measured 4.9

@@ -21,12 +21,14 @@ from flaair_model.schema import ParameterError, ParamSpec
 __all__ = [
     "BridgeSettings",
     "ControllerSettings",
+    "DiscrepancySettings",
     "LiveSettings",
     "MonitorSettings",
     "StreamSettings",
     "TableSettings",
     "bridge",
     "controller",
+    "discrepancy",
     "live",
     "monitor",
     "node_section",
@@ -83,6 +85,89 @@ class ControllerSettings:
 
 
 @dataclass(frozen=True)
+class DiscrepancySettings:
+    """The discrepancy workflow on runs (`discrepancy` section): its decision rules (documented in
+    `flaair_analysis.discrepancy`) and numerical settings.
+
+    Attributes
+    ----------
+    identify : fit the plant's own parameters first (`identification`) and fit each physics
+        candidate jointly with the plant parameters it trades off against.
+    decimate : keep every k-th sample in fits (noise stays white; 20 kHz -> 5 kHz).
+    gap_noise_ratio : residual RMS / noise RMS above which a channel may have a gap.
+    whiteness_alpha : Ljung-Box p-value below which the residual is not white.
+    ljung_box_lags : lags of the Ljung-Box test.
+    whiteness_decimate : decimation of the residual before the Ljung-Box test.
+    min_heldout_drop : R1, relative drop of the held-out model error (above noise) an effect must
+        bring.
+    max_delta_bic : R2, held-out Delta-BIC must be below this.
+    min_z : R3, distance of the parameter from its null value in standard errors.
+    consistency_alpha : R4, p-value of the per-run scatter test below which an effect is refused.
+    consistency_rel_tol : R4, allowance for model imperfection, as a fraction of the effect size.
+    max_effects_per_channel : greedy steps per channel.
+    pair_fallback : try pairs of effects on a channel when no single effect passes.
+    max_nfev : function evaluations per least-squares fit.
+    max_polish_rounds : further joint re-fits of a channel's parameters while a gap is left on it.
+    polish_min_gain : relative cost drop a re-fit must bring for another round.
+    band_edges_hz : drive-frequency bands of the localisation.
+    window_s : window of the harmonic and worst-stretch analysis.
+    xcorr_max_lag_s : largest residual-after-drive lag of the cross-correlation test.
+    xcorr_z : |rho| sqrt(n) above which the cross-correlation with the drive is significant.
+    discover : search the term library when the vocabulary leaves a located gap (`discovery`).
+    max_discovered_terms : terms the discovery may add in all.
+    discovery_shortlist : candidate terms per step judged on held-out runs (the best fits first).
+    discovery_max_nfev : function evaluations of a shortlisted term's joint fit with the plant
+        (the plant must move back from where the identification put it to mimic the term).
+    discovery_composed_fits : composed forms per dynamics site fitted through the simulator
+        after all of them are ranked by one linearized step (`term_candidates`).
+    discovery_terms_per_channel : terms a channel may take (the second searched with the first
+        in place, while the channel keeps a gap).
+    discovery_skip_s : the first seconds of each run left out of a term's fits with the plant
+        (a few wingbeats: the runs' initial states, fitted before the term was known, do not
+        pull the coefficient there).
+    discovery_polish_rounds : rounds of the final refit (the terms with the plant on the truth,
+        then the runs' initial states), alternating towards their joint optimum.
+    discovery_fd_step : multiplier of the finite-difference steps of the discovery's fits (the
+        terms, the plant fitted along with them, the pitch plant refitted under a stroke term, the
+        runs' initial states fitted on the sensors after a term). A
+        term with sign() makes the simulated motion jump each time a zero crossing passes an
+        integration stage: at the specs' own steps (1e-4 of the range, 1e-4 in log) the cost is
+        rough and a fit stalls where it starts (stroke friction, draw 0: 15 % off, its cost 55 %
+        above the truth's); at 30x the fit reaches the truth's cost (0.7 % off).
+    """
+
+    identify: bool
+    decimate: int
+    gap_noise_ratio: float
+    whiteness_alpha: float
+    ljung_box_lags: int
+    whiteness_decimate: int
+    min_heldout_drop: float
+    max_delta_bic: float
+    min_z: float
+    consistency_alpha: float
+    consistency_rel_tol: float
+    max_effects_per_channel: int
+    pair_fallback: bool
+    max_nfev: int
+    max_polish_rounds: int
+    polish_min_gain: float
+    band_edges_hz: tuple[float, ...]
+    window_s: float
+    xcorr_max_lag_s: float
+    xcorr_z: float
+    discover: bool
+    max_discovered_terms: int
+    discovery_shortlist: int
+    discovery_max_nfev: int
+    discovery_composed_fits: int
+    discovery_terms_per_channel: int
+    discovery_skip_s: float
+    discovery_polish_rounds: int
+    discovery_fd_step: float
+
+
+@dataclass(frozen=True)
 class TableSettings:
     """Frequency-response tables (`tables` section): steady state, noise, hold-out rules."""
 
@@ -105,7 +190,11 @@ class TableSettings:
     min_z: float
 
 
-def _convert(value: Any, kind: type, where: str) -> Any:
+def _convert(value: Any, kind: Any, where: str) -> Any:
+    if typing.get_origin(kind) is tuple:  # tuple[float, ...]: a YAML list of numbers
+        if not isinstance(value, list) or not value:
+            raise ConfigError(f"{where}: must be a list of numbers, got {value!r}")
+        return tuple(_convert(v, typing.get_args(kind)[0], where) for v in value)
     if kind is bool:
         if isinstance(value, bool):
             return value
@@ -156,6 +245,11 @@ def monitor() -> MonitorSettings:
 
 def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
+
+
+def discrepancy() -> DiscrepancySettings:
+    """The discrepancy workflow on runs: its decision rules and numerical settings."""
+    return read_section("discrepancy", DiscrepancySettings)
 
 
 def tables() -> TableSettings:

@@ -15,8 +15,10 @@ it in the same box, `discovery_uncertainty` the next best form and the experimen
 apart), `workflow` (`analyse`: identify, search on top of the fitted plant,
 discover),
 `datasets` (the fixed hidden-effect cases and their runs), `offnominal` (the randomized
-off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases),
-`settings` (the decision rules' constants).
+off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases).
+The decision rules' constants are `flaair_model.settings.DiscrepancySettings`, read from the
+`discrepancy` section of config/flaair.yaml (as the tables' from its `tables` section) and passed
+in: the workflow reads no file.
 
 Given measured runs (drive, both sensor voltages, ground-truth angles) and a model, the core
 
@@ -64,8 +66,8 @@ value per sensor chain (``{stroke: {...}, pitch: {...}}``, `flaair_model.model.P
 Sensor effects are tried without re-integrating the dynamics: the motion is simulated once and
 `sensor_voltage` (the plant's sensor chain in numpy) does the rest.
 
-Decision rules (`Settings`, all documented constants)
------------------------------------------------------
+Decision rules (`DiscrepancySettings`, all documented constants)
+----------------------------------------------------------------
 A channel *has a gap* when its residual RMS exceeds the noise estimate by more than
 ``gap_noise_ratio`` (noise from the median absolute second difference of the residual, which a
 smooth model error barely touches) AND the decimated residual is not white (Ljung-Box p below
@@ -141,7 +143,6 @@ from .runs import (
     simulate_runs,
 )
 from .search import ChannelSearch, find_effects
-from .settings import Settings
 from .vocabulary import (
     CHANNELS,
     EFFECT_CHANNELS,
@@ -173,7 +174,6 @@ __all__ = [
     "PlantFit",
     "Run",
     "RunEvidence",
-    "Settings",
     "analyse",
     "bode_points",
     "candidate_groups",

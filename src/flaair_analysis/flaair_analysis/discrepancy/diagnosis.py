@@ -15,11 +15,11 @@ from scipy import stats
 
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model
+from flaair_model.settings import DiscrepancySettings
 from flaair_sensors.core.bode import frequency_track_from_drive
 from flaair_sensors.core.characterization import tiled_transfer
 
 from .runs import Run, measured_motion, sensor_voltage
-from .settings import Settings
 from .vocabulary import CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH
 
 # ---------------------------------------------------------------------------- residual stats
@@ -172,7 +172,7 @@ class ChannelGap:
     ljung_box_q, ljung_box_p : whiteness test of the decimated residual.
     xcorr_drive : largest normalised cross-correlation of residual with the drive.
     xcorr_lag_s : its lag (residual after drive).
-    xcorr_significant : |rho| sqrt(n) > Settings.xcorr_z.
+    xcorr_significant : |rho| sqrt(n) > DiscrepancySettings.xcorr_z.
     band_nrmse : {"lo-hi Hz": model-error NRMSE of the samples whose drive frequency is in the
         band}.
     worst_band_hz : band with the largest model-error NRMSE.
@@ -267,7 +267,7 @@ def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the 
     sims: Sequence[Mapping[str, np.ndarray]],
     model: Model,
     noise: Mapping[str, float],
-    settings: Settings = Settings(),
+    settings: DiscrepancySettings,
     tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> Diagnosis:
     """Localise the disagreement of `sims` (one per run) with the runs, channel by channel.
@@ -404,7 +404,7 @@ def interpret(
     harmonics: Mapping[str, float],
     level_ratio: float,
     has_gap: bool,
-    settings: Settings,
+    settings: DiscrepancySettings,
 ) -> str:
     if not has_gap:
         return "residual at noise level and white: the model explains this channel"
@@ -455,7 +455,7 @@ def nrmse_by_channel(
 
 
 def gap_test(
-    res: Sequence[np.ndarray], sigma: float, settings: Settings
+    res: Sequence[np.ndarray], sigma: float, settings: DiscrepancySettings
 ) -> tuple[bool, float, float, float]:
     """(has_gap, noise ratio, Ljung-Box Q, p) of residual records."""
     rss = sum(float(np.nansum(r**2)) for r in res)

@@ -14,11 +14,11 @@ from scipy import stats
 
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, with_effects
+from flaair_model.settings import DiscrepancySettings
 
 from .diagnosis import drive_tracks
 from .fitting import FitResult, Fold, ResidualProblem, fit_specs, make_folds, models_for
 from .runs import MotionCache, Run, simulate_runs
-from .settings import Settings
 from .vocabulary import UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------ evidence
@@ -128,7 +128,9 @@ def gap_drop(rss_before: float, rss_after: float, n: int) -> float:
     return 1.0 - after / before if before > 0 else 0.0
 
 
-def _consistency(est: Sequence[tuple[float, float]], size: float, settings: Settings) -> float:
+def _consistency(
+    est: Sequence[tuple[float, float]], size: float, settings: DiscrepancySettings
+) -> float:
     """p-value of the scatter of (value, se) estimates about their weighted mean."""
     pts = [(v, s) for v, s in est if math.isfinite(s) and s > 0]
     if len(pts) < 2:
@@ -158,7 +160,7 @@ class AnalysisContext:
         self,
         runs: Sequence[Run],
         noise: Mapping[str, float],
-        settings: Settings,
+        settings: DiscrepancySettings,
         tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
     ) -> None:
         self.runs = tuple(runs)
@@ -206,7 +208,12 @@ def _null_fit_value(spec: EffectSpec) -> float:
 
 
 def same_on_both(
-    spec: EffectSpec, v_old: float, se_old: float, v_new: float, se_new: float, settings: Settings
+    spec: EffectSpec,
+    v_old: float,
+    se_old: float,
+    v_new: float,
+    se_new: float,
+    settings: DiscrepancySettings,
 ) -> float | None:
     """R5: one sensor effect's values on the two chains agree within 3 combined standard errors plus
     `consistency_rel_tol` of its size: their inverse-variance mean, else None (one value per chain).

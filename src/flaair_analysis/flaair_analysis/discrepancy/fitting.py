@@ -12,6 +12,7 @@ from scipy import optimize
 
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, effect_params, with_effect_on, with_effects
+from flaair_model.settings import DiscrepancySettings
 from flaair_model.terms import DiscoveredTerm
 from flaair_model.validation import ModelError
 
@@ -25,7 +26,6 @@ from .runs import (
     simulate_motion,
     simulate_runs,
 )
-from .settings import Settings
 from .vocabulary import CHANNELS, SENSOR_SIDE, UPSTREAM_TRUTH, EffectSpec
 
 # ------------------------------------------------------------------------------------ fitting
@@ -254,7 +254,7 @@ def fit_specs(
     specs: Sequence[EffectSpec],
     problem: ResidualProblem,
     x0: np.ndarray,
-    settings: Settings,
+    settings: DiscrepancySettings,
     grid: bool = True,
     step_scale: float = 1.0,
 ) -> FitResult:

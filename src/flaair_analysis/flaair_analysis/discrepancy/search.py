@@ -16,6 +16,7 @@ from flaair_model.model import (
     with_effects,
     without_effect_on,
 )
+from flaair_model.settings import DiscrepancySettings
 
 from .diagnosis import channel_residual, gap_test
 from .evidence import (
@@ -30,7 +31,6 @@ from .fitting import Fold, apply_values, fit_specs, spec_value
 from .found import merge_sensor_channels
 from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache, Run, sensor_gain_v_per_deg, simulate_runs
-from .settings import Settings
 from .vocabulary import (
     EFFECT_CHANNELS,
     PLANT_PARAMETERS,
@@ -292,11 +292,11 @@ def _polish_rounds(
     ctx: AnalysisContext, model: Model, specs: Sequence[EffectSpec], channel: str, truth_ref: bool
 ) -> Model:
     """Joint re-fits of `specs` from `model` while a gap is left and each still lowers the cost
-    by `Settings.polish_min_gain`, at most `Settings.max_polish_rounds` times (`model` itself
+    by `polish_min_gain`, at most `max_polish_rounds` times (`DiscrepancySettings`; `model` itself
     if none lowers it).
 
     A joint fit of many parameters (collision's three with structural damping and the stroke
-    plant) may stop short of its optimum within one least-squares call (`Settings.max_nfev`).
+    plant) may stop short of its optimum within one least-squares call (`max_nfev`).
     """
     cost = _channel_cost(ctx, model, specs, channel, truth_ref)
     for _ in range(ctx.settings.max_polish_rounds):
@@ -476,7 +476,7 @@ def find_effects(
     runs: Sequence[Run],
     model: Model,
     noise: Mapping[str, float],
-    settings: Settings = Settings(),
+    settings: DiscrepancySettings,
     progress: Callable[[str], None] | None = None,
     tracks: Sequence[tuple[np.ndarray, np.ndarray]] | None = None,
     nominal: Mapping[str, float] | None = None,

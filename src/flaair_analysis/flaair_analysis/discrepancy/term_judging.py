@@ -22,10 +22,10 @@ from dataclasses import replace
 import numpy as np
 
 from flaair_model.model import Model
+from flaair_model.settings import DiscrepancySettings
 
 from .evidence import AnalysisContext, CandidateEvidence, bic, gap_drop
 from .fitting import Fold, fit_specs, models_for
-from .settings import Settings
 from .vocabulary import EffectSpec
 
 __all__ = ["CONTRIBUTION_RULE", "contribution_rms", "judged_against", "refit_without"]
@@ -41,7 +41,7 @@ def refit_without(
     channel: str,
     truth_ref: bool,
     x0: np.ndarray,
-    settings: Settings,
+    settings: DiscrepancySettings,
     step_scale: float,
 ) -> Model:
     """`along` (the plant parameters or sensor effects a term is fitted with) fitted again on

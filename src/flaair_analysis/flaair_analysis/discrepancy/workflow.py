@@ -9,6 +9,7 @@ from typing import Any
 
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, effect_params
+from flaair_model.settings import DiscrepancySettings
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
@@ -26,7 +27,6 @@ from .search import (
     polish,
     strip_effects,
 )
-from .settings import Settings
 from .vocabulary import (
     ENTRIES,
     NOT_SEPARABLE,
@@ -57,7 +57,7 @@ class DiscrepancyResult:
     summary : the outcome in words.
     run_names : names of the runs.
     plant_fit : the identification of this robot's plant (`identification.PlantFit`; None when
-        Settings.identify is off).
+        DiscrepancySettings.identify is off).
     plant_parameters : {key: {value, nominal, stderr}} of the fitted plant parameters in model_out
         (stderr from the identification, before the joint fits with effects).
     not_separable : [{effect, reason}] vocabulary effects whose signature a plant-parameter change
@@ -146,7 +146,7 @@ def _heldout_nrmse(
 def analyse(
     runs: Sequence[Run],
     model: Model,
-    settings: Settings = Settings(),
+    settings: DiscrepancySettings,
     progress: Callable[[str], None] | None = None,
 ) -> DiscrepancyResult:
     """The whole workflow: compare, localise, name, add, show the gap shrink, decide the status.

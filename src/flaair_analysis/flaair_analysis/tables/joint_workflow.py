@@ -32,10 +32,9 @@ from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import diagnose
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
-from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_model.model import Model
-from flaair_model.settings import TableSettings
+from flaair_model.settings import DiscrepancySettings, TableSettings
 
 from .fit import PITCH_KEYS, STROKE_KEYS, plant_params, with_values
 from .joint import JointFit, identify_joint, prediction_scores, run_scores
@@ -157,7 +156,7 @@ def analyse_joint(
     model: Model,
     noise: Mapping[str, float],
     s: TableSettings,
-    settings: Settings = Settings(),
+    settings: DiscrepancySettings,
     progress: Callable[[str], None] | None = None,
 ) -> JointDiscrepancy:
     """Plant on both, each set's search checked on the other, plant on both again (docstring)."""
@@ -228,7 +227,7 @@ def _table_search(
     joint: JointFit,
     noise: Mapping[str, float],
     s: TableSettings,
-    settings: Settings,
+    settings: DiscrepancySettings,
     notes: list[str],
 ) -> Model | None:
     """Where the table's held-out levels keep a gap, the table's own search from `model`; its

@@ -51,12 +51,13 @@ from tqdm import tqdm
 from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.scoring import confusion_table, score_case
-from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
+from flaair_model import settings as config
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
+from flaair_model.settings import DiscrepancySettings
 from flaair_tools.tables.discrepancy_cli import run as table_discrepancy
 
 from .joint_cli import discrepancy as joint_discrepancy
@@ -79,7 +80,9 @@ def _progress_bar(total: int, desc: str):
     return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
 
 
-def run_validation(model: Model, names: Sequence[str] | None, settings: Settings) -> dict:
+def run_validation(
+    model: Model, names: Sequence[str] | None, settings: DiscrepancySettings
+) -> dict:
     """Run the workflow on the hidden-effect dataset cases; returns the validation document."""
     cases = [c for c in dataset_cases() if not names or c.name in names]
     unknown = sorted(set(names or ()) - {c.name for c in dataset_cases()})
@@ -162,9 +165,9 @@ def _discrepancy_runs(args: argparse.Namespace) -> int:
     if not args.inputs and not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
         return 2
-    settings = Settings()
     names = (VALIDATION_FILES if args.validate else ()) + (REPORT_FILES if args.inputs else ())
     try:  # everything checked before anything is computed
+        settings = config.discrepancy()
         written = check_output(
             args.out, [*args.inputs, args.model, args.validation], args.force, names
         )
@@ -207,7 +210,7 @@ def _write_validation(out: Path, validation: dict) -> None:
     )
 
 
-def _analyse(runs: list[Run], model: Model, settings: Settings) -> tuple[Any, float]:
+def _analyse(runs: list[Run], model: Model, settings: DiscrepancySettings) -> tuple[Any, float]:
     """The workflow on `runs` with a progress bar; the result and the seconds it took."""
     bar = _progress_bar(7, "discrepancy")
     t0 = time.perf_counter()

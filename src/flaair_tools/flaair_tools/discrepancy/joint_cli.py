@@ -28,7 +28,6 @@ from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
-from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.tables.joint import JointFit, identify_joint
 from flaair_analysis.tables.joint_workflow import analyse_joint
 from flaair_common.outputs import check_output, write_outputs
@@ -151,10 +150,11 @@ def discrepancy(args: argparse.Namespace) -> int:
     the exit status.
     """
     prog = "flaair discrepancy"
-    workflow = Settings()
+    workflow = []  # the settings the analysis ran with, for the report
 
     def compute(runs, table, model, noise, s):
-        return analyse_joint(runs, table, model, noise, s, workflow)
+        workflow.append(config.discrepancy())
+        return analyse_joint(runs, table, model, noise, s, workflow[0])
 
     done = _run(prog, args, DISCREPANCY_FILES, compute)
     if isinstance(done, int):
@@ -164,7 +164,9 @@ def discrepancy(args: argparse.Namespace) -> int:
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"
         save_model(result.model_out, stage / "model.yaml")
-        doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path))
+        doc = write_report(
+            stage, result.joint.runs, result.runs_result, str(model_path), workflow[0]
+        )
         doc["status"] = result.status
         doc["joint"] = json_safe(result.as_dict())
         text = json.dumps(json_safe(doc), indent=2, allow_nan=False)

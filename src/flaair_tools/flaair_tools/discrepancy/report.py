@@ -19,10 +19,10 @@ from jinja2 import Environment, FileSystemLoader, select_autoescape
 
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.scoring import expected_column
-from flaair_analysis.discrepancy.settings import Settings
 from flaair_analysis.discrepancy.vocabulary import CHANNELS
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, format_parameters
 from flaair_common.strictjson import json_safe
+from flaair_model.settings import DiscrepancySettings
 
 from .report_figures import write_figures
 
@@ -35,7 +35,7 @@ __all__ = [
 
 
 def result_to_dict(
-    result: DiscrepancyResult, model_out: str, settings: Settings = Settings()
+    result: DiscrepancyResult, model_out: str, settings: DiscrepancySettings
 ) -> dict:
     """The discrepancy.json document.
 
@@ -242,7 +242,7 @@ def _label_match(true: str, found: str) -> bool:
     return found == expected_column(true)
 
 
-def _rules(s: Settings) -> dict[str, str]:
+def _rules(s: DiscrepancySettings) -> dict[str, str]:
     """The decision rules' numbers, as the report states them."""
     return {
         "gap_noise_ratio": f"{s.gap_noise_ratio:g}",
@@ -263,7 +263,7 @@ def _context(
     result: DiscrepancyResult,
     doc: Mapping[str, Any],
     figs: Mapping[str, str],
-    settings: Settings,
+    settings: DiscrepancySettings,
     validation: Mapping[str, Any] | None,
 ) -> dict:
     """Everything report.html shows, as plain values for the template."""
@@ -476,7 +476,7 @@ def write_report(
     runs: Sequence[Run],
     result: DiscrepancyResult,
     model_out: str,
-    settings: Settings = Settings(),
+    settings: DiscrepancySettings,
     validation: Mapping[str, Any] | None = None,
 ) -> dict:
     """Write discrepancy.json, the figures and report.html

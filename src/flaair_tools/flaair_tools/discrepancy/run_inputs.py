@@ -14,6 +14,7 @@ import yaml
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
 from flaair_common.outputs import OutputError
 from flaair_common.runcsv import RunFileError, read_run
+from flaair_model.config import ConfigError
 from flaair_model.validation import ModelError
 
 from .validation_file import ValidationFileError
@@ -133,6 +134,7 @@ def bad_input_errors() -> tuple[type, ...]:
         ValidationFileError,
         RunFileError,
         ModelError,
+        ConfigError,
         DiscrepancyInputError,
         OSError,
         yaml.YAMLError,
