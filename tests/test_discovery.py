@@ -381,7 +381,7 @@ def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_
     friction and the stroke plant stalls where it starts. At `discovery_fd_step` times those steps
     it reaches the truth's cost with the coefficient within a few per cent.
     """
-    from flaair_analysis.discrepancy.evidence import AnalysisContext
+    from flaair_analysis.discrepancy.effect_judging import AnalysisContext
     from flaair_analysis.discrepancy.fitting import fit_specs, spec_value
     from flaair_analysis.discrepancy.term_candidates import fitted_along
     from flaair_analysis.discrepancy.vocabulary import term_specs
@@ -423,7 +423,7 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     """
     from flaair_analysis.discrepancy import identify_plant, noise_estimates
     from flaair_analysis.discrepancy.datasets import dataset_cases
-    from flaair_analysis.discrepancy.evidence import AnalysisContext, evaluate, gap_drop
+    from flaair_analysis.discrepancy.effect_judging import AnalysisContext, evaluate, gap_drop
     from flaair_analysis.discrepancy.fitting import fit_specs, models_for, spec_value
     from flaair_analysis.discrepancy.runs import simulate_runs
     from flaair_analysis.discrepancy.term_candidates import fitted_along

@@ -5,17 +5,16 @@ no plots, no file I/O but the nominal model `offnominal` scales its terms by): t
 
 Modules: `runs` (runs, their initial state and simulation), `run_evidence` (runs as evidence
 for the one fit: residuals in units of each channel's noise, each run's state a nuisance),
-`vocabulary` (each effect registered
-once), `identification` (grey-box fit of the plant), `diagnosis` (where a residual disagrees),
-`fitting` (least squares on folds), `evidence` (rules R1-R6), `search` (channel-by-channel
-search; `found` lists what it found, one entry per effect), `discovery` (terms from the library
-`flaair_model.terms` where the vocabulary leaves a gap; `term_candidates` ranks the library's
-terms and composed forms for it, `term_judging` judges a term against the plant refitted without
-it in the same box, `discovery_uncertainty` the next best form and the experiment that tells them
-apart), `workflow` (`analyse`: identify, search on top of the fitted plant,
-discover),
-`datasets` (the fixed hidden-effect cases and their runs), `offnominal` (the randomized
-off-nominal robot generator), `case` (one case), `scoring` (the workflow scored on the cases).
+`vocabulary` (each effect registered once), `identification` (grey-box fit of the plant),
+`diagnosis` (where a residual disagrees), `fitting` (least squares on folds), `effect_judging`
+(an effect candidate judged by rules R1-R6), `search` (channel-by-channel search; `found` lists
+what it found, one entry per effect), `discovery` (terms from the library `flaair_model.terms`
+where the vocabulary leaves a gap; `term_candidates` ranks the library's terms and composed
+forms for it, `term_judging` judges a term against the plant refitted without it in the same
+box, `discovery_uncertainty` the next best form and the experiment that tells them apart),
+`workflow` (`analyse`: identify, search on top of the fitted plant, discover), `datasets` (the
+fixed hidden-effect cases and their runs), `offnominal` (the randomized off-nominal robot
+generator), `case` (one case), `scoring` (the workflow scored on the cases).
 The decision rules' constants are `flaair_model.settings.DiscrepancySettings`, read from the
 `discrepancy` section of config/flaair.yaml (as the tables' from its `tables` section) and passed
 in: the workflow reads no file.
@@ -129,7 +128,7 @@ from .diagnosis import (
     nrmse_by_channel,
 )
 from .discovery import Discovered, DiscoveryOutcome, discover
-from .evidence import CandidateEvidence, FoundEffect
+from .effect_judging import CandidateEvidence, FoundEffect
 from .identification import PlantFit, identify_plant
 from .run_evidence import RunEvidence
 from .runs import (

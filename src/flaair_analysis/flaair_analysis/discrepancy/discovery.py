@@ -41,7 +41,7 @@ from flaair_model.terms import (
 from flaair_model.validation import ModelError
 
 from .discovery_uncertainty import form_uncertainty
-from .evidence import AnalysisContext, CandidateEvidence, FoundEffect, evaluate
+from .effect_judging import AnalysisContext, CandidateEvidence, FoundEffect, evaluate
 from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
 from .identification import fit_initial_states, identify_plant
 from .runs import MotionCache

@@ -10,7 +10,7 @@ from typing import Any, cast
 from flaair_model.effects import Effect
 from flaair_model.model import Model, PerChannel, effect_params
 
-from .evidence import FoundEffect
+from .effect_judging import FoundEffect
 
 __all__ = ["merge_sensor_channels"]
 

@@ -10,9 +10,11 @@ from typing import cast
 
 import numpy as np
 
+from flaair_analysis.evidence import Split
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, simulate_batch_from
 
+from .fitting import make_folds
 from .runs import Run
 
 __all__ = ["STATE_STEP_RAD", "RunEvidence"]
@@ -49,6 +51,9 @@ class RunEvidence:
         parameter; None: no nuisance (the runs' states stay as measured).
     omega_rad_s
         The side's natural angular frequency (the rate's scale in fit space).
+    windows
+        Per run, the sample range [start, stop) compared (default: the whole run; the run is
+        simulated from its start either way).
     """
 
     name = "runs"
@@ -61,13 +66,17 @@ class RunEvidence:
         channels: Sequence[str],
         side: str | None = None,
         omega_rad_s: float = 1.0,
+        windows: Sequence[tuple[int, int]] | None = None,
     ) -> None:
         self.runs = list(runs)
         self.sites = tuple(channels)
+        self.noise, self.decimate, self.side = dict(noise), decimate, side
         self.sigma = {c: max(float(noise[c]), 1e-12) for c in self.sites}
+        self.windows = list(windows) if windows is not None else [(0, r.n) for r in self.runs]
         self.idx = []
-        for run in self.runs:
+        for run, (start, stop) in zip(self.runs, self.windows, strict=True):
             sl = np.arange(0, run.n, decimate)
+            sl = sl[(sl >= start) & (sl < stop)]
             self.idx.append({c: sl[np.isfinite(run.channel(c)[sl])] for c in self.sites})
         self.base = [
             np.zeros(4) if r.mechanical0 is None else np.asarray(r.mechanical0, float)
@@ -76,6 +85,30 @@ class RunEvidence:
         self.comp = _SIDE_STATES[side] if side else None
         self.omega = float(omega_rad_s)
         self.n_nuisance = 2 * len(self.runs) if side else 0
+
+    def _part(self, windows: dict[int, tuple[int, int]]) -> RunEvidence:
+        """The evidence of the runs in `windows` (run index: sample range)."""
+        keep = sorted(windows)
+        return RunEvidence(
+            [self.runs[j] for j in keep],
+            self.noise,
+            self.decimate,
+            self.sites,
+            self.side,
+            self.omega,
+            [windows[j] for j in keep],
+        )
+
+    def heldout(self) -> tuple[Split, ...]:
+        """Leave one run out (`fitting.make_folds`; a lone run's halves, each judged by a model
+        fitted on the other).
+        """
+        folds = make_folds(self.runs)
+        out = []
+        for f in folds:
+            rest = {g.run: (g.start, g.stop) for g in folds if g is not f}
+            out.append(Split(f.name, self._part(rest), self._part({f.run: (f.start, f.stop)}), f))
+        return tuple(out)
 
     def nuisance_start(self) -> np.ndarray:
         """Each run's measured (angle, rate / omega) of the side."""

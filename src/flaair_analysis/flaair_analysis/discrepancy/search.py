@@ -19,7 +19,7 @@ from flaair_model.model import (
 from flaair_model.settings import DiscrepancySettings
 
 from .diagnosis import channel_residual, gap_test
-from .evidence import (
+from .effect_judging import (
     AnalysisContext,
     CandidateEvidence,
     FoundEffect,

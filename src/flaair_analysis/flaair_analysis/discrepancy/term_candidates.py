@@ -37,7 +37,7 @@ from flaair_model.terms import (
 )
 from flaair_model.validation import ModelError
 
-from .evidence import AnalysisContext
+from .effect_judging import AnalysisContext
 from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
 from .identification import FIT_RANGE
 from .runs import simulate_runs

@@ -24,7 +24,7 @@ import numpy as np
 from flaair_model.model import Model
 from flaair_model.settings import DiscrepancySettings
 
-from .evidence import AnalysisContext, CandidateEvidence, bic, gap_drop
+from .effect_judging import AnalysisContext, CandidateEvidence, bic, gap_drop
 from .fitting import Fold, fit_specs, models_for
 from .vocabulary import EffectSpec
 

@@ -15,7 +15,7 @@ from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
 from .discovery import discover
-from .evidence import AnalysisContext, FoundEffect
+from .effect_judging import AnalysisContext, FoundEffect
 from .fitting import Fold, fold_nrmse
 from .identification import FIT_RANGE, PlantFit, identify_plant
 from .runs import DiscrepancyInputError, Run, check_runs, simulate_runs

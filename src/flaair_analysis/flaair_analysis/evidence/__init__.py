@@ -2,15 +2,16 @@
 least-squares fit over any list of them.
 
 Modules: `protocol` (`Evidence`: residuals in units of the data's own noise, its nuisance
-parameters, the sites it sees) and `fit` (`fit_evidence`: shared parameters and each piece's
-nuisance fitted over every piece at once, the Birge reweighting, the covariance). The kinds of
-evidence live with their data: `flaair_analysis.discrepancy.RunEvidence` (measured runs),
+parameters, the sites it sees, its held-out `Split`s) and `fit` (`fit_evidence`: shared
+parameters and each piece's nuisance fitted over every piece at once, the Birge reweighting, the
+covariance). The kinds of evidence live with their data:
+`flaair_analysis.discrepancy.RunEvidence` (measured runs) and
 `flaair_analysis.tables.TableEvidence` (frequency-response tables).
 """
 
 from __future__ import annotations
 
 from .fit import RANK_TOL, EvidenceFit, covariance, fit_evidence
-from .protocol import Evidence
+from .protocol import Evidence, Split
 
-__all__ = ["RANK_TOL", "Evidence", "EvidenceFit", "covariance", "fit_evidence"]
+__all__ = ["RANK_TOL", "Evidence", "EvidenceFit", "Split", "covariance", "fit_evidence"]

@@ -9,13 +9,14 @@ of evidence is one chi-square and one least-squares fit (`fit_evidence`) serves 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from flaair_model.model import Model
 
-__all__ = ["Evidence"]
+__all__ = ["Evidence", "Split"]
 
 
 @runtime_checkable
@@ -53,3 +54,26 @@ class Evidence(Protocol):
         from one batch where the evidence can.
         """
         ...
+
+    def heldout(self) -> tuple[Split, ...]:
+        """Its held-out splits: each part judged by a model fitted on the rest."""
+        ...
+
+
+@dataclass(frozen=True)
+class Split:
+    """One held-out split of a piece of evidence.
+
+    Attributes
+    ----------
+    name : the part judged (a run, a run's half, a table's drive level).
+    fit : the evidence a model is fitted on (the rest).
+    judged : the evidence the fitted model is judged on (the part).
+    where : where the part lies in the whole, in the kind's own terms (a run's `Fold`, a
+        table's boolean mask of its points).
+    """
+
+    name: str
+    fit: Evidence
+    judged: Evidence
+    where: Any

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from flaair_analysis.evidence import Split
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
@@ -60,6 +61,20 @@ class TableEvidence:
     def __init__(self, table: Table, s: TableSettings, columns: Sequence[str]) -> None:
         self.table, self.settings = table, s
         self.sites = tuple(columns)
+
+    def level_splits(self) -> list[tuple[str, TableEvidence, TableEvidence, np.ndarray]]:
+        """Per drive level: its name, the other levels, the level, and its points' mask."""
+        t, out = self.table, []
+        for i, level in enumerate(t.levels_v):
+            held = t.level_index == i
+            rest = TableEvidence(t.subset(~held), self.settings, self.sites)
+            part = TableEvidence(t.subset(held), self.settings, self.sites)
+            out.append((f"{level:g} V", rest, part, held))
+        return out
+
+    def heldout(self) -> tuple[Split, ...]:
+        """Leave one drive level out: each level judged by a model fitted on the others."""
+        return tuple(Split(*parts) for parts in self.level_splits())
 
     def nuisance_start(self) -> np.ndarray:
         """No nuisance parameters."""

@@ -47,7 +47,7 @@ from .fit import (
 )
 from .reader import Table
 from .steady_state import steady_response
-from .table_evidence import normalised_residuals, stack_cells
+from .table_evidence import TableEvidence, normalised_residuals, stack_cells
 
 __all__ = [
     "NOT_SEARCHED",
@@ -235,11 +235,9 @@ def heldout_predictions(
 ) -> dict[str, np.ndarray]:
     """Each level predicted by `params` fitted (from `model`) on the other levels."""
     out = {c: np.full(table.n_points, np.nan) for c in table.responses}
-    idx = table.level_index
-    for level in range(table.levels_v.size):
-        held = idx == level
-        fit = fit_table(table.subset(~held), model, params, s, columns)
-        pred = _predict(table.subset(held), fit.model, s)
+    for _, rest, level, held in TableEvidence(table, s, columns).level_splits():
+        fit = fit_table(rest.table, model, params, s, columns)
+        pred = _predict(level.table, fit.model, s)
         for c in out:
             out[c][held] = pred[c]
     return out

@@ -1,5 +1,5 @@
-"""Evidence rules R1-R6 for a candidate effect: per-run
-fits, held-out prediction, BIC, consistency.
+"""An effect candidate judged by rules R1-R6: per-run fits, held-out prediction, BIC,
+consistency (the candidate's evidence, `CandidateEvidence`).
 """
 
 from __future__ import annotations
