@@ -28,10 +28,9 @@ import pytest
 
 from flaair_analysis.discrepancy import (
     diagnosis,
-    evidence,
+    effect_judging,
     fitting,
     search,
-    settings,
     vocabulary,
     workflow,
 )
@@ -62,7 +61,7 @@ from rosproc import FLAAIR, isolated_env, run, run_offline
 dc = SimpleNamespace(
     **{
         k: v
-        for m in (vocabulary, run_module, settings, diagnosis, fitting, evidence, search, workflow)
+        for m in (vocabulary, run_module, diagnosis, fitting, effect_judging, search, workflow)
         for k, v in vars(m).items()
         if not k.startswith("__")
     }
