@@ -229,7 +229,256 @@ def _spin_until(node: Node, graph: Graph, predicate, timeout_s: float, what: str
             raise ExperimentError(str(exc)) from exc
 
 
-def run_experiment(  # noqa: C901  a graph's life in order: start it, run each part, stop it
+def _announce(spec: ExperimentSpec, graph: Graph, log_dir: Path, calibrated: bool) -> None:
+    """Where the graph runs, how to reach it from a second terminal, and a missing calibration."""
+    print(
+        f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}\n"
+        f"{second_terminal.hint(graph.env)}",
+        file=sys.stderr,
+    )
+    if not calibrated:
+        print(
+            "flaair experiment: WARNING: no --calibration: the front end runs on the model's "
+            "gains, so the sensor-derived pitch reads about 4x small (the model "
+            "over-predicts the hinge sensor) and pitch figures, the collision metric among "
+            "them, are off; run `bin/flaair calibrate` first",
+            file=sys.stderr,
+        )
+
+
+def _start_nodes(
+    graph: Graph,
+    spec: ExperimentSpec,
+    out: Path,
+    log_dir: Path,
+    noise: bool,
+    nominal: bool,
+    calibration_file: Path | None,
+) -> dict[str, subprocess.Popen]:
+    """The graph's nodes (the experiment's own among them) with this run's parameters."""
+    plant: dict[str, Any] = {"noise": noise, **spec.plant}
+    if not nominal and robot_section():
+        plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
+        plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
+    calibrated = calibration_file is not None
+    run_parameters: dict[str, dict[str, Any]] = {
+        "recorder": {"output_path": str(out)},
+        "plant": plant,
+        "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
+        if calibrated
+        else {},
+        "health": {"calibration_file": str(calibration_file)} if calibrated else {},
+    }
+    started = {
+        role: start_node(
+            graph, role, {**GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})}
+        )
+        for role in GRAPH.roles
+    }
+    for role in spec.nodes:
+        start_node(graph, role, {})
+    return started
+
+
+def _await_listeners(runner: Runner, graph: Graph, spec: ExperimentSpec) -> None:
+    """Until every consumer (the recorder on each recorded topic among them) listens.
+
+    Nothing may flow before: a reliable volatile publisher drops what it sent before a
+    subscription matched (the front end once lost 211 blocks so).
+    """
+    recorded = [
+        topics.SENSOR_VOLTAGE,
+        topics.WING_STATE_TRUTH,
+        topics.WING_STATE,
+        topics.DRIVE,
+        bagio.RUN_MARKER_TOPIC,
+        EXPERIMENT_TOPIC,
+    ]
+    node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
+    consumers = [
+        (node_name["plant"], topics.DRIVE),
+        (node_name["frontend"], topics.SENSOR_VOLTAGE),
+    ]
+    if "collision_monitor" in spec.nodes:
+        recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
+        consumers += [(node_name["collision_monitor"], topics.WING_STATE)]
+    if spec.controller:
+        consumers += [(node_name["controller"], topics.WING_STATE)]
+    needed = [(node_name["recorder"], t) for t in recorded] + consumers
+    _spin_until(
+        runner,
+        graph,
+        lambda: all(runner.subscribed(n, t) for n, t in needed if n != node_name.get("controller")),
+        90.0,
+        "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed),
+    )
+    # discovery is seen here a moment before the publishers see it
+    settle_until = time.monotonic() + 0.5
+    _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "discovery to settle")
+
+
+def _publish_experiment(runner: Runner, spec: ExperimentSpec, fs_hz: float) -> None:
+    """The experiment's description on its topic (the bag keeps what was asked for)."""
+    runs = [
+        {"name": r.name, "run_time_s": r.run_time_s, "drive": r.drive, "markers": r.markers}
+        for r in spec.runs
+    ]
+    doc = {
+        "name": spec.name,
+        "kind": spec.kind,
+        "description": spec.description,
+        "sample_rate_hz": fs_hz,
+        "plant": spec.plant,
+        "runs": runs,
+    }
+    runner.experiment_pub.publish(String(data=json.dumps(doc)))
+
+
+def _publish_markers(
+    runner: Runner, spec: ExperimentSpec, run: RunSpec, run_start: int, fs_hz: float
+) -> None:
+    """The run's markers (its parts), from its first sample after the rest."""
+    for part, start_s, end_s in run.markers or ((run.name, 0.0, run.run_time_s),):
+        a, b = run_start + round(start_s * fs_hz), run_start + round(end_s * fs_hz)
+        marker = bagio.RunMarker(
+            run=part,
+            first_sample_index=a,
+            n_samples=b - a,
+            source_file=spec.name,
+            sample_rate_hz=fs_hz,
+            start_ns=int(a / fs_hz * 1e9),
+        )
+        runner.marker_pub.publish(String(data=marker.to_json()))
+
+
+def _start_driver(
+    runner: Runner,
+    graph: Graph,
+    spec: ExperimentSpec,
+    run: RunSpec,
+    first: int,
+    rest: int,
+    n_samples: int,
+    fs_hz: float,
+) -> subprocess.Popen:
+    """The run's driver: the controller (the experiment's first run only) or a drive node."""
+    # Every subscriber of the drive (plant, recorder, monitor) must match before the first
+    # block: a lockstep plant that misses the opening window waits forever.
+    listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
+    if spec.controller:
+        if first != 0:
+            raise ExperimentError(
+                f"{spec.name}: a controller run must be the experiment's first run"
+            )
+        # the recorder subscribes to the controller's state topic only once it appears
+        return start_node(
+            graph,
+            "controller",
+            {
+                "run_time_s": n_samples / fs_hz,
+                "min_drive_subscribers": max(listeners, 2),
+                "min_state_subscribers": 1,
+            },
+        )
+    return start_node(
+        graph,
+        "drive",
+        {
+            "pacing": "lockstep",
+            "run_time_s": n_samples / fs_hz,
+            "first_sample_index": first,
+            "min_subscribers": max(listeners, 2),
+            "pace_on_wing_state": True,
+            "lead_in_s": rest / fs_hz,
+            **run.drive,
+        },
+    )
+
+
+def _await_samples(
+    runner: Runner, graph: Graph, spec: ExperimentSpec, run: RunSpec, first: int, n_samples: int,
+    progress: bool,
+) -> None:  # fmt: skip
+    """Until the plant has stepped the run's samples, with a progress bar."""
+    bar = tqdm(
+        total=n_samples,
+        desc=f"{spec.name}/{run.name}",
+        unit="sample",
+        unit_scale=True,
+        disable=not progress,
+        leave=False,
+        mininterval=1.0,
+    )
+    done = 0
+
+    def finished() -> bool:
+        nonlocal done
+        now = min(runner.sensor_end_index - first, n_samples)
+        bar.update(now - done)
+        done = now
+        return done >= n_samples
+
+    try:
+        timeout_s = 120.0 + 60.0 * run.run_time_s
+        _spin_until(runner, graph, finished, timeout_s, f"run {run.name} to finish")
+    finally:
+        bar.close()
+
+
+def _run_one(
+    runner: Runner, graph: Graph, spec: ExperimentSpec, run: RunSpec, progress: bool
+) -> dict[str, Any]:
+    """One run of the experiment: markers, driver, its samples, the monitor and the recorder
+    caught up, the driver stopped; its summary.
+    """
+    shared = settings.stream()
+    fs_hz, block_size = shared.sample_rate_hz, shared.block_size
+    # The rest (zero drive, whole blocks) lets the wing settle after the previous run; the
+    # run's markers start after it.
+    rest = round(spec.rest_s * fs_hz / block_size) * block_size
+    first = runner.sensor_end_index
+    n_samples = rest + round(run.run_time_s * fs_hz / block_size) * block_size
+    _publish_markers(runner, spec, run, first + rest, fs_hz)
+    driver = _start_driver(runner, graph, spec, run, first, rest, n_samples, fs_hz)
+    _await_samples(runner, graph, spec, run, first, n_samples, progress)
+    if "collision_monitor" in spec.nodes:
+        # On a loaded machine the monitor can lag the plant by seconds: let it judge the whole
+        # run (to within two of the slowest wingbeats) before anything stops.
+        run_end_s = (first + n_samples) / fs_hz - 2.0 / settings.monitor().min_wingbeat_hz
+        _spin_until(
+            runner,
+            graph,
+            lambda: runner.monitor_end_s >= run_end_s,
+            300.0,
+            f"the collision monitor to judge the run up to {run_end_s:.2f} s",
+        )
+    # A stopped publisher takes with it what a lagging recorder has not fetched yet (a loaded
+    # fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
+    drain_until = time.monotonic() + 2.0
+    _spin_until(
+        runner, graph, lambda: time.monotonic() > drain_until, 10.0, "the recorder to drain"
+    )
+    graph.stop(driver)
+    return {"run": run.name, "first_sample_index": first + rest, "n_samples": n_samples - rest}
+
+
+def _check_recorded(out: Path, total_blocks: int, log_dir: Path) -> dict[str, int]:
+    """The bag's message counts; every block the plant stepped recorded on each block topic."""
+    counts = bagio.message_counts(out)
+    for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE):
+        recorded = counts.get(topic, 0)
+        if topic == topics.DRIVE and recorded > total_blocks:
+            # a controller's start-up retry sends its first block again: the plant ignores the copy
+            recorded = bagio.read_blocks(out, topic, allow_gaps=True).block_first_index.size
+        if recorded != total_blocks:
+            raise ExperimentError(
+                f"{out}: {recorded} blocks on {topic} recorded, the plant "
+                f"stepped {total_blocks} (logs in {log_dir})"
+            )
+    return counts
+
+
+def run_experiment(
     spec: ExperimentSpec,
     out: Path,
     *,
@@ -249,236 +498,33 @@ def run_experiment(  # noqa: C901  a graph's life in order: start it, run each p
     out = out.absolute()
     calibration_file = None if calibration_file is None else calibration_file.absolute()
     shared = settings.stream()
-    fs_hz, block_size = shared.sample_rate_hz, shared.block_size
     log_dir = out.parent / f"{out.name}.logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     graph = Graph(log_dir=log_dir)
     # This process joins the graph's private domain too (rcl reads the environment at init).
     os.environ.update({k: v for k, v in graph.env.items() if k.startswith("ROS_")})
     if progress:
-        print(
-            f"flaair experiment: {spec.name} on {graph.describe()}; logs in {log_dir}\n"
-            f"{second_terminal.hint(graph.env)}",
-            file=sys.stderr,
-        )
-        if calibration_file is None:
-            print(
-                "flaair experiment: WARNING: no --calibration: the front end runs on the model's "
-                "gains, so the sensor-derived pitch reads about 4x small (the model "
-                "over-predicts the hinge sensor) and pitch figures, the collision metric among "
-                "them, are off; run `bin/flaair calibrate` first",
-                file=sys.stderr,
-            )
+        _announce(spec, graph, log_dir, calibration_file is not None)
     # Ctrl-C/SIGTERM are ours
     rclpy.init(args=[], signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
-        plant: dict[str, Any] = {"noise": noise, **spec.plant}
-        if not nominal and robot_section():
-            plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
-            plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
-        run_parameters: dict[str, dict[str, Any]] = {
-            "recorder": {"output_path": str(out)},
-            "plant": plant,
-            "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
-            if calibration_file is not None
-            else {},
-            "health": {"calibration_file": str(calibration_file)}
-            if calibration_file is not None
-            else {},
-        }
-        started = {
-            role: start_node(
-                graph, role, {**GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})}
-            )
-            for role in GRAPH.roles
-        }
-        for role in spec.nodes:
-            start_node(graph, role, {})
-        # Nothing may flow before every consumer listens: a reliable volatile publisher drops
-        # what it sent before a subscription matched (the front end once lost 211 blocks so).
-        recorded = [
-            topics.SENSOR_VOLTAGE,
-            topics.WING_STATE_TRUTH,
-            topics.WING_STATE,
-            topics.DRIVE,
-            bagio.RUN_MARKER_TOPIC,
-            EXPERIMENT_TOPIC,
-        ]
-        node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
-        consumers = [
-            (node_name["plant"], topics.DRIVE),
-            (node_name["frontend"], topics.SENSOR_VOLTAGE),
-        ]
-        if "collision_monitor" in spec.nodes:
-            recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
-            consumers += [(node_name["collision_monitor"], topics.WING_STATE)]
-        if spec.controller:
-            consumers += [(node_name["controller"], topics.WING_STATE)]
-        needed = [(node_name["recorder"], t) for t in recorded] + consumers
-        _spin_until(
-            runner,
-            graph,
-            lambda: all(
-                runner.subscribed(n, t) for n, t in needed if n != node_name.get("controller")
-            ),
-            90.0,
-            "subscriptions: " + ", ".join(f"{n} on {t}" for n, t in needed),
-        )
-        # discovery is seen here a moment before the publishers see it
-        settle_until = time.monotonic() + 0.5
-        _spin_until(
-            runner, graph, lambda: time.monotonic() > settle_until, 5.0, "discovery to settle"
-        )
-        runner.experiment_pub.publish(
-            String(
-                data=json.dumps(
-                    {
-                        "name": spec.name,
-                        "kind": spec.kind,
-                        "description": spec.description,
-                        "sample_rate_hz": fs_hz,
-                        "plant": spec.plant,
-                        "runs": [
-                            {
-                                "name": r.name,
-                                "run_time_s": r.run_time_s,
-                                "drive": r.drive,
-                                "markers": r.markers,
-                            }
-                            for r in spec.runs
-                        ],
-                    }
-                )
-            )
-        )
+        started = _start_nodes(graph, spec, out, log_dir, noise, nominal, calibration_file)
+        _await_listeners(runner, graph, spec)
+        _publish_experiment(runner, spec, shared.sample_rate_hz)
         for run in spec.runs:
-            # The rest (zero drive, whole blocks) lets the wing settle after the previous run;
-            # the run's markers start after it.
-            rest = round(spec.rest_s * fs_hz / block_size) * block_size
-            first = runner.sensor_end_index
-            n_samples = rest + round(run.run_time_s * fs_hz / block_size) * block_size
-            parts = run.markers or ((run.name, 0.0, run.run_time_s),)
-            for part, start_s, end_s in parts:
-                a, b = (
-                    first + rest + round(start_s * fs_hz),
-                    first + rest + round(end_s * fs_hz),
-                )
-                marker = bagio.RunMarker(
-                    run=part,
-                    first_sample_index=a,
-                    n_samples=b - a,
-                    source_file=spec.name,
-                    sample_rate_hz=fs_hz,
-                    start_ns=int(a / fs_hz * 1e9),
-                )
-                runner.marker_pub.publish(String(data=marker.to_json()))
-            if spec.controller:
-                if first != 0:
-                    raise ExperimentError(
-                        f"{spec.name}: a controller run must be the experiment's first run"
-                    )
-                listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                # the recorder subscribes to the controller's state topic only once it appears
-                driver = start_node(
-                    graph,
-                    "controller",
-                    {
-                        "run_time_s": n_samples / fs_hz,
-                        "min_drive_subscribers": max(listeners, 2),
-                        "min_state_subscribers": 1,
-                    },
-                )
-            else:
-                # Every subscriber of the drive (plant, recorder, monitor) must match before the
-                # first block: a lockstep plant that misses the opening window waits forever.
-                listeners = len(runner.get_subscriptions_info_by_topic(topics.DRIVE))
-                driver = start_node(
-                    graph,
-                    "drive",
-                    {
-                        "pacing": "lockstep",
-                        "run_time_s": n_samples / fs_hz,
-                        "first_sample_index": first,
-                        "min_subscribers": max(listeners, 2),
-                        "pace_on_wing_state": True,
-                        "lead_in_s": rest / fs_hz,
-                        **run.drive,
-                    },
-                )
-            bar = tqdm(
-                total=n_samples,
-                desc=f"{spec.name}/{run.name}",
-                unit="sample",
-                unit_scale=True,
-                disable=not progress,
-                leave=False,
-                mininterval=1.0,
-            )
-            done = 0
-
-            def finished() -> bool:
-                nonlocal done
-                now = min(runner.sensor_end_index - first, n_samples)  # noqa: B023  run here
-                bar.update(now - done)  # noqa: B023  run within this iteration (_spin_until)
-                done = now
-                return done >= n_samples  # noqa: B023  run within this iteration (_spin_until)
-
-            try:
-                _spin_until(
-                    runner,
-                    graph,
-                    finished,
-                    120.0 + 60.0 * run.run_time_s,
-                    f"run {run.name} to finish",
-                )
-            finally:
-                bar.close()
-            if "collision_monitor" in spec.nodes:
-                # On a loaded machine the monitor can lag the plant by seconds: let it judge the
-                # whole run (to within two of the slowest wingbeats) before anything stops.
-                run_end_s = (first + n_samples) / fs_hz - 2.0 / settings.monitor().min_wingbeat_hz
-                _spin_until(
-                    runner,
-                    graph,
-                    lambda: runner.monitor_end_s >= run_end_s,  # noqa: B023  run right here
-                    300.0,
-                    f"the collision monitor to judge the run up to {run_end_s:.2f} s",
-                )
-            # A stopped publisher takes with it what a lagging recorder has not fetched yet
-            # (a loaded fresh-clone demo lost 219 drive blocks so): let the recorder drain first.
-            drain_until = time.monotonic() + 2.0
-
-            def drained(end_s: float = drain_until) -> bool:
-                return time.monotonic() > end_s
-
-            _spin_until(runner, graph, drained, 10.0, "the recorder to drain")
-            graph.stop(driver)
-            summary["runs"].append(
-                {"run": run.name, "first_sample_index": first + rest, "n_samples": n_samples - rest}
-            )
+            summary["runs"].append(_run_one(runner, graph, spec, run, progress))
         # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
         settle_until = time.monotonic() + 1.0
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
-        total_blocks = runner.sensor_end_index // block_size
+        total_blocks = runner.sensor_end_index // shared.block_size
         graph.stop(started["recorder"], timeout_s=60.0)
     finally:
         graph.close()
         runner.destroy_node()
         rclpy.try_shutdown()
-    counts = bagio.message_counts(out)
-    summary["message_counts"] = counts
-    for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH, topics.WING_STATE, topics.DRIVE):
-        recorded = counts.get(topic, 0)
-        if topic == topics.DRIVE and recorded > total_blocks:
-            # a controller's start-up retry sends its first block again: the plant ignores the copy
-            recorded = bagio.read_blocks(out, topic, allow_gaps=True).block_first_index.size
-        if recorded != total_blocks:
-            raise ExperimentError(
-                f"{out}: {recorded} blocks on {topic} recorded, the plant "
-                f"stepped {total_blocks} (logs in {log_dir})"
-            )
+    summary["message_counts"] = _check_recorded(out, total_blocks, log_dir)
     return summary
 
 

@@ -36,6 +36,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.duration import Duration
@@ -233,9 +234,11 @@ def _checked_type_and_values(args: argparse.Namespace) -> tuple[type | None, lis
     return cls, messages
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """`flaair topic`'s parser: one subcommand per verb, as ros2cli's (the defaults from
+    config/, `cli_defaults`).
+    """
     defaults = cli_defaults("flaair topic")
-    silence = float(defaults["echo_timeout_s"])
     parser = argparse.ArgumentParser(
         prog="flaair topic",
         description=__doc__,
@@ -259,6 +262,14 @@ def main(argv: list[str] | None = None) -> int:
     info.add_argument("topic")
     info.add_argument("-v", "--verbose", action="store_true", help="every endpoint and its QoS")
     add_discovery_arguments(info, spin_s)
+    _add_listeners(sub, defaults)
+    _add_wait_and_pub(sub)
+    return parser
+
+
+def _add_listeners(sub: Any, defaults: dict[str, Any]) -> None:
+    """`echo` and `hz`: a topic listened to, ended by silence, a count or a timeout."""
+    silence = float(defaults["echo_timeout_s"])
     echo = sub.add_parser(
         "echo", formatter_class=HelpFormatter, help="print messages as YAML, as `ros2 topic echo`"
     )
@@ -313,6 +324,10 @@ def main(argv: list[str] | None = None) -> int:
         "--period", type=float, default=float(defaults["hz_period_s"]), help="print this often [s]"
     )
     hz.add_argument("--count", type=int, default=0, help="stop after N reports (0: until Ctrl-C)")
+
+
+def _add_wait_and_pub(sub: Any) -> None:
+    """`wait` (for endpoints) and `pub` (messages given as JSON)."""
     wait = sub.add_parser(
         "wait",
         formatter_class=HelpFormatter,
@@ -356,62 +371,69 @@ def main(argv: list[str] | None = None) -> int:
         metavar="S",
         help="how long --wait-subscribers waits (default 30 s)",
     )
-    args = parse_or_refuse(parser, argv, "topic")
+
+
+def _wait(node: Node, args: argparse.Namespace) -> int:
+    """`wait`: until the topic has enough publishers and subscribers (1 on timeout)."""
+    deadline = time.monotonic() + args.timeout
+    publishers = subscribers = 0
+    while time.monotonic() < deadline:
+        publishers = node.count_publishers(args.topic)
+        subscribers = node.count_subscribers(args.topic)
+        if publishers >= args.publishers and subscribers >= args.subscribers:
+            time.sleep(args.settle)
+            return 0
+        rclpy.spin_once(node, timeout_sec=0.05)
+    print(
+        f"flaair topic wait: '{args.topic}' has {publishers} publisher(s) and "
+        f"{subscribers} subscriber(s) after {args.timeout:g} s; wanted {args.publishers} "
+        f"and {args.subscribers}",
+        file=sys.stderr,
+    )
+    return 1
+
+
+def _publish(node: Node, args: argparse.Namespace, cls: Any, messages: list[object]) -> int:
+    """`pub`: the messages, once enough subscribers match, each acknowledged (1 if not)."""
+    publisher = node.create_publisher(cls, args.topic, BLOCK_STREAM)
+    deadline = time.monotonic() + args.wait_timeout
+    while publisher.get_subscription_count() < args.wait_subscribers:
+        if time.monotonic() > deadline:
+            print(
+                f"flaair topic pub: '{args.topic}' has {publisher.get_subscription_count()} "
+                f"subscriber(s) after {args.wait_timeout:g} s; wanted "
+                f"{args.wait_subscribers}: nothing published",
+                file=sys.stderr,
+            )
+            return 1
+        rclpy.spin_once(node, timeout_sec=0.05)
+    for _ in range(args.count):
+        for message in messages:
+            publisher.publish(message)
+            time.sleep(1.0 / args.rate)
+    # every matched reader has the messages before the participant goes away (reliable QoS)
+    if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout)):
+        print(
+            f"flaair topic pub: '{args.topic}': not every subscriber acknowledged the "
+            f"messages within {args.wait_timeout:g} s",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_or_refuse(_parser(), argv, "topic")
     checked = _checked_type_and_values(args)
     if isinstance(checked, int):
         return checked
     cls, messages = checked
+    verbs = {"list": _list, "info": _info, "wait": _wait, "echo": _listen, "hz": _listen}
 
-    def body(node) -> int:
-        if args.verb == "list":
-            return _list(node, args)
-        if args.verb == "info":
-            return _info(node, args)
-        if args.verb == "wait":
-            deadline = time.monotonic() + args.timeout
-            while time.monotonic() < deadline:
-                publishers, subscribers = (
-                    node.count_publishers(args.topic),
-                    node.count_subscribers(args.topic),
-                )
-                if publishers >= args.publishers and subscribers >= args.subscribers:
-                    time.sleep(args.settle)
-                    return 0
-                rclpy.spin_once(node, timeout_sec=0.05)
-            print(
-                f"flaair topic wait: '{args.topic}' has {publishers} publisher(s) and "
-                f"{subscribers} subscriber(s) after {args.timeout:g} s; wanted {args.publishers} "
-                f"and {args.subscribers}",
-                file=sys.stderr,
-            )
-            return 1
-        if args.verb in ("echo", "hz"):
-            return _listen(node, args)
-        publisher = node.create_publisher(cls, args.topic, BLOCK_STREAM)
-        deadline = time.monotonic() + args.wait_timeout
-        while publisher.get_subscription_count() < args.wait_subscribers:
-            if time.monotonic() > deadline:
-                print(
-                    f"flaair topic pub: '{args.topic}' has {publisher.get_subscription_count()} "
-                    f"subscriber(s) after {args.wait_timeout:g} s; wanted "
-                    f"{args.wait_subscribers}: nothing published",
-                    file=sys.stderr,
-                )
-                return 1
-            rclpy.spin_once(node, timeout_sec=0.05)
-        for _ in range(args.count):
-            for message in messages:
-                publisher.publish(message)
-                time.sleep(1.0 / args.rate)
-        # every matched reader has the messages before the participant goes away (reliable QoS)
-        if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout)):
-            print(
-                f"flaair topic pub: '{args.topic}': not every subscriber acknowledged the "
-                f"messages within {args.wait_timeout:g} s",
-                file=sys.stderr,
-            )
-            return 1
-        return 0
+    def body(node: Node) -> int:
+        if args.verb in verbs:
+            return verbs[args.verb](node, args)
+        return _publish(node, args, cls, messages)
 
     return run_with_node(hidden_node_name("topic"), body)
 
