@@ -22,6 +22,7 @@ import itertools
 import json
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -380,41 +381,39 @@ def parse_host_port(text: str) -> tuple[str, int]:
     return host, number
 
 
-def layout_json() -> str:
-    """The Foxglove app layout of config/foxglove_layout.json (import it with Layout > Import)."""
-    # deferred: foxglove.layouts (0.13 s) only to write the app layout; the node never needs it
-    import foxglove.layouts as fl
+def _plot(fl: Any, title: str, series: list[tuple[str, str]], y_label: str, window_s: float) -> Any:
+    """A sliding-window plot panel of `series` ((message path, label); truth dashed)."""
+    return fl.PlotPanel(
+        title=title,
+        config=fl.PlotConfig(
+            paths=[
+                fl.PlotSeries(
+                    value=value,
+                    label=label,
+                    timestamp_method="receiveTime",
+                    line_style="dashed" if "truth" in label else "solid",
+                )
+                for value, label in series
+            ],
+            x_axis_val="timestamp",
+            time_window_mode="sliding",
+            following_view_width=window_s,
+            y_axis_label=y_label,
+            show_legend=True,
+            legend_display="top",
+        ),
+    )
 
-    def plot(
-        title: str, series: list[tuple[str, str]], y_label: str, window_s: float
-    ) -> fl.PlotPanel:
-        return fl.PlotPanel(
-            title=title,
-            config=fl.PlotConfig(
-                paths=[
-                    fl.PlotSeries(
-                        value=value,
-                        label=label,
-                        timestamp_method="receiveTime",
-                        line_style="dashed" if "truth" in label else "solid",
-                    )
-                    for value, label in series
-                ],
-                x_axis_val="timestamp",
-                time_window_mode="sliding",
-                following_view_width=window_s,
-                y_axis_label=y_label,
-                show_legend=True,
-                legend_display="top",
-            ),
-        )
 
+def _signal_panels(fl: Any) -> tuple[Any, Any, Any]:
+    """The block streams: wing angles (with the truth), sensor voltages, drive."""
     ws, truth, sensor = (
         STREAMS["wing_state"].topic,
         STREAMS["wing_state_truth"].topic,
         STREAMS["sensor_v"].topic,
     )
-    wing = plot(
+    wing = _plot(
+        fl,
         "Wing angles (front end; dashed: simulator truth)",
         [
             (f"{ws}.stroke_deg", "stroke [deg]"),
@@ -425,7 +424,8 @@ def layout_json() -> str:
         "angle [deg]",
         0.1,
     )
-    volts = plot(
+    volts = _plot(
+        fl,
         "PVDF charge-amplifier outputs",
         [
             (f"{sensor}.stroke_sensor_v", "stroke sensor [V]"),
@@ -434,25 +434,34 @@ def layout_json() -> str:
         "voltage [V]",
         0.1,
     )
-    drive = plot(
-        "Actuator drive", [(f"{STREAMS['drive'].topic}.drive_v", "drive [V]")], "drive [V]", 0.1
+    drive = _plot(
+        fl,
+        "Actuator drive",
+        [(f"{STREAMS['drive'].topic}.drive_v", "drive [V]")],
+        "drive [V]",
+        0.1,
     )
-    beat = plot(
-        "Per wingbeat",
-        [
-            (f"{WINGBEAT_TOPIC}.{name}", label)
-            for name, label in (
-                ("amplitude_deg", "stroke amplitude [deg]"),
-                ("pitch_amplitude_deg", "pitch amplitude [deg]"),
-                ("collision_score", "collision score (>= 1: colliding)"),
-                ("k_r", "K_r (1 sync, 0 dSA)"),
-            )
-        ],
-        "",
+    return wing, volts, drive
+
+
+def _wingbeat_panels(fl: Any) -> tuple[Any, Any, Any, Any]:
+    """Per wingbeat: amplitudes, score and K_r; frequency; the monitor's state; the last one."""
+    series = [
+        (f"{WINGBEAT_TOPIC}.{name}", label)
+        for name, label in (
+            ("amplitude_deg", "stroke amplitude [deg]"),
+            ("pitch_amplitude_deg", "pitch amplitude [deg]"),
+            ("collision_score", "collision score (>= 1: colliding)"),
+            ("k_r", "K_r (1 sync, 0 dSA)"),
+        )
+    ]
+    beat = _plot(fl, "Per wingbeat", series, "", 5.0)
+    frequency = _plot(
+        fl,
+        "Wingbeat frequency",
+        [(f"{WINGBEAT_TOPIC}.frequency_hz", "frequency [Hz]")],
+        "[Hz]",
         5.0,
-    )
-    frequency = plot(
-        "Wingbeat frequency", [(f"{WINGBEAT_TOPIC}.frequency_hz", "frequency [Hz]")], "[Hz]", 5.0
     )
     states = fl.StateTransitionsPanel(
         title="Collision monitor",
@@ -473,8 +482,14 @@ def layout_json() -> str:
         title="Last wingbeat",
         config=fl.RawMessagesConfig(topic_path=WINGBEAT_TOPIC, expansion="all"),
     )
+    return beat, frequency, states, last
+
+
+def _health_panels(fl: Any) -> tuple[Any, Any]:
+    """The health monitor's estimates with its detected changes, and its last event."""
     status, events = topics.HEALTH_STATUS, topics.HEALTH_EVENTS
-    health = plot(
+    health = _plot(
+        fl,
         "Health monitor: estimates (x model) and detected changes",
         [
             (f"{status}.{name}_ratio", label)
@@ -493,8 +508,19 @@ def layout_json() -> str:
         title="Last health event (parameter, ratio, time)",
         config=fl.RawMessagesConfig(topic_path=events, expansion="all"),
     )
+    return health, changes
 
-    def split(direction: str, *items: tuple[float, object]) -> fl.SplitContainer:
+
+def layout_json() -> str:
+    """The Foxglove app layout of config/foxglove_layout.json (import it with Layout > Import)."""
+    # deferred: foxglove.layouts (0.13 s) only to write the app layout; the node never needs it
+    import foxglove.layouts as fl
+
+    wing, volts, drive = _signal_panels(fl)
+    beat, frequency, states, last = _wingbeat_panels(fl)
+    health, changes = _health_panels(fl)
+
+    def split(direction: str, *items: tuple[float, object]) -> Any:
         return fl.SplitContainer(
             direction=direction, items=[fl.SplitItem(proportion=p, content=c) for p, c in items]
         )
