@@ -93,13 +93,25 @@ def _robot_after(model: Model, exp: Experiment) -> Model:
     return replace(model, effects=effects)
 
 
-def run_closed_loop(
-    exp: Experiment, model: Model, values: dict[str, Any], frontend_values: dict[str, Any]
-) -> dict[str, np.ndarray]:
-    """Run one experiment in lockstep; per-sample signals and per-block controller state (pure).
+def _design(
+    design_plant: stroke.StrokePlant, mode: str, setpoint_deg: float, values: dict[str, Any]
+) -> tuple[Any, Any]:
+    """The stroke controller's feed-forward and gain for `setpoint_deg` (`stroke.design`)."""
+    return stroke.design(
+        design_plant,
+        mode,
+        setpoint_deg,
+        sync_frequency_hz=values["sync_frequency_hz"],
+        r3_rad_s=values["r3_rad_s"],
+        kappa=values["kappa"],
+    )
 
-    ``values``: the stroke_controller_node parameters (config/flaair.yaml, with the shared
-    sample_rate_hz, block_size, drive_limit_v); ``frontend_values``: the frontend_node ones.
+
+def _loop_params(
+    exp: Experiment, model: Model, values: dict[str, Any], frontend_values: dict[str, Any]
+) -> tuple[Any, stroke.StrokePlant, Any, safety.SafetyParams]:
+    """The front end's, the stroke controller's (designed on the model, for the loop's delay)
+    and the drive guard's parameters.
     """
     fs, n = float(values["sample_rate_hz"]), int(values["block_size"])
     fp = frontend_params(frontend_values, fs)
@@ -121,6 +133,34 @@ def run_closed_loop(
         values["ramp_down_s"],
         fs,
     )
+    return fp, design_plant, params, guard
+
+
+def _record_block(
+    out: dict[str, np.ndarray], part: slice, drive: np.ndarray, sim: Any, est: Any
+) -> None:
+    """One block's drive, plant outputs and front-end estimates into the run's records."""
+    out["drive_v"][part] = drive
+    out["stroke_sensor_v"][part] = sim.stroke_sensor_v
+    out["pitch_sensor_v"][part] = sim.pitch_sensor_v
+    out["true_stroke_deg"][part] = np.degrees(sim.stroke_rad)
+    out["true_pitch_deg"][part] = np.degrees(sim.pitch_rad)
+    out["stroke_deg"][part] = np.degrees(est.stroke_rad)
+    out["pitch_deg"][part] = np.degrees(est.pitch_rad)
+    out["stroke_velocity_deg_s"][part] = np.degrees(est.stroke_velocity_rad_s)
+    out["stroke_valid"][part], out["pitch_valid"][part] = est.stroke_valid, est.pitch_valid
+
+
+def run_closed_loop(
+    exp: Experiment, model: Model, values: dict[str, Any], frontend_values: dict[str, Any]
+) -> dict[str, np.ndarray]:
+    """Run one experiment in lockstep; per-sample signals and per-block controller state (pure).
+
+    ``values``: the stroke_controller_node parameters (config/flaair.yaml, with the shared
+    sample_rate_hz, block_size, drive_limit_v); ``frontend_values``: the frontend_node ones.
+    """
+    fs, n = float(values["sample_rate_hz"]), int(values["block_size"])
+    fp, design_plant, params, guard = _loop_params(exp, model, values, frontend_values)
     blocks = round(exp.duration_s * fs / n)
     event_block = round(exp.event_s * fs / n)
     after = _robot_after(model, exp)
@@ -158,14 +198,7 @@ def run_closed_loop(
     for k in range(blocks):
         robot = after if k >= event_block else model
         if k == event_block and exp.setpoint_after_deg != exp.setpoint_before_deg:
-            u_ff, epsilon = stroke.design(
-                design_plant,
-                exp.mode,
-                exp.setpoint_after_deg,
-                sync_frequency_hz=values["sync_frequency_hz"],
-                r3_rad_s=values["r3_rad_s"],
-                kappa=values["kappa"],
-            )
+            u_ff, epsilon = _design(design_plant, exp.mode, exp.setpoint_after_deg, values)
             params = stroke.retarget(params, exp.setpoint_after_deg, u_ff, epsilon)
         p_state, sim = plant.step(
             p_state, plant.PlantInputs(drive), plant.PlantStepParams(robot, fs)
@@ -174,21 +207,7 @@ def run_closed_loop(
             f_state, frontend.FrontendInputs(sim.stroke_sensor_v, sim.pitch_sensor_v), fp
         )
         part = slice(k * n, (k + 1) * n)
-        out["drive_v"][part] = drive
-        out["stroke_sensor_v"][part], out["pitch_sensor_v"][part] = (
-            sim.stroke_sensor_v,
-            sim.pitch_sensor_v,
-        )
-        out["true_stroke_deg"][part], out["true_pitch_deg"][part] = (
-            np.degrees(sim.stroke_rad),
-            np.degrees(sim.pitch_rad),
-        )
-        out["stroke_deg"][part], out["pitch_deg"][part] = (
-            np.degrees(est.stroke_rad),
-            np.degrees(est.pitch_rad),
-        )
-        out["stroke_velocity_deg_s"][part] = np.degrees(est.stroke_velocity_rad_s)
-        out["stroke_valid"][part], out["pitch_valid"][part] = est.stroke_valid, est.pitch_valid
+        _record_block(out, part, drive, sim, est)
         c_state, c_out = stroke.step(
             c_state,
             stroke.StrokeInputs(
@@ -223,16 +242,78 @@ def run_closed_loop(
         "sample_rate_hz": np.array(fs),
         "block_size": np.array(n),
         "command_nominal_before": np.array(
-            stroke.design(
-                design_plant,
-                exp.mode,
-                exp.setpoint_before_deg,
-                sync_frequency_hz=values["sync_frequency_hz"],
-                r3_rad_s=values["r3_rad_s"],
-                kappa=values["kappa"],
-            )[0]
+            _design(design_plant, exp.mode, exp.setpoint_before_deg, values)[0]
         ),
     }
+
+
+def _write_block(
+    writer: Any, store: Any, run: dict[str, np.ndarray], k: int, qos: tuple[list[Any], list[Any]]
+) -> None:
+    """Block k of the run on the recorder's topics: drive, sensors, both wing states (estimate
+    and truth) and the controller's state.
+    """
+    fs, n = float(run["sample_rate_hz"]), int(run["block_size"])
+    stream, status = qos
+    wing = store.types[WING_TYPE]
+    part = slice(k * n, (k + 1) * n)
+    stamp = round(k * n * 1e9 / fs)
+
+    def header(frame: str) -> Any:
+        return bagio.new_message(
+            "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp, store), frame_id=frame
+        )
+
+    def write(topic: str, kind: str, frame: str, qos_of: list[Any], **fields: Any) -> None:
+        message = bagio.new_message(kind, store, header=header(frame), **fields)
+        writer.write_message(topic, stamp, message, qos_of)
+
+    common = dict(sample_rate_hz=fs, first_sample_index=k * n)
+    write(topics.DRIVE, DRIVE_TYPE, "", stream, drive_v=run["drive_v"][part].copy(), **common)
+    write(
+        topics.SENSOR_VOLTAGE,
+        SENSOR_TYPE,
+        topics.FRAME_ID,
+        stream,
+        stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
+        pitch_sensor_v=run["pitch_sensor_v"][part].copy(),
+        **common,
+    )
+    for topic, source, prefix in (
+        (topics.WING_STATE, wing.SOURCE_SENSOR_ESTIMATE, ""),
+        (topics.WING_STATE_TRUTH, wing.SOURCE_GROUND_TRUTH, "true_"),
+    ):
+        estimate = not prefix
+        write(
+            topic,
+            WING_TYPE,
+            topics.FRAME_ID,
+            stream,
+            source=source,
+            stroke_deg=run[f"{prefix}stroke_deg"][part].copy(),
+            pitch_deg=run[f"{prefix}pitch_deg"][part].copy(),
+            stroke_velocity_deg_s=(
+                run["stroke_velocity_deg_s"][part].copy() if estimate else np.full(n, np.nan)
+            ),
+            stroke_valid=run["stroke_valid"][part].copy() if estimate else np.ones(n, bool),
+            pitch_valid=run["pitch_valid"][part].copy() if estimate else np.ones(n, bool),
+            **common,
+        )
+    write(
+        topics.CONTROLLER_STATE,
+        STATE_TYPE,
+        "",
+        status,
+        k_r=float(run["block_kr"][k]),
+        async_drive_v=0.0,
+        sync_drive_v=0.0,
+        drive_v=float(run["block_drive_last_v"][k]),
+        drive_clamped=bool(run["block_clamped"][k]),
+        watchdog=int(run["block_tripped"][k]),
+        fault="",
+        amplitude_scale=float(run["block_command"][k] / run["command_nominal_before"]),
+        stroke_frequency_hz=float(run["block_frequency_hz"][k]),
+    )
 
 
 def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
@@ -241,10 +322,8 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
     """
     store = bagio.typestore()
     fs, n = float(run["sample_rate_hz"]), int(run["block_size"])
-    wing = store.types[WING_TYPE]
     blocks = run["drive_v"].size // n
-    stream = [bagio.qos_from_rclpy(BLOCK_STREAM)]
-    status = [bagio.qos_from_rclpy(STATUS)]
+    qos = ([bagio.qos_from_rclpy(BLOCK_STREAM)], [bagio.qos_from_rclpy(STATUS)])
     marker = bagio.RunMarker(
         run=exp.name,
         first_sample_index=0,
@@ -253,23 +332,18 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
         sample_rate_hz=fs,
         start_ns=0,
     )
+    described = {
+        "experiment": exp.name,
+        "description": exp.description,
+        "mode": exp.mode,
+        "event_s": exp.event_s,
+        "setpoint_before_deg": exp.setpoint_before_deg,
+        "setpoint_after_deg": exp.setpoint_after_deg,
+        "inertia_factor": exp.inertia_factor,
+        "obstacle_stroke_limit_deg": exp.obstacle_stroke_limit_deg,
+    }
     with bagio.BagWriter(path, store=store) as writer:
-        writer.set_custom_data(
-            CUSTOM_KEY,
-            json.dumps(
-                {
-                    "experiment": exp.name,
-                    "description": exp.description,
-                    "mode": exp.mode,
-                    "event_s": exp.event_s,
-                    "setpoint_before_deg": exp.setpoint_before_deg,
-                    "setpoint_after_deg": exp.setpoint_after_deg,
-                    "inertia_factor": exp.inertia_factor,
-                    "obstacle_stroke_limit_deg": exp.obstacle_stroke_limit_deg,
-                },
-                allow_nan=False,
-            ),
-        )
+        writer.set_custom_data(CUSTOM_KEY, json.dumps(described, allow_nan=False))
         writer.set_custom_data(bagio.RUNS_CUSTOM_KEY, json.dumps([json.loads(marker.to_json())]))
         writer.write_message(
             bagio.RUN_MARKER_TOPIC,
@@ -277,89 +351,7 @@ def write_bag(path: Path, exp: Experiment, run: dict[str, np.ndarray]) -> Path:
             bagio.new_message(bagio.RUN_MARKER_TYPE, store, data=marker.to_json()),
         )
         for k in range(blocks):
-            part = slice(k * n, (k + 1) * n)
-            stamp = round(k * n * 1e9 / fs)
-
-            def header(frame: str, stamp: int = stamp) -> Any:  # this block's stamp, bound here
-                return bagio.new_message(
-                    "std_msgs/msg/Header", store, stamp=bagio.time_msg(stamp, store), frame_id=frame
-                )
-
-            common = dict(sample_rate_hz=fs, first_sample_index=k * n)
-            writer.write_message(
-                topics.DRIVE,
-                stamp,
-                bagio.new_message(
-                    DRIVE_TYPE,
-                    store,
-                    header=header(""),
-                    drive_v=run["drive_v"][part].copy(),
-                    **common,
-                ),
-                stream,
-            )
-            writer.write_message(
-                topics.SENSOR_VOLTAGE,
-                stamp,
-                bagio.new_message(
-                    SENSOR_TYPE,
-                    store,
-                    header=header(topics.FRAME_ID),
-                    stroke_sensor_v=run["stroke_sensor_v"][part].copy(),
-                    pitch_sensor_v=run["pitch_sensor_v"][part].copy(),
-                    **common,
-                ),
-                stream,
-            )
-            for topic, source, prefix in (
-                (topics.WING_STATE, wing.SOURCE_SENSOR_ESTIMATE, ""),
-                (topics.WING_STATE_TRUTH, wing.SOURCE_GROUND_TRUTH, "true_"),
-            ):
-                stroke_deg = run[f"{prefix}stroke_deg"][part].copy()
-                writer.write_message(
-                    topic,
-                    stamp,
-                    bagio.new_message(
-                        WING_TYPE,
-                        store,
-                        header=header(topics.FRAME_ID),
-                        source=source,
-                        stroke_deg=stroke_deg,
-                        pitch_deg=run[f"{prefix}pitch_deg"][part].copy(),
-                        stroke_velocity_deg_s=(
-                            run["stroke_velocity_deg_s"][part].copy()
-                            if not prefix
-                            else np.full(n, np.nan)
-                        ),
-                        stroke_valid=(
-                            run["stroke_valid"][part].copy() if not prefix else np.ones(n, bool)
-                        ),
-                        pitch_valid=(
-                            run["pitch_valid"][part].copy() if not prefix else np.ones(n, bool)
-                        ),
-                        **common,
-                    ),
-                    stream,
-                )
-            writer.write_message(
-                topics.CONTROLLER_STATE,
-                stamp,
-                bagio.new_message(
-                    STATE_TYPE,
-                    store,
-                    header=header(""),
-                    k_r=float(run["block_kr"][k]),
-                    async_drive_v=0.0,
-                    sync_drive_v=0.0,
-                    drive_v=float(run["block_drive_last_v"][k]),
-                    drive_clamped=bool(run["block_clamped"][k]),
-                    watchdog=int(run["block_tripped"][k]),
-                    fault="",
-                    amplitude_scale=float(run["block_command"][k] / run["command_nominal_before"]),
-                    stroke_frequency_hz=float(run["block_frequency_hz"][k]),
-                ),
-                status,
-            )
+            _write_block(writer, store, run, k, qos)
     return path
 
 
