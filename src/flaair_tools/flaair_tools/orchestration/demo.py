@@ -18,6 +18,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 
@@ -55,28 +56,16 @@ def missing_nodes(spec: ExperimentSpec) -> list[str]:
     return missing
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="flaair demo",
-        description=__doc__,
-        formatter_class=HelpFormatter,
-    )
-    parser.add_argument(
-        "--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)"
-    )
-    parser.add_argument(
-        "--only", nargs="*", help="run only these experiments (default: all of them)"
-    )
-    args = parser.parse_args(argv)
-    experiments = load_experiments()
-    # a multisine is analysed by `flaair multisine analyze`, not by the report this demo writes
-    names = args.only or [n for n, s in experiments.items() if s.kind != "multisine"]
-    bags_dir = args.out / "bags"
+def _record(
+    names: list[str], experiments: dict[str, Any], out: Path
+) -> tuple[list[Path], Path | None] | int:
+    """Each experiment recorded to its bag, the sweeps first (they calibrate the front end for
+    the live experiments after them); the bags and the calibration, or the exit status.
+    """
+    bags_dir = out / "bags"
     bags: list[Path] = []
-    start = time.monotonic()
     calibration: Path | None = None
-    # The sweeps first: they calibrate the front end for the live experiments after them
-    # (with the model's gains the bench robot's pitch reads 4.3x small and hides collisions).
+    # With the model's gains the bench robot's pitch reads 4.3x small and hides collisions.
     names = sorted(
         names,
         key=lambda n: experiments[n].kind not in ("chirp", "stepped_sine") or n == "drive_levels",
@@ -102,15 +91,75 @@ def main(argv: list[str] | None = None) -> int:
         sweeps = [b for b in bags if b.name in ("characterization_chirp", "stepped_sine")]
         if calibration is None and len(sweeps) == 2:
             print("[demo] calibrating the front end from the chirp and stepped-sine bags")
-            if (
-                calibrate.main(
-                    [*map(str, sweeps), "--force", "--out", str(args.out / "calibration")]
-                )
-                != 0
-            ):
+            argv = [*map(str, sweeps), "--force", "--out", str(out / "calibration")]
+            if calibrate.main(argv) != 0:
                 print("flaair demo: calibration failed", file=sys.stderr)
                 return 1
-            calibration = args.out / "calibration" / "calibration.yaml"
+            calibration = out / "calibration" / "calibration.yaml"
+    return bags, calibration
+
+
+def _print_hidden_robot() -> None:
+    """What config/experiments.yaml hid in the simulated bench robot (the answer to compare)."""
+    robot = robot_section()
+    hidden = ", ".join(f"{name} {params}" for name, params in robot_effects().items()) or "none"
+    plant = ", ".join(f"{k} x{f:g}" for k, f in (robot.get("plant") or {}).items()) or "nominal"
+    outside = (
+        ", ".join(
+            term_from_dict(t).expression + " on " + t["acts_on"]
+            for t in robot.get("discovered") or []
+        )
+        or "none"
+    )
+    print("[demo] hidden in the simulated bench robot (config/experiments.yaml):")
+    print(f"[demo]   plant off nominal: {plant}")
+    print(f"[demo]   vocabulary effects: {hidden}")
+    print(f"[demo]   outside the vocabulary: {outside}")
+
+
+def _discrepancy_and_health(bags: list[Path], calibration: Path | None, out: Path) -> int:
+    """The discrepancy workflow on the sweeps and the health monitor on the damaged-wing run."""
+    sweeps = [
+        b for b in bags if b.name in ("characterization_chirp", "stepped_sine", "drive_levels")
+    ]
+    if sweeps:
+        print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
+        code = discrepancy.main([*map(str, sweeps), "--force", "--out", str(out / "discrepancy")])
+        if code != 0:
+            print("flaair demo: the discrepancy workflow failed", file=sys.stderr)
+            return 1
+        _print_hidden_robot()
+    damaged = [b for b in bags if b.name == "wing_damage"]
+    if damaged:
+        print("\n[demo] the health monitor on the damaged-wing run (the plant lost 20 % inertia):")
+        lags = ["--calibration", str(calibration)] if calibration is not None else []
+        if health_cli.main([str(damaged[0]), "--out", str(out / "health"), *lags]) != 0:
+            print("flaair demo: the health monitor failed", file=sys.stderr)
+            return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="flaair demo",
+        description=__doc__,
+        formatter_class=HelpFormatter,
+    )
+    parser.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)"
+    )
+    parser.add_argument(
+        "--only", nargs="*", help="run only these experiments (default: all of them)"
+    )
+    args = parser.parse_args(argv)
+    experiments = load_experiments()
+    # a multisine is analysed by `flaair multisine analyze`, not by the report this demo writes
+    names = args.only or [n for n, s in experiments.items() if s.kind != "multisine"]
+    start = time.monotonic()
+    recorded = _record(names, experiments, args.out)
+    if isinstance(recorded, int):
+        return recorded
+    bags, calibration = recorded
     if not bags:
         print("flaair demo: no experiment could run", file=sys.stderr)
         return 1
@@ -124,41 +173,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     print()
     print_headline(report)
-    sweeps = [
-        b for b in bags if b.name in ("characterization_chirp", "stepped_sine", "drive_levels")
-    ]
-    if sweeps:
-        print("\n[demo] model vs measurement: what does the nominal model miss in these bags?")
-        code = discrepancy.main(
-            [*map(str, sweeps), "--force", "--out", str(args.out / "discrepancy")]
-        )
-        if code != 0:
-            print("flaair demo: the discrepancy workflow failed", file=sys.stderr)
-            return 1
-        robot = robot_section()
-        hidden = ", ".join(f"{name} {params}" for name, params in robot_effects().items()) or "none"
-        plant = ", ".join(f"{k} x{f:g}" for k, f in (robot.get("plant") or {}).items()) or "nominal"
-        print("[demo] hidden in the simulated bench robot (config/experiments.yaml):")
-        print(f"[demo]   plant off nominal: {plant}")
-        print(f"[demo]   vocabulary effects: {hidden}")
-        outside = (
-            ", ".join(
-                term_from_dict(t).expression + " on " + t["acts_on"]
-                for t in robot.get("discovered") or []
-            )
-            or "none"
-        )
-        print(f"[demo]   outside the vocabulary: {outside}")
-    damaged = [b for b in bags if b.name == "wing_damage"]
-    if damaged:
-        print("\n[demo] the health monitor on the damaged-wing run (the plant lost 20 % inertia):")
-        lags = ["--calibration", str(calibration)] if calibration is not None else []
-        if health_cli.main([str(damaged[0]), "--out", str(args.out / "health"), *lags]) != 0:
-            print("flaair demo: the health monitor failed", file=sys.stderr)
-            return 1
+    if (failed := _discrepancy_and_health(bags, calibration, args.out)) != 0:
+        return failed
     print(f"\n[demo] done in {time.monotonic() - start:.0f} s.")
     print(f"[demo] report: {args.out / 'report' / 'report.html'}")
-    if sweeps:
+    if any(b.name in ("characterization_chirp", "stepped_sine", "drive_levels") for b in bags):
         print(f"[demo] discrepancy report: {args.out / 'discrepancy' / 'report.html'}")
     return 0
 
