@@ -42,9 +42,11 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import rclpy
 import yaml
@@ -359,24 +361,8 @@ def end_line(
     return f"flaair live: {status}; {sent}"
 
 
-def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: start, run, stop
-    """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
-    log_dir = (  # absolute: the graph's processes run in the repository's root
-        (args.out.parent / f"{args.out.name}.logs")
-        if args.out is not None
-        else Path("out/live") / time.strftime("%Y%m%d_%H%M%S")
-    ).absolute()
-    graph = Graph(localhost=not args.subnet, log_dir=log_dir)
-    params_file = log_dir / "params.yaml"
-    params_file.parent.mkdir(parents=True, exist_ok=True)
-    params_file.write_text(yaml.safe_dump(node_parameters_for(args), sort_keys=False))
-    ros_args = ["--ros-args", "--params-file", str(params_file)]
-    declared = live_graph(args)
-    # In the declared order: the plant first, closed last (the controller's zero block reaches it);
-    # the bridge last: its socket opens once the front end and the controller have loaded their
-    # kernels (the target's packets would queue up meanwhile), and its stop packet zeroes the target
-    # when it closes.
-    hot = [role for role in declared.hot if role != "controller" or args.controller == "dsa"]
+def _announce(args: argparse.Namespace, graph: Graph, log_dir: Path) -> None:
+    """What runs where, how to reach it from a second terminal, and a missing calibration."""
     robot = (
         "simulated robot (real-time plant)"
         if args.sim
@@ -395,51 +381,106 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
             "sensor); run `bin/flaair calibrate`",
             file=sys.stderr,
         )
-    loop: list = []
+
+
+def _start_listeners(
+    graph: Graph, args: argparse.Namespace, ros_args: list[str]
+) -> subprocess.Popen | None:
+    """The nodes off the hot path, each in a process of its own (the loop's interpreter is for
+    the loop; the monitor keeps the C++ events executor, the recorder needs the single-threaded
+    one); the recorder's process, if it records.
+    """
+    recorder_process = None
+    if args.out is not None:
+        recorder_process = graph.start("recorder", _argv("recorder", ros_args[1:]))
+    graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
+    if not args.no_health:
+        graph.start("health", _argv("health", ros_args[1:]))
+    if args.foxglove is not None:
+        graph.start("foxglove", _argv("foxglove", ros_args[1:]))
+        print(
+            f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
+            "(layout: config/foxglove_layout.json)",
+            file=sys.stderr,
+        )
+    return recorder_process
+
+
+def _start_loop(
+    graph: Graph, args: argparse.Namespace, hot: list[str], local_topics: Any, ros_args: list[str]
+) -> list[subprocess.Popen]:
+    """The hot loop's nodes: one process each, or composed in one container process."""
+    if args.processes:
+        return [graph.start(role, _argv(role, ros_args[1:])) for role in hot]
+    batch = settings.live().dds_batch_blocks
+    priority = 0 if args.sim else settings.bridge().realtime_priority
+    return [
+        graph.start(
+            "loop",
+            [
+                *node_argv("flaair_common", "container"),
+                "--local-topics",
+                ",".join(local_topics),
+                "--dds-batch",
+                str(batch),
+                "--realtime-priority",
+                str(priority),
+                *(node_of(role).component for role in hot),
+                *ros_args,
+            ],
+        )
+    ]
+
+
+def _stop(
+    graph: Graph,
+    loop: list[subprocess.Popen],
+    recorder_process: subprocess.Popen | None,
+    watcher: Watcher | None,
+) -> None:
+    """The loop first (zero drive, stop packet), then the listeners; the recorder last (the
+    loop's process exits only once the recorder has acknowledged its last messages).
+    """
+    for process in reversed(loop):
+        graph.stop(process, timeout_s=LOOP_CLOSE_S)
+    if recorder_process is not None:
+        graph.stop(recorder_process, timeout_s=LOOP_CLOSE_S)
+    if watcher is not None:
+        watcher.close()
+    graph.close()
+
+
+def run_live(args: argparse.Namespace) -> int:
+    """Bring the graph up, run it for --duration (or until a signal), bring it down; exit code."""
+    log_dir = (  # absolute: the graph's processes run in the repository's root
+        (args.out.parent / f"{args.out.name}.logs")
+        if args.out is not None
+        else Path("out/live") / time.strftime("%Y%m%d_%H%M%S")
+    ).absolute()
+    graph = Graph(localhost=not args.subnet, log_dir=log_dir)
+    params_file = log_dir / "params.yaml"
+    params_file.parent.mkdir(parents=True, exist_ok=True)
+    params_file.write_text(yaml.safe_dump(node_parameters_for(args), sort_keys=False))
+    ros_args = ["--ros-args", "--params-file", str(params_file)]
+    declared = live_graph(args)
+    # In the declared order: the plant first, closed last (the controller's zero block reaches it);
+    # the bridge last: its socket opens once the front end and the controller have loaded their
+    # kernels (the target's packets would queue up meanwhile), and its stop packet zeroes the target
+    # when it closes.
+    hot = [role for role in declared.hot if role != "controller" or args.controller == "dsa"]
+    _announce(args, graph, log_dir)
+    loop: list[subprocess.Popen] = []
     recorder_process = None
     watcher: Watcher | None = None
     try:
-        # Off the hot path, each in a process of its own: the loop's interpreter is for the loop,
-        # and the monitor keeps the C++ events executor (the recorder needs the single-threaded one)
-        if args.out is not None:
-            recorder_process = graph.start("recorder", _argv("recorder", ros_args[1:]))
-        graph.start("collision_monitor", _argv("collision_monitor", ros_args[1:]))
-        if not args.no_health:
-            graph.start("health", _argv("health", ros_args[1:]))
-        if args.foxglove is not None:
-            graph.start("foxglove", _argv("foxglove", ros_args[1:]))
-            print(
-                f"flaair live: Foxglove: open ws://{args.foxglove[0]}:{args.foxglove[1]} "
-                "(layout: config/foxglove_layout.json)",
-                file=sys.stderr,
-            )
+        recorder_process = _start_listeners(graph, args, ros_args)
         watcher = Watcher(graph, args)
         watcher.spin_until(watcher.recorder_listens, 120.0, "the recorder to subscribe")
         # the monitors subscribe before the loop starts too
         watcher.spin_until(watcher.monitor_listens, 120.0, "the collision monitor to subscribe")
         if not args.no_health:
             watcher.spin_until(watcher.health_listens, 120.0, "the health monitor to subscribe")
-        if args.processes:
-            loop += [graph.start(role, _argv(role, ros_args[1:])) for role in hot]
-        else:
-            batch = settings.live().dds_batch_blocks
-            priority = 0 if args.sim else settings.bridge().realtime_priority
-            loop.append(
-                graph.start(
-                    "loop",
-                    [
-                        *node_argv("flaair_common", "container"),
-                        "--local-topics",
-                        ",".join(declared.local_topics),
-                        "--dds-batch",
-                        str(batch),
-                        "--realtime-priority",
-                        str(priority),
-                        *(node_of(role).component for role in hot),
-                        *ros_args,
-                    ],
-                )
-            )
+        loop += _start_loop(graph, args, hot, declared.local_topics, ros_args)
         watcher.run_for_duration()
         status, silent = "duration reached", None
     except KeyboardInterrupt:
@@ -448,26 +489,14 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
     except SilentTarget as exc:
         status, silent = "no target", exc
     except (GraphError, LiveError) as exc:  # before RuntimeError: both are RuntimeErrors
-        for process in reversed(loop):
-            graph.stop(process, timeout_s=LOOP_CLOSE_S)
-        if watcher is not None:
-            watcher.close()
-        graph.close()
+        _stop(graph, loop, None, watcher)
         raise LiveError(str(exc)) from exc
     # rclpy may hand SIGTERM's exception on as a RuntimeError
     except (Terminated, RuntimeError) as exc:
         if not is_termination(exc):
             raise
         status, silent = "terminated", None
-    # The loop first (zero drive, stop packet), then the listeners; the recorder last.
-    for process in reversed(loop):
-        graph.stop(process, timeout_s=LOOP_CLOSE_S)
-    if recorder_process is not None:
-        # (the loop's process exited only once the recorder had acknowledged its last messages)
-        graph.stop(recorder_process, timeout_s=LOOP_CLOSE_S)
-    if watcher is not None:
-        watcher.close()
-    graph.close()
+    _stop(graph, loop, recorder_process, watcher)
     print(
         end_line(status, silent is not None, bool(loop), args.out, bag_written(args.out)),
         file=sys.stderr,
@@ -478,7 +507,8 @@ def run_live(args: argparse.Namespace) -> int:  # noqa: C901  the graph's life: 
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
+    """`flaair live`'s options."""
     parser = argparse.ArgumentParser(
         prog="flaair live",
         description=__doc__,
@@ -567,34 +597,45 @@ def main(argv: list[str] | None = None) -> int:
     )
     # benchmarks: bridge_node parameters NAME=VALUE (e.g. timing_file=out/t.npz)
     parser.add_argument("--bridge-param", action="append", default=[], help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _checked(args: argparse.Namespace) -> None:
+    """The addresses parsed and the values checked before anything starts (LiveError names the
+    first one that is wrong).
+    """
+    if not args.sim:
+        if args.listen is None:
+            raise LiveError(
+                "--target needs --listen HOST:PORT (where the target's sensor packets arrive)"
+            )
+        args.target, args.listen = (
+            host_port(args.target, "--target"),
+            host_port(args.listen, "--listen"),
+        )
+    if args.foxglove is not None:
+        args.foxglove = host_port(args.foxglove, "--foxglove")
+        port_free(args.foxglove, "--foxglove")
+    if args.first_packet_timeout is None:
+        args.first_packet_timeout = settings.live().first_packet_timeout_s
+    if not (args.first_packet_timeout > 0):
+        raise LiveError(f"first packet timeout {args.first_packet_timeout}: must be > 0 s")
+    if not (args.duration > 0):
+        raise LiveError(f"--duration {args.duration}: must be > 0 s")
+    if args.out is not None and args.out.exists():
+        raise LiveError(f"--out {args.out} exists; choose another or remove it")
+    if args.calibration is not None and not args.calibration.is_file():
+        raise LiveError(f"--calibration {args.calibration}: no such file")
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     # absolute: the graph's processes run in the repository's root, not in this directory
     args.out = None if args.out is None else args.out.absolute()
     args.calibration = None if args.calibration is None else args.calibration.absolute()
     terminate_raises()
     try:
-        if not args.sim:
-            if args.listen is None:
-                raise LiveError(
-                    "--target needs --listen HOST:PORT (where the target's sensor packets arrive)"
-                )
-            args.target, args.listen = (
-                host_port(args.target, "--target"),
-                host_port(args.listen, "--listen"),
-            )
-        if args.foxglove is not None:
-            args.foxglove = host_port(args.foxglove, "--foxglove")
-            port_free(args.foxglove, "--foxglove")
-        if args.first_packet_timeout is None:
-            args.first_packet_timeout = settings.live().first_packet_timeout_s
-        if not (args.first_packet_timeout > 0):
-            raise LiveError(f"first packet timeout {args.first_packet_timeout}: must be > 0 s")
-        if not (args.duration > 0):
-            raise LiveError(f"--duration {args.duration}: must be > 0 s")
-        if args.out is not None and args.out.exists():
-            raise LiveError(f"--out {args.out} exists; choose another or remove it")
-        if args.calibration is not None and not args.calibration.is_file():
-            raise LiveError(f"--calibration {args.calibration}: no such file")
+        _checked(args)
         return run_live(args)
     except (LiveError, ConfigError) as exc:
         print(f"flaair live: {exc}", file=sys.stderr)
