@@ -356,14 +356,10 @@ def main(argv: list[str] | None = None) -> int:
     except (ModelError, OSError) as exc:
         print(f"emulated_target: --model: {exc}", file=sys.stderr)
         return 2
-    bridge, listen = _address(args.bridge, "--bridge"), _address(args.listen, "--listen")
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    try:
-        sock.bind(listen)
-    except OSError as exc:
-        print(f"emulated_target: --listen {args.listen}: {exc}", file=sys.stderr)
+    bridge = _address(args.bridge, "--bridge")
+    sock = _bound_socket(args)
+    if sock is None:
         return 2
-    sock.setblocking(False)
     fs, n = args.sample_rate, args.packet_samples
     core = TargetCore(args.hold_samples, args.drive_limit_v)
     params = plant.PlantStepParams(model, fs)
@@ -375,54 +371,20 @@ def main(argv: list[str] | None = None) -> int:
     state = plant.initial_state(plant.PlantStepParams(model, fs))
     total = math.ceil(args.duration * fs / n) if args.duration else None
     progress = _progress(total, n / fs)
-    stats = {
-        "packets_sent": 0,
-        "send_errors": 0,
-        "overruns": 0,
-        "stalls": 0,
-        "stall_missing_samples": 0,
-        "max_lag_ms": 0.0,
-    }
+    stats = dict(_STATS)
     stall_s, stalled_until = 1e-3 * args.stall_ms, -math.inf
 
     def drain() -> None:
         _drain(sock, core)
 
-    if error := take_realtime_priority(args.realtime_priority):
-        print(
-            f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} "
-            f"({error})",
-            file=sys.stderr,
-            flush=True,
-        )
+    _announce(args, sock, bridge)
     held: bytes | None = None
-    print(
-        f"emulated target running: {fs:g} Hz, {n}-sample packets to {bridge[0]}:{bridge[1]}, "
-        f"drive packets on {sock.getsockname()[0]}:{sock.getsockname()[1]}, hold "
-        f"{args.hold_samples} samples, limit +-{args.drive_limit_v:g} V",
-        file=sys.stderr,
-        flush=True,
-    )
     t0 = time.monotonic()
     j = 0
     snapshot_every = max(1, round(fs / n))
 
     def counters(final: bool) -> dict:
-        """What the target counted so far; `final` once it has stopped."""
-        return {
-            **core.counts,
-            **stats,
-            "samples": core.next_index,
-            "sample_rate_hz": fs,
-            "packet_samples": n,
-            "stall_ms": args.stall_ms,
-            "wall_s": time.monotonic() - t0,
-            "stopped": not core.armed and core.counts["stop_packets"] > 0,
-            "watchdog_tripped_now": core.tripped,
-            "final": final,
-            "watchdog_tripped_at_exit": core.tripped if final else None,
-            "applied_v_at_exit": core.applied_v if final else None,
-        }
+        return _counters(core, stats, args, time.monotonic() - t0, final)
 
     while not stop_requested and (total is None or j <= total):
         due = t0 + j * n / fs
@@ -453,6 +415,69 @@ def main(argv: list[str] | None = None) -> int:
     if args.counters:
         _write_atomically(args.counters, text)
     return 0
+
+
+_STATS = {
+    "packets_sent": 0,
+    "send_errors": 0,
+    "overruns": 0,
+    "stalls": 0,
+    "stall_missing_samples": 0,
+    "max_lag_ms": 0.0,
+}
+
+
+def _bound_socket(args: argparse.Namespace) -> socket.socket | None:
+    """The drive receiver's socket, bound to --listen and non-blocking (None: said why)."""
+    listen = _address(args.listen, "--listen")
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(listen)
+    except OSError as exc:
+        print(f"emulated_target: --listen {args.listen}: {exc}", file=sys.stderr)
+        sock.close()
+        return None
+    sock.setblocking(False)
+    return sock
+
+
+def _announce(args: argparse.Namespace, sock: socket.socket, bridge: tuple[str, int]) -> None:
+    """The real-time priority it runs without (if so) and what it sends where."""
+    if error := take_realtime_priority(args.realtime_priority):
+        print(
+            f"emulated_target: WARNING: runs without real-time priority {args.realtime_priority} "
+            f"({error})",
+            file=sys.stderr,
+            flush=True,
+        )
+    print(
+        f"emulated target running: {args.sample_rate:g} Hz, {args.packet_samples}-sample packets "
+        f"to {bridge[0]}:{bridge[1]}, drive packets on {sock.getsockname()[0]}:"
+        f"{sock.getsockname()[1]}, hold {args.hold_samples} samples, limit "
+        f"+-{args.drive_limit_v:g} V",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _counters(
+    core: TargetCore, stats: dict, args: argparse.Namespace, wall_s: float, final: bool
+) -> dict:
+    """What the target counted so far; `final` once it has stopped."""
+    return {
+        **core.counts,
+        **stats,
+        "samples": core.next_index,
+        "sample_rate_hz": args.sample_rate,
+        "packet_samples": args.packet_samples,
+        "stall_ms": args.stall_ms,
+        "wall_s": wall_s,
+        "stopped": not core.armed and core.counts["stop_packets"] > 0,
+        "watchdog_tripped_now": core.tripped,
+        "final": final,
+        "watchdog_tripped_at_exit": core.tripped if final else None,
+        "applied_v_at_exit": core.applied_v if final else None,
+    }
 
 
 def _drain(sock: socket.socket, core: TargetCore) -> None:
