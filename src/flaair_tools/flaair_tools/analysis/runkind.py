@@ -239,50 +239,10 @@ def recognise(
         return DriveKind("free", f"the drive envelope stays below {params.free_run_drive_v:g} V")
     amplitude_v = float(np.median(block_env[driven]))
     sweep = (float(np.nanmin(block_f)), float(np.nanmax(block_f)))
-    dwells: list[Step] = []
-    for a, b in _plateaus(block_f, params):
-        f0 = float(np.median(block_f[a:b]))
-        long_enough = (b - a) * block >= max(
-            params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0
-        )
-        # A slow chirp also stays within tolerance for a while, but it drifts across it.
-        drift = abs(np.polyfit(np.arange(a, b), block_f[a:b], 1)[0]) * (b - a) if b - a > 2 else 0.0
-        if long_enough and drift < 0.5 * _tolerance(f0, params):
-            dwells.append(
-                Step(
-                    a * block,
-                    b * block,
-                    _dwell_frequency(
-                        drive, phase, a * block, b * block, fs_hz, _tolerance(f0, params)
-                    ),
-                )
-            )
+    dwells = _dwells(drive, phase, block_f, block, fs_hz, params)
     covered = sum(s.stop - s.start for s in dwells) / (driven.sum() * block)
-    levels = _levels([s.frequency_hz for s in dwells], params)
     if dwells and covered >= params.dwell_coverage:
-        if len(levels) == 1:
-            start, stop = dwells[0].start, dwells[-1].stop
-            step = Step(
-                start,
-                stop,
-                _dwell_frequency(drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)),
-            )
-            return DriveKind(
-                "sine",
-                f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of the driven time",
-                (step,),
-                sweep,
-                amplitude_v,
-            )
-        return DriveKind(
-            "stepped_sine",
-            f"{len(dwells)} dwells at {len(levels)} frequencies "
-            f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover "
-            f"{covered:.0%} of the driven time",
-            tuple(dwells),
-            sweep,
-            amplitude_v,
-        )
+        return _sine_or_steps(drive, phase, dwells, covered, fs_hz, sweep, amplitude_v, params)
     changes = np.diff(block_f[driven])
     changes = changes[np.abs(changes) > 1e-9]
     rising = float(np.mean(changes > 0)) if changes.size else 0.5
@@ -304,6 +264,68 @@ def recognise(
         f"neither steady dwells ({covered:.0%} of the driven time) "
         f"nor a monotone sweep ({sweep[0]:.4g}-{sweep[1]:.4g} Hz)",
         (),
+        sweep,
+        amplitude_v,
+    )
+
+
+def _dwells(
+    drive: np.ndarray,
+    phase: np.ndarray,
+    block_f: np.ndarray,
+    block: int,
+    fs_hz: float,
+    params: RecognitionParams,
+) -> list[Step]:
+    """The steady stretches of the blocks' frequency long enough to be dwells."""
+    dwells: list[Step] = []
+    for a, b in _plateaus(block_f, params):
+        f0 = float(np.median(block_f[a:b]))
+        long_enough = (b - a) * block >= max(
+            params.min_dwell_s * fs_hz, params.min_dwell_cycles * fs_hz / f0
+        )
+        # A slow chirp also stays within tolerance for a while, but it drifts across it.
+        drift = abs(np.polyfit(np.arange(a, b), block_f[a:b], 1)[0]) * (b - a) if b - a > 2 else 0.0
+        if long_enough and drift < 0.5 * _tolerance(f0, params):
+            frequency = _dwell_frequency(
+                drive, phase, a * block, b * block, fs_hz, _tolerance(f0, params)
+            )
+            dwells.append(Step(a * block, b * block, frequency))
+    return dwells
+
+
+def _sine_or_steps(
+    drive: np.ndarray,
+    phase: np.ndarray,
+    dwells: list[Step],
+    covered: float,
+    fs_hz: float,
+    sweep: tuple[float, float],
+    amplitude_v: float,
+    params: RecognitionParams,
+) -> DriveKind:
+    """Dwells covering the drive: one sine (one frequency level) or a stepped sine."""
+    levels = _levels([s.frequency_hz for s in dwells], params)
+    if len(levels) == 1:
+        start, stop = dwells[0].start, dwells[-1].stop
+        step = Step(
+            start,
+            stop,
+            _dwell_frequency(drive, phase, start, stop, fs_hz, _tolerance(levels[0], params)),
+        )
+        return DriveKind(
+            "sine",
+            f"one frequency, {step.frequency_hz:.4g} Hz, over {covered:.0%} of the driven time",
+            (step,),
+            sweep,
+            amplitude_v,
+        )
+    return DriveKind(
+        "stepped_sine",
+        f"{len(dwells)} dwells at {len(levels)} frequencies "
+        f"({levels[0]:.4g}-{levels[-1]:.4g} Hz) cover "
+        f"{covered:.0%} of the driven time",
+        tuple(dwells),
         sweep,
         amplitude_v,
     )
