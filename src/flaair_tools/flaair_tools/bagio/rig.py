@@ -130,16 +130,8 @@ class _Checker:
         return numbers
 
 
-def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
-    """A checked `Rig` from the parsed YAML `data` of the file `path` (named in every error)."""
-    c = _Checker(path)
-    top = c.mapping(data, "rig", _TOP, {"signals", "video", "points", "geometry", "stroke_from"})
-    stroke_from = top["stroke_from"]
-    if stroke_from not in STROKE_SOURCES:
-        raise c.fail(
-            "stroke_from", f"must be one of {', '.join(STROKE_SOURCES)}, got {stroke_from!r}"
-        )
-    video = c.mapping(top["video"], "video", _VIDEO, _VIDEO)
+def _checked_sync(c: _Checker, video: dict[str, Any]) -> tuple[dict[str, Any], bool]:
+    """The video's sync section and whether it is by trigger (else by frame 0's time)."""
     sync = c.mapping(video["sync"], "video.sync", _SYNC, set())
     by_trigger = "trigger_frame" in sync or "trigger_threshold_v" in sync
     if by_trigger == ("frame0_time_s" in sync):
@@ -156,6 +148,11 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
                 "0: DLTdv numbers frames from 1 (the first row is frame 1); give the number "
                 "DLTdv's frame slider shows for the frame taken at the trigger's edge",
             )
+    return sync, by_trigger
+
+
+def _checked_signals(c: _Checker, top: dict[str, Any], by_trigger: bool) -> dict[str, Any]:
+    """The signal labels of each role (the camera trigger's too with a trigger sync)."""
     signals = c.mapping(
         top["signals"],
         "signals",
@@ -170,10 +167,13 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
                 f"signals.{role}",
                 f"{label!r}: a column is named as 'label[j]', j a whole number from 1",
             )
-    log_variable = top.get("log_variable")
-    if log_variable is not None and (not isinstance(log_variable, str) or not log_variable):
-        raise c.fail("log_variable", f"must be a MAT variable's name, got {log_variable!r}")
-    tip_used = stroke_from == "actuator_tip"
+    return signals
+
+
+def _checked_points(
+    c: _Checker, top: dict[str, Any], tip_used: bool
+) -> tuple[dict[str, Any], TipPoint | None]:
+    """The wing's tracked points (each a different one) and the actuator tip's, if tracked."""
     points = c.mapping(
         top["points"],
         "points",
@@ -192,6 +192,26 @@ def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
             c.point(tip_map["point"], "points.actuator_tip.point"),
             c.integer(tip_map["camera"], "points.actuator_tip.camera", 1),
         )
+    return wing_points, tip
+
+
+def rig_from_mapping(data: Any, path: str, source: str = "") -> Rig:
+    """A checked `Rig` from the parsed YAML `data` of the file `path` (named in every error)."""
+    c = _Checker(path)
+    top = c.mapping(data, "rig", _TOP, {"signals", "video", "points", "geometry", "stroke_from"})
+    stroke_from = top["stroke_from"]
+    if stroke_from not in STROKE_SOURCES:
+        raise c.fail(
+            "stroke_from", f"must be one of {', '.join(STROKE_SOURCES)}, got {stroke_from!r}"
+        )
+    video = c.mapping(top["video"], "video", _VIDEO, _VIDEO)
+    sync, by_trigger = _checked_sync(c, video)
+    signals = _checked_signals(c, top, by_trigger)
+    log_variable = top.get("log_variable")
+    if log_variable is not None and (not isinstance(log_variable, str) or not log_variable):
+        raise c.fail("log_variable", f"must be a MAT variable's name, got {log_variable!r}")
+    tip_used = stroke_from == "actuator_tip"
+    wing_points, tip = _checked_points(c, top, tip_used)
     geometry = c.mapping(
         top["geometry"],
         "geometry",
