@@ -147,7 +147,70 @@ def _verify_copy(bag: Path, expected: dict[str, int]) -> None:
         )
 
 
-def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:  # noqa: C901  steps in order
+def _copy_records(
+    data: Any,
+    log: ScanLog,
+    writer: BagWriter,
+    store: Any,
+    custom: dict[str, str],
+    progress: Any,
+) -> tuple[dict[int, McapChannel], int]:
+    """Every record the scan of `data` finds, written to `writer` where it can be trusted (the
+    custom data of an earlier rosbag2 metadata record merged into `custom`); the channels seen
+    and the count of messages dropped as unverifiable.
+    """
+    schemas: dict[int, McapSchema] = {}
+    channels: dict[int, McapChannel] = {}
+    dropped = 0
+    for record in scan_mcap(data, log):
+        if progress is not None:
+            progress(log.position)
+        if isinstance(record, ScannedMessage):
+            channel = channels.get(record.channel_id)
+            if channel is None or not writer.has_topic(channel.topic):
+                dropped += 1
+                continue
+            if not record.verified and not _decodable(
+                store, schemas[channel.schema_id].name, record.data
+            ):
+                dropped += 1
+                continue
+            writer.write(channel.topic, record.log_time, record.data, record.publish_time)
+        elif isinstance(record, McapSchema):
+            schemas[record.id] = record
+        elif isinstance(record, McapChannel):
+            channels[record.id] = record
+            schema = schemas.get(record.schema_id)
+            if schema is not None and not writer.has_topic(record.topic):
+                writer.add_topic(
+                    record.topic,
+                    schema.name,
+                    qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
+                    msgdef=schema.data.decode(),
+                    type_hash=record.metadata.get("topic_type_hash", ""),
+                )
+        elif isinstance(record, McapMetadata) and record.name == "rosbag2":
+            try:
+                previous = yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
+                custom.update(
+                    {str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()}
+                )
+            except (yaml.YAMLError, AttributeError):
+                pass
+    return channels, dropped
+
+
+def _damaged_backup(source: Path) -> Path:
+    """The original file kept beside the recovered one (`<file>.damaged`, numbered if taken)."""
+    backup = source.with_name(source.name + ".damaged")
+    number = 1
+    while backup.exists():
+        backup, number = source.with_name(f"{source.name}.damaged{number}"), number + 1
+    os.link(source, backup)
+    return backup
+
+
+def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:
     """Rebuild a bag's MCAP summary and metadata.yaml from whatever its MCAP file still holds.
 
     Every message that can be decoded is kept: complete chunks, the readable part of a chunk
@@ -176,9 +239,6 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:  # noqa: C9
         shutil.rmtree(temporary)
     store = typestore()
     log = ScanLog()
-    schemas: dict[int, McapSchema] = {}
-    channels: dict[int, McapChannel] = {}
-    unverified_dropped = 0
     try:
         compression, chunk_size = storage_settings()
         writer = BagWriter(
@@ -189,43 +249,7 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:  # noqa: C9
             store=store,
         )
         with _mapped(source) as data:
-            for record in scan_mcap(data, log):
-                if progress is not None:
-                    progress(log.position)
-                if isinstance(record, ScannedMessage):
-                    channel = channels.get(record.channel_id)
-                    if channel is None or not writer.has_topic(channel.topic):
-                        unverified_dropped += 1
-                        continue
-                    if not record.verified and not _decodable(
-                        store, schemas[channel.schema_id].name, record.data
-                    ):
-                        unverified_dropped += 1
-                        continue
-                    writer.write(channel.topic, record.log_time, record.data, record.publish_time)
-                elif isinstance(record, McapSchema):
-                    schemas[record.id] = record
-                elif isinstance(record, McapChannel):
-                    channels[record.id] = record
-                    schema = schemas.get(record.schema_id)
-                    if schema is not None and not writer.has_topic(record.topic):
-                        writer.add_topic(
-                            record.topic,
-                            schema.name,
-                            qos_from_yaml(record.metadata.get("offered_qos_profiles", "")),
-                            msgdef=schema.data.decode(),
-                            type_hash=record.metadata.get("topic_type_hash", ""),
-                        )
-                elif isinstance(record, McapMetadata) and record.name == "rosbag2":
-                    try:
-                        previous = (
-                            yaml.safe_load(record.metadata.get("serialized_metadata", "")) or {}
-                        )
-                        custom.update(
-                            {str(k): str(v) for k, v in (previous.get("custom_data") or {}).items()}
-                        )
-                    except (yaml.YAMLError, AttributeError):
-                        pass
+            channels, unverified_dropped = _copy_records(data, log, writer, store, custom, progress)
         kept = writer.counts
         topics = _recovery_counts(kept, channels, log, expected_from_metadata)
         damage = tuple(damage_lines(log))
@@ -250,13 +274,7 @@ def reindex(bag: str | Path, progress: Any = None) -> ReindexReport:  # noqa: C9
             )
         writer.close()
         _verify_copy(temporary, kept)
-        backup = None
-        if lost_any:
-            backup = source.with_name(source.name + ".damaged")
-            number = 1
-            while backup.exists():
-                backup, number = source.with_name(f"{source.name}.damaged{number}"), number + 1
-            os.link(source, backup)
+        backup = _damaged_backup(source) if lost_any else None
         os.replace(temporary / source.name, source)
         os.replace(temporary / "metadata.yaml", path / "metadata.yaml")
     finally:
