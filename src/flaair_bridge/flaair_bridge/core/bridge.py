@@ -47,6 +47,7 @@ from there); the drive side is `flaair_bridge.core.bridge_drive`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -184,85 +185,107 @@ def _foreign_packet(
     )
 
 
-def any_packet(
-    state: BridgeState, packet: protocol.SensorPacket, inputs: SensorDatagram, params: BridgeParams
-) -> tuple[BridgeState, Outputs]:
-    """Any well-formed sensor packet: lost, stale, overlapping, partial blocks, a target restart."""
+class _Sequenced(NamedTuple):
+    """A packet's place in the target's sequence: the state and counts it leaves, or the
+    outputs of a packet dropped there (`dropped`).
+    """
+
+    state: BridgeState
+    counters: Counters
+    index_offset: int
+    stale_run: int
+    notes: list[Note]
+    dropped: Outputs | None
+
+
+def _sequenced(
+    state: BridgeState, packet: protocol.SensorPacket, params: BridgeParams
+) -> _Sequenced:
+    """The packet against the expected sequence: stale (dropped, or a target restart followed
+    after `resync_packets` in a row), a jump beyond `max_fill_samples` (dropped unless repeated),
+    packets lost before it.
+    """
     notes: list[Note] = []
     counters = state.counters
     index_offset, stale_run = state.index_offset, 0
-    if state.sequence is not None:
-        delta = protocol.sequence_delta(packet.sequence, state.sequence)
-        if delta < 0:
-            stale_run = state.stale_run + 1
-            if stale_run < params.resync_packets:
-                counters = add_counts(counters, stale_packets=1)
-                return (
-                    state._replace(stale_run=stale_run, counters=counters),
-                    Outputs(
-                        notes=(
-                            counted_note(
-                                "stale_packets",
-                                "stale sensor packet (sequence "
-                                f"{packet.sequence}, expected "
-                                f"{state.sequence}) dropped "
-                                f"[{counters.stale_packets} stale so "
-                                "far]",
-                            ),
-                        )
-                    ),
-                )
-            # the target restarted: follow it, keep the published index running
-            index_offset = _published_end(state) - packet.first_sample_index
-            counters = add_counts(counters, resyncs=1)
-            notes.append(
-                counted_note(
-                    "resyncs",
-                    f"{stale_run} stale packets in a row: the target "
-                    f"restarted (sequence {packet.sequence}, index "
-                    f"{packet.first_sample_index}); following it",
-                    True,
-                )
+    if state.sequence is None:
+        return _Sequenced(state, counters, index_offset, stale_run, notes, None)
+    delta = protocol.sequence_delta(packet.sequence, state.sequence)
+    if delta < 0:
+        stale_run = state.stale_run + 1
+        if stale_run < params.resync_packets:
+            counters = add_counts(counters, stale_packets=1)
+            note = counted_note(
+                "stale_packets",
+                f"stale sensor packet (sequence {packet.sequence}, expected {state.sequence}) "
+                f"dropped [{counters.stale_packets} stale so far]",
             )
-            state = state._replace(
-                target_end=None,
-                drive_offset=None,
-                drive_expected=None,
-                queue=(),
-                arrivals=np.full((ARRIVAL_RING, 2), -1.0),
+            kept = state._replace(stale_run=stale_run, counters=counters)
+            return _Sequenced(
+                kept, counters, index_offset, stale_run, notes, Outputs(notes=(note,))
             )
-        else:
-            end = _published_end(state)
-            index_gap = 0 if end is None else packet.first_sample_index + index_offset - end
-            jump = max(delta * packet.n, index_gap)
-            if jump > params.max_fill_samples and state.jump_run + 1 < params.resync_packets:
-                counters = add_counts(counters, jump_packets=1)
-                return state._replace(jump_run=state.jump_run + 1, counters=counters), Outputs(
-                    notes=(
-                        counted_note(
-                            "jump_packets",
-                            f"sensor packet {packet.sequence} (index "
-                            f"{packet.first_sample_index}) jumps {jump} samples ahead, beyond "
-                            f"max_fill_samples {params.max_fill_samples}: dropped unless "
-                            f"{params.resync_packets} such packets come in a row "
-                            f"[{counters.jump_packets} so far]",
-                        ),
-                    )
-                )
-        if delta > 0:
-            counters = add_counts(counters, lost_packets=delta)
-            notes.append(
-                counted_note(
-                    "lost_packets",
-                    f"{delta} sensor packet(s) lost before sequence "
-                    f"{packet.sequence} [{counters.lost_packets} lost "
-                    "so far]",
-                )
+        # the target restarted: follow it, keep the published index running
+        index_offset = _published_end(state) - packet.first_sample_index
+        counters = add_counts(counters, resyncs=1)
+        notes.append(
+            counted_note(
+                "resyncs",
+                f"{stale_run} stale packets in a row: the target "
+                f"restarted (sequence {packet.sequence}, index "
+                f"{packet.first_sample_index}); following it",
+                True,
             )
-    samples = np.stack([packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v]).astype(
-        np.float64
-    )
-    first = packet.first_sample_index + index_offset
+        )
+        state = state._replace(
+            target_end=None,
+            drive_offset=None,
+            drive_expected=None,
+            queue=(),
+            arrivals=np.full((ARRIVAL_RING, 2), -1.0),
+        )
+    else:
+        end = _published_end(state)
+        index_gap = 0 if end is None else packet.first_sample_index + index_offset - end
+        jump = max(delta * packet.n, index_gap)
+        if jump > params.max_fill_samples and state.jump_run + 1 < params.resync_packets:
+            counters = add_counts(counters, jump_packets=1)
+            note = counted_note(
+                "jump_packets",
+                f"sensor packet {packet.sequence} (index "
+                f"{packet.first_sample_index}) jumps {jump} samples ahead, beyond "
+                f"max_fill_samples {params.max_fill_samples}: dropped unless "
+                f"{params.resync_packets} such packets come in a row "
+                f"[{counters.jump_packets} so far]",
+            )
+            kept = state._replace(jump_run=state.jump_run + 1, counters=counters)
+            return _Sequenced(
+                kept, counters, index_offset, stale_run, notes, Outputs(notes=(note,))
+            )
+    if delta > 0:
+        counters = add_counts(counters, lost_packets=delta)
+        notes.append(
+            counted_note(
+                "lost_packets",
+                f"{delta} sensor packet(s) lost before sequence "
+                f"{packet.sequence} [{counters.lost_packets} lost "
+                "so far]",
+            )
+        )
+    return _Sequenced(state, counters, index_offset, stale_run, notes, None)
+
+
+def _placed(
+    state: BridgeState,
+    samples: np.ndarray,
+    first: int,
+    counters: Counters,
+    params: BridgeParams,
+    notes: list[Note],
+) -> tuple[list[SensorBlock], np.ndarray, int, Counters]:
+    """The samples placed after what was published: an overlap cut, a short gap filled with
+    NaN, a long one closing the partial block and restarting the blocks at `first`; the whole
+    blocks to publish, the partial one pending (and its first index), the counts.
+    """
     pending_first, pending = state.pending_first, state.pending
     expected = _published_end(state)
     blocks: list[SensorBlock] = []
@@ -295,7 +318,24 @@ def any_packet(
     more, pending, pending_first = _blocks(
         pending_first, np.concatenate([pending, samples], axis=1), params.block_size
     )
-    blocks += more
+    return blocks + more, pending, pending_first, counters
+
+
+def any_packet(
+    state: BridgeState, packet: protocol.SensorPacket, inputs: SensorDatagram, params: BridgeParams
+) -> tuple[BridgeState, Outputs]:
+    """Any well-formed sensor packet: lost, stale, overlapping, partial blocks, a target restart."""
+    seq = _sequenced(state, packet, params)
+    if seq.dropped is not None:
+        return seq.state, seq.dropped
+    state, counters, notes = seq.state, seq.counters, seq.notes
+    samples = np.stack([packet.drive_v, packet.stroke_sensor_v, packet.pitch_sensor_v]).astype(
+        np.float64
+    )
+    first = packet.first_sample_index + seq.index_offset
+    blocks, pending, pending_first, counters = _placed(
+        state, samples, first, counters, params, notes
+    )
     counters = add_counts(counters, sensor_packets=1, published_blocks=len(blocks))
     if packet.target_watchdog_tripped:
         counters = add_counts(counters, target_watchdog_packets=1)
@@ -310,10 +350,10 @@ def any_packet(
     state = state._replace(
         sequence=(packet.sequence + 1) % protocol.SEQUENCE_MODULUS,
         target_end=max(end, state.target_end or 0),
-        index_offset=index_offset,
+        index_offset=seq.index_offset,
         pending_first=pending_first,
         pending=pending,
-        stale_run=stale_run,
+        stale_run=seq.stale_run,
         jump_run=0,
         last_sensor_s=inputs.now_s,
         last_read_s=_read_s(inputs),
