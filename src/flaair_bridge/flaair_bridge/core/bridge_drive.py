@@ -6,18 +6,22 @@ and the stop packet: see `flaair_bridge.core.bridge`'s docstring (`DriveBlock`, 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from flaair_bridge.core import protocol
 from flaair_bridge.core.bridge_params import BridgeParams
 from flaair_bridge.core.bridge_state import (
     BridgeState,
+    Counters,
     DriveBlock,
     Outputs,
     add_counts,
     counted_note,
     target_clock,
 )
+from flaair_model.notes import Note
 
 __all__ = ["on_drive", "release", "stop_packet"]
 
@@ -36,89 +40,17 @@ def on_drive(
     counters = add_counts(state.counters, drive_blocks=1)
     first, n = int(inputs.first_sample_index), len(inputs.drive_v)
     state = state._replace(last_drive_s=inputs.now_s)
-    if state.target_end is None:
-        counters = add_counts(counters, drive_unscheduled_blocks=1)
-        return state._replace(counters=counters), Outputs(
-            notes=(
-                counted_note(
-                    "drive_unscheduled_blocks",
-                    f"drive block {first} dropped: no sensor packet from the "
-                    f"target yet [{counters.drive_unscheduled_blocks} so far]",
-                ),
-            )
-        )
-    if state.drive_expected is not None and first < state.drive_expected:
-        counters = add_counts(counters, drive_stale_blocks=1)
-        return state._replace(counters=counters), Outputs(
-            notes=(
-                counted_note(
-                    "drive_stale_blocks",
-                    f"drive block {first} dropped: duplicate or out of order "
-                    f"(expected {state.drive_expected}) "
-                    f"[{counters.drive_stale_blocks} so far]",
-                ),
-            )
-        )
-    notes = []
-    drive = np.array(inputs.drive_v, dtype=np.float64)
-    bad = ~np.isfinite(drive)
-    if bad.any():
-        drive[bad] = 0.0
-        counters = add_counts(counters, nonfinite_samples=int(bad.sum()))
-        notes.append(
-            counted_note(
-                "nonfinite_samples",
-                f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0",
-            )
-        )
-    over = np.abs(drive) > params.drive_limit_v
-    if over.any():
-        drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
-        counters = add_counts(counters, clamped_samples=int(over.sum()))
+    refused = _refused(state, first, counters)
+    if refused is not None:
+        return refused
+    notes: list[Note] = []
+    drive, counters = _guarded_drive(inputs.drive_v, first, counters, params, notes)
     clock = target_clock(state, inputs.now_s, params)
     # the protocol: data up to k -> drive from k + 1 + lead
     anchor = state.target_end + params.lead_samples
-    offset = state.drive_offset
-    if offset is None or first != state.drive_expected:
-        if offset is not None:
-            counters = add_counts(counters, drive_reanchors=1)
-            notes.append(
-                counted_note(
-                    "drive_reanchors",
-                    f"drive stream jumped to {first} (expected "
-                    f"{state.drive_expected}): re-anchored "
-                    f"{params.lead_samples} samples ahead",
-                )
-            )
-        offset = anchor - first
-    elif first + offset + n <= clock and first + offset >= anchor:
-        # The source keeps pace with the data, the bridge fell behind the target (its packets
-        # waited unread): the block is late. Moving the stream ahead would change the loop's
-        # delay for good, so it is dropped and the stream keeps its place.
-        counters = add_counts(counters, drive_late_blocks=1)
-        return state._replace(drive_expected=first + n, counters=counters), Outputs(
-            notes=(
-                counted_note(
-                    "drive_late_blocks",
-                    f"drive block {first} dropped: {clock - first - offset} samples "
-                    "behind the target's clock (the bridge fell behind) "
-                    f"[{counters.drive_late_blocks} so far]",
-                ),
-            )
-        )
-    # the source fell behind the data: it starts again lead_samples ahead
-    elif first + offset < min(clock, anchor):
-        counters = add_counts(counters, drive_reanchors=1)
-        notes.append(
-            counted_note(
-                "drive_reanchors",
-                f"drive block {first} is {clock - first - offset} "
-                "samples behind the target's clock: re-anchored "
-                f"{params.lead_samples} samples ahead "
-                f"[{counters.drive_reanchors} re-anchors so far]",
-            )
-        )
-        offset = anchor - first
+    offset, counters, late = _drive_offset(state, first, n, clock, anchor, counters, params, notes)
+    if late is not None:
+        return late
     queue = state.queue
     queued = queue[-1][0] + len(queue[-1][1]) - queue[0][0] if queue else 0  # O(1): in order
     if queued + n > params.max_ahead_samples + protocol.MAX_SAMPLES:
@@ -145,6 +77,118 @@ def on_drive(
     )
     state, packets, timing = release(state, params, inputs.now_s)
     return state, Outputs(packets=packets, timing=timing, notes=tuple(notes))
+
+
+def _refused(
+    state: BridgeState, first: int, counters: Counters
+) -> tuple[BridgeState, Outputs] | None:
+    """A block with nowhere to go: before the target's first sensor packet, or a duplicate or
+    out-of-order one (None: it is taken).
+    """
+    if state.target_end is None:
+        counters = add_counts(counters, drive_unscheduled_blocks=1)
+        return state._replace(counters=counters), Outputs(
+            notes=(
+                counted_note(
+                    "drive_unscheduled_blocks",
+                    f"drive block {first} dropped: no sensor packet from the "
+                    f"target yet [{counters.drive_unscheduled_blocks} so far]",
+                ),
+            )
+        )
+    if state.drive_expected is not None and first < state.drive_expected:
+        counters = add_counts(counters, drive_stale_blocks=1)
+        return state._replace(counters=counters), Outputs(
+            notes=(
+                counted_note(
+                    "drive_stale_blocks",
+                    f"drive block {first} dropped: duplicate or out of order "
+                    f"(expected {state.drive_expected}) "
+                    f"[{counters.drive_stale_blocks} so far]",
+                ),
+            )
+        )
+    return None
+
+
+def _guarded_drive(
+    drive_v: Any, first: int, counters: Counters, params: BridgeParams, notes: list[Note]
+) -> tuple[np.ndarray, Counters]:
+    """The block as the piezo may take it: a non-finite sample sent as 0, every sample within
+    +-drive_limit_v.
+    """
+    drive = np.array(drive_v, dtype=np.float64)
+    bad = ~np.isfinite(drive)
+    if bad.any():
+        drive[bad] = 0.0
+        counters = add_counts(counters, nonfinite_samples=int(bad.sum()))
+        notes.append(
+            counted_note(
+                "nonfinite_samples",
+                f"drive block {first}: {int(bad.sum())} non-finite sample(s) sent as 0",
+            )
+        )
+    over = np.abs(drive) > params.drive_limit_v
+    if over.any():
+        drive = np.clip(drive, -params.drive_limit_v, params.drive_limit_v)
+        counters = add_counts(counters, clamped_samples=int(over.sum()))
+    return drive, counters
+
+
+def _drive_offset(
+    state: BridgeState,
+    first: int,
+    n: int,
+    clock: int,
+    anchor: int,
+    counters: Counters,
+    params: BridgeParams,
+    notes: list[Note],
+) -> tuple[int, Counters, tuple[BridgeState, Outputs] | None]:
+    """Where the block goes on the target's clock (offset, counts), anchored lead_samples ahead
+    of the data when the stream starts, jumps or falls behind; and a late block's drop (state,
+    outputs; the stream keeps its place), else None.
+    """
+    offset = state.drive_offset
+    if offset is None or first != state.drive_expected:
+        if offset is not None:
+            counters = add_counts(counters, drive_reanchors=1)
+            notes.append(
+                counted_note(
+                    "drive_reanchors",
+                    f"drive stream jumped to {first} (expected "
+                    f"{state.drive_expected}): re-anchored "
+                    f"{params.lead_samples} samples ahead",
+                )
+            )
+        return anchor - first, counters, None
+    if first + offset + n <= clock and first + offset >= anchor:
+        # The source keeps pace with the data, the bridge fell behind the target (its packets
+        # waited unread): the block is late. Moving the stream ahead would change the loop's
+        # delay for good, so it is dropped and the stream keeps its place.
+        counters = add_counts(counters, drive_late_blocks=1)
+        note = counted_note(
+            "drive_late_blocks",
+            f"drive block {first} dropped: {clock - first - offset} samples "
+            "behind the target's clock (the bridge fell behind) "
+            f"[{counters.drive_late_blocks} so far]",
+        )
+        late = state._replace(drive_expected=first + n, counters=counters), Outputs(notes=(note,))
+        return offset, counters, late
+    # the source fell behind the data: it starts again lead_samples ahead
+    if first + offset < min(clock, anchor):
+        counters = add_counts(counters, drive_reanchors=1)
+        notes.append(
+            counted_note(
+                "drive_reanchors",
+                f"drive block {first} is {clock - first - offset} "
+                "samples behind the target's clock: re-anchored "
+                f"{params.lead_samples} samples ahead "
+                f"[{counters.drive_reanchors} re-anchors so far]",
+            )
+        )
+        return anchor - first, counters, None
+    return offset, counters, None
 
 
 def _in_order_drive(
