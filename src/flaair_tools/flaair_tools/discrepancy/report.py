@@ -258,15 +258,8 @@ def _rules(s: DiscrepancySettings) -> dict[str, str]:
     }
 
 
-def _context(
-    runs: Sequence[Run],
-    result: DiscrepancyResult,
-    doc: Mapping[str, Any],
-    figs: Mapping[str, str],
-    settings: DiscrepancySettings,
-    validation: Mapping[str, Any] | None,
-) -> dict:
-    """Everything report.html shows, as plain values for the template."""
+def _plant_section(result: DiscrepancyResult) -> Any:
+    """The fitted plant parameters beside the model's, and what the data cannot tell."""
     plant = None
     if result.plant_parameters:
         notes = list(result.plant_fit.inseparable) if result.plant_fit is not None else []
@@ -287,6 +280,11 @@ def _context(
             ),
             "notes": notes,
         }
+    return plant
+
+
+def _effects_table(result: DiscrepancyResult) -> Any:
+    """Each found effect with its evidence (rules R1-R6)."""
     effects = None
     if result.effects:
         rows = []
@@ -322,6 +320,11 @@ def _context(
             ],
             rows,
         )
+    return effects
+
+
+def _remaining_table(result: DiscrepancyResult) -> Any:
+    """Where a gap is left: band, drive level, worst stretch."""
     remaining = (
         _table(
             [
@@ -347,6 +350,11 @@ def _context(
         if result.remaining
         else None
     )
+    return remaining
+
+
+def _diagnosis_tables(result: DiscrepancyResult) -> Any:
+    """Each channel's diagnosis under the input model and the output model."""
     diagnosis = []
     for label, d in (
         ("input model", result.diagnosis_before),
@@ -389,6 +397,11 @@ def _context(
                 ),
             )
         )
+    return diagnosis
+
+
+def _search_tables(result: DiscrepancyResult) -> Any:
+    """Each channel's search, step by step: every candidate and its verdict."""
     searches = []
     for s in result.searches:
         rows = [
@@ -428,6 +441,43 @@ def _context(
                 ),
             }
         )
+    return searches
+
+
+def _gap_table(result: DiscrepancyResult) -> Any:
+    """The held-out gap per channel, input and output model, beside the noise floor."""
+    return _table(
+        [
+            "channel",
+            "input model",
+            "output model",
+            "output model, in-sample",
+            "noise floor",
+            "noise RMS",
+        ],
+        [
+            [
+                c,
+                result.gap_before[c],
+                result.gap_after[c],
+                result.gap_in_sample_after[c],
+                result.diagnosis_before.channels[c].noise_nrmse,
+                result.noise[c],
+            ]
+            for c in CHANNELS
+        ],
+    )
+
+
+def _context(
+    runs: Sequence[Run],
+    result: DiscrepancyResult,
+    doc: Mapping[str, Any],
+    figs: Mapping[str, str],
+    settings: DiscrepancySettings,
+    validation: Mapping[str, Any] | None,
+) -> dict:
+    """Everything report.html shows, as plain values for the template."""
     return {
         "status": result.status,
         "summary": result.summary,
@@ -436,33 +486,13 @@ def _context(
             f"{r.name} ({r.n / r.fs_hz:.2f} s at {r.fs_hz:g} Hz, drive {r.drive_level_v:.0f} V)"
             for r in runs
         ],
-        "gap": _table(
-            [
-                "channel",
-                "input model",
-                "output model",
-                "output model, in-sample",
-                "noise floor",
-                "noise RMS",
-            ],
-            [
-                [
-                    c,
-                    result.gap_before[c],
-                    result.gap_after[c],
-                    result.gap_in_sample_after[c],
-                    result.diagnosis_before.channels[c].noise_nrmse,
-                    result.noise[c],
-                ]
-                for c in CHANNELS
-            ],
-        ),
+        "gap": _gap_table(result),
         "figs": figs,
-        "plant": plant,
-        "effects": effects,
-        "remaining": remaining,
-        "diagnosis": diagnosis,
-        "searches": searches,
+        "plant": _plant_section(result),
+        "effects": _effects_table(result),
+        "remaining": _remaining_table(result),
+        "diagnosis": _diagnosis_tables(result),
+        "searches": _search_tables(result),
         "r": _rules(settings),
         "discovered": _discovered(result, figs),
         "validation": _confusion(validation["confusion"], validation.get("cases", ()))
