@@ -14,7 +14,7 @@ from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
 from .diagnosis import Diagnosis, diagnose, drive_tracks, noise_estimates, nrmse_by_channel
-from .discovery import discover
+from .discovery import DiscoveryOutcome, discover
 from .effect_judging import AnalysisContext, FoundEffect
 from .fitting import Fold, fold_nrmse
 from .identification import FIT_RANGE, PlantFit, identify_plant
@@ -167,14 +167,7 @@ def analyse(
     DiscrepancyInputError
         Unusable runs.
     """
-    runs = check_runs(runs)
-    for r in runs:
-        try:
-            simulate(r.drive_v[:8], r.fs_hz, model)
-        except ModelError as exc:
-            raise DiscrepancyInputError(
-                f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}"
-            ) from None
+    runs = _checked(runs, model)
     if progress:
         progress("compare")
     sims_before = simulate_runs([model], runs)[0]
@@ -204,23 +197,7 @@ def analyse(
         else (),
     )
     if not diag_fit.gaps:
-        gap_fit = nrmse_by_channel(runs, sims_fit)
-        return DiscrepancyResult(
-            status="no_discrepancy",
-            effects=(),
-            model_out=base,
-            gap_after=gap_fit,
-            gap_in_sample_after=dict(gap_fit),
-            diagnosis_after=diag_fit,
-            searches=(),
-            remaining=(),
-            sims_after=tuple(sims_fit),
-            summary=_summary(
-                "no_discrepancy", (), diag_fit, (), _plant_parameters(model, base, plant_fit)
-            ),
-            plant_parameters=_plant_parameters(model, base, plant_fit),
-            **common,
-        )
+        return _no_discrepancy(model, base, plant_fit, runs, sims_fit, diag_fit, common)
     effects: Sequence[FoundEffect]
     model_out, effects, searches, runs = find_effects(
         runs,
@@ -235,31 +212,13 @@ def analyse(
     diag_after, remaining = _where_left(ctx, model_out, searches)
     discovery = None
     if remaining and settings.discover:
-        gaps = {r["channel"] for r in remaining}
         found_ctx = (
             ctx if plant_fit is None else AnalysisContext(plant_fit.runs, noise, settings, tracks)
         )
-        discovery = discover(
-            found_ctx,
-            model_out,
-            sorted(gaps),
-            progress,
-            [e for e in effects if gaps & set(e.explains)],
-            plant_fit.model.plant if plant_fit is not None else None,
-            nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS},
-        )
+        discovery = _discovery(found_ctx, model, model_out, effects, remaining, plant_fit, progress)
         if discovery.discovered or discovery.named:
-            model_out = discovery.model
-            runs = discovery.runs
-            ctx = found_ctx
-            effects = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
-            # the discovery re-fits effects along with its terms: report the values of the model
-            effects = [
-                replace(e, parameters=effect_params(on))
-                if (on := model_out.effect(e.name)) is not None
-                else e
-                for e in effects
-            ]
+            model_out, runs, ctx = discovery.model, discovery.runs, found_ctx
+            effects = _effects_after(discovery, effects, model_out)
             diag_after, remaining = _where_left(ctx, model_out, searches)
     discovered = discovery.discovered if discovery is not None else ()
     if progress:
@@ -302,6 +261,84 @@ def analyse(
         discovery_tried=discovery.tried if discovery is not None else (),
         **common,
     )
+
+
+def _checked(runs: Sequence[Run], model: Model) -> tuple[Run, ...]:
+    """The runs checked (`check_runs`), and the model simulatable at their rate."""
+    runs = check_runs(runs)
+    for r in runs:
+        try:
+            simulate(r.drive_v[:8], r.fs_hz, model)
+        except ModelError as exc:
+            raise DiscrepancyInputError(
+                f"model cannot be simulated at {r.fs_hz:g} Hz: {exc}"
+            ) from None
+    return runs
+
+
+def _no_discrepancy(
+    model: Model,
+    base: Model,
+    plant_fit: PlantFit | None,
+    runs: Sequence[Run],
+    sims_fit: Sequence[Any],
+    diag_fit: Diagnosis,
+    common: dict[str, Any],
+) -> DiscrepancyResult:
+    """The result when the fitted plant leaves no gap: the plant is all that changed."""
+    gap_fit = nrmse_by_channel(runs, sims_fit)
+    plant = _plant_parameters(model, base, plant_fit)
+    return DiscrepancyResult(
+        status="no_discrepancy",
+        effects=(),
+        model_out=base,
+        gap_after=gap_fit,
+        gap_in_sample_after=dict(gap_fit),
+        diagnosis_after=diag_fit,
+        searches=(),
+        remaining=(),
+        sims_after=tuple(sims_fit),
+        summary=_summary("no_discrepancy", (), diag_fit, (), plant),
+        plant_parameters=plant,
+        **common,
+    )
+
+
+def _discovery(
+    ctx: AnalysisContext,
+    model: Model,
+    model_out: Model,
+    effects: Sequence[FoundEffect],
+    remaining: Sequence[dict[str, Any]],
+    plant_fit: PlantFit | None,
+    progress: Callable[[str], None] | None,
+) -> DiscoveryOutcome:
+    """The term library searched on the channels the vocabulary left a gap on."""
+    gaps = {r["channel"] for r in remaining}
+    return discover(
+        ctx,
+        model_out,
+        sorted(gaps),
+        progress,
+        [e for e in effects if gaps & set(e.explains)],
+        plant_fit.model.plant if plant_fit is not None else None,
+        nominal={k: float(getattr(model.plant, k)) for k in PLANT_PARAMETERS},
+    )
+
+
+def _effects_after(
+    discovery: DiscoveryOutcome, effects: Sequence[FoundEffect], model_out: Model
+) -> list[FoundEffect]:
+    """The effects after the discovery: those it replaced out, those it named in, each at the
+    value the model holds (the discovery re-fits effects along with its terms).
+    """
+    kept = [e for e in effects if e not in discovery.replaced] + list(discovery.named)
+    return [
+        replace(e, parameters=effect_params(on))
+        if (on := model_out.effect(e.name)) is not None
+        else e
+        for e in kept
+    ]
 
 
 def _where_left(
