@@ -226,6 +226,91 @@ def same_on_both(
     return (w_old * v_old + w_new * v_new) / (w_old + w_new) if w_old + w_new > 0 else v_new
 
 
+def _pooled_fit(
+    per_fold: Sequence[FitResult],
+    x0: np.ndarray,
+    specs: Sequence[EffectSpec],
+    all_prob: ResidualProblem,
+    base: Model,
+) -> FitResult:
+    """The all-run estimate: inverse-variance pooling of the per-run fits (equivalent to one fit
+    on all runs for independent runs); if no run identifies the effect, the best run's value.
+    """
+    p = len(specs)
+    identified = [pf for pf in per_fold if np.all(np.isfinite(pf.se)) and np.all(pf.se > 0)]
+    if identified:
+        x_all = np.array(
+            [_pooled([(pf.x[j], pf.se[j]) for pf in identified], x0[j]) for j in range(p)]
+        )
+        se_all = np.array(
+            [1.0 / math.sqrt(sum(1.0 / pf.se[j] ** 2 for pf in identified)) for j in range(p)]
+        )
+    else:
+        x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
+        se_all = np.full(p, math.inf)
+    res_all = all_prob.residuals(models_for(base, specs, x_all[None, :]))[0]
+    return FitResult(
+        x=x_all,
+        se=se_all,
+        rss=sum(float(np.dot(r, r)) for r in res_all),
+        n=sum(r.size for r in res_all),
+        rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all),
+    )
+
+
+def _heldout_models(
+    per_fold: Sequence[FitResult], null_x: np.ndarray, specs: Sequence[EffectSpec], base: Model
+) -> list[Model]:
+    """Each fold's model: the pooled estimates of the other folds."""
+    out = []
+    for k in range(len(per_fold)):
+        others = [per_fold[i] for i in range(len(per_fold)) if i != k]
+        x_ho = [
+            _pooled([(pf.x[j], pf.se[j]) for pf in others], null_x[j]) for j in range(len(specs))
+        ]
+        out.append(models_for(base, specs, np.array([x_ho]))[0])
+    return out
+
+
+def _per_parameter(
+    ctx: AnalysisContext,
+    base: Model,
+    specs: Sequence[EffectSpec],
+    fit_all: FitResult,
+    values: Sequence[float],
+    se_phys: Sequence[float],
+    per_fold: Sequence[FitResult],
+) -> tuple[list[float], list[float], list[Any], list[int], list[bool]]:
+    """Per parameter: z from its null value (a stop: from the stroke the model reaches), the
+    consistency p of the per-run estimates, the estimates, how many runs identify it, and
+    whether it ended inside its bounds.
+    """
+    z: list[float] = []
+    cons: list[float] = []
+    per_run: list[Any] = []
+    n_ident: list[int] = []
+    inside: list[bool] = []
+    reach = None
+    for j, s in enumerate(specs):
+        lo, hi = s.to_fit(s.lower), s.to_fit(s.upper)
+        near = 1e-3 * (hi - lo)
+        at_lo = fit_all.x[j] - lo < near and s.lower != s.null
+        at_hi = hi - fit_all.x[j] < near and s.upper != s.null
+        inside.append(not (at_lo or at_hi))
+        v, e = values[j], se_phys[j]
+        if math.isinf(s.null):
+            if reach is None:
+                reach = _reach_deg(ctx, base)
+            z.append((reach - v) / e if 0 < e < math.inf and v < reach else 0.0)
+        else:
+            z.append(abs(v - s.null) / e if 0 < e < math.inf else 0.0)
+        est = [(s.from_fit(pf.x[j]), _phys_se(s, pf.x[j], pf.se[j])) for pf in per_fold]
+        per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(ctx.folds, est, strict=True)))
+        cons.append(_consistency(est, s.effect_size(v), ctx.settings))
+        n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
+    return z, cons, per_run, n_ident, inside
+
+
 def evaluate(
     ctx: AnalysisContext,
     base: Model,
@@ -263,38 +348,13 @@ def evaluate(
         for f in folds
     ]
     all_prob = ctx.problem(channel, folds, truth_referenced, base)
-    # all-run estimate: inverse-variance pooling of the per-run fits (equivalent to one fit on all
-    # runs for independent runs); if no run identifies the effect, the best run's value
-    identified = [pf for pf in per_fold if np.all(np.isfinite(pf.se)) and np.all(pf.se > 0)]
-    if identified:
-        x_all = np.array(
-            [_pooled([(pf.x[j], pf.se[j]) for pf in identified], x0[j]) for j in range(p)]
-        )
-        se_all = np.array(
-            [1.0 / math.sqrt(sum(1.0 / pf.se[j] ** 2 for pf in identified)) for j in range(p)]
-        )
-    else:
-        x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
-        se_all = np.full(p, math.inf)
-    res_all = all_prob.residuals(models_for(base, specs, x_all[None, :]))[0]
-    fit_all = FitResult(
-        x=x_all,
-        se=se_all,
-        rss=sum(float(np.dot(r, r)) for r in res_all),
-        n=sum(r.size for r in res_all),
-        rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all),
-    )
+    fit_all = _pooled_fit(per_fold, x0, specs, all_prob, base)
     values = [s.from_fit(u) for s, u in zip(specs, fit_all.x, strict=True)]
     se_phys = [_phys_se(s, u, e) for s, u, e in zip(specs, fit_all.x, fit_all.se, strict=True)]
     res_null = all_prob.residuals([base])[0]
     rss_null = [float(np.dot(r, r)) for r in res_null]
     n_f = all_prob.n_per_fold()
-    # held-out: each fold predicted with the pooled estimates of the other folds
-    models_ho = []
-    for k in range(len(folds)):
-        others = [per_fold[i] for i in range(len(folds)) if i != k]
-        x_ho = [_pooled([(pf.x[j], pf.se[j]) for pf in others], null_x[j]) for j in range(p)]
-        models_ho.append(models_for(base, specs, np.array([x_ho]))[0])
+    models_ho = _heldout_models(per_fold, null_x, specs, base)
     rss_ho = []
     for k, f in enumerate(folds):
         r = ctx.problem(channel, [f], truth_referenced, base).residuals([models_ho[k]])[0][0]
@@ -306,27 +366,11 @@ def evaluate(
     drop_above_noise = gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
     dbic_ho = bic(rss_ho, n_f, p) - bic(rss_null, n_f, 0)
     dbic_fit = bic(list(fit_all.rss_per_fold), n_f, p) - bic(rss_null, n_f, 0)
-    z, cons, per_run, n_ident, inside = [], [], [], [], []
+    z, cons, per_run, n_ident, inside = _per_parameter(
+        ctx, base, specs, fit_all, values, se_phys, per_fold
+    )
     # shape and plant parameters are fitted along
     tested = [j for j, s in enumerate(specs) if s.tested]
-    reach = None
-    for j, s in enumerate(specs):
-        lo, hi = s.to_fit(s.lower), s.to_fit(s.upper)
-        near = 1e-3 * (hi - lo)
-        at_lo = fit_all.x[j] - lo < near and s.lower != s.null
-        at_hi = hi - fit_all.x[j] < near and s.upper != s.null
-        inside.append(not (at_lo or at_hi))
-        v, e = values[j], se_phys[j]
-        if math.isinf(s.null):
-            if reach is None:
-                reach = _reach_deg(ctx, base)
-            z.append((reach - v) / e if 0 < e < math.inf and v < reach else 0.0)
-        else:
-            z.append(abs(v - s.null) / e if 0 < e < math.inf else 0.0)
-        est = [(s.from_fit(pf.x[j]), _phys_se(s, pf.x[j], pf.se[j])) for pf in per_fold]
-        per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(folds, est, strict=True)))
-        cons.append(_consistency(est, s.effect_size(v), st))
-        n_ident.append(sum(1 for _, es in est if 0 < es < math.inf))
     rules = {
         "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
