@@ -262,7 +262,119 @@ def _level_groups(runs: Sequence[Run]) -> list[float]:
     return [round(lv / top * 20.0) / 20.0 * top for lv in levels]
 
 
-def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the residuals
+def _drive_xcorr(
+    runs: Sequence[Run], res: Sequence[np.ndarray], settings: DiscrepancySettings
+) -> tuple[tuple[float, int, int], bool]:
+    """The residual's strongest cross-correlation with the drive over the runs (rho, lag, n)
+    and whether it is significant.
+    """
+    max_lag = max(1, round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate))
+    best = (0.0, 0, 0)
+    for run, r in zip(runs, res, strict=True):
+        rho, lag, m = _xcorr_with_drive(
+            r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag
+        )
+        if abs(rho) * math.sqrt(max(m, 1)) > abs(best[0]) * math.sqrt(max(best[2], 1)):
+            best = (rho, lag, m)
+    return best, abs(best[0]) * math.sqrt(max(best[2], 1)) > settings.xcorr_z
+
+
+def _bands(
+    runs: Sequence[Run],
+    res: Sequence[np.ndarray],
+    tracks: Sequence[tuple[np.ndarray, np.ndarray]],
+    c: str,
+    sigma: float,
+    edges: Sequence[float],
+    win: int,
+) -> tuple[dict[str, float], str]:
+    """The model error above noise per band of the drive's instantaneous frequency, and the
+    worst band.
+    """
+    band: dict[str, float] = {}
+    worst_band, worst_val = "", -1.0
+    for lo, hi in itertools.pairwise(edges):
+        rss_b, n_b = 0.0, 0
+        ss_b = 0.0
+        for run, r, (_, f) in zip(runs, res, tracks, strict=True):
+            sel = (f >= lo) & (f < hi) & np.isfinite(r)
+            if sel.sum() < win:
+                continue
+            x = run.channel(c)[sel]
+            rss_b += float(np.sum(r[sel] ** 2))
+            n_b += int(sel.sum())
+            ss_b += float(np.sum((x - np.nanmean(run.channel(c))) ** 2))
+        if n_b:
+            label = f"{lo:g}-{hi:g}" if hi < 1e8 else f">{lo:g}"
+            band[label] = _excess(rss_b, n_b, sigma, ss_b)
+            if band[label] > worst_val:
+                worst_band, worst_val = label, band[label]
+    return band, worst_band
+
+
+def _drive_levels(
+    levels: Sequence[float],
+    res: Sequence[np.ndarray],
+    ss_n: Sequence[tuple[float, int]],
+    sigma: float,
+) -> tuple[dict[str, float], float]:
+    """The model error above noise per drive level, and highest over lowest level's."""
+    level_vals = {}
+    for lv in sorted(set(levels)):
+        idx = [i for i, l in enumerate(levels) if l == lv]
+        rss_l = sum(float(np.nansum(res[i] ** 2)) for i in idx)
+        n_l = sum(int(np.isfinite(res[i]).sum()) for i in idx)
+        ss_l = sum(ss_n[i][0] for i in idx)
+        level_vals[f"{lv:.3g}"] = _excess(rss_l, n_l, sigma, ss_l)
+    if len(level_vals) <= 1:
+        return level_vals, math.nan
+    keys = sorted(level_vals, key=float)
+    lo_v, hi_v = level_vals[keys[0]], level_vals[keys[-1]]
+    return level_vals, hi_v / lo_v if lo_v > 0 else (math.inf if hi_v > 0 else math.nan)
+
+
+def _harmonics(
+    res: Sequence[np.ndarray], tracks: Sequence[tuple[np.ndarray, np.ndarray]], win: int
+) -> dict[str, float]:
+    """The residual's power fractions at the drive's harmonics 1-4 (runs pooled, power-weighted)."""
+    hp = np.zeros(4)
+    total = 0.0
+    for r, (phase, _) in zip(res, tracks, strict=True):
+        fr = _harmonic_fractions(r, phase, win)
+        tot = float(np.nansum(r**2))
+        for h in range(4):
+            hp[h] += fr.get(str(h + 1), 0.0) * tot
+        total += tot
+    return {str(h + 1): float(hp[h] / total) if total > 0 else 0.0 for h in range(4)}
+
+
+def _worst_stretch(
+    runs: Sequence[Run], res: Sequence[np.ndarray], c: str, sigma: float, win: int
+) -> tuple[str, float, float, float]:
+    """The window of the largest model error above noise: (run, start s, end s, its NRMSE)."""
+    worst = ("", math.nan, math.nan, -1.0)
+    for run, r in zip(runs, res, strict=True):
+        k = r.size // win
+        if k == 0:
+            continue
+        x = run.channel(c)
+        blocks = r[: k * win].reshape(k, win)
+        ok = np.isfinite(blocks)
+        cnt = ok.sum(axis=1)
+        ms = np.where(cnt > 0, np.nansum(blocks**2, axis=1) / np.maximum(cnt, 1), np.nan)
+        sig_ms = np.nanvar(x[np.isfinite(x)]) if np.isfinite(x).any() else math.nan
+        if not sig_ms > 0:
+            continue
+        ex = np.sqrt(np.maximum(ms - sigma**2, 0.0) / sig_ms)
+        if np.all(np.isnan(ex)):
+            continue
+        j = int(np.nanargmax(ex))
+        if ex[j] > worst[3]:
+            worst = (run.name, j * win / run.fs_hz, (j + 1) * win / run.fs_hz, float(ex[j]))
+    return worst
+
+
+def diagnose(
     runs: Sequence[Run],
     sims: Sequence[Mapping[str, np.ndarray]],
     model: Model,
@@ -287,7 +399,6 @@ def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the 
     """
     tracks = list(tracks) if tracks is not None else drive_tracks(runs)
     levels = _level_groups(runs)
-    edges = settings.band_edges_hz
     win = max(8, round(settings.window_s * runs[0].fs_hz))
     out = {}
     for c in CHANNELS:
@@ -297,89 +408,17 @@ def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the 
         rss = sum(float(np.nansum(r**2)) for r in res)
         n = sum(int(np.isfinite(r).sum()) for r in res)
         ss = sum(s for s, _ in ss_n)
-        nrmse = math.sqrt(rss / ss) if ss > 0 else math.nan
-        noise_nrmse = sigma / math.sqrt(ss / n) if ss > 0 and n else math.nan
-        excess = _excess(rss, n, sigma, ss)
         has_gap, ratio, q, p = gap_test(res, sigma, settings)
-        # cross-correlation with the drive (strongest run)
-        max_lag = max(1, round(settings.xcorr_max_lag_s * runs[0].fs_hz / settings.decimate))
-        best = (0.0, 0, 0)
-        for run, r in zip(runs, res, strict=True):
-            rho, lag, m = _xcorr_with_drive(
-                r[:: settings.decimate], run.drive_v[:: settings.decimate], max_lag
-            )
-            if abs(rho) * math.sqrt(max(m, 1)) > abs(best[0]) * math.sqrt(max(best[2], 1)):
-                best = (rho, lag, m)
-        xsig = abs(best[0]) * math.sqrt(max(best[2], 1)) > settings.xcorr_z
-        # frequency bands (drive instantaneous frequency)
-        band = {}
-        worst_band, worst_val = "", -1.0
-        for lo, hi in itertools.pairwise(edges):
-            rss_b, n_b = 0.0, 0
-            ss_b = 0.0
-            for run, r, (_, f) in zip(runs, res, tracks, strict=True):
-                sel = (f >= lo) & (f < hi) & np.isfinite(r)
-                if sel.sum() < win:
-                    continue
-                x = run.channel(c)[sel]
-                rss_b += float(np.sum(r[sel] ** 2))
-                n_b += int(sel.sum())
-                ss_b += float(np.sum((x - np.nanmean(run.channel(c))) ** 2))
-            if n_b:
-                label = f"{lo:g}-{hi:g}" if hi < 1e8 else f">{lo:g}"
-                band[label] = _excess(rss_b, n_b, sigma, ss_b)
-                if band[label] > worst_val:
-                    worst_band, worst_val = label, band[label]
-        # drive levels
-        level_vals = {}
-        for lv in sorted(set(levels)):
-            idx = [i for i, l in enumerate(levels) if l == lv]
-            rss_l = sum(float(np.nansum(res[i] ** 2)) for i in idx)
-            n_l = sum(int(np.isfinite(res[i]).sum()) for i in idx)
-            ss_l = sum(ss_n[i][0] for i in idx)
-            level_vals[f"{lv:.3g}"] = _excess(rss_l, n_l, sigma, ss_l)
-        if len(level_vals) > 1:
-            keys = sorted(level_vals, key=float)
-            lo_v, hi_v = level_vals[keys[0]], level_vals[keys[-1]]
-            level_ratio = hi_v / lo_v if lo_v > 0 else (math.inf if hi_v > 0 else math.nan)
-        else:
-            level_ratio = math.nan
-        # harmonics (all runs pooled, power-weighted)
-        hp = np.zeros(4)
-        total = 0.0
-        for r, (phase, _) in zip(res, tracks, strict=True):
-            fr = _harmonic_fractions(r, phase, win)
-            tot = float(np.nansum(r**2))
-            for h in range(4):
-                hp[h] += fr.get(str(h + 1), 0.0) * tot
-            total += tot
-        harmonics = {str(h + 1): float(hp[h] / total) if total > 0 else 0.0 for h in range(4)}
-        # worst stretch
-        worst = ("", math.nan, math.nan, -1.0)
-        for run, r in zip(runs, res, strict=True):
-            k = r.size // win
-            if k == 0:
-                continue
-            x = run.channel(c)
-            blocks = r[: k * win].reshape(k, win)
-            ok = np.isfinite(blocks)
-            cnt = ok.sum(axis=1)
-            ms = np.where(cnt > 0, np.nansum(blocks**2, axis=1) / np.maximum(cnt, 1), np.nan)
-            sig_ms = np.nanvar(x[np.isfinite(x)]) if np.isfinite(x).any() else math.nan
-            if not sig_ms > 0:
-                continue
-            ex = np.sqrt(np.maximum(ms - sigma**2, 0.0) / sig_ms)
-            if np.all(np.isnan(ex)):
-                continue
-            j = int(np.nanargmax(ex))
-            if ex[j] > worst[3]:
-                worst = (run.name, j * win / run.fs_hz, (j + 1) * win / run.fs_hz, float(ex[j]))
+        best, xsig = _drive_xcorr(runs, res, settings)
+        band, worst_band = _bands(runs, res, tracks, c, sigma, settings.band_edges_hz, win)
+        level_vals, level_ratio = _drive_levels(levels, res, ss_n, sigma)
+        harmonics = _harmonics(res, tracks, win)
         out[c] = ChannelGap(
             channel=c,
-            nrmse=nrmse,
-            noise_nrmse=noise_nrmse,
+            nrmse=math.sqrt(rss / ss) if ss > 0 else math.nan,
+            noise_nrmse=sigma / math.sqrt(ss / n) if ss > 0 and n else math.nan,
             noise_ratio=ratio,
-            model_error_nrmse=excess,
+            model_error_nrmse=_excess(rss, n, sigma, ss),
             ljung_box_q=q,
             ljung_box_p=p,
             xcorr_drive=best[0],
@@ -390,7 +429,7 @@ def diagnose(  # noqa: C901  the Diagnosis's tests in report order, sharing the 
             level_nrmse=level_vals,
             level_ratio=level_ratio,
             harmonic_fraction=harmonics,
-            worst_stretch=worst,
+            worst_stretch=_worst_stretch(runs, res, c, sigma, win),
             has_gap=has_gap,
             interpretation=interpret(ratio, p, xsig, harmonics, level_ratio, has_gap, settings),
         )
