@@ -459,6 +459,81 @@ def _replacing(
     return [], record, [], tried
 
 
+def _winner(
+    ctx: AnalysisContext,
+    current: Model,
+    passing: Sequence[Any],
+    dropped: Sequence[FoundEffect],
+    channel: str,
+) -> tuple[Any, Any, str | None]:
+    """The first passing candidate (a term that is a vocabulary effect must pass as that effect:
+    then its fit as the effect, and the effect's name); (None, None, None) when none passes.
+    """
+    for candidate in passing:
+        vocabulary = candidate[1].same_as.get(candidate[2])
+        if vocabulary is None:
+            return candidate, None, None
+        named_fit = _as_vocabulary(ctx, _without(current, dropped), vocabulary, channel)
+        if named_fit is not None:
+            return candidate, named_fit, vocabulary
+    return None, None, None
+
+
+def _named_effect(vocabulary: str, channel: str, vev: CandidateEvidence) -> FoundEffect:
+    """A library term found to be vocabulary effect `vocabulary`, as that effect."""
+    return FoundEffect(
+        vocabulary,
+        channel,
+        {  # the values go on to the plant parameters the effect trades off against
+            p.key: float(v) for p, v in zip(ENTRIES[vocabulary].params, vev.values, strict=False)
+        },
+        {
+            **vev.as_dict(),
+            "found_by": "discovery (a library term that is this vocabulary effect)",
+        },
+        ENTRIES[vocabulary].acts_on,
+    )
+
+
+def _discovered(
+    ctx: AnalysisContext,
+    current: Model,
+    win: Any,
+    judged: Sequence[Any],
+    rest: Any,
+    channel: str,
+    centre: Mapping[str, float],
+) -> tuple[Discovered, Model]:
+    """The winning term's account (its held-out gap before and after, what it beat, what it
+    cannot be told from) and the model with it (the pitch plant refitted under a stroke term).
+    """
+    ev, kind, site, specs, new_model = win
+    gap_before = fold_nrmse(ctx.runs, ctx.folds, [current] * len(ctx.folds))
+    after_models = list(ev.heldout_models)
+    if channel == "stroke_deg" and ctx.settings.identify:
+        # the pitch plant was identified under the stroke's error: fit it again under the
+        # corrected stroke (its parameters are the plant's, not the term's)
+        new_model = _refit_pitch_plant(ctx, new_model, centre)
+        pitch = {
+            k: getattr(new_model.plant, k) for k, c in PLANT_PARAMETERS.items() if c == "pitch_deg"
+        }
+        after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
+    gap_after = fold_nrmse(ctx.runs, ctx.folds, after_models)
+    term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
+    stderr = {s.key: e for s, e in zip(specs, ev.se, strict=True) if s.is_term}
+    discovered = Discovered(
+        term,
+        channel,
+        stderr,
+        gap_before,
+        gap_after,
+        ev.as_dict(),
+        _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest),
+        _uncertainty(ctx, win, judged, channel),
+    )
+    return discovered, new_model
+
+
 def discover(
     ctx: AnalysisContext,
     model: Model,
@@ -517,67 +592,17 @@ def discover(
                 centre,
             )
             tried += step_tried
-            win, named_fit = None, None
-            for candidate in passing:  # a term that is a vocabulary effect must pass as that
-                vocabulary = candidate[1].same_as.get(candidate[2])
-                if vocabulary is None:
-                    win = candidate
-                    break
-                named_fit = _as_vocabulary(ctx, _without(current, dropped), vocabulary, channel)
-                if named_fit is not None:
-                    win = candidate
-                    break
+            win, named_fit, vocabulary = _winner(ctx, current, passing, dropped, channel)
             if win is None:
                 break
             replaced += dropped
             current = _without(current, dropped)
-            ev, kind, site, specs, new_model = win
-            if named_fit is not None:
+            if named_fit is not None and vocabulary is not None:
                 vev, current = named_fit
-                named.append(
-                    FoundEffect(
-                        vocabulary,
-                        channel,
-                        {  # the values go on to the plant parameters the effect trades off against
-                            p.key: float(v)
-                            for p, v in zip(ENTRIES[vocabulary].params, vev.values, strict=False)
-                        },
-                        {
-                            **vev.as_dict(),
-                            "found_by": "discovery (a library term that is this vocabulary effect)",
-                        },
-                        ENTRIES[vocabulary].acts_on,
-                    )
-                )
+                named.append(_named_effect(vocabulary, channel, vev))
                 break  # as before: a vocabulary effect ends the channel's search
-            before_models = [current] * len(ctx.folds)
-            gap_before = fold_nrmse(ctx.runs, ctx.folds, before_models)
-            after_models = list(ev.heldout_models)
-            if channel == "stroke_deg" and ctx.settings.identify:
-                # the pitch plant was identified under the stroke's error: fit it again under
-                # the corrected stroke (its parameters are the plant's, not the term's)
-                new_model = _refit_pitch_plant(ctx, new_model, centre)
-                pitch = {
-                    k: getattr(new_model.plant, k)
-                    for k, c in PLANT_PARAMETERS.items()
-                    if c == "pitch_deg"
-                }
-                after_models = [replace(m, plant=replace(m.plant, **pitch)) for m in after_models]
-            gap_after = fold_nrmse(ctx.runs, ctx.folds, after_models)
-            term = next(t for t in new_model.discovered if (t.kind, t.acts_on) == (kind.name, site))
-            stderr = {s.key: e for s, e in zip(specs, ev.se, strict=True) if s.is_term}
-            found.append(
-                Discovered(
-                    term,
-                    channel,
-                    stderr,
-                    gap_before,
-                    gap_after,
-                    ev.as_dict(),
-                    _beaten(ev, [(j[0], j[1], j[2], j[3]) for j in judged], rest),
-                    _uncertainty(ctx, win, judged, channel),
-                )
-            )
+            discovered, new_model = _discovered(ctx, current, win, judged, rest, channel, centre)
+            found.append(discovered)
             # the term with the plant, then the runs' initial states, before the channel is
             # judged for a second term (the first term's fit stopped where the states were)
             current = _polish_truth(ctx, new_model, centre)
