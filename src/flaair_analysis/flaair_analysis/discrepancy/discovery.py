@@ -258,6 +258,13 @@ def _step(
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
         judged.append((ev, kind, site, specs, model))
+    return _ranked(judged), [judged, cands[len(shortlist) :], _tried(cands, found, judged)]
+
+
+def _tried(cands: Sequence[Any], found: Any, judged: Sequence[Any]) -> list[dict[str, Any]]:
+    """The step's record of every candidate: fitted (with its verdict when judged), ranked by
+    one linearized step only, or skipped as degenerate.
+    """
     tried: list[dict[str, Any]] = [
         {"term": k.name, "acts_on": s, "composed": k.composed, "fit_rss": r}
         for r, k, s, _sp, _x in cands
@@ -282,6 +289,11 @@ def _step(
             "z": list(ev.z),
             "consistency_p": list(ev.consistency_p),
         }
+    return tried
+
+
+def _ranked(judged: Sequence[Any]) -> list[Any]:
+    """The accepted candidates, best first."""
     # each candidate's plant is its own: rank on the held-out error, which all share; a term
     # with fewer parameters within PARSIMONY of the best error comes first (a leak through a
     # low-pass at its 5 kHz bound is the plain leak)
@@ -295,7 +307,7 @@ def _step(
                 j[0].heldout_nrmse_after,
             )
         )
-    return passing, [judged, cands[len(shortlist) :], tried]
+    return passing
 
 
 def _uncertainty(

@@ -177,13 +177,9 @@ def analyse(
     gap_before = nrmse_by_channel(runs, sims_before)
     plant_fit, base, sims_fit, diag_fit = None, model, sims_before, diag_before
     if settings.identify:
-        if progress:
-            progress("identify plant")
-        plant_fit = identify_plant(runs, model, noise)
+        plant_fit, sims_fit, diag_fit = _identified(runs, model, noise, settings, tracks, progress)
         base = plant_fit.model
         runs = plant_fit.runs  # with their initial states fitted along with the plant
-        sims_fit = simulate_runs([base], runs)[0]
-        diag_fit = diagnose(runs, sims_fit, base, noise, settings, tracks=tracks)
     common: dict[str, Any] = dict(
         model_in=model,
         gap_before=gap_before,
@@ -192,9 +188,7 @@ def analyse(
         sims_before=tuple(sims_before),
         run_names=tuple(r.name for r in runs),
         plant_fit=plant_fit,
-        not_separable=tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
-        if settings.identify
-        else (),
+        not_separable=_not_separable(settings),
     )
     if not diag_fit.gaps:
         return _no_discrepancy(model, base, plant_fit, runs, sims_fit, diag_fit, common)
@@ -230,10 +224,7 @@ def analyse(
         else nrmse_by_channel(runs, sims_fit)
     )
     in_sample = nrmse_by_channel(runs, sims_after)
-    if remaining:
-        status = "unexplained"
-    else:
-        status = "explained" if effects or discovered else "no_discrepancy"
+    status = _status(remaining, bool(effects or discovered))
     gap_channels = {r["channel"] for r in remaining}
     approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
     return DiscrepancyResult(
@@ -261,6 +252,37 @@ def analyse(
         discovery_tried=discovery.tried if discovery is not None else (),
         **common,
     )
+
+
+def _not_separable(settings: DiscrepancySettings) -> tuple[dict[str, str], ...]:
+    """The effects a change of the fitted plant mimics (not searched), and why."""
+    if not settings.identify:
+        return ()
+    return tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
+
+
+def _status(remaining: Sequence[Any], found: bool) -> str:
+    """Unexplained while a gap is left; else explained when something was found."""
+    if remaining:
+        return "unexplained"
+    return "explained" if found else "no_discrepancy"
+
+
+def _identified(
+    runs: Sequence[Run],
+    model: Model,
+    noise: Mapping[str, float],
+    settings: DiscrepancySettings,
+    tracks: Sequence[tuple[Any, Any]],
+    progress: Callable[[str], None] | None,
+) -> tuple[PlantFit, list[Any], Diagnosis]:
+    """The robot's own plant fitted (`identify_plant`), its simulation and its diagnosis."""
+    if progress:
+        progress("identify plant")
+    plant_fit = identify_plant(runs, model, noise)
+    sims_fit = simulate_runs([plant_fit.model], plant_fit.runs)[0]
+    diag_fit = diagnose(plant_fit.runs, sims_fit, plant_fit.model, noise, settings, tracks=tracks)
+    return plant_fit, sims_fit, diag_fit
 
 
 def _checked(runs: Sequence[Run], model: Model) -> tuple[Run, ...]:
