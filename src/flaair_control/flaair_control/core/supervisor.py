@@ -258,6 +258,86 @@ def _count(state: SupervisorState, name: str) -> SupervisorState:
     return state._replace(counts=counts._replace(**{name: getattr(counts, name) + 1}))
 
 
+def _checked(
+    state: SupervisorState, block: WingBlock, size: int, p: SupervisorParams, notes: list[Note]
+) -> tuple[str, Counts]:
+    """A block off the fast path checked (`check_block`): its kind (stale, gap, content, ok)
+    and the counts with it.
+    """
+    first = int(block.first_sample_index)
+    counts = state.counts
+    check = check_block(
+        {"stroke_velocity_deg_s": np.zeros(size)},
+        block.sample_rate_hz,
+        p.sample_rate_hz,
+        first,
+        state.expected_index,
+        p.block_size,
+    )
+    if check.kind == "stale":
+        counts = counts._replace(stale=counts.stale + 1)
+        notes.append(
+            Note(
+                WARNING,
+                f"wing-state block {first} ignored: {check.reason} [{counts.stale} stale so far]",
+                "stale",
+            )
+        )
+    elif check.kind == "gap":
+        counts = counts._replace(gaps=counts.gaps + 1)
+        notes.append(
+            Note(
+                WARNING,
+                f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]",
+                "gaps",
+            )
+        )
+    elif check.kind == "content":
+        counts = counts._replace(rejected=counts.rejected + 1)
+        notes.append(
+            Note(
+                WARNING,
+                f"wing-state block {first} rejected: {check.reason}; its "
+                f"samples drive the filter as 0 [{counts.rejected} rejected "
+                "so far]",
+                "rejected",
+            )
+        )
+    return check.kind, counts
+
+
+def _velocity(
+    block: WingBlock, field: np.ndarray, n: int, counts: Counts, notes: list[Note]
+) -> tuple[np.ndarray, bool, Counts]:
+    """The block's stroke velocity [rad/s] (invalid samples NaN), whether all of it is valid,
+    and the counts.
+    """
+    velocity_rad_s = np.radians(field)
+    flags = np.asarray(block.stroke_valid, dtype=bool)
+    # a finite sum proves every sample finite (the fast path);
+    # an overflowing one is checked sample by sample. A block's few samples are reduced in
+    # Python: a numpy reduction costs ~2 us of fixed overhead.
+    valid = (
+        flags.size == n
+        and all(flags.tolist())
+        and (math.isfinite(sum(velocity_rad_s.tolist())) or bool(np.isfinite(velocity_rad_s).all()))
+    )
+    if not valid:
+        counts = counts._replace(invalid=counts.invalid + 1)
+        notes.append(
+            Note(
+                WARNING,
+                f"wing-state block {int(block.first_sample_index)} invalid (stroke_valid false "
+                "or non-finite velocity); its invalid samples drive the "
+                f"filter as 0 [{counts.invalid} invalid so far]",
+                "invalid",
+            )
+        )
+        if flags.size == n:
+            velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
+    return velocity_rad_s, bool(valid), counts
+
+
 def _on_wing(
     state: SupervisorState, block: WingBlock, p: SupervisorParams
 ) -> tuple[SupervisorState, Outputs]:
@@ -292,79 +372,16 @@ def _on_wing(
         and field.size == n
         and block.sample_rate_hz == p.sample_rate_hz
     ):
-        check = check_block(
-            {"stroke_velocity_deg_s": np.zeros(field.size)},
-            block.sample_rate_hz,
-            p.sample_rate_hz,
-            first,
-            state.expected_index,
-            n,
-        )
-        kind = check.kind
+        kind, counts = _checked(state, block, field.size, p, notes)
         if kind == "stale":
-            state = state._replace(
-                last_arrival_wall=block.t_wall, counts=counts._replace(stale=counts.stale + 1)
-            )
-            notes.append(
-                Note(
-                    WARNING,
-                    f"wing-state block {first} ignored: {check.reason} "
-                    f"[{state.counts.stale} stale so far]",
-                    "stale",
-                )
-            )
+            state = state._replace(last_arrival_wall=block.t_wall, counts=counts)
             return state, Outputs((), tuple(notes))
-        if kind == "gap":
-            counts = counts._replace(gaps=counts.gaps + 1)
-            notes.append(
-                Note(
-                    WARNING,
-                    f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]",
-                    "gaps",
-                )
-            )
-        elif kind == "content":
-            counts = counts._replace(rejected=counts.rejected + 1)
-            notes.append(
-                Note(
-                    WARNING,
-                    f"wing-state block {first} rejected: {check.reason}; its "
-                    f"samples drive the filter as 0 [{counts.rejected} rejected "
-                    "so far]",
-                    "rejected",
-                )
-            )
     counts = counts._replace(blocks=counts.blocks + 1)
     frequency, guard = state.frequency, state.safety
     if kind == "content":
         velocity_rad_s, valid = np.full(n, np.nan), False
     else:
-        velocity_rad_s = np.radians(field)
-        flags = np.asarray(block.stroke_valid, dtype=bool)
-        # a finite sum proves every sample finite (the fast path);
-        # an overflowing one is checked sample by sample. A block's few samples are reduced in
-        # Python: a numpy reduction costs ~2 us of fixed overhead.
-        valid = (
-            flags.size == n
-            and all(flags.tolist())
-            and (
-                math.isfinite(sum(velocity_rad_s.tolist()))
-                or bool(np.isfinite(velocity_rad_s).all())
-            )
-        )
-        if not valid:
-            counts = counts._replace(invalid=counts.invalid + 1)
-            notes.append(
-                Note(
-                    WARNING,
-                    f"wing-state block {first} invalid (stroke_valid false or "
-                    "non-finite velocity); its invalid samples drive the "
-                    f"filter as 0 [{counts.invalid} invalid so far]",
-                    "invalid",
-                )
-            )
-            if flags.size == n:
-                velocity_rad_s = np.where(flags, velocity_rad_s, np.nan)
+        velocity_rad_s, valid, counts = _velocity(block, field, n, counts, notes)
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)
         frequency, _ = crossing_step(
             frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency
