@@ -41,6 +41,7 @@ __all__ = [
     "VocabularyEntry",
     "candidate_groups",
     "candidate_specs",
+    "param_spec",
     "plant_spec",
     "term_specs",
 ]
@@ -252,10 +253,14 @@ SENSOR_EFFECTS: tuple[str, ...] = tuple(
 NOT_SEPARABLE: tuple[str, ...] = tuple(e.name for e in VOCABULARY if not e.separable)
 
 
-def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> EffectSpec:
-    side = SENSOR_SIDE.get(channel) if entry.per_sensor else None
+def param_spec(
+    name: str, p: Param, channel: str, tested: bool = True, channel_param: str | None = None
+) -> EffectSpec:
+    """Effect `name`'s parameter `p` (its effect-table fit specification) as a fittable spec
+    judged on `channel`.
+    """
     return EffectSpec(
-        entry.name,
+        name,
         p.key,
         channel,
         p.null,
@@ -264,9 +269,14 @@ def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> Effect
         p.grid,
         p.step,
         p.log,
-        channel_param=side,
-        tested=first,
+        channel_param=channel_param,
+        tested=tested,
     )
+
+
+def _spec(entry: VocabularyEntry, p: Param, channel: str, first: bool) -> EffectSpec:
+    side = SENSOR_SIDE.get(channel) if entry.per_sensor else None
+    return param_spec(entry.name, p, channel, first, side)
 
 
 def _order(channel: str) -> list[VocabularyEntry]:

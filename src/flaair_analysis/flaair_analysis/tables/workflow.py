@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from flaair_analysis.discrepancy.vocabulary import TERM_PREFIX, EffectSpec
+from flaair_analysis.discrepancy.vocabulary import TERM_PREFIX, EffectSpec, param_spec
 from flaair_model.effects import EFFECTS
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -157,21 +157,7 @@ def candidates(table: Table, model: Model) -> list[Candidate]:
         fps = e.fit[:2]  # collision: limit and contact stiffness (its damping stays)
         channel = f"{side}_deg"
         params = tuple(
-            FreeParam(
-                EffectSpec(
-                    e.name,
-                    p.key,
-                    channel,
-                    p.null,
-                    p.lower,
-                    p.upper,
-                    p.grid,
-                    p.step,
-                    p.log,
-                    tested=i == 0,
-                ),
-                p.grid[0] if p.grid else p.null,
-            )
+            FreeParam(param_spec(e.name, p, channel, i == 0), p.grid[0] if p.grid else p.null)
             for i, p in enumerate(fps)
         )
         out.append(
