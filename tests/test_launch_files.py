@@ -4,6 +4,8 @@ reads them, the one declaration the tools start their graphs from.
 
 from __future__ import annotations
 
+import importlib.util
+import re
 import subprocess
 from pathlib import Path
 
@@ -11,6 +13,11 @@ import pytest
 
 from flaair_common.graph import STOP_TIMEOUT_S
 from flaair_tools.orchestration import graphs, launch_file
+from flaair_tools.orchestration.experiment import (
+    experiment_roles,
+    listeners_needed,
+    load_experiments,
+)
 from flaair_tools.orchestration.launch_file import LaunchFileError, load
 from rosproc import FLAAIR, graph_pids
 
@@ -305,3 +312,28 @@ def test_flaair_launch_runs_the_loop_in_its_namespace_and_ctrl_c_stops_every_nod
             and os.path.exists(p / "environ")
             and (p / "stat").read_bytes().rsplit(b")", 1)[1].split()[0] != b"Z"
         ]
+
+
+def _subscribes_to_the_drive(role: str) -> bool:
+    """Whether the role's node source subscribes to the drive topic (read from the source, not
+    from the experiment's own list).
+    """
+    module = graphs.node_of(role).component.split(":")[0]
+    source = Path(importlib.util.find_spec(module).origin).read_text()
+    return bool(re.search(r"subscri\w*\(\s*self,\s*(topics\.DRIVE|p\[\"drive_topic\"\])", source))
+
+
+@pytest.mark.timeout(30)
+def test_every_drive_listener_is_awaited_before_a_driver_starts() -> None:
+    # the code before the fix waited for the plant only: the health monitor, seen late, let the
+    # drive node start while the recorder's subscription was still matching (a demo's recorder
+    # lost its first 301 drive blocks)
+    for name, spec in load_experiments().items():
+        needed = set(listeners_needed(spec))
+        for role in experiment_roles(spec):
+            node = graphs.node_of(role)
+            if role in ("recorder", "drive", "controller") or node.component is None:
+                continue
+            if _subscribes_to_the_drive(role):
+                assert (node.node_name, "/flaair/drive") in needed, (name, role)
+        assert ("recorder_node", "/flaair/drive") in needed, name

@@ -280,11 +280,17 @@ def _start_nodes(
     return started
 
 
-def _await_listeners(runner: Runner, graph: Graph, spec: ExperimentSpec) -> None:
-    """Until every consumer (the recorder on each recorded topic among them) listens.
+# The graph's roles that subscribe to the drive: a driver starts once as many subscriptions as
+# the runner sees have matched it, so every one must be seen first (the health monitor's, seen
+# late, once let the drive node start on the plant's and its own while the recorder's was still
+# matching: the recorder lost the first 301 drive blocks of a demo).
+DRIVE_LISTENERS = ("plant", "recorder", "health", "collision_monitor")
 
-    Nothing may flow before: a reliable volatile publisher drops what it sent before a
-    subscription matched (the front end once lost 211 blocks so).
+
+def listeners_needed(spec: ExperimentSpec) -> list[tuple[str, str]]:
+    """(node, topic) of every subscription that must be seen before anything flows: the
+    recorder on each recorded topic, every drive listener on the drive, the front end on the
+    films, the monitor and the controller on the wing state.
     """
     recorded = [
         topics.SENSOR_VOLTAGE,
@@ -296,15 +302,28 @@ def _await_listeners(runner: Runner, graph: Graph, spec: ExperimentSpec) -> None
     ]
     node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
     consumers = [
-        (node_name["plant"], topics.DRIVE),
-        (node_name["frontend"], topics.SENSOR_VOLTAGE),
+        (node_name[role], topics.DRIVE)
+        for role in DRIVE_LISTENERS
+        if role in node_name and role != "recorder"
     ]
+    consumers += [(node_name["frontend"], topics.SENSOR_VOLTAGE)]
     if "collision_monitor" in spec.nodes:
         recorded += [topics.COLLISION_STATUS, topics.COLLISION_EVENTS]
         consumers += [(node_name["collision_monitor"], topics.WING_STATE)]
     if spec.controller:
         consumers += [(node_name["controller"], topics.WING_STATE)]
-    needed = [(node_name["recorder"], t) for t in recorded] + consumers
+    return [(node_name["recorder"], t) for t in recorded] + consumers
+
+
+def _await_listeners(runner: Runner, graph: Graph, spec: ExperimentSpec) -> None:
+    """Until every subscription of `listeners_needed` is seen (the controller's excepted: it
+    starts with its run).
+
+    Nothing may flow before: a reliable volatile publisher drops what it sent before a
+    subscription matched (the front end once lost 211 blocks so).
+    """
+    needed = listeners_needed(spec)
+    node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
     _spin_until(
         runner,
         graph,
