@@ -17,9 +17,11 @@ import subprocess
 import time
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+from flaair_sensors.figures import literal_texts
 from rosproc import FLAAIR, REPO_ROOT, isolated_env, run_offline
 
 pytestmark = pytest.mark.timeout(240)
@@ -266,3 +268,15 @@ def test_analyze_draws_runs_named_like_mathtext_or_not_utf8(csv_run, tmp_path) -
     code, _, stderr = _offline(args)
     assert code == 0 and "Traceback" not in stderr, stderr[-3000:]
     assert (out / "report.html").exists() and len(list(out.glob("*.png"))) >= 2
+
+
+@pytest.mark.timeout(30)
+def test_literal_texts_keep_a_figures_line_breaks_and_replace_other_controls() -> None:
+    # the code before the fix drew a figure's own two-line note as "noise?in any band"
+    fig, ax = plt.subplots()
+    note = ax.text(0.5, 0.5, "no model error above the noise\nin any band")
+    title = ax.set_title("run\x07$x$")
+    literal_texts(fig)
+    assert note.get_text() == "no model error above the noise\nin any band"
+    assert title.get_text() == "run?$x$" and not title.get_parse_math()
+    plt.close(fig)

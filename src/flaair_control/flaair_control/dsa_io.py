@@ -20,7 +20,7 @@ from flaair_control.core.loop_state import SupervisorParams
 from flaair_control.core.transition import TransitionError, crossing_params
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParameterError, ParamSpec, declared_values
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec, declared_values
 from flaair_model.settings import node_section
 from flaair_model.validation import ModelError
 from flaair_sensors.frontend_io import velocity_delay_s as frontend_velocity_delay_s
@@ -48,15 +48,7 @@ __all__ = [
 CONFIG_FILE = "flaair.yaml"
 
 DSA_CONTROLLER_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of every block stream [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec(
         "drive_limit_v",
         float,

@@ -15,7 +15,7 @@ from flaair_control.core.health import HealthParams
 from flaair_model.config import ConfigError, load_yaml
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec
 from flaair_model.settings import node_section
 from flaair_sim.core.plant_params import prepare
 
@@ -23,15 +23,7 @@ CONFIG_FILE = "flaair.yaml"
 NODE_NAME = "health_node"
 
 HEALTH_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the film blocks [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec(
         "drive_topic",
         str,

@@ -19,7 +19,7 @@ from flaair_common.diagnostics import OK, WARN, Health, health
 from flaair_control.core import collision as col
 from flaair_control.core import monitor, spectral
 from flaair_control.core.monitor import CollisionMonitorParams, metric_params, window_params
-from flaair_model.schema import ParameterError, ParamSpec, declared_values
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec, declared_values
 from flaair_model.settings import node_section
 
 __all__ = [
@@ -42,15 +42,7 @@ __all__ = [
 CONFIG_FILE = "flaair.yaml"
 
 COLLISION_MONITOR_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the wing-state blocks [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec(
         "window_source",
         str,

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["ParamSpec", "ParameterError", "declared_values"]
+__all__ = ["STREAM_PARAMS", "ParamSpec", "ParameterError", "declared_values"]
 
 
 @dataclass(frozen=True)
@@ -25,6 +25,20 @@ class ParamSpec:
     max_value: float | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
+
+
+# The block stream's shape, shared by every node on it (config/flaair.yaml `/**`).
+STREAM_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec(
+        "sample_rate_hz",
+        float,
+        "Sample rate of every block stream [Hz]",
+        1000.0,
+        1.0e6,
+        read_only=True,
+    ),
+    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+)
 
 
 class ParameterError(ValueError):

@@ -102,7 +102,8 @@ def save_bode_figure(
 
 def literal_texts(fig: Any) -> Any:
     """Every title, label, legend entry and note of `fig` drawn as the literal text it holds
-    (run names come from files: a `$` is no mathtext, bytes that are not UTF-8 are replaced);
+    (run names come from files: a `$` is no mathtext, bytes that are not UTF-8 and control
+    characters other than a line break are replaced);
     tick labels keep their own formatting. Returns `fig`.
     """
     ticks = {
@@ -114,7 +115,8 @@ def literal_texts(fig: Any) -> Any:
     }
     for text in fig.findobj(Text):
         if id(text) not in ticks:
-            text.set_text(printable(text.get_text()))
+            # line by line: a figure's own line breaks are layout, not control characters
+            text.set_text("\n".join(printable(line) for line in text.get_text().split("\n")))
             text.set_parse_math(False)
     return fig
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from flaair_model.config import ConfigError, load_yaml
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec
 from flaair_model.settings import node_section
 from flaair_model.validation import ModelError
 from flaair_sensors.core import frontend, frontend_params
@@ -38,15 +38,7 @@ __all__ = [
 NODE_NAME = "frontend_node"
 CONFIG_FILE = "flaair.yaml"
 FRONTEND_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the sensor blocks [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec(
         "gains_from",
         str,

@@ -16,7 +16,7 @@ import numpy as np
 
 from flaair_model.model import Model, with_effects
 from flaair_model.model_io import load_model
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec
 from flaair_model.validation import ModelError
 from flaair_sim.core.actuator import ActuatorParams, Command
 from flaair_sim.core.damage import DamagedModels, DamageParams, damaged_models
@@ -48,15 +48,7 @@ NODE_NAME = "plant_node"
 CLOCK_DEPTH = 1000  # /clock publisher history (KEEP_LAST, reliable): 0.5 s of blocks
 ARM_S = 0.05  # drive watchdog: armed after this much commanded signal time
 PLANT_PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of every block stream [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec(
         "drive_limit_v", float, "Actuator safe range: drive clamped to +-this [V]", 0.0, 300.0
     ),

@@ -258,6 +258,18 @@ def _count(state: SupervisorState, name: str) -> SupervisorState:
     return state._replace(counts=counts._replace(**{name: getattr(counts, name) + 1}))
 
 
+# A block off the fast path: its kind -> (the count it adds to, and the note's key; the note).
+_BLOCK_FAULTS = {
+    "stale": ("stale", "wing-state block {first} ignored: {reason} [{count} stale so far]"),
+    "gap": ("gaps", "wing-state block {first}: {reason} [{count} gaps so far]"),
+    "content": (
+        "rejected",
+        "wing-state block {first} rejected: {reason}; its samples drive the filter as 0 "
+        "[{count} rejected so far]",
+    ),
+}
+
+
 def _checked(
     state: SupervisorState, block: WingBlock, size: int, p: SupervisorParams, notes: list[Note]
 ) -> tuple[str, Counts]:
@@ -274,35 +286,11 @@ def _checked(
         state.expected_index,
         p.block_size,
     )
-    if check.kind == "stale":
-        counts = counts._replace(stale=counts.stale + 1)
-        notes.append(
-            Note(
-                WARNING,
-                f"wing-state block {first} ignored: {check.reason} [{counts.stale} stale so far]",
-                "stale",
-            )
-        )
-    elif check.kind == "gap":
-        counts = counts._replace(gaps=counts.gaps + 1)
-        notes.append(
-            Note(
-                WARNING,
-                f"wing-state block {first}: {check.reason} [{counts.gaps} gaps so far]",
-                "gaps",
-            )
-        )
-    elif check.kind == "content":
-        counts = counts._replace(rejected=counts.rejected + 1)
-        notes.append(
-            Note(
-                WARNING,
-                f"wing-state block {first} rejected: {check.reason}; its "
-                f"samples drive the filter as 0 [{counts.rejected} rejected "
-                "so far]",
-                "rejected",
-            )
-        )
+    if check.kind in _BLOCK_FAULTS:
+        field, text = _BLOCK_FAULTS[check.kind]
+        counts = counts._replace(**{field: getattr(counts, field) + 1})
+        said = text.format(first=first, reason=check.reason, count=getattr(counts, field))
+        notes.append(Note(WARNING, said, field))
     return check.kind, counts
 
 

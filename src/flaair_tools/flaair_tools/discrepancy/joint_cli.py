@@ -33,6 +33,7 @@ from flaair_analysis.tables.joint_workflow import analyse_joint
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
+from flaair_model.config import ConfigError
 from flaair_model.model_io import load_model, save_model
 from flaair_tools.tables.identify_cli import bad_input, one_table
 
@@ -150,11 +151,14 @@ def discrepancy(args: argparse.Namespace) -> int:
     the exit status.
     """
     prog = "flaair discrepancy"
-    workflow = []  # the settings the analysis ran with, for the report
+    try:
+        workflow = config.discrepancy()
+    except ConfigError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
 
     def compute(runs, table, model, noise, s):
-        workflow.append(config.discrepancy())
-        return analyse_joint(runs, table, model, noise, s, workflow[0])
+        return analyse_joint(runs, table, model, noise, s, workflow)
 
     done = _run(prog, args, DISCREPANCY_FILES, compute)
     if isinstance(done, int):
@@ -164,9 +168,7 @@ def discrepancy(args: argparse.Namespace) -> int:
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"
         save_model(result.model_out, stage / "model.yaml")
-        doc = write_report(
-            stage, result.joint.runs, result.runs_result, str(model_path), workflow[0]
-        )
+        doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path), workflow)
         doc["status"] = result.status
         doc["joint"] = json_safe(result.as_dict())
         text = json.dumps(json_safe(doc), indent=2, allow_nan=False)

@@ -14,7 +14,7 @@ from flaair_analysis import wingbeat
 from flaair_common import cdr, topics
 from flaair_common.msgdict import to_dict
 from flaair_common.qos import EVENTS, STATUS
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec
 from flaair_msgs import msg as msgs
 from flaair_tools.bagio.messages import leading_stamp_ns, message_definition
 from flaair_tools.liveview import live_view
@@ -48,15 +48,7 @@ STREAM_SOURCES: dict[str, tuple[str, Any, Any]] = {
 NODE_NAME = "foxglove_node"
 CONFIG_FILE = "flaair.yaml"
 PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the block streams [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
-    ParamSpec("block_size", int, "Samples per block", 1, 100000, read_only=True),
+    *STREAM_PARAMS,
     ParamSpec("host", str, "Address the WebSocket server listens on", read_only=True),
     ParamSpec(
         "port",

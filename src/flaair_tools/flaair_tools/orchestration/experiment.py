@@ -280,10 +280,9 @@ def _start_nodes(
     return started
 
 
-# The graph's roles that subscribe to the drive: a driver starts once as many subscriptions as
-# the runner sees have matched it, so every one must be seen first (the health monitor's, seen
-# late, once let the drive node start on the plant's and its own while the recorder's was still
-# matching: the recorder lost the first 301 drive blocks of a demo).
+# The graph's roles that subscribe to the drive. A driver starts once as many subscriptions as
+# the runner sees have matched it: one the runner has not seen yet would let it start before
+# the recorder's has matched, and the recorder would lose the first blocks.
 DRIVE_LISTENERS = ("plant", "recorder", "health", "collision_monitor")
 
 
@@ -445,12 +444,16 @@ def _await_samples(
 
 
 def _run_one(
-    runner: Runner, graph: Graph, spec: ExperimentSpec, run: RunSpec, progress: bool
+    runner: Runner,
+    graph: Graph,
+    spec: ExperimentSpec,
+    run: RunSpec,
+    shared: settings.StreamSettings,
+    progress: bool,
 ) -> dict[str, Any]:
     """One run of the experiment: markers, driver, its samples, the monitor and the recorder
     caught up, the driver stopped; its summary.
     """
-    shared = settings.stream()
     fs_hz, block_size = shared.sample_rate_hz, shared.block_size
     # The rest (zero drive, whole blocks) lets the wing settle after the previous run; the
     # run's markers start after it.
@@ -533,7 +536,7 @@ def run_experiment(
         _await_listeners(runner, graph, spec)
         _publish_experiment(runner, spec, shared.sample_rate_hz)
         for run in spec.runs:
-            summary["runs"].append(_run_one(runner, graph, spec, run, progress))
+            summary["runs"].append(_run_one(runner, graph, spec, run, shared, progress))
         # Let the last blocks (a controller's closing zero block too) reach the recorder and us.
         settle_until = time.monotonic() + 1.0
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
