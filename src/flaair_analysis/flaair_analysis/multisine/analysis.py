@@ -23,14 +23,18 @@ from flaair_sim.core.plant import simulate
 __all__ = [
     "CHANNEL_UNITS",
     "SATURATION_SAMPLES",
+    "SENSORS",
+    "VIDEO",
     "Analysis",
     "ChannelSpectra",
     "FoundDesign",
     "MultisineInputError",
     "RunInput",
     "analyse",
+    "channel_grid",
     "find_design",
     "model_columns",
+    "model_reading",
 ]
 
 CHANNEL_UNITS = {
@@ -234,9 +238,10 @@ def model_columns(
     return out
 
 
-def _grid(
+def channel_grid(
     runs: Sequence[RunInput], name: str, found: FoundDesign, first: int, count: int
 ) -> spectra.VideoGrid | str:
+    """The frame grid video channel `name` has in every run's analysed periods, or why none."""
     grids = []
     for run in runs:
         if name not in run.columns:
@@ -284,7 +289,7 @@ def analyse(
     for name, unit in CHANNEL_UNITS.items():
         grid: spectra.VideoGrid | None = None
         if name in VIDEO:
-            got = _grid(runs, name, found, first, count)
+            got = channel_grid(runs, name, found, first, count)
             if isinstance(got, str):
                 skipped[name] = got
                 continue
@@ -321,3 +326,24 @@ def analyse(
         "localisation": localise(channels, skipped, model_runs is not None, trends),
     }
     return Analysis(found, doc, shown)
+
+
+def model_reading(
+    runs: Sequence[RunInput], model: Model, limit_v: float | None = None
+) -> dict[str, Any]:
+    """What the runs' spectra say of `model`: per channel the distortion it does not predict
+    (`disagrees`, and its level above the noise) and where that points (`localisation`).
+    """
+    doc = analyse(runs, None, model_columns(runs, model, limit_v)).doc
+    return {
+        "channels": {
+            name: {
+                "disagrees": entry["disagrees"],
+                "unexplained_db": entry["model"]["unexplained_db"],
+                "noise_db": entry["levels_db"]["noise"],
+            }
+            for name, entry in doc["channels"].items()
+        },
+        "skipped": doc["skipped"],
+        "localisation": doc["localisation"],
+    }

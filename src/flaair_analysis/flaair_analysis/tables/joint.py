@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, cast
 
 import numpy as np
 
@@ -40,7 +40,8 @@ from flaair_analysis.discrepancy.identification import (
 )
 from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
-from flaair_analysis.evidence import fit_evidence
+from flaair_analysis.evidence import Evidence, EvidenceFit, fit_evidence
+from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
@@ -197,26 +198,18 @@ def table_scores(
 
 
 def _stage(
-    runs: list[Run],
-    table: Table,
+    pieces: list[Evidence],
     model: Model,
     keys: Sequence[str],
     start: Mapping[str, float],
-    side: str,
-    channel: str,
-    noise: Mapping[str, float],
     s: TableSettings,
-    decimate: int,
-) -> dict[str, Any]:
-    """One stage: `keys` and each run's (angle, rate) on `channel` plus the table's `side`
-    (`fit_evidence` over both, Birge-reweighted).
+) -> EvidenceFit:
+    """One stage: `keys` fitted over `pieces` (each run's angle and rate with them),
+    Birge-reweighted.
     """
-    cols = [c for c in table.responses if c.startswith(side)]
-    omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
-    run_evidence = RunEvidence(runs, noise, decimate, (channel,), side, omega)
     free = plant_params(model, keys, dict(start), s.fit_range)
-    fit = fit_evidence(
-        [run_evidence, TableEvidence(table, s, cols)],
+    return fit_evidence(
+        pieces,
         lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
         [np.array([f.spec.to_fit(f.start) for f in free])],
         np.array([f.spec.to_fit(f.lower) for f in free]),
@@ -226,13 +219,31 @@ def _stage(
         tol=1e-10,
         birge_refit=_BIRGE_REFIT,
     )
-    return {
-        "values": dict(zip(keys, (float(v) for v in np.exp(fit.x)), strict=True)),
-        "cov": fit.covariance,
-        "states": [run_evidence.state(fit.nuisance[0], j) for j in range(len(runs))],
-        "weights": dict(zip(("runs", "table"), fit.weights, strict=True)),
-        "nfev": fit.nfev,
-    }
+
+
+def _side_pieces(
+    runs: list[Run],
+    table: Table | None,
+    spectra: SpectrumEvidence | None,
+    model: Model,
+    side: str,
+    channel: str,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    decimate: int,
+) -> list[Evidence]:
+    """The evidence a side's stage is fitted on: the runs' truth channel (with each run's angle
+    and rate), the table's columns of the side, the spectra's truth channel.
+    """
+    pieces: list[Evidence] = []
+    if runs:
+        omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
+        pieces.append(RunEvidence(runs, noise, decimate, (channel,), side, omega))
+    if table is not None and (cols := [c for c in table.responses if c.startswith(side)]):
+        pieces.append(TableEvidence(table, s, cols))
+    if spectra is not None and channel in spectra.sites:
+        pieces.append(spectra.only([channel]))
+    return pieces
 
 
 def run_scores(
@@ -259,20 +270,21 @@ def run_scores(
 
 def identify_joint(
     runs: Sequence[Run],
-    table: Table,
+    table: Table | None,
     model: Model,
     noise: Mapping[str, float],
     s: TableSettings,
     decimate: int = DECIMATE,
+    spectra: SpectrumEvidence | None = None,
 ) -> JointFit:
-    """Fit the plant to `runs` (checked, with measured initial states) and `table` together.
+    """Fit the plant to any of `runs`, `table` and `spectra` of one robot together.
 
     Parameters
     ----------
     runs
-        The robot's runs (`check_runs`), ground truth present.
+        The robot's runs (`check_runs`), ground truth present (may be empty).
     table
-        The same robot's frequency-response table.
+        The same robot's frequency-response table, or None.
     model
         Model to start from (its effects are kept; inertias and sensors stay).
     noise
@@ -281,48 +293,73 @@ def identify_joint(
         Table settings: reading noise, fit range, iterations, `gap_ratio` (agreement).
     decimate
         Keep every k-th run sample.
+    spectra
+        A multisine run set's line spectra (`multisine.spectrum_evidence`), or None.
     """
     runs = list(runs)
     keys = STROKE_KEYS + PITCH_KEYS
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
-    table_model, _, _, table_notes = identify_table(table, model, s)
-    alone = {k: float(getattr(table_model.plant, k)) for k in keys}
-    runs_start = {k: float(v) for k, v in frequency_domain_start(runs, model).items() if k in keys}
-    table_ratio_alone, _, _, _ = table_scores(table, table_model, s)
+    notes: list[str] = []
+    alone: dict[str, float] = {}
+    table_ratio_alone: dict[str, float] = {}
+    if table is not None:
+        table_model, _, _, table_notes = identify_table(table, model, s)
+        alone = {k: float(getattr(table_model.plant, k)) for k in keys}
+        table_ratio_alone, _, _, _ = table_scores(table, table_model, s)
+        notes.extend(table_notes)
+    runs_start = (
+        {k: float(v) for k, v in frequency_domain_start(runs, model).items() if k in keys}
+        if runs
+        else {}
+    )
     # the start: the table fitted alone (itself started from its peaks), or the runs' estimate
-    # for a side the table does not measure
-    start = dict(alone)
-    notes = list(table_notes)
+    # for a side the table does not measure, or the model's values
+    start = dict(alone) if alone else {k: runs_start.get(k, nominal[k]) for k in keys}
     for side, _, side_keys in _SIDES:
-        if not any(c.startswith(side) for c in table.responses):
+        if table is not None and not any(c.startswith(side) for c in table.responses):
             start.update({k: runs_start.get(k, nominal[k]) for k in side_keys})
             notes.append(f"the table has no {side} column: the {side} plant is the runs'")
     values: dict[str, float] = {}
     sd = np.full(len(keys), np.nan)
     corr = np.full((len(keys), len(keys)), np.nan)
-    weights: dict[str, dict[str, float]] = {"runs": {}, "table": {}}
+    weights: dict[str, dict[str, float]] = {}
     current, nfev = model, 0
     for side, channel, side_keys in _SIDES:
-        out = _stage(runs, table, current, side_keys, start, side, channel, noise, s, decimate)
-        current = replace(current, plant=replace(current.plant, **out["values"]))
-        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"], strict=True)]
-        values.update(out["values"])
+        pieces = _side_pieces(runs, table, spectra, current, side, channel, noise, s, decimate)
+        if not any(p.sites for p in pieces):
+            notes.append(f"nothing measures the {side}: the {side} plant stays the model's")
+            values.update({k: float(getattr(current.plant, k)) for k in side_keys})
+            continue
+        fit = _stage(pieces, current, side_keys, start, s)
+        out = dict(zip(side_keys, (float(v) for v in np.exp(fit.x)), strict=True))
+        current = with_plant(current, out)
+        if runs:
+            runs = cast(RunEvidence, pieces[0]).runs_at(fit.nuisance[0])
+        values.update(out)
         idx = [keys.index(k) for k in side_keys]
-        e = np.sqrt(np.abs(np.diag(out["cov"])))
+        e = np.sqrt(np.abs(np.diag(fit.covariance)))
         sd[idx] = e
         with np.errstate(invalid="ignore", divide="ignore"):
-            corr[np.ix_(idx, idx)] = out["cov"] / np.outer(e, e)
-        for name in weights:
-            weights[name][side] = out["weights"][name]
-        nfev += out["nfev"]
-    t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, current, s)
-    r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, current, noise, decimate)
-    agreement = {
-        "runs": SetAgreement("runs", r_n, r_chi2, r_ratio, r_nrmse, weights["runs"]),
-        "table": SetAgreement(
-            "table", t_n, t_chi2, t_ratio, t_nrmse, weights["table"], table_ratio_alone
-        ),
-    }
+            corr[np.ix_(idx, idx)] = fit.covariance / np.outer(e, e)
+        for piece, w in zip(pieces, fit.weights, strict=True):
+            weights.setdefault(piece.name, {})[side] = w
+        nfev += fit.nfev
+    agreement: dict[str, SetAgreement] = {}
+    if runs:
+        r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, current, noise, decimate)
+        agreement["runs"] = SetAgreement(
+            "runs", r_n, r_chi2, r_ratio, r_nrmse, weights.get("runs", {})
+        )
+    if table is not None:
+        t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, current, s)
+        agreement["table"] = SetAgreement(
+            "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
+        )
+    if spectra is not None:
+        m_ratio, m_n, m_chi2 = spectra.scores(current)
+        agreement["spectra"] = SetAgreement(
+            "spectra", m_n, m_chi2, m_ratio, {}, weights.get("spectra", {})
+        )
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
     return JointFit(
         model=current,
@@ -353,7 +390,8 @@ def _disagreement(
     gaps = {name: a.gaps(gap_ratio) for name, a in agreement.items()}
     if not any(gaps.values()):
         return []
-    table_alone_ok = all(v <= gap_ratio for v in agreement["table"].alone.values())
+    table = agreement.get("table")
+    table_alone_ok = table is not None and all(v <= gap_ratio for v in table.alone.values())
     per_set = "; ".join(
         f"{name}: "
         + (
@@ -365,9 +403,17 @@ def _disagreement(
     )
     fn = "stroke_natural_frequency_hz"
     where = (
-        f" (stroke natural frequency: table alone {alone[fn]:.1f} Hz, runs' frequency-domain "
-        f"estimate {runs_start.get(fn, math.nan):.1f} Hz, joint {joint[fn]:.1f} Hz)"
+        f" (stroke natural frequency: table alone {alone.get(fn, math.nan):.1f} Hz, runs' "
+        f"frequency-domain estimate {runs_start.get(fn, math.nan):.1f} Hz, joint "
+        f"{joint[fn]:.1f} Hz)"
     )
+    if table is None:
+        return [
+            "after the joint fit a gap above noise remains (" + per_set + where + "): the sets "
+            "disagree (another robot, other conditions), or the model misses physics "
+            "(`discrepancy` with the same inputs looks for it)"
+        ]
+    gaps.setdefault("runs", [])
     if table_alone_ok and gaps["table"] and not gaps["runs"]:
         head = "the table and the runs disagree: after the joint fit " + per_set + where
         return [head + "; are they the same robot under the same conditions?"]

@@ -27,12 +27,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import diagnose
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
+from flaair_analysis.multisine.analysis import model_reading
+from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import DiscrepancySettings, TableSettings
 
@@ -42,7 +44,7 @@ from .reader import Table
 from .steady_state import steady_response
 from .workflow import analyse_table, heldout_predictions
 
-__all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "table_heldout"]
+__all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "spectra_check", "table_heldout"]
 
 
 @dataclass(frozen=True)
@@ -62,10 +64,13 @@ class TableCheck:
     chi2: float
     n: int
     held_out: bool = True
+    label: str = ""  # how the prediction was made, where not a table's levels
 
     @property
     def kind(self) -> str:
         """How the levels were predicted, in words: 'held-out drive levels' or 'in sample ...'."""
+        if self.label:
+            return self.label
         if self.held_out:
             return "held-out drive levels"
         return "in sample: one drive level, nothing held out"
@@ -104,10 +109,13 @@ class JointDiscrepancy:
     runs_result: DiscrepancyResult
     final: JointFit | None
     model_out: Model
-    table_before: TableCheck
-    table_after: TableCheck
+    table_before: TableCheck | None
+    table_after: TableCheck | None
     kept: bool
     notes: tuple[str, ...]
+    spectra_before: TableCheck | None = None
+    spectra_after: TableCheck | None = None
+    localisation: dict[str, Any] = field(default_factory=dict)  # "before"/"after": multisine doc
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready summary of the joint parts (the runs' part is the runs' report)."""
@@ -115,15 +123,41 @@ class JointDiscrepancy:
             "status": self.status,
             "joint_identification": self.joint.as_dict(),
             "final_identification": self.final.as_dict() if self.final is not None else None,
-            "table_heldout_before": self.table_before.as_dict(),
-            "table_heldout_after": self.table_after.as_dict(),
-            "table_chi2_allowance": _allowance(self.table_before.n),
+            "table_heldout_before": _doc(self.table_before),
+            "table_heldout_after": _doc(self.table_after),
+            "table_chi2_allowance": _allowance(self.table_before.n) if self.table_before else None,
+            "spectra_before": _doc(self.spectra_before),
+            "spectra_after": _doc(self.spectra_after),
+            "spectra_chi2_allowance": (
+                _allowance(self.spectra_before.n) if self.spectra_before else None
+            ),
+            "multisine": self.localisation,
             "findings_kept": self.kept,
             "notes": list(self.notes),
-            "what_is_joint": "plant fitted on runs and table; the runs' search (held-out runs) "
-            "checked on the table's held-out drive levels; where the table keeps a gap, the "
-            "table's search (held-out levels) checked on the runs; plant refitted on both",
+            "what_is_joint": "plant fitted on every set (runs, table, multisine spectra); the "
+            "runs' search (held-out runs) checked on the table's held-out drive levels and on "
+            "the spectra; where the table keeps a gap, the table's search (held-out levels) "
+            "checked on the runs; plant refitted on every set",
         }
+
+
+# per set checked: what its chi-square is, its residuals' unit, what keeps a gap
+_WORDS = {
+    "table": ("held-out chi-square", "cells", "held-out levels"),
+    "spectra": ("line-spectra chi-square", "line residuals", "line spectra"),
+}
+
+
+def _doc(check: TableCheck | None) -> dict[str, Any] | None:
+    return check.as_dict() if check is not None else None
+
+
+def spectra_check(spectra: SpectrumEvidence, model: Model) -> TableCheck:
+    """The multisine's line spectra predicted by `model` (in sample: the plant was fitted on
+    them too).
+    """
+    ratio, n, chi2 = spectra.scores(model)
+    return TableCheck(ratio, {}, chi2, n, held_out=False, label="multisine line spectra")
 
 
 def _allowance(n: int) -> float:
@@ -152,79 +186,175 @@ def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
 
 def analyse_joint(
     runs: Sequence[Run],
-    table: Table,
+    table: Table | None,
     model: Model,
     noise: Mapping[str, float],
     s: TableSettings,
     settings: DiscrepancySettings,
     progress: Callable[[str], None] | None = None,
+    spectra: SpectrumEvidence | None = None,
+    search_runs: Sequence[Run] = (),
+    drive_limit_v: float | None = None,
 ) -> JointDiscrepancy:
-    """Plant on both, each set's search checked on the other, plant on both again (docstring)."""
+    """Plant on every set, the runs' search checked on the others, plant on every set again
+    (module docstring). `search_runs`: the runs searched when `runs` is empty (a multisine set's
+    own runs, read as time series); `drive_limit_v`: the plant's drive clamp, for the spectra's
+    reading of a model.
+    """
     if progress:
         progress("joint plant")
-    joint = identify_joint(runs, table, model, noise, s, settings.decimate)
-    result = analyse(joint.runs, joint.model, settings, progress=progress)
-    if progress:
-        progress("table check")
-    before = table_heldout(table, joint.model, s)
-    current, after, kept, notes = joint.model, before, True, []
+    joint = identify_joint(runs, table, model, noise, s, settings.decimate, spectra)
+    searched = list(joint.runs) or list(search_runs)
+    if not searched:
+        raise ValueError("no runs to search: give measured runs (or a multisine run set)")
+    notes: list[str] = []
+    if not joint.runs:
+        notes.append(
+            "no time-series runs beside the multisine set: its runs are searched as time "
+            "series, so the spectra's check of the findings is in sample"
+        )
+    result = analyse(searched, joint.model, settings, progress=progress)
+    checks = _checks(table, spectra, s)
+    if progress and checks:
+        progress("checks on " + ", ".join(checks))
+    before = {name: check(joint.model) for name, check in checks.items()}
+    current, after, kept = joint.model, dict(before), True
     names = [e.name for e in result.effects] + [
         f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered
     ]
     if names:
         findings = replace(result.model_out, plant=joint.model.plant)
-        after = table_heldout(table, findings, s)
-        rise = after.chi2 - before.chi2
-        if rise > _allowance(before.n):
-            kept = False
-            notes.append(
-                f"the table refused the runs' findings ({', '.join(names)}): its held-out "
-                f"chi-square rose by {rise:.1f} over {before.n} cells (noise allows "
-                f"{_allowance(before.n):.1f}); they are not in the model"
-            )
-            after = before
-        else:
-            current = findings
-            notes.append(
-                f"the table's held-out chi-square {'fell' if rise < 0 else 'rose'} by "
-                f"{abs(rise):.1f} over {before.n} cells with the runs' findings "
-                f"({', '.join(names)}; noise allows a rise of {_allowance(before.n):.1f}): kept"
-            )
+        kept, trial = _checked(checks, before, findings, names, notes)
+        if kept:
+            current, after = findings, trial
     else:
         notes.append("the runs' search added nothing")
-    table_found = _table_search(table, current, after, joint, noise, s, settings, notes)
-    if table_found is not None:
-        current = table_found
+    if table is not None:
+        table_found = _table_search(
+            table, current, after["table"], searched, noise, s, settings, notes
+        )
+        if table_found is not None:
+            current = table_found
     final = None
     if current is not joint.model:
         if progress:
             progress("joint plant again")
-        final = identify_joint(runs, table, current, noise, s, settings.decimate)
+        final = identify_joint(runs, table, current, noise, s, settings.decimate, spectra)
         current = final.model
-        after = table_heldout(table, current, s)
-        notes.append("the plant refitted on both with what was kept")
-    runs_now = final.runs if final is not None else joint.runs
+        after = {name: check(current) for name, check in checks.items()}
+        notes.append("the plant refitted on every set with what was kept")
+    runs_now = list(final.runs) if final is not None and final.runs else searched
     sims = simulate_runs([current], runs_now)[0]
     runs_gaps = diagnose(runs_now, sims, current, noise, settings).gaps
-    table_gaps = [c for c, v in after.noise_ratio.items() if v > s.gap_ratio]
     if runs_gaps:
         notes.append(f"with the model written the runs keep a gap on {', '.join(runs_gaps)}")
-    if table_gaps:
-        notes.append(f"the table's held-out levels keep a gap on {', '.join(table_gaps)}")
-    if not kept or runs_gaps or table_gaps:
+    set_gaps = _set_gaps(after, s.gap_ratio, notes)
+    localisation = _multisine_reading(spectra, joint.model, current, drive_limit_v, notes)
+    if not kept or runs_gaps or set_gaps:
         status = "unexplained"
     else:
         status = "explained" if final is not None else "no_discrepancy"
     return JointDiscrepancy(
-        status, joint, result, final, current, before, after, kept, tuple(notes)
+        status,
+        joint,
+        result,
+        final,
+        current,
+        before.get("table"),
+        after.get("table"),
+        kept,
+        tuple(notes),
+        before.get("spectra"),
+        after.get("spectra"),
+        localisation,
     )
+
+
+def _checks(
+    table: Table | None, spectra: SpectrumEvidence | None, s: TableSettings
+) -> dict[str, Callable[[Model], TableCheck]]:
+    """How each set besides the runs predicts a model: the table's held-out drive levels, the
+    multisine's line spectra.
+    """
+    checks: dict[str, Callable[[Model], TableCheck]] = {}
+    if table is not None:
+        checks["table"] = lambda m: table_heldout(table, m, s)
+    if spectra is not None:
+        checks["spectra"] = lambda m: spectra_check(spectra, m)
+    return checks
+
+
+def _set_gaps(after: Mapping[str, TableCheck], gap_ratio: float, notes: list[str]) -> list[str]:
+    """The sets whose prediction keeps a column or channel above `gap_ratio` x noise."""
+    out = []
+    for name, check in after.items():
+        if gaps := [c for c, v in check.noise_ratio.items() if v > gap_ratio]:
+            out.append(name)
+            notes.append(f"the {name}'s {_WORDS[name][2]} keep a gap on {', '.join(gaps)}")
+    return out
+
+
+def _checked(
+    checks: Mapping[str, Callable[[Model], TableCheck]],
+    before: Mapping[str, TableCheck],
+    findings: Model,
+    names: Sequence[str],
+    notes: list[str],
+) -> tuple[bool, dict[str, TableCheck]]:
+    """The runs' findings checked on every other set: kept unless one set's chi-square rises
+    beyond what noise allows; the sets' checks with them.
+    """
+    trial = {name: check(findings) for name, check in checks.items()}
+    kept = True
+    for name in checks:
+        what, unit, _ = _WORDS[name]
+        rise, allowed = trial[name].chi2 - before[name].chi2, _allowance(before[name].n)
+        if rise > allowed:
+            kept = False
+            notes.append(
+                f"the {name} refused the runs' findings ({', '.join(names)}): its {what} rose "
+                f"by {rise:.1f} over {before[name].n} {unit} (noise allows {allowed:.1f}); "
+                "they are not in the model"
+            )
+        else:
+            notes.append(
+                f"the {name}'s {what} {'fell' if rise < 0 else 'rose'} by {abs(rise):.1f} over "
+                f"{before[name].n} {unit} with the runs' findings ({', '.join(names)}; noise "
+                f"allows a rise of {allowed:.1f}): {'kept' if kept else 'checked'}"
+            )
+    return kept, trial
+
+
+def _multisine_reading(
+    spectra: SpectrumEvidence | None,
+    before: Model,
+    after: Model,
+    drive_limit_v: float | None,
+    notes: list[str],
+) -> dict[str, Any]:
+    """What the multisine's odd and even lines say of the joint plant and of the model written,
+    and a note per distortion the joint plant does not predict ({} without spectra).
+    """
+    if spectra is None:
+        return {}
+    reading = {
+        "before": model_reading(spectra.runs, before, drive_limit_v),
+        "after": model_reading(spectra.runs, after, drive_limit_v),
+    }
+    for stage, label in (("before", "the joint plant"), ("after", "the model written")):
+        for finding in reading[stage]["localisation"]["findings"]:
+            notes.append(
+                f"the multisine ({label}): {finding['distortion']} distortion the model does not "
+                f"predict on {', '.join(finding['channels'])}: {finding['points_to']}"
+            )
+    return reading
 
 
 def _table_search(
     table: Table,
     model: Model,
     check: TableCheck,
-    joint: JointFit,
+    runs: Sequence[Run],
     noise: Mapping[str, float],
     s: TableSettings,
     settings: DiscrepancySettings,
@@ -243,8 +373,8 @@ def _table_search(
         notes.append("the table's own search found nothing for its held-out gap")
         return None
     with_found = with_values(model, params, values)
-    _, _, n, chi2_before = run_scores(joint.runs, model, noise, settings.decimate)
-    _, _, _, chi2_after = run_scores(joint.runs, with_found, noise, settings.decimate)
+    _, _, n, chi2_before = run_scores(runs, model, noise, settings.decimate)
+    _, _, _, chi2_after = run_scores(runs, with_found, noise, settings.decimate)
     rise = chi2_after - chi2_before
     if rise > _allowance(n):
         notes.append(
