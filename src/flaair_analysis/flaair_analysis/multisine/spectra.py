@@ -18,6 +18,7 @@ __all__ = [
     "TRANSIENT_RATIO",
     "VideoGrid",
     "excited_lines_of",
+    "is_multisine",
     "line_spectra",
     "period_of",
     "transient_periods",
@@ -128,3 +129,17 @@ def line_spectra(
         k = np.arange(spec.shape[-1])
         spec = spec * np.exp(-2j * np.pi * k * offset / period_samples)
     return np.asarray(spec)
+
+
+def is_multisine(drive_v: np.ndarray) -> bool:
+    """Whether a drive is an odd multisine: periodic (`period_of`), two or more excited lines,
+    every one odd.
+    """
+    d = np.asarray(drive_v, dtype=np.float64)
+    if d.size < 4 or not np.all(np.isfinite(d)):
+        return False
+    n = period_of(d)
+    if n is None:
+        return False
+    lines = excited_lines_of(d[:n])
+    return bool(lines.size >= 2 and not np.any(lines % 2 == 0))

@@ -18,7 +18,6 @@ Held out: each realization judged by a model fitted on the others.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -129,16 +128,25 @@ class SpectrumEvidence:
         sigma = {c: self.sigma[c] for c in grids}
         return SpectrumEvidence(self.runs, self.found, grids, self.keep, sigma)
 
-    def scores(self, model: Model) -> tuple[dict[str, float], int, float]:
-        """`model`'s residual RMS over the noise per channel, the residual count, the
+    def scores(self, model: Model) -> tuple[dict[str, float], dict[str, float], int, float]:
+        """`model` against the spectra: per channel the residual RMS over the noise and the NRMSE
+        (RMS |Yhat - Ybar| over RMS |Ybar|, over the band's lines), the residual count, the
         chi-square.
         """
-        ratio, n, chi2 = {}, 0, 0.0
+        yhat = self.model_spectra([model])
+        ratio, nrmse, n, chi2 = {}, {}, 0, 0.0
         for c in self.sites:
-            r = self.only([c]).residuals([model], np.zeros(0))[0]
-            ratio[c] = float(np.sqrt(np.mean(r * r))) if r.size else math.nan
+            diff = yhat[c][0] - self.ybar[c]
+            z = (diff / self.sigma[c]).ravel()
+            r = np.concatenate([z.real, z.imag])
+            ratio[c] = float(np.sqrt(np.mean(r * r)))
+            nrmse[c] = float(
+                np.sqrt(
+                    np.mean(np.abs(diff) ** 2) / max(np.mean(np.abs(self.ybar[c]) ** 2), 1e-300)
+                )
+            )
             n, chi2 = n + r.size, chi2 + float(r @ r)
-        return ratio, n, chi2
+        return ratio, nrmse, n, chi2
 
     def heldout(self) -> tuple[Split, ...]:
         """Leave one realization out (none with a single realization)."""

@@ -356,9 +356,9 @@ def identify_joint(
             "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
         )
     if spectra is not None:
-        m_ratio, m_n, m_chi2 = spectra.scores(current)
+        m_ratio, m_nrmse, m_n, m_chi2 = spectra.scores(current)
         agreement["spectra"] = SetAgreement(
-            "spectra", m_n, m_chi2, m_ratio, {}, weights.get("spectra", {})
+            "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
         )
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
     return JointFit(

@@ -156,8 +156,8 @@ def spectra_check(spectra: SpectrumEvidence, model: Model) -> TableCheck:
     """The multisine's line spectra predicted by `model` (in sample: the plant was fitted on
     them too).
     """
-    ratio, n, chi2 = spectra.scores(model)
-    return TableCheck(ratio, {}, chi2, n, held_out=False, label="multisine line spectra")
+    ratio, nrmse, n, chi2 = spectra.scores(model)
+    return TableCheck(ratio, nrmse, chi2, n, held_out=False, label="multisine line spectra")
 
 
 def _allowance(n: int) -> float:

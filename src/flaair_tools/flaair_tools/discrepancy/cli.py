@@ -62,7 +62,7 @@ from flaair_tools.tables.discrepancy_cli import run as table_discrepancy
 
 from .joint_cli import discrepancy as joint_discrepancy
 from .report import write_report, write_validation
-from .run_inputs import InputError, bad_input_errors, load_inputs, sort_inputs
+from .run_inputs import InputError, bad_input_errors, preload, sort_inputs, split_multisine
 from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
@@ -156,11 +156,25 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
+        args.loaded = None
         return joint_discrepancy(args) if args.inputs else table_discrepancy(args)
-    return _discrepancy_runs(args)
+    loaded = preload(PROG, args.inputs) if args.inputs else []
+    if isinstance(loaded, int):
+        return loaded
+    if split_multisine(loaded)[1]:  # line spectra among the evidence: the joint workflow
+        if args.validate:
+            print(
+                f"{PROG}: --validate runs the hidden-effect cases on runs, not with a "
+                "multisine set",
+                file=sys.stderr,
+            )
+            return 2
+        args.loaded = loaded
+        return joint_discrepancy(args)
+    return _discrepancy_runs(args, loaded)
 
 
-def _discrepancy_runs(args: argparse.Namespace) -> int:
+def _discrepancy_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
     """The workflow on runs alone (and the hidden-effect cases with --validate)."""
     if not args.inputs and not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
@@ -173,7 +187,7 @@ def _discrepancy_runs(args: argparse.Namespace) -> int:
         )
         model = load_model(args.model)
         validation = read_validation(args.validation) if args.validation else None
-        runs = load_inputs(args.inputs) if args.inputs else []
+        runs = loaded
         if args.inputs and not runs:
             raise InputError("the inputs hold no runs")
         if args.validate:

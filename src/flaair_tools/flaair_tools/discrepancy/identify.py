@@ -44,12 +44,17 @@ from tqdm import tqdm
 
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.identification import identify_plant
-from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
+from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model.model_io import load_model, save_model
-from flaair_tools.discrepancy.run_inputs import bad_input_errors, load_inputs, sort_inputs
+from flaair_tools.discrepancy.run_inputs import (
+    bad_input_errors,
+    preload,
+    sort_inputs,
+    split_multisine,
+)
 from flaair_tools.tables.identify_cli import run as table_identify
 
 from .joint_cli import identify as joint_identify
@@ -106,12 +111,19 @@ def main(argv: list[str] | None = None) -> int:
     args.inputs, args.table = sort_inputs(args.inputs, args.table)
     if not args.inputs and not args.table:
         parser.error("give measured-run CSV files, bags or a frequency-response table")
+    args.loaded = None
     if args.table:
         return joint_identify(args) if args.inputs else table_identify(args)
-    return _identify_runs(args)
+    loaded = preload(PROG, args.inputs)
+    if isinstance(loaded, int):
+        return loaded
+    if split_multisine(loaded)[1]:  # line spectra among the evidence: the joint fit
+        args.loaded = loaded
+        return joint_identify(args)
+    return _identify_runs(args, loaded)
 
 
-def _identify_runs(args: argparse.Namespace) -> int:
+def _identify_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
     """The plant fitted to runs alone; the exit status."""
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
@@ -119,7 +131,7 @@ def _identify_runs(args: argparse.Namespace) -> int:
         with tqdm(total=3, desc="identify", unit="step", file=sys.stderr, leave=False) as bar:
             bar.set_postfix_str("read runs")
             model = load_model(args.model)
-            runs = check_runs(load_inputs(args.inputs))
+            runs = check_runs(loaded)
             bar.update(1)
             bar.set_postfix_str("noise")
             noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)

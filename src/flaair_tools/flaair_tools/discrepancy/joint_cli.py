@@ -23,22 +23,29 @@ import json
 import signal
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
-from flaair_analysis.discrepancy.runs import check_runs, simulate_runs
+from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
+from flaair_analysis.multisine.analysis import SENSORS, VIDEO, find_design
+from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence, spectrum_channels
 from flaair_analysis.tables.joint import JointFit, identify_joint
-from flaair_analysis.tables.joint_workflow import analyse_joint
+from flaair_analysis.tables.joint_workflow import JointDiscrepancy, analyse_joint
+from flaair_analysis.tables.reader import Table
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
 from flaair_model.config import ConfigError
+from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
+from flaair_model.settings import TableSettings, node_section
+from flaair_sim.plant_io import PLANT_PARAMS
 from flaair_tools.tables.identify_cli import bad_input, one_table
 
 from .report import write_report
-from .run_inputs import bad_input_errors, load_inputs
+from .run_inputs import bad_input_errors, load_inputs, multisine_inputs, split_multisine
 
 IDENTIFY_FILES = ("model.yaml", "identification.json")
 DISCREPANCY_FILES = ("model.yaml", "discrepancy.json", "report.html")
@@ -53,29 +60,75 @@ def _outputs(args: argparse.Namespace, files: tuple[str, ...]) -> list[Path]:
     return check_output(args.out, inputs, args.force, files)
 
 
-def _load(args: argparse.Namespace):
-    """Model, table (checked first: a bad table is refused before the runs are read), runs and
-    their noise.
+@dataclass(frozen=True)
+class _Inputs:
+    """What a joint command fits: the model, the table settings, the table (or None), the
+    time-series runs, the multisine set (its runs and spectra, or none), the noise of the runs
+    searched.
     """
+
+    model: Model
+    s: TableSettings
+    table: Table | None
+    runs: list[Run]
+    multisine: list[Run]
+    spectra: SpectrumEvidence | None
+    noise: dict[str, float]
+
+    @property
+    def what(self) -> str:
+        """The inputs in words, for the summary line."""
+        parts = [f"{len(self.runs)} run(s)"] if self.runs else []
+        if self.multisine:
+            parts.append(f"a multisine set of {len(self.multisine)} realization(s)")
+        if self.table is not None:
+            parts.append(f"table {self.table.name} ({self.table.n_points} points)")
+        return " + ".join(parts)
+
+
+def _spectra(runs: list[Run]) -> tuple[SpectrumEvidence | None, list[str]]:
+    """The multisine set's truth-channel spectra (None without a set) and why a channel is not
+    read.
+    """
+    if not runs:
+        return None, []
+    inputs = multisine_inputs(runs)
+    found = find_design(inputs, None)
+    channels, skipped = spectrum_channels(inputs, found, (*VIDEO, *SENSORS))
+    return SpectrumEvidence(inputs, found, channels), [
+        f"multisine {c}: {why}" for c, why in skipped.items()
+    ]
+
+
+def _load(args: argparse.Namespace) -> _Inputs:
+    """The inputs, checked (a bad table is refused before the runs are read)."""
     model = load_model(args.model)
     s = config.tables()
-    table = one_table(args.table)
-    runs = check_runs(load_inputs(args.inputs))
-    noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)
-    return model, s, table, runs, noise
+    table = one_table(args.table) if args.table else None
+    loaded = args.loaded if args.loaded is not None else load_inputs(args.inputs)
+    plain, multisine = split_multisine(loaded)
+    runs = check_runs(plain) if plain else []
+    spectra, skipped = _spectra(multisine)
+    for why in skipped:
+        print(f"note: {why}", file=sys.stderr)
+    searched = runs or (check_runs(multisine) if multisine else [])
+    noise = (
+        noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
+    )
+    return _Inputs(model, s, table, runs, multisine, spectra, noise)
 
 
 def _run(prog: str, args: argparse.Namespace, files: tuple[str, ...], compute) -> Any:
     """Check the outputs, load and compute with one-line refusals; the exit status or the
-    results.
+    inputs, the results and the seconds taken.
     """
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         written = _outputs(args, files)
-        model, s, table, runs, noise = _load(args)
+        inputs = _load(args)
         t0 = time.perf_counter()
-        result = compute(runs, table, model, noise, s)
-        return written, model, table, runs, result, time.perf_counter() - t0
+        result = compute(inputs)
+        return written, inputs, result, time.perf_counter() - t0
     except (*bad_input_errors(), *bad_input()) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -115,14 +168,20 @@ def identify(args: argparse.Namespace) -> int:
     exit status.
     """
     prog = "flaair identify"
-    done = _run(prog, args, IDENTIFY_FILES, identify_joint)
+
+    def compute(i: _Inputs) -> JointFit:
+        return identify_joint(i.runs, i.table, i.model, i.noise, i.s, spectra=i.spectra)
+
+    done = _run(prog, args, IDENTIFY_FILES, compute)
     if isinstance(done, int):
         return done
-    written, _, table, runs, fit, elapsed = done
+    written, inputs, fit, elapsed = done
+    table = inputs.table
     doc = {
-        "runs": [r.name for r in runs],
-        "table": table.name,
-        "table_points": table.n_points,
+        "runs": [r.name for r in inputs.runs],
+        "multisine_runs": [r.name for r in inputs.multisine],
+        "table": table.name if table is not None else None,
+        "table_points": table.n_points if table is not None else 0,
         "model_in": str(args.model or "config/model.yaml"),
         "model_out": str(args.out / "model.yaml"),
         "seconds": elapsed,
@@ -138,8 +197,8 @@ def identify(args: argparse.Namespace) -> int:
         return failed
     verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
     print(
-        f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points), plant "
-        f"fitted on both in {elapsed:.1f} s: {_agreement_line(fit)}; {verdict}"
+        f"{prog}: {inputs.what}, plant fitted on every set in {elapsed:.1f} s: "
+        f"{_agreement_line(fit)}; {verdict}"
     )
     _print_fit(prog, fit)
     print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
@@ -153,22 +212,36 @@ def discrepancy(args: argparse.Namespace) -> int:
     prog = "flaair discrepancy"
     try:
         workflow = config.discrepancy()
+        drive_limit_v = float(
+            node_section(PLANT_PARAMS, "plant_node", "flaair.yaml")["drive_limit_v"]
+        )
     except ConfigError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
 
-    def compute(runs, table, model, noise, s):
-        return analyse_joint(runs, table, model, noise, s, workflow)
+    def compute(i: _Inputs) -> JointDiscrepancy:
+        return analyse_joint(
+            i.runs,
+            i.table,
+            i.model,
+            i.noise,
+            i.s,
+            workflow,
+            spectra=i.spectra,
+            search_runs=check_runs(i.multisine) if not i.runs else (),
+            drive_limit_v=drive_limit_v,
+        )
 
     done = _run(prog, args, DISCREPANCY_FILES, compute)
     if isinstance(done, int):
         return done
-    written, _, table, runs, result, elapsed = done
+    written, inputs, result, elapsed = done
+    report_runs = list(result.joint.runs) or check_runs(inputs.multisine)
 
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"
         save_model(result.model_out, stage / "model.yaml")
-        doc = write_report(stage, result.joint.runs, result.runs_result, str(model_path), workflow)
+        doc = write_report(stage, report_runs, result.runs_result, str(model_path), workflow)
         doc["status"] = result.status
         doc["joint"] = json_safe(result.as_dict())
         text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
@@ -176,18 +249,22 @@ def discrepancy(args: argparse.Namespace) -> int:
 
     if (failed := write_outputs(prog, args.out, written, write_files)) is not None:
         return failed
-    before, after = result.table_before, result.table_after
-    print(
-        f"{prog}: {len(runs)} run(s) + table {table.name} ({table.n_points} points) in "
-        f"{elapsed:.1f} s: status {result.status}; table chi2/cell "
-        f"{before.chi2 / max(before.n, 1):.2f} -> {after.chi2 / max(after.n, 1):.2f} "
-        f"({before.kind})"
-    )
+    print(f"{prog}: {inputs.what} in {elapsed:.1f} s: status {result.status}")
     _print_fit(prog, result.final or result.joint)
     for c, g in result.runs_result.gap_before.items():
         print(f"  {c:16s} NRMSE {g:.4f} -> {result.runs_result.gap_after[c]:.4f} (held-out runs)")
-    for c, v in before.nrmse.items():
-        print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} ({before.kind})")
+    for before, after in (
+        (result.table_before, result.table_after),
+        (result.spectra_before, result.spectra_after),
+    ):
+        if before is None or after is None:
+            continue
+        print(
+            f"  {before.kind}: chi2 per residual {before.chi2 / max(before.n, 1):.2f} -> "
+            f"{after.chi2 / max(after.n, 1):.2f}"
+        )
+        for c, v in before.nrmse.items():
+            print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} ({before.kind})")
     for note in result.notes:
         print(f"  note: {note}")
     print(f"  -> {args.out / 'model.yaml'}, {args.out / 'discrepancy.json'}, report.html")

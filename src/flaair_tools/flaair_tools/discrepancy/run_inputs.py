@@ -5,6 +5,7 @@ apart by their content, the runs read from them, and the errors a command report
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -12,6 +13,8 @@ import numpy as np
 import yaml
 
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
+from flaair_analysis.multisine.analysis import MultisineInputError, RunInput
+from flaair_analysis.multisine.spectra import is_multisine
 from flaair_common.outputs import OutputError
 from flaair_common.runcsv import RunFileError, read_run
 from flaair_model.config import ConfigError
@@ -23,9 +26,12 @@ __all__ = [
     "InputError",
     "bad_input_errors",
     "load_inputs",
+    "multisine_inputs",
+    "preload",
     "runs_from_bag",
     "runs_from_csv",
     "sort_inputs",
+    "split_multisine",
 ]
 
 _HEADER_PEEK_BYTES = 65536  # a header sits in the first lines; a huge file is not read here
@@ -127,6 +133,48 @@ def load_inputs(paths: Sequence[Path]) -> list[Run]:
     return runs
 
 
+def split_multisine(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
+    """(time-series runs, multisine runs): a run whose drive is a periodic odd multisine
+    (`multisine.spectra.is_multisine`) belongs to a multisine set, read as line spectra.
+    """
+    plain, multisine = [], []
+    for run in runs:
+        (multisine if is_multisine(run.drive_v) else plain).append(run)
+    return plain, multisine
+
+
+def multisine_inputs(runs: Sequence[Run]) -> list[RunInput]:
+    """A multisine set's runs as the multisine analysis reads them."""
+    return [
+        RunInput(
+            r.name,
+            r.fs_hz,
+            {
+                "drive_v": r.drive_v,
+                "stroke_sensor_v": r.stroke_sensor_v,
+                "pitch_sensor_v": r.pitch_sensor_v,
+                "stroke_deg": r.stroke_deg,
+                "pitch_deg": r.pitch_deg,
+            },
+        )
+        for r in runs
+    ]
+
+
+def preload(prog: str, paths: Sequence[Path]) -> list[Run] | int:
+    """The runs of `paths` read once (to tell a multisine set from time-series runs before a
+    command picks its fit), or the exit status after a one-line refusal.
+    """
+    try:
+        return load_inputs(paths)
+    except bad_input_errors() as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
+
+
 def bad_input_errors() -> tuple[type, ...]:
     errors: list[type] = [
         InputError,
@@ -136,6 +184,7 @@ def bad_input_errors() -> tuple[type, ...]:
         ModelError,
         ConfigError,
         DiscrepancyInputError,
+        MultisineInputError,
         OSError,
         yaml.YAMLError,
     ]
