@@ -155,6 +155,46 @@ def test_the_model_comparison_points_to_the_hinge_film(lab: dict, tmp_path: Path
     assert all(e["disagrees"] == [] for e in right["channels"].values())
 
 
+@pytest.mark.slow  # a whole discrepancy workflow on the set's runs: 9 s here
+@pytest.mark.timeout(200)
+def test_identify_and_discrepancy_take_the_set_as_spectra_and_its_lines_point_to_the_film(
+    lab: dict, tmp_path: Path
+) -> None:
+    """The set told by its drive; the plant fitted on its line spectra; the search's finding
+    checked on them; the even distortion the joint plant does not predict points to the film,
+    and the model written predicts it.
+    """
+    runs = [str(p) for p in lab["film"]]
+    ident = run_offline([FLAAIR, "identify", *runs, "--out", str(tmp_path / "id")], isolated_env())
+    assert ident.returncode == 0, ident.stderr
+    assert "a multisine set of 2 realization(s)" in ident.stdout
+    fit = json.loads((tmp_path / "id" / "identification.json").read_text())
+    assert fit["multisine_runs"] == ["realization_1", "realization_2"] and fit["runs"] == []
+    assert list(fit["data_sets"]) == ["spectra"]
+    stroke_hz = fit["parameters"]["stroke_natural_frequency_hz"]
+    assert abs(stroke_hz["value"] - 140.0) < 3.0 * stroke_hz["stderr"]
+
+    out = tmp_path / "d"
+    result = run_offline([FLAAIR, "discrepancy", *runs, "--out", str(out)], isolated_env())
+    assert result.returncode == 0, result.stderr
+    doc = json.loads((out / "discrepancy.json").read_text())
+    reading = doc["joint"]["multisine"]
+    before = [
+        (f["distortion"], f["channels"]) for f in reading["before"]["localisation"]["findings"]
+    ]
+    assert ("even", ["pitch_sensor_v"]) in before
+    film = next(
+        f for f in reading["before"]["localisation"]["findings"] if f["distortion"] == "even"
+    )
+    assert film["points_to"].startswith("the hinge film") and film["sites"] == ["pitch_sensor_v"]
+    assert reading["after"]["channels"]["pitch_sensor_v"]["disagrees"] in ([], ["odd"])
+    assert "even" not in reading["after"]["channels"]["pitch_sensor_v"]["disagrees"]
+    written = (out / "model.yaml").read_text()
+    assert "square_angle_sensor" in written and "pitch_sensor_v" in written
+    spectra = doc["joint"]["spectra_before"], doc["joint"]["spectra_after"]
+    assert spectra[1]["chi2_per_cell"] < spectra[0]["chi2_per_cell"]
+
+
 def _refused(args: list[str], out: Path) -> str:
     result = run_offline([FLAAIR, "multisine", "analyze", *args, "--out", str(out)], isolated_env())
     assert result.returncode == 2, result.stdout + result.stderr
