@@ -5,8 +5,9 @@ Modules: `protocol` (`Evidence`: residuals in units of the data's own noise, its
 parameters, the sites it sees, its held-out `Split`s) and `fit` (`fit_evidence`: shared
 parameters and each piece's nuisance fitted over every piece at once, the Birge reweighting, the
 covariance). The kinds of evidence live with their data:
-`flaair_analysis.discrepancy.RunEvidence` (measured runs) and
-`flaair_analysis.tables.TableEvidence` (frequency-response tables).
+`flaair_analysis.discrepancy.RunEvidence` (measured runs),
+`flaair_analysis.tables.TableEvidence` (frequency-response tables) and
+`flaair_analysis.multisine.spectrum_evidence.SpectrumEvidence` (a multisine set's line spectra).
 """
 
 from __future__ import annotations

@@ -8,7 +8,10 @@ Modules (import them by name; this package imports none of them eagerly):
 - `nld`: BLA, noise and distortion (Pintelon and Schoukens' robust method), levels, class,
   the model's figures and the disagreements;
 - `localise`: the reading of which channels show odd or even distortion;
-- `analysis`: the whole analysis of a set of runs, with its refusals.
+- `analysis`: the whole analysis of a set of runs, with its refusals, and what the runs say of a
+  model (`model_reading`);
+- `spectrum_evidence`: the set's line spectra as evidence for the one fit
+  (`flaair_analysis.evidence`): the model's spectra against the measured ones over the band.
 """
 
-__all__ = ["analysis", "design", "localise", "nld", "spectra"]
+__all__ = ["analysis", "design", "localise", "nld", "spectra", "spectrum_evidence"]

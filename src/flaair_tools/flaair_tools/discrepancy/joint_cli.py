@@ -139,6 +139,10 @@ def _run(prog: str, args: argparse.Namespace, files: tuple[str, ...], compute) -
         signal.signal(signal.SIGTERM, previous)
 
 
+def _sets(fit: JointFit) -> str:
+    return {1: "it", 2: "both"}.get(len(fit.agreement), "every set")
+
+
 def _agreement_line(fit: JointFit) -> str:
     parts = []
     for name, a in fit.agreement.items():
@@ -197,7 +201,7 @@ def identify(args: argparse.Namespace) -> int:
         return failed
     verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
     print(
-        f"{prog}: {inputs.what}, plant fitted on every set in {elapsed:.1f} s: "
+        f"{prog}: {inputs.what}, plant fitted on {_sets(fit)} in {elapsed:.1f} s: "
         f"{_agreement_line(fit)}; {verdict}"
     )
     _print_fit(prog, fit)
