@@ -245,7 +245,10 @@ def discrepancy(args: argparse.Namespace) -> int:
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"
         save_model(result.model_out, stage / "model.yaml")
-        doc = write_report(stage, report_runs, result.runs_result, str(model_path), workflow)
+        joint = json_safe(result.as_dict())
+        doc = write_report(
+            stage, report_runs, result.runs_result, str(model_path), workflow, joint=joint
+        )
         doc["status"] = result.status
         doc["joint"] = json_safe(result.as_dict())
         text = json.dumps(json_safe(doc), indent=2, allow_nan=False)

@@ -469,6 +469,70 @@ def _gap_table(result: DiscrepancyResult) -> Any:
     )
 
 
+# the other sets of a joint document: label, its check before and after the findings
+_OTHER_SETS = (
+    ("table", "table_heldout_before", "table_heldout_after"),
+    ("multisine line spectra", "spectra_before", "spectra_after"),
+)
+
+
+def _fmt(x: Any) -> str:
+    return "-" if x is None else f"{x:.4g}"
+
+
+def _sets_section(joint: Mapping[str, Any]) -> dict[str, Any]:
+    """The other sets' checks (before and after the findings) and the multisine's reading."""
+    rows = []
+    for label, before_key, after_key in _OTHER_SETS:
+        before, after = joint.get(before_key), joint.get(after_key)
+        if not before or not after:
+            continue
+        for c, ratio in before["noise_ratio"].items():
+            rows.append(
+                [label, c, _fmt(ratio), _fmt(after["noise_ratio"].get(c)),
+                 _fmt(before["nrmse"].get(c)), _fmt(after["nrmse"].get(c))]
+            )  # fmt: skip
+    reading = joint.get("multisine") or {}
+    lines = []
+    for stage, label in (("before", "joint plant"), ("after", "model written")):
+        if stage not in reading:
+            continue
+        for c, entry in reading[stage]["channels"].items():
+            excess = {
+                k: (v - entry["noise_db"]) if v is not None else None
+                for k, v in entry["unexplained_db"].items()
+            }
+            lines.append(
+                [label, c, ", ".join(entry["disagrees"]) or "none",
+                 _fmt(excess.get("odd")), _fmt(excess.get("even"))]
+            )  # fmt: skip
+    findings = [
+        f"{f['distortion']} on {', '.join(f['channels'])}: {f['points_to']}"
+        for f in reading.get("before", {}).get("localisation", {}).get("findings", [])
+    ]
+    return {
+        "checks": _table(
+            ["set", "channel or column", "noise ratio before", "after", "NRMSE before", "after"],
+            rows,
+        ),
+        "reading": _table(
+            [
+                "model",
+                "channel",
+                "distortion it does not predict",
+                "odd dB over noise",
+                "even dB over noise",
+            ],
+            lines,
+        )
+        if lines
+        else None,
+        "findings": findings,
+        # the multisine's reading is its own table and list above
+        "notes": [n for n in joint.get("notes", []) if not n.startswith("the multisine (")],
+    }
+
+
 def _context(
     runs: Sequence[Run],
     result: DiscrepancyResult,
@@ -508,20 +572,22 @@ def write_report(
     model_out: str,
     settings: DiscrepancySettings,
     validation: Mapping[str, Any] | None = None,
+    joint: Mapping[str, Any] | None = None,
 ) -> dict:
     """Write discrepancy.json, the figures and report.html
-    into `out_dir`; returns the JSON document.
+    into `out_dir`; returns the JSON document. `joint`: the joint workflow's document
+    (`JointDiscrepancy.as_dict`) when the runs were one set among others.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = result_to_dict(result, model_out, settings)
     write_json(out_dir / "discrepancy.json", doc)
     figs = write_figures(out_dir, runs, result)
-    page = (
-        _environment()
-        .get_template("discrepancy_report.html.j2")
-        .render(_context(runs, result, doc, figs, settings, validation))
-    )
+    context = _context(runs, result, doc, figs, settings, validation)
+    if joint is not None:
+        context["status"] = joint["status"]
+        context["sets"] = _sets_section(joint)
+    page = _environment().get_template("discrepancy_report.html.j2").render(context)
     (out_dir / "report.html").write_text(page, encoding="utf-8")
     return doc
 
