@@ -13,14 +13,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
 from flaair_analysis.evidence import fit_evidence
 from flaair_analysis.multisine.analysis import SENSORS, VIDEO, RunInput, find_design
 from flaair_analysis.multisine.design import design_multisine, realization_drive
 from flaair_analysis.multisine.spectra import is_multisine
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence, spectrum_channels
+from flaair_analysis.tables.datasets import simulated_table
 from flaair_analysis.tables.joint import identify_joint
 from flaair_model import settings
 from flaair_model.model_io import load_model
+from flaair_sim.core.drive import chirp
 from flaair_sim.core.measured_run import synthesize_measured_run
 
 pytestmark = pytest.mark.timeout(60)
@@ -30,6 +34,7 @@ FILM_TERM = "discovered:\n  - {kind: square_angle_sensor, acts_on: pitch_sensor_
     "parameters: {coefficient: 0.05}}\n"
 )
 FS_HZ = 20000.0
+RUN_COLUMNS = ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg")
 
 
 def _design():
@@ -126,3 +131,39 @@ def test_is_multisine_tells_a_multisine_from_other_drives() -> None:
     )
     assert not is_multisine(np.tile(even, 3))  # an even line excited
     assert not is_multisine(np.full(1000, np.nan))
+
+
+@pytest.mark.timeout(120)
+def test_the_joint_fit_takes_spectra_beside_runs_and_beside_a_table(film: dict) -> None:
+    """Each set is scored against the one plant fitted on all; from a plant 5 % off, both
+    pairings come back to the robot's stroke and pitch frequencies, every set at noise on the
+    video channels it is fitted on (the films' spectra, fifty times the video's signal to noise,
+    see what is left of the plant's error: they check the findings, they do not fit the plant).
+    """
+    robot, s = film["robot"], settings.tables()
+    off = replace(
+        robot,
+        plant=replace(
+            robot.plant, stroke_natural_frequency_hz=147.0, pitch_natural_frequency_hz=180.0
+        ),
+    )
+    t = np.arange(round(0.5 * FS_HZ)) / FS_HZ
+    cols = synthesize_measured_run(
+        chirp(t, 100.0, 20.0, 200.0, 0.5), FS_HZ, robot, np.random.default_rng(4)
+    )
+    runs = check_runs([Run("chirp", FS_HZ, *(cols[c] for c in RUN_COLUMNS))])
+    noise = noise_estimates(runs, simulate_runs([off], runs)[0], off)
+    freqs = np.linspace(90.0, 220.0, 12)
+    table = simulated_table(robot, [25.0, 45.0], freqs, s, np.random.default_rng(2))
+    for fit in (
+        identify_joint(runs, None, off, noise, s, spectra=film["evidence"]),
+        identify_joint([], table, off, {}, s, spectra=film["evidence"]),
+    ):
+        assert len(fit.agreement) == 2 and "spectra" in fit.agreement
+        for name, agreement in fit.agreement.items():
+            if name != "table":
+                assert set(agreement.noise_ratio) == {"stroke_deg", "pitch_deg"}
+            assert max(agreement.noise_ratio.values()) < 1.3, (name, agreement.noise_ratio)
+        assert fit.values["stroke_natural_frequency_hz"] == pytest.approx(140.0, rel=2e-3)
+        assert fit.values["pitch_natural_frequency_hz"] == pytest.approx(190.0, rel=3e-3)
+        assert not fit.warnings

@@ -356,7 +356,9 @@ def identify_joint(
             "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
         )
     if spectra is not None:
-        m_ratio, m_nrmse, m_n, m_chi2 = spectra.scores(current)
+        # scored where it was fitted, as the runs are (its films check findings, not the plant)
+        fitted = spectra.only([channel for _, channel, _ in _SIDES])
+        m_ratio, m_nrmse, m_n, m_chi2 = fitted.scores(current)
         agreement["spectra"] = SetAgreement(
             "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
         )
