@@ -171,7 +171,11 @@ def robot_runs(terms: list, design, seed: int) -> list[dict[str, np.ndarray]]:
     base["plant"].update(aero_damping_nm_s2=0.0, aero_coupling_nm_s2=0.0)
     base["effects"] = {"structural_damping": {"damping_ratio": 0.1}}
     model = model_from_dict({**base, "discovered": terms})
-    rng = np.random.default_rng(seed)
+    return measured_realizations(model, design, np.random.default_rng(seed))
+
+
+def measured_realizations(model, design, rng: np.random.Generator) -> list[dict[str, np.ndarray]]:
+    """`model` driven by every realization, with sensor and tracking noise; video at 2 kHz."""
     out = []
     for m in range(design.realizations):
         cols = synthesize_measured_run(realization_drive(design, m), design.fs_hz, model, rng)
@@ -180,6 +184,14 @@ def robot_runs(terms: list, design, seed: int) -> list[dict[str, np.ndarray]]:
             cols[c][off] = np.nan
         out.append(cols)
     return out
+
+
+def written(runs: list[dict[str, np.ndarray]], folder: Path, stem: str) -> list[Path]:
+    """The runs as measured-run CSV files `folder/{stem}_1.csv`, ..."""
+    paths = [folder / f"{stem}_{m + 1}.csv" for m in range(len(runs))]
+    for path, cols in zip(paths, runs, strict=True):
+        write_run(path, cols)
+    return paths
 
 
 def robot_figures() -> list:
@@ -246,14 +258,7 @@ def discrepancy_figures(tmp: Path, robots: list[str]) -> list:
         rng = np.random.default_rng(100 + seed)
         folder = tmp / f"discrepancy_{seed}"
         folder.mkdir()
-        paths = []
-        for m in range(design.realizations):
-            cols = synthesize_measured_run(realization_drive(design, m), design.fs_hz, model, rng)
-            off = np.arange(cols["time_s"].size) % 10 != 0
-            for c in ("stroke_deg", "pitch_deg"):
-                cols[c][off] = np.nan
-            paths.append(folder / f"realization_{m + 1}.csv")
-            write_run(paths[-1], cols)
+        paths = written(measured_realizations(model, design, rng), folder, "realization")
         code, err = cli(["discrepancy", *map(str, paths), "--out", str(folder / "out")])
         if code != 0:
             wrong.append(f"{name}: exit {code} {err.strip()[:80]}")
@@ -296,14 +301,7 @@ def timing_and_refusals(tmp: Path) -> list:
     design = default_design()
     model = model_from_dict(yaml.safe_load((REPO_ROOT / "config" / "model.yaml").read_text()))
     rng = np.random.default_rng(3)
-    paths = []
-    for m in range(design.realizations):
-        cols = synthesize_measured_run(realization_drive(design, m), design.fs_hz, model, rng)
-        off = np.arange(cols["time_s"].size) % 10 != 0
-        for c in ("stroke_deg", "pitch_deg"):
-            cols[c][off] = np.nan
-        paths.append(tmp / f"run_{m + 1}.csv")
-        write_run(paths[-1], cols)
+    paths = written(measured_realizations(model, design, rng), tmp, "run")
     runs = [str(p) for p in paths]
     # a first call imports matplotlib and Jinja2 (a process's one-time cost, not the analysis's)
     cli(["multisine", "analyze", *runs, "--out", str(tmp / "warm")])
