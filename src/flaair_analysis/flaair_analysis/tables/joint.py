@@ -1,14 +1,18 @@
-"""The plant fitted to a table and to runs of the same robot at once (docs/TABLES.md). Pure.
+"""The plant fitted to any of runs, a table and a multisine set's line spectra of the same
+robot at once (docs/TABLES.md, docs/MULTISINE.md). Pure.
 
-One least-squares fit of the plant parameters over both data sets: the runs' residuals (the
-ground-truth angle minus its simulation, demeaned per run, decimated, divided by the channel's
-noise RMS: as `identify` on runs) and the table's (each measured cell against the steady state,
-divided by its reading noise: as `identify TABLE.csv`) stacked in one residual vector. Stages as
-both fits do: the stroke parameters on stroke_deg and the table's stroke columns, then the pitch
-parameters on pitch_deg and the pitch columns. Each run's initial state (angle, rate) is fitted
-along with the plant on the runs alone (a table has no time axis).
+One least-squares fit of the plant parameters over every set (`evidence.fit_evidence`): the
+runs' residuals (the ground-truth angle minus its simulation, demeaned per run, decimated,
+divided by the channel's noise RMS: as `identify` on runs), the table's (each measured cell
+against the steady state, divided by its reading noise: as `identify TABLE.csv`) and the
+spectra's (each line of the band against the model simulated on the logged drive, divided by
+the periods' noise) stacked in one residual vector. Stages as each fit does: the stroke
+parameters on stroke_deg, the table's stroke columns and the stroke video's spectrum, then the
+pitch parameters on pitch_deg, the pitch columns and the pitch video's spectrum. Each run's
+initial state (angle, rate) is fitted along with the plant on the runs alone (a table has no
+time axis; the spectra drop the transient periods).
 
-Weighting: the sum of the two chi-squares (maximum likelihood when each set's noise model is
+Weighting: the sum of the sets' chi-squares (maximum likelihood when each set's noise model is
 right): a run sample and a table cell each count by their information, so the runs' thousands of
 samples do not outvote the table where they say nothing (short or quiet runs leave the
 resonance to the table), and the table's sixty cells decide there. A set whose residuals after
@@ -18,7 +22,8 @@ block is then divided by sqrt(max(1, r)) (the Birge ratio: the set's noise taken
 scatter) and the stage refitted once from there.
 
 Agreement: after the fit, each set's residual RMS over its noise (`noise_ratio`) per channel or
-column. Above `gap_ratio` (the tables' setting, 1.5) is a gap: with the table alone at noise it
+column (the spectra's on the video channels it is fitted on). Above `gap_ratio` (the tables'
+setting, 1.5) is a gap: with the table alone at noise it
 is the two sets disagreeing (different robots, or a table read under other conditions), and a
 warning names each set's gap and the stroke frequency each set alone points to.
 """

@@ -1,26 +1,33 @@
-"""The discrepancy workflow on runs and a table of the same robot (docs/TABLES.md). Pure.
+"""The discrepancy workflow on runs beside other sets of the same robot: a table, a multisine
+set's line spectra, or both (docs/TABLES.md, docs/MULTISINE.md). Pure.
 
 What is joint and what is not:
 
-1. The plant is fitted on both (`joint.identify_joint`): joint.
+1. The plant is fitted on every set (`joint.identify_joint`): joint.
 2. The runs' search (`discrepancy.workflow.analyse`, started from the joint plant, judged on
-   held-out runs), its findings (effects, discovered terms) then judged on the table's held-out
-   drive levels: each level predicted by the joint plant with the findings, its plant refitted
-   on the other levels. Kept when the table's held-out chi-square does not rise beyond its
-   noise: by more than 2 sqrt(2 N) over N cells (two standard deviations of a chi-square: what
-   noise alone moves it by). The runs have already required a better held-out prediction of
-   the runs, so the rule reads "improves one set without worsening the other beyond noise".
-   Refused: none of them is in the model, the status is `unexplained` and a note says why.
+   held-out runs), its findings (effects, discovered terms) then judged on every other set:
+   the table's held-out drive levels (each level predicted by the joint plant with the
+   findings, its plant refitted on the other levels) and the multisine's line spectra of all
+   four channels (the plant refitted on their video channels). Kept when no set's chi-square
+   rises beyond its noise: by more than 2 sqrt(2 N) over N residuals (two standard deviations
+   of a chi-square: what noise alone moves it by). The runs have already required a better
+   held-out prediction of the runs, so the rule reads "improves one set without worsening
+   another beyond noise". Refused: none of them is in the model, the status is `unexplained`
+   and a note says why. With a multisine set and no other runs, the set's runs are searched as
+   time series (the spectra's check is then in sample, and a note says so).
 3. Where the table's held-out levels still keep a gap (a column above `gap_ratio` x noise), the
    table's own search (`workflow.analyse_table`, from the model so far, judged on held-out
    levels); its findings judged on the runs: kept when the runs' chi-square (from their fitted
    states) does not rise by more than 2 sqrt(2 N) over their N samples. An effect only a table
    shows (a stop the runs' quieter drive never reaches) is found this way.
-4. With anything kept, the plant is refitted on both with it in place (the findings' values as
-   their own search fitted them).
+4. With anything kept, the plant is refitted on every set with it in place (the findings'
+   values as their own search fitted them).
+5. The multisine's odd and even lines read against the joint plant and the model written
+   (`multisine.analysis.model_reading`): which channels show distortion the model does not
+   predict, and where it points.
 
 Not joint: a candidate is fitted and ranked on one set (its own search's) and only checked on
-the other; the findings' values are not refitted on both.
+the others; the findings' values are not refitted on every set.
 """
 
 from __future__ import annotations
