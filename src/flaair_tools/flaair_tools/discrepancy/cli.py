@@ -3,7 +3,8 @@
 Inputs are measured-run CSV files (docs/formats/MEASURED_RUN_CSV.md), bags (runs marked on
 /flaair/run_marker; topics /flaair/sensor_v, /flaair/drive, /flaair/wing_state/truth) and
 frequency-response tables (docs/TABLES.md), in any mix, told apart by their content (a CSV whose
-header names frequency_hz and no time_s is a table; --table TABLE.csv names one). First
+header names frequency_hz and no time_s is a table; --table TABLE.csv names one; runs whose drive
+is a periodic odd multisine are a multisine set, read as line spectra: docs/MULTISINE.md). First
 this robot's own plant parameters are fitted (as `flaair identify` does: natural frequencies,
 damping, actuator gain, couplings); then every run is simulated with its recorded drive from
 its measured initial state and compared on stroke_deg, pitch_deg, stroke_sensor_v and
@@ -69,8 +70,8 @@ PROG = "flaair discrepancy"
 USAGE = (
     "flaair discrepancy [INPUT ...] --out DIR [--model FILE] [--force]\n"
     "       [--validate [--cases NAME ...]] [--validation FILE]\n"
-    "       (INPUT: a measured-run CSV, a bag or a frequency-response table, any mix; or\n"
-    "       --validate alone)"
+    "       (INPUT: a measured-run CSV, a bag, a frequency-response table or a multisine\n"
+    "       set's runs, any mix; or --validate alone)"
 )
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")

@@ -2,7 +2,8 @@
 
 Inputs are measured-run CSV files, bags and frequency-response tables (docs/TABLES.md), in any
 mix, told apart by their content (a CSV whose header names frequency_hz and no time_s is a
-table); --table TABLE.csv names a table explicitly. Every input is evidence for one fit: each
+table; runs whose drive is a periodic odd multisine are a multisine set, fitted as line spectra:
+docs/MULTISINE.md); --table TABLE.csv names a table explicitly. Every input is evidence for one fit: each
 residual in units of its own noise, the sum of their chi-squares minimised. The stroke natural
 frequency, aerodynamic damping and actuator gain are fitted to the ground-truth stroke, then the
 pitch natural frequency, hinge damping and the stroke-to-pitch couplings to the ground-truth
@@ -18,8 +19,8 @@ Writes into --out DIR:
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
 
 With a table alone the plant is fitted to the table's cells (started from its peaks); with runs
-and a table, to both at once, and identification.json says whether the two sets agree
-(docs/TABLES.md).
+beside a table or a multisine set, or with a multisine set alone, to every set at once, and
+identification.json says whether the sets agree (docs/TABLES.md).
 
 Examples
 --------
@@ -62,7 +63,8 @@ from .joint_cli import identify as joint_identify
 PROG = "flaair identify"
 USAGE = (
     "flaair identify INPUT ... --out DIR [--model FILE] [--force]\n"
-    "       (INPUT: a measured-run CSV, a bag or a frequency-response table; any mix)"
+    "       (INPUT: a measured-run CSV, a bag, a frequency-response table or a multisine\n"
+    "       set's runs; any mix)"
 )
 OUT_FILES = ("model.yaml", "identification.json")
 
