@@ -4,12 +4,13 @@ Inputs are measured-run CSV files, bags and frequency-response tables (docs/TABL
 mix, told apart by their content (a CSV whose header names frequency_hz and no time_s is a
 table; runs whose drive is a periodic odd multisine are a multisine set, fitted as line spectra:
 docs/MULTISINE.md); --table TABLE.csv names a table explicitly. Every input is evidence for one
-fit: each residual in units of its own noise, the sum of their chi-squares minimised. The stroke natural
-frequency, aerodynamic damping and actuator gain are fitted to the ground-truth stroke, then the
-pitch natural frequency, hinge damping and the stroke-to-pitch couplings to the ground-truth
-pitch (scipy least_squares on the simulated runs, each from its measured initial state, started
-from a frequency-domain estimate of the sweeps' transfer functions). The inertias, sensor
-constants (Table 1, charge amplifiers) and transmission ratio are fabrication-known and stay.
+fit: each residual in units of its own noise, the sum of their chi-squares minimised. The stroke
+natural frequency, aerodynamic damping and actuator gain are fitted to the ground-truth stroke,
+then the pitch natural frequency, hinge damping and the stroke-to-pitch couplings to the
+ground-truth pitch (scipy least_squares on the simulated runs, each from its measured initial
+state, started from a frequency-domain estimate of the sweeps' transfer functions). The
+inertias, sensor constants (Table 1, charge amplifiers) and transmission ratio are
+fabrication-known and stay.
 
 Writes into --out DIR:
   model.yaml           the input model with the fitted plant parameters (as config/model.yaml)
