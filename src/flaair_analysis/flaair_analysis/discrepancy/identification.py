@@ -41,7 +41,7 @@ from typing import Any, cast
 import numpy as np
 from scipy import optimize
 
-from flaair_analysis.evidence import fit_evidence
+from flaair_analysis.evidence import Evidence, EvidenceFit, fit_evidence
 from flaair_model.effects import TRUTH_CHANNELS
 from flaair_model.model import Model
 from flaair_sensors.core.characterization import tiled_transfer
@@ -54,7 +54,10 @@ __all__ = [
     "INSEPARABLE_CORRELATION",
     "UNDETERMINED_REL_SE",
     "PlantFit",
+    "Stage",
+    "StagedFit",
     "fit_initial_states",
+    "fit_stages",
     "frequency_domain_start",
     "identify_plant",
 ]
@@ -222,45 +225,87 @@ def with_plant(model: Model, values: Mapping[str, float]) -> Model:
     return replace(model, plant=replace(model.plant, **{k: float(v) for k, v in values.items()}))
 
 
-def _fit_stage(
-    runs: Sequence[Run],
-    model: Model,
-    noise: Mapping[str, float],
-    keys: Sequence[str],
-    start: Mapping[str, float],
-    channel: str,
-    max_nfev: int,
-    decimate: int,
-    centre: Mapping[str, float] | None = None,
-) -> dict[str, Any]:
-    """Least-squares fit of `keys` and of each run's initial state (angle, rate) on one truth
-    channel (`fit_evidence` over the runs); returns values, log-space covariance of the plant
-    parameters, states, costs.
+def _plant_setter(model: Model, keys: Sequence[str]) -> Callable[[np.ndarray], Model]:
+    """Fit space (log values of `keys`) to `model` with them."""
+    return lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True)))
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the plant's staged fit: its keys, the evidence that sees its side, the
+    starts tried and the fit range (log space).
     """
-    side = "stroke" if channel == "stroke_deg" else "pitch"
-    omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
-    evidence = RunEvidence(runs, noise, decimate, (channel,), side, omega)
-    u_nominal = np.log([float(getattr(model.plant, k)) for k in keys])
-    u_centre = np.log([float(centre[k]) for k in keys]) if centre is not None else u_nominal
-    # the better of the model's and the frequency-domain values starts the fit
-    fit = fit_evidence(
-        [evidence],
-        lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
-        [u_nominal, np.log([start[k] for k in keys])],
-        u_centre - math.log1p(FIT_RANGE),
-        u_centre + math.log1p(FIT_RANGE),
-        np.full(len(keys), FD_STEP),
-        max_nfev=max_nfev,
-        tol=1e-10,
-    )
-    return {
-        "values": dict(zip(keys, (float(v) for v in np.exp(fit.x)), strict=True)),
-        "cov": fit.covariance,
-        "states": [evidence.state(fit.nuisance[0], j) for j in range(len(runs))],
-        "cost_before": fit.start_costs[0],
-        "cost_after": fit.cost,
-        "n": fit.n[0],
-    }
+
+    keys: tuple[str, ...]
+    pieces: tuple[Evidence, ...]
+    starts: tuple[np.ndarray, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    max_nfev: int
+    birge_refit: float | None = None
+
+
+@dataclass(frozen=True)
+class StagedFit:
+    """The outcome of `fit_stages`: the model and runs after every stage, the fitted values, the
+    log-space standard deviations and the correlation within each stage (order of the keys;
+    NaN across stages), and each stage with its fit.
+    """
+
+    model: Model
+    runs: tuple[Run, ...]
+    values: dict[str, float]
+    sd: np.ndarray
+    correlation: np.ndarray
+    stages: tuple[tuple[str, Stage, EvidenceFit], ...]
+
+
+def fit_stages(
+    model: Model,
+    runs: Sequence[Run],
+    keys: Sequence[str],
+    stage_of: Callable[[str, tuple[str, ...], Model, list[Run]], Stage | None],
+) -> StagedFit:
+    """The plant fitted upstream first: the stroke keys on what sees the stroke, then, with them
+    fixed, the pitch keys on what sees the pitch (an unmodelled pitch effect cannot bend the
+    stroke fit). `stage_of(channel, keys, model, runs)` gives each stage (None: skipped) from
+    the model and runs as the earlier stages left them; a run set among its pieces has its
+    initial states carried on.
+    """
+    keys = tuple(keys)
+    values: dict[str, float] = {}
+    sd = np.full(len(keys), np.nan)
+    corr = np.full((len(keys), len(keys)), np.nan)
+    current, runs, done = model, list(runs), []
+    for channel in TRUTH_CHANNELS:
+        side_keys = tuple(k for k in keys if {**PLANT_PARAMETERS, **_OTHER_CHANNELS}[k] == channel)
+        stage = stage_of(channel, side_keys, current, runs)
+        if stage is None:
+            continue
+        fit = fit_evidence(
+            list(stage.pieces),
+            _plant_setter(current, side_keys),
+            list(stage.starts),
+            stage.lower,
+            stage.upper,
+            np.full(len(side_keys), FD_STEP),
+            max_nfev=stage.max_nfev,
+            tol=1e-10,
+            birge_refit=stage.birge_refit,
+        )
+        out = dict(zip(side_keys, (float(v) for v in np.exp(fit.x)), strict=True))
+        current = with_plant(current, out)
+        for piece, nuisance in zip(stage.pieces, fit.nuisance, strict=True):
+            if isinstance(piece, RunEvidence) and piece.side is not None:
+                runs = piece.runs_at(nuisance)
+        values.update(out)
+        idx = [keys.index(k) for k in side_keys]
+        e = np.sqrt(np.abs(np.diag(fit.covariance)))
+        sd[idx] = e
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr[np.ix_(idx, idx)] = fit.covariance / np.outer(e, e)
+        done.append((channel, stage, fit))
+    return StagedFit(current, tuple(runs), values, sd, corr, tuple(done))
 
 
 def identify_plant(
@@ -303,29 +348,33 @@ def identify_plant(
     start = {k: float(getattr(model.plant, k)) for k in keys}
     if keys:
         start.update({k: v for k, v in frequency_domain_start(runs, model).items() if k in keys})
-    values: dict[str, Any] = {}
-    sd = np.full(len(keys), np.nan)
-    corr = np.full((len(keys), len(keys)), np.nan)
-    cost_before = cost_after = 0.0
-    n = 0
-    current = model
-    runs = list(runs)
-    for channel in TRUTH_CHANNELS:
-        stage = [k for k in keys if {**PLANT_PARAMETERS, **_OTHER_CHANNELS}[k] == channel]
+
+    def stage_of(
+        channel: str, stage: tuple[str, ...], current: Model, now: list[Run]
+    ) -> Stage | None:
         if not stage and channel not in state_channels:
-            continue
-        out = _fit_stage(runs, current, noise, stage, start, channel, max_nfev, decimate, centre)
-        current = with_plant(current, out["values"])
-        runs = [replace(r, mechanical0=x) for r, x in zip(runs, out["states"], strict=True)]
-        values.update(out["values"])
-        idx = [keys.index(k) for k in stage]
-        s = np.sqrt(np.abs(np.diag(out["cov"])))
-        sd[idx] = s
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr[np.ix_(idx, idx)] = out["cov"] / np.outer(s, s)
-        cost_before += out["cost_before"]
-        cost_after += out["cost_after"]
-        n += out["n"]
+            return None
+        side = "stroke" if channel == "stroke_deg" else "pitch"
+        omega = 2.0 * math.pi * float(getattr(current.plant, f"{side}_natural_frequency_hz"))
+        u_nominal = np.log([float(getattr(current.plant, k)) for k in stage])
+        u_centre = np.log([float(centre[k]) for k in stage]) if centre is not None else u_nominal
+        # the better of the model's and the frequency-domain values starts the fit
+        return Stage(
+            stage,
+            (RunEvidence(now, noise, decimate, (channel,), side, omega),),
+            (u_nominal, np.log([start[k] for k in stage])),
+            u_centre - math.log1p(FIT_RANGE),
+            u_centre + math.log1p(FIT_RANGE),
+            max_nfev,
+        )
+
+    staged = fit_stages(model, runs, keys, stage_of)
+    values, sd, corr = staged.values, staged.sd, staged.correlation
+    fits = [fit for _, _, fit in staged.stages]
+    cost_before = sum(fit.start_costs[0] for fit in fits)
+    cost_after = sum(fit.cost for fit in fits)
+    n = sum(fit.n[0] for fit in fits)
+    current, runs = staged.model, list(staged.runs)
     stderr = {k: float(values[k] * sd[i]) for i, k in enumerate(keys)}  # log-space SE x value
     inseparable = []
     for i in range(len(keys)):

@@ -33,19 +33,19 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from flaair_analysis.discrepancy.identification import (
     DECIMATE,
-    FD_STEP,
+    Stage,
+    fit_stages,
     frequency_domain_start,
-    with_plant,
 )
 from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
-from flaair_analysis.evidence import Evidence, EvidenceFit, fit_evidence
+from flaair_analysis.evidence import Evidence
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -202,30 +202,6 @@ def table_scores(
     return prediction_scores(table, {c: resp[c][0] for c in table.responses}, s)
 
 
-def _stage(
-    pieces: list[Evidence],
-    model: Model,
-    keys: Sequence[str],
-    start: Mapping[str, float],
-    s: TableSettings,
-) -> EvidenceFit:
-    """One stage: `keys` fitted over `pieces` (each run's angle and rate with them),
-    Birge-reweighted.
-    """
-    free = plant_params(model, keys, dict(start), s.fit_range)
-    return fit_evidence(
-        pieces,
-        lambda u: with_plant(model, dict(zip(keys, np.exp(u), strict=True))),
-        [np.array([f.spec.to_fit(f.start) for f in free])],
-        np.array([f.spec.to_fit(f.lower) for f in free]),
-        np.array([f.spec.to_fit(f.upper) for f in free]),
-        np.full(len(keys), FD_STEP),
-        max_nfev=s.max_nfev,
-        tol=1e-10,
-        birge_refit=_BIRGE_REFIT,
-    )
-
-
 def _side_pieces(
     runs: list[Run],
     table: Table | None,
@@ -324,29 +300,35 @@ def identify_joint(
         if table is not None and not any(c.startswith(side) for c in table.responses):
             start.update({k: runs_start.get(k, nominal[k]) for k in side_keys})
             notes.append(f"the table has no {side} column: the {side} plant is the runs'")
-    values: dict[str, float] = {}
-    sd = np.full(len(keys), np.nan)
-    corr = np.full((len(keys), len(keys)), np.nan)
-    weights: dict[str, dict[str, float]] = {}
-    current, nfev = model, 0
-    for side, channel, side_keys in _SIDES:
-        pieces = _side_pieces(runs, table, spectra, current, side, channel, noise, s, decimate)
+
+    def stage_of(
+        channel: str, side_keys: tuple[str, ...], current: Model, now: list[Run]
+    ) -> Stage | None:
+        side = "stroke" if channel == "stroke_deg" else "pitch"
+        pieces = _side_pieces(now, table, spectra, current, side, channel, noise, s, decimate)
         if not any(p.sites for p in pieces):
             notes.append(f"nothing measures the {side}: the {side} plant stays the model's")
-            values.update({k: float(getattr(current.plant, k)) for k in side_keys})
-            continue
-        fit = _stage(pieces, current, side_keys, start, s)
-        out = dict(zip(side_keys, (float(v) for v in np.exp(fit.x)), strict=True))
-        current = with_plant(current, out)
-        if runs:
-            runs = cast(RunEvidence, pieces[0]).runs_at(fit.nuisance[0])
-        values.update(out)
-        idx = [keys.index(k) for k in side_keys]
-        e = np.sqrt(np.abs(np.diag(fit.covariance)))
-        sd[idx] = e
-        with np.errstate(invalid="ignore", divide="ignore"):
-            corr[np.ix_(idx, idx)] = fit.covariance / np.outer(e, e)
-        for piece, w in zip(pieces, fit.weights, strict=True):
+            return None
+        free = plant_params(current, side_keys, start, s.fit_range)
+        return Stage(
+            side_keys,
+            tuple(pieces),
+            (np.array([f.spec.to_fit(f.start) for f in free]),),
+            np.array([f.spec.to_fit(f.lower) for f in free]),
+            np.array([f.spec.to_fit(f.upper) for f in free]),
+            s.max_nfev,
+            _BIRGE_REFIT,
+        )
+
+    staged = fit_stages(model, runs, keys, stage_of)
+    current, runs = staged.model, list(staged.runs)
+    values = {k: staged.values.get(k, float(getattr(current.plant, k))) for k in keys}
+    sd, corr = staged.sd, staged.correlation
+    weights: dict[str, dict[str, float]] = {}
+    nfev = 0
+    for channel, stage, fit in staged.stages:
+        side = "stroke" if channel == "stroke_deg" else "pitch"
+        for piece, w in zip(stage.pieces, fit.weights, strict=True):
             weights.setdefault(piece.name, {})[side] = w
         nfev += fit.nfev
     agreement: dict[str, SetAgreement] = {}
