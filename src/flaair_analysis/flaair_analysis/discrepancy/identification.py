@@ -243,6 +243,9 @@ class Stage:
     upper: np.ndarray
     max_nfev: int
     birge_refit: float | None = None
+    tol: float = 1e-10
+    to_model: Callable[[np.ndarray], Model] | None = None  # default: log values of the keys
+    steps: np.ndarray | None = None  # default: FD_STEP for every key
 
 
 @dataclass(frozen=True)
@@ -284,17 +287,17 @@ def fit_stages(
             continue
         fit = fit_evidence(
             list(stage.pieces),
-            _plant_setter(current, side_keys),
+            stage.to_model or _plant_setter(current, side_keys),
             list(stage.starts),
             stage.lower,
             stage.upper,
-            np.full(len(side_keys), FD_STEP),
+            np.full(len(side_keys), FD_STEP) if stage.steps is None else stage.steps,
             max_nfev=stage.max_nfev,
-            tol=1e-10,
+            tol=stage.tol,
             birge_refit=stage.birge_refit,
         )
-        out = dict(zip(side_keys, (float(v) for v in np.exp(fit.x)), strict=True))
-        current = with_plant(current, out)
+        current = (stage.to_model or _plant_setter(current, side_keys))(fit.x)
+        out = {k: float(getattr(current.plant, k)) for k in side_keys}
         for piece, nuisance in zip(stage.pieces, fit.nuisance, strict=True):
             if isinstance(piece, RunEvidence) and piece.side is not None:
                 runs = piece.runs_at(nuisance)

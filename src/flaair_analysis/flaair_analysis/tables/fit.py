@@ -18,14 +18,16 @@ of a grid (one batch), so a robot resonant far from nominal still fits.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from flaair_analysis.discrepancy.fitting import apply_values
+from flaair_analysis.discrepancy.identification import Stage, fit_stages
+from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.vocabulary import PLANT_PARAMETERS, EffectSpec
-from flaair_analysis.evidence import fit_evidence
+from flaair_analysis.evidence import EvidenceFit, fit_evidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
@@ -60,6 +62,7 @@ PITCH_KEYS: tuple[str, ...] = (
 _DESCRIBING = 8.0 / (3.0 * math.pi)
 _PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
 _FD_STEP = 1e-4
+_TOL = 1e-8  # the least-squares tolerances of a table's fit (fit_evidence's default)
 
 
 @dataclass(frozen=True)
@@ -137,23 +140,13 @@ def _values(params: Sequence[FreeParam], x: np.ndarray) -> dict[str, float]:
     return {p.key: p.spec.from_fit(float(v)) for p, v in zip(params, x, strict=True)}
 
 
-def fit_table(
-    table: Table,
-    model: Model,
-    params: Sequence[FreeParam],
-    s: TableSettings,
-    columns: Sequence[str],
-) -> TableFit:
-    """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
-    fit = fit_evidence(
-        [TableEvidence(table, s, columns)],
-        lambda x: with_values(model, params, _values(params, x)),
-        [np.array([p.spec.to_fit(p.start) for p in params])],
-        np.array([p.spec.to_fit(p.lower) for p in params]),
-        np.array([p.spec.to_fit(p.upper) for p in params]),
-        np.array([p.spec.step for p in params]),
-        max_nfev=s.max_nfev,
-    )
+def _setter(model: Model, params: Sequence[FreeParam]) -> Callable[[np.ndarray], Model]:
+    """Fit space -> `model` with `params` at those values."""
+    return lambda x: with_values(model, params, _values(params, x))
+
+
+def _table_fit(model: Model, params: Sequence[FreeParam], fit: EvidenceFit) -> TableFit:
+    """A table's fit of `params` (from `model`) as a `TableFit`."""
     values = _values(params, fit.x)
     se = np.sqrt(np.diag(fit.covariance))
     stderr = {
@@ -171,6 +164,26 @@ def fit_table(
         fit.nfev,
         fit.singular,
     )
+
+
+def fit_table(
+    table: Table,
+    model: Model,
+    params: Sequence[FreeParam],
+    s: TableSettings,
+    columns: Sequence[str],
+) -> TableFit:
+    """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
+    fit = fit_evidence(
+        [TableEvidence(table, s, columns)],
+        _setter(model, params),
+        [np.array([p.spec.to_fit(p.start) for p in params])],
+        np.array([p.spec.to_fit(p.lower) for p in params]),
+        np.array([p.spec.to_fit(p.upper) for p in params]),
+        np.array([p.spec.step for p in params]),
+        max_nfev=s.max_nfev,
+    )
+    return _table_fit(model, params, fit)
 
 
 def _stroke_pp_rad(table: Table) -> np.ndarray | None:
@@ -353,23 +366,40 @@ def identify_table(
         stroke_cols = []
     if "pitch" in problems:
         pitch_cols = []
-    if stroke_cols:
-        fit = fit_table(
-            table, model, plant_params(model, STROKE_KEYS, start, s.fit_range), s, stroke_cols
+    columns = {"stroke_deg": stroke_cols, "pitch_deg": pitch_cols}
+    chosen: list[tuple[Model, list[FreeParam]]] = []
+
+    def stage_of(channel: str, keys: tuple[str, ...], current: Model, _: list[Run]) -> Stage | None:
+        cols = columns[channel]
+        if not cols:
+            return None
+        side_start = start
+        if channel == "pitch_deg":  # the pitch started from a grid on the fitted stroke
+            side_start = _pitch_grid_start(table, current, s, cols)
+            start.update(side_start)
+        params = plant_params(current, keys, side_start, s.fit_range)
+        chosen.append((current, params))
+        return Stage(
+            keys,
+            (TableEvidence(table, s, cols),),
+            (np.array([p.spec.to_fit(p.start) for p in params]),),
+            np.array([p.spec.to_fit(p.lower) for p in params]),
+            np.array([p.spec.to_fit(p.upper) for p in params]),
+            s.max_nfev,
+            tol=_TOL,
+            to_model=_setter(current, params),
+            steps=np.array([p.spec.step for p in params]),
         )
-        model = fit.model
-        fits.append(fit)
-    elif "stroke" not in problems:
+
+    staged = fit_stages(model, [], STROKE_KEYS + PITCH_KEYS, stage_of)
+    model = staged.model
+    fits = [
+        _table_fit(before, params, fit)
+        for (before, params), (_, _, fit) in zip(chosen, staged.stages, strict=True)
+    ]
+    if not stroke_cols and "stroke" not in problems:
         notes.append("no stroke column: the stroke plant stays the model's")
-    if pitch_cols:
-        pstart = _pitch_grid_start(table, model, s, pitch_cols)
-        start.update(pstart)
-        fit = fit_table(
-            table, model, plant_params(model, PITCH_KEYS, pstart, s.fit_range), s, pitch_cols
-        )
-        model = fit.model
-        fits.append(fit)
-    elif "pitch" not in problems:
+    if not pitch_cols and "pitch" not in problems:
         notes.append("no pitch column: the pitch plant stays the model's")
     for fit in fits:
         if fit.singular:
