@@ -285,9 +285,10 @@ def fit_stages(
         stage = stage_of(channel, side_keys, current, runs)
         if stage is None:
             continue
+        to_model = stage.to_model or _plant_setter(current, side_keys)
         fit = fit_evidence(
             list(stage.pieces),
-            stage.to_model or _plant_setter(current, side_keys),
+            to_model,
             list(stage.starts),
             stage.lower,
             stage.upper,
@@ -296,7 +297,7 @@ def fit_stages(
             tol=stage.tol,
             birge_refit=stage.birge_refit,
         )
-        current = (stage.to_model or _plant_setter(current, side_keys))(fit.x)
+        current = to_model(fit.x)
         out = {k: float(getattr(current.plant, k)) for k in side_keys}
         for piece, nuisance in zip(stage.pieces, fit.nuisance, strict=True):
             if isinstance(piece, RunEvidence) and piece.side is not None:
