@@ -1,0 +1,175 @@
+"""A robot simulated by code that shares nothing with FLAAIR's model: the truth a discovery
+benchmark can trust (issue "Discovery over everything a robot couples", item 3).
+
+Its own formulation of the equations of ../shared/model-spec.md (written here from the spec, not
+from `flaair_model` or `flaair_sim`), its own integrator (`scipy.integrate.solve_ivp`, DOP853 at
+tight tolerances, one call per sample of the zero-order-held drive, a contact as an event that
+restarts the step at the kink), its own sensor chain (the films' charge per metre from Table 1's
+constants). Imports nothing of FLAAIR.
+
+Physics the fitted model has no form for, each off by default:
+- `stop_rad`, `stop_stiffness_nm_per_rad`: a one-sided stop on the stroke (contact as an event);
+- `quartic_nm_per_rad4`: a torque of degree four in the stroke angle (the grammar stops at three);
+- `stiffness_drift_per_s`: the stroke stiffness drifting in time, K (1 + drift t);
+- `film_lag_s`: the hinge film reading the pitch through a first-order lag (a state the model
+  does not have).
+
+  python bench/independent_truth.py      # the nominal robot's gains and a chirp's peak stroke
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+__all__ = ["EPSILON_0", "Robot", "film_charge_per_m", "simulate"]
+
+EPSILON_0 = 8.854187817e-12  # F/m
+_RTOL, _ATOL = 1e-10, 1e-14
+
+
+def film_charge_per_m(
+    area_m2: float, backing_thickness_m: float, length_m: float, backing_modulus_pa: float
+) -> float:
+    """S of a PVDF film (Table 1's PVDF) on a backing beam: charge per metre of tip deflection."""
+    g31, eps_r, e_p, t_p = 0.216, 13.0, 2.8e9, 12e-6
+    e_b, t_b = backing_modulus_pa, backing_thickness_m
+    return (
+        g31 * EPSILON_0 * eps_r * e_p * area_m2 * e_b * t_b * (t_b + t_p)
+        / ((e_b * t_b + e_p * t_p) * length_m**2)
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Robot:
+    """The robot's physics in SI units (model-spec.md's nominal values by default)."""
+
+    stroke_inertia: float = 6.5e-11
+    stroke_hz: float = 140.0
+    aero_damping: float = 4.0e-11
+    actuator_gain: float = 1.67e-7
+    pitch_inertia: float = 2.0e-12
+    pitch_hz: float = 190.0
+    hinge_damping: float = 1.43e-9
+    inertial_coupling: float = 2.0e-12
+    aero_coupling: float = 1.5e-12
+    transmission_rad_per_m: float = 3000.0
+    stroke_film_c_per_m: float = film_charge_per_m(24.1e-6, 305e-6, 11.2e-3, 50e9)
+    pitch_film_c_per_m: float = film_charge_per_m(1.2e-6, 5e-6, 0.3e-3, 9e9)
+    hinge_length_m: float = 0.3e-3
+    stroke_amp_per_f: float = 1.6e9
+    pitch_amp_per_f: float = 1.7e9
+    reference_v: float = 1.25
+    stop_rad: float | None = None
+    stop_stiffness_nm_per_rad: float = 0.0
+    quartic_nm_per_rad4: float = 0.0
+    stiffness_drift_per_s: float = 0.0
+    film_lag_s: float = 0.0
+
+    @property
+    def stroke_stiffness(self) -> float:
+        """K = I (2 pi f)^2."""
+        return self.stroke_inertia * (2.0 * math.pi * self.stroke_hz) ** 2
+
+    @property
+    def hinge_stiffness(self) -> float:
+        """k_h = I_p (2 pi f_p)^2."""
+        return self.pitch_inertia * (2.0 * math.pi * self.pitch_hz) ** 2
+
+
+def _field(robot: Robot, volts: float, in_contact: bool):  # type: ignore[no-untyped-def]
+    """The vector field of [phi, phi', psi, psi', psi seen by the film] at a held drive."""
+    k, k_h = robot.stroke_stiffness, robot.hinge_stiffness
+
+    def f(t: float, y: np.ndarray) -> list[float]:
+        phi, dphi, psi, dpsi, seen = y
+        torque = robot.actuator_gain * volts - robot.aero_damping * abs(dphi) * dphi
+        torque -= k * (1.0 + robot.stiffness_drift_per_s * t) * phi
+        torque -= robot.quartic_nm_per_rad4 * phi**4
+        if in_contact:
+            torque -= robot.stop_stiffness_nm_per_rad * (phi - robot.stop_rad)
+        ddphi = torque / robot.stroke_inertia
+        ddpsi = (
+            -robot.inertial_coupling * ddphi
+            - robot.aero_coupling * abs(dphi) * dphi
+            - robot.hinge_damping * dpsi
+            - k_h * psi
+        ) / robot.pitch_inertia
+        dseen = (psi - seen) / robot.film_lag_s if robot.film_lag_s > 0 else dpsi
+        return [dphi, ddphi, dpsi, ddpsi, dseen]
+
+    return f
+
+
+def _stop_event(robot: Robot):  # type: ignore[no-untyped-def]
+    def crossing(t: float, y: np.ndarray) -> float:
+        return float(y[0] - robot.stop_rad)
+
+    crossing.terminal = True  # type: ignore[attr-defined]
+    return crossing
+
+
+def _step(robot: Robot, y: np.ndarray, t0: float, t1: float, volts: float) -> np.ndarray:
+    """The state at t1 from y at t0 under a held drive, restarting at every contact change."""
+    has_stop = robot.stop_rad is not None and robot.stop_stiffness_nm_per_rad > 0.0
+    while True:
+        in_contact = has_stop and y[0] > robot.stop_rad  # type: ignore[operator]
+        sol = solve_ivp(
+            _field(robot, volts, in_contact), (t0, t1), y, method="DOP853",
+            rtol=_RTOL, atol=_ATOL, events=_stop_event(robot) if has_stop else None,
+        )  # fmt: skip
+        if sol.status != 1:  # reached t1
+            return np.asarray(sol.y[:, -1])
+        t_event = float(sol.t_events[0][0])
+        y = np.asarray(sol.y_events[0][0], dtype=float)
+        # step just past the kink so the next call starts on the other side of it
+        y[0] += math.copysign(1e-15, y[1])
+        if t_event >= t1:
+            return y
+        t0 = t_event
+
+
+def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.ndarray]:
+    """Noise-free measured-run columns of `robot` driven by `drive_v` (held per sample) from
+    rest: sample k is the state at k / fs, the drive of sample k acting over [k, k + 1) / fs.
+    """
+    drive = np.asarray(drive_v, dtype=float)
+    n = drive.size
+    states = np.zeros((n, 5))
+    y = np.zeros(5)
+    for k in range(n):
+        states[k] = y
+        if k + 1 < n:
+            y = _step(robot, y, k / fs_hz, (k + 1) / fs_hz, float(drive[k]))
+    phi, psi, seen = states[:, 0], states[:, 2], states[:, 4]
+    stroke_q = -robot.stroke_film_c_per_m * phi / robot.transmission_rad_per_m
+    pitch_q = -robot.pitch_film_c_per_m * seen * robot.hinge_length_m / 2.0
+    return {
+        "time_s": np.arange(n) / fs_hz,
+        "drive_v": drive.copy(),
+        "stroke_sensor_v": robot.stroke_amp_per_f * stroke_q + robot.reference_v,
+        "pitch_sensor_v": robot.pitch_amp_per_f * pitch_q + robot.reference_v,
+        "stroke_deg": np.degrees(phi),
+        "pitch_deg": np.degrees(psi),
+    }
+
+
+def main() -> int:
+    robot = Robot()
+    stroke_gain = robot.transmission_rad_per_m / (
+        robot.stroke_amp_per_f * robot.stroke_film_c_per_m
+    )
+    pitch_gain = 2.0 / (robot.pitch_amp_per_f * robot.pitch_film_c_per_m * robot.hinge_length_m)
+    print(f"angle per volt: stroke {math.degrees(stroke_gain):.2f} deg/V, "
+          f"pitch {math.degrees(pitch_gain):.2f} deg/V (model-spec.md: 25.39, 24.87)")  # fmt: skip
+    t = np.arange(2000) / 20000.0
+    out = simulate(robot, 60.0 * np.sin(2.0 * math.pi * 140.0 * t), 20000.0)
+    print(f"60 V at 140 Hz for 0.1 s: peak stroke {np.abs(out['stroke_deg']).max():.2f} deg")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

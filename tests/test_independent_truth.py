@@ -1,0 +1,70 @@
+"""The benchmark's independent truth (bench/independent_truth.py) against the spec and against
+FLAAIR's own simulator: two codes that share nothing agree on the nominal robot, so either one
+checks the other; a stop holds the stroke where a contact of its stiffness can.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flaair_model.model_io import load_model
+from flaair_sim.core.drive import chirp
+from flaair_sim.core.plant import simulate
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+import independent_truth as truth  # the benchmark's module, beside its scripts
+
+FS_HZ = 20000.0
+pytestmark = pytest.mark.timeout(60)
+
+
+def test_the_films_angle_per_volt_is_the_specs() -> None:
+    """model-spec.md: 25.39 deg/V (stroke) and 24.87 deg/V (pitch), from Table 1's constants."""
+    r = truth.Robot()
+    stroke = r.transmission_rad_per_m / (r.stroke_amp_per_f * r.stroke_film_c_per_m)
+    pitch = 2.0 / (r.pitch_amp_per_f * r.pitch_film_c_per_m * r.hinge_length_m)
+    assert math.degrees(stroke) == pytest.approx(25.39, abs=0.005)
+    assert math.degrees(pitch) == pytest.approx(24.87, abs=0.005)
+
+
+def test_the_nominal_robot_agrees_with_flaairs_simulator_within_the_specs_005_deg() -> None:
+    t = np.arange(3000) / FS_HZ
+    drive = chirp(t, 90.0, 60.0, 260.0, t[-1])
+    ours = truth.simulate(truth.Robot(), drive, FS_HZ)
+    theirs = simulate(drive, FS_HZ, load_model())
+    assert np.abs(ours["stroke_deg"]).max() > 10.0  # a response worth comparing
+    assert np.abs(ours["stroke_deg"] - np.degrees(theirs.stroke_rad)).max() < 0.05
+    assert np.abs(ours["pitch_deg"] - np.degrees(theirs.pitch_rad)).max() < 0.05
+    for name in ("stroke_sensor_v", "pitch_sensor_v"):
+        # 0.05 deg through 25 deg/V
+        assert np.abs(ours[name] - getattr(theirs, name)).max() < 0.05 / 24.0
+
+
+def test_a_stop_holds_the_stroke_within_what_its_stiffness_lets_through() -> None:
+    """A stop at 10 deg of 100 x the stroke stiffness K: the stroke passes it by at most
+    sqrt((phi_free^2 - stop^2) / 100) (the energy K (phi_free^2 - stop^2) / 2 the free swing
+    has left at the stop, all stored in the stop's spring: an upper bound); before the first
+    contact the two runs are the same.
+    """
+    t = np.arange(1200) / FS_HZ
+    drive = 60.0 * np.sin(2.0 * math.pi * 140.0 * t)
+    free = truth.simulate(truth.Robot(), drive, FS_HZ)["stroke_deg"]
+    r = truth.Robot()
+    stopped = truth.simulate(
+        replace(
+            r, stop_rad=math.radians(10.0), stop_stiffness_nm_per_rad=100.0 * r.stroke_stiffness
+        ),
+        drive,
+        FS_HZ,
+    )["stroke_deg"]
+    assert free.max() > 20.0
+    bound = math.sqrt((free.max() ** 2 - 10.0**2) / 100.0)
+    assert 10.0 < stopped.max() <= 10.0 + bound
+    first = int(np.argmax(free > 10.0))
+    np.testing.assert_allclose(stopped[:first], free[:first], atol=1e-9)
