@@ -13,7 +13,7 @@ import numpy as np
 from flaair_bridge import udp
 from flaair_bridge.core import bridge_params, bridge_state
 from flaair_common.diagnostics import ERROR, OK, WARN, Health, health, loss_percent
-from flaair_model.schema import ParameterError, ParamSpec
+from flaair_model.schema import STREAM_PARAMS, ParameterError, ParamSpec
 
 __all__ = [
     "PARAMS",
@@ -29,14 +29,8 @@ __all__ = [
 
 
 PARAMS = [
-    ParamSpec(
-        "sample_rate_hz",
-        float,
-        "Sample rate of the target and every block stream [Hz]",
-        1000.0,
-        1.0e6,
-        read_only=True,
-    ),
+    *(p for p in STREAM_PARAMS if p.name != "block_size"),
+    # the protocol's packets hold 1..1000 samples (realtime-target-protocol.md)
     ParamSpec("block_size", int, "Samples per published block", 1, 1000, read_only=True),
     ParamSpec(
         "drive_limit_v",

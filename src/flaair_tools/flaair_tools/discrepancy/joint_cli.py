@@ -63,8 +63,8 @@ def _outputs(args: argparse.Namespace, files: tuple[str, ...]) -> list[Path]:
 @dataclass(frozen=True)
 class _Inputs:
     """What a joint command fits: the model, the table settings, the table (or None), the
-    time-series runs, the multisine set (its runs and spectra, or none), the noise of the runs
-    searched.
+    time-series runs, the multisine set (its runs and spectra, or none), the runs the search
+    works on (the time-series runs, or the set's own when there are none) and their noise.
     """
 
     model: Model
@@ -73,6 +73,7 @@ class _Inputs:
     runs: list[Run]
     multisine: list[Run]
     spectra: SpectrumEvidence | None
+    searched: list[Run]
     noise: dict[str, float]
 
     @property
@@ -115,7 +116,7 @@ def _load(args: argparse.Namespace) -> _Inputs:
     noise = (
         noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
     )
-    return _Inputs(model, s, table, runs, multisine, spectra, noise)
+    return _Inputs(model, s, table, runs, multisine, spectra, searched, noise)
 
 
 def _run(prog: str, args: argparse.Namespace, files: tuple[str, ...], compute) -> Any:
@@ -232,7 +233,7 @@ def discrepancy(args: argparse.Namespace) -> int:
             i.s,
             workflow,
             spectra=i.spectra,
-            search_runs=check_runs(i.multisine) if not i.runs else (),
+            search_runs=i.searched,
             drive_limit_v=drive_limit_v,
         )
 
@@ -240,7 +241,7 @@ def discrepancy(args: argparse.Namespace) -> int:
     if isinstance(done, int):
         return done
     written, inputs, result, elapsed = done
-    report_runs = list(result.joint.runs) or check_runs(inputs.multisine)
+    report_runs = list(result.joint.runs) or inputs.searched
 
     def write_files(stage: Path) -> None:
         model_path = args.out / "model.yaml"
