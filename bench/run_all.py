@@ -102,7 +102,7 @@ PARTS = (
     # multisine set (10 s; the script's --all-discrepancy-robots adds two more, 20 s)
     Part("bench_multisine", 60, 90),
 )
-# 15 minutes until bench_multisine came: its 60 s made the quick budgets add up to 960 s
+# the quick budgets add up to 960 s
 BENCH_BUDGET_S = 16 * 60.0
 
 
