@@ -53,6 +53,7 @@ from flaair_tools.multisine.drives import design_of, realization_runs
 from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.bench_robot import robot_model, robot_section, write_robot_model
 from flaair_tools.orchestration.graphs import GRAPHS, node_of
+from flaair_tools.recorder.recorder_io import RECORDER_PARAMS
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
 # recorder, plant (lockstep), front end; a spec adds its nodes and driver
@@ -288,8 +289,8 @@ DRIVE_LISTENERS = ("plant", "recorder", "health", "collision_monitor")
 
 def listeners_needed(spec: ExperimentSpec) -> list[tuple[str, str]]:
     """(node, topic) of every subscription that must be seen before anything flows: the
-    recorder on each recorded topic, every drive listener on the drive, the front end on the
-    films, the monitor and the controller on the wing state.
+    recorder on each recorded topic (/clock too when it records it), every drive listener on
+    the drive, the front end on the films, the monitor and the controller on the wing state.
     """
     recorded = [
         topics.SENSOR_VOLTAGE,
@@ -299,6 +300,9 @@ def listeners_needed(spec: ExperimentSpec) -> list[tuple[str, str]]:
         bagio.RUN_MARKER_TOPIC,
         EXPERIMENT_TOPIC,
     ]
+    if settings.node_section(RECORDER_PARAMS, "recorder_node", "flaair.yaml")["record_clock"]:
+        # the plant publishes /clock from its first step: a late match loses its first ticks
+        recorded.append(topics.CLOCK)
     node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
     consumers = [
         (node_name[role], topics.DRIVE)
