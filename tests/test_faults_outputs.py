@@ -103,7 +103,7 @@ def test_an_existing_model_yaml_in_out_is_kept_and_nothing_computed(
 ) -> None:
     from flaair_tools.discrepancy import cli, identify
 
-    monkeypatch.setattr(identify, "identify_plant", _never("identify_plant"))
+    monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
     monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
     out = tmp_path / "out"
     out.mkdir()
@@ -118,7 +118,7 @@ def test_out_config_never_replaces_the_projects_model(
 ) -> None:
     from flaair_tools.discrepancy import cli, identify
 
-    monkeypatch.setattr(identify, "identify_plant", _never("identify_plant"))
+    monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
     monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
     env = {**isolated_env(), "FLAAIR_CONFIG_DIR": str(config_copy)}
     before = (config_copy / "model.yaml").read_bytes()
@@ -134,7 +134,7 @@ def test_an_out_that_cannot_be_written_is_refused_before_the_analysis(
 ) -> None:
     from flaair_tools.discrepancy import cli, identify
 
-    monkeypatch.setattr(identify, "identify_plant", _never("identify_plant"))
+    monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
     monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
     if where == "a file":
         out = tmp_path / "report.txt"

@@ -30,6 +30,8 @@ from flaair_common.runcsv import write_run
 from flaair_model.model_io import load_model
 from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.plant import simulate, simulate_batch_from
+from flaair_tools.discrepancy import identify
+from flaair_tools.discrepancy.run_inputs import runs_from_csv
 from rosproc import FLAAIR, isolated_env, run, run_offline
 from test_discrepancy import write_case_csvs  # the case's runs as measured-run CSV files
 
@@ -209,3 +211,33 @@ def test_bin_flaair_identify_bad_input_exits_2_without_traceback(kind: str, tmp_
     assert proc.returncode == 2
     assert words in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "out" / "model.yaml").exists()
+
+
+@pytest.mark.timeout(120)
+def test_one_identification_document_whatever_the_mix(tmp_path: Path) -> None:
+    """Runs alone, a table alone and both: one command, one document with the same keys; each
+    lone set keeps its own fit (the runs' equal to `identify_plant` on them), the mix is fitted
+    on both.
+    """
+    run_csv = REPO / "examples" / "runs" / "run01.csv"
+    table_csv = REPO / "examples" / "sweep_table" / "robot_sweep.csv"
+    docs = {}
+    for name, inputs in (
+        ("runs", [run_csv]),
+        ("table", [table_csv]),
+        ("both", [run_csv, table_csv]),
+    ):
+        out = tmp_path / name
+        assert identify.main([*map(str, inputs), "--out", str(out)]) == 0
+        docs[name] = json.loads((out / "identification.json").read_text())
+    assert len({tuple(d) for d in docs.values()}) == 1, {n: list(d) for n, d in docs.items()}
+    assert list(docs["runs"]["data_sets"]) == ["runs"] and docs["runs"]["table"] is None
+    assert list(docs["table"]["data_sets"]) == ["table"] and docs["table"]["runs"] == []
+    assert set(docs["both"]["data_sets"]) == {"runs", "table"}
+    model = load_model()
+    runs = check_runs([runs_from_csv(run_csv)])
+    direct = identify_plant(
+        runs, model, noise_estimates(runs, simulate_runs([model], runs)[0], model)
+    )
+    for k, p in docs["runs"]["parameters"].items():
+        assert p["value"] == direct.values[k]  # the runs' own fit, to the last digit

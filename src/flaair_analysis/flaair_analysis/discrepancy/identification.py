@@ -60,6 +60,7 @@ __all__ = [
     "fit_stages",
     "frequency_domain_start",
     "identify_plant",
+    "inseparable_notes",
 ]
 
 # |correlation| above which two parameters are reported as not separated
@@ -129,6 +130,27 @@ class PlantFit:
             "chi2_per_sample_before": self.cost_before / max(self.n, 1),
             "chi2_per_sample_after": self.cost_after / max(self.n, 1),
         }
+
+
+def inseparable_notes(
+    keys: Sequence[str], rel_se: Sequence[float] | np.ndarray, corr: np.ndarray, by: str
+) -> list[str]:
+    """What the data cannot separate, one sentence each: the pairs whose |correlation| is above
+    `INSEPARABLE_CORRELATION`, the parameters whose relative standard error (`rel_se`, in the
+    order of `keys`) is above `UNDETERMINED_REL_SE`; `by` names the data ("these runs").
+    """
+    notes = []
+    for i in range(len(keys)):
+        for j in range(i + 1, len(keys)):
+            if abs(corr[i, j]) > INSEPARABLE_CORRELATION:
+                notes.append(
+                    f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): {by} fix only "
+                    "a combination of the two"
+                )
+    for i, k in enumerate(keys):
+        if not rel_se[i] < UNDETERMINED_REL_SE:
+            notes.append(f"{k}: relative standard error {rel_se[i]:.0%}, not determined by {by}")
+    return notes
 
 
 def _finite(x: float) -> float | None:
@@ -380,19 +402,7 @@ def identify_plant(
     n = sum(fit.n[0] for fit in fits)
     current, runs = staged.model, list(staged.runs)
     stderr = {k: float(values[k] * sd[i]) for i, k in enumerate(keys)}  # log-space SE x value
-    inseparable = []
-    for i in range(len(keys)):
-        for j in range(i + 1, len(keys)):
-            if abs(corr[i, j]) > INSEPARABLE_CORRELATION:
-                inseparable.append(
-                    f"{keys[i]} and {keys[j]} (correlation {corr[i, j]:+.3f}): the "
-                    "runs fix only a combination of the two"
-                )
-    for i, k in enumerate(keys):
-        if not sd[i] < UNDETERMINED_REL_SE:
-            inseparable.append(
-                f"{k}: relative standard error {sd[i]:.0%}, not determined by these runs"
-            )
+    inseparable = inseparable_notes(keys, sd, corr, "these runs")
     return PlantFit(
         model=current,
         keys=keys,

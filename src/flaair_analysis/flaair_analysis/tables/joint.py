@@ -42,6 +42,8 @@ from flaair_analysis.discrepancy.identification import (
     Stage,
     fit_stages,
     frequency_domain_start,
+    identify_plant,
+    inseparable_notes,
 )
 from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
@@ -50,7 +52,7 @@ from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
-from .fit import PITCH_KEYS, STROKE_KEYS, identify_table, plant_params
+from .fit import PITCH_KEYS, STROKE_KEYS, TableFit, identify_table, plant_params
 from .reader import Table
 from .steady_state import steady_response
 from .table_evidence import TableEvidence, normalised_residuals, stack_cells
@@ -58,13 +60,16 @@ from .table_evidence import TableEvidence, normalised_residuals, stack_cells
 __all__ = [
     "JointFit",
     "SetAgreement",
+    "identify_evidence",
     "identify_joint",
     "prediction_scores",
     "run_scores",
+    "table_identification",
     "table_scores",
 ]
 
 _SIDES = (("stroke", "stroke_deg", STROKE_KEYS), ("pitch", "pitch_deg", PITCH_KEYS))
+_ALONE = "one set: its residuals in units of its noise"
 _BIRGE_REFIT = 1.2  # a set's chi-square per residual above which the stage is refitted weighted
 
 
@@ -110,6 +115,9 @@ class JointFit:
     runs : the runs with their initial states fitted along with the plant.
     agreement : {"runs": SetAgreement, "table": SetAgreement}.
     warnings : sets that disagree (one sentence each); notes: what the data cannot tell.
+    nfev : the fit's evaluations (every stage).
+    inseparable : the combinations the data cannot separate (`inseparable_notes`).
+    weighting : how the sets' residuals are weighed, in words.
     """
 
     model: Model
@@ -126,6 +134,8 @@ class JointFit:
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
     nfev: int
+    inseparable: tuple[str, ...] = ()
+    weighting: str = "sum of chi-squares; a set above its noise divided by its Birge ratio"
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready (NaN and inf as None)."""
@@ -161,10 +171,11 @@ class JointFit:
                 }
                 for name, a in self.agreement.items()
             },
+            "inseparable": list(self.inseparable),
             "agree": not self.warnings,
             "warnings": list(self.warnings),
             "notes": list(self.notes),
-            "weighting": "sum of chi-squares; a set above its noise divided by its Birge ratio",
+            "weighting": self.weighting,
         }
 
 
@@ -350,6 +361,14 @@ def identify_joint(
             "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
         )
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
+    rel_se = [sd[i] if k in staged.values else math.nan for i, k in enumerate(keys)]
+    fitted = [i for i, k in enumerate(keys) if k in staged.values]
+    inseparable = inseparable_notes(
+        [keys[i] for i in fitted],
+        [rel_se[i] for i in fitted],
+        corr[np.ix_(fitted, fitted)],
+        "these sets" if len(agreement) > 1 else f"the {next(iter(agreement), 'data')}",
+    )
     return JointFit(
         model=current,
         keys=tuple(keys),
@@ -365,6 +384,113 @@ def identify_joint(
         warnings=tuple(warnings),
         notes=tuple(notes),
         nfev=nfev,
+        inseparable=tuple(inseparable),
+    )
+
+
+def identify_evidence(
+    runs: Sequence[Run],
+    table: Table | None,
+    model: Model,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    decimate: int = DECIMATE,
+    spectra: SpectrumEvidence | None = None,
+) -> JointFit:
+    """The plant fitted on whatever evidence of one robot is given: the one identification.
+
+    Runs alone are fitted as `identification.identify_plant` (started from the better of the
+    model and the runs' frequency-domain estimate, within its fit range), a table alone as
+    `fit.identify_table` (started from its peaks, within the tables' range), and any other mix
+    (runs and a table, a multisine set with or without either) by `identify_joint` (started
+    from the table fitted alone or the runs' estimate, each set weighed by its chi-square). Each
+    is a choice of stages for `fit_stages`; the result is one `JointFit` with each set's
+    agreement. Parameters as `identify_joint`.
+    """
+    runs = list(runs)
+    if table is None and spectra is None:
+        return _runs_alone(runs, model, noise, decimate)
+    if not runs and spectra is None and table is not None:
+        return _table_alone(table, model, s)
+    return identify_joint(runs, table, model, noise, s, decimate, spectra)
+
+
+def _sides(keys: Sequence[str]) -> dict[str, float]:
+    """A weight of 1 for each side with a fitted key (a lone set is never down-weighted)."""
+    return {side: 1.0 for side, _, side_keys in _SIDES if set(side_keys) & set(keys)}
+
+
+def _runs_alone(
+    runs: list[Run], model: Model, noise: Mapping[str, float], decimate: int
+) -> JointFit:
+    fit = identify_plant(runs, model, noise, decimate=decimate)
+    ratio, nrmse, n, chi2 = run_scores(fit.runs, fit.model, noise, decimate)
+    return JointFit(
+        model=fit.model,
+        keys=tuple(fit.keys),
+        values=dict(fit.values),
+        nominal=dict(fit.nominal),
+        start=dict(fit.start),
+        stderr=dict(fit.stderr),
+        table_alone={},
+        runs_start=dict(fit.start),
+        correlation=fit.correlation,
+        runs=fit.runs,
+        agreement={"runs": SetAgreement("runs", n, chi2, ratio, nrmse, _sides(fit.keys))},
+        warnings=(),
+        notes=(),
+        nfev=0,
+        inseparable=fit.inseparable,
+        weighting=_ALONE,
+    )
+
+
+def _table_alone(table: Table, model: Model, s: TableSettings) -> JointFit:
+    return table_identification(table, model, s, *identify_table(table, model, s))
+
+
+def table_identification(
+    table: Table,
+    model: Model,
+    s: TableSettings,
+    fitted: Model,
+    fits: Sequence[TableFit],
+    start: Mapping[str, float],
+    notes: Sequence[str],
+) -> JointFit:
+    """A table's own identification (`fit.identify_table`'s outputs, from `model`) as the one
+    identification result: each stage's parameters, the correlation within each stage, the
+    table's agreement, its misfit warnings.
+    """
+    keys = tuple(p.key.removeprefix("plant.") for f in fits for p in f.params)
+    values = {p.key.removeprefix("plant."): f.values[p.key] for f in fits for p in f.params}
+    stderr = {p.key.removeprefix("plant."): f.stderr[p.key] for f in fits for p in f.params}
+    corr = np.full((len(keys), len(keys)), np.nan)
+    at = 0
+    for f in fits:
+        block = slice(at, at + len(f.params))
+        corr[block, block] = f.correlation
+        at += len(f.params)
+    ratio, nrmse, n, chi2 = table_scores(table, fitted, s)
+    rel_se = [abs(stderr[k] / values[k]) if values[k] else math.inf for k in keys]
+    warnings = tuple(n.removeprefix("warning: ") for n in notes if n.startswith("warning: "))
+    return JointFit(
+        model=fitted,
+        keys=keys,
+        values=values,
+        nominal={k: float(getattr(model.plant, k)) for k in keys},
+        start={k: float(start.get(k, values[k])) for k in keys},
+        stderr=stderr,
+        table_alone=dict(values),
+        runs_start={},
+        correlation=corr,
+        runs=(),
+        agreement={"table": SetAgreement("table", n, chi2, ratio, nrmse, _sides(keys))},
+        warnings=warnings,
+        notes=tuple(n for n in notes if not n.startswith("warning: ")),
+        nfev=sum(f.nfev for f in fits),
+        inseparable=tuple(inseparable_notes(keys, rel_se, corr, "the table's cells")),
+        weighting=_ALONE,
     )
 
 

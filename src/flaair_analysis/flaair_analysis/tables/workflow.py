@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 
@@ -45,6 +44,7 @@ from .fit import (
     plant_params,
     with_values,
 )
+from .joint import JointFit, table_identification
 from .reader import Table
 from .steady_state import steady_response
 from .table_evidence import TableEvidence, normalised_residuals, stack_cells
@@ -108,7 +108,7 @@ class TableDiscrepancy:
     model_in: Model
     identified: Model
     model_out: Model
-    identification: dict[str, Any]
+    identification: JointFit
     accepted: list[Judged]
     tried: list[Judged]
     gaps: dict[str, dict[str, float | None]]  # stage -> column -> NRMSE on held-out levels
@@ -342,7 +342,7 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
     """Fit the plant, search what a table can show, judge on held-out levels (module docstring)."""
     before_pred = _predict(table, model, s)
     identified, fits, start, notes = identify_table(table, model, s)
-    ident = {"fits": fits, "start": start, "notes": list(notes)}
+    ident = table_identification(table, model, s, identified, fits, start, notes)
     gaps: dict[str, dict[str, float | None]] = {}
     ratios: dict[str, dict[str, float | None]] = {}
     preds: dict[str, dict[str, np.ndarray]] = {"before": before_pred}

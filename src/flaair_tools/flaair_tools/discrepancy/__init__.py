@@ -2,9 +2,11 @@
 workflow in `flaair_analysis.discrepancy`.
 
 Modules:
-- `cli`: `bin/flaair discrepancy` (runs from CSV files or bags, the workflow, the report)
-- `identify`: `bin/flaair identify` (the grey-box plant fit alone)
-- `joint_cli`: `identify` and `discrepancy` on runs and a table of the same robot together
+- `cli`: `bin/flaair discrepancy` (any mix of runs, bags, tables and multisine sets; the
+  workflow, the report)
+- `identify`: `bin/flaair identify` (the grey-box plant fit alone, on any mix)
+- `evidence_inputs`: a command's evidence read and recognised by content, and the one way both
+  commands check outputs, load, compute and refuse bad input
 - `run_inputs`: runs from CSV files and bags, and the errors reported in one line
 - `report`: the report's JSON, Markdown and HTML pages and the validation table
 - `report_figures`: the report's figures (matplotlib, no pyplot)

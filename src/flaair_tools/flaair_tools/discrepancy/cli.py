@@ -41,6 +41,7 @@ Terms (gap, held-out, vocabulary, discovered): docs/GLOSSARY.md.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Sequence
@@ -53,15 +54,20 @@ from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.scoring import confusion_table, score_case
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
+from flaair_analysis.tables.joint_workflow import JointDiscrepancy, analyse_joint
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
+from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
+from flaair_model.config import ConfigError
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
-from flaair_model.settings import DiscrepancySettings
+from flaair_model.settings import DiscrepancySettings, node_section
+from flaair_sim.plant_io import PLANT_PARAMS
 from flaair_tools.tables.discrepancy_cli import run as table_discrepancy
 
-from .joint_cli import discrepancy as joint_discrepancy
+from .evidence_inputs import CommandInputs, run_command
+from .identify import print_fit
 from .report import write_report, write_validation
 from .run_inputs import InputError, bad_input_errors, preload, sort_inputs, split_multisine
 from .validation_file import read_validation
@@ -157,8 +163,7 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-        args.loaded = None
-        return joint_discrepancy(args) if args.inputs else table_discrepancy(args)
+        return _discrepancy_sets(args, None) if args.inputs else table_discrepancy(args)
     loaded = preload(PROG, args.inputs) if args.inputs else []
     if isinstance(loaded, int):
         return loaded
@@ -170,8 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-        args.loaded = loaded
-        return joint_discrepancy(args)
+        return _discrepancy_sets(args, loaded)
     return _discrepancy_runs(args, loaded)
 
 
@@ -213,6 +217,74 @@ def _discrepancy_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
         return failed
     if result is not None:
         _print_result(runs, result, elapsed, args.out)
+    return 0
+
+
+def _discrepancy_sets(args: argparse.Namespace, loaded: list[Run] | None) -> int:
+    """The workflow on several sets (runs and a table, a multisine set with or without either):
+    the runs' search from the plant fitted on every set, its findings checked on every other set.
+    """
+    try:
+        workflow = config.discrepancy()
+        drive_limit_v = float(
+            node_section(PLANT_PARAMS, "plant_node", "flaair.yaml")["drive_limit_v"]
+        )
+    except ConfigError as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+
+    def compute(i: CommandInputs) -> JointDiscrepancy:
+        return analyse_joint(
+            i.runs,
+            i.table,
+            i.model,
+            i.noise,
+            i.s,
+            workflow,
+            spectra=i.spectra,
+            search_runs=i.searched,
+            drive_limit_v=drive_limit_v,
+        )
+
+    done = run_command(PROG, args, REPORT_FILES, compute, loaded)
+    if isinstance(done, int):
+        return done
+    written, inputs, result, elapsed = done
+    report_runs = list(result.joint.runs) or inputs.searched
+
+    def write_files(stage: Path) -> None:
+        model_path = args.out / "model.yaml"
+        save_model(result.model_out, stage / "model.yaml")
+        joint = json_safe(result.as_dict())
+        doc = write_report(
+            stage, report_runs, result.runs_result, str(model_path), workflow, joint=joint
+        )
+        doc["status"] = result.status
+        doc["joint"] = joint
+        text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
+        (stage / "discrepancy.json").write_text(text, encoding="utf-8")
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
+    print(f"{PROG}: {inputs.what} in {elapsed:.1f} s: status {result.status}")
+    print_fit(PROG, inputs, result.final or result.joint, None)
+    for c, g in result.runs_result.gap_before.items():
+        print(f"  {c:16s} NRMSE {g:.4f} -> {result.runs_result.gap_after[c]:.4f} (held-out runs)")
+    for before, after in (
+        (result.table_before, result.table_after),
+        (result.spectra_before, result.spectra_after),
+    ):
+        if before is None or after is None:
+            continue
+        print(
+            f"  {before.kind}: chi2 per residual {before.chi2 / max(before.n, 1):.2f} -> "
+            f"{after.chi2 / max(after.n, 1):.2f}"
+        )
+        for c, v in before.nrmse.items():
+            print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} ({before.kind})")
+    for note in result.notes:
+        print(f"  note: {note}")
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'discrepancy.json'}, report.html")
     return 0
 
 

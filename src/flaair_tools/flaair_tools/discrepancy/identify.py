@@ -14,14 +14,16 @@ fabrication-known and stay.
 
 Writes into --out DIR:
   model.yaml           the input model with the fitted plant parameters (as config/model.yaml)
-  identification.json  per parameter: value, nominal, start, stderr; correlations; the
-                       combinations the runs cannot separate
+  identification.json  the inputs; per parameter: value, nominal, start, stderr; correlations;
+                       the combinations the data cannot separate; per data set its agreement;
+                       warnings and notes
 
 Exit status: 0 when fitted, 2 on bad input, 130 when interrupted (Ctrl-C / SIGTERM).
 
-With a table alone the plant is fitted to the table's cells (started from its peaks); with runs
-beside a table or a multisine set, or with a multisine set alone, to every set at once, and
-identification.json says whether the sets agree (docs/TABLES.md).
+Runs alone start from the better of the model and their frequency-domain estimate; a table alone
+from its own peaks; any other mix from the table fitted alone (or the runs' estimate), every set
+fitted at once, each weighed by its chi-square. identification.json is one document whatever the
+mix: per data set its residual over its noise, and whether the sets agree (docs/TABLES.md).
 
 Examples
 --------
@@ -37,29 +39,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import time
 from pathlib import Path
 
-from tqdm import tqdm
-
-from flaair_analysis.discrepancy.diagnosis import noise_estimates
-from flaair_analysis.discrepancy.identification import identify_plant
-from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
+from flaair_analysis.tables.joint import JointFit, identify_evidence
 from flaair_common.cli_help import HelpFormatter
-from flaair_common.outputs import check_output, write_outputs
+from flaair_common.outputs import write_outputs
 from flaair_common.strictjson import json_safe
-from flaair_model.model_io import load_model, save_model
-from flaair_tools.discrepancy.run_inputs import (
-    bad_input_errors,
-    preload,
-    sort_inputs,
-    split_multisine,
-)
-from flaair_tools.tables.identify_cli import run as table_identify
+from flaair_model.model_io import save_model
+from flaair_tools.tables.report import table_doc
 
-from .joint_cli import identify as joint_identify
+from .evidence_inputs import CommandInputs, run_command
+from .run_inputs import sort_inputs
 
 PROG = "flaair identify"
 USAGE = (
@@ -68,10 +59,6 @@ USAGE = (
     "       set's runs; any mix)"
 )
 OUT_FILES = ("model.yaml", "identification.json")
-
-
-def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -107,6 +94,33 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def compute(inputs: CommandInputs) -> JointFit:
+    """The one identification on the command's evidence."""
+    return identify_evidence(
+        inputs.runs, inputs.table, inputs.model, inputs.noise, inputs.s, spectra=inputs.spectra
+    )
+
+
+def identification_doc(
+    inputs: CommandInputs, fit: JointFit, args: argparse.Namespace, seconds: float
+) -> dict:
+    """identification.json: the inputs, the fit (`JointFit.as_dict`), where it came from."""
+    table = inputs.table
+    return json_safe(
+        {
+            "runs": [r.name for r in inputs.runs],
+            "multisine_runs": [r.name for r in inputs.multisine],
+            "table": table.name if table is not None else None,
+            "table_points": table.n_points if table is not None else 0,
+            "table_summary": table_doc(table) if table is not None else None,
+            "model_in": str(args.model or "config/model.yaml"),
+            "model_out": str(args.out / "model.yaml"),
+            "seconds": seconds,
+            **fit.as_dict(),
+        }
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     """`flaair identify INPUT... [--model FILE] --out DIR`; returns the exit status."""
     parser = _parser()
@@ -114,70 +128,61 @@ def main(argv: list[str] | None = None) -> int:
     args.inputs, args.table = sort_inputs(args.inputs, args.table)
     if not args.inputs and not args.table:
         parser.error("give measured-run CSV files, bags or a frequency-response table")
-    args.loaded = None
-    if args.table:
-        return joint_identify(args) if args.inputs else table_identify(args)
-    loaded = preload(PROG, args.inputs)
-    if isinstance(loaded, int):
-        return loaded
-    if split_multisine(loaded)[1]:  # line spectra among the evidence: the joint fit
-        args.loaded = loaded
-        return joint_identify(args)
-    return _identify_runs(args, loaded)
-
-
-def _identify_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
-    """The plant fitted to runs alone; the exit status."""
-    previous = signal.signal(signal.SIGTERM, _terminate)
-    try:
-        written = check_output(args.out, [*args.inputs, args.model], args.force, OUT_FILES)
-        with tqdm(total=3, desc="identify", unit="step", file=sys.stderr, leave=False) as bar:
-            bar.set_postfix_str("read runs")
-            model = load_model(args.model)
-            runs = check_runs(loaded)
-            bar.update(1)
-            bar.set_postfix_str("noise")
-            noise = noise_estimates(runs, simulate_runs([model], runs)[0], model)
-            bar.update(1)
-            bar.set_postfix_str("fit plant")
-            t0 = time.perf_counter()
-            fit = identify_plant(runs, model, noise)
-            elapsed = time.perf_counter() - t0
-            bar.update(1)
-    except bad_input_errors() as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted; nothing written", file=sys.stderr)
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    doc = json_safe(
-        {
-            "runs": [r.name for r in runs],
-            "model_in": str(args.model or "config/model.yaml"),
-            "model_out": str(args.out / "model.yaml"),
-            **fit.as_dict(),
-        }
-    )
+    done = run_command(PROG, args, OUT_FILES, compute)
+    if isinstance(done, int):
+        return done
+    written, inputs, fit, elapsed = done
+    doc = identification_doc(inputs, fit, args, elapsed)
 
     def write_files(stage: Path) -> None:
         save_model(fit.model, stage / "model.yaml")
-        (stage / "identification.json").write_text(
-            json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8"
-        )
+        text = json.dumps(doc, indent=2, allow_nan=False)
+        (stage / "identification.json").write_text(text, encoding="utf-8")
 
     if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
         return failed
-    print(f"{PROG}: {len(runs)} run(s), plant fitted in {elapsed:.1f} s")
+    print_fit(PROG, inputs, fit, elapsed)
+    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
+    return 0
+
+
+def _agreement(fit: JointFit) -> str:
+    parts = []
+    for name, a in fit.agreement.items():
+        worst = max(a.noise_ratio.values(), default=float("nan"))
+        parts.append(f"{name} {worst:.2f}x noise")
+    return ", ".join(parts)
+
+
+def print_fit(prog: str, inputs: CommandInputs, fit: JointFit, elapsed: float | None) -> None:
+    """The fit in a few lines: the summary (with `elapsed`), each parameter, each set's
+    agreement, what the data cannot separate, notes; warnings on stderr.
+    """
+    if elapsed is not None:
+        only = f"the {next(iter(fit.agreement))}" if len(fit.agreement) == 1 else ""
+        sets = only or {2: "both"}.get(len(fit.agreement), "every set")
+        verdict = "the sets agree" if not fit.warnings else "the sets DISAGREE (see warning)"
+        if len(fit.agreement) == 1:
+            verdict = "at its noise" if not fit.warnings else "a gap above noise (see warning)"
+        print(
+            f"{prog}: {inputs.what}, plant fitted on {sets} in {elapsed:.1f} s: "
+            f"{_agreement(fit)}; {verdict}"
+        )
     print(f"  {'parameter':30s} {'fitted':>11s} {'model':>11s} {'change':>8s} {'rel. SE':>8s}")
     for k in fit.keys:
         v, nom, se = fit.values[k], fit.nominal[k], fit.stderr[k]
         print(f"  {k:30s} {v:11.5g} {nom:11.5g} {v / nom - 1.0:+8.2%} {se / v:8.2%}")
+    for name, a in fit.agreement.items():
+        cols = ", ".join(
+            f"{c} {v:.2f}x noise (NRMSE {a.nrmse[c]:.4f})" for c, v in a.noise_ratio.items()
+        )
+        print(f"  {name}: {cols}")
     for note in fit.inseparable:
         print(f"  cannot separate: {note}")
-    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'identification.json'}")
-    return 0
+    for note in fit.notes:
+        print(f"  note: {note}")
+    for w in fit.warnings:
+        print(f"{prog}: warning: {w}", file=sys.stderr)
 
 
 if __name__ == "__main__":

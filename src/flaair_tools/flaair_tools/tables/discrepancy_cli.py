@@ -25,7 +25,7 @@ from flaair_analysis.tables.workflow import analyse_table
 from flaair_common.outputs import write_outputs
 from flaair_model.model_io import save_model
 
-from .identify_cli import computed, table_outputs, warn
+from .command import computed, table_outputs, warn
 from .report import write_report
 
 PROG = "flaair discrepancy"

@@ -1,5 +1,5 @@
-"""Documents and the report of the table workflow (discrepancy.json, identification.json,
-report.html and its figures). A shell module: matplotlib and Jinja2 are imported here only.
+"""Documents and the report of the table workflow (discrepancy.json, report.html and its
+figures). A shell module: matplotlib and Jinja2 are imported here only.
 """
 
 from __future__ import annotations
@@ -19,22 +19,17 @@ from flaair_analysis.tables.reader import Table, summarise
 from flaair_analysis.tables.steady_state import steady_response
 from flaair_analysis.tables.workflow import NOT_SEARCHED, Judged, TableDiscrepancy
 from flaair_common.strictjson import json_safe
-from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
 from flaair_sensors.figures import literal_texts
 
 __all__ = [
     "discrepancy_doc",
-    "identification_doc",
     "response_figure",
     "summary_line",
     "table_doc",
     "write_report",
 ]
-
-INSEPARABLE_CORRELATION = 0.95
-UNDETERMINED_REL_SE = 0.10
 
 
 def table_doc(table: Table) -> dict[str, Any]:
@@ -47,59 +42,6 @@ def table_doc(table: Table) -> dict[str, Any]:
         "frequency_range_hz": [table.frequency_hz.min(), table.frequency_hz.max()],
         "responses": {c: int(np.isfinite(v).sum()) for c, v in table.responses.items()},
         "peaks": [s.__dict__ for s in summarise(table)],
-    }
-
-
-def identification_doc(
-    table: Table,
-    model_in: Model,
-    fitted: Model,
-    fits: Sequence[TableFit],
-    start: dict[str, float],
-    notes: Sequence[str],
-) -> dict[str, Any]:
-    """identification.json: each plant parameter (value, nominal, start, stderr, change), each
-    stage's correlation matrix, the pairs the table cannot separate, notes.
-    """
-    params: dict[str, Any] = {}
-    inseparable: list[str] = []
-    stages = []
-    for fit in fits:
-        keys = [p.key.removeprefix("plant.") for p in fit.params]
-        for p, k in zip(fit.params, keys, strict=True):
-            v, nom = fit.values[p.key], float(getattr(model_in.plant, k))
-            se = fit.stderr[p.key]
-            params[k] = {
-                "value": v,
-                "nominal": nom,
-                "start": start.get(k, p.start),
-                "stderr": se,
-                "relative_change": v / nom - 1.0 if nom else None,
-            }
-            if not se < UNDETERMINED_REL_SE * abs(v):
-                inseparable.append(f"{k}: relative standard error {se / abs(v):.0%}")
-        for i in range(len(keys)):
-            for j in range(i + 1, len(keys)):
-                if abs(fit.correlation[i, j]) > INSEPARABLE_CORRELATION:
-                    inseparable.append(
-                        f"{keys[i]} and {keys[j]}: correlation {fit.correlation[i, j]:+.3f}"
-                    )
-        stages.append(
-            {
-                "order": keys,
-                "matrix": fit.correlation,
-                "chi2_per_cell": fit.chi2 / max(fit.n_cells, 1),
-                "cells": fit.n_cells,
-                "evaluations": fit.nfev,
-            }
-        )
-    return {
-        "table": table_doc(table),
-        "parameters": params,
-        "correlation": stages,
-        "inseparable": inseparable,
-        "notes": list(notes),
-        "plant_out": {k: getattr(fitted.plant, k) for k in params},
     }
 
 
@@ -145,16 +87,13 @@ def discrepancy_doc(result: TableDiscrepancy, table: Table) -> dict[str, Any]:
             )
         else:
             effects.append(doc)
-    ident = result.identification
     return {
         "input": "table",
         "status": result.status,
         "summary": summary_line(result),
         "effects": effects,
         "discovered": discovered,
-        "identification": identification_doc(
-            table, result.model_in, result.identified, ident["fits"], ident["start"], ident["notes"]
-        ),
+        "identification": result.identification.as_dict(),
         "plant_parameters": {
             k: {
                 "value": getattr(result.model_out.plant, k),

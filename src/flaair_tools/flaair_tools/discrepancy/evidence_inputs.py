@@ -1,0 +1,155 @@
+"""A command's evidence, read from its inputs and recognised by content: the time-series runs,
+the multisine set (its runs and line spectra), the frequency-response table, the model and the
+settings, with the runs' noise; and the one way `identify` and `discrepancy` check outputs, load,
+compute and refuse bad input in one line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
+from flaair_analysis.multisine.analysis import SENSORS, VIDEO, find_design
+from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence, spectrum_channels
+from flaair_analysis.tables.reader import Table
+from flaair_common.outputs import check_output
+from flaair_model import settings as config
+from flaair_model.model import Model
+from flaair_model.model_io import load_model
+from flaair_model.settings import TableSettings
+from flaair_tools.tables.command import bad_input, one_table
+
+from .run_inputs import (
+    InputError,
+    bad_input_errors,
+    load_inputs,
+    multisine_inputs,
+    split_multisine,
+)
+
+__all__ = ["CommandInputs", "load_evidence", "run_command"]
+
+
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+@dataclass(frozen=True)
+class CommandInputs:
+    """What a command fits: the model, the table settings, the table (or None), the time-series
+    runs, the multisine set (its runs and spectra, or none), the runs the search works on (the
+    time-series runs, or the set's own when there are none) and their noise.
+    """
+
+    model: Model
+    s: TableSettings
+    table: Table | None
+    runs: list[Run]
+    multisine: list[Run]
+    spectra: SpectrumEvidence | None
+    searched: list[Run]
+    noise: dict[str, float]
+
+    @property
+    def what(self) -> str:
+        """The inputs in words, for the summary line."""
+        parts = [f"{len(self.runs)} run(s)"] if self.runs else []
+        if self.multisine:
+            parts.append(f"a multisine set of {len(self.multisine)} realization(s)")
+        if self.table is not None:
+            parts.append(f"table {self.table.name} ({self.table.n_points} points)")
+        return " + ".join(parts)
+
+    @property
+    def sets(self) -> int:
+        """How many sets of evidence: runs, a multisine set, a table."""
+        return sum((bool(self.runs), bool(self.multisine), self.table is not None))
+
+
+def _spectra(runs: list[Run]) -> tuple[SpectrumEvidence | None, list[str]]:
+    """The multisine set's spectra (None without a set) and why a channel is not read."""
+    if not runs:
+        return None, []
+    inputs = multisine_inputs(runs)
+    found = find_design(inputs, None)
+    channels, skipped = spectrum_channels(inputs, found, (*VIDEO, *SENSORS))
+    return SpectrumEvidence(inputs, found, channels), [
+        f"multisine {c}: {why}" for c, why in skipped.items()
+    ]
+
+
+def load_evidence(args: argparse.Namespace, loaded: list[Run] | None = None) -> CommandInputs:
+    """The inputs of `args` (`inputs`, `table`, `model`), checked: a bad table is refused before
+    the runs are read; `loaded`: the runs when already read.
+    """
+    model = load_model(args.model)
+    s = config.tables()
+    table = one_table(args.table) if args.table else None
+    loaded = loaded if loaded is not None else load_inputs(args.inputs)
+    plain, multisine = split_multisine(loaded)
+    runs = check_runs(plain) if plain else []
+    spectra, skipped = _spectra(multisine)
+    for why in skipped:
+        print(f"note: {why}", file=sys.stderr)
+    searched = runs or (check_runs(multisine) if multisine else [])
+    noise = (
+        noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
+    )
+    if table is None and not searched:
+        raise InputError("the inputs hold no runs")
+    return CommandInputs(model, s, table, runs, multisine, spectra, searched, noise)
+
+
+def run_command(
+    prog: str,
+    args: argparse.Namespace,
+    files: tuple[str, ...],
+    compute: Callable[[CommandInputs], Any],
+    loaded: list[Run] | None = None,
+) -> tuple[list[Path], CommandInputs, Any, float] | int:
+    """Check the outputs, load and compute, with a progress bar and one-line refusals: the
+    outputs to write, the inputs, the result and the seconds the computation took; or the exit
+    status (2 bad input, 130 interrupted; nothing written).
+    """
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    bar = None  # shown once the outputs are known to be writable: a refusal stays one line
+    try:
+        inputs = [*args.inputs, *args.table, *([args.model] if args.model else [])]
+        written = check_output(args.out, inputs, args.force, files)
+        bar = tqdm(  # on a terminal only: a log or a pipe gets the refusal as one line
+            total=2, desc=prog.split()[-1], unit="step", file=sys.stderr, leave=False, disable=None
+        )
+        bar.set_postfix_str("read inputs")
+        evidence = load_evidence(args, loaded)
+        bar.update(1)
+        bar.set_postfix_str("fit")
+        t0 = time.perf_counter()
+        result = compute(evidence)
+        bar.update(1)
+        return written, evidence, result, time.perf_counter() - t0
+    except (*bad_input_errors(), *bad_input()) as exc:
+        _close(bar)
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        _close(bar)
+        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    finally:
+        _close(bar)
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _close(bar: tqdm | None) -> None:
+    if bar is not None:
+        bar.close()
