@@ -104,7 +104,7 @@ def test_an_existing_model_yaml_in_out_is_kept_and_nothing_computed(
     from flaair_tools.discrepancy import cli, identify
 
     monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
-    monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
+    monkeypatch.setattr(cli, "analyse_evidence", _never("the discrepancy workflow"))
     out = tmp_path / "out"
     out.mkdir()
     (out / "model.yaml").write_text("# my model\n")
@@ -119,7 +119,7 @@ def test_out_config_never_replaces_the_projects_model(
     from flaair_tools.discrepancy import cli, identify
 
     monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
-    monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
+    monkeypatch.setattr(cli, "analyse_evidence", _never("the discrepancy workflow"))
     env = {**isolated_env(), "FLAAIR_CONFIG_DIR": str(config_copy)}
     before = (config_copy / "model.yaml").read_bytes()
     args = [command, str(csv_run), "--out", str(config_copy), "--force"]
@@ -135,7 +135,7 @@ def test_an_out_that_cannot_be_written_is_refused_before_the_analysis(
     from flaair_tools.discrepancy import cli, identify
 
     monkeypatch.setattr(identify, "identify_evidence", _never("identify_evidence"))
-    monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
+    monkeypatch.setattr(cli, "analyse_evidence", _never("the discrepancy workflow"))
     if where == "a file":
         out = tmp_path / "report.txt"
         out.write_text("x")
@@ -176,7 +176,7 @@ def test_a_malformed_validation_file_is_refused_before_the_analysis(
 ) -> None:
     from flaair_tools.discrepancy import cli
 
-    monkeypatch.setattr(cli, "analyse", _never("the discrepancy workflow"))
+    monkeypatch.setattr(cli, "analyse_evidence", _never("the discrepancy workflow"))
     validation = tmp_path / "validation.json"
     validation.write_text(content)
     out = tmp_path / "out"
@@ -193,7 +193,7 @@ def test_ctrl_c_in_discrepancy_exits_130_in_one_line_and_writes_nothing(
     def interrupted(*_args, **_kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(cli, "analyse", interrupted)
+    monkeypatch.setattr(cli, "analyse_evidence", interrupted)
     out = tmp_path / "out"
     _one_line(*_offline(["discrepancy", str(csv_run), "--out", str(out)]), 130, "interrupted")
     assert not out.exists()

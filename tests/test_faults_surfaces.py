@@ -58,16 +58,21 @@ sys.exit(m.main([str(BAG), "--out", str(OUT)]))
 """,
     "discrepancy --table": """
 from types import SimpleNamespace
+from flaair_common.outputs import check_output
 from flaair_model.model_io import load_model
-from flaair_tools.discrepancy.cli import main
-from flaair_tools.tables import discrepancy_cli as m
-m.computed = lambda prog, args, fn: (None, None, None, SimpleNamespace(model_out=load_model()), 0)
+from flaair_tools.discrepancy import cli as m
+def computed(prog, args, files, compute, protected=()):
+    written = check_output(args.out, [], args.force, files)
+    inputs = SimpleNamespace(table=SimpleNamespace(), s=None, runs=[])
+    return written, inputs, SimpleNamespace(model_out=load_model()), 0.0
+m.run_command = computed
+m.TableDiscrepancy = SimpleNamespace  # the fake result is the table's
 def writer(result, table, s, out):
     (Path(out) / "discrepancy.json").write_text("{")
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(10)
-m.write_report = writer
-sys.exit(main(["--table", str(BAG), "--out", str(OUT)]))
+m.write_table_report = writer
+sys.exit(m.main(["--table", str(BAG), "--out", str(OUT)]))
 """,
 }
 

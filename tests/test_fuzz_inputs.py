@@ -359,7 +359,7 @@ def monkeypatch_module():
     def interrupted(*_args, **_kwargs):
         raise KeyboardInterrupt
 
-    patch.setattr(cli, "analyse", interrupted)
+    patch.setattr(cli, "analyse_evidence", interrupted)
     yield patch
     patch.undo()
 

@@ -49,9 +49,16 @@ from .fit import PITCH_KEYS, STROKE_KEYS, plant_params, with_values
 from .joint import JointFit, identify_joint, prediction_scores, run_scores
 from .reader import Table
 from .steady_state import steady_response
-from .workflow import analyse_table, heldout_predictions
+from .workflow import TableDiscrepancy, analyse_table, heldout_predictions
 
-__all__ = ["JointDiscrepancy", "TableCheck", "analyse_joint", "spectra_check", "table_heldout"]
+__all__ = [
+    "JointDiscrepancy",
+    "TableCheck",
+    "analyse_evidence",
+    "analyse_joint",
+    "spectra_check",
+    "table_heldout",
+]
 
 
 @dataclass(frozen=True)
@@ -276,6 +283,35 @@ def analyse_joint(
         before.get("spectra"),
         after.get("spectra"),
         localisation,
+    )
+
+
+def analyse_evidence(
+    runs: Sequence[Run],
+    table: Table | None,
+    model: Model,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    settings: DiscrepancySettings,
+    progress: Callable[[str], None] | None = None,
+    spectra: SpectrumEvidence | None = None,
+    search_runs: Sequence[Run] = (),
+    drive_limit_v: float | None = None,
+) -> DiscrepancyResult | TableDiscrepancy | JointDiscrepancy:
+    """The discrepancy workflow on whatever evidence of one robot is given: runs alone by the
+    runs' workflow (`discrepancy.workflow.analyse`: judged on held-out runs), a table alone by
+    the table's (`workflow.analyse_table`: judged on held-out drive levels), any other mix by
+    `analyse_joint` (the runs' search from the plant fitted on every set, its findings checked on
+    every other set). Parameters as `analyse_joint`.
+    """
+    if table is None and spectra is None:
+        return analyse(list(runs), model, settings, progress=progress)
+    if not runs and spectra is None and table is not None:
+        if progress:
+            progress("table")
+        return analyse_table(table, model, s)
+    return analyse_joint(
+        runs, table, model, noise, s, settings, progress, spectra, search_runs, drive_limit_v
     )
 
 

@@ -44,7 +44,7 @@ import argparse
 import json
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,22 +54,22 @@ from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.scoring import confusion_table, score_case
 from flaair_analysis.discrepancy.workflow import analyse, format_parameters
-from flaair_analysis.tables.joint_workflow import JointDiscrepancy, analyse_joint
+from flaair_analysis.tables.joint_workflow import JointDiscrepancy, analyse_evidence
+from flaair_analysis.tables.workflow import TableDiscrepancy
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import check_output, write_outputs
 from flaair_common.strictjson import json_safe
 from flaair_model import settings as config
-from flaair_model.config import ConfigError
 from flaair_model.model import Model
 from flaair_model.model_io import load_model, save_model
 from flaair_model.settings import DiscrepancySettings, node_section
 from flaair_sim.plant_io import PLANT_PARAMS
-from flaair_tools.tables.discrepancy_cli import run as table_discrepancy
+from flaair_tools.tables.report import write_report as write_table_report
 
 from .evidence_inputs import CommandInputs, run_command
 from .identify import print_fit
 from .report import write_report, write_validation
-from .run_inputs import InputError, bad_input_errors, preload, sort_inputs, split_multisine
+from .run_inputs import InputError, bad_input_errors, sort_inputs
 from .validation_file import read_validation
 
 PROG = "flaair discrepancy"
@@ -81,10 +81,7 @@ USAGE = (
 )
 VALIDATION_FILES = ("validation.json", "validation.html")
 REPORT_FILES = ("model.yaml", "discrepancy.json", "report.html")
-
-
-def _progress_bar(total: int, desc: str):
-    return tqdm(total=total, desc=desc, unit="step", file=sys.stderr, leave=False)
+TABLE_FIGURES = ("table_response.png",)
 
 
 def run_validation(
@@ -156,48 +153,104 @@ def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy INPUT... [--model FILE] --out DIR`; returns the exit status."""
     args = _parser().parse_args(argv)
     args.inputs, args.table = sort_inputs(args.inputs, args.table)
-    if args.table:
-        if args.validate:
-            print(
-                f"{PROG}: --validate runs the hidden-effect cases on runs, not with a table",
-                file=sys.stderr,
-            )
-            return 2
-        return _discrepancy_sets(args, None) if args.inputs else table_discrepancy(args)
-    loaded = preload(PROG, args.inputs) if args.inputs else []
-    if isinstance(loaded, int):
-        return loaded
-    if split_multisine(loaded)[1]:  # line spectra among the evidence: the joint workflow
-        if args.validate:
-            print(
-                f"{PROG}: --validate runs the hidden-effect cases on runs, not with a "
-                "multisine set",
-                file=sys.stderr,
-            )
-            return 2
-        return _discrepancy_sets(args, loaded)
-    return _discrepancy_runs(args, loaded)
-
-
-def _discrepancy_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
-    """The workflow on runs alone (and the hidden-effect cases with --validate)."""
-    if not args.inputs and not args.validate:
+    if args.table and args.validate:
+        print(f"{PROG}: {_VALIDATE_ON_RUNS}, not with a table", file=sys.stderr)
+        return 2
+    if args.inputs or args.table:
+        return _discrepancy(args)
+    if not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)
         return 2
-    names = (VALIDATION_FILES if args.validate else ()) + (REPORT_FILES if args.inputs else ())
+    return _validation_only(args)
+
+
+_VALIDATE_ON_RUNS = "--validate runs the hidden-effect cases on runs"
+
+
+def _discrepancy(args: argparse.Namespace) -> int:
+    """The workflow on the inputs, whatever their mix (`analyse_evidence`), and with --validate
+    the hidden-effect cases; the exit status.
+    """
+    table_alone = bool(args.table) and not args.inputs
+    files = REPORT_FILES + (TABLE_FIGURES if table_alone else ())
+    files += VALIDATION_FILES if args.validate else ()
     try:  # everything checked before anything is computed
         settings = config.discrepancy()
-        written = check_output(
-            args.out, [*args.inputs, args.model, args.validation], args.force, names
+        drive_limit_v = float(
+            node_section(PLANT_PARAMS, "plant_node", "flaair.yaml")["drive_limit_v"]
         )
-        model = load_model(args.model)
-        validation = read_validation(args.validation) if args.validation else None
-        runs = loaded
-        if args.inputs and not runs:
-            raise InputError("the inputs hold no runs")
+        saved = read_validation(args.validation) if args.validation else None
+    except bad_input_errors() as exc:
+        print(f"{PROG}: {exc}", file=sys.stderr)
+        return 2
+    validation: list[dict | None] = [saved]
+
+    def compute(i: CommandInputs, progress: Callable[[str], None]) -> Any:
+        if args.validate and i.spectra is not None:
+            raise InputError(f"{_VALIDATE_ON_RUNS}, not with a multisine set")
         if args.validate:
-            validation = run_validation(model, args.cases, settings)
-        result, elapsed = _analyse(runs, model, settings) if runs else (None, 0.0)
+            progress("validation cases")
+            validation[0] = run_validation(i.model, args.cases, settings)
+        return analyse_evidence(
+            i.runs,
+            i.table,
+            i.model,
+            i.noise,
+            i.s,
+            settings,
+            progress,
+            spectra=i.spectra,
+            search_runs=i.searched,
+            drive_limit_v=drive_limit_v,
+        )
+
+    done = run_command(PROG, args, files, compute, protected=[args.validation])
+    if isinstance(done, int):
+        return done
+    written, inputs, result, elapsed = done
+    model_path = args.out / "model.yaml"
+    docs: list[dict] = []
+
+    def write_files(stage: Path) -> None:
+        if args.validate and validation[0] is not None:
+            _write_validation(stage, validation[0])
+        save_model(result.model_out, stage / "model.yaml")
+        if isinstance(result, TableDiscrepancy):
+            assert inputs.table is not None
+            docs.append(write_table_report(result, inputs.table, inputs.s, stage))
+        elif isinstance(result, JointDiscrepancy):
+            report_runs = list(result.joint.runs) or inputs.searched
+            joint = json_safe(result.as_dict())
+            doc = write_report(
+                stage, report_runs, result.runs_result, str(model_path), settings, joint=joint
+            )
+            doc["status"] = result.status
+            doc["joint"] = joint
+            text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
+            (stage / "discrepancy.json").write_text(text, encoding="utf-8")
+        else:
+            write_report(stage, inputs.runs, result, str(model_path), settings, validation[0])
+
+    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
+        return failed
+    if isinstance(result, TableDiscrepancy):
+        _print_table(inputs, docs[0], elapsed)
+    elif isinstance(result, JointDiscrepancy):
+        _print_sets(inputs, result, elapsed)
+    else:
+        _print_result(inputs.runs, result, elapsed)
+    print(f"  -> {model_path}, {args.out / 'discrepancy.json'}, {args.out / 'report.html'}")
+    return 0
+
+
+def _validation_only(args: argparse.Namespace) -> int:
+    """--validate alone: the hidden-effect cases; the exit status."""
+    try:
+        settings = config.discrepancy()
+        written = check_output(
+            args.out, [args.model, args.validation], args.force, VALIDATION_FILES
+        )
+        validation = run_validation(load_model(args.model), args.cases, settings)
     except bad_input_errors() as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
@@ -206,66 +259,12 @@ def _discrepancy_runs(args: argparse.Namespace, loaded: list[Run]) -> int:
         return 130
 
     def write_files(stage: Path) -> None:
-        if args.validate and validation is not None:
-            _write_validation(stage, validation)
-        if result is not None:
-            model_path = args.out / "model.yaml"
-            save_model(result.model_out, stage / "model.yaml")
-            write_report(stage, runs, result, str(model_path), settings, validation)
+        _write_validation(stage, validation)
 
-    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
-        return failed
-    if result is not None:
-        _print_result(runs, result, elapsed, args.out)
-    return 0
+    return write_outputs(PROG, args.out, written, write_files) or 0
 
 
-def _discrepancy_sets(args: argparse.Namespace, loaded: list[Run] | None) -> int:
-    """The workflow on several sets (runs and a table, a multisine set with or without either):
-    the runs' search from the plant fitted on every set, its findings checked on every other set.
-    """
-    try:
-        workflow = config.discrepancy()
-        drive_limit_v = float(
-            node_section(PLANT_PARAMS, "plant_node", "flaair.yaml")["drive_limit_v"]
-        )
-    except ConfigError as exc:
-        print(f"{PROG}: {exc}", file=sys.stderr)
-        return 2
-
-    def compute(i: CommandInputs) -> JointDiscrepancy:
-        return analyse_joint(
-            i.runs,
-            i.table,
-            i.model,
-            i.noise,
-            i.s,
-            workflow,
-            spectra=i.spectra,
-            search_runs=i.searched,
-            drive_limit_v=drive_limit_v,
-        )
-
-    done = run_command(PROG, args, REPORT_FILES, compute, loaded)
-    if isinstance(done, int):
-        return done
-    written, inputs, result, elapsed = done
-    report_runs = list(result.joint.runs) or inputs.searched
-
-    def write_files(stage: Path) -> None:
-        model_path = args.out / "model.yaml"
-        save_model(result.model_out, stage / "model.yaml")
-        joint = json_safe(result.as_dict())
-        doc = write_report(
-            stage, report_runs, result.runs_result, str(model_path), workflow, joint=joint
-        )
-        doc["status"] = result.status
-        doc["joint"] = joint
-        text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
-        (stage / "discrepancy.json").write_text(text, encoding="utf-8")
-
-    if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
-        return failed
+def _print_sets(inputs: CommandInputs, result: JointDiscrepancy, elapsed: float) -> None:
     print(f"{PROG}: {inputs.what} in {elapsed:.1f} s: status {result.status}")
     print_fit(PROG, inputs, result.final or result.joint, None)
     for c, g in result.runs_result.gap_before.items():
@@ -284,8 +283,21 @@ def _discrepancy_sets(args: argparse.Namespace, loaded: list[Run] | None) -> int
             print(f"  {c:16s} NRMSE {v:.4f} -> {after.nrmse[c]:.4f} ({before.kind})")
     for note in result.notes:
         print(f"  note: {note}")
-    print(f"  -> {args.out / 'model.yaml'}, {args.out / 'discrepancy.json'}, report.html")
-    return 0
+
+
+def _print_table(inputs: CommandInputs, doc: dict, elapsed: float) -> None:
+    table = inputs.table
+    assert table is not None
+    print(f"{PROG}: table {table.name}, {table.n_points} points, {elapsed:.1f} s")
+    print(f"  {doc['summary']}")
+    for c, v in doc["gap_before"].items():
+        gi, ga = doc["gap_identified"][c], doc["gap_after"][c]
+        fmt = lambda x: "-" if x is None else f"{x:.3f}"
+        print(f"  {c:22s} gap before {fmt(v)}, plant fitted {fmt(gi)}, after {fmt(ga)}")
+    for note in doc["notes"]:
+        print(f"  note: {note}")
+        if note.startswith("warning: "):
+            print(f"{PROG}: {note}", file=sys.stderr)
 
 
 def _write_validation(out: Path, validation: dict) -> None:
@@ -297,28 +309,7 @@ def _write_validation(out: Path, validation: dict) -> None:
     )
 
 
-def _analyse(runs: list[Run], model: Model, settings: DiscrepancySettings) -> tuple[Any, float]:
-    """The workflow on `runs` with a progress bar; the result and the seconds it took."""
-    bar = _progress_bar(7, "discrepancy")
-    t0 = time.perf_counter()
-    started: list[str] = []
-
-    def progress(label: str) -> None:
-        if bar is not None:
-            if started:
-                bar.update(1)
-            started.append(label)
-            bar.set_postfix_str(label)
-
-    result = analyse(runs, model, settings, progress=progress)
-    if bar is not None:
-        bar.update(bar.total - bar.n)
-        bar.close()
-    return result, time.perf_counter() - t0
-
-
-def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> None:
-    model_path = out / "model.yaml"
+def _print_result(runs: list[Run], result: Any, elapsed: float) -> None:
     print(f"{PROG}: {len(runs)} run(s) analysed in {elapsed:.1f} s: status {result.status}")
     for k, p in result.plant_parameters.items():
         print(
@@ -336,7 +327,6 @@ def _print_result(runs: list[Run], result: Any, elapsed: float, out: Path) -> No
             f"  gap left on {r['channel']}: band {r['band_hz']} Hz, full/low drive ratio "
             f"{r['drive_level_ratio']:.3g}"
         )
-    print(f"  -> {model_path}, {out / 'discrepancy.json'}, {out / 'report.html'}")
 
 
 if __name__ == "__main__":

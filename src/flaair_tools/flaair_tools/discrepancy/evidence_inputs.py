@@ -10,7 +10,7 @@ import argparse
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +27,7 @@ from flaair_model import settings as config
 from flaair_model.model import Model
 from flaair_model.model_io import load_model
 from flaair_model.settings import TableSettings
-from flaair_tools.tables.command import bad_input, one_table
+from flaair_tools.tables.table_io import bad_input, one_table
 
 from .run_inputs import (
     InputError,
@@ -88,15 +88,14 @@ def _spectra(runs: list[Run]) -> tuple[SpectrumEvidence | None, list[str]]:
     ]
 
 
-def load_evidence(args: argparse.Namespace, loaded: list[Run] | None = None) -> CommandInputs:
+def load_evidence(args: argparse.Namespace) -> CommandInputs:
     """The inputs of `args` (`inputs`, `table`, `model`), checked: a bad table is refused before
-    the runs are read; `loaded`: the runs when already read.
+    the runs are read.
     """
     model = load_model(args.model)
     s = config.tables()
     table = one_table(args.table) if args.table else None
-    loaded = loaded if loaded is not None else load_inputs(args.inputs)
-    plain, multisine = split_multisine(loaded)
+    plain, multisine = split_multisine(load_inputs(args.inputs))
     runs = check_runs(plain) if plain else []
     spectra, skipped = _spectra(multisine)
     for why in skipped:
@@ -114,28 +113,32 @@ def run_command(
     prog: str,
     args: argparse.Namespace,
     files: tuple[str, ...],
-    compute: Callable[[CommandInputs], Any],
-    loaded: list[Run] | None = None,
+    compute: Callable[[CommandInputs, Callable[[str], None]], Any],
+    protected: Sequence[Path | None] = (),
 ) -> tuple[list[Path], CommandInputs, Any, float] | int:
-    """Check the outputs, load and compute, with a progress bar and one-line refusals: the
-    outputs to write, the inputs, the result and the seconds the computation took; or the exit
-    status (2 bad input, 130 interrupted; nothing written).
+    """Check the outputs (never over an input or a `protected` file), load and compute, with a
+    progress bar and one-line refusals. `compute(inputs, progress)` calls `progress(label)` as
+    each step starts. Returns the outputs to write, the inputs, the result and the seconds the
+    computation took; or the exit status (2 bad input, 130 interrupted; nothing written).
     """
     previous = signal.signal(signal.SIGTERM, _terminate)
     bar = None  # shown once the outputs are known to be writable: a refusal stays one line
     try:
-        inputs = [*args.inputs, *args.table, *([args.model] if args.model else [])]
-        written = check_output(args.out, inputs, args.force, files)
+        inputs = [*args.inputs, *args.table, args.model, *protected]
+        written = check_output(args.out, [p for p in inputs if p], args.force, files)
         bar = tqdm(  # on a terminal only: a log or a pipe gets the refusal as one line
-            total=2, desc=prog.split()[-1], unit="step", file=sys.stderr, leave=False, disable=None
+            desc=prog.split()[-1], unit="step", file=sys.stderr, leave=False, disable=None
         )
-        bar.set_postfix_str("read inputs")
-        evidence = load_evidence(args, loaded)
-        bar.update(1)
-        bar.set_postfix_str("fit")
+        shown = bar
+
+        def progress(label: str) -> None:
+            shown.update(1)
+            shown.set_postfix_str(label)
+
+        shown.set_postfix_str("read inputs")
+        evidence = load_evidence(args)
         t0 = time.perf_counter()
-        result = compute(evidence)
-        bar.update(1)
+        result = compute(evidence, progress)
         return written, evidence, result, time.perf_counter() - t0
     except (*bad_input_errors(), *bad_input()) as exc:
         _close(bar)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from flaair_analysis.tables.joint import JointFit, identify_evidence
@@ -94,8 +95,9 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def compute(inputs: CommandInputs) -> JointFit:
+def compute(inputs: CommandInputs, progress: Callable[[str], None]) -> JointFit:
     """The one identification on the command's evidence."""
+    progress("fit")
     return identify_evidence(
         inputs.runs, inputs.table, inputs.model, inputs.noise, inputs.s, spectra=inputs.spectra
     )

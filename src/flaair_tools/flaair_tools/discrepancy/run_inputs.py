@@ -5,7 +5,6 @@ apart by their content, the runs read from them, and the errors a command report
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -27,7 +26,6 @@ __all__ = [
     "bad_input_errors",
     "load_inputs",
     "multisine_inputs",
-    "preload",
     "runs_from_bag",
     "runs_from_csv",
     "sort_inputs",
@@ -159,20 +157,6 @@ def multisine_inputs(runs: Sequence[Run]) -> list[RunInput]:
         )
         for r in runs
     ]
-
-
-def preload(prog: str, paths: Sequence[Path]) -> list[Run] | int:
-    """The runs of `paths` read once (to tell a multisine set from time-series runs before a
-    command picks its fit), or the exit status after a one-line refusal.
-    """
-    try:
-        return load_inputs(paths)
-    except bad_input_errors() as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; nothing written", file=sys.stderr)
-        return 130
 
 
 def bad_input_errors() -> tuple[type, ...]:

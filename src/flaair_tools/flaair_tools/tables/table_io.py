@@ -6,12 +6,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from flaair_analysis.tables.reader import Table, TableInputError, TableLimits, read_table
 from flaair_model import settings
 from flaair_model.checked_files import CheckedFileError, read_text
+from flaair_model.config import ConfigError
+from flaair_model.validation import ModelError
 
-__all__ = ["load_tables", "table_limits", "write_table"]
+__all__ = ["bad_input", "load_tables", "one_table", "table_limits", "write_table"]
 
 
 def table_limits() -> TableLimits:
@@ -39,6 +42,20 @@ def load_tables(paths: Sequence[Path], limits: TableLimits | None = None) -> lis
                 raise TableInputError(f"{path}: robot {table.name!r} is already in another table")
             out.append(table)
     return out
+
+
+def one_table(paths: list[Path]) -> Table:
+    """The one robot's table in `paths` (several robots are refused by name)."""
+    tables = load_tables(paths)
+    if len(tables) > 1:
+        names = ", ".join(t.name for t in tables)
+        raise TableInputError(f"{paths[0]}: several robots ({names}); give one robot's table")
+    return tables[0]
+
+
+def bad_input() -> tuple[type[Exception], ...]:
+    """The errors a table command reports in one line with exit 2."""
+    return (TableInputError, ConfigError, ModelError, OSError, yaml.YAMLError)
 
 
 def write_table(table: Table, path: Path, comment: str = "") -> None:
