@@ -362,11 +362,11 @@ def identify_joint(
         )
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
     rel_se = [sd[i] if k in staged.values else math.nan for i, k in enumerate(keys)]
-    fitted = [i for i, k in enumerate(keys) if k in staged.values]
+    free = [i for i, k in enumerate(keys) if k in staged.values]
     inseparable = inseparable_notes(
-        [keys[i] for i in fitted],
-        [rel_se[i] for i in fitted],
-        corr[np.ix_(fitted, fitted)],
+        [keys[i] for i in free],
+        [rel_se[i] for i in free],
+        corr[np.ix_(free, free)],
         "these sets" if len(agreement) > 1 else f"the {next(iter(agreement), 'data')}",
     )
     return JointFit(
