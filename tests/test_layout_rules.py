@@ -62,11 +62,23 @@ def _import_target(package: str, node: ast.ImportFrom) -> str:
     return ".".join(base + ([node.module] if node.module else []))
 
 
+@cache
+def _parsed_nodes(text: str, filename: str) -> tuple[ast.AST, ...]:
+    return tuple(ast.walk(ast.parse(text, filename)))
+
+
+def _nodes(path: Path) -> tuple[ast.AST, ...]:
+    """Every node of the module at `path`, parsed once per text (the rules walk each module
+    several times: 9 s of 14 went to parsing and walking again).
+    """
+    return _parsed_nodes(path.read_text(), str(path))
+
+
 def _imports(path: Path, module: str) -> list[tuple[str, list[str], int]]:
     """(absolute module, imported names, line) of each import statement in `path`."""
     package = _package_of(path, module)
     found = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             found += [(alias.name, [], node.lineno) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -101,7 +113,7 @@ def _imported_modules(path: Path, module: str, known: set[str]) -> dict[str, str
         for name in names:
             if f"{target}.{name}" in known:
                 bound[name] = f"{target}.{name}"
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 if alias.name in known or alias.name.split(".")[0] in known:
@@ -132,7 +144,7 @@ def _attribute_chains(path: Path, module: str, known: set[str]) -> list[tuple[li
     """(absolute dotted parts, line) of every attribute chain read off an imported module."""
     bound = _imported_modules(path, module, known)
     chains = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in _nodes(path):
         parts = _dotted(node) if isinstance(node, ast.Attribute) else None
         if parts and parts[0] in bound:
             chains.append((bound[parts[0]].split(".") + parts[1:], node.lineno))
@@ -766,7 +778,7 @@ def test_cores_share_one_note_type() -> None:
     """
     own = []
     for path in _source_files(SRC):
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if isinstance(node, ast.ClassDef) and node.name in ("Note", "Notice", "LogLine"):
                 own.append(f"{path.relative_to(ROOT)}:{node.lineno}: class {node.name}")
     assert own == ["src/flaair_model/flaair_model/notes.py:18: class Note"], own
