@@ -107,6 +107,7 @@ def test_random_bytes_raise_only_protocol_error(data: bytes) -> None:
             unpack(data)
 
 
+@pytest.mark.slow  # property test: many corrupted packets
 @settings(max_examples=300, deadline=None)
 @given(sensor_packets(), st.integers(0, 12 * 1000 + 24), st.binary(min_size=1, max_size=4))
 def test_corrupted_sensor_packets_raise_only_protocol_error(

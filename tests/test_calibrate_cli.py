@@ -99,6 +99,7 @@ def test_calibration_yaml_loads_into_the_front_end(imported_bag: Path, tmp_path:
     assert abs(np.degrees(1 / params.pitch_volts_per_rad)) == pytest.approx(2 * 24.87, rel=0.01)
 
 
+@pytest.mark.slow  # writes and calibrates bags missing each topic
 def test_calibrate_names_missing_topic(tmp_path: Path) -> None:
     from flaair_tools import bagio
 

@@ -32,6 +32,7 @@ print(json.dumps(results))
 """
 
 
+@pytest.mark.slow  # a new interpreter per subcommand
 @pytest.mark.timeout(180)
 def test_every_subcommand_has_a_help() -> None:
     result = run([sys.executable, "-c", SCRIPT], isolated_env(), 170)

@@ -269,6 +269,7 @@ def _check_found(case, result) -> None:
     assert not result.effects  # no vocabulary name for what the vocabulary lacks
 
 
+@pytest.mark.slow  # the term discovery ranks the library and judges on held-out runs
 def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> None:
     case = random_robot("offnominal_discover", 1)
     assert case.terms[0].kind == "cube_angle" and case.video_every == 10  # video-rate truth
@@ -278,6 +279,7 @@ def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> Non
     assert d.gap_after["stroke_deg"] < 0.3 * d.gap_before["stroke_deg"]
 
 
+@pytest.mark.slow  # the discrepancy command end to end with a term discovered
 def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(
     tmp_path: Path, model
 ) -> None:
@@ -372,6 +374,7 @@ def test_simulate_and_identify_apply_a_models_discovered_term(tmp_path: Path, mo
     assert abs(blind / f_n - 1) > 1e-3
 
 
+@pytest.mark.slow  # two term fits over a robot's runs, at two step sizes
 @pytest.mark.timeout(200)
 def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_at_wider_ones(
     model,
@@ -411,6 +414,7 @@ def test_a_dry_friction_fit_stalls_at_the_specs_own_steps_and_reaches_the_truth_
     assert abs(fitted[0]) < 0.03 and fitted[1] < 1.001 * truth_rss
 
 
+@pytest.mark.slow  # a term judged on held-out runs with the plant refitted
 @pytest.mark.timeout(300)
 def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(model) -> None:
     """The hidden quadratic damping at 1.6x is beyond the identification's box (x1.5): the plant

@@ -104,7 +104,7 @@ def _case(name: str) -> DatasetCase:
 
 
 def _params():
-    return [
+    return [  # slow: the whole search on each case beyond the default ones
         pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES else pytest.mark.slow)
         for c in dataset_cases()
         if c.name in DEFAULT_CASES | FULL_CASES
@@ -114,6 +114,7 @@ def _params():
 # ------------------------------------------------------------------------------ hidden effects
 
 
+@pytest.mark.slow  # the whole search on a hidden-effect case's runs, per case
 @pytest.mark.parametrize("name", _params())
 def test_hidden_effect_case_is_found_without_the_answer(name: str, model) -> None:
     case = _case(name)
@@ -188,6 +189,9 @@ def _assert_plant_parameters(case: DatasetCase, result, model) -> None:
         assert ("At the edge" in result.summary) == bool(on_edge), (on_edge, result.summary)
 
 
+# slow: the whole search on every default hidden-effect case (when this worker did not run
+# them as the case tests)
+@pytest.mark.slow
 def test_confusion_table_over_the_dataset_cases(model, tmp_path: Path) -> None:
     """True vs found over every case run in this session (the default set when run alone)."""
     if not _OUTCOMES:
@@ -533,6 +537,7 @@ def test_cli_bad_input_gives_a_clear_error_and_nonzero_exit(
     assert not (tmp_path / "out" / "model.yaml").exists()
 
 
+@pytest.mark.slow  # through bin/flaair in a new process
 def test_bin_flaair_discrepancy_bad_model_exits_nonzero_without_traceback(tmp_path: Path) -> None:
     text = (
         (REPO / "config" / "model.yaml")
@@ -662,7 +667,7 @@ def test_cli_csv_runs_end_to_end(paper_robot_csvs: list[Path], tmp_path: Path, m
         assert (out / fig).stat().st_size > 10_000 and fig in page
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # imports the runs to a bag, then the whole workflow on it through the CLI
 def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: Path) -> None:
     from flaair_tools.bagio.import_runs import import_runs
 
@@ -676,6 +681,7 @@ def test_cli_reads_bags_like_csv_files(paper_robot_csvs: list[Path], tmp_path: P
     assert {e["name"] for e in doc["effects"]} == {"sensor_delay", "strain_transfer_loss"}
 
 
+@pytest.mark.slow  # the workflow on a case's runs, then the model round-tripped
 def test_output_model_keeps_input_effects_and_saves_round_trip(tmp_path: Path, model) -> None:
     """An input model that already has an effect keeps it; the found effect is added beside it."""
     start = with_effects(model, {"strain_transfer_loss": {"efficiency": 0.23, "channel": "pitch"}})

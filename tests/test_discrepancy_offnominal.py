@@ -46,6 +46,7 @@ def model():
     return load_model()
 
 
+@pytest.mark.slow  # the whole search on an off-nominal robot with effects
 @pytest.mark.parametrize("family,draw", DRAWS, ids=[f"{f}_{d}" for f, d in DRAWS])
 def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
     family: str, draw: int, model
@@ -76,6 +77,7 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
     assert "wing_damage" in {d["effect"] for d in result.not_separable}
 
 
+@pytest.mark.slow  # the search on a robot with a delay on each film
 def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
     """A robot whose two sensor chains lag differently (0.15 ms and 0.40
     ms): both delays are fitted, each on its own chain, and written
@@ -98,6 +100,8 @@ def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
     assert result.model_out.effect_on("sensor_delay", "pitch").delay_s == fitted["pitch"]["delay_s"]
 
 
+# slow: the whole workflow twice (with and without identification) on an off-nominal robot's runs
+@pytest.mark.slow
 def test_without_identification_parameter_drift_looks_like_missing_physics(model) -> None:
     """The fault the identification fixes: the same
     no-effect robot, searched against the nominal plant.
@@ -107,6 +111,8 @@ def test_without_identification_parameter_drift_looks_like_missing_physics(model
     assert old.status == "unexplained"
 
 
+# slow: the whole search (every vocabulary effect, then the terms) on an off-nominal robot
+@pytest.mark.slow
 def test_outside_the_vocabulary_stays_unexplained_on_a_fitted_plant(model) -> None:
     case = random_robot("offnominal_outside", 1)  # a second stroke resonance
     assert case.outside == "second_resonance"
@@ -115,6 +121,7 @@ def test_outside_the_vocabulary_stays_unexplained_on_a_fitted_plant(model) -> No
     assert "stroke_deg" in {r["channel"] for r in result.remaining}
 
 
+@pytest.mark.slow  # the discrepancy command end to end on an off-nominal robot
 def test_cli_writes_plant_parameters_and_the_fitted_model(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
     paths = [str(p) for p in write_case_csvs(case, model, tmp_path)]

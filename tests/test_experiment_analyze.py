@@ -64,6 +64,7 @@ def test_analyze_reports_paper_figures_from_the_bag(chirp_bag: Path, tmp_path: P
     assert (tmp_path / chirp["figure"]).stat().st_size > 10_000
 
 
+@pytest.mark.slow  # records a bag from the simulated plant, then analyses it
 def test_analyze_numbers_follow_the_bag_not_the_simulator(tmp_path: Path) -> None:
     """An imported lab bag with a hidden 0.25 hinge
     strain-transfer efficiency: the report sees it.

@@ -8,6 +8,8 @@ import json
 import sys
 import textwrap
 
+import pytest
+
 from rosproc import isolated_env, run
 
 SCRIPT = textwrap.dedent("""
@@ -57,6 +59,7 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # compares with rclpy's logger in a new process
 def test_log_writes_what_rclpy_writes_and_names_the_caller(tmp_path) -> None:
     script = tmp_path / "fast_log.py"
     script.write_text(SCRIPT)

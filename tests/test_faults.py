@@ -76,6 +76,7 @@ def test_every_node_refuses_bad_parameters_by_name(
         ("flaair_tools", "recorder_node", "flush_period_s", "'text'", "expecting type 'DOUBLE'"),
     ],
 )
+@pytest.mark.slow  # starts a node process per refused parameter
 def test_a_refused_parameter_ends_the_node_process_with_one_line_and_exit_2(
     package: str, executable: str, parameter: str, value: str, why: str
 ) -> None:

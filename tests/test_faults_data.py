@@ -393,6 +393,7 @@ def test_malformed_model_yaml_names_file_line_and_column(
         ("flaair_control", "dsa_controller_node"),
     ],
 )
+@pytest.mark.slow  # starts every node process on a malformed model
 def test_every_node_names_a_malformed_model_file(
     tmp_path: Path, package: str, executable: str
 ) -> None:
@@ -414,6 +415,7 @@ def test_every_node_names_a_malformed_model_file(
     assert "model_file" in result.stderr and "broken.yaml: line" in result.stderr
 
 
+@pytest.mark.slow  # starts the front-end node process on each bad value
 def test_frontend_names_a_calibration_value_that_is_not_a_number(tmp_path: Path) -> None:
     channel = "{gain_deg_per_v: %s, polarity: -1, offset_v: 0.0, lag_s: 0.0}"
     (tmp_path / "cal.yaml").write_text(
@@ -567,6 +569,7 @@ def test_a_node_stuck_in_c_code_when_told_to_stop_ends_at_its_exit_deadline() ->
     assert "Timeout (0:00:01)!" in stderr and re.search(r"line \d+ in tick\n", stderr), stderr
 
 
+@pytest.mark.slow  # waits for the SIGALRM that ends a hung node process
 @pytest.mark.timeout(120)
 def test_a_node_that_hangs_past_its_interpreter_cleanup_is_ended_by_sigalrm() -> None:
     """The second guard: a hang where faulthandler no longer runs (here: cancelled by hand, as the

@@ -96,6 +96,7 @@ def _load_in_child(kind: str, path: Path) -> dict:
     return bounded(imports + "\n" + _refusal(call.format(path=str(path))))
 
 
+@pytest.mark.slow  # each command in a new process on the bomb
 @pytest.mark.parametrize("kind", sorted(LOADERS))
 def test_a_yaml_alias_bomb_is_refused_at_once(kind, tmp_path) -> None:
     path = tmp_path / f"{kind}.yaml"
@@ -114,6 +115,7 @@ def test_a_yaml_alias_bomb_is_refused_at_once(kind, tmp_path) -> None:
     # a directory as a rig, manifest or calibration was already refused in one line
     [(k, s) for k in sorted(LOADERS) for s in ("/dev/zero", "fifo")] + [("model", "directory")],
 )
+@pytest.mark.slow  # each command in a new process on a FIFO and a device
 def test_a_special_file_is_refused_without_reading_it(kind, special, tmp_path) -> None:
     if special == "fifo":
         path = tmp_path / "fifo.yaml"
@@ -158,6 +160,7 @@ def test_a_special_file_as_a_mat_log_track_or_csv_is_refused(kind, special, tmp_
 HUGE = "1" + "0" * 400
 
 
+@pytest.mark.slow  # each command in a new process on the file
 @pytest.mark.parametrize("kind", sorted(LOADERS))
 def test_a_401_digit_integer_is_refused_by_name(kind, tmp_path) -> None:
     if kind == "model":
@@ -279,6 +282,9 @@ def _v5_struct_bomb(path: Path, expanded_bytes: int) -> None:
     path.write_bytes(header + np.array([15, len(compressed)], "<u4").tobytes() + compressed)
 
 
+# slow: builds a compressed MAT file declaring gigabytes, then runs the importer on it in a new
+# process
+@pytest.mark.slow
 def test_a_compressed_mat_bomb_is_refused_before_it_expands(tmp_path) -> None:
     path = tmp_path / "bomb.mat"
     _v5_struct_bomb(path, 2 << 30)
@@ -293,6 +299,7 @@ def test_a_compressed_mat_bomb_is_refused_before_it_expands(tmp_path) -> None:
     assert result["peak_kib"] < 1 << 20, result
 
 
+@pytest.mark.slow  # each command in a new process on the file
 def test_a_v73_dataset_declaring_gigabytes_is_refused(session, tmp_path) -> None:
     import h5py
 

@@ -9,6 +9,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from flaair_analysis.discrepancy.case import DatasetCase
 from flaair_model.model_io import load_model
 from flaair_tools import discrepancy
@@ -18,6 +20,7 @@ from test_discrepancy import write_case_csvs
 EVIL = "<b onclick=x>run1"
 
 
+@pytest.mark.slow  # the discrepancy command end to end, its report and figures rendered
 def test_a_run_named_like_markup_reaches_the_discrepancy_report_as_text(tmp_path: Path) -> None:
     case = DatasetCase("named", "null", (), seed=5)
     csvs = write_case_csvs(case, load_model(), tmp_path / "csv")
@@ -59,6 +62,7 @@ def test_case_names_like_markup_reach_the_validation_page_as_text(tmp_path: Path
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in page and "&lt;b onclick=x&gt;run1" in page
 
 
+@pytest.mark.slow  # draws every report figure in a new interpreter
 def test_drawing_figures_leaves_the_users_matplotlib_backend_alone(tmp_path: Path) -> None:
     """In a fresh interpreter, as in a notebook: the backend
     chosen before stays, pyplot is never imported.

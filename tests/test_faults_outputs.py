@@ -199,6 +199,7 @@ def test_ctrl_c_in_discrepancy_exits_130_in_one_line_and_writes_nothing(
     assert not out.exists()
 
 
+@pytest.mark.slow  # waits up to 2 s in a new process before its Ctrl-C
 @pytest.mark.parametrize("delay_s", [0.6, 1.2, 2.0])
 def test_ctrl_c_in_imports_first_seconds_exits_130_without_a_traceback(
     delay_s, csv_run, tmp_path
@@ -254,6 +255,7 @@ def test_run_names_from_files_are_drawn_literally(name, tmp_path) -> None:
     assert path.stat().st_size > 1000
 
 
+@pytest.mark.slow  # the analyze command draws its figures for each name
 def test_analyze_draws_runs_named_like_mathtext_or_not_utf8(csv_run, tmp_path) -> None:
     from flaair_tools.bagio.import_runs import import_runs
 

@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -75,6 +76,7 @@ def _small_bag(directory: Path) -> bytes:
     return next(directory.glob("*.mcap")).read_bytes()
 
 
+@pytest.mark.slow  # property test: many damaged bags, each read and recovered
 @SETTINGS
 @given(st.data())
 def test_bag_reader_and_recovery_answer_damaged_bytes_with_bag_error(data) -> None:

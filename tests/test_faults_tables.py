@@ -118,6 +118,7 @@ def _load_bounded(path: Path) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # each table command in a new process
 @pytest.mark.timeout(60)
 def test_dev_zero_as_a_table_is_refused_without_reading_it() -> None:
     result = _load_bounded(Path("/dev/zero"))
@@ -125,6 +126,7 @@ def test_dev_zero_as_a_table_is_refused_without_reading_it() -> None:
     assert "not a regular file" in result["message"], result
 
 
+@pytest.mark.slow  # writes a 20 MB table and runs the commands on it in new processes
 @pytest.mark.timeout(60)
 def test_a_20_mb_table_is_refused_by_its_size_before_it_is_read(tmp_path) -> None:
     rows = [f"{1 + k * 1e-6:.6f},0,150,40.0,30.0" for k in range(820_000)]  # 20 MB, all distinct

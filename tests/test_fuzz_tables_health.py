@@ -203,6 +203,7 @@ def _yaml(doc: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+@pytest.mark.slow  # property test: many calibrations
 @settings(PROPERTY, max_examples=200)
 @given(calibrations())
 def test_a_calibration_gives_sound_lags_and_gains_or_one_line_naming_its_field(doc) -> None:

@@ -166,7 +166,7 @@ def test_a_progress_bar_that_counted_samples_is_seen_without_a_percentage() -> N
 
 
 @pytest.mark.graph
-@pytest.mark.slow
+@pytest.mark.slow  # starts an experiment's whole graph and waits for its clean end
 def test_sigterm_ends_an_experiment_cleanly(tmp_path):
     from flaair_tools import bagio
 
@@ -184,7 +184,7 @@ def test_sigterm_ends_an_experiment_cleanly(tmp_path):
 
 
 @pytest.mark.graph
-@pytest.mark.slow
+@pytest.mark.slow  # starts an experiment's whole graph and waits for every node to end
 def test_kill_9_of_an_experiment_leaves_no_node_running(tmp_path):
     from flaair_common.runtime import EXIT_ALARM_MARGIN_S, EXIT_DEADLINE_S
 

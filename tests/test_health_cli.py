@@ -52,6 +52,7 @@ def bags(tmp_path_factory) -> tuple[Path, Path]:
     return _import(tmp, tmp / "damaged.csv", "damaged"), _import(tmp, tmp / "quiet.csv", "quiet")
 
 
+@pytest.mark.slow  # records a damaged robot's bag, then runs the health command on it
 def test_health_reports_the_damage_with_its_series(bags, tmp_path: Path) -> None:
     damaged, quiet = bags
     out = tmp_path / "out"
@@ -79,6 +80,7 @@ def test_health_reports_the_damage_with_its_series(bags, tmp_path: Path) -> None
     assert into.returncode == 2 and "--out" in into.stderr and "Traceback" not in into.stderr
 
 
+@pytest.mark.slow  # writes bags missing each topic and runs the command on each
 def test_bag_without_the_films_or_the_drive_is_refused_by_name(tmp_path: Path) -> None:
     from flaair_tools import bagio
 

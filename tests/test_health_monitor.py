@@ -251,6 +251,7 @@ RAMP = (1.0, 0.0, 1.0, 0.5)
 RAMP_END_S = 1.5
 
 
+@pytest.mark.slow  # simulates a K_r ramp and the wingbeats after it
 @pytest.mark.timeout(120)
 def test_a_damage_during_the_kr_ramp_is_reported_once_the_ramp_ends(model, params):
     """The wing loses 20 % of its inertia halfway through the K_r ramp: the ramp's wingbeats

@@ -11,6 +11,7 @@ from composed import BLOCK, FS_HZ, composed, joined
 from flaair_common import topics
 
 
+@pytest.mark.slow  # simulates the damaged wing's wingbeats twice (node core and offline)
 def test_health_node_reports_a_damaged_wing_as_the_offline_core_does(monkeypatch, tmp_path):
     from flaair_common.diagnostics import WARN
     from flaair_control import health_io

@@ -50,6 +50,7 @@ def _fit(case, model):
     return runs, identify_plant(runs, model, noise)
 
 
+@pytest.mark.slow  # a plant fit on an off-nominal robot's runs
 @pytest.mark.parametrize("draw", [0, 1])  # draw 0: 2 kHz video truth; draw 1: 20 kHz truth
 def test_identification_recovers_an_off_nominal_plant(draw: int, model) -> None:
     case = random_robot("offnominal_null", draw)
@@ -88,6 +89,7 @@ def test_frequency_domain_start_is_near_the_robot(model) -> None:
     )
 
 
+@pytest.mark.slow  # a plant fit with the inertias free
 def test_inertia_fitted_with_damping_and_gain_is_reported_inseparable(model) -> None:
     """Motion fixes only Gamma / I and G_a / I: with the
     inertia fitted too, the runs cannot separate them.
@@ -159,6 +161,7 @@ def test_back_to_back_runs_are_simulated_from_their_measured_initial_state(model
     assert result.effects == ()
 
 
+@pytest.mark.slow  # through bin/flaair in a new process, as a person runs it (imports and the fit)
 def test_bin_flaair_identify_writes_the_fitted_model_and_strict_json(tmp_path: Path, model) -> None:
     case = random_robot("offnominal_null", 1)
     (tmp_path / "runs").mkdir()
@@ -213,6 +216,7 @@ def test_bin_flaair_identify_bad_input_exits_2_without_traceback(kind: str, tmp_
     assert not (tmp_path / "out" / "model.yaml").exists()
 
 
+@pytest.mark.slow  # three identify commands (runs, a table, both)
 @pytest.mark.timeout(120)
 def test_one_identification_document_whatever_the_mix(tmp_path: Path) -> None:
     """Runs alone, a table alone and both: one command, one document with the same keys; each

@@ -46,6 +46,7 @@ def test_the_nominal_robot_agrees_with_flaairs_simulator_within_the_specs_005_de
         assert np.abs(ours[name] - getattr(theirs, name)).max() < 0.05 / 24.0
 
 
+@pytest.mark.slow  # the independent truth at tight tolerances, a held sample at a time
 def test_a_stop_holds_the_stroke_within_what_its_stiffness_lets_through() -> None:
     """A stop at 10 deg of 100 x the stroke stiffness K: the stroke passes it by at most
     sqrt((phi_free^2 - stop^2) / 100) (the energy K (phi_free^2 - stop^2) / 2 the free swing

@@ -39,7 +39,7 @@ def test_the_walk_through_names_files_that_exist_and_writes_apart() -> None:
     assert len(set(outs)) == len(outs)  # the two imports write to different bags
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # every command of docs/LAB_FILES.md's walk-through, as written
 @pytest.mark.timeout(900)
 def test_the_walk_through_runs_on_the_example_session(tmp_path: Path) -> None:
     stdout = []

@@ -140,6 +140,7 @@ def imported(session, tmp_path_factory) -> dict[str, Path]:
     return out
 
 
+@pytest.mark.slow  # imports two MAT versions to bags and calibrates each
 def test_both_mat_versions_import_to_bags_that_calibrate_to_the_bench_robot(
     imported, tmp_path
 ) -> None:
@@ -176,6 +177,7 @@ def test_the_bag_records_files_rig_and_sync_and_analyze_shows_the_video(imported
     assert result["runs"]["bench_v73"]["drive"]["kind"] == "chirp"
 
 
+@pytest.mark.slow  # imports a session's runs into a bag
 def test_a_session_manifest_imports_every_run_into_one_bag(session, tmp_path) -> None:
     manifest = tmp_path / "session.yaml"
     manifest.write_text(

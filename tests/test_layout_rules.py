@@ -233,6 +233,7 @@ def test_no_import_cycle_between_modules() -> None:
     assert cycles == [], f"modules that import each other: {cycles}"
 
 
+@pytest.mark.slow  # walks every module's imports
 def test_every_import_between_packages_points_down_the_layers() -> None:
     modules, _graph = _module_graph()
     packages = {p.name for p in SRC.iterdir() if (p / "package.xml").exists()}
@@ -319,6 +320,7 @@ def _unexplained_inner_imports(path: Path) -> list[int]:
     return unexplained
 
 
+@pytest.mark.slow  # tokenizes every module of the project
 @pytest.mark.timeout(60)
 def test_every_import_inside_a_function_says_why() -> None:
     """Imports sit at the top of the module; one kept inside a function (a heavy dependency on one
@@ -388,6 +390,7 @@ def test_each_domain_package_keeps_its_pure_cores_in_core() -> None:
     assert offences == [], "a core may import no rclpy and no shell module:\n" + "\n".join(offences)
 
 
+@pytest.mark.slow  # imports every core in a new interpreter
 @pytest.mark.timeout(120)
 def test_importing_every_core_loads_no_rclpy() -> None:
     """Transitively too: the cores run offline (replay,
@@ -413,6 +416,7 @@ SCIENCE = SRC / "flaair_analysis" / "flaair_analysis"
 NOT_IN_SCIENCE = ("rclpy", "rosidl_runtime_py", "rmw", "flaair_msgs", "matplotlib", "jinja2")
 
 
+@pytest.mark.slow  # imports the science in a new interpreter
 @pytest.mark.timeout(120)
 def test_importing_the_science_loads_no_ros_plots_or_templates() -> None:
     """`import flaair_analysis` and every module in it, in a fresh interpreter: no rclpy, no ROS

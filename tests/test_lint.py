@@ -67,6 +67,7 @@ def test_the_repository_rules_catch_an_unused_import_and_a_misplaced_one(tmp_pat
     )
 
 
+@pytest.mark.slow  # mypy over every core module
 @pytest.mark.timeout(300)
 def test_mypy_finds_nothing_in_the_cores() -> None:
     done = subprocess.run(

@@ -17,6 +17,7 @@ import pytest
 
 from rosproc import FLAAIR, REPO_ROOT, graph_pids, target_watchdog_tripped, wait_for
 
+# slow: each test runs `flaair live` against the emulated target for seconds of real time
 pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 

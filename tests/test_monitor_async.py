@@ -114,6 +114,7 @@ def test_the_default_decision_is_the_per_wingbeat_one():
     assert collision_monitor_params_from_config().decision == "distortion"
 
 
+@pytest.mark.slow  # simulates self-excited flapping until a collision
 def test_collision_is_detected_within_two_wingbeats_while_flapping_by_itself(run):
     t, stroke, verdicts, _ = run
     free = (t > 1.3) & (t < OBSTACLE_S[0])

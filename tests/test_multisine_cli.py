@@ -69,6 +69,7 @@ def lab(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     }
 
 
+@pytest.mark.slow  # the design command through bin/flaair, its realizations simulated
 @pytest.mark.timeout(120)
 def test_design_writes_the_realizations_and_the_design_file(tmp_path: Path) -> None:
     # through bin/flaair in a new process, as a person runs it (other tests: run_offline)
@@ -91,6 +92,7 @@ def test_design_writes_the_realizations_and_the_design_file(tmp_path: Path) -> N
     assert np.sqrt(np.mean(table[:, 1] ** 2)) == pytest.approx(25.0, rel=1e-6)
 
 
+@pytest.mark.slow  # simulates the multisine realizations and analyses them
 @pytest.mark.timeout(200)
 def test_analyze_the_nominal_robot_writes_the_contracts_document(lab: dict, tmp_path: Path) -> None:
     out = tmp_path / "ms"

@@ -9,6 +9,7 @@ import pytest
 
 from rosproc import FLAAIR, isolated_env, run
 
+# slow: records a live run over real DDS, then replays it
 pytestmark = [pytest.mark.graph, pytest.mark.slow]
 
 

@@ -44,6 +44,7 @@ def test_run_applies_ros_args_parameter() -> None:
         ("mode:=", "'-p mode:='", "bad --ros-args: Couldn't parse parameter override rule"),
     ],
 )
+@pytest.mark.slow  # starts a node process per bad parameter
 def test_bad_parameter_refused_at_start_with_its_name(override: str, named: str, why: str) -> None:
     result = run(
         [FLAAIR, "run", "flaair_sim", "plant_node", "--ros-args", "-p", override], isolated_env()

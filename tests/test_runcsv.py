@@ -146,6 +146,7 @@ def test_ragged_row_and_empty_body_keep_their_messages(
         read_run(path)
 
 
+@pytest.mark.slow  # reads a large run file under a memory probe
 def test_reading_holds_no_second_copy_of_the_columns(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

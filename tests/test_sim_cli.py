@@ -6,6 +6,7 @@ import csv
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
@@ -21,6 +22,7 @@ def _write_drive_csv(path: Path, fs_hz: float, n: int) -> np.ndarray:
     return drive
 
 
+@pytest.mark.slow  # the simulate command through bin/flaair
 def test_simulate_replays_drive_and_matches_the_core(tmp_path: Path) -> None:
     from flaair_model.model_io import load_model
     from flaair_sim.core.plant import simulate

@@ -71,6 +71,7 @@ def ideal(model: Model) -> Model:
 # --------------------------------------------------------------------------- dynamics
 
 
+@pytest.mark.slow  # the reference solution by solve_ivp at tight tolerances
 def test_nominal_agrees_with_solve_ivp(model):
     """1 s chirp 20-200 Hz at 100 V: RK4 vs DOP853 (rtol 1e-10) with the same ZOH input."""
     n = int(FS_HZ)

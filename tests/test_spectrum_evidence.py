@@ -133,6 +133,7 @@ def test_is_multisine_tells_a_multisine_from_other_drives() -> None:
     assert not is_multisine(np.full(1000, np.nan))
 
 
+@pytest.mark.slow  # two joint fits with a multisine set's spectra
 @pytest.mark.timeout(120)
 def test_the_joint_fit_takes_spectra_beside_runs_and_beside_a_table(film: dict) -> None:
     """Each set is scored against the one plant fitted on all; from a plant 5 % off, both

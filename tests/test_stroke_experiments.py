@@ -54,6 +54,7 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # simulates and records the stroke experiments' bags
 def test_bags_hold_the_recorder_topics_and_the_run_as_an_independent_reader_sees_it(runs) -> None:
     _exp, run, bag, _ = runs["setpoint_step_dsa"]
     with open(next(Path(bag).glob("*.mcap")), "rb") as handle:

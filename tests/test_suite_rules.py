@@ -8,6 +8,8 @@ import re
 import subprocess
 from pathlib import Path
 
+import pytest
+
 from rosproc import FLAAIR, isolated_env, run
 
 TESTS = Path(__file__).resolve().parent
@@ -24,6 +26,7 @@ def test_no_test_module_skips_on_an_import() -> None:
     assert offenders == []
 
 
+@pytest.mark.slow  # runs pytest in a new process
 def test_an_unmarked_test_that_starts_a_graph_fails(tmp_path: Path) -> None:
     """Conftest's check: a test starting a ROS graph without @pytest.mark.graph fails by name."""
     (tmp_path / "conftest.py").write_text(
@@ -50,6 +53,7 @@ def test_an_unmarked_test_that_starts_a_graph_fails(tmp_path: Path) -> None:
     assert "starts ros_processes() but is not marked @pytest.mark.graph" in result.stdout
 
 
+@pytest.mark.slow  # waits out the publisher's 1 s for subscribers in a new process
 def test_topic_pub_fails_without_publishing_when_its_subscribers_never_come() -> None:
     result = run(
         [
@@ -73,3 +77,46 @@ def test_topic_pub_fails_without_publishing_when_its_subscribers_never_come() ->
         in result.stderr
     )
     assert "Traceback" not in result.stderr
+
+
+def _slow_marks_without_a_reason(path: Path) -> list[str]:
+    """The lines of `path` that mark a test `slow` with no reason: a comment on the line, or
+    a comment directly above it (over the test's other decorators).
+    """
+    lines = path.read_text().splitlines()
+    found = []
+    for n, line in enumerate(lines):
+        if "pytest.mark.slow" not in line or line.lstrip().startswith("#"):
+            continue
+        if "#" in line.split("pytest.mark.slow", 1)[1]:
+            continue
+        above = n - 1
+        while above >= 0 and lines[above].lstrip().startswith("@"):
+            above -= 1
+        if above >= 0 and lines[above].lstrip().startswith("#"):
+            continue
+        if "return [" in lines[above] and "#" in lines[above]:
+            continue  # a parameter list whose reason heads the list
+        found.append(f"{path.name}:{n + 1}")
+    return found
+
+
+def test_every_slow_test_says_why_it_cannot_be_smaller(tmp_path: Path) -> None:
+    """`make test-quick` leaves out the `slow` tests (docs/TESTING.md); each says why it costs
+    what it does, so a test is not moved out of the edit-test loop without one.
+    """
+    offenders = [
+        where
+        for path in sorted(TESTS.glob("test_*.py"))
+        if path.name != Path(__file__).name  # its own texts name the mark
+        for where in _slow_marks_without_a_reason(path)
+    ]
+    assert offenders == []
+    unexplained = tmp_path / "test_x.py"
+    unexplained.write_text("@pytest.mark.slow\ndef test_a():\n    pass\n")
+    explained = tmp_path / "test_y.py"
+    explained.write_text(
+        "# slow: a fit\n@pytest.mark.slow\n@pytest.mark.timeout(9)\ndef test_b():\n"
+    )
+    assert _slow_marks_without_a_reason(unexplained) == ["test_x.py:1"]
+    assert _slow_marks_without_a_reason(explained) == []

@@ -161,6 +161,7 @@ def test_dsa_map_finds_the_hopf_onset_and_the_describing_function_limit_cycle(se
             assert abs(r["frequency_error_rel"]) < 0.02 and abs(r["amplitude_error_rel"]) < 0.1
 
 
+@pytest.mark.slow  # the sweep command end to end (simulations, figure) and its refusals
 def test_cli_writes_strict_json_csv_figure_and_reading_and_names_bad_input(tmp_path, setup) -> None:
     config = tmp_path / "sweeps.yaml"
     config.write_text(

@@ -36,7 +36,7 @@ def robot():
     return m, replace(m, plant=plant)
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # the table workflow's whole search, judged on held-out levels
 @pytest.mark.timeout(400)
 def test_a_robot_without_a_missing_effect_ends_no_discrepancy() -> None:
     s = settings.tables()
@@ -50,7 +50,7 @@ def test_a_robot_without_a_missing_effect_ends_no_discrepancy() -> None:
         assert r.noise_ratio["gap_identified"][c] < s.gap_ratio
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # the table discrepancy command end to end
 @pytest.mark.timeout(600)
 def test_hinge_stiffening_is_named_and_the_heldout_gap_shrinks(tmp_path: Path) -> None:
     s = settings.tables()
@@ -100,7 +100,7 @@ def test_one_level_is_fitted_not_searched_and_bad_input_writes_nothing(
     assert not out.exists()
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # the table workflow's whole search
 @pytest.mark.timeout(600)
 def test_hinge_stiffening_is_found_where_the_effectless_pitch_fit_runs_far() -> None:
     # Without the effect, this robot's pitch plant fits at ~350 Hz (true 190 Hz) with its
@@ -130,7 +130,7 @@ def test_hinge_stiffening_is_found_where_the_effectless_pitch_fit_runs_far() -> 
     assert r.status == "explained"
 
 
-@pytest.mark.slow
+@pytest.mark.slow  # the table workflow's whole search with the terms
 @pytest.mark.timeout(900)
 def test_a_strong_dry_friction_wins_over_the_structural_damping_that_also_passes() -> None:
     # Both lower the peak; a dry friction lowers the small drive levels relatively more. The

@@ -51,6 +51,7 @@ def test_a_robot_far_from_nominal_is_recovered_within_a_few_per_cent() -> None:
     assert notes == []
 
 
+@pytest.mark.slow  # two table fits
 def test_one_level_fits_and_a_table_without_its_resonance_says_so() -> None:
     s = settings.tables()
     nominal, robot = far_robot()
@@ -65,6 +66,7 @@ def test_one_level_fits_and_a_table_without_its_resonance_says_so() -> None:
     assert any("no point near the resonance" in n for n in notes)
 
 
+@pytest.mark.slow  # three identify commands and their refusals
 def test_the_command_writes_model_and_identification_and_refuses_without_writing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

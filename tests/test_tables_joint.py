@@ -90,6 +90,7 @@ def _errors(values, truth) -> dict[str, float]:
     return {k: abs(values[k] / getattr(truth.plant, k) - 1.0) for k in KEYS}
 
 
+@pytest.mark.slow  # a joint fit of runs and a table
 @pytest.mark.timeout(240)
 def test_the_joint_fit_recovers_the_plant_and_both_sets_agree() -> None:
     nominal, true = robot()
@@ -115,6 +116,7 @@ def test_the_joint_fit_recovers_the_plant_and_both_sets_agree() -> None:
     json.dumps(fit.as_dict(), allow_nan=False)
 
 
+@pytest.mark.slow  # two joint fits (runs alone, runs with the table)
 @pytest.mark.timeout(240)
 def test_quiet_runs_with_a_table_fit_better_than_the_runs_alone() -> None:
     """Runs at 20 V below 80 Hz do not pin the resonance's damping; the table does."""
@@ -135,6 +137,7 @@ def test_quiet_runs_with_a_table_fit_better_than_the_runs_alone() -> None:
     assert joint.warnings == ()
 
 
+@pytest.mark.slow  # a joint fit of two robots' sets
 @pytest.mark.timeout(240)
 def test_a_table_of_another_robot_is_named_as_disagreeing_not_averaged() -> None:
     """The table's robot resonates 15 % higher than the runs': each set's gap is reported."""
@@ -158,6 +161,7 @@ def test_a_table_of_another_robot_is_named_as_disagreeing_not_averaged() -> None
     assert fit.as_dict()["agree"] is False
 
 
+@pytest.mark.slow  # the joint workflow with a hidden effect (search, checks, refit)
 @pytest.mark.timeout(600)
 def test_a_missing_effect_found_on_the_runs_is_kept_when_the_table_confirms_it() -> None:
     """Structural damping 0.05 in the robot: the runs' search names it, the table's held-out
@@ -187,6 +191,7 @@ def test_a_missing_effect_found_on_the_runs_is_kept_when_the_table_confirms_it()
     assert res.model_out.plant.stroke_natural_frequency_hz == pytest.approx(fn, rel=0.005)
 
 
+@pytest.mark.slow  # the joint workflow with a finding the table refuses
 @pytest.mark.timeout(600)
 def test_a_finding_that_worsens_the_table_beyond_noise_is_refused() -> None:
     """The runs' robot has structural damping, the table's (same plant) has none: the runs'
@@ -223,6 +228,8 @@ def test_a_finding_that_worsens_the_table_beyond_noise_is_refused() -> None:
     assert res.joint.warnings  # and the joint fit already said neither set reaches its noise
 
 
+# slow: the joint workflow: the runs' search, then the table's, each judged on held-out data
+@pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_an_effect_only_the_table_shows_is_found_by_the_tables_search_and_kept() -> None:
     """A stop at 25 deg: the quiet runs (stroke below 6 deg) never reach it, the table's drive
@@ -304,6 +311,7 @@ def test_identify_with_runs_and_a_table_prints_one_summary_line_and_writes_stric
     assert not nothing.exists()
 
 
+@pytest.mark.slow  # the joint workflow end to end (five runs and a table)
 @pytest.mark.timeout(600)
 def test_discrepancy_with_runs_and_a_table_of_a_robot_missing_nothing(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -141,6 +141,7 @@ def good_files(tmp_path_factory) -> dict[str, bytes]:
     cut=st.floats(0.0, 0.999),
     flips=st.lists(st.tuples(st.floats(0.0, 0.999), st.integers(0, 255)), max_size=8),
 )
+@pytest.mark.slow  # every cut and damage of a MAT log through the reader
 def test_cut_or_damaged_files_give_a_lab_file_error_or_the_right_values(
     tmp_path: Path, good_files, version, cut, flips
 ) -> None:
@@ -164,6 +165,7 @@ def test_cut_or_damaged_files_give_a_lab_file_error_or_the_right_values(
     data=st.binary(max_size=4096),
     prefix=st.sampled_from([b"", b"MATLAB 5.0 MAT-file", b"\x89HDF\r\n\x1a\n"]),
 )
+@pytest.mark.slow  # property test: many random byte strings through the MAT reader
 def test_random_bytes_give_a_lab_file_error(tmp_path_factory, data: bytes, prefix: bytes) -> None:
     path = tmp_path_factory.mktemp("bytes") / "random.mat"
     path.write_bytes(prefix + data)

@@ -80,6 +80,7 @@ def test_a_matlab_object_beside_the_log_does_not_matter(tmp_path: Path, version:
     assert got.sample_rate_hz == pytest.approx(20000.0)
 
 
+@pytest.mark.slow  # imports lab logs through the command
 @pytest.mark.parametrize("version", VERSIONS)
 def test_two_scopes_need_log_variable_and_it_picks_one(tmp_path: Path, version: str) -> None:
     first = scope_log(20000.0, FOUR)
@@ -102,6 +103,7 @@ def test_two_scopes_need_log_variable_and_it_picks_one(tmp_path: Path, version: 
         read_target_log(path, ["amp_in"], variable="k")
 
 
+@pytest.mark.slow  # imports lab logs through the command
 @pytest.mark.parametrize("version", VERSIONS)
 def test_a_scope_with_several_inputs_gives_columns_by_label_j(tmp_path: Path, version) -> None:
     pvdf = np.column_stack([wave(k=1.0), wave(k=2.0), wave(k=3.0)])  # N x 3

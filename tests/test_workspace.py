@@ -5,9 +5,12 @@ from __future__ import annotations
 import os
 import subprocess
 
+import pytest
+
 from rosproc import REPO_ROOT
 
 
+@pytest.mark.slow  # sources the install in a new shell and imports rclpy
 def test_source_install_setup_bash_gives_rclpy_and_flaair_packages() -> None:
     # A fresh login shell: nothing of the current environment but HOME and a plain PATH.
     env = {"HOME": os.environ.get("HOME", "/root"), "PATH": "/usr/local/bin:/usr/bin:/bin"}
@@ -34,6 +37,7 @@ def test_setup_is_idempotent_and_quick_when_nothing_changed() -> None:
     assert "installing" not in result.stdout and "building" not in result.stdout, result.stdout
 
 
+@pytest.mark.slow  # compiles every numba kernel the warm-up names
 def test_the_numba_warm_up_reaches_every_kernel_it_names() -> None:
     # best effort by design, so a renamed kernel would only print "skipped": that is a failure here
     import sys
