@@ -66,7 +66,7 @@ from flaair_model.settings import DiscrepancySettings, node_section
 from flaair_sim.plant_io import PLANT_PARAMS
 from flaair_tools.tables.report import write_report as write_table_report
 
-from .evidence_inputs import CommandInputs, run_command
+from .evidence_inputs import CommandInputs, evidence_arguments, run_command
 from .identify import print_fit
 from .report import write_report, write_validation
 from .run_inputs import InputError, bad_input_errors, sort_inputs
@@ -111,32 +111,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
-    parser.add_argument(
-        "inputs",
-        nargs="*",
-        type=Path,
-        metavar="INPUT",
-        help="measured-run CSV files, bag directories and frequency-response tables (CSV), "
-        "told apart by their content (optional with --validate)",
-    )
-    parser.add_argument(
-        "--table",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="TABLE.csv",
-        help="a frequency-response table, named as one (a table among the inputs is found "
-        "without it) (default: none)",
-    )
-    parser.add_argument(
-        "--model",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="model YAML (default: config/model.yaml)",
-    )
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
+    evidence_arguments(parser, " (optional with --validate)")
     parser.add_argument(
         "--validate", action="store_true", help="also run the hidden-effect dataset cases"
     )

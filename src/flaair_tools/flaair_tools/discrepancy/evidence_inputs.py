@@ -37,7 +37,37 @@ from .run_inputs import (
     split_multisine,
 )
 
-__all__ = ["CommandInputs", "load_evidence", "run_command"]
+__all__ = ["CommandInputs", "evidence_arguments", "load_evidence", "run_command"]
+
+
+def evidence_arguments(parser: argparse.ArgumentParser, inputs_help: str = "") -> None:
+    """The arguments both commands take: the inputs (any mix), --table, --model, --out, --force."""
+    parser.add_argument(
+        "inputs",
+        nargs="*",
+        type=Path,
+        metavar="INPUT",
+        help="measured-run CSV files, bag directories and frequency-response tables (CSV), "
+        "told apart by their content" + inputs_help,
+    )
+    parser.add_argument(
+        "--table",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="TABLE.csv",
+        help="a frequency-response table, named as one (a table among the inputs is found "
+        "without it) (default: none)",
+    )
+    parser.add_argument(
+        "--model",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="model YAML to start from (default: config/model.yaml)",
+    )
+    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
 
 
 def _terminate(signum: int, frame: object) -> None:

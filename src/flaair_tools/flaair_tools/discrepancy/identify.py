@@ -50,7 +50,7 @@ from flaair_common.strictjson import json_safe
 from flaair_model.model_io import save_model
 from flaair_tools.tables.report import table_doc
 
-from .evidence_inputs import CommandInputs, run_command
+from .evidence_inputs import CommandInputs, evidence_arguments, run_command
 from .run_inputs import sort_inputs
 
 PROG = "flaair identify"
@@ -66,32 +66,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=PROG, usage=USAGE, description=__doc__, formatter_class=HelpFormatter
     )
-    parser.add_argument(
-        "inputs",
-        nargs="*",
-        type=Path,
-        metavar="INPUT",
-        help="measured-run CSV files, bag directories and frequency-response tables (CSV), "
-        "told apart by their content",
-    )
-    parser.add_argument(
-        "--table",
-        type=Path,
-        action="append",
-        default=[],
-        metavar="TABLE.csv",
-        help="a frequency-response table, named as one (a table among the inputs is found "
-        "without it) (default: none)",
-    )
-    parser.add_argument(
-        "--model",
-        type=Path,
-        default=None,
-        metavar="FILE",
-        help="model YAML to start from (default: config/model.yaml)",
-    )
-    parser.add_argument("--out", type=Path, required=True, metavar="DIR", help="output directory")
-    parser.add_argument("--force", action="store_true", help="replace existing outputs in --out")
+    evidence_arguments(parser)
     return parser
 
 
