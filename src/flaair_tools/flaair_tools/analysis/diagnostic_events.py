@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 
 from flaair_tools import bagio
 
-__all__ = ["DIAGNOSTICS", "LEVEL_NAMES", "Status", "from_bag", "level_changes"]
+__all__ = ["DIAGNOSTICS", "LEVEL_NAMES", "Status", "from_bag", "level_changes", "statuses_from_bag"]
 
 DIAGNOSTICS = "/diagnostics"
 LEVEL_NAMES = ("OK", "WARN", "ERROR", "STALE")
@@ -85,6 +85,16 @@ def _statuses(messages: Iterable[tuple[str, int, Any]]) -> Iterable[Status]:
             level = status.level
             level = level[0] if isinstance(level, (bytes, bytearray)) else int(level)
             yield Status(time_ns, status.name, status.hardware_id, level, status.message, stamp_ns)
+
+
+def statuses_from_bag(bag: str | Path) -> list[Status]:
+    """Every status of `bag`'s /diagnostics in log-time order (none without the topic): what
+    a node said each second, also where its level did not change (a second fault while the
+    first holds the node at ERROR).
+    """
+    if DIAGNOSTICS not in bagio.bag_info(bag).topics:
+        return []
+    return list(_statuses(bagio.iter_messages(bag, [DIAGNOSTICS])))
 
 
 def from_bag(bag: str | Path) -> list[dict[str, Any]]:
