@@ -104,7 +104,8 @@ def _case(name: str) -> DatasetCase:
 
 
 def _params():
-    return [  # slow: the whole search on each case beyond the default ones
+    return [
+        # slow: the whole search on each case beyond the default ones
         pytest.param(c.name, id=c.name, marks=() if c.name in DEFAULT_CASES else pytest.mark.slow)
         for c in dataset_cases()
         if c.name in DEFAULT_CASES | FULL_CASES

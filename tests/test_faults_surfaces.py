@@ -64,7 +64,7 @@ from flaair_tools.discrepancy import cli as m
 def computed(prog, args, files, compute, protected=()):
     written = check_output(args.out, [], args.force, files)
     inputs = SimpleNamespace(table=SimpleNamespace(), s=None, runs=[])
-    return written, inputs, SimpleNamespace(model_out=load_model()), 0.0
+    return written, inputs, (SimpleNamespace(model_out=load_model()), None), 0.0
 m.run_command = computed
 m.TableDiscrepancy = SimpleNamespace  # the fake result is the table's
 def writer(result, table, s, out):

@@ -37,7 +37,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from flaair_analysis.discrepancy.diagnosis import diagnose
+from flaair_analysis.discrepancy.diagnosis import diagnose, noise_estimates
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_analysis.multisine.analysis import model_reading
@@ -290,7 +290,6 @@ def analyse_evidence(
     runs: Sequence[Run],
     table: Table | None,
     model: Model,
-    noise: Mapping[str, float],
     s: TableSettings,
     settings: DiscrepancySettings,
     progress: Callable[[str], None] | None = None,
@@ -302,7 +301,8 @@ def analyse_evidence(
     runs' workflow (`discrepancy.workflow.analyse`: judged on held-out runs), a table alone by
     the table's (`workflow.analyse_table`: judged on held-out drive levels), any other mix by
     `analyse_joint` (the runs' search from the plant fitted on every set, its findings checked on
-    every other set). Parameters as `analyse_joint`.
+    every other set), with the noise of the runs it searches (`runs`, else `search_runs`).
+    Parameters as `analyse_joint`.
     """
     if table is None and spectra is None:
         return analyse(list(runs), model, settings, progress=progress)
@@ -310,6 +310,10 @@ def analyse_evidence(
         if progress:
             progress("table")
         return analyse_table(table, model, s)
+    searched = list(runs) or list(search_runs)
+    noise = (
+        noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
+    )
     return analyse_joint(
         runs, table, model, noise, s, settings, progress, spectra, search_runs, drive_limit_v
     )

@@ -158,19 +158,18 @@ def _discrepancy(args: argparse.Namespace) -> int:
     except bad_input_errors() as exc:
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
-    validation: list[dict | None] = [saved]
 
-    def compute(i: CommandInputs, progress: Callable[[str], None]) -> Any:
+    def compute(i: CommandInputs, progress: Callable[[str], None]) -> tuple[Any, dict | None]:
         if args.validate and i.spectra is not None:
             raise InputError(f"{_VALIDATE_ON_RUNS}, not with a multisine set")
+        validation = saved
         if args.validate:
             progress("validation cases")
-            validation[0] = run_validation(i.model, args.cases, settings)
-        return analyse_evidence(
+            validation = run_validation(i.model, args.cases, settings)
+        result = analyse_evidence(
             i.runs,
             i.table,
             i.model,
-            i.noise,
             i.s,
             settings,
             progress,
@@ -178,17 +177,18 @@ def _discrepancy(args: argparse.Namespace) -> int:
             search_runs=i.searched,
             drive_limit_v=drive_limit_v,
         )
+        return result, validation
 
     done = run_command(PROG, args, files, compute, protected=[args.validation])
     if isinstance(done, int):
         return done
-    written, inputs, result, elapsed = done
+    written, inputs, (result, validation), elapsed = done
     model_path = args.out / "model.yaml"
     docs: list[dict] = []
 
     def write_files(stage: Path) -> None:
-        if args.validate and validation[0] is not None:
-            _write_validation(stage, validation[0])
+        if args.validate and validation is not None:
+            _write_validation(stage, validation)
         save_model(result.model_out, stage / "model.yaml")
         if isinstance(result, TableDiscrepancy):
             assert inputs.table is not None
@@ -204,7 +204,7 @@ def _discrepancy(args: argparse.Namespace) -> int:
             text = json.dumps(json_safe(doc), indent=2, allow_nan=False)
             (stage / "discrepancy.json").write_text(text, encoding="utf-8")
         else:
-            write_report(stage, inputs.runs, result, str(model_path), settings, validation[0])
+            write_report(stage, inputs.runs, result, str(model_path), settings, validation)
 
     if (failed := write_outputs(PROG, args.out, written, write_files)) is not None:
         return failed

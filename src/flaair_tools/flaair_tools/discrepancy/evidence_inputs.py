@@ -12,6 +12,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +79,7 @@ def _terminate(signum: int, frame: object) -> None:
 class CommandInputs:
     """What a command fits: the model, the table settings, the table (or None), the time-series
     runs, the multisine set (its runs and spectra, or none), the runs the search works on (the
-    time-series runs, or the set's own when there are none) and their noise.
+    time-series runs, or the set's own when there are none) and, when asked, their noise.
     """
 
     model: Model
@@ -88,7 +89,17 @@ class CommandInputs:
     multisine: list[Run]
     spectra: SpectrumEvidence | None
     searched: list[Run]
-    noise: dict[str, float]
+
+    @cached_property
+    def noise(self) -> dict[str, float]:
+        """The noise RMS per channel of the runs searched (a simulation of them: computed when a
+        fit first asks, never for the runs' own workflow, which estimates its own).
+        """
+        if not self.searched:
+            return {}
+        return noise_estimates(
+            self.searched, simulate_runs([self.model], self.searched)[0], self.model
+        )
 
     @property
     def what(self) -> str:
@@ -131,12 +142,9 @@ def load_evidence(args: argparse.Namespace) -> CommandInputs:
     for why in skipped:
         print(f"note: {why}", file=sys.stderr)
     searched = runs or (check_runs(multisine) if multisine else [])
-    noise = (
-        noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
-    )
     if table is None and not searched:
         raise InputError("the inputs hold no runs")
-    return CommandInputs(model, s, table, runs, multisine, spectra, searched, noise)
+    return CommandInputs(model, s, table, runs, multisine, spectra, searched)
 
 
 def run_command(
