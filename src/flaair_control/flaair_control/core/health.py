@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from flaair_model.notes import INFO, WARNING, Note
 from flaair_sim.core.describing import stroke_dynamic_stiffness
@@ -232,10 +233,7 @@ def fundamentals(x: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
 
 
 def wingbeat_estimate(
-    stroke_rad: np.ndarray,
-    pitch_rad: np.ndarray,
-    drive_v: np.ndarray,
-    phase0_rad: float,
+    fund: np.ndarray,
     omega_rad_s: float,
     log_rate_per_s: float,
     params: HealthParams,
@@ -245,10 +243,9 @@ def wingbeat_estimate(
 
     Parameters
     ----------
-    stroke_rad, pitch_rad, drive_v
-        The wingbeat's samples (film angles through the model's gains, drive).
-    phase0_rad
-        Phase of the first sample against the wingbeat's start (-w * fraction / fs).
+    fund
+        (3,) complex: the wingbeat's fundamentals (`fundamentals`, phase 0 at its start) of the
+        film angles through the model's gains (stroke, pitch) and of the drive.
     omega_rad_s
         The wingbeat's angular frequency.
     log_rate_per_s
@@ -256,10 +253,8 @@ def wingbeat_estimate(
     params
         Model constants and limits.
     """
-    n = stroke_rad.size
     w = omega_rad_s
-    theta = phase0_rad + w * np.arange(n) / params.sample_rate_hz
-    s, p, d = fundamentals(np.vstack([stroke_rad, pitch_rad, drive_v]), theta)
+    s, p, d = fund
     s = s * np.exp(1j * w * params.stroke_film_delay_s)  # the motion leads its film reading
     p = p * np.exp(1j * w * params.pitch_film_delay_s)
     d = d * np.exp(-1j * w * _ZOH_S / params.sample_rate_hz)
@@ -381,29 +376,66 @@ def _detect(
     return _detector_initial(params)._replace(skip=0), found, []
 
 
+@njit(cache=True)
+def _extended(
+    pending: np.ndarray,
+    vs: np.ndarray,
+    vp: np.ndarray,
+    dv: np.ndarray,
+    reference_v: float,
+    stroke_v_per_rad: float,
+    pitch_v_per_rad: float,
+) -> np.ndarray:
+    """`pending` (3, m) followed by the block's film angles (model gains) and drive (non-finite
+    drive samples as 0): one kernel, for a block's few samples.
+    """
+    m = pending.shape[1]
+    buf = np.empty((3, m + vs.size))
+    buf[:, :m] = pending
+    for i in range(vs.size):
+        buf[0, m + i] = (vs[i] - reference_v) / stroke_v_per_rad
+        buf[1, m + i] = (vp[i] - reference_v) / pitch_v_per_rad
+        buf[2, m + i] = dv[i] if np.isfinite(dv[i]) else 0.0
+    return buf
+
+
 def _crossings(
     stroke: np.ndarray, first_new: int, start: int, armed: bool, h: float
 ) -> tuple[list[float], bool]:
     """Upward crossings (fractional sample indices) of a Schmitt trigger at +-h among the
     samples from `first_new` on (the earlier ones only locate the zero crossing).
     """
-    below = stroke < -h
-    above = stroke > h
-    out: list[float] = []
-    idx = np.flatnonzero(below[first_new:] | above[first_new:]) + first_new
-    if idx.size == 0:
-        return out, armed
-    side = np.where(below[idx], -1, 1)  # the trigger's state only changes outside the band
-    before = np.concatenate([[-1 if armed else 1], side[:-1]])
-    for i in idx[(side == 1) & (before == -1)]:
-        k = i - 1
-        while k > 0 and stroke[k] > 0:
-            k -= 1
-        a, b = stroke[k], stroke[k + 1]
-        frac = -a / (b - a) if b != a and a <= 0 < b else 0.0
-        out.append(float(start + k) + frac)  # exact integer first: the same for any block split
-    armed = bool(side[-1] == -1)
-    return out, armed
+    found, armed_after = _crossing_kernel(stroke, first_new, start, armed, h)
+    crossings: list[float] = found.tolist()
+    return crossings, bool(armed_after)
+
+
+@njit(cache=True)
+def _crossing_kernel(
+    stroke: np.ndarray, first_new: int, start: int, armed: bool, h: float
+) -> tuple[np.ndarray, bool]:
+    """`_crossings` sample by sample (a block's few samples: numpy's per-call cost dominated)."""
+    out = np.empty(stroke.size)
+    m = 0
+    side_before = -1 if armed else 1
+    for i in range(first_new, stroke.size):
+        x = stroke[i]
+        if x < -h:
+            side = -1
+        elif x > h:
+            side = 1
+        else:
+            continue  # the trigger's state only changes outside the band
+        if side == 1 and side_before == -1:
+            k = i - 1
+            while k > 0 and stroke[k] > 0:
+                k -= 1
+            a, b = stroke[k], stroke[k + 1]
+            frac = -a / (b - a) if b != a and a <= 0 < b else 0.0
+            out[m] = float(start + k) + frac  # exact integer first: the same for any block split
+            m += 1
+        side_before = side
+    return out[:m], side_before == -1
 
 
 def step(
@@ -428,14 +460,15 @@ def step(
     if not vs.size == vp.size == dv.size:
         raise ValueError("health inputs 'stroke_sensor_v', 'pitch_sensor_v', 'drive_v' differ")
     fs = params.sample_rate_hz
-    block = np.vstack(
-        [
-            (vs - params.reference_voltage_v) / params.stroke_volts_per_rad,
-            (vp - params.reference_voltage_v) / params.pitch_volts_per_rad,
-            np.where(np.isfinite(dv), dv, 0.0),
-        ]
+    buf = _extended(
+        state.pending,
+        vs,
+        vp,
+        dv,
+        params.reference_voltage_v,
+        params.stroke_volts_per_rad,
+        params.pitch_volts_per_rad,
     )
-    buf = np.concatenate([state.pending, block], axis=1)
     start = state.pending_start
     crossings, armed = _crossings(
         buf[0], state.pending.shape[1], start, state.armed, params.hysteresis_rad
@@ -463,10 +496,10 @@ def step(
             if in_range and i0 >= 0 and i1 > i0:
                 w = 2.0 * math.pi / period
                 seg = buf[:, i0:i1]
-                lam = _log_rate(seg[0], w, amps_before[0], period, fs, last)
-                est, amps = wingbeat_estimate(
-                    seg[0], seg[1], seg[2], w * (math.ceil(last) - last) / fs, w, lam, params
-                )
+                theta = w * (math.ceil(last) - last) / fs + w * np.arange(i1 - i0) / fs
+                fund = fundamentals(seg, theta)
+                lam = _log_rate(abs(fund[0]), amps_before[0], period)
+                est, amps = wingbeat_estimate(fund, w, lam, params)
             wb += 1
             steady = bool(
                 np.all(np.abs(amps - amps_before) <= params.max_amplitude_change * amps_before)
@@ -504,15 +537,10 @@ def step(
     return new_state, HealthOutputs(beats, events, notes)
 
 
-def _log_rate(
-    stroke: np.ndarray, w: float, amp_before: float, period: float, fs: float, last: float
-) -> float:
-    """The stroke amplitude's log rate over the last wingbeat (0 without one before)."""
-    n = stroke.size
-    if n == 0:
-        return 0.0
-    theta = w * (math.ceil(last) - last) / fs + w * np.arange(n) / fs
-    amp = abs(fundamentals(stroke[None, :], theta)[0])
+def _log_rate(amp: float, amp_before: float, period: float) -> float:
+    """The stroke amplitude's log rate over the last wingbeat, from its fundamental's amplitude
+    `amp` and the wingbeat before's (0 without one before).
+    """
     if not (math.isfinite(amp_before) and amp_before > 0 and amp > 0):
         return 0.0
     return math.log(amp / amp_before) / period

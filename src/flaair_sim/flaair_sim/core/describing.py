@@ -43,8 +43,16 @@ def stroke_dynamic_stiffness(
     -------
     np.ndarray
         Complex, the broadcast shape: the fundamental of the stroke torques but the drive's and
-        the inertia's, per radian of stroke amplitude. At A = 0, the linear part.
+        the inertia's, per radian of stroke amplitude. At A = 0, the linear part. A complex
+        scalar for scalar arguments (an estimator's one motion a wingbeat, without numpy's
+        broadcasting around a kernel call that costs a few microseconds).
     """
+    if (
+        isinstance(omega_rad_s, float)
+        and isinstance(stroke_amplitude_rad, float)
+        and isinstance(pitch_phasor_rad, complex)
+    ):
+        return _one(params, omega_rad_s, stroke_amplitude_rad, pitch_phasor_rad)
     w, a, pitch = np.broadcast_arrays(
         np.asarray(omega_rad_s, dtype=float),
         np.asarray(stroke_amplitude_rad, dtype=float),
@@ -66,3 +74,20 @@ def stroke_dynamic_stiffness(
     )
     stiffness: np.ndarray = (-params[P_I] * out / probe).reshape(shape)
     return stiffness
+
+
+def _one(params: np.ndarray, omega: float, amplitude: float, pitch: complex) -> np.ndarray:
+    """`stroke_dynamic_stiffness` of one motion (the same kernel, the same arithmetic)."""
+    probe = np.array([1e-9 if abs(amplitude) < 1e-12 else amplitude])
+    out = np.empty(1, dtype=complex)
+    stroke_fundamentals(
+        params,
+        np.array([omega]),
+        probe,
+        np.array([pitch.real]),
+        np.array([pitch.imag]),
+        N_POINTS,
+        out,
+    )
+    one: np.ndarray = (-params[P_I] * out / probe)[0]
+    return one
