@@ -119,14 +119,14 @@ class DsaControllerNode(FlaairNode):
         return response
 
     def on_timer(self) -> None:
-        count = self.count_publishers
-        sensors, wings = count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE)
-        self.advance(loop_state.Tick(time.monotonic(), self.peers(), sensors, wings))
+        peers = (0, 0, 0)  # only the start reads them (rclpy's graph queries, every tick)
+        if self.state.mode == loop_state.WAITING:
+            count = self.count_publishers
+            peers = (self.peers(), count(topics.SENSOR_VOLTAGE), count(topics.WING_STATE))
+        self.advance(loop_state.Tick(time.monotonic(), *peers))
 
     def peers(self) -> int:
-        """/flaair/drive's subscribers; 0 until
-        min_stream_listeners and min_state_subscribers listen.
-        """
+        """/flaair/drive's subscribers (0 until min_stream_listeners, min_state_subscribers)."""
         ready = (
             intra.dds_listeners() >= self.p["min_stream_listeners"]
             and self.state_pub.subscription_count() >= self.p["min_state_subscribers"]

@@ -129,7 +129,9 @@ class WingBlock(NamedTuple):
 
 
 class Tick(NamedTuple):
-    """The wall-clock timer, with the graph's peers as the node sees them."""
+    """The wall-clock timer, with the graph's peers as the node sees them (read while WAITING
+    only: a shell may pass 0 once the loop has started).
+    """
 
     t_wall: float
     drive_subscribers: int
