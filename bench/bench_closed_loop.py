@@ -30,9 +30,10 @@ Figures:
   and with rclpy's C++ EventsExecutor;
 * the composed loop (`flaair_common container` with the three nodes, block streams in-process,
   lockstep, 1 block in flight, --composed-duration of signal, default 4 s): its real-time factor
-  (target >= 2.0) beside the separate-process loop of the same run, and, from a second run with
-  FLAAIR_PROFILE=1, the CPU per block of each node's callback (core, shell and publishes; the
-  container prints them at exit) and of the rest of the process (executor, DDS threads);
+  (target >= 5, `COMPOSED_RTF_TARGET`) beside the separate-process loop of the same run,
+  and, from a second run with FLAAIR_PROFILE=1, the CPU per block of each node's callback
+  (core, shell and publishes; the container prints them at exit) and of the rest of the
+  process (executor, DDS threads);
   --composed-only runs just these and the separate-process loop with 1 block in flight.
 The machine's load average is reported beside them: other jobs share the 2 cores.
 """
@@ -58,6 +59,10 @@ from flaair_common.graph import Graph
 
 FS = 20000.0
 BLOCK = 10
+BLOCK_S = BLOCK / FS
+# The composed loop's real-time factor a lab needs on a 2-core laptop (issue "Fast on a two-core
+# machine"): room for the monitors and the recorder beside the loop.
+COMPOSED_RTF_TARGET = 5.0
 FLAAIR = str(REPO_ROOT / "bin" / "flaair")
 
 
@@ -386,7 +391,7 @@ def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) 
             r_composed,
             "x",
             ">=",
-            2.0,
+            COMPOSED_RTF_TARGET,
             f"separate processes {r_separate:.3f} x ({r_composed / r_separate:.2f}x); {load}",
         )
     ]
@@ -417,8 +422,9 @@ def composed_figures(composed: dict, profiled: dict, separate: dict, load: str) 
             total,
             "us",
             "<=",
-            250.0,
-            "half the 0.5 ms block: 2x real time; separate processes: "
+            BLOCK_S * 1e6 / COMPOSED_RTF_TARGET,
+            f"the 0.5 ms block / {COMPOSED_RTF_TARGET:g}: {COMPOSED_RTF_TARGET:g}x real time; "
+            "separate processes: "
             f"{sum(separate['cpu_per_block_us'].values()):.0f} us "
             f"summed; profiled run RTF {rtf(profiled['timing']):.3f} "
             "x",

@@ -147,7 +147,16 @@ def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str, int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path)
+    parser.add_argument(
+        "--prepare",
+        action="store_true",
+        help="only build the stock stack's environment (make bench's set-up: paid once, not "
+        "inside the benchmark's time)",
+    )
     args = parser.parse_args()
+    if args.prepare:
+        stock_python()
+        return
     caches = REPO_ROOT / "out" / "bench" / "numba-cache"
     stock_stack = stock_python()
     with ThreadPoolExecutor(max_workers=2) as pool:
