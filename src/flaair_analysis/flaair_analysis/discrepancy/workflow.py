@@ -168,13 +168,7 @@ def analyse(
         Unusable runs.
     """
     runs = _checked(runs, model)
-    if progress:
-        progress("compare")
-    sims_before = simulate_runs([model], runs)[0]
-    noise = noise_estimates(runs, sims_before, model)
-    tracks = drive_tracks(runs)
-    diag_before = diagnose(runs, sims_before, model, noise, settings, tracks=tracks)
-    gap_before = nrmse_by_channel(runs, sims_before)
+    sims_before, noise, tracks, diag_before, gap_before = _compared(runs, model, settings, progress)
     plant_fit, base, sims_fit, diag_fit = None, model, sims_before, diag_before
     if settings.identify:
         plant_fit, sims_fit, diag_fit = _identified(runs, model, noise, settings, tracks, progress)
@@ -215,15 +209,9 @@ def analyse(
             effects = _effects_after(discovery, effects, model_out)
             diag_after, remaining = _where_left(ctx, model_out, searches)
     discovered = discovery.discovered if discovery is not None else ()
-    if progress:
-        progress("held-out gap")
-    sims_after = simulate_runs([model_out], runs)[0]
-    gap_after = (
-        _heldout_nrmse(ctx, effects, model_out)
-        if effects or discovered
-        else nrmse_by_channel(runs, sims_fit)
+    sims_after, gap_after, in_sample = _gap_after(
+        ctx, runs, effects, bool(discovered), model_out, sims_fit, progress
     )
-    in_sample = nrmse_by_channel(runs, sims_after)
     status = _status(remaining, bool(effects or discovered))
     gap_channels = {r["channel"] for r in remaining}
     approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
@@ -266,6 +254,59 @@ def _status(remaining: Sequence[Any], found: bool) -> str:
     if remaining:
         return "unexplained"
     return "explained" if found else "no_discrepancy"
+
+
+def _compared(
+    runs: Sequence[Run],
+    model: Model,
+    settings: DiscrepancySettings,
+    progress: Callable[[str], None] | None,
+) -> tuple[list[Any], dict[str, float], list[tuple[Any, Any]], Diagnosis, dict[str, float]]:
+    """The input model compared with the runs.
+
+    Returns
+    -------
+    tuple
+        (its simulated channels per run, the noise RMS per channel, the drive tracks, its
+        diagnosis, its NRMSE per channel).
+    """
+    if progress:
+        progress("compare")
+    sims_before = simulate_runs([model], runs)[0]
+    noise = noise_estimates(runs, sims_before, model)
+    tracks = drive_tracks(runs)
+    diag_before = diagnose(runs, sims_before, model, noise, settings, tracks=tracks)
+    gap_before = nrmse_by_channel(runs, sims_before)
+    return sims_before, noise, tracks, diag_before, gap_before
+
+
+def _gap_after(
+    ctx: AnalysisContext,
+    runs: Sequence[Run],
+    effects: Sequence[FoundEffect],
+    any_discovered: bool,
+    model_out: Model,
+    sims_fit: Sequence[Any],
+    progress: Callable[[str], None] | None,
+) -> tuple[list[Any], dict[str, Any], dict[str, float]]:
+    """The gap `model_out` leaves: held-out when something was found (the fitted plant's
+    otherwise, nothing being re-fitted).
+
+    Returns
+    -------
+    tuple
+        (its simulated channels per run, the NRMSE per channel held out, in sample).
+    """
+    if progress:
+        progress("held-out gap")
+    sims_after = simulate_runs([model_out], runs)[0]
+    gap_after = (
+        _heldout_nrmse(ctx, effects, model_out)
+        if effects or any_discovered
+        else nrmse_by_channel(runs, sims_fit)
+    )
+    in_sample = nrmse_by_channel(runs, sims_after)
+    return sims_after, gap_after, in_sample
 
 
 def _identified(

@@ -47,7 +47,7 @@ from flaair_analysis.discrepancy.identification import (
 )
 from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
-from flaair_analysis.evidence import Evidence
+from flaair_analysis.evidence import Evidence, EvidenceFit
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -291,14 +291,7 @@ def identify_joint(
     runs = list(runs)
     keys = STROKE_KEYS + PITCH_KEYS
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
-    notes: list[str] = []
-    alone: dict[str, float] = {}
-    table_ratio_alone: dict[str, float] = {}
-    if table is not None:
-        table_model, _, _, table_notes = identify_table(table, model, s)
-        alone = {k: float(getattr(table_model.plant, k)) for k in keys}
-        table_ratio_alone, _, _, _ = table_scores(table, table_model, s)
-        notes.extend(table_notes)
+    alone, table_ratio_alone, notes = _table_fitted_alone(table, model, s, keys)
     runs_start = (
         {k: float(v) for k, v in frequency_domain_start(runs, model).items() if k in keys}
         if runs
@@ -335,31 +328,10 @@ def identify_joint(
     current, runs = staged.model, list(staged.runs)
     values = {k: staged.values.get(k, float(getattr(current.plant, k))) for k in keys}
     sd, corr = staged.sd, staged.correlation
-    weights: dict[str, dict[str, float]] = {}
-    nfev = 0
-    for channel, stage, fit in staged.stages:
-        side = "stroke" if channel == "stroke_deg" else "pitch"
-        for piece, w in zip(stage.pieces, fit.weights, strict=True):
-            weights.setdefault(piece.name, {})[side] = w
-        nfev += fit.nfev
-    agreement: dict[str, SetAgreement] = {}
-    if runs:
-        r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, current, noise, decimate)
-        agreement["runs"] = SetAgreement(
-            "runs", r_n, r_chi2, r_ratio, r_nrmse, weights.get("runs", {})
-        )
-    if table is not None:
-        t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, current, s)
-        agreement["table"] = SetAgreement(
-            "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
-        )
-    if spectra is not None:
-        # scored where it was fitted, as the runs are (its films check findings, not the plant)
-        fitted = spectra.only([channel for _, channel, _ in _SIDES])
-        m_ratio, m_nrmse, m_n, m_chi2 = fitted.scores(current)
-        agreement["spectra"] = SetAgreement(
-            "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
-        )
+    weights, nfev = _stage_weights(staged.stages)
+    agreement = _set_agreements(
+        runs, table, spectra, current, noise, s, decimate, weights, table_ratio_alone
+    )
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
     rel_se = [sd[i] if k in staged.values else math.nan for i, k in enumerate(keys)]
     free = [i for i, k in enumerate(keys) if k in staged.values]
@@ -386,6 +358,88 @@ def identify_joint(
         nfev=nfev,
         inseparable=tuple(inseparable),
     )
+
+
+def _table_fitted_alone(
+    table: Table | None, model: Model, s: TableSettings, keys: Sequence[str]
+) -> tuple[dict[str, float], dict[str, float], list[str]]:
+    """The table fitted alone (`identify_table`): what it points to.
+
+    Returns
+    -------
+    tuple
+        ({key: value} of the table's fit, {column: noise ratio} of that fit, its notes); all
+        empty without a table.
+    """
+    notes: list[str] = []
+    alone: dict[str, float] = {}
+    table_ratio_alone: dict[str, float] = {}
+    if table is not None:
+        table_model, _, _, table_notes = identify_table(table, model, s)
+        alone = {k: float(getattr(table_model.plant, k)) for k in keys}
+        table_ratio_alone, _, _, _ = table_scores(table, table_model, s)
+        notes.extend(table_notes)
+    return alone, table_ratio_alone, notes
+
+
+def _stage_weights(
+    stages: Sequence[tuple[str, Stage, EvidenceFit]],
+) -> tuple[dict[str, dict[str, float]], int]:
+    """Each set's block weight per side in the staged fit, and the fit's evaluations.
+
+    Returns
+    -------
+    tuple
+        ({set name: {side: weight}}, the evaluations of every stage).
+    """
+    weights: dict[str, dict[str, float]] = {}
+    nfev = 0
+    for channel, stage, fit in stages:
+        side = "stroke" if channel == "stroke_deg" else "pitch"
+        for piece, w in zip(stage.pieces, fit.weights, strict=True):
+            weights.setdefault(piece.name, {})[side] = w
+        nfev += fit.nfev
+    return weights, nfev
+
+
+def _set_agreements(
+    runs: Sequence[Run],
+    table: Table | None,
+    spectra: SpectrumEvidence | None,
+    model: Model,
+    noise: Mapping[str, float],
+    s: TableSettings,
+    decimate: int,
+    weights: Mapping[str, dict[str, float]],
+    table_ratio_alone: dict[str, float],
+) -> dict[str, SetAgreement]:
+    """Each given set's agreement with the jointly fitted `model`.
+
+    Returns
+    -------
+    dict
+        {"runs", "table", "spectra": SetAgreement}, for the sets given; the spectra scored on
+        the channels they are fitted on.
+    """
+    agreement: dict[str, SetAgreement] = {}
+    if runs:
+        r_ratio, r_nrmse, r_n, r_chi2 = run_scores(runs, model, noise, decimate)
+        agreement["runs"] = SetAgreement(
+            "runs", r_n, r_chi2, r_ratio, r_nrmse, weights.get("runs", {})
+        )
+    if table is not None:
+        t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, model, s)
+        agreement["table"] = SetAgreement(
+            "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
+        )
+    if spectra is not None:
+        # scored where it was fitted, as the runs are (its films check findings, not the plant)
+        fitted = spectra.only([channel for _, channel, _ in _SIDES])
+        m_ratio, m_nrmse, m_n, m_chi2 = fitted.scores(model)
+        agreement["spectra"] = SetAgreement(
+            "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
+        )
+    return agreement
 
 
 def identify_evidence(

@@ -212,6 +212,38 @@ def calibrate_channel(
     }
 
 
+def _drive_phase(
+    run: Mapping[str, Any], fs: float, n: int, frequency_hz_per_sample: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The drive's phase and frequency per sample: integrated from the known frequency track,
+    or estimated from ``drive_v`` (which must be finite either way).
+
+    Returns
+    -------
+    tuple
+        (phase in rad, frequency in Hz), one value per sample.
+
+    Raises
+    ------
+    CalibrationError
+        ``drive_v`` missing, non-numeric, of another length or non-finite; a frequency track of
+        another length.
+    """
+    drive = _column(run, "drive_v", n)
+    if not np.all(np.isfinite(drive)):
+        raise CalibrationError("column 'drive_v' has non-finite samples")
+    if frequency_hz_per_sample is not None:
+        track = np.asarray(frequency_hz_per_sample, float).reshape(-1)
+        if track.size != n:
+            raise CalibrationError(
+                f"frequency_hz_per_sample has {track.size} samples, expected {n}"
+            )
+        phase = 2 * np.pi * np.cumsum(track) / fs
+    else:
+        phase, track = frequency_track_from_drive(drive, fs)
+    return phase, track
+
+
 def calibrate(
     run: Mapping[str, Any],
     reference_voltage_v: float,
@@ -266,18 +298,7 @@ def calibrate(
     if not math.isfinite(reference_voltage_v):
         raise CalibrationError(f"reference_voltage_v must be finite, got {reference_voltage_v!r}")
     fs, n = _sample_rate(run, sample_rate_hz)
-    drive = _column(run, "drive_v", n)
-    if not np.all(np.isfinite(drive)):
-        raise CalibrationError("column 'drive_v' has non-finite samples")
-    if frequency_hz_per_sample is not None:
-        track = np.asarray(frequency_hz_per_sample, float).reshape(-1)
-        if track.size != n:
-            raise CalibrationError(
-                f"frequency_hz_per_sample has {track.size} samples, expected {n}"
-            )
-        phase = 2 * np.pi * np.cumsum(track) / fs
-    else:
-        phase, track = frequency_track_from_drive(drive, fs)
+    phase, track = _drive_phase(run, fs, n, frequency_hz_per_sample)
 
     result: dict[str, Any] = {
         "reference_voltage_v": float(reference_voltage_v),
