@@ -113,6 +113,19 @@ def main() -> None:
         )
     except Exception as exc:
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
+    try:  # the health monitor's per-block kernels (the block's angles, the trigger's crossings)
+        from flaair_control.core import health
+        from flaair_control.health_io import health_params_from_config
+
+        hp = health_params_from_config(model=model)
+        vref = np.full(400, hp.reference_voltage_v)
+        health.step(
+            health.initial_state(hp),
+            health.HealthInputs(vref + 0.5 * np.sin(np.arange(400) / 20.0), vref, drive),
+            hp,
+        )
+    except Exception as exc:
+        print(f"[setup] numba warm-up of the health monitor skipped: {exc}")
     try:  # the wing-damage sweep's batch kernels (the stroke tracker among them)
         from flaair_analysis import closed_loop
         from flaair_control.dsa_io import stroke_controller_values
