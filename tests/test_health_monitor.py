@@ -270,3 +270,24 @@ def test_a_damage_during_the_kr_ramp_is_reported_once_the_ramp_ends(model, param
     assert calm.events == []
     after = np.array([b.estimate for b in calm.wingbeats if b.valid and b.time_s > 2.0])
     np.testing.assert_allclose(after.mean(axis=0), 1.0, atol=0.01)
+
+
+@pytest.mark.timeout(120)
+def test_the_per_block_kernels_are_compiled_for_one_argument_type(model, params):
+    """A live node's blocks are read-only views of CDR messages and the pending samples a strided
+    slice of the last buffer: the per-block kernels take them as one argument type, or each new
+    layout is compiled again inside a live node (seconds in which it fell behind the stream and
+    lost its last wingbeats at the end of a run).
+    """
+    vs, vp, dv = hs.run(model, 0.3, sine=(40.0, 140.0))
+    state = H.initial_state(params)
+    for i in range(0, vs.size, 200):
+        block = []
+        for x in (vs[i : i + 200], vp[i : i + 200], dv[i : i + 200]):
+            view = np.frombuffer(x.tobytes(), dtype=np.float64)  # read-only, as a decoded message
+            block.append(view)
+        state, _ = H.step(state, H.HealthInputs(*block), params)
+    assert state.wingbeat > 10
+    # the dispatchers' compiled signatures (numba's; no public function gives them)
+    assert len(H._extended.signatures) == 1, H._extended.signatures
+    assert len(H._crossing_kernel.signatures) == 1, H._crossing_kernel.signatures

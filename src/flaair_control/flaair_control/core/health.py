@@ -49,6 +49,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from flaair_model.lfilter import float_block
 from flaair_model.notes import INFO, WARNING, Note
 from flaair_sim.core.describing import stroke_dynamic_stiffness
 from flaair_sim.core.plant_params import P_CP, P_DP, P_GA, P_I, P_IP, P_JC, P_K, P_KH
@@ -456,7 +457,9 @@ def step(
     -------
     (HealthState, HealthOutputs)
     """
-    vs, vp, dv = (np.asarray(a, dtype=float).ravel() for a in inputs)
+    # one argument type for the kernels (a read-only CDR view, a strided slice: copied), so
+    # none is compiled again in a live node for a layout the set-up's warm-up did not meet
+    vs, vp, dv = (float_block(a) for a in inputs)
     if not vs.size == vp.size == dv.size:
         raise ValueError("health inputs 'stroke_sensor_v', 'pitch_sensor_v', 'drive_v' differ")
     fs = params.sample_rate_hz
@@ -530,7 +533,7 @@ def step(
         if not quiet:
             notes.append(Note(WARNING, "health: no wingbeat (wing stalled or drive off)", ""))
         quiet, keep_from = True, end - longest
-    pending = buf[:, keep_from - start :]
+    pending = np.ascontiguousarray(buf[:, keep_from - start :])
     new_state = HealthState(
         end, pending, keep_from, last, armed, wb, recent, det, quiet, amps_before
     )
