@@ -15,7 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rosproc import FLAAIR, REPO_ROOT, graph_pids, target_watchdog_tripped, wait_for
+from rosproc import (
+    FLAAIR,
+    REPO_ROOT,
+    graph_pids,
+    target_driven,
+    target_watchdog_tripped,
+    wait_for,
+)
 
 # slow: each test runs `flaair live` against the emulated target for seconds of real time
 pytestmark = [pytest.mark.graph, pytest.mark.slow]
@@ -395,6 +402,12 @@ def test_a_killed_loop_leaves_the_target_zeroed_by_its_own_watchdog(tmp_path):
 
     target, live, domain, _, counters = _start_live_against_target(tmp_path, 30.0)
     try:
+        # The loop must have driven the target (armed its watchdog) before it dies: on a busy
+        # machine its first blocks reach the target late and are not applied.
+        assert wait_for(lambda: target_driven(counters), 30), (
+            "the loop never drove the target: "
+            + (counters.read_text() if counters.exists() else "no counters written")
+        )
         # bridge, front end and controller die at once
         os.kill(_loop_pid(domain), signal.SIGKILL)
         target_log = tmp_path / "target.err"
