@@ -20,6 +20,8 @@ from flaair_sim.core.plant_params import P_I
 __all__ = ["N_POINTS", "stroke_dynamic_stiffness"]
 
 N_POINTS = 128  # samples of a period: the projection's error on |x'| x' is ~1 / N_POINTS^3
+# Below this amplitude (rad) the motion is probed at _PROBE_RAD: the linear part, its limit.
+_SMALL_RAD, _PROBE_RAD = 1e-12, 1e-9
 
 
 def stroke_dynamic_stiffness(
@@ -60,8 +62,7 @@ def stroke_dynamic_stiffness(
     )
     shape = w.shape
     w, a, pitch = w.ravel(), a.ravel(), pitch.ravel()
-    small = np.abs(a) < 1e-12  # the linear part: the limit of a small motion
-    probe = np.where(small, 1e-9, a)
+    probe = np.where(np.abs(a) < _SMALL_RAD, _PROBE_RAD, a)
     out = np.empty(w.size, dtype=complex)
     stroke_fundamentals(
         params,
@@ -78,7 +79,7 @@ def stroke_dynamic_stiffness(
 
 def _one(params: np.ndarray, omega: float, amplitude: float, pitch: complex) -> np.ndarray:
     """`stroke_dynamic_stiffness` of one motion (the same kernel, the same arithmetic)."""
-    probe = np.array([1e-9 if abs(amplitude) < 1e-12 else amplitude])
+    probe = np.array([_PROBE_RAD if abs(amplitude) < _SMALL_RAD else amplitude])
     out = np.empty(1, dtype=complex)
     stroke_fundamentals(
         params,
