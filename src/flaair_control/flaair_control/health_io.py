@@ -122,12 +122,29 @@ HEALTH_PARAMS = [
         100000,
         read_only=True,
     ),
-    ParamSpec("cusum_drift", float, "CUSUM drift k [baseline sigmas]", 0.0, 100.0, read_only=True),
     ParamSpec(
-        "cusum_threshold", float, "CUSUM threshold h [baseline sigmas]", 0.1, 1000.0, read_only=True
+        "detect_change",
+        float,
+        "Smallest relative change of a part the change test accumulates (its CUSUM drift)",
+        0.001,
+        0.5,
+        read_only=True,
     ),
     ParamSpec(
-        "sigma_floor", float, "Least relative scatter a baseline is given", 0.0, 1.0, read_only=True
+        "false_alarms_per_hour",
+        float,
+        "False-alarm rate the CUSUM thresholds are derived for [1/h]",
+        1e-6,
+        3600.0,
+        read_only=True,
+    ),
+    ParamSpec(
+        "sigma_floor",
+        float,
+        "Least relative scatter a baseline pair of wingbeats is given",
+        0.0,
+        1.0,
+        read_only=True,
     ),
     ParamSpec(
         "confirm_wingbeats",
@@ -152,14 +169,6 @@ HEALTH_PARAMS = [
         "An event's ratio must differ from 1 by more than this many of its standard errors",
         0.0,
         100.0,
-        read_only=True,
-    ),
-    ParamSpec(
-        "agree_tolerance",
-        float,
-        "Both films moved by ratios this close: actuator gain",
-        0.0,
-        1.0,
         read_only=True,
     ),
 ]
@@ -259,11 +268,10 @@ def health_params_from_config(
                 "average_wingbeats",
                 "warmup_wingbeats",
                 "baseline_wingbeats",
-                "cusum_drift",
-                "cusum_threshold",
+                "detect_change",
+                "false_alarms_per_hour",
                 "sigma_floor",
                 "confirm_wingbeats",
-                "agree_tolerance",
                 "event_significance",
                 "max_amplitude_change",
                 "max_baseline_scatter",
@@ -343,12 +351,4 @@ def health_diagnostics(
         problems,
         calm,
         {"wingbeats": wingbeats, "estimated_wingbeats": estimated, "events": len(events)},
-    )
-
-
-def event_text(e: hcore.HealthEvent) -> str:
-    """One event in a line (its diagnostics entry and log)."""
-    return (
-        f"{e.parameter} x{e.ratio:.3f} (+-{e.stderr:.3f}) at {e.time_s:.3f} s, "
-        f"wingbeat {e.wingbeat}"
     )

@@ -56,7 +56,8 @@ class HealthNode(FlaairNode):
         )
         self.get_logger().info(
             f"health monitor ready: films /flaair/sensor_v, drive {p['drive_topic']}, "
-            f"CUSUM k {p['cusum_drift']:g} h {p['cusum_threshold']:g}"
+            f"changes from {100 * p['detect_change']:g} %, "
+            f"{p['false_alarms_per_hour']:g} false alarm(s) an hour"
         )
 
     def on_undecodable(self, exc: Exception) -> None:
@@ -104,10 +105,11 @@ class HealthNode(FlaairNode):
                 sample_index=index,
                 time_s=index / self.fs_hz,
                 wingbeat_index=e.wingbeat,
+                alternatives=list(e.alternatives),
             )
             event.header.stamp = stamp_from_ns(self.stamp_ns_of(index, self.fs_hz))
             self.event_pub.publish(event)
-            self.events.append(io.event_text(e._replace(time_s=index / self.fs_hz)))
+            self.events.append(health.event_text(e._replace(time_s=index / self.fs_hz)))
             log(self.get_logger(), WARN, f"health: {self.events[-1]}")
 
 

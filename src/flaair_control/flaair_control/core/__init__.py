@@ -7,6 +7,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 - ``monitor``: the collision monitor node's decisions as a step function
 - ``dsa``: delayed-stretch-activation controller (filter, sync/async blend, delay compensation)
 - ``health``: proprioceptive health (wing inertia, film gains per wingbeat; change events)
+- ``change_test``: the health monitor's change test (CUSUMs, their thresholds, the cause named)
 - ``hopf``: linear theory of the dSA loop (characteristic polynomial, Hopf onset, limit cycle)
 - ``safety``: drive clamp, slew limit and sensor watchdog
 - ``stroke``: the per-wingbeat stroke-amplitude controller
@@ -17,6 +18,7 @@ Each decision the nodes make is a function of explicit state, inputs and frozen 
 """
 
 __all__ = [
+    "change_test",
     "collision",
     "dsa",
     "health",

@@ -24,7 +24,7 @@ from flaair_common import topics
 from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
-from flaair_control.core import health
+from flaair_control.core import change_test, health
 from flaair_control.health_io import film_calibration, health_params_from_config, health_values
 from flaair_model.model_io import load_model
 from flaair_model.validation import ModelError
@@ -94,6 +94,7 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
             "ratio": e.ratio,
             "stderr": e.stderr,
             "wingbeat": e.wingbeat,
+            "alternatives": list(e.alternatives),
         }
         for e in out.events
     ]
@@ -101,7 +102,7 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     note = None
     if estimated == 0:
         note = "no estimate: the run is too short or too quiet (drive off or wing stalled)"
-    elif not any(n.text.startswith(health.BASELINE_TEXT) for n in out.notes):
+    elif not any(n.text.startswith(change_test.BASELINE_TEXT) for n in out.notes):
         note = health.no_baseline_text(beats, params)
     return {
         "bag": str(bag),

@@ -1,0 +1,279 @@
+"""The health monitor's change test: which of the robot's parts changed, how much and when. Pure.
+
+Input, per wingbeat: the estimator's raw ratios to the model (`health.wingbeat_estimate`) of the
+wing inertia r, the stroke film's gain a_s and the pitch film's gain a_p. The test watches three
+series, chosen so that each cause moves few of them and their errors are nearly independent:
+
+    r,   a_s,   q = a_p / a_s   (the pitch film's reading against the stroke film's)
+
+The two films' estimates share the error of the stroke's power balance (correlation 0.87 under
+the dSA loop), which cancels in q: q scatters 0.8 % a wingbeat where a_s scatters 1.5 %.
+
+Causes (`CAUSES`, a table): each cause moves the watched series along a fixed signature
+(d log series / d log cause, from the estimator's equations): the inertia moves r; a stroke film
+gain moves a_s and q opposite; a pitch film gain moves q; an actuator gain g is seen by both
+films at once (sqrt(g) each), so it moves a_s by half its log and q not at all. Causes with the
+same signature cannot be told apart from the films and the drive at one operating point, and an
+event names them together (`alternatives`): a pitch film gain and the wing hinge's stiffness
+(both scale the pitch reading against the stroke); an actuator gain and the stroke's damping
+(both scale the drive's power balance); a wing inertia and the stroke's stiffness (the
+resonance shows only K / I).
+
+Test: estimates are averaged in pairs of consecutive wingbeats (successive wingbeats share
+amplitudes through the stroke's log rate and their estimates anti-correlate; a pair's mean is
+the test's sample).
+Per watched series a two-sided CUSUM on z = (x / mu0 - 1) / sigma, with mu0 and sigma (a pair
+mean's relative scatter, at least `sigma_floor`) learned over a steady baseline window. The drift
+is half the smallest move a `detect_change` of any cause makes on the series (relative), so a
+change of that size or more accumulates and the model's misfit across operating points (a few
+tenths of a per cent) does not. The threshold h of each series is derived for
+`false_alarms_per_hour` over all series and both directions at the baseline's wingbeat rate,
+from Siegmund's approximation of a CUSUM's in-control run length,
+
+    ARL0(k, h) = (exp(2 k b) - 2 k b - 1) / (2 k^2),   b = h + 1.166   (k, h in sigmas),
+
+which holds for independent normal samples (the pairs' residual correlation is negative, which
+lengthens the run: the derived rate is an upper bound).
+An alarm is confirmed once `confirm_wingbeats` estimates follow its change point; the watched
+series' ratios are their medians over mu0. A series moved if its ratio differs from 1 by more
+than its drift and by more than `event_significance` standard errors of the pairs' scatter (the
+K_r ramp's wingbeats scatter about no change and are dropped without an event). The cause is the
+signature that fits the moved ratios best (weighted least squares in the logs, each series
+weighted by its baseline sigma); its ratio is exp of the fitted magnitude. After an event every
+baseline is learned again.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.optimize import brentq
+
+from flaair_model.notes import INFO, Note
+
+WATCHED = ("wing_inertia", "stroke_film_gain", "film_ratio")  # r, a_s, a_p / a_s
+PAIR = 2  # estimates averaged into one sample of the test (module docstring)
+_SIEGMUND_B = 1.166  # Siegmund's correction of the threshold for the overshoot (normal samples)
+BASELINE_TEXT = "health baseline: "  # the note a learned baseline gives
+
+
+class Cause(NamedTuple):
+    """A change the test can name: its signature on the watched series and its look-alikes."""
+
+    name: str
+    signature: tuple[float, float, float]  # d log (r, a_s, q) / d log (the cause's parameter)
+    alternatives: tuple[str, ...]  # causes with the same signature (not told apart)
+
+
+CAUSES = (
+    Cause("wing_inertia", (1.0, 0.0, 0.0), ("stroke_stiffness",)),
+    Cause("stroke_film_gain", (0.0, 1.0, -1.0), ()),
+    Cause("pitch_film_gain", (0.0, 0.0, 1.0), ("hinge_stiffness",)),
+    Cause("actuator_gain", (0.0, 0.5, 0.0), ("stroke_damping",)),
+)
+_SIGNATURES = np.array([c.signature for c in CAUSES])
+# the smallest move a change of any cause makes on each watched series, per unit of its log
+_SMALLEST_MOVE = np.array([np.min(np.abs(col[col != 0])) for col in _SIGNATURES.T], dtype=float)
+
+
+class ChangeParams(NamedTuple):
+    """The change test's settings (config/flaair.yaml `health_node`)."""
+
+    warmup_wingbeats: int
+    baseline_wingbeats: int
+    detect_change: float  # the smallest relative change of a cause the drift lets accumulate
+    false_alarms_per_hour: float
+    sigma_floor: float
+    confirm_wingbeats: int
+    event_significance: float
+    max_baseline_scatter: float
+
+
+class ChangeState(NamedTuple):
+    """Baseline sums, CUSUMs, change point, post-change estimates."""
+
+    learned: int  # estimates in the baseline window so far (after the warm-up)
+    skip: int  # estimates still to skip (warm-up)
+    window: np.ndarray  # (baseline_wingbeats, 4) the last watched estimates and frequency
+    mu: np.ndarray  # (3,) nan until learned
+    sigma: np.ndarray  # (3,) a pair mean's relative scatter
+    drift: np.ndarray  # (3,) CUSUM drift k, sigmas
+    threshold: np.ndarray  # (3,) CUSUM threshold h, sigmas
+    half: np.ndarray  # (3,) the first estimate of a pair (nan: none)
+    g_up: np.ndarray
+    g_down: np.ndarray
+    since: np.ndarray  # (3,) pairs since each CUSUM last left zero (0: at zero)
+    alarm: np.ndarray  # (3,) bool
+    history: np.ndarray  # (confirm, 3) last watched estimates, newest last
+
+
+class Change(NamedTuple):
+    """A named change: cause, ratio after / before, its stderr, the look-alikes."""
+
+    cause: str
+    ratio: float
+    stderr: float
+    alternatives: tuple[str, ...]
+
+
+def initial(params: ChangeParams, skip: int | None = None) -> ChangeState:
+    """Nothing learned: `skip` (default the warm-up) estimates to skip, then a baseline."""
+    z = np.zeros(3)
+    nan = np.full(3, np.nan)
+    return ChangeState(
+        0,
+        params.warmup_wingbeats if skip is None else skip,
+        np.full((params.baseline_wingbeats, 4), np.nan),
+        nan.copy(),
+        nan.copy(),
+        nan.copy(),
+        nan.copy(),
+        nan.copy(),
+        z.copy(),
+        z.copy(),
+        np.zeros(3, dtype=np.int64),
+        np.zeros(3, dtype=bool),
+        np.full((params.confirm_wingbeats, 3), np.nan),
+    )
+
+
+def watched(estimate: np.ndarray) -> np.ndarray:
+    """(3,) the watched series (r, a_s, a_p / a_s) of a raw estimate (r, a_s, a_p, ...)."""
+    return np.array([estimate[0], estimate[1], estimate[2] / estimate[1]])
+
+
+def log_run_length(drift: float, threshold: float) -> float:
+    """The log of a one-sided CUSUM's in-control run length in samples (Siegmund; sigmas)."""
+    x = 2.0 * drift * (threshold + _SIEGMUND_B)
+    if x < 1e-6:  # no drift: a random walk's exit time, b^2
+        return 2.0 * math.log(threshold + _SIEGMUND_B)
+    return x + math.log1p(-(x + 1.0) * math.exp(-x)) - math.log(2.0 * drift * drift)
+
+
+def cusum_threshold(drift: float, run_length: float) -> float:
+    """The threshold (sigmas) giving a one-sided CUSUM of drift `drift` the in-control run
+    length `run_length` samples.
+    """
+    target = math.log(run_length)
+    return float(brentq(lambda h: log_run_length(drift, h) - target, 0.0, 1e6))
+
+
+def false_alarms_per_hour(state: ChangeState, frequency_hz: float) -> float:
+    """The learned test's false-alarm rate at `frequency_hz` wingbeats a second (every series,
+    both directions; nan before a baseline).
+    """
+    if not np.isfinite(state.mu).all():
+        return math.nan
+    samples_per_hour = 3600.0 * frequency_hz / PAIR
+    return float(
+        sum(
+            2.0 * samples_per_hour / math.exp(log_run_length(k, h))
+            for k, h in zip(state.drift, state.threshold, strict=True)
+        )
+    )
+
+
+def _learn(
+    state: ChangeState, x: np.ndarray, frequency_hz: float, params: ChangeParams
+) -> tuple[ChangeState, list[Note]]:
+    """One estimate into the baseline window; the baseline, its drifts and thresholds once the
+    window is full and steady.
+    """
+    window = np.vstack([state.window[1:], np.r_[x, frequency_hz][None, :]])
+    learned = min(state.learned + 1, params.baseline_wingbeats)
+    state = state._replace(learned=learned, window=window)
+    if learned < params.baseline_wingbeats:
+        return state, []
+    mu = window[:, :3].mean(axis=0)
+    scatter = window[:, :3].std(axis=0) / np.abs(mu)
+    f = window[:, 3]
+    spread = (f.max() - f.min()) / f.mean()
+    if not (
+        np.all(scatter <= params.max_baseline_scatter) and spread <= params.max_baseline_scatter
+    ):
+        return state, []  # not steady yet: slide on
+    n = window.shape[0] // PAIR * PAIR
+    pairs = window[:n, :3].reshape(-1, PAIR, 3).mean(axis=1)
+    sigma = np.maximum(pairs.std(axis=0, ddof=1) / np.abs(mu), params.sigma_floor)
+    drift = params.detect_change * _SMALLEST_MOVE / 2.0 / sigma
+    run_length = 2.0 * 3.0 * 3600.0 * f.mean() / PAIR / params.false_alarms_per_hour
+    threshold = np.array([cusum_threshold(k, run_length) for k in drift])
+    state = state._replace(mu=mu, sigma=sigma, drift=drift, threshold=threshold)
+    text = BASELINE_TEXT + ", ".join(f"{n} {m:.3f}" for n, m in zip(WATCHED, mu, strict=True))
+    text += f" (CUSUM h {', '.join(f'{h:.1f}' for h in threshold)} sigmas"
+    text += f" for {params.false_alarms_per_hour:g} false alarm an hour)"
+    return state, [Note(INFO, text, "")]
+
+
+def step(
+    state: ChangeState, estimate: np.ndarray, frequency_hz: float, params: ChangeParams
+) -> tuple[ChangeState, list[Change], list[Note]]:
+    """One wingbeat's raw estimate (r, a_s, a_p, ...) through the baseline and the CUSUMs."""
+    x = watched(estimate)
+    history = np.vstack([state.history[1:], x[None, :]])
+    if state.skip > 0:
+        return state._replace(skip=state.skip - 1, history=history), [], []
+    if not np.isfinite(state.mu).all():
+        state, notes = _learn(state._replace(history=history), x, frequency_hz, params)
+        return state, [], notes
+    if not np.isfinite(state.half).all():  # the first of a pair
+        return state._replace(half=x, history=history), [], []
+    mean = (state.half + x) / 2.0
+    z = (mean / state.mu - 1.0) / state.sigma
+    g_up = np.maximum(0.0, state.g_up + z - state.drift)
+    g_down = np.maximum(0.0, state.g_down - z - state.drift)
+    at_zero = (g_up == 0) & (g_down == 0)
+    since = np.where(at_zero, 0, state.since + 1)
+    alarm = state.alarm | (np.maximum(g_up, g_down) > state.threshold)
+    state = state._replace(
+        half=np.full(3, np.nan),
+        g_up=g_up,
+        g_down=g_down,
+        since=since,
+        alarm=alarm & ~at_zero,
+        history=history,
+    )
+    confirmed = state.alarm & (since * PAIR >= params.confirm_wingbeats)
+    if not confirmed.any():
+        return state, [], []
+    post = history / state.mu  # the last confirm_wingbeats estimates over the baseline
+    ratio = np.median(post, axis=0)  # robust to the change's own transient wingbeats
+    n = post.shape[0] // PAIR * PAIR
+    pairs = post[-n:].reshape(-1, PAIR, 3).mean(axis=1) if n >= 2 * PAIR else post
+    err = pairs.std(axis=0, ddof=1) / math.sqrt(pairs.shape[0])
+    smallest = params.detect_change * _SMALLEST_MOVE / 2.0
+    # moved by more than the drift, and by more than its own scatter allows: a transient's
+    # estimates (the K_r ramp's) scatter widely, and their median is no change
+    moved = np.abs(ratio - 1.0) > np.maximum(smallest, params.event_significance * err)
+    if not (confirmed & moved).any():  # a transient that came back: no event, test on
+        keep = ~(confirmed & ~moved)
+        state = state._replace(
+            g_up=state.g_up * keep,
+            g_down=state.g_down * keep,
+            since=state.since * keep,
+            alarm=state.alarm & keep,
+        )
+        return state, [], []
+    change = name_change(np.log(ratio), state.sigma / math.sqrt(max(n // PAIR, 1)))
+    return initial(params, skip=0), [change], []
+
+
+def name_change(log_ratio: np.ndarray, err: np.ndarray) -> Change:
+    """The cause whose signature best fits the watched series' log ratios, by weighted least
+    squares with standard errors `err`; its ratio and stderr.
+    """
+    y = log_ratio
+    w = 1.0 / np.square(err)
+    best, best_chi2 = None, math.inf
+    for cause, d in zip(CAUSES, _SIGNATURES, strict=True):
+        info = float(np.sum(w * d * d))
+        size = float(np.sum(w * d * y)) / info
+        chi2 = float(np.sum(w * np.square(y - size * d)))
+        if chi2 < best_chi2:
+            best, best_chi2 = (cause, size, 1.0 / math.sqrt(info)), chi2
+    assert best is not None
+    cause, size, se = best
+    ratio = math.exp(size)
+    return Change(cause.name, ratio, ratio * se, cause.alternatives)
