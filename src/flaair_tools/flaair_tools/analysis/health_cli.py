@@ -193,9 +193,11 @@ def main(argv: list[str] | None = None) -> int:
         if r["note"]:
             print(f"flaair health: {r['bag']}: {r['note']}", file=sys.stderr)
         for ev in r["events"]:
+            also = ev["alternatives"]
+            alike = f" (or {', '.join(also)}: not told apart)" if also else ""
             print(
-                f"{r['bag']}: {ev['parameter']} x{ev['ratio']:.3f} (+-{ev['stderr']:.3f}) at "
-                f"{ev['time_s']:.3f} s (sample {ev['sample_index']}, wingbeat {ev['wingbeat']})"
+                f"{r['bag']}: {ev['parameter']} x{ev['ratio']:.3f} (+-{ev['stderr']:.3f}){alike} "
+                f"at {ev['time_s']:.3f} s (sample {ev['sample_index']}, wingbeat {ev['wingbeat']})"
             )
     n_events = len(doc["events"])
     print(f"wrote {args.out / 'health.json'} and {args.out / 'health.png'} ({n_events} event(s))")
