@@ -61,6 +61,7 @@ BLOCKS = (
     ),
     Block("discrepancy", "docs/DISCREPANCY.md", parts=("bench_discrepancy",)),
     Block("tables", "docs/TABLES.md", parts=("bench_tables",)),
+    Block("health", "docs/HEALTH.md", parts=("bench_health",)),
 )
 MARKERS = "<!-- BEGIN results-table: {name} -->", "<!-- END results-table: {name} -->"
 _RESULTS_NAME = re.compile(r"^\d{4}-\d{2}-\d{2}-[0-9a-f]+(?:-dirty)?(?:-subset)?\.json$")
