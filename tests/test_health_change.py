@@ -64,15 +64,18 @@ def test_the_derived_threshold_gives_the_run_length_asked_for(drift):
         ("stroke_film_gain", ()),
         ("pitch_film_gain", ("hinge_stiffness",)),
         ("actuator_gain", ("stroke_damping",)),
+        ("stroke_amplifier_offset", ("stroke_bias",)),
+        ("pitch_amplifier_offset", ("hinge_rest_angle",)),
     ],
 )
-def test_each_signature_names_its_cause_and_ratio(cause, alternatives):
+def test_each_signature_names_its_cause_and_size(cause, alternatives):
     row = next(c for c in C.CAUSES if c.name == cause)
-    logs = math.log(0.95) * np.array(row.signature)
-    change = C.name_change(logs, np.full(3, 0.005))
+    size = math.log(0.95) if row.is_ratio else 0.05
+    change = C.name_change(size * np.array(row.signature), np.full(len(C.WATCHED), 0.005))
     assert change.cause == cause
-    assert change.ratio == pytest.approx(0.95, abs=1e-12)
+    assert change.size == pytest.approx(0.95 if row.is_ratio else 0.05, abs=1e-12)
     assert change.alternatives == alternatives
+    assert change.is_ratio == row.is_ratio
 
 
 def _changed(model, cause):
@@ -141,3 +144,25 @@ def test_the_stroke_film_gain_scatters_under_2_percent_a_wingbeat_under_the_dsa_
     gains = np.array([b.estimate[1] for b in out.wingbeats if b.valid and b.time_s > 1.0])
     assert gains.size > 400
     assert gains.std() / gains.mean() < 0.02
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(("film", "controller"), [("stroke", "dsa"), ("pitch", "sine")])
+def test_a_charge_amplifier_offset_is_named_in_degrees_of_its_film(model, params, film, controller):
+    """The film's amplifier output steps by 5 % of the film's amplitude: the film's zero moves,
+    its gain and the wing do not; the event gives the offset in degrees of the film's angle.
+    """
+    sine = (40.0, 140.0) if controller == "sine" else None
+    vs, vp, dv = hs.run(model, 3.0, seed=11, sine=sine)
+    volts = vs if film == "stroke" else vp
+    n0 = int(CHANGE_S * hs.FS)
+    step_v = 0.05 * (volts[:n0].max() - volts[:n0].min()) / 2.0
+    volts[n0:] += step_v
+    _, out = H.step(H.initial_state(params), H.HealthInputs(vs, vp, dv), params)
+    assert [(e.parameter, math.isnan(e.ratio)) for e in out.events] == [
+        (f"{film}_amplifier_offset", True)
+    ]
+    per_rad = model.stroke_volts_per_rad if film == "stroke" else model.pitch_volts_per_rad
+    assert out.events[0].offset_deg == pytest.approx(math.degrees(step_v / per_rad), rel=0.1)
+    first = next(b.wingbeat for b in out.wingbeats if b.time_s >= CHANGE_S)
+    assert 0 < out.events[0].wingbeat - first <= 20

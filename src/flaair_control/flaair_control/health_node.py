@@ -106,6 +106,7 @@ class HealthNode(FlaairNode):
                 time_s=index / self.fs_hz,
                 wingbeat_index=e.wingbeat,
                 alternatives=list(e.alternatives),
+                offset_deg=e.offset_deg,
             )
             event.header.stamp = stamp_from_ns(self.stamp_ns_of(index, self.fs_hz))
             self.event_pub.publish(event)

@@ -1,46 +1,50 @@
 """The health monitor's change test: which of the robot's parts changed, how much and when. Pure.
 
 Input, per wingbeat: the estimator's raw ratios to the model (`health.wingbeat_estimate`) of the
-wing inertia r, the stroke film's gain a_s and the pitch film's gain a_p. The test watches three
+wing inertia r, the stroke film's gain a_s and the pitch film's gain a_p, and each film's zero
+(the wingbeat's mean angle over its amplitude, `health.film_zeros`). The test watches five
 series, chosen so that each cause moves few of them and their errors are nearly independent:
 
-    r,   a_s,   q = a_p / a_s   (the pitch film's reading against the stroke film's)
+    r,   a_s,   q = a_p / a_s   (the pitch film's reading against the stroke film's; ratios)
+    z_s, z_p                    (the films' zeros, in units of their amplitudes; differences)
 
-The two films' estimates share the error of the stroke's power balance (correlation 0.87 under
-the dSA loop), which cancels in q: q scatters 0.8 % a wingbeat where a_s scatters 1.5 %.
+The two films' gains share the error of the stroke's power balance (correlation 0.87 under the
+dSA loop), which cancels in q: q scatters about half as much as a_s.
 
 Causes (`CAUSES`, a table): each cause moves the watched series along a fixed signature
-(d log series / d log cause, from the estimator's equations): the inertia moves r; a stroke film
-gain moves a_s and q opposite; a pitch film gain moves q; an actuator gain g is seen by both
-films at once (sqrt(g) each), so it moves a_s by half its log and q not at all. Causes with the
-same signature cannot be told apart from the films and the drive at one operating point, and an
-event names them together (`alternatives`): a pitch film gain and the wing hinge's stiffness
-(both scale the pitch reading against the stroke); an actuator gain and the stroke's damping
-(both scale the drive's power balance); a wing inertia and the stroke's stiffness (the
-resonance shows only K / I).
+(d log ratio, or d zero, per unit of the cause, from the estimator's equations): the inertia
+moves r; a stroke film gain moves a_s and q opposite; a pitch film gain moves q; an actuator
+gain g is seen by both films at once (sqrt(g) each), so it moves a_s by half its log and q not at
+all; a charge amplifier's offset moves its film's zero. Causes with the same signature cannot be
+told apart from the films and the drive at one operating point, and an event names them
+together (`alternatives`): a pitch film gain and the wing hinge's stiffness (both scale the
+pitch reading against the stroke); an actuator gain and the stroke's damping (both scale the
+drive's power balance); a wing inertia and the stroke's stiffness (the resonance shows only
+K / I); an amplifier's offset and a constant torque on the stroke or a moved rest angle of the
+hinge (both move the film's mean).
 
 Test: estimates are averaged in pairs of consecutive wingbeats (successive wingbeats share
 amplitudes through the stroke's log rate and their estimates anti-correlate; a pair's mean is
-the test's sample).
-Per watched series a two-sided CUSUM on z = (x / mu0 - 1) / sigma, with mu0 and sigma (a pair
-mean's relative scatter, at least `sigma_floor`) learned over a steady baseline window. The drift
-is half the smallest move a `detect_change` of any cause makes on the series (relative), so a
-change of that size or more accumulates and the model's misfit across operating points (a few
-tenths of a per cent) does not. The threshold h of each series is derived for
-`false_alarms_per_hour` over all series and both directions at the baseline's wingbeat rate,
-from Siegmund's approximation of a CUSUM's in-control run length,
+the test's sample). Per watched series a two-sided CUSUM on z = d / sigma, d = x / mu0 - 1 for a
+ratio and x - mu0 for a zero, with mu0 and sigma (a pair mean's scatter, relative for a ratio,
+at least `sigma_floor`) learned over a steady baseline window. The drift is half the smallest
+move a `detect_change` of any cause makes on the series (for a zero: a `detect_change` of the
+amplitude), so a change of that size or more accumulates and the model's misfit across
+operating points (a few tenths of a per cent) does not. The threshold h of each series is
+derived for `false_alarms_per_hour` over all series and both directions at the baseline's
+wingbeat rate, from Siegmund's approximation of a CUSUM's in-control run length,
 
     ARL0(k, h) = (exp(2 k b) - 2 k b - 1) / (2 k^2),   b = h + 1.166   (k, h in sigmas),
 
 which holds for independent normal samples (the pairs' residual correlation is negative, which
 lengthens the run: the derived rate is an upper bound).
 An alarm is confirmed once `confirm_wingbeats` estimates follow its change point; the watched
-series' ratios are their medians over mu0. A series moved if its ratio differs from 1 by more
-than its drift and by more than `event_significance` standard errors of the pairs' scatter (the
-K_r ramp's wingbeats scatter about no change and are dropped without an event). The cause is the
-signature that fits the moved ratios best (weighted least squares in the logs, each series
-weighted by its baseline sigma); its ratio is exp of the fitted magnitude. After an event every
-baseline is learned again.
+series' moves are their medians against mu0. A series moved if its move exceeds its drift and
+`event_significance` standard errors of the pairs' scatter (the K_r ramp's wingbeats scatter
+about no change and are dropped without an event). The cause is the signature that fits the
+moves best (weighted least squares in the log ratios and the zeros, each series weighted by its
+baseline sigma); its size is the fitted magnitude: a ratio exp(size), or a zero's move in units
+of the film's amplitude. After an event every baseline is learned again.
 """
 
 from __future__ import annotations
@@ -53,7 +57,9 @@ from scipy.optimize import brentq
 
 from flaair_model.notes import INFO, Note
 
-WATCHED = ("wing_inertia", "stroke_film_gain", "film_ratio")  # r, a_s, a_p / a_s
+WATCHED = ("wing_inertia", "stroke_film_gain", "film_ratio", "stroke_film_zero", "pitch_film_zero")
+RATIO = np.array([True, True, True, False, False])  # a ratio series (else a difference)
+_N = len(WATCHED)
 PAIR = 2  # estimates averaged into one sample of the test (module docstring)
 _SIEGMUND_B = 1.166  # Siegmund's correction of the threshold for the overshoot (normal samples)
 BASELINE_TEXT = "health baseline: "  # the note a learned baseline gives
@@ -63,15 +69,18 @@ class Cause(NamedTuple):
     """A change the test can name: its signature on the watched series and its look-alikes."""
 
     name: str
-    signature: tuple[float, float, float]  # d log (r, a_s, q) / d log (the cause's parameter)
+    signature: tuple[float, ...]  # d (log r, log a_s, log q, z_s, z_p) per unit of the cause
     alternatives: tuple[str, ...]  # causes with the same signature (not told apart)
+    is_ratio: bool = True  # its size is a log ratio (else a zero's move, in amplitudes)
 
 
 CAUSES = (
-    Cause("wing_inertia", (1.0, 0.0, 0.0), ("stroke_stiffness",)),
-    Cause("stroke_film_gain", (0.0, 1.0, -1.0), ()),
-    Cause("pitch_film_gain", (0.0, 0.0, 1.0), ("hinge_stiffness",)),
-    Cause("actuator_gain", (0.0, 0.5, 0.0), ("stroke_damping",)),
+    Cause("wing_inertia", (1.0, 0.0, 0.0, 0.0, 0.0), ("stroke_stiffness",)),
+    Cause("stroke_film_gain", (0.0, 1.0, -1.0, 0.0, 0.0), ()),
+    Cause("pitch_film_gain", (0.0, 0.0, 1.0, 0.0, 0.0), ("hinge_stiffness",)),
+    Cause("actuator_gain", (0.0, 0.5, 0.0, 0.0, 0.0), ("stroke_damping",)),
+    Cause("stroke_amplifier_offset", (0.0, 0.0, 0.0, 1.0, 0.0), ("stroke_bias",), False),
+    Cause("pitch_amplifier_offset", (0.0, 0.0, 0.0, 0.0, 1.0), ("hinge_rest_angle",), False),
 )
 _SIGNATURES = np.array([c.signature for c in CAUSES])
 # the smallest move a change of any cause makes on each watched series, per unit of its log
@@ -96,36 +105,41 @@ class ChangeState(NamedTuple):
 
     learned: int  # estimates in the baseline window so far (after the warm-up)
     skip: int  # estimates still to skip (warm-up)
-    window: np.ndarray  # (baseline_wingbeats, 4) the last watched estimates and frequency
-    mu: np.ndarray  # (3,) nan until learned
-    sigma: np.ndarray  # (3,) a pair mean's relative scatter
-    drift: np.ndarray  # (3,) CUSUM drift k, sigmas
-    threshold: np.ndarray  # (3,) CUSUM threshold h, sigmas
-    half: np.ndarray  # (3,) the first estimate of a pair (nan: none)
+    window: np.ndarray  # (baseline_wingbeats, 6) the last watched estimates and frequency
+    mu: np.ndarray  # (5,) nan until learned
+    sigma: np.ndarray  # (5,) a pair mean's scatter (relative for a ratio)
+    drift: np.ndarray  # (5,) CUSUM drift k, sigmas
+    threshold: np.ndarray  # (5,) CUSUM threshold h, sigmas
+    half: np.ndarray  # (5,) the first estimate of a pair (nan: none)
     g_up: np.ndarray
     g_down: np.ndarray
-    since: np.ndarray  # (3,) pairs since each CUSUM last left zero (0: at zero)
-    alarm: np.ndarray  # (3,) bool
-    history: np.ndarray  # (confirm, 3) last watched estimates, newest last
+    since: np.ndarray  # (5,) pairs since each CUSUM last left zero (0: at zero)
+    alarm: np.ndarray  # (5,) bool
+    history: np.ndarray  # (confirm, 5) last watched estimates, newest last
 
 
 class Change(NamedTuple):
-    """A named change: cause, ratio after / before, its stderr, the look-alikes."""
+    """A named change: cause, its size and stderr, the look-alikes.
+
+    `size`: a ratio after / before (a gain, the inertia), or a film zero's move in units of the
+    film's amplitude (an offset: `is_ratio` false).
+    """
 
     cause: str
-    ratio: float
+    size: float
     stderr: float
     alternatives: tuple[str, ...]
+    is_ratio: bool
 
 
 def initial(params: ChangeParams, skip: int | None = None) -> ChangeState:
     """Nothing learned: `skip` (default the warm-up) estimates to skip, then a baseline."""
-    z = np.zeros(3)
-    nan = np.full(3, np.nan)
+    z = np.zeros(_N)
+    nan = np.full(_N, np.nan)
     return ChangeState(
         0,
         params.warmup_wingbeats if skip is None else skip,
-        np.full((params.baseline_wingbeats, 4), np.nan),
+        np.full((params.baseline_wingbeats, _N + 1), np.nan),
         nan.copy(),
         nan.copy(),
         nan.copy(),
@@ -133,15 +147,21 @@ def initial(params: ChangeParams, skip: int | None = None) -> ChangeState:
         nan.copy(),
         z.copy(),
         z.copy(),
-        np.zeros(3, dtype=np.int64),
-        np.zeros(3, dtype=bool),
-        np.full((params.confirm_wingbeats, 3), np.nan),
+        np.zeros(_N, dtype=np.int64),
+        np.zeros(_N, dtype=bool),
+        np.full((params.confirm_wingbeats, _N), np.nan),
     )
 
 
-def watched(estimate: np.ndarray) -> np.ndarray:
-    """(3,) the watched series (r, a_s, a_p / a_s) of a raw estimate (r, a_s, a_p, ...)."""
-    return np.array([estimate[0], estimate[1], estimate[2] / estimate[1]])
+def watched(estimate: np.ndarray, zeros: np.ndarray) -> np.ndarray:
+    """(5,) the watched series of a raw estimate (r, a_s, a_p, ...) and the films' zeros."""
+    return np.array([estimate[0], estimate[1], estimate[2] / estimate[1], zeros[0], zeros[1]])
+
+
+def _moves(x: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """Each series' move from its baseline: relative for a ratio, a difference for a zero."""
+    moves: np.ndarray = np.where(RATIO, x / mu - 1.0, x - mu)
+    return moves
 
 
 def log_run_length(drift: float, threshold: float) -> float:
@@ -186,19 +206,20 @@ def _learn(
     state = state._replace(learned=learned, window=window)
     if learned < params.baseline_wingbeats:
         return state, []
-    mu = window[:, :3].mean(axis=0)
-    scatter = window[:, :3].std(axis=0) / np.abs(mu)
-    f = window[:, 3]
+    mu = window[:, :_N].mean(axis=0)
+    scale = np.where(RATIO, np.abs(mu), 1.0)  # a ratio's scatter is relative, a zero's not
+    scatter = window[:, :_N].std(axis=0) / scale
+    f = window[:, _N]
     spread = (f.max() - f.min()) / f.mean()
     if not (
         np.all(scatter <= params.max_baseline_scatter) and spread <= params.max_baseline_scatter
     ):
         return state, []  # not steady yet: slide on
     n = window.shape[0] // PAIR * PAIR
-    pairs = window[:n, :3].reshape(-1, PAIR, 3).mean(axis=1)
-    sigma = np.maximum(pairs.std(axis=0, ddof=1) / np.abs(mu), params.sigma_floor)
+    pairs = window[:n, :_N].reshape(-1, PAIR, _N).mean(axis=1)
+    sigma = np.maximum(pairs.std(axis=0, ddof=1) / scale, params.sigma_floor)
     drift = params.detect_change * _SMALLEST_MOVE / 2.0 / sigma
-    run_length = 2.0 * 3.0 * 3600.0 * f.mean() / PAIR / params.false_alarms_per_hour
+    run_length = 2.0 * _N * 3600.0 * f.mean() / PAIR / params.false_alarms_per_hour
     threshold = np.array([cusum_threshold(k, run_length) for k in drift])
     state = state._replace(mu=mu, sigma=sigma, drift=drift, threshold=threshold)
     text = BASELINE_TEXT + ", ".join(f"{n} {m:.3f}" for n, m in zip(WATCHED, mu, strict=True))
@@ -208,10 +229,16 @@ def _learn(
 
 
 def step(
-    state: ChangeState, estimate: np.ndarray, frequency_hz: float, params: ChangeParams
+    state: ChangeState,
+    estimate: np.ndarray,
+    zeros: np.ndarray,
+    frequency_hz: float,
+    params: ChangeParams,
 ) -> tuple[ChangeState, list[Change], list[Note]]:
-    """One wingbeat's raw estimate (r, a_s, a_p, ...) through the baseline and the CUSUMs."""
-    x = watched(estimate)
+    """One wingbeat's raw estimate (r, a_s, a_p, ...) and films' zeros (`health.film_zeros`)
+    through the baseline and the CUSUMs.
+    """
+    x = watched(estimate, zeros)
     history = np.vstack([state.history[1:], x[None, :]])
     if state.skip > 0:
         return state._replace(skip=state.skip - 1, history=history), [], []
@@ -220,15 +247,14 @@ def step(
         return state, [], notes
     if not np.isfinite(state.half).all():  # the first of a pair
         return state._replace(half=x, history=history), [], []
-    mean = (state.half + x) / 2.0
-    z = (mean / state.mu - 1.0) / state.sigma
+    z = _moves((state.half + x) / 2.0, state.mu) / state.sigma
     g_up = np.maximum(0.0, state.g_up + z - state.drift)
     g_down = np.maximum(0.0, state.g_down - z - state.drift)
     at_zero = (g_up == 0) & (g_down == 0)
     since = np.where(at_zero, 0, state.since + 1)
     alarm = state.alarm | (np.maximum(g_up, g_down) > state.threshold)
     state = state._replace(
-        half=np.full(3, np.nan),
+        half=np.full(_N, np.nan),
         g_up=g_up,
         g_down=g_down,
         since=since,
@@ -238,15 +264,15 @@ def step(
     confirmed = state.alarm & (since * PAIR >= params.confirm_wingbeats)
     if not confirmed.any():
         return state, [], []
-    post = history / state.mu  # the last confirm_wingbeats estimates over the baseline
-    ratio = np.median(post, axis=0)  # robust to the change's own transient wingbeats
+    post = _moves(history, state.mu)  # the last confirm_wingbeats estimates against the baseline
+    move = np.median(post, axis=0)  # robust to the change's own transient wingbeats
     n = post.shape[0] // PAIR * PAIR
-    pairs = post[-n:].reshape(-1, PAIR, 3).mean(axis=1) if n >= 2 * PAIR else post
+    pairs = post[-n:].reshape(-1, PAIR, _N).mean(axis=1) if n >= 2 * PAIR else post
     err = pairs.std(axis=0, ddof=1) / math.sqrt(pairs.shape[0])
     smallest = params.detect_change * _SMALLEST_MOVE / 2.0
     # moved by more than the drift, and by more than its own scatter allows: a transient's
     # estimates (the K_r ramp's) scatter widely, and their median is no change
-    moved = np.abs(ratio - 1.0) > np.maximum(smallest, params.event_significance * err)
+    moved = np.abs(move) > np.maximum(smallest, params.event_significance * err)
     if not (confirmed & moved).any():  # a transient that came back: no event, test on
         keep = ~(confirmed & ~moved)
         state = state._replace(
@@ -256,24 +282,26 @@ def step(
             alarm=state.alarm & keep,
         )
         return state, [], []
-    change = name_change(np.log(ratio), state.sigma / math.sqrt(max(n // PAIR, 1)))
+    y = np.where(RATIO, np.log1p(np.where(RATIO, move, 0.0)), move)
+    change = name_change(y, state.sigma / math.sqrt(max(n // PAIR, 1)))
     return initial(params, skip=0), [change], []
 
 
-def name_change(log_ratio: np.ndarray, err: np.ndarray) -> Change:
-    """The cause whose signature best fits the watched series' log ratios, by weighted least
-    squares with standard errors `err`; its ratio and stderr.
+def name_change(moves: np.ndarray, err: np.ndarray) -> Change:
+    """The cause whose signature best fits the watched series' moves (log ratios, zeros'
+    differences), by weighted least squares with standard errors `err`; its size and stderr.
     """
-    y = log_ratio
     w = 1.0 / np.square(err)
     best, best_chi2 = None, math.inf
     for cause, d in zip(CAUSES, _SIGNATURES, strict=True):
         info = float(np.sum(w * d * d))
-        size = float(np.sum(w * d * y)) / info
-        chi2 = float(np.sum(w * np.square(y - size * d)))
+        size = float(np.sum(w * d * moves)) / info
+        chi2 = float(np.sum(w * np.square(moves - size * d)))
         if chi2 < best_chi2:
             best, best_chi2 = (cause, size, 1.0 / math.sqrt(info)), chi2
     assert best is not None
     cause, size, se = best
-    ratio = math.exp(size)
-    return Change(cause.name, ratio, ratio * se, cause.alternatives)
+    if cause.is_ratio:
+        ratio = math.exp(size)
+        return Change(cause.name, ratio, ratio * se, cause.alternatives, True)
+    return Change(cause.name, size, se, cause.alternatives, False)

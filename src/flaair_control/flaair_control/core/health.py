@@ -24,15 +24,17 @@ a_p. A changed actuator gain g moves both film gains by sqrt(g) and the product 
 the `actuator_gain` series is that product. A changed stroke stiffness reads as an inertia
 change (K / r is what the resonance shows).
 
-Change detection (`change_test`): a CUSUM per watched series (the inertia, the stroke film and
-the pitch film's reading against the stroke film's) on pairs of wingbeats, its threshold derived
-for a false-alarm rate an hour, and the cause named by the signature it leaves on the series,
-with the causes the films and the drive cannot tell from it.
+Change detection (`change_test`): a CUSUM per watched series (the inertia, the stroke film, the
+pitch film's reading against the stroke film's, and each film's zero, `film_zeros`) on pairs of
+wingbeats, its threshold derived for a false-alarm rate an hour, and the cause named by the
+signature it leaves on the series (a ratio, or an amplifier's offset in degrees), with the
+causes the films and the drive cannot tell from it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -156,17 +158,19 @@ class Wingbeat(NamedTuple):
 
 
 class HealthEvent(NamedTuple):
-    """A detected change: parameter, ratio to the value before, its stderr, where and when, and
-    the causes the films and the drive cannot tell from it.
+    """A detected change: parameter, ratio to the value before (a gain, the inertia) or a film
+    zero's move in degrees (an amplifier's offset), its stderr, where and when, and the causes
+    the films and the drive cannot tell from it.
     """
 
     parameter: str
-    ratio: float
-    stderr: float
+    ratio: float  # nan for an offset
+    stderr: float  # of the ratio, or of the offset (deg)
     sample_index: int
     time_s: float
     wingbeat: int
     alternatives: tuple[str, ...] = ()
+    offset_deg: float = math.nan  # a film's zero moved by this much (its angle); nan for a ratio
 
 
 class HealthOutputs(NamedTuple):
@@ -194,9 +198,10 @@ def initial_state(params: HealthParams) -> HealthState:
     )
 
 
-def fundamentals(x: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
-    """(k,) complex amplitudes C of the fundamental of each row of `x` (k, n), x ~ Re(C e^(j
-    theta)), by least squares on a mean, the fundamental and its next `_HARMONICS - 1` harmonics.
+def fundamentals(x: np.ndarray, theta_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) complex amplitudes C of the fundamental of each row of `x` (k, n), x ~ mean +
+    Re(C e^(j theta)), and (k,) the means, by least squares on a mean, the fundamental and its
+    next `_HARMONICS - 1` harmonics.
 
     A wingbeat spans a whole number of samples, not of periods: a plain projection on e^(-j
     theta) leaks the mean and the conjugate into C by about one sample in n (1.5 % at 10 kHz and
@@ -207,11 +212,24 @@ def fundamentals(x: np.ndarray, theta_rad: np.ndarray) -> np.ndarray:
     design = np.vstack([np.ones(n), np.cos(k), np.sin(k)]).T
     if n < design.shape[1] * 2:  # too few samples for the harmonics: the projection
         basis = np.exp(-1j * theta_rad)
-        projected: np.ndarray = (2.0 / n) * ((x - x.mean(axis=1, keepdims=True)) @ basis)
-        return projected
+        mean = x.mean(axis=1)
+        projected: np.ndarray = (2.0 / n) * ((x - mean[:, None]) @ basis)
+        return projected, mean
     coef, *_ = np.linalg.lstsq(design, x.T, rcond=None)
     out: np.ndarray = coef[1] - 1j * coef[1 + _HARMONICS]
-    return out
+    means: np.ndarray = coef[0]
+    return out, means
+
+
+def film_zeros(fund: np.ndarray, means: np.ndarray, params: HealthParams) -> np.ndarray:
+    """(2,) each film's zero: the wingbeat's mean angle over its amplitude (the stroke's less
+    the static response to the drive's mean, G_a D0 / K), from `fundamentals` of the film angles
+    and the drive. A charge amplifier's offset moves it; the gains and the wing's motion do not.
+    """
+    static = params.plant[P_GA] * means[2] / params.plant[P_K]
+    amplitude = np.maximum(np.abs(fund[:2]), 1e-12)
+    zeros: np.ndarray = np.array([means[0] - static, means[1]]) / amplitude
+    return zeros
 
 
 def wingbeat_estimate(
@@ -408,9 +426,11 @@ def step(
                 w = 2.0 * math.pi / period
                 seg = buf[:, i0:i1]
                 theta = w * (math.ceil(last) - last) / fs + w * np.arange(i1 - i0) / fs
-                fund = fundamentals(seg, theta)
+                fund, means = fundamentals(seg, theta)
                 lam = _log_rate(abs(fund[0]), amps_before[0], period, *memory)
                 est, amps = wingbeat_estimate(fund, w, lam, params)
+                zeros = film_zeros(fund, means, params)
+                film_amps = np.abs(fund[:2])
             wb += 1
             memory = np.array([amps_before[0], period])
             steady = bool(
@@ -428,13 +448,12 @@ def step(
                 quiet = False
                 recent = np.vstack([recent[1:], est[None, :]])
                 beats.append(_beat(wb, math.ceil(c), fs, 1.0 / period, est, recent))
-                det, found, det_notes = change_test.step(det, est, 1.0 / period, params.change)
+                det, found, det_notes = change_test.step(
+                    det, est, zeros, 1.0 / period, params.change
+                )
                 notes.extend(det_notes)
                 for ch in found:
-                    idx = math.ceil(c)
-                    ev = HealthEvent(
-                        ch.cause, ch.ratio, ch.stderr, idx, idx / fs, wb, ch.alternatives
-                    )
+                    ev = _event(ch, math.ceil(c), fs, wb, film_amps)
                     events.append(ev)
                     notes.append(Note(WARNING, "health event: " + event_text(ev), ""))
         last = c
@@ -509,10 +528,40 @@ def _quiet_text(wb: int) -> str:
     return f"health: wingbeat {wb} too quiet to estimate (drive off or wing stalled)"
 
 
+def change_text(
+    parameter: str, ratio: float, stderr: float, offset_deg: float, alternatives: Sequence[str]
+) -> str:
+    """What changed and by how much: "stroke_film_gain x0.950 (+-0.004)", "stroke_amplifier_offset
+    +0.52 deg (+-0.01)", with the causes not told apart from it.
+    """
+    also = f" (or {', '.join(alternatives)}: not told apart)" if alternatives else ""
+    if math.isfinite(ratio):
+        return f"{parameter} x{ratio:.3f} (+-{stderr:.3f}){also}"
+    return f"{parameter} {offset_deg:+.2f} deg (+-{stderr:.2f}){also}"
+
+
 def event_text(e: HealthEvent) -> str:
     """One event in a line (its log, its diagnostics entry)."""
-    also = f" (or {', '.join(e.alternatives)}: not told apart)" if e.alternatives else ""
-    return (
-        f"{e.parameter} x{e.ratio:.3f} (+-{e.stderr:.3f}){also} at {e.time_s:.3f} s, "
-        f"wingbeat {e.wingbeat}"
+    what = change_text(e.parameter, e.ratio, e.stderr, e.offset_deg, e.alternatives)
+    return f"{what} at {e.time_s:.3f} s, wingbeat {e.wingbeat}"
+
+
+def _event(
+    ch: change_test.Change, idx: int, fs: float, wb: int, film_amps: np.ndarray
+) -> HealthEvent:
+    """The event of a named change at sample `idx`; an offset in degrees of its film's angle
+    (its amplitude `film_amps`, rad).
+    """
+    if ch.is_ratio:
+        return HealthEvent(ch.cause, ch.size, ch.stderr, idx, idx / fs, wb, ch.alternatives)
+    amp_deg = math.degrees(film_amps[0 if ch.cause.startswith("stroke") else 1])
+    return HealthEvent(
+        ch.cause,
+        math.nan,
+        ch.stderr * amp_deg,
+        idx,
+        idx / fs,
+        wb,
+        ch.alternatives,
+        ch.size * amp_deg,
     )

@@ -95,6 +95,7 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
             "stderr": e.stderr,
             "wingbeat": e.wingbeat,
             "alternatives": list(e.alternatives),
+            "offset_deg": e.offset_deg,
         }
         for e in out.events
     ]
@@ -193,11 +194,12 @@ def main(argv: list[str] | None = None) -> int:
         if r["note"]:
             print(f"flaair health: {r['bag']}: {r['note']}", file=sys.stderr)
         for ev in r["events"]:
-            also = ev["alternatives"]
-            alike = f" (or {', '.join(also)}: not told apart)" if also else ""
+            what = health.change_text(
+                ev["parameter"], ev["ratio"], ev["stderr"], ev["offset_deg"], ev["alternatives"]
+            )
             print(
-                f"{r['bag']}: {ev['parameter']} x{ev['ratio']:.3f} (+-{ev['stderr']:.3f}){alike} "
-                f"at {ev['time_s']:.3f} s (sample {ev['sample_index']}, wingbeat {ev['wingbeat']})"
+                f"{r['bag']}: {what} at {ev['time_s']:.3f} s (sample {ev['sample_index']}, "
+                f"wingbeat {ev['wingbeat']})"
             )
     n_events = len(doc["events"])
     print(f"wrote {args.out / 'health.json'} and {args.out / 'health.png'} ({n_events} event(s))")
