@@ -114,6 +114,19 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     }
 
 
+def _robust_limits(y: np.ndarray) -> tuple[float, float] | None:
+    """Axis limits holding the estimates from their 2nd to their 98th percentile, padded: a
+    transient wingbeat's wild estimate (the K_r ramp's) would otherwise flatten the trace and
+    hide a change of a few per cent. None for too few estimates.
+    """
+    ok = y[np.isfinite(y)]
+    if ok.size < 20:
+        return None
+    lo, hi = (float(v) for v in np.percentile(ok, [2.0, 98.0]))
+    pad = max(0.15 * (hi - lo), 0.02 * max(abs(lo), abs(hi)), 1e-6)
+    return lo - pad, hi + pad
+
+
 def write_figure(results: list[dict[str, Any]], path: Path) -> None:
     """Each estimate against time, the events marked (one column of panels per bag)."""
     fig = Figure(figsize=(6.0 * len(results), 8.0))
@@ -127,6 +140,12 @@ def write_figure(results: list[dict[str, Any]], path: Path) -> None:
             e = np.asarray([np.nan if v is None else v for v in s[f"{name}_stderr"]], dtype=float)
             ax.plot(t, y, lw=0.8)
             ax.fill_between(t, y - 2 * e, y + 2 * e, alpha=0.3, lw=0)
+            if (limits := _robust_limits(y)) is not None:
+                ax.set_ylim(*limits)
+                beyond = int(np.sum((y < limits[0]) | (y > limits[1])))
+                if beyond:
+                    ax.text(0.01, 0.95, f"{beyond} wingbeat(s) beyond the axis (transients)",
+                            transform=ax.transAxes, fontsize=7, va="top", color="0.4")  # fmt: skip
             for ev in res["events"]:
                 ax.axvline(ev["time_s"], color="r" if ev["parameter"] == name else "0.7", lw=0.8)
             ax.set_ylabel(f"{name}\n(x model)", fontsize=8)
