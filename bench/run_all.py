@@ -104,7 +104,7 @@ PARTS = (
     # multisine set (10 s; the script's --all-discrepancy-robots adds two more, 20 s)
     Part("bench_multisine", 60, 90),
 )
-# the quick budgets add up to 997 s (bench_health's false-alarm runs took it past 16 min)
+# the quick budgets add up to 997 s
 BENCH_BUDGET_S = 17 * 60.0
 
 
