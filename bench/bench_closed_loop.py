@@ -106,7 +106,15 @@ def run_loop(
 
         if probe_file is not None:
             start("probe", sys.executable, __file__, "--probe", str(probe_file))
-        start("plant", *_node_cmd("plant"), "--ros-args", "-p", "mode:=lockstep")
+        start(
+            "plant",
+            *_node_cmd("plant"),
+            "--ros-args",
+            "-p",
+            "mode:=lockstep",
+            "-p",
+            "min_sensor_subscribers:=1",  # the front end matched before block 0 is stepped
+        )
         start("frontend", *_node_cmd("frontend"))
         start(
             "controller",

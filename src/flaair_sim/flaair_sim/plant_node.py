@@ -13,6 +13,8 @@ Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p mod
 from __future__ import annotations
 
 import time
+from collections import deque
+from typing import Any
 
 import numpy as np
 from rosgraph_msgs.msg import Clock
@@ -26,49 +28,42 @@ from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_msgs.msg import WingStateBlock
 from flaair_sim import plant_io as io
 from flaair_sim.core import actuator, plant, scene
-from flaair_sim.plant_io import (
-    CLOCK_DEPTH,
-    CONFIG_FILE,
-    NODE_NAME,
-    PLANT_PARAMS,
-    actuator_params_from_config,
-    plant_models,
-)
 
-PARAMS = PLANT_PARAMS
+PARAMS = io.PLANT_PARAMS
 TRUTH = WingStateBlock.SOURCE_GROUND_TRUTH
+ANSWERS_KEPT = 16  # lockstep: the last command blocks' outputs, for a retransmission to get again
 
 
 class PlantNode(FlaairNode):
     """Thin shell over flaair_sim.core.actuator.step and flaair_sim.core.plant.step."""
 
     def __init__(self) -> None:
-        super().__init__(NODE_NAME)
-        self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
-        self.model, self.obstacle_model, self.windows_s = plant_models(self.p)
+        super().__init__(io.NODE_NAME)
+        self.p = declare_parameters(self, PARAMS, io.CONFIG_FILE)
+        self.model, self.obstacle_model, self.windows_s = io.plant_models(self.p)
         self.damage = io.plant_damage(self.p, self.model, self.obstacle_model)
         self.fs_hz, self.block_size = self.p["sample_rate_hz"], self.p["block_size"]
-        self.params = actuator_params_from_config(self.p)
+        self.params = io.actuator_params_from_config(self.p)
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng, self.tracking_rng = io.generators_from_config(self.p)
         self.camera = io.camera_from_config(self.p, self.model)
-        self.sensor = intra.block_publisher(
-            self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM
-        )
-        self.truth = intra.block_publisher(
-            self, topics.WING_STATE_TRUTH, self.block_size, BLOCK_STREAM
+        self.sensor, self.truth = (
+            intra.block_publisher(self, topic, self.block_size, BLOCK_STREAM)
+            for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH)
         )
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
         self.clock_pub = (
-            self.create_publisher(Clock, topics.CLOCK, CLOCK_DEPTH)
+            self.create_publisher(Clock, topics.CLOCK, io.CLOCK_DEPTH)
             if self.p["publish_clock"]
             else None
         )
         self.clock_listeners = intra.ListenerCount(self.clock_pub)  # per-block decision
         # next_index: first sample of the next stepped block
         self.undecodable, self.next_index = 0, 0
+        # lockstep: the last commands' (index, (stamp, sensor fields, truth fields)) answered
+        self.answers: deque[tuple[int, tuple[int, Any, Any]]] = deque(maxlen=ANSWERS_KEPT)
         # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
         # the plant subscribes only once its outputs' listeners are matched (none misses block 0).
         self.listeners_timer = self.create_timer(0.01, self.subscribe_when_listened)
@@ -108,39 +103,44 @@ class PlantNode(FlaairNode):
         self.driver, out = actuator.step(self.driver, inputs, self.params)
         log_notes(self.get_logger(), out.notes, lambda counter: getattr(self.driver, counter))
         for drive_v in out.drive_blocks:
-            self.advance(drive_v)
+            answer = self.advance(drive_v)
+            if isinstance(inputs, actuator.Command):  # lockstep: a command's one answer, kept
+                self.answers.append((inputs.first_sample_index, answer))
+        for index, answer in self.answers if out.repeat is not None else ():
+            if index == out.repeat:
+                self.publish(*answer)
         return bool(out.drive_blocks) and self.params.mode == "realtime"
 
-    def advance(self, drive_v: np.ndarray) -> None:
-        """Step the model one block and publish its outputs."""
+    def advance(self, drive_v: np.ndarray) -> tuple[int, Any, Any]:
+        """Step the model one block, publish its outputs; the stamp, sensor and truth fields."""
         drive_v = actuator.clamp_drive(drive_v, self.get_parameter("drive_limit_v").value)
-        index = self.next_index
-        self.next_index += drive_v.size
+        index, self.next_index = self.next_index, self.next_index + drive_v.size
         model = scene.model_at(
             index / self.fs_hz, self.model, self.obstacle_model, self.windows_s, self.damage
         )
-        self.state, out = plant.step(
-            self.state,
-            plant.PlantInputs(drive_v, self.noise_rng),
-            plant.PlantStepParams(model, self.fs_hz),
-        )
+        step = plant.PlantStepParams(model, self.fs_hz)
+        self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng), step)
         stamp_ns = stamp_ns_of_sample(index, self.fs_hz)
-        self.sensor.publish(stamp_ns, io.sensor_fields(index, self.fs_hz, out))
+        sensor = io.sensor_fields(index, self.fs_hz, out)
         # Truth and /clock only when someone listens (volatile: a subscriber gets what follows its
         # match either way); the composed loop alone spends no encoding or DDS write on them.
-        if self.truth.has_listeners():
-            self.truth.publish(
-                stamp_ns,
-                io.truth_fields(index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng),
-            )
+        truth = self.truth.has_listeners() and io.truth_fields(
+            index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng
+        )
+        self.publish(stamp_ns, sensor, truth)
         if self.clock_pub is not None and self.clock_listeners():
-            self.clock_pub.publish(
-                Clock(clock=stamp_from_time_s((index + drive_v.size) / self.fs_hz))
-            )
+            self.clock_pub.publish(Clock(clock=stamp_from_time_s(self.next_index / self.fs_hz)))
+        return stamp_ns, sensor, truth
+
+    def publish(self, stamp_ns: int, sensor: Any, truth: Any) -> None:
+        """Publish one block's sensor voltages and (when computed) its ground truth."""
+        self.sensor.publish(stamp_ns, sensor)
+        if truth:
+            self.truth.publish(stamp_ns, truth)
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(PlantNode, PARAMS, CONFIG_FILE, NODE_NAME, args)
+    return run_node(PlantNode, PARAMS, io.CONFIG_FILE, io.NODE_NAME, args)
 
 
 if __name__ == "__main__":
