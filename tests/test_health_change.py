@@ -130,6 +130,12 @@ def test_the_learned_test_has_the_configured_false_alarm_rate(model, params):
     rate = C.false_alarms_per_hour(state.detector, 140.0)
     assert rate == pytest.approx(params.false_alarms_per_hour, rel=1e-3)  # learned at ~140 Hz
     assert math.isnan(C.false_alarms_per_hour(C.initial(params.change), 140.0))
+    # a saved baseline given at the start arms the same test: same means, scatters, drifts and
+    # thresholds, the warm-up still skipped
+    given = C.initial(params.change, baseline=C.baseline_of(state.detector))
+    for name in ("mu", "sigma", "drift", "threshold"):
+        np.testing.assert_array_equal(getattr(given, name), getattr(state.detector, name))
+    assert given.skip == params.warmup_wingbeats and C.baseline_of(C.initial(params.change)) is None
 
 
 @pytest.mark.timeout(60)

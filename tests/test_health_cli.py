@@ -123,3 +123,60 @@ def test_film_gains_are_ratios_to_a_given_calibration(bags, tmp_path: Path) -> N
     bad_args = [FLAAIR, "health", str(bags[0]), "--out", str(tmp_path / "o2"), "--calibration"]
     bad = run_offline([*bad_args, str(cal)], isolated_env())
     assert bad.returncode == 2 and "lag_s" in bad.stderr
+
+
+@pytest.mark.slow  # imports two ramped runs, then runs the command four times
+def test_a_saved_baseline_is_judged_against_from_the_first_wingbeat(tmp_path: Path) -> None:
+    """A healthy run's health.json carries its baseline; given with --baseline, a 5 % inertia
+    loss during the configured K_r ramp (learned into the run's own baseline otherwise) is
+    reported. A baseline file that is not one healthy run's, or was learned against another
+    calibration, is refused in one line before a bag is read.
+    """
+    from flaair_model.model import with_effects
+    from flaair_model.model_io import load_model
+
+    model = load_model()
+    ramp = (1.0, 0.0, 0.5, 0.5)
+    damaged = with_effects(model, {"wing_damage": {"inertia_factor": 0.95}})
+    _csv(tmp_path / "healthy.csv", *hs.run(model, 3.0, kr=ramp, seed=3))
+    _csv(tmp_path / "ramp_damage.csv", *hs.run(model, 3.0, damaged, 0.75, kr=ramp))
+    healthy = _import(tmp_path, tmp_path / "healthy.csv", "healthy")
+    ramp_damage = _import(tmp_path, tmp_path / "ramp_damage.csv", "ramp_damage")
+
+    def health(*args: str) -> tuple[int, str, dict | None]:
+        out = tmp_path / f"out{len(list(tmp_path.glob('out*')))}"
+        result = run_offline([FLAAIR, "health", *args, "--out", str(out)], isolated_env())
+        doc = json.loads((out / "health.json").read_text()) if result.returncode == 0 else None
+        return result.returncode, result.stderr, doc
+
+    code, err, learned = health(str(healthy))
+    assert code == 0, err
+    baseline = learned["bags"][0]["baseline"]
+    assert baseline["watched"][0] == "wing_inertia" and 130 < baseline["frequency_hz"] < 180
+    assert baseline["mean"][0] == pytest.approx(1.0, abs=0.01)
+    saved = tmp_path / "out0" / "health.json"
+    code, err, alone = health(str(ramp_damage))
+    assert code == 0 and alone["events"] == []
+    code, err, judged = health(str(ramp_damage), "--baseline", str(saved))
+    assert code == 0, err
+    assert [e["parameter"] for e in judged["events"]] == ["wing_inertia"]
+    assert judged["events"][0]["ratio"] == pytest.approx(0.95, abs=0.02)
+    assert judged["bags"][0]["baseline_given"] is True
+    # refusals, one line each, nothing written
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps({"bags": [learned["bags"][0]] * 2}))
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(
+        f"stroke: {{gain_deg_per_v: {1.1 * model.stroke_gain_deg_per_v}, lag_s: 0.0}}\n"
+        f"pitch: {{gain_deg_per_v: {model.pitch_gain_deg_per_v}, lag_s: 0.0}}\n"
+    )
+    garbage = tmp_path / "garbage.json"
+    garbage.write_text("{not json")
+    for args, said in (
+        (("--baseline", str(both)), "2 bag(s) with a learned baseline"),
+        (("--baseline", str(saved), "--calibration", str(cal)), "another model or film"),
+        (("--baseline", str(garbage)), "not a readable health.json"),
+    ):
+        code, err, _ = health(str(ramp_damage), *args)
+        assert code == 2 and said in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
 from flaair_common.diagnostics import OK, WARN, Health, health
+from flaair_control.core import change_test
 from flaair_control.core import health as hcore
 from flaair_control.core.health import HealthParams
 from flaair_model.config import ConfigError, load_yaml
@@ -66,6 +70,13 @@ HEALTH_PARAMS = [
         "model_file",
         str,
         "Model the estimates are relative to ('' = config/model.yaml)",
+        read_only=True,
+    ),
+    ParamSpec(
+        "baseline_file",
+        str,
+        "A bin/flaair health health.json of a healthy run of this robot: its baseline judged "
+        "against from the start ('' = learn one in the run)",
         read_only=True,
     ),
     ParamSpec(
@@ -240,6 +251,62 @@ def film_calibration(calibration: str | Path) -> dict[str, float]:
     return out
 
 
+def _model_digest(params: HealthParams) -> str:
+    """What a baseline's ratios are relative to: the plant vector and the film gains."""
+    films = np.array([params.stroke_volts_per_rad, params.pitch_volts_per_rad])
+    return hashlib.sha256(params.plant.tobytes() + films.tobytes()).hexdigest()[:16]
+
+
+def baseline_dict(baseline: change_test.Baseline, params: HealthParams) -> dict[str, Any]:
+    """A learned baseline as health.json writes it (`read_baseline` reads it back)."""
+    return {
+        "watched": list(change_test.WATCHED),
+        "mean": [float(x) for x in baseline.mean],
+        "sigma": [float(x) for x in baseline.sigma],
+        "frequency_hz": float(baseline.frequency_hz),
+        "model_digest": _model_digest(params),
+    }
+
+
+def read_baseline(path: str | Path, params: HealthParams) -> change_test.Baseline:
+    """The baseline of a `bin/flaair health` health.json (its one bag with a baseline), checked
+    against `params` (the same model and film gains).
+
+    Refused in one line naming what is wrong (ParameterError): a file that is not such a JSON,
+    none or several bags with a baseline, a field missing or not finite, a baseline learned
+    against another model or calibration.
+    """
+    where = f"parameter 'baseline_file': {path}"
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ParameterError(f"{where}: not a readable health.json ({exc})") from None
+    bags = doc.get("bags") if isinstance(doc, dict) else None
+    found = [b["baseline"] for b in bags or () if isinstance(b, dict) and b.get("baseline")]
+    if len(found) != 1:
+        raise ParameterError(
+            f"{where}: {len(found)} bag(s) with a learned baseline in it; give the health.json "
+            "of one healthy run (bin/flaair health BAG --out DIR)"
+        )
+    b = found[0]
+    try:
+        mean, sigma = (np.asarray(b[k], dtype=float) for k in ("mean", "sigma"))
+        frequency_hz, watched = float(b["frequency_hz"]), tuple(b["watched"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ParameterError(f"{where}: baseline field missing or not a number ({exc})") from None
+    n = len(change_test.WATCHED)
+    if watched != change_test.WATCHED or mean.shape != (n,) or sigma.shape != (n,):
+        raise ParameterError(f"{where}: baseline watches {list(watched)}, not this monitor's")
+    if not (np.isfinite(mean).all() and (sigma > 0).all() and frequency_hz > 0):
+        raise ParameterError(f"{where}: baseline mean, sigma > 0 and frequency_hz > 0 needed")
+    if b.get("model_digest") != _model_digest(params):
+        raise ParameterError(
+            f"{where}: the baseline was learned against another model or film calibration "
+            "(its ratios are relative to that one); give the same model_file and calibration"
+        )
+    return change_test.Baseline(mean, sigma, frequency_hz)
+
+
 def health_params_from_config(
     values: Mapping[str, Any] | None = None, model: Model | None = None
 ) -> HealthParams:
@@ -251,7 +318,7 @@ def health_params_from_config(
         model = load_model(values["model_file"] or None)
     if values.get("calibration_file"):
         values = {**values, **film_calibration(values["calibration_file"])}
-    return HealthParams(
+    params = HealthParams(
         sample_rate_hz=values["sample_rate_hz"],
         plant=prepare(model, values["sample_rate_hz"]).params,
         stroke_volts_per_rad=values.get("stroke_volts_per_rad", model.stroke_volts_per_rad),
@@ -280,6 +347,9 @@ def health_params_from_config(
             )
         },
     )
+    if values.get("baseline_file"):
+        params = replace(params, baseline=read_baseline(values["baseline_file"], params))
+    return params
 
 
 class JoinState(NamedTuple):

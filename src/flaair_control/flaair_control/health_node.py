@@ -57,7 +57,8 @@ class HealthNode(FlaairNode):
         self.get_logger().info(
             f"health monitor ready: films /flaair/sensor_v, drive {p['drive_topic']}, "
             f"changes from {100 * p['detect_change']:g} %, "
-            f"{p['false_alarms_per_hour']:g} false alarm(s) an hour"
+            f"{p['false_alarms_per_hour']:g} false alarm(s) an hour, baseline "
+            + (f"from {p['baseline_file']}" if p["baseline_file"] else "learned in the run")
         )
 
     def on_undecodable(self, exc: Exception) -> None:

@@ -100,6 +100,17 @@ class ChangeParams(NamedTuple):
     max_baseline_scatter: float
 
 
+class Baseline(NamedTuple):
+    """What the test judges against: each watched series' mean and a pair mean's scatter
+    (relative for a ratio), at a wingbeat frequency. Learned in a run, or saved from a healthy
+    run of the same robot and given at the start (`initial`).
+    """
+
+    mean: np.ndarray  # (5,) WATCHED
+    sigma: np.ndarray  # (5,)
+    frequency_hz: float
+
+
 class ChangeState(NamedTuple):
     """Baseline sums, CUSUMs, change point, post-change estimates."""
 
@@ -116,6 +127,7 @@ class ChangeState(NamedTuple):
     since: np.ndarray  # (5,) pairs since each CUSUM last left zero (0: at zero)
     alarm: np.ndarray  # (5,) bool
     history: np.ndarray  # (confirm, 5) last watched estimates, newest last
+    frequency_hz: float = math.nan  # the baseline's wingbeat frequency
 
 
 class Change(NamedTuple):
@@ -132,11 +144,15 @@ class Change(NamedTuple):
     is_ratio: bool
 
 
-def initial(params: ChangeParams, skip: int | None = None) -> ChangeState:
-    """Nothing learned: `skip` (default the warm-up) estimates to skip, then a baseline."""
+def initial(
+    params: ChangeParams, skip: int | None = None, baseline: Baseline | None = None
+) -> ChangeState:
+    """`skip` (default the warm-up) estimates to skip, then a baseline to learn, or `baseline`
+    given (the test judges from its first estimate after the skip).
+    """
     z = np.zeros(_N)
     nan = np.full(_N, np.nan)
-    return ChangeState(
+    state = ChangeState(
         0,
         params.warmup_wingbeats if skip is None else skip,
         np.full((params.baseline_wingbeats, _N + 1), np.nan),
@@ -151,6 +167,14 @@ def initial(params: ChangeParams, skip: int | None = None) -> ChangeState:
         np.zeros(_N, dtype=bool),
         np.full((params.confirm_wingbeats, _N), np.nan),
     )
+    return state if baseline is None else _armed(state, baseline, params)[0]
+
+
+def baseline_of(state: ChangeState) -> Baseline | None:
+    """The baseline the test judges against now (None: not learned yet)."""
+    if not np.isfinite(state.mu).all():
+        return None
+    return Baseline(state.mu.copy(), state.sigma.copy(), state.frequency_hz)
 
 
 def watched(estimate: np.ndarray, zeros: np.ndarray) -> np.ndarray:
@@ -217,11 +241,24 @@ def _learn(
         return state, []  # not steady yet: slide on
     n = window.shape[0] // PAIR * PAIR
     pairs = window[:n, :_N].reshape(-1, PAIR, _N).mean(axis=1)
-    sigma = np.maximum(pairs.std(axis=0, ddof=1) / scale, params.sigma_floor)
+    sigma = pairs.std(axis=0, ddof=1) / scale
+    return _armed(state, Baseline(mu, sigma, float(f.mean())), params)
+
+
+def _armed(
+    state: ChangeState, baseline: Baseline, params: ChangeParams
+) -> tuple[ChangeState, list[Note]]:
+    """The test judging against `baseline`: its drifts, and its thresholds for the false-alarm
+    rate at the baseline's wingbeat frequency.
+    """
+    mu = np.asarray(baseline.mean, dtype=float)
+    sigma = np.maximum(np.asarray(baseline.sigma, dtype=float), params.sigma_floor)
     drift = params.detect_change * _SMALLEST_MOVE / 2.0 / sigma
-    run_length = 2.0 * _N * 3600.0 * f.mean() / PAIR / params.false_alarms_per_hour
+    run_length = 2.0 * _N * 3600.0 * baseline.frequency_hz / PAIR / params.false_alarms_per_hour
     threshold = np.array([cusum_threshold(k, run_length) for k in drift])
-    state = state._replace(mu=mu, sigma=sigma, drift=drift, threshold=threshold)
+    state = state._replace(
+        mu=mu, sigma=sigma, drift=drift, threshold=threshold, frequency_hz=baseline.frequency_hz
+    )
     text = BASELINE_TEXT + ", ".join(f"{n} {m:.3f}" for n, m in zip(WATCHED, mu, strict=True))
     text += f" (CUSUM h {', '.join(f'{h:.1f}' for h in threshold)} sigmas"
     text += f" for {params.false_alarms_per_hour:g} false alarm an hour)"

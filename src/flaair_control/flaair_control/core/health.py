@@ -86,6 +86,8 @@ class HealthParams:
     max_baseline_scatter: float
     stroke_film_delay_s: float  # the films' lag behind the motion (calibration's lag_s)
     pitch_film_delay_s: float
+    # a healthy run's baseline of this robot (`change_test.baseline_of`): judged from the start
+    baseline: change_test.Baseline | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.sample_rate_hz > 0:
@@ -191,7 +193,7 @@ def initial_state(params: HealthParams) -> HealthState:
         False,
         0,
         np.full((params.average_wingbeats, 4), np.nan),
-        change_test.initial(params.change),
+        change_test.initial(params.change, baseline=params.baseline),
         False,
         np.full(2, np.nan),
         np.full(2, np.nan),

@@ -6,7 +6,13 @@ one call, the same function the health node runs block by block. DIR/health.json
 holds per bag the change `events` ({sample_index, time_s, parameter, ratio, stderr, wingbeat})
 and the per-wingbeat series (estimates of wing_inertia, stroke_film_gain, pitch_film_gain,
 actuator_gain as ratios to the model, each with its standard error; null where a wingbeat gave
-no estimate); DIR/health.png shows each estimate against time with the events marked.
+no estimate) and the `baseline` the change test judged against at the end of the bag (null if none
+was learned); DIR/health.png shows each estimate against time with the events marked.
+
+A healthy run's health.json given with --baseline (or as health_node's baseline_file) is
+judged against from the first wingbeat: a change before the run could learn its own baseline (a
+damage during the K_r ramp, whose synchronous lead is too short to learn one) is reported.
+How the monitor works: docs/HEALTH.md. Terms (K_r): docs/GLOSSARY.md.
 """
 
 from __future__ import annotations
@@ -25,7 +31,12 @@ from flaair_common.cli_help import HelpFormatter
 from flaair_common.outputs import OutputError, check_output, writing_outputs
 from flaair_common.strictjson import json_safe
 from flaair_control.core import change_test, health
-from flaair_control.health_io import film_calibration, health_params_from_config, health_values
+from flaair_control.health_io import (
+    baseline_dict,
+    film_calibration,
+    health_params_from_config,
+    health_values,
+)
 from flaair_model.model_io import load_model
 from flaair_model.validation import ModelError
 from flaair_sensors.figures import literal_texts
@@ -74,7 +85,8 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     params = health_params_from_config(
         values, load_model(model_file or values["model_file"] or None)
     )
-    _, out = health.step(health.initial_state(params), inputs, params)
+    end, out = health.step(health.initial_state(params), inputs, params)
+    baseline = change_test.baseline_of(end.detector)
     offset = int(index[0])
     beats = out.wingbeats
     series: dict[str, Any] = {
@@ -103,7 +115,9 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
     note = None
     if estimated == 0:
         note = "no estimate: the run is too short or too quiet (drive off or wing stalled)"
-    elif not any(n.text.startswith(change_test.BASELINE_TEXT) for n in out.notes):
+    elif params.baseline is None and not any(
+        n.text.startswith(change_test.BASELINE_TEXT) for n in out.notes
+    ):
         note = health.no_baseline_text(beats, params)
     return {
         "bag": str(bag),
@@ -111,6 +125,8 @@ def run_bag(bag: Path, values: dict[str, Any], model_file: Path | None) -> dict[
         "wingbeats": series,
         "estimated": estimated,
         "note": note,
+        "baseline": None if baseline is None else baseline_dict(baseline, params),
+        "baseline_given": params.baseline is not None,
     }
 
 
@@ -182,14 +198,30 @@ def main(argv: list[str] | None = None) -> int:
         "before the estimate and the film gains are ratios to its gains (default: "
         "health_node's stroke/pitch_film_delay_s, the model's films)",
     )
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        metavar="HEALTH.json",
+        help="the health.json of a healthy run of this robot (same model and calibration): its "
+        "baseline is judged against from the first wingbeat (default: health_node's "
+        "baseline_file, else each bag learns its own)",
+    )
     args = parser.parse_args(argv)
-    inputs = [*args.bags, *(p for p in (args.model, args.calibration) if p is not None)]
+    given = (args.model, args.calibration, args.baseline)
+    inputs = [*args.bags, *(p for p in given if p is not None)]
     try:  # the outputs checked before anything is computed
         written = check_output(args.out, inputs, args.force, OUT_FILES)
         values = health_values()
         if args.calibration is not None:
             values["calibration_file"] = str(args.calibration)
             film_calibration(args.calibration)  # refused by its field before a bag is read
+        if args.baseline is not None:
+            values["baseline_file"] = str(args.baseline)
+        if values["baseline_file"]:  # refused before a bag is read
+            health_params_from_config(
+                values, load_model(args.model or values["model_file"] or None)
+            )
         results = [run_bag(bag, values, args.model) for bag in args.bags]
     except (bagio.BagError, HealthInputError, ModelError, ValueError, OSError) as exc:
         print(f"flaair health: {exc}", file=sys.stderr)
