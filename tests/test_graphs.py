@@ -40,7 +40,13 @@ def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
     from flaair_tools.orchestration import experiment, live_args
 
     sim = argparse.Namespace(
-        sim=True, calibration=None, processes=False, out=None, controller="dsa", foxglove=None
+        sim=True,
+        calibration=None,
+        processes=False,
+        out=None,
+        controller="dsa",
+        foxglove=None,
+        health_baseline=None,
     )
     sections = live_args.node_parameters_for(sim)
     assert sections["plant_node"]["ros__parameters"] == dict(
@@ -51,9 +57,17 @@ def test_live_and_experiment_bring_up_the_declared_graphs() -> None:
     calibrated = live_args.node_parameters_for(
         argparse.Namespace(**{**vars(sim), "calibration": "c.yaml"})
     )
-    assert calibrated["health_node"]["ros__parameters"] == {"calibration_file": "c.yaml"}
+    assert calibrated["health_node"]["ros__parameters"] == {
+        "calibration_file": "c.yaml",
+        "drive_topic": "/flaair/drive/applied",
+    }
     assert calibrated["frontend_node"]["ros__parameters"]["calibration_file"] == "c.yaml"
-    assert sections["health_node"]["ros__parameters"] == {}
+    assert sections["health_node"]["ros__parameters"] == {"drive_topic": "/flaair/drive/applied"}
+    # so does a saved health baseline
+    saved = live_args.node_parameters_for(
+        argparse.Namespace(**{**vars(sim), "health_baseline": "h.json"})
+    )
+    assert saved["health_node"]["ros__parameters"]["baseline_file"] == "h.json"
     spec = next(iter(experiment.load_experiments().values()))
     roles = experiment.experiment_roles(spec)
     common = graphs.GRAPHS["experiment"].roles

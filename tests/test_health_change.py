@@ -131,11 +131,11 @@ def test_the_learned_test_has_the_configured_false_alarm_rate(model, params):
     assert rate == pytest.approx(params.false_alarms_per_hour, rel=1e-3)  # learned at ~140 Hz
     assert math.isnan(C.false_alarms_per_hour(C.initial(params.change), 140.0))
     # a saved baseline given at the start arms the same test: same means, scatters, drifts and
-    # thresholds, the warm-up still skipped
+    # thresholds; nothing to learn, so no warm-up
     given = C.initial(params.change, baseline=C.baseline_of(state.detector))
     for name in ("mu", "sigma", "drift", "threshold"):
         np.testing.assert_array_equal(getattr(given, name), getattr(state.detector, name))
-    assert given.skip == params.warmup_wingbeats and C.baseline_of(C.initial(params.change)) is None
+    assert given.skip == 0 and C.baseline_of(C.initial(params.change)) is None
 
 
 @pytest.mark.timeout(60)
@@ -172,3 +172,25 @@ def test_a_charge_amplifier_offset_is_named_in_degrees_of_its_film(model, params
     assert out.events[0].offset_deg == pytest.approx(math.degrees(step_v / per_rad), rel=0.1)
     first = next(b.wingbeat for b in out.wingbeats if b.time_s >= CHANGE_S)
     assert 0 < out.events[0].wingbeat - first <= 20
+
+
+@pytest.mark.timeout(30)
+def test_a_saved_baseline_judges_only_wingbeats_at_its_operating_point(params):
+    """A saved baseline's ratios hold at its own wingbeat frequency: estimates far from it at a
+    frequency more than SAVED_BASELINE_BAND away (the K_r ramp's synchronous lead) leave the test
+    as it was; the same estimates at the baseline's frequency raise the event.
+    """
+    saved = C.Baseline(np.array([1.0, 1.0, 1.0, 0.0, 0.0]), np.full(5, 0.01), 150.0)
+    p = dataclasses.replace(params, warmup_wingbeats=0).change
+    start = C.initial(p, baseline=saved)
+    far = np.array([1.5, 0.7, 0.7 * 0.7])  # r, a_s, a_p: another operating point's misfit
+    zeros = np.zeros(2)
+    state, found = start, []
+    for _ in range(60):
+        state, changes, _ = C.step(state, far, zeros, 90.0, p)
+        found += changes
+    assert found == [] and state is start  # not judged: untouched
+    for _ in range(60):
+        state, changes, _ = C.step(state, far, zeros, 150.0 * 1.1, p)
+        found += changes
+    assert [c.cause for c in found][:1] == ["wing_inertia"]

@@ -273,7 +273,7 @@ def test_a_damage_during_the_kr_ramp_is_reported_once_the_ramp_ends(model, param
     np.testing.assert_allclose(after.mean(axis=0), 1.0, atol=0.01)
 
 
-CONFIGURED_RAMP = (1.0, 0.0, 0.5, 0.5)  # config/flaair.yaml's schedule: 0.5 s of sync first
+CONFIGURED_RAMP = (1.0, 0.0, 0.5, 0.5)  # config/flaair.yaml's schedule: 0.5 s of 90 Hz sync first
 
 
 @pytest.mark.slow  # simulates four runs through the configured K_r ramp
@@ -282,16 +282,16 @@ def test_a_damage_during_the_configured_kr_ramp_is_reported_against_a_saved_base
     """The configured schedule's synchronous lead (0.5 s) is too short to learn a baseline, so a
     run learns its own after the ramp: a 5 % inertia loss mid-ramp becomes that baseline and is
     never reported. Judged against the baseline saved from a healthy run of the same robot, it
-    is reported as the self-excited wing settles: within 20 wingbeats of the first steady
-    wingbeat after the ramp, its ratio within 0.02, nothing else named. The same ramp
-    undamaged against the saved baseline: no event.
+    is reported within 20 wingbeats of the first estimate after the ramp, its ratio within
+    0.02, nothing else named; the synchronous lead's 90 Hz wingbeats are not judged against the
+    ~160 Hz baseline. The same ramp undamaged against the saved baseline: no event.
     """
-    end, healthy = _run(params, *hs.run(model, 3.0, kr=CONFIGURED_RAMP, seed=3))
+    end, healthy = _run(params, *hs.run(model, 3.0, kr=CONFIGURED_RAMP, seed=3, sync_hz=90.0))
     saved = change_test.baseline_of(end.detector)
     assert healthy.events == [] and saved is not None
     given = dataclasses.replace(params, baseline=saved)
     damaged = with_effects(model, {"wing_damage": {"inertia_factor": 0.95}})
-    record = hs.run(model, 3.0, damaged, 0.75, kr=CONFIGURED_RAMP)
+    record = hs.run(model, 3.0, damaged, 0.75, kr=CONFIGURED_RAMP, sync_hz=90.0)
     assert _run(params, *record)[1].events == []  # learned into the run's own baseline
     _, out = _run(given, *record)
     assert [(e.parameter, e.alternatives) for e in out.events] == [
@@ -299,16 +299,9 @@ def test_a_damage_during_the_configured_kr_ramp_is_reported_against_a_saved_base
     ]
     event = out.events[0]
     assert event.ratio == pytest.approx(0.95, abs=0.02)
-    # the first wingbeat after the ramp whose estimate and the next 3 lie within 2 % of the
-    # damaged wing's: the self-excited wing has settled
-    steady = [
-        b.wingbeat
-        for b in out.wingbeats
-        if b.time_s > 1.0 and b.valid and abs(b.estimate[0] - 0.95) < 0.02
-    ]
-    settled = next(w for w in steady if all(w + k in steady for k in range(4)))
-    assert 0 < event.wingbeat - settled <= 20
-    _, calm = _run(given, *hs.run(model, 3.0, kr=CONFIGURED_RAMP, seed=11))
+    first = next(b.wingbeat for b in out.wingbeats if b.time_s > 1.0 and b.valid)
+    assert 0 < event.wingbeat - first <= 20  # the self-excited wing's first estimates count
+    _, calm = _run(given, *hs.run(model, 3.0, kr=CONFIGURED_RAMP, seed=11, sync_hz=90.0))
     assert calm.events == []
 
 

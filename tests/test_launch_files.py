@@ -73,7 +73,10 @@ def test_the_graphs_are_those_of_the_launch_files_and_as_the_tools_had_them() ->
     assert (live_sim.hot, live_sim.side, dict(live_sim.parameters)) == (
         ("plant", "frontend", "controller"),
         ("recorder", "health", "collision_monitor", "foxglove"),
-        {"plant": {"mode": "realtime", "noise": True}},
+        {
+            "health": {"drive_topic": "/flaair/drive/applied"},  # what the realtime plant applied
+            "plant": {"mode": "realtime", "noise": True},
+        },
     )
     assert (live_target.hot, live_target.side, dict(live_target.parameters)) == (
         ("frontend", "controller", "bridge"),

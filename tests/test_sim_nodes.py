@@ -196,3 +196,31 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
         loop.sink(topics.WING_STATE_TRUTH)
         loop.run_for(0.02)
         assert loop.bus.subscriber_count(topics.DRIVE) == 1
+
+
+def test_a_realtime_plant_publishes_the_drive_at_the_samples_it_applied_it(
+    monkeypatch, tmp_path
+) -> None:
+    """Realtime, commands queue and are applied at the plant's own samples: /flaair/drive's
+    sample indices (the controller's count) are not the films'. The plant says what it applied
+    where (/flaair/drive/applied, as a target's bridge does): each applied block has the index of
+    the sensor block it drove, and the commands come out in their order, clamped.
+    """
+    from composed import composed
+    from flaair_common import topics
+    from flaair_sim.plant_node import PlantNode
+
+    params = {"plant_node": {"mode": "realtime", "command_timeout_s": 0.0, "drive_limit_v": 60.0}}
+    with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:
+        applied, sensed = loop.sink(topics.DRIVE_APPLIED), loop.sink(topics.SENSOR_VOLTAGE)
+        loop.run_for(0.01)  # zero drive while nothing is queued
+        ahead = 5000  # the controller's count runs ahead of the plant's samples
+        commands = [[float(10 * k + i) for i in range(BLOCK)] for k in range(1, 9)]
+        for k, values in enumerate(commands):
+            loop.post(topics.DRIVE, _command(ahead + k * BLOCK, values))
+        loop.run_for(0.01)
+    assert [b["first_sample_index"] for b in applied] == [b["first_sample_index"] for b in sensed]
+    driven = [list(b["drive_v"]) for b in applied if any(b["drive_v"])]
+    assert driven == [[min(v, 60.0) for v in values] for values in commands]
+    first = next(b["first_sample_index"] for b in applied if any(b["drive_v"]))
+    assert 0 < first < ahead  # after the zero drive, at the plant's sample, not the command's

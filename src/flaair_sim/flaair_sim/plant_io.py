@@ -29,6 +29,7 @@ __all__ = [
     "NODE_NAME",
     "PLANT_PARAMS",
     "actuator_params_from_config",
+    "applied_fields",
     "camera_from_config",
     "command_of",
     "generators_from_config",
@@ -258,6 +259,11 @@ def plant_damage(values: Mapping[str, Any], model: Model, obstacle_model: Model)
     except ValueError as exc:
         raise ParameterError(str(exc).replace("damage parameter '", "parameter 'damage_")) from exc
     return damaged_models(params, model, obstacle_model)
+
+
+def applied_fields(index: int, fs_hz: float, drive_v: np.ndarray) -> dict[str, Any]:
+    """A DriveCommandBlock's fields of the drive applied from the plant's sample `index`."""
+    return {"sample_rate_hz": fs_hz, "first_sample_index": index, "drive_v": drive_v}
 
 
 def sensor_fields(index: int, fs_hz: float, out: Any) -> dict[str, Any]:

@@ -1,8 +1,6 @@
 """plant_node: the simulated flapping-wing robot (stroke, pitch, PVDF sensors) as a ROS 2 node.
-
-Subscribes to drive-command blocks (/flaair/drive) and publishes raw sensor-voltage blocks
-(/flaair/sensor_v), ground-truth wing-state blocks (/flaair/wing_state/truth) and /clock.
-
+Subscribes to /flaair/drive; publishes /flaair/sensor_v, /flaair/wing_state/truth, /clock and,
+in realtime mode (commands queued), the drive at the samples it was applied (/flaair/drive/applied).
 Pacing, command checks, the drive clamp and the lockstep drive watchdog are the pure core
 `flaair_sim.core.actuator`; the obstacle schedule (obstacle_windows_s, the paper's collision
 experiment) and the camera's view of the truth are `flaair_sim.core.scene`.
@@ -48,16 +46,18 @@ class PlantNode(FlaairNode):
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng, self.tracking_rng = io.generators_from_config(self.p)
         self.camera = io.camera_from_config(self.p, self.model)
-        self.sensor, self.truth = (
+        realtime = self.params.mode == "realtime"  # only then do its samples differ from /drive's
+        self.sensor, self.truth, *applied = (
             intra.block_publisher(self, topic, self.block_size, BLOCK_STREAM)
             for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH)
+            + ((topics.DRIVE_APPLIED,) if realtime else ())
         )
+        self.applied = applied[0] if applied else None
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
+        clock = self.p["publish_clock"]
         self.clock_pub = (
-            self.create_publisher(Clock, topics.CLOCK, io.CLOCK_DEPTH)
-            if self.p["publish_clock"]
-            else None
+            self.create_publisher(Clock, topics.CLOCK, io.CLOCK_DEPTH) if clock else None
         )
         self.clock_listeners = intra.ListenerCount(self.clock_pub)  # per-block decision
         # next_index: first sample of the next stepped block
@@ -128,6 +128,8 @@ class PlantNode(FlaairNode):
             index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng
         )
         self.publish(stamp_ns, sensor, truth)
+        if self.applied is not None and self.applied.has_listeners():
+            self.applied.publish(stamp_ns, io.applied_fields(index, self.fs_hz, drive_v))
         if self.clock_pub is not None and self.clock_listeners():
             self.clock_pub.publish(Clock(clock=stamp_from_time_s(self.next_index / self.fs_hz)))
         return stamp_ns, sensor, truth

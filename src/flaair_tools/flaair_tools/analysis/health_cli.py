@@ -54,7 +54,8 @@ class HealthInputError(ValueError):
 def bag_inputs(bag: Path) -> tuple[float, np.ndarray, health.HealthInputs]:
     """(sample rate, sample indices, films and drive on the samples both streams hold)."""
     contents = bagio.read_bag(bag, [topics.SENSOR_VOLTAGE, *DRIVE_TOPICS])
-    drive_topic = next((t for t in DRIVE_TOPICS if contents.has(t)), None)
+    # the applied drive where the bag has any (a recorder may keep an advertised, silent topic)
+    drive_topic = next((t for t in DRIVE_TOPICS if contents.has(t) and contents.raw.get(t)), None)
     missing = [
         name
         for name, ok in (

@@ -2,7 +2,7 @@ r"""`flaair live`: bring up the live graph around a real bench (or the simulated
 
   bin/flaair live (--target HOST:PORT --listen HOST:PORT | --sim) [--controller dsa|none]
                   [--duration S] [--out BAGDIR] [--foxglove HOST:PORT] [--calibration FILE]
-                  [--no-health]
+                  [--no-health | --health-baseline HEALTH.json]
 
 The hot loop (the real-time target's bridge, or with --sim the simulated plant paced in real
 time; the front end; the dSA controller) runs composed in one process, its block streams
@@ -66,6 +66,7 @@ from flaair_common.msgdict import message_class
 from flaair_common.qos import BLOCK_STREAM
 from flaair_model import settings
 from flaair_model.config import ConfigError
+from flaair_model.schema import ParameterError
 from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.graphs import node_of
 from flaair_tools.orchestration.live_args import (
@@ -590,6 +591,14 @@ def _parser() -> argparse.ArgumentParser:
         "of the graph; by default it runs beside the loop in a process of its own",
     )
     parser.add_argument(
+        "--health-baseline",
+        type=Path,
+        metavar="HEALTH.json",
+        help="the health monitor judges against this healthy run's baseline (a `flaair health` "
+        "health.json of this robot, same model and calibration) from the first wingbeat, so a "
+        "change during the K_r ramp is reported (default: it learns one after the ramp)",
+    )
+    parser.add_argument(
         "--processes", action="store_true", help="one process per node instead of the composed loop"
     )
     parser.add_argument(
@@ -626,6 +635,20 @@ def _checked(args: argparse.Namespace) -> None:
         raise LiveError(f"--out {args.out} exists; choose another or remove it")
     if args.calibration is not None and not args.calibration.is_file():
         raise LiveError(f"--calibration {args.calibration}: no such file")
+    if args.health_baseline is not None:
+        if args.no_health:
+            raise LiveError("--health-baseline with --no-health: the monitor is left out")
+        # deferred: the monitor's core (numba) costs 1.5 s of import; only a baseline needs it
+        from flaair_control.health_io import health_params_from_config, health_values
+
+        values = health_values()
+        values["baseline_file"] = str(args.health_baseline)
+        if args.calibration is not None:
+            values["calibration_file"] = str(args.calibration)
+        try:
+            health_params_from_config(values)
+        except ParameterError as exc:
+            raise LiveError(f"--health-baseline: {exc}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -633,6 +656,8 @@ def main(argv: list[str] | None = None) -> int:
     # absolute: the graph's processes run in the repository's root, not in this directory
     args.out = None if args.out is None else args.out.absolute()
     args.calibration = None if args.calibration is None else args.calibration.absolute()
+    if args.health_baseline is not None:
+        args.health_baseline = args.health_baseline.absolute()
     terminate_raises()
     try:
         _checked(args)

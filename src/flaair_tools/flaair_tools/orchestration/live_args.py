@@ -94,6 +94,8 @@ def node_parameters_for(args: argparse.Namespace) -> dict[str, dict[str, Any]]:
         sections["dsa_controller_node"]["blocks_in_flight"] = 1 + -(-lead // block)
         for key, _, value in (item.partition("=") for item in args.bridge_param):
             sections["bridge_node"][key] = yaml.safe_load(value)
+    if args.health_baseline is not None:
+        sections["health_node"]["baseline_file"] = str(args.health_baseline)
     if args.out is not None:
         sections["recorder_node"] = {"output_path": str(args.out)}
     if args.foxglove is not None:
