@@ -243,8 +243,15 @@ def _learn(
     scatter = window[:, :_N].std(axis=0) / scale
     f = window[:, _N]
     spread = (f.max() - f.min()) / f.mean()
+    # Still settling (the self-excited amplitude after the K_r ramp, read through a misfit that
+    # depends on it): the window's halves differ by more than the drift the CUSUM lets pass, and
+    # a baseline learned there alarms once the estimates settle.
+    half = window.shape[0] // 2
+    trend = _moves(window[half:, :_N].mean(axis=0), window[:half, :_N].mean(axis=0))
     if not (
-        np.all(scatter <= params.max_baseline_scatter) and spread <= params.max_baseline_scatter
+        np.all(scatter <= params.max_baseline_scatter)
+        and spread <= params.max_baseline_scatter
+        and np.all(np.abs(trend) <= params.detect_change * _SMALLEST_MOVE / 2.0)
     ):
         return state, []  # not steady yet: slide on
     n = window.shape[0] // PAIR * PAIR
