@@ -418,21 +418,9 @@ def step(
     for c in crossings:
         if math.isfinite(last):
             period = (c - last) / fs
-            i0 = math.ceil(last) - start
-            i1 = math.ceil(c) - start
-            est, amps = None, np.full(2, np.nan)
-            # a wingbeat longer than the slowest has no estimate; its first samples may even
-            # be gone with a quiet stretch (i0 < 0: the drive off between runs)
-            in_range = 1.0 / params.max_frequency_hz <= period <= 1.0 / params.min_frequency_hz
-            if in_range and i0 >= 0 and i1 > i0:
-                w = 2.0 * math.pi / period
-                seg = buf[:, i0:i1]
-                theta = w * (math.ceil(last) - last) / fs + w * np.arange(i1 - i0) / fs
-                fund, means = fundamentals(seg, theta)
-                lam = _log_rate(abs(fund[0]), amps_before[0], period, *memory)
-                est, amps = wingbeat_estimate(fund, w, lam, params)
-                zeros = film_zeros(fund, means, params)
-                film_amps = np.abs(fund[:2])
+            est, amps, zeros, film_amps = _one_wingbeat(
+                buf, start, last, c, amps_before, memory, params
+            )
             wb += 1
             memory = np.array([amps_before[0], period])
             steady = bool(
@@ -471,6 +459,36 @@ def step(
         end, pending, keep_from, last, armed, wb, recent, det, quiet, amps_before, memory
     )
     return new_state, HealthOutputs(beats, events, notes)
+
+
+def _one_wingbeat(
+    buf: np.ndarray,
+    start: int,
+    last: float,
+    cross: float,
+    amps_before: np.ndarray,
+    memory: np.ndarray,
+    params: HealthParams,
+) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
+    """The wingbeat between the crossings at fractional sample indices `last` and `cross` (`buf`
+    from sample `start`): its estimate (None: none), its stroke and drive amplitudes, the films'
+    zeros and amplitudes.
+    """
+    nan2 = np.full(2, np.nan)
+    fs = params.sample_rate_hz
+    period = (cross - last) / fs
+    i0, i1 = math.ceil(last) - start, math.ceil(cross) - start
+    # a wingbeat longer than the slowest has no estimate; its first samples may even be gone
+    # with a quiet stretch (i0 < 0: the drive off between runs)
+    in_range = 1.0 / params.max_frequency_hz <= period <= 1.0 / params.min_frequency_hz
+    if not (in_range and i0 >= 0 and i1 > i0):
+        return None, nan2, nan2, nan2
+    w = 2.0 * math.pi / period
+    theta = w * (math.ceil(last) - last) / fs + w * np.arange(i1 - i0) / fs
+    fund, means = fundamentals(buf[:, i0:i1], theta)
+    lam = _log_rate(abs(fund[0]), amps_before[0], period, *memory)
+    est, amps = wingbeat_estimate(fund, w, lam, params)
+    return est, amps, film_zeros(fund, means, params), np.abs(fund[:2])
 
 
 def _log_rate(
