@@ -4,14 +4,23 @@ marking, re-blocking, drive scheduling, watchdogs.
 
 from __future__ import annotations
 
+import socket
 import struct
+import time
 
 import numpy as np
 import pytest
 
 from flaair_bridge.core import bridge, bridge_params, protocol
 from flaair_bridge.core.bridge_state import DriveBlock, SensorDatagram, Stop, Tick
-from flaair_bridge.emulated_target import TargetCore, count_lag, decide_counting, sensor_packet
+from flaair_bridge.emulated_target import (
+    TargetCore,
+    count_lag,
+    damage_factors,
+    decide_counting,
+    sensor_packet,
+)
+from flaair_bridge.udp import DatagramEndpoint
 
 FS = 20000.0
 N = 10
@@ -464,3 +473,44 @@ def test_the_in_order_fast_path_gives_what_the_general_path_gives_watchdog_flag_
                 p,
             )
     assert compared == 79 and flagged > 15 and state.counters.drive_packets > 30
+
+
+@pytest.mark.timeout(10)
+def test_an_endpoint_reads_only_once_started() -> None:
+    """A target already sending when the bridge starts: its first datagram must not reach the
+    callback before the node holds the endpoint (the composed loop answers from inside the
+    callback through it; before the fix the reader thread died on the node's missing
+    `endpoint`). Datagrams that arrive before `start` wait in the socket.
+    """
+    got: list[bytes] = []
+    endpoint = DatagramEndpoint("127.0.0.1", 0, 1 << 16, lambda data, *_: got.append(data))
+    address = endpoint.sock.getsockname()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as target:
+        target.sendto(b"first", address)
+        time.sleep(0.2)
+        assert got == []  # not read yet
+        endpoint.start()
+        target.sendto(b"second", address)
+        deadline = time.monotonic() + 2.0
+        while len(got) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    endpoint.close()
+    assert got == [b"first", b"second"]
+
+
+def test_the_emulated_targets_damage_is_named_by_key() -> None:
+    """--damage KEY=FACTOR: the damage schedule's factors, every other one 1; a bad item is
+    refused naming it.
+    """
+    factors = damage_factors(["inertia_factor=0.95", "stroke_film_gain=0.9"])
+    assert factors == {
+        "inertia_factor": 0.95,
+        "stiffness_factor": 1.0,
+        "stroke_film_gain": 0.9,
+        "pitch_film_gain": 1.0,
+        "actuator_gain": 1.0,
+    }
+    with pytest.raises(ValueError, match=r"'wing=0\.9': expected KEY=FACTOR"):
+        damage_factors(["wing=0.9"])
+    with pytest.raises(ValueError, match="'abc' is not a number"):
+        damage_factors(["actuator_gain=abc"])

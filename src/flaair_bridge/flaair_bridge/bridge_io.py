@@ -25,6 +25,7 @@ __all__ = [
     "ready_text",
     "save_timing",
     "sensor_fields",
+    "start_reading",
 ]
 
 
@@ -166,13 +167,13 @@ def params_from_values(values: Mapping[str, Any]) -> bridge_params.BridgeParams:
 
 
 def open_endpoint(
-    values: Mapping[str, Any], on_datagram: Callable[..., None], logger: Any
+    values: Mapping[str, Any], on_datagram: Callable[..., None]
 ) -> udp.DatagramEndpoint:
-    """The UDP endpoint on listen_host:listen_port with its reader thread (a taken or invalid
-    address is a parameter error; a real-time priority refused, a warning: the bridge still runs).
+    """The UDP endpoint bound on listen_host:listen_port, not reading yet (`start_reading`); a
+    taken or invalid address is a parameter error.
     """
     try:
-        endpoint = udp.DatagramEndpoint(
+        return udp.DatagramEndpoint(
             values["listen_host"],
             values["listen_port"],
             values["receive_buffer_bytes"],
@@ -184,10 +185,16 @@ def open_endpoint(
             "parameters 'listen_host'/'listen_port' = "
             f"{values['listen_host']}:{values['listen_port']}: {exc}"
         ) from exc
+
+
+def start_reading(endpoint: udp.DatagramEndpoint, logger: Any) -> None:
+    """Start `endpoint`'s reader thread (a real-time priority refused: a warning, the bridge
+    still runs).
+    """
+    endpoint.start()
     endpoint.priority_set.wait(1.0)
     if error := endpoint.priority_error:  # not root, no CAP_SYS_NICE
         logger.warning(f"UDP reader runs WITHOUT its real-time priority ({error})")
-    return endpoint
 
 
 def ready_text(values: Mapping[str, Any]) -> str:

@@ -46,8 +46,7 @@ class BridgeNode(FlaairNode):
         self.state, self.lock = bridge.initial_state(self.params), threading.RLock()
         self.timing: list[tuple[int, float, float]] = []
         self.bad_drive_messages, self.closed, self.cause_s = 0, False, float("nan")
-        # raw event times for benchmarks
-        self.events = bridge_report.EventLog() if p["timing_file"] else None
+        self.events = bridge_report.EventLog() if p["timing_file"] else None  # for benchmarks
         self.fs_hz, self.block_size = p["sample_rate_hz"], p["block_size"]
         self.sensor = intra.block_publisher(
             self, topics.SENSOR_VOLTAGE, self.block_size, BLOCK_STREAM
@@ -66,8 +65,9 @@ class BridgeNode(FlaairNode):
         )
         sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_S))
         self.publish_health(lambda: self.state, io.bridge_health)
-        # the socket last: its reader thread delivers at once, into a fully built node
-        self.endpoint = io.open_endpoint(p, self.on_datagram, self.get_logger())
+        # read only once held: a target already sending is answered through self.endpoint
+        self.endpoint = io.open_endpoint(p, self.on_datagram)
+        io.start_reading(self.endpoint, self.get_logger())
         self.get_logger().info(io.ready_text(p))
 
     def on_datagram(self, data: bytes, sender: tuple[str, int], arrival_s: float) -> None:

@@ -16,6 +16,10 @@ plant model, flaair_sim.core.plant) to the bridge, and it applies the drive pack
 - a stop packet zeroes the drive at once and holds it at zero until drive for a later index
   arrives.
 
+A damaged robot (--damage-at S --damage inertia_factor=0.95 ...): from that signal time on the
+plant runs on the damaged model (`flaair_sim.core.damage`), as plant_node's damage_* parameters
+do, to rehearse what the health monitor reports against a target.
+
 At exit (--duration reached, Ctrl-C or SIGTERM) it prints its counters as one line of strict
 JSON (and writes them to --counters): samples late, missing (applied without a fresh drive
 sample while being driven), fresh, dropped packets, stops, watchdog trips, its own overruns and
@@ -269,6 +273,20 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "--seed", type=int, default=shared["noise_seed"], help="noise seed [%(default)s]"
     )
     parser.add_argument(
+        "--damage-at",
+        type=float,
+        default=-1.0,
+        metavar="S",
+        help="the robot changes at this signal time, s (< 0: never) [%(default)s]",
+    )
+    parser.add_argument(
+        "--damage",
+        action="append",
+        default=[],
+        metavar="KEY=FACTOR",
+        help="what changes, repeatable: " + ", ".join(DAMAGE_KEYS) + " (1: unchanged)",
+    )
+    parser.add_argument(
         "--counters",
         help="also write the counters (strict JSON) to this file: "
         'once a second of signal while running ("final": '
@@ -306,6 +324,29 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             "--stall-ms > 0"
         )
     return args
+
+
+DAMAGE_KEYS = (
+    "inertia_factor",
+    "stiffness_factor",
+    "stroke_film_gain",
+    "pitch_film_gain",
+    "actuator_gain",
+)
+
+
+def damage_factors(items: list[str]) -> dict[str, float]:
+    """--damage KEY=FACTOR items as {key: factor}; ValueError naming a bad one."""
+    factors = dict.fromkeys(DAMAGE_KEYS, 1.0)
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in DAMAGE_KEYS:
+            raise ValueError(f"--damage {item!r}: expected KEY=FACTOR, KEY one of {DAMAGE_KEYS}")
+        try:
+            factors[key] = float(value)
+        except ValueError:
+            raise ValueError(f"--damage {item!r}: {value!r} is not a number") from None
+    return factors
 
 
 def count_lag(
@@ -349,12 +390,17 @@ def main(argv: list[str] | None = None) -> int:
     # still ends cleanly) and after the arguments (--help and a bad one answer at once)
     from flaair_model.model_io import load_model
     from flaair_model.validation import ModelError
-    from flaair_sim.core import plant
+    from flaair_sim.core import damage, plant
 
     try:
         model = load_model(args.model)
     except (ModelError, OSError) as exc:
         print(f"emulated_target: --model: {exc}", file=sys.stderr)
+        return 2
+    try:
+        harm = damage.DamageParams(args.damage_at, **damage_factors(args.damage))
+    except ValueError as exc:
+        print(f"emulated_target: {exc}", file=sys.stderr)
         return 2
     bridge = _address(args.bridge, "--bridge")
     sock = _bound_socket(args)
@@ -363,6 +409,7 @@ def main(argv: list[str] | None = None) -> int:
     fs, n = args.sample_rate, args.packet_samples
     core = TargetCore(args.hold_samples, args.drive_limit_v)
     params = plant.PlantStepParams(model, fs)
+    damaged = plant.PlantStepParams(damage.damaged(model, harm), fs)
     state = plant.initial_state(plant.PlantStepParams(model, fs))
     rng = np.random.default_rng(args.seed) if args.noise else None
     # compile before the clock starts
@@ -402,7 +449,8 @@ def main(argv: list[str] | None = None) -> int:
         drive, flags = decide_counting(core, n, stats, due <= stalled_until)
         if core.tripped != was_tripped:
             _say_watchdog(core)
-        state, out = plant.step(state, plant.PlantInputs(drive, rng), params)
+        now_params = damaged if harm.active and j * n / fs >= harm.time_s else params
+        state, out = plant.step(state, plant.PlantInputs(drive, rng), now_params)
         held = sensor_packet(j, j * n, fs, flags, drive, out.stroke_sensor_v, out.pitch_sensor_v)
         j += 1
         progress(1)

@@ -23,8 +23,8 @@ _TIMESPEC = struct.Struct("@qq")
 
 
 class DatagramEndpoint:
-    """UDP socket bound to (host, port); `on_datagram(data, sender, arrival_s)` runs in
-    the reader thread (arrival_s: kernel receive time on the `time.time()` clock).
+    """UDP socket bound to (host, port); once started, `on_datagram(data, sender, arrival_s)`
+    runs in the reader thread (arrival_s: kernel receive time on the `time.time()` clock).
     """
 
     def __init__(
@@ -51,6 +51,11 @@ class DatagramEndpoint:
         self.priority_set = threading.Event()
         self.running = True
         self.reader = threading.Thread(target=self._read, name=f"udp-{host}:{port}", daemon=True)
+
+    def start(self) -> None:
+        """Start the reader thread: datagrams reach `on_datagram` from now on (its owner holds
+        this endpoint already, so an answer sent from inside the callback has a socket to go by).
+        """
         self.reader.start()
 
     def _read(self) -> None:
@@ -102,7 +107,7 @@ class DatagramEndpoint:
     def stop_reading(self) -> None:
         """Stop the reader thread (after the datagram it is handling); the socket still sends."""
         self.running = False
-        if self.reader is not threading.current_thread():
+        if self.reader.is_alive() and self.reader is not threading.current_thread():
             self.reader.join(timeout=1.0)
 
     def close(self) -> None:
