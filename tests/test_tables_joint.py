@@ -334,3 +334,71 @@ def test_discrepancy_with_runs_and_a_table_of_a_robot_missing_nothing(
     fitted = load_model(out / "model.yaml").plant
     assert fitted.stroke_natural_frequency_hz == pytest.approx(fn, rel=0.005)
     assert (out / "report.html").exists()
+
+
+class _MeasuredResonance:
+    """A test-only kind of evidence: the stroke's natural frequency measured on its own (a lab's
+    ring-down), value and standard error. Only its own module is written: the joint
+    identification takes it through `extra` as it takes a table or a multisine set.
+    """
+
+    name = "resonance"
+    n_nuisance = 0
+    sites = ("stroke_deg",)
+
+    def __init__(self, frequency_hz: float, stderr_hz: float) -> None:
+        self.frequency_hz, self.stderr_hz = frequency_hz, stderr_hz
+
+    def nuisance_start(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def nuisance_steps(self) -> np.ndarray:
+        return np.zeros(0)
+
+    def residuals(self, models, nuisance) -> np.ndarray:
+        f = np.array([m.plant.stroke_natural_frequency_hz for m in models])
+        return ((f - self.frequency_hz) / self.stderr_hz)[:, None]
+
+    def linearised(self, models, nuisance, h):
+        rows = self.residuals(models, nuisance)
+        return rows, np.zeros((1, 0))
+
+    def heldout(self):
+        return ()
+
+    def stage_piece(self, side: str, channel: str):
+        return self if side == "stroke" else None
+
+    def set_scores(self, model):
+        r = self.residuals([model], np.zeros(0))[0]
+        ratio = {"stroke_deg": float(abs(r[0]))}
+        nrmse = {"stroke_deg": float(abs(r[0]) * self.stderr_hz / self.frequency_hz)}
+        return ratio, nrmse, 1, float(r @ r)
+
+
+@pytest.mark.slow  # two table fits
+@pytest.mark.timeout(240)
+def test_a_new_kind_of_evidence_joins_the_identification_with_nothing_else_written() -> None:
+    """A measured natural frequency beside a table: fitted with it (the stroke's frequency then
+    known to its own 0.02 Hz, not the table's ~0.2 Hz), scored among the data sets, written in
+    the identification's JSON.
+    """
+    from flaair_analysis.evidence import Evidence, EvidenceSet
+    from flaair_analysis.tables.joint import identify_evidence
+
+    nominal, true = robot()
+    fn = true.plant.stroke_natural_frequency_hz
+    table, s = make_table(true, fn), settings.tables()
+    measured = _MeasuredResonance(fn, 0.02)
+    assert isinstance(measured, Evidence) and isinstance(measured, EvidenceSet)
+    alone = identify_evidence([], table, nominal, {}, s)
+    both = identify_evidence([], table, nominal, {}, s, extra=[measured])
+    key = "stroke_natural_frequency_hz"
+    assert list(both.agreement) == ["table", "resonance"]
+    assert both.agreement["resonance"].weight == {"stroke": 1.0}
+    assert both.agreement["resonance"].noise_ratio["stroke_deg"] < 2.0
+    assert abs(both.values[key] - fn) < 0.05
+    assert both.stderr[key] < 0.3 * alone.stderr[key]
+    doc = both.as_dict()
+    assert doc["data_sets"]["resonance"]["residuals"] == 1
+    json.dumps(doc, allow_nan=False)

@@ -2,9 +2,10 @@
 least-squares fit over any list of them.
 
 Modules: `protocol` (`Evidence`: residuals in units of the data's own noise, its nuisance
-parameters, the sites it sees, its held-out `Split`s) and `fit` (`fit_evidence`: shared
-parameters and each piece's nuisance fitted over every piece at once, the Birge reweighting, the
-covariance). The kinds of evidence live with their data:
+parameters, the sites it sees, its held-out `Split`s; `EvidenceSet`: a measured set beside the
+runs in the joint identification, its stage pieces and its agreement) and `fit`
+(`fit_evidence`: shared parameters and each piece's nuisance fitted over every piece at once,
+the Birge reweighting, the covariance). The kinds of evidence live with their data:
 `flaair_analysis.discrepancy.RunEvidence` (measured runs),
 `flaair_analysis.tables.TableEvidence` (frequency-response tables) and
 `flaair_analysis.multisine.spectrum_evidence.SpectrumEvidence` (a multisine set's line spectra).
@@ -13,6 +14,14 @@ covariance). The kinds of evidence live with their data:
 from __future__ import annotations
 
 from .fit import RANK_TOL, EvidenceFit, covariance, fit_evidence
-from .protocol import Evidence, Split
+from .protocol import Evidence, EvidenceSet, Split
 
-__all__ = ["RANK_TOL", "Evidence", "EvidenceFit", "Split", "covariance", "fit_evidence"]
+__all__ = [
+    "RANK_TOL",
+    "Evidence",
+    "EvidenceFit",
+    "EvidenceSet",
+    "Split",
+    "covariance",
+    "fit_evidence",
+]

@@ -16,7 +16,7 @@ import numpy as np
 
 from flaair_model.model import Model
 
-__all__ = ["Evidence", "Split"]
+__all__ = ["Evidence", "EvidenceSet", "Split"]
 
 
 @runtime_checkable
@@ -77,3 +77,29 @@ class Split:
     fit: Evidence
     judged: Evidence
     where: Any
+
+
+@runtime_checkable
+class EvidenceSet(Protocol):
+    """A measured set beside the runs in the joint identification (a table, a multisine set's
+    spectra, any new kind): what each side's stage is fitted on, and how the fitted model agrees
+    with the whole set.
+
+    Attributes
+    ----------
+    name : the set's name in the fit's agreements and reports ("table", "spectra").
+    """
+
+    name: str
+
+    def stage_piece(self, side: str, channel: str) -> Evidence | None:
+        """The evidence the `side` ("stroke", "pitch") stage is fitted on, whose truth channel is
+        `channel` (None: the set does not see that side).
+        """
+        ...
+
+    def set_scores(self, model: Model) -> tuple[dict[str, float], dict[str, float], int, float]:
+        """`model` against the set, where it is fitted: per site the residual RMS over the noise
+        and the NRMSE, the residual count, the chi-square.
+        """
+        ...

@@ -128,6 +128,16 @@ class SpectrumEvidence:
         sigma = {c: self.sigma[c] for c in grids}
         return SpectrumEvidence(self.runs, self.found, grids, self.keep, sigma)
 
+    def stage_piece(self, side: str, channel: str) -> SpectrumEvidence | None:
+        """Its spectrum of the side's video channel `channel` (None: not read)."""
+        return self.only([channel]) if channel in self.sites else None
+
+    def set_scores(self, model: Model) -> tuple[dict[str, float], dict[str, float], int, float]:
+        """`scores` where it is fitted: the video channels (its films check findings, not the
+        plant).
+        """
+        return self.only(VIDEO).scores(model)
+
     def scores(self, model: Model) -> tuple[dict[str, float], dict[str, float], int, float]:
         """`model` against the spectra: per channel the residual RMS over the noise and the NRMSE
         (RMS |Yhat - Ybar| over RMS |Ybar|, over the band's lines), the residual count, the

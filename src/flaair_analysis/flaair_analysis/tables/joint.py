@@ -47,25 +47,22 @@ from flaair_analysis.discrepancy.identification import (
 )
 from flaair_analysis.discrepancy.run_evidence import RunEvidence
 from flaair_analysis.discrepancy.runs import Run
-from flaair_analysis.evidence import Evidence, EvidenceFit
+from flaair_analysis.evidence import Evidence, EvidenceFit, EvidenceSet
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
 from .fit import PITCH_KEYS, STROKE_KEYS, TableFit, identify_table, plant_params
 from .reader import Table
-from .steady_state import steady_response
-from .table_evidence import TableEvidence, normalised_residuals, stack_cells
+from .table_evidence import TableEvidence, table_scores
 
 __all__ = [
     "JointFit",
     "SetAgreement",
     "identify_evidence",
     "identify_joint",
-    "prediction_scores",
     "run_scores",
     "table_identification",
-    "table_scores",
 ]
 
 _SIDES = (("stroke", "stroke_deg", STROKE_KEYS), ("pitch", "pitch_deg", PITCH_KEYS))
@@ -179,63 +176,41 @@ class JointFit:
         }
 
 
-def prediction_scores(
-    table: Table, pred: Mapping[str, np.ndarray], s: TableSettings
-) -> tuple[dict[str, float], dict[str, float], int, float]:
-    """`pred` ({column: one value per point}) against the table: per column noise ratio and
-    NRMSE (phases wrapped), the cells and their chi-square.
-    """
-    cols = list(table.responses)
-    res = normalised_residuals(table, {c: pred[c][None, :] for c in cols}, s, cols)
-    ratio, nrmse = {}, {}
-    for c in cols:
-        ok = np.isfinite(table.responses[c])
-        if not ok.any():
-            continue
-        r = np.nan_to_num(res[c][0][ok], nan=1e6)
-        ratio[c] = float(np.sqrt(np.mean(r**2)))
-        meas = table.responses[c][ok]
-        diff = pred[c][ok] - meas
-        if "phase" in c:
-            diff = (diff + 180.0) % 360.0 - 180.0
-        nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
-    cells = stack_cells(table, res)[0]
-    return ratio, nrmse, int(cells.size), float(cells @ cells)
-
-
-def table_scores(
-    table: Table, model: Model, s: TableSettings
-) -> tuple[dict[str, float], dict[str, float], int, float]:
-    """The table against `model`: per column noise ratio and NRMSE, cells and chi-square."""
-    resp = steady_response(
-        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
-    )
-    return prediction_scores(table, {c: resp[c][0] for c in table.responses}, s)
-
-
 def _side_pieces(
     runs: list[Run],
-    table: Table | None,
-    spectra: SpectrumEvidence | None,
+    others: Sequence[EvidenceSet],
     model: Model,
     side: str,
     channel: str,
     noise: Mapping[str, float],
-    s: TableSettings,
     decimate: int,
 ) -> list[Evidence]:
     """The evidence a side's stage is fitted on: the runs' truth channel (with each run's angle
-    and rate), the table's columns of the side, the spectra's truth channel.
+    and rate), then each other set's piece of the side.
     """
     pieces: list[Evidence] = []
     if runs:
         omega = 2.0 * math.pi * float(getattr(model.plant, f"{side}_natural_frequency_hz"))
         pieces.append(RunEvidence(runs, noise, decimate, (channel,), side, omega))
-    if table is not None and (cols := [c for c in table.responses if c.startswith(side)]):
-        pieces.append(TableEvidence(table, s, cols))
-    if spectra is not None and channel in spectra.sites:
-        pieces.append(spectra.only([channel]))
+    for other in others:
+        if (piece := other.stage_piece(side, channel)) is not None:
+            pieces.append(piece)
     return pieces
+
+
+def _others(
+    table: Table | None,
+    spectra: SpectrumEvidence | None,
+    s: TableSettings,
+    extra: Sequence[EvidenceSet],
+) -> list[EvidenceSet]:
+    """The sets beside the runs: the table (every column), the spectra, then any other kind."""
+    others: list[EvidenceSet] = []
+    if table is not None:
+        others.append(TableEvidence(table, s, list(table.responses)))
+    if spectra is not None:
+        others.append(spectra)
+    return [*others, *extra]
 
 
 def run_scores(
@@ -268,8 +243,10 @@ def identify_joint(
     s: TableSettings,
     decimate: int = DECIMATE,
     spectra: SpectrumEvidence | None = None,
+    extra: Sequence[EvidenceSet] = (),
 ) -> JointFit:
-    """Fit the plant to any of `runs`, `table` and `spectra` of one robot together.
+    """Fit the plant to any of `runs`, `table`, `spectra` and `extra` sets of one robot
+    together.
 
     Parameters
     ----------
@@ -287,8 +264,11 @@ def identify_joint(
         Keep every k-th run sample.
     spectra
         A multisine run set's line spectra (`multisine.spectrum_evidence`), or None.
+    extra
+        Any other kind of measured set (`evidence.EvidenceSet`), fitted and scored as these.
     """
     runs = list(runs)
+    others = _others(table, spectra, s, extra)
     keys = STROKE_KEYS + PITCH_KEYS
     nominal = {k: float(getattr(model.plant, k)) for k in keys}
     alone, table_ratio_alone, notes = _table_fitted_alone(table, model, s, keys)
@@ -309,7 +289,7 @@ def identify_joint(
         channel: str, side_keys: tuple[str, ...], current: Model, now: list[Run]
     ) -> Stage | None:
         side = "stroke" if channel == "stroke_deg" else "pitch"
-        pieces = _side_pieces(now, table, spectra, current, side, channel, noise, s, decimate)
+        pieces = _side_pieces(now, others, current, side, channel, noise, decimate)
         if not any(p.sites for p in pieces):
             notes.append(f"nothing measures the {side}: the {side} plant stays the model's")
             return None
@@ -329,9 +309,7 @@ def identify_joint(
     values = {k: staged.values.get(k, float(getattr(current.plant, k))) for k in keys}
     sd, corr = staged.sd, staged.correlation
     weights, nfev = _stage_weights(staged.stages)
-    agreement = _set_agreements(
-        runs, table, spectra, current, noise, s, decimate, weights, table_ratio_alone
-    )
+    agreement = _set_agreements(runs, others, current, noise, decimate, weights, table_ratio_alone)
     warnings = _disagreement(agreement, s.gap_ratio, alone, runs_start, values)
     rel_se = [sd[i] if k in staged.values else math.nan for i, k in enumerate(keys)]
     free = [i for i, k in enumerate(keys) if k in staged.values]
@@ -404,22 +382,20 @@ def _stage_weights(
 
 def _set_agreements(
     runs: Sequence[Run],
-    table: Table | None,
-    spectra: SpectrumEvidence | None,
+    others: Sequence[EvidenceSet],
     model: Model,
     noise: Mapping[str, float],
-    s: TableSettings,
     decimate: int,
     weights: Mapping[str, dict[str, float]],
     table_ratio_alone: dict[str, float],
 ) -> dict[str, SetAgreement]:
-    """Each given set's agreement with the jointly fitted `model`.
+    """Each given set's agreement with the jointly fitted `model` (each other set scored where
+    it is fitted: `EvidenceSet.set_scores`).
 
     Returns
     -------
     dict
-        {"runs", "table", "spectra": SetAgreement}, for the sets given; the spectra scored on
-        the channels they are fitted on.
+        {set name: SetAgreement}: "runs", then the others in their order.
     """
     agreement: dict[str, SetAgreement] = {}
     if runs:
@@ -427,17 +403,11 @@ def _set_agreements(
         agreement["runs"] = SetAgreement(
             "runs", r_n, r_chi2, r_ratio, r_nrmse, weights.get("runs", {})
         )
-    if table is not None:
-        t_ratio, t_nrmse, t_n, t_chi2 = table_scores(table, model, s)
-        agreement["table"] = SetAgreement(
-            "table", t_n, t_chi2, t_ratio, t_nrmse, weights.get("table", {}), table_ratio_alone
-        )
-    if spectra is not None:
-        # scored where it was fitted, as the runs are (its films check findings, not the plant)
-        fitted = spectra.only([channel for _, channel, _ in _SIDES])
-        m_ratio, m_nrmse, m_n, m_chi2 = fitted.scores(model)
-        agreement["spectra"] = SetAgreement(
-            "spectra", m_n, m_chi2, m_ratio, m_nrmse, weights.get("spectra", {})
+    for other in others:
+        ratio, nrmse, n, chi2 = other.set_scores(model)
+        alone = table_ratio_alone if other.name == "table" else {}
+        agreement[other.name] = SetAgreement(
+            other.name, n, chi2, ratio, nrmse, weights.get(other.name, {}), alone
         )
     return agreement
 
@@ -450,6 +420,7 @@ def identify_evidence(
     s: TableSettings,
     decimate: int = DECIMATE,
     spectra: SpectrumEvidence | None = None,
+    extra: Sequence[EvidenceSet] = (),
 ) -> JointFit:
     """The plant fitted on whatever evidence of one robot is given: the one identification.
 
@@ -462,11 +433,11 @@ def identify_evidence(
     agreement. Parameters as `identify_joint`.
     """
     runs = list(runs)
-    if table is None and spectra is None:
+    if table is None and spectra is None and not extra:
         return _runs_alone(runs, model, noise, decimate)
-    if not runs and spectra is None and table is not None:
+    if not runs and spectra is None and table is not None and not extra:
         return _table_alone(table, model, s)
-    return identify_joint(runs, table, model, noise, s, decimate, spectra)
+    return identify_joint(runs, table, model, noise, s, decimate, spectra, extra)
 
 
 def _sides(keys: Sequence[str]) -> dict[str, float]:

@@ -46,9 +46,10 @@ from flaair_model.model import Model
 from flaair_model.settings import DiscrepancySettings, TableSettings
 
 from .fit import PITCH_KEYS, STROKE_KEYS, plant_params, with_values
-from .joint import JointFit, identify_joint, prediction_scores, run_scores
+from .joint import JointFit, identify_joint, run_scores
 from .reader import Table
 from .steady_state import steady_response
+from .table_evidence import prediction_scores
 from .workflow import TableDiscrepancy, analyse_table, heldout_predictions
 
 __all__ = [

@@ -4,7 +4,7 @@ plant's steady state, in units of its reading noise. Pure.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -15,7 +15,13 @@ from flaair_model.settings import TableSettings
 from .reader import PHASE_COLUMNS, Table
 from .steady_state import steady_response
 
-__all__ = ["TableEvidence", "normalised_residuals", "stack_cells"]
+__all__ = [
+    "TableEvidence",
+    "normalised_residuals",
+    "prediction_scores",
+    "stack_cells",
+    "table_scores",
+]
 
 _CLIP = 1e6  # a diverged model's cell
 
@@ -48,6 +54,40 @@ def stack_cells(table: Table, res: dict[str, np.ndarray]) -> np.ndarray:
         np.nan_to_num(np.concatenate(parts, axis=1), nan=_CLIP), -_CLIP, _CLIP
     )
     return stacked
+
+
+def prediction_scores(
+    table: Table, pred: Mapping[str, np.ndarray], s: TableSettings
+) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """`pred` ({column: one value per point}) against the table: per column noise ratio and
+    NRMSE (phases wrapped), the cells and their chi-square.
+    """
+    cols = list(table.responses)
+    res = normalised_residuals(table, {c: pred[c][None, :] for c in cols}, s, cols)
+    ratio, nrmse = {}, {}
+    for c in cols:
+        ok = np.isfinite(table.responses[c])
+        if not ok.any():
+            continue
+        r = np.nan_to_num(res[c][0][ok], nan=1e6)
+        ratio[c] = float(np.sqrt(np.mean(r**2)))
+        meas = table.responses[c][ok]
+        diff = pred[c][ok] - meas
+        if "phase" in c:
+            diff = (diff + 180.0) % 360.0 - 180.0
+        nrmse[c] = float(np.sqrt(np.mean(diff**2)) / max(np.sqrt(np.mean(meas**2)), 1e-300))
+    cells = stack_cells(table, res)[0]
+    return ratio, nrmse, int(cells.size), float(cells @ cells)
+
+
+def table_scores(
+    table: Table, model: Model, s: TableSettings
+) -> tuple[dict[str, float], dict[str, float], int, float]:
+    """The table against `model`: per column noise ratio and NRMSE, cells and chi-square."""
+    resp = steady_response(
+        [model], table.frequency_hz, table.drive_amplitude_v, table.drive_bias_v, s
+    )
+    return prediction_scores(table, {c: resp[c][0] for c in table.responses}, s)
 
 
 class TableEvidence:
@@ -100,3 +140,12 @@ class TableEvidence:
         """The rows of `models` (one batch) and an empty nuisance Jacobian."""
         rows = self.residuals(models, nuisance)
         return rows, np.zeros((rows.shape[1], 0))
+
+    def stage_piece(self, side: str, channel: str) -> TableEvidence | None:
+        """Its columns of `side` (None: it measures none)."""
+        cols = [c for c in self.sites if c.startswith(side)]
+        return TableEvidence(self.table, self.settings, cols) if cols else None
+
+    def set_scores(self, model: Model) -> tuple[dict[str, float], dict[str, float], int, float]:
+        """The whole table against `model` (`table_scores`)."""
+        return table_scores(self.table, model, self.settings)

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
 from flaair_analysis.discrepancy.runs import Run, check_runs, simulate_runs
+from flaair_analysis.evidence import EvidenceSet
 from flaair_analysis.multisine.analysis import SENSORS, VIDEO, find_design
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence, spectrum_channels
 from flaair_analysis.tables.reader import Table
@@ -89,6 +90,8 @@ class CommandInputs:
     multisine: list[Run]
     spectra: SpectrumEvidence | None
     searched: list[Run]
+    # any other kind of measured set (`EvidenceSet`): fitted and scored by `identify` as these
+    extra: tuple[EvidenceSet, ...] = ()
 
     @cached_property
     def noise(self) -> dict[str, float]:

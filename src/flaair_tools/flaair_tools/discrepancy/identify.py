@@ -74,7 +74,13 @@ def compute(inputs: CommandInputs, progress: Callable[[str], None]) -> JointFit:
     """The one identification on the command's evidence."""
     progress("fit")
     return identify_evidence(
-        inputs.runs, inputs.table, inputs.model, inputs.noise, inputs.s, spectra=inputs.spectra
+        inputs.runs,
+        inputs.table,
+        inputs.model,
+        inputs.noise,
+        inputs.s,
+        spectra=inputs.spectra,
+        extra=inputs.extra,
     )
 
 
