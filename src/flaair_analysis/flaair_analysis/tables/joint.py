@@ -519,6 +519,12 @@ def table_identification(
     )
 
 
+def _names(sets: Sequence[str]) -> str:
+    """'the runs', 'the runs and the spectra', ...: the sets by name."""
+    named = [f"the {name}" for name in sets] or ["the other sets"]
+    return named[0] if len(named) == 1 else ", ".join(named[:-1]) + " and " + named[-1]
+
+
 def _disagreement(
     agreement: Mapping[str, SetAgreement],
     gap_ratio: float,
@@ -542,20 +548,21 @@ def _disagreement(
         for name, g in gaps.items()
     )
     fn = "stroke_natural_frequency_hz"
-    where = (
-        f" (stroke natural frequency: table alone {alone.get(fn, math.nan):.1f} Hz, runs' "
-        f"frequency-domain estimate {runs_start.get(fn, math.nan):.1f} Hz, joint "
-        f"{joint[fn]:.1f} Hz)"
-    )
+    said = [f"table alone {alone.get(fn, math.nan):.1f} Hz"]
+    if fn in runs_start:  # runs were given
+        said.append(f"runs' frequency-domain estimate {runs_start[fn]:.1f} Hz")
+    where = f" (stroke natural frequency: {', '.join(said)}, joint {joint[fn]:.1f} Hz)"
     if table is None:
         return [
             "after the joint fit a gap above noise remains (" + per_set + where + "): the sets "
             "disagree (another robot, other conditions), or the model misses physics "
             "(`discrepancy` with the same inputs looks for it)"
         ]
-    gaps.setdefault("runs", [])
-    if table_alone_ok and gaps["table"] and not gaps["runs"]:
-        head = "the table and the runs disagree: after the joint fit " + per_set + where
+    # the sets beside the table, by name (the runs, the spectra, any other kind)
+    rest = [name for name in gaps if name != "table"]
+    rest_gaps = [name for name in rest if gaps[name]]
+    if table_alone_ok and gaps["table"] and not rest_gaps:
+        head = f"the table and {_names(rest)} disagree: after the joint fit " + per_set + where
         return [head + "; are they the same robot under the same conditions?"]
     if table_alone_ok and gaps["table"]:
         return [
@@ -566,12 +573,13 @@ def _disagreement(
             "physics that shows differently in each (`discrepancy` with both looks for it)"
         ]
     if table_alone_ok:
+        who = _names(rest_gaps)
         return [
-            "the runs keep a gap above noise after the joint fit ("
+            f"a gap above noise remains on {who} after the joint fit ("
             + per_set
             + where
-            + "): the sets disagree, or the runs show physics the model misses (`discrepancy` "
-            "on the runs alone tells which)"
+            + "): the sets disagree, or the model misses physics seen there (`discrepancy` "
+            f"on {who} alone tells which)"
         ]
     return [
         "after the joint fit a gap above noise remains ("
