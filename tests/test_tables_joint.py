@@ -402,3 +402,26 @@ def test_a_new_kind_of_evidence_joins_the_identification_with_nothing_else_writt
     doc = both.as_dict()
     assert doc["data_sets"]["resonance"]["residuals"] == 1
     json.dumps(doc, allow_nan=False)
+
+
+@pytest.mark.slow  # the joint workflow on runs beside the new kind of set
+@pytest.mark.timeout(300)
+def test_a_new_kind_of_evidence_checks_the_runs_findings_as_the_spectra_do() -> None:
+    """The same test-only measured resonance beside runs in `discrepancy`: fitted with the joint
+    plant, its check (refitted on itself, in sample) made before and after, written under
+    `other_sets`.
+    """
+    from flaair_analysis.tables.joint_workflow import analyse_evidence
+
+    nominal, true = robot()
+    runs = make_runs(true, FULL, 1)
+    measured = _MeasuredResonance(true.plant.stroke_natural_frequency_hz, 0.05)
+    res = analyse_evidence(
+        runs, None, nominal, settings.tables(), settings.discrepancy(), extra=[measured]
+    )
+    assert list(res.joint.agreement) == ["runs", "resonance"]
+    before, after = res.others["resonance"]
+    assert before.n == after.n == 1 and before.kind == "resonance, in sample"
+    doc = res.as_dict()
+    assert doc["other_sets"]["resonance"]["before"]["cells"] == 1
+    json.dumps(doc, allow_nan=False)

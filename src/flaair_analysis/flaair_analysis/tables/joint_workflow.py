@@ -35,11 +35,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import diagnose, noise_estimates
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
+from flaair_analysis.evidence import EvidenceSet
 from flaair_analysis.multisine.analysis import model_reading
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
@@ -57,6 +59,7 @@ __all__ = [
     "TableCheck",
     "analyse_evidence",
     "analyse_joint",
+    "set_check",
     "spectra_check",
     "table_heldout",
 ]
@@ -131,6 +134,9 @@ class JointDiscrepancy:
     spectra_before: TableCheck | None = None
     spectra_after: TableCheck | None = None
     localisation: dict[str, Any] = field(default_factory=dict)  # "before"/"after": multisine doc
+    # any other kind of set (`EvidenceSet`): {name: (its check with the joint plant, with
+    # model_out)}
+    others: dict[str, tuple[TableCheck, TableCheck]] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready summary of the joint parts (the runs' part is the runs' report)."""
@@ -147,6 +153,14 @@ class JointDiscrepancy:
                 _allowance(self.spectra_before.n) if self.spectra_before else None
             ),
             "multisine": self.localisation,
+            "other_sets": {
+                name: {
+                    "before": _doc(before),
+                    "after": _doc(after),
+                    "chi2_allowance": _allowance(before.n),
+                }
+                for name, (before, after) in self.others.items()
+            },
             "findings_kept": self.kept,
             "notes": list(self.notes),
             "what_is_joint": "plant fitted on every set (runs, table, multisine spectra); the "
@@ -161,6 +175,16 @@ _WORDS = {
     "table": ("held-out chi-square", "cells", "held-out levels"),
     "spectra": ("line-spectra chi-square", "line residuals", "line spectra"),
 }
+_OTHER_WORDS = ("chi-square", "residuals", "residuals")  # another kind of set
+
+
+def set_check(evidence: EvidenceSet, model: Model, s: TableSettings) -> TableCheck:
+    """Another kind of set predicted by `model` with its plant refitted on the set (as the
+    spectra's check: a finding is judged with the plant it trades off against); in sample.
+    """
+    refitted = identify_joint([], None, model, {}, s, extra=[evidence]).model
+    ratio, nrmse, n, chi2 = evidence.set_scores(refitted)
+    return TableCheck(ratio, nrmse, chi2, n, held_out=False, label=f"{evidence.name}, in sample")
 
 
 def _doc(check: TableCheck | None) -> dict[str, Any] | None:
@@ -212,15 +236,17 @@ def analyse_joint(
     spectra: SpectrumEvidence | None = None,
     search_runs: Sequence[Run] = (),
     drive_limit_v: float | None = None,
+    extra: Sequence[EvidenceSet] = (),
 ) -> JointDiscrepancy:
     """Plant on every set, the runs' search checked on the others, plant on every set again
     (module docstring). `search_runs`: the runs searched when `runs` is empty (a multisine set's
     own runs, read as time series); `drive_limit_v`: the plant's drive clamp, for the spectra's
-    reading of a model.
+    reading of a model; `extra`: any other kind of set (`EvidenceSet`), fitted with the plant and
+    checking the findings as the spectra do.
     """
     if progress:
         progress("joint plant")
-    joint = identify_joint(runs, table, model, noise, s, settings.decimate, spectra)
+    joint = identify_joint(runs, table, model, noise, s, settings.decimate, spectra, extra)
     searched = list(joint.runs) or list(search_runs)
     if not searched:
         raise ValueError("no runs to search: give measured runs (or a multisine run set)")
@@ -231,7 +257,7 @@ def analyse_joint(
             "series, so the spectra's check of the findings is in sample"
         )
     result = analyse(searched, joint.model, settings, progress=progress)
-    checks = _checks(table, spectra, s)
+    checks = _checks(table, spectra, s, extra)
     if progress and checks:
         progress("checks on " + ", ".join(checks))
     before = {name: check(joint.model) for name, check in checks.items()}
@@ -256,7 +282,7 @@ def analyse_joint(
     if current is not joint.model:
         if progress:
             progress("joint plant again")
-        final = identify_joint(runs, table, current, noise, s, settings.decimate, spectra)
+        final = identify_joint(runs, table, current, noise, s, settings.decimate, spectra, extra)
         current = final.model
         after = {name: check(current) for name, check in checks.items()}
         notes.append("the plant refitted on every set with what was kept")
@@ -284,6 +310,7 @@ def analyse_joint(
         before.get("spectra"),
         after.get("spectra"),
         localisation,
+        {o.name: (before[o.name], after[o.name]) for o in extra},
     )
 
 
@@ -297,6 +324,7 @@ def analyse_evidence(
     spectra: SpectrumEvidence | None = None,
     search_runs: Sequence[Run] = (),
     drive_limit_v: float | None = None,
+    extra: Sequence[EvidenceSet] = (),
 ) -> DiscrepancyResult | TableDiscrepancy | JointDiscrepancy:
     """The discrepancy workflow on whatever evidence of one robot is given: runs alone by the
     runs' workflow (`discrepancy.workflow.analyse`: judged on held-out runs), a table alone by
@@ -305,9 +333,9 @@ def analyse_evidence(
     every other set), with the noise of the runs it searches (`runs`, else `search_runs`).
     Parameters as `analyse_joint`.
     """
-    if table is None and spectra is None:
+    if table is None and spectra is None and not extra:
         return analyse(list(runs), model, settings, progress=progress)
-    if not runs and spectra is None and table is not None:
+    if not runs and spectra is None and table is not None and not extra:
         if progress:
             progress("table")
         return analyse_table(table, model, s)
@@ -316,21 +344,26 @@ def analyse_evidence(
         noise_estimates(searched, simulate_runs([model], searched)[0], model) if searched else {}
     )
     return analyse_joint(
-        runs, table, model, noise, s, settings, progress, spectra, search_runs, drive_limit_v
+        runs, table, model, noise, s, settings, progress, spectra, search_runs, drive_limit_v, extra
     )
 
 
 def _checks(
-    table: Table | None, spectra: SpectrumEvidence | None, s: TableSettings
+    table: Table | None,
+    spectra: SpectrumEvidence | None,
+    s: TableSettings,
+    extra: Sequence[EvidenceSet] = (),
 ) -> dict[str, Callable[[Model], TableCheck]]:
     """How each set besides the runs predicts a model: the table's held-out drive levels, the
-    multisine's line spectra.
+    multisine's line spectra, any other kind refitted on itself (`set_check`).
     """
     checks: dict[str, Callable[[Model], TableCheck]] = {}
     if table is not None:
         checks["table"] = lambda m: table_heldout(table, m, s)
     if spectra is not None:
         checks["spectra"] = lambda m: spectra_check(spectra, m, s)
+    for other in extra:
+        checks[other.name] = partial(set_check, other, s=s)
     return checks
 
 
@@ -346,7 +379,9 @@ def _set_gaps(after: Mapping[str, TableCheck], gap_ratio: float, notes: list[str
         films = [c for c in above if name == "spectra" and c.endswith("_v")]
         if gaps := [c for c in above if c not in films]:
             out.append(name)
-            notes.append(f"the {name}'s {_WORDS[name][2]} keep a gap on {', '.join(gaps)}")
+            notes.append(
+                f"the {name}'s {_WORDS.get(name, _OTHER_WORDS)[2]} keep a gap on {', '.join(gaps)}"
+            )
         if films:
             notes.append(
                 f"the spectra of {', '.join(films)} stay above noise "
@@ -370,7 +405,7 @@ def _checked(
     trial = {name: check(findings) for name, check in checks.items()}
     kept = True
     for name in checks:
-        what, unit, _ = _WORDS[name]
+        what, unit, _ = _WORDS.get(name, _OTHER_WORDS)
         rise, allowed = trial[name].chi2 - before[name].chi2, _allowance(before[name].n)
         if rise > allowed:
             kept = False

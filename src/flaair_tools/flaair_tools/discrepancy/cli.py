@@ -176,6 +176,7 @@ def _discrepancy(args: argparse.Namespace) -> int:
             spectra=i.spectra,
             search_runs=i.searched,
             drive_limit_v=drive_limit_v,
+            extra=i.extra,
         )
         return result, validation
 

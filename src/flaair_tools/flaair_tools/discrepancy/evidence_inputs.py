@@ -112,12 +112,15 @@ class CommandInputs:
             parts.append(f"a multisine set of {len(self.multisine)} realization(s)")
         if self.table is not None:
             parts.append(f"table {self.table.name} ({self.table.n_points} points)")
+        parts += [f"the {other.name}" for other in self.extra]
         return " + ".join(parts)
 
     @property
     def sets(self) -> int:
-        """How many sets of evidence: runs, a multisine set, a table."""
-        return sum((bool(self.runs), bool(self.multisine), self.table is not None))
+        """How many sets of evidence: runs, a multisine set, a table, any other kind."""
+        return sum((bool(self.runs), bool(self.multisine), self.table is not None)) + len(
+            self.extra
+        )
 
 
 def _spectra(runs: list[Run]) -> tuple[SpectrumEvidence | None, list[str]]:
