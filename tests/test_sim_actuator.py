@@ -112,18 +112,3 @@ def test_the_camera_sees_one_frame_in_n_with_tracking_noise_split_independent() 
     clean = scene.tracked_angles(3, stroke, pitch, scene.CameraParams(1, 0.5), None)
     np.testing.assert_allclose(clean[0], np.arange(12.0))
     assert clean[2] is None
-
-
-def test_a_retransmitted_command_steps_nothing_and_asks_for_its_answer_again() -> None:
-    state = _drive(actuator.initial_state(PARAMS, t_wall=0.0), 0.0, 2)
-    state, out = actuator.step(state, _command(0.1, 0, 0.0), PARAMS)  # block 0 again
-    assert out.drive_blocks == () and out.repeat == 0
-    assert state.next_index == 2 * BLOCK and state.expected_command_index == 2 * BLOCK
-    # the stream goes on where it was
-    state, out = actuator.step(state, _command(0.1, 2 * BLOCK, 1.0), PARAMS)
-    assert len(out.drive_blocks) == 1 and out.repeat is None
-    # realtime: nothing is answered per command, so nothing is asked again
-    realtime = dataclasses.replace(PARAMS, mode="realtime")
-    rt = actuator.initial_state(realtime, t_wall=0.0)
-    rt, _ = actuator.step(rt, _command(0.0, 0, 1.0), realtime)
-    assert actuator.step(rt, _command(0.0, 0, 1.0), realtime)[1].repeat is None

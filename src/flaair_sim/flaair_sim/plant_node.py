@@ -11,8 +11,6 @@ Usage: bin/flaair run flaair_sim plant_node [--ros-args -p mode:=realtime -p mod
 from __future__ import annotations
 
 import time
-from collections import deque
-from typing import Any
 
 import numpy as np
 from rosgraph_msgs.msg import Clock
@@ -29,7 +27,6 @@ from flaair_sim.core import actuator, plant, scene
 
 PARAMS = io.PLANT_PARAMS
 TRUTH = WingStateBlock.SOURCE_GROUND_TRUTH
-ANSWERS_KEPT = 16  # lockstep: the last command blocks' outputs, for a retransmission to get again
 
 
 class PlantNode(FlaairNode):
@@ -62,8 +59,6 @@ class PlantNode(FlaairNode):
         self.clock_listeners = intra.ListenerCount(self.clock_pub)  # per-block decision
         # next_index: first sample of the next stepped block
         self.undecodable, self.next_index = 0, 0
-        # lockstep: the last commands' (index, (stamp, sensor fields, truth fields)) answered
-        self.answers: deque[tuple[int, tuple[int, Any, Any]]] = deque(maxlen=ANSWERS_KEPT)
         # Writer-side readiness: a lockstep source starts once the plant subscribes to the drive, so
         # the plant subscribes only once its outputs' listeners are matched (none misses block 0).
         self.listeners_timer = self.create_timer(0.01, self.subscribe_when_listened)
@@ -103,16 +98,11 @@ class PlantNode(FlaairNode):
         self.driver, out = actuator.step(self.driver, inputs, self.params)
         log_notes(self.get_logger(), out.notes, lambda counter: getattr(self.driver, counter))
         for drive_v in out.drive_blocks:
-            answer = self.advance(drive_v)
-            if isinstance(inputs, actuator.Command):  # lockstep: a command's one answer, kept
-                self.answers.append((inputs.first_sample_index, answer))
-        for index, answer in self.answers if out.repeat is not None else ():
-            if index == out.repeat:
-                self.publish(*answer)
+            self.advance(drive_v)
         return bool(out.drive_blocks) and self.params.mode == "realtime"
 
-    def advance(self, drive_v: np.ndarray) -> tuple[int, Any, Any]:
-        """Step the model one block, publish its outputs; the stamp, sensor and truth fields."""
+    def advance(self, drive_v: np.ndarray) -> None:
+        """Step the model one block and publish its outputs."""
         drive_v = actuator.clamp_drive(drive_v, self.get_parameter("drive_limit_v").value)
         index, self.next_index = self.next_index, self.next_index + drive_v.size
         model = scene.model_at(
@@ -121,24 +111,18 @@ class PlantNode(FlaairNode):
         step = plant.PlantStepParams(model, self.fs_hz)
         self.state, out = plant.step(self.state, plant.PlantInputs(drive_v, self.noise_rng), step)
         stamp_ns = stamp_ns_of_sample(index, self.fs_hz)
-        sensor = io.sensor_fields(index, self.fs_hz, out)
+        self.sensor.publish(stamp_ns, io.sensor_fields(index, self.fs_hz, out))
         # Truth and /clock only when someone listens (volatile: a subscriber gets what follows its
         # match either way); the composed loop alone spends no encoding or DDS write on them.
-        truth = self.truth.has_listeners() and io.truth_fields(
-            index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng
-        )
-        self.publish(stamp_ns, sensor, truth)
+        if self.truth.has_listeners():
+            self.truth.publish(
+                stamp_ns,
+                io.truth_fields(index, self.fs_hz, out, TRUTH, self.camera, self.tracking_rng),
+            )
         if self.applied is not None and self.applied.has_listeners():
             self.applied.publish(stamp_ns, io.applied_fields(index, self.fs_hz, drive_v))
         if self.clock_pub is not None and self.clock_listeners():
             self.clock_pub.publish(Clock(clock=stamp_from_time_s(self.next_index / self.fs_hz)))
-        return stamp_ns, sensor, truth
-
-    def publish(self, stamp_ns: int, sensor: Any, truth: Any) -> None:
-        """Publish one block's sensor voltages and (when computed) its ground truth."""
-        self.sensor.publish(stamp_ns, sensor)
-        if truth:
-            self.truth.publish(stamp_ns, truth)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -10,10 +10,7 @@ Modes:
             none is due), the oldest queued command, or zero drive when none is queued.
 
 A command with NaN/inf samples, the wrong length or rate is stepped as zero drive (counted,
-logged); a duplicate or out-of-order one does not step the plant again, and in lockstep its
-index is returned in `repeat` so the shell answers it again with the outputs it published for it
-(a controller's start-up retransmission after its first answer was lost downstream would
-otherwise wait forever); a gap is accepted.
+logged); a duplicate or out-of-order one is ignored; a gap is accepted.
 
 Drive watchdog (lockstep): the plant stands in for the actuator and its driver, which must not
 hold a voltage when the command source dies. Once commands have flowed for arm_s of signal
@@ -79,13 +76,10 @@ class Tick(NamedTuple):
 
 
 class Outputs(NamedTuple):
-    """Drive blocks to step now (in order), what to log, and (lockstep) the first sample index
-    of an already stepped command block whose answer is asked for again.
-    """
+    """Drive blocks to step now (in order) and what to log."""
 
     drive_blocks: tuple[np.ndarray, ...] = ()
     notes: tuple[Note, ...] = ()
-    repeat: int | None = None
 
 
 class ActuatorState(NamedTuple):
@@ -185,9 +179,8 @@ def _on_command(
                 )
             )
             if check.kind == "stale":
-                # a duplicate must not advance the plant again; in lockstep it is answered again
-                repeat = first if p.mode == "lockstep" else None
-                return state, Outputs((), tuple(notes), repeat)
+                # a duplicate must not advance the plant again
+                return state, Outputs((), tuple(notes))
             if check.kind == "content":
                 drive_v = np.zeros(p.block_size)
     state = state._replace(expected_command_index=first + p.block_size, last_command_wall=c.t_wall)
