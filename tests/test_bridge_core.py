@@ -7,6 +7,7 @@ from __future__ import annotations
 import socket
 import struct
 import time
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ import pytest
 from flaair_bridge.core import bridge, bridge_params, protocol
 from flaair_bridge.core.bridge_state import DriveBlock, SensorDatagram, Stop, Tick
 from flaair_bridge.emulated_target import (
+    DAMAGE_KEYS,
     TargetCore,
     count_lag,
     damage_factors,
@@ -21,6 +23,7 @@ from flaair_bridge.emulated_target import (
     sensor_packet,
 )
 from flaair_bridge.udp import DatagramEndpoint
+from flaair_sim.core.damage import DamageParams
 
 FS = 20000.0
 N = 10
@@ -487,8 +490,11 @@ def test_an_endpoint_reads_only_once_started() -> None:
     address = endpoint.sock.getsockname()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as target:
         target.sendto(b"first", address)
-        time.sleep(0.2)
-        assert got == []  # not read yet
+        deadline = time.monotonic() + 2.0
+        while not endpoint.pending() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        # queued in the socket, no reader running: nothing can reach the callback yet
+        assert endpoint.pending() and not endpoint.reader.is_alive() and got == []
         endpoint.start()
         target.sendto(b"second", address)
         deadline = time.monotonic() + 2.0
@@ -502,6 +508,9 @@ def test_the_emulated_targets_damage_is_named_by_key() -> None:
     """--damage KEY=FACTOR: the damage schedule's factors, every other one 1; a bad item is
     refused naming it.
     """
+    # the option's keys are the damage schedule's factors (written out: --help answers before
+    # the target loads the plant)
+    assert tuple(f.name for f in fields(DamageParams) if f.name != "time_s") == DAMAGE_KEYS
     factors = damage_factors(["inertia_factor=0.95", "stroke_film_gain=0.9"])
     assert factors == {
         "inertia_factor": 0.95,

@@ -43,13 +43,16 @@ class PlantNode(FlaairNode):
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
         self.noise_rng, self.tracking_rng = io.generators_from_config(self.p)
         self.camera = io.camera_from_config(self.p, self.model)
-        realtime = self.params.mode == "realtime"  # only then do its samples differ from /drive's
-        self.sensor, self.truth, *applied = (
+        self.sensor, self.truth = (
             intra.block_publisher(self, topic, self.block_size, BLOCK_STREAM)
             for topic in (topics.SENSOR_VOLTAGE, topics.WING_STATE_TRUTH)
-            + ((topics.DRIVE_APPLIED,) if realtime else ())
         )
-        self.applied = applied[0] if applied else None
+        # realtime: commands queue, so the drive is also said at the samples it was applied
+        self.applied = (
+            intra.block_publisher(self, topics.DRIVE_APPLIED, self.block_size, BLOCK_STREAM)
+            if self.params.mode == "realtime"
+            else None
+        )
         # One /clock per block (2000/s): a 10-deep reliable history lost ticks to a recorder a
         # moment behind (bench_recorder: 33 of 20,843); 1000 deep is 0.5 s of slack.
         clock = self.p["publish_clock"]
