@@ -1,6 +1,7 @@
 """One source of the plant's forces: the RK4 kernel's accelerations, read at the fundamental
-(`flaair_sim.core.stroke_dynamic_stiffness`) by the health monitor's regression and the
-harmonic-balance start of a table. A torque added to the model reaches all three.
+(`flaair_sim.core.describing`: the stroke's dynamic stiffness, the pitch the hinge makes of a
+stroke) by the health monitor's regression and the harmonic-balance start of a table. A stroke
+torque and a pitch torque added to the model reach all three.
 """
 
 from __future__ import annotations
@@ -18,15 +19,28 @@ from flaair_control.health_io import health_params_from_config
 from flaair_model.model import with_effects
 from flaair_model.model_io import load_model
 from flaair_model.terms import DiscoveredTerm
-from flaair_sim.core.describing import stroke_dynamic_stiffness
+from flaair_sim.core.describing import pitch_response, stroke_dynamic_stiffness
 from flaair_sim.core.plant import simulate
-from flaair_sim.core.plant_params import P_CSTRUCT, P_GAMMA, P_K, prepare
+from flaair_sim.core.plant_params import (
+    P_CP,
+    P_CSTRUCT,
+    P_DP,
+    P_GAMMA,
+    P_IP,
+    P_JC,
+    P_K,
+    P_KH,
+    prepare,
+)
 
 FS = 20000.0
 DRIVE_V, DRIVE_HZ = 40.0, 140.0
 # A stiffening flexure: -kappa phi^3 (N m / rad^3). At the run's ~0.7 rad its describing
 # function, 3/4 kappa A^2, is ~35 % of the linear stiffness: no estimator can miss it.
 KAPPA_NM_PER_RAD3 = 4e-5
+# A stiffening hinge: -kappa_p psi^3. At the run's ~0.45 rad pitch, 3/4 kappa_p P^2 is ~25 % of
+# the hinge's linear stiffness.
+PITCH_KAPPA_NM_PER_RAD3 = 5e-6
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +73,33 @@ def test_the_describing_function_is_the_closed_form_of_each_torque(nominal, stif
 
 
 @pytest.fixture(scope="module")
+def stiff_hinge(nominal):
+    term = DiscoveredTerm("cube_angle", "pitch_dynamics", -PITCH_KAPPA_NM_PER_RAD3)
+    return replace(nominal, discovered=(term,))
+
+
+@pytest.mark.timeout(120)
+def test_the_pitch_response_is_the_closed_form_of_a_linear_hinge(nominal, stiff_hinge) -> None:
+    w = 2 * math.pi * np.array([100.0, 140.0, 180.0])
+    amp = np.array([0.3, 0.5, 0.7])
+    growth = np.array([0.0, 20.0, -30.0])  # a growing and a decaying stroke
+    ratio = np.array([1.0, 0.95, 1.05])
+    p = prepare(nominal, FS).params
+    s = growth + 1j * w
+    c_d = 8 / (3 * math.pi) * p[P_DP] * np.abs(s) * amp
+    closed = -(p[P_JC] * s * s + c_d * s) / (p[P_KH] + ratio * p[P_IP] * s * s + p[P_CP] * s)
+    np.testing.assert_allclose(pitch_response(p, w, amp, growth, ratio), closed, rtol=1e-6)
+    # the stiffening hinge at the fundamental: k_h + 3/4 kappa_p |P|^2 at its own pitch
+    q = prepare(stiff_hinge, FS).params
+    pitch = pitch_response(q, w, amp) * amp
+    kh = p[P_KH] + 0.75 * PITCH_KAPPA_NM_PER_RAD3 * np.abs(pitch) ** 2
+    force = p[P_JC] * w**2 - 1j * w * 8 / (3 * math.pi) * p[P_DP] * w * amp
+    stiffened = force * amp / (kh - p[P_IP] * w**2 + 1j * w * p[P_CP])
+    np.testing.assert_allclose(pitch, stiffened, rtol=1e-6)
+    assert np.all(np.abs(pitch) < np.abs(pitch_response(p, w, amp) * amp))
+
+
+@pytest.fixture(scope="module")
 def stiffened_run(stiffened):
     return hs.run(stiffened, 0.6, sine=(DRIVE_V, DRIVE_HZ))
 
@@ -83,6 +124,50 @@ def test_a_torque_added_to_the_model_reaches_the_kernel_and_harmonic_balance(
         x0 = harmonic_balance_start(model, f, a, b, FS)[0]
         start_amp = math.hypot(x0[0], x0[1] / (2 * math.pi * DRIVE_HZ))
         assert start_amp == pytest.approx(amplitude[name], rel=0.02), name
+
+
+def _tail_amplitude(x: np.ndarray, window: int) -> float:
+    tail = x[-window:]
+    return 0.5 * float(tail.max() - tail.min())
+
+
+@pytest.mark.timeout(180)
+def test_a_pitch_torque_added_to_the_model_reaches_the_kernel_and_harmonic_balance(
+    nominal, stiff_hinge
+) -> None:
+    f, a, b = np.array([DRIVE_HZ]), np.array([DRIVE_V]), np.array([0.0])
+    t = np.arange(int(0.5 * FS)) / FS
+    drive = DRIVE_V * np.sin(2 * math.pi * DRIVE_HZ * t)
+    window = round(5 * FS / DRIVE_HZ)
+    pitch = {
+        name: _tail_amplitude(simulate(drive, FS, model).pitch_rad, window)
+        for name, model in (("nominal", nominal), ("stiff", stiff_hinge))
+    }
+    # the kernel: the stiffer hinge pitches the wing less
+    assert pitch["stiff"] / pitch["nominal"] < 0.9
+    # harmonic balance: each model's start pitch is within 3 % of its own simulated pitch
+    w = 2 * math.pi * DRIVE_HZ
+    for name, model in (("nominal", nominal), ("stiff", stiff_hinge)):
+        x0 = harmonic_balance_start(model, f, a, b, FS)[0]
+        assert math.hypot(x0[2], x0[3] / w) == pytest.approx(pitch[name], rel=0.03), name
+
+
+@pytest.mark.timeout(180)
+def test_a_pitch_torque_added_to_the_model_reaches_the_health_regression(
+    nominal, stiff_hinge
+) -> None:
+    run = hs.run(stiff_hinge, 0.6, sine=(DRIVE_V, DRIVE_HZ))
+
+    def pitch_film_ratio(model) -> float:
+        params = replace(health_params_from_config(model=model), sample_rate_hz=FS)
+        _, out = H.step(H.initial_state(params), H.HealthInputs(*run), params)
+        est = np.array([b.estimate for b in out.wingbeats if b.valid and b.time_s > 0.4])
+        return float(est[:, 2].mean())
+
+    # read against the model that carries the torque, the pitch film is unchanged
+    assert pitch_film_ratio(stiff_hinge) == pytest.approx(1.0, abs=0.01)
+    # against the nominal model the stiffer hinge reads as a weaker pitch film
+    assert pitch_film_ratio(nominal) < 0.9
 
 
 @pytest.mark.timeout(180)

@@ -22,9 +22,9 @@ from numba import njit
 
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
-from flaair_sim.core.describing import stroke_dynamic_stiffness
+from flaair_sim.core.describing import pitch_response, stroke_dynamic_stiffness
 from flaair_sim.core.plant import simulate_batch_from
-from flaair_sim.core.plant_params import P_CP, P_DP, P_GA, P_I, P_IP, P_JC, P_K, P_KH, prepare
+from flaair_sim.core.plant_params import P_GA, P_I, P_K, prepare
 
 __all__ = [
     "MAX_BATCH_ROWS",
@@ -33,7 +33,6 @@ __all__ = [
     "steady_response",
 ]
 
-_DESCRIBING = 8.0 / (3.0 * math.pi)
 MAX_BATCH_ROWS = 240  # rows per simulate_batch call (bounds the (rows, samples) arrays' memory)
 
 
@@ -86,16 +85,15 @@ def harmonic_balance_start(
 
     The stroke's torques by their describing function at the amplitude (from the plant's own
     kernel, `flaair_sim.core.stroke_dynamic_stiffness`: nominal terms, effects and discovered
-    terms alike), solved for the stroke amplitude by fixed-point iteration; the pitch through
-    the hinge's linear response, its aerodynamic coupling by its describing function
-    (|x'| x' ~ (8 / 3 pi) w A x'). What the start misses (harmonics, sensor effects) the
+    terms alike), solved for the stroke amplitude by fixed-point iteration; the pitch the hinge
+    makes of that stroke from the kernel's pitch torques the same way
+    (`flaair_sim.core.pitch_response`). What the start misses (harmonics, sensor effects) the
     simulation, which starts here, settles.
     """
     p = prepare(model, fs_hz).params
     w = 2.0 * np.pi * np.asarray(frequency_hz, dtype=float)
     v = np.asarray(amplitude_v, dtype=float)
     inertia, gain, k = p[P_I], p[P_GA], p[P_K]
-    ip, kh, cp, jc, dp = p[P_IP], p[P_KH], p[P_CP], p[P_JC], p[P_DP]
     amp = gain * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
     pitch_per_stroke = np.zeros_like(w, dtype=complex)
     for _ in range(30):
@@ -103,8 +101,7 @@ def harmonic_balance_start(
         c = np.maximum(n.imag / w, 1e-3 * k / w)
         h = gain / (n.real - inertia * w**2 + 1j * c * w)
         amp = 0.5 * amp + 0.5 * np.abs(h) * v
-        force = jc * w**2 - 1j * w * dp * _DESCRIBING * w * amp
-        pitch_per_stroke = force / (kh - ip * w**2 + 1j * cp * w)
+        pitch_per_stroke = pitch_response(p, w, amp)
     # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
     phi = h * (-1j * v) * np.exp(-0.5j * w / fs_hz)
     psi = pitch_per_stroke * phi

@@ -16,13 +16,15 @@ gives with the stroke film's gain a_s, the pitch film's a_p and the wing inertia
 (actuator gain as modelled):
 
     G_a a_s D / S = K_eq - r I w^2 + j w c(A),   A = |S| / a_s
-    a_p = |P| / |H_p(w, r, A) A|,  H_p = (J_c w^2 - j w c_d(A)) / (k_h - r I_p w^2 + j w c_p)
+    a_p = |P| / |H_p(w, r, A) A|
 
 The imaginary part (the power the drive puts in, which the aerodynamic damping takes out) gives
 a_s, the real part r, the pitch film's reading against the pitch the hinge makes of that stroke
-a_p. A changed actuator gain g moves both film gains by sqrt(g) and the product a_s a_p by g:
-the `actuator_gain` series is that product. A changed stroke stiffness reads as an inertia
-change (K / r is what the resonance shows).
+a_p; H_p, the pitch per radian of stroke, is solved from the kernel's pitch torques
+(`flaair_sim.core.pitch_response`; for a linear hinge (J_c w^2 - j w c_d(A)) /
+(k_h - r I_p w^2 + j w c_p)). A changed actuator gain g moves both film gains by sqrt(g) and
+the product a_s a_p by g: the `actuator_gain` series is that product. A changed stroke
+stiffness reads as an inertia change (K / r is what the resonance shows).
 
 Change detection (`change_test`): a CUSUM per watched series (the inertia, the stroke film, the
 pitch film's reading against the stroke film's, and each film's zero, `film_zeros`) on pairs of
@@ -43,14 +45,13 @@ from numba import njit
 
 from flaair_model.lfilter import float_block
 from flaair_model.notes import WARNING, Note
-from flaair_sim.core.describing import stroke_dynamic_stiffness
-from flaair_sim.core.plant_params import P_CP, P_DP, P_GA, P_I, P_IP, P_JC, P_K, P_KH
+from flaair_sim.core.describing import pitch_response, stroke_dynamic_stiffness
+from flaair_sim.core.plant_params import P_GA, P_I, P_K
 
 from . import change_test
 
 PARAMETERS = ("wing_inertia", "stroke_film_gain", "pitch_film_gain", "actuator_gain")
 _ZOH_S = 0.5  # the drive is held over each sample: its effect lags it by half a sample
-_DF = 8.0 / (3.0 * math.pi)  # describing function of |x'| x' at the fundamental
 _HARMONICS = 3  # harmonics fitted beside the fundamental's mean (`fundamentals`)
 
 
@@ -265,7 +266,6 @@ def wingbeat_estimate(
         return None, amps
     ratio = d / s
     lam = log_rate_per_s
-    sc = complex(lam, w)  # the wingbeat as exp(s t): a growing or decaying stroke too
     plant = params.plant
     g0, inertia = plant[P_GA], plant[P_I]
     q = g0 * ratio.imag  # drive's power in, per unit amplitude
@@ -289,10 +289,7 @@ def wingbeat_estimate(
     if not a_s > 0:
         return None, amps
     amp = abs(s) / a_s
-    c_d = _DF * plant[P_DP] * w * amp
-    num = -(plant[P_JC] * sc * sc + c_d * sc)
-    den = plant[P_KH] + r * plant[P_IP] * sc * sc + plant[P_CP] * sc
-    a_p = abs(p) / (abs(num / den) * amp)
+    a_p = abs(p) / (abs(complex(pitch_response(plant, w, amp, lam, r))) * amp)
     return np.array([r, a_s, a_p, a_s * a_p]), amps
 
 

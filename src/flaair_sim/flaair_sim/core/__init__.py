@@ -2,7 +2,7 @@
 
 - ``plant``: plant dynamics and sensor chain (numba kernels, `step`, `simulate`, batches)
 - ``plant_kernel``: its numba kernels (RK4 with the collision stop, one model or a batch)
-- ``describing``: the plant's stroke torques at a motion's fundamental, from those kernels
+- ``describing``: the plant's torques at a motion's fundamental (stroke stiffness, pitch response)
 - ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
 - ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel

@@ -1,4 +1,4 @@
-"""The plant's stroke torques at the fundamental of a harmonic motion (describing functions).
+"""The plant's torques at the fundamental of a harmonic motion (describing functions).
 
 An estimator that reads the plant at its wingbeat frequency (the health monitor's regression,
 the harmonic-balance start of a frequency-response table) needs every stroke torque but the
@@ -7,17 +7,18 @@ amplitude. It is computed here from the RK4 kernel's own accelerations (`plant_k
 phi = A cos(w t), projected on the fundamental: a force the kernel computes (a nominal term, an
 effect's, a discovered term) reaches every estimator built on this, with no formula copied.
 The quadratic aerodynamic damping comes out as its describing function (8 / 3 pi) Gamma w A to
-within 1e-6 of it at the default 128 points a period.
+within 1e-6 of it at the default 128 points a period. The pitch the hinge makes of a stroke
+(`pitch_response`) is solved from the kernel's pitch torques the same way.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from flaair_sim.core.plant_kernel import stroke_fundamentals
+from flaair_sim.core.plant_kernel import pitch_responses, stroke_fundamentals
 from flaair_sim.core.plant_params import P_I
 
-__all__ = ["N_POINTS", "stroke_dynamic_stiffness"]
+__all__ = ["N_POINTS", "pitch_response", "stroke_dynamic_stiffness"]
 
 N_POINTS = 128  # samples of a period: the projection's error on |x'| x' is ~1 / N_POINTS^3
 # Below this amplitude (rad) the motion is probed at _PROBE_RAD: the linear part, its limit.
@@ -92,3 +93,84 @@ def _one(params: np.ndarray, omega: float, amplitude: float, pitch: complex) -> 
     )
     one: np.ndarray = (-params[P_I] * out / probe)[0]
     return one
+
+
+# Fixed-point passes for the pitch, at most, until a pass moves it by less than _PITCH_TOL of
+# itself (a linear hinge stops at the second, which repeats the first); the first pass reads the
+# hinge at _PITCH_PROBE_RAD, small against any stiffening, large against rounding.
+_PITCH_PASSES, _PITCH_TOL, _PITCH_PROBE_RAD = 60, 1e-9, 1e-4
+
+
+def pitch_response(
+    params: np.ndarray,
+    omega_rad_s: np.ndarray | float,
+    stroke_amplitude_rad: np.ndarray | float,
+    growth_per_s: np.ndarray | float = 0.0,
+    pitch_inertia_ratio: np.ndarray | float = 1.0,
+) -> np.ndarray:
+    """The pitch phasor per radian of stroke, P / A, the hinge makes of the stroke Re(A e^(s t)).
+
+    The pitch torques at the fundamental come from the kernel (`plant_kernel.pitch_responses`:
+    the hinge's nominal terms, its effects, discovered pitch terms, the coupling to the stroke),
+    and the pitch solves r I_p s^2 P = T(P), the hinge taken as its describing function at the
+    pitch. For a linear hinge this is -(J_c s^2 + c_d s) / (k_h + r I_p s^2 + c_p s), with the
+    aerodynamic coupling c_d = (8 / 3 pi) D_p |s| A.
+
+    Parameters
+    ----------
+    params
+        The kernels' parameter vector of the model (`plant_params.prepare(model, fs).params`).
+    omega_rad_s, stroke_amplitude_rad
+        The stroke's angular frequency and amplitude A (phase 0).
+    growth_per_s
+        The motion's logarithmic rate (s = growth + j w): a growing or decaying stroke.
+    pitch_inertia_ratio
+        r: the pitch inertia against the model's.
+
+    Returns
+    -------
+    np.ndarray
+        Complex, the broadcast shape (a complex scalar for float arguments).
+    """
+    if (
+        isinstance(omega_rad_s, float)
+        and isinstance(stroke_amplitude_rad, float)
+        and isinstance(growth_per_s, float)
+        and isinstance(pitch_inertia_ratio, float)
+    ):
+        # one motion a wingbeat (the health monitor): no broadcasting around the kernel call
+        one = _PROBE_RAD if abs(stroke_amplitude_rad) < _SMALL_RAD else stroke_amplitude_rad
+        rate = complex(growth_per_s, omega_rad_s)
+        inertial = np.array([pitch_inertia_ratio * rate * rate])
+        single: np.ndarray = _pitch(params, np.array([one + 0j]), np.array([rate]), inertial)[0]
+        return single
+    w, a, lam, r = np.broadcast_arrays(
+        np.asarray(omega_rad_s, dtype=float),
+        np.asarray(stroke_amplitude_rad, dtype=float),
+        np.asarray(growth_per_s, dtype=float),
+        np.asarray(pitch_inertia_ratio, dtype=float),
+    )
+    s = (lam + 1j * w).ravel()
+    stroke = np.where(np.abs(a) < _SMALL_RAD, _PROBE_RAD, a).ravel().astype(complex)
+    response: np.ndarray = _pitch(params, stroke, s, r.ravel() * s * s).reshape(w.shape)
+    return response
+
+
+def _pitch(
+    params: np.ndarray, stroke: np.ndarray, s: np.ndarray, inertial: np.ndarray
+) -> np.ndarray:
+    """P / A of each row (`pitch_response`; `inertial` is r s^2)."""
+    out = np.empty(s.size, dtype=complex)
+    pitch_responses(
+        params,
+        stroke,
+        s,
+        inertial.astype(complex),
+        N_POINTS,
+        _PITCH_PASSES,
+        _PITCH_TOL,
+        _PITCH_PROBE_RAD,
+        out,
+    )
+    per_stroke: np.ndarray = out / stroke
+    return per_stroke

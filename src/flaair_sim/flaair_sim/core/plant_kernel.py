@@ -17,7 +17,7 @@ from flaair_sim.core.plant_params import N_CONSTANTS
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
 from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
 
-__all__ = ["rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
+__all__ = ["pitch_responses", "rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
@@ -33,7 +33,6 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     2: stop acts (just after an impact, where phi may be a rounding error below the limit).
     """
     ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
-    kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
@@ -43,6 +42,13 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
+    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c)
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
+def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c):
+    """The pitch's acceleration given the stroke's (`ddphi`) and its drag |dphi| dphi."""
+    kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
     # acceleration first, the pitch's own state last): the pitch rate's recursion then waits on
     # one fused multiply-add per stage instead of four, and the stroke's chain sets the pace
@@ -50,7 +56,7 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
         ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
-    return ddphi, ddpsi
+    return ddpsi
 
 
 # Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
@@ -295,6 +301,70 @@ def _stroke_fundamentals_with(c, omega, amplitudes, pitch_re, pitch_im, n_points
             acc_re += ddphi * ct
             acc_im -= ddphi * st
         out[i] = complex(acc_re, acc_im) * (2.0 / n_points)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _pitch_fundamental(c, stroke, pitch, s, n_points):
+    """Fundamental of the pitch acceleration (but the pitch inertia's) along the stroke and the
+    pitch phasors `stroke`, `pitch` of the motion e^(s t): rates s X, the stroke's acceleration
+    s^2 S, the motion's own.
+    """
+    step = 2.0 * np.pi / n_points
+    turn = complex(np.cos(step), np.sin(step))
+    da, dda, db = s * stroke, s * s * stroke, s * pitch
+    acc = 0.0 + 0.0j
+    e = 1.0 + 0.0j  # e^(j k step) by rotation: a period's rounding stays ~1e-14
+    for _ in range(n_points):
+        dphi = (da * e).real
+        ddpsi = _pitch_acceleration(
+            (stroke * e).real,
+            dphi,
+            (pitch * e).real,
+            (db * e).real,
+            (dda * e).real,
+            abs(dphi) * dphi,
+            c,
+        )
+        acc += ddpsi * e.conjugate()
+        e *= turn
+    return acc * (2.0 / n_points)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _pitch_responses_with(c, stroke, s, inertial, n_points, passes, tol, probe_rad, out):
+    """`pitch_responses` with the constants tuple `c`."""
+    for i in range(stroke.shape[0]):
+        forced = _pitch_fundamental(c, stroke[i], 0.0j, s[i], n_points)
+        pitch, probe = 0.0j, complex(probe_rad, 0.0)
+        for k in range(passes):
+            hinge = (_pitch_fundamental(c, stroke[i], probe, s[i], n_points) - forced) / probe
+            new = forced / (inertial[i] - hinge)
+            done = abs(new - pitch) <= tol * abs(new)
+            # the first pass from the hinge's linear part; later ones halved (a stiffening
+            # hinge near its resonance overshoots: a plain iteration there oscillates)
+            pitch = new if k == 0 or done else 0.5 * (pitch + new)
+            if done:
+                break
+            probe = pitch if abs(pitch) > probe_rad else complex(probe_rad, 0.0)
+        out[i] = pitch
+
+
+@njit(cache=True)
+def pitch_responses(p, stroke, s, inertial, n_points, passes, tol, probe_rad, out):
+    """The pitch phasor P the hinge makes of each stroke phasor `stroke` (motion e^(s t)):
+    r I_p s^2 P = T(P) with the kernel's own pitch torques T at the fundamental (`inertial` is
+    r s^2), the hinge taken as its describing function at the pitch of the last pass, from a
+    first pass at `probe_rad`, until a pass moves it by less than `tol` of itself (at most
+    `passes`); into `out`.
+    """
+    if p[pp.P_NTERMS] > 0.0:
+        _pitch_responses_with(
+            constants_with_terms(p), stroke, s, inertial, n_points, passes, tol, probe_rad, out
+        )
+    else:
+        _pitch_responses_with(
+            mechanical_constants(p), stroke, s, inertial, n_points, passes, tol, probe_rad, out
+        )
 
 
 @njit(cache=True)
