@@ -192,7 +192,10 @@ def watched(estimate: np.ndarray, zeros: np.ndarray) -> np.ndarray:
 
 def _moves(x: np.ndarray, mu: np.ndarray) -> np.ndarray:
     """Each series' move from its baseline: relative for a ratio, a difference for a zero."""
-    moves: np.ndarray = np.where(RATIO, x / mu - 1.0, x - mu)
+    moves: np.ndarray = np.subtract(x, mu, dtype=float)
+    # only the ratios are divided: a zero's baseline may be exactly 0
+    np.divide(x, mu, out=moves, where=RATIO)
+    moves[..., RATIO] -= 1.0
     return moves
 
 
