@@ -383,6 +383,62 @@ def test_experiment_from_another_directory_uses_absolute_paths(monkeypatch, tmp_
     assert _FakeGraph.log_dirs == [tmp_path / "bag.logs"]
 
 
+def _saved_baseline(path: Path) -> Path:
+    """A health.json holding one baseline learned against the configured model."""
+    import json
+
+    import numpy as np
+
+    from flaair_control.core import change_test
+    from flaair_control.health_io import baseline_dict, health_params_from_config
+
+    n = len(change_test.WATCHED)
+    baseline = change_test.Baseline(np.ones(n), np.full(n, 0.01), 140.0)
+    doc = {"bags": [{"baseline": baseline_dict(baseline, health_params_from_config())}]}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_experiment_refuses_a_bad_health_baseline_before_any_node_starts(
+    monkeypatch, tmp_path, capsys
+) -> None:
+    from flaair_tools.orchestration import experiment
+
+    def no_graph(*_args, **_kwargs):
+        raise AssertionError("a graph was started")
+
+    monkeypatch.setattr(experiment, "Graph", no_graph)
+    garbage = tmp_path / "garbage.json"
+    garbage.write_text("{not json")
+    argv = ["characterization_chirp", "--out", str(tmp_path / "bag")]
+    assert experiment.main([*argv, "--health-baseline", str(garbage)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "baseline_file" in err[0] and "not a readable health.json" in err[0]
+    assert not (tmp_path / "bag").exists()
+
+
+def test_experiment_hands_the_health_monitor_its_saved_baseline(monkeypatch, tmp_path) -> None:
+    from flaair_tools.orchestration import experiment
+
+    started: dict[str, dict] = {}
+    monkeypatch.setattr(
+        experiment, "start_node", lambda _g, role, params: started.setdefault(role, params)
+    )
+    monkeypatch.chdir(tmp_path)
+    saved = _saved_baseline(tmp_path / "health.json")
+    spec = experiment.load_experiments()["characterization_chirp"]
+    args = (None, spec, tmp_path / "bag", tmp_path, True, True, None)
+    experiment._start_nodes(*args, Path("health.json"))
+    assert started["health"]["baseline_file"] == "health.json"
+    started.clear()
+    experiment._start_nodes(*args, None)
+    assert "baseline_file" not in started["health"]
+    # the check `main` runs first accepts it
+    from flaair_control.health_io import check_baseline_file
+
+    check_baseline_file(saved, None)
+
+
 # ----------------------------------------------------------------- 18: launch --print
 
 

@@ -352,6 +352,17 @@ def health_params_from_config(
     return params
 
 
+def check_baseline_file(baseline_file: str | Path, calibration_file: str | Path | None) -> None:
+    """Refuse, before a graph starts, a baseline the health node would refuse with the
+    configured model and `calibration_file` (ParameterError or OSError naming what is wrong).
+    """
+    values = health_values()
+    values["baseline_file"] = str(baseline_file)
+    if calibration_file is not None:
+        values["calibration_file"] = str(calibration_file)
+    health_params_from_config(values)
+
+
 class JoinState(NamedTuple):
     """Film and drive samples not yet handed to the core, each from its first sample index."""
 

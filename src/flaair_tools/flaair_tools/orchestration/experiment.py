@@ -255,6 +255,7 @@ def _start_nodes(
     noise: bool,
     nominal: bool,
     calibration_file: Path | None,
+    health_baseline: Path | None,
 ) -> dict[str, subprocess.Popen]:
     """The graph's nodes (the experiment's own among them) with this run's parameters."""
     plant: dict[str, Any] = {"noise": noise, **spec.plant}
@@ -268,7 +269,10 @@ def _start_nodes(
         "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
         if calibrated
         else {},
-        "health": {"calibration_file": str(calibration_file)} if calibrated else {},
+        "health": {
+            **({"calibration_file": str(calibration_file)} if calibrated else {}),
+            **({"baseline_file": str(health_baseline)} if health_baseline is not None else {}),
+        },
     }
     started = {
         role: start_node(
@@ -512,17 +516,21 @@ def run_experiment(
     progress: bool = True,
     nominal: bool = False,
     calibration_file: Path | None = None,
+    health_baseline: Path | None = None,
 ) -> dict[str, Any]:
     """Run `spec` on the simulated graph and record it to the bag `out`; return a summary.
 
     The plant is the bench robot (nominal model + config/experiments.yaml `robot:` effects)
-    unless `nominal`. The front end uses the model's gains, or `calibration_file`.
+    unless `nominal`. The front end (and the health monitor) use the model's gains, or
+    `calibration_file`; the health monitor judges against `health_baseline` (a health.json)
+    from the first wingbeat if given.
     """
     if out.exists():
         raise ExperimentError(f"{out} exists; choose another --out or remove it")
     # absolute: the graph's processes run in the repository's root, not in this directory
     out = out.absolute()
     calibration_file = None if calibration_file is None else calibration_file.absolute()
+    health_baseline = None if health_baseline is None else health_baseline.absolute()
     shared = settings.stream()
     log_dir = out.parent / f"{out.name}.logs"
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -536,7 +544,9 @@ def run_experiment(
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
-        started = _start_nodes(graph, spec, out, log_dir, noise, nominal, calibration_file)
+        started = _start_nodes(
+            graph, spec, out, log_dir, noise, nominal, calibration_file, health_baseline
+        )
         _await_listeners(runner, graph, spec)
         _publish_experiment(runner, spec, shared.sample_rate_hz)
         for run in spec.runs:
@@ -589,6 +599,14 @@ def main(argv: list[str] | None = None) -> int:
         "config/experiments.yaml robot: "
         "effects)",
     )
+    parser.add_argument(
+        "--health-baseline",
+        type=Path,
+        metavar="HEALTH.json",
+        help="the health monitor judges against this healthy run's baseline (a `flaair health` "
+        "health.json of this robot, same model and calibration) from the first wingbeat, so a "
+        "change during the K_r ramp is reported (default: it learns one after the ramp)",
+    )
     args = parser.parse_args(argv)
     if args.list or not args.name:
         for name, spec in experiments.items():
@@ -603,8 +621,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if args.out is None:
         parser.error("--out BAG is required")
-    try:  # the model files checked before any node starts
+    try:  # the model files and the baseline checked before any node starts
         robot_model()
+        if args.health_baseline is not None:
+            # deferred: the monitor's core (numba) costs 1.5 s of import; only a baseline needs it
+            from flaair_control.health_io import check_baseline_file
+
+            check_baseline_file(args.health_baseline, args.calibration)
     except (ConfigError, ValueError) as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)
         return 2
@@ -616,6 +639,7 @@ def main(argv: list[str] | None = None) -> int:
             noise=not args.no_noise,
             nominal=args.nominal,
             calibration_file=args.calibration,
+            health_baseline=args.health_baseline,
         )
     except (ExperimentError, ConfigError, bagio.BagError) as exc:
         print(f"flaair experiment: {exc}", file=sys.stderr)

@@ -639,14 +639,10 @@ def _checked(args: argparse.Namespace) -> None:
         if args.no_health:
             raise LiveError("--health-baseline with --no-health: the monitor is left out")
         # deferred: the monitor's core (numba) costs 1.5 s of import; only a baseline needs it
-        from flaair_control.health_io import health_params_from_config, health_values
+        from flaair_control.health_io import check_baseline_file
 
-        values = health_values()
-        values["baseline_file"] = str(args.health_baseline)
-        if args.calibration is not None:
-            values["calibration_file"] = str(args.calibration)
         try:
-            health_params_from_config(values)
+            check_baseline_file(args.health_baseline, args.calibration)
         except ParameterError as exc:
             raise LiveError(f"--health-baseline: {exc}") from None
 
