@@ -8,10 +8,12 @@ about 159 Hz) and a synchronous 40 V sine at 140 Hz. A change lands between bloc
 a 5 % loss of the wing's inertia, either film's gain or the actuator's gain; two changes the
 films and the drive cannot tell from another (the wing hinge's stiffness: the pitch film's
 look-alike; the stroke's stiffness: the inertia's); and the stroke film's charge amplifier
-drifting (its output's zero moving a tenth of the film's amplitude a second). Latency = the
-event's wingbeat - the first wingbeat ending at or after the change. Cause right: every event (at
-least one) names the cause, or a cause whose look-alikes (`alternatives`) include it; the step
-changes' single event is checked by "other parameters named".
+drifting (its output's zero moving a tenth of the film's amplitude a second). Each change runs
+on `SEEDS` noise seeds and every figure is the worst of them (a latency is a distribution: each
+seed must meet the target; the per-seed values are printed beside it). Latency = the event's
+wingbeat - the first wingbeat ending at or after the change. Cause right: on every seed, every
+event (at least one) names the cause, or a cause whose look-alikes (`alternatives`) include it;
+the step changes' single event is checked by "other parameters named".
 
 False alarms: 10 minutes of the unchanged robot (84,000 wingbeats), split over both controllers
 at two drive levels each (dSA gain 10 x its Hopf onset in the simulated loop's 0.5 ms blocks and
@@ -28,6 +30,7 @@ core on the whole record in one call.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
@@ -48,6 +51,10 @@ from flaair_model.model_io import load_model
 
 DAMAGE_S = 2.0
 CHANGE = 0.95  # every change: 5 % down
+MAX_LATENCY = 20  # wingbeats from a change to its event (issue 53)
+# Each change on this many noise seeds (the sensors' noise, and the dSA loop's drive that reads
+# it): a latency is a distribution, and every seed must meet the target.
+SEEDS = (11, 1, 2, 3, 4, 5, 6, 7)
 DRIFT_PER_S = 0.1  # the stroke amplifier's drift: a tenth of the film's amplitude a second
 CONTROLLERS = {"dSA": {}, "sine 40 V": {"sine": (40.0, 140.0), "block": 400}}
 MISFIT_LAG_S = 1e-4  # the films' lag the model leaves out
@@ -98,20 +105,23 @@ def amplifier_drift(vs: np.ndarray, fs: float, start_s: float, per_s: float) -> 
     return out
 
 
-def change_case(args: tuple[str, str]) -> dict:
-    """One changed robot under one controller: its events and the first wingbeat after."""
-    cause, controller = args
+def change_case(args: tuple[str, str, int]) -> dict:
+    """One changed robot under one controller and one noise seed: its events and the first
+    wingbeat after the change.
+    """
+    cause, controller, seed = args
     model = load_model()
     params = health_params_from_config(model=model)
     opts = CONTROLLERS[controller]
     if cause == "stroke_amplifier_offset":  # the amplifier drifts; the robot is unchanged
-        vs, vp, dv = hs.run(model, DAMAGE_S + 1.0, seed=11, **opts)
+        vs, vp, dv = hs.run(model, DAMAGE_S + 1.0, seed=seed, **opts)
         vs = amplifier_drift(vs, hs.FS, DAMAGE_S, DRIFT_PER_S)
     else:
-        vs, vp, dv = hs.run(model, DAMAGE_S + 1.0, changed(model, cause), DAMAGE_S, seed=11, **opts)
+        damaged = changed(model, cause)
+        vs, vp, dv = hs.run(model, DAMAGE_S + 1.0, damaged, DAMAGE_S, seed=seed, **opts)
     _, out = _events(params, vs, vp, dv)
     first = next(b.wingbeat for b in out.wingbeats if b.time_s >= DAMAGE_S)
-    return {"first": first, "events": [e._asdict() for e in out.events]}
+    return {"seed": seed, "first": first, "events": [e._asdict() for e in out.events]}
 
 
 def unchanged_case(args: tuple[str, dict, float]) -> dict:
@@ -150,53 +160,69 @@ def misfit_case(args: tuple[int, float]) -> dict:
     }
 
 
-def change_figures(cause: str, controller: str, r: dict) -> list[Figure]:
-    """Latency, ratio and others named of a 5 % change of a part the monitor estimates."""
-    named = [e["parameter"] for e in r["events"]]
+def _latency(cause: str, r: dict) -> float:
+    """Wingbeats from the change to the first event naming `cause` (inf: none)."""
     ev = next((e for e in r["events"] if e["parameter"] == cause), None)
-    label = f"{cause} x{CHANGE}, {controller}"
+    return float(ev["wingbeat"] - r["first"]) if ev else math.inf
+
+
+def change_figures(cause: str, controller: str, runs: list[dict]) -> list[Figure]:
+    """Latency, ratio and others named of a 5 % change of a part the monitor estimates, the
+    worst over the noise seeds (each must meet the target).
+    """
+    latency = [_latency(cause, r) for r in runs]
+    found = [next((e for e in r["events"] if e["parameter"] == cause), None) for r in runs]
+    error = [abs(ev["ratio"] - CHANGE) if ev else math.inf for ev in found]
+    others = [
+        [e["parameter"] for e in r["events"] if e is not ev]
+        for r, ev in zip(runs, found, strict=True)
+    ]
+    label = f"{cause} x{CHANGE}, {controller}, worst of {len(runs)} seeds"
+    within = sum(lat <= MAX_LATENCY for lat in latency)
     return [
         compare(
             f"{label}: detection latency",
-            ev["wingbeat"] - r["first"] if ev else float("nan"),
+            max(latency),
             "wingbeats",
             "<=",
-            20,
-            f"events: {named}",
+            MAX_LATENCY,
+            f"{within}/{len(runs)} seeds within; per seed "
+            + ", ".join(f"{lat:g}" for lat in latency),
         ),
         compare(
             f"{label}: |ratio - truth|",
-            abs(ev["ratio"] - CHANGE) if ev else float("nan"),
+            max(error),
             "",
             "<=",
             0.02,
-            f"ratio {ev['ratio']:.4f} +- {ev['stderr']:.4f}" if ev else "no event",
+            "ratios " + ", ".join(f"{ev['ratio']:.4f}" if ev else "none" for ev in found),
         ),
         # every event but the one expected (a second event of the expected parameter counts too)
         compare(
             f"{label}: other parameters named",
-            len(named) - bool(ev),
+            sum(len(o) for o in others),
             "events",
             "==",
             0,
-            f"events: {named}",
+            f"named besides: {sorted({p for o in others for p in o}) or 'none'}",
         ),
     ]
 
 
-def cause_figure(cause: str, controller: str, r: dict) -> Figure:
-    """Whether every event names `cause` (itself or among the named cause's look-alikes), and
-    there is one: a drift that goes on growing is reported again each time it has moved past
-    the test's drift from the baseline learned after the last report.
+def cause_figure(cause: str, controller: str, runs: list[dict]) -> Figure:
+    """Whether, on every seed, every event names `cause` (itself or among the named cause's
+    look-alikes), and there is one: a drift that goes on growing is reported again each time
+    it has moved past the test's drift from the baseline learned after the last report.
     """
-    events = r["events"]
-    right = bool(events) and all(
-        e["parameter"] == cause or cause in e["alternatives"] for e in events
-    )
+    right = [
+        bool(r["events"])
+        and all(e["parameter"] == cause or cause in e["alternatives"] for e in r["events"])
+        for r in runs
+    ]
     said = [
         H.change_text(e["parameter"], e["ratio"], e["stderr"], e["offset_deg"], e["alternatives"])
-        + f", {e['wingbeat'] - r['first']} wingbeats after"
-        for e in events
+        + f", {e['wingbeat'] - runs[0]['first']} wingbeats after"
+        for e in runs[0]["events"]
     ]
     what = (
         f"stroke amplifier drifting {DRIFT_PER_S:.0%} of its amplitude a second"
@@ -204,8 +230,13 @@ def cause_figure(cause: str, controller: str, r: dict) -> Figure:
         else f"{cause} x{CHANGE}"
     )
     return compare(
-        f"{what}, {controller}: cause named", float(right), "", "==", 1.0, f"events: {said}"
-    )  # fmt: skip
+        f"{what}, {controller}: cause named on every seed",
+        float(all(right)),
+        "",
+        "==",
+        1.0,
+        f"{sum(right)}/{len(runs)} seeds right; seed {runs[0]['seed']}: {said}",
+    )
 
 
 def main() -> None:
@@ -219,16 +250,17 @@ def main() -> None:
     measured = ("wing_inertia", "stroke_film_gain", "pitch_film_gain", "actuator_gain")
     lookalikes = ("hinge_stiffness", "stroke_stiffness", "stroke_amplifier_offset")
     cases = [(c, k) for c in measured + lookalikes for k in CONTROLLERS]
+    runs = [(c, k, seed) for c, k in cases for seed in SEEDS]
     with ProcessPoolExecutor(2) as pool:
         long_runs = pool.map(unchanged_case, UNCHANGED)
         misfit_runs = pool.map(misfit_case, MISFIT_RUNS)
-        results = dict(zip(cases, pool.map(change_case, cases), strict=True))
+        changes = list(pool.map(change_case, runs, chunksize=4))
         long_results, misfit = list(long_runs), list(misfit_runs)
     for cause, controller in cases:
-        r = results[(cause, controller)]
+        seeds = [r for run, r in zip(runs, changes, strict=True) if run[:2] == (cause, controller)]
         if cause in measured:
-            figures.extend(change_figures(cause, controller, r))
-        figures.append(cause_figure(cause, controller, r))
+            figures.extend(change_figures(cause, controller, seeds))
+        figures.append(cause_figure(cause, controller, seeds))
     events = sum(len(r["events"]) for r in long_results)
     wingbeats = sum(r["wingbeats"] for r in long_results)
     seconds = sum(s for *_, s in UNCHANGED)
