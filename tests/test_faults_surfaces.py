@@ -417,26 +417,17 @@ def test_experiment_refuses_a_bad_health_baseline_before_any_node_starts(
     assert not (tmp_path / "bag").exists()
 
 
-def test_experiment_hands_the_health_monitor_its_saved_baseline(monkeypatch, tmp_path) -> None:
+def test_experiment_hands_the_health_monitor_its_saved_baseline(tmp_path) -> None:
+    from flaair_control.health_io import check_baseline_file
     from flaair_tools.orchestration import experiment
 
-    started: dict[str, dict] = {}
-    monkeypatch.setattr(
-        experiment, "start_node", lambda _g, role, params: started.setdefault(role, params)
-    )
-    monkeypatch.chdir(tmp_path)
     saved = _saved_baseline(tmp_path / "health.json")
     spec = experiment.load_experiments()["characterization_chirp"]
-    args = (None, spec, tmp_path / "bag", tmp_path, True, True, None)
-    experiment._start_nodes(*args, Path("health.json"))
-    assert started["health"]["baseline_file"] == "health.json"
-    started.clear()
-    experiment._start_nodes(*args, None)
-    assert "baseline_file" not in started["health"]
-    # the check `main` runs first accepts it
-    from flaair_control.health_io import check_baseline_file
-
-    check_baseline_file(saved, None)
+    args = (spec, tmp_path / "bag", tmp_path, True, True, None)
+    parameters = experiment.run_parameters(*args, saved)
+    assert parameters["health"]["baseline_file"] == str(saved)
+    assert "baseline_file" not in experiment.run_parameters(*args, None)["health"]
+    check_baseline_file(saved, None)  # the check `main` runs first accepts it
 
 
 # ----------------------------------------------------------------- 18: launch --print

@@ -153,6 +153,31 @@ def test_a_pitch_torque_added_to_the_model_reaches_the_kernel_and_harmonic_balan
 
 
 @pytest.mark.timeout(180)
+def test_a_stroke_torque_from_the_pitch_reaches_harmonic_balance(nominal) -> None:
+    """A torque on the stroke that the pitch makes (+0.2 K psi): the start solves the stroke and
+    the pitch together (the stroke moves 0.373 rad against the nominal 0.505).
+    """
+    k = prepare(nominal, FS).params[P_K]
+    coupled = replace(
+        nominal, discovered=(DiscoveredTerm("cross_angle", "stroke_dynamics", 0.2 * k),)
+    )
+    t = np.arange(int(0.5 * FS)) / FS
+    drive = DRIVE_V * np.sin(2 * math.pi * DRIVE_HZ * t)
+    run = simulate(drive, FS, coupled)
+    window = round(5 * FS / DRIVE_HZ)
+    stroke = _tail_amplitude(run.stroke_rad, window)
+    assert stroke < 0.8 * _tail_amplitude(simulate(drive, FS, nominal).stroke_rad, window)
+    x0 = harmonic_balance_start(
+        coupled, np.array([DRIVE_HZ]), np.array([DRIVE_V]), np.array([0.0]), FS
+    )[0]
+    w = 2 * math.pi * DRIVE_HZ
+    assert math.hypot(x0[0], x0[1] / w) == pytest.approx(stroke, rel=0.01)
+    assert math.hypot(x0[2], x0[3] / w) == pytest.approx(
+        _tail_amplitude(run.pitch_rad, window), rel=0.01
+    )
+
+
+@pytest.mark.timeout(180)
 def test_a_pitch_torque_added_to_the_model_reaches_the_health_regression(
     nominal, stiff_hinge
 ) -> None:

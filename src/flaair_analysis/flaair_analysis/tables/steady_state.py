@@ -34,6 +34,7 @@ __all__ = [
 ]
 
 MAX_BATCH_ROWS = 240  # rows per simulate_batch call (bounds the (rows, samples) arrays' memory)
+_COUPLING_PROBE_RAD = 0.3  # a pitch per radian of stroke that any pitch term on the stroke feels
 
 
 def point_drives(
@@ -96,11 +97,19 @@ def harmonic_balance_start(
     inertia, gain, k = p[P_I], p[P_GA], p[P_K]
     amp = gain * v / np.abs(k - inertia * w**2 + 1j * 1e-3 * k)
     pitch_per_stroke = np.zeros_like(w, dtype=complex)
-    for _ in range(30):
-        n = stroke_dynamic_stiffness(p, w, amp, pitch_per_stroke * amp)
+    # The pitch is solved along the stroke's iteration only where the stroke's torques depend on
+    # it (a pitch term on the stroke); else once, at the stroke's amplitude (the same start).
+    n = stroke_dynamic_stiffness(p, w, amp)
+    coupled = np.any(stroke_dynamic_stiffness(p, w, amp, _COUPLING_PROBE_RAD * amp + 0j) != n)
+    for i in range(30):
+        if i:
+            n = stroke_dynamic_stiffness(p, w, amp, pitch_per_stroke * amp)
         c = np.maximum(n.imag / w, 1e-3 * k / w)
         h = gain / (n.real - inertia * w**2 + 1j * c * w)
         amp = 0.5 * amp + 0.5 * np.abs(h) * v
+        if coupled:
+            pitch_per_stroke = pitch_response(p, w, amp, start=pitch_per_stroke)
+    if not coupled:
         pitch_per_stroke = pitch_response(p, w, amp)
     # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
     phi = h * (-1j * v) * np.exp(-0.5j * w / fs_hz)

@@ -62,7 +62,8 @@ def stroke_dynamic_stiffness(
         np.asarray(pitch_phasor_rad, dtype=complex),
     )
     shape = w.shape
-    w, a, pitch = w.ravel(), a.ravel(), pitch.ravel()
+    # copies: numba warns on the views broadcast_arrays returns (their writeable flag is going)
+    w, a, pitch = np.array(w).ravel(), np.array(a).ravel(), np.array(pitch).ravel()
     probe = np.where(np.abs(a) < _SMALL_RAD, _PROBE_RAD, a)
     out = np.empty(w.size, dtype=complex)
     stroke_fundamentals(
@@ -107,6 +108,7 @@ def pitch_response(
     stroke_amplitude_rad: np.ndarray | float,
     growth_per_s: np.ndarray | float = 0.0,
     pitch_inertia_ratio: np.ndarray | float = 1.0,
+    start: np.ndarray | complex = 0j,
 ) -> np.ndarray:
     """The pitch phasor per radian of stroke, P / A, the hinge makes of the stroke Re(A e^(s t)).
 
@@ -126,6 +128,8 @@ def pitch_response(
         The motion's logarithmic rate (s = growth + j w): a growing or decaying stroke.
     pitch_inertia_ratio
         r: the pitch inertia against the model's.
+    start
+        A guess of P / A (a last solution: an iteration around it stops in a few passes).
 
     Returns
     -------
@@ -137,35 +141,41 @@ def pitch_response(
         and isinstance(stroke_amplitude_rad, float)
         and isinstance(growth_per_s, float)
         and isinstance(pitch_inertia_ratio, float)
+        and isinstance(start, complex)
     ):
         # one motion a wingbeat (the health monitor): no broadcasting around the kernel call
         one = _PROBE_RAD if abs(stroke_amplitude_rad) < _SMALL_RAD else stroke_amplitude_rad
         rate = complex(growth_per_s, omega_rad_s)
         inertial = np.array([pitch_inertia_ratio * rate * rate])
-        single: np.ndarray = _pitch(params, np.array([one + 0j]), np.array([rate]), inertial)[0]
+        stroke = np.array([one + 0j])
+        guess = np.array([start * one])
+        single: np.ndarray = _pitch(params, stroke, np.array([rate]), inertial, guess)[0]
         return single
-    w, a, lam, r = np.broadcast_arrays(
+    w, a, lam, r, guess = np.broadcast_arrays(
         np.asarray(omega_rad_s, dtype=float),
         np.asarray(stroke_amplitude_rad, dtype=float),
         np.asarray(growth_per_s, dtype=float),
         np.asarray(pitch_inertia_ratio, dtype=float),
+        np.asarray(start, dtype=complex),
     )
     s = (lam + 1j * w).ravel()
     stroke = np.where(np.abs(a) < _SMALL_RAD, _PROBE_RAD, a).ravel().astype(complex)
-    response: np.ndarray = _pitch(params, stroke, s, r.ravel() * s * s).reshape(w.shape)
+    inertial = r.ravel() * s * s
+    response = _pitch(params, stroke, s, inertial, guess.ravel() * stroke).reshape(w.shape)
     return response
 
 
 def _pitch(
-    params: np.ndarray, stroke: np.ndarray, s: np.ndarray, inertial: np.ndarray
+    params: np.ndarray, stroke: np.ndarray, s: np.ndarray, inertial: np.ndarray, start: np.ndarray
 ) -> np.ndarray:
-    """P / A of each row (`pitch_response`; `inertial` is r s^2)."""
+    """P / A of each row (`pitch_response`; `inertial` is r s^2, `start` a guess of P)."""
     out = np.empty(s.size, dtype=complex)
     pitch_responses(
         params,
         stroke,
         s,
         inertial.astype(complex),
+        np.ascontiguousarray(start, dtype=complex),
         N_POINTS,
         _PITCH_PASSES,
         _PITCH_TOL,

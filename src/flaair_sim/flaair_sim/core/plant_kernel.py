@@ -331,11 +331,12 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _pitch_responses_with(c, stroke, s, inertial, n_points, passes, tol, probe_rad, out):
+def _pitch_responses_with(c, stroke, s, inertial, start, n_points, passes, tol, probe_rad, out):
     """`pitch_responses` with the constants tuple `c`."""
     for i in range(stroke.shape[0]):
         forced = _pitch_fundamental(c, stroke[i], 0.0j, s[i], n_points)
-        pitch, probe = 0.0j, complex(probe_rad, 0.0)
+        pitch = start[i]
+        probe = pitch if abs(pitch) > probe_rad else complex(probe_rad, 0.0)
         for k in range(passes):
             hinge = (_pitch_fundamental(c, stroke[i], probe, s[i], n_points) - forced) / probe
             new = forced / (inertial[i] - hinge)
@@ -350,21 +351,19 @@ def _pitch_responses_with(c, stroke, s, inertial, n_points, passes, tol, probe_r
 
 
 @njit(cache=True)
-def pitch_responses(p, stroke, s, inertial, n_points, passes, tol, probe_rad, out):
+def pitch_responses(p, stroke, s, inertial, start, n_points, passes, tol, probe_rad, out):
     """The pitch phasor P the hinge makes of each stroke phasor `stroke` (motion e^(s t)):
     r I_p s^2 P = T(P) with the kernel's own pitch torques T at the fundamental (`inertial` is
     r s^2), the hinge taken as its describing function at the pitch of the last pass, from a
-    first pass at `probe_rad`, until a pass moves it by less than `tol` of itself (at most
-    `passes`); into `out`.
+    first pass at `start` (or at `probe_rad` where smaller), until a pass moves it by less than
+    `tol` of itself (at most `passes`); into `out`.
     """
     if p[pp.P_NTERMS] > 0.0:
-        _pitch_responses_with(
-            constants_with_terms(p), stroke, s, inertial, n_points, passes, tol, probe_rad, out
-        )
+        c = constants_with_terms(p)
+        _pitch_responses_with(c, stroke, s, inertial, start, n_points, passes, tol, probe_rad, out)
     else:
-        _pitch_responses_with(
-            mechanical_constants(p), stroke, s, inertial, n_points, passes, tol, probe_rad, out
-        )
+        c = mechanical_constants(p)
+        _pitch_responses_with(c, stroke, s, inertial, start, n_points, passes, tol, probe_rad, out)
 
 
 @njit(cache=True)

@@ -247,8 +247,7 @@ def _announce(spec: ExperimentSpec, graph: Graph, log_dir: Path, calibrated: boo
         )
 
 
-def _start_nodes(
-    graph: Graph,
+def run_parameters(
     spec: ExperimentSpec,
     out: Path,
     log_dir: Path,
@@ -256,14 +255,14 @@ def _start_nodes(
     nominal: bool,
     calibration_file: Path | None,
     health_baseline: Path | None,
-) -> dict[str, subprocess.Popen]:
-    """The graph's nodes (the experiment's own among them) with this run's parameters."""
+) -> dict[str, dict[str, Any]]:
+    """Each of the graph's roles' parameters for this run (the graph's own, then the run's)."""
     plant: dict[str, Any] = {"noise": noise, **spec.plant}
     if not nominal and robot_section():
         plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
         plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
     calibrated = calibration_file is not None
-    run_parameters: dict[str, dict[str, Any]] = {
+    run: dict[str, dict[str, Any]] = {
         "recorder": {"output_path": str(out)},
         "plant": plant,
         "frontend": {"gains_from": "calibration", "calibration_file": str(calibration_file)}
@@ -274,12 +273,14 @@ def _start_nodes(
             **({"baseline_file": str(health_baseline)} if health_baseline is not None else {}),
         },
     }
-    started = {
-        role: start_node(
-            graph, role, {**GRAPH.parameters.get(role, {}), **run_parameters.get(role, {})}
-        )
-        for role in GRAPH.roles
-    }
+    return {role: {**GRAPH.parameters.get(role, {}), **run.get(role, {})} for role in GRAPH.roles}
+
+
+def _start_nodes(
+    graph: Graph, spec: ExperimentSpec, parameters: dict[str, dict[str, Any]]
+) -> dict[str, subprocess.Popen]:
+    """The graph's nodes (the experiment's own among them) with this run's parameters."""
+    started = {role: start_node(graph, role, parameters[role]) for role in GRAPH.roles}
     for role in spec.nodes:
         start_node(graph, role, {})
     return started
@@ -544,9 +545,10 @@ def run_experiment(
     runner = Runner()
     summary: dict[str, Any] = {"experiment": spec.name, "bag": str(out), "runs": []}
     try:
-        started = _start_nodes(
-            graph, spec, out, log_dir, noise, nominal, calibration_file, health_baseline
+        parameters = run_parameters(
+            spec, out, log_dir, noise, nominal, calibration_file, health_baseline
         )
+        started = _start_nodes(graph, spec, parameters)
         _await_listeners(runner, graph, spec)
         _publish_experiment(runner, spec, shared.sample_rate_hz)
         for run in spec.runs:
