@@ -53,6 +53,7 @@ from flaair_tools.multisine.drives import design_of, realization_runs
 from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.bench_robot import robot_model, robot_section, write_robot_model
 from flaair_tools.orchestration.graphs import GRAPHS, node_of
+from flaair_tools.orchestration.live_args import add_health_baseline
 from flaair_tools.recorder.recorder_io import RECORDER_PARAMS
 
 EXPERIMENT_TOPIC = "/flaair/experiment"
@@ -601,14 +602,7 @@ def main(argv: list[str] | None = None) -> int:
         "config/experiments.yaml robot: "
         "effects)",
     )
-    parser.add_argument(
-        "--health-baseline",
-        type=Path,
-        metavar="HEALTH.json",
-        help="the health monitor judges against this healthy run's baseline (a `flaair health` "
-        "health.json of this robot, same model and calibration) from the first wingbeat, so a "
-        "change during the K_r ramp is reported (default: it learns one after the ramp)",
-    )
+    add_health_baseline(parser)
     args = parser.parse_args(argv)
     if args.list or not args.name:
         for name, spec in experiments.items():

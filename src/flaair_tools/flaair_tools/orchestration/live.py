@@ -71,6 +71,7 @@ from flaair_tools.orchestration import second_terminal
 from flaair_tools.orchestration.graphs import node_of
 from flaair_tools.orchestration.live_args import (
     LiveError,
+    add_health_baseline,
     host_port,
     live_graph,
     node_parameters_for,
@@ -590,14 +591,7 @@ def _parser() -> argparse.ArgumentParser:
         help="leave the health monitor (health_node: /flaair/health, /flaair/health/events) out "
         "of the graph; by default it runs beside the loop in a process of its own",
     )
-    parser.add_argument(
-        "--health-baseline",
-        type=Path,
-        metavar="HEALTH.json",
-        help="the health monitor judges against this healthy run's baseline (a `flaair health` "
-        "health.json of this robot, same model and calibration) from the first wingbeat, so a "
-        "change during the K_r ramp is reported (default: it learns one after the ramp)",
-    )
+    add_health_baseline(parser)
     parser.add_argument(
         "--processes", action="store_true", help="one process per node instead of the composed loop"
     )

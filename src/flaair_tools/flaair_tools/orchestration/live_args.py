@@ -1,12 +1,14 @@
 """`flaair live`'s arguments turned into the graph's inputs: which declared graph it runs, the
 addresses it is given (checked, the error naming the option), and each node's parameter
-overrides for the run (`node_parameters_for`, a ROS params file's sections).
+overrides for the run (`node_parameters_for`, a ROS params file's sections); the health
+monitor's saved baseline, an option `flaair experiment` shares (`add_health_baseline`).
 """
 
 from __future__ import annotations
 
 import argparse
 import socket
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -14,11 +16,30 @@ import yaml
 from flaair_model import settings
 from flaair_tools.orchestration.graphs import GRAPHS, GraphDecl, node_of
 
-__all__ = ["LiveError", "host_port", "live_graph", "node_parameters_for", "port_free"]
+__all__ = [
+    "LiveError",
+    "add_health_baseline",
+    "host_port",
+    "live_graph",
+    "node_parameters_for",
+    "port_free",
+]
 
 
 class LiveError(RuntimeError):
     """The live graph could not run; the message says why."""
+
+
+def add_health_baseline(parser: argparse.ArgumentParser) -> None:
+    """--health-baseline HEALTH.json: the health monitor's saved baseline (`baseline_file`)."""
+    parser.add_argument(
+        "--health-baseline",
+        type=Path,
+        metavar="HEALTH.json",
+        help="the health monitor judges against this healthy run's baseline (a `flaair health` "
+        "health.json of this robot, same model and calibration) from the first wingbeat, so a "
+        "change during the K_r ramp is reported (default: it learns one after the ramp)",
+    )
 
 
 def live_graph(args: argparse.Namespace) -> GraphDecl:
