@@ -341,8 +341,9 @@ def _pitch_responses_with(c, stroke, s, inertial, start, n_points, passes, tol, 
             hinge = (_pitch_fundamental(c, stroke[i], probe, s[i], n_points) - forced) / probe
             new = forced / (inertial[i] - hinge)
             done = abs(new - pitch) <= tol * abs(new)
-            # the first pass from the hinge's linear part; later ones halved (a stiffening
-            # hinge near its resonance overshoots: a plain iteration there oscillates)
+            # the first pass whole (from the start, or the hinge's linear part); later ones
+            # halved (a stiffening hinge near its resonance overshoots: a plain iteration
+            # there oscillates)
             pitch = new if k == 0 or done else 0.5 * (pitch + new)
             if done:
                 break
