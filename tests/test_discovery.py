@@ -279,6 +279,39 @@ def test_a_stiffening_flexure_is_discovered_in_the_stroke_dynamics(model) -> Non
     assert d.gap_after["stroke_deg"] < 0.3 * d.gap_before["stroke_deg"]
 
 
+@pytest.mark.slow  # the vocabulary search, the discovery and the chain's re-judgement
+@pytest.mark.timeout(120)
+def test_a_high_pass_fitted_to_part_of_a_crosstalk_is_removed_once_the_crosstalk_is_found(
+    model,
+) -> None:
+    # the vocabulary search names a pitch-chain high-pass for part of the crosstalk it cannot
+    # name; with the crosstalk term in, the chain has no gap without the high-pass
+    case = random_robot("offnominal_discover", 13)
+    assert (case.terms[0].kind, case.terms[0].acts_on) == ("crosstalk", "pitch_sensor_v")
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
+    _check_found(case, result)
+    assert result.model_out.effect("charge_amp_highpass") is None
+    (step,) = [t for t in result.discovery_tried if "effects_rejudged" in t]
+    (record,) = step["effects_rejudged"]
+    assert record["effect"] == "charge_amp_highpass" and record["removed"]
+    assert not record["rules"]["R1_heldout_gap_drop"]
+
+
+@pytest.mark.slow  # the same robot with a real high-pass: the re-judgement must keep it
+@pytest.mark.timeout(150)
+def test_a_real_high_pass_beside_a_crosstalk_is_kept(model) -> None:
+    case = random_robot("offnominal_discover", 13)
+    case = replace(case, effects=(("charge_amp_highpass", {"corner_hz": 5.0, "channel": "pitch"}),))
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
+    assert [e.name for e in result.effects] == ["charge_amp_highpass"], result.summary
+    assert [(d.term.kind, d.term.acts_on) for d in result.discovered] == [
+        ("crosstalk", "pitch_sensor_v")
+    ]
+    assert result.status == "explained", result.summary
+    corner = result.model_out.effect("charge_amp_highpass").corner_hz
+    assert corner == pytest.approx(5.0, rel=0.10)
+
+
 @pytest.mark.slow  # the discrepancy command end to end with a term discovered
 def test_cli_writes_a_discovered_drive_leak_and_a_model_that_carries_it(
     tmp_path: Path, model

@@ -20,7 +20,9 @@ runs (full and half drive, early and late) agree on it. Among accepted terms the
 error of the channel wins; errors within `PARSIMONY` (2 %) of the best are a tie, won by the term
 with fewer parameters. A winner that is a vocabulary effect under another name
 (`TermKind.same_as`) is reported as that effect, fitted as the vocabulary fits it. A gap no term
-closes stays.
+closes stays. After a term on a sensor chain, the vocabulary effects named on that chain are
+judged again with it in the model (`_rejudged_chain`): one the rules no longer accept, without
+which the chain shows no gap, is removed.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from .term_judging import judged_against, refit_without
 from .vocabulary import (
     ENTRIES,
     PLANT_PARAMETERS,
+    SENSOR_SIDE,
     UPSTREAM_TRUTH,
     EffectSpec,
     candidate_groups,
@@ -446,7 +449,7 @@ def _replacing(
         and e.channel.split("+")[0] == channel
         and current.effect(e.name) is not None
     ]
-    tried = []
+    tried: list[dict[str, Any]] = []
     for base, dropped in ([(_without(current, here), here)] if here else []) + [(current, [])]:
         passing, record = _step(ctx, base, channel, start_plant, centre)
         tried.append(
@@ -469,6 +472,69 @@ def _replacing(
         if passing:
             return passing, record, dropped, tried
     return [], record, [], tried
+
+
+def _rejudged_chain(
+    ctx: AnalysisContext,
+    current: Model,
+    channel: str,
+    effects: Sequence[FoundEffect],
+) -> tuple[Model, list[FoundEffect], list[dict[str, Any]]]:
+    """The vocabulary effects found on sensor chain `channel`, judged again now that a term there
+    is in the model: each fitted on top of the model without it (the term and the chain's other
+    effects fitted again without it) by the rules that accepted it, and the chain's gap test run
+    without it. One the rules no longer accept, without which the chain shows no gap, is removed
+    (a high-pass the vocabulary search fitted to part of a crosstalk it cannot name).
+    Returns the model, the effects removed and each re-judgement's record.
+    """
+    truth_ref = _truth_ref(ctx, current, channel)
+    side = SENSOR_SIDE[channel]
+    dropped: list[FoundEffect] = []
+    records: list[dict[str, Any]] = []
+    st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
+    for effect in effects:
+        on = current.effect_on(effect.name, side)
+        if effect.channel != channel or on is None or getattr(on, "channel", side) != side:
+            continue
+        group = next((g for g in candidate_groups(channel) if g[0].name == effect.name), None)
+        if group is None:
+            continue
+        x_effect = np.array([s.to_fit(spec_value(current, s)) for s in group])
+        without = _without(current, [effect])
+        specs = [
+            s
+            for t in without.discovered
+            if t.acts_on == channel
+            for s in term_specs(
+                t.row, t.acts_on, channel, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
+            )
+        ] + fitted_along(channel, without, channel, st.identify)
+        if specs:
+            x0 = np.array([s.to_fit(spec_value(without, s)) for s in specs])
+            problem = ctx.problem(channel, _fit_window(ctx), truth_ref, without)
+            fit = fit_specs(
+                without, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step
+            )
+            without = models_for(without, specs, fit.x[None, :])[0]
+        ev, _ = evaluate(
+            ctx, without, group, channel, truth_ref, x_start=x_effect,
+            step_scale=st.discovery_fd_step,
+        )  # fmt: skip
+        # removed only where the rules no longer want it and the chain shows no gap without it
+        removed = not ev.accepted and not channel_has_gap(ctx, without, channel, truth_ref)
+        records.append(
+            {
+                "effect": effect.name,
+                "channel": channel,
+                "removed": removed,
+                "rules": dict(ev.rules),
+                "heldout_gap_drop": ev.heldout_gap_drop,
+            }
+        )
+        if removed:
+            current = without
+            dropped.append(effect)
+    return current, dropped, records
 
 
 def _winner(
@@ -573,7 +639,7 @@ def discover(
     found: list[Discovered] = []
     named: list[FoundEffect] = []
     replaced: list[FoundEffect] = []
-    tried = []
+    tried: list[dict[str, Any]] = []
     for channel in CHANNEL_ORDER:
         if channel not in gap_channels:
             continue
@@ -618,6 +684,14 @@ def discover(
             # the term with the plant, then the runs' initial states, before the channel is
             # judged for a second term (the first term's fit stopped where the states were)
             current = _polish_truth(ctx, new_model, centre)
+            if channel in SENSOR_CHANNELS:
+                # the chain's vocabulary effects were fitted with the term's gap in the data
+                current, out, records = _rejudged_chain(
+                    ctx, current, channel, [e for e in replaceable if e not in replaced]
+                )
+                replaced += out
+                if records:
+                    tried[-1]["effects_rejudged"] = records
     if found:
         final = {(t.kind, t.acts_on): t for t in current.discovered}
         found = [replace(d, term=final[(d.term.kind, d.term.acts_on)]) for d in found]
