@@ -37,11 +37,16 @@ z is kept.
 
 Design from the plant's amplitude response (``design``; nominal plant, config/model.yaml)
 -----------------------------------------------------------------------------------------
-* Synchronous, at 140 Hz (the stroke resonance): first-harmonic balance with the quadratic
-  damping, A |K - I w^2 + j w (8 / (3 pi)) Gamma w A| = G_a V. On resonance V ~ A^2, so
+The plant's stroke torques come from the model's kernel by their describing function
+N(w, A) = K_eq + j w c_eq (``StrokePlant.dynamic_stiffness``): an effect or a discovered term in
+the model reaches the design. For the nominal plant N = K + j w (8 / (3 pi)) Gamma w A.
+
+* Synchronous, at 140 Hz (the stroke resonance): first-harmonic balance,
+  A |N(w, A) - I w^2| = G_a V. On resonance V ~ A^2, so
   epsilon = 0.500 (0.5-1 off resonance): 15 deg needs u_ff = 10.78 V, 20 deg 19.17 V; the RK4
   plant driven open loop at 10.78 V flaps at 15 deg within 2 % (tests/test_control_stroke.py).
-* dSA (r3 = 180 rad/s, kappa = 0.5; ``flaair_control.core.hopf.limit_cycle``): sqrt(kappa) r3 lies
+* dSA (r3 = 180 rad/s, kappa = 0.5; the Hopf onset of the plant linearised at A, as
+  ``flaair_control.core.hopf.limit_cycle``): sqrt(kappa) r3 lies
   below the resonance, so the onset is mu* = 0 and the amplitude grows with mu: 15 deg needs
   mu_ff = 4.27e-7 N m s/rad, 20 deg 5.81e-7; epsilon = 0.94 at 15 deg, 0.92 at 20 deg.
 * lambda = 0.35 per wingbeat (config/flaair.yaml). The resonant wing's amplitude envelope has
@@ -61,12 +66,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
-from scipy.optimize import brentq
 
 from flaair_control.core import dsa, hopf
 from flaair_model.model import Model
 from flaair_model.schema import ParamSpec
-from flaair_sim.core.plant_params import P_GA, P_GAMMA, P_I, P_K, coefficients
+from flaair_sim.core.describing import pitch_response, stroke_dynamic_stiffness
+from flaair_sim.core.plant_params import P_GA, P_I, P_K, coefficients
 
 __all__ = [
     "MODES",
@@ -80,7 +85,6 @@ __all__ = [
     "StrokeState",
     "command",
     "design",
-    "dsa_amplitude_deg",
     "dsa_gain_for_amplitude",
     "initial_state",
     "last_amplitude_deg",
@@ -96,6 +100,8 @@ __all__ = [
 
 
 MODES = ("sync", "dsa")
+# The dSA limit cycle's fixed point of onset frequency and describing function (`design`).
+_ONSET_ITERATIONS, _ONSET_RTOL = 50, 1e-12
 
 # tracker state layout (float64 vector, updated in place by the numba kernel)
 _HIGH, _MAX, _MIN, _SINCE, _Z, _AMP, _BEATS, _PERIOD, _NSTATE = range(9)
@@ -369,72 +375,80 @@ def retarget(
 # --------------------------------------------------------------------------- design
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class StrokePlant:
-    """What the design needs of the plant: stroke inertia,
-    stiffness, quadratic damping, actuator gain.
+    """The plant as the design reads it: a model's resolved kernel parameters
+    (`flaair_sim.core.plant_params.coefficients`). The stroke's torques at a wingbeat come from
+    the kernel by their describing function (`flaair_sim.core.describing`), with the pitch the
+    hinge makes of the stroke: a force the kernel computes (an effect, a discovered term)
+    reaches the design with nothing written here.
     """
 
-    inertia_kg_m2: float
-    stiffness_nm_per_rad: float
-    aero_damping_nm_s2: float
-    actuator_gain_nm_per_v: float
+    params: np.ndarray
 
     @classmethod
     def from_model(cls, model: Model) -> StrokePlant:
         """From a flaair_model Model, as the plant resolves it (a damaged wing's inertia too)."""
-        p = coefficients(model)
-        return cls(float(p[P_I]), float(p[P_K]), float(p[P_GAMMA]), float(p[P_GA]))
+        return cls(coefficients(model))
+
+    @property
+    def inertia_kg_m2(self) -> float:
+        """The stroke inertia I."""
+        return float(self.params[P_I])
+
+    @property
+    def stiffness_nm_per_rad(self) -> float:
+        """The stroke stiffness K (the linear part)."""
+        return float(self.params[P_K])
+
+    @property
+    def actuator_gain_nm_per_v(self) -> float:
+        """The actuator gain G_a."""
+        return float(self.params[P_GA])
+
+    def dynamic_stiffness(self, omega_rad_s: float, amplitude_rad: float) -> complex:
+        """N = K_eq + j w c_eq (N m/rad): the stroke torques but the drive's and the inertia's at
+        phi = A cos(w t), per radian, with the pitch the hinge makes of that stroke.
+        """
+        pitch = complex(pitch_response(self.params, omega_rad_s, amplitude_rad)) * amplitude_rad
+        return complex(stroke_dynamic_stiffness(self.params, omega_rad_s, amplitude_rad, pitch))
 
 
 def sync_drive_for_amplitude(
     plant: StrokePlant, amplitude_deg: float, frequency_hz: float
 ) -> float:
-    """Drive amplitude (V) for stroke amplitude
-    ``amplitude_deg`` at ``frequency_hz`` (first harmonic).
+    """Drive amplitude (V) for stroke amplitude ``amplitude_deg`` at ``frequency_hz`` (first
+    harmonic): A |N(w, A) - I w^2| / G_a.
     """
     a = math.radians(amplitude_deg)
     w = 2.0 * math.pi * frequency_hz
-    c_eq = 8.0 / (3.0 * math.pi) * plant.aero_damping_nm_s2 * w * a
-    return (
-        a
-        * abs(complex(plant.stiffness_nm_per_rad - plant.inertia_kg_m2 * w * w, w * c_eq))
-        / plant.actuator_gain_nm_per_v
-    )
-
-
-def dsa_amplitude_deg(
-    plant: StrokePlant, mu_nm_s_per_rad: float, r3_rad_s: float, kappa: float
-) -> float:
-    """Limit-cycle stroke amplitude (deg) of the dSA loop at gain mu (``hopf.limit_cycle``)."""
-    linear = hopf.LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad)
-    return math.degrees(
-        hopf.limit_cycle(
-            linear, plant.aero_damping_nm_s2, r3_rad_s, kappa, mu_nm_s_per_rad
-        ).amplitude_rad
-    )
+    n = plant.dynamic_stiffness(w, a)
+    return a * abs(n - plant.inertia_kg_m2 * w * w) / plant.actuator_gain_nm_per_v
 
 
 def dsa_gain_for_amplitude(
     plant: StrokePlant, amplitude_deg: float, r3_rad_s: float, kappa: float
 ) -> float:
-    """Mu (N m s/rad) whose limit cycle has ``amplitude_deg`` (inverse of ``dsa_amplitude_deg``)."""
-    linear = hopf.LinearStrokePlant(plant.inertia_kg_m2, plant.stiffness_nm_per_rad)
-    onset = hopf.hopf_onset(linear, r3_rad_s, kappa).mu_nm_s_per_rad
-    lo = onset * (1.0 + 1e-9) + 1e-18
-    hi = max(2.0 * lo, 1e-9)
-    while dsa_amplitude_deg(plant, hi, r3_rad_s, kappa) < amplitude_deg:
-        hi *= 2.0
-        if hi > 1.0:
+    """Mu (N m s/rad) whose dSA limit cycle has ``amplitude_deg``.
+
+    First-harmonic balance, as ``hopf.limit_cycle`` with the plant's own torques: at the
+    amplitude A the plant is the linear one with K_eq and c_eq of N(w, A)
+    (`StrokePlant.dynamic_stiffness`), and the limit cycle is that plant's Hopf onset. The
+    onset's frequency w and N(w, A) are solved together by fixed-point iteration (the onset
+    frequency is set mostly by the filter: a few steps).
+    """
+    a = math.radians(amplitude_deg)
+    i = plant.inertia_kg_m2
+    onset = hopf.hopf_onset(hopf.LinearStrokePlant(i, plant.stiffness_nm_per_rad), r3_rad_s, kappa)
+    for _ in range(_ONSET_ITERATIONS):
+        w = onset.omega_rad_s
+        n = plant.dynamic_stiffness(w, a)
+        if not (n.real > 0 and n.imag >= 0):
             raise StrokeParameterError(f"no dSA gain gives {amplitude_deg} deg")
-    return float(
-        brentq(
-            lambda mu: dsa_amplitude_deg(plant, mu, r3_rad_s, kappa) - amplitude_deg,
-            lo,
-            hi,
-            rtol=1e-10,
-        )
-    )
+        onset = hopf.hopf_onset(hopf.LinearStrokePlant(i, n.real, n.imag / w), r3_rad_s, kappa)
+        if abs(onset.omega_rad_s - w) <= _ONSET_RTOL * w:
+            return onset.mu_nm_s_per_rad
+    raise StrokeParameterError(f"the dSA limit cycle at {amplitude_deg} deg did not converge")
 
 
 def design(
