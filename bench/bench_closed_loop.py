@@ -578,7 +578,8 @@ def main() -> int:
     for name, label in (
         ("plant", "hop controller -> plant -> sensor_v"),
         ("frontend", "hop sensor_v -> front end -> wing_state"),
-        ("to_controller", "hop wing_state -> controller callback"),
+        # two subscribers of one topic, not a hop: negative when the controller is served first
+        ("to_controller", "wing_state received, controller minus probe"),
         ("controller", "hop controller callback -> drive"),
         ("loop", "whole loop drive -> wing state at controller"),
     ):
