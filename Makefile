@@ -12,7 +12,7 @@ help:
 	@echo "make test-quick  the edit-test loop: no graph and no slow tests, in parallel (< 2 min)"
 	@echo "make test-graph-soak RUNS=20  the graph tests RUNS times in a row with every core loaded"
 	@echo "make bench  set up, run every benchmark and print figures beside their targets; the"
-	@echo "            discrepancy families on a fixed subset of robots (<= 17 min on 2 cores)"
+	@echo "            discrepancy families on a fixed subset of robots (<= 20 min on 2 cores)"
 	@echo "make bench-full  the same with every discrepancy family and draw (about 75 min)"
 	@echo "make bench-setup what two benchmarks build on first use (both benches run it first)"
 

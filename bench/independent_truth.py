@@ -2,12 +2,19 @@
 benchmark can trust (issue "Discovery over everything a robot couples", item 3).
 
 Its own formulation of the equations of ../shared/model-spec.md (written here from the spec, not
-from `flaair_model` or `flaair_sim`), its own integrator (`scipy.integrate.solve_ivp`, DOP853 at
-tight tolerances, one call per sample of the zero-order-held drive, a contact as an event that
-restarts the step at the kink), its own sensor chain (the films' charge per metre from Table 1's
+from `flaair_model` or `flaair_sim`), its own integrator (DOP853 at tight tolerances, restarted
+at each sample of the zero-order-held drive: Hairer's code through `scipy.integrate.ode`, or
+`scipy.integrate.solve_ivp` with a contact as an event that restarts the step at the kink), its
+own sensor chain (the films' charge per metre from Table 1's
 constants). Imports nothing of FLAAIR.
 
-Physics the fitted model has no form for, each off by default:
+Physics beyond the nominal robot, each off by default. Inside the discovery's grammar, written
+here in this module's own terms:
+- `cubic_nm_per_rad3`: a flexure stiffening, a torque -k3 phi^3 on the stroke;
+- `hinge_drag_nm_s2`: a quadratic drag on the pitch, -d psi' |psi'|;
+- `crosstalk`: the pitch amplifier picking up that fraction of the stroke amplifier's output;
+- `drive_leak_v_per_v`: the drive leaking into the pitch amplifier's output.
+Outside the grammar or the model:
 - `stop_rad`, `stop_stiffness_nm_per_rad`: a one-sided stop on the stroke (contact as an event);
 - `quartic_nm_per_rad4`: a torque of degree four in the stroke angle (the grammar stops at three);
 - `stiffness_drift_per_s`: the stroke stiffness drifting in time, K (1 + drift t);
@@ -23,7 +30,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import ode, solve_ivp
 
 __all__ = ["EPSILON_0", "Robot", "film_charge_per_m", "simulate"]
 
@@ -68,6 +75,10 @@ class Robot:
     quartic_nm_per_rad4: float = 0.0
     stiffness_drift_per_s: float = 0.0
     film_lag_s: float = 0.0
+    cubic_nm_per_rad3: float = 0.0
+    hinge_drag_nm_s2: float = 0.0
+    crosstalk: float = 0.0
+    drive_leak_v_per_v: float = 0.0
 
     @property
     def stroke_stiffness(self) -> float:
@@ -80,26 +91,34 @@ class Robot:
         return self.pitch_inertia * (2.0 * math.pi * self.pitch_hz) ** 2
 
 
-def _field(robot: Robot, volts: float, in_contact: bool):  # type: ignore[no-untyped-def]
+def _derivatives(
+    t: float, y: np.ndarray, robot: Robot, volts: float, in_contact: bool
+) -> list[float]:
     """The vector field of [phi, phi', psi, psi', psi seen by the film] at a held drive."""
-    k, k_h = robot.stroke_stiffness, robot.hinge_stiffness
+    phi, dphi, psi, dpsi, seen = y
+    torque = robot.actuator_gain * volts - robot.aero_damping * abs(dphi) * dphi
+    torque -= robot.stroke_stiffness * (1.0 + robot.stiffness_drift_per_s * t) * phi
+    torque -= robot.quartic_nm_per_rad4 * phi**4
+    torque -= robot.cubic_nm_per_rad3 * phi**3
+    if in_contact:
+        torque -= robot.stop_stiffness_nm_per_rad * (phi - robot.stop_rad)
+    ddphi = torque / robot.stroke_inertia
+    ddpsi = (
+        -robot.inertial_coupling * ddphi
+        - robot.aero_coupling * abs(dphi) * dphi
+        - robot.hinge_damping * dpsi
+        - robot.hinge_drag_nm_s2 * abs(dpsi) * dpsi
+        - robot.hinge_stiffness * psi
+    ) / robot.pitch_inertia
+    dseen = (psi - seen) / robot.film_lag_s if robot.film_lag_s > 0 else dpsi
+    return [dphi, ddphi, dpsi, ddpsi, dseen]
+
+
+def _field(robot: Robot, volts: float, in_contact: bool):  # type: ignore[no-untyped-def]
+    """`_derivatives` at a held drive, as solve_ivp calls it."""
 
     def f(t: float, y: np.ndarray) -> list[float]:
-        phi, dphi, psi, dpsi, seen = y
-        torque = robot.actuator_gain * volts - robot.aero_damping * abs(dphi) * dphi
-        torque -= k * (1.0 + robot.stiffness_drift_per_s * t) * phi
-        torque -= robot.quartic_nm_per_rad4 * phi**4
-        if in_contact:
-            torque -= robot.stop_stiffness_nm_per_rad * (phi - robot.stop_rad)
-        ddphi = torque / robot.stroke_inertia
-        ddpsi = (
-            -robot.inertial_coupling * ddphi
-            - robot.aero_coupling * abs(dphi) * dphi
-            - robot.hinge_damping * dpsi
-            - k_h * psi
-        ) / robot.pitch_inertia
-        dseen = (psi - seen) / robot.film_lag_s if robot.film_lag_s > 0 else dpsi
-        return [dphi, ddphi, dpsi, ddpsi, dseen]
+        return _derivatives(t, y, robot, volts, in_contact)
 
     return f
 
@@ -135,23 +154,45 @@ def _step(robot: Robot, y: np.ndarray, t0: float, t1: float, volts: float) -> np
 def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.ndarray]:
     """Noise-free measured-run columns of `robot` driven by `drive_v` (held per sample) from
     rest: sample k is the state at k / fs, the drive of sample k acting over [k, k + 1) / fs.
+
+    Each held sample is one restarted DOP853 integration (Hairer's code through
+    `scipy.integrate.ode`: solve_ivp's per-call set-up costs four times the integration here);
+    a robot with a stop integrates each sample with solve_ivp and the contact as an event, and
+    so does a sample Hairer's stiffness test interrupts.
     """
     drive = np.asarray(drive_v, dtype=float)
     n = drive.size
     states = np.zeros((n, 5))
     y = np.zeros(5)
+    has_stop = robot.stop_rad is not None and robot.stop_stiffness_nm_per_rad > 0.0
+    solver = ode(_derivatives).set_integrator(
+        "dop853", rtol=_RTOL, atol=_ATOL, nsteps=100_000, verbosity=-1
+    )
     for k in range(n):
         states[k] = y
-        if k + 1 < n:
-            y = _step(robot, y, k / fs_hz, (k + 1) / fs_hz, float(drive[k]))
+        if k + 1 >= n:
+            break
+        t0, t1 = k / fs_hz, (k + 1) / fs_hz
+        if has_stop:
+            y = _step(robot, y, t0, t1, float(drive[k]))
+            continue
+        solver.set_initial_value(y, t0).set_f_params(robot, float(drive[k]), False)
+        y_next = solver.integrate(t1)
+        # DOP853's stiffness test may stop a hard-driven sample: solve_ivp has none
+        y = y_next if solver.successful() else _step(robot, y, t0, t1, float(drive[k]))
     phi, psi, seen = states[:, 0], states[:, 2], states[:, 4]
     stroke_q = -robot.stroke_film_c_per_m * phi / robot.transmission_rad_per_m
     pitch_q = -robot.pitch_film_c_per_m * seen * robot.hinge_length_m / 2.0
+    stroke_out = robot.stroke_amp_per_f * stroke_q
+    pitch_out = (
+        robot.pitch_amp_per_f * pitch_q + robot.crosstalk * stroke_out
+        + robot.drive_leak_v_per_v * drive
+    )  # fmt: skip
     return {
         "time_s": np.arange(n) / fs_hz,
         "drive_v": drive.copy(),
-        "stroke_sensor_v": robot.stroke_amp_per_f * stroke_q + robot.reference_v,
-        "pitch_sensor_v": robot.pitch_amp_per_f * pitch_q + robot.reference_v,
+        "stroke_sensor_v": stroke_out + robot.reference_v,
+        "pitch_sensor_v": pitch_out + robot.reference_v,
         "stroke_deg": np.degrees(phi),
         "pitch_deg": np.degrees(psi),
     }

@@ -60,6 +60,7 @@ BLOCKS = (
         with_baseline=False,
     ),
     Block("discrepancy", "docs/DISCREPANCY.md", parts=("bench_discrepancy",)),
+    Block("truth", "docs/DISCREPANCY.md", parts=("bench_truth",)),
     Block("tables", "docs/TABLES.md", parts=("bench_tables",)),
     Block("health", "docs/HEALTH.md", parts=("bench_health",)),
 )

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from flaair_model.model_io import load_model
+from flaair_model.terms import DiscoveredTerm
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.plant import simulate
 
@@ -69,3 +70,37 @@ def test_a_stop_holds_the_stroke_within_what_its_stiffness_lets_through() -> Non
     assert 10.0 < stopped.max() <= 10.0 + bound
     first = int(np.argmax(free > 10.0))
     np.testing.assert_allclose(stopped[:first], free[:first], atol=1e-9)
+
+
+# the truth's own terms against FLAAIR's discovered term of the same physics: -k3 phi^3,
+# -d psi'|psi'|, c x the stroke amplifier's output, c x the drive (the coefficient's sign is the
+# model's: a torque added, a voltage added)
+_INSIDE = (
+    ("cubic_nm_per_rad3", 2.0e-5, "cube_angle", "stroke_dynamics", -1.0),
+    ("hinge_drag_nm_s2", 2.0e-12, "dpsi*abs(dpsi)", "pitch_dynamics", -1.0),
+    ("crosstalk", 0.03, "crosstalk", "pitch_sensor_v", 1.0),
+    ("drive_leak_v_per_v", 3e-4, "drive_leak", "pitch_sensor_v", 1.0),
+)
+
+
+@pytest.mark.parametrize(("field", "value", "kind", "site", "sign"), _INSIDE)
+def test_the_truths_physics_inside_the_grammar_is_flaairs_term_of_that_form(
+    field: str, value: float, kind: str, site: str, sign: float
+) -> None:
+    t = np.arange(3000) / FS_HZ
+    drive = chirp(t, 90.0, 60.0, 260.0, t[-1])
+    plain = truth.simulate(truth.Robot(), drive, FS_HZ)
+    ours = truth.simulate(replace(truth.Robot(), **{field: value}), drive, FS_HZ)
+    model = load_model()
+    theirs = simulate(
+        drive, FS_HZ, replace(model, discovered=(DiscoveredTerm(kind, site, sign * value),))
+    )
+    channel = {"stroke_dynamics": "stroke_deg", "pitch_dynamics": "pitch_deg"}.get(site, site)
+    moved = np.abs(ours[channel] - plain[channel]).max()
+    if channel.endswith("_deg"):
+        assert moved > 0.5  # the physics shows, well above the two codes' 0.05 deg
+        theirs_deg = np.degrees(getattr(theirs, channel.replace("_deg", "_rad")))
+        assert np.abs(ours[channel] - theirs_deg).max() < 0.05
+    else:
+        assert moved > 0.02  # 10 x the amplifier noise
+        assert np.abs(ours[channel] - getattr(theirs, channel)).max() < 0.05 / 24.0

@@ -21,8 +21,9 @@ error of the channel wins; errors within `PARSIMONY` (2 %) of the best are a tie
 with fewer parameters. A winner that is a vocabulary effect under another name
 (`TermKind.same_as`) is reported as that effect, fitted as the vocabulary fits it. A gap no term
 closes stays. After a term on a sensor chain, the vocabulary effects named on that chain are
-judged again with it in the model (`_rejudged_chain`): one the rules no longer accept, without
-which the chain shows no gap, is removed.
+judged again with it in the model (`_rejudged_chain`): all are removed where the chain shows no
+gap without them, else each one the rules no longer accept and without which the chain shows no
+gap.
 """
 
 from __future__ import annotations
@@ -481,44 +482,48 @@ def _rejudged_chain(
     effects: Sequence[FoundEffect],
 ) -> tuple[Model, list[FoundEffect], list[dict[str, Any]]]:
     """The vocabulary effects found on sensor chain `channel`, judged again now that a term there
-    is in the model: each fitted on top of the model without it (the term and the chain's other
-    effects fitted again without it) by the rules that accepted it, and the chain's gap test run
-    without it. One the rules no longer accept, without which the chain shows no gap, is removed
-    (a high-pass the vocabulary search fitted to part of a crosstalk it cannot name).
+    is in the model. First all together: where the chain shows no gap with the terms alone
+    (refitted without the effects), every one is removed. Else each in turn: fitted on top of the
+    model without it (the terms and the chain's other effects refitted without it) by the rules
+    that accepted it, and the chain's gap test run without it; one the rules no longer accept,
+    without which the chain shows no gap, is removed. (The vocabulary search named them for part
+    of the term's signal: a high-pass or a delay for a crosstalk between the amplifiers.)
     Returns the model, the effects removed and each re-judgement's record.
     """
     truth_ref = _truth_ref(ctx, current, channel)
     side = SENSOR_SIDE[channel]
-    dropped: list[FoundEffect] = []
-    records: list[dict[str, Any]] = []
-    st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
+    here = []
     for effect in effects:
         on = current.effect_on(effect.name, side)
-        if effect.channel != channel or on is None or getattr(on, "channel", side) != side:
-            continue
         group = next((g for g in candidate_groups(channel) if g[0].name == effect.name), None)
-        if group is None:
-            continue
+        shared = getattr(on, "channel", side) != side  # one value on both chains
+        if effect.channel == channel and on is not None and group is not None and not shared:
+            here.append((effect, group))
+    if not here:
+        return current, [], []
+    alone = _chain_refitted(ctx, _without(current, [e for e, _ in here]), channel, truth_ref)
+    if not channel_has_gap(ctx, alone, channel, truth_ref):
+        return (
+            alone,
+            [e for e, _ in here],
+            [
+                {
+                    "effect": e.name,
+                    "channel": channel,
+                    "removed": True,
+                    "why": "no gap without them",
+                }
+                for e, _ in here
+            ],
+        )
+    dropped: list[FoundEffect] = []
+    records: list[dict[str, Any]] = []
+    for effect, group in here:
         x_effect = np.array([s.to_fit(spec_value(current, s)) for s in group])
-        without = _without(current, [effect])
-        specs = [
-            s
-            for t in without.discovered
-            if t.acts_on == channel
-            for s in term_specs(
-                t.row, t.acts_on, channel, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
-            )
-        ] + fitted_along(channel, without, channel, st.identify)
-        if specs:
-            x0 = np.array([s.to_fit(spec_value(without, s)) for s in specs])
-            problem = ctx.problem(channel, _fit_window(ctx), truth_ref, without)
-            fit = fit_specs(
-                without, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step
-            )
-            without = models_for(without, specs, fit.x[None, :])[0]
+        without = _chain_refitted(ctx, _without(current, [effect]), channel, truth_ref)
         ev, _ = evaluate(
             ctx, without, group, channel, truth_ref, x_start=x_effect,
-            step_scale=st.discovery_fd_step,
+            step_scale=ctx.settings.discovery_fd_step,
         )  # fmt: skip
         # removed only where the rules no longer want it and the chain shows no gap without it
         removed = not ev.accepted and not channel_has_gap(ctx, without, channel, truth_ref)
@@ -535,6 +540,27 @@ def _rejudged_chain(
             current = without
             dropped.append(effect)
     return current, dropped, records
+
+
+def _chain_refitted(ctx: AnalysisContext, model: Model, channel: str, truth_ref: bool) -> Model:
+    """`model` with the terms on sensor chain `channel` and the chain's vocabulary effects fitted
+    again on the channel (the discovery's window, evaluations and steps).
+    """
+    st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
+    specs = [
+        s
+        for t in model.discovered
+        if t.acts_on == channel
+        for s in term_specs(
+            t.row, t.acts_on, channel, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
+        )
+    ] + fitted_along(channel, model, channel, st.identify)
+    if not specs:
+        return model
+    x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
+    problem = ctx.problem(channel, _fit_window(ctx), truth_ref, model)
+    fit = fit_specs(model, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step)
+    return models_for(model, specs, fit.x[None, :])[0]
 
 
 def _winner(
