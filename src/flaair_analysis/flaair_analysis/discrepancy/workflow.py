@@ -62,7 +62,8 @@ class DiscrepancyResult:
         (stderr from the identification, before the joint fits with effects).
     not_separable : [{effect, reason}] vocabulary effects whose signature a plant-parameter change
         reproduces: not searched for, and not claimed.
-    approximate : names of found effects whose channel keeps a gap (named, but not explaining it).
+    approximate : effects fitted on a channel that keeps a gap: in `model_out`, not named (they
+        reduce the gap without explaining it).
     discovered : library terms the discovery step added (`discovery.Discovered`).
     discovery_tried : the discovery's candidates per step ({channel, candidates}).
     """
@@ -213,8 +214,7 @@ def analyse(
         ctx, runs, effects, bool(discovered), model_out, sims_fit, progress
     )
     status = _status(remaining, bool(effects or discovered))
-    gap_channels = {r["channel"] for r in remaining}
-    approximate = tuple(e.name for e in effects if gap_channels & set(e.explains))
+    effects, approximate = _established(effects, remaining)
     return DiscrepancyResult(
         status=status,
         effects=tuple(effects),
@@ -231,7 +231,7 @@ def analyse(
             diag_after,
             remaining,
             _plant_parameters(model, model_out, plant_fit),
-            approximate,
+            tuple(e.name for e in approximate),
             discovered,
         ),
         plant_parameters=_plant_parameters(model, model_out, plant_fit),
@@ -247,6 +247,18 @@ def _not_separable(settings: DiscrepancySettings) -> tuple[dict[str, str], ...]:
     if not settings.identify:
         return ()
     return tuple({"effect": n, "reason": ENTRIES[n].note} for n in NOT_SEPARABLE)
+
+
+def _established(
+    effects: Sequence[FoundEffect], remaining: Sequence[dict[str, Any]]
+) -> tuple[tuple[FoundEffect, ...], tuple[FoundEffect, ...]]:
+    """The effects named, and those fitted only approximately: found on a channel that keeps a
+    gap, they reduce it without explaining it (physics outside the vocabulary may be what they
+    stand in for), so they stay in the model but are not named.
+    """
+    gaps = {r["channel"] for r in remaining}
+    approximate = tuple(e for e in effects if e.channel in gaps)
+    return tuple(e for e in effects if e not in approximate), approximate
 
 
 def _status(remaining: Sequence[Any], found: bool) -> str:
@@ -545,8 +557,8 @@ def _summary(
     else:
         if approximate:
             parts.append(
-                "Named but fitting only approximately (a gap remains where they act): "
-                f"{', '.join(approximate)}."
+                "Fitted but not named, as they only reduce the gap on the channel they were "
+                f"found on: {', '.join(approximate)}."
             )
         for r in remaining:
             parts.append(

@@ -294,6 +294,11 @@ def _print_result(runs: list[Run], result: Any, elapsed: float) -> None:
         )
     for e in result.effects:
         print(f"  + {e.name} on {e.channel}: {format_parameters(e.parameters)}")
+    for e in result.approximate:
+        print(
+            f"  ~ {e.name} on {e.channel}: {format_parameters(e.parameters)} "
+            "(fitted, not named: the channel keeps a gap)"
+        )
     for d in result.discovered:
         print(f"  + discovered (a hypothesis to test): {d.term.acts_on} += {d.term.expression}")
     for c in result.gap_before:

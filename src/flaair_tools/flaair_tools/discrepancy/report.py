@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 
+from flaair_analysis.discrepancy import FoundEffect
 from flaair_analysis.discrepancy.runs import Run
 from flaair_analysis.discrepancy.scoring import expected_column
 from flaair_analysis.discrepancy.vocabulary import CHANNELS
@@ -44,7 +45,8 @@ def result_to_dict(
     remaining (where a gap is left), diagnosis before/after, searches, summary, runs, rules,
     plant_parameters {key: {value, nominal, stderr}}, identification (start values,
     correlations, inseparable combinations), not_separable [{effect, reason}], approximate
-    (named effects that leave a gap where they act), discovered [{kind, acts_on, expression,
+    (effects fitted on a channel that keeps a gap, as `effects`: in the model, not named),
+    discovered [{kind, acts_on, expression,
     parameters {value, stderr}, gap_before, gap_after, candidates_beaten, evidence}] (terms from
     the library, hypotheses), discovery_candidates (every term tried, per step).
     """
@@ -64,16 +66,7 @@ def result_to_dict(
         )
     doc = {
         "status": result.status,
-        "effects": [
-            {
-                "name": e.name,
-                "channel": e.channel,
-                "parameters": e.parameters,
-                "evidence": e.evidence,
-                "explains": list(e.explains),
-            }
-            for e in result.effects
-        ],
+        "effects": [_effect_doc(e) for e in result.effects],
         "gap_before": result.gap_before,
         "gap_after": result.gap_after,
         "model_out": model_out,
@@ -89,11 +82,22 @@ def result_to_dict(
         "plant_parameters": result.plant_parameters,
         "identification": result.plant_fit.as_dict() if result.plant_fit is not None else None,
         "not_separable": list(result.not_separable),
-        "approximate": list(result.approximate),
+        "approximate": [_effect_doc(e) for e in result.approximate],
         "discovered": [d.as_dict() for d in result.discovered],
         "discovery_candidates": list(result.discovery_tried),
     }
     return json_safe(doc)
+
+
+def _effect_doc(e: FoundEffect) -> dict[str, Any]:
+    """An effect's entry: name, channel, parameters, evidence, explains."""
+    return {
+        "name": e.name,
+        "channel": e.channel,
+        "parameters": e.parameters,
+        "evidence": e.evidence,
+        "explains": list(e.explains),
+    }
 
 
 def write_json(path: Path, doc: Any) -> None:
