@@ -360,7 +360,9 @@ def test_killing_the_controller_mid_run_zeroes_the_drive_and_leaves_a_complete_b
     assert np.abs(drive["drive_v"][-BLOCK:]).max() > 0.0
     watchdog = plant_log.split("DRIVE WATCHDOG: no command block for ")[-1]
     silent_ms = float(watchdog.split(" ms")[0])
-    assert silent_ms > timeout_s * 1e3  # (its exact timing on a fake clock: test_sim_actuator)
+    # the log rounds to 0.1 ms: a trip 0.04 ms after the timeout reads 300.0 (the strict rule on a
+    # fake clock: test_sim_actuator)
+    assert silent_ms >= timeout_s * 1e3
     # The plant's own account of the last command block it stepped (the actuator core's log line).
     last_applied = int(re.search(r"after block (\d+),", watchdog).group(1)) + BLOCK
     # every applied block was stepped and recorded, then exactly the ring-down

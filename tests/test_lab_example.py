@@ -61,7 +61,9 @@ def test_the_walk_through_runs_on_the_example_session(tmp_path: Path) -> None:
     assert calibration["stroke"]["gain_deg_per_v"] == pytest.approx(25.4, abs=0.05)
     assert calibration["pitch"]["gain_deg_per_v"] == pytest.approx(108.0, abs=0.1)
     found = json.loads((tmp_path / "out/discrepancy/discrepancy.json").read_text())
-    evidence = [e["evidence"] for e in found["effects"]]
+    # the session's pitch chain keeps a gap beside it: fitted, listed as approximate, not named
+    assert "strain_transfer_loss" not in [e["name"] for e in found["effects"]]
+    evidence = [e["evidence"] for e in found["approximate"]]
     transfer = [
         value
         for e in evidence
