@@ -71,6 +71,8 @@ def test_the_walk_through_runs_on_the_example_session(tmp_path: Path) -> None:
         if name == "strain_transfer_loss[pitch]"
     ]
     assert transfer and transfer[0] == pytest.approx(0.23, abs=0.01)
+    page = (tmp_path / "out/discrepancy/report.html").read_text()
+    assert "Fitted, not named" in page and "strain_transfer_loss" in page
     assert (tmp_path / "out/report/report.html").is_file()
 
 

@@ -287,12 +287,12 @@ def _plant_section(result: DiscrepancyResult) -> Any:
     return plant
 
 
-def _effects_table(result: DiscrepancyResult) -> Any:
-    """Each found effect with its evidence (rules R1-R6)."""
+def _effects_table(effects_found: Sequence[FoundEffect]) -> Any:
+    """Each effect with its evidence (rules R1-R6); None for none."""
     effects = None
-    if result.effects:
+    if effects_found:
         rows = []
-        for e in result.effects:
+        for e in effects_found:
             ev = e.evidence
             rules = ev.get("rules") or {}
             rows.append(
@@ -557,7 +557,8 @@ def _context(
         "gap": _gap_table(result),
         "figs": figs,
         "plant": _plant_section(result),
-        "effects": _effects_table(result),
+        "effects": _effects_table(result.effects),
+        "approximate": _effects_table(result.approximate),
         "remaining": _remaining_table(result),
         "diagnosis": _diagnosis_tables(result),
         "searches": _search_tables(result),
