@@ -257,7 +257,8 @@ def _established(
     stand in for), so they stay in the model but are not named.
     """
     gaps = {r["channel"] for r in remaining}
-    approximate = tuple(e for e in effects if e.channel in gaps)
+    # an effect found on both chains at once carries "stroke_sensor_v+pitch_sensor_v"
+    approximate = tuple(e for e in effects if gaps & set(e.channel.split("+")))
     return tuple(e for e in effects if e not in approximate), approximate
 
 
