@@ -383,12 +383,7 @@ def _polish_round(ctx: AnalysisContext, model: Model, centre: Mapping[str, float
         ("stroke_deg", ("stroke_dynamics", "drive")),
         ("pitch_deg", ("pitch_dynamics",)),
     ):
-        specs: list[EffectSpec] = []
-        for t in model.discovered:
-            if t.acts_on in sites:
-                specs += term_specs(
-                    t.row, t.acts_on, truth, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
-                )
+        specs = _discovered_specs(model, sites, truth)
         if not specs and truth == "stroke_deg":
             continue
         specs += fitted_along(sites[0], model, truth, st.identify, centre)
@@ -547,20 +542,28 @@ def _chain_refitted(ctx: AnalysisContext, model: Model, channel: str, truth_ref:
     again on the channel (the discovery's window, evaluations and steps).
     """
     st = replace(ctx.settings, max_nfev=ctx.settings.discovery_max_nfev)
-    specs = [
-        s
-        for t in model.discovered
-        if t.acts_on == channel
-        for s in term_specs(
-            t.row, t.acts_on, channel, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
-        )
-    ] + fitted_along(channel, model, channel, st.identify)
+    specs = _discovered_specs(model, (channel,), channel)
+    specs += fitted_along(channel, model, channel, st.identify)
     if not specs:
         return model
     x0 = np.array([s.to_fit(spec_value(model, s)) for s in specs])
-    problem = ctx.problem(channel, _fit_window(ctx), truth_ref, model)
-    fit = fit_specs(model, specs, problem, x0, st, grid=False, step_scale=st.discovery_fd_step)
-    return models_for(model, specs, fit.x[None, :])[0]
+    return refit_without(
+        ctx, model, specs, _fit_window(ctx), channel, truth_ref, x0, st, st.discovery_fd_step
+    )
+
+
+def _discovered_specs(model: Model, sites: Sequence[str], channel: str) -> list[EffectSpec]:
+    """The fittable parameters of `model`'s discovered terms at `sites`, judged on `channel`
+    (each coefficient within 3x its value).
+    """
+    return [
+        s
+        for t in model.discovered
+        if t.acts_on in sites
+        for s in term_specs(
+            t.row, t.acts_on, channel, max(3.0 * abs(t.coefficient), 1e-30), dict(t.shape)
+        )
+    ]
 
 
 def _winner(
