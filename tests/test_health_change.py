@@ -111,6 +111,26 @@ def test_a_five_percent_change_is_named_within_20_wingbeats(model, params, cause
 
 
 @pytest.mark.timeout(60)
+@pytest.mark.parametrize("seed", [3, 4])
+def test_an_actuator_gain_change_under_dsa_is_named_within_20_wingbeats_on_noisy_seeds(
+    model, params, seed
+):
+    """The actuator gain moves the stroke film's series by half its log (2.5 %), about 1.6
+    sigmas of a pair under the dSA loop: on these seeds the first confirmation's median was not
+    yet 3 standard errors from the baseline (the alarm was dropped and came back 25 and 48
+    wingbeats after the change), and a 40-wingbeat baseline overstated the scatter (the CUSUM's
+    threshold rose from 6.6 to 8.3 sigmas). The alarm now stands until its move is significant
+    or its CUSUM returns to zero, and the baseline is learned over 60 wingbeats.
+    """
+    vs, vp, dv = hs.run(model, 3.0, _changed(model, "actuator_gain"), CHANGE_S, seed=seed)
+    _, out = H.step(H.initial_state(params), H.HealthInputs(vs, vp, dv), params)
+    assert [e.parameter for e in out.events] == ["actuator_gain"]
+    assert out.events[0].ratio == pytest.approx(0.95, abs=0.02)
+    first = next(b.wingbeat for b in out.wingbeats if b.time_s >= CHANGE_S)
+    assert 0 < out.events[0].wingbeat - first <= 20
+
+
+@pytest.mark.timeout(60)
 def test_a_hinge_stiffness_change_is_named_with_its_look_alike(model, params):
     """The wing hinge's stiffness and the pitch film's gain both scale the pitch reading against
     the stroke: the event names the film and says the hinge cannot be told from it.

@@ -247,9 +247,9 @@ def test_a_calibration_file_gives_the_films_lags_and_gains(model, params, tmp_pa
 
 
 # K_r 1 -> 0 over the experiments' 0.5 s, after a synchronous lead (20 V at the configured 90 Hz)
-# long enough for a baseline: warm-up and baseline wingbeats take 0.78 s at 90 Hz
-RAMP = (1.0, 0.0, 1.0, 0.5)
-RAMP_END_S = 1.5
+# long enough for a baseline: warm-up and baseline wingbeats take 1.0 s at 90 Hz
+RAMP = (1.0, 0.0, 1.2, 0.5)
+RAMP_END_S = 1.7
 
 
 @pytest.mark.slow  # simulates a K_r ramp and the wingbeats after it
@@ -262,14 +262,14 @@ def test_a_damage_during_the_kr_ramp_is_reported_once_the_ramp_ends(model, param
     event.
     """
     damaged = with_effects(model, {"wing_damage": {"inertia_factor": 0.8}})
-    _, out = _run(params, *hs.run(model, 3.0, damaged, 1.25, kr=RAMP, sync_hz=90.0))
+    _, out = _run(params, *hs.run(model, 3.2, damaged, 1.45, kr=RAMP, sync_hz=90.0))
     assert [e.parameter for e in out.events] == ["wing_inertia"]
     event = out.events[0]
     assert event.ratio == pytest.approx(0.8, abs=0.04)
     assert RAMP_END_S < event.time_s < RAMP_END_S + 0.15  # ~20 wingbeats after the ramp's end
-    _, calm = _run(params, *hs.run(model, 3.0, kr=RAMP, sync_hz=90.0))
+    _, calm = _run(params, *hs.run(model, 3.2, kr=RAMP, sync_hz=90.0))
     assert calm.events == []
-    after = np.array([b.estimate for b in calm.wingbeats if b.valid and b.time_s > 2.0])
+    after = np.array([b.estimate for b in calm.wingbeats if b.valid and b.time_s > 2.2])
     np.testing.assert_allclose(after.mean(axis=0), 1.0, atol=0.01)
 
 

@@ -40,8 +40,10 @@ which holds for independent normal samples (the pairs' residual correlation is n
 lengthens the run: the derived rate is an upper bound).
 An alarm is confirmed once `confirm_wingbeats` estimates follow its change point; the watched
 series' moves are their medians against mu0. A series moved if its move exceeds its drift and
-`event_significance` standard errors of the pairs' scatter (the K_r ramp's wingbeats scatter
-about no change and are dropped without an event). The cause is the signature that fits the
+`event_significance` standard errors of the pairs' scatter. An alarm with nothing moved stands
+and is judged again at each pair, until a series has moved or its CUSUM returns to zero (the
+K_r ramp's wingbeats scatter about no change and their CUSUM decays without an event; a small
+change's first window may not be significant yet). The cause is the signature that fits the
 moves best (weighted least squares in the log ratios and the zeros, each series weighted by its
 baseline sigma); its size is the fitted magnitude: a ratio exp(size), or a zero's move in units
 of the film's amplitude. After an event every baseline is learned again.
@@ -330,14 +332,7 @@ def step(
     # moved by more than the drift, and by more than its own scatter allows: a transient's
     # estimates (the K_r ramp's) scatter widely, and their median is no change
     moved = np.abs(move) > np.maximum(smallest, params.event_significance * err)
-    if not (confirmed & moved).any():  # a transient that came back: no event, test on
-        keep = ~(confirmed & ~moved)
-        state = state._replace(
-            g_up=state.g_up * keep,
-            g_down=state.g_down * keep,
-            since=state.since * keep,
-            alarm=state.alarm & keep,
-        )
+    if not (confirmed & moved).any():  # not yet told from a transient: the alarm stands, test on
         return state, [], []
     y = np.where(RATIO, np.log1p(np.where(RATIO, move, 0.0)), move)
     change = name_change(y, state.sigma / math.sqrt(max(n // PAIR, 1)))
