@@ -324,3 +324,20 @@ def test_the_per_block_kernels_are_compiled_for_one_argument_type(model, params)
     # the dispatchers' compiled signatures (numba's; no public function gives them)
     assert len(H._extended.signatures) == 1, H._extended.signatures
     assert len(H._crossing_kernel.signatures) == 1, H._crossing_kernel.signatures
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("n", [14, 61, 133, 400])
+def test_the_compiled_harmonic_fit_equals_numpys_least_squares(n):
+    """`fundamentals` (normal equations, compiled) against numpy's SVD least squares on the
+    same design (mean, 3 harmonics), on a wingbeat not a whole number of periods long.
+    """
+    rng = np.random.default_rng(n)
+    theta = 0.3 + 2.0 * np.pi * 1.003 * np.arange(n) / n
+    x = rng.standard_normal((3, n)) + np.array([[1.0], [2.0], [3.0]]) * np.cos(theta - 0.4)
+    k = np.arange(1, 4)[:, None] * theta[None, :]
+    design = np.vstack([np.ones(n), np.cos(k), np.sin(k)]).T
+    coef, *_ = np.linalg.lstsq(design, x.T, rcond=None)
+    fund, means = H.fundamentals(x, theta)
+    np.testing.assert_allclose(fund, coef[1] - 1j * coef[4], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(means, coef[0], rtol=0, atol=1e-12)

@@ -211,17 +211,32 @@ def fundamentals(x: np.ndarray, theta_rad: np.ndarray) -> tuple[np.ndarray, np.n
     150 Hz), a scatter that changes with the sample rate; the fit has none for any n.
     """
     n = theta_rad.size
-    k = np.arange(1, _HARMONICS + 1)[:, None] * theta_rad[None, :]
-    design = np.vstack([np.ones(n), np.cos(k), np.sin(k)]).T
-    if n < design.shape[1] * 2:  # too few samples for the harmonics: the projection
+    if n < (1 + 2 * _HARMONICS) * 2:  # too few samples for the harmonics: the projection
         basis = np.exp(-1j * theta_rad)
         mean = x.mean(axis=1)
         projected: np.ndarray = (2.0 / n) * ((x - mean[:, None]) @ basis)
         return projected, mean
-    coef, *_ = np.linalg.lstsq(design, x.T, rcond=None)
+    coef = _harmonic_fit(np.ascontiguousarray(x, dtype=np.float64), theta_rad, _HARMONICS)
     out: np.ndarray = coef[1] - 1j * coef[1 + _HARMONICS]
     means: np.ndarray = coef[0]
     return out, means
+
+
+@njit(cache=True)
+def _harmonic_fit(x: np.ndarray, theta: np.ndarray, harmonics: int) -> np.ndarray:
+    """(1 + 2 harmonics, k) least-squares coefficients of each row of `x` (k, n) on a mean,
+    cos(h theta) and sin(h theta), h = 1..harmonics, by the normal equations (the columns are
+    near-orthogonal over a wingbeat: their Gram matrix is well conditioned).
+    """
+    n = theta.size
+    m = 1 + 2 * harmonics
+    design = np.empty((n, m))
+    for i in range(n):
+        design[i, 0] = 1.0
+        for h in range(harmonics):
+            design[i, 1 + h] = math.cos((h + 1) * theta[i])
+            design[i, 1 + harmonics + h] = math.sin((h + 1) * theta[i])
+    return np.linalg.solve(design.T @ design, design.T @ x.T)
 
 
 def film_zeros(fund: np.ndarray, means: np.ndarray, params: HealthParams) -> np.ndarray:
