@@ -110,8 +110,11 @@ def _both(env: dict, real: list[str], ours: list[str], timeout_s: float = 60.0):
     return run(real, env, timeout_s), run([FLAAIR, *ours], env, timeout_s)
 
 
-def _until(env: dict, command: list[str], complete, tries: list[str], most: int = 4):
-    """`command` run until `complete(its output's words)`, at most `most` times."""
+def _until(env: dict, command: list[str], complete, tries: list[str], most: int = 6):
+    """`command` run until `complete(its output's words)`, at most `most` times, a pause growing
+    by a second after each incomplete answer (an untyped echo that has not discovered the topic
+    yet ends at once: four tries back to back once all fell inside one discovery window).
+    """
     attempt = 0
     while True:
         attempt += 1
@@ -119,6 +122,7 @@ def _until(env: dict, command: list[str], complete, tries: list[str], most: int 
         if attempt == most or (result.returncode == 0 and complete(result.stdout.split())):
             tries.append(f"{' '.join(command[1:3])}: {attempt}")
             return result
+        time.sleep(float(attempt))
 
 
 def _daemons(domain: str) -> list[int]:
