@@ -57,7 +57,16 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from benchlib import REPO_ROOT, Figure, best_time_s, compare, info, print_table, write_json
+from benchlib import (
+    REPO_ROOT,
+    Figure,
+    best_time_s,
+    compare,
+    info,
+    one_numba_thread,
+    print_table,
+    write_json,
+)
 from flaair_analysis.discrepancy import analyse
 from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
 from flaair_analysis.discrepancy.offnominal import (
@@ -287,7 +296,9 @@ def run_pool(
     tasks.sort(key=lambda t: t[0])  # stable: draws and cases stay in order within a kind
     outcomes, baseline, sweep = [], [], []
     start = time.perf_counter()
-    pool = ProcessPoolExecutor(max_workers=max(1, workers))
+    pool = ProcessPoolExecutor(
+        max_workers=max(1, workers), initializer=one_numba_thread if workers > 1 else None
+    )
     try:
         futures = {
             pool.submit(analyse_robot, *arg)

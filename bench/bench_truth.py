@@ -49,7 +49,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import independent_truth as truth  # the truth, beside this script
-from benchlib import Figure, compare, info, print_table, write_json
+from benchlib import Figure, compare, info, one_numba_thread, print_table, write_json
 from flaair_analysis.discrepancy import analyse
 from flaair_analysis.discrepancy.datasets import run_set_drives
 from flaair_analysis.discrepancy.runs import Run
@@ -224,7 +224,9 @@ def analyse_robot(kind_name: str, draw: int) -> dict[str, Any]:
 def run_pool(jobs: list[tuple[str, int]], workers: int) -> list[dict[str, Any]]:
     """Every (kind, draw) analysed, `workers` at once; outcomes in `jobs`' order."""
     out: dict[tuple[str, int], dict[str, Any]] = {}
-    with ProcessPoolExecutor(max_workers=max(1, workers)) as pool:
+    with ProcessPoolExecutor(
+        max_workers=max(1, workers), initializer=one_numba_thread if workers > 1 else None
+    ) as pool:
         futures = {pool.submit(analyse_robot, *job): job for job in jobs}
         for fut in tqdm(as_completed(futures), total=len(futures), desc="robots", unit="robot"):
             out[futures[fut]] = fut.result()

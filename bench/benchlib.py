@@ -21,6 +21,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numba
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 for _package_dir in sorted((REPO_ROOT / "src").iterdir()):
     if (_package_dir / "setup.py").exists() and str(_package_dir) not in sys.path:
@@ -141,6 +143,14 @@ def passed_pct(passed: int, failed: int, clean_exit: bool = True) -> float:
     if passed + failed == 0 or (not clean_exit and failed == 0):
         return math.nan
     return 100.0 * passed / (passed + failed)
+
+
+def one_numba_thread() -> None:
+    """A process pool worker's initializer: numba's parallel loops on one thread. Two workers on
+    the two cores, each running the plant's batch on two threads, oversubscribe the machine: the
+    slowest robot of bench_discrepancy took 59-62 s two at once, 42-43 s with one thread each.
+    """
+    numba.set_num_threads(1)
 
 
 def best_time_s(fn: Callable[[], object], repeats: int = 3) -> float:

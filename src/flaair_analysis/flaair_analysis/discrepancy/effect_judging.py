@@ -249,12 +249,14 @@ def _pooled_fit(
         x_all = min(per_fold, key=lambda pf: pf.rss / max(pf.n, 1)).x
         se_all = np.full(p, math.inf)
     res_all = all_prob.residuals(models_for(base, specs, x_all[None, :]))[0]
+    with np.errstate(over="ignore"):  # a fit that drove the model wild costs inf
+        rss_per_fold = tuple(float(np.dot(r, r)) for r in res_all)
     return FitResult(
         x=x_all,
         se=se_all,
-        rss=sum(float(np.dot(r, r)) for r in res_all),
+        rss=sum(rss_per_fold),
         n=sum(r.size for r in res_all),
-        rss_per_fold=tuple(float(np.dot(r, r)) for r in res_all),
+        rss_per_fold=rss_per_fold,
     )
 
 

@@ -303,18 +303,20 @@ def fit_specs(
 
     x_scale = np.maximum(np.abs(steps) / step_scale * 100.0, 1e-12)
     try:
-        sol = optimize.least_squares(
-            fun,
-            x0,
-            jac=jac,
-            bounds=(lo, hi),
-            method="trf",
-            x_scale=x_scale,
-            max_nfev=settings.max_nfev,
-            xtol=1e-6,
-            ftol=1e-9,
-            gtol=1e-9,
-        )
+        # a trial step that drives the model wild costs inf, and the solver rejects it
+        with np.errstate(over="ignore"):
+            sol = optimize.least_squares(
+                fun,
+                x0,
+                jac=jac,
+                bounds=(lo, hi),
+                method="trf",
+                x_scale=x_scale,
+                max_nfev=settings.max_nfev,
+                xtol=1e-6,
+                ftol=1e-9,
+                gtol=1e-9,
+            )
         x = sol.x
     except (ValueError, ModelError):
         x = x0
