@@ -146,9 +146,8 @@ def passed_pct(passed: int, failed: int, clean_exit: bool = True) -> float:
 
 
 def one_numba_thread() -> None:
-    """A process pool worker's initializer: numba's parallel loops on one thread. Two workers on
-    the two cores, each running the plant's batch on two threads, oversubscribe the machine: the
-    slowest robot of bench_discrepancy took 59-62 s two at once, 42-43 s with one thread each.
+    """A process pool worker's initializer: numba's parallel loops on one thread (one worker per
+    core, each running the plant's batch on every core, would oversubscribe the machine).
     """
     numba.set_num_threads(1)
 

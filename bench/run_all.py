@@ -67,7 +67,7 @@ PARTS = (
     Part("bench_collision", 5, 10),  # 4 s
     # twelve changed robots, 10 min of unchanged flapping over both controllers (the
     # false-alarm runs: 84,000 wingbeats), 3 x 20 s of a robot the model misses, the core's CPU:
-    # 25-27 s (56 s before the simulations were cached)
+    # 25-27 s
     Part("bench_health", 35, 72),
     Part("bench_analysis", 4, 10),  # 3-4 s
     # 2 scenarios x 10 s recorded (the graph scenario measures after a 4 s start: 5 s leaves
@@ -76,8 +76,8 @@ PARTS = (
     Part("bench_closed_loop", 64, 90),  # 5 loops of 2 s and 2 composed of 4 s: 55-71 s
     # make bench: the fixed subset of robots and cases (SUBSET: ~580 CPU-s, 294-309 s on 2 cores;
     # the earlier subset with all nine discovery kinds, four pair and four outside robots and six
-    # cases took 872 CPU-s, 464 s); one numba thread per worker (two workers on two threads each
-    # oversubscribed the cores): 229-238 s; make bench-full every family and draw, all 45 cases
+    # cases took 872 CPU-s, 464 s), one numba thread per worker: 229-238 s; make bench-full every
+    # family and draw, all 45 cases
     Part("bench_discrepancy", 250, 3600, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 10, 20),  # 8-9 s
     Part("bench_sweep", 20, 40),  # 11-21 s

@@ -115,12 +115,11 @@ def test_a_five_percent_change_is_named_within_20_wingbeats(model, params, cause
 def test_an_actuator_gain_change_under_dsa_is_named_within_20_wingbeats_on_noisy_seeds(
     model, params, seed
 ):
-    """The actuator gain moves the stroke film's series by half its log (2.5 %), about 1.6
-    sigmas of a pair under the dSA loop: on these seeds the first confirmation's median was not
-    yet 3 standard errors from the baseline (the alarm was dropped and came back 25 and 48
-    wingbeats after the change), and a 40-wingbeat baseline overstated the scatter (the CUSUM's
-    threshold rose from 6.6 to 8.3 sigmas). The alarm now stands until its move is significant
-    or its CUSUM returns to zero, and the baseline is learned over 60 wingbeats.
+    """The actuator gain moves only the stroke film's series, by half its log (2.5 %, about 1.6
+    sigmas of a pair under the dSA loop): on these seeds the first confirmation's median is not
+    yet `event_significance` standard errors from the baseline, so the alarm must stand until
+    it is (or its CUSUM returns to zero), and the baseline's scatter must be learned over enough
+    wingbeats not to raise the threshold.
     """
     vs, vp, dv = hs.run(model, 3.0, _changed(model, "actuator_gain"), CHANGE_S, seed=seed)
     _, out = H.step(H.initial_state(params), H.HealthInputs(vs, vp, dv), params)
