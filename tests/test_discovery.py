@@ -459,7 +459,7 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     """
     from flaair_analysis.discrepancy import identify_plant, noise_estimates
     from flaair_analysis.discrepancy.datasets import dataset_cases
-    from flaair_analysis.discrepancy.effect_judging import AnalysisContext, evaluate, gap_drop
+    from flaair_analysis.discrepancy.effect_judging import AnalysisContext, evaluate, rss_gap_drop
     from flaair_analysis.discrepancy.fitting import fit_specs, models_for, spec_value
     from flaair_analysis.discrepancy.runs import simulate_runs
     from flaair_analysis.discrepancy.term_candidates import fitted_along
@@ -520,7 +520,7 @@ def test_a_term_is_judged_against_the_plant_refitted_without_it_in_the_same_box(
     rss_now = sum(float(np.dot(r, r)) for r in problem.residuals([current])[0])
     n = sum(problem.n_per_fold())
     ss = problem.signal_ss()
-    assert gap_drop(rss_now, ev.heldout_nrmse_after**2 * ss, n) > st.min_heldout_drop
+    assert rss_gap_drop(rss_now, ev.heldout_nrmse_after**2 * ss, n) > st.rules.min_heldout_drop
     # the fix: against the plant refitted alone in the same box, a term that only rode along
     # with the plant is refused: no drop of its own (R1) and a contribution of 0.04 noise (R0)
     _, fair, share = judged["about the fitted plant"]

@@ -30,7 +30,13 @@ def test_each_accessor_reads_its_section_with_types() -> None:
     rules = document["discrepancy"]["ros__parameters"]
     found = settings.discrepancy()
     assert found.band_edges_hz == tuple(float(v) for v in rules["band_edges_hz"])
-    assert found.min_z == rules["min_z"] and found.identify is rules["identify"]
+    assert found.identify is rules["identify"]
+    # the judging rules: one section, the same values for runs and tables
+    judging = document["judging"]["ros__parameters"]
+    assert found.rules == settings.tables().rules == settings.judging()
+    assert found.rules.min_z == judging["min_z"]
+    assert found.rules.min_heldout_drop == judging["min_heldout_drop"]
+    assert "min_z" not in rules and "min_z" not in document["tables"]["ros__parameters"]
 
 
 @pytest.mark.parametrize(

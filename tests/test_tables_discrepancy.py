@@ -125,7 +125,7 @@ def test_hinge_stiffening_is_found_where_the_effectless_pitch_fit_runs_far() -> 
     j = r.accepted[0]
     # measured 3.256 (1.8 % off)
     assert j.fit.values["effect.hinge_stiffening.cubic_per_rad2"] == pytest.approx(3.2, rel=0.05)
-    assert j.z > s.min_z
+    assert j.z > s.rules.min_z
     assert j.fit.values["plant.pitch_natural_frequency_hz"] == pytest.approx(190.0, rel=0.05)
     assert r.status == "explained"
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from flaair_model.config import ConfigError, config_dir, node_parameters, shared_parameters
@@ -22,6 +22,7 @@ __all__ = [
     "BridgeSettings",
     "ControllerSettings",
     "DiscrepancySettings",
+    "JudgingRules",
     "LiveSettings",
     "MonitorSettings",
     "StreamSettings",
@@ -29,6 +30,7 @@ __all__ = [
     "bridge",
     "controller",
     "discrepancy",
+    "judging",
     "live",
     "monitor",
     "node_section",
@@ -85,6 +87,23 @@ class ControllerSettings:
 
 
 @dataclass(frozen=True)
+class JudgingRules:
+    """The rules every candidate is judged by, whatever the evidence (`judging` section): runs,
+    tables and spectra alike (`flaair_analysis.evidence.judging`).
+
+    Attributes
+    ----------
+    min_heldout_drop : relative drop of the held-out model error above noise a candidate must
+        bring, on the RMS scale: 1 - sqrt(excess after / excess before), the excess being the
+        mean square of the noise-weighted residuals above 1.
+    min_z : distance of its parameter from doing nothing, in standard errors.
+    """
+
+    min_heldout_drop: float
+    min_z: float
+
+
+@dataclass(frozen=True)
 class DiscrepancySettings:
     """The discrepancy workflow on runs (`discrepancy` section): its decision rules (documented in
     `flaair_analysis.discrepancy`) and numerical settings.
@@ -98,10 +117,8 @@ class DiscrepancySettings:
     whiteness_alpha : Ljung-Box p-value below which the residual is not white.
     ljung_box_lags : lags of the Ljung-Box test.
     whiteness_decimate : decimation of the residual before the Ljung-Box test.
-    min_heldout_drop : R1, relative drop of the held-out model error (above noise) an effect must
-        bring.
+    rules : R1 (`min_heldout_drop`) and R3 (`min_z`), the rules every kind of evidence shares.
     max_delta_bic : R2, held-out Delta-BIC must be below this.
-    min_z : R3, distance of the parameter from its null value in standard errors.
     consistency_alpha : R4, p-value of the per-run scatter test below which an effect is refused.
     consistency_rel_tol : R4, allowance for model imperfection, as a fraction of the effect size.
     max_effects_per_channel : greedy steps per channel.
@@ -142,9 +159,8 @@ class DiscrepancySettings:
     whiteness_alpha: float
     ljung_box_lags: int
     whiteness_decimate: int
-    min_heldout_drop: float
+    rules: JudgingRules = field(metadata={"section": "judging"})
     max_delta_bic: float
-    min_z: float
     consistency_alpha: float
     consistency_rel_tol: float
     max_effects_per_channel: int
@@ -169,7 +185,9 @@ class DiscrepancySettings:
 
 @dataclass(frozen=True)
 class TableSettings:
-    """Frequency-response tables (`tables` section): steady state, noise, hold-out rules."""
+    """Frequency-response tables (`tables` section): steady state, noise, hold-out rules (`rules`:
+    the ones every kind of evidence shares, from the `judging` section).
+    """
 
     sample_rate_hz: float
     settle_s: float
@@ -186,8 +204,7 @@ class TableSettings:
     max_effects_per_side: int
     near_resonance: float
     gap_ratio: float
-    min_heldout_drop: float
-    min_z: float
+    rules: JudgingRules = field(metadata={"section": "judging"})
 
 
 def _convert(value: Any, kind: Any, where: str) -> Any:
@@ -211,7 +228,8 @@ def _convert(value: Any, kind: Any, where: str) -> Any:
 
 def read_section(section: str, cls: type[T], file_name: str = CONFIG_FILE) -> T:
     """`cls` (a frozen dataclass) filled from `section`
-    of config/`file_name`, each field checked.
+    of config/`file_name`, each field checked; a field whose metadata names a section is that
+    section's dataclass (one set of values several sections share).
     """
     values = (
         shared_parameters(file_name) if section == "/**" else node_parameters(file_name, section)
@@ -219,6 +237,9 @@ def read_section(section: str, cls: type[T], file_name: str = CONFIG_FILE) -> T:
     hints = typing.get_type_hints(cls)
     out = {}
     for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if "section" in f.metadata:
+            out[f.name] = read_section(f.metadata["section"], hints[f.name], file_name)
+            continue
         where = f"{config_dir() / file_name}: {section}.{f.name}"
         if f.name not in values:
             raise ConfigError(f"{where}: missing")
@@ -245,6 +266,11 @@ def monitor() -> MonitorSettings:
 
 def controller() -> ControllerSettings:
     return read_section("dsa_controller_node", ControllerSettings)
+
+
+def judging() -> JudgingRules:
+    """The rules every candidate is judged by, on any evidence."""
+    return read_section("judging", JudgingRules)
 
 
 def discrepancy() -> DiscrepancySettings:

@@ -78,7 +78,8 @@ each run is predicted with the inverse-variance mean of the *other* runs' estima
 (leave-one-run-out; a single run is split into two halves). It is accepted only if ALL of:
 
 * R1 held-out: the channel's model error above noise (pooled held-out RSS minus the noise's
-  share, as an NRMSE) drops by more than ``min_heldout_drop``;
+  share, on the RMS scale: `flaair_analysis.evidence.judging`, the convention a table's held-out
+  levels are judged by too) drops by more than ``min_heldout_drop``;
 * R2 evidence: held-out Delta-BIC < ``max_delta_bic`` (BIC = sum over runs of
   n ln(RSS/n) + k ln N, Gaussian errors of unknown variance, on the held-out residuals);
 * R3 significance: the all-run parameter is more than ``min_z`` standard errors from its null

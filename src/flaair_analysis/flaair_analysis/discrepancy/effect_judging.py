@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from flaair_analysis.evidence import excess_of_rss, gap_drop, passes_drop, passes_z
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, with_effects
 from flaair_model.settings import DiscrepancySettings
@@ -121,11 +122,11 @@ def bic(rss_list: Sequence[float], n_list: Sequence[int], k: int) -> float:
     return val + k * math.log(max(n_tot, 2))
 
 
-def gap_drop(rss_before: float, rss_after: float, n: int) -> float:
-    """Relative drop of the model error above noise (noise-weighted residuals: noise RSS = n)."""
-    before = math.sqrt(max(rss_before - n, 0.0))
-    after = math.sqrt(max(rss_after - n, 0.0))
-    return 1.0 - after / before if before > 0 else 0.0
+def rss_gap_drop(rss_before: float, rss_after: float, n: int) -> float:
+    """R1's drop (`evidence.gap_drop`) of one channel's `n` noise-weighted residuals, whose sum of
+    squares goes from `rss_before` to `rss_after`.
+    """
+    return gap_drop(excess_of_rss(rss_before, n), excess_of_rss(rss_after, n))
 
 
 def _consistency(
@@ -365,7 +366,7 @@ def evaluate(
     before = math.sqrt(sum(rss_null) / ss) if ss > 0 else math.nan
     after = math.sqrt(sum(rss_ho) / ss) if ss > 0 else math.nan
     drop = 1.0 - after / before if before > 0 else 0.0
-    drop_above_noise = gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
+    drop_above_noise = rss_gap_drop(sum(rss_null), sum(rss_ho), sum(n_f))
     dbic_ho = bic(rss_ho, n_f, p) - bic(rss_null, n_f, 0)
     dbic_fit = bic(list(fit_all.rss_per_fold), n_f, p) - bic(rss_null, n_f, 0)
     z, cons, per_run, n_ident, inside = _per_parameter(
@@ -374,9 +375,9 @@ def evaluate(
     # shape and plant parameters are fitted along
     tested = [j for j, s in enumerate(specs) if s.tested]
     rules = {
-        "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
+        "R1_heldout_gap_drop": passes_drop(drop_above_noise, st.rules),
         "R2_delta_bic": bool(dbic_ho < st.max_delta_bic),
-        "R3_significance": bool(all(z[j] > st.min_z and inside[j] for j in tested)),
+        "R3_significance": bool(all(passes_z(z[j], st.rules) and inside[j] for j in tested)),
         "R4_consistency": bool(
             all(n_ident[j] >= 2 for j in tested)
             and all(cons[j] >= st.consistency_alpha for j in tested if math.isfinite(cons[j]))
@@ -437,10 +438,10 @@ def evaluate_shared(
     ss = prob.signal_ss()
     before, after = math.sqrt(sum(rss_old) / ss), math.sqrt(sum(rss_new) / ss)
     drop = 1.0 - after / before if before > 0 else 0.0
-    drop_above_noise = gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
+    drop_above_noise = rss_gap_drop(sum(rss_old), sum(rss_new), sum(n_f))
     dbic = bic(rss_new, n_f, 0) - bic(rss_old, n_f, 0)
     rules = {
-        "R1_heldout_gap_drop": bool(drop_above_noise > st.min_heldout_drop),
+        "R1_heldout_gap_drop": passes_drop(drop_above_noise, st.rules),
         "R2_delta_bic": bool(dbic < st.max_delta_bic),
     }
     ev = CandidateEvidence(

@@ -21,10 +21,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from flaair_analysis.evidence import passes_drop
 from flaair_model.model import Model
 from flaair_model.settings import DiscrepancySettings
 
-from .effect_judging import AnalysisContext, CandidateEvidence, bic, gap_drop
+from .effect_judging import AnalysisContext, CandidateEvidence, bic, rss_gap_drop
 from .fitting import Fold, fit_specs, models_for
 from .vocabulary import EffectSpec
 
@@ -90,11 +91,11 @@ def judged_against(
     for k, f in enumerate(ctx.folds):
         r = ctx.problem(channel, [f], truth_ref, base).residuals([ev.heldout_models[k]])[0][0]
         rss_ho.append(float(np.dot(r, r)))
-    drop = gap_drop(sum(best), sum(rss_ho), sum(n_f))
+    drop = rss_gap_drop(sum(best), sum(rss_ho), sum(n_f))
     dbic = bic(rss_ho, n_f, n_params) - bic(best, n_f, 0)
     share = contribution_rms(ctx, model, base, channel, truth_ref)
     rules = dict(ev.rules) | {
-        "R1_heldout_gap_drop": bool(drop > st.min_heldout_drop),
+        "R1_heldout_gap_drop": passes_drop(drop, st.rules),
         "R2_delta_bic": bool(ev.rules["R2_delta_bic"] and dbic < st.max_delta_bic),
         CONTRIBUTION_RULE: bool(share > math.sqrt(max(st.gap_noise_ratio**2 - 1.0, 0.0))),
     }

@@ -12,10 +12,11 @@ drive levels. Pure (numpy, scipy, the plant core through `steady_state`).
    (a grid start, one batch), the best `shortlist` jointly with the plant parameters they trade
    off against, and judged on held-out levels. One is kept when the side's held-out error above
    noise drops by more than `min_heldout_drop` and its parameter is `min_z` standard errors from
-   doing nothing; the lowest held-out error wins. Vocabulary effects are judged first; the terms
-   are judged too where no effect passes or where the best effect that passes still leaves the
-   side a held-out gap (a column above `gap_ratio` x noise), and then every candidate that
-   passes competes (a structural damping takes most of a dry friction's gap, not all of it).
+   doing nothing (the rules every kind of evidence is judged by, `evidence.judging`); the lowest
+   held-out error wins. Vocabulary effects are judged first; the terms are judged too where no
+   effect passes or where the best effect that passes still leaves the side a held-out gap (a
+   column above `gap_ratio` x noise), and then every candidate that passes competes (a
+   structural damping takes most of a dry friction's gap, not all of it).
 Statuses: `no_discrepancy` (the fitted plant predicts held-out levels to the reading noise),
 `explained`, `unexplained`. A one-level table is fitted, not searched (nothing to hold out).
 """
@@ -29,6 +30,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from flaair_analysis.discrepancy.vocabulary import TERM_PREFIX, EffectSpec, param_spec
+from flaair_analysis.evidence import (
+    drop_failure,
+    excess_above_noise,
+    gap_drop,
+    passes_drop,
+    passes_z,
+    z_failure,
+)
 from flaair_model.effects import EFFECTS
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
@@ -259,9 +268,8 @@ def _scores(
 
 
 def _excess(ratio: dict[str, float | None], cols: Sequence[str]) -> float:
-    """The side's mean-square error above noise (in noise units squared)."""
-    vals = [v for c in cols if (v := ratio.get(c)) is not None]
-    return float(np.mean([max(v * v - 1.0, 0.0) for v in vals])) if vals else 0.0
+    """The side's error above noise (`evidence.excess_above_noise` of its columns)."""
+    return excess_above_noise(v * v for c in cols if (v := ratio.get(c)) is not None)
 
 
 def _grid_best(
@@ -318,7 +326,7 @@ def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before
     held = heldout_predictions(table, model, _at(params, fit.values, 1.5), quick, cols)
     _, ratio = _scores(table, held, s)
     err = _excess(ratio, cols)
-    drop = (before - err) / before if before > 0 else 0.0
+    drop = gap_drop(before, err)
     key = cand.params[0].key
     v, se, null = fit.values[key], fit.stderr[key], cand.null[0]
     if math.isinf(null):  # a stop: its limit must lie below the stroke the model reaches
@@ -329,12 +337,10 @@ def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before
     else:
         z = abs(v - null) / se if se > 0 else 0.0
     failed = []
-    if not drop > s.min_heldout_drop:
-        failed.append(
-            f"held-out error above noise dropped {drop:.0%} (needs > {s.min_heldout_drop:.0%})"
-        )
-    if not z > s.min_z:
-        failed.append(f"{z:.1f} standard errors from doing nothing (needs > {s.min_z:g})")
+    if not passes_drop(drop, s.rules):
+        failed.append(drop_failure(drop, s.rules))
+    if not passes_z(z, s.rules):
+        failed.append(z_failure(z, s.rules))
     return Judged(cand, fit, err, drop, z, failed, {c: ratio.get(c) for c in cols})
 
 

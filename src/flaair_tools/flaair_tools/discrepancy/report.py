@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, fields
+from dataclasses import asdict, fields, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,7 +78,7 @@ def result_to_dict(
         "diagnosis_before": diag(result.diagnosis_before),
         "diagnosis_after": diag(result.diagnosis_after),
         "searches": searches,
-        "rules": {f.name: getattr(settings, f.name) for f in fields(settings)},
+        "rules": _flat(settings),
         "plant_parameters": result.plant_parameters,
         "identification": result.plant_fit.as_dict() if result.plant_fit is not None else None,
         "not_separable": list(result.not_separable),
@@ -87,6 +87,15 @@ def result_to_dict(
         "discovery_candidates": list(result.discovery_tried),
     }
     return json_safe(doc)
+
+
+def _flat(settings: DiscrepancySettings) -> dict[str, Any]:
+    """The settings as one flat mapping (the shared judging rules beside the runs' own)."""
+    out: dict[str, Any] = {}
+    for f in fields(settings):
+        value = getattr(settings, f.name)
+        out.update(asdict(value) if is_dataclass(value) else {f.name: value})
+    return out
 
 
 def _effect_doc(e: FoundEffect) -> dict[str, Any]:
@@ -253,9 +262,9 @@ def _rules(s: DiscrepancySettings) -> dict[str, str]:
         "whiteness_decimate": f"{s.whiteness_decimate}",
         "ljung_box_lags": f"{s.ljung_box_lags}",
         "whiteness_alpha": f"{s.whiteness_alpha:g}",
-        "min_heldout_drop": f"{s.min_heldout_drop:.0%}",
+        "min_heldout_drop": f"{s.rules.min_heldout_drop:.0%}",
         "max_delta_bic": f"{s.max_delta_bic:g}",
-        "min_z": f"{s.min_z:g}",
+        "min_z": f"{s.rules.min_z:g}",
         "consistency_alpha": f"{s.consistency_alpha:g}",
         "consistency_rel_tol": f"{s.consistency_rel_tol:.0%}",
         "max_effects_per_channel": f"{s.max_effects_per_channel}",
