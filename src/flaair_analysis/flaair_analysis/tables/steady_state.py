@@ -35,6 +35,10 @@ __all__ = [
 
 MAX_BATCH_ROWS = 240  # rows per simulate_batch call (bounds the (rows, samples) arrays' memory)
 _COUPLING_PROBE_RAD = 0.3  # a pitch per radian of stroke that any pitch term on the stroke feels
+# The stroke amplitude's fixed point: damped half-steps from the linear response contract by about
+# half an iteration, so secant steps take over after a few, each within a tenth of the amplitude
+# (a stop's or a dry friction's kink keeps the damped step); stopped at a relative move of 1e-12.
+_HB_ITERATIONS, _HB_DAMPED, _HB_SECANT_REACH, _HB_TOL = 30, 6, 0.1, 1e-12
 
 
 def point_drives(
@@ -75,6 +79,22 @@ def _cached_drives(
     return _DRIVES[key]
 
 
+def _secant(
+    amp: np.ndarray,
+    residual: np.ndarray,
+    amp_before: np.ndarray,
+    residual_before: np.ndarray,
+    damped: np.ndarray,
+) -> np.ndarray:
+    """Each point's secant step towards its residual's zero where it is finite and within
+    `_HB_SECANT_REACH` of the amplitude; elsewhere the damped step.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        secant = -residual * (amp - amp_before) / (residual - residual_before)
+    ok = np.isfinite(secant) & (np.abs(secant) <= _HB_SECANT_REACH * np.abs(amp))
+    return np.where(ok, secant, damped)
+
+
 def harmonic_balance_start(
     model: Model,
     frequency_hz: np.ndarray,
@@ -86,7 +106,9 @@ def harmonic_balance_start(
 
     The stroke's torques by their describing function at the amplitude (from the plant's own
     kernel, `flaair_sim.core.stroke_dynamic_stiffness`: nominal terms, effects and discovered
-    terms alike), solved for the stroke amplitude by fixed-point iteration; the pitch the hinge
+    terms alike), solved for the stroke amplitude by fixed-point iteration (damped steps from the
+    linear response, then secant steps once near the fixed point, until every amplitude moves by
+    less than `_HB_TOL` of itself); the pitch the hinge
     makes of that stroke from the kernel's pitch torques the same way
     (`flaair_sim.core.pitch_response`). What the start misses (harmonics, sensor effects) the
     simulation, which starts here, settles.
@@ -101,14 +123,22 @@ def harmonic_balance_start(
     # it (a pitch term on the stroke); else once, at the stroke's amplitude (the same start).
     n = stroke_dynamic_stiffness(p, w, amp)
     coupled = np.any(stroke_dynamic_stiffness(p, w, amp, _COUPLING_PROBE_RAD * amp + 0j) != n)
-    for i in range(30):
+    last: tuple[np.ndarray, np.ndarray] | None = None  # the previous amplitude and its residual
+    for i in range(_HB_ITERATIONS):
         if i:
             n = stroke_dynamic_stiffness(p, w, amp, pitch_per_stroke * amp)
         c = np.maximum(n.imag / w, 1e-3 * k / w)
         h = gain / (n.real - inertia * w**2 + 1j * c * w)
-        amp = 0.5 * amp + 0.5 * np.abs(h) * v
+        residual = np.abs(h) * v - amp
+        step = 0.5 * residual
+        if i >= _HB_DAMPED and last is not None:
+            step = _secant(amp, residual, *last, step)
+        last = amp, residual
+        amp = amp + step
         if coupled:
             pitch_per_stroke = pitch_response(p, w, amp, start=pitch_per_stroke)
+        if np.all(np.abs(step) <= _HB_TOL * np.abs(amp)):
+            break
     if not coupled:
         pitch_per_stroke = pitch_response(p, w, amp)
     # drive v sin(wt) = Re(-i v e^{iwt}), held over each sample: half a sample late
