@@ -38,6 +38,7 @@ class HealthNode(FlaairNode):
         p = self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.params = io.health_params_from_config(p)
         self.state = health.initial_state(self.params)
+        health.warm_up(self.params)  # the kernels load now, not on the first live blocks
         self.join = io.initial_join()
         self.fs_hz = p["sample_rate_hz"]
         self.estimated, self.events, self.undecodable, self.offset = 0, [], 0, 0

@@ -378,6 +378,21 @@ def _crossing_kernel(
     return out[:m], side_before == -1
 
 
+def warm_up(params: HealthParams) -> None:
+    """Load the monitor's compiled kernels now (a throwaway run over a few synthetic wingbeats),
+    not on the first live blocks, which would queue up behind the load.
+    """
+    fs, f_hz = params.sample_rate_hz, 0.5 * (params.min_frequency_hz + params.max_frequency_hz)
+    phase = 2.0 * np.pi * f_hz * np.arange(int(12 * fs / f_hz)) / fs
+    stroke_rad = 4.0 * max(params.min_stroke_rad, params.hysteresis_rad) * np.sin(phase)
+    films = (
+        params.reference_voltage_v + params.stroke_volts_per_rad * stroke_rad,
+        params.reference_voltage_v + params.pitch_volts_per_rad * 0.5 * np.cos(phase),
+    )
+    drive_v = 4.0 * params.min_drive_v * np.sin(phase + 0.3) + params.min_drive_v
+    step(initial_state(params), HealthInputs(*films, drive_v), params)
+
+
 def step(
     state: HealthState, inputs: HealthInputs, params: HealthParams
 ) -> tuple[HealthState, HealthOutputs]:
