@@ -8,16 +8,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from flaair_analysis import evidence
 from flaair_analysis.discrepancy.effect_judging import rss_gap_drop
-from flaair_analysis.evidence import (
-    drop_failure,
-    excess_above_noise,
-    excess_of_rss,
-    gap_drop,
-    passes_drop,
-    passes_z,
-    z_failure,
-)
 from flaair_model.settings import JudgingRules
 
 RULES = JudgingRules(min_heldout_drop=0.2, min_z=5.0)
@@ -25,21 +17,21 @@ RULES = JudgingRules(min_heldout_drop=0.2, min_z=5.0)
 
 def test_the_error_above_noise_counts_each_site_once() -> None:
     # a column at twice the noise's mean square and one at the noise: (1 + 0) / 2
-    assert excess_above_noise([2.0, 1.0]) == pytest.approx(0.5)
+    assert evidence.excess_above_noise([2.0, 1.0]) == pytest.approx(0.5)
     # a site below its noise has no error above it; none at all is no error
-    assert excess_above_noise([0.5, 3.0]) == pytest.approx(1.0)
-    assert excess_above_noise([]) == 0.0
+    assert evidence.excess_above_noise([0.5, 3.0]) == pytest.approx(1.0)
+    assert evidence.excess_above_noise([]) == 0.0
     # 1000 samples summing to 1500: a mean square of 1.5
-    assert excess_of_rss(1500.0, 1000) == pytest.approx(0.5)
-    assert excess_of_rss(0.0, 0) == 0.0
+    assert evidence.excess_of_rss(1500.0, 1000) == pytest.approx(0.5)
+    assert evidence.excess_of_rss(0.0, 0) == 0.0
 
 
 def test_the_drop_is_on_the_rms_scale() -> None:
     # the error above noise a quarter of its mean square: half its RMS
-    assert gap_drop(4.0, 1.0) == pytest.approx(0.5)
-    assert gap_drop(1.0, 0.0) == 1.0
-    assert gap_drop(0.0, 2.0) == 0.0  # nothing above noise to drop
-    assert gap_drop(1.0, 4.0) == pytest.approx(-1.0)  # worse: a negative drop
+    assert evidence.gap_drop(4.0, 1.0) == pytest.approx(0.5)
+    assert evidence.gap_drop(1.0, 0.0) == 1.0
+    assert evidence.gap_drop(0.0, 2.0) == 0.0  # nothing above noise to drop
+    assert evidence.gap_drop(1.0, 4.0) == pytest.approx(-1.0)  # worse: a negative drop
 
 
 @settings(max_examples=200, deadline=None)
@@ -60,15 +52,17 @@ def test_a_runs_channel_and_a_table_side_are_judged_alike(
     )
     assert rss_gap_drop(rss_before, rss_after, n) == pytest.approx(closed, rel=1e-6, abs=1e-6)
     # the same error above noise on one table column (its mean square) drops the same
-    side = gap_drop(
-        excess_above_noise([1.0 + before]),
-        excess_above_noise([1.0 + after]),
+    side = evidence.gap_drop(
+        evidence.excess_above_noise([1.0 + before]),
+        evidence.excess_above_noise([1.0 + after]),
     )
     assert side == pytest.approx(closed, rel=1e-6, abs=1e-6)
 
 
 def test_the_rules_and_their_words() -> None:
-    assert passes_drop(0.21, RULES) and not passes_drop(0.2, RULES)
-    assert passes_z(5.1, RULES) and not passes_z(5.0, RULES)
-    assert drop_failure(0.03, RULES) == "held-out error above noise dropped 3% (needs > 20%)"
-    assert z_failure(1.17, RULES) == "1.2 standard errors from doing nothing (needs > 5)"
+    assert evidence.passes_drop(0.21, RULES) and not evidence.passes_drop(0.2, RULES)
+    assert evidence.passes_z(5.1, RULES) and not evidence.passes_z(5.0, RULES)
+    assert (
+        evidence.drop_failure(0.03, RULES) == "held-out error above noise dropped 3% (needs > 20%)"
+    )
+    assert evidence.z_failure(1.17, RULES) == "1.2 standard errors from doing nothing (needs > 5)"
