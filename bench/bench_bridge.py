@@ -30,11 +30,14 @@ ROS domain. Figures, each beside its target:
   now and then (the hypervisor's steal time is reported too); a lab's real-time target is
   hardware of its own and is never held, so samples missed then are the machine's.
 
+With --runs N (`make bench-full`: three pairs of 60 s) each pair's late-sample, sensor-loss and
+latency figures are judged alone, named "run k of N"; the CPU figures come from the first pair.
+
 Same-run baselines: the live run without the health monitor; the emulated target against a bare
 UDP echo (one Python process answering each sensor packet with a drive packet, no ROS): what
 the machine allows without FLAAIR.
 
-Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 25]
+Run: scripts/in_env.sh python bench/bench_bridge.py [--duration 25] [--runs 1]
 """
 
 from __future__ import annotations
@@ -380,9 +383,12 @@ def late_or_missing_pct(counters: dict) -> float:
     return 100.0 * counters["missing_samples"] / driven if driven else 100.0
 
 
-def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load: str) -> list:
+def late_figures(
+    run: dict, bare: dict, echo_pct: float, duration_s: float, load: str, tag: str = ""
+) -> list:
     """Late or missing drive samples with the health monitor beside the loop, against the same
-    benchmark's run without it (and the UDP echo), the difference against its noise.
+    benchmark's run without it (and the UDP echo), the difference against its noise; `tag` ends
+    each figure's name (which of several runs).
     """
     t, b = run["target"], bare["target"]
     pct, bare_pct = late_or_missing_pct(t), late_or_missing_pct(b)
@@ -399,7 +405,7 @@ def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load
 
     return [
         info(
-            f"live: drive samples late or missing with the health monitor, {duration_s:g} s",
+            f"live: drive samples late or missing with the health monitor, {duration_s:g} s{tag}",
             pct,
             "%",
             f"without it (--no-health, same length) {bare_pct:.4f} %; late {t['late_samples']}, "
@@ -408,7 +414,7 @@ def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load
         ),
         compare(
             f"live: drive samples late or missing, with the health monitor minus without, "
-            f"{duration_s:g} s",
+            f"{duration_s:g} s{tag}",
             pct - bare_pct,
             "% points",
             "<=",
@@ -418,7 +424,7 @@ def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load
         ),
         compare(
             f"live: drive samples late or missing with the health monitor, machine stalls left "
-            f"out, {duration_s:g} s",
+            f"out, {duration_s:g} s{tag}",
             clean,
             "%",
             "<=",
@@ -427,7 +433,7 @@ def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load
         ),
         compare(
             f"live: drive samples late or missing without the health monitor, machine stalls "
-            f"left out, {duration_s:g} s",
+            f"left out, {duration_s:g} s{tag}",
             bare_clean,
             "%",
             "<=",
@@ -435,6 +441,35 @@ def late_figures(run: dict, bare: dict, echo_pct: float, duration_s: float, load
             f"all of it {bare_pct:.4f} % (late {b['late_samples']}, missing "
             f"{b['missing_samples']} of {b['fresh_samples'] + b['missing_samples']}); "
             f"{stalls(bare)}",
+        ),
+    ]
+
+
+def loop_figures(run: dict, echo_ms: np.ndarray, tag: str = "") -> list:
+    """One live run's sensor packets lost inside FLAAIR and its sensor-to-drive latency."""
+    sensor = run["sensor"]
+    latency, unsent = sensor_to_drive_ms(run["drive_events"])
+    return [
+        compare(
+            f"live: sensor packets lost inside FLAAIR{tag}",
+            sensor["nan_blocks"] + sensor["missing"],
+            "packets",
+            "==",
+            0,
+            f"{sensor['blocks']} packets' samples in the bag "
+            f"({sensor['messages']} messages): {sensor['nan_blocks']} "
+            f"marked lost by the bridge, {sensor['missing']} missing",
+        ),
+        compare(
+            f"live: sensor packet arrival -> drive packet, p99{tag}",
+            percentile(latency, 99),
+            "ms",
+            "<",
+            1.0,
+            f"p50 {percentile(latency, 50):.3f} ms over {latency.size} "
+            f"drive blocks ({unsent} not sent at once); UDP echo p99 "
+            f"{percentile(echo_ms, 99):.3f} ms, p50 "
+            f"{percentile(echo_ms, 50):.3f} ms",
         ),
     ]
 
@@ -455,6 +490,12 @@ def main() -> int:
         default=10.0,
         help="signal time of the UDP-echo baseline [s]",
     )
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=1,
+        help="pairs of live runs (with the health monitor, then without), each judged alone",
+    )
     parser.add_argument("--json", type=Path, default=REPO_ROOT / "out" / "bench_bridge.json")
     parser.add_argument(
         "--keep", type=Path, help="keep the runs' logs, counters and bag in this directory"
@@ -463,48 +504,29 @@ def main() -> int:
     args = parser.parse_args()
     if args.echo:
         return echo_main(int(args.echo[0]), args.echo[1])
+    if args.runs < 1:
+        parser.error(f"--runs {args.runs}: at least one pair of runs")
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir) if args.keep is None else args.keep
         tmp.mkdir(parents=True, exist_ok=True)
         load0 = os.getloadavg()[0]
         echo = echo_run(args.baseline_duration, tmp / "echo")
-        # with the health monitor first: a cold start (caches, page cache) counts against it
-        run = live_run(args.duration, tmp / "health", health=True)
-        bare = live_run(args.duration, tmp / "no_health", health=False)
+        pairs = []
+        for k in range(args.runs):
+            # with the health monitor first: a cold start (caches, page cache) counts against it
+            with_monitor = live_run(args.duration, tmp / f"health_{k}", health=True)
+            pairs.append((with_monitor, live_run(args.duration, tmp / f"no_health_{k}", False)))
         load1 = os.getloadavg()[0]
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
-    t, e = run["target"], echo["target"]
-    figures = late_figures(run, bare, late_or_missing_pct(e), args.duration, load)
-    sensor = run["sensor"]
-    lost = sensor["nan_blocks"] + sensor["missing"]
-    figures.append(
-        compare(
-            "live: sensor packets lost inside FLAAIR",
-            lost,
-            "packets",
-            "==",
-            0,
-            f"{sensor['blocks']} packets' samples in the bag "
-            f"({sensor['messages']} messages): {sensor['nan_blocks']} "
-            f"marked lost by the bridge, {sensor['missing']} missing",
-        )
-    )
-    latency, unsent = sensor_to_drive_ms(run["drive_events"])
+    e = echo["target"]
     echo_ms = echo["latency_s"] * 1e3
-    p99 = percentile(latency, 99)
-    figures.append(
-        compare(
-            "live: sensor packet arrival -> drive packet, p99",
-            p99,
-            "ms",
-            "<",
-            1.0,
-            f"p50 {percentile(latency, 50):.3f} ms over {latency.size} "
-            f"drive blocks ({unsent} not sent at once); UDP echo p99 "
-            f"{percentile(echo_ms, 99):.3f} ms, p50 "
-            f"{percentile(echo_ms, 50):.3f} ms",
-        )
-    )
+    figures = []
+    for k, (run, bare) in enumerate(pairs):
+        tag = f", run {k + 1} of {args.runs}" if args.runs > 1 else ""
+        figures += late_figures(run, bare, late_or_missing_pct(e), args.duration, load, tag)
+        figures += loop_figures(run, echo_ms, tag)
+    run, bare = pairs[0]
+    t = run["target"]
     for name, label in (
         ("loop", "loop process (bridge, front end, controller)"),
         ("monitor", "collision monitor process"),
