@@ -58,16 +58,18 @@ def test_every_benchmark_is_a_part_with_a_budget_in_both_modes() -> None:
     assert sum(p.budget_s for p in run_all.PARTS) <= run_all.BENCH_BUDGET_S == 20 * 60
 
 
-def test_only_the_discrepancy_parts_differ_between_the_modes() -> None:
+def test_only_the_discrepancy_parts_and_the_live_runs_differ_between_the_modes() -> None:
     """Every other part prints the same figures in both modes because it runs the same (the
     tables' part runs one robot of every family in both: its right-effect and false-discovery
     figures are over the whole family set); the independent truth's runs one robot of each kind
-    in `make bench`.
+    in `make bench`; the live runs are three pairs of 60 s in `make bench-full` (each judged by
+    the same targets as `make bench`'s one pair of 15 s).
     """
     differ = {p.name: (p.args, p.full_args) for p in run_all.PARTS if p.args != p.full_args}
     assert differ == {
         "bench_discrepancy": (("--subset", "--sweep"), ("--sweep",)),
         "bench_truth": (("--subset",), ()),
+        "bench_bridge": (("--duration", "15"), ("--duration", "60", "--runs", "3")),
     }
     tables = next(p for p in run_all.PARTS if p.name == "bench_tables")
     assert "--families" not in tables.args  # every family of bench_tables.FAMILIES
