@@ -66,3 +66,15 @@ def test_the_rules_and_their_words() -> None:
         evidence.drop_failure(0.03, RULES) == "held-out error above noise dropped 3% (needs > 20%)"
     )
     assert evidence.z_failure(1.17, RULES) == "1.2 standard errors from doing nothing (needs > 5)"
+
+
+def test_the_distance_from_doing_nothing() -> None:
+    # a structural damping of 0.05 +- 0.01 from its null 0: five standard errors
+    assert evidence.distance_from_null(0.05, 0.01, 0.0) == pytest.approx(5.0)
+    assert evidence.distance_from_null(-0.05, 0.01, 0.0) == pytest.approx(5.0)
+    # a stop at 22 +- 0.5 deg where the model reaches 25 deg: six below its reach
+    assert evidence.distance_from_null(22.0, 0.5, math.inf, reach=25.0) == pytest.approx(6.0)
+    # a stop beyond the reach does nothing, and a standard error of 0 or inf says nothing
+    assert evidence.distance_from_null(26.0, 0.5, math.inf, reach=25.0) == 0.0
+    assert evidence.distance_from_null(0.05, math.inf, 0.0) == 0.0
+    assert evidence.distance_from_null(0.05, 0.0, 0.0) == 0.0

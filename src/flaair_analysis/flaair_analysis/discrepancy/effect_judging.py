@@ -12,7 +12,13 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from flaair_analysis.evidence import excess_of_rss, gap_drop, passes_drop, passes_z
+from flaair_analysis.evidence import (
+    distance_from_null,
+    excess_of_rss,
+    gap_drop,
+    passes_drop,
+    passes_z,
+)
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, with_effects
 from flaair_model.settings import DiscrepancySettings
@@ -301,12 +307,9 @@ def _per_parameter(
         at_hi = hi - fit_all.x[j] < near and s.upper != s.null
         inside.append(not (at_lo or at_hi))
         v, e = values[j], se_phys[j]
-        if math.isinf(s.null):
-            if reach is None:
-                reach = _reach_deg(ctx, base)
-            z.append((reach - v) / e if 0 < e < math.inf and v < reach else 0.0)
-        else:
-            z.append(abs(v - s.null) / e if 0 < e < math.inf else 0.0)
+        if math.isinf(s.null) and reach is None:
+            reach = _reach_deg(ctx, base)
+        z.append(distance_from_null(v, e, s.null, math.inf if reach is None else reach))
         est = [(s.from_fit(pf.x[j]), _phys_se(s, pf.x[j], pf.se[j])) for pf in per_fold]
         per_run.append(tuple((f.name, ev, es) for f, (ev, es) in zip(ctx.folds, est, strict=True)))
         cons.append(_consistency(est, s.effect_size(v), ctx.settings))

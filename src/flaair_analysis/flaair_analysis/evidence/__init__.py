@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from .fit import RANK_TOL, EvidenceFit, covariance, fit_evidence
 from .judging import (
+    distance_from_null,
     drop_failure,
     excess_above_noise,
     excess_of_rss,
@@ -34,6 +35,7 @@ __all__ = [
     "EvidenceSet",
     "Split",
     "covariance",
+    "distance_from_null",
     "drop_failure",
     "excess_above_noise",
     "excess_of_rss",

@@ -7,7 +7,8 @@ it sees (a run's channel, a table's column) a model whose error is all noise has
 counts once, however many residuals it has. A candidate's held-out drop is on the RMS scale,
 1 - sqrt(excess after / excess before), the scale of the NRMSE the reports print. It must exceed
 `JudgingRules.min_heldout_drop` (R1), and its parameter must lie more than `min_z` standard
-errors from doing nothing (R3).
+errors from doing nothing (R3; a stop's limit that many below the largest stroke the model
+reaches).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from collections.abc import Iterable
 from flaair_model.settings import JudgingRules
 
 __all__ = [
+    "distance_from_null",
     "drop_failure",
     "excess_above_noise",
     "excess_of_rss",
@@ -46,6 +48,19 @@ def gap_drop(excess_before: float, excess_after: float) -> float:
     if not excess_before > 0:
         return 0.0
     return 1.0 - math.sqrt(excess_after / excess_before)
+
+
+def distance_from_null(value: float, se: float, null: float, reach: float = math.inf) -> float:
+    """R3's distance of a fitted `value` (standard error `se`) from doing nothing, in standard
+    errors: from its `null`, or for a stop (a null of inf: a limit never reached) how far below
+    the largest value the model `reach`es it lies. 0 where `se` says nothing (0 or inf) and for a
+    stop at or beyond its reach.
+    """
+    if not 0 < se < math.inf:
+        return 0.0
+    if math.isinf(null):
+        return (reach - value) / se if value < reach else 0.0
+    return abs(value - null) / se
 
 
 def passes_drop(drop: float, rules: JudgingRules) -> bool:

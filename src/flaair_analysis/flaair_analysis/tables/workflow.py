@@ -31,6 +31,7 @@ import numpy as np
 
 from flaair_analysis.discrepancy.vocabulary import TERM_PREFIX, EffectSpec, param_spec
 from flaair_analysis.evidence import (
+    distance_from_null,
     drop_failure,
     excess_above_noise,
     gap_drop,
@@ -329,13 +330,12 @@ def _judge(table: Table, model: Model, cand: Candidate, s: TableSettings, before
     drop = gap_drop(before, err)
     key = cand.params[0].key
     v, se, null = fit.values[key], fit.stderr[key], cand.null[0]
+    reach = math.inf
     if math.isinf(null):  # a stop: its limit must lie below the stroke the model reaches
         reach = 90.0
         if "stroke_pp_deg" in table.responses:
             reach = float(np.nanmax(_predict(table, fit.model, s)["stroke_pp_deg"])) / 2.0
-        z = (reach - v) / se if se > 0 else 0.0
-    else:
-        z = abs(v - null) / se if se > 0 else 0.0
+    z = distance_from_null(v, se, null, reach)
     failed = []
     if not passes_drop(drop, s.rules):
         failed.append(drop_failure(drop, s.rules))
