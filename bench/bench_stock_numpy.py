@@ -91,20 +91,40 @@ def stock_python() -> Path:
     return python
 
 
-def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str, int]:
-    """(passed, failed, versions line, pytest's exit code) of TESTS under `python`."""
+def _env(numba_cache: Path) -> dict[str, str]:
+    """The environment either interpreter runs in: its own numba cache, one BLAS thread, the ROS
+    wheels' bundled libraries (their start-up hook finds them only in its own prefix).
+    """
     env = dict(
         os.environ,
         NUMBA_CACHE_DIR=str(numba_cache),
         OPENBLAS_NUM_THREADS="1",
         _ROS_WHEELS_BOOTSTRAP_COMPLETE="1",
     )
-    # the ROS wheels' bundled libraries, which their start-up hook finds only in its own prefix
     project_site = Path(sysconfig.get_paths()["purelib"])
     libs = [str(p) for p in sorted(project_site.glob("ros_*.libs"))] + [
         str(Path(sys.prefix) / "lib")
     ]
     env["LD_LIBRARY_PATH"] = os.pathsep.join([*libs, env.get("LD_LIBRARY_PATH", "")])
+    return env
+
+
+def warm_caches(python: Path, numba_cache: Path) -> None:
+    """Compile every kernel `scripts/warm_numba.py` names into `numba_cache` under `python` (a
+    first use's compile, paid in make bench's set-up, not inside the benchmark's time).
+    """
+    subprocess.run(
+        [str(python), str(REPO_ROOT / "scripts" / "warm_numba.py")],
+        cwd=REPO_ROOT,
+        env=_env(numba_cache),
+        check=True,
+        capture_output=True,
+    )
+
+
+def run_tests(python: Path, numba_cache: Path) -> tuple[int, int, str, int]:
+    """(passed, failed, versions line, pytest's exit code) of TESTS under `python`."""
+    env = _env(numba_cache)
     versions = subprocess.run(
         [
             str(python),
@@ -150,14 +170,20 @@ def main() -> None:
     parser.add_argument(
         "--prepare",
         action="store_true",
-        help="only build the stock stack's environment (make bench's set-up: paid once, not "
-        "inside the benchmark's time)",
+        help="only build the stock stack's environment and compile both stacks' kernels into "
+        "their caches (make bench's set-up: paid once, not inside the benchmark's time)",
     )
     args = parser.parse_args()
-    if args.prepare:
-        stock_python()
-        return
     caches = REPO_ROOT / "out" / "bench" / "numba-cache"
+    if args.prepare:
+        stock_stack = stock_python()
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            for done in [
+                pool.submit(warm_caches, stock_stack, caches / "stock"),
+                pool.submit(warm_caches, Path(sys.executable), caches / "locked"),
+            ]:
+                done.result()
+        return
     stock_stack = stock_python()
     with ThreadPoolExecutor(max_workers=2) as pool:
         stock_run = pool.submit(run_tests, stock_stack, caches / "stock")
