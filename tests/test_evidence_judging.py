@@ -78,3 +78,9 @@ def test_the_distance_from_doing_nothing() -> None:
     assert evidence.distance_from_null(26.0, 0.5, math.inf, reach=25.0) == 0.0
     assert evidence.distance_from_null(0.05, math.inf, 0.0) == 0.0
     assert evidence.distance_from_null(0.05, 0.0, 0.0) == 0.0
+
+
+def test_another_set_may_rise_by_what_noise_moves_it() -> None:
+    # a chi-square of n unit-variance residuals has variance 2 n: two standard deviations
+    assert evidence.chi2_allowance(60) == pytest.approx(2 * math.sqrt(120))
+    assert evidence.chi2_allowance(0) == 0.0

@@ -6,7 +6,8 @@ parameters, the sites it sees, its held-out `Split`s; `EvidenceSet`: a measured 
 runs in the joint identification, its stage pieces and its agreement) and `fit`
 (`fit_evidence`: shared parameters and each piece's nuisance fitted over every piece at once,
 the Birge reweighting, the covariance) and `judging` (the rules every candidate is judged by on
-any evidence: the held-out error above noise and its drop, the distance from doing nothing).
+any evidence: the held-out error above noise and its drop, the distance from doing nothing,
+what noise allows another set's chi-square to rise by).
 The kinds of evidence live with their data:
 `flaair_analysis.discrepancy.RunEvidence` (measured runs),
 `flaair_analysis.tables.TableEvidence` (frequency-response tables) and
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 from .fit import RANK_TOL, EvidenceFit, covariance, fit_evidence
 from .judging import (
+    chi2_allowance,
     distance_from_null,
     drop_failure,
     excess_above_noise,
@@ -34,6 +36,7 @@ __all__ = [
     "EvidenceFit",
     "EvidenceSet",
     "Split",
+    "chi2_allowance",
     "covariance",
     "distance_from_null",
     "drop_failure",

@@ -8,7 +8,8 @@ counts once, however many residuals it has. A candidate's held-out drop is on th
 1 - sqrt(excess after / excess before), the scale of the NRMSE the reports print. It must exceed
 `JudgingRules.min_heldout_drop` (R1), and its parameter must lie more than `min_z` standard
 errors from doing nothing (R3; a stop's limit that many below the largest stroke the model
-reaches).
+reaches). A finding kept on one kind of evidence is checked on every other: their chi-squares
+may rise by no more than noise moves them (`chi2_allowance`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from collections.abc import Iterable
 from flaair_model.settings import JudgingRules
 
 __all__ = [
+    "chi2_allowance",
     "distance_from_null",
     "drop_failure",
     "excess_above_noise",
@@ -61,6 +63,13 @@ def distance_from_null(value: float, se: float, null: float, reach: float = math
     if math.isinf(null):
         return (reach - value) / se if value < reach else 0.0
     return abs(value - null) / se
+
+
+def chi2_allowance(n: int) -> float:
+    """How far noise alone moves a chi-square of `n` noise-weighted residuals (two standard
+    deviations, 2 sqrt(2 n)): a finding kept on one set may raise another's by no more.
+    """
+    return 2.0 * math.sqrt(2.0 * n)
 
 
 def passes_drop(drop: float, rules: JudgingRules) -> bool:

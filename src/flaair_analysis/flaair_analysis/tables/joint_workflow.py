@@ -32,7 +32,6 @@ the others; the findings' values are not refitted on every set.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
@@ -41,7 +40,7 @@ from typing import Any
 from flaair_analysis.discrepancy.diagnosis import diagnose, noise_estimates
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
-from flaair_analysis.evidence import EvidenceSet
+from flaair_analysis.evidence import EvidenceSet, chi2_allowance
 from flaair_analysis.multisine.analysis import model_reading
 from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
@@ -146,18 +145,20 @@ class JointDiscrepancy:
             "final_identification": self.final.as_dict() if self.final is not None else None,
             "table_heldout_before": _doc(self.table_before),
             "table_heldout_after": _doc(self.table_after),
-            "table_chi2_allowance": _allowance(self.table_before.n) if self.table_before else None,
+            "table_chi2_allowance": chi2_allowance(self.table_before.n)
+            if self.table_before
+            else None,
             "spectra_before": _doc(self.spectra_before),
             "spectra_after": _doc(self.spectra_after),
             "spectra_chi2_allowance": (
-                _allowance(self.spectra_before.n) if self.spectra_before else None
+                chi2_allowance(self.spectra_before.n) if self.spectra_before else None
             ),
             "multisine": self.localisation,
             "other_sets": {
                 name: {
                     "before": _doc(before),
                     "after": _doc(after),
-                    "chi2_allowance": _allowance(before.n),
+                    "chi2_allowance": chi2_allowance(before.n),
                 }
                 for name, (before, after) in self.others.items()
             },
@@ -199,11 +200,6 @@ def spectra_check(spectra: SpectrumEvidence, model: Model, s: TableSettings) -> 
     refitted = identify_joint([], None, model, {}, s, spectra=spectra).model
     ratio, nrmse, n, chi2 = spectra.scores(refitted)
     return TableCheck(ratio, nrmse, chi2, n, held_out=False, label="multisine line spectra")
-
-
-def _allowance(n: int) -> float:
-    """What noise alone moves a chi-square of n cells by (two standard deviations)."""
-    return 2.0 * math.sqrt(2.0 * n)
 
 
 def table_heldout(table: Table, model: Model, s: TableSettings) -> TableCheck:
@@ -406,7 +402,7 @@ def _checked(
     kept = True
     for name in checks:
         what, unit, _ = _WORDS.get(name, _OTHER_WORDS)
-        rise, allowed = trial[name].chi2 - before[name].chi2, _allowance(before[name].n)
+        rise, allowed = trial[name].chi2 - before[name].chi2, chi2_allowance(before[name].n)
         if rise > allowed:
             kept = False
             notes.append(
@@ -474,15 +470,15 @@ def _table_search(
     _, _, n, chi2_before = run_scores(runs, model, noise, settings.decimate)
     _, _, _, chi2_after = run_scores(runs, with_found, noise, settings.decimate)
     rise = chi2_after - chi2_before
-    if rise > _allowance(n):
+    if rise > chi2_allowance(n):
         notes.append(
             f"the runs refused the table's findings ({', '.join(names)}): their chi-square rose "
-            f"by {rise:.1f} over {n} samples (noise allows {_allowance(n):.1f})"
+            f"by {rise:.1f} over {n} samples (noise allows {chi2_allowance(n):.1f})"
         )
         return None
     notes.append(
         f"the table's own search found {', '.join(names)}; the runs' chi-square "
         f"{'fell' if rise < 0 else 'rose'} by {abs(rise):.1f} over {n} samples with them (noise "
-        f"allows a rise of {_allowance(n):.1f}): kept"
+        f"allows a rise of {chi2_allowance(n):.1f}): kept"
     )
     return with_found
