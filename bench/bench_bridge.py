@@ -515,7 +515,8 @@ def main() -> int:
         for k in range(args.runs):
             # with the health monitor first: a cold start (caches, page cache) counts against it
             with_monitor = live_run(args.duration, tmp / f"health_{k}", health=True)
-            pairs.append((with_monitor, live_run(args.duration, tmp / f"no_health_{k}", False)))
+            without = live_run(args.duration, tmp / f"no_health_{k}", health=False)
+            pairs.append((with_monitor, without))
         load1 = os.getloadavg()[0]
     load = f"load avg {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores"
     e = echo["target"]

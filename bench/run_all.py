@@ -56,11 +56,9 @@ class Part:
 
 # Every bench/bench_*.py, in the order they run (tests/test_bench_plan.py checks that each has
 # a budget in both modes and that the quick budgets add up to at most BENCH_BUDGET_S). Each
-# budget is the part's wall time in `make bench` on the quiet 2-core machine, the larger of two
-# runs (2026-11-27, every other job at nice 19; 2026-11-28, nothing else running: 14.7 min in
-# all), with a few per cent of room; the streaming parts run shorter signals than their scripts'
-# defaults (the same in both modes), so that the whole stays within 17 minutes; the independent
-# truth's discovery part adds 2.5 min to that.
+# budget is the part's wall time in `make bench` on the 2-core machine, the larger of the runs
+# measured (docs/results), with a few per cent of room; the streaming parts run shorter signals
+# than their scripts' defaults (the same in both modes).
 PARTS = (
     Part("bench_sim", 18, 25),  # a cold numba compile in a fresh process: 16-18 s
     Part("bench_frontend_core", 3, 10),  # 2 s
@@ -74,39 +72,32 @@ PARTS = (
     # nothing to measure), the 2 s player bag: 28-42 s
     Part("bench_recorder", 45, 55),
     Part("bench_closed_loop", 64, 90),  # 5 loops of 2 s and 2 composed of 4 s: 55-71 s
-    # make bench: the fixed subset of robots and cases (SUBSET: ~580 CPU-s, 294-309 s on 2 cores;
-    # the earlier subset with all nine discovery kinds, four pair and four outside robots and six
-    # cases took 872 CPU-s, 464 s), one numba thread per worker: 229-238 s; make bench-full every
-    # family and draw, all 45 cases
+    # make bench: the fixed subset of robots and cases, two at once, one numba thread per worker:
+    # 229-238 s; make bench-full every family and draw, all 45 cases
     Part("bench_discrepancy", 250, 3600, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 10, 20),  # 8-9 s
     Part("bench_sweep", 20, 40),  # 11-21 s
     # a 10 s UDP echo, then 15 s live with the health monitor beside the loop and 15 s without
     # it (the script's defaults: 25 s each), their starts and stops: 64-70 s; in full, three
-    # pairs of 60 s runs (issue targets are judged on each), about 7 min
+    # pairs of 60 s runs, each judged alone
     Part("bench_bridge", 72, 480, ("--duration", "15"), ("--duration", "60", "--runs", "3")),
     Part("bench_import", 44, 55),  # a 200 MB CSV written, imported, read whole: 37-44 s
     Part("bench_lab_import", 15, 20),  # 13-14 s
     Part("bench_foxglove", 20, 40, ("--duration", "5"), ("--duration", "5")),  # 2 x 5 s: 18 s
-    # 409 tests per stack, the two stacks at once: 30-81 s (the first run also installs the stock
-    # stack and compiles its kernels: about 2 min more, reported as over the budget)
+    # 409 tests per stack, the two stacks at once: 44-81 s (`make bench-setup` installs the stock
+    # stack and compiles both stacks' kernels first)
     Part("bench_stock_numpy", 70, 110),
     Part("bench_workspace", 40, 110),  # a plain colcon build and a node from it: 29-45 s
     # the real ROS 2 tools against FLAAIR: 10 launch files parsed, the namespaced loop under
-    # `ros2 launch`, 13 stand-in answers: 87-118 s (the first run on a machine also builds the
-    # tools, about 4 min more, and the first in a new clone or worktree about a minute more:
-    # 152 s; reported as over the budget)
+    # `ros2 launch`, 13 stand-in answers: 87-118 s (`make bench-setup` builds the tools first)
     Part("bench_ros2_conformance", 120, 200),
     # frequency-response tables: identify on a 60-point table, then one robot of each of the six
     # families in both modes (no effect, structural damping, hinge stiffening, collision,
-    # actuator saturation, dry friction): 58-61 s on the quiet machine once (126 s of CPU: the
-    # plant batches run on both cores); 98-126 s in the last three make bench runs
+    # actuator saturation, dry friction), the plant batches on both cores: 72-126 s
     Part("bench_tables", 130, 600),
     # odd random-phase multisines: closed forms, five robots of 4 realizations x 2.5 s, a whole
-    # `multisine analyze` of M=4 x P=4 at 20 kHz, nine refusals: 50 s on the 2-core machine
-    # under a load of 9 (other engineers' jobs); then `discrepancy` on the hinge film's robot's
-    # multisine set (10 s; the script's --all-discrepancy-robots adds two more, 20 s); 11 s in
-    # the last two make bench runs
+    # `multisine analyze` of M=4 x P=4 at 20 kHz, nine refusals; then `discrepancy` on the hinge
+    # film's robot's multisine set (the script's --all-discrepancy-robots adds two more): 10-11 s
     Part("bench_multisine", 30, 90),
     # discovery against the independent truth: one robot of each of its eight kinds (make bench),
     # five of each (make bench-full), two at once, one numba thread each: 103-107 s (the truth's

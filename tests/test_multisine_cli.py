@@ -258,7 +258,7 @@ def test_experiment_multisine_recorded_as_a_bag_analyses_like_the_csvs(
     """`flaair experiment multisine` on the simulated bench robot, then `multisine analyze` on
     the bag: the same design found and the same classes and levels as CSVs of the same
     realizations simulated offline through the same robot model. The experiment as configured,
-    shortened to 2 realizations of 1 + 3 periods (the graph runs 4.5 s of signal, not 11).
+    shortened to 2 realizations of 1 + 3 periods (4.5 s of signal through the graph).
     """
     config = tmp_path / "config"
     shutil.copytree(ROOT / "config", config)

@@ -100,7 +100,7 @@ def test_simulate_batch_from_takes_one_drive_per_model() -> None:
 def test_the_start_is_the_stroke_amplitudes_fixed_point_under_a_dry_friction() -> None:
     """The start's stroke amplitude A solves A = |G_a v / (N(A) - I w^2)| (the describing
     function N from the kernel) to 1e-10 of itself, even under a dry friction, whose damped
-    iteration contracts slowly (30 damped half-steps leave it 4e-7 off).
+    iteration alone contracts slowly.
     """
     s = settings.tables()
     nominal = load_model()
