@@ -77,6 +77,24 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
     assert "wing_damage" in {d["effect"] for d in result.not_separable}
 
 
+@pytest.mark.slow  # the whole search on a robot whose actuator is hysteretic
+def test_a_hysteretic_actuator_is_named_with_its_loop_and_standard_errors(model) -> None:
+    """The Bouc-Wen operator on the drive, drawn in its own family (loop fraction 0.40, saturation
+    7.3 V: a loop of about 15 % of the stroke at 100 V): named, each parameter within 10 % and
+    several standard errors from the null, the robot explained."""
+    case = random_robot("offnominal_own", 0)
+    result = analyse(make_runs(case, model), model, discrepancy_settings())
+    assert result.status == "explained", result.summary
+    assert [e.name for e in result.effects] == ["actuator_hysteresis"], result.summary
+    found = result.effects[0]
+    hidden = dict(case.effects)["actuator_hysteresis"]
+    for key in ("loop_fraction", "saturation_v"):
+        assert found.parameters[key] == pytest.approx(hidden[key], rel=0.10), key
+    # the effect's two parameters first, then the plant parameters fitted with it
+    se, values = found.evidence["standard_errors"][:2], found.evidence["values"][:2]
+    assert all(0.0 < s < 0.05 * v for s, v in zip(se, values, strict=True)), (se, values)
+
+
 @pytest.mark.slow  # the search on a robot with a delay on each film
 def test_stroke_and_pitch_chains_keep_their_own_delay(model) -> None:
     """A robot whose two sensor chains lag differently (0.15 ms and 0.40

@@ -50,11 +50,13 @@ def nominal():
 def test_the_model_vocabulary_and_generator_list_the_table_in_its_order() -> None:
     assert tuple(NAMES) == EFFECT_NAMES
     assert tuple(e.name for e in vocabulary.VOCABULARY) == tuple(NAMES)
+    own = tuple(n for n in NAMES if ENTRIES[n].own_family)
     assert (
-        tuple(n for n in NAMES if ENTRIES[n].separable)
+        tuple(n for n in NAMES if ENTRIES[n].separable and n not in own)
         + tuple(n for n in NAMES if not ENTRIES[n].separable)
         == offnominal.EFFECT_NAMES_ORDER
     )
+    assert offnominal.OWN_FAMILY_EFFECTS == own == ("actuator_hysteresis",)
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -108,6 +110,8 @@ def test_an_effect_changes_its_kernel_terms_and_nothing_else(name: str, nominal)
         "contact_damping_nm_s_per_rad": {plant_params.P_CC},
         "transmission_cubic_per_rad2": {plant_params.P_TCUBIC},
         "feedthrough_v_per_v": {plant_params.P_FT},
+        "hysteresis_fraction": {plant_params.P_HYST_FRAC},
+        "hysteresis_saturation_v": {plant_params.P_HYST_SAT},
         "inertia_factor": {plant_params.P_I, plant_params.P_IP},
         "highpass_b0": {
             plant_params.P_HPS_B0,

@@ -157,7 +157,7 @@ def test_effect_validation(model):
 
 
 def test_with_and_without_effects(model):
-    assert len(EFFECT_NAMES) == 9 and len(set(EFFECT_NAMES)) == 9
+    assert len(EFFECT_NAMES) == 10 and len(set(EFFECT_NAMES)) == 10
     m = with_effects(
         model,
         {

@@ -36,7 +36,7 @@ from flaair_model.model import Model
 
 # the plant's own kernels
 from flaair_sim.core.plant_kernel import rk4_step
-from flaair_sim.core.plant_params import P_CONTACT_ON, prepare
+from flaair_sim.core.plant_params import P_CONTACT_ON, P_HYST_FRAC, prepare
 from flaair_sim.core.term_kernel import mechanical_constants
 
 # rk4_step is inlined into the kernels below, and numba's cache of them is keyed on this file
@@ -257,6 +257,8 @@ def run_rows(
         prep = prepare(robot, fs)
         if prep.params[P_CONTACT_ON] > 0:
             raise ValueError("the sweep batch has no collision stop")
+        if prep.params[P_HYST_FRAC] > 0:
+            raise ValueError("the sweep batch has no actuator hysteresis")
         if robot.discovered:
             raise ValueError(
                 "the sweep batch runs the model without discovered terms; run the "

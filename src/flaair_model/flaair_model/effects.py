@@ -44,6 +44,7 @@ __all__ = [
     "SENSOR_CHANNELS",
     "SENSOR_TERMS",
     "TRUTH_CHANNELS",
+    "ActuatorHysteresis",
     "ChargeAmpHighpass",
     "Collision",
     "DrawRange",
@@ -82,6 +83,8 @@ PLANT_TERMS: tuple[str, ...] = (
     "contact_damping_nm_s_per_rad",
     "transmission_cubic_per_rad2",
     "feedthrough_v_per_v",
+    "hysteresis_fraction",
+    "hysteresis_saturation_v",
 )
 SCALE_TERMS: tuple[str, ...] = ("inertia_factor",)
 SENSOR_TERMS: tuple[str, ...] = (
@@ -206,6 +209,34 @@ class WingDamage:
         check_fields(self, "effects.wing_damage", {"inertia_factor": "unit"})
 
 
+@dataclass(frozen=True)
+class ActuatorHysteresis:
+    """Rate-independent hysteresis of the piezo actuator (a Bouc-Wen operator on the drive).
+
+    The actuator's torque is G_a (V - h): the hysteretic voltage h follows the drive by
+    dh = alpha dV - beta |dV| h - beta dV |h| (Bouc-Wen with n = 1 and gamma = beta), so after
+    a reversal h takes `loop_fraction` (alpha) of each volt and saturates at
+    +-`saturation_v` (alpha / (2 beta)). A loop's width over the drive's amplitude A is about
+    2 `saturation_v` / A: small at full drive, large at low drive, which sets it apart from a
+    change of the actuator's gain. The sensor feedthrough sees the drive itself.
+    """
+
+    loop_fraction: float
+    saturation_v: float
+
+    def __post_init__(self) -> None:
+        check_fields(
+            self,
+            "effects.actuator_hysteresis",
+            {"loop_fraction": "nonneg", "saturation_v": "pos"},
+        )
+        if not self.loop_fraction < 1.0:
+            raise ModelError(
+                "effects.actuator_hysteresis.loop_fraction must be below 1 (the actuator "
+                f"keeps some of each volt), got {self.loop_fraction}"
+            )
+
+
 Effect = (
     SensorDelay
     | ChargeAmpHighpass
@@ -216,6 +247,7 @@ Effect = (
     | StrainTransferLoss
     | Collision
     | WingDamage
+    | ActuatorHysteresis
 )
 # The effects of one sensor chain (a `channel` parameter): each chain may hold its own value.
 SensorEffect = SensorDelay | ChargeAmpHighpass | StrainTransferLoss
@@ -282,6 +314,8 @@ class EffectEntry:
     separable : its signature differs from every change of the fitted plant parameters.
     note : why it is (not) separable.
     draw : the generator's range for each parameter (in draw order).
+    own_family : the hidden-effect generator draws it in a benchmark family of its own, not
+        among the single-effect and pair robots (whose draws stay those of the effects before).
     """
 
     name: str
@@ -295,6 +329,7 @@ class EffectEntry:
     trades_off: tuple[str, ...] = ()
     separable: bool = True
     note: str = ""
+    own_family: bool = False
 
     @property
     def per_sensor(self) -> bool:
@@ -463,6 +498,27 @@ EFFECTS: tuple[EffectEntry, ...] = (
         "are fitted "
         "plant "
         "parameters",
+    ),
+    EffectEntry(
+        "actuator_hysteresis",
+        ActuatorHysteresis,
+        ("hysteresis_fraction", "hysteresis_saturation_v"),
+        lambda e, c: {
+            "hysteresis_fraction": e.loop_fraction,
+            "hysteresis_saturation_v": e.saturation_v,
+        },
+        MEASURED_CHANNELS,
+        TRUTH_CHANNELS,
+        (
+            FitParam("loop_fraction", 0.0, 0.0, 0.95, (0.1, 0.3, 0.6), 1e-4),
+            FitParam("saturation_v", 10.0, 0.5, 200.0, (), 1e-3, log=True),
+        ),
+        (
+            DrawRange("loop_fraction", 0.2, 0.5),
+            DrawRange("saturation_v", 5.0, 15.0),
+        ),
+        trades_off=_STROKE_PLANT,
+        own_family=True,
     ),
 )
 ENTRIES: dict[str, EffectEntry] = {e.name: e for e in EFFECTS}

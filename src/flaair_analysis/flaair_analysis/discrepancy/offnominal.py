@@ -33,6 +33,7 @@ __all__ = [
     "EFFECT_NAMES_ORDER",
     "FAMILIES",
     "FREQUENCY_SPREAD",
+    "OWN_FAMILY_EFFECTS",
     "DiscoverKind",
     "effective_plant",
     "random_effect",
@@ -46,6 +47,7 @@ FAMILIES = (
     "offnominal_pair",
     "offnominal_outside",
     "offnominal_discover",
+    "offnominal_own",
 )
 
 
@@ -188,7 +190,9 @@ _COEFFICIENTS = (
     "inertial_coupling_kg_m2",
     "aero_coupling_nm_s2",
 )
-_SEPARABLE = tuple(e.name for e in EFFECTS if e.separable)
+_SEPARABLE = tuple(e.name for e in EFFECTS if e.separable and not e.own_family)
+# Effects drawn in a family of their own (`offnominal_own`), in table order.
+OWN_FAMILY_EFFECTS = tuple(e.name for e in EFFECTS if e.own_family)
 
 
 def random_effect(name: str, rng: np.random.Generator) -> dict[str, Any]:
@@ -221,7 +225,9 @@ def random_robot(family: str, draw: int) -> DatasetCase:
     since a plant change reproduces it), ``offnominal_pair`` (two separable effects),
     ``offnominal_outside`` (physics outside the vocabulary: a drifting pitch-sensor gain or a
     second stroke resonance), ``offnominal_discover`` (physics outside the vocabulary that the
-    term library expresses: each of `DISCOVER_KINDS` in turn, random strength).
+    term library expresses: each of `DISCOVER_KINDS` in turn, random strength),
+    ``offnominal_own`` (each effect drawn in a family of its own, `OWN_FAMILY_EFFECTS`, in
+    turn: the actuator's hysteresis).
     """
     if family not in FAMILIES:
         raise KeyError(f"unknown family {family!r} (known: {', '.join(FAMILIES)})")
@@ -243,6 +249,9 @@ def random_robot(family: str, draw: int) -> DatasetCase:
         name = names[draw % len(names)]
         pair = (name, random_effect(name, rng))
         hidden, effects = ((pair,), ()) if name == "wing_damage" else ((), (pair,))
+    elif family == "offnominal_own":
+        name = OWN_FAMILY_EFFECTS[draw % len(OWN_FAMILY_EFFECTS)]
+        effects = ((name, random_effect(name, rng)),)
     elif family == "offnominal_pair":
         a, b = rng.choice(len(_SEPARABLE), size=2, replace=False)
         effects = tuple((n, random_effect(n, rng)) for n in (_SEPARABLE[a], _SEPARABLE[b]))
@@ -259,6 +268,7 @@ def random_robot(family: str, draw: int) -> DatasetCase:
         "offnominal_pair": "pair",
         "offnominal_outside": "outside",
         "offnominal_discover": "discover",
+        "offnominal_own": "single",
     }[family]
     return DatasetCase(
         f"{family}_{draw:03d}",

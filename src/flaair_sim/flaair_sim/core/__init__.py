@@ -7,6 +7,7 @@
 - ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
 - ``sensor_kernel``: the sensor chain's kernel (high-pass, delay)
+- ``hysteresis_kernel``: the actuator's hysteresis (a Bouc-Wen operator on the drive)
 - ``measured_run``: a simulated run in the measured-run CSV's columns
 - ``damage``: the robot damaged mid-run (inertia, stiffness, a film's gain from a time on)
 - ``actuator``: which drive block the plant steps next, and when (drive watchdog, ring-down)
@@ -21,6 +22,7 @@ __all__ = [
     "describing",
     "drive",
     "drive_pacing",
+    "hysteresis_kernel",
     "measured_run",
     "plant",
     "plant_kernel",

@@ -15,7 +15,8 @@ results are deterministic: block stepping, whole records and batches agree bit f
 
 Sample convention: output sample k is the state at t_k = k / fs (so sample 0 is the rest
 state); drive sample k is then held over [t_k, t_k+1). Feedthrough adds gain * drive[k] to
-sensor sample k.
+sensor sample k. With the actuator's hysteresis (an effect), the actuator sees drive[k] less
+its hysteretic voltage, taken exactly at each sample's jump (`hysteresis_kernel`).
 
 Sensor chain per channel, in order: transduction (nominal gain from pvdf.py, with
 transmission_nonlinearity on the stroke sensor and strain_transfer_loss scaling the
@@ -85,6 +86,8 @@ class PlantState:
     fs_hz : sample rate the state belongs to.
     sample_index : number of samples simulated so far.
     terms : state of the model's drive and sensor terms (`plant_terms.terms_state`; None: rest).
+    actuator : (2,) [hysteretic voltage V, last drive sample V] of the actuator's hysteresis
+        (None: rest).
     """
 
     mechanical: np.ndarray
@@ -94,6 +97,7 @@ class PlantState:
     fs_hz: float
     sample_index: int = 0
     terms: np.ndarray | None = None
+    actuator: np.ndarray | None = None
 
 
 def n_substeps(model: Model, fs_hz: float) -> tuple[int, int]:
@@ -172,6 +176,7 @@ def initial_state(params: PlantStepParams) -> PlantState:
     return PlantState(
         mechanical=_frozen(np.zeros(4)),
         highpass_zi=_frozen(np.zeros(2)),
+        actuator=_frozen(np.zeros(2)),
         delay_stroke_v=_frozen(np.zeros(len_s)),
         delay_pitch_v=_frozen(np.zeros(len_p)),
         fs_hz=fs,
@@ -228,6 +233,7 @@ def step(
     seen = drive_seen(model, fs, drive, state.sample_index, terms)
     len_s, len_p = prep.delay_lengths
     x = state.mechanical.copy()
+    actuator = np.zeros(2) if state.actuator is None else state.actuator.copy()
     zi = state.highpass_zi.copy()
     hist_s = _fit_history(state.delay_stroke_v, len_s)
     hist_p = _fit_history(state.delay_pitch_v, len_p)
@@ -235,6 +241,7 @@ def step(
     phi, psi, vs, vp = (np.empty(n) for _ in range(4))
     run_model(
         x,
+        actuator,
         zi,
         hist_s,
         hist_p,
@@ -271,6 +278,7 @@ def step(
         fs_hz=fs,
         sample_index=state.sample_index + n,
         terms=_frozen(terms),
+        actuator=_frozen(actuator),
     )
     return new_state, SimOutput(phi, psi, vs, vp)
 
@@ -376,6 +384,7 @@ def simulate_batch(
     if m == 1:  # skip the thread pool
         run_model(
             np.zeros(4),
+            np.zeros(2),
             np.zeros(2),
             np.zeros(hist_len[0, 0]),
             np.zeros(hist_len[0, 1]),

@@ -14,6 +14,7 @@ from numba import njit, prange
 
 from flaair_sim.core import plant_params as pp
 from flaair_sim.core.plant_params import N_CONSTANTS
+from flaair_sim.core.hysteresis_kernel import hysteretic_voltage
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
 from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
 
@@ -209,6 +210,7 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
 @njit(cache=True)
 def run_model(
     x,
+    actuator,
     zi,
     hist_s,
     hist_p,
@@ -224,8 +226,24 @@ def run_model(
     vs_out,
     vp_out,
 ):
-    """Simulate one model over `drive`; x, zi, hist_s, hist_p are updated in place."""
-    _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+    """Simulate one model over `drive`; x, actuator, zi, hist_s, hist_p are updated in place.
+
+    `actuator` is [the hysteretic voltage, the last drive sample]: with the actuator's
+    hysteresis on, the mechanics see the drive less that voltage; the feedthrough sees the drive.
+    """
+    fraction = p[pp.P_HYST_FRAC]
+    if fraction > 0.0:
+        lag = np.empty(drive.shape[0])
+        hysteretic_voltage(drive, fraction, p[pp.P_HYST_SAT], actuator, lag)
+        _mechanics(x, drive - lag, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+        feed = p[pp.P_FT]
+        if feed != 0.0:
+            for k in range(drive.shape[0]):
+                vs_out[k] += feed * lag[k]
+    else:
+        _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+        if drive.shape[0] > 0:
+            actuator[1] = drive[drive.shape[0] - 1]
     zi[0] = sensor_channel_kernel(
         vs_out,
         p[pp.P_HPS_ON],
@@ -254,18 +272,20 @@ def run_model(
 
 @njit(cache=True, parallel=True)
 def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, vs_out, vp_out):
-    """Each model from its own mechanical state x0[i] (zeros: from rest; the sensor chain at rest)
-    over a shared (1, n) or per-model (m, n) drive.
+    """Each model from its own mechanical state x0[i] (zeros: from rest; the actuator and the
+    sensor chain at rest) over a shared (1, n) or per-model (m, n) drive.
     """
     shared = drive.shape[0] == 1
     for i in prange(params.shape[0]):
         row = np.int64(0) if shared else np.int64(i)
         x = x0[i].copy()
+        actuator = np.zeros(2)
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
         run_model(
             x,
+            actuator,
             zi,
             hist_s,
             hist_p,

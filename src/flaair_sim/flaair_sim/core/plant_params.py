@@ -71,6 +71,8 @@ __all__ = [
     "P_HPS_B0",
     "P_HPS_B1",
     "P_HPS_ON",
+    "P_HYST_FRAC",
+    "P_HYST_SAT",
     "P_I",
     "P_IP",
     "P_JC",
@@ -137,6 +139,8 @@ KERNEL_LAYOUT: tuple[KernelSlot, ...] = (
     KernelSlot("GP", "gain_factor", 1, ""),  # pitch sensor, V/rad
     KernelSlot("TCUBIC", "transmission_cubic_per_rad2", None, ""),
     KernelSlot("FT", "feedthrough_v_per_v", None, ""),
+    KernelSlot("HYST_FRAC", "hysteresis_fraction", None, ""),  # actuator hysteresis: 0 off
+    KernelSlot("HYST_SAT", "hysteresis_saturation_v", None, ""),  # its saturation, V
     KernelSlot("VREF", None, None, ""),  # charge amplifiers' reference, V
     KernelSlot("HPS_ON", None, None, ""),  # stroke chain's high-pass on (1.0)
     KernelSlot("HPS_B0", "highpass_b0", 0, ""),
@@ -163,6 +167,7 @@ P_CSTRUCT, P_HCUBIC, P_CONTACT_ON, P_PHI_LIM, P_KC, P_CC = _at(
     "CSTRUCT HCUBIC CONTACT_ON PHI_LIM KC CC", _INDEX
 )
 P_GS, P_GP, P_TCUBIC, P_FT, P_VREF = _at("GS GP TCUBIC FT VREF", _INDEX)
+P_HYST_FRAC, P_HYST_SAT = _at("HYST_FRAC HYST_SAT", _INDEX)
 P_HPS_ON, P_HPS_B0, P_HPS_B1, P_HPS_A1 = _at("HPS_ON HPS_B0 HPS_B1 HPS_A1", _INDEX)
 P_HPP_ON, P_HPP_B0, P_HPP_B1, P_HPP_A1 = _at("HPP_ON HPP_B0 HPP_B1 HPP_A1", _INDEX)
 (P_DS_FRAC, P_DP_FRAC, P_NTERMS) = _at("DS_FRAC DP_FRAC NTERMS", _INDEX)
