@@ -9,7 +9,7 @@ Two modes, the same parts and the same figures:
 - `make bench` (default): the discrepancy benchmark on its fixed subset of robots and
   hidden-effect cases (bench_discrepancy --subset: a few per family and kind, each count
   marked "subset"); at most `BENCH_BUDGET_S` of wall time on the 2-core machine;
-- `make bench-full` (--full): every family, every draw, all 45 hidden-effect cases.
+- `make bench-full` (--full): every family, every draw, all 46 hidden-effect cases.
 Each part prints its wall time beside its budget in that mode (`PARTS`, declared once) and says
 when it ran over; the run ends with its total time and "N of M comparisons met" (an `info`
 figure is printed, never counted).
@@ -73,7 +73,7 @@ PARTS = (
     Part("bench_recorder", 45, 55),
     Part("bench_closed_loop", 64, 90),  # 5 loops of 2 s and 2 composed of 4 s: 55-71 s
     # make bench: the fixed subset of robots and cases, two at once, one numba thread per worker:
-    # 229-238 s; make bench-full every family and draw, all 45 cases
+    # 229-238 s; make bench-full every family and draw, all 46 cases
     Part("bench_discrepancy", 250, 3600, ("--subset", "--sweep"), ("--sweep",)),
     Part("bench_stroke", 10, 20),  # 8-9 s
     Part("bench_sweep", 20, 40),  # 11-21 s

@@ -89,11 +89,17 @@ if [ "$FORCE" = "--force" ] || [ "$(cat install/.flaair-build-stamp 2>/dev/null)
 fi
 # --- 3. numba cache ---------------------------------------------------------------------
 # Compile the kernels once, so that no node pays 10-20 s of compilation at its first block.
+# numba checks a cached kernel against its own source file only: the layout constants a kernel
+# reads from another module (plant_params' indices, the effect and term tables) are frozen into
+# the cache. So the stamp covers those modules too, and a change clears every cached kernel.
 numba_sources=$(find src -path "*/build" -prune -o -name "*.py" -print | xargs grep -l "njit" | sort)
+layout_sources="src/flaair_sim/flaair_sim/core/plant_params.py src/flaair_model/flaair_model/effects.py src/flaair_model/flaair_model/terms.py src/flaair_model/flaair_model/term_forms.py"
 # shellcheck disable=SC2086
-numba_hash="$(hash_of $numba_sources scripts/warm_numba.py)"
+numba_hash="$(hash_of $numba_sources $layout_sources scripts/warm_numba.py)"
 if [ "$(cat install/.flaair-numba-stamp 2>/dev/null)" != "$numba_hash" ]; then
   say "compiling numba kernels (once)"
+  find src build -name __pycache__ -type d -prune -exec sh -c \
+    'rm -f "$1"/*.nbi "$1"/*.nbc' _ {} \; 2>/dev/null || true
   (
     set +u
     # shellcheck disable=SC1091
