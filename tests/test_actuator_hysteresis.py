@@ -65,7 +65,8 @@ def test_after_a_reversal_the_lag_falls_at_the_loop_fraction_until_zero() -> Non
 def test_the_operator_equals_the_textbook_bouc_wen_ode_integrated_by_scipy() -> None:
     """dh/dt = alpha v' - beta |v'| h - gamma v' |h| along the drive's samples joined by straight
     lines (the path the kernel takes between samples), by an adaptive integrator segment by
-    segment: the kernel's exact jumps agree at every sample, across each reversal."""
+    segment: the kernel's exact jumps agree at every sample, across each reversal.
+    """
     t = np.arange(int(0.012 * FS_HZ)) / FS_HZ
     v = 80.0 * np.sin(2 * np.pi * 100.0 * t) + 30.0 * np.sin(2 * np.pi * 270.0 * t)
     h, ode = 0.0, [0.0]
@@ -84,7 +85,8 @@ def test_the_operator_equals_the_textbook_bouc_wen_ode_integrated_by_scipy() -> 
 
 def test_the_plant_sees_the_drive_less_the_lag_quasi_statically(nominal) -> None:
     """A 2 Hz drive, far below resonance: the stroke is G_a / K (V - h), so the loop's width at
-    zero drive is G_a / K times the closed form's lag there, up and down."""
+    zero drive is G_a / K times the closed form's lag there, up and down.
+    """
     model = _hysteretic(nominal)
     t = np.arange(int(1.0 * FS_HZ)) / FS_HZ
     drive = 60.0 * np.sin(2 * np.pi * 2.0 * t)

@@ -110,7 +110,7 @@ def test_the_subset_is_drawn_by_its_seed_from_every_family() -> None:
     all_cases = tuple(c.name for c in dataset_cases())
     own = tuple(c.name for c in dataset_cases() if "actuator_hysteresis" in c.effect_names)
     assert own == ("hysteresis_0p3_10v",) and len(bd.SWEEP_POOL) == 45
-    assert bd.SWEEP_POOL == tuple(c for c in all_cases if c not in own)
+    assert tuple(c for c in all_cases if c not in own) == bd.SWEEP_POOL
     assert bd.draw_sweep_subset(bd.SWEEP_POOL, bd.SUBSET_SEED) == bd.SWEEP_SUBSET
     assert len(bd.SWEEP_SUBSET) == bd.SWEEP_SUBSET_SIZE and set(bd.SWEEP_SUBSET) <= set(all_cases)
     assert bd.draw_subset(bd.SUBSET_SEED + 1) != bd.SUBSET

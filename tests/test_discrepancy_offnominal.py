@@ -81,7 +81,8 @@ def test_off_nominal_robot_names_its_effects_on_top_of_its_own_plant(
 def test_a_hysteretic_actuator_is_named_with_its_loop_and_standard_errors(model) -> None:
     """The Bouc-Wen operator on the drive, drawn in its own family (loop fraction 0.40, saturation
     7.3 V: a loop of about 15 % of the stroke at 100 V): named, each parameter within 10 % and
-    several standard errors from the null, the robot explained."""
+    several standard errors from the null, the robot explained.
+    """
     case = random_robot("offnominal_own", 0)
     result = analyse(make_runs(case, model), model, discrepancy_settings())
     assert result.status == "explained", result.summary

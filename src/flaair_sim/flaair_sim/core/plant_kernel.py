@@ -13,8 +13,8 @@ import numpy as np
 from numba import njit, prange
 
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_params import N_CONSTANTS
 from flaair_sim.core.hysteresis_kernel import hysteretic_voltage
+from flaair_sim.core.plant_params import N_CONSTANTS
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
 from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
 
