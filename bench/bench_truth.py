@@ -19,14 +19,17 @@ Kinds (`KINDS`), each drawn at a random strength:
   drifting in time (no time factor at a dynamics site), the hinge film reading the pitch through
   a first-order lag (a state the model does not have). Right: `unexplained` with nothing named
   (a term that approximates it is allowed, and counted beside it).
+- in the vocabulary: a hysteretic piezo (the textbook Bouc-Wen operator on the drive, its loop
+  5-15 V wide). Right: `explained`, `actuator_hysteresis` named with its loop fraction and
+  saturation each within 10 % of the truth's, nothing discovered.
 - none: the nominal physics on the off-nominal plant. Right: `no_discrepancy`, nothing named or
   discovered.
 
 Figures (each target printed is the one enforced): inside the grammar exactly right >= 80 %;
-outside it unexplained with nothing named >= 90 %; false discoveries and names on the robots
-without added physics 0; time per robot <= 120 s (the truth's simulation not counted: a lab's
-runs are measured). --subset (`make bench`) runs one robot of each kind (draw 0); the default
-runs --draws of each.
+outside it unexplained with nothing named >= 90 %; hysteretic actuators right >= 80 %; false
+discoveries and names on the robots without added physics 0; time per robot <= 120 s (the
+truth's simulation not counted: a lab's runs are measured). --subset (`make bench`) runs one
+robot of each kind (draw 0); the default runs --draws of each.
 """
 
 from __future__ import annotations
@@ -62,7 +65,8 @@ SENSOR_NOISE_V = 0.002  # the lab's amplifier noise, each chain
 TRACKING_NOISE_DEG = 0.3  # the lab's video tracking noise
 FREQUENCY_SPREAD, OTHER_SPREAD = 0.03, 0.15
 SEED = 4901
-INSIDE_TARGET, OUTSIDE_TARGET = 80.0, 90.0
+INSIDE_TARGET, OUTSIDE_TARGET, HYSTERESIS_TARGET = 80.0, 90.0, 80.0
+PARAMETER_TOLERANCE = 0.10
 TIME_TARGET_S = 120.0
 
 
@@ -73,7 +77,8 @@ class Kind:
     Attributes
     ----------
     name : the kind's name in the figures.
-    group : "inside" (the grammar has its form), "outside" or "none".
+    group : "inside" (the grammar has its form), "outside", "vocabulary" (an effect names it) or
+        "none".
     draw : rng, the off-nominal robot -> the robot with the kind's physics.
     term : the right answer's discovered term ("kind@site"), inside the grammar only.
     """
@@ -128,8 +133,33 @@ KINDS: tuple[Kind, ...] = (
         "outside",
         lambda g, r: replace(r, film_lag_s=float(g.uniform(150e-6, 400e-6))),
     ),
+    Kind("hysteretic_actuator", "vocabulary", lambda g, r: _hysteretic(g, r)),
     Kind("none", "none", lambda g, r: r),
 )
+HYSTERESIS = "actuator_hysteresis"
+
+
+def _hysteretic(rng: np.random.Generator, robot: truth.Robot) -> truth.Robot:
+    """A Bouc-Wen loop: alpha 0.2-0.5, gamma = beta, saturating at alpha / (beta + gamma) =
+    5-15 V.
+    """
+    alpha, saturation_v = float(rng.uniform(0.2, 0.5)), float(rng.uniform(5.0, 15.0))
+    beta = alpha / (2.0 * saturation_v)
+    return replace(
+        robot,
+        hysteresis_alpha=alpha,
+        hysteresis_beta_per_v=beta,
+        hysteresis_gamma_per_v=beta,
+    )
+
+
+def hysteresis_truth(robot: truth.Robot) -> dict[str, float]:
+    """The truth's loop in the effect's parameters: alpha, and the bound alpha / (beta + gamma)."""
+    return {
+        "loop_fraction": robot.hysteresis_alpha,
+        "saturation_v": robot.hysteresis_alpha
+        / (robot.hysteresis_beta_per_v + robot.hysteresis_gamma_per_v),
+    }
 
 
 def off_nominal(rng: np.random.Generator) -> truth.Robot:
@@ -182,10 +212,25 @@ def _model():  # type: ignore[no-untyped-def]
     return load_model()
 
 
-def right(kind: Kind, status: str, names: list[str], terms: list[str]) -> bool:
-    """The kind's rule (module docstring)."""
+def right(
+    kind: Kind,
+    status: str,
+    names: list[str],
+    terms: list[str],
+    parameter_errors: dict[str, float] | None = None,
+) -> bool:
+    """The kind's rule (module docstring); `parameter_errors`: a named effect's relative errors."""
     if kind.group == "outside":
         return status == "unexplained" and not names
+    if kind.group == "vocabulary":
+        errors = parameter_errors or {}
+        return (
+            status == "explained"
+            and names == [HYSTERESIS]
+            and not terms
+            and bool(errors)
+            and all(e <= PARAMETER_TOLERANCE for e in errors.values())
+        )
     score = score_exact(
         status=status,
         names=names,
@@ -208,6 +253,14 @@ def analyse_robot(kind_name: str, draw: int) -> dict[str, Any]:
     elapsed = time.perf_counter() - t1
     names = sorted(e.name for e in result.effects)
     terms = sorted(term_label(d.term.kind, d.term.acts_on) for d in result.discovered)
+    errors = {}
+    if kind.group == "vocabulary":
+        found = {e.name: e.parameters for e in result.effects}.get(HYSTERESIS, {})
+        errors = {
+            key: abs(float(found[key]) / value - 1.0)
+            for key, value in hysteresis_truth(robot).items()
+            if key in found
+        }
     return {
         "kind": kind.name,
         "group": kind.group,
@@ -215,7 +268,8 @@ def analyse_robot(kind_name: str, draw: int) -> dict[str, Any]:
         "status": result.status,
         "names": names,
         "terms": terms,
-        "right": right(kind, result.status, names, terms),
+        "right": right(kind, result.status, names, terms, errors),
+        "parameter_errors": errors,
         "truth_s": t1 - t0,
         "elapsed_s": elapsed,
     }
@@ -257,6 +311,25 @@ def build_figures(outcomes: list[dict[str, Any]], subset: bool) -> list[Figure]:
                 ">=",
                 target,
                 "wrong " + "; ".join(wrong) if wrong else "none wrong",
+            )
+        )
+    hysteretic = [o for o in outcomes if o["group"] == "vocabulary"]
+    if hysteretic:
+        n_right = sum(o["right"] for o in hysteretic)
+        worst = max(
+            (e for o in hysteretic for e in o["parameter_errors"].values()), default=math.nan
+        )
+        wrong = [_outcome_text(o) for o in hysteretic if not o["right"]]
+        figures.append(
+            compare(
+                f"independent truth, hysteretic actuators: {HYSTERESIS} named, parameters within "
+                f"10 %, explained ({n_right}/{len(hysteretic)} robots{mark})",
+                100.0 * n_right / len(hysteretic),
+                "%",
+                ">=",
+                HYSTERESIS_TARGET,
+                f"worst parameter {100 * worst:.1f} % off; "
+                + ("wrong " + "; ".join(wrong) if wrong else "none wrong"),
             )
         )
     plain = [o for o in outcomes if o["group"] == "none"]

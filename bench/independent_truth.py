@@ -14,6 +14,11 @@ here in this module's own terms:
 - `hinge_drag_nm_s2`: a quadratic drag on the pitch, -d psi' |psi'|;
 - `crosstalk`: the pitch amplifier picking up that fraction of the stroke amplifier's output;
 - `drive_leak_v_per_v`: the drive leaking into the pitch amplifier's output.
+In the vocabulary:
+- `hysteresis_alpha`, `hysteresis_beta_per_v`, `hysteresis_gamma_per_v`: the piezo's hysteresis,
+  the textbook Bouc-Wen operator (n = 1) on the drive, dh/dt = alpha V' - beta |V'| h -
+  gamma V' |h|, the actuator's torque G_a (V - h); each jump of the held drive integrated by
+  DOP853 in the drive's own variable (the law is rate-independent).
 Outside the grammar or the model:
 - `stop_rad`, `stop_stiffness_nm_per_rad`: a one-sided stop on the stroke (contact as an event);
 - `quartic_nm_per_rad4`: a torque of degree four in the stroke angle (the grammar stops at three);
@@ -32,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import ode, solve_ivp
 
-__all__ = ["EPSILON_0", "Robot", "film_charge_per_m", "simulate"]
+__all__ = ["EPSILON_0", "Robot", "film_charge_per_m", "hysteretic_voltage", "simulate"]
 
 EPSILON_0 = 8.854187817e-12  # F/m
 _RTOL, _ATOL = 1e-10, 1e-14
@@ -79,6 +84,9 @@ class Robot:
     hinge_drag_nm_s2: float = 0.0
     crosstalk: float = 0.0
     drive_leak_v_per_v: float = 0.0
+    hysteresis_alpha: float = 0.0
+    hysteresis_beta_per_v: float = 0.0
+    hysteresis_gamma_per_v: float = 0.0
 
     @property
     def stroke_stiffness(self) -> float:
@@ -151,6 +159,33 @@ def _step(robot: Robot, y: np.ndarray, t0: float, t1: float, volts: float) -> np
         t0 = t_event
 
 
+def _bouc_wen_rate(s: float, h: np.ndarray, robot: Robot, direction: float) -> list[float]:
+    """dh/ds along a jump of the drive, s = |V - V_before| (V = V_before + direction s)."""
+    return [
+        direction * robot.hysteresis_alpha
+        - robot.hysteresis_beta_per_v * h[0]
+        - direction * robot.hysteresis_gamma_per_v * abs(h[0])
+    ]
+
+
+def hysteretic_voltage(robot: Robot, drive_v: np.ndarray) -> np.ndarray:
+    """H after each sample's jump of the held drive, from rest (V)."""
+    drive = np.asarray(drive_v, dtype=float)
+    out = np.zeros(drive.size)
+    if robot.hysteresis_alpha == 0.0:
+        return out
+    solver = ode(_bouc_wen_rate).set_integrator("dop853", rtol=_RTOL, atol=1e-12, nsteps=10_000)
+    h, before = 0.0, 0.0
+    for k, volts in enumerate(drive):
+        jump = float(volts) - before
+        if jump != 0.0:
+            solver.set_initial_value([h], 0.0).set_f_params(robot, math.copysign(1.0, jump))
+            h = float(solver.integrate(abs(jump))[0])
+        out[k] = h
+        before = float(volts)
+    return out
+
+
 def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.ndarray]:
     """Noise-free measured-run columns of `robot` driven by `drive_v` (held per sample) from
     rest: sample k is the state at k / fs, the drive of sample k acting over [k, k + 1) / fs.
@@ -162,6 +197,7 @@ def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.nd
     """
     drive = np.asarray(drive_v, dtype=float)
     n = drive.size
+    acting = drive - hysteretic_voltage(robot, drive)  # what the actuator turns into torque
     states = np.zeros((n, 5))
     y = np.zeros(5)
     has_stop = robot.stop_rad is not None and robot.stop_stiffness_nm_per_rad > 0.0
@@ -174,12 +210,12 @@ def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.nd
             break
         t0, t1 = k / fs_hz, (k + 1) / fs_hz
         if has_stop:
-            y = _step(robot, y, t0, t1, float(drive[k]))
+            y = _step(robot, y, t0, t1, float(acting[k]))
             continue
-        solver.set_initial_value(y, t0).set_f_params(robot, float(drive[k]), False)
+        solver.set_initial_value(y, t0).set_f_params(robot, float(acting[k]), False)
         y_next = solver.integrate(t1)
         # DOP853's stiffness test may stop a hard-driven sample: solve_ivp has none
-        y = y_next if solver.successful() else _step(robot, y, t0, t1, float(drive[k]))
+        y = y_next if solver.successful() else _step(robot, y, t0, t1, float(acting[k]))
     phi, psi, seen = states[:, 0], states[:, 2], states[:, 4]
     stroke_q = -robot.stroke_film_c_per_m * phi / robot.transmission_rad_per_m
     pitch_q = -robot.pitch_film_c_per_m * seen * robot.hinge_length_m / 2.0
