@@ -68,7 +68,8 @@ from benchlib import (
     write_json,
 )
 from flaair_analysis.discrepancy import analyse
-from flaair_analysis.discrepancy.datasets import dataset_cases, make_runs
+from flaair_analysis.discrepancy.datasets import dataset_cases, make_run, make_runs
+from flaair_analysis.discrepancy.discovery_uncertainty import suggested_drive
 from flaair_analysis.discrepancy.offnominal import (
     COMPOSED_DISCOVER_KINDS,
     DISCOVER_KINDS,
@@ -95,6 +96,11 @@ DISCOVER_EXPLAINED_TARGET = 0.80
 DISCOVER_TIME_S = 120.0
 # The hysteretic actuators (offnominal_own): named, parameters within 10 %, explained.
 OWN_TARGET = 0.80
+# A discovery robot whose runs leave a term's form tied with the next best: the run the report
+# suggests, this long, simulated on the same truth and added; it should separate the two in most
+# such robots (more than half).
+SEPARATING_RUN_S = 0.5
+SEPARATED_TARGET = 0.5
 FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
 
 # The subset `make bench` runs: drawn by a fixed seed from every family's full draws (the same
@@ -236,6 +242,8 @@ def analyse_robot(family: str, draw: int, baseline: bool) -> tuple[dict, dict | 
     result = analyse(runs, model, discrepancy_settings())
     elapsed = time.perf_counter() - t0
     outcome = judge(case, result, model) | {"elapsed_s": elapsed}
+    if family == "offnominal_discover":
+        outcome |= separated_by_suggestion(case, runs, result, model)
     base = None
     if baseline:
         old = analyse(runs, model, replace(discrepancy_settings(), identify=False))
@@ -256,6 +264,34 @@ def analyse_case(name: str):
     t0 = time.perf_counter()
     result = analyse(runs, model, discrepancy_settings())
     return score_case(case, result, time.perf_counter() - t0)
+
+
+def separated_by_suggestion(case, runs, result, model) -> dict:
+    """Where the runs leave a discovered term's form tied with the next best of its step: the run
+    the report suggests, simulated on the same truth and added, and whether the forms are then
+    told apart (every discovered term distinguishable) and the answer exactly right.
+    """
+    tied = [d for d in result.discovered if d.uncertainty.get("distinguishable") is False]
+    if not tied:
+        return {"ambiguous": False}
+    suggestion = tied[0].uncertainty["suggested_experiment"]
+    drive = suggested_drive(
+        suggestion["drive_amplitude_v"], suggestion["frequency_hz"], runs[0].fs_hz, SEPARATING_RUN_S
+    )
+    extra = make_run(case, model, "suggested_sine", drive, seed=case.seed + 7919)
+    again = analyse((*runs, extra), model, discrepancy_settings())
+    told_apart = bool(again.discovered) and all(
+        d.uncertainty.get("distinguishable") is not False for d in again.discovered
+    )
+    return {
+        "ambiguous": True,
+        "tied_with": (tied[0].uncertainty.get("next_best") or {}).get("term", ""),
+        "suggested": (
+            f"{suggestion['drive_amplitude_v']:.0f} V at {suggestion['frequency_hz']:.0f} Hz"
+        ),
+        "separated": told_apart,
+        "exact_after": score_result(case, again).right,
+    }
 
 
 def select_jobs(
@@ -421,7 +457,32 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
         for o, a in zip(discover, among, strict=True)
         if a and not o["exact"]
     )[:200]
+    tied = [o for o in discover if o.get("ambiguous")]
+    n_sep = sum(o["separated"] for o in tied)
+    label = (
+        f"discovery: tied forms told apart by the suggested run "
+        f"{_count(n_sep, len(tied), subset, 'tied robots')}"
+    )
+    detail = "; ".join(
+        f"{o['case'][-3:]}: {o['true_terms'][0]} vs {o['tied_with']}, {o['suggested']}, "
+        f"{'told apart' if o['separated'] else 'still tied'}"
+        f"{', exactly right' if o['exact_after'] else ''}"
+        for o in tied
+    )[:300]
+    separated = (
+        compare(
+            label,
+            100 * share([o["separated"] for o in tied]),
+            "%",
+            ">=",
+            100 * SEPARATED_TARGET,
+            detail,
+        )
+        if tied
+        else info(label, math.nan, "%", "no robot of this run left two forms tied")
+    )
     return [
+        separated,
         info(
             f"discovery: right acts_on and form among others "
             f"{_count(sum(among), n, subset, f'robots, {len(kinds)} kinds')}",

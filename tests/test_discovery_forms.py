@@ -158,6 +158,28 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     assert same["rms_difference"] == 0.0
 
 
+def test_the_suggested_run_is_the_suggested_sine_measured_on_the_same_robot(model) -> None:
+    """The sine a suggestion names, as a run of the case's robot: ramped as the suggestion
+    simulated it, then the amplitude asked; a run made with the first standard drive and the
+    case's seed is the standard set's first run, sample for sample (video gaps included)."""
+    from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
+    from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
+    from flaair_analysis.discrepancy.offnominal import random_robot
+
+    drive = suggested_drive(60.0, 150.0, 20_000.0, 0.5)
+    assert drive.shape == (10_000,) and np.max(np.abs(drive)) == pytest.approx(60.0, rel=1e-3)
+    assert np.max(np.abs(drive[: round(0.25 * SETTLE_S * 20_000.0)])) < 31.0  # still ramping
+    case = random_robot("offnominal_discover", 1)
+    assert case.video_every == 10
+    name, first = run_set_drives()[0]
+    run = make_run(case, model, name, first, seed=case.seed)
+    standard = make_runs(case, model)[0]
+    for column in ("drive_v", "stroke_sensor_v", "pitch_sensor_v", "stroke_deg", "pitch_deg"):
+        np.testing.assert_array_equal(getattr(run, column), getattr(standard, column))
+    with pytest.raises(ValueError, match="second_resonance"):
+        make_run(random_robot("offnominal_outside", 1), model, "x", drive, seed=1)
+
+
 def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
     """A locked hinge (psi = dpsi = 0) makes every pitch form zero; a stroke rate that never
     changes sign makes sign(dphi) constant; the same forms on a full motion are not degenerate.

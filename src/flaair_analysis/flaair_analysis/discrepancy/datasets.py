@@ -67,6 +67,7 @@ __all__ = [
     "FULL_DRIVE_V",
     "OUTSIDE_KINDS",
     "dataset_cases",
+    "make_run",
     "make_runs",
     "run_set_drives",
     "true_model",
@@ -161,22 +162,44 @@ def make_runs(case: DatasetCase, model: Model, fs_hz: float = FS_HZ) -> tuple[Ru
                 cols["stroke_sensor_v"] + math.radians(1.0) * model.stroke_volts_per_rad * extra
             )
         t0 += n
-        if case.video_every > 1:
-            lost = np.arange(n) % case.video_every != 0
-            cols["stroke_deg"] = np.where(lost, np.nan, cols["stroke_deg"])
-            cols["pitch_deg"] = np.where(lost, np.nan, cols["pitch_deg"])
-        runs.append(
-            Run(
-                name=name,
-                fs_hz=fs_hz,
-                drive_v=cols["drive_v"],
-                stroke_sensor_v=cols["stroke_sensor_v"],
-                pitch_sensor_v=cols["pitch_sensor_v"],
-                stroke_deg=cols["stroke_deg"],
-                pitch_deg=cols["pitch_deg"],
-            )
-        )
+        runs.append(_as_run(case, name, fs_hz, cols))
     return tuple(runs)
+
+
+def make_run(
+    case: DatasetCase, model: Model, name: str, drive_v: np.ndarray, seed: int, fs_hz: float = FS_HZ
+) -> Run:
+    """One more measured run of the case's robot (noise from `seed`, truth at its video rate), as
+    `make_runs` makes each: an experiment beside the standard set.
+
+    Raises
+    ------
+    ValueError
+        The case's physics is outside the model (`case.outside`): the run would lack it.
+    """
+    if case.outside and case.outside != "aero_damping":
+        raise ValueError(f"case {case.name}: its {case.outside} is added to the standard runs only")
+    cols = synthesize_measured_run(
+        np.asarray(drive_v, float), fs_hz, true_model(case, model), np.random.default_rng(seed)
+    )
+    return _as_run(case, name, fs_hz, cols)
+
+
+def _as_run(case: DatasetCase, name: str, fs_hz: float, cols: dict[str, np.ndarray]) -> Run:
+    """A synthesized run's columns as a `Run`, its truth thinned to the case's video rate."""
+    if case.video_every > 1:
+        lost = np.arange(cols["drive_v"].size) % case.video_every != 0
+        cols["stroke_deg"] = np.where(lost, np.nan, cols["stroke_deg"])
+        cols["pitch_deg"] = np.where(lost, np.nan, cols["pitch_deg"])
+    return Run(
+        name=name,
+        fs_hz=fs_hz,
+        drive_v=cols["drive_v"],
+        stroke_sensor_v=cols["stroke_sensor_v"],
+        pitch_sensor_v=cols["pitch_sensor_v"],
+        stroke_deg=cols["stroke_deg"],
+        pitch_deg=cols["pitch_deg"],
+    )
 
 
 @cache

@@ -19,7 +19,15 @@ import numpy as np
 from flaair_model.model import Model
 from flaair_sim.core.plant import simulate_batch
 
-__all__ = ["LEVELS", "PARSIMONY", "SETTLE_S", "TEST_S", "form_uncertainty", "suggest_experiment"]
+__all__ = [
+    "LEVELS",
+    "PARSIMONY",
+    "SETTLE_S",
+    "TEST_S",
+    "form_uncertainty",
+    "suggest_experiment",
+    "suggested_drive",
+]
 
 # Drive levels tried, as fractions of the runs' largest drive amplitude.
 LEVELS = (0.25, 0.5, 0.75, 1.0)
@@ -37,6 +45,17 @@ def _channel(out: Any, channel: str) -> np.ndarray:
     return np.asarray(getattr(out, channel), dtype=np.float64)
 
 
+def suggested_drive(
+    amplitude_v: float, frequency_hz: float, fs_hz: float, duration_s: float
+) -> np.ndarray:
+    """The steady sine a suggestion names, as a run's drive: ramped up over half of `SETTLE_S`
+    (as `suggest_experiment` simulates it), `duration_s` long (V).
+    """
+    t = np.arange(round(duration_s * fs_hz)) / fs_hz
+    ramp = np.minimum(t / (0.5 * SETTLE_S), 1.0)
+    return amplitude_v * np.sin(2.0 * np.pi * frequency_hz * t) * ramp
+
+
 def suggest_experiment(
     models: Sequence[Model],
     channel: str,
@@ -48,13 +67,11 @@ def suggest_experiment(
     """The steady sine (level, frequency) where `models[0]` and `models[1]` differ most on
     `channel`: {drive_amplitude_v, level, frequency_hz, rms_difference, over_noise}.
     """
-    n_settle, n_test = round(SETTLE_S * fs_hz), round(TEST_S * fs_hz)
-    t = np.arange(n_settle + n_test) / fs_hz
-    ramp = np.minimum(t / (0.5 * SETTLE_S), 1.0)
+    n_settle = round(SETTLE_S * fs_hz)
     best: dict[str, Any] = {"rms_difference": -1.0}
     for level in LEVELS:
         for f in frequencies_hz:
-            drive = level * amplitude_v * np.sin(2.0 * np.pi * f * t) * ramp
+            drive = suggested_drive(level * amplitude_v, f, fs_hz, SETTLE_S + TEST_S)
             out = simulate_batch(drive, fs_hz, list(models[:2]))
             a, b = (_channel(out, channel)[k, n_settle:] for k in (0, 1))
             rms = float(np.sqrt(np.mean((a - b) ** 2)))
