@@ -161,7 +161,8 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
 def test_the_suggested_run_is_the_suggested_sine_measured_on_the_same_robot(model) -> None:
     """The sine a suggestion names, as a run of the case's robot: ramped as the suggestion
     simulated it, then the amplitude asked; a run made with the first standard drive and the
-    case's seed is the standard set's first run, sample for sample (video gaps included)."""
+    case's seed is the standard set's first run, sample for sample (video gaps included).
+    """
     from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
     from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
     from flaair_analysis.discrepancy.offnominal import random_robot
