@@ -461,7 +461,7 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
     n_sep = sum(o["separated"] for o in tied)
     label = (
         f"discovery: tied forms told apart by the suggested run "
-        f"{_count(n_sep, len(tied), subset, 'tied robots')}"
+        f"{_count(n_sep, len(tied), subset, 'robots tied that a run can tell apart')}"
     )
     detail = "; ".join(
         f"{o['case'][-3:]}: {o['true_terms'][0]} vs {o['tied_with']}, {o['suggested']}, "
@@ -479,10 +479,25 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
             detail,
         )
         if tied
-        else info(label, math.nan, "%", "no robot of this run left two forms tied")
+        else info(
+            label,
+            math.nan,
+            "%",
+            "no robot of this run left two forms tied that a run can tell apart",
+        )
+    )
+    same = [o for o in discover if o.get("equivalent")]
+    equivalent = info(
+        f"discovery: tied forms the same on every run tried "
+        f"{_count(len(same), n, subset, 'robots')}",
+        float(len(same)),
+        "robots",
+        "; ".join(f"{o['case'][-3:]}: {o['true_terms'][0]} vs {o['tied_with']}" for o in same)[:300]
+        or "none",
     )
     return [
         separated,
+        equivalent,
         info(
             f"discovery: right acts_on and form among others "
             f"{_count(sum(among), n, subset, f'robots, {len(kinds)} kinds')}",

@@ -35,6 +35,8 @@ DISCREPANCY_FIGURES = {
     "exactly right, offnominal_outside",
     "exactly right, offnominal_discover",
     "exactly right, parameters within 10 %, offnominal_own",
+    "discovery: tied forms told apart by the suggested run",
+    "discovery: tied forms the same on every run tried",
     "discovery: right acts_on and form among others",
     "robots with a term the truth lacks, every family",
     "discovery: ending explained",

@@ -26,6 +26,9 @@ def model():
         ("phi*abs(dphi)", "phi*abs(dphi)"),
         ("abs(dphi)*phi", "phi*abs(dphi)"),
         ("dphi**2*sign(dphi)", "dphi*abs(dphi)"),  # v^2 sgn v = v |v|
+        ("phi**2*sign(phi)", "phi*abs(phi)"),  # an angle's classes as a rate's
+        ("phi*sign(phi)*psi", "abs(phi)*psi"),
+        ("sign(dpsi)*abs(psi)*phi", "phi*abs(psi)*sign(dpsi)"),
         ("dphi*sign(dphi)", "abs(dphi)"),
         ("abs(dpsi)**2", "dpsi**2"),
         ("sign(dpsi)*psi**2", "psi**2*sign(dpsi)"),
@@ -39,21 +42,33 @@ def test_a_form_is_named_by_what_it_computes(expression: str, name: str) -> None
 def test_equal_forms_compute_equal_values() -> None:
     rng = np.random.default_rng(3)
     x = rng.normal(size=(4, 200))
-    for expression in ("dphi**2*sign(dphi)", "abs(dpsi)**3", "psi*dphi*sign(dphi)"):
+    for expression in (
+        "dphi**2*sign(dphi)",
+        "abs(dpsi)**3",
+        "psi*dphi*sign(dphi)",
+        "phi*abs(phi)*sign(dpsi)",
+        "abs(psi)*sign(phi)*dphi",
+    ):
         a = DiscoveredTerm(expression, "stroke_dynamics", 1.0).monomial_value(*x)
         mono = parse_form(expression)
         f = (x[0], x[1], x[2], x[3], np.sign(x[1]), np.sign(x[3]), np.abs(x[1]), np.abs(x[3]))
+        f += (np.sign(x[0]), np.sign(x[2]), np.abs(x[0]), np.abs(x[2]))
         b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
+    """Each state's seven classes (its sign, each power of it and of its abs): 28 one-state
+    forms; two states: 6 pairs x 25 class pairs of degree <= 3 (the 49 less those of degree 4 to
+    6); three states: 4 triples x 63; 430 in all, each computing a different value."""
     forms = composed_forms()
     keys = [form_key(m) for _n, m in forms]
-    assert len(forms) == 84 and len(set(keys)) == 84
-    assert [n for n, _m in forms][:2] == ["sign(dphi)", "sign(dpsi)"]  # simplest first
+    assert len(forms) == 28 + 6 * 25 + 4 * 63 == 430 and len(set(keys)) == 430
+    names = [n for n, _m in forms]
+    assert names[:4] == ["sign(phi)", "sign(psi)", "sign(dphi)", "sign(dpsi)"]  # simplest first
+    assert {"abs(phi)", "phi*abs(phi)", "abs(psi)*sign(dphi)", "phi*psi*dphi"} <= set(names)
     for name, mono in forms:
-        assert parse_form(name) == mono and max(mono) <= 3
+        assert parse_form(name) == mono and max(mono) <= 3 and canonical(mono) == name
 
 
 def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None:
@@ -68,7 +83,7 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     # nor what the plant carries: the stiffnesses, the hinge damping, the aerodynamic drag
     assert {"phi", "dphi*abs(dphi)"}.isdisjoint(stroke)
     assert {"psi", "dpsi", "dphi*abs(dphi)"}.isdisjoint(pitch)
-    assert len(stroke) == 73 and len(pitch) == 73
+    assert len(stroke) == 419 and len(pitch) == 419
     assert composed_kinds("drive") == ()
     assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
 
@@ -92,7 +107,7 @@ def test_a_composed_term_round_trips_through_the_model_file(model) -> None:
     "kind,why",
     [
         ("exp(phi)", "'exp(phi)' is not a primitive"),
-        ("phi*psi*dphi", "more than two states"),
+        ("phi*psi*dphi*dpsi", "more than 3 states"),
         ("phi**4", "powers are 1 to 3"),
         ("sqrt(abs(dphi))", "not a primitive"),
     ],
@@ -142,7 +157,8 @@ def test_the_kernel_evaluates_a_composed_form_as_the_row_with_the_same_monomial(
 
 def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     """Two stroke resonances 4 % apart differ most near them and at full drive (a linear plant:
-    the difference scales with the level); identical models do not differ at all.
+    the difference scales with the level), far above the noise: that run tells them apart;
+    identical models do not differ at all, and no run does.
     """
     from dataclasses import replace
 
@@ -154,8 +170,9 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     assert s["level"] == 1.0 and s["drive_amplitude_v"] == 80.0
     assert s["frequency_hz"] in (130.0, 150.0)
     assert s["over_noise"] == pytest.approx(s["rms_difference"] / 0.05) and s["over_noise"] > 20
+    assert s["separates"] is True
     same = suggest_experiment([model, model], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
-    assert same["rms_difference"] == 0.0
+    assert same["rms_difference"] == 0.0 and same["separates"] is False
 
 
 def test_the_suggested_run_is_the_suggested_sine_measured_on_the_same_robot(model) -> None:

@@ -2,26 +2,29 @@
 
 A dynamics term's feature is a monomial over `PRIMITIVES` (the plant kernel's generic
 evaluation multiplies the factors, each to an integer power). The forms the discovery step may
-reach without a row of the term library (`flaair_model.terms`) are composed here from the
-primitives and how they combine: each state alone, ``abs()`` and ``sign()`` of each velocity,
-powers up to `MAX_POWER`, and products of two (a state times the other axis's state, or a
-velocity times its own ``abs()`` or ``sign()``), of total degree at most `MAX_POWER`.
+reach without a row of the term library (`flaair_model.terms`) are composed here from the four
+mechanical states (`VARIABLES`: phi, psi, dphi, dpsi) and how they combine: each state, its
+``abs()`` and its ``sign()``, to powers up to `MAX_POWER`, and products of up to
+`MAX_VARIABLES` states' factors, of total degree at most `MAX_POWER` (``sign()`` counts 0).
 
-Forms are compared by what they compute, not how they are written: over a velocity v,
-``v**a * sign(v)**b * abs(v)**c`` is ``abs(v)**(a + c) * sign(v)**(a + b)``, so ``dphi*sign(dphi)``
-is ``abs(dphi)`` and ``dphi**2*sign(dphi)`` is ``dphi*abs(dphi)``; `canonical` names each value
-once (`form_key` says when two monomials are one form).
+Forms are compared by what they compute, not how they are written: over a state x,
+``x**a * sign(x)**b * abs(x)**c`` is ``abs(x)**(a + c) * sign(x)**(a + b)``, so ``dphi*sign(dphi)``
+is ``abs(dphi)`` and ``phi**2*sign(phi)`` is ``phi*abs(phi)``: a state's factor is its class
+(degree, odd). `canonical` names each value once (`form_key` says when two monomials are one
+form).
 """
 
 from __future__ import annotations
 
 import re
-from itertools import combinations
+from itertools import combinations, product
 
 __all__ = [
     "MAX_POWER",
+    "MAX_VARIABLES",
     "PLANT_FORMS",
     "PRIMITIVES",
+    "VARIABLES",
     "canonical",
     "composed_forms",
     "form_key",
@@ -38,7 +41,13 @@ PRIMITIVES: tuple[str, ...] = (
     "sign(dpsi)",
     "abs(dphi)",
     "abs(dpsi)",
+    "sign(phi)",
+    "sign(psi)",
+    "abs(phi)",
+    "abs(psi)",
 )
+# The states a form is a product over, in the order a canonical name writes them.
+VARIABLES: tuple[str, ...] = ("phi", "psi", "dphi", "dpsi")
 # Forms the plant's equations already carry (stiffness, damping, aerodynamic drag and coupling).
 PLANT_FORMS = {
     "stroke_dynamics": ("phi", "dphi*abs(dphi)"),
@@ -46,18 +55,22 @@ PLANT_FORMS = {
 }
 # A factor's power, and a composed form's total degree (sign() counts 0), at most this.
 MAX_POWER = 3
-_ANGLES = ("phi", "psi")
-_RATES = ("dphi", "dpsi")
-_FACTOR = re.compile(r"^(sign\(d(?:phi|psi)\)|abs\(d(?:phi|psi)\)|d?(?:phi|psi))(?:\*\*(\d+))?$")
+# A form multiplies the factors of at most this many states.
+MAX_VARIABLES = 3
+# Each state's places among the primitives: (itself, its sign(), its abs()).
+_PLACES = {x: (PRIMITIVES.index(x), PRIMITIVES.index(f"sign({x})"), PRIMITIVES.index(f"abs({x})"))
+           for x in VARIABLES}  # fmt: skip
+_FACTOR = re.compile(r"^(sign\(d?(?:phi|psi)\)|abs\(d?(?:phi|psi)\)|d?(?:phi|psi))(?:\*\*(\d+))?$")
 
-FormKey = tuple[int, int, int, int, int, int]
+# What a monomial computes: each state's (degree, odd), in `VARIABLES` order.
+FormKey = tuple[int, int, int, int, int, int, int, int]
 
 
 def parse_form(expression: str) -> tuple[int, ...]:
     """The monomial (exponents over `PRIMITIVES`) of a product of primitives.
 
-    ``'phi*abs(dphi)'``, ``'dpsi**3'``, ``'sign(dphi)*psi**2'``. At most two distinct state
-    variables, each factor's power 1 to `MAX_POWER`.
+    ``'phi*abs(dphi)'``, ``'dpsi**3'``, ``'sign(dphi)*psi**2'``, ``'abs(phi)*psi'``. At most
+    `MAX_VARIABLES` distinct states, each factor's power 1 to `MAX_POWER`.
 
     Raises
     ------
@@ -80,9 +93,9 @@ def parse_form(expression: str) -> tuple[int, ...]:
         exponents[PRIMITIVES.index(m.group(1))] += power
     if max(exponents) > MAX_POWER:
         raise ValueError(f"a factor to a power above {MAX_POWER}")
-    variables = {_variable(j) for j, e in enumerate(exponents) if e}
-    if len(variables) > 2:
-        raise ValueError("a product of more than two states")
+    variables = {x for x, places in _PLACES.items() if any(exponents[j] for j in places)}
+    if len(variables) > MAX_VARIABLES:
+        raise ValueError(f"a product of more than {MAX_VARIABLES} states")
     return tuple(exponents)
 
 
@@ -91,71 +104,56 @@ def _split(text: str) -> list[str]:
     return [f for f in re.split(r"(?<!\*)\*(?!\*)", text)]
 
 
-def _variable(j: int) -> str:
-    return PRIMITIVES[j] if j < 4 else _RATES[j % 2]
-
-
 def form_key(monomial: tuple[int, ...]) -> FormKey:
-    """What a monomial computes: (phi, psi) powers, then (degree, odd) of each velocity."""
-    e = monomial
-    rates = []
-    for v, s, a in ((e[1], e[4], e[6]), (e[3], e[5], e[7])):
-        rates += [v + a, (v + s) % 2 if v + s + a else 0]
-    return (e[0], e[2], *rates)  # type: ignore[return-value]
+    """What a monomial computes: each state's (degree, odd class), in `VARIABLES` order."""
+    out: list[int] = []
+    for x in VARIABLES:
+        v, s, a = (monomial[j] for j in _PLACES[x])
+        out += [v + a, (v + s) % 2 if v + s + a else 0]
+    return tuple(out)  # type: ignore[return-value]
 
 
-def _rate_factor(rate: str, degree: int, odd: int) -> tuple[str, ...]:
-    """The simplest writing of abs(v)**degree * sign(v)**odd."""
+def _factor(x: str, degree: int, odd: int) -> tuple[str, ...]:
+    """The simplest writing of abs(x)**degree * sign(x)**odd."""
     if degree == 0:
-        return (f"sign({rate})",) if odd else ()
+        return (f"sign({x})",) if odd else ()
     if degree % 2 == odd:
-        return (rate if degree == 1 else f"{rate}**{degree}",)
+        return (x if degree == 1 else f"{x}**{degree}",)
     if degree == 1:
-        return (f"abs({rate})",)
+        return (f"abs({x})",)
     if degree == 2:
-        return (rate, f"abs({rate})")
-    return (f"abs({rate})**{degree}",)
+        return (x, f"abs({x})")
+    return (f"abs({x})**{degree}",)
 
 
 def canonical(monomial: tuple[int, ...]) -> str:
     """The form's one name, e.g. 'phi*abs(dphi)' ('1' for the constant)."""
-    phi, psi, d1, o1, d2, o2 = form_key(monomial)
+    key = form_key(monomial)
     parts: list[str] = []
-    for name, power in (("phi", phi), ("psi", psi)):
-        if power:
-            parts.append(name if power == 1 else f"{name}**{power}")
-    parts += _rate_factor("dphi", d1, o1) + _rate_factor("dpsi", d2, o2)
+    for i, x in enumerate(VARIABLES):
+        parts += _factor(x, key[2 * i], key[2 * i + 1])
     return "*".join(parts) or "1"
 
 
 def _degree(key: FormKey) -> int:
-    return key[0] + key[1] + key[2] + key[4]
+    return sum(key[0::2])
 
 
-def _atoms() -> list[tuple[str, FormKey]]:
-    """Every one-variable form: an angle to a power, or a velocity's (degree, odd) class."""
-    out: list[tuple[str, FormKey]] = []
-    for i, angle in enumerate(_ANGLES):
-        for p in range(1, MAX_POWER + 1):
-            k = [0] * 6
-            k[i] = p
-            out.append((angle, tuple(k)))  # type: ignore[arg-type]
-    for i, rate in enumerate(_RATES):
-        for degree in range(MAX_POWER + 1):
-            for odd in (0, 1):
-                if degree == 0 and not odd:
-                    continue
-                k = [0] * 6
-                k[2 + 2 * i], k[3 + 2 * i] = degree, odd
-                out.append((rate, tuple(k)))  # type: ignore[arg-type]
-    return out
+def _n_variables(key: FormKey) -> int:
+    return sum(1 for i in range(len(VARIABLES)) if key[2 * i] or key[2 * i + 1])
+
+
+def _classes() -> list[tuple[int, int]]:
+    """A state's factor classes (degree, odd): its sign, then each power of it and of its abs."""
+    return [(d, o) for d in range(MAX_POWER + 1) for o in (0, 1) if d or o]
 
 
 def _monomial(key: FormKey) -> tuple[int, ...]:
     """A monomial computing `key` (the canonical writing's exponents)."""
-    phi, psi, d1, o1, d2, o2 = key
-    e = [phi, 0, psi, 0, 0, 0, 0, 0]
-    for v, s, a, d, o in ((1, 4, 6, d1, o1), (3, 5, 7, d2, o2)):
+    e = [0] * len(PRIMITIVES)
+    for i, x in enumerate(VARIABLES):
+        v, s, a = _PLACES[x]
+        d, o = key[2 * i], key[2 * i + 1]
         if d == 0:
             e[s] = o
         elif d % 2 == o:
@@ -168,18 +166,19 @@ def _monomial(key: FormKey) -> tuple[int, ...]:
 
 
 def composed_forms() -> tuple[tuple[str, tuple[int, ...]], ...]:
-    """Every composed form, (canonical name, monomial), simplest first: each one-variable form,
-    then each product of two variables' forms, of total degree at most `MAX_POWER`.
+    """Every composed form, (canonical name, monomial), simplest first (fewer states, then lower
+    degree): each state's factor classes, and their products over two and three states, of total
+    degree at most `MAX_POWER`.
     """
-    atoms = _atoms()
-    keys = [k for _v, k in atoms]
-    for (va, ka), (vb, kb) in combinations(atoms, 2):
-        if va != vb:
-            key = tuple(x + y for x, y in zip(ka, kb, strict=True))
-            if _degree(key) <= MAX_POWER:  # type: ignore[arg-type]
-                keys.append(key)  # type: ignore[arg-type]
-    keys = [k for k in keys if _degree(k) <= MAX_POWER]
-    keys.sort(
-        key=lambda k: (sum(1 for x in (k[0], k[1], k[2] or k[3], k[4] or k[5]) if x), _degree(k))
-    )
+    keys: list[FormKey] = []
+    for n in range(1, MAX_VARIABLES + 1):
+        for states in combinations(range(len(VARIABLES)), n):
+            for classes in product(_classes(), repeat=n):
+                k = [0] * (2 * len(VARIABLES))
+                for i, (d, o) in zip(states, classes, strict=True):
+                    k[2 * i], k[2 * i + 1] = d, o
+                key: FormKey = tuple(k)  # type: ignore[assignment]
+                if _degree(key) <= MAX_POWER:
+                    keys.append(key)
+    keys.sort(key=lambda k: (_n_variables(k), _degree(k)))
     return tuple((canonical(_monomial(k)), _monomial(k)) for k in keys)

@@ -10,7 +10,7 @@ Where a term acts (`SITES`) and what its coefficient means:
 
 - ``stroke_dynamics``, ``pitch_dynamics``: a torque (N m) added to the right-hand side of the
   stroke or pitch equation of motion; its feature is a monomial of the mechanical state
-  (`PRIMITIVES`: phi, dphi, psi, dpsi in rad and rad/s, sign() and abs() of the velocities),
+  (`PRIMITIVES`: phi, dphi, psi, dpsi in rad and rad/s, and sign() and abs() of each),
   evaluated inside the plant's RK4 kernel;
 - ``drive``: volts added to the drive before the actuator (a function of the drive alone);
 - ``stroke_sensor_v``, ``pitch_sensor_v``: volts added to that charge amplifier's output, after
@@ -81,7 +81,20 @@ def primitive_values(
     phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
 ) -> tuple[np.ndarray, ...]:
     """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`)."""
-    return (phi, dphi, psi, dpsi, np.sign(dphi), np.sign(dpsi), np.abs(dphi), np.abs(dpsi))
+    return (
+        phi,
+        dphi,
+        psi,
+        dpsi,
+        np.sign(dphi),
+        np.sign(dpsi),
+        np.abs(dphi),
+        np.abs(dpsi),
+        np.sign(phi),
+        np.sign(psi),
+        np.abs(phi),
+        np.abs(psi),
+    )
 
 
 # The plant kernel has this many slots for dynamics terms (the search adds one or two).
@@ -218,7 +231,7 @@ def _other(site: str) -> str:
 
 
 def _mono(**exponents: int) -> tuple[int, ...]:
-    keys = ("phi", "dphi", "psi", "dpsi", "sign_dphi", "sign_dpsi", "abs_dphi", "abs_dpsi")
+    keys = [p.replace("(", "_").rstrip(")") for p in PRIMITIVES]  # "sign(dphi)" -> sign_dphi
     names = {k: j for j, k in enumerate(keys)}
     e = [0] * len(PRIMITIVES)
     for k, v in exponents.items():

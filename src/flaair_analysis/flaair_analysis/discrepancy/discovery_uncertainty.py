@@ -5,7 +5,9 @@ its step, whether the runs tell the two apart (their held-out errors differ by m
 `PARSIMONY`, the margin the search itself calls a tie), and a suggested experiment that would: a
 steady sine of the drive, at one of `LEVELS` of the runs' largest drive and one frequency of a
 grid over the analysed bands, where the two fitted models' predictions of the judged channel
-differ most (in units of that channel's noise).
+differ most (in units of that channel's noise), and whether that difference reaches the noise
+(`SEPARATES_OVER_NOISE`): where it does not, no run tried tells the two apart (a form the other
+nests, e.g. a low-pass whose fitted corner is far above the drive).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from flaair_sim.core.plant import simulate_batch
 __all__ = [
     "LEVELS",
     "PARSIMONY",
+    "SEPARATES_OVER_NOISE",
     "SETTLE_S",
     "TEST_S",
     "form_uncertainty",
@@ -33,6 +36,8 @@ __all__ = [
 LEVELS = (0.25, 0.5, 0.75, 1.0)
 # Held-out errors within this fraction of each other: the runs do not tell the forms apart.
 PARSIMONY = 0.02
+# The suggested run tells two forms apart where their predictions differ by this x the noise RMS.
+SEPARATES_OVER_NOISE = 1.0
 # A suggested sine is simulated this long to settle, then compared over TEST_S.
 SETTLE_S = 0.08
 TEST_S = 0.05
@@ -65,7 +70,8 @@ def suggest_experiment(
     noise: float,
 ) -> dict[str, Any]:
     """The steady sine (level, frequency) where `models[0]` and `models[1]` differ most on
-    `channel`: {drive_amplitude_v, level, frequency_hz, rms_difference, over_noise}.
+    `channel`: {drive_amplitude_v, level, frequency_hz, rms_difference, over_noise, separates}
+    (`separates`: the difference reaches `SEPARATES_OVER_NOISE` x the noise).
     """
     n_settle = round(SETTLE_S * fs_hz)
     best: dict[str, Any] = {"rms_difference": -1.0}
@@ -83,6 +89,7 @@ def suggest_experiment(
                     "rms_difference": rms,
                 }
     best["over_noise"] = best["rms_difference"] / noise if noise > 0 else math.inf
+    best["separates"] = bool(best["over_noise"] >= SEPARATES_OVER_NOISE)
     return best
 
 

@@ -7,12 +7,12 @@ to (spring torque, drive or sensor deviation) over the RMS of its feature along 
 model's motion. `discovery` judges the shortlist.
 
 Besides the table's rows, a dynamics site may take any form composed from the primitives
-(`flaair_model.terms.composed_kinds`, named by its expression). They are ranked all at once and
-cheaply: one simulation each at a small coefficient gives the residual's sensitivity to it, and
-one linearized least-squares step the residual it would leave; only the best
-`discovery_composed_fits` per site are then fitted through the simulator like a row. A composed
-form that is numerically degenerate on the runs (zero or constant along the motion) is skipped
-and counted (`Candidates.degenerate`), never fitted.
+(`flaair_model.terms.composed_kinds`, named by its expression). They are ranked cheaply, in
+batches of `RANK_BATCH`: one simulation each at a small coefficient gives the residual's
+sensitivity to it, and one linearized least-squares step the residual it would leave; only the
+best `discovery_composed_fits` per site are then fitted through the simulator like a row. A
+composed form that is numerically degenerate on the runs (zero or constant along the motion) is
+skipped and counted (`Candidates.degenerate`), never fitted.
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ __all__ = [
     "DEGENERATE_REL_STD",
     "PLANT_STEP",
     "PROBE_FRACTION",
+    "RANK_BATCH",
     "SITES_FOR_GAP",
     "Candidates",
     "candidates",
@@ -77,6 +78,8 @@ PROBE_FRACTION = 0.01
 PLANT_STEP = 1e-3
 # A composed feature whose standard deviation is below this fraction of its RMS is constant.
 DEGENERATE_REL_STD = 1e-6
+# Composed forms ranked per batch of simulations (a run set of each held in memory at once).
+RANK_BATCH = 96
 
 
 @dataclass(frozen=True)
@@ -187,15 +190,18 @@ def _rank_composed(
         models_for(current, plant, x0 + PLANT_STEP * np.eye(len(plant))[i])[0]
         for i in range(len(plant))
     ]
-    res = problem.residuals([current, *probes, *plant_probes])
-    r0 = np.concatenate(res[0])
-    along = [np.concatenate(r) - r0 for r in res[1 + len(probes) :]]
+    base = problem.residuals([current, *plant_probes])
+    r0 = np.concatenate(base[0])
+    along = [np.concatenate(r) - r0 for r in base[1:]]
     ranked = []
-    for k, sc, r in zip(kinds, scales, res[1 : 1 + len(probes)], strict=True):
-        a = np.column_stack([np.concatenate(r) - r0, *along])
-        step = np.linalg.lstsq(a, -r0, rcond=None)[0]
-        left = r0 + a @ step
-        ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
+    for start in range(0, len(probes), RANK_BATCH):  # a batch's simulations held at once
+        chunk = slice(start, start + RANK_BATCH)
+        res = problem.residuals(probes[chunk])
+        for k, sc, r in zip(kinds[chunk], scales[chunk], res, strict=True):
+            a = np.column_stack([np.concatenate(r) - r0, *along])
+            step = np.linalg.lstsq(a, -r0, rcond=None)[0]
+            left = r0 + a @ step
+            ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
     ranked.sort(key=lambda c: c[0])
     return ranked, degenerate
 

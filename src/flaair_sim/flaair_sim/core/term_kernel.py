@@ -31,11 +31,18 @@ _DIVISOR = pp.CONSTANT_DIVISOR
 
 @njit(cache=True, fastmath=_FMA)
 def primitive(j, phi, dphi, psi, dpsi):
-    """Factor j of a term's monomial (flaair_model.terms.PRIMITIVES)."""
+    """Factor j of a term's monomial (flaair_model.terms.PRIMITIVES): the states, sign() and
+    abs() of the rates, then sign() and abs() of the angles.
+    """
     if j < 4:
         return phi if j == 0 else (dphi if j == 1 else (psi if j == 2 else dpsi))
-    x = dphi if j % 2 == 0 else dpsi
-    if j < 6:
+    if j < 8:
+        x = dphi if j % 2 == 0 else dpsi
+        signed = j < 6
+    else:
+        x = phi if j % 2 == 0 else psi
+        signed = j < 10
+    if signed:
         return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
     return abs(x)
 
@@ -49,9 +56,11 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
         if c[base] == equation:
             f = c[base + 1]
             for j in range(pp.TERM_SLOT - 2):
-                x = primitive(j, phi, dphi, psi, dpsi)
-                for _ in range(int(c[base + 2 + j])):
-                    f *= x
+                power = int(c[base + 2 + j])
+                if power:
+                    x = primitive(j, phi, dphi, psi, dpsi)
+                    for _ in range(power):
+                        f *= x
             total += f
     return total
 
