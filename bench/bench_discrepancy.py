@@ -206,6 +206,11 @@ def judge(case, result, model) -> dict:
         "true_terms": [f"{t.kind}@{t.acts_on}" for t in case.terms],
         "discovered": [f"{d.term.kind}@{d.term.acts_on}" for d in result.discovered],
         "term_errors": _term_errors(case, result),
+        # the composed forms' ranking: forms per step (most), wall time over every step
+        "composed_ranked": max(
+            (t.get("composed_ranked", 0) for t in result.discovery_tried), default=0
+        ),
+        "composed_rank_s": sum(t.get("composed_rank_s", 0.0) for t in result.discovery_tried),
     }
 
 
@@ -486,6 +491,20 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
             "no robot of this run left two forms tied that a run can tell apart",
         )
     )
+    ranking = [o for o in discover if o.get("composed_ranked")]
+    rank_times = [o["composed_rank_s"] for o in ranking]
+    ranked = info(
+        f"discovery: composed forms ranked in a step (most, {len(ranking)} robots"
+        f"{', subset' if subset else ''})",
+        float(max((o["composed_ranked"] for o in ranking), default=0)),
+        "forms",
+        (
+            f"ranking them, every step of a robot: median {statistics.median(rank_times):.1f} s, "
+            f"max {max(rank_times):.1f} s"
+        )
+        if rank_times
+        else "no discovery step ran",
+    )
     same = [o for o in discover if o.get("equivalent")]
     equivalent = info(
         f"discovery: tied forms the same on every run tried "
@@ -498,6 +517,7 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
     return [
         separated,
         equivalent,
+        ranked,
         info(
             f"discovery: right acts_on and form among others "
             f"{_count(sum(among), n, subset, f'robots, {len(kinds)} kinds')}",

@@ -37,6 +37,7 @@ DISCREPANCY_FIGURES = {
     "exactly right, parameters within 10 %, offnominal_own",
     "discovery: tied forms told apart by the suggested run",
     "discovery: tied forms the same on every run tried",
+    "discovery: composed forms ranked in a step",
     "discovery: right acts_on and form among others",
     "robots with a term the truth lacks, every family",
     "discovery: ending explained",

@@ -202,7 +202,8 @@ def _step(
     centre: Mapping[str, float],
 ) -> tuple[list[tuple[Any, ...]], list[Any]]:
     """One discovery step on `channel`: the accepted candidates, best first, each (evidence,
-    kind, site, specs, model); and the step's record [judged, not shortlisted, tried]. Each
+    kind, site, specs, model); and the step's record [judged, not shortlisted, tried, the
+    composed forms' ranking: {composed_ranked (forms), composed_rank_s (wall time)}]. Each
     term is judged against the plant refitted without it in the same box (`term_judging`).
     """
     truth_ref = _truth_ref(ctx, current, channel)
@@ -262,7 +263,13 @@ def _step(
         except (ModelError, ValueError):  # the fit left the model's valid range: not a candidate
             continue
         judged.append((ev, kind, site, specs, model))
-    return _ranked(judged), [judged, cands[len(shortlist) :], _tried(cands, found, judged)]
+    ranking = {"composed_ranked": len(found.composed_ranked), "composed_rank_s": found.rank_s}
+    return _ranked(judged), [
+        judged,
+        cands[len(shortlist) :],
+        _tried(cands, found, judged),
+        ranking,
+    ]
 
 
 def _tried(cands: Sequence[Any], found: Any, judged: Sequence[Any]) -> list[dict[str, Any]]:
@@ -456,6 +463,7 @@ def _replacing(
                 "composed_degenerate_skipped": sum(
                     1 for c in record[2] if c.get("skipped") == "degenerate on the runs"
                 ),
+                **record[3],
             }
         )
         if dropped:
@@ -690,7 +698,7 @@ def discover(
                 break
             if progress:
                 progress(f"discover on {channel}")
-            passing, (judged, rest, _tried), dropped, step_tried = _replacing(
+            passing, (judged, rest, _tried, _ranking), dropped, step_tried = _replacing(
                 ctx,
                 current,
                 channel,

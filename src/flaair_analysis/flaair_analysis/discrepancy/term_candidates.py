@@ -18,6 +18,7 @@ skipped and counted (`Candidates.degenerate`), never fitted.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -85,12 +86,14 @@ RANK_BATCH = 96
 @dataclass(frozen=True)
 class Candidates:
     """A step's candidates, best fit first: (rss, kind, site, specs, x) each; the composed forms
-    ranked (each with its linearized rss, best first) and the degenerate ones skipped.
+    ranked (each with its linearized rss, best first), the degenerate ones skipped, and how long
+    the ranking took.
     """
 
     fitted: list[tuple[Any, ...]]
     composed_ranked: tuple[tuple[str, str, float], ...]
     degenerate: tuple[tuple[str, str], ...]
+    rank_s: float = 0.0  # wall time of ranking the composed forms, every site of the step
 
 
 def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
@@ -308,6 +311,7 @@ def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bo
     degenerate: list[tuple[str, str]] = []
     n_dynamics = sum(t.is_dynamics for t in current.discovered)
     placed = {(t.kind, t.acts_on) for t in current.discovered}
+    rank_s = 0.0
     for site in SITES_FOR_GAP[channel]:
         if site in DYNAMICS_SITES and n_dynamics >= MAX_DYNAMICS_TERMS:
             continue
@@ -319,7 +323,9 @@ def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bo
                 continue
             scale = COEFFICIENT_RANGE * _share_rms(site, ctx, current, motion) / rms
             out += _fit_alone(ctx, current, kind, site, channel, scale, problem)
+        started = time.perf_counter()
         ranked, skipped = _rank_composed(ctx, current, site, problem, motion)
+        rank_s += time.perf_counter() - started
         degenerate += [(name, site) for name in skipped]
         ranked = [c for c in ranked if (c[1].name, site) not in placed]
         ranked_all += [(k.name, site, rss) for rss, k, _sc in ranked]
@@ -329,4 +335,4 @@ def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bo
     best: dict[tuple[str, str], tuple[Any, ...]] = {}
     for c in out:  # one entry per term (its best shape start)
         best.setdefault((c[1].name, c[2]), c)
-    return Candidates(list(best.values()), tuple(ranked_all), tuple(degenerate))
+    return Candidates(list(best.values()), tuple(ranked_all), tuple(degenerate), rank_s)
