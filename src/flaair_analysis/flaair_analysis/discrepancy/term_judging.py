@@ -90,7 +90,8 @@ def judged_against(
     rss_ho = []
     for k, f in enumerate(ctx.folds):
         r = ctx.problem(channel, [f], truth_ref, base).residuals([ev.heldout_models[k]])[0][0]
-        rss_ho.append(float(np.dot(r, r)))
+        with np.errstate(over="ignore"):  # a held-out model that ran away: an infinite error
+            rss_ho.append(float(np.dot(r, r)))
     drop = rss_gap_drop(sum(best), sum(rss_ho), sum(n_f))
     dbic = bic(rss_ho, n_f, n_params) - bic(best, n_f, 0)
     share = contribution_rms(ctx, model, base, channel, truth_ref)
