@@ -12,23 +12,39 @@ Forms are compared by what they compute, not how they are written: over a state 
 is ``abs(dphi)`` and ``phi**2*sign(phi)`` is ``phi*abs(phi)``: a state's factor is its class
 (degree, odd). `canonical` names each value once (`form_key` says when two monomials are one
 form).
+
+The drive and the sensor outputs take forms over signals instead (`SIGNALS`: the drive, its
+rate, time, the angles and the sensors' voltages; `SITE_SIGNALS` says which a site may read),
+composed the same way and evaluated on numpy blocks (`signal_value`); ``t`` (s from the start of
+the simulation, every run's own) is never negative, so it enters by its powers only.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping
 from itertools import combinations, product
+
+import numpy as np
 
 __all__ = [
     "MAX_POWER",
     "MAX_VARIABLES",
     "PLANT_FORMS",
     "PRIMITIVES",
+    "SIGNALS",
+    "SIGNAL_PLANT_FORMS",
+    "SITE_SIGNALS",
     "VARIABLES",
     "canonical",
     "composed_forms",
     "form_key",
     "parse_form",
+    "parse_signal_form",
+    "signal_forms",
+    "signal_name",
+    "signal_signals",
+    "signal_value",
 ]
 
 # The factors a dynamics monomial multiplies, in kernel order (`flaair_sim` term kernel).
@@ -182,3 +198,137 @@ def composed_forms() -> tuple[tuple[str, tuple[int, ...]], ...]:
                     keys.append(key)
     keys.sort(key=lambda k: (_n_variables(k), _degree(k)))
     return tuple((canonical(_monomial(k)), _monomial(k)) for k in keys)
+
+
+# ------------------------------------------------------------ the drive's and the sensors' forms
+
+# The signals a drive or sensor form multiplies (`flaair_model.terms.TermSignals`), in the order
+# a canonical name writes them; the sensor voltages are the deviations from V_HREF.
+SIGNALS: tuple[str, ...] = (
+    "drive_v",
+    "ddrive_v",
+    "t",
+    "phi",
+    "psi",
+    "stroke_sensor_v",
+    "pitch_sensor_v",
+)
+# Where a form over them may act, and with which: the drive is a function of the drive and time
+# alone; a sensor's output may also take the angles and that sensor's own voltage.
+SITE_SIGNALS: dict[str, tuple[str, ...]] = {
+    "drive": ("drive_v", "ddrive_v", "t"),
+    "stroke_sensor_v": ("drive_v", "ddrive_v", "t", "phi", "psi", "stroke_sensor_v"),
+    "pitch_sensor_v": ("drive_v", "ddrive_v", "t", "phi", "psi", "pitch_sensor_v"),
+}
+# Forms the plant or a vocabulary effect already computes at a site (the actuator's gain, a
+# film's transduction gain and its strain transfer, the transmission's cubic, the feedthrough).
+SIGNAL_PLANT_FORMS: dict[str, tuple[str, ...]] = {
+    "drive": ("drive_v",),
+    "stroke_sensor_v": ("phi", "phi**3", "stroke_sensor_v", "drive_v"),
+    "pitch_sensor_v": ("psi", "pitch_sensor_v"),
+}
+_UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
+_SIGNAL_FACTOR = re.compile(
+    r"^(?:(sign|abs)\((" + "|".join(SIGNALS) + r")\)|(" + "|".join(SIGNALS) + r"))(?:\*\*(\d+))?$"
+)
+
+# What a signal form computes: each signal's (degree, odd), in `SIGNALS` order.
+SignalKey = tuple[int, ...]
+
+
+def parse_signal_form(expression: str) -> SignalKey:
+    """What a product of the signals' factors computes (`SignalKey`).
+
+    ``'t*drive_v'``, ``'drive_v*abs(drive_v)'``, ``'sign(ddrive_v)*phi'``. At most
+    `MAX_VARIABLES` distinct signals, each factor's power 1 to `MAX_POWER`; ``t`` is never
+    negative, so it takes no ``abs()`` or ``sign()``.
+
+    Raises
+    ------
+    ValueError
+        The expression is not such a product (the message says why).
+    """
+    text = expression.replace(" ", "")
+    if not text:
+        raise ValueError("an empty expression")
+    key = [0] * (2 * len(SIGNALS))
+    for factor in _split(text):
+        m = _SIGNAL_FACTOR.match(factor)
+        if m is None:
+            raise ValueError(
+                f"{factor!r} is not a signal ({', '.join(SIGNALS)}), its abs() or sign()"
+            )
+        wrap, inside, bare, power_text = m.groups()
+        name = inside or bare
+        power = int(power_text or 1)
+        if not 1 <= power <= MAX_POWER:
+            raise ValueError(f"{factor!r}: powers are 1 to {MAX_POWER}")
+        if wrap and name in _UNSIGNED:
+            raise ValueError(f"{factor!r}: {name} is never negative (write {name})")
+        i = 2 * SIGNALS.index(name)
+        degree, odd = key[i], key[i + 1]
+        if wrap == "sign":
+            odd += power
+        else:
+            degree += power
+            odd += 0 if wrap == "abs" else power
+        key[i], key[i + 1] = degree, odd % 2
+    if max(key[0::2]) > MAX_POWER:
+        raise ValueError(f"a signal to a power above {MAX_POWER}")
+    if sum(1 for i in range(len(SIGNALS)) if key[2 * i] or key[2 * i + 1]) > MAX_VARIABLES:
+        raise ValueError(f"a product of more than {MAX_VARIABLES} signals")
+    return tuple(key)
+
+
+def signal_name(key: SignalKey) -> str:
+    """A signal form's one name, e.g. 't*drive_v' ('1' for the constant)."""
+    parts: list[str] = []
+    for i, x in enumerate(SIGNALS):
+        parts += _factor(x, key[2 * i], key[2 * i + 1])
+    return "*".join(parts) or "1"
+
+
+def signal_signals(key: SignalKey) -> tuple[str, ...]:
+    """The signals a form reads."""
+    return tuple(x for i, x in enumerate(SIGNALS) if key[2 * i] or key[2 * i + 1])
+
+
+def signal_forms(site: str) -> tuple[tuple[str, SignalKey], ...]:
+    """Every form over `site`'s signals (`SITE_SIGNALS`), (name, key), simplest first: each
+    signal's factor classes and their products over two and three signals, of total degree at
+    most `MAX_POWER`; none at a dynamics site.
+    """
+    names = SITE_SIGNALS.get(site, ())
+    keys: list[SignalKey] = []
+    for n in range(1, MAX_VARIABLES + 1):
+        for chosen in combinations(names, n):
+            options = [
+                [(d, d % 2) for d in range(1, MAX_POWER + 1)] if x in _UNSIGNED else _classes()
+                for x in chosen
+            ]
+            for classes in product(*options):
+                k = [0] * (2 * len(SIGNALS))
+                for x, (d, o) in zip(chosen, classes, strict=True):
+                    i = 2 * SIGNALS.index(x)
+                    k[i], k[i + 1] = d, o
+                if sum(k[0::2]) <= MAX_POWER:
+                    keys.append(tuple(k))
+    keys.sort(key=lambda k: (len(signal_signals(k)), sum(k[0::2])))
+    return tuple((signal_name(k), k) for k in keys)
+
+
+def signal_value(key: SignalKey, values: Mapping[str, np.ndarray]) -> np.ndarray:
+    """A signal form on arrays of its signals (`values`: signal name -> samples)."""
+    out: np.ndarray | None = None
+    for i, x in enumerate(SIGNALS):
+        degree, odd = key[2 * i], key[2 * i + 1]
+        if not (degree or odd):
+            continue
+        v = np.asarray(values[x], dtype=np.float64)
+        f = np.abs(v) ** degree if degree else np.ones_like(v)
+        if odd:
+            f = f * np.sign(v)
+        out = f if out is None else out * f
+    if out is None:
+        raise ValueError("the constant form has no signal")
+    return out

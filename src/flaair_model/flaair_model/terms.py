@@ -22,8 +22,9 @@ names (`form`; ``{corner_hz}`` stands for a shape parameter), how it is evaluate
 for the dynamics, a numpy feature for the drive and the sensors), its shape parameters and the
 vocabulary effect it duplicates at a site (`same_as`: the search reports that effect instead).
 Adding a term is one row in `TERM_KINDS`; the search and the plant read the table. Besides the
-rows, a dynamics term may be any form composed from the primitives (`flaair_model.term_forms`;
-`row_of`, `composed_kinds`): its kind is its expression, e.g. ``phi*abs(dphi)``.
+rows, a term may be any form composed from the primitives at a dynamics site, or from the
+signals at the drive and the sensors (`flaair_model.term_forms`; `row_of`, `composed_kinds`): its
+kind is its expression, e.g. ``phi*abs(dphi)``, ``drive_v*t**2``.
 
 Signals a drive or sensor feature may use (`TermSignals`): ``drive_v``; ``ddrive_v`` (V/s, the
 backward difference of the held drive); ``t`` (s from the start of the simulation); ``phi`` and
@@ -193,8 +194,9 @@ class TermKind:
     shape : its shape parameters.
     same_as : {site: vocabulary effect} where the term is that effect under another name.
     examples : physics it stands for, for the report.
-    composed : a form composed from the primitives (`row_of`), not a row of the table; its name
-        is its expression.
+    composed : a form composed from the primitives or the signals (`row_of`), not a row of the
+        table; its name is its expression (a product of the angles alone carries both its
+        monomial and its feature).
     """
 
     name: str
@@ -212,14 +214,13 @@ class TermKind:
         dynamic = set(self.sites) & set(DYNAMICS_SITES)
         if dynamic and (
             len(self.monomial) != len(PRIMITIVES)
-            or self.feature is not None
-            or set(self.sites) - dynamic
+            or (not self.composed and (self.feature is not None or set(self.sites) - dynamic))
         ):
             raise ModelError(
                 f"term {self.name}: a dynamics term is a monomial over "
                 f"{len(PRIMITIVES)} primitives and acts on the dynamics only"
             )
-        if not dynamic and self.feature is None:
+        if set(self.sites) - dynamic and self.feature is None:
             raise ModelError(f"term {self.name}: a drive or sensor term needs a feature")
         unknown = set(self.sites) - set(SITES)
         if unknown:
@@ -445,20 +446,62 @@ _COMPOSED: dict[str, TermKind] = {}
 
 
 def _composed(expression: str) -> TermKind:
-    """The dynamics form `expression` composed from the primitives, named canonically."""
-    name = term_forms.canonical(term_forms.parse_form(expression))  # ValueError: not a product
-    monomial = term_forms.parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
-    if name not in _COMPOSED:
-        _COMPOSED[name] = TermKind(
-            name,
-            f"a torque in {name}",
-            DYNAMICS_SITES,
-            name,
-            monomial,
-            examples="a form composed from the primitives, no row of the library",
-            composed=True,
-        )
+    """The form `expression` composed from the primitives (a torque at the dynamics sites) or from
+    the signals (volts at the drive and the sensors whose signals it reads), named canonically;
+    a product of the angles alone is both.
+
+    Raises
+    ------
+    ValueError
+        Neither grammar builds it (the message says why for each).
+    """
+    monomial: tuple[int, ...] = ()
+    key: term_forms.SignalKey | None = None
+    try:
+        name = term_forms.canonical(term_forms.parse_form(expression))
+        monomial = term_forms.parse_form(name) if name != "1" else (0,) * len(PRIMITIVES)
+    except ValueError as exc:
+        dynamics_error = exc
+    try:
+        key = term_forms.parse_signal_form(expression)
+        name = term_forms.signal_name(key)
+    except ValueError as exc:
+        if not monomial:
+            raise ValueError(
+                f"{dynamics_error}; nor from the drive's and sensors' signals: {exc}"
+            ) from None
+    if name in _COMPOSED:
+        return _COMPOSED[name]
+    sites = DYNAMICS_SITES if monomial else ()
+    if key is not None:
+        reads = set(term_forms.signal_signals(key))
+        sites += tuple(s for s, have in term_forms.SITE_SIGNALS.items() if reads <= set(have))
+    feature = _signal_feature(key) if key is not None and sites != DYNAMICS_SITES else None
+    _COMPOSED[name] = TermKind(
+        name,
+        f"{name}, composed",
+        sites,
+        name,
+        monomial,
+        feature,
+        examples="a form composed from the primitives or the signals, no row of the library",
+        composed=True,
+    )
     return _COMPOSED[name]
+
+
+def _signal_feature(key: term_forms.SignalKey) -> Feature:
+    """A signal form's feature on a block's `TermSignals`."""
+    reads = term_forms.signal_signals(key)
+
+    def feature(s: TermSignals, _p: Mapping[str, float]) -> np.ndarray:
+        values = {x: getattr(s, x) if x in _EVERYWHERE else s.need(x) for x in reads}
+        return term_forms.signal_value(key, values)
+
+    return feature
+
+
+_EVERYWHERE = ("drive_v", "ddrive_v", "t")  # the signals every drive or sensor term may read
 
 
 def row_of(kind: str) -> TermKind:
@@ -481,11 +524,32 @@ def composed_kinds(site: str) -> tuple[TermKind, ...]:
     (`term_forms.PLANT_FORMS`) computes there, simplest first; none elsewhere.
     """
     if site not in DYNAMICS_SITES:
-        return ()
+        return _signal_kinds(site)
     key, parse = term_forms.form_key, term_forms.parse_form
     known = {key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
     known |= {key(parse(f)) for f in term_forms.PLANT_FORMS[site]}
     return tuple(_composed(n) for n, m in term_forms.composed_forms() if key(m) not in known)
+
+
+def _signal_kinds(site: str) -> tuple[TermKind, ...]:
+    """The signal forms at the drive or sensor site `site` that neither a row there nor the plant
+    or a vocabulary effect (`term_forms.SIGNAL_PLANT_FORMS`) computes, simplest first.
+    """
+    known = {term_forms.parse_signal_form(f) for f in term_forms.SIGNAL_PLANT_FORMS.get(site, ())}
+    for k in kinds_for(site):
+        try:
+            known.add(
+                term_forms.parse_signal_form(
+                    DiscoveredTerm(k.name, site, 1.0, _mid(k)).feature_expression
+                )
+            )
+        except ValueError:  # a low-pass, another sensor's voltage: not a form of the grammar
+            continue
+    return tuple(_composed(n) for n, k in term_forms.signal_forms(site) if k not in known)
+
+
+def _mid(kind: TermKind) -> tuple[tuple[str, float], ...]:
+    return tuple((p.key, p.grid[0]) for p in kind.shape)
 
 
 def kinds_for(site: str) -> tuple[TermKind, ...]:

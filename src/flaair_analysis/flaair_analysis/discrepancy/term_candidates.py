@@ -6,8 +6,9 @@ The coefficient's search range is `COEFFICIENT_RANGE` times the size of the sign
 to (spring torque, drive or sensor deviation) over the RMS of its feature along the current
 model's motion. `discovery` judges the shortlist.
 
-Besides the table's rows, a dynamics site may take any form composed from the primitives
-(`flaair_model.terms.composed_kinds`, named by its expression). They are ranked cheaply, in
+Besides the table's rows, a site may take any form composed from the primitives (a dynamics
+site) or the signals (the drive, a sensor), `flaair_model.terms.composed_kinds`, named by its
+expression. They are ranked cheaply, in
 batches of `RANK_BATCH`: one simulation each at a small coefficient gives the residual's
 sensitivity to it, and one linearized least-squares step the residual it would leave; only the
 best `discovery_composed_fits` per site are then fitted through the simulator like a row. A
@@ -111,49 +112,54 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
                 "dpsi": np.gradient(psi) * run.fs_hz,
                 "stroke_sensor_v": sim["stroke_sensor_v"] - vref,
                 "pitch_sensor_v": sim["pitch_sensor_v"] - vref,
+                "drive_v": run.drive_v,
+                "fs_hz": run.fs_hz,
             }
         )
     return out
 
 
-def _feature_rms(
-    kind: TermKind, site: str, ctx: AnalysisContext, motion: list[dict[str, Any]]
-) -> float:
-    """RMS of the term's feature over the runs, along the current model's motion."""
-    total, count = 0.0, 0
-    shape = tuple((s.key, s.grid[-1]) for s in kind.shape)
+def _feature_values(
+    kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
+) -> list[np.ndarray]:
+    """The term's feature on each run along `motion` (a dynamics term: the states; a drive or
+    sensor term: the run's drive too, and the sensor deviations).
+    """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
-    for run, m in zip(ctx.runs, motion, strict=True):
-        if site in DYNAMICS_SITES:
-            f = term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"])
-        else:
-            f = term.feature(
-                TermSignals.of_block(
-                    run.fs_hz,
-                    run.drive_v,
-                    phi=m["phi"],
-                    psi=m["psi"],
-                    stroke_sensor_v=m["stroke_sensor_v"],
-                    pitch_sensor_v=m["pitch_sensor_v"],
-                )
+    if site in DYNAMICS_SITES:
+        return [term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"]) for m in motion]
+    return [
+        term.feature(
+            TermSignals.of_block(
+                m["fs_hz"],
+                m["drive_v"],
+                phi=m["phi"],
+                psi=m["psi"],
+                stroke_sensor_v=m["stroke_sensor_v"],
+                pitch_sensor_v=m["pitch_sensor_v"],
             )
-        total += float(np.dot(f, f))
-        count += f.size
-    return math.sqrt(total / max(count, 1))
+        )
+        for m in motion
+    ]
+
+
+def _feature_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> float:
+    """RMS of the term's feature over the runs, along the current model's motion."""
+    shape = tuple((s.key, s.grid[-1]) for s in kind.shape)
+    f = _feature_values(kind, site, motion, shape)
+    return math.sqrt(sum(float(np.dot(x, x)) for x in f) / max(sum(x.size for x in f), 1))
 
 
 def _feature_stats(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> tuple[float, float]:
-    """(RMS, standard deviation) of a dynamics feature over the runs along `motion`."""
-    term = DiscoveredTerm(kind.name, site, 1.0)
-    f = np.concatenate(
-        [term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"]) for m in motion]
-    )
+    """(RMS, standard deviation) of a composed form's feature over the runs along `motion`."""
+    f = np.concatenate(_feature_values(kind, site, motion))
     return float(np.sqrt(np.mean(f * f))), float(np.std(f))
 
 
 def is_degenerate(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> bool:
-    """The dynamics feature is zero, not finite or constant along `motion` (per run: phi, dphi,
-    psi, dpsi in rad and rad/s): it cannot be told from the constant or from nothing.
+    """The feature is zero, not finite or constant along `motion` (per run: phi, dphi, psi, dpsi
+    in rad and rad/s; for a drive or sensor form also drive_v, fs_hz and the sensor deviations):
+    it cannot be told from the constant or from nothing.
     """
     rms, std = _feature_stats(kind, site, motion)
     return not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
@@ -318,7 +324,7 @@ def candidates(ctx: AnalysisContext, current: Model, channel: str, truth_ref: bo
         for kind in kinds_for(site):
             if (kind.name, site) in placed:
                 continue
-            rms = _feature_rms(kind, site, ctx, motion)
+            rms = _feature_rms(kind, site, motion)
             if not (math.isfinite(rms) and rms > 0):
                 continue
             scale = COEFFICIENT_RANGE * _share_rms(site, ctx, current, motion) / rms
