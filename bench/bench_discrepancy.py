@@ -274,12 +274,17 @@ def analyse_case(name: str):
 def separated_by_suggestion(case, runs, result, model) -> dict:
     """Where the runs leave a discovered term's form tied with the next best of its step: the run
     the report suggests, simulated on the same truth and added, and whether the forms are then
-    told apart (every discovered term distinguishable) and the answer exactly right.
+    told apart (every discovered term distinguishable) and the answer exactly right. A tie the
+    suggestion itself says no run tried separates (the two models differ by less than the noise
+    on it) is counted apart, as equivalent.
     """
     tied = [d for d in result.discovered if d.uncertainty.get("distinguishable") is False]
     if not tied:
-        return {"ambiguous": False}
+        return {"ambiguous": False, "equivalent": False}
     suggestion = tied[0].uncertainty["suggested_experiment"]
+    rival = (tied[0].uncertainty.get("next_best") or {}).get("term", "")
+    if not suggestion["separates"]:  # the same on every run tried: nothing to measure
+        return {"ambiguous": False, "equivalent": True, "tied_with": rival}
     drive = suggested_drive(
         suggestion["drive_amplitude_v"], suggestion["frequency_hz"], runs[0].fs_hz, SEPARATING_RUN_S
     )
@@ -290,7 +295,8 @@ def separated_by_suggestion(case, runs, result, model) -> dict:
     )
     return {
         "ambiguous": True,
-        "tied_with": (tied[0].uncertainty.get("next_best") or {}).get("term", ""),
+        "equivalent": False,
+        "tied_with": rival,
         "suggested": (
             f"{suggestion['drive_amplitude_v']:.0f} V at {suggestion['frequency_hz']:.0f} Hz"
         ),

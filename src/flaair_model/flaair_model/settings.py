@@ -135,7 +135,7 @@ class DiscrepancySettings:
     discovery_shortlist : candidate terms per step judged on held-out runs (the best fits first).
     discovery_max_nfev : function evaluations of a shortlisted term's joint fit with the plant
         (the plant must move back from where the identification put it to mimic the term).
-    discovery_composed_fits : composed forms per dynamics site fitted through the simulator
+    discovery_composed_fits : composed forms per site fitted through the simulator
         after all of them are ranked by one linearized step (`term_candidates`).
     discovery_terms_per_channel : terms a channel may take (the second searched with the first
         in place, while the channel keeps a gap).

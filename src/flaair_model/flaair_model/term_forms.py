@@ -32,6 +32,7 @@ __all__ = [
     "MAX_VARIABLES",
     "PLANT_FORMS",
     "PRIMITIVES",
+    "SENSOR_ANGLE",
     "SIGNALS",
     "SIGNAL_PLANT_FORMS",
     "SITE_SIGNALS",
@@ -227,6 +228,8 @@ SIGNAL_PLANT_FORMS: dict[str, tuple[str, ...]] = {
     "stroke_sensor_v": ("phi", "phi**3", "stroke_sensor_v", "drive_v"),
     "pitch_sensor_v": ("psi", "pitch_sensor_v"),
 }
+# The angle each sensor's film reads: its voltage is that angle through the chain.
+SENSOR_ANGLE = {"stroke_sensor_v": "phi", "pitch_sensor_v": "psi"}
 _UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
 _SIGNAL_FACTOR = re.compile(
     r"^(?:(sign|abs)\((" + "|".join(SIGNALS) + r")\)|(" + "|".join(SIGNALS) + r"))(?:\*\*(\d+))?$"
@@ -296,12 +299,15 @@ def signal_signals(key: SignalKey) -> tuple[str, ...]:
 def signal_forms(site: str) -> tuple[tuple[str, SignalKey], ...]:
     """Every form over `site`'s signals (`SITE_SIGNALS`), (name, key), simplest first: each
     signal's factor classes and their products over two and three signals, of total degree at
-    most `MAX_POWER`; none at a dynamics site.
+    most `MAX_POWER`; none at a dynamics site. A sensor's voltage and the angle its film reads
+    (`SENSOR_ANGLE`) are one signal seen twice: no form multiplies the two.
     """
     names = SITE_SIGNALS.get(site, ())
     keys: list[SignalKey] = []
     for n in range(1, MAX_VARIABLES + 1):
         for chosen in combinations(names, n):
+            if site in SENSOR_ANGLE and {site, SENSOR_ANGLE[site]} <= set(chosen):
+                continue
             options = [
                 [(d, d % 2) for d in range(1, MAX_POWER + 1)] if x in _UNSIGNED else _classes()
                 for x in chosen

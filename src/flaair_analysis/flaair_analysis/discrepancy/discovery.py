@@ -209,12 +209,14 @@ def _step(
     truth_ref = _truth_ref(ctx, current, channel)
     found = candidates(ctx, current, channel, truth_ref)
     cands = found.fitted
-    # the best rows, and the best composed form (alone on the current plant a form the plant
-    # mimics in part fits worse than it will with the plant): the rows' shortlist stays what it
-    # was without the composed forms
+    # the best rows, and each site's best composed forms (alone on the current plant a form the
+    # plant mimics in part fits worse than it will with the plant; the drive's forms do not take
+    # the dynamics' places): the rows' shortlist stays what it was without the composed forms
     table = [c for c in cands if not c[1].composed]
     shortlist = table[: ctx.settings.discovery_shortlist]
-    shortlist += [c for c in cands if c[1].composed][: ctx.settings.discovery_composed_fits]
+    for site in dict.fromkeys(c[2] for c in cands if c[1].composed):  # each site's best, in order
+        here = [c for c in cands if c[1].composed and c[2] == site]
+        shortlist += here[: ctx.settings.discovery_composed_fits]
     cands = shortlist + [c for c in cands if not any(c is s for s in shortlist)]
     judged = []
     st = ctx.settings
