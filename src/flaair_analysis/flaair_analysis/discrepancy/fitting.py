@@ -303,8 +303,9 @@ def fit_specs(
 
     x_scale = np.maximum(np.abs(steps) / step_scale * 100.0, 1e-12)
     try:
-        # a trial step that drives the model wild costs inf, and the solver rejects it
-        with np.errstate(over="ignore"):
+        # a trial step that drives the model wild costs inf, and the solver rejects it (its
+        # arithmetic on that inf is what numpy would call invalid)
+        with np.errstate(over="ignore", invalid="ignore"):
             sol = optimize.least_squares(
                 fun,
                 x0,
@@ -323,10 +324,12 @@ def fit_specs(
     f = fun(x)
     J = jac(x)
     n = f.size
-    rss = float(np.dot(f, f))
     p = len(specs)
+    with np.errstate(over="ignore", invalid="ignore"):  # a fit that ran away: inf, never a number
+        rss = float(np.dot(f, f))
+        jtj = J.T @ J
+        col = np.sqrt(np.sum(J * J, axis=0))
     s2 = rss / max(n - p, 1)
-    jtj = J.T @ J
     se = np.full(p, math.inf)
     try:
         if np.all(np.isfinite(jtj)) and np.linalg.matrix_rank(jtj) == p:
@@ -336,7 +339,6 @@ def fit_specs(
     except np.linalg.LinAlgError:
         pass
     # a parameter whose column barely moves the residual is not identifiable here
-    col = np.sqrt(np.sum(J * J, axis=0))
     se = np.where(col * np.abs(steps) < 1e-9 * math.sqrt(max(rss, 1e-300)), math.inf, se)
     sizes = problem.n_per_fold()
     per_fold, k = [], 0
