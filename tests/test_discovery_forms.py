@@ -60,7 +60,8 @@ def test_equal_forms_compute_equal_values() -> None:
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
     """Each state's seven classes (its sign, each power of it and of its abs): 28 one-state
     forms; two states: 6 pairs x 25 class pairs of degree <= 3 (the 49 less those of degree 4 to
-    6); three states: 4 triples x 63; 430 in all, each computing a different value."""
+    6); three states: 4 triples x 63; 430 in all, each computing a different value.
+    """
     forms = composed_forms()
     keys = [form_key(m) for _n, m in forms]
     assert len(forms) == 28 + 6 * 25 + 4 * 63 == 430 and len(set(keys)) == 430
@@ -93,7 +94,8 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
     rate, time, the angles and its own voltage (never that voltage times the angle its film
     reads: one signal seen twice), less the film's gain and strain transfer, the feedthrough and
     transmission (stroke) and the rows (a drive or rate leak, gain drift, the angle squared);
-    never a time's abs() or sign(), nor a voltage a site cannot read."""
+    never a time's abs() or sign(), nor a voltage a site cannot read.
+    """
     from flaair_model.term_forms import parse_signal_form, signal_forms, signal_name
 
     drive = {k.name for k in composed_kinds("drive")}
@@ -121,7 +123,8 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
 
 def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     """drive_v*t**2 at the drive: the actuator sees the drive plus 1e-3 t^2 times it;
-    psi*stroke_sensor_v at the stroke sensor adds c psi dev to its output."""
+    psi*stroke_sensor_v at the stroke sensor adds c psi dev to its output.
+    """
     from dataclasses import replace
 
     fs = 20_000.0
