@@ -94,11 +94,8 @@ def parse_form(expression: str) -> tuple[int, ...]:
     ValueError
         The expression is not such a product (the message says why).
     """
-    text = expression.replace(" ", "")
-    if not text:
-        raise ValueError("an empty expression")
     exponents = [0] * len(PRIMITIVES)
-    for factor in _split(text):
+    for factor in _factors(expression):
         m = _FACTOR.match(factor)
         if m is None:
             raise ValueError(
@@ -116,9 +113,12 @@ def parse_form(expression: str) -> tuple[int, ...]:
     return tuple(exponents)
 
 
-def _split(text: str) -> list[str]:
-    """Factors of a product: split at '*' that is not part of '**'."""
-    return [f for f in re.split(r"(?<!\*)\*(?!\*)", text)]
+def _factors(expression: str) -> list[str]:
+    """Factors of a product: split at '*' that is not part of '**' (spaces ignored)."""
+    text = expression.replace(" ", "")
+    if not text:
+        raise ValueError("an empty expression")
+    return re.split(r"(?<!\*)\*(?!\*)", text)
 
 
 def form_key(monomial: tuple[int, ...]) -> FormKey:
@@ -251,11 +251,8 @@ def parse_signal_form(expression: str) -> SignalKey:
     ValueError
         The expression is not such a product (the message says why).
     """
-    text = expression.replace(" ", "")
-    if not text:
-        raise ValueError("an empty expression")
     key = [0] * (2 * len(SIGNALS))
-    for factor in _split(text):
+    for factor in _factors(expression):
         m = _SIGNAL_FACTOR.match(factor)
         if m is None:
             raise ValueError(

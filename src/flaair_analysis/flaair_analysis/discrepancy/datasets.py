@@ -191,15 +191,7 @@ def _as_run(case: DatasetCase, name: str, fs_hz: float, cols: dict[str, np.ndarr
         lost = np.arange(cols["drive_v"].size) % case.video_every != 0
         cols["stroke_deg"] = np.where(lost, np.nan, cols["stroke_deg"])
         cols["pitch_deg"] = np.where(lost, np.nan, cols["pitch_deg"])
-    return Run(
-        name=name,
-        fs_hz=fs_hz,
-        drive_v=cols["drive_v"],
-        stroke_sensor_v=cols["stroke_sensor_v"],
-        pitch_sensor_v=cols["pitch_sensor_v"],
-        stroke_deg=cols["stroke_deg"],
-        pitch_deg=cols["pitch_deg"],
-    )
+    return Run.from_columns(name, fs_hz, cols)
 
 
 @cache

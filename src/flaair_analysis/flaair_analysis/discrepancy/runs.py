@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import cast
 
@@ -66,6 +66,19 @@ class Run:
     stroke_deg: np.ndarray
     pitch_deg: np.ndarray
     mechanical0: np.ndarray | None = None
+
+    @classmethod
+    def from_columns(cls, name: str, fs_hz: float, columns: Mapping[str, np.ndarray]) -> Run:
+        """A run from a measured run's columns (`drive_v`, the two sensors, the two angles)."""
+        return cls(
+            name=name,
+            fs_hz=fs_hz,
+            drive_v=columns["drive_v"],
+            stroke_sensor_v=columns["stroke_sensor_v"],
+            pitch_sensor_v=columns["pitch_sensor_v"],
+            stroke_deg=columns["stroke_deg"],
+            pitch_deg=columns["pitch_deg"],
+        )
 
     def channel(self, name: str) -> np.ndarray:
         """Measured record of one of `CHANNELS`."""

@@ -5,10 +5,9 @@ apart by their content, the runs read from them, and the errors a command report
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
@@ -43,23 +42,10 @@ def _is_bag(path: Path) -> bool:
     return path.is_dir() or path.suffix == ".mcap"
 
 
-def _run(name: str, fs_hz: float, c: Mapping[str, np.ndarray]) -> Run:
-    """A core Run from a measured run's columns."""
-    return Run(
-        name=name,
-        fs_hz=fs_hz,
-        drive_v=c["drive_v"],
-        stroke_sensor_v=c["stroke_sensor_v"],
-        pitch_sensor_v=c["pitch_sensor_v"],
-        stroke_deg=c["stroke_deg"],
-        pitch_deg=c["pitch_deg"],
-    )
-
-
 def runs_from_csv(path: Path) -> Run:
     """One measured-run CSV as a core Run."""
     mr = read_run(path)
-    return _run(mr.name, mr.sample_rate_hz, mr.columns)
+    return Run.from_columns(mr.name, mr.sample_rate_hz, mr.columns)
 
 
 def runs_from_bag(path: Path) -> list[Run]:
@@ -69,7 +55,7 @@ def runs_from_bag(path: Path) -> list[Run]:
 
     bag = path.parent if path.suffix == ".mcap" else path
     return [
-        _run(r.name, r.sample_rate_hz, r.columns)
+        Run.from_columns(r.name, r.sample_rate_hz, r.columns)
         for r in bag_runs.load_runs([bag], need_truth=True, need_drive=True)
     ]
 
