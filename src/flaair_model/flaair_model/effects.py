@@ -315,7 +315,7 @@ class EffectEntry:
     note : why it is (not) separable.
     draw : the generator's range for each parameter (in draw order).
     own_family : the hidden-effect generator draws it in a benchmark family of its own, not
-        among the single-effect and pair robots (whose draws stay those of the effects before).
+        among the single-effect and pair robots (whose draws do not depend on it).
     """
 
     name: str
