@@ -100,9 +100,8 @@ PARTS = (
     # film's robot's multisine set (the script's --all-discrepancy-robots adds two more): 10-11 s
     Part("bench_multisine", 30, 90),
     # discovery against the independent truth: one robot of each of its nine kinds (make bench),
-    # five of each (make bench-full), two at once, one numba thread each: 103-107 s with eight
-    # kinds, the hysteretic actuator's robot 13-18 s more by hand (the truth's simulation 5-8 s a
-    # robot)
+    # five of each (make bench-full), two at once, one numba thread each (the truth's simulation
+    # 5-8 s a robot)
     Part("bench_truth", 135, 1500, ("--subset",), ()),
 )
 # the quick budgets add up to 1172 s
