@@ -211,8 +211,8 @@ def test_cli_writes_strict_json_csv_figure_and_reading_and_names_bad_input(tmp_p
 
 
 def test_the_batch_engine_refuses_a_model_with_a_collision_stop(setup) -> None:
-    """The compiled batch has no contact model: a robot with the collision effect is refused by
-    name, not simulated without its stop.
+    """The compiled batch has no contact model and no actuator hysteresis: a robot with either
+    effect is refused by name, not simulated without it.
     """
     from flaair_analysis import closed_loop
     from flaair_model.model import with_effects
@@ -222,4 +222,9 @@ def test_the_batch_engine_refuses_a_model_with_a_collision_stop(setup) -> None:
     stopped = with_effects(model, {"collision": {"stroke_limit_deg": 20.0}})
     with pytest.raises(ValueError, match="the sweep batch has no collision stop"):
         closed_loop.run_rows([row], stopped)
+    lagging = with_effects(
+        model, {"actuator_hysteresis": {"loop_fraction": 0.3, "saturation_v": 10.0}}
+    )
+    with pytest.raises(ValueError, match="the sweep batch has no actuator hysteresis"):
+        closed_loop.run_rows([row], lagging)
     assert len(closed_loop.run_rows([row], model)) == 1
