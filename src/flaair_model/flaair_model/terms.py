@@ -470,6 +470,8 @@ def _composed(expression: str) -> TermKind:
             raise ValueError(
                 f"{dynamics_error}; nor from the drive's and sensors' signals: {exc}"
             ) from None
+    if key is not None and not term_forms.signal_signals(key):
+        key = None  # a constant: the dynamics' (a row's `constant` elsewhere)
     if name in _COMPOSED:
         return _COMPOSED[name]
     sites = DYNAMICS_SITES if monomial else ()
@@ -477,9 +479,14 @@ def _composed(expression: str) -> TermKind:
         reads = set(term_forms.signal_signals(key))
         sites += tuple(s for s, have in term_forms.SITE_SIGNALS.items() if reads <= set(have))
     feature = _signal_feature(key) if key is not None and sites != DYNAMICS_SITES else None
+    words = (
+        f"a torque in {name}"
+        if feature is None
+        else (f"volts in {name}" if not monomial else f"a torque, or volts at a sensor, in {name}")
+    )
     _COMPOSED[name] = TermKind(
         name,
-        f"{name}, composed",
+        words,
         sites,
         name,
         monomial,
