@@ -8,8 +8,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
+from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
+from flaair_analysis.discrepancy.offnominal import random_robot
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict
-from flaair_model.term_forms import canonical, composed_forms, form_key, parse_form
+from flaair_model.term_forms import (
+    canonical,
+    composed_forms,
+    form_key,
+    parse_form,
+    parse_signal_form,
+    signal_forms,
+    signal_name,
+)
 from flaair_model.terms import DiscoveredTerm, composed_kinds, row_of
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
@@ -96,8 +107,6 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
     transmission (stroke) and the rows (a drive or rate leak, gain drift, the angle squared);
     never a time's abs() or sign(), nor a voltage a site cannot read.
     """
-    from flaair_model.term_forms import parse_signal_form, signal_forms, signal_name
-
     drive = {k.name for k in composed_kinds("drive")}
     stroke = {k.name for k in composed_kinds("stroke_sensor_v")}
     pitch = {k.name for k in composed_kinds("pitch_sensor_v")}
@@ -241,10 +250,6 @@ def test_the_suggested_run_is_the_suggested_sine_measured_on_the_same_robot(mode
     simulated it, then the amplitude asked; a run made with the first standard drive and the
     case's seed is the standard set's first run, sample for sample (video gaps included).
     """
-    from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
-    from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
-    from flaair_analysis.discrepancy.offnominal import random_robot
-
     drive = suggested_drive(60.0, 150.0, 20_000.0, 0.5)
     assert drive.shape == (10_000,) and np.max(np.abs(drive)) == pytest.approx(60.0, rel=1e-3)
     assert np.max(np.abs(drive[: round(0.25 * SETTLE_S * 20_000.0)])) < 31.0  # still ramping
