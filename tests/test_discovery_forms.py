@@ -286,3 +286,44 @@ def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
         ("psi*abs(dphi)", full, False),
     ]:
         assert is_degenerate(row_of(name), site, motion) is expected, name
+
+
+@pytest.mark.parametrize("truth_referenced", [False, True])
+def test_a_sensor_forms_change_to_the_residual_is_its_feature_along_the_model(
+    model, truth_referenced: bool
+) -> None:
+    """A sensor term adds to the chain's output after its high-pass and delay, so the residual
+    moves by the coefficient times the term's feature: the ranking's column
+    (`ResidualProblem.output_columns` along `term_signals`) equals the change a simulated probe
+    makes, to rounding, through a delayed, high-passed chain that already carries a term, with
+    the judged angle measured or simulated.
+    """
+    from flaair_analysis.discrepancy.diagnosis import noise_estimates
+    from flaair_analysis.discrepancy.effect_judging import AnalysisContext
+    from flaair_analysis.discrepancy.fitting import with_terms
+    from flaair_analysis.discrepancy.runs import simulate_runs
+    from flaair_model.model import with_effects
+    from flaair_model.settings import discrepancy as discrepancy_settings
+
+    case = random_robot("offnominal_null", 1)
+    t = np.arange(6000) / 20_000.0
+    drive = 40.0 * np.sin(2 * np.pi * (60.0 + 300.0 * t) * t)
+    runs = [make_run(case, model, "chirp", drive, seed=3)]
+    current = with_effects(
+        model, {"sensor_delay": {"delay_s": 40e-6}, "charge_amp_highpass": {"corner_hz": 3.0}}
+    )
+    current = with_terms(current, [DiscoveredTerm("crosstalk", "pitch_sensor_v", 0.02)])
+    noise = noise_estimates(runs, simulate_runs([current], runs)[0], model)
+    ctx = AnalysisContext(runs, noise, discrepancy_settings())
+    site = "pitch_sensor_v"
+    problem = ctx.problem(site, ctx.folds, truth_referenced, current)
+    r0 = np.concatenate(problem.residuals([current])[0])
+    signals = problem.term_signals(current)
+    for form in ("drive_v*abs(phi)", "pitch_sensor_v**2", "t*psi", "sign(ddrive_v)*psi**2"):
+        coefficient = 1e-3
+        probe = with_terms(current, [DiscoveredTerm(form, site, coefficient)])
+        change = np.concatenate(problem.residuals([probe])[0]) - r0
+        term = DiscoveredTerm(form, site, 1.0)
+        column = problem.output_columns({j: term.feature(s) for j, s in signals.items()})
+        assert np.abs(change).max() > 1e-3, form  # the probe moves the residual
+        np.testing.assert_allclose(change, coefficient * column, rtol=0, atol=1e-9, err_msg=form)

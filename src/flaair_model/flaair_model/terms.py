@@ -517,6 +517,8 @@ def row_of(kind: str) -> TermKind:
     """
     if kind in KINDS:
         return KINDS[kind]
+    if kind in _COMPOSED:  # a canonical name already built
+        return _COMPOSED[kind]
     try:
         return _composed(kind)
     except ValueError as exc:

@@ -13,8 +13,9 @@ from scipy import optimize
 from flaair_model.effects import SENSOR_CHANNELS
 from flaair_model.model import Model, effect_params, with_effect_on, with_effects
 from flaair_model.settings import DiscrepancySettings
-from flaair_model.terms import DiscoveredTerm
+from flaair_model.terms import DiscoveredTerm, TermSignals
 from flaair_model.validation import ModelError
+from flaair_sim.core.plant import sensor_chain
 
 from .runs import (
     MotionCache,
@@ -119,6 +120,46 @@ class ResidualProblem:
             x = self.runs[f.run].channel(self.channel)[idx]
             total += float(np.sum(((x - x.mean()) / self.weight) ** 2))
         return total
+
+    def term_signals(self, model: Model) -> dict[int, TermSignals]:
+        """{run id: the signals a term at this sensor channel reads along `model`}: its motion
+        (with the judged angle measured, where truth-referenced) and both chains' outputs before
+        any sensor term, as `residuals` gives them to the sensor chain.
+        """
+        side = SENSOR_SIDE[self.channel]
+        mech = mechanics_model(model)
+        chain = replace(
+            model, discovered=tuple(t for t in model.discovered if t.acts_on not in SENSOR_CHANNELS)
+        )
+        motion = self.motion.get([model], self.runs, self.run_ids)
+        out = {}
+        for j in self.run_ids:
+            run = self.runs[j]
+            stroke, pitch = motion[(mech, j)]
+            if self.truth_referenced:
+                stroke, pitch = measured_motion(run, stroke, pitch, side)
+            vref = model.sensors.reference_voltage_v
+            vs, vp = sensor_chain(chain, run.fs_hz, stroke, pitch, run.drive_v)
+            out[j] = TermSignals.of_block(
+                run.fs_hz,
+                run.drive_v,
+                phi=stroke,
+                psi=pitch,
+                stroke_sensor_v=vs - vref,
+                pitch_sensor_v=vp - vref,
+            )
+        return out
+
+    def output_columns(self, features: Mapping[int, np.ndarray]) -> np.ndarray:
+        """The weighted residual's change per unit of a term added to this sensor channel's
+        output, with feature {run id: per sample}: one column, the folds' samples stacked as
+        `residuals` stacks them.
+        """
+        cols = []
+        for f, idx in zip(self.folds, self.idx, strict=True):
+            x = features[f.run][idx]
+            cols.append(-(x - x.mean()) / self.weight)
+        return np.concatenate(cols)
 
     def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""

@@ -8,9 +8,10 @@ model's motion. `discovery` judges the shortlist.
 
 Besides the table's rows, a site may take any form composed from the primitives (a dynamics
 site) or the signals (the drive, a sensor), `flaair_model.terms.composed_kinds`, named by its
-expression. They are ranked cheaply, in
-batches of `RANK_BATCH`: one simulation each at a small coefficient gives the residual's
-sensitivity to it, and one linearized least-squares step the residual it would leave; only the
+expression. They are ranked cheaply: the residual's sensitivity to each (at a dynamics site or
+the drive, one simulation at a small coefficient, in batches of `RANK_BATCH`; at a sensor site,
+where a term adds to the chain's output, its feature along the current model, exactly) and one
+linearized least-squares step give the residual it would leave; only the
 best `discovery_composed_fits` per site are then fitted through the simulator like a row. A
 composed form that is numerically degenerate on the runs (zero or constant along the motion) is
 skipped and counted (`Candidates.degenerate`), never fitted.
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -97,23 +98,30 @@ class Candidates:
     rank_s: float = 0.0  # wall time of ranking the composed forms, every site of the step
 
 
-def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, np.ndarray]]:
-    """Simulated channels per run, with the velocities (rad/s) and the sensor deviations."""
+def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, Any]]:
+    """Simulated channels per run, with the velocities (rad/s), the sensor deviations and the
+    `TermSignals` a drive or sensor form reads.
+    """
     sims = simulate_runs([model], ctx.runs)[0]
     vref = model.sensors.reference_voltage_v
     out = []
     for run, sim in zip(ctx.runs, sims, strict=True):
         phi, psi = np.radians(sim["stroke_deg"]), np.radians(sim["pitch_deg"])
+        signals = TermSignals.of_block(
+            run.fs_hz,
+            run.drive_v,
+            phi=phi,
+            psi=psi,
+            stroke_sensor_v=sim["stroke_sensor_v"] - vref,
+            pitch_sensor_v=sim["pitch_sensor_v"] - vref,
+        )
         out.append(
             {
                 "phi": phi,
                 "dphi": np.gradient(phi) * run.fs_hz,
                 "psi": psi,
                 "dpsi": np.gradient(psi) * run.fs_hz,
-                "stroke_sensor_v": sim["stroke_sensor_v"] - vref,
-                "pitch_sensor_v": sim["pitch_sensor_v"] - vref,
-                "drive_v": run.drive_v,
-                "fs_hz": run.fs_hz,
+                "signals": signals,
             }
         )
     return out
@@ -123,24 +131,12 @@ def _feature_values(
     kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
 ) -> list[np.ndarray]:
     """The term's feature on each run along `motion` (a dynamics term: the states; a drive or
-    sensor term: the run's drive too, and the sensor deviations).
+    sensor term: the run's `TermSignals`).
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     if site in DYNAMICS_SITES:
         return [term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"]) for m in motion]
-    return [
-        term.feature(
-            TermSignals.of_block(
-                m["fs_hz"],
-                m["drive_v"],
-                phi=m["phi"],
-                psi=m["psi"],
-                stroke_sensor_v=m["stroke_sensor_v"],
-                pitch_sensor_v=m["pitch_sensor_v"],
-            )
-        )
-        for m in motion
-    ]
+    return [term.feature(m["signals"]) for m in motion]
 
 
 def _feature_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> float:
@@ -150,19 +146,19 @@ def _feature_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> flo
     return math.sqrt(sum(float(np.dot(x, x)) for x in f) / max(sum(x.size for x in f), 1))
 
 
-def _feature_stats(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> tuple[float, float]:
-    """(RMS, standard deviation) of a composed form's feature over the runs along `motion`."""
+def _composed_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> tuple[float, bool]:
+    """A composed form's RMS over the runs along `motion`, and whether it is degenerate there."""
     f = np.concatenate(_feature_values(kind, site, motion))
-    return float(np.sqrt(np.mean(f * f))), float(np.std(f))
+    rms, std = float(np.sqrt(np.mean(f * f))), float(np.std(f))
+    return rms, not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
 
 
 def is_degenerate(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> bool:
     """The feature is zero, not finite or constant along `motion` (per run: phi, dphi, psi, dpsi
-    in rad and rad/s; for a drive or sensor form also drive_v, fs_hz and the sensor deviations):
-    it cannot be told from the constant or from nothing.
+    in rad and rad/s; for a drive or sensor form, the run's `TermSignals` as ``signals``): it
+    cannot be told from the constant or from nothing.
     """
-    rms, std = _feature_stats(kind, site, motion)
-    return not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
+    return _composed_rms(kind, site, motion)[1]
 
 
 def _rank_composed(
@@ -180,18 +176,14 @@ def _rank_composed(
     share = _share_rms(site, ctx, current, motion)
     kinds, scales, degenerate = [], [], []
     for kind in composed_kinds(site):
-        rms, _std = _feature_stats(kind, site, motion)
-        if is_degenerate(kind, site, motion):
+        rms, degenerate_here = _composed_rms(kind, site, motion)
+        if degenerate_here:
             degenerate.append(kind.name)
             continue
         kinds.append(kind)
         scales.append(share / rms)
     if not kinds:
         return [], degenerate
-    probes = [
-        with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc)])
-        for k, sc in zip(kinds, scales, strict=True)
-    ]
     plant = fitted_along(site, current, problem.channel, ctx.settings.identify)
     plant = [p for p in plant if p.is_plant]
     x0 = np.array([[p.to_fit(spec_value(current, p)) for p in plant]])
@@ -203,16 +195,43 @@ def _rank_composed(
     r0 = np.concatenate(base[0])
     along = [np.concatenate(r) - r0 for r in base[1:]]
     ranked = []
-    for start in range(0, len(probes), RANK_BATCH):  # a batch's simulations held at once
-        chunk = slice(start, start + RANK_BATCH)
-        res = problem.residuals(probes[chunk])
-        for k, sc, r in zip(kinds[chunk], scales[chunk], res, strict=True):
-            a = np.column_stack([np.concatenate(r) - r0, *along])
-            step = np.linalg.lstsq(a, -r0, rcond=None)[0]
-            left = r0 + a @ step
-            ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
+    for k, sc, change in _changes(site, problem, current, kinds, scales, r0):
+        a = np.column_stack([change, *along])
+        step = np.linalg.lstsq(a, -r0, rcond=None)[0]
+        left = r0 + a @ step
+        ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
     ranked.sort(key=lambda c: c[0])
     return ranked, degenerate
+
+
+def _changes(
+    site: str,
+    problem: ResidualProblem,
+    current: Model,
+    kinds: list[TermKind],
+    scales: list[float],
+    r0: np.ndarray,
+) -> Iterator[tuple[TermKind, float, np.ndarray]]:
+    """(kind, scale, the weighted residual's change) per composed form at `PROBE_FRACTION` of its
+    scale: at a sensor site, where a term adds to the output after the chain, from its feature
+    along `current` (exact: the output is linear in it); elsewhere simulated, in batches.
+    """
+    if site in SENSOR_CHANNELS:
+        signals = problem.term_signals(current)
+        for k, sc in zip(kinds, scales, strict=True):
+            term = DiscoveredTerm(k.name, site, 1.0)
+            column = problem.output_columns({j: term.feature(s) for j, s in signals.items()})
+            yield k, sc, PROBE_FRACTION * sc * column
+        return
+    for start in range(0, len(kinds), RANK_BATCH):  # a batch's simulations held at once
+        chunk = slice(start, start + RANK_BATCH)
+        probes = [
+            with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc)])
+            for k, sc in zip(kinds[chunk], scales[chunk], strict=True)
+        ]
+        res = problem.residuals(probes)
+        for k, sc, r in zip(kinds[chunk], scales[chunk], res, strict=True):
+            yield k, sc, np.concatenate(r) - r0
 
 
 def _share_rms(
@@ -231,7 +250,8 @@ def _share_rms(
     if site == "drive":
         d = np.concatenate([r.drive_v for r in ctx.runs])
         return float(np.sqrt(np.mean(d * d)))
-    return rms(site)
+    x = np.concatenate([getattr(m["signals"], site) for m in motion])
+    return float(np.sqrt(np.mean(x * x)))
 
 
 def _sensor_effect_specs(site: str, model: Model) -> list[EffectSpec]:
