@@ -142,6 +142,7 @@ def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
         DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
         DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
         DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1),
+        DiscoveredTerm("drive_v*dpsi", "stroke_sensor_v", 1e-4),  # the angles' last samples
     )
     m = replace(model, discovered=terms)
     d = _drive()

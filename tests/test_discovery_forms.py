@@ -101,18 +101,22 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
 
 def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
     """The drive: 79 forms over the drive, its rate and time, less the actuator's gain and the
-    rows drive_rate, drive_square, drive_cube, drive_drift; a sensor: 920 over the drive, its
-    rate, time, the angles and its own voltage (never that voltage times the angle its film
-    reads: one signal seen twice), less the film's gain and strain transfer, the feedthrough and
-    transmission (stroke) and the rows (a drive or rate leak, gain drift, the angle squared);
-    never a time's abs() or sign(), nor a voltage a site cannot read.
+    rows drive_rate, drive_square, drive_cube, drive_drift; a sensor: 2589 over the drive, its
+    rate, time, the angles, their rates and its own voltage (never that voltage times the angle
+    its film reads or that angle's rate: one signal seen twice), less the film's gain and strain
+    transfer, the feedthrough and transmission (stroke) and the rows (a drive or rate leak, gain
+    drift, the angle squared); never a time's abs() or sign(), nor a voltage a site cannot read.
+    The count is the enumeration's: 8 signals, t unsigned, at most 3 in a product, total degree
+    at most 3, less the voltage with the angle or its rate.
     """
     drive = {k.name for k in composed_kinds("drive")}
     stroke = {k.name for k in composed_kinds("stroke_sensor_v")}
     pitch = {k.name for k in composed_kinds("pitch_sensor_v")}
     assert len(signal_forms("drive")) == 79 and len(drive) == 74
-    assert len(signal_forms("stroke_sensor_v")) == 920 == len(signal_forms("pitch_sensor_v"))
-    assert len(stroke) == 913 and len(pitch) == 914
+    assert len(signal_forms("stroke_sensor_v")) == 2589 == len(signal_forms("pitch_sensor_v"))
+    assert len(stroke) == 2582 and len(pitch) == 2583
+    assert {"phi*abs(dphi)", "dpsi*stroke_sensor_v", "drive_v*sign(dphi)"} <= stroke
+    assert {"dphi*stroke_sensor_v", "dpsi*pitch_sensor_v"}.isdisjoint(stroke | pitch)
     assert {"drive_v", "ddrive_v", "drive_v**2", "drive_v**3", "drive_v*t"}.isdisjoint(drive)
     assert {"drive_v*abs(drive_v)", "sign(ddrive_v)", "drive_v*t**2", "t"} <= drive
     assert {"phi", "phi**3", "stroke_sensor_v", "drive_v", "ddrive_v", "phi**2"}.isdisjoint(stroke)
@@ -132,7 +136,8 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
 
 def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     """drive_v*t**2 at the drive: the actuator sees the drive plus 1e-3 t^2 times it;
-    psi*stroke_sensor_v at the stroke sensor adds c psi dev to its output.
+    psi*stroke_sensor_v at the stroke sensor adds c psi dev to its output; dphi at the pitch
+    sensor adds c times the stroke's backward difference.
     """
     from dataclasses import replace
 
@@ -154,6 +159,12 @@ def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     vref = model.sensors.reference_voltage_v
     expected = base.stroke_sensor_v + 0.5 * base.pitch_rad * (base.stroke_sensor_v - vref)
     np.testing.assert_allclose(out.stroke_sensor_v, expected, rtol=0, atol=1e-12)
+    # a rate at a sensor: the angle's backward difference, 0 at the record's first sample
+    rate = DiscoveredTerm("dphi", "pitch_sensor_v", 2e-5)
+    out = simulate(drive, fs, replace(model, discovered=(rate,)))
+    dphi = np.diff(base.stroke_rad, prepend=base.stroke_rad[0]) * fs
+    np.testing.assert_allclose(out.pitch_sensor_v, base.pitch_sensor_v + 2e-5 * dphi, atol=1e-12)
+    assert np.abs(2e-5 * dphi).max() > 1e-3  # the rate moves the output
     with pytest.raises(ModelError, match="acts_on must be one of"):
         DiscoveredTerm("psi*stroke_sensor_v", "pitch_sensor_v", 0.5)
 

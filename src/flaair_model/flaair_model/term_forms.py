@@ -14,9 +14,11 @@ is ``abs(dphi)`` and ``phi**2*sign(phi)`` is ``phi*abs(phi)``: a state's factor 
 form).
 
 The drive and the sensor outputs take forms over signals instead (`SIGNALS`: the drive, its
-rate, time, the angles and the sensors' voltages; `SITE_SIGNALS` says which a site may read),
-composed the same way and evaluated on numpy blocks (`signal_value`); ``t`` (s from the start of
-the simulation, every run's own) is never negative, so it enters by its powers only.
+rate, time, the angles, their rates and the sensors' voltages; `SITE_SIGNALS` says which a site
+may read), composed the same way and evaluated on numpy blocks (`signal_value`); ``t`` (s from
+the start of the simulation, every run's own) is never negative, so it enters by its powers only.
+A product of the mechanical states alone is one form in both grammars, with one name (`SIGNALS`
+writes the states in `VARIABLES`' order).
 """
 
 from __future__ import annotations
@@ -211,15 +213,18 @@ SIGNALS: tuple[str, ...] = (
     "t",
     "phi",
     "psi",
+    "dphi",
+    "dpsi",
     "stroke_sensor_v",
     "pitch_sensor_v",
 )
+_MOTION = ("phi", "psi", "dphi", "dpsi")
 # Where a form over them may act, and with which: the drive is a function of the drive and time
-# alone; a sensor's output may also take the angles and that sensor's own voltage.
+# alone; a sensor's output may also take the angles, their rates and that sensor's own voltage.
 SITE_SIGNALS: dict[str, tuple[str, ...]] = {
     "drive": ("drive_v", "ddrive_v", "t"),
-    "stroke_sensor_v": ("drive_v", "ddrive_v", "t", "phi", "psi", "stroke_sensor_v"),
-    "pitch_sensor_v": ("drive_v", "ddrive_v", "t", "phi", "psi", "pitch_sensor_v"),
+    "stroke_sensor_v": ("drive_v", "ddrive_v", "t", *_MOTION, "stroke_sensor_v"),
+    "pitch_sensor_v": ("drive_v", "ddrive_v", "t", *_MOTION, "pitch_sensor_v"),
 }
 # Forms the plant or a vocabulary effect already computes at a site (the actuator's gain, a
 # film's transduction gain and its strain transfer, the transmission's cubic, the feedthrough).
@@ -228,8 +233,8 @@ SIGNAL_PLANT_FORMS: dict[str, tuple[str, ...]] = {
     "stroke_sensor_v": ("phi", "phi**3", "stroke_sensor_v", "drive_v"),
     "pitch_sensor_v": ("psi", "pitch_sensor_v"),
 }
-# The angle each sensor's film reads: its voltage is that angle through the chain.
-SENSOR_ANGLE = {"stroke_sensor_v": "phi", "pitch_sensor_v": "psi"}
+# The angle each sensor's film reads, and its rate: its voltage is that angle through the chain.
+SENSOR_ANGLE = {"stroke_sensor_v": ("phi", "dphi"), "pitch_sensor_v": ("psi", "dpsi")}
 _UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
 _SIGNAL_FACTOR = re.compile(
     r"^(?:(sign|abs)\((" + "|".join(SIGNALS) + r")\)|(" + "|".join(SIGNALS) + r"))(?:\*\*(\d+))?$"
@@ -297,13 +302,14 @@ def signal_forms(site: str) -> tuple[tuple[str, SignalKey], ...]:
     """Every form over `site`'s signals (`SITE_SIGNALS`), (name, key), simplest first: each
     signal's factor classes and their products over two and three signals, of total degree at
     most `MAX_POWER`; none at a dynamics site. A sensor's voltage and the angle its film reads
-    (`SENSOR_ANGLE`) are one signal seen twice: no form multiplies the two.
+    (`SENSOR_ANGLE`) are one signal seen twice: no form multiplies the voltage by that angle or
+    its rate.
     """
     names = SITE_SIGNALS.get(site, ())
     keys: list[SignalKey] = []
     for n in range(1, MAX_VARIABLES + 1):
         for chosen in combinations(names, n):
-            if site in SENSOR_ANGLE and {site, SENSOR_ANGLE[site]} <= set(chosen):
+            if site in SENSOR_ANGLE and site in chosen and set(SENSOR_ANGLE[site]) & set(chosen):
                 continue
             options = [
                 [(d, d % 2) for d in range(1, MAX_POWER + 1)] if x in _UNSIGNED else _classes()

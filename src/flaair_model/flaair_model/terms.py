@@ -136,10 +136,12 @@ class TermSignals:
         stroke_sensor_v: np.ndarray | None = None,
         pitch_sensor_v: np.ndarray | None = None,
         zi: float = 0.0,
+        dphi: np.ndarray | None = None,
+        dpsi: np.ndarray | None = None,
     ) -> None:
         self.fs_hz = fs_hz
         self.drive_v, self.ddrive_v, self.t = drive_v, ddrive_v, t
-        self.phi, self.psi = phi, psi
+        self.phi, self.psi, self.dphi, self.dpsi = phi, psi, dphi, dpsi
         self.stroke_sensor_v, self.pitch_sensor_v = stroke_sensor_v, pitch_sensor_v
         self.zi = self.zf = float(zi)
 
@@ -151,13 +153,22 @@ class TermSignals:
         first_index: int = 0,
         last_drive_v: float = 0.0,
         zi: float = 0.0,
+        last_angles_rad: tuple[float, float] = (0.0, 0.0),
         **sensors: np.ndarray,
     ) -> TermSignals:
         """The signals of a block of commanded drive starting at sample `first_index`:
-        ``ddrive_v`` the backward difference from `last_drive_v`, ``t`` from the sample index.
+        ``ddrive_v`` the backward difference from `last_drive_v`, ``t`` from the sample index;
+        given the angles (rad), their rates ``dphi`` and ``dpsi`` (rad/s), backward differences
+        from `last_angles_rad` (the sample before the block). The drive starts from 0 V, the wing
+        wherever it is: at sample 0 an angle's rate is 0.
         """
         ddrive = np.diff(drive_v, prepend=last_drive_v) * fs_hz
         t = (first_index + np.arange(drive_v.shape[0])) / fs_hz
+        for name, last in zip(("phi", "psi"), last_angles_rad, strict=True):
+            angle = sensors.get(name)
+            if angle is not None and angle.shape[0]:
+                before = angle[0] if first_index == 0 else last
+                sensors["d" + name] = np.diff(angle, prepend=before) * fs_hz
         return cls(fs_hz, drive_v, ddrive, t, zi=zi, **sensors)
 
     def lowpass(self, x: np.ndarray, corner_hz: float) -> np.ndarray:

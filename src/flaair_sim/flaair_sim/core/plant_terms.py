@@ -6,9 +6,10 @@ kernel's parameter vector); the others act outside it, on numpy blocks:
 - drive terms: the drive the actuator sees is the commanded drive plus each term;
 - sensor terms: added to a charge amplifier's output after its high-pass and delay.
 
-State between blocks (`TermState`): the last commanded drive sample (for ``ddrive_v``), the
-sample index (for ``t``) and one low-pass state per term, so that stepping block by block equals
-one whole record, like the rest of the plant.
+State between blocks (`terms_state`): the last commanded drive sample (for ``ddrive_v``), the
+last angles (for the sensor sites' ``dphi`` and ``dpsi``) and one low-pass state per term; the
+sample index (for ``t``) is the plant's. Stepping block by block equals one whole record, like
+the rest of the plant.
 """
 
 from __future__ import annotations
@@ -41,14 +42,21 @@ def has_outside_terms(model: Model) -> bool:
     return any(not t.is_dynamics for t in model.discovered)
 
 
+# terms_state's layout: the last drive (V), the last stroke and pitch (rad), then the filters.
+_LAST_DRIVE, _LAST_PHI, _LAST_PSI, _FILTERS = 0, 1, 2, 3
+
+
 def terms_state(model: Model, state: np.ndarray | None = None) -> np.ndarray:
-    """[last drive V, low-pass state per outside term] (at rest, or `state` fitted to `model`)."""
-    n = 1 + len(outside_terms(model)) if model.discovered else 1
+    """[last drive V, last stroke rad, last pitch rad, low-pass state per outside term] (at
+    rest, or `state` fitted to `model`: the last samples kept, the filters at rest if the
+    model's terms changed).
+    """
+    n = _FILTERS + (len(outside_terms(model)) if model.discovered else 0)
     if state is not None and state.shape == (n,):
         return state.copy()
     fresh = np.zeros(n)
-    if state is not None and state.size:
-        fresh[0] = state[0]
+    if state is not None and state.size >= _FILTERS:
+        fresh[:_FILTERS] = state[:_FILTERS]
     return fresh
 
 
@@ -68,9 +76,11 @@ def drive_seen(
     for i, term in enumerate(terms):
         if term.acts_on != "drive":
             continue
-        sig = TermSignals.of_block(fs_hz, drive_v, first_index, state[0], state[1 + i])
+        sig = TermSignals.of_block(
+            fs_hz, drive_v, first_index, state[_LAST_DRIVE], state[_FILTERS + i]
+        )
         out += term.coefficient * term.feature(sig)
-        state[1 + i] = sig.zf
+        state[_FILTERS + i] = sig.zf
     return out
 
 
@@ -85,7 +95,9 @@ def add_sensor_terms(
     pitch_sensor_v: np.ndarray,
     state: np.ndarray,
 ) -> None:
-    """Add the sensor terms to both outputs in place; `state` updated in place (last drive too)."""
+    """Add the sensor terms to both outputs in place; `state` updated in place (the last drive
+    and angles too).
+    """
     terms = outside_terms(model) if model.discovered else ()
     if any(t.acts_on in SENSOR_SITES for t in terms):
         vref = model.sensors.reference_voltage_v
@@ -98,16 +110,18 @@ def add_sensor_terms(
                 fs_hz,
                 drive_v,
                 first_index,
-                state[0],
-                state[1 + i],
+                state[_LAST_DRIVE],
+                state[_FILTERS + i],
+                (state[_LAST_PHI], state[_LAST_PSI]),
                 phi=stroke_rad,
                 psi=pitch_rad,
                 **dev,
             )
             out[term.acts_on] += term.coefficient * term.feature(sig)
-            state[1 + i] = sig.zf
+            state[_FILTERS + i] = sig.zf
     if drive_v.shape[0]:
-        state[0] = drive_v[-1]
+        state[_LAST_DRIVE] = drive_v[-1]
+        state[_LAST_PHI], state[_LAST_PSI] = stroke_rad[-1], pitch_rad[-1]
 
 
 def batch_drives(
