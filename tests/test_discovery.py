@@ -143,6 +143,7 @@ def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
         DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
         DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1),
         DiscoveredTerm("drive_v*dpsi", "stroke_sensor_v", 1e-4),  # the angles' last samples
+        DiscoveredTerm("lowpass(dphi)", "pitch_sensor_v", 1e-4, (("corner_hz", 500.0),)),
     )
     m = replace(model, discovered=terms)
     d = _drive()

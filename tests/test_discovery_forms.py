@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import signal
 
 from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
 from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
@@ -107,14 +108,21 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
     transfer, the feedthrough and transmission (stroke) and the rows (a drive or rate leak, gain
     drift, the angle squared); never a time's abs() or sign(), nor a voltage a site cannot read.
     The count is the enumeration's: 8 signals, t unsigned, at most 3 in a product, total degree
-    at most 3, less the voltage with the angle or its rate.
+    at most 3, less the voltage with the angle or its rate. Beside the products, a low-pass of
+    each signal a site reads but time, less what a row low-passes (the drive, at every site).
     """
     drive = {k.name for k in composed_kinds("drive")}
     stroke = {k.name for k in composed_kinds("stroke_sensor_v")}
     pitch = {k.name for k in composed_kinds("pitch_sensor_v")}
-    assert len(signal_forms("drive")) == 79 and len(drive) == 74
+    assert len(signal_forms("drive")) == 79 and len(drive) == 74 + 1
     assert len(signal_forms("stroke_sensor_v")) == 2589 == len(signal_forms("pitch_sensor_v"))
-    assert len(stroke) == 2582 and len(pitch) == 2583
+    assert len(stroke) == 2582 + 6 and len(pitch) == 2583 + 6
+    lowpasses = ["lowpass(ddrive_v)", "lowpass(phi)", "lowpass(psi)", "lowpass(dphi)"]
+    assert {"lowpass(ddrive_v)"} == {n for n in drive if n.startswith("lowpass")}
+    assert {*lowpasses, "lowpass(dpsi)", "lowpass(stroke_sensor_v)"} == {
+        n for n in stroke if n.startswith("lowpass")
+    }
+    assert "lowpass(drive_v)" not in stroke | pitch | drive  # drive_lowpass_leak, drive_lag
     assert {"phi*abs(dphi)", "dpsi*stroke_sensor_v", "drive_v*sign(dphi)"} <= stroke
     assert {"dphi*stroke_sensor_v", "dpsi*pitch_sensor_v"}.isdisjoint(stroke | pitch)
     assert {"drive_v", "ddrive_v", "drive_v**2", "drive_v**3", "drive_v*t"}.isdisjoint(drive)
@@ -132,6 +140,8 @@ def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:
         parse_signal_form("abs(t)")
     with pytest.raises(ValueError, match="more than 3 signals"):
         parse_signal_form("drive_v*t*phi*psi")
+    with pytest.raises(ModelError, match="not lowpass"):
+        row_of("lowpass(t)")
 
 
 def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
@@ -159,6 +169,15 @@ def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     vref = model.sensors.reference_voltage_v
     expected = base.stroke_sensor_v + 0.5 * base.pitch_rad * (base.stroke_sensor_v - vref)
     np.testing.assert_allclose(out.stroke_sensor_v, expected, rtol=0, atol=1e-12)
+    # a low-pass of the pitch at the stroke sensor: scipy's bilinear first order, from rest
+    memory = DiscoveredTerm("lowpass(psi)", "stroke_sensor_v", 0.2, (("corner_hz", 300.0),))
+    assert memory.expression == "0.2 * lowpass(psi, 300)"
+    out = simulate(drive, fs, replace(model, discovered=(memory,)))
+    k = np.tan(np.pi * 300.0 / fs)
+    filtered = signal.lfilter([k / (1 + k), k / (1 + k)], [1.0, (k - 1) / (k + 1)], base.pitch_rad)
+    np.testing.assert_allclose(
+        out.stroke_sensor_v, base.stroke_sensor_v + 0.2 * filtered, atol=1e-12
+    )
     # a rate at a sensor: the angle's backward difference, 0 at the record's first sample
     rate = DiscoveredTerm("dphi", "pitch_sensor_v", 2e-5)
     out = simulate(drive, fs, replace(model, discovered=(rate,)))
@@ -338,3 +357,37 @@ def test_a_sensor_forms_change_to_the_residual_is_its_feature_along_the_model(
         column = problem.output_columns({j: term.feature(s) for j, s in signals.items()})
         assert np.abs(change).max() > 1e-3, form  # the probe moves the residual
         np.testing.assert_allclose(change, coefficient * column, rtol=0, atol=1e-9, err_msg=form)
+
+
+@pytest.mark.timeout(60)
+def test_a_films_memory_is_ranked_first_and_fitted_with_its_corner(model) -> None:
+    """A pitch film that also reads the stroke through a 250 Hz first-order path (3 % of its own
+    gain): among the pitch sensor's ~2,600 forms the low-pass of phi ranks first, and its fit
+    from the corner grid's starts finds the coefficient within 0.5 % and the corner within 2 %.
+    """
+    from dataclasses import replace
+
+    from flaair_analysis.discrepancy.datasets import true_model
+    from flaair_analysis.discrepancy.diagnosis import noise_estimates
+    from flaair_analysis.discrepancy.effect_judging import AnalysisContext
+    from flaair_analysis.discrepancy.runs import sensor_gain_v_per_deg, simulate_runs
+    from flaair_analysis.discrepancy.term_candidates import candidates
+    from flaair_model.settings import discrepancy as discrepancy_settings
+
+    case = random_robot("offnominal_null", 1)
+    gain_v_per_rad = np.degrees(sensor_gain_v_per_deg(true_model(case, model), "pitch_sensor_v"))
+    memory = DiscoveredTerm(
+        "lowpass(phi)", "pitch_sensor_v", 0.03 * gain_v_per_rad, (("corner_hz", 250.0),)
+    )
+    case = replace(case, terms=(memory,))
+    truth = replace(true_model(case, model), noise=model.noise)
+    runs = make_runs(case, model)[:2]  # the two chirps
+    noise = noise_estimates(runs, simulate_runs([truth], runs)[0], model)
+    ctx = AnalysisContext(runs, noise, discrepancy_settings())
+    found = candidates(ctx, replace(truth, discovered=()), "pitch_sensor_v", False)
+    assert found.composed_ranked[0][:2] == ("lowpass(phi)", "pitch_sensor_v")
+    _rss, kind, _site, specs, x = found.fitted[0]
+    values = {s.key: s.from_fit(u) for s, u in zip(specs, x, strict=True)}
+    assert kind.name == "lowpass(phi)"
+    assert values["coefficient"] == pytest.approx(memory.coefficient, rel=0.005)
+    assert values["corner_hz"] == pytest.approx(250.0, rel=0.02)

@@ -19,6 +19,9 @@ may read), composed the same way and evaluated on numpy blocks (`signal_value`);
 the start of the simulation, every run's own) is never negative, so it enters by its powers only.
 A product of the mechanical states alone is one form in both grammars, with one name (`SIGNALS`
 writes the states in `VARIABLES`' order).
+
+Memory: a drive or sensor form may also be a first-order low-pass of one signal,
+``lowpass(x)`` (`filtered_forms`), its corner a shape parameter fitted with the coefficient.
 """
 
 from __future__ import annotations
@@ -41,6 +44,8 @@ __all__ = [
     "VARIABLES",
     "canonical",
     "composed_forms",
+    "filtered_forms",
+    "filtered_signal",
     "form_key",
     "parse_form",
     "parse_signal_form",
@@ -326,18 +331,62 @@ def signal_forms(site: str) -> tuple[tuple[str, SignalKey], ...]:
     return tuple((signal_name(k), k) for k in keys)
 
 
-def signal_value(key: SignalKey, values: Mapping[str, np.ndarray]) -> np.ndarray:
-    """A signal form on arrays of its signals (`values`: signal name -> samples)."""
+def signal_value(
+    key: SignalKey,
+    values: Mapping[str, np.ndarray],
+    factors: dict[tuple[str, int, int], np.ndarray] | None = None,
+) -> np.ndarray:
+    """A signal form on arrays of its signals (`values`: signal name -> samples); `factors`, a
+    cache of each signal's factors kept by the caller across the forms of one set of signals.
+    """
+    cache = {} if factors is None else factors
     out: np.ndarray | None = None
     for i, x in enumerate(SIGNALS):
         degree, odd = key[2 * i], key[2 * i + 1]
         if not (degree or odd):
             continue
-        v = np.asarray(values[x], dtype=np.float64)
-        f = np.abs(v) ** degree if degree else np.ones_like(v)
-        if odd:
-            f = f * np.sign(v)
+        f = cache.get((x, degree, odd))
+        if f is None:
+            f = cache[(x, degree, odd)] = _signal_factor(values[x], degree, odd)
         out = f if out is None else out * f
     if out is None:
         raise ValueError("the constant form has no signal")
     return out
+
+
+def _signal_factor(values: np.ndarray, degree: int, odd: int) -> np.ndarray:
+    """abs(x)**degree * sign(x)**odd on samples of x."""
+    v = np.asarray(values, dtype=np.float64)
+    magnitude = np.abs(v)
+    f = np.ones_like(v) if degree == 0 else magnitude
+    for _ in range(degree - 1):
+        f = f * magnitude
+    return f * np.sign(v) if odd else f
+
+
+# ------------------------------------------------------------------- first-order low-passes
+
+_FILTERED = re.compile(r"^lowpass\((" + "|".join(SIGNALS) + r")\)$")
+
+
+def filtered_signal(expression: str) -> str:
+    """The signal a low-pass form ``'lowpass(x)'`` filters.
+
+    Raises
+    ------
+    ValueError
+        The expression is not a low-pass of one signal (time is never filtered: it would be time
+        delayed).
+    """
+    m = _FILTERED.match(expression.replace(" ", ""))
+    if m is None or m.group(1) in _UNSIGNED:
+        raise ValueError(
+            f"{expression!r} is not lowpass() of one signal "
+            f"({', '.join(x for x in SIGNALS if x not in _UNSIGNED)})"
+        )
+    return m.group(1)
+
+
+def filtered_forms(site: str) -> tuple[str, ...]:
+    """Every low-pass form at `site`: ``lowpass(x)`` of each signal it reads but time."""
+    return tuple(f"lowpass({x})" for x in SITE_SIGNALS.get(site, ()) if x not in _UNSIGNED)

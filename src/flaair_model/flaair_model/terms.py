@@ -35,6 +35,7 @@ backward difference of the held drive); ``t`` (s from the start of the simulatio
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -144,6 +145,8 @@ class TermSignals:
         self.phi, self.psi, self.dphi, self.dpsi = phi, psi, dphi, dpsi
         self.stroke_sensor_v, self.pitch_sensor_v = stroke_sensor_v, pitch_sensor_v
         self.zi = self.zf = float(zi)
+        # each signal's factors (abs()**d sign()**o), kept for the forms evaluated on these signals
+        self.factors: dict[tuple[str, int, int], np.ndarray] = {}
 
     @classmethod
     def of_block(
@@ -466,6 +469,8 @@ def _composed(expression: str) -> TermKind:
     ValueError
         Neither grammar builds it (the message says why for each).
     """
+    if expression.replace(" ", "").startswith("lowpass("):
+        return _filtered(term_forms.filtered_signal(expression))
     monomial: tuple[int, ...] = ()
     key: term_forms.SignalKey | None = None
     try:
@@ -508,13 +513,35 @@ def _composed(expression: str) -> TermKind:
     return _COMPOSED[name]
 
 
+def _filtered(x: str) -> TermKind:
+    """The low-pass form of signal `x`, ``lowpass(x)``: its corner a shape parameter."""
+    name = f"lowpass({x})"
+    if name not in _COMPOSED:
+        sites = tuple(s for s, have in term_forms.SITE_SIGNALS.items() if x in have)
+
+        def feature(s: TermSignals, p: Mapping[str, float]) -> np.ndarray:
+            return s.lowpass(getattr(s, x) if x in _EVERYWHERE else s.need(x), p["corner_hz"])
+
+        _COMPOSED[name] = TermKind(
+            name,
+            f"volts in a first-order low-pass of {x}",
+            sites,
+            f"lowpass({x}, {{corner_hz}})",
+            feature=feature,
+            shape=_CORNER,
+            examples="a memory: a filtering path, a viscoelastic film, a slow pickup",
+            composed=True,
+        )
+    return _COMPOSED[name]
+
+
 def _signal_feature(key: term_forms.SignalKey) -> Feature:
     """A signal form's feature on a block's `TermSignals`."""
     reads = term_forms.signal_signals(key)
 
     def feature(s: TermSignals, _p: Mapping[str, float]) -> np.ndarray:
         values = {x: getattr(s, x) if x in _EVERYWHERE else s.need(x) for x in reads}
-        return term_forms.signal_value(key, values)
+        return term_forms.signal_value(key, values, s.factors)
 
     return feature
 
@@ -553,19 +580,32 @@ def composed_kinds(site: str) -> tuple[TermKind, ...]:
 
 def _signal_kinds(site: str) -> tuple[TermKind, ...]:
     """The signal forms at the drive or sensor site `site` that neither a row there nor the plant
-    or a vocabulary effect (`term_forms.SIGNAL_PLANT_FORMS`) computes, simplest first.
+    or a vocabulary effect (`term_forms.SIGNAL_PLANT_FORMS`) computes, simplest first, then the
+    low-passes of its signals that no row there computes.
     """
     known = {term_forms.parse_signal_form(f) for f in term_forms.SIGNAL_PLANT_FORMS.get(site, ())}
+    filtered = set()
     for k in kinds_for(site):
+        filtered |= set(_LOWPASS_OF.findall(k.form))
         try:
             known.add(
                 term_forms.parse_signal_form(
                     DiscoveredTerm(k.name, site, 1.0, _mid(k)).feature_expression
                 )
             )
-        except ValueError:  # a low-pass, another sensor's voltage: not a form of the grammar
+        except ValueError:  # a low-pass, another sensor's voltage: not a product of signals
             continue
-    return tuple(_composed(n) for n, k in term_forms.signal_forms(site) if k not in known)
+    products = tuple(_composed(n) for n, k in term_forms.signal_forms(site) if k not in known)
+    lowpasses = tuple(
+        _composed(n)
+        for n in term_forms.filtered_forms(site)
+        if term_forms.filtered_signal(n) not in filtered
+    )
+    return products + lowpasses
+
+
+# What a row low-passes (its form's `lowpass(x, ...)`): the low-pass form of x is that row.
+_LOWPASS_OF = re.compile(r"lowpass\((\w+),")
 
 
 def _mid(kind: TermKind) -> tuple[tuple[str, float], ...]:

@@ -146,9 +146,13 @@ def _feature_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> flo
     return math.sqrt(sum(float(np.dot(x, x)) for x in f) / max(sum(x.size for x in f), 1))
 
 
-def _composed_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> tuple[float, bool]:
-    """A composed form's RMS over the runs along `motion`, and whether it is degenerate there."""
-    f = np.concatenate(_feature_values(kind, site, motion))
+def _composed_rms(
+    kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
+) -> tuple[float, bool]:
+    """A composed form's RMS over the runs along `motion` (at `shape`, a low-pass's corner), and
+    whether it is degenerate there.
+    """
+    f = np.concatenate(_feature_values(kind, site, motion, shape))
     rms, std = float(np.sqrt(np.mean(f * f))), float(np.std(f))
     return rms, not (math.isfinite(rms) and rms > 0 and std > DEGENERATE_REL_STD * rms)
 
@@ -174,15 +178,18 @@ def _rank_composed(
     degenerate forms.
     """
     share = _share_rms(site, ctx, current, motion)
-    kinds, scales, degenerate = [], [], []
+    variants, scales, degenerate = [], [], []
     for kind in composed_kinds(site):
-        rms, degenerate_here = _composed_rms(kind, site, motion)
-        if degenerate_here:
+        kept = 0
+        for shape in _shapes(kind):
+            rms, degenerate_here = _composed_rms(kind, site, motion, shape)
+            if not degenerate_here:
+                variants.append((kind, shape))
+                scales.append(share / rms)
+                kept += 1
+        if not kept:
             degenerate.append(kind.name)
-            continue
-        kinds.append(kind)
-        scales.append(share / rms)
-    if not kinds:
+    if not variants:
         return [], degenerate
     plant = fitted_along(site, current, problem.channel, ctx.settings.identify)
     plant = [p for p in plant if p.is_plant]
@@ -194,44 +201,56 @@ def _rank_composed(
     base = problem.residuals([current, *plant_probes])
     r0 = np.concatenate(base[0])
     along = [np.concatenate(r) - r0 for r in base[1:]]
-    ranked = []
-    for k, sc, change in _changes(site, problem, current, kinds, scales, r0):
-        a = np.column_stack([change, *along])
-        step = np.linalg.lstsq(a, -r0, rcond=None)[0]
-        left = r0 + a @ step
-        ranked.append((float(np.dot(left, left)), k, COEFFICIENT_RANGE * sc))
-    ranked.sort(key=lambda c: c[0])
-    return ranked, degenerate
+    best: dict[str, tuple[float, TermKind, float]] = {}
+    r0_ss = float(np.dot(r0, r0))
+    for (k, _shape), sc, change in _changes(site, problem, current, variants, scales, r0):
+        if along:
+            a = np.column_stack([change, *along])
+            step = np.linalg.lstsq(a, -r0, rcond=None)[0]
+            left = r0 + a @ step
+            rss = float(np.dot(left, left))
+        else:  # one column: the least-squares step in closed form
+            cc = float(np.dot(change, change))
+            rss = r0_ss - float(np.dot(change, r0)) ** 2 / cc if cc > 0 else r0_ss
+        if k.name not in best or rss < best[k.name][0]:  # a low-pass: its best corner
+            best[k.name] = (rss, k, COEFFICIENT_RANGE * sc)
+    return sorted(best.values(), key=lambda c: c[0]), degenerate
+
+
+def _shapes(kind: TermKind) -> list[tuple[tuple[str, float], ...]]:
+    """The shape values a composed form is ranked at: none, or each of its grid's corners."""
+    return [((s.key, g),) for s in kind.shape for g in s.grid] or [()]
 
 
 def _changes(
     site: str,
     problem: ResidualProblem,
     current: Model,
-    kinds: list[TermKind],
+    variants: list[tuple[TermKind, tuple[tuple[str, float], ...]]],
     scales: list[float],
     r0: np.ndarray,
-) -> Iterator[tuple[TermKind, float, np.ndarray]]:
-    """(kind, scale, the weighted residual's change) per composed form at `PROBE_FRACTION` of its
-    scale: at a sensor site, where a term adds to the output after the chain, from its feature
-    along `current` (exact: the output is linear in it); elsewhere simulated, in batches.
+) -> Iterator[tuple[tuple[TermKind, tuple[tuple[str, float], ...]], float, np.ndarray]]:
+    """((kind, shape), scale, the weighted residual's change) per composed form at
+    `PROBE_FRACTION` of its scale: at a sensor site, where a term adds to the output after the
+    chain, from its feature along `current` (exact: the output is linear in it); elsewhere
+    simulated, in batches.
     """
     if site in SENSOR_CHANNELS:
         signals = problem.term_signals(current)
-        for k, sc in zip(kinds, scales, strict=True):
-            term = DiscoveredTerm(k.name, site, 1.0)
+        for (k, shape), sc in zip(variants, scales, strict=True):
+            term = DiscoveredTerm(k.name, site, 1.0, shape)
             column = problem.output_columns({j: term.feature(s) for j, s in signals.items()})
-            yield k, sc, PROBE_FRACTION * sc * column
+            yield (k, shape), sc, PROBE_FRACTION * sc * column
         return
-    for start in range(0, len(kinds), RANK_BATCH):  # a batch's simulations held at once
+    for start in range(0, len(variants), RANK_BATCH):  # a batch's simulations held at once
         chunk = slice(start, start + RANK_BATCH)
         probes = [
-            with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc)])
-            for k, sc in zip(kinds[chunk], scales[chunk], strict=True)
+            with_terms(current, [DiscoveredTerm(k.name, site, PROBE_FRACTION * sc, shape)])
+            for (k, shape), sc in zip(variants[chunk], scales[chunk], strict=True)
         ]
         res = problem.residuals(probes)
-        for k, sc, r in zip(kinds[chunk], scales[chunk], res, strict=True):
-            yield k, sc, np.concatenate(r) - r0
+        for v, sc, r in zip(variants[chunk], scales[chunk], res, strict=True):
+            yield v, sc, np.concatenate(r) - r0
 
 
 def _share_rms(
