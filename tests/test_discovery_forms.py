@@ -391,3 +391,19 @@ def test_a_films_memory_is_ranked_first_and_fitted_with_its_corner(model) -> Non
     assert kind.name == "lowpass(phi)"
     assert values["coefficient"] == pytest.approx(memory.coefficient, rel=0.005)
     assert values["corner_hz"] == pytest.approx(250.0, rel=0.02)
+
+
+def test_a_huge_ranking_column_leaves_the_rss_its_direction_does() -> None:
+    """A form whose RMS along the motion is tiny gets a huge probe scale: its column's square
+    would overflow, but the rss a least-squares step leaves depends on its direction only.
+    """
+    from flaair_analysis.discrepancy.term_candidates import _one_column_rss
+
+    rng = np.random.default_rng(1)
+    r0, column = rng.standard_normal(500), rng.standard_normal(500)
+    r0_ss = float(r0 @ r0)
+    expected = r0_ss - float(column @ r0) ** 2 / float(column @ column)
+    assert _one_column_rss(1e200 * column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
+    assert _one_column_rss(column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
+    assert _one_column_rss(np.zeros(500), r0, r0_ss) == r0_ss
+    assert _one_column_rss(np.full(500, np.inf), r0, r0_ss) == r0_ss

@@ -209,12 +209,23 @@ def _rank_composed(
             step = np.linalg.lstsq(a, -r0, rcond=None)[0]
             left = r0 + a @ step
             rss = float(np.dot(left, left))
-        else:  # one column: the least-squares step in closed form
-            cc = float(np.dot(change, change))
-            rss = r0_ss - float(np.dot(change, r0)) ** 2 / cc if cc > 0 else r0_ss
+        else:  # one column: the least-squares step in closed form, on the unit column
+            rss = _one_column_rss(change, r0, r0_ss)
         if k.name not in best or rss < best[k.name][0]:  # a low-pass: its best corner
             best[k.name] = (rss, k, COEFFICIENT_RANGE * sc)
     return sorted(best.values(), key=lambda c: c[0]), degenerate
+
+
+def _one_column_rss(column: np.ndarray, r0: np.ndarray, r0_ss: float) -> float:
+    """The rss `r0` leaves after one least-squares step along `column` (r0_ss where the column
+    is zero or not finite). The column is scaled to its largest sample first: a form whose RMS
+    is tiny has a huge probe scale, whose square would overflow.
+    """
+    size = float(np.max(np.abs(column)))
+    if not (math.isfinite(size) and size > 0.0):
+        return r0_ss
+    unit = column / size
+    return r0_ss - float(np.dot(unit, r0)) ** 2 / float(np.dot(unit, unit))
 
 
 def _shapes(kind: TermKind) -> list[tuple[tuple[str, float], ...]]:
