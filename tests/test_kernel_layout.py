@@ -61,12 +61,27 @@ def test_the_constants_tuple_is_the_marked_slots_over_their_inertia() -> None:
 @pytest.mark.timeout(120)
 def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
     p = _vector()
+    for slot, places in enumerate([(0, 3, 5), (1, 2, 6, 7, 10, 11)]):  # up to MAX_FACTORS each
+        exponents = np.zeros(len(PRIMITIVES))
+        exponents[list(places)] = 1 + np.arange(len(places)) % 3
+        start = pp.P_TERMS + slot * pp.TERM_SLOT + 2
+        p[start : start + len(PRIMITIVES)] = exponents
     c = term_kernel.constants_with_terms(p)
     assert len(c) == pp.N_CONSTANTS_WITH_TERMS
     assert len(c) == pp.N_CONSTANTS + 1 + MAX_DYNAMICS_TERMS * pp.TERM_SLOT
     assert c[: pp.N_CONSTANTS] == term_kernel.mechanical_constants(p)
     assert c[pp.C_TERMS - 1] == p[pp.P_NTERMS]
-    np.testing.assert_array_equal(c[pp.C_TERMS :], p[pp.P_TERMS :])
+    for slot in range(MAX_DYNAMICS_TERMS):  # each slot as its factors: (primitive, power), -1
+        src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, pp.C_TERMS + slot * pp.TERM_SLOT
+        assert c[dst : dst + 2] == tuple(p[src : src + 2])
+        exponents = p[src + 2 : src + pp.TERM_SLOT]
+        factors = [(float(j), e) for j, e in enumerate(exponents) if e]
+        assert factors, "the vector's slots all carry a monomial"
+        written = [x for pair in factors for x in pair]
+        assert c[dst + 2 : dst + pp.TERM_SLOT] == (
+            *written,
+            *[-1.0] * (pp.TERM_SLOT - 2 - len(written)),
+        )
 
 
 @pytest.mark.timeout(120)
@@ -80,9 +95,11 @@ def test_each_kernel_factor_is_the_numpy_one(j: int) -> None:
 
 
 @pytest.mark.timeout(120)
-def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel() -> None:
+@pytest.mark.parametrize("first", [0, pp.MAX_FACTORS])
+def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel(first: int) -> None:
     p = np.zeros(pp.N_KERNEL_PARAMS)
-    exponents = np.arange(len(PRIMITIVES)) % 3  # every primitive with an exponent 0..2
+    exponents = np.zeros(len(PRIMITIVES))  # MAX_FACTORS primitives, powers 1, 2, 3, 1, ...
+    exponents[first : first + pp.MAX_FACTORS] = 1 + np.arange(pp.MAX_FACTORS) % 3
     base = pp.P_TERMS
     p[pp.P_I] = p[pp.P_IP] = 1.0
     p[pp.P_NTERMS] = 1.0

@@ -45,6 +45,7 @@ __all__ = [
     "C_TERMS",
     "GA_INDEX",
     "KERNEL_LAYOUT",
+    "MAX_FACTORS",
     "MAX_OMEGA_H",
     "MAX_OMEGA_H_CONTACT",
     "N_CONSTANTS",
@@ -176,6 +177,9 @@ GA_INDEX, CONTACT_ON_INDEX = P_GA, P_CONTACT_ON  # the names batch engines read
 # coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES].
 P_TERMS = len(KERNEL_LAYOUT)
 TERM_SLOT = 2 + len(PRIMITIVES)
+# A monomial has at most this many factors (primitives with a nonzero power): a canonical form
+# writes each of its states as one primitive or two (phi*abs(phi)), over at most three states.
+MAX_FACTORS = (TERM_SLOT - 2) // 2
 N_KERNEL_PARAMS = P_TERMS + MAX_DYNAMICS_TERMS * TERM_SLOT
 
 # The RK4 kernel's constants tuple `c`: the slots with a `constant`, in layout order, each
@@ -311,6 +315,10 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
         stroke = dterm.acts_on == "stroke_dynamics"
         p[base] = 1.0 if stroke else 2.0
         p[base + 1] = dterm.coefficient / (p[P_I] if stroke else p[P_IP])
+        if sum(1 for e in dterm.monomial if e) > MAX_FACTORS:  # no canonical form has more
+            raise ModelError(
+                f"discovered.{dterm.kind}: a monomial of more than {MAX_FACTORS} factors"
+            )
         p[base + 2 : base + TERM_SLOT] = dterm.monomial
 
     rates = [

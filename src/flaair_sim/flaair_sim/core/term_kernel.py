@@ -9,7 +9,8 @@ tuple evaluate terms.
 A dynamics term is a torque, coefficient x monomial of the mechanical state; `plant_params`
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
 equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the constants tuple
-carries the slots from index `C_TERMS` on (c[C_TERMS - 1] is the number of terms).
+carries the slots from index `C_TERMS` on (c[C_TERMS - 1] is the number of terms), each written
+as its factors (primitive, power), at most `MAX_FACTORS`.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from flaair_model.terms import MAX_DYNAMICS_TERMS
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_params import C_TERMS, N_CONSTANTS, N_CONSTANTS_WITH_TERMS
+from flaair_sim.core.plant_params import C_TERMS, MAX_FACTORS, N_CONSTANTS, N_CONSTANTS_WITH_TERMS
 
 __all__ = ["constants_with_terms", "dynamics_terms", "mechanical_constants", "primitive"]
 
@@ -47,7 +48,7 @@ def primitive(j, phi, dphi, psi, dpsi):
     return abs(x)
 
 
-@njit(cache=True, fastmath=_FMA)
+@njit(cache=True, fastmath=_FMA, inline="always")
 def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
     """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia."""
     total = 0.0
@@ -55,12 +56,13 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
         base = C_TERMS + slot * pp.TERM_SLOT
         if c[base] == equation:
             f = c[base + 1]
-            for j in range(pp.TERM_SLOT - 2):
-                power = int(c[base + 2 + j])
-                if power:
-                    x = primitive(j, phi, dphi, psi, dpsi)
-                    for _ in range(power):
-                        f *= x
+            for q in range(MAX_FACTORS):
+                j = int(c[base + 2 + 2 * q])
+                if j < 0:
+                    break
+                x = primitive(j, phi, dphi, psi, dpsi)
+                for _ in range(int(c[base + 3 + 2 * q])):
+                    f *= x
             total += f
     return total
 
@@ -68,14 +70,27 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
 @njit(cache=True, fastmath=_FMA)
 def _constants(p, length):
     """The constants (coefficients pre-divided by the inertia of their equation: shortens the
-    dependency chain) as an array of `length`, the vector from P_NTERMS on after them.
+    dependency chain) as an array of `length`, then the term count and each term slot written
+    compactly: [equation, coefficient over inertia, (primitive, power) per factor of its
+    monomial in primitive order, -1 after the last]. The kernel's loop then visits only the
+    factors a monomial has, not every primitive.
     """
     over = (1.0, 1.0 / p[pp.P_I], 1.0 / p[pp.P_IP])
     c = np.empty(length)
     for j in range(N_CONSTANTS):
         c[j] = p[_SOURCE[j]] * over[_DIVISOR[j]]
-    for j in range(N_CONSTANTS, length):
-        c[j] = p[pp.P_NTERMS + j - N_CONSTANTS]
+    if length > N_CONSTANTS:
+        c[N_CONSTANTS] = p[pp.P_NTERMS]
+        for slot in range(MAX_DYNAMICS_TERMS):
+            src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, C_TERMS + slot * pp.TERM_SLOT
+            c[dst], c[dst + 1] = p[src], p[src + 1]
+            for k in range(2, pp.TERM_SLOT):
+                c[dst + k] = -1.0
+            q = 0
+            for j in range(pp.TERM_SLOT - 2):
+                if p[src + 2 + j] != 0.0 and q < MAX_FACTORS:  # plant_params refuses more
+                    c[dst + 2 + 2 * q], c[dst + 3 + 2 * q] = j, p[src + 2 + j]
+                    q += 1
     return c
 
 
