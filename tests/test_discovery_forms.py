@@ -53,33 +53,39 @@ def test_a_form_is_named_by_what_it_computes(expression: str, name: str) -> None
 
 def test_equal_forms_compute_equal_values() -> None:
     rng = np.random.default_rng(3)
-    x = rng.normal(size=(4, 200))
+    x = rng.normal(size=(5, 200))  # phi, dphi, psi, dpsi, the drive
     for expression in (
         "dphi**2*sign(dphi)",
         "abs(dpsi)**3",
         "psi*dphi*sign(dphi)",
         "phi*abs(phi)*sign(dpsi)",
         "abs(psi)*sign(phi)*dphi",
+        "drive_v**2*sign(drive_v)*phi",
+        "abs(drive_v)*sign(dpsi)",
     ):
         a = DiscoveredTerm(expression, "stroke_dynamics", 1.0).monomial_value(*x)
         mono = parse_form(expression)
         f = (x[0], x[1], x[2], x[3], np.sign(x[1]), np.sign(x[3]), np.abs(x[1]), np.abs(x[3]))
         f += (np.sign(x[0]), np.sign(x[2]), np.abs(x[0]), np.abs(x[2]))
+        f += (x[4], np.sign(x[4]), np.abs(x[4]))
         b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
-    """Each state's seven classes (its sign, each power of it and of its abs): 28 one-state
-    forms; two states: 6 pairs x 25 class pairs of degree <= 3 (the 49 less those of degree 4 to
-    6); three states: 4 triples x 63; 430 in all, each computing a different value.
+    """Each of the five variables (the drive and the four states) has seven classes (its sign,
+    each power of it and of its abs): 35 one-variable forms; two variables: 10 pairs x 25 class
+    pairs of degree <= 3 (the 49 less those of degree 4 to 6); three: 10 triples x 63; 915 in
+    all, each computing a different value.
     """
     forms = composed_forms()
     keys = [form_key(m) for _n, m in forms]
-    assert len(forms) == 28 + 6 * 25 + 4 * 63 == 430 and len(set(keys)) == 430
+    assert len(forms) == 35 + 10 * 25 + 10 * 63 == 915 and len(set(keys)) == 915
     names = [n for n, _m in forms]
-    assert names[:4] == ["sign(phi)", "sign(psi)", "sign(dphi)", "sign(dpsi)"]  # simplest first
+    simplest = ["sign(drive_v)", "sign(phi)", "sign(psi)", "sign(dphi)", "sign(dpsi)"]
+    assert names[:5] == simplest
     assert {"abs(phi)", "phi*abs(phi)", "abs(psi)*sign(dphi)", "phi*psi*dphi"} <= set(names)
+    assert {"drive_v*phi", "abs(drive_v)*dphi", "drive_v**2*psi"} <= set(names)
     for name, mono in forms:
         assert parse_form(name) == mono and max(mono) <= 3 and canonical(mono) == name
 
@@ -96,7 +102,10 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     # nor what the plant carries: the stiffnesses, the hinge damping, the aerodynamic drag
     assert {"phi", "dphi*abs(dphi)"}.isdisjoint(stroke)
     assert {"psi", "dpsi", "dphi*abs(dphi)"}.isdisjoint(pitch)
-    assert len(stroke) == 419 and len(pitch) == 419
+    # the actuator's torque is the plant's on the stroke; a drive torque on the hinge is not
+    assert "drive_v" not in stroke and "drive_v" in pitch
+    assert {"drive_v*phi", "drive_v*dphi", "abs(drive_v)*phi"} <= stroke
+    assert len(stroke) == 915 - 12 and len(pitch) == 915 - 11
     assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
 
 
@@ -207,7 +216,7 @@ def test_a_composed_term_round_trips_through_the_model_file(model) -> None:
     "kind,why",
     [
         ("exp(phi)", "'exp(phi)' is not a primitive"),
-        ("phi*psi*dphi*dpsi", "more than 3 states"),
+        ("phi*psi*dphi*dpsi", "more than 3 variables"),
         ("phi**4", "powers are 1 to 3"),
         ("sqrt(abs(dphi))", "not a primitive"),
     ],
@@ -296,15 +305,20 @@ def test_the_suggested_run_is_the_suggested_sine_measured_on_the_same_robot(mode
 
 def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
     """A locked hinge (psi = dpsi = 0) makes every pitch form zero; a stroke rate that never
-    changes sign makes sign(dphi) constant; the same forms on a full motion are not degenerate.
+    changes sign makes sign(dphi) constant; a drive that never changes sign makes sign(drive_v)
+    constant; the same forms on a full motion are not degenerate.
     """
     from flaair_analysis.discrepancy.term_candidates import is_degenerate
+    from flaair_model.terms import TermSignals
 
     t = np.arange(4000) / 20_000.0
     phi = 0.4 * np.sin(2 * np.pi * 120.0 * t)
     zero = np.zeros_like(t)
-    locked = [{"phi": phi, "dphi": np.gradient(phi) * 20_000.0, "psi": zero, "dpsi": zero}]
-    one_way = [{"phi": t, "dphi": np.ones_like(t), "psi": phi, "dpsi": phi}]
+    drive = TermSignals.of_block(20_000.0, 50.0 * np.sin(2 * np.pi * 120.0 * t))
+    positive = TermSignals.of_block(20_000.0, 50.0 + 0.0 * t)
+    states = {"phi": phi, "dphi": np.gradient(phi) * 20_000.0, "psi": zero, "dpsi": zero}
+    locked = [{**states, "signals": drive}]
+    one_way = [{"phi": t, "dphi": np.ones_like(t), "psi": phi, "dpsi": phi, "signals": positive}]
     full = [dict(locked[0], psi=0.3 * np.cos(2 * np.pi * 120.0 * t), dpsi=locked[0]["dphi"])]
     site = "stroke_dynamics"
     for name, motion, expected in [
@@ -314,6 +328,10 @@ def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
         ("sign(dphi)*sign(dpsi)", one_way, False),
         ("abs(dphi)**3", one_way, True),  # 1 everywhere
         ("psi*abs(dphi)", full, False),
+        ("drive_v*psi", locked, True),
+        ("abs(drive_v)*phi", locked, False),
+        ("sign(drive_v)", one_way, True),
+        ("sign(drive_v)", locked, False),
     ]:
         assert is_degenerate(row_of(name), site, motion) is expected, name
 
@@ -407,3 +425,26 @@ def test_a_huge_ranking_column_leaves_the_rss_its_direction_does() -> None:
     assert _one_column_rss(column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
     assert _one_column_rss(np.zeros(500), r0, r0_ss) == r0_ss
     assert _one_column_rss(np.full(500, np.inf), r0, r0_ss) == r0_ss
+
+
+def test_a_drive_factor_at_the_stroke_is_a_stiffness_that_follows_the_field(model) -> None:
+    """drive_v*phi at the stroke with coefficient c: under a held drive V the stroke rests where
+    G_a V = (K - c V) phi, the closed form of a flexure whose stiffness follows the field; the
+    plant without the term rests at G_a V / K. The pitch has no term, so its rest is the
+    plant's own.
+    """
+    from dataclasses import replace
+
+    fs, volts = 20_000.0, 40.0
+    plant = model.plant
+    k, gain = plant.stroke_stiffness_nm_per_rad, plant.actuator_gain_nm_per_v
+    c = 0.2 * k / volts  # the stiffness 20 % lower at the held drive
+    term = DiscoveredTerm("phi*drive_v", "stroke_dynamics", c)
+    assert term.kind == "drive_v*phi" and "stroke_dynamics" in term.row.sites
+    t = np.arange(int(0.5 * fs)) / fs  # a slow raised-cosine rise: the light damping rings little
+    drive = volts * 0.5 * (1.0 - np.cos(np.pi * np.minimum(t / 0.4, 1.0)))
+    held = simulate(drive, fs, replace(model, discovered=(term,)))
+    plain = simulate(drive, fs, model)
+    rest = held.stroke_rad[-200:].mean()
+    assert rest == pytest.approx(gain * volts / (k - c * volts), rel=1e-3)
+    assert plain.stroke_rad[-200:].mean() == pytest.approx(gain * volts / k, rel=1e-3)

@@ -2,10 +2,13 @@
 
 A dynamics term's feature is a monomial over `PRIMITIVES` (the plant kernel's generic
 evaluation multiplies the factors, each to an integer power). The forms the discovery step may
-reach without a row of the term library (`flaair_model.terms`) are composed here from the four
-mechanical states (`VARIABLES`: phi, psi, dphi, dpsi) and how they combine: each state, its
-``abs()`` and its ``sign()``, to powers up to `MAX_POWER`, and products of up to
-`MAX_VARIABLES` states' factors, of total degree at most `MAX_POWER` (``sign()`` counts 0).
+reach without a row of the term library (`flaair_model.terms`) are composed here from the drive
+the actuator sees and the four mechanical states (`VARIABLES`: drive_v, phi, psi, dphi, dpsi)
+and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
+`MAX_POWER`, and products of up to `MAX_VARIABLES` variables' factors, of total degree at most
+`MAX_POWER` (``sign()`` counts 0). A form with a drive factor (a piezo whose stiffness or damping
+follows its field: ``drive_v*phi``) acts in the simulation; the describing functions, which take
+the plant with the drive off, leave it out.
 
 Forms are compared by what they compute, not how they are written: over a state x,
 ``x**a * sign(x)**b * abs(x)**c`` is ``abs(x)**(a + c) * sign(x)**(a + b)``, so ``dphi*sign(dphi)``
@@ -17,8 +20,8 @@ The drive and the sensor outputs take forms over signals instead (`SIGNALS`: the
 rate, time, the angles, their rates and the sensors' voltages; `SITE_SIGNALS` says which a site
 may read), composed the same way and evaluated on numpy blocks (`signal_value`); ``t`` (s from
 the start of the simulation, every run's own) is never negative, so it enters by its powers only.
-A product of the mechanical states alone is one form in both grammars, with one name (`SIGNALS`
-writes the states in `VARIABLES`' order).
+A product of the variables is one form in both grammars, with one name (`SIGNALS` writes them
+in `VARIABLES`' order).
 
 Memory: a drive or sensor form may also be a first-order low-pass of one signal,
 ``lowpass(x)`` (`filtered_forms`), its corner a shape parameter fitted with the coefficient.
@@ -69,25 +72,31 @@ PRIMITIVES: tuple[str, ...] = (
     "sign(psi)",
     "abs(phi)",
     "abs(psi)",
+    "drive_v",
+    "sign(drive_v)",
+    "abs(drive_v)",
 )
-# The states a form is a product over, in the order a canonical name writes them.
-VARIABLES: tuple[str, ...] = ("phi", "psi", "dphi", "dpsi")
-# Forms the plant's equations already carry (stiffness, damping, aerodynamic drag and coupling).
+# The variables a form is a product over, in the order a canonical name writes them (the drive
+# the actuator sees, V, then the mechanical states; `SIGNALS` writes them in the same order).
+VARIABLES: tuple[str, ...] = ("drive_v", "phi", "psi", "dphi", "dpsi")
+# Forms the plant's equations already carry (the actuator, the stiffnesses, damping,
+# aerodynamic drag and coupling).
 PLANT_FORMS = {
-    "stroke_dynamics": ("phi", "dphi*abs(dphi)"),
+    "stroke_dynamics": ("drive_v", "phi", "dphi*abs(dphi)"),
     "pitch_dynamics": ("psi", "dpsi", "dphi*abs(dphi)"),
 }
 # A factor's power, and a composed form's total degree (sign() counts 0), at most this.
 MAX_POWER = 3
-# A form multiplies the factors of at most this many states.
+# A form multiplies the factors of at most this many variables.
 MAX_VARIABLES = 3
-# Each state's places among the primitives: (itself, its sign(), its abs()).
+# Each variable's places among the primitives: (itself, its sign(), its abs()).
 _PLACES = {x: (PRIMITIVES.index(x), PRIMITIVES.index(f"sign({x})"), PRIMITIVES.index(f"abs({x})"))
            for x in VARIABLES}  # fmt: skip
-_FACTOR = re.compile(r"^(sign\(d?(?:phi|psi)\)|abs\(d?(?:phi|psi)\)|d?(?:phi|psi))(?:\*\*(\d+))?$")
+_VARIABLE = "(?:drive_v|d?(?:phi|psi))"
+_FACTOR = re.compile(rf"^(sign\({_VARIABLE}\)|abs\({_VARIABLE}\)|{_VARIABLE})(?:\*\*(\d+))?$")
 
-# What a monomial computes: each state's (degree, odd), in `VARIABLES` order.
-FormKey = tuple[int, int, int, int, int, int, int, int]
+# What a monomial computes: each variable's (degree, odd), in `VARIABLES` order.
+FormKey = tuple[int, ...]
 
 
 def parse_form(expression: str) -> tuple[int, ...]:
@@ -116,7 +125,7 @@ def parse_form(expression: str) -> tuple[int, ...]:
         raise ValueError(f"a factor to a power above {MAX_POWER}")
     variables = {x for x, places in _PLACES.items() if any(exponents[j] for j in places)}
     if len(variables) > MAX_VARIABLES:
-        raise ValueError(f"a product of more than {MAX_VARIABLES} states")
+        raise ValueError(f"a product of more than {MAX_VARIABLES} variables")
     return tuple(exponents)
 
 
@@ -134,7 +143,7 @@ def form_key(monomial: tuple[int, ...]) -> FormKey:
     for x in VARIABLES:
         v, s, a = (monomial[j] for j in _PLACES[x])
         out += [v + a, (v + s) % 2 if v + s + a else 0]
-    return tuple(out)  # type: ignore[return-value]
+    return tuple(out)
 
 
 def _factor(x: str, degree: int, odd: int) -> tuple[str, ...]:
@@ -201,7 +210,7 @@ def composed_forms() -> tuple[tuple[str, tuple[int, ...]], ...]:
                 k = [0] * (2 * len(VARIABLES))
                 for i, (d, o) in zip(states, classes, strict=True):
                     k[2 * i], k[2 * i + 1] = d, o
-                key: FormKey = tuple(k)  # type: ignore[assignment]
+                key: FormKey = tuple(k)
                 if _degree(key) <= MAX_POWER:
                     keys.append(key)
     keys.sort(key=lambda k: (_n_variables(k), _degree(k)))

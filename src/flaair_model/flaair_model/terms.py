@@ -80,9 +80,16 @@ PRIMITIVES: tuple[str, ...] = term_forms.PRIMITIVES
 
 
 def primitive_values(
-    phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
+    phi: np.ndarray,
+    dphi: np.ndarray,
+    psi: np.ndarray,
+    dpsi: np.ndarray,
+    drive_v: np.ndarray | float = 0.0,
 ) -> tuple[np.ndarray, ...]:
-    """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`)."""
+    """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`); the
+    drive the actuator sees is `drive_v` (0: the drive off).
+    """
+    drive = np.broadcast_to(np.asarray(drive_v, dtype=np.float64), np.shape(phi))
     return (
         phi,
         dphi,
@@ -96,6 +103,9 @@ def primitive_values(
         np.sign(psi),
         np.abs(phi),
         np.abs(psi),
+        drive,
+        np.sign(drive),
+        np.abs(drive),
     )
 
 
@@ -690,11 +700,19 @@ class DiscoveredTerm:
         return _SITE_MONOMIALS.get(self.kind, {}).get(self.acts_on, self.row.monomial)
 
     def monomial_value(
-        self, phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray
+        self,
+        phi: np.ndarray,
+        dphi: np.ndarray,
+        psi: np.ndarray,
+        dpsi: np.ndarray,
+        drive_v: np.ndarray | float = 0.0,
     ) -> np.ndarray:
-        """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`)."""
+        """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`), at
+        the drive the actuator sees (0: the drive off).
+        """
         out = np.ones(np.shape(phi))
-        for x, e in zip(primitive_values(phi, dphi, psi, dpsi), self.monomial, strict=True):
+        values = primitive_values(phi, dphi, psi, dpsi, drive_v)
+        for x, e in zip(values, self.monomial, strict=True):
             out = out * x**e
         return out
 

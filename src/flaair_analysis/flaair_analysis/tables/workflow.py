@@ -139,15 +139,15 @@ def _term_scale(term: DiscoveredTerm, model: Model, table: Table) -> float:
     w = 2.0 * math.pi * fn
     amp = np.nanmax(table.responses.get("stroke_pp_deg", np.array([60.0]))) / 2.0
     phi, psi = math.radians(amp), math.radians(40.0)
+    vmax = float(np.max(table.drive_amplitude_v))
     if term.is_dynamics:
         x = np.array([phi]), np.array([w * phi]), np.array([psi]), np.array([w * psi])
-        feature = abs(float(term.monomial_value(*x)[0]))
+        feature = abs(float(term.monomial_value(*x, vmax)[0]))
         if term.acts_on == "stroke_dynamics":
             torque = pl.stroke_stiffness_nm_per_rad * phi
         else:
             torque = pl.hinge_stiffness_nm_per_rad * psi
         return torque / max(feature, 1e-300)
-    vmax = float(np.max(table.drive_amplitude_v))
     t = np.arange(400) / (400 * fn)
     v = vmax * np.sin(w * t)
     sig = TermSignals(400 * fn, v, vmax * w * np.cos(w * t), t)

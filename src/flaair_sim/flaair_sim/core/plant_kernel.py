@@ -38,17 +38,19 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi)
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c)
+    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c):
-    """The pitch's acceleration given the stroke's (`ddphi`) and its drag |dphi| dphi."""
+def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v):
+    """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi and the drive
+    the actuator sees (`v`, for a discovered term with a drive factor).
+    """
     kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
     # acceleration first, the pitch's own state last): the pitch rate's recursion then waits on
@@ -56,7 +58,7 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c):
     # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
-        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi)
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v)
     return ddpsi
 
 
@@ -344,6 +346,7 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
             (dda * e).real,
             abs(dphi) * dphi,
             c,
+            0.0,  # the drive off, as the stroke's describing function
         )
         acc += ddpsi * e.conjugate()
         e *= turn

@@ -31,12 +31,19 @@ _DIVISOR = pp.CONSTANT_DIVISOR
 
 
 @njit(cache=True, fastmath=_FMA)
-def primitive(j, phi, dphi, psi, dpsi):
+def primitive(j, phi, dphi, psi, dpsi, v):
     """Factor j of a term's monomial (flaair_model.terms.PRIMITIVES): the states, sign() and
-    abs() of the rates, then sign() and abs() of the angles.
+    abs() of the rates, then sign() and abs() of the angles, then the drive the actuator sees
+    (`v`), its sign() and abs().
     """
     if j < 4:
         return phi if j == 0 else (dphi if j == 1 else (psi if j == 2 else dpsi))
+    if j >= 12:
+        if j == 12:
+            return v
+        if j == 13:
+            return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+        return abs(v)
     if j < 8:
         x = dphi if j % 2 == 0 else dpsi
         signed = j < 6
@@ -49,8 +56,10 @@ def primitive(j, phi, dphi, psi, dpsi):
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
-    """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia."""
+def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v):
+    """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia, at
+    the drive `v` the actuator sees.
+    """
     total = 0.0
     for slot in range(MAX_DYNAMICS_TERMS):
         base = C_TERMS + slot * pp.TERM_SLOT
@@ -60,7 +69,7 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi):
                 j = int(c[base + 2 + 2 * q])
                 if j < 0:
                     break
-                x = primitive(j, phi, dphi, psi, dpsi)
+                x = primitive(j, phi, dphi, psi, dpsi, v)
                 for _ in range(int(c[base + 3 + 2 * q])):
                     f *= x
             total += f
