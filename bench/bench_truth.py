@@ -13,12 +13,13 @@ couplings within +-15 %. The workflow gets the nominal model.
 Kinds (`KINDS`), each drawn at a random strength:
 - inside the grammar: a flexure stiffening -k3 phi^3, a quadratic drag on the pitch rate, the
   stroke amplifier's output crossing into the pitch one, the drive leaking into the pitch
-  amplifier. Right: `explained`, that form at that site discovered, nothing else discovered,
-  nothing named (`flaair_analysis.exact_score`).
+  amplifier, a stroke stiffness drifting in time (t*phi). Right: `explained`, that form at that
+  site discovered, nothing else discovered, nothing named (`flaair_analysis.exact_score`).
 - outside it: a quartic stroke torque (the grammar stops at degree three), a stroke stiffness
-  drifting in time (no time factor at a dynamics site), the hinge film reading the pitch through
-  a first-order lag (a state the model does not have). Right: `unexplained` with nothing named
-  (a term that approximates it is allowed, and counted beside it).
+  that steps half a second into each run (no step in time among the forms), the hinge film
+  reading the pitch through a first-order lag (a state the model does not have). Right:
+  `unexplained` with nothing named (a term that approximates it is allowed, and counted beside
+  it).
 - in the vocabulary: a hysteretic piezo (the textbook Bouc-Wen operator on the drive, its loop
   5-15 V wide). Right: `explained`, `actuator_hysteresis` named with its loop fraction and
   saturation each within 10 % of the truth's, nothing discovered.
@@ -119,14 +120,20 @@ KINDS: tuple[Kind, ...] = (
         term_label("drive_leak", "pitch_sensor_v"),
     ),
     Kind(
+        "stiffness_drift",
+        "inside",
+        lambda g, r: replace(r, stiffness_drift_per_s=_signed(g, 0.02, 0.05)),
+        term_label("t*phi", "stroke_dynamics"),
+    ),
+    Kind(
         "quartic_stroke",
         "outside",
         lambda g, r: replace(r, quartic_nm_per_rad4=_signed(g, 0.1, 0.3) * r.stroke_stiffness),
     ),
     Kind(
-        "stiffness_drift",
+        "stiffness_step",
         "outside",
-        lambda g, r: replace(r, stiffness_drift_per_s=_signed(g, 0.02, 0.05)),
+        lambda g, r: replace(r, stiffness_step=_signed(g, 0.03, 0.08)),
     ),
     Kind(
         "film_lag",

@@ -23,6 +23,8 @@ Outside the grammar or the model:
 - `stop_rad`, `stop_stiffness_nm_per_rad`: a one-sided stop on the stroke (contact as an event);
 - `quartic_nm_per_rad4`: a torque of degree four in the stroke angle (the grammar stops at three);
 - `stiffness_drift_per_s`: the stroke stiffness drifting in time, K (1 + drift t);
+- `stiffness_step`: the stroke stiffness stepping to K (1 + step) at `stiffness_step_s` (a
+  sample boundary) and staying there;
 - `film_lag_s`: the hinge film reading the pitch through a first-order lag (a state the model
   does not have).
 
@@ -79,6 +81,8 @@ class Robot:
     stop_stiffness_nm_per_rad: float = 0.0
     quartic_nm_per_rad4: float = 0.0
     stiffness_drift_per_s: float = 0.0
+    stiffness_step: float = 0.0
+    stiffness_step_s: float = 0.5
     film_lag_s: float = 0.0
     cubic_nm_per_rad3: float = 0.0
     hinge_drag_nm_s2: float = 0.0
@@ -105,7 +109,8 @@ def _derivatives(
     """The vector field of [phi, phi', psi, psi', psi seen by the film] at a held drive."""
     phi, dphi, psi, dpsi, seen = y
     torque = robot.actuator_gain * volts - robot.aero_damping * abs(dphi) * dphi
-    torque -= robot.stroke_stiffness * (1.0 + robot.stiffness_drift_per_s * t) * phi
+    stepped = robot.stiffness_step if t >= robot.stiffness_step_s else 0.0
+    torque -= robot.stroke_stiffness * (1.0 + robot.stiffness_drift_per_s * t + stepped) * phi
     torque -= robot.quartic_nm_per_rad4 * phi**4
     torque -= robot.cubic_nm_per_rad3 * phi**3
     if in_contact:

@@ -53,7 +53,8 @@ def test_a_form_is_named_by_what_it_computes(expression: str, name: str) -> None
 
 def test_equal_forms_compute_equal_values() -> None:
     rng = np.random.default_rng(3)
-    x = rng.normal(size=(5, 200))  # phi, dphi, psi, dpsi, the drive
+    x = rng.normal(size=(6, 200))  # phi, dphi, psi, dpsi, the drive, the time
+    x[5] = np.abs(x[5])
     for expression in (
         "dphi**2*sign(dphi)",
         "abs(dpsi)**3",
@@ -62,30 +63,37 @@ def test_equal_forms_compute_equal_values() -> None:
         "abs(psi)*sign(phi)*dphi",
         "drive_v**2*sign(drive_v)*phi",
         "abs(drive_v)*sign(dpsi)",
+        "t**2*phi",
+        "t*drive_v*abs(dphi)",
     ):
         a = DiscoveredTerm(expression, "stroke_dynamics", 1.0).monomial_value(*x)
         mono = parse_form(expression)
         f = (x[0], x[1], x[2], x[3], np.sign(x[1]), np.sign(x[3]), np.abs(x[1]), np.abs(x[3]))
         f += (np.sign(x[0]), np.sign(x[2]), np.abs(x[0]), np.abs(x[2]))
-        f += (x[4], np.sign(x[4]), np.abs(x[4]))
+        f += (x[4], np.sign(x[4]), np.abs(x[4]), x[5])
         b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
-    """Each of the five variables (the drive and the four states) has seven classes (its sign,
-    each power of it and of its abs): 35 one-variable forms; two variables: 10 pairs x 25 class
-    pairs of degree <= 3 (the 49 less those of degree 4 to 6); three: 10 triples x 63; 915 in
+    """Each of the five signed variables (the drive and the four states) has seven classes (its
+    sign, each power of it and of its abs), time its three powers: 5 x 7 + 3 one-variable forms;
+    two signed variables: 10 pairs x 25 class pairs of degree <= 3 (the 49 less those of degree 4
+    to 6), one with time: 5 x 9; three signed: 10 triples x 63, two with time: 10 x 19; 1153 in
     all, each computing a different value.
     """
     forms = composed_forms()
     keys = [form_key(m) for _n, m in forms]
-    assert len(forms) == 35 + 10 * 25 + 10 * 63 == 915 and len(set(keys)) == 915
+    assert len(forms) == 38 + 10 * 25 + 5 * 9 + 10 * 63 + 10 * 19 == 1153
+    assert len(set(keys)) == 1153
     names = [n for n, _m in forms]
     simplest = ["sign(drive_v)", "sign(phi)", "sign(psi)", "sign(dphi)", "sign(dpsi)"]
     assert names[:5] == simplest
     assert {"abs(phi)", "phi*abs(phi)", "abs(psi)*sign(dphi)", "phi*psi*dphi"} <= set(names)
-    assert {"drive_v*phi", "abs(drive_v)*dphi", "drive_v**2*psi"} <= set(names)
+    assert {"drive_v*phi", "abs(drive_v)*dphi", "drive_v**2*psi", "t*phi", "t**2*dpsi"} <= set(
+        names
+    )
+    assert not any("abs(t)" in n or "sign(t)" in n for n in names)
     for name, mono in forms:
         assert parse_form(name) == mono and max(mono) <= 3 and canonical(mono) == name
 
@@ -105,7 +113,7 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     # the actuator's torque is the plant's on the stroke; a drive torque on the hinge is not
     assert "drive_v" not in stroke and "drive_v" in pitch
     assert {"drive_v*phi", "drive_v*dphi", "abs(drive_v)*phi"} <= stroke
-    assert len(stroke) == 915 - 12 and len(pitch) == 915 - 11
+    assert len(stroke) == 1153 - 12 and len(pitch) == 1153 - 11
     assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
 
 
@@ -165,6 +173,8 @@ def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     drive = 60.0 * np.sin(2 * np.pi * 120.0 * t)
     warm = DiscoveredTerm("t**2*drive_v", "drive", 1e-3)
     assert warm.kind == "drive_v*t**2" and row_of("drive_v*t**2").sites == (
+        "stroke_dynamics",  # a torque in the drive and time too
+        "pitch_dynamics",
         "drive",
         "stroke_sensor_v",
         "pitch_sensor_v",
@@ -448,3 +458,24 @@ def test_a_drive_factor_at_the_stroke_is_a_stiffness_that_follows_the_field(mode
     rest = held.stroke_rad[-200:].mean()
     assert rest == pytest.approx(gain * volts / (k - c * volts), rel=1e-3)
     assert plain.stroke_rad[-200:].mean() == pytest.approx(gain * volts / k, rel=1e-3)
+
+
+def test_a_time_factor_at_the_stroke_is_a_stiffness_that_drifts(model) -> None:
+    """t*phi at the stroke with coefficient -K d: under a held drive the stroke follows the
+    quasi-static rest G_a V / (K (1 + d t)) of a flexure drifting in time, t from the run's
+    first sample.
+    """
+    from dataclasses import replace
+
+    fs, volts, drift_per_s = 20_000.0, 40.0, 0.5
+    plant = model.plant
+    k, gain = plant.stroke_stiffness_nm_per_rad, plant.actuator_gain_nm_per_v
+    term = DiscoveredTerm("phi*t", "stroke_dynamics", -k * drift_per_s)
+    assert term.kind == "t*phi"
+    t = np.arange(int(1.0 * fs)) / fs
+    drive = volts * 0.5 * (1.0 - np.cos(np.pi * np.minimum(t / 0.4, 1.0)))
+    out = simulate(drive, fs, replace(model, discovered=(term,)))
+    for at_s in (0.6, 0.95):
+        i = int(at_s * fs)
+        rest = out.stroke_rad[i - 100 : i + 100].mean()
+        assert rest == pytest.approx(gain * volts / (k * (1 + drift_per_s * at_s)), rel=2e-3)

@@ -75,13 +75,15 @@ def test_a_stop_holds_the_stroke_within_what_its_stiffness_lets_through() -> Non
 
 
 # the truth's own terms against FLAAIR's discovered term of the same physics: -k3 phi^3,
-# -d psi'|psi'|, c x the stroke amplifier's output, c x the drive (the coefficient's sign is the
-# model's: a torque added, a voltage added)
+# -d psi'|psi'|, c x the stroke amplifier's output, c x the drive, -K d t phi (the coefficient's
+# sign is the model's: a torque added, a voltage added)
 _INSIDE = (
     ("cubic_nm_per_rad3", 2.0e-5, "cube_angle", "stroke_dynamics", -1.0),
     ("hinge_drag_nm_s2", 2.0e-12, "dpsi*abs(dpsi)", "pitch_dynamics", -1.0),
     ("crosstalk", 0.03, "crosstalk", "pitch_sensor_v", 1.0),
     ("drive_leak_v_per_v", 3e-4, "drive_leak", "pitch_sensor_v", 1.0),
+    # K (1 + d t): a drift fast enough to show within the test's 0.15 s
+    ("stiffness_drift_per_s", 2.0, "t*phi", "stroke_dynamics", -truth.Robot().stroke_stiffness),
 )
 
 

@@ -61,7 +61,7 @@ def test_the_constants_tuple_is_the_marked_slots_over_their_inertia() -> None:
 @pytest.mark.timeout(120)
 def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
     p = _vector()
-    for slot, places in enumerate([(0, 3, 5, 12), (1, 2, 6, 7, 10, 14)]):  # <= MAX_FACTORS each
+    for slot, places in enumerate([(0, 3, 5, 12, 15), (1, 2, 6, 7, 10, 14)]):  # <= MAX_FACTORS
         exponents = np.zeros(len(PRIMITIVES))
         exponents[list(places)] = 1 + np.arange(len(places)) % 3
         start = pp.P_TERMS + slot * pp.TERM_SLOT + 2
@@ -87,7 +87,7 @@ def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("j", range(len(PRIMITIVES)))
 def test_each_kernel_factor_is_the_numpy_one(j: int) -> None:
-    grid = np.array(list(itertools.product((-0.3, 0.0, 0.7), repeat=5))).T  # 4 states, drive
+    grid = np.array(list(itertools.product((-0.3, 0.0, 0.7), repeat=6))).T  # states, drive, t
     numpy_factors = primitive_values(*grid)
     assert len(numpy_factors) == len(PRIMITIVES)
     kernel = [term_kernel.primitive(j, *state) for state in grid.T]
@@ -105,7 +105,7 @@ def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel(first: int) -> N
     p[pp.P_NTERMS] = 1.0
     p[base], p[base + 1] = 1.0, 0.25
     p[base + 2 : base + pp.TERM_SLOT] = exponents
-    state = (0.3, -0.7, 0.4, 1.3, -2.5)  # the states, then the drive
+    state = (0.3, -0.7, 0.4, 1.3, -2.5, 0.8)  # the states, then the drive and the time
     c = term_kernel.constants_with_terms(p)
     factors = [term_kernel.primitive(j, *state) for j in range(len(PRIMITIVES))]
     expected = 0.25 * float(np.prod(np.power(factors, exponents)))

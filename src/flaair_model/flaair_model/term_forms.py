@@ -3,12 +3,14 @@
 A dynamics term's feature is a monomial over `PRIMITIVES` (the plant kernel's generic
 evaluation multiplies the factors, each to an integer power). The forms the discovery step may
 reach without a row of the term library (`flaair_model.terms`) are composed here from the drive
-the actuator sees and the four mechanical states (`VARIABLES`: drive_v, phi, psi, dphi, dpsi)
-and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
+the actuator sees, time and the four mechanical states (`VARIABLES`: drive_v, t, phi, psi, dphi,
+dpsi) and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
 `MAX_POWER`, and products of up to `MAX_VARIABLES` variables' factors, of total degree at most
-`MAX_POWER` (``sign()`` counts 0). A form with a drive factor (a piezo whose stiffness or damping
-follows its field: ``drive_v*phi``) acts in the simulation; the describing functions, which take
-the plant with the drive off, leave it out.
+`MAX_POWER` (``sign()`` counts 0); time ``t`` (s from the run's start) is never negative, so it
+enters by its powers only. A form with a drive factor (a piezo whose stiffness or damping follows
+its field: ``drive_v*phi``) or a time factor (a flexure drifting: ``t*phi``) acts in the
+simulation; the describing functions, which take the plant at rest in time with the drive off,
+leave it out.
 
 Forms are compared by what they compute, not how they are written: over a state x,
 ``x**a * sign(x)**b * abs(x)**c`` is ``abs(x)**(a + c) * sign(x)**(a + b)``, so ``dphi*sign(dphi)``
@@ -75,10 +77,13 @@ PRIMITIVES: tuple[str, ...] = (
     "drive_v",
     "sign(drive_v)",
     "abs(drive_v)",
+    "t",
 )
 # The variables a form is a product over, in the order a canonical name writes them (the drive
-# the actuator sees, V, then the mechanical states; `SIGNALS` writes them in the same order).
-VARIABLES: tuple[str, ...] = ("drive_v", "phi", "psi", "dphi", "dpsi")
+# the actuator sees, V; time, s from the run's start, held over a sample like the drive; then
+# the mechanical states; `SIGNALS` writes them in the same order).
+VARIABLES: tuple[str, ...] = ("drive_v", "t", "phi", "psi", "dphi", "dpsi")
+_UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
 # Forms the plant's equations already carry (the actuator, the stiffnesses, damping,
 # aerodynamic drag and coupling).
 PLANT_FORMS = {
@@ -89,11 +94,12 @@ PLANT_FORMS = {
 MAX_POWER = 3
 # A form multiplies the factors of at most this many variables.
 MAX_VARIABLES = 3
-# Each variable's places among the primitives: (itself, its sign(), its abs()).
+# Each signed variable's places among the primitives: (itself, its sign(), its abs()); an
+# unsigned one has itself only.
 _PLACES = {x: (PRIMITIVES.index(x), PRIMITIVES.index(f"sign({x})"), PRIMITIVES.index(f"abs({x})"))
-           for x in VARIABLES}  # fmt: skip
+           for x in VARIABLES if x not in _UNSIGNED}  # fmt: skip
 _VARIABLE = "(?:drive_v|d?(?:phi|psi))"
-_FACTOR = re.compile(rf"^(sign\({_VARIABLE}\)|abs\({_VARIABLE}\)|{_VARIABLE})(?:\*\*(\d+))?$")
+_FACTOR = re.compile(rf"^(sign\({_VARIABLE}\)|abs\({_VARIABLE}\)|{_VARIABLE}|t)(?:\*\*(\d+))?$")
 
 # What a monomial computes: each variable's (degree, odd), in `VARIABLES` order.
 FormKey = tuple[int, ...]
@@ -124,6 +130,7 @@ def parse_form(expression: str) -> tuple[int, ...]:
     if max(exponents) > MAX_POWER:
         raise ValueError(f"a factor to a power above {MAX_POWER}")
     variables = {x for x, places in _PLACES.items() if any(exponents[j] for j in places)}
+    variables |= {x for x in _UNSIGNED if exponents[PRIMITIVES.index(x)]}
     if len(variables) > MAX_VARIABLES:
         raise ValueError(f"a product of more than {MAX_VARIABLES} variables")
     return tuple(exponents)
@@ -141,6 +148,10 @@ def form_key(monomial: tuple[int, ...]) -> FormKey:
     """What a monomial computes: each state's (degree, odd class), in `VARIABLES` order."""
     out: list[int] = []
     for x in VARIABLES:
+        if x in _UNSIGNED:
+            d = monomial[PRIMITIVES.index(x)]
+            out += [d, d % 2]
+            continue
         v, s, a = (monomial[j] for j in _PLACES[x])
         out += [v + a, (v + s) % 2 if v + s + a else 0]
     return tuple(out)
@@ -176,8 +187,12 @@ def _n_variables(key: FormKey) -> int:
     return sum(1 for i in range(len(VARIABLES)) if key[2 * i] or key[2 * i + 1])
 
 
-def _classes() -> list[tuple[int, int]]:
-    """A state's factor classes (degree, odd): its sign, then each power of it and of its abs."""
+def _classes(x: str = "") -> list[tuple[int, int]]:
+    """A variable's factor classes (degree, odd): its sign, then each power of it and of its abs;
+    an unsigned one's (`_UNSIGNED`), its powers.
+    """
+    if x in _UNSIGNED:
+        return [(d, d % 2) for d in range(1, MAX_POWER + 1)]
     return [(d, o) for d in range(MAX_POWER + 1) for o in (0, 1) if d or o]
 
 
@@ -185,8 +200,11 @@ def _monomial(key: FormKey) -> tuple[int, ...]:
     """A monomial computing `key` (the canonical writing's exponents)."""
     e = [0] * len(PRIMITIVES)
     for i, x in enumerate(VARIABLES):
-        v, s, a = _PLACES[x]
         d, o = key[2 * i], key[2 * i + 1]
+        if x in _UNSIGNED:
+            e[PRIMITIVES.index(x)] = d
+            continue
+        v, s, a = _PLACES[x]
         if d == 0:
             e[s] = o
         elif d % 2 == o:
@@ -206,7 +224,7 @@ def composed_forms() -> tuple[tuple[str, tuple[int, ...]], ...]:
     keys: list[FormKey] = []
     for n in range(1, MAX_VARIABLES + 1):
         for states in combinations(range(len(VARIABLES)), n):
-            for classes in product(_classes(), repeat=n):
+            for classes in product(*(_classes(VARIABLES[i]) for i in states)):
                 k = [0] * (2 * len(VARIABLES))
                 for i, (d, o) in zip(states, classes, strict=True):
                     k[2 * i], k[2 * i + 1] = d, o
@@ -249,7 +267,6 @@ SIGNAL_PLANT_FORMS: dict[str, tuple[str, ...]] = {
 }
 # The angle each sensor's film reads, and its rate: its voltage is that angle through the chain.
 SENSOR_ANGLE = {"stroke_sensor_v": ("phi", "dphi"), "pitch_sensor_v": ("psi", "dpsi")}
-_UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
 _SIGNAL_FACTOR = re.compile(
     r"^(?:(sign|abs)\((" + "|".join(SIGNALS) + r")\)|(" + "|".join(SIGNALS) + r"))(?:\*\*(\d+))?$"
 )
@@ -325,10 +342,7 @@ def signal_forms(site: str) -> tuple[tuple[str, SignalKey], ...]:
         for chosen in combinations(names, n):
             if site in SENSOR_ANGLE and site in chosen and set(SENSOR_ANGLE[site]) & set(chosen):
                 continue
-            options = [
-                [(d, d % 2) for d in range(1, MAX_POWER + 1)] if x in _UNSIGNED else _classes()
-                for x in chosen
-            ]
+            options = [_classes(x) for x in chosen]
             for classes in product(*options):
                 k = [0] * (2 * len(SIGNALS))
                 for x, (d, o) in zip(chosen, classes, strict=True):

@@ -85,11 +85,13 @@ def primitive_values(
     psi: np.ndarray,
     dpsi: np.ndarray,
     drive_v: np.ndarray | float = 0.0,
+    t_s: np.ndarray | float = 0.0,
 ) -> tuple[np.ndarray, ...]:
     """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`); the
-    drive the actuator sees is `drive_v` (0: the drive off).
+    drive the actuator sees is `drive_v` (0: the drive off), the time from the run's start `t_s`.
     """
     drive = np.broadcast_to(np.asarray(drive_v, dtype=np.float64), np.shape(phi))
+    t = np.broadcast_to(np.asarray(t_s, dtype=np.float64), np.shape(phi))
     return (
         phi,
         dphi,
@@ -106,6 +108,7 @@ def primitive_values(
         drive,
         np.sign(drive),
         np.abs(drive),
+        t,
     )
 
 
@@ -706,12 +709,13 @@ class DiscoveredTerm:
         psi: np.ndarray,
         dpsi: np.ndarray,
         drive_v: np.ndarray | float = 0.0,
+        t_s: np.ndarray | float = 0.0,
     ) -> np.ndarray:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`), at
-        the drive the actuator sees (0: the drive off).
+        the drive the actuator sees (0: the drive off) and the time from the run's start.
         """
         out = np.ones(np.shape(phi))
-        values = primitive_values(phi, dphi, psi, dpsi, drive_v)
+        values = primitive_values(phi, dphi, psi, dpsi, drive_v, t_s)
         for x, e in zip(values, self.monomial, strict=True):
             out = out * x**e
         return out

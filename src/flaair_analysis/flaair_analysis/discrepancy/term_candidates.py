@@ -130,13 +130,15 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, Any]]:
 def _feature_values(
     kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
 ) -> list[np.ndarray]:
-    """The term's feature on each run along `motion` (a dynamics term: the states and the
-    commanded drive; a drive or sensor term: the run's `TermSignals`).
+    """The term's feature on each run along `motion` (a dynamics term: the states, the
+    commanded drive and time; a drive or sensor term: the run's `TermSignals`).
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     if site in DYNAMICS_SITES:
         return [
-            term.monomial_value(m["phi"], m["dphi"], m["psi"], m["dpsi"], m["signals"].drive_v)
+            term.monomial_value(
+                m["phi"], m["dphi"], m["psi"], m["dpsi"], m["signals"].drive_v, m["signals"].t
+            )
             for m in motion
         ]
     return [term.feature(m["signals"]) for m in motion]

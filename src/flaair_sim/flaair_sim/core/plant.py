@@ -256,6 +256,7 @@ def step(
         psi,
         vs,
         vp,
+        state.sample_index / fs,
     )
     add_sensor_terms(model, fs, drive, state.sample_index, phi, psi, vs, vp, terms)
     if not math.isfinite(sum(x.tolist())):
@@ -399,6 +400,7 @@ def simulate_batch(
             psi[0],
             vs[0],
             vp[0],
+            0.0,
         )
     elif m:
         x0 = np.zeros((m, 4))

@@ -29,27 +29,28 @@ _FMA = {"contract"}
 
 
 @njit(cache=True, fastmath=_FMA)
-def _accelerations(phi, dphi, psi, dpsi, v, c, contact):
+def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
-    2: stop acts (just after an impact, where phi may be a rounding error below the limit).
+    2: stop acts (just after an impact, where phi may be a rounding error below the limit); `t`
+    the sample's time from the run's start (for a discovered term with a time factor).
     """
     ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v)
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v)
+    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v):
-    """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi and the drive
-    the actuator sees (`v`, for a discovered term with a drive factor).
+def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t):
+    """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi, the drive
+    the actuator sees and the time (`v`, `t`: for a discovered term with such a factor).
     """
     kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
@@ -58,28 +59,30 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v):
     # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
-        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v)
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t)
     return ddpsi
 
 
 # Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
 # through memory, which costs ~4.5 ns of a ~19 ns step.
 @njit(cache=True, fastmath=_FMA, inline="always")
-def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact):
-    """One RK4 step of length hs; also reports whether any stage was past the stop."""
-    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact)
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t):
+    """One RK4 step of length hs at the sample time `t` (held over the sample, like the drive
+    `v`); also reports whether any stage was past the stop.
+    """
+    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t)
     phi2 = phi + 0.5 * hs * dphi
     dphi2 = dphi + 0.5 * hs * a1
     dpsi2 = dpsi + 0.5 * hs * b1
-    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact)
+    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact, t)
     phi3 = phi + 0.5 * hs * dphi2
     dphi3 = dphi + 0.5 * hs * a2
     dpsi3 = dpsi + 0.5 * hs * b2
-    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact)
+    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact, t)
     phi4 = phi + hs * dphi3
     dphi4 = dphi + hs * a3
     dpsi4 = dpsi + hs * b3
-    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact)
+    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact, t)
     limit = c[pp.C_PHI_LIM]
     touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
     return (
@@ -113,7 +116,7 @@ def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
+def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t):
     """One sample period touching the stop, `nsub` substeps.
 
     The damper makes the contact force jump at impact, which would cut RK4 to first order;
@@ -123,20 +126,22 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub):
     limit = c[pp.C_PHI_LIM]
     for _ in range(nsub):
         if phi <= limit:
-            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t)
             if f_phi <= limit:
                 phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
                 continue
             theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0)
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0, t)
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t
+            )
         else:
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t)
     return phi, dphi, psi, dpsi
 
 
 @njit(cache=True, fastmath=_FMA)
-def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out):
+def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out, t0):
     """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
     if p[pp.P_NTERMS] > 0.0:
         _mechanics_with(
@@ -151,6 +156,7 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
             psi_out,
             dev_s_out,
             dev_p_out,
+            t0,
         )
     else:
         _mechanics_with(
@@ -165,12 +171,16 @@ def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, 
             psi_out,
             dev_s_out,
             dev_p_out,
+            t0,
         )
 
 
 @njit(cache=True, fastmath=_FMA)
-def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out, dev_p_out):
-    """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time.
+def _mechanics_with(
+    x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out, dev_p_out, t0
+):
+    """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time;
+    the block's first sample is at `t0` (s from the run's start).
 
     x (the state after the block) is updated in place. The transduction is computed here
     because the RK4 recursion is latency-bound: the extra arithmetic comes almost free.
@@ -190,7 +200,7 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
             psi_out[k] = psi
             dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
             dev_p_out[k] = gp * psi
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t0 + k * h)
         x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
         return
     for k in range(drive.shape[0]):
@@ -200,12 +210,15 @@ def _mechanics_with(x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev
         dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
         dev_p_out[k] = gp * psi
         phi0, dphi0, psi0, dpsi0 = phi, dphi, psi, dpsi
+        t = t0 + k * h
         touched = False
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact)
+            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t)
             touched = touched or hit
         if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
-            phi, dphi, psi, dpsi = _contact_sample(phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact)
+            phi, dphi, psi, dpsi = _contact_sample(
+                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t
+            )
     x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
 
 
@@ -227,8 +240,10 @@ def run_model(
     psi_out,
     vs_out,
     vp_out,
+    t0,
 ):
-    """Simulate one model over `drive`; x, actuator, zi, hist_s, hist_p are updated in place.
+    """Simulate one model over `drive`, its first sample at `t0` (s from the run's start: a
+    discovered term's time); x, actuator, zi, hist_s, hist_p are updated in place.
 
     `actuator` is [the hysteretic voltage, the last drive sample]: with the actuator's
     hysteresis on, the mechanics see the drive less that voltage; the feedthrough sees the drive.
@@ -237,13 +252,13 @@ def run_model(
     if fraction > 0.0:
         lag = np.empty(drive.shape[0])
         hysteretic_voltage(drive, fraction, p[pp.P_HYST_SAT], actuator, lag)
-        _mechanics(x, drive - lag, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+        _mechanics(x, drive - lag, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, t0)
         feed = p[pp.P_FT]
         if feed != 0.0:
             for k in range(drive.shape[0]):
                 vs_out[k] += feed * lag[k]
     else:
-        _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out)
+        _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, t0)
         if drive.shape[0] > 0:
             actuator[1] = drive[drive.shape[0] - 1]
     zi[0] = sensor_channel_kernel(
@@ -302,6 +317,7 @@ def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, v
             psi_out[i],
             vs_out[i],
             vp_out[i],
+            0.0,  # every run's time starts at its first sample
         )
 
 
@@ -319,7 +335,7 @@ def _stroke_fundamentals_with(c, omega, amplitudes, pitch_re, pitch_im, n_points
             phi, dphi = a * ct, -a * w * st
             psi = pitch_re[i] * ct - pitch_im[i] * st
             dpsi = -w * (pitch_re[i] * st + pitch_im[i] * ct)
-            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0)
+            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0, 0.0)
             acc_re += ddphi * ct
             acc_im -= ddphi * st
         out[i] = complex(acc_re, acc_im) * (2.0 / n_points)
@@ -346,7 +362,8 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
             (dda * e).real,
             abs(dphi) * dphi,
             c,
-            0.0,  # the drive off, as the stroke's describing function
+            0.0,  # the drive off and the time at 0, as the stroke's describing function
+            0.0,
         )
         acc += ddpsi * e.conjugate()
         e *= turn

@@ -31,14 +31,16 @@ _DIVISOR = pp.CONSTANT_DIVISOR
 
 
 @njit(cache=True, fastmath=_FMA)
-def primitive(j, phi, dphi, psi, dpsi, v):
+def primitive(j, phi, dphi, psi, dpsi, v, t):
     """Factor j of a term's monomial (flaair_model.terms.PRIMITIVES): the states, sign() and
     abs() of the rates, then sign() and abs() of the angles, then the drive the actuator sees
-    (`v`), its sign() and abs().
+    (`v`), its sign() and abs(), then the time from the run's start (`t`).
     """
     if j < 4:
         return phi if j == 0 else (dphi if j == 1 else (psi if j == 2 else dpsi))
     if j >= 12:
+        if j == 15:
+            return t
         if j == 12:
             return v
         if j == 13:
@@ -56,9 +58,9 @@ def primitive(j, phi, dphi, psi, dpsi, v):
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v):
+def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t):
     """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia, at
-    the drive `v` the actuator sees.
+    the drive `v` the actuator sees and the time `t` from the run's start.
     """
     total = 0.0
     for slot in range(MAX_DYNAMICS_TERMS):
@@ -69,7 +71,7 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v):
                 j = int(c[base + 2 + 2 * q])
                 if j < 0:
                     break
-                x = primitive(j, phi, dphi, psi, dpsi, v)
+                x = primitive(j, phi, dphi, psi, dpsi, v, t)
                 for _ in range(int(c[base + 3 + 2 * q])):
                     f *= x
             total += f
