@@ -425,16 +425,16 @@ def test_a_huge_ranking_column_leaves_the_rss_its_direction_does() -> None:
     """A form whose RMS along the motion is tiny gets a huge probe scale: its column's square
     would overflow, but the rss a least-squares step leaves depends on its direction only.
     """
-    from flaair_analysis.discrepancy.term_candidates import _one_column_rss
+    from flaair_analysis.discrepancy.term_candidates import one_column_rss
 
     rng = np.random.default_rng(1)
     r0, column = rng.standard_normal(500), rng.standard_normal(500)
     r0_ss = float(r0 @ r0)
     expected = r0_ss - float(column @ r0) ** 2 / float(column @ column)
-    assert _one_column_rss(1e200 * column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
-    assert _one_column_rss(column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
-    assert _one_column_rss(np.zeros(500), r0, r0_ss) == r0_ss
-    assert _one_column_rss(np.full(500, np.inf), r0, r0_ss) == r0_ss
+    assert one_column_rss(1e200 * column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
+    assert one_column_rss(column, r0, r0_ss) == pytest.approx(expected, rel=1e-12)
+    assert one_column_rss(np.zeros(500), r0, r0_ss) == r0_ss
+    assert one_column_rss(np.full(500, np.inf), r0, r0_ss) == r0_ss
 
 
 def test_a_drive_factor_at_the_stroke_is_a_stiffness_that_follows_the_field(model) -> None:

@@ -64,6 +64,7 @@ __all__ = [
     "candidates",
     "fitted_along",
     "is_degenerate",
+    "one_column_rss",
     "plant_box_spec",
 ]
 
@@ -215,13 +216,13 @@ def _rank_composed(
             left = r0 + a @ step
             rss = float(np.dot(left, left))
         else:  # one column: the least-squares step in closed form, on the unit column
-            rss = _one_column_rss(change, r0, r0_ss)
+            rss = one_column_rss(change, r0, r0_ss)
         if k.name not in best or rss < best[k.name][0]:  # a low-pass: its best corner
             best[k.name] = (rss, k, COEFFICIENT_RANGE * sc)
     return sorted(best.values(), key=lambda c: c[0]), degenerate
 
 
-def _one_column_rss(column: np.ndarray, r0: np.ndarray, r0_ss: float) -> float:
+def one_column_rss(column: np.ndarray, r0: np.ndarray, r0_ss: float) -> float:
     """The rss `r0` leaves after one least-squares step along `column` (r0_ss where the column
     is zero or not finite). The column is scaled to its largest sample first: a form whose RMS
     is tiny has a huge probe scale, whose square would overflow.
