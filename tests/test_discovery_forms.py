@@ -1,18 +1,32 @@
-"""Composed dynamics forms: parsed, named canonically, generated without the table's rows, carried
-by a model file, evaluated by the kernel's generic monomial, and refused by name when an
-expression is not built from the primitives.
+"""Composed forms, at the dynamics (over the drive, time and the states) and at the drive and the
+sensors (over their signals, and their low-passes): parsed, named canonically, generated without
+the table's rows, carried by a model file, evaluated by the kernel's generic monomial and the
+plant's signal terms, ranked, and refused by name when an expression is not built from them.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from scipy import signal
 
-from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives
-from flaair_analysis.discrepancy.discovery_uncertainty import SETTLE_S, suggested_drive
+from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives, true_model
+from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.discovery_uncertainty import (
+    SETTLE_S,
+    suggest_experiment,
+    suggested_drive,
+)
+from flaair_analysis.discrepancy.effect_judging import AnalysisContext
+from flaair_analysis.discrepancy.fitting import with_terms
 from flaair_analysis.discrepancy.offnominal import random_robot
+from flaair_analysis.discrepancy.runs import sensor_gain_v_per_deg, simulate_runs
+from flaair_analysis.discrepancy.term_candidates import candidates, is_degenerate, one_column_rss
+from flaair_model.model import with_effects
 from flaair_model.model_io import load_model, model_from_dict, model_to_dict
+from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_model.term_forms import (
     canonical,
     composed_forms,
@@ -22,7 +36,7 @@ from flaair_model.term_forms import (
     signal_forms,
     signal_name,
 )
-from flaair_model.terms import DiscoveredTerm, composed_kinds, row_of
+from flaair_model.terms import DiscoveredTerm, TermSignals, composed_kinds, row_of
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
@@ -166,8 +180,6 @@ def test_a_signal_form_acts_where_the_plant_applies_its_terms(model) -> None:
     psi*stroke_sensor_v at the stroke sensor adds c psi dev to its output; dphi at the pitch
     sensor adds c times the stroke's backward difference.
     """
-    from dataclasses import replace
-
     fs = 20_000.0
     t = np.arange(4000) / fs
     drive = 60.0 * np.sin(2 * np.pi * 120.0 * t)
@@ -249,8 +261,6 @@ def test_a_model_file_term_not_built_from_the_primitives_is_refused_by_name(
 
 def test_the_kernel_evaluates_a_composed_form_as_the_row_with_the_same_monomial(model) -> None:
     """psi**3 composed equals the cube_angle row on the pitch (bit for bit); phi*abs(dphi) acts."""
-    from dataclasses import replace
-
     fs = 20_000.0
     t = np.arange(6000) / fs
     drive = 60.0 * np.sin(2 * np.pi * 120.0 * t) * np.minimum(t / 0.05, 1.0)
@@ -279,10 +289,6 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     the difference scales with the level), far above the noise: that run tells them apart;
     identical models do not differ at all, and no run does.
     """
-    from dataclasses import replace
-
-    from flaair_analysis.discrepancy.discovery_uncertainty import suggest_experiment
-
     other = replace(model, plant=replace(model.plant, stroke_natural_frequency_hz=145.6))
     freqs = [50.0, 90.0, 130.0, 150.0, 190.0]
     s = suggest_experiment([model, other], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
@@ -318,9 +324,6 @@ def test_a_composed_form_zero_or_constant_on_the_motion_is_degenerate() -> None:
     changes sign makes sign(dphi) constant; a drive that never changes sign makes sign(drive_v)
     constant; the same forms on a full motion are not degenerate.
     """
-    from flaair_analysis.discrepancy.term_candidates import is_degenerate
-    from flaair_model.terms import TermSignals
-
     t = np.arange(4000) / 20_000.0
     phi = 0.4 * np.sin(2 * np.pi * 120.0 * t)
     zero = np.zeros_like(t)
@@ -356,13 +359,6 @@ def test_a_sensor_forms_change_to_the_residual_is_its_feature_along_the_model(
     makes, to rounding, through a delayed, high-passed chain that already carries a term, with
     the judged angle measured or simulated.
     """
-    from flaair_analysis.discrepancy.diagnosis import noise_estimates
-    from flaair_analysis.discrepancy.effect_judging import AnalysisContext
-    from flaair_analysis.discrepancy.fitting import with_terms
-    from flaair_analysis.discrepancy.runs import simulate_runs
-    from flaair_model.model import with_effects
-    from flaair_model.settings import discrepancy as discrepancy_settings
-
     case = random_robot("offnominal_null", 1)
     t = np.arange(6000) / 20_000.0
     drive = 40.0 * np.sin(2 * np.pi * (60.0 + 300.0 * t) * t)
@@ -393,15 +389,6 @@ def test_a_films_memory_is_ranked_first_and_fitted_with_its_corner(model) -> Non
     gain): among the pitch sensor's ~2,600 forms the low-pass of phi ranks first, and its fit
     from the corner grid's starts finds the coefficient within 0.5 % and the corner within 2 %.
     """
-    from dataclasses import replace
-
-    from flaair_analysis.discrepancy.datasets import true_model
-    from flaair_analysis.discrepancy.diagnosis import noise_estimates
-    from flaair_analysis.discrepancy.effect_judging import AnalysisContext
-    from flaair_analysis.discrepancy.runs import sensor_gain_v_per_deg, simulate_runs
-    from flaair_analysis.discrepancy.term_candidates import candidates
-    from flaair_model.settings import discrepancy as discrepancy_settings
-
     case = random_robot("offnominal_null", 1)
     gain_v_per_rad = np.degrees(sensor_gain_v_per_deg(true_model(case, model), "pitch_sensor_v"))
     memory = DiscoveredTerm(
@@ -425,8 +412,6 @@ def test_a_huge_ranking_column_leaves_the_rss_its_direction_does() -> None:
     """A form whose RMS along the motion is tiny gets a huge probe scale: its column's square
     would overflow, but the rss a least-squares step leaves depends on its direction only.
     """
-    from flaair_analysis.discrepancy.term_candidates import one_column_rss
-
     rng = np.random.default_rng(1)
     r0, column = rng.standard_normal(500), rng.standard_normal(500)
     r0_ss = float(r0 @ r0)
@@ -443,8 +428,6 @@ def test_a_drive_factor_at_the_stroke_is_a_stiffness_that_follows_the_field(mode
     plant without the term rests at G_a V / K. The pitch has no term, so its rest is the
     plant's own.
     """
-    from dataclasses import replace
-
     fs, volts = 20_000.0, 40.0
     plant = model.plant
     k, gain = plant.stroke_stiffness_nm_per_rad, plant.actuator_gain_nm_per_v
@@ -465,8 +448,6 @@ def test_a_time_factor_at_the_stroke_is_a_stiffness_that_drifts(model) -> None:
     quasi-static rest G_a V / (K (1 + d t)) of a flexure drifting in time, t from the run's
     first sample.
     """
-    from dataclasses import replace
-
     fs, volts, drift_per_s = 20_000.0, 40.0, 0.5
     plant = model.plant
     k, gain = plant.stroke_stiffness_nm_per_rad, plant.actuator_gain_nm_per_v
