@@ -5,6 +5,7 @@ equals the offline core; bad blocks are rejected.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -169,10 +170,13 @@ def test_bad_command_blocks_are_rejected_and_the_plant_keeps_running(
 def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
     monkeypatch, tmp_path
 ) -> None:
-    """min_sensor_subscribers, min_truth_subscribers: the plant's drive subscription (what a
-    lockstep source waits for) appears only once the sensor and truth streams have that many
-    listeners.
+    """min_sensor_subscribers, min_truth_subscribers, min_clock_subscribers: the plant's drive
+    subscription (what a lockstep source waits for) appears only once the sensor, truth and /clock
+    streams have that many listeners, /clock's counted by its DDS writer (a recorder seen in the
+    graph before its /clock matched lost the first ticks).
     """
+    from rosgraph_msgs.msg import Clock
+
     from composed import composed
     from flaair_common import topics
     from flaair_sim.plant_node import PlantNode
@@ -181,6 +185,7 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
         "plant_node": {
             "min_sensor_subscribers": 2,
             "min_truth_subscribers": 2,
+            "min_clock_subscribers": 1,
             "command_timeout_s": 0.0,
         }
     }
@@ -192,6 +197,12 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
         assert loop.bus.subscriber_count(topics.DRIVE) == 0  # truth has 1 listener of 2
         loop.sink(topics.WING_STATE_TRUTH)
         loop.run_for(0.02)
+        assert loop.bus.subscriber_count(topics.DRIVE) == 0  # /clock has none of 1
+        plant = loop.node("plant_node")
+        plant.create_subscription(Clock, topics.CLOCK, lambda _msg: None, 10)
+        deadline = time.monotonic() + 10.0  # the writer's match comes in real time
+        while loop.bus.subscriber_count(topics.DRIVE) == 0 and time.monotonic() < deadline:
+            loop.run_for(0.01)
         assert loop.bus.subscriber_count(topics.DRIVE) == 1
 
 

@@ -109,6 +109,15 @@ PLANT_PARAMS = [
         read_only=True,
     ),
     ParamSpec(
+        "min_clock_subscribers",
+        int,
+        "... and /clock this many (a recorder that records it; no /clock published: ignored) "
+        "[0: at once]",
+        0,
+        100,
+        read_only=True,
+    ),
+    ParamSpec(
         "truth_frame_every",
         int,
         "Ground truth as a camera sees it: one valid frame every "

@@ -71,11 +71,17 @@ class PlantNode(FlaairNode):
         self.get_logger().info(io.ready_text(self.p, self.model, self.windows_s))
 
     def subscribe_when_listened(self) -> None:
-        """Subscribe to the drive once sensor_v and truth have min_sensor_subscribers and
-        min_truth_subscribers matched listeners (counted on the writer's side).
+        """Subscribe to the drive once sensor_v, truth and /clock have min_sensor_subscribers,
+        min_truth_subscribers and min_clock_subscribers matched listeners (counted on the
+        writer's side: a subscription seen in the graph can match a moment later).
         """
         sensors, truths = self.p["min_sensor_subscribers"], self.p["min_truth_subscribers"]
-        if self.sensor.subscription_count() < sensors or self.truth.subscription_count() < truths:
+        clocks = self.p["min_clock_subscribers"] if self.clock_pub is not None else 0
+        if (
+            self.sensor.subscription_count() < sensors
+            or self.truth.subscription_count() < truths
+            or (clocks and self.clock_pub.get_subscription_count() < clocks)
+        ):
             return
         self.destroy_timer(self.listeners_timer)
         intra.subscribe_stream(

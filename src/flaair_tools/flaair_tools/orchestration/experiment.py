@@ -259,6 +259,8 @@ def run_parameters(
 ) -> dict[str, dict[str, Any]]:
     """Each of the graph's roles' parameters for this run (the graph's own, then the run's)."""
     plant: dict[str, Any] = {"noise": noise, **spec.plant}
+    if records_clock():
+        plant["min_clock_subscribers"] = 1  # no tick before the recorder's /clock matches
     if not nominal and robot_section():
         plant["model_file"] = str(write_robot_model(log_dir / "robot_model.yaml"))
         plant["truth_frame_every"] = int(robot_section().get("video_frame_every", 1))
@@ -293,6 +295,12 @@ def _start_nodes(
 DRIVE_LISTENERS = ("plant", "recorder", "health", "collision_monitor")
 
 
+def records_clock() -> bool:
+    """The experiment's recorder records /clock (config/flaair.yaml)."""
+    recorder = settings.node_section(RECORDER_PARAMS, "recorder_node", "flaair.yaml")
+    return bool(recorder["record_clock"])
+
+
 def listeners_needed(spec: ExperimentSpec) -> list[tuple[str, str]]:
     """(node, topic) of every subscription that must be seen before anything flows: the
     recorder on each recorded topic (/clock too when it records it), every drive listener on
@@ -306,7 +314,7 @@ def listeners_needed(spec: ExperimentSpec) -> list[tuple[str, str]]:
         bagio.RUN_MARKER_TOPIC,
         EXPERIMENT_TOPIC,
     ]
-    if settings.node_section(RECORDER_PARAMS, "recorder_node", "flaair.yaml")["record_clock"]:
+    if records_clock():
         # the plant publishes /clock from its first step: a late match loses its first ticks
         recorded.append(topics.CLOCK)
     node_name = {role: node_of(role).node_name for role in experiment_roles(spec)}
