@@ -138,7 +138,7 @@ def test_a_drive_lag_of_one_is_an_amplifier_with_that_bandwidth(model) -> None:
 
 def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
     terms = (
-        DiscoveredTerm("sign_velocity", "stroke_dynamics", -1e-6),
+        DiscoveredTerm("ddrive_v*sign(dphi)", "stroke_dynamics", -5e-12),  # the last drive
         DiscoveredTerm("t*drive_v*psi", "pitch_dynamics", 1e-9),  # each block's own times
         DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
         DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),

@@ -6,6 +6,7 @@ plant's signal terms, ranked, and refused by name when an expression is not buil
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -36,7 +37,7 @@ from flaair_model.term_forms import (
     signal_forms,
     signal_name,
 )
-from flaair_model.terms import DiscoveredTerm, TermSignals, composed_kinds, row_of
+from flaair_model.terms import PRIMITIVES, DiscoveredTerm, TermSignals, composed_kinds, row_of
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
@@ -67,7 +68,7 @@ def test_a_form_is_named_by_what_it_computes(expression: str, name: str) -> None
 
 def test_equal_forms_compute_equal_values() -> None:
     rng = np.random.default_rng(3)
-    x = rng.normal(size=(6, 200))  # phi, dphi, psi, dpsi, the drive, the time
+    x = rng.normal(size=(7, 200))  # phi, dphi, psi, dpsi, the drive, the time, the drive's rate
     x[5] = np.abs(x[5])
     for expression in (
         "dphi**2*sign(dphi)",
@@ -79,34 +80,38 @@ def test_equal_forms_compute_equal_values() -> None:
         "abs(drive_v)*sign(dpsi)",
         "t**2*phi",
         "t*drive_v*abs(dphi)",
+        "ddrive_v*phi",
+        "abs(ddrive_v)*sign(ddrive_v)**3*dpsi",
+        "t*ddrive_v**2*sign(ddrive_v)",
     ):
         a = DiscoveredTerm(expression, "stroke_dynamics", 1.0).monomial_value(*x)
         mono = parse_form(expression)
         f = (x[0], x[1], x[2], x[3], np.sign(x[1]), np.sign(x[3]), np.abs(x[1]), np.abs(x[3]))
         f += (np.sign(x[0]), np.sign(x[2]), np.abs(x[0]), np.abs(x[2]))
-        f += (x[4], np.sign(x[4]), np.abs(x[4]), x[5])
+        f += (x[4], np.sign(x[4]), np.abs(x[4]), x[5], x[6], np.sign(x[6]), np.abs(x[6]))
         b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
         np.testing.assert_allclose(a, b, rtol=1e-12)
 
 
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:
-    """Each of the five signed variables (the drive and the four states) has seven classes (its
-    sign, each power of it and of its abs), time its three powers: 5 x 7 + 3 one-variable forms;
-    two signed variables: 10 pairs x 25 class pairs of degree <= 3 (the 49 less those of degree 4
-    to 6), one with time: 5 x 9; three signed: 10 triples x 63, two with time: 10 x 19; 1153 in
-    all, each computing a different value.
+    """Each of the six signed variables (the drive, its rate and the four states) has seven
+    classes (its sign, each power of it and of its abs), time its three powers: 6 x 7 + 3
+    one-variable forms; two signed variables: 15 pairs x 25 class pairs of degree <= 3 (the 49
+    less those of degree 4 to 6), one with time: 6 x 9; three signed: 20 triples x 63, two with
+    time: 15 x 19; 2019 in all, each computing a different value.
     """
     forms = composed_forms()
     keys = [form_key(m) for _n, m in forms]
-    assert len(forms) == 38 + 10 * 25 + 5 * 9 + 10 * 63 + 10 * 19 == 1153
-    assert len(set(keys)) == 1153
+    assert len(forms) == 45 + 15 * 25 + 6 * 9 + 20 * 63 + 15 * 19 == 2019
+    assert len(set(keys)) == 2019
     names = [n for n, _m in forms]
-    simplest = ["sign(drive_v)", "sign(phi)", "sign(psi)", "sign(dphi)", "sign(dpsi)"]
+    simplest = ["sign(drive_v)", "sign(ddrive_v)", "sign(phi)", "sign(psi)", "sign(dphi)"]
     assert names[:5] == simplest
     assert {"abs(phi)", "phi*abs(phi)", "abs(psi)*sign(dphi)", "phi*psi*dphi"} <= set(names)
     assert {"drive_v*phi", "abs(drive_v)*dphi", "drive_v**2*psi", "t*phi", "t**2*dpsi"} <= set(
         names
     )
+    assert {"ddrive_v*phi", "drive_v*ddrive_v", "abs(ddrive_v)*dphi", "ddrive_v*t"} <= set(names)
     assert not any("abs(t)" in n or "sign(t)" in n for n in names)
     for name, mono in forms:
         assert parse_form(name) == mono and max(mono) <= 3 and canonical(mono) == name
@@ -127,7 +132,8 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     # the actuator's torque is the plant's on the stroke; a drive torque on the hinge is not
     assert "drive_v" not in stroke and "drive_v" in pitch
     assert {"drive_v*phi", "drive_v*dphi", "abs(drive_v)*phi"} <= stroke
-    assert len(stroke) == 1153 - 12 and len(pitch) == 1153 - 11
+    assert {"ddrive_v", "ddrive_v*phi", "abs(ddrive_v)*dphi"} <= stroke
+    assert len(stroke) == 2019 - 12 and len(pitch) == 2019 - 11
     assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
 
 
@@ -460,3 +466,23 @@ def test_a_time_factor_at_the_stroke_is_a_stiffness_that_drifts(model) -> None:
         i = int(at_s * fs)
         rest = out.stroke_rad[i - 100 : i + 100].mean()
         assert rest == pytest.approx(gain * volts / (k * (1 + drift_per_s * at_s)), rel=2e-3)
+
+
+def test_a_drive_rate_factor_at_the_stroke_adds_its_torque_under_a_ramp(model) -> None:
+    """ddrive_v at the stroke with coefficient c: under a drive ramping at r V/s the term is a
+    constant torque c r, so the stroke sits c r / K above the plant's without it (the drive's
+    backward difference, held over a sample). The ramp's rate rises as a raised cosine, so the
+    term's torque rises slowly and rings little.
+    """
+    fs, rate_v_per_s = 20_000.0, 200.0
+    k = model.plant.stroke_stiffness_nm_per_rad
+    c = 0.1 * k * math.radians(1.0) / rate_v_per_s  # 0.1 deg of offset
+    term = DiscoveredTerm("ddrive_v", "stroke_dynamics", c)
+    assert term.kind == "ddrive_v" and term.monomial[PRIMITIVES.index("ddrive_v")] == 1
+    t = np.arange(int(0.4 * fs)) / fs
+    drive = np.cumsum(rate_v_per_s * 0.5 * (1.0 - np.cos(np.pi * np.minimum(t / 0.2, 1.0)))) / fs
+    with_rate = simulate(drive, fs, replace(model, discovered=(term,)))
+    plain = simulate(drive, fs, model)
+    offset = (with_rate.stroke_rad - plain.stroke_rad)[-400:]
+    assert offset.mean() == pytest.approx(c * rate_v_per_s / k, rel=1e-3)
+    assert np.ptp(offset) < 1e-3 * offset.mean()

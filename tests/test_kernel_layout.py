@@ -87,7 +87,7 @@ def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("j", range(len(PRIMITIVES)))
 def test_each_kernel_factor_is_the_numpy_one(j: int) -> None:
-    grid = np.array(list(itertools.product((-0.3, 0.0, 0.7), repeat=6))).T  # states, drive, t
+    grid = np.array(list(itertools.product((-0.3, 0.0, 0.7), repeat=7))).T  # states, v, t, dv
     numpy_factors = primitive_values(*grid)
     assert len(numpy_factors) == len(PRIMITIVES)
     kernel = [term_kernel.primitive(j, *state) for state in grid.T]
@@ -105,7 +105,7 @@ def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel(first: int) -> N
     p[pp.P_NTERMS] = 1.0
     p[base], p[base + 1] = 1.0, 0.25
     p[base + 2 : base + pp.TERM_SLOT] = exponents
-    state = (0.3, -0.7, 0.4, 1.3, -2.5, 0.8)  # the states, then the drive and the time
+    state = (0.3, -0.7, 0.4, 1.3, -2.5, 0.8, -40.0)  # the states, the drive, time, drive rate
     c = term_kernel.constants_with_terms(p)
     factors = [term_kernel.primitive(j, *state) for j in range(len(PRIMITIVES))]
     expected = 0.25 * float(np.prod(np.power(factors, exponents)))

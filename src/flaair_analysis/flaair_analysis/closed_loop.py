@@ -104,7 +104,7 @@ def _one(
             phi_out[k - keep0] = phi
             psi_out[k - keep0] = psi
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, 0.0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, 0.0, 0.0)
     return u, peak
 
 

@@ -3,12 +3,13 @@
 A dynamics term's feature is a monomial over `PRIMITIVES` (the plant kernel's generic
 evaluation multiplies the factors, each to an integer power). The forms the discovery step may
 reach without a row of the term library (`flaair_model.terms`) are composed here from the drive
-the actuator sees, time and the four mechanical states (`VARIABLES`: drive_v, t, phi, psi, dphi,
-dpsi) and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
+the actuator sees, the drive's rate, time and the four mechanical states (`VARIABLES`: drive_v,
+ddrive_v, t, phi, psi, dphi, dpsi) and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
 `MAX_POWER`, and products of up to `MAX_VARIABLES` variables' factors, of total degree at most
 `MAX_POWER` (``sign()`` counts 0); time ``t`` (s from the run's start) is never negative, so it
 enters by its powers only. A form with a drive factor (a piezo whose stiffness or damping follows
-its field: ``drive_v*phi``) or a time factor (a flexure drifting: ``t*phi``) acts in the
+its field: ``drive_v*phi``), a drive-rate factor (a torque that follows how fast the field
+changes: ``ddrive_v*phi``) or a time factor (a flexure drifting: ``t*phi``) acts in the
 simulation; the describing functions, which take the plant at rest in time with the drive off,
 leave it out.
 
@@ -78,11 +79,15 @@ PRIMITIVES: tuple[str, ...] = (
     "sign(drive_v)",
     "abs(drive_v)",
     "t",
+    "ddrive_v",
+    "sign(ddrive_v)",
+    "abs(ddrive_v)",
 )
 # The variables a form is a product over, in the order a canonical name writes them (the drive
-# the actuator sees, V; time, s from the run's start, held over a sample like the drive; then
-# the mechanical states; `SIGNALS` writes them in the same order).
-VARIABLES: tuple[str, ...] = ("drive_v", "t", "phi", "psi", "dphi", "dpsi")
+# the actuator sees, V; the commanded drive's rate, V/s, its backward difference; time, s from
+# the run's start; the three held over a sample; then the mechanical states; `SIGNALS` writes
+# them in the same order).
+VARIABLES: tuple[str, ...] = ("drive_v", "ddrive_v", "t", "phi", "psi", "dphi", "dpsi")
 _UNSIGNED = ("t",)  # never negative: its abs() is itself, its sign() a constant
 # Forms the plant's equations already carry (the actuator, the stiffnesses, damping,
 # aerodynamic drag and coupling).
@@ -98,7 +103,7 @@ MAX_VARIABLES = 3
 # unsigned one has itself only.
 _PLACES = {x: (PRIMITIVES.index(x), PRIMITIVES.index(f"sign({x})"), PRIMITIVES.index(f"abs({x})"))
            for x in VARIABLES if x not in _UNSIGNED}  # fmt: skip
-_VARIABLE = "(?:drive_v|d?(?:phi|psi))"
+_VARIABLE = "(?:d?drive_v|d?(?:phi|psi))"
 _FACTOR = re.compile(rf"^(sign\({_VARIABLE}\)|abs\({_VARIABLE}\)|{_VARIABLE}|t)(?:\*\*(\d+))?$")
 
 # What a monomial computes: each variable's (degree, odd), in `VARIABLES` order.

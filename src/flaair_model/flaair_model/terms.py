@@ -86,12 +86,15 @@ def primitive_values(
     dpsi: np.ndarray,
     drive_v: np.ndarray | float = 0.0,
     t_s: np.ndarray | float = 0.0,
+    ddrive_v: np.ndarray | float = 0.0,
 ) -> tuple[np.ndarray, ...]:
     """The `PRIMITIVES` in numpy, in their order (the kernel's `term_kernel.primitive`); the
-    drive the actuator sees is `drive_v` (0: the drive off), the time from the run's start `t_s`.
+    drive the actuator sees is `drive_v` (0: the drive off), the time from the run's start `t_s`,
+    the commanded drive's rate `ddrive_v` (V/s).
     """
     drive = np.broadcast_to(np.asarray(drive_v, dtype=np.float64), np.shape(phi))
     t = np.broadcast_to(np.asarray(t_s, dtype=np.float64), np.shape(phi))
+    rate = np.broadcast_to(np.asarray(ddrive_v, dtype=np.float64), np.shape(phi))
     return (
         phi,
         dphi,
@@ -109,6 +112,9 @@ def primitive_values(
         np.sign(drive),
         np.abs(drive),
         t,
+        rate,
+        np.sign(rate),
+        np.abs(rate),
     )
 
 
@@ -710,12 +716,14 @@ class DiscoveredTerm:
         dpsi: np.ndarray,
         drive_v: np.ndarray | float = 0.0,
         t_s: np.ndarray | float = 0.0,
+        ddrive_v: np.ndarray | float = 0.0,
     ) -> np.ndarray:
         """A dynamics term's feature in numpy (the kernel's `term_kernel.dynamics_terms`), at
-        the drive the actuator sees (0: the drive off) and the time from the run's start.
+        the drive the actuator sees (0: the drive off), the time from the run's start and the
+        commanded drive's rate (V/s).
         """
         out = np.ones(np.shape(phi))
-        values = primitive_values(phi, dphi, psi, dpsi, drive_v, t_s)
+        values = primitive_values(phi, dphi, psi, dpsi, drive_v, t_s, ddrive_v)
         for x, e in zip(values, self.monomial, strict=True):
             out = out * x**e
         return out

@@ -132,13 +132,19 @@ def _feature_values(
     kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
 ) -> list[np.ndarray]:
     """The term's feature on each run along `motion` (a dynamics term: the states, the
-    commanded drive and time; a drive or sensor term: the run's `TermSignals`).
+    commanded drive, its rate and time; a drive or sensor term: the run's `TermSignals`).
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     if site in DYNAMICS_SITES:
         return [
             term.monomial_value(
-                m["phi"], m["dphi"], m["psi"], m["dpsi"], m["signals"].drive_v, m["signals"].t
+                m["phi"],
+                m["dphi"],
+                m["psi"],
+                m["dpsi"],
+                m["signals"].drive_v,
+                m["signals"].t,
+                m["signals"].ddrive_v,
             )
             for m in motion
         ]

@@ -256,7 +256,7 @@ def step(
         psi,
         vs,
         vp,
-        state.sample_index / fs,
+        float(state.sample_index),
     )
     add_sensor_terms(model, fs, drive, state.sample_index, phi, psi, vs, vp, terms)
     if not math.isfinite(sum(x.tolist())):

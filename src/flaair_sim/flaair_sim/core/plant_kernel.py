@@ -29,28 +29,30 @@ _FMA = {"contract"}
 
 
 @njit(cache=True, fastmath=_FMA)
-def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t):
+def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
     2: stop acts (just after an impact, where phi may be a rounding error below the limit); `t`
-    the sample's time from the run's start (for a discovered term with a time factor).
+    the sample's time from the run's start and `dv` the commanded drive's rate there (for a
+    discovered term with such a factor).
     """
     ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t)
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t, dv)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t)
+    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t):
+def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv):
     """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi, the drive
-    the actuator sees and the time (`v`, `t`: for a discovered term with such a factor).
+    the actuator sees, the time and the drive's rate (`v`, `t`, `dv`: for a discovered term with
+    such a factor).
     """
     kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
@@ -59,30 +61,30 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t):
     # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
-        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t)
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t, dv)
     return ddpsi
 
 
 # Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
 # through memory, which costs ~4.5 ns of a ~19 ns step.
 @njit(cache=True, fastmath=_FMA, inline="always")
-def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t):
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv):
     """One RK4 step of length hs at the sample time `t` (held over the sample, like the drive
-    `v`); also reports whether any stage was past the stop.
+    `v` and its rate `dv`); also reports whether any stage was past the stop.
     """
-    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t)
+    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv)
     phi2 = phi + 0.5 * hs * dphi
     dphi2 = dphi + 0.5 * hs * a1
     dpsi2 = dpsi + 0.5 * hs * b1
-    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact, t)
+    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact, t, dv)
     phi3 = phi + 0.5 * hs * dphi2
     dphi3 = dphi + 0.5 * hs * a2
     dpsi3 = dpsi + 0.5 * hs * b2
-    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact, t)
+    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact, t, dv)
     phi4 = phi + hs * dphi3
     dphi4 = dphi + hs * a3
     dpsi4 = dpsi + hs * b3
-    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact, t)
+    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact, t, dv)
     limit = c[pp.C_PHI_LIM]
     touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
     return (
@@ -116,7 +118,7 @@ def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t):
+def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv):
     """One sample period touching the stop, `nsub` substeps.
 
     The damper makes the contact force jump at impact, which would cut RK4 to first order;
@@ -126,61 +128,48 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t):
     limit = c[pp.C_PHI_LIM]
     for _ in range(nsub):
         if phi <= limit:
-            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t)
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t, dv)
             if f_phi <= limit:
                 phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
                 continue
             theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0, t)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0, t, dv)
             phi, dphi, psi, dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t
+                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t, dv
             )
         else:
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t, dv)
     return phi, dphi, psi, dpsi
 
 
 @njit(cache=True, fastmath=_FMA)
-def _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out, t0):
+def _mechanics(
+    x, drive, commanded, last, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out,
+    n0,
+):  # fmt: skip
     """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
     if p[pp.P_NTERMS] > 0.0:
         _mechanics_with(
-            x,
-            drive,
-            h,
-            nsub,
-            nsub_contact,
-            p,
-            constants_with_terms(p),
-            phi_out,
-            psi_out,
-            dev_s_out,
-            dev_p_out,
-            t0,
-        )
+            x, drive, commanded, last, h, nsub, nsub_contact, p, constants_with_terms(p), phi_out,
+            psi_out, dev_s_out, dev_p_out, n0,
+        )  # fmt: skip
     else:
         _mechanics_with(
-            x,
-            drive,
-            h,
-            nsub,
-            nsub_contact,
-            p,
-            mechanical_constants(p),
-            phi_out,
-            psi_out,
-            dev_s_out,
-            dev_p_out,
-            t0,
-        )
+            x, drive, commanded, last, h, nsub, nsub_contact, p, mechanical_constants(p), phi_out,
+            psi_out, dev_s_out, dev_p_out, n0,
+        )  # fmt: skip
 
 
 @njit(cache=True, fastmath=_FMA)
 def _mechanics_with(
-    x, drive, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out, dev_p_out, t0
-):
+    x, drive, commanded, last, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out,
+    dev_p_out, n0,
+):  # fmt: skip
     """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time;
-    the block's first sample is at `t0` (s from the run's start).
+    the block's first sample is the run's `n0`-th (the k-th sample's time from the run's start is
+    exactly (n0 + k) h, however the run is cut into blocks). `drive` is what the actuator sees;
+    `commanded` is the drive it is given (before its hysteresis) and `last` that drive's sample
+    before the block (their backward difference: a discovered term's drive rate).
 
     x (the state after the block) is updated in place. The transduction is computed here
     because the RK4 recursion is latency-bound: the extra arithmetic comes almost free.
@@ -191,33 +180,40 @@ def _mechanics_with(
     contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
     gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
-    hs = h / nsub
+    hs, fs = h / nsub, 1.0 / h
     if contact == 0 and nsub == 1:
-        # the common case, kept free of branches (the same arithmetic as the general loop)
+        # the common case, kept free of branches (the same arithmetic as the general loop; a
+        # model without terms never reads dv, and the compiler drops it)
         for k in range(drive.shape[0]):
             v = drive[k]
+            dv = (commanded[k] - last) * fs
+            last = commanded[k]
             phi_out[k] = phi
             psi_out[k] = psi
             dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
             dev_p_out[k] = gp * psi
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t0 + k * h)
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, 0, (n0 + k) * h, dv
+            )
         x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
         return
     for k in range(drive.shape[0]):
         v = drive[k]
+        dv = (commanded[k] - last) * fs
+        last = commanded[k]
         phi_out[k] = phi
         psi_out[k] = psi
         dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
         dev_p_out[k] = gp * psi
         phi0, dphi0, psi0, dpsi0 = phi, dphi, psi, dpsi
-        t = t0 + k * h
+        t = (n0 + k) * h
         touched = False
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t)
+            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv)
             touched = touched or hit
         if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
             phi, dphi, psi, dpsi = _contact_sample(
-                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t
+                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t, dv
             )
     x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
 
@@ -240,25 +236,31 @@ def run_model(
     psi_out,
     vs_out,
     vp_out,
-    t0,
+    n0,
 ):
-    """Simulate one model over `drive`, its first sample at `t0` (s from the run's start: a
-    discovered term's time); x, actuator, zi, hist_s, hist_p are updated in place.
+    """Simulate one model over `drive`, its first sample the run's `n0`-th (a float: a
+    discovered term's time is (n0 + k) h); x, actuator, zi, hist_s, hist_p are updated in place.
 
     `actuator` is [the hysteretic voltage, the last drive sample]: with the actuator's
     hysteresis on, the mechanics see the drive less that voltage; the feedthrough sees the drive.
     """
     fraction = p[pp.P_HYST_FRAC]
+    last = actuator[1]  # the commanded drive's sample before the block (its rate's start)
     if fraction > 0.0:
         lag = np.empty(drive.shape[0])
         hysteretic_voltage(drive, fraction, p[pp.P_HYST_SAT], actuator, lag)
-        _mechanics(x, drive - lag, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, t0)
+        _mechanics(
+            x, drive - lag, drive, last, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out,
+            vp_out, n0,
+        )  # fmt: skip
         feed = p[pp.P_FT]
         if feed != 0.0:
             for k in range(drive.shape[0]):
                 vs_out[k] += feed * lag[k]
     else:
-        _mechanics(x, drive, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, t0)
+        _mechanics(
+            x, drive, drive, last, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, n0
+        )
         if drive.shape[0] > 0:
             actuator[1] = drive[drive.shape[0] - 1]
     zi[0] = sensor_channel_kernel(
@@ -335,7 +337,7 @@ def _stroke_fundamentals_with(c, omega, amplitudes, pitch_re, pitch_im, n_points
             phi, dphi = a * ct, -a * w * st
             psi = pitch_re[i] * ct - pitch_im[i] * st
             dpsi = -w * (pitch_re[i] * st + pitch_im[i] * ct)
-            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0, 0.0)
+            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0, 0.0, 0.0)
             acc_re += ddphi * ct
             acc_im -= ddphi * st
         out[i] = complex(acc_re, acc_im) * (2.0 / n_points)

@@ -31,21 +31,24 @@ _DIVISOR = pp.CONSTANT_DIVISOR
 
 
 @njit(cache=True, fastmath=_FMA)
-def primitive(j, phi, dphi, psi, dpsi, v, t):
+def primitive(j, phi, dphi, psi, dpsi, v, t, dv):
     """Factor j of a term's monomial (flaair_model.terms.PRIMITIVES): the states, sign() and
     abs() of the rates, then sign() and abs() of the angles, then the drive the actuator sees
-    (`v`), its sign() and abs(), then the time from the run's start (`t`).
+    (`v`), its sign() and abs(), then the time from the run's start (`t`), then the commanded
+    drive's rate (`dv`), its sign() and abs().
     """
     if j < 4:
         return phi if j == 0 else (dphi if j == 1 else (psi if j == 2 else dpsi))
     if j >= 12:
         if j == 15:
             return t
-        if j == 12:
-            return v
-        if j == 13:
-            return 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
-        return abs(v)
+        x = v if j < 15 else dv
+        k = j - 12 if j < 15 else j - 16
+        if k == 0:
+            return x
+        if k == 1:
+            return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+        return abs(x)
     if j < 8:
         x = dphi if j % 2 == 0 else dpsi
         signed = j < 6
@@ -58,9 +61,10 @@ def primitive(j, phi, dphi, psi, dpsi, v, t):
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t):
+def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv):
     """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia, at
-    the drive `v` the actuator sees and the time `t` from the run's start.
+    the drive `v` the actuator sees, the time `t` from the run's start and the commanded
+    drive's rate `dv`.
     """
     total = 0.0
     for slot in range(MAX_DYNAMICS_TERMS):
@@ -71,7 +75,7 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t):
                 j = int(c[base + 2 + 2 * q])
                 if j < 0:
                     break
-                x = primitive(j, phi, dphi, psi, dpsi, v, t)
+                x = primitive(j, phi, dphi, psi, dpsi, v, t, dv)
                 for _ in range(int(c[base + 3 + 2 * q])):
                     f *= x
             total += f
