@@ -364,7 +364,8 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
             (dda * e).real,
             abs(dphi) * dphi,
             c,
-            0.0,  # the drive off and the time at 0, as the stroke's describing function
+            0.0,  # the drive off (and its rate) and the time at 0, as the stroke's
+            0.0,  # describing function
             0.0,
         )
         acc += ddpsi * e.conjugate()
