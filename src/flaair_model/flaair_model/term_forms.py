@@ -4,8 +4,9 @@ A dynamics term's feature is a monomial over `PRIMITIVES` (the plant kernel's ge
 evaluation multiplies the factors, each to an integer power). The forms the discovery step may
 reach without a row of the term library (`flaair_model.terms`) are composed here from the drive
 the actuator sees, the drive's rate, time and the four mechanical states (`VARIABLES`: drive_v,
-ddrive_v, t, phi, psi, dphi, dpsi) and how they combine: each variable, its ``abs()`` and its ``sign()``, to powers up to
-`MAX_POWER`, and products of up to `MAX_VARIABLES` variables' factors, of total degree at most
+ddrive_v, t, phi, psi, dphi, dpsi) and how they combine: each variable, its ``abs()`` and its
+``sign()``, to powers up to `MAX_POWER`, and products of up to `MAX_VARIABLES` variables'
+factors, of total degree at most
 `MAX_POWER` (``sign()`` counts 0); time ``t`` (s from the run's start) is never negative, so it
 enters by its powers only. A form with a drive factor (a piezo whose stiffness or damping follows
 its field: ``drive_v*phi``), a drive-rate factor (a torque that follows how fast the field
