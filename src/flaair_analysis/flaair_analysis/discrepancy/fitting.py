@@ -132,13 +132,13 @@ class ResidualProblem:
             model, discovered=tuple(t for t in model.discovered if t.acts_on not in SENSOR_CHANNELS)
         )
         motion = self.motion.get([model], self.runs, self.run_ids)
+        vref = model.sensors.reference_voltage_v
         out = {}
         for j in self.run_ids:
             run = self.runs[j]
             stroke, pitch = motion[(mech, j)]
             if self.truth_referenced:
                 stroke, pitch = measured_motion(run, stroke, pitch, side)
-            vref = model.sensors.reference_voltage_v
             vs, vp = sensor_chain(chain, run.fs_hz, stroke, pitch, run.drive_v)
             out[j] = TermSignals.of_block(
                 run.fs_hz,
