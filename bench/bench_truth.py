@@ -13,7 +13,9 @@ couplings within +-15 %. The workflow gets the nominal model.
 Kinds (`KINDS`), each drawn at a random strength:
 - inside the grammar: a flexure stiffening -k3 phi^3, a quadratic drag on the pitch rate, the
   stroke amplifier's output crossing into the pitch one, the drive leaking into the pitch
-  amplifier, a stroke stiffness drifting in time (t*phi). Right: `explained`, that form at that
+  amplifier, a stroke stiffness drifting in time (t*phi), a viscoelastic flexure (a spring and
+  dashpot in series beside the stroke's: lowpass(phi), the stiffness refitted). Right:
+  `explained`, that form at that
   site discovered, nothing else discovered, nothing named (`flaair_analysis.exact_score`).
 - outside it: a quartic stroke torque (the grammar stops at degree three), a stroke stiffness
   that steps half a second into each run (no step in time among the forms), the hinge film
@@ -124,6 +126,16 @@ KINDS: tuple[Kind, ...] = (
         "inside",
         lambda g, r: replace(r, stiffness_drift_per_s=_signed(g, 0.02, 0.05)),
         term_label("t*phi", "stroke_dynamics"),
+    ),
+    Kind(
+        "viscoelastic_flexure",
+        "inside",
+        lambda g, r: replace(
+            r,
+            relaxation_nm_per_rad=g.uniform(0.05, 0.15) * r.stroke_stiffness,
+            relaxation_hz=float(g.uniform(80.0, 250.0)),
+        ),
+        term_label("lowpass(phi)", "stroke_dynamics"),
     ),
     Kind(
         "quartic_stroke",

@@ -13,7 +13,10 @@ here in this module's own terms:
 - `cubic_nm_per_rad3`: a flexure stiffening, a torque -k3 phi^3 on the stroke;
 - `hinge_drag_nm_s2`: a quadratic drag on the pitch, -d psi' |psi'|;
 - `crosstalk`: the pitch amplifier picking up that fraction of the stroke amplifier's output;
-- `drive_leak_v_per_v`: the drive leaking into the pitch amplifier's output.
+- `drive_leak_v_per_v`: the drive leaking into the pitch amplifier's output;
+- `relaxation_nm_per_rad`, `relaxation_hz`: a viscoelastic flexure, a spring in series with a
+  dashpot beside the stroke's (a Maxwell arm): a torque -k_r (phi - z), z relaxing towards phi
+  at the corner, z' = 2 pi f_r (phi - z) (a state of its own).
 In the vocabulary:
 - `hysteresis_alpha`, `hysteresis_beta_per_v`, `hysteresis_gamma_per_v`: the piezo's hysteresis,
   the textbook Bouc-Wen operator (n = 1) on the drive, dh/dt = alpha V' - beta |V'| h -
@@ -91,6 +94,8 @@ class Robot:
     hysteresis_alpha: float = 0.0
     hysteresis_beta_per_v: float = 0.0
     hysteresis_gamma_per_v: float = 0.0
+    relaxation_nm_per_rad: float = 0.0
+    relaxation_hz: float = 100.0
 
     @property
     def stroke_stiffness(self) -> float:
@@ -106,13 +111,16 @@ class Robot:
 def _derivatives(
     t: float, y: np.ndarray, robot: Robot, volts: float, in_contact: bool
 ) -> list[float]:
-    """The vector field of [phi, phi', psi, psi', psi seen by the film] at a held drive."""
-    phi, dphi, psi, dpsi, seen = y
+    """The vector field of [phi, phi', psi, psi', psi seen by the film, the Maxwell arm's
+    dashpot z] at a held drive.
+    """
+    phi, dphi, psi, dpsi, seen, relaxed = y
     torque = robot.actuator_gain * volts - robot.aero_damping * abs(dphi) * dphi
     stepped = robot.stiffness_step if t >= robot.stiffness_step_s else 0.0
     torque -= robot.stroke_stiffness * (1.0 + robot.stiffness_drift_per_s * t + stepped) * phi
     torque -= robot.quartic_nm_per_rad4 * phi**4
     torque -= robot.cubic_nm_per_rad3 * phi**3
+    torque -= robot.relaxation_nm_per_rad * (phi - relaxed)
     if in_contact:
         torque -= robot.stop_stiffness_nm_per_rad * (phi - robot.stop_rad)
     ddphi = torque / robot.stroke_inertia
@@ -124,7 +132,8 @@ def _derivatives(
         - robot.hinge_stiffness * psi
     ) / robot.pitch_inertia
     dseen = (psi - seen) / robot.film_lag_s if robot.film_lag_s > 0 else dpsi
-    return [dphi, ddphi, dpsi, ddpsi, dseen]
+    drelaxed = 2.0 * math.pi * robot.relaxation_hz * (phi - relaxed)
+    return [dphi, ddphi, dpsi, ddpsi, dseen, drelaxed]
 
 
 def _field(robot: Robot, volts: float, in_contact: bool):  # type: ignore[no-untyped-def]
@@ -203,8 +212,8 @@ def simulate(robot: Robot, drive_v: np.ndarray, fs_hz: float) -> dict[str, np.nd
     drive = np.asarray(drive_v, dtype=float)
     n = drive.size
     acting = drive - hysteretic_voltage(robot, drive)  # what the actuator turns into torque
-    states = np.zeros((n, 5))
-    y = np.zeros(5)
+    states = np.zeros((n, 6))
+    y = np.zeros(6)
     has_stop = robot.stop_rad is not None and robot.stop_stiffness_nm_per_rad > 0.0
     solver = ode(_derivatives).set_integrator(
         "dop853", rtol=_RTOL, atol=_ATOL, nsteps=100_000, verbosity=-1

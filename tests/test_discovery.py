@@ -136,10 +136,23 @@ def test_a_drive_lag_of_one_is_an_amplifier_with_that_bandwidth(model) -> None:
     np.testing.assert_allclose(out.stroke_rad, through.stroke_rad, rtol=1e-9, atol=1e-14)
 
 
-def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model) -> None:
+@pytest.mark.parametrize(
+    "dynamics",
+    [
+        (
+            DiscoveredTerm("ddrive_v*sign(dphi)", "stroke_dynamics", -5e-12),  # the last drive
+            DiscoveredTerm("t*drive_v*psi", "pitch_dynamics", 1e-9),  # each block's own times
+        ),
+        (  # the filters' states carried across blocks
+            DiscoveredTerm("lowpass(phi)", "stroke_dynamics", -2e-5, (("corner_hz", 300.0),)),
+            DiscoveredTerm("lowpass(ddrive_v)", "pitch_dynamics", 1e-12, (("corner_hz", 90.0),)),
+        ),
+    ],
+    ids=["rate_and_time", "lowpasses"],
+)
+def test_terms_step_block_by_block_as_one_record_and_in_a_batch(model, dynamics) -> None:
     terms = (
-        DiscoveredTerm("ddrive_v*sign(dphi)", "stroke_dynamics", -5e-12),  # the last drive
-        DiscoveredTerm("t*drive_v*psi", "pitch_dynamics", 1e-9),  # each block's own times
+        *dynamics,
         DiscoveredTerm("drive_lag", "drive", 0.8, (("corner_hz", 600.0),)),
         DiscoveredTerm("drive_rate_leak", "stroke_sensor_v", 2e-7),
         DiscoveredTerm("gain_drift", "pitch_sensor_v", -0.1),
@@ -559,3 +572,28 @@ def test_a_start_state_under_a_hinge_friction_is_fitted_at_the_discoverys_wider_
         _, _, costs[scale] = fit_initial_states([run], truth, noise, channels, step_scale=scale)
     assert costs[1.0] > 1.2 * rest_cost  # measured 1.28x
     assert costs[discrepancy_settings().discovery_fd_step] < 1.01 * rest_cost  # measured 1.0015x
+
+
+def test_a_low_pass_of_the_stroke_at_the_stroke_rests_where_its_closed_form_says(
+    model, tmp_path: Path
+) -> None:
+    """C lowpass(phi) at the stroke, a spring whose force relaxes through a first-order path:
+    under a held drive V its state settles on phi, so the stroke rests where G_a V = (K - c) phi;
+    a chirp through its corner moves the stroke well away from the plant's. The form
+    round-trips through a model file by its name and corner.
+    """
+    gain, k = model.plant.actuator_gain_nm_per_v, model.plant.stroke_stiffness_nm_per_rad
+    c, volts = 0.15 * k, 40.0
+    term = DiscoveredTerm("lowpass(phi)", "stroke_dynamics", c, (("corner_hz", 60.0),))
+    relaxing = replace(model, discovered=(term,))
+    t = np.arange(int(0.5 * FS)) / FS
+    held = volts * 0.5 * (1.0 - np.cos(np.pi * np.minimum(t / 0.3, 1.0)))
+    rest = simulate(held, FS, relaxing).stroke_rad[-200:].mean()
+    assert rest == pytest.approx(gain * volts / (k - c), rel=1e-3)
+    d = _drive()
+    moved = simulate(d, FS, relaxing).stroke_rad - simulate(d, FS, model).stroke_rad
+    assert np.max(np.abs(moved)) > 0.05 * np.max(np.abs(simulate(d, FS, model).stroke_rad))
+    path = tmp_path / "model.yaml"
+    save_model(relaxing, path)
+    assert load_model(path) == relaxing
+    assert "lowpass(phi, 60)" in path.read_text()

@@ -133,8 +133,16 @@ def test_composed_candidates_leave_out_what_a_row_computes_at_the_site() -> None
     assert "drive_v" not in stroke and "drive_v" in pitch
     assert {"drive_v*phi", "drive_v*dphi", "abs(drive_v)*phi"} <= stroke
     assert {"ddrive_v", "ddrive_v*phi", "abs(ddrive_v)*dphi"} <= stroke
-    assert len(stroke) == 2019 - 12 and len(pitch) == 2019 - 11
-    assert all(k.composed and k.name == k.form for k in composed_kinds("stroke_dynamics"))
+    # memory: a low-pass of each variable but time; at the stroke, lowpass(drive_v) is the
+    # drive's drive_lag row with the actuator's gain refitted
+    lowpasses = {f"lowpass({x})" for x in ("drive_v", "ddrive_v", "phi", "psi", "dphi", "dpsi")}
+    assert lowpasses - {"lowpass(drive_v)"} <= stroke and "lowpass(drive_v)" not in stroke
+    assert lowpasses <= pitch and "lowpass(t)" not in pitch
+    assert len(stroke) == 2019 - 12 + 5 and len(pitch) == 2019 - 11 + 6
+    assert all(
+        k.composed and (k.name == k.form or k.form == f"{k.name[:-1]}, {{corner_hz}})")
+        for k in composed_kinds("stroke_dynamics")
+    )
 
 
 def test_the_drive_and_the_sensors_take_forms_over_their_signals() -> None:

@@ -137,3 +137,33 @@ def test_the_truths_bouc_wen_actuator_is_flaairs_actuator_hysteresis() -> None:
     np.testing.assert_allclose(truth.hysteretic_voltage(robot, drive), lag, rtol=0, atol=1e-7)
     assert np.abs(ours["stroke_deg"] - np.degrees(plain.stroke_rad)).max() > 0.5  # it shows
     assert np.abs(ours["stroke_deg"] - np.degrees(theirs.stroke_rad)).max() < 0.05
+
+
+def test_the_truths_viscoelastic_flexure_is_flaairs_stroke_low_pass() -> None:
+    """The truth's Maxwell arm, -k_r (phi - z) with z' = 2 pi f_r (phi - z), is FLAAIR's
+    k_r lowpass(phi) at the stroke, corner f_r, beside a stiffness K + k_r: FLAAIR filters the
+    stroke at each sample and holds the output over it, the truth integrates z with the rest.
+    """
+    k_r, f_r = 0.1 * truth.Robot().stroke_stiffness, 150.0
+    t = np.arange(3000) / FS_HZ
+    drive = chirp(t, 90.0, 60.0, 260.0, t[-1])
+    plain = truth.simulate(truth.Robot(), drive, FS_HZ)
+    ours = truth.simulate(
+        replace(truth.Robot(), relaxation_nm_per_rad=k_r, relaxation_hz=f_r), drive, FS_HZ
+    )
+    model = load_model()
+    stiffer = model.plant.stroke_natural_frequency_hz * math.sqrt(
+        1.0 + k_r / model.plant.stroke_stiffness_nm_per_rad
+    )
+    term = DiscoveredTerm("lowpass(phi)", "stroke_dynamics", k_r, (("corner_hz", f_r),))
+    theirs = simulate(
+        drive,
+        FS_HZ,
+        replace(
+            model,
+            plant=replace(model.plant, stroke_natural_frequency_hz=stiffer),
+            discovered=(term,),
+        ),
+    )
+    assert np.abs(ours["stroke_deg"] - plain["stroke_deg"]).max() > 0.5
+    assert np.abs(ours["stroke_deg"] - np.degrees(theirs.stroke_rad)).max() < 0.05

@@ -17,8 +17,8 @@ import pytest
 
 from flaair_model.effects import PLANT_TERMS, SCALE_TERMS, SENSOR_TERMS
 from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES, primitive_values
+from flaair_sim.core import plant_kernel, term_kernel
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core import term_kernel
 
 RNG_SEED = 35
 
@@ -31,7 +31,7 @@ def _vector() -> np.ndarray:
 def test_the_vector_is_the_table_then_the_term_slots() -> None:
     assert len(pp.KERNEL_LAYOUT) == pp.P_TERMS
     assert pp.P_NTERMS == pp.P_TERMS - 1
-    assert 2 + len(PRIMITIVES) == pp.TERM_SLOT
+    assert 3 + len(PRIMITIVES) == pp.TERM_SLOT and pp.TERM_LOWPASS == pp.TERM_SLOT - 1
     assert pp.N_KERNEL_PARAMS == pp.P_TERMS + MAX_DYNAMICS_TERMS * pp.TERM_SLOT
     for slot in pp.KERNEL_LAYOUT:
         assert getattr(pp, f"P_{slot.name}") == pp.KERNEL_LAYOUT.index(slot)
@@ -74,14 +74,15 @@ def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
     for slot in range(MAX_DYNAMICS_TERMS):  # each slot as its factors: (primitive, power), -1
         src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, pp.C_TERMS + slot * pp.TERM_SLOT
         assert c[dst : dst + 2] == tuple(p[src : src + 2])
-        exponents = p[src + 2 : src + pp.TERM_SLOT]
+        exponents = p[src + 2 : src + pp.TERM_LOWPASS]
         factors = [(float(j), e) for j, e in enumerate(exponents) if e]
         assert factors, "the vector's slots all carry a monomial"
         written = [x for pair in factors for x in pair]
-        assert c[dst + 2 : dst + pp.TERM_SLOT] == (
+        assert c[dst + 2 : dst + pp.TERM_LOWPASS] == (
             *written,
-            *[-1.0] * (pp.TERM_SLOT - 2 - len(written)),
+            *[-1.0] * (pp.TERM_LOWPASS - 2 - len(written)),
         )
+        assert c[dst + pp.TERM_LOWPASS] == p[src + pp.TERM_LOWPASS]  # the low-pass's b0
 
 
 @pytest.mark.timeout(120)
@@ -104,11 +105,42 @@ def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel(first: int) -> N
     p[pp.P_I] = p[pp.P_IP] = 1.0
     p[pp.P_NTERMS] = 1.0
     p[base], p[base + 1] = 1.0, 0.25
-    p[base + 2 : base + pp.TERM_SLOT] = exponents
+    p[base + 2 : base + pp.TERM_LOWPASS] = exponents
     state = (0.3, -0.7, 0.4, 1.3, -2.5, 0.8, -40.0)  # the states, the drive, time, drive rate
     c = term_kernel.constants_with_terms(p)
     factors = [term_kernel.primitive(j, *state) for j in range(len(PRIMITIVES))]
     expected = 0.25 * float(np.prod(np.power(factors, exponents)))
-    assert term_kernel.dynamics_terms(c, 1.0, *state) == pytest.approx(expected, rel=1e-14)
+    assert term_kernel.dynamics_terms(c, 1.0, *state, 0.0, 0.0) == pytest.approx(
+        expected, rel=1e-14
+    )
     assert expected != 0.0
-    assert term_kernel.dynamics_terms(c, 2.0, *state) == 0.0
+    assert term_kernel.dynamics_terms(c, 2.0, *state, 0.0, 0.0) == 0.0
+
+
+@pytest.mark.timeout(120)
+def test_a_low_pass_slot_is_a_first_order_state_integrated_with_the_mechanics() -> None:
+    """A slot with a low-pass (corner w rad/s): its state z follows z' = w (x - z) with the RK4
+    step, x its monomial; the torque is the coefficient times z. With every plant constant zero
+    the stroke stays at phi0, so from z = 0 the state is phi0 (1 - e^(-w t)) and the pitch rate
+    the torque's integral, c phi0 (t - (1 - e^(-w t)) / w), both to RK4's accuracy.
+    """
+    fs, corner, phi0, coef = 20_000.0, 300.0, 0.2, -0.5
+    w = 2 * np.pi * corner
+    p = np.zeros(pp.N_KERNEL_PARAMS)
+    p[pp.P_I] = p[pp.P_IP] = 1.0
+    p[pp.P_NTERMS] = 1.0
+    base = pp.P_TERMS + pp.TERM_SLOT  # the second slot: each slot has its own state
+    p[base], p[base + 1] = 2.0, coef
+    p[base + 2 + PRIMITIVES.index("phi")] = 1.0
+    p[base + pp.TERM_LOWPASS] = w
+    c = term_kernel.constants_with_terms(p)
+    held = np.zeros(pp.HELD_LEN)
+    x = (phi0, 0.0, 0.0, 0.0)
+    n = 200
+    for k in range(n):
+        x = plant_kernel.rk4_step(*x, 0.0, c, 1.0 / fs, 0, k / fs, 0.0, held)[:4]
+    t = n / fs
+    assert x[0] == phi0
+    assert held[pp.HELD_LOWPASS + 1] == pytest.approx(phi0 * (1 - np.exp(-w * t)), rel=1e-9)
+    assert x[3] == pytest.approx(coef * phi0 * (t - (1 - np.exp(-w * t)) / w), rel=1e-8)
+    assert held[pp.HELD_LOWPASS] == 0.0  # the first slot is empty

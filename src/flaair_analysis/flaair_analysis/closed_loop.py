@@ -36,7 +36,7 @@ from flaair_model.model import Model
 
 # the plant's own kernels
 from flaair_sim.core.plant_kernel import rk4_step
-from flaair_sim.core.plant_params import P_CONTACT_ON, P_HYST_FRAC, prepare
+from flaair_sim.core.plant_params import HELD_LEN, P_CONTACT_ON, P_HYST_FRAC, prepare
 from flaair_sim.core.term_kernel import mechanical_constants
 
 # rk4_step is inlined into the kernels below, and numba's cache of them is keyed on this file
@@ -74,6 +74,7 @@ def _one(
     window (V; = limit_v when the clamp acts).
     """
     c = mechanical_constants(p)
+    held = np.zeros(HELD_LEN)  # no low-pass term: the sweeps run without discovered terms
     phi, dphi, psi, dpsi = phi0, 0.0, 0.0, 0.0
     z1, z2 = 0.0, 0.0  # dSA filter state (direct form II transposed, as scipy lfilter)
     s = np.zeros(9)
@@ -104,7 +105,7 @@ def _one(
             phi_out[k - keep0] = phi
             psi_out[k - keep0] = psi
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, 0.0, 0.0)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, 0.0, 0.0, held)
     return u, peak
 
 

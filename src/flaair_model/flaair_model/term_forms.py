@@ -27,8 +27,10 @@ the start of the simulation, every run's own) is never negative, so it enters by
 A product of the variables is one form in both grammars, with one name (`SIGNALS` writes them
 in `VARIABLES`' order).
 
-Memory: a drive or sensor form may also be a first-order low-pass of one signal,
-``lowpass(x)`` (`filtered_forms`), its corner a shape parameter fitted with the coefficient.
+Memory: a form may also be a first-order low-pass of one signal or variable, ``lowpass(x)``
+(`filtered_forms`), its corner a shape parameter fitted with the coefficient. At a dynamics site
+the low-pass runs at the sample rate on the variable's value at each sample, its output held over
+the sample like the drive: the same filter, on the same samples, as a sensor's ``lowpass(phi)``.
 """
 
 from __future__ import annotations
@@ -417,5 +419,8 @@ def filtered_signal(expression: str) -> str:
 
 
 def filtered_forms(site: str) -> tuple[str, ...]:
-    """Every low-pass form at `site`: ``lowpass(x)`` of each signal it reads but time."""
-    return tuple(f"lowpass({x})" for x in SITE_SIGNALS.get(site, ()) if x not in _UNSIGNED)
+    """Every low-pass form at `site`: ``lowpass(x)`` of each signal it reads but time (at a
+    dynamics site, of each variable but time).
+    """
+    reads = VARIABLES if site in PLANT_FORMS else SITE_SIGNALS.get(site, ())
+    return tuple(f"lowpass({x})" for x in reads if x not in _UNSIGNED)

@@ -533,22 +533,31 @@ def _composed(expression: str) -> TermKind:
 
 
 def _filtered(x: str) -> TermKind:
-    """The low-pass form of signal `x`, ``lowpass(x)``: its corner a shape parameter."""
+    """The low-pass form of signal `x`, ``lowpass(x)``: its corner a shape parameter. A variable
+    of the dynamics forms (`term_forms.VARIABLES`) may also be low-passed into a torque: its
+    monomial is the variable, the kernel filters it (`is_filtered`).
+    """
     name = f"lowpass({x})"
     if name not in _COMPOSED:
-        sites = tuple(s for s, have in term_forms.SITE_SIGNALS.items() if x in have)
+        dynamic = x in term_forms.VARIABLES
+        sites = (DYNAMICS_SITES if dynamic else ()) + tuple(
+            s for s, have in term_forms.SITE_SIGNALS.items() if x in have
+        )
 
         def feature(s: TermSignals, p: Mapping[str, float]) -> np.ndarray:
             return s.lowpass(getattr(s, x) if x in _EVERYWHERE else s.need(x), p["corner_hz"])
 
         _COMPOSED[name] = TermKind(
             name,
-            f"volts in a first-order low-pass of {x}",
+            f"a first-order low-pass of {x} (volts, or a torque at the dynamics)"
+            if dynamic
+            else f"volts in a first-order low-pass of {x}",
             sites,
             f"lowpass({x}, {{corner_hz}})",
+            monomial=term_forms.parse_form(x) if dynamic else (),
             feature=feature,
             shape=_CORNER,
-            examples="a memory: a filtering path, a viscoelastic film, a slow pickup",
+            examples="a memory: a filtering path, a viscoelastic film or flexure, a slow pickup",
             composed=True,
         )
     return _COMPOSED[name]
@@ -586,15 +595,25 @@ def row_of(kind: str) -> TermKind:
 
 
 def composed_kinds(site: str) -> tuple[TermKind, ...]:
-    """The composed forms at dynamics site `site` that neither a row of the table nor the plant
-    (`term_forms.PLANT_FORMS`) computes there, simplest first; none elsewhere.
+    """The composed forms at `site` that neither a row of the table nor the plant
+    (`term_forms.PLANT_FORMS`) computes there, simplest first, then the low-passes of its
+    variables or signals that no row computes.
     """
     if site not in DYNAMICS_SITES:
         return _signal_kinds(site)
     key, parse = term_forms.form_key, term_forms.parse_form
     known = {key(DiscoveredTerm(k.name, site, 1.0).monomial) for k in kinds_for(site)}
     known |= {key(parse(f)) for f in term_forms.PLANT_FORMS[site]}
-    return tuple(_composed(n) for n, m in term_forms.composed_forms() if key(m) not in known)
+    products = tuple(_composed(n) for n, m in term_forms.composed_forms() if key(m) not in known)
+    lowpasses = tuple(
+        _composed(n) for n in term_forms.filtered_forms(site) if n not in _ROW_LOWPASSES[site]
+    )
+    return products + lowpasses
+
+
+# Low-passes a row computes at a dynamics site with the plant refitted: the stroke's
+# lowpass(drive_v) is the drive's `drive_lag` row with the actuator's gain refitted.
+_ROW_LOWPASSES = {"stroke_dynamics": ("lowpass(drive_v)",), "pitch_dynamics": ()}
 
 
 def _signal_kinds(site: str) -> tuple[TermKind, ...]:
@@ -727,6 +746,11 @@ class DiscoveredTerm:
         for x, e in zip(values, self.monomial, strict=True):
             out = out * x**e
         return out
+
+    @property
+    def is_filtered(self) -> bool:
+        """A low-pass form (``lowpass(x)``): at a dynamics site the kernel filters its monomial."""
+        return self.kind.startswith("lowpass(")
 
     @property
     def is_dynamics(self) -> bool:

@@ -135,7 +135,7 @@ def _feature_values(
     commanded drive, its rate and time; a drive or sensor term: the run's `TermSignals`).
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
-    if site in DYNAMICS_SITES:
+    if site in DYNAMICS_SITES and not term.is_filtered:
         return [
             term.monomial_value(
                 m["phi"],
@@ -148,7 +148,7 @@ def _feature_values(
             )
             for m in motion
         ]
-    return [term.feature(m["signals"]) for m in motion]
+    return [term.feature(m["signals"]) for m in motion]  # a low-pass: of the signal it reads
 
 
 def _feature_rms(kind: TermKind, site: str, motion: list[dict[str, Any]]) -> float:

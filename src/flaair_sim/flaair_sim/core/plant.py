@@ -86,7 +86,9 @@ class PlantState:
     fs_hz : sample rate the state belongs to.
     sample_index : number of samples simulated so far.
     terms : state of the model's drive and sensor terms (`plant_terms.terms_state`; None: rest).
-    actuator : (2,) [hysteretic voltage V, last drive sample V] of the actuator's hysteresis
+    actuator : (HELD_LEN,) what the kernel holds between samples besides the mechanics: the
+        actuator's hysteretic voltage V, the last drive sample V, each low-pass term's filter
+        state and output (`plant_params.HELD_LEN`)
         (None: rest).
     """
 
@@ -176,7 +178,7 @@ def initial_state(params: PlantStepParams) -> PlantState:
     return PlantState(
         mechanical=_frozen(np.zeros(4)),
         highpass_zi=_frozen(np.zeros(2)),
-        actuator=_frozen(np.zeros(2)),
+        actuator=_frozen(np.zeros(pp.HELD_LEN)),
         delay_stroke_v=_frozen(np.zeros(len_s)),
         delay_pitch_v=_frozen(np.zeros(len_p)),
         fs_hz=fs,
@@ -233,7 +235,7 @@ def step(
     seen = drive_seen(model, fs, drive, state.sample_index, terms)
     len_s, len_p = prep.delay_lengths
     x = state.mechanical.copy()
-    actuator = np.zeros(2) if state.actuator is None else state.actuator.copy()
+    actuator = np.zeros(pp.HELD_LEN) if state.actuator is None else state.actuator.copy()
     zi = state.highpass_zi.copy()
     hist_s = _fit_history(state.delay_stroke_v, len_s)
     hist_p = _fit_history(state.delay_pitch_v, len_p)
@@ -385,7 +387,7 @@ def simulate_batch(
     if m == 1:  # skip the thread pool
         run_model(
             np.zeros(4),
-            np.zeros(2),
+            np.zeros(pp.HELD_LEN),
             np.zeros(2),
             np.zeros(hist_len[0, 0]),
             np.zeros(hist_len[0, 1]),

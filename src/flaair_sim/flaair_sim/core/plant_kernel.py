@@ -16,7 +16,12 @@ from flaair_sim.core import plant_params as pp
 from flaair_sim.core.hysteresis_kernel import hysteretic_voltage
 from flaair_sim.core.plant_params import N_CONSTANTS
 from flaair_sim.core.sensor_kernel import sensor_channel_kernel
-from flaair_sim.core.term_kernel import constants_with_terms, dynamics_terms, mechanical_constants
+from flaair_sim.core.term_kernel import (
+    constants_with_terms,
+    dynamics_terms,
+    lowpass_rates,
+    mechanical_constants,
+)
 
 __all__ = ["pitch_responses", "rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
 
@@ -29,30 +34,30 @@ _FMA = {"contract"}
 
 
 @njit(cache=True, fastmath=_FMA)
-def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv):
+def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv, z0, z1):
     """Stroke and pitch accelerations; contact 0: stop ignored, 1: stop acts past the limit,
     2: stop acts (just after an impact, where phi may be a rounding error below the limit); `t`
-    the sample's time from the run's start and `dv` the commanded drive's rate there (for a
-    discovered term with such a factor).
+    the sample's time from the run's start and `dv` the drive's rate there (for a discovered
+    term with such a factor), `z0`, `z1` the low-pass terms' filter states.
     """
     ga, gamma, k, cstruct = c[pp.C_GA], c[pp.C_GAMMA], c[pp.C_K], c[pp.C_CSTRUCT]
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t, dv)
+        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv)
+    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv):
+def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1):
     """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi, the drive
     the actuator sees, the time and the drive's rate (`v`, `t`, `dv`: for a discovered term with
-    such a factor).
+    such a factor), the low-pass terms' filter states (`z0`, `z1`).
     """
     kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
@@ -61,30 +66,53 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv):
     # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
-        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t, dv)
+        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
     return ddpsi
 
 
 # Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
 # through memory, which costs ~4.5 ns of a ~19 ns step.
 @njit(cache=True, fastmath=_FMA, inline="always")
-def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv):
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held):
     """One RK4 step of length hs at the sample time `t` (held over the sample, like the drive
-    `v` and its rate `dv`); also reports whether any stage was past the stop.
+    `v` and its rate `dv`); also reports whether any stage was past the stop. A model with
+    low-pass terms integrates their filter states with the mechanics and updates them in `held`
+    (`plant_params.HELD_LOWPASS`).
     """
-    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv)
+    z0 = z1 = r0 = r1 = s0 = s1 = 0.0
+    if len(c) > N_CONSTANTS:  # compile-time: the nominal kernels carry no filter code
+        z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]
+        r0, r1 = lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+    a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv, z0, z1)
     phi2 = phi + 0.5 * hs * dphi
     dphi2 = dphi + 0.5 * hs * a1
     dpsi2 = dpsi + 0.5 * hs * b1
-    a2, b2 = _accelerations(phi2, dphi2, psi + 0.5 * hs * dpsi, dpsi2, v, c, contact, t, dv)
+    psi2 = psi + 0.5 * hs * dpsi
+    z0_2, z1_2 = z0 + 0.5 * hs * r0, z1 + 0.5 * hs * r1
+    if len(c) > N_CONSTANTS:
+        s0, s1 = r0, r1
+        r0, r1 = lowpass_rates(c, phi2, dphi2, psi2, dpsi2, v, t, dv, z0_2, z1_2)
+    a2, b2 = _accelerations(phi2, dphi2, psi2, dpsi2, v, c, contact, t, dv, z0_2, z1_2)
     phi3 = phi + 0.5 * hs * dphi2
     dphi3 = dphi + 0.5 * hs * a2
     dpsi3 = dpsi + 0.5 * hs * b2
-    a3, b3 = _accelerations(phi3, dphi3, psi + 0.5 * hs * dpsi2, dpsi3, v, c, contact, t, dv)
+    psi3 = psi + 0.5 * hs * dpsi2
+    z0_3, z1_3 = z0 + 0.5 * hs * r0, z1 + 0.5 * hs * r1
+    if len(c) > N_CONSTANTS:
+        s0, s1 = s0 + 2.0 * r0, s1 + 2.0 * r1
+        r0, r1 = lowpass_rates(c, phi3, dphi3, psi3, dpsi3, v, t, dv, z0_3, z1_3)
+    a3, b3 = _accelerations(phi3, dphi3, psi3, dpsi3, v, c, contact, t, dv, z0_3, z1_3)
     phi4 = phi + hs * dphi3
     dphi4 = dphi + hs * a3
     dpsi4 = dpsi + hs * b3
-    a4, b4 = _accelerations(phi4, dphi4, psi + hs * dpsi3, dpsi4, v, c, contact, t, dv)
+    psi4 = psi + hs * dpsi3
+    z0_4, z1_4 = z0 + hs * r0, z1 + hs * r1
+    if len(c) > N_CONSTANTS:
+        s0, s1 = s0 + 2.0 * r0, s1 + 2.0 * r1
+        r0, r1 = lowpass_rates(c, phi4, dphi4, psi4, dpsi4, v, t, dv, z0_4, z1_4)
+        held[pp.HELD_LOWPASS] = z0 + hs / 6.0 * (s0 + r0)
+        held[pp.HELD_LOWPASS + 1] = z1 + hs / 6.0 * (s1 + r1)
+    a4, b4 = _accelerations(phi4, dphi4, psi4, dpsi4, v, c, contact, t, dv, z0_4, z1_4)
     limit = c[pp.C_PHI_LIM]
     touched = phi > limit or phi2 > limit or phi3 > limit or phi4 > limit
     return (
@@ -118,7 +146,7 @@ def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv):
+def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv, held):
     """One sample period touching the stop, `nsub` substeps.
 
     The damper makes the contact force jump at impact, which would cut RK4 to first order;
@@ -128,48 +156,56 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv):
     limit = c[pp.C_PHI_LIM]
     for _ in range(nsub):
         if phi <= limit:
-            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t, dv)
+            z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]  # the trial moves them
+            f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held
+            )
             if f_phi <= limit:
                 phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
                 continue
+            held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1] = z0, z1
             theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, theta * hs, 0, t, dv)
             phi, dphi, psi, dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t, dv
+                phi, dphi, psi, dpsi, v, c, theta * hs, 0, t, dv, held
+            )
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t, dv, held
             )
         else:
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t, dv)
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t, dv, held)
     return phi, dphi, psi, dpsi
 
 
 @njit(cache=True, fastmath=_FMA)
 def _mechanics(
-    x, drive, commanded, last, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out, dev_p_out,
-    n0,
+    x, drive, commanded, last, held, h, nsub, nsub_contact, p, phi_out, psi_out, dev_s_out,
+    dev_p_out, n0,
 ):  # fmt: skip
     """`_mechanics_with` the model's constants (with its discovered terms' slots if it has any)."""
     if p[pp.P_NTERMS] > 0.0:
         _mechanics_with(
-            x, drive, commanded, last, h, nsub, nsub_contact, p, constants_with_terms(p), phi_out,
-            psi_out, dev_s_out, dev_p_out, n0,
+            x, drive, commanded, last, held, h, nsub, nsub_contact, p, constants_with_terms(p),
+            phi_out, psi_out, dev_s_out, dev_p_out, n0,
         )  # fmt: skip
     else:
         _mechanics_with(
-            x, drive, commanded, last, h, nsub, nsub_contact, p, mechanical_constants(p), phi_out,
-            psi_out, dev_s_out, dev_p_out, n0,
+            x, drive, commanded, last, held, h, nsub, nsub_contact, p, mechanical_constants(p),
+            phi_out, psi_out, dev_s_out, dev_p_out, n0,
         )  # fmt: skip
 
 
 @njit(cache=True, fastmath=_FMA)
 def _mechanics_with(
-    x, drive, commanded, last, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out,
+    x, drive, commanded, last, held, h, nsub, nsub_contact, p, c, phi_out, psi_out, dev_s_out,
     dev_p_out, n0,
 ):  # fmt: skip
     """Stroke, pitch and the sensor deviations (before high-pass and delay) at each sample time;
     the block's first sample is the run's `n0`-th (the k-th sample's time from the run's start is
     exactly (n0 + k) h, however the run is cut into blocks). `drive` is what the actuator sees;
     `commanded` is the drive it is given (before its hysteresis) and `last` that drive's sample
-    before the block (their backward difference: a discovered term's drive rate).
+    before the block (their backward difference: a discovered term's drive rate). `held` is the
+    state held between samples (`plant_params.HELD_LEN`): the low-pass terms' filter states,
+    which each RK4 step moves.
 
     x (the state after the block) is updated in place. The transduction is computed here
     because the RK4 recursion is latency-bound: the extra arithmetic comes almost free.
@@ -192,9 +228,8 @@ def _mechanics_with(
             psi_out[k] = psi
             dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
             dev_p_out[k] = gp * psi
-            phi, dphi, psi, dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, hs, 0, (n0 + k) * h, dv
-            )
+            t = (n0 + k) * h
+            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held)
         x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
         return
     for k in range(drive.shape[0]):
@@ -206,14 +241,18 @@ def _mechanics_with(
         dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
         dev_p_out[k] = gp * psi
         phi0, dphi0, psi0, dpsi0 = phi, dphi, psi, dpsi
+        z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]
         t = (n0 + k) * h
         touched = False
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv)
+            phi, dphi, psi, dpsi, hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held
+            )
             touched = touched or hit
         if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
+            held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1] = z0, z1  # the sample again
             phi, dphi, psi, dpsi = _contact_sample(
-                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t, dv
+                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t, dv, held
             )
     x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
 
@@ -241,8 +280,9 @@ def run_model(
     """Simulate one model over `drive`, its first sample the run's `n0`-th (a float: a
     discovered term's time is (n0 + k) h); x, actuator, zi, hist_s, hist_p are updated in place.
 
-    `actuator` is [the hysteretic voltage, the last drive sample]: with the actuator's
-    hysteresis on, the mechanics see the drive less that voltage; the feedthrough sees the drive.
+    `actuator` is the state held between samples (`plant_params.HELD_LEN`): the hysteretic
+    voltage, the last drive sample, the low-pass terms' filters. With the actuator's hysteresis
+    on, the mechanics see the drive less that voltage; the feedthrough sees the drive.
     """
     fraction = p[pp.P_HYST_FRAC]
     last = actuator[1]  # the commanded drive's sample before the block (its rate's start)
@@ -250,8 +290,8 @@ def run_model(
         lag = np.empty(drive.shape[0])
         hysteretic_voltage(drive, fraction, p[pp.P_HYST_SAT], actuator, lag)
         _mechanics(
-            x, drive - lag, drive, last, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out,
-            vp_out, n0,
+            x, drive - lag, drive, last, actuator, h, nsub, nsub_contact, p, phi_out, psi_out,
+            vs_out, vp_out, n0,
         )  # fmt: skip
         feed = p[pp.P_FT]
         if feed != 0.0:
@@ -259,8 +299,9 @@ def run_model(
                 vs_out[k] += feed * lag[k]
     else:
         _mechanics(
-            x, drive, drive, last, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out, vp_out, n0
-        )
+            x, drive, drive, last, actuator, h, nsub, nsub_contact, p, phi_out, psi_out, vs_out,
+            vp_out, n0,
+        )  # fmt: skip
         if drive.shape[0] > 0:
             actuator[1] = drive[drive.shape[0] - 1]
     zi[0] = sensor_channel_kernel(
@@ -298,7 +339,7 @@ def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, v
     for i in prange(params.shape[0]):
         row = np.int64(0) if shared else np.int64(i)
         x = x0[i].copy()
-        actuator = np.zeros(2)
+        actuator = np.zeros(pp.HELD_LEN)
         zi = np.zeros(2)
         hist_s = np.zeros(hist_len[i, 0])
         hist_p = np.zeros(hist_len[i, 1])
@@ -337,7 +378,7 @@ def _stroke_fundamentals_with(c, omega, amplitudes, pitch_re, pitch_im, n_points
             phi, dphi = a * ct, -a * w * st
             psi = pitch_re[i] * ct - pitch_im[i] * st
             dpsi = -w * (pitch_re[i] * st + pitch_im[i] * ct)
-            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0, 0.0, 0.0)
+            ddphi, _ddpsi = _accelerations(phi, dphi, psi, dpsi, 0.0, c, 0, 0.0, 0.0, 0.0, 0.0)
             acc_re += ddphi * ct
             acc_im -= ddphi * st
         out[i] = complex(acc_re, acc_im) * (2.0 / n_points)
@@ -364,8 +405,10 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
             (dda * e).real,
             abs(dphi) * dphi,
             c,
-            0.0,  # the drive off (and its rate) and the time at 0, as the stroke's
-            0.0,  # describing function
+            0.0,  # the drive off (and its rate), the time at 0 and the low-pass terms'
+            0.0,  # states at rest, as the stroke's describing function
+            0.0,
+            0.0,
             0.0,
         )
         acc += ddpsi * e.conjugate()

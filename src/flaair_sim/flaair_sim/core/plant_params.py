@@ -44,6 +44,8 @@ __all__ = [
     "C_PHI_LIM",
     "C_TERMS",
     "GA_INDEX",
+    "HELD_LEN",
+    "HELD_LOWPASS",
     "KERNEL_LAYOUT",
     "MAX_FACTORS",
     "MAX_OMEGA_H",
@@ -85,6 +87,7 @@ __all__ = [
     "P_TCUBIC",
     "P_TERMS",
     "P_VREF",
+    "TERM_LOWPASS",
     "TERM_SLOT",
     "KernelSlot",
     "Prepared",
@@ -174,13 +177,19 @@ P_HPP_ON, P_HPP_B0, P_HPP_B1, P_HPP_A1 = _at("HPP_ON HPP_B0 HPP_B1 HPP_A1", _IND
 (P_DS_FRAC, P_DP_FRAC, P_NTERMS) = _at("DS_FRAC DP_FRAC NTERMS", _INDEX)
 GA_INDEX, CONTACT_ON_INDEX = P_GA, P_CONTACT_ON  # the names batch engines read
 # Each dynamics slot of the discovered terms: [equation (1 stroke, 2 pitch; 0 empty),
-# coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES].
+# coefficient / inertia, the monomial's exponents over flaair_model.terms.PRIMITIVES, the
+# low-pass's corner in rad/s (a `lowpass(x)` form: its monomial filtered; 0: the monomial)].
 P_TERMS = len(KERNEL_LAYOUT)
-TERM_SLOT = 2 + len(PRIMITIVES)
+TERM_SLOT = 3 + len(PRIMITIVES)
+TERM_LOWPASS = TERM_SLOT - 1  # the corner's place in a slot
 # A monomial has at most this many factors (primitives with a nonzero power): a canonical form
 # writes each of its states as one primitive or two (phi*abs(phi)), over at most three states.
-MAX_FACTORS = (TERM_SLOT - 2) // 2
+MAX_FACTORS = (TERM_SLOT - 3) // 2
 N_KERNEL_PARAMS = P_TERMS + MAX_DYNAMICS_TERMS * TERM_SLOT
+# The state the kernel holds between samples besides the mechanics: [the actuator's hysteretic
+# voltage, the last drive sample, each low-pass term slot's filter state].
+HELD_LOWPASS = 2
+HELD_LEN = HELD_LOWPASS + MAX_DYNAMICS_TERMS
 
 # The RK4 kernel's constants tuple `c`: the slots with a `constant`, in layout order, each
 # p[CONSTANT_SOURCE[j]] times (1, 1 / stroke inertia, 1 / pitch inertia)[CONSTANT_DIVISOR[j]].
@@ -308,6 +317,26 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
                         f"({'per sensor chain' if i is not None else 'plant-wide'})"
                     )
 
+    _write_dynamics_terms(p, model)
+
+    rates = [
+        math.sqrt(stiffness / p[P_I]),
+        math.sqrt(hinge_stiffness / p[P_IP]),
+        p[P_CP] / p[P_IP],
+        p[P_CSTRUCT] / p[P_I],
+        *(p[P_TERMS + slot * TERM_SLOT + TERM_LOWPASS] for slot in range(MAX_DYNAMICS_TERMS)),
+    ]
+    substeps = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H))
+    substeps_contact = substeps
+    if p[P_CONTACT_ON] > 0:
+        rates += [math.sqrt((stiffness + p[P_KC]) / p[P_I]), p[P_CC] / p[P_I]]
+        substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
+    p.setflags(write=False)
+    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+
+
+def _write_dynamics_terms(p: np.ndarray, model: Model) -> None:
+    """The model's discovered dynamics terms into their slots of `p` (`TERM_SLOT`)."""
     dynamics = [t for t in model.discovered if t.is_dynamics]
     p[P_NTERMS] = len(dynamics)
     for slot, dterm in enumerate(dynamics):
@@ -319,21 +348,9 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
             raise ModelError(
                 f"discovered.{dterm.kind}: a monomial of more than {MAX_FACTORS} factors"
             )
-        p[base + 2 : base + TERM_SLOT] = dterm.monomial
-
-    rates = [
-        math.sqrt(stiffness / p[P_I]),
-        math.sqrt(hinge_stiffness / p[P_IP]),
-        p[P_CP] / p[P_IP],
-        p[P_CSTRUCT] / p[P_I],
-    ]
-    substeps = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H))
-    substeps_contact = substeps
-    if p[P_CONTACT_ON] > 0:
-        rates += [math.sqrt((stiffness + p[P_KC]) / p[P_I]), p[P_CC] / p[P_I]]
-        substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
-    p.setflags(write=False)
-    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+        p[base + 2 : base + TERM_LOWPASS] = dterm.monomial
+        if dterm.is_filtered:  # a continuous first order, integrated with the mechanics
+            p[base + TERM_LOWPASS] = 2.0 * math.pi * dict(dterm.shape)["corner_hz"]
 
 
 # The rate `coefficients` prepares at: only the sensor delays' slots (in samples) depend on it.

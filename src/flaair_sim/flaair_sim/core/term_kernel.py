@@ -10,7 +10,12 @@ A dynamics term is a torque, coefficient x monomial of the mechanical state; `pl
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
 equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the constants tuple
 carries the slots from index `C_TERMS` on (c[C_TERMS - 1] is the number of terms), each written
-as its factors (primitive, power), at most `MAX_FACTORS`.
+as its factors (primitive, power), at most `MAX_FACTORS`, then its low-pass's corner in rad/s
+(0: none).
+
+A low-pass term (`lowpass(x)`) is a first-order low-pass of its monomial, z' = w (x - z), its
+state integrated by the RK4 step with the mechanics (`lowpass_rates`), and acts by z; the states
+travel with the actuator's (`plant_params.HELD_LOWPASS`).
 """
 
 from __future__ import annotations
@@ -21,9 +26,20 @@ from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from flaair_model.terms import MAX_DYNAMICS_TERMS
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_params import C_TERMS, MAX_FACTORS, N_CONSTANTS, N_CONSTANTS_WITH_TERMS
+from flaair_sim.core.plant_params import (
+    C_TERMS,
+    MAX_FACTORS,
+    N_CONSTANTS,
+    N_CONSTANTS_WITH_TERMS,
+)
 
-__all__ = ["constants_with_terms", "dynamics_terms", "mechanical_constants", "primitive"]
+__all__ = [
+    "constants_with_terms",
+    "dynamics_terms",
+    "lowpass_rates",
+    "mechanical_constants",
+    "primitive",
+]
 
 _FMA = {"contract"}
 _SOURCE = pp.CONSTANT_SOURCE
@@ -61,25 +77,49 @@ def primitive(j, phi, dphi, psi, dpsi, v, t, dv):
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv):
+def _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv):
+    """The monomial of the term slot at `base` (its factors, each to its power)."""
+    f = 1.0
+    for q in range(MAX_FACTORS):
+        j = int(c[base + 2 + 2 * q])
+        if j < 0:
+            break
+        x = primitive(j, phi, dphi, psi, dpsi, v, t, dv)
+        for _ in range(int(c[base + 3 + 2 * q])):
+            f *= x
+    return f
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
+def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia, at
-    the drive `v` the actuator sees, the time `t` from the run's start and the commanded
-    drive's rate `dv`.
+    the drive `v` the actuator sees, the time `t` from the run's start and the drive's rate
+    `dv`; a low-pass term acts by its filter's state (`z0`, `z1`: slot 0's and slot 1's).
     """
     total = 0.0
     for slot in range(MAX_DYNAMICS_TERMS):
         base = C_TERMS + slot * pp.TERM_SLOT
         if c[base] == equation:
-            f = c[base + 1]
-            for q in range(MAX_FACTORS):
-                j = int(c[base + 2 + 2 * q])
-                if j < 0:
-                    break
-                x = primitive(j, phi, dphi, psi, dpsi, v, t, dv)
-                for _ in range(int(c[base + 3 + 2 * q])):
-                    f *= x
-            total += f
+            if c[base + pp.TERM_LOWPASS] != 0.0:
+                total += c[base + 1] * (z0 if slot == 0 else z1)
+            else:
+                total += c[base + 1] * _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv)
     return total
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
+def lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
+    """The low-pass terms' filter states' rates, w (monomial - z) (0 for a slot without one):
+    a first-order low-pass integrated with the mechanics, its input the monomial at each stage.
+    """
+    rates = [0.0, 0.0]
+    for slot in range(MAX_DYNAMICS_TERMS):
+        base = C_TERMS + slot * pp.TERM_SLOT
+        w = c[base + pp.TERM_LOWPASS]
+        if c[base] != 0.0 and w != 0.0:
+            x = _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv)
+            rates[slot] = w * (x - (z0 if slot == 0 else z1))
+    return rates[0], rates[1]
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -99,10 +139,11 @@ def _constants(p, length):
         for slot in range(MAX_DYNAMICS_TERMS):
             src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, C_TERMS + slot * pp.TERM_SLOT
             c[dst], c[dst + 1] = p[src], p[src + 1]
-            for k in range(2, pp.TERM_SLOT):
+            for k in range(2, pp.TERM_LOWPASS):
                 c[dst + k] = -1.0
+            c[dst + pp.TERM_LOWPASS] = p[src + pp.TERM_LOWPASS]
             q = 0
-            for j in range(pp.TERM_SLOT - 2):
+            for j in range(pp.TERM_LOWPASS - 2):
                 if p[src + 2 + j] != 0.0 and q < MAX_FACTORS:  # plant_params refuses more
                     c[dst + 2 + 2 * q], c[dst + 3 + 2 * q] = j, p[src + 2 + j]
                     q += 1
