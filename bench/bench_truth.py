@@ -417,10 +417,17 @@ def main() -> None:
         default=min(2, os.cpu_count() or 1),
         help="robots analysed at once, one process each (default: 2, both cores)",
     )
+    parser.add_argument(
+        "--kinds",
+        nargs="+",
+        choices=[k.name for k in KINDS],
+        help="only these kinds (a hand run: the figures then count these alone)",
+    )
     args = parser.parse_args()
     draws = 1 if args.subset else args.draws
+    kinds = [k for k in KINDS if not args.kinds or k.name in args.kinds]
     # the costliest kinds first (the dynamics terms), so that none is left running alone
-    jobs = [(k.name, d) for k in KINDS for d in range(draws)]
+    jobs = [(k.name, d) for k in kinds for d in range(draws)]
     figures = build_figures(run_pool(jobs, args.jobs), args.subset)
     print_table(figures)
     if args.json:
