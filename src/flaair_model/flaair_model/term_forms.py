@@ -29,8 +29,9 @@ in `VARIABLES`' order).
 
 Memory: a form may also be a first-order low-pass of one signal or variable, ``lowpass(x)``
 (`filtered_forms`), its corner a shape parameter fitted with the coefficient. At a dynamics site
-the low-pass runs at the sample rate on the variable's value at each sample, its output held over
-the sample like the drive: the same filter, on the same samples, as a sensor's ``lowpass(phi)``.
+it is a continuous first-order low-pass, z' = 2 pi f_c (x - z), its state integrated with the
+mechanics (a spring relaxing through a dashpot: ``lowpass(phi)``); at the drive and the sensors,
+the bilinear first order on the samples.
 """
 
 from __future__ import annotations
