@@ -138,7 +138,7 @@ def test_a_low_pass_slot_is_a_first_order_state_integrated_with_the_mechanics() 
     x = (phi0, 0.0, 0.0, 0.0)
     n = 200
     for k in range(n):
-        x = plant_kernel.rk4_step(*x, 0.0, c, 1.0 / fs, 0, k / fs, 0.0, held)[:4]
+        x = plant_kernel.rk4_step(*x, 0.0, c, 1.0 / fs, 0, k / fs, 0.0, held, True)[:4]
     t = n / fs
     assert x[0] == phi0
     assert held[pp.HELD_LOWPASS + 1] == pytest.approx(phi0 * (1 - np.exp(-w * t)), rel=1e-9)

@@ -105,7 +105,9 @@ def _one(
             phi_out[k - keep0] = phi
             psi_out[k - keep0] = psi
         for _ in range(nsub):
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, 0.0, 0.0, held)
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, 0, 0.0, 0.0, held, False
+            )
     return u, peak
 
 

@@ -27,6 +27,9 @@ __all__ = ["pitch_responses", "rk4_step", "run_batch", "run_model", "stroke_fund
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
+# Where the parameter vector carries each term slot's low-pass corner (0: no low-pass).
+_LOWPASS_0 = pp.P_TERMS + pp.TERM_LOWPASS
+_LOWPASS_1 = pp.P_TERMS + pp.TERM_SLOT + pp.TERM_LOWPASS
 
 
 # The mechanical constants travel as a tuple `c` (immutable, so the compiler can keep them in
@@ -73,14 +76,15 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1):
 # Inlined where it is called (numba IR): left to LLVM it stays a call returning a 5-tuple
 # through memory, which costs ~4.5 ns of a ~19 ns step.
 @njit(cache=True, fastmath=_FMA, inline="always")
-def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held):
+def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held, lowpass):
     """One RK4 step of length hs at the sample time `t` (held over the sample, like the drive
     `v` and its rate `dv`); also reports whether any stage was past the stop. A model with
-    low-pass terms integrates their filter states with the mechanics and updates them in `held`
-    (`plant_params.HELD_LOWPASS`).
+    low-pass terms (`lowpass`) integrates their filter states with the mechanics and updates
+    them in `held` (`plant_params.HELD_LOWPASS`).
     """
     z0 = z1 = r0 = r1 = s0 = s1 = 0.0
-    if len(c) > N_CONSTANTS:  # compile-time: the nominal kernels carry no filter code
+    lowpass = lowpass and len(c) > N_CONSTANTS  # the nominal kernels carry no filter code
+    if lowpass:
         z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]
         r0, r1 = lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
     a1, b1 = _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv, z0, z1)
@@ -89,7 +93,7 @@ def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held):
     dpsi2 = dpsi + 0.5 * hs * b1
     psi2 = psi + 0.5 * hs * dpsi
     z0_2, z1_2 = z0 + 0.5 * hs * r0, z1 + 0.5 * hs * r1
-    if len(c) > N_CONSTANTS:
+    if lowpass:
         s0, s1 = r0, r1
         r0, r1 = lowpass_rates(c, phi2, dphi2, psi2, dpsi2, v, t, dv, z0_2, z1_2)
     a2, b2 = _accelerations(phi2, dphi2, psi2, dpsi2, v, c, contact, t, dv, z0_2, z1_2)
@@ -98,7 +102,7 @@ def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held):
     dpsi3 = dpsi + 0.5 * hs * b2
     psi3 = psi + 0.5 * hs * dpsi2
     z0_3, z1_3 = z0 + 0.5 * hs * r0, z1 + 0.5 * hs * r1
-    if len(c) > N_CONSTANTS:
+    if lowpass:
         s0, s1 = s0 + 2.0 * r0, s1 + 2.0 * r1
         r0, r1 = lowpass_rates(c, phi3, dphi3, psi3, dpsi3, v, t, dv, z0_3, z1_3)
     a3, b3 = _accelerations(phi3, dphi3, psi3, dpsi3, v, c, contact, t, dv, z0_3, z1_3)
@@ -107,7 +111,7 @@ def rk4_step(phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held):
     dpsi4 = dpsi + hs * b3
     psi4 = psi + hs * dpsi3
     z0_4, z1_4 = z0 + hs * r0, z1 + hs * r1
-    if len(c) > N_CONSTANTS:
+    if lowpass:
         s0, s1 = s0 + 2.0 * r0, s1 + 2.0 * r1
         r0, r1 = lowpass_rates(c, phi4, dphi4, psi4, dpsi4, v, t, dv, z0_4, z1_4)
         held[pp.HELD_LOWPASS] = z0 + hs / 6.0 * (s0 + r0)
@@ -146,7 +150,7 @@ def _crossing_fraction(phi0, dphi0, phi1, dphi1, hs, limit):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv, held):
+def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv, held, lowpass):
     """One sample period touching the stop, `nsub` substeps.
 
     The damper makes the contact force jump at impact, which would cut RK4 to first order;
@@ -158,7 +162,7 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv, held):
         if phi <= limit:
             z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]  # the trial moves them
             f_phi, f_dphi, f_psi, f_dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held
+                phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held, lowpass
             )
             if f_phi <= limit:
                 phi, dphi, psi, dpsi = f_phi, f_dphi, f_psi, f_dpsi
@@ -166,13 +170,15 @@ def _contact_sample(phi, dphi, psi, dpsi, v, c, h, nsub, t, dv, held):
             held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1] = z0, z1
             theta = _crossing_fraction(phi, dphi, f_phi, f_dphi, hs, limit)
             phi, dphi, psi, dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, theta * hs, 0, t, dv, held
+                phi, dphi, psi, dpsi, v, c, theta * hs, 0, t, dv, held, lowpass
             )
             phi, dphi, psi, dpsi, _hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t, dv, held
+                phi, dphi, psi, dpsi, v, c, (1.0 - theta) * hs, 2, t, dv, held, lowpass
             )
         else:
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 1, t, dv, held)
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, 1, t, dv, held, lowpass
+            )
     return phi, dphi, psi, dpsi
 
 
@@ -214,6 +220,7 @@ def _mechanics_with(
     model without the collision effect.
     """
     contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
+    lowpass = p[_LOWPASS_0] != 0.0 or p[_LOWPASS_1] != 0.0  # a low-pass term in a slot
     gs, gp, cubic, feed = p[pp.P_GS], p[pp.P_GP], p[pp.P_TCUBIC], p[pp.P_FT]
     phi, dphi, psi, dpsi = x[0], x[1], x[2], x[3]
     hs, fs = h / nsub, 1.0 / h
@@ -229,7 +236,9 @@ def _mechanics_with(
             dev_s_out[k] = gs * (phi + cubic * phi * phi * phi) + feed * v
             dev_p_out[k] = gp * psi
             t = (n0 + k) * h
-            phi, dphi, psi, dpsi, _hit = rk4_step(phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held)
+            phi, dphi, psi, dpsi, _hit = rk4_step(
+                phi, dphi, psi, dpsi, v, c, hs, 0, t, dv, held, lowpass
+            )
         x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
         return
     for k in range(drive.shape[0]):
@@ -246,13 +255,13 @@ def _mechanics_with(
         touched = False
         for _ in range(nsub):
             phi, dphi, psi, dpsi, hit = rk4_step(
-                phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held
+                phi, dphi, psi, dpsi, v, c, hs, contact, t, dv, held, lowpass
             )
             touched = touched or hit
         if contact == 1 and (touched or phi > c[pp.C_PHI_LIM]):
             held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1] = z0, z1  # the sample again
             phi, dphi, psi, dpsi = _contact_sample(
-                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t, dv, held
+                phi0, dphi0, psi0, dpsi0, v, c, h, nsub_contact, t, dv, held, lowpass
             )
     x[0], x[1], x[2], x[3] = phi, dphi, psi, dpsi
 

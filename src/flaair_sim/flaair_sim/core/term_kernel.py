@@ -42,6 +42,8 @@ __all__ = [
 ]
 
 _FMA = {"contract"}
+# The kernels carry the low-pass terms' states as a pair (z0, z1): one per slot.
+assert MAX_DYNAMICS_TERMS == 2, "the RK4 step carries two low-pass states"
 _SOURCE = pp.CONSTANT_SOURCE
 _DIVISOR = pp.CONSTANT_DIVISOR
 
@@ -108,18 +110,24 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
+def _lowpass_rate(c, base, phi, dphi, psi, dpsi, v, t, dv, z):
+    """The rate w (monomial - z) of the slot at `base` with a low-pass of corner w; else 0."""
+    w = c[base + pp.TERM_LOWPASS]
+    if c[base] == 0.0 or w == 0.0:
+        return 0.0
+    return w * (_monomial(c, base, phi, dphi, psi, dpsi, v, t, dv) - z)
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
 def lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     """The low-pass terms' filter states' rates, w (monomial - z) (0 for a slot without one):
     a first-order low-pass integrated with the mechanics, its input the monomial at each stage.
+    The two slots written out (no list: a list is a heap allocation per stage).
     """
-    rates = [0.0, 0.0]
-    for slot in range(MAX_DYNAMICS_TERMS):
-        base = C_TERMS + slot * pp.TERM_SLOT
-        w = c[base + pp.TERM_LOWPASS]
-        if c[base] != 0.0 and w != 0.0:
-            x = _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv)
-            rates[slot] = w * (x - (z0 if slot == 0 else z1))
-    return rates[0], rates[1]
+    return (
+        _lowpass_rate(c, C_TERMS, phi, dphi, psi, dpsi, v, t, dv, z0),
+        _lowpass_rate(c, C_TERMS + pp.TERM_SLOT, phi, dphi, psi, dpsi, v, t, dv, z1),
+    )
 
 
 @njit(cache=True, fastmath=_FMA)
