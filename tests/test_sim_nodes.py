@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosgraph_msgs.msg import Clock
 
 from rosproc import ros_processes, wait_for
 
@@ -175,8 +176,6 @@ def test_the_plant_takes_drive_commands_only_once_its_outputs_are_listened_to(
     streams have that many listeners, /clock's counted by its DDS writer (a recorder seen in the
     graph before its /clock matched lost the first ticks).
     """
-    from rosgraph_msgs.msg import Clock
-
     from composed import composed
     from flaair_common import topics
     from flaair_sim.plant_node import PlantNode
