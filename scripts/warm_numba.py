@@ -63,6 +63,13 @@ def main() -> None:
     stiffened = replace(model, discovered=(DiscoveredTerm("cube_angle", "stroke_dynamics", -1e-5),))
     for m in (model, stiffened):
         stroke_dynamic_stiffness(prepare(m, fs_hz).params, 900.0, 0.5)
+    # the discovery's ranking: the plant linearised about its motion, both constants tuples
+    from flaair_sim.core.torque_response import torque_responses
+
+    for m in (model, stiffened):
+        torque_responses(
+            m, drive, fs_hz, np.zeros(4), "stroke", np.zeros((drive.size, 2)), "stroke"
+        )
     try:  # the offline analysis kernels
         from flaair_analysis import wingbeat
         from flaair_model import lfilter

@@ -161,6 +161,17 @@ class ResidualProblem:
             cols.append(-(x - x.mean()) / self.weight)
         return np.concatenate(cols)
 
+    def angle_columns(self, changes: Mapping[int, np.ndarray]) -> np.ndarray:
+        """The weighted residual's change of a truth channel, one row per column of
+        ``changes[run]`` ((n, m): the judged angle's change in rad at each sample): the folds'
+        samples stacked as `residuals` stacks them.
+        """
+        cols = []
+        for f, idx in zip(self.folds, self.idx, strict=True):
+            x = np.degrees(changes[f.run][idx].T)
+            cols.append(-(x - x.mean(axis=1, keepdims=True)) / self.weight)
+        return np.concatenate(cols, axis=1)
+
     def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
         models = list(models)

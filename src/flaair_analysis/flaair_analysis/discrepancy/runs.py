@@ -13,6 +13,7 @@ from flaair_model.effects import SENSOR_CHANNELS, TRUTH_CHANNELS
 from flaair_model.model import Model
 from flaair_sim.core.plant import SimOutput, sensor_chain, simulate_batch_from
 from flaair_sim.core.plant_params import P_GP, P_GS, coefficients
+from flaair_sim.core.torque_response import torque_responses
 
 from .vocabulary import CHANNELS, SENSOR_EFFECTS, SENSOR_SIDE
 
@@ -223,6 +224,16 @@ def _x0(run: Run) -> np.ndarray:
 def simulate_motion(models: Sequence[Model], run: Run) -> SimOutput:
     """Every model over the run's drive from the run's measured initial state ((m, n) arrays)."""
     return simulate_batch_from(run.drive_v, run.fs_hz, list(models), _x0(run))
+
+
+def torque_changes(
+    model: Model, run: Run, equation: str, torque_nm: np.ndarray, angle: str
+) -> np.ndarray:
+    """(n, m) change of the run's `angle` ('stroke' or 'pitch', rad) made by each column of a
+    small torque (N m) added to `equation`, to first order about the model's motion from the
+    run's initial state (`flaair_sim.core.torque_response`).
+    """
+    return torque_responses(model, run.drive_v, run.fs_hz, _x0(run), equation, torque_nm, angle)
 
 
 def simulate_runs(

@@ -8,10 +8,12 @@ model's motion. `discovery` judges the shortlist.
 
 Besides the table's rows, a site may take any form composed from the primitives (a dynamics
 site) or the signals (the drive, a sensor), `flaair_model.terms.composed_kinds`, named by its
-expression. They are ranked cheaply: the residual's sensitivity to each (at a dynamics site or
-the drive, one simulation at a small coefficient, in batches of `RANK_BATCH`; at a sensor site,
-where a term adds to the chain's output, its feature along the current model, exactly) and one
-linearized least-squares step give the residual it would leave; only the
+expression. They are ranked cheaply: the residual's sensitivity to each (at a dynamics site, the
+plant's response to the form's torque along the current motion, linearised about it, in batches
+of `LINEAR_BATCH`: `runs.torque_changes`; at the drive, one simulation at a small coefficient,
+in batches of `RANK_BATCH`; at a sensor site, where a term adds to the chain's output, its
+feature along the current model, exactly) and one linearized least-squares step give the
+residual it would leave; only the
 best `discovery_composed_fits` per site are then fitted through the simulator like a row. A
 composed form that is numerically degenerate on the runs (zero or constant along the motion) is
 skipped and counted (`Candidates.degenerate`), never fitted.
@@ -37,13 +39,14 @@ from flaair_model.terms import (
     TermSignals,
     composed_kinds,
     kinds_for,
+    primitive_values,
 )
 from flaair_model.validation import ModelError
 
 from .effect_judging import AnalysisContext
 from .fitting import ResidualProblem, fit_specs, models_for, spec_value, with_terms
 from .identification import FIT_RANGE
-from .runs import simulate_runs
+from .runs import simulate_runs, torque_changes
 from .vocabulary import (
     PLANT_PARAMETERS,
     SENSOR_SIDE,
@@ -56,6 +59,7 @@ from .vocabulary import (
 __all__ = [
     "COEFFICIENT_RANGE",
     "DEGENERATE_REL_STD",
+    "LINEAR_BATCH",
     "PLANT_STEP",
     "PROBE_FRACTION",
     "RANK_BATCH",
@@ -84,6 +88,9 @@ PLANT_STEP = 1e-3
 DEGENERATE_REL_STD = 1e-6
 # Composed forms ranked per batch of simulations (a run set of each held in memory at once).
 RANK_BATCH = 96
+# Dynamics forms whose linearised responses are computed at once (an (n, batch) torque array per
+# run held in memory).
+LINEAR_BATCH = 256
 
 
 @dataclass(frozen=True)
@@ -116,15 +123,50 @@ def _motion(ctx: AnalysisContext, model: Model) -> list[dict[str, Any]]:
             stroke_sensor_v=sim["stroke_sensor_v"] - vref,
             pitch_sensor_v=sim["pitch_sensor_v"] - vref,
         )
+        dphi, dpsi = np.gradient(phi) * run.fs_hz, np.gradient(psi) * run.fs_hz
         out.append(
             {
                 "phi": phi,
-                "dphi": np.gradient(phi) * run.fs_hz,
+                "dphi": dphi,
                 "psi": psi,
-                "dpsi": np.gradient(psi) * run.fs_hz,
+                "dpsi": dpsi,
                 "signals": signals,
+                "primitives": _primitives(phi, dphi, psi, dpsi, signals),
+                # the states at each sample period's midpoint, the drive and time held: what
+                # the kernel integrates a form's torque at, to second order
+                "midpoint": _primitives(
+                    _midpoint(phi), _midpoint(dphi), _midpoint(psi), _midpoint(dpsi), signals
+                ),
             }
         )
+    return out
+
+
+def _midpoint(x: np.ndarray) -> np.ndarray:
+    """`x` halfway to the next sample (the last sample held)."""
+    return np.append(0.5 * (x[:-1] + x[1:]), x[-1:])
+
+
+def _primitives(
+    phi: np.ndarray, dphi: np.ndarray, psi: np.ndarray, dpsi: np.ndarray, signals: TermSignals
+) -> tuple[np.ndarray, ...]:
+    """The `PRIMITIVES` along a motion (the drive, its rate and the time from `signals`)."""
+    return primitive_values(phi, dphi, psi, dpsi, signals.drive_v, signals.t, signals.ddrive_v)
+
+
+def _primitives_of(m: dict[str, Any]) -> tuple[np.ndarray, ...]:
+    """A run's `PRIMITIVES` along its motion: computed once by `_motion`, else from its states."""
+    if "primitives" in m:
+        return tuple(m["primitives"])
+    return _primitives(m["phi"], m["dphi"], m["psi"], m["dpsi"], m["signals"])
+
+
+def _monomial(primitives: tuple[np.ndarray, ...], exponents: tuple[int, ...]) -> np.ndarray:
+    """The product of the primitives to their exponents (a dynamics form's monomial)."""
+    out = np.ones_like(primitives[0])
+    for x, e in zip(primitives, exponents, strict=True):
+        if e:
+            out = out * (x if e == 1 else x**e)
     return out
 
 
@@ -136,18 +178,7 @@ def _feature_values(
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     if site in DYNAMICS_SITES and not term.is_filtered:
-        return [
-            term.monomial_value(
-                m["phi"],
-                m["dphi"],
-                m["psi"],
-                m["dpsi"],
-                m["signals"].drive_v,
-                m["signals"].t,
-                m["signals"].ddrive_v,
-            )
-            for m in motion
-        ]
+        return [_monomial(_primitives_of(m), term.monomial) for m in motion]
     return [term.feature(m["signals"]) for m in motion]  # a low-pass: of the signal it reads
 
 
@@ -215,7 +246,7 @@ def _rank_composed(
     along = [np.concatenate(r) - r0 for r in base[1:]]
     best: dict[str, tuple[float, TermKind, float]] = {}
     r0_ss = float(np.dot(r0, r0))
-    for (k, _shape), sc, change in _changes(site, problem, current, variants, scales, r0):
+    for (k, _shape), sc, change in _changes(site, problem, current, variants, scales, r0, motion):
         if along:
             a = np.column_stack([change, *along])
             step = np.linalg.lstsq(a, -r0, rcond=None)[0]
@@ -252,10 +283,12 @@ def _changes(
     variants: list[tuple[TermKind, tuple[tuple[str, float], ...]]],
     scales: list[float],
     r0: np.ndarray,
+    motion: list[dict[str, Any]],
 ) -> Iterator[tuple[tuple[TermKind, tuple[tuple[str, float], ...]], float, np.ndarray]]:
     """((kind, shape), scale, the weighted residual's change) per composed form at
     `PROBE_FRACTION` of its scale: at a sensor site, where a term adds to the output after the
-    chain, from its feature along `current` (exact: the output is linear in it); elsewhere
+    chain, from its feature along `current` (exact: the output is linear in it); at a dynamics
+    site from the plant's linearised response to its torque (`_linear_changes`); at the drive
     simulated, in batches.
     """
     if site in SENSOR_CHANNELS:
@@ -264,6 +297,9 @@ def _changes(
             term = DiscoveredTerm(k.name, site, 1.0, shape)
             column = problem.output_columns({j: term.feature(s) for j, s in signals.items()})
             yield (k, shape), sc, PROBE_FRACTION * sc * column
+        return
+    if site in DYNAMICS_SITES:
+        yield from _linear_changes(site, problem, current, variants, scales, motion)
         return
     for start in range(0, len(variants), RANK_BATCH):  # a batch's simulations held at once
         chunk = slice(start, start + RANK_BATCH)
@@ -274,6 +310,38 @@ def _changes(
         res = problem.residuals(probes)
         for v, sc, r in zip(variants[chunk], scales[chunk], res, strict=True):
             yield v, sc, np.concatenate(r) - r0
+
+
+def _linear_changes(
+    site: str,
+    problem: ResidualProblem,
+    current: Model,
+    variants: list[tuple[TermKind, tuple[tuple[str, float], ...]]],
+    scales: list[float],
+    motion: list[dict[str, Any]],
+) -> Iterator[tuple[tuple[TermKind, tuple[tuple[str, float], ...]], float, np.ndarray]]:
+    """`_changes` at a dynamics site: each form's torque at `PROBE_FRACTION` of its scale along
+    the current motion (at each sample period's midpoint; a low-pass form's filtered value
+    likewise), through the plant linearised about that motion (`runs.torque_changes`).
+    """
+    equation = "stroke" if site == "stroke_dynamics" else "pitch"
+    angle = "stroke" if problem.channel == "stroke_deg" else "pitch"
+    for start in range(0, len(variants), LINEAR_BATCH):
+        chunk = slice(start, start + LINEAR_BATCH)
+        changes = {}
+        for j in problem.run_ids:
+            m = motion[j]
+            columns = []
+            for (k, shape), sc in zip(variants[chunk], scales[chunk], strict=True):
+                term = DiscoveredTerm(k.name, site, PROBE_FRACTION * sc, shape)
+                if term.is_filtered:
+                    f = _midpoint(term.feature(m["signals"]))
+                else:
+                    f = _monomial(m["midpoint"], term.monomial)
+                columns.append(term.coefficient * f)
+            torque = np.column_stack(columns)
+            changes[j] = torque_changes(current, problem.runs[j], equation, torque, angle)
+        yield from zip(variants[chunk], scales[chunk], problem.angle_columns(changes), strict=True)
 
 
 def _share_rms(

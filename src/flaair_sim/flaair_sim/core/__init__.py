@@ -6,6 +6,7 @@
 - ``plant_params``: a model and its effects as the kernels' parameter vector (`prepare`)
 - ``plant_terms``: a model's discovered terms at the drive and the sensor outputs (with state)
 - ``term_kernel``: its discovered dynamics terms inside the RK4 kernel
+- ``torque_response``: the plant's response to small added torques, linearised about its motion
 - ``sensor_kernel``: the sensor chain's kernel (high-pass, delay)
 - ``hysteresis_kernel``: the actuator's hysteresis (a Bouc-Wen operator on the drive)
 - ``measured_run``: a simulated run in the measured-run CSV's columns
@@ -31,4 +32,5 @@ __all__ = [
     "scene",
     "sensor_kernel",
     "term_kernel",
+    "torque_response",
 ]

@@ -23,7 +23,14 @@ from flaair_sim.core.term_kernel import (
     mechanical_constants,
 )
 
-__all__ = ["pitch_responses", "rk4_step", "run_batch", "run_model", "stroke_fundamentals"]
+__all__ = [
+    "linear_responses",
+    "pitch_responses",
+    "rk4_step",
+    "run_batch",
+    "run_model",
+    "stroke_fundamentals",
+]
 
 # Fused multiply-add only (no reassociation): deterministic, shortens RK4's dependency chain.
 _FMA = {"contract"}
@@ -371,6 +378,147 @@ def run_batch(drive, h, nsubs, params, delays, hist_len, x0, phi_out, psi_out, v
             vp_out[i],
             0.0,  # every run's time starts at its first sample
         )
+
+
+# Central-difference step of a state in the linearised responses: this fraction of (|x| + the
+# state's own scale: rad, rad/s, rad, rad/s).
+_REL_STEP = 1e-6
+_SCALE = (1.0, 100.0, 1.0, 100.0)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
+    """Rows of A (the accelerations' derivatives in phi, dphi, psi, dpsi) into `out_a`
+    (stroke) and `out_b` (pitch), and B (the accelerations' change per unit of forcing on
+    `equation`) as the returned pair.
+    """
+    for i in range(4):
+        step = _REL_STEP * (abs(x[i]) + _SCALE[i])
+        up = x.copy()
+        down = x.copy()
+        up[i] += step
+        down[i] -= step
+        a_up, b_up = _accelerations(up[0], up[1], up[2], up[3], v, c, contact, t, dv, z0, z1)
+        a_dn, b_dn = _accelerations(
+            down[0], down[1], down[2], down[3], v, c, contact, t, dv, z0, z1
+        )
+        out_a[i] = (a_up - a_dn) / (2.0 * step)
+        out_b[i] = (b_up - b_dn) / (2.0 * step)
+    if equation == 2:
+        return 0.0, 1.0
+    # a stroke forcing reaches the pitch through the stroke's acceleration
+    a, _b = _accelerations(x[0], x[1], x[2], x[3], v, c, contact, t, dv, z0, z1)
+    drag = abs(x[1]) * x[1]
+    step = _REL_STEP * (abs(a) + 1.0)
+    b_up = _pitch_acceleration(x[0], x[1], x[2], x[3], a + step, drag, c, v, t, dv, z0, z1)
+    b_dn = _pitch_acceleration(x[0], x[1], x[2], x[3], a - step, drag, c, v, t, dv, z0, z1)
+    return 1.0, (b_up - b_dn) / (2.0 * step)
+
+
+@njit(cache=True, fastmath=_FMA)
+def _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma):
+    """The sample's transition of the linear system d' = A d + B u (u held): RK4's for a
+    constant A (its Taylor series to fourth order) over `nsub` substeps of `hs`, into the 4x4
+    `phi_m` and the 4-vector `gamma`.
+    """
+    a = np.zeros((4, 4))
+    a[0, 1] = 1.0
+    a[2, 3] = 1.0
+    for j in range(4):
+        a[1, j] = row_a[j]
+        a[3, j] = row_b[j]
+    b = np.array([0.0, b_phi, 0.0, b_psi])
+    ha = hs * a
+    term = np.eye(4)
+    series = np.eye(4)  # I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24
+    forcing = np.eye(4)  # I + hA/2 + (hA)^2/6 + (hA)^3/24
+    for k in range(1, 5):
+        term = term @ ha / k
+        series += term
+        if k < 4:
+            forcing += term / (k + 1)
+    g_sub = hs * (forcing @ b)
+    phi_m[:, :] = np.eye(4)
+    gamma[:] = 0.0
+    for _ in range(nsub):
+        gamma[:] = series @ gamma + g_sub
+        phi_m[:, :] = series @ phi_m
+
+
+@njit(cache=True, fastmath=_FMA)
+def _linear_responses_with(
+    x, drive, commanded, last, held, h, nsub, nsub_contact, p, c, equation, forcing, angle, out
+):  # fmt: skip
+    """March the motion sample by sample with the kernel's own step, and every forcing column's
+    deviation with the linearised transition; `out[k, j]` is column j's deviation of the judged
+    angle (0 stroke, 2 pitch) at sample k (before the sample's step, like the kernel's output).
+    """
+    n, m = forcing.shape
+    d = np.zeros((4, m))
+    row_a, row_b = np.zeros(4), np.zeros(4)
+    phi_m, gamma = np.zeros((4, 4)), np.zeros(4)
+    scratch = np.zeros((4, 1))
+    contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
+    fs = 1.0 / h
+    hs = h / nsub
+    start = np.zeros(4)
+    for k in range(n):
+        for j in range(m):
+            out[k, j] = d[angle, j]
+        v = drive[k]
+        dv = (commanded[k] - last) * fs
+        z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]
+        start[:] = x
+        # the motion's own step: the kernel's, one sample at a time (bit for bit its output)
+        _mechanics_with(
+            x, drive[k : k + 1], commanded[k : k + 1], last, held, h, nsub, nsub_contact, p, c,
+            scratch[0], scratch[1], scratch[2], scratch[3], float(k),
+        )  # fmt: skip
+        last = commanded[k]
+        # A at the sample's midpoint: the transition then errs at second order in h
+        b_phi, b_psi = _jacobian(
+            0.5 * (start + x), v, c, contact, k * h, dv, z0, z1, equation, row_a, row_b
+        )
+        _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma)
+        for j in range(m):
+            u = forcing[k, j]
+            d0 = phi_m[0, 0] * d[0, j] + phi_m[0, 1] * d[1, j] + phi_m[0, 2] * d[2, j]
+            d1 = phi_m[1, 0] * d[0, j] + phi_m[1, 1] * d[1, j] + phi_m[1, 2] * d[2, j]
+            d2 = phi_m[2, 0] * d[0, j] + phi_m[2, 1] * d[1, j] + phi_m[2, 2] * d[2, j]
+            d3 = phi_m[3, 0] * d[0, j] + phi_m[3, 1] * d[1, j] + phi_m[3, 2] * d[2, j]
+            d[0, j] = d0 + phi_m[0, 3] * d[3, j] + gamma[0] * u
+            d[1, j] = d1 + phi_m[1, 3] * d[3, j] + gamma[1] * u
+            d[2, j] = d2 + phi_m[2, 3] * d[3, j] + gamma[2] * u
+            d[3, j] = d3 + phi_m[3, 3] * d[3, j] + gamma[3] * u
+
+
+@njit(cache=True)
+def linear_responses(x, drive, h, nsub, nsub_contact, p, equation, forcing, angle, out):
+    """The plant's response to small added accelerations on `equation` (1 stroke, 2 pitch),
+    linearised about its motion from the state `x` (the actuator and the low-pass terms at
+    rest) over `drive`: `out[k, j]` is the change of the angle `angle` (0 stroke, 2 pitch) at
+    sample k made by the forcing column `forcing[:, j]` (rad/s^2, held over each sample).
+
+    The motion is marched sample by sample with the kernel's own step (bit for bit its output;
+    the actuator's hysteresis taken off the drive as `run_model` does), and each column's
+    deviation with the linear system's transition at the sample (`_transition`).
+    """
+    held = np.zeros(pp.HELD_LEN)
+    seen = drive
+    if p[pp.P_HYST_FRAC] > 0.0:
+        lag = np.empty(drive.shape[0])
+        hysteretic_voltage(drive, p[pp.P_HYST_FRAC], p[pp.P_HYST_SAT], held, lag)
+        seen = drive - lag
+    if p[pp.P_NTERMS] > 0.0:
+        _linear_responses_with(
+            x, seen, drive, 0.0, held, h, nsub, nsub_contact, p, constants_with_terms(p),
+            equation, forcing, angle, out,
+        )  # fmt: skip
+    else:
+        _linear_responses_with(
+            x, seen, drive, 0.0, held, h, nsub, nsub_contact, p, mechanical_constants(p),
+            equation, forcing, angle, out,
+        )  # fmt: skip
 
 
 @njit(cache=True, fastmath=_FMA)
