@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -61,6 +61,7 @@ __all__ = [
     "composed_kinds",
     "kinds_for",
     "lowpass_ba",
+    "monomial",
     "primitive_values",
     "row_of",
 ]
@@ -77,6 +78,17 @@ SENSOR_SITES: tuple[str, ...] = SITES[3:]
 # The factors a dynamics monomial multiplies (exponents 0-3 each), in kernel order: declared
 # once, in `term_forms`, where the composed forms are built from them.
 PRIMITIVES: tuple[str, ...] = term_forms.PRIMITIVES
+
+
+def monomial(primitives: Sequence[np.ndarray], exponents: Sequence[int]) -> np.ndarray:
+    """The product of `primitives` (`primitive_values`) each to its exponent: a dynamics form's
+    feature. Computing the primitives once lets many forms share them.
+    """
+    out = np.ones(np.shape(primitives[0]))
+    for x, e in zip(primitives, exponents, strict=True):
+        if e:
+            out = out * (x if e == 1 else x**e)
+    return out
 
 
 def primitive_values(
@@ -741,11 +753,9 @@ class DiscoveredTerm:
         the drive the actuator sees (0: the drive off), the time from the run's start and the
         commanded drive's rate (V/s).
         """
-        out = np.ones(np.shape(phi))
-        values = primitive_values(phi, dphi, psi, dpsi, drive_v, t_s, ddrive_v)
-        for x, e in zip(values, self.monomial, strict=True):
-            out = out * x**e
-        return out
+        return monomial(
+            primitive_values(phi, dphi, psi, dpsi, drive_v, t_s, ddrive_v), self.monomial
+        )
 
     @property
     def is_filtered(self) -> bool:

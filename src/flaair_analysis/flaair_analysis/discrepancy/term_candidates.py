@@ -39,6 +39,7 @@ from flaair_model.terms import (
     TermSignals,
     composed_kinds,
     kinds_for,
+    monomial,
     primitive_values,
 )
 from flaair_model.validation import ModelError
@@ -161,15 +162,6 @@ def _primitives_of(m: dict[str, Any]) -> tuple[np.ndarray, ...]:
     return _primitives(m["phi"], m["dphi"], m["psi"], m["dpsi"], m["signals"])
 
 
-def _monomial(primitives: tuple[np.ndarray, ...], exponents: tuple[int, ...]) -> np.ndarray:
-    """The product of the primitives to their exponents (a dynamics form's monomial)."""
-    out = np.ones_like(primitives[0])
-    for x, e in zip(primitives, exponents, strict=True):
-        if e:
-            out = out * (x if e == 1 else x**e)
-    return out
-
-
 def _feature_values(
     kind: TermKind, site: str, motion: list[dict[str, Any]], shape: tuple[Any, ...] = ()
 ) -> list[np.ndarray]:
@@ -178,7 +170,7 @@ def _feature_values(
     """
     term = DiscoveredTerm(kind.name, site, 1.0, shape)
     if site in DYNAMICS_SITES and not term.is_filtered:
-        return [_monomial(_primitives_of(m), term.monomial) for m in motion]
+        return [monomial(_primitives_of(m), term.monomial) for m in motion]
     return [term.feature(m["signals"]) for m in motion]  # a low-pass: of the signal it reads
 
 
@@ -337,7 +329,7 @@ def _linear_changes(
                 if term.is_filtered:
                     f = _midpoint(term.feature(m["signals"]))
                 else:
-                    f = _monomial(m["midpoint"], term.monomial)
+                    f = monomial(m["midpoint"], term.monomial)
                 columns.append(term.coefficient * f)
             torque = np.column_stack(columns)
             changes[j] = torque_changes(current, problem.runs[j], equation, torque, angle)
