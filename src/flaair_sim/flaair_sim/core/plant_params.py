@@ -206,10 +206,10 @@ N_CONSTANTS = len(_CONSTANTS)
 _C_INDEX = {KERNEL_LAYOUT[i].name: j for j, i in enumerate(_CONSTANTS)}
 C_GAMMA, C_K, C_GA, C_CP, C_KH, C_JC, C_DP = _at("GAMMA K GA CP KH JC DP", _C_INDEX)
 C_CSTRUCT, C_HCUBIC, C_PHI_LIM, C_KC, C_CC = _at("CSTRUCT HCUBIC PHI_LIM KC CC", _C_INDEX)
-# A model with discovered dynamics terms gets the longer tuple: the constants, then the vector
-# from P_NTERMS to its end (the term count, then the slots), so c[C_TERMS] is the first slot.
-C_TERMS = N_CONSTANTS + 1
-N_CONSTANTS_WITH_TERMS = N_CONSTANTS + (N_KERNEL_PARAMS - P_NTERMS)
+# A model with discovered dynamics terms gets the longer tuple: the constants, then one array of
+# the term slots (`MAX_DYNAMICS_TERMS` of `TERM_SLOT` numbers each) at c[C_TERMS].
+C_TERMS = N_CONSTANTS
+N_CONSTANTS_WITH_TERMS = N_CONSTANTS + 1
 
 
 def _check_layout() -> None:

@@ -2,16 +2,18 @@
 
 `mechanical_constants` is the nominal tuple `c` (coefficients over inertia), its order and
 length derived from `plant_params.KERNEL_LAYOUT` (`C_*`, `N_CONSTANTS`); a model with
-discovered dynamics terms gets `constants_with_terms`, the same tuple followed by the term count
-and the terms' slots (`N_CONSTANTS_WITH_TERMS` in all), so only kernels compiled for that longer
-tuple evaluate terms.
+discovered dynamics terms gets `constants_with_terms`, the same tuple followed by one array of
+the terms' slots (`N_CONSTANTS_WITH_TERMS` elements in all, the array at `C_TERMS`), so only
+kernels compiled for that longer tuple evaluate terms. The slots are an array, not more tuple
+elements, because a term's factors are read at indexes known only at run time: into an array
+that is a load, into a tuple a switch over all its elements, which the RK4 stages would inline
+dozens of times per kernel (minutes of compile).
 
 A dynamics term is a torque, coefficient x monomial of the mechanical state; `plant_params`
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
-equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the constants tuple
-carries the slots from index `C_TERMS` on (c[C_TERMS - 1] is the number of terms), each written
-as its factors (primitive, power), at most `MAX_FACTORS`, then its low-pass's corner in rad/s
-(0: none).
+equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the slots' array
+carries each term as [equation, coefficient, its factors (primitive, power), at most
+`MAX_FACTORS`, -1 after the last, its low-pass's corner in rad/s (0: none)].
 
 A low-pass term (`lowpass(x)`) is a first-order low-pass of its monomial, z' = w (x - z), its
 state integrated by the RK4 step with the mechanics (`lowpass_rates`), and acts by z; the states
@@ -21,7 +23,8 @@ travel with the actuator's (`plant_params.HELD_LOWPASS`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import overload
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
 from flaair_model.terms import MAX_DYNAMICS_TERMS
@@ -30,7 +33,6 @@ from flaair_sim.core.plant_params import (
     C_TERMS,
     MAX_FACTORS,
     N_CONSTANTS,
-    N_CONSTANTS_WITH_TERMS,
 )
 
 __all__ = [
@@ -46,6 +48,23 @@ _FMA = {"contract"}
 assert MAX_DYNAMICS_TERMS == 2, "the RK4 step carries two low-pass states"
 _SOURCE = pp.CONSTANT_SOURCE
 _DIVISOR = pp.CONSTANT_DIVISOR
+
+
+def _slots_of(c):
+    """The term slots' array of the constants tuple `c` (typed for each tuple: see the
+    overload).
+    """
+    raise NotImplementedError("compiled only (numba)")
+
+
+@overload(_slots_of, inline="always")
+def _slots_of_typed(c):
+    """A nominal tuple (all floats) has no slots: its kernels never evaluate the term code that
+    asks (a compile-time branch), but numba types it, so that code gets an empty array.
+    """
+    if isinstance(c, types.UniTuple):
+        return lambda c: np.empty(0)
+    return lambda c: c[C_TERMS]
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -78,16 +97,20 @@ def primitive(j, phi, dphi, psi, dpsi, v, t, dv):
     return abs(x)
 
 
-@njit(cache=True, fastmath=_FMA, inline="always")
-def _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv):
-    """The monomial of the term slot at `base` (its factors, each to its power)."""
+# Not inlined: the RK4 stages call it at dozens of places per kernel, and inlined copies cost
+# about a minute of compile and no measurable speed.
+@njit(cache=True, fastmath=_FMA)
+def _monomial(s, base, phi, dphi, psi, dpsi, v, t, dv):
+    """The monomial of the term slot at `base` of the slots' array `s` (its factors, each to its
+    power).
+    """
     f = 1.0
     for q in range(MAX_FACTORS):
-        j = int(c[base + 2 + 2 * q])
+        j = int(s[base + 2 + 2 * q])
         if j < 0:
             break
         x = primitive(j, phi, dphi, psi, dpsi, v, t, dv)
-        for _ in range(int(c[base + 3 + 2 * q])):
+        for _ in range(int(s[base + 3 + 2 * q])):
             f *= x
     return f
 
@@ -98,24 +121,27 @@ def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     the drive `v` the actuator sees, the time `t` from the run's start and the drive's rate
     `dv`; a low-pass term acts by its filter's state (`z0`, `z1`: slot 0's and slot 1's).
     """
+    s = _slots_of(c)
     total = 0.0
     for slot in range(MAX_DYNAMICS_TERMS):
-        base = C_TERMS + slot * pp.TERM_SLOT
-        if c[base] == equation:
-            if c[base + pp.TERM_LOWPASS] != 0.0:
-                total += c[base + 1] * (z0 if slot == 0 else z1)
+        base = slot * pp.TERM_SLOT
+        if s[base] == equation:
+            if s[base + pp.TERM_LOWPASS] != 0.0:
+                total += s[base + 1] * (z0 if slot == 0 else z1)
             else:
-                total += c[base + 1] * _monomial(c, base, phi, dphi, psi, dpsi, v, t, dv)
+                total += s[base + 1] * _monomial(s, base, phi, dphi, psi, dpsi, v, t, dv)
     return total
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _lowpass_rate(c, base, phi, dphi, psi, dpsi, v, t, dv, z):
-    """The rate w (monomial - z) of the slot at `base` with a low-pass of corner w; else 0."""
-    w = c[base + pp.TERM_LOWPASS]
-    if c[base] == 0.0 or w == 0.0:
+def _lowpass_rate(s, base, phi, dphi, psi, dpsi, v, t, dv, z):
+    """The rate w (monomial - z) of the slot at `base` of the slots' array `s` with a low-pass
+    of corner w; else 0.
+    """
+    w = s[base + pp.TERM_LOWPASS]
+    if s[base] == 0.0 or w == 0.0:
         return 0.0
-    return w * (_monomial(c, base, phi, dphi, psi, dpsi, v, t, dv) - z)
+    return w * (_monomial(s, base, phi, dphi, psi, dpsi, v, t, dv) - z)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
@@ -124,51 +150,59 @@ def lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     a first-order low-pass integrated with the mechanics, its input the monomial at each stage.
     The two slots written out (no list: a list is a heap allocation per stage).
     """
+    s = _slots_of(c)
     return (
-        _lowpass_rate(c, C_TERMS, phi, dphi, psi, dpsi, v, t, dv, z0),
-        _lowpass_rate(c, C_TERMS + pp.TERM_SLOT, phi, dphi, psi, dpsi, v, t, dv, z1),
+        _lowpass_rate(s, 0, phi, dphi, psi, dpsi, v, t, dv, z0),
+        _lowpass_rate(s, pp.TERM_SLOT, phi, dphi, psi, dpsi, v, t, dv, z1),
     )
 
 
 @njit(cache=True, fastmath=_FMA)
-def _constants(p, length):
+def _constants(p):
     """The constants (coefficients pre-divided by the inertia of their equation: shortens the
-    dependency chain) as an array of `length`, then the term count and each term slot written
-    compactly: [equation, coefficient over inertia, (primitive, power) per factor of its
-    monomial in primitive order, -1 after the last]. The kernel's loop then visits only the
-    factors a monomial has, not every primitive.
+    dependency chain) as an array.
     """
     over = (1.0, 1.0 / p[pp.P_I], 1.0 / p[pp.P_IP])
-    c = np.empty(length)
+    c = np.empty(N_CONSTANTS)
     for j in range(N_CONSTANTS):
         c[j] = p[_SOURCE[j]] * over[_DIVISOR[j]]
-    if length > N_CONSTANTS:
-        c[N_CONSTANTS] = p[pp.P_NTERMS]
-        for slot in range(MAX_DYNAMICS_TERMS):
-            src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, C_TERMS + slot * pp.TERM_SLOT
-            c[dst], c[dst + 1] = p[src], p[src + 1]
-            for k in range(2, pp.TERM_LOWPASS):
-                c[dst + k] = -1.0
-            c[dst + pp.TERM_LOWPASS] = p[src + pp.TERM_LOWPASS]
-            q = 0
-            for j in range(pp.TERM_LOWPASS - 2):
-                if p[src + 2 + j] != 0.0 and q < MAX_FACTORS:  # plant_params refuses more
-                    c[dst + 2 + 2 * q], c[dst + 3 + 2 * q] = j, p[src + 2 + j]
-                    q += 1
     return c
+
+
+@njit(cache=True, fastmath=_FMA)
+def _term_slots(p):
+    """The discovered terms' slots, each written compactly: [equation, coefficient over
+    inertia, (primitive, power) per factor of its monomial in primitive order, -1 after the
+    last, the low-pass's corner]. The kernel's loop then visits only the factors a monomial
+    has, not every primitive.
+    """
+    s = np.empty(MAX_DYNAMICS_TERMS * pp.TERM_SLOT)
+    for slot in range(MAX_DYNAMICS_TERMS):
+        src = pp.P_TERMS + slot * pp.TERM_SLOT
+        dst = slot * pp.TERM_SLOT
+        s[dst], s[dst + 1] = p[src], p[src + 1]
+        for k in range(2, pp.TERM_LOWPASS):
+            s[dst + k] = -1.0
+        s[dst + pp.TERM_LOWPASS] = p[src + pp.TERM_LOWPASS]
+        q = 0
+        for j in range(pp.TERM_LOWPASS - 2):
+            if p[src + 2 + j] != 0.0 and q < MAX_FACTORS:  # plant_params refuses more
+                s[dst + 2 + 2 * q], s[dst + 3 + 2 * q] = j, p[src + 2 + j]
+                q += 1
+    return s
 
 
 @njit(cache=True, fastmath=_FMA)
 def mechanical_constants(p):
     """The nominal constants tuple `c` of parameter vector `p` (order: `plant_params.C_*`)."""
     # an intrinsic: numba passes its typing context, so mypy sees one argument short
-    return to_fixed_tuple(_constants(p, N_CONSTANTS), N_CONSTANTS)  # type: ignore[call-arg]
+    return to_fixed_tuple(_constants(p), N_CONSTANTS)  # type: ignore[call-arg]
 
 
 @njit(cache=True, fastmath=_FMA)
 def constants_with_terms(p):
-    """`mechanical_constants` followed by the term count and the discovered terms' slots: a
+    """`mechanical_constants` followed by the discovered terms' slots' array (`_term_slots`): a
     longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
     """
-    c = _constants(p, N_CONSTANTS_WITH_TERMS)
-    return to_fixed_tuple(c, N_CONSTANTS_WITH_TERMS)  # type: ignore[call-arg]  # as above
+    c = to_fixed_tuple(_constants(p), N_CONSTANTS)  # type: ignore[call-arg]  # as above
+    return c + (_term_slots(p),)  # noqa: RUF005  (numba builds a tuple by +, not by *c)
