@@ -204,5 +204,4 @@ def constants_with_terms(p):
     """`mechanical_constants` followed by the discovered terms' slots' array (`_term_slots`): a
     longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
     """
-    c = to_fixed_tuple(_constants(p), N_CONSTANTS)  # type: ignore[call-arg]  # as above
-    return c + (_term_slots(p),)  # noqa: RUF005  (numba builds a tuple by +, not by *c)
+    return mechanical_constants(p) + (_term_slots(p),)  # noqa: RUF005  (numba: + not *c)
