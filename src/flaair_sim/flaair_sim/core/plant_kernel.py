@@ -386,6 +386,17 @@ _REL_STEP = 1e-6
 _SCALE = (1.0, 100.0, 1.0, 100.0)
 
 
+@njit(cache=True, fastmath=_FMA, inline="always")
+def _moved(x, i, step):
+    """The state `x` (4,) with component i moved by `step`, as four scalars."""
+    return (
+        x[0] + step if i == 0 else x[0],
+        x[1] + step if i == 1 else x[1],
+        x[2] + step if i == 2 else x[2],
+        x[3] + step if i == 3 else x[3],
+    )
+
+
 @njit(cache=True, fastmath=_FMA)
 def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
     """Rows of A (the accelerations' derivatives in phi, dphi, psi, dpsi) into `out_a`
@@ -394,14 +405,10 @@ def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
     """
     for i in range(4):
         step = _REL_STEP * (abs(x[i]) + _SCALE[i])
-        up = x.copy()
-        down = x.copy()
-        up[i] += step
-        down[i] -= step
-        a_up, b_up = _accelerations(up[0], up[1], up[2], up[3], v, c, contact, t, dv, z0, z1)
-        a_dn, b_dn = _accelerations(
-            down[0], down[1], down[2], down[3], v, c, contact, t, dv, z0, z1
-        )
+        p0, p1, p2, p3 = _moved(x, i, step)
+        a_up, b_up = _accelerations(p0, p1, p2, p3, v, c, contact, t, dv, z0, z1)
+        p0, p1, p2, p3 = _moved(x, i, -step)
+        a_dn, b_dn = _accelerations(p0, p1, p2, p3, v, c, contact, t, dv, z0, z1)
         out_a[i] = (a_up - a_dn) / (2.0 * step)
         out_b[i] = (b_up - b_dn) / (2.0 * step)
     if equation == 2:
@@ -416,33 +423,61 @@ def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
 
 
 @njit(cache=True, fastmath=_FMA)
-def _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma):
+def _product4(x, y, out):
+    """The 4x4 product x @ y into `out` (written out: BLAS costs more than the product here)."""
+    for r in range(4):
+        for k in range(4):
+            acc = 0.0
+            for j in range(4):
+                acc += x[r, j] * y[j, k]
+            out[r, k] = acc
+
+
+@njit(cache=True, fastmath=_FMA)
+def _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma, work):
     """The sample's transition of the linear system d' = A d + B u (u held): RK4's for a
     constant A (its Taylor series to fourth order) over `nsub` substeps of `hs`, into the 4x4
-    `phi_m` and the 4-vector `gamma`.
+    `phi_m` and the 4-vector `gamma`; `work` (5, 4, 4) is scratch.
     """
-    a = np.zeros((4, 4))
-    a[0, 1] = 1.0
-    a[2, 3] = 1.0
+    ha, term, series, forcing, scratch = work[0], work[1], work[2], work[3], work[4]
+    ha[:, :] = 0.0
+    ha[0, 1] = hs
+    ha[2, 3] = hs
     for j in range(4):
-        a[1, j] = row_a[j]
-        a[3, j] = row_b[j]
-    b = np.array([0.0, b_phi, 0.0, b_psi])
-    ha = hs * a
-    term = np.eye(4)
-    series = np.eye(4)  # I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24
-    forcing = np.eye(4)  # I + hA/2 + (hA)^2/6 + (hA)^3/24
+        ha[1, j] = hs * row_a[j]
+        ha[3, j] = hs * row_b[j]
+    # series = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24; forcing = I + hA/2 + (hA)^2/6 + ...
+    term[:, :] = 0.0
+    for j in range(4):
+        term[j, j] = 1.0
+    series[:, :] = term
+    forcing[:, :] = term
     for k in range(1, 5):
-        term = term @ ha / k
-        series += term
-        if k < 4:
-            forcing += term / (k + 1)
-    g_sub = hs * (forcing @ b)
-    phi_m[:, :] = np.eye(4)
+        _product4(term, ha, scratch)
+        for r in range(4):
+            for j in range(4):
+                term[r, j] = scratch[r, j] / k
+                series[r, j] += term[r, j]
+                if k < 4:
+                    forcing[r, j] += term[r, j] / (k + 1)
+    g_sub = scratch[0]  # hs forcing B, in the scratch's first row until the loop needs it
+    for r in range(4):
+        g_sub[r] = hs * (forcing[r, 1] * b_phi + forcing[r, 3] * b_psi)
+    g0, g1, g2, g3 = g_sub[0], g_sub[1], g_sub[2], g_sub[3]
+    phi_m[:, :] = 0.0
+    for j in range(4):
+        phi_m[j, j] = 1.0
     gamma[:] = 0.0
     for _ in range(nsub):
-        gamma[:] = series @ gamma + g_sub
-        phi_m[:, :] = series @ phi_m
+        s0, s1, s2, s3 = gamma[0], gamma[1], gamma[2], gamma[3]
+        for r in range(4):
+            gamma[r] = series[r, 0] * s0 + series[r, 1] * s1 + series[r, 2] * s2 + series[r, 3] * s3
+        gamma[0] += g0
+        gamma[1] += g1
+        gamma[2] += g2
+        gamma[3] += g3
+        _product4(series, phi_m, scratch)
+        phi_m[:, :] = scratch
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -456,12 +491,12 @@ def _linear_responses_with(
     n, m = forcing.shape
     d = np.zeros((4, m))
     row_a, row_b = np.zeros(4), np.zeros(4)
-    phi_m, gamma = np.zeros((4, 4)), np.zeros(4)
+    phi_m, gamma, work = np.zeros((4, 4)), np.zeros(4), np.zeros((5, 4, 4))
     scratch = np.zeros((4, 1))
     contact = 1 if p[pp.P_CONTACT_ON] != 0.0 else 0
     fs = 1.0 / h
     hs = h / nsub
-    start = np.zeros(4)
+    start, mid = np.zeros(4), np.zeros(4)
     for k in range(n):
         for j in range(m):
             out[k, j] = d[angle, j]
@@ -476,10 +511,10 @@ def _linear_responses_with(
         )  # fmt: skip
         last = commanded[k]
         # A at the sample's midpoint: the transition then errs at second order in h
-        b_phi, b_psi = _jacobian(
-            0.5 * (start + x), v, c, contact, k * h, dv, z0, z1, equation, row_a, row_b
-        )
-        _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma)
+        for i in range(4):
+            mid[i] = 0.5 * (start[i] + x[i])
+        b_phi, b_psi = _jacobian(mid, v, c, contact, k * h, dv, z0, z1, equation, row_a, row_b)
+        _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma, work)
         for j in range(m):
             u = forcing[k, j]
             d0 = phi_m[0, 0] * d[0, j] + phi_m[0, 1] * d[1, j] + phi_m[0, 2] * d[2, j]
