@@ -8,7 +8,7 @@ and writes the table as JSON (--json).
 Two modes, the same parts and the same figures:
 - `make bench` (default): the discrepancy benchmark on its fixed subset of robots and
   hidden-effect cases (bench_discrepancy --subset: a few per family and kind, each count
-  marked "subset"); at most `BENCH_BUDGET_S` of wall time on the 2-core machine;
+  marked "subset"); its wall time is a figure against `BENCH_TARGET_S` on the 2-core machine;
 - `make bench-full` (--full): every family, every draw, all 46 hidden-effect cases.
 Each part prints its wall time beside its budget in that mode (`PARTS`, declared once) and says
 when it ran over; the run ends with its total time and "N of M comparisons met" (an `info`
@@ -33,7 +33,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchlib import REPO_ROOT, Figure, figure_from_row, figure_rows, print_table, write_json
+from benchlib import (
+    REPO_ROOT,
+    Figure,
+    compare,
+    figure_from_row,
+    figure_rows,
+    info,
+    print_table,
+    write_json,
+)
 
 RESULTS_DIR = REPO_ROOT / "docs" / "results"
 RESULTS_SCHEMA = "flaair-bench-results/1"
@@ -106,6 +115,9 @@ PARTS = (
 )
 # the quick budgets add up to 1172 s
 BENCH_BUDGET_S = 20 * 60.0
+# `make bench`'s wall time on the 2-core machine from a fresh clone (its set-up apart), the
+# target: the parts' measured budgets above still add up to more.
+BENCH_TARGET_S = 15 * 60.0
 
 
 def run_part(part: Part, full: bool, out_dir: Path) -> tuple[list[Figure], float, bool]:
@@ -159,6 +171,22 @@ def git_commit() -> str:
 
     commit = git("rev-parse", "--short=10", "HEAD") or "unknown"
     return commit + ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def wall_figure(wall_s: float, full: bool) -> Figure:
+    """The whole run's wall time (set-up apart): against `BENCH_TARGET_S` in `make bench`, an
+    `info` figure in `make bench-full`.
+    """
+    if full:
+        return info("make bench-full: wall time of the benchmarks", wall_s / 60, "min")
+    return compare(
+        "make bench: wall time of the benchmarks (set-up apart)",
+        wall_s / 60,
+        "min",
+        "<=",
+        BENCH_TARGET_S / 60,
+        f"the parts' budgets add up to {sum(p.budget_s for p in PARTS) / 60:.1f} min",
+    )
 
 
 def results_document(
@@ -238,6 +266,10 @@ def main() -> int:
         if not ran:
             failures.append(part.name)
     total = time.monotonic() - start
+    if not args.only:
+        wall = wall_figure(total, args.full)
+        figures.append(wall)
+        by_part.append(("run_all", [wall]))
     print()
     print_table(figures)
     write_json(figures, args.json)
@@ -259,7 +291,7 @@ def main() -> int:
     ]
     if over:
         print(f"parts over their budget: {'; '.join(over)}")
-    limit = "" if args.full or args.only else f" (budget {BENCH_BUDGET_S / 60:.0f} min)"
+    limit = "" if args.full or args.only else f" (target {BENCH_TARGET_S / 60:.0f} min)"
     print(f"{mode} took {total / 60:.1f} min wall{limit}")
     if failures:
         print(f"benchmarks that failed to run: {', '.join(failures)}", file=sys.stderr)
