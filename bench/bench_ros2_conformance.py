@@ -54,6 +54,7 @@ def main() -> None:
             "-p",
             "no:xdist",
             "-s",
+            "-rfE",  # the summary names each failed test: the figure's baseline carries them
             "-m",
             "ros2_upstream",
             TESTS,
@@ -67,6 +68,7 @@ def main() -> None:
     if result.returncode != 0 or built.returncode != 0:
         print(built.stderr[-2000:], result.stdout[-4000:], result.stderr[-2000:], sep="\n")
     tries = m.group(1) if (m := re.search(r"tries: (\[.*\])", result.stdout)) else "?"
+    failed_names = re.findall(r"^(?:FAILED|ERROR) \S+::(\S+)", result.stdout, re.MULTILINE)
     # each stand-in's answer against the real command's (the test prints one line each)
     for found in re.finditer(r"(?:same|DIFFERENT): .*", result.stdout):
         print(f"[bench] {found.group(0)[:160]}")
@@ -77,8 +79,9 @@ def main() -> None:
             "% of tests",
             ">=",
             100.0,
-            f"{passed} passed, {failed} failed (pytest exit code {result.returncode}); real "
-            f"lists' tries until the whole graph was seen: {tries}",
+            f"{passed} passed, {failed} failed (pytest exit code {result.returncode})"
+            + (f": {', '.join(failed_names)}" if failed_names else "")
+            + f"; real lists' tries until the whole graph was seen: {tries}",
         ),
         compare(
             "upstream tools install (install.sh): exit code",
