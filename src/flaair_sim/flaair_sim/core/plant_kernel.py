@@ -460,10 +460,11 @@ def _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma, work):
                 series[r, j] += term[r, j]
                 if k < 4:
                     forcing[r, j] += term[r, j] / (k + 1)
-    g_sub = scratch[0]  # hs forcing B, in the scratch's first row until the loop needs it
-    for r in range(4):
-        g_sub[r] = hs * (forcing[r, 1] * b_phi + forcing[r, 3] * b_psi)
-    g0, g1, g2, g3 = g_sub[0], g_sub[1], g_sub[2], g_sub[3]
+    # a substep's forcing hs F B, B = (0, b_phi, 0, b_psi)
+    g0 = hs * (forcing[0, 1] * b_phi + forcing[0, 3] * b_psi)
+    g1 = hs * (forcing[1, 1] * b_phi + forcing[1, 3] * b_psi)
+    g2 = hs * (forcing[2, 1] * b_phi + forcing[2, 3] * b_psi)
+    g3 = hs * (forcing[3, 1] * b_phi + forcing[3, 3] * b_psi)
     phi_m[:, :] = 0.0
     for j in range(4):
         phi_m[j, j] = 1.0

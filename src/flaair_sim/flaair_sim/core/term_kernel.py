@@ -7,7 +7,7 @@ the terms' slots (`N_CONSTANTS_WITH_TERMS` elements in all, the array at `C_TERM
 kernels compiled for that longer tuple evaluate terms. The slots are an array, not more tuple
 elements, because a term's factors are read at indexes known only at run time: into an array
 that is a load, into a tuple a switch over all its elements, which the RK4 stages would inline
-dozens of times per kernel (minutes of compile).
+dozens of times per kernel.
 
 A dynamics term is a torque, coefficient x monomial of the mechanical state; `plant_params`
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
@@ -51,16 +51,15 @@ _DIVISOR = pp.CONSTANT_DIVISOR
 
 
 def _slots_of(c):
-    """The term slots' array of the constants tuple `c` (typed for each tuple: see the
-    overload).
-    """
-    raise NotImplementedError("compiled only (numba)")
+    """The term slots' array of the constants tuple `c`; empty for a nominal tuple."""
+    return c[C_TERMS] if len(c) > N_CONSTANTS else np.empty(0)
 
 
 @overload(_slots_of, inline="always")
 def _slots_of_typed(c):
-    """A nominal tuple (all floats) has no slots: its kernels never evaluate the term code that
-    asks (a compile-time branch), but numba types it, so that code gets an empty array.
+    """`_slots_of` compiled: chosen by the tuple's type, since numba types the term code of a
+    nominal kernel too (that code never runs: a compile-time branch) and a nominal tuple has no
+    element at `C_TERMS`.
     """
     if isinstance(c, types.UniTuple):
         return lambda c: np.empty(0)
@@ -97,8 +96,8 @@ def primitive(j, phi, dphi, psi, dpsi, v, t, dv):
     return abs(x)
 
 
-# Not inlined: the RK4 stages call it at dozens of places per kernel, and inlined copies cost
-# about a minute of compile and no measurable speed.
+# Not inlined: the RK4 stages call it at dozens of places per kernel; inlined, its copies were
+# most of the kernel's compile time, for no measurable speed.
 @njit(cache=True, fastmath=_FMA)
 def _monomial(s, base, phi, dphi, psi, dpsi, v, t, dv):
     """The monomial of the term slot at `base` of the slots' array `s` (its factors, each to its
