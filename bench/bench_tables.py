@@ -26,9 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from benchlib import Figure, compare, info, print_table, write_json
+from flaair_analysis.discrepancy.evidence_search import plant_params
 from flaair_analysis.exact_score import score_exact
 from flaair_analysis.tables.datasets import simulated_table
-from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, identify_table, plant_params
+from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, identify_table
 from flaair_analysis.tables.steady_state import steady_response
 from flaair_analysis.tables.workflow import analyse_table
 from flaair_model import settings

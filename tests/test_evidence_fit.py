@@ -54,6 +54,9 @@ class Readings:
     def heldout(self) -> tuple[Split, ...]:
         return ()
 
+    def site_index(self) -> dict[str, np.ndarray]:
+        return {"stroke_deg": np.arange(self.y.size)}
+
 
 def _fit(pieces, start=100.0, **kw):
     nominal = load_model()
@@ -148,6 +151,17 @@ def test_runs_split_one_run_out_and_a_lone_run_into_halves() -> None:
     # a window compares only its samples (every 4th: 50 of the first half's 200)
     assert lone[0].judged.idx[0]["stroke_deg"].max() < 200  # type: ignore[attr-defined]
     assert lone[0].judged.idx[0]["stroke_deg"].size == 50  # type: ignore[attr-defined]
+    # each channel's residuals sit run by run: run a's 100 samples of each, then run b's 150
+    both = RunEvidence(
+        [_run("a", 400), _run("b", 600)],
+        {**noise, "pitch_deg": 0.1},
+        4,
+        ("stroke_deg", "pitch_deg"),
+    )
+    index = both.site_index()
+    assert np.array_equal(index["stroke_deg"], np.r_[0:100, 200:350])
+    assert np.array_equal(index["pitch_deg"], np.r_[100:200, 350:500])
+    assert both.residuals([load_model()], both.nuisance_start()).shape == (1, 500)
 
 
 @pytest.mark.timeout(30)
@@ -163,3 +177,4 @@ def test_a_table_splits_one_drive_level_out() -> None:
     masks = np.array([s.where for s in splits])
     assert (masks.sum(axis=0) == 1).all()  # every point judged exactly once
     assert splits[0].judged.table.n_points == 3 and splits[0].fit.table.n_points == 3  # type: ignore[attr-defined]
+    assert np.array_equal(evidence.site_index()["stroke_pp_deg"], np.arange(6))

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flaair_analysis.tables.fit import STROKE_KEYS, fit_table, plant_params
+from flaair_analysis.discrepancy.evidence_search import plant_params
+from flaair_analysis.tables.fit import STROKE_KEYS, fit_table
 from flaair_analysis.tables.joint import identify_joint
 from flaair_analysis.tables.joint_workflow import table_heldout
 from flaair_analysis.tables.reader import TableInputError, TableLimits, read_table

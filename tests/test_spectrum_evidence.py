@@ -73,6 +73,9 @@ def test_the_robots_own_model_is_at_noise_and_a_missing_film_term_shows_on_that_
     ratio, _, n, chi2 = ev.scores(film["robot"])
     # 2 realizations x 37 lines of the band (25 to 61, 100 to 244 Hz) x (real, imaginary) x 4
     assert n == 2 * 37 * 2 * 4
+    index = ev.site_index()  # each channel's 148 residuals in turn
+    assert np.array_equal(np.concatenate([index[c] for c in ev.sites]), np.arange(n))
+    assert all(i.size == 2 * 37 * 2 for i in index.values())
     assert all(0.85 < r < 1.2 for r in ratio.values()), ratio
     assert 0.85 < chi2 / n < 1.2
     nominal, _, _, _ = ev.scores(load_model())

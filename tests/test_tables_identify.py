@@ -47,7 +47,7 @@ def test_a_robot_far_from_nominal_is_recovered_within_a_few_per_cent() -> None:
         STROKE_KEYS + PITCH_KEYS, (0.005, 0.05, 0.02, 0.01, 0.05, 0.05, 0.3), strict=True
     ):
         assert getattr(fitted.plant, key) == pytest.approx(getattr(robot.plant, key), rel=tol), key
-    assert all(f.chi2 / f.n_cells < 1.5 for f in fits)
+    assert all(f.chi2 / f.n < 1.5 for f in fits)
     assert notes == []
 
 

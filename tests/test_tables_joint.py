@@ -366,6 +366,9 @@ class _MeasuredResonance:
     def heldout(self):
         return ()
 
+    def site_index(self):
+        return {"stroke_deg": np.arange(1)}
+
     def stage_piece(self, side: str, channel: str):
         return self if side == "stroke" else None
 

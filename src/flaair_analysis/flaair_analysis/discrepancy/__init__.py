@@ -3,15 +3,17 @@ no plots, no file I/O but the nominal model `offnominal` scales its terms by): t
 `bin/flaair discrepancy` and `bin/flaair identify`, whose command lines and reports are
 `flaair_tools.discrepancy`.
 
-Modules: `runs` (runs, their initial state and simulation), `run_evidence` (runs as evidence
-for the one fit: residuals in units of each channel's noise, each run's state a nuisance),
-`vocabulary` (each effect registered once), `identification` (grey-box fit of the plant),
-`diagnosis` (where a residual disagrees), `fitting` (least squares on folds), `effect_judging`
-(an effect candidate judged by rules R1-R6), `search` (channel-by-channel search; `found` lists
-what it found, one entry per effect), `discovery` (terms from the library `flaair_model.terms`
-where the vocabulary leaves a gap; `term_candidates` ranks the library's terms and composed
-forms for it, `term_judging` judges a term against the plant refitted without it in the same
-box, `discovery_uncertainty` the next best form and the experiment that tells them apart),
+Modules: `runs` (runs, their initial state and simulation), `run_evidence` (runs as evidence for
+the one fit: residuals in units of each channel's noise, each run's state a nuisance), `vocabulary`
+(each effect registered once), `identification` (grey-box fit of the plant), `diagnosis` (where a
+residual disagrees), `fitting` (least squares on folds), `effect_judging` (an effect candidate
+judged by rules R1-R6), `search` (channel-by-channel search; `found` lists what it found, one entry
+per effect), `evidence_search` (the search over any list of evidence: candidates ranked alone,
+judged with the plant they trade off against on every piece's held-out splits, side by side; the
+tables' search, `FreeParam` the one fitted-parameter type), `discovery` (terms from the library
+`flaair_model.terms` where the vocabulary leaves a gap; `term_candidates` ranks the library's terms
+and composed forms for it, `term_judging` judges a term against the plant refitted without it in
+the same box, `discovery_uncertainty` the next best form and the experiment that tells them apart),
 `workflow` (`analyse`: identify, search on top of the fitted plant, discover), `datasets` (the
 fixed hidden-effect cases and their runs), `offnominal` (the randomized off-nominal robot
 generator), `case` (one case), `scoring` (the workflow scored on the cases).
@@ -130,6 +132,17 @@ from .diagnosis import (
 )
 from .discovery import Discovered, DiscoveryOutcome, discover
 from .effect_judging import CandidateEvidence, FoundEffect
+from .evidence_search import (
+    Candidate,
+    FreeParam,
+    HeldOut,
+    Judged,
+    ParamFit,
+    Side,
+    fit_params,
+    heldout,
+    search_sides,
+)
 from .identification import PlantFit, identify_plant
 from .run_evidence import RunEvidence
 from .runs import (
@@ -161,6 +174,7 @@ __all__ = [
     "SENSOR_EFFECTS",
     "STATUSES",
     "VOCABULARY",
+    "Candidate",
     "CandidateEvidence",
     "ChannelGap",
     "ChannelSearch",
@@ -171,9 +185,14 @@ __all__ = [
     "DiscrepancyResult",
     "EffectSpec",
     "FoundEffect",
+    "FreeParam",
+    "HeldOut",
+    "Judged",
+    "ParamFit",
     "PlantFit",
     "Run",
     "RunEvidence",
+    "Side",
     "analyse",
     "bode_points",
     "candidate_groups",
@@ -182,12 +201,15 @@ __all__ = [
     "diagnose",
     "discover",
     "find_effects",
+    "fit_params",
+    "heldout",
     "identify_plant",
     "initial_mechanical_state",
     "measured_motion",
     "mechanics_model",
     "noise_estimates",
     "nrmse_by_channel",
+    "search_sides",
     "sensor_voltage",
     "simulate_runs",
 ]

@@ -110,6 +110,17 @@ class RunEvidence:
             out.append(Split(f.name, self._part(rest), self._part({f.run: (f.start, f.stop)}), f))
         return tuple(out)
 
+    def site_index(self) -> dict[str, np.ndarray]:
+        """Per channel, the positions of its samples in a residual row (run by run)."""
+        parts: dict[str, list[np.ndarray]] = {c: [] for c in self.sites}
+        at = 0
+        for idx in self.idx:
+            for c in self.sites:
+                k = int(idx[c].size)
+                parts[c].append(np.arange(at, at + k))
+                at += k
+        return {c: np.concatenate([np.zeros(0, int), *v]) for c, v in parts.items()}
+
     def nuisance_start(self) -> np.ndarray:
         """Each run's measured (angle, rate / omega) of the side."""
         if self.comp is None:

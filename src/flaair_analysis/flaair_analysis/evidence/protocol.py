@@ -59,6 +59,10 @@ class Evidence(Protocol):
         """Its held-out splits: each part judged by a model fitted on the rest."""
         ...
 
+    def site_index(self) -> dict[str, np.ndarray]:
+        """Per site, the positions of its residuals in a residual row."""
+        ...
+
 
 @dataclass(frozen=True)
 class Split:

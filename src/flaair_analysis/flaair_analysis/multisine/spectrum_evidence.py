@@ -172,6 +172,14 @@ class SpectrumEvidence:
             for m in self.keep
         )
 
+    def site_index(self) -> dict[str, np.ndarray]:
+        """Per channel, the positions of its lines' real and imaginary parts in a residual row."""
+        out, at = {}, 0
+        for c in self.sites:
+            k = 2 * int(self.ybar[c].size)
+            out[c], at = np.arange(at, at + k), at + k
+        return out
+
     def nuisance_start(self) -> np.ndarray:
         """No nuisance parameters (the transient is dropped, not fitted)."""
         return np.zeros(0)

@@ -18,16 +18,22 @@ of a grid (one batch), so a robot resonant far from nominal still fits.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
-from flaair_analysis.discrepancy.fitting import apply_values
+from flaair_analysis.discrepancy.evidence_search import (
+    FreeParam,
+    ParamFit,
+    as_param_fit,
+    fit_params,
+    fit_space,
+    plant_params,
+    setter,
+)
 from flaair_analysis.discrepancy.identification import Stage, fit_stages
 from flaair_analysis.discrepancy.runs import Run
-from flaair_analysis.discrepancy.vocabulary import PLANT_PARAMETERS, EffectSpec
-from flaair_analysis.evidence import EvidenceFit, fit_evidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
@@ -38,14 +44,10 @@ from .table_evidence import TableEvidence, normalised_residuals, stack_cells
 __all__ = [
     "PITCH_KEYS",
     "STROKE_KEYS",
-    "FreeParam",
-    "TableFit",
     "data_start",
     "fit_table",
     "identify_table",
     "misfit_warnings",
-    "plant_params",
-    "with_values",
 ]
 
 STROKE_KEYS: tuple[str, ...] = (
@@ -61,109 +63,7 @@ PITCH_KEYS: tuple[str, ...] = (
 )
 _DESCRIBING = 8.0 / (3.0 * math.pi)
 _PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
-_FD_STEP = 1e-4
 _TOL = 1e-8  # the least-squares tolerances of a table's fit (fit_evidence's default)
-
-
-@dataclass(frozen=True)
-class FreeParam:
-    """A fitted parameter: the one parameter type (`EffectSpec`: a plant key, an effect's
-    parameter or a term's coefficient, its bounds, fit space and step) and the value a fit
-    starts it from.
-    """
-
-    spec: EffectSpec
-    start: float
-
-    @property
-    def key(self) -> str:
-        """The parameter's address (`EffectSpec.address`): `plant.<key>`, `effect.<name>.<key>`,
-        `term.<kind>@<site>`.
-        """
-        return self.spec.address
-
-    @property
-    def lower(self) -> float:
-        """Lower bound (the parameter's unit)."""
-        return self.spec.lower
-
-    @property
-    def upper(self) -> float:
-        """Upper bound (the parameter's unit)."""
-        return self.spec.upper
-
-    def bounded(self, start: float, lower: float, upper: float) -> FreeParam:
-        """The parameter started at `start` within [lower, upper]."""
-        return FreeParam(replace(self.spec, lower=lower, upper=upper), start)
-
-
-@dataclass(frozen=True)
-class TableFit:
-    """A fit's outcome: the model, each parameter's value and standard error, the residuals.
-
-    `singular`: the cells cannot determine the parameters apart (the Jacobian's rank is below
-    their number): standard errors are infinite and correlations NaN, never a made-up matrix.
-    """
-
-    model: Model
-    params: tuple[FreeParam, ...]
-    values: dict[str, float]
-    stderr: dict[str, float]
-    correlation: np.ndarray
-    chi2: float
-    n_cells: int
-    nfev: int
-    singular: bool = False
-
-
-def plant_params(
-    model: Model, keys: Sequence[str], start: dict[str, float], r: float
-) -> list[FreeParam]:
-    """Log-space `FreeParam`s for plant keys, within x/÷ `r` of `start` (or the model's value)."""
-    out = []
-    for k in keys:
-        v = float(start.get(k, getattr(model.plant, k)))
-        v = v if math.isfinite(v) and v > 0 else 1e-3 * float(getattr(model.plant, k) or 1.0)
-        spec = EffectSpec(
-            "plant", k, PLANT_PARAMETERS[k], v, v / r, v * r, (), _FD_STEP, log=True, tested=False
-        )
-        out.append(FreeParam(spec, v))
-    return out
-
-
-def with_values(model: Model, params: Sequence[FreeParam], values: Mapping[str, float]) -> Model:
-    """`model` with each of `params` at `values[param.key]` (the one `apply_values`)."""
-    return apply_values(model, [p.spec for p in params], [values[p.key] for p in params])
-
-
-def _values(params: Sequence[FreeParam], x: np.ndarray) -> dict[str, float]:
-    return {p.key: p.spec.from_fit(float(v)) for p, v in zip(params, x, strict=True)}
-
-
-def _setter(model: Model, params: Sequence[FreeParam]) -> Callable[[np.ndarray], Model]:
-    """Fit space -> `model` with `params` at those values."""
-    return lambda x: with_values(model, params, _values(params, x))
-
-
-def _table_fit(model: Model, params: Sequence[FreeParam], fit: EvidenceFit) -> TableFit:
-    """A table's fit of `params` (from `model`) as a `TableFit`."""
-    values = _values(params, fit.x)
-    se = np.sqrt(np.diag(fit.covariance))
-    stderr = {
-        p.key: float(values[p.key] * e if p.spec.log else e * p.spec.unit)
-        for p, e in zip(params, se, strict=True)
-    }
-    return TableFit(
-        with_values(model, params, values),
-        tuple(params),
-        values,
-        stderr,
-        fit.correlation,
-        fit.chi2[0],
-        fit.n[0],
-        fit.nfev,
-        fit.singular,
-    )
 
 
 def fit_table(
@@ -172,18 +72,9 @@ def fit_table(
     params: Sequence[FreeParam],
     s: TableSettings,
     columns: Sequence[str],
-) -> TableFit:
+) -> ParamFit:
     """Least squares of `params` on the table's `columns` (noise-weighted cells)."""
-    fit = fit_evidence(
-        [TableEvidence(table, s, columns)],
-        _setter(model, params),
-        [np.array([p.spec.to_fit(p.start) for p in params])],
-        np.array([p.spec.to_fit(p.lower) for p in params]),
-        np.array([p.spec.to_fit(p.upper) for p in params]),
-        np.array([p.spec.step for p in params]),
-        max_nfev=s.max_nfev,
-    )
-    return _table_fit(model, params, fit)
+    return fit_params([TableEvidence(table, s, columns)], model, params, s.max_nfev)
 
 
 def _stroke_pp_rad(table: Table) -> np.ndarray | None:
@@ -337,13 +228,13 @@ def misfit_warnings(table: Table, model: Model, s: TableSettings) -> list[str]:
 
 def identify_table(
     table: Table, model: Model, s: TableSettings
-) -> tuple[Model, list[TableFit], dict[str, float], list[str]]:
+) -> tuple[Model, list[ParamFit], dict[str, float], list[str]]:
     """The stroke plant fitted on the stroke columns, then the pitch plant on the pitch columns.
 
     Returns
     -------
     model, fits, start, notes
-        The fitted model, each stage's `TableFit`, the start from the data (plant keys) and
+        The fitted model, each stage's `ParamFit`, the start from the data (plant keys) and
         what the table cannot tell (no resonance inside it, no pitch column, ...).
     """
     start, notes = data_start(table, model)
@@ -379,22 +270,23 @@ def identify_table(
             start.update(side_start)
         params = plant_params(current, keys, side_start, s.fit_range)
         chosen.append((current, params))
+        x0, lower, upper, steps = fit_space(params)
         return Stage(
             keys,
             (TableEvidence(table, s, cols),),
-            (np.array([p.spec.to_fit(p.start) for p in params]),),
-            np.array([p.spec.to_fit(p.lower) for p in params]),
-            np.array([p.spec.to_fit(p.upper) for p in params]),
+            (x0,),
+            lower,
+            upper,
             s.max_nfev,
             tol=_TOL,
-            to_model=_setter(current, params),
-            steps=np.array([p.spec.step for p in params]),
+            to_model=setter(current, params),
+            steps=steps,
         )
 
     staged = fit_stages(model, [], STROKE_KEYS + PITCH_KEYS, stage_of)
     model = staged.model
     fits = [
-        _table_fit(before, params, fit)
+        as_param_fit(before, params, fit)
         for (before, params), (_, _, fit) in zip(chosen, staged.stages, strict=True)
     ]
     if not stroke_cols and "stroke" not in problems:
@@ -405,7 +297,7 @@ def identify_table(
         if fit.singular:
             names = ", ".join(p.key.removeprefix("plant.") for p in fit.params)
             notes.append(
-                f"the fit of {names} is singular: the table's {fit.n_cells} cells cannot tell "
+                f"the fit of {names} is singular: the table's {fit.n} cells cannot tell "
                 "them apart (standard errors unbounded); measure more frequencies or levels"
             )
     fn = model.plant.stroke_natural_frequency_hz

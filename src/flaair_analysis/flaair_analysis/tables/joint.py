@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from flaair_analysis.discrepancy.evidence_search import ParamFit, plant_params
 from flaair_analysis.discrepancy.identification import (
     DECIMATE,
     Stage,
@@ -52,7 +53,7 @@ from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import TableSettings
 
-from .fit import PITCH_KEYS, STROKE_KEYS, TableFit, identify_table, plant_params
+from .fit import PITCH_KEYS, STROKE_KEYS, identify_table
 from .reader import Table
 from .table_evidence import TableEvidence, table_scores
 
@@ -479,7 +480,7 @@ def table_identification(
     model: Model,
     s: TableSettings,
     fitted: Model,
-    fits: Sequence[TableFit],
+    fits: Sequence[ParamFit],
     start: Mapping[str, float],
     notes: Sequence[str],
 ) -> JointFit:

@@ -38,6 +38,7 @@ from functools import partial
 from typing import Any
 
 from flaair_analysis.discrepancy.diagnosis import diagnose, noise_estimates
+from flaair_analysis.discrepancy.evidence_search import plant_params, with_values
 from flaair_analysis.discrepancy.runs import Run, simulate_runs
 from flaair_analysis.discrepancy.workflow import DiscrepancyResult, analyse
 from flaair_analysis.evidence import EvidenceSet, chi2_allowance
@@ -46,7 +47,7 @@ from flaair_analysis.multisine.spectrum_evidence import SpectrumEvidence
 from flaair_model.model import Model
 from flaair_model.settings import DiscrepancySettings, TableSettings
 
-from .fit import PITCH_KEYS, STROKE_KEYS, plant_params, with_values
+from .fit import PITCH_KEYS, STROKE_KEYS
 from .joint import JointFit, identify_joint, run_scores
 from .reader import Table
 from .steady_state import steady_response

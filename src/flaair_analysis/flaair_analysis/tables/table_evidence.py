@@ -116,6 +116,14 @@ class TableEvidence:
         """Leave one drive level out: each level judged by a model fitted on the others."""
         return tuple(Split(*parts) for parts in self.level_splits())
 
+    def site_index(self) -> dict[str, np.ndarray]:
+        """Per column, the positions of its measured cells in a residual row (`stack_cells`)."""
+        out, at = {}, 0
+        for c in self.sites:
+            k = int(np.isfinite(self.table.responses[c]).sum())
+            out[c], at = np.arange(at, at + k), at + k
+        return out
+
     def nuisance_start(self) -> np.ndarray:
         """No nuisance parameters."""
         return np.zeros(0)

@@ -14,10 +14,11 @@ from jinja2 import Template
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS, TableFit
+from flaair_analysis.discrepancy.evidence_search import Judged, ParamFit
+from flaair_analysis.tables.fit import PITCH_KEYS, STROKE_KEYS
 from flaair_analysis.tables.reader import Table, summarise
 from flaair_analysis.tables.steady_state import steady_response
-from flaair_analysis.tables.workflow import NOT_SEARCHED, Judged, TableDiscrepancy
+from flaair_analysis.tables.workflow import NOT_SEARCHED, TableDiscrepancy
 from flaair_common.strictjson import json_safe
 from flaair_model.settings import TableSettings
 from flaair_model.terms import DiscoveredTerm
@@ -45,7 +46,7 @@ def table_doc(table: Table) -> dict[str, Any]:
     }
 
 
-def _param_doc(fit: TableFit, keys: Sequence[str]) -> dict[str, Any]:
+def _param_doc(fit: ParamFit, keys: Sequence[str]) -> dict[str, Any]:
     return {k.split(".")[-1]: {"value": fit.values[k], "stderr": fit.stderr[k]} for k in keys}
 
 
