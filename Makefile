@@ -22,7 +22,7 @@ setup:
 demo: setup
 	@bin/flaair demo --out out/demo
 
-# Pure and CLI tests in parallel, then the graph tests one at a time (scripts/run_tests.sh).
+# Pure and CLI tests in parallel, then the graph tests a module per core (scripts/run_tests.sh).
 test: setup
 	@$(IN_ENV) scripts/run_tests.sh full
 

@@ -34,7 +34,8 @@ def pytest_configure(config: pytest.Config) -> None:
 @pytest.fixture(autouse=True)
 def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
     """A test that starts a ROS graph (or an experiment, `live`, a recorder) must be marked `graph`,
-    so that it runs alone (scripts/run_tests.sh); a domain it leased is released when it ends.
+    so that it runs after the others (scripts/run_tests.sh); a domain it leased is released when it
+    ends.
     """
     yield  # (a module fixture's graph, started before this fixture, counts for its first test)
     rosproc.release_leases()
@@ -42,6 +43,6 @@ def _graph_tests_are_marked(request: pytest.FixtureRequest) -> Iterator[None]:
     if started and request.node.get_closest_marker("graph") is None:
         pytest.fail(
             f"{request.node.nodeid} starts {', '.join(sorted(set(started)))} but is not "
-            "marked @pytest.mark.graph (graph tests run alone, after the others)",
+            "marked @pytest.mark.graph (graph tests run after the others)",
             pytrace=False,
         )

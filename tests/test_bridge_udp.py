@@ -22,7 +22,7 @@ import pytest
 
 from rosproc import ros_processes, target_watchdog_tripped, wait_for
 
-pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
+pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run after the others
 
 FS = 20000.0
 N = 10

@@ -23,7 +23,7 @@ def chirp_bag(tmp_path_factory) -> Path:
     return bag
 
 
-@pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
+@pytest.mark.graph  # ROS 2 processes exchanging data in real time: run after the others
 def test_experiment_records_every_block(chirp_bag: Path) -> None:
     from flaair_tools import bagio
 

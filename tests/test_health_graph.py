@@ -13,7 +13,7 @@ import pytest
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
 
-@pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
+@pytest.mark.graph  # ROS 2 processes exchanging data in real time: run after the others
 @pytest.mark.timeout(400)
 def test_wing_damage_experiment_live_health_equals_the_rerun(tmp_path: Path) -> None:
     from flaair_tools import bagio

@@ -249,7 +249,7 @@ def test_the_contracts_bad_inputs_are_refused_in_one_line_with_nothing_written(
     assert [p.name for p in full.iterdir()] == ["keep.txt"]
 
 
-@pytest.mark.graph  # ROS 2 processes exchanging data in lockstep: run alone
+@pytest.mark.graph  # ROS 2 processes exchanging data in lockstep: run after the others
 @pytest.mark.slow  # 2 realizations of 2.25 s through the lockstep graph
 @pytest.mark.timeout(900)
 def test_experiment_multisine_recorded_as_a_bag_analyses_like_the_csvs(

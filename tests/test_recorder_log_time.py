@@ -16,7 +16,7 @@ from mcap_ros2.decoder import DecoderFactory
 from flaair_tools import bagio
 from rosproc import ros_processes, wait_for
 
-pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
+pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run after the others
 
 FS, BLOCK, RUN_S = 20000.0, 10, 3.0
 # A simulated robot's streams as the plant stamps them (block i at i * 0.5 ms of signal time, /clock

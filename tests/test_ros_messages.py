@@ -10,7 +10,7 @@ import pytest
 
 from rosproc import ros_processes
 
-pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run alone
+pytestmark = pytest.mark.graph  # ROS 2 processes exchanging data in real time: run after the others
 
 MESSAGES = {
     "flaair_msgs/msg/SensorVoltageBlock": {
