@@ -36,6 +36,7 @@ from flaair_analysis.discrepancy.evidence_search import (
     FreeParam,
     HeldOut,
     Judged,
+    SearchOutcome,
     Side,
     heldout,
     plant_params,
@@ -59,6 +60,7 @@ __all__ = [
     "analyse_table",
     "candidates",
     "heldout_predictions",
+    "search_table",
 ]
 
 _TRUTH = ("stroke_deg", "pitch_deg")
@@ -268,6 +270,35 @@ def _reach_deg(table: Table, s: TableSettings) -> Callable[[Model], float]:
     return reach
 
 
+def search_table(table: Table, model: Model, s: TableSettings) -> tuple[HeldOut, SearchOutcome]:
+    """The search over the table's evidence (`evidence_search.search_sides`) from `model`'s plant
+    as it is: `model` judged on held-out levels (each predicted by its plant refitted on the
+    others), and what the search found. Needs two or more drive levels.
+    """
+    stroke, pitch = _side_cols(table, "stroke"), _side_cols(table, "pitch")
+    plant_free = [
+        *plant_params(model, STROKE_KEYS if stroke else (), {}, 1.5),
+        *plant_params(model, PITCH_KEYS if pitch else (), {}, 1.5),
+    ]
+    whole = [TableEvidence(table, s, list(table.responses))]
+    held = heldout(whole, model, plant_free, s.heldout_max_nfev)
+    sides = [
+        Side(name, (TableEvidence(table, s, cols),) if cols else (), keys)
+        for name, cols, keys in (("stroke", stroke, STROKE_KEYS), ("pitch", pitch, PITCH_KEYS))
+    ]
+    found = search_sides(
+        sides,
+        whole,
+        model,
+        plant_free,
+        held,
+        lambda m, side: [c for c in candidates(table, m) if c.side == side],
+        s,
+        _reach_deg(table, s),
+    )
+    return held, found
+
+
 def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepancy:
     """Fit the plant, search what a table can show, judge on held-out levels (module docstring)."""
     before_pred = _predict(table, model, s)
@@ -279,29 +310,9 @@ def analyse_table(table: Table, model: Model, s: TableSettings) -> TableDiscrepa
     gaps["gap_before"], ratios["gap_before"] = _scores(table, before_pred, s)
     if table.levels_v.size < 2:
         return _one_level(table, model, identified, ident, s, gaps, ratios, preds, notes)
-    stroke, pitch = _side_cols(table, "stroke"), _side_cols(table, "pitch")
-    plant_free = [
-        *plant_params(identified, STROKE_KEYS if stroke else (), {}, 1.5),
-        *plant_params(identified, PITCH_KEYS if pitch else (), {}, 1.5),
-    ]
-    whole = [TableEvidence(table, s, list(table.responses))]
-    held = heldout(whole, identified, plant_free, s.heldout_max_nfev)
+    held, found = search_table(table, identified, s)
     preds["identified"] = _predictions(table, held, s)
     gaps["gap_identified"], ratios["gap_identified"] = _scores(table, preds["identified"], s)
-    sides = [
-        Side(name, (TableEvidence(table, s, cols),) if cols else (), keys)
-        for name, cols, keys in (("stroke", stroke, STROKE_KEYS), ("pitch", pitch, PITCH_KEYS))
-    ]
-    found = search_sides(
-        sides,
-        whole,
-        identified,
-        plant_free,
-        held,
-        lambda m, side: [c for c in candidates(table, m) if c.side == side],
-        s,
-        _reach_deg(table, s),
-    )
     preds["final"] = _predictions(table, found.final, s)
     gaps["gap_after"], ratios["gap_after"] = _scores(table, preds["final"], s)
 
