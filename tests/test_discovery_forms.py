@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from scipy import signal
 
 from flaair_analysis.discrepancy.datasets import make_run, make_runs, run_set_drives, true_model
 from flaair_analysis.discrepancy.diagnosis import noise_estimates
+from flaair_analysis.discrepancy.discovery import SAME_ERROR, rank_passing
 from flaair_analysis.discrepancy.discovery_uncertainty import (
     SETTLE_S,
     suggest_experiment,
@@ -37,7 +39,14 @@ from flaair_model.term_forms import (
     signal_forms,
     signal_name,
 )
-from flaair_model.terms import PRIMITIVES, DiscoveredTerm, TermSignals, composed_kinds, row_of
+from flaair_model.terms import (
+    PRIMITIVES,
+    TERM_KINDS,
+    DiscoveredTerm,
+    TermSignals,
+    composed_kinds,
+    row_of,
+)
 from flaair_model.validation import ModelError
 from flaair_sim.core.plant import simulate
 
@@ -494,3 +503,27 @@ def test_a_drive_rate_factor_at_the_stroke_adds_its_torque_under_a_ramp(model) -
     offset = (with_rate.stroke_rad - plain.stroke_rad)[-400:]
     assert offset.mean() == pytest.approx(c * rate_v_per_s / k, rel=1e-3)
     assert np.ptp(offset) < 1e-3 * offset.mean()
+
+
+@pytest.mark.timeout(30)
+def test_a_composed_form_equal_to_a_row_loses_to_the_row_whatever_the_last_bits() -> None:
+    # the square of a film's voltage where the film is a pure gain on its angle is the row
+    # square_angle_sensor; their held-out errors differ in the last bits, which differ between
+    # processors (one machine named the composed form, another the row)
+    row = next(k for k in TERM_KINDS if k.name == "square_angle_sensor")
+    composed = SimpleNamespace(name="pitch_sensor_v**2", composed=True)
+    error = 0.005203763535574992
+
+    def judged(kind, err, n_specs=1):
+        return (SimpleNamespace(accepted=True, heldout_nrmse_after=err), kind, "pitch_sensor_v",
+                [None] * n_specs, None)  # fmt: skip
+
+    for below in (math.nextafter(error, 0.0), error * (1 - 0.5 * SAME_ERROR)):
+        ranked = rank_passing([judged(composed, below), judged(row, error)])
+        assert ranked[0][1] is row
+    # a form really better (beyond SAME_ERROR) still wins, and within PARSIMONY fewer
+    # parameters first
+    better = error * (1 - 10 * SAME_ERROR)
+    assert rank_passing([judged(row, error), judged(composed, better)])[0][1] is composed
+    two = judged(composed, 0.99 * error, n_specs=2)
+    assert rank_passing([two, judged(row, error)])[0][1] is row

@@ -61,11 +61,16 @@ from .vocabulary import (
     term_specs,
 )
 
-__all__ = ["Discovered", "DiscoveryOutcome", "discover"]
+__all__ = ["SAME_ERROR", "Discovered", "DiscoveryOutcome", "discover", "rank_passing"]
 
 # Held-out errors within this fraction of the best are a tie, won by the term with fewer
 # parameters.
 PARSIMONY = 0.02
+# Held-out errors within this fraction of each other are one number computed two ways: a composed
+# form that equals a library row on these runs (the square of a film's voltage where the film is
+# a pure gain on its angle). The row wins; the last bits of the arithmetic, which differ between
+# processors, never decide.
+SAME_ERROR = 1e-9
 
 
 @dataclass(frozen=True)
@@ -266,7 +271,7 @@ def _step(
             continue
         judged.append((ev, kind, site, specs, model))
     ranking = {"composed_ranked": len(found.composed_ranked), "composed_rank_s": found.rank_s}
-    return _ranked(judged), [
+    return rank_passing(judged), [
         judged,
         cands[len(shortlist) :],
         _tried(cands, found, judged),
@@ -305,18 +310,26 @@ def _tried(cands: Sequence[Any], found: Any, judged: Sequence[Any]) -> list[dict
     return tried
 
 
-def _ranked(judged: Sequence[Any]) -> list[Any]:
-    """The accepted candidates, best first."""
+def rank_passing(judged: Sequence[Any]) -> list[Any]:
+    """The accepted candidates, best first.
+
+    Each judged candidate is (evidence, its `TermKind`, site, specs, model), as a discovery step
+    judges it.
+    """
     # each candidate's plant is its own: rank on the held-out error, which all share; a term
     # with fewer parameters within PARSIMONY of the best error comes first (a leak through a
-    # low-pass at its 5 kHz bound is the plain leak)
+    # low-pass at its 5 kHz bound is the plain leak), and of equal errors (SAME_ERROR) a row
+    # before a composed form
     passing = sorted((j for j in judged if j[0].accepted), key=lambda j: j[0].heldout_nrmse_after)
     if passing:
         best = passing[0][0].heldout_nrmse_after
+        same = max(best * SAME_ERROR, 1e-300)
         passing.sort(
             key=lambda j: (
                 j[0].heldout_nrmse_after > best * (1.0 + PARSIMONY),
                 len(j[3]),
+                round(j[0].heldout_nrmse_after / same),
+                j[1].composed,
                 j[0].heldout_nrmse_after,
             )
         )
