@@ -43,7 +43,7 @@ from flaair_model.terms import (
 )
 from flaair_model.validation import ModelError
 
-from .discovery_uncertainty import form_uncertainty
+from .discovery_uncertainty import PARSIMONY, form_uncertainty
 from .effect_judging import AnalysisContext, CandidateEvidence, FoundEffect, evaluate
 from .fitting import Fold, fit_specs, fold_nrmse, models_for, spec_value
 from .identification import fit_initial_states, identify_plant
@@ -63,9 +63,6 @@ from .vocabulary import (
 
 __all__ = ["SAME_ERROR", "Discovered", "DiscoveryOutcome", "discover", "rank_passing"]
 
-# Held-out errors within this fraction of the best are a tie, won by the term with fewer
-# parameters.
-PARSIMONY = 0.02
 # Held-out errors within this fraction of each other are one number computed two ways: a composed
 # form that equals a library row on these runs (the square of a film's voltage where the film is
 # a pure gain on its angle). The row wins; the last bits of the arithmetic, which differ between

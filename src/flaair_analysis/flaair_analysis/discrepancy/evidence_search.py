@@ -486,7 +486,10 @@ def search_sides(
                     ).model
             free = [*plant_free, *(p for j in accepted for p in j.candidate.params)]
             final = heldout(
-                whole, current, _at(free, _values_of(current, keys, accepted), 1.5), s.max_nfev
+                whole,
+                current,
+                _at(free, _values_of(current, keys, accepted), TRADE_OFF_BOX),
+                s.max_nfev,
             )
             ratio = dict(final.ratio)
     return SearchOutcome(current, tuple(accepted), tuple(tried), final)
