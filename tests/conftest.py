@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import signal
 import sys
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -36,13 +37,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     order: spread over the workers, the longest tests start early instead of leaving one worker
     running them alone at the end of the phase. The same order in every worker (xdist requires it).
     """
-    slow: dict[str, int] = {}
-    for item in items:
-        slow[item.nodeid.split("::")[0]] = slow.get(item.nodeid.split("::")[0], 0) + (
-            item.get_closest_marker("slow") is not None
-        )
-    rank = {module: i for i, module in enumerate(sorted(slow, key=lambda m: -slow[m]))}
-    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])
+
+    def module(item: pytest.Item) -> str:
+        return item.nodeid.split("::")[0]
+
+    slow = Counter(module(item) for item in items if item.get_closest_marker("slow") is not None)
+    items.sort(key=lambda item: -slow[module(item)])
 
 
 @pytest.fixture(autouse=True)

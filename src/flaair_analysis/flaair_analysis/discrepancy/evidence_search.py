@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Protocol
 
 import numpy as np
 
@@ -42,30 +41,36 @@ from flaair_analysis.evidence import (
     z_failure,
 )
 from flaair_model.model import Model
-from flaair_model.settings import JudgingRules
+from flaair_model.settings import TableSettings
 
 from .fitting import apply_values
 from .vocabulary import PLANT_PARAMETERS, EffectSpec
 
 __all__ = [
+    "FIT_TOL",
+    "PLANT_STEP",
+    "TRADE_OFF_BOX",
     "Candidate",
     "FreeParam",
     "HeldOut",
     "Judged",
     "ParamFit",
     "SearchOutcome",
-    "SearchSettings",
     "Side",
+    "as_param_fit",
     "fit_params",
+    "fit_space",
     "heldout",
     "plant_params",
     "search_sides",
+    "setter",
+    "values_at",
     "with_values",
 ]
 
 PLANT_STEP = 1e-4  # forward-difference step of a plant parameter (log space)
 TRADE_OFF_BOX = 1.5  # a candidate's plant parameters fitted within x/÷ this of their start
-_TOL = 1e-8  # the least-squares tolerances (fit_evidence's default)
+FIT_TOL = 1e-8  # the least-squares x, f and gradient tolerances (fit_evidence's default)
 
 
 @dataclass(frozen=True)
@@ -188,7 +193,7 @@ def fit_params(
     """Least squares of `params` (from `model`) over `pieces` (`fit_evidence`)."""
     x0, lower, upper, steps = fit_space(params)
     fit = fit_evidence(
-        pieces, setter(model, params), [x0], lower, upper, steps, max_nfev=max_nfev, tol=_TOL
+        pieces, setter(model, params), [x0], lower, upper, steps, max_nfev=max_nfev, tol=FIT_TOL
     )
     return as_param_fit(model, params, fit)
 
@@ -283,31 +288,6 @@ class Side:
         return tuple(dict.fromkeys(c for p in self.pieces for c in p.sites))
 
 
-class SearchSettings(Protocol):
-    """The settings the search reads (`flaair_model.settings.TableSettings` has them)."""
-
-    @property
-    def rules(self) -> JudgingRules: ...
-
-    @property
-    def gap_ratio(self) -> float: ...
-
-    @property
-    def shortlist(self) -> int: ...
-
-    @property
-    def max_effects_per_side(self) -> int: ...
-
-    @property
-    def max_nfev(self) -> int: ...
-
-    @property
-    def heldout_max_nfev(self) -> int: ...
-
-    @property
-    def fit_range(self) -> float: ...
-
-
 @dataclass(frozen=True)
 class SearchOutcome:
     """What `search_sides` found: the model, the candidates kept and every one judged, and the
@@ -345,7 +325,7 @@ def _grid_best(pieces: Sequence[Evidence], model: Model, cand: Candidate) -> Fre
     return starts[int(np.argmin(cost))]
 
 
-def _rank(side: Side, model: Model, cand: Candidate, s: SearchSettings) -> tuple[float, Candidate]:
+def _rank(side: Side, model: Model, cand: Candidate, s: TableSettings) -> tuple[float, Candidate]:
     """The side's chi-square with the candidate fitted alone (grid start), and the candidate
     started where that fit ended.
     """
@@ -362,7 +342,7 @@ def _judge(
     side: Side,
     model: Model,
     cand: Candidate,
-    s: SearchSettings,
+    s: TableSettings,
     before: float,
     reach_deg: Callable[[Model], float],
 ) -> Judged:
@@ -403,7 +383,7 @@ def _error(j: Judged) -> float:
     return j.heldout_error
 
 
-def _leaves_gap(j: Judged, s: SearchSettings) -> bool:
+def _leaves_gap(j: Judged, s: TableSettings) -> bool:
     """Whether the side keeps a gap on held-out parts with the candidate in the model."""
     return any((v or 0.0) > s.gap_ratio for v in j.heldout_ratio.values())
 
@@ -423,7 +403,7 @@ def search_sides(
     plant_free: Sequence[FreeParam],
     start: HeldOut,
     pool: Callable[[Model, str], Sequence[Candidate]],
-    s: SearchSettings,
+    s: TableSettings,
     reach_deg: Callable[[Model], float] = lambda model: 90.0,
 ) -> SearchOutcome:
     """The forward selection of the module docstring, side by side.
@@ -446,15 +426,15 @@ def search_sides(
         The largest stroke amplitude a model reaches on the evidence (a stop's R3).
     """
     keys = [k for side in sides for k in side.plant_keys]
-    current, ratio, final = model, dict(start.ratio), start
+    current, final = model, start
     accepted: list[Judged] = []
     tried: list[Judged] = []
     for i, side in enumerate(sides):
         sites = side.sites
         for _ in range(s.max_effects_per_side):
-            if not sites or all((ratio.get(c) or 0.0) <= s.gap_ratio for c in sites):
+            if not sites or all((final.ratio.get(c) or 0.0) <= s.gap_ratio for c in sites):
                 break
-            before = excess_above_noise(v * v for c in sites if (v := ratio.get(c)) is not None)
+            before = final.excess(sites)
             candidates = list(pool(current, side.name))
             passed: list[Judged] = []
             for group in (False, True):  # vocabulary effects first, then terms
@@ -491,5 +471,4 @@ def search_sides(
                 _at(free, _values_of(current, keys, accepted), TRADE_OFF_BOX),
                 s.max_nfev,
             )
-            ratio = dict(final.ratio)
     return SearchOutcome(current, tuple(accepted), tuple(tried), final)

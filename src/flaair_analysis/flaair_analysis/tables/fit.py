@@ -24,6 +24,7 @@ from dataclasses import replace
 import numpy as np
 
 from flaair_analysis.discrepancy.evidence_search import (
+    FIT_TOL,
     FreeParam,
     ParamFit,
     as_param_fit,
@@ -63,7 +64,6 @@ PITCH_KEYS: tuple[str, ...] = (
 )
 _DESCRIBING = 8.0 / (3.0 * math.pi)
 _PITCH_GRID = tuple(np.geomspace(0.5, 2.0, 15))
-_TOL = 1e-8  # the least-squares tolerances of a table's fit (fit_evidence's default)
 
 
 def fit_table(
@@ -278,7 +278,7 @@ def identify_table(
             lower,
             upper,
             s.max_nfev,
-            tol=_TOL,
+            tol=FIT_TOL,
             to_model=setter(current, params),
             steps=steps,
         )
