@@ -228,6 +228,43 @@ def test_ctrl_c_in_imports_first_seconds_exits_130_without_a_traceback(
     assert not bag.exists()
 
 
+@pytest.mark.parametrize("wrapped", [False, True])
+def test_ctrl_c_inside_a_compiled_modules_initialisation_is_an_interrupt(
+    wrapped, monkeypatch, capsys
+) -> None:
+    """pybind11 turns a Ctrl-C during its module's init into ImportError caused by it."""
+    from flaair_tools import cli
+
+    def interrupted_import(_name: str):
+        try:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt as interrupt:
+                raise ImportError("initialization failed") from interrupt
+        except ImportError:
+            if not wrapped:
+                raise
+            # a loader that raises its own ImportError while handling pybind11's
+            raise ImportError("The C extension ... isn't present on the system")  # noqa: B904
+
+    monkeypatch.setattr(cli.importlib, "import_module", interrupted_import)
+    code = cli.main(["import", "run.csv", "--out", "bag"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "interrupted" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_an_import_error_not_caused_by_ctrl_c_still_raises(monkeypatch) -> None:
+    from flaair_tools import cli
+
+    def broken(_name: str):
+        raise ImportError("libfoo.so: cannot open shared object file")
+
+    monkeypatch.setattr(cli.importlib, "import_module", broken)
+    with pytest.raises(ImportError, match="libfoo"):
+        cli.main(["import", "run.csv"])
+
+
 def test_experiment_with_an_invalid_model_file_is_one_line(config_copy, monkeypatch, capsys):
     from flaair_tools.orchestration import experiment
 

@@ -162,9 +162,28 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"flaair {name}: interrupted; nothing written", file=sys.stderr)
         return 130
+    except ImportError as exc:
+        # a Ctrl-C inside a compiled module's initialisation (scipy's, rclpy's pybind11 code)
+        # comes out as "ImportError: initialization failed" caused by the KeyboardInterrupt
+        if not _caused_by_interrupt(exc):
+            raise
+        print(f"flaair {name}: interrupted; nothing written", file=sys.stderr)
+        return 130
     except BrokenPipeError:  # the reader of stdout went away (`| head`): the rest is not wanted
         _quiet_stdout()
         return EXIT_BROKEN_PIPE
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is in ``exc``'s chain of causes."""
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, KeyboardInterrupt):
+            return True
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return False
 
 
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a tool its pipe's reader left
