@@ -1,6 +1,6 @@
 """`flaair import` of a 200 MB measured-run CSV: peak memory against the file's size.
 
-Each figure runs in its own child process (its peak RSS, ru_maxrss, is its own): `flaair import`
+Each figure runs in its own child process (its peak RSS, VmHWM, is its own): `flaair import`
 (lines counted, rows parsed a block at a time straight into float64 arrays of that length,
 messages made and streamed into the bag a block at a time, block_size 10 as config/flaair.yaml
 sets it) against the same-run baseline of reading the whole file at once (csv.reader over every
@@ -24,27 +24,41 @@ from benchlib import REPO_ROOT, compare, info, print_table, write_json
 
 FS_HZ = 20000.0
 
-CHILD_IMPORT = """
-import resource, sys
+# VmHWM is the child's own peak; ru_maxrss would carry this process's across fork and exec
+PEAK = """
+def peak_bytes():
+    with open("/proc/self/status") as status:
+        return 1024 * int(next(l for l in status if l.startswith("VmHWM:")).split()[1])
+"""
+CHILD_IMPORT = (
+    PEAK
+    + """
+import sys
 from flaair_tools.bagio.import_runs import import_runs
 from pathlib import Path
 import_runs([Path(sys.argv[1])], Path(sys.argv[2]), gap_s=1.0, block_size=10, frame_id='robot')
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+print(peak_bytes())
 """
-CHILD_WHOLE = """
-import csv, resource, sys
+)
+CHILD_WHOLE = (
+    PEAK
+    + """
+import csv, sys
 import numpy as np
 with open(sys.argv[1], newline='') as handle:
     rows = list(csv.reader(handle))
 columns = {name: np.array([row[i] for row in rows[1:]], dtype=np.float64)
            for i, name in enumerate(rows[0])}
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+print(peak_bytes())
 """
-CHILD_BASE = """
-import resource
+)
+CHILD_BASE = (
+    PEAK
+    + """
 import flaair_tools.bagio.import_runs
-print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+print(peak_bytes())
 """
+)
 
 
 def write_csv(path: Path, megabytes: float) -> int:

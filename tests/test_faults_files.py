@@ -32,13 +32,19 @@ BOUNDED_TIMEOUT_S = 60.0
 def bounded(code: str, timeout_s: float = BOUNDED_TIMEOUT_S) -> dict:
     """Run `code` in a child limited to AS_LIMIT_BYTES and `timeout_s`; its last stdout line
     as JSON (the child prints one), with its peak memory in `peak_kib`.
+
+    The peak is the child's own (VmHWM of its address space since exec), not `ru_maxrss`,
+    which Linux carries across fork and exec: a child of a big pytest worker would report the
+    worker's size.
     """
     prelude = textwrap.dedent(
         f"""
         import json, resource, sys
         resource.setrlimit(resource.RLIMIT_AS, ({AS_LIMIT_BYTES}, {AS_LIMIT_BYTES}))
         def report(**values):
-            values["peak_kib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            with open("/proc/self/status") as status:
+                hwm = [line for line in status if line.startswith("VmHWM:")]
+            values["peak_kib"] = int(hwm[0].split()[1])
             print(json.dumps(values))
         """
     )
@@ -56,6 +62,18 @@ def bounded(code: str, timeout_s: float = BOUNDED_TIMEOUT_S) -> dict:
     lines = done.stdout.strip().splitlines()
     assert done.returncode == 0 and lines, done.stderr[-2000:]
     return json.loads(lines[-1])
+
+
+def test_bounded_reads_the_childs_own_peak_not_the_parents() -> None:
+    """The bombs' 1 GiB bound is on the child: a worker past it must not fail them, and an
+    allocation in the child must show.
+    """
+    ballast = np.ones(160 << 20 >> 3)  # 160 MiB touched in this process
+    idle = bounded("report()")
+    grown = bounded("block = b'x' * (300 << 20)\nreport()")
+    assert ballast.sum() > 0
+    assert idle["peak_kib"] < 100 << 10, idle  # a bare interpreter: tens of MiB
+    assert grown["peak_kib"] > idle["peak_kib"] + (290 << 10), (idle, grown)
 
 
 def _refusal(call: str) -> str:
