@@ -117,7 +117,8 @@ def test_inputs_are_told_apart_by_their_content(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     bag.mkdir()
     missing = tmp_path / "missing.csv"
-    runs, tables = sort_inputs([run, table, bag, missing], [named])
-    assert runs == [run, bag, missing] and tables == [table, named]
+    sorted_inputs = sort_inputs([run, table, bag, missing], [named])
+    assert sorted_inputs.runs == [run, bag, missing]
+    assert sorted_inputs.tables == [table, named] and sorted_inputs.others == []
     with pytest.raises(InputError, match=r"missing\.csv: no such file"):
         load_inputs([missing])

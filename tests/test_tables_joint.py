@@ -407,6 +407,48 @@ def test_a_new_kind_of_evidence_joins_the_identification_with_nothing_else_writt
     json.dumps(doc, allow_nan=False)
 
 
+class _ResonanceFileError(ValueError):
+    pass
+
+
+def _read_resonance(path: Path) -> _MeasuredResonance:
+    """The test-only kind's file: `resonance_hz,stderr_hz` and one row."""
+    lines = path.read_text().splitlines()
+    try:
+        f, se = (float(x) for x in lines[1].split(","))
+    except (IndexError, ValueError):
+        raise _ResonanceFileError(f"{path}: not one row of two numbers") from None
+    return _MeasuredResonance(f, se)
+
+
+def test_a_new_kind_of_evidence_file_reaches_identify_by_one_row(tmp_path, monkeypatch) -> None:
+    """Given one row of `run_inputs.EVIDENCE_FILES`, `identify` takes the new kind's file among
+    the others by its header, fits with it and scores it; a bad one is refused in one line.
+    """
+    from flaair_tools.discrepancy import run_inputs
+
+    row = run_inputs.EvidenceFile(
+        frozenset({"resonance_hz", "stderr_hz"}), _read_resonance, (_ResonanceFileError,)
+    )
+    monkeypatch.setattr(run_inputs, "EVIDENCE_FILES", (row,))
+    _, true = robot()
+    fn = true.plant.stroke_natural_frequency_hz
+    table, resonance = tmp_path / "sweep.csv", tmp_path / "ringdown.csv"
+    write_table(make_table(true, fn), table)
+    resonance.write_text(f"resonance_hz,stderr_hz\n{fn},0.02\n")
+    out = tmp_path / "out"
+    assert identify_main([str(resonance), str(table), "--out", str(out)]) == 0
+    doc = json.loads((out / "identification.json").read_text())
+    assert list(doc["data_sets"]) == ["table", "resonance"]
+    assert doc["data_sets"]["resonance"]["residuals"] == 1
+    fitted = load_model(out / "model.yaml").plant.stroke_natural_frequency_hz
+    assert abs(fitted - fn) < 0.05
+    resonance.write_text("resonance_hz,stderr_hz\nfast,slow\n")
+    nothing = tmp_path / "nothing"
+    assert identify_main([str(resonance), str(table), "--out", str(nothing)]) == 2
+    assert not nothing.exists()
+
+
 @pytest.mark.slow  # the joint workflow on runs beside the new kind of set
 @pytest.mark.timeout(300)
 def test_a_new_kind_of_evidence_checks_the_runs_findings_as_the_spectra_do() -> None:

@@ -127,11 +127,12 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """`flaair discrepancy INPUT... [--model FILE] --out DIR`; returns the exit status."""
     args = _parser().parse_args(argv)
-    args.inputs, args.table = sort_inputs(args.inputs, args.table)
+    inputs = sort_inputs(args.inputs, args.table)
+    args.inputs, args.table, args.others = inputs.runs, inputs.tables, inputs.others
     if args.table and args.validate:
         print(f"{PROG}: {_VALIDATE_ON_RUNS}, not with a table", file=sys.stderr)
         return 2
-    if args.inputs or args.table:
+    if args.inputs or args.table or args.others:
         return _discrepancy(args)
     if not args.validate:
         print(f"{PROG}: give measured-run CSV files or bags (or --validate)", file=sys.stderr)

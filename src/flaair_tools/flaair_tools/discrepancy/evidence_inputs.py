@@ -136,8 +136,9 @@ def _spectra(runs: list[Run]) -> tuple[SpectrumEvidence | None, list[str]]:
 
 
 def load_evidence(args: argparse.Namespace) -> CommandInputs:
-    """The inputs of `args` (`inputs`, `table`, `model`), checked: a bad table is refused before
-    the runs are read.
+    """The inputs of `args` (`inputs`, `table`, `others`: `run_inputs.sort_inputs`'s, and
+    `model`), checked: a bad table is refused before the runs are read; each other evidence file
+    is read by its kind.
     """
     model = load_model(args.model)
     s = config.tables()
@@ -148,9 +149,10 @@ def load_evidence(args: argparse.Namespace) -> CommandInputs:
     for why in skipped:
         print(f"note: {why}", file=sys.stderr)
     searched = runs or (check_runs(multisine) if multisine else [])
-    if table is None and not searched:
+    extra = tuple(kind.read(path) for kind, path in args.others)
+    if table is None and not searched and not extra:
         raise InputError("the inputs hold no runs")
-    return CommandInputs(model, s, table, runs, multisine, spectra, searched)
+    return CommandInputs(model, s, table, runs, multisine, spectra, searched, extra)
 
 
 def run_command(
@@ -168,7 +170,8 @@ def run_command(
     previous = signal.signal(signal.SIGTERM, _terminate)
     bar = None  # shown once the outputs are known to be writable: a refusal stays one line
     try:
-        inputs = [*args.inputs, *args.table, args.model, *protected]
+        others = [path for _, path in args.others]
+        inputs = [*args.inputs, *args.table, *others, args.model, *protected]
         written = check_output(args.out, [p for p in inputs if p], args.force, files)
         bar = tqdm(  # on a terminal only: a log or a pipe gets the refusal as one line
             desc=prog.split()[-1], unit="step", file=sys.stderr, leave=False, disable=None

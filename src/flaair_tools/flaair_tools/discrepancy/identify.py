@@ -108,8 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     """`flaair identify INPUT... [--model FILE] --out DIR`; returns the exit status."""
     parser = _parser()
     args = parser.parse_args(argv)
-    args.inputs, args.table = sort_inputs(args.inputs, args.table)
-    if not args.inputs and not args.table:
+    inputs = sort_inputs(args.inputs, args.table)
+    args.inputs, args.table, args.others = inputs.runs, inputs.tables, inputs.others
+    if not (args.inputs or args.table or args.others):
         parser.error("give measured-run CSV files, bags or a frequency-response table")
     done = run_command(PROG, args, OUT_FILES, compute)
     if isinstance(done, int):

@@ -1,16 +1,19 @@
-"""The command line's inputs (measured-run CSV files, bags, frequency-response tables), told
-apart by their content, the runs read from them, and the errors a command reports in one line
-(the shell around `flaair_analysis.discrepancy.runs`).
+"""The command line's inputs (measured-run CSV files, bags, frequency-response tables and any
+other kind of measured set in `EVIDENCE_FILES`), told apart by their content, the runs read from
+them, and the errors a command reports in one line (the shell around
+`flaair_analysis.discrepancy.runs`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import yaml
 
 from flaair_analysis.discrepancy.runs import DiscrepancyInputError, Run
+from flaair_analysis.evidence import EvidenceSet
 from flaair_analysis.multisine.analysis import MultisineInputError, RunInput
 from flaair_analysis.multisine.spectra import is_multisine
 from flaair_common.outputs import OutputError
@@ -21,7 +24,10 @@ from flaair_model.validation import ModelError
 from .validation_file import ValidationFileError
 
 __all__ = [
+    "EVIDENCE_FILES",
+    "EvidenceFile",
     "InputError",
+    "SortedInputs",
     "bad_input_errors",
     "load_inputs",
     "multisine_inputs",
@@ -36,6 +42,36 @@ _HEADER_PEEK_BYTES = 65536  # a header sits in the first lines; a huge file is n
 
 class InputError(ValueError):
     """Bad command-line input (file missing, wrong kind)."""
+
+
+@dataclass(frozen=True)
+class EvidenceFile:
+    """A kind of measured set besides runs and tables: a CSV recognised by its header.
+
+    Attributes
+    ----------
+    columns : a CSV whose header names all of these is one of this kind.
+    read : the file as evidence (`flaair_analysis.evidence.EvidenceSet`), fitted beside the rest.
+    errors : what `read` raises for a bad file (its message names the file): one line, exit 2.
+    """
+
+    columns: frozenset[str]
+    read: Callable[[Path], EvidenceSet]
+    errors: tuple[type[Exception], ...] = ()
+
+
+# The other kinds of measured set a command takes by content (docs/CONTRIBUTING.md, "An
+# evidence kind"): a new kind of evidence file is one row here.
+EVIDENCE_FILES: tuple[EvidenceFile, ...] = ()
+
+
+@dataclass(frozen=True)
+class SortedInputs:
+    """The inputs by kind: run files and bags, tables, and each other evidence file's kind."""
+
+    runs: list[Path]
+    tables: list[Path]
+    others: list[tuple[EvidenceFile, Path]]
 
 
 def _is_bag(path: Path) -> bool:
@@ -78,22 +114,29 @@ def _csv_header(path: Path) -> list[str]:
     return []
 
 
-def sort_inputs(
-    paths: Sequence[Path], tables: Sequence[Path] = ()
-) -> tuple[list[Path], list[Path]]:
-    """The inputs told apart by content: (runs: bags and measured-run CSVs, tables).
+def sort_inputs(paths: Sequence[Path], tables: Sequence[Path] = ()) -> SortedInputs:
+    """The inputs told apart by content: runs (bags and measured-run CSVs), tables and the other
+    evidence files (`EVIDENCE_FILES`).
 
     A CSV whose header names `frequency_hz` and no `time_s` is a frequency-response table
-    (docs/TABLES.md); any other CSV, a bag directory or an .mcap file holds runs, and so does a
-    path that is not there or cannot be read (the runs' reader names it, after any table is
-    checked). `tables`: paths given as tables (`--table`), taken as tables without looking.
+    (docs/TABLES.md); a CSV whose header names all of a kind's `columns` is of that kind; any
+    other CSV, a bag directory or an .mcap file holds runs, and so does a path that is not there
+    or cannot be read (the runs' reader names it, after any table is checked). `tables`: paths
+    given as tables (`--table`), taken as tables without looking.
     """
-    runs, found = [], []
+    runs: list[Path] = []
+    found: list[Path] = []
+    others: list[tuple[EvidenceFile, Path]] = []
     for p in paths:
         header = [] if _is_bag(p) else _csv_header(p)
-        is_table = "frequency_hz" in header and "time_s" not in header
-        (found if is_table else runs).append(p)
-    return runs, [*found, *tables]
+        kind = next((k for k in EVIDENCE_FILES if k.columns <= set(header)), None)
+        if kind is not None:
+            others.append((kind, p))
+        elif "frequency_hz" in header and "time_s" not in header:
+            found.append(p)
+        else:
+            runs.append(p)
+    return SortedInputs(runs, [*found, *tables], others)
 
 
 def load_inputs(paths: Sequence[Path]) -> list[Run]:
@@ -157,6 +200,7 @@ def bad_input_errors() -> tuple[type, ...]:
         MultisineInputError,
         OSError,
         yaml.YAMLError,
+        *(error for kind in EVIDENCE_FILES for error in kind.errors),
     ]
     try:
         # deferred: bag support (rosbags, mcap: 0.2 s) only when an error is being named
