@@ -228,39 +228,50 @@ def test_ctrl_c_in_imports_first_seconds_exits_130_without_a_traceback(
     assert not bag.exists()
 
 
-@pytest.mark.parametrize("wrapped", [False, True])
-def test_ctrl_c_inside_a_compiled_modules_initialisation_is_an_interrupt(
-    wrapped, monkeypatch, capsys
-) -> None:
-    """pybind11 turns a Ctrl-C during its module's init into ImportError caused by it."""
+# A command module whose import fails as a pybind11 module's does when Ctrl-C arrives during its
+# initialisation (ImportError caused by the KeyboardInterrupt), or as a loader that raises its own
+# ImportError while handling that one (rpyutils' wording), or for a reason that is no Ctrl-C.
+_FAILING_IMPORTS = {
+    "plain": (
+        "try:\n    raise KeyboardInterrupt\n"
+        "except KeyboardInterrupt as interrupt:\n"
+        "    raise ImportError('initialization failed') from interrupt\n"
+    ),
+    "wrapped": (
+        "try:\n    try:\n        raise KeyboardInterrupt\n"
+        "    except KeyboardInterrupt as interrupt:\n"
+        "        raise ImportError('initialization failed') from interrupt\n"
+        "except ImportError:\n"
+        '    raise ImportError("The C extension ... isn\'t present on the system")\n'
+    ),
+    "no_interrupt": "raise ImportError('libfoo.so: cannot open shared object file')\n",
+}
+
+
+def _command_failing_to_import(kind: str, tmp_path: Path, monkeypatch):
     from flaair_tools import cli
 
-    def interrupted_import(_name: str):
-        try:
-            try:
-                raise KeyboardInterrupt
-            except KeyboardInterrupt as interrupt:
-                raise ImportError("initialization failed") from interrupt
-        except ImportError:
-            if not wrapped:
-                raise
-            # a loader that raises its own ImportError while handling pybind11's
-            raise ImportError("The C extension ... isn't present on the system")  # noqa: B904
+    module = f"flaair_test_failing_{kind}"
+    (tmp_path / f"{module}.py").write_text(_FAILING_IMPORTS[kind])
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.SUBCOMMANDS, "import", (module, "a command that cannot import"))
+    return cli
 
-    monkeypatch.setattr(cli.importlib, "import_module", interrupted_import)
+
+@pytest.mark.parametrize("kind", ["plain", "wrapped"])
+def test_ctrl_c_inside_a_compiled_modules_initialisation_is_an_interrupt(
+    kind, tmp_path, monkeypatch, capsys
+) -> None:
+    """pybind11 turns a Ctrl-C during its module's init into ImportError caused by it."""
+    cli = _command_failing_to_import(kind, tmp_path, monkeypatch)
     code = cli.main(["import", "run.csv", "--out", "bag"])
     err = capsys.readouterr().err
     assert code == 130, err
     assert "interrupted" in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_an_import_error_not_caused_by_ctrl_c_still_raises(monkeypatch) -> None:
-    from flaair_tools import cli
-
-    def broken(_name: str):
-        raise ImportError("libfoo.so: cannot open shared object file")
-
-    monkeypatch.setattr(cli.importlib, "import_module", broken)
+def test_an_import_error_not_caused_by_ctrl_c_still_raises(tmp_path, monkeypatch) -> None:
+    cli = _command_failing_to_import("no_interrupt", tmp_path, monkeypatch)
     with pytest.raises(ImportError, match="libfoo"):
         cli.main(["import", "run.csv"])
 

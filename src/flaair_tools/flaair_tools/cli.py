@@ -159,10 +159,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"flaair: command '{name}' is not built yet", file=sys.stderr)
             return 2
         raise
-    except KeyboardInterrupt:
-        print(f"flaair {name}: interrupted; nothing written", file=sys.stderr)
-        return 130
-    except ImportError as exc:
+    except (KeyboardInterrupt, ImportError) as exc:
         # a Ctrl-C inside a compiled module's initialisation (scipy's, rclpy's pybind11 code)
         # comes out as "ImportError: initialization failed" caused by the KeyboardInterrupt
         if not _caused_by_interrupt(exc):
