@@ -61,28 +61,34 @@ def test_the_constants_tuple_is_the_marked_slots_over_their_inertia() -> None:
 @pytest.mark.timeout(120)
 def test_the_longer_tuple_carries_every_number_of_every_term_slot() -> None:
     p = _vector()
-    for slot, places in enumerate([(0, 3, 5, 12, 15), (1, 2, 6, 7, 10, 14)]):  # <= MAX_FACTORS
+    for slot, places in enumerate([(0, 3, 5, 12, 15), (1, 2, 4, 6, 7, 9, 10, 13, 14)]):
         exponents = np.zeros(len(PRIMITIVES))
         exponents[list(places)] = 1 + np.arange(len(places)) % 3
         start = pp.P_TERMS + slot * pp.TERM_SLOT + 2
         p[start : start + len(PRIMITIVES)] = exponents
     c = term_kernel.constants_with_terms(p)
-    assert len(c) == pp.N_CONSTANTS_WITH_TERMS == pp.N_CONSTANTS + 1
+    assert len(c) == pp.N_CONSTANTS_WITH_TERMS == pp.N_CONSTANTS + MAX_DYNAMICS_TERMS
     assert c[: pp.N_CONSTANTS] == term_kernel.mechanical_constants(p)
-    slots = c[pp.C_TERMS]  # one array of every slot
-    assert slots.shape == (MAX_DYNAMICS_TERMS * pp.TERM_SLOT,)
-    for slot in range(MAX_DYNAMICS_TERMS):  # each slot as its factors: (primitive, power), -1
-        src, dst = pp.P_TERMS + slot * pp.TERM_SLOT, slot * pp.TERM_SLOT
-        assert tuple(slots[dst : dst + 2]) == tuple(p[src : src + 2])
+    for slot, place in enumerate(pp.C_TERM_SLOTS):  # each slot: its fields, factors packed
+        src = pp.P_TERMS + slot * pp.TERM_SLOT
+        fields = dict(zip(term_kernel.SLOT_FIELDS, c[place], strict=True))
+        assert (fields["equation"], fields["coefficient"]) == tuple(p[src : src + 2])
+        assert fields["corner_rad_s"] == p[src + pp.TERM_LOWPASS]
         exponents = p[src + 2 : src + pp.TERM_LOWPASS]
-        factors = [(float(j), e) for j, e in enumerate(exponents) if e]
+        factors = [(j, int(e)) for j, e in enumerate(exponents) if e]
         assert factors, "the vector's slots all carry a monomial"
-        written = [x for pair in factors for x in pair]
-        assert tuple(slots[dst + 2 : dst + pp.TERM_LOWPASS]) == (
-            *written,
-            *[-1.0] * (pp.TERM_LOWPASS - 2 - len(written)),
-        )
-        assert slots[dst + pp.TERM_LOWPASS] == p[src + pp.TERM_LOWPASS]  # the corner
+        assert _unpacked(fields["factors_a"]) + _unpacked(fields["factors_b"]) == factors
+
+
+def _unpacked(code: float) -> list[tuple[int, int]]:
+    """The (primitive, power) pairs packed in a factors code, read with Python's integers."""
+    number = int(code)
+    assert number == code, "a code is an exact integer"
+    pairs = []
+    while number:
+        number, factor = divmod(number, 2**term_kernel.FACTOR_BITS)
+        pairs.append(divmod(factor, 2**term_kernel.POWER_BITS))
+    return pairs
 
 
 @pytest.mark.timeout(120)
@@ -110,11 +116,10 @@ def test_a_term_slot_evaluates_its_whole_monomial_in_the_kernel(first: int) -> N
     c = term_kernel.constants_with_terms(p)
     factors = [term_kernel.primitive(j, *state) for j in range(len(PRIMITIVES))]
     expected = 0.25 * float(np.prod(np.power(factors, exponents)))
-    assert term_kernel.dynamics_terms(c, 1.0, *state, 0.0, 0.0) == pytest.approx(
-        expected, rel=1e-14
-    )
+    stroke, pitch = term_kernel.dynamics_terms(c, *state, 0.0, 0.0)
+    assert stroke == pytest.approx(expected, rel=1e-14)
     assert expected != 0.0
-    assert term_kernel.dynamics_terms(c, 2.0, *state, 0.0, 0.0) == 0.0
+    assert pitch == 0.0
 
 
 @pytest.mark.timeout(120)

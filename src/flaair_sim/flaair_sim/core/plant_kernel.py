@@ -54,20 +54,21 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv, z0, z1):
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
+    pitch_terms = 0.0
     if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        ddphi += dynamics_terms(c, 1.0, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+        stroke_terms, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+        ddphi += stroke_terms
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
         if push > 0.0:  # a contact only pushes
             ddphi -= push
-    return ddphi, _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1)
+    return ddphi, _pitch_acceleration(psi, dpsi, ddphi, drag, c, pitch_terms)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1):
-    """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi, the drive
-    the actuator sees, the time and the drive's rate (`v`, `t`, `dv`: for a discovered term with
-    such a factor), the low-pass terms' filter states (`z0`, `z1`).
+def _pitch_acceleration(psi, dpsi, ddphi, drag, c, pitch_terms):
+    """The pitch's acceleration given the stroke's (`ddphi`), its drag |dphi| dphi and the
+    discovered terms' sum on the pitch equation (`pitch_terms`).
     """
     kh, hcubic, cp, jc, dp = c[pp.C_KH], c[pp.C_HCUBIC], c[pp.C_CP], c[pp.C_JC], c[pp.C_DP]
     # Summed in the order the inputs become ready within an RK4 stage (the stroke's drag and
@@ -76,7 +77,7 @@ def _pitch_acceleration(phi, dphi, psi, dpsi, ddphi, drag, c, v, t, dv, z0, z1):
     # (-27 % per step; results move by rounding only, <= 5e-16 of the amplitude).
     ddpsi = -dp * drag - jc * ddphi - kh * (psi + hcubic * psi * psi * psi) - cp * dpsi
     if len(c) > N_CONSTANTS:
-        ddpsi += dynamics_terms(c, 2.0, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+        ddpsi += pitch_terms
     return ddpsi
 
 
@@ -417,8 +418,11 @@ def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
     a, _b = _accelerations(x[0], x[1], x[2], x[3], v, c, contact, t, dv, z0, z1)
     drag = abs(x[1]) * x[1]
     step = _REL_STEP * (abs(a) + 1.0)
-    b_up = _pitch_acceleration(x[0], x[1], x[2], x[3], a + step, drag, c, v, t, dv, z0, z1)
-    b_dn = _pitch_acceleration(x[0], x[1], x[2], x[3], a - step, drag, c, v, t, dv, z0, z1)
+    pitch_terms = 0.0
+    if len(c) > N_CONSTANTS:
+        _stroke, pitch_terms = dynamics_terms(c, x[0], x[1], x[2], x[3], v, t, dv, z0, z1)
+    b_up = _pitch_acceleration(x[2], x[3], a + step, drag, c, pitch_terms)
+    b_dn = _pitch_acceleration(x[2], x[3], a - step, drag, c, pitch_terms)
     return 1.0, (b_up - b_dn) / (2.0 * step)
 
 
@@ -589,21 +593,14 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
     acc = 0.0 + 0.0j
     e = 1.0 + 0.0j  # e^(j k step) by rotation: a period's rounding stays ~1e-14
     for _ in range(n_points):
-        dphi = (da * e).real
-        ddpsi = _pitch_acceleration(
-            (stroke * e).real,
-            dphi,
-            (pitch * e).real,
-            (db * e).real,
-            (dda * e).real,
-            abs(dphi) * dphi,
-            c,
-            0.0,  # the drive off (and its rate), the time at 0 and the low-pass terms'
-            0.0,  # states at rest, as the stroke's describing function
-            0.0,
-            0.0,
-            0.0,
-        )
+        phi, dphi = (stroke * e).real, (da * e).real
+        psi, dpsi = (pitch * e).real, (db * e).real
+        pitch_terms = 0.0
+        if len(c) > N_CONSTANTS:
+            # the drive off (and its rate), the time at 0 and the low-pass terms' states at
+            # rest, as the stroke's describing function
+            _stroke, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, 0.0, 0.0, 0.0, 0.0, 0.0)
+        ddpsi = _pitch_acceleration(psi, dpsi, (dda * e).real, abs(dphi) * dphi, c, pitch_terms)
         acc += ddpsi * e.conjugate()
         e *= turn
     return acc * (2.0 / n_points)

@@ -42,7 +42,7 @@ __all__ = [
     "C_KC",
     "C_KH",
     "C_PHI_LIM",
-    "C_TERMS",
+    "C_TERM_SLOTS",
     "GA_INDEX",
     "HELD_LEN",
     "HELD_LOWPASS",
@@ -51,6 +51,7 @@ __all__ = [
     "MAX_OMEGA_H",
     "MAX_OMEGA_H_CONTACT",
     "MAX_OMEGA_H_LOWPASS",
+    "MAX_POWER",
     "N_CONSTANTS",
     "N_CONSTANTS_WITH_TERMS",
     "N_KERNEL_PARAMS",
@@ -189,6 +190,8 @@ TERM_LOWPASS = TERM_SLOT - 1  # the corner's place in a slot
 # A monomial has at most this many factors (primitives with a nonzero power): a canonical form
 # writes each of its states as one primitive or two (phi*abs(phi)), over at most three states.
 MAX_FACTORS = (TERM_SLOT - 3) // 2
+# ... and each factor at most this power (a canonical form's total degree is at most three).
+MAX_POWER = 7
 N_KERNEL_PARAMS = P_TERMS + MAX_DYNAMICS_TERMS * TERM_SLOT
 # The state the kernel holds between samples besides the mechanics: [the actuator's hysteretic
 # voltage, the last drive sample, each low-pass term slot's filter state].
@@ -206,10 +209,10 @@ N_CONSTANTS = len(_CONSTANTS)
 _C_INDEX = {KERNEL_LAYOUT[i].name: j for j, i in enumerate(_CONSTANTS)}
 C_GAMMA, C_K, C_GA, C_CP, C_KH, C_JC, C_DP = _at("GAMMA K GA CP KH JC DP", _C_INDEX)
 C_CSTRUCT, C_HCUBIC, C_PHI_LIM, C_KC, C_CC = _at("CSTRUCT HCUBIC PHI_LIM KC CC", _C_INDEX)
-# A model with discovered dynamics terms gets the longer tuple: the constants, then one array of
-# the term slots (`MAX_DYNAMICS_TERMS` of `TERM_SLOT` numbers each) at c[C_TERMS].
-C_TERMS = N_CONSTANTS
-N_CONSTANTS_WITH_TERMS = N_CONSTANTS + 1
+# A model with discovered dynamics terms gets the longer tuple: the constants, then each term
+# slot as a tuple of its fields (`term_kernel.SLOT_FIELDS`), at c[C_TERM_SLOTS[slot]].
+C_TERM_SLOTS = tuple(N_CONSTANTS + slot for slot in range(MAX_DYNAMICS_TERMS))
+N_CONSTANTS_WITH_TERMS = N_CONSTANTS + MAX_DYNAMICS_TERMS
 
 
 def _check_layout() -> None:
@@ -355,6 +358,8 @@ def _write_dynamics_terms(p: np.ndarray, model: Model) -> None:
             raise ModelError(
                 f"discovered.{dterm.kind}: a monomial of more than {MAX_FACTORS} factors"
             )
+        if max(dterm.monomial) > MAX_POWER:
+            raise ModelError(f"discovered.{dterm.kind}: a factor to a power over {MAX_POWER}")
         p[base + 2 : base + TERM_LOWPASS] = dterm.monomial
         if dterm.is_filtered:  # a continuous first order, integrated with the mechanics
             p[base + TERM_LOWPASS] = 2.0 * math.pi * dict(dterm.shape)["corner_hz"]

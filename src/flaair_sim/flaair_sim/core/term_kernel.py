@@ -2,18 +2,21 @@
 
 `mechanical_constants` is the nominal tuple `c` (coefficients over inertia), its order and
 length derived from `plant_params.KERNEL_LAYOUT` (`C_*`, `N_CONSTANTS`); a model with
-discovered dynamics terms gets `constants_with_terms`, the same tuple followed by one array of
-the terms' slots (`N_CONSTANTS_WITH_TERMS` elements in all, the array at `C_TERMS`), so only
-kernels compiled for that longer tuple evaluate terms. The slots are an array, not more tuple
-elements, because a term's factors are read at indexes known only at run time: into an array
-that is a load, into a tuple a switch over all its elements, which the RK4 stages would inline
-dozens of times per kernel.
+discovered dynamics terms gets `constants_with_terms`, the same tuple followed by one small
+tuple per term slot (`N_CONSTANTS_WITH_TERMS` elements in all, the slots at `C_TERM_SLOTS`), so
+only kernels compiled for that longer tuple evaluate terms.
 
 A dynamics term is a torque, coefficient x monomial of the mechanical state; `plant_params`
 writes each into a slot of the kernel's parameter vector (equation, coefficient over the
-equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and the slots' array
-carries each term as [equation, coefficient, its factors (primitive, power), at most
-`MAX_FACTORS`, -1 after the last, its low-pass's corner in rad/s (0: none)].
+equation's inertia, exponents over `flaair_model.terms.PRIMITIVES`), and each slot of the
+constants tuple carries its term as `SLOT_FIELDS`: its equation, its coefficient, its monomial
+packed into two codes (`_term_slots`), its low-pass's corner in rad/s (0: none).
+
+Why packed: the monomial is evaluated by one non-inlined function (`_monomial`; its inlined
+copies were most of the kernel's compile time), so what crosses that call must be a few
+scalars. A tuple of the factors is copied at every call, and an array taken out of the
+constants tuple is reference-counted at every RK4 stage; both made a model with a term several
+times slower than a nominal one, and the accelerations too large for LLVM to inline.
 
 A low-pass term (`lowpass(x)`) is a first-order low-pass of its monomial, z' = w (x - z), its
 state integrated by the RK4 step with the mechanics (`lowpass_rates`), and acts by z; the states
@@ -27,21 +30,34 @@ from numba import njit, types
 from numba.extending import overload
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
-from flaair_model.terms import MAX_DYNAMICS_TERMS
+from flaair_model.terms import MAX_DYNAMICS_TERMS, PRIMITIVES
 from flaair_sim.core import plant_params as pp
-from flaair_sim.core.plant_params import (
-    C_TERMS,
-    MAX_FACTORS,
-    N_CONSTANTS,
-)
+from flaair_sim.core.plant_params import MAX_FACTORS, MAX_POWER, N_CONSTANTS
 
 __all__ = [
+    "FACTORS_PER_CODE",
+    "FACTOR_BITS",
+    "POWER_BITS",
+    "SLOT_FIELDS",
     "constants_with_terms",
     "dynamics_terms",
     "lowpass_rates",
     "mechanical_constants",
     "primitive",
 ]
+
+# A term slot of the constants tuple, field by field.
+SLOT_FIELDS = ("equation", "coefficient", "factors_a", "factors_b", "corner_rad_s")
+_EQUATION, _COEFFICIENT, _FACTORS_A, _FACTORS_B, _CORNER = range(len(SLOT_FIELDS))
+_SLOT_LEN = len(SLOT_FIELDS)
+# A factor packs as primitive x 2^POWER_BITS + power in FACTOR_BITS bits, the first factor
+# lowest; a code holds FACTORS_PER_CODE factors (48 bits: exact in a float64), and two codes
+# hold MAX_FACTORS.
+FACTOR_BITS = 8
+FACTORS_PER_CODE = 6
+POWER_BITS = 3
+assert MAX_POWER < 2**POWER_BITS and len(PRIMITIVES) < 2 ** (FACTOR_BITS - POWER_BITS)
+assert MAX_FACTORS <= 2 * FACTORS_PER_CODE and FACTOR_BITS * FACTORS_PER_CODE <= 53
 
 _FMA = {"contract"}
 # The kernels carry the low-pass terms' states as a pair (z0, z1): one per slot.
@@ -50,20 +66,26 @@ _SOURCE = pp.CONSTANT_SOURCE
 _DIVISOR = pp.CONSTANT_DIVISOR
 
 
+# The slots' places in the longer tuple, as module constants: numba reads a global index as a
+# literal, so each slot is one static element, not a switch over the tuple.
+_SLOT_0, _SLOT_1 = pp.C_TERM_SLOTS
+_EMPTY_SLOT = (0.0,) * _SLOT_LEN
+
+
 def _slots_of(c):
-    """The term slots' array of the constants tuple `c`; empty for a nominal tuple."""
-    return c[C_TERMS] if len(c) > N_CONSTANTS else np.empty(0)
+    """The two term slots of the constants tuple `c`; empty slots for a nominal tuple."""
+    return (c[_SLOT_0], c[_SLOT_1]) if len(c) > N_CONSTANTS else (_EMPTY_SLOT, _EMPTY_SLOT)
 
 
 @overload(_slots_of, inline="always")
 def _slots_of_typed(c):
     """`_slots_of` compiled: chosen by the tuple's type, since numba types the term code of a
     nominal kernel too (that code never runs: a compile-time branch) and a nominal tuple has no
-    element at `C_TERMS`.
+    element at `C_TERM_SLOTS`.
     """
     if isinstance(c, types.UniTuple):
-        return lambda c: np.empty(0)
-    return lambda c: c[C_TERMS]
+        return lambda c: (_EMPTY_SLOT, _EMPTY_SLOT)
+    return lambda c: (c[_SLOT_0], c[_SLOT_1])
 
 
 @njit(cache=True, fastmath=_FMA)
@@ -99,48 +121,72 @@ def primitive(j, phi, dphi, psi, dpsi, v, t, dv):
 # Not inlined: the RK4 stages call it at dozens of places per kernel; inlined, its copies were
 # most of the kernel's compile time, for no measurable speed.
 @njit(cache=True, fastmath=_FMA)
-def _monomial(s, base, phi, dphi, psi, dpsi, v, t, dv):
-    """The monomial of the term slot at `base` of the slots' array `s` (its factors, each to its
+def _monomial(factors_a, factors_b, phi, dphi, psi, dpsi, v, t, dv):
+    """The monomial packed in the codes `factors_a`, `factors_b` (its factors, each to its
     power).
     """
     f = 1.0
-    for q in range(MAX_FACTORS):
-        j = int(s[base + 2 + 2 * q])
-        if j < 0:
-            break
-        x = primitive(j, phi, dphi, psi, dpsi, v, t, dv)
-        for _ in range(int(s[base + 3 + 2 * q])):
-            f *= x
+    for packed in (factors_a, factors_b):
+        code = int(packed)
+        while code:
+            factor = code & (2**FACTOR_BITS - 1)
+            x = primitive(factor >> POWER_BITS, phi, dphi, psi, dpsi, v, t, dv)
+            for _ in range(factor & (2**POWER_BITS - 1)):
+                f *= x
+            code >>= FACTOR_BITS
     return f
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def dynamics_terms(c, equation, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
-    """Sum of the discovered terms acting on `equation` (1 stroke, 2 pitch), over inertia, at
-    the drive `v` the actuator sees, the time `t` from the run's start and the drive's rate
-    `dv`; a low-pass term acts by its filter's state (`z0`, `z1`: slot 0's and slot 1's).
+def _acting(slot, phi, dphi, psi, dpsi, v, t, dv, z):
+    """What the term `slot` multiplies its coefficient by: its low-pass's state `z` if it has
+    one, else its monomial.
     """
-    s = _slots_of(c)
-    total = 0.0
-    for slot in range(MAX_DYNAMICS_TERMS):
-        base = slot * pp.TERM_SLOT
-        if s[base] == equation:
-            if s[base + pp.TERM_LOWPASS] != 0.0:
-                total += s[base + 1] * (z0 if slot == 0 else z1)
-            else:
-                total += s[base + 1] * _monomial(s, base, phi, dphi, psi, dpsi, v, t, dv)
-    return total
+    if slot[_CORNER] != 0.0:
+        return z
+    return _monomial(slot[_FACTORS_A], slot[_FACTORS_B], phi, dphi, psi, dpsi, v, t, dv)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
-def _lowpass_rate(s, base, phi, dphi, psi, dpsi, v, t, dv, z):
-    """The rate w (monomial - z) of the slot at `base` of the slots' array `s` with a low-pass
-    of corner w; else 0.
+def dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
+    """Sums of the discovered terms acting on the stroke and on the pitch equation, over
+    inertia, at the drive `v` the actuator sees, the time `t` from the run's start and the
+    drive's rate `dv`; a low-pass term acts by its filter's state (`z0`, `z1`: slot 0's and
+    slot 1's). Each term's monomial is evaluated once.
     """
-    w = s[base + pp.TERM_LOWPASS]
-    if s[base] == 0.0 or w == 0.0:
+    s0, s1 = _slots_of(c)
+    return _slot_sums(s0, s1, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+
+
+# Not inlined (numba IR): every RK4 stage of every kernel would carry a copy, which doubled the
+# kernels' cold compile; LLVM inlines it where that pays.
+@njit(cache=True, fastmath=_FMA)
+def _slot_sums(s0, s1, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
+    """`dynamics_terms` of the slots `s0`, `s1`."""
+    stroke = 0.0
+    pitch = 0.0
+    if s0[_EQUATION] != 0.0:
+        x = s0[_COEFFICIENT] * _acting(s0, phi, dphi, psi, dpsi, v, t, dv, z0)
+        if s0[_EQUATION] == 1.0:
+            stroke += x
+        else:
+            pitch += x
+    if s1[_EQUATION] != 0.0:
+        x = s1[_COEFFICIENT] * _acting(s1, phi, dphi, psi, dpsi, v, t, dv, z1)
+        if s1[_EQUATION] == 1.0:
+            stroke += x
+        else:
+            pitch += x
+    return stroke, pitch
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
+def _lowpass_rate(slot, phi, dphi, psi, dpsi, v, t, dv, z):
+    """The rate w (monomial - z) of the term `slot` with a low-pass of corner w; else 0."""
+    w = slot[_CORNER]
+    if slot[_EQUATION] == 0.0 or w == 0.0:
         return 0.0
-    return w * (_monomial(s, base, phi, dphi, psi, dpsi, v, t, dv) - z)
+    return w * (_monomial(slot[_FACTORS_A], slot[_FACTORS_B], phi, dphi, psi, dpsi, v, t, dv) - z)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
@@ -149,10 +195,10 @@ def lowpass_rates(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     a first-order low-pass integrated with the mechanics, its input the monomial at each stage.
     The two slots written out (no list: a list is a heap allocation per stage).
     """
-    s = _slots_of(c)
+    s0, s1 = _slots_of(c)
     return (
-        _lowpass_rate(s, 0, phi, dphi, psi, dpsi, v, t, dv, z0),
-        _lowpass_rate(s, pp.TERM_SLOT, phi, dphi, psi, dpsi, v, t, dv, z1),
+        _lowpass_rate(s0, phi, dphi, psi, dpsi, v, t, dv, z0),
+        _lowpass_rate(s1, phi, dphi, psi, dpsi, v, t, dv, z1),
     )
 
 
@@ -170,23 +216,23 @@ def _constants(p):
 
 @njit(cache=True, fastmath=_FMA)
 def _term_slots(p):
-    """The discovered terms' slots, each written compactly: [equation, coefficient over
-    inertia, (primitive, power) per factor of its monomial in primitive order, -1 after the
-    last, the low-pass's corner]. The kernel's loop then visits only the factors a monomial
+    """The discovered terms' slots, each as `SLOT_FIELDS`: its factors (the primitives with a
+    nonzero power, in primitive order) packed, so the kernel visits only the factors a monomial
     has, not every primitive.
     """
-    s = np.empty(MAX_DYNAMICS_TERMS * pp.TERM_SLOT)
+    s = np.zeros(MAX_DYNAMICS_TERMS * _SLOT_LEN)
     for slot in range(MAX_DYNAMICS_TERMS):
         src = pp.P_TERMS + slot * pp.TERM_SLOT
-        dst = slot * pp.TERM_SLOT
-        s[dst], s[dst + 1] = p[src], p[src + 1]
-        for k in range(2, pp.TERM_LOWPASS):
-            s[dst + k] = -1.0
-        s[dst + pp.TERM_LOWPASS] = p[src + pp.TERM_LOWPASS]
+        dst = slot * _SLOT_LEN
+        s[dst + _EQUATION], s[dst + _COEFFICIENT] = p[src], p[src + 1]
+        s[dst + _CORNER] = p[src + pp.TERM_LOWPASS]
         q = 0
         for j in range(pp.TERM_LOWPASS - 2):
-            if p[src + 2 + j] != 0.0 and q < MAX_FACTORS:  # plant_params refuses more
-                s[dst + 2 + 2 * q], s[dst + 3 + 2 * q] = j, p[src + 2 + j]
+            power = int(p[src + 2 + j])
+            if power != 0 and q < MAX_FACTORS:  # plant_params refuses more, or a larger power
+                field = _FACTORS_A if q < FACTORS_PER_CODE else _FACTORS_B
+                shift = FACTOR_BITS * (q % FACTORS_PER_CODE)
+                s[dst + field] += ((j << POWER_BITS) + power) * 2.0**shift
                 q += 1
     return s
 
@@ -200,7 +246,16 @@ def mechanical_constants(p):
 
 @njit(cache=True, fastmath=_FMA)
 def constants_with_terms(p):
-    """`mechanical_constants` followed by the discovered terms' slots' array (`_term_slots`): a
-    longer tuple, so the kernels compiled for it are the only ones that evaluate terms.
+    """`mechanical_constants` followed by the discovered terms' slots (`_term_slots`), each a
+    tuple of its `SLOT_FIELDS`: a longer tuple, so the kernels compiled for it are the only
+    ones that evaluate terms.
     """
-    return mechanical_constants(p) + (_term_slots(p),)  # noqa: RUF005  (numba: + not *c)
+    s = _term_slots(p)
+    # intrinsics: numba passes their typing context, so mypy sees one argument short
+    return (
+        mechanical_constants(p)
+        + (  # noqa: RUF005  (numba: + not *c)
+            to_fixed_tuple(s[:_SLOT_LEN], _SLOT_LEN),  # type: ignore[call-arg]
+            to_fixed_tuple(s[_SLOT_LEN:], _SLOT_LEN),  # type: ignore[call-arg]
+        )
+    )
