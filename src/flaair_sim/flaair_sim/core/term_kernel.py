@@ -252,10 +252,8 @@ def constants_with_terms(p):
     """
     s = _term_slots(p)
     # intrinsics: numba passes their typing context, so mypy sees one argument short
-    return (
-        mechanical_constants(p)
-        + (  # noqa: RUF005  (numba: + not *c)
-            to_fixed_tuple(s[:_SLOT_LEN], _SLOT_LEN),  # type: ignore[call-arg]
-            to_fixed_tuple(s[_SLOT_LEN:], _SLOT_LEN),  # type: ignore[call-arg]
-        )
+    slots = (
+        to_fixed_tuple(s[:_SLOT_LEN], _SLOT_LEN),  # type: ignore[call-arg]
+        to_fixed_tuple(s[_SLOT_LEN:], _SLOT_LEN),  # type: ignore[call-arg]
     )
+    return mechanical_constants(p) + slots
