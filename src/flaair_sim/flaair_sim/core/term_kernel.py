@@ -56,8 +56,9 @@ _SLOT_LEN = len(SLOT_FIELDS)
 FACTOR_BITS = 8
 FACTORS_PER_CODE = 6
 POWER_BITS = 3
-assert MAX_POWER < 2**POWER_BITS and len(PRIMITIVES) < 2 ** (FACTOR_BITS - POWER_BITS)
-assert MAX_FACTORS <= 2 * FACTORS_PER_CODE and FACTOR_BITS * FACTORS_PER_CODE <= 53
+assert MAX_POWER < 2**POWER_BITS, "a factor's power outgrows its packed bits"
+assert len(PRIMITIVES) < 2 ** (FACTOR_BITS - POWER_BITS), "PRIMITIVES outgrow their packed bits"
+assert MAX_FACTORS <= 2 * FACTORS_PER_CODE, "a monomial's factors outgrow its two packed codes"
 
 _FMA = {"contract"}
 # The kernels carry the low-pass terms' states as a pair (z0, z1): one per slot.
