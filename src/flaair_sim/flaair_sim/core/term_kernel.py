@@ -164,21 +164,20 @@ def dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
 @njit(cache=True, fastmath=_FMA)
 def _slot_sums(s0, s1, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     """`dynamics_terms` of the slots `s0`, `s1`."""
-    stroke = 0.0
-    pitch = 0.0
-    if s0[_EQUATION] != 0.0:
-        x = s0[_COEFFICIENT] * _acting(s0, phi, dphi, psi, dpsi, v, t, dv, z0)
-        if s0[_EQUATION] == 1.0:
-            stroke += x
-        else:
-            pitch += x
-    if s1[_EQUATION] != 0.0:
-        x = s1[_COEFFICIENT] * _acting(s1, phi, dphi, psi, dpsi, v, t, dv, z1)
-        if s1[_EQUATION] == 1.0:
-            stroke += x
-        else:
-            pitch += x
-    return stroke, pitch
+    stroke_0, pitch_0 = _slot_torques(s0, phi, dphi, psi, dpsi, v, t, dv, z0)
+    stroke_1, pitch_1 = _slot_torques(s1, phi, dphi, psi, dpsi, v, t, dv, z1)
+    return stroke_0 + stroke_1, pitch_0 + pitch_1
+
+
+@njit(cache=True, fastmath=_FMA, inline="always")
+def _slot_torques(slot, phi, dphi, psi, dpsi, v, t, dv, z):
+    """The term `slot`'s torque over inertia on the stroke and on the pitch (one is 0; both for
+    an empty slot).
+    """
+    if slot[_EQUATION] == 0.0:
+        return 0.0, 0.0
+    x = slot[_COEFFICIENT] * _acting(slot, phi, dphi, psi, dpsi, v, t, dv, z)
+    return (x, 0.0) if slot[_EQUATION] == 1.0 else (0.0, x)
 
 
 @njit(cache=True, fastmath=_FMA, inline="always")
