@@ -54,9 +54,8 @@ def _accelerations(phi, dphi, psi, dpsi, v, c, contact, t, dv, z0, z1):
     limit, kc, cc = c[pp.C_PHI_LIM], c[pp.C_KC], c[pp.C_CC]
     drag = abs(dphi) * dphi
     ddphi = ga * v - k * phi - cstruct * dphi - gamma * drag
-    pitch_terms = 0.0
-    if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels carry no term code
-        stroke_terms, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+    stroke_terms, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
+    if len(c) > N_CONSTANTS:  # a compile-time constant: the nominal kernels add no term
         ddphi += stroke_terms
     if contact == 2 or (contact == 1 and phi > limit):
         push = kc * (phi - limit) + cc * dphi
@@ -418,9 +417,7 @@ def _jacobian(x, v, c, contact, t, dv, z0, z1, equation, out_a, out_b):
     a, _b = _accelerations(x[0], x[1], x[2], x[3], v, c, contact, t, dv, z0, z1)
     drag = abs(x[1]) * x[1]
     step = _REL_STEP * (abs(a) + 1.0)
-    pitch_terms = 0.0
-    if len(c) > N_CONSTANTS:
-        _stroke, pitch_terms = dynamics_terms(c, x[0], x[1], x[2], x[3], v, t, dv, z0, z1)
+    _stroke, pitch_terms = dynamics_terms(c, x[0], x[1], x[2], x[3], v, t, dv, z0, z1)
     b_up = _pitch_acceleration(x[2], x[3], a + step, drag, c, pitch_terms)
     b_dn = _pitch_acceleration(x[2], x[3], a - step, drag, c, pitch_terms)
     return 1.0, (b_up - b_dn) / (2.0 * step)
@@ -595,11 +592,9 @@ def _pitch_fundamental(c, stroke, pitch, s, n_points):
     for _ in range(n_points):
         phi, dphi = (stroke * e).real, (da * e).real
         psi, dpsi = (pitch * e).real, (db * e).real
-        pitch_terms = 0.0
-        if len(c) > N_CONSTANTS:
-            # the drive off (and its rate), the time at 0 and the low-pass terms' states at
-            # rest, as the stroke's describing function
-            _stroke, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # the drive off (and its rate), the time at 0 and the low-pass terms' states at rest, as
+        # the stroke's describing function
+        _stroke, pitch_terms = dynamics_terms(c, phi, dphi, psi, dpsi, 0.0, 0.0, 0.0, 0.0, 0.0)
         ddpsi = _pitch_acceleration(psi, dpsi, (dda * e).real, abs(dphi) * dphi, c, pitch_terms)
         acc += ddpsi * e.conjugate()
         e *= turn

@@ -15,8 +15,8 @@ packed into two codes (`_term_slots`), its low-pass's corner in rad/s (0: none).
 Why packed: the monomial is evaluated by one non-inlined function (`_monomial`; its inlined
 copies were most of the kernel's compile time), so what crosses that call must be a few
 scalars. A tuple of the factors is copied at every call, and an array taken out of the
-constants tuple is reference-counted at every RK4 stage; both made a model with a term several
-times slower than a nominal one, and the accelerations too large for LLVM to inline.
+constants tuple is reference-counted at every RK4 stage; either makes the accelerations too
+large for LLVM to inline, and each RK4 stage then copies the whole constants tuple into a call.
 
 A low-pass term (`lowpass(x)`) is a first-order low-pass of its monomial, z' = w (x - z), its
 state integrated by the RK4 step with the mechanics (`lowpass_rates`), and acts by z; the states
@@ -155,12 +155,14 @@ def dynamics_terms(c, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     drive's rate `dv`; a low-pass term acts by its filter's state (`z0`, `z1`: slot 0's and
     slot 1's). Each term's monomial is evaluated once.
     """
+    if len(c) == N_CONSTANTS:  # a compile-time constant: a nominal kernel carries no term code
+        return 0.0, 0.0
     s0, s1 = _slots_of(c)
     return _slot_sums(s0, s1, phi, dphi, psi, dpsi, v, t, dv, z0, z1)
 
 
-# Not inlined (numba IR): every RK4 stage of every kernel would carry a copy, which doubled the
-# kernels' cold compile; LLVM inlines it where that pays.
+# Not inlined (numba IR): every RK4 stage of every kernel would carry a copy, and the kernels'
+# cold compile grows with the copies; LLVM inlines it where that pays.
 @njit(cache=True, fastmath=_FMA)
 def _slot_sums(s0, s1, phi, dphi, psi, dpsi, v, t, dv, z0, z1):
     """`dynamics_terms` of the slots `s0`, `s1`."""
