@@ -69,7 +69,6 @@ from benchlib import (
 )
 from flaair_analysis.discrepancy import analyse
 from flaair_analysis.discrepancy.datasets import dataset_cases, make_run, make_runs
-from flaair_analysis.discrepancy.discovery_uncertainty import suggested_drive
 from flaair_analysis.discrepancy.offnominal import (
     COMPOSED_DISCOVER_KINDS,
     DISCOVER_KINDS,
@@ -84,6 +83,7 @@ from flaair_model.model_io import load_model
 from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.plant import simulate
 from flaair_tools.discrepancy.report import write_validation
+from separating_run import separated_by_suggestion, separation_figures
 
 TIME_TARGET_S = 60.0
 ACCURACY_TARGET = 0.90
@@ -96,11 +96,6 @@ DISCOVER_EXPLAINED_TARGET = 0.80
 DISCOVER_TIME_S = 120.0
 # The hysteretic actuators (offnominal_own): named, parameters within 10 %, explained.
 OWN_TARGET = 0.80
-# A discovery robot whose runs leave a term's form tied with the next best: the run the report
-# suggests, this long, simulated on the same truth and added; it should separate the two in most
-# such robots (more than half).
-SEPARATING_RUN_S = 0.5
-SEPARATED_TARGET = 0.5
 FREQUENCIES = ("stroke_natural_frequency_hz", "pitch_natural_frequency_hz")
 
 # The subset `make bench` runs: drawn by a fixed seed from every family's full draws (the same
@@ -248,7 +243,13 @@ def analyse_robot(family: str, draw: int, baseline: bool) -> tuple[dict, dict | 
     elapsed = time.perf_counter() - t0
     outcome = judge(case, result, model) | {"elapsed_s": elapsed}
     if family == "offnominal_discover":
-        outcome |= separated_by_suggestion(case, runs, result, model)
+        outcome |= separated_by_suggestion(
+            result,
+            runs[0].fs_hz,
+            lambda drive: make_run(case, model, "suggested_sine", drive, seed=case.seed + 7919),
+            lambda extra: analyse((*runs, extra), model, discrepancy_settings()),
+            lambda again: score_result(case, again).right,
+        )
     base = None
     if baseline:
         old = analyse(runs, model, replace(discrepancy_settings(), identify=False))
@@ -269,40 +270,6 @@ def analyse_case(name: str):
     t0 = time.perf_counter()
     result = analyse(runs, model, discrepancy_settings())
     return score_case(case, result, time.perf_counter() - t0)
-
-
-def separated_by_suggestion(case, runs, result, model) -> dict:
-    """Where the runs leave a discovered term's form tied with the next best of its step: the run
-    the report suggests, simulated on the same truth and added, and whether the forms are then
-    told apart (every discovered term distinguishable) and the answer exactly right. A tie the
-    suggestion itself says no run tried separates (the two models differ by less than the noise
-    on it) is counted apart, as equivalent.
-    """
-    tied = [d for d in result.discovered if d.uncertainty.get("distinguishable") is False]
-    if not tied:
-        return {"ambiguous": False, "equivalent": False}
-    suggestion = tied[0].uncertainty["suggested_experiment"]
-    rival = (tied[0].uncertainty.get("next_best") or {}).get("term", "")
-    if not suggestion["separates"]:  # the same on every run tried: nothing to measure
-        return {"ambiguous": False, "equivalent": True, "tied_with": rival}
-    drive = suggested_drive(
-        suggestion["drive_amplitude_v"], suggestion["frequency_hz"], runs[0].fs_hz, SEPARATING_RUN_S
-    )
-    extra = make_run(case, model, "suggested_sine", drive, seed=case.seed + 7919)
-    again = analyse((*runs, extra), model, discrepancy_settings())
-    told_apart = bool(again.discovered) and all(
-        d.uncertainty.get("distinguishable") is not False for d in again.discovered
-    )
-    return {
-        "ambiguous": True,
-        "equivalent": False,
-        "tied_with": rival,
-        "suggested": (
-            f"{suggestion['drive_amplitude_v']:.0f} V at {suggestion['frequency_hz']:.0f} Hz"
-        ),
-        "separated": told_apart,
-        "exact_after": score_result(case, again).right,
-    }
 
 
 def select_jobs(
@@ -468,34 +435,11 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
         for o, a in zip(discover, among, strict=True)
         if a and not o["exact"]
     )[:200]
-    tied = [o for o in discover if o.get("ambiguous")]
-    n_sep = sum(o["separated"] for o in tied)
-    label = (
-        f"discovery: tied forms told apart by the suggested run "
-        f"{_count(n_sep, len(tied), subset, 'robots tied that a run can tell apart')}"
-    )
-    detail = "; ".join(
-        f"{o['case'][-3:]}: {o['true_terms'][0]} vs {o['tied_with']}, {o['suggested']}, "
-        f"{'told apart' if o['separated'] else 'still tied'}"
-        f"{', exactly right' if o['exact_after'] else ''}"
-        for o in tied
-    )[:300]
-    separated = (
-        compare(
-            label,
-            100 * share([o["separated"] for o in tied]),
-            "%",
-            ">=",
-            100 * SEPARATED_TARGET,
-            detail,
-        )
-        if tied
-        else info(
-            label,
-            math.nan,
-            "%",
-            "no robot of this run left two forms tied that a run can tell apart",
-        )
+    separated, equivalent = separation_figures(
+        discover,
+        "discovery",
+        lambda k, n_of, noun: _count(k, n_of, subset, noun),
+        lambda o: o["case"][-3:],
     )
     ranking = [o for o in discover if o.get("composed_ranked")]
     rank_times = [o["composed_rank_s"] for o in ranking]
@@ -510,15 +454,6 @@ def _discovery_figures(outcomes: list[dict], subset: bool) -> list[Figure]:
         )
         if rank_times
         else "no discovery step ran",
-    )
-    same = [o for o in discover if o.get("equivalent")]
-    equivalent = info(
-        f"discovery: tied forms the same on every run tried "
-        f"{_count(len(same), n, subset, 'robots')}",
-        float(len(same)),
-        "robots",
-        "; ".join(f"{o['case'][-3:]}: {o['true_terms'][0]} vs {o['tied_with']}" for o in same)[:300]
-        or "none",
     )
     return [
         separated,
