@@ -45,6 +45,7 @@ import struct
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -215,11 +216,20 @@ def _address(text: str, option: str) -> tuple[str, int]:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
+    """The command line over config/flaair.yaml's `emulated_target` defaults, ranges checked."""
     try:
         shared = node_parameters("flaair.yaml", "emulated_target")
     except ConfigError as exc:
         print(f"emulated_target: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
+    parser = _parser(shared)
+    args = parser.parse_args(argv)
+    _check_ranges(parser, args)
+    return args
+
+
+def _parser(shared: dict[str, Any]) -> argparse.ArgumentParser:
+    """The target's options, their defaults from `shared` (its section of flaair.yaml)."""
     parser = argparse.ArgumentParser(
         prog="emulated_target",
         description=__doc__,
@@ -307,7 +317,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         "real target is hardware of its own; on a shared machine this keeps "
         "its clock) [%(default)s]",
     )
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _check_ranges(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Exit 2 through `parser.error` naming an option out of its range."""
     if not 1 <= args.packet_samples <= 1000:
         parser.error(f"--packet-samples {args.packet_samples}: must be 1..1000")
     if not 0 <= args.realtime_priority <= 99:
@@ -323,7 +337,6 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             "--hold-samples, --drive-limit-v, --duration must be >= 0 and --sample-rate, "
             "--stall-ms > 0"
         )
-    return args
 
 
 DAMAGE_KEYS = (

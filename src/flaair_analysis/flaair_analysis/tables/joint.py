@@ -278,13 +278,7 @@ def identify_joint(
         if runs
         else {}
     )
-    # the start: the table fitted alone (itself started from its peaks), or the runs' estimate
-    # for a side the table does not measure, or the model's values
-    start = dict(alone) if alone else {k: runs_start.get(k, nominal[k]) for k in keys}
-    for side, _, side_keys in _SIDES:
-        if table is not None and not any(c.startswith(side) for c in table.responses):
-            start.update({k: runs_start.get(k, nominal[k]) for k in side_keys})
-            notes.append(f"the table has no {side} column: the {side} plant is the runs'")
+    start = _joint_start(table, alone, runs_start, nominal, notes)
 
     def stage_of(
         channel: str, side_keys: tuple[str, ...], current: Model, now: list[Run]
@@ -337,6 +331,24 @@ def identify_joint(
         nfev=nfev,
         inseparable=tuple(inseparable),
     )
+
+
+def _joint_start(
+    table: Table | None,
+    alone: Mapping[str, float],
+    runs_start: Mapping[str, float],
+    nominal: Mapping[str, float],
+    notes: list[str],
+) -> dict[str, float]:
+    """Where the joint fit starts: the table fitted alone (itself started from its peaks), or the
+    runs' estimate for a side the table does not measure (noted), or the model's values.
+    """
+    start = dict(alone) if alone else {k: runs_start.get(k, v) for k, v in nominal.items()}
+    for side, _, side_keys in _SIDES:
+        if table is not None and not any(c.startswith(side) for c in table.responses):
+            start.update({k: runs_start.get(k, nominal[k]) for k in side_keys})
+            notes.append(f"the table has no {side} column: the {side} plant is the runs'")
+    return start
 
 
 def _table_fitted_alone(
