@@ -17,8 +17,6 @@ from typing import Any
 from benchlib import Figure, compare, info
 from flaair_analysis.discrepancy.discovery_uncertainty import suggested_drive
 
-# The suggested run, this long, is simulated on the robot's truth and added to its runs.
-SEPARATING_RUN_S = 0.5
 # The suggested run should separate the two forms in most tied robots (more than half).
 SEPARATED_TARGET = 0.5
 NO_TIE = "no robot of this run left two forms tied that a run can tell apart"
@@ -59,7 +57,7 @@ def separated_by_suggestion(
     if not suggestion["separates"]:  # the same on every run tried: nothing to measure
         return {"ambiguous": False, "equivalent": True} | names
     drive = suggested_drive(
-        suggestion["drive_amplitude_v"], suggestion["frequency_hz"], fs_hz, SEPARATING_RUN_S
+        suggestion["drive_amplitude_v"], suggestion["frequency_hz"], fs_hz, suggestion["duration_s"]
     )
     again = analyse_with(measure(drive))
     told_apart = bool(again.discovered) and all(

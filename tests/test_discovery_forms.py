@@ -319,6 +319,7 @@ def test_the_suggested_sine_sits_where_two_models_differ_most(model) -> None:
     assert s["frequency_hz"] in (130.0, 150.0)
     assert s["over_noise"] == pytest.approx(s["rms_difference"] / 0.05) and s["over_noise"] > 20
     assert s["separates"] is True
+    assert (s["waveform"], s["duration_s"]) == ("sine", 0.5)  # the run the report names
     same = suggest_experiment([model, model], "stroke_deg", 20_000.0, 80.0, freqs, 0.05)
     assert same["rms_difference"] == 0.0 and same["separates"] is False
 

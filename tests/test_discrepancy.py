@@ -54,7 +54,7 @@ from flaair_model.settings import discrepancy as discrepancy_settings
 from flaair_sim.core.drive import chirp
 from flaair_sim.core.plant import simulate
 from flaair_tools import discrepancy
-from flaair_tools.discrepancy.report import write_validation
+from flaair_tools.discrepancy.report import form_check_text, write_validation
 from rosproc import FLAAIR, isolated_env, run, run_offline
 
 # the former discrepancy_core, now the discrepancy package's modules
@@ -723,3 +723,35 @@ def test_interpretation_handles_every_drive_level_ratio(level_ratio: float, word
 
     text = interpret(4.0, 1e-6, True, {}, level_ratio, True, discrepancy_settings())
     assert words in text
+
+
+@pytest.mark.timeout(10)
+def test_the_report_says_whether_the_runs_tell_a_form_from_the_next_best_and_which_run_would() -> (
+    None
+):
+    rival = {"term": "phi*abs(phi)", "acts_on": "stroke_dynamics"}
+    run = {
+        "waveform": "sine",
+        "drive_amplitude_v": 50.0,
+        "frequency_hz": 150.0,
+        "duration_s": 0.5,
+        "over_noise": 13.86,
+        "separates": True,
+    }
+    told = {"next_best": rival, "relative_margin": 0.55, "distinguishable": True}
+    assert form_check_text(told) == (
+        "The next best form, phi*abs(phi) on stroke_dynamics, predicts the held-out runs 55.0 % "
+        "worse: these runs tell the two apart."
+    )
+    tied = {"next_best": rival, "relative_margin": 0.011, "distinguishable": False}
+    assert form_check_text(tied | {"suggested_experiment": run}) == (
+        "These runs do not tell this form from phi*abs(phi) on stroke_dynamics: their held-out "
+        "errors are within 1.1 % of each other. A run that would: a sine of 50 V at 150 Hz for "
+        "0.5 s, where the two models differ by 13.9 x the noise."
+    )
+    same = tied | {"suggested_experiment": run | {"over_noise": 0.41, "separates": False}}
+    assert form_check_text(same).endswith(
+        "No steady sine tried would: the two models differ by at most 0.41 x the noise, so for "
+        "such runs they are the same physics."
+    )
+    assert form_check_text({"next_best": None, "distinguishable": None}) is None

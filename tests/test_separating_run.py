@@ -30,8 +30,10 @@ def _discovered(distinguishable: bool | None, separates: bool = True) -> SimpleN
             "distinguishable": distinguishable,
             "next_best": {"term": "phi*abs(phi)"},
             "suggested_experiment": {
+                "waveform": "sine",
                 "drive_amplitude_v": 50.0,
                 "frequency_hz": 150.0,
+                "duration_s": 0.5,
                 "separates": separates,
             },
         },
@@ -66,7 +68,7 @@ def test_a_tie_a_run_can_separate_is_measured_with_the_suggested_sine() -> None:
         "exact_after": True,
     }
     (drive,) = drives
-    assert drive.size == round(sr.SEPARATING_RUN_S * FS_HZ)
+    assert drive.size == round(0.5 * FS_HZ)  # the suggestion's duration
     assert np.max(np.abs(drive)) == pytest.approx(50.0, rel=1e-3)
     # 150 Hz: 75 cycles in 0.5 s, two zero crossings a cycle
     assert np.count_nonzero(np.diff(np.sign(drive[drive != 0.0])) != 0) == pytest.approx(150, abs=2)

@@ -26,6 +26,7 @@ __all__ = [
     "PARSIMONY",
     "SEPARATES_OVER_NOISE",
     "SETTLE_S",
+    "SUGGESTED_RUN_S",
     "TEST_S",
     "form_uncertainty",
     "suggest_experiment",
@@ -41,6 +42,9 @@ SEPARATES_OVER_NOISE = 1.0
 # A suggested sine is simulated this long to settle, then compared over TEST_S.
 SETTLE_S = 0.08
 TEST_S = 0.05
+# The run a suggestion names lasts this long: dozens of wingbeats after it settles (the discovery
+# benchmarks measure that run and add it).
+SUGGESTED_RUN_S = 0.5
 
 
 def _channel(out: Any, channel: str) -> np.ndarray:
@@ -70,8 +74,9 @@ def suggest_experiment(
     noise: float,
 ) -> dict[str, Any]:
     """The steady sine (level, frequency) where `models[0]` and `models[1]` differ most on
-    `channel`: {drive_amplitude_v, level, frequency_hz, rms_difference, over_noise, separates}
-    (`separates`: the difference reaches `SEPARATES_OVER_NOISE` x the noise).
+    `channel`: {waveform, drive_amplitude_v, level, frequency_hz, duration_s, rms_difference,
+    over_noise, separates} (`separates`: the difference reaches `SEPARATES_OVER_NOISE` x the
+    noise; the run: that sine, ramped up as `suggested_drive`, `SUGGESTED_RUN_S` long).
     """
     n_settle = round(SETTLE_S * fs_hz)
     best: dict[str, Any] = {"rms_difference": -1.0}
@@ -83,9 +88,11 @@ def suggest_experiment(
             rms = float(np.sqrt(np.mean((a - b) ** 2)))
             if rms > best["rms_difference"]:
                 best = {
+                    "waveform": "sine",
                     "drive_amplitude_v": level * amplitude_v,
                     "level": level,
                     "frequency_hz": float(f),
+                    "duration_s": SUGGESTED_RUN_S,
                     "rms_difference": rms,
                 }
     best["over_noise"] = best["rms_difference"] / noise if noise > 0 else math.inf

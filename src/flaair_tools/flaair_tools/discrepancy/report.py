@@ -28,6 +28,7 @@ from flaair_model.settings import DiscrepancySettings
 from .report_figures import write_figures
 
 __all__ = [
+    "form_check_text",
     "result_to_dict",
     "write_json",
     "write_report",
@@ -158,9 +159,43 @@ def _discovered(result: DiscrepancyResult, figs: Mapping[str, str]) -> list[dict
                 if beaten
                 else None,
                 "fig": figs.get(f"discovered_{i}"),
+                "form_check": form_check_text(d.uncertainty),
             }
         )
     return out
+
+
+def form_check_text(uncertainty: Mapping[str, Any]) -> str | None:
+    """Whether the runs tell a discovered form from the next best of its step, and the run that
+    would where they do not (`discovery_uncertainty.form_uncertainty`), in a lab's words.
+    """
+    rival = uncertainty.get("next_best")
+    if not rival:
+        return None
+    other = f"{rival['term']} on {rival['acts_on']}"
+    margin = uncertainty.get("relative_margin")
+    if uncertainty.get("distinguishable"):
+        return (
+            f"The next best form, {other}, predicts the held-out runs {100 * margin:.1f} % worse: "
+            "these runs tell the two apart."
+        )
+    tied = (
+        f"These runs do not tell this form from {other}: their held-out errors are within "
+        f"{100 * (margin or 0.0):.2g} % of each other."
+    )
+    run = uncertainty.get("suggested_experiment") or {}
+    if not run:
+        return tied
+    if not run["separates"]:
+        return (
+            f"{tied} No steady sine tried would: the two models differ by at most "
+            f"{run['over_noise']:.2f} x the noise, so for such runs they are the same physics."
+        )
+    return (
+        f"{tied} A run that would: a {run['waveform']} of {run['drive_amplitude_v']:.0f} V at "
+        f"{run['frequency_hz']:.0f} Hz for {run['duration_s']:g} s, where the two models differ "
+        f"by {run['over_noise']:.1f} x the noise."
+    )
 
 
 # --------------------------------------------------------------------------------------- HTML
