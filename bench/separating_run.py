@@ -96,12 +96,16 @@ def separation_figures(
         f"{label}: tied forms told apart by the suggested run "
         f"{count(n_sep, len(tied), 'robots tied that a run can tell apart')}"
     )
-    detail = "; ".join(
-        f"{robot(o)}: {o['tied']} vs {o['tied_with']}, {o['suggested']}, "
-        f"{'told apart' if o['separated'] else 'still tied'}"
-        f"{', exactly right' if o['exact_after'] else ''}"
-        for o in tied
-    )[:300]
+    n_exact = sum(o["exact_after"] for o in tied)
+    detail = (
+        f"exactly right after the run: {n_exact}/{len(tied)}; "
+        + "; ".join(
+            f"{robot(o)}: {o['tied']} vs {o['tied_with']}, {o['suggested']}, "
+            f"{'told apart' if o['separated'] else 'still tied'}"
+            f"{', exactly right' if o['exact_after'] else ''}"
+            for o in tied
+        )[:300]
+    )
     separated = (
         compare(name, 100.0 * n_sep / len(tied), "%", ">=", 100 * SEPARATED_TARGET, detail)
         if tied

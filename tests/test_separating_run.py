@@ -120,6 +120,7 @@ def test_the_figures_count_the_tied_robots_and_enforce_more_than_half() -> None:
         "x: tied forms told apart by the suggested run (1/2 robots tied that a run can tell apart)"
     )
     assert separated.value == 50.0 and separated.target == ">= 50 %" and separated.met
+    assert separated.baseline.startswith("exactly right after the run: 0/2; r0: a@s vs b")
     assert "r0: a@s vs b, 50 V at 150 Hz, told apart" in separated.baseline
     assert "r1: a@s vs b, 50 V at 150 Hz, still tied" in separated.baseline
     assert equivalent.value == 1.0 and equivalent.met is None
