@@ -83,8 +83,9 @@ SEED = 4901
 INSIDE_TARGET, OUTSIDE_TARGET, HYSTERESIS_TARGET = 80.0, 90.0, 80.0
 PARAMETER_TOLERANCE = 0.10
 TIME_TARGET_S = 120.0
-# Item 4's narrow data set: a lab that measured one operating point, a sine (amplitude V,
-# frequency Hz, duration s), its noise from a stream of its own (the standard runs' unchanged).
+# The ambiguity figure's narrow data set: a lab that measured one operating point, a sine
+# (amplitude V, frequency Hz, duration s), its noise from a stream of its own (the standard runs'
+# unchanged).
 ONE_SINE = (50.0, 120.0, 1.0)
 ONE_SINE_STREAM = 1
 # Half the truth's added physics is outside the grammar: its three outside kinds are drawn twice

@@ -111,8 +111,7 @@ PARTS = (
     # discovery against the independent truth: one robot of each of its eleven kinds (make
     # bench), five of each and ten of each outside kind (make bench-full), two at once, one numba
     # thread each (the truth's simulation 8-10 s a robot), and each inside robot again on one
-    # sine, with the suggested run where that leaves a tie: 187 s (make bench-full: 758 s with
-    # five of each outside kind)
+    # sine, with the suggested run where that leaves a tie: 187 s; make bench-full about 18 min
     Part("bench_truth", 195, 1800, ("--subset",), ()),
 )
 # the quick budgets add up to 1190 s
