@@ -231,3 +231,25 @@ def test_a_realtime_plant_publishes_the_drive_at_the_samples_it_applied_it(
     assert driven == [[min(v, 60.0) for v in values] for values in commands]
     first = next(b["first_sample_index"] for b in applied if any(b["drive_v"]))
     assert 0 < first < ahead  # after the zero drive, at the plant's sample, not the command's
+
+
+def test_a_drive_limit_set_while_running_clamps_the_next_blocks(monkeypatch, tmp_path) -> None:
+    """drive_limit_v is a live parameter: set while the plant runs, it clamps every block after."""
+    from rclpy.parameter import Parameter
+
+    from composed import composed
+    from flaair_common import topics
+    from flaair_sim.plant_node import PlantNode
+
+    params = {"plant_node": {"mode": "realtime", "command_timeout_s": 0.0, "drive_limit_v": 60.0}}
+    with composed(monkeypatch, [PlantNode], params, tmp_path) as loop:
+        applied = loop.sink(topics.DRIVE_APPLIED)
+        loop.run_for(0.01)
+        loop.post(topics.DRIVE, _command(5000, [100.0] * BLOCK))
+        loop.run_for(0.01)
+        result = loop.node("plant_node").set_parameters([Parameter("drive_limit_v", value=25.0)])
+        assert result[0].successful
+        loop.post(topics.DRIVE, _command(5000 + BLOCK, [100.0] * BLOCK))
+        loop.run_for(0.01)
+    driven = [list(b["drive_v"]) for b in applied if any(b["drive_v"])]
+    assert driven == [[60.0] * BLOCK, [25.0] * BLOCK]

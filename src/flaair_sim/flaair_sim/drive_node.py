@@ -43,6 +43,7 @@ class DriveNode(FlaairNode):
         super().__init__(NODE_NAME)
         self.p = declare_parameters(self, PARAMS, CONFIG_FILE)
         self.params = pacing_params_from_config(self.p)
+        self.live = self.live_parameters("drive_limit_v")
         self.state = pacing.initial_state(self.params, t_wall=time.monotonic())
         self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
         self.ack = None
@@ -63,7 +64,7 @@ class DriveNode(FlaairNode):
         )
 
     def limit_v(self) -> float:
-        return self.get_parameter("drive_limit_v").value
+        return self.live["drive_limit_v"]
 
     def peers(self) -> tuple[int, int]:
         return (

@@ -38,6 +38,7 @@ class PlantNode(FlaairNode):
         self.model, self.obstacle_model, self.windows_s = io.plant_models(self.p)
         self.damage = io.plant_damage(self.p, self.model, self.obstacle_model)
         self.fs_hz, self.block_size = self.p["sample_rate_hz"], self.p["block_size"]
+        self.live = self.live_parameters("drive_limit_v")
         self.params = io.actuator_params_from_config(self.p)
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
@@ -112,7 +113,7 @@ class PlantNode(FlaairNode):
 
     def advance(self, drive_v: np.ndarray) -> None:
         """Step the model one block and publish its outputs."""
-        drive_v = actuator.clamp_drive(drive_v, self.get_parameter("drive_limit_v").value)
+        drive_v = actuator.clamp_drive(drive_v, self.live["drive_limit_v"])
         index, self.next_index = self.next_index, self.next_index + drive_v.size
         model = scene.model_at(
             index / self.fs_hz, self.model, self.obstacle_model, self.windows_s, self.damage
