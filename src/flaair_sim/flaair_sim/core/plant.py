@@ -332,6 +332,9 @@ def _batch_tables(
         [(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps], dtype=np.int64
     ).reshape(m, 2)
     hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
+    # read-only as `prepare`'s own: numba types a read-only array apart, and a writable table
+    # made the kernels compile a second time (13 s of a cold compile)
+    params.setflags(write=False)
     return params, nsubs, delays, hist_len
 
 
