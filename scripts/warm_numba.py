@@ -1,21 +1,35 @@
 """Compile and cache every numba kernel once (run by scripts/setup_env.sh after a build).
 
+Two groups compile at once, one process each: the plant's simulation kernels, and the rest.
+
 Without this, the first node processes of a fresh checkout each spend 10-20 s compiling the
 plant before their first block; with the cache written here they start in well under a second.
 """
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 
 import numpy as np
 
 
-def main() -> None:
-    start = time.perf_counter()
-    from flaair_model.model import with_effects
+def _inputs() -> tuple[float, object, np.ndarray]:
+    """(rate, the nominal model, a 400-sample sine drive) every group warms on."""
     from flaair_model.model_io import load_model
     from flaair_sim.core.drive import DriveParams, drive_record
+
+    fs_hz = 20000.0
+    drive = drive_record(
+        DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400
+    )
+    return fs_hz, load_model(), drive
+
+
+def warm_plant() -> None:
+    """The plant's simulation kernels (`run_model`, `run_batch`): the costliest to compile."""
+    from flaair_model.model import with_effects
     from flaair_sim.core.plant import (
         PlantInputs,
         PlantStepParams,
@@ -26,11 +40,7 @@ def main() -> None:
         step,
     )
 
-    fs_hz = 20000.0
-    model = load_model()
-    drive = drive_record(
-        DriveParams(kind="sine", amplitude_v=100.0, frequency_hz=100.0), fs_hz, 400
-    )
+    fs_hz, model, drive = _inputs()
     for m in (
         model,
         with_effects(
@@ -52,6 +62,13 @@ def main() -> None:
     # identification and the discrepancy search: many models from measured initial states (the
     # costliest kernel to compile, 10-30 s, and every test worker would otherwise compile it)
     simulate_batch_from(drive, fs_hz, [model, model], np.zeros((2, 4)))
+
+
+def warm_rest() -> None:
+    """Every other kernel: the linearised plant, the describing functions, analysis and
+    control.
+    """
+    fs_hz, model, drive = _inputs()
     # the plant's torques at the fundamental (the health regression, the harmonic-balance start),
     # for the nominal constants tuple and the one with discovered terms
     from dataclasses import replace
@@ -147,8 +164,31 @@ def main() -> None:
         closed_loop.warm_up(model, rows[0])
     except Exception as exc:
         print(f"[setup] numba warm-up of the sweep kernels skipped: {exc}")
+
+
+GROUPS = {"plant": warm_plant, "rest": warm_rest}
+
+
+def main(argv: list[str]) -> int:
+    """`--group NAME` warms one group here; with no argument both groups run at once, one process
+    each (numba compiles on one core; its cache files are written atomically, so the two
+    processes share the cache directory safely).
+    """
+    if argv[:1] == ["--group"] and len(argv) == 2 and argv[1] in GROUPS:
+        GROUPS[argv[1]]()
+        return 0
+    if argv:
+        print(f"usage: warm_numba.py [--group {'|'.join(GROUPS)}]", file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+    children = [subprocess.Popen([sys.executable, __file__, "--group", name]) for name in GROUPS]
+    failed = [name for name, child in zip(GROUPS, children, strict=True) if child.wait() != 0]
+    if failed:
+        print(f"[setup] numba warm-up failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
     print(f"[setup] numba kernels compiled and cached in {time.perf_counter() - start:.0f} s")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main(sys.argv[1:]))
