@@ -320,6 +320,19 @@ def initial_state(
 _NO_FILTER = np.zeros(1)
 
 
+# The last params `step` ran with and their kernel constants, by identity: a block loop passes the
+# same FrontendParams every block, and the lru_cache below hashes the whole dataclass on each call.
+_last_constants: list[tuple[FrontendParams, tuple[Any, ...]]] = []
+
+
+def _constants_of(p: FrontendParams) -> tuple[Any, ...]:
+    if _last_constants and _last_constants[0][0] is p:
+        return _last_constants[0][1]
+    constants = _kernel_constants(p)
+    _last_constants[:] = [(p, constants)]  # one tuple: a reader never sees a mixed entry
+    return constants
+
+
 @lru_cache(maxsize=64)
 def _kernel_constants(p: FrontendParams) -> tuple[Any, ...]:
     """``_block``'s arguments after the block and the state
@@ -554,7 +567,7 @@ def step(
         state.velocity_zi,
         state.stroke_since_bad,
         state.pitch_since_bad,
-        *_kernel_constants(params),
+        *_constants_of(params),
     )
     new_state = FrontendState(
         stroke_drift_zi=s_dzi,
