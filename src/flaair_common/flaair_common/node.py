@@ -69,7 +69,7 @@ class FlaairNode(Node):
 
     def live_parameters(self, *names: str) -> dict[str, Any]:
         """The current values of the declared parameters `names`, renewed whenever one is set:
-        for a per-block read (2000/s), where rclpy's get_parameter costs ~3 us.
+        for a read on every block, where rclpy's get_parameter walks its parameter store.
         """
         values = {name: self.get_parameter(name).value for name in names}
 

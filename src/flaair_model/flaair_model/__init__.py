@@ -20,12 +20,15 @@ tools) depends on it; it depends on nothing of FLAAIR's.
 - `settings`: typed accessors of the config sections a tool reads that are not its own.
 - `lfilter`: scipy.signal.lfilter as numba kernels for the per-block cores.
 - `notes`: `Note`, the one type of a core's log lines.
+- `last_call`: `remember_last`, a function's last result found again by its first argument's
+  identity (a per-block lookup of frozen parameters).
 """
 
 __all__ = [
     "checked_files",
     "config",
     "effects",
+    "last_call",
     "lfilter",
     "model",
     "model_io",

@@ -66,6 +66,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
+from flaair_model.last_call import remember_last
 from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
 from flaair_sensors.core.frontend_params import FrontendError, FrontendParams
 
@@ -320,19 +321,6 @@ def initial_state(
 _NO_FILTER = np.zeros(1)
 
 
-# The last params `step` ran with and their kernel constants, by identity: a block loop passes the
-# same FrontendParams every block, and the lru_cache below hashes the whole dataclass on each call.
-_last_constants: list[tuple[FrontendParams, tuple[Any, ...]]] = []
-
-
-def _constants_of(p: FrontendParams) -> tuple[Any, ...]:
-    if _last_constants and _last_constants[0][0] is p:
-        return _last_constants[0][1]
-    constants = _kernel_constants(p)
-    _last_constants[:] = [(p, constants)]  # one tuple: a reader never sees a mixed entry
-    return constants
-
-
 @lru_cache(maxsize=64)
 def _kernel_constants(p: FrontendParams) -> tuple[Any, ...]:
     """``_block``'s arguments after the block and the state
@@ -359,6 +347,10 @@ def _kernel_constants(p: FrontendParams) -> tuple[Any, ...]:
         *pitch_lead,
         *normalized_ba(flt.vel_b, flt.vel_a),
     )
+
+
+# per block: the constants of the params object the loop passes every block, without hashing it
+_block_constants = remember_last(_kernel_constants)
 
 
 @njit(cache=True)
@@ -567,7 +559,7 @@ def step(
         state.velocity_zi,
         state.stroke_since_bad,
         state.pitch_since_bad,
-        *_constants_of(params),
+        *_block_constants(params),
     )
     new_state = FrontendState(
         stroke_drift_zi=s_dzi,

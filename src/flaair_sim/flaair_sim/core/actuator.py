@@ -146,26 +146,15 @@ def _on_command(
 ) -> tuple[ActuatorState, Outputs]:
     first = int(c.first_sample_index)
     drive_v = np.array(c.drive_v, dtype=np.float64)
-    samples = drive_v.tolist()  # a block's few samples: Python reductions, no numpy overhead
     notes: list[Note] = []
     # Fast path (every block of a healthy stream; a finite sum proves every sample finite, an
     # overflowing one goes the slow way); check_block names what is wrong otherwise.
-    in_order = (
+    if not (
         first == state.expected_command_index
         and drive_v.size == p.block_size
         and c.sample_rate_hz == p.sample_rate_hz
-        and math.isfinite(sum(samples))
-    )
-    if in_order and p.mode == "lockstep" and state.ring_down is None:
-        # every block of a healthy lockstep loop: one _replace
-        return state._replace(
-            expected_command_index=first + p.block_size,
-            last_command_wall=c.t_wall,
-            driven=any(samples),
-            commanded_samples=state.commanded_samples + drive_v.size,
-            next_index=state.next_index + drive_v.size,
-        ), Outputs((drive_v,))
-    if not in_order:
+        and math.isfinite(sum(drive_v.tolist()))  # a block's few samples: no numpy reduction
+    ):
         check = check_block(
             {"drive_v": drive_v},
             c.sample_rate_hz,
@@ -194,24 +183,29 @@ def _on_command(
                 return state, Outputs((), tuple(notes))
             if check.kind == "content":
                 drive_v = np.zeros(p.block_size)
-    state = state._replace(expected_command_index=first + p.block_size, last_command_wall=c.t_wall)
     if p.mode != "lockstep":
         return (
-            state._replace(pending=((*state.pending, drive_v))[-MAX_PENDING:]),
+            state._replace(
+                expected_command_index=first + p.block_size,
+                last_command_wall=c.t_wall,
+                pending=((*state.pending, drive_v))[-MAX_PENDING:],
+            ),
             Outputs((), tuple(notes)),
         )
     if state.ring_down is not None:
         notes.append(
             Note(INFO, f"drive commands resumed at block {first}; drive watchdog re-armed")
         )
+    # the block is stepped at once: one _replace (a healthy loop's every block comes here)
     state = state._replace(
+        expected_command_index=first + p.block_size,
+        last_command_wall=c.t_wall,
         ring_down=None,
         driven=any(drive_v.tolist()),
         commanded_samples=state.commanded_samples + drive_v.size,
+        next_index=state.next_index + drive_v.size,
     )
-    blocks: list[np.ndarray] = []
-    state = _emit(state, blocks, drive_v)
-    return state, Outputs(tuple(blocks), tuple(notes))
+    return state, Outputs((drive_v,), tuple(notes))
 
 
 def _on_tick(state: ActuatorState, tick: Tick, p: ActuatorParams) -> tuple[ActuatorState, Outputs]:

@@ -36,10 +36,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from flaair_model.last_call import remember_last
 from flaair_model.model import Model
 from flaair_sim.core import plant_params as pp
 from flaair_sim.core.plant_kernel import run_batch, run_model
-from flaair_sim.core.plant_params import Prepared, prepare
+from flaair_sim.core.plant_params import prepare
 from flaair_sim.core.plant_terms import (
     add_batch_sensor_terms,
     add_sensor_terms,
@@ -141,20 +142,9 @@ def _check_drive(drive_v: np.ndarray, ndim: tuple[int, ...] = (1,)) -> np.ndarra
     return drive
 
 
-# The last (model, rate) `step` prepared, by identity: a block loop passes the same immutable
-# Model every block, and `prepare`'s lru_cache hashes the whole nested model on each call.
-# One (model, rate, prepared) tuple, swapped whole.
-_last_prepared: list[tuple[Model, float, Prepared]] = []
-
-
-def _prepare_same(model: Model, fs: float) -> Prepared:
-    if _last_prepared:
-        last_model, last_fs, prep = _last_prepared[0]
-        if last_model is model and last_fs == fs:
-            return prep
-    prep = prepare(model, fs)
-    _last_prepared[:] = [(model, fs, prep)]  # one tuple: a reader never sees a mixed entry
-    return prep
+# A block loop passes the same immutable Model every block, and `prepare`'s lru_cache hashes the
+# whole nested model on each call.
+_prepare_same = remember_last(prepare)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -332,8 +322,8 @@ def _batch_tables(
         [(prep.delay_stroke_samples, prep.delay_pitch_samples) for prep in preps], dtype=np.int64
     ).reshape(m, 2)
     hist_len = np.array([prep.delay_lengths for prep in preps], dtype=np.int64).reshape(m, 2)
-    # read-only as `prepare`'s own: numba types a read-only array apart, and a writable table
-    # made the kernels compile a second time (13 s of a cold compile)
+    # read-only, as `prepare`'s own: numba types read-only and writable arrays apart, and would
+    # compile the kernels once for each
     params.setflags(write=False)
     return params, nsubs, delays, hist_len
 
