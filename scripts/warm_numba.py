@@ -117,8 +117,9 @@ def warm_rest() -> None:
         collision.run(np.radians(wave), np.zeros(4000), stroke_windows)
     except Exception as exc:
         print(f"[setup] numba warm-up of flaair_control skipped: {exc}")
-    try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety
+    try:  # the closed loop's per-block kernels: front end, dSA filter, drive safety, supervisor
         from flaair_control.core import dsa, safety
+        from flaair_control.core import supervisor as sv
         from flaair_control.dsa_io import supervisor_params_from_config
         from flaair_model.config import node_parameters
         from flaair_sensors.core import frontend
@@ -135,6 +136,7 @@ def warm_rest() -> None:
         safety.step(
             safety.initial_state(loop.safety), safety.SafetyInputs(np.zeros(10), 0.0), loop.safety
         )
+        sv.warm_up(loop)  # the drive block's one compiled call (the two cores' kernels inside)
     except Exception as exc:
         print(f"[setup] numba warm-up of the closed-loop cores skipped: {exc}")
     try:  # the health monitor's per-block kernels (the block's angles, the trigger's crossings)

@@ -73,6 +73,7 @@ from flaair_model.lfilter import float_block, lfilter_sample, normalized_ba
 
 __all__ = [
     "DSA_VALUE_KEYS",
+    "SIGNAL_ROWS",
     "DsaInputs",
     "DsaOutputs",
     "DsaParameterError",
@@ -82,6 +83,7 @@ __all__ = [
     "KrSchedule",
     "continuous_response",
     "dsa_params",
+    "filter_block",
     "filter_coefficients",
     "frequency_response",
     "initial_state",
@@ -195,27 +197,37 @@ class DsaParams:
         return math.sqrt(self.kappa) * self.r3_rad_s
 
     @cached_property
-    def kernel_args(self) -> tuple[Any, ...]:
-        """``step``'s kernel arguments after the block and the state: the rate, the
-        normalized (b, a) of the advanced and the raw filter, K_r, the sine,
-        G_a and the limit (once per parameter set: hashing the dataclass for
-        a cache, or a dozen attribute reads a block, cost more than a block).
+    def kernel_args(self) -> tuple[np.ndarray, np.ndarray]:
+        """``filter_block``'s arguments after the block and the state (once per parameter set:
+        hashing the dataclass for a cache, or a dozen attribute reads a block, cost more than a
+        block): the normalized (b, a) of the advanced and the raw filter as the rows of one
+        array, and the rate, K_r's ramp, the sine, G_a and the limit as another (two arguments,
+        not fourteen: a compiled call pays for each argument it is handed).
         """
         kr = self.kr_schedule
-        return (
-            float(self.sample_rate_hz),
-            *normalized_ba(*filter_coefficients(self, True)),
-            *normalized_ba(*filter_coefficients(self, False)),
-            float(kr.start_value),
-            float(kr.end_value),
-            float(kr.start_time_s),
-            float(kr.duration_s),
-            float(self.sync_amplitude_v),
-            2.0 * np.pi * self.sync_frequency_hz,
-            float(self.sync_phase_rad),
-            float(self.actuator_gain_nm_per_v),
-            float(self.drive_limit_v),
+        coefficients = np.vstack(
+            [
+                *normalized_ba(*filter_coefficients(self, True)),
+                *normalized_ba(*filter_coefficients(self, False)),
+            ]
         )
+        scalars = np.array(
+            [
+                self.sample_rate_hz,
+                kr.start_value,
+                kr.end_value,
+                kr.start_time_s,
+                kr.duration_s,
+                self.sync_amplitude_v,
+                2.0 * np.pi * self.sync_frequency_hz,
+                self.sync_phase_rad,
+                self.actuator_gain_nm_per_v,
+                self.drive_limit_v,
+            ],
+            dtype=np.float64,
+        )
+        coefficients.flags.writeable = scalars.flags.writeable = False
+        return coefficients, scalars
 
 
 def loop_delay_s(
@@ -339,35 +351,44 @@ class DsaOutputs(NamedTuple):
     signals: DsaSignals
 
 
-_TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(7)  # rows of _block's output
+# The rows of `filter_block`'s signals, in order.
+SIGNAL_ROWS = (
+    "torque_nm",
+    "torque_raw_nm",
+    "async_v",
+    "sync_v",
+    "kr",
+    "drive_unclipped_v",
+    "drive_v",
+)
+_TORQUE, _TORQUE_RAW, _ASYNC, _SYNC, _KR, _UNCLIPPED, _DRIVE = range(len(SIGNAL_ROWS))
 
 
 @njit(cache=True)
-def _block(
+def filter_block(
     v_in: np.ndarray,
     t_start_s: float,
     zi_adv: np.ndarray,
     zi_raw: np.ndarray,
-    fs: float,
-    b_adv: np.ndarray,
-    a_adv: np.ndarray,
-    b_raw: np.ndarray,
-    a_raw: np.ndarray,
-    kr_start: float,
-    kr_end: float,
-    kr_t0: float,
-    kr_duration: float,
-    sync_amplitude_v: float,
-    sync_omega: float,
-    sync_phase_rad: float,
-    gain: float,
-    limit_v: float,
+    coefficients: np.ndarray,
+    scalars: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample.
+    """One block: both filters, K_r, the sync sine, the blend and the clip, sample by sample
+    (``coefficients, scalars``: `DsaParams.kernel_args`).
 
-    Returns the signals as rows of one array (one allocation, one object to hand back) and the
-    two filter states as the rows of another.
+    Returns the signals as rows of one array (`SIGNAL_ROWS`: one allocation, one object to
+    hand back) and the two filter states as the rows of another.
     """
+    b_adv, a_adv, b_raw, a_raw = coefficients[0], coefficients[1], coefficients[2], coefficients[3]
+    fs, kr_start, kr_end, kr_t0, kr_duration = (
+        scalars[0],
+        scalars[1],
+        scalars[2],
+        scalars[3],
+        scalars[4],
+    )
+    sync_amplitude_v, sync_omega, sync_phase_rad = scalars[5], scalars[6], scalars[7]
+    gain, limit_v = scalars[8], scalars[9]
     n = v_in.size
     z = np.empty((2, zi_adv.size))
     z[0], z[1] = zi_adv, zi_raw
@@ -393,12 +414,12 @@ def _block(
 
 
 def step(state: DsaState, inputs: DsaInputs, params: DsaParams) -> tuple[DsaState, DsaOutputs]:
-    """Advance the controller over one block (one compiled kernel, ``_block``)."""
+    """Advance the controller over one block (one compiled kernel, `filter_block`)."""
     v = float_block(inputs.stroke_velocity_rad_s)
     t_start_s = float(inputs.t_start_s)
     if not math.isfinite(t_start_s):
         raise DsaParameterError(f"t_start_s must be finite, got {t_start_s}")
-    out, z = _block(v, t_start_s, state.zi_advanced, state.zi_raw, *params.kernel_args)
+    out, z = filter_block(v, t_start_s, state.zi_advanced, state.zi_raw, *params.kernel_args)
     signals = DsaSignals(
         out[_TORQUE_RAW],
         out[_TORQUE],

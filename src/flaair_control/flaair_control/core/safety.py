@@ -15,7 +15,7 @@ reported invalid (at that block's time) or when no valid sensor block has arrive
 ``invalid_timeout_s`` (at last_valid_time + timeout, resolved to the sample). The clock starts
 at ``initial_state(t_s)``: the first sensor block is due within the timeout of that time.
 
-Stages 1-4 run sample by sample in one compiled kernel (``_guard``): a block costs a few
+Stages 1-4 run sample by sample in one compiled kernel (`guard_block`): a block costs a few
 microseconds, not the ~40 us of a dozen numpy calls on 10 samples.
 """
 
@@ -43,6 +43,8 @@ __all__ = [
     "SafetyState",
     "check_timeout",
     "clamp",
+    "guard_arguments",
+    "guard_block",
     "initial_state",
     "note_sensor_block",
     "reset",
@@ -168,7 +170,7 @@ def clamp(drive_v: np.ndarray, drive_limit_v: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _guard(
+def guard_block(
     x_in: np.ndarray,
     t_start_s: float,
     fs: float,
@@ -229,31 +231,40 @@ class SafetyInputs(NamedTuple):
     sensor_block_valid: bool | None = None
 
 
+def guard_arguments(
+    state: SafetyState, t_start_s: float, n: int, params: SafetyParams
+) -> tuple[SafetyState, tuple[float, float, bool, float, float, float, float, float]]:
+    """The state with a timeout inside an ``n``-sample block starting at ``t_start_s`` tripped (at
+    its deadline), and `guard_block`'s arguments after the block for it.
+    """
+    sample_rate_hz = params.sample_rate_hz
+    state = check_timeout(state, t_start_s + (n - 1) / sample_rate_hz if n else t_start_s, params)
+    limit = float(params.drive_limit_v)
+    return state, (
+        float(t_start_s),
+        float(sample_rate_hz),
+        state.status == TRIPPED,
+        float(state.trip_time_s),
+        float(params.ramp_down_s),
+        min(max(float(state.last_drive_v), -limit), limit),
+        float(params.slew_limit_v_per_s / sample_rate_hz),
+        limit,
+    )
+
+
 def step(
     state: SafetyState, inputs: SafetyInputs, params: SafetyParams
 ) -> tuple[SafetyState, SafetyOutput]:
     """Guard one drive block (see the module docstring for the stages)."""
     drive_v, t_start_s, sensor_block_valid = inputs
-    sample_rate_hz = params.sample_rate_hz
     if not (math.isfinite(t_start_s)):
         raise SafetyParameterError(f"t_start_s must be finite, got {t_start_s}")
     if sensor_block_valid is not None:
         state = note_sensor_block(state, t_start_s, bool(sensor_block_valid), params)
     x = float_block(drive_v)
     n = x.size
-    # Timeout inside this block: trips at the deadline.
-    state = check_timeout(state, t_start_s + (n - 1) / sample_rate_hz if n else t_start_s, params)
-    out, nonfinite = _guard(
-        x,
-        float(t_start_s),
-        float(sample_rate_hz),
-        state.status == TRIPPED,
-        float(state.trip_time_s),
-        float(params.ramp_down_s),
-        min(max(float(state.last_drive_v), -params.drive_limit_v), params.drive_limit_v),
-        float(params.slew_limit_v_per_s / sample_rate_hz),
-        float(params.drive_limit_v),
-    )
+    state, args = guard_arguments(state, t_start_s, n, params)
+    out, nonfinite = guard_block(x, *args)
     y = out[0]
     last = float(y[-1]) if n else state.last_drive_v
     state = state._replace(last_drive_v=last)

@@ -29,6 +29,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
+from numba import njit
 
 from flaair_common.stream import check_block
 from flaair_control.core import dsa, safety
@@ -56,6 +57,7 @@ from flaair_control.core.transition import (
     crossing_frequency_hz,
     crossing_step,
 )
+from flaair_model.lfilter import float_block
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
 __all__ = ["initial_state", "step", "warm_up"]
@@ -106,6 +108,42 @@ def step(
 # --------------------------------------------------------------------------- handlers
 
 
+# The dSA signals a drive block reports.
+_KR, _ASYNC, _SYNC, _UNCLIPPED, _DRIVE = (
+    dsa.SIGNAL_ROWS.index(name)
+    for name in ("kr", "async_v", "sync_v", "drive_unclipped_v", "drive_v")
+)
+
+
+@njit(cache=True)
+def _drive_kernel(
+    velocity_rad_s: np.ndarray,
+    t_start_s: float,
+    zi_adv: np.ndarray,
+    zi_raw: np.ndarray,
+    coefficients: np.ndarray,
+    scalars: np.ndarray,
+    amplitude_scale: float,
+    drive_limit_v: float,
+    guard_args: tuple[float, float, bool, float, float, float, float, float],
+) -> tuple[np.ndarray, np.ndarray, float, float, float, bool]:
+    """A velocity block through the dSA filter, the amplitude scale and the drive guard in one
+    compiled call (the cores' own kernels): the guarded drive, the filter state, K_r, the
+    asynchronous and synchronous drive at the block's last sample, and whether the limit
+    clamped it (max |u| x scale > limit, as numpy's max says it: a NaN sample is not clamped).
+    """
+    out, z = dsa.filter_block(velocity_rad_s, t_start_s, zi_adv, zi_raw, coefficients, scalars)
+    drive_v = out[_DRIVE] if amplitude_scale == 1.0 else out[_DRIVE] * amplitude_scale
+    guarded, _ = safety.guard_block(drive_v, *guard_args)
+    peak, any_nan = 0.0, False
+    for u in out[_UNCLIPPED]:
+        any_nan = any_nan or math.isnan(u)
+        peak = max(peak, abs(u))
+    clamped = not any_nan and peak * amplitude_scale > drive_limit_v
+    last = out.shape[1] - 1
+    return guarded[0], z, out[_KR, last], out[_ASYNC, last], out[_SYNC, last], clamped
+
+
 def _send(
     state: SupervisorState,
     velocity_rad_s: np.ndarray,
@@ -116,12 +154,22 @@ def _send(
     """Run the dSA and safety cores on one velocity block: the next drive block."""
     index = state.next_index
     t_start = index / p.sample_rate_hz
-    ctrl, out = dsa.step(state.ctrl, dsa.DsaInputs(velocity_rad_s, t_start), state.dsa_params)
-    drive_v = out.drive_v if state.amplitude_scale == 1.0 else out.drive_v * state.amplitude_scale
-    guard, guarded = safety.step(state.safety, safety.SafetyInputs(drive_v, t_start), p.safety)
-    sig = out.signals
+    guard, guard_args = safety.guard_arguments(state.safety, t_start, p.block_size, p.safety)
+    drive_v, z, kr, async_v, sync_v, clamped = _drive_kernel(
+        float_block(velocity_rad_s),
+        t_start,
+        state.ctrl.zi_advanced,
+        state.ctrl.zi_raw,
+        *state.dsa_params.kernel_args,
+        float(state.amplitude_scale),  # one compiled signature, whatever the config's types
+        float(p.drive_limit_v),
+        guard_args,
+    )
+    ctrl = dsa.DsaState(z[0], z[1])
+    guard = guard._replace(last_drive_v=float(drive_v[-1]))
+    tripped = guard.status == safety.TRIPPED
     # the safety core tripped: trip at this block
-    if guard.status == safety.TRIPPED and state.mode == LOOP:
+    if tripped and state.mode == LOOP:
         state, notes = _check_core_trip(
             state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p
         )
@@ -133,23 +181,17 @@ def _send(
             ),
             [],
         )
-    # max |u| * scale > limit, as numpy's max would say it (a NaN sample: not clamped), on the
-    # block's few samples in Python (np.abs(...).max() costs ~5 us of fixed overhead)
-    unclipped = sig.drive_unclipped_v.tolist()
-    clamped = not any(map(math.isnan, unclipped)) and (
-        max(map(abs, unclipped), default=0.0) * state.amplitude_scale > p.drive_limit_v
-    )
     if clamped:
         state = _count(state, "clamped")
-    state, with_state, clamped = _state_due(state, clamped, bool(guarded.tripped), p)
+    state, with_state, clamped = _state_due(state, clamped, tripped, p)
     block = DriveOut(
         index,
-        guarded.drive_v,
-        float(sig.kr[-1]),
-        float(sig.async_v[-1]),
-        float(sig.sync_v[-1]),
+        drive_v,
+        kr,
+        async_v,
+        sync_v,
         clamped,
-        bool(guarded.tripped),
+        tripped,
         state.fault,
         state.amplitude_scale,
         _frequency_hz(state, p),

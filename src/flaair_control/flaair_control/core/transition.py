@@ -221,9 +221,15 @@ def crossing_step(
     """Feed samples (one block); return the new state and the frequency estimate (Hz)."""
     h = params.hysteresis
     high, prev, i = state.high, state.prev, state.next_index
+    values = x.tolist() if isinstance(x, np.ndarray) else list(x)
+    # Most blocks (a few samples of a wingbeat) stay on one side of the trigger: every sample
+    # finite (a finite sum) and none past the threshold that would flip it.
+    if values and math.isfinite(sum(values)) and (min(values) >= -h if high else max(values) <= h):
+        state = CrossingState(i + len(values), high, values[-1], state.crossings)
+        return state, crossing_frequency_hz(state, params)
     crossings = list(state.crossings)
     keep = params.average + 1
-    for v in x.tolist() if isinstance(x, np.ndarray) else x:
+    for v in values:
         if v != v or v in (math.inf, -math.inf):
             prev = None
         else:

@@ -154,7 +154,9 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
     # keep the newest samples; rest (zero deviation) fills a longer line
-    if hist.shape[0] >= length:
+    if hist.shape[0] == length:
+        return hist.copy()
+    if hist.shape[0] > length:
         return hist[hist.shape[0] - length :].copy()
     return np.concatenate([np.zeros(length - hist.shape[0]), hist])
 
@@ -230,7 +232,7 @@ def step(
     hist_s = _fit_history(state.delay_stroke_v, len_s)
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
-    phi, psi, vs, vp = (np.empty(n) for _ in range(4))
+    phi, psi, vs, vp = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     run_model(
         x,
         actuator,
