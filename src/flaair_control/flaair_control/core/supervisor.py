@@ -60,7 +60,7 @@ from flaair_control.core.transition import (
 from flaair_model.lfilter import float_block
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
-__all__ = ["initial_state", "step", "warm_up"]
+__all__ = ["drive_block", "initial_state", "step", "warm_up"]
 
 
 def initial_state(params: SupervisorParams) -> SupervisorState:
@@ -116,7 +116,7 @@ _KR, _ASYNC, _SYNC, _UNCLIPPED, _DRIVE = (
 
 
 @njit(cache=True)
-def _drive_kernel(
+def drive_block(
     velocity_rad_s: np.ndarray,
     t_start_s: float,
     zi_adv: np.ndarray,
@@ -155,7 +155,7 @@ def _send(
     index = state.next_index
     t_start = index / p.sample_rate_hz
     guard, guard_args = safety.guard_arguments(state.safety, t_start, p.block_size, p.safety)
-    drive_v, z, kr, async_v, sync_v, clamped = _drive_kernel(
+    drive_v, z, kr, async_v, sync_v, clamped = drive_block(
         float_block(velocity_rad_s),
         t_start,
         state.ctrl.zi_advanced,
