@@ -57,7 +57,6 @@ from flaair_control.core.transition import (
     crossing_frequency_hz,
     crossing_step,
 )
-from flaair_model.lfilter import float_block
 from flaair_model.notes import ERROR, INFO, WARNING, Note
 
 __all__ = ["drive_block", "initial_state", "step", "warm_up"]
@@ -156,7 +155,7 @@ def _send(
     t_start = index / p.sample_rate_hz
     guard, guard_args = safety.guard_arguments(state.safety, t_start, p.block_size, p.safety)
     drive_v, z, kr, async_v, sync_v, clamped = drive_block(
-        float_block(velocity_rad_s),
+        velocity_rad_s,  # float64 and contiguous on every path (np.radians, np.full, np.where)
         t_start,
         state.ctrl.zi_advanced,
         state.ctrl.zi_raw,
