@@ -45,6 +45,7 @@ from flaair_model.terms import (
     DiscoveredTerm,
     TermSignals,
     composed_kinds,
+    monomial,
     row_of,
 )
 from flaair_model.validation import ModelError
@@ -100,6 +101,21 @@ def test_equal_forms_compute_equal_values() -> None:
         f += (x[4], np.sign(x[4]), np.abs(x[4]), x[5], x[6], np.sign(x[6]), np.abs(x[6]))
         b = np.prod([fi**e for fi, e in zip(f, mono, strict=True)], axis=0)
         np.testing.assert_allclose(a, b, rtol=1e-12)
+
+
+def test_a_monomial_is_its_factors_multiplied_in_order_and_a_new_array() -> None:
+    rng = np.random.default_rng(5)
+    prims = [rng.normal(size=50) for _ in PRIMITIVES]
+    for exponents in ([0] * len(PRIMITIVES), [1] + [0] * (len(PRIMITIVES) - 1)):
+        out = monomial(prims, exponents)
+        assert all(out is not p for p in prims) and out.flags.writeable
+    for _ in range(20):
+        exponents = list(rng.integers(0, 4, len(PRIMITIVES)) * (rng.random(len(PRIMITIVES)) < 0.3))
+        written = np.ones(50)  # the product as written out: from 1, factor by factor
+        for x, e in zip(prims, exponents, strict=True):
+            if e:
+                written = written * (x if e == 1 else x**e)
+        np.testing.assert_array_equal(monomial(prims, exponents), written)  # bit for bit
 
 
 def test_the_composed_library_is_bounded_and_each_form_is_listed_once() -> None:

@@ -84,11 +84,15 @@ def monomial(primitives: Sequence[np.ndarray], exponents: Sequence[int]) -> np.n
     """The product of `primitives` (`primitive_values`) each to its exponent: a dynamics form's
     feature. Computing the primitives once lets many forms share them.
     """
-    out = np.ones(np.shape(primitives[0]))
+    out = None  # the product so far: 1 x a is a, so the ones it once started from are skipped
     for x, e in zip(primitives, exponents, strict=True):
         if e:
-            out = out * (x if e == 1 else x**e)
-    return out
+            factor = x if e == 1 else x**e
+            out = factor if out is None else out * factor
+    if out is None:
+        return np.ones(np.shape(primitives[0]))
+    # a new array, never a primitive itself (a caller may scale it in place)
+    return np.array(out, dtype=np.float64) if any(out is x for x in primitives) else out
 
 
 def primitive_values(

@@ -238,9 +238,12 @@ def _rank_composed(
     along = [np.concatenate(r) - r0 for r in base[1:]]
     best: dict[str, tuple[float, TermKind, float]] = {}
     r0_ss = float(np.dot(r0, r0))
+    # the step's matrix [change, *along]: the plant's columns written once, each form's change
+    # into the first column (the same matrix, not rebuilt per form)
+    a = np.column_stack([r0, *along]) if along else None
     for (k, _shape), sc, change in _changes(site, problem, current, variants, scales, r0, motion):
-        if along:
-            a = np.column_stack([change, *along])
+        if a is not None:
+            a[:, 0] = change
             step = np.linalg.lstsq(a, -r0, rcond=None)[0]
             left = r0 + a @ step
             rss = float(np.dot(left, left))
@@ -323,15 +326,15 @@ def _linear_changes(
         changes = {}
         for j in problem.run_ids:
             m = motion[j]
-            columns = []
-            for (k, shape), sc in zip(variants[chunk], scales[chunk], strict=True):
+            forms = list(zip(variants[chunk], scales[chunk], strict=True))
+            torque = np.empty((len(forms), problem.runs[j].drive_v.size))  # a row per form
+            for row, ((k, shape), sc) in enumerate(forms):
                 term = DiscoveredTerm(k.name, site, PROBE_FRACTION * sc, shape)
                 if term.is_filtered:
                     f = _midpoint(term.feature(m["signals"]))
                 else:
                     f = monomial(m["midpoint"], term.monomial)
-                columns.append(term.coefficient * f)
-            torque = np.column_stack(columns)
+                torque[row] = term.coefficient * f
             changes[j] = torque_changes(current, problem.runs[j], equation, torque, angle)
         yield from zip(variants[chunk], scales[chunk], problem.angle_columns(changes), strict=True)
 

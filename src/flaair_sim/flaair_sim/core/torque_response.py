@@ -53,7 +53,7 @@ def torque_responses(
     equation
         'stroke' or 'pitch': the equation the forcing is added to.
     torque_nm
-        (n, m) added torque (N m) per sample, one column per form (held over the sample, like
+        (m, n) added torque (N m) per sample, one row per form (held over the sample, like
         the drive; a form's value at the sample's midpoint is the closest to what the kernel
         integrates).
     angle
@@ -62,7 +62,7 @@ def torque_responses(
     Returns
     -------
     np.ndarray
-        (n, m) change of the angle (rad) at each sample, per column.
+        (m, n) change of the angle (rad) at each sample, per row.
     """
     prep = prepare(model, fs_hz)
     drive = np.ascontiguousarray(drive_v, dtype=np.float64)
@@ -70,10 +70,10 @@ def torque_responses(
         drive = np.ascontiguousarray(drive_seen(model, fs_hz, drive, 0, terms_state(model)))
     # the equation's inertia as the kernel resolves it (with the model's effects)
     inertia = prep.params[pp.P_I if equation == "stroke" else pp.P_IP]
-    forcing = np.ascontiguousarray(np.asarray(torque_nm, dtype=np.float64) / inertia)
-    if forcing.ndim != 2 or forcing.shape[0] != drive.shape[0]:
-        raise ValueError(f"torque_nm is {forcing.shape}, expected ({drive.shape[0]}, m)")
-    out = np.empty_like(forcing)
+    torque = np.ascontiguousarray(torque_nm, dtype=np.float64)
+    if torque.ndim != 2 or torque.shape[1] != drive.shape[0]:
+        raise ValueError(f"torque_nm is {torque.shape}, expected (m, {drive.shape[0]})")
+    out = np.empty_like(torque)
     linear_responses(
         np.array(mechanical0, dtype=np.float64),
         drive,
@@ -82,7 +82,8 @@ def torque_responses(
         prep.n_substeps_contact,
         prep.params,
         EQUATIONS[equation],
-        forcing,
+        torque,
+        float(inertia),
         0 if angle == "stroke" else 2,
         out,
     )
