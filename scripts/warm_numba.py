@@ -85,7 +85,7 @@ def warm_rest() -> None:
 
     for m in (model, stiffened):
         torque_responses(
-            m, drive, fs_hz, np.zeros(4), "stroke", np.zeros((2, drive.size)), "stroke"
+            m, drive, fs_hz, np.zeros(4), "stroke", np.zeros((drive.size, 2)), "stroke"
         )
     try:  # the offline analysis kernels
         from flaair_analysis import wingbeat

@@ -34,15 +34,15 @@ def test_a_constant_torque_on_the_plant_at_rest_is_the_linear_oscillators_step_r
     """
     n = int(0.5 * FS_HZ)
     tau_nm = 1e-7
-    torque = np.full((1, n), tau_nm)
+    torque = np.full((n, 1), tau_nm)
     stroke = torque_responses(model, np.zeros(n), FS_HZ, np.zeros(4), "stroke", torque, "stroke")
     k, inertia = model.plant.stroke_stiffness_nm_per_rad, model.plant.stroke_inertia_kg_m2
     t = np.arange(n) / FS_HZ
     closed = tau_nm / k * (1.0 - np.cos(math.sqrt(k / inertia) * t))
     assert stroke[0, 0] == 0.0  # sample 0 is the state before the first step
-    assert np.max(np.abs(stroke[0] - closed)) < 1e-4 * tau_nm / k
+    assert np.max(np.abs(stroke[:, 0] - closed)) < 1e-4 * tau_nm / k
     pitch = torque_responses(model, np.zeros(n), FS_HZ, np.zeros(4), "pitch", torque, "pitch")
-    assert pitch[0, -1] == pytest.approx(tau_nm / model.plant.hinge_stiffness_nm_per_rad, rel=1e-6)
+    assert pitch[-1, 0] == pytest.approx(tau_nm / model.plant.hinge_stiffness_nm_per_rad, rel=1e-6)
 
 
 def _form_torque(term: DiscoveredTerm, phi, psi, drive_v) -> np.ndarray:
@@ -96,8 +96,8 @@ def test_the_linearised_response_is_the_simulated_change_of_a_small_term(
     simulated = (moved.stroke_rad if angle == "stroke" else moved.pitch_rad)[0] - (
         phi if angle == "stroke" else psi
     )
-    torque = _form_torque(term, phi, psi, drive)[None, :]
-    linear = torque_responses(model, drive, FS_HZ, np.zeros(4), equation, torque, angle)[0]
+    torque = _form_torque(term, phi, psi, drive)[:, None]
+    linear = torque_responses(model, drive, FS_HZ, np.zeros(4), equation, torque, angle)[:, 0]
     error = np.linalg.norm(linear - simulated) / np.linalg.norm(simulated)
     assert error < (5e-3 if smooth else 5e-2), error
     assert math.isfinite(error) and np.linalg.norm(simulated) > 0.0

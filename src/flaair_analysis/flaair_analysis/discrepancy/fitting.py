@@ -162,15 +162,13 @@ class ResidualProblem:
         return np.concatenate(cols)
 
     def angle_columns(self, changes: Mapping[int, np.ndarray]) -> np.ndarray:
-        """The weighted residual's change of a truth channel, one row per row of
-        ``changes[run]`` ((m, n): the judged angle's change in rad at each sample): the folds'
+        """The weighted residual's change of a truth channel, one row per column of
+        ``changes[run]`` ((n, m): the judged angle's change in rad at each sample): the folds'
         samples stacked as `residuals` stacks them.
         """
         cols = []
         for f, idx in zip(self.folds, self.idx, strict=True):
-            # column-major, as the means below have always been summed: a row's mean summed in
-            # another order moves its last bits, and with them a near tie between two forms
-            x = np.degrees(np.asfortranarray(changes[f.run][:, idx]))
+            x = np.degrees(changes[f.run][idx].T)
             cols.append(-(x - x.mean(axis=1, keepdims=True)) / self.weight)
         return np.concatenate(cols, axis=1)
 

@@ -229,9 +229,9 @@ def simulate_motion(models: Sequence[Model], run: Run) -> SimOutput:
 def torque_changes(
     model: Model, run: Run, equation: str, torque_nm: np.ndarray, angle: str
 ) -> np.ndarray:
-    """(m, n) change of the run's `angle` ('stroke' or 'pitch', rad) made by each row of a
-    small (m, n) torque (N m) added to `equation`, to first order about the model's motion from
-    the run's initial state (`flaair_sim.core.torque_response`).
+    """(n, m) change of the run's `angle` ('stroke' or 'pitch', rad) made by each column of a
+    small torque (N m) added to `equation`, to first order about the model's motion from the
+    run's initial state (`flaair_sim.core.torque_response`).
     """
     return torque_responses(model, run.drive_v, run.fs_hz, _x0(run), equation, torque_nm, angle)
 

@@ -327,14 +327,14 @@ def _linear_changes(
         for j in problem.run_ids:
             m = motion[j]
             forms = list(zip(variants[chunk], scales[chunk], strict=True))
-            torque = np.empty((len(forms), problem.runs[j].drive_v.size))  # a row per form
-            for row, ((k, shape), sc) in enumerate(forms):
+            torque = np.empty((problem.runs[j].drive_v.size, len(forms)))  # a column per form
+            for col, ((k, shape), sc) in enumerate(forms):
                 term = DiscoveredTerm(k.name, site, PROBE_FRACTION * sc, shape)
                 if term.is_filtered:
                     f = _midpoint(term.feature(m["signals"]))
                 else:
                     f = monomial(m["midpoint"], term.monomial)
-                torque[row] = term.coefficient * f
+                torque[:, col] = term.coefficient * f
             changes[j] = torque_changes(current, problem.runs[j], equation, torque, angle)
         yield from zip(variants[chunk], scales[chunk], problem.angle_columns(changes), strict=True)
 

@@ -487,12 +487,12 @@ def _linear_responses_with(
     x, drive, commanded, last, held, h, nsub, nsub_contact, p, c, equation, torque, inertia, angle,
     out,
 ):  # fmt: skip
-    """March the motion sample by sample with the kernel's own step, and every torque row's
-    deviation with the linearised transition (its forcing the torque over `inertia`); `out[j, k]`
-    is row j's deviation of the judged angle (0 stroke, 2 pitch) at sample k (before the
+    """March the motion sample by sample with the kernel's own step, and every torque column's
+    deviation with the linearised transition (its forcing the torque over `inertia`); `out[k, j]`
+    is column j's deviation of the judged angle (0 stroke, 2 pitch) at sample k (before the
     sample's step, like the kernel's output).
     """
-    m, n = torque.shape
+    n, m = torque.shape
     d = np.zeros((4, m))
     row_a, row_b = np.zeros(4), np.zeros(4)
     phi_m, gamma, work = np.zeros((4, 4)), np.zeros(4), np.zeros((5, 4, 4))
@@ -503,7 +503,7 @@ def _linear_responses_with(
     start, mid = np.zeros(4), np.zeros(4)
     for k in range(n):
         for j in range(m):
-            out[j, k] = d[angle, j]
+            out[k, j] = d[angle, j]
         v = drive[k]
         dv = (commanded[k] - last) * fs
         z0, z1 = held[pp.HELD_LOWPASS], held[pp.HELD_LOWPASS + 1]
@@ -520,7 +520,7 @@ def _linear_responses_with(
         b_phi, b_psi = _jacobian(mid, v, c, contact, k * h, dv, z0, z1, equation, row_a, row_b)
         _transition(row_a, row_b, b_phi, b_psi, hs, nsub, phi_m, gamma, work)
         for j in range(m):
-            u = torque[j, k] / inertia
+            u = torque[k, j] / inertia
             d0 = phi_m[0, 0] * d[0, j] + phi_m[0, 1] * d[1, j] + phi_m[0, 2] * d[2, j]
             d1 = phi_m[1, 0] * d[0, j] + phi_m[1, 1] * d[1, j] + phi_m[1, 2] * d[2, j]
             d2 = phi_m[2, 0] * d[0, j] + phi_m[2, 1] * d[1, j] + phi_m[2, 2] * d[2, j]
@@ -535,13 +535,13 @@ def _linear_responses_with(
 def linear_responses(x, drive, h, nsub, nsub_contact, p, equation, torque, inertia, angle, out):
     """The plant's response to small added torques on `equation` (1 stroke, 2 pitch; its
     `inertia` turns them into accelerations), linearised about its motion from the state `x`
-    (the actuator and the low-pass terms at rest) over `drive`: `out[j, k]` is the change of
-    the angle `angle` (0 stroke, 2 pitch) at sample k made by the torque row `torque[j]` (N m,
-    held over each sample). One row per form: a row is one form's contiguous record, and a
-    sample's few hundred rows stay in the cache while it marches.
+    (the actuator and the low-pass terms at rest) over `drive`: `out[k, j]` is the change of
+    the angle `angle` (0 stroke, 2 pitch) at sample k made by the torque column `torque[:, j]`
+    (N m, held over each sample), divided by `inertia` as the kernel reads it (not a copy of
+    the whole batch first).
 
     The motion is marched sample by sample with the kernel's own step (bit for bit its output;
-    the actuator's hysteresis taken off the drive as `run_model` does), and each row's
+    the actuator's hysteresis taken off the drive as `run_model` does), and each column's
     deviation with the linear system's transition at the sample (`_transition`).
     """
     held = np.zeros(pp.HELD_LEN)

@@ -53,7 +53,7 @@ def torque_responses(
     equation
         'stroke' or 'pitch': the equation the forcing is added to.
     torque_nm
-        (m, n) added torque (N m) per sample, one row per form (held over the sample, like
+        (n, m) added torque (N m) per sample, one column per form (held over the sample, like
         the drive; a form's value at the sample's midpoint is the closest to what the kernel
         integrates).
     angle
@@ -62,7 +62,7 @@ def torque_responses(
     Returns
     -------
     np.ndarray
-        (m, n) change of the angle (rad) at each sample, per row.
+        (n, m) change of the angle (rad) at each sample, per column.
     """
     prep = prepare(model, fs_hz)
     drive = np.ascontiguousarray(drive_v, dtype=np.float64)
@@ -71,9 +71,9 @@ def torque_responses(
     # the equation's inertia as the kernel resolves it (with the model's effects)
     inertia = prep.params[pp.P_I if equation == "stroke" else pp.P_IP]
     torque = np.ascontiguousarray(torque_nm, dtype=np.float64)
-    if torque.ndim != 2 or torque.shape[1] != drive.shape[0]:
-        raise ValueError(f"torque_nm is {torque.shape}, expected (m, {drive.shape[0]})")
-    out = np.empty_like(torque)
+    if torque.ndim != 2 or torque.shape[0] != drive.shape[0]:
+        raise ValueError(f"torque_nm is {torque.shape}, expected ({drive.shape[0]}, m)")
+    out = np.empty(torque.shape)
     linear_responses(
         np.array(mechanical0, dtype=np.float64),
         drive,
