@@ -132,8 +132,7 @@ def drive_block(
     clamped it (max |u| x scale > limit, as numpy's max says it: a NaN sample is not clamped).
     """
     out, z = dsa.filter_block(velocity_rad_s, t_start_s, zi_adv, zi_raw, coefficients, scalars)
-    drive_v = out[_DRIVE] if amplitude_scale == 1.0 else out[_DRIVE] * amplitude_scale
-    guarded, _ = safety.guard_block(drive_v, *guard_args)
+    guarded, _ = safety.guard_block(out[_DRIVE] * amplitude_scale, *guard_args)  # x 1.0 exact
     peak, any_nan = 0.0, False
     for u in out[_UNCLIPPED]:
         any_nan = any_nan or math.isnan(u)

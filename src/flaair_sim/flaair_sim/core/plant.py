@@ -154,9 +154,7 @@ def _frozen(a: np.ndarray) -> np.ndarray:
 
 def _fit_history(hist: np.ndarray, length: int) -> np.ndarray:
     # keep the newest samples; rest (zero deviation) fills a longer line
-    if hist.shape[0] == length:
-        return hist.copy()
-    if hist.shape[0] > length:
+    if hist.shape[0] >= length:
         return hist[hist.shape[0] - length :].copy()
     return np.concatenate([np.zeros(length - hist.shape[0]), hist])
 

@@ -537,8 +537,7 @@ def linear_responses(x, drive, h, nsub, nsub_contact, p, equation, torque, inert
     `inertia` turns them into accelerations), linearised about its motion from the state `x`
     (the actuator and the low-pass terms at rest) over `drive`: `out[k, j]` is the change of
     the angle `angle` (0 stroke, 2 pitch) at sample k made by the torque column `torque[:, j]`
-    (N m, held over each sample), divided by `inertia` as the kernel reads it (not a copy of
-    the whole batch first).
+    (N m, held over each sample), divided by `inertia` as the kernel reads it.
 
     The motion is marched sample by sample with the kernel's own step (bit for bit its output;
     the actuator's hysteresis taken off the drive as `run_model` does), and each column's
