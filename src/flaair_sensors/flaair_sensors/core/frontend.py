@@ -58,7 +58,6 @@ and scipy calls.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any, NamedTuple
 
@@ -97,9 +96,9 @@ class WingEstimate(NamedTuple):
     pitch_valid: np.ndarray
 
 
-@dataclass(frozen=True)
-class FrontendState:
-    """Filter state between blocks (scipy.signal ``zi`` style; never contains NaN).
+class FrontendState(NamedTuple):
+    """Filter state between blocks (scipy.signal ``zi`` style; never contains NaN; a NamedTuple,
+    cheap to build once a block).
 
     ``*_since_bad`` counts usable samples since the last unusable one (for the hold-off).
     """

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -74,9 +73,9 @@ class SimOutput(NamedTuple):
     pitch_sensor_v: np.ndarray
 
 
-@dataclass(frozen=True, eq=False)
-class PlantState:
-    """Plant state between blocks (arrays are read-only).
+class PlantState(NamedTuple):
+    """Plant state between blocks (arrays are read-only; a NamedTuple, cheap to build once a
+    block).
 
     Attributes
     ----------
@@ -230,7 +229,9 @@ def step(
     hist_s = _fit_history(state.delay_stroke_v, len_s)
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
-    phi, psi, vs, vp = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    # one buffer: the noise goes onto both sensor rows in one operation
+    signals = np.empty((4, n))
+    phi, psi, vs, vp = signals
     run_model(
         x,
         actuator,
@@ -260,9 +261,9 @@ def step(
             "limit"
         )
     if rng is not None:
-        noise = rng.standard_normal((n, 2)) * model.noise.sensor_noise_v_rms
-        vs += noise[:, 0]
-        vp += noise[:, 1]
+        noise = rng.standard_normal((n, 2))
+        noise *= model.noise.sensor_noise_v_rms
+        signals[2:] += noise.T
     new_state = PlantState(
         mechanical=_frozen(x),
         highpass_zi=_frozen(zi),
