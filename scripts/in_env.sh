@@ -7,10 +7,15 @@ if [ ! -f "$ROOT/install/setup.bash" ] || [ ! -x "$ROOT/.venv/bin/python" ]; the
   echo "[flaair] the environment is not built yet; building it (scripts/setup_env.sh)" >&2
   "$ROOT/scripts/setup_env.sh" >&2
 fi
-set +u
-# shellcheck disable=SC1091
-. "$ROOT/install/setup.bash"
-set -u
+# A command started from inside the environment (a test's or a graph's child) inherits it:
+# sourcing colcon's setup again would only cost its helper's Python start.
+if [ "${FLAAIR_ENV_SOURCED:-}" != "$ROOT" ]; then
+  set +u
+  # shellcheck disable=SC1091
+  . "$ROOT/install/setup.bash"
+  set -u
+  export FLAAIR_ENV_SOURCED="$ROOT"
+fi
 export FLAAIR_CONFIG_DIR="${FLAAIR_CONFIG_DIR:-$ROOT/config}"
 export FLAAIR_ROOT="$ROOT"
 export MPLBACKEND="${MPLBACKEND:-Agg}"
