@@ -31,17 +31,17 @@ def test_lockstep_drive_retries_then_ends_on_a_zero_block_and_keeps_running(
         monkeypatch.setattr(
             drive.publisher,
             "publish",
-            lambda m: sent.append(
+            lambda stamp_ns, fields: sent.append(
                 (
                     round(loop.clock.now_s - t0, 6),
-                    m.first_sample_index,
-                    float(np.abs(m.drive_v).max()),
+                    fields["first_sample_index"],
+                    float(np.abs(fields["drive_v"]).max()),
                 )
             ),
         )
         # a silent plant: it subscribes to the drive and
         # offers the sensor stream, and never publishes
-        monkeypatch.setattr(drive.publisher, "get_subscription_count", lambda: 1)
+        monkeypatch.setattr(drive.publisher, "subscription_count", lambda: 1)
         monkeypatch.setattr(drive.ack, "get_publisher_count", lambda: 1)
         loop.run_for(3.0)
         # still running after the warnings and the info line

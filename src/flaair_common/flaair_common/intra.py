@@ -451,16 +451,17 @@ def subscribe_blocks(
     qos: Any,
     on_error: Callable[[Exception], None],
     background: bool = False,
-) -> None:
+) -> Any | None:
     """Call `callback(fields)` for every block of `topic`: in-process when composed, else from DDS.
 
     ``fields`` is indexable by the message's field names and ``sec``/``nanosec`` either way (a
-    `cdr` record from DDS, a dict in-process); undecodable DDS bytes go to ``on_error``.
+    `cdr` record from DDS, a dict in-process); undecodable DDS bytes go to ``on_error``. Returns
+    the DDS subscription (None in-process).
     """
     bus = current()
     if bus is not None and topic in bus.local_topics:
         bus.subscribe(topic, callback, background)
-        return
+        return None
 
     def on_bytes(data: bytes) -> None:
         try:
@@ -470,7 +471,7 @@ def subscribe_blocks(
             return
         callback(fields)
 
-    node.create_subscription(msg_type, topic, on_bytes, qos, raw=True)
+    return node.create_subscription(msg_type, topic, on_bytes, qos, raw=True)
 
 
 # The fixed-size sample-block streams: topic -> (CDR layout, header frame_id or None).
@@ -515,11 +516,11 @@ def subscribe_stream(
     qos: Any,
     on_error: Callable[[Exception], None],
     background: bool = False,
-) -> None:
+) -> Any | None:
     """`subscribe_blocks` to the sample-block stream
     `topic` (message type and codec from the topic).
     """
-    subscribe_blocks(
+    return subscribe_blocks(
         node,
         _message_class(topic),
         topic,

@@ -23,13 +23,12 @@ from __future__ import annotations
 
 import time
 
-from flaair_common import topics
-from flaair_common.blocks import from_array, stamp_from_time_s
+from flaair_common import intra, topics
+from flaair_common.blocks import stamp_ns_of_sample
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
 from flaair_common.qos import BLOCK_STREAM
-from flaair_common.runtime import log_notes, run_node
-from flaair_msgs.msg import DriveCommandBlock, SensorVoltageBlock, WingStateBlock
+from flaair_common.runtime import log_notes, run_node, warn_counted
 from flaair_sim.core import drive_pacing as pacing
 from flaair_sim.drive_io import CONFIG_FILE, DRIVE_NODE_PARAMS, NODE_NAME, pacing_params_from_config
 
@@ -45,17 +44,18 @@ class DriveNode(FlaairNode):
         self.params = pacing_params_from_config(self.p)
         self.live = self.live_parameters("drive_limit_v")
         self.state = pacing.initial_state(self.params, t_wall=time.monotonic())
-        self.publisher = self.create_publisher(DriveCommandBlock, topics.DRIVE, BLOCK_STREAM)
-        self.ack = None
+        # CDR bytes out and in through flaair_common.cdr, as every block node: rclpy's message
+        # conversion of each block costs about as much CPU as the transport
+        block_size = self.params.block_size
+        self.publisher = intra.block_publisher(self, topics.DRIVE, block_size, BLOCK_STREAM)
+        self.ack, self.rejected_acks = None, 0
         if self.params.pacing == pacing.LOCKSTEP:
-            if self.p["pace_on_wing_state"]:
-                self.ack = self.create_subscription(
-                    WingStateBlock, topics.WING_STATE, self.on_wing_state, BLOCK_STREAM
-                )
-            else:
-                self.ack = self.create_subscription(
-                    SensorVoltageBlock, topics.SENSOR_VOLTAGE, self.on_sensor, BLOCK_STREAM
-                )
+            on_wing = self.p["pace_on_wing_state"]
+            ack_topic = topics.WING_STATE if on_wing else topics.SENSOR_VOLTAGE
+            self.ack_samples = "stroke_deg" if on_wing else "stroke_sensor_v"
+            self.ack = intra.subscribe_stream(
+                self, ack_topic, block_size, self.on_ack, BLOCK_STREAM, self.on_undecodable
+            )
         # lockstep: starts the stream once the plant subscribes; realtime: the wall-clock pace
         self.create_timer(0.002 if self.ack else 0.005, self.on_tick)
         self.get_logger().info(
@@ -68,7 +68,7 @@ class DriveNode(FlaairNode):
 
     def peers(self) -> tuple[int, int]:
         return (
-            self.publisher.get_subscription_count(),
+            self.publisher.subscription_count(),
             self.ack.get_publisher_count() if self.ack else 0,
         )
 
@@ -77,25 +77,29 @@ class DriveNode(FlaairNode):
         self.state, out = pacing.step(self.state, inputs, self.params)
         fs = self.params.sample_rate_hz
         for block in out.blocks:
-            message = DriveCommandBlock(
-                sample_rate_hz=fs, first_sample_index=block.first_sample_index
+            self.publisher.publish(
+                stamp_ns_of_sample(block.first_sample_index, fs),
+                {
+                    "sample_rate_hz": fs,
+                    "first_sample_index": block.first_sample_index,
+                    "drive_v": block.drive_v,
+                },
             )
-            message.header.stamp = stamp_from_time_s(block.first_sample_index / fs)
-            message.drive_v = from_array(block.drive_v)
-            self.publisher.publish(message)
         log_notes(self.get_logger(), out.notes)
         return len(out.blocks)
 
     def on_tick(self) -> None:
         self.apply(pacing.Tick(time.monotonic(), *self.peers(), self.limit_v()))
 
-    def on_sensor(self, message: SensorVoltageBlock) -> None:
-        end = message.first_sample_index + len(message.stroke_sensor_v)
+    def on_ack(self, fields) -> None:
+        """A sensor (or wing-state) block: the samples up to its end are answered."""
+        end = int(fields["first_sample_index"]) + len(fields[self.ack_samples])
         self.apply(pacing.Ack(time.monotonic(), end, *self.peers(), self.limit_v()))
 
-    def on_wing_state(self, message: WingStateBlock) -> None:
-        end = message.first_sample_index + len(message.stroke_deg)
-        self.apply(pacing.Ack(time.monotonic(), end, *self.peers(), self.limit_v()))
+    def on_undecodable(self, exc: Exception) -> None:
+        self.rejected_acks += 1
+        text = f"acknowledging block dropped: {exc} [{self.rejected_acks} so far]"
+        warn_counted(self.get_logger(), self.rejected_acks, text)
 
     def close(self) -> None:
         """Shutdown: a zero block unless the last one already was (or nothing was sent)."""
