@@ -28,7 +28,6 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-from scipy.signal import butter
 
 from flaair_model.validation import ModelError, check_channel, check_fields
 
@@ -343,6 +342,10 @@ def _highpass_terms(e: ChargeAmpHighpass, c: TermContext) -> dict[str, float]:
             "effects.charge_amp_highpass.corner_hz must be below fs_hz/2 = "
             f"{c.fs_hz / 2:g}, got {e.corner_hz:g}"
         )
+    # deferred: scipy.signal takes about a second to import, and only this effect needs it here:
+    # a process that loads the model (a plant, a health monitor, an experiment) is spared it
+    from scipy.signal import butter
+
     b, a = butter(1, e.corner_hz, btype="highpass", fs=c.fs_hz)
     b, a = b / a[0], a / a[0]
     return {"highpass_b0": float(b[0]), "highpass_b1": float(b[1]), "highpass_a1": float(a[1])}

@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from flaair_model import term_forms
 from flaair_model.validation import ModelError, check_number
@@ -211,6 +210,10 @@ class TermSignals:
 
     def lowpass(self, x: np.ndarray, corner_hz: float) -> np.ndarray:
         """`x` through the term's first-order low-pass at `corner_hz`."""
+        # deferred: scipy.signal takes about a second to import, and only a low-pass term needs
+        # it here: a process that loads the model (a plant, a health monitor) is spared it
+        from scipy import signal
+
         b, a = lowpass_ba(corner_hz, self.fs_hz)
         y, zf = signal.lfilter(b, a, x, zi=np.array([self.zi]))
         self.zf = float(zf[0])

@@ -42,6 +42,7 @@ class PlantNode(FlaairNode):
         self.params = io.actuator_params_from_config(self.p)
         self.driver = actuator.initial_state(self.params, t_wall=time.monotonic())
         self.state = plant.initial_state(plant.PlantStepParams(self.model, self.fs_hz))
+        plant.warm_up(plant.PlantStepParams(self.model, self.fs_hz), self.block_size)
         self.noise_rng, self.tracking_rng = io.generators_from_config(self.p)
         self.camera = io.camera_from_config(self.p, self.model)
         self.sensor, self.truth = (

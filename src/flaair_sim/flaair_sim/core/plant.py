@@ -61,6 +61,7 @@ __all__ = [
     "simulate_batch",
     "simulate_batch_from",
     "step",
+    "warm_up",
 ]
 
 
@@ -192,6 +193,13 @@ class PlantStepParams(NamedTuple):
 
     model: Model
     sample_rate_hz: float
+
+
+def warm_up(params: PlantStepParams, n: int = 10) -> None:
+    """Load the compiled kernels (and what the model's effects and terms import) now, with a
+    throwaway block from rest, not on the first live block, when the drive would queue behind it.
+    """
+    step(initial_state(params), PlantInputs(np.zeros(n)), params)
 
 
 def step(
