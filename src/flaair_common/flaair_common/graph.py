@@ -298,6 +298,20 @@ class Graph:
                 os.killpg(process.pid, signal.SIGKILL)
             return process.wait()
 
+    def stop_together(
+        self, processes: Sequence[subprocess.Popen], timeout_s: float = STOP_TIMEOUT_S
+    ) -> None:
+        """Signal every one of `processes` at once (SIGINT), then wait for each (then kill it):
+        for children whose stopping order does not matter, each spending its own wait for acks.
+        """
+        for process in processes:
+            if process.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(process.pid, signal.SIGINT)
+        deadline = time.monotonic() + timeout_s
+        for process in processes:
+            self.stop(process, timeout_s=max(0.0, deadline - time.monotonic()))
+
     def stop_all(self, timeout_s: float = STOP_TIMEOUT_S) -> None:
         """Stop every child, last started first."""
         for _, process in reversed(self.children):

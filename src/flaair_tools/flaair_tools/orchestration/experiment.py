@@ -592,6 +592,8 @@ def run_experiment(
         _spin_until(runner, graph, lambda: time.monotonic() > settle_until, 5.0, "the last blocks")
         total_blocks = runner.sensor_end_index // shared.block_size
         graph.stop(started["recorder"], timeout_s=60.0)
+        # the bag is closed: the other listeners and the plant stop together
+        graph.stop_together([process for _, process in graph.children])
     finally:
         graph.close()
         runner.spinner.remove_node(runner)
