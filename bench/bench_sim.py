@@ -3,7 +3,8 @@
 Run: python bench/bench_sim.py [--json out.json]
 
 Figures (1 s of robot time at 20 kHz, 1 s chirp 20-200 Hz at 100 V):
-- numba compile time (fresh process, empty cache) and first call here (usually a cache load),
+- numba compile time (fresh process, empty cache; with --cold-compile, `make bench-full`: about
+  a minute of compiling for an `info` figure) and the first call here (usually a cache load),
   reported separately and excluded from the timings;
 - nominal simulate() with numba vs `python_rk4` below (same model, same step), in the same run:
   the speedup (target >= 100x) and the largest difference of their angles (target <= 1e-6 deg:
@@ -150,6 +151,11 @@ def cold_compile_s() -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, help="write the figures as JSON here")
+    parser.add_argument(
+        "--cold-compile",
+        action="store_true",
+        help="also time a cold numba compile in a fresh process (about a minute)",
+    )
     args = parser.parse_args()
 
     model = load_model()
@@ -157,7 +163,8 @@ def main() -> None:
     drive = chirp(np.arange(n) / FS_HZ, 100.0, 20.0, 200.0, DURATION_S)
     figures: list[Figure] = []
 
-    figures.append(info("numba compile, cold cache (fresh process)", cold_compile_s(), "s"))
+    if args.cold_compile:
+        figures.append(info("numba compile, cold cache (fresh process)", cold_compile_s(), "s"))
     start = time.perf_counter()
     plant.simulate(drive[:10], FS_HZ, model)
     plant.simulate_batch(drive[:10], FS_HZ, [model, model])

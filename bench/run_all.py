@@ -69,7 +69,8 @@ class Part:
 # measured (docs/results), with a few per cent of room; the streaming parts run shorter signals
 # than their scripts' defaults (the same in both modes).
 PARTS = (
-    Part("bench_sim", 18, 25),  # a cold numba compile in a fresh process: 16-18 s
+    # the timings: 10 s; make bench-full also a cold numba compile in a fresh process: 55 s
+    Part("bench_sim", 15, 80, (), ("--cold-compile",)),
     Part("bench_frontend_core", 3, 10),  # 2 s
     Part("bench_collision", 5, 10),  # 4 s
     # twelve changed robots, 10 min of unchanged flapping over both controllers (the

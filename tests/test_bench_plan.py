@@ -67,13 +67,15 @@ def test_only_the_discrepancy_parts_and_the_live_runs_differ_between_the_modes()
     tables' part runs one robot of every family in both: its right-effect and false-discovery
     figures are over the whole family set); the independent truth's runs one robot of each kind
     in `make bench`; the live runs are three pairs of 60 s in `make bench-full` (each judged by
-    the same targets as `make bench`'s one pair of 15 s).
+    the same targets as `make bench`'s one pair of 15 s); the plant's cold numba compile (an
+    `info` figure, about a minute) is timed in `make bench-full` only.
     """
     differ = {p.name: (p.args, p.full_args) for p in run_all.PARTS if p.args != p.full_args}
     assert differ == {
         "bench_discrepancy": (("--subset", "--sweep"), ("--sweep",)),
         "bench_truth": (("--subset",), ()),
         "bench_bridge": (("--duration", "15"), ("--duration", "60", "--runs", "3")),
+        "bench_sim": ((), ("--cold-compile",)),
     }
     tables = next(p for p in run_all.PARTS if p.name == "bench_tables")
     assert "--families" not in tables.args  # every family of bench_tables.FAMILIES
