@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -100,14 +100,12 @@ class FrontendState(NamedTuple):
     """Filter state between blocks (scipy.signal ``zi`` style; never contains NaN; a NamedTuple,
     cheap to build once a block).
 
+    ``filter_zi`` holds the five filters' ``zi`` end to end (stroke drift, pitch drift, stroke
+    lead, pitch lead, velocity; `_zi_lengths`): the kernel takes and returns one array, not five.
     ``*_since_bad`` counts usable samples since the last unusable one (for the hold-off).
     """
 
-    stroke_drift_zi: np.ndarray
-    pitch_drift_zi: np.ndarray
-    stroke_lead_zi: np.ndarray
-    pitch_lead_zi: np.ndarray
-    velocity_zi: np.ndarray
+    filter_zi: np.ndarray
     stroke_since_bad: int
     pitch_since_bad: int
 
@@ -306,14 +304,32 @@ def initial_state(
     s0 = angle0(first_stroke_v, params.stroke_offset_v, params.stroke_volts_per_rad)
     p0 = angle0(first_pitch_v, params.pitch_offset_v, params.pitch_volts_per_rad)
     return FrontendState(
-        stroke_drift_zi=drift_zi(first_stroke_v, params.stroke_offset_v, "first_stroke_v"),
-        pitch_drift_zi=drift_zi(first_pitch_v, params.pitch_offset_v, "first_pitch_v"),
-        stroke_lead_zi=lead_zi(flt.stroke_lead, s0),
-        pitch_lead_zi=lead_zi(flt.pitch_lead, p0),
-        velocity_zi=np.zeros(2),  # a constant angle has zero velocity: zero state is settled
+        filter_zi=np.concatenate(
+            [
+                drift_zi(first_stroke_v, params.stroke_offset_v, "first_stroke_v"),
+                drift_zi(first_pitch_v, params.pitch_offset_v, "first_pitch_v"),
+                lead_zi(flt.stroke_lead, s0),
+                lead_zi(flt.pitch_lead, p0),
+                np.zeros(2),  # velocity: a constant angle has zero velocity, zero state is settled
+            ]
+        ),
         stroke_since_bad=_NEVER_BAD,
         pitch_since_bad=_NEVER_BAD,
     )
+
+
+def _zi_lengths(params: FrontendParams) -> tuple[int, ...]:
+    """The length of each filter's ``zi`` in `FrontendState.filter_zi`, in its order (an absent
+    filter keeps a placeholder: 1 for the drift tracker, 2 for a lead).
+    """
+    flt = filters(params)
+    drift = max(flt.drift_b.size, flt.drift_a.size) - 1 if params.drift_corner_hz > 0 else 1
+
+    def lead(ba: tuple[np.ndarray, np.ndarray] | None) -> int:
+        return 2 if ba is None else max(ba[0].size, ba[1].size) - 1
+
+    velocity = max(flt.vel_b.size, flt.vel_a.size) - 1
+    return (drift, drift, lead(flt.stroke_lead), lead(flt.pitch_lead), velocity)
 
 
 # stands in for an absent lead filter (the kernel's arguments keep one type)
@@ -321,31 +337,50 @@ _NO_FILTER = np.zeros(1)
 
 
 @lru_cache(maxsize=64)
-def _kernel_constants(p: FrontendParams) -> tuple[Any, ...]:
-    """``_block``'s arguments after the block and the state
-    (normalized filters, thresholds), once per params.
+def _kernel_constants(p: FrontendParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``_block``'s arguments after the block and the state, once per params: the scalars
+    (zeros, gains, rail thresholds), the layout (switches, hold-off, where each filter's
+    coefficients and state lie) and every filter's coefficients end to end.
+
+    Three arrays, not the 19 arguments they hold: a compiled call pays for each argument.
     """
     flt = filters(p)
     rails = bool(p.rail_low_v > -math.inf or p.rail_high_v < math.inf)
     stroke_lead = normalized_ba(*flt.stroke_lead) if flt.stroke_lead else (_NO_FILTER, _NO_FILTER)
     pitch_lead = normalized_ba(*flt.pitch_lead) if flt.pitch_lead else (_NO_FILTER, _NO_FILTER)
-    return (
-        p.reference_voltage_v + p.stroke_offset_v,
-        p.reference_voltage_v + p.pitch_offset_v,
-        float(p.stroke_volts_per_rad),
-        float(p.pitch_volts_per_rad),
-        rails,
-        p.rail_low_v + p.rail_margin_v,
-        p.rail_high_v - p.rail_margin_v,
-        p.holdoff_samples,
-        p.drift_corner_hz > 0,
+    coefficients = [
         *normalized_ba(flt.drift_b, flt.drift_a),
-        flt.stroke_lead is not None,
         *stroke_lead,
-        flt.pitch_lead is not None,
         *pitch_lead,
         *normalized_ba(flt.vel_b, flt.vel_a),
+    ]
+    scalars = np.array(
+        [
+            p.reference_voltage_v + p.stroke_offset_v,
+            p.reference_voltage_v + p.pitch_offset_v,
+            float(p.stroke_volts_per_rad),
+            float(p.pitch_volts_per_rad),
+            p.rail_low_v + p.rail_margin_v,
+            p.rail_high_v - p.rail_margin_v,
+        ]
     )
+    layout = np.array(
+        [
+            rails,
+            p.holdoff_samples,
+            p.drift_corner_hz > 0,
+            flt.stroke_lead is not None,
+            flt.pitch_lead is not None,
+            *np.cumsum([0] + [c.size for c in coefficients]),
+            *np.cumsum([0, *_zi_lengths(p)]),
+        ],
+        dtype=np.int64,
+    )
+    for array in (scalars, layout):
+        array.setflags(write=False)
+    coef = np.concatenate(coefficients)
+    coef.setflags(write=False)
+    return scalars, layout, coef
 
 
 # per block: the constants of the params object the loop passes every block, without hashing it
@@ -412,99 +447,78 @@ def _channel(
 def _block(
     sv: np.ndarray,
     pv: np.ndarray,
-    stroke_drift_zi: np.ndarray,
-    pitch_drift_zi: np.ndarray,
-    stroke_lead_zi: np.ndarray,
-    pitch_lead_zi: np.ndarray,
-    velocity_zi: np.ndarray,
+    filter_zi: np.ndarray,
     stroke_since_bad: int,
     pitch_since_bad: int,
-    stroke_zero_v: float,
-    pitch_zero_v: float,
-    stroke_vpr: float,
-    pitch_vpr: float,
-    rails: bool,
-    above_v: float,
-    below_v: float,
-    holdoff: int,
-    drift: bool,
-    drift_b: np.ndarray,
-    drift_a: np.ndarray,
-    stroke_lead: bool,
-    stroke_lead_b: np.ndarray,
-    stroke_lead_a: np.ndarray,
-    pitch_lead: bool,
-    pitch_lead_b: np.ndarray,
-    pitch_lead_a: np.ndarray,
-    velocity_b: np.ndarray,
-    velocity_a: np.ndarray,
-) -> tuple[
-    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int
-]:
+    scalars: np.ndarray,
+    layout: np.ndarray,
+    coef: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Both channels of one block: rows (stroke, pitch, stroke velocity), rows
-    (stroke, pitch) valid, the five new filter states and the two hold-off counters.
+    (stroke, pitch) valid, the new filter states and the two hold-off counters.
+
+    ``scalars``, ``layout`` and ``coef`` as `_kernel_constants` packs them.
     """
     n = sv.size
     out = np.empty((3, n))
     valid = np.empty((2, n), np.bool_)
-    s_dz, p_dz, s_lz, p_lz, v_z = (
-        stroke_drift_zi.copy(),
-        pitch_drift_zi.copy(),
-        stroke_lead_zi.copy(),
-        pitch_lead_zi.copy(),
-        velocity_zi.copy(),
-    )
+    z = filter_zi.copy()
+    rails, holdoff, drift = layout[0] != 0, layout[1], layout[2] != 0
+    stroke_lead, pitch_lead = layout[3] != 0, layout[4] != 0
+    c, zi = layout[5:14], layout[14:20]
+    drift_b, drift_a = coef[c[0] : c[1]], coef[c[1] : c[2]]
+    velocity_b, velocity_a = coef[c[6] : c[7]], coef[c[7] : c[8]]
     s_since = _channel(
         sv,
         out[0],
         valid[0],
-        stroke_zero_v,
-        stroke_vpr,
+        scalars[0],
+        scalars[2],
         rails,
-        above_v,
-        below_v,
+        scalars[4],
+        scalars[5],
         holdoff,
         stroke_since_bad,
         drift,
         drift_b,
         drift_a,
-        s_dz,
+        z[zi[0] : zi[1]],
         stroke_lead,
-        stroke_lead_b,
-        stroke_lead_a,
-        s_lz,
+        coef[c[2] : c[3]],
+        coef[c[3] : c[4]],
+        z[zi[2] : zi[3]],
         True,
         velocity_b,
         velocity_a,
-        v_z,
+        z[zi[4] : zi[5]],
         out[2],
     )
     p_since = _channel(
         pv,
         out[1],
         valid[1],
-        pitch_zero_v,
-        pitch_vpr,
+        scalars[1],
+        scalars[3],
         rails,
-        above_v,
-        below_v,
+        scalars[4],
+        scalars[5],
         holdoff,
         pitch_since_bad,
         drift,
         drift_b,
         drift_a,
-        p_dz,
+        z[zi[1] : zi[2]],
         pitch_lead,
-        pitch_lead_b,
-        pitch_lead_a,
-        p_lz,
+        coef[c[4] : c[5]],
+        coef[c[5] : c[6]],
+        z[zi[3] : zi[4]],
         False,
         velocity_b,
         velocity_a,
-        v_z,
+        z[zi[4] : zi[5]],
         out[2],
     )
-    return out, valid, s_dz, p_dz, s_lz, p_lz, v_z, s_since, p_since
+    return out, valid, z, s_since, p_since
 
 
 class FrontendInputs(NamedTuple):
@@ -548,27 +562,15 @@ def step(
             f"stroke_sensor_v and pitch_sensor_v must have the same length, got {sv.size} and "
             f"{pv.size}"
         )
-    out, valid, s_dzi, p_dzi, s_lzi, p_lzi, v_zi, s_since, p_since = _block(
+    out, valid, filter_zi, s_since, p_since = _block(
         sv,
         pv,
-        state.stroke_drift_zi,
-        state.pitch_drift_zi,
-        state.stroke_lead_zi,
-        state.pitch_lead_zi,
-        state.velocity_zi,
+        state.filter_zi,
         state.stroke_since_bad,
         state.pitch_since_bad,
         *_block_constants(params),
     )
-    new_state = FrontendState(
-        stroke_drift_zi=s_dzi,
-        pitch_drift_zi=p_dzi,
-        stroke_lead_zi=s_lzi,
-        pitch_lead_zi=p_lzi,
-        velocity_zi=v_zi,
-        stroke_since_bad=s_since,
-        pitch_since_bad=p_since,
-    )
+    new_state = FrontendState(filter_zi, s_since, p_since)
     return new_state, WingEstimate(out[0], out[1], out[2], valid[0], valid[1])
 
 
