@@ -47,7 +47,7 @@ from flaair_sim.core.plant_terms import (
     drive_seen,
     terms_state,
 )
-from flaair_sim.core.sensor_kernel import sensor_channel_kernel
+from flaair_sim.core.sensor_kernel import add_sensor_noise, sensor_channel_kernel
 
 # Also the compiled kernel (`Prepared`, `prepare`, `mechanical_constants`, `rk4_step`), for
 # batch engines that step many robots at once (flaair_analysis.closed_loop).
@@ -237,7 +237,7 @@ def step(
     hist_s = _fit_history(state.delay_stroke_v, len_s)
     hist_p = _fit_history(state.delay_pitch_v, len_p)
     n = drive.shape[0]
-    # one buffer: the noise goes onto both sensor rows in one operation
+    # one buffer: the noise goes onto both sensor rows in one call
     signals = np.empty((4, n))
     phi, psi, vs, vp = signals
     run_model(
@@ -269,9 +269,7 @@ def step(
             "limit"
         )
     if rng is not None:
-        noise = rng.standard_normal((n, 2))
-        noise *= model.noise.sensor_noise_v_rms
-        signals[2:] += noise.T
+        add_sensor_noise(signals[2:], rng.standard_normal((n, 2)), model.noise.sensor_noise_v_rms)
     new_state = PlantState(
         mechanical=_frozen(x),
         highpass_zi=_frozen(zi),

@@ -99,7 +99,7 @@ def add_sensor_terms(
     and angles too).
     """
     terms = outside_terms(model) if model.discovered else ()
-    if any(t.acts_on in SENSOR_SITES for t in terms):
+    if terms and any(t.acts_on in SENSOR_SITES for t in terms):
         vref = model.sensors.reference_voltage_v
         dev = {"stroke_sensor_v": stroke_sensor_v - vref, "pitch_sensor_v": pitch_sensor_v - vref}
         out = {"stroke_sensor_v": stroke_sensor_v, "pitch_sensor_v": pitch_sensor_v}
