@@ -1,5 +1,6 @@
 """The sensor chain's numba kernels: high-pass, delay and reference voltage of one channel; the
-noise added to both."""
+noise added to both.
+"""
 
 from __future__ import annotations
 
