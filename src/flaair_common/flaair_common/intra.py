@@ -129,6 +129,12 @@ class Bus:
         """Queue the block for every composed subscriber of `topic`, and drain if no one else is."""
         for callback, background in self.subscribers.get(topic, ()):
             (self.background_queue if background else self.queue).append((callback, fields))
+        if self._draining.locked() and (
+            self.threaded or threading.current_thread() is threading.main_thread()
+        ):
+            # a delivery from a callback the drain runs (every block of a composed loop): the
+            # draining thread takes it, as `drain` would leave it to that thread
+            return
         self.drain()
 
     def drain(self, budget: int | None = None) -> int:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -166,22 +167,27 @@ def _send(
     ctrl = dsa.DsaState(z[0], z[1])
     guard = guard._replace(last_drive_v=float(drive_v[-1]))
     tripped = guard.status == safety.TRIPPED
+    if clamped:
+        state = _count(state, "clamped")
     # the safety core tripped: trip at this block
     if tripped and state.mode == LOOP:
         state, notes = _check_core_trip(
             state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p
         )
-        state = state._replace(next_index=index + p.block_size)
+        due, with_state, clamped = _state_due(state, clamped, tripped, p)
+        state = state._replace(next_index=index + p.block_size, **due)
     else:  # every block of a healthy loop: one _replace
+        due, with_state, clamped = _state_due(state, clamped, tripped, p)
         state, notes = (
             state._replace(
-                ctrl=ctrl, safety=guard, last_sent_wall=t_wall, next_index=index + p.block_size
+                ctrl=ctrl,
+                safety=guard,
+                last_sent_wall=t_wall,
+                next_index=index + p.block_size,
+                **due,
             ),
             [],
         )
-    if clamped:
-        state = _count(state, "clamped")
-    state, with_state, clamped = _state_due(state, clamped, tripped, p)
     block = DriveOut(
         index,
         drive_v,
@@ -208,23 +214,21 @@ def _send(
 
 def _state_due(
     state: SupervisorState, clamped: bool, tripped: bool, p: SupervisorParams
-) -> tuple[SupervisorState, bool, bool]:
+) -> tuple[dict[str, Any], bool, bool]:
     """Does this drive block carry a ControllerState (every state_every_blocks-th, and at once when
-    the watchdog or the fault changes)? Returns the state, that, and whether any block since the
-    last ControllerState was clamped.
+    the watchdog or the fault changes)? Returns the state's fields that say so (for the caller's
+    one ``_replace``), that, and whether any block since the last ControllerState was clamped.
     """
     clamped = clamped or state.clamped_since_state
     key = (tripped, state.fault)
     if state.blocks_since_state + 1 >= p.state_every_blocks or key != state.state_key:
         return (
-            state._replace(blocks_since_state=0, clamped_since_state=False, state_key=key),
+            {"blocks_since_state": 0, "clamped_since_state": False, "state_key": key},
             True,
             clamped,
         )
     return (
-        state._replace(
-            blocks_since_state=state.blocks_since_state + 1, clamped_since_state=clamped
-        ),
+        {"blocks_since_state": state.blocks_since_state + 1, "clamped_since_state": clamped},
         False,
         clamped,
     )

@@ -112,8 +112,18 @@ def step(
     return _on_tick(state, inputs, p)
 
 
+_SMALL_BLOCK = 64  # samples: up to this many, Python's min and max beat two numpy ufuncs
+
+
 def clamp_drive(drive_v: np.ndarray, limit_v: float) -> np.ndarray:
-    """The drive the actuator takes: clamped to +-`limit_v` (the driver's safe range)."""
+    """The drive the actuator takes: clamped to +-`limit_v` (the driver's safe range).
+
+    A block already inside the range comes back as it is (clamping it is the identity).
+    """
+    if drive_v.size <= _SMALL_BLOCK:  # a block's few samples: Python's min and max, no ufuncs
+        values = drive_v.tolist()
+        if values and -limit_v <= min(values) and max(values) <= limit_v:
+            return drive_v
     clamped: np.ndarray = np.minimum(np.maximum(drive_v, -limit_v), limit_v)  # np.clip's third
     return clamped
 
