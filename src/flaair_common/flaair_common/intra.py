@@ -403,10 +403,11 @@ class BlockPublisher:
         elif self.bus is None or self.dds_listeners() > 0:
             self.publisher.publish(self.codec.encode(stamp_ns, fields))
         if self.bus is not None:
-            message = dict(fields)
-            message["sec"], message["nanosec"] = divmod(int(stamp_ns), 1_000_000_000)
-            message["frame_id"] = self.codec.frame_id
-            self.bus.deliver(self.topic, message)
+            sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+            self.bus.deliver(
+                self.topic,
+                {**fields, "sec": sec, "nanosec": nanosec, "frame_id": self.codec.frame_id},
+            )
 
     def _hold(self, stamp_ns: int, fields: dict) -> None:
         first = fields["first_sample_index"]

@@ -149,8 +149,11 @@ def _send(
     answers: bool,
     t_wall: float,
     p: SupervisorParams,
+    frequency_hz: float | None = None,
 ) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
-    """Run the dSA and safety cores on one velocity block: the next drive block."""
+    """Run the dSA and safety cores on one velocity block: the next drive block (`frequency_hz`:
+    the stroke frequency its block reports, if the caller has just estimated it).
+    """
     index = state.next_index
     t_start = index / p.sample_rate_hz
     guard, guard_args = safety.guard_arguments(state.safety, t_start, p.block_size, p.safety)
@@ -198,7 +201,7 @@ def _send(
         tripped,
         state.fault,
         state.amplitude_scale,
-        _frequency_hz(state, p),
+        _frequency_hz(state, p) if frequency_hz is None else frequency_hz,
         answers,
         with_state,
     )
@@ -409,13 +412,13 @@ def _on_wing(
             state = state._replace(last_arrival_wall=block.t_wall, counts=counts)
             return state, Outputs((), tuple(notes))
     counts = counts._replace(blocks=counts.blocks + 1)
-    frequency, guard = state.frequency, state.safety
+    frequency, guard, frequency_hz = state.frequency, state.safety, None
     if kind == "content":
         velocity_rad_s, valid = np.full(n, np.nan), False
     else:
         velocity_rad_s, valid, counts = _velocity(block, field, n, counts, notes)
         stroke_deg = np.asarray(block.stroke_deg, dtype=float)
-        frequency, _ = crossing_step(
+        frequency, frequency_hz = crossing_step(
             frequency, stroke_deg if stroke_deg.size == n else np.full(n, np.nan), p.frequency
         )
     if valid:
@@ -434,7 +437,7 @@ def _on_wing(
         notes.extend(more)
     if state.mode != LOOP:
         return state, Outputs((), tuple(notes))
-    state, blocks, more = _send(state, velocity_rad_s, True, block.t_wall, p)
+    state, blocks, more = _send(state, velocity_rad_s, True, block.t_wall, p, frequency_hz)
     return state, Outputs(tuple(blocks), tuple(notes + more))
 
 

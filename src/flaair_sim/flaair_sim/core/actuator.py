@@ -156,6 +156,7 @@ def _on_command(
 ) -> tuple[ActuatorState, Outputs]:
     first = int(c.first_sample_index)
     drive_v = np.array(c.drive_v, dtype=np.float64)
+    values = drive_v.tolist()  # a block's few samples: Python's sum and any, no numpy reduction
     notes: list[Note] = []
     # Fast path (every block of a healthy stream; a finite sum proves every sample finite, an
     # overflowing one goes the slow way); check_block names what is wrong otherwise.
@@ -163,7 +164,7 @@ def _on_command(
         first == state.expected_command_index
         and drive_v.size == p.block_size
         and c.sample_rate_hz == p.sample_rate_hz
-        and math.isfinite(sum(drive_v.tolist()))  # a block's few samples: no numpy reduction
+        and math.isfinite(sum(values))
     ):
         check = check_block(
             {"drive_v": drive_v},
@@ -193,6 +194,7 @@ def _on_command(
                 return state, Outputs((), tuple(notes))
             if check.kind == "content":
                 drive_v = np.zeros(p.block_size)
+                values = drive_v.tolist()
     if p.mode != "lockstep":
         return (
             state._replace(
@@ -211,7 +213,7 @@ def _on_command(
         expected_command_index=first + p.block_size,
         last_command_wall=c.t_wall,
         ring_down=None,
-        driven=any(drive_v.tolist()),
+        driven=any(values),
         commanded_samples=state.commanded_samples + drive_v.size,
         next_index=state.next_index + drive_v.size,
     )

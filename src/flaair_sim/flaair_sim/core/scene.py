@@ -46,7 +46,7 @@ def model_at(
     """
     if damage is not None and damage.params.active and start_s >= damage.params.time_s:
         model, obstacle_model = damage.model, damage.obstacle_model
-    return obstacle_model if any(a <= start_s < b for a, b in windows_s) else model
+    return obstacle_model if windows_s and any(a <= start_s < b for a, b in windows_s) else model
 
 
 def tracking_generator(noise: bool, seed: int, frame_every: int) -> np.random.Generator | None:
