@@ -231,18 +231,18 @@ _check_layout()
 
 
 class Prepared(NamedTuple):
+    """A model as the kernel runs it at one sample rate (`prepare`).
+
+    ``delay_lengths``: each sensor's delay line (its whole samples, + 1 with a fractional
+    part), kept beside the rest: a block loop reads it every block.
+    """
+
     params: np.ndarray
     n_substeps: int
     n_substeps_contact: int
     delay_stroke_samples: int
     delay_pitch_samples: int
-
-    @property
-    def delay_lengths(self) -> tuple[int, int]:
-        return (
-            self.delay_stroke_samples + (1 if self.params[P_DS_FRAC] > 0 else 0),
-            self.delay_pitch_samples + (1 if self.params[P_DP_FRAC] > 0 else 0),
-        )
+    delay_lengths: tuple[int, int]
 
 
 def _split_delay(delay_samples: float) -> tuple[int, float]:
@@ -342,7 +342,11 @@ def prepare(model: Model, fs_hz: float) -> Prepared:
         rates += [math.sqrt((stiffness + p[P_KC]) / p[P_I]), p[P_CC] / p[P_I]]
         substeps_contact = max(1, math.ceil(max(rates) / fs_hz / MAX_OMEGA_H_CONTACT))
     p.setflags(write=False)
-    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1])
+    lengths = (
+        delay_int[0] + (1 if p[P_DS_FRAC] > 0 else 0),
+        delay_int[1] + (1 if p[P_DP_FRAC] > 0 else 0),
+    )
+    return Prepared(p, substeps, substeps_contact, delay_int[0], delay_int[1], lengths)
 
 
 def _write_dynamics_terms(p: np.ndarray, model: Model) -> None:
