@@ -8,13 +8,13 @@ go straight to the composed subscribers (a dict of numpy arrays, no serializatio
 only when someone outside listens (the recorder, an echo, the collision monitor process).
 
 Delivery is a FIFO drained by whichever thread delivers first (the executor's, or a UDP reader
-thread), one drainer at a time and in order, at most `budget` callbacks and `budget_s` seconds
-per call so the executor's timers still run; the container's loop drains the rest. Subscribers
-off the hot path (the collision monitor, a recorder: `background`) have their own FIFO, drained
-only by the main thread when the hot one is empty and `background_batch` blocks wait: a
-per-wingbeat decision never delays a drive packet, and a background core runs on longer blocks.
-Outside a container
-(`current()` is None) both helpers fall back to plain rclpy publishers and raw subscriptions.
+thread), one drainer at a time and in order, at most `budget_s` seconds (or, beside a reader
+thread, `budget` callbacks) per call so the executor's timers still run; the container's loop
+drains the rest. Subscribers off the hot path (the collision monitor, a recorder: `background`)
+have their own FIFO, drained only by the main thread when the hot one is empty and
+`background_batch` blocks wait: a per-wingbeat decision never delays a drive packet, and a
+background core runs on longer blocks. Outside a container (`current()` is None) both helpers
+fall back to plain rclpy publishers and raw subscriptions.
 """
 
 from __future__ import annotations
@@ -40,17 +40,19 @@ class Bus:
     def __init__(
         self,
         local_topics: set[str],
-        budget: int = 4096,
+        budget: int = 64,
         profile: bool = False,
         background_batch: int = 100,
         dds_batch: int = 1,
         budget_s: float = 0.01,
     ) -> None:
         self.local_topics = set(local_topics)
-        # A drain ends after `budget` callbacks or `budget_s` seconds, for the executor's timers
-        # and services. Not sooner: each turn of the EventsExecutor's spin_once(0) between drains
-        # costs 0.15-0.2 ms, and a lockstep loop that paid it every 64 callbacks (21 blocks)
-        # ran a quarter slower.
+        # A drain gives the executor its turn (timers, services) after `budget_s` seconds where
+        # this process's own callbacks drive the loop (lockstep): each turn of the EventsExecutor
+        # between drains costs 0.15-0.2 ms, and a lockstep loop that paid it every 64 callbacks
+        # (21 blocks) ran a quarter slower. Where a reader thread delivers (a UDP bridge), the
+        # main thread takes what is left at most `budget` callbacks at a time and gives the lock
+        # back to the thread that has the priority.
         self.budget, self.budget_s = budget, budget_s
         # DDS copies of the local block streams go out joined, this many blocks to a message:
         # one rclpy publish costs tens of us, 2000 blocks/s per stream are most of a core
@@ -150,11 +152,15 @@ class Bus:
         The hot FIFO first; the background FIFO only
         from the main thread, once the hot one is empty.
         """
-        budget = self.budget if budget is None else budget
         if not self.threaded and threading.current_thread() is not threading.main_thread():
             # a reader thread delivers: the main thread leaves its blocks to it
             self.threaded = True
-        done = _drain(self.queue, self._draining, budget, time.monotonic() + self.budget_s)
+        until_s = math.inf
+        if budget is None:
+            budget = self.budget
+            if not self.threaded:
+                budget, until_s = 1 << 30, time.monotonic() + self.budget_s
+        done = _drain(self.queue, self._draining, budget, until_s)
         if (
             not self.queue
             and done < budget
