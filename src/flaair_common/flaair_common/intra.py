@@ -48,9 +48,9 @@ class Bus:
     ) -> None:
         self.local_topics = set(local_topics)
         # A drain gives the executor its turn (timers, services) after `budget_s` seconds where
-        # this process's own callbacks drive the loop (lockstep): each turn of the EventsExecutor
-        # between drains costs 0.15-0.2 ms, and a lockstep loop that paid it every 64 callbacks
-        # (21 blocks) ran a quarter slower. Where a reader thread delivers (a UDP bridge), the
+        # this process's own callbacks drive the loop (lockstep): a turn of the EventsExecutor
+        # costs more than a block, and taken every few blocks it slowed the whole loop
+        # (docs/results/NOTES-2026-11.md). Where a reader thread delivers (a UDP bridge), the
         # main thread takes what is left at most `budget` callbacks at a time and gives the lock
         # back to the thread that has the priority.
         self.budget, self.budget_s = budget, budget_s

@@ -278,20 +278,24 @@ def initial_state(
         transient from a V_HREF error). ``None`` trusts the calibrated offset (tracker at zero).
     """
     flt = filters(params)
+    # the kernel's layout of the states, placeholders of absent filters included
+    drift_len, _, lead_len, _, velocity_len = _zi_lengths(params)
     zi_drift_unit = (
-        signal.lfilter_zi(flt.drift_b, flt.drift_a) if params.drift_corner_hz > 0 else np.zeros(1)
+        signal.lfilter_zi(flt.drift_b, flt.drift_a)
+        if params.drift_corner_hz > 0
+        else np.zeros(drift_len)
     )
 
     def drift_zi(first_v: float | None, offset: float, name: str) -> np.ndarray:
         if first_v is None or params.drift_corner_hz <= 0:
-            return np.zeros(1)
+            return np.zeros(drift_len)
         if not math.isfinite(first_v):
             raise FrontendError(f"{name} must be finite, got {first_v!r}")
         return zi_drift_unit * (float(first_v) - params.reference_voltage_v - offset)
 
     def lead_zi(ba: tuple[np.ndarray, np.ndarray] | None, angle0: float) -> np.ndarray:
         if ba is None:
-            return np.zeros(2)
+            return np.zeros(lead_len)
         zi: np.ndarray = signal.lfilter_zi(*ba) * angle0
         return zi
 
@@ -310,7 +314,8 @@ def initial_state(
                 drift_zi(first_pitch_v, params.pitch_offset_v, "first_pitch_v"),
                 lead_zi(flt.stroke_lead, s0),
                 lead_zi(flt.pitch_lead, p0),
-                np.zeros(2),  # velocity: a constant angle has zero velocity, zero state is settled
+                # velocity: a constant angle has zero velocity, zero state is settled
+                np.zeros(velocity_len),
             ]
         ),
         stroke_since_bad=_NEVER_BAD,

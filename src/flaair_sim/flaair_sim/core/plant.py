@@ -239,7 +239,7 @@ def step(
     n = drive.shape[0]
     # one buffer: the noise goes onto both sensor rows in one call
     signals = np.empty((4, n))
-    # indexed rows: a third of the cost of unpacking the array
+    # indexed rows: cheaper than unpacking the array
     phi, psi, vs, vp = signals[0], signals[1], signals[2], signals[3]
     run_model(
         x,
