@@ -146,6 +146,16 @@ def note_sensor_block(
     """
     if not math.isfinite(t_s):
         raise SafetyParameterError(f"t_s must be finite, got {t_s}")
+    status, last_valid_time_s = state.status, state.last_valid_time_s
+    if valid and status == OK and t_s <= last_valid_time_s + params.invalid_timeout_s:
+        # every block of a healthy stream: built directly, not by check_timeout and _replace
+        return SafetyState(
+            OK,
+            max(last_valid_time_s, float(t_s)),
+            state.trip_time_s,
+            state.trip_reason,
+            state.last_drive_v,
+        )
     state = check_timeout(state, t_s, params)
     if state.status == TRIPPED:
         return state

@@ -150,13 +150,18 @@ def _send(
     t_wall: float,
     p: SupervisorParams,
     frequency_hz: float | None = None,
+    arrival: dict[str, Any] | None = None,
 ) -> tuple[SupervisorState, list[DriveOut], list[Note]]:
     """Run the dSA and safety cores on one velocity block: the next drive block (`frequency_hz`:
-    the stroke frequency its block reports, if the caller has just estimated it).
+    the stroke frequency its block reports, if the caller has just estimated it; `arrival`: the
+    state's fields a healthy wing block changed, set in the drive block's one ``_replace``).
     """
+    arrival = arrival or {}
     index = state.next_index
     t_start = index / p.sample_rate_hz
-    guard, guard_args = safety.guard_arguments(state.safety, t_start, p.block_size, p.safety)
+    guard, guard_args = safety.guard_arguments(
+        arrival.get("safety", state.safety), t_start, p.block_size, p.safety
+    )
     drive_v, z, kr, async_v, sync_v, clamped = drive_block(
         velocity_rad_s,  # float64 and contiguous on every path (np.radians, np.full, np.where)
         t_start,
@@ -171,11 +176,13 @@ def _send(
     guard = guard._replace(last_drive_v=float(drive_v[-1]))
     tripped = guard.status == safety.TRIPPED
     if clamped:
-        state = _count(state, "clamped")
+        state, arrival = _count(state._replace(**arrival), "clamped"), {}
     # the safety core tripped: trip at this block
     if tripped and state.mode == LOOP:
         state, notes = _check_core_trip(
-            state._replace(ctrl=ctrl, safety=guard, last_sent_wall=t_wall), t_wall, p
+            state._replace(**{**arrival, "ctrl": ctrl, "safety": guard, "last_sent_wall": t_wall}),
+            t_wall,
+            p,
         )
         due, with_state, clamped = _state_due(state, clamped, tripped, p)
         state = state._replace(next_index=index + p.block_size, **due)
@@ -183,11 +190,14 @@ def _send(
         due, with_state, clamped = _state_due(state, clamped, tripped, p)
         state, notes = (
             state._replace(
-                ctrl=ctrl,
-                safety=guard,
-                last_sent_wall=t_wall,
-                next_index=index + p.block_size,
-                **due,
+                **{
+                    **arrival,
+                    "ctrl": ctrl,
+                    "safety": guard,
+                    "last_sent_wall": t_wall,
+                    "next_index": index + p.block_size,
+                    **due,
+                }
             ),
             [],
         )
@@ -425,13 +435,20 @@ def _on_wing(
         guard = safety.note_sensor_block(
             guard, (first + n - state.first_arrival_index) / p.sample_rate_hz, True, p.safety
         )
-    state = state._replace(
-        last_arrival_wall=block.t_wall,
-        expected_index=first + n,
-        counts=counts,
-        frequency=frequency,
-        safety=guard,
-    )
+    arrival = {
+        "last_arrival_wall": block.t_wall,
+        "expected_index": first + n,
+        "counts": counts,
+        "frequency": frequency,
+        "safety": guard,
+    }
+    if state.mode == LOOP and guard.status != safety.TRIPPED:
+        # a healthy loop's block: no trip to check, its fields go into the drive block's _replace
+        state, blocks, more = _send(
+            state, velocity_rad_s, True, block.t_wall, p, frequency_hz, arrival
+        )
+        return state, Outputs(tuple(blocks), tuple(notes + more))
+    state = state._replace(**arrival)
     if valid:
         state, more = _check_core_trip(state, block.t_wall, p)
         notes.extend(more)
