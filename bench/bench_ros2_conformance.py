@@ -69,6 +69,8 @@ def main() -> None:
         print(built.stderr[-2000:], result.stdout[-4000:], result.stderr[-2000:], sep="\n")
     tries = m.group(1) if (m := re.search(r"tries: (\[.*\])", result.stdout)) else "?"
     failed_names = re.findall(r"^(?:FAILED|ERROR) \S+::(\S+)", result.stdout, re.MULTILINE)
+    # the first failure's own words (pytest's "E   " lines), for the figure's baseline
+    why = next(iter(re.findall(r"^E +(.+)$", result.stdout, re.MULTILINE)), "")
     # each stand-in's answer against the real command's (the test prints one line each)
     for found in re.finditer(r"(?:same|DIFFERENT): .*", result.stdout):
         print(f"[bench] {found.group(0)[:160]}")
@@ -81,6 +83,7 @@ def main() -> None:
             100.0,
             f"{passed} passed, {failed} failed (pytest exit code {result.returncode})"
             + (f": {', '.join(failed_names)}" if failed_names else "")
+            + (f" ({why[:200]})" if why else "")
             + f"; real lists' tries until the whole graph was seen: {tries}",
         ),
         compare(

@@ -142,6 +142,8 @@ def run_part(part: Part, full: bool, out_dir: Path) -> tuple[list[Figure], float
         text=True,
     )
     took = time.monotonic() - start
+    # what the part printed, kept whether it passed or not (its own words on a failed figure)
+    (out_dir / f"{part.name}.log").write_text(result.stdout + result.stderr)
     over = f", OVER its budget of {budget:.0f} s" if took > budget else ""
     print(f"[bench] {part.name}: {took:.0f} s{over}", flush=True)
     if result.returncode != 0 or not json_path.exists():
