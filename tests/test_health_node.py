@@ -13,10 +13,13 @@ from flaair_common import topics
 
 @pytest.mark.slow  # simulates the damaged wing's wingbeats twice (node core and offline)
 def test_health_node_reports_a_damaged_wing_as_the_offline_core_does(monkeypatch, tmp_path):
+    from rclpy.serialization import deserialize_message
+
     from flaair_common.diagnostics import WARN
     from flaair_control import health_io
     from flaair_control.core import health
     from flaair_control.health_node import HealthNode
+    from flaair_msgs.msg import HealthStatus
     from flaair_sim.plant_node import PlantNode
 
     params = {
@@ -32,7 +35,12 @@ def test_health_node_reports_a_damaged_wing_as_the_offline_core_does(monkeypatch
     with composed(monkeypatch, [PlantNode, HealthNode], params, tmp_path) as loop:
         node = loop.node("health_node")
         status, events = [], []
-        monkeypatch.setattr(node.status_pub, "publish", status.append)
+        # the status as its CDR bytes reach DDS, read back by rclpy (an independent reader)
+        monkeypatch.setattr(
+            node.status_pub.publisher,
+            "publish",
+            lambda data: status.append(deserialize_message(data, HealthStatus)),
+        )
         monkeypatch.setattr(node.event_pub, "publish", events.append)
         films = loop.sink(topics.SENSOR_VOLTAGE)
         for k in range(0, n, BLOCK):

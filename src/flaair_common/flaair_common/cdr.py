@@ -302,6 +302,7 @@ _LAYOUT_TYPES = {
     "WING_STATE_BLOCK": "flaair_msgs/msg/WingStateBlock",
     "DRIVE_COMMAND_BLOCK": "flaair_msgs/msg/DriveCommandBlock",
     "CONTROLLER_STATE": "flaair_msgs/msg/ControllerState",
+    "HEALTH_STATUS": "flaair_msgs/msg/HealthStatus",
 }
 
 

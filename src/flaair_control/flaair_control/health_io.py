@@ -414,6 +414,22 @@ def join_block(
     return out, start, hcore.HealthInputs(f[0], f[1], d)
 
 
+def status_fields(beat: hcore.Wingbeat, offset: int) -> dict[str, Any]:
+    """A HealthStatus's fields for the wingbeat `beat` (sample indices shifted by `offset`: the
+    film stream's index of the monitor's first sample).
+    """
+    fields: dict[str, Any] = {
+        "wingbeat_index": beat.wingbeat,
+        "sample_index": beat.sample_index + offset,
+        "wingbeat_frequency_hz": float(beat.frequency_hz),
+        "valid": beat.valid,
+    }
+    values, errors = beat.estimate.tolist(), beat.stderr.tolist()
+    for name, value, err in zip(hcore.PARAMETERS, values, errors, strict=True):
+        fields[f"{name}_ratio"], fields[f"{name}_stderr"] = value, err
+    return fields
+
+
 def health_diagnostics(
     now: tuple[int, int, list[str], bool], before: tuple[int, int, list[str], bool] | None
 ) -> Health:

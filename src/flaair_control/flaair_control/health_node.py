@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flaair_common import intra, topics
+from flaair_common import cdr, intra, topics
 from flaair_common.blocks import stamp_from_ns
 from flaair_common.node import FlaairNode
 from flaair_common.params import declare_parameters
@@ -42,7 +42,15 @@ class HealthNode(FlaairNode):
         self.join = io.initial_join()
         self.fs_hz = p["sample_rate_hz"]
         self.estimated, self.events, self.undecodable, self.offset = 0, [], 0, 0
-        self.status_pub = self.create_publisher(HealthStatus, topics.HEALTH_STATUS, BLOCK_STREAM)
+        # CDR bytes (flaair_common.cdr): rclpy's conversion of a message a wingbeat costs more
+        # than the estimate it carries
+        self.status_pub = intra.BlockPublisher(
+            self,
+            HealthStatus,
+            topics.HEALTH_STATUS,
+            cdr.FixedCodec(cdr.HEALTH_STATUS, 0),
+            BLOCK_STREAM,
+        )
         self.event_pub = self.create_publisher(HealthEvent, topics.HEALTH_EVENTS, EVENTS)
         block = p["block_size"]
         intra.subscribe_stream(
@@ -87,17 +95,8 @@ class HealthNode(FlaairNode):
         offset = self.offset
         for b in out.wingbeats:
             self.estimated += b.valid
-            msg = HealthStatus(
-                wingbeat_index=b.wingbeat,
-                sample_index=b.sample_index + offset,
-                wingbeat_frequency_hz=float(b.frequency_hz),
-                valid=b.valid,
-            )
-            for name, value, err in zip(health.PARAMETERS, b.estimate, b.stderr, strict=True):
-                setattr(msg, f"{name}_ratio", float(value))
-                setattr(msg, f"{name}_stderr", float(err))
-            msg.header.stamp = stamp_from_ns(self.stamp_ns_of(b.sample_index + offset, self.fs_hz))
-            self.status_pub.publish(msg)
+            stamp_ns = self.stamp_ns_of(b.sample_index + offset, self.fs_hz)
+            self.status_pub.publish(stamp_ns, io.status_fields(b, offset))
         for e in out.events:
             index = e.sample_index + offset
             event = HealthEvent(
