@@ -181,8 +181,10 @@ def figure_rows(figures: list[Figure]) -> list[dict]:
     """Figures as strict-JSON rows: the stored fields and the rendered target and verdict."""
 
     def plain(value):
+        # strict JSON: an infinite figure (measured: e.g. a latency of a block never answered) as
+        # the string "inf" / "-inf", a NaN one (never measured) as null
         if isinstance(value, float) and not math.isfinite(value):
-            return None
+            return None if math.isnan(value) else str(value)
         return value
 
     return [
@@ -192,7 +194,9 @@ def figure_rows(figures: list[Figure]) -> list[dict]:
 
 
 def figure_from_row(row: dict) -> Figure:
-    """A figure read back from `figure_rows` (a null value is a figure never measured)."""
+    """A figure read back from `figure_rows` (a null value is a figure never measured, "inf" or
+    "-inf" an infinite one).
+    """
     value = row.get("value")
     return Figure(
         str(row["name"]),
@@ -205,6 +209,8 @@ def figure_from_row(row: dict) -> Figure:
 
 
 def write_json(figures: list[Figure], path: Path) -> None:
-    """Write figures as strict JSON (a list of objects; a NaN figure is null)."""
+    """Write figures as strict JSON (a list of objects; a NaN figure is null, an infinite one
+    "inf" or "-inf").
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(figure_rows(figures), indent=2, allow_nan=False))

@@ -95,8 +95,10 @@ def load_results(path: Path) -> dict:
 
 
 def _value(value: float, unit: str) -> str:
-    if value is None or not math.isfinite(value):
+    if value is None or math.isnan(value):
         return "not measured"
+    if math.isinf(value):
+        return f"{'-' if value < 0 else ''}infinite {unit}".strip()
     return f"{value:.4g} {unit}".strip()
 
 

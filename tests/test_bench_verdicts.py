@@ -208,7 +208,8 @@ def test_the_json_table_round_trips_with_its_verdicts(tmp_path: Path) -> None:
         "info",
         "info",
     ]
-    assert rows[2]["value"] is None and rows[3]["value"] is None and rows[6]["value"] is None
+    # never measured: null; measured infinite (a block never answered): "inf", told apart
+    assert rows[2]["value"] is None and rows[3]["value"] == "inf" and rows[6]["value"] is None
     back = [benchlib.figure_from_row(r) for r in rows]
     assert [f.met for f in back] == [f.met for f in figures]
     assert [f.target for f in back] == [f.target for f in figures]
@@ -216,6 +217,7 @@ def test_the_json_table_round_trips_with_its_verdicts(tmp_path: Path) -> None:
         (f.name, f.unit, f.op, f.bound, f.baseline) for f in figures
     ]
     assert back[0].value == 0.0 and back[4].value == 1.3 and math.isnan(back[2].value)
+    assert back[3].value == math.inf
 
 
 @pytest.mark.parametrize(

@@ -5,6 +5,7 @@ newest results file (bench/results_table.py), and `make test` fails when they ar
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -52,6 +53,7 @@ def test_a_failing_comparison_renders_as_not_met_and_info_is_not_counted(tmp_pat
         compare("exactly right, offnominal_single (27/30 robots)", 90.0, "%", ">=", 90.0),
         compare("exactly right, offnominal_pair (26/30 robots)", 86.7, "%", ">=", 90.0, "x"),
         info("discovery: right acts_on and form among others (88/90)", 97.8, "%", "y"),
+        compare("time per robot (max of 2)", math.inf, "s", "<=", 60.0, "one never ended"),
     ]
     path = _results(tmp_path, figures)
     _documents(tmp_path)
@@ -63,6 +65,8 @@ def test_a_failing_comparison_renders_as_not_met_and_info_is_not_counted(tmp_pat
     assert f"commit `abc1234567` on 2026-11-29, {os.cpu_count()} cores (" in readme
     guide = docs[tmp_path / "docs" / "DISCREPANCY.md"][1]
     assert "| 97.8 % | info | info | y |" in guide
+    # measured infinite (stored "inf") is not "not measured" (stored null)
+    assert "| time per robot (max of 2) | infinite s | <= 60 s | NO | one never ended |" in guide
     assert guide.endswith("text after\n") and "text before" in guide
 
 
