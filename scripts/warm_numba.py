@@ -88,8 +88,17 @@ def warm_rest() -> None:
             m, drive, fs_hz, np.zeros(4), "stroke", np.zeros((drive.size, 2)), "stroke"
         )
     try:  # the offline analysis kernels
+        from types import SimpleNamespace
+
         from flaair_analysis import wingbeat
+        from flaair_analysis.discrepancy.fitting import Fold, ResidualProblem
         from flaair_model import lfilter
+
+        # the ranking's columns of a truth channel (a stand-in run: only its channel is read)
+        run = SimpleNamespace(channel=lambda _: np.zeros(20))
+        ResidualProblem([run], [Fold(0, 0, 20, "all")], "stroke_deg", 1.0, False, 1).angle_columns(
+            {0: np.zeros((20, 2))}
+        )
 
         lfilter.lfilter(np.array([1.0, 0.0]), np.array([1.0, 0.0]), np.zeros(10), np.zeros(1))
         wingbeat.summarize(

@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 from typing import Any, cast
 
 import numpy as np
+from numba import njit
 from scipy import optimize
 
 from flaair_model.effects import SENSOR_CHANNELS
@@ -69,6 +70,29 @@ def make_folds(runs: Sequence[Run]) -> tuple[Fold, ...]:
     r = runs[0]
     h = r.n // 2
     return (Fold(0, 0, h, f"{r.name}[first half]"), Fold(0, h, r.n, f"{r.name}[second half]"))
+
+
+@njit(cache=True)
+def _fold_angle_changes(
+    out: np.ndarray, change: np.ndarray, idx: np.ndarray, first: int, weight: float
+) -> None:
+    """Rows ``first ..`` of `out` (samples, m): each column of ``change[idx]`` (rad) in degrees,
+    less its mean over the fold, negated and divided by `weight`; in one pass over the samples
+    with numpy's arithmetic (the degrees' product, each column's sum in sample order), so the
+    bits are those of the array expression it replaces (tests/test_angle_columns.py).
+    """
+    k, m = idx.size, change.shape[1]
+    to_deg = 180.0 / math.pi
+    total = np.zeros(m)
+    for t in range(k):
+        row = change[idx[t]]
+        for j in range(m):
+            total[j] += row[j] * to_deg
+    mean = total / k
+    for t in range(k):
+        row = change[idx[t]]
+        for j in range(m):
+            out[first + t, j] = -(row[j] * to_deg - mean[j]) / weight
 
 
 class ResidualProblem:
@@ -166,11 +190,23 @@ class ResidualProblem:
         ``changes[run]`` ((n, m): the judged angle's change in rad at each sample): the folds'
         samples stacked as `residuals` stacks them.
         """
-        cols = []
+        m = next(iter(changes.values())).shape[1]
+        if m < 2:
+            # one column: numpy sums a fold's samples pairwise (they are contiguous), and the
+            # ranking's ties are decided in the last bits
+            cols = []
+            for f, idx in zip(self.folds, self.idx, strict=True):
+                x = np.degrees(changes[f.run][idx].T)
+                cols.append(-(x - x.mean(axis=1, keepdims=True)) / self.weight)
+            return np.concatenate(cols, axis=1)
+        # (samples, m) in memory, returned as its (m, samples) view: the layout numpy's
+        # concatenation of the transposed folds had
+        out = np.empty((sum(idx.size for idx in self.idx), m))
+        first = 0
         for f, idx in zip(self.folds, self.idx, strict=True):
-            x = np.degrees(changes[f.run][idx].T)
-            cols.append(-(x - x.mean(axis=1, keepdims=True)) / self.weight)
-        return np.concatenate(cols, axis=1)
+            _fold_angle_changes(out, changes[f.run], idx, first, float(self.weight))
+            first += idx.size
+        return out.T
 
     def residuals(self, models: Sequence[Model]) -> list[list[np.ndarray]]:
         """``res[i][k]``: weighted residual of model i on fold k (fold mean removed)."""
