@@ -207,15 +207,30 @@ def test_ros2_launch_runs_the_namespaced_loop_and_each_stand_in_answers_as_ros2_
         hidden = run([FLAAIR, "node", "list", "-a", *SPIN], env)
         assert [n for n in hidden.stdout.split() if n.startswith("/_flaair_node_")], hidden.stdout
 
-        streams = {f"{NS}/flaair/{t}" for t in ("drive", "sensor_v", "wing_state")}
+        # every topic of the namespaced loop: a list that stopped at its three block streams
+        # once left the monitor's, the controller's and /diagnostics out (bench, loaded machine)
+        flaair = (
+            "collision/events",
+            "controller/state",
+            "drive",
+            "sensor_v",
+            "wing_state",
+            "wing_state/truth",
+        )
+        loop = {f"{NS}/flaair/{t}" for t in flaair} | {
+            "/clock",
+            "/diagnostics",
+            "/parameter_events",
+            "/rosout",
+        }
+
+        def whole(names: list[str]) -> bool:
+            return loop <= {n for n in names if n.startswith("/")}
+
         for flags in ((), ("-t",)):
-            real = _until(
-                env,
-                ["ros2", "topic", "list", "--no-daemon", *SPIN, *flags],
-                lambda names: streams <= {n for n in names if n.startswith("/")},
-                tries,
-            )
-            stand_in = run([FLAAIR, "topic", "list", *SPIN, *flags], env)
+            command = ["ros2", "topic", "list", "--no-daemon", *SPIN, *flags]
+            real = _until(env, command, whole, tries)
+            stand_in = _until(env, [FLAAIR, "topic", "list", *SPIN, *flags], whole, tries)
             answers[f"topic list {' '.join(flags)}".strip()] = (real.stdout, stand_in.stdout)
         assert f"{WING_STATE} [flaair_msgs/msg/WingStateBlock]" in real.stdout.splitlines()
 
