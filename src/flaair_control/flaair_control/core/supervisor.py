@@ -435,7 +435,7 @@ def _on_wing(
         guard = safety.note_sensor_block(
             guard, (first + n - state.first_arrival_index) / p.sample_rate_hz, True, p.safety
         )
-    arrival = {
+    arrival: dict[str, Any] = {
         "last_arrival_wall": block.t_wall,
         "expected_index": first + n,
         "counts": counts,
