@@ -42,8 +42,8 @@ class HealthNode(FlaairNode):
         self.join = io.initial_join()
         self.fs_hz = p["sample_rate_hz"]
         self.estimated, self.events, self.undecodable, self.offset = 0, [], 0, 0
-        # CDR bytes (flaair_common.cdr): rclpy's conversion of a message a wingbeat costs more
-        # than the estimate it carries
+        # CDR bytes (flaair_common.cdr), as the block nodes publish: no rclpy message is built
+        # field by field every wingbeat
         self.status_pub = intra.BlockPublisher(
             self,
             HealthStatus,
