@@ -191,9 +191,10 @@ class ResidualProblem:
         samples stacked as `residuals` stacks them.
         """
         m = next(iter(changes.values())).shape[1]
-        if m < 2:
+        if m < 2 or any(idx.size < 2 for idx in self.idx):
             # one column: numpy sums a fold's samples pairwise (they are contiguous), and the
-            # ranking's ties are decided in the last bits
+            # ranking's ties are decided in the last bits; a fold of under two samples: numpy's
+            # concatenation then picks another memory layout
             cols = []
             for f, idx in zip(self.folds, self.idx, strict=True):
                 x = np.degrees(changes[f.run][idx].T)
